@@ -1,0 +1,55 @@
+# sim2real-deploy: every target works on a fresh clone; `install` runs first when needed.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+POLICY ?= policies/arm.pt
+ROBOT  ?= arm3
+export ORT_DISABLE_TELEMETRY := 1
+export MPLBACKEND := Agg
+
+.PHONY: install run test lint format export train soak nightly bench clean
+
+install: $(STAMP)
+
+# Re-installs only when pyproject.toml changed since the last install.
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[all]'
+	touch $(STAMP)
+
+# The main job. Until the runtime lands this holds the arm at its home pose on the
+# MuJoCo plant (sensor and motor-thermal models running) and prints a summary.
+run: install
+	$(PY) -m deploy.backends.sim --robot $(ROBOT) --duration 60
+
+test: install lint
+	$(PY) -m pytest -q
+
+lint: install
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+format: install
+	$(VENV)/bin/ruff format .
+	$(VENV)/bin/ruff check --fix .
+
+export: install
+	$(VENV)/bin/policy-export $(POLICY)
+
+train: install
+	$(PY) -m policies.train
+
+soak: install
+	$(VENV)/bin/soak-test --robot $(ROBOT) --policy policies/arm.onnx --hours 8 --sessions 1 --seed 0 --out runs/soak
+
+nightly: install
+	$(VENV)/bin/soak-test --robot $(ROBOT) --policy policies/arm.onnx --hours 8 --sessions 2 --seed 0 --out runs/nightly --baseline bench/baseline/report.json
+
+bench: install
+	$(PY) -m bench
+
+clean:
+	rm -rf $(VENV) build dist *.egg-info .pytest_cache .ruff_cache runs
+	find . -name __pycache__ -type d -prune -exec rm -rf {} +

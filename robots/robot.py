@@ -29,7 +29,10 @@ AGREEMENT_SAMPLES = 100
 
 
 class RobotSpecError(ValueError):
-    """A robot description is invalid. The message names the file, the field and what was expected."""
+    """A robot description is invalid.
+
+    The message names the file, the field and what was expected.
+    """
 
 
 def _readonly(values) -> np.ndarray:
@@ -196,7 +199,7 @@ def _check_mjcf_radians(mjcf: Path) -> None:
     angle = None if compiler is None else compiler.get("angle")
     if angle != "radian":
         raise RobotSpecError(
-            f"{mjcf}: <compiler angle=...> is {angle!r}; expected angle=\"radian\" "
+            f'{mjcf}: <compiler angle=...> is {angle!r}; expected angle="radian" '
             "(MJCF defaults to degrees, which would read +-1.57 as +-0.027 rad)"
         )
 
@@ -273,7 +276,9 @@ def load_robot(name_or_path: str | Path) -> Robot:
         )
     home = np.array(ctl.home)
     if np.any(home < lower) or np.any(home > upper):
-        raise RobotSpecError(f"{toml_path}: field 'control.home' = {ctl.home} is outside the joint limits")
+        raise RobotSpecError(
+            f"{toml_path}: field 'control.home' = {ctl.home} is outside the joint limits"
+        )
 
     site = cfg.safety.end_effector_site
     ee_site_id = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_SITE, site)
@@ -285,7 +290,9 @@ def load_robot(name_or_path: str | Path) -> Robot:
     pin_model = pin.buildModelFromMJCF(str(mjcf))
     pin_names = tuple(pin_model.names[1:])
     if pin_names != names:
-        raise RobotSpecError(f"{mjcf}: Pinocchio reads joints {list(pin_names)}, expected {list(names)}")
+        raise RobotSpecError(
+            f"{mjcf}: Pinocchio reads joints {list(pin_names)}, expected {list(names)}"
+        )
     pin_model.gravity.linear = np.array(mj_model.opt.gravity, dtype=np.float64)
     pin_model.velocityLimit = np.array([j.velocity_limit for j in cfg.joints])
     pin_model.effortLimit = np.array([j.effort_limit for j in cfg.joints])
@@ -326,7 +333,10 @@ def load_robot(name_or_path: str | Path) -> Robot:
 
 
 def _check_agreement(mjcf, mj_model, pin_model, site_id, frame_id, lower, upper) -> None:
-    """MuJoCo and Pinocchio must agree on end-effector FK and gravity torques (AGREEMENT_TOLERANCE)."""
+    """MuJoCo and Pinocchio must agree on end-effector FK and gravity torques.
+
+    Raises RobotSpecError beyond ``AGREEMENT_TOLERANCE``.
+    """
     rng = np.random.default_rng(0)
     mj_data = mujoco.MjData(mj_model)
     pin_data = pin_model.createData()
@@ -338,7 +348,10 @@ def _check_agreement(mjcf, mj_model, pin_model, site_id, frame_id, lower, upper)
         mujoco.mj_forward(mj_model, mj_data)
         pin.framesForwardKinematics(pin_model, pin_data, q)
         g = pin.computeGeneralizedGravity(pin_model, pin_data, q)
-        worst_fk = max(worst_fk, float(np.max(np.abs(mj_data.site_xpos[site_id] - pin_data.oMf[frame_id].translation))))
+        worst_fk = max(
+            worst_fk,
+            float(np.max(np.abs(mj_data.site_xpos[site_id] - pin_data.oMf[frame_id].translation))),
+        )
         worst_g = max(worst_g, float(np.max(np.abs(mj_data.qfrc_bias - g))))
     if worst_fk > AGREEMENT_TOLERANCE or worst_g > AGREEMENT_TOLERANCE:
         raise RobotSpecError(

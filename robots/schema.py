@@ -44,7 +44,9 @@ class JointConfig(_Strict):
     def _ordered_limits(self) -> JointConfig:
         lo, hi = self.position_limit
         if not lo < hi:
-            raise ValueError(f"position_limit must be [lower, upper] with lower < upper, got {lo}, {hi}")
+            raise ValueError(
+                f"position_limit must be [lower, upper] with lower < upper, got {lo}, {hi}"
+            )
         return self
 
 
@@ -115,8 +117,11 @@ class ControlConfig(_Strict):
 
 
 class TaskConfig(_Strict):
-    """Where goals are sampled. ``planar_annulus``: radius and angle in the XY plane (seed section 8);
-    ``box``: uniform in [box_min, box_max]."""
+    """Where goals are sampled.
+
+    ``planar_annulus``: radius and angle in the XY plane (seed section 8); ``box``: uniform in
+    [box_min, box_max].
+    """
 
     region: Literal["planar_annulus", "box"]
     radius: tuple[NonNegative, NonNegative] | None = None  # m

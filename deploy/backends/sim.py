@@ -1,0 +1,335 @@
+"""The simulated robot ("plant"): MuJoCo physics, an encoder and drive sensor model, motor heat.
+
+One :class:`SimBackend` drives ``envs`` copies of a robot in lockstep (the runtime's batch axis),
+each with its own ``MjData`` and, where the soak harness randomizes dynamics, its own ``MjModel``.
+Per control tick the runtime calls ``read()``, ``write(command)`` and ``advance()``; ``advance``
+runs ``decimation`` physics steps and integrates the two-node motor thermal model.
+
+Sensor model (defaults from the robot's ``[sensors]`` table), applied in this order:
+    1. a sample of the true joint angle at the encoder's own rate,
+    2. Gaussian noise (sigma ``encoder_noise_sigma``, rad; seed section 5),
+    3. quantization to the encoder resolution (``2 pi / encoder_resolution``),
+    4. dropout: each reading lost with probability ``encoder_dropout`` (per joint and reading),
+    5. latency: a reading arrives ``encoder_latency_ticks`` control ticks after it was sampled.
+Winding temperatures are reported as a drive reports them: the model's winding temperature rounded
+to ``temperature_resolution`` and refreshed at ``temperature_rate``.
+
+The true state stays available (:meth:`SimBackend.true_position`, ...) for evaluation only.
+
+Safety of the simulation itself: MuJoCo's autoreset is disabled and its warning counters are read
+after every ``advance``; a divergence raises :class:`SimulationDivergedError` instead of silently
+resetting. Non-finite commands raise :class:`NonFiniteCommandError` and never reach MuJoCo (which
+would otherwise zero every actuator for that step).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time as _time
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+
+from deploy.backends.base import SensorFrame
+from deploy.thermal import TwoNodeThermalModel
+from robots import CONTROL_MODES, Robot, load_robot
+
+_DIVERGENCE_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+    mujoco.mjtWarning.mjWARN_BADCTRL,
+)
+
+
+class SimulationDivergedError(RuntimeError):
+    """MuJoCo reported a divergence (non-finite or huge state); the session must fail loudly."""
+
+
+class NonFiniteCommandError(ValueError):
+    """A command with NaN or inf was written; it was rejected and never reached MuJoCo."""
+
+
+class SimBackend:
+    """MuJoCo plant with sensor and motor-thermal models, batched over ``envs``.
+
+    Args:
+        robot: The robot description.
+        mode: Control mode, 'position' (rad), 'velocity' (rad/s) or 'torque' (N m); default from
+            robot.toml.
+        envs: Number of robots simulated in lockstep.
+        seed: Seed of the sensor noise and dropout streams (``numpy.random.PCG64``).
+        models: Optional compiled models, one per env (randomized dynamics). They must come from
+            ``robot.mjspec(mode)``. Default: one model shared by all envs.
+        max_latency_ticks: Capacity of the latency buffer; ``latency_ticks`` may be raised up to it
+            at run time (fault injection).
+
+    Attributes (per-env sensor settings; change them between ticks to inject faults):
+        noise_sigma: (envs,) rad. dropout_probability: (envs,). latency_ticks: (envs,) int.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        mode: str | None = None,
+        envs: int = 1,
+        seed: int = 0,
+        models: Sequence[mujoco.MjModel] | None = None,
+        max_latency_ticks: int = 32,
+    ):
+        mode = robot.control_mode if mode is None else mode
+        if mode not in CONTROL_MODES:
+            raise ValueError(f"control mode '{mode}' is unknown; expected one of {CONTROL_MODES}")
+        if envs < 1:
+            raise ValueError(f"envs must be >= 1, got {envs}")
+        self.robot, self.mode, self.envs = robot, mode, envs
+        n = self.n_joints = robot.n_joints
+        if models is None:
+            shared = robot.plant_model(mode)
+            models = [shared] * envs
+        if len(models) != envs:
+            raise ValueError(f"models: expected {envs} models (one per env), got {len(models)}")
+        for m in models:
+            if m.nu != n or m.nq != n:
+                raise ValueError(f"models: expected nq = nu = {n}, got nq={m.nq}, nu={m.nu}")
+        self.models = list(models)
+        self.datas = [mujoco.MjData(m) for m in self.models]
+        self.decimation = robot.decimation
+        self.control_period = robot.control_period
+
+        s = robot.config.sensors
+        self.noise_sigma = np.full(envs, s.encoder_noise_sigma)
+        self.dropout_probability = np.full(envs, s.encoder_dropout)
+        self.latency_ticks = np.full(envs, s.encoder_latency_ticks, dtype=np.int64)
+        if s.encoder_latency_ticks > max_latency_ticks:
+            raise ValueError(
+                f"encoder_latency_ticks = {s.encoder_latency_ticks} exceeds max_latency_ticks = "
+                f"{max_latency_ticks}"
+            )
+        self.max_latency_ticks = max_latency_ticks
+        self.encoder_quantum = 2.0 * np.pi / s.encoder_resolution
+        rate = 1.0 / robot.control_period
+        self._encoder_every = max(1, int(round(rate / s.encoder_rate)))
+        self._temperature_every = max(1, int(round(rate / s.temperature_rate)))
+        self.temperature_resolution = s.temperature_resolution
+
+        self.thermal = TwoNodeThermalModel(robot.motors, envs, s.ambient_temperature)
+        self._rng = np.random.Generator(np.random.PCG64(seed))
+        size = max_latency_ticks + 1
+        self._buf_position = np.full((size, envs, n), np.nan)
+        self._buf_stamp = np.full((size, envs), np.nan)
+        self._env_index = np.arange(envs)
+        self._command = np.zeros((envs, n))
+        self._qpos = np.zeros((envs, n))
+        self._qvel = np.zeros((envs, n))
+        self._torque = np.zeros((envs, n))
+        self.frame = SensorFrame.empty(envs, n)
+        self.tick = 0
+        self.reset()
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self, q: np.ndarray | None = None) -> None:
+        """Put every env at rest at ``q`` (rad, (n,) or (envs, n); default the home pose), reset
+        the clock to 0, cool the motors to ambient and clear the sensor buffers. The initial
+        command holds the pose: q in position mode, 0 rad/s in velocity mode, the gravity torque in
+        torque mode."""
+        q0 = np.broadcast_to(
+            self.robot.home if q is None else np.asarray(q, float), (self.envs, self.n_joints)
+        )
+        for e, (m, d) in enumerate(zip(self.models, self.datas, strict=True)):
+            mujoco.mj_resetData(m, d)
+            d.qpos[:] = q0[e]
+            mujoco.mj_forward(m, d)
+            if self.mode == "position":
+                self._command[e] = q0[e]
+            elif self.mode == "velocity":
+                self._command[e] = 0.0
+            else:
+                self._command[e] = d.qfrc_bias
+            d.ctrl[:] = self._command[e]
+        self.thermal.reset()
+        self._buf_position.fill(np.nan)
+        self._buf_stamp.fill(np.nan)
+        self.tick = 0
+        self.frame.temperature_stamp.fill(np.nan)
+        self._sample_sensors()
+
+    @property
+    def time(self) -> float:
+        """Plant clock, s (identical for every env)."""
+        return self.tick * self.control_period
+
+    # ------------------------------------------------------------------ the three calls
+    def read(self) -> SensorFrame:
+        """The sensor frame of the current tick (see :class:`SensorFrame`).
+
+        The frame is overwritten by the next read: copy what you keep.
+        """
+        f = self.frame
+        f.time.fill(self.time)
+        origin = self.tick - self.latency_ticks  # tick at which the arriving reading was sampled
+        slot = origin % self._buf_stamp.shape[0]
+        f.position[:] = self._buf_position[slot, self._env_index]
+        f.position_stamp[:] = self._buf_stamp[slot, self._env_index][:, None]
+        too_early = origin < 0
+        if too_early.any():
+            f.position[too_early] = np.nan
+            f.position_stamp[too_early] = np.nan
+        f.position_stamp[np.isnan(f.position)] = np.nan
+        return f
+
+    def write(self, command: np.ndarray) -> None:
+        """Set the command of every env: (envs, n_joints) in the units of the control mode.
+
+        Raises:
+            ValueError: wrong shape.
+            NonFiniteCommandError: any NaN or inf; the previous command stays in force.
+        """
+        command = np.asarray(command, dtype=np.float64)
+        if command.shape != self._command.shape:
+            raise ValueError(f"command: expected shape {self._command.shape}, got {command.shape}")
+        if not np.isfinite(command).all():
+            raise NonFiniteCommandError(
+                f"command rejected at t={self.time:.4f} s: non-finite values in envs "
+                f"{np.unique(np.nonzero(~np.isfinite(command))[0]).tolist()}"
+            )
+        self._command[:] = command
+
+    def advance(self) -> None:
+        """Run one control period: ``decimation`` physics steps per env, then the thermal model
+        and the sensors.
+
+        Raises:
+            SimulationDivergedError: MuJoCo flagged a bad state in any env.
+        """
+        for e, (m, d) in enumerate(zip(self.models, self.datas, strict=True)):
+            d.ctrl[:] = self._command[e]
+            mujoco.mj_step(m, d, nstep=self.decimation)
+            self._check_divergence(e, d)
+            self._torque[e] = d.actuator_force
+        self.tick += 1
+        self.thermal.step(self._torque, self.control_period)
+        self._sample_sensors()
+
+    # ------------------------------------------------------------------ evaluation only
+    def true_position(self) -> np.ndarray:
+        """(envs, n_joints) rad, the simulator's joint angles (evaluation only)."""
+        for e, d in enumerate(self.datas):
+            self._qpos[e] = d.qpos
+        return self._qpos
+
+    def true_velocity(self) -> np.ndarray:
+        """(envs, n_joints) rad/s, the simulator's joint velocities (evaluation only)."""
+        for e, d in enumerate(self.datas):
+            self._qvel[e] = d.qvel
+        return self._qvel
+
+    def joint_torque(self) -> np.ndarray:
+        """(envs, n_joints) N m, actuator torque at the end of the last control period."""
+        return self._torque
+
+    def end_effector_position(self) -> np.ndarray:
+        """(envs, 3) m, the end-effector site in the world frame (evaluation only)."""
+        sid = self.robot.ee_site_id
+        return np.stack([d.site_xpos[sid] for d in self.datas])
+
+    # ------------------------------------------------------------------ internals
+    def _check_divergence(self, env: int, d: mujoco.MjData) -> None:
+        bad = [w.name for w in _DIVERGENCE_WARNINGS if d.warning[w].number > 0]
+        if bad or not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):
+            raise SimulationDivergedError(
+                f"env {env}: MuJoCo diverged at t={d.time:.4f} s "
+                f"(warnings: {', '.join(bad) or 'none'}; "
+                f"qpos={np.array2string(d.qpos, precision=3)})"
+            )
+
+    def _sample_sensors(self) -> None:
+        slot = self.tick % self._buf_stamp.shape[0]
+        if self.tick % self._encoder_every == 0:
+            q = self.true_position()
+            sample = self._buf_position[slot]
+            self._rng.standard_normal(out=sample)
+            sample *= self.noise_sigma[:, None]
+            sample += q
+            np.round(sample / self.encoder_quantum, out=sample)
+            sample *= self.encoder_quantum
+            lost = self._rng.random(sample.shape) < self.dropout_probability[:, None]
+            sample[lost] = np.nan
+            self._buf_stamp[slot] = self.time
+        else:
+            self._buf_position[slot] = np.nan
+            self._buf_stamp[slot] = np.nan
+        if self.tick % self._temperature_every == 0:
+            f = self.frame
+            res = self.temperature_resolution
+            np.round(self.thermal.winding_temperature / res, out=f.winding_temperature)
+            f.winding_temperature *= res
+            f.temperature_stamp.fill(self.time)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Hold the robot at its home pose with a scripted controller and print a summary.
+
+    The controller acts on the *measured* (noisy, quantized) encoder angles only, like a real one.
+    """
+    p = argparse.ArgumentParser(prog="python -m deploy.backends.sim", description=main.__doc__)
+    p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
+    p.add_argument("--mode", choices=CONTROL_MODES, default=None, help="default: from robot.toml")
+    p.add_argument("--duration", type=float, default=60.0, help="simulated seconds")
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args(argv)
+
+    robot = load_robot(args.robot)
+    plant = SimBackend(robot, mode=args.mode, seed=args.seed)
+    ticks = int(round(args.duration / robot.control_period))
+    target = robot.home[None, :]
+    last = target.copy()
+    peak = np.full(robot.n_joints, -np.inf)
+    worst_error = np.zeros(robot.n_joints)
+    dropped = 0
+    t0 = _time.perf_counter()
+    step_time = 0.0
+    for _ in range(ticks):
+        frame = plant.read()
+        missing = np.isnan(frame.position)
+        dropped += int(missing.sum())
+        q = np.where(missing, last, frame.position)
+        last = q
+        if plant.mode == "position":
+            cmd = target
+        elif plant.mode == "velocity":
+            cmd = np.clip(5.0 * (target - q), -robot.velocity_limit, robot.velocity_limit)
+        else:
+            cmd = robot.gravity_torque(q[0])[None, :] + 50.0 * (target - q)
+        plant.write(cmd)
+        s = _time.perf_counter()
+        plant.advance()
+        step_time += _time.perf_counter() - s
+        peak = np.maximum(peak, frame.winding_temperature[0])
+        worst_error = np.maximum(worst_error, np.abs(plant.true_position()[0] - robot.home))
+    wall = _time.perf_counter() - t0
+    names = robot.joint_names
+    print(
+        f"robot {robot.name}: {robot.n_joints} joints, {plant.mode} control, "
+        f"{1 / robot.control_period:.0f} Hz control, {1 / robot.physics_timestep:.0f} Hz physics"
+    )
+    print(
+        f"simulated {args.duration:.1f} s in {wall:.2f} s wall "
+        f"({args.duration / wall:.0f}x real time); "
+        f"physics + thermal {1e6 * step_time / ticks:.1f} us per control tick"
+    )
+    print("scripted controller: hold the home pose on measured encoder angles")
+    print(f"encoder readings dropped: {dropped} of {ticks * robot.n_joints}")
+    for i, name in enumerate(names):
+        print(
+            f"  {name:>14}: max |q - home| {worst_error[i]:.4f} rad, torque "
+            f"{plant.joint_torque()[0, i]:+7.3f} N m, "
+            f"winding {plant.thermal.winding_temperature[0, i]:6.2f} degC "
+            f"(reported peak {peak[i]:.0f} degC, max {robot.motors[i].max_winding_temperature:.0f})"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

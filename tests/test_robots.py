@@ -1,0 +1,212 @@
+"""robots.load_robot: validation, MuJoCo/Pinocchio agreement and clear errors."""
+
+import dataclasses
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robots import RobotSpecError, load_robot
+from robots.robot import ROBOTS_DIR
+
+
+@pytest.fixture
+def arm3_copy(tmp_path: Path) -> Path:
+    dst = tmp_path / "arm3"
+    shutil.copytree(ROBOTS_DIR / "arm3", dst)
+    return dst
+
+
+def edit(path: Path, old: str, new: str, count: int = 1) -> None:
+    text = path.read_text()
+    assert old in text, f"fixture text {old!r} not in {path}"
+    path.write_text(text.replace(old, new, count))
+
+
+def test_arm3_matches_the_seed_arm():
+    arm = load_robot("arm3")
+    assert arm.joint_names == ("shoulder", "elbow", "wrist")
+    np.testing.assert_allclose(arm.position_lower, -1.57)
+    np.testing.assert_allclose(arm.position_upper, 1.57)
+    np.testing.assert_allclose(arm.velocity_limit, 3.14)
+    np.testing.assert_allclose(arm.soft_upper, 0.9 * 1.57)
+    assert arm.decimation == 5 and arm.control_period == pytest.approx(0.005)
+    # stretched out along +X, three 0.3 m links, in a vertical plane with gravity along -Y
+    np.testing.assert_allclose(arm.forward_kinematics(np.zeros(3)), [0.9, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(arm.forward_kinematics([np.pi / 2, 0, 0]), [0, 0.9, 0], atol=1e-3)
+    np.testing.assert_allclose(arm.mj_model.opt.gravity, [0, -9.81, 0])
+    # gravity loads every joint when stretched out horizontally, the shoulder most
+    g = arm.gravity_torque(np.zeros(3))
+    assert g[0] > g[1] > g[2] > 0
+
+
+def test_arm3_motor_can_hold_the_arm_stretched_out():
+    arm = load_robot("arm3")
+    g = np.abs(arm.gravity_torque(np.zeros(3)))
+    continuous = np.array([m.continuous_torque for m in arm.motors])
+    assert np.all(g < continuous), (g, continuous)
+    assert np.all(g < arm.effort_limit)
+    assert all("maxon" in m.source for m in arm.motors)
+
+
+def test_pinocchio_limits_come_from_robot_toml():
+    arm = load_robot("arm3")
+    np.testing.assert_array_equal(arm.pin_model.velocityLimit, arm.velocity_limit)
+    np.testing.assert_array_equal(arm.pin_model.effortLimit, arm.effort_limit)
+    np.testing.assert_array_equal(arm.pin_model.lowerPositionLimit, arm.position_lower)
+
+
+def test_robot_is_frozen_and_its_arrays_read_only():
+    arm = load_robot("arm3")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        arm.name = "other"
+    with pytest.raises(ValueError):
+        arm.position_upper[0] = 3.0
+
+
+def test_load_by_folder_and_by_file(arm3_copy):
+    assert load_robot(arm3_copy).name == "arm3"
+    assert load_robot(arm3_copy / "robot.toml").n_joints == 3
+
+
+def test_description_hash_changes_with_the_description(arm3_copy):
+    before = load_robot(arm3_copy).description_hash
+    assert before == load_robot("arm3").description_hash
+    edit(arm3_copy / "robot.toml", "jerk_limit = 400.0", "jerk_limit = 300.0")
+    assert load_robot(arm3_copy).description_hash != before
+
+
+def test_plant_models_per_control_mode():
+    arm = load_robot("arm3")
+    for mode in ("position", "velocity", "torque"):
+        m = arm.plant_model(mode)
+        assert m.nu == 3
+        assert m.opt.disableflags & 65536  # mjDSBL_AUTORESET
+        np.testing.assert_allclose(m.actuator_forcerange[:, 1], arm.effort_limit)
+    with pytest.raises(RobotSpecError, match="control mode 'force' is unknown"):
+        arm.mjspec("force")
+
+
+@pytest.mark.parametrize(
+    ("file", "old", "new", "pattern"),
+    [
+        (
+            "arm3.xml",
+            'angle="radian"',
+            'angle="degree"',
+            r"arm3\.xml: <compiler angle=\.\.\.> is 'degree'; expected angle=\"radian\"",
+        ),
+        (
+            "arm3.xml",
+            '<compiler angle="radian" autolimits="true"/>',
+            "",
+            r"arm3\.xml: <compiler angle=\.\.\.> is None",
+        ),
+        (
+            "arm3.xml",
+            '<joint name="wrist"/>',
+            '<joint name="hand"/>',
+            r"robot\.toml: field 'joints': names \['shoulder', 'elbow', 'wrist'\] differ from the MJCF joints \['shoulder', 'elbow', 'hand'\]",
+        ),
+        (
+            "robot.toml",
+            "velocity_limit = 3.14\n",
+            "velocity_limit = -3.14\n",
+            r"robot\.toml: field 'joints\[0\]\.velocity_limit': Input should be greater than 0 \(got -3\.14\)",
+        ),
+        (
+            "robot.toml",
+            "effort_limit = 22.5\n",
+            "effort_limit = 0.0\n",
+            r"field 'joints\[0\]\.effort_limit': Input should be greater than 0",
+        ),
+        (
+            "robot.toml",
+            "jerk_limit = 400.0\n",
+            "",
+            r"robot\.toml: field 'joints\[0\]\.jerk_limit': missing \(required\)",
+        ),
+        (
+            "robot.toml",
+            'mode = "velocity"',
+            'mode = "impedance"',
+            r"field 'control\.mode': Input should be 'position', 'velocity' or 'torque' \(got 'impedance'\)",
+        ),
+        (
+            "robot.toml",
+            'motor = "ec45flat70_gp42c"\n',
+            'motor = "nema17"\n',
+            r"joints\[0\]\.motor = 'nema17' names no \[motors\.nema17\] table",
+        ),
+        (
+            "robot.toml",
+            "position_limit = [-1.57, 1.57]\n",
+            "position_limit = [-1.5, 1.57]\n",
+            r"field 'joints\[0\]\.position_limit' = \[-1\.5, 1\.57\] differs from the MJCF range of joint 'shoulder'",
+        ),
+        (
+            "robot.toml",
+            "control_rate = 200.0",
+            "control_rate = 300.0",
+            r"field 'control\.control_rate' = 300\.0 Hz is not an integer fraction",
+        ),
+        (
+            "robot.toml",
+            "home = [0.0, 0.5, 0.5]",
+            "home = [0.0, 0.5]",
+            r"control\.home has 2 values, expected one per joint \(3\)",
+        ),
+        (
+            "robot.toml",
+            'end_effector_site = "ee"',
+            'end_effector_site = "tool"',
+            r"field 'safety\.end_effector_site' = 'tool' is not a site",
+        ),
+        (
+            "robot.toml",
+            "[task]",
+            "bogus = 1\n[task]",
+            r"field 'safety\.bogus': Extra inputs are not permitted",
+        ),
+    ],
+)
+def test_bad_descriptions_name_file_and_field(arm3_copy, file, old, new, pattern):
+    edit(arm3_copy / file, old, new)
+    with pytest.raises(RobotSpecError, match=pattern) as info:
+        load_robot(arm3_copy)
+    assert str(arm3_copy) in str(info.value)
+
+
+def test_invalid_toml_and_unknown_robot(arm3_copy):
+    edit(arm3_copy / "robot.toml", 'name = "arm3"', 'name = "arm3')
+    with pytest.raises(RobotSpecError, match=r"robot\.toml: not valid TOML"):
+        load_robot(arm3_copy)
+    with pytest.raises(RobotSpecError, match=re.escape("not a shipped robot (known: ['arm3'")):
+        load_robot("arm99")
+
+
+def test_disagreeing_dynamics_are_caught(arm3_copy):
+    # Without an explicit <inertial>, MuJoCo derives the wrist link's mass from its geoms while
+    # Pinocchio's MJCF parser does not: the two models would simulate different robots.
+    text = (arm3_copy / "arm3.xml").read_text()
+    lines = [ln for ln in text.splitlines() if not ("<inertial" in ln and "0.0528409091" in ln)]
+    (arm3_copy / "arm3.xml").write_text("\n".join(lines))
+    with pytest.raises(RobotSpecError, match=r"MuJoCo and Pinocchio disagree .* gravity torque"):
+        load_robot(arm3_copy)
+
+
+def test_arm6_is_a_ur5e_class_arm():
+    arm = load_robot("arm6")
+    assert arm.n_joints == 6
+    assert arm.joint_names[0] == "shoulder_pan" and arm.joint_names[-1] == "wrist_3"
+    np.testing.assert_allclose(arm.velocity_limit, np.pi)  # UR5e datasheet: 180 deg/s
+    np.testing.assert_allclose(arm.effort_limit, [150, 150, 150, 28, 28, 28])
+    assert arm.decimation == 2  # 500 Hz control on 1 kHz physics
+    # UR5e reach: the flange of the stretched arm is d/a-sum away from the shoulder
+    q = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    reach = np.linalg.norm(arm.forward_kinematics(q)[:2])
+    assert 0.8 < reach < 0.95
+    g = np.abs(arm.gravity_torque(arm.home))
+    assert np.all(g < [m.continuous_torque for m in arm.motors])

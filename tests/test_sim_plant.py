@@ -1,0 +1,162 @@
+"""The MuJoCo plant: control modes, sensor model, motor heat, and refusal of bad states."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from deploy.backends.sim import NonFiniteCommandError, SimBackend, SimulationDivergedError
+from robots import load_robot
+
+
+@pytest.fixture(scope="module")
+def arm3():
+    return load_robot("arm3")
+
+
+def run(plant, command, ticks):
+    for _ in range(ticks):
+        plant.read()
+        plant.write(command)
+        plant.advance()
+
+
+def test_position_mode_holds_the_commanded_pose(arm3):
+    plant = SimBackend(arm3, mode="position")
+    target = np.array([[0.3, -0.4, 0.5]])
+    run(plant, target, 400)  # 2 s
+    np.testing.assert_allclose(plant.true_position(), target, atol=0.03)
+    assert plant.time == pytest.approx(2.0)
+
+
+def test_velocity_mode_tracks_the_commanded_velocity(arm3):
+    plant = SimBackend(arm3, mode="velocity")
+    run(plant, np.array([[0.5, -0.5, 0.5]]), 60)
+    np.testing.assert_allclose(plant.true_velocity(), [[0.5, -0.5, 0.5]], atol=0.1)
+
+
+def test_torque_mode_applies_the_commanded_torque(arm3):
+    plant = SimBackend(arm3, mode="torque")
+    q0 = plant.true_position()[0].copy()
+    run(plant, arm3.gravity_torque(q0)[None], 200)  # gravity compensation: the arm stays put
+    np.testing.assert_allclose(plant.true_position()[0], q0, atol=0.02)
+    np.testing.assert_allclose(plant.joint_torque()[0], arm3.gravity_torque(q0), rtol=1e-9)
+
+
+def test_encoder_noise_sigma_matches_configuration(arm3):
+    plant = SimBackend(arm3, mode="position", seed=1)
+    plant.noise_sigma[:] = 0.01
+    errors = []
+    for _ in range(10_000):
+        frame = plant.read()
+        errors.append(frame.position[0] - plant.true_position()[0])
+        plant.write(arm3.home[None])
+        plant.advance()
+    sigma = np.std(np.array(errors), axis=0)
+    np.testing.assert_allclose(sigma, 0.01, rtol=0.05)
+
+
+def test_readings_are_quantized_to_the_encoder_resolution(arm3):
+    plant = SimBackend(arm3)
+    quantum = 2 * np.pi / arm3.config.sensors.encoder_resolution
+    counts = plant.read().position / quantum
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-9)
+
+
+def test_latency_delays_readings_by_exactly_the_configured_ticks(arm3):
+    plant = SimBackend(arm3, mode="velocity")
+    plant.noise_sigma[:] = 0.0
+    plant.latency_ticks[:] = 3
+    plant.reset()  # sensor settings apply from the next sample on
+    quantum = 2 * np.pi / arm3.config.sensors.encoder_resolution
+    truth, times = [], []
+    for k in range(40):
+        frame = plant.read()
+        truth.append(np.round(plant.true_position()[0] / quantum) * quantum)
+        times.append(plant.time)
+        if k < 3:
+            assert np.isnan(frame.position).all()  # nothing has arrived yet
+        else:
+            np.testing.assert_array_equal(frame.position[0], truth[k - 3])
+            np.testing.assert_array_equal(frame.position_stamp[0], times[k - 3])
+            assert not np.array_equal(frame.position[0], truth[k])  # the arm moves
+        plant.write(np.array([[1.0, -1.0, 1.0]]))
+        plant.advance()
+
+
+def test_dropout_frequency_matches_configuration(arm3):
+    plant = SimBackend(arm3, seed=3)
+    p, ticks = 0.1, 10_000
+    plant.dropout_probability[:] = p
+    lost = 0
+    for _ in range(ticks):
+        frame = plant.read()
+        lost += int(np.isnan(frame.position).sum())
+        assert np.array_equal(np.isnan(frame.position), np.isnan(frame.position_stamp))
+        plant.advance()
+    n = ticks * arm3.n_joints - arm3.n_joints  # the very first frame was sampled before the change
+    se = np.sqrt(p * (1 - p) / n)
+    assert abs(lost / n - p) < 3 * se
+
+
+def test_sensors_run_at_their_own_rates(arm3):
+    plant = SimBackend(arm3)
+    plant._encoder_every = 2  # a 100 Hz encoder under a 200 Hz control loop
+    stamps, fresh = set(), []
+    for _ in range(100):
+        frame = plant.read()
+        fresh.append(not np.isnan(frame.position).any())
+        stamps.add(float(frame.temperature_stamp[0]))
+        t = frame.winding_temperature
+        np.testing.assert_array_equal(t, np.round(t))  # whole degrees, as drives report
+        plant.advance()
+    assert fresh[1::2] == [False] * 50 and fresh[2::2] == [True] * 49
+    assert len(stamps) == 5  # 10 Hz temperature reports over 0.5 s
+
+
+def test_non_finite_commands_never_reach_mujoco(arm3):
+    plant = SimBackend(arm3, mode="velocity")
+    plant.write(np.array([[0.2, 0.2, 0.2]]))
+    with pytest.raises(NonFiniteCommandError, match="non-finite values in envs \\[0\\]"):
+        plant.write(np.array([[np.nan, 0.0, 0.0]]))
+    with pytest.raises(ValueError, match="expected shape"):
+        plant.write(np.zeros((1, 4)))
+    plant.advance()
+    assert np.isfinite(plant.datas[0].ctrl).all()
+    np.testing.assert_allclose(plant.datas[0].ctrl, 0.2)  # the previous command stays in force
+
+
+def test_divergence_raises_instead_of_silently_resetting(arm3):
+    plant = SimBackend(arm3, mode="torque")
+    assert plant.models[0].opt.disableflags & mujoco.mjtDisableBit.mjDSBL_AUTORESET
+    plant.datas[0].qvel[:] = 1e12
+    with pytest.raises(SimulationDivergedError, match="env 0: MuJoCo diverged"):
+        plant.advance()
+
+
+def test_batch_envs_are_independent_and_seeded(arm3):
+    a = SimBackend(arm3, envs=3, seed=7)
+    b = SimBackend(arm3, envs=3, seed=7)
+    fa, fb = a.read().position.copy(), b.read().position.copy()
+    np.testing.assert_array_equal(fa, fb)
+    assert not np.array_equal(fa[0], fa[1])  # each env draws its own noise
+    c = SimBackend(arm3, envs=3, seed=8)
+    assert not np.array_equal(fa, c.read().position)
+
+
+def test_arm3_held_horizontal_for_one_hour_reaches_the_thermal_steady_state(arm3):
+    """maxon EC 45 flat 70 W + GP 42 C 113:1 (robots/arm3/robot.toml): holding the arm stretched
+    out horizontally for 1 simulated hour, the winding temperature must be within 1 % (of its rise
+    over ambient) of the analytic steady state of the two-node model for the holding torque."""
+    plant = SimBackend(arm3, mode="position")
+    plant.reset(np.zeros(3))
+    hold = np.zeros((1, 3))
+    run(plant, hold, int(3600 / arm3.control_period))
+    torque = plant.joint_torque()
+    expected = plant.thermal.steady_state(torque)
+    rise = expected - plant.thermal.ambient
+    assert rise[0, 0] > 30.0  # the shoulder really heats up (about 60 K)
+    np.testing.assert_array_less(np.abs(plant.thermal.winding_temperature - expected), 0.01 * rise)
+    # and the drive reports it in whole degrees
+    np.testing.assert_allclose(
+        plant.read().winding_temperature, expected, atol=0.5 + 0.01 * rise.max()
+    )

@@ -1,0 +1,50 @@
+"""Two-node motor thermal model and derating law."""
+
+import numpy as np
+import pytest
+
+from deploy.thermal import TwoNodeThermalModel, derating_factor
+from robots import load_robot
+
+
+@pytest.fixture(scope="module")
+def arm3():
+    return load_robot("arm3")
+
+
+def test_capacities_follow_the_datasheet_time_constants(arm3):
+    model = TwoNodeThermalModel(arm3.motors, envs=1)
+    # maxon EC 45 flat 70 W: tau_w = 43.1 s, R_wh = 6.64 K/W; tau_motor = 127 s, R_ha = 2.55 K/W
+    np.testing.assert_allclose(model.c_w, 43.1 / 6.64)
+    np.testing.assert_allclose(model.c_h, 127.0 / 2.55)
+
+
+def test_integration_reaches_the_analytic_steady_state(arm3):
+    model = TwoNodeThermalModel(arm3.motors, envs=2, ambient_temperature=[[25.0], [40.0]])
+    torque = np.array([[9.0, 4.0, 0.5], [6.0, 6.0, 6.0]])
+    for _ in range(int(3600 / 0.005)):
+        model.step(torque, 0.005)
+    np.testing.assert_allclose(model.winding_temperature, model.steady_state(torque), rtol=1e-6)
+    # the hot winding loses more: the steady state is above the cold-resistance estimate
+    cold = model.ambient + (torque / model.torque_per_amp) ** 2 * model.r_ref * (
+        model.r_wh + model.r_ha
+    )
+    assert np.all(model.winding_temperature > cold)
+
+
+def test_no_current_no_heat(arm3):
+    model = TwoNodeThermalModel(arm3.motors, envs=1)
+    for _ in range(1000):
+        model.step(np.zeros((1, 3)), 0.005)
+    np.testing.assert_array_equal(model.winding_temperature, 25.0)
+
+
+def test_thermal_runaway_has_no_steady_state(arm3):
+    model = TwoNodeThermalModel(arm3.motors, envs=1)
+    with pytest.raises(ValueError, match="thermal runaway"):
+        model.steady_state(np.full((1, 3), 1e3))
+
+
+def test_derating_is_linear_between_start_and_maximum():
+    t = np.array([20.0, 100.0, 112.5, 125.0, 150.0])
+    np.testing.assert_allclose(derating_factor(t, 100.0, 125.0), [1.0, 1.0, 0.5, 0.0, 0.0])

@@ -1,0 +1,435 @@
+"""PolicySpec: the observation and action contract of a policy.
+
+One spec describes what a policy sees and what its outputs mean. Training builds observations with
+it, export stores it as JSON in the ONNX file, and the runtime refuses a policy whose spec does not
+match the robot. It removes the commonest sim-to-real bug: observations fed in another order, scale
+or unit than in training, or action post-processing forgotten.
+
+Observation: the concatenation of ordered blocks; each block computes a raw quantity in SI units and
+normalizes it as ``clip((raw - offset) / scale, -clip, clip)``. Following the seed's rule (section
+3) the scales are physical maxima (joint limit, maximum velocity, reach, maximum winding
+temperature), never statistics of observed data. Block kinds (``n`` = joints, ``k`` = selected
+joints):
+
+==========================  =====  =================================================================
+kind                        size   raw quantity (base frame unless stated)
+==========================  =====  =================================================================
+``joint_position``          k      q, rad; offset = centre of the limits, scale = half range
+``joint_velocity``          k      dq, rad/s; scale = velocity limit
+``joint_position_sincos``   2k     sin q, cos q of wrapping joints (seed section 9)
+``ee_position``             3      end-effector position, m; scale = reach
+``goal_position``           3      goal position, m; scale = reach
+``goal_in_ee``              3      goal - end effector, in the end-effector frame, m; scale = reach
+``last_action``             n      the previous action, [-1, 1]
+``winding_temperature``     n      degC; offset = ambient, scale = max winding - ambient
+==========================  =====  =================================================================
+
+Action: ``a`` in ``[-clip, clip]^n`` maps to the target of the control mode,
+``target = offset + scale * a`` (``reference = "absolute"``) or ``target = q + scale * a``
+(position mode, ``reference = "current"``).
+
+Arrays are shaped (envs, ...). ``observation`` and ``action_to_target`` write into ``out`` when it
+is given (no allocation in the control loop).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from deploy.state import Kinematics, RobotState
+from robots import CONTROL_MODES, Robot
+
+FORMAT_VERSION = 1
+OBSERVATION_KINDS = (
+    "joint_position",
+    "joint_velocity",
+    "joint_position_sincos",
+    "ee_position",
+    "goal_position",
+    "goal_in_ee",
+    "last_action",
+    "winding_temperature",
+)
+#: Default observation clip (in normalized units); generous, since values are already ~[-1, 1].
+DEFAULT_CLIP = 5.0
+
+
+class SpecError(ValueError):
+    """A PolicySpec is invalid or does not match a robot; the message names the field."""
+
+
+@dataclass(frozen=True)
+class ObservationBlock:
+    """One block of the observation vector.
+
+    Attributes:
+        name: The block kind (one of ``OBSERVATION_KINDS``).
+        size: Number of entries it contributes.
+        scale: Per-entry divisor (physical maximum), length ``size``.
+        offset: Per-entry offset, length ``size``.
+        clip: Symmetric clip after normalization.
+        joints: Joint indices it reads (joint blocks only), in order.
+    """
+
+    name: str
+    size: int
+    scale: tuple[float, ...]
+    offset: tuple[float, ...]
+    clip: float = DEFAULT_CLIP
+    joints: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class ActionSpec:
+    """How the policy output maps to a target.
+
+    Attributes:
+        mode: 'position' (rad), 'velocity' (rad/s) or 'torque' (N m).
+        size: Number of actions (= joints).
+        scale: Per-joint scale, length ``size`` (units of the mode per unit action).
+        offset: Per-joint offset, length ``size``.
+        clip: The action is clipped to ``[-clip, clip]`` before mapping.
+        reference: 'absolute' (``offset + scale * a``) or 'current' (position mode only:
+            ``q + scale * a``).
+    """
+
+    mode: str
+    size: int
+    scale: tuple[float, ...]
+    offset: tuple[float, ...]
+    clip: float = 1.0
+    reference: str = "absolute"
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """The contract of a policy: robot, joint order, observation layout, action mapping, rates.
+
+    Attributes:
+        robot: Robot name. joint_names: Joint order of observations and actions.
+        robot_hash: ``Robot.description_hash`` of the description trained on.
+        observation_blocks: Ordered observation blocks (JSON key ``observation``).
+        action: The action mapping.
+        control_rate: Hz, the rate the policy was trained at.
+        baked: What the ONNX graph already contains (``observation_normalizer``: an empirical
+            normalizer of a training library; ``action_clip``).
+        parity: Parity figures of the export (max abs error, samples), filled by export.
+        format_version: Version of this JSON format; other versions are refused.
+    """
+
+    robot: str
+    joint_names: tuple[str, ...]
+    robot_hash: str
+    observation_blocks: tuple[ObservationBlock, ...]
+    action: ActionSpec
+    control_rate: float
+    baked: dict[str, bool] = field(default_factory=dict)
+    parity: dict[str, Any] = field(default_factory=dict)
+    format_version: int = FORMAT_VERSION
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def for_robot(
+        cls,
+        robot: Robot,
+        blocks: tuple[str, ...] = (
+            "joint_position",
+            "joint_velocity",
+            "ee_position",
+            "goal_position",
+            "goal_in_ee",
+        ),
+        mode: str | None = None,
+        reference: str = "absolute",
+    ) -> PolicySpec:
+        """Standard spec for ``robot`` with physical scales taken from the robot description.
+
+        Joints whose range exceeds 2 pi (multi-turn) are wrapping joints: ``joint_position``
+        skips them and ``joint_position_sincos`` covers them.
+
+        Raises:
+            SpecError: unknown block kind or control mode.
+        """
+        mode = robot.control_mode if mode is None else mode
+        if mode not in CONTROL_MODES:
+            raise SpecError(f"action.mode: '{mode}' is unknown; expected one of {CONTROL_MODES}")
+        n = robot.n_joints
+        lo, hi = robot.position_lower, robot.position_upper
+        wrapping = tuple(i for i in range(n) if hi[i] - lo[i] > 2 * np.pi + 1e-9)
+        bounded = tuple(i for i in range(n) if i not in wrapping)
+        reach = Kinematics(robot).reach()
+        motors = robot.motors
+        ambient = robot.config.sensors.ambient_temperature
+        out = []
+        for kind in blocks:
+            if kind == "joint_position":
+                idx = bounded
+                scale = tuple((hi[i] - lo[i]) / 2 for i in idx)
+                offset = tuple((hi[i] + lo[i]) / 2 for i in idx)
+                out.append(ObservationBlock(kind, len(idx), scale, offset, joints=idx))
+            elif kind == "joint_velocity":
+                idx = tuple(range(n))
+                scale = tuple(float(v) for v in robot.velocity_limit)
+                out.append(ObservationBlock(kind, n, scale, (0.0,) * n, joints=idx))
+            elif kind == "joint_position_sincos":
+                k = len(wrapping)
+                out.append(
+                    ObservationBlock(kind, 2 * k, (1.0,) * 2 * k, (0.0,) * 2 * k, joints=wrapping)
+                )
+            elif kind in ("ee_position", "goal_position", "goal_in_ee"):
+                out.append(ObservationBlock(kind, 3, (reach,) * 3, (0.0,) * 3))
+            elif kind == "last_action":
+                out.append(
+                    ObservationBlock(kind, n, (1.0,) * n, (0.0,) * n, joints=tuple(range(n)))
+                )
+            elif kind == "winding_temperature":
+                scale = tuple(m.max_winding_temperature - ambient for m in motors)
+                out.append(ObservationBlock(kind, n, scale, (ambient,) * n, joints=tuple(range(n))))
+            else:
+                raise SpecError(
+                    f"observation: block '{kind}' is unknown; expected one of {OBSERVATION_KINDS}"
+                )
+        if mode == "position":
+            if reference == "absolute":
+                scale = tuple((hi - lo) / 2)
+                offset = tuple((hi + lo) / 2)
+            else:
+                # a full action moves one control period at the velocity limit
+                scale = tuple(robot.velocity_limit * robot.control_period)
+                offset = (0.0,) * n
+        elif mode == "velocity":
+            scale, offset = tuple(robot.velocity_limit), (0.0,) * n
+        else:
+            scale, offset = tuple(robot.effort_limit), (0.0,) * n
+        action = ActionSpec(
+            mode=mode,
+            size=n,
+            scale=tuple(float(s) for s in scale),
+            offset=tuple(float(o) for o in offset),
+            reference=reference,
+        )
+        spec = cls(
+            robot=robot.name,
+            joint_names=robot.joint_names,
+            robot_hash=robot.description_hash,
+            observation_blocks=tuple(
+                replace(b, scale=tuple(map(float, b.scale)), offset=tuple(map(float, b.offset)))
+                for b in out
+            ),
+            action=action,
+            control_rate=1.0 / robot.control_period,
+        )
+        spec.validate()
+        return spec
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def obs_dim(self) -> int:
+        return sum(b.size for b in self.observation_blocks)
+
+    @property
+    def act_dim(self) -> int:
+        return self.action.size
+
+    def block_slices(self) -> dict[str, slice]:
+        """Where each block sits in the observation vector."""
+        out, start = {}, 0
+        for b in self.observation_blocks:
+            out[b.name] = slice(start, start + b.size)
+            start += b.size
+        return out
+
+    # ------------------------------------------------------------------ validation
+    def validate(self) -> None:
+        """Check internal consistency.
+
+        Raises:
+            SpecError: naming the field.
+        """
+        if self.format_version != FORMAT_VERSION:
+            raise SpecError(
+                f"format_version: {self.format_version} is not supported; expected {FORMAT_VERSION}"
+            )
+        n = len(self.joint_names)
+        for i, b in enumerate(self.observation_blocks):
+            where = f"observation[{i}] ('{b.name}')"
+            if b.name not in OBSERVATION_KINDS:
+                raise SpecError(f"{where}: unknown block; expected one of {OBSERVATION_KINDS}")
+            if len(b.scale) != b.size or len(b.offset) != b.size:
+                raise SpecError(f"{where}: scale and offset need {b.size} entries")
+            if not all(np.isfinite(s) and s > 0 for s in b.scale):
+                raise SpecError(f"{where}: scale must be finite and positive, got {b.scale}")
+            if not b.clip > 0:
+                raise SpecError(f"{where}: clip must be positive, got {b.clip}")
+            if any(j < 0 or j >= n for j in b.joints):
+                raise SpecError(f"{where}: joints {b.joints} out of range for {n} joints")
+            expected = {
+                "joint_position": len(b.joints),
+                "joint_velocity": len(b.joints),
+                "joint_position_sincos": 2 * len(b.joints),
+                "last_action": n,
+                "winding_temperature": n,
+            }.get(b.name, 3)
+            if b.size != expected:
+                raise SpecError(f"{where}: size {b.size}, expected {expected}")
+        a = self.action
+        if a.mode not in CONTROL_MODES:
+            raise SpecError(f"action.mode: '{a.mode}' is unknown; expected one of {CONTROL_MODES}")
+        if a.size != n or len(a.scale) != n or len(a.offset) != n:
+            raise SpecError(f"action: size, scale and offset need one entry per joint ({n})")
+        if a.reference not in ("absolute", "current") or (
+            a.reference == "current" and a.mode != "position"
+        ):
+            raise SpecError(f"action.reference: '{a.reference}' is not valid for mode '{a.mode}'")
+        if not self.control_rate > 0:
+            raise SpecError(f"control_rate: must be positive, got {self.control_rate}")
+
+    def check_robot(self, robot: Robot, check_hash: bool = True) -> None:
+        """Refuse a robot this policy was not made for.
+
+        Raises:
+            SpecError: naming the mismatch (robot name, joint names/order, control rate, action
+                size, description hash).
+        """
+        if self.robot != robot.name:
+            raise SpecError(f"robot: policy is for '{self.robot}', the robot is '{robot.name}'")
+        if tuple(self.joint_names) != robot.joint_names:
+            raise SpecError(
+                f"joint_names: policy expects {list(self.joint_names)}, "
+                f"the robot has {list(robot.joint_names)}"
+            )
+        rate = 1.0 / robot.control_period
+        if abs(self.control_rate - rate) > 1e-6:
+            raise SpecError(
+                f"control_rate: policy runs at {self.control_rate} Hz, the robot at {rate} Hz"
+            )
+        if check_hash and self.robot_hash != robot.description_hash:
+            raise SpecError(
+                f"robot_hash: policy was made for description {self.robot_hash[:12]}..., the robot "
+                f"is {robot.description_hash[:12]}... (robot.toml or MJCF changed since training)"
+            )
+
+    # ------------------------------------------------------------------ the two mappings
+    def observation(
+        self, state: RobotState, goal: np.ndarray, out: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Normalized observation, float32 (envs, obs_dim).
+
+        Args:
+            state: Estimated state with end-effector pose filled (``Kinematics.update``).
+            goal: (envs, 3) m, goal position in the base frame.
+            out: Optional float32 (envs, obs_dim) array to write into.
+        """
+        envs = state.q.shape[0]
+        if out is None:
+            out = np.empty((envs, self.obs_dim), dtype=np.float32)
+        start = 0
+        for b in self.observation_blocks:
+            dst = out[:, start : start + b.size]
+            start += b.size
+            j = list(b.joints)
+            if b.name == "joint_position":
+                raw = state.q[:, j]
+            elif b.name == "joint_velocity":
+                raw = state.dq[:, j]
+            elif b.name == "joint_position_sincos":
+                q = state.q[:, j]
+                raw = np.concatenate([np.sin(q), np.cos(q)], axis=1)
+            elif b.name == "ee_position":
+                raw = state.ee_position
+            elif b.name == "goal_position":
+                raw = goal
+            elif b.name == "goal_in_ee":
+                raw = np.einsum("eji,ej->ei", state.ee_rotation, goal - state.ee_position)
+            elif b.name == "last_action":
+                raw = state.last_action
+            else:  # winding_temperature
+                raw = state.winding_temperature
+            np.clip((raw - b.offset) / b.scale, -b.clip, b.clip, out=dst, casting="unsafe")
+        return out
+
+    def action_to_target(
+        self, action: np.ndarray, state: RobotState, out: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Target in the units of the control mode, float64 (envs, n).
+
+        Args:
+            action: (envs, n) policy output; clipped to ``[-clip, clip]`` first.
+            state: Estimated state (``q`` is the reference of 'current' position actions).
+            out: Optional (envs, n) float64 array to write into.
+        """
+        a = self.action
+        if out is None:
+            out = np.empty(action.shape, dtype=np.float64)
+        np.clip(action, -a.clip, a.clip, out=out)
+        out *= a.scale
+        out += state.q if a.reference == "current" else a.offset
+        return out
+
+    # ------------------------------------------------------------------ JSON
+    def to_json(self) -> str:
+        d = asdict(self)
+        d["observation"] = d.pop("observation_blocks")
+        return json.dumps(d, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str, source: str = "spec") -> PolicySpec:
+        """Parse and validate a spec.
+
+        Raises:
+            SpecError: invalid JSON, unknown format version, missing or invalid field (the message
+                starts with ``source``).
+        """
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise SpecError(f"{source}: not valid JSON: {exc}") from exc
+        if not isinstance(d, dict):
+            raise SpecError(f"{source}: expected a JSON object")
+        version = d.get("format_version")
+        if version != FORMAT_VERSION:
+            raise SpecError(
+                f"{source}: format_version {version!r} is not supported; expected {FORMAT_VERSION}"
+            )
+        try:
+            spec = cls(
+                robot=d["robot"],
+                joint_names=tuple(d["joint_names"]),
+                robot_hash=d["robot_hash"],
+                observation_blocks=tuple(
+                    ObservationBlock(
+                        name=b["name"],
+                        size=int(b["size"]),
+                        scale=tuple(float(x) for x in b["scale"]),
+                        offset=tuple(float(x) for x in b["offset"]),
+                        clip=float(b.get("clip", DEFAULT_CLIP)),
+                        joints=tuple(int(j) for j in b.get("joints", ())),
+                    )
+                    for b in d["observation"]
+                ),
+                action=ActionSpec(
+                    mode=d["action"]["mode"],
+                    size=int(d["action"]["size"]),
+                    scale=tuple(float(x) for x in d["action"]["scale"]),
+                    offset=tuple(float(x) for x in d["action"]["offset"]),
+                    clip=float(d["action"].get("clip", 1.0)),
+                    reference=d["action"].get("reference", "absolute"),
+                ),
+                control_rate=float(d["control_rate"]),
+                baked=dict(d.get("baked", {})),
+                parity=dict(d.get("parity", {})),
+                format_version=version,
+            )
+        except KeyError as exc:
+            raise SpecError(f"{source}: field {exc.args[0]!r} is missing") from None
+        except (TypeError, ValueError) as exc:
+            raise SpecError(f"{source}: invalid field value: {exc}") from None
+        try:
+            spec.validate()
+        except SpecError as exc:
+            raise SpecError(f"{source}: {exc}") from None
+        return spec

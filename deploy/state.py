@@ -1,0 +1,69 @@
+"""RobotState: what the estimator and the kinematics stage know of a batch of robots."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from robots import Robot
+
+
+@dataclass
+class RobotState:
+    """Estimated state of ``envs`` robots, preallocated once and updated in place.
+
+    Attributes:
+        q: (envs, n) rad, joint positions.
+        dq: (envs, n) rad/s, joint velocities.
+        ee_position: (envs, 3) m, end-effector site in the base frame.
+        ee_rotation: (envs, 3, 3), end-effector site orientation (base frame).
+        winding_temperature: (envs, n) degC, as last reported by the drives.
+        last_action: (envs, n), the policy's previous action in [-1, 1] (0 before the first).
+    """
+
+    q: np.ndarray
+    dq: np.ndarray
+    ee_position: np.ndarray
+    ee_rotation: np.ndarray
+    winding_temperature: np.ndarray
+    last_action: np.ndarray
+
+    @classmethod
+    def zeros(cls, envs: int, n_joints: int, ambient: float = 25.0) -> RobotState:
+        return cls(
+            q=np.zeros((envs, n_joints)),
+            dq=np.zeros((envs, n_joints)),
+            ee_position=np.zeros((envs, 3)),
+            ee_rotation=np.tile(np.eye(3), (envs, 1, 1)),
+            winding_temperature=np.full((envs, n_joints), ambient),
+            last_action=np.zeros((envs, n_joints)),
+        )
+
+
+class Kinematics:
+    """End-effector forward kinematics with Pinocchio for a batch (one ``pin.Data``, reused)."""
+
+    def __init__(self, robot: Robot):
+        self.model = robot.pin_model
+        self.data = self.model.createData()
+        self.frame_id = robot.ee_frame_id
+
+    def update(self, state: RobotState) -> RobotState:
+        """Fill ``state.ee_position`` and ``state.ee_rotation`` from ``state.q``; returns state."""
+        for e in range(state.q.shape[0]):
+            pin.framesForwardKinematics(self.model, self.data, state.q[e])
+            placement = self.data.oMf[self.frame_id]
+            state.ee_position[e] = placement.translation
+            state.ee_rotation[e] = placement.rotation
+        return state
+
+    def reach(self) -> float:
+        """Upper bound of the distance from the first joint to the end effector, m: the sum of
+        the distances between consecutive joint origins and from the last joint to the site."""
+        q0 = pin.neutral(self.model)
+        pin.framesForwardKinematics(self.model, self.data, q0)
+        points = [self.data.oMi[j].translation for j in range(1, self.model.njoints)]
+        points.append(self.data.oMf[self.frame_id].translation)
+        return float(sum(np.linalg.norm(b - a) for a, b in zip(points, points[1:], strict=False)))

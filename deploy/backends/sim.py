@@ -212,6 +212,16 @@ class SimBackend:
         self.thermal.step(self._torque, self.control_period)
         self._sample_sensors()
 
+    def set_external_force(self, env: int, force: np.ndarray, body: str | None = None) -> None:
+        """Apply a constant force (N, world frame, shape (3,)) to ``env`` until changed.
+
+        It acts at the centre of mass of ``body`` (default: the body of the end-effector site);
+        zeros remove it. A push, or a cable pulling on the end effector.
+        """
+        m, d = self.models[env], self.datas[env]
+        bid = m.site_bodyid[self.robot.ee_site_id] if body is None else m.body(body).id
+        d.xfrc_applied[bid, :3] = force
+
     # ------------------------------------------------------------------ evaluation only
     def true_position(self) -> np.ndarray:
         """(envs, n_joints) rad, the simulator's joint angles (evaluation only)."""

@@ -1,0 +1,136 @@
+"""Fault injection on the simulated robot: the faults of DESIGN.md's table, on a schedule.
+
+A fault is ``KIND@START[:DURATION]`` (seconds of simulated time; DURATION defaults to
+``DEFAULT_DURATION``):
+
+- ``dropout``: every encoder reading is lost (the estimator must predict only, then stop safely when
+  the data is stale longer than ``safety.stale_limit``).
+- ``stale``: the sensor frame freezes: the same old readings with their old time stamps repeat.
+- ``nan-action``: the policy outputs NaN.
+- ``latency``: ``LATENCY_SPIKE_TICKS`` extra ticks of encoder latency.
+- ``push``: a force of ``PUSH_FORCE`` N along +X pushes the end effector.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from deploy.backends.base import SensorFrame
+
+KINDS = ("dropout", "stale", "nan-action", "latency", "push")
+DEFAULT_DURATION = 0.5  # s
+LATENCY_SPIKE_TICKS = 10  # control ticks (50 ms at 200 Hz)
+PUSH_FORCE = 20.0  # N, a firm shove by hand
+
+
+@dataclass(frozen=True)
+class Fault:
+    """One scheduled fault: ``kind`` from ``KINDS`` over [start, start + duration) s, on ``envs``
+    (None: every env), with an optional ``magnitude`` (push force N / latency ticks)."""
+
+    kind: str
+    start: float
+    duration: float = DEFAULT_DURATION
+    envs: tuple[int, ...] | None = None
+    magnitude: float | None = None
+
+    @classmethod
+    def parse(cls, text: str) -> Fault:
+        """Parse ``KIND@SECONDS[:DURATION]``.
+
+        Raises:
+            ValueError: naming the bad part and the expected form.
+        """
+        kind, sep, when = text.partition("@")
+        if not sep or kind not in KINDS:
+            raise ValueError(
+                f"--inject {text!r}: expected KIND@SECONDS[:DURATION] with KIND one of {KINDS}"
+            )
+        start, _, duration = when.partition(":")
+        try:
+            t0 = float(start)
+            dt = float(duration) if duration else DEFAULT_DURATION
+        except ValueError:
+            raise ValueError(f"--inject {text!r}: SECONDS and DURATION must be numbers") from None
+        if t0 < 0 or dt <= 0:
+            raise ValueError(f"--inject {text!r}: expected SECONDS >= 0 and DURATION > 0")
+        return cls(kind, t0, dt)
+
+    def active(self, t: float) -> bool:
+        return self.start <= t < self.start + self.duration
+
+
+class FaultInjector:
+    """Applies a fault schedule to a :class:`~deploy.backends.sim.SimBackend` and to the policy
+    output, tick by tick. ``log`` records (kind, start, end, envs) of every fault applied."""
+
+    def __init__(self, faults: list[Fault], backend):
+        self.faults = sorted(faults, key=lambda f: f.start)
+        self.backend = backend
+        self._base_dropout = backend.dropout_probability.copy()
+        self._base_latency = backend.latency_ticks.copy()
+        self._frozen: SensorFrame | None = None
+        self._active: set[int] = set()
+        self.log: list[dict] = []
+
+    def _envs(self, f: Fault) -> np.ndarray:
+        return np.arange(self.backend.envs) if f.envs is None else np.array(f.envs)
+
+    def before_read(self, t: float) -> None:
+        """Switch plant-side faults on or off for time ``t`` (s)."""
+        b = self.backend
+        b.dropout_probability[:] = self._base_dropout
+        b.latency_ticks[:] = self._base_latency
+        push = np.zeros((b.envs, 3))
+        for i, f in enumerate(self.faults):
+            on = f.active(t)
+            if on and i not in self._active:
+                self._active.add(i)
+                self.log.append(
+                    {
+                        "kind": f.kind,
+                        "start": t,
+                        "duration": f.duration,
+                        "envs": self._envs(f).tolist(),
+                    }
+                )
+            elif not on:
+                self._active.discard(i)
+            if not on:
+                continue
+            envs = self._envs(f)
+            if f.kind == "dropout":
+                b.dropout_probability[envs] = 1.0
+            elif f.kind == "latency":
+                spike = int(f.magnitude or LATENCY_SPIKE_TICKS)
+                b.latency_ticks[envs] = np.minimum(
+                    self._base_latency[envs] + spike, b.max_latency_ticks
+                )
+            elif f.kind == "push":
+                push[envs, 0] = f.magnitude or PUSH_FORCE
+        for e in range(b.envs):
+            b.set_external_force(e, push[e])
+
+    def filter_frame(self, t: float, frame: SensorFrame) -> SensorFrame:
+        """Replace the frame with a frozen copy while a ``stale`` fault is active."""
+        if any(f.kind == "stale" and f.active(t) for f in self.faults):
+            if self._frozen is None:
+                self._frozen = SensorFrame(**{k: v.copy() for k, v in vars(frame).items()})
+            frozen = self._frozen
+            envs = [
+                e for f in self.faults if f.kind == "stale" and f.active(t) for e in self._envs(f)
+            ]
+            frame.position[envs] = frozen.position[envs]
+            frame.position_stamp[envs] = frozen.position_stamp[envs]
+            return frame
+        self._frozen = None
+        return frame
+
+    def filter_action(self, t: float, action: np.ndarray) -> np.ndarray:
+        """NaN actions while a ``nan-action`` fault is active."""
+        for f in self.faults:
+            if f.kind == "nan-action" and f.active(t):
+                action[self._envs(f)] = np.nan
+        return action

@@ -1,0 +1,210 @@
+"""SafetyGuard: every target is checked with Pinocchio before it may reach the smoother.
+
+Checks, each with its own counter (``SafetyGuard.counts[name]``, (envs,) int64), and the response:
+
+- ``soft_limit``: target position beyond the soft limit (``soft_limit_fraction`` of the range, 90 %
+  by default; seed section 6), or the estimated position inside the soft band. Clamp to the soft
+  limit; a warning.
+- ``hard_limit``: target position beyond the hard limit, or the estimated (or, in velocity mode,
+  predicted) position beyond it. A violation: :attr:`SafetyGuard.hard_violation` is set and the
+  runtime makes a safe stop.
+- ``velocity``: a velocity that could not stop before the soft limit at the acceleration limit,
+  ``|v| <= sqrt(2 a_max d)`` with ``d`` the distance left: velocity limits that shrink to zero at
+  the position limits. Clamp.
+- ``workspace``: end effector of the predicted next state outside the workspace box (and not moving
+  back toward it). Reject and hold.
+- ``self_collision``: a listed collision pair in contact at the predicted next state (coal).
+  Reject and hold.
+- ``effort``: gravity torque at the predicted state above the temperature-derated effort limit
+  (reject and hold); in torque mode also a commanded torque above it (clamp).
+
+"Hold" keeps the robot where it is: the last accepted target in position mode, zero velocity in
+velocity mode, the gravity torque in torque mode. The predicted next state is the target itself in
+position mode, ``q + v dt`` in velocity mode and ``q + dq dt`` in torque mode.
+
+Collision geometry: the MJCF geoms. The plant keeps them at ``contype="0"`` (MuJoCo does not
+simulate self-contact), so Pinocchio's MJCF parser files them as visual geometry; the guard builds
+its coal collision pairs from those shapes and the pairs named in robot.toml.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from deploy.state import RobotState
+from deploy.thermal import derating_factor
+from robots import Robot
+
+CHECKS = ("soft_limit", "hard_limit", "velocity", "workspace", "self_collision", "effort")
+
+
+class SafetyGuard:
+    """Clamp or reject targets that would break a limit; count every intervention.
+
+    Args:
+        robot: The robot description (limits, workspace, collision pairs, motors).
+        envs: Batch size.
+        mode: Control mode of the targets: 'position' (rad), 'velocity' (rad/s), 'torque' (N m).
+
+    Attributes:
+        counts: dict check name -> (envs,) int64, interventions so far.
+        hard_violation: (envs,) bool, set by the last :meth:`filter` when a hard limit was crossed
+            (the runtime answers with a safe stop).
+        effort_scale: (envs, n) derating factor in [0, 1] applied to the effort limits, from the
+            winding temperatures (see :meth:`update_thermal`).
+    """
+
+    def __init__(self, robot: Robot, envs: int, mode: str):
+        self.robot, self.envs, self.mode = robot, envs, mode
+        n = robot.n_joints
+        self.dt = robot.control_period
+        self.lower, self.upper = robot.position_lower, robot.position_upper
+        self.soft_lower, self.soft_upper = robot.soft_lower, robot.soft_upper
+        self.acc = robot.acceleration_limit
+        self.vel = robot.velocity_limit
+        s = robot.config.safety
+        self.ws_min = np.array(s.workspace_min)
+        self.ws_max = np.array(s.workspace_max)
+        self.counts = {name: np.zeros(envs, dtype=np.int64) for name in CHECKS}
+        self.hard_violation = np.zeros(envs, dtype=bool)
+        self.effort_scale = np.ones((envs, n))
+        self._start = np.array([m.derating_start_temperature for m in robot.motors])
+        self._max = np.array([m.max_winding_temperature for m in robot.motors])
+        self._last_valid = np.tile(robot.home, (envs, 1))
+        self._pred = np.zeros((envs, n))
+        self._tmp = np.zeros((envs, n))
+        self._mask = np.zeros((envs, n), dtype=bool)
+        self.model = robot.pin_model
+        self.data = self.model.createData()
+        self.geom_model, self.geom_data = self._collision_model(robot)
+
+    @staticmethod
+    def _collision_model(robot: Robot):
+        geom = pin.buildGeomFromMJCF(robot.pin_model, str(robot.mjcf_path), pin.VISUAL)
+        names = [g.name for g in geom.geometryObjects]
+        for a, b in robot.config.safety.collision_pairs:
+            for name in (a, b):
+                if name not in names:
+                    raise ValueError(
+                        f"{robot.directory / 'robot.toml'}: field 'safety.collision_pairs': geom "
+                        f"'{name}' is not in {robot.mjcf_path.name} (geoms: {names})"
+                    )
+            geom.addCollisionPair(pin.CollisionPair(names.index(a), names.index(b)))
+        return geom, pin.GeometryData(geom)
+
+    def reset(self, q: np.ndarray) -> None:
+        """Start from measured positions ``q`` (envs, n): they become the hold target."""
+        self._last_valid[:] = q
+        self.hard_violation[:] = False
+
+    def update_thermal(self, winding_temperature: np.ndarray) -> np.ndarray:
+        """Derate the effort limits linearly in the derating band; returns ``effort_scale``."""
+        return derating_factor(winding_temperature, self._start, self._max, out=self.effort_scale)
+
+    # ------------------------------------------------------------------ geometry at one config
+    def _ee_outside(self, q: np.ndarray) -> float:
+        """Distance (m) of the end effector outside the workspace box at ``q`` (0 inside)."""
+        pin.framesForwardKinematics(self.model, self.data, q)
+        p = self.data.oMf[self.robot.ee_frame_id].translation
+        return float(
+            np.linalg.norm(np.maximum(self.ws_min - p, 0) + np.maximum(p - self.ws_max, 0))
+        )
+
+    def _in_collision(self, q: np.ndarray) -> bool:
+        if not self.geom_model.collisionPairs:
+            return False
+        return bool(
+            pin.computeCollisions(self.model, self.data, self.geom_model, self.geom_data, q, True)
+        )
+
+    # ------------------------------------------------------------------ the check
+    def filter(self, target: np.ndarray, state: RobotState, out: np.ndarray | None = None):
+        """Return the safe target, (envs, n), in the units of the mode.
+
+        Args:
+            target: (envs, n) finite target (non-finite policy output is handled before).
+            state: Estimated state (``q``, ``dq`` rad, rad/s).
+            out: Optional (envs, n) array to write into (may be ``target`` itself).
+        """
+        if out is None:
+            out = target.copy()
+        elif out is not target:
+            np.copyto(out, target)
+        q, dq = state.q, state.dq
+        self.hard_violation[:] = False
+        counts = self.counts
+
+        # hard limits: the estimated state itself, then the target
+        np.logical_or(q < self.lower, q > self.upper, out=self._mask)
+        crossed = self._mask.any(axis=1)
+        if self.mode == "position":
+            np.logical_or(out < self.lower, out > self.upper, out=self._mask)
+            crossed |= self._mask.any(axis=1)
+            # soft limits: clamp positions into the soft band
+            np.logical_or(out < self.soft_lower, out > self.soft_upper, out=self._mask)
+            counts["soft_limit"] += self._mask.any(axis=1)
+            np.clip(out, self.soft_lower, self.soft_upper, out=out)
+            self._pred[:] = out
+        elif self.mode == "velocity":
+            # stopping distance: |v| <= sqrt(2 a d) toward each soft limit
+            np.subtract(self.soft_upper, q, out=self._tmp)
+            np.maximum(self._tmp, 0.0, out=self._tmp)
+            v_up = np.minimum(np.sqrt(2.0 * self.acc * self._tmp), self.vel)
+            np.subtract(q, self.soft_lower, out=self._tmp)
+            np.maximum(self._tmp, 0.0, out=self._tmp)
+            v_down = np.minimum(np.sqrt(2.0 * self.acc * self._tmp), self.vel)
+            np.logical_or(out > v_up, out < -v_down, out=self._mask)
+            counts["velocity"] += self._mask.any(axis=1)
+            np.clip(out, -v_down, v_up, out=out)
+            np.logical_or(q > self.soft_upper, q < self.soft_lower, out=self._mask)
+            counts["soft_limit"] += self._mask.any(axis=1)
+            np.multiply(out, self.dt, out=self._pred)
+            self._pred += q
+            np.logical_or(self._pred < self.lower, self._pred > self.upper, out=self._mask)
+            crossed |= self._mask.any(axis=1)
+        else:  # torque
+            np.multiply(dq, self.dt, out=self._pred)
+            self._pred += q
+            np.logical_or(q > self.soft_upper, q < self.soft_lower, out=self._mask)
+            counts["soft_limit"] += self._mask.any(axis=1)
+        counts["hard_limit"] += crossed
+        self.hard_violation |= crossed
+
+        # per-env geometric and effort checks at the predicted next state
+        effort = self.robot.effort_limit
+        for e in range(self.envs):
+            qp = self._pred[e]
+            reason = None
+            outside = self._ee_outside(qp)
+            if outside > 0.0 and outside >= self._ee_outside(q[e]) - 1e-12:
+                reason = "workspace"
+            elif self._in_collision(qp):
+                reason = "self_collision"
+            else:
+                g = pin.computeGeneralizedGravity(self.model, self.data, qp)
+                if np.any(np.abs(g) > effort * self.effort_scale[e]):
+                    reason = "effort"
+            if reason is not None:
+                counts[reason][e] += 1
+                self._hold(e, q[e], out)
+            elif self.mode == "position":
+                self._last_valid[e] = out[e]
+        if self.mode == "torque":
+            limit = effort * self.effort_scale
+            np.logical_or(out > limit, out < -limit, out=self._mask)
+            counts["effort"] += self._mask.any(axis=1)
+            np.clip(out, -limit, limit, out=out)
+        return out
+
+    def _hold(self, e: int, q: np.ndarray, out: np.ndarray) -> None:
+        if self.mode == "position":
+            out[e] = self._last_valid[e]
+        elif self.mode == "velocity":
+            out[e] = 0.0
+        else:
+            out[e] = pin.computeGeneralizedGravity(self.model, self.data, q)
+
+    def totals(self) -> dict[str, int]:
+        """Interventions per check, summed over envs."""
+        return {k: int(v.sum()) for k, v in self.counts.items()}

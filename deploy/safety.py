@@ -205,6 +205,10 @@ class SafetyGuard:
         else:
             out[e] = pin.computeGeneralizedGravity(self.model, self.data, q)
 
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """Gravity torque (N m, (n,)) at one configuration ``q`` (rad); a view reused per call."""
+        return pin.computeGeneralizedGravity(self.model, self.data, q)
+
     def totals(self) -> dict[str, int]:
         """Interventions per check, summed over envs."""
         return {k: int(v.sum()) for k, v in self.counts.items()}

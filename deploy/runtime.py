@@ -1,0 +1,367 @@
+"""Runtime: the fixed-rate loop between a neural network and a motor.
+
+The tick (:meth:`Runtime.tick`) reads top to bottom as DESIGN.md draws it::
+
+    frame  = backend.read()                        # encoders, temperatures
+    state  = estimator.update(frame)               # Kalman filter: q, dq (predict-only on dropouts)
+    obs    = spec.observation(state, goal)         # normalized by physical maxima
+    action = policy(obs)                           # ONNX Runtime; non-finite -> hold, count
+    target = spec.action_to_target(action, state)  # physical units of the control mode
+    target = guard.filter(target, state)           # Pinocchio: clamp or reject, count
+    cmd    = smoother.step(target)                 # Ruckig: velocity, acceleration, jerk limits
+    backend.write(cmd)
+
+State machine (one per env): ``IDLE -> RAMP_IN -> RUNNING -> SAFE_STOP -> FAULTED``. RAMP_IN brings
+the robot from its measured pose to the home pose before the policy takes over. SAFE_STOP brings
+every joint to rest within the smoother's limits and holds; a safe stop for over-temperature resumes
+(RAMP_IN) once every winding has cooled below its derating start, any other cause ends in FAULTED,
+latched until :meth:`Runtime.reset_faults`.
+
+Faults and responses (DESIGN.md): non-finite policy output holds the last valid action, and
+``NAN_ACTION_LIMIT`` consecutive ones make a safe stop; sensor data stale longer than
+``safety.stale_limit`` makes a safe stop; a hard-limit violation makes a safe stop; a winding above
+its maximum makes a safe stop latched until cool, and the effort limit is derated linearly in the
+derating band; a wall-clock overrun rate above ``OVERRUN_RATE_LIMIT`` makes a safe stop.
+
+Clocks: :class:`SimClock` runs in lockstep with a simulated plant as fast as the CPU allows;
+:class:`WallClock` waits for absolute deadlines, skips missed periods instead of bursting, and
+counts overruns and jitter.
+
+The garbage collector is frozen and disabled while :meth:`Runtime.run` loops.
+"""
+
+from __future__ import annotations
+
+import gc
+import time
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import numpy as np
+
+from deploy.estimation import JointStateEstimator
+from deploy.safety import SafetyGuard
+from deploy.smoothing import CommandSmoother
+from deploy.spec import PolicySpec
+from deploy.state import Kinematics, RobotState
+from deploy.telemetry import LatencyHistogram
+from robots import Robot
+
+#: Consecutive non-finite policy outputs before a safe stop (0.05 s at 200 Hz).
+NAN_ACTION_LIMIT = 10
+#: Fraction of overrun ticks over the last ``OVERRUN_WINDOW`` ticks that makes a safe stop.
+OVERRUN_RATE_LIMIT = 0.05
+OVERRUN_WINDOW = 200
+#: A joint is at rest below this speed, rad/s (ends a safe stop, ends RAMP_IN).
+REST_SPEED = 0.05
+#: RAMP_IN ends within this distance of the home pose, rad.
+HOME_TOLERANCE = 0.05
+#: Gain of the RAMP_IN approach in velocity and torque mode, 1/s (the smoother bounds the rest).
+RAMP_GAIN = 2.0
+#: Joint damping of the torque-mode safe stop, N m s/rad per N m of effort limit.
+STOP_DAMPING = 0.2
+
+STAGES = ("read", "estimate", "observe", "infer", "guard", "smooth", "write", "physics")
+
+
+class Mode(IntEnum):
+    IDLE = 0
+    RAMP_IN = 1
+    RUNNING = 2
+    SAFE_STOP = 3
+    FAULTED = 4
+
+
+FAULT_CAUSES = ("hard_limit", "non_finite_action", "stale_sensor", "overrun", "over_temperature")
+
+
+class SimClock:
+    """Lockstep clock: the plant's own time; never waits."""
+
+    realtime = False
+
+    def __init__(self, period: float):
+        self.period = period
+        self.overruns = 0
+        self.missed_periods = 0
+        self.jitter = LatencyHistogram()
+
+    def start(self) -> None:
+        pass
+
+    def wait(self) -> bool:
+        """Return whether the last tick overran its period (never, in lockstep)."""
+        return False
+
+
+class WallClock:
+    """Absolute-deadline clock for real time.
+
+    Each tick has the deadline ``t0 + k * period``. A tick that ends after its deadline counts as an
+    overrun; the missed periods are skipped (the next deadline is the next one in the future), never
+    run back to back. Jitter is the lateness of each wake-up against its deadline, in ns.
+    """
+
+    realtime = True
+
+    def __init__(self, period: float):
+        self.period_ns = int(round(period * 1e9))
+        self.period = period
+        self.overruns = 0
+        self.missed_periods = 0
+        self.jitter = LatencyHistogram()
+        self._next = 0
+
+    def start(self) -> None:
+        self._next = time.perf_counter_ns() + self.period_ns
+
+    def wait(self) -> bool:
+        now = time.perf_counter_ns()
+        overrun = now > self._next
+        if overrun:
+            self.overruns += 1
+            missed = (now - self._next) // self.period_ns
+            self.missed_periods += int(missed)
+            self._next += (missed + 1) * self.period_ns
+        remaining = self._next - time.perf_counter_ns()
+        if remaining > 200_000:
+            time.sleep((remaining - 150_000) / 1e9)
+        while time.perf_counter_ns() < self._next:  # spin the last ~150 us
+            pass
+        self.jitter.add(0, time.perf_counter_ns() - self._next)
+        self._next += self.period_ns
+        return overrun
+
+
+@dataclass
+class RuntimeCounters:
+    """Counters of one run, arrays shaped (envs,)."""
+
+    non_finite_actions: np.ndarray
+    safe_stops: np.ndarray
+    faults: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+class Runtime:
+    """The control loop for ``envs`` robots behind one backend.
+
+    Args:
+        robot: Robot description.
+        policy: Callable ``(envs, obs_dim) float32 -> (envs, act_dim) float32`` with a ``spec``
+            attribute (:class:`~deploy.policy.OnnxPolicy`).
+        backend: A backend (``read``, ``write``, ``advance``), e.g.
+            :class:`~deploy.backends.sim.SimBackend`.
+        clock: :class:`SimClock` (default) or :class:`WallClock`.
+        injector: Optional :class:`~deploy.faults.FaultInjector` (simulation only).
+        telemetry: Optional :class:`~deploy.telemetry.Telemetry` recorder.
+    """
+
+    def __init__(self, robot: Robot, policy, backend, clock=None, injector=None, telemetry=None):
+        self.robot, self.policy, self.backend = robot, policy, backend
+        self.spec: PolicySpec = policy.spec
+        self.spec.check_robot(robot)
+        if self.spec.action.mode != backend.mode:
+            raise ValueError(
+                f"policy action mode '{self.spec.action.mode}' differs from the backend's control "
+                f"mode '{backend.mode}'"
+            )
+        envs, n = backend.envs, robot.n_joints
+        self.envs, self.n = envs, n
+        self.mode_name = backend.mode
+        self.dt = robot.control_period
+        self.clock = clock or SimClock(self.dt)
+        self.injector = injector
+        self.telemetry = telemetry
+        self.estimator = JointStateEstimator(robot, envs)
+        self.kinematics = Kinematics(robot)
+        self.guard = SafetyGuard(robot, envs, self.mode_name)
+        self.smoother = CommandSmoother(robot, envs, self.mode_name)
+        self.state = RobotState.zeros(envs, n, robot.config.sensors.ambient_temperature)
+        self.goal = np.zeros((envs, 3))
+        self.mode = np.full(envs, Mode.IDLE, dtype=np.int8)
+        self.cause = np.full(envs, -1, dtype=np.int8)  # index into FAULT_CAUSES
+        self.counters = RuntimeCounters(
+            non_finite_actions=np.zeros(envs, dtype=np.int64),
+            safe_stops=np.zeros(envs, dtype=np.int64),
+            faults={c: np.zeros(envs, dtype=np.int64) for c in FAULT_CAUSES},
+        )
+        self.latency = LatencyHistogram(len(STAGES))
+        self.tick_cost = LatencyHistogram()
+        self.ticks = 0
+        self.time = 0.0
+        self._obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
+        self._action = np.zeros((envs, n), dtype=np.float32)
+        self._last_valid_action = np.zeros((envs, n), dtype=np.float32)
+        self._nan_streak = np.zeros(envs, dtype=np.int64)
+        self._target = np.zeros((envs, n))
+        self._cmd = np.zeros((envs, n))
+        self._overrun_ring = np.zeros(OVERRUN_WINDOW, dtype=bool)
+        self._stamps = np.zeros(len(STAGES) + 1, dtype=np.int64)
+        self._home = np.asarray(robot.home)
+        self._stop_damping = STOP_DAMPING * robot.effort_limit
+        self._temp_start = np.array([m.derating_start_temperature for m in robot.motors])
+        self._temp_max = np.array([m.max_winding_temperature for m in robot.motors])
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Anchor every stage at the measured state and enter RAMP_IN."""
+        frame = self.backend.read()
+        q = np.where(np.isnan(frame.position), self._home, frame.position)
+        self.estimator.reset(q, frame.time)
+        self.state.q[:] = q
+        self.state.dq[:] = 0.0
+        self.guard.reset(q)
+        self.smoother.reset(q, self.state.dq)
+        self.mode[:] = Mode.RAMP_IN
+        self.clock.start()
+
+    def reset_faults(self) -> None:
+        """Clear latched faults: FAULTED envs start again with RAMP_IN."""
+        faulted = self.mode == Mode.FAULTED
+        self.mode[faulted] = Mode.RAMP_IN
+        self.cause[faulted] = -1
+        self.smoother.reset(self.state.q, self.state.dq)
+
+    # ------------------------------------------------------------------ the tick
+    def tick(self) -> None:
+        """One control period for every env (see the module docstring)."""
+        st, clock_ns = self._stamps, time.perf_counter_ns
+        st[0] = clock_ns()
+        if self.injector is not None:
+            self.injector.before_read(self.time)
+        frame = self.backend.read()
+        if self.injector is not None:
+            frame = self.injector.filter_frame(self.time, frame)
+        st[1] = clock_ns()
+        state = self.estimator.update(frame, self.state)
+        self.kinematics.update(state)
+        self.guard.update_thermal(state.winding_temperature)
+        self._supervise(state)
+        st[2] = clock_ns()
+        obs = self.spec.observation(state, self.goal, out=self._obs)
+        st[3] = clock_ns()
+        action = self._screen(self.policy(obs))
+        st[4] = clock_ns()
+        target = self.spec.action_to_target(action, state, out=self._target)
+        target = self._override(target, state)
+        target = self.guard.filter(target, state, out=target)
+        self._on_violation()
+        st[5] = clock_ns()
+        cmd = self.smoother.step(target, out=self._cmd)
+        st[6] = clock_ns()
+        self.backend.write(cmd)
+        st[7] = clock_ns()
+        self.backend.advance()
+        st[8] = clock_ns()
+        state.last_action[:] = action
+        self.ticks += 1
+        self.time += self.dt
+        self.latency.add_stages(st)
+        self.tick_cost.add(0, st[8] - st[0] - (st[8] - st[7]))  # runtime cost without physics
+        if self.telemetry is not None:
+            self.telemetry.record(self)
+        overrun = self.clock.wait()
+        self._overrun_ring[self.ticks % OVERRUN_WINDOW] = overrun
+
+    # ------------------------------------------------------------------ stages' helpers
+    def _screen(self, action: np.ndarray) -> np.ndarray:
+        """Non-finite output: hold the last valid action and count; too many in a row: safe stop."""
+        if self.injector is not None:
+            action = self.injector.filter_action(self.time, action)
+        bad = ~np.isfinite(action).all(axis=1)
+        if bad.any():
+            self.counters.non_finite_actions += bad
+            self._nan_streak[bad] += 1
+            self._action[:] = np.where(bad[:, None], self._last_valid_action, action)
+            self._safe_stop(self._nan_streak >= NAN_ACTION_LIMIT, "non_finite_action")
+        else:
+            self._action[:] = action
+        self._nan_streak[~bad] = 0
+        self._last_valid_action[~bad] = action[~bad]
+        return self._action
+
+    def _supervise(self, state: RobotState) -> None:
+        """Stale sensors, over-temperature, overruns; end of RAMP_IN and of safe stops."""
+        stale = (self.estimator.time_since_fresh > self.robot.config.safety.stale_limit).any(axis=1)
+        self._safe_stop(stale, "stale_sensor")
+        hot = (state.winding_temperature > self._temp_max).any(axis=1)
+        self._safe_stop(hot, "over_temperature")
+        if self.clock.realtime and self._overrun_ring.mean() > OVERRUN_RATE_LIMIT:
+            self._safe_stop(np.ones(self.envs, dtype=bool), "overrun")
+
+        at_rest = (np.abs(state.dq) < REST_SPEED).all(axis=1)
+        home = (np.abs(state.q - self._home) < HOME_TOLERANCE).all(axis=1)
+        ramp_done = (self.mode == Mode.RAMP_IN) & at_rest & home
+        self.mode[ramp_done] = Mode.RUNNING
+        stopped = (self.mode == Mode.SAFE_STOP) & at_rest
+        if stopped.any():
+            thermal = self.cause == FAULT_CAUSES.index("over_temperature")
+            cool = (state.winding_temperature < self._temp_start).all(axis=1)
+            resume = stopped & thermal & cool
+            latch = stopped & ~thermal
+            self.mode[latch] = Mode.FAULTED
+            if resume.any():
+                self.mode[resume] = Mode.RAMP_IN
+                self.cause[resume] = -1
+
+    def _safe_stop(self, which: np.ndarray, cause: str) -> None:
+        new = which & (self.mode != Mode.SAFE_STOP) & (self.mode != Mode.FAULTED)
+        if new.any():
+            self.mode[new] = Mode.SAFE_STOP
+            self.cause[new] = FAULT_CAUSES.index(cause)
+            self.counters.safe_stops += new
+            self.counters.faults[cause] += new
+
+    def _on_violation(self) -> None:
+        self._safe_stop(self.guard.hard_violation, "hard_limit")
+
+    def _override(self, target: np.ndarray, state: RobotState) -> np.ndarray:
+        """Targets of the envs not RUNNING: ramp to home, or stop and hold."""
+        mode = self.mode
+        ramp = mode == Mode.RAMP_IN
+        hold = (mode == Mode.SAFE_STOP) | (mode == Mode.FAULTED) | (mode == Mode.IDLE)
+        if not (ramp.any() or hold.any()):
+            return target
+        q, dq = state.q, state.dq
+        if self.mode_name == "position":
+            # stop: where the joint comes to rest at the acceleration limit
+            stop = q + dq * np.abs(dq) / (2.0 * self.robot.acceleration_limit)
+            target[ramp] = self._home
+            target[hold] = np.clip(stop[hold], self.robot.soft_lower, self.robot.soft_upper)
+        elif self.mode_name == "velocity":
+            target[ramp] = RAMP_GAIN * (self._home - q[ramp])
+            target[hold] = 0.0
+        else:
+            for e in np.nonzero(ramp | hold)[0]:
+                g = self.guard.gravity(q[e])
+                if ramp[e]:
+                    target[e] = g + self._stop_damping * (RAMP_GAIN * (self._home - q[e]) - dq[e])
+                else:
+                    target[e] = g - self._stop_damping * dq[e]
+        return target
+
+    # ------------------------------------------------------------------ running
+    def run(self, ticks: int, on_tick=None) -> None:
+        """Run ``ticks`` control periods with the garbage collector frozen and disabled.
+
+        ``on_tick(runtime)``, if given, runs after each tick (goal scheduling, evaluation).
+        """
+        gc.collect()
+        gc.freeze()
+        was_enabled = gc.isenabled()
+        gc.disable()
+        try:
+            for _ in range(ticks):
+                self.tick()
+                if on_tick is not None:
+                    on_tick(self)
+        finally:
+            if was_enabled:
+                gc.enable()
+            gc.unfreeze()
+
+    def mode_names(self) -> list[str]:
+        return [Mode(int(m)).name for m in self.mode]
+
+    def cause_names(self) -> list[str | None]:
+        return [FAULT_CAUSES[c] if c >= 0 else None for c in self.cause]

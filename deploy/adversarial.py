@@ -1,0 +1,104 @@
+"""An adversarial policy: the worst a network can send, as an ONNX file with our contract.
+
+It outputs uniform random actions in ``[-1, 1]`` and, with probability ``nan_probability`` per call
+and env, NaN. Run it through the runtime to show that whatever a policy outputs, no command beyond
+the hard position limits or the velocity, acceleration and jerk limits reaches the robot::
+
+    python -m deploy.adversarial --robot arm3 --mode velocity --out /tmp/adversarial.onnx
+    deploy-run --robot arm3 --policy /tmp/adversarial.onnx --duration 600 \\
+        --inject nan-action@30:0.2
+
+The graph is built with ``onnx.helper`` (no torch): ``RandomUniformLike`` ops on an
+(batch, act_dim) tensor derived from the observation, so the batch axis stays dynamic.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+from pathlib import Path
+
+import numpy as np
+import onnx
+from onnx import TensorProto, helper
+
+from deploy.spec import PolicySpec
+from robots import CONTROL_MODES, load_robot
+
+OPSET = 18  # ReduceMin takes its axes as an input from opset 18
+
+
+def adversarial_model(spec: PolicySpec, nan_probability: float = 0.02, seed: float = 0.0):
+    """ONNX model (``onnx.ModelProto``) of the adversarial policy for ``spec``.
+
+    Input ``obs`` float32 (batch, spec.obs_dim); output ``action`` float32 (batch, spec.act_dim).
+    The spec JSON is stored in the metadata under ``policy_spec``.
+    """
+    n, d = spec.act_dim, spec.obs_dim
+    nodes = [
+        # (batch, n) zeros shaped like the action: obs[:, :1] * zeros(1, n)
+        helper.make_node("Slice", ["obs", "s0", "s1", "ax1"], ["first"]),
+        helper.make_node("Mul", ["first", "zeros_n"], ["like"]),
+        helper.make_node("RandomUniformLike", ["like"], ["u"], low=-1.0, high=1.0, seed=seed),
+        helper.make_node("RandomUniformLike", ["like"], ["p"], low=0.0, high=1.0, seed=seed + 1),
+        helper.make_node("ReduceMin", ["p", "ax1"], ["pmin"], keepdims=1),
+        helper.make_node("Less", ["pmin", "nan_p"], ["bad"]),
+        helper.make_node("Where", ["bad", "nan", "u"], ["action"]),
+    ]
+    inits = [
+        helper.make_tensor("s0", TensorProto.INT64, [1], [0]),
+        helper.make_tensor("s1", TensorProto.INT64, [1], [1]),
+        helper.make_tensor("ax1", TensorProto.INT64, [1], [1]),
+        helper.make_tensor("zeros_n", TensorProto.FLOAT, [1, n], np.zeros(n)),
+        # per env: NaN with probability nan_probability (min of n uniforms below 1-(1-p)^(1/n))
+        helper.make_tensor(
+            "nan_p", TensorProto.FLOAT, [], [1.0 - (1.0 - nan_probability) ** (1.0 / n)]
+        ),
+        helper.make_tensor("nan", TensorProto.FLOAT, [], [np.nan]),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "adversarial_policy",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
+        initializer=inits,
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)])
+    model.ir_version = 8
+    spec_json = spec.to_json()
+    helper.set_model_props(
+        model,
+        {
+            "policy_spec": spec_json,
+            "source_sha256": hashlib.sha256(spec_json.encode()).hexdigest(),
+            "adversarial": "uniform [-1, 1] actions with NaN",
+        },
+    )
+    onnx.checker.check_model(model)
+    return model
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m deploy.adversarial",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--robot", default="arm3")
+    p.add_argument("--mode", choices=CONTROL_MODES, default=None)
+    p.add_argument("--nan-probability", type=float, default=0.02)
+    p.add_argument("--out", type=Path, required=True)
+    args = p.parse_args(argv)
+    robot = load_robot(args.robot)
+    spec = PolicySpec.for_robot(robot, mode=args.mode)
+    model = adversarial_model(spec, args.nan_probability)
+    tmp = args.out.with_name(args.out.name + ".part")
+    onnx.save(model, tmp)
+    os.replace(tmp, args.out)
+    print(f"wrote {args.out}: adversarial {spec.action.mode} policy for {robot.name}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

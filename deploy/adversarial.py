@@ -33,17 +33,36 @@ def adversarial_model(spec: PolicySpec, nan_probability: float = 0.02, seed: flo
     """ONNX model (``onnx.ModelProto``) of the adversarial policy for ``spec``.
 
     Input ``obs`` float32 (batch, spec.obs_dim); output ``action`` float32 (batch, spec.act_dim).
-    The spec JSON is stored in the metadata under ``policy_spec``.
+    The spec JSON is stored in the metadata under ``policy_spec``. The random streams are seeded;
+    the NaN stream's seed is the first from ``seed + 1`` whose first answer is finite, because
+    :class:`~deploy.policy.OnnxPolicy` probes a policy once with a zero observation and refuses a
+    non-finite answer.
     """
+    import onnxruntime as ort
+
+    nan_seed = seed + 1.0
+    while True:
+        model = _build(spec, nan_probability, seed, nan_seed)
+        session = ort.InferenceSession(model.SerializeToString())
+        first = session.run(None, {"obs": np.zeros((1, spec.obs_dim), np.float32)})[0]
+        if np.isfinite(first).all():
+            return model
+        nan_seed += 1.0
+
+
+def _build(spec: PolicySpec, nan_probability: float, seed: float, nan_seed: float):
     n, d = spec.act_dim, spec.obs_dim
     nodes = [
         # (batch, n) zeros shaped like the action: obs[:, :1] * zeros(1, n)
         helper.make_node("Slice", ["obs", "s0", "s1", "ax1"], ["first"]),
         helper.make_node("Mul", ["first", "zeros_n"], ["like"]),
         helper.make_node("RandomUniformLike", ["like"], ["u"], low=-1.0, high=1.0, seed=seed),
-        helper.make_node("RandomUniformLike", ["like"], ["p"], low=0.0, high=1.0, seed=seed + 1),
+        helper.make_node("RandomUniformLike", ["like"], ["p"], low=0.0, high=1.0, seed=nan_seed),
         helper.make_node("ReduceMin", ["p", "ax1"], ["pmin"], keepdims=1),
         helper.make_node("Less", ["pmin", "nan_p"], ["bad"]),
+        # NaN computed at run time (0 / 0): the file holds only finite weights, so it passes the
+        # loader's non-finite-weight check like any real policy would
+        helper.make_node("Div", ["like", "like"], ["nan"]),
         helper.make_node("Where", ["bad", "nan", "u"], ["action"]),
     ]
     inits = [
@@ -55,7 +74,6 @@ def adversarial_model(spec: PolicySpec, nan_probability: float = 0.02, seed: flo
         helper.make_tensor(
             "nan_p", TensorProto.FLOAT, [], [1.0 - (1.0 - nan_probability) ** (1.0 / n)]
         ),
-        helper.make_tensor("nan", TensorProto.FLOAT, [], [np.nan]),
     ]
     graph = helper.make_graph(
         nodes,

@@ -60,6 +60,9 @@ HOME_TOLERANCE = 0.05
 RAMP_GAIN = 2.0
 #: Joint damping of the torque-mode safe stop, N m s/rad per N m of effort limit.
 STOP_DAMPING = 0.2
+#: Position mode: a command this far (rad) from the measured pose (the arm was pushed or blocked)
+#: is re-anchored at the measured state, so that the servo does not yank the arm back; counted.
+TRACKING_TOLERANCE = 0.3
 
 STAGES = ("read", "estimate", "observe", "infer", "guard", "smooth", "write", "physics")
 
@@ -139,6 +142,7 @@ class RuntimeCounters:
 
     non_finite_actions: np.ndarray
     safe_stops: np.ndarray
+    resyncs: np.ndarray
     faults: dict[str, np.ndarray] = field(default_factory=dict)
 
 
@@ -183,6 +187,7 @@ class Runtime:
         self.counters = RuntimeCounters(
             non_finite_actions=np.zeros(envs, dtype=np.int64),
             safe_stops=np.zeros(envs, dtype=np.int64),
+            resyncs=np.zeros(envs, dtype=np.int64),
             faults={c: np.zeros(envs, dtype=np.int64) for c in FAULT_CAUSES},
         )
         self.latency = LatencyHistogram(len(STAGES))
@@ -199,6 +204,7 @@ class Runtime:
         self._stamps = np.zeros(len(STAGES) + 1, dtype=np.int64)
         self._home = np.asarray(robot.home)
         self._stop_damping = STOP_DAMPING * robot.effort_limit
+        self._tracking = np.zeros(envs)
         self._temp_start = np.array([m.derating_start_temperature for m in robot.motors])
         self._temp_max = np.array([m.max_winding_temperature for m in robot.motors])
 
@@ -220,7 +226,8 @@ class Runtime:
         faulted = self.mode == Mode.FAULTED
         self.mode[faulted] = Mode.RAMP_IN
         self.cause[faulted] = -1
-        self.smoother.reset(self.state.q, self.state.dq)
+        self.guard.reset(self.state.q)
+        self.smoother.sync(self.state.q, self.state.dq, envs=faulted)
 
     # ------------------------------------------------------------------ the tick
     def tick(self) -> None:
@@ -303,6 +310,14 @@ class Runtime:
             if resume.any():
                 self.mode[resume] = Mode.RAMP_IN
                 self.cause[resume] = -1
+                self.smoother.sync(state.q, state.dq, envs=resume)
+        if self.mode_name == "position":
+            self.smoother.tracking_error(state.q, out=self._tracking)
+            drift = (self._tracking > TRACKING_TOLERANCE) & (self.mode != Mode.SAFE_STOP)
+            drift &= self.mode != Mode.FAULTED
+            if drift.any():
+                self.counters.resyncs += drift
+                self.smoother.sync(state.q, state.dq, envs=drift)
 
     def _safe_stop(self, which: np.ndarray, cause: str) -> None:
         new = which & (self.mode != Mode.SAFE_STOP) & (self.mode != Mode.FAULTED)
@@ -311,6 +326,7 @@ class Runtime:
             self.cause[new] = FAULT_CAUSES.index(cause)
             self.counters.safe_stops += new
             self.counters.faults[cause] += new
+            self.smoother.safe_stop(new)
 
     def _on_violation(self) -> None:
         self._safe_stop(self.guard.hard_violation, "hard_limit")

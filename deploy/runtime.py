@@ -62,7 +62,7 @@ RAMP_GAIN = 2.0
 STOP_DAMPING = 0.2
 #: Position mode: a command this far (rad) from the measured pose (the arm was pushed or blocked)
 #: is re-anchored at the measured state, so that the servo does not yank the arm back; counted.
-TRACKING_TOLERANCE = 0.3
+TRACKING_TOLERANCE = 0.6  # arm3's servo lags up to 0.45 rad at full speed
 
 STAGES = ("read", "estimate", "observe", "infer", "guard", "smooth", "write", "physics")
 
@@ -205,6 +205,8 @@ class Runtime:
         self._home = np.asarray(robot.home)
         self._stop_damping = STOP_DAMPING * robot.effort_limit
         self._tracking = np.zeros(envs)
+        # velocity mode: the position the commands integrate to (Ruckig's state), else None
+        self._commanded = self.smoother.position if self.mode_name == "velocity" else None
         self._temp_start = np.array([m.derating_start_temperature for m in robot.motors])
         self._temp_max = np.array([m.max_winding_temperature for m in robot.motors])
 
@@ -212,8 +214,14 @@ class Runtime:
     def start(self) -> None:
         """Anchor every stage at the measured state and enter RAMP_IN."""
         frame = self.backend.read()
-        q = np.where(np.isnan(frame.position), self._home, frame.position)
-        self.estimator.reset(q, frame.time)
+        missing = np.isnan(frame.position)
+        if missing.any():
+            raise RuntimeError(
+                f"Runtime.start: no encoder reading for joints {np.argwhere(missing).tolist()} "
+                "(env, joint); cannot anchor the estimator at a measured pose"
+            )
+        q = frame.position.copy()
+        self.estimator.reset(q, frame.position_stamp)
         self.state.q[:] = q
         self.state.dq[:] = 0.0
         self.guard.reset(q)
@@ -251,7 +259,7 @@ class Runtime:
         st[4] = clock_ns()
         target = self.spec.action_to_target(action, state, out=self._target)
         target = self._override(target, state)
-        target = self.guard.filter(target, state, out=target)
+        target = self.guard.filter(target, state, out=target, commanded_position=self._commanded)
         self._on_violation()
         st[5] = clock_ns()
         cmd = self.smoother.step(target, out=self._cmd)

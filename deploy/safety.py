@@ -75,6 +75,9 @@ class SafetyGuard:
         self._pred = np.zeros((envs, n))
         self._tmp = np.zeros((envs, n))
         self._mask = np.zeros((envs, n), dtype=bool)
+        #: Torque mode, N m s/rad: braking torque per rad/s of excess speed; full effort at
+        #: 0.1 rad/s over the allowed speed (our choice).
+        self._brake_gain = 10.0 * robot.effort_limit
         self.model = robot.pin_model
         self.data = self.model.createData()
         self.geom_model, self.geom_data = self._collision_model(robot)
@@ -119,13 +122,22 @@ class SafetyGuard:
         )
 
     # ------------------------------------------------------------------ the check
-    def filter(self, target: np.ndarray, state: RobotState, out: np.ndarray | None = None):
+    def filter(
+        self,
+        target: np.ndarray,
+        state: RobotState,
+        out: np.ndarray | None = None,
+        commanded_position: np.ndarray | None = None,
+    ):
         """Return the safe target, (envs, n), in the units of the mode.
 
         Args:
             target: (envs, n) finite target (non-finite policy output is handled before).
             state: Estimated state (``q``, ``dq`` rad, rad/s).
             out: Optional (envs, n) array to write into (may be ``target`` itself).
+            commanded_position: Velocity mode: (envs, n) rad, the position the commands have
+                integrated to (the drive's setpoint, ahead of the lagging joint). The stopping
+                bounds use whichever of it and ``q`` is closer to each limit.
         """
         if out is None:
             out = target.copy()
@@ -147,13 +159,7 @@ class SafetyGuard:
             np.clip(out, self.soft_lower, self.soft_upper, out=out)
             self._pred[:] = out
         elif self.mode == "velocity":
-            # stopping distance: |v| <= sqrt(2 a d) toward each soft limit
-            np.subtract(self.soft_upper, q, out=self._tmp)
-            np.maximum(self._tmp, 0.0, out=self._tmp)
-            v_up = np.minimum(np.sqrt(2.0 * self.acc * self._tmp), self.vel)
-            np.subtract(q, self.soft_lower, out=self._tmp)
-            np.maximum(self._tmp, 0.0, out=self._tmp)
-            v_down = np.minimum(np.sqrt(2.0 * self.acc * self._tmp), self.vel)
+            v_up, v_down = self._velocity_band(q, commanded_position)
             np.logical_or(out > v_up, out < -v_down, out=self._mask)
             counts["velocity"] += self._mask.any(axis=1)
             np.clip(out, -v_down, v_up, out=out)
@@ -168,6 +174,19 @@ class SafetyGuard:
             self._pred += q
             np.logical_or(q > self.soft_upper, q < self.soft_lower, out=self._mask)
             counts["soft_limit"] += self._mask.any(axis=1)
+            # velocity governor: torque may not drive a joint faster than it can stop before its
+            # soft limit; above that speed it is replaced by gravity compensation plus braking
+            v_up, v_down = self._velocity_band(q, None)
+            over = np.maximum(dq - v_up, 0.0)
+            under = np.maximum(-v_down - dq, 0.0)
+            np.logical_or(over > 0, under > 0, out=self._mask)
+            if self._mask.any():
+                counts["velocity"] += self._mask.any(axis=1)
+                for e in np.flatnonzero(self._mask.any(axis=1)):
+                    g = pin.computeGeneralizedGravity(self.model, self.data, q[e])
+                    brake = self._brake_gain * (under[e] - over[e])
+                    out[e] = np.where(over[e] > 0, np.minimum(out[e], g + brake), out[e])
+                    out[e] = np.where(under[e] > 0, np.maximum(out[e], g + brake), out[e])
         counts["hard_limit"] += crossed
         self.hard_violation |= crossed
 
@@ -196,6 +215,17 @@ class SafetyGuard:
             counts["effort"] += self._mask.any(axis=1)
             np.clip(out, -limit, limit, out=out)
         return out
+
+    def _velocity_band(self, q: np.ndarray, commanded: np.ndarray | None):
+        """(v_up, v_down) >= 0, (envs, n): speeds from which each joint still stops before its
+        soft limit at the acceleration limit, ``sqrt(2 a d)``, capped at the velocity limit."""
+        upper = q if commanded is None else np.maximum(q, commanded)
+        lower = q if commanded is None else np.minimum(q, commanded)
+        d_up = np.maximum(self.soft_upper - upper, 0.0)
+        d_down = np.maximum(lower - self.soft_lower, 0.0)
+        v_up = np.minimum(np.sqrt(2.0 * self.acc * d_up), self.vel)
+        v_down = np.minimum(np.sqrt(2.0 * self.acc * d_down), self.vel)
+        return v_up, v_down
 
     def _hold(self, e: int, q: np.ndarray, out: np.ndarray) -> None:
         if self.mode == "position":

@@ -136,13 +136,7 @@ class PolicySpec:
     def for_robot(
         cls,
         robot: Robot,
-        blocks: tuple[str, ...] = (
-            "joint_position",
-            "joint_velocity",
-            "ee_position",
-            "goal_position",
-            "goal_in_ee",
-        ),
+        blocks: tuple[str, ...] | None = None,
         mode: str | None = None,
         reference: str = "absolute",
     ) -> PolicySpec:
@@ -150,6 +144,9 @@ class PolicySpec:
 
         Joints whose range exceeds 2 pi (multi-turn) are wrapping joints: ``joint_position``
         skips them and ``joint_position_sincos`` covers them.
+
+        Default blocks: ``joint_position``, ``joint_position_sincos`` (only when the robot has
+        wrapping joints), ``joint_velocity``, ``ee_position``, ``goal_position``, ``goal_in_ee``.
 
         Raises:
             SpecError: unknown block kind or control mode.
@@ -161,6 +158,17 @@ class PolicySpec:
         lo, hi = robot.position_lower, robot.position_upper
         wrapping = tuple(i for i in range(n) if hi[i] - lo[i] > 2 * np.pi + 1e-9)
         bounded = tuple(i for i in range(n) if i not in wrapping)
+        if blocks is None:
+            blocks = (
+                ("joint_position",)
+                + (("joint_position_sincos",) if wrapping else ())
+                + (
+                    "joint_velocity",
+                    "ee_position",
+                    "goal_position",
+                    "goal_in_ee",
+                )
+            )
         reach = Kinematics(robot).reach()
         motors = robot.motors
         ambient = robot.config.sensors.ambient_temperature

@@ -106,8 +106,10 @@ class Robot:
     def mjspec(self, mode: str | None = None) -> mujoco.MjSpec:
         """A fresh ``mujoco.MjSpec`` of the robot with one actuator per joint for ``mode``.
 
-        Position mode: a PD servo (``kp``, ``kd``); velocity mode: a velocity servo (``kv``);
-        torque mode: a direct motor. Forces are limited to ``effort_limit``. Edit the returned spec
+        Position mode: a PD servo (``kp``, ``kd``); velocity mode: an integrating velocity servo
+        (MuJoCo ``intvelocity``: the command is integrated into a setpoint held by the same PD
+        servo, as a drive's PI velocity loop holds a joint at zero velocity); torque mode: a direct
+        motor. Forces are limited to ``effort_limit``. Edit the returned spec
         (for example to randomize link lengths) and ``compile()`` it.
 
         Raises:
@@ -131,8 +133,13 @@ class Robot:
                 act.set_to_position(kp=joint.kp, kv=joint.kd)
                 act.ctrlrange = [self.position_lower[i], self.position_upper[i]]
             elif mode == "velocity":
-                act.set_to_velocity(kv=joint.kv)
+                # A drive's velocity loop has integral action: a zero command holds the joint
+                # against gravity. MuJoCo's intvelocity integrates the command into a setpoint
+                # (bounded to the joint range) that a PD servo tracks.
+                act.set_to_intvelocity(kp=joint.kp, kv=joint.kd)
                 act.ctrlrange = [-self.velocity_limit[i], self.velocity_limit[i]]
+                act.actrange = [self.position_lower[i], self.position_upper[i]]
+                act.actlimited = mujoco.mjtLimited.mjLIMITED_TRUE
             else:
                 act.set_to_motor()
                 act.ctrlrange = [-self.effort_limit[i], self.effort_limit[i]]

@@ -38,7 +38,6 @@ class JointConfig(_Strict):
     motor: str  # key into [motors]
     kp: Positive  # N m/rad, plant position servo stiffness
     kd: NonNegative  # N m s/rad, plant position servo damping
-    kv: Positive  # N m s/rad, plant velocity servo gain
 
     @model_validator(mode="after")
     def _ordered_limits(self) -> JointConfig:

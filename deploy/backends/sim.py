@@ -56,8 +56,8 @@ class SimBackend:
 
     Args:
         robot: The robot description.
-        mode: Control mode, 'position' (rad), 'velocity' (rad/s) or 'torque' (N m); default from
-            robot.toml.
+        mode: Control mode, 'position' (rad), 'velocity' (rad/s, an integrating velocity servo that
+            holds the joint at zero command) or 'torque' (N m); default from robot.toml.
         envs: Number of robots simulated in lockstep.
         seed: Seed of the sensor noise and dropout streams (``numpy.random.PCG64``).
         models: Optional compiled models, one per env (randomized dynamics). They must come from
@@ -140,6 +140,8 @@ class SimBackend:
         for e, (m, d) in enumerate(zip(self.models, self.datas, strict=True)):
             mujoco.mj_resetData(m, d)
             d.qpos[:] = q0[e]
+            if m.na:  # integrating velocity servos start their setpoint at the pose
+                d.act[:] = q0[e]
             mujoco.mj_forward(m, d)
             if self.mode == "position":
                 self._command[e] = q0[e]

@@ -1,0 +1,134 @@
+"""Policy export time and batch-1 inference latency: ONNX Runtime (OnnxPolicy) vs torch eager.
+
+Run: ``.venv/bin/python -m bench.policy_inference [--calls 10000]``.
+
+An arm3-sized MLP (obs 21, hidden [64, 64] ELU, act 3, with an observation normalizer) is saved
+as our checkpoint and exported with ``policy-export``'s code path (parity gate included); the
+export wall time is reported for the first export in the process (cold: imports and first trace)
+and for a second one (warm). Inference: median and 99th percentile of ``calls`` batch-1 calls
+after a warm-up, timed one by one with ``time.perf_counter_ns``, the garbage collector frozen:
+    - ``OnnxPolicy``: single-threaded session, IOBinding to preallocated buffers (the runtime);
+    - ``session.run``: the same session through the plain ``run`` API (allocates per call);
+    - torch eager: the same graph module (normalizer, MLP, action clip) under
+      ``torch.inference_mode()``, with torch's default thread count and with 1 thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import os
+import platform
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from deploy.checkpoint import MLPActor, ObservationNormalizer, save_checkpoint  # noqa: E402
+from deploy.export import load_source, run_export  # noqa: E402
+from deploy.policy import OnnxPolicy  # noqa: E402
+from deploy.spec import PolicySpec  # noqa: E402
+from robots import load_robot  # noqa: E402
+
+BLOCKS = (
+    "joint_position",
+    "joint_velocity",
+    "ee_position",
+    "goal_position",
+    "goal_in_ee",
+    "last_action",
+    "winding_temperature",
+)
+
+
+def time_calls(fn: Callable[[], object], calls: int, warmup: int = 500) -> np.ndarray:
+    """Per-call wall time, us, of ``calls`` calls after ``warmup`` calls."""
+    for _ in range(warmup):
+        fn()
+    out = np.empty(calls, dtype=np.int64)
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    try:
+        for i in range(calls):
+            t = time.perf_counter_ns()
+            fn()
+            out[i] = time.perf_counter_ns() - t
+    finally:
+        gc.enable()
+        gc.unfreeze()
+    return out / 1e3
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.policy_inference", description=__doc__)
+    p.add_argument("--calls", type=int, default=10_000)
+    args = p.parse_args(argv)
+
+    robot = load_robot("arm3")
+    spec = PolicySpec.for_robot(robot, blocks=BLOCKS)
+    rng = np.random.default_rng(0)
+    torch.manual_seed(0)
+    actor = MLPActor(spec.obs_dim, spec.act_dim, hidden=(64, 64), activation="elu")
+    norm = ObservationNormalizer(rng.normal(0, 0.1, spec.obs_dim), rng.uniform(0.5, 2, 21))
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        src = save_checkpoint(Path(tmp) / "arm.pt", actor, spec, norm)
+        exports = []
+        for name in ("cold", "warm"):
+            t = time.perf_counter()
+            result = run_export(src, out=Path(tmp) / f"arm_{name}.onnx")
+            exports.append((name, time.perf_counter() - t, result))
+        path = exports[-1][2].path
+        policy = OnnxPolicy(path, robot)
+        module = load_source(src).module()
+        obs = rng.uniform(-1, 1, (1, spec.obs_dim)).astype(np.float32)
+        obs_t = torch.from_numpy(obs)
+
+        def torch_call() -> None:
+            with torch.inference_mode():
+                module(obs_t)
+
+        feed = {policy.input_name: obs}
+        rows.append(
+            ("OnnxPolicy (IOBinding, 1 thread)", time_calls(lambda: policy(obs), args.calls))
+        )
+        rows.append(
+            (
+                "onnxruntime session.run",
+                time_calls(lambda: policy.session.run(None, feed), args.calls),
+            )
+        )
+        threads = torch.get_num_threads()
+        rows.append((f"torch eager ({threads} threads)", time_calls(torch_call, args.calls)))
+        torch.set_num_threads(1)
+        rows.append(("torch eager (1 thread)", time_calls(torch_call, args.calls)))
+        torch.set_num_threads(threads)
+        with torch.inference_mode():
+            err = np.abs(policy(obs) - module(obs_t).numpy()).max()
+
+    print(
+        f"{platform.platform()}, python {platform.python_version()}, torch {torch.__version__}, "
+        f"onnxruntime {__import__('onnxruntime').__version__}, {os.cpu_count()} CPUs"
+    )
+    print("policy: arm3, obs 21 -> [64, 64] ELU -> act 3, normalizer + action clip baked")
+    for name, seconds, result in exports:
+        f = result.parity
+        print(
+            f"export ({name}): {seconds:.2f} s wall (parity {f['max_abs_error']:.1e} over "
+            f"{f['samples']} obs, {f['replay_max_abs_error']:.1e} over {f['replay_ticks']} ticks)"
+        )
+    print(f"batch-1 inference, {args.calls} calls each (|onnx - torch| = {err:.1e}):")
+    print(f"  {'':36} {'median us':>10} {'p99 us':>8}")
+    for name, us in rows:
+        print(f"  {name:36} {np.median(us):10.1f} {np.percentile(us, 99):8.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

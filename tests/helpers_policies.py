@@ -1,0 +1,129 @@
+"""Shared helpers of the policy tests: tiny networks, specs, hand-made ONNX graphs.
+
+Module-level classes can be pickled by ``torch.save`` (the pickled-module tests import them from
+here).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+from onnx import TensorProto, helper, numpy_helper
+from torch import nn
+
+from deploy.spec import PolicySpec
+
+#: arm3 with every block the seed's arm uses: obs 21, act 3.
+ARM3_BLOCKS = (
+    "joint_position",
+    "joint_velocity",
+    "ee_position",
+    "goal_position",
+    "goal_in_ee",
+    "last_action",
+    "winding_temperature",
+)
+
+
+def make_spec(robot, blocks=ARM3_BLOCKS, **kwargs) -> PolicySpec:
+    return PolicySpec.for_robot(robot, blocks=blocks, **kwargs)
+
+
+def write_spec(spec: PolicySpec, path: Path) -> Path:
+    path.write_text(spec.to_json())
+    return path
+
+
+class PlainNet(nn.Module):
+    """A user's own actor module (not our MLPActor): Linear-Tanh-Linear."""
+
+    def __init__(self, obs_dim: int = 21, act_dim: int = 3, hidden: int = 16):
+        super().__init__()
+        self.body = nn.Sequential(nn.Linear(obs_dim, hidden), nn.Tanh())
+        self.head = nn.Linear(hidden, act_dim)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return 3.0 * self.head(self.body(obs))
+
+
+class NoisyNet(PlainNet):
+    """A non-deterministic forward: the ONNX graph cannot match the torch source."""
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        out = self.head(self.body(obs))
+        return out + 1e-3 * torch.rand_like(out)
+
+
+def folder(path: Path) -> set[str]:
+    return {p.name for p in path.iterdir()}
+
+
+def clip_action(a: np.ndarray, clip: float = 1.0) -> np.ndarray:
+    return np.clip(a, -clip, clip)
+
+
+def torch_out(net: nn.Module, obs: np.ndarray) -> np.ndarray:
+    with torch.no_grad():
+        return net(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+
+
+def linear_onnx(
+    weight: np.ndarray,
+    bias: np.ndarray,
+    input_name: str = "obs",
+    output_name: str = "action",
+    extra_inputs: tuple[str, ...] = (),
+    metadata: dict[str, str] | None = None,
+    batch: int | str = "batch",
+) -> onnx.ModelProto:
+    """A foreign policy graph: ``action = obs @ weight + bias`` (weight (obs_dim, act_dim))."""
+    obs_dim, act_dim = weight.shape
+    nodes = [
+        helper.make_node("MatMul", [input_name, "W"], ["h"], name="matmul"),
+        helper.make_node("Add", ["h", "b"], [output_name], name="add"),
+    ]
+    inputs = [helper.make_tensor_value_info(input_name, TensorProto.FLOAT, [batch, obs_dim])]
+    outputs = [helper.make_tensor_value_info(output_name, TensorProto.FLOAT, [batch, act_dim])]
+    for name in extra_inputs:  # recurrent-style state passed through
+        inputs.append(helper.make_tensor_value_info(name, TensorProto.FLOAT, [batch, 8]))
+        nodes.append(helper.make_node("Identity", [name], [f"{name}_out"]))
+        outputs.append(helper.make_tensor_value_info(f"{name}_out", TensorProto.FLOAT, [batch, 8]))
+    graph = helper.make_graph(
+        nodes,
+        "policy",
+        inputs,
+        outputs,
+        initializer=[
+            numpy_helper.from_array(weight.astype(np.float32), "W"),
+            numpy_helper.from_array(bias.astype(np.float32), "b"),
+        ],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    model.ir_version = 9
+    for key, value in (metadata or {}).items():
+        prop = model.metadata_props.add()
+        prop.key, prop.value = key, value
+    onnx.checker.check_model(model)
+    return model
+
+
+def externalize(model: onnx.ModelProto, name: str, location: str, data_path: Path) -> None:
+    """Move initializer ``name`` to external data at ``location``, writing its bytes to
+    ``data_path``."""
+    for t in model.graph.initializer:
+        if t.name == name:
+            raw = numpy_helper.to_array(t).tobytes()
+            data_path.parent.mkdir(parents=True, exist_ok=True)
+            data_path.write_bytes(raw)
+            t.ClearField("raw_data")
+            t.ClearField("float_data")
+            t.data_location = TensorProto.EXTERNAL
+            del t.external_data[:]
+            for key, value in (("location", location), ("offset", "0"), ("length", str(len(raw)))):
+                entry = t.external_data.add()
+                entry.key, entry.value = key, value
+            return
+    raise KeyError(name)

@@ -1,0 +1,326 @@
+"""JointStateEstimator: accuracy on the plant, time stamps, faults, and the filterpy reference."""
+
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from deploy.backends.base import SensorFrame
+from deploy.backends.sim import SimBackend
+from deploy.estimation import JointStateEstimator
+from deploy.state import RobotState
+from robots import load_robot
+
+IMPLEMENTATIONS = ("vectorized", "filterpy")
+
+
+@pytest.fixture(scope="module")
+def arm3():
+    return load_robot("arm3")
+
+
+@pytest.fixture(scope="module")
+def arm6():
+    return load_robot("arm6")
+
+
+def frame(time, position, stamp, envs=1, n=3, temperature=30.0):
+    """A hand-made SensorFrame (envs, n): position and stamp broadcast."""
+    f = SensorFrame.empty(envs, n)
+    f.time[:] = time
+    f.position[:] = position
+    f.position_stamp[:] = stamp
+    f.winding_temperature[:] = temperature
+    f.temperature_stamp[:] = time
+    return f
+
+
+def sinusoid(robot, t):
+    """A smooth position command within the acceleration limits: 0.5 rad at 0.5 Hz about home."""
+    return (robot.home + 0.5 * np.sin(np.pi * t))[None, :]
+
+
+def test_vectorized_equals_filterpy_reference_for_10000_ticks(arm3):
+    envs = 2
+    plant = SimBackend(arm3, mode="position", envs=envs, seed=7)
+    plant.dropout_probability[:] = 0.1
+    plant.latency_ticks[:] = [2, 3]
+    plant.reset()
+    fast = JointStateEstimator(arm3, envs, implementation="vectorized")
+    reference = JointStateEstimator(arm3, envs, implementation="filterpy")
+    states = [RobotState.zeros(envs, 3), RobotState.zeros(envs, 3)]
+    for est in (fast, reference):
+        est.reset(plant.true_position(), 0.0)
+    worst = dict(q=0.0, dq=0.0, P=0.0)
+    for k in range(10_000):
+        f = plant.read()
+        fast.update(f, states[0])
+        reference.update(f, states[1])
+        worst["q"] = max(worst["q"], np.abs(states[0].q - states[1].q).max())
+        worst["dq"] = max(worst["dq"], np.abs(states[0].dq - states[1].dq).max())
+        worst["P"] = max(worst["P"], np.abs(fast.covariance - reference.covariance).max())
+        plant.write(sinusoid(arm3, k * arm3.control_period).repeat(envs, axis=0))
+        plant.advance()
+    assert max(worst.values()) <= 1e-9, worst
+    # the stream really had dropouts and absorbed readings, and nothing degenerated
+    assert (fast.missing_readings > 0.09 * 10_000 * 3).all()
+    np.testing.assert_array_equal(fast.missing_readings, reference.missing_readings)
+    np.testing.assert_array_equal(fast.stale_readings, reference.stale_readings)
+    assert (fast.reinitializations == 0).all()
+
+
+@pytest.mark.parametrize("name", ["arm3", "arm6"])
+def test_estimate_is_closer_to_the_truth_than_the_raw_encoder(name):
+    robot = load_robot(name)
+    n = robot.n_joints
+    plant = SimBackend(robot, mode="position", seed=3)
+    plant.dropout_probability[:] = 0.05
+    est = JointStateEstimator(robot, 1)
+    state = RobotState.zeros(1, n)
+    est.reset(plant.read().position, 0.0)
+    err_q, err_raw, err_dq, speed = [], [], [], []
+    for k in range(2000):
+        f = plant.read()
+        est.update(f, state)
+        if k >= 200:  # after the initial transient
+            truth = plant.true_position()[0]
+            err_q.append(state.q[0] - truth)
+            err_dq.append(state.dq[0] - plant.true_velocity()[0])
+            err_raw.append(f.position[0] - truth)  # NaN on dropouts
+            speed.append(np.abs(plant.true_velocity()[0]).max())
+        plant.write(sinusoid(robot, k * robot.control_period))
+        plant.advance()
+    rms_q = np.sqrt(np.mean(np.square(err_q)))
+    rms_raw = np.sqrt(np.nanmean(np.square(err_raw)))
+    rms_dq = np.sqrt(np.mean(np.square(err_dq)))
+    # measured: arm3 7.6 vs 15.6 mrad, 0.20 rad/s; arm6 9.5 vs 15.8 mrad, 0.25 rad/s
+    assert rms_q < 0.75 * rms_raw
+    assert max(speed) > 1.2  # the joints really move (peak 1.57 rad/s)
+    assert rms_dq < 0.35  # rad/s; a finite difference of the raw readings: ~4 rad/s
+
+
+def test_latency_is_compensated_by_extrapolating_to_frame_time(arm3):
+    plant = SimBackend(arm3, mode="velocity", seed=0)
+    plant.noise_sigma[:] = 0.001
+    plant.latency_ticks[:] = 3
+    plant.reset()
+    est = JointStateEstimator(arm3, 1, measurement_sigma=0.001)
+    state = RobotState.zeros(1, 3)
+    est.reset(plant.true_position(), 0.0)
+    velocity = np.array([[0.5, 0.5, -0.5]])  # rad/s, constant
+    err_est, err_raw, latest = [], [], None
+    for k in range(400):
+        f = plant.read()
+        est.update(f, state)
+        if np.isfinite(f.position).all():
+            latest = f.position[0].copy()
+        if k >= 200:
+            truth = plant.true_position()[0]
+            err_est.append(state.q[0] - truth)
+            err_raw.append(latest - truth)
+        plant.write(velocity)
+        plant.advance()
+    lag = np.abs(np.mean(err_raw, axis=0))  # 3 ticks x 5 ms x 0.5 rad/s = 7.5 mrad
+    bias = np.abs(np.mean(err_est, axis=0))  # measured 0.0-0.2 mrad
+    assert (lag > 0.006).all()
+    assert (bias < 0.001).all()
+    np.testing.assert_allclose(est.time_since_fresh, 3 * arm3.control_period)
+
+
+def test_multi_rate_readings_track_a_constant_velocity(arm3):
+    est = JointStateEstimator(arm3, 1)
+    state = RobotState.zeros(1, 3)
+    dt = arm3.control_period
+    est.reset(np.full(3, 0.3), 0.0)
+    for k in range(1, 400):
+        t = k * dt
+        truth = 0.3 + 1.0 * t
+        if k % 4 == 0:  # an encoder at a quarter of the control rate, noise-free
+            est.update(frame(t, truth, t), state)
+        else:
+            est.update(frame(t, np.nan, np.nan), state)
+        if k > 200:
+            np.testing.assert_allclose(state.q[0], truth, atol=2e-3)
+            np.testing.assert_allclose(state.dq[0], 1.0, atol=0.05)
+            assert est.time_since_fresh[0, 0] == pytest.approx((k % 4) * dt)
+
+
+@pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
+def test_dropout_predicts_only_and_time_since_fresh_grows(arm3, implementation):
+    est = JointStateEstimator(arm3, 1, implementation=implementation)
+    state = RobotState.zeros(1, 3)
+    dt = arm3.control_period
+    est.reset(np.zeros(3), 0.0)
+    for k in range(1, 50):  # moving at 0.2 rad/s
+        est.update(frame(k * dt, 0.2 * k * dt, k * dt), state)
+    x = est.position.copy(), est.velocity.copy(), est.covariance.copy(), est.filter_time.copy()
+    missing = est.missing_readings.copy()
+    for k in range(50, 60):  # every reading lost
+        est.update(frame(k * dt, np.nan, np.nan), state)
+        np.testing.assert_allclose(est.time_since_fresh, (k - 49) * dt)
+        np.testing.assert_allclose(state.q, x[0] + (k - 49) * dt * x[1])  # prediction
+        np.testing.assert_array_equal(state.dq, x[1])
+    now = est.position, est.velocity, est.covariance, est.filter_time
+    for before, after in zip(x, now, strict=True):
+        np.testing.assert_array_equal(before, after)  # the filter state did not move
+    np.testing.assert_array_equal(est.missing_readings, missing + 10 * 3)
+    est.update(frame(60 * dt, 0.2 * 60 * dt, 60 * dt), state)  # a reading arrives again
+    np.testing.assert_array_equal(est.time_since_fresh, 0.0)
+    np.testing.assert_allclose(state.q, 0.2 * 60 * dt, atol=1e-3)
+    assert (est.time_since_fresh < arm3.config.safety.stale_limit).all()
+
+
+@pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
+def test_stale_reordered_and_future_readings_are_discarded_and_counted(arm3, implementation):
+    est = JointStateEstimator(arm3, 1, implementation=implementation)
+    state = RobotState.zeros(1, 3)
+    est.reset(np.zeros(3), 0.0)
+    est.update(frame(0.010, 0.01, 0.010), state)
+    est.update(frame(0.020, 0.02, 0.020), state)
+    kept = est.position.copy(), est.velocity.copy(), est.covariance.copy()
+    assert (est.stale_readings == 0).all()
+    est.update(frame(0.030, 5.0, 0.015), state)  # older than the last absorbed reading
+    est.update(frame(0.040, 5.0, 0.020), state)  # the same reading again
+    est.update(frame(0.050, 5.0, 0.060), state)  # stamped after the frame: clock fault
+    np.testing.assert_array_equal(est.stale_readings, [9])
+    for before, after in zip(kept, (est.position, est.velocity, est.covariance), strict=True):
+        np.testing.assert_array_equal(before, after)
+    assert (np.abs(state.q) < 0.1).all()  # the 5 rad readings never got in
+    np.testing.assert_allclose(est.time_since_fresh, 0.030)  # still the reading of t = 0.020
+
+
+@pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
+def test_non_finite_readings_never_poison_the_state(arm3, implementation):
+    est = JointStateEstimator(arm3, 1, implementation=implementation)
+    state = RobotState.zeros(1, 3)
+    est.reset(np.zeros(3), 0.0)
+    dt = arm3.control_period
+    bad = [
+        ([np.nan, 0.1, 0.1], [dt, dt, dt]),  # NaN value, finite stamp
+        ([0.1, np.inf, 0.1], [dt, dt, dt]),  # inf value
+        ([0.1, 0.1, 0.1], [dt, np.nan, np.inf]),  # finite value, bad stamps
+    ]
+    for k, (value, stamp) in enumerate(bad, start=1):
+        f = frame(k * dt, 0.0, 0.0)
+        f.position[0] = value
+        f.position_stamp[0] = np.array(stamp) + (k - 1) * dt
+        est.update(f, state)
+        assert np.isfinite(state.q).all() and np.isfinite(state.dq).all()
+        assert np.isfinite(est.covariance).all()
+    np.testing.assert_array_equal(est.missing_readings, [4])
+    for k in range(4, 40):
+        est.update(frame(k * dt, 0.1, k * dt), state)
+    np.testing.assert_allclose(state.q, 0.1, atol=2e-3)  # it still tracks
+    assert (est.reinitializations == 0).all()
+
+
+@pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
+@pytest.mark.parametrize(
+    "P",
+    [
+        [[np.nan, 0.0], [0.0, 1.0]],  # not finite
+        [[1e12, 0.0], [0.0, 1.0]],  # position variance above the bound
+        [[1e-4, 0.1], [0.1, 1e-4]],  # not positive definite
+        [[-1e-4, 0.0], [0.0, 1.0]],  # negative variance
+    ],
+    ids=["nan", "huge", "indefinite", "negative"],
+)
+def test_degenerate_covariance_is_reinitialized_and_counted(arm3, implementation, P):
+    est = JointStateEstimator(arm3, 2, implementation=implementation)
+    state = RobotState.zeros(2, 3)
+    dt = arm3.control_period
+    est.reset(np.zeros((2, 3)), 0.0)
+    for k in range(1, 20):
+        est.update(frame(k * dt, 0.05, k * dt, envs=2), state)
+    # with a fresh reading: re-initialized from it
+    est.covariance[0, 1] = P
+    f = frame(20 * dt, 0.05, 20 * dt, envs=2)
+    f.position[0, 1] = 0.07
+    est.update(f, state)
+    np.testing.assert_array_equal(est.reinitializations, [1, 0])
+    np.testing.assert_array_equal(est.covariance[0, 1], est.initial_covariance[1])
+    assert est.position[0, 1] == 0.07 and est.filter_time[0, 1] == 20 * dt
+    assert np.isfinite(state.q).all()
+    # without a reading: re-initialized from the last estimate, filter time unchanged
+    est.covariance[1, 2] = P
+    position = est.position[1, 2]
+    f = frame(21 * dt, 0.05, 21 * dt, envs=2)
+    f.position[1, 2] = f.position_stamp[1, 2] = np.nan
+    est.update(f, state)
+    np.testing.assert_array_equal(est.reinitializations, [1, 1])
+    np.testing.assert_array_equal(est.covariance[1, 2], est.initial_covariance[2])
+    assert est.position[1, 2] == position and est.filter_time[1, 2] == 20 * dt
+    # the filter carries on normally; covariance symmetric and positive definite
+    for k in range(22, 60):
+        est.update(frame(k * dt, 0.05, k * dt, envs=2), state)
+    np.testing.assert_allclose(state.q, 0.05, atol=2e-3)
+    P_all = est.covariance
+    np.testing.assert_array_equal(P_all, P_all.transpose(0, 1, 3, 2))
+    assert (np.linalg.eigvalsh(P_all) > 0).all()
+    np.testing.assert_array_equal(est.reinitializations, [1, 1])
+
+
+def test_lost_position_waits_for_a_reading_and_reports_infinite_age(arm3):
+    est = JointStateEstimator(arm3, 1)
+    state = RobotState.zeros(1, 3)
+    est.reset(np.zeros(3), 0.0)
+    est.position[0, 0] = np.nan  # fault injection: the state itself is lost
+    est.update(frame(0.005, np.nan, np.nan), state)
+    assert np.isnan(state.q[0, 0]) and est.time_since_fresh[0, 0] == np.inf
+    assert np.isfinite(state.q[0, 1:]).all()
+    est.update(frame(0.010, np.nan, np.nan), state)
+    np.testing.assert_array_equal(est.reinitializations, [1])  # counted once
+    est.update(frame(0.015, 0.3, 0.015), state)
+    assert state.q[0, 0] == 0.3 and est.time_since_fresh[0, 0] == 0.0
+
+
+def test_winding_temperature_is_copied_where_reported(arm3):
+    est = JointStateEstimator(arm3, 1)
+    state = RobotState.zeros(1, 3)
+    est.reset(np.zeros(3), 0.0)
+    f = frame(0.005, 0.0, 0.005, temperature=41.0)
+    f.winding_temperature[0, 2] = np.nan
+    est.update(f, state)
+    np.testing.assert_array_equal(state.winding_temperature, [[41.0, 41.0, 25.0]])
+
+
+def test_update_allocates_no_arrays(arm6):
+    envs = 256  # one (envs, n) float array: 12 kB
+    plant = SimBackend(arm6, envs=envs, seed=1)
+    plant.dropout_probability[:] = 0.1
+    est = JointStateEstimator(arm6, envs)
+    state = RobotState.zeros(envs, 6)
+    est.reset(plant.read().position, 0.0)
+    frames = []
+    for _ in range(20):
+        plant.advance()
+        f = plant.read()
+        frames.append(SensorFrame(*(np.copy(a) for a in vars(f).values())))
+    est.update(frames[0], state)
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        tracemalloc.reset_peak()
+        for f in frames[1:]:
+            est.update(f, state)
+        current, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak - base < 8 * envs * 6 // 2  # less than half of one work array
+    assert current - base < 1024
+
+
+def test_argument_errors(arm3):
+    with pytest.raises(ValueError, match="implementation"):
+        JointStateEstimator(arm3, 1, implementation="numba")
+    with pytest.raises(ValueError, match="measurement_sigma"):
+        JointStateEstimator(arm3, 1, measurement_sigma=0.0)
+    est = JointStateEstimator(arm3, 2)
+    state = RobotState.zeros(2, 3)
+    with pytest.raises(RuntimeError, match="reset"):
+        est.update(frame(0.0, 0.0, 0.0, envs=2), state)
+    with pytest.raises(ValueError, match="finite"):
+        est.reset(np.full((2, 3), np.nan), 0.0)
+    est.reset(np.zeros((2, 3)), [0.0, 0.1])
+    with pytest.raises(ValueError, match="shaped"):
+        est.update(frame(0.0, 0.0, 0.0, envs=1), state)

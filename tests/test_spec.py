@@ -1,0 +1,205 @@
+"""PolicySpec: JSON round trip, observation layout and normalization, action mapping, robot checks."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from deploy.spec import PolicySpec, SpecError
+from deploy.state import Kinematics, RobotState
+from robots import load_robot
+
+ALL_BLOCKS = (
+    "joint_position",
+    "joint_velocity",
+    "ee_position",
+    "goal_position",
+    "goal_in_ee",
+    "last_action",
+    "winding_temperature",
+)
+
+
+@pytest.fixture(scope="module")
+def arm3():
+    return load_robot("arm3")
+
+
+@pytest.fixture(scope="module")
+def arm6():
+    return load_robot("arm6")
+
+
+@pytest.fixture(scope="module")
+def spec(arm3):
+    return PolicySpec.for_robot(arm3, blocks=ALL_BLOCKS)
+
+
+def state_at(robot, q, dq=None, envs=1):
+    state = RobotState.zeros(envs, robot.n_joints, robot.config.sensors.ambient_temperature)
+    state.q[:] = q
+    state.dq[:] = 0.0 if dq is None else dq
+    return Kinematics(robot).update(state)
+
+
+# ---------------------------------------------------------------------- JSON
+def test_json_round_trip_preserves_every_field(spec):
+    filled = dataclasses.replace(
+        spec,
+        baked={"observation_normalizer": True, "action_clip": True},
+        parity={"max_abs_error": 1e-7, "samples": 1049},
+    )
+    back = PolicySpec.from_json(filled.to_json())
+    assert back == filled
+    assert back.obs_dim == 21 and back.act_dim == 3
+    assert back.block_slices()["goal_in_ee"] == slice(12, 15)
+
+
+def test_unknown_format_version_is_refused(spec):
+    d = json.loads(spec.to_json())
+    d["format_version"] = 2
+    with pytest.raises(SpecError, match=r"my_spec.json: format_version 2 is not supported"):
+        PolicySpec.from_json(json.dumps(d), source="my_spec.json")
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda d: d.pop("joint_names"), r"field 'joint_names' is missing"),
+        (lambda d: d["action"].update(mode="teleport"), r"action.mode: 'teleport' is unknown"),
+        (lambda d: d["observation"][0].update(size=7), r"observation\[0\].*scale and offset"),
+        (lambda d: d["observation"][1].update(scale=[0, 1, 1]), r"scale must be finite"),
+    ],
+)
+def test_invalid_spec_json_names_the_field(spec, edit, message):
+    d = json.loads(spec.to_json())
+    edit(d)
+    with pytest.raises(SpecError, match=message):
+        PolicySpec.from_json(json.dumps(d), source="s.json")
+
+
+def test_not_json_is_refused():
+    with pytest.raises(SpecError, match=r"s.json: not valid JSON"):
+        PolicySpec.from_json("{oops", source="s.json")
+
+
+# ---------------------------------------------------------------------- observation
+def test_joint_limits_and_velocity_limits_map_to_plus_minus_one(arm3, spec):
+    sl = spec.block_slices()
+    goal = np.zeros((1, 3))
+    upper = spec.observation(state_at(arm3, arm3.position_upper, arm3.velocity_limit), goal)
+    lower = spec.observation(state_at(arm3, arm3.position_lower, -arm3.velocity_limit), goal)
+    assert upper.dtype == np.float32 and upper.shape == (1, 21)
+    np.testing.assert_allclose(upper[0, sl["joint_position"]], 1.0, atol=1e-6)
+    np.testing.assert_allclose(lower[0, sl["joint_position"]], -1.0, atol=1e-6)
+    np.testing.assert_allclose(upper[0, sl["joint_velocity"]], 1.0, atol=1e-6)
+    np.testing.assert_allclose(lower[0, sl["joint_velocity"]], -1.0, atol=1e-6)
+    centre = spec.observation(state_at(arm3, np.zeros(3)), goal)
+    np.testing.assert_allclose(centre[0, sl["joint_position"]], 0.0, atol=1e-6)
+
+
+def test_positions_are_scaled_by_reach(arm3, spec):
+    sl = spec.block_slices()
+    reach = Kinematics(arm3).reach()
+    stretched = state_at(arm3, np.zeros(3))  # arm3 straight out along +x
+    goal = np.array([[0.3, -0.45, 0.0]])
+    obs = spec.observation(stretched, goal)
+    np.testing.assert_allclose(obs[0, sl["ee_position"]], stretched.ee_position[0] / reach, 1e-6)
+    assert np.linalg.norm(stretched.ee_position[0]) == pytest.approx(reach, rel=1e-6)
+    np.testing.assert_allclose(obs[0, sl["goal_position"]], goal[0] / reach, rtol=1e-6)
+
+
+def test_goal_is_expressed_in_the_end_effector_frame(arm3, spec):
+    sl = spec.block_slices()
+    state = state_at(arm3, [0.4, -0.3, 0.2])
+    reach = Kinematics(arm3).reach()
+    R, p = state.ee_rotation[0], state.ee_position[0]
+    offset_in_ee = np.array([0.1, 0.05, 0.0])
+    goal = (p + R @ offset_in_ee)[None]
+    obs = spec.observation(state, goal)
+    np.testing.assert_allclose(obs[0, sl["goal_in_ee"]], offset_in_ee / reach, atol=1e-6)
+    # a goal at the end effector is the origin of that frame
+    obs = spec.observation(state, p[None])
+    np.testing.assert_allclose(obs[0, sl["goal_in_ee"]], 0.0, atol=1e-6)
+
+
+def test_temperature_last_action_and_clip(arm3, spec):
+    sl = spec.block_slices()
+    state = state_at(arm3, np.zeros(3))
+    ambient = arm3.config.sensors.ambient_temperature
+    state.winding_temperature[:] = [ambient, arm3.motors[1].max_winding_temperature, 1e6]
+    state.last_action[:] = [0.5, -1.0, 0.0]
+    obs = spec.observation(state, np.zeros((1, 3)))
+    np.testing.assert_allclose(obs[0, sl["winding_temperature"]], [0.0, 1.0, 5.0], atol=1e-6)
+    np.testing.assert_allclose(obs[0, sl["last_action"]], [0.5, -1.0, 0.0])
+
+
+def test_observation_is_batched_and_writes_into_out(arm3, spec):
+    state = state_at(arm3, [[0.1, 0.2, 0.3], [-0.5, 0.0, 1.0]], envs=2)
+    out = np.full((2, 21), np.nan, np.float32)
+    result = spec.observation(state, np.zeros((2, 3)), out=out)
+    assert result is out and np.isfinite(out).all()
+    one = spec.observation(state_at(arm3, [-0.5, 0.0, 1.0]), np.zeros((1, 3)))
+    np.testing.assert_allclose(out[1], one[0])
+
+
+def test_wrapping_joints_use_sin_cos(arm6):
+    spec = PolicySpec.for_robot(arm6, blocks=("joint_position", "joint_position_sincos"))
+    blocks = {b.name: b for b in spec.observation_blocks}
+    assert blocks["joint_position"].joints == (2,)  # the elbow is the only bounded joint
+    assert blocks["joint_position_sincos"].joints == (0, 1, 3, 4, 5)
+    state = state_at(arm6, arm6.home)
+    obs = spec.observation(state, np.zeros((1, 3)))
+    q = arm6.home[[0, 1, 3, 4, 5]]
+    np.testing.assert_allclose(obs[0, 1:], np.concatenate([np.sin(q), np.cos(q)]), atol=1e-6)
+
+
+# ---------------------------------------------------------------------- action
+def test_action_to_target_in_each_mode(arm3):
+    state = state_at(arm3, [0.2, -0.1, 0.3])
+    a = np.array([[1.0, -0.5, 3.0]])  # the last entry is clipped to 1
+    vel = PolicySpec.for_robot(arm3, mode="velocity").action_to_target(a, state)
+    np.testing.assert_allclose(vel, [[3.14, -1.57, 3.14]])
+    torque = PolicySpec.for_robot(arm3, mode="torque").action_to_target(a, state)
+    np.testing.assert_allclose(torque, [[22.5, -11.25, 22.5]])
+    absolute = PolicySpec.for_robot(arm3, mode="position").action_to_target(a, state)
+    np.testing.assert_allclose(absolute, [[1.57, -0.785, 1.57]])
+    current = PolicySpec.for_robot(arm3, mode="position", reference="current")
+    step = 3.14 * arm3.control_period
+    np.testing.assert_allclose(
+        current.action_to_target(a, state), [[0.2 + step, -0.1 - 0.5 * step, 0.3 + step]]
+    )
+    out = np.empty((1, 3))
+    assert current.action_to_target(a, state, out=out) is out
+
+
+def test_current_reference_only_in_position_mode(arm3):
+    with pytest.raises(SpecError, match=r"action.reference: 'current' is not valid for mode"):
+        PolicySpec.for_robot(arm3, mode="velocity", reference="current")
+
+
+# ---------------------------------------------------------------------- robot checks
+def test_check_robot_accepts_its_robot(arm3, spec):
+    spec.check_robot(arm3)
+
+
+def test_arm3_spec_refused_on_arm6(arm6, spec):
+    with pytest.raises(SpecError, match=r"robot: policy is for 'arm3', the robot is 'arm6'"):
+        spec.check_robot(arm6)
+
+
+def test_changed_description_hash_is_refused(arm3, spec):
+    stale = dataclasses.replace(spec, robot_hash="0" * 64)
+    with pytest.raises(SpecError, match=r"robot_hash: .*robot.toml or MJCF changed"):
+        stale.check_robot(arm3)
+    stale.check_robot(arm3, check_hash=False)
+
+
+def test_joint_order_and_rate_mismatch_are_named(arm3, spec):
+    swapped = dataclasses.replace(spec, joint_names=("elbow", "shoulder", "wrist"))
+    with pytest.raises(SpecError, match=r"joint_names: policy expects \['elbow', 'shoulder'"):
+        swapped.check_robot(arm3)
+    slow = dataclasses.replace(spec, control_rate=100.0)
+    with pytest.raises(SpecError, match=r"control_rate: policy runs at 100.0 Hz, the robot at 200"):
+        slow.check_robot(arm3)

@@ -74,6 +74,7 @@ class FaultInjector:
         self._frozen: SensorFrame | None = None
         self._active: set[int] = set()
         self.log: list[dict] = []
+        self._has_push = any(f.kind == "push" for f in self.faults)
 
     def _envs(self, f: Fault) -> np.ndarray:
         return np.arange(self.backend.envs) if f.envs is None else np.array(f.envs)
@@ -110,8 +111,9 @@ class FaultInjector:
                 )
             elif f.kind == "push":
                 push[envs, 0] = f.magnitude or PUSH_FORCE
-        for e in range(b.envs):
-            b.set_external_force(e, push[e])
+        if self._has_push:
+            for e in range(b.envs):
+                b.set_external_force(e, push[e])
 
     def filter_frame(self, t: float, frame: SensorFrame) -> SensorFrame:
         """Replace the frame with a frozen copy while a ``stale`` fault is active."""

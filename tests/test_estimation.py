@@ -14,16 +14,6 @@ from robots import load_robot
 IMPLEMENTATIONS = ("vectorized", "filterpy")
 
 
-@pytest.fixture(scope="module")
-def arm3():
-    return load_robot("arm3")
-
-
-@pytest.fixture(scope="module")
-def arm6():
-    return load_robot("arm6")
-
-
 def frame(time, position, stamp, envs=1, n=3, temperature=30.0):
     """A hand-made SensorFrame (envs, n): position and stamp broadcast."""
     f = SensorFrame.empty(envs, n)

@@ -16,16 +16,6 @@ from robots import load_robot
 from tests.runtime_fixtures import Recorder, adversarial_onnx, finite_differences
 
 
-@pytest.fixture(scope="module")
-def arm3():
-    return load_robot("arm3")
-
-
-@pytest.fixture(scope="module")
-def arm6():
-    return load_robot("arm6")
-
-
 def make_runtime(tmp_path, robot, mode, faults=(), nan_probability=0.0, clock=None, seed=0):
     policy = OnnxPolicy(adversarial_onnx(tmp_path, robot, mode, nan_probability), robot)
     backend = Recorder(SimBackend(robot, mode=mode, seed=seed))

@@ -5,12 +5,6 @@ import numpy as np
 import pytest
 
 from deploy.backends.sim import NonFiniteCommandError, SimBackend, SimulationDivergedError
-from robots import load_robot
-
-
-@pytest.fixture(scope="module")
-def arm3():
-    return load_robot("arm3")
 
 
 def run(plant, command, ticks):

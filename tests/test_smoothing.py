@@ -22,11 +22,6 @@ def robot(request):
     return load_robot(request.param)
 
 
-@pytest.fixture(scope="module")
-def arm3():
-    return load_robot("arm3")
-
-
 def random_targets(robot, mode, envs, ticks, seed, scale=1.2):
     """Policy-like targets: uniform[-1, 1] actions scaled to the mode's range (``scale`` > 1
     reaches past the limits), held for random spells, with per-tick jitter and a few NaN."""

@@ -8,7 +8,6 @@ import pytest
 
 from deploy.spec import PolicySpec, SpecError
 from deploy.state import Kinematics, RobotState
-from robots import load_robot
 
 ALL_BLOCKS = (
     "joint_position",
@@ -19,16 +18,6 @@ ALL_BLOCKS = (
     "last_action",
     "winding_temperature",
 )
-
-
-@pytest.fixture(scope="module")
-def arm3():
-    return load_robot("arm3")
-
-
-@pytest.fixture(scope="module")
-def arm6():
-    return load_robot("arm6")
 
 
 @pytest.fixture(scope="module")

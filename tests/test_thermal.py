@@ -4,12 +4,6 @@ import numpy as np
 import pytest
 
 from deploy.thermal import TwoNodeThermalModel, derating_factor
-from robots import load_robot
-
-
-@pytest.fixture(scope="module")
-def arm3():
-    return load_robot("arm3")
 
 
 def test_capacities_follow_the_datasheet_time_constants(arm3):

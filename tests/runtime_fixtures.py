@@ -35,10 +35,3 @@ class Recorder:
     def advance(self):
         self.backend.advance()
         self.true_q.append(self.backend.true_position().copy())
-
-
-def finite_differences(commands: np.ndarray, dt: float, order: int) -> np.ndarray:
-    d = commands
-    for _ in range(order):
-        d = np.diff(d, axis=0) / dt
-    return d

@@ -8,12 +8,13 @@ import time
 import numpy as np
 import pytest
 
+from deploy.acceptance import check_adversarial
 from deploy.backends.sim import SimBackend
 from deploy.faults import Fault, FaultInjector
 from deploy.policy import OnnxPolicy
 from deploy.runtime import NAN_ACTION_LIMIT, Mode, Runtime, WallClock
 from robots import load_robot
-from tests.runtime_fixtures import Recorder, adversarial_onnx, finite_differences
+from tests.runtime_fixtures import Recorder, adversarial_onnx
 
 
 def make_runtime(tmp_path, robot, mode, faults=(), nan_probability=0.0, clock=None, seed=0):
@@ -33,46 +34,16 @@ def seconds(rt, s):
 @pytest.mark.parametrize("robot_name", ["arm3", "arm6"])
 @pytest.mark.parametrize("mode", ["position", "velocity", "torque"])
 def test_adversarial_policy_never_drives_the_robot_beyond_its_limits(tmp_path, robot_name, mode):
-    """Uniform random actions with NaN for one simulated minute (the 10-minute run of the issue is
-    `python -m deploy.acceptance`): every command is finite, within the hard position limits and
-    the velocity, acceleration and jerk limits (position and velocity mode) or the effort and
-    torque-rate limits (torque mode), and the joints never cross their hard limits."""
-    robot = load_robot(robot_name)
-    rt = make_runtime(tmp_path, robot, mode, nan_probability=0.05)
-    rt.run(seconds(rt, 60.0))
-    cmds = np.array(rt.backend.commands)[:, 0]
-    true_q = np.array(rt.backend.true_q)[:, 0]
-    dt, tol = rt.dt, 1e-6
-    assert rt.counters.non_finite_actions.sum() > 0
-    assert rt.counters.resyncs.sum() == 0  # the command stream is continuous throughout
-    # the joints themselves never cross their hard limits; in torque mode the guard can only
-    # brake, and arm6's elbow overshoots by up to 0.007 rad before the safe stop (issue 4 open)
-    overshoot = np.maximum(true_q - robot.position_upper, 0) + np.maximum(
-        robot.position_lower - true_q, 0
-    )
-    assert overshoot.max() <= (0.01 if mode == "torque" else 0.0), overshoot.max(axis=0)
-    if mode == "position":
-        assert np.all(cmds >= robot.position_lower) and np.all(cmds <= robot.position_upper)
-        limits = (robot.velocity_limit, robot.acceleration_limit, robot.jerk_limit)
-        for order, limit in enumerate(limits, start=1):
-            d = np.abs(finite_differences(cmds, dt, order))
-            assert np.all(d <= limit * (1 + tol) + tol), (order, d.max(axis=0), limit)
-    elif mode == "velocity":
-        assert np.all(np.abs(cmds) <= robot.velocity_limit * (1 + tol))
-        for order, limit in enumerate((robot.acceleration_limit, robot.jerk_limit), start=1):
-            d = np.abs(finite_differences(cmds, dt, order))
-            assert np.all(d <= limit * (1 + tol) + tol), (order, d.max(axis=0), limit)
-    else:
-        assert np.all(np.abs(cmds) <= robot.effort_limit * (1 + tol))
-        rate = np.abs(np.diff(cmds, axis=0))
-        assert np.all(rate <= robot.effort_limit * dt / 0.05 * (1 + tol) + tol)
-    # isolated NaNs are held, not fatal. The runtime is still running, or it detected a predicted
-    # or estimated hard-limit crossing and answered as the fault table says: safe stop, latched.
-    if rt.guard.totals()["hard_limit"] == 0:
-        assert rt.mode_names() == ["RUNNING"]
-    else:
-        assert rt.cause_names() == ["hard_limit"]
-        assert rt.mode_names()[0] in ("SAFE_STOP", "FAULTED")
+    """Uniform random actions with NaN for one simulated minute (the 10-minute runs of the issue
+    are `python -m deploy.acceptance --seconds 600`): every command is finite, within the hard
+    position limits and the velocity, acceleration and jerk limits (position and velocity mode) or
+    the effort and torque-rate limits (torque mode), the joints stay within their hard limits, and
+    the runtime ends RUNNING or in the latched safe stop of a predicted hard-limit crossing."""
+    result = check_adversarial(load_robot(robot_name), mode, 60.0, workdir=tmp_path)
+    assert result.non_finite_actions > 0
+    assert result.passed, result.failures
+    # the checks bind: the smoother drives the commands to their limits, not far below them
+    assert max(result.worst_ratio.values()) > 0.99, result.worst_ratio
 
 
 # ---------------------------------------------------------------- fault table rows

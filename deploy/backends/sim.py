@@ -129,15 +129,23 @@ class SimBackend:
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
-    def reset(self, q: np.ndarray | None = None) -> None:
-        """Put every env at rest at ``q`` (rad, (n,) or (envs, n); default the home pose), reset
-        the clock to 0, cool the motors to ambient and clear the sensor buffers. The initial
-        command holds the pose: q in position mode, 0 rad/s in velocity mode, the gravity torque in
-        torque mode."""
+    def reset(self, q: np.ndarray | None = None, envs: np.ndarray | None = None) -> None:
+        """Put envs at rest at ``q`` (rad, (n,) or (envs, n); default the home pose).
+
+        With ``envs`` None every env is reset: the clock returns to 0, the motors cool to ambient
+        and the sensor buffers are cleared. With a boolean mask ``envs`` (shape (envs,)) only those
+        envs restart (a training episode): the shared clock runs on, their motors cool to ambient
+        and their sensor history reads the new pose, as if the robot had rested there.
+
+        The initial command holds the pose: q in position mode, 0 rad/s in velocity mode, the
+        gravity torque in torque mode.
+        """
         q0 = np.broadcast_to(
             self.robot.home if q is None else np.asarray(q, float), (self.envs, self.n_joints)
         )
-        for e, (m, d) in enumerate(zip(self.models, self.datas, strict=True)):
+        which = np.ones(self.envs, dtype=bool) if envs is None else np.asarray(envs, dtype=bool)
+        for e in np.nonzero(which)[0]:
+            m, d = self.models[e], self.datas[e]
             mujoco.mj_resetData(m, d)
             d.qpos[:] = q0[e]
             if m.na:  # integrating velocity servos start their setpoint at the pose
@@ -150,12 +158,35 @@ class SimBackend:
             else:
                 self._command[e] = d.qfrc_bias
             d.ctrl[:] = self._command[e]
-        self.thermal.reset()
-        self._buf_position.fill(np.nan)
-        self._buf_stamp.fill(np.nan)
-        self.tick = 0
-        self.frame.temperature_stamp.fill(np.nan)
-        self._sample_sensors()
+        if envs is None:
+            self.thermal.reset()
+            self._buf_position.fill(np.nan)
+            self._buf_stamp.fill(np.nan)
+            self.tick = 0
+            self.frame.temperature_stamp.fill(np.nan)
+            self._sample_sensors()
+            return
+        self.thermal.winding_temperature[which] = self.thermal.ambient[which]
+        self.thermal.housing_temperature[which] = self.thermal.ambient[which]
+        quantized = np.round(q0[which] / self.encoder_quantum) * self.encoder_quantum
+        self._buf_position[:, which] = quantized
+        self._buf_stamp[:, which] = self.time
+        res = self.temperature_resolution
+        self.frame.winding_temperature[which] = np.round(self.thermal.ambient[which] / res) * res
+
+    def set_model(self, env: int, model: mujoco.MjModel) -> None:
+        """Give ``env`` a new compiled model (randomized dynamics; from ``robot.mjspec(mode)``)
+        and fresh ``MjData``; call :meth:`reset` for that env afterwards.
+
+        Raises:
+            ValueError: the model's joint or actuator count differs from the robot's.
+        """
+        if model.nu != self.n_joints or model.nq != self.n_joints:
+            raise ValueError(
+                f"model: expected nq = nu = {self.n_joints}, got nq={model.nq}, nu={model.nu}"
+            )
+        self.models[env] = model
+        self.datas[env] = mujoco.MjData(model)
 
     @property
     def time(self) -> float:

@@ -1,0 +1,624 @@
+"""Domain randomization: seeded samplers and appliers for the plant's dynamics.
+
+Training (:mod:`policies.envs`) and the soak harness draw from the same samplers, so a policy is
+trained and tested on the same family of "slightly broken worlds" (seed section 5). Every draw is a
+plain dataclass that can be written to a report and replayed exactly.
+
+Dynamics (``DynamicsRanges``; defaults from the seed's section 11 "Randomize the arm"):
+
+===================  ==========  ===================================================================
+quantity             default     applied to (``mujoco.MjSpec`` before compiling)
+===================  ==========  ===================================================================
+link length          +-10 %      every moving body's frame contents: child body and site positions,
+                                 geom positions, ``fromto`` and sizes, centre of mass; inertia x s^2
+mass                 +-20 %      body mass and inertia (same factor: the shape is unchanged)
+joint friction       +-50 %      ``frictionloss`` (dry friction, N m)
+joint damping        +-50 %      ``damping`` (viscous, N m s/rad)
+actuator strength    +-10 %      servo gains kp, kd (position, velocity mode); motor gear (torque)
+===================  ==========  ===================================================================
+
+The runtime keeps the nominal Pinocchio model: randomization is the gap between what the
+controller believes and the plant it drives.
+
+The soak harness (:mod:`eval.soak`) draws more per session, each from its own named stream of the
+session seed (:func:`session_rng`), bundled in :class:`SessionRandomization` by
+:func:`sample_session`:
+
+- sensors (:class:`SensorRanges`): encoder noise sigma (seed section 5: 0.002-0.010 on angle / pi),
+  latency and dropout, applied with :func:`apply_sensors`;
+- slow drift (:class:`DriftRanges`): dry friction rising with wear over the session, applied to the
+  session's compiled model in place with :func:`apply_drift`;
+- a fault schedule (:class:`FaultRanges`, :func:`sample_fault_schedule`): dropout bursts, stale
+  frames, non-finite actions, latency spikes, pushes and a cable pulling on the end effector, as
+  :class:`deploy.faults.Fault` for :class:`deploy.faults.FaultInjector`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import mujoco
+import numpy as np
+
+from robots import Robot
+
+
+@dataclass(frozen=True)
+class DynamicsRanges:
+    """Relative half-ranges of the dynamics factors: a factor is drawn from ``U(1 - r, 1 + r)``.
+
+    Attributes:
+        link_length: Link length (seed section 11: +-10 %).
+        mass: Link mass (seed section 11: +-20 %).
+        friction: Joint dry friction (seed section 11: +-50 %).
+        damping: Joint viscous damping.
+        actuator_strength: Servo gains or motor gear.
+    """
+
+    link_length: float = 0.10
+    mass: float = 0.20
+    friction: float = 0.50
+    damping: float = 0.50
+    actuator_strength: float = 0.10
+
+    def __post_init__(self):
+        for name, value in asdict(self).items():
+            if not 0.0 <= value < 1.0:
+                raise ValueError(f"DynamicsRanges.{name}: expected a value in [0, 1), got {value}")
+
+    @classmethod
+    def none(cls) -> DynamicsRanges:
+        """No randomization: the nominal robot."""
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Dynamics:
+    """One draw of dynamics factors, one per moving link / joint (tuples of length n_joints).
+
+    A factor of 1.0 is the nominal value. ``Dynamics.nominal(n)`` is the unrandomized robot.
+    """
+
+    link_length: tuple[float, ...]
+    mass: tuple[float, ...]
+    friction: tuple[float, ...]
+    damping: tuple[float, ...]
+    actuator_strength: tuple[float, ...]
+
+    @classmethod
+    def nominal(cls, n_joints: int) -> Dynamics:
+        ones = (1.0,) * n_joints
+        return cls(ones, ones, ones, ones, ones)
+
+    def to_dict(self) -> dict[str, list[float]]:
+        return {k: list(v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Dynamics:
+        return cls(**{k: tuple(float(x) for x in data[k]) for k in cls.__dataclass_fields__})
+
+
+def sample_dynamics(
+    robot: Robot, rng: np.random.Generator, ranges: DynamicsRanges | None = None
+) -> Dynamics:
+    """Draw one :class:`Dynamics` for ``robot`` from ``rng`` (uniform, independent per joint)."""
+    ranges = DynamicsRanges() if ranges is None else ranges
+    n = robot.n_joints
+
+    def draw(r: float) -> tuple[float, ...]:
+        return tuple(float(x) for x in rng.uniform(1.0 - r, 1.0 + r, n))
+
+    return Dynamics(
+        link_length=draw(ranges.link_length),
+        mass=draw(ranges.mass),
+        friction=draw(ranges.friction),
+        damping=draw(ranges.damping),
+        actuator_strength=draw(ranges.actuator_strength),
+    )
+
+
+def apply_dynamics(spec: mujoco.MjSpec, robot: Robot, dynamics: Dynamics, mode: str) -> None:
+    """Edit ``spec`` (from ``robot.mjspec(mode)``) in place to the randomized dynamics.
+
+    The moving body of joint ``i`` is scaled by ``dynamics.link_length[i]`` about its own frame
+    (so its child bodies, sites and geoms move out with it and the link's centre of mass and
+    inertia stay those of the same shape), and its mass and inertia by ``dynamics.mass[i]``.
+
+    Raises:
+        ValueError: a joint of the robot is missing from the spec.
+    """
+    for i, name in enumerate(robot.joint_names):
+        joint = spec.joint(name)
+        if joint is None:
+            raise ValueError(f"apply_dynamics: joint '{name}' is not in the MuJoCo spec")
+        body = joint.parent
+        s, m = dynamics.link_length[i], dynamics.mass[i]
+        for child in body.bodies:
+            child.pos = np.asarray(child.pos) * s
+        for site in body.sites:
+            site.pos = np.asarray(site.pos) * s
+        for geom in body.geoms:
+            geom.pos = np.asarray(geom.pos) * s
+            geom.size = np.asarray(geom.size) * s
+            fromto = np.asarray(geom.fromto)
+            if np.isfinite(fromto).all():
+                geom.fromto = fromto * s
+        body.ipos = np.asarray(body.ipos) * s
+        body.mass = body.mass * m
+        body.inertia = np.asarray(body.inertia) * (m * s * s)
+        joint.frictionloss = joint.frictionloss * dynamics.friction[i]
+        joint.damping = joint.damping * dynamics.damping[i]
+    for i, name in enumerate(robot.joint_names):
+        act = spec.actuator(f"{name}_{mode}")
+        k = dynamics.actuator_strength[i]
+        if mode == "torque":
+            gear = np.asarray(act.gear)
+            gear[0] *= k
+            act.gear = gear
+        else:
+            gain, bias = np.asarray(act.gainprm), np.asarray(act.biasprm)
+            gain[0] *= k
+            bias[1:3] *= k
+            act.gainprm, act.biasprm = gain, bias
+
+
+def randomized_model(robot: Robot, mode: str, dynamics: Dynamics) -> mujoco.MjModel:
+    """Compiled plant model of ``robot`` in control ``mode`` with ``dynamics`` applied."""
+    spec = robot.mjspec(mode)
+    apply_dynamics(spec, robot, dynamics, mode)
+    return spec.compile()
+
+
+# ====================================================================== sensors, drift, faults
+# Additions for the soak harness (:mod:`eval.soak`): per-session sensor settings, slow drift of
+# the plant over a session, and a seeded fault schedule. Every quantity is drawn from its own
+# stream of the session seed (:func:`session_rng`), so one kind of draw never shifts another.
+
+#: Named random streams of a session: ``numpy.random.default_rng([seed, STREAMS[name]])``.
+STREAMS = {
+    "dynamics": 0,
+    "sensors": 1,
+    "drift": 2,
+    "faults": 3,
+    "sensor_noise": 4,  # the backend's encoder noise and dropout draws
+    "goals": 5,
+}
+
+
+def session_rng(seed: int, stream: str) -> np.random.Generator:
+    """The generator of one named stream (``STREAMS``) of session ``seed`` (an int >= 0).
+
+    Raises:
+        ValueError: an unknown stream name or a negative seed.
+    """
+    if stream not in STREAMS:
+        raise ValueError(f"session_rng: stream '{stream}' is unknown; expected one of {STREAMS}")
+    if int(seed) < 0:
+        raise ValueError(f"session_rng: seed must be >= 0, got {seed}")
+    return np.random.default_rng([int(seed), STREAMS[stream]])
+
+
+def _check_range(owner: str, name: str, lo: float, hi: float, minimum: float = 0.0) -> None:
+    if not (np.isfinite(lo) and np.isfinite(hi) and minimum <= lo <= hi):
+        raise ValueError(
+            f"{owner}.{name}: expected a range (low, high) with {minimum} <= low <= high, "
+            f"got ({lo}, {hi})"
+        )
+
+
+@dataclass(frozen=True)
+class SensorRanges:
+    """Per-session encoder settings, drawn uniformly (integers inclusive).
+
+    Attributes:
+        noise_sigma: Encoder noise sigma, rad. Seed section 5: 0.002-0.010 on angle / pi, i.e.
+            ``(0.002 pi, 0.010 pi)`` rad (as :class:`policies.envs.ReachConfig` trains with).
+        latency_ticks: Encoder latency, control ticks (our choice: 0-2, i.e. 0-10 ms at 200 Hz).
+        dropout: Probability that a reading is lost (per reading and joint; our choice).
+    """
+
+    noise_sigma: tuple[float, float] = (0.002 * np.pi, 0.010 * np.pi)
+    latency_ticks: tuple[int, int] = (0, 2)
+    dropout: tuple[float, float] = (0.0, 0.001)
+
+    def __post_init__(self):
+        _check_range("SensorRanges", "noise_sigma", *self.noise_sigma)
+        _check_range("SensorRanges", "latency_ticks", *self.latency_ticks)
+        _check_range("SensorRanges", "dropout", *self.dropout)
+        if self.dropout[1] > 1.0:
+            raise ValueError(
+                f"SensorRanges.dropout: expected probabilities <= 1, got {self.dropout}"
+            )
+
+
+@dataclass(frozen=True)
+class SensorDraw:
+    """One session's encoder settings: noise sigma (rad), latency (control ticks), dropout."""
+
+    noise_sigma: float
+    latency_ticks: int
+    dropout_probability: float
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> SensorDraw:
+        return cls(
+            float(data["noise_sigma"]),
+            int(data["latency_ticks"]),
+            float(data["dropout_probability"]),
+        )
+
+
+def sample_sensors(rng: np.random.Generator, ranges: SensorRanges | None = None) -> SensorDraw:
+    """Draw one :class:`SensorDraw` from ``rng``."""
+    ranges = SensorRanges() if ranges is None else ranges
+    lo, hi = ranges.latency_ticks
+    return SensorDraw(
+        noise_sigma=float(rng.uniform(*ranges.noise_sigma)),
+        latency_ticks=int(rng.integers(lo, hi + 1)),
+        dropout_probability=float(rng.uniform(*ranges.dropout)),
+    )
+
+
+def apply_sensors(backend, env: int, draw: SensorDraw) -> None:
+    """Set env ``env`` of a :class:`~deploy.backends.sim.SimBackend` to ``draw``.
+
+    Raises:
+        ValueError: the latency exceeds the backend's ``max_latency_ticks``.
+    """
+    if draw.latency_ticks > backend.max_latency_ticks:
+        raise ValueError(
+            f"sensor latency {draw.latency_ticks} ticks exceeds the backend's max_latency_ticks "
+            f"= {backend.max_latency_ticks}"
+        )
+    backend.noise_sigma[env] = draw.noise_sigma
+    backend.latency_ticks[env] = draw.latency_ticks
+    backend.dropout_probability[env] = draw.dropout_probability
+
+
+@dataclass(frozen=True)
+class DriftRanges:
+    """Slow drift of the plant over a session.
+
+    Attributes:
+        friction_rate: Rise of each joint's dry friction (``frictionloss``) per hour, as a
+            fraction of its value at the session start: wear. Our choice: 1-6 % per hour, i.e.
+            +8 to +48 % over an 8-hour session.
+    """
+
+    friction_rate: tuple[float, float] = (0.01, 0.06)
+
+    def __post_init__(self):
+        _check_range("DriftRanges", "friction_rate", *self.friction_rate)
+
+
+@dataclass(frozen=True)
+class Drift:
+    """One session's drift: ``friction_rate`` per joint, 1/h (see :class:`DriftRanges`)."""
+
+    friction_rate: tuple[float, ...]
+
+    def to_dict(self) -> dict:
+        return {"friction_rate": list(self.friction_rate)}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Drift:
+        return cls(tuple(float(x) for x in data["friction_rate"]))
+
+    def friction(self, initial: np.ndarray, t: float) -> np.ndarray:
+        """Dry friction (N m, (n,)) at session time ``t`` (s) from its ``initial`` value:
+        ``initial * (1 + friction_rate * t / 3600)``."""
+        return np.asarray(initial, dtype=np.float64) * (
+            1.0 + np.asarray(self.friction_rate) * t / 3600.0
+        )
+
+
+def sample_drift(
+    robot: Robot, rng: np.random.Generator, ranges: DriftRanges | None = None
+) -> Drift:
+    """Draw one :class:`Drift` for ``robot`` from ``rng`` (uniform, independent per joint)."""
+    ranges = DriftRanges() if ranges is None else ranges
+    return Drift(tuple(float(x) for x in rng.uniform(*ranges.friction_rate, robot.n_joints)))
+
+
+def joint_dofs(model: mujoco.MjModel, robot: Robot) -> np.ndarray:
+    """Indices (n,) of the robot's joints, in its joint order, in ``model``'s DoF arrays.
+
+    Raises:
+        ValueError: a joint of the robot is missing from the model.
+    """
+    dofs = []
+    for name in robot.joint_names:
+        jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if jid < 0:
+            raise ValueError(f"joint_dofs: joint '{name}' is not in the MuJoCo model")
+        dofs.append(int(model.jnt_dofadr[jid]))
+    return np.array(dofs)
+
+
+def apply_drift(
+    model: mujoco.MjModel, robot: Robot, initial_friction: np.ndarray, drift: Drift, t: float
+) -> np.ndarray:
+    """Set ``model.dof_frictionloss`` (in place, on the compiled model a session steps) to the
+    drifted friction at session time ``t`` (s); returns the new values (N m, (n,)).
+
+    ``initial_friction`` is the joints' friction at the session start (after
+    :func:`apply_dynamics`), in the robot's joint order.
+    """
+    value = drift.friction(initial_friction, t)
+    model.dof_frictionloss[joint_dofs(model, robot)] = value
+    return value
+
+
+# Default magnitudes of the scheduled faults. Durations of the sensor faults are fractions of the
+# "stale budget": the longest gap in fresh encoder data the runtime bridges by prediction,
+# ``safety.stale_limit - (latency + 2) * control_period`` (DESIGN.md fault table: stale longer than
+# the limit -> safe stop). Fractions below 1 are survivable, above 1 must make a safe stop.
+
+
+@dataclass(frozen=True)
+class FaultRanges:
+    """The fault schedule of a session: onsets of a Poisson process, kinds drawn by weight, one
+    fault at a time.
+
+    Attributes:
+        mean_interval: Mean time between the end of one fault and the onset of the next, s
+            (exponential; our choice: 120 s, about 240 faults in 8 hours).
+        min_gap: Quiet time after each fault, s (at least ``FAULT_SETTLE + 1``; the runtime's
+            response is judged ``FAULT_SETTLE`` s after the fault ends).
+        warmup: No fault before this session time, s (ramp-in).
+        kinds: Kinds to draw from (``deploy.faults.KINDS``).
+        weights: Relative weights of ``kinds`` (None: equal).
+        dropout: Duration of a dropout burst, as a fraction of the stale budget.
+        stale: Duration of a stale (frozen) sensor frame, as a fraction of the stale budget.
+        nan_ticks: Consecutive non-finite actions, control ticks (inclusive; below
+            ``deploy.runtime.NAN_ACTION_LIMIT`` = 10 the runtime holds, at it it stops).
+        latency_ticks: Extra encoder latency of a spike, as a fraction of the largest spike that
+            stays within the stale limit (rounded, at least 1 tick).
+        latency_duration: Duration of a latency spike, s.
+        push_force: Force of a push on the end effector, N (along +X; ``PUSH_FORCE`` is 20).
+        push_duration: Duration of a push, s.
+        cable_force: Force of a cable pulling on the end effector, N (along gravity).
+        cable_duration: Duration of a cable pull, s.
+    """
+
+    mean_interval: float = 120.0
+    min_gap: float = 5.0
+    warmup: float = 10.0
+    kinds: tuple[str, ...] = ("dropout", "stale", "nan-action", "latency", "push", "cable")
+    weights: tuple[float, ...] | None = None
+    dropout: tuple[float, float] = (0.2, 0.8)
+    stale: tuple[float, float] = (0.2, 0.8)
+    nan_ticks: tuple[int, int] = (1, 5)
+    latency_ticks: tuple[float, float] = (0.3, 1.0)
+    latency_duration: tuple[float, float] = (0.2, 2.0)
+    push_force: tuple[float, float] = (5.0, 25.0)
+    push_duration: tuple[float, float] = (0.05, 0.5)
+    cable_force: tuple[float, float] = (5.0, 15.0)
+    cable_duration: tuple[float, float] = (10.0, 60.0)
+
+    def __post_init__(self):
+        from deploy.faults import KINDS
+
+        owner = "FaultRanges"
+        if not (np.isfinite(self.mean_interval) and self.mean_interval > 0):
+            raise ValueError(f"{owner}.mean_interval: expected > 0 s, got {self.mean_interval}")
+        if not (np.isfinite(self.min_gap) and self.min_gap >= FAULT_SETTLE + 1.0):
+            raise ValueError(
+                f"{owner}.min_gap: expected >= {FAULT_SETTLE + 1.0} s, got {self.min_gap}"
+            )
+        if not (np.isfinite(self.warmup) and self.warmup >= 0):
+            raise ValueError(f"{owner}.warmup: expected >= 0 s, got {self.warmup}")
+        if not self.kinds:
+            raise ValueError(f"{owner}.kinds: expected at least one of {KINDS}")
+        for kind in self.kinds:
+            if kind not in KINDS:
+                raise ValueError(f"{owner}.kinds: '{kind}' is unknown; expected one of {KINDS}")
+        if self.weights is not None and (
+            len(self.weights) != len(self.kinds)
+            or not all(np.isfinite(w) and w >= 0 for w in self.weights)
+            or sum(self.weights) <= 0
+        ):
+            raise ValueError(
+                f"{owner}.weights: expected {len(self.kinds)} weights >= 0 (one per kind) with a "
+                f"positive sum, got {self.weights}"
+            )
+        for name in ("dropout", "stale", "latency_ticks", "latency_duration", "push_force"):
+            _check_range(owner, name, *getattr(self, name))
+        for name in ("push_duration", "cable_force", "cable_duration"):
+            _check_range(owner, name, *getattr(self, name))
+        _check_range(owner, "nan_ticks", *self.nan_ticks, minimum=1)
+        for name in ("dropout", "stale", "latency_duration", "push_duration", "cable_duration"):
+            if getattr(self, name)[0] <= 0:
+                raise ValueError(
+                    f"{owner}.{name}: expected durations > 0, got {getattr(self, name)}"
+                )
+
+
+#: s after a fault ends at which the soak harness judges the runtime's response.
+FAULT_SETTLE = 2.0
+
+
+def stale_budget(robot: Robot, latency_ticks: int) -> float:
+    """Longest gap in fresh encoder readings (s) the runtime bridges without a safe stop, with a
+    sensor latency of ``latency_ticks``: ``stale_limit - (latency_ticks + 2) * control_period``
+    (one period for the reading in flight, one of margin), at least one control period."""
+    dt = robot.control_period
+    return max(robot.config.safety.stale_limit - (latency_ticks + 2) * dt, dt)
+
+
+def sample_fault_schedule(
+    robot: Robot,
+    rng: np.random.Generator,
+    duration: float,
+    sensors: SensorDraw,
+    ranges: FaultRanges | None = None,
+) -> list:
+    """A seeded fault schedule over ``[0, duration)`` s of session time.
+
+    Onsets follow a Poisson process (exponential gaps of mean ``ranges.mean_interval`` after each
+    fault's end plus ``min_gap``), never before ``warmup``; a fault ends before ``duration``. The
+    kind and its parameters are drawn per fault (see :class:`FaultRanges`); sensor faults are sized
+    against the session's own encoder latency (``sensors``).
+
+    Returns:
+        list of :class:`deploy.faults.Fault` (``envs`` None: every env of the injector they are
+        given to), sorted by start.
+    """
+    from deploy.faults import Fault
+
+    ranges = FaultRanges() if ranges is None else ranges
+    dt = robot.control_period
+    budget = stale_budget(robot, sensors.latency_ticks)
+    stale_ticks = int(np.floor(robot.config.safety.stale_limit / dt + 1e-9))
+    max_spike = max(stale_ticks - sensors.latency_ticks - 2, 1)
+    weights = np.ones(len(ranges.kinds)) if ranges.weights is None else np.array(ranges.weights)
+    weights = weights / weights.sum()
+    faults = []
+    t = ranges.warmup
+    while True:
+        t += float(rng.exponential(ranges.mean_interval))
+        kind = ranges.kinds[int(rng.choice(len(ranges.kinds), p=weights))]
+        magnitude = None
+        if kind == "dropout":
+            length = budget * float(rng.uniform(*ranges.dropout))
+        elif kind == "stale":
+            length = budget * float(rng.uniform(*ranges.stale))
+        elif kind == "nan-action":
+            length = dt * int(rng.integers(ranges.nan_ticks[0], ranges.nan_ticks[1] + 1))
+        elif kind == "latency":
+            magnitude = float(max(1, round(max_spike * float(rng.uniform(*ranges.latency_ticks)))))
+            length = float(rng.uniform(*ranges.latency_duration))
+        elif kind == "push":
+            magnitude = float(rng.uniform(*ranges.push_force))
+            length = float(rng.uniform(*ranges.push_duration))
+        else:  # cable
+            magnitude = float(rng.uniform(*ranges.cable_force))
+            length = float(rng.uniform(*ranges.cable_duration))
+        # start on a control tick, last whole ticks: the schedule means the same at any rate
+        start = np.ceil(t / dt) * dt
+        length = max(np.round(length / dt), 1.0) * dt
+        if start + length + ranges.min_gap > duration:
+            return faults
+        faults.append(Fault(kind, round(float(start), 9), round(float(length), 9), None, magnitude))
+        t = start + length + ranges.min_gap
+
+
+def fault_to_dict(fault) -> dict:
+    """A :class:`deploy.faults.Fault` as a JSON-ready dict."""
+    d = asdict(fault)
+    for key in ("envs", "direction"):
+        if d.get(key) is not None:
+            d[key] = list(d[key])
+    return d
+
+
+def fault_from_dict(data: dict):
+    """Inverse of :func:`fault_to_dict`.
+
+    Raises:
+        ValueError: a missing or invalid field (named).
+    """
+    from deploy.faults import KINDS, Fault
+
+    try:
+        kind = str(data["kind"])
+        if kind not in KINDS:
+            raise ValueError(f"fault kind '{kind}' is unknown; expected one of {KINDS}")
+        envs = data.get("envs")
+        direction = data.get("direction")
+        magnitude = data.get("magnitude")
+        return Fault(
+            kind,
+            float(data["start"]),
+            float(data["duration"]),
+            None if envs is None else tuple(int(e) for e in envs),
+            None if magnitude is None else float(magnitude),
+            None if direction is None else tuple(float(x) for x in direction),
+        )
+    except KeyError as exc:
+        raise ValueError(f"fault {data!r}: missing field {exc}") from None
+
+
+@dataclass(frozen=True)
+class SessionRanges:
+    """Every range a soak session draws from (defaults as documented on each class)."""
+
+    dynamics: DynamicsRanges = DynamicsRanges()
+    sensors: SensorRanges = SensorRanges()
+    drift: DriftRanges = DriftRanges()
+    faults: FaultRanges = FaultRanges()
+
+
+@dataclass(frozen=True)
+class SessionRandomization:
+    """Everything drawn for one soak session from its seed: replayable and reportable.
+
+    Attributes:
+        seed: The session seed.
+        dynamics: Link lengths, masses, friction, damping, actuator strength.
+        sensors: Encoder noise sigma, latency, dropout.
+        drift: Friction rise over the session.
+        faults: The fault schedule (``deploy.faults.Fault``, sorted by start; empty without
+            faults).
+    """
+
+    seed: int
+    dynamics: Dynamics
+    sensors: SensorDraw
+    drift: Drift
+    faults: tuple
+
+    def to_dict(self) -> dict:
+        return {
+            "seed": self.seed,
+            "dynamics": self.dynamics.to_dict(),
+            "sensors": self.sensors.to_dict(),
+            "drift": self.drift.to_dict(),
+            "faults": [fault_to_dict(f) for f in self.faults],
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> SessionRandomization:
+        return cls(
+            int(data["seed"]),
+            Dynamics.from_dict(data["dynamics"]),
+            SensorDraw.from_dict(data["sensors"]),
+            Drift.from_dict(data["drift"]),
+            tuple(fault_from_dict(f) for f in data["faults"]),
+        )
+
+
+def sample_session(
+    robot: Robot,
+    seed: int,
+    duration: float,
+    ranges: SessionRanges | None = None,
+    faults: bool = True,
+) -> SessionRandomization:
+    """Draw a session's randomization from its ``seed``: each part from its own stream
+    (:func:`session_rng`), so that e.g. turning faults off leaves the dynamics unchanged.
+
+    Args:
+        robot: The robot.
+        seed: Session seed (int >= 0).
+        duration: Session length, s (the fault schedule ends before it).
+        ranges: The ranges; default :class:`SessionRanges`.
+        faults: False: an empty fault schedule.
+    """
+    ranges = SessionRanges() if ranges is None else ranges
+    sensors = sample_sensors(session_rng(seed, "sensors"), ranges.sensors)
+    schedule = (
+        sample_fault_schedule(robot, session_rng(seed, "faults"), duration, sensors, ranges.faults)
+        if faults
+        else []
+    )
+    return SessionRandomization(
+        seed=int(seed),
+        dynamics=sample_dynamics(robot, session_rng(seed, "dynamics"), ranges.dynamics),
+        sensors=sensors,
+        drift=sample_drift(robot, session_rng(seed, "drift"), ranges.drift),
+        faults=tuple(schedule),
+    )

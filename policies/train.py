@@ -1,0 +1,227 @@
+"""Train the shipped arm policy with Stable-Baselines3 PPO and write ``policies/arm.pt``.
+
+``make train`` runs ``python -m policies.train`` with the defaults below, which reproduce the
+shipped ``policies/arm.pt`` (seed 0). Logs go to TensorBoard (``runs/train/``): SB3's episode
+length, return and success rate, plus ``reach/joint_limit_violations`` and ``reach/success_rate``
+per episode (seed section 10).
+
+Why PPO: it is the seed's algorithm, and with one batched MuJoCo plant stepping many robots per
+call it turns the machine's two cores into samples faster than SAC's one gradient step per sample
+would (SAC spends most of its wall time in updates at this simulation speed).
+
+The result is converted to our checkpoint format (:func:`deploy.checkpoint.save_checkpoint`): the
+PPO actor's mean network becomes an :class:`~deploy.checkpoint.MLPActor` with the same weights, and
+the PolicySpec the env used travels with it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+from stable_baselines3 import PPO
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor
+
+from deploy.checkpoint import MLPActor, save_checkpoint
+from eval.randomization import DynamicsRanges
+from policies.envs import ReachConfig, ReachTask
+from robots import load_robot
+
+HIDDEN = (64, 64)
+ACTIVATION = "tanh"  # SB3 PPO's MlpPolicy default
+
+
+class ReachVecEnv(VecEnv):
+    """Stable-Baselines3 ``VecEnv`` over one batched :class:`ReachTask` (one MuJoCo plant object,
+    ``envs`` robots). Finished envs are reset automatically; their last observation is in
+    ``info["terminal_observation"]``, and ``info["TimeLimit.truncated"]`` marks truncations so
+    that PPO bootstraps them."""
+
+    def __init__(self, task: ReachTask):
+        self.task = task
+        spec = task.spec
+        clip = max(b.clip for b in spec.observation_blocks)
+        obs_space = gym.spaces.Box(-clip, clip, (spec.obs_dim,), np.float32)
+        act_space = gym.spaces.Box(-1.0, 1.0, (spec.act_dim,), np.float32)
+        super().__init__(task.envs, obs_space, act_space)
+        self._actions = np.zeros((task.envs, spec.act_dim))
+
+    def reset(self):
+        self.task.reset(np.ones(self.num_envs, dtype=bool))
+        return self.task.obs.copy()
+
+    def step_async(self, actions):
+        self._actions = actions
+
+    def step_wait(self):
+        obs, reward, terminated, truncated = self.task.step(self._actions)
+        done = terminated | truncated
+        infos = [{} for _ in range(self.num_envs)]
+        if done.any():
+            for e in np.nonzero(done)[0]:
+                info = self.task.episode_info(e)
+                info["terminal_observation"] = obs[e].copy()
+                info["TimeLimit.truncated"] = bool(truncated[e])
+                infos[e] = info
+            self.task.reset(done)
+        return self.task.obs.copy(), reward.astype(np.float32), done, infos
+
+    def close(self):
+        pass
+
+    def get_attr(self, attr_name, indices=None):
+        return [getattr(self.task, attr_name)] * len(self._indices(indices))
+
+    def set_attr(self, attr_name, value, indices=None):
+        setattr(self.task, attr_name, value)
+
+    def env_method(self, method_name, *args, indices=None, **kwargs):
+        return [getattr(self.task, method_name)(*args, **kwargs)] * len(self._indices(indices))
+
+    def env_is_wrapped(self, wrapper_class, indices=None):
+        return [False] * len(self._indices(indices))
+
+    def _indices(self, indices):
+        if indices is None:
+            return range(self.num_envs)
+        return [indices] if isinstance(indices, int) else indices
+
+
+class ReachLogger(BaseCallback):
+    """Logs the seed section 10 signals per finished episode to TensorBoard."""
+
+    def __init__(self):
+        super().__init__()
+        self.violations: list[int] = []
+        self.success: list[float] = []
+        self.history: list[dict] = []
+
+    def _on_step(self) -> bool:
+        for info, done in zip(self.locals["infos"], self.locals["dones"], strict=True):
+            if done and "joint_limit_violations" in info:
+                self.violations.append(info["joint_limit_violations"])
+                self.success.append(info["is_success"])
+        return True
+
+    def _on_rollout_end(self) -> None:
+        if self.success:
+            rate, viol = float(np.mean(self.success)), float(np.mean(self.violations))
+            self.logger.record("reach/success_rate", rate)
+            self.logger.record("reach/joint_limit_violations", viol)
+            self.history.append(
+                {
+                    "step": int(self.num_timesteps),
+                    "success_rate": rate,
+                    "joint_limit_violations": viol,
+                    "episodes": len(self.success),
+                }
+            )
+            self.violations.clear()
+            self.success.clear()
+
+
+def actor_from_ppo(model: PPO, obs_dim: int, act_dim: int) -> MLPActor:
+    """The PPO policy's deterministic action (the Gaussian mean) as an :class:`MLPActor`."""
+    actor = MLPActor(obs_dim, act_dim, hidden=HIDDEN, activation=ACTIVATION)
+    sd = model.policy.state_dict()
+    linear = [k[: -len(".weight")] for k in sd if k.startswith("mlp_extractor.policy_net.")]
+    linear = [k for k in linear if k.endswith(tuple("0123456789"))]
+    layers = [*sorted(set(linear), key=lambda k: int(k.rsplit(".", 1)[1])), "action_net"]
+    targets = [m for m in actor.net if isinstance(m, torch.nn.Linear)]
+    if len(layers) != len(targets):
+        raise ValueError(f"PPO actor has {len(layers)} linear layers, MLPActor {len(targets)}")
+    with torch.no_grad():
+        for name, lin in zip(layers, targets, strict=True):
+            lin.weight.copy_(sd[f"{name}.weight"])
+            lin.bias.copy_(sd[f"{name}.bias"])
+    return actor.eval()
+
+
+def train(args: argparse.Namespace) -> Path:
+    torch.manual_seed(args.seed)
+    torch.set_num_threads(args.threads)
+    robot = load_robot(args.robot)
+    dynamics = DynamicsRanges() if args.randomize else DynamicsRanges.none()
+    config = ReachConfig(mode=args.mode, dynamics=dynamics)
+    task = ReachTask(robot, args.envs, config, seed=args.seed)
+    env = VecMonitor(ReachVecEnv(task))
+    model = PPO(
+        "MlpPolicy",
+        env,
+        n_steps=args.n_steps,
+        batch_size=args.batch_size,
+        n_epochs=args.epochs,
+        learning_rate=args.learning_rate,
+        gamma=args.gamma,
+        gae_lambda=0.95,
+        clip_range=0.2,
+        ent_coef=0.0,
+        policy_kwargs={
+            "net_arch": {"pi": list(HIDDEN), "vf": [128, 128]},
+            "log_std_init": args.log_std_init,
+            "activation_fn": torch.nn.Tanh,
+        },
+        tensorboard_log=str(args.logdir),
+        seed=args.seed,
+        device="cpu",
+        verbose=0,
+    )
+    logger = ReachLogger()
+    start = time.perf_counter()
+    model.learn(args.steps, callback=logger, progress_bar=True, tb_log_name=f"ppo_{args.robot}")
+    wall = time.perf_counter() - start
+    actor = actor_from_ppo(model, task.spec.obs_dim, task.spec.act_dim)
+    info = {
+        "algorithm": "stable-baselines3 PPO",
+        "command": "python -m policies.train " + " ".join(args.argv),
+        "seed": args.seed,
+        "timesteps": int(args.steps),
+        "wall_seconds": round(wall, 1),
+        "randomized_dynamics": bool(args.randomize),
+        "curve": logger.history,
+    }
+    save_checkpoint(args.out, actor, task.spec, info=info)
+    curve = args.out.with_suffix(".curve.json")
+    curve.write_text(json.dumps(info, indent=1) + "\n")
+    print(f"wrote {args.out} after {args.steps} steps in {wall / 60:.1f} min")
+    for row in logger.history[:: max(1, len(logger.history) // 10)] + logger.history[-1:]:
+        print(
+            f"  step {row['step']:>9}: success {row['success_rate']:.2f}, "
+            f"joint limit violations/episode {row['joint_limit_violations']:.3f}"
+        )
+    return args.out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m policies.train", description=__doc__)
+    p.add_argument("--robot", default="arm3")
+    p.add_argument("--mode", default="velocity", choices=["velocity", "position"])
+    p.add_argument("--steps", type=int, default=3_000_000, help="environment steps")
+    p.add_argument("--envs", type=int, default=16, help="robots per batch")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--n-steps", type=int, default=256, help="PPO rollout length per env")
+    p.add_argument("--batch-size", type=int, default=1024)
+    p.add_argument("--epochs", type=int, default=5)
+    p.add_argument("--learning-rate", type=float, default=3e-4)
+    p.add_argument("--gamma", type=float, default=0.99)
+    p.add_argument("--log-std-init", type=float, default=-1.0)
+    p.add_argument("--threads", type=int, default=2, help="torch threads for the updates")
+    p.add_argument(
+        "--no-randomize", dest="randomize", action="store_false", help="nominal dynamics only"
+    )
+    p.add_argument("--logdir", type=Path, default=Path("runs/train"))
+    p.add_argument("--out", type=Path, default=Path("policies/arm.pt"))
+    args = p.parse_args(argv)
+    args.argv = list(argv) if argv is not None else __import__("sys").argv[1:]
+    train(args)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -19,10 +19,11 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[all]'
 	touch $(STAMP)
 
-# The main job. Until the runtime lands this holds the arm at its home pose on the
-# MuJoCo plant (sensor and motor-thermal models running) and prints a summary.
+# The main job: export the shipped policy to ONNX (parity-checked), then run it for 60 simulated
+# seconds on arm3 through the full runtime (Kalman filter, guard, smoother) and print the summary.
 run: install
-	$(PY) -m deploy.backends.sim --robot $(ROBOT) --duration 60
+	$(VENV)/bin/policy-export $(POLICY)
+	$(VENV)/bin/deploy-run --backend sim --robot arm3 --policy $(POLICY:.pt=.onnx) --duration 60
 
 test: install lint
 	$(PY) -m pytest -q
@@ -38,6 +39,7 @@ format: install
 export: install
 	$(VENV)/bin/policy-export $(POLICY)
 
+# Reproduces policies/arm.pt (seed 0); TensorBoard logs in runs/train/.
 train: install
 	$(PY) -m policies.train
 

@@ -274,6 +274,7 @@ class ArmReachEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, robot: Robot, config: ReachConfig | None = None, seed: int = 0):
+        self.robot, self.config = robot, config
         self.task = ReachTask(robot, 1, config, seed=seed)
         spec = self.task.spec
         clip = max(b.clip for b in spec.observation_blocks)
@@ -282,9 +283,10 @@ class ArmReachEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        if seed is not None:
-            self.task.rng = np.random.default_rng(seed)
-        self.task.reset(np.ones(1, dtype=bool))
+        if seed is not None:  # every stream (plant sensors, goals, dynamics) restarts from seed
+            self.task = ReachTask(self.robot, 1, self.config, seed=seed)
+        else:
+            self.task.reset(np.ones(1, dtype=bool))
         return self.task.obs[0].copy(), {}
 
     def step(self, action):

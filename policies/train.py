@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.vec_env import VecEnv, VecMonitor
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
 from deploy.checkpoint import MLPActor, save_checkpoint
 from eval.randomization import DynamicsRanges
@@ -76,7 +76,8 @@ class ReachVecEnv(VecEnv):
         pass
 
     def get_attr(self, attr_name, indices=None):
-        return [getattr(self.task, attr_name)] * len(self._indices(indices))
+        value = None if attr_name == "render_mode" else getattr(self.task, attr_name)
+        return [value] * len(self._indices(indices))
 
     def set_attr(self, attr_name, value, indices=None):
         setattr(self.task, attr_name, value)
@@ -150,7 +151,9 @@ def train(args: argparse.Namespace) -> Path:
     dynamics = DynamicsRanges() if args.randomize else DynamicsRanges.none()
     config = ReachConfig(mode=args.mode, dynamics=dynamics)
     task = ReachTask(robot, args.envs, config, seed=args.seed)
-    env = VecMonitor(ReachVecEnv(task))
+    # Rewards (not observations: those are already scaled by physical maxima, seed section 3) are
+    # normalized by a running estimate of the return's scale, as SB3's PPO recipes do.
+    env = VecNormalize(VecMonitor(ReachVecEnv(task)), norm_obs=False, gamma=args.gamma)
     model = PPO(
         "MlpPolicy",
         env,
@@ -162,6 +165,10 @@ def train(args: argparse.Namespace) -> Path:
         gae_lambda=0.95,
         clip_range=0.2,
         ent_coef=0.0,
+        # generalized state-dependent exploration (Raffin et al., CoRL 2021): noise that is smooth
+        # in time, so exploration survives the smoother's acceleration and jerk limits at 200 Hz
+        use_sde=args.sde,
+        sde_sample_freq=args.sde_sample_freq,
         policy_kwargs={
             "net_arch": {"pi": list(HIDDEN), "vf": [128, 128]},
             "log_std_init": args.log_std_init,
@@ -205,13 +212,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--steps", type=int, default=3_000_000, help="environment steps")
     p.add_argument("--envs", type=int, default=16, help="robots per batch")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--n-steps", type=int, default=256, help="PPO rollout length per env")
+    p.add_argument("--n-steps", type=int, default=512, help="PPO rollout length per env")
     p.add_argument("--batch-size", type=int, default=1024)
-    p.add_argument("--epochs", type=int, default=5)
+    p.add_argument("--epochs", type=int, default=10)
     p.add_argument("--learning-rate", type=float, default=3e-4)
     p.add_argument("--gamma", type=float, default=0.99)
-    p.add_argument("--log-std-init", type=float, default=-1.0)
-    p.add_argument("--threads", type=int, default=2, help="torch threads for the updates")
+    p.add_argument("--log-std-init", type=float, default=-2.0)
+    p.add_argument("--no-sde", dest="sde", action="store_false", help="Gaussian noise per tick")
+    p.add_argument("--sde-sample-freq", type=int, default=8, help="ticks between gSDE draws")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (1: no spin-waits)")
     p.add_argument(
         "--no-randomize", dest="randomize", action="store_false", help="nominal dynamics only"
     )

@@ -1,0 +1,111 @@
+"""The training env (policies/envs.py) and the PPO-to-checkpoint conversion (policies/train.py)."""
+
+import numpy as np
+import pytest
+import torch
+from gymnasium.utils.env_checker import check_env
+
+from deploy.checkpoint import load_checkpoint, save_checkpoint
+from eval.randomization import DynamicsRanges
+from policies.envs import ArmReachEnv, ReachConfig, ReachTask, RewardConfig
+
+NOMINAL = ReachConfig(dynamics=DynamicsRanges.none())
+
+
+def test_the_env_passes_gymnasiums_checker(arm3):
+    env = ArmReachEnv(arm3, NOMINAL, seed=0)
+    check_env(env, skip_render_check=True)
+
+
+def test_observations_are_the_runtimes_spec_applied_to_the_filtered_state(arm3):
+    task = ReachTask(arm3, 2, NOMINAL, seed=1)
+    for _ in range(20):
+        obs, *_ = task.step(np.full((2, 3), 0.5))
+    expected = task.spec.observation(task.state, task.goal)
+    np.testing.assert_array_equal(obs, expected)
+    # the state is the Kalman estimate of noisy encoders, not the simulator's truth
+    assert not np.array_equal(task.state.q, task.backend.true_position())
+    np.testing.assert_allclose(task.state.q, task.backend.true_position(), atol=0.05)
+
+
+def test_reaching_the_goal_pays_the_success_reward_and_draws_a_new_goal(arm3):
+    task = ReachTask(arm3, 1, NOMINAL, seed=2)
+    q = arm3.home.copy()
+    task.goal[0] = arm3.forward_kinematics(q)  # the goal is where the arm already is
+    task.backend.reset(q)
+    old_goal = task.goal[0].copy()
+    _, reward, terminated, _ = task.step(np.zeros((1, 3)))
+    assert reward[0] > 0.9  # +1 success, tiny penalties
+    assert task.reached[0] == 1 and not terminated[0]
+    assert not np.array_equal(task.goal[0], old_goal)
+
+
+def test_a_hard_limit_terminates_the_episode_with_the_hard_penalty(arm3):
+    # The smoother brakes velocity commands before the limits, so a policy meets a hard limit
+    # only through overshoot or a push; put the shoulder past its limit directly.
+    reward = RewardConfig(shaping=0.0)
+    task = ReachTask(arm3, 1, ReachConfig(dynamics=DynamicsRanges.none(), reward=reward), seed=3)
+    _, r, terminated, _ = task.step(np.zeros((1, 3)))
+    assert not terminated[0] and abs(r[0]) < 0.05
+    task.backend.datas[0].qpos[0] = arm3.position_upper[0] + 0.1
+    _, r, terminated, truncated = task.step(np.zeros((1, 3)))
+    assert terminated[0] and not truncated[0]
+    assert -1.2 < r[0] < -0.9  # -1 hard limit, -0.1 for the soft band it is also in
+    assert task.episode_info(0)["joint_limit_violations"] == 1
+
+
+def test_episodes_draw_noise_and_dynamics_per_env(arm3):
+    task = ReachTask(arm3, 4, ReachConfig(), seed=4)
+    lo, hi = ReachConfig().noise_range
+    assert np.all((task.backend.noise_sigma >= lo) & (task.backend.noise_sigma <= hi))
+    assert len({d.mass for d in task.dynamics}) == 4  # one draw per env
+    masses = [m.body_mass[m.jnt_bodyid[0]] for m in task.backend.models]
+    assert len(set(masses)) == 4
+    before = task.dynamics[1]
+    task.reset(np.array([False, True, False, False]))
+    assert task.dynamics[1] != before and task.dynamics[0] is not before
+
+
+def test_the_shipped_checkpoint_holds_the_ppo_mean_action(arm3, tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from stable_baselines3 import PPO
+
+    from policies.train import HIDDEN, ReachVecEnv, actor_from_ppo
+
+    task = ReachTask(arm3, 2, NOMINAL, seed=5)
+    model = PPO(
+        "MlpPolicy",
+        ReachVecEnv(task),
+        n_steps=8,
+        batch_size=16,
+        policy_kwargs={"net_arch": {"pi": list(HIDDEN), "vf": [8]}, "activation_fn": torch.nn.Tanh},
+        seed=0,
+        device="cpu",
+    )
+    model.learn(16)
+    actor = actor_from_ppo(model, task.spec.obs_dim, task.spec.act_dim)
+    path = save_checkpoint(tmp_path / "arm.pt", actor, task.spec)
+    loaded, spec, _ = load_checkpoint(path)
+    obs = np.random.default_rng(0).uniform(-1, 1, (32, task.spec.obs_dim)).astype(np.float32)
+    expected, _ = model.predict(obs, deterministic=True)  # SB3 clips to the action space
+    with torch.no_grad():
+        got = loaded(torch.from_numpy(obs)).numpy().clip(-1, 1)
+    np.testing.assert_allclose(got, expected, atol=1e-6)
+    assert spec == task.spec
+
+
+def test_a_vec_env_reset_keeps_the_terminal_observation(arm3):
+    pytest.importorskip("stable_baselines3")
+    from policies.train import ReachVecEnv
+
+    cfg = ReachConfig(dynamics=DynamicsRanges.none(), episode_seconds=0.05)  # 10 ticks
+    venv = ReachVecEnv(ReachTask(arm3, 2, cfg, seed=6))
+    venv.reset()
+    for _ in range(10):
+        venv.step_async(np.zeros((2, 3)))
+        obs, _, dones, infos = venv.step_wait()
+    assert dones.all()
+    for e in range(2):
+        assert infos[e]["TimeLimit.truncated"] is True
+        assert "joint_limit_violations" in infos[e] and "is_success" in infos[e]
+        assert not np.array_equal(infos[e]["terminal_observation"], obs[e])

@@ -5,6 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 POLICY ?= policies/arm.pt
 ROBOT  ?= arm3
+ONNX   := $(POLICY:.pt=.onnx)
 export ORT_DISABLE_TELEMETRY := 1
 export MPLBACKEND := Agg
 
@@ -23,7 +24,7 @@ $(STAMP): pyproject.toml
 # seconds on arm3 through the full runtime (Kalman filter, guard, smoother) and print the summary.
 run: install
 	$(VENV)/bin/policy-export $(POLICY)
-	$(VENV)/bin/deploy-run --backend sim --robot arm3 --policy $(POLICY:.pt=.onnx) --duration 60
+	$(VENV)/bin/deploy-run --backend sim --robot arm3 --policy $(ONNX) --duration 60
 
 test: install lint
 	$(PY) -m pytest -q
@@ -43,11 +44,15 @@ export: install
 train: install
 	$(PY) -m policies.train
 
-soak: install
-	$(VENV)/bin/soak-test --robot $(ROBOT) --policy policies/arm.onnx --hours 8 --sessions 1 --seed 0 --out runs/soak
+# The ONNX file the soak targets run, re-exported whenever the checkpoint changes.
+$(ONNX): $(POLICY) $(STAMP)
+	$(VENV)/bin/policy-export $(POLICY)
 
-nightly: install
-	$(VENV)/bin/soak-test --robot $(ROBOT) --policy policies/arm.onnx --hours 8 --sessions 2 --seed 0 --out runs/nightly --baseline bench/baseline/report.json
+soak: install $(ONNX)
+	$(VENV)/bin/soak-test --robot $(ROBOT) --policy $(ONNX) --hours 8 --sessions 1 --seed 0 --out runs/soak
+
+nightly: install $(ONNX)
+	$(VENV)/bin/soak-test --robot $(ROBOT) --policy $(ONNX) --hours 8 --sessions 2 --seed 0 --out runs/nightly --baseline bench/baseline/report.json
 
 bench: install
 	$(PY) -m bench

@@ -9,6 +9,9 @@ A fault is ``KIND@START[:DURATION]`` (seconds of simulated time; DURATION defaul
 - ``nan-action``: the policy outputs NaN.
 - ``latency``: ``LATENCY_SPIKE_TICKS`` extra ticks of encoder latency.
 - ``push``: a force of ``PUSH_FORCE`` N along +X pushes the end effector.
+- ``cable``: a cable pulls on the end effector: a sustained force of ``CABLE_FORCE`` N (or
+  ``magnitude``) along ``direction`` (world frame; default: along gravity, a hanging load), usually
+  for tens of seconds (give a DURATION).
 """
 
 from __future__ import annotations
@@ -19,22 +22,25 @@ import numpy as np
 
 from deploy.backends.base import SensorFrame
 
-KINDS = ("dropout", "stale", "nan-action", "latency", "push")
+KINDS = ("dropout", "stale", "nan-action", "latency", "push", "cable")
 DEFAULT_DURATION = 0.5  # s
 LATENCY_SPIKE_TICKS = 10  # control ticks (50 ms at 200 Hz)
 PUSH_FORCE = 20.0  # N, a firm shove by hand
+CABLE_FORCE = 10.0  # N, a moderate sustained pull (a cable or hose of about 1 kg)
 
 
 @dataclass(frozen=True)
 class Fault:
     """One scheduled fault: ``kind`` from ``KINDS`` over [start, start + duration) s, on ``envs``
-    (None: every env), with an optional ``magnitude`` (push force N / latency ticks)."""
+    (None: every env), with an optional ``magnitude`` (push or cable force N / latency ticks) and,
+    for ``cable``, an optional unit ``direction`` of the pull (world frame; None: along gravity)."""
 
     kind: str
     start: float
     duration: float = DEFAULT_DURATION
     envs: tuple[int, ...] | None = None
     magnitude: float | None = None
+    direction: tuple[float, float, float] | None = None
 
     @classmethod
     def parse(cls, text: str) -> Fault:
@@ -74,7 +80,7 @@ class FaultInjector:
         self._frozen: SensorFrame | None = None
         self._active: set[int] = set()
         self.log: list[dict] = []
-        self._has_push = any(f.kind == "push" for f in self.faults)
+        self._has_push = any(f.kind in ("push", "cable") for f in self.faults)
 
     def _envs(self, f: Fault) -> np.ndarray:
         return np.arange(self.backend.envs) if f.envs is None else np.array(f.envs)
@@ -111,9 +117,23 @@ class FaultInjector:
                 )
             elif f.kind == "push":
                 push[envs, 0] = f.magnitude or PUSH_FORCE
+            elif f.kind == "cable":
+                for e in envs:
+                    push[e] += (f.magnitude or CABLE_FORCE) * self._cable_direction(f, e)
         if self._has_push:
             for e in range(b.envs):
                 b.set_external_force(e, push[e])
+
+    def _cable_direction(self, f: Fault, env: int) -> np.ndarray:
+        """Unit vector (3,) of a cable's pull: ``f.direction``, or along the env's gravity."""
+        if f.direction is not None:
+            d = np.asarray(f.direction, dtype=np.float64)
+        else:
+            d = np.array(self.backend.models[env].opt.gravity, dtype=np.float64)
+        norm = np.linalg.norm(d)
+        if not norm > 0.0:
+            raise ValueError(f"fault {f}: the cable direction {d.tolist()} has no length")
+        return d / norm
 
     def filter_frame(self, t: float, frame: SensorFrame) -> SensorFrame:
         """Replace the frame with a frozen copy while a ``stale`` fault is active."""

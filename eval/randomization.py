@@ -500,8 +500,10 @@ def sample_fault_schedule(
         # start on a control tick, last whole ticks: the schedule means the same at any rate
         start = np.ceil(t / dt) * dt
         length = max(np.round(length / dt), 1.0) * dt
-        if start + length + ranges.min_gap > duration:
+        if start + ranges.min_gap > duration:
             return faults
+        if start + length + ranges.min_gap > duration:
+            continue  # too long for the time left: a shorter one may still fit
         faults.append(Fault(kind, round(float(start), 9), round(float(length), 9), None, magnitude))
         t = start + length + ranges.min_gap
 

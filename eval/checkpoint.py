@@ -1,0 +1,490 @@
+"""Checkpoints of soak sessions: the complete state of one env of a batched runtime, on disk.
+
+A soak session (:mod:`eval.soak`) is one env of a :class:`~deploy.runtime.Runtime` over a batched
+:class:`~deploy.backends.sim.SimBackend`. To resume an interrupted session with nothing lost, and
+with the same report as an uninterrupted run, a checkpoint holds everything a later tick reads:
+
+=====================  =========================================================================
+component              state captured (the env's slice of every batched array)
+=====================  =========================================================================
+MuJoCo                 ``mj_getState(mjSTATE_INTEGRATION)``: time, qpos, qvel, act, warm start,
+                       ctrl, applied forces (pushes, cable); the model's ``dof_frictionloss``
+                       (drift edits it in place)
+SimBackend             latency buffers, command, torque, sensor settings, the last frame (the
+                       drive repeats its temperature between reports), thermal nodes, tick, and
+                       the env's sensor random stream (``bit_generator.state``)
+JointStateEstimator    filter state and covariance, filter time, freshness, counters
+CommandSmoother        Ruckig's input (current and target position, velocity, acceleration), the
+                       held target, commanded position, stop flags, counters
+SafetyGuard            counters, hard-violation flag, derating, last accepted target
+Runtime                modes, causes, counters, non-finite streak, last actions, goal, estimated
+                       state, ticks and time, latency histograms
+GoalScheduler          goal times, reached flags, counts, times to reach, its random stream
+FaultInjector          schedule, base sensor settings, active faults, frozen frame, log
+=====================  =========================================================================
+
+The soak harness adds its own book-keeping (fault progress, latches, drift, curves and report
+accumulators) to the same files (:mod:`eval.soak`).
+
+Ruckig keeps its last trajectory inside the ``Ruckig`` object (it resamples that trajectory while
+its input is unchanged, and recalculates otherwise; the results agree to ~1e-16, not bit for bit),
+and the Python binding can neither read nor pickle it. The soak harness therefore calls
+``Ruckig.reset()`` after every tick, so that every step recalculates from the input (as it does
+anyway whenever a target changes) and the object holds nothing a later tick needs; a restored
+smoother gets a fresh one (:func:`fresh_trajectory_generator`).
+
+The objects are not changed: these functions read and write their attributes (private ones
+included, which ties this module to the classes it captures; the tests of :mod:`eval.soak` run a
+kill-and-resume against an uninterrupted run to catch any drift).
+
+On disk (:func:`write_checkpoint`): ``state-<tick>.npz`` (arrays; compressed, no pickles) and
+``checkpoint.json`` (format, version, the npz's name and SHA-256, and the JSON metadata), each
+written to a temporary file and moved into place with ``os.replace``; the JSON is written last and
+is the commit point, and the previous npz is removed only after it. A crash at any moment leaves
+the previous checkpoint or the new one, never a mixture.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+FORMAT = "soak-checkpoint"
+VERSION = 1
+MANIFEST = "checkpoint.json"
+_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+
+
+class CheckpointError(ValueError):
+    """A checkpoint cannot be read or does not fit the session; the message names the file."""
+
+
+# ---------------------------------------------------------------------- random generators
+def generator_state(gen: np.random.Generator) -> dict:
+    """JSON-ready state of a numpy ``Generator`` (its ``bit_generator.state``)."""
+    return gen.bit_generator.state
+
+
+def set_generator_state(gen: np.random.Generator, state: dict) -> None:
+    """Restore a state from :func:`generator_state` into ``gen`` (same bit generator kind)."""
+    gen.bit_generator.state = state
+
+
+# ---------------------------------------------------------------------- one env of a runtime
+def _dofs(smoother, env: int) -> slice:
+    n = smoother.n_joints
+    return slice(env * n, (env + 1) * n)
+
+
+def capture_env(rt, env: int) -> tuple[dict[str, np.ndarray], dict]:
+    """The state of env ``env`` of runtime ``rt`` (and of its SimBackend).
+
+    Returns:
+        ``(arrays, meta)``: arrays keyed ``component/field`` (the env's slices), and JSON-ready
+        metadata (the env's sensor random stream, if the backend keeps one per env).
+    """
+    a: dict[str, np.ndarray] = {}
+    meta: dict = {}
+    e = env
+    # runtime
+    for name in ("mode", "cause", "goal", "_action", "_last_valid_action", "_nan_streak"):
+        a[f"runtime/{name}"] = getattr(rt, name)[e]
+    for name in ("_target", "_cmd", "_tracking"):
+        a[f"runtime/{name}"] = getattr(rt, name)[e]
+    for name in ("q", "dq", "ee_position", "ee_rotation", "winding_temperature", "last_action"):
+        a[f"state/{name}"] = getattr(rt.state, name)[e]
+    c = rt.counters
+    for name in ("non_finite_actions", "safe_stops", "resyncs"):
+        a[f"counters/{name}"] = getattr(c, name)[e]
+    for cause, values in c.faults.items():
+        a[f"counters/faults/{cause}"] = values[e]
+    # backend
+    b = rt.backend
+    m, d = b.models[e], b.datas[e]
+    state = np.empty(mujoco.mj_stateSize(m, _STATE))
+    mujoco.mj_getState(m, d, state, _STATE)
+    a["backend/mj_state"] = state
+    a["backend/dof_frictionloss"] = m.dof_frictionloss
+    a["backend/warnings"] = np.array([w.number for w in d.warning])
+    a["backend/buf_position"] = b._buf_position[:, e]
+    a["backend/buf_stamp"] = b._buf_stamp[:, e]
+    for name in ("_command", "_torque", "noise_sigma", "dropout_probability", "latency_ticks"):
+        a[f"backend/{name}"] = getattr(b, name)[e]
+    for name in ("time", "position", "position_stamp", "winding_temperature", "temperature_stamp"):
+        a[f"frame/{name}"] = getattr(b.frame, name)[e]
+    th = b.thermal
+    for name in ("winding_temperature", "housing_temperature", "current", "power", "ambient"):
+        a[f"thermal/{name}"] = getattr(th, name)[e]
+    generators = getattr(b._rng, "generators", None)
+    if generators is not None:
+        meta["sensor_rng"] = generator_state(generators[e])
+    # estimator
+    est = rt.estimator
+    a["estimator/x"] = est._x[:, e]
+    a["estimator/p"] = est._p[:, e]
+    for name in (
+        "filter_time",
+        "time_since_fresh",
+        "stale_per_joint",
+        "missing_per_joint",
+        "reinitializations_per_joint",
+        "_initialized",
+    ):
+        a[f"estimator/{name}"] = getattr(est, name)[e]
+    # smoother
+    sm = rt.smoother
+    dof = _dofs(sm, e)
+    for name in ("_pos", "_vel", "_acc", "_cmd", "_cmd_position", "_held", "_stop_dof"):
+        a[f"smoother/{name}"] = getattr(sm, name)[dof]
+    a["smoother/stopping"] = sm.stopping[e]
+    for name in (
+        "non_finite_per_joint",
+        "target_clamps_per_joint",
+        "extrema_violations_per_joint",
+        "stopping_distance_clamps_per_joint",
+    ):
+        a[f"smoother/{name}"] = getattr(sm, name)[e]
+    if sm.mode != "torque":
+        inp = sm._inp
+        for name in (
+            "current_position",
+            "current_velocity",
+            "current_acceleration",
+            "target_position",
+            "target_velocity",
+            "target_acceleration",
+        ):
+            a[f"ruckig/{name}"] = np.asarray(getattr(inp, name), dtype=np.float64)[dof]
+    # guard
+    g = rt.guard
+    for check, values in g.counts.items():
+        a[f"guard/counts/{check}"] = values[e]
+    a["guard/hard_violation"] = g.hard_violation[e]
+    a["guard/effort_scale"] = g.effort_scale[e]
+    a["guard/last_valid"] = g._last_valid[e]
+    return {k: np.array(v, copy=True) for k, v in a.items()}, meta
+
+
+def restore_env(rt, env: int, arrays: dict[str, np.ndarray], meta: dict) -> None:
+    """Write a state from :func:`capture_env` into env ``env`` of ``rt`` (built for the same
+    robot, control mode and session models, and started).
+
+    Raises:
+        CheckpointError: a missing field, or a shape or MuJoCo state size that does not fit.
+    """
+    e = env
+
+    def put(target: np.ndarray, index, key: str) -> None:
+        if key not in arrays:
+            raise CheckpointError(f"checkpoint field '{key}' is missing")
+        value = arrays[key]
+        if np.shape(target[index]) != np.shape(value):
+            raise CheckpointError(
+                f"checkpoint field '{key}': expected shape {np.shape(target[index])}, "
+                f"got {np.shape(value)}"
+            )
+        target[index] = value
+
+    for name in ("mode", "cause", "goal", "_action", "_last_valid_action", "_nan_streak"):
+        put(getattr(rt, name), e, f"runtime/{name}")
+    for name in ("_target", "_cmd", "_tracking"):
+        put(getattr(rt, name), e, f"runtime/{name}")
+    for name in ("q", "dq", "ee_position", "ee_rotation", "winding_temperature", "last_action"):
+        put(getattr(rt.state, name), e, f"state/{name}")
+    c = rt.counters
+    for name in ("non_finite_actions", "safe_stops", "resyncs"):
+        put(getattr(c, name), e, f"counters/{name}")
+    for cause, values in c.faults.items():
+        put(values, e, f"counters/faults/{cause}")
+
+    b = rt.backend
+    m, d = b.models[e], b.datas[e]
+    state = arrays.get("backend/mj_state")
+    if state is None or state.shape != (mujoco.mj_stateSize(m, _STATE),):
+        raise CheckpointError(
+            "checkpoint field 'backend/mj_state': the MuJoCo state does not fit the session's "
+            f"model (expected {mujoco.mj_stateSize(m, _STATE)} values)"
+        )
+    mujoco.mj_setState(m, d, state, _STATE)  # no mj_forward: it would rewrite the warm start
+    warnings = arrays.get("backend/warnings")
+    if warnings is not None:
+        for i, number in enumerate(warnings[: len(d.warning)]):
+            d.warning[i].number = int(number)
+    put(m.dof_frictionloss, slice(None), "backend/dof_frictionloss")
+    put(b._buf_position, (slice(None), e), "backend/buf_position")
+    put(b._buf_stamp, (slice(None), e), "backend/buf_stamp")
+    for name in ("_command", "_torque", "noise_sigma", "dropout_probability", "latency_ticks"):
+        put(getattr(b, name), e, f"backend/{name}")
+    for name in ("time", "position", "position_stamp", "winding_temperature", "temperature_stamp"):
+        put(getattr(b.frame, name), e, f"frame/{name}")
+    for name in ("winding_temperature", "housing_temperature", "current", "power", "ambient"):
+        put(getattr(b.thermal, name), e, f"thermal/{name}")
+    generators = getattr(b._rng, "generators", None)
+    if generators is not None:
+        if "sensor_rng" not in meta:
+            raise CheckpointError("checkpoint field 'sensor_rng' is missing")
+        set_generator_state(generators[e], meta["sensor_rng"])
+
+    est = rt.estimator
+    put(est._x, (slice(None), e), "estimator/x")
+    put(est._p, (slice(None), e), "estimator/p")
+    for name in (
+        "filter_time",
+        "time_since_fresh",
+        "stale_per_joint",
+        "missing_per_joint",
+        "reinitializations_per_joint",
+        "_initialized",
+    ):
+        put(getattr(est, name), e, f"estimator/{name}")
+    est._all_initialized = bool(est._initialized.all())
+
+    sm = rt.smoother
+    dof = _dofs(sm, e)
+    for name in ("_pos", "_vel", "_acc", "_cmd", "_cmd_position", "_held", "_stop_dof"):
+        put(getattr(sm, name), dof, f"smoother/{name}")
+    put(sm.stopping, e, "smoother/stopping")
+    for name in (
+        "non_finite_per_joint",
+        "target_clamps_per_joint",
+        "extrema_violations_per_joint",
+        "stopping_distance_clamps_per_joint",
+    ):
+        put(getattr(sm, name), e, f"smoother/{name}")
+    if sm.mode != "torque":
+        inp = sm._inp
+        for name in (
+            "current_position",
+            "current_velocity",
+            "current_acceleration",
+            "target_position",
+            "target_velocity",
+            "target_acceleration",
+        ):
+            values = np.asarray(getattr(inp, name), dtype=np.float64)
+            put(values, dof, f"ruckig/{name}")
+            setattr(inp, name, values)
+        sm._set_interfaces()  # the per-DoF interfaces follow the stop flags
+        fresh_trajectory_generator(sm)
+    sm._synced = True
+
+    g = rt.guard
+    for check, values in g.counts.items():
+        put(values, e, f"guard/counts/{check}")
+    put(g.hard_violation, e, "guard/hard_violation")
+    put(g.effort_scale, e, "guard/effort_scale")
+    put(g._last_valid, e, "guard/last_valid")
+
+
+def capture_shared(rt) -> tuple[dict[str, np.ndarray], dict]:
+    """State every env of a batch shares: ticks and time, the backend tick, the overrun window and
+    the latency histograms (wall-clock measurements, not seeded)."""
+    arrays = {
+        "shared/overrun_ring": rt._overrun_ring.copy(),
+        "shared/latency_counts": rt.latency.counts.copy(),
+        "shared/latency_max_ns": rt.latency.max_ns.copy(),
+        "shared/tick_cost_counts": rt.tick_cost.counts.copy(),
+        "shared/tick_cost_max_ns": rt.tick_cost.max_ns.copy(),
+    }
+    meta = {"ticks": rt.ticks, "time": rt.time, "backend_tick": rt.backend.tick}
+    if getattr(rt.backend._rng, "generators", None) is None:
+        meta["backend_rng"] = generator_state(rt.backend._rng)
+    return arrays, meta
+
+
+def restore_shared(rt, arrays: dict[str, np.ndarray], meta: dict) -> None:
+    """Inverse of :func:`capture_shared`.
+
+    Raises:
+        CheckpointError: a missing field.
+    """
+    try:
+        rt.ticks = int(meta["ticks"])
+        rt.time = float(meta["time"])
+        rt.backend.tick = int(meta["backend_tick"])
+        rt._overrun_ring[:] = arrays["shared/overrun_ring"]
+        rt.latency.counts[:] = arrays["shared/latency_counts"]
+        rt.latency.max_ns[:] = arrays["shared/latency_max_ns"]
+        rt.tick_cost.counts[:] = arrays["shared/tick_cost_counts"]
+        rt.tick_cost.max_ns[:] = arrays["shared/tick_cost_max_ns"]
+        if "backend_rng" in meta:
+            set_generator_state(rt.backend._rng, meta["backend_rng"])
+    except KeyError as exc:
+        raise CheckpointError(f"checkpoint field {exc} is missing") from None
+
+
+def fresh_trajectory_generator(smoother) -> None:
+    """Give ``smoother`` a new ``Ruckig`` and ``OutputParameter``: its next step recalculates
+    the trajectory from its input (see the module docstring). No-op in torque mode."""
+    if smoother.mode == "torque":
+        return
+    from ruckig import OutputParameter, Ruckig
+
+    smoother._ruckig = Ruckig(smoother.dofs, smoother.control_period)
+    smoother._out = OutputParameter(smoother.dofs)
+
+
+# ---------------------------------------------------------------------- goal scheduler, faults
+def capture_goals(goals) -> tuple[dict[str, np.ndarray], dict]:
+    """State of a :class:`deploy.cli.GoalScheduler`."""
+    arrays = {"goals/t_goal": goals.t_goal.copy(), "goals/reached": goals.reached.copy()}
+    meta = {
+        "goals": goals.goals,
+        "hits": goals.hits,
+        "times": list(goals.times),
+        "rng": generator_state(goals.rng),
+    }
+    return arrays, meta
+
+
+def restore_goals(goals, arrays: dict[str, np.ndarray], meta: dict) -> None:
+    """Inverse of :func:`capture_goals`."""
+    try:
+        goals.t_goal[:] = arrays["goals/t_goal"]
+        goals.reached[:] = arrays["goals/reached"]
+        goals.goals = int(meta["goals"])
+        goals.hits = int(meta["hits"])
+        goals.times = [float(t) for t in meta["times"]]
+        set_generator_state(goals.rng, meta["rng"])
+    except KeyError as exc:
+        raise CheckpointError(f"checkpoint field {exc} of the goal scheduler is missing") from None
+
+
+def capture_injector(injector) -> tuple[dict[str, np.ndarray], dict]:
+    """State of a :class:`deploy.faults.FaultInjector` (its schedule, base sensor settings,
+    active faults, frozen frame of a stale fault, and log)."""
+    from eval.randomization import fault_to_dict
+
+    arrays = {
+        "injector/base_dropout": injector._base_dropout.copy(),
+        "injector/base_latency": injector._base_latency.copy(),
+    }
+    frozen = injector._frozen
+    if frozen is not None:
+        for name, value in vars(frozen).items():
+            arrays[f"injector/frozen/{name}"] = np.array(value, copy=True)
+    meta = {
+        "faults": [fault_to_dict(f) for f in injector.faults],
+        "active": sorted(injector._active),
+        "log": json.loads(json.dumps(injector.log)),
+        "frozen": frozen is not None,
+    }
+    return arrays, meta
+
+
+def restore_injector(injector, arrays: dict[str, np.ndarray], meta: dict) -> None:
+    """Inverse of :func:`capture_injector`, into an injector built with the same schedule."""
+    from deploy.backends.base import SensorFrame
+
+    try:
+        injector._base_dropout[:] = arrays["injector/base_dropout"]
+        injector._base_latency[:] = arrays["injector/base_latency"]
+        if meta["frozen"]:
+            fields = SensorFrame.__dataclass_fields__
+            injector._frozen = SensorFrame(
+                **{k: arrays[f"injector/frozen/{k}"].copy() for k in fields}
+            )
+        else:
+            injector._frozen = None
+        injector._active = {int(i) for i in meta["active"]}
+        injector.log = list(meta["log"])
+    except KeyError as exc:
+        raise CheckpointError(f"checkpoint field {exc} of the fault injector is missing") from None
+
+
+# ---------------------------------------------------------------------- files
+def _atomic_write(path: Path, data: bytes) -> None:
+    tmp = path.with_name(path.name + ".part")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def write_checkpoint(
+    directory: str | os.PathLike, arrays: dict[str, np.ndarray], meta: dict
+) -> Path:
+    """Write a checkpoint into ``directory`` atomically (see the module docstring).
+
+    Args:
+        directory: The session's folder (created if needed).
+        arrays: Name -> numpy array (numeric or bool; no objects).
+        meta: JSON-ready metadata; must hold ``tick`` (int), which names the npz file.
+
+    Returns:
+        The path of ``checkpoint.json``.
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    name = f"state-{int(meta['tick']):012d}.npz"
+    npz = directory / name
+    tmp = directory / (name + ".part")
+    with open(tmp, "wb") as f:
+        np.savez_compressed(f, **arrays)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, npz)
+    doc = {
+        "format": FORMAT,
+        "version": VERSION,
+        "arrays": name,
+        "sha256": hashlib.sha256(npz.read_bytes()).hexdigest(),
+        "meta": meta,
+    }
+    manifest = directory / MANIFEST
+    _atomic_write(manifest, json.dumps(doc).encode())
+    for old in directory.glob("state-*.npz*"):
+        if old.name != name:
+            old.unlink(missing_ok=True)
+    return manifest
+
+
+def read_checkpoint(directory: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict] | None:
+    """Read the checkpoint in ``directory``; None if there is none.
+
+    Returns:
+        ``(arrays, meta)`` as written by :func:`write_checkpoint`.
+
+    Raises:
+        CheckpointError: the manifest is not valid JSON or not a soak checkpoint of this version,
+            or its npz is missing, does not match its SHA-256 (truncated or altered) or cannot be
+            read. The message names the file; delete the session's folder to start it afresh.
+    """
+    directory = Path(directory)
+    manifest = directory / MANIFEST
+    if not manifest.exists():
+        return None
+    hint = f"delete {directory} to restart this session from the beginning"
+    try:
+        doc = json.loads(manifest.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CheckpointError(f"{manifest}: not a readable checkpoint ({exc}); {hint}") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise CheckpointError(f"{manifest}: field 'format': expected '{FORMAT}'; {hint}")
+    if doc.get("version") != VERSION:
+        raise CheckpointError(
+            f"{manifest}: field 'version': expected {VERSION}, got {doc.get('version')!r}; {hint}"
+        )
+    for key in ("arrays", "sha256", "meta"):
+        if key not in doc:
+            raise CheckpointError(f"{manifest}: field '{key}' is missing; {hint}")
+    npz = directory / str(doc["arrays"])
+    if npz.parent != directory or not npz.is_file():
+        raise CheckpointError(f"{manifest}: field 'arrays': {npz} does not exist; {hint}")
+    data = npz.read_bytes()
+    if hashlib.sha256(data).hexdigest() != doc["sha256"]:
+        raise CheckpointError(
+            f"{npz}: its SHA-256 differs from the one in {manifest} (truncated or altered); {hint}"
+        )
+    try:
+        with np.load(npz, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as exc:
+        raise CheckpointError(f"{npz}: cannot be read ({exc}); {hint}") from None
+    return arrays, doc["meta"]

@@ -1,0 +1,283 @@
+"""``soak-test``: run a soak campaign (:mod:`eval.soak`) and write its reports (:mod:`eval.report`).
+
+Usage::
+
+    soak-test --robot arm3 --policy policies/arm.onnx --hours 8 --sessions 2 --seed 0 --out DIR
+              [--resume] [--baseline OLD/report.json] [--executor local|ray] [--address ADDR]
+              [--sessions-per-process K] [--workers N] [--checkpoint-minutes M]
+              [--goal-period S] [--no-faults] [--fault-interval S] ...
+
+It writes ``DIR/report.json``, ``DIR/report.html`` and ``DIR/junit.xml`` (atomically), keeps each
+session's checkpoints, progress and result under ``DIR/sessions/<id>/``, shows a progress bar of
+simulated hours and speed (simulated / wall time), and prints a summary.
+
+Exit codes (when several apply, the first of 4, 1, 5, 2, 6, 7 is returned):
+
+====  =====================================================================================
+0     every check passed, and no regression against ``--baseline``
+1     a hard-limit violation
+2     a latched fault (an env ended in FAULTED at least once)
+3     bad input: a bad option, or an unreadable robot, policy, baseline or checkpoint (the
+      message names the file and the field)
+4     the simulation diverged (MuJoCo reported a bad state)
+5     over-temperature: a winding above its maximum, or an over-temperature safe stop
+6     goal success rate below ``--min-success``
+7     regression against ``--baseline``
+130   interrupted (Ctrl-C); the checkpoints are kept and ``--resume`` continues
+====  =====================================================================================
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+EXIT_PASSED = 0
+EXIT_HARD_VIOLATION = 1
+EXIT_LATCHED = 2
+EXIT_BAD_INPUT = 3
+EXIT_DIVERGED = 4
+EXIT_OVER_TEMPERATURE = 5
+EXIT_LOW_SUCCESS = 6
+EXIT_REGRESSION = 7
+EXIT_INTERRUPTED = 130
+
+#: Failure name (eval.report.failures) -> exit code, in order of precedence.
+_EXIT_ORDER = (
+    ("no_divergence", EXIT_DIVERGED),
+    ("no_hard_violation", EXIT_HARD_VIOLATION),
+    ("no_over_temperature", EXIT_OVER_TEMPERATURE),
+    ("no_latched_fault", EXIT_LATCHED),
+    ("success_rate", EXIT_LOW_SUCCESS),
+    ("regression", EXIT_REGRESSION),
+)
+
+
+class BadInput(ValueError):
+    """A bad command line; the message names the option."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # exit code 3, not argparse's 2 (which means a latched fault here)
+        raise BadInput(message)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(
+        prog="soak-test",
+        description="Soak test: hours of the safety runtime with an ONNX policy against a "
+        "randomized, faulty MuJoCo plant; reports of violations, faults and motor heat.",
+        epilog="Exit codes: 0 passed, 1 hard violation, 2 latched fault, 3 bad input, "
+        "4 divergence, 5 over-temperature, 6 success below threshold, 7 regression, "
+        "130 interrupted.",
+    )
+    p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
+    p.add_argument("--policy", default="policies/arm.onnx", help="ONNX policy (policy-export)")
+    p.add_argument("--hours", type=float, default=8.0, help="simulated hours per session")
+    p.add_argument("--sessions", type=int, default=1, help="number of seeded sessions")
+    p.add_argument("--seed", type=int, default=0, help="seed of the first session (then +1...)")
+    p.add_argument("--out", type=Path, required=True, help="campaign folder")
+    p.add_argument(
+        "--resume", action="store_true", help="continue an interrupted campaign in --out"
+    )
+    p.add_argument("--baseline", type=Path, default=None, help="earlier report.json to compare")
+    p.add_argument("--executor", choices=["local", "ray"], default="local")
+    p.add_argument("--address", default=None, help="Ray cluster address (default: local Ray)")
+    p.add_argument(
+        "--sessions-per-process", type=int, default=1, help="sessions batched in one runtime"
+    )
+    p.add_argument("--workers", type=int, default=None, help="processes (default: one per core)")
+    p.add_argument(
+        "--checkpoint-minutes", type=float, default=5.0, help="simulated minutes (0: none)"
+    )
+    p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
+    p.add_argument(
+        "--success-time", type=float, default=3.0, help="a goal counts as reached within s"
+    )
+    p.add_argument("--no-faults", action="store_true", help="no fault injection")
+    p.add_argument(
+        "--fault-interval", type=float, default=120.0, help="mean s between injected faults"
+    )
+    p.add_argument(
+        "--operator-reset",
+        type=float,
+        default=10.0,
+        help="s before an operator clears a latched fault (0: never)",
+    )
+    p.add_argument(
+        "--curve-seconds", type=float, default=60.0, help="simulated s per point of the curves"
+    )
+    p.add_argument("--min-success", type=float, default=0.5, help="lowest passing success rate")
+    p.add_argument(
+        "--tolerance-violations",
+        type=float,
+        default=0.10,
+        help="relative rise of violations per hour over the baseline still allowed",
+    )
+    p.add_argument(
+        "--violation-slack",
+        type=float,
+        default=1.0,
+        help="absolute rise of violations per hour still allowed",
+    )
+    p.add_argument(
+        "--tolerance-success", type=float, default=0.02, help="drop of the success rate allowed"
+    )
+    p.add_argument(
+        "--tolerance-temperature", type=float, default=2.0, help="rise of peak winding, K"
+    )
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return p
+
+
+def _check_args(args) -> None:
+    def number(name: str, minimum: float, strict: bool) -> None:
+        value = getattr(args, name.lstrip("-").replace("-", "_"))
+        ok = math.isfinite(value) and (value > minimum if strict else value >= minimum)
+        if not ok:
+            op = ">" if strict else ">="
+            raise BadInput(f"{name}: expected a number {op} {minimum}, got {value}")
+
+    number("--hours", 0, True)
+    number("--goal-period", 0, True)
+    number("--success-time", 0, True)
+    number("--fault-interval", 0, True)
+    number("--curve-seconds", 0, True)
+    number("--checkpoint-minutes", 0, False)
+    number("--operator-reset", 0, False)
+    for name in (
+        "--tolerance-violations",
+        "--violation-slack",
+        "--tolerance-success",
+        "--tolerance-temperature",
+    ):
+        number(name, 0, False)
+    if not 0.0 <= args.min_success <= 1.0:
+        raise BadInput(f"--min-success: expected a value in [0, 1], got {args.min_success}")
+    for name in ("sessions", "sessions_per_process"):
+        if getattr(args, name) < 1:
+            raise BadInput(f"--{name.replace('_', '-')}: expected an integer >= 1")
+    if args.workers is not None and args.workers < 1:
+        raise BadInput(f"--workers: expected an integer >= 1, got {args.workers}")
+    if args.seed < 0:
+        raise BadInput(f"--seed: expected an integer >= 0, got {args.seed}")
+    if args.address and args.executor != "ray":
+        raise BadInput("--address: only with --executor ray")
+    if not Path(args.policy).is_file():
+        raise BadInput(f"--policy: {args.policy} is not a file")
+
+
+def exit_code(report: dict) -> int:
+    """The exit code of a report (see the module docstring)."""
+    from eval.report import failures
+
+    failed = set(failures(report))
+    for name, code in _EXIT_ORDER:
+        if name in failed:
+            return code
+    return EXIT_PASSED
+
+
+def run(args) -> int:
+    from eval.randomization import FaultRanges, SessionRanges
+    from eval.report import Thresholds, build_report, load_report, summary_text, write_reports
+    from eval.soak import SessionConfig, file_sha256, run_campaign
+    from robots import load_robot
+
+    _check_args(args)
+    thresholds = Thresholds(
+        min_success_rate=args.min_success,
+        violation_tolerance=args.tolerance_violations,
+        violation_slack=args.violation_slack,
+        success_tolerance=args.tolerance_success,
+        temperature_tolerance=args.tolerance_temperature,
+    )
+    baseline = load_report(args.baseline) if args.baseline else None
+    robot = load_robot(args.robot)
+    template = SessionConfig(
+        robot=args.robot,
+        policy=str(args.policy),
+        seed=args.seed,
+        hours=args.hours,
+        goal_period=args.goal_period,
+        success_time=args.success_time,
+        checkpoint_minutes=args.checkpoint_minutes,
+        curve_seconds=args.curve_seconds,
+        operator_reset=args.operator_reset,
+        faults=not args.no_faults,
+        ranges=SessionRanges(faults=FaultRanges(mean_interval=args.fault_interval)),
+    )
+    wall = time.perf_counter()
+    results = run_campaign(
+        template,
+        args.sessions,
+        args.out,
+        resume=args.resume,
+        executor=args.executor,
+        address=args.address,
+        sessions_per_process=args.sessions_per_process,
+        workers=args.workers,
+        progress=not args.no_progress,
+    )
+    wall = time.perf_counter() - wall
+    options = template.to_dict()
+    options.pop("seed")
+    simulated = sum(r["simulated_s"] for r in results)
+    campaign = {
+        "robot": robot.name,
+        "policy": str(args.policy),
+        "policy_sha256": file_sha256(args.policy),
+        "hours": args.hours,
+        "sessions": args.sessions,
+        "seed": args.seed,
+        "session_options": options,
+        "executor": args.executor,
+        "address": args.address,
+        "sessions_per_process": args.sessions_per_process,
+        "resumed": bool(args.resume),
+        "wall_s": wall,
+        "simulated_per_wall": simulated / wall if wall > 0 else None,
+    }
+    report = build_report(
+        campaign,
+        results,
+        thresholds,
+        baseline,
+        str(args.baseline) if args.baseline else None,
+    )
+    code = exit_code(report)
+    report["exit_code"] = code
+    paths = write_reports(args.out, report)
+    print(summary_text(report))
+    print(
+        f"  speed        {campaign['simulated_per_wall'] or 0:.1f}x real time ({wall:.1f} s wall)"
+    )
+    print(f"  reports      {paths['json']}, {paths['html']}, {paths['junit']}")
+    print(f"  exit code    {code}")
+    return code
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``soak-test``; returns the exit code (see the module docstring)."""
+    os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    try:
+        args = _parser().parse_args(argv)
+        return run(args)
+    except KeyboardInterrupt:
+        print(
+            "soak-test: interrupted; the checkpoints are kept: run again with --resume",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
+    except (ValueError, OSError) as exc:  # RobotSpecError, PolicyLoadError, CheckpointError, ...
+        print(f"soak-test: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,169 @@
+"""Seeded randomization of the soak harness: sensors, drift, fault schedules, the cable fault."""
+
+import json
+
+import numpy as np
+import pytest
+
+from deploy.backends.sim import SimBackend
+from deploy.faults import CABLE_FORCE, Fault, FaultInjector
+from deploy.runtime import NAN_ACTION_LIMIT
+from eval.randomization import (
+    Drift,
+    DriftRanges,
+    FaultRanges,
+    SensorDraw,
+    SensorRanges,
+    SessionRandomization,
+    SessionRanges,
+    apply_drift,
+    apply_sensors,
+    joint_dofs,
+    randomized_model,
+    sample_drift,
+    sample_fault_schedule,
+    sample_sensors,
+    sample_session,
+    session_rng,
+    stale_budget,
+)
+
+HOURS8 = 8 * 3600.0
+
+
+def test_a_session_is_replayable_from_its_seed_and_its_report(arm3):
+    a = sample_session(arm3, 7, HOURS8)
+    assert sample_session(arm3, 7, HOURS8) == a
+    assert sample_session(arm3, 8, HOURS8) != a
+    # what the report stores (JSON) gives the same draw back
+    assert SessionRandomization.from_dict(json.loads(json.dumps(a.to_dict()))) == a
+
+
+def test_each_kind_of_draw_has_its_own_stream(arm3):
+    """Turning faults off, or changing the fault rate, leaves dynamics, sensors and drift alone."""
+    a = sample_session(arm3, 3, HOURS8)
+    b = sample_session(arm3, 3, HOURS8, faults=False)
+    c = sample_session(arm3, 3, HOURS8, SessionRanges(faults=FaultRanges(mean_interval=30.0)))
+    assert b.faults == () and len(c.faults) > len(a.faults) > 0
+    for other in (b, c):
+        assert (other.dynamics, other.sensors, other.drift) == (a.dynamics, a.sensors, a.drift)
+
+
+def test_sensor_noise_follows_the_seed_section_5_range():
+    draws = [sample_sensors(session_rng(s, "sensors")) for s in range(200)]
+    sigma = np.array([d.noise_sigma for d in draws])
+    assert sigma.min() >= 0.002 * np.pi and sigma.max() <= 0.010 * np.pi
+    assert sigma.max() - sigma.min() > 0.006 * np.pi  # the whole range is used
+    assert {d.latency_ticks for d in draws} == {0, 1, 2}
+    assert all(0.0 <= d.dropout_probability <= 0.001 for d in draws)
+
+
+def test_apply_sensors_sets_one_env_and_refuses_latency_beyond_the_buffer(arm3):
+    backend = SimBackend(arm3, envs=2, max_latency_ticks=4)
+    apply_sensors(backend, 1, SensorDraw(0.02, 3, 0.01))
+    assert backend.noise_sigma.tolist() == [arm3.config.sensors.encoder_noise_sigma, 0.02]
+    assert backend.latency_ticks.tolist() == [arm3.config.sensors.encoder_latency_ticks, 3]
+    assert backend.dropout_probability[1] == 0.01
+    with pytest.raises(ValueError, match="latency 5 ticks exceeds the backend's max_latency"):
+        apply_sensors(backend, 0, SensorDraw(0.02, 5, 0.0))
+
+
+def test_drift_raises_friction_in_the_sessions_model_over_time(arm3):
+    drift = sample_drift(arm3, session_rng(0, "drift"))
+    assert all(0.01 <= r <= 0.06 for r in drift.friction_rate)
+    model = randomized_model(arm3, "velocity", sample_session(arm3, 0, 60.0).dynamics)
+    dofs = joint_dofs(model, arm3)
+    initial = model.dof_frictionloss[dofs].copy()
+    assert np.array_equal(apply_drift(model, arm3, initial, drift, 0.0), initial)
+    after = apply_drift(model, arm3, initial, drift, 8 * 3600.0)
+    np.testing.assert_allclose(after, initial * (1 + 8 * np.array(drift.friction_rate)))
+    assert np.array_equal(model.dof_frictionloss[dofs], after)  # the model itself, in place
+    assert Drift.from_dict(drift.to_dict()) == drift
+
+
+def test_fault_schedule_is_ordered_spaced_and_survivable_by_default(arm3):
+    sensors = SensorDraw(0.01, 2, 0.0)
+    ranges = FaultRanges()
+    faults = sample_fault_schedule(arm3, session_rng(1, "faults"), HOURS8, sensors, ranges)
+    assert 150 < len(faults) < 350  # one every ~2 minutes over 8 hours
+    assert {f.kind for f in faults} == {
+        "dropout",
+        "stale",
+        "nan-action",
+        "latency",
+        "push",
+        "cable",
+    }
+    assert faults[0].start >= ranges.warmup
+    for a, b in zip(faults[:-1], faults[1:], strict=True):
+        assert b.start >= a.start + a.duration + ranges.min_gap - 1e-9  # one at a time
+    assert faults[-1].start + faults[-1].duration <= HOURS8
+    dt = arm3.control_period
+    budget = stale_budget(arm3, sensors.latency_ticks)
+    stale_ticks = round(arm3.config.safety.stale_limit / dt)
+    for f in faults:
+        if f.kind in ("dropout", "stale"):  # shorter than the stale limit: bridged by prediction
+            assert f.duration <= budget + 1e-9
+        elif f.kind == "nan-action":  # fewer than the runtime's limit in a row: held
+            assert 1 <= round(f.duration / dt) < NAN_ACTION_LIMIT
+        elif f.kind == "latency":
+            assert 1 <= f.magnitude <= stale_ticks - sensors.latency_ticks - 2
+        elif f.kind == "cable":  # a sustained moderate pull
+            assert 5.0 <= f.magnitude <= 15.0 and 10.0 <= f.duration <= 60.0
+
+
+def test_fault_schedule_fits_short_sessions(arm3):
+    ranges = FaultRanges(mean_interval=2.0, warmup=1.0, min_gap=3.0)
+    faults = sample_fault_schedule(
+        arm3, session_rng(0, "faults"), 30.0, SensorDraw(0.01, 0, 0.0), ranges
+    )
+    assert faults and all(f.start + f.duration + 3.0 <= 30.0 for f in faults)
+
+
+@pytest.mark.parametrize(
+    ("make", "field"),
+    [
+        (lambda: SensorRanges(noise_sigma=(0.02, 0.01)), "SensorRanges.noise_sigma"),
+        (lambda: DriftRanges(friction_rate=(-0.1, 0.1)), "DriftRanges.friction_rate"),
+        (lambda: FaultRanges(kinds=("dropout", "meteor")), "FaultRanges.kinds: 'meteor'"),
+        (lambda: FaultRanges(weights=(1.0,)), "FaultRanges.weights"),
+        (lambda: FaultRanges(min_gap=1.0), "FaultRanges.min_gap"),
+        (lambda: FaultRanges(mean_interval=0.0), "FaultRanges.mean_interval"),
+    ],
+)
+def test_bad_ranges_name_the_field(make, field):
+    with pytest.raises(ValueError, match=field):
+        make()
+
+
+def test_cable_fault_pulls_along_gravity_then_lets_go(arm3):
+    backend = SimBackend(arm3, envs=2)
+    body = backend.models[0].site_bodyid[arm3.ee_site_id]
+    injector = FaultInjector([Fault("cable", 1.0, 2.0, envs=(1,), magnitude=12.0)], backend)
+    injector.before_read(1.5)
+    g = np.array(backend.models[1].opt.gravity)
+    np.testing.assert_allclose(
+        backend.datas[1].xfrc_applied[body, :3], 12.0 * g / np.linalg.norm(g)
+    )
+    assert not backend.datas[0].xfrc_applied.any()
+    injector.before_read(3.0)
+    assert not backend.datas[1].xfrc_applied.any()
+    assert injector.log[0]["kind"] == "cable"
+    # a given direction, and the default force; parsing like the other kinds
+    injector = FaultInjector([Fault("cable", 0.0, 1.0, direction=(1.0, 0.0, 0.0))], backend)
+    injector.before_read(0.5)
+    assert backend.datas[0].xfrc_applied[body, :3].tolist() == [CABLE_FORCE, 0.0, 0.0]
+    assert Fault.parse("cable@30:20") == Fault("cable", 30.0, 20.0)
+
+
+def test_cable_pull_loads_the_motors(arm3):
+    """The sustained pull is a real load: the held arm's motors carry more torque."""
+    backend = SimBackend(arm3)
+    for _ in range(200):
+        backend.advance()
+    before = np.abs(backend.joint_torque()[0]).sum()
+    injector = FaultInjector([Fault("cable", 0.0, 10.0, magnitude=15.0)], backend)
+    injector.before_read(0.1)
+    for _ in range(200):
+        backend.advance()
+    assert np.abs(backend.joint_torque()[0]).sum() > before + 5.0

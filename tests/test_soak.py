@@ -1,0 +1,462 @@
+"""The soak harness: sessions, batching, checkpoints and resume, executors, reports, soak-test.
+
+Sessions here last simulated seconds. The policy is a tiny deterministic MLP (ONNX built with
+onnx.helper; ONNX Runtime computes each row of a batch on its own), so that a session's results
+are a function of its seed and options only.
+"""
+
+import json
+import os
+import pickle
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ET
+from copy import deepcopy
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto, helper, numpy_helper
+
+from deploy.runtime import NAN_ACTION_LIMIT
+from deploy.spec import PolicySpec
+from eval import checkpoint as ckpt
+from eval import cli
+from eval.randomization import FaultRanges, SessionRanges, stale_budget
+from eval.report import (
+    CHECKS,
+    SCHEMA_VERSION,
+    ReportError,
+    Thresholds,
+    build_report,
+    compare_with_baseline,
+    failures,
+    load_report,
+    write_reports,
+)
+from eval.soak import SessionBatch, SessionConfig, run_campaign, session_dir
+
+REPO = Path(__file__).resolve().parent.parent
+
+#: Frequent faults, some beyond the runtime's limits (dropouts and stale frames longer than the
+#: stale limit, NaN bursts of NAN_ACTION_LIMIT or more): held, latched and operator resets occur.
+FAULTS = FaultRanges(
+    mean_interval=1.0,
+    warmup=1.0,
+    min_gap=3.0,
+    weights=(3, 1, 3, 1, 1, 1),  # dropout, stale, nan-action, latency, push, cable
+    dropout=(0.3, 3.0),
+    stale=(0.3, 3.0),
+    nan_ticks=(2, 14),
+    cable_duration=(1.0, 3.0),
+    latency_duration=(0.2, 1.0),
+)
+
+
+def tiny_policy(path: Path, robot) -> Path:
+    """A deterministic MLP with a stabilizing joint-position feedback: it moves with the goal and
+    stays (mostly) inside the limits."""
+    spec = PolicySpec.for_robot(robot)
+    d, n, h = spec.obs_dim, spec.act_dim, 16
+    rng = np.random.default_rng(0)
+    w1 = rng.normal(0, 0.5, (d, h)).astype(np.float32)
+    w2 = rng.normal(0, 0.3, (h, n)).astype(np.float32)
+    feedback = np.zeros((d, n), np.float32)
+    feedback[:n, :n] = -1.5 * np.eye(n)  # joint_position block comes first
+    feedback[n : 2 * n, :n] = -0.3 * np.eye(n)  # then joint_velocity
+    nodes = [
+        helper.make_node("MatMul", ["obs", "w1"], ["a"]),
+        helper.make_node("Tanh", ["a"], ["b"]),
+        helper.make_node("MatMul", ["b", "w2"], ["c"]),
+        helper.make_node("MatMul", ["obs", "feedback"], ["f"]),
+        helper.make_node("Add", ["c", "f"], ["g"]),
+        helper.make_node("Tanh", ["g"], ["action"]),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "tiny_policy",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
+        initializer=[
+            numpy_helper.from_array(w1, "w1"),
+            numpy_helper.from_array(w2, "w2"),
+            numpy_helper.from_array(feedback, "feedback"),
+        ],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    model.ir_version = 9
+    helper.set_model_props(model, {"policy_spec": spec.to_json()})
+    onnx.save(model, path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def policy(tmp_path_factory, arm3):
+    return tiny_policy(tmp_path_factory.mktemp("policy") / "tiny.onnx", arm3)
+
+
+@pytest.fixture(scope="module")
+def config(policy):
+    return SessionConfig(
+        robot="arm3",
+        policy=str(policy),
+        hours=12.0 / 3600.0,
+        goal_period=2.0,
+        checkpoint_minutes=0.05,  # every 3 simulated seconds
+        curve_seconds=2.0,
+        operator_reset=1.0,
+        ranges=SessionRanges(faults=FAULTS),
+    )
+
+
+@pytest.fixture(scope="module")
+def batched(config, tmp_path_factory):
+    """Sessions 0, 1, 2 in one batch (one runtime, envs = 3)."""
+    out = tmp_path_factory.mktemp("batched")
+    return SessionBatch([replace(config, seed=s) for s in range(3)], out).run()
+
+
+def seeded(result: dict) -> dict:
+    """A session's result without its wall-clock part (time, speed, tick cost)."""
+    return {k: v for k, v in result.items() if k != "wall"}
+
+
+def no_part_files(folder: Path) -> bool:
+    return not list(folder.rglob("*.part"))
+
+
+# ---------------------------------------------------------------- sessions
+def test_a_session_gives_the_same_results_alone_and_batched(batched, config, tmp_path):
+    """Session 1 run alone equals session 1 run in a batch with sessions 0 and 2, bit for bit:
+    the same session run twice gives identical results, whatever its neighbours."""
+    alone = SessionBatch([replace(config, seed=1)], tmp_path).run()[0]
+    assert seeded(alone) == seeded(batched[1])
+    assert seeded(batched[0]) != seeded(batched[1])  # and the seed matters
+    assert [r["simulated_s"] for r in batched] == pytest.approx([12.0] * 3)
+
+
+def test_every_injected_fault_gets_the_response_of_the_fault_table(batched, arm3):
+    dt, limit = arm3.control_period, arm3.config.safety.stale_limit
+    responses = set()
+    for r in batched:
+        latency = r["randomization"]["sensors"]["latency_ticks"]
+        events = r["faults"]["events"]
+        assert len(events) == r["faults"]["injected"] == len(r["randomization"]["faults"])
+        assert r["faults"]["survived"] == sum(e["response"] == "held" for e in events)
+        for e in events:
+            responses.add(e["response"])
+            assert e["applied"]
+            if e["mode_at_onset"] != "RUNNING":
+                continue
+            if e["kind"] in ("dropout", "stale"):
+                if e["duration_s"] <= stale_budget(arm3, latency) + 1e-9:
+                    assert e["response"] == "held", e  # bridged by prediction
+                elif e["duration_s"] + latency * dt > limit + dt:
+                    assert e["response"] == "latched" and "stale_sensor" in e["causes"], e
+            if e["kind"] == "nan-action":
+                ticks = round(e["duration_s"] / dt)
+                if ticks < NAN_ACTION_LIMIT:
+                    assert e["response"] == "held" and e["non_finite_actions_held"] == ticks
+                else:
+                    assert e["response"] == "latched" and "non_finite_action" in e["causes"]
+        # every latch was cleared by the operator after operator_reset s, and the run went on
+        for latch in r["runtime"]["latches"]:
+            assert latch["reset_s"] == pytest.approx(latch["t_s"] + 1.0, abs=0.11)
+        assert r["runtime"]["operator_resets"] == len(r["runtime"]["latches"])
+    assert {"held", "latched"} <= responses
+
+
+def test_thermal_and_goal_accounting(batched, arm3):
+    for r in batched:
+        th = r["thermal"]
+        for j in arm3.joint_names:
+            curve = th["curve"]["winding_c"][j]
+            assert th["peak_c"][j] == pytest.approx(max(curve), abs=1e-9)  # curve: max per step
+            assert th["peak_c"][j] > arm3.config.sensors.ambient_temperature
+            assert th["derating_band_s"][j] == 0.0 and th["over_temperature_s"][j] == 0.0
+        assert th["curve"]["t_s"] == pytest.approx([0, 2, 4, 6, 8, 10, 12], abs=1e-6)
+        g = r["goals"]
+        assert g["issued"] >= 4 and g["success_rate"] == g["reached"] / g["issued"]
+        assert r["curves"]["goals_issued"][-1] <= g["issued"]
+        hours = r["violations"]["per_hour"]
+        assert len(hours) == 1 and hours[0]["counts"] == r["violations"]["total"]
+
+
+# ---------------------------------------------------------------- checkpoints and resume
+@pytest.fixture(scope="module")
+def killed(config, tmp_path_factory):
+    """Session 0 started in a subprocess and SIGKILLed after its first checkpoint."""
+    root = tmp_path_factory.mktemp("killed")
+    out = root / "campaign"
+    cfg_file = root / "config.pkl"
+    cfg_file.write_bytes(pickle.dumps(replace(config, seed=0)))
+    script = (
+        "import pickle, sys\n"
+        "from eval.soak import run_campaign\n"
+        "run_campaign(pickle.load(open(sys.argv[1], 'rb')), 1, sys.argv[2], progress=False)\n"
+    )
+    env = dict(os.environ, ORT_DISABLE_TELEMETRY="1")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script, str(cfg_file), str(out)],
+        cwd=REPO,
+        env=env,
+        start_new_session=True,
+    )
+    manifest = session_dir(out, 0) / ckpt.MANIFEST
+    deadline = time.monotonic() + 120
+    try:
+        while not manifest.exists():
+            assert proc.poll() is None, "the session ended before its first checkpoint"
+            assert time.monotonic() < deadline, "no checkpoint within 120 s"
+            time.sleep(0.02)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    assert not (session_dir(out, 0) / "result.json").exists()
+    pristine = root / "pristine"
+    shutil.copytree(out, pristine)
+    return pristine
+
+
+def test_kill_and_resume_equals_an_uninterrupted_run(killed, config, batched, tmp_path):
+    out = tmp_path / "campaign"
+    shutil.copytree(killed, out)
+    arrays, meta = ckpt.read_checkpoint(session_dir(out, 0))  # the kill left a valid checkpoint
+    assert 0 < meta["tick"] < 2400
+    resumed = run_campaign(replace(config, seed=0), 1, out, resume=True, progress=False)[0]
+    assert seeded(resumed) == seeded(batched[0])
+    a = build_report({"robot": "arm3"}, [resumed])
+    b = build_report({"robot": "arm3"}, [batched[0]])
+    assert a["totals"] | {"tick_cost_us": None} == b["totals"] | {"tick_cost_us": None}
+    assert no_part_files(out)
+
+
+def test_a_corrupt_checkpoint_is_refused_with_the_file_named(killed, config, tmp_path):
+    out = tmp_path / "campaign"
+    shutil.copytree(killed, out)
+    folder = session_dir(out, 0)
+    npz = next(folder.glob("state-*.npz"))
+    npz.write_bytes(npz.read_bytes()[:1000])  # truncated
+    with pytest.raises(ckpt.CheckpointError, match=rf"{npz.name}.*SHA-256.*truncated or altered"):
+        run_campaign(replace(config, seed=0), 1, out, resume=True, progress=False)
+    (folder / ckpt.MANIFEST).write_text('{"format": "soak-checkpoint", "vers')
+    with pytest.raises(ckpt.CheckpointError, match=r"checkpoint\.json: not a readable"):
+        ckpt.read_checkpoint(folder)
+
+
+def test_checkpoint_writes_are_atomic(tmp_path):
+    """The manifest is the commit point: a crash before it (a half-written or orphaned npz)
+    leaves the previous checkpoint readable."""
+    a = {"x": np.arange(3.0)}
+    ckpt.write_checkpoint(tmp_path, a, {"tick": 10})
+    ckpt.write_checkpoint(tmp_path, {"x": np.arange(4.0)}, {"tick": 20})
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "checkpoint.json",
+        "state-000000000020.npz",
+    ]
+    # crash while writing the next one: a partial file and an uncommitted npz
+    (tmp_path / "state-000000000030.npz.part").write_bytes(b"\x00" * 10)
+    np.savez(tmp_path / "state-000000000030.npz", x=np.zeros(1))
+    arrays, meta = ckpt.read_checkpoint(tmp_path)
+    assert meta["tick"] == 20 and arrays["x"].tolist() == [0.0, 1.0, 2.0, 3.0]
+    assert ckpt.read_checkpoint(tmp_path / "nothing") is None
+
+
+def test_resume_refuses_other_options(killed, config, tmp_path):
+    out = tmp_path / "campaign"
+    shutil.copytree(killed, out)
+    with pytest.raises(ckpt.CheckpointError, match=r"goal_period = 2.0, this run has 3.0"):
+        run_campaign(replace(config, seed=0, goal_period=3.0), 1, out, resume=True, progress=False)
+
+
+def test_a_diverging_session_ends_loudly_and_its_neighbour_goes_on(config, tmp_path, monkeypatch):
+    """A 1e12 N push makes MuJoCo diverge in session 1 (seed 1 pushes at 1.22 s, seed 0 not
+    before the end): session 1 is marked diverged, session 0 finishes as if alone."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes MUJOCO_LOG.TXT into the working directory
+    faults = FaultRanges(
+        kinds=("push",),
+        push_force=(1e12, 1e12),
+        push_duration=(0.05, 0.05),
+        mean_interval=4.0,
+        warmup=1.0,
+        min_gap=3.0,
+    )
+    cfg = replace(
+        config, hours=6.0 / 3600.0, checkpoint_minutes=0.02, ranges=SessionRanges(faults=faults)
+    )
+    results = run_campaign(cfg, 2, tmp_path / "a", sessions_per_process=2, progress=False)
+    assert results[1]["status"] == "diverged" and "MuJoCo diverged" in results[1]["diverged"]
+    assert results[0]["status"] == "complete" and results[0]["simulated_s"] == pytest.approx(6.0)
+    alone = run_campaign(cfg, 1, tmp_path / "b", progress=False)[0]
+    assert seeded(alone) == seeded(results[0])
+    report = build_report({"robot": "arm3"}, results, Thresholds(min_success_rate=0.0))
+    assert report["checks"]["no_divergence"]["failed_sessions"] == ["seed0001"]
+    assert cli.exit_code(report) == cli.EXIT_DIVERGED
+
+
+# ---------------------------------------------------------------- executors
+@pytest.fixture
+def ray_local():
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+def test_ray_executor_gives_the_local_results(ray_local, config, batched, tmp_path):
+    results = run_campaign(replace(config, seed=2), 1, tmp_path, executor="ray", progress=False)
+    assert seeded(results[0]) == seeded(batched[2])
+    assert ray_local.is_initialized()  # a Ray instance the caller started is left running
+
+
+# ---------------------------------------------------------------- reports
+def test_report_schema(batched, config, tmp_path):
+    campaign = {"robot": "arm3", "policy": config.policy, "hours": config.hours}
+    report = build_report(campaign, batched, Thresholds(min_success_rate=0.0))
+    assert report["schema_version"] == SCHEMA_VERSION
+    assert set(report) >= {"campaign", "thresholds", "sessions", "totals", "checks", "passed"}
+    assert json.loads(json.dumps(report)) == report  # plain JSON
+    s = report["sessions"][0]
+    for key in ("randomization", "violations", "goals", "faults", "runtime", "thermal", "wall"):
+        assert key in s
+    assert set(s["checks"]) == set(CHECKS)
+    assert set(s["violations"]["total"]) == {
+        "soft_limit",
+        "hard_limit",
+        "velocity",
+        "workspace",
+        "self_collision",
+        "effort",
+    }
+    t = report["totals"]
+    assert t["simulated_hours"] == pytest.approx(3 * 12 / 3600)
+    assert t["faults"]["injected"] == sum(len(r["faults"]["events"]) for r in batched)
+    assert t["latched_faults"] == sum(len(r["runtime"]["latches"]) for r in batched)
+    latched = [r["id"] for r in batched if r["runtime"]["latches"]]
+    assert report["checks"]["no_latched_fault"]["failed_sessions"] == latched
+    assert report["passed"] is (not latched)
+    assert cli.exit_code(report) == (cli.EXIT_LATCHED if latched else cli.EXIT_PASSED)
+
+    paths = write_reports(tmp_path, report)
+    assert no_part_files(tmp_path)
+    assert load_report(paths["json"])["sessions"][0]["seed"] == 0
+    junit = ET.parse(paths["junit"]).getroot()
+    cases = junit.findall(".//testcase")
+    assert len(cases) == 3 * len(CHECKS)
+    failed = [c for c in cases if c.find("failure") is not None]
+    assert int(junit.get("failures")) == len(failed) == len(latched)
+    assert "http" not in paths["junit"].read_text()
+    page = paths["html"].read_text()
+    assert page.count("<img") == 4 and "http" not in page and "<script" not in page
+    events = [e for r in batched for e in r["faults"]["events"]]
+    assert page.count("<tr>") >= len(events) + 3 + 3
+
+
+def test_baseline_comparison_detects_each_regression(batched):
+    thresholds = Thresholds(min_success_rate=0.0)
+    report = build_report({"robot": "arm3"}, batched, thresholds)
+    same = compare_with_baseline(report, deepcopy(report), thresholds, "old.json")
+    assert same["passed"] and not same["regressions"]
+
+    better = deepcopy(report)
+    t = better["totals"]
+    t["violations"]["rate_per_hour"]["workspace"] = 0.0  # fewer violations then
+    t["goals"]["success_rate"] = (report["totals"]["goals"]["success_rate"] or 0) + 0.1
+    t["thermal"]["peak_c"]["shoulder"] -= 5.0  # a cooler shoulder
+    t["latched_faults_per_hour"] = 0.0
+    result = compare_with_baseline(report, better, thresholds, "old.json")
+    metrics = {r["metric"] for r in result["regressions"]}
+    expected = {"violations.workspace.per_hour", "goals.success_rate", "thermal.peak_c.shoulder"}
+    if report["totals"]["latched_faults"]:
+        expected.add("latched_faults_per_hour")
+    assert metrics == expected and not result["passed"]
+    # within the tolerances: no regression
+    close = deepcopy(report)
+    close["totals"]["thermal"]["peak_c"]["shoulder"] -= 1.0  # < 2 K
+    assert compare_with_baseline(report, close, thresholds)["passed"]
+    other = deepcopy(report)
+    other["campaign"]["robot"] = "arm6"
+    with pytest.raises(ReportError, match="campaign.robot"):
+        compare_with_baseline(report, other, thresholds, "old.json")
+
+
+def test_success_below_the_threshold_fails_its_check(batched):
+    report = build_report({"robot": "arm3"}, batched, Thresholds(min_success_rate=0.99))
+    assert report["checks"]["success_rate"]["failed_sessions"] == [r["id"] for r in batched]
+    assert "success_rate" in failures(report) and not report["passed"]
+
+
+# ---------------------------------------------------------------- soak-test
+def test_soak_test_cli_end_to_end(policy, tmp_path, capsys):
+    """Two local processes, the reports, then the same campaign against baselines (--resume of a
+    finished campaign runs nothing again)."""
+    out = tmp_path / "run"
+    base = [
+        "--robot",
+        "arm3",
+        "--policy",
+        str(policy),
+        "--hours",
+        "0.001",
+        "--sessions",
+        "2",
+        "--seed",
+        "5",
+        "--out",
+        str(out),
+        "--fault-interval",
+        "1.5",
+        "--checkpoint-minutes",
+        "0.02",
+        "--min-success",
+        "0",
+        "--no-progress",
+    ]
+    code = cli.main(base)
+    report = json.loads((out / "report.json").read_text())
+    assert code == cli.exit_code(report) == report["exit_code"] == cli.EXIT_PASSED
+    assert [s["seed"] for s in report["sessions"]] == [5, 6]
+    assert [s["wall"]["batch"] for s in report["sessions"]] == [[5], [6]]  # one per process
+    assert (out / "report.html").exists() and (out / "junit.xml").exists()
+    assert "exit code    0" in capsys.readouterr().out
+
+    baseline = deepcopy(report)
+    baseline["totals"]["thermal"]["peak_c"]["shoulder"] -= 10.0
+    (tmp_path / "old.json").write_text(json.dumps(baseline))
+    code = cli.main([*base, "--resume", "--baseline", str(tmp_path / "old.json")])
+    assert code == cli.EXIT_REGRESSION
+    report = json.loads((out / "report.json").read_text())
+    assert report["baseline"]["regressions"][0]["metric"] == "thermal.peak_c.shoulder"
+    assert failures(report) == ["regression"]
+    assert "REGRESSION   peak winding temperature of shoulder" in capsys.readouterr().out
+    junit = ET.parse(out / "junit.xml").getroot()
+    assert junit.find(".//testcase[@name='no_regression']/failure") is not None
+
+    assert cli.main([*base, "--resume", "--min-success", "1"]) == cli.EXIT_LOW_SUCCESS
+    assert cli.main([*base, "--resume", "--goal-period", "3"]) == cli.EXIT_BAD_INPUT
+    assert "goal_period = 4.0, this run has 3.0" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--robot", "nosuchrobot"], "nosuchrobot"),
+        (["--policy", "missing.onnx"], "--policy: missing.onnx is not a file"),
+        (["--hours", "-1"], "--hours: expected a number > 0, got -1.0"),
+        (["--sessions", "0"], "--sessions: expected an integer >= 1"),
+        (["--executor", "slurm"], "invalid choice: 'slurm'"),
+        (["--min-success", "2"], "--min-success: expected a value in [0, 1]"),
+        (["--baseline", "BASELINE"], "field 'schema_version': expected 1, got 99"),
+    ],
+)
+def test_soak_test_bad_input_exits_3_naming_the_problem(policy, tmp_path, capsys, args, message):
+    (tmp_path / "BASELINE").write_text(json.dumps({"schema_version": 99}))
+    args = [str(tmp_path / "BASELINE") if a == "BASELINE" else a for a in args]
+    argv = ["--policy", str(policy), "--hours", "0.001", "--out", str(tmp_path / "o"), *args]
+    assert cli.main(argv) == cli.EXIT_BAD_INPUT
+    assert message in capsys.readouterr().err

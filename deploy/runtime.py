@@ -54,6 +54,8 @@ OVERRUN_RATE_LIMIT = 0.05
 OVERRUN_WINDOW = 200
 #: A joint is at rest below this speed, rad/s (ends a safe stop, ends RAMP_IN).
 REST_SPEED = 0.05
+#: Runtime.start waits this long for the first reading of every joint, s.
+START_TIMEOUT = 0.5
 #: RAMP_IN ends within this distance of the home pose, rad.
 HOME_TOLERANCE = 0.05
 #: Gain of the RAMP_IN approach in velocity and torque mode, 1/s (the smoother bounds the rest).
@@ -212,13 +214,27 @@ class Runtime:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
-        """Anchor every stage at the measured state and enter RAMP_IN."""
+        """Anchor every stage at the measured state and enter RAMP_IN.
+
+        Waits (``backend.advance()``, the drives holding their initial command) up to
+        ``START_TIMEOUT`` s for a reading of every joint: with encoder latency the first readings
+        arrive a few ticks late.
+
+        Raises:
+            RuntimeError: some joint sent no reading within ``START_TIMEOUT``.
+        """
         frame = self.backend.read()
+        for _ in range(int(np.ceil(START_TIMEOUT / self.dt))):
+            if not np.isnan(frame.position).any():
+                break
+            self.backend.advance()
+            frame = self.backend.read()
         missing = np.isnan(frame.position)
         if missing.any():
             raise RuntimeError(
                 f"Runtime.start: no encoder reading for joints {np.argwhere(missing).tolist()} "
-                "(env, joint); cannot anchor the estimator at a measured pose"
+                f"(env, joint) within {START_TIMEOUT} s; cannot anchor the estimator at a "
+                "measured pose"
             )
         q = frame.position.copy()
         self.estimator.reset(q, frame.position_stamp)
@@ -229,12 +245,19 @@ class Runtime:
         self.mode[:] = Mode.RAMP_IN
         self.clock.start()
 
-    def reset_faults(self) -> None:
-        """Clear latched faults: FAULTED envs start again with RAMP_IN."""
+    def reset_faults(self, envs: np.ndarray | None = None) -> None:
+        """Clear latched faults (an operator's reset): FAULTED envs start again with RAMP_IN.
+
+        Args:
+            envs: Optional boolean mask (envs,) of the envs to reset; default all. Other envs are
+                untouched (sessions batched in one runtime stay independent).
+        """
         faulted = self.mode == Mode.FAULTED
+        if envs is not None:
+            faulted &= np.asarray(envs, dtype=bool)
         self.mode[faulted] = Mode.RAMP_IN
         self.cause[faulted] = -1
-        self.guard.reset(self.state.q)
+        self.guard.reset(self.state.q, envs=faulted)
         self.smoother.sync(self.state.q, self.state.dq, envs=faulted)
 
     # ------------------------------------------------------------------ the tick

@@ -96,10 +96,14 @@ class SafetyGuard:
             geom.addCollisionPair(pin.CollisionPair(names.index(a), names.index(b)))
         return geom, pin.GeometryData(geom)
 
-    def reset(self, q: np.ndarray) -> None:
-        """Start from measured positions ``q`` (envs, n): they become the hold target."""
-        self._last_valid[:] = q
-        self.hard_violation[:] = False
+    def reset(self, q: np.ndarray, envs: np.ndarray | None = None) -> None:
+        """Start from measured positions ``q`` (envs, n): they become the hold target.
+
+        ``envs``: optional boolean mask (envs,) of the envs to reset; default all.
+        """
+        which = slice(None) if envs is None else np.asarray(envs, dtype=bool)
+        self._last_valid[which] = q[which]
+        self.hard_violation[which] = False
 
     def update_thermal(self, winding_temperature: np.ndarray) -> np.ndarray:
         """Derate the effort limits linearly in the derating band; returns ``effort_scale``."""

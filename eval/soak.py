@@ -297,17 +297,6 @@ class SessionFaults:
         return action
 
 
-def reset_faults(rt, envs: np.ndarray) -> None:
-    """Clear the latched faults of the envs in the boolean mask ``envs`` (an operator's reset):
-    :meth:`deploy.runtime.Runtime.reset_faults` for those envs only (that method resets the guard
-    of every env of the batch, which would couple the sessions)."""
-    rt.mode[envs] = Mode.RAMP_IN
-    rt.cause[envs] = -1
-    rt.guard._last_valid[envs] = rt.state.q[envs]
-    rt.guard.hard_violation[envs] = False
-    rt.smoother.sync(rt.state.q, rt.state.dq, envs=envs)
-
-
 def _ticks(seconds: float, dt: float) -> int:
     return max(int(round(seconds / dt)), 1)
 
@@ -817,7 +806,7 @@ class SessionBatch:
                     if t - self.sessions[e].latched_since >= reset_after - 1e-9:
                         due[e] = True
                 if due.any():
-                    reset_faults(rt, due)
+                    rt.reset_faults(due)
                     for e in np.flatnonzero(due):
                         s = self.sessions[e]
                         s.operator_resets += 1

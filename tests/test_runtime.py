@@ -230,3 +230,28 @@ def test_deploy_run_bad_input_exit_code(tmp_path):
     )
     assert done.returncode == 3
     assert str(bad) in done.stderr
+
+
+def test_start_waits_for_the_first_readings_of_a_late_encoder(tmp_path, arm3):
+    backend = SimBackend(arm3, mode="velocity", seed=0)
+    backend.latency_ticks[:] = 3
+    backend.reset()
+    assert np.isnan(backend.read().position).all()  # nothing has arrived yet
+    policy = OnnxPolicy(adversarial_onnx(tmp_path, arm3, "velocity"), arm3)
+    rt = Runtime(arm3, policy, backend)
+    rt.start()
+    assert rt.mode[0] == Mode.RAMP_IN
+    np.testing.assert_allclose(rt.state.q[0], arm3.home, atol=0.1)
+
+
+def test_reset_faults_of_one_env_leaves_the_others_latched(tmp_path, arm3):
+    policy = OnnxPolicy(adversarial_onnx(tmp_path, arm3, "velocity"), arm3)
+    backend = SimBackend(arm3, mode="velocity", envs=2, seed=0)
+    injector = FaultInjector([Fault("nan-action", 0.5, 0.5)], backend)
+    rt = Runtime(arm3, policy, backend, injector=injector)
+    rt.start()
+    rt.run(seconds(rt, 3.0))
+    assert rt.mode_names() == ["FAULTED", "FAULTED"]
+    rt.reset_faults(np.array([False, True]))
+    assert rt.mode_names() == ["FAULTED", "RAMP_IN"]
+    assert rt.cause_names() == ["non_finite_action", None]

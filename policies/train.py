@@ -95,10 +95,12 @@ class ReachVecEnv(VecEnv):
 
 
 class ReachLogger(BaseCallback):
-    """Logs the seed section 10 signals per finished episode to TensorBoard."""
+    """Logs the seed section 10 signals per finished episode to TensorBoard, and every
+    ``save_every`` steps writes the policy so far to ``save`` (a callable taking the model)."""
 
-    def __init__(self):
+    def __init__(self, save=None, save_every: int = 0):
         super().__init__()
+        self.save, self.save_every, self._saved_at = save, save_every, 0
         self.violations: list[int] = []
         self.success: list[float] = []
         self.history: list[dict] = []
@@ -125,6 +127,9 @@ class ReachLogger(BaseCallback):
             )
             self.violations.clear()
             self.success.clear()
+        if self.save and self.save_every and self.num_timesteps - self._saved_at >= self.save_every:
+            self._saved_at = self.num_timesteps
+            self.save(self.model, self.history)
 
 
 def actor_from_ppo(model: PPO, obs_dim: int, act_dim: int) -> MLPActor:
@@ -179,21 +184,26 @@ def train(args: argparse.Namespace) -> Path:
         device="cpu",
         verbose=0,
     )
-    logger = ReachLogger()
     start = time.perf_counter()
+
+    def save(model, history):
+        actor = actor_from_ppo(model, task.spec.obs_dim, task.spec.act_dim)
+        info = {
+            "algorithm": "stable-baselines3 PPO",
+            "command": "python -m policies.train " + " ".join(args.argv),
+            "seed": args.seed,
+            "timesteps": int(model.num_timesteps),
+            "wall_seconds": round(time.perf_counter() - start, 1),
+            "randomized_dynamics": bool(args.randomize),
+            "curve": history,
+        }
+        save_checkpoint(args.out, actor, task.spec, info=info)
+        return info
+
+    logger = ReachLogger(save, args.save_every)
     model.learn(args.steps, callback=logger, progress_bar=True, tb_log_name=f"ppo_{args.robot}")
-    wall = time.perf_counter() - start
-    actor = actor_from_ppo(model, task.spec.obs_dim, task.spec.act_dim)
-    info = {
-        "algorithm": "stable-baselines3 PPO",
-        "command": "python -m policies.train " + " ".join(args.argv),
-        "seed": args.seed,
-        "timesteps": int(args.steps),
-        "wall_seconds": round(wall, 1),
-        "randomized_dynamics": bool(args.randomize),
-        "curve": logger.history,
-    }
-    save_checkpoint(args.out, actor, task.spec, info=info)
+    info = save(model, logger.history)
+    wall = info["wall_seconds"]
     curve = args.out.with_suffix(".curve.json")
     curve.write_text(json.dumps(info, indent=1) + "\n")
     print(f"wrote {args.out} after {args.steps} steps in {wall / 60:.1f} min")
@@ -224,6 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--no-randomize", dest="randomize", action="store_false", help="nominal dynamics only"
     )
+    p.add_argument("--save-every", type=int, default=250_000, help="steps between saves of --out")
     p.add_argument("--logdir", type=Path, default=Path("runs/train"))
     p.add_argument("--out", type=Path, default=Path("policies/arm.pt"))
     args = p.parse_args(argv)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import sys
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -67,7 +68,8 @@ class Robot:
             the MJCF ``<option gravity>``.
         ee_frame_id: Pinocchio frame id of the end-effector site.
         ee_site_id: MuJoCo site id of the end-effector site.
-        description_hash: sha256 (hex) of robot.toml and the MJCF bytes; a policy records it.
+        description_hash: sha256 (hex) of the robot.toml fields except ``[task]`` (canonical
+            JSON) and the MJCF bytes; a policy records it.
     """
 
     name: str
@@ -311,7 +313,10 @@ def load_robot(name_or_path: str | Path) -> Robot:
 
     frac = np.array([j.soft_limit_fraction for j in cfg.joints])
     centre, half = (upper + lower) / 2.0, (upper - lower) / 2.0
-    digest = hashlib.sha256(raw_bytes + b"\0" + mjcf.read_bytes()).hexdigest()
+    # The description a policy depends on: everything but the [task] table (where goals come
+    # from is the evaluation's business, not the robot's), in canonical form, and the MJCF bytes.
+    described = json.dumps(cfg.model_dump(exclude={"task"}, mode="json"), sort_keys=True)
+    digest = hashlib.sha256(described.encode() + b"\0" + mjcf.read_bytes()).hexdigest()
     return Robot(
         name=cfg.name,
         directory=toml_path.parent,

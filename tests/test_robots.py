@@ -210,3 +210,11 @@ def test_arm6_is_a_ur5e_class_arm():
     assert 0.8 < reach < 0.95
     g = np.abs(arm.gravity_torque(arm.home))
     assert np.all(g < [m.continuous_torque for m in arm.motors])
+
+
+def test_description_hash_ignores_the_task_region_and_comments(arm3_copy):
+    """A policy stays valid when only where goals come from, or a comment, changes."""
+    before = load_robot(arm3_copy).description_hash
+    edit(arm3_copy / "robot.toml", "success_radius = 0.05", "success_radius = 0.02  # tighter")
+    edit(arm3_copy / "robot.toml", "radius = [0.4, 0.85]", "radius = [0.5, 0.8]")
+    assert load_robot(arm3_copy).description_hash == before

@@ -1,102 +1,412 @@
-"""`make bench`: write bench/results.json and print a table.
+"""`make bench`: measure the runtime against a bare loop; write bench/results.json and a table.
 
-Measures, per robot and control mode:
-- ``mj_step``: MuJoCo physics per control tick (``mj_step(m, d, nstep=decimation)``), alone;
-- ``plant``: the whole plant per control tick (``read`` + ``write`` + ``advance``: physics, thermal
-  model, sensor model).
-Percentiles over ``--ticks`` ticks after a warm-up, timed with ``time.perf_counter_ns``.
+Usage::
+
+    python -m bench [--quick] [--only ITEM[,ITEM...]] [--robots arm3,arm6] [--out FILE]
+
+Items (default: all but ``profile``, in this order; see bench/__init__.py for what each measures
+and the JSON layout): plant, inference, tick, session, campaign, wallclock, profile.
+``--quick`` shortens every item to a few seconds (a smoke test; its percentiles are rough).
+With ``--only``, sections of an existing results file that were not run are kept (each section
+records when it was measured and whether it was quick).
 """
 
 from __future__ import annotations
 
-import argparse
-import gc
-import json
-import platform
-import time
-from pathlib import Path
+import os
 
-import mujoco
-import numpy as np
+os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
 
-from deploy.backends.sim import SimBackend
-from robots import load_robot
+import argparse  # noqa: E402
+import datetime  # noqa: E402
+import json  # noqa: E402
+import math  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from bench.common import machine_info, make_policy, policy_info, write_json_atomic  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results.json"
+SCHEMA = "sim2real-deploy/bench/1"
+ITEMS = ("plant", "inference", "tick", "session", "campaign", "wallclock", "profile")
+DEFAULT_ITEMS = ITEMS[:-1]
+
+#: Settings of a full run and of a --quick run.
+FULL = {
+    "plant_ticks": 20_000,
+    "inference_calls": 10_000,
+    "tick_ticks": 30_000,
+    "tick_rounds": 5,
+    "session_s": 120.0,
+    "campaign_s": 15.0,
+    "campaign_envs": (1, 4, 16, 32),
+    "wallclock_s": 60.0,
+    "profile_ticks": 5_000,
+}
+QUICK = {
+    "plant_ticks": 500,
+    "inference_calls": 500,
+    "tick_ticks": 2_000,
+    "tick_rounds": 2,
+    "session_s": 5.0,
+    "campaign_s": 1.0,
+    "campaign_envs": (1, 4),
+    "wallclock_s": 2.0,
+    "profile_ticks": 1_000,
+}
+
+#: Targets of issue 7: (key, label, robot, limit, comparison, unit).
+TARGETS = (
+    ("tick_ratio", "full tick / bare loop, p50, physics included", "arm6", 1.0, "<=", "x"),
+    ("overhead_p50", "runtime overhead per tick excl. physics, p50", "arm6", 50.0, "<=", "us"),
+    ("overhead_p999", "runtime overhead per tick excl. physics, p99.9", "arm6", 150.0, "<=", "us"),
+    ("session_8h", "8-hour-equivalent session, wall time", "arm3", 480.0, "<=", "s"),
+    ("campaign", "campaign throughput, whole machine", "arm3", 300.0, ">=", "x"),
+)
 
 
-def percentiles(samples_ns: np.ndarray) -> dict[str, float]:
-    us = samples_ns / 1e3
-    return {
-        "p50_us": float(np.percentile(us, 50)),
-        "p99_us": float(np.percentile(us, 99)),
-        "p99.9_us": float(np.percentile(us, 99.9)),
-        "mean_us": float(us.mean()),
-    }
+def _csv(text: str) -> list[str]:
+    return [t.strip() for t in text.split(",") if t.strip()]
 
 
-def bench_mj_step(robot, mode: str, ticks: int) -> dict[str, float]:
-    m = robot.plant_model(mode)
-    d = mujoco.MjData(m)
-    d.qpos[:] = robot.home
-    d.ctrl[:] = robot.home if mode == "position" else 0.0
-    out = np.empty(ticks, dtype=np.int64)
-    for _ in range(200):
-        mujoco.mj_step(m, d, nstep=robot.decimation)
-    for i in range(ticks):
-        t = time.perf_counter_ns()
-        mujoco.mj_step(m, d, nstep=robot.decimation)
-        out[i] = time.perf_counter_ns() - t
-    return percentiles(out)
-
-
-def bench_plant(robot, mode: str, ticks: int) -> dict[str, float]:
-    plant = SimBackend(robot, mode=mode)
-    cmd = robot.home[None].copy() if mode == "position" else np.zeros((1, robot.n_joints))
-    out = np.empty(ticks, dtype=np.int64)
-    for i in range(ticks + 200):
-        t = time.perf_counter_ns()
-        plant.read()
-        plant.write(cmd)
-        plant.advance()
-        if i >= 200:
-            out[i - 200] = time.perf_counter_ns() - t
-    return percentiles(out)
-
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m bench", description=__doc__)
-    p.add_argument("--ticks", type=int, default=20_000)
-    p.add_argument("--out", type=Path, default=RESULTS)
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="python -m bench",
+        description="Benchmark the runtime against a bare sim2sim loop; writes bench/results.json.",
+    )
+    p.add_argument("--quick", action="store_true", help="a few seconds per item (smoke test)")
+    p.add_argument(
+        "--only",
+        action="append",
+        default=None,
+        metavar="ITEM[,ITEM]",
+        help=f"run only these items (repeatable): {', '.join(ITEMS)}",
+    )
+    p.add_argument(
+        "--robots", default="arm3,arm6", help="robots of plant, tick and session (comma list)"
+    )
+    p.add_argument("--campaign-robot", default="arm3", help="robot of the campaign item")
+    p.add_argument(
+        "--campaign-envs",
+        default=None,
+        help="envs per worker to try, comma list (default 1,4,16,32)",
+    )
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="campaign processes")
+    p.add_argument("--wallclock-robot", default="arm6", help="robot of the wallclock item")
+    p.add_argument("--out", type=Path, default=RESULTS, help="results file (JSON)")
     args = p.parse_args(argv)
-    results = {"machine": platform.platform(), "python": platform.python_version(), "rows": []}
-    gc.collect()
-    gc.freeze()
-    gc.disable()
-    try:
-        for name in ("arm3", "arm6"):
-            robot = load_robot(name)
-            for mode in ("position", "velocity", "torque"):
-                for what, fn in (("mj_step", bench_mj_step), ("plant", bench_plant)):
-                    row = {
-                        "robot": name,
-                        "mode": mode,
-                        "what": what,
-                        "decimation": robot.decimation,
-                    }
-                    row.update(fn(robot, mode, args.ticks))
-                    results["rows"].append(row)
-    finally:
-        gc.enable()
-    args.out.write_text(json.dumps(results, indent=2))
-    header = ("robot", "mode", "per control tick", "dec", "p50 us", "p99 us", "p99.9 us")
-    print("{:6} {:9} {:18} {:>3} {:>8} {:>8} {:>9}".format(*header))
-    for r in results["rows"]:
-        print(
-            f"{r['robot']:6} {r['mode']:9} {r['what']:18} {r['decimation']:>3} "
-            f"{r['p50_us']:8.1f} {r['p99_us']:8.1f} {r['p99.9_us']:9.1f}"
+    items = [i for chunk in (args.only or [",".join(DEFAULT_ITEMS)]) for i in _csv(chunk)]
+    unknown = sorted(set(items) - set(ITEMS))
+    if unknown:
+        p.error(f"--only: unknown item(s) {unknown}; expected some of {list(ITEMS)}")
+    args.items = [i for i in ITEMS if i in items]
+    args.robot_names = _csv(args.robots)
+    if not args.robot_names:
+        p.error("--robots: at least one robot")
+    if args.workers < 1:
+        p.error("--workers: must be >= 1")
+    args.settings = dict(QUICK if args.quick else FULL)
+    if args.campaign_envs:
+        try:
+            envs = tuple(int(k) for k in _csv(args.campaign_envs))
+        except ValueError:
+            p.error(f"--campaign-envs {args.campaign_envs!r}: expected integers")
+        if not envs or min(envs) < 1:
+            p.error("--campaign-envs: positive integers")
+        args.settings["campaign_envs"] = envs
+    return args
+
+
+# ---------------------------------------------------------------------- targets
+def _get(d: dict, *keys):
+    for k in keys:
+        if not isinstance(d, dict) or k not in d:
+            return None
+        d = d[k]
+    return d
+
+
+def evaluate_targets(sections: dict) -> list[dict]:
+    """The PASS/FAIL rows of results.json from the measured sections (``pass`` None: the figure
+    was not measured in the file)."""
+    out = []
+    for key, label, robot, limit, cmp, unit in TARGETS:
+        if key == "tick_ratio":
+            value = _get(sections, "tick", "robots", robot, "ratio", "tick_p50")
+        elif key == "overhead_p50":
+            value = _get(sections, "tick", "robots", robot, "full", "overhead", "p50_us")
+        elif key == "overhead_p999":
+            value = _get(sections, "tick", "robots", robot, "full", "overhead", "p99.9_us")
+        elif key == "session_8h":
+            value = _get(sections, "session", "robots", robot, "estimate_8h_s")
+        else:
+            c = sections.get("campaign")
+            value = _get(c, "best", "throughput_x") if _get(c, "robot") == robot else None
+        ok = None
+        if value is not None and math.isfinite(value):
+            ok = bool(value <= limit) if cmp == "<=" else bool(value >= limit)
+        out.append(
+            {
+                "key": key,
+                "label": label,
+                "robot": robot,
+                "value": value,
+                "limit": limit,
+                "comparison": cmp,
+                "unit": unit,
+                "pass": ok,
+            }
         )
-    print(f"written {args.out}")
+    return out
+
+
+# ---------------------------------------------------------------------- text report
+def _f(x, spec: str = ".1f") -> str:
+    return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:{spec}}"
+
+
+def _pct(s: dict) -> str:
+    return f"{_f(s['p50_us']):>8} {_f(s['p99_us']):>8} {_f(s['p99.9_us']):>9} {_f(s['mean_us']):>8}"
+
+
+def render(results: dict) -> str:
+    """The results as a plain-text report (what ``python -m bench`` prints)."""
+    lines: list[str] = []
+    add = lines.append
+    m = results["machine"]
+    add(
+        f"bench: {m['platform']}, python {m['python']}, {m['cpu_count']} CPUs, load average at "
+        f"start {m['load_average_at_start']}{' [QUICK: rough figures]' if results['quick'] else ''}"
+    )
+    sec = results["sections"]
+    pct_head = f"{'p50 us':>8} {'p99 us':>8} {'p99.9 us':>9} {'mean us':>8}"
+
+    if "plant" in sec:
+        add("")
+        add(f"== plant: MuJoCo alone, per control tick ({sec['plant']['ticks']} ticks)")
+        add(f"{'robot':6} {'mode':9} {'what':8} {'dec':>3} {pct_head}")
+        for r in sec["plant"]["rows"]:
+            add(f"{r['robot']:6} {r['mode']:9} {r['what']:8} {r['decimation']:>3} {_pct(r)}")
+
+    if "inference" in sec:
+        r = sec["inference"]
+        add("")
+        add(f"== inference: batch-1 policy calls ({r['policy']}; {r['calls']} calls)")
+        for e in r["exports"]:
+            add(f"   export ({e['name']}) {e['seconds']:.2f} s")
+        add(f"   {'':36} {'median us':>10} {'p99 us':>8}")
+        for row in r["rows"]:
+            add(f"   {row['name']:36} {row['median_us']:10.1f} {row['p99_us']:8.1f}")
+
+    for robot, t in sec.get("tick", {}).get("robots", {}).items():
+        add("")
+        add(
+            f"== tick: {robot}, {t['control_rate_hz']:.0f} Hz, decimation {t['decimation']}, "
+            f"{t['ticks']} ticks of each loop in {t['rounds']} alternating rounds"
+        )
+        full, bare = t["full"], t["bare"]
+        add(f"   full runtime (rt.latency)        {pct_head}")
+        for s, v in full["stages"].items():
+            add(f"     {s:30} {_pct(v)}")
+        add(f"     {'= overhead (rt.tick_cost)':30} {_pct(full['overhead'])}")
+        add(f"     {'= tick incl. physics':30} {_pct(full['tick'])}")
+        add(f"   bare loop (torch eager, PD)      {pct_head}")
+        for s, v in bare["stages"].items():
+            add(f"     {s:30} {_pct(v)}")
+        add(f"     {'= overhead (tick - mj_step)':30} {_pct(bare['overhead'])}")
+        add(f"     {'= tick incl. physics':30} {_pct(bare['tick'])}")
+        r = t["ratio"]
+        add(
+            f"   full / bare: tick p50 {_f(r['tick_p50'], '.2f')}x, mean "
+            f"{_f(r['tick_mean'], '.2f')}x; overhead p50 {_f(r['overhead_p50'], '.2f')}x, "
+            f"mean {_f(r['overhead_mean'], '.2f')}x   (runtime final state "
+            f"{','.join(full['final_state'])}, {full['ticks_not_running']} ticks not RUNNING)"
+        )
+
+    for robot, s in sec.get("session", {}).get("robots", {}).items():
+        add("")
+        add(
+            f"== session: {robot} deploy-run, {s['control_rate_hz']:.0f} Hz control, "
+            f"{s['physics_rate_hz']:.0f} Hz physics: {s['simulated_s']:.0f} s simulated in "
+            f"{s['wall_s']:.2f} s ({s['real_time_factor']:.0f}x real time), set-up "
+            f"{s['setup_s']:.2f} s"
+        )
+        add(
+            f"   8-hour equivalent: {s['estimate_8h_s']:.0f} s = {s['estimate_8h_s'] / 60:.1f} min "
+            f"(extrapolated: {s['extrapolation']})"
+        )
+
+    if "campaign" in sec:
+        c = sec["campaign"]
+        add("")
+        add(
+            f"== campaign: {c['robot']}, {c['workers']} worker processes x k envs "
+            f"(batched Runtime); {c['method']}"
+        )
+        add(
+            f"   {'k':>3} {'sessions':>8} {'sim s/session':>13} {'wall s':>7} "
+            f"{'throughput':>10} {'tick p50 us':>11}"
+        )
+        for row in c["configs"]:
+            add(
+                f"   {row['envs_per_worker']:>3} {row['sessions']:>8} "
+                f"{row['simulated_s_per_session']:>13.1f} {row['wall_s']:>7.2f} "
+                f"{row['throughput_x']:>9.0f}x {row['tick_cost_p50_us']:>11.1f}"
+            )
+        b = c["best"]
+        add(f"   best: k = {b['envs_per_worker']}, {b['throughput_x']:.0f}x real time")
+
+    if "wallclock" in sec:
+        w = sec["wallclock"]
+        j = w["jitter_us"] or {}
+        add("")
+        add(
+            f"== wallclock: {w['robot']}, WallClock period {1e3 * w['period_s']:.1f} ms, "
+            f"{w['duration_s']:.0f} s, {w['ticks']} ticks"
+        )
+        add(
+            f"   deadline overruns {w['overruns']} ({100 * w['overrun_rate']:.2f} %), missed "
+            f"periods {w['missed_periods']}; wake-up jitter p50 {_f(j.get('p50_us'))} p99 "
+            f"{_f(j.get('p99_us'))} p99.9 {_f(j.get('p99.9_us'))} max {_f(j.get('max_us'))} us; "
+            f"tick cost p50 {_f(w['tick_cost_us']['p50_us'])} us; final "
+            f"{','.join(w['final_state'])}"
+        )
+
+    for robot, pr in sec.get("profile", {}).get("robots", {}).items():
+        add("")
+        add(f"== profile: {robot}, cProfile over {pr['ticks']} ticks, most own time first")
+        add(f"   {'own us/tick':>11} {'cum us/tick':>11} {'calls/tick':>10}  function")
+        for r in pr["rows"]:
+            add(
+                f"   {r['own_us_per_tick']:>11.1f} {r['cumulative_us_per_tick']:>11.1f} "
+                f"{r['calls_per_tick']:>10.1f}  {r['function']}"
+            )
+
+    add("")
+    add("== targets (issue 7)")
+    add(f"   {'target':50} {'robot':6} {'measured':>10} {'limit':>10}  result")
+    for t in results["targets"]:
+        verdict = {True: "PASS", False: "FAIL", None: "n/a"}[t["pass"]]
+        v = _f(t["value"], ".2f" if t["unit"] == "x" else ".1f")
+        lim = f"{t['comparison']} {t['limit']:g}"
+        add(
+            f"   {t['label']:50} {t['robot']:6} {v:>7} {t['unit']:<2} {lim:>7} {t['unit']:<2} "
+            f"{verdict}"
+        )
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------- main
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    cfg = args.settings
+    t_start = time.perf_counter()
+    stamp = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    results = {
+        "schema": SCHEMA,
+        "generated": stamp,
+        "quick": args.quick,
+        "argv": sys.argv[1:] if argv is None else list(argv),
+        "items": args.items,
+        "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in cfg.items()},
+        "machine": machine_info(),
+        "policies": {},
+        "sections": {},
+    }
+    if args.only and args.out.is_file():  # keep the sections not re-measured
+        try:
+            old = json.loads(args.out.read_text())
+        except (OSError, ValueError):
+            old = {}
+        if old.get("schema") == SCHEMA:
+            results["sections"].update(old.get("sections", {}))
+            results["policies"].update(old.get("policies", {}))
+
+    from robots import load_robot
+
+    robots: dict = {}
+    policies: dict = {}
+
+    def robot(name: str):
+        if name not in robots:
+            robots[name] = load_robot(name)
+        return robots[name]
+
+    with tempfile.TemporaryDirectory(prefix="bench-") as tmp:
+
+        def policy(name: str):
+            if name not in policies:
+                policies[name] = make_policy(robot(name), Path(tmp))
+                results["policies"][name] = policy_info(policies[name])
+            return policies[name]
+
+        sections = results["sections"]
+        for item in args.items:
+            t = time.perf_counter()
+            print(f"[bench] {item} ...", file=sys.stderr, flush=True)
+            if item == "plant":
+                from bench import plant
+
+                sec = plant.measure([robot(n) for n in args.robot_names], cfg["plant_ticks"])
+            elif item == "inference":
+                from bench import policy_inference
+
+                sec = policy_inference.measure(cfg["inference_calls"])
+            elif item == "tick":
+                from bench import tick
+
+                sec = {
+                    "robots": {
+                        n: tick.measure(policy(n), cfg["tick_ticks"], cfg["tick_rounds"])
+                        for n in args.robot_names
+                    }
+                }
+            elif item == "session":
+                from bench import session
+
+                sec = {
+                    "robots": {
+                        n: session.session(policy(n), cfg["session_s"]) for n in args.robot_names
+                    }
+                }
+            elif item == "campaign":
+                from bench import campaign
+
+                bp = policy(args.campaign_robot)
+                sec = campaign.measure(
+                    args.campaign_robot,
+                    bp.path,
+                    list(cfg["campaign_envs"]),
+                    cfg["campaign_s"],
+                    args.workers,
+                )
+            elif item == "wallclock":
+                from bench import session
+
+                sec = session.wallclock(policy(args.wallclock_robot), cfg["wallclock_s"])
+            else:
+                from bench import profiling
+
+                sec = {
+                    "robots": {
+                        n: profiling.measure(policy(n), cfg["profile_ticks"])
+                        for n in args.robot_names
+                    }
+                }
+            sec["measured_at"] = datetime.datetime.now(datetime.timezone.utc).isoformat(
+                timespec="seconds"
+            )
+            sec["quick"] = args.quick
+            sec["section_wall_s"] = time.perf_counter() - t
+            sections[item] = sec
+
+    results["targets"] = evaluate_targets(results["sections"])
+    results["wall_s"] = time.perf_counter() - t_start
+    write_json_atomic(args.out, results)
+    print(render(results))
+    print(f"\nwritten {args.out} in {results['wall_s']:.0f} s")
     return 0
 
 

@@ -1,6 +1,7 @@
 """Policy export time and batch-1 inference latency: ONNX Runtime (OnnxPolicy) vs torch eager.
 
-Run: ``.venv/bin/python -m bench.policy_inference [--calls 10000]``.
+Run: ``.venv/bin/python -m bench.policy_inference [--calls 10000]``, or as the ``inference``
+item of ``python -m bench``.
 
 An arm3-sized MLP (obs 21, hidden [64, 64] ELU, act 3, with an observation normalizer) is saved
 as our checkpoint and exported with ``policy-export``'s code path (parity gate included); the
@@ -65,11 +66,13 @@ def time_calls(fn: Callable[[], object], calls: int, warmup: int = 500) -> np.nd
     return out / 1e3
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m bench.policy_inference", description=__doc__)
-    p.add_argument("--calls", type=int, default=10_000)
-    args = p.parse_args(argv)
+def measure(calls: int = 10_000) -> dict:
+    """Export timings and batch-1 inference latencies (see the module docstring).
 
+    Returns:
+        The ``inference`` entry of results.json: ``{"policy", "exports": [{"name", "seconds",
+        "parity"}], "max_abs_error", "calls", "rows": [{"name", "median_us", "p99_us"}]}``.
+    """
     robot = load_robot("arm3")
     spec = PolicySpec.for_robot(robot, blocks=BLOCKS)
     rng = np.random.default_rng(0)
@@ -77,15 +80,17 @@ def main(argv: list[str] | None = None) -> int:
     actor = MLPActor(spec.obs_dim, spec.act_dim, hidden=(64, 64), activation="elu")
     norm = ObservationNormalizer(rng.normal(0, 0.1, spec.obs_dim), rng.uniform(0.5, 2, 21))
     rows = []
+    threads = torch.get_num_threads()
     with tempfile.TemporaryDirectory() as tmp:
         src = save_checkpoint(Path(tmp) / "arm.pt", actor, spec, norm)
         exports = []
         for name in ("cold", "warm"):
             t = time.perf_counter()
             result = run_export(src, out=Path(tmp) / f"arm_{name}.onnx")
-            exports.append((name, time.perf_counter() - t, result))
-        path = exports[-1][2].path
-        policy = OnnxPolicy(path, robot)
+            exports.append(
+                {"name": name, "seconds": time.perf_counter() - t, "parity": result.parity}
+            )
+        policy = OnnxPolicy(result.path, robot)
         module = load_source(src).module()
         obs = rng.uniform(-1, 1, (1, spec.obs_dim)).astype(np.float32)
         obs_t = torch.from_numpy(obs)
@@ -95,38 +100,62 @@ def main(argv: list[str] | None = None) -> int:
                 module(obs_t)
 
         feed = {policy.input_name: obs}
+        rows.append(("OnnxPolicy (IOBinding, 1 thread)", time_calls(lambda: policy(obs), calls)))
         rows.append(
-            ("OnnxPolicy (IOBinding, 1 thread)", time_calls(lambda: policy(obs), args.calls))
+            ("onnxruntime session.run", time_calls(lambda: policy.session.run(None, feed), calls))
         )
-        rows.append(
-            (
-                "onnxruntime session.run",
-                time_calls(lambda: policy.session.run(None, feed), args.calls),
-            )
-        )
-        threads = torch.get_num_threads()
-        rows.append((f"torch eager ({threads} threads)", time_calls(torch_call, args.calls)))
+        rows.append((f"torch eager ({threads} threads)", time_calls(torch_call, calls)))
         torch.set_num_threads(1)
-        rows.append(("torch eager (1 thread)", time_calls(torch_call, args.calls)))
-        torch.set_num_threads(threads)
+        try:
+            rows.append(("torch eager (1 thread)", time_calls(torch_call, calls)))
+        finally:
+            torch.set_num_threads(threads)
         with torch.inference_mode():
-            err = np.abs(policy(obs) - module(obs_t).numpy()).max()
+            err = float(np.abs(policy(obs) - module(obs_t).numpy()).max())
+    return {
+        "policy": "arm3, obs 21 -> [64, 64] ELU -> act 3, normalizer + action clip baked",
+        "exports": exports,
+        "max_abs_error": err,
+        "calls": calls,
+        "rows": [
+            {
+                "name": name,
+                "median_us": float(np.median(us)),
+                "p99_us": float(np.percentile(us, 99)),
+            }
+            for name, us in rows
+        ],
+    }
 
+
+def print_report(r: dict) -> None:
+    """Print a :func:`measure` result as text."""
+    print(f"policy: {r['policy']}")
+    for e in r["exports"]:
+        f = e["parity"]
+        print(
+            f"export ({e['name']}): {e['seconds']:.2f} s wall (parity {f['max_abs_error']:.1e} "
+            f"over {f['samples']} obs, {f['replay_max_abs_error']:.1e} over "
+            f"{f['replay_ticks']} ticks)"
+        )
+    print(
+        f"batch-1 inference, {r['calls']} calls each (|onnx - torch| = {r['max_abs_error']:.1e}):"
+    )
+    print(f"  {'':36} {'median us':>10} {'p99 us':>8}")
+    for row in r["rows"]:
+        print(f"  {row['name']:36} {row['median_us']:10.1f} {row['p99_us']:8.1f}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.policy_inference", description=__doc__)
+    p.add_argument("--calls", type=int, default=10_000)
+    args = p.parse_args(argv)
+    r = measure(args.calls)
     print(
         f"{platform.platform()}, python {platform.python_version()}, torch {torch.__version__}, "
         f"onnxruntime {__import__('onnxruntime').__version__}, {os.cpu_count()} CPUs"
     )
-    print("policy: arm3, obs 21 -> [64, 64] ELU -> act 3, normalizer + action clip baked")
-    for name, seconds, result in exports:
-        f = result.parity
-        print(
-            f"export ({name}): {seconds:.2f} s wall (parity {f['max_abs_error']:.1e} over "
-            f"{f['samples']} obs, {f['replay_max_abs_error']:.1e} over {f['replay_ticks']} ticks)"
-        )
-    print(f"batch-1 inference, {args.calls} calls each (|onnx - torch| = {err:.1e}):")
-    print(f"  {'':36} {'median us':>10} {'p99 us':>8}")
-    for name, us in rows:
-        print(f"  {name:36} {np.median(us):10.1f} {np.percentile(us, 99):8.1f}")
+    print_report(r)
     return 0
 
 

@@ -1,0 +1,258 @@
+"""Shared pieces of the benchmark suite: the benchmark policy, histograms, machine facts, JSON.
+
+Every latency here goes through :class:`deploy.telemetry.LatencyHistogram` (1 us bins up to 20 ms,
+percentiles exact to the bin width, reported at the bin centre), the same histogram the runtime
+keeps of its own stages, so that figures of the full runtime and of the bare loop are comparable.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from deploy.telemetry import BIN_NS, BINS, LatencyHistogram
+
+#: Hidden layers and seed of the benchmark policy (a deterministic MLPActor, ELU).
+POLICY_HIDDEN = (64, 64)
+POLICY_SEED = 0
+
+
+@dataclass(frozen=True)
+class BenchPolicy:
+    """The benchmark policy of one robot.
+
+    Attributes:
+        robot: The :class:`robots.Robot`.
+        spec: Its PolicySpec (``PolicySpec.for_robot(robot)``: default blocks, default control
+            mode: arm3 velocity, arm6 position).
+        actor: The torch :class:`~deploy.checkpoint.MLPActor` (eval mode), for the bare loop.
+        path: The ONNX file exported from it by ``deploy.export.run_export`` (parity gate passed).
+        export_seconds: Wall time of the export, s.
+    """
+
+    robot: Any
+    spec: Any
+    actor: Any
+    path: Path
+    export_seconds: float
+
+
+#: Spread of the random part of the benchmark policy's action, in physical units: rad around the
+#: holding target (position mode), rad/s (velocity mode), fraction of the effort limit (torque).
+WIGGLE = {"position": 0.15, "velocity": 0.5, "torque": 0.05}
+#: Velocity mode: rate (1/s) of the proportional pull toward the home pose.
+HOME_PULL = 2.0
+#: Velocity mode: bias that keeps the pass-through units in ELU's identity region (|obs| <= clip).
+_SHIFT = 6.0
+
+
+def tame_actor(actor, spec, robot, seed: int = POLICY_SEED) -> None:
+    """Make a seeded random MLPActor behave like a policy that holds its robot near home.
+
+    A purely random MLP parks the arm against a limit: in our runs it drove arm6 into an
+    over-temperature safe stop after about 40 s (a high-torque pose held) and held arm3 at its
+    workspace edge with a rejected target on every tick, so a benchmark would measure the runtime
+    in a regime a trained policy never sees. In place, on ``actor``'s three Linear layers:
+
+    - the random part (the network as seeded) is re-centred and scaled, per action, to a spread
+      of ``WIGGLE`` physical units over observations uniform in [-1, 1] (it still depends on the
+      whole observation, goals included, so the arm moves when the goal changes);
+    - position mode: the output bias holds the home pose (``(home - offset) / scale``);
+    - velocity mode: ``n`` units of each hidden layer pass the normalized joint positions through
+      ELU's identity region (bias ``_SHIFT``) and the output adds ``HOME_PULL * (home - q)``
+      (joints covered by the ``joint_position`` block only);
+    - torque mode: the random part only.
+
+    Args:
+        actor: An MLPActor with two hidden layers, each at least ``n_joints`` wide.
+        spec: Its PolicySpec. robot: The robot. seed: Seed of the probe observations.
+    """
+    import torch
+    from torch import nn
+
+    l1, l2, l3 = [m for m in actor.net if isinstance(m, nn.Linear)]
+    a = spec.action
+    scale = np.asarray(a.scale, dtype=np.float64)
+    home = np.asarray(robot.home, dtype=np.float64)
+    pull = a.mode == "velocity" and "joint_position" in spec.block_slices()
+    with torch.no_grad():
+        if pull:
+            block = next(b for b in spec.observation_blocks if b.name == "joint_position")
+            start = spec.block_slices()["joint_position"].start
+            u = list(range(l1.out_features - len(block.joints), l1.out_features))
+            v = list(range(l2.out_features - len(block.joints), l2.out_features))
+            l2.weight[:, u] = 0.0
+            l3.weight[:, v] = 0.0
+            for k in range(len(block.joints)):
+                l1.weight[u[k]] = 0.0
+                l1.weight[u[k], start + k] = 1.0
+                l1.bias[u[k]] = _SHIFT
+                l2.weight[v[k]] = 0.0
+                l2.weight[v[k], u[k]] = 1.0
+                l2.bias[v[k]] = 0.0
+        probe = np.random.default_rng(seed).uniform(-1, 1, (4096, spec.obs_dim))
+        out = actor(torch.as_tensor(probe, dtype=torch.float32)).double().numpy()
+        spread = WIGGLE[a.mode] * (robot.effort_limit if a.mode == "torque" else 1.0) / scale
+        gain = spread / np.maximum(out.std(axis=0), 1e-9)
+        bias = (l3.bias.double().numpy() - out.mean(axis=0)) * gain
+        l3.weight.mul_(torch.as_tensor(gain, dtype=torch.float32)[:, None])
+        if a.mode == "position":
+            bias += (home - np.asarray(a.offset)) / scale
+        if pull:
+            for k, j in enumerate(block.joints):
+                k_gain = HOME_PULL * block.scale[k] / scale[j]  # action per normalized rad
+                l3.weight[j, v[k]] = -k_gain
+                bias[j] += k_gain * (_SHIFT + (home[j] - block.offset[k]) / block.scale[k])
+        l3.bias.copy_(torch.as_tensor(bias, dtype=torch.float32))
+
+
+def make_policy(robot, folder: Path, seed: int = POLICY_SEED) -> BenchPolicy:
+    """Build the deterministic benchmark policy of ``robot`` and export it to ONNX in ``folder``.
+
+    An :class:`~deploy.checkpoint.MLPActor` (obs_dim of the default PolicySpec -> 64 -> 64 ->
+    n_joints, ELU, no normalizer) with weights from ``torch.manual_seed(seed)``, tamed by
+    :func:`tame_actor` (small actions around holding the home pose), saved with
+    ``save_checkpoint`` and exported with ``run_export`` (the ``policy-export`` code path: parity
+    gate, metadata), exactly as a trained policy would be.
+
+    Raises:
+        deploy.export.ExportError, deploy.export.ParityError: the export failed.
+    """
+    import torch
+
+    from deploy.checkpoint import MLPActor, save_checkpoint
+    from deploy.export import run_export
+    from deploy.spec import PolicySpec
+
+    spec = PolicySpec.for_robot(robot)
+    torch.manual_seed(seed)
+    actor = MLPActor(spec.obs_dim, spec.act_dim, hidden=POLICY_HIDDEN, activation="elu").eval()
+    tame_actor(actor, spec, robot, seed)
+    src = save_checkpoint(folder / f"bench_{robot.name}.pt", actor, spec, info={"seed": seed})
+    t = time.perf_counter()
+    result = run_export(src, out=folder / f"bench_{robot.name}.onnx")
+    return BenchPolicy(robot, spec, actor, result.path, time.perf_counter() - t)
+
+
+def policy_info(p: BenchPolicy) -> dict[str, Any]:
+    """JSON description of a benchmark policy."""
+    return {
+        "kind": "MLPActor, seeded random weights tamed to hold near home (bench.common.tame_actor)",
+        "hidden": list(POLICY_HIDDEN),
+        "activation": "elu",
+        "seed": POLICY_SEED,
+        "obs_dim": p.spec.obs_dim,
+        "act_dim": p.spec.act_dim,
+        "observation_blocks": [b.name for b in p.spec.observation_blocks],
+        "control_mode": p.spec.action.mode,
+        "control_rate_hz": p.spec.control_rate,
+        "export_s": p.export_seconds,
+    }
+
+
+# ---------------------------------------------------------------------- histograms
+def histogram(samples_ns: np.ndarray) -> LatencyHistogram:
+    """A one-stage :class:`LatencyHistogram` of ``samples_ns`` (int ns), filled in bulk."""
+    h = LatencyHistogram()
+    ns = np.asarray(samples_ns, dtype=np.int64)
+    if ns.size:
+        idx = np.minimum(np.maximum(ns, 0) // BIN_NS, BINS)
+        h.counts[0] = np.bincount(idx, minlength=BINS + 1)
+        h.max_ns[0] = ns.max()
+    return h
+
+
+def summary(h: LatencyHistogram, stage: int = 0) -> dict[str, float]:
+    """``LatencyHistogram.summary`` plus the mean (us, from the bin centres; overflow bin at the
+    maximum)."""
+    s = h.summary(stage)
+    c = h.counts[stage]
+    total = c.sum()
+    if total:
+        centres = (np.arange(BINS + 1) + 0.5) * BIN_NS / 1e3
+        centres[BINS] = h.max_ns[stage] / 1e3
+        s["mean_us"] = float((c * centres).sum() / total)
+    else:
+        s["mean_us"] = float("nan")
+    return s
+
+
+def clear(h: LatencyHistogram) -> None:
+    """Empty a histogram in place (after a warm-up)."""
+    h.counts[:] = 0
+    h.max_ns[:] = 0
+
+
+def ratio(a: float, b: float) -> float:
+    """``a / b``, NaN when ``b`` is not a positive finite number."""
+    return float(a / b) if np.isfinite(b) and b > 0 else float("nan")
+
+
+# ---------------------------------------------------------------------- machine, JSON
+def machine_info() -> dict[str, Any]:
+    """Platform, CPU count, load average and library versions (numpy, mujoco, onnxruntime, pin,
+    ruckig, torch)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    versions = {}
+    for pkg in ("numpy", "mujoco", "onnxruntime", "pin", "ruckig", "filterpy", "torch"):
+        try:
+            versions[pkg] = version(pkg)
+        except PackageNotFoundError:
+            versions[pkg] = None
+    try:
+        load = list(os.getloadavg())
+    except OSError:
+        load = None
+    return {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "python": platform.python_version(),
+        "cpu_count": os.cpu_count(),
+        "load_average_at_start": load,
+        "versions": versions,
+    }
+
+
+def _clean(obj: Any) -> Any:
+    """JSON-safe copy: NaN and inf become None, numpy scalars become Python numbers."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
+def write_json_atomic(path: Path, data: dict[str, Any]) -> Path:
+    """Write ``data`` as JSON to ``path`` atomically (temporary file in the same folder, fsync,
+    ``os.replace``); non-finite floats are written as null.
+
+    Raises:
+        OSError: the folder is not writable.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(_clean(data), f, indent=2, allow_nan=False)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path

@@ -1,0 +1,110 @@
+"""Sessions through ``deploy-run`` itself: the 8-hour-equivalent estimate and wall-clock mode.
+
+Both call :func:`deploy.cli.deploy_run_main` in this process (the shipped code path: robot and
+policy loading, ``SimBackend``, ``Runtime`` with ``GoalScheduler`` goals every 4 s and deploy-run's
+own per-tick bookkeeping) with ``--report`` to a temporary file, its printed summary captured.
+
+**8-hour-equivalent session** (:func:`session`): a run of ``duration`` simulated seconds with
+``SimClock`` (lockstep, as fast as the CPU allows). The report's ``wall_s`` is the loop alone
+(``rt.start`` + ``rt.run``); set-up is the rest of the call (loading the robot and the ONNX
+policy, building the runtime; imports excluded, they are done once per process). Extrapolated
+linearly: ``estimate_8h_s = setup_s + wall_s * 28800 / duration_s``.
+
+**Wall-clock mode** (:func:`wallclock`): ``deploy-run --realtime``, a :class:`deploy.runtime.
+WallClock` with the robot's control period (arm6: 1/500 s), for ``duration`` seconds of real
+time. Reported: deadline overruns (ticks that ended after their deadline) and missed periods
+(skipped, not burst), their rate per tick, and the wake-up jitter (lateness against the deadline,
+the WallClock's own histogram), plus the runtime's tick cost in that mode.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import tempfile
+import time
+from pathlib import Path
+
+from bench.common import BenchPolicy
+
+EIGHT_HOURS_S = 8 * 3600.0
+
+
+def _deploy_run(bp: BenchPolicy, duration: float, realtime: bool) -> tuple[dict, float, str]:
+    """Run deploy-run on ``bp``; returns (its report, outer wall time s, its printed summary).
+
+    Raises:
+        RuntimeError: deploy-run refused its input (exit 3) or the simulation diverged (exit 4).
+    """
+    from deploy.cli import EXIT_BAD_INPUT, EXIT_DIVERGED, deploy_run_main
+
+    with tempfile.TemporaryDirectory() as tmp:
+        report_path = Path(tmp) / "report.json"
+        argv = [
+            "--robot",
+            bp.robot.name,
+            "--policy",
+            str(bp.path),
+            "--duration",
+            repr(float(duration)),
+            "--seed",
+            "0",
+            "--report",
+            str(report_path),
+        ] + (["--realtime"] if realtime else [])
+        out, err = io.StringIO(), io.StringIO()
+        t = time.perf_counter()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = deploy_run_main(argv)
+        outer = time.perf_counter() - t
+        if code in (EXIT_BAD_INPUT, EXIT_DIVERGED):
+            raise RuntimeError(f"deploy-run {' '.join(argv)} exited {code}: {err.getvalue()}")
+        report = json.loads(report_path.read_text())
+    return report, outer, out.getvalue()
+
+
+def session(bp: BenchPolicy, duration: float) -> dict:
+    """The ``session.<robot>`` entry of results.json (see the module docstring)."""
+    report, outer, _ = _deploy_run(bp, duration, realtime=False)
+    sim_s, wall_s = float(report["duration_s"]), float(report["wall_s"])
+    setup_s = max(outer - wall_s, 0.0)
+    per_sim_s = wall_s / sim_s
+    return {
+        "simulated_s": sim_s,
+        "wall_s": wall_s,
+        "setup_s": setup_s,
+        "real_time_factor": sim_s / wall_s,
+        "wall_per_simulated_s": per_sim_s,
+        "estimate_8h_s": setup_s + per_sim_s * EIGHT_HOURS_S,
+        "extrapolation": "setup_s + wall_s * 28800 / simulated_s (linear in simulated time)",
+        "control_rate_hz": report["control_rate_hz"],
+        "physics_rate_hz": 1.0 / bp.robot.physics_timestep,
+        "tick_cost_us": report["tick_cost_us"],
+        "stage_p50_us": {k: v["p50_us"] for k, v in report["stage_cost_us"].items()},
+        "final_state": report["final_state"],
+        "goals": report["goals"],
+        "exit_code": report["exit_code"],
+    }
+
+
+def wallclock(bp: BenchPolicy, duration: float) -> dict:
+    """The ``wallclock`` entry of results.json (see the module docstring)."""
+    report, _, _ = _deploy_run(bp, duration, realtime=True)
+    d = report["deadline"]
+    ticks = int(round(float(report["duration_s"]) * report["control_rate_hz"]))
+    return {
+        "robot": bp.robot.name,
+        "period_s": bp.robot.control_period,
+        "duration_s": float(report["duration_s"]),
+        "wall_s": float(report["wall_s"]),
+        "ticks": ticks,
+        "overruns": int(d["overruns"]),
+        "missed_periods": int(d["missed_periods"]),
+        "overrun_rate": d["overruns"] / ticks if ticks else float("nan"),
+        "jitter_us": d["jitter_us"],
+        "tick_cost_us": report["tick_cost_us"],
+        "final_state": report["final_state"],
+        "final_cause": report["final_cause"],
+        "exit_code": report["exit_code"],
+    }

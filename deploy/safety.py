@@ -22,6 +22,15 @@ Checks, each with its own counter (``SafetyGuard.counts[name]``, (envs,) int64),
 velocity mode, the gravity torque in torque mode. The predicted next state is the target itself in
 position mode, ``q + v dt`` in velocity mode and ``q + dq dt`` in torque mode.
 
+Speed: the per-env Pinocchio calls (forward kinematics, coal collision, gravity) run only when
+an exact bound says they could fire. Every point of the robot moves at most ``sweep * sum|dq_i|``
+(m) when the joints move by ``dq`` (rad), ``sweep`` being the longest kinematic chain plus the
+largest geometry radius; so the end effector cannot leave the workspace box while its last computed
+margin exceeds that bound, two geometries cannot touch while their last computed clearance exceeds
+twice the bound, and gravity cannot exceed the effort limit while a per-joint bound (the masses
+beyond the joint at their longest lever) stays below it. The outcome is exactly that of checking
+every tick; only the cost differs.
+
 Collision geometry: the MJCF geoms. The plant keeps them at ``contype="0"`` (MuJoCo does not
 simulate self-contact), so Pinocchio's MJCF parser files them as visual geometry; the guard builds
 its coal collision pairs from those shapes and the pairs named in robot.toml.
@@ -37,6 +46,49 @@ from deploy.thermal import derating_factor
 from robots import Robot
 
 CHECKS = ("soft_limit", "hard_limit", "velocity", "workspace", "self_collision", "effort")
+#: Slack of the screens, m (round-off of the kinematics): a check runs when within it.
+SCREEN_MARGIN = 1e-9
+
+
+def motion_bounds(robot: Robot) -> tuple[float, np.ndarray]:
+    """Exact bounds of the screens, from the MuJoCo model at its nominal geometry.
+
+    Returns:
+        ``(sweep, gravity_bound)``: ``sweep`` (m/rad) bounds the displacement of any point of the
+        robot (geometry, end effector) per unit of ``sum |dq_i|``: the longest chain of body
+        offsets from the base to a point, plus joint anchor offsets and geometry radii.
+        ``gravity_bound`` (n,) N m bounds each joint's gravity torque over all configurations:
+        ``|g| sum_b m_b l_b`` over the bodies beyond the joint, ``l_b`` the chain length from the
+        joint to the body's centre of mass.
+    """
+    m = robot.mj_model
+    chain = np.zeros(m.nbody)  # path length from the world to each body's origin
+    for b in range(1, m.nbody):
+        chain[b] = chain[m.body_parentid[b]] + np.linalg.norm(m.body_pos[b])
+    anchor = float(np.linalg.norm(m.jnt_pos, axis=1).max()) if m.njnt else 0.0
+    reach = [
+        chain[m.geom_bodyid[g]] + np.linalg.norm(m.geom_pos[g]) + m.geom_rbound[g]
+        for g in range(m.ngeom)
+    ]
+    reach += [chain[m.site_bodyid[s]] + np.linalg.norm(m.site_pos[s]) for s in range(m.nsite)]
+    sweep = float(max(reach)) + anchor
+
+    def beyond(body: int, b: int) -> bool:
+        while b > 0:
+            if b == body:
+                return True
+            b = m.body_parentid[b]
+        return False
+
+    g = float(np.linalg.norm(m.opt.gravity))
+    bound = np.zeros(robot.n_joints)
+    for i, name in enumerate(robot.joint_names):
+        jb = m.jnt_bodyid[m.joint(name).id]
+        for b in range(1, m.nbody):
+            if beyond(jb, b):
+                lever = chain[b] - chain[jb] + np.linalg.norm(m.body_ipos[b]) + anchor
+                bound[i] += m.body_mass[b] * lever
+    return sweep, g * bound
 
 
 class SafetyGuard:
@@ -81,6 +133,15 @@ class SafetyGuard:
         self.model = robot.pin_model
         self.data = self.model.createData()
         self.geom_model, self.geom_data = self._collision_model(robot)
+        self._has_pairs = bool(self.geom_model.collisionPairs)
+        #: m per rad: bound on any point's displacement per unit of sum |dq| (module docstring).
+        self.sweep, self.gravity_bound = motion_bounds(robot)
+        # caches of the screens: configuration of the last computation and its result
+        self._ws_q = np.zeros((envs, n))
+        self._ws_margin = np.full(envs, -np.inf)  # m inside the workspace box (-inf: unknown)
+        self._col_q = np.zeros((envs, n))
+        self._clearance = np.full(envs, -np.inf)  # m between the closest listed pair
+        self._move = np.zeros(envs)
 
     @staticmethod
     def _collision_model(robot: Robot):
@@ -110,20 +171,36 @@ class SafetyGuard:
         return derating_factor(winding_temperature, self._start, self._max, out=self.effort_scale)
 
     # ------------------------------------------------------------------ geometry at one config
-    def _ee_outside(self, q: np.ndarray) -> float:
-        """Distance (m) of the end effector outside the workspace box at ``q`` (0 inside)."""
-        pin.framesForwardKinematics(self.model, self.data, q)
-        p = self.data.oMf[self.robot.ee_frame_id].translation
-        return float(
-            np.linalg.norm(np.maximum(self.ws_min - p, 0) + np.maximum(p - self.ws_max, 0))
-        )
+    def _ee_outside(self, q: np.ndarray, cache: int | None = None) -> float:
+        """Distance (m) of the end effector outside the workspace box at ``q`` (0 inside).
 
-    def _in_collision(self, q: np.ndarray) -> bool:
-        if not self.geom_model.collisionPairs:
+        With ``cache = e``, remember ``q`` and the margin inside the box for env ``e``'s screen.
+        """
+        pin.framesForwardKinematics(self.model, self.data, q)
+        ee = self.data.oMf[self.robot.ee_frame_id].translation
+        below, above = self.ws_min - ee, ee - self.ws_max
+        if cache is not None:
+            self._ws_q[cache] = q
+            self._ws_margin[cache] = -max(below.max(), above.max())
+        return float(np.linalg.norm(np.maximum(below, 0.0) + np.maximum(above, 0.0)))
+
+    def _in_collision(self, q: np.ndarray, cache: int | None = None) -> bool:
+        """Whether a listed collision pair is in contact at ``q`` (coal).
+
+        With ``cache = e``, also compute and remember the clearance of env ``e`` at ``q``.
+        """
+        if not self._has_pairs:
             return False
-        return bool(
-            pin.computeCollisions(self.model, self.data, self.geom_model, self.geom_data, q, True)
-        )
+        args = (self.model, self.data, self.geom_model, self.geom_data, q)
+        hit = bool(pin.computeCollisions(*args, True))
+        if cache is not None:
+            self._col_q[cache] = q
+            if hit:
+                self._clearance[cache] = -np.inf
+            else:
+                pin.computeDistances(*args)
+                self._clearance[cache] = min(r.min_distance for r in self.geom_data.distanceResults)
+        return hit
 
     # ------------------------------------------------------------------ the check
     def filter(
@@ -194,25 +271,42 @@ class SafetyGuard:
         counts["hard_limit"] += crossed
         self.hard_violation |= crossed
 
-        # per-env geometric and effort checks at the predicted next state
+        # per-env geometric and effort checks at the predicted next state, where a bound says
+        # they could fire (module docstring)
         effort = self.robot.effort_limit
-        for e in range(self.envs):
+        move = self._move
+        np.subtract(self._pred, self._ws_q, out=self._tmp)
+        np.abs(self._tmp, out=self._tmp)
+        np.sum(self._tmp, axis=1, out=move)
+        check_ws = self._ws_margin <= self.sweep * move + SCREEN_MARGIN
+        check_col = np.zeros(self.envs, dtype=bool)
+        if self._has_pairs:
+            np.subtract(self._pred, self._col_q, out=self._tmp)
+            np.abs(self._tmp, out=self._tmp)
+            np.sum(self._tmp, axis=1, out=move)
+            check_col = self._clearance <= 2.0 * self.sweep * move + SCREEN_MARGIN
+        check_effort = (self.gravity_bound > effort * self.effort_scale).any(axis=1)
+        held = np.zeros(self.envs, dtype=bool)
+        for e in np.flatnonzero(check_ws | check_col | check_effort):
             qp = self._pred[e]
             reason = None
-            outside = self._ee_outside(qp)
-            if outside > 0.0 and outside >= self._ee_outside(q[e]) - 1e-12:
-                reason = "workspace"
-            elif self._in_collision(qp):
+            if check_ws[e]:
+                outside = self._ee_outside(qp, cache=e)
+                if outside > 0.0 and outside >= self._ee_outside(q[e]) - 1e-12:
+                    reason = "workspace"
+            if reason is None and check_col[e] and self._in_collision(qp, cache=e):
                 reason = "self_collision"
-            else:
+            if reason is None and check_effort[e]:
                 g = pin.computeGeneralizedGravity(self.model, self.data, qp)
                 if np.any(np.abs(g) > effort * self.effort_scale[e]):
                     reason = "effort"
             if reason is not None:
                 counts[reason][e] += 1
                 self._hold(e, q[e], out)
-            elif self.mode == "position":
-                self._last_valid[e] = out[e]
+                held[e] = True
+        if self.mode == "position":
+            keep = ~held
+            self._last_valid[keep] = out[keep]
         if self.mode == "torque":
             limit = effort * self.effort_scale
             np.logical_or(out > limit, out < -limit, out=self._mask)

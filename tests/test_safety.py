@@ -1,0 +1,59 @@
+"""SafetyGuard: the screened checks give exactly the answers of checking every env every tick."""
+
+import numpy as np
+import pytest
+
+from deploy.safety import CHECKS, SafetyGuard, motion_bounds
+from deploy.state import RobotState
+
+
+def random_walk(robot, envs, ticks, seed):
+    """Joint trajectories that wander over the whole range, in and out of every limit."""
+    rng = np.random.default_rng(seed)
+    lo, hi = robot.position_lower, robot.position_upper
+    q = rng.uniform(lo, hi, (envs, robot.n_joints))
+    for _ in range(ticks):
+        dq = rng.normal(0.0, 1.5, q.shape) * robot.velocity_limit
+        q = np.clip(q + dq * robot.control_period * 4, lo - 0.05, hi + 0.05)
+        yield q.copy(), dq
+
+
+@pytest.mark.parametrize("robot_name", ["arm3", "arm6"])
+@pytest.mark.parametrize("mode", ["position", "velocity", "torque"])
+def test_screened_guard_equals_the_exhaustive_guard(request, robot_name, mode):
+    robot = request.getfixturevalue(robot_name)
+    envs = 8
+    fast, slow = SafetyGuard(robot, envs, mode), SafetyGuard(robot, envs, mode)
+    slow.sweep, slow.gravity_bound = 1e12, np.full(robot.n_joints, 1e12)  # check everything
+    state = RobotState.zeros(envs, robot.n_joints)
+    rng = np.random.default_rng(1)
+    hot = np.linspace(25.0, 124.0, envs)[:, None] * np.ones(robot.n_joints)  # some derated
+    for q, dq in random_walk(robot, envs, 400, seed=0):
+        state.q[:], state.dq[:] = q, dq
+        for g in (fast, slow):
+            g.update_thermal(hot)
+        if mode == "position":
+            target = q + rng.normal(0, 0.05, q.shape)
+        elif mode == "velocity":
+            target = rng.uniform(-1, 1, q.shape) * robot.velocity_limit
+        else:
+            target = rng.uniform(-1, 1, q.shape) * robot.effort_limit
+        a = fast.filter(target.copy(), state)
+        b = slow.filter(target.copy(), state)
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(fast.hard_violation, slow.hard_violation)
+    for check in CHECKS:
+        np.testing.assert_array_equal(fast.counts[check], slow.counts[check], err_msg=check)
+    # the walk exercised the geometric checks, so the equality above means something
+    assert fast.totals()["workspace"] + fast.totals()["self_collision"] > 0
+
+
+def test_motion_bounds_bound_the_motion_and_gravity(arm6):
+    sweep, gravity_bound = motion_bounds(arm6)
+    rng = np.random.default_rng(2)
+    for _ in range(200):
+        q = rng.uniform(arm6.position_lower, arm6.position_upper)
+        dq = rng.normal(0, 0.05, arm6.n_joints)
+        moved = np.linalg.norm(arm6.forward_kinematics(q + dq) - arm6.forward_kinematics(q))
+        assert moved <= sweep * np.abs(dq).sum()
+        assert np.all(np.abs(arm6.gravity_torque(q)) <= gravity_bound + 1e-9)

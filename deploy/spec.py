@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -335,30 +336,40 @@ class PolicySpec:
         envs = state.q.shape[0]
         if out is None:
             out = np.empty((envs, self.obs_dim), dtype=np.float32)
-        start = 0
-        for b in self.observation_blocks:
-            dst = out[:, start : start + b.size]
-            start += b.size
-            j = list(b.joints)
-            if b.name == "joint_position":
-                raw = state.q[:, j]
-            elif b.name == "joint_velocity":
-                raw = state.dq[:, j]
-            elif b.name == "joint_position_sincos":
-                q = state.q[:, j]
-                raw = np.concatenate([np.sin(q), np.cos(q)], axis=1)
-            elif b.name == "ee_position":
-                raw = state.ee_position
-            elif b.name == "goal_position":
-                raw = goal
-            elif b.name == "goal_in_ee":
-                raw = np.einsum("eji,ej->ei", state.ee_rotation, goal - state.ee_position)
-            elif b.name == "last_action":
-                raw = state.last_action
+        plan = self._plan
+        raw = plan.raw(envs)
+        for kind, dst, joints in plan.blocks:
+            if kind == "joint_position":
+                np.take(state.q, joints, axis=1, out=raw[:, dst])
+            elif kind == "joint_velocity":
+                np.take(state.dq, joints, axis=1, out=raw[:, dst])
+            elif kind == "joint_position_sincos":
+                q = state.q[:, joints]
+                k = len(joints)
+                np.sin(q, out=raw[:, dst.start : dst.start + k])
+                np.cos(q, out=raw[:, dst.start + k : dst.stop])
+            elif kind == "ee_position":
+                raw[:, dst] = state.ee_position
+            elif kind == "goal_position":
+                raw[:, dst] = goal
+            elif kind == "goal_in_ee":
+                np.subtract(goal, state.ee_position, out=plan.vec[:envs])
+                np.matmul(plan.vec[:envs, None, :], state.ee_rotation, out=plan.rot[:envs, None, :])
+                raw[:, dst] = plan.rot[:envs]
+            elif kind == "last_action":
+                np.take(state.last_action, joints, axis=1, out=raw[:, dst])
             else:  # winding_temperature
-                raw = state.winding_temperature
-            np.clip((raw - b.offset) / b.scale, -b.clip, b.clip, out=dst, casting="unsafe")
+                np.take(state.winding_temperature, joints, axis=1, out=raw[:, dst])
+        raw -= plan.offset
+        raw /= plan.scale
+        np.minimum(raw, plan.clip, out=raw)
+        np.maximum(raw, -plan.clip, out=raw)
+        out[:] = raw
         return out
+
+    @cached_property
+    def _plan(self) -> _ObservationPlan:
+        return _ObservationPlan(self)
 
     def action_to_target(
         self, action: np.ndarray, state: RobotState, out: np.ndarray | None = None
@@ -441,3 +452,31 @@ class PolicySpec:
         except SpecError as exc:
             raise SpecError(f"{source}: {exc}") from None
         return spec
+
+
+class _ObservationPlan:
+    """:meth:`PolicySpec.observation` precompiled: per-entry offset, scale and clip arrays, joint
+    index arrays, and work buffers grown to the largest batch seen (no allocation per tick)."""
+
+    def __init__(self, spec: PolicySpec):
+        self.blocks = []
+        start = 0
+        for b in spec.observation_blocks:
+            dst = slice(start, start + b.size)
+            self.blocks.append((b.name, dst, np.array(b.joints, dtype=np.intp)))
+            start += b.size
+        bl = spec.observation_blocks
+        self.offset = np.concatenate([np.asarray(b.offset, float) for b in bl]) if bl else []
+        self.scale = np.concatenate([np.asarray(b.scale, float) for b in bl]) if bl else []
+        self.clip = np.concatenate([np.full(b.size, float(b.clip)) for b in bl]) if bl else []
+        self.dim = start
+        self._raw = np.zeros((0, start))
+        self.vec = np.zeros((0, 3))
+        self.rot = np.zeros((0, 3))
+
+    def raw(self, envs: int) -> np.ndarray:
+        if self._raw.shape[0] < envs:
+            self._raw = np.zeros((envs, self.dim))
+            self.vec = np.zeros((envs, 3))
+            self.rot = np.zeros((envs, 3))
+        return self._raw[:envs]

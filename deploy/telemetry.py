@@ -30,6 +30,7 @@ class LatencyHistogram:
     def __init__(self, stages: int = 1):
         self.counts = np.zeros((stages, BINS + 1), dtype=np.int64)
         self.max_ns = np.zeros(stages, dtype=np.int64)
+        self._rows = np.arange(stages)
 
     def add(self, stage: int, ns: int) -> None:
         ns = int(ns)
@@ -38,9 +39,16 @@ class LatencyHistogram:
             self.max_ns[stage] = ns
 
     def add_stages(self, stamps: np.ndarray) -> None:
-        """``stamps`` (stages + 1,) ns: stage i took ``stamps[i + 1] - stamps[i]``."""
-        for i in range(self.counts.shape[0]):
-            self.add(i, stamps[i + 1] - stamps[i])
+        """``stamps`` (stages + 1,) int64 ns: stage i took ``stamps[i + 1] - stamps[i]``."""
+        ns = np.diff(stamps)
+        np.maximum(self.max_ns, ns, out=self.max_ns)
+        np.clip(ns // BIN_NS, 0, BINS, out=ns)
+        self.counts[self._rows, ns] += 1
+
+    def clear(self) -> None:
+        """Forget every sample (e.g. after a warm-up)."""
+        self.counts[:] = 0
+        self.max_ns[:] = 0
 
     def percentile(self, stage: int, p: float) -> float:
         """p-th percentile (0-100) of stage ``stage``, in us (NaN without samples)."""

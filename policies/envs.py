@@ -22,6 +22,8 @@ Reward per control tick (:class:`RewardConfig`, seed section 6 coefficients by d
 
     + success        at each goal reached
     + soft_limit     per joint beyond the soft limit (90 % of the range)      (negative)
+    + workspace      end effector outside the guard's workspace box            (negative; ours:
+                     the runtime's guard would reject the command and hold)
     + hard_limit     at a hard limit, and the episode terminates                (negative)
     - energy   * sum |tau * dq|                                                  (W)
     - jerk     * |dq - dq_prev| / dt     (the seed's "jerk": rate of change of velocity)
@@ -56,6 +58,8 @@ class RewardConfig:
         success: Reward per goal reached (seed: +1).
         soft_limit: Per joint and tick beyond the soft limit (seed: -0.1).
         hard_limit: At a hard limit; the episode terminates (seed: -1).
+        workspace: Per tick with the end effector outside ``safety.workspace_min/max`` (ours, the
+            soft-limit coefficient: there the runtime's guard rejects commands and holds).
         energy: Coefficient of the mechanical power sum |tau dq|, per W (seed: 1e-4).
         jerk: Coefficient of |dq - dq_prev| / dt, per rad/s^2 (seed: 1e-5).
         survival: Per tick (seed: +0.001).
@@ -65,6 +69,7 @@ class RewardConfig:
     success: float = 1.0
     soft_limit: float = -0.1
     hard_limit: float = -1.0
+    workspace: float = -0.1
     energy: float = 1e-4
     jerk: float = 1e-5
     survival: float = 0.001
@@ -138,6 +143,8 @@ class ReachTask:
         self.randomize = config.dynamics != DynamicsRanges.none()
         self.dynamics = [Dynamics.nominal(self.n)] * envs
         self.goal = np.zeros((envs, 3))
+        self._ws_min = np.asarray(robot.config.safety.workspace_min)
+        self._ws_max = np.asarray(robot.config.safety.workspace_max)
         self.obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
         self._target = np.zeros((envs, self.n))
         self._cmd = np.zeros((envs, self.n))
@@ -222,7 +229,9 @@ class ReachTask:
         tau = self.backend.joint_torque()
         hard = ((q < robot.position_lower) | (q > robot.position_upper)).any(axis=1)
         soft = ((q < robot.soft_lower) | (q > robot.soft_upper)).sum(axis=1)
-        distance = self._true_distance()
+        ee = self.backend.end_effector_position()
+        outside = ((ee < self._ws_min) | (ee > self._ws_max)).any(axis=1)
+        distance = np.linalg.norm(ee - self.goal, axis=1)
         success = distance <= robot.config.task.success_radius
 
         reward = np.full(self.envs, rew.survival)
@@ -230,6 +239,7 @@ class ReachTask:
         reward += rew.success * success
         reward += rew.soft_limit * soft
         reward += rew.hard_limit * hard
+        reward += rew.workspace * outside
         reward -= rew.energy * np.abs(tau * dq).sum(axis=1)
         reward -= rew.jerk * np.linalg.norm(dq - self._prev_dq, axis=1) / self.dt
         self._prev_dq[:] = dq

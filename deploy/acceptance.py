@@ -13,8 +13,9 @@ runtime for a span of simulated time, records every command that reaches the pla
   rate limit;
 - the joints themselves stay within the hard position limits (torque mode: within
   ``TORQUE_OVERSHOOT`` rad, the guard can only brake a moving joint);
-- the runtime ends as the fault table says: RUNNING, or a safe stop (SAFE_STOP, latched FAULTED)
-  caused by a predicted hard-limit crossing.
+- the runtime ends as the fault table says: RUNNING, a safe stop (SAFE_STOP, latched FAULTED)
+  caused by a predicted hard-limit crossing, or an over-temperature safe stop (random torques
+  heat the windings) that waits for them to cool.
 
 Usage (the 10-minute runs of the runtime issue)::
 
@@ -176,7 +177,13 @@ def check_adversarial(
     if rt.counters.non_finite_actions.sum() == 0 and nan_probability > 0:
         failures.append("the policy never produced NaN: the NaN path was not exercised")
     modes, causes = rt.mode_names(), rt.cause_names()
-    if rt.guard.totals()["hard_limit"] == 0:
+    hot = bool((backend.thermal.winding_temperature > rt._temp_start).any())
+    if causes == ["over_temperature"]:
+        # the random torques heated a winding past its maximum: a safe stop that resumes once
+        # every winding is below the derating start (the fault table's thermal row)
+        if modes[0] not in ("SAFE_STOP", "RAMP_IN") or not hot:
+            failures.append(f"an over-temperature stop, but ended in {modes} with cool windings")
+    elif rt.guard.totals()["hard_limit"] == 0:
         if modes != ["RUNNING"]:
             failures.append(f"ended in {modes} ({causes}) without a hard-limit violation")
     elif causes != ["hard_limit"] or modes[0] not in ("SAFE_STOP", "FAULTED"):

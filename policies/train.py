@@ -24,7 +24,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import torch
-from stable_baselines3 import PPO
+from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
@@ -113,7 +113,7 @@ class ReachLogger(BaseCallback):
         return True
 
     def _on_rollout_end(self) -> None:
-        if self.success:
+        if len(self.success) >= 16:  # one point per 16 episodes
             rate, viol = float(np.mean(self.success)), float(np.mean(self.violations))
             self.logger.record("reach/success_rate", rate)
             self.logger.record("reach/joint_limit_violations", viol)
@@ -149,17 +149,41 @@ def actor_from_ppo(model: PPO, obs_dim: int, act_dim: int) -> MLPActor:
     return actor.eval()
 
 
-def train(args: argparse.Namespace) -> Path:
-    torch.manual_seed(args.seed)
-    torch.set_num_threads(args.threads)
-    robot = load_robot(args.robot)
-    dynamics = DynamicsRanges() if args.randomize else DynamicsRanges.none()
-    config = ReachConfig(mode=args.mode, dynamics=dynamics)
-    task = ReachTask(robot, args.envs, config, seed=args.seed)
-    # Rewards (not observations: those are already scaled by physical maxima, seed section 3) are
-    # normalized by a running estimate of the return's scale, as SB3's PPO recipes do.
-    env = VecNormalize(VecMonitor(ReachVecEnv(task)), norm_obs=False, gamma=args.gamma)
-    model = PPO(
+def actor_from_sac(model: SAC, obs_dim: int, act_dim: int) -> MLPActor:
+    """The SAC actor's deterministic action, ``tanh(mu(latent_pi(obs)))``, as an MLPActor."""
+    actor = MLPActor(obs_dim, act_dim, hidden=HIDDEN, activation="relu", output="tanh")
+    sd = model.policy.state_dict()
+    layers = sorted(
+        {k.rsplit(".", 1)[0] for k in sd if k.startswith("actor.latent_pi.")},
+        key=lambda k: int(k.rsplit(".", 1)[1]),
+    )
+    layers.append("actor.mu")
+    targets = [m for m in actor.net if isinstance(m, torch.nn.Linear)]
+    with torch.no_grad():
+        for name, lin in zip(layers, targets, strict=True):
+            lin.weight.copy_(sd[f"{name}.weight"])
+            lin.bias.copy_(sd[f"{name}.bias"])
+    return actor.eval()
+
+
+def make_model(args: argparse.Namespace, env) -> PPO | SAC:
+    """The learner: PPO (default, the seed's algorithm) or SAC."""
+    common = {"tensorboard_log": str(args.logdir), "seed": args.seed, "device": "cpu"}
+    if args.algo == "sac":
+        return SAC(
+            "MlpPolicy",
+            env,
+            learning_rate=args.learning_rate,
+            buffer_size=1_000_000,
+            learning_starts=10_000,
+            batch_size=256,
+            gamma=args.gamma,
+            train_freq=1,
+            gradient_steps=args.gradient_steps,
+            policy_kwargs={"net_arch": {"pi": list(HIDDEN), "qf": [256, 256]}},
+            **common,
+        )
+    return PPO(
         "MlpPolicy",
         env,
         n_steps=args.n_steps,
@@ -179,17 +203,29 @@ def train(args: argparse.Namespace) -> Path:
             "log_std_init": args.log_std_init,
             "activation_fn": torch.nn.Tanh,
         },
-        tensorboard_log=str(args.logdir),
-        seed=args.seed,
-        device="cpu",
-        verbose=0,
+        **common,
     )
+
+
+def train(args: argparse.Namespace) -> Path:
+    torch.manual_seed(args.seed)
+    torch.set_num_threads(args.threads)
+    robot = load_robot(args.robot)
+    dynamics = DynamicsRanges() if args.randomize else DynamicsRanges.none()
+    config = ReachConfig(mode=args.mode, dynamics=dynamics)
+    task = ReachTask(robot, args.envs, config, seed=args.seed)
+    # Rewards (not observations: those are already scaled by physical maxima, seed section 3) are
+    # normalized by a running estimate of the return's scale, as SB3's PPO recipes do.
+    env = VecNormalize(VecMonitor(ReachVecEnv(task)), norm_obs=False, gamma=args.gamma)
+    model = make_model(args, env)
     start = time.perf_counter()
 
+    convert = actor_from_sac if args.algo == "sac" else actor_from_ppo
+
     def save(model, history):
-        actor = actor_from_ppo(model, task.spec.obs_dim, task.spec.act_dim)
+        actor = convert(model, task.spec.obs_dim, task.spec.act_dim)
         info = {
-            "algorithm": "stable-baselines3 PPO",
+            "algorithm": f"stable-baselines3 {args.algo.upper()}",
             "command": "python -m policies.train " + " ".join(args.argv),
             "seed": args.seed,
             "timesteps": int(model.num_timesteps),
@@ -201,7 +237,8 @@ def train(args: argparse.Namespace) -> Path:
         return info
 
     logger = ReachLogger(save, args.save_every)
-    model.learn(args.steps, callback=logger, progress_bar=True, tb_log_name=f"ppo_{args.robot}")
+    name = f"{args.algo}_{args.robot}"
+    model.learn(args.steps, callback=logger, progress_bar=True, tb_log_name=name)
     info = save(model, logger.history)
     wall = info["wall_seconds"]
     curve = args.out.with_suffix(".curve.json")
@@ -218,6 +255,8 @@ def train(args: argparse.Namespace) -> Path:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m policies.train", description=__doc__)
     p.add_argument("--robot", default="arm3")
+    p.add_argument("--algo", default="ppo", choices=["ppo", "sac"])
+    p.add_argument("--gradient-steps", type=int, default=1, help="SAC: updates per batch step")
     p.add_argument("--mode", default="velocity", choices=["velocity", "position"])
     p.add_argument("--steps", type=int, default=3_000_000, help="environment steps")
     p.add_argument("--envs", type=int, default=16, help="robots per batch")

@@ -562,27 +562,50 @@ def _load_sb3(path: Path, spec: PolicySpec | None, activation: str | None) -> So
         )
     _check_sb3_spaces(data, spec, path)
     kwargs = data.get("policy_kwargs") if isinstance(data.get("policy_kwargs"), Mapping) else {}
-    if "actor.mu.weight" in sd:
-        if data.get("use_sde"):
-            raise ExportError(f"{path}: SAC with use_sde=True is not supported")
-        act = activation or _sb3_activation(data, "relu", path)
-        layers = _linear_stack(sd, "actor.latent_pi.", path)
-        layers.append((sd["actor.mu.weight"], sd["actor.mu.bias"]))
-        net = _build_mlp(layers, act, "tanh", path, "SAC actor")
-        fmt = "sb3-sac"
-    elif "action_net.weight" in sd:
-        act = activation or _sb3_activation(data, "tanh", path)
-        layers = _linear_stack(sd, "mlp_extractor.policy_net.", path)
-        layers.append((sd["action_net.weight"], sd["action_net.bias"]))
-        output = "tanh" if kwargs.get("squash_output") else None
-        net = _build_mlp(layers, act, output, path, "PPO actor")
-        fmt = "sb3-ppo"
-    else:
-        raise ExportError(
-            f"{path}: not a PPO (action_net) or SAC (actor.mu) policy; keys: {sorted(sd)[:8]}"
-        )
+    sac = "actor.mu.weight" in sd
+    if sac and data.get("use_sde"):
+        raise ExportError(f"{path}: SAC with use_sde=True is not supported")
+    act = activation or _sb3_activation(data, "relu" if sac else "tanh", path)
+    net, fmt = sb3_actor(sd, act, bool(kwargs.get("squash_output")), path)
     _probe(net, spec, path)
     return SourcePolicy(net=net, spec=spec, source_format=fmt)
+
+
+def sb3_actor(
+    sd: Mapping[str, torch.Tensor],
+    activation: str,
+    squash_output: bool = False,
+    path: str | Path = "Stable-Baselines3 policy",
+) -> tuple[MLPActor, str]:
+    """The deterministic actor of a Stable-Baselines3 ``MlpPolicy`` state dict as an MLPActor.
+
+    PPO: the Gaussian mean, ``mlp_extractor.policy_net`` then ``action_net`` (``tanh`` output when
+    the policy squashes); SAC: ``tanh(mu(latent_pi(obs)))``.
+
+    Args:
+        sd: ``policy.state_dict()`` of an SB3 PPO or SAC model.
+        activation: Hidden activation ('tanh', 'relu', 'elu'); SB3's defaults are tanh for PPO and
+            relu for SAC. squash_output: PPO's ``squash_output``. path: Named in errors.
+
+    Returns:
+        ``(actor, source_format)`` with ``source_format`` 'sb3-ppo' or 'sb3-sac'.
+
+    Raises:
+        ExportError: neither a PPO nor a SAC actor, or layers that are not Linear with bias.
+    """
+    path = Path(path)
+    if "actor.mu.weight" in sd:
+        layers = _linear_stack(sd, "actor.latent_pi.", path)
+        layers.append((sd["actor.mu.weight"], sd["actor.mu.bias"]))
+        return _build_mlp(layers, activation, "tanh", path, "SAC actor"), "sb3-sac"
+    if "action_net.weight" in sd:
+        layers = _linear_stack(sd, "mlp_extractor.policy_net.", path)
+        layers.append((sd["action_net.weight"], sd["action_net.bias"]))
+        output = "tanh" if squash_output else None
+        return _build_mlp(layers, activation, output, path, "PPO actor"), "sb3-ppo"
+    raise ExportError(
+        f"{path}: not a PPO (action_net) or SAC (actor.mu) policy; keys: {sorted(sd)[:8]}"
+    )
 
 
 def _load_rsl_rl(

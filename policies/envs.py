@@ -195,6 +195,13 @@ class ReachTask:
         self.spec.observation(self.state, self.goal, out=self.obs)
         self._distance[idx] = self._true_distance()[idx]
 
+    def spaces(self) -> tuple[gym.spaces.Box, gym.spaces.Box]:
+        """Observation space ``Box(-clip, clip, (obs_dim,))`` and action space
+        ``Box(-1, 1, (act_dim,))`` of one robot, float32."""
+        clip = max(b.clip for b in self.spec.observation_blocks)
+        obs = gym.spaces.Box(-clip, clip, (self.spec.obs_dim,), np.float32)
+        return obs, gym.spaces.Box(-1.0, 1.0, (self.spec.act_dim,), np.float32)
+
     def _new_goal(self, e: int) -> None:
         self.goal[e] = sample_goal(self.robot, self.rng)
         self.t_goal[e] = self.t_episode[e]
@@ -249,11 +256,11 @@ class ReachTask:
         self.episode_return += reward
         expired = ((self.t_episode - self.t_goal) >= self.config.goal_timeout) & ~success
         self.missed += expired
-        for e in np.nonzero(success | expired)[0]:
-            self._new_goal(e)
         new = success | expired
+        for e in np.nonzero(new)[0]:
+            self._new_goal(e)
         if new.any():  # the goal changed: distances and observations refer to the new goal
-            distance[new] = self._true_distance()[new]
+            distance[new] = np.linalg.norm(ee[new] - self.goal[new], axis=1)
             self.spec.observation(state, self.goal, out=self.obs)
         self._distance[:] = distance
         truncated = (self.t_episode >= self.config.episode_seconds - 1e-9) & ~hard
@@ -286,10 +293,7 @@ class ArmReachEnv(gym.Env):
     def __init__(self, robot: Robot, config: ReachConfig | None = None, seed: int = 0):
         self.robot, self.config = robot, config
         self.task = ReachTask(robot, 1, config, seed=seed)
-        spec = self.task.spec
-        clip = max(b.clip for b in spec.observation_blocks)
-        self.observation_space = gym.spaces.Box(-clip, clip, (spec.obs_dim,), np.float32)
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (spec.act_dim,), np.float32)
+        self.observation_space, self.action_space = self.task.spaces()
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)

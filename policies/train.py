@@ -21,7 +21,6 @@ import json
 import time
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 import torch
 from stable_baselines3 import PPO, SAC
@@ -29,6 +28,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
 from deploy.checkpoint import MLPActor, save_checkpoint
+from deploy.export import sb3_actor
 from eval.randomization import DynamicsRanges
 from policies.envs import ReachConfig, ReachTask
 from robots import load_robot
@@ -45,12 +45,8 @@ class ReachVecEnv(VecEnv):
 
     def __init__(self, task: ReachTask):
         self.task = task
-        spec = task.spec
-        clip = max(b.clip for b in spec.observation_blocks)
-        obs_space = gym.spaces.Box(-clip, clip, (spec.obs_dim,), np.float32)
-        act_space = gym.spaces.Box(-1.0, 1.0, (spec.act_dim,), np.float32)
-        super().__init__(task.envs, obs_space, act_space)
-        self._actions = np.zeros((task.envs, spec.act_dim))
+        super().__init__(task.envs, *task.spaces())
+        self._actions = np.zeros((task.envs, task.spec.act_dim))
 
     def reset(self):
         self.task.reset(np.ones(self.num_envs, dtype=bool))
@@ -132,38 +128,13 @@ class ReachLogger(BaseCallback):
             self.save(self.model, self.history)
 
 
-def actor_from_ppo(model: PPO, obs_dim: int, act_dim: int) -> MLPActor:
-    """The PPO policy's deterministic action (the Gaussian mean) as an :class:`MLPActor`."""
-    actor = MLPActor(obs_dim, act_dim, hidden=HIDDEN, activation=ACTIVATION)
-    sd = model.policy.state_dict()
-    linear = [k[: -len(".weight")] for k in sd if k.startswith("mlp_extractor.policy_net.")]
-    linear = [k for k in linear if k.endswith(tuple("0123456789"))]
-    layers = [*sorted(set(linear), key=lambda k: int(k.rsplit(".", 1)[1])), "action_net"]
-    targets = [m for m in actor.net if isinstance(m, torch.nn.Linear)]
-    if len(layers) != len(targets):
-        raise ValueError(f"PPO actor has {len(layers)} linear layers, MLPActor {len(targets)}")
-    with torch.no_grad():
-        for name, lin in zip(layers, targets, strict=True):
-            lin.weight.copy_(sd[f"{name}.weight"])
-            lin.bias.copy_(sd[f"{name}.bias"])
-    return actor.eval()
-
-
-def actor_from_sac(model: SAC, obs_dim: int, act_dim: int) -> MLPActor:
-    """The SAC actor's deterministic action, ``tanh(mu(latent_pi(obs)))``, as an MLPActor."""
-    actor = MLPActor(obs_dim, act_dim, hidden=HIDDEN, activation="relu", output="tanh")
-    sd = model.policy.state_dict()
-    layers = sorted(
-        {k.rsplit(".", 1)[0] for k in sd if k.startswith("actor.latent_pi.")},
-        key=lambda k: int(k.rsplit(".", 1)[1]),
-    )
-    layers.append("actor.mu")
-    targets = [m for m in actor.net if isinstance(m, torch.nn.Linear)]
-    with torch.no_grad():
-        for name, lin in zip(layers, targets, strict=True):
-            lin.weight.copy_(sd[f"{name}.weight"])
-            lin.bias.copy_(sd[f"{name}.bias"])
-    return actor.eval()
+def actor_from_model(model: PPO | SAC) -> MLPActor:
+    """The trained policy's deterministic action (PPO's Gaussian mean, SAC's ``tanh(mu)``) as an
+    :class:`MLPActor` with the same weights, read as the export reads SB3 models
+    (:func:`deploy.export.sb3_actor`)."""
+    activation = "relu" if isinstance(model, SAC) else ACTIVATION  # SAC: SB3's default
+    actor, _ = sb3_actor(model.policy.state_dict(), activation, path=f"{type(model).__name__}")
+    return actor
 
 
 def make_model(args: argparse.Namespace, env) -> PPO | SAC:
@@ -220,10 +191,8 @@ def train(args: argparse.Namespace) -> Path:
     model = make_model(args, env)
     start = time.perf_counter()
 
-    convert = actor_from_sac if args.algo == "sac" else actor_from_ppo
-
     def save(model, history):
-        actor = convert(model, task.spec.obs_dim, task.spec.act_dim)
+        actor = actor_from_model(model)
         info = {
             "algorithm": f"stable-baselines3 {args.algo.upper()}",
             "command": "python -m policies.train " + " ".join(args.argv),

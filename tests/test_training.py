@@ -70,7 +70,7 @@ def test_the_shipped_checkpoint_holds_the_ppo_mean_action(arm3, tmp_path):
     pytest.importorskip("stable_baselines3")
     from stable_baselines3 import PPO
 
-    from policies.train import HIDDEN, ReachVecEnv, actor_from_ppo
+    from policies.train import HIDDEN, ReachVecEnv, actor_from_model
 
     task = ReachTask(arm3, 2, NOMINAL, seed=5)
     model = PPO(
@@ -83,7 +83,7 @@ def test_the_shipped_checkpoint_holds_the_ppo_mean_action(arm3, tmp_path):
         device="cpu",
     )
     model.learn(16)
-    actor = actor_from_ppo(model, task.spec.obs_dim, task.spec.act_dim)
+    actor = actor_from_model(model)
     path = save_checkpoint(tmp_path / "arm.pt", actor, task.spec)
     loaded, spec, _ = load_checkpoint(path)
     obs = np.random.default_rng(0).uniform(-1, 1, (32, task.spec.obs_dim)).astype(np.float32)

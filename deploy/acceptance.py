@@ -51,33 +51,54 @@ TOLERANCE = 1e-6
 
 class RecordingBackend:
     """Wraps a backend and keeps every command written to it and the true joint angles after each
-    advance, in preallocated arrays shaped (ticks, envs, n).
+    advance: ``commands`` and ``true_q``, arrays shaped (ticks so far, envs, n).
+
+    The buffers are preallocated for ``ticks`` and doubled when full (no allocation per tick).
 
     Raises:
         AssertionError: a non-finite command was written (it is not forwarded).
     """
 
-    def __init__(self, backend, ticks: int):
+    def __init__(self, backend, ticks: int = 1024):
         self.backend = backend
-        shape = (ticks, backend.envs, backend.n_joints)
-        self.commands = np.zeros(shape)
-        self.true_q = np.zeros(shape)
+        shape = (max(ticks, 1), backend.envs, backend.n_joints)
+        self._commands = np.zeros(shape)
+        self._true_q = np.zeros(shape)
         self.n_commands = 0
         self.n_advances = 0
 
     def __getattr__(self, name):
         return getattr(self.backend, name)
 
+    @property
+    def commands(self) -> np.ndarray:
+        return self._commands[: self.n_commands]
+
+    @property
+    def true_q(self) -> np.ndarray:
+        return self._true_q[: self.n_advances]
+
     def write(self, command):
         assert np.isfinite(command).all(), "a non-finite command reached the backend"
-        self.commands[self.n_commands] = command
+        self._commands = _room(self._commands, self.n_commands)
+        self._commands[self.n_commands] = command
         self.n_commands += 1
         self.backend.write(command)
 
     def advance(self):
         self.backend.advance()
-        self.true_q[self.n_advances] = self.backend.true_position()
+        self._true_q = _room(self._true_q, self.n_advances)
+        self._true_q[self.n_advances] = self.backend.true_position()
         self.n_advances += 1
+
+
+def _room(buffer: np.ndarray, used: int) -> np.ndarray:
+    """``buffer`` with room for one more row (twice as long when full)."""
+    if used < len(buffer):
+        return buffer
+    grown = np.zeros((2 * len(buffer), *buffer.shape[1:]))
+    grown[:used] = buffer
+    return grown
 
 
 @dataclass

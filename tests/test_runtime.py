@@ -8,18 +8,18 @@ import time
 import numpy as np
 import pytest
 
-from deploy.acceptance import check_adversarial
+from deploy.acceptance import RecordingBackend, check_adversarial
 from deploy.backends.sim import SimBackend
 from deploy.faults import Fault, FaultInjector
 from deploy.policy import OnnxPolicy
 from deploy.runtime import NAN_ACTION_LIMIT, Mode, Runtime, WallClock
 from robots import load_robot
-from tests.runtime_fixtures import Recorder, adversarial_onnx
+from tests.runtime_fixtures import adversarial_onnx
 
 
 def make_runtime(tmp_path, robot, mode, faults=(), nan_probability=0.0, clock=None, seed=0):
     policy = OnnxPolicy(adversarial_onnx(tmp_path, robot, mode, nan_probability), robot)
-    backend = Recorder(SimBackend(robot, mode=mode, seed=seed))
+    backend = RecordingBackend(SimBackend(robot, mode=mode, seed=seed))
     injector = FaultInjector(list(faults), backend.backend) if faults else None
     rt = Runtime(robot, policy, backend, clock=clock, injector=injector)
     rt.start()

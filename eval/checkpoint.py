@@ -81,6 +81,62 @@ def _dofs(smoother, env: int) -> slice:
     return slice(env * n, (env + 1) * n)
 
 
+#: Per-env fields a checkpoint keeps, each indexed by the env: (key prefix, the component of the
+#: runtime that holds them, attribute names). One table serves capture_env and restore_env.
+_PER_ENV_FIELDS = (
+    (
+        "runtime",
+        lambda rt: rt,
+        ("mode", "cause", "goal", "_action", "_last_valid_action", "_nan_streak")
+        + ("_target", "_cmd", "_tracking"),
+    ),
+    (
+        "state",
+        lambda rt: rt.state,
+        ("q", "dq", "ee_position", "ee_rotation", "winding_temperature", "last_action"),
+    ),
+    ("counters", lambda rt: rt.counters, ("non_finite_actions", "safe_stops", "resyncs")),
+    (
+        "backend",
+        lambda rt: rt.backend,
+        ("_command", "_torque", "noise_sigma", "dropout_probability", "latency_ticks"),
+    ),
+    (
+        "frame",
+        lambda rt: rt.backend.frame,
+        ("time", "position", "position_stamp", "winding_temperature", "temperature_stamp"),
+    ),
+    (
+        "thermal",
+        lambda rt: rt.backend.thermal,
+        ("winding_temperature", "housing_temperature", "current", "power", "ambient"),
+    ),
+    (
+        "estimator",
+        lambda rt: rt.estimator,
+        ("filter_time", "time_since_fresh", "stale_per_joint", "missing_per_joint")
+        + ("reinitializations_per_joint", "_initialized"),
+    ),
+    (
+        "smoother",
+        lambda rt: rt.smoother,
+        ("stopping", "non_finite_per_joint", "target_clamps_per_joint")
+        + ("extrema_violations_per_joint", "stopping_distance_clamps_per_joint"),
+    ),
+)
+#: The smoother's per-DoF arrays (indexed by the env's DoF slice).
+_SMOOTHER_DOF_FIELDS = ("_pos", "_vel", "_acc", "_cmd", "_cmd_position", "_held", "_stop_dof")
+#: Ruckig's input parameter fields (per DoF).
+_RUCKIG_FIELDS = (
+    "current_position",
+    "current_velocity",
+    "current_acceleration",
+    "target_position",
+    "target_velocity",
+    "target_acceleration",
+)
+
+
 def capture_env(rt, env: int) -> tuple[dict[str, np.ndarray], dict]:
     """The state of env ``env`` of runtime ``rt`` (and of its SimBackend).
 
@@ -92,15 +148,11 @@ def capture_env(rt, env: int) -> tuple[dict[str, np.ndarray], dict]:
     meta: dict = {}
     e = env
     # runtime
-    for name in ("mode", "cause", "goal", "_action", "_last_valid_action", "_nan_streak"):
-        a[f"runtime/{name}"] = getattr(rt, name)[e]
-    for name in ("_target", "_cmd", "_tracking"):
-        a[f"runtime/{name}"] = getattr(rt, name)[e]
-    for name in ("q", "dq", "ee_position", "ee_rotation", "winding_temperature", "last_action"):
-        a[f"state/{name}"] = getattr(rt.state, name)[e]
+    for prefix, owner, names in _PER_ENV_FIELDS:
+        obj = owner(rt)
+        for name in names:
+            a[f"{prefix}/{name}"] = getattr(obj, name)[e]
     c = rt.counters
-    for name in ("non_finite_actions", "safe_stops", "resyncs"):
-        a[f"counters/{name}"] = getattr(c, name)[e]
     for cause, values in c.faults.items():
         a[f"counters/faults/{cause}"] = values[e]
     # backend
@@ -113,13 +165,6 @@ def capture_env(rt, env: int) -> tuple[dict[str, np.ndarray], dict]:
     a["backend/warnings"] = np.array([w.number for w in d.warning])
     a["backend/buf_position"] = b._buf_position[:, e]
     a["backend/buf_stamp"] = b._buf_stamp[:, e]
-    for name in ("_command", "_torque", "noise_sigma", "dropout_probability", "latency_ticks"):
-        a[f"backend/{name}"] = getattr(b, name)[e]
-    for name in ("time", "position", "position_stamp", "winding_temperature", "temperature_stamp"):
-        a[f"frame/{name}"] = getattr(b.frame, name)[e]
-    th = b.thermal
-    for name in ("winding_temperature", "housing_temperature", "current", "power", "ambient"):
-        a[f"thermal/{name}"] = getattr(th, name)[e]
     generators = getattr(b._rng, "generators", None)
     if generators is not None:
         meta["sensor_rng"] = generator_state(generators[e])
@@ -127,38 +172,14 @@ def capture_env(rt, env: int) -> tuple[dict[str, np.ndarray], dict]:
     est = rt.estimator
     a["estimator/x"] = est._x[:, e]
     a["estimator/p"] = est._p[:, e]
-    for name in (
-        "filter_time",
-        "time_since_fresh",
-        "stale_per_joint",
-        "missing_per_joint",
-        "reinitializations_per_joint",
-        "_initialized",
-    ):
-        a[f"estimator/{name}"] = getattr(est, name)[e]
     # smoother
     sm = rt.smoother
     dof = _dofs(sm, e)
-    for name in ("_pos", "_vel", "_acc", "_cmd", "_cmd_position", "_held", "_stop_dof"):
+    for name in _SMOOTHER_DOF_FIELDS:
         a[f"smoother/{name}"] = getattr(sm, name)[dof]
-    a["smoother/stopping"] = sm.stopping[e]
-    for name in (
-        "non_finite_per_joint",
-        "target_clamps_per_joint",
-        "extrema_violations_per_joint",
-        "stopping_distance_clamps_per_joint",
-    ):
-        a[f"smoother/{name}"] = getattr(sm, name)[e]
     if sm.mode != "torque":
         inp = sm._inp
-        for name in (
-            "current_position",
-            "current_velocity",
-            "current_acceleration",
-            "target_position",
-            "target_velocity",
-            "target_acceleration",
-        ):
+        for name in _RUCKIG_FIELDS:
             a[f"ruckig/{name}"] = np.asarray(getattr(inp, name), dtype=np.float64)[dof]
     # guard
     g = rt.guard
@@ -190,15 +211,11 @@ def restore_env(rt, env: int, arrays: dict[str, np.ndarray], meta: dict) -> None
             )
         target[index] = value
 
-    for name in ("mode", "cause", "goal", "_action", "_last_valid_action", "_nan_streak"):
-        put(getattr(rt, name), e, f"runtime/{name}")
-    for name in ("_target", "_cmd", "_tracking"):
-        put(getattr(rt, name), e, f"runtime/{name}")
-    for name in ("q", "dq", "ee_position", "ee_rotation", "winding_temperature", "last_action"):
-        put(getattr(rt.state, name), e, f"state/{name}")
+    for prefix, owner, names in _PER_ENV_FIELDS:
+        obj = owner(rt)
+        for name in names:
+            put(getattr(obj, name), e, f"{prefix}/{name}")
     c = rt.counters
-    for name in ("non_finite_actions", "safe_stops", "resyncs"):
-        put(getattr(c, name), e, f"counters/{name}")
     for cause, values in c.faults.items():
         put(values, e, f"counters/faults/{cause}")
 
@@ -218,12 +235,6 @@ def restore_env(rt, env: int, arrays: dict[str, np.ndarray], meta: dict) -> None
     put(m.dof_frictionloss, slice(None), "backend/dof_frictionloss")
     put(b._buf_position, (slice(None), e), "backend/buf_position")
     put(b._buf_stamp, (slice(None), e), "backend/buf_stamp")
-    for name in ("_command", "_torque", "noise_sigma", "dropout_probability", "latency_ticks"):
-        put(getattr(b, name), e, f"backend/{name}")
-    for name in ("time", "position", "position_stamp", "winding_temperature", "temperature_stamp"):
-        put(getattr(b.frame, name), e, f"frame/{name}")
-    for name in ("winding_temperature", "housing_temperature", "current", "power", "ambient"):
-        put(getattr(b.thermal, name), e, f"thermal/{name}")
     generators = getattr(b._rng, "generators", None)
     if generators is not None:
         if "sensor_rng" not in meta:
@@ -233,39 +244,15 @@ def restore_env(rt, env: int, arrays: dict[str, np.ndarray], meta: dict) -> None
     est = rt.estimator
     put(est._x, (slice(None), e), "estimator/x")
     put(est._p, (slice(None), e), "estimator/p")
-    for name in (
-        "filter_time",
-        "time_since_fresh",
-        "stale_per_joint",
-        "missing_per_joint",
-        "reinitializations_per_joint",
-        "_initialized",
-    ):
-        put(getattr(est, name), e, f"estimator/{name}")
     est._all_initialized = bool(est._initialized.all())
 
     sm = rt.smoother
     dof = _dofs(sm, e)
-    for name in ("_pos", "_vel", "_acc", "_cmd", "_cmd_position", "_held", "_stop_dof"):
+    for name in _SMOOTHER_DOF_FIELDS:
         put(getattr(sm, name), dof, f"smoother/{name}")
-    put(sm.stopping, e, "smoother/stopping")
-    for name in (
-        "non_finite_per_joint",
-        "target_clamps_per_joint",
-        "extrema_violations_per_joint",
-        "stopping_distance_clamps_per_joint",
-    ):
-        put(getattr(sm, name), e, f"smoother/{name}")
     if sm.mode != "torque":
         inp = sm._inp
-        for name in (
-            "current_position",
-            "current_velocity",
-            "current_acceleration",
-            "target_position",
-            "target_velocity",
-            "target_acceleration",
-        ):
+        for name in _RUCKIG_FIELDS:
             values = np.asarray(getattr(inp, name), dtype=np.float64)
             put(values, dof, f"ruckig/{name}")
             setattr(inp, name, values)
@@ -398,13 +385,17 @@ def restore_injector(injector, arrays: dict[str, np.ndarray], meta: dict) -> Non
 
 
 # ---------------------------------------------------------------------- files
-def _atomic_write(path: Path, data: bytes) -> None:
+def atomic_write(path: str | os.PathLike, data: bytes | str) -> Path:
+    """Write ``data`` (str as UTF-8) to ``path`` through ``path.part``, fsync, then
+    ``os.replace``: a file under the final name is always complete. Returns the path."""
+    path = Path(path)
     tmp = path.with_name(path.name + ".part")
     with open(tmp, "wb") as f:
-        f.write(data)
+        f.write(data.encode("utf-8") if isinstance(data, str) else data)
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
+    return path
 
 
 def write_checkpoint(
@@ -438,7 +429,7 @@ def write_checkpoint(
         "meta": meta,
     }
     manifest = directory / MANIFEST
-    _atomic_write(manifest, json.dumps(doc).encode())
+    atomic_write(manifest, json.dumps(doc))
     for old in directory.glob("state-*.npz*"):
         if old.name != name:
             old.unlink(missing_ok=True)

@@ -65,6 +65,8 @@ from pathlib import Path
 
 import numpy as np
 
+from eval.checkpoint import atomic_write
+
 SCHEMA_VERSION = 1
 CHECKS = (
     "no_hard_violation",
@@ -421,19 +423,11 @@ def failures(report: dict) -> list[str]:
 
 
 # ---------------------------------------------------------------------- files
-def _atomic_write(path: Path, data: str) -> Path:
-    tmp = path.with_name(path.name + ".part")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    return path
 
 
 def write_json(path: str | os.PathLike, report: dict) -> Path:
     """Write report.json atomically."""
-    return _atomic_write(Path(path), json.dumps(report, indent=1))
+    return atomic_write(path, json.dumps(report, indent=1))
 
 
 def junit_xml(report: dict) -> str:
@@ -474,7 +468,7 @@ def junit_xml(report: dict) -> str:
 
 def write_junit(path: str | os.PathLike, report: dict) -> Path:
     """Write junit.xml atomically."""
-    return _atomic_write(Path(path), junit_xml(report) + "\n")
+    return atomic_write(path, junit_xml(report) + "\n")
 
 
 # ---------------------------------------------------------------------- HTML
@@ -783,7 +777,7 @@ def report_html(report: dict) -> str:
 
 def write_html(path: str | os.PathLike, report: dict) -> Path:
     """Write report.html atomically."""
-    return _atomic_write(Path(path), report_html(report))
+    return atomic_write(path, report_html(report))
 
 
 def write_reports(out: str | os.PathLike, report: dict) -> dict[str, Path]:

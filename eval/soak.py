@@ -170,17 +170,6 @@ def file_sha256(path: str | os.PathLike) -> str:
     return h.hexdigest()
 
 
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and ``os.replace``."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".part")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 # ====================================================================== batch plumbing
 class PerEnvGenerators:
     """One numpy ``Generator`` per env, in place of SimBackend's single sensor generator.
@@ -869,7 +858,7 @@ class SessionBatch:
         for s in self.sessions:
             d = session_dir(self.out, s.config.seed)
             d.mkdir(parents=True, exist_ok=True)
-            atomic_write_text(
+            ckpt.atomic_write(
                 d / "progress.json",
                 json.dumps(
                     {
@@ -908,7 +897,7 @@ class SessionBatch:
                 self.checkpoint()
         results = [s.result() for s in self.sessions]
         for s, r in zip(self.sessions, results, strict=True):
-            atomic_write_text(session_dir(self.out, s.config.seed) / "result.json", json.dumps(r))
+            ckpt.atomic_write(session_dir(self.out, s.config.seed) / "result.json", json.dumps(r))
         self._progress(done=True)
         return results
 
@@ -927,7 +916,7 @@ class SessionBatch:
             s.diverged = message
             d = session_dir(self.out, s.config.seed)
             d.mkdir(parents=True, exist_ok=True)
-            atomic_write_text(d / "result.json", json.dumps(s.result()))
+            ckpt.atomic_write(d / "result.json", json.dumps(s.result()))
             seeds.append(s.config.seed)
         raise BatchDiverged(seeds, str(exc)) from exc
 

@@ -333,9 +333,7 @@ class Runtime:
             self._safe_stop(np.ones(self.envs, dtype=bool), "overrun")
 
         mode = self.mode
-        if (mode == RUNNING).all():  # the common case: nothing to end
-            pass
-        else:
+        if not (mode == RUNNING).all():  # else nothing to end (the common case)
             at_rest = (np.abs(state.dq) < REST_SPEED).all(axis=1)
             home = (np.abs(state.q - self._home) < HOME_TOLERANCE).all(axis=1)
             mode[(mode == RAMP_IN) & at_rest & home] = RUNNING

@@ -142,6 +142,8 @@ class SafetyGuard:
         self._col_q = np.zeros((envs, n))
         self._clearance = np.full(envs, -np.inf)  # m between the closest listed pair
         self._move = np.zeros(envs)
+        self._held = np.zeros(envs, dtype=bool)
+        self._no_env = np.zeros(envs, dtype=bool)  # read only
 
     @staticmethod
     def _collision_model(robot: Robot):
@@ -279,14 +281,15 @@ class SafetyGuard:
         np.abs(self._tmp, out=self._tmp)
         np.sum(self._tmp, axis=1, out=move)
         check_ws = self._ws_margin <= self.sweep * move + SCREEN_MARGIN
-        check_col = np.zeros(self.envs, dtype=bool)
+        check_col = self._no_env
         if self._has_pairs:
             np.subtract(self._pred, self._col_q, out=self._tmp)
             np.abs(self._tmp, out=self._tmp)
             np.sum(self._tmp, axis=1, out=move)
             check_col = self._clearance <= 2.0 * self.sweep * move + SCREEN_MARGIN
         check_effort = (self.gravity_bound > effort * self.effort_scale).any(axis=1)
-        held = np.zeros(self.envs, dtype=bool)
+        held = self._held
+        held[:] = False
         for e in np.flatnonzero(check_ws | check_col | check_effort):
             qp = self._pred[e]
             reason = None

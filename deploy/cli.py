@@ -98,20 +98,31 @@ class GoalScheduler:
         self.goals += 1
 
     def __call__(self, rt) -> None:
-        ee = rt.backend.end_effector_position()
-        for e in range(self.envs):
-            if rt.mode[e] != 2:  # only RUNNING time counts
-                self.t_goal[e] = rt.time if not self.reached[e] else self.t_goal[e]
-                continue
-            if self.goals == 0 or (self.fixed is None and rt.time - self.t_goal[e] >= self.period):
+        t = rt.time
+        running = rt.mode == 2
+        if not running.all():  # only RUNNING time counts
+            paused = ~running & ~self.reached
+            self.t_goal[paused] = t
+            if not running.any():
+                return
+        age = t - self.t_goal
+        if self.fixed is None:
+            due = running & (age >= self.period)
+        else:
+            due = np.zeros(self.envs, dtype=bool)
+        if self.goals == 0:
+            due[np.argmax(running)] = True
+        if due.any():
+            for e in np.flatnonzero(due):  # in env order: one goal stream for the batch
                 self.new_goal(rt, e)
-                continue
-            age = rt.time - self.t_goal[e]
-            if not self.reached[e] and age <= self.success_time:
-                if np.linalg.norm(ee[e] - rt.goal[e]) <= self.success_radius:
-                    self.reached[e] = True
-                    self.hits += 1
-                    self.times.append(age)
+        check = running & ~due & ~self.reached & (age <= self.success_time)
+        if check.any():
+            ee = rt.backend.end_effector_position()
+            hit = check & (np.linalg.norm(ee - rt.goal, axis=1) <= self.success_radius)
+            for e in np.flatnonzero(hit):
+                self.reached[e] = True
+                self.hits += 1
+                self.times.append(float(age[e]))
 
 
 def run(args) -> int:

@@ -17,6 +17,7 @@ the PolicySpec the env used travels with it.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -30,7 +31,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 from deploy.checkpoint import MLPActor, save_checkpoint
 from deploy.export import sb3_actor
 from eval.randomization import DynamicsRanges
-from policies.envs import ReachConfig, ReachTask
+from policies.envs import ReachConfig, ReachTask, RewardConfig
 from robots import load_robot
 
 HIDDEN = (64, 64)
@@ -183,7 +184,7 @@ def train(args: argparse.Namespace) -> Path:
     torch.set_num_threads(args.threads)
     robot = load_robot(args.robot)
     dynamics = DynamicsRanges() if args.randomize else DynamicsRanges.none()
-    config = ReachConfig(mode=args.mode, dynamics=dynamics)
+    config = ReachConfig(mode=args.mode, dynamics=dynamics, reward=args.reward)
     task = ReachTask(robot, args.envs, config, seed=args.seed)
     # Rewards (not observations: those are already scaled by physical maxima, seed section 3) are
     # normalized by a running estimate of the return's scale, as SB3's PPO recipes do.
@@ -221,6 +222,23 @@ def train(args: argparse.Namespace) -> Path:
     return args.out
 
 
+def parse_reward(overrides: list[str], parser: argparse.ArgumentParser) -> RewardConfig:
+    """``RewardConfig`` with ``NAME=VALUE`` overrides; a bad name or value exits with usage."""
+    names = {f.name for f in dataclasses.fields(RewardConfig)}
+    values = {}
+    for item in overrides:
+        name, _, value = item.partition("=")
+        if name not in names:
+            parser.error(
+                f"--reward {item}: unknown coefficient '{name}', expected one of {sorted(names)}"
+            )
+        try:
+            values[name] = float(value)
+        except ValueError:
+            parser.error(f"--reward {item}: expected a number after '{name}='")
+    return RewardConfig(**values)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m policies.train", description=__doc__)
     p.add_argument("--robot", default="arm3")
@@ -242,10 +260,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--no-randomize", dest="randomize", action="store_false", help="nominal dynamics only"
     )
+    p.add_argument(
+        "--reward",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a RewardConfig coefficient, e.g. --reward shaping=2 (repeatable)",
+    )
     p.add_argument("--save-every", type=int, default=250_000, help="steps between saves of --out")
     p.add_argument("--logdir", type=Path, default=Path("runs/train"))
     p.add_argument("--out", type=Path, default=Path("policies/arm.pt"))
     args = p.parse_args(argv)
+    args.reward = parse_reward(args.reward, p)
     args.argv = list(argv) if argv is not None else __import__("sys").argv[1:]
     train(args)
     return 0

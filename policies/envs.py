@@ -28,9 +28,16 @@ Reward per control tick (:class:`RewardConfig`, seed section 6 coefficients by d
     - energy   * sum |tau * dq|                                                  (W)
     - jerk     * |dq - dq_prev| / dt     (the seed's "jerk": rate of change of velocity)
     + survival
-    + shaping  * (d_prev - d)            potential-based shaping on the goal distance d (m);
-                                         it does not change the optimal policy (Ng, Harada and
-                                         Russell, ICML 1999, with gamma -> 1)
+    + shaping  * (d_prev - gamma_s * d)  potential-based shaping F = gamma_s Phi(s') - Phi(s) with
+                                         Phi = -shaping * d, d the goal distance (m). It leaves the
+                                         optimal policy unchanged when gamma_s is the learner's
+                                         discount (Ng, Harada and Russell, ICML 1999). The shipped
+                                         recipe uses gamma_s = 1, the plain distance difference,
+                                         which adds -(1 - gamma) * shaping * d per tick: a pull
+                                         toward the goal that learned faster in our comparison
+                                         (success 0.46 against 0.20 after 0.75 M PPO steps), at
+                                         the price of making detours (refolding the arm around a
+                                         joint limit) look worse than they are.
 """
 
 from __future__ import annotations
@@ -64,6 +71,9 @@ class RewardConfig:
         jerk: Coefficient of |dq - dq_prev| / dt, per rad/s^2 (seed: 1e-5).
         survival: Per tick (seed: +0.001).
         shaping: Per metre the end effector comes closer to the goal (ours; 0 disables it).
+        shaping_gamma: The discount of the potential-based shaping: 1.0 (default, the shipped
+            recipe) gives the plain distance difference; the learner's ``gamma`` gives the
+            policy-invariant form.
     """
 
     success: float = 1.0
@@ -74,6 +84,7 @@ class RewardConfig:
     jerk: float = 1e-5
     survival: float = 0.001
     shaping: float = 5.0
+    shaping_gamma: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -242,7 +253,7 @@ class ReachTask:
         success = distance <= robot.config.task.success_radius
 
         reward = np.full(self.envs, rew.survival)
-        reward += rew.shaping * (self._distance - distance)
+        reward += rew.shaping * (self._distance - rew.shaping_gamma * distance)
         reward += rew.success * success
         reward += rew.soft_limit * soft
         reward += rew.hard_limit * hard

@@ -78,24 +78,64 @@ def sample_goal(robot, rng: np.random.Generator) -> np.ndarray:
 
 
 class GoalScheduler:
-    """New goals every ``period`` s (or one fixed goal); records when each was reached (sim)."""
+    """New goals every ``period`` s (or one fixed goal); records when each was reached (sim).
+
+    Only time in RUNNING counts: an env that is not running has its goal clock held, and gets its
+    first goal when it starts running. A goal counts as reached when the end effector comes
+    within ``task.success_radius`` of it at most ``success_time`` s after it was issued.
+
+    Args:
+        robot: The robot (task region, success radius).
+        envs: Number of envs.
+        period: s between new goals (ignored with ``fixed``).
+        fixed: Optional fixed goal (3,) m, base frame, for every env.
+        success_time: s.
+        rng: One ``numpy.random.Generator`` for the batch (goals drawn in env order), or a
+            sequence of ``envs`` generators, one goal stream per env (batched soak sessions, so
+            that a session's goals do not depend on its neighbours).
+
+    Attributes:
+        t_goal: (envs,) s, when each env's goal was issued. reached: (envs,) bool.
+        issued, hit_count: (envs,) int, goals issued and reached per env. hit_times: per env, the
+        list of times to reach (s). goals, hits, times: the same summed over envs.
+    """
 
     def __init__(self, robot, envs, period, fixed, success_time, rng):
-        self.robot, self.period, self.fixed, self.rng = robot, period, fixed, rng
+        self.robot, self.period, self.fixed = robot, period, fixed
+        self.streams = list(rng) if isinstance(rng, (list, tuple)) else None
+        if self.streams is not None and len(self.streams) != envs:
+            raise ValueError(f"rng: expected {envs} generators (one per env), got {len(rng)}")
+        self.rng = rng
         self.success_radius = robot.config.task.success_radius
         self.success_time = success_time
         self.envs = envs
         self.t_goal = np.zeros(envs)
         self.reached = np.zeros(envs, dtype=bool)
-        self.goals = 0
-        self.hits = 0
-        self.times: list[float] = []
+        self.issued = np.zeros(envs, dtype=np.int64)
+        self.hit_count = np.zeros(envs, dtype=np.int64)
+        self.hit_times: list[list[float]] = [[] for _ in range(envs)]
+
+    @property
+    def goals(self) -> int:
+        return int(self.issued.sum())
+
+    @property
+    def hits(self) -> int:
+        return int(self.hit_count.sum())
+
+    @property
+    def times(self) -> list[float]:
+        return [t for times in self.hit_times for t in times]
 
     def new_goal(self, rt, e: int) -> None:
-        rt.goal[e] = self.fixed if self.fixed is not None else sample_goal(self.robot, self.rng)
+        if self.fixed is not None:
+            rt.goal[e] = self.fixed
+        else:
+            rng = self.rng if self.streams is None else self.streams[e]
+            rt.goal[e] = sample_goal(self.robot, rng)
         self.t_goal[e] = rt.time
         self.reached[e] = False
-        self.goals += 1
+        self.issued[e] += 1
 
     def __call__(self, rt) -> None:
         t = rt.time
@@ -106,14 +146,11 @@ class GoalScheduler:
             if not running.any():
                 return
         age = t - self.t_goal
+        due = running & (self.issued == 0)
         if self.fixed is None:
-            due = running & (age >= self.period)
-        else:
-            due = np.zeros(self.envs, dtype=bool)
-        if self.goals == 0:
-            due[np.argmax(running)] = True
+            due |= running & (age >= self.period)
         if due.any():
-            for e in np.flatnonzero(due):  # in env order: one goal stream for the batch
+            for e in np.flatnonzero(due):  # in env order (one stream for a batch)
                 self.new_goal(rt, e)
         check = running & ~due & ~self.reached & (age <= self.success_time)
         if check.any():
@@ -121,8 +158,8 @@ class GoalScheduler:
             hit = check & (np.linalg.norm(ee - rt.goal, axis=1) <= self.success_radius)
             for e in np.flatnonzero(hit):
                 self.reached[e] = True
-                self.hits += 1
-                self.times.append(float(age[e]))
+                self.hit_count[e] += 1
+                self.hit_times[e].append(float(age[e]))
 
 
 def run(args) -> int:

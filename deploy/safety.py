@@ -178,8 +178,8 @@ class SafetyGuard:
 
         With ``cache = e``, remember ``q`` and the margin inside the box for env ``e``'s screen.
         """
-        pin.framesForwardKinematics(self.model, self.data, q)
-        ee = self.data.oMf[self.robot.ee_frame_id].translation
+        pin.forwardKinematics(self.model, self.data, q)
+        ee = pin.updateFramePlacement(self.model, self.data, self.robot.ee_frame_id).translation
         below, above = self.ws_min - ee, ee - self.ws_max
         if cache is not None:
             self._ws_q[cache] = q

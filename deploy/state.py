@@ -52,11 +52,14 @@ class Kinematics:
 
     def update(self, state: RobotState) -> RobotState:
         """Fill ``state.ee_position`` and ``state.ee_rotation`` from ``state.q``; returns state."""
-        for e in range(state.q.shape[0]):
-            pin.framesForwardKinematics(self.model, self.data, state.q[e])
-            placement = self.data.oMf[self.frame_id]
-            state.ee_position[e] = placement.translation
-            state.ee_rotation[e] = placement.rotation
+        model, data, frame, q = self.model, self.data, self.frame_id, state.q
+        position, rotation = state.ee_position, state.ee_rotation
+        for e in range(q.shape[0]):
+            pin.forwardKinematics(model, data, q[e])
+            placement = pin.updateFramePlacement(model, data, frame)  # this frame only
+            h = placement.homogeneous
+            position[e] = h[:3, 3]
+            rotation[e] = h[:3, :3]
         return state
 
     def reach(self) -> float:

@@ -317,27 +317,30 @@ def fresh_trajectory_generator(smoother) -> None:
 
 
 # ---------------------------------------------------------------------- goal scheduler, faults
-def capture_goals(goals) -> tuple[dict[str, np.ndarray], dict]:
-    """State of a :class:`deploy.cli.GoalScheduler`."""
-    arrays = {"goals/t_goal": goals.t_goal.copy(), "goals/reached": goals.reached.copy()}
+def capture_goals(goals, e: int) -> tuple[dict[str, np.ndarray], dict]:
+    """State of env ``e`` of a :class:`deploy.cli.GoalScheduler` with one stream per env."""
+    arrays = {
+        "goals/t_goal": goals.t_goal[e : e + 1].copy(),
+        "goals/reached": goals.reached[e : e + 1].copy(),
+    }
     meta = {
-        "goals": goals.goals,
-        "hits": goals.hits,
-        "times": list(goals.times),
-        "rng": generator_state(goals.rng),
+        "goals": int(goals.issued[e]),
+        "hits": int(goals.hit_count[e]),
+        "times": list(goals.hit_times[e]),
+        "rng": generator_state(goals.streams[e]),
     }
     return arrays, meta
 
 
-def restore_goals(goals, arrays: dict[str, np.ndarray], meta: dict) -> None:
+def restore_goals(goals, e: int, arrays: dict[str, np.ndarray], meta: dict) -> None:
     """Inverse of :func:`capture_goals`."""
     try:
-        goals.t_goal[:] = arrays["goals/t_goal"]
-        goals.reached[:] = arrays["goals/reached"]
-        goals.goals = int(meta["goals"])
-        goals.hits = int(meta["hits"])
-        goals.times = [float(t) for t in meta["times"]]
-        set_generator_state(goals.rng, meta["rng"])
+        goals.t_goal[e : e + 1] = arrays["goals/t_goal"]
+        goals.reached[e : e + 1] = arrays["goals/reached"]
+        goals.issued[e] = int(meta["goals"])
+        goals.hit_count[e] = int(meta["hits"])
+        goals.hit_times[e] = [float(t) for t in meta["times"]]
+        set_generator_state(goals.streams[e], meta["rng"])
     except KeyError as exc:
         raise CheckpointError(f"checkpoint field {exc} of the goal scheduler is missing") from None
 

@@ -14,7 +14,7 @@ Batching. Several sessions run in one process through the runtime's batch axis: 
 and one :class:`~deploy.runtime.Runtime` over all of them (one ONNX Runtime call per tick). A
 session's seeded quantities depend on its own seed only: its randomization; its encoder noise and
 dropout draws (:class:`PerEnvGenerators`: one numpy generator per env, where SimBackend has one for
-the batch); its goals (a ``GoalScheduler`` per session, on a one-env view of the runtime); its
+the batch); its goals (one ``GoalScheduler`` for the batch with one goal stream per session); its
 faults (a :class:`deploy.faults.FaultInjector` per session on its env, :class:`SessionFaults`); its
 operator resets. Every runtime stage computes each env on its own, except Ruckig, which serves
 the whole batch and, when it resamples a trajectory for an unchanged input instead of
@@ -59,6 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from deploy.backends.base import SensorFrame
+from deploy.cli import GoalScheduler
 from deploy.runtime import FAULT_CAUSES, STAGES, Mode
 from eval import checkpoint as ckpt
 from eval.randomization import (
@@ -197,8 +198,8 @@ class PerEnvGenerators:
 
 
 class _BackendSlice:
-    """Env ``e`` of a SimBackend as a one-env backend: what FaultInjector and GoalScheduler use
-    (views of the per-env sensor settings, the env's model, forces, end effector)."""
+    """Env ``e`` of a SimBackend as a one-env backend: what a FaultInjector uses (views of the
+    per-env sensor settings, the env's model, forces)."""
 
     envs = 1
 
@@ -208,29 +209,9 @@ class _BackendSlice:
         self.latency_ticks = backend.latency_ticks[e : e + 1]
         self.max_latency_ticks = backend.max_latency_ticks
         self.models = [backend.models[e]]
-        self._site = backend.robot.ee_site_id
-        self._ee = np.zeros((1, 3))
 
     def set_external_force(self, env: int, force: np.ndarray, body: str | None = None) -> None:
         self._backend.set_external_force(self._e, force, body)
-
-    def end_effector_position(self) -> np.ndarray:
-        self._ee[0] = self._backend.datas[self._e].site_xpos[self._site]
-        return self._ee
-
-
-class _RuntimeSlice:
-    """Env ``e`` of a Runtime as a one-env runtime, for :class:`deploy.cli.GoalScheduler`."""
-
-    def __init__(self, rt, e: int, backend: _BackendSlice):
-        self._rt = rt
-        self.mode = rt.mode[e : e + 1]
-        self.goal = rt.goal[e : e + 1]
-        self.backend = backend
-
-    @property
-    def time(self) -> float:
-        return self._rt.time
 
 
 class SessionFaults:
@@ -295,19 +276,9 @@ class _Session:
     """Book-keeping of one session (env ``e`` of a batch): goals, faults, latches, curves."""
 
     def __init__(self, batch: SessionBatch, e: int, config: SessionConfig, draw):
-        from deploy.cli import GoalScheduler
-
         self.batch, self.e, self.config, self.draw = batch, e, config, draw
         rt, robot = batch.rt, batch.robot
-        self.view = _RuntimeSlice(rt, e, batch.faults.slices[e])
-        self.goals = GoalScheduler(
-            robot,
-            1,
-            config.goal_period,
-            None,
-            config.success_time,
-            session_rng(config.seed, "goals"),
-        )
+        self.goals = batch.goals  # env e of the batch's scheduler, on this session's own stream
         dt = robot.control_period
         self.schedule = list(draw.faults)
         self.fault_index = 0
@@ -406,7 +377,7 @@ class _Session:
         arrays, meta = ckpt.capture_env(rt, e)
         shared_a, shared_m = ckpt.capture_shared(rt)
         arrays.update(shared_a)
-        goals_a, goals_m = ckpt.capture_goals(self.goals)
+        goals_a, goals_m = ckpt.capture_goals(self.goals, e)
         arrays.update(goals_a)
         for name in ("peak", "window_peak", "band_ticks", "over_ticks"):
             arrays[f"stats/{name}"] = getattr(b, name)[e].copy()
@@ -469,7 +440,7 @@ class _Session:
                 f"for seed {self.config.seed} (another version of eval.randomization?)"
             )
         ckpt.restore_env(b.rt, e, arrays, meta)
-        ckpt.restore_goals(self.goals, arrays, meta["goals"])
+        ckpt.restore_goals(self.goals, e, arrays, meta["goals"])
         for name in ("peak", "window_peak", "band_ticks", "over_ticks"):
             getattr(b, name)[e] = arrays[f"stats/{name}"]
         s = meta["session"]
@@ -511,7 +482,8 @@ class _Session:
                 }
             )
         sim_h = t_end / 3600.0
-        g = self.goals
+        g, e = self.goals, self.e
+        times = g.hit_times[e]
         responses = {r: 0 for r in RESPONSES}
         for ev in self.fault_events:
             responses[ev["response"]] += 1
@@ -537,10 +509,10 @@ class _Session:
                 "rate_per_hour": {k: (v / sim_h if sim_h > 0 else 0.0) for k, v in counts.items()},
             },
             "goals": {
-                "issued": g.goals,
-                "reached": g.hits,
-                "success_rate": g.hits / g.goals if g.goals else None,
-                "median_time_to_reach_s": float(np.median(g.times)) if g.times else None,
+                "issued": int(g.issued[e]),
+                "reached": int(g.hit_count[e]),
+                "success_rate": int(g.hit_count[e]) / int(g.issued[e]) if g.issued[e] else None,
+                "median_time_to_reach_s": float(np.median(times)) if times else None,
                 "within_s": self.config.success_time,
                 "period_s": self.config.goal_period,
             },
@@ -710,10 +682,17 @@ class SessionBatch:
         self.checkpoint_ticks = (
             _ticks(first.checkpoint_minutes * 60.0, dt) if first.checkpoint_minutes > 0 else 0
         )
+        self.goals = GoalScheduler(
+            robot,
+            k,
+            first.goal_period,
+            None,
+            first.success_time,
+            [session_rng(c.seed, "goals") for c in configs],
+        )
         self.sessions = [
             _Session(self, e, c, d) for e, (c, d) in enumerate(zip(configs, draws, strict=True))
         ]
-        self._goal_calls = [(s.goals, s.view) for s in self.sessions]
         self._next_event = self.every
         self._ruckig = mode != "torque"
         self._wall0 = time.perf_counter()
@@ -766,8 +745,7 @@ class SessionBatch:
             # the next step recalculates every trajectory from its input, in every env: the same
             # numbers whatever the neighbours (see the module docstring) and across a restore
             rt.smoother._ruckig.reset()
-        for goals, view in self._goal_calls:
-            goals(view)
+        self.goals(rt)
         temp = self.backend.thermal.winding_temperature
         np.maximum(self.peak, temp, out=self.peak)
         np.maximum(self.window_peak, temp, out=self.window_peak)
@@ -822,8 +800,8 @@ class SessionBatch:
                 c, e = s.curve, s.e
                 c["t_s"].append(t)
                 c["winding_c"].append([float(x) for x in self.window_peak[e]])
-                c["issued"].append(s.goals.goals)
-                c["reached"].append(s.goals.hits)
+                c["issued"].append(int(self.goals.issued[e]))
+                c["reached"].append(int(self.goals.hit_count[e]))
                 c["violations"].append({k: int(v[e]) for k, v in rt.guard.counts.items()})
                 c["mode"].append(int(rt.mode[e]))
             self.window_peak[:] = self.backend.thermal.winding_temperature

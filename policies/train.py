@@ -129,6 +129,43 @@ class ReachLogger(BaseCallback):
             self.save(self.model, self.history)
 
 
+class NoiseAnneal(BaseCallback):
+    """Anneals PPO's exploration noise during the last ``steps`` environment steps: every element
+    of ``policy.log_std`` moves linearly from its learned value to ``final_log_std`` (and is no
+    longer trained).
+
+    Why: the runtime runs the policy's mean action. A policy trained with large exploration noise
+    (gSDE with ``log_std_init = -2`` and 64 tanh features: an action noise of ~0.5) learns to let
+    the noise carry it out of configurations where its mean action is ~0; run deterministically it
+    stops there (measured on the 3 M-step policy: 56 % of goals reached without noise, 72 % with
+    Gaussian action noise of 0.3). Annealing makes the mean itself finish the motion.
+    """
+
+    def __init__(self, total_steps: int, steps: int, final_log_std: float):
+        super().__init__()
+        self.start = max(total_steps - steps, 0)
+        self.span = max(total_steps - self.start, 1)
+        self.final = final_log_std
+        self._initial = None
+
+    def _on_rollout_start(self) -> None:
+        if self.num_timesteps < self.start or not hasattr(self.model.policy, "log_std"):
+            return
+        log_std = self.model.policy.log_std
+        if self._initial is None:
+            self._initial = log_std.detach().clone()
+            log_std.requires_grad_(False)
+        frac = min((self.num_timesteps - self.start) / self.span, 1.0)
+        with torch.no_grad():
+            log_std.copy_(self._initial + frac * (self.final - self._initial))
+        if getattr(self.model, "use_sde", False):
+            self.model.policy.reset_noise(self.model.env.num_envs)
+        self.logger.record("reach/log_std_mean", float(log_std.mean()))
+
+    def _on_step(self) -> bool:
+        return True
+
+
 def actor_from_model(model: PPO | SAC) -> MLPActor:
     """The trained policy's deterministic action (PPO's Gaussian mean, SAC's ``tanh(mu)``) as an
     :class:`MLPActor` with the same weights, read as the export reads SB3 models
@@ -206,9 +243,12 @@ def train(args: argparse.Namespace) -> Path:
         save_checkpoint(args.out, actor, task.spec, info=info)
         return info
 
-    logger = ReachLogger(save, args.save_every)
+    callbacks = [ReachLogger(save, args.save_every)]
+    if args.anneal_steps and args.algo == "ppo":
+        callbacks.append(NoiseAnneal(args.steps, args.anneal_steps, args.final_log_std))
+    logger = callbacks[0]
     name = f"{args.algo}_{args.robot}"
-    model.learn(args.steps, callback=logger, progress_bar=True, tb_log_name=name)
+    model.learn(args.steps, callback=callbacks, progress_bar=True, tb_log_name=name)
     info = save(model, logger.history)
     wall = info["wall_seconds"]
     curve = args.out.with_suffix(".curve.json")
@@ -256,6 +296,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--log-std-init", type=float, default=-2.0)
     p.add_argument("--no-sde", dest="sde", action="store_false", help="Gaussian noise per tick")
     p.add_argument("--sde-sample-freq", type=int, default=8, help="ticks between gSDE draws")
+    p.add_argument(
+        "--anneal-steps",
+        type=int,
+        default=0,
+        help="PPO: anneal the exploration noise over this many final steps (0: off)",
+    )
+    p.add_argument("--final-log-std", type=float, default=-4.0, help="log_std after annealing")
     p.add_argument("--threads", type=int, default=1, help="torch threads (1: no spin-waits)")
     p.add_argument(
         "--no-randomize", dest="randomize", action="store_false", help="nominal dynamics only"

@@ -21,8 +21,7 @@ Modes (the robot's control modes):
         ``new_position``, clipped to the hard limits. Where the trajectory's position extrema leave
         the limits (a joint too fast to stop in time, typically right after a sync) the clip bites
         and ``extrema_violations`` counts it.
-    velocity: ``ControlInterface.Velocity``; target velocity clamped to +-velocity_limit (times
-        ``VELOCITY_HEADROOM``, room for the servo's overshoot, as in every mode) and to the
+    velocity: ``ControlInterface.Velocity``; target velocity clamped to +-velocity_limit and to the
         speed from which the joint can still stop before its hard limits (:func:`stopping_speed`
         of the distance left, counted in ``stopping_distance_clamps``); and set to 0 (Ruckig's
         time-optimal, hence shortest, brake) where one more period of the worst acceleration the
@@ -61,12 +60,6 @@ from robots import CONTROL_MODES, Robot
 #: magnitude slower than the drives' current loops (~1 ms) and faster than the arm's mechanical
 #: time constants, so it removes steps from the policy's output but not its intent.
 TORQUE_RISE_TIME = 0.05
-
-#: Commands are limited to this fraction of each joint's velocity limit: the drive's servo tracks
-#: a velocity command with some overshoot, and the joint itself must stay within the limit.
-#: Measured on arm3's velocity servo (kp 400, kd 30): true joint speed up to 3.24 rad/s under
-#: commands of at most 3.14 rad/s, 3 % over (``deploy-run --robot arm3 --duration 400``).
-VELOCITY_HEADROOM = 0.95
 
 #: Safety factor on the worst-case stopping distance below which the position extrema of a
 #: position-mode trajectory are checked exactly (farther from the limits they cannot reach them).
@@ -146,8 +139,7 @@ class CommandSmoother:
 
         # per-DoF limits, flat (envs * n,)
         self._lo, self._hi = tiled(robot.position_lower), tiled(robot.position_upper)
-        self._vmax = VELOCITY_HEADROOM * tiled(robot.velocity_limit)
-        self._amax = tiled(robot.acceleration_limit)
+        self._vmax, self._amax = tiled(robot.velocity_limit), tiled(robot.acceleration_limit)
         self._jmax, self._emax = tiled(robot.jerk_limit), tiled(robot.effort_limit)
         self._rate = self._emax * dt / TORQUE_RISE_TIME
         self._neg_vmax, self._neg_emax, self._neg_rate = -self._vmax, -self._emax, -self._rate

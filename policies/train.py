@@ -285,7 +285,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--algo", default="ppo", choices=["ppo", "sac"])
     p.add_argument("--gradient-steps", type=int, default=1, help="SAC: updates per batch step")
     p.add_argument("--mode", default="velocity", choices=["velocity", "position"])
-    p.add_argument("--steps", type=int, default=3_000_000, help="environment steps")
+    p.add_argument("--steps", type=int, default=6_000_000, help="environment steps")
     p.add_argument("--envs", type=int, default=16, help="robots per batch")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--n-steps", type=int, default=512, help="PPO rollout length per env")
@@ -299,7 +299,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--anneal-steps",
         type=int,
-        default=0,
+        default=2_000_000,
         help="PPO: anneal the exploration noise over this many final steps (0: off)",
     )
     p.add_argument("--final-log-std", type=float, default=-4.0, help="log_std after annealing")

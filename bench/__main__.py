@@ -41,7 +41,7 @@ FULL = {
     "tick_rounds": 5,
     "session_s": 120.0,
     "campaign_s": 15.0,
-    "campaign_envs": (1, 4, 16, 32),
+    "campaign_envs": (1, 4, 16, 32, 64, 128),
     "wallclock_s": 60.0,
     "profile_ticks": 5_000,
 }
@@ -91,7 +91,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument(
         "--campaign-envs",
         default=None,
-        help="envs per worker to try, comma list (default 1,4,16,32)",
+        help="envs per worker to try, comma list (default 1,4,16,32,64,128)",
     )
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="campaign processes")
     p.add_argument("--wallclock-robot", default="arm6", help="robot of the wallclock item")

@@ -33,18 +33,11 @@ import torch  # noqa: E402
 from deploy.checkpoint import MLPActor, ObservationNormalizer, save_checkpoint  # noqa: E402
 from deploy.export import load_source, run_export  # noqa: E402
 from deploy.policy import OnnxPolicy  # noqa: E402
-from deploy.spec import PolicySpec  # noqa: E402
+from deploy.spec import OBSERVATION_KINDS, PolicySpec  # noqa: E402
 from robots import load_robot  # noqa: E402
 
-BLOCKS = (
-    "joint_position",
-    "joint_velocity",
-    "ee_position",
-    "goal_position",
-    "goal_in_ee",
-    "last_action",
-    "winding_temperature",
-)
+#: Every observation block a robot without wrapping joints has (arm3, arm6).
+BLOCKS = tuple(k for k in OBSERVATION_KINDS if k != "joint_position_sincos")
 
 
 def time_calls(fn: Callable[[], object], calls: int, warmup: int = 500) -> np.ndarray:

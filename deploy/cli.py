@@ -105,7 +105,7 @@ class GoalScheduler:
         self.streams = list(rng) if isinstance(rng, (list, tuple)) else None
         if self.streams is not None and len(self.streams) != envs:
             raise ValueError(f"rng: expected {envs} generators (one per env), got {len(rng)}")
-        self.rng = rng
+        self.rng = rng if self.streams is None else None  # the batch's one stream
         self.success_radius = robot.config.task.success_radius
         self.success_time = success_time
         self.envs = envs
@@ -131,8 +131,7 @@ class GoalScheduler:
         if self.fixed is not None:
             rt.goal[e] = self.fixed
         else:
-            rng = self.rng if self.streams is None else self.streams[e]
-            rt.goal[e] = sample_goal(self.robot, rng)
+            rt.goal[e] = sample_goal(self.robot, self.streams[e] if self.streams else self.rng)
         self.t_goal[e] = rt.time
         self.reached[e] = False
         self.issued[e] += 1

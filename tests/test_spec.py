@@ -5,19 +5,10 @@ import json
 
 import numpy as np
 import pytest
+from helpers_policies import ARM3_BLOCKS as ALL_BLOCKS
 
 from deploy.spec import PolicySpec, SpecError
 from deploy.state import Kinematics, RobotState
-
-ALL_BLOCKS = (
-    "joint_position",
-    "joint_velocity",
-    "ee_position",
-    "goal_position",
-    "goal_in_ee",
-    "last_action",
-    "winding_temperature",
-)
 
 
 @pytest.fixture(scope="module")

@@ -282,8 +282,8 @@ class SimBackend:
     # ------------------------------------------------------------------ evaluation only
     def true_position(self) -> np.ndarray:
         """(envs, n_joints) rad, the simulator's joint angles (evaluation only)."""
-        for e, view in enumerate(self._views):
-            self._qpos[e] = view[3]
+        for e, (_m, _d, _ctrl, qpos, _force, _warnings) in enumerate(self._views):
+            self._qpos[e] = qpos
         return self._qpos
 
     def true_velocity(self) -> np.ndarray:

@@ -2,8 +2,9 @@
 
 One ``ruckig.Ruckig`` instance serves the whole batch: its degrees of freedom are the ``envs * n``
 joints (DoF ``e * n + j``), ``Synchronization.No`` makes them independent, ``delta_time`` is the
-robot's control period and the limits are the robot's per-joint velocity, acceleration and jerk
-limits, tiled over the envs. The result equals one instance per env to rounding (~1e-16), not bit
+robot's control period and the limits are the robot's per-joint soft velocity limit (the margin
+to the hard velocity limit absorbs the servo's overshoot), acceleration and jerk limits, tiled over
+the envs. The result equals one instance per env to rounding (~1e-16), not bit
 for bit: Ruckig recalculates only when its input changed, otherwise it samples the trajectory it
 has, and a batch's input changes whenever any env's target does.
 
@@ -21,13 +22,13 @@ Modes (the robot's control modes):
         ``new_position``, clipped to the hard limits. Where the trajectory's position extrema leave
         the limits (a joint too fast to stop in time, typically right after a sync) the clip bites
         and ``extrema_violations`` counts it.
-    velocity: ``ControlInterface.Velocity``; target velocity clamped to +-velocity_limit and to the
-        speed from which the joint can still stop before its hard limits (:func:`stopping_speed`
-        of the distance left, counted in ``stopping_distance_clamps``); and set to 0 (Ruckig's
-        time-optimal, hence shortest, brake) where one more period of the worst acceleration the
-        jerk limit allows would leave too little room to stop. Ruckig's integrated position thus
-        never passes a limit (unless a sync put the joint beyond saving). The command is Ruckig's
-        ``new_velocity``.
+    velocity: ``ControlInterface.Velocity``; target velocity clamped to +-soft_velocity_limit and
+        to the speed from which the joint can still stop before its hard limits
+        (:func:`stopping_speed` of the distance left, counted in ``stopping_distance_clamps``);
+        and set to 0 (Ruckig's time-optimal, hence shortest, brake) where one more period of the
+        worst acceleration the jerk limit allows would leave too little room to stop. Ruckig's
+        integrated position thus never passes a limit (unless a sync put the joint beyond
+        saving). The command is Ruckig's ``new_velocity``.
     torque: no Ruckig; the command is the target clamped to +-effort_limit and rate limited to
         ``effort_limit / TORQUE_RISE_TIME`` (N m/s).
 
@@ -139,7 +140,9 @@ class CommandSmoother:
 
         # per-DoF limits, flat (envs * n,)
         self._lo, self._hi = tiled(robot.position_lower), tiled(robot.position_upper)
-        self._vmax, self._amax = tiled(robot.velocity_limit), tiled(robot.acceleration_limit)
+        # commands stay within the soft velocity limit: the margin to the hard limit absorbs the
+        # servo's tracking overshoot (see ``Robot.soft_velocity_limit``)
+        self._vmax, self._amax = tiled(robot.soft_velocity_limit), tiled(robot.acceleration_limit)
         self._jmax, self._emax = tiled(robot.jerk_limit), tiled(robot.effort_limit)
         self._rate = self._emax * dt / TORQUE_RISE_TIME
         self._neg_vmax, self._neg_emax, self._neg_rate = -self._vmax, -self._emax, -self._rate

@@ -189,7 +189,7 @@ def make_model(args: argparse.Namespace, env) -> PPO | SAC:
             gamma=args.gamma,
             train_freq=1,
             gradient_steps=args.gradient_steps,
-            policy_kwargs={"net_arch": {"pi": list(HIDDEN), "qf": [256, 256]}},
+            policy_kwargs={"net_arch": {"pi": list(args.hidden), "qf": [256, 256]}},
             **common,
         )
     return PPO(
@@ -208,7 +208,7 @@ def make_model(args: argparse.Namespace, env) -> PPO | SAC:
         use_sde=args.sde,
         sde_sample_freq=args.sde_sample_freq,
         policy_kwargs={
-            "net_arch": {"pi": list(HIDDEN), "vf": [128, 128]},
+            "net_arch": {"pi": list(args.hidden), "vf": [128, 128]},
             "log_std_init": args.log_std_init,
             "activation_fn": torch.nn.Tanh,
         },
@@ -293,6 +293,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--epochs", type=int, default=10)
     p.add_argument("--learning-rate", type=float, default=3e-4)
     p.add_argument("--gamma", type=float, default=0.99)
+    p.add_argument(
+        "--hidden",
+        type=lambda s: tuple(int(x) for x in s.split(",")),
+        default=HIDDEN,
+        help="actor hidden layer widths, e.g. 64,64",
+    )
     p.add_argument("--log-std-init", type=float, default=-2.0)
     p.add_argument("--no-sde", dest="sde", action="store_false", help="Gaussian noise per tick")
     p.add_argument("--sde-sample-freq", type=int, default=8, help="ticks between gSDE draws")

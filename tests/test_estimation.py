@@ -11,7 +11,7 @@ from deploy.estimation import JointStateEstimator
 from deploy.state import RobotState
 from robots import load_robot
 
-IMPLEMENTATIONS = ("vectorized", "filterpy")
+IMPLEMENTATIONS = ("compiled", "vectorized", "filterpy")
 
 
 def frame(time, position, stamp, envs=1, n=3, temperature=30.0):
@@ -30,13 +30,14 @@ def sinusoid(robot, t):
     return (robot.home + 0.5 * np.sin(np.pi * t))[None, :]
 
 
-def test_vectorized_equals_filterpy_reference_for_10000_ticks(arm3):
+@pytest.mark.parametrize("implementation", ["compiled", "vectorized"])
+def test_fast_paths_equal_filterpy_reference_for_10000_ticks(arm3, implementation):
     envs = 2
     plant = SimBackend(arm3, mode="position", envs=envs, seed=7)
     plant.dropout_probability[:] = 0.1
     plant.latency_ticks[:] = [2, 3]
     plant.reset()
-    fast = JointStateEstimator(arm3, envs, implementation="vectorized")
+    fast = JointStateEstimator(arm3, envs, implementation=implementation)
     reference = JointStateEstimator(arm3, envs, implementation="filterpy")
     states = [RobotState.zeros(envs, 3), RobotState.zeros(envs, 3)]
     for est in (fast, reference):

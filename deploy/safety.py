@@ -239,13 +239,14 @@ class SafetyGuard:
             # soft limits: clamp positions into the soft band
             np.logical_or(out < self.soft_lower, out > self.soft_upper, out=self._mask)
             counts["soft_limit"] += self._mask.any(axis=1)
-            np.clip(out, self.soft_lower, self.soft_upper, out=out)
+            np.minimum(np.maximum(out, self.soft_lower, out=out), self.soft_upper, out=out)
             self._pred[:] = out
         elif self.mode == "velocity":
             v_up, v_down = self._velocity_band(q, commanded_position)
             np.logical_or(out > v_up, out < -v_down, out=self._mask)
             counts["velocity"] += self._mask.any(axis=1)
-            np.clip(out, -v_down, v_up, out=out)
+            np.negative(v_down, out=v_down)
+            np.minimum(np.maximum(out, v_down, out=out), v_up, out=out)
             np.logical_or(q > self.soft_upper, q < self.soft_lower, out=self._mask)
             counts["soft_limit"] += self._mask.any(axis=1)
             np.multiply(out, self.dt, out=self._pred)

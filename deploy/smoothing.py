@@ -452,7 +452,7 @@ class CommandSmoother:
 
     def _step_position(self) -> None:
         raw, goal, out, cmd = self._raw, self._goal, self._out, self._cmd
-        np.clip(raw, self._lo, self._hi, out=goal)
+        np.minimum(np.maximum(raw, self._lo, out=goal), self._hi, out=goal)
         self._count_changed(self.target_clamps_per_joint, raw, goal)
         self._inp.target_position = goal
         self._update()
@@ -462,7 +462,7 @@ class CommandSmoother:
         self._acc[:] = out.new_acceleration
         if out.new_calculation:
             self._check_extrema()
-        np.clip(cmd, self._lo, self._hi, out=cmd)
+        np.minimum(np.maximum(cmd, self._lo, out=cmd), self._hi, out=cmd)
         np.copyto(self._cmd_position, cmd)
         out.pass_to_input(self._inp)
 
@@ -496,7 +496,7 @@ class CommandSmoother:
 
     def _step_velocity(self) -> None:
         raw, goal, out, tmp = self._raw, self._goal, self._out, self._tmp
-        np.clip(raw, self._neg_vmax, self._vmax, out=goal)
+        np.minimum(np.maximum(raw, self._neg_vmax, out=goal), self._vmax, out=goal)
         self._count_changed(self.target_clamps_per_joint, raw, goal)
         np.copyto(goal, 0.0, where=self._stop_dof)
         np.copyto(raw, goal)
@@ -551,7 +551,7 @@ class CommandSmoother:
         np.add(t2, self._jdt2_2, out=t2)
         np.maximum(t2, 0.0, out=t2)
         np.add(b, self._jdt, out=t3)
-        np.clip(t3, 0.0, self._amax, out=t3)
+        np.minimum(np.maximum(t3, 0.0, out=t3), self._amax, out=t3)
         # braking distance from (u1, b1)
         np.multiply(t3, self._inv_j, out=t1)  # b1 / j
         np.multiply(t2, t1, out=b)  # u1 b1 / j

@@ -384,7 +384,7 @@ class PolicySpec:
         a = self.action
         if out is None:
             out = np.empty(action.shape, dtype=np.float64)
-        np.clip(action, -a.clip, a.clip, out=out)
+        np.minimum(np.maximum(action, -a.clip, out=out), a.clip, out=out)
         out *= a.scale
         out += state.q if a.reference == "current" else a.offset
         return out

@@ -148,9 +148,9 @@ def apply_dynamics(spec: mujoco.MjSpec, robot: Robot, dynamics: Dynamics, mode: 
         body.inertia = np.asarray(body.inertia) * (m * s * s)
         joint.frictionloss = joint.frictionloss * dynamics.friction[i]
         joint.damping = joint.damping * dynamics.damping[i]
-    for i, name in enumerate(robot.joint_names):
-        act = spec.actuator(f"{name}_{mode}")
-        k = dynamics.actuator_strength[i]
+    strength = dict(zip(robot.joint_names, dynamics.actuator_strength, strict=True))
+    for act in spec.actuators:  # every actuator of a joint (velocity mode: the PI loop's two)
+        k = strength[act.target]
         if mode == "torque":
             gear = np.asarray(act.gear)
             gear[0] *= k

@@ -112,13 +112,19 @@ class Robot:
         return self.config.control.mode
 
     def mjspec(self, mode: str | None = None) -> mujoco.MjSpec:
-        """A fresh ``mujoco.MjSpec`` of the robot with one actuator per joint for ``mode``.
+        """A fresh ``mujoco.MjSpec`` of the robot with its drives for ``mode``.
 
-        Position mode: a PD servo (``kp``, ``kd``); velocity mode: an integrating velocity servo
-        (MuJoCo ``intvelocity``: the command is integrated into a setpoint held by the same PD
-        servo, as a drive's PI velocity loop holds a joint at zero velocity); torque mode: a direct
-        motor. Forces are limited to ``effort_limit``. Edit the returned spec
-        (for example to randomize link lengths) and ``compile()`` it.
+        Position mode: a PD servo per joint (``kp``, ``kd``). Velocity mode: a drive's PI velocity
+        loop, ``tau = kd (v_cmd - dq) + kp (s - q)`` with the setpoint ``s`` the integral of the
+        command (bounded to the joint range), as two actuators per joint that take the same
+        command: ``<joint>_velocity`` (MuJoCo ``intvelocity`` with ``kp``: the integral term) and
+        ``<joint>_velocity_p`` (MuJoCo ``velocity`` with ``kd``: the proportional term). The
+        proportional term on the command matters: a servo that damps ``dq`` instead of
+        ``v_cmd - dq`` lags ``a kd / kp`` behind an accelerating command (1.5 rad/s at 20 rad/s^2
+        on arm3) and overshoots when it catches up. Torque mode: a direct motor. The total
+        actuator torque on each joint is limited to ``effort_limit`` (MuJoCo
+        ``actuatorfrcrange``). Edit the returned spec (for example to randomize link lengths)
+        and ``compile()`` it; :meth:`actuators_per_joint` gives ``nu / n_joints``.
 
         Raises:
             RobotSpecError: unknown control mode.
@@ -132,29 +138,45 @@ class Robot:
         spec = mujoco.MjSpec.from_file(str(self.mjcf_path))
         spec.option.timestep = self.physics_timestep
         spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
-        for i, joint in enumerate(self.config.joints):
+
+        def add(name: str, joint: str, lo: float, hi: float) -> mujoco.MjsActuator:
             act = spec.add_actuator()
-            act.name = f"{joint.name}_{mode}"
-            act.target = joint.name
-            act.trntype = mujoco.mjtTrn.mjTRN_JOINT
+            act.name, act.target, act.trntype = name, joint, mujoco.mjtTrn.mjTRN_JOINT
+            act.ctrlrange = [lo, hi]
+            act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            return act
+
+        for i, joint in enumerate(self.config.joints):
+            mj_joint = spec.joint(joint.name)
+            mj_joint.actfrcrange = [-self.effort_limit[i], self.effort_limit[i]]
+            mj_joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            lo, hi = self.position_lower[i], self.position_upper[i]
             if mode == "position":
-                act.set_to_position(kp=joint.kp, kv=joint.kd)
-                act.ctrlrange = [self.position_lower[i], self.position_upper[i]]
-            elif mode == "velocity":
-                # A drive's velocity loop has integral action: a zero command holds the joint
-                # against gravity. MuJoCo's intvelocity integrates the command into a setpoint
-                # (bounded to the joint range) that a PD servo tracks.
-                act.set_to_intvelocity(kp=joint.kp, kv=joint.kd)
-                act.ctrlrange = [-self.velocity_limit[i], self.velocity_limit[i]]
+                add(f"{joint.name}_position", joint.name, lo, hi).set_to_position(
+                    kp=joint.kp, kv=joint.kd
+                )
+            elif mode == "torque":
+                add(f"{joint.name}_torque", joint.name, -self.effort_limit[i], self.effort_limit[i])
+                spec.actuators[-1].set_to_motor()
+        if mode == "velocity":  # all integral terms first, then all proportional terms
+            for i, joint in enumerate(self.config.joints):
+                vmax = self.velocity_limit[i]
+                act = add(f"{joint.name}_velocity", joint.name, -vmax, vmax)
+                act.set_to_intvelocity(kp=joint.kp, kv=0.0)
                 act.actrange = [self.position_lower[i], self.position_upper[i]]
                 act.actlimited = mujoco.mjtLimited.mjLIMITED_TRUE
-            else:
-                act.set_to_motor()
-                act.ctrlrange = [-self.effort_limit[i], self.effort_limit[i]]
-            act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
-            act.forcerange = [-self.effort_limit[i], self.effort_limit[i]]
-            act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            for i, joint in enumerate(self.config.joints):
+                vmax = self.velocity_limit[i]
+                add(f"{joint.name}_velocity_p", joint.name, -vmax, vmax).set_to_velocity(
+                    kv=joint.kd
+                )
         return spec
+
+    def actuators_per_joint(self, mode: str | None = None) -> int:
+        """Actuators per joint of :meth:`mjspec` in ``mode`` (2 in velocity mode, else 1); each
+        takes the joint's command, ordered ``[all joints' first, all joints' second]``."""
+        mode = self.control_mode if mode is None else mode
+        return 2 if mode == "velocity" else 1
 
     def plant_model(self, mode: str | None = None) -> mujoco.MjModel:
         """Compiled MuJoCo model with actuators for ``mode`` (see :meth:`mjspec`)."""

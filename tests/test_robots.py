@@ -82,9 +82,12 @@ def test_plant_models_per_control_mode():
     arm = load_robot("arm3")
     for mode in ("position", "velocity", "torque"):
         m = arm.plant_model(mode)
-        assert m.nu == 3
+        assert m.nu == 3 * arm.actuators_per_joint(mode)
         assert m.opt.disableflags & 65536  # mjDSBL_AUTORESET
-        np.testing.assert_allclose(m.actuator_forcerange[:, 1], arm.effort_limit)
+        # the total actuator torque on each joint is limited to the effort limit
+        assert m.jnt_actfrclimited.all()
+        np.testing.assert_allclose(m.jnt_actfrcrange[:, 1], arm.effort_limit)
+        np.testing.assert_allclose(m.jnt_actfrcrange[:, 0], -arm.effort_limit)
     with pytest.raises(RobotSpecError, match="control mode 'force' is unknown"):
         arm.mjspec("force")
 

@@ -62,8 +62,9 @@ class SimBackend:
 
     Args:
         robot: The robot description.
-        mode: Control mode, 'position' (rad), 'velocity' (rad/s, an integrating velocity servo that
-            holds the joint at zero command) or 'torque' (N m); default from robot.toml.
+        mode: Control mode, 'position' (rad), 'velocity' (rad/s, a drive's PI velocity loop with
+            anti-windup, which holds the joint at zero command; see ``Robot.mjspec``) or 'torque'
+            (N m); default from robot.toml.
         envs: Number of robots simulated in lockstep.
         seed: Seed of the sensor noise and dropout streams (``numpy.random.PCG64``).
         models: Optional compiled models, one per env (randomized dynamics). They must come from
@@ -96,12 +97,15 @@ class SimBackend:
             models = [shared] * envs
         if len(models) != envs:
             raise ValueError(f"models: expected {envs} models (one per env), got {len(models)}")
+        self._nu = n * robot.actuators_per_joint(mode)
         for m in models:
-            if m.nu != n or m.nq != n:
-                raise ValueError(f"models: expected nq = nu = {n}, got nq={m.nq}, nu={m.nu}")
+            self._check_model(m, "models")
         self.models = list(models)
         self.datas = [mujoco.MjData(m) for m in self.models]
         self._views: list[tuple] = [()] * envs
+        self._windup_bound = np.zeros((envs, n))
+        self._lag = np.zeros((envs, n))
+        self._abs_lag = np.zeros((envs, n))
         for e in range(envs):
             self._bind(e)
         self.decimation = robot.decimation
@@ -166,7 +170,7 @@ class SimBackend:
                 self._command[e] = 0.0
             else:
                 self._command[e] = d.qfrc_bias
-            d.ctrl[:] = self._command[e]
+            self._views[e][2][:] = self._command[e]
         if envs is None:
             self.thermal.reset()
             self._buf_position.fill(np.nan)
@@ -191,19 +195,30 @@ class SimBackend:
         Raises:
             ValueError: the model's joint or actuator count differs from the robot's.
         """
-        if model.nu != self.n_joints or model.nq != self.n_joints:
-            raise ValueError(
-                f"model: expected nq = nu = {self.n_joints}, got nq={model.nq}, nu={model.nu}"
-            )
+        self._check_model(model, "model")
         self.models[env] = model
         self.datas[env] = mujoco.MjData(model)
         self._bind(env)
 
+    def _check_model(self, m: mujoco.MjModel, what: str) -> None:
+        n = self.n_joints
+        if m.nq != n or m.nu != self._nu:
+            raise ValueError(
+                f"{what}: expected nq = {n} and nu = {self._nu} ({self.mode} mode), "
+                f"got nq={m.nq}, nu={m.nu}"
+            )
+
     def _bind(self, e: int) -> None:
-        """Cache env ``e``'s model, data and the views the hot path touches (ctrl, qpos,
-        actuator_force, divergence warning counters): attribute lookups on MjData cost ~0.5 us."""
+        """Cache env ``e``'s model, data and the views the hot path touches (ctrl as
+        (actuators per joint, n): every actuator of a joint takes its command; qpos; the joint
+        actuator torque ``qfrc_actuator``, clamped to the effort limit; divergence warning
+        counters): attribute lookups on MjData cost ~0.5 us."""
         m, d = self.models[e], self.datas[e]
-        self._views[e] = (m, d, d.ctrl, d.qpos, d.actuator_force, d.warning.number[_WARNING_SLICE])
+        ctrl = d.ctrl.reshape(-1, self.n_joints)
+        self._views[e] = (m, d, ctrl, d.qpos, d.qfrc_actuator, d.warning.number[_WARNING_SLICE])
+        if self.mode == "velocity":  # the setpoint's anti-windup bound (see :meth:`advance`)
+            kp = m.actuator_gainprm[: self.n_joints, 0]
+            self._windup_bound[e] = self.robot.effort_limit / kp
 
     @property
     def time(self) -> float:
@@ -265,6 +280,8 @@ class SimBackend:
         if not np.isfinite(qpos).all():  # bad values after the last substep
             for e, d in enumerate(self.datas):
                 self._check_divergence(e, d)
+        if self.mode == "velocity":
+            self._anti_windup()
         self.tick += 1
         self.thermal.step(self._torque, self.control_period)
         self._sample_sensors()
@@ -302,6 +319,26 @@ class SimBackend:
         return np.stack([d.site_xpos[sid] for d in self.datas])
 
     # ------------------------------------------------------------------ internals
+    def _anti_windup(self) -> None:
+        """Velocity mode: keep each drive's setpoint within ``effort_limit / kp`` of its joint.
+
+        The integral term of the PI velocity loop, ``kp (s - q)``, then never asks for more than
+        the drive's peak torque: when the torque saturates (a command accelerating faster than the
+        motor can under load) the setpoint stops running ahead, and the joint does not overshoot
+        the commanded speed to catch up afterwards (clamping anti-windup, K. J. Astrom and T.
+        Hagglund, *Advanced PID Control*, ISA 2006, sec. 3.5). Applied once per control period.
+        """
+        lag, bound = self._lag, self._windup_bound
+        for e, d in enumerate(self.datas):
+            lag[e] = d.act
+        lag -= self._qpos
+        np.abs(lag, out=self._abs_lag)
+        wound = self._abs_lag > bound
+        if np.count_nonzero(wound):
+            for e in np.flatnonzero(wound.any(axis=1)):
+                q = self._qpos[e]
+                np.clip(self.datas[e].act, q - bound[e], q + bound[e], out=self.datas[e].act)
+
     def _check_divergence(self, env: int, d: mujoco.MjData) -> None:
         bad = [w.name for w in _DIVERGENCE_WARNINGS if d.warning[w].number > 0]
         if bad or not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):

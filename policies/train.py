@@ -9,6 +9,11 @@ Why PPO: it is the seed's algorithm, and with one batched MuJoCo plant stepping 
 call it turns the machine's two cores into samples faster than SAC's one gradient step per sample
 would (SAC spends most of its wall time in updates at this simulation speed).
 
+Why 64 robots per batch with 128-step rollouts (the same 8,192 samples per update as 16 x 512):
+the policy's forward pass per step is shared by more robots (11,000 steps/s against 6,400 with
+16), and the more diverse rollouts learned faster per sample (success 0.81 at 2.4 M steps against
+0.55 at 2 M).
+
 The result is converted to our checkpoint format (:func:`deploy.checkpoint.save_checkpoint`): the
 PPO actor's mean network becomes an :class:`~deploy.checkpoint.MLPActor` with the same weights, and
 the PolicySpec the env used travels with it.
@@ -285,10 +290,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--algo", default="ppo", choices=["ppo", "sac"])
     p.add_argument("--gradient-steps", type=int, default=1, help="SAC: updates per batch step")
     p.add_argument("--mode", default="velocity", choices=["velocity", "position"])
-    p.add_argument("--steps", type=int, default=6_000_000, help="environment steps")
-    p.add_argument("--envs", type=int, default=16, help="robots per batch")
+    p.add_argument("--steps", type=int, default=12_000_000, help="environment steps")
+    p.add_argument("--envs", type=int, default=64, help="robots per batch")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--n-steps", type=int, default=512, help="PPO rollout length per env")
+    p.add_argument("--n-steps", type=int, default=128, help="PPO rollout length per env")
     p.add_argument("--batch-size", type=int, default=1024)
     p.add_argument("--epochs", type=int, default=10)
     p.add_argument("--learning-rate", type=float, default=3e-4)
@@ -305,7 +310,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--anneal-steps",
         type=int,
-        default=2_000_000,
+        default=4_000_000,
         help="PPO: anneal the exploration noise over this many final steps (0: off)",
     )
     p.add_argument("--final-log-std", type=float, default=-4.0, help="log_std after annealing")

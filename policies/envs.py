@@ -24,8 +24,7 @@ Reward per control tick (:class:`RewardConfig`, seed section 6 coefficients by d
     + soft_limit     per joint beyond the soft limit (90 % of the range)      (negative)
     + workspace      end effector outside the guard's workspace box            (negative; ours:
                      the runtime's guard would reject the command and hold)
-    + hard_limit     at a hard limit (of the true joint angle or of the estimate the
-                     runtime's guard checks), and the episode terminates       (negative)
+    + hard_limit     at a hard limit, and the episode terminates                (negative)
     - energy   * sum |tau * dq|                                                  (W)
     - jerk     * |dq - dq_prev| / dt     (the seed's "jerk": rate of change of velocity)
     + survival
@@ -246,10 +245,7 @@ class ReachTask:
         q = self.backend.true_position()
         dq = self.backend.true_velocity()
         tau = self.backend.joint_torque()
-        # a hard limit as the joint crosses it, or as the runtime's guard sees it cross (the guard
-        # safe-stops on the estimate, which is ~0.02 rad noisy near the limits)
         hard = ((q < robot.position_lower) | (q > robot.position_upper)).any(axis=1)
-        hard |= ((state.q < robot.position_lower) | (state.q > robot.position_upper)).any(axis=1)
         soft = ((q < robot.soft_lower) | (q > robot.soft_upper)).sum(axis=1)
         ee = self.backend.end_effector_position()
         outside = ((ee < self._ws_min) | (ee > self._ws_max)).any(axis=1)

@@ -168,10 +168,10 @@ class JointStateEstimator:
         # the compiled kernel's per-joint constants (contiguous (n,) arrays)
         self._b0 = np.ascontiguousarray(self.covariance_bound[:, 0])
         self._b1 = np.ascontiguousarray(self.covariance_bound[:, 1])
-        if implementation == "compiled":  # compile (or load numba's cache) now, not in a tick
-            scratch = RobotState.zeros(envs, n)
-            frame = SensorFrame.empty(envs, n)
-            kalman_tick(2, *self._kernel_args(frame, scratch))
+        if implementation == "compiled":  # compile (or load numba's cache) now, not in a tick,
+            # on copies: the call writes its outputs (time_since_fresh among them)
+            args = self._kernel_args(SensorFrame.empty(envs, n), RobotState.zeros(envs, n))
+            kalman_tick(2, *(np.copy(a) for a in args))
 
         self._kfs: list[list[KalmanFilter]] = []
         if implementation == "filterpy":

@@ -103,6 +103,7 @@ class SimBackend:
         self.models = list(models)
         self.datas = [mujoco.MjData(m) for m in self.models]
         self._views: list[tuple] = [()] * envs
+        self._acts: list[np.ndarray] = [np.empty(0)] * envs  # velocity mode: drive setpoints
         self._windup_bound = np.zeros((envs, n))
         self._lag = np.zeros((envs, n))
         self._abs_lag = np.zeros((envs, n))
@@ -216,7 +217,8 @@ class SimBackend:
         m, d = self.models[e], self.datas[e]
         ctrl = d.ctrl.reshape(-1, self.n_joints)
         self._views[e] = (m, d, ctrl, d.qpos, d.qfrc_actuator, d.warning.number[_WARNING_SLICE])
-        if self.mode == "velocity":  # the setpoint's anti-windup bound (see :meth:`advance`)
+        if self.mode == "velocity":  # the setpoints and their anti-windup bound
+            self._acts[e] = d.act
             kp = m.actuator_gainprm[: self.n_joints, 0]
             self._windup_bound[e] = self.robot.effort_limit / kp
 
@@ -328,16 +330,16 @@ class SimBackend:
         the commanded speed to catch up afterwards (clamping anti-windup, K. J. Astrom and T.
         Hagglund, *Advanced PID Control*, ISA 2006, sec. 3.5). Applied once per control period.
         """
-        lag, bound = self._lag, self._windup_bound
-        for e, d in enumerate(self.datas):
-            lag[e] = d.act
+        lag, bound, acts = self._lag, self._windup_bound, self._acts
+        for e, act in enumerate(acts):
+            lag[e] = act
         lag -= self._qpos
         np.abs(lag, out=self._abs_lag)
         wound = self._abs_lag > bound
         if np.count_nonzero(wound):
             for e in np.flatnonzero(wound.any(axis=1)):
                 q = self._qpos[e]
-                np.clip(self.datas[e].act, q - bound[e], q + bound[e], out=self.datas[e].act)
+                np.clip(acts[e], q - bound[e], q + bound[e], out=acts[e])
 
     def _check_divergence(self, env: int, d: mujoco.MjData) -> None:
         bad = [w.name for w in _DIVERGENCE_WARNINGS if d.warning[w].number > 0]

@@ -8,9 +8,11 @@ Checks, each with its own counter (``SafetyGuard.counts[name]``, (envs,) int64),
 - ``hard_limit``: target position beyond the hard limit, or the estimated (or, in velocity mode,
   predicted) position beyond it. A violation: :attr:`SafetyGuard.hard_violation` is set and the
   runtime makes a safe stop.
-- ``velocity``: a velocity that could not stop before the soft limit at the acceleration limit,
-  ``|v| <= sqrt(2 a_max d)`` with ``d`` the distance left: velocity limits that shrink to zero at
-  the position limits. Clamp.
+- ``velocity``: a velocity that could not stop before the soft limit, ``d`` the distance left:
+  velocity limits that shrink to zero at the position limits. Clamp. Position and velocity mode:
+  under the acceleration and jerk limits with one control period of delay,
+  ``v dt + v^2 / (2 a) + v a / (2 j) <= d``; torque mode: ``|v| <= sqrt(2 a_max d)``. (In velocity
+  mode the smoother also brakes exactly at the soft limits from Ruckig's own state.)
 - ``workspace``: end effector of the predicted next state outside the workspace box (and not moving
   back toward it). Reject and hold.
 - ``self_collision``: a listed collision pair in contact at the predicted next state (coal).
@@ -41,6 +43,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from deploy.smoothing import stopping_speed
 from deploy.state import RobotState
 from deploy.thermal import derating_factor
 from robots import Robot
@@ -114,6 +117,7 @@ class SafetyGuard:
         self.lower, self.upper = robot.position_lower, robot.position_upper
         self.soft_lower, self.soft_upper = robot.soft_lower, robot.soft_upper
         self.acc = robot.acceleration_limit
+        self.jerk = robot.jerk_limit
         self.vel = robot.velocity_limit
         s = robot.config.safety
         self.ws_min = np.array(s.workspace_min)
@@ -320,13 +324,20 @@ class SafetyGuard:
 
     def _velocity_band(self, q: np.ndarray, commanded: np.ndarray | None):
         """(v_up, v_down) >= 0, (envs, n): speeds from which each joint still stops before its
-        soft limit at the acceleration limit, ``sqrt(2 a d)``, capped at the velocity limit."""
+        soft limit, capped at the velocity limit. Position and velocity mode: under the
+        acceleration and jerk limits of the smoother's trajectories, the brake beginning one
+        control period later (:func:`deploy.smoothing.stopping_speed`). Torque mode (no Ruckig,
+        the torque governor brakes): ``sqrt(2 a d)``."""
         upper = q if commanded is None else np.maximum(q, commanded)
         lower = q if commanded is None else np.minimum(q, commanded)
         d_up = np.maximum(self.soft_upper - upper, 0.0)
         d_down = np.maximum(lower - self.soft_lower, 0.0)
-        v_up = np.minimum(np.sqrt(2.0 * self.acc * d_up), self.vel)
-        v_down = np.minimum(np.sqrt(2.0 * self.acc * d_down), self.vel)
+        if self.mode == "torque":
+            v_up = np.minimum(np.sqrt(2.0 * self.acc * d_up), self.vel)
+            v_down = np.minimum(np.sqrt(2.0 * self.acc * d_down), self.vel)
+        else:
+            v_up = np.minimum(stopping_speed(d_up, self.acc, self.jerk, self.dt), self.vel)
+            v_down = np.minimum(stopping_speed(d_down, self.acc, self.jerk, self.dt), self.vel)
         return v_up, v_down
 
     def _hold(self, e: int, q: np.ndarray, out: np.ndarray) -> None:

@@ -23,12 +23,14 @@ Modes (the robot's control modes):
         the limits (a joint too fast to stop in time, typically right after a sync) the clip bites
         and ``extrema_violations`` counts it.
     velocity: ``ControlInterface.Velocity``; target velocity clamped to +-soft_velocity_limit and
-        to the speed from which the joint can still stop before its hard limits
+        to the speed from which the joint can still stop before its *soft* limits
         (:func:`stopping_speed` of the distance left, counted in ``stopping_distance_clamps``);
         and set to 0 (Ruckig's time-optimal, hence shortest, brake) where one more period of the
         worst acceleration the jerk limit allows would leave too little room to stop. Ruckig's
-        integrated position thus never passes a limit (unless a sync put the joint beyond
-        saving). The command is Ruckig's ``new_velocity``.
+        integrated position thus never passes a soft limit (unless a sync put the joint beyond
+        saving), the velocity-mode analogue of the guard clamping position targets to the soft
+        limits; the margin to the hard limits is left to the drive's tracking error and the
+        estimator's noise. The command is Ruckig's ``new_velocity``.
     torque: no Ruckig; the command is the target clamped to +-effort_limit and rate limited to
         ``effort_limit / TORQUE_RISE_TIME`` (N m/s).
 
@@ -91,11 +93,12 @@ def stopping_distance(velocity, acceleration_limit, jerk_limit):
     return v * v / (2.0 * acceleration_limit) + v * acceleration_limit / (2.0 * jerk_limit)
 
 
-def stopping_speed(distance, acceleration_limit, jerk_limit):
-    """Largest speed, rad/s, from which a joint stops within ``distance`` (rad, >= 0): the inverse
-    of :func:`stopping_distance`, ``(sqrt((a^2/j)^2 + 8 a d) - a^2/j) / 2``. Arrays broadcast."""
-    c = acceleration_limit**2 / jerk_limit
-    return 0.5 * (np.sqrt(c * c + 8.0 * acceleration_limit * np.maximum(distance, 0.0)) - c)
+def stopping_speed(distance, acceleration_limit, jerk_limit, latency=0.0):
+    """Largest speed, rad/s, from which a joint stops within ``distance`` (rad, >= 0) when the
+    brake begins ``latency`` s (>= 0) later: the inverse of ``v latency + stopping_distance(v)``,
+    ``(sqrt(b^2 + 8 a d) - b) / 2`` with ``b = a^2 / j + 2 a latency``. Arrays broadcast."""
+    b = acceleration_limit**2 / jerk_limit + 2.0 * acceleration_limit * latency
+    return 0.5 * (np.sqrt(b * b + 8.0 * acceleration_limit * np.maximum(distance, 0.0)) - b)
 
 
 class CommandSmoother:
@@ -139,7 +142,16 @@ class CommandSmoother:
             return np.tile(np.asarray(values, dtype=np.float64), envs)
 
         # per-DoF limits, flat (envs * n,)
-        self._lo, self._hi = tiled(robot.position_lower), tiled(robot.position_upper)
+        # position bounds of the commanded trajectory. Position mode: the hard limits (a backstop;
+        # the guard has clamped the targets to the soft limits already). Velocity mode: the soft
+        # limits, the velocity-mode analogue of the guard's clamp: only Ruckig knows its own
+        # acceleration, and a joint accelerating toward a limit needs a / j more time to brake
+        # than any velocity-only rule allows for; the margin to the hard limits is then left to
+        # the drive's tracking error and the estimator's noise.
+        if mode == "velocity":
+            self._lo, self._hi = tiled(robot.soft_lower), tiled(robot.soft_upper)
+        else:
+            self._lo, self._hi = tiled(robot.position_lower), tiled(robot.position_upper)
         # commands stay within the soft velocity limit: the margin to the hard limit absorbs the
         # servo's tracking overshoot (see ``Robot.soft_velocity_limit``)
         self._vmax, self._amax = tiled(robot.soft_velocity_limit), tiled(robot.acceleration_limit)

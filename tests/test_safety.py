@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from deploy.safety import CHECKS, SafetyGuard, motion_bounds
+from deploy.smoothing import stopping_distance
 from deploy.state import RobotState
 
 
@@ -57,3 +58,22 @@ def test_motion_bounds_bound_the_motion_and_gravity(arm6):
         moved = np.linalg.norm(arm6.forward_kinematics(q + dq) - arm6.forward_kinematics(q))
         assert moved <= sweep * np.abs(dq).sum()
         assert np.all(np.abs(arm6.gravity_torque(q)) <= gravity_bound + 1e-9)
+
+
+def test_velocity_band_leaves_room_to_brake_before_the_soft_limit(arm3):
+    """Velocity mode: a target the guard lets through can still be braked to rest before the soft
+    limit under the jerk limit, with the brake starting one control period later."""
+    robot, envs = arm3, 64
+    guard = SafetyGuard(robot, envs, "velocity")
+    rng = np.random.default_rng(3)
+    state = RobotState.zeros(envs, robot.n_joints)
+    state.q[:] = rng.uniform(robot.soft_lower, robot.soft_upper, state.q.shape)
+    target = rng.choice([-1.0, 1.0], state.q.shape) * robot.velocity_limit
+    out = guard.filter(target.copy(), state)
+    room = np.where(out > 0, robot.soft_upper - state.q, state.q - robot.soft_lower)
+    need = np.abs(out) * robot.control_period + stopping_distance(
+        out, robot.acceleration_limit, robot.jerk_limit
+    )
+    assert (need <= room + 1e-9).all()
+    assert (np.abs(out) < robot.velocity_limit).any()  # the band did clamp
+    assert not guard.hard_violation.any()

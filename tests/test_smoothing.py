@@ -87,18 +87,23 @@ def test_commands_respect_every_limit(robot, mode):
     assert np.abs(v).max() > 0.9 * robot.soft_velocity_limit.min()  # the test really moved
 
 
-def test_velocity_mode_stops_before_the_hard_limit(robot):
+@pytest.mark.parametrize("direction", [1.0, -1.0])
+def test_velocity_mode_stops_at_the_soft_limit(robot, direction):
+    """Full speed toward a limit: the commanded trajectory brakes in time and comes to rest at the
+    soft limit, leaving the margin to the hard limit to the drive's tracking error."""
     smoother = CommandSmoother(robot, 1, "velocity")
     n, dt = robot.n_joints, robot.control_period
-    q0 = robot.position_upper - 1.0  # 1 rad from the upper limits
+    q0 = (robot.soft_upper - 1.0) if direction > 0 else (robot.soft_lower + 1.0)  # 1 rad away
     smoother.reset(q0[None], np.zeros((1, n)))
     positions = []
     for _ in range(int(3.0 / dt)):  # full speed toward the limit for 3 s
-        smoother.step(robot.velocity_limit[None])
+        smoother.step(direction * robot.velocity_limit[None])
         positions.append(smoother.position[0].copy())
     positions = np.array(positions)
-    assert (positions <= robot.position_upper).all()
-    np.testing.assert_allclose(positions[-1], robot.position_upper, atol=1e-3)  # and gets close
+    assert (positions <= robot.soft_upper + 1e-9).all()
+    assert (positions >= robot.soft_lower - 1e-9).all()
+    soft = robot.soft_upper if direction > 0 else robot.soft_lower
+    np.testing.assert_allclose(positions[-1], soft, atol=1e-3)  # and gets close
     np.testing.assert_allclose(smoother.velocity, 0.0, atol=1e-3)
     assert (smoother.stopping_distance_clamps > 0).all()
 

@@ -1,12 +1,21 @@
 """Joint state estimation: a position + velocity Kalman filter per joint, batched over ``envs``.
 
-Model (per joint, state ``x = [q, dq]``, rad and rad/s): constant velocity driven by white-noise
-acceleration that is piecewise constant over each prediction interval ("discrete white noise
-acceleration", Bar-Shalom, Li, Kirubarajan, *Estimation with Applications to Tracking and
-Navigation*, Wiley 2001, sec. 6.3.2; ``filterpy.common.Q_discrete_white_noise(2, dt, var)``)::
+Model (per joint, state ``x = [q, dq]``, rad and rad/s): the acceleration the drive was commanded
+(control input ``u``, rad/s^2), plus white-noise acceleration that is piecewise constant over each
+prediction interval ("discrete white noise acceleration", Bar-Shalom, Li, Kirubarajan, *Estimation
+with Applications to Tracking and Navigation*, Wiley 2001, sec. 6.3.2;
+``filterpy.common.Q_discrete_white_noise(2, dt, var)``)::
 
+    x' = F(dt) x + B(dt) u
     F(dt) = [[1, dt], [0, 1]]          Q(dt) = var * [[dt^4 / 4, dt^3 / 2], [dt^3 / 2, dt^2]]
-    H     = [[1, 0]]                   R     = measurement_sigma^2
+    B(dt) = [[dt^2 / 2], [dt]]         H = [[1, 0]],  R = measurement_sigma^2
+
+Without an input (``u = 0``) this is the constant-velocity model, which lags an accelerating
+joint by about ``a / omega^2`` (``omega ~ (var / R)^(1/4)``, ~25 rad/s on arm3: 30 mrad at
+20 rad/s^2). The runtime passes the smoother's commanded acceleration
+(:attr:`deploy.smoothing.CommandSmoother.mean_acceleration`) in position and velocity mode; the
+noise then only has to cover the drive's tracking error. On arm3 under the shipped policy the
+position error went from 14 to 7 mrad RMS (58 to 36 mrad worst) against 15.7 mrad of encoder noise.
 
 Time stamps. The filter of a joint lives at ``filter_time``, the sample time of the last reading it
 absorbed. A reading stamped later than that is absorbed: predict by ``stamp - filter_time``, then
@@ -149,11 +158,12 @@ class JointStateEstimator:
         self._bound0 = full(self.covariance_bound[:, 0])
         self._bound1 = full(self.covariance_bound[:, 1])
         self._zero, self._half, self._one = full(0.0), full(0.5), full(1.0)
+        self._u = full(0.0)
         self._one_int = np.ones(shape, dtype=np.int64)
         self._now = np.zeros(shape)
         self._now_t = self._now.T  # (n, envs) view: broadcasts frame.time (envs,) into _now
         names = ("dt", "dt2", "hdt", "q00", "q01", "q11", "a00", "a01", "a11", "s", "k0", "k1")
-        self._w = {k: np.empty(shape) for k in (*names, "y", "tmp", "det", "xp0")}
+        self._w = {k: np.empty(shape) for k in (*names, "y", "tmp", "det", "xp0", "vp1")}
         self._nx = np.empty((2, envs, n))
         self._np = np.empty((4, envs, n))
         self._count = np.empty(shape, dtype=np.int64)
@@ -266,8 +276,14 @@ class JointStateEstimator:
         self._all_initialized = bool(self._initialized.all())
 
     # ------------------------------------------------------------------ the tick
-    def update(self, frame: SensorFrame, state: RobotState) -> RobotState:
+    def update(
+        self, frame: SensorFrame, state: RobotState, acceleration: np.ndarray | None = None
+    ) -> RobotState:
         """Absorb the fresh readings of ``frame`` and write the estimates at ``frame.time``.
+
+        ``acceleration`` is the control input ``u``, (envs, n) rad/s^2: the acceleration the
+        drives were commanded since the previous frame (None: 0, the constant-velocity model).
+        It drives every prediction of this call, readings' and output's.
 
         Fills ``state.q`` (rad) and ``state.dq`` (rad/s), both (envs, n), predicted from
         ``filter_time`` to ``frame.time``, and copies ``frame.winding_temperature`` (degC) into
@@ -299,6 +315,10 @@ class JointStateEstimator:
                 f"frame: expected position and position_stamp shaped {x0.shape}, "
                 f"got {z.shape} and {ts.shape}"
             )
+        if acceleration is None:
+            self._u.fill(0.0)
+        else:
+            np.copyto(self._u, acceleration)
         if self.implementation == "compiled":
             args = self._kernel_args(frame, state)
             status = kalman_tick(0, *args)
@@ -337,10 +357,17 @@ class JointStateEstimator:
                 if not self._check():
                     self._reinitialize(z, ts)
             # output: prediction from filter_time to frame.time (not stored)
-            np.subtract(self._now, tf, out=self.time_since_fresh)
-            np.multiply(self.time_since_fresh, x1, out=state.q)
+            age, tmp = self.time_since_fresh, self._w["tmp"]
+            np.subtract(self._now, tf, out=age)
+            np.multiply(age, x1, out=state.q)
             np.add(state.q, x0, out=state.q)
-        np.copyto(state.dq, x1)
+            np.multiply(age, self._u, out=state.dq)  # + B(age) u; 0 for a lost joint (age inf)
+            np.isfinite(state.dq, out=mask)
+            np.copyto(state.dq, 0.0, where=~mask)
+            np.multiply(state.dq, age, out=tmp)
+            np.multiply(tmp, 0.5, out=tmp)
+            np.add(state.q, tmp, out=state.q)
+            np.add(state.dq, x1, out=state.dq)
         np.isfinite(frame.winding_temperature, out=mask)
         np.copyto(state.winding_temperature, frame.winding_temperature, where=mask)
         return state
@@ -368,6 +395,7 @@ class JointStateEstimator:
             state.dq,
             frame.winding_temperature,
             state.winding_temperature,
+            self._u,
         )
 
     def _increment(self, counter: np.ndarray, mask: np.ndarray) -> None:
@@ -399,6 +427,13 @@ class JointStateEstimator:
         # prior: x = F x, P = F P F' + Q (as filterpy's dot(dot(F, P), F.T) + Q)
         np.multiply(dt, x1, out=tmp)
         np.add(x0, tmp, out=xp0)
+        # control input: x += B u, B = [dt^2 / 2, dt]
+        u, vp1 = self._u, w["vp1"]
+        np.multiply(hdt, dt, out=tmp)
+        np.multiply(tmp, u, out=tmp)
+        np.add(xp0, tmp, out=xp0)
+        np.multiply(dt, u, out=tmp)
+        np.add(x1, tmp, out=vp1)
         np.multiply(dt, p11, out=tmp)
         np.add(p01, tmp, out=a01)  # (F P)_01 = (F P F')_01 - Q_01
         np.multiply(dt, p10, out=tmp)
@@ -417,7 +452,7 @@ class JointStateEstimator:
         np.multiply(k0, y, out=tmp)
         np.add(xp0, tmp, out=nx0)
         np.multiply(k1, y, out=tmp)
-        np.add(x1, tmp, out=nx1)
+        np.add(vp1, tmp, out=nx1)
         np.subtract(self._one, k0, out=tmp)
         np.multiply(tmp, a00, out=np00)  # a00 R / S
         np.multiply(tmp, a01, out=np01)  # a01 R / S
@@ -437,7 +472,8 @@ class JointStateEstimator:
             dt = float(ts[e, j] - self.filter_time[e, j])
             kf.F = np.array([[1.0, dt], [0.0, 1.0]])
             kf.Q = Q_discrete_white_noise(2, dt=dt, var=float(self.process_noise[j]))
-            kf.predict()
+            kf.B = np.array([[0.5 * dt * dt], [dt]])
+            kf.predict(u=np.array([[self._u[e, j]]]))
             kf.update(float(z[e, j]))
             self._x[:, e, j] = kf.x[:, 0]
             cov[e, j] = kf.P

@@ -74,13 +74,15 @@ def kalman_tick(
     dq_out: np.ndarray,
     temperature_in: np.ndarray,
     temperature_out: np.ndarray,
+    u: np.ndarray,
 ) -> int:
     """One estimator tick from ``phase`` on (see the module docstring).
 
     Shapes: ``z``, ``ts``, ``tf``, ``missing``, ``stale``, ``fresh``, ``good``,
     ``time_since_fresh``, ``q_out``, ``dq_out``, temperatures (envs, n); ``now`` (envs,);
     ``x`` (2, envs, n); ``p`` (4, envs, n), ``p[k] = P[k // 2, k % 2]``; ``var``, ``r``, ``b0``,
-    ``b1`` (n,). Units as in :class:`~deploy.estimation.JointStateEstimator`.
+    ``b1`` (n,); ``u`` (envs, n), the control input (commanded acceleration, rad/s^2). Units as in
+    :class:`~deploy.estimation.JointStateEstimator`.
     """
     envs, n = z.shape
     if phase == 0:
@@ -112,8 +114,9 @@ def kalman_tick(
                 q00 = q01 * hdt
                 x0, x1 = x[0, e, j], x[1, e, j]
                 p00, p01, p10, p11 = p[0, e, j], p[1, e, j], p[2, e, j], p[3, e, j]
-                # prior: x = F x, P = F P F' + Q
-                xp0 = x0 + dt * x1
+                # prior: x = F x + B u, P = F P F' + Q
+                xp0 = x0 + dt * x1 + (hdt * dt) * u[e, j]
+                x1 = x1 + dt * u[e, j]
                 a01 = p01 + dt * p11
                 a00 = p00 + dt * p10
                 a00 = a00 + dt * a01
@@ -140,8 +143,11 @@ def kalman_tick(
         for j in range(n):
             age = t - tf[e, j]
             time_since_fresh[e, j] = age
-            q_out[e, j] = age * x[1, e, j] + x[0, e, j]
-            dq_out[e, j] = x[1, e, j]
+            du = age * u[e, j]  # B(age) u; 0 for a lost joint (age inf)
+            if not math.isfinite(du):
+                du = 0.0
+            q_out[e, j] = age * x[1, e, j] + x[0, e, j] + 0.5 * age * du
+            dq_out[e, j] = x[1, e, j] + du
             if math.isfinite(temperature_in[e, j]):
                 temperature_out[e, j] = temperature_in[e, j]
     return 0

@@ -3,7 +3,8 @@
 The tick (:meth:`Runtime.tick`) reads top to bottom as DESIGN.md draws it::
 
     frame  = backend.read()                        # encoders, temperatures
-    state  = estimator.update(frame)               # Kalman filter: q, dq (predict-only on dropouts)
+    state  = estimator.update(frame, u)            # Kalman filter: q, dq (predict-only on
+                                                   # dropouts); u: acceleration last commanded
     obs    = spec.observation(state, goal)         # normalized by physical maxima
     action = policy(obs)                           # ONNX Runtime; non-finite -> hold, count
     target = spec.action_to_target(action, state)  # physical units of the control mode
@@ -212,6 +213,9 @@ class Runtime:
         self._tracking = np.zeros(envs)
         # velocity mode: the position the commands integrate to (Ruckig's state), else None
         self._commanded = self.smoother.position if self.mode_name == "velocity" else None
+        #: the estimator's control input: the acceleration commanded over the last period (the
+        #: smoother's trajectory); torque mode commands no motion, the filter runs without one
+        self._input = None if self.mode_name == "torque" else self.smoother.mean_acceleration
         self._temp_start = np.array([m.derating_start_temperature for m in robot.motors])
         self._temp_max = np.array([m.max_winding_temperature for m in robot.motors])
 
@@ -274,7 +278,7 @@ class Runtime:
         if self.injector is not None:
             frame = self.injector.filter_frame(self.time, frame)
         st[1] = clock_ns()
-        state = self.estimator.update(frame, self.state)
+        state = self.estimator.update(frame, self.state, self._input)
         self.kinematics.update(state)
         self.guard.update_thermal(state.winding_temperature)
         self._supervise(state)

@@ -114,6 +114,9 @@ class CommandSmoother:
         command: (envs, n) the last command, in the units of the mode (overwritten by each step).
         position, velocity, acceleration: (envs, n) rad, rad/s, rad/s^2, Ruckig's state after the
             last step (the start of the next one); not maintained in torque mode.
+        mean_acceleration: (envs, n) rad/s^2, the commanded acceleration averaged over the last
+            step (velocity change / control period; 0 after a sync, and in torque mode): the
+            control input of the state estimator over the period the command is in force.
         stopping: (envs,) bool, envs in safe stop.
         non_finite_targets, target_clamps, extrema_violations, stopping_distance_clamps: (envs,)
             int counters since :meth:`reset` (sums over the joints of ``*_per_joint``, (envs, n)):
@@ -180,6 +183,8 @@ class CommandSmoother:
         self.command = np.zeros(shape)
         self._cmd = self.command.reshape(-1)
         self._pos, self._vel, self._acc = np.zeros(dofs), np.zeros(dofs), np.zeros(dofs)
+        self._mean_acc = np.zeros(dofs)
+        self.mean_acceleration = self._mean_acc.reshape(shape)
         self.position = self._pos.reshape(shape)
         self.velocity = self._vel.reshape(shape)
         self.acceleration = self._acc.reshape(shape)
@@ -316,6 +321,7 @@ class CommandSmoother:
             pos[dof], vel[dof], acc[dof] = q.reshape(-1)[dof], dq.reshape(-1)[dof], 0.0
             inp.current_position, inp.current_velocity, inp.current_acceleration = pos, vel, acc
             self._pos[:], self._vel[:], self._acc[:] = pos, vel, acc
+            self._mean_acc[dof] = 0.0
             self._cmd_position[dof] = pos[dof]
             self._held[dof] = pos[dof] if self.mode == "position" else 0.0
             self._cmd[dof] = pos[dof] if self.mode == "position" else vel[dof]
@@ -470,6 +476,8 @@ class CommandSmoother:
         self._update()
         cmd[:] = out.new_position
         self._pos[:] = cmd
+        np.subtract(out.new_velocity, self._vel, out=self._mean_acc)
+        self._mean_acc *= 1.0 / self.control_period
         self._vel[:] = out.new_velocity
         self._acc[:] = out.new_acceleration
         if out.new_calculation:
@@ -533,6 +541,8 @@ class CommandSmoother:
         self._update()
         self._cmd[:] = out.new_velocity
         self._pos[:] = out.new_position
+        np.subtract(self._cmd, self._vel, out=self._mean_acc)
+        self._mean_acc *= 1.0 / self.control_period
         self._vel[:] = self._cmd
         self._acc[:] = out.new_acceleration
         np.copyto(self._cmd_position, self._pos)

@@ -125,7 +125,16 @@ _PER_ENV_FIELDS = (
     ),
 )
 #: The smoother's per-DoF arrays (indexed by the env's DoF slice).
-_SMOOTHER_DOF_FIELDS = ("_pos", "_vel", "_acc", "_cmd", "_cmd_position", "_held", "_stop_dof")
+_SMOOTHER_DOF_FIELDS = (
+    "_pos",
+    "_vel",
+    "_acc",
+    "_mean_acc",
+    "_cmd",
+    "_cmd_position",
+    "_held",
+    "_stop_dof",
+)
 #: Ruckig's input parameter fields (per DoF).
 _RUCKIG_FIELDS = (
     "current_position",

@@ -150,6 +150,8 @@ class ReachTask:
         self.estimator = JointStateEstimator(robot, envs)
         self.kinematics = Kinematics(robot)
         self.smoother = CommandSmoother(robot, envs, config.mode)
+        # the estimator's control input, as in the runtime (deploy.runtime.Runtime)
+        self._input = None if config.mode == "torque" else self.smoother.mean_acceleration
         self.state = RobotState.zeros(envs, self.n, robot.config.sensors.ambient_temperature)
         self.randomize = config.dynamics != DynamicsRanges.none()
         self.dynamics = [Dynamics.nominal(self.n)] * envs
@@ -236,7 +238,7 @@ class ReachTask:
         self.backend.write(cmd)
         self.backend.advance()
         frame = self.backend.read()
-        state = self.estimator.update(frame, self.state)
+        state = self.estimator.update(frame, self.state, self._input)
         state.last_action[:] = action
         self.kinematics.update(state)
         self.spec.observation(state, self.goal, out=self.obs)

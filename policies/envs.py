@@ -21,7 +21,9 @@ at a hard joint limit (terminated) or after ``episode_seconds`` (truncated).
 Reward per control tick (:class:`RewardConfig`, seed section 6 coefficients by default)::
 
     + success        at each goal reached
-    + soft_limit     per joint beyond the soft limit (90 % of the range)      (negative)
+    + soft_limit     per joint beyond the soft limit (90 % of the range), or    (negative)
+                     driven toward it faster than it can brake (the smoother cut the target:
+                     in velocity mode the brake keeps the joint itself out of the band)
     + workspace      end effector outside the guard's workspace box            (negative; ours:
                      the runtime's guard would reject the command and hold)
     + hard_limit     at a hard limit, and the episode terminates                (negative)
@@ -63,7 +65,8 @@ class RewardConfig:
 
     Attributes:
         success: Reward per goal reached (seed: +1).
-        soft_limit: Per joint and tick beyond the soft limit (seed: -0.1).
+        soft_limit: Per joint and tick beyond the soft limit, or whose target the smoother
+            cut to brake before it (seed: -0.1 in the soft band).
         hard_limit: At a hard limit; the episode terminates (seed: -1).
         workspace: Per tick with the end effector outside ``safety.workspace_min/max`` (ours, the
             soft-limit coefficient: there the runtime's guard rejects commands and holds).
@@ -161,6 +164,7 @@ class ReachTask:
         self.obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
         self._target = np.zeros((envs, self.n))
         self._cmd = np.zeros((envs, self.n))
+        self._clamps = np.zeros((envs, self.n), dtype=np.int64)
         self._distance = np.zeros(envs)
         self._prev_dq = np.zeros((envs, self.n))
         self.t_episode = np.zeros(envs)
@@ -234,7 +238,11 @@ class ReachTask:
         robot, rew = self.robot, self.config.reward
         action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
         target = self.spec.action_to_target(action, self.state, out=self._target)
+        np.copyto(self._clamps, self.smoother.stopping_distance_clamps_per_joint)
         cmd = self.smoother.step(target, out=self._cmd)
+        # joints whose target the smoother cut to brake before a soft limit: the policy drove
+        # into the soft band, which the brake now keeps the joint out of
+        pushed = self.smoother.stopping_distance_clamps_per_joint > self._clamps
         self.backend.write(cmd)
         self.backend.advance()
         frame = self.backend.read()
@@ -248,7 +256,7 @@ class ReachTask:
         dq = self.backend.true_velocity()
         tau = self.backend.joint_torque()
         hard = ((q < robot.position_lower) | (q > robot.position_upper)).any(axis=1)
-        soft = ((q < robot.soft_lower) | (q > robot.soft_upper)).sum(axis=1)
+        soft = ((q < robot.soft_lower) | (q > robot.soft_upper) | pushed).sum(axis=1)
         ee = self.backend.end_effector_position()
         outside = ((ee < self._ws_min) | (ee > self._ws_max)).any(axis=1)
         distance = np.linalg.norm(ee - self.goal, axis=1)

@@ -54,6 +54,23 @@ def test_a_hard_limit_terminates_the_episode_with_the_hard_penalty(arm3):
     assert task.episode_info(0)["joint_limit_violations"] == 1
 
 
+def test_pushing_a_joint_into_its_soft_limit_costs_the_soft_penalty(arm3):
+    """The smoother brakes the joint at the soft limit, so the joint never enters the band; a
+    policy that keeps driving it there is still charged the soft-band penalty every tick."""
+    reward = RewardConfig(shaping=0.0, energy=0.0, jerk=0.0, survival=0.0)
+    cfg = ReachConfig(dynamics=DynamicsRanges.none(), reward=reward)
+    task = ReachTask(arm3, 2, cfg, seed=7)
+    action = np.zeros((2, 3))
+    action[1, 2] = 1.0  # env 1 drives its wrist toward the upper limit at full speed
+    rewards = np.array([task.step(action)[1] for _ in range(300)])  # 1.5 s
+    q = task.backend.true_position()
+    assert q[1, 2] <= arm3.soft_upper[2] + 0.02  # braked at the soft limit
+    assert q[1, 2] > arm3.soft_upper[2] - 0.02  # and resting against it
+    pushing = rewards[-100:]  # at rest against the limit, still pushing
+    np.testing.assert_allclose(pushing[:, 1], -0.1, atol=1e-9)
+    assert np.abs(pushing[:, 0]).max() < 1e-9  # env 0 holds still: no penalty
+
+
 def test_episodes_draw_noise_and_dynamics_per_env(arm3):
     task = ReachTask(arm3, 4, ReachConfig(), seed=4)
     lo, hi = ReachConfig().noise_range

@@ -40,7 +40,7 @@ format: install
 export: install
 	$(VENV)/bin/policy-export $(POLICY)
 
-# Reproduces policies/arm.pt (seed 0); TensorBoard logs in runs/train/.
+# Reproduces policies/arm.pt (seed 1); TensorBoard logs in runs/train/.
 train: install
 	$(PY) -m policies.train
 

@@ -175,6 +175,7 @@ class CommandSmoother:
         self._limits = np.stack([self._hi, self._lo])
         self._jdt, self._jdt2_2 = self._jmax * dt, self._jmax * dt**2 / 2.0
         self._jdt3_6 = self._jmax * dt**3 / 6.0
+        self._inv_dt = 1.0 / dt
         self._inv_j, self._inv_2j = 1.0 / self._jmax, 0.5 / self._jmax
         self._inv_2a, self._a_2j = 0.5 / self._amax, self._amax / (2.0 * self._jmax)
         self._guard = {k: np.zeros((2, dofs)) for k in ("u", "b", "room", "t1", "t2", "t3")}
@@ -406,12 +407,16 @@ class CommandSmoother:
             np.copyto(self._held, raw)
         else:
             np.copyto(raw, self._held)
-        if self.mode == "position":
-            self._step_position()
-        elif self.mode == "velocity":
-            self._step_velocity()
-        else:
+        if self.mode == "torque":
             self._step_torque()
+        else:
+            np.copyto(self._mean_acc, self._vel)  # Ruckig's velocity before the step
+            if self.mode == "position":
+                self._step_position()
+            else:
+                self._step_velocity()
+            np.subtract(self._vel, self._mean_acc, out=self._mean_acc)
+            self._mean_acc *= self._inv_dt
         if out is None:
             return self.command
         np.copyto(out, self.command)
@@ -476,8 +481,6 @@ class CommandSmoother:
         self._update()
         cmd[:] = out.new_position
         self._pos[:] = cmd
-        np.subtract(out.new_velocity, self._vel, out=self._mean_acc)
-        self._mean_acc *= 1.0 / self.control_period
         self._vel[:] = out.new_velocity
         self._acc[:] = out.new_acceleration
         if out.new_calculation:
@@ -541,8 +544,6 @@ class CommandSmoother:
         self._update()
         self._cmd[:] = out.new_velocity
         self._pos[:] = out.new_position
-        np.subtract(self._cmd, self._vel, out=self._mean_acc)
-        self._mean_acc *= 1.0 / self.control_period
         self._vel[:] = self._cmd
         self._acc[:] = out.new_acceleration
         np.copyto(self._cmd_position, self._pos)

@@ -66,6 +66,12 @@ STOP_DAMPING = 0.2
 #: Position mode: a command this far (rad) from the measured pose (the arm was pushed or blocked)
 #: is re-anchored at the measured state, so that the servo does not yank the arm back; counted.
 TRACKING_TOLERANCE = 0.6  # arm3's servo lags up to 0.45 rad at full speed
+#: Velocity mode: Ruckig's integrated position is kept within this distance (rad) of the measured
+#: pose (:meth:`~deploy.smoothing.CommandSmoother.anchor`); moves are counted as resyncs. Our
+#: choice: twice the position lag of a PI velocity drive at its effort limit, 2 x 22.5 N m /
+#: kp 400 N m/rad = 0.11 rad on arm3 (robot.toml), rounded to 0.1; a drive that lags further
+#: saturates, and its own anti-windup lets go of the gap too.
+VELOCITY_TRACKING_TOLERANCE = 0.1
 
 STAGES = ("read", "estimate", "observe", "infer", "guard", "smooth", "write", "physics")
 
@@ -211,6 +217,7 @@ class Runtime:
         self._home = np.asarray(robot.home)
         self._stop_damping = STOP_DAMPING * robot.effort_limit
         self._tracking = np.zeros(envs)
+        self._anchored = np.zeros(envs, dtype=np.int64)
         # velocity mode: the position the commands integrate to (Ruckig's state), else None
         self._commanded = self.smoother.position if self.mode_name == "velocity" else None
         #: the estimator's control input: the acceleration commanded over the last period (the
@@ -351,7 +358,12 @@ class Runtime:
                     mode[resume] = RAMP_IN
                     self.cause[resume] = -1
                     self.smoother.sync(state.q, state.dq, envs=resume)
-        if self.mode_name == "position":
+        if self.mode_name == "velocity":
+            moved = self.smoother.anchor(state.q, VELOCITY_TRACKING_TOLERANCE, out=self._anchored)
+            if moved.any():
+                moved &= (self.mode != SAFE_STOP) & (self.mode != FAULTED)
+                self.counters.resyncs += moved
+        elif self.mode_name == "position":
             self.smoother.tracking_error(state.q, out=self._tracking)
             drift = self._tracking > TRACKING_TOLERANCE
             if drift.any():

@@ -435,6 +435,44 @@ class CommandSmoother:
         np.abs(self._tmp2d, out=self._tmp2d)
         return np.max(self._tmp2d, axis=1, out=out)
 
+    def anchor(self, q: np.ndarray, tolerance: float, out: np.ndarray | None = None) -> np.ndarray:
+        """Velocity mode: keep Ruckig's integrated position within ``tolerance`` of ``q``.
+
+        Ruckig integrates its own velocity commands. A drive that cannot follow them (its torque
+        saturates, an obstacle or a push holds the joint; its anti-windup then holds its own
+        integrator back) leaves the joint behind that integral for good, and without an anchor
+        the gap only grows over hours of operation: the soft-limit brake and the guard's
+        stopping bounds, which read this position, then stop the joint in parts of its range
+        it is nowhere near. Each joint's position is clamped into ``[q - tolerance,
+        q + tolerance]``; velocity and acceleration are untouched, so the velocity command stays
+        continuous. A no-op in position and torque mode (position mode re-syncs through
+        :meth:`tracking_error`).
+
+        Args:
+            q: (envs, n) measured (estimated) joint positions, rad.
+            tolerance: rad, the largest lag of the drive behind its command accepted as
+                tracking (:data:`deploy.runtime.VELOCITY_TRACKING_TOLERANCE` in the runtime).
+            out: Optional (envs,) int64 array; 1 where an env's position was moved, else 0.
+
+        Returns:
+            (envs,) int64, 1 for the envs whose position was moved.
+        """
+        out = np.zeros(self.envs, dtype=np.int64) if out is None else out
+        out.fill(0)
+        if self.mode != "velocity":
+            return out
+        pos, tmp = self.position, self._tmp2d
+        np.subtract(pos, q, out=tmp)
+        np.abs(tmp, out=tmp)
+        if tmp.max() <= tolerance:  # the common case
+            return out
+        np.greater(tmp, tolerance, out=self._mask.reshape(pos.shape))
+        out += self._mask.reshape(pos.shape).any(axis=1)
+        np.minimum(np.maximum(pos, q - tolerance, out=pos), q + tolerance, out=pos)
+        self._inp.current_position = self._pos
+        np.copyto(self._cmd_position, self._pos)
+        return out
+
     # ------------------------------------------------------------------ internals
     def _increment(self, counter: np.ndarray, mask: np.ndarray) -> None:
         flat = counter.reshape(-1)

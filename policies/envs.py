@@ -1,31 +1,38 @@
 """The seed's reach task (sections 6 and 8) on the sim plant, for training.
 
-A policy trained here sees exactly what the runtime will show it: observations are built by the
-policy's :class:`~deploy.spec.PolicySpec` from the state the runtime's Kalman filter
-(:class:`~deploy.estimation.JointStateEstimator`) estimates from noisy, quantized encoder
-readings of :class:`~deploy.backends.sim.SimBackend`, and its actions pass through the runtime's
-Ruckig :class:`~deploy.smoothing.CommandSmoother` before they reach the drives. Only the safety
-guard is left out: the policy must learn the limits from the reward (seed section 6), the guard is
-the last line behind it.
+Train what you deploy: a policy trained here meets exactly the stack the runtime runs. Its
+observations are built by the policy's :class:`~deploy.spec.PolicySpec` from the state the
+runtime's Kalman filter (:class:`~deploy.estimation.JointStateEstimator`) estimates from noisy,
+quantized, late and sometimes missing encoder readings of :class:`~deploy.backends.sim.SimBackend`;
+its actions pass through the runtime's :class:`~deploy.safety.SafetyGuard` and Ruckig
+:class:`~deploy.smoothing.CommandSmoother` (re-anchored to the measured pose as the runtime does)
+before they reach the drives. What the guard and the smoother changed is an *intervention* and is
+penalized: a policy that leans on the guard fails on a robot whose guard is tuned differently.
 
 :class:`ReachTask` is the batched core (arrays shaped (envs, ...)); :class:`ArmReachEnv` is the
 Gymnasium env of one robot, :class:`ReachVecEnv` the Stable-Baselines3 ``VecEnv`` of many robots
 stepped in lockstep by one ``SimBackend``.
 
-Episode: the robot starts at rest at a random pose inside its soft limits, with dynamics drawn by
-:func:`eval.randomization.sample_dynamics` and an encoder noise sigma drawn per episode (seed
-section 5). A goal is drawn from the robot's task region; when the end effector comes within
-``task.success_radius`` of it, or ``goal_timeout`` s pass, a new goal is drawn. The episode ends
-at a hard joint limit (terminated) or after ``episode_seconds`` (truncated).
+Episode: continuous operation, as in the soak. The robot starts at rest at a random pose inside its
+soft limits (or, with ``ReachConfig.start_poses``, at one of the poses where a soak saw a policy
+miss its goal), with dynamics drawn by :func:`eval.randomization.sample_dynamics` and encoder
+noise, latency and dropout drawn per episode (:class:`eval.randomization.SensorRanges`, seed
+section 5). Goals are chained without resets: a goal is drawn from the robot's task region; when
+the end effector comes within ``task.success_radius`` of it, or ``goal_timeout`` s pass, a new goal
+is drawn from wherever the arm is. The episode ends at a hard joint limit crossed by the joint or
+by the guard's estimate (terminated: the runtime would make a safe stop) or after
+``episode_seconds`` (truncated; minutes, so that the policy meets the states of continuous
+operation).
 
 Reward per control tick (:class:`RewardConfig`, seed section 6 coefficients by default)::
 
     + success        at each goal reached
-    + soft_limit     per joint beyond the soft limit (90 % of the range), or    (negative)
-                     driven toward it faster than it can brake (the smoother cut the target:
-                     in velocity mode the brake keeps the joint itself out of the band)
-    + workspace      end effector outside the guard's workspace box            (negative; ours:
-                     the runtime's guard would reject the command and hold)
+    + soft_limit     per joint whose true position is in the soft band (beyond 90 % of the
+                     range; seed section 6)                                       (negative)
+    + intervention   per tick on which the guard or the smoother changed the     (negative)
+                     command (velocity clamp, workspace / collision / effort hold, the
+                     smoother's brake before a soft limit; ours)
+    + workspace      end effector outside the guard's workspace box            (negative)
     + hard_limit     at a hard limit, and the episode terminates                (negative)
     - energy   * sum |tau * dq|                                                  (W)
     - jerk     * |dq - dq_prev| / dt     (the seed's "jerk": rate of change of velocity)
@@ -35,11 +42,7 @@ Reward per control tick (:class:`RewardConfig`, seed section 6 coefficients by d
                                          optimal policy unchanged when gamma_s is the learner's
                                          discount (Ng, Harada and Russell, ICML 1999). The shipped
                                          recipe uses gamma_s = 1, the plain distance difference,
-                                         which adds -(1 - gamma) * shaping * d per tick: a pull
-                                         toward the goal that learned faster in our comparison
-                                         (success 0.46 against 0.20 after 0.75 M PPO steps), at
-                                         the price of making detours (refolding the arm around a
-                                         joint limit) look worse than they are.
+                                         which adds a constant pull toward the goal.
 """
 
 from __future__ import annotations
@@ -52,10 +55,19 @@ import numpy as np
 from deploy.backends.sim import SimBackend
 from deploy.cli import sample_goal
 from deploy.estimation import JointStateEstimator
+from deploy.runtime import TRACKING_TOLERANCE, VELOCITY_TRACKING_TOLERANCE
+from deploy.safety import SafetyGuard
 from deploy.smoothing import CommandSmoother
 from deploy.spec import PolicySpec
 from deploy.state import Kinematics, RobotState
-from eval.randomization import Dynamics, DynamicsRanges, randomized_model, sample_dynamics
+from eval.randomization import (
+    Dynamics,
+    DynamicsRanges,
+    SensorRanges,
+    randomized_model,
+    sample_dynamics,
+    sample_sensors,
+)
 from robots import Robot
 
 
@@ -65,8 +77,10 @@ class RewardConfig:
 
     Attributes:
         success: Reward per goal reached (seed: +1).
-        soft_limit: Per joint and tick beyond the soft limit, or whose target the smoother
-            cut to brake before it (seed: -0.1 in the soft band).
+        soft_limit: Per joint and tick whose true position is beyond the soft limit (seed: -0.1
+            in the soft band).
+        intervention: Per tick on which the guard or the smoother changed the command (ours, the
+            soft-limit coefficient: the soak counts these and fails above 1 % of ticks).
         hard_limit: At a hard limit; the episode terminates (seed: -1).
         workspace: Per tick with the end effector outside ``safety.workspace_min/max`` (ours, the
             soft-limit coefficient: there the runtime's guard rejects commands and holds).
@@ -81,6 +95,7 @@ class RewardConfig:
 
     success: float = 1.0
     soft_limit: float = -0.1
+    intervention: float = -0.1
     hard_limit: float = -1.0
     workspace: float = -0.1
     energy: float = 1e-4
@@ -99,20 +114,27 @@ class ReachConfig:
         episode_seconds: Episode length, s (truncation).
         goal_timeout: A goal not reached within this time is replaced, s (the runtime's success
             window is 3 s).
-        noise_range: Encoder noise sigma drawn per episode, rad. Default: seed section 5's
-            0.002-0.010 on angle / pi.
+        sensors: Encoder noise sigma (rad), latency (ticks) and dropout drawn per episode: the
+            soak's ranges (:class:`eval.randomization.SensorRanges`; noise: seed section 5's
+            0.002-0.010 on angle / pi).
         dynamics: Ranges of the dynamics randomization; ``DynamicsRanges.none()`` for the nominal
             robot.
         start_fraction: Start poses are drawn uniformly within this fraction of the soft limits.
+        start_poses: Optional joint poses (rad, each of length n) to start episodes from, e.g.
+            where a soak saw the policy miss (:func:`eval.report.missed_states`); poses outside
+            the soft limits are clipped into them.
+        start_pose_probability: Probability that an episode starts at one of ``start_poses``.
         reward: The reward coefficients.
     """
 
     mode: str = "velocity"
-    episode_seconds: float = 10.0
+    episode_seconds: float = 120.0
     goal_timeout: float = 3.0
-    noise_range: tuple[float, float] = (0.002 * np.pi, 0.010 * np.pi)
+    sensors: SensorRanges = field(default_factory=SensorRanges)
     dynamics: DynamicsRanges = field(default_factory=DynamicsRanges)
     start_fraction: float = 0.9
+    start_poses: tuple[tuple[float, ...], ...] = ()
+    start_pose_probability: float = 0.5
     reward: RewardConfig = field(default_factory=RewardConfig)
 
 
@@ -153,8 +175,18 @@ class ReachTask:
         self.estimator = JointStateEstimator(robot, envs)
         self.kinematics = Kinematics(robot)
         self.smoother = CommandSmoother(robot, envs, config.mode)
+        self.guard = SafetyGuard(robot, envs, config.mode)
         # the estimator's control input, as in the runtime (deploy.runtime.Runtime)
         self._input = None if config.mode == "torque" else self.smoother.mean_acceleration
+        # velocity mode: the guard's stopping bounds read Ruckig's integrated position too
+        self._commanded = self.smoother.position if config.mode == "velocity" else None
+        self._intervening = ("velocity", "workspace", "self_collision", "effort")
+        if config.mode == "position":
+            self._intervening += ("soft_limit",)
+        self._guard_before = np.zeros((len(self._intervening), envs), dtype=np.int64)
+        self._moved = np.zeros(envs, dtype=np.int64)
+        self._tracking = np.zeros(envs)
+        self._start_poses = np.asarray(config.start_poses, dtype=np.float64).reshape(-1, self.n)
         self.state = RobotState.zeros(envs, self.n, robot.config.sensors.ambient_temperature)
         self.randomize = config.dynamics != DynamicsRanges.none()
         self.dynamics = [Dynamics.nominal(self.n)] * envs
@@ -174,6 +206,8 @@ class ReachTask:
         self.reached = np.zeros(envs, dtype=np.int64)
         self.missed = np.zeros(envs, dtype=np.int64)
         self.limit_violations = np.zeros(envs, dtype=np.int64)
+        self.interventions = np.zeros(envs, dtype=np.int64)
+        self.ticks = np.zeros(envs, dtype=np.int64)
         self.episode_return = np.zeros(envs)
         self.reset(np.ones(envs, dtype=bool))
 
@@ -190,21 +224,36 @@ class ReachTask:
         hi = robot.home + cfg.start_fraction * (robot.soft_upper - robot.home)
         q0 = np.array(self.backend.true_position())
         q0[idx] = self.rng.uniform(lo, hi, (len(idx), self.n))
+        if len(self._start_poses):
+            listed = idx[self.rng.random(len(idx)) < cfg.start_pose_probability]
+            picks = self._start_poses[self.rng.integers(len(self._start_poses), size=len(listed))]
+            q0[listed] = np.clip(picks, robot.soft_lower, robot.soft_upper)
         self.backend.reset(q0, envs=which)
-        self.backend.noise_sigma[idx] = self.rng.uniform(*cfg.noise_range, len(idx))
+        for e in idx:
+            draw = sample_sensors(self.rng, cfg.sensors)
+            self.backend.noise_sigma[e] = draw.noise_sigma
+            self.backend.latency_ticks[e] = draw.latency_ticks
+            self.backend.dropout_probability[e] = draw.dropout_probability
         frame = self.backend.read()
-        self.estimator.reset(frame.position, frame.position_stamp, envs=which)
-        self.state.q[idx] = frame.position[idx]
+        # the robot has rested at q0: where no reading has arrived yet (latency at the plant's
+        # first ticks, a dropout), the pose itself stands in for it, as Runtime.start waits for
+        position = np.where(np.isnan(frame.position), q0, frame.position)
+        stamp = np.where(np.isnan(frame.position_stamp), self.backend.time, frame.position_stamp)
+        self.estimator.reset(position, stamp, envs=which)
+        self.state.q[idx] = position[idx]
         self.state.dq[idx] = 0.0
         self.state.last_action[idx] = 0.0
         self.state.winding_temperature[idx] = frame.winding_temperature[idx]
         self.smoother.sync(self.state.q, self.state.dq, envs=which)
+        self.guard.reset(self.state.q, envs=which)
         self._prev_dq[idx] = 0.0
         self.t_episode[idx] = 0.0
         self.goals[idx] = 0
         self.reached[idx] = 0
         self.missed[idx] = 0
         self.limit_violations[idx] = 0
+        self.interventions[idx] = 0
+        self.ticks[idx] = 0
         self.episode_return[idx] = 0.0
         for e in idx:
             self._new_goal(e)
@@ -231,32 +280,49 @@ class ReachTask:
     def step(self, action: np.ndarray):
         """Advance every env one control period under ``action`` ((envs, n) in [-1, 1]).
 
+        The stages and their order are the runtime's tick (:meth:`deploy.runtime.Runtime.tick`):
+        target, guard, smoother, drives, physics, encoders, Kalman filter, re-anchoring.
+
         Returns:
             ``(obs, reward, terminated, truncated)``: float32 (envs, obs_dim) observation after
             the step, (envs,) reward, (envs,) bool each. Finished envs are *not* reset here.
         """
-        robot, rew = self.robot, self.config.reward
+        robot, rew, guard = self.robot, self.config.reward, self.guard
         action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
         target = self.spec.action_to_target(action, self.state, out=self._target)
+        for i, name in enumerate(self._intervening):
+            self._guard_before[i] = guard.counts[name]
+        target = guard.filter(target, self.state, out=target, commanded_position=self._commanded)
+        intervened = np.zeros(self.envs, dtype=bool)
+        for i, name in enumerate(self._intervening):
+            intervened |= guard.counts[name] > self._guard_before[i]
         np.copyto(self._clamps, self.smoother.stopping_distance_clamps_per_joint)
         cmd = self.smoother.step(target, out=self._cmd)
-        # joints whose target the smoother cut to brake before a soft limit: the policy drove
-        # into the soft band, which the brake now keeps the joint out of
-        pushed = self.smoother.stopping_distance_clamps_per_joint > self._clamps
+        # the smoother cut a target to brake before a soft limit: the policy drove into the band
+        intervened |= (self.smoother.stopping_distance_clamps_per_joint > self._clamps).any(axis=1)
         self.backend.write(cmd)
         self.backend.advance()
         frame = self.backend.read()
         state = self.estimator.update(frame, self.state, self._input)
         state.last_action[:] = action
+        guard.update_thermal(state.winding_temperature)
+        if self.config.mode == "velocity":
+            self.smoother.anchor(state.q, VELOCITY_TRACKING_TOLERANCE, out=self._moved)
+        elif self.config.mode == "position":
+            drift = self.smoother.tracking_error(state.q, out=self._tracking) > TRACKING_TOLERANCE
+            if drift.any():
+                self.smoother.sync(state.q, state.dq, envs=drift)
         self.kinematics.update(state)
         self.spec.observation(state, self.goal, out=self.obs)
         self.t_episode += self.dt
+        self.ticks += 1
 
         q = self.backend.true_position()
         dq = self.backend.true_velocity()
         tau = self.backend.joint_torque()
         hard = ((q < robot.position_lower) | (q > robot.position_upper)).any(axis=1)
-        soft = ((q < robot.soft_lower) | (q > robot.soft_upper) | pushed).sum(axis=1)
+        hard |= guard.hard_violation  # the runtime would make a safe stop
+        soft = ((q < robot.soft_lower) | (q > robot.soft_upper)).sum(axis=1)
         ee = self.backend.end_effector_position()
         outside = ((ee < self._ws_min) | (ee > self._ws_max)).any(axis=1)
         distance = np.linalg.norm(ee - self.goal, axis=1)
@@ -266,6 +332,7 @@ class ReachTask:
         reward += rew.shaping * (self._distance - rew.shaping_gamma * distance)
         reward += rew.success * success
         reward += rew.soft_limit * soft
+        reward += rew.intervention * intervened
         reward += rew.hard_limit * hard
         reward += rew.workspace * outside
         reward -= rew.energy * np.abs(tau * dq).sum(axis=1)
@@ -274,6 +341,7 @@ class ReachTask:
 
         self.reached += success
         self.limit_violations += hard
+        self.interventions += intervened
         self.episode_return += reward
         expired = ((self.t_episode - self.t_goal) >= self.config.goal_timeout) & ~success
         self.missed += expired
@@ -298,6 +366,7 @@ class ReachTask:
             "goals_reached": int(self.reached[e]),
             "goals_missed": int(self.missed[e]),
             "joint_limit_violations": int(self.limit_violations[e]),
+            "intervention_rate": float(self.interventions[e]) / max(int(self.ticks[e]), 1),
         }
 
 
@@ -306,7 +375,8 @@ class ArmReachEnv(gym.Env):
 
     Observation: ``Box(-clip, clip, (spec.obs_dim,), float32)``; action: ``Box(-1, 1, (n,),
     float32)``. ``info`` holds ``is_success`` (fraction of goals reached), ``goals_reached``,
-    ``goals_missed`` and ``joint_limit_violations`` of the episode.
+    ``goals_missed``, ``joint_limit_violations`` and ``intervention_rate`` (fraction of ticks on
+    which the guard or the smoother changed the command) of the episode.
     """
 
     metadata = {"render_modes": []}

@@ -2,8 +2,15 @@
 
 ``make train`` runs ``python -m policies.train`` with the defaults below, which reproduce the
 shipped ``policies/arm.pt`` (seed 1). Logs go to TensorBoard (``runs/train/``): SB3's episode
-length, return and success rate, plus ``reach/joint_limit_violations`` and ``reach/success_rate``
-per episode (seed section 10).
+length, return and success rate, plus ``reach/joint_limit_violations``, ``reach/success_rate``
+and ``reach/intervention_rate`` per episode (seed section 10).
+
+Shipping is gated on the soak. Training writes its candidate (and its periodic saves) next to its
+logs, ``<logdir>/<robot>_<mode>_seed<seed>.pt``; at the end it exports the candidate to ONNX and
+runs a randomized soak of ``--gate-hours`` simulated hours (``--gate-sessions`` sessions from
+``--gate-seed``, the soak's full randomization and faults, its default thresholds). Only a
+candidate whose soak passes is copied to ``--out`` (with its ``.onnx`` and ``.curve.json``); a
+failed one stays in the log folder with the soak's report, and the command exits with 1.
 
 Why PPO: it is the seed's algorithm, and with one batched MuJoCo plant stepping many robots per
 call it turns the machine's two cores into samples faster than SAC's one gradient step per sample
@@ -24,6 +31,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import shutil
 import time
 from pathlib import Path
 
@@ -98,13 +106,19 @@ class ReachVecEnv(VecEnv):
 
 class ReachLogger(BaseCallback):
     """Logs the seed section 10 signals per finished episode to TensorBoard, and every
-    ``save_every`` steps writes the policy so far to ``save`` (a callable taking the model)."""
+    ``save_every`` steps writes the policy so far to ``save`` (a callable taking the model).
 
-    def __init__(self, save=None, save_every: int = 0):
+    Violations (a hard limit crossed by the joint or the guard's estimate) and interventions
+    (fraction of ticks on which the guard or the smoother changed the command) are logged apart.
+    """
+
+    def __init__(self, save=None, save_every: int = 0, points_every: int = 16):
         super().__init__()
         self.save, self.save_every, self._saved_at = save, save_every, 0
+        self.points_every = points_every
         self.violations: list[int] = []
         self.success: list[float] = []
+        self.interventions: list[float] = []
         self.history: list[dict] = []
 
     def _on_step(self) -> bool:
@@ -112,23 +126,28 @@ class ReachLogger(BaseCallback):
             if done and "joint_limit_violations" in info:
                 self.violations.append(info["joint_limit_violations"])
                 self.success.append(info["is_success"])
+                self.interventions.append(info.get("intervention_rate", 0.0))
         return True
 
     def _on_rollout_end(self) -> None:
-        if len(self.success) >= 16:  # one point per 16 episodes
+        if len(self.success) >= self.points_every:  # one point per so many episodes
             rate, viol = float(np.mean(self.success)), float(np.mean(self.violations))
+            interventions = float(np.mean(self.interventions))
             self.logger.record("reach/success_rate", rate)
             self.logger.record("reach/joint_limit_violations", viol)
+            self.logger.record("reach/intervention_rate", interventions)
             self.history.append(
                 {
                     "step": int(self.num_timesteps),
                     "success_rate": rate,
                     "joint_limit_violations": viol,
+                    "intervention_rate": interventions,
                     "episodes": len(self.success),
                 }
             )
             self.violations.clear()
             self.success.clear()
+            self.interventions.clear()
         if self.save and self.save_every and self.num_timesteps - self._saved_at >= self.save_every:
             self._saved_at = self.num_timesteps
             self.save(self.model, self.history)
@@ -221,18 +240,87 @@ def make_model(args: argparse.Namespace, env) -> PPO | SAC:
     )
 
 
-def train(args: argparse.Namespace) -> Path:
+def start_poses(path: Path | None, robot) -> tuple[tuple[float, ...], ...]:
+    """Joint poses (rad) where a soak saw a policy miss its goal, from its ``report.json``
+    (:func:`eval.report.missed_states`); ``()`` without a path.
+
+    Raises:
+        eval.report.ReportError: unreadable report, or poses of another robot's joint count.
+    """
+    if path is None:
+        return ()
+    from eval.report import ReportError, load_report, missed_states
+
+    report = load_report(path)
+    poses = tuple(tuple(float(x) for x in m["q"]) for m in missed_states(report))
+    bad = [p for p in poses if len(p) != robot.n_joints]
+    if bad:
+        raise ReportError(
+            f"{path}: field 'sessions[].goals.missed[].q': expected {robot.n_joints} joint "
+            f"angles (robot {robot.name}), got {len(bad[0])}"
+        )
+    return poses
+
+
+def gate(candidate: Path, args: argparse.Namespace) -> tuple[bool, Path]:
+    """Export ``candidate`` to ONNX and soak it (see the module docstring).
+
+    Returns:
+        ``(passed, soak folder)``; the soak's report.json and report.html are in the folder.
+    """
+    from deploy.export import export_policy
+    from eval.cli import main as soak_main
+
+    onnx = candidate.with_suffix(".onnx")
+    export_policy(candidate, onnx)
+    out = candidate.with_suffix(".gate")
+    if out.exists():
+        shutil.rmtree(out)
+    code = soak_main(
+        [
+            "--robot",
+            args.robot,
+            "--policy",
+            str(onnx),
+            "--hours",
+            str(args.gate_hours),
+            "--sessions",
+            str(args.gate_sessions),
+            "--seed",
+            str(args.gate_seed),
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
+    return code == 0, out
+
+
+def train(args: argparse.Namespace) -> Path | None:
+    """Train, gate and ship (see the module docstring).
+
+    Returns:
+        ``args.out`` when the candidate passed the gate (or the gate is off), else None.
+    """
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
     robot = load_robot(args.robot)
     dynamics = DynamicsRanges() if args.randomize else DynamicsRanges.none()
-    config = ReachConfig(mode=args.mode, dynamics=dynamics, reward=args.reward)
+    config = ReachConfig(
+        mode=args.mode,
+        dynamics=dynamics,
+        reward=args.reward,
+        episode_seconds=args.episode_seconds,
+        start_poses=start_poses(args.start_poses, robot),
+    )
     task = ReachTask(robot, args.envs, config, seed=args.seed)
     # Rewards (not observations: those are already scaled by physical maxima, seed section 3) are
     # normalized by a running estimate of the return's scale, as SB3's PPO recipes do.
     env = VecNormalize(VecMonitor(ReachVecEnv(task)), norm_obs=False, gamma=args.gamma)
     model = make_model(args, env)
     start = time.perf_counter()
+    args.logdir.mkdir(parents=True, exist_ok=True)
+    candidate = args.logdir / f"{args.robot}_{args.mode}_seed{args.seed}.pt"
 
     def save(model, history):
         actor = actor_from_model(model)
@@ -243,27 +331,52 @@ def train(args: argparse.Namespace) -> Path:
             "timesteps": int(model.num_timesteps),
             "wall_seconds": round(time.perf_counter() - start, 1),
             "randomized_dynamics": bool(args.randomize),
+            "episode_seconds": args.episode_seconds,
+            "start_poses": len(config.start_poses),
             "curve": history,
         }
-        save_checkpoint(args.out, actor, task.spec, info=info)
+        save_checkpoint(candidate, actor, task.spec, info=info)
         return info
 
-    callbacks = [ReachLogger(save, args.save_every)]
+    # episodes of minutes finish rarely: a curve point per finished batch of episodes
+    points = max(1, min(16, args.envs // 2))
+    callbacks = [ReachLogger(save, args.save_every, points_every=points)]
     if args.anneal_steps and args.algo == "ppo":
         callbacks.append(NoiseAnneal(args.steps, args.anneal_steps, args.final_log_std))
     logger = callbacks[0]
-    name = f"{args.algo}_{args.robot}"
-    model.learn(args.steps, callback=callbacks, progress_bar=True, tb_log_name=name)
+    name = f"{args.algo}_{args.robot}_{args.mode}"
+    model.learn(args.steps, callback=callbacks, progress_bar=args.progress, tb_log_name=name)
     info = save(model, logger.history)
     wall = info["wall_seconds"]
-    curve = args.out.with_suffix(".curve.json")
-    curve.write_text(json.dumps(info, indent=1) + "\n")
-    print(f"wrote {args.out} after {args.steps} steps in {wall / 60:.1f} min")
+    print(f"trained {candidate} in {args.steps} steps, {wall / 60:.1f} min")
     for row in logger.history[:: max(1, len(logger.history) // 10)] + logger.history[-1:]:
         print(
-            f"  step {row['step']:>9}: success {row['success_rate']:.2f}, "
-            f"joint limit violations/episode {row['joint_limit_violations']:.3f}"
+            f"  step {row['step']:>9}: success {row['success_rate']:.2f}, joint limit "
+            f"violations/episode {row['joint_limit_violations']:.3f}, interventions "
+            f"{100 * row['intervention_rate']:.2f} % of ticks"
         )
+    if args.gate_hours > 0:
+        passed, soak = gate(candidate, args)
+        if not passed:
+            print(
+                f"NOT shipped: the {args.gate_hours} h soak of {candidate} failed (see "
+                f"{soak / 'report.html'}); {args.out} is unchanged"
+            )
+            return None
+        info["gate"] = {
+            "hours": args.gate_hours,
+            "sessions": args.gate_sessions,
+            "seed": args.gate_seed,
+            "report": str(soak / "report.json"),
+        }
+        print(f"the {args.gate_hours} h soak passed ({soak / 'report.html'})")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(candidate, args.out)
+    if candidate.with_suffix(".onnx").exists():
+        shutil.copyfile(candidate.with_suffix(".onnx"), args.out.with_suffix(".onnx"))
+    curve = args.out.with_suffix(".curve.json")
+    curve.write_text(json.dumps(info, indent=1) + "\n")
+    print(f"wrote {args.out}")
     return args.out
 
 
@@ -325,14 +438,36 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME=VALUE",
         help="override a RewardConfig coefficient, e.g. --reward shaping=2 (repeatable)",
     )
-    p.add_argument("--save-every", type=int, default=250_000, help="steps between saves of --out")
+    p.add_argument(
+        "--save-every", type=int, default=250_000, help="steps between saves of the candidate"
+    )
+    p.add_argument(
+        "--episode-seconds", type=float, default=120.0, help="episode length, s (goals chained)"
+    )
+    p.add_argument(
+        "--start-poses",
+        type=Path,
+        default=None,
+        metavar="REPORT.json",
+        help="also start episodes where this soak report saw the policy miss its goal",
+    )
+    p.add_argument(
+        "--gate-hours",
+        type=float,
+        default=1.0,
+        help="simulated hours of the shipping soak (0: off)",
+    )
+    p.add_argument("--gate-sessions", type=int, default=2, help="sessions of the shipping soak")
+    p.add_argument(
+        "--gate-seed", type=int, default=100, help="first session seed of the shipping soak"
+    )
+    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.add_argument("--logdir", type=Path, default=Path("runs/train"))
     p.add_argument("--out", type=Path, default=Path("policies/arm.pt"))
     args = p.parse_args(argv)
     args.reward = parse_reward(args.reward, p)
     args.argv = list(argv) if argv is not None else __import__("sys").argv[1:]
-    train(args)
-    return 0
+    return 0 if train(args) is not None else 1
 
 
 if __name__ == "__main__":

@@ -108,6 +108,36 @@ def test_velocity_mode_stops_at_the_soft_limit(robot, direction):
     assert (smoother.stopping_distance_clamps > 0).all()
 
 
+def test_anchor_keeps_the_integrated_position_near_the_measured_joint(arm3):
+    """A joint held back (a saturated drive) leaves Ruckig's integral ahead of it; the anchor
+    pulls the integral back to within the tolerance without a jump in the velocity command, and
+    the soft-limit brake then reads the joint's true room to its limit."""
+    n, dt, tol = arm3.n_joints, arm3.control_period, 0.1
+    smoother = CommandSmoother(arm3, 2, "velocity")
+    q = np.tile(arm3.home, (2, 1))
+    smoother.reset(q, np.zeros((2, n)))
+    target = np.full((2, n), 1.0)
+    for _ in range(100):  # 0.5 s at ~1 rad/s while the joints are held at q
+        smoother.step(target)
+    assert (smoother.position - q).min() > 0.3  # the integral ran away from the held joints
+    before = smoother.command.copy()
+    moved = smoother.anchor(q, tol)
+    np.testing.assert_array_equal(moved, [1, 1])
+    np.testing.assert_allclose(smoother.position, q + tol)
+    np.testing.assert_allclose(smoother.tracking_error(q), [tol, tol])
+    after = smoother.step(target).copy()
+    assert np.abs(after - before).max() <= arm3.jerk_limit.max() * dt**2 + 1e-12  # continuous
+    np.testing.assert_allclose(smoother.position, q + tol + after * dt, atol=1e-3)
+    # within the tolerance nothing moves
+    np.testing.assert_array_equal(smoother.anchor(smoother.position - 0.05, tol), [0, 0])
+    # position mode re-syncs through tracking_error instead: anchor is a no-op there
+    pos = CommandSmoother(arm3, 1, "position")
+    pos.reset(q[:1], np.zeros((1, n)))
+    held = pos.position.copy()
+    np.testing.assert_array_equal(pos.anchor(q[:1] - 1.0, tol), [0])
+    np.testing.assert_array_equal(pos.position, held)
+
+
 @pytest.mark.parametrize("mode", ["position", "velocity"])
 def test_sync_starts_from_the_measured_state(robot, mode):
     n, dt = robot.n_joints, robot.control_period

@@ -73,7 +73,7 @@ def test_pushing_a_joint_into_its_soft_limit_costs_the_soft_penalty(arm3):
 
 def test_episodes_draw_noise_and_dynamics_per_env(arm3):
     task = ReachTask(arm3, 4, ReachConfig(), seed=4)
-    lo, hi = ReachConfig().noise_range
+    lo, hi = ReachConfig().sensors.noise_sigma
     assert np.all((task.backend.noise_sigma >= lo) & (task.backend.noise_sigma <= hi))
     assert len({d.mass for d in task.dynamics}) == 4  # one draw per env
     masses = [m.body_mass[m.jnt_bodyid[0]] for m in task.backend.models]

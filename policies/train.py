@@ -312,6 +312,7 @@ def train(args: argparse.Namespace) -> Path | None:
         reward=args.reward,
         episode_seconds=args.episode_seconds,
         start_poses=start_poses(args.start_poses, robot),
+        success_radius=args.success_radius,
     )
     task = ReachTask(robot, args.envs, config, seed=args.seed)
     # Rewards (not observations: those are already scaled by physical maxima, seed section 3) are
@@ -333,6 +334,7 @@ def train(args: argparse.Namespace) -> Path | None:
             "randomized_dynamics": bool(args.randomize),
             "episode_seconds": args.episode_seconds,
             "start_poses": len(config.start_poses),
+            "success_radius": task.success_radius,
             "curve": history,
         }
         save_checkpoint(candidate, actor, task.spec, info=info)
@@ -450,6 +452,12 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         metavar="REPORT.json",
         help="also start episodes where this soak report saw the policy miss its goal",
+    )
+    p.add_argument(
+        "--success-radius",
+        type=float,
+        default=None,
+        help="m, training's goal radius (default the robot's task.success_radius, as the soak)",
     )
     p.add_argument(
         "--gate-hours",

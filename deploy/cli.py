@@ -4,7 +4,8 @@
 
 ====  =====================================================================================
 0     clean: no hard violation, no latched fault
-1     a hard-limit violation happened
+1     a hard-limit violation: the true joint position (simulation) crossed a hard limit, or the
+      guard found the estimate beyond one (a safe stop)
 2     a latched fault: some env ended FAULTED (or in a safe stop) after a fault of the table
 3     bad input: unreadable robot, policy or spec, mismatching contract, bad option
 4     the simulation diverged (MuJoCo reported a bad state)
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -77,12 +79,56 @@ def sample_goal(robot, rng: np.random.Generator) -> np.ndarray:
     return rng.uniform(task.box_min, task.box_max)
 
 
+def success_windows(issued: list[int], reached: list[int], window: float, end: float) -> list[dict]:
+    """Goal success rate per window of simulated time.
+
+    The run ``[0, end]`` is cut into windows ``[k window, (k + 1) window)``; a goal counts in the
+    window in which it was issued (also when it was reached after the window ended). A final
+    partial window shorter than half a window is merged into the previous one; windows in which
+    no goal was issued are left out.
+
+    Args:
+        issued: Goals issued per window (index ``floor(t_issue / window)``); missing trailing
+            windows count as 0, indices past the last window count in the last one.
+        reached: Goals reached per window of issue, as ``issued``.
+        window: Window length, s (> 0).
+        end: End of the run, s (>= 0).
+
+    Returns:
+        ``[{"start_s", "end_s", "issued", "reached", "success_rate"}]`` in time order.
+
+    Raises:
+        ValueError: ``window <= 0`` or ``end < 0``.
+    """
+    if not window > 0:
+        raise ValueError(f"window: expected a number of seconds > 0, got {window}")
+    if not end >= 0:
+        raise ValueError(f"end: expected a time >= 0 s, got {end}")
+    count = max(1, math.ceil(end / window - 1e-9))
+    rows = [[k * window, min((k + 1) * window, end), 0, 0] for k in range(count)]
+    for column, values in ((2, issued), (3, reached)):
+        for k, n in enumerate(values):
+            rows[min(k, count - 1)][column] += int(n)
+    if count > 1 and rows[-1][1] - rows[-1][0] < 0.5 * window:
+        last = rows.pop()
+        rows[-1][1] = last[1]
+        rows[-1][2] += last[2]
+        rows[-1][3] += last[3]
+    return [
+        {"start_s": a, "end_s": b, "issued": i, "reached": r, "success_rate": r / i}
+        for a, b, i, r in rows
+        if i > 0
+    ]
+
+
 class GoalScheduler:
     """New goals every ``period`` s (or one fixed goal); records when each was reached (sim).
 
     Only time in RUNNING counts: an env that is not running has its goal clock held, and gets its
     first goal when it starts running. A goal counts as reached when the end effector comes
-    within ``task.success_radius`` of it at most ``success_time`` s after it was issued.
+    within ``task.success_radius`` of it at most ``success_time`` s after it was issued. A goal
+    replaced by the next one without having been reached is *missed*: its end state is recorded
+    (:attr:`missed`).
 
     Args:
         robot: The robot (task region, success radius).
@@ -93,27 +139,70 @@ class GoalScheduler:
         rng: One ``numpy.random.Generator`` for the batch (goals drawn in env order), or a
             sequence of ``envs`` generators, one goal stream per env (batched soak sessions, so
             that a session's goals do not depend on its neighbours).
+        window: s, the windows of :meth:`windows` (windowed success rate).
+        interventions: Optional :class:`deploy.interventions.InterventionMonitor`, updated before
+            this scheduler each tick: a missed goal then records the ticks of each check during
+            its period.
+        max_missed: Missed goals recorded per env; later ones are only counted
+            (``missed_dropped``).
 
     Attributes:
-        t_goal: (envs,) s, when each env's goal was issued. reached: (envs,) bool.
+        t_goal: (envs,) s, when each env's goal was issued, moved on while the env was not
+            running. issued_at: (envs,) s, when it was issued. reached: (envs,) bool.
+        best_distance: (envs,) m, the closest the true end effector came to the current goal
+            while it could still be reached (within ``success_time`` of running time); inf before.
         issued, hit_count: (envs,) int, goals issued and reached per env. hit_times: per env, the
-        list of times to reach (s). goals, hits, times: the same summed over envs.
+            list of times to reach (s). goals, hits, times: the same summed over envs.
+        window_issued, window_reached: per env, goals issued and reached per window of issue.
+        missed: per env, the missed goals (:meth:`missed_record`), at most ``max_missed``;
+            missed_dropped: (envs,) int64, those not recorded.
+
+    Needs a simulated backend (``end_effector_position``, ``true_position``, ``true_velocity``):
+    whether a goal was reached is judged on the true end effector.
     """
 
-    def __init__(self, robot, envs, period, fixed, success_time, rng):
+    def __init__(
+        self,
+        robot,
+        envs,
+        period,
+        fixed,
+        success_time,
+        rng,
+        window: float = 600.0,
+        interventions=None,
+        max_missed: int = 2000,
+    ):
         self.robot, self.period, self.fixed = robot, period, fixed
         self.streams = list(rng) if isinstance(rng, (list, tuple)) else None
         if self.streams is not None and len(self.streams) != envs:
             raise ValueError(f"rng: expected {envs} generators (one per env), got {len(rng)}")
+        if not window > 0:
+            raise ValueError(f"window: expected a number of seconds > 0, got {window}")
         self.rng = rng if self.streams is None else None  # the batch's one stream
         self.success_radius = robot.config.task.success_radius
         self.success_time = success_time
         self.envs = envs
+        self.window = float(window)
+        self.interventions = interventions
+        self.max_missed = int(max_missed)
         self.t_goal = np.zeros(envs)
+        self.issued_at = np.zeros(envs)
         self.reached = np.zeros(envs, dtype=bool)
+        self.best_distance = np.full(envs, np.inf)
         self.issued = np.zeros(envs, dtype=np.int64)
         self.hit_count = np.zeros(envs, dtype=np.int64)
         self.hit_times: list[list[float]] = [[] for _ in range(envs)]
+        self.window_issued: list[list[int]] = [[] for _ in range(envs)]
+        self.window_reached: list[list[int]] = [[] for _ in range(envs)]
+        self.missed: list[list[dict]] = [[] for _ in range(envs)]
+        self.missed_dropped = np.zeros(envs, dtype=np.int64)
+        checks = len(interventions.counts) + 1 if interventions is not None else 0
+        #: the intervention monitor's counters (and ``any``) when each env's goal was issued
+        self.intervention_base = np.zeros((checks, envs), dtype=np.int64)
+        self._ee = np.zeros((envs, 3))
+        self._diff = np.zeros((envs, 3))
+        self._distance = np.zeros(envs)
 
     @property
     def goals(self) -> int:
@@ -127,14 +216,73 @@ class GoalScheduler:
     def times(self) -> list[float]:
         return [t for times in self.hit_times for t in times]
 
+    def windows(self, e: int, end: float) -> list[dict]:
+        """Env ``e``'s goal success per window of ``window`` s over ``[0, end]`` s
+        (:func:`success_windows`)."""
+        return success_windows(self.window_issued[e], self.window_reached[e], self.window, end)
+
+    def _window(self, counts: list[int], t: float) -> None:
+        k = int(t // self.window)
+        if len(counts) <= k:
+            counts.extend([0] * (k + 1 - len(counts)))
+        counts[k] += 1
+
     def new_goal(self, rt, e: int) -> None:
+        if self.issued[e] > 0 and not self.reached[e]:
+            self.missed_record(rt, e)
         if self.fixed is not None:
             rt.goal[e] = self.fixed
         else:
             rt.goal[e] = sample_goal(self.robot, self.streams[e] if self.streams else self.rng)
         self.t_goal[e] = rt.time
+        self.issued_at[e] = rt.time
         self.reached[e] = False
+        self.best_distance[e] = np.inf
         self.issued[e] += 1
+        self._window(self.window_issued[e], rt.time)
+        if self.interventions is not None:
+            base = self.intervention_base
+            for i, values in enumerate(self.interventions.counts.values()):
+                base[i, e] = values[e]
+            base[-1, e] = self.interventions.any[e]
+
+    def missed_record(self, rt, e: int) -> None:
+        """Record env ``e``'s current goal as missed (at the end of its period), in
+        :attr:`missed` (or count it in ``missed_dropped`` past ``max_missed``)::
+
+            {"t_s": s, now; "issued_s": s; "goal": [x, y, z] m; "q": true joint positions, rad;
+             "dq": true joint velocities, rad/s; "q_estimate": the runtime's estimate, rad;
+             "distance_m": true end effector to goal now; "best_distance_m": the closest it came
+             while the goal could be reached (None if it never could);
+             "interventions": {check: ticks during the goal's period, ..., "any": ticks}}
+        """
+        if len(self.missed[e]) >= self.max_missed:
+            self.missed_dropped[e] += 1
+            return
+        b = rt.backend
+        goal = rt.goal[e]
+        ee = b.end_effector_position(out=self._ee)[e]
+        best = float(self.best_distance[e])
+        record = {
+            "t_s": float(rt.time),
+            "issued_s": float(self.issued_at[e]),
+            "goal": [float(x) for x in goal],
+            "q": [float(x) for x in b.true_position()[e]],
+            "dq": [float(x) for x in b.true_velocity()[e]],
+            "q_estimate": [float(x) for x in rt.state.q[e]],
+            "distance_m": float(np.sqrt(np.sum((ee - goal) ** 2))),
+            "best_distance_m": best if math.isfinite(best) else None,
+            "interventions": {},
+        }
+        if self.interventions is not None:
+            base = self.intervention_base
+            names = [*self.interventions.counts, "any"]
+            values = [*self.interventions.counts.values(), self.interventions.any]
+            record["interventions"] = {
+                name: int(v[e] - base[i, e])
+                for i, (name, v) in enumerate(zip(names, values, strict=True))
+            }
+        self.missed[e].append(record)
 
     def __call__(self, rt) -> None:
         t = rt.time
@@ -153,21 +301,30 @@ class GoalScheduler:
                 self.new_goal(rt, e)
         check = running & ~due & ~self.reached & (age <= self.success_time)
         if check.any():
-            ee = rt.backend.end_effector_position()
-            hit = check & (np.linalg.norm(ee - rt.goal, axis=1) <= self.success_radius)
+            ee = rt.backend.end_effector_position(out=self._ee)
+            diff, distance = self._diff, self._distance
+            np.subtract(ee, rt.goal, out=diff)
+            np.multiply(diff, diff, out=diff)
+            np.sum(diff, axis=1, out=distance)
+            np.sqrt(distance, out=distance)
+            np.minimum(self.best_distance, distance, out=self.best_distance, where=check)
+            hit = check & (distance <= self.success_radius)
             for e in np.flatnonzero(hit):
                 self.reached[e] = True
                 self.hit_count[e] += 1
                 self.hit_times[e].append(float(age[e]))
+                self._window(self.window_reached[e], self.issued_at[e])
 
 
 def run(args) -> int:
     from deploy.backends.sim import SimBackend, SimulationDivergedError
     from deploy.faults import Fault, FaultInjector
+    from deploy.interventions import InterventionMonitor
     from deploy.policy import OnnxPolicy
     from deploy.runtime import STAGES, Runtime, SimClock, WallClock
     from deploy.spec import PolicySpec
-    from deploy.telemetry import Telemetry
+    from deploy.telemetry import LatencyHistogram, Telemetry
+    from deploy.violations import ViolationMonitor
     from robots import load_robot
 
     robot = load_robot(args.robot)
@@ -188,6 +345,14 @@ def run(args) -> int:
     clock = WallClock(robot.control_period) if args.realtime else SimClock(robot.control_period)
     telemetry = Telemetry(args.telemetry, args.envs, robot.n_joints) if args.telemetry else None
     rt = Runtime(robot, policy, backend, clock=clock, injector=injector, telemetry=telemetry)
+    ticks = int(round(args.duration / robot.control_period))
+    peak = np.full((args.envs, robot.n_joints), -np.inf)
+    max_speed = np.zeros(robot.n_joints)
+    monitor_cost = LatencyHistogram()
+    clock_ns = time.perf_counter_ns
+
+    violations = ViolationMonitor(robot, args.envs)
+    interventions = InterventionMonitor(rt.guard, rt.smoother)
     goals = GoalScheduler(
         robot,
         args.envs,
@@ -195,12 +360,14 @@ def run(args) -> int:
         fixed,
         args.success_time,
         np.random.default_rng(args.seed + 1),
+        interventions=interventions,
     )
-    ticks = int(round(args.duration / robot.control_period))
-    peak = np.full((args.envs, robot.n_joints), -np.inf)
-    max_speed = np.zeros(robot.n_joints)
 
     def on_tick(r):
+        t0 = clock_ns()
+        violations.update(backend)
+        interventions.update()
+        monitor_cost.add(0, clock_ns() - t0)
         goals(r)
         np.maximum(peak, backend.thermal.winding_temperature, out=peak)
         np.maximum(max_speed, np.abs(backend.true_velocity()).max(axis=0), out=max_speed)
@@ -208,6 +375,7 @@ def run(args) -> int:
     wall = time.perf_counter()
     diverged = None
     rt.start()
+    interventions.resync()  # start zeroes the smoother's counters
     try:
         rt.run(ticks, on_tick=on_tick)
     except SimulationDivergedError as exc:
@@ -216,7 +384,8 @@ def run(args) -> int:
     if telemetry is not None:
         telemetry.close()
 
-    violations = rt.guard.totals()
+    true = violations.totals()
+    hard_stops = int(rt.counters.faults["hard_limit"].sum())
     report = {
         "robot": robot.name,
         "policy": str(args.policy),
@@ -234,7 +403,14 @@ def run(args) -> int:
             "median_time_to_reach_s": float(np.median(goals.times)) if goals.times else None,
             "within_s": args.success_time,
         },
-        "violations": violations,
+        "violations": {
+            "source": "true state (simulation ground truth)",
+            "ticks": violations.ticks * args.envs,
+            "by_type": {k: v for k, v in true.items() if k != "any"},
+            "any": true["any"],
+        },
+        "interventions": interventions.summary(),
+        "missed_goals": sum(len(m) for m in goals.missed) + int(goals.missed_dropped.sum()),
         "faults": {
             "non_finite_actions": int(rt.counters.non_finite_actions.sum()),
             "safe_stops": int(rt.counters.safe_stops.sum()),
@@ -253,6 +429,7 @@ def run(args) -> int:
         ),
         "max_joint_speed_rad_s": dict(zip(robot.joint_names, max_speed.tolist(), strict=True)),
         "tick_cost_us": rt.tick_cost.summary(),
+        "monitor_cost_us": monitor_cost.summary(),
         "stage_cost_us": {s: rt.latency.summary(i) for i, s in enumerate(STAGES)},
         "deadline": {
             "overruns": clock.overruns,
@@ -261,7 +438,7 @@ def run(args) -> int:
         },
         "diverged": diverged,
     }
-    if violations["hard_limit"] > 0:
+    if true["hard_limit"] > 0 or hard_stops > 0:
         code = EXIT_HARD_VIOLATION
     elif any(m in ("FAULTED", "SAFE_STOP") for m in report["final_state"]):
         code = EXIT_FAULT
@@ -287,8 +464,19 @@ def print_summary(r: dict) -> None:
         f"in {r['wall_s']:.2f} s"
     )
     print(f"  goals reached     {g['reached']}/{g['issued']} within {g['within_s']:.1f} s ({rate})")
-    v = ", ".join(f"{k} {n}" for k, n in r["violations"].items())
-    print(f"  guard             {v}")
+    v = r["violations"]
+    text = ", ".join(f"{k} {n}" for k, n in v["by_type"].items())
+    print(f"  violations (true state, sim)  ticks: {text}")
+    iv = r["interventions"]
+    text = ", ".join(
+        f"{k} {100 * c['fraction']:.2f}" for k, c in iv["checks"].items() if c["count"]
+    )
+    warn = iv["warnings"]["soft_band_estimate"]
+    print(
+        f"  interventions (% of ticks)    any {100 * iv['any']['fraction']:.2f}"
+        + (f" ({text})" if text else "")
+        + f"; warning: estimate in soft band {100 * warn['fraction']:.2f}"
+    )
     f = r["faults"]
     causes = ", ".join(f"{k} {n}" for k, n in f["by_cause"].items() if n) or "none"
     print(
@@ -305,6 +493,11 @@ def print_summary(r: dict) -> None:
     print(
         f"  tick cost (us)    p50 {t['p50_us']:.1f}  p99 {t['p99_us']:.1f}  "
         f"p99.9 {t['p99.9_us']:.1f}  (runtime, without physics)"
+    )
+    m = r["monitor_cost_us"]
+    print(
+        f"  monitors (us)     p50 {m['p50_us']:.1f}  p99 {m['p99_us']:.1f}  (violations + "
+        "interventions, per tick, outside the runtime)"
     )
     stages = "  ".join(f"{k} {s['p50_us']:.0f}" for k, s in r["stage_cost_us"].items())
     print(f"  stages p50 (us)   {stages}")

@@ -103,7 +103,10 @@ class SafetyGuard:
         mode: Control mode of the targets: 'position' (rad), 'velocity' (rad/s), 'torque' (N m).
 
     Attributes:
-        counts: dict check name -> (envs,) int64, interventions so far.
+        counts: dict check name -> (envs,) int64, interventions so far; each check counts at
+            most once per env and tick, except ``effort`` in torque mode (a hold and a clamp).
+        count_matrix: (len(CHECKS), envs) int64, the same counters as rows in ``CHECKS`` order
+            (``counts[name]`` are views of its rows): one array to sum or compare per tick.
         hard_violation: (envs,) bool, set by the last :meth:`filter` when a hard limit was crossed
             (the runtime answers with a safe stop).
         effort_scale: (envs, n) derating factor in [0, 1] applied to the effort limits, from the
@@ -122,7 +125,8 @@ class SafetyGuard:
         s = robot.config.safety
         self.ws_min = np.array(s.workspace_min)
         self.ws_max = np.array(s.workspace_max)
-        self.counts = {name: np.zeros(envs, dtype=np.int64) for name in CHECKS}
+        self.count_matrix = np.zeros((len(CHECKS), envs), dtype=np.int64)
+        self.counts = {name: self.count_matrix[i] for i, name in enumerate(CHECKS)}
         self.hard_violation = np.zeros(envs, dtype=bool)
         self.effort_scale = np.ones((envs, n))
         self._start = np.array([m.derating_start_temperature for m in robot.motors])
@@ -136,7 +140,7 @@ class SafetyGuard:
         self._brake_gain = 10.0 * robot.effort_limit
         self.model = robot.pin_model
         self.data = self.model.createData()
-        self.geom_model, self.geom_data = self._collision_model(robot)
+        self.geom_model, self.geom_data = self.collision_model(robot)
         self._has_pairs = bool(self.geom_model.collisionPairs)
         #: m per rad: bound on any point's displacement per unit of sum |dq| (module docstring).
         self.sweep, self.gravity_bound = motion_bounds(robot)
@@ -150,7 +154,16 @@ class SafetyGuard:
         self._no_env = np.zeros(envs, dtype=bool)  # read only
 
     @staticmethod
-    def _collision_model(robot: Robot):
+    def collision_model(robot: Robot) -> tuple[pin.GeometryModel, pin.GeometryData]:
+        """The guard's coal collision model of ``robot``: the MJCF geoms (nominal geometry) with
+        the pairs of ``safety.collision_pairs``, and its data. Use it with ``robot.pin_model``
+        (``pin.computeCollisions``); :class:`deploy.violations.ViolationMonitor` checks the true
+        configuration with it.
+
+        Raises:
+            ValueError: a listed geom is not in the MJCF (the message names robot.toml, the field
+                and the geoms there are).
+        """
         geom = pin.buildGeomFromMJCF(robot.pin_model, str(robot.mjcf_path), pin.VISUAL)
         names = [g.name for g in geom.geometryObjects]
         for a, b in robot.config.safety.collision_pairs:

@@ -26,7 +26,9 @@ kind                        size   raw quantity (base frame unless stated)
 
 Action: ``a`` in ``[-clip, clip]^n`` maps to the target of the control mode,
 ``target = offset + scale * a`` (``reference = "absolute"``) or ``target = q + scale * a``
-(position mode, ``reference = "current"``).
+(position mode, ``reference = "current"``). :meth:`PolicySpec.for_robot` scales a velocity action
+by the soft velocity limit (the fastest command the smoother issues, so a full action is never
+clamped), a torque action by the effort limit and an absolute position action by half the range.
 
 Arrays are shaped (envs, ...). ``observation`` and ``action_to_target`` write into ``out`` when it
 is given (no allocation in the control loop).
@@ -211,7 +213,9 @@ class PolicySpec:
                 scale = tuple(robot.velocity_limit * robot.control_period)
                 offset = (0.0,) * n
         elif mode == "velocity":
-            scale, offset = tuple(robot.velocity_limit), (0.0,) * n
+            # a full action is the fastest command the runtime issues (the smoother's soft
+            # velocity limit): no action in [-1, 1] is clamped, so a clamp is a real intervention
+            scale, offset = tuple(robot.soft_velocity_limit), (0.0,) * n
         else:
             scale, offset = tuple(robot.effort_limit), (0.0,) * n
         action = ActionSpec(

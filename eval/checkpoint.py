@@ -19,7 +19,12 @@ CommandSmoother        Ruckig's input (current and target position, velocity, ac
 SafetyGuard            counters, hard-violation flag, derating, last accepted target
 Runtime                modes, causes, counters, non-finite streak, last actions, goal, estimated
                        state, ticks and time, latency histograms
-GoalScheduler          goal times, reached flags, counts, times to reach, its random stream
+GoalScheduler          goal times (running and issue), reached flags, best distances, counts,
+                       times to reach, per-window counts, missed goals, intervention counters at
+                       issue, its random stream
+ViolationMonitor       true-state violation counters (``state_dict``)
+InterventionMonitor    intervention counters and the guard's and smoother's counters at the last
+                       tick (``state_dict``)
 FaultInjector          schedule, base sensor settings, active faults, frozen frame, log
 =====================  =========================================================================
 
@@ -55,7 +60,7 @@ import mujoco
 import numpy as np
 
 FORMAT = "soak-checkpoint"
-VERSION = 1
+VERSION = 2
 MANIFEST = "checkpoint.json"
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 
@@ -325,30 +330,76 @@ def fresh_trajectory_generator(smoother) -> None:
     smoother._out = OutputParameter(smoother.dofs)
 
 
+# ---------------------------------------------------------------------- monitors
+def capture_monitor(prefix: str, monitor, e: int) -> dict[str, np.ndarray]:
+    """Env ``e``'s slice of a monitor's ``state_dict`` (:class:`deploy.violations.ViolationMonitor`,
+    :class:`deploy.interventions.InterventionMonitor`), keyed ``<prefix>/<field>``."""
+    return {f"{prefix}/{k}": v for k, v in monitor.state_dict(e).items()}
+
+
+def restore_monitor(prefix: str, monitor, e: int, arrays: dict[str, np.ndarray], where) -> None:
+    """Inverse of :func:`capture_monitor`.
+
+    Raises:
+        CheckpointError: a missing field or a shape that does not fit (the message names the file
+            ``where`` and the field).
+    """
+    start = len(prefix) + 1
+    state = {k[start:]: v for k, v in arrays.items() if k.startswith(prefix + "/")}
+    try:
+        monitor.load_state_dict(state, e)
+    except ValueError as exc:
+        raise CheckpointError(f"{where}: checkpoint field '{prefix}': {exc}") from None
+
+
 # ---------------------------------------------------------------------- goal scheduler, faults
 def capture_goals(goals, e: int) -> tuple[dict[str, np.ndarray], dict]:
     """State of env ``e`` of a :class:`deploy.cli.GoalScheduler` with one stream per env."""
     arrays = {
         "goals/t_goal": goals.t_goal[e : e + 1].copy(),
+        "goals/issued_at": goals.issued_at[e : e + 1].copy(),
         "goals/reached": goals.reached[e : e + 1].copy(),
+        "goals/best_distance": goals.best_distance[e : e + 1].copy(),
+        "goals/missed_dropped": goals.missed_dropped[e : e + 1].copy(),
+        "goals/intervention_base": goals.intervention_base[:, e : e + 1].copy(),
     }
     meta = {
         "goals": int(goals.issued[e]),
         "hits": int(goals.hit_count[e]),
         "times": list(goals.hit_times[e]),
+        "window_issued": list(goals.window_issued[e]),
+        "window_reached": list(goals.window_reached[e]),
+        "missed": list(goals.missed[e]),
         "rng": generator_state(goals.streams[e]),
     }
     return arrays, meta
 
 
 def restore_goals(goals, e: int, arrays: dict[str, np.ndarray], meta: dict) -> None:
-    """Inverse of :func:`capture_goals`."""
+    """Inverse of :func:`capture_goals`.
+
+    Raises:
+        CheckpointError: a missing field, or an intervention base of another shape.
+    """
     try:
+        base = arrays["goals/intervention_base"]
+        if base.shape != goals.intervention_base[:, e : e + 1].shape:
+            raise CheckpointError(
+                "checkpoint field 'goals/intervention_base': expected shape "
+                f"{goals.intervention_base[:, e : e + 1].shape}, got {base.shape}"
+            )
         goals.t_goal[e : e + 1] = arrays["goals/t_goal"]
+        goals.issued_at[e : e + 1] = arrays["goals/issued_at"]
         goals.reached[e : e + 1] = arrays["goals/reached"]
+        goals.best_distance[e : e + 1] = arrays["goals/best_distance"]
+        goals.missed_dropped[e : e + 1] = arrays["goals/missed_dropped"]
+        goals.intervention_base[:, e : e + 1] = base
         goals.issued[e] = int(meta["goals"])
         goals.hit_count[e] = int(meta["hits"])
         goals.hit_times[e] = [float(t) for t in meta["times"]]
+        goals.window_issued[e] = [int(n) for n in meta["window_issued"]]
+        goals.window_reached[e] = [int(n) for n in meta["window_reached"]]
+        goals.missed[e] = list(meta["missed"])
         set_generator_state(goals.streams[e], meta["rng"])
     except KeyError as exc:
         raise CheckpointError(f"checkpoint field {exc} of the goal scheduler is missing") from None

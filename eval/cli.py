@@ -5,24 +5,29 @@ Usage::
     soak-test --robot arm3 --policy policies/arm.onnx --hours 8 --sessions 2 --seed 0 --out DIR
               [--resume] [--baseline OLD/report.json] [--executor local|ray] [--address ADDR]
               [--sessions-per-process K] [--workers N] [--checkpoint-minutes M]
-              [--goal-period S] [--no-faults] [--fault-interval S] ...
+              [--goal-period S] [--no-faults] [--fault-interval S] [--min-success R]
+              [--min-window-success R] [--window-minutes M] [--max-interventions F] ...
 
 It writes ``DIR/report.json``, ``DIR/report.html`` and ``DIR/junit.xml`` (atomically), keeps each
 session's checkpoints, progress and result under ``DIR/sessions/<id>/``, shows a progress bar of
 simulated hours and speed (simulated / wall time), and prints a summary.
 
-Exit codes (when several apply, the first of 4, 1, 5, 2, 6, 7 is returned):
+Exit codes (when several apply, the first of 4, 1, 5, 2, 6, 8, 7 is returned):
 
 ====  =====================================================================================
 0     every check passed, and no regression against ``--baseline``
-1     a hard-limit violation
+1     a hard-limit violation: a joint's true position beyond a hard limit, or a hard-limit safe
+      stop of the runtime
 2     a latched fault (an env ended in FAULTED at least once)
-3     bad input: a bad option, or an unreadable robot, policy, baseline or checkpoint (the
-      message names the file and the field)
+3     bad input: a bad option, or an unreadable robot, policy, baseline (schema 1 included) or
+      checkpoint (the message names the file and the field)
 4     the simulation diverged (MuJoCo reported a bad state)
 5     over-temperature: a winding above its maximum, or an over-temperature safe stop
-6     goal success rate below ``--min-success``
+6     goal success rate below ``--min-success`` over a session, or below
+      ``--min-window-success`` in one of its windows of ``--window-minutes``
 7     regression against ``--baseline``
+8     interventions: the guard or the smoother changed the command on more than
+      ``--max-interventions`` of the ticks
 130   interrupted (Ctrl-C); the checkpoints are kept and ``--resume`` continues
 ====  =====================================================================================
 """
@@ -44,6 +49,7 @@ EXIT_DIVERGED = 4
 EXIT_OVER_TEMPERATURE = 5
 EXIT_LOW_SUCCESS = 6
 EXIT_REGRESSION = 7
+EXIT_INTERVENTIONS = 8
 EXIT_INTERRUPTED = 130
 
 #: Failure name (eval.report.failures) -> exit code, in order of precedence.
@@ -53,6 +59,8 @@ _EXIT_ORDER = (
     ("no_over_temperature", EXIT_OVER_TEMPERATURE),
     ("no_latched_fault", EXIT_LATCHED),
     ("success_rate", EXIT_LOW_SUCCESS),
+    ("window_success", EXIT_LOW_SUCCESS),
+    ("interventions", EXIT_INTERVENTIONS),
     ("regression", EXIT_REGRESSION),
 )
 
@@ -70,10 +78,11 @@ def _parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="soak-test",
         description="Soak test: hours of the safety runtime with an ONNX policy against a "
-        "randomized, faulty MuJoCo plant; reports of violations, faults and motor heat.",
+        "randomized, faulty MuJoCo plant; reports of violations (true state), interventions, "
+        "faults and motor heat.",
         epilog="Exit codes: 0 passed, 1 hard violation, 2 latched fault, 3 bad input, "
-        "4 divergence, 5 over-temperature, 6 success below threshold, 7 regression, "
-        "130 interrupted.",
+        "4 divergence, 5 over-temperature, 6 success below threshold (session or window), "
+        "7 regression, 8 interventions above threshold, 130 interrupted.",
     )
     p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
     p.add_argument("--policy", default="policies/arm.onnx", help="ONNX policy (policy-export)")
@@ -111,7 +120,24 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--curve-seconds", type=float, default=60.0, help="simulated s per point of the curves"
     )
-    p.add_argument("--min-success", type=float, default=0.5, help="lowest passing success rate")
+    p.add_argument(
+        "--min-success", type=float, default=0.95, help="lowest passing success rate (session)"
+    )
+    p.add_argument(
+        "--min-window-success",
+        type=float,
+        default=0.90,
+        help="lowest passing success rate in any window of --window-minutes",
+    )
+    p.add_argument(
+        "--window-minutes", type=float, default=10.0, help="simulated minutes per success window"
+    )
+    p.add_argument(
+        "--max-interventions",
+        type=float,
+        default=0.01,
+        help="highest passing fraction of ticks on which the guard or smoother changed a command",
+    )
     p.add_argument(
         "--tolerance-violations",
         type=float,
@@ -123,6 +149,12 @@ def _parser() -> argparse.ArgumentParser:
         type=float,
         default=1.0,
         help="absolute rise of violations per hour still allowed",
+    )
+    p.add_argument(
+        "--intervention-slack",
+        type=float,
+        default=0.002,
+        help="absolute rise of an intervention fraction of ticks over the baseline still allowed",
     )
     p.add_argument(
         "--tolerance-success", type=float, default=0.02, help="drop of the success rate allowed"
@@ -147,17 +179,21 @@ def _check_args(args) -> None:
     number("--success-time", 0, True)
     number("--fault-interval", 0, True)
     number("--curve-seconds", 0, True)
+    number("--window-minutes", 0, True)
     number("--checkpoint-minutes", 0, False)
     number("--operator-reset", 0, False)
     for name in (
         "--tolerance-violations",
         "--violation-slack",
+        "--intervention-slack",
         "--tolerance-success",
         "--tolerance-temperature",
     ):
         number(name, 0, False)
-    if not 0.0 <= args.min_success <= 1.0:
-        raise BadInput(f"--min-success: expected a value in [0, 1], got {args.min_success}")
+    for name in ("--min-success", "--min-window-success", "--max-interventions"):
+        value = getattr(args, name.lstrip("-").replace("-", "_"))
+        if not 0.0 <= value <= 1.0:
+            raise BadInput(f"{name}: expected a value in [0, 1], got {value}")
     for name in ("sessions", "sessions_per_process"):
         if getattr(args, name) < 1:
             raise BadInput(f"--{name.replace('_', '-')}: expected an integer >= 1")
@@ -191,8 +227,11 @@ def run(args) -> int:
     _check_args(args)
     thresholds = Thresholds(
         min_success_rate=args.min_success,
+        min_window_success_rate=args.min_window_success,
+        max_intervention_rate=args.max_interventions,
         violation_tolerance=args.tolerance_violations,
         violation_slack=args.violation_slack,
+        intervention_slack=args.intervention_slack,
         success_tolerance=args.tolerance_success,
         temperature_tolerance=args.tolerance_temperature,
     )
@@ -210,6 +249,7 @@ def run(args) -> int:
         operator_reset=args.operator_reset,
         faults=not args.no_faults,
         ranges=SessionRanges(faults=FaultRanges(mean_interval=args.fault_interval)),
+        window_minutes=args.window_minutes,
     )
     wall = time.perf_counter()
     results = run_campaign(

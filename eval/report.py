@@ -1,16 +1,34 @@
 """Soak reports: report.json, report.html, junit.xml, and the comparison with a baseline.
 
-``report.json`` (``schema_version`` ``SCHEMA_VERSION``)::
+Two words (DESIGN.md): a **violation** is the robot's *true* state past a limit, counted from the
+simulator's ground truth (:mod:`deploy.violations`); an **intervention** is a command the guard or
+the smoother changed (:mod:`deploy.interventions`). They are reported apart: a guard that clamps
+often is a policy leaning on it, not a robot beyond its limits.
+
+``report.json`` (``schema_version`` ``SCHEMA_VERSION`` = 2)::
 
     schema_version, tool, created (UTC, ISO 8601)
     campaign        robot, policy, policy_sha256, hours, sessions, seed, options of the sessions,
                     executor, sessions_per_process, wall_s
-    thresholds      min_success_rate and the baseline tolerances (:class:`Thresholds`)
+    thresholds      the pass/fail thresholds and baseline tolerances (:class:`Thresholds`)
     sessions[]      one per session (eval.soak's result):
         id, seed, status ('complete' | 'diverged'), simulated_s, simulated_hours, ticks,
         control_mode, randomization {dynamics, sensors, drift, faults[]},
-        violations {total {check: n}, per_hour [{hour, start_s, end_s, counts}], rate_per_hour},
-        goals {issued, reached, success_rate, median_time_to_reach_s, within_s, period_s},
+        violations {source, total {type: ticks}, any, per_hour [{hour, start_s, end_s,
+                    counts {type: ticks}, any}], rate_per_hour {type: ticks per hour}}
+                    (types: hard_limit, soft_limit, velocity, effort, workspace, self_collision;
+                    a tick counts once per type)
+        interventions {ticks, checks {check: {count, fraction}}, any {count, fraction},
+                    warnings {soft_band_estimate: {count, fraction}}, per_hour [{hour, start_s,
+                    end_s, ticks, counts {check: ticks}, any, warnings}]}
+                    (checks: hard_limit, soft_limit, velocity, workspace, self_collision, effort,
+                    stopping_distance, target_clamp; count = ticks on which the check changed a
+                    command, fraction = count / ticks)
+        goals {issued, reached, success_rate, median_time_to_reach_s, within_s, period_s,
+               window_s, windows [{start_s, end_s, issued, reached, success_rate}],
+               min_window_success_rate, missed [{t_s, issued_s, goal, q, dq, q_estimate,
+               distance_m, best_distance_m, interventions {check: ticks, any}}],
+               missed_dropped}
         faults {scheduled, injected, survived, responses {held, safe_stop, resumed, latched,
                 not_running}, events [{kind, start_s, duration_s, magnitude, response, survived,
                 causes, ...}]},
@@ -19,32 +37,41 @@
         estimator {missing_readings, stale_readings, reinitializations},
         thermal {joints, derating_start_c, max_winding_c, peak_c, derating_band_s,
                  over_temperature_s, curve {t_s, winding_c {joint: [...]}}},
-        curves {t_s, goals_issued, goals_reached, violations {check: [...]}, mode},
+        curves {t_s, goals_issued, goals_reached, violations {type | any: [...]},
+                interventions {check | any: [...]}, mode}   (cumulative counts)
         drift {friction_final_nm}, diverged (message or null),
         checks {name: {passed, message}},
         wall {wall_s, speed, batch, tick_cost_us, tick_cost_histogram, stage_cost_us}
-    totals          over every session: simulated_hours, violations {total, rate_per_hour,
-                    per_hour}, goals, faults {injected, survived, responses, by_kind},
-                    latched_faults, operator_resets, thermal {peak_c, derating_band_s,
-                    over_temperature_s}, diverged [ids], tick_cost_us
+    totals          over every session: simulated_hours, ticks, violations {total, any,
+                    rate_per_hour, per_hour [{hour, counts, any}]}, interventions {ticks, checks
+                    {check: {count, fraction}}, any {count, fraction}, warnings, per_hour [{hour,
+                    ticks, counts, any, fraction}]}, goals {issued, reached, success_rate,
+                    min_window_success_rate, missed, missed_dropped}, faults {injected, survived,
+                    responses, by_kind}, latched_faults, operator_resets, thermal {peak_c,
+                    derating_band_s, over_temperature_s}, diverged [ids], tick_cost_us
     checks          {name: {passed, failed_sessions}}
     baseline        null, or {path, passed, regressions [{metric, baseline, current, allowed,
-                    message}], compared {metric: {baseline, current}}}
+                    message}], compared {metric: {baseline, current, allowed}}}
     passed          every check and the baseline comparison passed
 
 Everything in a session except ``wall`` (wall-clock time, tick cost) follows from the session's
 seed and options: a repeated or resumed session reproduces it exactly.
 
-Session checks (``CHECKS``): no hard-limit violation, no latched fault, no over-temperature (a
-winding above its maximum, or an over-temperature safe stop), goal success rate at least
-``min_success_rate``, no simulator divergence. junit.xml has one testcase per session and check,
-and one for the baseline comparison.
+Session checks (``CHECKS``): ``no_hard_violation`` (no true-state hard-limit violation and no
+hard-limit safe stop of the runtime), ``no_latched_fault``, ``no_over_temperature`` (a winding
+above its maximum, or an over-temperature safe stop), ``success_rate`` (at least
+``min_success_rate`` over the session), ``window_success`` (at least ``min_window_success_rate``
+in every window of ``window_minutes`` with a goal), ``interventions`` (ticks with any
+intervention at most ``max_intervention_rate`` of the ticks), ``no_divergence``. junit.xml has one
+testcase per session and check, and one for the baseline comparison.
 
-Baseline comparison (:func:`compare_with_baseline`, campaign totals): a regression is a violation
-rate per hour (any check) above ``baseline * (1 + violation_tolerance) + violation_slack``, a
-success rate below ``baseline - success_tolerance``, a peak winding temperature above
-``baseline + temperature_tolerance`` (any joint), or more latched faults per simulated hour than
-the baseline.
+Baseline comparison (:func:`compare_with_baseline`, campaign totals; the baseline must be of schema
+2): a regression is a true-state violation rate per hour (any type) above ``baseline * (1 +
+violation_tolerance) + violation_slack``, an intervention fraction of ticks (any check, or all
+together) above ``baseline * (1 + violation_tolerance) + intervention_slack``, a success rate or a
+minimum window success rate below ``baseline - success_tolerance``, a peak winding temperature
+above ``baseline + temperature_tolerance`` (any joint), or more latched faults per simulated hour
+than the baseline.
 
 Every file is written to a temporary file and moved into place with ``os.replace``. The HTML is
 self-contained (plots are matplotlib PNGs embedded as base64; no scripts, no external resources).
@@ -67,12 +94,14 @@ import numpy as np
 
 from eval.checkpoint import atomic_write
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 CHECKS = (
     "no_hard_violation",
     "no_latched_fault",
     "no_over_temperature",
     "success_rate",
+    "window_success",
+    "interventions",
     "no_divergence",
 )
 
@@ -86,17 +115,27 @@ class Thresholds:
     """Pass/fail thresholds.
 
     Attributes:
-        min_success_rate: Lowest goal success rate a session passes with (our default: 0.5).
-        violation_tolerance: Relative rise of a violation rate per hour over the baseline that is
-            still no regression (0.10: +10 %).
+        min_success_rate: Lowest goal success rate over a session that passes (0.95).
+        min_window_success_rate: Lowest goal success rate in any window of a session (0.90).
+        max_intervention_rate: Highest fraction of ticks with any intervention (0.01).
+        violation_tolerance: Relative rise of a violation rate per hour, or of an intervention
+            fraction, over the baseline that is still no regression (0.10: +10 %).
         violation_slack: Absolute rise, violations per hour, also allowed (noise of short runs).
-        success_tolerance: Drop of the success rate (absolute) still allowed.
+        intervention_slack: Absolute rise of an intervention fraction of ticks also allowed.
+        success_tolerance: Drop of the success rate, or of the minimum window success rate
+            (absolute), still allowed.
         temperature_tolerance: Rise of a joint's peak winding temperature still allowed, K.
+
+    Raises:
+        ReportError: a negative or non-finite value, or a rate above 1 (named).
     """
 
-    min_success_rate: float = 0.5
+    min_success_rate: float = 0.95
+    min_window_success_rate: float = 0.90
+    max_intervention_rate: float = 0.01
     violation_tolerance: float = 0.10
     violation_slack: float = 1.0
+    intervention_slack: float = 0.002
     success_tolerance: float = 0.02
     temperature_tolerance: float = 2.0
 
@@ -104,27 +143,38 @@ class Thresholds:
         for name, value in asdict(self).items():
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ReportError(f"thresholds: {name}: expected a number >= 0, got {value!r}")
-        if self.min_success_rate > 1:
-            raise ReportError(
-                f"thresholds: min_success_rate: expected a value in [0, 1], got "
-                f"{self.min_success_rate}"
-            )
+        for name in ("min_success_rate", "min_window_success_rate", "max_intervention_rate"):
+            if getattr(self, name) > 1:
+                raise ReportError(
+                    f"thresholds: {name}: expected a value in [0, 1], got {getattr(self, name)}"
+                )
 
 
 # ---------------------------------------------------------------------- checks and totals
 def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     """The checks of one session result: ``{name: {"passed": bool, "message": str}}``."""
     hard = result["violations"]["total"].get("hard_limit", 0)
+    hard_stops = result["runtime"]["by_cause"].get("hard_limit", 0)
     latched = result["runtime"]["latched_faults"]
     th = result["thermal"]
     hot = [j for j in th["joints"] if th["peak_c"][j] > th["max_winding_c"][j]]
     thermal_stops = result["runtime"]["by_cause"].get("over_temperature", 0)
-    rate = result["goals"]["success_rate"]
+    goals = result["goals"]
+    rate = goals["success_rate"]
+    window = goals["min_window_success_rate"]
+    iv = result["interventions"]
+    share = iv["any"]["fraction"]
     causes = sorted({x["cause"] for x in result["runtime"]["latches"] if x.get("cause")})
+    worst = sorted(
+        ((c["fraction"], k) for k, c in iv["checks"].items() if c["count"]), reverse=True
+    )[:3]
     checks = {
         "no_hard_violation": (
-            hard == 0,
-            f"{hard} hard-limit violations" if hard else "no hard-limit violation",
+            hard == 0 and hard_stops == 0,
+            f"{hard} ticks with a joint beyond a hard limit (true state), {hard_stops} "
+            "hard-limit safe stops"
+            if hard or hard_stops
+            else "no hard-limit violation (true state), no hard-limit safe stop",
         ),
         "no_latched_fault": (
             latched == 0,
@@ -143,10 +193,26 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
             rate is not None and rate >= thresholds.min_success_rate,
             (
                 f"success rate {rate:.3f} (threshold {thresholds.min_success_rate:.3f}, "
-                f"{result['goals']['reached']}/{result['goals']['issued']} goals)"
+                f"{goals['reached']}/{goals['issued']} goals)"
                 if rate is not None
                 else "no goal was issued"
             ),
+        ),
+        "window_success": (
+            window is not None and window >= thresholds.min_window_success_rate,
+            (
+                f"lowest success rate in a {goals['window_s'] / 60:g}-minute window {window:.3f} "
+                f"(threshold {thresholds.min_window_success_rate:.3f}, "
+                f"{len(goals['windows'])} windows)"
+                if window is not None
+                else "no goal was issued"
+            ),
+        ),
+        "interventions": (
+            share <= thresholds.max_intervention_rate,
+            f"{100 * share:.3f} % of ticks with an intervention (threshold "
+            f"{100 * thresholds.max_intervention_rate:.3f} %"
+            + ("; " + ", ".join(f"{k} {100 * f:.3f} %" for f, k in worst) + ")" if worst else ")"),
         ),
         "no_divergence": (
             not result["diverged"],
@@ -171,19 +237,45 @@ def _histogram_summary(bins: list[int], counts: list[int]) -> dict:
     return {"p50_us": pct(50), "p99_us": pct(99), "p99.9_us": pct(99.9), "samples": total}
 
 
+def _sum_rows(results: list[dict], section: str, keys: list[str]) -> list[dict]:
+    """Per-hour rows of ``section`` summed over sessions by hour index."""
+    rows: dict[int, dict] = {}
+    for r in results:
+        for h in r[section]["per_hour"]:
+            row = rows.setdefault(h["hour"], {"counts": dict.fromkeys(keys, 0), "any": 0})
+            for k, v in h["counts"].items():
+                row["counts"][k] = row["counts"].get(k, 0) + v
+            row["any"] += h["any"]
+            if "ticks" in h:
+                row["ticks"] = row.get("ticks", 0) + h["ticks"]
+    out = []
+    for hour in sorted(rows):
+        row = {"hour": hour, **rows[hour]}
+        if "ticks" in row:
+            row["fraction"] = row["any"] / row["ticks"] if row["ticks"] else 0.0
+        out.append(row)
+    return out
+
+
 def totals(results: list[dict]) -> dict:
     """Campaign totals over session results (see the module docstring)."""
     hours = sum(r["simulated_hours"] for r in results)
-    checks_names = list(results[0]["violations"]["total"]) if results else []
-    total = {k: sum(r["violations"]["total"][k] for r in results) for k in checks_names}
-    per_hour: dict[int, dict] = {}
-    for r in results:
-        for h in r["violations"]["per_hour"]:
-            row = per_hour.setdefault(h["hour"], {k: 0 for k in checks_names})
-            for k, v in h["counts"].items():
-                row[k] += v
+    types = list(results[0]["violations"]["total"]) if results else []
+    total = {k: sum(r["violations"]["total"][k] for r in results) for k in types}
+    ticks = sum(r["interventions"]["ticks"] for r in results)
+    checks = list(results[0]["interventions"]["checks"]) if results else []
+    warnings = list(results[0]["interventions"]["warnings"]) if results else []
+
+    def entry(count: int) -> dict:
+        return {"count": count, "fraction": count / ticks if ticks else 0.0}
+
     issued = sum(r["goals"]["issued"] for r in results)
     reached = sum(r["goals"]["reached"] for r in results)
+    windows = [
+        r["goals"]["min_window_success_rate"]
+        for r in results
+        if r["goals"]["min_window_success_rate"] is not None
+    ]
     responses: dict[str, int] = {}
     by_kind: dict[str, dict] = {}
     for r in results:
@@ -204,15 +296,34 @@ def totals(results: list[dict]) -> dict:
     return {
         "sessions": len(results),
         "simulated_hours": hours,
+        "ticks": ticks,
         "violations": {
+            "source": results[0]["violations"]["source"] if results else None,
             "total": total,
+            "any": sum(r["violations"]["any"] for r in results),
             "rate_per_hour": {k: (v / hours if hours > 0 else 0.0) for k, v in total.items()},
-            "per_hour": [{"hour": h, "counts": per_hour[h]} for h in sorted(per_hour)],
+            "per_hour": _sum_rows(results, "violations", types),
+        },
+        "interventions": {
+            "ticks": ticks,
+            "checks": {
+                k: entry(sum(r["interventions"]["checks"][k]["count"] for r in results))
+                for k in checks
+            },
+            "any": entry(sum(r["interventions"]["any"]["count"] for r in results)),
+            "warnings": {
+                k: entry(sum(r["interventions"]["warnings"][k]["count"] for r in results))
+                for k in warnings
+            },
+            "per_hour": _sum_rows(results, "interventions", checks),
         },
         "goals": {
             "issued": issued,
             "reached": reached,
             "success_rate": reached / issued if issued else None,
+            "min_window_success_rate": min(windows) if windows else None,
+            "missed": sum(len(r["goals"]["missed"]) for r in results),
+            "missed_dropped": sum(r["goals"]["missed_dropped"] for r in results),
         },
         "faults": {
             "injected": sum(r["faults"]["injected"] for r in results),
@@ -237,6 +348,29 @@ def totals(results: list[dict]) -> dict:
     }
 
 
+def missed_states(report: dict) -> list[dict]:
+    """The missed goals of every session of a report, in session order.
+
+    Each is a session's ``goals.missed`` entry (``t_s``, ``issued_s``, ``goal`` m, ``q`` rad,
+    ``dq`` rad/s, ``q_estimate`` rad, ``distance_m``, ``best_distance_m``, ``interventions``)
+    with the session's ``session`` id and ``seed`` added: the true states where the policy missed,
+    to start training episodes from (``q``).
+
+    Raises:
+        ReportError: a report without ``sessions[].goals.missed`` (named; schema 1 had none).
+    """
+    out = []
+    for i, s in enumerate(report.get("sessions", [])):
+        missed = s.get("goals", {}).get("missed")
+        if missed is None:
+            raise ReportError(
+                f"report: field 'sessions[{i}].goals.missed' is missing (expected a list; "
+                f"schema_version {SCHEMA_VERSION} reports have it)"
+            )
+        out.extend({**m, "session": s["id"], "seed": s["seed"]} for m in missed)
+    return out
+
+
 def build_report(
     campaign: dict,
     results: list[dict],
@@ -254,7 +388,7 @@ def build_report(
         baseline_path: Where the baseline came from (recorded in the report).
 
     Raises:
-        ReportError: the baseline is of another robot.
+        ReportError: the baseline is not of this schema, misses a field, or is of another robot.
     """
     thresholds = Thresholds() if thresholds is None else thresholds
     sessions = []
@@ -289,12 +423,53 @@ def build_report(
 
 
 # ---------------------------------------------------------------------- baseline
+#: Fields of report.json the baseline comparison reads.
+_BASELINE_FIELDS = (
+    ("campaign", "robot"),
+    ("totals", "simulated_hours"),
+    ("totals", "violations", "rate_per_hour"),
+    ("totals", "interventions", "checks"),
+    ("totals", "interventions", "any", "fraction"),
+    ("totals", "goals", "success_rate"),
+    ("totals", "goals", "min_window_success_rate"),
+    ("totals", "thermal", "peak_c"),
+    ("totals", "latched_faults_per_hour"),
+)
+
+
+def _check_schema(doc: dict, where: str) -> None:
+    """``doc`` is a report of this schema with every field the comparison reads.
+
+    Raises:
+        ReportError: naming ``where``, the field and the expected value.
+    """
+    version = doc.get("schema_version")
+    if version != SCHEMA_VERSION:
+        hint = ""
+        if version == 1:
+            hint = (
+                " (schema 1 counted the guard's clamps as violations; its numbers cannot be "
+                "compared with true-state violations and interventions: run the baseline "
+                "campaign again with this version)"
+            )
+        raise ReportError(
+            f"{where}: field 'schema_version': expected {SCHEMA_VERSION}, got {version!r}{hint}"
+        )
+    for field_path in _BASELINE_FIELDS:
+        node = doc
+        for key in field_path:
+            if not isinstance(node, dict) or key not in node:
+                raise ReportError(f"{where}: field '{'.'.join(field_path)}' is missing")
+            node = node[key]
+
+
 def load_report(path: str | os.PathLike) -> dict:
     """Read a report.json written by this module (e.g. a baseline).
 
     Raises:
         ReportError: unreadable file, invalid JSON, or a missing or unsupported
-            ``schema_version`` or a missing field the comparison needs (named).
+            ``schema_version`` (schema 1 is refused) or a missing field the comparison needs
+            (the message names the file, the field and the expected value).
     """
     path = Path(path)
     try:
@@ -305,24 +480,7 @@ def load_report(path: str | os.PathLike) -> dict:
         raise ReportError(f"{path}: not valid JSON: {exc}") from None
     if not isinstance(doc, dict):
         raise ReportError(f"{path}: expected a JSON object (a soak report.json)")
-    version = doc.get("schema_version")
-    if version != SCHEMA_VERSION:
-        raise ReportError(
-            f"{path}: field 'schema_version': expected {SCHEMA_VERSION}, got {version!r}"
-        )
-    for field_path in (
-        ("campaign", "robot"),
-        ("totals", "simulated_hours"),
-        ("totals", "violations", "rate_per_hour"),
-        ("totals", "goals", "success_rate"),
-        ("totals", "thermal", "peak_c"),
-        ("totals", "latched_faults_per_hour"),
-    ):
-        node = doc
-        for key in field_path:
-            if not isinstance(node, dict) or key not in node:
-                raise ReportError(f"{path}: field '{'.'.join(field_path)}' is missing")
-            node = node[key]
+    _check_schema(doc, str(path))
     return doc
 
 
@@ -335,12 +493,16 @@ def compare_with_baseline(
         ``{"path", "passed", "regressions": [...], "compared": {...}}``.
 
     Raises:
-        ReportError: the baseline is of another robot.
+        ReportError: the baseline is not of schema ``SCHEMA_VERSION`` (schema 1 is refused),
+            misses a field, or is of another robot (the message names ``path``, the field and
+            the expected value).
     """
+    where = path or "baseline"
+    _check_schema(baseline, where)
     robot, base_robot = report["campaign"].get("robot"), baseline["campaign"].get("robot")
     if robot != base_robot:
         raise ReportError(
-            f"{path or 'baseline'}: field 'campaign.robot': the baseline is of robot "
+            f"{where}: field 'campaign.robot': the baseline is of robot "
             f"'{base_robot}', this campaign of '{robot}'"
         )
     new, old = report["totals"], baseline["totals"]
@@ -359,29 +521,50 @@ def compare_with_baseline(
                 }
             )
 
-    for check, rate in new["violations"]["rate_per_hour"].items():
-        base = old["violations"]["rate_per_hour"].get(check, 0.0)
+    for kind, rate in new["violations"]["rate_per_hour"].items():
+        base = old["violations"]["rate_per_hour"].get(kind, 0.0)
         allowed = base * (1 + thresholds.violation_tolerance) + thresholds.violation_slack
         add(
-            f"violations.{check}.per_hour",
+            f"violations.{kind}.per_hour",
             base,
             rate,
             allowed,
             rate > allowed,
-            f"{check} violations per hour rose from {base:.2f} to {rate:.2f} (allowed "
-            f"{allowed:.2f})",
+            f"{kind} violations (true state) per hour rose from {base:.2f} to {rate:.2f} "
+            f"(allowed {allowed:.2f})",
         )
-    rate, base = new["goals"]["success_rate"], old["goals"]["success_rate"]
-    if base is not None:
+    fractions = {k: c["fraction"] for k, c in new["interventions"]["checks"].items()}
+    fractions["any"] = new["interventions"]["any"]["fraction"]
+    base_fractions = {k: c["fraction"] for k, c in old["interventions"]["checks"].items()}
+    base_fractions["any"] = old["interventions"]["any"]["fraction"]
+    for check, share in fractions.items():
+        base = base_fractions.get(check, 0.0)
+        allowed = base * (1 + thresholds.violation_tolerance) + thresholds.intervention_slack
+        add(
+            f"interventions.{check}.fraction",
+            base,
+            share,
+            allowed,
+            share > allowed,
+            f"{check} interventions rose from {100 * base:.3f} % to {100 * share:.3f} % of ticks "
+            f"(allowed {100 * allowed:.3f} %)",
+        )
+    for key, label in (
+        ("success_rate", "goal success rate"),
+        ("min_window_success_rate", "lowest windowed goal success rate"),
+    ):
+        rate, base = new["goals"][key], old["goals"][key]
+        if base is None:
+            continue
         allowed = base - thresholds.success_tolerance
         current = 0.0 if rate is None else rate
         add(
-            "goals.success_rate",
+            f"goals.{key}",
             base,
             rate,
             allowed,
             current < allowed,
-            f"goal success rate fell from {base:.3f} to {current:.3f} (allowed {allowed:.3f})",
+            f"{label} fell from {base:.3f} to {current:.3f} (allowed {allowed:.3f})",
         )
     for joint, peak in new["thermal"]["peak_c"].items():
         base = old["thermal"]["peak_c"].get(joint)
@@ -509,27 +692,51 @@ def plot_temperatures(report: dict) -> str:
     return _png(fig)
 
 
+def _stacked_hours(ax, rows: list[dict], scale, empty: str) -> None:
+    """Stacked bars of ``rows[i]["counts"]`` per hour, each divided by ``scale(row)``."""
+    if not rows:
+        ax.text(0.5, 0.5, empty, ha="center", transform=ax.transAxes)
+        return
+    names = list(rows[0]["counts"])
+    hours = np.array([r["hour"] for r in rows])
+    bottom = np.zeros(len(rows))
+    for name in names:
+        values = np.array([r["counts"][name] / scale(r) for r in rows], dtype=float)
+        if values.any():
+            ax.bar(hours, values, bottom=bottom, label=name)
+            bottom += values
+    if not bottom.any():
+        ax.text(0.5, 0.5, empty, ha="center", transform=ax.transAxes)
+    else:
+        ax.legend(fontsize=7)
+
+
 def plot_violations(report: dict) -> str:
-    """Violations per hour by check, summed over sessions (stacked bars), base64 PNG."""
+    """True-state violations per hour by type, summed over sessions (stacked bars), base64 PNG."""
     rows = report["totals"]["violations"]["per_hour"]
     fig, axes = _figure(1, 1, 3.0)
     ax = axes[0, 0]
-    if rows:
-        names = list(rows[0]["counts"])
-        hours = np.array([r["hour"] for r in rows])
-        bottom = np.zeros(len(rows))
-        for name in names:
-            values = np.array([r["counts"][name] for r in rows], dtype=float)
-            if values.any():
-                ax.bar(hours, values, bottom=bottom, label=name)
-                bottom += values
-        if not bottom.any():
-            ax.text(0.5, 0.5, "no violations", ha="center", transform=ax.transAxes)
-        else:
-            ax.legend(fontsize=7)
+    _stacked_hours(ax, rows, lambda r: 1.0, "no violations")
     ax.set_xlabel("hour of the session")
-    ax.set_ylabel("violations (all sessions)")
-    ax.set_title("Violations per hour by type", fontsize=9)
+    ax.set_ylabel("ticks (all sessions)")
+    ax.set_title("Violations (true state) per hour by type", fontsize=9)
+    return _png(fig)
+
+
+def plot_interventions(report: dict) -> str:
+    """Interventions per hour as % of ticks by check, all sessions (stacked bars; a tick with
+    several checks counts in each), with the threshold on any intervention, base64 PNG."""
+    rows = report["totals"]["interventions"]["per_hour"]
+    fig, axes = _figure(1, 1, 3.0)
+    ax = axes[0, 0]
+    _stacked_hours(ax, rows, lambda r: max(r["ticks"], 1) / 100.0, "no interventions")
+    limit = report["thresholds"].get("max_intervention_rate")
+    if limit is not None:
+        ax.axhline(100 * limit, color="red", lw=0.8, ls="--", label="threshold (any)")
+        ax.legend(fontsize=7)
+    ax.set_xlabel("hour of the session")
+    ax.set_ylabel("% of ticks")
+    ax.set_title("Interventions (guard and smoother changed a command) per hour", fontsize=9)
     return _png(fig)
 
 
@@ -550,6 +757,33 @@ def plot_success(report: dict) -> str:
     ax.set_xlabel("simulated time (h)")
     ax.set_ylabel("success rate")
     ax.set_title("Goals reached / goals issued per interval", fontsize=9)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7, ncol=4)
+    return _png(fig)
+
+
+def plot_windows(report: dict) -> str:
+    """Goal success rate per window (by the goals' issue time), per session, with the
+    threshold, base64 PNG."""
+    fig, axes = _figure(1, 1, 3.0)
+    ax = axes[0, 0]
+    for i, s in enumerate(report["sessions"]):
+        windows = s["goals"]["windows"]
+        if windows:  # one segment per window: windows without a goal leave gaps
+            ax.hlines(
+                [w["success_rate"] for w in windows],
+                [w["start_s"] / 3600.0 for w in windows],
+                [w["end_s"] / 3600.0 for w in windows],
+                colors=f"C{i % 10}",
+                label=s["id"],
+            )
+    limit = report["thresholds"].get("min_window_success_rate")
+    if limit is not None:
+        ax.axhline(limit, color="red", lw=0.8, ls="--", label="threshold")
+    ax.set_ylim(-0.05, 1.05)
+    ax.set_xlabel("simulated time (h)")
+    ax.set_ylabel("success rate")
+    ax.set_title("Goal success rate per window (windows without a goal left out)", fontsize=9)
     if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=7, ncol=4)
     return _png(fig)
@@ -638,6 +872,13 @@ def report_html(report: dict) -> str:
         ]
         for s in report["sessions"]
     ]
+    failed = [
+        f"{name} ({', '.join(c['failed_sessions'])})"
+        for name, c in report["checks"].items()
+        if not c["passed"]
+    ]
+    if failed:
+        parts.append(f"<p class='fail'>Failed checks: {html.escape('; '.join(failed))}</p>")
     parts.append(_table(["session", *CHECKS], check_rows))
     b = report.get("baseline")
     if b is not None:
@@ -665,9 +906,12 @@ def report_html(report: dict) -> str:
                 "session",
                 "status",
                 "simulated h",
-                "hard-limit violations",
-                "violations/h (all)",
+                "hard-limit violations (true, ticks)",
+                "violations/h (true, all types)",
+                "interventions (% of ticks)",
                 "success rate",
+                "lowest window success",
+                "missed goals",
                 "faults injected",
                 "survived",
                 "latched",
@@ -681,7 +925,10 @@ def report_html(report: dict) -> str:
                     s["simulated_hours"],
                     s["violations"]["total"].get("hard_limit", 0),
                     sum(s["violations"]["rate_per_hour"].values()),
+                    100 * s["interventions"]["any"]["fraction"],
                     s["goals"]["success_rate"],
+                    s["goals"]["min_window_success_rate"],
+                    len(s["goals"]["missed"]) + s["goals"]["missed_dropped"],
                     s["faults"]["injected"],
                     s["faults"]["survived"],
                     s["runtime"]["latched_faults"],
@@ -692,10 +939,28 @@ def report_html(report: dict) -> str:
             ],
         )
     )
+    parts.append("<h2>Interventions by check (% of ticks)</h2>")
+    checks = list(t["interventions"]["checks"])
+    parts.append(
+        _table(
+            ["session", "any", *checks, "warning: estimate in soft band"],
+            [
+                [
+                    s["id"],
+                    100 * s["interventions"]["any"]["fraction"],
+                    *(100 * s["interventions"]["checks"][k]["fraction"] for k in checks),
+                    100 * s["interventions"]["warnings"]["soft_band_estimate"]["fraction"],
+                ]
+                for s in report["sessions"]
+            ],
+        )
+    )
     for title, fn in (
         ("Winding temperature", plot_temperatures),
-        ("Violations per hour", plot_violations),
+        ("Violations (true state) per hour", plot_violations),
+        ("Interventions per hour", plot_interventions),
         ("Success over time", plot_success),
+        ("Success per window", plot_windows),
         ("Tick cost", plot_tick_cost),
     ):
         parts.append(
@@ -803,8 +1068,19 @@ def summary_text(report: dict) -> str:
         f"  goals        {t['goals']['reached']}/{t['goals']['issued']} reached"
         + (f" ({100 * rate:.1f} %)" if rate is not None else "")
     )
+    w = t["goals"]["min_window_success_rate"]
+    if w is not None:
+        lines.append(f"  windows      lowest success rate in a window {100 * w:.1f} %")
     v = ", ".join(f"{k} {n}" for k, n in t["violations"]["total"].items())
-    lines.append(f"  violations   {v}")
+    lines.append(f"  violations   (true state, ticks) {v}")
+    iv = t["interventions"]
+    used = ", ".join(
+        f"{k} {100 * c['fraction']:.3f}" for k, c in iv["checks"].items() if c["count"]
+    )
+    lines.append(
+        f"  interventions {100 * iv['any']['fraction']:.3f} % of ticks"
+        + (f" ({used})" if used else "")
+    )
     f = t["faults"]
     resp = ", ".join(f"{k} {n}" for k, n in f["responses"].items() if n)
     lines.append(

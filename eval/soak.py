@@ -38,6 +38,14 @@ resolved), ``resumed`` (stopped and running again), ``latched`` (FAULTED), or ``
 (the env was already stopped at the onset). Only ``held`` counts as survived. A latched fault is
 cleared by an operator after ``operator_reset`` s (the session goes on: RAMP_IN), and counted.
 
+Violations and interventions. After every tick a :class:`deploy.violations.ViolationMonitor`
+counts the true-state violations of every session from the plant's ground truth and a
+:class:`deploy.interventions.InterventionMonitor` the commands the guard or the smoother changed
+(before the goal scheduler, so that a goal's last tick counts for it); both are reported apart, in
+total, per hour and on the curves, and are part of the checkpoints. Goals are also counted per
+window of ``window_minutes`` (by their issue time), and each goal replaced unreached is recorded
+with its true end state (:class:`deploy.cli.GoalScheduler`).
+
 Divergence: MuJoCo's divergence (:class:`~deploy.backends.sim.SimulationDivergedError`) ends the
 session that diverged with ``diverged`` set; the other sessions of its batch continue from their
 last checkpoints.
@@ -60,7 +68,9 @@ import numpy as np
 
 from deploy.backends.base import SensorFrame
 from deploy.cli import GoalScheduler
+from deploy.interventions import INTERVENTION_CHECKS, InterventionMonitor
 from deploy.runtime import FAULT_CAUSES, STAGES, Mode
+from deploy.violations import VIOLATION_TYPES, ViolationMonitor
 from eval import checkpoint as ckpt
 from eval.randomization import (
     FAULT_SETTLE,
@@ -84,6 +94,7 @@ PROGRESS_PERIOD = 10.0
 #: s before a fault's onset its injector is armed.
 ARM_LEAD = 0.5
 RESPONSES = ("held", "safe_stop", "resumed", "latched", "not_running")
+VIOLATION_SOURCE = "true state (simulation ground truth)"
 SESSIONS_DIR = "sessions"
 
 
@@ -107,6 +118,7 @@ class SessionConfig:
         operator_reset: s a latched fault stays before an operator clears it (0: never).
         faults: Inject the seeded fault schedule.
         ranges: What the randomization draws from.
+        window_minutes: Simulated minutes per window of the windowed goal success rate.
     """
 
     robot: str = "arm3"
@@ -120,6 +132,7 @@ class SessionConfig:
     operator_reset: float = 10.0
     faults: bool = True
     ranges: SessionRanges = field(default_factory=SessionRanges)
+    window_minutes: float = 10.0
 
     def __post_init__(self):
         def bad(name: str, expected: str) -> SessionError:
@@ -127,7 +140,7 @@ class SessionConfig:
 
         if not isinstance(self.seed, int) or self.seed < 0:
             raise bad("seed", "an integer >= 0")
-        for name in ("hours", "goal_period", "success_time", "curve_seconds"):
+        for name in ("hours", "goal_period", "success_time", "curve_seconds", "window_minutes"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise bad(name, "a finite number > 0")
@@ -290,18 +303,43 @@ class _Session:
         self.operator_resets = 0
         self.latched_since = -1.0
         self.hours: list[dict] = []
-        self.hour_base = {k: 0 for k in rt.guard.counts}
+        self.hour_base = self.counters()
         self.curve: dict = {
             "t_s": [0.0],
             "winding_c": [[float(x) for x in batch.backend.thermal.winding_temperature[e]]],
             "issued": [0],
             "reached": [0],
-            "violations": [{k: 0 for k in rt.guard.counts}],
+            "violations": [self.hour_base["violations"]],
+            "interventions": [self.hour_base["interventions"]],
             "mode": [int(rt.mode[e])],
         }
         self.friction = [float(x) for x in self.batch.initial_friction[e]]
         self.wall_s = 0.0
         self.diverged: str | None = None
+
+    # ------------------------------------------------------------------ counters
+    def counters(self) -> dict:
+        """The session's cumulative counters: ``ticks``, ``violations`` {type: ticks, "any"}
+        (true state), ``interventions`` {check: ticks, "any"}, ``warnings`` {name: ticks}."""
+        b, e = self.batch, self.e
+        iv = b.interventions
+        interventions = {c: int(v[e]) for c, v in iv.counts.items()}
+        interventions["any"] = int(iv.any[e])
+        return {
+            "ticks": iv.ticks,
+            "violations": b.violations.env_counts(e),
+            "interventions": interventions,
+            "warnings": {k: int(v[e]) for k, v in iv.warnings().items()},
+        }
+
+    def hour_row(self, start: float, end: float) -> dict:
+        """The counters since the last hour row (``hour_base``), as a row of ``hours``."""
+        now, base = self.counters(), self.hour_base
+        row = {"hour": len(self.hours), "start_s": start, "end_s": end}
+        row["ticks"] = now["ticks"] - base["ticks"]
+        for key in ("violations", "interventions", "warnings"):
+            row[key] = {k: v - base[key].get(k, 0) for k, v in now[key].items()}
+        return row
 
     # ------------------------------------------------------------------ faults
     def _arm_tick(self, index: int, dt: float) -> float:
@@ -381,6 +419,8 @@ class _Session:
         arrays.update(goals_a)
         for name in ("peak", "window_peak", "band_ticks", "over_ticks"):
             arrays[f"stats/{name}"] = getattr(b, name)[e].copy()
+        arrays.update(ckpt.capture_monitor("violations", b.violations, e))
+        arrays.update(ckpt.capture_monitor("interventions", b.interventions, e))
         inj_meta = None
         if self.fault_armed:
             inj_a, inj_meta = ckpt.capture_injector(b.faults.armed[e])
@@ -443,6 +483,8 @@ class _Session:
         ckpt.restore_goals(self.goals, e, arrays, meta["goals"])
         for name in ("peak", "window_peak", "band_ticks", "over_ticks"):
             getattr(b, name)[e] = arrays[f"stats/{name}"]
+        ckpt.restore_monitor("violations", b.violations, e, arrays, where)
+        ckpt.restore_monitor("interventions", b.interventions, e, arrays, where)
         s = meta["session"]
         self.fault_index = int(s["fault_index"])
         self.fault_armed = bool(s["fault_armed"])
@@ -470,20 +512,16 @@ class _Session:
         dt = b.dt
         t_end = rt.time
         hours = list(self.hours)
-        counts = {k: int(v[e]) for k, v in rt.guard.counts.items()}
         last_end = hours[-1]["end_s"] if hours else 0.0
         if t_end > last_end + 1e-9:
-            hours.append(
-                {
-                    "hour": len(hours),
-                    "start_s": last_end,
-                    "end_s": t_end,
-                    "counts": {k: counts[k] - self.hour_base[k] for k in counts},
-                }
-            )
+            hours.append(self.hour_row(last_end, t_end))
+        now = self.counters()
         sim_h = t_end / 3600.0
         g, e = self.goals, self.e
         times = g.hit_times[e]
+        windows = g.windows(e, t_end)
+        true = now["violations"]
+        interventions = b.interventions.summary(e)
         responses = {r: 0 for r in RESPONSES}
         for ev in self.fault_events:
             responses[ev["response"]] += 1
@@ -504,9 +542,37 @@ class _Session:
             "policy_sha256": b.policy_sha256,
             "randomization": self.draw.to_dict(),
             "violations": {
-                "total": counts,
-                "per_hour": hours,
-                "rate_per_hour": {k: (v / sim_h if sim_h > 0 else 0.0) for k, v in counts.items()},
+                "source": VIOLATION_SOURCE,
+                "total": {k: true[k] for k in VIOLATION_TYPES},
+                "any": true["any"],
+                "per_hour": [
+                    {
+                        "hour": h["hour"],
+                        "start_s": h["start_s"],
+                        "end_s": h["end_s"],
+                        "counts": {k: h["violations"][k] for k in VIOLATION_TYPES},
+                        "any": h["violations"]["any"],
+                    }
+                    for h in hours
+                ],
+                "rate_per_hour": {
+                    k: (true[k] / sim_h if sim_h > 0 else 0.0) for k in VIOLATION_TYPES
+                },
+            },
+            "interventions": {
+                **interventions,
+                "per_hour": [
+                    {
+                        "hour": h["hour"],
+                        "start_s": h["start_s"],
+                        "end_s": h["end_s"],
+                        "ticks": h["ticks"],
+                        "counts": {k: h["interventions"][k] for k in INTERVENTION_CHECKS},
+                        "any": h["interventions"]["any"],
+                        "warnings": h["warnings"],
+                    }
+                    for h in hours
+                ],
             },
             "goals": {
                 "issued": int(g.issued[e]),
@@ -515,6 +581,13 @@ class _Session:
                 "median_time_to_reach_s": float(np.median(times)) if times else None,
                 "within_s": self.config.success_time,
                 "period_s": self.config.goal_period,
+                "window_s": g.window,
+                "windows": windows,
+                "min_window_success_rate": (
+                    min(w["success_rate"] for w in windows) if windows else None
+                ),
+                "missed": list(g.missed[e]),
+                "missed_dropped": int(g.missed_dropped[e]),
             },
             "faults": {
                 "scheduled": len(self.schedule),
@@ -566,7 +639,12 @@ class _Session:
                 "goals_issued": self.curve["issued"],
                 "goals_reached": self.curve["reached"],
                 "violations": {
-                    k: [row[k] for row in self.curve["violations"]] for k in rt.guard.counts
+                    k: [row[k] for row in self.curve["violations"]]
+                    for k in (*VIOLATION_TYPES, "any")
+                },
+                "interventions": {
+                    k: [row[k] for row in self.curve["interventions"]]
+                    for k in (*INTERVENTION_CHECKS, "any")
                 },
                 "mode": [Mode(m).name for m in self.curve["mode"]],
             },
@@ -682,6 +760,9 @@ class SessionBatch:
         self.checkpoint_ticks = (
             _ticks(first.checkpoint_minutes * 60.0, dt) if first.checkpoint_minutes > 0 else 0
         )
+        # what the plant really did (true state) and what the guard and smoother changed
+        self.violations = ViolationMonitor(robot, k)
+        self.interventions = InterventionMonitor(self.rt.guard, self.rt.smoother)
         self.goals = GoalScheduler(
             robot,
             k,
@@ -689,6 +770,8 @@ class SessionBatch:
             None,
             first.success_time,
             [session_rng(c.seed, "goals") for c in configs],
+            window=first.window_minutes * 60.0,
+            interventions=self.interventions,
         )
         self.sessions = [
             _Session(self, e, c, d) for e, (c, d) in enumerate(zip(configs, draws, strict=True))
@@ -745,6 +828,8 @@ class SessionBatch:
             # the next step recalculates every trajectory from its input, in every env: the same
             # numbers whatever the neighbours (see the module docstring) and across a restore
             rt.smoother._ruckig.reset()
+        self.violations.update(self.backend)
+        self.interventions.update()  # before the goals: a goal's last tick counts for it
         self.goals(rt)
         temp = self.backend.thermal.winding_temperature
         np.maximum(self.peak, temp, out=self.peak)
@@ -802,23 +887,17 @@ class SessionBatch:
                 c["winding_c"].append([float(x) for x in self.window_peak[e]])
                 c["issued"].append(int(self.goals.issued[e]))
                 c["reached"].append(int(self.goals.hit_count[e]))
-                c["violations"].append({k: int(v[e]) for k, v in rt.guard.counts.items()})
+                now = s.counters()
+                c["violations"].append(now["violations"])
+                c["interventions"].append(now["interventions"])
                 c["mode"].append(int(rt.mode[e]))
             self.window_peak[:] = self.backend.thermal.winding_temperature
         if ticks >= nt["hour"]:
             nt["hour"] += self.periods["hour"]
             for s in self.sessions:
-                counts = {k: int(v[s.e]) for k, v in rt.guard.counts.items()}
                 start = s.hours[-1]["end_s"] if s.hours else 0.0
-                s.hours.append(
-                    {
-                        "hour": len(s.hours),
-                        "start_s": start,
-                        "end_s": t,
-                        "counts": {k: counts[k] - s.hour_base[k] for k in counts},
-                    }
-                )
-                s.hour_base = counts
+                s.hours.append(s.hour_row(start, t))
+                s.hour_base = s.counters()
         if ticks >= nt["progress"]:
             nt["progress"] += self.periods["progress"]
             self._progress()

@@ -55,6 +55,7 @@ import numpy as np
 from deploy.backends.sim import SimBackend
 from deploy.cli import sample_goal
 from deploy.estimation import JointStateEstimator
+from deploy.interventions import InterventionMonitor
 from deploy.runtime import TRACKING_TOLERANCE, VELOCITY_TRACKING_TOLERANCE
 from deploy.safety import SafetyGuard
 from deploy.smoothing import CommandSmoother
@@ -185,10 +186,6 @@ class ReachTask:
         self._input = None if config.mode == "torque" else self.smoother.mean_acceleration
         # velocity mode: the guard's stopping bounds read Ruckig's integrated position too
         self._commanded = self.smoother.position if config.mode == "velocity" else None
-        self._intervening = ("velocity", "workspace", "self_collision", "effort")
-        if config.mode == "position":
-            self._intervening += ("soft_limit",)
-        self._guard_before = np.zeros((len(self._intervening), envs), dtype=np.int64)
         self._moved = np.zeros(envs, dtype=np.int64)
         self._tracking = np.zeros(envs)
         self._start_poses = np.asarray(config.start_poses, dtype=np.float64).reshape(-1, self.n)
@@ -206,7 +203,6 @@ class ReachTask:
         self.obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
         self._target = np.zeros((envs, self.n))
         self._cmd = np.zeros((envs, self.n))
-        self._clamps = np.zeros((envs, self.n), dtype=np.int64)
         self._distance = np.zeros(envs)
         self._prev_dq = np.zeros((envs, self.n))
         self.t_episode = np.zeros(envs)
@@ -220,6 +216,9 @@ class ReachTask:
         self.ticks = np.zeros(envs, dtype=np.int64)
         self.episode_return = np.zeros(envs)
         self.reset(np.ones(envs, dtype=bool))
+        # the soak's definition of an intervention (deploy.interventions), counted per tick
+        self.monitor = InterventionMonitor(self.guard, self.smoother)
+        self._any_before = np.zeros(envs, dtype=np.int64)
 
     # ------------------------------------------------------------------ resets
     def reset(self, which: np.ndarray) -> None:
@@ -300,16 +299,13 @@ class ReachTask:
         robot, rew, guard = self.robot, self.config.reward, self.guard
         action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
         target = self.spec.action_to_target(action, self.state, out=self._target)
-        for i, name in enumerate(self._intervening):
-            self._guard_before[i] = guard.counts[name]
         target = guard.filter(target, self.state, out=target, commanded_position=self._commanded)
-        intervened = np.zeros(self.envs, dtype=bool)
-        for i, name in enumerate(self._intervening):
-            intervened |= guard.counts[name] > self._guard_before[i]
-        np.copyto(self._clamps, self.smoother.stopping_distance_clamps_per_joint)
         cmd = self.smoother.step(target, out=self._cmd)
-        # the smoother cut a target to brake before a soft limit: the policy drove into the band
-        intervened |= (self.smoother.stopping_distance_clamps_per_joint > self._clamps).any(axis=1)
+        # what the guard and the smoother changed (the smoother's brake before a soft limit, its
+        # clamp to the velocity limit, the guard's clamps and holds): interventions
+        np.copyto(self._any_before, self.monitor.any)
+        self.monitor.update()
+        intervened = self.monitor.any > self._any_before
         self.backend.write(cmd)
         self.backend.advance()
         frame = self.backend.read()

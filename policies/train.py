@@ -318,7 +318,11 @@ def train(args: argparse.Namespace) -> Path | None:
     # Rewards (not observations: those are already scaled by physical maxima, seed section 3) are
     # normalized by a running estimate of the return's scale, as SB3's PPO recipes do.
     env = VecNormalize(VecMonitor(ReachVecEnv(task)), norm_obs=False, gamma=args.gamma)
-    model = make_model(args, env)
+    if args.init_from is not None:  # fine-tune: weights, optimizer state and noise of a saved run
+        algo = SAC if args.algo == "sac" else PPO
+        model = algo.load(args.init_from, env=env, device="cpu", tensorboard_log=str(args.logdir))
+    else:
+        model = make_model(args, env)
     start = time.perf_counter()
     args.logdir.mkdir(parents=True, exist_ok=True)
     candidate = args.logdir / f"{args.robot}_{args.mode}_seed{args.seed}.pt"
@@ -338,6 +342,7 @@ def train(args: argparse.Namespace) -> Path | None:
             "curve": history,
         }
         save_checkpoint(candidate, actor, task.spec, info=info)
+        model.save(candidate.with_suffix(".zip"))  # the whole learner, for --init-from
         return info
 
     # episodes of minutes finish rarely: a curve point per finished batch of episodes
@@ -452,6 +457,14 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         metavar="REPORT.json",
         help="also start episodes where this soak report saw the policy miss its goal",
+    )
+    p.add_argument(
+        "--init-from",
+        type=Path,
+        default=None,
+        metavar="MODEL.zip",
+        help="continue training a saved learner (the .zip beside a candidate), e.g. from "
+        "--start-poses",
     )
     p.add_argument(
         "--success-radius",

@@ -11,8 +11,10 @@ import pytest
 from deploy.acceptance import RecordingBackend, check_adversarial
 from deploy.backends.sim import SimBackend
 from deploy.faults import Fault, FaultInjector
+from deploy.interventions import INTERVENTION_CHECKS
 from deploy.policy import OnnxPolicy
 from deploy.runtime import NAN_ACTION_LIMIT, Mode, Runtime, WallClock
+from deploy.violations import VIOLATION_TYPES
 from robots import load_robot
 from tests.runtime_fixtures import adversarial_onnx
 
@@ -208,7 +210,13 @@ def test_deploy_run_prints_a_summary_and_writes_the_report(tmp_path, arm3):
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert done.returncode == 2, done.stderr  # latched fault: repeated non-finite actions
     assert "goals reached" in done.stdout and "tick cost" in done.stdout
+    assert "violations (true state, sim)  ticks: hard_limit 0" in done.stdout
+    assert "interventions (% of ticks)" in done.stdout and "  guard  " not in done.stdout
     r = json.loads(report.read_text())
+    assert set(r["violations"]["by_type"]) == set(VIOLATION_TYPES)
+    iv = r["interventions"]
+    assert set(iv["checks"]) == set(INTERVENTION_CHECKS) and iv["ticks"] == 1000
+    assert 0 < iv["any"]["count"] <= iv["ticks"]  # random actions lean on the guard
     assert r["faults"]["by_cause"]["non_finite_action"] == 1
     assert r["final_state"] == ["FAULTED"]
     assert r["faults"]["injected"][0]["kind"] == "nan-action"

@@ -23,8 +23,11 @@ import onnx
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
+from deploy.cli import success_windows
+from deploy.interventions import INTERVENTION_CHECKS
 from deploy.runtime import NAN_ACTION_LIMIT
 from deploy.spec import PolicySpec
+from deploy.violations import VIOLATION_TYPES
 from eval import checkpoint as ckpt
 from eval import cli
 from eval.randomization import FaultRanges, SessionRanges, stale_budget
@@ -37,11 +40,16 @@ from eval.report import (
     compare_with_baseline,
     failures,
     load_report,
+    missed_states,
+    report_html,
+    session_checks,
     write_reports,
 )
 from eval.soak import SessionBatch, SessionConfig, run_campaign, session_dir
 
 REPO = Path(__file__).resolve().parent.parent
+#: Thresholds every check of the tiny policy passes but the latched-fault and divergence ones.
+LENIENT = Thresholds(min_success_rate=0.0, min_window_success_rate=0.0, max_intervention_rate=1.0)
 
 #: Frequent faults, some beyond the runtime's limits (dropouts and stale frames longer than the
 #: stale limit, NaN bursts of NAN_ACTION_LIMIT or more): held, latched and operator resets occur.
@@ -185,6 +193,44 @@ def test_thermal_and_goal_accounting(batched, arm3):
         assert r["curves"]["goals_issued"][-1] <= g["issued"]
         hours = r["violations"]["per_hour"]
         assert len(hours) == 1 and hours[0]["counts"] == r["violations"]["total"]
+        iv = r["interventions"]
+        assert iv["ticks"] == r["ticks"] == 2400
+        assert iv["per_hour"][0]["ticks"] == 2400 and iv["per_hour"][0]["any"] == iv["any"]["count"]
+        assert iv["any"]["fraction"] == iv["any"]["count"] / 2400
+        assert max(c["count"] for c in iv["checks"].values()) <= iv["any"]["count"]
+        assert r["curves"]["interventions"]["any"][-1] <= iv["any"]["count"]
+        # windows of 10 minutes: one window holds the whole 12-s session
+        assert g["windows"] == [
+            {
+                "start_s": 0.0,
+                "end_s": r["simulated_s"],
+                "issued": g["issued"],
+                "reached": g["reached"],
+                "success_rate": g["success_rate"],
+            }
+        ]
+        assert g["min_window_success_rate"] == g["success_rate"]
+
+
+def test_missed_goals_are_recorded_with_their_true_state(batched, arm3):
+    report = build_report({"robot": "arm3"}, batched, LENIENT)
+    states = missed_states(report)
+    assert states, "the tiny policy misses goals: the test needs some"
+    for r in batched:
+        g, missed = r["goals"], r["goals"]["missed"]
+        # every goal replaced unreached is listed; the last goal may still be open
+        assert g["issued"] - g["reached"] - len(missed) in (0, 1)
+        assert g["missed_dropped"] == 0
+        for m in missed:
+            assert m["t_s"] - m["issued_s"] >= r["options"]["goal_period"] - 1e-9
+            assert len(m["q"]) == len(m["dq"]) == len(m["q_estimate"]) == 3 and len(m["goal"]) == 3
+            assert np.allclose(m["q"], m["q_estimate"], atol=0.2)  # the estimate follows
+            assert m["best_distance_m"] > arm3.config.task.success_radius
+            assert set(m["interventions"]) == {*INTERVENTION_CHECKS, "any"}
+        assert sum(m["interventions"]["any"] for m in missed) <= r["interventions"]["any"]["count"]
+    assert [(s["seed"], s["t_s"]) for s in states] == [
+        (r["seed"], m["t_s"]) for r in batched for m in r["goals"]["missed"]
+    ]
 
 
 # ---------------------------------------------------------------- checkpoints and resume
@@ -228,7 +274,12 @@ def test_kill_and_resume_equals_an_uninterrupted_run(killed, config, batched, tm
     shutil.copytree(killed, out)
     arrays, meta = ckpt.read_checkpoint(session_dir(out, 0))  # the kill left a valid checkpoint
     assert 0 < meta["tick"] < 2400
+    # the new accumulators are in the checkpoint, and the result carries non-zero values of them
+    assert arrays["interventions/any"].shape == (1,) and "violations/counts/soft_limit" in arrays
+    assert "goals/best_distance" in arrays and "missed" in meta["goals"]
     resumed = run_campaign(replace(config, seed=0), 1, out, resume=True, progress=False)[0]
+    assert resumed["interventions"]["any"]["count"] > 0 and resumed["violations"]["any"] > 0
+    assert resumed["goals"]["missed"] and resumed["goals"]["windows"]
     assert seeded(resumed) == seeded(batched[0])
     a = build_report({"robot": "arm3"}, [resumed])
     b = build_report({"robot": "arm3"}, [batched[0]])
@@ -317,22 +368,26 @@ def test_ray_executor_gives_the_local_results(ray_local, config, batched, tmp_pa
 # ---------------------------------------------------------------- reports
 def test_report_schema(batched, config, tmp_path):
     campaign = {"robot": "arm3", "policy": config.policy, "hours": config.hours}
-    report = build_report(campaign, batched, Thresholds(min_success_rate=0.0))
+    report = build_report(campaign, batched, LENIENT)
     assert report["schema_version"] == SCHEMA_VERSION
     assert set(report) >= {"campaign", "thresholds", "sessions", "totals", "checks", "passed"}
     assert json.loads(json.dumps(report)) == report  # plain JSON
     s = report["sessions"][0]
-    for key in ("randomization", "violations", "goals", "faults", "runtime", "thermal", "wall"):
+    for key in (
+        "randomization",
+        "violations",
+        "interventions",
+        "goals",
+        "faults",
+        "runtime",
+        "thermal",
+        "wall",
+    ):
         assert key in s
     assert set(s["checks"]) == set(CHECKS)
-    assert set(s["violations"]["total"]) == {
-        "soft_limit",
-        "hard_limit",
-        "velocity",
-        "workspace",
-        "self_collision",
-        "effort",
-    }
+    assert set(s["violations"]["total"]) == set(VIOLATION_TYPES)
+    assert set(s["interventions"]["checks"]) == set(INTERVENTION_CHECKS)
+    assert set(s["goals"]) >= {"windows", "min_window_success_rate", "missed", "missed_dropped"}
     t = report["totals"]
     assert t["simulated_hours"] == pytest.approx(3 * 12 / 3600)
     assert t["faults"]["injected"] == sum(len(r["faults"]["events"]) for r in batched)
@@ -352,29 +407,43 @@ def test_report_schema(batched, config, tmp_path):
     assert int(junit.get("failures")) == len(failed) == len(latched)
     assert "http" not in paths["junit"].read_text()
     page = paths["html"].read_text()
-    assert page.count("<img") == 4 and "http" not in page and "<script" not in page
+    assert page.count("<img") == 6 and "http" not in page and "<script" not in page
     events = [e for r in batched for e in r["faults"]["events"]]
     assert page.count("<tr>") >= len(events) + 3 + 3
 
 
 def test_baseline_comparison_detects_each_regression(batched):
-    thresholds = Thresholds(min_success_rate=0.0)
+    thresholds = LENIENT
     report = build_report({"robot": "arm3"}, batched, thresholds)
     same = compare_with_baseline(report, deepcopy(report), thresholds, "old.json")
     assert same["passed"] and not same["regressions"]
 
-    better = deepcopy(report)
-    t = better["totals"]
-    t["violations"]["rate_per_hour"]["workspace"] = 0.0  # fewer violations then
-    t["goals"]["success_rate"] = (report["totals"]["goals"]["success_rate"] or 0) + 0.1
-    t["thermal"]["peak_c"]["shoulder"] -= 5.0  # a cooler shoulder
-    t["latched_faults_per_hour"] = 0.0
-    result = compare_with_baseline(report, better, thresholds, "old.json")
+    worse = deepcopy(report)
+    t = worse["totals"]
+    rate = t["violations"]["rate_per_hour"]
+    rate["workspace"] = 1.1 * rate["workspace"] + 1.01  # beyond +10 % + 1 per hour
+    rate["velocity"] = 1.1 * rate["velocity"] + 0.99  # within
+    checks = t["interventions"]["checks"]
+    checks["velocity"]["fraction"] = 1.1 * checks["velocity"]["fraction"] + 0.00201  # beyond
+    checks["target_clamp"]["fraction"] = 1.1 * checks["target_clamp"]["fraction"] + 0.00199
+    t["goals"]["success_rate"] -= 0.03
+    t["goals"]["min_window_success_rate"] -= 0.03
+    t["thermal"]["peak_c"]["shoulder"] += 5.0  # a hotter shoulder
+    t["latched_faults_per_hour"] += 1.0
+    result = compare_with_baseline(worse, report, thresholds, "old.json")
     metrics = {r["metric"] for r in result["regressions"]}
-    expected = {"violations.workspace.per_hour", "goals.success_rate", "thermal.peak_c.shoulder"}
-    if report["totals"]["latched_faults"]:
-        expected.add("latched_faults_per_hour")
-    assert metrics == expected and not result["passed"]
+    assert metrics == {
+        "violations.workspace.per_hour",
+        "interventions.velocity.fraction",
+        "goals.success_rate",
+        "goals.min_window_success_rate",
+        "thermal.peak_c.shoulder",
+        "latched_faults_per_hour",
+    }
+    assert not result["passed"]
+    allowed = result["compared"]["interventions.velocity.fraction"]["allowed"]
+    base = report["totals"]["interventions"]["checks"]["velocity"]["fraction"]
+    assert allowed == pytest.approx(base * 1.1 + 0.002)
     # within the tolerances: no regression
     close = deepcopy(report)
     close["totals"]["thermal"]["peak_c"]["shoulder"] -= 1.0  # < 2 K
@@ -389,6 +458,75 @@ def test_success_below_the_threshold_fails_its_check(batched):
     report = build_report({"robot": "arm3"}, batched, Thresholds(min_success_rate=0.99))
     assert report["checks"]["success_rate"]["failed_sessions"] == [r["id"] for r in batched]
     assert "success_rate" in failures(report) and not report["passed"]
+
+
+def test_baseline_of_schema_1_is_refused_naming_file_field_and_value(batched, tmp_path):
+    report = build_report({"robot": "arm3"}, batched, LENIENT)
+    old = deepcopy(report)
+    old["schema_version"] = 1
+    path = tmp_path / "old_report.json"
+    path.write_text(json.dumps(old))
+    message = rf"{path.name}: field 'schema_version': expected 2, got 1 \(schema 1 counted"
+    with pytest.raises(ReportError, match=message):
+        load_report(path)
+    with pytest.raises(ReportError, match=message):
+        compare_with_baseline(report, old, LENIENT, str(path))
+    del old["totals"]["interventions"]
+    old["schema_version"] = 2
+    with pytest.raises(ReportError, match=r"field 'totals.interventions.checks' is missing"):
+        compare_with_baseline(report, old, LENIENT, str(path))
+
+
+def test_window_success_check_on_a_synthetic_result(batched):
+    """A session of 63 minutes 20 s whose fourth window went badly: the session's success rate
+    passes, the window check does not; the short last window (200 s) is merged."""
+    result = deepcopy(batched[0])
+    result["runtime"]["latches"], result["runtime"]["latched_faults"] = [], 0
+    issued = [150, 150, 150, 150, 150, 150, 10]
+    reached = [148, 147, 150, 120, 149, 150, 10]
+    g = result["goals"]
+    g["window_s"] = 600.0
+    g["windows"] = success_windows(issued, reached, 600.0, 3800.0)
+    g["issued"], g["reached"] = sum(issued), sum(reached)
+    g["success_rate"] = g["reached"] / g["issued"]
+    g["min_window_success_rate"] = min(w["success_rate"] for w in g["windows"])
+    assert len(g["windows"]) == 6 and g["windows"][-1]["end_s"] == 3800.0
+    assert g["windows"][-1]["issued"] == 160 and g["min_window_success_rate"] == 0.8
+    thresholds = Thresholds(max_intervention_rate=1.0, min_success_rate=0.95)
+    checks = session_checks(result, thresholds)
+    assert checks["success_rate"]["passed"]  # 874 / 910 = 0.96
+    assert not checks["window_success"]["passed"]
+    assert "lowest success rate in a 10-minute window 0.800" in checks["window_success"]["message"]
+    report = build_report({"robot": "arm3"}, [result], thresholds)
+    assert failures(report) == ["window_success"]
+    assert cli.exit_code(report) == cli.EXIT_LOW_SUCCESS
+    g["windows"], g["min_window_success_rate"] = [], None  # no goal issued
+    assert not session_checks(result, thresholds)["window_success"]["passed"]
+
+
+def test_interventions_check_fails_above_its_threshold_and_the_html_names_it(batched, tmp_path):
+    result = deepcopy(batched[0])
+    result["runtime"]["latches"], result["runtime"]["latched_faults"] = [], 0
+    iv = result["interventions"]
+    share = iv["any"]["fraction"]
+    assert share > 0, "the tiny policy leans on the guard: the test needs interventions"
+    at = Thresholds(min_success_rate=0.0, min_window_success_rate=0.0, max_intervention_rate=share)
+    assert build_report({"robot": "arm3"}, [result], at)["passed"]  # exactly at the threshold
+    below = Thresholds(
+        min_success_rate=0.0, min_window_success_rate=0.0, max_intervention_rate=0.999 * share
+    )
+    report = build_report({"robot": "arm3"}, [result], below)
+    assert failures(report) == ["interventions"] and cli.exit_code(report) == 8
+    assert report["sessions"][0]["checks"]["interventions"]["message"].startswith(
+        f"{100 * share:.3f} % of ticks with an intervention"
+    )
+    page = report_html(report)
+    assert "Failed checks: interventions (seed0000)" in page
+    assert "FAIL: " + report["sessions"][0]["checks"]["interventions"]["message"] in page
+    write_reports(tmp_path, report)
+    junit = ET.parse(tmp_path / "junit.xml").getroot()
+    failed = junit.findall(".//testcase/failure")
+    assert [f.get("type") for f in failed] == ["interventions"]
 
 
 # ---------------------------------------------------------------- soak-test
@@ -415,6 +553,10 @@ def test_soak_test_cli_end_to_end(policy, tmp_path, capsys):
         "0.02",
         "--min-success",
         "0",
+        "--min-window-success",
+        "0",
+        "--max-interventions",
+        "1",
         "--no-progress",
     ]
     code = cli.main(base)
@@ -438,6 +580,11 @@ def test_soak_test_cli_end_to_end(policy, tmp_path, capsys):
     assert junit.find(".//testcase[@name='no_regression']/failure") is not None
 
     assert cli.main([*base, "--resume", "--min-success", "1"]) == cli.EXIT_LOW_SUCCESS
+    leaning = [s["id"] for s in report["sessions"] if s["interventions"]["any"]["count"]]
+    assert leaning, "the test needs a session with interventions"
+    capsys.readouterr()
+    assert cli.main([*base, "--resume", "--max-interventions", "0"]) == cli.EXIT_INTERVENTIONS
+    assert f"FAILED interventions: {', '.join(leaning)}" in capsys.readouterr().out
     assert cli.main([*base, "--resume", "--goal-period", "3"]) == cli.EXIT_BAD_INPUT
     assert "goal_period = 4.0, this run has 3.0" in capsys.readouterr().err
 
@@ -451,7 +598,10 @@ def test_soak_test_cli_end_to_end(policy, tmp_path, capsys):
         (["--sessions", "0"], "--sessions: expected an integer >= 1"),
         (["--executor", "slurm"], "invalid choice: 'slurm'"),
         (["--min-success", "2"], "--min-success: expected a value in [0, 1]"),
-        (["--baseline", "BASELINE"], "field 'schema_version': expected 1, got 99"),
+        (["--min-window-success", "1.5"], "--min-window-success: expected a value in [0, 1]"),
+        (["--max-interventions", "-0.1"], "--max-interventions: expected a value in [0, 1]"),
+        (["--window-minutes", "0"], "--window-minutes: expected a number > 0, got 0.0"),
+        (["--baseline", "BASELINE"], "field 'schema_version': expected 2, got 99"),
     ],
 )
 def test_soak_test_bad_input_exits_3_naming_the_problem(policy, tmp_path, capsys, args, message):

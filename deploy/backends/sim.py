@@ -315,10 +315,19 @@ class SimBackend:
         """(envs, n_joints) N m, actuator torque at the end of the last control period."""
         return self._torque
 
-    def end_effector_position(self) -> np.ndarray:
-        """(envs, 3) m, the end-effector site in the world frame (evaluation only)."""
+    def end_effector_position(self, out: np.ndarray | None = None) -> np.ndarray:
+        """(envs, 3) m, the end-effector site in the world frame (evaluation only).
+
+        MuJoCo computes it at the start of the last physics step: it is one physics timestep
+        behind :meth:`true_position`. ``out``: optional (envs, 3) float64 array to fill (no
+        allocation); returned.
+        """
         sid = self.robot.ee_site_id
-        return np.stack([d.site_xpos[sid] for d in self.datas])
+        if out is None:
+            return np.stack([d.site_xpos[sid] for d in self.datas])
+        for e, d in enumerate(self.datas):
+            out[e] = d.site_xpos[sid]
+        return out
 
     # ------------------------------------------------------------------ internals
     def _anti_windup(self) -> None:

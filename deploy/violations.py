@@ -1,0 +1,222 @@
+"""Violations: the robot's *true* state past a limit, counted from the simulator's ground truth.
+
+A **violation** is what the robot really did (DESIGN.md, "Words"); an **intervention** is a command
+the guard or the smoother changed (:mod:`deploy.interventions`). The guard acts on the *estimate*
+and clamps commands so that violations do not happen: a clamp is an intervention, never a
+violation, and a violation can happen without any clamp (a push, a drive overshooting its command,
+an estimate that lags the joint).
+
+Types (``VIOLATION_TYPES``), each counted per env in control ticks (a tick counts once per type,
+however many joints are past the limit):
+
+- ``hard_limit``: a true joint position outside ``[position_lower, position_upper]``.
+- ``soft_limit``: a true joint position in the soft band: outside ``[soft_lower, soft_upper]`` but
+  not beyond the hard limit (a joint beyond it counts as ``hard_limit``).
+- ``velocity``: a true joint speed above ``velocity_limit`` (the hard velocity limit).
+- ``effort``: a joint's actuator torque above ``effort_limit`` by more than the relative tolerance
+  ``EFFORT_TOLERANCE``: the plant clamps each joint's actuator torque to the effort limit itself,
+  so torque *at* the limit (saturation) is not a violation.
+- ``workspace``: the true end effector (MuJoCo's site, the randomized geometry) outside the box
+  ``safety.workspace_min/max``.
+- ``self_collision``: a pair of ``safety.collision_pairs`` in contact at the true joint positions
+  (coal, with the guard's collision model: :meth:`deploy.safety.SafetyGuard.collision_model`, the
+  robot's *nominal* geometry; checked every tick, which costs about 1 us per env on arm3 and 3 us
+  on arm6, less than the screen the guard uses would).
+
+Ground truth exists only in simulation: :class:`ViolationMonitor` reads
+:class:`~deploy.backends.sim.SimBackend`'s ``true_position()``, ``true_velocity()``,
+``joint_torque()`` and ``end_effector_position()``. On hardware there is no ground truth (the
+encoders *are* the estimate's input); there only interventions and the guard's hard-limit
+detections on the estimate can be reported.
+
+Sampling: once per control tick, after the physics of the tick (the runtime's ``on_tick`` hook).
+The end effector is MuJoCo's site position, computed at the start of the last physics step (one
+physics timestep behind the joint positions).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from robots import Robot
+
+VIOLATION_TYPES = ("hard_limit", "soft_limit", "velocity", "effort", "workspace", "self_collision")
+#: Relative tolerance on the effort limit: the plant saturates each joint at exactly its limit.
+EFFORT_TOLERANCE = 1e-9
+#: Relative shrink of the screen's bounds (round-off of ``|x - centre| > half``): a tick within it
+#: is checked exactly.
+_SCREEN_SHRINK = 1e-12
+
+
+class ViolationMonitor:
+    """Count true-state violations of ``envs`` simulated robots, per env and tick.
+
+    Args:
+        robot: The robot description (limits, workspace box, collision pairs).
+        envs: Batch size (the backend's ``envs``).
+
+    Attributes:
+        counts: dict type (``VIOLATION_TYPES``) -> (envs,) int64, ticks on which that type
+            occurred.
+        any: (envs,) int64, ticks with at least one violation of any type.
+        ticks: int, ticks observed (calls of :meth:`update`).
+
+    Per tick (:meth:`update`) it allocates nothing unless some env is near a limit: one
+    vectorized screen (``|x - centre| > half range`` over joint positions, speeds, torques and the
+    end effector) decides whether the exact per-type tests run, and coal checks the collision
+    pairs of each env.
+    """
+
+    def __init__(self, robot: Robot, envs: int):
+        from deploy.safety import SafetyGuard
+
+        if envs < 1:
+            raise ValueError(f"envs: expected an integer >= 1, got {envs}")
+        self.robot, self.envs = robot, envs
+        n = self.n = robot.n_joints
+        self.counts = {t: np.zeros(envs, dtype=np.int64) for t in VIOLATION_TYPES}
+        self.any = np.zeros(envs, dtype=np.int64)
+        self.ticks = 0
+        s = robot.config.safety
+        self._lower, self._upper = robot.position_lower, robot.position_upper
+        self._soft_lower, self._soft_upper = robot.soft_lower, robot.soft_upper
+        self._ws_min = np.array(s.workspace_min, dtype=np.float64)
+        self._ws_max = np.array(s.workspace_max, dtype=np.float64)
+        self._velocity = robot.velocity_limit
+        self._effort = robot.effort_limit * (1.0 + EFFORT_TOLERANCE)
+        # the screen: one row per env, [q - soft centre, dq, tau, ee - box centre]
+        width = 3 * n + 3
+        self._offset_q = 0.5 * (self._soft_lower + self._soft_upper)
+        self._offset_ee = 0.5 * (self._ws_min + self._ws_max)
+        bound = np.concatenate(
+            [
+                0.5 * (self._soft_upper - self._soft_lower),
+                self._velocity,
+                self._effort,
+                0.5 * (self._ws_max - self._ws_min),
+            ]
+        )
+        self._bound = bound * (1.0 - _SCREEN_SHRINK)
+        self._buf = np.zeros((envs, width))
+        self._q_part = self._buf[:, :n]
+        self._dq_part = self._buf[:, n : 2 * n]
+        self._tau_part = self._buf[:, 2 * n : 3 * n]
+        self._ee_part = self._buf[:, 3 * n :]
+        self._mask = np.zeros((envs, width), dtype=bool)
+        self._ee = np.zeros((envs, 3))
+        self._collided = np.zeros(envs, dtype=bool)
+        self._hit = np.zeros(envs, dtype=bool)
+        self._model = robot.pin_model
+        self._data = self._model.createData()
+        self._geom_model, self._geom_data = SafetyGuard.collision_model(robot)
+        self._has_pairs = bool(self._geom_model.collisionPairs)
+
+    # ------------------------------------------------------------------ per tick
+    def update(self, backend) -> None:
+        """Count this tick's violations from ``backend``'s ground truth.
+
+        Args:
+            backend: A :class:`~deploy.backends.sim.SimBackend` with ``envs`` envs (its
+                ``true_position()`` rad, ``true_velocity()`` rad/s, ``joint_torque()`` N m, all
+                (envs, n), and ``end_effector_position(out)`` m, (envs, 3)).
+        """
+        q, dq, tau = backend.true_position(), backend.true_velocity(), backend.joint_torque()
+        np.subtract(q, self._offset_q, out=self._q_part)
+        np.copyto(self._dq_part, dq)
+        np.copyto(self._tau_part, tau)
+        np.subtract(backend.end_effector_position(out=self._ee), self._offset_ee, out=self._ee_part)
+        np.abs(self._buf, out=self._buf)
+        np.greater(self._buf, self._bound, out=self._mask)
+        self.ticks += 1
+        collided = False
+        if self._has_pairs:
+            args = (self._model, self._data, self._geom_model, self._geom_data)
+            for e in range(self.envs):
+                if pin.computeCollisions(*args, q[e], True):
+                    if not collided:
+                        self._collided.fill(False)
+                        collided = True
+                    self._collided[e] = True
+        if collided or np.count_nonzero(self._mask):
+            self._count(q, dq, tau, collided)
+
+    def _count(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray, collided: bool) -> None:
+        """The exact per-type tests (only on ticks the screen or coal flagged)."""
+        hit, counts = self._hit, self.counts
+        hit.fill(False)
+        beyond = (q < self._lower) | (q > self._upper)
+        band = ((q < self._soft_lower) | (q > self._soft_upper)) & ~beyond
+        ee = self._ee
+        tests = (
+            ("hard_limit", beyond.any(axis=1)),
+            ("soft_limit", band.any(axis=1)),
+            ("velocity", (np.abs(dq) > self._velocity).any(axis=1)),
+            ("effort", (np.abs(tau) > self._effort).any(axis=1)),
+            ("workspace", ((ee < self._ws_min) | (ee > self._ws_max)).any(axis=1)),
+        )
+        for name, flags in tests:
+            counts[name] += flags
+            hit |= flags
+        if collided:
+            counts["self_collision"] += self._collided
+            hit |= self._collided
+        self.any += hit
+
+    # ------------------------------------------------------------------ reading
+    def totals(self) -> dict[str, int]:
+        """Ticks per type, summed over envs (and ``any``: ticks with any violation)."""
+        out = {t: int(v.sum()) for t, v in self.counts.items()}
+        out["any"] = int(self.any.sum())
+        return out
+
+    def env_counts(self, env: int) -> dict[str, int]:
+        """Ticks per type of env ``env`` (and ``any``)."""
+        out = {t: int(v[env]) for t, v in self.counts.items()}
+        out["any"] = int(self.any[env])
+        return out
+
+    # ------------------------------------------------------------------ checkpoints
+    def _arrays(self) -> dict[str, np.ndarray]:
+        out = {f"counts/{t}": v for t, v in self.counts.items()}
+        out["any"] = self.any
+        return out
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """The monitor's counters (copies): ``{"counts/<type>", "any"}``, each (envs,) int64, or
+        (1,) for one env ``env`` (a soak session's checkpoint), and ``ticks`` (1,)."""
+        index = slice(None) if env is None else slice(env, env + 1)
+        out = {k: v[index].copy() for k, v in self._arrays().items()}
+        out["ticks"] = np.array([self.ticks], dtype=np.int64)
+        return out
+
+    def load_state_dict(self, state: dict[str, np.ndarray], env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of all envs, or of env ``env``).
+
+        Raises:
+            ValueError: a missing field, or one whose shape differs (named, with the expected
+                shape).
+        """
+        index = slice(None) if env is None else slice(env, env + 1)
+        self.ticks = load_fields(self._arrays(), state, index, "violations")
+
+
+def load_fields(targets: dict[str, np.ndarray], state: dict, index: slice, what: str) -> int:
+    """Write ``state`` (a monitor's ``state_dict``) into ``targets[index]`` after checking every
+    field (present, same shape) and ``state["ticks"]`` (shape (1,)); returns the ticks.
+
+    Raises:
+        ValueError: a missing field or a shape that differs (named, with the expected shape).
+    """
+    expected = {k: v[index].shape for k, v in targets.items()}
+    expected["ticks"] = (1,)
+    for key, shape in expected.items():
+        if key not in state:
+            raise ValueError(f"{what} state: field '{key}' is missing")
+        if np.shape(state[key]) != shape:
+            raise ValueError(
+                f"{what} state: field '{key}': expected shape {shape}, got {np.shape(state[key])}"
+            )
+    for key, target in targets.items():
+        target[index] = state[key]
+    return int(state["ticks"][0])

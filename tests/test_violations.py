@@ -1,0 +1,248 @@
+"""Violations (the true state past a limit) apart from interventions (a command the guard or the
+smoother changed), and the goal scheduler's windows and missed goals."""
+
+from types import SimpleNamespace
+
+import mujoco
+import numpy as np
+import pytest
+
+from deploy.backends.sim import SimBackend
+from deploy.cli import GoalScheduler, success_windows
+from deploy.interventions import INTERVENTION_CHECKS, InterventionMonitor
+from deploy.safety import SafetyGuard
+from deploy.smoothing import CommandSmoother
+from deploy.state import RobotState
+from deploy.violations import VIOLATION_TYPES, ViolationMonitor
+
+
+def place(backend, e, q, dq=None):
+    """Put env ``e`` of a SimBackend at joint positions ``q`` (and velocities ``dq``) now."""
+    m, d = backend.models[e], backend.datas[e]
+    d.qpos[:] = q
+    d.qvel[:] = 0.0 if dq is None else dq
+    mujoco.mj_forward(m, d)
+
+
+def guarded(robot, envs, mode):
+    guard = SafetyGuard(robot, envs, mode)
+    smoother = CommandSmoother(robot, envs, mode)
+    state = RobotState.zeros(envs, robot.n_joints)
+    state.q[:] = robot.home
+    guard.reset(state.q)
+    smoother.reset(state.q, state.dq)
+    return guard, smoother, state, InterventionMonitor(guard, smoother)
+
+
+# ---------------------------------------------------------------- violations: the true state
+def test_a_true_hard_limit_crossing_is_a_violation_but_a_guard_clamp_is_not(arm3):
+    backend = SimBackend(arm3, mode="velocity", envs=2)
+    monitor = ViolationMonitor(arm3, 2)
+    guard, smoother, state, interventions = guarded(arm3, 2, "velocity")
+
+    # a guard clamp: the estimate sits 0.01 rad inside the soft limit of the wrist, the policy
+    # asks for full speed toward it; the true robot rests at home
+    state.q[:, 2] = arm3.soft_upper[2] - 0.01
+    target = np.zeros((2, 3))
+    target[:, 2] = arm3.velocity_limit[2]
+    guard.filter(target, state, out=target)
+    interventions.update()
+    monitor.update(backend)
+    assert guard.counts["velocity"].tolist() == [1, 1]
+    assert interventions.counts["velocity"].tolist() == [1, 1]
+    assert monitor.any.tolist() == [0, 0] and monitor.totals()["any"] == 0
+
+    # the true wrist of env 1 past its hard limit (a push), no command changed
+    q = arm3.home.copy()
+    q[2] = arm3.position_upper[2] + 0.02
+    place(backend, 1, q)
+    interventions.update()
+    monitor.update(backend)
+    assert monitor.counts["hard_limit"].tolist() == [0, 1]
+    assert monitor.counts["soft_limit"].tolist() == [0, 0]  # beyond the band: hard, not soft
+    assert monitor.any.tolist() == [0, 1] and monitor.ticks == 2
+    assert interventions.any.tolist() == [1, 1]  # only the clamp of the first tick
+
+
+def test_each_violation_type_counts_once_per_tick_from_the_true_state(arm3):
+    backend = SimBackend(arm3, mode="velocity", envs=4)
+    monitor = ViolationMonitor(arm3, 4)
+    monitor.update(backend)
+    assert monitor.totals() == dict.fromkeys((*VIOLATION_TYPES, "any"), 0)  # home pose, at rest
+
+    q = arm3.home.copy()
+    q[1] = q[2] = arm3.soft_upper[1] + 0.05  # two joints in the soft band: one tick
+    place(backend, 0, q)
+    dq = np.zeros(3)
+    dq[2] = -1.01 * arm3.velocity_limit[2]
+    place(backend, 1, arm3.home, dq)
+    place(backend, 2, np.array([1.4, 1.4, 0.0]))  # folded back behind the base plane x = -0.05
+    backend.joint_torque()[3] = arm3.effort_limit  # saturated at the limit: not a violation
+    monitor.update(backend)
+    backend.joint_torque()[3, 1] = -1.001 * arm3.effort_limit[1]
+    monitor.update(backend)
+    c = {k: v.tolist() for k, v in monitor.counts.items()}
+    assert c["soft_limit"] == [2, 0, 0, 0]
+    assert c["velocity"] == [0, 2, 0, 0]
+    assert c["workspace"] == [0, 0, 2, 0]
+    assert c["effort"] == [0, 0, 0, 1]
+    assert c["hard_limit"] == [0, 0, 0, 0] and c["self_collision"] == [0, 0, 0, 0]
+    assert monitor.any.tolist() == [2, 2, 2, 1] and monitor.ticks == 3
+
+
+def test_self_collision_at_the_true_configuration(arm6):
+    """The guard's collision model at the true q: a configuration coal finds in contact."""
+    guard = SafetyGuard(arm6, 1, "position")
+    rng = np.random.default_rng(0)
+    colliding = next(
+        q
+        for q in rng.uniform(arm6.soft_lower, arm6.soft_upper, (500, arm6.n_joints))
+        if guard._in_collision(q)
+    )
+    backend = SimBackend(arm6, mode="position", envs=2)
+    place(backend, 1, colliding)
+    monitor = ViolationMonitor(arm6, 2)
+    monitor.update(backend)
+    assert monitor.counts["self_collision"].tolist() == [0, 1]
+    assert monitor.any[1] >= 1
+
+
+def test_violation_monitor_state_round_trip_and_errors(arm3):
+    backend = SimBackend(arm3, mode="velocity", envs=2)
+    place(backend, 1, np.array([arm3.position_upper[0] + 0.1, 0.5, 0.5]))
+    a = ViolationMonitor(arm3, 2)
+    for _ in range(3):
+        a.update(backend)
+    b = ViolationMonitor(arm3, 2)
+    b.load_state_dict(a.state_dict(1), 1)
+    assert b.counts["hard_limit"].tolist() == [0, 3] and b.ticks == 3
+    bad = a.state_dict()
+    bad["counts/velocity"] = np.zeros(5, dtype=np.int64)
+    with pytest.raises(ValueError, match=r"field 'counts/velocity': expected shape \(2,\)"):
+        b.load_state_dict(bad)
+    bad = a.state_dict()
+    del bad["any"]
+    with pytest.raises(ValueError, match="field 'any' is missing"):
+        b.load_state_dict(bad)
+
+
+# ---------------------------------------------------------------- interventions: changed commands
+def test_a_guard_velocity_clamp_is_an_intervention_and_its_fraction_of_ticks(arm3):
+    guard, smoother, state, monitor = guarded(arm3, 1, "velocity")
+    state.q[:, 2] = arm3.soft_upper[2] - 0.02  # close to the soft limit: the band is narrow
+    fast = arm3.velocity_limit[2]
+    clamped = 0
+    for tick in range(40):
+        target = np.array([[0.0, 0.0, fast if tick % 4 == 0 else 0.0]])
+        before = target.copy()
+        guard.filter(target, state, out=target)
+        clamped += bool((target != before).any())
+        monitor.update()
+    assert clamped == 10
+    s = monitor.summary()
+    assert s["ticks"] == 40
+    assert s["checks"]["velocity"] == {"count": 10, "fraction": 0.25}
+    assert s["any"] == {"count": 10, "fraction": 0.25}
+    assert all(s["checks"][k]["count"] == 0 for k in INTERVENTION_CHECKS if k != "velocity")
+
+
+def test_smoother_clamps_count_once_per_tick_and_soft_band_estimate_is_a_warning(arm3):
+    guard, smoother, state, monitor = guarded(arm3, 2, "velocity")
+    # env 0: two joints beyond the soft velocity limit in one tick (the guard's band, the
+    # hard velocity limit, lets them through): one tick of target_clamp
+    target = np.zeros((2, 3))
+    target[0, :2] = 0.99 * arm3.velocity_limit[:2]
+    guard.filter(target, state, out=target)
+    smoother.step(target)
+    monitor.update()
+    assert smoother.target_clamps_per_joint[0].tolist() == [1, 1, 0]
+    assert monitor.counts["target_clamp"].tolist() == [1, 0]
+    # env 1: the estimate in the soft band, zero target: the guard's soft_limit counter rises but
+    # no command changed (velocity mode): a warning, not an intervention
+    state.q[1, 2] = arm3.soft_upper[2] + 0.01
+    guard.filter(np.zeros((2, 3)), state)
+    smoother.step(np.zeros((2, 3)))
+    monitor.update()
+    assert guard.counts["soft_limit"].tolist() == [0, 1]
+    assert monitor.warnings()["soft_band_estimate"].tolist() == [0, 1]
+    assert monitor.any.tolist() == [1, 0] and monitor.counts["soft_limit"].tolist() == [0, 0]
+
+
+def test_position_mode_soft_limit_clamps_are_interventions(arm3):
+    guard, smoother, state, monitor = guarded(arm3, 1, "position")
+    target = arm3.home[None, :].copy()
+    target[0, 1] = arm3.soft_upper[1] + 0.05
+    guard.filter(target, state, out=target)
+    monitor.update()
+    assert monitor.counts["soft_limit"].tolist() == [1] and monitor.any.tolist() == [1]
+    assert monitor.warnings()["soft_band_estimate"].tolist() == [0]
+
+
+def test_intervention_monitor_state_round_trip(arm3):
+    guard, smoother, state, monitor = guarded(arm3, 2, "velocity")
+    state.q[:, 2] = arm3.soft_upper[2] - 0.02
+    for _ in range(3):
+        guard.filter(np.full((2, 3), 3.0), state)
+        monitor.update()
+    other = InterventionMonitor(guard, smoother)
+    other.load_state_dict(monitor.state_dict(1), 1)
+    assert other.ticks == 3 and other.counts["velocity"].tolist() == [0, 3]
+    with pytest.raises(ValueError, match="field 'ticks': expected shape"):
+        other.load_state_dict({**monitor.state_dict(), "ticks": np.zeros(2, dtype=np.int64)})
+
+
+# ---------------------------------------------------------------- goals: windows and misses
+def test_success_windows_merge_a_short_final_window_and_skip_empty_ones():
+    issued = [4, 0, 5, 5, 5, 10, 2, 1]  # per 600-s window; index 7 lies past the end
+    reached = [4, 0, 5, 4, 5, 9, 1, 1]
+    rows = success_windows(issued, reached, 600.0, 3800.0)
+    # windows 0..5 full, [3600, 3800) is 200 s < 300 s: merged into [3000, 3800) with the
+    # goal issued past the end; window 1 had no goal
+    assert [(r["start_s"], r["end_s"], r["issued"], r["reached"]) for r in rows] == [
+        (0.0, 600.0, 4, 4),
+        (1200.0, 1800.0, 5, 5),
+        (1800.0, 2400.0, 5, 4),
+        (2400.0, 3000.0, 5, 5),
+        (3000.0, 3800.0, 13, 11),
+    ]
+    assert rows[2]["success_rate"] == pytest.approx(0.8)
+    assert rows[-1]["success_rate"] == pytest.approx(11 / 13)
+    # a final window of half a window or more stands alone; one short window stays one window
+    assert len(success_windows([1] * 7, [1] * 7, 600.0, 3900.0)) == 7
+    assert success_windows([3], [1], 600.0, 100.0) == [
+        {"start_s": 0.0, "end_s": 100.0, "issued": 3, "reached": 1, "success_rate": 1 / 3}
+    ]
+    with pytest.raises(ValueError, match="window: expected a number of seconds > 0"):
+        success_windows([], [], 0.0, 10.0)
+
+
+def test_goal_scheduler_records_missed_goals_up_to_its_cap(arm3):
+    """A robot that never moves misses every goal but the ones within 5 cm of its hand: each miss
+    is recorded with its true end state, past ``max_missed`` only counted."""
+    backend = SimBackend(arm3, mode="velocity", envs=1)
+    guard, smoother, state, monitor = guarded(arm3, 1, "velocity")
+    rt = SimpleNamespace(
+        time=0.0, mode=np.full(1, 2), goal=np.zeros((1, 3)), backend=backend, state=state
+    )
+    goals = GoalScheduler(
+        arm3, 1, 0.5, None, 0.3, np.random.default_rng(3), 2.0, monitor, max_missed=3
+    )
+    for tick in range(int(round(4.0 / arm3.control_period)) + 1):
+        rt.time = tick * arm3.control_period
+        if tick % 10 == 0:  # some guard clamps along the way
+            guard.counts["velocity"] += 1
+        monitor.update()
+        goals(rt)
+    assert goals.issued[0] == 9 and goals.hit_count[0] == 0
+    assert len(goals.missed[0]) == 3 and goals.missed_dropped[0] == 5
+    first = goals.missed[0][0]
+    assert first["t_s"] == pytest.approx(0.5) and first["issued_s"] == 0.0
+    assert first["q"] == pytest.approx(arm3.home.tolist(), abs=1e-3)
+    assert first["q_estimate"] == arm3.home.tolist()
+    ee = arm3.forward_kinematics(arm3.home)
+    assert first["distance_m"] == pytest.approx(np.linalg.norm(ee - first["goal"]), abs=1e-3)
+    assert first["best_distance_m"] == pytest.approx(first["distance_m"], abs=1e-3)
+    assert first["best_distance_m"] > arm3.config.task.success_radius
+    assert first["interventions"]["velocity"] == 10 and first["interventions"]["any"] == 10
+    assert set(first["interventions"]) == {*INTERVENTION_CHECKS, "any"}
+    assert goals.window_issued[0] == [4, 4, 1] and goals.window_reached[0] == []

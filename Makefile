@@ -9,7 +9,7 @@ ONNX   := $(POLICY:.pt=.onnx)
 export ORT_DISABLE_TELEMETRY := 1
 export MPLBACKEND := Agg
 
-.PHONY: install run test lint format export train soak nightly bench clean
+.PHONY: install run test lint format export train train-position soak nightly bench clean
 
 install: $(STAMP)
 
@@ -40,9 +40,15 @@ format: install
 export: install
 	$(VENV)/bin/policy-export $(POLICY)
 
-# Reproduces policies/arm.pt (seed 1); TensorBoard logs in runs/train/.
+# Reproduces policies/arm.pt (seed 1): trains against the deployed stack (guard included), then
+# ships it only if a 1-hour randomized soak passes; TensorBoard logs in runs/train/.
 train: install
-	$(PY) -m policies.train
+	$(PY) -m policies.train --start-poses policies/arm3_missed_poses.json
+
+# The position-mode variant of the same recipe (seed section 11's comparison, README).
+train-position: install
+	$(PY) -m policies.train --mode position --start-poses policies/arm3_missed_poses.json \
+		--out policies/arm_position.pt
 
 # The ONNX file the soak targets run, re-exported whenever the checkpoint changes.
 $(ONNX): $(POLICY) $(STAMP)

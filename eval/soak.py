@@ -954,7 +954,9 @@ class SessionBatch:
                 self.checkpoint()
         results = [s.result() for s in self.sessions]
         for s, r in zip(self.sessions, results, strict=True):
-            ckpt.atomic_write(session_dir(self.out, s.config.seed) / "result.json", json.dumps(r))
+            d = session_dir(self.out, s.config.seed)
+            d.mkdir(parents=True, exist_ok=True)  # a session shorter than PROGRESS_PERIOD
+            ckpt.atomic_write(d / "result.json", json.dumps(r))
         self._progress(done=True)
         return results
 

@@ -35,6 +35,9 @@ Reward per control tick (:class:`RewardConfig`, seed section 6 coefficients by d
     + workspace      end effector outside the guard's workspace box            (negative)
     + hard_limit     at a hard limit, and the episode terminates                (negative)
     - energy   * sum |tau * dq|                                                  (W)
+    - heat     * sum (tau / tau_cont)^2  Joule heating of the windings relative to the motor's
+                                         rated continuous torque (ours: over hours, copper loss,
+                                         not mechanical power, is what overheats a motor)
     - jerk     * |dq - dq_prev| / dt     (the seed's "jerk": rate of change of velocity)
     + survival
     + shaping  * (d_prev - gamma_s * d)  potential-based shaping F = gamma_s Phi(s') - Phi(s) with
@@ -86,6 +89,10 @@ class RewardConfig:
         workspace: Per tick with the end effector outside ``safety.workspace_min/max`` (ours, the
             soft-limit coefficient: there the runtime's guard rejects commands and holds).
         energy: Coefficient of the mechanical power sum |tau dq|, per W (seed: 1e-4).
+        heat: Coefficient of ``sum_j (tau_j / continuous_torque_j)^2``, the windings' copper
+            loss relative to the rated continuous load (ours: a joint at its rated torque for a
+            4-s goal period costs 0.4; the policy learns gentle accelerations and, the arm being
+            redundant, postures that load its drives less).
         jerk: Coefficient of |dq - dq_prev| / dt, per rad/s^2 (seed: 1e-5).
         survival: Per tick (seed: +0.001).
         shaping: Per metre the end effector comes closer to the goal (ours; 0 disables it).
@@ -100,6 +107,7 @@ class RewardConfig:
     hard_limit: float = -1.0
     workspace: float = -0.1
     energy: float = 1e-4
+    heat: float = 5e-4
     jerk: float = 1e-5
     survival: float = 0.001
     shaping: float = 5.0
@@ -188,6 +196,7 @@ class ReachTask:
         self._commanded = self.smoother.position if config.mode == "velocity" else None
         self._moved = np.zeros(envs, dtype=np.int64)
         self._tracking = np.zeros(envs)
+        self._continuous = np.array([m.continuous_torque for m in robot.motors])
         self._start_poses = np.asarray(config.start_poses, dtype=np.float64).reshape(-1, self.n)
         self.success_radius = (
             robot.config.task.success_radius
@@ -342,6 +351,7 @@ class ReachTask:
         reward += rew.hard_limit * hard
         reward += rew.workspace * outside
         reward -= rew.energy * np.abs(tau * dq).sum(axis=1)
+        reward -= rew.heat * np.square(tau / self._continuous).sum(axis=1)
         reward -= rew.jerk * np.linalg.norm(dq - self._prev_dq, axis=1) / self.dt
         self._prev_dq[:] = dq
 

@@ -241,23 +241,37 @@ def make_model(args: argparse.Namespace, env) -> PPO | SAC:
 
 
 def start_poses(path: Path | None, robot) -> tuple[tuple[float, ...], ...]:
-    """Joint poses (rad) where a soak saw a policy miss its goal, from its ``report.json``
-    (:func:`eval.report.missed_states`); ``()`` without a path.
+    """Joint poses (rad) to start episodes from; ``()`` without a path.
+
+    ``path`` is a soak's ``report.json`` (the poses where it saw the policy miss its goal,
+    :func:`eval.report.missed_states`) or a JSON file ``{"robot": name, "poses": [[rad, ...]]}``
+    (such poses kept with the recipe, e.g. ``policies/arm3_missed_poses.json``).
 
     Raises:
-        eval.report.ReportError: unreadable report, or poses of another robot's joint count.
+        eval.report.ReportError: unreadable file, poses of another robot or joint count.
     """
     if path is None:
         return ()
     from eval.report import ReportError, load_report, missed_states
 
-    report = load_report(path)
-    poses = tuple(tuple(float(x) for x in m["q"]) for m in missed_states(report))
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ReportError(f"{path}: not a readable JSON file ({exc})") from None
+    if isinstance(doc, dict) and "poses" in doc:
+        if doc.get("robot") != robot.name:
+            raise ReportError(
+                f"{path}: field 'robot': expected '{robot.name}', got {doc.get('robot')!r}"
+            )
+        raw = doc["poses"]
+    else:
+        raw = [m["q"] for m in missed_states(load_report(path))]
+    poses = tuple(tuple(float(x) for x in p) for p in raw)
     bad = [p for p in poses if len(p) != robot.n_joints]
     if bad:
         raise ReportError(
-            f"{path}: field 'sessions[].goals.missed[].q': expected {robot.n_joints} joint "
-            f"angles (robot {robot.name}), got {len(bad[0])}"
+            f"{path}: field 'poses': expected {robot.n_joints} joint angles per pose (robot "
+            f"{robot.name}), got {len(bad[0])}"
         )
     return poses
 

@@ -269,6 +269,15 @@ def killed(config, tmp_path_factory):
     return pristine
 
 
+def test_a_session_shorter_than_the_progress_period_writes_its_result(config, tmp_path):
+    """Regression: the session folder was made by the first progress write only (every 10
+    simulated s), so a shorter session crashed writing result.json."""
+    short = replace(config, hours=4.0 / 3600.0, checkpoint_minutes=0.0)
+    (result,) = SessionBatch([short], tmp_path).run()
+    assert result["simulated_s"] == pytest.approx(4.0)
+    assert json.loads((session_dir(tmp_path, short.seed) / "result.json").read_text()) == result
+
+
 def test_kill_and_resume_equals_an_uninterrupted_run(killed, config, batched, tmp_path):
     out = tmp_path / "campaign"
     shutil.copytree(killed, out)

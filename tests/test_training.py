@@ -1,5 +1,7 @@
 """The training env (policies/envs.py) and the PPO-to-checkpoint conversion (policies/train.py)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -59,7 +61,13 @@ def test_pushing_a_joint_into_its_soft_limit_is_an_intervention_and_costs_its_pe
     enters the band (no soft-band penalty); a policy that keeps driving it there is charged the
     intervention penalty every tick, and the episode's intervention rate shows it."""
     reward = RewardConfig(
-        shaping=0.0, energy=0.0, jerk=0.0, survival=0.0, intervention=-0.3, soft_limit=-0.1
+        shaping=0.0,
+        energy=0.0,
+        heat=0.0,
+        jerk=0.0,
+        survival=0.0,
+        intervention=-0.3,
+        soft_limit=-0.1,
     )
     cfg = ReachConfig(dynamics=DynamicsRanges.none(), reward=reward)
     task = ReachTask(arm3, 2, cfg, seed=7)
@@ -165,3 +173,23 @@ def test_training_ships_only_a_policy_that_passes_the_soak(tmp_path):
     assert (tmp_path / "arm3_velocity_seed1.gate" / "report.json").exists()
     assert main(args + ["--gate-hours", "0"]) == 0  # without the gate it ships
     assert out.exists() and out.with_suffix(".curve.json").exists()
+
+
+def test_holding_the_arm_against_gravity_costs_its_joule_heat(arm3):
+    """The heat term charges sum (tau / continuous_torque)^2: the stretched arm, held against
+    gravity at rest, costs more than the arm hanging down, and exactly the formula's amount."""
+    reward = RewardConfig(
+        shaping=0.0, energy=0.0, jerk=0.0, survival=0.0, success=0.0, soft_limit=0.0, heat=1e-3
+    )
+    cfg = ReachConfig(dynamics=DynamicsRanges.none(), reward=reward, start_pose_probability=1.0)
+    stretched, hanging = (0.0, 0.0, 0.0), (-1.3, 0.0, 0.0)
+    costs = {}
+    for name, pose in (("stretched", stretched), ("hanging", hanging)):
+        task = ReachTask(arm3, 1, replace(cfg, start_poses=(pose,)), seed=9)
+        for _ in range(200):  # 1 s at rest: the drives settle on the gravity torque
+            _, r, *_ = task.step(np.zeros((1, 3)))
+        tau = task.backend.joint_torque()[0]
+        continuous = np.array([m.continuous_torque for m in arm3.motors])
+        np.testing.assert_allclose(r[0], -1e-3 * np.sum((tau / continuous) ** 2), rtol=1e-9)
+        costs[name] = -r[0]
+    assert costs["stretched"] > 5 * costs["hanging"]

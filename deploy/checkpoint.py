@@ -341,6 +341,25 @@ def unsafe_globals_in(exc: BaseException) -> str | None:
     return m.group(1) if m else None
 
 
+def torch_file_problem(path: str | os.PathLike) -> str | None:
+    """What makes ``path`` no torch file at all, or None if it could be one.
+
+    ``torch.save`` writes a zip archive (since PyTorch 1.6; TorchScript and Stable-Baselines3
+    files are zip archives too) or, in the legacy format, a pickle, whose first byte is the
+    PROTO opcode 0x80 (pickle protocol 2 and later). Anything else is refused before torch's own
+    error (which suggests ``weights_only=False``, advice that does not apply to a damaged file).
+    """
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if head.startswith(b"PK\x03\x04") or head[:1] == b"\x80":
+        return None
+    return (
+        f"not a torch file: it starts with bytes {head.hex(' ')}, neither a zip archive "
+        "(torch.save, TorchScript, Stable-Baselines3) nor a pickle (legacy torch.save); the "
+        "file is damaged or of another kind"
+    )
+
+
 def read_torch_file(path: Path) -> Any:
     """``torch.load(path, weights_only=True)`` on CPU with errors that name the file.
 
@@ -352,6 +371,9 @@ def read_torch_file(path: Path) -> Any:
         raise CheckpointError(f"{path}: no such file")
     if path.stat().st_size == 0:
         raise CheckpointError(f"{path}: the file is empty")
+    problem = torch_file_problem(path)
+    if problem is not None:
+        raise CheckpointError(f"{path}: {problem}")
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:

@@ -108,6 +108,7 @@ from deploy.checkpoint import (
     MLPActor,
     ObservationNormalizer,
     checkpoint_from_dict,
+    torch_file_problem,
     unsafe_globals_in,
 )
 from deploy.policy import OnnxPolicy, PolicyLoadError, read_spec, spec_differences
@@ -386,7 +387,10 @@ def _detect(path: Path) -> str:
     if path.suffix.lower() == ".onnx":
         raise ExportError(f"{path}: already an ONNX file; export takes a torch checkpoint")
     if not zipfile.is_zipfile(path):
-        return "torch"  # legacy torch.save format, or damaged: torch.load decides
+        problem = torch_file_problem(path)
+        if problem is not None:
+            raise ExportError(f"{path}: {problem}")
+        return "torch"  # legacy torch.save format (a pickle), or damaged: torch.load decides
     try:
         with zipfile.ZipFile(path) as zf:
             names = zf.namelist()

@@ -205,6 +205,12 @@ def _check_args(args) -> None:
         raise BadInput("--address: only with --executor ray")
     if not Path(args.policy).is_file():
         raise BadInput(f"--policy: {args.policy} is not a file")
+    out = Path(args.out)
+    for folder in (out, *out.parents):
+        if folder.exists() and not folder.is_dir():
+            raise BadInput(
+                f"--out: {folder} is a file; expected the campaign folder (new or existing)"
+            )
 
 
 def exit_code(report: dict) -> int:

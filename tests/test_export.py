@@ -425,7 +425,8 @@ def _write_bad_inputs(tmp_path, spec):
     """name -> (argv extras, expected message), all files written into tmp_path."""
     good = save_checkpoint(tmp_path / "good.pt", make_actor(), spec)
     (tmp_path / "truncated.pt").write_bytes(good.read_bytes()[: good.stat().st_size // 2])
-    (tmp_path / "corrupt.pt").write_bytes(os.urandom(2048))
+    # random bytes (seeded; not starting like a zip or a pickle, which os.urandom did 1 time in 256)
+    (tmp_path / "corrupt.pt").write_bytes(b"\x13\x37" + RNG.bytes(2046))
     (tmp_path / "empty.pt").write_bytes(b"")
     torch.save(_checkpoint_dict(spec, state_dict=_nan_state(spec)), tmp_path / "nan.pt")
     torch.save(_checkpoint_dict(spec, format_version=9), tmp_path / "version.pt")
@@ -442,7 +443,12 @@ def _write_bad_inputs(tmp_path, spec):
     return {
         "missing": (["missing.pt"], r"missing.pt: no such file"),
         "truncated": (["truncated.pt"], r"truncated.pt: not a readable torch file \(truncated"),
-        "corrupt": (["corrupt.pt"], r"corrupt.pt: not a readable torch file"),
+        # our words, not torch's advice to pass weights_only=False (which does not apply)
+        "corrupt": (
+            ["corrupt.pt"],
+            r"corrupt.pt: not a torch file: it starts with bytes 13 37 .*, neither a zip archive "
+            r".* nor a pickle .*damaged or of another kind$",
+        ),
         "empty": (["empty.pt"], r"empty.pt: the file is empty"),
         "nan weights": (["nan.pt"], r"nan.pt: field 'state_dict'\['net.2.bias'\]: 1 non-finite"),
         "format version": (["version.pt"], r"version.pt: field 'format_version' is 9"),
@@ -469,7 +475,7 @@ def _write_bad_inputs(tmp_path, spec):
             ["good.pt", "--spec", str(tmp_path / "stale.json")],
             r"good.pt: the checkpoint's spec differs from the --spec given in \['robot_hash'\]",
         ),
-        "not a policy": (["spec.json"], r"spec.json: not a readable torch file"),
+        "not a policy": (["spec.json"], r"spec.json: not a torch file: it starts with bytes 7b"),
         "onnx source": (["exported.onnx"], r"exported.onnx: already an ONNX file"),
         "no out folder": (
             ["good.pt", "--out", str(tmp_path / "nodir" / "x.onnx")],

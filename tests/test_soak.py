@@ -611,6 +611,7 @@ def test_soak_test_cli_end_to_end(policy, tmp_path, capsys):
         (["--max-interventions", "-0.1"], "--max-interventions: expected a value in [0, 1]"),
         (["--window-minutes", "0"], "--window-minutes: expected a number > 0, got 0.0"),
         (["--baseline", "BASELINE"], "field 'schema_version': expected 2, got 99"),
+        (["--out", "BASELINE"], "BASELINE is a file; expected the campaign folder"),
     ],
 )
 def test_soak_test_bad_input_exits_3_naming_the_problem(policy, tmp_path, capsys, args, message):

@@ -348,6 +348,11 @@ def run(args) -> int:
     ticks = int(round(args.duration / robot.control_period))
     peak = np.full((args.envs, robot.n_joints), -np.inf)
     max_speed = np.zeros(robot.n_joints)
+    # smoothness of the true motion: jerk by second differences of the joint velocities at the
+    # control rate (rad/s^3), summed while RUNNING
+    dt = robot.control_period
+    motion = {k: np.zeros((args.envs, robot.n_joints)) for k in ("dq", "acc", "jerk_sum")}
+    motion_ticks = np.zeros(args.envs, dtype=np.int64)
     monitor_cost = LatencyHistogram()
     clock_ns = time.perf_counter_ns
 
@@ -370,7 +375,19 @@ def run(args) -> int:
         monitor_cost.add(0, clock_ns() - t0)
         goals(r)
         np.maximum(peak, backend.thermal.winding_temperature, out=peak)
-        np.maximum(max_speed, np.abs(backend.true_velocity()).max(axis=0), out=max_speed)
+        dq = backend.true_velocity()
+        np.maximum(max_speed, np.abs(dq).max(axis=0), out=max_speed)
+        acc = (dq - motion["dq"]) / dt
+        running = (r.mode == 2)[:, None]  # Mode.RUNNING
+        if r.ticks > 2:
+            np.add(
+                motion["jerk_sum"],
+                np.abs(acc - motion["acc"]) / dt * running,
+                out=motion["jerk_sum"],
+            )
+            motion_ticks[:] += running[:, 0]
+        motion["dq"][:] = dq
+        motion["acc"][:] = acc
 
     wall = time.perf_counter()
     diverged = None
@@ -428,6 +445,13 @@ def run(args) -> int:
             zip(robot.joint_names, peak.max(axis=0).tolist(), strict=True)
         ),
         "max_joint_speed_rad_s": dict(zip(robot.joint_names, max_speed.tolist(), strict=True)),
+        "mean_abs_jerk_rad_s3": dict(
+            zip(
+                robot.joint_names,
+                (motion["jerk_sum"].sum(axis=0) / max(int(motion_ticks.sum()), 1)).tolist(),
+                strict=True,
+            )
+        ),
         "tick_cost_us": rt.tick_cost.summary(),
         "monitor_cost_us": monitor_cost.summary(),
         "stage_cost_us": {s: rt.latency.summary(i) for i, s in enumerate(STAGES)},
@@ -488,7 +512,8 @@ def print_summary(r: dict) -> None:
     temps = ", ".join(f"{k} {t:.1f}" for k, t in r["peak_winding_temperature_c"].items())
     print(f"  peak winding degC {temps}")
     speed = max(r["max_joint_speed_rad_s"].values())
-    print(f"  max joint speed   {speed:.2f} rad/s")
+    jerk = ", ".join(f"{k} {v:.0f}" for k, v in r["mean_abs_jerk_rad_s3"].items())
+    print(f"  max joint speed   {speed:.2f} rad/s; mean |jerk| rad/s^3 (true, RUNNING) {jerk}")
     t = r["tick_cost_us"]
     print(
         f"  tick cost (us)    p50 {t['p50_us']:.1f}  p99 {t['p99_us']:.1f}  "

@@ -67,7 +67,7 @@ STOP_DAMPING = 0.2
 #: is re-anchored at the measured state, so that the servo does not yank the arm back; counted.
 TRACKING_TOLERANCE = 0.6  # arm3's servo lags up to 0.45 rad at full speed
 #: Velocity mode: Ruckig's integrated position is kept within this distance (rad) of the measured
-#: pose (:meth:`~deploy.smoothing.CommandSmoother.anchor`); moves are counted as resyncs. Our
+#: pose (:meth:`~deploy.smoothing.CommandSmoother.anchor`); moves are counted as anchors. Our
 #: choice: twice the position lag of a PI velocity drive at its effort limit, 2 x 22.5 N m /
 #: kp 400 N m/rad = 0.11 rad on arm3 (robot.toml), rounded to 0.1; a drive that lags further
 #: saturates, and its own anti-windup lets go of the gap too.
@@ -150,11 +150,23 @@ class WallClock:
 
 @dataclass
 class RuntimeCounters:
-    """Counters of one run, arrays shaped (envs,)."""
+    """Counters of one run, arrays shaped (envs,).
+
+    Attributes:
+        non_finite_actions: Ticks with a non-finite policy output (the last valid one held).
+        safe_stops: Safe stops begun.
+        resyncs: Position mode: the command re-anchored at the measured state (the arm was
+            pushed or blocked beyond ``TRACKING_TOLERANCE``); the command stream restarts there.
+        anchors: Velocity mode: ticks on which the smoother's integrated position was pulled to
+            within ``VELOCITY_TRACKING_TOLERANCE`` of the measured pose; the velocity command
+            itself stays continuous.
+        faults: Safe stops by cause (``FAULT_CAUSES``).
+    """
 
     non_finite_actions: np.ndarray
     safe_stops: np.ndarray
     resyncs: np.ndarray
+    anchors: np.ndarray
     faults: dict[str, np.ndarray] = field(default_factory=dict)
 
 
@@ -200,6 +212,7 @@ class Runtime:
             non_finite_actions=np.zeros(envs, dtype=np.int64),
             safe_stops=np.zeros(envs, dtype=np.int64),
             resyncs=np.zeros(envs, dtype=np.int64),
+            anchors=np.zeros(envs, dtype=np.int64),
             faults={c: np.zeros(envs, dtype=np.int64) for c in FAULT_CAUSES},
         )
         self.latency = LatencyHistogram(len(STAGES))
@@ -362,7 +375,7 @@ class Runtime:
             moved = self.smoother.anchor(state.q, VELOCITY_TRACKING_TOLERANCE, out=self._anchored)
             if moved.any():
                 moved &= (self.mode != SAFE_STOP) & (self.mode != FAULTED)
-                self.counters.resyncs += moved
+                self.counters.anchors += moved
         elif self.mode_name == "position":
             self.smoother.tracking_error(state.q, out=self._tracking)
             drift = self._tracking > TRACKING_TOLERANCE

@@ -100,7 +100,11 @@ _PER_ENV_FIELDS = (
         lambda rt: rt.state,
         ("q", "dq", "ee_position", "ee_rotation", "winding_temperature", "last_action"),
     ),
-    ("counters", lambda rt: rt.counters, ("non_finite_actions", "safe_stops", "resyncs")),
+    (
+        "counters",
+        lambda rt: rt.counters,
+        ("non_finite_actions", "safe_stops", "resyncs", "anchors"),
+    ),
     (
         "backend",
         lambda rt: rt.backend,

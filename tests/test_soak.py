@@ -68,8 +68,11 @@ FAULTS = FaultRanges(
 
 def tiny_policy(path: Path, robot) -> Path:
     """A deterministic MLP with a stabilizing joint-position feedback: it moves with the goal and
-    stays (mostly) inside the limits."""
+    stays (mostly) inside the limits. Its full action is the hard velocity limit (the contract
+    before actions were scaled by the soft one), so the smoother clamps it now and then: the
+    sessions have interventions."""
     spec = PolicySpec.for_robot(robot)
+    spec = replace(spec, action=replace(spec.action, scale=tuple(map(float, robot.velocity_limit))))
     d, n, h = spec.obs_dim, spec.act_dim, 16
     rng = np.random.default_rng(0)
     w1 = rng.normal(0, 0.5, (d, h)).astype(np.float32)

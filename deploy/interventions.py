@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from deploy.safety import CHECKS as GUARD_CHECKS
-from deploy.violations import load_fields
+from deploy.violations import MonitorState
 
 INTERVENTION_CHECKS = (
     "hard_limit",
@@ -50,7 +50,7 @@ INTERVENTION_CHECKS = (
 WARNINGS = ("soft_band_estimate",)
 
 
-class InterventionMonitor:
+class InterventionMonitor(MonitorState):
     """Count the ticks on which the guard or the smoother changed a command, per env and check.
 
     Build it after :meth:`deploy.runtime.Runtime.start` (which zeroes the smoother's counters) and
@@ -166,7 +166,11 @@ class InterventionMonitor:
         }
 
     # ------------------------------------------------------------------ checkpoints
+    _state_name = "interventions"
+
     def _arrays(self) -> dict[str, np.ndarray]:
+        # counts/<check>, any, warning_base (envs,); prev/<counter> (envs,) or, for the
+        # smoother's per-joint counters, (envs, n)
         out = {f"counts/{c}": v for c, v in self.counts.items()}
         out["any"] = self.any
         out["warning_base"] = self._warning_base
@@ -175,23 +179,3 @@ class InterventionMonitor:
         for i, (name, _) in enumerate(self._smoother):
             out[f"prev/{name}"] = self._prev_smoother[i]
         return out
-
-    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
-        """The monitor's counters and references (copies): ``counts/<check>``, ``any``,
-        ``warning_base`` (envs,) int64 and ``prev/<counter>`` ((envs,), or (envs, n) for the
-        smoother's per-joint counters), the env's slice (leading 1) for one env ``env``; and
-        ``ticks`` (1,)."""
-        index = slice(None) if env is None else slice(env, env + 1)
-        out = {k: v[index].copy() for k, v in self._arrays().items()}
-        out["ticks"] = np.array([self.ticks], dtype=np.int64)
-        return out
-
-    def load_state_dict(self, state: dict[str, np.ndarray], env: int | None = None) -> None:
-        """Inverse of :meth:`state_dict` (of all envs, or of env ``env``).
-
-        Raises:
-            ValueError: a missing field, or one whose shape differs (named, with the expected
-                shape).
-        """
-        index = slice(None) if env is None else slice(env, env + 1)
-        self.ticks = load_fields(self._arrays(), state, index, "interventions")

@@ -49,7 +49,42 @@ EFFORT_TOLERANCE = 1e-9
 _SCREEN_SHRINK = 1e-12
 
 
-class ViolationMonitor:
+class MonitorState:
+    """``state_dict`` / ``load_state_dict`` of a per-env tick counter (the soak's checkpoints).
+
+    A monitor gives ``_arrays()`` (name -> live array with a leading env axis), ``ticks`` and
+    ``_state_name`` (for error messages); its state is those arrays (copies) and ``ticks``.
+    """
+
+    _state_name = "monitor"
+    ticks: int
+
+    _state_name = "violations"
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        raise NotImplementedError
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """The monitor's arrays (copies, see the class docstring), each with its leading env
+        axis of length envs, or 1 for one env ``env`` (a soak session's checkpoint), and
+        ``ticks`` (1,) int64."""
+        index = slice(None) if env is None else slice(env, env + 1)
+        out = {k: v[index].copy() for k, v in self._arrays().items()}
+        out["ticks"] = np.array([self.ticks], dtype=np.int64)
+        return out
+
+    def load_state_dict(self, state: dict[str, np.ndarray], env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of all envs, or of env ``env``).
+
+        Raises:
+            ValueError: a missing field, or one whose shape differs (named, with the expected
+                shape).
+        """
+        index = slice(None) if env is None else slice(env, env + 1)
+        self.ticks = load_fields(self._arrays(), state, index, self._state_name)
+
+
+class ViolationMonitor(MonitorState):
     """Count true-state violations of ``envs`` simulated robots, per env and tick.
 
     Args:
@@ -181,24 +216,6 @@ class ViolationMonitor:
         out = {f"counts/{t}": v for t, v in self.counts.items()}
         out["any"] = self.any
         return out
-
-    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
-        """The monitor's counters (copies): ``{"counts/<type>", "any"}``, each (envs,) int64, or
-        (1,) for one env ``env`` (a soak session's checkpoint), and ``ticks`` (1,)."""
-        index = slice(None) if env is None else slice(env, env + 1)
-        out = {k: v[index].copy() for k, v in self._arrays().items()}
-        out["ticks"] = np.array([self.ticks], dtype=np.int64)
-        return out
-
-    def load_state_dict(self, state: dict[str, np.ndarray], env: int | None = None) -> None:
-        """Inverse of :meth:`state_dict` (of all envs, or of env ``env``).
-
-        Raises:
-            ValueError: a missing field, or one whose shape differs (named, with the expected
-                shape).
-        """
-        index = slice(None) if env is None else slice(env, env + 1)
-        self.ticks = load_fields(self._arrays(), state, index, "violations")
 
 
 def load_fields(targets: dict[str, np.ndarray], state: dict, index: slice, what: str) -> int:

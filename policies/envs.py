@@ -83,16 +83,18 @@ class RewardConfig:
         success: Reward per goal reached (seed: +1).
         soft_limit: Per joint and tick whose true position is beyond the soft limit (seed: -0.1
             in the soft band).
-        intervention: Per tick on which the guard or the smoother changed the command (ours, the
-            soft-limit coefficient: the soak counts these and fails above 1 % of ticks).
+        intervention: Per tick on which the guard or the smoother changed the command (ours,
+            twice the soft-limit coefficient: the soak counts these and fails above 1 % of
+            ticks).
         hard_limit: At a hard limit; the episode terminates (seed: -1).
         workspace: Per tick with the end effector outside ``safety.workspace_min/max`` (ours, the
             soft-limit coefficient: there the runtime's guard rejects commands and holds).
         energy: Coefficient of the mechanical power sum |tau dq|, per W (seed: 1e-4).
         heat: Coefficient of ``sum_j (tau_j / continuous_torque_j)^2``, the windings' copper
-            loss relative to the rated continuous load (ours: a joint at its rated torque for a
-            4-s goal period costs 0.4; the policy learns gentle accelerations and, the arm being
-            redundant, postures that load its drives less).
+            loss relative to the rated continuous load (ours; at 5e-4 a joint at its rated
+            torque for a 4-s goal period costs 0.4). It trades reaching speed for cooler drives
+            and, the arm being redundant, postures that load them less; 0 (off) in the shipped
+            recipe, the README gives the comparison.
         jerk: Coefficient of |dq - dq_prev| / dt, per rad/s^2 (seed: 1e-5).
         survival: Per tick (seed: +0.001).
         shaping: Per metre the end effector comes closer to the goal (ours; 0 disables it).
@@ -103,11 +105,11 @@ class RewardConfig:
 
     success: float = 1.0
     soft_limit: float = -0.1
-    intervention: float = -0.1
+    intervention: float = -0.2
     hard_limit: float = -1.0
     workspace: float = -0.1
     energy: float = 1e-4
-    heat: float = 5e-4
+    heat: float = 0.0
     jerk: float = 1e-5
     survival: float = 0.001
     shaping: float = 5.0

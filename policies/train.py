@@ -424,7 +424,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--algo", default="ppo", choices=["ppo", "sac"])
     p.add_argument("--gradient-steps", type=int, default=1, help="SAC: updates per batch step")
     p.add_argument("--mode", default="velocity", choices=["velocity", "position"])
-    p.add_argument("--steps", type=int, default=12_000_000, help="environment steps")
+    p.add_argument("--steps", type=int, default=10_000_000, help="environment steps")
     p.add_argument("--envs", type=int, default=64, help="robots per batch")
     p.add_argument("--seed", type=int, default=1, help="1: the shipped arm.pt")
     p.add_argument("--n-steps", type=int, default=128, help="PPO rollout length per env")
@@ -444,7 +444,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--anneal-steps",
         type=int,
-        default=4_000_000,
+        default=3_000_000,
         help="PPO: anneal the exploration noise over this many final steps (0: off)",
     )
     p.add_argument("--final-log-std", type=float, default=-4.0, help="log_std after annealing")

@@ -351,6 +351,7 @@ def train(args: argparse.Namespace) -> Path | None:
             "wall_seconds": round(time.perf_counter() - start, 1),
             "randomized_dynamics": bool(args.randomize),
             "episode_seconds": args.episode_seconds,
+            "reward": dataclasses.asdict(args.reward),
             "start_poses": len(config.start_poses),
             "success_radius": task.success_radius,
             "curve": history,

@@ -90,6 +90,47 @@ IDLE, RAMP_IN, RUNNING, SAFE_STOP, FAULTED = (int(m) for m in Mode)
 FAULT_CAUSES = ("hard_limit", "non_finite_action", "stale_sensor", "overrun", "over_temperature")
 
 
+def reanchor(
+    smoother: CommandSmoother,
+    state: RobotState,
+    tracking: np.ndarray,
+    anchored: np.ndarray,
+    mode: np.ndarray | None = None,
+) -> np.ndarray | None:
+    """The tick's re-anchoring of the smoother at the measured state (the runtime's and the
+    training env's, :class:`policies.envs.ReachTask`).
+
+    Velocity mode: Ruckig's integrated position is kept within ``VELOCITY_TRACKING_TOLERANCE``
+    of ``state.q`` in every env (:meth:`~deploy.smoothing.CommandSmoother.anchor`). Position
+    mode: an env whose command is more than ``TRACKING_TOLERANCE`` from ``state.q`` is re-synced
+    at ``state.q``, ``state.dq``. Torque mode: nothing.
+
+    Args:
+        smoother: The smoother to re-anchor.
+        state: Estimated state (``q`` rad, ``dq`` rad/s, (envs, n)).
+        tracking: (envs,) float work array (position mode's tracking error, rad).
+        anchored: (envs,) int64 work array (velocity mode's anchored envs).
+        mode: Optional (envs,) state-machine modes: envs in SAFE_STOP or FAULTED are not
+            re-synced (position mode) and not counted (velocity mode).
+
+    Returns:
+        None when nothing moved, else an (envs,) mask (int64 or bool) of the counted envs.
+    """
+    if smoother.mode == "velocity":
+        moved = smoother.anchor(state.q, VELOCITY_TRACKING_TOLERANCE, out=anchored)
+    elif smoother.mode == "position":
+        moved = smoother.tracking_error(state.q, out=tracking) > TRACKING_TOLERANCE
+    else:
+        return None
+    if not moved.any():
+        return None
+    if mode is not None:
+        moved &= (mode != SAFE_STOP) & (mode != FAULTED)
+    if smoother.mode == "position" and moved.any():
+        smoother.sync(state.q, state.dq, envs=moved)
+    return moved
+
+
 class SimClock:
     """Lockstep clock: the plant's own time; never waits."""
 
@@ -371,19 +412,12 @@ class Runtime:
                     mode[resume] = RAMP_IN
                     self.cause[resume] = -1
                     self.smoother.sync(state.q, state.dq, envs=resume)
-        if self.mode_name == "velocity":
-            moved = self.smoother.anchor(state.q, VELOCITY_TRACKING_TOLERANCE, out=self._anchored)
-            if moved.any():
-                moved &= (self.mode != SAFE_STOP) & (self.mode != FAULTED)
-                self.counters.anchors += moved
-        elif self.mode_name == "position":
-            self.smoother.tracking_error(state.q, out=self._tracking)
-            drift = self._tracking > TRACKING_TOLERANCE
-            if drift.any():
-                drift &= (self.mode != SAFE_STOP) & (self.mode != FAULTED)
-                if drift.any():
-                    self.counters.resyncs += drift
-                    self.smoother.sync(state.q, state.dq, envs=drift)
+        moved = reanchor(self.smoother, state, self._tracking, self._anchored, self.mode)
+        if moved is not None:
+            counter = (
+                self.counters.anchors if self.mode_name == "velocity" else self.counters.resyncs
+            )
+            counter += moved
 
     def _safe_stop(self, which: np.ndarray, cause: str) -> None:
         if not which.any():

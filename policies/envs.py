@@ -59,7 +59,7 @@ from deploy.backends.sim import SimBackend
 from deploy.cli import sample_goal
 from deploy.estimation import JointStateEstimator
 from deploy.interventions import InterventionMonitor
-from deploy.runtime import TRACKING_TOLERANCE, VELOCITY_TRACKING_TOLERANCE
+from deploy.runtime import reanchor
 from deploy.safety import SafetyGuard
 from deploy.smoothing import CommandSmoother
 from deploy.spec import PolicySpec
@@ -323,12 +323,7 @@ class ReachTask:
         state = self.estimator.update(frame, self.state, self._input)
         state.last_action[:] = action
         guard.update_thermal(state.winding_temperature)
-        if self.config.mode == "velocity":
-            self.smoother.anchor(state.q, VELOCITY_TRACKING_TOLERANCE, out=self._moved)
-        elif self.config.mode == "position":
-            drift = self.smoother.tracking_error(state.q, out=self._tracking) > TRACKING_TOLERANCE
-            if drift.any():
-                self.smoother.sync(state.q, state.dq, envs=drift)
+        reanchor(self.smoother, state, self._tracking, self._moved)
         self.kinematics.update(state)
         self.spec.observation(state, self.goal, out=self.obs)
         self.t_episode += self.dt

@@ -45,7 +45,7 @@ import pinocchio as pin
 
 from deploy.smoothing import stopping_speed
 from deploy.state import RobotState
-from deploy.thermal import derating_factor
+from deploy.thermal import EffortDerating
 from robots import Robot
 
 CHECKS = ("soft_limit", "hard_limit", "velocity", "workspace", "self_collision", "effort")
@@ -109,8 +109,8 @@ class SafetyGuard:
             (``counts[name]`` are views of its rows): one array to sum or compare per tick.
         hard_violation: (envs,) bool, set by the last :meth:`filter` when a hard limit was crossed
             (the runtime answers with a safe stop).
-        effort_scale: (envs, n) derating factor in [0, 1] applied to the effort limits, from the
-            winding temperatures (see :meth:`update_thermal`).
+        effort_scale: (envs, n) derating factor in [continuous / peak torque, 1] applied to the
+            effort limits, from the winding temperatures (see :meth:`update_thermal`).
     """
 
     def __init__(self, robot: Robot, envs: int, mode: str):
@@ -129,8 +129,6 @@ class SafetyGuard:
         self.counts = {name: self.count_matrix[i] for i, name in enumerate(CHECKS)}
         self.hard_violation = np.zeros(envs, dtype=bool)
         self.effort_scale = np.ones((envs, n))
-        self._start = np.array([m.derating_start_temperature for m in robot.motors])
-        self._max = np.array([m.max_winding_temperature for m in robot.motors])
         self._last_valid = np.tile(robot.home, (envs, 1))
         self._pred = np.zeros((envs, n))
         self._tmp = np.zeros((envs, n))
@@ -144,6 +142,7 @@ class SafetyGuard:
         self._has_pairs = bool(self.geom_model.collisionPairs)
         #: m per rad: bound on any point's displacement per unit of sum |dq| (module docstring).
         self.sweep, self.gravity_bound = motion_bounds(robot)
+        self.derating = EffortDerating(robot, hold=self.gravity_bound)
         # caches of the screens: configuration of the last computation and its result
         self._ws_q = np.zeros((envs, n))
         self._ws_margin = np.full(envs, -np.inf)  # m inside the workspace box (-inf: unknown)
@@ -186,8 +185,10 @@ class SafetyGuard:
         self.hard_violation[which] = False
 
     def update_thermal(self, winding_temperature: np.ndarray) -> np.ndarray:
-        """Derate the effort limits linearly in the derating band; returns ``effort_scale``."""
-        return derating_factor(winding_temperature, self._start, self._max, out=self.effort_scale)
+        """Derate the effort limits as the drives do (:class:`deploy.thermal.EffortDerating`:
+        linearly across the derating band, down to the continuous torque); returns
+        ``effort_scale``."""
+        return self.derating.factor(winding_temperature, out=self.effort_scale)
 
     # ------------------------------------------------------------------ geometry at one config
     def _ee_outside(self, q: np.ndarray, cache: int | None = None) -> float:
@@ -323,7 +324,7 @@ class SafetyGuard:
                     reason = "effort"
             if reason is not None:
                 counts[reason][e] += 1
-                self._hold(e, q[e], out)
+                self._hold(e, q[e], dq[e], out)
                 held[e] = True
         if self.mode == "position":
             keep = ~held
@@ -340,26 +341,32 @@ class SafetyGuard:
         soft limit, capped at the velocity limit. Position and velocity mode: under the
         acceleration and jerk limits of the smoother's trajectories, the brake beginning one
         control period later (:func:`deploy.smoothing.stopping_speed`). Torque mode (no Ruckig,
-        the torque governor brakes): ``sqrt(2 a d)``."""
+        the torque governor brakes): ``sqrt(2 a d)``, ``a`` scaled by the thermal derating."""
         upper = q if commanded is None else np.maximum(q, commanded)
         lower = q if commanded is None else np.minimum(q, commanded)
         d_up = np.maximum(self.soft_upper - upper, 0.0)
         d_down = np.maximum(lower - self.soft_lower, 0.0)
         if self.mode == "torque":
-            v_up = np.minimum(np.sqrt(2.0 * self.acc * d_up), self.vel)
-            v_down = np.minimum(np.sqrt(2.0 * self.acc * d_down), self.vel)
+            # a derated drive brakes with a proportionally smaller torque
+            acc = self.acc * self.effort_scale
+            v_up = np.minimum(np.sqrt(2.0 * acc * d_up), self.vel)
+            v_down = np.minimum(np.sqrt(2.0 * acc * d_down), self.vel)
         else:
             v_up = np.minimum(stopping_speed(d_up, self.acc, self.jerk, self.dt), self.vel)
             v_down = np.minimum(stopping_speed(d_down, self.acc, self.jerk, self.dt), self.vel)
         return v_up, v_down
 
-    def _hold(self, e: int, q: np.ndarray, out: np.ndarray) -> None:
+    def _hold(self, e: int, q: np.ndarray, dq: np.ndarray, out: np.ndarray) -> None:
+        """Replace env ``e``'s target by a hold: the last accepted target (position mode), zero
+        velocity (velocity mode), or in torque mode gravity compensation with the guard's brake on
+        the measured velocity (``g - brake_gain dq``): a moving joint is stopped, not let coast."""
         if self.mode == "position":
             out[e] = self._last_valid[e]
         elif self.mode == "velocity":
             out[e] = 0.0
         else:
             out[e] = pin.computeGeneralizedGravity(self.model, self.data, q)
+            out[e] -= self._brake_gain * dq
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
         """Gravity torque (N m, (n,)) at one configuration ``q`` (rad); a view reused per call."""

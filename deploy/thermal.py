@@ -1,4 +1,4 @@
-"""Two-node motor thermal model (winding and housing), and the derating law of the monitor.
+"""Two-node motor thermal model (winding and housing); the derating law of drives and guard.
 
 The model is the one motor datasheets are written for (maxon, "Technology - short and to the point",
 thermal data lines 17-20)::
@@ -116,15 +116,69 @@ class TwoNodeThermalModel:
 
 
 def derating_factor(
-    temperature: np.ndarray, start: np.ndarray, maximum: np.ndarray, out: np.ndarray | None = None
+    temperature: np.ndarray,
+    start: np.ndarray,
+    maximum: np.ndarray,
+    floor: np.ndarray | float = 0.0,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Fraction of the effort limit allowed at a winding ``temperature`` (degC).
+    """Fraction of the peak effort limit a drive allows at a winding ``temperature`` (degC).
 
-    1 below ``start``, falling linearly to 0 at ``maximum`` (the datasheet's maximum winding
-    temperature), 0 above it. Shapes broadcast; the result has the shape of ``temperature``.
+    1 below ``start``, falling linearly to ``floor`` at ``maximum`` (the datasheet's maximum
+    winding temperature), ``floor`` above it. Shapes broadcast; the result has the shape of
+    ``temperature``. With ``floor = 0`` this is a linear derating to zero torque; the drive law of
+    :class:`EffortDerating` uses ``floor = continuous / peak torque``.
     """
     out = np.empty_like(temperature, dtype=np.float64) if out is None else out
     np.subtract(maximum, temperature, out=out)
     out /= maximum - start
     np.clip(out, 0.0, 1.0, out=out)
+    out *= 1.0 - np.asarray(floor)
+    out += floor
     return out
+
+
+class EffortDerating:
+    """The thermal derating of each joint's effort limit: one law for the drive and the guard.
+
+    Below the motor's ``derating_start_temperature`` the drive gives its peak torque (the joint's
+    ``effort_limit``); across the derating band the limit falls linearly to a floor at
+    ``max_winding_temperature``, and stays there above it. This is the foldback of servo drives'
+    I^2 t protection (maxon EPOS4 Firmware Specification, "Thermal motor protection": once the
+    winding's thermal reserve is used up the output current is limited to the configured nominal
+    current), with the band of the motor spec instead of an I^2 t integral.
+
+    The floor is the motor's ``continuous_torque``: the load whose steady-state winding temperature
+    stays within the datasheet maximum (at the datasheet's 25 degC ambient), so a drive folded back
+    to it cannot overheat its motor, while it still holds any load within its continuous rating.
+    Where the arm's own weight needs more (``hold`` above the continuous torque: undersized motors)
+    the floor is ``hold`` instead, as an integrator would configure the drive: a drive that drops
+    its arm is worse than a hot motor, and the runtime's over-temperature safe stop protects the
+    motor there.
+
+    Args:
+        robot: Robot description (joints' ``effort_limit``, their motors' temperatures and
+            ``continuous_torque``).
+        hold: (n,) N m, torque each drive must keep available to hold the arm against gravity,
+            e.g. ``deploy.safety.motion_bounds(robot)[1]``; default 0.
+
+    Attributes:
+        start, maximum: (n,) degC, derating start and maximum winding temperature per joint.
+        peak: (n,) N m, the underated effort limit.
+        floor: (n,) fraction of ``peak`` left at and above ``maximum``:
+            ``min(1, max(continuous_torque, hold) / peak)``.
+    """
+
+    def __init__(self, robot, hold: np.ndarray | None = None):
+        motors = robot.motors
+        self.start = np.array([m.derating_start_temperature for m in motors])
+        self.maximum = np.array([m.max_winding_temperature for m in motors])
+        self.peak = np.asarray(robot.effort_limit, dtype=np.float64)
+        floor = np.array([m.continuous_torque for m in motors])
+        if hold is not None:
+            floor = np.maximum(floor, hold)
+        self.floor = np.minimum(floor / self.peak, 1.0)
+
+    def factor(self, temperature: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Fraction in [floor, 1] of the effort limit at ``temperature`` (degC, (..., n))."""
+        return derating_factor(temperature, self.start, self.maximum, self.floor, out=out)

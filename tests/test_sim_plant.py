@@ -154,3 +154,39 @@ def test_arm3_held_horizontal_for_one_hour_reaches_the_thermal_steady_state(arm3
     np.testing.assert_allclose(
         plant.read().winding_temperature, expected, atol=0.5 + 0.01 * rise.max()
     )
+
+
+def test_a_hot_drive_limits_its_torque_to_the_derated_effort(arm3):
+    """Above the derating start the drive's torque limit follows deploy.thermal.EffortDerating
+    (down to the continuous torque at the maximum winding temperature): under a pull it cannot
+    resist, the joint yields instead of the motor pushing past its derated limit."""
+    plant = SimBackend(arm3, mode="velocity")
+    plant.reset(np.zeros(3))
+    plant.thermal.winding_temperature[0, 0] = 125.0
+    plant.set_external_force(0, np.array([0.0, -30.0, 0.0]))  # 30 N down at the stretched arm
+    run(plant, np.zeros((1, 3)), 20)
+    continuous = arm3.motors[0].continuous_torque
+    assert plant.effort_limit[0, 0] == pytest.approx(continuous, rel=0.02)
+    assert abs(plant.joint_torque()[0, 0]) <= plant.effort_limit[0, 0] + 1e-9
+    assert plant.true_velocity()[0, 0] < -0.05  # the shoulder gives way
+    # cooled down, the drive has its peak torque again
+    plant.set_external_force(0, np.zeros(3))
+    plant.thermal.winding_temperature[0] = 25.0
+    run(plant, np.zeros((1, 3)), 2)
+    np.testing.assert_allclose(plant.effort_limit[0], arm3.effort_limit)
+
+
+def test_a_sustained_pull_cannot_overheat_a_derating_drive(arm3):
+    """A 15 N cable on the stretched arm held for 15 minutes (the soak's strongest cable fault,
+    four times its longest duration): the shoulder would need 22 N m, past its continuous rating.
+    The drive derates, the winding settles below its 125 degC maximum, and the arm sags to where
+    the continuous torque holds it, inside its soft limits."""
+    plant = SimBackend(arm3, mode="position")
+    plant.reset(np.zeros(3))
+    plant.set_external_force(0, np.array([0.0, -15.0, 0.0]))
+    run(plant, np.zeros((1, 3)), int(900 / arm3.control_period))
+    peak = plant.thermal.winding_temperature[0, 0]
+    assert 100.0 < peak < arm3.motors[0].max_winding_temperature
+    q = plant.true_position()[0]
+    assert q[0] < -0.2  # it did give way
+    assert np.all(q > arm3.soft_lower) and np.all(q < arm3.soft_upper)

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from deploy.thermal import TwoNodeThermalModel, derating_factor
+from deploy.safety import motion_bounds
+from deploy.thermal import EffortDerating, TwoNodeThermalModel, derating_factor
 
 
 def test_capacities_follow_the_datasheet_time_constants(arm3):
@@ -42,3 +43,22 @@ def test_thermal_runaway_has_no_steady_state(arm3):
 def test_derating_is_linear_between_start_and_maximum():
     t = np.array([20.0, 100.0, 112.5, 125.0, 150.0])
     np.testing.assert_allclose(derating_factor(t, 100.0, 125.0), [1.0, 1.0, 0.5, 0.0, 0.0])
+    np.testing.assert_allclose(derating_factor(t, 100.0, 125.0, 0.4), [1.0, 1.0, 0.7, 0.4, 0.4])
+
+
+def test_a_drive_derated_to_its_continuous_torque_cannot_overheat_its_motor(arm3, arm6):
+    """The floor of the derating law is the continuous torque because its steady-state winding
+    temperature at the datasheet's 25 degC ambient stays below the maximum; where the arm's weight
+    needs more (arm6's stand-in motors), the floor holds the arm."""
+    for robot in (arm3, arm6):
+        model = TwoNodeThermalModel(robot.motors, envs=1, ambient_temperature=25.0)
+        derating = EffortDerating(robot)
+        hold = motion_bounds(robot)[1]
+        assert np.all(
+            EffortDerating(robot, hold).floor * derating.peak >= np.minimum(hold, derating.peak)
+        )
+        floor_torque = (derating.floor * derating.peak)[None]
+        assert np.all(model.steady_state(floor_torque) < derating.maximum)
+        # and the floor is what the law gives at and above the maximum
+        hot = derating.factor(np.array([derating.maximum, derating.maximum + 30.0]))
+        np.testing.assert_allclose(hot, np.vstack([derating.floor] * 2))

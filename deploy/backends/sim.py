@@ -11,6 +11,11 @@ Sensor model (defaults from the robot's ``[sensors]`` table), applied in this or
     3. quantization to the encoder resolution (``2 pi / encoder_resolution``),
     4. dropout: each reading lost with probability ``encoder_dropout`` (per joint and reading),
     5. latency: a reading arrives ``encoder_latency_ticks`` control ticks after it was sampled.
+Drive model: the mode's servo loop (:meth:`robots.Robot.mjspec`), its actuator torque limited to
+the joint's effort limit, which the drive derates from its own (true) winding temperature with
+:class:`deploy.thermal.EffortDerating` (peak torque below the derating start, continuous torque, or
+the arm's gravity load where that is more, at the maximum winding temperature), applied before
+every control period's physics steps.
 Winding temperatures are reported as a drive reports them: the model's winding temperature rounded
 to ``temperature_resolution`` and refreshed at ``temperature_rate``.
 
@@ -32,7 +37,8 @@ import mujoco
 import numpy as np
 
 from deploy.backends.base import SensorFrame
-from deploy.thermal import TwoNodeThermalModel
+from deploy.safety import motion_bounds
+from deploy.thermal import EffortDerating, TwoNodeThermalModel
 from robots import CONTROL_MODES, Robot, load_robot
 
 _DIVERGENCE_WARNINGS = (
@@ -105,6 +111,11 @@ class SimBackend:
         self._views: list[tuple] = [()] * envs
         self._acts: list[np.ndarray] = [np.empty(0)] * envs  # velocity mode: drive setpoints
         self._windup_bound = np.zeros((envs, n))
+        self.derating = EffortDerating(robot, hold=motion_bounds(robot)[1])
+        #: (envs, n) N m, each drive's present torque limit (derated from its winding temperature)
+        self.effort_limit = np.tile(self.derating.peak, (envs, 1))
+        self._derate = np.ones((envs, n))
+        self._derated = np.zeros(envs, dtype=bool)  # envs whose model may hold a derated limit
         self._lag = np.zeros((envs, n))
         self._abs_lag = np.zeros((envs, n))
         for e in range(envs):
@@ -215,6 +226,7 @@ class SimBackend:
         actuator torque ``qfrc_actuator``, clamped to the effort limit; divergence warning
         counters): attribute lookups on MjData cost ~0.5 us."""
         m, d = self.models[e], self.datas[e]
+        self._derated[e] = True  # a new model has the peak limits: re-derate at the next advance
         ctrl = d.ctrl.reshape(-1, self.n_joints)
         self._views[e] = (m, d, ctrl, d.qpos, d.qfrc_actuator, d.warning.number[_WARNING_SLICE])
         if self.mode == "velocity":  # the setpoints and their anti-windup bound
@@ -271,6 +283,7 @@ class SimBackend:
             SimulationDivergedError: MuJoCo flagged a bad state in any env.
         """
         command, torque, qpos = self._command, self._torque, self._qpos
+        self._derate_drives()
         step, nstep, count = mujoco.mj_step, self.decimation, np.count_nonzero
         for e, (m, d, ctrl, q, force, warnings) in enumerate(self._views):
             ctrl[:] = command[e]
@@ -330,8 +343,31 @@ class SimBackend:
         return out
 
     # ------------------------------------------------------------------ internals
+    def _derate_drives(self) -> None:
+        """Each drive's torque limit from its winding temperature (module docstring): MuJoCo's
+        ``jnt_actfrcrange`` and, in velocity mode, the anti-windup bound follow it. Only envs with a
+        winding above its derating start, or derated before, are touched."""
+        hot = (self.thermal.winding_temperature > self.derating.start).any(axis=1)
+        touch = hot | self._derated
+        if not touch.any():
+            return
+        for e in np.flatnonzero(touch):
+            limit = self.effort_limit[e]
+            np.multiply(
+                self.derating.factor(self.thermal.winding_temperature[e], out=self._derate[e]),
+                self.derating.peak,
+                out=limit,
+            )
+            m = self.models[e]
+            m.jnt_actfrcrange[: self.n_joints, 0] = -limit
+            m.jnt_actfrcrange[: self.n_joints, 1] = limit
+            if self.mode == "velocity":
+                np.divide(limit, m.actuator_gainprm[: self.n_joints, 0], out=self._windup_bound[e])
+        self._derated[:] = hot
+
     def _anti_windup(self) -> None:
-        """Velocity mode: keep each drive's setpoint within ``effort_limit / kp`` of its joint.
+        """Velocity mode: keep each drive's setpoint within ``effort_limit / kp`` of its joint
+        (the drive's present, derated, limit).
 
         The integral term of the PI velocity loop, ``kp (s - q)``, then never asks for more than
         the drive's peak torque: when the torque saturates (a command accelerating faster than the

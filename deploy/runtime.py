@@ -22,7 +22,9 @@ Faults and responses (DESIGN.md): non-finite policy output holds the last valid 
 ``NAN_ACTION_LIMIT`` consecutive ones make a safe stop; sensor data stale longer than
 ``safety.stale_limit`` makes a safe stop; a hard-limit violation makes a safe stop; a winding above
 its maximum makes a safe stop latched until cool, and the effort limit is derated linearly in the
-derating band; a wall-clock overrun rate above ``OVERRUN_RATE_LIMIT`` makes a safe stop.
+derating band down to the continuous torque, as the drives derate theirs
+(:class:`deploy.thermal.EffortDerating`); a wall-clock overrun rate above ``OVERRUN_RATE_LIMIT``
+makes a safe stop.
 
 Clocks: :class:`SimClock` runs in lockstep with a simulated plant as fast as the CPU allows;
 :class:`WallClock` waits for absolute deadlines, skips missed periods instead of bursting, and

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import sys
+import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +24,15 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 ROBOTS_DIR = Path(__file__).resolve().parent
+#: The motor catalog: one TOML file a model (``MotorConfig`` fields at the top level).
+MOTORS_DIR = ROBOTS_DIR / "motors"
+#: Prefix of an MJCF ``meshdir`` that names an installed package instead of a folder.
+PACKAGE_SCHEME = "package://"
+#: Where installed description packages keep their files, inside their Python distribution
+#: (example-robot-data installs through cmeel under ``cmeel.prefix/share/<name>``).
+PACKAGE_LOCATIONS = {
+    "example-robot-data": ("example-robot-data", "cmeel.prefix/share/example-robot-data")
+}
 
 #: Tolerance of the MuJoCo/Pinocchio agreement check (m for positions, N m for torques).
 AGREEMENT_TOLERANCE = 1e-9
@@ -51,7 +62,8 @@ class Robot:
     Attributes:
         name: Robot name from robot.toml.
         directory: Folder holding robot.toml and the MJCF.
-        mjcf_path: Path of the MJCF file.
+        mjcf_path: Path of the MJCF file MuJoCo and Pinocchio read: the robot folder's, or a
+            copy with its ``package://`` meshdir resolved (see ``_resolved_mjcf``).
         config: The validated robot.toml (``robots.schema.RobotConfig``).
         joint_names: Joint names in kinematic (and action/observation) order.
         position_lower, position_upper: Hard joint limits, rad.
@@ -212,6 +224,129 @@ def resolve_robot_toml(name_or_path: str | Path) -> Path:
     )
 
 
+def motor_catalog() -> dict[str, Path]:
+    """Motor models of the catalog: name -> path of its TOML file (``robots/motors/NAME.toml``)."""
+    return {p.stem: p for p in sorted(MOTORS_DIR.glob("*.toml"))}
+
+
+def load_motor(name: str) -> MotorConfig:
+    """The catalog's motor ``name`` (``robots/motors/NAME.toml``), validated.
+
+    Raises:
+        RobotSpecError: no such model in the catalog (the message lists the known ones), or an
+            invalid file (the message names the file and the field).
+    """
+    return MotorConfig.model_validate(_catalog_table(name, None))
+
+
+def _catalog_table(name: str, where: str | None) -> dict:
+    path = MOTORS_DIR / f"{name}.toml"
+    if not path.is_file():
+        known = sorted(motor_catalog())
+        prefix = f"{where}: " if where else ""
+        raise RobotSpecError(
+            f"{prefix}motor '{name}' is neither a [motors.{name}] table in robot.toml nor a "
+            f"model of the catalog {MOTORS_DIR} (known: {known}); add {MOTORS_DIR}/{name}.toml"
+        )
+    try:
+        table = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise RobotSpecError(f"{path}: not valid TOML: {exc}") from exc
+    try:
+        MotorConfig.model_validate(table)
+    except ValidationError as exc:
+        raise RobotSpecError(_format_validation_error(path, exc)) from None
+    return table
+
+
+def _merge_catalog_motors(raw: dict, toml_path: Path) -> None:
+    """Add the catalog table of every joint's motor that robot.toml does not define itself.
+
+    The merged table sits in ``raw['motors']`` under the same name with the file's values, so a
+    table moved from robot.toml to the catalog leaves the validated config (and the description
+    hash) unchanged.
+    """
+    joints = raw.get("joints")
+    if not isinstance(joints, list):
+        return  # validation names the problem
+    motors = raw.setdefault("motors", {})
+    if not isinstance(motors, dict):
+        return
+    for i, joint in enumerate(joints):
+        name = joint.get("motor") if isinstance(joint, dict) else None
+        if not isinstance(name, str) or name in motors:
+            continue
+        where = f"{toml_path}: field 'joints[{i}].motor' (joint '{joint.get('name', '?')}')"
+        motors[name] = _catalog_table(name, where)
+
+
+def package_root(package: str) -> Path:
+    """Folder of an installed description package (``package://PACKAGE/...`` URIs).
+
+    Looks in the folders of the ``SIM2REAL_PACKAGE_PATH`` environment variable (``os.pathsep``
+    separated, each holding ``PACKAGE/``), then in the Python distributions of
+    ``PACKAGE_LOCATIONS``.
+
+    Raises:
+        RobotSpecError: the package is not installed.
+    """
+    for folder in filter(None, os.environ.get("SIM2REAL_PACKAGE_PATH", "").split(os.pathsep)):
+        candidate = Path(folder) / package
+        if candidate.is_dir():
+            return candidate.resolve()
+    if package in PACKAGE_LOCATIONS:
+        from importlib import metadata
+
+        dist_name, inside = PACKAGE_LOCATIONS[package]
+        try:
+            root = Path(str(metadata.distribution(dist_name).locate_file(inside)))
+        except metadata.PackageNotFoundError:
+            root = None
+        if root is not None and root.is_dir():
+            return root.resolve()
+        hint = f"pip install {dist_name}  (or: pip install 'sim2real-deploy[robots]')"
+    else:
+        known = sorted(PACKAGE_LOCATIONS)
+        hint = f"put its folder in a folder listed in SIM2REAL_PACKAGE_PATH (known: {known})"
+    raise RobotSpecError(f"package '{package}' is not installed: {hint}")
+
+
+def resolve_package_uri(uri: str) -> Path:
+    """``package://PACKAGE/rest`` -> the file's path in the installed package (not checked)."""
+    package, _, rest = uri[len(PACKAGE_SCHEME) :].partition("/")
+    return package_root(package) / rest
+
+
+def _resolved_mjcf(mjcf: Path) -> Path:
+    """The MJCF MuJoCo and Pinocchio read: ``mjcf`` itself, or, when its ``<compiler meshdir>``
+    names an installed package (``package://...``), a copy in the temporary folder with the
+    meshdir resolved to an absolute path (the robot folder holds no third-party meshes)."""
+    root = ET.parse(mjcf).getroot()
+    compiler = root.find("compiler")
+    meshdir = None if compiler is None else compiler.get("meshdir")
+    if not meshdir or not meshdir.startswith(PACKAGE_SCHEME):
+        return mjcf
+    try:
+        folder = resolve_package_uri(meshdir)
+    except RobotSpecError as exc:
+        raise RobotSpecError(f"{mjcf}: <compiler meshdir='{meshdir}'>: {exc}") from None
+    if not folder.is_dir():
+        raise RobotSpecError(
+            f"{mjcf}: <compiler meshdir='{meshdir}'> resolves to {folder}, which does not exist"
+        )
+    text = mjcf.read_text(encoding="utf-8").replace(
+        f'meshdir="{meshdir}"', f'meshdir="{folder.as_posix()}"', 1
+    )
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+    out = Path(tempfile.gettempdir()) / "sim2real-robots" / digest / mjcf.name
+    if not out.is_file():
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, out)
+    return out
+
+
 def _format_validation_error(path: Path, err: ValidationError) -> str:
     lines = []
     for e in err.errors():
@@ -267,15 +402,17 @@ def load_robot(name_or_path: str | Path) -> Robot:
         raise RobotSpecError(f"{toml_path}: cannot read: {exc}") from exc
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise RobotSpecError(f"{toml_path}: not valid TOML: {exc}") from exc
+    _merge_catalog_motors(raw, toml_path)
     try:
         cfg = RobotConfig.model_validate(raw)
     except ValidationError as exc:
         raise RobotSpecError(_format_validation_error(toml_path, exc)) from None
 
-    mjcf = (toml_path.parent / cfg.mjcf).resolve()
-    if not mjcf.is_file():
-        raise RobotSpecError(f"{toml_path}: field 'mjcf': file {mjcf} does not exist")
-    _check_mjcf_radians(mjcf)
+    described_mjcf = (toml_path.parent / cfg.mjcf).resolve()
+    if not described_mjcf.is_file():
+        raise RobotSpecError(f"{toml_path}: field 'mjcf': file {described_mjcf} does not exist")
+    _check_mjcf_radians(described_mjcf)
+    mjcf = _resolved_mjcf(described_mjcf)
 
     try:
         mj_model = mujoco.MjModel.from_xml_path(str(mjcf))
@@ -343,8 +480,12 @@ def load_robot(name_or_path: str | Path) -> Robot:
     centre, half = (upper + lower) / 2.0, (upper - lower) / 2.0
     # The description a policy depends on: everything but the [task] table (where goals come
     # from is the evaluation's business, not the robot's), in canonical form, and the MJCF bytes.
-    described = json.dumps(cfg.model_dump(exclude={"task"}, mode="json"), sort_keys=True)
-    digest = hashlib.sha256(described.encode() + b"\0" + mjcf.read_bytes()).hexdigest()
+    # Optional fields left unset (None) are left out, so that adding one to the schema changes no
+    # existing robot's hash. The MJCF is the file in the robot folder (package URIs unresolved).
+    described = json.dumps(
+        cfg.model_dump(exclude={"task"}, exclude_none=True, mode="json"), sort_keys=True
+    )
+    digest = hashlib.sha256(described.encode() + b"\0" + described_mjcf.read_bytes()).hexdigest()
     return Robot(
         name=cfg.name,
         directory=toml_path.parent,

@@ -49,8 +49,35 @@ class JointConfig(_Strict):
         return self
 
 
+class ServoRegister(_Strict):
+    """One register of a servo's control table: address, factory default and unit."""
+
+    address: Annotated[int, Field(ge=0)]
+    default: int
+    unit: str = ""
+
+
+class ServoProtection(_Strict):
+    """A smart servo's own protection settings (it cuts or limits torque by itself).
+
+    ``temperature_limit`` is the factory default of the servo's temperature limit register (degC);
+    ``registers`` names every protection register with its address and default value.
+    """
+
+    source: Annotated[str, Field(min_length=10)]
+    temperature_limit: Finite  # degC
+    registers: dict[str, ServoRegister] = {}
+
+
 class MotorConfig(_Strict):
-    """A motor plus gearhead, with its datasheet constants (motor side unless stated)."""
+    """A motor plus gearhead, with its datasheet constants (motor side unless stated).
+
+    One TOML file a model in ``robots/motors/`` (the catalog), or a ``[motors.NAME]`` table in
+    robot.toml (which takes precedence). The optional fields (``None`` when absent, left out of a
+    robot's description hash) are for the importer: ``max_velocity`` (rad/s at the output, the
+    no-load speed at the rated voltage), ``encoder_resolution`` (counts per output revolution)
+    and ``protection`` (a smart servo's own protection registers).
+    """
 
     source: Annotated[str, Field(min_length=10)]  # the datasheet the numbers come from
     gear_ratio: Positive
@@ -68,6 +95,9 @@ class MotorConfig(_Strict):
     continuous_torque: Positive  # N m at the output
     peak_torque: Positive  # N m at the output
     rotor_inertia: Positive  # kg m^2
+    max_velocity: Positive | None = None  # rad/s at the output (no-load speed)
+    encoder_resolution: Annotated[int, Field(gt=0)] | None = None  # counts per output revolution
+    protection: ServoProtection | None = None
 
     @model_validator(mode="after")
     def _ordered_temperatures(self) -> MotorConfig:

@@ -141,7 +141,8 @@ def test_plant_models_per_control_mode():
             "robot.toml",
             'motor = "ec45flat70_gp42c"\n',
             'motor = "nema17"\n',
-            r"joints\[0\]\.motor = 'nema17' names no \[motors\.nema17\] table",
+            r"joints\[0\]\.motor' \(joint 'shoulder'\): motor 'nema17' is neither a \[motors\.nema17\] "
+            r"table in robot.toml nor a model of the catalog",
         ),
         (
             "robot.toml",
@@ -221,3 +222,43 @@ def test_description_hash_ignores_the_task_region_and_comments(arm3_copy):
     edit(arm3_copy / "robot.toml", "success_radius = 0.05", "success_radius = 0.02  # tighter")
     edit(arm3_copy / "robot.toml", "radius = [0.47, 0.85]", "radius = [0.5, 0.8]")
     assert load_robot(arm3_copy).description_hash == before
+
+
+# ---------------------------------------------------------------- motor catalog (issue 14)
+#: Description hashes shipped policies record; moving the motors into robots/motors/ keeps them.
+SHIPPED_HASHES = {
+    "arm3": "f29fa9cda41f17b748d1e1d4b6c0e549b784ca6c97bd4cce9c4315ef3239c6a3",
+    "arm6": "a43fa5b5d3c5bf8666ef549744f7cf8ef0706d6d14d484d78c73015254c1384d",
+}
+
+
+@pytest.mark.parametrize("name", sorted(SHIPPED_HASHES))
+def test_description_hash_unchanged_by_the_motor_catalog(name):
+    assert load_robot(name).description_hash == SHIPPED_HASHES[name]
+
+
+def test_every_catalog_motor_validates():
+    from robots.robot import load_motor, motor_catalog
+
+    names = set(motor_catalog())
+    assert {"sts3215", "xm430_w350", "xl430_w250", "go_m8010_6", "ec45flat70_gp42c"} <= names
+    for name in names:
+        assert len(load_motor(name).source) > 10
+
+
+def test_unknown_motor_names_robot_toml_joint_and_catalog(tmp_path):
+    import shutil
+
+    shutil.copytree(ROBOTS_DIR / "arm3", tmp_path / "arm3")
+    toml = tmp_path / "arm3" / "robot.toml"
+    toml.write_text(toml.read_text().replace('motor = "ec45flat70_gp42c"', 'motor = "nope"', 1))
+    with pytest.raises(
+        RobotSpecError, match=r"robot.toml: field 'joints\[0\].motor' \(joint 'shoulder'\).*motors"
+    ):
+        load_robot(toml)
+
+
+@pytest.mark.parametrize("name", ["so101", "ur5"])
+def test_imported_robots_ship_and_load(name):
+    robot = load_robot(name)
+    assert robot.n_joints == 6 and robot.control_mode == "position"

@@ -1,0 +1,410 @@
+"""Model-side steps of the importer: MJCF through ``mujoco.MjSpec``, limits, pairs, robot.toml.
+
+Every constant the importer chooses is named here with its reason; robot.toml repeats the reason
+beside each value it writes.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from robots.import_urdf import PreparedURDF, RobotImportError, SrdfInfo
+from robots.robot import _resolved_mjcf
+from robots.schema import MotorConfig
+
+#: Soft-limit fraction written for every joint (as arm3/arm6).
+SOFT_LIMIT_FRACTION = 0.9
+#: Position error (rad) at which the plant's PD servo gives the full effort (kp = effort / this).
+SERVO_FULL_EFFORT_ERROR = 0.05
+#: Largest sqrt(kp / inertia) * timestep kept for the plant's PD servo (explicit stiffness).
+SERVO_STABILITY = 0.3
+#: Fraction of the torque left over gravity that the acceleration limit may use.
+ACCELERATION_MARGIN = 0.5
+#: Jerk limit per unit of acceleration limit, 1/s (as arm3/arm6: 20 x acceleration per second).
+JERK_PER_ACCELERATION = 20.0
+#: Link pairs closer than this at the home pose (m) are not checked (they touch by design).
+TOUCH_CLEARANCE = 0.001
+#: Configurations sampled for inertia, gravity and the reachable workspace.
+SAMPLES = 400
+#: Margin (m) of the workspace box around the sampled reachable positions.
+WORKSPACE_MARGIN = 0.05
+
+
+@dataclass
+class Motion:
+    """Per-joint choices, arrays in joint order: home (rad), acceleration (rad/s^2), jerk
+    (rad/s^3), kp (N m/rad), kd (N m s/rad), worst inertia (kg m^2) and gravity torque (N m)."""
+
+    home: np.ndarray
+    acceleration: np.ndarray
+    jerk: np.ndarray
+    kp: np.ndarray
+    kd: np.ndarray
+    inertia: np.ndarray
+    gravity: np.ndarray
+
+
+def _sig(x: float, digits: int = 2) -> float:
+    if x == 0 or not math.isfinite(x):
+        return x
+    return round(x, digits - 1 - int(math.floor(math.log10(abs(x)))))
+
+
+def build_spec(
+    urdf: PreparedURDF,
+    chosen: dict[str, str],
+    motor_cfg: dict[str, MotorConfig],
+    physics_timestep: float,
+) -> tuple[mujoco.MjSpec, mujoco.MjModel]:
+    """MjSpec from the prepared URDF: named geoms, armature ``rotor_inertia * gear_ratio**2``
+    from each joint's motor, no actuator force range (``Robot.mjspec`` sets it), the physics
+    timestep and the implicit-fast integrator.
+
+    Raises:
+        RobotImportError: MuJoCo's URDF compiler refuses the description.
+    """
+    try:
+        spec = mujoco.MjSpec.from_string(urdf.text)
+        spec.compile()
+    except ValueError as exc:
+        raise RobotImportError(f"{urdf.path}: MuJoCo's URDF compiler refuses it: {exc}") from None
+    spec.compiler.degree = False
+    spec.option.timestep = physics_timestep
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    for joint in spec.joints:
+        m = motor_cfg[chosen[joint.name]]
+        joint.armature = m.rotor_inertia * m.gear_ratio**2
+        joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        joint.actfrcrange = [0.0, 0.0]
+    for body in spec.bodies:
+        geoms = list(body.geoms)
+        for k, geom in enumerate(geoms):
+            geom.name = body.name if len(geoms) == 1 else f"{body.name}_{k}"
+    model = spec.compile()
+    return spec, model
+
+
+def choose_ee_body(model: mujoco.MjModel, urdf: PreparedURDF, ee: str | None, path: Path) -> str:
+    """Link of the end-effector site: ``ee`` if given, else a leaf frame link (fixed joint, such
+    as ``tool0``) with the most movable joints above it, the shallowest of those (a tool frame
+    rather than a finger tip); a moving leaf only when there is no fixed one.
+
+    Raises:
+        RobotImportError: ``ee`` is not a link of the description.
+    """
+    if ee is not None:
+        if ee not in urdf.links:
+            raise RobotImportError(f"--ee-site {ee}: not a link of {path} (links: {urdf.links})")
+        return ee
+    children = {par for par, _, _ in urdf.parent.values()}
+    best, best_key = urdf.root_link, (-1, -1, -(10**9))
+    for link in urdf.links:
+        if link in children:
+            continue
+        movable = depth = 0
+        node = link
+        while node in urdf.parent:
+            par, _, kind = urdf.parent[node]
+            movable += kind != "fixed"
+            depth += 1
+            node = par
+        fixed_leaf = int(urdf.parent.get(link, ("", "", "fixed"))[2] == "fixed")
+        key = (fixed_leaf, movable, -depth)
+        if key > best_key:
+            best, best_key = link, key
+    return best
+
+
+def derive_motion_limits(spec, model, joint_names, limits, motor_cfg, chosen) -> Motion:
+    """Home pose, acceleration and jerk limits and plant servo gains (see the constants).
+
+    The acceleration limit is ``ACCELERATION_MARGIN`` x (effort - worst gravity torque) / worst
+    joint-space inertia (armature included) over ``SAMPLES`` seeded configurations; kp gives the
+    full effort at ``SERVO_FULL_EFFORT_ERROR`` rad (lowered for explicit stability at the physics
+    timestep), kd = 2 sqrt(kp x worst inertia) (critical damping).
+    """
+    n = len(joint_names)
+    lo = np.array([limits[j][0] for j in joint_names])
+    hi = np.array([limits[j][1] for j in joint_names])
+    effort = np.array([limits[j][3] for j in joint_names])
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+    soft_lo, soft_hi = centre - SOFT_LIMIT_FRACTION * half, centre + SOFT_LIMIT_FRACTION * half
+    home = np.clip(np.zeros(n), soft_lo, soft_hi)
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(0)
+    inertia_max = np.zeros(n)
+    inertia_min = np.full(n, np.inf)
+    gravity = np.zeros(n)
+    full = np.zeros((model.nv, model.nv))
+    for _ in range(SAMPLES):
+        data.qpos[:] = rng.uniform(lo, hi)
+        data.qvel[:] = 0.0
+        mujoco.mj_forward(model, data)
+        mujoco.mj_fullM(model, data, full)
+        diag = np.diag(full)
+        inertia_max = np.maximum(inertia_max, diag)
+        inertia_min = np.minimum(inertia_min, diag)
+        gravity = np.maximum(gravity, np.abs(data.qfrc_bias))
+    spare = np.maximum(effort - gravity, 0.25 * effort)
+    acc = np.array([_sig(a) for a in np.clip(ACCELERATION_MARGIN * spare / inertia_max, 0.5, 50)])
+    jerk = JERK_PER_ACCELERATION * acc
+    dt = model.opt.timestep
+    kp = np.minimum(effort / SERVO_FULL_EFFORT_ERROR, (SERVO_STABILITY / dt) ** 2 * inertia_min)
+    kp = np.array([_sig(k) for k in kp])
+    kd = np.array([_sig(2.0 * math.sqrt(k * m)) for k, m in zip(kp, inertia_max, strict=True)])
+    return Motion(home, acc, jerk, kp, kd, inertia_max, gravity)
+
+
+def _groups(urdf: PreparedURDF) -> dict[str, str]:
+    """Link -> the link its rigid group hangs from (fixed joints merge links into one group)."""
+    out = {}
+    for link in urdf.links:
+        node = link
+        while node in urdf.parent and urdf.parent[node][2] == "fixed":
+            node = urdf.parent[node][0]
+        out[link] = node
+    return out
+
+
+def choose_collision_pairs(
+    mjcf_path: Path,
+    model: mujoco.MjModel,
+    urdf: PreparedURDF,
+    srdf: SrdfInfo | None,
+    home: np.ndarray,
+    path: Path,
+):
+    """Self-collision pairs for the guard (geom names) and the MuJoCo contact exclusions.
+
+    Candidates: links of different rigid groups that are not parent and child, minus the SRDF's
+    ``disable_collisions`` pairs when there is an SRDF; pairs closer than ``TOUCH_CLEARANCE`` at
+    the home pose are dropped (they touch by design or through a coarse collision shape). The
+    plant (MuJoCo) checks contact only between the pairs the guard checks.
+
+    Returns:
+        (geom pairs, excluded body pairs, dropped (link, link, distance) triples).
+    """
+    import pinocchio as pin
+
+    resolved = _resolved_mjcf(mjcf_path)
+    pin_model = pin.buildModelFromMJCF(str(resolved))
+    geom = pin.buildGeomFromMJCF(pin_model, str(resolved), pin.VISUAL)
+    index = {g.name: i for i, g in enumerate(geom.geometryObjects)}
+    body_geoms: dict[str, list[str]] = {}
+    for g in range(model.ngeom):
+        body_geoms.setdefault(model.body(model.geom_bodyid[g]).name, []).append(model.geom(g).name)
+    group = _groups(urdf)
+    adjacent = {
+        tuple(sorted((group[child], group[par])))
+        for child, (par, _, kind) in urdf.parent.items()
+        if kind != "fixed"
+    }
+    data = pin_model.createData()
+    gdata = pin.GeometryData(geom)
+    pin.updateGeometryPlacements(pin_model, data, geom, gdata, np.asarray(home, dtype=np.float64))
+    pairs, kept, dropped = [], set(), []
+    for a, b in itertools.combinations([x for x in urdf.links if x in body_geoms], 2):
+        key = tuple(sorted((a, b)))
+        if group[a] == group[b] or tuple(sorted((group[a], group[b]))) in adjacent:
+            continue
+        if srdf is not None and key in srdf.disabled:
+            continue
+        geom_pairs = [(ga, gb) for ga in body_geoms[a] for gb in body_geoms[b]]
+        dist = np.inf
+        for ga, gb in geom_pairs:
+            dist = min(dist, _distance(geom, gdata, index[ga], index[gb]))
+        if dist < TOUCH_CLEARANCE:
+            dropped.append((a, b, max(dist, 0.0)))
+            continue
+        pairs.extend(geom_pairs)
+        kept.add(key)
+    bodies = [x for x in urdf.links if x in body_geoms]
+    excluded = [
+        (a, b) for a, b in itertools.combinations(bodies, 2) if tuple(sorted((a, b))) not in kept
+    ]
+    return pairs, excluded, dropped
+
+
+def _distance(geom, gdata, i: int, j: int) -> float:
+    import coal
+
+    req, res = coal.DistanceRequest(), coal.DistanceResult()
+    oi, oj = geom.geometryObjects[i], geom.geometryObjects[j]
+    coal.distance(oi.geometry, gdata.oMg[i], oj.geometry, gdata.oMg[j], req, res)
+    return float(res.min_distance)
+
+
+def sample_workspace(mjcf_path: Path, joint_names, limits, home) -> dict:
+    """Workspace box, task box and success radius from ``SAMPLES`` reachable positions (m).
+
+    Workspace: the box of every sampled end-effector position within the hard limits, plus
+    ``WORKSPACE_MARGIN``, cut at 5 cm below the base (the table) unless home is lower. Task: the
+    10th-90th percentile box of positions reached within 70 % of each joint range about home,
+    above the table; success radius 6 % of the largest reach (at least 1 cm).
+    """
+    model = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
+    data = mujoco.MjData(model)
+    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "ee")
+    lo = np.array([limits[j][0] for j in joint_names])
+    hi = np.array([limits[j][1] for j in joint_names])
+    rng = np.random.default_rng(1)
+
+    def ee(q):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        return data.site_xpos[site].copy()
+
+    full = np.array([ee(rng.uniform(lo, hi)) for _ in range(4 * SAMPLES)])
+    home_ee = ee(home)
+    span = 0.7 * (hi - lo) / 2
+    inner = np.array(
+        [ee(np.clip(home + rng.uniform(-span, span), lo, hi)) for _ in range(4 * SAMPLES)]
+    )
+    ws_min = full.min(axis=0) - WORKSPACE_MARGIN
+    ws_max = full.max(axis=0) + WORKSPACE_MARGIN
+    ws_min[2] = max(ws_min[2], min(-0.05, home_ee[2] - WORKSPACE_MARGIN))
+    above = inner[inner[:, 2] > ws_min[2] + WORKSPACE_MARGIN]
+    above = above if len(above) > 20 else inner
+    task_min = np.percentile(above, 10, axis=0)
+    task_max = np.percentile(above, 90, axis=0)
+    task_max = np.maximum(task_max, task_min + 0.01)
+    reach = float(np.max(np.linalg.norm(full, axis=1)))
+    return {
+        "workspace_min": ws_min,
+        "workspace_max": ws_max,
+        "task_min": task_min,
+        "task_max": task_max,
+        "success_radius": max(0.01, _sig(0.06 * reach)),
+        "home_ee": home_ee,
+    }
+
+
+def _f(x: float) -> str:
+    return repr(float(x))
+
+
+def _vec(v) -> str:
+    return "[" + ", ".join(_f(round(float(x), 4)) for x in v) + "]"
+
+
+def write_robot_toml(
+    path: Path,
+    *,
+    name,
+    source,
+    mjcf,
+    joint_names,
+    limits,
+    motion: Motion,
+    chosen,
+    motor_cfg,
+    pairs,
+    workspace,
+    control_rate,
+    physics_timestep,
+    srdf,
+    lowered,
+) -> None:
+    """Write robot.toml with a comment giving the reason of every value."""
+    from robots.import_urdf import _display
+
+    resolutions = [
+        motor_cfg[m].encoder_resolution
+        for m in set(chosen.values())
+        if motor_cfg[m].encoder_resolution
+    ]
+    resolution = min(resolutions) if resolutions else 16384
+    quantum = 2 * math.pi / resolution
+    low = {(j, q): (a, b) for j, q, a, b, _ in lowered}
+    lines = [
+        f"# {name}: imported by robot-import from {_display(source)}.",
+        "# Joint order and position limits from the URDF; velocity and effort limits are the lower",
+        "# of the URDF's and the motor's (robots/motors/<model>.toml); SI units, radians.",
+        f'name = "{name}"',
+        f'mjcf = "{mjcf}"',
+        "",
+        "[control]",
+        'mode = "position"            # joint position targets (a servo\'s native mode)',
+        f"control_rate = {_f(control_rate)}          # Hz (robot-import --control-rate)",
+        f"physics_timestep = {_f(physics_timestep)}     # s (robot-import --physics-timestep)",
+        "# rad: 0 clipped into the soft limits. End effector there at "
+        f"{_vec(workspace['home_ee'])} m.",
+        f"home = {_vec(motion.home)}",
+        "",
+        "# acceleration_limit: 0.5 x (effort - worst gravity torque) / worst joint inertia with",
+        "# armature (rotor inertia x ratio^2), 400 seeded poses; jerk_limit: 20 x acceleration.",
+        "# kp: full effort at 0.05 rad error (capped for stability at the physics step);",
+        "# kd: critical damping for the worst inertia. Plant servo gains, not datasheet values.",
+    ]
+    for i, j in enumerate(joint_names):
+        lo, hi, vel, eff = limits[j]
+        m = chosen[j]
+        vnote = (
+            f"motor no-load speed (URDF {low[(j, 'velocity')][0]:g})"
+            if (j, "velocity") in low
+            else "URDF"
+        )
+        enote = (
+            f"motor peak torque (URDF {low[(j, 'effort')][0]:g})"
+            if (j, "effort") in low
+            else "URDF"
+        )
+        lines += [
+            "",
+            "[[joints]]",
+            f'name = "{j}"',
+            f"position_limit = [{_f(lo)}, {_f(hi)}]  # URDF",
+            f"velocity_limit = {_f(vel)}  # rad/s, {vnote}",
+            f"acceleration_limit = {_f(motion.acceleration[i])}",
+            f"jerk_limit = {_f(motion.jerk[i])}",
+            f"effort_limit = {_f(eff)}  # N m, {enote}",
+            f"soft_limit_fraction = {SOFT_LIMIT_FRACTION}",
+            f'motor = "{m}"',
+            f"kp = {_f(motion.kp[i])}",
+            f"kd = {_f(motion.kd[i])}",
+        ]
+    lines += [
+        "",
+        "# Motors " + ", ".join(sorted(set(chosen.values()))) + ": the catalog, robots/motors/.",
+        "",
+        "[sensors]",
+        f"encoder_resolution = {resolution}  # counts/rev, the coarsest motor encoder",
+        f"encoder_noise_sigma = {_f(_sig(quantum, 3))}  # rad, one encoder count",
+        f"encoder_rate = {_f(control_rate)}  # Hz, read every control tick",
+        "encoder_latency_ticks = 0",
+        "encoder_dropout = 0.0",
+        "temperature_resolution = 1.0  # degC, as servos report it",
+        "temperature_rate = 10.0  # Hz",
+        "ambient_temperature = 25.0  # degC",
+        "",
+        "[safety]",
+        'end_effector_site = "ee"',
+        "# Box of every reachable end-effector position + 5 cm, cut 5 cm below the base (table).",
+        f"workspace_min = {_vec(workspace['workspace_min'])}",
+        f"workspace_max = {_vec(workspace['workspace_max'])}",
+        (
+            f"# Geom pairs of links the SRDF ({Path(srdf).name}) does not disable, "
+            if srdf
+            else "# Geom pairs of non-adjacent links, "
+        )
+        + "apart at home; the plant checks contact only between these.",
+        "collision_pairs = [",
+        *[f'  ["{a}", "{b}"],' for a, b in pairs],
+        "]",
+        "stale_limit = 0.05",
+        "",
+        "[task]",
+        "# 10th-90th percentile box of positions reached within 70 % of each range about home.",
+        'region = "box"',
+        f"box_min = {_vec(workspace['task_min'])}",
+        f"box_max = {_vec(workspace['task_max'])}",
+        f"success_radius = {_f(workspace['success_radius'])}  # m, 6 % of the reach",
+        "",
+    ]
+    path.write_text("\n".join(lines), encoding="utf-8")

@@ -279,8 +279,9 @@ class Runtime:
         #: the estimator's control input: the acceleration commanded over the last period (the
         #: smoother's trajectory); torque mode commands no motion, the filter runs without one
         self._input = None if self.mode_name == "torque" else self.smoother.mean_acceleration
-        self._temp_start = np.array([m.derating_start_temperature for m in robot.motors])
-        self._temp_max = np.array([m.max_winding_temperature for m in robot.motors])
+        # the thermal band of the derating law the guard and the drives share
+        self._temp_start = self.guard.derating.start
+        self._temp_max = self.guard.derating.maximum
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:

@@ -40,6 +40,7 @@ its coal collision pairs from those shapes and the pairs named in robot.toml.
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 import pinocchio as pin
 
@@ -53,8 +54,22 @@ CHECKS = ("soft_limit", "hard_limit", "velocity", "workspace", "self_collision",
 SCREEN_MARGIN = 1e-9
 
 
-def motion_bounds(robot: Robot) -> tuple[float, np.ndarray]:
+def chain_lengths(model: mujoco.MjModel) -> np.ndarray:
+    """(nbody,) m, the length of the chain of body offsets from the world to each body's origin:
+    an upper bound of its distance from the world origin in any configuration."""
+    chain = np.zeros(model.nbody)
+    for b in range(1, model.nbody):
+        chain[b] = chain[model.body_parentid[b]] + np.linalg.norm(model.body_pos[b])
+    return chain
+
+
+def motion_bounds(robot: Robot, model: mujoco.MjModel | None = None) -> tuple[float, np.ndarray]:
     """Exact bounds of the screens, from the MuJoCo model at its nominal geometry.
+
+    Args:
+        robot: The robot (joint names).
+        model: The MuJoCo model to bound; default ``robot.mj_model`` (nominal geometry). A
+            randomized plant (``eval.randomization.randomized_model``) gives that plant's bounds.
 
     Returns:
         ``(sweep, gravity_bound)``: ``sweep`` (m/rad) bounds the displacement of any point of the
@@ -64,10 +79,8 @@ def motion_bounds(robot: Robot) -> tuple[float, np.ndarray]:
         ``|g| sum_b m_b l_b`` over the bodies beyond the joint, ``l_b`` the chain length from the
         joint to the body's centre of mass.
     """
-    m = robot.mj_model
-    chain = np.zeros(m.nbody)  # path length from the world to each body's origin
-    for b in range(1, m.nbody):
-        chain[b] = chain[m.body_parentid[b]] + np.linalg.norm(m.body_pos[b])
+    m = robot.mj_model if model is None else model
+    chain = chain_lengths(m)
     anchor = float(np.linalg.norm(m.jnt_pos, axis=1).max()) if m.njnt else 0.0
     reach = [
         chain[m.geom_bodyid[g]] + np.linalg.norm(m.geom_pos[g]) + m.geom_rbound[g]
@@ -92,6 +105,25 @@ def motion_bounds(robot: Robot) -> tuple[float, np.ndarray]:
                 lever = chain[b] - chain[jb] + np.linalg.norm(m.body_ipos[b]) + anchor
                 bound[i] += m.body_mass[b] * lever
     return sweep, g * bound
+
+
+def end_effector_lever(robot: Robot, model: mujoco.MjModel | None = None) -> np.ndarray:
+    """(n,) m, bound of each joint's torque per newton of force on the end-effector site, over all
+    configurations: the chain length from the joint's body to the site plus the joint anchor
+    offset (the same chain bound as :func:`motion_bounds`).
+
+    Args:
+        robot: The robot (joint names, ``safety.end_effector_site``).
+        model: The MuJoCo model; default ``robot.mj_model``.
+    """
+    m = robot.mj_model if model is None else model
+    chain = chain_lengths(m)
+    anchor = float(np.linalg.norm(m.jnt_pos, axis=1).max()) if m.njnt else 0.0
+    site = m.site(robot.config.safety.end_effector_site).id
+    tip = chain[m.site_bodyid[site]] + np.linalg.norm(m.site_pos[site])
+    return np.array(
+        [tip - chain[m.jnt_bodyid[m.joint(name).id]] + anchor for name in robot.joint_names]
+    )
 
 
 class SafetyGuard:

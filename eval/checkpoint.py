@@ -412,7 +412,7 @@ def restore_goals(goals, e: int, arrays: dict[str, np.ndarray], meta: dict) -> N
 def capture_injector(injector) -> tuple[dict[str, np.ndarray], dict]:
     """State of a :class:`deploy.faults.FaultInjector` (its schedule, base sensor settings,
     active faults, frozen frame of a stale fault, and log)."""
-    from eval.randomization import fault_to_dict
+    from eval.fault_schedule import fault_to_dict
 
     arrays = {
         "injector/base_dropout": injector._base_dropout.copy(),

@@ -225,7 +225,8 @@ def exit_code(report: dict) -> int:
 
 
 def run(args) -> int:
-    from eval.randomization import FaultRanges, SessionRanges
+    from eval.fault_schedule import FaultRanges
+    from eval.randomization import SessionRanges
     from eval.report import Thresholds, build_report, load_report, summary_text, write_reports
     from eval.soak import SessionConfig, file_sha256, run_campaign
     from robots import load_robot

@@ -28,9 +28,10 @@ session seed (:func:`session_rng`), bundled in :class:`SessionRandomization` by
   latency and dropout, applied with :func:`apply_sensors`;
 - slow drift (:class:`DriftRanges`): dry friction rising with wear over the session, applied to the
   session's compiled model in place with :func:`apply_drift`;
-- a fault schedule (:class:`FaultRanges`, :func:`sample_fault_schedule`): dropout bursts, stale
-  frames, non-finite actions, latency spikes, pushes and a cable pulling on the end effector, as
-  :class:`deploy.faults.Fault` for :class:`deploy.faults.FaultInjector`.
+- a fault schedule (:mod:`eval.fault_schedule`): dropout bursts, stale frames, non-finite
+  actions, latency spikes, pushes and a cable pulling on the end effector, as
+  :class:`deploy.faults.Fault` for :class:`deploy.faults.FaultInjector`, each sized to be
+  survivable in the session's plant.
 """
 
 from __future__ import annotations
@@ -40,6 +41,13 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
+from eval.fault_schedule import (
+    FaultRanges,
+    check_range,
+    fault_from_dict,
+    fault_to_dict,
+    sample_fault_schedule,
+)
 from robots import Robot
 
 
@@ -198,14 +206,6 @@ def session_rng(seed: int, stream: str) -> np.random.Generator:
     return np.random.default_rng([int(seed), STREAMS[stream]])
 
 
-def _check_range(owner: str, name: str, lo: float, hi: float, minimum: float = 0.0) -> None:
-    if not (np.isfinite(lo) and np.isfinite(hi) and minimum <= lo <= hi):
-        raise ValueError(
-            f"{owner}.{name}: expected a range (low, high) with {minimum} <= low <= high, "
-            f"got ({lo}, {hi})"
-        )
-
-
 @dataclass(frozen=True)
 class SensorRanges:
     """Per-session encoder settings, drawn uniformly (integers inclusive).
@@ -222,9 +222,9 @@ class SensorRanges:
     dropout: tuple[float, float] = (0.0, 0.001)
 
     def __post_init__(self):
-        _check_range("SensorRanges", "noise_sigma", *self.noise_sigma)
-        _check_range("SensorRanges", "latency_ticks", *self.latency_ticks)
-        _check_range("SensorRanges", "dropout", *self.dropout)
+        check_range("SensorRanges", "noise_sigma", *self.noise_sigma)
+        check_range("SensorRanges", "latency_ticks", *self.latency_ticks)
+        check_range("SensorRanges", "dropout", *self.dropout)
         if self.dropout[1] > 1.0:
             raise ValueError(
                 f"SensorRanges.dropout: expected probabilities <= 1, got {self.dropout}"
@@ -291,7 +291,7 @@ class DriftRanges:
     friction_rate: tuple[float, float] = (0.01, 0.06)
 
     def __post_init__(self):
-        _check_range("DriftRanges", "friction_rate", *self.friction_rate)
+        check_range("DriftRanges", "friction_rate", *self.friction_rate)
 
 
 @dataclass(frozen=True)
@@ -356,192 +356,6 @@ def apply_drift(
 # "stale budget": the longest gap in fresh encoder data the runtime bridges by prediction,
 # ``safety.stale_limit - (latency + 2) * control_period`` (DESIGN.md fault table: stale longer than
 # the limit -> safe stop). Fractions below 1 are survivable, above 1 must make a safe stop.
-
-
-@dataclass(frozen=True)
-class FaultRanges:
-    """The fault schedule of a session: onsets of a Poisson process, kinds drawn by weight, one
-    fault at a time.
-
-    Attributes:
-        mean_interval: Mean time between the end of one fault and the onset of the next, s
-            (exponential; our choice: 120 s, about 240 faults in 8 hours).
-        min_gap: Quiet time after each fault, s (at least ``FAULT_SETTLE + 1``; the runtime's
-            response is judged ``FAULT_SETTLE`` s after the fault ends).
-        warmup: No fault before this session time, s (ramp-in).
-        kinds: Kinds to draw from (``deploy.faults.KINDS``).
-        weights: Relative weights of ``kinds`` (None: equal).
-        dropout: Duration of a dropout burst, as a fraction of the stale budget.
-        stale: Duration of a stale (frozen) sensor frame, as a fraction of the stale budget.
-        nan_ticks: Consecutive non-finite actions, control ticks (inclusive; below
-            ``deploy.runtime.NAN_ACTION_LIMIT`` = 10 the runtime holds, at it it stops).
-        latency_ticks: Extra encoder latency of a spike, as a fraction of the largest spike that
-            stays within the stale limit (rounded, at least 1 tick).
-        latency_duration: Duration of a latency spike, s.
-        push_force: Force of a push on the end effector, N (along +X; ``PUSH_FORCE`` is 20).
-        push_duration: Duration of a push, s.
-        cable_force: Force of a cable pulling on the end effector, N (along gravity).
-        cable_duration: Duration of a cable pull, s.
-    """
-
-    mean_interval: float = 120.0
-    min_gap: float = 5.0
-    warmup: float = 10.0
-    kinds: tuple[str, ...] = ("dropout", "stale", "nan-action", "latency", "push", "cable")
-    weights: tuple[float, ...] | None = None
-    dropout: tuple[float, float] = (0.2, 0.8)
-    stale: tuple[float, float] = (0.2, 0.8)
-    nan_ticks: tuple[int, int] = (1, 5)
-    latency_ticks: tuple[float, float] = (0.3, 1.0)
-    latency_duration: tuple[float, float] = (0.2, 2.0)
-    push_force: tuple[float, float] = (5.0, 25.0)
-    push_duration: tuple[float, float] = (0.05, 0.5)
-    cable_force: tuple[float, float] = (5.0, 15.0)
-    cable_duration: tuple[float, float] = (10.0, 60.0)
-
-    def __post_init__(self):
-        from deploy.faults import KINDS
-
-        owner = "FaultRanges"
-        if not (np.isfinite(self.mean_interval) and self.mean_interval > 0):
-            raise ValueError(f"{owner}.mean_interval: expected > 0 s, got {self.mean_interval}")
-        if not (np.isfinite(self.min_gap) and self.min_gap >= FAULT_SETTLE + 1.0):
-            raise ValueError(
-                f"{owner}.min_gap: expected >= {FAULT_SETTLE + 1.0} s, got {self.min_gap}"
-            )
-        if not (np.isfinite(self.warmup) and self.warmup >= 0):
-            raise ValueError(f"{owner}.warmup: expected >= 0 s, got {self.warmup}")
-        if not self.kinds:
-            raise ValueError(f"{owner}.kinds: expected at least one of {KINDS}")
-        for kind in self.kinds:
-            if kind not in KINDS:
-                raise ValueError(f"{owner}.kinds: '{kind}' is unknown; expected one of {KINDS}")
-        if self.weights is not None and (
-            len(self.weights) != len(self.kinds)
-            or not all(np.isfinite(w) and w >= 0 for w in self.weights)
-            or sum(self.weights) <= 0
-        ):
-            raise ValueError(
-                f"{owner}.weights: expected {len(self.kinds)} weights >= 0 (one per kind) with a "
-                f"positive sum, got {self.weights}"
-            )
-        for name in ("dropout", "stale", "latency_ticks", "latency_duration", "push_force"):
-            _check_range(owner, name, *getattr(self, name))
-        for name in ("push_duration", "cable_force", "cable_duration"):
-            _check_range(owner, name, *getattr(self, name))
-        _check_range(owner, "nan_ticks", *self.nan_ticks, minimum=1)
-        for name in ("dropout", "stale", "latency_duration", "push_duration", "cable_duration"):
-            if getattr(self, name)[0] <= 0:
-                raise ValueError(
-                    f"{owner}.{name}: expected durations > 0, got {getattr(self, name)}"
-                )
-
-
-#: s after a fault ends at which the soak harness judges the runtime's response.
-FAULT_SETTLE = 2.0
-
-
-def stale_budget(robot: Robot, latency_ticks: int) -> float:
-    """Longest gap in fresh encoder readings (s) the runtime bridges without a safe stop, with a
-    sensor latency of ``latency_ticks``: ``stale_limit - (latency_ticks + 2) * control_period``
-    (one period for the reading in flight, one of margin), at least one control period."""
-    dt = robot.control_period
-    return max(robot.config.safety.stale_limit - (latency_ticks + 2) * dt, dt)
-
-
-def sample_fault_schedule(
-    robot: Robot,
-    rng: np.random.Generator,
-    duration: float,
-    sensors: SensorDraw,
-    ranges: FaultRanges | None = None,
-) -> list:
-    """A seeded fault schedule over ``[0, duration)`` s of session time.
-
-    Onsets follow a Poisson process (exponential gaps of mean ``ranges.mean_interval`` after each
-    fault's end plus ``min_gap``), never before ``warmup``; a fault ends before ``duration``. The
-    kind and its parameters are drawn per fault (see :class:`FaultRanges`); sensor faults are sized
-    against the session's own encoder latency (``sensors``).
-
-    Returns:
-        list of :class:`deploy.faults.Fault` (``envs`` None: every env of the injector they are
-        given to), sorted by start.
-    """
-    from deploy.faults import Fault
-
-    ranges = FaultRanges() if ranges is None else ranges
-    dt = robot.control_period
-    budget = stale_budget(robot, sensors.latency_ticks)
-    stale_ticks = int(np.floor(robot.config.safety.stale_limit / dt + 1e-9))
-    max_spike = max(stale_ticks - sensors.latency_ticks - 2, 1)
-    weights = np.ones(len(ranges.kinds)) if ranges.weights is None else np.array(ranges.weights)
-    weights = weights / weights.sum()
-    faults = []
-    t = ranges.warmup
-    while True:
-        t += float(rng.exponential(ranges.mean_interval))
-        kind = ranges.kinds[int(rng.choice(len(ranges.kinds), p=weights))]
-        magnitude = None
-        if kind == "dropout":
-            length = budget * float(rng.uniform(*ranges.dropout))
-        elif kind == "stale":
-            length = budget * float(rng.uniform(*ranges.stale))
-        elif kind == "nan-action":
-            length = dt * int(rng.integers(ranges.nan_ticks[0], ranges.nan_ticks[1] + 1))
-        elif kind == "latency":
-            magnitude = float(max(1, round(max_spike * float(rng.uniform(*ranges.latency_ticks)))))
-            length = float(rng.uniform(*ranges.latency_duration))
-        elif kind == "push":
-            magnitude = float(rng.uniform(*ranges.push_force))
-            length = float(rng.uniform(*ranges.push_duration))
-        else:  # cable
-            magnitude = float(rng.uniform(*ranges.cable_force))
-            length = float(rng.uniform(*ranges.cable_duration))
-        # start on a control tick, last whole ticks: the schedule means the same at any rate
-        start = np.ceil(t / dt) * dt
-        length = max(np.round(length / dt), 1.0) * dt
-        if start + ranges.min_gap > duration:
-            return faults
-        if start + length + ranges.min_gap > duration:
-            continue  # too long for the time left: a shorter one may still fit
-        faults.append(Fault(kind, round(float(start), 9), round(float(length), 9), None, magnitude))
-        t = start + length + ranges.min_gap
-
-
-def fault_to_dict(fault) -> dict:
-    """A :class:`deploy.faults.Fault` as a JSON-ready dict."""
-    d = asdict(fault)
-    for key in ("envs", "direction"):
-        if d.get(key) is not None:
-            d[key] = list(d[key])
-    return d
-
-
-def fault_from_dict(data: dict):
-    """Inverse of :func:`fault_to_dict`.
-
-    Raises:
-        ValueError: a missing or invalid field (named).
-    """
-    from deploy.faults import KINDS, Fault
-
-    try:
-        kind = str(data["kind"])
-        if kind not in KINDS:
-            raise ValueError(f"fault kind '{kind}' is unknown; expected one of {KINDS}")
-        envs = data.get("envs")
-        direction = data.get("direction")
-        magnitude = data.get("magnitude")
-        return Fault(
-            kind,
-            float(data["start"]),
-            float(data["duration"]),
-            None if envs is None else tuple(int(e) for e in envs),
-            None if magnitude is None else float(magnitude),
-            None if direction is None else tuple(float(x) for x in direction),
-        )
-    except KeyError as exc:
-        raise ValueError(f"fault {data!r}: missing field {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -612,14 +426,16 @@ def sample_session(
     """
     ranges = SessionRanges() if ranges is None else ranges
     sensors = sample_sensors(session_rng(seed, "sensors"), ranges.sensors)
-    schedule = (
-        sample_fault_schedule(robot, session_rng(seed, "faults"), duration, sensors, ranges.faults)
-        if faults
-        else []
-    )
+    dynamics = sample_dynamics(robot, session_rng(seed, "dynamics"), ranges.dynamics)
+    schedule = []
+    if faults:
+        # faults are sized against this session's plant (its masses and link lengths)
+        plant = randomized_model(robot, robot.config.control.mode, dynamics)
+        rng = session_rng(seed, "faults")
+        schedule = sample_fault_schedule(robot, rng, duration, sensors, ranges.faults, plant)
     return SessionRandomization(
         seed=int(seed),
-        dynamics=sample_dynamics(robot, session_rng(seed, "dynamics"), ranges.dynamics),
+        dynamics=dynamics,
         sensors=sensors,
         drift=sample_drift(robot, session_rng(seed, "drift"), ranges.drift),
         faults=tuple(schedule),

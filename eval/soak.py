@@ -72,8 +72,8 @@ from deploy.interventions import INTERVENTION_CHECKS, InterventionMonitor
 from deploy.runtime import FAULT_CAUSES, STAGES, Mode
 from deploy.violations import VIOLATION_TYPES, ViolationMonitor
 from eval import checkpoint as ckpt
+from eval.fault_schedule import FAULT_SETTLE
 from eval.randomization import (
-    FAULT_SETTLE,
     SessionRanges,
     apply_drift,
     apply_sensors,

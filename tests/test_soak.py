@@ -30,7 +30,8 @@ from deploy.spec import PolicySpec
 from deploy.violations import VIOLATION_TYPES
 from eval import checkpoint as ckpt
 from eval import cli
-from eval.randomization import FaultRanges, SessionRanges, stale_budget
+from eval.fault_schedule import FaultRanges, stale_budget
+from eval.randomization import SessionRanges
 from eval.report import (
     CHECKS,
     SCHEMA_VERSION,

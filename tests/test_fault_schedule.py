@@ -1,0 +1,131 @@
+"""The soak's fault schedule: onsets, kinds, and faults sized to be survivable by design."""
+
+import numpy as np
+import pytest
+
+from deploy.backends.sim import SimBackend
+from deploy.runtime import NAN_ACTION_LIMIT
+from deploy.safety import end_effector_lever, motion_bounds
+from eval.fault_schedule import FaultRanges, cable_budget, sample_fault_schedule, stale_budget
+from eval.randomization import SensorDraw, randomized_model, sample_session, session_rng
+
+HOURS8 = 8 * 3600.0
+
+
+def test_fault_schedule_is_ordered_spaced_and_survivable_by_default(arm3):
+    sensors = SensorDraw(0.01, 2, 0.0)
+    ranges = FaultRanges()
+    faults = sample_fault_schedule(arm3, session_rng(1, "faults"), HOURS8, sensors, ranges)
+    assert 150 < len(faults) < 350  # one every ~2 minutes over 8 hours
+    assert {f.kind for f in faults} == {
+        "dropout",
+        "stale",
+        "nan-action",
+        "latency",
+        "push",
+        "cable",
+    }
+    assert faults[0].start >= ranges.warmup
+    for a, b in zip(faults[:-1], faults[1:], strict=True):
+        assert b.start >= a.start + a.duration + ranges.min_gap - 1e-9  # one at a time
+    assert faults[-1].start + faults[-1].duration <= HOURS8
+    dt = arm3.control_period
+    budget = stale_budget(arm3, sensors.latency_ticks)
+    stale_ticks = round(arm3.config.safety.stale_limit / dt)
+    for f in faults:
+        if f.kind in ("dropout", "stale"):  # shorter than the stale limit: bridged by prediction
+            assert f.duration <= budget + 1e-9
+        elif f.kind == "nan-action":  # fewer than the runtime's limit in a row: held
+            assert 1 <= round(f.duration / dt) < NAN_ACTION_LIMIT
+        elif f.kind == "latency":
+            assert 1 <= f.magnitude <= stale_ticks - sensors.latency_ticks - 2
+        elif f.kind == "cable":  # a sustained pull the drives hold for its duration
+            cable = cable_budget(arm3, np.array([f.duration, f.duration + 0.25]))
+            assert 0.5 * cable[1] - 1e-9 <= f.magnitude <= cable[0] + 1e-9
+            assert 10.0 <= f.duration <= 60.0
+
+
+def test_fault_schedule_fits_short_sessions(arm3):
+    ranges = FaultRanges(mean_interval=2.0, warmup=1.0, min_gap=3.0)
+    faults = sample_fault_schedule(
+        arm3, session_rng(0, "faults"), 30.0, SensorDraw(0.01, 0, 0.0), ranges
+    )
+    assert faults and all(f.start + f.duration + 3.0 <= 30.0 for f in faults)
+
+
+def test_the_cable_budget_is_the_reserve_above_gravity_and_shrinks_with_the_duration(arm3, arm6):
+    """Instantly, a cold-or-warm drive gives its peak torque: the budget is the weakest joint's
+    peak minus its gravity bound over its lever (arm3: the shoulder, (22.5 - 9.14) / 0.9 m). The
+    longer the pull, the more the winding heats and the drive folds back."""
+    hold = motion_bounds(arm3)[1]
+    lever = end_effector_lever(arm3)
+    np.testing.assert_allclose(lever, [0.9, 0.6, 0.3], atol=1e-9)  # arm3's link lengths
+    budget = cable_budget(arm3, np.array([0.0, 10.0, 30.0, 60.0]))
+    assert budget[0] == pytest.approx(np.min((arm3.effort_limit - hold) / lever), rel=1e-9)
+    assert np.all(np.diff(budget) < 0) and budget[-1] > 0
+    # arm6's stand-in motors cannot even hold the stretched arm continuously: no sustained pull
+    assert cable_budget(arm6, np.array([0.0, 30.0])).tolist()[1] == 0.0
+
+
+def test_a_heavier_plant_gets_a_smaller_cable_budget(arm3):
+    """Faults are sized against the session's own plant: heavier, longer links leave less."""
+    session = sample_session(arm3, 0, 60.0)
+    plant = randomized_model(arm3, "velocity", session.dynamics)
+    heavier = motion_bounds(arm3, plant)[1][0] > motion_bounds(arm3)[1][0]
+    nominal, randomized = (
+        cable_budget(arm3, np.array([30.0])),
+        cable_budget(arm3, np.array([30.0]), plant),
+    )
+    assert (randomized < nominal) == heavier and randomized != nominal
+
+
+@pytest.mark.parametrize(("multiple", "holds"), [(1.0, True), (2.0, False)])
+def test_a_warm_stretched_arm_holds_a_pull_at_its_budget_and_yields_to_twice_it(
+    arm3, multiple, holds
+):
+    """The worst case the budget is computed for: the arm stretched horizontally (largest gravity
+    and cable levers), the shoulder warm from holding it, the velocity loop commanded to stand
+    still, a pull of the budget for 10 s. Twice the budget drags the arm down."""
+    duration = 10.0
+    force = multiple * cable_budget(arm3, np.array([duration]))[0]
+    plant = SimBackend(arm3, mode="velocity")
+    plant.reset(np.zeros(3))
+    thermal = plant.thermal
+    warm = thermal.steady_state(np.abs(arm3.gravity_torque(np.zeros(3)))[None])
+    thermal.winding_temperature[:] = warm
+    thermal.housing_temperature[:] = 25.0 + (warm - 25.0) * thermal.r_ha / (
+        thermal.r_wh + thermal.r_ha
+    )
+    plant.set_external_force(0, np.array([0.0, -force, 0.0]))
+    for _ in range(int(duration / arm3.control_period)):
+        plant.read()
+        plant.write(np.zeros((1, 3)))
+        plant.advance()
+    sag = -plant.true_position()[0, 0]
+    assert (sag < 0.05) == holds, f"shoulder sagged {sag:.3f} rad under {force:.1f} N"
+
+
+def test_cable_pulls_beyond_the_budget_are_refused():
+    with pytest.raises(ValueError, match="FaultRanges.cable_force: expected fractions"):
+        FaultRanges(cable_force=(0.5, 1.5))
+
+
+@pytest.mark.parametrize(
+    ("make", "field"),
+    [
+        (lambda: FaultRanges(kinds=("dropout", "meteor")), "FaultRanges.kinds: 'meteor'"),
+        (lambda: FaultRanges(weights=(1.0,)), "FaultRanges.weights"),
+        (lambda: FaultRanges(min_gap=1.0), "FaultRanges.min_gap"),
+        (lambda: FaultRanges(mean_interval=0.0), "FaultRanges.mean_interval"),
+        (lambda: cable_budget_of_negative_duration(), "cable_budget: expected durations"),
+    ],
+)
+def test_bad_ranges_name_the_field(make, field):
+    with pytest.raises(ValueError, match=field):
+        make()
+
+
+def cable_budget_of_negative_duration():
+    from robots import load_robot
+
+    return cable_budget(load_robot("arm3"), np.array([-1.0]))

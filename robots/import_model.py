@@ -1,7 +1,9 @@
-"""Model-side steps of the importer: MJCF through ``mujoco.MjSpec``, limits, pairs, robot.toml.
+"""Model-side steps of the importer, shared by URDF and MJCF input: MJCF through
+``mujoco.MjSpec``, limits, end effector, pairs, robot.toml.
 
-Every constant the importer chooses is named here with its reason; robot.toml repeats the reason
-beside each value it writes.
+They read a :class:`robots.import_urdf.PreparedSource` whatever the input format. Every constant
+the importer chooses is named here with its reason; robot.toml repeats the reason beside each
+value it writes.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from robots.import_urdf import PreparedURDF, RobotImportError, SrdfInfo
+from robots.import_urdf import PreparedSource, RobotImportError, SrdfInfo
 from robots.robot import _resolved_mjcf
 from robots.schema import MotorConfig
 
@@ -57,24 +59,26 @@ def _sig(x: float, digits: int = 2) -> float:
 
 
 def build_spec(
-    urdf: PreparedURDF,
+    urdf: PreparedSource,
     chosen: dict[str, str],
     motor_cfg: dict[str, MotorConfig],
     physics_timestep: float,
 ) -> tuple[mujoco.MjSpec, mujoco.MjModel]:
-    """MjSpec from the prepared URDF: named geoms, armature ``rotor_inertia * gear_ratio**2``
-    from each joint's motor, no actuator force range (``Robot.mjspec`` sets it), the physics
-    timestep and the implicit-fast integrator.
+    """MjSpec from the prepared URDF or MJCF: named geoms, armature ``rotor_inertia *
+    gear_ratio**2`` from each joint's motor, no actuator force range (``Robot.mjspec`` sets it),
+    the physics timestep and the implicit-fast integrator.
 
     Raises:
-        RobotImportError: MuJoCo's URDF compiler refuses the description.
+        RobotImportError: MuJoCo's URDF (or MJCF) compiler refuses the description.
     """
     try:
         spec = mujoco.MjSpec.from_string(urdf.text)
         spec.compile()
     except ValueError as exc:
-        raise RobotImportError(f"{urdf.path}: MuJoCo's URDF compiler refuses it: {exc}") from None
-    spec.compiler.degree = False
+        raise RobotImportError(
+            f"{urdf.path}: MuJoCo's {urdf.kind} compiler refuses it: {exc}"
+        ) from None
+    spec.compiler.degree = False  # URDF: radians; MJCF: canonical text, radians already
     spec.option.timestep = physics_timestep
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     for joint in spec.joints:
@@ -90,18 +94,32 @@ def build_spec(
     return spec, model
 
 
-def choose_ee_body(model: mujoco.MjModel, urdf: PreparedURDF, ee: str | None, path: Path) -> str:
-    """Link of the end-effector site: ``ee`` if given, else a leaf frame link (fixed joint, such
-    as ``tool0``) with the most movable joints above it, the shallowest of those (a tool frame
-    rather than a finger tip); a moving leaf only when there is no fixed one.
+def choose_ee_body(
+    model: mujoco.MjModel, urdf: PreparedSource, ee: str | None, path: Path
+) -> tuple[str, str | None]:
+    """Where the end-effector site goes: ``(link, site or None)``.
+
+    ``ee`` names a link, or (MJCF) one of the description's sites, whose frame the ``ee`` site
+    takes. Without ``ee``: an MJCF site named ``ee`` (the toolkit's own convention), else a leaf
+    frame link (fixed joint, such as ``tool0``) with the most movable joints above it, the
+    shallowest of those (a tool frame rather than a finger tip); a moving leaf only when there is
+    no fixed one.
 
     Raises:
-        RobotImportError: ``ee`` is not a link of the description.
+        RobotImportError: ``ee`` is neither a link nor a site of the description.
     """
     if ee is not None:
-        if ee not in urdf.links:
-            raise RobotImportError(f"--ee-site {ee}: not a link of {path} (links: {urdf.links})")
-        return ee
+        if ee in urdf.links:
+            return ee, None
+        if ee in urdf.sites:
+            return urdf.sites[ee], ee
+        sites = f", sites: {sorted(urdf.sites)}" if urdf.sites else ""
+        raise RobotImportError(
+            f"--ee-site {ee}: not a link{' or site' if sites else ''} of {path} "
+            f"(links: {urdf.links}{sites})"
+        )
+    if "ee" in urdf.sites:
+        return urdf.sites["ee"], "ee"
     children = {par for par, _, _ in urdf.parent.values()}
     best, best_key = urdf.root_link, (-1, -1, -(10**9))
     for link in urdf.links:
@@ -118,7 +136,66 @@ def choose_ee_body(model: mujoco.MjModel, urdf: PreparedURDF, ee: str | None, pa
         key = (fixed_leaf, movable, -depth)
         if key > best_key:
             best, best_key = link, key
-    return best
+    return best, None
+
+
+def cap_limits(urdf: PreparedSource, chosen, motor_cfg, log) -> tuple[dict, list, list[str]]:
+    """Velocity and effort limit of every movable joint: the lower of the description's value
+    and the motor's capability (peak torque, no-load speed), whichever exists.
+
+    Args:
+        urdf: The prepared description. chosen: joint -> motor model. motor_cfg: model ->
+            :class:`MotorConfig`. log: where each limit the motor lowers or sets is printed.
+
+    Returns:
+        ``(limits, lowered, notes)``: joint -> ``(lower rad, upper rad, velocity rad/s, effort
+        N m)``; ``(joint, quantity, description value, motor value, unit)`` per limit the motor
+        lowered; a note per limit the motor alone set.
+
+    Raises:
+        RobotImportError: neither the description nor the motor gives a velocity limit.
+    """
+    limits, lowered, notes = {}, [], []
+    for j in urdf.movable:
+        m = motor_cfg[chosen[j]]
+        src = urdf.joints[j]
+        effort = min(v for v in (src.effort, m.peak_torque) if v is not None and v > 0)
+        velocity = min(v for v in (src.velocity, m.max_velocity, np.inf) if v is not None and v > 0)
+        if not np.isfinite(velocity):
+            element = (
+                f"<joint name='{j}'><limit velocity>: missing or zero"
+                if urdf.kind == "URDF"
+                else f"<joint name='{j}'>: the MJCF has no velocity limit"
+            )
+            raise RobotImportError(
+                f"{urdf.path}: {element}, and motor '{chosen[j]}' gives no max_velocity; "
+                f"expected a velocity limit in rad/s (--velocity {j}=RAD_S)"
+            )
+        if src.effort is not None and src.effort > effort:
+            lowered.append((j, "effort", src.effort, effort, "N m"))
+            log(
+                f"joint {j}: effort limit {src.effort:g} N m ({src.effort_from}) -> "
+                f"{effort:g} N m: {chosen[j]} peak torque at the output"
+            )
+        if src.velocity is not None and src.velocity > velocity:
+            lowered.append((j, "velocity", src.velocity, velocity, "rad/s"))
+            log(
+                f"joint {j}: velocity limit {src.velocity:g} rad/s ({src.velocity_from}) -> "
+                f"{velocity:g} rad/s: {chosen[j]} no-load speed at the output"
+            )
+        for value, quantity, unit, what in (
+            (src.effort, "effort", "N m", "peak torque"),
+            (src.velocity, "velocity", "rad/s", "no-load speed"),
+        ):
+            if value is None or value <= 0:
+                motor_value = effort if quantity == "effort" else velocity
+                notes.append(
+                    f"joint {j}: {quantity} limit {motor_value:g} {unit}: {chosen[j]} {what} at "
+                    f"the output (the {urdf.kind} gives none)"
+                )
+                log(f"note: {notes[-1]}")
+        limits[j] = (src.lower, src.upper, velocity, effort)
+    return limits, lowered, notes
 
 
 def derive_motion_limits(spec, model, joint_names, limits, motor_cfg, chosen) -> Motion:
@@ -161,7 +238,7 @@ def derive_motion_limits(spec, model, joint_names, limits, motor_cfg, chosen) ->
     return Motion(home, acc, jerk, kp, kd, inertia_max, gravity)
 
 
-def _groups(urdf: PreparedURDF) -> dict[str, str]:
+def _groups(urdf: PreparedSource) -> dict[str, str]:
     """Link -> the link its rigid group hangs from (fixed joints merge links into one group)."""
     out = {}
     for link in urdf.links:
@@ -175,7 +252,7 @@ def _groups(urdf: PreparedURDF) -> dict[str, str]:
 def choose_collision_pairs(
     mjcf_path: Path,
     model: mujoco.MjModel,
-    urdf: PreparedURDF,
+    urdf: PreparedSource,
     srdf: SrdfInfo | None,
     home: np.ndarray,
     path: Path,
@@ -297,7 +374,7 @@ def write_robot_toml(
     path: Path,
     *,
     name,
-    source,
+    prepared: PreparedSource,
     mjcf,
     joint_names,
     limits,
@@ -308,11 +385,15 @@ def write_robot_toml(
     workspace,
     control_rate,
     physics_timestep,
-    srdf,
+    disabled_by: str | None,
     lowered,
 ) -> None:
-    """Write robot.toml with a comment giving the reason of every value."""
-    from robots.import_urdf import _display
+    """Write robot.toml with a comment giving the reason of every value.
+
+    ``prepared``: the description (its file, kind and where each joint's limits came from);
+    ``disabled_by``: what named the link pairs left unchecked ("the SRDF (x.srdf)"), or None.
+    """
+    kind = prepared.kind
 
     resolutions = [
         motor_cfg[m].encoder_resolution
@@ -323,9 +404,10 @@ def write_robot_toml(
     quantum = 2 * math.pi / resolution
     low = {(j, q): (a, b) for j, q, a, b, _ in lowered}
     lines = [
-        f"# {name}: imported by robot-import from {_display(source)}.",
-        "# Joint order and position limits from the URDF; velocity and effort limits are the lower",
-        "# of the URDF's and the motor's (robots/motors/<model>.toml); SI units, radians.",
+        f"# {name}: imported by robot-import from {prepared.display}.",
+        f"# Joint order and position limits from the {kind}; velocity and effort limits are the "
+        "lower",
+        f"# of the {kind}'s and the motor's (robots/motors/<model>.toml); SI units, radians.",
         f'name = "{name}"',
         f'mjcf = "{mjcf}"',
         "",
@@ -345,21 +427,21 @@ def write_robot_toml(
     for i, j in enumerate(joint_names):
         lo, hi, vel, eff = limits[j]
         m = chosen[j]
-        vnote = (
-            f"motor no-load speed (URDF {low[(j, 'velocity')][0]:g})"
-            if (j, "velocity") in low
-            else "URDF"
-        )
-        enote = (
-            f"motor peak torque (URDF {low[(j, 'effort')][0]:g})"
-            if (j, "effort") in low
-            else "URDF"
+        src = prepared.joints[j]
+        vnote, enote = (
+            f"motor {what} ({origin} {low[(j, q)][0]:g})"
+            if (j, q) in low
+            else (f"motor {what}" if value is None or value <= 0 else origin)
+            for q, what, value, origin in (
+                ("velocity", "no-load speed", src.velocity, src.velocity_from),
+                ("effort", "peak torque", src.effort, src.effort_from),
+            )
         )
         lines += [
             "",
             "[[joints]]",
             f'name = "{j}"',
-            f"position_limit = [{_f(lo)}, {_f(hi)}]  # URDF",
+            f"position_limit = [{_f(lo)}, {_f(hi)}]  # {kind}",
             f"velocity_limit = {_f(vel)}  # rad/s, {vnote}",
             f"acceleration_limit = {_f(motion.acceleration[i])}",
             f"jerk_limit = {_f(motion.jerk[i])}",
@@ -389,8 +471,8 @@ def write_robot_toml(
         f"workspace_min = {_vec(workspace['workspace_min'])}",
         f"workspace_max = {_vec(workspace['workspace_max'])}",
         (
-            f"# Geom pairs of links the SRDF ({Path(srdf).name}) does not disable, "
-            if srdf
+            f"# Geom pairs of links {disabled_by} does not disable, "
+            if disabled_by
             else "# Geom pairs of non-adjacent links, "
         )
         + "apart at home; the plant checks contact only between these.",

@@ -5,6 +5,8 @@ inertias, duplicate names, floating bases) and rewrites the URDF for ``mujoco.Mj
 relative to one mesh folder, visuals dropped, collision meshes MuJoCo cannot decode (COLLADA)
 replaced by their bounding box (read with coal), prismatic and mimic joints frozen, and a
 ``<mujoco><compiler>`` element (radians from the URDF, no static-body fusion, balanced inertias).
+Its result, a :class:`PreparedSource`, is what the rest of the importer reads; MJCF input makes
+the same from :func:`robots.import_mjcf.prepare_mjcf`.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ MUJOCO_MESH_FORMATS = (".stl", ".obj", ".msh")
 COLLISION_BOXES = True
 #: Smallest mass (kg) and principal inertia (kg m^2) accepted for a moving link.
 MIN_MASS, MIN_INERTIA = 1e-9, 1e-12
+#: How every refusal of a floating-base robot ends (URDF, SRDF and MJCF alike).
+FLOATING_BASE = "a floating-base robot; expected a fixed-base arm (legged robots are a later issue)"
 
 
 class RobotImportError(RobotSpecError):
@@ -36,7 +40,11 @@ class RobotImportError(RobotSpecError):
 
 @dataclass
 class JointInfo:
-    """One URDF joint as imported: limits in rad, rad/s and N m (``None`` when absent)."""
+    """One movable joint as imported: limits in rad, rad/s and N m (``None`` when absent).
+
+    ``velocity_from`` / ``effort_from``: where the description's value came from, as printed
+    ("URDF", "MJCF actuatorfrcrange", "--velocity", ...).
+    """
 
     name: str
     kind: str
@@ -46,17 +54,22 @@ class JointInfo:
     upper: float = 0.0
     velocity: float | None = None
     effort: float | None = None
+    velocity_from: str = "URDF"
+    effort_from: str = "URDF"
 
 
 @dataclass
-class PreparedURDF:
-    """A checked URDF ready for ``mujoco.MjSpec.from_string``.
+class PreparedSource:
+    """A checked description (URDF or MJCF) ready for ``mujoco.MjSpec.from_string``.
 
-    ``text``: the rewritten URDF; ``joints``: movable joints by name; ``movable``: their names in
-    file order; ``parent``: link -> (parent link, joint name, joint type) as imported (frozen
-    joints are 'fixed'); ``links``: link names in file order; ``meshdir_abs`` / ``meshdir_uri``:
-    the mesh folder and how the MJCF names it (``package://...`` or a path relative to the robot
-    folder's parent); ``notes``: decisions to print.
+    ``kind``: "URDF" or "MJCF"; ``text``: the rewritten URDF, or the MJCF in MuJoCo's canonical
+    form (radians); ``joints``: movable joints by name; ``movable``: their names in file order;
+    ``parent``: link -> (parent link, joint name, joint type) as imported (frozen joints are
+    'fixed'; an MJCF body is a link); ``links``: link names in file order; ``meshdir_abs`` /
+    ``meshdir_uri``: the mesh folder and how the MJCF names it (``package://...`` or a path
+    relative to the robot folder's parent); ``notes``: decisions to print; ``disabled``: link
+    pairs the description itself says are never checked (MJCF ``<contact><exclude>``), as sorted
+    tuples; ``sites``: site name -> its body (MJCF).
     """
 
     path: Path
@@ -70,6 +83,9 @@ class PreparedURDF:
     meshdir_abs: str | None = None
     meshdir_uri: str = ""
     notes: list[str] = field(default_factory=list)
+    kind: str = "URDF"
+    disabled: set[tuple[str, str]] = field(default_factory=set)
+    sites: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass
@@ -80,23 +96,25 @@ class SrdfInfo:
     disabled: set[tuple[str, str]]
 
 
-def read_srdf(path: Path, urdf_root: ET.Element) -> SrdfInfo:
+def read_srdf(path: Path, links: set[str], kind: str = "URDF") -> SrdfInfo:
     """Read ``disable_collisions`` pairs; refuse a floating virtual joint or an unknown link.
 
+    Args:
+        path: The SRDF. links: Link names of the description (MJCF: body names). kind: "URDF"
+            or "MJCF", for the messages.
+
     Raises:
-        RobotImportError: invalid XML, a link not in the URDF, or ``<virtual_joint
+        RobotImportError: invalid XML, a link not in the description, or ``<virtual_joint
             type="floating">`` (a legged robot).
     """
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as exc:
         raise RobotImportError(f"{path}: not valid XML: {exc}") from None
-    links = {link.get("name") for link in urdf_root.iter("link")}
     for vj in root.iter("virtual_joint"):
         if vj.get("type") == "floating":
             raise RobotImportError(
-                f"{path}: <virtual_joint name='{vj.get('name')}' type='floating'>: a "
-                "floating-base robot; expected a fixed-base arm (legged robots are a later issue)"
+                f"{path}: <virtual_joint name='{vj.get('name')}' type='floating'>: " + FLOATING_BASE
             )
     disabled = set()
     for dc in root.iter("disable_collisions"):
@@ -105,7 +123,7 @@ def read_srdf(path: Path, urdf_root: ET.Element) -> SrdfInfo:
             if link not in links:
                 raise RobotImportError(
                     f"{path}: <disable_collisions link1='{a}' link2='{b}'>: link '{link}' is "
-                    f"not in the URDF; expected one of {sorted(x for x in links if x)}"
+                    f"not in the {kind}; expected one of {sorted(x for x in links if x)}"
                 )
         disabled.add(tuple(sorted((a, b))))
     return SrdfInfo(path=path, disabled=disabled)
@@ -178,7 +196,7 @@ def prepare_urdf(
     root: ET.Element,
     limit_overrides: dict[str, tuple[float, float]],
     srdf: SrdfInfo | None,
-) -> PreparedURDF:
+) -> PreparedSource:
     """Check the URDF and rewrite it for MuJoCo's URDF compiler (see the module docstring).
 
     Raises:
@@ -220,10 +238,7 @@ def prepare_urdf(
                 "of the URDF"
             )
         if kind == "floating" or kind == "planar":
-            raise RobotImportError(
-                f"{path}: <joint name='{name}' type='{kind}'>: a floating-base robot; expected a "
-                "fixed-base arm (legged robots are a later issue)"
-            )
+            raise RobotImportError(f"{path}: <joint name='{name}' type='{kind}'>: " + FLOATING_BASE)
         limit = j.find("limit")
         if kind in ("prismatic",) or (kind in ("revolute", "continuous") and j.find("mimic")):
             notes.append(
@@ -270,8 +285,7 @@ def prepare_urdf(
         raise RobotImportError(f"{path}: <robot>: expected one root link, found {roots}")
     if _legs(links, parent) >= 2:
         raise RobotImportError(
-            f"{path}: <link name='{roots[0]}'>: several legs leave the root link: a floating-base "
-            "(legged) robot; expected a fixed-base arm (legged robots are a later issue)"
+            f"{path}: <link name='{roots[0]}'>: several legs leave the root link: " + FLOATING_BASE
         )
 
     link_els = {link.get("name"): link for link in root.findall("link")}
@@ -298,7 +312,7 @@ def prepare_urdf(
     )
     if meshdir_abs is not None:
         compiler.set("meshdir", meshdir_abs)
-    return PreparedURDF(
+    return PreparedSource(
         path=path,
         display=_display(path),
         text=ET.tostring(root, encoding="unicode"),

@@ -6,15 +6,20 @@
         --motor '*=sts3215'
     python -m robots.importer panda.urdf --out robots/panda --srdf panda.srdf \\
         --motor 'panda_joint[1-4]=ec90flat_hd101' --motor 'panda_joint[5-7]=ec45flat_hd101'
+    robot-import my_arm.xml --out robots/my_arm --motor '*=ec45flat70_gp42c' --velocity '*=3.14'
 
-It writes ``<out>/<name>.xml`` (MJCF made by MuJoCo's own URDF compiler through ``mujoco.MjSpec``:
-radians, explicit inertials, no actuators, one ``ee`` site) and ``<out>/robot.toml`` (joint order
-and limits from the description, capped by the motors' capabilities; motors from the catalog
-``robots/motors/``; sensors from the motors; collision pairs; home pose; task region). Meshes are
-never copied: the MJCF's ``meshdir`` names the installed package (``package://...``) and
-:func:`robots.load_robot` resolves it. Every output is checked with :func:`robots.load_robot`
-(MuJoCo/Pinocchio agreement) before it is moved into place: a failed import leaves nothing.
+It writes ``<out>/<name>.xml`` (MJCF made by MuJoCo's own URDF or MJCF compiler through
+``mujoco.MjSpec``: radians, explicit inertials, no actuators, one ``ee`` site) and
+``<out>/robot.toml`` (joint order and limits from the description, capped by the motors'
+capabilities; motors from the catalog ``robots/motors/``; sensors from the motors; collision
+pairs; home pose; task region). Meshes are never copied: the MJCF's ``meshdir`` names the
+installed package (``package://...``) and :func:`robots.load_robot` resolves it. Every output is
+checked with :func:`robots.load_robot` (MuJoCo/Pinocchio agreement) before it is moved into
+place: a failed import leaves nothing.
 
+The source is a URDF (root ``<robot>``, :mod:`robots.import_urdf`) or an MJCF (root
+``<mujoco>``, :mod:`robots.import_mjcf`); both become a
+:class:`robots.import_urdf.PreparedSource`, and everything after that is the same code.
 Errors (:class:`RobotImportError`, exit code 3) are one line naming the file, the element and
 what was expected. The geometry and model helpers are in :mod:`robots.import_model`.
 """
@@ -34,15 +39,17 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from robots.import_mjcf import prepare_mjcf
 from robots.import_model import (
     build_spec,
+    cap_limits,
     choose_collision_pairs,
     choose_ee_body,
     derive_motion_limits,
     sample_workspace,
     write_robot_toml,
 )
-from robots.import_urdf import RobotImportError, prepare_urdf, read_srdf
+from robots.import_urdf import PreparedSource, RobotImportError, SrdfInfo, prepare_urdf, read_srdf
 from robots.robot import (
     PACKAGE_SCHEME,
     RobotSpecError,
@@ -143,30 +150,38 @@ def import_robot(
     motors: list[str] | tuple[str, ...] = (),
     ee_site: str | None = None,
     limits: list[str] | tuple[str, ...] = (),
+    velocities: list[str] | tuple[str, ...] = (),
     control_rate: float = DEFAULT_CONTROL_RATE,
     physics_timestep: float = DEFAULT_PHYSICS_TIMESTEP,
     force: bool = False,
     log=print,
 ) -> ImportReport:
-    """Import ``source`` (URDF path or ``PACKAGE:path``) into the robot folder ``out``.
+    """Import ``source`` (URDF or MJCF path, or ``PACKAGE:path``) into the robot folder ``out``.
 
     Args:
-        source: The description. out: The robot folder to create (its name is the robot's).
-        srdf: SRDF whose ``disable_collisions`` pairs are not checked (else: non-adjacent links
-            that do not touch at the home pose). motors: ``JOINT=MODEL`` (shell patterns).
-        ee_site: Link carrying the end-effector site (default: the deepest link of the longest
-            chain). limits: ``JOINT=LOWER:UPPER`` (rad) for joints the description leaves
-            unlimited. control_rate: Hz. physics_timestep: s (an integer fraction of the control
-            period). force: replace an existing ``out``. log: where decisions are printed.
+        source: The description: a URDF (root ``<robot>``) or an MJCF (root ``<mujoco>``).
+        out: The robot folder to create (its name is the robot's).
+        srdf: SRDF whose ``disable_collisions`` pairs are not checked (MJCF: added to its
+            ``<contact><exclude>`` pairs; else: non-adjacent links that do not touch at the home
+            pose). motors: ``JOINT=MODEL`` (shell patterns).
+        ee_site: Link (MJCF: body, or one of its sites) carrying the end-effector site (default:
+            an MJCF site named ``ee``, else the deepest link of the longest chain). limits:
+            ``JOINT=LOWER:UPPER`` (rad) for joints the description leaves unlimited.
+            velocities: ``JOINT=RAD_S`` (shell patterns): velocity limits where the description
+            has none (MJCF never has one) or to replace its value; the motor's no-load speed
+            still caps them. control_rate: Hz. physics_timestep: s (an integer fraction of the
+            control period). force: replace an existing ``out``. log: where decisions are
+            printed.
 
     Returns:
         An :class:`ImportReport`.
 
     Raises:
         RobotImportError: one line naming the file, the element and the expected value
-            (continuous joint without limits, unresolvable mesh, zero inertia, duplicate joint,
-            SRDF naming an unknown link, motor not in the catalog, floating base, ...). Nothing
-            is left in ``out``.
+            (continuous or MJCF hinge joint without limits, unresolvable mesh, zero inertia,
+            duplicate joint, SRDF naming an unknown link, motor not in the catalog, floating
+            base or MJCF free joint, no velocity limit from description, flag or motor, ...).
+            Nothing is left in ``out``.
     """
     start = time.perf_counter()
     path = resolve_source(str(source))
@@ -177,18 +192,10 @@ def import_robot(
     srdf_path = resolve_source(str(srdf)) if srdf is not None else None
     limit_overrides = _parse_limits(limits)
 
-    root = _parse_xml(path)
-    if root.tag == "mujoco":
-        raise RobotImportError(
-            f"{path}: <mujoco>: MJCF input is not supported yet; expected a URDF <robot> "
-            "(MJCF robots can be written by hand as robots/arm3 is)"
-        )
-    if root.tag != "robot":
-        raise RobotImportError(f"{path}: <{root.tag}>: expected a URDF <robot> root element")
-    srdf_info = read_srdf(srdf_path, root) if srdf_path is not None else None
-    urdf = prepare_urdf(path, root, limit_overrides, srdf_info)
+    urdf, srdf_info = _prepare(path, srdf_path, limit_overrides)
     for note in urdf.notes:
         log(f"note: {note}")
+    _apply_velocities(urdf, list(velocities))
 
     chosen = _assign_motors(path, urdf.movable, list(motors))
     motor_cfg: dict[str, MotorConfig] = {m: load_motor(m) for m in set(chosen.values())}
@@ -197,40 +204,22 @@ def import_robot(
     spec, model = build_spec(urdf, chosen, motor_cfg, physics_timestep)
     joint_names = [model.joint(i).name for i in range(model.njnt)]
 
-    ee_body = choose_ee_body(model, urdf, ee_site, path)
+    ee_body, ee_frame = choose_ee_body(model, urdf, ee_site, path)
     if ee_site is None:
-        log(f"note: end-effector site 'ee' on link '{ee_body}' (choose another with --ee-site)")
+        where = f"at site '{ee_frame}' of" if ee_frame else "on"
+        log(
+            f"note: end-effector site 'ee' {where} link '{ee_body}' (choose another with --ee-site)"
+        )
 
-    limits_out = {}
-    for j in joint_names:
-        m = motor_cfg[chosen[j]]
-        src = urdf.joints[j]
-        effort = min(v for v in (src.effort, m.peak_torque) if v is not None and v > 0)
-        velocity = min(v for v in (src.velocity, m.max_velocity, np.inf) if v is not None and v > 0)
-        if not np.isfinite(velocity):
-            raise RobotImportError(
-                f"{path}: <joint name='{j}'><limit velocity>: missing or zero, and motor "
-                f"'{chosen[j]}' gives no max_velocity; expected a velocity limit in rad/s"
-            )
-        if src.effort is not None and src.effort > effort:
-            report.lowered.append((j, "effort", src.effort, effort, "N m"))
-            log(
-                f"joint {j}: effort limit {src.effort:g} N m (URDF) -> {effort:g} N m: "
-                f"{chosen[j]} peak torque at the output"
-            )
-        if src.velocity is not None and src.velocity > velocity:
-            report.lowered.append((j, "velocity", src.velocity, velocity, "rad/s"))
-            log(
-                f"joint {j}: velocity limit {src.velocity:g} rad/s (URDF) -> {velocity:g} rad/s: "
-                f"{chosen[j]} no-load speed at the output"
-            )
-        limits_out[j] = (src.lower, src.upper, velocity, effort)
+    limits_out, lowered, notes = cap_limits(urdf, chosen, motor_cfg, log)
+    report.lowered += lowered
+    report.notes += notes
 
     with tempfile.TemporaryDirectory(prefix=f".{name}-", dir=out.parent) as tmp:
         work = Path(tmp) / name
         work.mkdir()
         mjcf_path = work / f"{name}.xml"
-        _finish_mjcf(spec, ee_body, urdf, mjcf_path)
+        _finish_mjcf(spec, ee_body, ee_frame, urdf, mjcf_path)
         # the MJCF writes ranges to 6 significant digits: robot.toml must say the same
         written = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
         for i, j in enumerate(joint_names):
@@ -249,7 +238,7 @@ def import_robot(
         write_robot_toml(
             work / "robot.toml",
             name=name,
-            source=path,
+            prepared=urdf,
             mjcf=mjcf_path.name,
             joint_names=joint_names,
             limits=limits_out,
@@ -260,7 +249,7 @@ def import_robot(
             workspace=ws,
             control_rate=control_rate,
             physics_timestep=physics_timestep,
-            srdf=srdf_path,
+            disabled_by=_disabled_by(urdf, srdf_path),
             lowered=report.lowered,
         )
         try:
@@ -273,6 +262,65 @@ def import_robot(
     report.seconds = time.perf_counter() - start
     log(f"wrote {out} ({len(joint_names)} joints) in {report.seconds:.1f} s")
     return report
+
+
+def _prepare(
+    path: Path, srdf_path: Path | None, limit_overrides: dict[str, tuple[float, float]]
+) -> tuple[PreparedSource, SrdfInfo | None]:
+    """The prepared description and the link pairs left unchecked (SRDF, MJCF excludes)."""
+    root = _parse_xml(path)
+    if root.tag == "mujoco":
+        source = prepare_mjcf(path, limit_overrides)
+        srdf_info = None
+        if srdf_path is not None:
+            srdf_info = read_srdf(srdf_path, set(source.links), "MJCF")
+        if source.disabled or srdf_info is not None:
+            disabled = set(source.disabled) | (srdf_info.disabled if srdf_info else set())
+            srdf_info = SrdfInfo(path=srdf_path or path, disabled=disabled)
+        return source, srdf_info
+    if root.tag != "robot":
+        raise RobotImportError(
+            f"{path}: <{root.tag}>: expected a URDF <robot> or an MJCF <mujoco> root element"
+        )
+    links = {link.get("name") for link in root.iter("link")}
+    srdf_info = read_srdf(srdf_path, links) if srdf_path is not None else None
+    return prepare_urdf(path, root, limit_overrides, srdf_info), srdf_info
+
+
+def _disabled_by(source: PreparedSource, srdf_path: Path | None) -> str | None:
+    """What named the unchecked link pairs, for robot.toml's comment (None: nothing did)."""
+    named = []
+    if srdf_path is not None:
+        named.append(f"the SRDF ({Path(srdf_path).name})")
+    if source.disabled:
+        named.append(f"the MJCF's <contact><exclude> ({source.path.name})")
+    return " or ".join(named) or None
+
+
+def _apply_velocities(source: PreparedSource, flags: list[str]) -> None:
+    """Set joint velocity limits from ``--velocity JOINT=RAD_S`` (shell patterns; later win)."""
+    for flag in flags:
+        pattern, sep, value = flag.partition("=")
+        try:
+            if not sep or not pattern:
+                raise ValueError
+            velocity = float(value)
+            if not (np.isfinite(velocity) and velocity > 0):
+                raise ValueError
+        except ValueError:
+            raise RobotImportError(
+                f"--velocity '{flag}': expected JOINT=RAD_S with a positive limit in rad/s "
+                "(JOINT may be a pattern, e.g. '*=3.14')"
+            ) from None
+        hits = [j for j in source.movable if fnmatch.fnmatchcase(j, pattern)]
+        if not hits:
+            raise RobotImportError(
+                f"--velocity '{flag}': pattern '{pattern}' matches no joint of "
+                f"{source.path.name} (joints: {source.movable})"
+            )
+        for j in hits:
+            source.joints[j].velocity = velocity
+            source.joints[j].velocity_from = "--velocity"
 
 
 def _parse_xml(path: Path) -> ET.Element:
@@ -298,8 +346,9 @@ def _parse_limits(flags) -> dict[str, tuple[float, float]]:
     return out
 
 
-def _finish_mjcf(spec, ee_body: str, urdf, mjcf_path: Path) -> None:
-    """Add the ``ee`` site, write the MJCF with the package meshdir placeholder."""
+def _finish_mjcf(spec, ee_body: str, ee_frame: str | None, urdf, mjcf_path: Path) -> None:
+    """Add the ``ee`` site (at link ``ee_body``, or at its site ``ee_frame``), write the MJCF
+    with the package meshdir placeholder."""
     # The site goes on the nearest body that a joint moves, at the fixed transform of the chosen
     # link: Pinocchio's MJCF parser misplaces sites of joint-less child bodies (0.107 m on panda).
     model = spec.compile()
@@ -309,12 +358,21 @@ def _finish_mjcf(spec, ee_body: str, urdf, mjcf_path: Path) -> None:
     anc = b
     while anc > 0 and model.body_jntnum[anc] == 0:
         anc = model.body_parentid[anc]
+    if ee_frame is None:
+        target_pos, target_quat = data.xpos[b], data.xquat[b]
+    else:
+        s = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, ee_frame)
+        target_pos, target_quat = data.site_xpos[s], np.zeros(4)
+        mujoco.mju_mat2Quat(target_quat, data.site_xmat[s])
     rot = data.xmat[anc].reshape(3, 3)
-    pos = rot.T @ (data.xpos[b] - data.xpos[anc])
+    pos = rot.T @ (target_pos - data.xpos[anc])
     quat = np.zeros(4)
     inv = np.zeros(4)
     mujoco.mju_negQuat(inv, data.xquat[anc])
-    mujoco.mju_mulQuat(quat, inv, data.xquat[b])
+    mujoco.mju_mulQuat(quat, inv, target_quat)
+    old = spec.site("ee")
+    if old is not None:  # an MJCF's own 'ee' site: replaced by the one placed here
+        spec.delete(old)
     spec.body(model.body(anc).name).add_site(
         name="ee", size=[0.005, 0.005, 0.005], pos=pos, quat=quat
     )
@@ -325,7 +383,7 @@ def _finish_mjcf(spec, ee_body: str, urdf, mjcf_path: Path) -> None:
         if urdf.meshdir_uri.startswith(PACKAGE_SCHEME) and urdf.meshdir_uri not in xml:
             raise RobotImportError(f"{mjcf_path}: <compiler meshdir>: could not be written")
     header = (
-        f"<!-- Generated by robot-import from {urdf.display} with MuJoCo's URDF compiler "
+        f"<!-- Generated by robot-import from {urdf.display} with MuJoCo's {urdf.kind} compiler "
         "(mujoco.MjSpec). Radians, explicit inertials, no actuators (Robot.mjspec adds them per "
         "control mode). Meshes are read from the installed package named by meshdir. -->\n"
     )
@@ -352,7 +410,7 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__.split("::")[0].strip(),
         epilog=f"Motor models in the catalog: {', '.join(sorted(motor_catalog()))}",
     )
-    p.add_argument("source", help="URDF file, or PACKAGE:path (example-robot-data:...)")
+    p.add_argument("source", help="URDF or MJCF file, or PACKAGE:path (example-robot-data:...)")
     p.add_argument("--out", required=True, help="robot folder to write (its name = robot name)")
     p.add_argument("--srdf", default=None, help="SRDF with disable_collisions pairs")
     p.add_argument(
@@ -362,13 +420,26 @@ def main(argv: list[str] | None = None) -> int:
         metavar="JOINT=MODEL",
         help="motor model of a joint (shell pattern, '*' = every joint); repeatable",
     )
-    p.add_argument("--ee-site", default=None, metavar="LINK", help="link of the end effector")
+    p.add_argument(
+        "--ee-site",
+        default=None,
+        metavar="LINK",
+        help="link (MJCF: body or site) of the end effector",
+    )
     p.add_argument(
         "--limit",
         action="append",
         default=[],
         metavar="JOINT=LOWER:UPPER",
         help="position limits (rad) for a continuous joint the description leaves unlimited",
+    )
+    p.add_argument(
+        "--velocity",
+        action="append",
+        default=[],
+        metavar="JOINT=RAD_S",
+        help="velocity limit (rad/s) where the description has none (MJCF) or to replace it; "
+        "shell pattern; the motor's no-load speed still caps it; repeatable",
     )
     p.add_argument("--control-rate", type=float, default=DEFAULT_CONTROL_RATE, help="Hz")
     p.add_argument("--physics-timestep", type=float, default=DEFAULT_PHYSICS_TIMESTEP, help="s")
@@ -382,6 +453,7 @@ def main(argv: list[str] | None = None) -> int:
             motors=args.motor,
             ee_site=args.ee_site,
             limits=args.limit,
+            velocities=args.velocity,
             control_rate=args.control_rate,
             physics_timestep=args.physics_timestep,
             force=args.force,

@@ -1,15 +1,21 @@
 """robot-import: fixed-base arms of example-robot-data import, load and run the adversarial policy;
-every bad input is a one-line error with exit code 3 and no output folder."""
+MJCF input (arm3 round trip, an MJCF MuJoCo wrote from a URDF, in degrees) does the same; every
+bad input is a one-line error with exit code 3 and no output folder."""
 
 from __future__ import annotations
 
+import math
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import mujoco
+import numpy as np
 import pytest
 
 from deploy.acceptance import check_adversarial
 from robots import load_robot
 from robots.importer import EXIT_REFUSED, import_robot, main, resolve_source
+from robots.robot import ROBOTS_DIR, package_root
 
 pytest.importorskip("coal")
 try:
@@ -169,3 +175,175 @@ def test_floating_base_robot_is_refused(tmp_path, capsys):
 def test_resolve_source_names_the_package_file():
     path = resolve_source(ERD + "so_arm_description/urdf/so101.urdf")
     assert isinstance(path, Path) and path.name == "so101.urdf"
+
+
+# ---------------------------------------------------------------- MJCF input
+def test_mjcf_round_trip_of_arm3(tmp_path):
+    out = tmp_path / "arm3_again"
+    report = import_robot(
+        ROBOTS_DIR / "arm3" / "arm3.xml",
+        out,
+        motors=["*=ec45flat70_gp42c"],
+        velocities=["*=3.14"],  # MJCF has no velocity limit, and this motor gives none
+        log=lambda *a: None,
+    )
+    arm3, again = load_robot("arm3"), load_robot(out)
+    assert again.joint_names == arm3.joint_names == tuple(report.joints)
+    np.testing.assert_array_equal(again.position_lower, arm3.position_lower)
+    np.testing.assert_array_equal(again.position_upper, arm3.position_upper)
+    np.testing.assert_array_equal(again.effort_limit, arm3.effort_limit)
+    np.testing.assert_array_equal(again.velocity_limit, arm3.velocity_limit)
+    rng = np.random.default_rng(0)
+    for q in [
+        np.zeros(3),
+        arm3.home,
+        *rng.uniform(arm3.position_lower, arm3.position_upper, (3, 3)),
+    ]:
+        # the written MJCF keeps 6 significant digits (0.0528409091 m -> 0.0528409 m)
+        np.testing.assert_allclose(again.gravity_torque(q), arm3.gravity_torque(q), atol=1e-6)
+        # arm3's own 'ee' site is the default end effector
+        np.testing.assert_allclose(
+            again.forward_kinematics(q), arm3.forward_kinematics(q), atol=1e-9
+        )
+
+
+def mjcf_from_urdf(tmp_path: Path, urdf: str, degrees: bool) -> Path:
+    """The MJCF MuJoCo writes from an example-robot-data URDF (meshes by absolute path),
+    rewritten in degrees when asked."""
+    root = package_root("example-robot-data").as_posix()
+    text = (
+        resolve_source(ERD + urdf).read_text().replace("package://example-robot-data/", root + "/")
+    )
+    xml = ET.fromstring(mujoco.MjSpec.from_string(text).to_xml())
+    if degrees:
+        xml.find("compiler").set("angle", "degree")
+        for joint in xml.iter("joint"):
+            for attr in ("range", "ref", "springref"):
+                if joint.get(attr):
+                    values = [math.degrees(float(x)) for x in joint.get(attr).split()]
+                    joint.set(attr, " ".join(repr(v) for v in values))
+    path = tmp_path / (Path(urdf).stem + ".xml")
+    ET.ElementTree(xml).write(path)
+    return path
+
+
+def test_mjcf_in_degrees_imports_and_survives_the_adversarial_policy(tmp_path):
+    mjcf = mjcf_from_urdf(tmp_path, ARMS[1][1], degrees=True)
+    assert 'angle="degree"' in mjcf.read_text()
+    out = tmp_path / "so101_mjcf"
+    report = import_robot(mjcf, out, motors=["*=sts3215"], log=lambda *a: None)
+    robot = load_robot(out)
+    assert 'angle="radian"' in (out / "so101_mjcf.xml").read_text()
+    urdf = ET.parse(resolve_source(ERD + ARMS[1][1])).getroot()
+    limits = {
+        j.get("name"): [float(j.find("limit").get(k)) for k in ("lower", "upper")]
+        for j in urdf.iter("joint")
+        if j.get("type") == "revolute"
+    }
+    assert set(robot.joint_names) == set(limits)
+    # the ranges written in degrees come back in radians (6 significant digits)
+    expected = np.array([limits[j] for j in robot.joint_names])
+    np.testing.assert_allclose(robot.position_lower, expected[:, 0], rtol=1e-5)
+    np.testing.assert_allclose(robot.position_upper, expected[:, 1], rtol=1e-5)
+    # effort: the MJCF's actuatorfrcrange (the URDF's 10 N m) lowered to the motor's peak torque
+    lowered = {(j, q): (a, b) for j, q, a, b, _ in report.lowered}
+    assert lowered[("shoulder_pan", "effort")] == (10.0, 2.94)
+    # velocity: MJCF has none, the motor sets it
+    np.testing.assert_array_equal(robot.velocity_limit, 4.71)
+    assert any("no-load speed" in n and "MJCF gives none" in n for n in report.notes)
+    result = check_adversarial(robot, "position", 60.0, workdir=tmp_path)
+    assert result.non_finite_actions > 0
+    assert result.max_overshoot == 0.0
+    assert result.passed, result.failures
+
+
+SMALL = """<mujoco model="small">
+  <compiler angle="radian"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="2 2 0.1"/>
+    <body name="table" pos="1 1 0"><geom type="box" size="0.2 0.2 0.2"/></body>
+    <body name="base">
+      {free}
+      <geom type="cylinder" size="0.05 0.05"/>
+      <body name="l1" pos="0 0 0.1">
+        <joint name="j1" axis="0 0 1" {limit}/>
+        <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.02"/>
+        <body name="l2" pos="0.3 0 0">
+          <joint name="j2" axis="0 1 0" range="-1 1"/>
+          <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.02"/>
+          <body name="slider" pos="0.3 0 0">
+            <joint name="s" type="slide" axis="1 0 0" range="0 0.05"/>
+            <geom type="box" size="0.02 0.02 0.02"/>
+            <body name="l3" pos="0.05 0 0">
+              <joint name="j3" axis="0 1 0" range="-2 2"/>
+              <geom type="capsule" fromto="0 0 0 0.2 0 0" size="0.02"/>
+            </body>
+          </body>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  <contact><exclude body1="base" body2="l3"/></contact>
+  <actuator>
+    <position joint="j1" kp="10" forcerange="-4 4" gear="1.5"/>
+    <motor joint="j2" ctrlrange="-1 1" gear="2"/>
+    <motor joint="j3" ctrlrange="-1 1"/>
+    <position joint="s" kp="10"/>
+  </actuator>
+  <sensor><jointpos joint="j1"/></sensor>
+  <keyframe><key name="home" qpos="0.1 0.2 0.01 0.3"/></keyframe>
+</mujoco>"""
+
+
+def test_mjcf_actuators_slide_joint_scenery_and_excludes(tmp_path):
+    mjcf = tmp_path / "small.xml"
+    mjcf.write_text(SMALL.format(free="", limit='range="-3 3"'))
+    out = tmp_path / "small"
+    report = import_robot(
+        mjcf, out, motors=["*=xm430_w350"], velocities=["j3=2"], log=lambda *a: None
+    )
+    robot = load_robot(out)
+    assert robot.joint_names == ("j1", "j2", "j3")  # the slide joint is frozen
+    # effort: forcerange x gear, a motor's ctrlrange x gear x gain, capped by the motor (4.1 N m)
+    np.testing.assert_array_equal(robot.effort_limit, [4.1, 2.0, 1.0])
+    lowered = {(j, q): (a, b) for j, q, a, b, _ in report.lowered}
+    assert lowered == {("j1", "effort"): (6.0, 4.1)}
+    assert robot.velocity_limit[2] == 2.0  # --velocity, below the motor's 4.82 rad/s
+    notes = " ".join(report.notes)
+    assert "joint s (slide) frozen" in notes and "scenery" in notes and "floor" in notes
+    written = (out / "small.xml").read_text()
+    assert "<actuator" not in written and "<sensor" not in written and "<key" not in written
+    pairs = [set(p) for p in robot.config.safety.collision_pairs]
+    assert {"l1", "l3"} in pairs  # non-adjacent links apart at home are checked...
+    assert {"base", "l3"} not in pairs  # ...unless the MJCF excludes them
+
+
+# ---------------------------------------------------------------- bad MJCF input
+@pytest.mark.parametrize(
+    "changes,expected",
+    [
+        (
+            dict(free='<freejoint name="floating"/>'),
+            r"<body name='base'><joint name='floating' type='free'>: a floating-base robot.*legged",
+        ),
+        (
+            dict(limit='limited="false"'),
+            r"<joint name='j1'>: no position limits .*--limit j1=LOWER:UPPER",
+        ),
+        (dict(limit=""), r"<joint name='j1'>: no position limits .*--limit j1=LOWER:UPPER"),
+    ],
+    ids=["free-joint", "limited-false", "no-range"],
+)
+def test_bad_mjcf_is_one_line_exit_3_and_no_folder(tmp_path, capsys, changes, expected):
+    import re
+
+    mjcf = tmp_path / "arm.xml"
+    mjcf.write_text(SMALL.format(**{**dict(free="", limit='range="-3 3"'), **changes}))
+    out = tmp_path / "out"
+    code = main([str(mjcf), "--out", str(out), "--motor", "*=sts3215"])
+    err = capsys.readouterr().err.strip()
+    assert code == EXIT_REFUSED
+    assert "\n" not in err and "arm.xml" in err
+    assert re.search(expected, err), err
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out-")]

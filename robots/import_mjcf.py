@@ -1,0 +1,435 @@
+"""MJCF reading for the importer: an MJCF robot checked and reduced to what the toolkit uses.
+
+:func:`prepare_mjcf` loads the file with ``mujoco.MjSpec.from_file`` (MuJoCo's own parser:
+defaults, includes, degrees or radians) and makes the same
+:class:`robots.import_urdf.PreparedSource` a URDF makes; the rest of the import is shared. Kept:
+
+- hinge joints, their ranges (the text handed on is MuJoCo's canonical form: ``angle="radian"``,
+  quaternions, so a model written in degrees is converted), damping and friction loss (the
+  armature becomes the motor's, as for URDF);
+- geometry (geoms with ``contype = conaffinity = 0`` are visual-only and dropped from a body that
+  also has collision geoms; mesh geoms become one bounding box per body, as for URDF,
+  ``COLLISION_BOXES``) and inertials, written explicitly for every body (Pinocchio's MJCF parser
+  does not derive them from geoms);
+- ``<contact><exclude>`` pairs: they play the role of an SRDF's ``disable_collisions``;
+- effort limits: ``actuatorfrcrange``, else the removed actuators' ``forcerange`` (or a direct
+  motor's ``ctrlrange``) times their gear. MJCF has no velocity limit: the motor's (or
+  ``--velocity``) gives it.
+
+Removed, each with a printed note: actuators (``Robot.mjspec`` adds drives per control mode),
+sensors, tendons, equality constraints (a joint an ``<equality joint>`` couples is frozen, as a
+URDF mimic joint), keyframes, explicit contact pairs, textures and materials, skins and flexes,
+floors (planes of the world body, height fields) and bodies without joints hanging from the
+world (scenery); the other geoms of the world body (a base fused into it) move into a fixed
+body ``base`` that carries the robot.
+Slide and ball joints are frozen at their reference position, as URDF prismatic joints.
+Refused (:class:`RobotImportError`): a free joint (floating base), an unnamed hinge, a hinge
+without limits (unless ``--limit``), a body with several hinges, several jointed bodies hanging
+from the world, a moving body without mass or inertia, and what MuJoCo itself refuses.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from robots.import_urdf import (
+    COLLISION_BOXES,
+    FLOATING_BASE,
+    MIN_INERTIA,
+    MIN_MASS,
+    JointInfo,
+    PreparedSource,
+    RobotImportError,
+    _display,
+)
+
+_HINGE = mujoco.mjtJoint.mjJNT_HINGE
+_KIND = {
+    mujoco.mjtJoint.mjJNT_SLIDE: "slide",
+    mujoco.mjtJoint.mjJNT_BALL: "ball",
+    mujoco.mjtJoint.mjJNT_FREE: "free",
+}
+
+
+def prepare_mjcf(path: Path, limit_overrides: dict[str, tuple[float, float]]) -> PreparedSource:
+    """Check the MJCF at ``path`` and reduce it for the importer (see the module docstring).
+
+    Args:
+        path: The MJCF file (root ``<mujoco>``). limit_overrides: joint -> (lower, upper) in
+            rad, from ``--limit``, for hinges the file leaves unlimited (or to replace a range).
+
+    Returns:
+        A :class:`PreparedSource` of kind "MJCF" whose ``text`` is the reduced model in MuJoCo's
+        canonical MJCF (radians), ``disabled`` its ``<contact><exclude>`` body pairs and
+        ``sites`` its sites by body.
+
+    Raises:
+        RobotImportError: one line naming the file, the element and what was expected (see the
+            module docstring for what is refused).
+    """
+    notes: list[str] = []
+    spec = _from_file(path)
+    _name_unnamed(spec.bodies[1:], "body")
+    model = _compile(spec, path)
+    for j in range(model.njnt):
+        if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+            body = model.body(model.jnt_bodyid[j]).name
+            raise RobotImportError(
+                f"{path}: <body name='{body}'><joint name='{model.joint(j).name}' type='free'>: "
+                + FLOATING_BASE
+            )
+    efforts = _efforts(model)
+    disabled = {tuple(sorted((e.bodyname1, e.bodyname2))) for e in spec.excludes}
+    frozen = _drop_elements(spec, notes)
+    _drop_scenery(spec, model, path, notes)
+    _freeze_joints(spec, path, frozen, notes)
+
+    # Canonical form: radians, quaternions, explicit inertials computed from the full geometry.
+    spec.compiler.saveinertial = True
+    if spec.meshdir and not os.path.isabs(spec.meshdir):
+        spec.meshdir = os.path.join(spec.modelfiledir or str(path.parent), spec.meshdir)
+    elif not spec.meshdir:
+        spec.meshdir = spec.modelfiledir or str(path.parent)
+    spec = _from_string(_base_body(_to_xml(spec, path), notes), path)
+    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
+    _name_unnamed(spec.geoms, "geom")  # to find them in the compiled model
+
+    hinges = [j.name for j in spec.joints]
+    unknown = set(limit_overrides) - set(hinges)
+    if unknown:
+        raise RobotImportError(
+            f"--limit: no hinge joint {sorted(unknown)} in {path.name} (hinges: {hinges})"
+        )
+    for name, (lo, hi) in limit_overrides.items():
+        spec.joint(name).range = [lo, hi]
+        spec.joint(name).limited = mujoco.mjtLimited.mjLIMITED_TRUE
+    model = _compile(spec, path)
+    joints = _hinge_limits(model, path, efforts)
+    meshdir_abs = _simplify_geoms(spec, model, notes)
+    text = _to_xml(spec, path)
+    model = _compile(_from_string(text, path), path)
+
+    links = [model.body(b).name for b in range(model.nbody)]
+    parent = {}
+    for b in range(1, model.nbody):
+        n = model.body_jntnum[b]
+        joint = model.joint(model.body_jntadr[b]).name if n else ""
+        parent[links[b]] = (links[model.body_parentid[b]], joint, "revolute" if n else "fixed")
+    sites = {model.site(s).name: links[model.site_bodyid[s]] for s in range(model.nsite)}
+    return PreparedSource(
+        path=path,
+        display=_display(path),
+        text=text,
+        joints=joints,
+        movable=list(joints),
+        parent=parent,
+        links=links,
+        root_link=links[0],
+        meshdir_abs=meshdir_abs,
+        meshdir_uri=meshdir_abs or "",
+        notes=notes,
+        kind="MJCF",
+        disabled={p for p in disabled if p[0] in links and p[1] in links},
+        sites={k: v for k, v in sites.items() if k},
+    )
+
+
+def _name_unnamed(elements, prefix: str) -> None:
+    """Give unnamed elements (bodies, geoms) the first free name ``PREFIX<k>``."""
+    taken = {e.name for e in elements}
+    k = 0
+    for element in elements:
+        while not element.name:
+            k += 1
+            if f"{prefix}{k}" not in taken:
+                element.name = f"{prefix}{k}"
+                taken.add(element.name)
+
+
+def _from_file(path: Path) -> mujoco.MjSpec:
+    try:
+        return mujoco.MjSpec.from_file(str(path))
+    except ValueError as exc:
+        raise RobotImportError(
+            f"{path}: MuJoCo's MJCF parser refuses it: {_one_line(exc)}"
+        ) from None
+
+
+def _from_string(text: str, path: Path) -> mujoco.MjSpec:
+    try:
+        return mujoco.MjSpec.from_string(text)
+    except ValueError as exc:  # pragma: no cover - MuJoCo reading what it wrote
+        raise RobotImportError(
+            f"{path}: MuJoCo cannot read back the reduced MJCF: {_one_line(exc)}"
+        ) from None
+
+
+def _compile(spec: mujoco.MjSpec, path: Path) -> mujoco.MjModel:
+    try:
+        return spec.compile()
+    except ValueError as exc:
+        raise RobotImportError(
+            f"{path}: MuJoCo's MJCF compiler refuses it: {_one_line(exc)}"
+        ) from None
+
+
+def _to_xml(spec: mujoco.MjSpec, path: Path) -> str:
+    try:
+        return spec.to_xml()
+    except ValueError as exc:
+        raise RobotImportError(
+            f"{path}: MuJoCo cannot write the reduced MJCF: {_one_line(exc)}"
+        ) from None
+
+
+def _efforts(model: mujoco.MjModel) -> dict[str, tuple[float, str]]:
+    """Hinge name -> (effort limit N m, where it came from) for hinges the file limits.
+
+    ``actuatorfrcrange`` first (it caps the sum of the joint's actuators); else the sum over the
+    joint's actuators of ``forcerange``, or of a direct motor's ``ctrlrange`` times its gain,
+    times the gear. A range counts by its smaller magnitude.
+    """
+    out: dict[str, tuple[float, str]] = {}
+    per_joint: dict[int, list[tuple[float, str]]] = {}
+    for a in range(model.nu):
+        if model.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT:
+            continue
+        gear = abs(float(model.actuator_gear[a, 0]))
+        name = model.actuator(a).name or f"#{a}"
+        if model.actuator_forcelimited[a]:
+            force = float(np.min(np.abs(model.actuator_forcerange[a])))
+            found = (force * gear, f"MJCF <actuator name='{name}'> forcerange")
+        elif (
+            model.actuator_ctrllimited[a]
+            and model.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED
+            and model.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_NONE
+            and model.actuator_dyntype[a] == mujoco.mjtDyn.mjDYN_NONE
+        ):
+            ctrl = float(np.min(np.abs(model.actuator_ctrlrange[a])))
+            gain = abs(float(model.actuator_gainprm[a, 0]))
+            found = (ctrl * gain * gear, f"MJCF <motor name='{name}'> ctrlrange")
+        else:
+            continue
+        per_joint.setdefault(int(model.actuator_trnid[a, 0]), []).append(found)
+    for j in range(model.njnt):
+        name = model.joint(j).name
+        if model.jnt_actfrclimited[j]:
+            value = float(np.min(np.abs(model.jnt_actfrcrange[j])))
+            out[name] = (value, "MJCF actuatorfrcrange")
+        elif j in per_joint:
+            found = per_joint[j]
+            out[name] = (sum(v for v, _ in found), " + ".join(s for _, s in found))
+    return {k: v for k, v in out.items() if v[0] > 0}
+
+
+def _drop_elements(spec: mujoco.MjSpec, notes: list[str]) -> set[str]:
+    """Delete what the toolkit does not simulate; return the joints equalities couple."""
+    frozen = {e.name1 for e in spec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT and e.name1}
+    for geom in spec.geoms:
+        geom.material = ""
+    for site in spec.sites:
+        site.material = ""
+    for what, elements, why in (
+        ("actuators", spec.actuators, "Robot.mjspec adds the drives of each control mode"),
+        ("sensors", spec.sensors, "the sim backend models robot.toml's sensors"),
+        ("tendons", spec.tendons, "the runtime drives joints"),
+        ("equality constraints", spec.equalities, "the runtime simulates open chains"),
+        ("keyframes", spec.keys, "robot.toml sets the home pose"),
+        ("contact pairs", spec.pairs, "the plant checks robot.toml's collision pairs"),
+        ("skins", spec.skins, "not simulated"),
+        ("flexes", spec.flexes, "not simulated"),
+        ("contact excludes", spec.excludes, ""),  # kept as the importer's disabled pairs
+        ("materials", spec.materials, ""),  # their textures name files beside the source
+        ("textures", spec.textures, ""),
+    ):
+        elements = list(elements)
+        for element in elements:
+            spec.delete(element)
+        if elements and why:
+            names = [e.name for e in elements if e.name][:4]
+            named = f" {names}" if names else ""
+            notes.append(f"{len(elements)} {what}{named} dropped: {why}")
+    floors = [
+        g
+        for g in spec.geoms
+        if g.type == mujoco.mjtGeom.mjGEOM_HFIELD
+        or (g.type == mujoco.mjtGeom.mjGEOM_PLANE and g.parent.name == "world")
+    ]
+    for geom in floors:
+        spec.delete(geom)
+    if floors:
+        notes.append(f"{len(floors)} floor geoms (planes, height fields) dropped")
+    for hfield in list(spec.hfields):
+        spec.delete(hfield)
+    return frozen
+
+
+def _base_body(text: str, notes: list[str]) -> str:
+    """Move the geoms of the world body (a fixed base MuJoCo fused into the world, or a table)
+    into a fixed body of their own, ``base``, which then carries the robot (the importer's links
+    are bodies; Pinocchio's MJCF parser reads one tree from the world)."""
+    root = ET.fromstring(text)
+    world = root.find("worldbody")
+    geoms = [] if world is None else world.findall("geom")
+    if not geoms:
+        return text
+    taken = {b.get("name") for b in root.iter("body")}
+    name = next(n for n in ("base", "world_base", "world_geoms") if n not in taken)
+    body = ET.Element("body", name=name)
+    for child in geoms + world.findall("body"):
+        world.remove(child)
+        body.append(child)
+    world.insert(0, body)
+    notes.append(f"{len(geoms)} geoms of the world body moved into a fixed body '{name}'")
+    return ET.tostring(root, encoding="unicode")
+
+
+def _drop_scenery(spec: mujoco.MjSpec, model: mujoco.MjModel, path: Path, notes) -> None:
+    """Delete bodies hanging from the world whose subtree has no joint; refuse two robots."""
+    jointed = []
+    for body in list(spec.worldbody.bodies):
+        b = model.body(body.name).id
+        in_tree = np.flatnonzero(model.body_rootid == b)
+        if model.body_jntnum[in_tree].sum() == 0:
+            notes.append(f"body {body.name} (no joint below it) dropped: scenery")
+            spec.delete(body)
+        else:
+            jointed.append(body.name)
+    if len(jointed) > 1:
+        raise RobotImportError(
+            f"{path}: <worldbody>: several bodies with joints hang from the world {jointed}; "
+            "expected one fixed-base arm"
+        )
+
+
+def _freeze_joints(spec: mujoco.MjSpec, path: Path, frozen: set[str], notes) -> None:
+    """Freeze slide, ball and coupled joints; refuse unnamed hinges and multi-hinge bodies."""
+    for joint in list(spec.joints):
+        kind = _KIND.get(joint.type, "hinge")
+        if kind != "hinge" or joint.name in frozen:
+            why = f"{kind}, coupled by an <equality joint>" if joint.name in frozen else kind
+            notes.append(
+                f"joint {joint.name or '(unnamed)'} ({why}) frozen at its reference position: "
+                "the runtime drives hinge joints only"
+            )
+            spec.delete(joint)
+            continue
+        if not joint.name:
+            raise RobotImportError(
+                f"{path}: <body name='{joint.parent.name}'><joint>: unnamed hinge joint; "
+                "expected a name (robot.toml and policies name joints)"
+            )
+    for body in spec.bodies:
+        if len(body.joints) > 1:
+            raise RobotImportError(
+                f"{path}: <body name='{body.name}'>: {len(body.joints)} hinge joints "
+                f"{[j.name for j in body.joints]}; expected one joint per body"
+            )
+    if not spec.joints:
+        raise RobotImportError(f"{path}: <mujoco>: no hinge joint; expected a fixed-base arm")
+
+
+def _hinge_limits(model: mujoco.MjModel, path: Path, efforts) -> dict[str, JointInfo]:
+    """JointInfo of every hinge (rad, N m); refuse unlimited hinges and massless moving bodies."""
+    joints: dict[str, JointInfo] = {}
+    for j in range(model.njnt):
+        name = model.joint(j).name
+        lo, hi = (float(x) for x in model.jnt_range[j])
+        if not model.jnt_limited[j]:
+            raise RobotImportError(
+                f"{path}: <joint name='{name}'>: no position limits (limited=\"false\" or no "
+                f'range); expected range="LOWER UPPER" or --limit {name}=LOWER:UPPER (rad)'
+            )
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise RobotImportError(
+                f"{path}: <joint name='{name}' range>: got {lo:g}, {hi:g} rad; expected lower < "
+                f"upper (or --limit {name}=LOWER:UPPER)"
+            )
+        b = model.jnt_bodyid[j]
+        child, par = model.body(b).name, model.body(model.body_parentid[b]).name
+        mass, inertia = float(model.body_mass[b]), model.body_inertia[b]
+        if mass <= MIN_MASS or float(np.min(inertia)) <= MIN_INERTIA:
+            raise RobotImportError(
+                f"{path}: <body name='{child}'> (moved by joint '{name}'): mass {mass:g} kg, "
+                f"principal inertia {list(np.round(inertia, 12))}: zero inertia; expected mass "
+                "> 0 and a positive-definite inertia (an <inertial>, or geoms with volume)"
+            )
+        effort, effort_from = efforts.get(name, (None, "MJCF"))
+        joints[name] = JointInfo(
+            name, "hinge", par, child, lo, hi, None, effort, "MJCF", effort_from
+        )
+    return joints
+
+
+def _simplify_geoms(spec: mujoco.MjSpec, model: mujoco.MjModel, notes) -> str | None:
+    """Drop visual-only geoms beside collision geoms; one box per body for its mesh geoms;
+    every geom in group 0.
+
+    Returns the absolute mesh folder when meshes are kept (``COLLISION_BOXES`` False), else None.
+    """
+    visual = boxed = 0
+    for body in spec.bodies:
+        geoms = list(body.geoms)
+        if any(g.contype or g.conaffinity for g in geoms):
+            for g in geoms:
+                if not (g.contype or g.conaffinity):
+                    spec.delete(g)
+                    visual += 1
+            geoms = [g for g in geoms if g.contype or g.conaffinity]
+        meshes = [g for g in geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH]
+        if not COLLISION_BOXES or not meshes:
+            continue
+        corners = []
+        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+        for g in meshes:
+            gid = model.geom(g.name).id
+            rot = np.zeros(9)
+            mujoco.mju_quat2Mat(rot, model.geom_quat[gid])
+            aabb = model.geom_aabb[gid]
+            local = aabb[:3] + signs * aabb[3:]
+            corners.append(model.geom_pos[gid] + local @ rot.reshape(3, 3).T)
+        pts = np.vstack(corners)
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        box = body.add_geom()
+        box.type = mujoco.mjtGeom.mjGEOM_BOX
+        box.pos = (lo + hi) / 2
+        box.size = np.maximum((hi - lo) / 2, 5e-5)
+        box.contype, box.conaffinity = meshes[0].contype, meshes[0].conaffinity
+        box.rgba = meshes[0].rgba
+        for g in meshes:
+            spec.delete(g)
+        boxed += len(meshes)
+    for geom in spec.geoms:
+        # Pinocchio's MJCF parser leaves group-3 geoms (the usual collision class) out of the
+        # VISUAL geometry the guard and the importer check; the group only matters for drawing.
+        geom.group = 0
+    if visual:
+        notes.append(f"{visual} visual-only geoms (contype = conaffinity = 0) dropped")
+    if boxed:
+        notes.append(
+            f"{boxed} collision meshes replaced by one bounding box per body (COLLISION_BOXES)"
+        )
+    used = {g.meshname for g in spec.geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH}
+    for mesh in list(spec.meshes):
+        if mesh.name not in used:
+            spec.delete(mesh)
+    if not spec.meshes:
+        spec.meshdir = ""
+        return None
+    files = [Path(spec.meshdir, m.file).resolve() for m in spec.meshes]
+    base = Path(os.path.commonpath([str(f.parent) for f in files]))
+    for mesh, file in zip(spec.meshes, files, strict=True):
+        mesh.file = Path(os.path.relpath(file, base)).as_posix()
+    spec.meshdir = base.as_posix()
+    return spec.meshdir
+
+
+def _one_line(exc: Exception) -> str:
+    """MuJoCo's multi-line error message on one line."""
+    return "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())

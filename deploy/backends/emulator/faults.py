@@ -1,0 +1,69 @@
+"""Wire faults the emulator injects on request, and their command-line spelling."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class WireFaults:
+    """What goes wrong on the emulated bus. Change the fields at any time (the bus reads them
+    for every reply).
+
+    Attributes:
+        drop: Probability that a servo's reply is never sent (per status packet).
+        corrupt: Probability that a reply's checksum (Feetech) or CRC (Dynamixel) is corrupted
+            (per status packet; the bytes arrive, the host must reject them).
+        unplug: Servo ID -> time (s since the emulator started) after which that servo answers
+            nothing more, and its torque is off (its power and signal are gone).
+        overload: Servo ID -> time (s) from which that servo reports an overload (error bit 5 on
+            both vendors); it cuts its torque as its model does on overload.
+        temperature_limit: Servo ID -> degC written to its temperature-limit register at start
+            (so the winding model reaches it sooner: the over-temperature shutdown).
+    """
+
+    drop: float = 0.0
+    corrupt: float = 0.0
+    unplug: dict[int, float] = field(default_factory=dict)
+    overload: dict[int, float] = field(default_factory=dict)
+    temperature_limit: dict[int, int] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("drop", "corrupt"):
+            p = getattr(self, name)
+            if not 0.0 <= p <= 1.0:
+                raise ValueError(f"{name}: a probability in [0, 1] is expected, got {p}")
+
+
+FAULT_HELP = (
+    "drop:P (drop a fraction P of replies), corrupt:P (corrupt the checksum/CRC of a fraction P), "
+    "unplug:ID@T (servo ID stops answering T s after start), overload:ID[@T] (overload error "
+    "bit from T s, default 0), temperature-limit:ID=DEGC (lower the servo's temperature limit "
+    "register; the servo shuts down when its modelled winding passes it)"
+)
+
+
+def parse_fault(text: str, faults: WireFaults) -> None:
+    """Add one ``--fault`` argument (``FAULT_HELP``) to ``faults``.
+
+    Raises:
+        ValueError: the text names no known fault or its values do not parse.
+    """
+    kind, _, value = text.partition(":")
+    try:
+        if kind in ("drop", "corrupt"):
+            setattr(faults, kind, float(value))
+            faults.__post_init__()
+        elif kind == "unplug":
+            servo, _, at = value.partition("@")
+            faults.unplug[int(servo)] = float(at or 0.0)
+        elif kind == "overload":
+            servo, _, at = value.partition("@")
+            faults.overload[int(servo)] = float(at or 0.0)
+        elif kind == "temperature-limit":
+            servo, _, degc = value.partition("=")
+            faults.temperature_limit[int(servo)] = int(degc)
+        else:
+            raise ValueError(f"unknown fault kind '{kind}'")
+    except ValueError as err:
+        raise ValueError(f"--fault {text!r}: {err}; expected one of: {FAULT_HELP}") from None

@@ -15,7 +15,9 @@ simulated hours and speed (simulated / wall time), and prints a summary.
 Exit codes (when several apply, the first of 4, 1, 5, 2, 6, 8, 7 is returned):
 
 ====  =====================================================================================
-0     every check passed, and no regression against ``--baseline``
+0     every check passed, and no regression against ``--baseline``; with ``--baseline``, a
+      check that failed only in sessions where the baseline failed it too is a known failure:
+      printed and in the reports, but not in the exit code (a nightly reports what is new)
 1     a hard-limit violation: a joint's true position beyond a hard limit, or a hard-limit safe
       stop of the runtime
 2     a latched fault (an env ended in FAULTED at least once)

@@ -51,7 +51,9 @@ often is a policy leaning on it, not a robot beyond its limits.
                     derating_band_s, over_temperature_s}, diverged [ids], tick_cost_us
     checks          {name: {passed, failed_sessions}}
     baseline        null, or {path, passed, regressions [{metric, baseline, current, allowed,
-                    message}], compared {metric: {baseline, current, allowed}}}
+                    message}], compared {metric: {baseline, current, allowed}},
+                    known_failures [{check, sessions, message}]: checks failed in the same
+                    sessions of the baseline too (:func:`known_failures`)}
     passed          every check and the baseline comparison passed
 
 Everything in a session except ``wall`` (wall-clock time, tick cost) follows from the session's
@@ -594,13 +596,50 @@ def compare_with_baseline(
         "passed": not regressions,
         "regressions": regressions,
         "compared": compared,
+        "known_failures": known_failures(report, baseline),
     }
 
 
+def known_failures(report: dict, baseline: dict) -> list[dict]:
+    """The failed checks of ``report`` that failed in the baseline too, in the same sessions.
+
+    A nightly campaign compares the shipped policy with its own earlier campaign: a check it
+    already failed there (e.g. one session's success rate below the threshold) is a known failure,
+    reported but not new; a check failing in a session where the baseline passed is new. Whether
+    a known failure got worse is the regression comparison's business (campaign totals).
+
+    Returns:
+        ``[{"check", "sessions", "message"}]``, one per check whose failing sessions (by id) all
+        failed that check in the baseline.
+    """
+    base_checks = baseline.get("checks") or {}
+    out = []
+    for name, c in report["checks"].items():
+        if c["passed"]:
+            continue
+        before = set((base_checks.get(name) or {}).get("failed_sessions") or [])
+        now = list(c["failed_sessions"])
+        if now and set(now) <= before:
+            out.append(
+                {
+                    "check": name,
+                    "sessions": now,
+                    "message": f"{name} failed in {', '.join(now)}, as in the baseline",
+                }
+            )
+    return out
+
+
 def failures(report: dict) -> list[str]:
-    """Names of what failed: the failed checks, and ``'regression'`` for the baseline."""
-    out = [name for name, c in report["checks"].items() if not c["passed"]]
-    if report.get("baseline") and not report["baseline"]["passed"]:
+    """Names of what failed: the failed checks, and ``'regression'`` for the baseline.
+
+    With a baseline, a check that failed only where the baseline failed it too (its
+    ``known_failures``) is left out: the exit code of a nightly campaign reports what is new.
+    """
+    b = report.get("baseline")
+    known = {k["check"] for k in (b or {}).get("known_failures", [])}
+    out = [name for name, c in report["checks"].items() if not c["passed"] and name not in known]
+    if b and not b["passed"]:
         out.append("regression")
     return out
 
@@ -884,6 +923,8 @@ def report_html(report: dict) -> str:
     if b is not None:
         parts.append(f"<h2>Baseline comparison: {'passed' if b['passed'] else 'REGRESSION'}</h2>")
         parts.append(f"<p>baseline: {html.escape(str(b['path']))}</p>")
+        for k in b.get("known_failures", []):
+            parts.append(f"<p class='fail'>Known failure: {html.escape(k['message'])}</p>")
         parts.append(
             _table(
                 ["metric", "baseline", "current", "allowed", "regression"],
@@ -1092,10 +1133,12 @@ def summary_text(report: dict) -> str:
     tc = t["tick_cost_us"]
     if tc["samples"]:
         lines.append(f"  tick cost us p50 {tc['p50_us']:.0f}, p99 {tc['p99_us']:.0f}")
+    b = report.get("baseline")
+    known = {k["check"] for k in (b or {}).get("known_failures", [])}
     for name, c in report["checks"].items():
         if not c["passed"]:
-            lines.append(f"  FAILED {name}: {', '.join(c['failed_sessions'])}")
-    b = report.get("baseline")
+            tag = "FAILED (known: in the baseline too)" if name in known else "FAILED"
+            lines.append(f"  {tag} {name}: {', '.join(c['failed_sessions'])}")
     if b is not None:
         if b["passed"]:
             lines.append(f"  baseline     no regression against {b['path']}")

@@ -473,6 +473,30 @@ def test_success_below_the_threshold_fails_its_check(batched):
     assert "success_rate" in failures(report) and not report["passed"]
 
 
+def test_a_check_the_baseline_failed_in_the_same_session_is_known_not_new(batched):
+    """A nightly compares the shipped policy with its own campaign: a session that already
+    failed a check there is a known failure (printed, not in the exit code); the same check
+    failing in a session the baseline passed is new."""
+    strict = Thresholds(min_success_rate=0.99)
+    ids = [r["id"] for r in batched]
+    failing = build_report({"robot": "arm3"}, batched, strict)
+    assert failing["checks"]["success_rate"]["failed_sessions"] == ids
+    # the baseline failed the same sessions: known, exit code of a pass
+    report = build_report({"robot": "arm3"}, batched, strict, deepcopy(failing), "old.json")
+    known = {k["check"]: k["sessions"] for k in report["baseline"]["known_failures"]}
+    assert set(known) == {n for n, c in failing["checks"].items() if not c["passed"]}
+    assert known["success_rate"] == ids
+    assert "success_rate" not in failures(report) and cli.exit_code(report) == cli.EXIT_PASSED
+    assert not report["passed"]  # the report itself still says what failed
+    assert "Known failure: success_rate failed in" in report_html(report)
+    # the baseline passed one of those sessions: the failure is new
+    base = deepcopy(failing)
+    base["checks"]["success_rate"]["failed_sessions"] = ids[1:]
+    report = build_report({"robot": "arm3"}, batched, strict, base, "old.json")
+    assert "success_rate" not in {k["check"] for k in report["baseline"]["known_failures"]}
+    assert "success_rate" in failures(report) and cli.exit_code(report) == cli.EXIT_LOW_SUCCESS
+
+
 def test_baseline_of_schema_1_is_refused_naming_file_field_and_value(batched, tmp_path):
     report = build_report({"robot": "arm3"}, batched, LENIENT)
     old = deepcopy(report)

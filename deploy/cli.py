@@ -7,9 +7,17 @@
 1     a hard-limit violation: the true joint position (simulation) crossed a hard limit, or the
       guard found the estimate beyond one (a safe stop)
 2     a latched fault: some env ended FAULTED (or in a safe stop) after a fault of the table
-3     bad input: unreadable robot, policy or spec, mismatching contract, bad option
+3     bad input: unreadable robot, policy or spec, mismatching contract, bad option; a servo bus
+      that does not come up (port, missing servo, wrong model number, calibration)
 4     the simulation diverged (MuJoCo reported a bad state)
 ====  =====================================================================================
+
+Backends (``--backend``): ``sim`` (the MuJoCo plant, simulated or wall clock, many envs, fault
+injection, true-state violation counting), ``feetech`` and ``dynamixel`` (a real servo bus through
+the vendor's SDK, or the emulator's pty: one robot, wall clock only; goals and motion figures
+are judged on the estimated state, as there is no ground truth). On a servo bus the run ends early
+once the fault is latched (FAULTED), and the torque goes off at the end unless
+``--hold-on-close``.
 """
 
 from __future__ import annotations
@@ -24,7 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
+from deploy.backends.base import SimulatedPlant
+
 EXIT_CLEAN, EXIT_HARD_VIOLATION, EXIT_FAULT, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 1, 2, 3, 4
+BACKENDS = ("sim", "feetech", "dynamixel")
 
 
 def policy_export_main(argv: list[str] | None = None) -> int:
@@ -41,7 +52,26 @@ def _parser() -> argparse.ArgumentParser:
         epilog="Exit codes: 0 clean, 1 hard violation, 2 latched fault, 3 bad input, "
         "4 simulation diverged.",
     )
-    p.add_argument("--backend", choices=["sim"], default="sim", help="only 'sim' for now")
+    p.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="sim",
+        help="sim (MuJoCo plant), feetech or dynamixel (serial-bus servos; wall clock only)",
+    )
+    p.add_argument("--port", default="/dev/ttyACM0", help="serial port of a servo bus")
+    p.add_argument("--baudrate", type=int, default=1_000_000, help="servo bus bit/s")
+    p.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        help="LeRobot calibration JSON (servo IDs, homing offsets, directions, ranges); "
+        "default: IDs 1..n, 2048 ticks = 0 rad",
+    )
+    p.add_argument(
+        "--hold-on-close",
+        action="store_true",
+        help="servo bus: leave the torque on at the end (default: off)",
+    )
     p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
     p.add_argument("--policy", required=True, help="ONNX policy (made by policy-export)")
     p.add_argument("--spec", default=None, help="PolicySpec JSON for an ONNX without our metadata")
@@ -49,6 +79,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--envs", type=int, default=1, help="robots simulated in lockstep")
     p.add_argument("--realtime", action="store_true", help="wall clock with absolute deadlines")
+    p.add_argument(
+        "--overrun-limit",
+        type=float,
+        default=None,
+        help="wall clock: fraction of overrun ticks (over the last 200) that makes a safe stop "
+        "(default 0.05)",
+    )
     p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
     p.add_argument("--goal", default=None, help="fixed goal X,Y,Z (m, base frame)")
     p.add_argument(
@@ -157,8 +194,10 @@ class GoalScheduler:
         missed: per env, the missed goals (:meth:`missed_record`), at most ``max_missed``;
             missed_dropped: (envs,) int64, those not recorded.
 
-    Needs a simulated backend (``end_effector_position``, ``true_position``, ``true_velocity``):
-    whether a goal was reached is judged on the true end effector.
+    With a simulated backend (:class:`~deploy.backends.base.SimulatedPlant`) whether a goal was
+    reached is judged on the true end effector, and missed goals record the true joint state; with
+    any other backend (a servo bus: no ground truth) on the runtime's estimate (forward kinematics
+    of the estimated joint angles, ``rt.state``).
     """
 
     def __init__(
@@ -259,16 +298,18 @@ class GoalScheduler:
         if len(self.missed[e]) >= self.max_missed:
             self.missed_dropped[e] += 1
             return
-        b = rt.backend
         goal = rt.goal[e]
-        ee = b.end_effector_position(out=self._ee)[e]
+        ee = self.end_effector(rt)[e]
         best = float(self.best_distance[e])
+        true = isinstance(rt.backend, SimulatedPlant)
+        q = rt.backend.true_position() if true else rt.state.q
+        dq = rt.backend.true_velocity() if true else rt.state.dq
         record = {
             "t_s": float(rt.time),
             "issued_s": float(self.issued_at[e]),
             "goal": [float(x) for x in goal],
-            "q": [float(x) for x in b.true_position()[e]],
-            "dq": [float(x) for x in b.true_velocity()[e]],
+            "q": [float(x) for x in q[e]],
+            "dq": [float(x) for x in dq[e]],
             "q_estimate": [float(x) for x in rt.state.q[e]],
             "distance_m": float(np.sqrt(np.sum((ee - goal) ** 2))),
             "best_distance_m": best if math.isfinite(best) else None,
@@ -283,6 +324,12 @@ class GoalScheduler:
                 for i, (name, v) in enumerate(zip(names, values, strict=True))
             }
         self.missed[e].append(record)
+
+    def end_effector(self, rt) -> np.ndarray:
+        """(envs, 3) m: the true end effector (simulation) or the estimated one (class doc)."""
+        if isinstance(rt.backend, SimulatedPlant):
+            return rt.backend.end_effector_position(out=self._ee)
+        return rt.state.ee_position
 
     def __call__(self, rt) -> None:
         t = rt.time
@@ -301,7 +348,7 @@ class GoalScheduler:
                 self.new_goal(rt, e)
         check = running & ~due & ~self.reached & (age <= self.success_time)
         if check.any():
-            ee = rt.backend.end_effector_position(out=self._ee)
+            ee = self.end_effector(rt)
             diff, distance = self._diff, self._distance
             np.subtract(ee, rt.goal, out=diff)
             np.multiply(diff, diff, out=diff)
@@ -316,15 +363,44 @@ class GoalScheduler:
                 self._window(self.window_reached[e], self.issued_at[e])
 
 
+def make_backend(args, robot, mode: str):
+    """The backend ``--backend`` names (not yet opened).
+
+    Raises:
+        ValueError: options a servo bus cannot honour (several envs, fault injection).
+    """
+    if args.backend == "sim":
+        from deploy.backends.sim import SimBackend
+
+        return SimBackend(robot, mode=mode, envs=args.envs, seed=args.seed)
+    if args.envs != 1:
+        raise ValueError(f"--backend {args.backend} drives one robot: --envs must be 1")
+    if args.inject:
+        raise ValueError(
+            f"--inject is simulation-only; with --backend {args.backend} use the emulator's "
+            "faults (python -m deploy.backends.emulator --fault ...)"
+        )
+    if args.backend == "feetech":
+        from deploy.backends.feetech import FeetechBackend as Bus
+    else:
+        from deploy.backends.dynamixel import DynamixelBackend as Bus
+    return Bus(
+        robot,
+        args.port,
+        baudrate=args.baudrate,
+        calibration=args.calibration,
+        mode=mode,
+        hold_on_close=args.hold_on_close,
+    )
+
+
 def run(args) -> int:
-    from deploy.backends.sim import SimBackend, SimulationDivergedError
+    """``deploy-run`` with parsed ``args``: build and open the backend, run, report; the exit
+    code (module docstring). The backend is closed (servo bus: torque off) however it ends."""
     from deploy.faults import Fault, FaultInjector
-    from deploy.interventions import InterventionMonitor
     from deploy.policy import OnnxPolicy
-    from deploy.runtime import STAGES, Runtime, SimClock, WallClock
+    from deploy.runtime import SimClock, WallClock
     from deploy.spec import PolicySpec
-    from deploy.telemetry import LatencyHistogram, Telemetry
-    from deploy.violations import ViolationMonitor
     from robots import load_robot
 
     robot = load_robot(args.robot)
@@ -340,23 +416,41 @@ def run(args) -> int:
             assert fixed.shape == (3,)
         except (ValueError, AssertionError):
             raise ValueError(f"--goal {args.goal!r}: expected X,Y,Z in metres") from None
-    backend = SimBackend(robot, mode=policy.spec.action.mode, envs=args.envs, seed=args.seed)
+    backend = make_backend(args, robot, policy.spec.action.mode)
+    simulated = isinstance(backend, SimulatedPlant)
+    realtime = bool(args.realtime) or not simulated  # hardware: the wall clock only
     injector = FaultInjector(faults, backend) if faults else None
-    clock = WallClock(robot.control_period) if args.realtime else SimClock(robot.control_period)
+    clock = WallClock(robot.control_period) if realtime else SimClock(robot.control_period)
+    with backend:
+        return _run_opened(
+            args, robot, policy, backend, simulated, realtime, injector, clock, fixed
+        )
+
+
+def _run_opened(args, robot, policy, backend, simulated, realtime, injector, clock, fixed) -> int:
+    from deploy.backends.sim import SimulationDivergedError
+    from deploy.interventions import InterventionMonitor
+    from deploy.runtime import FAULTED, RUNNING, STAGES, Runtime
+    from deploy.telemetry import LatencyHistogram, Telemetry
+    from deploy.violations import ViolationMonitor
+
     telemetry = Telemetry(args.telemetry, args.envs, robot.n_joints) if args.telemetry else None
-    rt = Runtime(robot, policy, backend, clock=clock, injector=injector, telemetry=telemetry)
+    limit = {} if args.overrun_limit is None else {"overrun_rate_limit": args.overrun_limit}
+    rt = Runtime(
+        robot, policy, backend, clock=clock, injector=injector, telemetry=telemetry, **limit
+    )
     ticks = int(round(args.duration / robot.control_period))
     peak = np.full((args.envs, robot.n_joints), -np.inf)
     max_speed = np.zeros(robot.n_joints)
-    # smoothness of the true motion: jerk by second differences of the joint velocities at the
-    # control rate (rad/s^3), summed while RUNNING
+    # smoothness of the motion: jerk by second differences of the joint velocities at the
+    # control rate (rad/s^3), summed while RUNNING; true velocities in simulation, else estimated
     dt = robot.control_period
     motion = {k: np.zeros((args.envs, robot.n_joints)) for k in ("dq", "acc", "jerk_sum")}
     motion_ticks = np.zeros(args.envs, dtype=np.int64)
     monitor_cost = LatencyHistogram()
     clock_ns = time.perf_counter_ns
 
-    violations = ViolationMonitor(robot, args.envs)
+    violations = ViolationMonitor(robot, args.envs) if simulated else None
     interventions = InterventionMonitor(rt.guard, rt.smoother)
     goals = GoalScheduler(
         robot,
@@ -370,15 +464,19 @@ def run(args) -> int:
 
     def on_tick(r):
         t0 = clock_ns()
-        violations.update(backend)
+        if violations is not None:
+            violations.update(backend)
         interventions.update()
         monitor_cost.add(0, clock_ns() - t0)
         goals(r)
-        np.maximum(peak, backend.thermal.winding_temperature, out=peak)
-        dq = backend.true_velocity()
+        temperature = (
+            backend.thermal.winding_temperature if simulated else r.state.winding_temperature
+        )
+        np.fmax(peak, temperature, out=peak)
+        dq = backend.true_velocity() if simulated else r.state.dq
         np.maximum(max_speed, np.abs(dq).max(axis=0), out=max_speed)
         acc = (dq - motion["dq"]) / dt
-        running = (r.mode == 2)[:, None]  # Mode.RUNNING
+        running = (r.mode == RUNNING)[:, None]
         if r.ticks > 2:
             np.add(
                 motion["jerk_sum"],
@@ -388,6 +486,7 @@ def run(args) -> int:
             motion_ticks[:] += running[:, 0]
         motion["dq"][:] = dq
         motion["acc"][:] = acc
+        return not simulated and bool((r.mode == FAULTED).all())  # hardware: stop when latched
 
     wall = time.perf_counter()
     diverged = None
@@ -401,16 +500,27 @@ def run(args) -> int:
     if telemetry is not None:
         telemetry.close()
 
-    true = violations.totals()
     hard_stops = int(rt.counters.faults["hard_limit"].sum())
+    if violations is not None:
+        true = violations.totals()
+        violation_report = {
+            "source": "true state (simulation ground truth)",
+            "ticks": violations.ticks * args.envs,
+            "by_type": {k: v for k, v in true.items() if k != "any"},
+            "any": true["any"],
+        }
+    else:
+        true = {"hard_limit": 0}
+        violation_report = None  # no ground truth on hardware: the guard's counts stand in
     report = {
         "robot": robot.name,
+        "backend": args.backend,
         "policy": str(args.policy),
         "control_mode": policy.spec.action.mode,
         "control_rate_hz": 1.0 / robot.control_period,
         "duration_s": rt.time,
         "wall_s": wall,
-        "realtime": bool(args.realtime),
+        "realtime": realtime,
         "envs": args.envs,
         "seed": args.seed,
         "goals": {
@@ -419,13 +529,9 @@ def run(args) -> int:
             "success_rate": goals.hits / goals.goals if goals.goals else None,
             "median_time_to_reach_s": float(np.median(goals.times)) if goals.times else None,
             "within_s": args.success_time,
+            "judged_on": "true end effector" if simulated else "estimated end effector",
         },
-        "violations": {
-            "source": "true state (simulation ground truth)",
-            "ticks": violations.ticks * args.envs,
-            "by_type": {k: v for k, v in true.items() if k != "any"},
-            "any": true["any"],
-        },
+        "violations": violation_report,
         "interventions": interventions.summary(),
         "missed_goals": sum(len(m) for m in goals.missed) + int(goals.missed_dropped.sum()),
         "faults": {
@@ -438,6 +544,10 @@ def run(args) -> int:
                 "reinitializations": int(rt.estimator.reinitializations.sum()),
             },
             "injected": injector.log if injector else [],
+            "drive_errors": [
+                backend.describe_drive_error(int(j), int(rt.drive_errors[e, j]))
+                for e, j in np.argwhere(rt.drive_errors)
+            ],
         },
         "final_state": rt.mode_names(),
         "final_cause": rt.cause_names(),
@@ -458,8 +568,9 @@ def run(args) -> int:
         "deadline": {
             "overruns": clock.overruns,
             "missed_periods": clock.missed_periods,
-            "jitter_us": clock.jitter.summary() if args.realtime else None,
+            "jitter_us": clock.jitter.summary() if realtime else None,
         },
+        "bus": backend.bus_summary() if hasattr(backend, "bus_summary") else None,
         "diverged": diverged,
     }
     if true["hard_limit"] > 0 or hard_stops > 0:
@@ -489,8 +600,14 @@ def print_summary(r: dict) -> None:
     )
     print(f"  goals reached     {g['reached']}/{g['issued']} within {g['within_s']:.1f} s ({rate})")
     v = r["violations"]
-    text = ", ".join(f"{k} {n}" for k, n in v["by_type"].items())
-    print(f"  violations (true state, sim)  ticks: {text}")
+    if v is not None:
+        text = ", ".join(f"{k} {n}" for k, n in v["by_type"].items())
+        print(f"  violations (true state, sim)  ticks: {text}")
+    else:
+        print(
+            "  violations        n/a (no ground truth on a servo bus; the guard's hard-limit "
+            f"stops: {r['faults']['by_cause']['hard_limit']})"
+        )
     iv = r["interventions"]
     text = ", ".join(
         f"{k} {100 * c['fraction']:.2f}" for k, c in iv["checks"].items() if c["count"]
@@ -509,11 +626,24 @@ def print_summary(r: dict) -> None:
         f"missing {f['estimator']['missing_readings']}, re-inits "
         f"{f['estimator']['reinitializations']}"
     )
+    for text in f.get("drive_errors", []):
+        print(f"  servo error       {text}")
+    b = r.get("bus")
+    if b:
+        rd, wr = b["read_us"], b["write_us"]
+        drops = ", ".join(f"{k} {n}" for k, n in b["dropouts"].items())
+        print(
+            f"  bus               {b['protocol']} {b['port']} at {b['baudrate']} bit/s: "
+            f"{b['sync_reads']} sync reads, dropouts {drops} "
+            f"({100 * b['dropout_fraction']:.2f} % of replies); read p50 {rd['p50_us']:.0f} "
+            f"p99 {rd['p99_us']:.0f} us, write p50 {wr['p50_us']:.0f} us"
+        )
     temps = ", ".join(f"{k} {t:.1f}" for k, t in r["peak_winding_temperature_c"].items())
     print(f"  peak winding degC {temps}")
     speed = max(r["max_joint_speed_rad_s"].values())
     jerk = ", ".join(f"{k} {v:.0f}" for k, v in r["mean_abs_jerk_rad_s3"].items())
-    print(f"  max joint speed   {speed:.2f} rad/s; mean |jerk| rad/s^3 (true, RUNNING) {jerk}")
+    source = "true" if r["violations"] is not None else "estimated"
+    print(f"  max joint speed   {speed:.2f} rad/s; mean |jerk| rad/s^3 ({source}, RUNNING) {jerk}")
     t = r["tick_cost_us"]
     print(
         f"  tick cost (us)    p50 {t['p50_us']:.1f}  p99 {t['p99_us']:.1f}  "

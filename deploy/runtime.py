@@ -24,7 +24,12 @@ Faults and responses (DESIGN.md): non-finite policy output holds the last valid 
 its maximum makes a safe stop latched until cool, and the effort limit is derated linearly in the
 derating band down to the continuous torque, as the drives derate theirs
 (:class:`deploy.thermal.EffortDerating`); a wall-clock overrun rate above ``OVERRUN_RATE_LIMIT``
-makes a safe stop.
+makes a safe stop; a hardware error a drive reports (``backend.drive_errors()``: a servo's
+overload, overheating or voltage bits) makes a safe stop (cause ``servo_error``), the bits latched
+per joint in :attr:`Runtime.drive_errors`.
+
+The backend is any :class:`deploy.backends.base.Backend`: the simulated plant, or a servo bus
+(:mod:`deploy.backends.feetech`, :mod:`deploy.backends.dynamixel`) with the wall clock.
 
 Clocks: :class:`SimClock` runs in lockstep with a simulated plant as fast as the CPU allows;
 :class:`WallClock` waits for absolute deadlines, skips missed periods instead of bursting, and
@@ -89,7 +94,16 @@ class Mode(IntEnum):
 # The modes as plain ints for the hot path (an IntEnum attribute lookup costs ~1 us).
 IDLE, RAMP_IN, RUNNING, SAFE_STOP, FAULTED = (int(m) for m in Mode)
 
-FAULT_CAUSES = ("hard_limit", "non_finite_action", "stale_sensor", "overrun", "over_temperature")
+#: Causes of a safe stop. ``servo_error``: a drive reported a hardware error (overload,
+#: overheating, input voltage, ...; ``Backend.drive_errors``), latched in ``Runtime.drive_errors``.
+FAULT_CAUSES = (
+    "hard_limit",
+    "non_finite_action",
+    "stale_sensor",
+    "overrun",
+    "over_temperature",
+    "servo_error",
+)
 
 
 def reanchor(
@@ -220,14 +234,32 @@ class Runtime:
         robot: Robot description.
         policy: Callable ``(envs, obs_dim) float32 -> (envs, act_dim) float32`` with a ``spec``
             attribute (:class:`~deploy.policy.OnnxPolicy`).
-        backend: A backend (``read``, ``write``, ``advance``), e.g.
-            :class:`~deploy.backends.sim.SimBackend`.
+        backend: A :class:`~deploy.backends.base.Backend` (``read``, ``write``, ``advance``,
+            ``drive_errors``), opened: :class:`~deploy.backends.sim.SimBackend` or a servo bus.
         clock: :class:`SimClock` (default) or :class:`WallClock`.
         injector: Optional :class:`~deploy.faults.FaultInjector` (simulation only).
         telemetry: Optional :class:`~deploy.telemetry.Telemetry` recorder.
+        overrun_rate_limit: Fraction of overrun ticks over the last ``OVERRUN_WINDOW`` that makes
+            a safe stop with the wall clock (default ``OVERRUN_RATE_LIMIT``, 5 %, our choice).
+
+    Raises:
+        ValueError: a policy of another control mode than the backend's, or an
+            ``overrun_rate_limit`` outside (0, 1].
     """
 
-    def __init__(self, robot: Robot, policy, backend, clock=None, injector=None, telemetry=None):
+    def __init__(
+        self,
+        robot: Robot,
+        policy,
+        backend,
+        clock=None,
+        injector=None,
+        telemetry=None,
+        overrun_rate_limit: float = OVERRUN_RATE_LIMIT,
+    ):
+        if not 0.0 < overrun_rate_limit <= 1.0:
+            raise ValueError(f"overrun_rate_limit: expected in (0, 1], got {overrun_rate_limit}")
+        self.overrun_rate_limit = overrun_rate_limit
         self.robot, self.policy, self.backend = robot, policy, backend
         self.spec: PolicySpec = policy.spec
         self.spec.check_robot(robot)
@@ -251,6 +283,8 @@ class Runtime:
         self.goal = np.zeros((envs, 3))
         self.mode = np.full(envs, Mode.IDLE, dtype=np.int8)
         self.cause = np.full(envs, -1, dtype=np.int8)  # index into FAULT_CAUSES
+        #: (envs, n) int64, OR of the hardware error bits each drive reported (cause servo_error)
+        self.drive_errors = np.zeros((envs, n), dtype=np.int64)
         self.counters = RuntimeCounters(
             non_finite_actions=np.zeros(envs, dtype=np.int64),
             safe_stops=np.zeros(envs, dtype=np.int64),
@@ -294,11 +328,15 @@ class Runtime:
         Raises:
             RuntimeError: some joint sent no reading within ``START_TIMEOUT``.
         """
+        if self.clock.realtime:  # wall clock: the policy's first call (slow) before the anchor
+            self.policy(self._obs)
         frame = self.backend.read()
         for _ in range(int(np.ceil(START_TIMEOUT / self.dt))):
             if not np.isnan(frame.position).any():
                 break
             self.backend.advance()
+            if self.clock.realtime:  # hardware: advance returns at once, the clock paces
+                time.sleep(self.dt)
             frame = self.backend.read()
         missing = np.isnan(frame.position)
         if missing.any():
@@ -341,11 +379,12 @@ class Runtime:
         frame = self.backend.read()
         if self.injector is not None:
             frame = self.injector.filter_frame(self.time, frame)
+        drive_errors = self.backend.drive_errors()  # None: drives without error reports
         st[1] = clock_ns()
         state = self.estimator.update(frame, self.state, self._input)
         self.kinematics.update(state)
         self.guard.update_thermal(state.winding_temperature)
-        self._supervise(state)
+        self._supervise(state, drive_errors)
         st[2] = clock_ns()
         obs = self.spec.observation(state, self.goal, out=self._obs)
         st[3] = clock_ns()
@@ -391,13 +430,17 @@ class Runtime:
         self._last_valid_action[~bad] = action[~bad]
         return self._action
 
-    def _supervise(self, state: RobotState) -> None:
-        """Stale sensors, over-temperature, overruns; end of RAMP_IN and of safe stops."""
+    def _supervise(self, state: RobotState, drive_errors: np.ndarray | None) -> None:
+        """Stale sensors, over-temperature, drive errors, overruns; end of RAMP_IN and of safe
+        stops."""
         stale = (self.estimator.time_since_fresh > self.robot.config.safety.stale_limit).any(axis=1)
         self._safe_stop(stale, "stale_sensor")
         hot = (state.winding_temperature > self._temp_max).any(axis=1)
         self._safe_stop(hot, "over_temperature")
-        if self.clock.realtime and self._overrun_ring.mean() > OVERRUN_RATE_LIMIT:
+        if drive_errors is not None and drive_errors.any():
+            self.drive_errors |= drive_errors
+            self._safe_stop(drive_errors.any(axis=1), "servo_error")
+        if self.clock.realtime and self._overrun_ring.mean() > self.overrun_rate_limit:
             self._safe_stop(np.ones(self.envs, dtype=bool), "overrun")
 
         mode = self.mode
@@ -465,7 +508,8 @@ class Runtime:
     def run(self, ticks: int, on_tick=None) -> None:
         """Run ``ticks`` control periods with the garbage collector frozen and disabled.
 
-        ``on_tick(runtime)``, if given, runs after each tick (goal scheduling, evaluation).
+        ``on_tick(runtime)``, if given, runs after each tick (goal scheduling, evaluation); when
+        it returns True the run ends early (e.g. a latched fault on real hardware).
         """
         gc.collect()
         gc.freeze()
@@ -474,8 +518,8 @@ class Runtime:
         try:
             for _ in range(ticks):
                 self.tick()
-                if on_tick is not None:
-                    on_tick(self)
+                if on_tick is not None and on_tick(self):
+                    break
         finally:
             if was_enabled:
                 gc.enable()

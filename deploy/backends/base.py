@@ -1,11 +1,33 @@
-"""The backend interface: what the runtime reads from and writes to, simulated or real."""
+"""The backend contract: what the runtime reads from and writes to, simulated or real.
+
+Two interfaces:
+
+- :class:`Backend`, the one contract every backend keeps and the only one the runtime
+  (:class:`deploy.runtime.Runtime`) and ``deploy-run`` rely on: a lifecycle (``open`` / ``close``,
+  also as a context manager; ``enable`` / ``disable`` switch the drives' torque), and per control
+  tick ``read() -> SensorFrame``, ``write(command)``, ``advance()``. A simulated backend steps its
+  physics in ``advance``; a hardware backend returns at once from it (the wall clock paces).
+- :class:`SimulatedPlant`, what only a simulation has: ground truth (true joint state, end
+  effector), the fault-injection hooks of :class:`deploy.faults.FaultInjector` (sensor dropout and
+  latency settings) and external forces. ``deploy-run`` uses them when ``isinstance(backend,
+  SimulatedPlant)``, and only then.
+
+Implementations: :class:`deploy.backends.sim.SimBackend` (both), and the serial-bus servo backends
+:class:`deploy.backends.feetech.FeetechBackend` and
+:class:`deploy.backends.dynamixel.DynamixelBackend` (``Backend`` only).
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import mujoco
+
+    from deploy.thermal import TwoNodeThermalModel
 
 
 @dataclass
@@ -43,14 +65,99 @@ class SensorFrame:
         )
 
 
+@runtime_checkable
 class Backend(Protocol):
-    """What the runtime needs of a robot: read, write, advance. Arrays are (envs, n_joints)."""
+    """What the runtime needs of a robot. Arrays are (envs, n_joints).
+
+    Attributes:
+        envs: Number of robots behind the backend (1 for real hardware).
+        mode: Control mode of ``write``: 'position' (rad), 'velocity' (rad/s) or 'torque' (N m).
+        frame: The :class:`SensorFrame` the last ``read`` returned (overwritten by the next).
+
+    Lifecycle: ``open()`` connects and prepares the robot and ends with the drives' torque on
+    (``enable``); ``close()`` switches it off (unless the backend was told to hold) and releases
+    the connection. Both are idempotent; ``with backend:`` calls them.
+    """
 
     envs: int
     mode: str
+    frame: SensorFrame
+
+    def open(self) -> None: ...
+
+    def close(self) -> None: ...
+
+    def enable(self) -> None: ...
+
+    def disable(self) -> None: ...
 
     def read(self) -> SensorFrame: ...
 
     def write(self, command: np.ndarray) -> None: ...
 
     def advance(self) -> None: ...
+
+    def drive_errors(self) -> np.ndarray | None:
+        """(envs, n_joints) int64 hardware error bits each drive reported at the last ``read``
+        (0: none; the bits are the backend's, see :meth:`describe_drive_error`), or None for a
+        backend whose drives report none (the simulation)."""
+        ...
+
+    def describe_drive_error(self, joint: int, bits: int) -> str:
+        """Human-readable name of drive ``joint``'s error ``bits`` (e.g. 'servo ID 2: 0x20
+        overload')."""
+        ...
+
+    def __enter__(self) -> Backend: ...
+
+    def __exit__(self, *exc) -> None: ...
+
+
+@runtime_checkable
+class SimulatedPlant(Protocol):
+    """What only a simulated backend has: ground truth, fault-injection hooks, external forces.
+
+    Attributes:
+        models: The compiled MuJoCo model of each env (gravity, dynamics).
+        thermal: The plant-side motor thermal model (true winding temperatures, degC).
+        dropout_probability: (envs,) probability that an encoder reading is lost.
+        latency_ticks: (envs,) int encoder latency in control ticks (at most
+            ``max_latency_ticks``).
+    """
+
+    models: list[mujoco.MjModel]
+    thermal: TwoNodeThermalModel
+    dropout_probability: np.ndarray
+    latency_ticks: np.ndarray
+    max_latency_ticks: int
+
+    def true_position(self) -> np.ndarray:
+        """(envs, n_joints) rad, the simulator's joint angles."""
+        ...
+
+    def true_velocity(self) -> np.ndarray:
+        """(envs, n_joints) rad/s, the simulator's joint velocities."""
+        ...
+
+    def joint_torque(self) -> np.ndarray:
+        """(envs, n_joints) N m, actuator torque at the end of the last control period."""
+        ...
+
+    def end_effector_position(self, out: np.ndarray | None = None) -> np.ndarray:
+        """(envs, 3) m, the end-effector site in the world frame."""
+        ...
+
+    def set_external_force(self, env: int, force: np.ndarray, body: str | None = None) -> None:
+        """Apply a constant force (N, world frame, (3,)) to ``env`` until changed."""
+        ...
+
+
+class BackendLifecycle:
+    """Mixin: ``with backend:`` opens and closes a backend (``open`` / ``close`` of the class)."""
+
+    def __enter__(self):
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

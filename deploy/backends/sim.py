@@ -21,6 +21,10 @@ to ``temperature_resolution`` and refreshed at ``temperature_rate``.
 
 The true state stays available (:meth:`SimBackend.true_position`, ...) for evaluation only.
 
+Interfaces (:mod:`deploy.backends.base`): :class:`~deploy.backends.base.Backend` (its lifecycle
+calls are no-ops: the plant is ready from construction and its drives are always on) and
+:class:`~deploy.backends.base.SimulatedPlant` (ground truth, fault hooks, external forces).
+
 Safety of the simulation itself: MuJoCo's autoreset is disabled and its warning counters are read
 after every ``advance``; a divergence raises :class:`SimulationDivergedError` instead of silently
 resetting. Non-finite commands raise :class:`NonFiniteCommandError` and never reach MuJoCo (which
@@ -36,7 +40,7 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
-from deploy.backends.base import SensorFrame
+from deploy.backends.base import BackendLifecycle, SensorFrame
 from deploy.safety import motion_bounds
 from deploy.thermal import EffortDerating, TwoNodeThermalModel
 from robots import CONTROL_MODES, Robot, load_robot
@@ -63,7 +67,7 @@ class NonFiniteCommandError(ValueError):
     """A command with NaN or inf was written; it was rejected and never reached MuJoCo."""
 
 
-class SimBackend:
+class SimBackend(BackendLifecycle):
     """MuJoCo plant with sensor and motor-thermal models, batched over ``envs``.
 
     Args:
@@ -238,6 +242,27 @@ class SimBackend:
     def time(self) -> float:
         """Plant clock, s (identical for every env)."""
         return self.tick * self.control_period
+
+    # ------------------------------------------------------------------ the Backend lifecycle
+    def open(self) -> None:
+        """Nothing to connect: the plant is ready from construction (``Backend`` contract)."""
+
+    def close(self) -> None:
+        """Nothing to release (``Backend`` contract)."""
+
+    def enable(self) -> None:
+        """The simulated drives are always on (``Backend`` contract)."""
+
+    def disable(self) -> None:
+        """The simulated drives have no torque-off state (``Backend`` contract)."""
+
+    def drive_errors(self) -> None:
+        """The simulated drives report no hardware errors: None (``Backend`` contract)."""
+        return None
+
+    def describe_drive_error(self, joint: int, bits: int) -> str:
+        """``Backend`` contract; the simulated drives report none."""
+        return f"joint {self.robot.joint_names[joint]}: error bits {bits:#04x}"
 
     # ------------------------------------------------------------------ the three calls
     def read(self) -> SensorFrame:

@@ -17,7 +17,10 @@ falls more than 0.25 s behind (a machine slower than real time), the time origin
   P term acts on one period's motion only: the joint sags, damped); velocity mode commands 0 rad/s
   (the plant's PI velocity loop holds: SimBackend has no limp drive);
 - present position / velocity <- the plant's joint angle / velocity (ticks: ``resolution`` per
-  turn with ``resolution / 2`` at 0 rad; velocity counts of the model's unit);
+  turn with ``resolution / 2`` at 0 rad; velocity counts of the model's unit); the Homing_Offset
+  register shifts the position registers as the servo does: present = actual - offset on Feetech
+  (LeRobot's ``FeetechMotorsBus._get_half_turn_homings``), present = actual + offset on Dynamixel
+  (e-Manual, Homing Offset(20)); goal positions are in the same shifted frame;
 - present current (or load) <- the plant's actuator torque over ``gear ratio x torque constant x
   efficiency`` (the thermal model's ``torque_per_amp``); present temperature <- the modelled
   winding temperature (whole degC); present voltage: 12.0 V;
@@ -360,7 +363,8 @@ class ServoBusEmulator:
                         if lo < hi
                         else s.get("goal_position")
                     )
-                    self._command[0, j] = s.model.ticks_to_rad(ticks, s.resolution)
+                    actual = ticks - self._homing_shift(s)
+                    self._command[0, j] = s.model.ticks_to_rad(actual, s.resolution)
                 else:
                     self._command[0, j] = q[j]
             else:
@@ -369,6 +373,12 @@ class ServoBusEmulator:
                     vmax = s.model.counts_to_velocity(s.get("velocity_limit"))
                     v = min(max(v, -vmax), vmax)
                 self._command[0, j] = v
+
+    @staticmethod
+    def _homing_shift(s: EmulatedServo) -> int:
+        """present position - actual position, ticks (module docstring)."""
+        offset = s.get("Homing_Offset")
+        return -offset if s.model.protocol == "feetech" else offset
 
     def _refresh(self) -> None:
         """Present registers from the plant."""
@@ -380,7 +390,8 @@ class ServoBusEmulator:
         tick_ms = int(self.elapsed * 1000.0) % 32768
         for s in self.servos:
             j, m = s.joint, s.model
-            s.set_clipped("present_position", m.rad_to_ticks(float(q[j]), s.resolution))
+            actual = m.rad_to_ticks(float(q[j]), s.resolution)
+            s.set_clipped("present_position", actual + self._homing_shift(s))
             s.set_clipped("present_velocity", m.velocity_to_counts(float(dq[j])))
             if m.has("present_current"):
                 s.set_clipped("present_current", float(current[j]) / m.current_unit)

@@ -102,7 +102,26 @@ def _parser() -> argparse.ArgumentParser:
         help="fault injection (sim): dropout, stale, nan-action, latency, push",
     )
     p.add_argument("--report", type=Path, default=None, help="write the summary as JSON")
-    p.add_argument("--telemetry", type=Path, default=None, help="write downsampled MCAP")
+    p.add_argument(
+        "--telemetry",
+        type=Path,
+        default=None,
+        help="write downsampled MCAP (with the foxglove extra: link poses, joint states, "
+        "commands and guard events in Foxglove's schemas)",
+    )
+    p.add_argument(
+        "--print-joints",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="print q, dq, command and winding temperature per joint HZ times per second",
+    )
+    p.add_argument(
+        "--video", type=Path, default=None, help="render the run offscreen to an H.264 MP4"
+    )
+    p.add_argument("--camera", default=None, help="--video: MJCF camera name (default: free)")
+    p.add_argument("--fps", type=float, default=30.0, help="--video: frames per second")
+    p.add_argument("--size", default="640x480", help="--video: WIDTHxHEIGHT pixels")
     return p
 
 
@@ -434,7 +453,31 @@ def _run_opened(args, robot, policy, backend, simulated, realtime, injector, clo
     from deploy.telemetry import LatencyHistogram, Telemetry
     from deploy.violations import ViolationMonitor
 
-    telemetry = Telemetry(args.telemetry, args.envs, robot.n_joints) if args.telemetry else None
+    telemetry = None
+    if args.telemetry:
+        from deploy import foxglove
+
+        fox = {"robot": robot, "control_mode": policy.spec.action.mode}
+        if not foxglove.available():
+            fox = {}
+            print(
+                "deploy-run: note: foxglove-schemas-protobuf not installed (extra 'foxglove'): "
+                "the telemetry has no Foxglove topics",
+                file=sys.stderr,
+            )
+        telemetry = Telemetry(args.telemetry, args.envs, robot.n_joints, **fox)
+    viewers = []  # called after every tick; they only read the runtime
+    if args.print_joints is not None:
+        from deploy.joint_printer import JointPrinter
+
+        viewers.append(JointPrinter(robot.joint_names, args.print_joints, policy.spec.action.mode))
+    video = None
+    if args.video is not None:
+        from deploy.video import open_video
+
+        video = open_video(args, robot, backend)  # None (and a one-line error) without GL
+        if video is not None:
+            viewers.append(video)
     limit = {} if args.overrun_limit is None else {"overrun_rate_limit": args.overrun_limit}
     rt = Runtime(
         robot, policy, backend, clock=clock, injector=injector, telemetry=telemetry, **limit
@@ -486,6 +529,8 @@ def _run_opened(args, robot, policy, backend, simulated, realtime, injector, clo
             motion_ticks[:] += running[:, 0]
         motion["dq"][:] = dq
         motion["acc"][:] = acc
+        for viewer in viewers:
+            viewer(r)
         return not simulated and bool((r.mode == FAULTED).all())  # hardware: stop when latched
 
     wall = time.perf_counter()
@@ -499,6 +544,8 @@ def _run_opened(args, robot, policy, backend, simulated, realtime, injector, clo
     wall = time.perf_counter() - wall
     if telemetry is not None:
         telemetry.close()
+    if video is not None:
+        video.close()
 
     hard_stops = int(rt.counters.faults["hard_limit"].sum())
     if violations is not None:
@@ -674,6 +721,13 @@ def print_summary(r: dict) -> None:
 def deploy_run_main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
     args = _parser().parse_args(argv)
+    if os.environ.get("MUJOCO_GL"):  # mujoco loads that GL backend when imported
+        from deploy.video import import_mujoco
+
+        gl_error = import_mujoco()
+        if gl_error is not None:
+            print(f"deploy-run: error: {gl_error}", file=sys.stderr)
+            args.video = None  # the run goes on without video
     try:
         return run(args)
     except (

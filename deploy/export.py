@@ -33,8 +33,10 @@ rsl_rl              ``{"model_state_dict": {"actor.0.weight", ...}, ...}``: the 
                     (ELU by default) and rsl_rl's ``EmpiricalNormalization``, either
                     ``obs_norm_state_dict`` (rsl_rl 1.x/2.x) or ``actor_obs_normalizer.*`` in the
                     model state dict (3.x): ``(obs - _mean) / (_std + 0.01)`` (rsl_rl's default
-                    eps, not stored in the file), no clip. Recurrent actors are refused. Needs
-                    ``--spec``.
+                    eps, not stored in the file), no clip. Needs ``--spec``.
+rsl_rl recurrent    ``ActorCriticRecurrent``: ``memory_a.rnn`` (LSTM or GRU) + the ``actor.*`` MLP
+                    (+ normalizer as above), :mod:`deploy.export_rsl_rl`; the graph has explicit
+                    state I/O (:mod:`deploy.export_recurrent`). Needs ``--spec``.
 pickled nn.Module   ``torch.save(module)``: only with ``--trust-pickle`` (unpickling runs code);
                     needs ``--spec``
 ==================  ==========================================================================
@@ -58,6 +60,12 @@ takes TorchScript sources, needs no onnxscript and runs in ~0.1 s; ``--exporter 
 Metadata (``model.metadata_props``): ``policy_spec`` (the PolicySpec JSON with ``baked`` and
 ``parity`` filled), ``source_sha256``, ``tool_versions`` (JSON: torch, onnx, onnxruntime, this
 package, python), ``parity`` (JSON), ``source_format``, ``exporter``.
+
+Recurrent sources get the graph ``obs``, ``h_in`` (, ``c_in``) -> ``action``, ``h_out``
+(, ``c_out``), state ``[layers, batch, hidden]`` (TorchScript-based exporter only), and a parity
+gate over sequences: step 1 is replaced by :func:`deploy.export_recurrent.sequence_parity` (500
+sequential steps, state carried, resets half way), and the replay of step 2 carries the state on
+both sides.
 
 Parity gate (tolerance ``TOLERANCE`` = 1e-5, max abs error over all action entries), both run
 through :class:`deploy.policy.OnnxPolicy` exactly as the runtime runs it:
@@ -224,8 +232,20 @@ class SourcePolicy:
     scripted: bool = False
     extra_hashes: dict[str, str] = field(default_factory=dict)
 
+    @property
+    def recurrent(self) -> bool:
+        """The net is a :class:`deploy.export_recurrent.RecurrentCore` (explicit state I/O)."""
+        from deploy.export_recurrent import RecurrentCore
+
+        return isinstance(self.net, RecurrentCore)
+
     def module(self) -> nn.Module:
-        """normalizer -> net -> action clip, eval mode; scripted when the net is TorchScript."""
+        """normalizer -> net -> action clip, eval mode; scripted when the net is TorchScript.
+        A recurrent net gives a :class:`deploy.export_recurrent.RecurrentPolicyModule`."""
+        if self.recurrent:
+            from deploy.export_recurrent import RecurrentPolicyModule
+
+            return RecurrentPolicyModule(self.net, self.normalizer, self.spec.action.clip).eval()
         parts = [] if self.normalizer is None else [self.normalizer]
         seq = nn.Sequential(*parts, self.net, ActionClip(self.spec.action.clip)).eval()
         if self.scripted:
@@ -619,11 +639,15 @@ def _load_rsl_rl(
     msd = obj["model_state_dict"]
     if not isinstance(msd, Mapping) or not all(isinstance(v, torch.Tensor) for v in msd.values()):
         raise ExportError(f"{path}: field 'model_state_dict' is not a state dict of tensors")
+    if any(k.startswith("memory_a.rnn.") for k in msd):
+        from deploy.export_rsl_rl import load_rsl_rl_recurrent
+
+        return load_rsl_rl_recurrent(path, obj, msd, spec, activation)
     recurrent = [k for k in msd if k.startswith(("memory_a.", "memory_c.", "actor.rnn"))]
     if recurrent:
         raise ExportError(
-            f"{path}: recurrent rsl_rl policy ({recurrent[0]}, ...) is not supported; export a "
-            "feed-forward actor"
+            f"{path}: recurrent rsl_rl policy ({recurrent[0]}, ...) of an unsupported layout; "
+            "an ActorCriticRecurrent actor (memory_a.rnn LSTM or GRU + actor MLP) is expected"
         )
     actor_keys = {k: v for k, v in msd.items() if re.fullmatch(r"actor\.\d+\.(weight|bias)", k)}
     if not actor_keys:
@@ -633,6 +657,29 @@ def _load_rsl_rl(
         )
     layers = _linear_stack(actor_keys, "actor.", path)
     net = _build_mlp(layers, activation or "elu", None, path, "rsl_rl actor")
+    norm = rsl_rl_normalizer(path, obj, msd, spec)
+    _probe(net, spec, path)
+    return SourcePolicy(
+        net=net,
+        spec=spec,
+        source_format="rsl_rl",
+        normalizer=norm,
+        normalizer_kind=None
+        if norm is None
+        else f"rsl_rl EmpiricalNormalization (eps {RSL_RL_EPS})",
+    )
+
+
+def rsl_rl_normalizer(
+    path: Path, obj: Mapping, msd: Mapping[str, torch.Tensor], spec: PolicySpec
+) -> nn.Module | None:
+    """rsl_rl's actor ``EmpiricalNormalization`` as a graph module ``(obs - _mean) / (_std +
+    RSL_RL_EPS)``, or None when the checkpoint has none.
+
+    Raises:
+        ExportError: statistics without ``_mean`` / ``_std``, of the wrong size, non-finite or
+            negative.
+    """
     stats, where = None, None
     if "actor_obs_normalizer._mean" in msd:
         stats = {
@@ -657,16 +704,7 @@ def _load_rsl_rl(
         if (std < 0).any():
             raise ExportError(f"{path}: {where} has negative standard deviations")
         norm = NormalizeNoClip(mean, std + RSL_RL_EPS)
-    _probe(net, spec, path)
-    return SourcePolicy(
-        net=net,
-        spec=spec,
-        source_format="rsl_rl",
-        normalizer=norm,
-        normalizer_kind=None
-        if norm is None
-        else f"rsl_rl EmpiricalNormalization (eps {RSL_RL_EPS})",
-    )
+    return norm
 
 
 def load_vecnormalize(path: Path, trust_pickle: bool, obs_dim: int) -> ObservationNormalizer | None:
@@ -847,6 +885,20 @@ def to_onnx(module: nn.Module, obs_dim: int, exporter: str = "torchscript") -> o
     return model
 
 
+def _recurrent_to_onnx(module: nn.Module, obs_dim: int, exporter: str) -> onnx.ModelProto:
+    """:func:`deploy.export_recurrent.recurrent_to_onnx`, its failures as ExportError."""
+    from deploy.export_recurrent import recurrent_to_onnx
+
+    if exporter != "torchscript":
+        raise ExportError(
+            f"exporter '{exporter}' does not take recurrent policies; use --exporter torchscript"
+        )
+    try:
+        return recurrent_to_onnx(module, obs_dim, OPSET)
+    except Exception as exc:  # noqa: BLE001 - exporter and checker failures of all kinds
+        raise ExportError(f"torch.onnx.export (recurrent) failed: {_first_line(exc)}") from None
+
+
 def set_metadata(model: onnx.ModelProto, entries: Mapping[str, str]) -> None:
     """Replace ``model.metadata_props`` by ``entries``."""
     del model.metadata_props[:]
@@ -901,9 +953,14 @@ def closed_loop_parity(
     ticks: int = REPLAY_TICKS,
     envs: int = REPLAY_ENVS,
     seed: int = 0,
+    reference=None,
 ) -> dict[str, Any]:
     """Drive the MuJoCo plant with the ONNX policy for ``ticks`` control ticks and compare torch
     and ONNX actions at every tick.
+
+    ``reference(obs) -> action`` (numpy, (envs, act_dim)) replaces ``module`` as the torch side
+    when given (a recurrent policy's :class:`~deploy.export_recurrent.TorchRecurrentReference`,
+    which carries the state as the ONNX policy does).
 
     Returns:
         ``{"max_abs_error", "ticks", "envs", "mode", "plant_resets"}``.
@@ -928,8 +985,11 @@ def closed_loop_parity(
         kin.update(state)
         spec.observation(state, goal, out=obs)
         action = policy(obs)
-        with torch.no_grad():
-            ref = module(torch.from_numpy(obs)).numpy()
+        if reference is not None:
+            ref = reference(obs)
+        else:
+            with torch.no_grad():
+                ref = module(torch.from_numpy(obs)).numpy()
         worst = max(worst, _max_abs(action, ref))
         if not np.isfinite(action).all():
             break
@@ -995,7 +1055,10 @@ def run_export(
         raise ExportError(f"{source}: {exc}") from None
 
     module = src.module()
-    model = to_onnx(module, src.spec.obs_dim, exporter)
+    if src.recurrent:
+        model = _recurrent_to_onnx(module, src.spec.obs_dim, exporter)
+    else:
+        model = to_onnx(module, src.spec.obs_dim, exporter)
     baked = {"observation_normalizer": src.normalizer is not None, "action_clip": True}
     exporter_text = f"torch.onnx.export(dynamo={exporter == 'dynamo'}), opset {OPSET}" + (
         " (TorchScript-based)" if exporter == "torchscript" else " (torch.export-based)"
@@ -1025,8 +1088,15 @@ def run_export(
             policy = OnnxPolicy(tmp, the_robot)
         except PolicyLoadError as exc:
             raise ExportError(f"the exported graph does not load in the runtime: {exc}") from None
-        static_err, n_samples = static_parity(policy, module, src.spec, PARITY_SAMPLES, seed)
-        loop = closed_loop_parity(policy, module, the_robot, seed=seed)
+        reference = None
+        if src.recurrent:
+            from deploy.export_recurrent import TorchRecurrentReference, sequence_parity
+
+            static_err, n_samples = sequence_parity(policy, module, src.spec, seed)
+            reference = TorchRecurrentReference(module)
+        else:
+            static_err, n_samples = static_parity(policy, module, src.spec, PARITY_SAMPLES, seed)
+        loop = closed_loop_parity(policy, module, the_robot, seed=seed, reference=reference)
         figures = {
             "tolerance": TOLERANCE,
             "max_abs_error": static_err,

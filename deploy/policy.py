@@ -8,9 +8,12 @@ Loading refuses (with :class:`PolicyLoadError`, naming the file and the problem)
     - external-data tensors whose ``location`` is absolute or resolves outside the model's folder
       (symbolic links included), or whose file is missing; checked before anything is read;
     - initializers or constants holding NaN or inf;
-    - a graph with more than one data input (for example the state inputs of a recurrent policy:
-      not supported, the message names the extra inputs), several outputs none of which is named
-      ``action``, non-float32 input or output, or an input/output size that differs from the spec;
+    - a graph input other than the observation and recurrent state inputs (the message names the
+      input and its shape, and what would make it load), several action outputs none of which is
+      named ``action`` or ``actions``, non-float32 input or output, or an input/output size that
+      differs from the spec;
+    - a recurrent state input without a batch axis (not ``[layers, batch, hidden]``), or whose
+      state output has another shape than the input (declared, or when run);
     - a spec that does not match the robot (``PolicySpec.check_robot``: robot name, joint names and
       order, control rate, description hash) or a model without our metadata when no spec is given;
     - a spec passed in that contradicts the one stored in the file;
@@ -22,6 +25,18 @@ JSON, with ``baked`` and ``parity`` filled), ``source_sha256``, ``tool_versions`
 ``parity`` (JSON), ``source_format``, ``exporter``. A foreign ONNX file without them is accepted
 when ``spec`` is given: its single data input and its output are discovered from the graph.
 
+Recurrent policies (LSTM ``h``, ``c``; GRU ``h``): every graph input ``<name>_in`` besides the
+observation that has a graph output ``<name>_out`` is recurrent state, shaped ``[layers, batch,
+hidden]`` float32 (torch's ``nn.LSTM`` / ``nn.GRU`` layout, batch on axis 1; ``layers`` and
+``hidden`` fixed), with the output of the same shape. This is the layout ``policy-export`` writes
+(``obs``, ``h_in``, ``c_in`` -> ``action``, ``h_out``, ``c_out``) and rsl_rl's own exporter
+(``obs``, ``h_in``, ``c_in`` -> ``actions``, ``h_out``, ``c_out``). The policy keeps the state of
+every env, feeds ``<name>_out`` back as ``<name>_in`` on the next call, and :meth:`OnnxPolicy.reset`
+sets it to its initial value: zeros, or the file's declared initial state (an initializer of the
+same name as the state input, ``[layers, 1 or batch, hidden]``). The observation input is the only
+input when there is one, else the one named ``obs``. Isaac Lab's ``obs -> actions`` is a
+feed-forward policy like ours.
+
 Inference runs single-threaded (``intra_op_num_threads = inter_op_num_threads = 1``, sequential
 execution: fastest for small MLPs at batch 1) through an IOBinding bound once to preallocated
 numpy buffers; it is rebound only when the batch size changes.
@@ -31,7 +46,8 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any
 
@@ -190,6 +206,28 @@ def _dims(value_info: onnx.ValueInfoProto) -> list[int | str | None]:
     return out
 
 
+@dataclass(frozen=True)
+class StateTensor:
+    """One recurrent state of a graph: input ``input`` fed by output ``output`` on the next call.
+
+    Attributes:
+        input, output: Graph input and output names. layers, hidden: Fixed sizes of the
+            ``[layers, batch, hidden]`` float32 tensor. initial: The declared initial state
+            ``(layers, 1 or batch, hidden)`` float32, or None (zeros).
+    """
+
+    input: str
+    output: str
+    layers: int
+    hidden: int
+    initial: np.ndarray | None = None
+
+
+def _state_output_name(name: str) -> str | None:
+    """``h_in`` -> ``h_out``: the output a state input pairs with (None: not a state name)."""
+    return name[: -len("_in")] + "_out" if name.endswith("_in") and len(name) > 3 else None
+
+
 class OnnxPolicy:
     """An exported policy, verified against a robot, run with ONNX Runtime.
 
@@ -205,7 +243,8 @@ class OnnxPolicy:
         path: The file. spec: The PolicySpec in force. metadata: The file's custom metadata
             (``str -> str``; ``policy_spec``, ``parity``, ``tool_versions`` hold JSON).
         input_name, output_name: Graph input and output used. obs_dim, act_dim: Sizes.
-        session: The ``onnxruntime.InferenceSession``.
+        states: The recurrent states (:class:`StateTensor`; empty for a feed-forward policy).
+        recurrent: Whether there are any. session: The ``onnxruntime.InferenceSession``.
 
     Raises:
         PolicyLoadError: see the module docstring.
@@ -237,7 +276,10 @@ class OnnxPolicy:
         except SpecError as exc:
             raise PolicyLoadError(f"{path}: {exc}") from None
         self.obs_dim, self.act_dim = self.spec.obs_dim, self.spec.act_dim
-        self.input_name, self.output_name, self._fixed_batch = self._check_graph(model, path)
+        self.input_name, self.output_name, self._fixed_batch, self.states = self._check_graph(
+            model, path
+        )
+        self.recurrent = bool(self.states)
 
         options = ort.SessionOptions()
         options.intra_op_num_threads = 1
@@ -255,7 +297,11 @@ class OnnxPolicy:
         self._batch = -1
         self._obs = np.zeros((0, self.obs_dim), np.float32)
         self._action = np.zeros((0, self.act_dim), np.float32)
+        #: recurrent: (state input buffer, state output buffer) per state, (layers, batch, hidden)
+        self._state_pairs: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
         probe_batch = self._fixed_batch or 1
+        if self.recurrent:
+            self._check_state_shapes(path, probe_batch)
         try:
             probe = self(np.zeros((probe_batch, self.obs_dim), np.float32))
         except Exception as exc:  # noqa: BLE001
@@ -265,6 +311,7 @@ class OnnxPolicy:
             ) from None
         if not np.isfinite(probe).all():
             raise PolicyLoadError(f"{path}: the action for the zero observation is not finite")
+        self.reset()  # the probe advanced the state
 
     # ------------------------------------------------------------------ loading
     @staticmethod
@@ -311,43 +358,56 @@ class OnnxPolicy:
                 )
         return stored if stored is not None else given
 
-    def _check_graph(self, model: onnx.ModelProto, path: Path) -> tuple[str, str, int]:
+    def _check_graph(
+        self, model: onnx.ModelProto, path: Path
+    ) -> tuple[str, str, int, tuple[StateTensor, ...]]:
         graph = model.graph
-        init = {t.name for t in graph.initializer} | {
-            s.values.name for s in graph.sparse_initializer
-        }
-        inputs = [i for i in graph.input if i.name not in init]
+        init = {t.name: t for t in graph.initializer}
+        init_names = set(init) | {s.values.name for s in graph.sparse_initializer}
+        inputs = [i for i in graph.input if i.name not in init_names]
         if not inputs:
             raise PolicyLoadError(f"{path}: the graph has no data input")
-        if len(inputs) > 1:
-            names = [i.name for i in inputs]
-            first = "obs" if "obs" in names else names[0]
-            extra = [n for n in names if n != first]
+        names = [i.name for i in inputs]
+        inp = inputs[0] if len(inputs) == 1 else inputs[names.index("obs") if "obs" in names else 0]
+        outputs = {o.name: o for o in graph.output}
+        pairs: list[tuple[onnx.ValueInfoProto, onnx.ValueInfoProto]] = []
+        unknown = []
+        for i in graph.input:
+            if i.name == inp.name or (
+                i.name in init_names and _state_output_name(i.name) not in outputs
+            ):
+                continue
+            out_name = _state_output_name(i.name)
+            if out_name in outputs:
+                pairs.append((i, outputs[out_name]))
+            else:
+                unknown.append(i)
+        if unknown:
+            desc = ", ".join(f"'{i.name}' {_dims(i)}" for i in unknown)
             raise PolicyLoadError(
-                f"{path}: the graph has extra inputs {extra} besides '{first}' (recurrent state?); "
-                "only feed-forward policies with one observation input are supported"
+                f"{path}: the graph has extra input(s) {desc} besides the observation "
+                f"'{inp.name}'; only recurrent state is accepted as a further input: rename a "
+                "state input '<name>_in' and its output '<name>_out' (shape [layers, batch, "
+                "hidden], batch on axis 1), or export the policy with policy-export, to load it"
             )
-        inp = inputs[0]
-        outputs = list(graph.output)
-        if len(outputs) == 1:
-            out = outputs[0]
+        state_outs = {o.name for _, o in pairs}
+        actions = [o for o in graph.output if o.name not in state_outs]
+        if len(actions) == 1:
+            out = actions[0]
         else:
-            named = [o for o in outputs if o.name == "action"]
-            if not named:
+            named = [o for o in actions if o.name in ("action", "actions")]
+            if len(named) != 1:
                 raise PolicyLoadError(
-                    f"{path}: the graph has outputs {[o.name for o in outputs]}; expected one "
-                    "output or one named 'action'"
+                    f"{path}: the graph has outputs {[o.name for o in graph.output]}; expected one "
+                    "action output (besides recurrent state outputs '<name>_out'), or one named "
+                    "'action' or 'actions'"
                 )
             out = named[0]
         for kind, vi, size, what in (
             ("input", inp, self.obs_dim, "observation"),
             ("output", out, self.act_dim, "action"),
         ):
-            if vi.type.tensor_type.elem_type != TensorProto.FLOAT:
-                raise PolicyLoadError(
-                    f"{path}: graph {kind} '{vi.name}' is of type "
-                    f"{TensorProto.DataType.Name(vi.type.tensor_type.elem_type)}, expected float32"
-                )
+            self._check_float32(path, kind, vi)
             dims = _dims(vi)
             if vi.type.tensor_type.HasField("shape") and len(dims) != 2:
                 raise PolicyLoadError(
@@ -360,7 +420,85 @@ class OnnxPolicy:
                 )
         in_dims = _dims(inp)
         fixed = in_dims[0] if in_dims and isinstance(in_dims[0], int) and in_dims[0] > 0 else 0
-        return inp.name, out.name, fixed
+        states = tuple(self._check_state(path, i, o, fixed, init.get(i.name)) for i, o in pairs)
+        return inp.name, out.name, fixed, states
+
+    @staticmethod
+    def _check_float32(path: Path, kind: str, vi: onnx.ValueInfoProto) -> None:
+        if vi.type.tensor_type.elem_type != TensorProto.FLOAT:
+            raise PolicyLoadError(
+                f"{path}: graph {kind} '{vi.name}' is of type "
+                f"{TensorProto.DataType.Name(vi.type.tensor_type.elem_type)}, expected float32"
+            )
+
+    def _check_state(
+        self,
+        path: Path,
+        vi_in: onnx.ValueInfoProto,
+        vi_out: onnx.ValueInfoProto,
+        fixed_batch: int,
+        initializer: TensorProto | None,
+    ) -> StateTensor:
+        """One recurrent state pair: float32, ``[layers, batch, hidden]``, same shape both ways."""
+        self._check_float32(path, "input", vi_in)
+        self._check_float32(path, "output", vi_out)
+        din, dout = _dims(vi_in), _dims(vi_out)
+        layout = (
+            "a recurrent state is [layers, batch, hidden] (torch nn.LSTM/nn.GRU, batch on axis 1)"
+        )
+        if len(din) != 3:
+            raise PolicyLoadError(
+                f"{path}: recurrent state input '{vi_in.name}' has shape {din}: no batch axis; "
+                f"{layout}"
+            )
+        batch = din[1]
+        if isinstance(batch, int) and (fixed_batch == 0 or batch != fixed_batch):
+            raise PolicyLoadError(
+                f"{path}: recurrent state input '{vi_in.name}' has shape {din}: no batch axis "
+                f"(axis 1 is fixed at {batch}, the observation's batch is "
+                f"{fixed_batch or 'dynamic'}); {layout}"
+            )
+        if len(dout) != 3 or any(
+            isinstance(a, int) and isinstance(b, int) and a != b
+            for a, b in zip(din, dout, strict=True)
+        ):
+            raise PolicyLoadError(
+                f"{path}: recurrent state output '{vi_out.name}' has shape {dout}, its input "
+                f"'{vi_in.name}' has {din}; they must be equal"
+            )
+        layers, hidden = din[0], din[2]
+        if not (isinstance(layers, int) and isinstance(hidden, int) and layers > 0 and hidden > 0):
+            raise PolicyLoadError(
+                f"{path}: recurrent state input '{vi_in.name}' has shape {din}; the layers and "
+                "hidden sizes (axes 0 and 2) must be fixed"
+            )
+        initial = None
+        if initializer is not None:
+            initial = numpy_helper.to_array(initializer).astype(np.float32)
+            if initial.ndim != 3 or initial.shape[0::2] != (layers, hidden):
+                raise PolicyLoadError(
+                    f"{path}: the initial state '{vi_in.name}' has shape {list(initial.shape)}, "
+                    f"expected [{layers}, 1, {hidden}]"
+                )
+        return StateTensor(vi_in.name, vi_out.name, layers, hidden, initial)
+
+    def _check_state_shapes(self, path: Path, batch: int) -> None:
+        """Run the graph once on zeros: every state output must have its input's shape."""
+        feeds = {self.input_name: np.zeros((batch, self.obs_dim), np.float32)}
+        for s in self.states:
+            feeds[s.input] = np.zeros((s.layers, batch, s.hidden), np.float32)
+        try:
+            outs = self.session.run([s.output for s in self.states], feeds)
+        except Exception as exc:  # noqa: BLE001
+            raise PolicyLoadError(
+                f"{path}: running the model on a zero observation and zero state failed: {exc}"
+            ) from None
+        for s, value in zip(self.states, outs, strict=True):
+            if value.shape != feeds[s.input].shape:
+                raise PolicyLoadError(
+                    f"{path}: recurrent state output '{s.output}' has shape {list(value.shape)}, "
+                    f"its input '{s.input}' {list(feeds[s.input].shape)}; they must be equal"
+                )
 
     # ------------------------------------------------------------------ inference
     def _bind(self, batch: int) -> None:
@@ -376,7 +514,21 @@ class OnnxPolicy:
         self._binding.clear_binding_outputs()
         self._binding.bind_ortvalue_input(self.input_name, self._obs_value)
         self._binding.bind_ortvalue_output(self.output_name, self._action_value)
+        pairs, self._state_values = [], []
+        for s in self.states:
+            pair = (
+                np.zeros((s.layers, batch, s.hidden), np.float32),
+                np.zeros((s.layers, batch, s.hidden), np.float32),
+            )
+            values = [ort.OrtValue.ortvalue_from_numpy(a) for a in pair]
+            self._binding.bind_ortvalue_input(s.input, values[0])
+            self._binding.bind_ortvalue_output(s.output, values[1])
+            pairs.append(pair)
+            self._state_values.append(values)  # keep the OrtValues alive with the buffers
+        self._state_pairs = tuple(pairs)
         self._batch = batch
+        if self.states:
+            self.reset()
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """The actions for a batch of observations.
@@ -388,6 +540,9 @@ class OnnxPolicy:
         Returns:
             float32 (envs, act_dim). The array is a preallocated buffer, overwritten by the next
             call: copy what you keep.
+
+        A recurrent policy reads each env's state and keeps the new one for the next call; a
+        change of ``envs`` starts every env from its initial state.
 
         Raises:
             ValueError: ``obs`` is not shaped (envs, obs_dim), or the graph has a fixed batch size
@@ -401,7 +556,68 @@ class OnnxPolicy:
             self._bind(obs.shape[0])
         np.copyto(self._obs, obs, casting="same_kind")
         self.session.run_with_iobinding(self._binding)
+        if self._state_pairs:
+            for state_in, state_out in self._state_pairs:
+                np.copyto(state_in, state_out)
         return self._action
+
+    def reset(self, envs: np.ndarray | None = None) -> None:
+        """Set the recurrent state of some envs to its initial value (zeros, or the file's
+        declared initial state). No-op for a feed-forward policy.
+
+        Args:
+            envs: Boolean mask (envs,) of the envs to reset; default all. A mask of another
+                length than the current batch sets the batch size to its length (every env then
+                starts from its initial state).
+
+        Raises:
+            ValueError: the graph has a fixed batch size and the mask's length differs.
+        """
+        if not self.states:
+            return
+        if envs is not None:
+            envs = np.asarray(envs, dtype=bool).reshape(-1)
+            if envs.shape[0] != self._batch:
+                self._bind(envs.shape[0])
+                return
+        index = slice(None) if envs is None else envs
+        for s, (state_in, _) in zip(self.states, self._state_pairs, strict=True):
+            state_in[:, index, :] = 0.0 if s.initial is None else s.initial
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """The recurrent state (copies), keyed by state input name: ``(layers, hidden)`` float32
+        for env ``env``, or ``(layers, envs, hidden)`` for all. Empty for a feed-forward policy."""
+        index = slice(None) if env is None else env
+        return {
+            s.input: state_in[:, index, :].copy()
+            for s, (state_in, _) in zip(self.states, self._state_pairs, strict=True)
+        }
+
+    def load_state_dict(self, state: Mapping[str, np.ndarray], env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (for the same ``env``, or all envs).
+
+        Raises:
+            ValueError: a missing or unexpected key, or a shape that does not fit (for all envs,
+                the batch is set from the arrays' axis 1 first).
+        """
+        expected = {s.input for s in self.states}
+        if set(state) != expected:
+            raise ValueError(f"policy state: expected keys {sorted(expected)}, got {sorted(state)}")
+        if not self.states:
+            return
+        if env is None:
+            batch = np.shape(next(iter(state.values())))[1:2]
+            if batch and batch[0] != self._batch:
+                self._bind(batch[0])
+        index = slice(None) if env is None else env
+        for s, (state_in, _) in zip(self.states, self._state_pairs, strict=True):
+            value = np.asarray(state[s.input], dtype=np.float32)
+            if value.shape != state_in[:, index, :].shape:
+                raise ValueError(
+                    f"policy state '{s.input}': expected shape "
+                    f"{state_in[:, index, :].shape}, got {value.shape}"
+                )
+            state_in[:, index, :] = value
 
     @property
     def parity(self) -> dict[str, Any]:
@@ -409,7 +625,8 @@ class OnnxPolicy:
         return dict(self.spec.parity)
 
     def __repr__(self) -> str:
+        kind = f", state={[s.input for s in self.states]}" if self.states else ""
         return (
             f"OnnxPolicy('{self.path}', robot='{self.spec.robot}', obs_dim={self.obs_dim}, "
-            f"act_dim={self.act_dim}, mode='{self.spec.action.mode}')"
+            f"act_dim={self.act_dim}, mode='{self.spec.action.mode}'{kind})"
         )

@@ -13,7 +13,10 @@ The tick (:meth:`Runtime.tick`) reads top to bottom as DESIGN.md draws it::
     backend.write(cmd)
 
 State machine (one per env): ``IDLE -> RAMP_IN -> RUNNING -> SAFE_STOP -> FAULTED``. RAMP_IN brings
-the robot from its measured pose to the home pose before the policy takes over. SAFE_STOP brings
+the robot from its measured pose to the home pose before the policy takes over. A recurrent
+policy's state is reset (``policy.reset(envs)``) for the envs that enter RAMP_IN (start, operator
+reset, cool-down resume) and again for those whose RAMP_IN ends: the policy takes control from its
+initial state, as in a fresh episode. SAFE_STOP brings
 every joint to rest within the smoother's limits and holds; a safe stop for over-temperature resumes
 (RAMP_IN) once every winding has cooled below its derating start, any other cause ends in FAULTED,
 latched until :meth:`Runtime.reset_faults`.
@@ -147,6 +150,10 @@ def reanchor(
     return moved
 
 
+def _no_reset(envs: np.ndarray) -> None:
+    """The reset of a policy without state."""
+
+
 class SimClock:
     """Lockstep clock: the plant's own time; never waits."""
 
@@ -233,7 +240,8 @@ class Runtime:
     Args:
         robot: Robot description.
         policy: Callable ``(envs, obs_dim) float32 -> (envs, act_dim) float32`` with a ``spec``
-            attribute (:class:`~deploy.policy.OnnxPolicy`).
+            attribute (:class:`~deploy.policy.OnnxPolicy`); its ``reset(envs)`` (boolean mask
+            (envs,)), if it has one, is called where the policy's state must start afresh.
         backend: A :class:`~deploy.backends.base.Backend` (``read``, ``write``, ``advance``,
             ``drive_errors``), opened: :class:`~deploy.backends.sim.SimBackend` or a servo bus.
         clock: :class:`SimClock` (default) or :class:`WallClock`.
@@ -261,6 +269,7 @@ class Runtime:
             raise ValueError(f"overrun_rate_limit: expected in (0, 1], got {overrun_rate_limit}")
         self.overrun_rate_limit = overrun_rate_limit
         self.robot, self.policy, self.backend = robot, policy, backend
+        self._reset_policy = getattr(policy, "reset", None) or _no_reset
         self.spec: PolicySpec = policy.spec
         self.spec.check_robot(robot)
         if self.spec.action.mode != backend.mode:
@@ -352,6 +361,7 @@ class Runtime:
         self.guard.reset(q)
         self.smoother.reset(q, self.state.dq)
         self.mode[:] = RAMP_IN
+        self._reset_policy(np.ones(self.envs, dtype=bool))
         self.clock.start()
 
     def reset_faults(self, envs: np.ndarray | None = None) -> None:
@@ -368,6 +378,7 @@ class Runtime:
         self.cause[faulted] = -1
         self.guard.reset(self.state.q, envs=faulted)
         self.smoother.sync(self.state.q, self.state.dq, envs=faulted)
+        self._reset_policy(faulted)
 
     # ------------------------------------------------------------------ the tick
     def tick(self) -> None:
@@ -447,7 +458,10 @@ class Runtime:
         if not (mode == RUNNING).all():  # else nothing to end (the common case)
             at_rest = (np.abs(state.dq) < REST_SPEED).all(axis=1)
             home = (np.abs(state.q - self._home) < HOME_TOLERANCE).all(axis=1)
-            mode[(mode == RAMP_IN) & at_rest & home] = RUNNING
+            took_over = (mode == RAMP_IN) & at_rest & home
+            if took_over.any():
+                mode[took_over] = RUNNING
+                self._reset_policy(took_over)  # the policy starts from its initial state
             stopped = (mode == SAFE_STOP) & at_rest
             if stopped.any():
                 thermal = self.cause == FAULT_CAUSES.index("over_temperature")
@@ -458,6 +472,7 @@ class Runtime:
                     mode[resume] = RAMP_IN
                     self.cause[resume] = -1
                     self.smoother.sync(state.q, state.dq, envs=resume)
+                    self._reset_policy(resume)
         moved = reanchor(self.smoother, state, self._tracking, self._anchored, self.mode)
         if moved is not None:
             counter = (
@@ -530,3 +545,21 @@ class Runtime:
 
     def cause_names(self) -> list[str | None]:
         return [FAULT_CAUSES[c] if c >= 0 else None for c in self.cause]
+
+    # ------------------------------------------------------------------ read-only views
+    @property
+    def action(self) -> np.ndarray:
+        """(envs, n) float32: the last tick's screened policy action in [-1, 1] (a view)."""
+        return self._action
+
+    @property
+    def target(self) -> np.ndarray:
+        """(envs, n): the last tick's guarded target, in the units of the control mode (position
+        rad, velocity rad/s, torque N m; a view)."""
+        return self._target
+
+    @property
+    def command(self) -> np.ndarray:
+        """(envs, n): the command the last tick wrote to the backend, in the units of the
+        control mode (position rad, velocity rad/s, torque N m; a view)."""
+        return self._cmd

@@ -17,6 +17,8 @@ JointStateEstimator    filter state and covariance, filter time, freshness, coun
 CommandSmoother        Ruckig's input (current and target position, velocity, acceleration), the
                        held target, commanded position, stop flags, counters
 SafetyGuard            counters, hard-violation flag, derating, last accepted target
+OnnxPolicy             a recurrent policy's state (``state_dict(env)``; nothing for a
+                       feed-forward policy)
 Runtime                modes, causes, counters, non-finite streak, last actions, goal, estimated
                        state, ticks and time, latency histograms
 GoalScheduler          goal times (running and issue), reached flags, best distances, counts,
@@ -206,6 +208,10 @@ def capture_env(rt, env: int) -> tuple[dict[str, np.ndarray], dict]:
     a["guard/hard_violation"] = g.hard_violation[e]
     a["guard/effort_scale"] = g.effort_scale[e]
     a["guard/last_valid"] = g._last_valid[e]
+    # policy: a recurrent policy's state (nothing for a feed-forward one)
+    state_dict = getattr(rt.policy, "state_dict", None)
+    if state_dict is not None:
+        a.update({f"policy/{k}": v for k, v in state_dict(e).items()})
     return {k: np.array(v, copy=True) for k, v in a.items()}, meta
 
 
@@ -284,6 +290,14 @@ def restore_env(rt, env: int, arrays: dict[str, np.ndarray], meta: dict) -> None
     put(g.hard_violation, e, "guard/hard_violation")
     put(g.effort_scale, e, "guard/effort_scale")
     put(g._last_valid, e, "guard/last_valid")
+
+    load_state_dict = getattr(rt.policy, "load_state_dict", None)
+    if load_state_dict is not None:
+        state = {k[len("policy/") :]: v for k, v in arrays.items() if k.startswith("policy/")}
+        try:
+            load_state_dict(state, e)
+        except ValueError as exc:
+            raise CheckpointError(f"checkpoint field 'policy': {exc}") from None
 
 
 def capture_shared(rt) -> tuple[dict[str, np.ndarray], dict]:

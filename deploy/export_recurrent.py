@@ -1,0 +1,195 @@
+"""Recurrent policies for ``policy-export``: the graph with explicit state, and its parity gate.
+
+A recurrent source (an rsl_rl ``ActorCriticRecurrent`` today, :mod:`deploy.export_rsl_rl`) loads
+into a :class:`RecurrentCore` (an ``nn.LSTM`` or ``nn.GRU`` followed by the actor MLP). Around it,
+:class:`RecurrentPolicyModule` adds the observation normalizer (if any) and the action clip, and
+:func:`recurrent_to_onnx` writes the graph :class:`deploy.policy.OnnxPolicy` runs::
+
+    obs   float32 [batch, obs_dim]            -> action float32 [batch, act_dim]
+    h_in  float32 [layers, batch, hidden]     -> h_out  float32 [layers, batch, hidden]
+    c_in  float32 [layers, batch, hidden]     -> c_out  (LSTM only)
+
+(torch's RNN state layout, batch on axis 1; the initial state is zeros.) The parity gate runs
+over sequences with the state carried on both sides: :func:`sequence_parity` (``SEQUENCE_STEPS``
+sequential steps of a bounded random walk through the normalized observation space, several envs,
+some of them reset half way, then a batch-1 run) and the closed-loop replay of
+:func:`deploy.export.closed_loop_parity` with a :class:`TorchRecurrentReference`.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import onnx
+import torch
+from torch import nn
+
+from deploy.spec import PolicySpec
+
+#: Sequential steps of the sequence parity run (the closed-loop replay adds its own ticks).
+SEQUENCE_STEPS = 500
+SEQUENCE_ENVS = 4
+SEQUENCE_BATCH1_STEPS = 100
+#: Per-step standard deviation of the random walk through the normalized observation space.
+WALK_SIGMA = 0.15
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """The recurrent state of a core: ``kind`` 'lstm' (``h``, ``c``) or 'gru' (``h``), each
+    tensor ``[layers, batch, hidden]``."""
+
+    kind: str
+    layers: int
+    hidden: int
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("h", "c") if self.kind == "lstm" else ("h",)
+
+    def zeros(self, batch: int) -> tuple[torch.Tensor, ...]:
+        """Zero state tensors (layers, batch, hidden) float32."""
+        return tuple(torch.zeros(self.layers, batch, self.hidden) for _ in self.names)
+
+
+class RecurrentCore(nn.Module):
+    """``rnn`` (``nn.LSTM`` / ``nn.GRU``, sequence-first) then ``mlp``: normalized observation and
+    state -> raw action and new state."""
+
+    def __init__(self, rnn: nn.LSTM | nn.GRU, mlp: nn.Module):
+        super().__init__()
+        self.rnn, self.mlp = rnn, mlp
+        kind = "lstm" if isinstance(rnn, nn.LSTM) else "gru"
+        self.layout = StateLayout(kind, rnn.num_layers, rnn.hidden_size)
+
+
+class RecurrentPolicyModule(nn.Module):
+    """normalizer -> rnn -> mlp -> action clip, with explicit state.
+
+    ``forward(obs, h)`` (GRU) or ``forward(obs, h, c)`` (LSTM): obs (batch, obs_dim), state
+    tensors (layers, batch, hidden); returns ``(action, h_out)`` or ``(action, h_out, c_out)``.
+    """
+
+    def __init__(self, core: RecurrentCore, normalizer: nn.Module | None, clip: float):
+        super().__init__()
+        self.normalizer = normalizer if normalizer is not None else nn.Identity()
+        self.rnn, self.mlp = core.rnn, core.mlp
+        self.layout = core.layout
+        self.clip = float(clip)
+
+    def forward(self, obs: torch.Tensor, h: torch.Tensor, c: torch.Tensor | None = None):
+        x = self.normalizer(obs).unsqueeze(0)
+        if self.layout.kind == "lstm":
+            y, (h, c) = self.rnn(x, (h, c))
+            action = torch.clamp(self.mlp(y.squeeze(0)), -self.clip, self.clip)
+            return action, h, c
+        y, h = self.rnn(x, h)
+        return torch.clamp(self.mlp(y.squeeze(0)), -self.clip, self.clip), h
+
+
+def recurrent_to_onnx(module: RecurrentPolicyModule, obs_dim: int, opset: int) -> onnx.ModelProto:
+    """Export ``module`` with the TorchScript-based exporter: inputs ``obs``, ``h_in`` (and
+    ``c_in``), outputs ``action``, ``h_out`` (and ``c_out``), dynamic batch (axis 0 of ``obs`` and
+    ``action``, axis 1 of the state).
+
+    Raises:
+        Exception: whatever ``torch.onnx.export`` or the ONNX checker raise (the caller turns it
+            into an ``ExportError``).
+    """
+    lay = module.layout
+    example = (torch.zeros(2, obs_dim), *lay.zeros(2))
+    ins = ["obs", *(f"{n}_in" for n in lay.names)]
+    outs = ["action", *(f"{n}_out" for n in lay.names)]
+    axes = {"obs": {0: "batch"}, "action": {0: "batch"}}
+    axes.update({name: {1: "batch"} for name in ins[1:] + outs[1:]})
+    buf = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            module,
+            example,
+            buf,
+            input_names=ins,
+            output_names=outs,
+            opset_version=opset,
+            dynamo=False,
+            dynamic_axes=axes,
+            do_constant_folding=True,
+        )
+    model = onnx.load_from_string(buf.getvalue())
+    onnx.checker.check_model(model, full_check=True)
+    return model
+
+
+class TorchRecurrentReference:
+    """The torch side of a parity run: ``ref(obs)`` -> action (numpy), the state carried per env
+    like :class:`deploy.policy.OnnxPolicy` carries it (a new batch size starts from zeros)."""
+
+    def __init__(self, module: RecurrentPolicyModule):
+        self.module = module
+        self.state: tuple[torch.Tensor, ...] = ()
+        self.batch = -1
+
+    def reset(self, envs: np.ndarray | None = None) -> None:
+        """Zero the state of the envs in the boolean mask ``envs`` (default all)."""
+        index = slice(None) if envs is None else torch.from_numpy(np.asarray(envs, dtype=bool))
+        for t in self.state:
+            t[:, index, :] = 0.0
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        if obs.shape[0] != self.batch:
+            self.batch, self.state = obs.shape[0], self.module.layout.zeros(obs.shape[0])
+        with torch.no_grad():
+            action, *state = self.module(torch.from_numpy(obs), *self.state)
+        self.state = tuple(state)
+        return action.numpy()
+
+
+def _max_abs(a: np.ndarray, b: np.ndarray) -> float:
+    if a.shape != b.shape or not (np.isfinite(a).all() and np.isfinite(b).all()):
+        return math.inf
+    return float(np.max(np.abs(a.astype(np.float64) - b.astype(np.float64)), initial=0.0))
+
+
+def sequence_parity(
+    policy, module: RecurrentPolicyModule, spec: PolicySpec, seed: int
+) -> tuple[float, int]:
+    """Max abs error ONNX vs torch over sequences, the state carried on both sides.
+
+    ``SEQUENCE_ENVS`` envs walk ``SEQUENCE_STEPS`` steps through [-1.2, 1.2]^obs_dim (random walk,
+    ``WALK_SIGMA`` a step); at the half, envs 0 and 2 are reset on both sides (``policy.reset``);
+    then env 0's walk again at batch 1 for ``SEQUENCE_BATCH1_STEPS`` steps. Actions and the final
+    states are compared.
+
+    Args:
+        policy: The :class:`deploy.policy.OnnxPolicy` under test. module: The torch module.
+
+    Returns:
+        ``(max_abs_error, actions compared)``.
+    """
+    rng = np.random.default_rng(seed)
+    envs, d = SEQUENCE_ENVS, spec.obs_dim
+    steps = rng.normal(0.0, WALK_SIGMA, (SEQUENCE_STEPS, envs, d))
+    walk = np.clip(np.cumsum(steps, axis=0), -1.2, 1.2).astype(np.float32)
+    ref = TorchRecurrentReference(module)
+    worst, compared = 0.0, 0
+    mask = np.zeros(envs, dtype=bool)
+    mask[::2] = True
+    policy.reset(np.ones(envs, dtype=bool))
+    for t in range(SEQUENCE_STEPS):
+        if t == SEQUENCE_STEPS // 2:
+            policy.reset(mask)
+            ref.reset(mask)
+        worst = max(worst, _max_abs(policy(walk[t]).copy(), ref(walk[t])))
+        compared += envs
+    for s, t in zip(policy.states, ref.state, strict=True):
+        worst = max(worst, _max_abs(policy.state_dict()[s.input], t.numpy()))
+    policy.reset(np.ones(1, dtype=bool))
+    for t in range(SEQUENCE_BATCH1_STEPS):
+        worst = max(worst, _max_abs(policy(walk[t, :1]).copy(), ref(walk[t, :1])))
+        compared += 1
+    return worst, compared

@@ -19,8 +19,9 @@ Replies are received with the SDK's own ``rxPacket`` and assigned to their servo
 
 from __future__ import annotations
 
+from deploy.backends.sdk_bus import SdkServoBus
 from deploy.backends.servo.control_tables import DYNAMIXEL_ALERT, ServoModel
-from deploy.backends.servo_bus import ServoBusBackend, ServoBusError
+from deploy.backends.servo_bus import ServoBusError
 
 #: Reported when the Alert bit is set but Hardware_Error_Status could not be read.
 UNKNOWN_HARDWARE_ERROR = DYNAMIXEL_ALERT
@@ -36,7 +37,7 @@ def _sdk():
     return dynamixel_sdk
 
 
-class DynamixelBackend(ServoBusBackend):
+class DynamixelBackend(SdkServoBus):
     """Dynamixel X servo arm on ``port`` in Protocol 2.0 (see the module and
     :class:`~deploy.backends.servo_bus.ServoBusBackend` for the arguments)."""
 
@@ -52,64 +53,18 @@ class DynamixelBackend(ServoBusBackend):
             "present_temperature",
         )
 
-    def _connect(self) -> None:
-        dxl = self._dxl = _sdk()
-        self._port = dxl.PortHandler(self.port_name)
-        try:
-            opened = self._port.openPort()
-        except Exception as exc:  # pyserial raises SerialException (an OSError) or others
-            raise ServoBusError(f"cannot open {self.port_name}: {exc}") from exc
-        if not opened or not self._port.setBaudRate(self.baudrate):
-            raise ServoBusError(f"cannot open {self.port_name} at {self.baudrate} bit/s")
-        self._ph = dxl.PacketHandler(2.0)
-        start, length = self.block_start, self.block_length
-        self._reader = dxl.GroupSyncRead(self._port, self._ph, start, length)
-        reg = self.goal_register
-        self._writer = dxl.GroupSyncWrite(self._port, self._ph, reg.address, reg.size)
-        for sid in self.ids:
-            self._reader.addParam(sid)
-            self._writer.addParam(sid, [0] * reg.size)
+    packet_protocol = 2.0
+    status_trailer = 2  # CRC-16
 
-    def _ping(self, servo_id: int) -> tuple[int, int]:
-        model, result, _ = self._ph.ping(self._port, servo_id)
-        return model, result
+    def _sdk_module(self):
+        return _sdk()
 
-    def _write_register(self, servo_id: int, address: int, data: bytes) -> tuple[int, int]:
-        return self._ph.writeTxRx(self._port, servo_id, address, len(data), list(data))
-
-    def _read_register(self, servo_id: int, address: int, length: int) -> bytes | None:
-        data, result, _ = self._ph.readTxRx(self._port, servo_id, address, length)
-        return bytes(data) if result == self._dxl.COMM_SUCCESS else None
-
-    def _sync_read(self) -> tuple[dict[int, tuple[bytes, int]], int]:
-        dxl, port = self._dxl, self._port
-        port.ser.reset_input_buffer()  # a late reply of the last tick is not this tick's
-        replies: dict[int, tuple[bytes, int]] = {}
-        corrupt = 0
-        if self._reader.txPacket() != dxl.COMM_SUCCESS:
-            return replies, corrupt
-        port.setPacketTimeoutMillis(1e3 * self.read_timeout)
+    def _parameter_start(self, sdk) -> int:
         # status packet: header(4) id len_l len_h instruction(0x55) error params... crc(2)
-        p0 = dxl.PKT_ERROR + 1
-        end = p0 + self.block_length
-        for _ in range(2 * self.n + 2):  # every reply, plus room for corrupt ones
-            packet, result = self._ph.rxPacket(port, False)
-            if result == dxl.COMM_SUCCESS:
-                sid = packet[dxl.PKT_ID]
-                if sid in self._reader.data_dict and len(packet) >= end + 2:
-                    replies[sid] = (bytes(packet[p0:end]), packet[dxl.PKT_ERROR])
-            elif result == dxl.COMM_RX_CORRUPT:
-                corrupt += 1
-            else:
-                break
-            if len(replies) == self.n:
-                break
-        return replies, corrupt
+        return sdk.PKT_ERROR + 1
 
-    def _sync_write(self, data: list[bytes]) -> None:
-        for sid, value in zip(self.ids, data, strict=True):
-            self._writer.changeParam(sid, list(value))
-        self._writer.txPacket()
+    def _receive(self, port):
+        return self._ph.rxPacket(port, False)
 
     def _hardware_error(self, j: int, error_byte: int) -> int:
         if not error_byte & DYNAMIXEL_ALERT:
@@ -118,9 +73,3 @@ class DynamixelBackend(ServoBusBackend):
         data = self._read_register(self.ids[j], reg.address, reg.size)
         bits = reg.decode(data) if data is not None else 0
         return bits or UNKNOWN_HARDWARE_ERROR
-
-    def _close_port(self) -> None:
-        self._port.closePort()
-
-    def _result_text(self, result: int) -> str:
-        return self._ph.getTxRxResult(result)

@@ -21,8 +21,9 @@ with torque on, as LeRobot's ``FeetechMotorsBus`` does.
 
 from __future__ import annotations
 
+from deploy.backends.sdk_bus import SdkServoBus
 from deploy.backends.servo.control_tables import ServoModel
-from deploy.backends.servo_bus import ServoBusBackend, ServoBusError
+from deploy.backends.servo_bus import ServoBusError
 
 #: The STS error-byte bits that are hardware errors (ERRBIT_ANGLE, 2, is not).
 HARDWARE_ERROR_MASK = 1 | 4 | 8 | 32
@@ -38,7 +39,7 @@ def _sdk():
     return scservo_sdk
 
 
-class FeetechBackend(ServoBusBackend):
+class FeetechBackend(SdkServoBus):
     """Feetech STS3215 servo arm on ``port`` (see the module and
     :class:`~deploy.backends.servo_bus.ServoBusBackend` for the arguments)."""
 
@@ -53,71 +54,17 @@ class FeetechBackend(ServoBusBackend):
             "present_temperature",
         )
 
-    def _connect(self) -> None:
-        scs = self._scs = _sdk()
-        self._port = scs.PortHandler(self.port_name)
-        try:
-            opened = self._port.openPort()
-        except Exception as exc:  # pyserial raises SerialException (an OSError) or others
-            raise ServoBusError(f"cannot open {self.port_name}: {exc}") from exc
-        if not opened or not self._port.setBaudRate(self.baudrate):
-            raise ServoBusError(f"cannot open {self.port_name} at {self.baudrate} bit/s")
-        self._ph = scs.PacketHandler(0)
-        start, length = self.block_start, self.block_length
-        self._reader = scs.GroupSyncRead(self._port, self._ph, start, length)
-        reg = self.goal_register
-        self._writer = scs.GroupSyncWrite(self._port, self._ph, reg.address, reg.size)
-        for sid in self.ids:
-            self._reader.addParam(sid)
-            self._writer.addParam(sid, [0] * reg.size)
+    packet_protocol = 0  # protocol end 0: little endian (STS)
+    status_trailer = 1  # checksum
 
-    def _ping(self, servo_id: int) -> tuple[int, int]:
-        model, result, _ = self._ph.ping(self._port, servo_id)
-        return model, result
+    def _sdk_module(self):
+        return _sdk()
 
-    def _write_register(self, servo_id: int, address: int, data: bytes) -> tuple[int, int]:
-        return self._ph.writeTxRx(self._port, servo_id, address, len(data), list(data))
-
-    def _read_register(self, servo_id: int, address: int, length: int) -> bytes | None:
-        data, result, _ = self._ph.readTxRx(self._port, servo_id, address, length)
-        return bytes(data) if result == self._scs.COMM_SUCCESS else None
-
-    def _sync_read(self) -> tuple[dict[int, tuple[bytes, int]], int]:
-        scs, port = self._scs, self._port
-        port.ser.reset_input_buffer()  # a late reply of the last tick is not this tick's
-        replies: dict[int, tuple[bytes, int]] = {}
-        corrupt = 0
-        if self._reader.txPacket() != scs.COMM_SUCCESS:
-            return replies, corrupt
-        port.setPacketTimeoutMillis(1e3 * self.read_timeout)
-        p0, end = scs.PKT_PARAMETER0, scs.PKT_PARAMETER0 + self.block_length
-        for _ in range(2 * self.n + 2):  # every reply, plus room for corrupt ones
-            packet, result = self._ph.rxPacket(port)
-            if result == scs.COMM_SUCCESS:
-                sid = packet[scs.PKT_ID]
-                if sid in self._reader.data_dict and len(packet) >= end + 1:
-                    replies[sid] = (bytes(packet[p0:end]), packet[scs.PKT_ERROR])
-            elif result == scs.COMM_RX_CORRUPT:
-                corrupt += 1
-            else:
-                break
-            if len(replies) == self.n:
-                break
-        return replies, corrupt
-
-    def _sync_write(self, data: list[bytes]) -> None:
-        for sid, value in zip(self.ids, data, strict=True):
-            self._writer.changeParam(sid, list(value))
-        self._writer.txPacket()
+    def _parameter_start(self, sdk) -> int:
+        return sdk.PKT_PARAMETER0
 
     def _hardware_error(self, j: int, error_byte: int) -> int:
         return error_byte & HARDWARE_ERROR_MASK
-
-    def _close_port(self) -> None:
-        self._port.closePort()
-
-    def _result_text(self, result: int) -> str:
-        return self._ph.getTxRxResult(result)
 
     def disable(self) -> None:
         """Torque off, then Lock 0 (EEPROM writable), every servo that answers."""

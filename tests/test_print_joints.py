@@ -12,6 +12,8 @@ import pytest
 
 from deploy.joint_printer import JointPrinter
 from deploy.runtime import SimClock
+from robots import load_robot
+from tests.runtime_fixtures import adversarial_onnx
 
 
 def fake_runtime(envs=1):
@@ -58,12 +60,14 @@ def test_one_line_per_env_and_bad_rate():
 
 
 def deploy_run(tmp_path, *extra, env=None, duration="2"):
+    # a policy made here: policies/arm.onnx exists only after `make export` (not in a clone)
+    policy = adversarial_onnx(tmp_path, load_robot("arm3"), "velocity")
     cmd = [
         sys.executable,
         "-m",
         "deploy.cli",
         "--policy",
-        "policies/arm.onnx",
+        str(policy),
         "--duration",
         duration,
         "--report",

@@ -830,6 +830,25 @@ def load_source(
 
 
 # ---------------------------------------------------------------------- ONNX
+def _torchscript_onnx(
+    module: nn.Module, example: tuple, inputs: list[str], outputs: list[str], axes: dict
+) -> onnx.ModelProto:
+    """``module`` through the TorchScript-based exporter (opset ``OPSET``, constants folded)."""
+    buf = io.BytesIO()
+    torch.onnx.export(
+        module,
+        example,
+        buf,
+        input_names=inputs,
+        output_names=outputs,
+        opset_version=OPSET,
+        dynamo=False,
+        dynamic_axes=axes,
+        do_constant_folding=True,
+    )
+    return onnx.load_from_string(buf.getvalue())
+
+
 def to_onnx(module: nn.Module, obs_dim: int, exporter: str = "torchscript") -> onnx.ModelProto:
     """Export ``module`` (obs -> action) to an ONNX model: input ``obs`` [batch, obs_dim], output
     ``action`` [batch, act_dim], dynamic batch, opset ``OPSET``.
@@ -842,19 +861,8 @@ def to_onnx(module: nn.Module, obs_dim: int, exporter: str = "torchscript") -> o
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             if exporter == "torchscript":
-                buf = io.BytesIO()
-                torch.onnx.export(
-                    module,
-                    (example,),
-                    buf,
-                    input_names=["obs"],
-                    output_names=["action"],
-                    opset_version=OPSET,
-                    dynamo=False,
-                    dynamic_axes={"obs": {0: "batch"}, "action": {0: "batch"}},
-                    do_constant_folding=True,
-                )
-                model = onnx.load_from_string(buf.getvalue())
+                axes = {"obs": {0: "batch"}, "action": {0: "batch"}}
+                model = _torchscript_onnx(module, (example,), ["obs"], ["action"], axes)
             elif exporter == "dynamo":
                 if isinstance(module, torch.jit.ScriptModule):
                     raise ExportError(
@@ -886,17 +894,26 @@ def to_onnx(module: nn.Module, obs_dim: int, exporter: str = "torchscript") -> o
 
 
 def _recurrent_to_onnx(module: nn.Module, obs_dim: int, exporter: str) -> onnx.ModelProto:
-    """:func:`deploy.export_recurrent.recurrent_to_onnx`, its failures as ExportError."""
-    from deploy.export_recurrent import recurrent_to_onnx
+    """A recurrent module (:class:`deploy.export_recurrent.RecurrentPolicyModule`) to ONNX with
+    explicit state I/O (:func:`deploy.export_recurrent.recurrent_signature`).
+
+    Raises:
+        ExportError: another exporter than TorchScript, or the exporter or checker failed.
+    """
+    from deploy.export_recurrent import recurrent_signature
 
     if exporter != "torchscript":
         raise ExportError(
             f"exporter '{exporter}' does not take recurrent policies; use --exporter torchscript"
         )
     try:
-        return recurrent_to_onnx(module, obs_dim, OPSET)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model = _torchscript_onnx(module, *recurrent_signature(module, obs_dim))
+        onnx.checker.check_model(model, full_check=True)
     except Exception as exc:  # noqa: BLE001 - exporter and checker failures of all kinds
         raise ExportError(f"torch.onnx.export (recurrent) failed: {_first_line(exc)}") from None
+    return model
 
 
 def set_metadata(model: onnx.ModelProto, entries: Mapping[str, str]) -> None:

@@ -3,7 +3,7 @@
 A recurrent source (an rsl_rl ``ActorCriticRecurrent`` today, :mod:`deploy.export_rsl_rl`) loads
 into a :class:`RecurrentCore` (an ``nn.LSTM`` or ``nn.GRU`` followed by the actor MLP). Around it,
 :class:`RecurrentPolicyModule` adds the observation normalizer (if any) and the action clip, and
-:func:`recurrent_to_onnx` writes the graph :class:`deploy.policy.OnnxPolicy` runs::
+:func:`recurrent_signature` names the graph :class:`deploy.policy.OnnxPolicy` runs::
 
     obs   float32 [batch, obs_dim]            -> action float32 [batch, act_dim]
     h_in  float32 [layers, batch, hidden]     -> h_out  float32 [layers, batch, hidden]
@@ -18,13 +18,10 @@ some of them reset half way, then a batch-1 run) and the closed-loop replay of
 
 from __future__ import annotations
 
-import io
 import math
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
-import onnx
 import torch
 from torch import nn
 
@@ -91,14 +88,16 @@ class RecurrentPolicyModule(nn.Module):
         return torch.clamp(self.mlp(y.squeeze(0)), -self.clip, self.clip), h
 
 
-def recurrent_to_onnx(module: RecurrentPolicyModule, obs_dim: int, opset: int) -> onnx.ModelProto:
-    """Export ``module`` with the TorchScript-based exporter: inputs ``obs``, ``h_in`` (and
-    ``c_in``), outputs ``action``, ``h_out`` (and ``c_out``), dynamic batch (axis 0 of ``obs`` and
-    ``action``, axis 1 of the state).
+def recurrent_signature(
+    module: RecurrentPolicyModule, obs_dim: int
+) -> tuple[tuple, list[str], list[str], dict]:
+    """The graph's signature for the TorchScript-based exporter (:func:`deploy.export.to_onnx`):
+    inputs ``obs``, ``h_in`` (and ``c_in``), outputs ``action``, ``h_out`` (and ``c_out``),
+    dynamic batch (axis 0 of ``obs`` and ``action``, axis 1 of the state).
 
-    Raises:
-        Exception: whatever ``torch.onnx.export`` or the ONNX checker raise (the caller turns it
-            into an ``ExportError``).
+    Returns:
+        ``(example inputs, input names, output names, dynamic axes)``; the example has a batch
+        of 2.
     """
     lay = module.layout
     example = (torch.zeros(2, obs_dim), *lay.zeros(2))
@@ -106,23 +105,7 @@ def recurrent_to_onnx(module: RecurrentPolicyModule, obs_dim: int, opset: int) -
     outs = ["action", *(f"{n}_out" for n in lay.names)]
     axes = {"obs": {0: "batch"}, "action": {0: "batch"}}
     axes.update({name: {1: "batch"} for name in ins[1:] + outs[1:]})
-    buf = io.BytesIO()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        torch.onnx.export(
-            module,
-            example,
-            buf,
-            input_names=ins,
-            output_names=outs,
-            opset_version=opset,
-            dynamo=False,
-            dynamic_axes=axes,
-            do_constant_folding=True,
-        )
-    model = onnx.load_from_string(buf.getvalue())
-    onnx.checker.check_model(model, full_check=True)
-    return model
+    return example, ins, outs, axes
 
 
 class TorchRecurrentReference:

@@ -21,20 +21,9 @@ from __future__ import annotations
 
 from deploy.backends.sdk_bus import SdkServoBus
 from deploy.backends.servo.control_tables import DYNAMIXEL_ALERT, ServoModel
-from deploy.backends.servo_bus import ServoBusError
 
 #: Reported when the Alert bit is set but Hardware_Error_Status could not be read.
 UNKNOWN_HARDWARE_ERROR = DYNAMIXEL_ALERT
-
-
-def _sdk():
-    try:
-        import dynamixel_sdk
-    except ImportError as exc:  # the optional dependency
-        raise ServoBusError(
-            "the dynamixel backend needs dynamixel-sdk: pip install '.[servo]'"
-        ) from exc
-    return dynamixel_sdk
 
 
 class DynamixelBackend(SdkServoBus):
@@ -54,10 +43,8 @@ class DynamixelBackend(SdkServoBus):
         )
 
     packet_protocol = 2.0
+    sdk_module, sdk_package = "dynamixel_sdk", "dynamixel-sdk"
     status_trailer = 2  # CRC-16
-
-    def _sdk_module(self):
-        return _sdk()
 
     def _parameter_start(self, sdk) -> int:
         # status packet: header(4) id len_l len_h instruction(0x55) error params... crc(2)

@@ -23,20 +23,9 @@ from __future__ import annotations
 
 from deploy.backends.sdk_bus import SdkServoBus
 from deploy.backends.servo.control_tables import ServoModel
-from deploy.backends.servo_bus import ServoBusError
 
 #: The STS error-byte bits that are hardware errors (ERRBIT_ANGLE, 2, is not).
 HARDWARE_ERROR_MASK = 1 | 4 | 8 | 32
-
-
-def _sdk():
-    try:
-        import scservo_sdk
-    except ImportError as exc:  # the optional dependency
-        raise ServoBusError(
-            "the feetech backend needs feetech-servo-sdk: pip install '.[servo]'"
-        ) from exc
-    return scservo_sdk
 
 
 class FeetechBackend(SdkServoBus):
@@ -55,10 +44,8 @@ class FeetechBackend(SdkServoBus):
         )
 
     packet_protocol = 0  # protocol end 0: little endian (STS)
+    sdk_module, sdk_package = "scservo_sdk", "feetech-servo-sdk"
     status_trailer = 1  # checksum
-
-    def _sdk_module(self):
-        return _sdk()
 
     def _parameter_start(self, sdk) -> int:
         return sdk.PKT_PARAMETER0

@@ -9,6 +9,7 @@ protocol and where a status packet's parameters start, and decode their own erro
 
 from __future__ import annotations
 
+import importlib
 from types import ModuleType
 
 from deploy.backends.servo_bus import ServoBusBackend, ServoBusError
@@ -16,21 +17,33 @@ from deploy.backends.servo_bus import ServoBusBackend, ServoBusError
 
 class SdkServoBus(ServoBusBackend):
     """A :class:`~deploy.backends.servo_bus.ServoBusBackend` on a vendor SDK of the dynamixel_sdk
-    family. Subclasses set :attr:`packet_protocol` and implement :meth:`_sdk_module`,
+    family. Subclasses set :attr:`packet_protocol`, :attr:`sdk_module` and implement
     :meth:`_parameter_start` and ``_hardware_error``.
 
     Attributes:
         packet_protocol: The ``PacketHandler`` argument: 0 (Feetech, protocol end 0 = little
             endian) or 2.0 (Dynamixel Protocol 2.0).
         status_trailer: Bytes after a status packet's parameters: 1 (checksum) or 2 (CRC-16).
+        sdk_module, sdk_package: The SDK's import name and its PyPI package (extra ``servo``).
     """
 
     packet_protocol: float = 0
     status_trailer: int = 1
+    sdk_module: str = ""
+    sdk_package: str = ""
 
     def _sdk_module(self) -> ModuleType:
-        """The SDK module; raises :class:`ServoBusError` naming the extra when it is missing."""
-        raise NotImplementedError
+        """The SDK module :attr:`sdk_module` (from the PyPI package :attr:`sdk_package`).
+
+        Raises:
+            ServoBusError: the SDK is not installed (naming the package and the extra).
+        """
+        try:
+            return importlib.import_module(self.sdk_module)
+        except ImportError as exc:  # the optional dependency
+            raise ServoBusError(
+                f"the {self.protocol} backend needs {self.sdk_package}: pip install '.[servo]'"
+            ) from exc
 
     def _parameter_start(self, sdk: ModuleType) -> int:
         """Index of a status packet's first parameter byte."""

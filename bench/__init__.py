@@ -15,7 +15,7 @@ against a limit or overheats it, a regime a trained policy never runs in), saved
 ``save_checkpoint`` and exported with ``deploy.export.run_export`` (parity gate included) to a
 temporary folder (:mod:`bench.common`). The runtime stays RUNNING with no guard event for the
 whole run; the tick section reports the ticks spent outside RUNNING.
-Goals come from :class:`deploy.cli.GoalScheduler` (a new one every 4 s) as in ``deploy-run``.
+Goals come from :class:`deploy.goals.GoalScheduler` (a new one every 4 s) as in ``deploy-run``.
 All latencies go through :class:`deploy.telemetry.LatencyHistogram` (1 us bins, bin centres).
 
 Items (module: what):

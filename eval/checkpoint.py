@@ -372,7 +372,7 @@ def restore_monitor(prefix: str, monitor, e: int, arrays: dict[str, np.ndarray],
 
 # ---------------------------------------------------------------------- goal scheduler, faults
 def capture_goals(goals, e: int) -> tuple[dict[str, np.ndarray], dict]:
-    """State of env ``e`` of a :class:`deploy.cli.GoalScheduler` with one stream per env."""
+    """State of env ``e`` of a :class:`deploy.goals.GoalScheduler` with one stream per env."""
     arrays = {
         "goals/t_goal": goals.t_goal[e : e + 1].copy(),
         "goals/issued_at": goals.issued_at[e : e + 1].copy(),

@@ -2,8 +2,8 @@
 
 A **session** is one continuous run of :class:`deploy.runtime.Runtime` with the simulated clock
 (:class:`~deploy.runtime.SimClock`) for ``hours`` of simulated time (8 by default): a new goal
-every ``goal_period`` s (:class:`deploy.cli.GoalScheduler`), dynamics, sensor settings, drift and a
-fault schedule drawn from the session seed (:func:`eval.randomization.sample_session`), friction
+every ``goal_period`` s (:class:`deploy.goals.GoalScheduler`), dynamics, sensor settings, drift and
+a fault schedule drawn from the session seed (:func:`eval.randomization.sample_session`), friction
 rising with wear over the session, the motor thermal model running throughout. A **campaign** is
 several seeded sessions (seeds ``seed, seed + 1, ...``), run by local processes
 (``concurrent.futures.ProcessPoolExecutor``, one worker per core; a campaign of a single batch runs
@@ -44,7 +44,7 @@ counts the true-state violations of every session from the plant's ground truth 
 (before the goal scheduler, so that a goal's last tick counts for it); both are reported apart, in
 total, per hour and on the curves, and are part of the checkpoints. Goals are also counted per
 window of ``window_minutes`` (by their issue time), and each goal replaced unreached is recorded
-with its true end state (:class:`deploy.cli.GoalScheduler`).
+with its true end state (:class:`deploy.goals.GoalScheduler`).
 
 Divergence: MuJoCo's divergence (:class:`~deploy.backends.sim.SimulationDivergedError`) ends the
 session that diverged with ``diverged`` set; the other sessions of its batch continue from their
@@ -67,7 +67,7 @@ from pathlib import Path
 import numpy as np
 
 from deploy.backends.base import SensorFrame
-from deploy.cli import GoalScheduler
+from deploy.goals import GoalScheduler
 from deploy.interventions import INTERVENTION_CHECKS, InterventionMonitor
 from deploy.runtime import FAULT_CAUSES, STAGES, Mode
 from deploy.violations import VIOLATION_TYPES, ViolationMonitor

@@ -56,8 +56,8 @@ import gymnasium as gym
 import numpy as np
 
 from deploy.backends.sim import SimBackend
-from deploy.cli import sample_goal
 from deploy.estimation import JointStateEstimator
+from deploy.goals import sample_goal
 from deploy.interventions import InterventionMonitor
 from deploy.runtime import reanchor
 from deploy.safety import SafetyGuard

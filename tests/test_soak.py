@@ -23,7 +23,7 @@ import onnx
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
-from deploy.cli import success_windows
+from deploy.goals import success_windows
 from deploy.interventions import INTERVENTION_CHECKS
 from deploy.runtime import NAN_ACTION_LIMIT
 from deploy.spec import PolicySpec

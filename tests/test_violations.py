@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from deploy.backends.sim import SimBackend
-from deploy.cli import GoalScheduler, success_windows
+from deploy.goals import GoalScheduler, success_windows
 from deploy.interventions import INTERVENTION_CHECKS, InterventionMonitor
 from deploy.safety import SafetyGuard
 from deploy.smoothing import CommandSmoother

@@ -175,9 +175,10 @@ def cable_budget(
     if durations.ndim != 1 or not np.all(np.isfinite(durations)) or np.any(durations < 0):
         raise ValueError(f"cable_budget: expected durations (k,) >= 0 s, got {durations}")
     n = robot.n_joints
-    hold = motion_bounds(robot, model)[1]
+    nominal_hold = motion_bounds(robot)[1]
+    hold = nominal_hold if model is None else motion_bounds(robot, model)[1]
     lever = end_effector_lever(robot, model)
-    derating = EffortDerating(robot, hold=motion_bounds(robot)[1])  # the plant's law (nominal)
+    derating = EffortDerating(robot, hold=nominal_hold)  # the plant's law (nominal)
     ambient = robot.config.sensors.ambient_temperature
     frac = np.linspace(0.0, 1.0, BUDGET_CANDIDATES)[:, None]
     torque = hold + frac * np.maximum(derating.peak - hold, 0.0)  # (K, n) candidate loads

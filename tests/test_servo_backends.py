@@ -65,8 +65,10 @@ def _require_idle_cores():
     """deploy-run on a servo bus keeps wall-clock deadlines against an emulator stepping its own
     plant: on an overloaded machine the run measures the load (late replies, stale sensors), not
     the bus. Skip, saying so, rather than fail at random (CI runs the suite alone)."""
+    # the suite itself keeps a 2-core machine near load 2-2.5 (CI); the failures came above 4,
+    # with an 8-hour soak running next to the suite
     load, cores = os.getloadavg()[0], os.cpu_count() or 1
-    if load > cores:
+    if load > 1.5 * cores:
         pytest.skip(
             f"load average {load:.1f} on {cores} cores: a wall-clock bus run needs idle cores"
         )

@@ -9,7 +9,7 @@ ONNX   := $(POLICY:.pt=.onnx)
 export ORT_DISABLE_TELEMETRY := 1
 export MPLBACKEND := Agg
 
-.PHONY: install run test lint format export train train-position soak nightly bench clean
+.PHONY: install run test lint format export train train-position hil soak nightly bench clean
 
 install: $(STAMP)
 
@@ -22,9 +22,11 @@ $(STAMP): pyproject.toml
 
 # The main job: export the shipped policy to ONNX (parity-checked), then run it for 60 simulated
 # seconds on arm3 through the full runtime (Kalman filter, guard, smoother) and print the summary.
+# VIDEO=run.mp4 also renders the run offscreen to an H.264 MP4 (MUJOCO_GL=egl without a display).
 run: install
 	$(VENV)/bin/policy-export $(POLICY)
-	$(VENV)/bin/deploy-run --backend sim --robot arm3 --policy $(ONNX) --duration 60
+	$(VENV)/bin/deploy-run --backend sim --robot arm3 --policy $(ONNX) --duration 60 \
+		$(if $(VIDEO),--video $(VIDEO))
 
 test: install lint
 	$(PY) -m pytest -q
@@ -40,10 +42,15 @@ format: install
 export: install
 	$(VENV)/bin/policy-export $(POLICY)
 
-# Reproduces policies/arm.pt (seed 1): trains against the deployed stack (guard included), then
-# ships it only if a 1-hour randomized soak passes; TensorBoard logs in runs/train/.
+# Reproduces the shipped policy of ROBOT (seed 1): trains against the deployed stack (guard
+# included), then ships it only if a 1-hour randomized soak passes; TensorBoard logs in runs/train/.
+#   make train               policies/arm.pt   (arm3, velocity mode)
+#   make train ROBOT=so101   policies/so101.pt (SO-101, position mode, the same recipe)
+TRAIN_arm3  := --start-poses policies/arm3_missed_poses.json
+TRAIN_so101 := --robot so101 --mode position --steps 8000000 --out policies/so101.pt
 train: install
-	$(PY) -m policies.train --start-poses policies/arm3_missed_poses.json
+	$(if $(TRAIN_$(ROBOT)),,$(error make train: no recipe for ROBOT=$(ROBOT); shipped: arm3, so101))
+	$(PY) -m policies.train $(TRAIN_$(ROBOT))
 
 # The position-mode variant of the same recipe (seed section 11's comparison, README).
 train-position: install
@@ -53,6 +60,16 @@ train-position: install
 # The ONNX file the soak targets run, re-exported whenever the checkpoint changes.
 $(ONNX): $(POLICY) $(STAMP)
 	$(VENV)/bin/policy-export $(POLICY)
+
+# Hardware in the loop without the hardware: the shipped SO-101 policy for 60 s through
+# deploy-run --backend feetech (the vendor SDK, wall clock, 1 Mbaud) against the wire-protocol
+# emulator on a pty; prints the same summary as `make run`.
+hil: install policies/so101.onnx
+	$(PY) -m deploy.backends.emulator.hil --robot so101 --protocol feetech -- \
+		--policy policies/so101.onnx --duration 60
+
+policies/so101.onnx: policies/so101.pt $(STAMP)
+	$(VENV)/bin/policy-export policies/so101.pt
 
 soak: install $(ONNX)
 	$(VENV)/bin/soak-test --robot $(ROBOT) --policy $(ONNX) --hours 8 --sessions 1 --seed 0 --out runs/soak

@@ -37,8 +37,17 @@ Items (module: what):
     One process per core, each a batched Runtime over ``SimBackend(envs=k)``; simulated
     seconds of all sessions per wall second, for several k; the best k is reported.
 ``wallclock`` (:mod:`bench.session`)
-    ``deploy-run --realtime`` on arm6 (``WallClock``, period 1/500 s) for 60 s: deadline
-    overruns, missed periods, wake-up jitter percentiles.
+    ``deploy-run --realtime`` on arm6 (``WallClock``, period 1/500 s) for 60 s
+    (``--wallclock-seconds``) per configuration: each wait mode (sleep, hybrid, spin), hybrid
+    and spin at SCHED_FIFO priority 50 with the memory locked where permitted, and hybrid at that
+    priority pinned to the last CPU (``--wallclock-modes``; also ``spin+fifo+cpu``): deadline
+    overruns, missed periods, wake-up jitter percentiles, tick cost, and the scheduler settings
+    read back.
+``bus`` (:mod:`bench.bus`)
+    One SYNC READ + one SYNC WRITE per tick through the vendor SDK (so101: 6 Feetech servos;
+    arm3_xm430: 3 Dynamixel servos; 1 Mbaud) against the wire-protocol emulator in its own
+    process, back to back: per-tick cost, the tick rate the bus sustains, and the emulator's
+    timing model of the same exchange (bytes on the wire). Skipped without the servo extra.
 ``profile`` (:mod:`bench.profiling`, only with ``--only profile``)
     cProfile of the full runtime: functions ranked by own time per tick.
 
@@ -71,9 +80,14 @@ NaN is written as null)::
                             throughput_x, per_worker_loop_s, setup_s, tick_cost_p50_us,
                             physics_p50_us, safe_stops, sessions_running_at_end}],
                  best: {envs_per_worker, workers, throughput_x}}
-      wallclock {robot, period_s, duration_s, wall_s, ticks, overruns, missed_periods,
-                 overrun_rate, jitter_us: <summary>, tick_cost_us, final_state, final_cause,
-                 exit_code}
+      wallclock {robot, period_s, duration_s, target: {overrun_rate, duration_s},
+                 rows: [{mode, options, wait, scheduler, priority, cpus, memory_locked, notes,
+                         duration_s, wall_s, ticks, overruns, missed_periods, overrun_rate,
+                         jitter_us: <summary>, tick_cost_us, final_state, final_cause,
+                         exit_code}]}
+      bus       {ticks, rows: [{robot, protocol, servos, baudrate, <summary> (read + write),
+                 sustained_hz, wire_model_us, read_block_bytes, goal_bytes, dropouts}]}
+                (or {skipped: reason, rows: []})
       profile   {robots: {<robot>: {ticks, rows: [{function, calls_per_tick, own_us_per_tick,
                                                    cumulative_us_per_tick}]}}}
     targets     [{key, label, robot, value, limit, comparison ("<=" | ">="), unit, pass}]

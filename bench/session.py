@@ -10,11 +10,16 @@ own per-tick bookkeeping) with ``--report`` to a temporary file, its printed sum
 policy, building the runtime; imports excluded, they are done once per process). Extrapolated
 linearly: ``estimate_8h_s = setup_s + wall_s * 28800 / duration_s``.
 
-**Wall-clock mode** (:func:`wallclock`): ``deploy-run --realtime``, a :class:`deploy.runtime.
+**Wall-clock mode** (:func:`wallclock`): ``deploy-run --realtime``, a :class:`deploy.clock.
 WallClock` with the robot's control period (arm6: 1/500 s), for ``duration`` seconds of real
-time. Reported: deadline overruns (ticks that ended after their deadline) and missed periods
-(skipped, not burst), their rate per tick, and the wake-up jitter (lateness against the deadline,
-the WallClock's own histogram), plus the runtime's tick cost in that mode.
+time, once per configuration of ``WALLCLOCK_MODES``: each wait strategy (sleep, hybrid, spin) at
+normal priority, hybrid and spin at SCHED_FIFO priority ``RT_PRIORITY`` with the memory locked
+(``--rt-priority``; where the system refuses, the row says so in its ``notes`` and ran at normal
+priority), and hybrid at that priority pinned to one CPU (``--cpu``, the last one; ``spin+fifo+cpu``
+on request). Reported per configuration: deadline overruns (ticks that ended after their
+deadline) and missed periods (skipped, not burst), their rate per tick, the wake-up jitter
+(lateness against the deadline, the WallClock's own histogram), the runtime's tick cost in that
+mode, and the settings read back during the run (scheduler, priority, CPUs, memory lock).
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -29,10 +35,34 @@ from pathlib import Path
 from bench.common import BenchPolicy
 
 EIGHT_HOURS_S = 8 * 3600.0
+#: SCHED_FIFO priority of the ``+fifo`` configurations. Our choice: 50, the default thread
+#: priority of ros2_control's controller manager; any priority above the normal tasks' serves
+#: on a machine without other real-time work.
+RT_PRIORITY = 50
+#: The CPU of the ``+cpu`` configurations: the last one this process may use.
+PINNED_CPU = max(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 0
+_FIFO = ("--rt-priority", str(RT_PRIORITY))
+#: Wall-clock configurations: name -> deploy-run options.
+WALLCLOCK_MODES = {
+    "sleep": ("--wait", "sleep"),
+    "hybrid": ("--wait", "hybrid"),
+    "spin": ("--wait", "spin"),
+    "hybrid+fifo": ("--wait", "hybrid", *_FIFO),
+    "spin+fifo": ("--wait", "spin", *_FIFO),
+    "hybrid+fifo+cpu": ("--wait", "hybrid", *_FIFO, "--cpu", str(PINNED_CPU)),
+    "spin+fifo+cpu": ("--wait", "spin", *_FIFO, "--cpu", str(PINNED_CPU)),
+}
+#: The configurations of a bench run without ``--wallclock-modes``.
+DEFAULT_WALLCLOCK_MODES = ("sleep", "hybrid", "spin", "hybrid+fifo", "spin+fifo", "hybrid+fifo+cpu")
+#: Target of issue 18: overrun rate of arm6 at 500 Hz over 10 minutes of wall clock.
+WALLCLOCK_TARGET = {"overrun_rate": 1e-4, "duration_s": 600.0}
 
 
-def _deploy_run(bp: BenchPolicy, duration: float, realtime: bool) -> tuple[dict, float, str]:
-    """Run deploy-run on ``bp``; returns (its report, outer wall time s, its printed summary).
+def _deploy_run(
+    bp: BenchPolicy, duration: float, realtime: bool, extra: tuple[str, ...] = ()
+) -> tuple[dict, float, str]:
+    """Run deploy-run on ``bp`` (``extra``: more options); returns (its report, outer wall time
+    s, its printed summary).
 
     Raises:
         RuntimeError: deploy-run refused its input (exit 3) or the simulation diverged (exit 4).
@@ -53,6 +83,7 @@ def _deploy_run(bp: BenchPolicy, duration: float, realtime: bool) -> tuple[dict,
             "--report",
             str(report_path),
         ] + (["--realtime"] if realtime else [])
+        argv += list(extra)
         out, err = io.StringIO(), io.StringIO()
         t = time.perf_counter()
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
@@ -88,23 +119,50 @@ def session(bp: BenchPolicy, duration: float) -> dict:
     }
 
 
-def wallclock(bp: BenchPolicy, duration: float) -> dict:
-    """The ``wallclock`` entry of results.json (see the module docstring)."""
-    report, _, _ = _deploy_run(bp, duration, realtime=True)
-    d = report["deadline"]
-    ticks = int(round(float(report["duration_s"]) * report["control_rate_hz"]))
+def wallclock(bp: BenchPolicy, duration: float, modes: list[str] | None = None) -> dict:
+    """The ``wallclock`` entry of results.json (see the module docstring): one row per name
+    of ``modes`` (default ``DEFAULT_WALLCLOCK_MODES``), run one after the other.
+
+    Raises:
+        ValueError: a name not in ``WALLCLOCK_MODES``.
+    """
+    modes = list(DEFAULT_WALLCLOCK_MODES) if modes is None else modes
+    unknown = [m for m in modes if m not in WALLCLOCK_MODES]
+    if unknown:
+        raise ValueError(f"wallclock modes {unknown}: expected some of {list(WALLCLOCK_MODES)}")
+    rows = []
+    for name in modes:
+        report, _, _ = _deploy_run(bp, duration, realtime=True, extra=WALLCLOCK_MODES[name])
+        d = report["deadline"]
+        rts = report["realtime_settings"]
+        ticks = int(round(float(report["duration_s"]) * report["control_rate_hz"]))
+        rows.append(
+            {
+                "mode": name,
+                "options": list(WALLCLOCK_MODES[name]),
+                "wait": d["wait"],
+                "scheduler": rts["scheduler"],
+                "priority": rts["priority"],
+                "cpus": rts["cpus"],
+                "memory_locked": rts["memory_locked"],
+                "notes": rts["notes"],
+                "duration_s": float(report["duration_s"]),
+                "wall_s": float(report["wall_s"]),
+                "ticks": ticks,
+                "overruns": int(d["overruns"]),
+                "missed_periods": int(d["missed_periods"]),
+                "overrun_rate": d["overruns"] / ticks if ticks else float("nan"),
+                "jitter_us": d["jitter_us"],
+                "tick_cost_us": report["tick_cost_us"],
+                "final_state": report["final_state"],
+                "final_cause": report["final_cause"],
+                "exit_code": report["exit_code"],
+            }
+        )
     return {
         "robot": bp.robot.name,
         "period_s": bp.robot.control_period,
-        "duration_s": float(report["duration_s"]),
-        "wall_s": float(report["wall_s"]),
-        "ticks": ticks,
-        "overruns": int(d["overruns"]),
-        "missed_periods": int(d["missed_periods"]),
-        "overrun_rate": d["overruns"] / ticks if ticks else float("nan"),
-        "jitter_us": d["jitter_us"],
-        "tick_cost_us": report["tick_cost_us"],
-        "final_state": report["final_state"],
-        "final_cause": report["final_cause"],
-        "exit_code": report["exit_code"],
+        "duration_s": float(duration),
+        "target": WALLCLOCK_TARGET,
+        "rows": rows,
     }

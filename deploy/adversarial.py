@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import os
 from pathlib import Path
 
 import numpy as np
 import onnx
 from onnx import TensorProto, helper
 
+from deploy.files import atomic_path
 from deploy.spec import PolicySpec
 from robots import CONTROL_MODES, load_robot
 
@@ -111,9 +111,8 @@ def main(argv: list[str] | None = None) -> int:
     robot = load_robot(args.robot)
     spec = PolicySpec.for_robot(robot, mode=args.mode)
     model = adversarial_model(spec, args.nan_probability)
-    tmp = args.out.with_name(args.out.name + ".part")
-    onnx.save(model, tmp)
-    os.replace(tmp, args.out)
+    with atomic_path(args.out) as tmp:
+        onnx.save(model, tmp)
     print(f"wrote {args.out}: adversarial {spec.action.mode} policy for {robot.name}")
     return 0
 

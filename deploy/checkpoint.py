@@ -38,11 +38,12 @@ naming the file and the field.
 
 from __future__ import annotations
 
+import io
 import math
 import os
 import pickle
 import re
-import tempfile
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,6 +53,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from deploy.errors import Sim2RealError
+from deploy.files import atomic_path
 from deploy.spec import PolicySpec, SpecError
 
 FORMAT = "sim2real-deploy/mlp"
@@ -62,7 +65,7 @@ ACTIVATIONS: dict[str, type[nn.Module]] = {"elu": nn.ELU, "tanh": nn.Tanh, "relu
 OUTPUTS = (None, "tanh")
 
 
-class CheckpointError(ValueError):
+class CheckpointError(Sim2RealError, ValueError):
     """A checkpoint is missing, unreadable or invalid; the message names the file and the field."""
 
 
@@ -360,6 +363,52 @@ def torch_file_problem(path: str | os.PathLike) -> str | None:
     )
 
 
+def unreadable_torch_file(path: str | os.PathLike, exc: BaseException) -> str:
+    """Our words for a ``torch.load(..., weights_only=True)`` failure that is not a refusal of a
+    pickled object (:func:`unsafe_globals_in` returned None): the file is truncated, corrupted
+    or was not written by ``torch.save``.
+
+    torch's own message for such a file says that ``weights_only=False`` "will likely succeed";
+    for a damaged file that advice is wrong, and following it would unpickle untrusted bytes. The
+    message returned here names the file, its size and what it looked like, and keeps only the
+    low-level cause (the unpickler's complaint or the first sentence of the reader's error).
+
+    Args:
+        path: The file that failed to load (named in the message; read for its size and head).
+        exc: What ``torch.load`` raised.
+
+    Returns:
+        A one-line message starting with ``path``.
+    """
+    path = Path(path)
+    try:
+        size = f"{path.stat().st_size} bytes"
+        with open(path, "rb") as f:
+            zipped = f.read(4).startswith(b"PK\x03\x04")
+    except OSError:
+        size, zipped = "unreadable", False
+    kind = "a zip archive (torch.save)" if zipped else "a pickle (legacy torch.save)"
+    return (
+        f"{path}: not a readable torch file (truncated or corrupt?): it starts like {kind} "
+        f"but cannot be read ({size}; {load_failure_cause(exc)}); it was cut short, damaged, "
+        "or not written by torch.save"
+    )
+
+
+def load_failure_cause(exc: BaseException) -> str:
+    """The low-level cause of a ``torch.load`` failure, without torch's advice (see
+    :func:`unreadable_torch_file`): e.g. ``"the unpickler found Unsupported operand 8"``."""
+    text = str(exc)
+    m = re.search(r"WeightsUnpickler error:\s*(\S[^\n]*)", text)
+    if m:  # torch's weights_only unpickler met an opcode or type a tensor file never holds
+        return f"the unpickler found {m.group(1).strip()}"
+    first = text.strip().splitlines()[0] if text.strip() else ""
+    if "weights_only" in first:
+        return type(exc).__name__
+    first = first.split(". ")[0].rstrip(".")  # torch appends advice after the first sentence
+    return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
+
+
 def read_torch_file(path: Path) -> Any:
     """``torch.load(path, weights_only=True)`` on CPU with errors that name the file.
 
@@ -375,7 +424,7 @@ def read_torch_file(path: Path) -> Any:
     if problem is not None:
         raise CheckpointError(f"{path}: {problem}")
     try:
-        return torch.load(path, map_location="cpu", weights_only=True)
+        return load_weights_only(path)
     except pickle.UnpicklingError as exc:
         name = unsafe_globals_in(exc)
         if name is not None:
@@ -383,18 +432,22 @@ def read_torch_file(path: Path) -> Any:
                 f"{path}: holds pickled Python objects ({name}), not plain tensors and data; "
                 "refusing to unpickle it (that could run arbitrary code)"
             ) from None
-        raise CheckpointError(
-            f"{path}: not a readable torch file (truncated or corrupt?): {_first_line(exc)}"
-        ) from None
+        raise CheckpointError(unreadable_torch_file(path, exc)) from None
     except Exception as exc:  # noqa: BLE001 - torch raises many types for damaged files
-        raise CheckpointError(
-            f"{path}: not a readable torch file (truncated or corrupt?): {_first_line(exc)}"
-        ) from None
+        raise CheckpointError(unreadable_torch_file(path, exc)) from None
 
 
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {text[0] if text else ''}"
+def load_weights_only(source: str | os.PathLike | io.BytesIO) -> Any:
+    """``torch.load(source, map_location="cpu", weights_only=True)``, without torch's warning
+    about an unusual pickle protocol (a damaged file's first bytes; the error that follows is
+    reported by :func:`unreadable_torch_file`).
+
+    Raises:
+        Whatever ``torch.load`` raises (``pickle.UnpicklingError``, ``RuntimeError``, ...).
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Detected pickle protocol")
+        return torch.load(source, map_location="cpu", weights_only=True)
 
 
 def checkpoint_from_dict(d: Any, source: str | Path) -> Checkpoint:
@@ -559,14 +612,6 @@ def save_checkpoint(
         "info": dict(info or {}),
     }
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(payload, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
     return path

@@ -18,6 +18,13 @@ the vendor's SDK, or the emulator's pty: one robot, wall clock only; goals and m
 are judged on the estimated state, as there is no ground truth). On a servo bus the run ends early
 once the fault is latched (FAULTED), and the torque goes off at the end unless
 ``--hold-on-close``.
+
+Real time (the wall clock): ``--wait sleep|hybrid|spin`` or ``--spin`` (:mod:`deploy.clock`),
+``--rt-priority N``, ``--cpu N[,M]``, ``--lock-memory`` (on by default with ``--rt-priority``)
+and ``--require-rt`` (:mod:`deploy.realtime`), applied around the loop only and read back into
+the report's ``realtime_settings``. A refused priority or memory lock is a one-line notice and the
+run goes on without it (exit 3 with ``--require-rt``); a CPU the process may not use, or a
+priority out of range, is exit 3 before anything is loaded. The safe stop on overruns stays.
 """
 
 from __future__ import annotations
@@ -32,6 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from deploy.backends.base import SimulatedPlant
+from deploy.clock import WAIT_MODES
+from deploy.files import atomic_write
 from deploy.goals import GoalScheduler
 
 EXIT_CLEAN, EXIT_HARD_VIOLATION, EXIT_FAULT, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 1, 2, 3, 4
@@ -86,6 +95,41 @@ def _parser() -> argparse.ArgumentParser:
         help="wall clock: fraction of overrun ticks (over the last 200) that makes a safe stop "
         "(default 0.05)",
     )
+    p.add_argument(
+        "--wait",
+        choices=WAIT_MODES,
+        default=None,
+        help="wall clock: how to wait for each deadline: sleep, hybrid (sleep, then busy-wait "
+        "the last 150 us; default) or spin (busy-wait the whole period: one core kept hot)",
+    )
+    p.add_argument("--spin", action="store_true", help="wall clock: the same as --wait spin")
+    p.add_argument(
+        "--rt-priority",
+        type=int,
+        default=None,
+        metavar="N",
+        help="wall clock: run the loop at SCHED_FIFO priority N (1..99) where permitted "
+        "(CAP_SYS_NICE or an rtprio limit); otherwise a one-line notice and normal priority",
+    )
+    p.add_argument(
+        "--cpu",
+        default=None,
+        metavar="N[,M]",
+        help="run the loop on these CPUs (sched_setaffinity); a CPU the process may not use "
+        "is an error (exit 3)",
+    )
+    p.add_argument(
+        "--lock-memory",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="lock the process's memory (mlockall) where permitted (CAP_IPC_LOCK or a memlock "
+        "limit); default: on with --rt-priority",
+    )
+    p.add_argument(
+        "--require-rt",
+        action="store_true",
+        help="a refused --rt-priority or memory lock is an error (exit 3), not a notice",
+    )
     p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
     p.add_argument("--goal", default=None, help="fixed goal X,Y,Z (m, base frame)")
     p.add_argument(
@@ -122,6 +166,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", default=None, help="--video: MJCF camera name (default: free)")
     p.add_argument("--fps", type=float, default=30.0, help="--video: frames per second")
     p.add_argument("--size", default="640x480", help="--video: WIDTHxHEIGHT pixels")
+    p.add_argument(
+        "--viewer",
+        action="store_true",
+        help="MuJoCo's interactive passive viewer (needs a display); lockstep, or --realtime",
+    )
     return p
 
 
@@ -165,6 +214,8 @@ def run(args) -> int:
     from deploy.spec import PolicySpec
     from robots import load_robot
 
+    # hardware runs on the wall clock only; the real-time options are checked before loading
+    wait, rt_request = realtime_options(args, bool(args.realtime) or args.backend != "sim")
     robot = load_robot(args.robot)
     spec = None
     if args.spec:
@@ -182,16 +233,57 @@ def run(args) -> int:
     simulated = isinstance(backend, SimulatedPlant)
     realtime = bool(args.realtime) or not simulated  # hardware: the wall clock only
     injector = FaultInjector(faults, backend) if faults else None
-    clock = WallClock(robot.control_period) if realtime else SimClock(robot.control_period)
+    if realtime:
+        clock = WallClock(robot.control_period, wait=wait)
+    else:
+        clock = SimClock(robot.control_period)
     with backend:
         return _run_opened(
-            args, robot, policy, backend, simulated, realtime, injector, clock, fixed
+            args, robot, policy, backend, simulated, realtime, injector, clock, fixed, rt_request
         )
 
 
-def _run_opened(args, robot, policy, backend, simulated, realtime, injector, clock, fixed) -> int:
+def realtime_options(args, realtime: bool):
+    """The wall clock's wait mode and the :class:`~deploy.realtime.RealtimeRequest` of
+    ``--wait``/``--spin``, ``--rt-priority``, ``--cpu``, ``--lock-memory`` and ``--require-rt``
+    (validated against this machine: the CPUs exist for this process, the priority is in range).
+
+    ``--lock-memory`` defaults to on with ``--rt-priority`` and off otherwise.
+
+    Raises:
+        ValueError: ``--spin`` with another ``--wait``; a wait mode or ``--rt-priority`` without
+            the wall clock (a lockstep run never waits, and a lockstep run at real-time priority
+            would take a core from everything else);
+            :class:`~deploy.realtime.RealtimeError` for a bad ``--cpu`` or ``--rt-priority``.
+    """
+    from deploy.realtime import RealtimeRequest, parse_cpus
+
+    if args.spin and args.wait not in (None, "spin"):
+        raise ValueError(f"--spin and --wait {args.wait} disagree: give one of them")
+    wait = "spin" if args.spin else (args.wait or "hybrid")
+    if not realtime and (args.spin or args.wait or args.rt_priority is not None):
+        given = "--spin" if args.spin else "--wait" if args.wait else "--rt-priority"
+        raise ValueError(
+            f"{given} needs the wall clock: add --realtime (a lockstep run never waits)"
+        )
+    lock = args.lock_memory if args.lock_memory is not None else args.rt_priority is not None
+    request = RealtimeRequest(
+        priority=args.rt_priority,
+        cpus=parse_cpus(args.cpu) if args.cpu is not None else None,
+        lock_memory=bool(lock),
+        require=bool(args.require_rt),
+        spin=wait == "spin",
+    )
+    request.validate()
+    return wait, request
+
+
+def _run_opened(
+    args, robot, policy, backend, simulated, realtime, injector, clock, fixed, rt_request=None
+) -> int:
     from deploy.backends.sim import SimulationDivergedError
     from deploy.interventions import InterventionMonitor
+    from deploy.realtime import RealtimeRequest, RealtimeSettings
     from deploy.runtime import FAULTED, RUNNING, STAGES, Runtime
     from deploy.telemetry import LatencyHistogram, Telemetry
     from deploy.violations import ViolationMonitor
@@ -221,6 +313,12 @@ def _run_opened(args, robot, policy, backend, simulated, realtime, injector, clo
         video = open_video(args, robot, backend)  # None (and a one-line error) without GL
         if video is not None:
             viewers.append(video)
+    window = None
+    if args.viewer:
+        from deploy.viewer import PassiveViewer
+
+        window = PassiveViewer(robot, backend)  # synced after every tick; closing it ends the run
+        viewers.append(window)
     limit = {} if args.overrun_limit is None else {"overrun_rate_limit": args.overrun_limit}
     rt = Runtime(
         robot, policy, backend, clock=clock, injector=injector, telemetry=telemetry, **limit
@@ -272,23 +370,29 @@ def _run_opened(args, robot, policy, backend, simulated, realtime, injector, clo
             motion_ticks[:] += running[:, 0]
         motion["dq"][:] = dq
         motion["acc"][:] = acc
+        closed = False
         for viewer in viewers:
-            viewer(r)
-        return not simulated and bool((r.mode == FAULTED).all())  # hardware: stop when latched
+            closed |= bool(viewer(r))  # the viewer's window was closed: end the run
+        return closed or (not simulated and bool((r.mode == FAULTED).all()))  # hardware: latched
 
-    wall = time.perf_counter()
-    diverged = None
-    rt.start()
-    interventions.resync()  # start zeroes the smoother's counters
-    try:
-        rt.run(ticks, on_tick=on_tick)
-    except SimulationDivergedError as exc:
-        diverged = str(exc)
-    wall = time.perf_counter() - wall
+    # priority, affinity and memory lock for the loop only (not the loading), restored after it
+    settings = RealtimeSettings(rt_request or RealtimeRequest())
+    with settings:  # RealtimeError (a ValueError: exit 3) if --require-rt and refused
+        wall = time.perf_counter()
+        diverged = None
+        rt.start()
+        interventions.resync()  # start zeroes the smoother's counters
+        try:
+            rt.run(ticks, on_tick=on_tick)
+        except SimulationDivergedError as exc:
+            diverged = str(exc)
+        wall = time.perf_counter() - wall
     if telemetry is not None:
         telemetry.close()
     if video is not None:
         video.close()
+    if window is not None:
+        window.close()
 
     hard_stops = int(rt.counters.faults["hard_limit"].sum())
     if violations is not None:
@@ -359,7 +463,9 @@ def _run_opened(args, robot, policy, backend, simulated, realtime, injector, clo
             "overruns": clock.overruns,
             "missed_periods": clock.missed_periods,
             "jitter_us": clock.jitter.summary() if realtime else None,
+            "wait": clock.wait_mode,
         },
+        "realtime_settings": settings.summary(),
         "bus": backend.bus_summary() if hasattr(backend, "bus_summary") else None,
         "diverged": diverged,
     }
@@ -374,9 +480,7 @@ def _run_opened(args, robot, policy, backend, simulated, realtime, injector, clo
     report["exit_code"] = code
     print_summary(report)
     if args.report:
-        tmp = args.report.with_name(args.report.name + ".part")
-        tmp.write_text(json.dumps(report, indent=2))
-        os.replace(tmp, args.report)
+        atomic_write(args.report, json.dumps(report, indent=2))
     return code
 
 
@@ -452,6 +556,16 @@ def print_summary(r: dict) -> None:
         j = d["jitter_us"]
         line += f", jitter p50 {j['p50_us']:.1f} p99 {j['p99_us']:.1f} p99.9 {j['p99.9_us']:.1f} us"
     print(line)
+    rts = r.get("realtime_settings")
+    if rts and (r["realtime"] or rts["requested"]["cpus"] is not None):
+        sched = rts["scheduler"] or "scheduler unknown"
+        if rts["scheduler"] == "SCHED_FIFO":
+            sched += f" {rts['priority']}"
+        print(
+            f"  real time         wait {d.get('wait') or 'none (lockstep)'}, {sched}, CPUs "
+            f"{','.join(map(str, rts['cpus']))}, memory "
+            f"{'locked' if rts['memory_locked'] else 'not locked'}"
+        )
     print(
         f"  final state       {', '.join(r['final_state'])}"
         + (f" ({', '.join(c for c in r['final_cause'] if c)})" if any(r["final_cause"]) else "")
@@ -464,6 +578,18 @@ def print_summary(r: dict) -> None:
 def deploy_run_main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
     args = _parser().parse_args(argv)
+    if args.viewer:  # a window or nothing: refuse before the run starts
+        from deploy.viewer import NoDisplayError, check_display
+
+        try:
+            check_display()
+        except NoDisplayError as exc:
+            print(f"deploy-run: error: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    if args.video is not None:
+        from deploy.video import headless_gl_default
+
+        headless_gl_default()  # MUJOCO_GL=egl on a machine without a display, unless chosen
     if os.environ.get("MUJOCO_GL"):  # mujoco loads that GL backend when imported
         from deploy.video import import_mujoco
 
@@ -472,13 +598,18 @@ def deploy_run_main(argv: list[str] | None = None) -> int:
             print(f"deploy-run: error: {gl_error}", file=sys.stderr)
             args.video = None  # the run goes on without video
     try:
-        return run(args)
+        code = run(args)
     except (
         ValueError,
         OSError,
     ) as exc:  # RobotSpecError, SpecError, PolicyLoadError are ValueErrors
         print(f"deploy-run: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    if args.viewer:  # the run is reported: leave before MuJoCo's viewer tears down its GL
+        from deploy.viewer import exit_now
+
+        exit_now(code)
+    return code
 
 
 if __name__ == "__main__":

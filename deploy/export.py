@@ -5,6 +5,7 @@ Usage::
     policy-export SOURCE [--spec SPEC.json] [--out FILE.onnx] [--trust-pickle]
                   [--vecnormalize FILE(.npz|.json|.pkl)] [--activation elu|tanh|relu]
                   [--robot NAME|PATH] [--exporter torchscript|dynamo]
+    policy-export --inspect FILE     # what FILE is (deploy.inspect_policy); nothing exported
 
 ``SOURCE`` is a file (a bare name that does not exist as given is looked up in ``policies/``); the
 ONNX file is written beside it with the same stem unless ``--out`` is given. Exit status: 0
@@ -20,7 +21,11 @@ format              what is read
 ==================  ==========================================================================
 our checkpoint      ``deploy.checkpoint`` format (MLP, spec and normalizer inside; ``--spec``
                     optional and then must agree)
-TorchScript         ``torch.jit.save`` archive; needs ``--spec``
+TorchScript         ``torch.jit.save`` archive; needs ``--spec``. Stateful TorchScript is refused
+                    (:func:`deploy.export_torchscript_lstm.check_stateless`), except
+legged_gym LSTM     legged_gym's ``PolicyExporterLSTM`` (buffers ``hidden_state``/``cell_state``
+                    updated in place): the buffers become explicit state I/O and the file itself
+                    is a parity reference (:mod:`deploy.export_torchscript_lstm`). Needs ``--spec``.
 SB3 PPO / SAC       Stable-Baselines3 ``.zip``, read without unpickling: ``policy.pth`` (state
                     dict, ``weights_only``) and the ``data`` JSON. The deterministic actor is
                     rebuilt from the state-dict shapes: PPO ``mlp_extractor.policy_net`` +
@@ -29,6 +34,8 @@ SB3 PPO / SAC       Stable-Baselines3 ``.zip``, read without unpickling: ``polic
                     activation comes from ``policy_kwargs.activation_fn`` when recorded;
                     ``--activation`` overrides. The action space must be the Box [-1, 1]
                     (the spec scales actions). Needs ``--spec``.
+RecurrentPPO        SB3-contrib ``MlpLstmPolicy`` zip, read the same way: ``lstm_actor`` +
+                    policy net + ``action_net`` (:mod:`deploy.export_sb3_recurrent`). ``--spec``.
 rsl_rl              ``{"model_state_dict": {"actor.0.weight", ...}, ...}``: the ``actor.*`` MLP
                     (ELU by default) and rsl_rl's ``EmpiricalNormalization``, either
                     ``obs_norm_state_dict`` (rsl_rl 1.x/2.x) or ``actor_obs_normalizer.*`` in the
@@ -53,7 +60,7 @@ The graph: input ``obs`` float32 [batch, obs_dim] (the spec's normalized observa
 ``action`` float32 [batch, act_dim], dynamic batch axis, opset 18 (``OPSET``); it bakes in the
 empirical observation normalizer (if any) and the action clip ``[-clip, clip]`` of the spec.
 Exporter: torch's TorchScript-based exporter (``torch.onnx.export(dynamo=False)``) by default: it
-takes TorchScript sources, needs no onnxscript and runs in ~0.1 s; ``--exporter dynamo`` uses the
+takes TorchScript sources and needs no onnxscript; ``--exporter dynamo`` uses the
 ``torch.export`` exporter instead (not for TorchScript sources). ``onnx.checker.check_model``
 (full check) must pass.
 
@@ -65,7 +72,8 @@ Recurrent sources get the graph ``obs``, ``h_in`` (, ``c_in``) -> ``action``, ``
 (, ``c_out``), state ``[layers, batch, hidden]`` (TorchScript-based exporter only), and a parity
 gate over sequences: step 1 is replaced by :func:`deploy.export_recurrent.sequence_parity` (500
 sequential steps, state carried, resets half way), and the replay of step 2 carries the state on
-both sides.
+both sides. A source that runs as it is (legged_gym's stateful TorchScript) is also stepped
+against the ONNX for 500 steps at batch 1 (figures ``source_max_abs_error``, ``source_steps``).
 
 Parity gate (tolerance ``TOLERANCE`` = 1e-5, max abs error over all action entries), both run
 through :class:`deploy.policy.OnnxPolicy` exactly as the runtime runs it:
@@ -83,7 +91,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
 import io
 import json
 import math
@@ -92,7 +99,6 @@ import pickle
 import platform
 import re
 import sys
-import tempfile
 import time
 import traceback
 import warnings
@@ -116,9 +122,14 @@ from deploy.checkpoint import (
     MLPActor,
     ObservationNormalizer,
     checkpoint_from_dict,
+    load_failure_cause,
+    load_weights_only,
     torch_file_problem,
+    unreadable_torch_file,
     unsafe_globals_in,
 )
+from deploy.errors import Sim2RealError
+from deploy.files import atomic_path, sha256_file
 from deploy.policy import OnnxPolicy, PolicyLoadError, read_spec, spec_differences
 from deploy.spec import PolicySpec, SpecError
 from deploy.state import Kinematics, RobotState
@@ -137,11 +148,11 @@ EXPORTERS = ("torchscript", "dynamo")
 POLICIES_DIR = Path(__file__).resolve().parent.parent / "policies"
 
 
-class ExportError(ValueError):
+class ExportError(Sim2RealError, ValueError):
     """Bad input (exit status 2): the message names the file and what is wrong."""
 
 
-class ParityError(RuntimeError):
+class ParityError(Sim2RealError, RuntimeError):
     """The ONNX graph disagrees with the torch source beyond the tolerance (exit status 1).
 
     Attributes:
@@ -231,6 +242,9 @@ class SourcePolicy:
     normalizer_kind: str | None = None
     scripted: bool = False
     extra_hashes: dict[str, str] = field(default_factory=dict)
+    #: recurrent sources that can run as they are (a stateful TorchScript file): a factory of
+    #: the batch-1 reference of :func:`deploy.export_recurrent.source_sequence_parity`
+    sequence_reference: Any = None
 
     @property
     def recurrent(self) -> bool:
@@ -259,15 +273,6 @@ class SourcePolicy:
 def _first_line(exc: BaseException) -> str:
     lines = str(exc).strip().splitlines()
     return f"{type(exc).__name__}: {lines[0] if lines else ''}"
-
-
-def sha256_file(path: Path) -> str:
-    """sha256 (hex) of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def package_version() -> str:
@@ -430,13 +435,11 @@ def _detect(path: Path) -> str:
 
 def _torch_load(path: Path, trust_pickle: bool) -> Any:
     try:
-        return torch.load(path, map_location="cpu", weights_only=True)
+        return load_weights_only(path)
     except pickle.UnpicklingError as exc:
         name = unsafe_globals_in(exc)
         if name is None:
-            raise ExportError(
-                f"{path}: not a readable torch file (truncated or corrupt?): {_first_line(exc)}"
-            ) from None
+            raise ExportError(unreadable_torch_file(path, exc)) from None
         if not trust_pickle:
             raise ExportError(
                 f"{path}: holds a pickled Python object ({name}), e.g. a whole nn.Module; "
@@ -444,9 +447,7 @@ def _torch_load(path: Path, trust_pickle: bool) -> Any:
                 "where the file comes from, or export a state dict, TorchScript or our checkpoint"
             ) from None
     except Exception as exc:  # noqa: BLE001 - torch raises many types for damaged files
-        raise ExportError(
-            f"{path}: not a readable torch file (truncated or corrupt?): {_first_line(exc)}"
-        ) from None
+        raise ExportError(unreadable_torch_file(path, exc)) from None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -478,18 +479,32 @@ def _load_checkpoint(path: Path, obj: Mapping, spec: PolicySpec | None) -> Sourc
     )
 
 
-def _load_torchscript(path: Path, spec: PolicySpec | None) -> SourcePolicy:
-    spec = _require_spec(spec, path, "TorchScript module")
+def load_torchscript(path: Path, error=None):
+    """``torch.jit.load`` of ``path`` on the CPU, its warnings silenced.
+
+    Raises:
+        error (default :class:`ExportError`): the file is not a loadable TorchScript module.
+    """
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            net = torch.jit.load(str(path), map_location="cpu")
+            return torch.jit.load(str(path), map_location="cpu")
     except Exception as exc:  # noqa: BLE001
-        raise ExportError(
+        raise (error or ExportError)(
             f"{path}: not a loadable TorchScript module (truncated or corrupt?): {_first_line(exc)}"
         ) from None
+
+
+def _load_torchscript(path: Path, spec: PolicySpec | None) -> SourcePolicy:
+    spec = _require_spec(spec, path, "TorchScript module")
+    net = load_torchscript(path)
     net.eval()
+    from deploy import export_torchscript_lstm as lstm_ts
+
+    if lstm_ts.is_legged_gym_lstm(net):
+        return lstm_ts.load_legged_gym_lstm(path, net, spec)
     check_finite_tensors(dict(net.state_dict()), str(path))
+    lstm_ts.check_stateless(net, spec.obs_dim, path, ExportError)
     _probe(net, spec, path)
     return SourcePolicy(net=net, spec=spec, source_format="torchscript", scripted=True)
 
@@ -571,10 +586,12 @@ def _load_sb3(path: Path, spec: PolicySpec | None, activation: str | None) -> So
     if not isinstance(data, Mapping):
         raise ExportError(f"{path}: entry 'data' is not a JSON object")
     try:
-        sd = torch.load(io.BytesIO(policy_bytes), map_location="cpu", weights_only=True)
+        sd = load_weights_only(io.BytesIO(policy_bytes))
     except Exception as exc:  # noqa: BLE001
+        cause = "it holds pickled objects" if unsafe_globals_in(exc) else load_failure_cause(exc)
         raise ExportError(
-            f"{path}: entry 'policy.pth' is not a readable state dict: {_first_line(exc)}"
+            f"{path}: entry 'policy.pth' is not a readable state dict ({cause}); the archive is "
+            "damaged or was not written by Stable-Baselines3"
         ) from None
     if not isinstance(sd, Mapping) or not all(isinstance(v, torch.Tensor) for v in sd.values()):
         raise ExportError(f"{path}: entry 'policy.pth' is not a state dict of tensors")
@@ -586,6 +603,10 @@ def _load_sb3(path: Path, spec: PolicySpec | None, activation: str | None) -> So
         )
     _check_sb3_spaces(data, spec, path)
     kwargs = data.get("policy_kwargs") if isinstance(data.get("policy_kwargs"), Mapping) else {}
+    if any(k.startswith("lstm_actor.") for k in sd):
+        from deploy.export_sb3_recurrent import load_recurrent_ppo
+
+        return load_recurrent_ppo(path, sd, data, spec, activation)
     sac = "actor.mu.weight" in sd
     if sac and data.get("use_sde"):
         raise ExportError(f"{path}: SAC with use_sde=True is not supported")
@@ -1039,10 +1060,7 @@ def _resolve_robot(robot: Robot | str | os.PathLike | None, spec: PolicySpec, wh
 
 
 def _write(model: onnx.ModelProto, path: Path) -> None:
-    with open(path, "wb") as f:
-        f.write(model.SerializeToString())
-        f.flush()
-        os.fsync(f.fileno())
+    path.write_bytes(model.SerializeToString())  # fsync-ed by atomic_path before the rename
 
 
 def run_export(
@@ -1090,65 +1108,72 @@ def run_export(
     if src.normalizer_kind:
         base_meta["observation_normalizer"] = src.normalizer_kind
 
+    # the file is written and checked under a temporary name, moved onto ``out`` only if it passes
     try:
-        fd, tmp_name = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp")
+        with atomic_path(out) as tmp:
+            pending = dataclasses.replace(src.spec, baked=baked, parity={})
+            set_metadata(model, {"policy_spec": pending.to_json(), **base_meta})
+            model.doc_string = (
+                f"{src.spec.robot} policy exported by policy-export from {source.name}"
+            )
+            _write(model, tmp)
+            try:
+                policy = OnnxPolicy(tmp, the_robot)
+            except PolicyLoadError as exc:
+                raise ExportError(
+                    f"the exported graph does not load in the runtime: {exc}"
+                ) from None
+            reference = None
+            if src.recurrent:
+                from deploy.export_recurrent import TorchRecurrentReference, sequence_parity
+
+                static_err, n_samples = sequence_parity(policy, module, src.spec, seed)
+                reference = TorchRecurrentReference(module)
+            else:
+                static_err, n_samples = static_parity(
+                    policy, module, src.spec, PARITY_SAMPLES, seed
+                )
+            loop = closed_loop_parity(policy, module, the_robot, seed=seed, reference=reference)
+            figures = {
+                "tolerance": TOLERANCE,
+                "max_abs_error": static_err,
+                "samples": n_samples,
+                "replay_max_abs_error": loop["max_abs_error"],
+                "replay_ticks": loop["ticks"],
+                "replay_envs": loop["envs"],
+                "replay_mode": loop["mode"],
+                "replay_plant_resets": loop["plant_resets"],
+            }
+            worst = max(static_err, loop["max_abs_error"])
+            if src.sequence_reference is not None:
+                from deploy.export_recurrent import source_sequence_parity
+
+                src_err, src_steps = source_sequence_parity(
+                    policy, src.sequence_reference(), src.spec, seed
+                )
+                figures.update(source_max_abs_error=src_err, source_steps=src_steps)
+                worst = max(worst, src_err)
+                static_err = max(static_err, src_err)
+            if not worst <= TOLERANCE:
+                raise ParityError(
+                    f"{source}: ONNX and torch disagree: max abs error {static_err:.3g} over "
+                    f"{n_samples} observations, {loop['max_abs_error']:.3g} over the "
+                    f"{loop['ticks']}-tick closed-loop replay (tolerance {TOLERANCE:g}); nothing "
+                    "written",
+                    figures,
+                )
+            final = dataclasses.replace(src.spec, baked=baked, parity=figures)
+            set_metadata(
+                model,
+                {"policy_spec": final.to_json(), **base_meta, "parity": json.dumps(figures)},
+            )
+            _write(model, tmp)
+            check = OnnxPolicy(tmp, the_robot)  # the final bytes load and give the same actions
+            probe = parity_observations(src.spec, 16, np.random.default_rng(seed + 1))
+            if _max_abs(check(probe).copy(), policy(probe).copy()) != 0.0:
+                raise ParityError(f"{source}: the final file gives different actions", figures)
     except OSError as exc:
         raise ExportError(f"{out}: cannot write in {out.parent}: {exc.strerror or exc}") from None
-    os.close(fd)
-    tmp = Path(tmp_name)
-    try:
-        pending = dataclasses.replace(src.spec, baked=baked, parity={})
-        set_metadata(model, {"policy_spec": pending.to_json(), **base_meta})
-        model.doc_string = f"{src.spec.robot} policy exported by policy-export from {source.name}"
-        _write(model, tmp)
-        try:
-            policy = OnnxPolicy(tmp, the_robot)
-        except PolicyLoadError as exc:
-            raise ExportError(f"the exported graph does not load in the runtime: {exc}") from None
-        reference = None
-        if src.recurrent:
-            from deploy.export_recurrent import TorchRecurrentReference, sequence_parity
-
-            static_err, n_samples = sequence_parity(policy, module, src.spec, seed)
-            reference = TorchRecurrentReference(module)
-        else:
-            static_err, n_samples = static_parity(policy, module, src.spec, PARITY_SAMPLES, seed)
-        loop = closed_loop_parity(policy, module, the_robot, seed=seed, reference=reference)
-        figures = {
-            "tolerance": TOLERANCE,
-            "max_abs_error": static_err,
-            "samples": n_samples,
-            "replay_max_abs_error": loop["max_abs_error"],
-            "replay_ticks": loop["ticks"],
-            "replay_envs": loop["envs"],
-            "replay_mode": loop["mode"],
-            "replay_plant_resets": loop["plant_resets"],
-        }
-        worst = max(static_err, loop["max_abs_error"])
-        if not worst <= TOLERANCE:
-            raise ParityError(
-                f"{source}: ONNX and torch disagree: max abs error {static_err:.3g} over "
-                f"{n_samples} observations, {loop['max_abs_error']:.3g} over the "
-                f"{loop['ticks']}-tick closed-loop replay (tolerance {TOLERANCE:g}); nothing "
-                "written",
-                figures,
-            )
-        final = dataclasses.replace(src.spec, baked=baked, parity=figures)
-        set_metadata(
-            model,
-            {"policy_spec": final.to_json(), **base_meta, "parity": json.dumps(figures)},
-        )
-        _write(model, tmp)
-        check = OnnxPolicy(tmp, the_robot)  # the final bytes load and give the same actions
-        probe = parity_observations(src.spec, 16, np.random.default_rng(seed + 1))
-        if _max_abs(check(probe).copy(), policy(probe).copy()) != 0.0:
-            raise ParityError(f"{source}: the final file gives different actions", figures)
-        try:
-            os.replace(tmp, out)
-        except OSError as exc:
-            raise ExportError(f"{out}: cannot write: {exc.strerror or exc}") from None
-    finally:
-        tmp.unlink(missing_ok=True)
     return ExportResult(
         path=out,
         source_format=src.source_format,
@@ -1234,6 +1259,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--robot", help="robot name or path (default: the spec's robot)")
     p.add_argument("--exporter", choices=EXPORTERS, default="torchscript")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--inspect",
+        action="store_true",
+        help="print what SOURCE is (ONNX or any input format: inputs, outputs, recurrent state, "
+        "metadata, spec) and exit without exporting",
+    )
     args = p.parse_args(argv)
     source = resolve_policy_path(args.source)
     if not source.exists() and not source.is_absolute():
@@ -1242,6 +1273,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return EXIT_BAD_INPUT
+    if args.inspect:
+        from deploy.inspect_policy import InspectError, format_report, inspect_file
+
+        try:
+            print(format_report(inspect_file(source)))
+        except InspectError as exc:
+            print(f"policy-export: error: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        return EXIT_OK
     try:
         result = run_export(
             source,

@@ -176,3 +176,118 @@ def sequence_parity(
         worst = max(worst, _max_abs(policy(walk[t, :1]).copy(), ref(walk[t, :1])))
         compared += 1
     return worst, compared
+
+
+def source_sequence_parity(policy, reference, spec: PolicySpec, seed: int) -> tuple[float, int]:
+    """Max abs error ONNX vs the source itself, stepped at batch 1 with its own state.
+
+    For sources whose original form can be run (a stateful TorchScript file,
+    :class:`deploy.export_torchscript_lstm.StatefulScriptReference`): ``SEQUENCE_STEPS`` steps of
+    one env's random walk (as :func:`sequence_parity`, ``seed + 1``), both sides reset at the
+    half (``reference.reset()``, ``policy.reset``).
+
+    Args:
+        policy: The :class:`deploy.policy.OnnxPolicy` under test. reference: ``ref(obs)`` ->
+            action (1, act_dim), clip applied, with ``reset()``. spec: The PolicySpec.
+
+    Returns:
+        ``(max_abs_error, actions compared)``.
+    """
+    rng = np.random.default_rng(seed + 1)
+    steps = rng.normal(0.0, WALK_SIGMA, (SEQUENCE_STEPS, 1, spec.obs_dim))
+    walk = np.clip(np.cumsum(steps, axis=0), -1.2, 1.2).astype(np.float32)
+    one = np.ones(1, dtype=bool)
+    policy.reset(one)
+    reference.reset()
+    worst = 0.0
+    for t in range(SEQUENCE_STEPS):
+        if t == SEQUENCE_STEPS // 2:
+            policy.reset(one)
+            reference.reset()
+        worst = max(worst, _max_abs(policy(walk[t]).copy(), reference(walk[t])))
+    return worst, SEQUENCE_STEPS
+
+
+def recurrent_source(
+    rnn, mlp, normalizer, spec: PolicySpec, path, label: str, normalizer_kind=None
+):
+    """An RNN and its actor MLP as the export's ``deploy.export.SourcePolicy``
+    (:class:`RecurrentCore`), once its action for the zero observation is finite.
+
+    Args:
+        rnn: ``nn.LSTM`` or ``nn.GRU`` (batch_first False). mlp: The actor after it.
+        normalizer: Observation normalizer module or None. spec: The PolicySpec.
+        path: The source file (for messages). label: The source's name in ``source_format``,
+            e.g. ``'rsl_rl recurrent'``. normalizer_kind: The normalizer's description.
+
+    Raises:
+        deploy.export.ExportError: the action for the zero observation is not finite.
+    """
+    from deploy import export as ex  # deploy.export imports this module lazily
+
+    core = RecurrentCore(rnn, mlp).eval()
+    probe = RecurrentPolicyModule(core, normalizer, spec.action.clip).eval()
+    with torch.no_grad():
+        action, *_ = probe(torch.zeros(2, spec.obs_dim), *core.layout.zeros(2))
+    if not torch.isfinite(action).all():
+        raise ex.ExportError(f"{path}: the action for the zero observation is not finite")
+    layout = core.layout
+    return ex.SourcePolicy(
+        net=core,
+        spec=spec,
+        source_format=f"{label} ({layout.kind}, {layout.layers} layer(s), hidden {layout.hidden})",
+        normalizer=normalizer,
+        normalizer_kind=normalizer_kind,
+    )
+
+
+def rnn_from_state_dict(
+    weights: dict[str, torch.Tensor], input_size: int, where: str, error
+) -> nn.LSTM | nn.GRU:
+    """Rebuild a one-directional, sequence-first ``nn.LSTM`` or ``nn.GRU`` from its parameters.
+
+    Args:
+        weights: ``weight_ih_l<k>``, ``weight_hh_l<k>`` (and ``bias_ih_l<k>``, ``bias_hh_l<k>``,
+            all or none), prefix removed. input_size: Expected input features (the spec's
+            observation size). where: Named in messages (file and prefix). error: The exception
+            class to raise.
+
+    The kind comes from ``weight_hh_l0``: (4 hidden, hidden) is an LSTM, (3 hidden, hidden) a GRU.
+
+    Raises:
+        error: other parameter names (bidirectional ``_reverse``, projections), missing or
+            malformed matrices, a kind neither LSTM nor GRU, another input size.
+    """
+    import re
+
+    for name in weights:
+        if not re.fullmatch(r"(weight|bias)_(ih|hh)_l\d+", name):
+            raise error(
+                f"{where}{name}: unsupported recurrent parameter (a one-directional LSTM or GRU "
+                "without projection is expected)"
+            )
+    hh, ih = weights.get("weight_hh_l0"), weights.get("weight_ih_l0")
+    if hh is None or ih is None or hh.ndim != 2 or ih.ndim != 2:
+        raise error(f"{where}weight_ih_l0 / weight_hh_l0: missing or not matrices")
+    hidden = int(hh.shape[1])
+    gates = int(hh.shape[0]) // hidden if hidden else 0
+    if gates not in (3, 4) or gates * hidden != hh.shape[0]:
+        raise error(
+            f"{where}weight_hh_l0 has shape {tuple(hh.shape)}: neither an LSTM (4 hidden, "
+            "hidden) nor a GRU (3 hidden, hidden)"
+        )
+    if ih.shape[1] != input_size:
+        raise error(
+            f"{where}: wrong input size: the recurrent layer takes {ih.shape[1]} inputs, the "
+            f"spec's observation has {input_size}"
+        )
+    layers = len([k for k in weights if k.startswith("weight_ih_l")])
+    bias = any(k.startswith("bias_") for k in weights)
+    cls = nn.LSTM if gates == 4 else nn.GRU
+    rnn = cls(input_size=input_size, hidden_size=hidden, num_layers=layers, bias=bias)
+    try:
+        rnn.load_state_dict({k: v.to(torch.float32) for k, v in weights.items()})
+    except RuntimeError as exc:
+        first = str(exc).strip().splitlines()[0]
+        raise error(f"{where}*: the parameters do not form a {cls.__name__}: {first}") from None
+    return rnn.eval()

@@ -20,50 +20,11 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import torch
-from torch import nn
 
-from deploy.export_recurrent import RecurrentCore, RecurrentPolicyModule
+from deploy.export_recurrent import recurrent_source, rnn_from_state_dict
 from deploy.spec import PolicySpec
 
 RNN_PREFIX = "memory_a.rnn."
-
-
-def _rnn_from_state_dict(
-    sd: Mapping[str, torch.Tensor], obs_dim: int, path: Path, error
-) -> nn.LSTM | nn.GRU:
-    """Rebuild ``memory_a.rnn`` (LSTM or GRU) from its state dict entries."""
-    weights = {k[len(RNN_PREFIX) :]: v for k, v in sd.items() if k.startswith(RNN_PREFIX)}
-    for name in weights:
-        if not re.fullmatch(r"(weight|bias)_(ih|hh)_l\d+", name):
-            raise error(
-                f"{path}: unsupported recurrent parameter '{RNN_PREFIX}{name}' (a one-directional "
-                "LSTM or GRU with biases is expected)"
-            )
-    hh = weights.get("weight_hh_l0")
-    ih = weights.get("weight_ih_l0")
-    if hh is None or ih is None or hh.ndim != 2 or ih.ndim != 2:
-        raise error(f"{path}: '{RNN_PREFIX}weight_ih_l0' / 'weight_hh_l0' missing or not matrices")
-    hidden = int(hh.shape[1])
-    gates = int(hh.shape[0]) // hidden if hidden else 0
-    if gates not in (3, 4) or gates * hidden != hh.shape[0]:
-        raise error(
-            f"{path}: '{RNN_PREFIX}weight_hh_l0' has shape {tuple(hh.shape)}: neither an LSTM "
-            "(4 hidden, hidden) nor a GRU (3 hidden, hidden)"
-        )
-    if ih.shape[1] != obs_dim:
-        raise error(
-            f"{path}: wrong input size: the recurrent actor takes {ih.shape[1]} inputs, the "
-            f"spec's observation has {obs_dim}"
-        )
-    layers = len([k for k in weights if k.startswith("weight_ih_l")])
-    cls = nn.LSTM if gates == 4 else nn.GRU
-    rnn = cls(input_size=obs_dim, hidden_size=hidden, num_layers=layers)
-    try:
-        rnn.load_state_dict({k: v.to(torch.float32) for k, v in weights.items()})
-    except RuntimeError as exc:
-        first = str(exc).strip().splitlines()[0]
-        raise error(f"{path}: '{RNN_PREFIX}*' does not form a {cls.__name__}: {first}") from None
-    return rnn.eval()
 
 
 def load_rsl_rl_recurrent(
@@ -88,7 +49,8 @@ def load_rsl_rl_recurrent(
     ex.check_finite_tensors(
         {k: v for k, v in msd.items() if k.startswith(RNN_PREFIX)}, f"{path}: memory_a"
     )
-    rnn = _rnn_from_state_dict(msd, spec.obs_dim, path, ex.ExportError)
+    weights = {k[len(RNN_PREFIX) :]: v for k, v in msd.items() if k.startswith(RNN_PREFIX)}
+    rnn = rnn_from_state_dict(weights, spec.obs_dim, f"{path}: {RNN_PREFIX}", ex.ExportError)
     actor_keys = {k: v for k, v in msd.items() if re.fullmatch(r"actor\.\d+\.(weight|bias)", k)}
     if not actor_keys:
         raise ex.ExportError(
@@ -108,19 +70,5 @@ def load_rsl_rl_recurrent(
         )
     mlp = ex._build_mlp(layers, activation or "elu", None, path, "rsl_rl actor")
     norm = ex.rsl_rl_normalizer(path, obj, msd, spec)
-    core = RecurrentCore(rnn, mlp).eval()
-    probe = RecurrentPolicyModule(core, norm, spec.action.clip).eval()
-    with torch.no_grad():
-        action, *_ = probe(torch.zeros(2, spec.obs_dim), *core.layout.zeros(2))
-    if not torch.isfinite(action).all():
-        raise ex.ExportError(f"{path}: the action for the zero observation is not finite")
-    return ex.SourcePolicy(
-        net=core,
-        spec=spec,
-        source_format=f"rsl_rl recurrent ({core.layout.kind}, {core.layout.layers} layer(s), "
-        f"hidden {core.layout.hidden})",
-        normalizer=norm,
-        normalizer_kind=None
-        if norm is None
-        else f"rsl_rl EmpiricalNormalization (eps {ex.RSL_RL_EPS})",
-    )
+    kind = None if norm is None else f"rsl_rl EmpiricalNormalization (eps {ex.RSL_RL_EPS})"
+    return recurrent_source(rnn, mlp, norm, spec, path, "rsl_rl recurrent", kind)

@@ -21,6 +21,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from deploy.backends.base import SensorFrame
+from deploy.stateful import (
+    StateDictError,
+    check,
+    from_json,
+    prefixed,
+    put,
+    scalar,
+    section,
+    take,
+    to_json,
+)
 
 KINDS = ("dropout", "stale", "nan-action", "latency", "push", "cable")
 DEFAULT_DURATION = 0.5  # s
@@ -82,6 +93,61 @@ class FaultInjector:
         self.log: list[dict] = []
         self._has_push = any(f.kind in ("push", "cable") for f in self.faults)
 
+    # ------------------------------------------------------------------ state
+    def state_dict(self, env: int | None = None) -> dict:
+        """The injector's state (copies; conventions of :mod:`deploy.stateful`): the backend's
+        settings without faults ``base_dropout`` (envs,) and ``base_latency`` (envs,) int64;
+        ``frozen`` (bool) and, while a ``stale`` fault holds one, the frozen frame's fields
+        ``frozen/<field>`` (:class:`~deploy.backends.base.SensorFrame`, env axis first); shared:
+        ``active`` (int64, indices into the sorted schedule) and ``log`` (JSON text). The
+        schedule itself is configuration: load into an injector built with the same faults.
+        """
+        out: dict = take(self._base_fields(), env)
+        out["frozen"] = self._frozen is not None
+        if self._frozen is not None:
+            out.update(prefixed("frozen", take(self._frozen.arrays(), env)))
+        out["active"] = np.array(sorted(self._active), dtype=np.int64)
+        out["log"] = to_json(self.log)
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``).
+
+        Raises:
+            StateDictError: a missing field, a shape that differs, or an active fault that is
+                not in the schedule; nothing is changed.
+        """
+        fields = self._base_fields()
+        check(fields, state, env)
+        frozen = scalar(state, "frozen", bool)
+        frame = None
+        if frozen:
+            frame = self._frozen
+            if frame is None:  # a frame to load into (NaN: no reading), as wide as the state's
+                n = np.shape(state.get("frozen/position", np.empty((0, 0))))[-1]
+                frame = SensorFrame.empty(self.backend.envs, n)
+            try:
+                check(frame.arrays(), section(state, "frozen"), env)
+            except StateDictError as exc:
+                raise exc.under("frozen") from None
+        if "active" not in state:
+            raise StateDictError("active", " is missing")
+        active = {int(i) for i in np.asarray(state["active"]).reshape(-1)}
+        if not active <= set(range(len(self.faults))):
+            raise StateDictError(
+                "active", f": {sorted(active)} beyond the {len(self.faults)} faults"
+            )
+        log = from_json(state, "log")
+        put(fields, state, env)
+        if frame is not None:
+            put(frame.arrays(), section(state, "frozen"), env)
+        self._frozen = frame
+        self._active = active
+        self.log = list(log)
+
+    def _base_fields(self) -> dict[str, np.ndarray]:
+        return {"base_dropout": self._base_dropout, "base_latency": self._base_latency}
+
     def _envs(self, f: Fault) -> np.ndarray:
         return np.arange(self.backend.envs) if f.envs is None else np.array(f.envs)
 
@@ -139,7 +205,7 @@ class FaultInjector:
         """Replace the frame with a frozen copy while a ``stale`` fault is active."""
         if any(f.kind == "stale" and f.active(t) for f in self.faults):
             if self._frozen is None:
-                self._frozen = SensorFrame(**{k: v.copy() for k, v in vars(frame).items()})
+                self._frozen = SensorFrame(**{k: v.copy() for k, v in frame.arrays().items()})
             frozen = self._frozen
             envs = [
                 e for f in self.faults if f.kind == "stale" and f.active(t) for e in self._envs(f)

@@ -10,16 +10,47 @@ import math
 import numpy as np
 
 from deploy.backends.base import SimulatedPlant
+from deploy.stateful import (
+    StateDictError,
+    check,
+    from_json,
+    put,
+    rng_state,
+    set_rng_state,
+    take,
+    to_json,
+)
+
+#: Joint poses drawn per goal before :func:`sample_goal` gives up on a ``joint_fraction`` box.
+GOAL_TRIES = 1000
 
 
 def sample_goal(robot, rng: np.random.Generator) -> np.ndarray:
-    """A goal (m, base frame, (3,)) from the robot's task region."""
+    """A goal (m, base frame, (3,)) from the robot's task region
+    (:class:`robots.schema.TaskConfig`).
+
+    Raises:
+        RuntimeError: a ``joint_fraction`` box that ``GOAL_TRIES`` joint poses never reach.
+    """
     task = robot.config.task
     if task.region == "planar_annulus":
         r = rng.uniform(*task.radius)
         a = rng.uniform(*task.angle)
         return np.array([r * np.cos(a), r * np.sin(a), 0.0])
-    return rng.uniform(task.box_min, task.box_max)
+    if task.joint_fraction is None:
+        return rng.uniform(task.box_min, task.box_max)
+    home = np.asarray(robot.home)
+    span = task.joint_fraction * (robot.position_upper - robot.position_lower) / 2.0
+    lo, hi = np.asarray(task.box_min), np.asarray(task.box_max)
+    for _ in range(GOAL_TRIES):
+        q = np.clip(home + rng.uniform(-span, span), robot.soft_lower, robot.soft_upper)
+        p = robot.forward_kinematics(q)
+        if ((p >= lo) & (p <= hi)).all():
+            return p
+    raise RuntimeError(
+        f"robot {robot.name}: [task] no end-effector position inside box_min/box_max in "
+        f"{GOAL_TRIES} joint poses within joint_fraction {task.joint_fraction} of the ranges"
+    )
 
 
 def success_windows(issued: list[int], reached: list[int], window: float, end: float) -> list[dict]:
@@ -148,6 +179,77 @@ class GoalScheduler:
         self._ee = np.zeros((envs, 3))
         self._diff = np.zeros((envs, 3))
         self._distance = np.zeros(envs)
+
+    # ------------------------------------------------------------------ state
+    def _state_fields(self) -> dict[str, np.ndarray]:
+        return {
+            "t_goal": self.t_goal,
+            "issued_at": self.issued_at,
+            "reached": self.reached,
+            "best_distance": self.best_distance,
+            "issued": self.issued,
+            "hit_count": self.hit_count,
+            "missed_dropped": self.missed_dropped,
+            "intervention_base": self.intervention_base.T,  # (envs, checks + 1), a view
+        }
+
+    def _records(self) -> dict[str, list]:
+        return {
+            "hit_times": self.hit_times,
+            "window_issued": self.window_issued,
+            "window_reached": self.window_reached,
+            "missed": self.missed,
+        }
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The scheduler's state (copies; conventions of :mod:`deploy.stateful`).
+
+        Arrays, (envs,) (length 1 for one env ``env``): ``t_goal``, ``issued_at`` (s),
+        ``reached`` (bool), ``best_distance`` (m), ``issued``, ``hit_count``, ``missed_dropped``
+        (int64), and ``intervention_base`` (envs, checks + 1) int64. JSON text, a list over the
+        envs: ``hit_times``, ``window_issued``, ``window_reached``, ``missed``. ``rng``: JSON of
+        the goal streams' ``bit_generator.state`` (a list over the envs with one stream per
+        env; the batch's one stream, shared, otherwise; absent without a generator).
+        """
+        out: dict = take(self._state_fields(), env)
+        envs = range(self.envs) if env is None else [env]
+        for key, lists in self._records().items():
+            out[key] = to_json([lists[e] for e in envs])
+        if self.streams is not None:
+            out["rng"] = to_json([rng_state(self.streams[e]) for e in envs])
+        elif self.rng is not None:
+            out["rng"] = to_json(rng_state(self.rng))
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``), into a scheduler
+        built with the same kind of random streams.
+
+        Raises:
+            StateDictError: a missing field, a shape or an env count that differs; nothing is
+                changed.
+        """
+        fields = self._state_fields()
+        check(fields, state, env)
+        envs = list(range(self.envs)) if env is None else [env]
+        records = {key: from_json(state, key) for key in self._records()}
+        for key, value in records.items():
+            if not isinstance(value, list) or len(value) != len(envs):
+                raise StateDictError(key, f": expected a list of {len(envs)} env(s)")
+        rng = None
+        if self.streams is not None or self.rng is not None:
+            rng = from_json(state, "rng")
+            if self.streams is not None and not (isinstance(rng, list) and len(rng) == len(envs)):
+                raise StateDictError("rng", f": expected {len(envs)} stream state(s), one per env")
+        put(fields, state, env)
+        for key, lists in self._records().items():
+            for e, value in zip(envs, records[key], strict=True):
+                lists[e] = list(value)
+        if self.streams is not None:
+            for e, value in zip(envs, rng, strict=True):
+                set_rng_state(self.streams[e], value, "rng")
+        elif self.rng is not None:
+            set_rng_state(self.rng, rng, "rng")
 
     @property
     def goals(self) -> int:

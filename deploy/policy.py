@@ -7,7 +7,13 @@ Loading refuses (with :class:`PolicyLoadError`, naming the file and the problem)
     - a missing, empty, truncated or corrupt ONNX file, or one the ONNX checker rejects;
     - external-data tensors whose ``location`` is absolute or resolves outside the model's folder
       (symbolic links included), or whose file is missing; checked before anything is read;
-    - initializers or constants holding NaN or inf;
+    - weights holding NaN or inf: initializers and constants that feed a MatMul, Gemm, Conv or
+      recurrent cell (:data:`WEIGHT_OPS`); other non-finite constants (attention masks, ``Where``
+      fills) are by design, and the model is judged by its answers instead;
+    - a policy whose action for the zero observation is not finite, or, for a foreign file (no
+      ``policy_spec`` metadata; an export's parity gate already ran ours across the spec's
+      ranges), for an observation of the spec's range (every entry at -1, at +1, and 29
+      uniform draws in [-1, 1]);
     - a graph input other than the observation and recurrent state inputs (the message names the
       input and its shape, and what would make it load), several action outputs none of which is
       named ``action`` or ``actions``, non-float32 input or output, or an input/output size that
@@ -17,7 +23,6 @@ Loading refuses (with :class:`PolicyLoadError`, naming the file and the problem)
     - a spec that does not match the robot (``PolicySpec.check_robot``: robot name, joint names and
       order, control rate, description hash) or a model without our metadata when no spec is given;
     - a spec passed in that contradicts the one stored in the file;
-    - a policy whose output for the zero observation is not finite.
 
 Metadata written by ``policy-export`` (``model.metadata_props``, read with plain ONNX Runtime as
 ``InferenceSession(path).get_modelmeta().custom_metadata_map``): ``policy_spec`` (PolicySpec
@@ -37,6 +42,14 @@ same name as the state input, ``[layers, 1 or batch, hidden]``). The observation
 input when there is one, else the one named ``obs``. Isaac Lab's ``obs -> actions`` is a
 feed-forward policy like ours.
 
+Constant inputs: Godot RL Agents' export (``obs``, ``state_ins`` -> ``output``, ``state_outs``,
+opset 17; ``state_ins`` ``[batch]`` is a dummy the exporter passes through to ``state_outs``, and
+``output`` is the unclipped PPO action mean) is recognised by those four names: ``state_ins`` is
+fed zeros every tick, as Godot's own ONNX inference does, and ``output`` is the action, clipped by
+the spec's ``action.clip``. Any other extra input loads only when the spec's ``constant_inputs``
+names it (``{"name": value}``: fed that constant, shaped as declared with a symbolic axis 0 as the
+batch).
+
 Inference runs single-threaded (``intra_op_num_threads = inter_op_num_threads = 1``, sequential
 execution: fastest for small MLPs at batch 1) through an IOBinding bound once to preallocated
 numpy buffers; it is rebound only when the batch size changes.
@@ -46,31 +59,29 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path, PurePosixPath, PureWindowsPath
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import onnx
 import onnxruntime as ort
-from onnx import TensorProto, numpy_helper
+from onnx import TensorProto, helper, numpy_helper
 
+from deploy.onnx_checks import (  # noqa: F401 - PolicyLoadError and WEIGHT_OPS re-exported
+    WEIGHT_OPS,
+    PolicyLoadError,
+    check_external_data,
+    check_finite_weights,
+)
 from deploy.spec import PolicySpec, SpecError
 from robots import Robot
 
 #: Metadata keys written by the exporter.
 METADATA_SPEC = "policy_spec"
-_FLOAT_TYPES = (
-    TensorProto.FLOAT,
-    TensorProto.DOUBLE,
-    TensorProto.FLOAT16,
-    TensorProto.BFLOAT16,
-)
-
-
-class PolicyLoadError(ValueError):
-    """An ONNX policy cannot be used on this robot; the message names the file and the problem."""
+#: Godot RL Agents' dummy state: input and output names (fed zeros; the output is ignored).
+GODOT_STATE = ("state_ins", "state_outs")
 
 
 def spec_differences(a: PolicySpec, b: PolicySpec) -> list[str]:
@@ -94,103 +105,6 @@ def read_spec(spec: PolicySpec | str | os.PathLike) -> PolicySpec:
     except OSError as exc:
         raise SpecError(f"{path}: cannot read the spec file: {exc.strerror or exc}") from None
     return PolicySpec.from_json(text, source=str(path))
-
-
-def _iter_graph_tensors(graph: onnx.GraphProto, where: str) -> Iterator[tuple[str, TensorProto]]:
-    """Every tensor stored in a graph (initializers, sparse initializers, constant attributes),
-    subgraphs included, with a readable name."""
-    for t in graph.initializer:
-        yield f"{where}initializer '{t.name}'", t
-    for s in graph.sparse_initializer:
-        yield f"{where}sparse initializer '{s.values.name}'", s.values
-        yield f"{where}sparse initializer '{s.values.name}' (indices)", s.indices
-    for node in graph.node:
-        for attr in node.attribute:
-            label = f"{where}node '{node.name or node.op_type}' attribute '{attr.name}'"
-            if attr.HasField("t"):
-                yield label, attr.t
-            for t in attr.tensors:
-                yield label, t
-            if attr.HasField("sparse_tensor"):
-                yield label, attr.sparse_tensor.values
-            if attr.HasField("g"):
-                yield from _iter_graph_tensors(attr.g, f"{label} subgraph: ")
-            for g in attr.graphs:
-                yield from _iter_graph_tensors(g, f"{label} subgraph: ")
-
-
-def _iter_model_tensors(model: onnx.ModelProto) -> Iterator[tuple[str, TensorProto]]:
-    yield from _iter_graph_tensors(model.graph, "")
-    for f in model.functions:
-        for node in f.node:
-            for attr in node.attribute:
-                if attr.HasField("t"):
-                    yield f"function '{f.name}' node '{node.name}'", attr.t
-
-
-def _is_absolute(location: str) -> bool:
-    return (
-        PurePosixPath(location).is_absolute()
-        or PureWindowsPath(location).is_absolute()
-        or bool(PureWindowsPath(location).drive)
-        or location.startswith(("\\", "/"))
-    )
-
-
-def check_external_data(model: onnx.ModelProto, path: Path) -> bool:
-    """Refuse external-data references that leave the model's folder.
-
-    Returns:
-        True if the model has external-data tensors (all of them safe).
-
-    Raises:
-        PolicyLoadError: a location that is empty, absolute, resolves outside ``path``'s folder
-            (through ``..`` or a symbolic link) or names a missing file.
-    """
-    folder = path.parent.resolve()
-    found = False
-    for label, t in _iter_model_tensors(model):
-        if t.data_location != TensorProto.EXTERNAL and not len(t.external_data):
-            continue
-        found = True
-        entries = {e.key: e.value for e in t.external_data}
-        location = entries.get("location", "")
-        if not location:
-            raise PolicyLoadError(f"{path}: {label} is stored externally without a location")
-        if _is_absolute(location):
-            raise PolicyLoadError(
-                f"{path}: {label} points to external data at an absolute path ('{location}'); "
-                "only files inside the model's folder are accepted"
-            )
-        target = (folder / location).resolve()
-        if not target.is_relative_to(folder):
-            raise PolicyLoadError(
-                f"{path}: {label} points to external data outside the model's folder "
-                f"('{location}' resolves to {target})"
-            )
-        if not target.is_file():
-            raise PolicyLoadError(f"{path}: {label}: external data file '{location}' is missing")
-    return found
-
-
-def check_finite_weights(model: onnx.ModelProto, path: Path) -> None:
-    """Refuse initializers and constants that hold NaN or inf.
-
-    Raises:
-        PolicyLoadError: naming the first offending tensor.
-    """
-    for label, t in _iter_model_tensors(model):
-        if t.data_type not in _FLOAT_TYPES:
-            continue
-        try:
-            arr = numpy_helper.to_array(t)
-        except Exception as exc:  # noqa: BLE001 - malformed tensor content
-            raise PolicyLoadError(f"{path}: {label}: unreadable tensor data: {exc}") from None
-        bad = int(arr.size - np.count_nonzero(np.isfinite(arr)))
-        if bad:
-            raise PolicyLoadError(
-                f"{path}: {label} holds {bad} non-finite value(s) (NaN or inf); refusing the model"
-            )
 
 
 def _dims(value_info: onnx.ValueInfoProto) -> list[int | str | None]:
@@ -300,8 +214,9 @@ class OnnxPolicy:
         #: recurrent: (state input buffer, state output buffer) per state, (layers, batch, hidden)
         self._state_pairs: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
         probe_batch = self._fixed_batch or 1
-        if self.recurrent:
-            self._check_state_shapes(path, probe_batch)
+        if self.recurrent:  # batch 2 too: a state output may ignore the batch axis
+            for batch in (probe_batch,) if self._fixed_batch else (1, 2):
+                self._check_state_shapes(path, batch)
         try:
             probe = self(np.zeros((probe_batch, self.obs_dim), np.float32))
         except Exception as exc:  # noqa: BLE001
@@ -311,6 +226,8 @@ class OnnxPolicy:
             ) from None
         if not np.isfinite(probe).all():
             raise PolicyLoadError(f"{path}: the action for the zero observation is not finite")
+        if METADATA_SPEC not in self.metadata:  # an export's parity gate probed it already
+            self._probe_range(path, probe_batch)
         self.reset()  # the probe advanced the state
 
     # ------------------------------------------------------------------ loading
@@ -323,6 +240,14 @@ class OnnxPolicy:
         try:
             model = onnx.load(str(path), load_external_data=False)
         except Exception as exc:  # noqa: BLE001 - protobuf DecodeError and friends
+            with open(path, "rb") as f:
+                head = f.read(4)
+            if head.startswith(b"PK\x03\x04") or head[:1] == b"\x80":  # zip or pickle
+                raise PolicyLoadError(
+                    f"{path}: not an ONNX file but a zip archive or pickle (a torch checkpoint, "
+                    "TorchScript or Stable-Baselines3 file?); the runtime runs ONNX: export it "
+                    f"first with `policy-export {path}`"
+                ) from None
             raise PolicyLoadError(
                 f"{path}: not a valid ONNX file (truncated or corrupt?): {exc}"
             ) from None
@@ -372,13 +297,17 @@ class OnnxPolicy:
         outputs = {o.name: o for o in graph.output}
         pairs: list[tuple[onnx.ValueInfoProto, onnx.ValueInfoProto]] = []
         unknown = []
+        constants: dict[str, onnx.ValueInfoProto] = {}
+        godot = inp.name == "obs" and GODOT_STATE[0] in names and GODOT_STATE[1] in outputs
         for i in graph.input:
             if i.name == inp.name or (
                 i.name in init_names and _state_output_name(i.name) not in outputs
             ):
                 continue
             out_name = _state_output_name(i.name)
-            if out_name in outputs:
+            if i.name in self.spec.constant_inputs or (godot and i.name == GODOT_STATE[0]):
+                constants[i.name] = i
+            elif out_name in outputs:
                 pairs.append((i, outputs[out_name]))
             else:
                 unknown.append(i)
@@ -386,11 +315,23 @@ class OnnxPolicy:
             desc = ", ".join(f"'{i.name}' {_dims(i)}" for i in unknown)
             raise PolicyLoadError(
                 f"{path}: the graph has extra input(s) {desc} besides the observation "
-                f"'{inp.name}'; only recurrent state is accepted as a further input: rename a "
-                "state input '<name>_in' and its output '<name>_out' (shape [layers, batch, "
-                "hidden], batch on axis 1), or export the policy with policy-export, to load it"
+                f"'{inp.name}'. To load it: if the input is recurrent state, name it "
+                "'<name>_in' with an output '<name>_out' of the same shape [layers, batch, "
+                "hidden] (batch on axis 1); if it takes a constant (a mask, a dummy), add "
+                '"constant_inputs": {"' + unknown[0].name + '": VALUE} to the --spec file; '
+                "or export the policy with policy-export"
             )
-        state_outs = {o.name for _, o in pairs}
+        self._constant_specs = {
+            name: self._constant_shape(path, vi, self.spec.constant_inputs.get(name, 0.0))
+            for name, vi in constants.items()
+        }
+        missing = sorted(set(self.spec.constant_inputs) - set(constants))
+        if missing:
+            raise PolicyLoadError(
+                f"{path}: the spec's constant_inputs name {missing}, which the graph does not have "
+                f"as inputs (its inputs: {names})"
+            )
+        state_outs = {o.name for _, o in pairs} | ({GODOT_STATE[1]} if godot else set())
         actions = [o for o in graph.output if o.name not in state_outs]
         if len(actions) == 1:
             out = actions[0]
@@ -414,14 +355,48 @@ class OnnxPolicy:
                     f"{path}: graph {kind} '{vi.name}' has shape {dims}, expected [batch, {size}]"
                 )
             if dims and isinstance(dims[-1], int) and dims[-1] != size:
+                parts = (
+                    " + ".join(f"{b.name} {b.size}" for b in self.spec.observation_blocks)
+                    if kind == "input"
+                    else f"{self.spec.action.mode} x {self.spec.action.size} joints"
+                )
                 raise PolicyLoadError(
-                    f"{path}: graph {kind} '{vi.name}' has size {dims[-1]}, the spec's {what} has "
-                    f"{size} (shape {dims})"
+                    f"{path}: graph {kind} '{vi.name}' has size {dims[-1]}, the spec's {what} "
+                    f"has {size} ({parts}; shape {dims}): the spec must describe the model's "
+                    f"{what} entry for entry"
                 )
         in_dims = _dims(inp)
         fixed = in_dims[0] if in_dims and isinstance(in_dims[0], int) and in_dims[0] > 0 else 0
         states = tuple(self._check_state(path, i, o, fixed, init.get(i.name)) for i, o in pairs)
         return inp.name, out.name, fixed, states
+
+    @staticmethod
+    def _constant_shape(
+        path: Path, vi: onnx.ValueInfoProto, value: float
+    ) -> tuple[tuple[int | None, ...], np.dtype, float]:
+        """(shape with None for the batch axis, dtype, value) of a constant input."""
+        elem = vi.type.tensor_type.elem_type
+        try:
+            dtype = np.dtype(helper.tensor_dtype_to_np_dtype(elem))
+        except Exception:  # noqa: BLE001 - unknown element type
+            dtype = None
+        if dtype is None or dtype.kind not in "fiub":
+            raise PolicyLoadError(
+                f"{path}: graph input '{vi.name}' has type "
+                f"{TensorProto.DataType.Name(elem)}; a constant input must be numeric"
+            )
+        shape: list[int | None] = []
+        for axis, d in enumerate(_dims(vi)):
+            if isinstance(d, int) and d > 0:
+                shape.append(d)
+            elif axis == 0:
+                shape.append(None)  # the batch
+            else:
+                raise PolicyLoadError(
+                    f"{path}: graph input '{vi.name}' has shape {_dims(vi)}: a constant input "
+                    "needs fixed sizes on every axis but the batch (axis 0)"
+                )
+        return tuple(shape), dtype, value
 
     @staticmethod
     def _check_float32(path: Path, kind: str, vi: onnx.ValueInfoProto) -> None:
@@ -482,9 +457,31 @@ class OnnxPolicy:
                 )
         return StateTensor(vi_in.name, vi_out.name, layers, hidden, initial)
 
+    def _probe_range(self, path: Path, batch: int) -> None:
+        """Judge the model by its answers: the action must be finite for every entry at -1 and at
+        +1 and for 29 uniform draws in [-1, 1] (seed 0): the range the spec's normalized
+        observations live in. Each probe starts from the initial recurrent state."""
+        rows = np.random.default_rng(0).uniform(-1.0, 1.0, (31, self.obs_dim)).astype(np.float32)
+        rows[0], rows[1] = 1.0, -1.0
+        for k, row in enumerate(rows):
+            self.reset()
+            action = self(np.broadcast_to(row, (batch, self.obs_dim)))
+            if not np.isfinite(action).all():
+                what = (
+                    ("every entry at +1", "every entry at -1")[k]
+                    if k < 2
+                    else (f"uniform draw {k - 1} of 29 in [-1, 1] (seed 0)")
+                )
+                raise PolicyLoadError(
+                    f"{path}: the action for the observation with {what} is not finite "
+                    f"({action[0].tolist()}); refusing the model"
+                )
+
     def _check_state_shapes(self, path: Path, batch: int) -> None:
         """Run the graph once on zeros: every state output must have its input's shape."""
         feeds = {self.input_name: np.zeros((batch, self.obs_dim), np.float32)}
+        for name, (shape, dtype, value) in self._constant_specs.items():
+            feeds[name] = np.full([batch if d is None else d for d in shape], value, dtype)
         for s in self.states:
             feeds[s.input] = np.zeros((s.layers, batch, s.hidden), np.float32)
         try:
@@ -514,6 +511,11 @@ class OnnxPolicy:
         self._binding.clear_binding_outputs()
         self._binding.bind_ortvalue_input(self.input_name, self._obs_value)
         self._binding.bind_ortvalue_output(self.output_name, self._action_value)
+        self._constant_values = []  # keep the OrtValues alive with the binding
+        for name, (shape, dtype, value) in self._constant_specs.items():
+            array = np.full([batch if d is None else d for d in shape], value, dtype)
+            self._constant_values.append(ort.OrtValue.ortvalue_from_numpy(array))
+            self._binding.bind_ortvalue_input(name, self._constant_values[-1])
         pairs, self._state_values = [], []
         for s in self.states:
             pair = (

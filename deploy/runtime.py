@@ -34,9 +34,9 @@ per joint in :attr:`Runtime.drive_errors`.
 The backend is any :class:`deploy.backends.base.Backend`: the simulated plant, or a servo bus
 (:mod:`deploy.backends.feetech`, :mod:`deploy.backends.dynamixel`) with the wall clock.
 
-Clocks: :class:`SimClock` runs in lockstep with a simulated plant as fast as the CPU allows;
-:class:`WallClock` waits for absolute deadlines, skips missed periods instead of bursting, and
-counts overruns and jitter.
+Clocks (:mod:`deploy.clock`, importable from here too): :class:`SimClock` runs in lockstep with a
+simulated plant as fast as the CPU allows; :class:`WallClock` waits for absolute deadlines (sleep,
+hybrid or spin), skips missed periods instead of bursting, and counts overruns and jitter.
 
 The garbage collector is frozen and disabled while :meth:`Runtime.run` loops.
 """
@@ -50,12 +50,16 @@ from enum import IntEnum
 
 import numpy as np
 
+from deploy.clock import SimClock, WallClock  # noqa: F401 (the runtime's clocks)
 from deploy.estimation import JointStateEstimator
+from deploy.kernels import latency as lk
+from deploy.kernels import supervision as sv
 from deploy.safety import SafetyGuard
 from deploy.smoothing import CommandSmoother
 from deploy.spec import PolicySpec
 from deploy.state import Kinematics, RobotState
-from deploy.telemetry import LatencyHistogram
+from deploy.stateful import check, load_part, prefixed, put, scalar, take
+from deploy.telemetry import BIN_NS, BINS, LatencyHistogram
 from robots import Robot
 
 #: Consecutive non-finite policy outputs before a safe stop (0.05 s at 200 Hz).
@@ -107,6 +111,23 @@ FAULT_CAUSES = (
     "over_temperature",
     "servo_error",
 )
+# the kernels (deploy.kernels.supervision) know the causes and modes by number
+_CAUSE_CODES = {
+    "hard_limit": sv.HARD_LIMIT,
+    "non_finite_action": sv.NON_FINITE_ACTION,
+    "stale_sensor": sv.STALE_SENSOR,
+    "overrun": sv.OVERRUN,
+    "over_temperature": sv.OVER_TEMPERATURE,
+    "servo_error": sv.SERVO_ERROR,
+}
+if [_CAUSE_CODES[c] for c in FAULT_CAUSES] != list(range(len(FAULT_CAUSES))) or [
+    sv.IDLE,
+    sv.RAMP_IN,
+    sv.RUNNING,
+    sv.SAFE_STOP,
+    sv.FAULTED,
+] != [int(m) for m in Mode]:
+    raise RuntimeError("deploy.kernels.supervision: causes or modes differ from deploy.runtime")
 
 
 def reanchor(
@@ -154,62 +175,8 @@ def _no_reset(envs: np.ndarray) -> None:
     """The reset of a policy without state."""
 
 
-class SimClock:
-    """Lockstep clock: the plant's own time; never waits."""
-
-    realtime = False
-
-    def __init__(self, period: float):
-        self.period = period
-        self.overruns = 0
-        self.missed_periods = 0
-        self.jitter = LatencyHistogram()
-
-    def start(self) -> None:
-        pass
-
-    def wait(self) -> bool:
-        """Return whether the last tick overran its period (never, in lockstep)."""
-        return False
-
-
-class WallClock:
-    """Absolute-deadline clock for real time.
-
-    Each tick has the deadline ``t0 + k * period``. A tick that ends after its deadline counts as an
-    overrun; the missed periods are skipped (the next deadline is the next one in the future), never
-    run back to back. Jitter is the lateness of each wake-up against its deadline, in ns.
-    """
-
-    realtime = True
-
-    def __init__(self, period: float):
-        self.period_ns = int(round(period * 1e9))
-        self.period = period
-        self.overruns = 0
-        self.missed_periods = 0
-        self.jitter = LatencyHistogram()
-        self._next = 0
-
-    def start(self) -> None:
-        self._next = time.perf_counter_ns() + self.period_ns
-
-    def wait(self) -> bool:
-        now = time.perf_counter_ns()
-        overrun = now > self._next
-        if overrun:
-            self.overruns += 1
-            missed = (now - self._next) // self.period_ns
-            self.missed_periods += int(missed)
-            self._next += (missed + 1) * self.period_ns
-        remaining = self._next - time.perf_counter_ns()
-        if remaining > 200_000:
-            time.sleep((remaining - 150_000) / 1e9)
-        while time.perf_counter_ns() < self._next:  # spin the last ~150 us
-            pass
-        self.jitter.add(0, time.perf_counter_ns() - self._next)
-        self._next += self.period_ns
-        return overrun
+def _same(a: np.ndarray) -> np.ndarray:
+    return a
 
 
 @dataclass
@@ -249,6 +216,10 @@ class Runtime:
         telemetry: Optional :class:`~deploy.telemetry.Telemetry` recorder.
         overrun_rate_limit: Fraction of overrun ticks over the last ``OVERRUN_WINDOW`` that makes
             a safe stop with the wall clock (default ``OVERRUN_RATE_LIMIT``, 5 %, our choice).
+        reference: Run the numpy references of the tick's numeric logic (supervision, action
+            screen, observation, guard, smoother) instead of the compiled kernels of
+            :mod:`deploy.kernels` (the default); both give the same numbers bit for bit
+            (``tests/test_compiled_tick.py``). The estimator is the compiled one either way.
 
     Raises:
         ValueError: a policy of another control mode than the backend's, or an
@@ -264,6 +235,7 @@ class Runtime:
         injector=None,
         telemetry=None,
         overrun_rate_limit: float = OVERRUN_RATE_LIMIT,
+        reference: bool = False,
     ):
         if not 0.0 < overrun_rate_limit <= 1.0:
             raise ValueError(f"overrun_rate_limit: expected in (0, 1], got {overrun_rate_limit}")
@@ -286,8 +258,9 @@ class Runtime:
         self.telemetry = telemetry
         self.estimator = JointStateEstimator(robot, envs)
         self.kinematics = Kinematics(robot)
-        self.guard = SafetyGuard(robot, envs, self.mode_name)
-        self.smoother = CommandSmoother(robot, envs, self.mode_name)
+        self.reference = reference
+        self.guard = SafetyGuard(robot, envs, self.mode_name, reference=reference)
+        self.smoother = CommandSmoother(robot, envs, self.mode_name, reference=reference)
         self.state = RobotState.zeros(envs, n, robot.config.sensors.ambient_temperature)
         self.goal = np.zeros((envs, 3))
         self.mode = np.full(envs, Mode.IDLE, dtype=np.int8)
@@ -299,8 +272,9 @@ class Runtime:
             safe_stops=np.zeros(envs, dtype=np.int64),
             resyncs=np.zeros(envs, dtype=np.int64),
             anchors=np.zeros(envs, dtype=np.int64),
-            faults={c: np.zeros(envs, dtype=np.int64) for c in FAULT_CAUSES},
         )
+        self._faults = np.zeros((len(FAULT_CAUSES), envs), dtype=np.int64)  # rows: views below
+        self.counters.faults.update({c: self._faults[i] for i, c in enumerate(FAULT_CAUSES)})
         self.latency = LatencyHistogram(len(STAGES))
         self.tick_cost = LatencyHistogram()
         self.ticks = 0
@@ -325,6 +299,124 @@ class Runtime:
         # the thermal band of the derating law the guard and the drives share
         self._temp_start = self.guard.derating.start
         self._temp_max = self.guard.derating.maximum
+        self._init_kernels()
+
+    def _init_kernels(self) -> None:
+        """Constants and work arrays of the compiled tick (:mod:`deploy.kernels.supervision`),
+        and one call of each kernel on copies: compiled (or loaded from numba's cache) now, not
+        in the first tick."""
+        robot, envs, n, d = self.robot, self.envs, self.n, self.guard.derating
+        self._control = {"position": sv.POSITION, "velocity": sv.VELOCITY}.get(
+            self.mode_name, sv.TORQUE
+        )
+        self._derating = np.ascontiguousarray(
+            np.stack([d.start, d.maximum, np.broadcast_to(d.floor, (n,))]), dtype=np.float64
+        )
+        tolerance = (
+            VELOCITY_TRACKING_TOLERANCE if self.mode_name == "velocity" else TRACKING_TOLERANCE
+        )
+        self._params = np.array(
+            [
+                robot.config.safety.stale_limit,
+                self.overrun_rate_limit,
+                REST_SPEED,
+                HOME_TOLERANCE,
+                tolerance,
+            ]
+        )
+        self._bind_action()
+        self._limit_rows = np.ascontiguousarray(
+            np.stack([robot.acceleration_limit, robot.soft_lower, robot.soft_upper]),
+            dtype=np.float64,
+        )
+        # the smoother's commanded position, which the re-anchoring screen compares with q
+        sm = self.smoother
+        self._screen_commanded = sm.position if self.mode_name == "velocity" else sm.commanded
+        self._flags = np.zeros((4, envs), dtype=bool)
+        self._drive_any = np.zeros(envs, dtype=bool)
+        # latency histograms' bins (deploy.telemetry)
+        self._bins = np.array([BIN_NS, BINS], dtype=np.int64)
+        if self.reference:
+            return
+        # the kernels' arguments for self.state, made once (the arrays are updated in place)
+        self._supervise_cached = self._supervise_args(self.state)
+        self._screen_cached = self._screen_args(None, self.state)[2:]
+        self.spec.observation(self.state, self.goal, out=self._obs)  # builds and warms its plan
+        sv.supervise(*self._supervise_args(self.state, copy=True))
+        sv.screen_action(*self._screen_args(self._action, self.state, copy=True))
+        lat, cost, c = self.latency, self.tick_cost, np.copy
+        lk.add_stages(
+            self._stamps, self._bins, c(lat.counts), c(lat.max_ns), c(cost.counts), c(cost.max_ns)
+        )
+
+    def _bind_action(self) -> None:
+        """The kernel's rows of ``self.spec.action`` (clip, scale, offset) and its reference;
+        again whenever ``spec`` is replaced."""
+        a, n = self.spec.action, self.n
+        self._act_spec = self.spec
+        self._act_rows = np.ascontiguousarray(
+            np.stack(
+                [
+                    np.full(n, float(a.clip)),
+                    np.broadcast_to(np.asarray(a.scale, dtype=np.float64), (n,)),
+                    np.broadcast_to(np.asarray(a.offset, dtype=np.float64), (n,)),
+                ]
+            )
+        )
+        self._current = a.reference == "current"
+
+    def _supervise_args(self, state: RobotState, copy: bool = False) -> tuple:
+        """Arguments of :func:`deploy.kernels.supervision.supervise` (the written arrays copied
+        with ``copy``, for the warm-up call)."""
+        w = np.copy if copy else _same
+        return (
+            self._control,
+            state.winding_temperature,
+            self._derating,
+            w(self.guard.effort_scale),
+            self.estimator.time_since_fresh,
+            self._drive_any,
+            self.drive_errors,
+            self._overrun_ring,
+            bool(self.clock.realtime),
+            self._params,
+            state.q,
+            state.dq,
+            self._home,
+            self._screen_commanded,
+            w(self.mode),
+            w(self.cause),
+            w(self.counters.safe_stops),
+            w(self._faults),
+            w(self._flags),
+        )
+
+    def _screen_args(self, action: np.ndarray, state: RobotState, copy: bool = False) -> tuple:
+        """Arguments of :func:`deploy.kernels.supervision.screen_action` (see
+        :meth:`_supervise_args`)."""
+        w = np.copy if copy else _same
+        return (
+            self._control,
+            action,
+            w(self._action),
+            w(self._last_valid_action),
+            w(self._nan_streak),
+            w(self.counters.non_finite_actions),
+            NAN_ACTION_LIMIT,
+            w(self.mode),
+            w(self.cause),
+            w(self.counters.safe_stops),
+            w(self._faults),
+            w(self._flags),
+            self._act_rows,
+            self._current,
+            state.q,
+            state.dq,
+            self._home,
+            self._limit_rows,
+            RAMP_GAIN,
+            w(self._target),
+        )
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -394,15 +486,13 @@ class Runtime:
         st[1] = clock_ns()
         state = self.estimator.update(frame, self.state, self._input)
         self.kinematics.update(state)
-        self.guard.update_thermal(state.winding_temperature)
-        self._supervise(state, drive_errors)
+        self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
         st[2] = clock_ns()
-        obs = self.spec.observation(state, self.goal, out=self._obs)
+        obs = self.spec.observation(state, self.goal, out=self._obs, reference=self.reference)
         st[3] = clock_ns()
-        action = self._screen(self.policy(obs))
+        policy_output = self.policy(obs)
         st[4] = clock_ns()
-        target = self.spec.action_to_target(action, state, out=self._target)
-        target = self._override(target, state)
+        action, target = self._act(policy_output, state)  # screen, action_to_target, override
         target = self.guard.filter(target, state, out=target, commanded_position=self._commanded)
         self._on_violation()
         st[5] = clock_ns()
@@ -415,18 +505,49 @@ class Runtime:
         state.last_action[:] = action
         self.ticks += 1
         self.time += self.dt
-        self.latency.add_stages(st)
-        self.tick_cost.add(0, st[8] - st[0] - (st[8] - st[7]))  # runtime cost without physics
+        if self.reference:
+            self.latency.add_stages(st)
+            self.tick_cost.add(0, st[8] - st[0] - (st[8] - st[7]))  # runtime cost w/o physics
+        else:
+            lat, cost = self.latency, self.tick_cost
+            lk.add_stages(st, self._bins, lat.counts, lat.max_ns, cost.counts, cost.max_ns)
         if self.telemetry is not None:
             self.telemetry.record(self)
         overrun = self.clock.wait()
         self._overrun_ring[self.ticks % OVERRUN_WINDOW] = overrun
 
     # ------------------------------------------------------------------ stages' helpers
-    def _screen(self, action: np.ndarray) -> np.ndarray:
-        """Non-finite output: hold the last valid action and count; too many in a row: safe stop."""
+    def _act(self, action: np.ndarray, state: RobotState) -> tuple[np.ndarray, np.ndarray]:
+        """The policy's output to a target: the fault injector's filter, :meth:`_screen`,
+        ``spec.action_to_target``, :meth:`_override`; returns ``(action, target)``, the
+        screened action (float32) and the target (units of the mode), (envs, n) each.
+
+        Compiled: one kernel (:func:`deploy.kernels.supervision.screen_action`); Python starts
+        the smoother's safe stop of a new non-finite-action stop and, in torque mode, the
+        overrides (Pinocchio's gravity)."""
         if self.injector is not None:
             action = self.injector.filter_action(self.time, action)
+        if self.reference:
+            action = self._screen(action)
+            target = self.spec.action_to_target(action, state, out=self._target)
+            return action, self._override(target, state)
+        if self.spec is not self._act_spec:
+            self._bind_action()
+            self._screen_cached = self._screen_args(None, self.state)[2:]
+        if state is self.state:
+            code = sv.screen_action(self._control, action, *self._screen_cached)
+        else:
+            code = sv.screen_action(*self._screen_args(action, state))
+        if code:
+            if code & sv.SCREEN_STOP:
+                self.smoother.safe_stop(self._flags[sv.NEW_STOP].copy())
+            if code & sv.SCREEN_OVERRIDE:
+                self._override(self._target, state)
+        return self._action, self._target
+
+    def _screen(self, action: np.ndarray) -> np.ndarray:
+        """Non-finite output: hold the last valid action and count; too many in a row: safe stop
+        (the reference of the compiled screen)."""
         if np.isfinite(action).all():  # the common case
             self._action[:] = action
             self._last_valid_action[:] = action
@@ -442,8 +563,40 @@ class Runtime:
         return self._action
 
     def _supervise(self, state: RobotState, drive_errors: np.ndarray | None) -> None:
-        """Stale sensors, over-temperature, drive errors, overruns; end of RAMP_IN and of safe
-        stops."""
+        """The thermal derating of the guard's effort limits; stale sensors, over-temperature,
+        drive errors, overruns; end of RAMP_IN and of safe stops; re-anchoring.
+
+        Compiled: one kernel (:func:`deploy.kernels.supervision.supervise`); Python acts where
+        it says (the smoother's safe stops and re-syncs, policy resets, re-anchoring)."""
+        if self.reference:
+            self.guard.update_thermal(state.winding_temperature)
+            self._supervise_reference(state, drive_errors)
+            return
+        if drive_errors is not None:
+            if drive_errors.any():
+                self.drive_errors |= drive_errors
+                np.any(drive_errors, axis=1, out=self._drive_any)
+            else:
+                self._drive_any.fill(False)
+        if state is self.state:
+            code = sv.supervise(*self._supervise_cached)
+        else:
+            code = sv.supervise(*self._supervise_args(state))
+        if code:
+            flags = self._flags
+            if code & sv.SUPERVISE_STOP:
+                self.smoother.safe_stop(flags[sv.NEW_STOP].copy())
+            if code & sv.SUPERVISE_TOOK_OVER:
+                self._reset_policy(flags[sv.TOOK_OVER].copy())
+            if code & sv.SUPERVISE_RESUME:
+                resume = flags[sv.RESUMED].copy()
+                self.smoother.sync(state.q, state.dq, envs=resume)
+                self._reset_policy(resume)
+            if code & (sv.SUPERVISE_RESUME | sv.SUPERVISE_ANCHOR):
+                self._reanchor(state)
+
+    def _supervise_reference(self, state: RobotState, drive_errors: np.ndarray | None) -> None:
+        """The reference of the compiled supervision."""
         stale = (self.estimator.time_since_fresh > self.robot.config.safety.stale_limit).any(axis=1)
         self._safe_stop(stale, "stale_sensor")
         hot = (state.winding_temperature > self._temp_max).any(axis=1)
@@ -466,13 +619,19 @@ class Runtime:
             if stopped.any():
                 thermal = self.cause == FAULT_CAUSES.index("over_temperature")
                 cool = (state.winding_temperature < self._temp_start).all(axis=1)
-                resume = stopped & thermal & cool
-                mode[stopped & ~thermal] = FAULTED
+                # a servo whose own protection tripped meanwhile has cut its torque: no resume
+                latched = self.drive_errors.any(axis=1)
+                resume = stopped & thermal & cool & ~latched
+                mode[stopped & (~thermal | latched)] = FAULTED
                 if resume.any():
                     mode[resume] = RAMP_IN
                     self.cause[resume] = -1
                     self.smoother.sync(state.q, state.dq, envs=resume)
                     self._reset_policy(resume)
+        self._reanchor(state)
+
+    def _reanchor(self, state: RobotState) -> None:
+        """:func:`reanchor` the smoother and count it (anchors or resyncs)."""
         moved = reanchor(self.smoother, state, self._tracking, self._anchored, self.mode)
         if moved is not None:
             counter = (
@@ -530,6 +689,8 @@ class Runtime:
         gc.freeze()
         was_enabled = gc.isenabled()
         gc.disable()
+        if getattr(self.clock, "fresh", False):  # a wall clock not yet waited on: the collection
+            self.clock.start()  # (tens of ms) is set-up, not the first tick's overrun
         try:
             for _ in range(ticks):
                 self.tick()
@@ -539,6 +700,109 @@ class Runtime:
             if was_enabled:
                 gc.enable()
             gc.unfreeze()
+
+    # ------------------------------------------------------------------ state
+    def _state_fields(self) -> dict[str, np.ndarray]:
+        """The runtime's own per-env arrays (leading env axis)."""
+        c, st = self.counters, self.state
+        fields = {
+            "mode": self.mode,
+            "cause": self.cause,
+            "goal": self.goal,
+            "drive_errors": self.drive_errors,
+            "action": self._action,
+            "last_valid_action": self._last_valid_action,
+            "nan_streak": self._nan_streak,
+            "target": self._target,
+            "command": self._cmd,
+            "counters/non_finite_actions": c.non_finite_actions,
+            "counters/safe_stops": c.safe_stops,
+            "counters/resyncs": c.resyncs,
+            "counters/anchors": c.anchors,
+        }
+        fields.update({f"counters/faults/{k}": v for k, v in c.faults.items()})
+        for name in ("q", "dq", "ee_position", "ee_rotation", "winding_temperature", "last_action"):
+            fields[f"state/{name}"] = getattr(st, name)
+        return fields
+
+    def _shared_fields(self) -> dict[str, np.ndarray]:
+        """Arrays the envs share: the overrun window, the wall-clock histograms."""
+        fields = {
+            "overrun_ring": self._overrun_ring,
+            "latency/counts": self.latency.counts,
+            "latency/max_ns": self.latency.max_ns,
+            "tick_cost/counts": self.tick_cost.counts,
+            "tick_cost/max_ns": self.tick_cost.max_ns,
+        }
+        jitter = getattr(self.clock, "jitter", None)
+        if jitter is not None:
+            fields["clock/jitter/counts"] = jitter.counts
+            fields["clock/jitter/max_ns"] = jitter.max_ns
+        return fields
+
+    def _parts(self) -> dict:
+        """The stages whose state is part of the runtime's: the estimator, guard and smoother,
+        and the policy, backend and fault injector where they have a ``state_dict``."""
+        parts = {"estimator": self.estimator, "guard": self.guard, "smoother": self.smoother}
+        for name, part in (
+            ("policy", self.policy),
+            ("backend", self.backend),
+            ("injector", self.injector),
+        ):
+            if part is not None and hasattr(part, "state_dict"):
+                parts[name] = part
+        return parts
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The state of the loop and of its stages (copies; conventions of
+        :mod:`deploy.stateful`).
+
+        The runtime's own fields, (envs, ...) (length 1 for one env ``env``): ``mode``,
+        ``cause`` (int8), ``goal`` (envs, 3) m, ``drive_errors``, the screened ``action`` and
+        ``last_valid_action`` (float32), ``nan_streak``, the last ``target`` and ``command`` (the
+        units of the mode), ``counters/<name>`` and ``counters/faults/<cause>`` (int64) and the
+        estimated ``state/<field>`` (:class:`~deploy.state.RobotState`). Shared by the batch:
+        ``ticks`` (int), ``time`` (float, s), ``overrun_ring`` (``OVERRUN_WINDOW``,) bool, the
+        wall-clock histograms ``latency/*``, ``tick_cost/*`` and ``clock/*`` (measurements, not
+        seeded; a wall clock's next deadline is not state: a resumed loop starts its own).
+        Then each stage's ``state_dict(env)`` under its name: ``estimator/``, ``guard/``,
+        ``smoother/``, and ``policy/``, ``backend/``, ``injector/`` where the policy (a
+        recurrent one), the backend (:class:`~deploy.backends.sim.SimBackend`) or the fault
+        injector has one.
+        """
+        out: dict = take(self._state_fields(), env)
+        out.update({k: np.array(v, copy=True) for k, v in self._shared_fields().items()})
+        out["ticks"], out["time"] = int(self.ticks), float(self.time)
+        clock = self.clock
+        out["clock/overruns"] = int(clock.overruns)
+        out["clock/missed_periods"] = int(clock.missed_periods)
+        for name, part in self._parts().items():
+            out.update(prefixed(name, part.state_dict(env)))
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``; the shared fields
+        either way), into a runtime built with the same robot, policy, backend kind and clock.
+        A started runtime is not needed: the state replaces what :meth:`start` sets (a wall
+        clock's deadlines start anew here).
+
+        Raises:
+            StateDictError: a missing field or a shape that differs, named with its stage's
+                prefix (e.g. ``estimator/covariance``). The runtime's own fields are checked
+                before anything is written; a stage's error leaves the stages before it loaded.
+        """
+        ticks, now = scalar(state, "ticks", int), scalar(state, "time", float)
+        overruns = scalar(state, "clock/overruns", int)
+        missed = scalar(state, "clock/missed_periods", int)
+        shared = self._shared_fields()
+        check(shared, state, None)
+        put(self._state_fields(), state, env)
+        put(shared, state, None)
+        self.ticks, self.time = ticks, now
+        self.clock.overruns, self.clock.missed_periods = overruns, missed
+        for name, part in self._parts().items():
+            load_part(name, part, state, env)
+        self.clock.start()
 
     def mode_names(self) -> list[str]:
         return [Mode(int(m)).name for m in self.mode]

@@ -40,18 +40,27 @@ its coal collision pairs from those shapes and the pairs named in robot.toml.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import mujoco
 import numpy as np
 import pinocchio as pin
 
+from deploy.kernels import guard as gk
 from deploy.smoothing import stopping_speed
 from deploy.state import RobotState
+from deploy.stateful import put, take
 from deploy.thermal import EffortDerating
 from robots import Robot
 
 CHECKS = ("soft_limit", "hard_limit", "velocity", "workspace", "self_collision", "effort")
 #: Slack of the screens, m (round-off of the kinematics): a check runs when within it.
 SCREEN_MARGIN = 1e-9
+# rad: a position target this close past a hard limit is at the limit. An absolute position
+# action of exactly +-1 maps to ``offset +- scale`` (PolicySpec), which float rounding can put
+# 1 ulp past the limit (4.4e-16 rad on so101's wrist_roll); that is a full action, not a
+# crossing. Far below any encoder count (1.5e-3 rad at 4096 counts/rev).
+TARGET_TOLERANCE = 1e-9
 
 
 def chain_lengths(model: mujoco.MjModel) -> np.ndarray:
@@ -133,6 +142,8 @@ class SafetyGuard:
         robot: The robot description (limits, workspace, collision pairs, motors).
         envs: Batch size.
         mode: Control mode of the targets: 'position' (rad), 'velocity' (rad/s), 'torque' (N m).
+        reference: Run the numpy reference of :meth:`filter` instead of the compiled kernel
+            (:mod:`deploy.kernels.guard`, the default); both give the same numbers bit for bit.
 
     Attributes:
         counts: dict check name -> (envs,) int64, interventions so far; each check counts at
@@ -145,11 +156,14 @@ class SafetyGuard:
             effort limits, from the winding temperatures (see :meth:`update_thermal`).
     """
 
-    def __init__(self, robot: Robot, envs: int, mode: str):
+    def __init__(self, robot: Robot, envs: int, mode: str, reference: bool = False):
         self.robot, self.envs, self.mode = robot, envs, mode
+        self.reference = reference
         n = robot.n_joints
         self.dt = robot.control_period
         self.lower, self.upper = robot.position_lower, robot.position_upper
+        self._target_lower = self.lower - TARGET_TOLERANCE
+        self._target_upper = self.upper + TARGET_TOLERANCE
         self.soft_lower, self.soft_upper = robot.soft_lower, robot.soft_upper
         self.acc = robot.acceleration_limit
         self.jerk = robot.jerk_limit
@@ -175,14 +189,39 @@ class SafetyGuard:
         #: m per rad: bound on any point's displacement per unit of sum |dq| (module docstring).
         self.sweep, self.gravity_bound = motion_bounds(robot)
         self.derating = EffortDerating(robot, hold=self.gravity_bound)
-        # caches of the screens: configuration of the last computation and its result
-        self._ws_q = np.zeros((envs, n))
-        self._ws_margin = np.full(envs, -np.inf)  # m inside the workspace box (-inf: unknown)
-        self._col_q = np.zeros((envs, n))
-        self._clearance = np.full(envs, -np.inf)  # m between the closest listed pair
+        # caches of the screens: configuration of the last computation and its result (rows of
+        # one array each for the kernel: workspace, collision)
+        self._screen_q = np.zeros((2, envs, n))
+        self._screen_m = np.full((2, envs), -np.inf)
+        self._ws_q = self._screen_q[0]
+        self._ws_margin = self._screen_m[0]  # m inside the workspace box (-inf: unknown)
+        self._col_q = self._screen_q[1]
+        self._clearance = self._screen_m[1]  # m between the closest listed pair
         self._move = np.zeros(envs)
         self._held = np.zeros(envs, dtype=bool)
         self._no_env = np.zeros(envs, dtype=bool)  # read only
+        # the kernel's constants (rows of deploy.kernels.guard) and work arrays
+        self._kernel_mode = {"position": gk.POSITION, "velocity": gk.VELOCITY}.get(mode, gk.TORQUE)
+        lim = np.zeros((gk.ROWS, n))
+        lim[gk.LOWER], lim[gk.UPPER] = self.lower, self.upper
+        lim[gk.TARGET_LOWER], lim[gk.TARGET_UPPER] = self._target_lower, self._target_upper
+        lim[gk.SOFT_LOWER], lim[gk.SOFT_UPPER] = self.soft_lower, self.soft_upper
+        lim[gk.VEL], lim[gk.ACC] = self.vel, self.acc
+        # stopping_speed(d, a, j, dt) = 0.5 (sqrt(b^2 + 8 a d) - b), b as stopping_speed has it
+        lim[gk.SPEED_B] = self.acc**2 / self.jerk + 2.0 * self.acc * self.dt
+        lim[gk.EIGHT_A] = 8.0 * self.acc
+        lim[gk.EFFORT], lim[gk.GRAVITY_BOUND] = robot.effort_limit, self.gravity_bound
+        self._lim = lim
+        self._scalars = np.array([self.dt, self.sweep, SCREEN_MARGIN, float(self._has_pairs)])
+        self._over = np.zeros((envs, n))
+        self._under = np.zeros((envs, n))
+        self._checks = np.zeros((3, envs), dtype=bool)
+        if not reference:  # compile (or load numba's cache) now, on copies, not in a tick
+            zeros = np.zeros((envs, n))
+            args = self._kernel_args(self._copies(), zeros, zeros, None, np.zeros((envs, n)))
+            gk.guard_filter(0, *args)
+            gk.guard_filter(1, *args)
+        self._tail = self._kernel_tail(self)
 
     @staticmethod
     def collision_model(robot: Robot) -> tuple[pin.GeometryModel, pin.GeometryData]:
@@ -215,6 +254,35 @@ class SafetyGuard:
         which = slice(None) if envs is None else np.asarray(envs, dtype=bool)
         self._last_valid[which] = q[which]
         self.hard_violation[which] = False
+
+    def _state_fields(self) -> dict[str, np.ndarray]:
+        fields = {f"counts/{name}": values for name, values in self.counts.items()}
+        fields.update(
+            hard_violation=self.hard_violation,
+            effort_scale=self.effort_scale,
+            last_valid=self._last_valid,
+            workspace_q=self._ws_q,
+            workspace_margin=self._ws_margin,
+            collision_q=self._col_q,
+            clearance=self._clearance,
+        )
+        return fields
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """The guard's state (copies; conventions of :mod:`deploy.stateful`): ``counts/<check>``
+        (envs,) int64, ``hard_violation`` (envs,) bool, ``effort_scale`` (envs, n),
+        ``last_valid`` (envs, n) the hold target (rad in position mode), and the screens' caches
+        (``workspace_q``, ``collision_q`` (envs, n) rad; ``workspace_margin``, ``clearance``
+        (envs,) m); the env axis has length 1 for one env ``env``."""
+        return take(self._state_fields(), env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``).
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        put(self._state_fields(), state, env)
 
     def update_thermal(self, winding_temperature: np.ndarray) -> np.ndarray:
         """Derate the effort limits as the drives do (:class:`deploy.thermal.EffortDerating`:
@@ -277,6 +345,8 @@ class SafetyGuard:
         elif out is not target:
             np.copyto(out, target)
         q, dq = state.q, state.dq
+        if not self.reference:
+            return self._kernel(q, dq, commanded_position, out)
         self.hard_violation[:] = False
         counts = self.counts
 
@@ -284,7 +354,7 @@ class SafetyGuard:
         np.logical_or(q < self.lower, q > self.upper, out=self._mask)
         crossed = self._mask.any(axis=1)
         if self.mode == "position":
-            np.logical_or(out < self.lower, out > self.upper, out=self._mask)
+            np.logical_or(out < self._target_lower, out > self._target_upper, out=self._mask)
             crossed |= self._mask.any(axis=1)
             # soft limits: clamp positions into the soft band
             np.logical_or(out < self.soft_lower, out > self.soft_upper, out=self._mask)
@@ -316,11 +386,7 @@ class SafetyGuard:
             np.logical_or(over > 0, under > 0, out=self._mask)
             if self._mask.any():
                 counts["velocity"] += self._mask.any(axis=1)
-                for e in np.flatnonzero(self._mask.any(axis=1)):
-                    g = pin.computeGeneralizedGravity(self.model, self.data, q[e])
-                    brake = self._brake_gain * (under[e] - over[e])
-                    out[e] = np.where(over[e] > 0, np.minimum(out[e], g + brake), out[e])
-                    out[e] = np.where(under[e] > 0, np.maximum(out[e], g + brake), out[e])
+                self._govern(q, over, under, out)
         counts["hard_limit"] += crossed
         self.hard_violation |= crossed
 
@@ -341,6 +407,31 @@ class SafetyGuard:
         check_effort = (self.gravity_bound > effort * self.effort_scale).any(axis=1)
         held = self._held
         held[:] = False
+        self._check_predicted(check_ws, check_col, check_effort, q, dq, out)
+        if self.mode == "position":
+            keep = ~held
+            self._last_valid[keep] = out[keep]
+        if self.mode == "torque":
+            limit = effort * self.effort_scale
+            np.logical_or(out > limit, out < -limit, out=self._mask)
+            counts["effort"] += self._mask.any(axis=1)
+            np.clip(out, -limit, limit, out=out)
+        return out
+
+    def _govern(self, q: np.ndarray, over: np.ndarray, under: np.ndarray, out: np.ndarray) -> None:
+        """Torque mode's velocity governor: in the envs with a joint faster than its band
+        (``over``, ``under`` > 0, rad/s), cap the torque toward the limit at gravity plus the
+        brake (one Pinocchio gravity call per such env)."""
+        for e in np.flatnonzero((over > 0).any(axis=1) | (under > 0).any(axis=1)):
+            g = pin.computeGeneralizedGravity(self.model, self.data, q[e])
+            brake = self._brake_gain * (under[e] - over[e])
+            out[e] = np.where(over[e] > 0, np.minimum(out[e], g + brake), out[e])
+            out[e] = np.where(under[e] > 0, np.maximum(out[e], g + brake), out[e])
+
+    def _check_predicted(self, check_ws, check_col, check_effort, q, dq, out) -> None:
+        """The per-env Pinocchio checks at the predicted state ``_pred`` of the envs the screens
+        flagged ((envs,) bool each): count, hold and mark ``_held`` the envs that fail one."""
+        effort, counts, held = self.robot.effort_limit, self.counts, self._held
         for e in np.flatnonzero(check_ws | check_col | check_effort):
             qp = self._pred[e]
             reason = None
@@ -358,15 +449,67 @@ class SafetyGuard:
                 counts[reason][e] += 1
                 self._hold(e, q[e], dq[e], out)
                 held[e] = True
-        if self.mode == "position":
-            keep = ~held
-            self._last_valid[keep] = out[keep]
-        if self.mode == "torque":
-            limit = effort * self.effort_scale
-            np.logical_or(out > limit, out < -limit, out=self._mask)
-            counts["effort"] += self._mask.any(axis=1)
-            np.clip(out, -limit, limit, out=out)
+
+    def _copies(self) -> SimpleNamespace:
+        """Copies of the arrays the kernel writes (the warm-up call must change nothing)."""
+        names = ("effort_scale", "count_matrix", "hard_violation", "_pred", "_tmp", "_screen_q")
+        names += ("_screen_m", "_over", "_under", "_checks", "_held", "_last_valid")
+        return SimpleNamespace(
+            **{k: np.copy(getattr(self, k)) for k in names},
+            _kernel_mode=self._kernel_mode,
+            _lim=self._lim,
+            _scalars=self._scalars,
+        )
+
+    def _kernel(self, q: np.ndarray, dq: np.ndarray, commanded: np.ndarray | None, out):
+        """:meth:`filter` with the kernel: phase 0, Pinocchio where it says, phase 1."""
+        has = commanded is not None
+        mode = self._kernel_mode
+        code = gk.guard_filter(0, mode, out, q, dq, commanded if has else q, has, *self._tail)
+        if code:
+            if code & gk.NEEDS_GOVERNOR:
+                self._govern(q, self._over, self._under, out)
+            if code & gk.NEEDS_SCREENS:
+                c = self._checks
+                self._check_predicted(c[0], c[1], c[2], q, dq, out)
+            gk.guard_filter(1, *self._kernel_args(self, q, dq, commanded, out))
         return out
+
+    @staticmethod
+    def _kernel_args(g, q: np.ndarray, dq: np.ndarray, commanded: np.ndarray | None, out):
+        """Arguments of :func:`deploy.kernels.guard.guard_filter` after ``phase``, on the arrays
+        of ``g`` (the guard, or its :meth:`_copies` to warm the kernel up)."""
+        has = commanded is not None
+        return (
+            g._kernel_mode,
+            out,
+            q,
+            dq,
+            commanded if has else q,
+            has,
+            *SafetyGuard._kernel_tail(g),
+        )
+
+    @staticmethod
+    def _kernel_tail(g) -> tuple:
+        """The arguments of :func:`deploy.kernels.guard.guard_filter` after ``has_commanded``
+        (the guard's own arrays: made once, updated in place)."""
+        return (
+            g._lim,
+            g._scalars,
+            g.effort_scale,
+            g.count_matrix,
+            g.hard_violation,
+            g._pred,
+            g._tmp,
+            g._screen_q,
+            g._screen_m,
+            g._over,
+            g._under,
+            g._checks,
+            g._held,
+            g._last_valid,
+        )
 
     def _velocity_band(self, q: np.ndarray, commanded: np.ndarray | None):
         """(v_up, v_down) >= 0, (envs, n): speeds from which each joint still stops before its

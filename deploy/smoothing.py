@@ -56,6 +56,9 @@ from ruckig import (
     Trajectory,
 )
 
+from deploy.errors import Sim2RealError
+from deploy.kernels import smoothing as sk
+from deploy.stateful import env_index, put, scalar, take
 from robots import CONTROL_MODES, Robot
 
 #: Torque rise time, s: full effort may be reached from zero in 50 ms at the fastest, i.e. a rate
@@ -69,13 +72,23 @@ TORQUE_RISE_TIME = 0.05
 EXTREMA_SCREEN_FACTOR = 1.5
 
 
+#: Ruckig's per-DoF input fields a smoother's state holds (``InputParameter`` attributes).
+RUCKIG_INPUT_FIELDS = (
+    "current_position",
+    "current_velocity",
+    "current_acceleration",
+    "target_position",
+    "target_velocity",
+    "target_acceleration",
+)
+
 #: Rad. Ruckig's extrema of a trajectory that ends exactly at a limit come out up to ~1e-13 rad
 #: beyond it (rounding); the check ignores excursions below this (the finest encoder of our robots
 #: resolves 2 pi / 2^20 = 6e-6 rad).
 EXTREMA_TOLERANCE = 1e-9
 
 
-class SmoothingError(RuntimeError):
+class SmoothingError(Sim2RealError, RuntimeError):
     """Ruckig could not compute a trajectory; the message has Ruckig's result and the input."""
 
 
@@ -109,6 +122,9 @@ class CommandSmoother:
         envs: Batch size.
         mode: ``'position'`` (rad), ``'velocity'`` (rad/s) or ``'torque'`` (N m); default the
             robot's control mode.
+        reference: Run the numpy reference of :meth:`step` around Ruckig instead of the compiled
+            kernels (:mod:`deploy.kernels.smoothing`, the default); both give the same numbers
+            bit for bit.
 
     Attributes:
         command: (envs, n) the last command, in the units of the mode (overwritten by each step).
@@ -129,7 +145,7 @@ class CommandSmoother:
         ValueError: ``envs < 1`` or an unknown mode.
     """
 
-    def __init__(self, robot: Robot, envs: int, mode: str | None = None):
+    def __init__(self, robot: Robot, envs: int, mode: str | None = None, reference: bool = False):
         mode = robot.control_mode if mode is None else mode
         if mode not in CONTROL_MODES:
             raise ValueError(f"control mode '{mode}' is unknown; expected one of {CONTROL_MODES}")
@@ -181,19 +197,21 @@ class CommandSmoother:
         self._guard = {k: np.zeros((2, dofs)) for k in ("u", "b", "room", "t1", "t2", "t3")}
         self._unsafe = np.zeros((2, dofs), dtype=bool)
 
-        self.command = np.zeros(shape)
-        self._cmd = self.command.reshape(-1)
-        self._pos, self._vel, self._acc = np.zeros(dofs), np.zeros(dofs), np.zeros(dofs)
-        self._mean_acc = np.zeros(dofs)
+        # state and work arrays: rows of one block, the compiled step's (deploy.kernels.smoothing)
+        self._w = w = np.zeros((sk.W_ROWS, dofs))
+        self.command = w[sk.CMD].reshape(shape)
+        self._cmd = w[sk.CMD]
+        self._pos, self._vel, self._acc = w[sk.POS], w[sk.VEL], w[sk.ACC]
+        self._mean_acc = w[sk.MEAN_ACC]
         self.mean_acceleration = self._mean_acc.reshape(shape)
         self.position = self._pos.reshape(shape)
         self.velocity = self._vel.reshape(shape)
         self.acceleration = self._acc.reshape(shape)
-        self._cmd_position = np.zeros(dofs)  # what tracking_error compares with
-        self._held = np.zeros(dofs)  # last finite target
-        self._raw = np.zeros(dofs)
+        self._cmd_position = w[sk.CMD_POSITION]  # what tracking_error compares with
+        self._held = w[sk.HELD]  # last finite target
+        self._raw = w[sk.RAW]
         self._raw2d = self._raw.reshape(shape)
-        self._goal = np.zeros(dofs)
+        self._goal = w[sk.GOAL]
         self._tmp = np.zeros(dofs)
         self._tmp2d = self._tmp.reshape(shape)
         self._cmd_position2d = self._cmd_position.reshape(shape)
@@ -204,11 +222,36 @@ class CommandSmoother:
         self._count = np.zeros(dofs, dtype=np.int64)
         self._one_int = np.ones(dofs, dtype=np.int64)
         self.stopping = np.zeros(envs, dtype=bool)
-        self.non_finite_per_joint = np.zeros(shape, dtype=np.int64)
-        self.target_clamps_per_joint = np.zeros(shape, dtype=np.int64)
-        self.extrema_violations_per_joint = np.zeros(shape, dtype=np.int64)
-        self.stopping_distance_clamps_per_joint = np.zeros(shape, dtype=np.int64)
+        self._counts = counts = np.zeros((4, dofs), dtype=np.int64)
+        self.non_finite_per_joint = counts[sk.NON_FINITE].reshape(shape)
+        self.target_clamps_per_joint = counts[sk.TARGET_CLAMPS].reshape(shape)
+        self.extrema_violations_per_joint = counts[sk.EXTREMA].reshape(shape)
+        self.stopping_distance_clamps_per_joint = counts[sk.STOPPING].reshape(shape)
         self._synced = False
+        self.reference = reference
+        self._kernel_mode = {"position": sk.POSITION, "velocity": sk.VELOCITY}.get(mode, sk.TORQUE)
+        c = np.zeros((sk.C_ROWS, dofs))
+        c[sk.LO], c[sk.HI], c[sk.VMAX], c[sk.AMAX] = self._lo, self._hi, self._vmax, self._amax
+        c[sk.EMAX], c[sk.RATE] = self._emax, self._rate
+        c[sk.SCREEN_LO], c[sk.SCREEN_HI] = self._screen_lo, self._screen_hi
+        c[sk.C], c[sk.C2], c[sk.EIGHT_A] = self._c, self._c2, self._8a
+        c[sk.JDT], c[sk.JDT2_2], c[sk.JDT3_6] = self._jdt, self._jdt2_2, self._jdt3_6
+        c[sk.INV_J], c[sk.INV_2J] = self._inv_j, self._inv_2j
+        c[sk.INV_2A], c[sk.A_2J] = self._inv_2a, self._a_2j
+        self._c_rows = c
+        if not reference:  # compile (or load numba's cache) now, on copies, not in a tick
+            for has_target in (True, False):
+                sk.before_ruckig(
+                    self._kernel_mode,
+                    np.zeros(shape),
+                    has_target,
+                    w.copy(),
+                    c,
+                    counts.copy(),
+                    self._stop_dof.copy(),
+                    dt,
+                )
+            sk.after_ruckig(self._kernel_mode, True, w.copy(), c, self._inv_dt, self._mask.copy())
 
         if mode != "torque":
             self._ruckig = Ruckig(dofs, dt)
@@ -231,6 +274,12 @@ class CommandSmoother:
             )
             inp.control_interface = self._interface
 
+    @property
+    def commanded(self) -> np.ndarray:
+        """(envs, n) rad, the commanded position :meth:`tracking_error` compares with (the last
+        position command, or Ruckig's integrated position in velocity mode); a view."""
+        return self._cmd_position2d
+
     # ------------------------------------------------------------------ counters
     @property
     def non_finite_targets(self) -> np.ndarray:
@@ -251,6 +300,84 @@ class CommandSmoother:
     def stopping_distance_clamps(self) -> np.ndarray:
         """(envs,) velocity-mode targets reduced so that the joint stops before its limit."""
         return self.stopping_distance_clamps_per_joint.sum(axis=1)
+
+    # ------------------------------------------------------------------ state
+    def _state_fields(self) -> dict[str, np.ndarray]:
+        shape = (self.envs, self.n_joints)
+        return {
+            "command": self.command,
+            "position": self.position,
+            "velocity": self.velocity,
+            "acceleration": self.acceleration,
+            "mean_acceleration": self.mean_acceleration,
+            "commanded_position": self._cmd_position2d,
+            "held": self._held.reshape(shape),
+            "stopping": self.stopping,
+            "non_finite_per_joint": self.non_finite_per_joint,
+            "target_clamps_per_joint": self.target_clamps_per_joint,
+            "extrema_violations_per_joint": self.extrema_violations_per_joint,
+            "stopping_distance_clamps_per_joint": self.stopping_distance_clamps_per_joint,
+        }
+
+    def _ruckig_input(self) -> dict[str, np.ndarray]:
+        """Copies of Ruckig's per-DoF input, (envs, n) (the binding returns lists)."""
+        if self.mode == "torque":
+            return {}
+        shape = (self.envs, self.n_joints)
+        return {
+            f"ruckig/{name}": np.asarray(getattr(self._inp, name), dtype=np.float64).reshape(shape)
+            for name in RUCKIG_INPUT_FIELDS
+        }
+
+    def recalculate(self) -> None:
+        """Make the next :meth:`step` calculate every trajectory afresh from Ruckig's input
+        (``Ruckig.reset()``) instead of sampling the one it keeps. The two agree to ~1e-16, not
+        bit for bit (module docstring); a recalculation depends on the input alone: the same
+        numbers whatever the other envs of the batch, and after :meth:`load_state_dict`."""
+        if self.mode != "torque":
+            self._ruckig.reset()
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The smoother's state (copies; conventions of :mod:`deploy.stateful`).
+
+        Fields, (envs, n) unless stated (length 1 for one env ``env``): ``command`` (the units of
+        the mode), Ruckig's state ``position``, ``velocity``, ``acceleration`` (rad, rad/s,
+        rad/s^2) and ``mean_acceleration``, ``commanded_position`` (rad), ``held`` (the last
+        finite target), ``stopping`` (envs,) bool, the per-joint counters (int64); Ruckig's input
+        ``ruckig/<field>`` (``RUCKIG_INPUT_FIELDS``; not in torque mode) and ``synced`` (bool,
+        shared).
+
+        Ruckig keeps the trajectory it calculated inside the ``Ruckig`` object, which its Python
+        binding can neither read nor set. Taking the state therefore calls :meth:`recalculate`:
+        this smoother's next step calculates from the input, as a smoother loaded from this
+        state does, and both continue bit for bit alike.
+        """
+        out: dict = take(self._state_fields(), env)
+        index = env_index(env)
+        out.update({k: v[index].copy() for k, v in self._ruckig_input().items()})
+        out["synced"] = bool(self._synced)
+        self.recalculate()
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``): Ruckig's input is
+        re-seeded (current and target position, velocity, acceleration), the per-DoF control
+        interfaces follow the ``stopping`` flags, and the next step recalculates
+        (:meth:`recalculate`).
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        synced = scalar(state, "synced", bool)
+        ruckig = self._ruckig_input()
+        put({**self._state_fields(), **ruckig}, state, env)
+        for key, values in ruckig.items():
+            setattr(self._inp, key.split("/", 1)[1], values.reshape(-1))
+        self._stop_dof[:] = np.repeat(self.stopping, self.n_joints)
+        self._synced = synced
+        if self.mode != "torque":
+            self._set_interfaces()
+        self.recalculate()
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self, q: np.ndarray, dq: np.ndarray, effort: np.ndarray | None = None) -> None:
@@ -393,10 +520,12 @@ class CommandSmoother:
         """
         if not self._synced:
             raise RuntimeError("CommandSmoother.step before reset(q, dq)")
+        if target is not None and target.shape != self.command.shape:
+            raise ValueError(f"target: expected shape {self.command.shape}, got {target.shape}")
+        if not self.reference:
+            return self._step_compiled(target, out)
         raw, mask = self._raw, self._mask
         if target is not None:
-            if target.shape != self.command.shape:
-                raise ValueError(f"target: expected shape {self.command.shape}, got {target.shape}")
             np.copyto(self._raw2d, target)
             np.isfinite(raw, out=self._finite)
             if np.count_nonzero(self._finite) != self.dofs:
@@ -417,6 +546,42 @@ class CommandSmoother:
                 self._step_velocity()
             np.subtract(self._vel, self._mean_acc, out=self._mean_acc)
             self._mean_acc *= self._inv_dt
+        if out is None:
+            return self.command
+        np.copyto(out, self.command)
+        return out
+
+    def _step_compiled(self, target: np.ndarray | None, out: np.ndarray | None) -> np.ndarray:
+        """:meth:`step` with the kernels of :mod:`deploy.kernels.smoothing` around Ruckig."""
+        mode, w = self._kernel_mode, self._w
+        has = target is not None
+        sk.before_ruckig(
+            mode,
+            target if has else self.command,
+            has,
+            w,
+            self._c_rows,
+            self._counts,
+            self._stop_dof,
+            self.control_period,
+        )
+        if mode != sk.TORQUE:
+            result = self._out
+            if mode == sk.POSITION:
+                self._inp.target_position = self._goal
+                self._update()
+                self._cmd[:] = result.new_position
+                self._vel[:] = result.new_velocity
+            else:
+                self._inp.target_velocity = self._goal
+                self._update()
+                self._cmd[:] = result.new_velocity
+                self._pos[:] = result.new_position
+            self._acc[:] = result.new_acceleration
+            new = mode == sk.POSITION and result.new_calculation
+            if sk.after_ruckig(mode, new, w, self._c_rows, self._inv_dt, self._mask):
+                self._count_extrema()
+            result.pass_to_input(self._inp)
         if out is None:
             return self.command
         np.copyto(out, self.command)
@@ -543,8 +708,11 @@ class CommandSmoother:
     def _check_extrema(self) -> None:
         """Count the DoFs whose new trajectory leaves the hard limits (screened by
         :meth:`_near_limits`: far from the limits the extrema are not even computed)."""
-        if not self._near_limits():
-            return
+        if self._near_limits():
+            self._count_extrema()
+
+    def _count_extrema(self) -> None:
+        """Count the DoFs marked in ``_mask`` whose new trajectory leaves the hard limits."""
         near = self._mask
         extrema = self._out.trajectory.position_extrema
         for i in np.flatnonzero(near):

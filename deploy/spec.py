@@ -24,6 +24,14 @@ kind                        size   raw quantity (base frame unless stated)
 ``winding_temperature``     n      degC; offset = ambient, scale = max winding - ambient
 ==========================  =====  =================================================================
 
+Convention: ``scale`` is a *divisor* and ``offset`` is subtracted first, per entry, in the raw
+quantity's SI unit. A training library that multiplies instead (legged_gym's ``obs_scales``,
+Isaac Lab's term ``scale``), ``obs = (raw - default) * s``, is ``offset = default``, ``scale =
+1 / s``: legged_gym's ``dof_vel`` 0.05 is ``scale`` 20, ``ang_vel`` 0.25 is 4, ``lin_vel`` 2.0 is
+0.5, ``dof_pos`` 1.0 about ``default_angles`` is ``scale`` 1 with ``offset`` the default pose. In
+JSON ``scale`` and ``offset`` may be one number or one per entry (``deploy.spec_schema``; the
+JSON Schema is ``docs/policy_spec.schema.json``).
+
 Action: ``a`` in ``[-clip, clip]^n`` maps to the target of the control mode,
 ``target = offset + scale * a`` (``reference = "absolute"``) or ``target = q + scale * a``
 (position mode, ``reference = "current"``). :meth:`PolicySpec.for_robot` scales a velocity action
@@ -43,6 +51,9 @@ from typing import Any
 
 import numpy as np
 
+from deploy.errors import Sim2RealError
+from deploy.kernels.observation import KIND_CODES
+from deploy.kernels.observation import observation as observation_kernel
 from deploy.state import Kinematics, RobotState
 from robots import CONTROL_MODES, Robot
 
@@ -59,9 +70,21 @@ OBSERVATION_KINDS = (
 )
 #: Default observation clip (in normalized units); generous, since values are already ~[-1, 1].
 DEFAULT_CLIP = 5.0
+#: Blocks published policies read that no robot here can provide yet (fixed-base arms only; the
+#: floating-base blocks come with the legged robots), by the names legged_gym and Isaac Lab use.
+FLOATING_BASE_KINDS = (
+    "base_lin_vel",
+    "base_ang_vel",
+    "projected_gravity",
+    "commands",
+    "velocity_commands",
+    "base_height",
+    "height_scan",
+    "foot_contact",
+)
 
 
-class SpecError(ValueError):
+class SpecError(Sim2RealError, ValueError):
     """A PolicySpec is invalid or does not match a robot; the message names the field."""
 
 
@@ -122,6 +145,11 @@ class PolicySpec:
             normalizer of a training library; ``action_clip``).
         parity: Parity figures of the export (max abs error, samples), filled by export.
         format_version: Version of this JSON format; other versions are refused.
+        constant_inputs: Graph inputs besides the observation and recurrent state, fed this
+            constant every tick (name -> value; JSON key ``constant_inputs``, left out when empty).
+
+    ``robot_hash`` may be empty (a spec written by hand for a policy trained elsewhere): the
+    description hash is then not checked.
     """
 
     robot: str
@@ -133,6 +161,7 @@ class PolicySpec:
     baked: dict[str, bool] = field(default_factory=dict)
     parity: dict[str, Any] = field(default_factory=dict)
     format_version: int = FORMAT_VERSION
+    constant_inputs: dict[str, float] = field(default_factory=dict)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -270,8 +299,18 @@ class PolicySpec:
         n = len(self.joint_names)
         for i, b in enumerate(self.observation_blocks):
             where = f"observation[{i}] ('{b.name}')"
+            if b.name in FLOATING_BASE_KINDS:
+                raise SpecError(
+                    f"{where}: block '{b.name}' cannot be provided: the robot '{self.robot}' is "
+                    "a fixed-base arm and this toolkit has no floating-base observation yet "
+                    f"({', '.join(FLOATING_BASE_KINDS)}); blocks a robot provides: "
+                    f"{', '.join(OBSERVATION_KINDS)}"
+                )
             if b.name not in OBSERVATION_KINDS:
-                raise SpecError(f"{where}: unknown block; expected one of {OBSERVATION_KINDS}")
+                raise SpecError(
+                    f"{where}: block '{b.name}' is unknown: no robot provides it; expected one of "
+                    f"{OBSERVATION_KINDS}"
+                )
             if len(b.scale) != b.size or len(b.offset) != b.size:
                 raise SpecError(f"{where}: scale and offset need {b.size} entries")
             if not all(np.isfinite(s) and s > 0 for s in b.scale):
@@ -300,6 +339,9 @@ class PolicySpec:
             raise SpecError(f"action.reference: '{a.reference}' is not valid for mode '{a.mode}'")
         if not self.control_rate > 0:
             raise SpecError(f"control_rate: must be positive, got {self.control_rate}")
+        for name, value in self.constant_inputs.items():
+            if not np.isfinite(value):
+                raise SpecError(f"constant_inputs['{name}']: must be finite, got {value}")
 
     def check_robot(self, robot: Robot, check_hash: bool = True) -> None:
         """Refuse a robot this policy was not made for.
@@ -320,7 +362,7 @@ class PolicySpec:
             raise SpecError(
                 f"control_rate: policy runs at {self.control_rate} Hz, the robot at {rate} Hz"
             )
-        if check_hash and self.robot_hash != robot.description_hash:
+        if check_hash and self.robot_hash and self.robot_hash != robot.description_hash:
             raise SpecError(
                 f"robot_hash: policy was made for description {self.robot_hash[:12]}..., the robot "
                 f"is {robot.description_hash[:12]}... (robot.toml or MJCF changed since training)"
@@ -328,7 +370,11 @@ class PolicySpec:
 
     # ------------------------------------------------------------------ the two mappings
     def observation(
-        self, state: RobotState, goal: np.ndarray, out: np.ndarray | None = None
+        self,
+        state: RobotState,
+        goal: np.ndarray,
+        out: np.ndarray | None = None,
+        reference: bool = False,
     ) -> np.ndarray:
         """Normalized observation, float32 (envs, obs_dim).
 
@@ -336,12 +382,31 @@ class PolicySpec:
             state: Estimated state with end-effector pose filled (``Kinematics.update``).
             goal: (envs, 3) m, goal position in the base frame.
             out: Optional float32 (envs, obs_dim) array to write into.
+            reference: Run the numpy reference instead of the compiled kernel
+                (:mod:`deploy.kernels.observation`); both give the same numbers bit for bit.
         """
         envs = state.q.shape[0]
         if out is None:
             out = np.empty((envs, self.obs_dim), dtype=np.float32)
         plan = self._plan
         raw = plan.raw(envs)
+        if plan.compiled and not reference:
+            observation_kernel(
+                plan.kinds,
+                plan.starts,
+                plan.joints,
+                state.q,
+                state.dq,
+                state.ee_position,
+                state.ee_rotation,
+                goal,
+                state.last_action,
+                state.winding_temperature,
+                plan.norm,
+                plan._raw,
+                out,
+            )
+            return out
         for kind, dst, joints in plan.blocks:
             if kind == "joint_position":
                 np.take(state.q, joints, axis=1, out=raw[:, dst])
@@ -395,18 +460,28 @@ class PolicySpec:
 
     # ------------------------------------------------------------------ JSON
     def to_json(self) -> str:
+        """The spec as JSON, every field explicit (sorted keys; ``constant_inputs`` only when
+        there are any, so a spec without them writes what earlier versions wrote)."""
         d = asdict(self)
         d["observation"] = d.pop("observation_blocks")
+        if not d["constant_inputs"]:
+            del d["constant_inputs"]
         return json.dumps(d, sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str, source: str = "spec") -> PolicySpec:
-        """Parse and validate a spec.
+        """Parse and validate a spec (the format: ``deploy.spec_schema``, whose shorthands it
+        expands: ``scale``/``offset`` as one number, ``size``, ``joints``, ``robot_hash`` left
+        out, joints by name).
 
         Raises:
-            SpecError: invalid JSON, unknown format version, missing or invalid field (the message
-                starts with ``source``).
+            SpecError: invalid JSON, unknown format version, missing, unknown or invalid field (the
+                message starts with ``source`` and names the field).
         """
+        from pydantic import ValidationError
+
+        from deploy.spec_schema import PolicySpecDocument, describe_error, to_spec
+
         try:
             d = json.loads(text)
         except json.JSONDecodeError as exc:
@@ -419,39 +494,11 @@ class PolicySpec:
                 f"{source}: format_version {version!r} is not supported; expected {FORMAT_VERSION}"
             )
         try:
-            spec = cls(
-                robot=d["robot"],
-                joint_names=tuple(d["joint_names"]),
-                robot_hash=d["robot_hash"],
-                observation_blocks=tuple(
-                    ObservationBlock(
-                        name=b["name"],
-                        size=int(b["size"]),
-                        scale=tuple(float(x) for x in b["scale"]),
-                        offset=tuple(float(x) for x in b["offset"]),
-                        clip=float(b.get("clip", DEFAULT_CLIP)),
-                        joints=tuple(int(j) for j in b.get("joints", ())),
-                    )
-                    for b in d["observation"]
-                ),
-                action=ActionSpec(
-                    mode=d["action"]["mode"],
-                    size=int(d["action"]["size"]),
-                    scale=tuple(float(x) for x in d["action"]["scale"]),
-                    offset=tuple(float(x) for x in d["action"]["offset"]),
-                    clip=float(d["action"].get("clip", 1.0)),
-                    reference=d["action"].get("reference", "absolute"),
-                ),
-                control_rate=float(d["control_rate"]),
-                baked=dict(d.get("baked", {})),
-                parity=dict(d.get("parity", {})),
-                format_version=version,
-            )
-        except KeyError as exc:
-            raise SpecError(f"{source}: field {exc.args[0]!r} is missing") from None
-        except (TypeError, ValueError) as exc:
-            raise SpecError(f"{source}: invalid field value: {exc}") from None
+            doc = PolicySpecDocument.model_validate(d)
+        except ValidationError as exc:
+            raise SpecError(f"{source}: {describe_error(exc)}") from None
         try:
+            spec = to_spec(doc)
             spec.validate()
         except SpecError as exc:
             raise SpecError(f"{source}: {exc}") from None
@@ -477,6 +524,44 @@ class _ObservationPlan:
         self._raw = np.zeros((0, start))
         self.vec = np.zeros((0, 3))
         self.rot = np.zeros((0, 3))
+        # the compiled kernel's layout (deploy.kernels.observation); kinds it does not know run
+        # the reference
+        self.compiled = bool(bl) and all(
+            b.name in KIND_CODES
+            and (b.name != "joint_position_sincos" or b.size == 2 * len(b.joints))
+            for b in bl
+        )
+        if self.compiled:
+            self.kinds = np.array([KIND_CODES[b.name] for b in bl], dtype=np.int64)
+            self.starts = np.array([s.start for _, s, _ in self.blocks], dtype=np.int64)
+            width = max(1, max(len(b.joints) for b in bl))
+            self.joints = np.full((len(bl), width), -1, dtype=np.int64)
+            for i, b in enumerate(bl):
+                self.joints[i, : len(b.joints)] = b.joints
+            self.norm = np.ascontiguousarray(np.stack([self.offset, self.scale, self.clip]))
+            self._warm()
+
+    def _warm(self) -> None:
+        """Compile the kernel (or load numba's cache) now, not in the first tick."""
+        n = int(self.joints.max()) + 1
+        state = RobotState.zeros(1, max(n, 1))
+        goal = np.zeros((1, 3))
+        out = np.zeros((1, self.dim), dtype=np.float32)
+        observation_kernel(
+            self.kinds,
+            self.starts,
+            self.joints,
+            state.q,
+            state.dq,
+            state.ee_position,
+            state.ee_rotation,
+            goal,
+            state.last_action,
+            state.winding_temperature,
+            self.norm,
+            self.raw(1),
+            out,
+        )
 
     def raw(self, envs: int) -> np.ndarray:
         if self._raw.shape[0] < envs:

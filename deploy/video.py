@@ -4,7 +4,9 @@ The recorder keeps its own copy of the robot's MuJoCo model and data: it poses t
 plant's true joint positions (simulation) or the runtime's estimate (a servo bus), so the run
 itself is the same with or without it. Drawn on top of the robot (env 0): the goal as a green
 sphere, the end-effector path of the last ``TRAIL_SECONDS`` as a fading trail, and the links of
-joints whose target the guard changed on the frame's tick tinted red.
+joints whose target the guard changed on the frame's tick tinted red, over a dark backdrop plane
+(no shadows, reflections or skybox: a software renderer draws three times as many frames). The
+soak's film strip (:mod:`eval.film`) renders its replays with the same recorder.
 
 Rendering uses :class:`mujoco.Renderer`, whose OpenGL backend ``MUJOCO_GL`` selects (``egl``
 headless; ``osmesa`` software; ``glfw`` with a display); frames go to ffmpeg through
@@ -26,6 +28,7 @@ TRAIL_SECONDS = 2.0
 GOAL_RGBA = np.array([0.1, 0.8, 0.2, 0.6], dtype=np.float32)
 TRAIL_RGB = np.array([1.0, 0.55, 0.0], dtype=np.float32)
 TINT_RGBA = np.array([0.9, 0.15, 0.1, 1.0], dtype=np.float32)
+BACKDROP_RGBA = np.array([0.2, 0.23, 0.28, 1.0], dtype=np.float32)
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -56,6 +59,15 @@ class VideoRecorder:
         camera: Optional MJCF camera name; default a free camera framing the robot.
         true_state: Optional callable returning the (envs, n) true joint positions, rad
             (a simulated plant's ``true_position``); default the runtime's estimate.
+        model: Optional ``mujoco.MjModel`` to draw (copied), e.g. a soak session's randomized
+            plant model; default the robot's MJCF.
+        start: Run time of the first frame, s (a replay that starts mid-run).
+        crf: x264 constant rate factor (quality: 18 near lossless .. 35 small; ffmpeg's 23).
+        verbose: Print one line on :meth:`close`.
+
+    Attributes:
+        frames: Frames written. render_s: s spent rendering and encoding them.
+        last_frame: (height, width, 3) uint8, the last frame rendered (None before).
 
     Raises:
         ValueError: an unknown camera or ``fps`` not > 0.
@@ -63,7 +75,21 @@ class VideoRecorder:
         ImportError: imageio-ffmpeg is not installed.
     """
 
-    def __init__(self, robot, path, fps=30.0, size=(640, 480), camera=None, true_state=None):
+    def __init__(
+        self,
+        robot,
+        path,
+        fps=30.0,
+        size=(640, 480),
+        camera=None,
+        true_state=None,
+        model=None,
+        start=0.0,
+        crf=23,
+        verbose=True,
+    ):
+        import copy
+
         import mujoco
 
         if not (np.isfinite(fps) and fps > 0):
@@ -73,7 +99,10 @@ class VideoRecorder:
         self.mj = mujoco
         self.robot, self.path, self.fps = robot, Path(path), float(fps)
         self.width, self.height = size
-        m = mujoco.MjModel.from_xml_path(str(robot.mjcf_path))
+        if model is None:
+            m = mujoco.MjModel.from_xml_path(str(robot.mjcf_path))
+        else:
+            m = copy.deepcopy(model)
         m.vis.global_.offwidth = max(m.vis.global_.offwidth, self.width)
         m.vis.global_.offheight = max(m.vis.global_.offheight, self.height)
         self.model, self.data = m, mujoco.MjData(m)
@@ -89,7 +118,7 @@ class VideoRecorder:
             mujoco.mjv_defaultFreeCamera(m, cam)
             mujoco.mj_kinematics(m, self.data)
             cam.lookat[:] = self.data.xpos[1]  # the robot's base body
-            cam.distance = 3.0 * m.stat.extent
+            cam.distance = 2.4 * m.stat.extent  # the reach fills the frame (fovy 45 deg)
             g = m.opt.gravity
             if abs(g[1]) > abs(g[2]):  # Y-up scene (arm3): look down the Z axis
                 cam.azimuth, cam.elevation = 90.0, -89.9
@@ -99,6 +128,9 @@ class VideoRecorder:
         mujoco.mj_kinematics(m, self.data)
         try:
             self.renderer = mujoco.Renderer(m, self.height, self.width)
+            # no shadows, reflections or skybox: 3x the frame rate on a software renderer
+            for flag in ("mjRND_SHADOW", "mjRND_REFLECTION", "mjRND_SKYBOX"):
+                self.renderer.scene.flags[getattr(mujoco.mjtRndFlag, flag)] = False
         except Exception as exc:  # noqa: BLE001 - every GL backend fails differently
             backend = os.environ.get("MUJOCO_GL", "(unset)")
             text = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
@@ -118,11 +150,15 @@ class VideoRecorder:
             pix_fmt_out="yuv420p",
             macro_block_size=2,
             ffmpeg_log_level="error",
+            quality=None,  # the rate factor below instead of imageio-ffmpeg's mapping
+            output_params=["-crf", str(int(crf)), "-movflags", "+faststart"],
         )
         self._writer.send(None)
         self._trail = np.zeros((max(2, int(TRAIL_SECONDS * self.fps)), 3))
         self._trail_len = 0
-        self._next = 0.0
+        self._next = float(start)
+        self.verbose = verbose
+        self.last_frame = None
         self._raw = np.zeros((1, robot.n_joints))
         self.frames = 0
         self.render_s = 0.0
@@ -161,16 +197,35 @@ class VideoRecorder:
                 g = scene.geoms[i]
                 if g.objtype == mj.mjtObj.mjOBJ_GEOM and m.geom_bodyid[g.objid] in tinted:
                     g.rgba[:] = TINT_RGBA
+        self._add_backdrop(scene)
         self._add_sphere(scene, rt.goal[0], self.goal_radius, GOAL_RGBA)
         n = self._trail_len
         for k in range(len(trail) - n, len(trail) - 1):
             age = (len(trail) - 1 - k) / len(trail)
             rgba = np.append(TRAIL_RGB, 0.9 * (1.0 - age)).astype(np.float32)
             self._add_line(scene, trail[k], trail[k + 1], rgba)
-        frame = r.render()
+        frame = self.last_frame = r.render()
         self._writer.send(np.ascontiguousarray(frame))
         self.frames += 1
         self.render_s += time.perf_counter() - t0
+
+    def _add_backdrop(self, scene) -> None:
+        """A light plane under the robot (normal +Z, below the model's lowest point along Z),
+        so that the picture is not black around it."""
+        if scene.ngeom >= scene.maxgeom:
+            return
+        mj, m = self.mj, self.model
+        size = 4.0 * m.stat.extent
+        z = m.stat.center[2] - 0.6 * m.stat.extent
+        mj.mjv_initGeom(
+            scene.geoms[scene.ngeom],
+            mj.mjtGeom.mjGEOM_PLANE,
+            np.array([size, size, 0.1]),
+            np.array([m.stat.center[0], m.stat.center[1], z]),
+            np.eye(3).reshape(-1),
+            BACKDROP_RGBA,
+        )
+        scene.ngeom += 1
 
     def _add_sphere(self, scene, pos, radius, rgba) -> None:
         if scene.ngeom >= scene.maxgeom:
@@ -202,6 +257,8 @@ class VideoRecorder:
         self.renderer.close()
         os.replace(self._tmp, self.path)
         rate = self.frames / self.render_s if self.render_s > 0 else float("nan")
+        if not self.verbose:
+            return self.path
         print(
             f"deploy-run: video {self.path}: {self.frames} frames at {self.fps:g} fps, "
             f"{self.width}x{self.height}, rendered and encoded at {rate:.0f} frames/s"
@@ -253,3 +310,17 @@ def import_mujoco() -> str | None:
             f"({type(exc).__name__}: {exc}); no video; headless machines use MUJOCO_GL=egl"
         )
     return None
+
+
+def headless_gl_default(environ=None) -> str | None:
+    """Choose EGL for offscreen rendering where nothing is chosen: on Linux without a display and
+    without ``MUJOCO_GL``, set ``MUJOCO_GL=egl`` in ``environ`` (default ``os.environ``; it must
+    happen before mujoco is imported, which reads it then) and return ``'egl'``; else None (the
+    user's choice, or GLFW on a desktop, stands)."""
+    environ = os.environ if environ is None else environ
+    if environ.get("MUJOCO_GL") or not sys.platform.startswith("linux"):
+        return None
+    if environ.get("DISPLAY") or environ.get("WAYLAND_DISPLAY"):
+        return None
+    environ["MUJOCO_GL"] = "egl"
+    return "egl"

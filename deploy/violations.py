@@ -20,8 +20,8 @@ however many joints are past the limit):
   ``safety.workspace_min/max``.
 - ``self_collision``: a pair of ``safety.collision_pairs`` in contact at the true joint positions
   (coal, with the guard's collision model: :meth:`deploy.safety.SafetyGuard.collision_model`, the
-  robot's *nominal* geometry; checked every tick, which costs about 1 us per env on arm3 and 3 us
-  on arm6, less than the screen the guard uses would).
+  robot's *nominal* geometry; checked every tick, which is cheaper than the guard's screen would
+  be: ``docs/measurements.md``).
 
 Ground truth exists only in simulation: :class:`ViolationMonitor` reads
 :class:`~deploy.backends.sim.SimBackend`'s ``true_position()``, ``true_velocity()``,
@@ -58,8 +58,6 @@ class MonitorState:
 
     _state_name = "monitor"
     ticks: int
-
-    _state_name = "violations"
 
     def _arrays(self) -> dict[str, np.ndarray]:
         raise NotImplementedError
@@ -102,6 +100,8 @@ class ViolationMonitor(MonitorState):
     end effector) decides whether the exact per-type tests run, and coal checks the collision
     pairs of each env.
     """
+
+    _state_name = "violations"
 
     def __init__(self, robot: Robot, envs: int):
         from deploy.safety import SafetyGuard

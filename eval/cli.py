@@ -8,9 +8,10 @@ Usage::
               [--goal-period S] [--no-faults] [--fault-interval S] [--min-success R]
               [--min-window-success R] [--window-minutes M] [--max-interventions F] ...
 
-It writes ``DIR/report.json``, ``DIR/report.html`` and ``DIR/junit.xml`` (atomically), keeps each
-session's checkpoints, progress and result under ``DIR/sessions/<id>/``, shows a progress bar of
-simulated hours and speed (simulated / wall time), and prints a summary.
+It writes ``DIR/report.json``, ``DIR/report.html`` and ``DIR/junit.xml`` (atomically), the film
+strip of each session's worst moments under ``DIR/film/<id>/`` (:mod:`eval.film`; ``--no-film``:
+none), keeps each session's checkpoints, progress and result under ``DIR/sessions/<id>/``, shows
+a progress bar of simulated hours and speed (simulated / wall time), and prints a summary.
 
 Exit codes (when several apply, the first of 4, 1, 5, 2, 6, 8, 7 is returned):
 
@@ -43,6 +44,8 @@ import sys
 import time
 from pathlib import Path
 
+from deploy.errors import Sim2RealError
+
 EXIT_PASSED = 0
 EXIT_HARD_VIOLATION = 1
 EXIT_LATCHED = 2
@@ -67,7 +70,7 @@ _EXIT_ORDER = (
 )
 
 
-class BadInput(ValueError):
+class BadInput(Sim2RealError, ValueError):
     """A bad command line; the message names the option."""
 
 
@@ -165,6 +168,11 @@ def _parser() -> argparse.ArgumentParser:
         "--tolerance-temperature", type=float, default=2.0, help="rise of peak winding, K"
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--no-film",
+        action="store_true",
+        help="no film strip (clips of each session's worst moments in report.html)",
+    )
     return p
 
 
@@ -227,10 +235,11 @@ def exit_code(report: dict) -> int:
 
 
 def run(args) -> int:
-    from eval.fault_schedule import FaultRanges
+    from deploy.files import sha256_file
+    from eval.fault_schedule import fault_ranges
     from eval.randomization import SessionRanges
     from eval.report import Thresholds, build_report, load_report, summary_text, write_reports
-    from eval.soak import SessionConfig, file_sha256, run_campaign
+    from eval.soak import SessionConfig, run_campaign
     from robots import load_robot
 
     _check_args(args)
@@ -257,7 +266,7 @@ def run(args) -> int:
         curve_seconds=args.curve_seconds,
         operator_reset=args.operator_reset,
         faults=not args.no_faults,
-        ranges=SessionRanges(faults=FaultRanges(mean_interval=args.fault_interval)),
+        ranges=SessionRanges(faults=fault_ranges(robot, args.fault_interval)),
         window_minutes=args.window_minutes,
     )
     wall = time.perf_counter()
@@ -271,7 +280,12 @@ def run(args) -> int:
         sessions_per_process=args.sessions_per_process,
         workers=args.workers,
         progress=not args.no_progress,
+        film=not args.no_film,
     )
+    if not args.no_film:  # replayed from the kept checkpoints and rendered (eval.film)
+        from eval.film import film_campaign
+
+        results = film_campaign(template, results, args.out, workers=args.workers)
     wall = time.perf_counter() - wall
     options = template.to_dict()
     options.pop("seed")
@@ -279,7 +293,7 @@ def run(args) -> int:
     campaign = {
         "robot": robot.name,
         "policy": str(args.policy),
-        "policy_sha256": file_sha256(args.policy),
+        "policy_sha256": sha256_file(args.policy),
         "hours": args.hours,
         "sessions": args.sessions,
         "seed": args.seed,

@@ -14,6 +14,7 @@ Schedules are lists of :class:`deploy.faults.Fault`; :func:`fault_to_dict` and
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING
 
@@ -133,6 +134,22 @@ def stale_budget(robot: Robot, latency_ticks: int) -> float:
     (one period for the reading in flight, one of margin), at least one control period."""
     dt = robot.control_period
     return max(robot.config.safety.stale_limit - (latency_ticks + 2) * dt, dt)
+
+
+def fault_ranges(robot, mean_interval: float | None = None) -> FaultRanges:
+    """The soak's fault ranges for ``robot``: the defaults, with what its ``[soak]`` table
+    (:class:`robots.schema.SoakConfig`) sizes to it, and ``mean_interval`` (s) when given.
+
+    Raises:
+        ValueError: a range out of bounds (:meth:`FaultRanges.__post_init__`).
+    """
+    changes = {}
+    soak = robot.config.soak
+    if soak is not None and soak.push_force is not None:
+        changes["push_force"] = tuple(float(f) for f in soak.push_force)
+    if mean_interval is not None:
+        changes["mean_interval"] = mean_interval
+    return dataclasses.replace(FaultRanges(), **changes)
 
 
 #: s, time step of the thermal integration of :func:`cable_budget` (winding time constants are tens

@@ -41,7 +41,11 @@ often is a policy leaning on it, not a robot beyond its limits.
                 interventions {check | any: [...]}, mode}   (cumulative counts)
         drift {friction_final_nm}, diverged (message or null),
         checks {name: {passed, message}},
-        wall {wall_s, speed, batch, tick_cost_us, tick_cost_histogram, stage_cost_us}
+        wall {wall_s, speed, batch, tick_cost_us, tick_cost_histogram, stage_cost_us},
+        film (only with the film strip, :mod:`eval.film`) {clips [{kind, kinds, label, moments,
+              t_s, start_s, end_s, video, still (paths relative to the report's folder),
+              frames, bytes, replay_exact, checked, from_tick}], moments {kind: found},
+              not_filmed, fps, size, frames_per_s, error (why there is no film, or null)}
     totals          over every session: simulated_hours, ticks, violations {total, any,
                     rate_per_hour, per_hour [{hour, counts, any}]}, interventions {ticks, checks
                     {check: {count, fraction}}, any {count, fraction}, warnings, per_hour [{hour,
@@ -76,7 +80,12 @@ above ``baseline + temperature_tolerance`` (any joint), or more latched faults p
 than the baseline.
 
 Every file is written to a temporary file and moved into place with ``os.replace``. The HTML is
-self-contained (plots are matplotlib PNGs embedded as base64; no scripts, no external resources).
+self-contained (plots are matplotlib PNGs embedded as base64; no scripts, no external resources),
+and so is the film strip: each session's clips (H.264 MP4 in ``<video>``, the still at the
+moment as its poster) embedded as base64 from ``film/<id>/`` beside the report (at most
+``eval.film.MAX_CLIPS`` short clips per session). In junit.xml a failed check names the still
+frame of its first clip (``still frame: film/<id>/NN-<kind>.png``, also as a
+``[[ATTACHMENT|...]]`` line in the testcase's system-out).
 """
 
 from __future__ import annotations
@@ -94,7 +103,8 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.checkpoint import atomic_write
+from deploy.errors import Sim2RealError
+from deploy.files import atomic_write
 
 SCHEMA_VERSION = 2
 CHECKS = (
@@ -108,7 +118,7 @@ CHECKS = (
 )
 
 
-class ReportError(ValueError):
+class ReportError(Sim2RealError, ValueError):
     """A report (or baseline) cannot be read or compared; the message names the file and field."""
 
 
@@ -668,8 +678,14 @@ def junit_xml(report: dict) -> str:
             tests += 1
             if not c["passed"]:
                 fails += 1
-                failure = ET.SubElement(case, "failure", message=c["message"], type=name)
-                failure.text = c["message"]
+                message = c["message"]
+                still = _check_still(s, name)
+                if still:
+                    message += f"; still frame: {still}"
+                failure = ET.SubElement(case, "failure", message=message, type=name)
+                failure.text = message
+                if still:
+                    ET.SubElement(case, "system-out").text = f"[[ATTACHMENT|{still}]]"
             else:
                 ET.SubElement(case, "system-out").text = c["message"]
     if report.get("baseline") is not None:
@@ -686,6 +702,26 @@ def junit_xml(report: dict) -> str:
         node.set("errors", "0")
     ET.indent(suites)
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(suites, encoding="unicode")
+
+
+#: The film's moments that show why a check failed (eval.film.KINDS).
+_CHECK_FILM = {
+    "no_hard_violation": "hard_violation",
+    "no_latched_fault": "latched_fault",
+    "no_over_temperature": "hottest_minute",
+    "success_rate": "missed_goals",
+    "window_success": "missed_goals",
+}
+
+
+def _check_still(session: dict, check: str) -> str | None:
+    """The still frame (path relative to the report) of a session's first clip showing what
+    made ``check`` fail, or None."""
+    kind = _CHECK_FILM.get(check)
+    for clip in (session.get("film") or {}).get("clips", []):
+        if kind in clip.get("kinds", [clip.get("kind")]):
+            return clip["still"]
+    return None
 
 
 def write_junit(path: str | os.PathLike, report: dict) -> Path:
@@ -873,8 +909,64 @@ def _fmt(value) -> str:
     return str(value)
 
 
-def report_html(report: dict) -> str:
-    """The self-contained report.html text."""
+def _data_uri(base: Path | None, rel: str, mime: str) -> str:
+    """``data:`` URI of file ``base/rel``, or the relative path where it cannot be read."""
+    if base is not None:
+        try:
+            data = (base / rel).read_bytes()
+        except OSError:
+            return html.escape(rel)
+        return f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
+    return html.escape(rel)
+
+
+def film_html(report: dict, base: Path | None = None) -> str:
+    """The film strip section: per session, its clips as ``<video>`` elements (embedded from
+    ``base``, the report's folder; relative links without it), each captioned with its moments,
+    the replayed span and whether the replay matched the run bit for bit."""
+    sessions = [s for s in report["sessions"] if s.get("film") is not None]
+    if not sessions:
+        return ""
+    parts = [
+        "<h2>Film: the worst moments</h2>",
+        "<p>Each clip is the session replayed from its nearest checkpoint with the same seed and "
+        "fault schedule (env 0, true joint positions): the goal in green, the end-effector trail "
+        "in orange, links tinted red where the guard changed the target.</p>",
+    ]
+    for s in sessions:
+        f = s["film"]
+        parts.append(f"<h3>{html.escape(s['id'])}</h3>")
+        if f.get("error"):
+            parts.append(f"<p class='fail'>no film: {html.escape(f['error'])}</p>")
+            continue
+        if not f["clips"]:
+            parts.append("<p>nothing to film</p>")
+        for c in f["clips"]:
+            exact = {True: "replay exact", False: "REPLAY DIFFERS from the run", None: ""}[
+                c.get("replay_exact")
+            ]
+            video = _data_uri(base, c["video"], "video/mp4")
+            poster = _data_uri(base, c["still"], "image/png")
+            parts.append(
+                f"<figure class='clip' data-kind='{html.escape(c['kind'])}'>"
+                f"<video controls muted loop playsinline preload='auto' poster='{poster}' "
+                f"width='{f['size'][0]}' height='{f['size'][1]}'>"
+                f"<source src='{video}' type='video/mp4'></video>"
+                f"<figcaption>{html.escape(c['label'])} (clip {c['start_s']:.1f}-"
+                f"{c['end_s']:.1f} s{'; ' + exact if exact else ''}; "
+                f"<a href='{html.escape(c['still'])}'>still</a>)</figcaption></figure>"
+            )
+        if f.get("not_filmed"):
+            parts.append(
+                f"<p>{f['not_filmed']} more moments not filmed (at most {f.get('max_clips')} clips "
+                "per session)</p>"
+            )
+    return "\n".join(parts)
+
+
+def report_html(report: dict, base: str | os.PathLike | None = None) -> str:
+    """The self-contained report.html text; ``base``: the report's folder, from which the film
+    strip's clips are embedded (module docstring)."""
     c, t = report["campaign"], report["totals"]
     verdict = "PASSED" if report["passed"] else "FAILED"
     parts = [
@@ -884,7 +976,9 @@ def report_html(report: dict) -> str:
         "table{border-collapse:collapse;margin:0.5em 0 1.5em;font-size:0.85em}"
         "td,th{border:1px solid #bbb;padding:2px 6px;text-align:left}"
         "th{background:#eee}.pass{color:#070}.fail{color:#b00;font-weight:bold}"
-        "img{max-width:100%}</style></head><body>",
+        "img{max-width:100%}figure.clip{display:inline-block;margin:0 1em 1em 0;"
+        "max-width:30em;vertical-align:top}figure.clip video{max-width:100%}"
+        "figcaption{font-size:0.85em}</style></head><body>",
         f"<h1>Soak test: <span class='{'pass' if report['passed'] else 'fail'}'>{verdict}"
         "</span></h1>",
         _table(
@@ -919,6 +1013,7 @@ def report_html(report: dict) -> str:
     if failed:
         parts.append(f"<p class='fail'>Failed checks: {html.escape('; '.join(failed))}</p>")
     parts.append(_table(["session", *CHECKS], check_rows))
+    parts.append(film_html(report, Path(base) if base is not None else None))
     b = report.get("baseline")
     if b is not None:
         parts.append(f"<h2>Baseline comparison: {'passed' if b['passed'] else 'REGRESSION'}</h2>")
@@ -1082,8 +1177,8 @@ def report_html(report: dict) -> str:
 
 
 def write_html(path: str | os.PathLike, report: dict) -> Path:
-    """Write report.html atomically."""
-    return atomic_write(path, report_html(report))
+    """Write report.html atomically (the film strip embedded from the report's folder)."""
+    return atomic_write(path, report_html(report, Path(path).parent))
 
 
 def write_reports(out: str | os.PathLike, report: dict) -> dict[str, Path]:

@@ -13,13 +13,15 @@ Batching. Several sessions run in one process through the runtime's batch axis: 
 :class:`~deploy.backends.sim.SimBackend` with ``envs = k`` (one randomized ``MjModel`` per env)
 and one :class:`~deploy.runtime.Runtime` over all of them (one ONNX Runtime call per tick). A
 session's seeded quantities depend on its own seed only: its randomization; its encoder noise and
-dropout draws (:class:`PerEnvGenerators`: one numpy generator per env, where SimBackend has one for
-the batch); its goals (one ``GoalScheduler`` for the batch with one goal stream per session); its
+dropout draws (one numpy generator per env,
+:meth:`~deploy.backends.sim.SimBackend.set_sensor_streams`, where SimBackend has one for the
+batch); its goals (one ``GoalScheduler`` for the batch with one goal stream per session); its
 faults (a :class:`deploy.faults.FaultInjector` per session on its env, :class:`SessionFaults`); its
 operator resets. Every runtime stage computes each env on its own, except Ruckig, which serves
 the whole batch and, when it resamples a trajectory for an unchanged input instead of
 recalculating it, differs from one instance per env at ~1e-16 (:mod:`deploy.smoothing`). The
-harness calls ``Ruckig.reset()`` after every tick, so that every step recalculates (as it does
+harness calls :meth:`~deploy.smoothing.CommandSmoother.recalculate` (``Ruckig.reset()``) after
+every tick, so that every step recalculates (as it does
 anyway whenever a target changes; a few microseconds more per tick while an env holds still): a
 session's results are then the same bit for bit alone or batched with any others.
 
@@ -54,7 +56,6 @@ last checkpoints.
 from __future__ import annotations
 
 import concurrent.futures
-import hashlib
 import json
 import math
 import multiprocessing
@@ -67,9 +68,12 @@ from pathlib import Path
 import numpy as np
 
 from deploy.backends.base import SensorFrame
+from deploy.errors import Sim2RealError
+from deploy.files import atomic_write, sha256_file
 from deploy.goals import GoalScheduler
 from deploy.interventions import INTERVENTION_CHECKS, InterventionMonitor
 from deploy.runtime import FAULT_CAUSES, STAGES, Mode
+from deploy.stateful import prefixed, put, take
 from deploy.violations import VIOLATION_TYPES, ViolationMonitor
 from eval import checkpoint as ckpt
 from eval.fault_schedule import FAULT_SETTLE
@@ -96,9 +100,11 @@ ARM_LEAD = 0.5
 RESPONSES = ("held", "safe_stop", "resumed", "latched", "not_running")
 VIOLATION_SOURCE = "true state (simulation ground truth)"
 SESSIONS_DIR = "sessions"
+#: The batch's per-env thermal accumulators a checkpoint keeps (``stats/<name>``).
+STATS = ("peak", "window_peak", "band_ticks", "over_ticks")
 
 
-class SessionError(ValueError):
+class SessionError(Sim2RealError, ValueError):
     """Bad session options; the message names the option and the expected value."""
 
 
@@ -175,41 +181,7 @@ def session_dir(out: str | os.PathLike, seed: int) -> Path:
     return Path(out) / SESSIONS_DIR / SessionConfig(seed=seed).id
 
 
-def file_sha256(path: str | os.PathLike) -> str:
-    """SHA-256 (hex) of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 # ====================================================================== batch plumbing
-class PerEnvGenerators:
-    """One numpy ``Generator`` per env, in place of SimBackend's single sensor generator.
-
-    SimBackend draws its encoder noise and dropout for the whole batch from one stream, which
-    would make a session's noise depend on its neighbours. This object answers the two calls the
-    backend makes (``standard_normal(out=...)`` and ``random(shape)``, arrays shaped (envs, n)) row
-    by row from each env's own generator, so env ``e`` sees the same numbers alone or batched.
-    """
-
-    def __init__(self, generators: list[np.random.Generator]):
-        self.generators = list(generators)
-
-    def standard_normal(self, size=None, dtype=np.float64, out=None):
-        out = np.empty(size, dtype=dtype) if out is None else out
-        for e, g in enumerate(self.generators):
-            g.standard_normal(dtype=dtype, out=out[e])
-        return out
-
-    def random(self, size=None, dtype=np.float64, out=None):
-        out = np.empty(size, dtype=dtype) if out is None else out
-        for e, g in enumerate(self.generators):
-            g.random(dtype=dtype, out=out[e])
-        return out
-
-
 class _BackendSlice:
     """Env ``e`` of a SimBackend as a one-env backend: what a FaultInjector uses (views of the
     per-env sensor settings, the env's model, forces)."""
@@ -278,6 +250,24 @@ class SessionFaults:
         for e, inj in self._items:
             inj.filter_action(t, action[e : e + 1])
         return action
+
+
+class _Stats:
+    """The batch's thermal accumulators (``STATS``: winding peak, window peak, ticks in the
+    derating band, ticks over the maximum; (envs, n)) as a stage of a checkpoint
+    (:mod:`deploy.stateful`)."""
+
+    def __init__(self, batch):
+        self.batch = batch
+
+    def _fields(self) -> dict[str, np.ndarray]:
+        return {name: getattr(self.batch, name) for name in STATS}
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        return take(self._fields(), env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        put(self._fields(), state, env)
 
 
 def _ticks(seconds: float, dt: float) -> int:
@@ -413,50 +403,39 @@ class _Session:
     # ------------------------------------------------------------------ checkpoint
     def capture(self) -> tuple[dict, dict]:
         rt, e, b = self.batch.rt, self.e, self.batch
-        arrays, meta = ckpt.capture_env(rt, e)
-        shared_a, shared_m = ckpt.capture_shared(rt)
-        arrays.update(shared_a)
-        goals_a, goals_m = ckpt.capture_goals(self.goals, e)
-        arrays.update(goals_a)
-        for name in ("peak", "window_peak", "band_ticks", "over_ticks"):
-            arrays[f"stats/{name}"] = getattr(b, name)[e].copy()
-        arrays.update(ckpt.capture_monitor("violations", b.violations, e))
-        arrays.update(ckpt.capture_monitor("interventions", b.interventions, e))
-        inj_meta = None
+        state = rt.state_dict(e)  # the runtime and its stages, the plant and policy included
+        state.update(prefixed("goals", self.goals.state_dict(e)))
+        state.update(prefixed("stats", _Stats(b).state_dict(e)))
+        state.update(prefixed("violations", b.violations.state_dict(e)))
+        state.update(prefixed("interventions", b.interventions.state_dict(e)))
         if self.fault_armed:
-            inj_a, inj_meta = ckpt.capture_injector(b.faults.armed[e])
-            arrays.update(inj_a)
-        meta.update(
-            {
-                "tick": rt.ticks,
-                "shared": shared_m,
-                "goals": goals_m,
-                "injector": inj_meta,
-                "session": {
-                    "fault_index": self.fault_index,
-                    "fault_armed": self.fault_armed,
-                    "fault_snapshot": self.fault_snapshot,
-                    "fault_events": self.fault_events,
-                    "next_fault_tick": self.next_fault_tick,
-                    "latches": self.latches,
-                    "operator_resets": self.operator_resets,
-                    "latched_since": self.latched_since,
-                    "faulted": bool(b.faulted[e]),
-                    "hours": self.hours,
-                    "hour_base": self.hour_base,
-                    "curve": self.curve,
-                    "friction": self.friction,
-                    "wall_s": self.wall_s + b.wall_elapsed(),
-                },
-                "next": dict(b.next_ticks),
-                "config": self.config.batch_key(),
-                "seed": self.config.seed,
-                "policy_sha256": b.policy_sha256,
-                "randomization": self.draw.to_dict(),
-                "batch": [s.config.seed for s in b.sessions],
-            }
-        )
-        return arrays, meta
+            state.update(prefixed("injector", b.faults.armed[e].state_dict()))
+        meta = {
+            "tick": rt.ticks,
+            "session": {
+                "fault_index": self.fault_index,
+                "fault_armed": self.fault_armed,
+                "fault_snapshot": self.fault_snapshot,
+                "fault_events": self.fault_events,
+                "next_fault_tick": self.next_fault_tick,
+                "latches": self.latches,
+                "operator_resets": self.operator_resets,
+                "latched_since": self.latched_since,
+                "faulted": bool(b.faulted[e]),
+                "hours": self.hours,
+                "hour_base": self.hour_base,
+                "curve": self.curve,
+                "friction": self.friction,
+                "wall_s": self.wall_s + b.wall_elapsed(),
+            },
+            "next": dict(b.next_ticks),
+            "config": self.config.batch_key(),
+            "seed": self.config.seed,
+            "policy_sha256": b.policy_sha256,
+            "randomization": self.draw.to_dict(),
+            "batch": [s.config.seed for s in b.sessions],
+        }
+        return state, meta
 
     def restore(self, arrays: dict, meta: dict, where: Path) -> None:
         b, e = self.batch, self.e
@@ -480,12 +459,11 @@ class _Session:
                 f"{where}: the randomization stored in the checkpoint differs from the one drawn "
                 f"for seed {self.config.seed} (another version of eval.randomization?)"
             )
-        ckpt.restore_env(b.rt, e, arrays, meta)
-        ckpt.restore_goals(self.goals, e, arrays, meta["goals"])
-        for name in ("peak", "window_peak", "band_ticks", "over_ticks"):
-            getattr(b, name)[e] = arrays[f"stats/{name}"]
-        ckpt.restore_monitor("violations", b.violations, e, arrays, where)
-        ckpt.restore_monitor("interventions", b.interventions, e, arrays, where)
+        ckpt.load_stage(b.rt, arrays, e, where)
+        ckpt.load_stage(self.goals, arrays, e, where, "goals")
+        ckpt.load_stage(_Stats(b), arrays, e, where, "stats")
+        ckpt.load_stage(b.violations, arrays, e, where, "violations")
+        ckpt.load_stage(b.interventions, arrays, e, where, "interventions")
         s = meta["session"]
         self.fault_index = int(s["fault_index"])
         self.fault_armed = bool(s["fault_armed"])
@@ -494,7 +472,7 @@ class _Session:
         self.next_fault_tick = s["next_fault_tick"]
         if self.fault_armed:
             inj = b.faults.arm(e, self.schedule[self.fault_index])
-            ckpt.restore_injector(inj, arrays, meta["injector"])
+            ckpt.load_stage(inj, arrays, None, where, "injector")
         self.latches = s["latches"]
         self.operator_resets = int(s["operator_resets"])
         self.latched_since = float(s["latched_since"])
@@ -667,7 +645,7 @@ class _Session:
 
 
 # ====================================================================== a batch of sessions
-class BatchDiverged(RuntimeError):
+class BatchDiverged(Sim2RealError, RuntimeError):
     """MuJoCo diverged in some envs of a batch; ``seeds`` names their sessions."""
 
     def __init__(self, seeds: list[int], message: str):
@@ -684,6 +662,8 @@ class SessionBatch:
         resume: Continue from the sessions' checkpoints (they must be at the same tick).
         progress: Write ``progress.json`` per session every ``PROGRESS_PERIOD`` simulated s.
         on_progress: Optional callable, called after each progress write.
+        film: Keep every checkpoint and note the worst moments for the film strip
+            (:class:`eval.film.FilmRecorder`; it only reads the batch).
 
     Raises:
         SessionError: sessions with different options, or duplicate seeds.
@@ -698,6 +678,7 @@ class SessionBatch:
         resume: bool = False,
         progress: bool = True,
         on_progress=None,
+        film: bool = False,
     ):
         from deploy.backends.sim import SimBackend
         from deploy.policy import OnnxPolicy
@@ -719,20 +700,20 @@ class SessionBatch:
         self.on_progress = on_progress
         robot = self.robot = load_robot(first.robot)
         self.policy = OnnxPolicy(first.policy, robot)
-        self.policy_sha256 = file_sha256(first.policy)
+        self.policy_sha256 = sha256_file(first.policy)
         self.mode = mode = self.policy.spec.action.mode
         self.dt = dt = robot.control_period
         k = len(configs)
         draws = [sample_session(robot, c.seed, c.duration, c.ranges, c.faults) for c in configs]
         models = [randomized_model(robot, mode, d.dynamics) for d in draws]
         backend = self.backend = SimBackend(robot, mode=mode, envs=k, models=models)
-        backend._rng = PerEnvGenerators([session_rng(c.seed, "sensor_noise") for c in configs])
+        backend.set_sensor_streams([session_rng(c.seed, "sensor_noise") for c in configs])
         for e, d in enumerate(draws):
             apply_sensors(backend, e, d.sensors)
         backend.reset()  # the first readings from the sessions' own streams and settings
         # the drives stream for a while before the runtime starts, so that a reading has arrived
         # despite the latency (the same number of ticks for every session, alone or batched)
-        for _ in range(first.ranges.sensors.latency_ticks[1] + backend._encoder_every):
+        for _ in range(first.ranges.sensors.latency_ticks[1] + backend.encoder_every):
             backend.advance()
         dofs = joint_dofs(models[0], robot)
         self.initial_friction = np.stack([m.dof_frictionloss[dofs].copy() for m in models])
@@ -783,6 +764,11 @@ class SessionBatch:
         self._wall0 = time.perf_counter()
         if resume:
             self._resume()
+        self.film = None
+        if film:
+            from eval.film import FilmRecorder
+
+            self.film = FilmRecorder(self)
 
     # ------------------------------------------------------------------ lifecycle
     def wall_elapsed(self) -> float:
@@ -810,8 +796,7 @@ class SessionBatch:
                 f"the checkpoints of a batch are at different ticks {sorted(ticks)} in "
                 f"{self.out / SESSIONS_DIR}"
             )
-        s0, d0, (a0, m0) = have[0]
-        ckpt.restore_shared(self.rt, a0, m0["shared"])
+        _, _, (_, m0) = have[0]
         self.next_ticks = {k: int(v) for k, v in m0["next"].items()}
         for s, d, (arrays, meta) in have:
             s.restore(arrays, meta, d / ckpt.MANIFEST)
@@ -825,11 +810,14 @@ class SessionBatch:
             ckpt.write_checkpoint(session_dir(self.out, s.config.seed), arrays, meta)
 
     # ------------------------------------------------------------------ per tick
-    def _on_tick(self, rt) -> None:
+    def on_tick(self, rt) -> None:
+        """The batch's per-tick bookkeeping after each runtime tick (monitors, goals, peaks,
+        supervision); what :meth:`run` passes to ``Runtime.run(on_tick=...)``, and a replay of
+        the session must pass too."""
         if self._ruckig:
             # the next step recalculates every trajectory from its input, in every env: the same
             # numbers whatever the neighbours (see the module docstring) and across a restore
-            rt.smoother._ruckig.reset()
+            rt.smoother.recalculate()
         self.violations.update(self.backend)
         self.interventions.update()  # before the goals: a goal's last tick counts for it
         self.goals(rt)
@@ -903,6 +891,8 @@ class SessionBatch:
         if ticks >= nt["progress"]:
             nt["progress"] += self.periods["progress"]
             self._progress()
+        if self.film is not None:
+            self.film.supervise(rt)
 
     def _progress(self, done: bool = False) -> None:
         if not self.write_progress:
@@ -917,7 +907,7 @@ class SessionBatch:
         for s in self.sessions:
             d = session_dir(self.out, s.config.seed)
             d.mkdir(parents=True, exist_ok=True)
-            ckpt.atomic_write(
+            atomic_write(
                 d / "progress.json",
                 json.dumps(
                     {
@@ -949,24 +939,28 @@ class SessionBatch:
             if every:
                 stop = min(stop, (rt.ticks // every + 1) * every)
             try:
-                rt.run(stop - rt.ticks, on_tick=self._on_tick)
+                rt.run(stop - rt.ticks, on_tick=self.on_tick)
             except SimulationDivergedError as exc:
                 self._diverged(exc)
             if every and rt.ticks % every == 0 and rt.ticks < self.total_ticks:
                 self.checkpoint()
+                if self.film is not None:
+                    self.film.checkpointed()
+        if self.film is not None:
+            self.film.finish()
         results = [s.result() for s in self.sessions]
         for s, r in zip(self.sessions, results, strict=True):
             d = session_dir(self.out, s.config.seed)
             d.mkdir(parents=True, exist_ok=True)  # a session shorter than PROGRESS_PERIOD
-            ckpt.atomic_write(d / "result.json", json.dumps(r))
+            atomic_write(d / "result.json", json.dumps(r))
         self._progress(done=True)
         return results
 
     def _diverged(self, exc: Exception) -> None:
         bad = []
-        for e, d in enumerate(self.backend.datas):
+        for e in range(self.backend.envs):
             try:
-                self.backend._check_divergence(e, d)
+                self.backend.check_divergence(e)
             except Exception as err:  # noqa: BLE001 - the backend's own check, re-run per env
                 bad.append((e, str(err)))
         if not bad:
@@ -977,7 +971,7 @@ class SessionBatch:
             s.diverged = message
             d = session_dir(self.out, s.config.seed)
             d.mkdir(parents=True, exist_ok=True)
-            ckpt.atomic_write(d / "result.json", json.dumps(s.result()))
+            atomic_write(d / "result.json", json.dumps(s.result()))
             seeds.append(s.config.seed)
         raise BatchDiverged(seeds, str(exc)) from exc
 
@@ -1005,16 +999,21 @@ def _check_result(result: dict, config: SessionConfig, out) -> None:
                 f"{path}: the session was run with {key} = {stored.get(key)!r}, this run has "
                 f"{value!r}; resume with the options of that campaign or use another --out"
             )
-    if result.get("policy_sha256") != file_sha256(config.policy):
+    if result.get("policy_sha256") != sha256_file(config.policy):
         raise ckpt.CheckpointError(
             f"{path}: the session was run with another policy file than {config.policy}"
         )
 
 
 def run_sessions(
-    configs: list[SessionConfig], out: str, resume: bool = False, on_progress=None
+    configs: list[SessionConfig],
+    out: str,
+    resume: bool = False,
+    on_progress=None,
+    film: bool = False,
 ) -> list[dict]:
-    """Run sessions as one batch in this process (the work of one executor task).
+    """Run sessions as one batch in this process (the work of one executor task); ``film``: see
+    :class:`SessionBatch`.
 
     Finished sessions (``result.json``) are skipped when resuming. If MuJoCo diverges in one
     session, it ends there (``diverged`` set) and the others continue from their last
@@ -1035,7 +1034,7 @@ def run_sessions(
         pending = [c for c in configs if c.seed not in results]
     while pending:
         try:
-            batch = SessionBatch(pending, out, resume=resume, on_progress=on_progress)
+            batch = SessionBatch(pending, out, resume=resume, on_progress=on_progress, film=film)
             for r in batch.run():
                 results[r["seed"]] = r
             pending = []
@@ -1149,6 +1148,7 @@ def run_campaign(
     sessions_per_process: int = 1,
     workers: int | None = None,
     progress: bool = True,
+    film: bool = False,
 ) -> list[dict]:
     """Run ``sessions`` seeded sessions (seeds ``template.seed + i``) and return their results.
 
@@ -1165,6 +1165,8 @@ def run_campaign(
         sessions_per_process: Sessions batched in one runtime.
         workers: Local processes (default: one per core).
         progress: Show a progress bar (simulated hours and speed).
+        film: Record for the film strip (:class:`SessionBatch`; :func:`eval.film.film_campaign`
+            renders it afterwards).
 
     Raises:
         SessionError: bad options (named).
@@ -1196,11 +1198,11 @@ def run_campaign(
     bar = _Progress(configs, out, progress)
     try:
         if executor == "local" and len(batches) == 1:  # one batch: no process to spawn
-            results = [run_sessions(batches[0], str(out), resume, on_progress=bar.update)]
+            results = [run_sessions(batches[0], str(out), resume, bar.update, film)]
         elif executor == "local":
-            results = _run_local(batches, out, resume, workers or default_workers(), bar)
+            results = _run_local(batches, out, resume, workers or default_workers(), bar, film)
         else:
-            results = _run_ray(batches, out, resume, address, workers, bar)
+            results = _run_ray(batches, out, resume, address, workers, bar, film)
     finally:
         bar.close()
     by_seed = {r["seed"]: r for rs in results for r in rs}
@@ -1210,13 +1212,13 @@ def run_campaign(
     return [by_seed[c.seed] for c in configs]
 
 
-def _run_local(batches, out: Path, resume: bool, workers: int, bar: _Progress) -> list:
+def _run_local(batches, out: Path, resume: bool, workers: int, bar: _Progress, film=False) -> list:
     if not batches:
         return []
     ctx = multiprocessing.get_context("spawn")  # the parent holds ONNX Runtime threads: no fork
     workers = min(workers, len(batches))
     with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        futures = [pool.submit(run_sessions, b, str(out), resume) for b in batches]
+        futures = [pool.submit(run_sessions, b, str(out), resume, None, film) for b in batches]
         pending = set(futures)
         while pending:
             _, pending = concurrent.futures.wait(
@@ -1226,7 +1228,9 @@ def _run_local(batches, out: Path, resume: bool, workers: int, bar: _Progress) -
         return [f.result() for f in futures]
 
 
-def _run_ray(batches, out: Path, resume: bool, address, workers, bar: _Progress) -> list:
+def _run_ray(
+    batches, out: Path, resume: bool, address, workers, bar: _Progress, film=False
+) -> list:
     import ray
 
     started = False
@@ -1240,7 +1244,7 @@ def _run_ray(batches, out: Path, resume: bool, address, workers, bar: _Progress)
         started = True
     try:
         task = ray.remote(num_cpus=1)(run_sessions)
-        refs = [task.remote(b, str(out), resume) for b in batches]
+        refs = [task.remote(b, str(out), resume, None, film) for b in batches]
         pending = list(refs)
         while pending:
             _, pending = ray.wait(pending, num_returns=len(pending), timeout=0.5)

@@ -122,6 +122,9 @@ class ReachConfig:
 
     Attributes:
         mode: Control mode ('velocity' as seed section 8; 'position' as the variant).
+        reference: Position mode: 'absolute' (an action spans the joint range) or 'current' (an
+            action is a step from the estimated position, at most one control period at the
+            velocity limit); see :class:`deploy.spec.ActionSpec`.
         episode_seconds: Episode length, s (truncation).
         goal_timeout: A goal not reached within this time is replaced, s (the runtime's success
             window is 3 s).
@@ -143,6 +146,7 @@ class ReachConfig:
     """
 
     mode: str = "velocity"
+    reference: str = "absolute"
     episode_seconds: float = 120.0
     goal_timeout: float = 3.0
     sensors: SensorRanges = field(default_factory=SensorRanges)
@@ -161,7 +165,8 @@ class ReachTask:
         robot: The robot.
         envs: Number of robots.
         config: Task settings.
-        spec: The policy contract; default ``PolicySpec.for_robot(robot, mode=config.mode)``.
+        spec: The policy contract; default ``PolicySpec.for_robot(robot, mode=config.mode,
+            reference=config.reference)``.
         seed: Seed of every random stream (poses, goals, dynamics, noise, sensors).
 
     Raises:
@@ -177,7 +182,9 @@ class ReachTask:
         seed: int = 0,
     ):
         self.config = config = config or ReachConfig()
-        self.spec = spec or PolicySpec.for_robot(robot, mode=config.mode)
+        self.spec = spec or PolicySpec.for_robot(
+            robot, mode=config.mode, reference=config.reference
+        )
         if self.spec.action.mode != config.mode:
             raise ValueError(
                 f"spec.action.mode '{self.spec.action.mode}' differs from config.mode "

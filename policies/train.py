@@ -17,9 +17,8 @@ call it turns the machine's two cores into samples faster than SAC's one gradien
 would (SAC spends most of its wall time in updates at this simulation speed).
 
 Why 64 robots per batch with 128-step rollouts (the same 8,192 samples per update as 16 x 512):
-the policy's forward pass per step is shared by more robots (11,000 steps/s against 6,400 with
-16), and the more diverse rollouts learned faster per sample (success 0.81 at 2.4 M steps against
-0.55 at 2 M).
+the policy's forward pass per step is shared by more robots, and the more diverse rollouts learned
+faster per sample (the comparison: ``docs/measurements.md``).
 
 The result is converted to our checkpoint format (:func:`deploy.checkpoint.save_checkpoint`): the
 PPO actor's mean network becomes an :class:`~deploy.checkpoint.MLPActor` with the same weights, and
@@ -322,6 +321,7 @@ def train(args: argparse.Namespace) -> Path | None:
     dynamics = DynamicsRanges() if args.randomize else DynamicsRanges.none()
     config = ReachConfig(
         mode=args.mode,
+        reference=args.reference,
         dynamics=dynamics,
         reward=args.reward,
         episode_seconds=args.episode_seconds,
@@ -425,6 +425,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--algo", default="ppo", choices=["ppo", "sac"])
     p.add_argument("--gradient-steps", type=int, default=1, help="SAC: updates per batch step")
     p.add_argument("--mode", default="velocity", choices=["velocity", "position"])
+    p.add_argument(
+        "--reference",
+        default="absolute",
+        choices=["absolute", "current"],
+        help="position mode: an action spans the joint range, or steps from the current position",
+    )
     p.add_argument("--steps", type=int, default=10_000_000, help="environment steps")
     p.add_argument("--envs", type=int, default=64, help="robots per batch")
     p.add_argument("--seed", type=int, default=1, help="1: the shipped arm.pt")

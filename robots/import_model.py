@@ -256,11 +256,12 @@ def choose_collision_pairs(
     srdf: SrdfInfo | None,
     home: np.ndarray,
     path: Path,
+    clearance: float = TOUCH_CLEARANCE,
 ):
     """Self-collision pairs for the guard (geom names) and the MuJoCo contact exclusions.
 
     Candidates: links of different rigid groups that are not parent and child, minus the SRDF's
-    ``disable_collisions`` pairs when there is an SRDF; pairs closer than ``TOUCH_CLEARANCE`` at
+    ``disable_collisions`` pairs when there is an SRDF; pairs closer than ``clearance`` (m) at
     the home pose are dropped (they touch by design or through a coarse collision shape). The
     plant (MuJoCo) checks contact only between the pairs the guard checks.
 
@@ -284,7 +285,10 @@ def choose_collision_pairs(
     }
     data = pin_model.createData()
     gdata = pin.GeometryData(geom)
-    pin.updateGeometryPlacements(pin_model, data, geom, gdata, np.asarray(home, dtype=np.float64))
+    q = np.asarray(home, dtype=np.float64)
+    if pin_model.nq == q.size + 7:  # a free-flyer root (floating base): the base at the origin
+        q = np.concatenate([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], q])
+    pin.updateGeometryPlacements(pin_model, data, geom, gdata, q)
     pairs, kept, dropped = [], set(), []
     for a, b in itertools.combinations([x for x in urdf.links if x in body_geoms], 2):
         key = tuple(sorted((a, b)))
@@ -296,7 +300,7 @@ def choose_collision_pairs(
         dist = np.inf
         for ga, gb in geom_pairs:
             dist = min(dist, _distance(geom, gdata, index[ga], index[gb]))
-        if dist < TOUCH_CLEARANCE:
+        if dist < clearance:
             dropped.append((a, b, max(dist, 0.0)))
             continue
         pairs.extend(geom_pairs)
@@ -370,6 +374,68 @@ def _vec(v) -> str:
     return "[" + ", ".join(_f(round(float(x), 4)) for x in v) + "]"
 
 
+def limit_notes(joint: str, src, low: dict) -> tuple[str, str]:
+    """The robot.toml comments of a joint's velocity and effort limits: where each came from
+    (the source description, or the motor's no-load speed / peak torque when that is lower or
+    the source gives none). ``src``: the joint of the prepared source; ``low``: (joint,
+    quantity) -> (source value, ...) of the limits the motor capped (:func:`cap_limits`)."""
+    return tuple(
+        f"motor {what} ({origin} {low[(joint, q)][0]:g})"
+        if (joint, q) in low
+        else (f"motor {what}" if value is None or value <= 0 else origin)
+        for q, what, value, origin in (
+            ("velocity", "no-load speed", src.velocity, src.velocity_from),
+            ("effort", "peak torque", src.effort, src.effort_from),
+        )
+    )
+
+
+def joint_lines(
+    j: str, i: int, limits, kind: str, notes, motion: Motion, motor: str, gains_note=None
+) -> list[str]:
+    """The ``[[joints]]`` table of joint ``j`` (index ``i``) in robot.toml: ``limits`` (lower,
+    upper rad, velocity rad/s, effort N m) with the source ``kind`` and the velocity/effort
+    ``notes`` (:func:`limit_notes`), the derived motion limits and gains of ``motion``, and an
+    optional source note on the gains."""
+    lo, hi, vel, eff = limits
+    vnote, enote = notes
+    kp, kd = f"kp = {_f(motion.kp[i])}", f"kd = {_f(motion.kd[i])}"
+    if gains_note:
+        kp, kd = f"{kp}  # N m/rad, {gains_note}", f"{kd}  # N m s/rad, {gains_note}"
+    return [
+        "",
+        "[[joints]]",
+        f'name = "{j}"',
+        f"position_limit = [{_f(lo)}, {_f(hi)}]  # {kind}",
+        f"velocity_limit = {_f(vel)}  # rad/s, {vnote}",
+        f"acceleration_limit = {_f(motion.acceleration[i])}",
+        f"jerk_limit = {_f(motion.jerk[i])}",
+        f"effort_limit = {_f(eff)}  # N m, {enote}",
+        f"soft_limit_fraction = {SOFT_LIMIT_FRACTION}",
+        f'motor = "{motor}"',
+        kp,
+        kd,
+    ]
+
+
+def sensor_lines(chosen, resolution: int, quantum: float, control_rate: float, temp_note: str):
+    """The motor-catalog comment and the ``[sensors]`` encoder and temperature lines of
+    robot.toml: one encoder count of noise at the coarsest motor encoder, read every tick."""
+    return [
+        "# Motors " + ", ".join(sorted(set(chosen.values()))) + ": the catalog, robots/motors/.",
+        "",
+        "[sensors]",
+        f"encoder_resolution = {resolution}  # counts/rev, the coarsest motor encoder",
+        f"encoder_noise_sigma = {_f(_sig(quantum, 3))}  # rad, one encoder count",
+        f"encoder_rate = {_f(control_rate)}  # Hz, read every control tick",
+        "encoder_latency_ticks = 0",
+        "encoder_dropout = 0.0",
+        f"temperature_resolution = 1.0  # {temp_note}",
+        "temperature_rate = 10.0  # Hz",
+        "ambient_temperature = 25.0  # degC",
+    ]
+
+
 def write_robot_toml(
     path: Path,
     *,
@@ -428,42 +494,11 @@ def write_robot_toml(
         lo, hi, vel, eff = limits[j]
         m = chosen[j]
         src = prepared.joints[j]
-        vnote, enote = (
-            f"motor {what} ({origin} {low[(j, q)][0]:g})"
-            if (j, q) in low
-            else (f"motor {what}" if value is None or value <= 0 else origin)
-            for q, what, value, origin in (
-                ("velocity", "no-load speed", src.velocity, src.velocity_from),
-                ("effort", "peak torque", src.effort, src.effort_from),
-            )
-        )
-        lines += [
-            "",
-            "[[joints]]",
-            f'name = "{j}"',
-            f"position_limit = [{_f(lo)}, {_f(hi)}]  # {kind}",
-            f"velocity_limit = {_f(vel)}  # rad/s, {vnote}",
-            f"acceleration_limit = {_f(motion.acceleration[i])}",
-            f"jerk_limit = {_f(motion.jerk[i])}",
-            f"effort_limit = {_f(eff)}  # N m, {enote}",
-            f"soft_limit_fraction = {SOFT_LIMIT_FRACTION}",
-            f'motor = "{m}"',
-            f"kp = {_f(motion.kp[i])}",
-            f"kd = {_f(motion.kd[i])}",
-        ]
+        vnote, enote = limit_notes(j, src, low)
+        lines += joint_lines(j, i, (lo, hi, vel, eff), kind, (vnote, enote), motion, m)
     lines += [
         "",
-        "# Motors " + ", ".join(sorted(set(chosen.values()))) + ": the catalog, robots/motors/.",
-        "",
-        "[sensors]",
-        f"encoder_resolution = {resolution}  # counts/rev, the coarsest motor encoder",
-        f"encoder_noise_sigma = {_f(_sig(quantum, 3))}  # rad, one encoder count",
-        f"encoder_rate = {_f(control_rate)}  # Hz, read every control tick",
-        "encoder_latency_ticks = 0",
-        "encoder_dropout = 0.0",
-        "temperature_resolution = 1.0  # degC, as servos report it",
-        "temperature_rate = 10.0  # Hz",
-        "ambient_temperature = 25.0  # degC",
+        *sensor_lines(chosen, resolution, quantum, control_rate, "degC, as servos report it"),
         "",
         "[safety]",
         'end_effector_site = "ee"',
@@ -482,8 +517,10 @@ def write_robot_toml(
         "stale_limit = 0.05",
         "",
         "[task]",
-        "# 10th-90th percentile box of positions reached within 70 % of each range about home.",
+        "# 10th-90th percentile box of positions reached within 70 % of each range about home;",
+        "# goals are such positions inside the box (joint_fraction): every goal is reachable.",
         'region = "box"',
+        "joint_fraction = 0.7",
         f"box_min = {_vec(workspace['task_min'])}",
         f"box_max = {_vec(workspace['task_max'])}",
         f"success_radius = {_f(workspace['success_radius'])}  # m, 6 % of the reach",

@@ -31,7 +31,7 @@ COLLISION_BOXES = True
 #: Smallest mass (kg) and principal inertia (kg m^2) accepted for a moving link.
 MIN_MASS, MIN_INERTIA = 1e-9, 1e-12
 #: How every refusal of a floating-base robot ends (URDF, SRDF and MJCF alike).
-FLOATING_BASE = "a floating-base robot; expected a fixed-base arm (legged robots are a later issue)"
+FLOATING_BASE = "a floating-base robot; expected a fixed-base arm (or --floating-base, legged)"
 
 
 class RobotImportError(RobotSpecError):
@@ -96,12 +96,14 @@ class SrdfInfo:
     disabled: set[tuple[str, str]]
 
 
-def read_srdf(path: Path, links: set[str], kind: str = "URDF") -> SrdfInfo:
+def read_srdf(
+    path: Path, links: set[str], kind: str = "URDF", floating_base: bool = False
+) -> SrdfInfo:
     """Read ``disable_collisions`` pairs; refuse a floating virtual joint or an unknown link.
 
     Args:
         path: The SRDF. links: Link names of the description (MJCF: body names). kind: "URDF"
-            or "MJCF", for the messages.
+            or "MJCF", for the messages. floating_base: accept a floating virtual joint.
 
     Raises:
         RobotImportError: invalid XML, a link not in the description, or ``<virtual_joint
@@ -112,7 +114,7 @@ def read_srdf(path: Path, links: set[str], kind: str = "URDF") -> SrdfInfo:
     except ET.ParseError as exc:
         raise RobotImportError(f"{path}: not valid XML: {exc}") from None
     for vj in root.iter("virtual_joint"):
-        if vj.get("type") == "floating":
+        if vj.get("type") == "floating" and not floating_base:
             raise RobotImportError(
                 f"{path}: <virtual_joint name='{vj.get('name')}' type='floating'>: " + FLOATING_BASE
             )
@@ -196,6 +198,7 @@ def prepare_urdf(
     root: ET.Element,
     limit_overrides: dict[str, tuple[float, float]],
     srdf: SrdfInfo | None,
+    floating_base: bool = False,
 ) -> PreparedSource:
     """Check the URDF and rewrite it for MuJoCo's URDF compiler (see the module docstring).
 
@@ -283,7 +286,7 @@ def prepare_urdf(
     roots = [link for link in links if link not in parent]
     if len(roots) != 1:
         raise RobotImportError(f"{path}: <robot>: expected one root link, found {roots}")
-    if _legs(links, parent) >= 2:
+    if not floating_base and _legs(links, parent) >= 2:
         raise RobotImportError(
             f"{path}: <link name='{roots[0]}'>: several legs leave the root link: " + FLOATING_BASE
         )

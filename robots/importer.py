@@ -155,6 +155,14 @@ def import_robot(
     physics_timestep: float = DEFAULT_PHYSICS_TIMESTEP,
     force: bool = False,
     log=print,
+    floating_base: bool = False,
+    feet: list[str] | tuple[str, ...] = (),
+    imu: str | None = None,
+    kp: list[str] | tuple[str, ...] = (),
+    kd: list[str] | tuple[str, ...] = (),
+    home: list[str] | tuple[str, ...] = (),
+    notes: list[str] | tuple[str, ...] = (),
+    command: list[str] | None = None,
 ) -> ImportReport:
     """Import ``source`` (URDF or MJCF path, or ``PACKAGE:path``) into the robot folder ``out``.
 
@@ -172,6 +180,14 @@ def import_robot(
             still caps them. control_rate: Hz. physics_timestep: s (an integer fraction of the
             control period). force: replace an existing ``out``. log: where decisions are
             printed.
+        floating_base: A legged robot (:mod:`robots.import_legged`): free joint, floor, IMU,
+            foot spheres with touch sensors, ``[base]`` in robot.toml. feet: foot links (default:
+            the last link of each leg). imu: the IMU link (default: a link named ``imu``).
+            kp, kd: ``JOINT=VALUE`` (shell patterns) plant PD gains, N m/rad and N m s/rad
+            (default: the importer's rule). home: ``JOINT=RAD`` (shell patterns) home pose.
+            notes: comment lines for robot.toml's header (the sources of flag values).
+            command: the command line printed in robot.toml to regenerate the folder. feet, imu,
+            kp, kd, home and notes need ``floating_base``.
 
     Returns:
         An :class:`ImportReport`.
@@ -180,10 +196,15 @@ def import_robot(
         RobotImportError: one line naming the file, the element and the expected value
             (continuous or MJCF hinge joint without limits, unresolvable mesh, zero inertia,
             duplicate joint, SRDF naming an unknown link, motor not in the catalog, floating
-            base or MJCF free joint, no velocity limit from description, flag or motor, ...).
-            Nothing is left in ``out``.
+            base or MJCF free joint without ``floating_base``, no velocity limit from
+            description, flag or motor, ...). Nothing is left in ``out``.
     """
     start = time.perf_counter()
+    legged_flags = {"--foot": feet, "--imu": imu, "--kp": kp, "--kd": kd, "--home": home}
+    legged_flags["--note"] = notes
+    used = [k for k, v in legged_flags.items() if v]
+    if used and not floating_base:
+        raise RobotImportError(f"{', '.join(used)}: only with --floating-base (a legged robot)")
     path = resolve_source(str(source))
     out = Path(out).resolve()
     name = out.name
@@ -192,7 +213,7 @@ def import_robot(
     srdf_path = resolve_source(str(srdf)) if srdf is not None else None
     limit_overrides = _parse_limits(limits)
 
-    urdf, srdf_info = _prepare(path, srdf_path, limit_overrides)
+    urdf, srdf_info = _prepare(path, srdf_path, limit_overrides, floating_base)
     for note in urdf.notes:
         log(f"note: {note}")
     _apply_velocities(urdf, list(velocities))
@@ -203,6 +224,19 @@ def import_robot(
     report = ImportReport(out=out, joints=list(urdf.movable), notes=list(urdf.notes))
     spec, model = build_spec(urdf, chosen, motor_cfg, physics_timestep)
     joint_names = [model.joint(i).name for i in range(model.njnt)]
+    if floating_base:
+        from robots.import_legged import import_floating_base
+
+        import_floating_base(
+            path=path, out=out, name=name, urdf=urdf, srdf_info=srdf_info, srdf_path=srdf_path,
+            spec=spec, model=model, joint_names=joint_names, chosen=chosen, motor_cfg=motor_cfg,
+            report=report, feet=list(feet), imu=imu, kp=list(kp), kd=list(kd), home=list(home),
+            notes=list(notes), control_rate=control_rate, physics_timestep=physics_timestep,
+            command=command or ["robot-import", str(source), "--out", str(out)], log=log,
+        )  # fmt: skip
+        report.seconds = time.perf_counter() - start
+        log(f"wrote {out} ({len(joint_names)} joints, floating base) in {report.seconds:.1f} s")
+        return report
 
     ee_body, ee_frame = choose_ee_body(model, urdf, ee_site, path)
     if ee_site is None:
@@ -265,10 +299,15 @@ def import_robot(
 
 
 def _prepare(
-    path: Path, srdf_path: Path | None, limit_overrides: dict[str, tuple[float, float]]
+    path: Path,
+    srdf_path: Path | None,
+    limit_overrides: dict[str, tuple[float, float]],
+    floating_base: bool = False,
 ) -> tuple[PreparedSource, SrdfInfo | None]:
     """The prepared description and the link pairs left unchecked (SRDF, MJCF excludes)."""
     root = _parse_xml(path)
+    if floating_base and root.tag != "robot":
+        raise RobotImportError(f"{path}: --floating-base: expected a URDF <robot> (MJCF later)")
     if root.tag == "mujoco":
         source = prepare_mjcf(path, limit_overrides)
         srdf_info = None
@@ -283,8 +322,10 @@ def _prepare(
             f"{path}: <{root.tag}>: expected a URDF <robot> or an MJCF <mujoco> root element"
         )
     links = {link.get("name") for link in root.iter("link")}
-    srdf_info = read_srdf(srdf_path, links) if srdf_path is not None else None
-    return prepare_urdf(path, root, limit_overrides, srdf_info), srdf_info
+    srdf_info = (
+        read_srdf(srdf_path, links, floating_base=floating_base) if srdf_path is not None else None
+    )
+    return prepare_urdf(path, root, limit_overrides, srdf_info, floating_base), srdf_info
 
 
 def _disabled_by(source: PreparedSource, srdf_path: Path | None) -> str | None:
@@ -444,6 +485,25 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--control-rate", type=float, default=DEFAULT_CONTROL_RATE, help="Hz")
     p.add_argument("--physics-timestep", type=float, default=DEFAULT_PHYSICS_TIMESTEP, help="s")
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
+    legged = p.add_argument_group("floating-base (legged) robots")
+    legged.add_argument(
+        "--floating-base",
+        action="store_true",
+        help="a legged robot: free joint, floor, IMU and foot contact sensors",
+    )
+    legged.add_argument("--foot", action="append", default=[], metavar="LINK", help="a foot link")
+    legged.add_argument("--imu", default=None, metavar="LINK", help="the IMU link")
+    for flag, unit in (("--kp", "N m/rad"), ("--kd", "N m s/rad"), ("--home", "rad")):
+        legged.add_argument(
+            flag,
+            action="append",
+            default=[],
+            metavar="JOINT=VALUE",
+            help=f"{flag[2:]} ({unit}) of joints (shell pattern); repeatable",
+        )
+    legged.add_argument(
+        "--note", action="append", default=[], help="a comment line for robot.toml's header"
+    )
     args = p.parse_args(argv)
     try:
         import_robot(
@@ -457,6 +517,14 @@ def main(argv: list[str] | None = None) -> int:
             control_rate=args.control_rate,
             physics_timestep=args.physics_timestep,
             force=args.force,
+            floating_base=args.floating_base,
+            feet=args.foot,
+            imu=args.imu,
+            kp=args.kp,
+            kd=args.kd,
+            home=args.home,
+            notes=args.note,
+            command=["robot-import", *(sys.argv[1:] if argv is None else argv)],
         )
     except RobotImportError as exc:
         print(f"robot-import: error: {exc}", file=sys.stderr)

@@ -16,6 +16,8 @@ import numpy as np
 import pinocchio as pin
 from pydantic import ValidationError
 
+from deploy.errors import Sim2RealError
+from deploy.files import atomic_write
 from robots.schema import CONTROL_MODES, MotorConfig, RobotConfig
 
 if sys.version_info >= (3, 11):
@@ -40,7 +42,7 @@ AGREEMENT_TOLERANCE = 1e-9
 AGREEMENT_SAMPLES = 100
 
 
-class RobotSpecError(ValueError):
+class RobotSpecError(Sim2RealError, ValueError):
     """A robot description is invalid.
 
     The message names the file, the field and what was expected.
@@ -85,8 +87,19 @@ class Robot:
             the MJCF ``<option gravity>``.
         ee_frame_id: Pinocchio frame id of the end-effector site.
         ee_site_id: MuJoCo site id of the end-effector site.
-        description_hash: sha256 (hex) of the robot.toml fields except ``[task]`` (canonical
-            JSON) and the MJCF bytes; a policy records it.
+        description_hash: sha256 (hex) of the robot.toml fields except ``[task]`` and
+            ``[soak]`` (canonical JSON) and the MJCF bytes; a policy records it.
+        floating_base: True for a robot whose base moves freely (``[base]`` in robot.toml):
+            MuJoCo's ``<freejoint>`` (qpos ``[x y z, qw qx qy qz, joints]``, qvel ``[v world,
+            omega body, dq]``) and Pinocchio's free-flyer root joint (q ``[x y z, qx qy qz qw,
+            joints]``, v ``[v body, omega body, dq]``). False for a fixed-base arm (the fields
+            below are then empty or -1).
+        base_body: MuJoCo body (and Pinocchio frame) of the base; None for an arm.
+        base_frame_id: Pinocchio frame id of ``base_body``.
+        imu_site: Site of the gyroscope and accelerometer; imu_site_id (MuJoCo),
+            imu_frame_id (Pinocchio).
+        foot_sites: One site a foot (centre of its contact sphere); foot_site_ids (MuJoCo),
+            foot_frame_ids (Pinocchio), in the order of ``[base] feet``.
     """
 
     name: str
@@ -113,10 +126,65 @@ class Robot:
     ee_frame_id: int
     ee_site_id: int
     description_hash: str
+    floating_base: bool = False
+    base_body: str | None = None
+    base_frame_id: int = -1
+    imu_site: str | None = None
+    imu_site_id: int = -1
+    imu_frame_id: int = -1
+    foot_sites: tuple[str, ...] = ()
+    foot_site_ids: tuple[int, ...] = ()
+    foot_frame_ids: tuple[int, ...] = ()
 
     @property
     def n_joints(self) -> int:
         return len(self.joint_names)
+
+    @property
+    def n_feet(self) -> int:
+        """Number of feet (0 for a fixed-base arm)."""
+        return len(self.foot_sites)
+
+    @property
+    def qpos_offset(self) -> int:
+        """Index of the first joint angle in MuJoCo's ``qpos`` (7 with a free joint, else 0)."""
+        return 7 if self.floating_base else 0
+
+    @property
+    def qvel_offset(self) -> int:
+        """Index of the first joint velocity in MuJoCo's ``qvel`` (6 with a free joint, else 0)."""
+        return 6 if self.floating_base else 0
+
+    def pin_configuration(
+        self,
+        q: np.ndarray,
+        base_position: np.ndarray | None = None,
+        base_quaternion: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Pinocchio configuration from joint angles ``q`` (rad, (n,)) and, for a floating base,
+        its position (m, world, (3,), default 0) and orientation (unit quaternion ``[w, x, y,
+        z]`` as MuJoCo orders it, default identity); Pinocchio orders it ``[x, y, z, w]``."""
+        q = np.asarray(q, dtype=np.float64)
+        if not self.floating_base:
+            return q
+        pos = np.zeros(3) if base_position is None else np.asarray(base_position, np.float64)
+        wxyz = np.array([1.0, 0, 0, 0]) if base_quaternion is None else base_quaternion
+        wxyz = np.asarray(wxyz, dtype=np.float64)
+        return np.concatenate([pos, wxyz[1:], wxyz[:1], q])
+
+    def foot_positions(
+        self,
+        q: np.ndarray,
+        base_position: np.ndarray | None = None,
+        base_quaternion: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Foot site positions (m, world frame), shape (n_feet, 3), for joint angles ``q`` (rad)
+        and the base pose (see :meth:`pin_configuration`; default: base frame)."""
+        data = self.pin_model.createData()
+        pin.framesForwardKinematics(
+            self.pin_model, data, self.pin_configuration(q, base_position, base_quaternion)
+        )
+        return np.array([data.oMf[f].translation for f in self.foot_frame_ids]).reshape(-1, 3)
 
     @property
     def control_mode(self) -> str:
@@ -195,17 +263,25 @@ class Robot:
         return self.mjspec(mode).compile()
 
     def forward_kinematics(self, q: np.ndarray) -> np.ndarray:
-        """End-effector position (m, base frame), shape (3,), for one configuration ``q`` (rad)."""
+        """End-effector position (m, base frame), shape (3,), for one configuration ``q`` (rad).
+
+        Raises:
+            RobotSpecError: the robot names no end-effector site (a floating-base robot).
+        """
+        if self.ee_frame_id < 0:
+            raise RobotSpecError(
+                f"{self.directory / 'robot.toml'}: field 'safety.end_effector_site' is not set"
+            )
         data = self.pin_model.createData()
-        pin.framesForwardKinematics(self.pin_model, data, np.asarray(q, dtype=np.float64))
+        pin.framesForwardKinematics(self.pin_model, data, self.pin_configuration(q))
         return data.oMf[self.ee_frame_id].translation.copy()
 
     def gravity_torque(self, q: np.ndarray) -> np.ndarray:
-        """Joint torques (N m), shape (n_joints,), that hold configuration ``q`` against gravity."""
+        """Joint torques (N m), shape (n_joints,), that hold configuration ``q`` against gravity
+        (a floating base: held upright at the origin, the legs in the air)."""
         data = self.pin_model.createData()
-        return pin.computeGeneralizedGravity(
-            self.pin_model, data, np.asarray(q, dtype=np.float64)
-        ).copy()
+        g = pin.computeGeneralizedGravity(self.pin_model, data, self.pin_configuration(q))
+        return g[self.qvel_offset :].copy()
 
 
 def resolve_robot_toml(name_or_path: str | Path) -> Path:
@@ -341,9 +417,7 @@ def _resolved_mjcf(mjcf: Path) -> Path:
     out = Path(tempfile.gettempdir()) / "sim2real-robots" / digest / mjcf.name
     if not out.is_file():
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, out)
+        atomic_write(out, text)
     return out
 
 
@@ -419,25 +493,31 @@ def load_robot(name_or_path: str | Path) -> Robot:
     except ValueError as exc:
         raise RobotSpecError(f"{mjcf}: MuJoCo cannot compile it: {exc}") from exc
     names = tuple(j.name for j in cfg.joints)
-    mj_names = tuple(mj_model.joint(i).name for i in range(mj_model.njnt))
+    floating = cfg.base is not None
+    j0 = _check_free_joint(toml_path, mjcf, mj_model, cfg)
+    mj_names = tuple(mj_model.joint(i).name for i in range(j0, mj_model.njnt))
     if mj_names != names:
         raise RobotSpecError(
             f"{toml_path}: field 'joints': names {list(names)} differ from the MJCF joints "
             f"{list(mj_names)} in {mjcf.name} (same names, same order expected)"
         )
-    if any(mj_model.jnt_type[i] != mujoco.mjtJoint.mjJNT_HINGE for i in range(mj_model.njnt)):
-        raise RobotSpecError(f"{mjcf}: only hinge joints are supported (a fixed-base arm)")
+    if any(mj_model.jnt_type[i] != mujoco.mjtJoint.mjJNT_HINGE for i in range(j0, mj_model.njnt)):
+        raise RobotSpecError(
+            f"{mjcf}: only hinge joints are supported (besides one free joint of a "
+            "floating-base robot's [base] body)"
+        )
 
     lower = np.array([j.position_limit[0] for j in cfg.joints])
     upper = np.array([j.position_limit[1] for j in cfg.joints])
     for i, joint in enumerate(cfg.joints):
-        if not mj_model.jnt_limited[i] or not np.allclose(
-            mj_model.jnt_range[i], [lower[i], upper[i]], atol=1e-12, rtol=0
+        k = i + j0
+        if not mj_model.jnt_limited[k] or not np.allclose(
+            mj_model.jnt_range[k], [lower[i], upper[i]], atol=1e-12, rtol=0
         ):
             raise RobotSpecError(
                 f"{toml_path}: field 'joints[{i}].position_limit' = {list(joint.position_limit)} "
                 f"differs from the MJCF range of joint '{joint.name}' "
-                f"({list(mj_model.jnt_range[i]) if mj_model.jnt_limited[i] else 'unlimited'})"
+                f"({list(mj_model.jnt_range[k]) if mj_model.jnt_limited[k] else 'unlimited'})"
             )
 
     ctl = cfg.control
@@ -455,35 +535,48 @@ def load_robot(name_or_path: str | Path) -> Robot:
         )
 
     site = cfg.safety.end_effector_site
-    ee_site_id = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_SITE, site)
-    if ee_site_id < 0:
+    ee_site_id = -1 if site is None else mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_SITE, site)
+    if site is not None and ee_site_id < 0:
         raise RobotSpecError(
             f"{toml_path}: field 'safety.end_effector_site' = '{site}' is not a site of {mjcf.name}"
         )
 
     pin_model = pin.buildModelFromMJCF(str(mjcf))
-    pin_names = tuple(pin_model.names[1:])
+    pin_names = tuple(pin_model.names[1 + j0 :])
     if pin_names != names:
         raise RobotSpecError(
             f"{mjcf}: Pinocchio reads joints {list(pin_names)}, expected {list(names)}"
         )
+    if floating and pin_model.joints[1].shortname() != "JointModelFreeFlyer":
+        raise RobotSpecError(
+            f"{mjcf}: Pinocchio reads the root joint as {pin_model.joints[1].shortname()}, "
+            "expected a free flyer (JointModelFreeFlyer) from the <freejoint>"
+        )
     pin_model.gravity.linear = np.array(mj_model.opt.gravity, dtype=np.float64)
-    pin_model.velocityLimit = np.array([j.velocity_limit for j in cfg.joints])
-    pin_model.effortLimit = np.array([j.effort_limit for j in cfg.joints])
-    if not pin_model.existFrame(site):
-        raise RobotSpecError(f"{mjcf}: Pinocchio has no frame for site '{site}'")
-    ee_frame_id = pin_model.getFrameId(site)
-
-    _check_agreement(mjcf, mj_model, pin_model, ee_site_id, ee_frame_id, lower, upper)
+    free = np.full(6 if floating else 0, np.inf)
+    pin_model.velocityLimit = np.concatenate([free, [j.velocity_limit for j in cfg.joints]])
+    pin_model.effortLimit = np.concatenate([free, [j.effort_limit for j in cfg.joints]])
+    ee_frame_id = -1
+    if site is not None:
+        if not pin_model.existFrame(site):
+            raise RobotSpecError(f"{mjcf}: Pinocchio has no frame for site '{site}'")
+        ee_frame_id = pin_model.getFrameId(site)
+    legged = _base_frames(toml_path, mjcf, mj_model, pin_model, cfg) if floating else {}
+    sites = [ee_site_id] if ee_site_id >= 0 else []
+    frames = [ee_frame_id] if ee_frame_id >= 0 else []
+    sites += list(legged.get("foot_site_ids", ()))
+    frames += list(legged.get("foot_frame_ids", ()))
+    _check_agreement(mjcf, mj_model, pin_model, sites, frames, lower, upper, floating)
 
     frac = np.array([j.soft_limit_fraction for j in cfg.joints])
     centre, half = (upper + lower) / 2.0, (upper - lower) / 2.0
-    # The description a policy depends on: everything but the [task] table (where goals come
-    # from is the evaluation's business, not the robot's), in canonical form, and the MJCF bytes.
+    # The description a policy depends on: everything but the [task] and [soak] tables (where
+    # goals come from and how hard the soak pushes are the evaluation's business, not the
+    # robot's), in canonical form, and the MJCF bytes.
     # Optional fields left unset (None) are left out, so that adding one to the schema changes no
     # existing robot's hash. The MJCF is the file in the robot folder (package URIs unresolved).
     described = json.dumps(
-        cfg.model_dump(exclude={"task"}, exclude_none=True, mode="json"), sort_keys=True
+        cfg.model_dump(exclude={"task", "soak"}, exclude_none=True, mode="json"), sort_keys=True
     )
     digest = hashlib.sha256(described.encode() + b"\0" + described_mjcf.read_bytes()).hexdigest()
     return Robot(
@@ -511,11 +604,108 @@ def load_robot(name_or_path: str | Path) -> Robot:
         ee_frame_id=ee_frame_id,
         ee_site_id=ee_site_id,
         description_hash=digest,
+        **legged,
     )
 
 
-def _check_agreement(mjcf, mj_model, pin_model, site_id, frame_id, lower, upper) -> None:
-    """MuJoCo and Pinocchio must agree on end-effector FK and gravity torques.
+def _check_free_joint(toml_path: Path, mjcf: Path, mj_model: mujoco.MjModel, cfg) -> int:
+    """Index of the first hinge joint: 1 when the MJCF's first joint is the free joint of the
+    ``[base] body`` (floating base), 0 for a fixed-base arm.
+
+    Raises:
+        RobotSpecError: a free joint without ``[base]``, ``[base]`` without a free joint on its
+            body, or a free joint elsewhere.
+    """
+    free = [i for i in range(mj_model.njnt) if mj_model.jnt_type[i] == mujoco.mjtJoint.mjJNT_FREE]
+    if cfg.base is None:
+        if free:
+            raise RobotSpecError(
+                f"{toml_path}: {mjcf.name} has a free joint "
+                f"('{mj_model.joint(free[0]).name}'): a floating-base robot needs a [base] table "
+                "(body, imu_site, feet, standing_height)"
+            )
+        return 0
+    body = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_BODY, cfg.base.body)
+    if free != [0] or mj_model.jnt_bodyid[0] != body:
+        raise RobotSpecError(
+            f"{toml_path}: field 'base.body' = '{cfg.base.body}': expected {mjcf.name}'s first "
+            f"and only free joint (<freejoint/>) on that body (free joints: "
+            f"{[mj_model.joint(i).name for i in free]})"
+        )
+    return 1
+
+
+def _base_frames(toml_path, mjcf, mj_model, pin_model, cfg) -> dict:
+    """The floating-base fields of :class:`Robot`: base, IMU and foot ids in MuJoCo and Pinocchio.
+
+    Raises:
+        RobotSpecError: a site or body that MuJoCo or Pinocchio does not have, or an IMU site
+            without a ``gyro`` and an ``accelerometer`` sensor, or a foot site without a
+            ``touch`` sensor.
+    """
+    base = cfg.base
+
+    def site_id(name: str, field_name: str) -> int:
+        sid = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_SITE, name)
+        if sid < 0:
+            raise RobotSpecError(
+                f"{toml_path}: field 'base.{field_name}' = '{name}' is not a site of {mjcf.name}"
+            )
+        return sid
+
+    def frame_id(name: str, kind=pin.FrameType.OP_FRAME) -> int:
+        # MJCF sites are OP_FRAME frames, bodies BODY frames (a site may share a link's name)
+        if not pin_model.existFrame(name, kind):
+            raise RobotSpecError(f"{mjcf}: Pinocchio has no {kind} frame for '{name}'")
+        return pin_model.getFrameId(name, kind)
+
+    def sensors_at(sid: int) -> set:
+        return {
+            int(mj_model.sensor_type[k])
+            for k in range(mj_model.nsensor)
+            if mj_model.sensor_objtype[k] == mujoco.mjtObj.mjOBJ_SITE
+            and mj_model.sensor_objid[k] == sid
+        }
+
+    imu = site_id(base.imu_site, "imu_site")
+    want = {int(mujoco.mjtSensor.mjSENS_GYRO), int(mujoco.mjtSensor.mjSENS_ACCELEROMETER)}
+    if not want <= sensors_at(imu):
+        raise RobotSpecError(
+            f"{mjcf}: site '{base.imu_site}' (field 'base.imu_site' of {toml_path.name}) needs "
+            "a <gyro> and an <accelerometer> sensor"
+        )
+    feet = []
+    for i, name in enumerate(base.feet):
+        sid = site_id(name, f"feet[{i}]")
+        if int(mujoco.mjtSensor.mjSENS_TOUCH) not in sensors_at(sid):
+            raise RobotSpecError(
+                f"{mjcf}: foot site '{name}' (field 'base.feet[{i}]' of {toml_path.name}) needs "
+                "a <touch> sensor (foot contact)"
+            )
+        feet.append(sid)
+    return {
+        "floating_base": True,
+        "base_body": base.body,
+        "base_frame_id": frame_id(base.body, pin.FrameType.BODY),
+        "imu_site": base.imu_site,
+        "imu_site_id": imu,
+        "imu_frame_id": frame_id(base.imu_site),
+        "foot_sites": tuple(base.feet),
+        "foot_site_ids": tuple(feet),
+        "foot_frame_ids": tuple(frame_id(f) for f in base.feet),
+    }
+
+
+def _check_agreement(
+    mjcf, mj_model, pin_model, site_ids, frame_ids, lower, upper, floating=False
+) -> None:
+    """MuJoCo and Pinocchio must agree on the sites' positions (end effector, feet; world frame)
+    and gravity torques, at ``AGREEMENT_SAMPLES`` seeded configurations within the joint limits.
+
+    A floating base is drawn too: position uniform in a 2 m cube about the origin, orientation
+    uniform (a normalized Gaussian quaternion). Its generalized gravity force is compared as
+    well: MuJoCo's free joint takes the force in the world frame and the torque in the base
+    frame, Pinocchio's free flyer both in the base frame.
 
     Raises RobotSpecError beyond ``AGREEMENT_TOLERANCE``.
     """
@@ -523,20 +713,31 @@ def _check_agreement(mjcf, mj_model, pin_model, site_id, frame_id, lower, upper)
     mj_data = mujoco.MjData(mj_model)
     pin_data = pin_model.createData()
     worst_fk = worst_g = 0.0
+    sites, frames = list(site_ids), list(frame_ids)
     for _ in range(AGREEMENT_SAMPLES):
         q = rng.uniform(lower, upper)
-        mj_data.qpos[:] = q
+        if floating:
+            pos = rng.uniform(-1.0, 1.0, 3)
+            wxyz = rng.standard_normal(4)
+            wxyz /= np.linalg.norm(wxyz)
+            mj_q = np.concatenate([pos, wxyz, q])
+            pin_q = np.concatenate([pos, wxyz[1:], wxyz[:1], q])
+        else:
+            mj_q = pin_q = q
+        mj_data.qpos[:] = mj_q
         mj_data.qvel[:] = 0.0
         mujoco.mj_forward(mj_model, mj_data)
-        pin.framesForwardKinematics(pin_model, pin_data, q)
-        g = pin.computeGeneralizedGravity(pin_model, pin_data, q)
-        worst_fk = max(
-            worst_fk,
-            float(np.max(np.abs(mj_data.site_xpos[site_id] - pin_data.oMf[frame_id].translation))),
-        )
+        pin.framesForwardKinematics(pin_model, pin_data, pin_q)
+        g = pin.computeGeneralizedGravity(pin_model, pin_data, pin_q).copy()
+        if floating:  # the base force into MuJoCo's world frame
+            g[:3] = pin_data.oMi[1].rotation @ g[:3]
+        for s, f in zip(sites, frames, strict=True):
+            err = np.abs(mj_data.site_xpos[s] - pin_data.oMf[f].translation)
+            worst_fk = max(worst_fk, float(np.max(err)))
         worst_g = max(worst_g, float(np.max(np.abs(mj_data.qfrc_bias - g))))
     if worst_fk > AGREEMENT_TOLERANCE or worst_g > AGREEMENT_TOLERANCE:
+        what = "end-effector and foot positions" if floating else "end-effector position"
         raise RobotSpecError(
-            f"{mjcf}: MuJoCo and Pinocchio disagree (end-effector position {worst_fk:.3g} m, "
+            f"{mjcf}: MuJoCo and Pinocchio disagree ({what} {worst_fk:.3g} m, "
             f"gravity torque {worst_g:.3g} N m; tolerance {AGREEMENT_TOLERANCE})"
         )

@@ -106,6 +106,13 @@ class MotorConfig(_Strict):
                 "derating_start_temperature must be below max_winding_temperature, got "
                 f"{self.derating_start_temperature} >= {self.max_winding_temperature}"
             )
+        if self.protection and not self.max_winding_temperature < self.protection.temperature_limit:
+            # the runtime's thermal safe stop must come before the servo cuts its own torque
+            raise ValueError(
+                "max_winding_temperature must be below protection.temperature_limit (the servo's "
+                f"own cut-off), got {self.max_winding_temperature} >= "
+                f"{self.protection.temperature_limit}"
+            )
         return self
 
 
@@ -120,20 +127,79 @@ class SensorConfig(_Strict):
     temperature_resolution: Positive = 1.0  # degC
     temperature_rate: Positive = 10.0  # Hz
     ambient_temperature: Finite = 25.0  # degC
+    imu: ImuConfig | None = None  # floating-base robots: [sensors.imu]
+    contact: ContactConfig | None = None  # floating-base robots: [sensors.contact]
+
+
+class ImuConfig(_Strict):
+    """A MEMS IMU at the base's IMU site: gyroscope and accelerometer, each axis with white noise
+    and a bias that starts at a random turn-on value and then walks (the IMU noise model of
+    Kalibr, ETH Zurich, "IMU Noise Model" wiki page; discrete time: ``b_k+1 = b_k + walk
+    sqrt(dt) N(0, 1)``, ``y_k = true_k + b_k + sigma N(0, 1)``).
+
+    Units: ``*_noise_sigma`` per sample (rad/s, m/s^2); ``*_bias_sigma`` the turn-on bias's
+    standard deviation (rad/s, m/s^2); ``*_bias_walk`` the bias random walk (rad/s/sqrt(s),
+    m/s^2/sqrt(s)). ``rate`` (Hz) at most the control rate; ``latency_ticks`` control ticks.
+    """
+
+    gyro_noise_sigma: NonNegative  # rad/s
+    gyro_bias_sigma: NonNegative = 0.0  # rad/s
+    gyro_bias_walk: NonNegative = 0.0  # rad/s/sqrt(s)
+    accel_noise_sigma: NonNegative  # m/s^2
+    accel_bias_sigma: NonNegative = 0.0  # m/s^2
+    accel_bias_walk: NonNegative = 0.0  # m/s^2/sqrt(s)
+    rate: Positive  # Hz
+    latency_ticks: Annotated[int, Field(ge=0)] = 0  # control ticks
+    dropout: Probability = 0.0  # probability per reading
+
+
+class ContactConfig(_Strict):
+    """Foot contact: the normal force of MuJoCo's contacts in each foot's site (a ``touch``
+    sensor), with Gaussian noise, thresholded. ``threshold`` and ``force_noise_sigma`` in N,
+    ``rate`` in Hz (at most the control rate), ``latency_ticks`` in control ticks."""
+
+    threshold: Positive  # N
+    force_noise_sigma: NonNegative = 0.0  # N
+    rate: Positive  # Hz
+    latency_ticks: Annotated[int, Field(ge=0)] = 0  # control ticks
+
+
+class BaseConfig(_Strict):
+    """A floating-base robot (legged): its base and where its sensors sit.
+
+    ``body``: the MJCF body with the free joint (MuJoCo ``<freejoint>``; Pinocchio reads it as
+    its free-flyer root joint). ``imu_site``: the site of the MJCF ``gyro`` and
+    ``accelerometer`` sensors. ``feet``: one site a foot, at the centre of its contact sphere,
+    each with an MJCF ``touch`` sensor (foot contact). ``standing_height``: base height (m)
+    above the floor when standing at ``control.home``.
+    """
+
+    body: str
+    imu_site: str
+    feet: Annotated[list[str], Field(min_length=1)]
+    standing_height: Positive  # m
 
 
 class SafetyConfig(_Strict):
-    """What the safety guard checks beyond the joint limits."""
+    """What the safety guard checks beyond the joint limits.
 
-    end_effector_site: str
-    workspace_min: Vec3  # m, base frame
-    workspace_max: Vec3  # m, base frame
+    ``end_effector_site`` and the workspace box are required for a fixed-base arm; a
+    floating-base robot (``[base]``) may leave them out (no workspace check for legs).
+    """
+
+    end_effector_site: str | None = None
+    workspace_min: Vec3 | None = None  # m, base frame
+    workspace_max: Vec3 | None = None  # m, base frame
     collision_pairs: list[tuple[str, str]] = []
     stale_limit: Positive = 0.05  # s without a fresh encoder reading before a safe stop
 
     @model_validator(mode="after")
     def _ordered_box(self) -> SafetyConfig:
-        if not all(a < b for a, b in zip(self.workspace_min, self.workspace_max, strict=True)):
+        if (self.workspace_min is None) != (self.workspace_max is None):
+            raise ValueError("workspace_min and workspace_max go together")
+        if self.workspace_min is not None and not all(
+            a < b for a, b in zip(self.workspace_min, self.workspace_max, strict=True)
+        ):
             raise ValueError("workspace_min must be below workspace_max on every axis")
         return self
 
@@ -149,10 +215,14 @@ class TaskConfig(_Strict):
     """Where goals are sampled.
 
     ``planar_annulus``: radius and angle in the XY plane (seed section 8); ``box``: uniform in
-    [box_min, box_max].
+    [box_min, box_max], or, with ``joint_fraction``, the end effector at joint poses drawn
+    uniformly within that fraction of each joint's range about home (clipped into the soft
+    limits), kept when inside the box: every goal is one the arm reaches (a box corner may not
+    be: 4 % of so101's uniform box goals lie over 3 cm from any pose within the soft limits).
     """
 
     region: Literal["planar_annulus", "box"]
+    joint_fraction: Annotated[float, Field(gt=0.0, le=1.0)] | None = None
     radius: tuple[NonNegative, NonNegative] | None = None  # m
     angle: tuple[Finite, Finite] | None = None  # rad
     box_min: Vec3 | None = None  # m
@@ -165,6 +235,26 @@ class TaskConfig(_Strict):
         missing = [f for f in need if getattr(self, f) is None]
         if missing:
             raise ValueError(f"region '{self.region}' needs {', '.join(missing)}")
+        if self.joint_fraction is not None and self.region != "box":
+            raise ValueError(f"joint_fraction applies to region 'box', not '{self.region}'")
+        return self
+
+
+class SoakConfig(_Strict):
+    """Disturbances of the soak sized to this robot (``[soak]``; left out of the description
+    hash, as ``[task]``). Unset fields keep :class:`eval.fault_schedule.FaultRanges`' defaults.
+
+    ``push_force``: range (N) of the pushes on the end effector. The default 5-25 N suits arm3
+    (its drives hold 14.9 N at the tip for an instant, ``eval.fault_schedule.cable_budget``); a
+    desktop servo arm holds a fraction of that.
+    """
+
+    push_force: tuple[NonNegative, NonNegative] | None = None  # N
+
+    @model_validator(mode="after")
+    def _ordered(self) -> SoakConfig:
+        if self.push_force is not None and self.push_force[0] > self.push_force[1]:
+            raise ValueError(f"push_force: expected [low, high] N, got {list(self.push_force)}")
         return self
 
 
@@ -178,10 +268,27 @@ class RobotConfig(_Strict):
     motors: dict[str, MotorConfig]
     sensors: SensorConfig
     safety: SafetyConfig
-    task: TaskConfig
+    task: TaskConfig | None = None  # required for a fixed-base arm
+    base: BaseConfig | None = None  # a floating-base robot (legged)
+    soak: SoakConfig | None = None  # the soak's disturbances sized to this robot
 
     @model_validator(mode="after")
     def _cross_references(self) -> RobotConfig:
+        if self.base is None:
+            for name in ("end_effector_site", "workspace_min"):
+                if getattr(self.safety, name) is None:
+                    raise ValueError(
+                        f"safety.{name} is required for a fixed-base arm (no [base] table)"
+                    )
+            if self.task is None:
+                raise ValueError("[task] is required for a fixed-base arm (no [base] table)")
+        else:
+            missing = [k for k in ("imu", "contact") if getattr(self.sensors, k) is None]
+            if missing:
+                raise ValueError(
+                    f"a floating-base robot ([base]) needs "
+                    f"{' and '.join(f'[sensors.{k}]' for k in missing)}"
+                )
         for i, joint in enumerate(self.joints):
             if joint.motor not in self.motors:
                 raise ValueError(

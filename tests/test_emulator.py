@@ -115,13 +115,16 @@ def test_fault_arguments_parse():
         "unplug:3@2.5",
         "overload:2",
         "temperature-limit:1=40",
+        "heat:4=30@1.5",
     ):
         parse_fault(text, faults)
     assert (faults.drop, faults.corrupt) == (0.1, 0.01)
     assert faults.unplug == {3: 2.5} and faults.overload == {2: 0.0}
-    assert faults.temperature_limit == {1: 40}
+    assert faults.temperature_limit == {1: 40} and faults.heat == {4: (30.0, 1.5)}
     with pytest.raises(ValueError, match="unknown fault kind"):
         parse_fault("melt:1", faults)
+    with pytest.raises(ValueError, match="heat:ID=W"):
+        parse_fault("heat:4=-3", faults)
 
 
 def test_arm3_xm430_loads_with_xm430_motors(arm3_xm430):

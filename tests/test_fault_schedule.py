@@ -129,3 +129,16 @@ def cable_budget_of_negative_duration():
     from robots import load_robot
 
     return cable_budget(load_robot("arm3"), np.array([-1.0]))
+
+
+def test_soak_pushes_are_sized_by_the_robots_soak_table():
+    """so101's [soak] push_force (its drives' instant reserve at the tip) replaces the default
+    range made for arm3; arm3 keeps the default."""
+    from eval.fault_schedule import cable_budget, fault_ranges
+    from robots import load_robot
+
+    so101, arm3 = load_robot("so101"), load_robot("arm3")
+    assert fault_ranges(arm3) == FaultRanges()
+    ranges = fault_ranges(so101, mean_interval=60.0)
+    assert ranges.push_force == (1.0, 3.7) and ranges.mean_interval == 60.0
+    assert ranges.push_force[1] <= cable_budget(so101, np.array([0.0]))[0] + 0.05

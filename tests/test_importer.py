@@ -168,7 +168,7 @@ def test_floating_base_robot_is_refused(tmp_path, capsys):
         [ERD + "go2_description/urdf/go2.urdf", "--out", str(out), "--motor", "*=go_m8010_6"]
     )
     err = capsys.readouterr().err
-    assert code == EXIT_REFUSED and "legged robots are a later issue" in err
+    assert code == EXIT_REFUSED and "or --floating-base, legged" in err
     assert not out.exists()
 
 

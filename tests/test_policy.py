@@ -250,3 +250,55 @@ def test_external_data_inside_the_folder_is_accepted(robot, spec, tmp_path):
 
 def test_errors_are_value_errors():
     assert issubclass(PolicyLoadError, ValueError)
+
+
+# ---------------------------------------------------------------------- files already exported
+def test_shipped_arm_policy_loads_and_gives_the_actions_of_its_stored_spec(robot, tmp_path):
+    """policies/arm.onnx as ``make export`` writes it (exported here from policies/arm.pt when
+    absent, as in a fresh clone): its stored spec (explicit scale/offset lists, written before
+    the JSON shorthands existed) gives the observation ``(raw - offset) / scale`` clipped, entry
+    for entry, and OnnxPolicy's actions are plain ONNX Runtime's, bit for bit."""
+    import onnxruntime as ort
+
+    from deploy.state import Kinematics, RobotState
+
+    root = Path(__file__).resolve().parent.parent / "policies"
+    path = root / "arm.onnx"
+    if not path.is_file():
+        (tmp_path / "arm.pt").write_bytes((root / "arm.pt").read_bytes())
+        path = export_policy(tmp_path / "arm.pt")
+    policy = OnnxPolicy(path, robot)
+    stored = {p.key: p.value for p in onnx.load(str(path)).metadata_props}["policy_spec"]
+    assert policy.spec.to_json() == stored
+    blocks = json.loads(stored)["observation"]
+    assert [b["name"] for b in blocks] == [b.name for b in policy.spec.observation_blocks]
+
+    rng = np.random.default_rng(5)
+    envs = 16
+    state = RobotState.zeros(envs, 3, 25.0)
+    state.q[:] = rng.uniform(-1.5, 1.5, (envs, 3))
+    state.dq[:] = rng.uniform(-4, 4, (envs, 3))
+    Kinematics(robot).update(state)
+    goal = rng.uniform(-0.9, 0.9, (envs, 3))
+    raw = {
+        "joint_position": state.q,
+        "joint_velocity": state.dq,
+        "ee_position": state.ee_position,
+        "goal_position": goal,
+        "goal_in_ee": np.einsum("ei,eij->ej", goal - state.ee_position, state.ee_rotation),
+    }
+    expected = np.concatenate(
+        [
+            np.clip(
+                (raw[b["name"]] - np.array(b["offset"])) / np.array(b["scale"]),
+                -b["clip"],
+                b["clip"],
+            )
+            for b in blocks
+        ],
+        axis=1,
+    ).astype(np.float32)
+    obs = policy.spec.observation(state, goal)
+    np.testing.assert_allclose(obs, expected, rtol=1e-6, atol=1e-7)
+    plain = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    np.testing.assert_array_equal(policy(obs), plain.run(None, {policy.input_name: obs})[0])

@@ -147,6 +147,25 @@ def test_winding_over_temperature_stops_until_cool_then_resumes(tmp_path, arm3):
     assert rt.mode[0] in (Mode.RAMP_IN, Mode.RUNNING)
 
 
+def test_a_servo_that_trips_during_a_thermal_stop_latches_instead_of_resuming(tmp_path, arm3):
+    """The runtime's thermal stop came first, then the servo's own protection tripped (its
+    torque is off): the stop latches (FAULTED at rest), and cooling does not resume it."""
+    rt = make_runtime(tmp_path, arm3, "velocity")
+    rt.run(seconds(rt, 2.0))
+    plant = rt.backend.backend
+    plant.thermal.winding_temperature[0, 0] = 130.0
+    rt.run(seconds(rt, 0.2))
+    assert rt.mode[0] == Mode.SAFE_STOP and rt.cause_names()[0] == "over_temperature"
+    errors = np.zeros((1, arm3.n_joints), dtype=np.int64)
+    errors[0, 0] = 0x04  # an overheating bit, as a servo bus backend reports it
+    rt.backend.drive_errors = lambda: errors
+    rt.run(seconds(rt, 2.0))
+    assert rt.mode[0] == Mode.FAULTED and rt.drive_errors[0, 0] == 0x04
+    plant.thermal.winding_temperature[0, 0] = 60.0
+    rt.run(seconds(rt, 3.0))
+    assert rt.mode[0] == Mode.FAULTED
+
+
 def test_winding_in_the_derating_band_derates_the_effort_limit(tmp_path, arm3):
     rt = make_runtime(tmp_path, arm3, "torque")
     rt.backend.backend.thermal.winding_temperature[0, 1] = 112.5  # half way 100 -> 125 degC

@@ -77,3 +77,25 @@ def test_velocity_band_leaves_room_to_brake_before_the_soft_limit(arm3):
     assert (need <= room + 1e-9).all()
     assert (np.abs(out) < robot.velocity_limit).any()  # the band did clamp
     assert not guard.hard_violation.any()
+
+
+def test_a_full_absolute_action_is_at_the_limit_not_past_it():
+    """An absolute position action of exactly +-1 (SB3 clips to the action space, so a policy
+    outputs it often) maps to ``offset +- scale``; float rounding puts it an ulp past so101's
+    wrist_roll and gripper limits. That is the limit itself: clamped, not a hard violation.
+    A target really past the limit still is one."""
+    from deploy.spec import PolicySpec
+    from robots import load_robot
+
+    so101 = load_robot("so101")
+    spec = PolicySpec.for_robot(so101, mode="position")
+    state = RobotState.zeros(2, so101.n_joints)
+    guard = SafetyGuard(so101, 2, "position")
+    target = spec.action_to_target(np.array([[1.0] * 6, [-1.0] * 6]), state)
+    assert (target > so101.position_upper).any() or (target < so101.position_lower).any()
+    out = guard.filter(target, state)
+    assert not guard.hard_violation.any()
+    assert (out <= so101.soft_upper).all() and (out >= so101.soft_lower).all()
+    target[0, 4] = so101.position_upper[4] + 1e-6
+    guard.filter(target, state)
+    assert guard.hard_violation.tolist() == [True, False]

@@ -142,7 +142,8 @@ def test_open_configures_each_servo_before_torque_and_close_turns_it_off(so101):
                 # torque came on with the goal at the pose: nothing jumps
                 assert abs(s.get("goal_position") - s.get("present_position")) <= 3
             frame = _full_read(backend)
-            np.testing.assert_allclose(frame.position[0], so101.home, atol=0.03)  # sag
+            # sag: torque is off while open() configures the servos (longer on a loaded machine)
+            np.testing.assert_allclose(frame.position[0], so101.home, atol=0.06)
             assert (frame.winding_temperature[0] == 25.0).all()
             assert np.allclose(backend.voltage, 12.0)
         assert all(s.get("torque_enable") == 0 for s in emu.servos)
@@ -279,10 +280,7 @@ def test_corrupt_replies_are_dropouts_and_never_commands(tmp_path, protocol):
         assert (np.abs(commands) <= robot.velocity_limit + 1e-9).all()
 
 
-# Dynamixel (arm3_xm430, 200 Hz) is left out of the two deploy-run fault tests: on a loaded
-# 2-core machine deploy-run's first ticks overran (start-up), and the overrun safe stop came
-# before the fault. The corrupt-reply test above covers Dynamixel through the runtime.
-@pytest.mark.parametrize("protocol", ["feetech"])
+@pytest.mark.parametrize("protocol", ["feetech", "dynamixel"])
 def test_unplugged_servo_stops_safely_torque_off_exit_2(tmp_path, protocol):
     name, _ = CASES[protocol]
     robot = load_robot(name)
@@ -299,7 +297,7 @@ def test_unplugged_servo_stops_safely_torque_off_exit_2(tmp_path, protocol):
     assert report["duration_s"] < 3.0 or report["final_state"] == ["SAFE_STOP"]
 
 
-@pytest.mark.parametrize("protocol", ["feetech"])
+@pytest.mark.parametrize("protocol", ["feetech", "dynamixel"])
 def test_overload_error_bit_stops_safely_naming_the_servo(tmp_path, protocol):
     name, _ = CASES[protocol]
     robot = load_robot(name)
@@ -311,3 +309,28 @@ def test_overload_error_bit_stops_safely_naming_the_servo(tmp_path, protocol):
     (error,) = report["faults"]["drive_errors"]
     assert error.startswith("servo ID 3") and "overload" in error and "0x20" in error
     assert "servo error       servo ID 3" in out
+
+
+@pytest.mark.parametrize("protocol", ["feetech", "dynamixel"])
+def test_overheating_servo_meets_the_runtime_thermal_stop_first(tmp_path, protocol):
+    """A servo takes 200 W of extra winding loss (a binding gearbox): the runtime's own thermal
+    stop (max_winding_temperature, 5 K below the servo's cut-off in the catalog) fires first; the
+    loss goes on while the arm is held, so the servo's protection trips after it, and that is
+    reported with the servo's ID and no resume follows (its torque is off)."""
+    name, _ = CASES[protocol]
+    robot = load_robot(name)
+    servo_limit = robot.motors[2].protection.temperature_limit
+    with _emulator(robot, protocol) as emu:
+        _when_running(emu, lambda: emu.set_heat(3, 200.0))  # ~3 s to the servo's limit
+        code, report, out = _deploy_run(tmp_path, protocol, emu, 8.0)
+    assert code == EXIT_FAULT, out
+    assert report["faults"]["by_cause"]["over_temperature"] == 1, out
+    assert report["faults"]["by_cause"]["servo_error"] == 0, out  # the runtime's stop came first
+    # no resume: stopping (SAFE_STOP until at rest) or latched (FAULTED), never RUNNING again
+    assert report["final_cause"] == ["over_temperature"]
+    assert report["final_state"] in (["SAFE_STOP"], ["FAULTED"])
+    peak = report["peak_winding_temperature_c"][robot.joint_names[2]]
+    assert robot.motors[2].max_winding_temperature < peak
+    (error,) = report["faults"]["drive_errors"]  # the servo tripped at its own limit after it
+    assert error.startswith("servo ID 3") and "overheat" in error, error
+    assert peak >= servo_limit - 1

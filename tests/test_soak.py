@@ -8,6 +8,7 @@ are a function of its seed and options only.
 import json
 import os
 import pickle
+import re
 import shutil
 import signal
 import subprocess
@@ -289,7 +290,10 @@ def test_kill_and_resume_equals_an_uninterrupted_run(killed, config, batched, tm
     assert 0 < meta["tick"] < 2400
     # the new accumulators are in the checkpoint, and the result carries non-zero values of them
     assert arrays["interventions/any"].shape == (1,) and "violations/counts/soft_limit" in arrays
-    assert "goals/best_distance" in arrays and "missed" in meta["goals"]
+    assert "goals/best_distance" in arrays and "goals/missed" in arrays
+    # the composition of the stages' state dicts (deploy.stateful), one env's slice of each
+    assert arrays["estimator/covariance"].shape == (1, 3, 2, 2) and arrays["mode"].shape == (1,)
+    assert isinstance(arrays["ticks"], int) and isinstance(arrays["backend/sensor_rng"], str)
     resumed = run_campaign(replace(config, seed=0), 1, out, resume=True, progress=False)[0]
     assert resumed["interventions"]["any"]["count"] > 0 and resumed["violations"]["any"] > 0
     assert resumed["goals"]["missed"] and resumed["goals"]["windows"]
@@ -311,6 +315,27 @@ def test_a_corrupt_checkpoint_is_refused_with_the_file_named(killed, config, tmp
     (folder / ckpt.MANIFEST).write_text('{"format": "soak-checkpoint", "vers')
     with pytest.raises(ckpt.CheckpointError, match=r"checkpoint\.json: not a readable"):
         ckpt.read_checkpoint(folder)
+
+
+def test_a_checkpoint_of_another_version_or_without_a_field_is_refused(killed, config, tmp_path):
+    """The error names the file and the field: the version of a checkpoint written before the
+    state dicts (2), and a state field the session needs."""
+    out = tmp_path / "campaign"
+    shutil.copytree(killed, out)
+    manifest = session_dir(out, 0) / ckpt.MANIFEST
+    doc = json.loads(manifest.read_text())
+    manifest.write_text(json.dumps({**doc, "version": 2}))
+    where = re.escape(str(manifest))
+    with pytest.raises(ckpt.CheckpointError, match=rf"{where}: field 'version': expected 3, got 2"):
+        run_campaign(replace(config, seed=0), 1, out, resume=True, progress=False)
+    state, meta = ckpt.read_checkpoint(session_dir(killed, 0))
+    del state["smoother/ruckig/current_velocity"]
+    ckpt.write_checkpoint(manifest.parent, state, meta)
+    with pytest.raises(
+        ckpt.CheckpointError,
+        match=rf"{where}: field 'smoother/ruckig/current_velocity' is missing; delete ",
+    ):
+        run_campaign(replace(config, seed=0), 1, out, resume=True, progress=False)
 
 
 def test_checkpoint_writes_are_atomic(tmp_path):

@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -184,3 +185,158 @@ def test_joint_order_and_rate_mismatch_are_named(arm3, spec):
     slow = dataclasses.replace(spec, control_rate=100.0)
     with pytest.raises(SpecError, match=r"control_rate: policy runs at 100.0 Hz, the robot at 200"):
         slow.check_robot(arm3)
+
+
+# ---------------------------------------------------------------------- JSON shorthands
+REPO = Path(__file__).resolve().parent.parent
+EXAMPLES = REPO / "docs" / "examples"
+GODOT_FILE = REPO / "tests" / "data" / "godot_rl_0.8.2_ppo_arm3.onnx"
+
+
+def _arm3_doc(arm3, **changes) -> dict:
+    d = {
+        "format_version": 1,
+        "robot": "arm3",
+        "joint_names": list(arm3.joint_names),
+        "control_rate": 200.0,
+        "observation": [{"name": "joint_position", "scale": 3.141592653589793}],
+        "action": {"mode": "velocity", "scale": 3.14},
+    }
+    d.update(changes)
+    return d
+
+
+def test_scale_and_offset_take_a_number_a_list_or_nothing_and_joints_by_name(arm3):
+    doc = _arm3_doc(
+        arm3,
+        observation=[
+            {"name": "joint_position", "scale": 2.0, "offset": [0.1, 0.2, 0.3]},
+            {"name": "joint_velocity", "joints": ["wrist", "shoulder"], "scale": [4, 5]},
+            {"name": "goal_position"},
+            {"name": "last_action", "clip": 100},
+        ],
+        action={"mode": "position", "offset": [0.0, 0.5, 0.5], "scale": 0.25, "clip": 100},
+    )
+    spec = PolicySpec.from_json(json.dumps(doc))
+    jp, jv, goal, last = spec.observation_blocks
+    assert (jp.size, jp.scale, jp.offset, jp.joints) == (3, (2.0,) * 3, (0.1, 0.2, 0.3), (0, 1, 2))
+    assert (jv.size, jv.scale, jv.offset, jv.joints) == (2, (4.0, 5.0), (0.0, 0.0), (2, 0))
+    assert (goal.size, goal.scale, goal.offset) == (3, (1.0,) * 3, (0.0,) * 3)  # raw metres
+    assert (last.size, last.joints, last.clip) == (3, (0, 1, 2), 100.0)
+    a = spec.action
+    assert (a.size, a.scale, a.offset, a.clip) == (3, (0.25,) * 3, (0.0, 0.5, 0.5), 100.0)
+    assert spec.robot_hash == "" and spec.obs_dim == 11
+    spec.check_robot(arm3)  # no hash given: not checked
+    # the stored form is explicit and reads back equal
+    stored = json.loads(spec.to_json())
+    assert stored["observation"][1]["scale"] == [4.0, 5.0] and "constant_inputs" not in stored
+    assert PolicySpec.from_json(spec.to_json()) == spec
+
+
+def test_stored_specs_read_back_byte_for_byte(arm3):
+    """The explicit format written by earlier versions (the shipped checkpoint's spec) reads
+    back to the same JSON: files already exported keep their meaning."""
+    torch = pytest.importorskip("torch")
+    stored = torch.load(REPO / "policies" / "arm.pt", weights_only=True)["spec"]
+    assert PolicySpec.from_json(stored).to_json() == stored
+    made = PolicySpec.for_robot(arm3, blocks=ALL_BLOCKS).to_json()
+    assert PolicySpec.from_json(made).to_json() == made
+
+
+def test_legged_gym_conventions_are_expressed_exactly(arm6):
+    """legged_gym: obs = (dof_pos - default) * 1.0, dof_vel * 0.05, actions (clip 100);
+    target = default + 0.25 * clip(action, -100, 100)."""
+    spec = PolicySpec.from_json((EXAMPLES / "legged_gym_style_arm6.spec.json").read_text())
+    spec.check_robot(arm6)
+    default = np.array(arm6.home)
+    rng = np.random.default_rng(3)
+    state = RobotState.zeros(2, 6, 25.0)
+    state.q[:] = default + rng.uniform(-0.5, 0.5, (2, 6))
+    state.dq[:] = rng.uniform(-3, 3, (2, 6))
+    state.last_action[:] = rng.uniform(-2, 2, (2, 6))
+    Kinematics(arm6).update(state)
+    obs = spec.observation(state, np.zeros((2, 3)))
+    legged = np.concatenate([(state.q - default) * 1.0, state.dq * 0.05, state.last_action], 1)
+    np.testing.assert_allclose(obs, legged, rtol=1e-6, atol=1e-7)
+    action = rng.uniform(-150, 150, (2, 6))
+    target = spec.action_to_target(action, state)
+    np.testing.assert_allclose(target, default + 0.25 * np.clip(action, -100, 100), rtol=1e-12)
+
+
+@pytest.mark.parametrize("block", ["base_ang_vel", "projected_gravity", "commands"])
+def test_a_block_the_robot_cannot_provide_is_refused_at_load_naming_it(arm3, block, tmp_path):
+    from deploy.policy import OnnxPolicy, PolicyLoadError
+
+    doc = _arm3_doc(arm3)
+    doc["observation"].insert(0, {"name": block, "scale": 4.0})
+    path = tmp_path / "legged.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(
+        PolicyLoadError,
+        match=rf"legged.json: observation\[0\] \('{block}'\): block '{block}' cannot be provided: "
+        r"the robot 'arm3' is a fixed-base arm",
+    ):
+        OnnxPolicy(GODOT_FILE, arm3, spec=path)
+    doc["observation"][0]["name"] = "joint_torque"
+    with pytest.raises(SpecError, match=r"block 'joint_torque' is unknown: no robot provides it"):
+        PolicySpec.from_json(json.dumps(doc))
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (
+            lambda d: d["observation"][0].update(scales=2.0),
+            r"s.json: field 'observation\[0\].scales' is not a PolicySpec field",
+        ),
+        (
+            lambda d: d["observation"][0].update(joints=["shoulder", "knee"]),
+            r"s.json: observation\[0\] \('joint_position'\).joints: joint 'knee' is not in",
+        ),
+        (lambda d: d["action"].update(scale="fast"), r"field 'action.scale': .*'fast'"),
+        (lambda d: d["observation"][0].update(scale=[1, 2]), r"scale and offset need 3 entries"),
+        (
+            lambda d: d.update(constant_inputs={"state_ins": float("nan")}),
+            r"constant_inputs\['state_ins'\]: must be finite",
+        ),
+    ],
+)
+def test_bad_shorthand_is_refused_naming_the_field(arm3, edit, message):
+    d = _arm3_doc(arm3)
+    edit(d)
+    with pytest.raises(SpecError, match=message):
+        PolicySpec.from_json(json.dumps(d), source="s.json")
+
+
+# ---------------------------------------------------------------------- the JSON Schema
+def test_committed_schema_is_the_generated_one():
+    from deploy.spec_schema import SCHEMA_PATH, schema_text
+
+    assert SCHEMA_PATH.read_text() == schema_text(), (
+        "docs/policy_spec.schema.json is stale: run python -m deploy.spec_schema"
+    )
+
+
+def test_shipped_and_example_specs_validate_against_the_schema(arm3, arm6):
+    jsonschema = pytest.importorskip("jsonschema")
+    torch = pytest.importorskip("torch")
+    from deploy.spec_schema import SCHEMA_PATH
+
+    schema = json.loads(SCHEMA_PATH.read_text())
+    validator = jsonschema.Draft202012Validator(schema)
+    docs = [json.loads(p.read_text()) for p in sorted(EXAMPLES.glob("*.json"))]
+    for name in ("arm.pt", "arm_position.pt"):
+        docs.append(json.loads(torch.load(REPO / "policies" / name, weights_only=True)["spec"]))
+    docs.append(json.loads(PolicySpec.for_robot(arm6).to_json()))
+    assert len(docs) == 5
+    for doc in docs:
+        validator.validate(doc)
+    bad = dict(docs[0], observation=[{"name": "joint_position", "scale": "pi"}])
+    assert not validator.is_valid(bad)
+    assert not validator.is_valid(dict(docs[0], observation=[{"name": "base_lin_vel"}]))
+
+
+def test_the_readme_shows_the_example_specs_as_they_are_tested():
+    readme = (REPO / "README.md").read_text()
+    for path in sorted(EXAMPLES.glob("*.json")):
+        assert path.read_text().strip() in readme, path.name

@@ -193,3 +193,24 @@ def test_holding_the_arm_against_gravity_costs_its_joule_heat(arm3):
         np.testing.assert_allclose(r[0], -1e-3 * np.sum((tau / continuous) ** 2), rtol=1e-9)
         costs[name] = -r[0]
     assert costs["stretched"] > 5 * costs["hanging"]
+
+
+def test_the_shipped_so101_policy_reaches_its_goals_through_the_runtime(tmp_path):
+    """policies/so101.pt (make train ROBOT=so101), exported with its parity gate, through the
+    full runtime on the sim backend: the goals of a minute reached (the issue asks >= 90 % over
+    longer runs; 60 s has 15 goals), no hard violation, a clean exit."""
+    import json
+
+    from deploy.cli import deploy_run_main
+    from deploy.export import main as export_main
+
+    onnx = tmp_path / "so101.onnx"
+    assert export_main(["policies/so101.pt", "--out", str(onnx)]) == 0
+    report = tmp_path / "run.json"
+    code = deploy_run_main(
+        ["--robot", "so101", "--policy", str(onnx), "--duration", "60", "--report", str(report)]
+    )
+    r = json.loads(report.read_text())
+    assert code == 0 and r["final_state"] == ["RUNNING"]
+    assert r["goals"]["success_rate"] >= 13 / 15
+    assert r["violations"]["by_type"]["hard_limit"] == 0

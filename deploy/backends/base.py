@@ -45,6 +45,16 @@ class SensorFrame:
         winding_temperature: (envs, n_joints) degC, as the drive reports it (quantized, at the
             drive's reporting rate: the last reported value is repeated in between).
         temperature_stamp: (envs,) s, when ``winding_temperature`` was last sampled.
+
+    Floating-base (legged) robots only; None for a fixed-base arm:
+        imu_angular_velocity: (envs, 3) rad/s, the gyroscope in the IMU site's frame (noise and
+            bias included); NaN where no reading arrived.
+        imu_acceleration: (envs, 3) m/s^2, the accelerometer's specific force in the IMU
+            site's frame (about ``+9.81`` along the site's up axis at rest); NaN likewise.
+        imu_stamp: (envs,) s, when the IMU reading was sampled; NaN when none arrived.
+        foot_force: (envs, n_feet) N, each foot's measured normal contact force (noisy).
+        foot_contact: (envs, n_feet) bool, ``foot_force`` above the contact threshold.
+        contact_stamp: (envs,) s, when the foot forces were sampled; NaN when none arrived.
     """
 
     time: np.ndarray
@@ -52,17 +62,41 @@ class SensorFrame:
     position_stamp: np.ndarray
     winding_temperature: np.ndarray
     temperature_stamp: np.ndarray
+    imu_angular_velocity: np.ndarray | None = None
+    imu_acceleration: np.ndarray | None = None
+    imu_stamp: np.ndarray | None = None
+    foot_force: np.ndarray | None = None
+    foot_contact: np.ndarray | None = None
+    contact_stamp: np.ndarray | None = None
 
     @classmethod
-    def empty(cls, envs: int, n_joints: int) -> SensorFrame:
+    def empty(cls, envs: int, n_joints: int, n_feet: int | None = None) -> SensorFrame:
+        """A frame with no readings (NaN). ``n_feet``: None for a fixed-base arm (no IMU and
+        contact fields), else the number of feet of a floating-base robot."""
         nan = np.full((envs, n_joints), np.nan)
+        legged = {}
+        if n_feet is not None:
+            legged = dict(
+                imu_angular_velocity=np.full((envs, 3), np.nan),
+                imu_acceleration=np.full((envs, 3), np.nan),
+                imu_stamp=np.full(envs, np.nan),
+                foot_force=np.full((envs, n_feet), np.nan),
+                foot_contact=np.zeros((envs, n_feet), dtype=bool),
+                contact_stamp=np.full(envs, np.nan),
+            )
         return cls(
             time=np.zeros(envs),
             position=nan.copy(),
             position_stamp=nan.copy(),
             winding_temperature=nan.copy(),
             temperature_stamp=np.full(envs, np.nan),
+            **legged,
         )
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The frame's fields that hold arrays (name -> array): every field of an arm's frame
+        but the floating-base ones, which are None."""
+        return {k: v for k, v in vars(self).items() if v is not None}
 
 
 @runtime_checkable

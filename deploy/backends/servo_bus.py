@@ -43,6 +43,7 @@ from deploy.backends.servo.calibration import (
     load_lerobot_calibration,
 )
 from deploy.backends.servo.control_tables import ServoModel, model_for_motor
+from deploy.errors import Sim2RealError
 from deploy.telemetry import LatencyHistogram
 from robots import Robot
 
@@ -54,7 +55,7 @@ OPEN_READ_TRIES = 5
 CONFIG_TRIES = 3
 
 
-class ServoBusError(OSError):
+class ServoBusError(Sim2RealError, OSError):
     """The bus cannot be brought up: port, missing servo, wrong model, refused register write."""
 
 

@@ -18,6 +18,10 @@ the arm's gravity load where that is more, at the maximum winding temperature), 
 every control period's physics steps.
 Winding temperatures are reported as a drive reports them: the model's winding temperature rounded
 to ``temperature_resolution`` and refreshed at ``temperature_rate``.
+A floating-base (legged) robot's plant also has an IMU (gyroscope and accelerometer with white
+noise and bias random walk) and foot contact (thresholded normal force), each at its own rate and
+latency: :mod:`deploy.backends.legged_sensors`; its joints follow MuJoCo's free joint in ``qpos``
+and ``qvel``, and :meth:`SimBackend.true_base_state` gives the base's true pose and velocity.
 
 The true state stays available (:meth:`SimBackend.true_position`, ...) for evaluation only.
 
@@ -41,7 +45,21 @@ import mujoco
 import numpy as np
 
 from deploy.backends.base import BackendLifecycle, SensorFrame
+from deploy.backends.legged_sensors import BaseSensorModel
+from deploy.errors import Sim2RealError
 from deploy.safety import motion_bounds
+from deploy.stateful import (
+    StateDictError,
+    check,
+    env_index,
+    from_json,
+    put,
+    rng_state,
+    scalar,
+    set_rng_state,
+    take,
+    to_json,
+)
 from deploy.thermal import EffortDerating, TwoNodeThermalModel
 from robots import CONTROL_MODES, Robot, load_robot
 
@@ -57,14 +75,42 @@ _WARNING_SLICE = slice(
     min(int(w) for w in _DIVERGENCE_WARNINGS), max(int(w) for w in _DIVERGENCE_WARNINGS) + 1
 )
 assert _WARNING_SLICE.stop - _WARNING_SLICE.start == len(_DIVERGENCE_WARNINGS)
+#: MuJoCo's state a plant's ``state_dict`` keeps: everything a step reads (time, qpos, qvel, act,
+#: warm start, ctrl, applied forces, mocap, equality flags, user data, plugin state).
+_MJ_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
-class SimulationDivergedError(RuntimeError):
+class SimulationDivergedError(Sim2RealError, RuntimeError):
     """MuJoCo reported a divergence (non-finite or huge state); the session must fail loudly."""
 
 
-class NonFiniteCommandError(ValueError):
+class NonFiniteCommandError(Sim2RealError, ValueError):
     """A command with NaN or inf was written; it was rejected and never reached MuJoCo."""
+
+
+class PerEnvGenerators:
+    """One numpy ``Generator`` per env in place of the batch's one sensor stream
+    (:meth:`SimBackend.set_sensor_streams`).
+
+    It answers the two calls the sensor model makes (``standard_normal(out=...)`` and
+    ``random(shape)``, arrays shaped (envs, n)) row by row from each env's own generator, so that
+    env ``e`` sees the same numbers alone or batched.
+    """
+
+    def __init__(self, generators: Sequence[np.random.Generator]):
+        self.generators = list(generators)
+
+    def standard_normal(self, size=None, dtype=np.float64, out=None):
+        out = np.empty(size, dtype=dtype) if out is None else out
+        for e, g in enumerate(self.generators):
+            g.standard_normal(dtype=dtype, out=out[e])
+        return out
+
+    def random(self, size=None, dtype=np.float64, out=None):
+        out = np.empty(size, dtype=dtype) if out is None else out
+        for e, g in enumerate(self.generators):
+            g.random(dtype=dtype, out=out[e])
+        return out
 
 
 class SimBackend(BackendLifecycle):
@@ -108,6 +154,9 @@ class SimBackend(BackendLifecycle):
         if len(models) != envs:
             raise ValueError(f"models: expected {envs} models (one per env), got {len(models)}")
         self._nu = n * robot.actuators_per_joint(mode)
+        # a floating base: MuJoCo's free joint comes first (qpos 7, qvel 6, one joint)
+        self._qpos_offset, self._qvel_offset = robot.qpos_offset, robot.qvel_offset
+        self._jnt_offset = 1 if robot.floating_base else 0
         for m in models:
             self._check_model(m, "models")
         self.models = list(models)
@@ -153,8 +202,10 @@ class SimBackend(BackendLifecycle):
         self._qpos = np.zeros((envs, n))
         self._qvel = np.zeros((envs, n))
         self._torque = np.zeros((envs, n))
-        self.frame = SensorFrame.empty(envs, n)
+        self.frame = SensorFrame.empty(envs, n, robot.n_feet if robot.floating_base else None)
         self.tick = 0
+        #: IMU and foot contact of a floating-base robot (None for an arm)
+        self._base_sensors = BaseSensorModel(self, robot) if robot.floating_base else None
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
@@ -175,8 +226,8 @@ class SimBackend(BackendLifecycle):
         which = np.ones(self.envs, dtype=bool) if envs is None else np.asarray(envs, dtype=bool)
         for e in np.nonzero(which)[0]:
             m, d = self.models[e], self.datas[e]
-            mujoco.mj_resetData(m, d)
-            d.qpos[:] = q0[e]
+            mujoco.mj_resetData(m, d)  # a floating base: at its MJCF pose (standing)
+            d.qpos[self._qpos_offset :] = q0[e]
             if m.na:  # integrating velocity servos start their setpoint at the pose
                 d.act[:] = q0[e]
             mujoco.mj_forward(m, d)
@@ -185,8 +236,10 @@ class SimBackend(BackendLifecycle):
             elif self.mode == "velocity":
                 self._command[e] = 0.0
             else:
-                self._command[e] = d.qfrc_bias
+                self._command[e] = d.qfrc_bias[self._qvel_offset :]
             self._views[e][2][:] = self._command[e]
+        if self.robot.floating_base:
+            self._base_sensors.reset(which, envs is None)
         if envs is None:
             self.thermal.reset()
             self._buf_position.fill(np.nan)
@@ -217,10 +270,10 @@ class SimBackend(BackendLifecycle):
         self._bind(env)
 
     def _check_model(self, m: mujoco.MjModel, what: str) -> None:
-        n = self.n_joints
-        if m.nq != n or m.nu != self._nu:
+        nq = self.n_joints + self.robot.qpos_offset
+        if m.nq != nq or m.nu != self._nu:
             raise ValueError(
-                f"{what}: expected nq = {n} and nu = {self._nu} ({self.mode} mode), "
+                f"{what}: expected nq = {nq} and nu = {self._nu} ({self.mode} mode), "
                 f"got nq={m.nq}, nu={m.nu}"
             )
 
@@ -228,11 +281,12 @@ class SimBackend(BackendLifecycle):
         """Cache env ``e``'s model, data and the views the hot path touches (ctrl as
         (actuators per joint, n): every actuator of a joint takes its command; qpos; the joint
         actuator torque ``qfrc_actuator``, clamped to the effort limit; divergence warning
-        counters): attribute lookups on MjData cost ~0.5 us."""
+        counters), so that the hot path does not look them up on MjData each tick."""
         m, d = self.models[e], self.datas[e]
         self._derated[e] = True  # a new model has the peak limits: re-derate at the next advance
         ctrl = d.ctrl.reshape(-1, self.n_joints)
-        self._views[e] = (m, d, ctrl, d.qpos, d.qfrc_actuator, d.warning.number[_WARNING_SLICE])
+        qpos, force = d.qpos[self._qpos_offset :], d.qfrc_actuator[self._qvel_offset :]
+        self._views[e] = (m, d, ctrl, qpos, force, d.warning.number[_WARNING_SLICE])
         if self.mode == "velocity":  # the setpoints and their anti-windup bound
             self._acts[e] = d.act
             kp = m.actuator_gainprm[: self.n_joints, 0]
@@ -242,6 +296,130 @@ class SimBackend(BackendLifecycle):
     def time(self) -> float:
         """Plant clock, s (identical for every env)."""
         return self.tick * self.control_period
+
+    @property
+    def encoder_every(self) -> int:
+        """Control ticks between two encoder samples (``control rate / encoder_rate``)."""
+        return self._encoder_every
+
+    def set_sensor_streams(self, generators: Sequence[np.random.Generator]) -> None:
+        """Draw each env's encoder noise and dropout from its own generator (one per env, in env
+        order) instead of one stream for the batch: an env's readings then do not depend on its
+        neighbours (batched soak sessions). Call before the first reading that should use them
+        (:meth:`reset`).
+
+        Raises:
+            ValueError: not one generator per env.
+        """
+        if len(generators) != self.envs:
+            raise ValueError(
+                f"generators: expected {self.envs} (one per env), got {len(generators)}"
+            )
+        self._rng = PerEnvGenerators(generators)
+
+    # ------------------------------------------------------------------ state
+    def _state_fields(self) -> dict[str, np.ndarray]:
+        """The plant's per-env arrays, env axis first (the latency buffers are (slots, envs, ...)
+        inside: views with the env axis moved to the front)."""
+        f, th = self.frame, self.thermal
+        return {
+            "command": self._command,
+            "torque": self._torque,
+            "effort_limit": self.effort_limit,
+            "noise_sigma": self.noise_sigma,
+            "dropout_probability": self.dropout_probability,
+            "latency_ticks": self.latency_ticks,
+            "buffer/position": np.moveaxis(self._buf_position, 1, 0),
+            "buffer/stamp": np.moveaxis(self._buf_stamp, 1, 0),
+            "frame/time": f.time,
+            "frame/position": f.position,
+            "frame/position_stamp": f.position_stamp,
+            "frame/winding_temperature": f.winding_temperature,
+            "frame/temperature_stamp": f.temperature_stamp,
+            "thermal/winding_temperature": th.winding_temperature,
+            "thermal/housing_temperature": th.housing_temperature,
+            "thermal/current": th.current,
+            "thermal/power": th.power,
+            "thermal/ambient": th.ambient,
+            **(self._base_sensors.state_fields() if self._base_sensors is not None else {}),
+        }
+
+    def _mujoco_fields(self) -> dict[str, np.ndarray]:
+        """Copies of MuJoCo's per-env state, (envs, ...): ``mj_getState`` of
+        ``mjSTATE_INTEGRATION`` (time, qpos, qvel, act, warm start, ctrl, applied forces, ...),
+        the warning counters and the model's ``dof_frictionloss`` (drift edits it)."""
+        states, warnings, friction = [], [], []
+        for m, d in zip(self.models, self.datas, strict=True):
+            state = np.empty(mujoco.mj_stateSize(m, _MJ_STATE))
+            mujoco.mj_getState(m, d, state, _MJ_STATE)
+            states.append(state)
+            warnings.append(d.warning.number.copy())
+            friction.append(m.dof_frictionloss.copy())
+        return {
+            "mujoco/state": np.stack(states),
+            "mujoco/warnings": np.stack(warnings),
+            "mujoco/dof_frictionloss": np.stack(friction),
+        }
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The plant's state (copies; conventions of :mod:`deploy.stateful`).
+
+        Per env, env axis first (length 1 for one env ``env``): ``mujoco/state`` (MuJoCo's
+        ``mjSTATE_INTEGRATION``), ``mujoco/warnings``, ``mujoco/dof_frictionloss``; the drive
+        ``command`` and ``torque`` (N m), ``effort_limit`` (N m), the sensor settings
+        ``noise_sigma`` (rad), ``dropout_probability``, ``latency_ticks``; the latency buffers
+        ``buffer/position`` (envs, slots, n) rad and ``buffer/stamp`` (envs, slots) s; the last
+        ``frame/<field>`` (a drive repeats its temperature between reports); the thermal nodes
+        ``thermal/<field>`` (degC, A, W). Shared: ``tick`` (int) and ``sensor_rng``, JSON of the
+        sensor streams' ``bit_generator.state`` (a list over the envs with
+        :meth:`set_sensor_streams`, the batch's one stream otherwise).
+        """
+        out: dict = take(self._state_fields(), env)
+        index = env_index(env)
+        out.update({k: v[index] for k, v in self._mujoco_fields().items()})
+        out["tick"] = int(self.tick)
+        if isinstance(self._rng, PerEnvGenerators):
+            envs = range(self.envs) if env is None else [env]
+            out["sensor_rng"] = to_json([rng_state(self._rng.generators[e]) for e in envs])
+        else:
+            out["sensor_rng"] = to_json(rng_state(self._rng))
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``), into a backend built
+        with the same robot, mode and models (the same kind of sensor streams). MuJoCo's state
+        is set without ``mj_forward`` (which would rewrite the warm start); the drives' torque
+        limits are derated afresh from the thermal state at the next :meth:`advance`.
+
+        Raises:
+            StateDictError: a missing field, a shape that differs (a MuJoCo state of another
+                model), or sensor streams of another kind; nothing is changed.
+        """
+        fields = self._state_fields()
+        mj = self._mujoco_fields()
+        check({**fields, **mj}, state, env)
+        tick = scalar(state, "tick", int)
+        envs = list(range(self.envs)) if env is None else [env]
+        rng = from_json(state, "sensor_rng")
+        per_env = isinstance(self._rng, PerEnvGenerators)
+        if per_env != (isinstance(rng, list) and len(rng) == len(envs)):
+            kind = f"{len(envs)} per-env stream state(s)" if per_env else "one stream's state"
+            raise StateDictError("sensor_rng", f": expected {kind}")
+        put(fields, state, env)
+        for i, e in enumerate(envs):
+            m, d = self.models[e], self.datas[e]
+            mujoco.mj_setState(m, d, np.asarray(state["mujoco/state"][i]), _MJ_STATE)
+            d.warning.number[:] = state["mujoco/warnings"][i]
+            m.dof_frictionloss[:] = state["mujoco/dof_frictionloss"][i]
+            self._derated[e] = True  # re-derate from the loaded winding temperatures
+        self.tick = tick
+        if per_env:
+            for e, value in zip(envs, rng, strict=True):
+                set_rng_state(self._rng.generators[e], value, "sensor_rng")
+        else:
+            set_rng_state(self._rng, rng, "sensor_rng")
+        self.true_position()  # the gathered joint angles follow the loaded state
+        self.true_velocity()
 
     # ------------------------------------------------------------------ the Backend lifecycle
     def open(self) -> None:
@@ -281,6 +459,8 @@ class SimBackend(BackendLifecycle):
             f.position[too_early] = np.nan
             f.position_stamp[too_early] = np.nan
         f.position_stamp[np.isnan(f.position)] = np.nan
+        if self._base_sensors is not None:
+            self._base_sensors.read(f, self.tick)
         return f
 
     def write(self, command: np.ndarray) -> None:
@@ -333,6 +513,8 @@ class SimBackend(BackendLifecycle):
         zeros remove it. A push, or a cable pulling on the end effector.
         """
         m, d = self.models[env], self.datas[env]
+        if body is None and self.robot.floating_base:
+            body = self.robot.base_body
         bid = m.site_bodyid[self.robot.ee_site_id] if body is None else m.body(body).id
         d.xfrc_applied[bid, :3] = force
 
@@ -346,12 +528,35 @@ class SimBackend(BackendLifecycle):
     def true_velocity(self) -> np.ndarray:
         """(envs, n_joints) rad/s, the simulator's joint velocities (evaluation only)."""
         for e, d in enumerate(self.datas):
-            self._qvel[e] = d.qvel
+            self._qvel[e] = d.qvel[self._qvel_offset :]
         return self._qvel
 
     def joint_torque(self) -> np.ndarray:
         """(envs, n_joints) N m, actuator torque at the end of the last control period."""
         return self._torque
+
+    @property
+    def base_sensors(self) -> BaseSensorModel | None:
+        """The IMU and foot-contact model of a floating-base robot (per-env noise settings,
+        biases, ground truth); None for an arm."""
+        return self._base_sensors
+
+    def true_base_state(self, out: np.ndarray | None = None) -> np.ndarray:
+        """(envs, 13) the floating base's true state (evaluation only): position (m, world),
+        orientation (unit quaternion w, x, y, z: base to world), linear velocity (m/s, world)
+        and angular velocity (rad/s, base frame), MuJoCo's free-joint ``qpos[:7]`` and
+        ``qvel[:6]``.
+
+        Raises:
+            ValueError: a fixed-base robot.
+        """
+        if not self.robot.floating_base:
+            raise ValueError(f"robot {self.robot.name} has no floating base")
+        out = np.empty((self.envs, 13)) if out is None else out
+        for e, d in enumerate(self.datas):
+            out[e, :7] = d.qpos[:7]
+            out[e, 7:] = d.qvel[:6]
+        return out
 
     def end_effector_position(self, out: np.ndarray | None = None) -> np.ndarray:
         """(envs, 3) m, the end-effector site in the world frame (evaluation only).
@@ -384,8 +589,9 @@ class SimBackend(BackendLifecycle):
                 out=limit,
             )
             m = self.models[e]
-            m.jnt_actfrcrange[: self.n_joints, 0] = -limit
-            m.jnt_actfrcrange[: self.n_joints, 1] = limit
+            joints = slice(self._jnt_offset, self._jnt_offset + self.n_joints)
+            m.jnt_actfrcrange[joints, 0] = -limit
+            m.jnt_actfrcrange[joints, 1] = limit
             if self.mode == "velocity":
                 np.divide(limit, m.actuator_gainprm[: self.n_joints, 0], out=self._windup_bound[e])
         self._derated[:] = hot
@@ -410,6 +616,11 @@ class SimBackend(BackendLifecycle):
             for e in np.flatnonzero(wound.any(axis=1)):
                 q = self._qpos[e]
                 np.clip(acts[e], q - bound[e], q + bound[e], out=acts[e])
+
+    def check_divergence(self, env: int) -> None:
+        """Raise :class:`SimulationDivergedError` if MuJoCo flagged env ``env``'s state as
+        diverged (warning counters) or its ``qpos``/``qvel`` are not finite; else nothing."""
+        self._check_divergence(env, self.datas[env])
 
     def _check_divergence(self, env: int, d: mujoco.MjData) -> None:
         bad = [w.name for w in _DIVERGENCE_WARNINGS if d.warning[w].number > 0]
@@ -442,6 +653,8 @@ class SimBackend(BackendLifecycle):
             np.round(self.thermal.winding_temperature / res, out=f.winding_temperature)
             f.winding_temperature *= res
             f.temperature_stamp.fill(self.time)
+        if self._base_sensors is not None:
+            self._base_sensors.sample(self.tick, self.time)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -327,9 +327,30 @@ class ServoBusEmulator:
             self.plant.advance()
             self._steps += 1
             self.stats["plant_steps"] += 1
+            self._add_heat(self._steps * period, period)
             winding = self.plant.thermal.winding_temperature[0]
             for s in self.servos:
                 s.update_protection(float(winding[s.joint]))
+
+    def _add_heat(self, now: float, dt: float) -> None:
+        """The ``heat`` faults: extra winding loss (W) over ``dt`` s into the plant's thermal
+        model (its winding heat capacity, ``time constant / R_wh``), while the servo's torque is
+        on (a loss that needs motor current: with torque off it stops)."""
+        thermal = self.plant.thermal
+        for sid, (watts, at) in self.faults.heat.items():
+            servo = self._servo(sid)
+            if now >= at and servo.get("torque_enable") == 1:
+                thermal.winding_temperature[0, servo.joint] += watts * dt / thermal.c_w[servo.joint]
+
+    def set_heat(self, servo_id: int, watts: float, at: float | None = None) -> None:
+        """Servo ``servo_id`` takes ``watts`` of extra winding loss from ``at`` s after start
+        (default: now); see :class:`WireFaults` ``heat``.
+
+        Raises:
+            KeyError: no such servo.
+        """
+        self._servo(servo_id)
+        self.faults.heat[servo_id] = (float(watts), self.elapsed if at is None else at)
 
     def _update_faults(self, now: float) -> None:
         for s in self.servos:

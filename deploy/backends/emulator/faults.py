@@ -20,6 +20,10 @@ class WireFaults:
             both vendors); it cuts its torque as its model does on overload.
         temperature_limit: Servo ID -> degC written to its temperature-limit register at start
             (so the winding model reaches it sooner: the over-temperature shutdown).
+        heat: Servo ID -> ``(watts, time)``: from ``time`` (s since start) that servo's winding
+            takes ``watts`` of extra loss on top of its copper loss while its torque is on (a
+            binding gearbox, a shorted winding turn): the modelled winding climbs toward both
+            thermal limits, the runtime's and the servo's own.
     """
 
     drop: float = 0.0
@@ -27,6 +31,7 @@ class WireFaults:
     unplug: dict[int, float] = field(default_factory=dict)
     overload: dict[int, float] = field(default_factory=dict)
     temperature_limit: dict[int, int] = field(default_factory=dict)
+    heat: dict[int, tuple[float, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for name in ("drop", "corrupt"):
@@ -39,7 +44,8 @@ FAULT_HELP = (
     "drop:P (drop a fraction P of replies), corrupt:P (corrupt the checksum/CRC of a fraction P), "
     "unplug:ID@T (servo ID stops answering T s after start), overload:ID[@T] (overload error "
     "bit from T s, default 0), temperature-limit:ID=DEGC (lower the servo's temperature limit "
-    "register; the servo shuts down when its modelled winding passes it)"
+    "register; the servo shuts down when its modelled winding passes it), heat:ID=W[@T] (W watts "
+    "of extra winding loss in servo ID from T s, default 0)"
 )
 
 
@@ -60,6 +66,12 @@ def parse_fault(text: str, faults: WireFaults) -> None:
         elif kind == "overload":
             servo, _, at = value.partition("@")
             faults.overload[int(servo)] = float(at or 0.0)
+        elif kind == "heat":
+            servo, _, rest = value.partition("=")
+            watts, _, at = rest.partition("@")
+            if float(watts) < 0:
+                raise ValueError(f"heat: watts must be >= 0, got {watts}")
+            faults.heat[int(servo)] = (float(watts), float(at or 0.0))
         elif kind == "temperature-limit":
             servo, _, degc = value.partition("=")
             faults.temperature_limit[int(servo)] = int(degc)

@@ -41,11 +41,13 @@ from pathlib import Path
 
 import numpy as np
 
+from deploy.errors import Sim2RealError
+
 #: Keys of one motor's entry in LeRobot's calibration JSON (``MotorCalibration`` fields).
 LEROBOT_KEYS = ("id", "drive_mode", "homing_offset", "range_min", "range_max")
 
 
-class CalibrationError(ValueError):
+class CalibrationError(Sim2RealError, ValueError):
     """A calibration file that does not fit the robot (missing joint, bad range, bad ID)."""
 
 

@@ -1,0 +1,80 @@
+"""The compiled tick: numba kernels for the per-tick numeric logic of the runtime's stages.
+
+Each stage keeps its numpy implementation as the tested reference (``reference=True`` on
+:class:`~deploy.safety.SafetyGuard`, :class:`~deploy.smoothing.CommandSmoother` and
+:class:`~deploy.runtime.Runtime`, ``reference=True`` on :meth:`deploy.spec.PolicySpec.observation`)
+and runs one of these kernels per tick otherwise, over the stage's preallocated arrays:
+
+=========================  =====================================================================
+module                     what it computes
+=========================  =====================================================================
+:mod:`.observation`        the normalized observation vector (every block kind)
+:mod:`.supervision`        thermal derating; stale, over-temperature, drive-error and overrun
+                           stops; the state machine's transitions; the re-anchoring screen; the
+                           screen of non-finite actions, the action-to-target map and the
+                           position/velocity-mode overrides
+:mod:`.guard`              the guard's hard and soft limits, velocity band, torque governor
+                           screen, the screens of the per-env Pinocchio checks, effort clamp
+:mod:`.smoothing`          the smoother's finite-target and limit clamps, the velocity-mode
+                           stopping guards and brake trigger, the extrema screen, torque rate limit
+=========================  =====================================================================
+
+A kernel stops where Python must act (Ruckig, Pinocchio, a policy reset) and returns a code that
+says what; the arithmetic and its order are those of the numpy reference, so both give the same
+numbers bit for bit (``tests/test_compiled_tick.py``; row sums follow numpy's pairwise order).
+Every kernel is compiled with ``cache=True`` and called once when its stage is built, so the first
+tick runs compiled code. numba's cache of a kernel is keyed on its own file: after editing a helper
+of this module (``np_max``, ``np_min``, ``row_sum``), delete ``deploy/kernels/__pycache__`` so the
+kernels that inline it are recompiled.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def np_max(a: float, b: float) -> float:
+    """``np.maximum`` of two floats (NaN propagates, the first operand wins a tie)."""
+    return a if (a >= b or a != a) else b
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def np_min(a: float, b: float) -> float:
+    """``np.minimum`` of two floats (NaN propagates, the first operand wins a tie)."""
+    return a if (a <= b or a != a) else b
+
+
+@numba.njit(cache=True, nogil=True)
+def row_sum(a, e: int) -> float:
+    """``a[e].sum()`` of a 2-d float64 array in numpy's order (sequential below 8 entries, then
+    eight partial sums: numpy's pairwise summation for rows of at most 128)."""
+    n = a.shape[1]
+    if n < 8:
+        s = 0.0
+        for i in range(n):
+            s += a[e, i]
+        return s
+    r0, r1, r2, r3 = a[e, 0], a[e, 1], a[e, 2], a[e, 3]
+    r4, r5, r6, r7 = a[e, 4], a[e, 5], a[e, 6], a[e, 7]
+    m = n - n % 8
+    for i in range(8, m, 8):
+        r0 += a[e, i]
+        r1 += a[e, i + 1]
+        r2 += a[e, i + 2]
+        r3 += a[e, i + 3]
+        r4 += a[e, i + 4]
+        r5 += a[e, i + 5]
+        r6 += a[e, i + 6]
+        r7 += a[e, i + 7]
+    s = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    for i in range(m, n):
+        s += a[e, i]
+    return s
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def finite(x: float) -> bool:
+    return math.isfinite(x)

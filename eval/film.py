@@ -1,0 +1,689 @@
+"""Soak film strip: short clips of each session's worst moments, replayed exactly and rendered
+after the session.
+
+A soak session is a function of its seed and options, and resumes from any of its checkpoints
+to the same result bit for bit (:mod:`eval.soak`). The film strip uses that: while a session
+runs, :class:`FilmRecorder` (the ``film=True`` hook of :class:`eval.soak.SessionBatch`) keeps a
+copy of every checkpoint (``OUT/sessions/<id>/film/<tick>/``: the checkpoint's files, hard links
+where the file system allows, and the recorder's own state) and notes, at the harness's
+supervision steps (every ``eval.soak.SUPERVISE_PERIOD`` s), when a hard-limit violation of the
+true state or a hard-limit safe stop of the runtime begins, when a fault latches and when the
+hottest winding temperature so far occurs, each with the tick and the true joint positions then
+(the replay's fingerprint). After the
+campaign, :func:`film_campaign` renders every session in its own process (``python -m
+eval.film``, several at once; ``MUJOCO_GL=egl`` where nothing is chosen and there is no
+display): for each moment it resumes the session from the nearest kept checkpoint before the
+clip (or from its start), runs it through the same harness tick by tick with the same seed and
+fault schedule, and draws env 0 with :class:`deploy.video.VideoRecorder` (the session's
+randomized model; goal sphere, end-effector trail, links tinted where the guard acts). At the
+moment's tick the replayed true joint positions are compared with the recorded ones, bit for bit
+(``replay_exact``). A policy with state no checkpoint holds (the adversarial policy draws its
+actions inside ONNX Runtime) replays exactly only from the session's start: a clip whose replay
+differed is rendered again from there when it begins within ``RETRY_S``, and reported as
+differing otherwise.
+
+The moments (``KINDS``): every hard violation (a run of supervision steps in which the true-state
+``hard_limit`` counter or the runtime's hard-limit safe stops rose), every latched fault, the
+hottest minute (the minute holding the highest winding temperature of any joint, clip around its
+instant) and the longest run of missed goals (consecutive goals replaced unreached, from the
+session's ``goals.missed``; the clip shows up to ``MAX_CLIP_S`` s from its first goal's issue). A
+clip runs ``BEFORE_S`` s before to ``AFTER_S`` s after its moment; moments whose clips overlap
+share one (up to ``MAX_CLIP_S`` s). At most ``MAX_CLIPS`` clips per session, in this order: the
+first hard violation, the first latched fault, the hottest minute, the longest run of missed goals,
+then the other hard violations and latched faults by time; the rest are counted (``not_filmed``).
+
+Output, per session: ``OUT/film/<id>/NN-<kind>.mp4`` (H.264, ``FPS`` frames per s of simulated
+time, ``SIZE`` pixels), ``NN-<kind>.png`` (the frame at the moment) and ``film.json``; after a
+session's film is rendered its kept checkpoints are deleted. An 8-hour session's film is at
+most ``MAX_CLIPS`` clips of ``MAX_CLIP_S`` s (about 1 MB), whatever the session's length.
+:mod:`eval.report` embeds the clips in report.html and names the stills in junit.xml.
+
+Without an OpenGL context (or without imageio-ffmpeg) the film is left out with a one-line
+note naming ``MUJOCO_GL``; the soak's results and exit code do not depend on it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import pickle
+import shutil
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from deploy.errors import Sim2RealError
+from deploy.files import atomic_write
+
+#: Folder of the rendered film under the campaign folder, and of the kept checkpoints under a
+#: session's folder.
+FILM = "film"
+#: The recorder's state in a kept checkpoint's folder, and at a session's end.
+STATE = "recorder.json"
+FINAL = "final.json"
+KINDS = ("hard_violation", "latched_fault", "hottest_minute", "missed_goals")
+#: A hard violation's two sources: the true state (simulation) and the runtime's safe stop.
+HARD_WHAT = {
+    "true": "hard-limit violation (true state)",
+    "stop": "hard-limit safe stop (estimate beyond a hard limit)",
+}
+#: Clips per session (our choice: an 8-hour report stays about 1 MB per session).
+MAX_CLIPS = 8
+#: s of simulated time shown before and after a moment, and the longest clip.
+BEFORE_S = 3.0
+AFTER_S = 3.0
+MAX_CLIP_S = 10.0
+#: Frames per simulated second, pixels (width, height), x264 rate factor of the clips.
+FPS = 20.0
+SIZE = (480, 360)
+CRF = 28
+#: Moments of one kind the recorder keeps per session (later ones are only counted).
+MAX_RECORDED = 200
+#: s: a clip whose replay from a checkpoint differed is replayed from the session's start if
+#: it begins within this time (a policy with state outside the checkpoint; our choice).
+RETRY_S = 900.0
+#: Exit code of ``python -m eval.film`` when no film can be made here (no GL, no ffmpeg).
+EXIT_NO_FILM = 3
+
+
+class FilmError(Sim2RealError, RuntimeError):
+    """No film can be made (no OpenGL context, no writer, no kept state); one line."""
+
+
+def retain_dir(out: str | os.PathLike, seed: int) -> Path:
+    """``OUT/sessions/<id>/film``: the checkpoints kept for session ``seed``'s film."""
+    from eval.soak import session_dir
+
+    return session_dir(out, seed) / FILM
+
+
+def film_dir(out: str | os.PathLike, session_id: str) -> Path:
+    """``OUT/film/<id>``: a session's rendered clips, stills and ``film.json``."""
+    return Path(out) / FILM / session_id
+
+
+def _read_json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _write_json(path: Path, doc) -> None:
+    atomic_write(path, json.dumps(doc))
+
+
+# ====================================================================== during the session
+class FilmRecorder:
+    """The soak's film hook: keeps every checkpoint and notes the moments worth filming.
+
+    :class:`eval.soak.SessionBatch` (``film=True``) calls :meth:`supervise` at each supervision
+    step, :meth:`checkpointed` after writing its checkpoints and :meth:`finish` at the end. It
+    only reads the batch: the session's results are the same with or without it.
+
+    A moment is ``{"t_s": s, "tick": control tick, "q": true joint positions then, rad}`` plus
+    ``count`` (hard violations: the ``hard_limit`` tick counter), ``cause`` (latched faults) or
+    ``c`` and ``joint`` (the hottest winding, degC).
+    """
+
+    def __init__(self, batch):
+        self.batch = batch
+        rt = batch.rt
+        self.states = []
+        for s in batch.sessions:
+            state = None
+            if rt.ticks > 0:  # resumed: the recorder's state kept with that checkpoint
+                kept = retain_dir(batch.out, s.config.seed)
+                state = _read_json(kept / f"{rt.ticks:012d}" / STATE)
+            if state is None:
+                state = {
+                    "hard": [],
+                    "hard_more": 0,
+                    "hard_last": int(batch.violations.counts["hard_limit"][s.e]),
+                    "stop_last": int(rt.counters.faults["hard_limit"][s.e]),
+                    "hard_active": False,
+                    "latched": [],
+                    "latched_more": 0,
+                    "latch_seen": len(s.latches),
+                    "peak": None,
+                    # resumed without a kept state (film was off): moments before are unknown
+                    "unknown_before_s": float(rt.time) if rt.ticks > 0 else None,
+                }
+            self.states.append(state)
+
+    def _moment(self, e: int, **extra) -> dict:
+        rt = self.batch.rt
+        q = self.batch.backend.true_position()[e]
+        return {"t_s": float(rt.time), "tick": int(rt.ticks), "q": [float(x) for x in q], **extra}
+
+    def supervise(self, rt) -> None:
+        """Note this supervision step's moments (cheap: a few comparisons per session)."""
+        b = self.batch
+        hard = b.violations.counts["hard_limit"]
+        stops = rt.counters.faults["hard_limit"]
+        temp = b.backend.thermal.winding_temperature
+        names = b.robot.joint_names
+        for s, st in zip(b.sessions, self.states, strict=True):
+            e = s.e
+            count, stop = int(hard[e]), int(stops[e])
+            rose = [
+                w
+                for w, up in (
+                    ("true", count > st["hard_last"]),
+                    ("stop", stop > st.get("stop_last", 0)),
+                )
+                if up
+            ]
+            if rose:
+                if not st["hard_active"]:
+                    if len(st["hard"]) < MAX_RECORDED:
+                        st["hard"].append(self._moment(e, count=count, what=rose))
+                    else:
+                        st["hard_more"] += 1
+                st["hard_active"] = True
+            else:
+                st["hard_active"] = False
+            st["hard_last"], st["stop_last"] = count, stop
+            if len(s.latches) > st["latch_seen"]:
+                for latch in s.latches[st["latch_seen"] :]:
+                    if len(st["latched"]) < MAX_RECORDED:
+                        st["latched"].append(self._moment(e, cause=latch.get("cause")))
+                    else:
+                        st["latched_more"] += 1
+                st["latch_seen"] = len(s.latches)
+            j = int(np.argmax(temp[e]))
+            hottest = float(temp[e, j])
+            if st["peak"] is None or hottest > st["peak"]["c"]:
+                st["peak"] = self._moment(e, c=hottest, joint=names[j])
+
+    def checkpointed(self) -> None:
+        """Keep a copy of each session's checkpoint just written, with the recorder's state."""
+        from eval.soak import session_dir
+
+        b = self.batch
+        tick = int(b.rt.ticks)
+        for s, st in zip(b.sessions, self.states, strict=True):
+            src = session_dir(b.out, s.config.seed)
+            dst = retain_dir(b.out, s.config.seed) / f"{tick:012d}"
+            tmp = dst.with_name(dst.name + ".part")
+            shutil.rmtree(tmp, ignore_errors=True)
+            tmp.mkdir(parents=True)
+            for f in src.iterdir():
+                if not f.is_file() or f.name in ("progress.json", "result.json"):
+                    continue
+                if f.name.endswith(".part"):
+                    continue
+                try:
+                    os.link(f, tmp / f.name)  # the checkpoint writer replaces, never rewrites
+                except OSError:
+                    shutil.copy2(f, tmp / f.name)
+            _write_json(tmp / STATE, {**st, "tick": tick})
+            shutil.rmtree(dst, ignore_errors=True)
+            os.replace(tmp, dst)
+
+    def finish(self) -> None:
+        """Write each session's final recorder state (``film/final.json``)."""
+        b = self.batch
+        for s, st in zip(b.sessions, self.states, strict=True):
+            d = retain_dir(b.out, s.config.seed)
+            d.mkdir(parents=True, exist_ok=True)
+            _write_json(d / FINAL, {**st, "tick": int(b.rt.ticks)})
+
+
+def kept_checkpoints(out: str | os.PathLike, seed: int) -> dict[int, Path]:
+    """Tick -> folder of the checkpoints kept for session ``seed``'s film."""
+    d = retain_dir(out, seed)
+    if not d.is_dir():
+        return {}
+    return {int(p.name): p for p in d.iterdir() if p.is_dir() and p.name.isdigit()}
+
+
+def recorder_state(out: str | os.PathLike, seed: int) -> dict | None:
+    """The recorder's state at the session's end (or at its last kept checkpoint)."""
+    final = _read_json(retain_dir(out, seed) / FINAL)
+    if final is not None:
+        return final
+    kept = kept_checkpoints(out, seed)
+    return _read_json(kept[max(kept)] / STATE) if kept else None
+
+
+# ====================================================================== what to film
+def longest_missed_run(missed: list[dict]) -> list[dict]:
+    """The longest run of consecutive missed goals (each issued when the previous one was
+    replaced unreached: ``issued_s`` equal to the previous ``t_s``); the first if tied."""
+    best: list[dict] = []
+    run: list[dict] = []
+    for m in missed:
+        if run and m["issued_s"] == run[-1]["t_s"]:
+            run.append(m)
+        else:
+            run = [m]
+        if len(run) > len(best):
+            best = list(run)
+    return best
+
+
+def select_moments(state: dict | None, result: dict, dt: float) -> list[dict]:
+    """Every moment worth filming, in priority order (module docstring), each with ``kind``,
+    ``label``, ``t_s``, ``tick``, ``q`` (the fingerprint, or None), and the clip's wanted
+    ``start_s`` and ``end_s``."""
+    end = float(result["simulated_s"])
+
+    def clip(m: dict, kind: str, label: str, start=None, stop=None) -> dict:
+        t = float(m["t_s"])
+        start = max(0.0, t - BEFORE_S) if start is None else start
+        stop = min(end, t + AFTER_S) if stop is None else stop
+        return {
+            "kind": kind,
+            "label": label,
+            "t_s": t,
+            "tick": int(m.get("tick", round(t / dt))),
+            "q": m.get("q"),
+            "start_s": start,
+            "end_s": max(stop, start),
+        }
+
+    state = state or {}
+    hard = [
+        clip(
+            m,
+            "hard_violation",
+            " and ".join(HARD_WHAT[w] for w in m.get("what", ["true"])) + f" at {m['t_s']:.1f} s",
+        )
+        for m in state.get("hard", [])
+    ]
+    latches = state.get("latched")
+    if latches is None:  # no recorder state: the result's latches, without a fingerprint
+        latches = [{"t_s": x["t_s"], "cause": x.get("cause")} for x in result["runtime"]["latches"]]
+    latched = [
+        clip(
+            m, "latched_fault", f"latched fault ({m.get('cause') or 'unknown'}) at {m['t_s']:.1f} s"
+        )
+        for m in latches
+    ]
+    first: list[dict] = []
+    if hard:
+        first.append(hard.pop(0))
+    if latched:
+        first.append(latched.pop(0))
+    peak = state.get("peak")
+    if peak is not None:
+        minute = int(peak["t_s"] // 60)
+        first.append(
+            clip(
+                peak,
+                "hottest_minute",
+                f"hottest minute (minute {minute}): {peak['joint']} winding {peak['c']:.1f} degC "
+                f"at {peak['t_s']:.1f} s",
+            )
+        )
+    run = longest_missed_run(result["goals"]["missed"])
+    if run:
+        start = max(0.0, run[0]["issued_s"] - 1.0)
+        stop = min(end, run[-1]["t_s"] + AFTER_S, start + MAX_CLIP_S)
+        first.append(
+            clip(
+                run[0],
+                "missed_goals",
+                f"longest run of missed goals: {len(run)} in a row, {run[0]['issued_s']:.1f} s "
+                f"to {run[-1]['t_s']:.1f} s",
+                start,
+                stop,
+            )
+        )
+    rest = sorted(hard + latched, key=lambda m: m["t_s"])
+    return first + rest
+
+
+def plan_clips(moments: list[dict], max_clips: int = MAX_CLIPS) -> tuple[list[dict], int]:
+    """Group moments into clips: a moment joins a clip it overlaps if the union stays within
+    ``MAX_CLIP_S``, else opens a new one while fewer than ``max_clips`` exist.
+
+    Returns:
+        (clips sorted by start, each ``{start_s, end_s, moments}``; moments not filmed).
+    """
+    clips: list[dict] = []
+    dropped = 0
+    for m in moments:
+        for c in clips:
+            lo, hi = min(c["start_s"], m["start_s"]), max(c["end_s"], m["end_s"])
+            if m["start_s"] <= c["end_s"] and c["start_s"] <= m["end_s"] and hi - lo <= MAX_CLIP_S:
+                c["start_s"], c["end_s"] = lo, hi
+                c["moments"].append(m)
+                break
+        else:
+            if len(clips) < max_clips:
+                clips.append({"start_s": m["start_s"], "end_s": m["end_s"], "moments": [m]})
+            else:
+                dropped += 1
+    clips.sort(key=lambda c: c["start_s"])
+    return clips, dropped
+
+
+# ====================================================================== replay and render
+class _Replay:
+    """A one-session batch positioned anywhere in the session: resumed from the nearest kept
+    checkpoint at or before the wanted tick (or started afresh), then stepped by the harness's
+    own per-tick hook."""
+
+    def __init__(self, config, out: Path, work: Path):
+        self.config, self.out, self.work = config, out, work
+        self.kept = kept_checkpoints(out, config.seed)
+        self.batch = None
+        self.loaded_from = 0
+        self.simulated_ticks = 0
+
+    def _load(self, tick: int, from_start: bool) -> None:
+        from eval.soak import SessionBatch, session_dir
+
+        best = 0 if from_start else max((t for t in self.kept if t <= tick), default=0)
+        if self.batch is not None and best <= self.batch.rt.ticks <= tick:
+            if not from_start or self.loaded_from == 0:
+                return  # stepping on is no longer than resuming
+        self.batch = None
+        shutil.rmtree(self.work, ignore_errors=True)
+        if best > 0:
+            d = session_dir(self.work, self.config.seed)
+            d.mkdir(parents=True)
+            for f in self.kept[best].iterdir():
+                if f.is_file() and f.name != STATE:
+                    shutil.copy2(f, d / f.name)
+        self.batch = SessionBatch([self.config], self.work, resume=best > 0, progress=False)
+        self.loaded_from = best
+        if self.batch.rt.ticks != best:
+            raise FilmError(
+                f"{self.kept[best]}: resumed at tick {self.batch.rt.ticks}, expected {best}"
+            )
+
+    def advance_to(self, tick: int, from_start: bool = False) -> None:
+        """Position the replay at ``tick`` (from the nearest kept checkpoint, or with
+        ``from_start`` from the session's start)."""
+        self._load(tick, from_start)
+        n = tick - self.batch.rt.ticks
+        if n > 0:
+            self.batch.rt.run(n, on_tick=self.batch.on_tick)
+            self.simulated_ticks += n
+
+
+def _save_png(path: Path, frame: np.ndarray) -> None:
+    from PIL import Image
+
+    Image.fromarray(np.ascontiguousarray(frame)).save(path, optimize=True)
+
+
+def _render_clip(
+    replay: _Replay, c: dict, dest: Path, name: str, dt: float, from_start: bool, look: dict
+):
+    """Replay clip ``c`` (``start_s``..``end_s``) and render it to ``dest/name.mp4`` and the
+    still at its first moment to ``dest/name.png`` (``look``: ``fps``, ``size``, ``crf``); the
+    clip's entry of ``film.json``."""
+    from deploy.video import VideoRecorder
+
+    first = c["moments"][0]
+    t0 = int(math.floor(c["start_s"] / dt + 1e-9))
+    t1 = int(math.ceil(c["end_s"] / dt - 1e-9))
+    replay.advance_to(t0, from_start=from_start)
+    from_tick = replay.loaded_from
+    b = replay.batch
+    rt = b.rt
+    try:
+        video = VideoRecorder(
+            b.robot,
+            dest / f"{name}.mp4",
+            look["fps"],
+            tuple(look["size"]),
+            None,
+            b.backend.true_position,
+            model=b.backend.models[0],
+            start=rt.time,
+            crf=look["crf"],
+            verbose=False,
+        )
+    except (RuntimeError, ImportError) as exc:
+        raise FilmError(str(exc)) from None
+    checks = {m["tick"]: m for m in c["moments"] if m.get("q") is not None}
+    exact: dict[int, bool] = {}
+    still = {"frame": None}
+
+    def on_tick(r) -> bool:
+        b.on_tick(r)
+        frames = video.frames
+        video(r)
+        m = checks.get(r.ticks)
+        if m is not None:
+            q = b.backend.true_position()[0]
+            exact[r.ticks] = bool(np.array_equal(q, np.asarray(m["q"])))
+        if still["frame"] is None and r.ticks >= first["tick"] and video.frames > frames:
+            still["frame"] = video.last_frame.copy()
+        return False
+
+    n = max(t1 - t0, 1)
+    rt.run(n, on_tick=on_tick)
+    replay.simulated_ticks += n
+    path = video.close()
+    frame = still["frame"] if still["frame"] is not None else video.last_frame
+    _save_png(dest / f"{name}.png", frame)
+    return {
+        "kind": first["kind"],
+        "label": "; ".join(m["label"] for m in c["moments"]),
+        "kinds": sorted({m["kind"] for m in c["moments"]}),
+        "moments": [{k: m[k] for k in ("kind", "label", "t_s", "tick")} for m in c["moments"]],
+        "t_s": first["t_s"],
+        "start_s": t0 * dt,
+        "end_s": (t0 + n) * dt,
+        "frames": video.frames,
+        "bytes": path.stat().st_size,
+        "replay_exact": (all(exact.values()) if exact else None),
+        "checked": len(exact),
+        "from_tick": from_tick,
+        "render_s": video.render_s,
+    }
+
+
+def render_session(
+    config,
+    out: str | os.PathLike,
+    stream=None,
+    fps: float = FPS,
+    size: tuple[int, int] = SIZE,
+    max_clips: int = MAX_CLIPS,
+    crf: int = CRF,
+) -> dict:
+    """Render session ``config.seed``'s film from its kept checkpoints and recorder state into
+    ``OUT/film/<id>/`` (clips, stills, ``film.json``) and return ``film.json``'s document.
+
+    Args:
+        config: The session's :class:`eval.soak.SessionConfig`.
+        out: The campaign folder.
+        stream: Where to print one summary line (None: nowhere).
+        fps, size, max_clips, crf: Frames per simulated second, (width, height) pixels, clips
+            at most, x264 rate factor (defaults ``FPS``, ``SIZE``, ``MAX_CLIPS``, ``CRF``).
+
+    Raises:
+        FilmError: the session has no result, or no film can be made (no OpenGL context: the
+            message names ``MUJOCO_GL``; imageio-ffmpeg missing).
+    """
+    from eval.soak import read_result
+    from robots import load_robot
+
+    out = Path(out)
+    result = read_result(out, config.seed)
+    if result is None:
+        raise FilmError(f"session {config.id}: no result.json in {out}; nothing to film")
+    state = recorder_state(out, config.seed)
+    wall = time.perf_counter()
+    replay = _Replay(config, out, out / FILM / f".replay-{config.id}")
+    dest = film_dir(out, config.id)
+    shutil.rmtree(dest, ignore_errors=True)
+    dest.mkdir(parents=True)
+    dt = load_robot(config.robot).control_period
+    clips_out: list[dict] = []
+    render_s = 0.0
+    try:
+        moments = select_moments(state, result, dt)
+        clips, dropped = plan_clips(moments, max_clips)
+        look = {"fps": fps, "size": size, "crf": crf}
+        for index, c in enumerate(clips, start=1):
+            name = f"{index:02d}-{c['moments'][0]['kind']}"
+            clip = _render_clip(replay, c, dest, name, dt, False, look)
+            if clip["replay_exact"] is False and clip["from_tick"] > 0 and c["start_s"] <= RETRY_S:
+                # the policy keeps state a checkpoint cannot hold (e.g. a random stream inside
+                # the ONNX graph): the session's own start reproduces it
+                clip = _render_clip(replay, c, dest, name, dt, True, look)
+            render_s += clip.pop("render_s")
+            clip["video"] = (dest / f"{name}.mp4").relative_to(out).as_posix()
+            clip["still"] = (dest / f"{name}.png").relative_to(out).as_posix()
+            clips_out.append(clip)
+    finally:
+        replay.batch = None
+        shutil.rmtree(replay.work, ignore_errors=True)
+    found = {k: 0 for k in KINDS}
+    for m in moments:
+        found[m["kind"]] += 1
+    if state:
+        found["hard_violation"] += int(state.get("hard_more", 0))
+        found["latched_fault"] += int(state.get("latched_more", 0))
+    doc = {
+        "session": config.id,
+        "seed": config.seed,
+        "policy_sha256": result.get("policy_sha256"),
+        "simulated_s": result["simulated_s"],
+        "options": result.get("options"),
+        "clips": clips_out,
+        "moments": found,
+        "not_filmed": dropped
+        + int((state or {}).get("hard_more", 0))
+        + int((state or {}).get("latched_more", 0)),
+        "unknown_before_s": (state or {}).get("unknown_before_s"),
+        "recorded": state is not None,
+        "fps": fps,
+        "max_clips": max_clips,
+        "size": list(size),
+        "replayed_s": replay.simulated_ticks * dt,
+        "render_s": render_s,
+        "wall_s": time.perf_counter() - wall,
+        "frames_per_s": (sum(c["frames"] for c in clips_out) / render_s if render_s else None),
+    }
+    _write_json(dest / "film.json", doc)
+    if stream is not None:
+        exact = [c["replay_exact"] for c in clips_out if c["replay_exact"] is not None]
+        print(
+            f"film: {config.id}: {len(clips_out)} clips ({sum(c['bytes'] for c in clips_out)} "
+            f"bytes), replay exact {sum(exact)}/{len(exact)}, {doc['wall_s']:.1f} s",
+            file=stream,
+        )
+    return doc
+
+
+# ====================================================================== the campaign's film
+def _summary(doc: dict) -> dict:
+    """What report.json keeps of a session's film.json."""
+    keys = ("clips", "moments", "not_filmed", "max_clips", "unknown_before_s", "fps", "size")
+    keys += ("frames_per_s",)
+    return {k: doc.get(k) for k in keys} | {"error": None}
+
+
+def _finished(out: Path, result: dict) -> dict | None:
+    """The film already rendered for this very session result, or None."""
+    if (retain_dir(out, result["seed"]) / FINAL).exists():
+        return None  # recorded anew since: render anew
+    doc = _read_json(film_dir(out, result["id"]) / "film.json")
+    if not doc or doc.get("seed") != result["seed"]:
+        return None
+    if doc.get("policy_sha256") != result.get("policy_sha256"):
+        return None
+    if doc.get("simulated_s") != result.get("simulated_s"):
+        return None
+    if doc.get("options") != result.get("options"):
+        return None
+    if not all((out / c["video"]).is_file() for c in doc["clips"]):
+        return None
+    return doc
+
+
+def film_campaign(
+    template,
+    results: list[dict],
+    out: str | os.PathLike,
+    workers: int | None = None,
+    **look,
+) -> list[dict]:
+    """Render the film of every session of a campaign (one process per session, ``workers`` at
+    once, default one per core) and return the results with ``film`` added: the clips
+    (``kind``, ``label``, ``t_s``, ``start_s``, ``end_s``, ``video`` and ``still`` paths relative
+    to ``out``, ``replay_exact``), ``moments`` found per kind, ``not_filmed``, and ``error`` (a
+    one-line reason when no film could be made, else None). A session whose film was already
+    rendered (a resumed campaign) is not rendered again. Prints one line per session.
+
+    Args:
+        template: The campaign's :class:`eval.soak.SessionConfig` (sessions differ by seed).
+        results: Session results (:func:`eval.soak.run_campaign`).
+        out: The campaign folder.
+        workers: Processes rendering at once.
+        **look: ``fps``, ``size``, ``max_clips``, ``crf`` of :func:`render_session`.
+    """
+    from dataclasses import replace
+
+    from deploy.video import headless_gl_default
+    from eval.soak import default_workers
+
+    out = Path(out)
+    env = dict(os.environ)
+    headless_gl_default(env)
+    env.setdefault("ORT_DISABLE_TELEMETRY", "1")
+    docs: dict[int, dict] = {}
+    todo = []
+    for r in results:
+        doc = _finished(out, r)
+        if doc is not None:
+            docs[r["seed"]] = _summary(doc)
+        else:
+            todo.append(r)
+
+    def render(r: dict) -> tuple[int, dict]:
+        config = replace(template, seed=r["seed"])
+        done = subprocess.run(
+            [sys.executable, "-m", "eval.film"],
+            input=pickle.dumps((config, str(out), look)),
+            capture_output=True,
+            env=env,
+        )
+        if done.returncode == 0:
+            doc = _read_json(film_dir(out, r["id"]) / "film.json")
+            if doc is not None:
+                shutil.rmtree(retain_dir(out, r["seed"]), ignore_errors=True)
+                print(done.stdout.decode(errors="replace").strip())
+                return r["seed"], _summary(doc)
+        lines = done.stderr.decode(errors="replace").strip().splitlines() or ["no output"]
+        reason = lines[-1]
+        print(f"film: {r['id']}: no film: {reason}", file=sys.stderr)
+        return r["seed"], {"clips": [], "error": reason}
+
+    if todo:
+        n = max(1, min(workers or default_workers(), len(todo)))
+        with ThreadPoolExecutor(max_workers=n) as pool:
+            for seed, doc in pool.map(render, todo):
+                docs[seed] = doc
+    return [{**r, "film": docs[r["seed"]]} for r in results]
+
+
+def _main() -> int:
+    """``python -m eval.film`` with a pickled ``(SessionConfig, out)`` on standard input (from
+    :func:`film_campaign`, the same program's parent: trusted)."""
+    os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+    config, out, look = pickle.loads(sys.stdin.buffer.read())
+    try:
+        render_session(config, out, sys.stdout, **look)
+    except FilmError as exc:
+        print(f"film: {exc}", file=sys.stderr)
+        return EXIT_NO_FILM
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(_main())

@@ -13,11 +13,12 @@ export MPLBACKEND := Agg
 
 install: $(STAMP)
 
-# Re-installs only when pyproject.toml changed since the last install.
+# Re-installs only when pyproject.toml changed since the last install. --no-cache-dir: torch's CUDA
+# wheels are ~3 GB; a second copy in pip's cache once filled a CI machine's disk (Errno 28).
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[all]'
+	$(PY) -m pip install --quiet --no-cache-dir --upgrade pip
+	$(PY) -m pip install --quiet --no-cache-dir -e '.[all]'
 	touch $(STAMP)
 
 # The main job: export the shipped policy to ONNX (parity-checked), then run it for 60 simulated

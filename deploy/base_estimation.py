@@ -43,6 +43,7 @@ import pinocchio as pin
 from filterpy.kalman import KalmanFilter
 
 from deploy.backends.base import SensorFrame
+from deploy.stateful import check, env_index, put, take
 from robots import Robot
 
 IMPLEMENTATIONS: tuple[str, ...] = ("vectorized", "filterpy")
@@ -241,6 +242,48 @@ class BaseStateEstimator:
         for counter in (self.missing_readings, self.stale_readings, self.velocity_updates):
             counter[sel] = 0
         self._initialized[sel] = True
+
+    # ------------------------------------------------------------------ state
+    def _state_fields(self) -> dict[str, np.ndarray]:
+        return {
+            "orientation": self.orientation,
+            "angular_velocity": self.angular_velocity,
+            "velocity": self.velocity,
+            "velocity_variance": self.velocity_variance,
+            "filter_time": self.filter_time,
+            "time_since_fresh": self.time_since_fresh,
+            "missing_readings": self.missing_readings,
+            "stale_readings": self.stale_readings,
+            "velocity_updates": self.velocity_updates,
+            "initialized": self._initialized,
+        }
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """The filters' state (copies; conventions of :mod:`deploy.stateful`): the attributes
+        of the class docstring, ``orientation`` (envs, 4), ``angular_velocity`` (envs, 3) rad/s,
+        ``velocity`` (envs, 3) m/s (world), ``gyro_bias`` (envs, 3) rad/s (Mahony's integral
+        term) and ``initialized`` (envs,) bool; the env axis has length 1 for one env ``env``.
+        The filterpy reference's ``x`` and ``P`` are ``velocity`` and ``velocity_variance I``."""
+        out = take(self._state_fields(), env)
+        bias = np.array([np.asarray(f.b, dtype=np.float64) for f in self._mahony])
+        out["gyro_bias"] = bias[env_index(env)].copy()
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``).
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        bias = np.zeros((self.envs, 3))
+        check({"gyro_bias": bias}, state, env)
+        put(self._state_fields(), state, env)
+        sel = np.arange(self.envs)[env_index(env)]
+        for k, e in enumerate(sel):
+            self._mahony[e].b = np.array(state["gyro_bias"][k], dtype=np.float64)
+            if self._kfs:
+                self._kfs[e].x = self.velocity[e].reshape(3, 1).copy()
+                self._kfs[e].P = np.eye(3) * self.velocity_variance[e]
 
     # ------------------------------------------------------------------ the tick
     def update(

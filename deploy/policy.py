@@ -187,8 +187,9 @@ class OnnxPolicy:
         self.spec = self._resolve_spec(path, spec)
         try:
             self.spec.check_robot(robot, check_hash=check_hash)
-        except SpecError as exc:
-            raise PolicyLoadError(f"{path}: {exc}") from None
+        except SpecError as exc:  # name the spec file the user gave, else the ONNX file
+            where = spec if isinstance(spec, str | os.PathLike) else path
+            raise PolicyLoadError(f"{where}: {exc}") from None
         self.obs_dim, self.act_dim = self.spec.obs_dim, self.spec.act_dim
         self.input_name, self.output_name, self._fixed_batch, self.states = self._check_graph(
             model, path

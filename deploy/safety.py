@@ -182,7 +182,7 @@ class SafetyGuard:
         #: Torque mode, N m s/rad: braking torque per rad/s of excess speed; full effort at
         #: 0.1 rad/s over the allowed speed (our choice).
         self._brake_gain = 10.0 * robot.effort_limit
-        self.model = robot.pin_model
+        self.model = robot.fixed_base_model
         self.data = self.model.createData()
         self.geom_model, self.geom_data = self.collision_model(robot)
         self._has_pairs = bool(self.geom_model.collisionPairs)
@@ -197,6 +197,8 @@ class SafetyGuard:
         self._ws_margin = self._screen_m[0]  # m inside the workspace box (-inf: unknown)
         self._col_q = self._screen_q[1]
         self._clearance = self._screen_m[1]  # m between the closest listed pair
+        if s.workspace_min is None:  # no workspace box (a legged robot): never screened
+            self._ws_margin[:] = np.inf
         self._move = np.zeros(envs)
         self._held = np.zeros(envs, dtype=bool)
         self._no_env = np.zeros(envs, dtype=bool)  # read only
@@ -227,7 +229,8 @@ class SafetyGuard:
     def collision_model(robot: Robot) -> tuple[pin.GeometryModel, pin.GeometryData]:
         """The guard's coal collision model of ``robot``: the MJCF geoms (nominal geometry) with
         the pairs of ``safety.collision_pairs``, and its data. Use it with ``robot.pin_model``
-        (``pin.computeCollisions``); :class:`deploy.violations.ViolationMonitor` checks the true
+        (``pin.computeCollisions``; ``robot.fixed_base_model`` for a floating base);
+        :class:`deploy.violations.ViolationMonitor` checks the true
         configuration with it.
 
         Raises:
@@ -235,6 +238,7 @@ class SafetyGuard:
                 and the geoms there are).
         """
         geom = pin.buildGeomFromMJCF(robot.pin_model, str(robot.mjcf_path), pin.VISUAL)
+        geom = robot.fixed_base_geometry(geom)  # a floating base: the legs about a fixed base
         names = [g.name for g in geom.geometryObjects]
         for a, b in robot.config.safety.collision_pairs:
             for name in (a, b):

@@ -58,6 +58,23 @@ from deploy.state import Kinematics, RobotState
 from robots import CONTROL_MODES, Robot
 
 FORMAT_VERSION = 1
+#: Blocks of a floating-base (legged) robot, all in the base frame, SI units (seed section 9: the
+#: base's own motion and the command, never its absolute world position or yaw):
+#: ``base_linear_velocity`` (3, m/s, estimated), ``base_angular_velocity`` (3, rad/s),
+#: ``projected_gravity`` (3, unit vector), ``velocity_command`` (3: vx, vy m/s, yaw rate rad/s),
+#: ``gait_phase`` (2: sin, cos of ``2 pi t / period``, t the runtime's clock), ``foot_contact``
+#: (one per foot, 0 or 1), ``heading_sincos`` (2: sin, cos of the yaw the attitude filter has
+#: turned since the start, not the world's). Joint positions about the default pose are a
+#: ``joint_position`` block with ``offset`` = the home pose.
+LEGGED_KINDS = (
+    "base_linear_velocity",
+    "base_angular_velocity",
+    "projected_gravity",
+    "velocity_command",
+    "gait_phase",
+    "foot_contact",
+    "heading_sincos",
+)
 OBSERVATION_KINDS = (
     "joint_position",
     "joint_velocity",
@@ -67,21 +84,57 @@ OBSERVATION_KINDS = (
     "goal_in_ee",
     "last_action",
     "winding_temperature",
+) + LEGGED_KINDS
+#: Entries of the blocks whose size does not follow from their joints (foot_contact: a quadruped's
+#: four by default; checked against the robot's feet by :meth:`PolicySpec.check_robot`).
+FIXED_SIZES = {
+    "ee_position": 3,
+    "goal_position": 3,
+    "goal_in_ee": 3,
+    "base_linear_velocity": 3,
+    "base_angular_velocity": 3,
+    "projected_gravity": 3,
+    "velocity_command": 3,
+    "gait_phase": 2,
+    "heading_sincos": 2,
+    "foot_contact": 4,
+}
+#: A floating-base robot's default observation (legged_gym's, with the gait clock of
+#: unitree_rl_gym and without the base linear velocity, which needs the estimator to converge).
+LEGGED_DEFAULT_BLOCKS = (
+    "base_angular_velocity",
+    "projected_gravity",
+    "velocity_command",
+    "gait_phase",
+    "joint_position",
+    "joint_velocity",
+    "last_action",
 )
+#: Divisors of the legged blocks: 1 / legged_gym's ``obs_scales`` (LeggedRobotCfg.normalization:
+#: lin_vel 2.0, ang_vel 0.25, dof_vel 0.05; commands scaled like the velocities they command).
+LEGGED_SCALES = {
+    "base_linear_velocity": (0.5, 0.5, 0.5),
+    "base_angular_velocity": (4.0, 4.0, 4.0),
+    "velocity_command": (0.5, 0.5, 4.0),
+    "joint_velocity": 20.0,
+}
+#: Position actions about the home pose, rad per unit action (legged_gym
+#: LeggedRobotCfg.control.action_scale).
+LEGGED_ACTION_SCALE = 0.25
+#: The gait clock's period, s (unitree_rl_gym legged_gym/envs/go2: the phase period 0.8 s).
+GAIT_PERIOD = 0.8
 #: Default observation clip (in normalized units); generous, since values are already ~[-1, 1].
 DEFAULT_CLIP = 5.0
-#: Blocks published policies read that no robot here can provide yet (fixed-base arms only; the
-#: floating-base blocks come with the legged robots), by the names legged_gym and Isaac Lab use.
-FLOATING_BASE_KINDS = (
-    "base_lin_vel",
-    "base_ang_vel",
-    "projected_gravity",
-    "commands",
-    "velocity_commands",
-    "base_height",
-    "height_scan",
-    "foot_contact",
-)
+#: Blocks published policies read that no robot here provides, by the names legged_gym and Isaac
+#: Lab use; where this toolkit has the quantity, the name it has here.
+UNPROVIDED_KINDS = {
+    "base_lin_vel": "base_linear_velocity",
+    "base_ang_vel": "base_angular_velocity",
+    "commands": "velocity_command",
+    "velocity_commands": "velocity_command",
+    "base_height": None,
+    "height_scan": None,
+}
 
 
 class SpecError(Sim2RealError, ValueError):
@@ -99,6 +152,7 @@ class ObservationBlock:
         offset: Per-entry offset, length ``size``.
         clip: Symmetric clip after normalization.
         joints: Joint indices it reads (joint blocks only), in order.
+        period: ``gait_phase`` only: the gait clock's period, s (> 0); 0 for other blocks.
     """
 
     name: str
@@ -107,6 +161,7 @@ class ObservationBlock:
     offset: tuple[float, ...]
     clip: float = DEFAULT_CLIP
     joints: tuple[int, ...] = ()
+    period: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -190,7 +245,10 @@ class PolicySpec:
         lo, hi = robot.position_lower, robot.position_upper
         wrapping = tuple(i for i in range(n) if hi[i] - lo[i] > 2 * np.pi + 1e-9)
         bounded = tuple(i for i in range(n) if i not in wrapping)
-        if blocks is None:
+        legged = robot.floating_base
+        if blocks is None and legged:
+            blocks = LEGGED_DEFAULT_BLOCKS
+        elif blocks is None:
             blocks = (
                 ("joint_position",)
                 + (("joint_position_sincos",) if wrapping else ())
@@ -201,20 +259,32 @@ class PolicySpec:
                     "goal_in_ee",
                 )
             )
-        reach = Kinematics(robot).reach()
+        reach = Kinematics(robot).reach() if robot.ee_frame_id >= 0 else 1.0
         motors = robot.motors
         ambient = robot.config.sensors.ambient_temperature
         out = []
         for kind in blocks:
-            if kind == "joint_position":
+            if kind == "joint_position" and legged:  # about the default pose, unscaled
+                idx = tuple(range(n))
+                home = tuple(float(h) for h in robot.home)
+                out.append(ObservationBlock(kind, n, (1.0,) * n, home, joints=idx))
+            elif kind == "joint_position":
                 idx = bounded
                 scale = tuple((hi[i] - lo[i]) / 2 for i in idx)
                 offset = tuple((hi[i] + lo[i]) / 2 for i in idx)
                 out.append(ObservationBlock(kind, len(idx), scale, offset, joints=idx))
             elif kind == "joint_velocity":
                 idx = tuple(range(n))
-                scale = tuple(float(v) for v in robot.velocity_limit)
+                if legged:
+                    scale = (LEGGED_SCALES["joint_velocity"],) * n
+                else:
+                    scale = tuple(float(v) for v in robot.velocity_limit)
                 out.append(ObservationBlock(kind, n, scale, (0.0,) * n, joints=idx))
+            elif kind in LEGGED_KINDS:
+                size = robot.n_feet if kind == "foot_contact" else FIXED_SIZES[kind]
+                scale = LEGGED_SCALES.get(kind, (1.0,) * size)
+                period = GAIT_PERIOD if kind == "gait_phase" else 0.0
+                out.append(ObservationBlock(kind, size, tuple(scale), (0.0,) * size, period=period))
             elif kind == "joint_position_sincos":
                 k = len(wrapping)
                 out.append(
@@ -233,7 +303,9 @@ class PolicySpec:
                 raise SpecError(
                     f"observation: block '{kind}' is unknown; expected one of {OBSERVATION_KINDS}"
                 )
-        if mode == "position":
+        if mode == "position" and legged and reference == "absolute":
+            scale, offset = (LEGGED_ACTION_SCALE,) * n, tuple(float(h) for h in robot.home)
+        elif mode == "position":
             if reference == "absolute":
                 scale = tuple((hi - lo) / 2)
                 offset = tuple((hi + lo) / 2)
@@ -299,18 +371,24 @@ class PolicySpec:
         n = len(self.joint_names)
         for i, b in enumerate(self.observation_blocks):
             where = f"observation[{i}] ('{b.name}')"
-            if b.name in FLOATING_BASE_KINDS:
+            if b.name in UNPROVIDED_KINDS:
+                here = UNPROVIDED_KINDS[b.name]
                 raise SpecError(
-                    f"{where}: block '{b.name}' cannot be provided: the robot '{self.robot}' is "
-                    "a fixed-base arm and this toolkit has no floating-base observation yet "
-                    f"({', '.join(FLOATING_BASE_KINDS)}); blocks a robot provides: "
-                    f"{', '.join(OBSERVATION_KINDS)}"
+                    f"{where}: block '{b.name}' cannot be provided: "
+                    + (
+                        f"this toolkit calls it '{here}'"
+                        if here
+                        else "no robot here measures it (a height map or base height)"
+                    )
+                    + f"; blocks a robot provides: {', '.join(OBSERVATION_KINDS)}"
                 )
             if b.name not in OBSERVATION_KINDS:
                 raise SpecError(
                     f"{where}: block '{b.name}' is unknown: no robot provides it; expected one of "
                     f"{OBSERVATION_KINDS}"
                 )
+            if b.name == "gait_phase" and not (np.isfinite(b.period) and b.period > 0):
+                raise SpecError(f"{where}: period must be a positive number of s, got {b.period}")
             if len(b.scale) != b.size or len(b.offset) != b.size:
                 raise SpecError(f"{where}: scale and offset need {b.size} entries")
             if not all(np.isfinite(s) and s > 0 for s in b.scale):
@@ -325,7 +403,9 @@ class PolicySpec:
                 "joint_position_sincos": 2 * len(b.joints),
                 "last_action": n,
                 "winding_temperature": n,
-            }.get(b.name, 3)
+            }.get(b.name, FIXED_SIZES.get(b.name))
+            if b.name == "foot_contact":
+                expected = b.size  # the robot's feet: check_robot
             if b.size != expected:
                 raise SpecError(f"{where}: size {b.size}, expected {expected}")
         a = self.action
@@ -357,6 +437,18 @@ class PolicySpec:
                 f"joint_names: policy expects {list(self.joint_names)}, "
                 f"the robot has {list(robot.joint_names)}"
             )
+        for i, b in enumerate(self.observation_blocks):
+            if b.name in LEGGED_KINDS and not robot.floating_base:
+                raise SpecError(
+                    f"observation[{i}] ('{b.name}'): block '{b.name}' cannot be provided: the "
+                    f"robot '{robot.name}' is a fixed-base arm (no IMU, no feet); blocks it "
+                    f"provides: {', '.join(k for k in OBSERVATION_KINDS if k not in LEGGED_KINDS)}"
+                )
+            if b.name == "foot_contact" and b.size != robot.n_feet:
+                raise SpecError(
+                    f"observation[{i}] ('foot_contact'): size {b.size}, the robot '{robot.name}' "
+                    f"has {robot.n_feet} feet"
+                )
         rate = 1.0 / robot.control_period
         if abs(self.control_rate - rate) > 1e-6:
             raise SpecError(
@@ -427,8 +519,10 @@ class PolicySpec:
                 raw[:, dst] = plan.rot[:envs]
             elif kind == "last_action":
                 np.take(state.last_action, joints, axis=1, out=raw[:, dst])
-            else:  # winding_temperature
+            elif kind == "winding_temperature":
                 np.take(state.winding_temperature, joints, axis=1, out=raw[:, dst])
+            else:
+                _legged_block(kind, state, raw[:, dst], plan.periods[dst.start])
         raw -= plan.offset
         raw /= plan.scale
         np.minimum(raw, plan.clip, out=raw)
@@ -464,6 +558,9 @@ class PolicySpec:
         there are any, so a spec without them writes what earlier versions wrote)."""
         d = asdict(self)
         d["observation"] = d.pop("observation_blocks")
+        for block in d["observation"]:
+            if not block["period"]:  # gait_phase only: other blocks write what they wrote before
+                del block["period"]
         if not d["constant_inputs"]:
             del d["constant_inputs"]
         return json.dumps(d, sort_keys=True)
@@ -505,6 +602,36 @@ class PolicySpec:
         return spec
 
 
+def _legged_block(kind: str, state: RobotState, raw: np.ndarray, period: float) -> None:
+    """Write the raw entries (envs, size) of one of ``LEGGED_KINDS`` from ``state``.
+
+    Raises:
+        SpecError: a state without the floating-base fields (``RobotState.legged``).
+    """
+    base = state.base
+    if base is None:
+        raise SpecError(f"observation: block '{kind}' needs a floating-base robot's state")
+    if kind == "base_linear_velocity":
+        raw[:] = base.linear_velocity
+    elif kind == "base_angular_velocity":
+        raw[:] = base.angular_velocity
+    elif kind == "projected_gravity":
+        raw[:] = base.projected_gravity
+    elif kind == "velocity_command":
+        raw[:] = state.command
+    elif kind == "gait_phase":
+        phase = (2.0 * np.pi / period) * state.clock
+        raw[:, 0] = np.sin(phase)
+        raw[:, 1] = np.cos(phase)
+    elif kind == "foot_contact":
+        raw[:] = state.foot_contact
+    else:  # heading_sincos: the yaw of the base's x axis in the filter's world frame
+        w, x, y, z = base.orientation.T
+        yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        raw[:, 0] = np.sin(yaw)
+        raw[:, 1] = np.cos(yaw)
+
+
 class _ObservationPlan:
     """:meth:`PolicySpec.observation` precompiled: per-entry offset, scale and clip arrays, joint
     index arrays, and work buffers grown to the largest batch seen (no allocation per tick)."""
@@ -521,6 +648,8 @@ class _ObservationPlan:
         self.scale = np.concatenate([np.asarray(b.scale, float) for b in bl]) if bl else []
         self.clip = np.concatenate([np.full(b.size, float(b.clip)) for b in bl]) if bl else []
         self.dim = start
+        #: per entry: the gait clock's period of its block (s; 0 outside gait_phase blocks)
+        self.periods = np.concatenate([np.full(b.size, b.period) for b in bl]) if bl else []
         self._raw = np.zeros((0, start))
         self.vec = np.zeros((0, 3))
         self.rot = np.zeros((0, 3))

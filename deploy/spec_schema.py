@@ -30,6 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from deploy.spec import (
     DEFAULT_CLIP,
+    FIXED_SIZES,
     FORMAT_VERSION,
     OBSERVATION_KINDS,
     ActionSpec,
@@ -72,6 +73,11 @@ class ObservationBlockDocument(_Doc):
         default=0.0, description=f"Subtracted from the raw value before scaling, {_NUMBERS}."
     )
     clip: float = Field(default=DEFAULT_CLIP, gt=0, description="Symmetric clip after scaling.")
+    period: float | None = Field(
+        default=None,
+        gt=0,
+        description="gait_phase only: the gait clock's period, s (sin, cos of 2 pi t / period).",
+    )
     joints: list[int | str] | None = Field(
         default=None,
         description=(
@@ -168,7 +174,7 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
         if size is None and b.name in _JOINT_KINDS:
             size = (2 if b.name == "joint_position_sincos" else 1) * len(joints)
         elif size is None:
-            size = 3
+            size = FIXED_SIZES.get(b.name, 3)
         blocks.append(
             ObservationBlock(
                 name=b.name,
@@ -177,6 +183,7 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
                 offset=_entries(b.offset, size),
                 clip=float(b.clip),
                 joints=joints,
+                period=float(b.period or 0.0),
             )
         )
     a = doc.action

@@ -21,6 +21,12 @@ class RobotState:
         ee_rotation: (envs, 3, 3), end-effector site orientation (base frame).
         winding_temperature: (envs, n) degC, as last reported by the drives.
         last_action: (envs, n), the policy's previous action in [-1, 1] (0 before the first).
+        base: Floating-base robots: the base estimate
+            (:class:`deploy.base_estimation.BaseState`); None for a fixed-base arm.
+        foot_contact: Floating-base robots: (envs, n_feet) 1.0 where a foot touches, else 0.0.
+        command: Floating-base robots: (envs, 3) the velocity command (vx, vy m/s, yaw rate
+            rad/s, base frame).
+        clock: (envs,) s, the runtime's time (the gait phase's clock).
     """
 
     q: np.ndarray
@@ -29,6 +35,10 @@ class RobotState:
     ee_rotation: np.ndarray
     winding_temperature: np.ndarray
     last_action: np.ndarray
+    base: object = None
+    foot_contact: np.ndarray | None = None
+    command: np.ndarray | None = None
+    clock: np.ndarray | None = None
 
     @classmethod
     def zeros(cls, envs: int, n_joints: int, ambient: float = 25.0) -> RobotState:
@@ -40,6 +50,19 @@ class RobotState:
             winding_temperature=np.full((envs, n_joints), ambient),
             last_action=np.zeros((envs, n_joints)),
         )
+
+    @classmethod
+    def legged(cls, envs: int, n_joints: int, n_feet: int, ambient: float = 25.0) -> RobotState:
+        """A floating-base robot's state: :meth:`zeros` with the base estimate upright at rest,
+        no foot contact, a zero command and the clock at 0."""
+        from deploy.base_estimation import BaseState
+
+        state = cls.zeros(envs, n_joints, ambient)
+        state.base = BaseState.zeros(envs)
+        state.foot_contact = np.zeros((envs, n_feet))
+        state.command = np.zeros((envs, 3))
+        state.clock = np.zeros(envs)
+        return state
 
 
 class Kinematics:
@@ -53,6 +76,8 @@ class Kinematics:
     def update(self, state: RobotState) -> RobotState:
         """Fill ``state.ee_position`` and ``state.ee_rotation`` from ``state.q``; returns state."""
         model, data, frame, q = self.model, self.data, self.frame_id, state.q
+        if frame < 0:  # no end effector (a legged robot): nothing to compute
+            return state
         position, rotation = state.ee_position, state.ee_rotation
         for e in range(q.shape[0]):
             pin.forwardKinematics(model, data, q[e])

@@ -142,7 +142,7 @@ class ViolationMonitor(MonitorState):
         self._ee = np.zeros((envs, 3))
         self._collided = np.zeros(envs, dtype=bool)
         self._hit = np.zeros(envs, dtype=bool)
-        self._model = robot.pin_model
+        self._model = robot.fixed_base_model
         self._data = self._model.createData()
         self._geom_model, self._geom_data = SafetyGuard.collision_model(robot)
         self._has_pairs = bool(self._geom_model.collisionPairs)

@@ -9,6 +9,7 @@ import sys
 import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import mujoco
@@ -171,6 +172,23 @@ class Robot:
         wxyz = np.array([1.0, 0, 0, 0]) if base_quaternion is None else base_quaternion
         wxyz = np.asarray(wxyz, dtype=np.float64)
         return np.concatenate([pos, wxyz[1:], wxyz[:1], q])
+
+    @cached_property
+    def fixed_base_model(self) -> pin.Model:
+        """Pinocchio model of the joints alone, ``nq = n_joints``: ``pin_model`` for a fixed-base
+        arm; for a floating base, ``pin_model`` with its free-flyer locked at the origin, upright
+        (``pin.buildReducedModel``): the base frame is the world frame. The guard's kinematics,
+        gravity torques (the legs in the air) and self-collisions run on it."""
+        if not self.floating_base:
+            return self.pin_model
+        return pin.buildReducedModel(self.pin_model, [1], pin.neutral(self.pin_model))
+
+    def fixed_base_geometry(self, geom: pin.GeometryModel) -> pin.GeometryModel:
+        """A geometry model built on ``pin_model``, attached to :attr:`fixed_base_model` instead
+        (the same object for a fixed-base arm)."""
+        if not self.floating_base:
+            return geom
+        return pin.buildReducedModel(self.pin_model, geom, [1], pin.neutral(self.pin_model))[1]
 
     def foot_positions(
         self,
@@ -556,6 +574,10 @@ def load_robot(name_or_path: str | Path) -> Robot:
     free = np.full(6 if floating else 0, np.inf)
     pin_model.velocityLimit = np.concatenate([free, [j.velocity_limit for j in cfg.joints]])
     pin_model.effortLimit = np.concatenate([free, [j.effort_limit for j in cfg.joints]])
+    # Pinocchio 4 keeps lower/upper bounds apart and velocityLimit sets only the upper ones
+    if hasattr(pin_model, "lowerVelocityLimit"):
+        pin_model.lowerVelocityLimit = -pin_model.upperVelocityLimit
+        pin_model.lowerEffortLimit = -pin_model.upperEffortLimit
     ee_frame_id = -1
     if site is not None:
         if not pin_model.existFrame(site):

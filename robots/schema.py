@@ -192,6 +192,11 @@ class SafetyConfig(_Strict):
     workspace_max: Vec3 | None = None  # m, base frame
     collision_pairs: list[tuple[str, str]] = []
     stale_limit: Positive = 0.05  # s without a fresh encoder reading before a safe stop
+    # Floating-base robots: a fall is the base tilted past fall_tilt (rad) or lower than
+    # fall_height (m) above its feet in contact (0: no height check); left out, the defaults of
+    # deploy/fall.py (FALL_TILT, FALL_HEIGHT). None keeps them out of the description hash.
+    fall_tilt: Positive | None = None
+    fall_height: NonNegative | None = None
 
     @model_validator(mode="after")
     def _ordered_box(self) -> SafetyConfig:

@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -263,8 +264,17 @@ def test_legged_gym_conventions_are_expressed_exactly(arm6):
     np.testing.assert_allclose(target, default + 0.25 * np.clip(action, -100, 100), rtol=1e-12)
 
 
-@pytest.mark.parametrize("block", ["base_ang_vel", "projected_gravity", "commands"])
-def test_a_block_the_robot_cannot_provide_is_refused_at_load_naming_it(arm3, block, tmp_path):
+@pytest.mark.parametrize(
+    "block, why",
+    [
+        ("base_ang_vel", "this toolkit calls it 'base_angular_velocity'"),
+        ("commands", "this toolkit calls it 'velocity_command'"),
+        ("height_scan", "no robot here measures it"),
+        ("projected_gravity", "the robot 'arm3' is a fixed-base arm"),
+        ("foot_contact", "the robot 'arm3' is a fixed-base arm"),
+    ],
+)
+def test_a_block_the_robot_cannot_provide_is_refused_at_load_naming_it(arm3, block, why, tmp_path):
     from deploy.policy import OnnxPolicy, PolicyLoadError
 
     doc = _arm3_doc(arm3)
@@ -274,7 +284,7 @@ def test_a_block_the_robot_cannot_provide_is_refused_at_load_naming_it(arm3, blo
     with pytest.raises(
         PolicyLoadError,
         match=rf"legged.json: observation\[0\] \('{block}'\): block '{block}' cannot be provided: "
-        r"the robot 'arm3' is a fixed-base arm",
+        + re.escape(why),
     ):
         OnnxPolicy(GODOT_FILE, arm3, spec=path)
     doc["observation"][0]["name"] = "joint_torque"

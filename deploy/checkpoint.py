@@ -94,9 +94,12 @@ class MLPActor(nn.Module):
         hidden: Widths of the hidden layers; empty for a linear policy.
         activation: 'elu', 'tanh' or 'relu'.
         output: None (unsquashed output) or 'tanh'.
+        gait: Optional description of a :class:`deploy.gait_prior.TrotPrior` (a quadruped's
+            trot generator) whose offsets are added to the network's output: the network then
+            learns corrections to a gait (checkpoint ``architecture.gait``).
 
     Raises:
-        ValueError: non-positive sizes, unknown activation or output.
+        ValueError: non-positive sizes, unknown activation or output, an invalid ``gait``.
     """
 
     def __init__(
@@ -106,6 +109,7 @@ class MLPActor(nn.Module):
         hidden: Sequence[int] = (64, 64),
         activation: str = "elu",
         output: str | None = None,
+        gait: Mapping[str, Any] | None = None,
     ):
         super().__init__()
         sizes = [obs_dim, *hidden, act_dim]
@@ -130,20 +134,32 @@ class MLPActor(nn.Module):
         if output == "tanh":
             layers.append(nn.Tanh())
         self.net = nn.Sequential(*layers)
+        self.gait = None
+        if gait is not None:
+            from deploy.gait_prior import TrotPrior
+
+            self.gait = TrotPrior.from_description(dict(gait), where="MLPActor: gait")
+            if act_dim != 12:
+                raise ValueError(f"MLPActor: a trot generator drives 12 joints, act_dim={act_dim}")
 
     @property
     def architecture(self) -> dict[str, Any]:
         """The ``architecture`` entry of a checkpoint (plain data)."""
-        return {
+        arch = {
             "obs_dim": self.obs_dim,
             "act_dim": self.act_dim,
             "hidden": list(self.hidden),
             "activation": self.activation,
             "output": self.output,
         }
+        if self.gait is not None:
+            arch["gait"] = dict(self.gait.description)
+        return arch
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         """Action, (batch, act_dim), for the normalized observation ``obs`` (batch, obs_dim)."""
+        if self.gait is not None:
+            return self.net(obs) + self.gait(obs)
         return self.net(obs)
 
     @classmethod
@@ -168,6 +184,7 @@ class MLPActor(nn.Module):
                 tuple(hidden),
                 arch["activation"],
                 arch.get("output"),
+                arch.get("gait"),
             )
         except ValueError as exc:
             raise CheckpointError(f"{where}: {exc}") from None

@@ -431,6 +431,7 @@ def _run_opened(
         "faults": {
             "non_finite_actions": int(rt.counters.non_finite_actions.sum()),
             "safe_stops": int(rt.counters.safe_stops.sum()),
+            "safe_stop_timeouts": int(rt.counters.safe_stop_timeouts.sum()),
             "by_cause": {k: int(v.sum()) for k, v in rt.counters.faults.items()},
             "estimator": {
                 "stale_readings": int(rt.estimator.stale_readings.sum()),
@@ -516,7 +517,13 @@ def print_summary(r: dict) -> None:
     causes = ", ".join(f"{k} {n}" for k, n in f["by_cause"].items() if n) or "none"
     print(
         f"  faults            non-finite actions {f['non_finite_actions']}, safe stops "
-        f"{f['safe_stops']} ({causes}); estimator: stale {f['estimator']['stale_readings']}, "
+        f"{f['safe_stops']} ({causes}"
+        + (
+            f"; not at rest, timed out {f['safe_stop_timeouts']}"
+            if f.get("safe_stop_timeouts")
+            else ""
+        )
+        + f"); estimator: stale {f['estimator']['stale_readings']}, "
         f"missing {f['estimator']['missing_readings']}, re-inits "
         f"{f['estimator']['reinitializations']}"
     )

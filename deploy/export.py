@@ -1007,20 +1007,29 @@ def closed_loop_parity(
     n = robot.n_joints
     plant = SimBackend(robot, mode=spec.action.mode, envs=envs, seed=seed)
     kin = Kinematics(robot)
-    state = RobotState.zeros(envs, n, robot.config.sensors.ambient_temperature)
+    ambient = robot.config.sensors.ambient_temperature
     rng = np.random.default_rng(seed)
-    goal = sample_goals(robot, rng, envs)
+    legged = robot.floating_base
+    if legged:  # the base from the plant's truth, a random velocity command per env
+        state = RobotState.legged(envs, n, robot.n_feet, ambient)
+        state.command[:] = rng.uniform([-0.5, -0.3, -1.0], [1.0, 0.3, 1.0], (envs, 3))
+        goal = np.zeros((envs, 3))
+    else:
+        state = RobotState.zeros(envs, n, ambient)
+        goal = sample_goals(robot, rng, envs)
     goal_every = max(1, int(round(GOAL_PERIOD / robot.control_period)))
     obs = np.zeros((envs, spec.obs_dim), np.float32)
     target = np.zeros((envs, n))
     worst, resets = 0.0, 0
     for tick in range(ticks):
-        if tick and tick % goal_every == 0:
+        if tick and tick % goal_every == 0 and not legged:
             goal = sample_goals(robot, rng, envs)
         state.q[:] = plant.true_position()
         state.dq[:] = plant.true_velocity()
         state.winding_temperature[:] = plant.thermal.winding_temperature
         kin.update(state)
+        if legged:
+            _true_base(plant, state, tick * robot.control_period)
         spec.observation(state, goal, out=obs)
         action = policy(obs)
         if reference is not None:
@@ -1047,6 +1056,23 @@ def closed_loop_parity(
         "mode": spec.action.mode,
         "plant_resets": resets,
     }
+
+
+def _true_base(plant: SimBackend, state: RobotState, t: float) -> None:
+    """Fill a legged state's base fields from the plant's truth (parity replays only)."""
+    from deploy.base_estimation import quaternion_to_matrix
+
+    truth = plant.true_base_state()
+    base = state.base
+    for e in range(state.q.shape[0]):
+        rot = quaternion_to_matrix(truth[e, 3:7])
+        base.orientation[e] = truth[e, 3:7]
+        base.projected_gravity[e] = -rot[2]
+        base.angular_velocity[e] = truth[e, 10:13]
+        base.linear_velocity_world[e] = truth[e, 7:10]
+        base.linear_velocity[e] = rot.T @ truth[e, 7:10]
+    state.foot_contact[:] = plant.read().foot_contact
+    state.clock[:] = t
 
 
 def _resolve_robot(robot: Robot | str | os.PathLike | None, spec: PolicySpec, where: str) -> Robot:

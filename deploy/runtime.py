@@ -19,7 +19,11 @@ reset, cool-down resume) and again for those whose RAMP_IN ends: the policy take
 initial state, as in a fresh episode. SAFE_STOP brings
 every joint to rest within the smoother's limits and holds; a safe stop for over-temperature resumes
 (RAMP_IN) once every winding has cooled below its derating start, any other cause ends in FAULTED,
-latched until :meth:`Runtime.reset_faults`.
+latched until :meth:`Runtime.reset_faults`. A safe stop ends when every joint is at rest
+(``REST_SPEED``) or, at the latest, ``SAFE_STOP_TIMEOUT`` after it began (a joint still moving:
+pushed, dragged, or an estimate that drifts), counted in ``counters.safe_stop_timeouts``: FAULTED,
+or for over-temperature, RAMP_IN as soon as it is cool, at rest or not (FAULTED if a drive has
+latched an error). Only an over-temperature stop stays in SAFE_STOP longer: until cool.
 
 Faults and responses (DESIGN.md): non-finite policy output holds the last valid action, and
 ``NAN_ACTION_LIMIT`` consecutive ones make a safe stop; sensor data stale longer than
@@ -69,6 +73,14 @@ OVERRUN_RATE_LIMIT = 0.05
 OVERRUN_WINDOW = 200
 #: A joint is at rest below this speed, rad/s (ends a safe stop, ends RAMP_IN).
 REST_SPEED = 0.05
+#: A safe stop whose joints are not all at rest this long after it began ends FAULTED anyway
+#: (latched), counted in ``RuntimeCounters.safe_stop_timeouts``, s. Our choice: the smoother
+#: brakes any joint from its velocity limit within ``v / a + a / j`` s (the acceleration ramp,
+#: then full deceleration); the longest of the shipped robots is go2's 0.65 s (ur5 0.54, arm6
+#: 0.36, so101 0.21, arm3 0.21 s), so 2 s is three times the slowest brake. A stop still moving
+#: then is not braking (an estimate that drifts, a joint pushed or dragged): waiting longer
+#: would leave the robot in SAFE_STOP for good. Counted in ticks, ``ceil(timeout / period)``.
+SAFE_STOP_TIMEOUT = 2.0
 #: Runtime.start waits this long for the first reading of every joint, s.
 START_TIMEOUT = 0.5
 #: RAMP_IN ends within this distance of the home pose, rad.
@@ -110,6 +122,7 @@ FAULT_CAUSES = (
     "overrun",
     "over_temperature",
     "servo_error",
+    "fall",
 )
 # the kernels (deploy.kernels.supervision) know the causes and modes by number
 _CAUSE_CODES = {
@@ -119,6 +132,7 @@ _CAUSE_CODES = {
     "overrun": sv.OVERRUN,
     "over_temperature": sv.OVER_TEMPERATURE,
     "servo_error": sv.SERVO_ERROR,
+    "fall": sv.FALL,
 }
 if [_CAUSE_CODES[c] for c in FAULT_CAUSES] != list(range(len(FAULT_CAUSES))) or [
     sv.IDLE,
@@ -191,6 +205,8 @@ class RuntimeCounters:
         anchors: Velocity mode: ticks on which the smoother's integrated position was pulled to
             within ``VELOCITY_TRACKING_TOLERANCE`` of the measured pose; the velocity command
             itself stays continuous.
+        safe_stop_timeouts: Safe stops whose joints were not all at rest ``SAFE_STOP_TIMEOUT``
+            after they began (they end FAULTED; an over-temperature one resumes once cool).
         faults: Safe stops by cause (``FAULT_CAUSES``).
     """
 
@@ -198,6 +214,7 @@ class RuntimeCounters:
     safe_stops: np.ndarray
     resyncs: np.ndarray
     anchors: np.ndarray
+    safe_stop_timeouts: np.ndarray
     faults: dict[str, np.ndarray] = field(default_factory=dict)
 
 
@@ -261,8 +278,25 @@ class Runtime:
         self.reference = reference
         self.guard = SafetyGuard(robot, envs, self.mode_name, reference=reference)
         self.smoother = CommandSmoother(robot, envs, self.mode_name, reference=reference)
-        self.state = RobotState.zeros(envs, n, robot.config.sensors.ambient_temperature)
+        ambient = robot.config.sensors.ambient_temperature
+        self.state = RobotState.zeros(envs, n, ambient)
         self.goal = np.zeros((envs, 3))
+        #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check
+        self.base_estimator = self.fall_detector = None
+        if robot.floating_base:
+            from deploy.base_estimation import BaseStateEstimator
+            from deploy.fall import FallDetector
+
+            self.state = RobotState.legged(envs, n, robot.n_feet, ambient)
+            self.base_estimator = BaseStateEstimator(robot, envs)
+            self.fall_detector = FallDetector(robot, envs)
+        #: (envs, 3) the velocity command of a legged robot (vx, vy m/s, yaw rate rad/s, base
+        #: frame): the operator's (deploy-run --command) or the soak's schedule; write into it
+        self.velocity_command = (
+            self.state.command if self.state.command is not None else np.zeros((envs, 3))
+        )
+        #: (envs,) bool: the envs whose fall stop damps the joints (cause ``fall``)
+        self.damping = np.zeros(envs, dtype=bool)
         self.mode = np.full(envs, Mode.IDLE, dtype=np.int8)
         self.cause = np.full(envs, -1, dtype=np.int8)  # index into FAULT_CAUSES
         #: (envs, n) int64, OR of the hardware error bits each drive reported (cause servo_error)
@@ -272,7 +306,11 @@ class Runtime:
             safe_stops=np.zeros(envs, dtype=np.int64),
             resyncs=np.zeros(envs, dtype=np.int64),
             anchors=np.zeros(envs, dtype=np.int64),
+            safe_stop_timeouts=np.zeros(envs, dtype=np.int64),
         )
+        #: (envs,) int64, supervised ticks since each env's safe stop began (0 outside SAFE_STOP)
+        self.stop_ticks = np.zeros(envs, dtype=np.int64)
+        self._stop_timeout = max(1, int(np.ceil(SAFE_STOP_TIMEOUT / self.dt - 1e-9)))
         self._faults = np.zeros((len(FAULT_CAUSES), envs), dtype=np.int64)  # rows: views below
         self.counters.faults.update({c: self._faults[i] for i, c in enumerate(FAULT_CAUSES)})
         self.latency = LatencyHistogram(len(STAGES))
@@ -322,6 +360,7 @@ class Runtime:
                 REST_SPEED,
                 HOME_TOLERANCE,
                 tolerance,
+                self._stop_timeout,
             ]
         )
         self._bind_action()
@@ -388,6 +427,8 @@ class Runtime:
             w(self.cause),
             w(self.counters.safe_stops),
             w(self._faults),
+            w(self.stop_ticks),
+            w(self.counters.safe_stop_timeouts),
             w(self._flags),
         )
 
@@ -452,6 +493,11 @@ class Runtime:
         self.state.dq[:] = 0.0
         self.guard.reset(q)
         self.smoother.reset(q, self.state.dq)
+        if self.base_estimator is not None:  # upright as the accelerometer says, yaw 0
+            acc = frame.imu_acceleration
+            finite = np.isfinite(acc).all() and (np.linalg.norm(acc, axis=1) > 0).all()
+            self.base_estimator.reset(frame.time, acceleration=acc if finite else None)
+            self.damping[:] = False
         self.mode[:] = RAMP_IN
         self._reset_policy(np.ones(self.envs, dtype=bool))
         self.clock.start()
@@ -468,6 +514,7 @@ class Runtime:
             faulted &= np.asarray(envs, dtype=bool)
         self.mode[faulted] = Mode.RAMP_IN
         self.cause[faulted] = -1
+        self.damping[faulted] = False
         self.guard.reset(self.state.q, envs=faulted)
         self.smoother.sync(self.state.q, self.state.dq, envs=faulted)
         self._reset_policy(faulted)
@@ -486,6 +533,8 @@ class Runtime:
         st[1] = clock_ns()
         state = self.estimator.update(frame, self.state, self._input)
         self.kinematics.update(state)
+        if self.base_estimator is not None:
+            self._update_base(frame, state)  # IMU, contacts, the gait clock; falls
         self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
         st[2] = clock_ns()
         obs = self.spec.observation(state, self.goal, out=self._obs, reference=self.reference)
@@ -497,6 +546,8 @@ class Runtime:
         self._on_violation()
         st[5] = clock_ns()
         cmd = self.smoother.step(target, out=self._cmd)
+        if self.damping.any():
+            self._damp(cmd, state)  # a fallen legged robot: joint damping, not a stiff hold
         st[6] = clock_ns()
         self.backend.write(cmd)
         st[7] = clock_ns()
@@ -615,20 +666,56 @@ class Runtime:
             if took_over.any():
                 mode[took_over] = RUNNING
                 self._reset_policy(took_over)  # the policy starts from its initial state
-            stopped = (mode == SAFE_STOP) & at_rest
+            stopping = mode == SAFE_STOP
+            ticks = self.stop_ticks
+            ticks += stopping
+            # at rest, or SAFE_STOP_TIMEOUT after the stop began (counted once, when reached)
+            timed_out = stopping & (ticks >= self._stop_timeout)
+            stopped = (stopping & at_rest) | timed_out
             if stopped.any():
+                self.counters.safe_stop_timeouts += (
+                    timed_out & ~at_rest & (ticks == self._stop_timeout)
+                )
                 thermal = self.cause == FAULT_CAUSES.index("over_temperature")
                 cool = (state.winding_temperature < self._temp_start).all(axis=1)
                 # a servo whose own protection tripped meanwhile has cut its torque: no resume
                 latched = self.drive_errors.any(axis=1)
                 resume = stopped & thermal & cool & ~latched
-                mode[stopped & (~thermal | latched)] = FAULTED
+                faulted = stopped & (~thermal | latched)
+                mode[faulted] = FAULTED
+                ticks[faulted | resume] = 0
                 if resume.any():
                     mode[resume] = RAMP_IN
                     self.cause[resume] = -1
                     self.smoother.sync(state.q, state.dq, envs=resume)
                     self._reset_policy(resume)
         self._reanchor(state)
+
+    def _update_base(self, frame, state: RobotState) -> None:
+        """A floating-base robot's tick: the base estimate from the IMU and leg kinematics, the
+        feet's contact, the gait clock; an IMU silent past ``safety.stale_limit`` makes a safe
+        stop (stale_sensor), a fall (:class:`deploy.fall.FallDetector`) a damped one (fall)."""
+        self.base_estimator.update(frame, state.q, state.dq, out=state.base)
+        state.foot_contact[:] = frame.foot_contact
+        state.clock[:] = self.time
+        stale = self.base_estimator.time_since_fresh > self.robot.config.safety.stale_limit
+        self._safe_stop(stale, "stale_sensor")
+        fallen = self.fall_detector.check(state) & ((self.mode == RUNNING) | (self.mode == RAMP_IN))
+        if fallen.any():
+            self._safe_stop(fallen, "fall")
+            self.damping |= fallen
+
+    def _damp(self, cmd: np.ndarray, state: RobotState) -> None:
+        """The command of the envs in a fall stop (``self.damping``): position mode, the
+        measured pose (the servo's PD then only damps, ``-kd dq``); velocity mode, zero speed;
+        torque mode, ``-STOP_DAMPING * effort_limit * dq``."""
+        damp = self.damping
+        if self.mode_name == "position":
+            cmd[damp] = state.q[damp]
+        elif self.mode_name == "velocity":
+            cmd[damp] = 0.0
+        else:
+            cmd[damp] = -self._stop_damping * state.dq[damp]
 
     def _reanchor(self, state: RobotState) -> None:
         """:func:`reanchor` the smoother and count it (anchors or resyncs)."""
@@ -713,16 +800,24 @@ class Runtime:
             "action": self._action,
             "last_valid_action": self._last_valid_action,
             "nan_streak": self._nan_streak,
+            "stop_ticks": self.stop_ticks,
             "target": self._target,
             "command": self._cmd,
             "counters/non_finite_actions": c.non_finite_actions,
             "counters/safe_stops": c.safe_stops,
             "counters/resyncs": c.resyncs,
             "counters/anchors": c.anchors,
+            "counters/safe_stop_timeouts": c.safe_stop_timeouts,
         }
         fields.update({f"counters/faults/{k}": v for k, v in c.faults.items()})
         for name in ("q", "dq", "ee_position", "ee_rotation", "winding_temperature", "last_action"):
             fields[f"state/{name}"] = getattr(st, name)
+        if st.base is not None:  # a floating base: its estimate, contacts, command, clock
+            fields["damping"] = self.damping
+            for name in ("foot_contact", "command", "clock"):
+                fields[f"state/{name}"] = getattr(st, name)
+            for name, value in vars(st.base).items():
+                fields[f"state/base/{name}"] = value
         return fields
 
     def _shared_fields(self) -> dict[str, np.ndarray]:
@@ -744,6 +839,8 @@ class Runtime:
         """The stages whose state is part of the runtime's: the estimator, guard and smoother,
         and the policy, backend and fault injector where they have a ``state_dict``."""
         parts = {"estimator": self.estimator, "guard": self.guard, "smoother": self.smoother}
+        if self.base_estimator is not None:
+            parts["base_estimator"] = self.base_estimator
         for name, part in (
             ("policy", self.policy),
             ("backend", self.backend),
@@ -759,7 +856,8 @@ class Runtime:
 
         The runtime's own fields, (envs, ...) (length 1 for one env ``env``): ``mode``,
         ``cause`` (int8), ``goal`` (envs, 3) m, ``drive_errors``, the screened ``action`` and
-        ``last_valid_action`` (float32), ``nan_streak``, the last ``target`` and ``command`` (the
+        ``last_valid_action`` (float32), ``nan_streak``, ``stop_ticks`` (int64, ticks since the
+        safe stop began), the last ``target`` and ``command`` (the
         units of the mode), ``counters/<name>`` and ``counters/faults/<cause>`` (int64) and the
         estimated ``state/<field>`` (:class:`~deploy.state.RobotState`). Shared by the batch:
         ``ticks`` (int), ``time`` (float, s), ``overrun_ring`` (``OVERRUN_WINDOW``,) bool, the

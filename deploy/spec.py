@@ -121,6 +121,9 @@ LEGGED_SCALES = {
 #: Position actions about the home pose, rad per unit action (legged_gym
 #: LeggedRobotCfg.control.action_scale).
 LEGGED_ACTION_SCALE = 0.25
+#: A legged policy's action clip (legged_gym LeggedRobotCfg.normalization.clip_actions): its
+#: targets reach past the joints' ranges, where the guard clamps them (counted).
+LEGGED_ACTION_CLIP = 100.0
 #: The gait clock's period, s (unitree_rl_gym legged_gym/envs/go2: the phase period 0.8 s).
 GAIT_PERIOD = 0.8
 #: Default observation clip (in normalized units); generous, since values are already ~[-1, 1].
@@ -324,6 +327,7 @@ class PolicySpec:
             size=n,
             scale=tuple(float(s) for s in scale),
             offset=tuple(float(o) for o in offset),
+            clip=LEGGED_ACTION_CLIP if legged else 1.0,
             reference=reference,
         )
         spec = cls(

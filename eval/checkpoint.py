@@ -63,7 +63,9 @@ from deploy.stateful import StateDictError, section
 
 FORMAT = "soak-checkpoint"
 #: 3: the composition of the stages' state dicts (2 read and wrote their private attributes).
-VERSION = 3
+#: 4: the runtime's safe-stop timeout (``stop_ticks``, ``counters/safe_stop_timeouts``); a
+#: version 3 checkpoint has neither, and its sessions restart.
+VERSION = 4
 MANIFEST = "checkpoint.json"
 
 

@@ -452,7 +452,12 @@ def import_floating_base(
     import shutil
     import tempfile
 
-    from robots.import_model import cap_limits, choose_collision_pairs, derive_motion_limits
+    from robots.import_model import (
+        LEGGED_MAX_ACCELERATION,
+        cap_limits,
+        choose_collision_pairs,
+        derive_motion_limits,
+    )
     from robots.importer import _add_contact_excludes, _disabled_by
     from robots.robot import RobotSpecError, _resolved_mjcf, load_robot
 
@@ -471,7 +476,9 @@ def import_floating_base(
             raise RobotImportError(f"{flag}: gains must be positive (kd may be 0), got {bad}")
 
     def motion_now():
-        motion = derive_motion_limits(spec, model, joint_names, limits_out, motor_cfg, chosen)
+        motion = derive_motion_limits(
+            spec, model, joint_names, limits_out, motor_cfg, chosen, LEGGED_MAX_ACCELERATION
+        )
         for i, j in enumerate(joint_names):
             motion.home[i] = home_set.get(j, motion.home[i])
             motion.kp[i] = kp_set.get(j, motion.kp[i])

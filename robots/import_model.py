@@ -28,6 +28,14 @@ SERVO_FULL_EFFORT_ERROR = 0.05
 SERVO_STABILITY = 0.3
 #: Fraction of the torque left over gravity that the acceleration limit may use.
 ACCELERATION_MARGIN = 0.5
+#: Largest acceleration limit of an arm's joint, rad/s^2 (our choice: arm3/arm6's; an arm moves
+#: its payload smoothly). A leg swings at gait frequency: ``LEGGED_MAX_ACCELERATION``.
+MAX_ACCELERATION = 50.0
+#: Largest acceleration limit of a leg's joint, rad/s^2: a 0.4 s trot swings a foot by ~0.5 rad
+#: in 0.2 s, ~4 x 0.5 / 0.2^2 = 50 rad/s^2 on average with peaks several times that, which a
+#: 50 rad/s^2 smoother flattens into shuffling; 1000 leaves the physical bound (0.5 x spare
+#: torque / inertia) as the limit.
+LEGGED_MAX_ACCELERATION = 1000.0
 #: Jerk limit per unit of acceleration limit, 1/s (as arm3/arm6: 20 x acceleration per second).
 JERK_PER_ACCELERATION = 20.0
 #: Link pairs closer than this at the home pose (m) are not checked (they touch by design).
@@ -198,13 +206,16 @@ def cap_limits(urdf: PreparedSource, chosen, motor_cfg, log) -> tuple[dict, list
     return limits, lowered, notes
 
 
-def derive_motion_limits(spec, model, joint_names, limits, motor_cfg, chosen) -> Motion:
+def derive_motion_limits(
+    spec, model, joint_names, limits, motor_cfg, chosen, max_acceleration=MAX_ACCELERATION
+) -> Motion:
     """Home pose, acceleration and jerk limits and plant servo gains (see the constants).
 
     The acceleration limit is ``ACCELERATION_MARGIN`` x (effort - worst gravity torque) / worst
     joint-space inertia (armature included) over ``SAMPLES`` seeded configurations; kp gives the
     full effort at ``SERVO_FULL_EFFORT_ERROR`` rad (lowered for explicit stability at the physics
-    timestep), kd = 2 sqrt(kp x worst inertia) (critical damping).
+    timestep), kd = 2 sqrt(kp x worst inertia) (critical damping). The acceleration limit is
+    clipped into [0.5, ``max_acceleration``] rad/s^2.
     """
     n = len(joint_names)
     lo = np.array([limits[j][0] for j in joint_names])
@@ -229,7 +240,9 @@ def derive_motion_limits(spec, model, joint_names, limits, motor_cfg, chosen) ->
         inertia_min = np.minimum(inertia_min, diag)
         gravity = np.maximum(gravity, np.abs(data.qfrc_bias))
     spare = np.maximum(effort - gravity, 0.25 * effort)
-    acc = np.array([_sig(a) for a in np.clip(ACCELERATION_MARGIN * spare / inertia_max, 0.5, 50)])
+    acc = np.array(
+        [_sig(a) for a in np.clip(ACCELERATION_MARGIN * spare / inertia_max, 0.5, max_acceleration)]
+    )
     jerk = JERK_PER_ACCELERATION * acc
     dt = model.opt.timestep
     kp = np.minimum(effort / SERVO_FULL_EFFORT_ERROR, (SERVO_STABILITY / dt) ** 2 * inertia_min)

@@ -331,3 +331,172 @@ def test_velocity_mode_keeps_the_commanded_position_on_a_saturated_drive(arm3):
     assert rt.counters.anchors[0] > 0 and rt.counters.resyncs[0] == 0
     assert worst <= VELOCITY_TRACKING_TOLERANCE + 0.03  # (0.98 rad without the anchor)
     assert rt.mode[0] == Mode.RUNNING
+
+
+# ---------------------------------------------------------------- the end of a safe stop
+#: The encoder noise of soak session 0 on so101 (the soak draws 0.002-0.010 pi rad per session),
+#: 19 times the one count the estimator's filter assumes: its velocity estimate of an arm at rest
+#: then has a standard deviation of ~2 rad/s, and six joints are never below REST_SPEED together.
+NOISY_ENCODER = 0.0286
+
+
+class _CalmPolicy:
+    """Zero actions, or non-finite ones while ``nan`` is set (``NAN_ACTION_LIMIT`` of them in a
+    row make a safe stop through the action screen, compiled or reference)."""
+
+    def __init__(self, spec):
+        self.spec, self.nan = spec, np.zeros(1, dtype=bool)
+
+    def __call__(self, obs):
+        action = np.zeros((obs.shape[0], self.spec.act_dim), dtype=np.float32)
+        action[self.nan] = np.nan
+        return action
+
+
+def calm_runtime(robot, mode="position", envs=1, reference=False, seed=0):
+    from deploy.spec import PolicySpec
+
+    policy = _CalmPolicy(PolicySpec.for_robot(robot, mode=mode))
+    policy.nan = np.zeros(envs, dtype=bool)
+    backend = SimBackend(robot, mode=mode, envs=envs, seed=seed)
+    rt = Runtime(robot, policy, backend, reference=reference)
+    rt.start()
+    return rt
+
+
+def stop_by_nan(rt, envs=None):
+    """Run until RUNNING, then make the policy's output non-finite until the selected envs are in
+    SAFE_STOP; returns the runtime's tick count when they entered it."""
+    for _ in range(seconds(rt, 5.0)):
+        if (rt.mode == Mode.RUNNING).all():
+            break
+        rt.tick()
+    assert (rt.mode == Mode.RUNNING).all(), rt.mode_names()
+    which = np.ones(rt.envs, dtype=bool) if envs is None else np.asarray(envs)
+    rt.policy.nan[:] = which
+    for _ in range(NAN_ACTION_LIMIT + 1):
+        rt.tick()
+        if (rt.mode[which] == Mode.SAFE_STOP).all():
+            break
+    assert (rt.mode[which] == Mode.SAFE_STOP).all(), rt.mode_names()
+    rt.policy.nan[:] = False
+    return rt.ticks
+
+
+@pytest.fixture(scope="module")
+def so101():
+    from robots import load_robot as load
+
+    return load("so101")
+
+
+@pytest.mark.parametrize("reference", [False, True])
+def test_a_safe_stop_that_cannot_come_to_rest_latches_after_the_timeout(so101, reference):
+    """The soak's so101 stop that never ended: the arm is at rest, but the noisy encoders keep the
+    estimated velocities above REST_SPEED. SAFE_STOP_TIMEOUT after it began the stop ends FAULTED
+    (latched: an operator resets it), counted in safe_stop_timeouts; its cause is kept."""
+    from deploy.runtime import REST_SPEED, SAFE_STOP_TIMEOUT
+
+    rt = calm_runtime(so101, reference=reference)
+    began = stop_by_nan(rt)
+    rt.backend.noise_sigma[:] = NOISY_ENCODER
+    timeout = int(np.ceil(SAFE_STOP_TIMEOUT / rt.dt - 1e-9))
+    rt.run(timeout - 1)
+    assert rt.mode[0] == Mode.SAFE_STOP and rt.stop_ticks[0] == timeout - 1
+    assert rt.counters.safe_stop_timeouts[0] == 0
+    # the arm itself is at rest; only the estimate is not
+    assert np.all(np.abs(rt.backend.true_velocity()) < REST_SPEED)
+    assert np.abs(rt.state.dq).max() > 10 * REST_SPEED
+    rt.tick()
+    assert rt.ticks - began == timeout
+    assert rt.mode[0] == Mode.FAULTED and rt.cause_names() == ["non_finite_action"]
+    assert rt.counters.safe_stop_timeouts[0] == 1 and rt.stop_ticks[0] == 0
+    assert rt.counters.safe_stops[0] == 1
+    state = rt.state_dict()
+    assert state["counters/safe_stop_timeouts"].tolist() == [1]
+    rt.run(seconds(rt, 1.0))
+    assert rt.mode[0] == Mode.FAULTED  # latched, as a stop that came to rest
+    rt.backend.noise_sigma[:] = so101.config.sensors.encoder_noise_sigma
+    rt.reset_faults()
+    assert rt.mode[0] == Mode.RAMP_IN
+    assert rt.counters.safe_stop_timeouts[0] == 1  # a count of the run, not of the stop
+
+
+def test_a_safe_stop_that_comes_to_rest_latches_without_a_timeout(arm3):
+    """arm3, whose filter assumes its encoders' noise: the stop rests within the timeout. (On
+    so101, whose filter assumes one encoder count, the six estimated velocities are seldom below
+    REST_SPEED together even at its nominal noise: its stops mostly end by the timeout.)"""
+    from deploy.runtime import SAFE_STOP_TIMEOUT
+
+    rt = calm_runtime(arm3, mode="velocity")
+    began = stop_by_nan(rt)
+    while rt.mode[0] == Mode.SAFE_STOP and rt.ticks - began < 2 * SAFE_STOP_TIMEOUT / rt.dt:
+        rt.tick()
+    assert rt.mode[0] == Mode.FAULTED
+    assert (rt.ticks - began) * rt.dt < SAFE_STOP_TIMEOUT
+    assert rt.counters.safe_stop_timeouts[0] == 0 and rt.stop_ticks[0] == 0
+
+
+def test_an_over_temperature_stop_that_cannot_rest_resumes_once_cool(so101):
+    """An over-temperature stop holds until cool. One still moving at the timeout is counted and
+    does not latch: it resumes (RAMP_IN) as soon as the windings have cooled, at rest or not."""
+    from deploy.runtime import SAFE_STOP_TIMEOUT
+
+    rt = calm_runtime(so101)
+    stop_by_nan(rt, envs=[False])  # RUNNING
+    plant = rt.backend
+    plant.thermal.winding_temperature[0, 1] = 70.0  # above the 65 degC maximum
+    rt.run(seconds(rt, 0.2))  # temperatures are read at 10 Hz
+    assert rt.mode[0] == Mode.SAFE_STOP and rt.cause_names() == ["over_temperature"]
+    plant.noise_sigma[:] = NOISY_ENCODER
+    rt.run(seconds(rt, SAFE_STOP_TIMEOUT + 0.5))
+    assert rt.mode[0] == Mode.SAFE_STOP  # hot: it holds, not FAULTED
+    assert rt.counters.safe_stop_timeouts[0] == 1
+    plant.thermal.winding_temperature[0, 1] = 30.0
+    rt.run(seconds(rt, 0.2))
+    assert rt.mode[0] == Mode.RAMP_IN and rt.stop_ticks[0] == 0
+    assert rt.counters.safe_stop_timeouts[0] == 1
+
+
+def test_safe_stop_timeout_compiled_equals_reference_and_resumes_exactly(so101):
+    """Two envs, the compiled tick and the reference in lockstep through a timed-out stop (env 0)
+    and a stop that rests (env 1): every mode, stop tick, counter and command equal; a runtime
+    loaded from the state dict in the middle of the stop ends it on the same tick."""
+    a = calm_runtime(so101, envs=2)
+    b = calm_runtime(so101, envs=2, reference=True)
+    for rt in (a, b):
+        stop_by_nan(rt)
+        rt.backend.noise_sigma[:] = (NOISY_ENCODER, 0.0)  # env 1: a perfect encoder, it rests
+    c = None
+    for k in range(seconds(a, 3.0)):
+        for rt in (a, b) if c is None else (a, b, c):
+            rt.tick()
+        for other in (b,) if c is None else (b, c):
+            np.testing.assert_array_equal(a.mode, other.mode, err_msg=f"tick {k}")
+            np.testing.assert_array_equal(a.stop_ticks, other.stop_ticks, err_msg=f"tick {k}")
+            np.testing.assert_array_equal(a.command, other.command, err_msg=f"tick {k}")
+            np.testing.assert_array_equal(
+                a.counters.safe_stop_timeouts, other.counters.safe_stop_timeouts
+            )
+        if k == seconds(a, 1.0):
+            state = a.state_dict()
+            assert state["stop_ticks"][0] > 0
+            c = calm_runtime(so101, envs=2)
+            c.load_state_dict(state)
+    assert a.mode_names() == ["FAULTED", "FAULTED"]
+    assert a.counters.safe_stop_timeouts.tolist() == [1, 0]
+    del state["stop_ticks"]
+    from deploy.stateful import StateDictError
+
+    with pytest.raises(StateDictError, match="field 'stop_ticks' is missing"):
+        calm_runtime(so101, envs=2).load_state_dict(state)
+
+
+def test_safe_stop_timeout_leaves_room_for_the_slowest_brake(arm3, arm6, so101):
+    """The rationale of SAFE_STOP_TIMEOUT: three times the longest brake from the velocity limit
+    (acceleration ramp, then full deceleration) of the robots."""
+    from deploy.runtime import SAFE_STOP_TIMEOUT
+
+    for robot in (arm3, arm6, so101):
+        v, a, j = robot.velocity_limit, robot.acceleration_limit, robot.jerk_limit
+        assert 3.0 * np.max(v / a + a / j) <= SAFE_STOP_TIMEOUT, robot.name

@@ -3,9 +3,10 @@
 :func:`supervise` (before the observation): the thermal derating of the effort limits
 (:func:`deploy.thermal.derating_factor`), the safe stops for stale sensors, over-temperature,
 drive errors and overruns (in that order, the first cause wins), the end of RAMP_IN and of safe
-stops, and the screen of the re-anchoring (:func:`deploy.runtime.reanchor`). It returns the
-``SUPERVISE_*`` bits of what Python must do: start the smoother's safe stop of the ``new`` envs,
-reset the policy of the envs that took over, re-sync and reset those that resume, re-anchor.
+stops (at rest, or ``STOP_TIMEOUT`` ticks after they began: counted), and the screen of the
+re-anchoring (:func:`deploy.runtime.reanchor`). It returns the ``SUPERVISE_*`` bits of what
+Python must do: start the smoother's safe stop of the ``new`` envs, reset the policy of the envs
+that took over, re-sync and reset those that resume, re-anchor.
 
 :func:`screen_action` (after the policy): non-finite actions held and counted (``NAN_LIMIT`` in a
 row make a safe stop), the action mapped to a target
@@ -29,8 +30,9 @@ from deploy.kernels import np_max, np_min
 
 #: Modes of the state machine (deploy.runtime.Mode).
 IDLE, RAMP_IN, RUNNING, SAFE_STOP, FAULTED = 0, 1, 2, 3, 4
-#: Indices of deploy.runtime.FAULT_CAUSES.
+#: Indices of deploy.runtime.FAULT_CAUSES (FALL: set by the runtime's fall check, not here).
 HARD_LIMIT, NON_FINITE_ACTION, STALE_SENSOR, OVERRUN, OVER_TEMPERATURE, SERVO_ERROR = range(6)
+FALL = 6
 #: Rows of ``flags``.
 NEW_STOP, TOOK_OVER, RESUMED, BAD_ACTION = 0, 1, 2, 3
 #: Return bits of :func:`supervise`.
@@ -40,7 +42,7 @@ SCREEN_STOP, SCREEN_OVERRIDE = 1, 2
 #: Control modes (the re-anchoring and the overrides differ).
 POSITION, VELOCITY, TORQUE = 0, 1, 2
 #: Rows of ``params`` of :func:`supervise`.
-STALE_LIMIT, OVERRUN_LIMIT, REST_SPEED, HOME_TOLERANCE, TRACKING_TOLERANCE = range(5)
+STALE_LIMIT, OVERRUN_LIMIT, REST_SPEED, HOME_TOLERANCE, TRACKING_TOLERANCE, STOP_TIMEOUT = range(6)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -77,6 +79,8 @@ def supervise(
     cause: np.ndarray,
     safe_stops: np.ndarray,
     faults: np.ndarray,
+    stop_ticks: np.ndarray,
+    stop_timeouts: np.ndarray,
     flags: np.ndarray,
 ) -> int:
     """Derating, supervision and transitions of one tick (module docstring).
@@ -91,12 +95,16 @@ def supervise(
         drive_errors: (envs, n) int64, the latched drive error bits.
         overrun_ring: (window,) bool, overruns of the last ticks; read when ``realtime``.
         params: ``STALE_LIMIT`` s, ``OVERRUN_LIMIT`` fraction, ``REST_SPEED`` rad/s,
-            ``HOME_TOLERANCE`` rad, ``TRACKING_TOLERANCE`` rad (of the control mode).
+            ``HOME_TOLERANCE`` rad, ``TRACKING_TOLERANCE`` rad (of the control mode),
+            ``STOP_TIMEOUT`` ticks (``deploy.runtime.SAFE_STOP_TIMEOUT``).
         q, dq: (envs, n) rad, rad/s, the estimate; home (n,) rad.
         commanded: (envs, n) rad, the smoother's commanded position (Ruckig's position in
             velocity mode); unused in torque mode.
         mode, cause: (envs,) int8, the state machine (written).
         safe_stops: (envs,) int64; faults (causes, envs) int64: counters (written).
+        stop_ticks: (envs,) int64, ticks since each safe stop began, 0 outside SAFE_STOP
+            (written); stop_timeouts: (envs,) int64, safe stops not at rest at the timeout
+            (written).
         flags: (4, envs) bool, written (rows ``NEW_STOP``, ``TOOK_OVER``, ``RESUMED``).
     """
     envs, n = q.shape
@@ -150,7 +158,14 @@ def supervise(
                 mode[e] = RUNNING
                 flags[TOOK_OVER, e] = True
                 code |= SUPERVISE_TOOK_OVER
-        elif at_rest:
+        else:
+            stop_ticks[e] += 1
+            # at rest, or STOP_TIMEOUT ticks after the stop began (counted once, when reached)
+            timed_out = stop_ticks[e] >= params[STOP_TIMEOUT]
+            if not (at_rest or timed_out):
+                continue
+            if timed_out and not at_rest and stop_ticks[e] == params[STOP_TIMEOUT]:
+                stop_timeouts[e] += 1
             thermal = cause[e] == OVER_TEMPERATURE
             cool = True
             latched = False
@@ -162,10 +177,12 @@ def supervise(
             if thermal and cool and not latched:
                 mode[e] = RAMP_IN
                 cause[e] = -1
+                stop_ticks[e] = 0
                 flags[RESUMED, e] = True
                 code |= SUPERVISE_RESUME
             elif not thermal or latched:
                 mode[e] = FAULTED
+                stop_ticks[e] = 0
     if control != TORQUE:
         for e in range(envs):
             for j in range(n):

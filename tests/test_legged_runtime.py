@@ -1,0 +1,132 @@
+"""Legged robots in the runtime (issue 17, parts 4-5): the floating-base observation blocks, the
+velocity command and gait clock, fall detection with a damped safe stop, and the base
+estimator's state in the runtime's state_dict."""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto, helper, numpy_helper
+
+from deploy.backends.sim import SimBackend
+from deploy.policy import OnnxPolicy
+from deploy.runtime import FAULT_CAUSES, Mode, Runtime
+from deploy.spec import LEGGED_DEFAULT_BLOCKS, PolicySpec, SpecError
+from robots import load_robot
+
+pytest.importorskip("ahrs")
+
+
+@pytest.fixture(scope="module")
+def go2():
+    return load_robot("go2")
+
+
+@pytest.fixture(scope="module")
+def stand_policy(go2, tmp_path_factory):
+    """An ONNX policy of go2's default spec whose action is 0: the home pose (the action's
+    offset), whatever it observes."""
+    spec = PolicySpec.for_robot(go2)
+    d, n = spec.obs_dim, spec.act_dim
+    graph = helper.make_graph(
+        [helper.make_node("MatMul", ["obs", "w"], ["action"])],
+        "stand",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
+        initializer=[numpy_helper.from_array(np.zeros((d, n), np.float32), "w")],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    helper.set_model_props(model, {"policy_spec": spec.to_json()})
+    path = tmp_path_factory.mktemp("go2") / "stand.onnx"
+    onnx.save(model, path)
+    return OnnxPolicy(path, go2)
+
+
+def runtime(go2, policy, envs=2, seed=0, reference=False) -> tuple[Runtime, SimBackend]:
+    plant = SimBackend(go2, "position", envs=envs, seed=seed)
+    rt = Runtime(go2, policy, plant, reference=reference)
+    rt.start()
+    return rt, plant
+
+
+def test_default_legged_spec_reads_the_base_the_command_and_the_gait_clock(go2, stand_policy):
+    spec = stand_policy.spec
+    assert tuple(b.name for b in spec.observation_blocks) == LEGGED_DEFAULT_BLOCKS
+    assert spec.obs_dim == 3 + 3 + 3 + 2 + 12 + 12 + 12
+    np.testing.assert_allclose(spec.action.offset, go2.home)  # actions about the home pose
+    rt, plant = runtime(go2, stand_policy)
+    rt.velocity_command[:] = [[0.5, 0.0, 0.2], [-0.3, 0.1, 0.0]]
+    rt.run(60)
+    s = spec.block_slices()
+    obs = spec.observation(rt.state, rt.goal)
+    np.testing.assert_allclose(obs[:, s["velocity_command"]], [[1.0, 0, 0.05], [-0.6, 0.2, 0]])
+    phase = 2 * np.pi * rt.state.clock / spec.observation_blocks[3].period
+    np.testing.assert_allclose(obs[:, s["gait_phase"]], np.c_[np.sin(phase), np.cos(phase)], 1e-6)
+    np.testing.assert_allclose(obs[:, s["joint_position"]], rt.state.q - go2.home, atol=1e-6)
+    # projected gravity: the estimate's, close to the true base's (standing, sensor noise on)
+    true_up = plant.true_base_state()[:, 3:7]  # [w x y z]
+    w, x, y = true_up[:, 0], true_up[:, 1], true_up[:, 2]
+    true_g_z = -(1 - 2 * (x * x + y * y))
+    np.testing.assert_allclose(obs[:, s["projected_gravity"]][:, 2], true_g_z, atol=0.01)
+    assert (rt.mode == Mode.RUNNING).all() and rt.counters.safe_stops.sum() == 0
+    del w
+
+
+def test_legged_blocks_are_refused_on_an_arm_and_foot_count_checked(go2, arm3):
+    spec = PolicySpec.for_robot(go2)
+    with pytest.raises(SpecError, match="robot: policy is for 'go2'"):
+        spec.check_robot(arm3)
+    arm_spec = PolicySpec.for_robot(arm3, blocks=("joint_position", "joint_velocity"))
+    legged = arm_spec.__class__(
+        **{**vars(arm_spec), "observation_blocks": spec.observation_blocks[1:2]}
+    )
+    with pytest.raises(SpecError, match="'projected_gravity' cannot be provided: the robot"):
+        legged.check_robot(arm3, check_hash=False)
+    with pytest.raises(SpecError, match="period must be a positive number of s"):
+        gait = spec.observation_blocks[3]
+        bad = spec.__class__(
+            **{**vars(spec), "observation_blocks": (gait.__class__(**{**vars(gait), "period": 0}),)}
+        )
+        bad.validate()
+
+
+@pytest.mark.parametrize("reference", [False, True])
+def test_fall_detection_trips_on_a_pushed_over_robot_and_not_on_a_standing_one(
+    go2, stand_policy, reference
+):
+    rt, plant = runtime(go2, stand_policy, reference=reference)
+    rt.run(150)  # 3 s standing, with encoder and IMU noise
+    assert rt.counters.faults["fall"].sum() == 0
+    assert (rt.mode == Mode.RUNNING).all()
+    plant.set_external_force(0, np.array([0.0, 300.0, 0.0]))  # env 0 shoved sideways
+    rt.run(15)
+    plant.set_external_force(0, np.zeros(3))
+    rt.run(150)
+    assert rt.counters.faults["fall"].tolist() == [1, 0]
+    assert rt.cause_names()[0] == "fall" and rt.mode[1] == Mode.RUNNING
+    assert rt.mode[0] == Mode.FAULTED  # latched once the joints came to rest
+    # the fall stop damps: the command follows the measured pose (no stiff hold)
+    assert rt.damping.tolist() == [True, False]
+    np.testing.assert_array_equal(rt.command[0], rt.state.q[0])
+    assert np.abs(rt.command[1] - rt.state.q[1]).max() > 1e-4  # the other holds its pose
+    rt.reset_faults()
+    assert rt.mode[0] == Mode.RAMP_IN and not rt.damping[0]
+    assert FAULT_CAUSES.index("fall") == 6
+
+
+def test_base_estimate_and_gait_clock_survive_state_dict(go2, stand_policy):
+    rt, plant = runtime(go2, stand_policy, seed=3)
+    rt.velocity_command[:] = [0.4, 0.0, 0.0]
+    rt.run(40)
+    saved = rt.state_dict()
+    assert "base_estimator/gyro_bias" in saved and "state/base/projected_gravity" in saved
+    rt.run(30)
+    expected = (rt.command.copy(), rt.state.base.orientation.copy(), rt.state.clock.copy())
+    again, _ = runtime(go2, stand_policy, seed=11)  # other noise: the state must replace it
+    again.load_state_dict(saved)
+    again.run(30)
+    np.testing.assert_array_equal(again.command, expected[0])
+    np.testing.assert_array_equal(again.state.base.orientation, expected[1])
+    np.testing.assert_array_equal(again.state.clock, expected[2])

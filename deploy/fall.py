@@ -22,7 +22,6 @@ from deploy.base_estimation import quaternion_to_matrix
 from deploy.state import RobotState
 from robots import Robot
 
-
 #: Default tilt limit, rad (our choice): a walking quadruped's base stays within ~0.3 rad of
 #: upright; past 1 rad (57 deg) it cannot catch itself.
 FALL_TILT = 1.0

@@ -236,10 +236,11 @@ def exit_code(report: dict) -> int:
 
 def run(args) -> int:
     from deploy.files import sha256_file
+    from eval.campaign import run_campaign
     from eval.fault_schedule import fault_ranges
     from eval.randomization import SessionRanges
     from eval.report import Thresholds, build_report, load_report, summary_text, write_reports
-    from eval.soak import SessionConfig, run_campaign
+    from eval.session import SessionConfig
     from robots import load_robot
 
     _check_args(args)

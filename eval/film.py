@@ -3,10 +3,10 @@ after the session.
 
 A soak session is a function of its seed and options, and resumes from any of its checkpoints
 to the same result bit for bit (:mod:`eval.soak`). The film strip uses that: while a session
-runs, :class:`FilmRecorder` (the ``film=True`` hook of :class:`eval.soak.SessionBatch`) keeps a
+runs, :class:`FilmRecorder` (the ``film=True`` hook of :class:`eval.batch.SessionBatch`) keeps a
 copy of every checkpoint (``OUT/sessions/<id>/film/<tick>/``: the checkpoint's files, hard links
 where the file system allows, and the recorder's own state) and notes, at the harness's
-supervision steps (every ``eval.soak.SUPERVISE_PERIOD`` s), when a hard-limit violation of the
+supervision steps (every ``eval.batch.SUPERVISE_PERIOD`` s), when a hard-limit violation of the
 true state or a hard-limit safe stop of the runtime begins, when a fault latches and when the
 hottest winding temperature so far occurs, each with the tick and the true joint positions then
 (the replay's fingerprint). After the
@@ -97,7 +97,7 @@ class FilmError(Sim2RealError, RuntimeError):
 
 def retain_dir(out: str | os.PathLike, seed: int) -> Path:
     """``OUT/sessions/<id>/film``: the checkpoints kept for session ``seed``'s film."""
-    from eval.soak import session_dir
+    from eval.session import session_dir
 
     return session_dir(out, seed) / FILM
 
@@ -122,7 +122,7 @@ def _write_json(path: Path, doc) -> None:
 class FilmRecorder:
     """The soak's film hook: keeps every checkpoint and notes the moments worth filming.
 
-    :class:`eval.soak.SessionBatch` (``film=True``) calls :meth:`supervise` at each supervision
+    :class:`eval.batch.SessionBatch` (``film=True``) calls :meth:`supervise` at each supervision
     step, :meth:`checkpointed` after writing its checkpoints and :meth:`finish` at the end. It
     only reads the batch: the session's results are the same with or without it.
 
@@ -203,7 +203,7 @@ class FilmRecorder:
 
     def checkpointed(self) -> None:
         """Keep a copy of each session's checkpoint just written, with the recorder's state."""
-        from eval.soak import session_dir
+        from eval.session import session_dir
 
         b = self.batch
         tick = int(b.rt.ticks)
@@ -379,7 +379,8 @@ class _Replay:
         self.simulated_ticks = 0
 
     def _load(self, tick: int, from_start: bool) -> None:
-        from eval.soak import SessionBatch, session_dir
+        from eval.batch import SessionBatch
+        from eval.session import session_dir
 
         best = 0 if from_start else max((t for t in self.kept if t <= tick), default=0)
         if self.batch is not None and best <= self.batch.rt.ticks <= tick:
@@ -498,7 +499,7 @@ def render_session(
     ``OUT/film/<id>/`` (clips, stills, ``film.json``) and return ``film.json``'s document.
 
     Args:
-        config: The session's :class:`eval.soak.SessionConfig`.
+        config: The session's :class:`eval.session.SessionConfig`.
         out: The campaign folder.
         stream: Where to print one summary line (None: nowhere).
         fps, size, max_clips, crf: Frames per simulated second, (width, height) pixels, clips
@@ -508,7 +509,7 @@ def render_session(
         FilmError: the session has no result, or no film can be made (no OpenGL context: the
             message names ``MUJOCO_GL``; imageio-ffmpeg missing).
     """
-    from eval.soak import read_result
+    from eval.session_result import read_result
     from robots import load_robot
 
     out = Path(out)
@@ -621,8 +622,8 @@ def film_campaign(
     rendered (a resumed campaign) is not rendered again. Prints one line per session.
 
     Args:
-        template: The campaign's :class:`eval.soak.SessionConfig` (sessions differ by seed).
-        results: Session results (:func:`eval.soak.run_campaign`).
+        template: The campaign's :class:`eval.session.SessionConfig` (sessions differ by seed).
+        results: Session results (:func:`eval.campaign.run_campaign`).
         out: The campaign folder.
         workers: Processes rendering at once.
         **look: ``fps``, ``size``, ``max_clips``, ``crf`` of :func:`render_session`.
@@ -630,7 +631,7 @@ def film_campaign(
     from dataclasses import replace
 
     from deploy.video import headless_gl_default
-    from eval.soak import default_workers
+    from eval.executors import default_workers
 
     out = Path(out)
     env = dict(os.environ)

@@ -1,0 +1,433 @@
+"""The batched runner: several soak sessions stepped together in one plant and one runtime.
+
+Batching. Several sessions run in one process through the runtime's batch axis: one
+:class:`~deploy.backends.sim.SimBackend` with ``envs = k`` (one randomized ``MjModel`` per env)
+and one :class:`~deploy.runtime.Runtime` over all of them (one ONNX Runtime call per tick). A
+session's seeded quantities depend on its own seed only: its randomization; its encoder noise and
+dropout draws (one numpy generator per env,
+:meth:`~deploy.backends.sim.SimBackend.set_sensor_streams`, where SimBackend has one for the
+batch); its goals (one ``GoalScheduler`` for the batch with one goal stream per session); its
+faults (a :class:`deploy.faults.FaultInjector` per session on its env,
+:class:`eval.session_faults.SessionFaults`); its operator resets. Every runtime stage computes
+each env on its own, except Ruckig, which serves the whole batch and, when it resamples a
+trajectory for an unchanged input instead of recalculating it, differs from one instance per env
+at ~1e-16 (:mod:`deploy.smoothing`). The harness calls
+:meth:`~deploy.smoothing.CommandSmoother.recalculate` (``Ruckig.reset()``) after every tick, so
+that every step recalculates (as it does anyway whenever a target changes; a few microseconds
+more per tick while an env holds still): a session's results are then the same bit for bit alone
+or batched with any others.
+
+Checkpoints. Every ``checkpoint_minutes`` of simulated time each session of a batch writes its
+complete state (:mod:`eval.checkpoint`) to ``OUT/sessions/<id>/``; ``resume=True`` continues from
+there, and the finished session equals an uninterrupted run bit for bit (the checkpoint interval
+does not change the results). A finished session writes ``result.json``; a resumed campaign
+skips it. Before the runtime starts, the plant streams its sensors for a fixed number of ticks
+(the largest latency the ranges allow, plus one encoder period), so that a first reading has
+arrived: the plant's clock is that much ahead of the runtime's.
+
+Violations and interventions. After every tick a :class:`deploy.violations.ViolationMonitor`
+counts the true-state violations of every session from the plant's ground truth and a
+:class:`deploy.interventions.InterventionMonitor` the commands the guard or the smoother changed
+(before the goal scheduler, so that a goal's last tick counts for it); both are reported apart, in
+total, per hour and on the curves, and are part of the checkpoints. Goals are also counted per
+window of ``window_minutes`` (by their issue time), and each goal replaced unreached is recorded
+with its true end state (:class:`deploy.goals.GoalScheduler`).
+
+Divergence: MuJoCo's divergence (:class:`~deploy.backends.sim.SimulationDivergedError`) ends the
+session that diverged with ``diverged`` set (:exc:`BatchDiverged`); the other sessions of its
+batch continue from their last checkpoints (:func:`eval.executors.run_sessions`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from deploy.errors import Sim2RealError
+from deploy.files import atomic_write, sha256_file
+from deploy.goals import GoalScheduler
+from deploy.interventions import InterventionMonitor
+from deploy.runtime import Mode
+from deploy.stateful import put, take
+from deploy.violations import ViolationMonitor
+from eval import checkpoint as ckpt
+from eval.randomization import (
+    apply_drift,
+    apply_sensors,
+    joint_dofs,
+    randomized_model,
+    sample_session,
+    session_rng,
+)
+from eval.session import SESSIONS_DIR, Session, SessionConfig, SessionError, session_dir
+from eval.session_faults import SessionFaults
+from eval.session_result import session_result
+
+os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+
+#: s between the harness's supervision steps (latches, operator resets, fault arming, curves).
+SUPERVISE_PERIOD = 0.1
+#: s between updates of the drifting friction.
+DRIFT_PERIOD = 10.0
+#: s of simulated time between progress reports.
+PROGRESS_PERIOD = 10.0
+#: The batch's per-env thermal accumulators a checkpoint keeps (``stats/<name>``).
+STATS = ("peak", "window_peak", "band_ticks", "over_ticks")
+
+
+class _Stats:
+    """The batch's thermal accumulators (``STATS``: winding peak, window peak, ticks in the
+    derating band, ticks over the maximum; (envs, n)) as a stage of a checkpoint
+    (:mod:`deploy.stateful`)."""
+
+    def __init__(self, batch):
+        self.batch = batch
+
+    def _fields(self) -> dict[str, np.ndarray]:
+        return {name: getattr(self.batch, name) for name in STATS}
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        return take(self._fields(), env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        put(self._fields(), state, env)
+
+
+def _ticks(seconds: float, dt: float) -> int:
+    return max(int(round(seconds / dt)), 1)
+
+
+class BatchDiverged(Sim2RealError, RuntimeError):
+    """MuJoCo diverged in some envs of a batch; ``seeds`` names their sessions."""
+
+    def __init__(self, seeds: list[int], message: str):
+        super().__init__(message)
+        self.seeds = seeds
+
+
+class SessionBatch:
+    """Sessions run together through the runtime's batch axis, in this process.
+
+    Args:
+        configs: The sessions (same options but the seed).
+        out: Campaign folder; each session keeps ``sessions/<id>/`` there.
+        resume: Continue from the sessions' checkpoints (they must be at the same tick).
+        progress: Write ``progress.json`` per session every ``PROGRESS_PERIOD`` simulated s.
+        on_progress: Optional callable, called after each progress write.
+        film: Keep every checkpoint and note the worst moments for the film strip
+            (:class:`eval.film.FilmRecorder`; it only reads the batch).
+
+    Raises:
+        SessionError: sessions with different options, or duplicate seeds.
+        ValueError: unreadable robot or policy (``RobotSpecError``, ``PolicyLoadError``).
+        eval.checkpoint.CheckpointError: a checkpoint that cannot be read or does not fit.
+    """
+
+    def __init__(
+        self,
+        configs: list[SessionConfig],
+        out: str | os.PathLike,
+        resume: bool = False,
+        progress: bool = True,
+        on_progress=None,
+        film: bool = False,
+    ):
+        from deploy.backends.sim import SimBackend
+        from deploy.policy import OnnxPolicy
+        from deploy.runtime import Runtime
+        from robots import load_robot
+
+        if not configs:
+            raise SessionError("a batch needs at least one session")
+        first = configs[0]
+        for c in configs[1:]:
+            if c.batch_key() != first.batch_key():
+                raise SessionError("the sessions of a batch must share every option but the seed")
+        seeds = [c.seed for c in configs]
+        if len(set(seeds)) != len(seeds):
+            raise SessionError(f"seeds: duplicate session seeds in {seeds}")
+        self.configs = list(configs)
+        self.out = Path(out)
+        self.write_progress = progress
+        self.on_progress = on_progress
+        robot = self.robot = load_robot(first.robot)
+        self.policy = OnnxPolicy(first.policy, robot)
+        self.policy_sha256 = sha256_file(first.policy)
+        self.mode = mode = self.policy.spec.action.mode
+        self.dt = dt = robot.control_period
+        k = len(configs)
+        draws = [sample_session(robot, c.seed, c.duration, c.ranges, c.faults) for c in configs]
+        models = [randomized_model(robot, mode, d.dynamics) for d in draws]
+        backend = self.backend = SimBackend(robot, mode=mode, envs=k, models=models)
+        backend.set_sensor_streams([session_rng(c.seed, "sensor_noise") for c in configs])
+        for e, d in enumerate(draws):
+            apply_sensors(backend, e, d.sensors)
+        backend.reset()  # the first readings from the sessions' own streams and settings
+        # the drives stream for a while before the runtime starts, so that a reading has arrived
+        # despite the latency (the same number of ticks for every session, alone or batched)
+        for _ in range(first.ranges.sensors.latency_ticks[1] + backend.encoder_every):
+            backend.advance()
+        dofs = joint_dofs(models[0], robot)
+        self.initial_friction = np.stack([m.dof_frictionloss[dofs].copy() for m in models])
+        self.faults = SessionFaults(backend)
+        self.rt = Runtime(robot, self.policy, backend, injector=self.faults)
+        self.rt.start()
+
+        n = robot.n_joints
+        self.peak = backend.thermal.winding_temperature.copy()
+        self.window_peak = self.peak.copy()
+        self.band_ticks = np.zeros((k, n), dtype=np.int64)
+        self.over_ticks = np.zeros((k, n), dtype=np.int64)
+        self._mask = np.zeros((k, n), dtype=bool)
+        self._t_start = np.array([m.derating_start_temperature for m in robot.motors])
+        self._t_max = np.array([m.max_winding_temperature for m in robot.motors])
+        self.faulted = np.zeros(k, dtype=bool)
+        self.stats = _Stats(self)  # the accumulators above as a stage of the checkpoints
+
+        self.total_ticks = int(round(first.duration / dt))
+        self.every = _ticks(SUPERVISE_PERIOD, dt)
+        self.periods = {
+            "drift": _ticks(DRIFT_PERIOD, dt),
+            "curve": _ticks(first.curve_seconds, dt),
+            "hour": _ticks(3600.0, dt),
+            "progress": _ticks(PROGRESS_PERIOD, dt),
+        }
+        self.next_ticks = dict(self.periods)
+        self.checkpoint_ticks = (
+            _ticks(first.checkpoint_minutes * 60.0, dt) if first.checkpoint_minutes > 0 else 0
+        )
+        # what the plant really did (true state) and what the guard and smoother changed
+        self.violations = ViolationMonitor(robot, k)
+        self.interventions = InterventionMonitor(self.rt.guard, self.rt.smoother)
+        self.goals = GoalScheduler(
+            robot,
+            k,
+            first.goal_period,
+            None,
+            first.success_time,
+            [session_rng(c.seed, "goals") for c in configs],
+            window=first.window_minutes * 60.0,
+            interventions=self.interventions,
+        )
+        self.sessions = [
+            Session(self, e, c, d) for e, (c, d) in enumerate(zip(configs, draws, strict=True))
+        ]
+        self._next_event = self.every
+        self._ruckig = mode != "torque"
+        self._wall0 = time.perf_counter()
+        if resume:
+            self._resume()
+        self.film = None
+        if film:
+            from eval.film import FilmRecorder
+
+            self.film = FilmRecorder(self)
+
+    # ------------------------------------------------------------------ lifecycle
+    def wall_elapsed(self) -> float:
+        """Wall-clock seconds this process has run the batch since it was built or resumed."""
+        return time.perf_counter() - self._wall0
+
+    def _resume(self) -> None:
+        loaded = []
+        for s in self.sessions:
+            d = session_dir(self.out, s.config.seed)
+            got = ckpt.read_checkpoint(d)
+            loaded.append((s, d, got))
+        have = [x for x in loaded if x[2] is not None]
+        if not have:
+            return
+        if len(have) != len(loaded):
+            missing = [s.config.id for s, _, got in loaded if got is None]
+            raise ckpt.CheckpointError(
+                f"sessions {missing} have no checkpoint in {self.out / SESSIONS_DIR} while others "
+                "of their batch do; resume them separately"
+            )
+        ticks = {int(got[1]["tick"]) for _, _, got in have}
+        if len(ticks) != 1:
+            raise ckpt.CheckpointError(
+                f"the checkpoints of a batch are at different ticks {sorted(ticks)} in "
+                f"{self.out / SESSIONS_DIR}"
+            )
+        _, _, (_, m0) = have[0]
+        self.next_ticks = {k: int(v) for k, v in m0["next"].items()}
+        for s, d, (arrays, meta) in have:
+            s.restore(arrays, meta, d / ckpt.MANIFEST)
+        self._next_event = (self.rt.ticks // self.every + 1) * self.every
+        self._wall0 = time.perf_counter()
+
+    def checkpoint(self) -> None:
+        """Write every session's checkpoint (atomically, see :mod:`eval.checkpoint`)."""
+        for s in self.sessions:
+            arrays, meta = s.capture()
+            ckpt.write_checkpoint(session_dir(self.out, s.config.seed), arrays, meta)
+
+    # ------------------------------------------------------------------ per tick
+    def on_tick(self, rt) -> None:
+        """The batch's per-tick bookkeeping after each runtime tick (monitors, goals, peaks,
+        supervision); what :meth:`run` passes to ``Runtime.run(on_tick=...)``, and a replay of
+        the session must pass too."""
+        if self._ruckig:
+            # the next step recalculates every trajectory from its input, in every env: the same
+            # numbers whatever the neighbours (see the module docstring) and across a restore
+            rt.smoother.recalculate()
+        self.violations.update(self.backend)
+        self.interventions.update()  # before the goals: a goal's last tick counts for it
+        self.goals(rt)
+        temp = self.backend.thermal.winding_temperature
+        np.maximum(self.peak, temp, out=self.peak)
+        np.maximum(self.window_peak, temp, out=self.window_peak)
+        np.greater_equal(temp, self._t_start, out=self._mask)
+        self.band_ticks += self._mask
+        np.greater(temp, self._t_max, out=self._mask)
+        self.over_ticks += self._mask
+        if rt.ticks >= self._next_event:
+            self._supervise(rt)
+
+    def _supervise(self, rt) -> None:
+        ticks, t = rt.ticks, rt.time
+        self._next_event = ticks + self.every
+        faulted = rt.mode == Mode.FAULTED
+        if faulted.any() or self.faulted.any():
+            for e in np.flatnonzero(faulted & ~self.faulted):
+                s = self.sessions[e]
+                s.latches.append({"t_s": t, "cause": rt.cause_names()[e], "reset_s": None})
+                s.latched_since = t
+            self.faulted[:] = faulted
+            reset_after = self.configs[0].operator_reset
+            if reset_after > 0:
+                due = np.zeros_like(faulted)
+                for e in np.flatnonzero(faulted):
+                    if t - self.sessions[e].latched_since >= reset_after - 1e-9:
+                        due[e] = True
+                if due.any():
+                    rt.reset_faults(due)
+                    for e in np.flatnonzero(due):
+                        s = self.sessions[e]
+                        s.operator_resets += 1
+                        s.latches[-1]["reset_s"] = t
+                    self.faulted[due] = False
+        for s in self.sessions:
+            if ticks >= s.next_fault_tick:
+                s.fault_step(ticks)
+        nt = self.next_ticks
+        if ticks >= nt["drift"]:
+            nt["drift"] += self.periods["drift"]
+            for s in self.sessions:
+                value = apply_drift(
+                    self.backend.models[s.e],
+                    self.robot,
+                    self.initial_friction[s.e],
+                    s.draw.drift,
+                    t,
+                )
+                s.friction = [float(x) for x in value]
+        if ticks >= nt["curve"]:
+            nt["curve"] += self.periods["curve"]
+            for s in self.sessions:
+                c, e = s.curve, s.e
+                c["t_s"].append(t)
+                c["winding_c"].append([float(x) for x in self.window_peak[e]])
+                c["issued"].append(int(self.goals.issued[e]))
+                c["reached"].append(int(self.goals.hit_count[e]))
+                now = s.counters()
+                c["violations"].append(now["violations"])
+                c["interventions"].append(now["interventions"])
+                c["mode"].append(int(rt.mode[e]))
+            self.window_peak[:] = self.backend.thermal.winding_temperature
+        if ticks >= nt["hour"]:
+            nt["hour"] += self.periods["hour"]
+            for s in self.sessions:
+                start = s.hours[-1]["end_s"] if s.hours else 0.0
+                s.hours.append(s.hour_row(start, t))
+                s.hour_base = s.counters()
+        if ticks >= nt["progress"]:
+            nt["progress"] += self.periods["progress"]
+            self._progress()
+        if self.film is not None:
+            self.film.supervise(rt)
+
+    def _progress(self, done: bool = False) -> None:
+        if not self.write_progress:
+            return
+        try:
+            self._write_progress(done)
+        finally:
+            if self.on_progress is not None:
+                self.on_progress()
+
+    def _write_progress(self, done: bool) -> None:
+        for s in self.sessions:
+            d = session_dir(self.out, s.config.seed)
+            d.mkdir(parents=True, exist_ok=True)
+            atomic_write(
+                d / "progress.json",
+                json.dumps(
+                    {
+                        "simulated_s": self.rt.time,
+                        "total_s": self.total_ticks * self.dt,
+                        "wall_s": s.wall_s + self.wall_elapsed(),
+                        "done": done,
+                    }
+                ),
+            )
+
+    # ------------------------------------------------------------------ the run
+    def run(self) -> list[dict]:
+        """Run every session to its end (from where it stands) and return their results.
+
+        Checkpoints are written every ``checkpoint_minutes``; each finished session writes
+        ``result.json`` (atomically).
+
+        Raises:
+            BatchDiverged: MuJoCo diverged in some envs; their results are written (``diverged``
+                set), the other sessions must continue from their checkpoints.
+        """
+        from deploy.backends.sim import SimulationDivergedError
+
+        rt = self.rt
+        every = self.checkpoint_ticks
+        while rt.ticks < self.total_ticks:
+            stop = self.total_ticks
+            if every:
+                stop = min(stop, (rt.ticks // every + 1) * every)
+            try:
+                rt.run(stop - rt.ticks, on_tick=self.on_tick)
+            except SimulationDivergedError as exc:
+                self._diverged(exc)
+            if every and rt.ticks % every == 0 and rt.ticks < self.total_ticks:
+                self.checkpoint()
+                if self.film is not None:
+                    self.film.checkpointed()
+        if self.film is not None:
+            self.film.finish()
+        results = [session_result(s) for s in self.sessions]
+        for s, r in zip(self.sessions, results, strict=True):
+            d = session_dir(self.out, s.config.seed)
+            d.mkdir(parents=True, exist_ok=True)  # a session shorter than PROGRESS_PERIOD
+            atomic_write(d / "result.json", json.dumps(r))
+        self._progress(done=True)
+        return results
+
+    def _diverged(self, exc: Exception) -> None:
+        bad = []
+        for e in range(self.backend.envs):
+            try:
+                self.backend.check_divergence(e)
+            except Exception as err:  # noqa: BLE001 - the backend's own check, re-run per env
+                bad.append((e, str(err)))
+        if not bad:
+            bad = [(e, str(exc)) for e in range(len(self.sessions))]
+        seeds = []
+        for e, message in bad:
+            s = self.sessions[e]
+            s.diverged = message
+            d = session_dir(self.out, s.config.seed)
+            d.mkdir(parents=True, exist_ok=True)
+            atomic_write(d / "result.json", json.dumps(session_result(s)))
+            seeds.append(s.config.seed)
+        raise BatchDiverged(seeds, str(exc)) from exc

@@ -1,0 +1,86 @@
+"""The fault injection of a batch of soak sessions: one injector per session, on its env only.
+
+The runtime of a batch (:class:`eval.batch.SessionBatch`) takes one injector; :class:`SessionFaults`
+is that injector, made of one :class:`deploy.faults.FaultInjector` per session on a one-env view
+of the batch's :class:`~deploy.backends.sim.SimBackend` (its env's sensor settings, model and
+forces). A session's faults (its seeded schedule, :mod:`eval.fault_schedule`) then touch its own
+env only, whatever its neighbours; the session arms an injector ``eval.session.ARM_LEAD`` s before
+each fault and disarms it when the fault is judged (:class:`eval.session.Session`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from deploy.backends.base import SensorFrame
+
+
+class _BackendSlice:
+    """Env ``e`` of a SimBackend as a one-env backend: what a FaultInjector uses (views of the
+    per-env sensor settings, the env's model, forces)."""
+
+    envs = 1
+
+    def __init__(self, backend, e: int):
+        self._backend, self._e = backend, e
+        self.dropout_probability = backend.dropout_probability[e : e + 1]
+        self.latency_ticks = backend.latency_ticks[e : e + 1]
+        self.max_latency_ticks = backend.max_latency_ticks
+        self.models = [backend.models[e]]
+
+    def set_external_force(self, env: int, force: np.ndarray, body: str | None = None) -> None:
+        self._backend.set_external_force(self._e, force, body)
+
+
+class SessionFaults:
+    """The fault injector the runtime sees: one :class:`deploy.faults.FaultInjector` per session,
+    on that session's env only, armed from ``eval.session.ARM_LEAD`` s before each fault until it is
+    judged.
+
+    Per-session injectors keep the sessions of a batch apart (one injector for the batch freezes
+    one frame for every stale fault and resets every env's sensor settings each tick), and only
+    armed injectors cost time in the tick.
+    """
+
+    def __init__(self, backend):
+        self.backend = backend
+        self.slices = [_BackendSlice(backend, e) for e in range(backend.envs)]
+        f = backend.frame
+        self.frames = [
+            SensorFrame(
+                time=f.time[e : e + 1],
+                position=f.position[e : e + 1],
+                position_stamp=f.position_stamp[e : e + 1],
+                winding_temperature=f.winding_temperature[e : e + 1],
+                temperature_stamp=f.temperature_stamp[e : e + 1],
+            )
+            for e in range(backend.envs)
+        ]
+        self.armed: list = [None] * backend.envs
+        self._items: list = []
+
+    def arm(self, e: int, fault):
+        from deploy.faults import FaultInjector
+
+        self.armed[e] = FaultInjector([fault], self.slices[e])
+        self._items = [(i, inj) for i, inj in enumerate(self.armed) if inj is not None]
+        return self.armed[e]
+
+    def disarm(self, e: int):
+        inj, self.armed[e] = self.armed[e], None
+        self._items = [(i, x) for i, x in enumerate(self.armed) if x is not None]
+        return inj
+
+    def before_read(self, t: float) -> None:
+        for _, inj in self._items:
+            inj.before_read(t)
+
+    def filter_frame(self, t: float, frame: SensorFrame) -> SensorFrame:
+        for e, inj in self._items:
+            inj.filter_frame(t, self.frames[e])
+        return frame
+
+    def filter_action(self, t: float, action: np.ndarray) -> np.ndarray:
+        for e, inj in self._items:
+            inj.filter_action(t, action[e : e + 1])
+        return action

@@ -1,0 +1,219 @@
+"""The result of one soak session: the document built from its book-keeping, and its
+``result.json``.
+
+A finished session writes ``result.json`` in its folder (``OUT/sessions/<id>/``,
+:func:`eval.session.session_dir`); a resumed campaign reads it back (:func:`read_result`) instead
+of running the session again, after checking that it was run with the same options
+(:func:`check_result`). The document's schema is in :mod:`eval.report`; everything in it but
+``wall`` (wall-clock time, tick cost) follows from the session's seed and options.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+
+from deploy.files import sha256_file
+from deploy.interventions import INTERVENTION_CHECKS
+from deploy.runtime import FAULT_CAUSES, STAGES, Mode
+from deploy.violations import VIOLATION_TYPES
+from eval import checkpoint as ckpt
+from eval.session import RESPONSES, Session, SessionConfig, session_dir
+
+VIOLATION_SOURCE = "true state (simulation ground truth)"
+
+
+def session_result(session: Session) -> dict:
+    """The result of a session as it stands (see :mod:`eval.report` for the schema).
+
+    Args:
+        session: The session's book-keeping in its batch (:class:`eval.session.Session`).
+    """
+    b, e, rt, robot = session.batch, session.e, session.batch.rt, session.batch.robot
+    names = list(robot.joint_names)
+    dt = b.dt
+    t_end = rt.time
+    hours = list(session.hours)
+    last_end = hours[-1]["end_s"] if hours else 0.0
+    if t_end > last_end + 1e-9:
+        hours.append(session.hour_row(last_end, t_end))
+    now = session.counters()
+    sim_h = t_end / 3600.0
+    g, e = session.goals, session.e
+    times = g.hit_times[e]
+    windows = g.windows(e, t_end)
+    true = now["violations"]
+    interventions = b.interventions.summary(e)
+    responses = {r: 0 for r in RESPONSES}
+    for ev in session.fault_events:
+        responses[ev["response"]] += 1
+    motors = robot.motors
+    est = rt.estimator
+    tick_cost = rt.tick_cost
+    nz = np.flatnonzero(tick_cost.counts[0])
+    wall = session.wall_s + b.wall_elapsed()
+    return {
+        "id": session.config.id,
+        "seed": session.config.seed,
+        "status": "diverged" if session.diverged else "complete",
+        "simulated_s": t_end,
+        "simulated_hours": sim_h,
+        "ticks": rt.ticks,
+        "control_mode": b.mode,
+        "options": session.config.batch_key(),
+        "policy_sha256": b.policy_sha256,
+        "randomization": session.draw.to_dict(),
+        "violations": {
+            "source": VIOLATION_SOURCE,
+            "total": {k: true[k] for k in VIOLATION_TYPES},
+            "any": true["any"],
+            "per_hour": [
+                {
+                    "hour": h["hour"],
+                    "start_s": h["start_s"],
+                    "end_s": h["end_s"],
+                    "counts": {k: h["violations"][k] for k in VIOLATION_TYPES},
+                    "any": h["violations"]["any"],
+                }
+                for h in hours
+            ],
+            "rate_per_hour": {k: (true[k] / sim_h if sim_h > 0 else 0.0) for k in VIOLATION_TYPES},
+        },
+        "interventions": {
+            **interventions,
+            "per_hour": [
+                {
+                    "hour": h["hour"],
+                    "start_s": h["start_s"],
+                    "end_s": h["end_s"],
+                    "ticks": h["ticks"],
+                    "counts": {k: h["interventions"][k] for k in INTERVENTION_CHECKS},
+                    "any": h["interventions"]["any"],
+                    "warnings": h["warnings"],
+                }
+                for h in hours
+            ],
+        },
+        "goals": {
+            "issued": int(g.issued[e]),
+            "reached": int(g.hit_count[e]),
+            "success_rate": int(g.hit_count[e]) / int(g.issued[e]) if g.issued[e] else None,
+            "median_time_to_reach_s": float(np.median(times)) if times else None,
+            "within_s": session.config.success_time,
+            "period_s": session.config.goal_period,
+            "window_s": g.window,
+            "windows": windows,
+            "min_window_success_rate": (
+                min(w["success_rate"] for w in windows) if windows else None
+            ),
+            "missed": list(g.missed[e]),
+            "missed_dropped": int(g.missed_dropped[e]),
+        },
+        "faults": {
+            "scheduled": len(session.schedule),
+            "injected": len(session.fault_events),
+            "survived": sum(1 for ev in session.fault_events if ev["survived"]),
+            "responses": responses,
+            "events": session.fault_events,
+        },
+        "runtime": {
+            "safe_stops": int(rt.counters.safe_stops[e]),
+            "by_cause": {c: int(v[e]) for c, v in rt.counters.faults.items()},
+            "non_finite_actions": int(rt.counters.non_finite_actions[e]),
+            "resyncs": int(rt.counters.resyncs[e]),
+            "anchors": int(rt.counters.anchors[e]),
+            "latched_faults": len(session.latches),
+            "latches": session.latches,
+            "operator_resets": session.operator_resets,
+            "final_mode": Mode(int(rt.mode[e])).name,
+            "final_cause": FAULT_CAUSES[rt.cause[e]] if rt.cause[e] >= 0 else None,
+        },
+        "estimator": {
+            "missing_readings": int(est.missing_per_joint[e].sum()),
+            "stale_readings": int(est.stale_per_joint[e].sum()),
+            "reinitializations": int(est.reinitializations_per_joint[e].sum()),
+        },
+        "thermal": {
+            "joints": names,
+            "derating_start_c": {
+                j: m.derating_start_temperature for j, m in zip(names, motors, strict=True)
+            },
+            "max_winding_c": {
+                j: m.max_winding_temperature for j, m in zip(names, motors, strict=True)
+            },
+            "peak_c": dict(zip(names, b.peak[e].tolist(), strict=True)),
+            "derating_band_s": dict(
+                zip(names, ((b.band_ticks[e] - b.over_ticks[e]) * dt).tolist(), strict=True)
+            ),
+            "over_temperature_s": dict(zip(names, (b.over_ticks[e] * dt).tolist(), strict=True)),
+            "curve": {
+                "t_s": session.curve["t_s"],
+                "winding_c": {
+                    j: [row[i] for row in session.curve["winding_c"]] for i, j in enumerate(names)
+                },
+            },
+        },
+        "curves": {
+            "t_s": session.curve["t_s"],
+            "goals_issued": session.curve["issued"],
+            "goals_reached": session.curve["reached"],
+            "violations": {
+                k: [row[k] for row in session.curve["violations"]]
+                for k in (*VIOLATION_TYPES, "any")
+            },
+            "interventions": {
+                k: [row[k] for row in session.curve["interventions"]]
+                for k in (*INTERVENTION_CHECKS, "any")
+            },
+            "mode": [Mode(m).name for m in session.curve["mode"]],
+        },
+        "drift": {"friction_final_nm": dict(zip(names, session.friction, strict=True))},
+        "diverged": session.diverged,
+        "wall": {
+            "wall_s": wall,
+            "speed": t_end / wall if wall > 0 else None,
+            "batch": [s.config.seed for s in b.sessions],
+            "tick_cost_us": tick_cost.summary(),
+            "tick_cost_histogram": {
+                "bin_us": nz.tolist(),
+                "count": tick_cost.counts[0][nz].tolist(),
+            },
+            "stage_cost_us": {s: rt.latency.summary(i) for i, s in enumerate(STAGES)},
+        },
+    }
+
+
+def read_result(out: str | os.PathLike, seed: int) -> dict | None:
+    """The finished result of session ``seed`` in campaign folder ``out``, or None."""
+    path = session_dir(out, seed) / "result.json"
+    if not path.exists():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ckpt.CheckpointError(
+            f"{path}: not a readable session result ({exc}); delete it to run the session again"
+        ) from None
+
+
+def check_result(result: dict, config: SessionConfig, out) -> None:
+    """A finished session may only stand for ``config`` if it was run with the same options.
+
+    Raises:
+        eval.checkpoint.CheckpointError: ``result`` was run with other options (but the policy
+            path and checkpoint interval) or another policy file (named).
+    """
+    path = session_dir(out, config.seed) / "result.json"
+    stored, expected = result.get("options", {}), config.batch_key()
+    for key, value in expected.items():
+        if key not in ("policy", "checkpoint_minutes") and stored.get(key) != value:
+            raise ckpt.CheckpointError(
+                f"{path}: the session was run with {key} = {stored.get(key)!r}, this run has "
+                f"{value!r}; resume with the options of that campaign or use another --out"
+            )
+    if result.get("policy_sha256") != sha256_file(config.policy):
+        raise ckpt.CheckpointError(
+            f"{path}: the session was run with another policy file than {config.policy}"
+        )

@@ -130,6 +130,11 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="a refused --rt-priority or memory lock is an error (exit 3), not a notice",
     )
+    p.add_argument(
+        "--command",
+        default=None,
+        help="legged robots: velocity command VX,VY,WZ (m/s, m/s, rad/s, base frame)",
+    )
     p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
     p.add_argument("--goal", default=None, help="fixed goal X,Y,Z (m, base frame)")
     p.add_argument(
@@ -336,15 +341,23 @@ def _run_opened(
 
     violations = ViolationMonitor(robot, args.envs) if simulated else None
     interventions = InterventionMonitor(rt.guard, rt.smoother)
-    goals = GoalScheduler(
-        robot,
-        args.envs,
-        args.goal_period,
-        fixed,
-        args.success_time,
-        np.random.default_rng(args.seed + 1),
-        interventions=interventions,
-    )
+    if robot.floating_base:  # a legged robot follows a velocity command, not goals
+        from deploy.locomotion import CommandTracker, parse_command
+
+        if args.command is not None:
+            rt.velocity_command[:] = parse_command(args.command)
+        goals = tracker = CommandTracker(args.envs, robot.control_period, backend)
+    else:
+        tracker = None
+        goals = GoalScheduler(
+            robot,
+            args.envs,
+            args.goal_period,
+            fixed,
+            args.success_time,
+            np.random.default_rng(args.seed + 1),
+            interventions=interventions,
+        )
 
     def on_tick(r):
         t0 = clock_ns()
@@ -417,7 +430,9 @@ def _run_opened(
         "realtime": realtime,
         "envs": args.envs,
         "seed": args.seed,
-        "goals": {
+        "goals": None
+        if tracker
+        else {
             "issued": goals.goals,
             "reached": goals.hits,
             "success_rate": goals.hits / goals.goals if goals.goals else None,
@@ -425,9 +440,12 @@ def _run_opened(
             "within_s": args.success_time,
             "judged_on": "true end effector" if simulated else "estimated end effector",
         },
+        "locomotion": tracker.summary(rt) if tracker else None,
         "violations": violation_report,
         "interventions": interventions.summary(),
-        "missed_goals": sum(len(m) for m in goals.missed) + int(goals.missed_dropped.sum()),
+        "missed_goals": 0
+        if tracker
+        else sum(len(m) for m in goals.missed) + int(goals.missed_dropped.sum()),
         "faults": {
             "non_finite_actions": int(rt.counters.non_finite_actions.sum()),
             "safe_stops": int(rt.counters.safe_stops.sum()),
@@ -486,14 +504,27 @@ def _run_opened(
 
 
 def print_summary(r: dict) -> None:
-    g = r["goals"]
-    rate = f"{100 * g['success_rate']:.1f} %" if g["success_rate"] is not None else "n/a"
     print(
         f"deploy-run: {r['robot']}, {r['control_mode']} control at {r['control_rate_hz']:.0f} Hz, "
         f"{r['duration_s']:.1f} s {'wall-clock' if r['realtime'] else 'simulated'} "
         f"in {r['wall_s']:.2f} s"
     )
-    print(f"  goals reached     {g['reached']}/{g['issued']} within {g['within_s']:.1f} s ({rate})")
+    g, loco = r["goals"], r.get("locomotion")
+    if g is not None:
+        rate = f"{100 * g['success_rate']:.1f} %" if g["success_rate"] is not None else "n/a"
+        print(
+            f"  goals reached     {g['reached']}/{g['issued']} within {g['within_s']:.1f} s "
+            f"({rate})"
+        )
+    if loco is not None:
+        speed, track = loco["mean_forward_speed_m_s"], loco["tracking_success"]
+        print(
+            f"  walked            {loco['distance_m']:.2f} m, mean forward speed "
+            + (f"{speed:.3f} m/s" if speed is not None else "n/a")
+            + f" (command {', '.join(f'{c:g}' for c in loco['command'][0])}); tracking "
+            + (f"{100 * track:.1f} %" if track is not None else "n/a")
+            + f" of RUNNING time within {loco['tracking_tolerance_m_s']} m/s; falls {loco['falls']}"
+        )
     v = r["violations"]
     if v is not None:
         text = ", ".join(f"{k} {n}" for k, n in v["by_type"].items())

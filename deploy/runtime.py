@@ -150,6 +150,7 @@ def reanchor(
     tracking: np.ndarray,
     anchored: np.ndarray,
     mode: np.ndarray | None = None,
+    tolerance: float | None = None,
 ) -> np.ndarray | None:
     """The tick's re-anchoring of the smoother at the measured state (the runtime's and the
     training env's, :class:`policies.envs.ReachTask`).
@@ -166,14 +167,18 @@ def reanchor(
         anchored: (envs,) int64 work array (velocity mode's anchored envs).
         mode: Optional (envs,) state-machine modes: envs in SAFE_STOP or FAULTED are not
             re-synced (position mode) and not counted (velocity mode).
+        tolerance: The mode's tolerance, rad (default ``TRACKING_TOLERANCE`` or
+            ``VELOCITY_TRACKING_TOLERANCE``); ``inf`` turns the re-anchoring off.
 
     Returns:
         None when nothing moved, else an (envs,) mask (int64 or bool) of the counted envs.
     """
     if smoother.mode == "velocity":
-        moved = smoother.anchor(state.q, VELOCITY_TRACKING_TOLERANCE, out=anchored)
+        tol = VELOCITY_TRACKING_TOLERANCE if tolerance is None else tolerance
+        moved = smoother.anchor(state.q, tol, out=anchored)
     elif smoother.mode == "position":
-        moved = smoother.tracking_error(state.q, out=tracking) > TRACKING_TOLERANCE
+        tol = TRACKING_TOLERANCE if tolerance is None else tolerance
+        moved = smoother.tracking_error(state.q, out=tracking) > tol
     else:
         return None
     if not moved.any():
@@ -295,6 +300,15 @@ class Runtime:
         self.velocity_command = (
             self.state.command if self.state.command is not None else np.zeros((envs, 3))
         )
+        #: rad: the re-anchoring's tolerance (:func:`reanchor`). A legged robot's low-gain PD
+        #: lags its targets by design (they act as torques through kp), so it has none (inf).
+        self.tracking_tolerance = (
+            np.inf
+            if robot.floating_base
+            else VELOCITY_TRACKING_TOLERANCE
+            if self.mode_name == "velocity"
+            else TRACKING_TOLERANCE
+        )
         #: (envs,) bool: the envs whose fall stop damps the joints (cause ``fall``)
         self.damping = np.zeros(envs, dtype=bool)
         self.mode = np.full(envs, Mode.IDLE, dtype=np.int8)
@@ -350,9 +364,7 @@ class Runtime:
         self._derating = np.ascontiguousarray(
             np.stack([d.start, d.maximum, np.broadcast_to(d.floor, (n,))]), dtype=np.float64
         )
-        tolerance = (
-            VELOCITY_TRACKING_TOLERANCE if self.mode_name == "velocity" else TRACKING_TOLERANCE
-        )
+        tolerance = self.tracking_tolerance
         self._params = np.array(
             [
                 robot.config.safety.stale_limit,
@@ -719,7 +731,9 @@ class Runtime:
 
     def _reanchor(self, state: RobotState) -> None:
         """:func:`reanchor` the smoother and count it (anchors or resyncs)."""
-        moved = reanchor(self.smoother, state, self._tracking, self._anchored, self.mode)
+        moved = reanchor(
+            self.smoother, state, self._tracking, self._anchored, self.mode, self.tracking_tolerance
+        )
         if moved is not None:
             counter = (
                 self.counters.anchors if self.mode_name == "velocity" else self.counters.resyncs

@@ -116,14 +116,19 @@ class ViolationMonitor(MonitorState):
         s = robot.config.safety
         self._lower, self._upper = robot.position_lower, robot.position_upper
         self._soft_lower, self._soft_upper = robot.soft_lower, robot.soft_upper
-        self._ws_min = np.array(s.workspace_min, dtype=np.float64)
-        self._ws_max = np.array(s.workspace_max, dtype=np.float64)
+        #: a robot without a workspace box (a legged one): no workspace violations
+        self._has_workspace = s.workspace_min is not None
+        if self._has_workspace:
+            self._ws_min = np.array(s.workspace_min, dtype=np.float64)
+            self._ws_max = np.array(s.workspace_max, dtype=np.float64)
+        else:
+            self._ws_min, self._ws_max = np.full(3, -np.inf), np.full(3, np.inf)
         self._velocity = robot.velocity_limit
         self._effort = robot.effort_limit * (1.0 + EFFORT_TOLERANCE)
         # the screen: one row per env, [q - soft centre, dq, tau, ee - box centre]
         width = 3 * n + 3
         self._offset_q = 0.5 * (self._soft_lower + self._soft_upper)
-        self._offset_ee = 0.5 * (self._ws_min + self._ws_max)
+        self._offset_ee = 0.5 * (self._ws_min + self._ws_max) if self._has_workspace else np.zeros(3)
         bound = np.concatenate(
             [
                 0.5 * (self._soft_upper - self._soft_lower),
@@ -160,7 +165,9 @@ class ViolationMonitor(MonitorState):
         np.subtract(q, self._offset_q, out=self._q_part)
         np.copyto(self._dq_part, dq)
         np.copyto(self._tau_part, tau)
-        np.subtract(backend.end_effector_position(out=self._ee), self._offset_ee, out=self._ee_part)
+        if self._has_workspace:
+            ee = backend.end_effector_position(out=self._ee)
+            np.subtract(ee, self._offset_ee, out=self._ee_part)
         np.abs(self._buf, out=self._buf)
         np.greater(self._buf, self._bound, out=self._mask)
         self.ticks += 1

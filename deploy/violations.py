@@ -128,7 +128,9 @@ class ViolationMonitor(MonitorState):
         # the screen: one row per env, [q - soft centre, dq, tau, ee - box centre]
         width = 3 * n + 3
         self._offset_q = 0.5 * (self._soft_lower + self._soft_upper)
-        self._offset_ee = 0.5 * (self._ws_min + self._ws_max) if self._has_workspace else np.zeros(3)
+        self._offset_ee = np.zeros(3)
+        if self._has_workspace:
+            self._offset_ee = 0.5 * (self._ws_min + self._ws_max)
         bound = np.concatenate(
             [
                 0.5 * (self._soft_upper - self._soft_lower),

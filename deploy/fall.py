@@ -10,7 +10,8 @@ ground truth is read: the same check runs on hardware.
 The runtime's response (:mod:`deploy.runtime`, cause ``fall``): a safe stop whose command is
 joint damping (position mode: the target follows the measured pose, so the PD servo applies
 ``-kd dq`` only; what Unitree's deploy code does after a fall), latched in FAULTED until an
-operator's reset.
+operator's reset. Every other safe stop of a legged robot damps the same way: holding a stance
+against gravity is what overheats its motors.
 """
 
 from __future__ import annotations

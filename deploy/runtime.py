@@ -309,7 +309,9 @@ class Runtime:
             if self.mode_name == "velocity"
             else TRACKING_TOLERANCE
         )
-        #: (envs,) bool: the envs whose fall stop damps the joints (cause ``fall``)
+        #: (envs,) bool: the envs whose stop damps the joints instead of holding a pose: a
+        #: legged robot's every safe stop (holding its stance against gravity with a low-gain PD
+        #: heated the thighs past 200 degC in simulation: it lies down instead)
         self.damping = np.zeros(envs, dtype=bool)
         self.mode = np.full(envs, Mode.IDLE, dtype=np.int8)
         self.cause = np.full(envs, -1, dtype=np.int8)  # index into FAULT_CAUSES
@@ -558,6 +560,8 @@ class Runtime:
         self._on_violation()
         st[5] = clock_ns()
         cmd = self.smoother.step(target, out=self._cmd)
+        if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
+            np.logical_or(self.mode == SAFE_STOP, self.mode == FAULTED, out=self.damping)
         if self.damping.any():
             self._damp(cmd, state)  # a fallen legged robot: joint damping, not a stiff hold
         st[6] = clock_ns()

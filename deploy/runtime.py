@@ -533,6 +533,37 @@ class Runtime:
         self.smoother.sync(self.state.q, self.state.dq, envs=faulted)
         self._reset_policy(faulted)
 
+    def restart(self, envs: np.ndarray, q: np.ndarray, t) -> None:
+        """An operator's restart of the envs of ``envs`` (bool mask (envs,)) after the robot was
+        moved by hand (stood back up, carried): the joint estimate re-anchored at the pose ``q``
+        ((n,) or (envs, n) rad) at rest at time ``t`` (s; float or (envs,)), and the base
+        estimator upright, as :meth:`start` anchors them (the estimators' counters of those envs
+        are kept: a session's tallies survive its restarts); the guard and smoother at ``q``;
+        latched faults cleared; RAMP_IN. Other envs are untouched.
+
+        A filter that tracked the jump instead would hand the smoother a joint speed of tens of
+        rad/s."""
+        envs = np.asarray(envs, dtype=bool)
+        if not envs.any():
+            return
+        est = self.estimator
+        counters = (est.stale_per_joint, est.missing_per_joint, est.reinitializations_per_joint)
+        kept = [c[envs].copy() for c in counters]
+        q = np.broadcast_to(np.asarray(q, dtype=np.float64), self.state.q.shape)
+        est.reset(q, t, envs=envs)
+        for counter, value in zip(counters, kept, strict=True):
+            counter[envs] = value
+        if self.base_estimator is not None:
+            self.base_estimator.reset(t, envs=envs)
+            self.damping[envs] = False
+        self.state.q[envs] = q[envs]
+        self.state.dq[envs] = 0.0
+        self.guard.reset(self.state.q, envs=envs)
+        self.smoother.sync(self.state.q, self.state.dq, envs=envs)
+        self.mode[envs] = RAMP_IN
+        self.cause[envs] = -1
+        self._reset_policy(envs)
+
     # ------------------------------------------------------------------ the tick
     def tick(self) -> None:
         """One control period for every env (see the module docstring)."""

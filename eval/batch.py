@@ -33,6 +33,19 @@ total, per hour and on the curves, and are part of the checkpoints. Goals are al
 window of ``window_minutes`` (by their issue time), and each goal replaced unreached is recorded
 with its true end state (:class:`deploy.goals.GoalScheduler`).
 
+Legged robots (``robot.floating_base``): instead of goals, a
+:class:`deploy.locomotion.CommandSchedule` issues a new velocity command every ``goal_period`` s
+(one command stream per session, the ``goals`` stream of its seed) and a
+:class:`deploy.locomotion.CommandTracker` measures the tracking (the session's success: the share
+of RUNNING time within 0.2 m/s of the command, also per window of ``window_minutes``), distance
+and speed, and the falls (safe stops of cause ``fall`` of a robot that was walking,
+``CommandTracker.falls``). Each session also draws its IMU
+noise (:func:`eval.randomization.apply_imu`) and its floor friction
+(:func:`eval.randomization.apply_floor_friction`); its pushes act on the base, and it gets no
+cable pulls (:func:`eval.fault_schedule.sample_fault_schedule`). Its operator resets stand the
+robot up first (:meth:`SessionBatch.stand_up`: a robot lying after a stop cannot get up by
+itself).
+
 Divergence: MuJoCo's divergence (:class:`~deploy.backends.sim.SimulationDivergedError`) ends the
 session that diverged with ``diverged`` set (:exc:`BatchDiverged`); the other sessions of its
 batch continue from their last checkpoints (:func:`eval.executors.run_sessions`).
@@ -57,6 +70,8 @@ from deploy.violations import ViolationMonitor
 from eval import checkpoint as ckpt
 from eval.randomization import (
     apply_drift,
+    apply_floor_friction,
+    apply_imu,
     apply_sensors,
     joint_dofs,
     randomized_model,
@@ -162,10 +177,16 @@ class SessionBatch:
         k = len(configs)
         draws = [sample_session(robot, c.seed, c.duration, c.ranges, c.faults) for c in configs]
         models = [randomized_model(robot, mode, d.dynamics) for d in draws]
+        self.legged = legged = bool(robot.floating_base)
+        if legged:
+            for m, d in zip(models, draws, strict=True):
+                apply_floor_friction(m, d.floor_friction)
         backend = self.backend = SimBackend(robot, mode=mode, envs=k, models=models)
         backend.set_sensor_streams([session_rng(c.seed, "sensor_noise") for c in configs])
         for e, d in enumerate(draws):
             apply_sensors(backend, e, d.sensors)
+            if legged:
+                apply_imu(backend, e, d.imu)
         backend.reset()  # the first readings from the sessions' own streams and settings
         # the drives stream for a while before the runtime starts, so that a reading has arrived
         # despite the latency (the same number of ticks for every session, alone or batched)
@@ -203,16 +224,25 @@ class SessionBatch:
         # what the plant really did (true state) and what the guard and smoother changed
         self.violations = ViolationMonitor(robot, k)
         self.interventions = InterventionMonitor(self.rt.guard, self.rt.smoother)
-        self.goals = GoalScheduler(
-            robot,
-            k,
-            first.goal_period,
-            None,
-            first.success_time,
-            [session_rng(c.seed, "goals") for c in configs],
-            window=first.window_minutes * 60.0,
-            interventions=self.interventions,
-        )
+        self.goals = self.commands = self.tracker = None
+        if legged:  # velocity commands and their tracking instead of goals
+            from deploy.locomotion import CommandSchedule, CommandTracker
+
+            self.commands = CommandSchedule(
+                k, first.goal_period, [session_rng(c.seed, "goals") for c in configs]
+            )
+            self.tracker = CommandTracker(k, dt, backend, window=first.window_minutes * 60.0)
+        else:
+            self.goals = GoalScheduler(
+                robot,
+                k,
+                first.goal_period,
+                None,
+                first.success_time,
+                [session_rng(c.seed, "goals") for c in configs],
+                window=first.window_minutes * 60.0,
+                interventions=self.interventions,
+            )
         self.sessions = [
             Session(self, e, c, d) for e, (c, d) in enumerate(zip(configs, draws, strict=True))
         ]
@@ -277,7 +307,11 @@ class SessionBatch:
             rt.smoother.recalculate()
         self.violations.update(self.backend)
         self.interventions.update()  # before the goals: a goal's last tick counts for it
-        self.goals(rt)
+        if self.legged:
+            self.commands(rt)
+            self.tracker(rt)
+        else:
+            self.goals(rt)
         temp = self.backend.thermal.winding_temperature
         np.maximum(self.peak, temp, out=self.peak)
         np.maximum(self.window_peak, temp, out=self.window_peak)
@@ -304,6 +338,10 @@ class SessionBatch:
                 for e in np.flatnonzero(faulted):
                     if t - self.sessions[e].latched_since >= reset_after - 1e-9:
                         due[e] = True
+                if self.legged and due.any():  # the operator stands the robot up first
+                    self.stand_up(due)
+                    for e in np.flatnonzero(due):
+                        self.sessions[e].stood_up += 1
                 if due.any():
                     rt.reset_faults(due)
                     for e in np.flatnonzero(due):
@@ -332,8 +370,16 @@ class SessionBatch:
                 c, e = s.curve, s.e
                 c["t_s"].append(t)
                 c["winding_c"].append([float(x) for x in self.window_peak[e]])
-                c["issued"].append(int(self.goals.issued[e]))
-                c["reached"].append(int(self.goals.hit_count[e]))
+                if self.legged:
+                    tr = self.tracker
+                    c["commands"].append(int(self.commands.issued[e]))
+                    c["falls"].append(int(tr.falls[e]))
+                    c["distance_m"].append(float(tr.distance[e]))
+                    c["running_s"].append(float(tr.running_time[e]))
+                    c["tracked_s"].append(float(tr.tracked_time[e]))
+                else:
+                    c["issued"].append(int(self.goals.issued[e]))
+                    c["reached"].append(int(self.goals.hit_count[e]))
                 now = s.counters()
                 c["violations"].append(now["violations"])
                 c["interventions"].append(now["interventions"])
@@ -350,6 +396,24 @@ class SessionBatch:
             self._progress()
         if self.film is not None:
             self.film.supervise(rt)
+
+    def stand_up(self, envs: np.ndarray) -> None:
+        """A legged operator's reset, first part: put the robots of ``envs`` (bool mask) back on
+        their feet, at rest at home at the start of the floor (``SimBackend.reset`` of those
+        envs: the MJCF's standing pose), their motors as warm as they were, and restart them
+        there (``Runtime.restart``: the estimators anchored at home at rest, the session's
+        estimator counts kept, RAMP_IN)."""
+        b = self.backend
+        th = b.thermal
+        winding = th.winding_temperature[envs].copy()
+        housing = th.housing_temperature[envs].copy()
+        reading = b.frame.winding_temperature[envs].copy()
+        b.reset(envs=envs)
+        th.winding_temperature[envs] = winding
+        th.housing_temperature[envs] = housing
+        b.frame.winding_temperature[envs] = reading
+        # the runtime restarts them there (estimators anchored at rest, counts kept; RAMP_IN)
+        self.rt.restart(envs, self.robot.home, b.frame.time)
 
     def _progress(self, done: bool = False) -> None:
         if not self.write_progress:

@@ -6,14 +6,15 @@ Usage::
               [--resume] [--baseline OLD/report.json] [--executor local|ray] [--address ADDR]
               [--sessions-per-process K] [--workers N] [--checkpoint-minutes M]
               [--goal-period S] [--no-faults] [--fault-interval S] [--min-success R]
-              [--min-window-success R] [--window-minutes M] [--max-interventions F] ...
+              [--min-window-success R] [--window-minutes M] [--max-interventions F]
+              [--max-falls-per-hour F] ...
 
 It writes ``DIR/report.json``, ``DIR/report.html`` and ``DIR/junit.xml`` (atomically), the film
 strip of each session's worst moments under ``DIR/film/<id>/`` (:mod:`eval.film`; ``--no-film``:
 none), keeps each session's checkpoints, progress and result under ``DIR/sessions/<id>/``, shows
 a progress bar of simulated hours and speed (simulated / wall time), and prints a summary.
 
-Exit codes (when several apply, the first of 4, 1, 5, 2, 6, 8, 7 is returned):
+Exit codes (when several apply, the first of 4, 1, 5, 2, 6, 8, 9, 7 is returned):
 
 ====  =====================================================================================
 0     every check passed, and no regression against ``--baseline``; with ``--baseline``, a
@@ -31,8 +32,14 @@ Exit codes (when several apply, the first of 4, 1, 5, 2, 6, 8, 7 is returned):
 7     regression against ``--baseline``
 8     interventions: the guard or the smoother changed the command on more than
       ``--max-interventions`` of the ticks
+9     falls: a legged session fell more than ``--max-falls-per-hour`` times per simulated hour
 130   interrupted (Ctrl-C); the checkpoints are kept and ``--resume`` continues
 ====  =====================================================================================
+
+A legged robot (``robot.floating_base``, e.g. go2) follows velocity commands instead of goals
+(:mod:`eval.batch`): ``--goal-period`` is the period of its commands, ``--success-time`` is unused,
+and ``--min-success`` / ``--min-window-success`` judge its tracking success (share of RUNNING time
+within 0.2 m/s of the command).
 """
 
 from __future__ import annotations
@@ -55,6 +62,7 @@ EXIT_OVER_TEMPERATURE = 5
 EXIT_LOW_SUCCESS = 6
 EXIT_REGRESSION = 7
 EXIT_INTERVENTIONS = 8
+EXIT_FALLS = 9
 EXIT_INTERRUPTED = 130
 
 #: Failure name (eval.report.failures) -> exit code, in order of precedence.
@@ -66,6 +74,7 @@ _EXIT_ORDER = (
     ("success_rate", EXIT_LOW_SUCCESS),
     ("window_success", EXIT_LOW_SUCCESS),
     ("interventions", EXIT_INTERVENTIONS),
+    ("falls", EXIT_FALLS),
     ("regression", EXIT_REGRESSION),
 )
 
@@ -87,7 +96,8 @@ def _parser() -> argparse.ArgumentParser:
         "faults and motor heat.",
         epilog="Exit codes: 0 passed, 1 hard violation, 2 latched fault, 3 bad input, "
         "4 divergence, 5 over-temperature, 6 success below threshold (session or window), "
-        "7 regression, 8 interventions above threshold, 130 interrupted.",
+        "7 regression, 8 interventions above threshold, 9 falls above threshold (legged), "
+        "130 interrupted.",
     )
     p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
     p.add_argument("--policy", default="policies/arm.onnx", help="ONNX policy (policy-export)")
@@ -144,6 +154,12 @@ def _parser() -> argparse.ArgumentParser:
         help="highest passing fraction of ticks on which the guard or smoother changed a command",
     )
     p.add_argument(
+        "--max-falls-per-hour",
+        type=float,
+        default=0.0,
+        help="highest passing falls per simulated hour of a legged session",
+    )
+    p.add_argument(
         "--tolerance-violations",
         type=float,
         default=0.10,
@@ -198,6 +214,7 @@ def _check_args(args) -> None:
         "--intervention-slack",
         "--tolerance-success",
         "--tolerance-temperature",
+        "--max-falls-per-hour",
     ):
         number(name, 0, False)
     for name in ("--min-success", "--min-window-success", "--max-interventions"):
@@ -237,8 +254,7 @@ def exit_code(report: dict) -> int:
 def run(args) -> int:
     from deploy.files import sha256_file
     from eval.campaign import run_campaign
-    from eval.fault_schedule import fault_ranges
-    from eval.randomization import SessionRanges
+    from eval.randomization import session_ranges
     from eval.report import Thresholds, build_report, load_report, summary_text, write_reports
     from eval.session import SessionConfig
     from robots import load_robot
@@ -253,6 +269,7 @@ def run(args) -> int:
         intervention_slack=args.intervention_slack,
         success_tolerance=args.tolerance_success,
         temperature_tolerance=args.tolerance_temperature,
+        max_falls_per_hour=args.max_falls_per_hour,
     )
     baseline = load_report(args.baseline) if args.baseline else None
     robot = load_robot(args.robot)
@@ -267,7 +284,7 @@ def run(args) -> int:
         curve_seconds=args.curve_seconds,
         operator_reset=args.operator_reset,
         faults=not args.no_faults,
-        ranges=SessionRanges(faults=fault_ranges(robot, args.fault_interval)),
+        ranges=session_ranges(robot, args.fault_interval),
         window_minutes=args.window_minutes,
     )
     wall = time.perf_counter()

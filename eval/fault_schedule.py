@@ -56,7 +56,8 @@ class FaultRanges:
         latency_ticks: Extra encoder latency of a spike, as a fraction of the largest spike that
             stays within the stale limit (rounded, at least 1 tick).
         latency_duration: Duration of a latency spike, s.
-        push_force: Force of a push on the end effector, N (along +X; ``PUSH_FORCE`` is 20).
+        push_force: Force of a push on the end effector (on the base of a floating-base robot),
+            N (along +X; ``PUSH_FORCE`` is 20).
         push_duration: Duration of a push, s.
         cable_force: Force of a cable pulling on the end effector (along gravity), as a fraction
             of the robot's :func:`cable_budget` for the pull's duration: at 1 the drives of a
@@ -247,6 +248,8 @@ def sample_fault_schedule(
     kind and its parameters are drawn per fault (see :class:`FaultRanges`); sensor faults are sized
     against the session's own encoder latency (``sensors``), cable pulls against the drives'
     reserve (:func:`cable_budget`) in the session's plant ``model`` (default: the nominal one).
+    A floating-base robot gets no cable pulls (``cable`` is left out of its kinds, and its weight
+    with it): it has no end effector to pull on, and the cable budget is an arm's.
 
     Returns:
         list of :class:`deploy.faults.Fault` (``envs`` None: every env of the injector they are
@@ -259,7 +262,16 @@ def sample_fault_schedule(
     budget = stale_budget(robot, sensors.latency_ticks)
     stale_ticks = int(np.floor(robot.config.safety.stale_limit / dt + 1e-9))
     max_spike = max(stale_ticks - sensors.latency_ticks - 2, 1)
-    weights = np.ones(len(ranges.kinds)) if ranges.weights is None else np.array(ranges.weights)
+    kinds = ranges.kinds
+    weights = np.ones(len(kinds)) if ranges.weights is None else np.array(ranges.weights)
+    if robot.floating_base and "cable" in kinds:
+        keep = [i for i, k in enumerate(kinds) if k != "cable"]
+        kinds, weights = tuple(kinds[i] for i in keep), weights[keep]
+        if not kinds or weights.sum() <= 0:
+            raise ValueError(
+                f"robot {robot.name}: a floating-base robot gets no cable pulls; the fault kinds "
+                f"{ranges.kinds} leave none to draw"
+            )
     weights = weights / weights.sum()
     budget_durations = np.linspace(0.0, ranges.cable_duration[1], 241)
     cable = None  # the cable budget over budget_durations, computed at the first pull
@@ -267,7 +279,7 @@ def sample_fault_schedule(
     t = ranges.warmup
     while True:
         t += float(rng.exponential(ranges.mean_interval))
-        kind = ranges.kinds[int(rng.choice(len(ranges.kinds), p=weights))]
+        kind = kinds[int(rng.choice(len(kinds), p=weights))]
         magnitude = None
         if kind == "dropout":
             length = budget * float(rng.uniform(*ranges.dropout))

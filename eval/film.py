@@ -322,7 +322,7 @@ def select_moments(state: dict | None, result: dict, dt: float) -> list[dict]:
                 f"at {peak['t_s']:.1f} s",
             )
         )
-    run = longest_missed_run(result["goals"]["missed"])
+    run = longest_missed_run((result.get("goals") or {}).get("missed", []))
     if run:
         start = max(0.0, run[0]["issued_s"] - 1.0)
         stop = min(end, run[-1]["t_s"] + AFTER_S, start + MAX_CLIP_S)
@@ -619,7 +619,9 @@ def film_campaign(
     (``kind``, ``label``, ``t_s``, ``start_s``, ``end_s``, ``video`` and ``still`` paths relative
     to ``out``, ``replay_exact``), ``moments`` found per kind, ``not_filmed``, and ``error`` (a
     one-line reason when no film could be made, else None). A session whose film was already
-    rendered (a resumed campaign) is not rendered again. Prints one line per session.
+    rendered (a resumed campaign) is not rendered again; a legged session gets none (its
+    ``error`` says so: :class:`deploy.video.VideoRecorder` draws a fixed-base arm). Prints one
+    line per session.
 
     Args:
         template: The campaign's :class:`eval.session.SessionConfig` (sessions differ by seed).
@@ -647,6 +649,11 @@ def film_campaign(
             todo.append(r)
 
     def render(r: dict) -> tuple[int, dict]:
+        if r.get("locomotion") is not None:  # deploy.video draws a fixed-base arm only
+            shutil.rmtree(retain_dir(out, r["seed"]), ignore_errors=True)
+            reason = "a legged robot's session: the film draws fixed-base arms only"
+            print(f"film: {r['id']}: no film: {reason}", file=sys.stderr)
+            return r["seed"], {"clips": [], "error": reason}
         config = replace(template, seed=r["seed"])
         done = subprocess.run(
             [sys.executable, "-m", "eval.film"],

@@ -27,6 +27,8 @@ session seed (:func:`session_rng`), bundled in :class:`SessionRandomization` by
 - sensors (:class:`SensorRanges`): encoder noise sigma (seed section 5: 0.002-0.010 on angle / pi),
   latency and dropout, applied with :func:`apply_sensors`; a floating-base robot's IMU and foot
   force noise (:class:`ImuRanges`, seed section 5), :func:`sample_imu` and :func:`apply_imu`;
+- a floating-base robot's floor friction (``FLOOR_FRICTION``), applied to the compiled model by
+  :func:`apply_floor_friction`;
 - slow drift (:class:`DriftRanges`): dry friction rising with wear over the session, applied to the
   session's compiled model in place with :func:`apply_drift`;
 - a fault schedule (:mod:`eval.fault_schedule`): dropout bursts, stale frames, non-finite
@@ -192,7 +194,36 @@ STREAMS = {
     "sensor_noise": 4,  # the backend's encoder noise and dropout draws
     "goals": 5,
     "imu": 6,  # floating-base robots: IMU and foot-force noise scales (ImuRanges)
+    "floor": 7,  # floating-base robots: the floor's sliding friction (FLOOR_FRICTION)
 }
+
+#: Sliding friction coefficient of the floor of a floating-base robot's session, uniform. Our
+#: choice: 0.5-1.25, legged_gym's ``domain_rand.friction_range`` (LeggedRobotCfg / GO2RoughCfg in
+#: unitree_rl_gym). There it is the robot's shapes' coefficient, which PhysX averages with the
+#: terrain's 1.0 (an effective 0.75-1.125); here it is the contact's own (the floor has contact
+#: priority, :func:`apply_floor_friction`): the low end is a more slippery floor than legged_gym's.
+FLOOR_FRICTION = (0.5, 1.25)
+
+
+def floor_geoms(model: mujoco.MjModel) -> np.ndarray:
+    """Indices of the plane geoms of ``model`` (the floor)."""
+    return np.flatnonzero(model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE)
+
+
+def apply_floor_friction(model: mujoco.MjModel, friction: float) -> None:
+    """Set the sliding friction of ``model``'s floor (its plane geoms) to ``friction``, in place,
+    and give the floor contact priority: MuJoCo then takes its friction for every contact with
+    it (without priority a contact takes the larger of the two geoms' coefficients, and the feet's
+    default 1 would hide a slippery floor).
+
+    Raises:
+        ValueError: the model has no plane geom.
+    """
+    floor = floor_geoms(model)
+    if not len(floor):
+        raise ValueError("apply_floor_friction: the model has no floor (plane geom)")
+    model.geom_friction[floor, 0] = friction
+    model.geom_priority[floor] = max(int(model.geom_priority.max()), 0) + 1
 
 
 def session_rng(seed: int, stream: str) -> np.random.Generator:
@@ -231,6 +262,19 @@ class SensorRanges:
             raise ValueError(
                 f"SensorRanges.dropout: expected probabilities <= 1, got {self.dropout}"
             )
+
+
+#: The dynamics ranges of a floating-base (legged) robot's soak session (``soak-test`` uses them
+#: for one): an arm's, but link lengths +-2 % (our choice: four legs of independently drawn
+#: lengths +-10 % on a flat floor make a stance the home pose cannot reach: go2 then never leaves
+#: RAMP_IN, its HOME_TOLERANCE being 0.05 rad; the legs of one robot are made alike).
+LEGGED_DYNAMICS = DynamicsRanges(link_length=0.02)
+#: The encoder ranges of a floating-base (legged) robot's soak session (``soak-test`` uses them for
+#: one). Noise: 1-10 encoder counts of the GO-M8010-6 (robots/go2/robot.toml: one count 3.03e-5
+#: rad; our choice: an arm's 0.006-0.03 rad keeps the estimated joint speeds above the runtime's
+#: REST_SPEED, so RAMP_IN never ends); latency: none (our choice: at 50 Hz one tick is 20 ms, and
+#: the shipped go2 trot generator falls at 40 ms of joint latency); dropout as an arm's.
+LEGGED_SENSORS = SensorRanges(noise_sigma=(3e-5, 3e-4), latency_ticks=(0, 0))
 
 
 @dataclass(frozen=True)
@@ -474,6 +518,18 @@ class SessionRanges:
     faults: FaultRanges = FaultRanges()
 
 
+def session_ranges(robot: Robot, mean_interval: float | None = None) -> SessionRanges:
+    """The soak's ranges for ``robot`` (what ``soak-test`` runs): the defaults with the faults
+    sized to it (:func:`eval.fault_schedule.fault_ranges`, ``mean_interval`` s between faults
+    when given) and, for a floating-base robot, ``LEGGED_DYNAMICS`` and ``LEGGED_SENSORS``."""
+    from eval.fault_schedule import fault_ranges
+
+    faults = fault_ranges(robot, mean_interval)
+    if robot.floating_base:
+        return SessionRanges(dynamics=LEGGED_DYNAMICS, sensors=LEGGED_SENSORS, faults=faults)
+    return SessionRanges(faults=faults)
+
+
 @dataclass(frozen=True)
 class SessionRandomization:
     """Everything drawn for one soak session from its seed: replayable and reportable.
@@ -485,6 +541,10 @@ class SessionRandomization:
         drift: Friction rise over the session.
         faults: The fault schedule (``deploy.faults.Fault``, sorted by start; empty without
             faults).
+        imu: A floating-base robot's IMU and foot-force noise (:func:`sample_imu`; None for an
+            arm).
+        floor_friction: A floating-base robot's floor sliding friction (``FLOOR_FRICTION``;
+            None for an arm).
     """
 
     seed: int
@@ -492,15 +552,22 @@ class SessionRandomization:
     sensors: SensorDraw
     drift: Drift
     faults: tuple
+    imu: ImuDraw | None = None
+    floor_friction: float | None = None
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "seed": self.seed,
             "dynamics": self.dynamics.to_dict(),
             "sensors": self.sensors.to_dict(),
             "drift": self.drift.to_dict(),
             "faults": [fault_to_dict(f) for f in self.faults],
         }
+        if self.imu is not None:  # a floating-base robot's (an arm's document is unchanged)
+            out["imu"] = self.imu.to_dict()
+        if self.floor_friction is not None:
+            out["floor_friction"] = self.floor_friction
+        return out
 
     @classmethod
     def from_dict(cls, data: dict) -> SessionRandomization:
@@ -510,6 +577,8 @@ class SessionRandomization:
             SensorDraw.from_dict(data["sensors"]),
             Drift.from_dict(data["drift"]),
             tuple(fault_from_dict(f) for f in data["faults"]),
+            ImuDraw.from_dict(data["imu"]) if data.get("imu") is not None else None,
+            float(data["floor_friction"]) if data.get("floor_friction") is not None else None,
         )
 
 
@@ -521,7 +590,8 @@ def sample_session(
     faults: bool = True,
 ) -> SessionRandomization:
     """Draw a session's randomization from its ``seed``: each part from its own stream
-    (:func:`session_rng`), so that e.g. turning faults off leaves the dynamics unchanged.
+    (:func:`session_rng`), so that e.g. turning faults off leaves the dynamics unchanged. A
+    floating-base robot also draws its IMU noise (``imu`` stream) and floor friction (``floor``).
 
     Args:
         robot: The robot.
@@ -539,10 +609,16 @@ def sample_session(
         plant = randomized_model(robot, robot.config.control.mode, dynamics)
         rng = session_rng(seed, "faults")
         schedule = sample_fault_schedule(robot, rng, duration, sensors, ranges.faults, plant)
+    imu = floor = None
+    if robot.floating_base:
+        imu = sample_imu(robot, session_rng(seed, "imu"))
+        floor = float(session_rng(seed, "floor").uniform(*FLOOR_FRICTION))
     return SessionRandomization(
         seed=int(seed),
         dynamics=dynamics,
         sensors=sensors,
         drift=sample_drift(robot, session_rng(seed, "drift"), ranges.drift),
         faults=tuple(schedule),
+        imu=imu,
+        floor_friction=floor,
     )

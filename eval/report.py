@@ -24,11 +24,20 @@ often is a policy leaning on it, not a robot beyond its limits.
                     (checks: hard_limit, soft_limit, velocity, workspace, self_collision, effort,
                     stopping_distance, target_clamp; count = ticks on which the check changed a
                     command, fraction = count / ticks)
-        goals {issued, reached, success_rate, median_time_to_reach_s, within_s, period_s,
+        goals (null for a legged robot) {issued, reached, success_rate,
+               median_time_to_reach_s, within_s, period_s,
                window_s, windows [{start_s, end_s, issued, reached, success_rate}],
                min_window_success_rate, missed [{t_s, issued_s, goal, q, dq, q_estimate,
                distance_m, best_distance_m, interventions {check: ticks, any}}],
                missed_dropped}
+        locomotion (null for an arm) {commands_issued, command_period_s, command_ranges,
+               final_command, falls, falls_per_hour, tracking_success (the session's success
+               rate: share of RUNNING time within tracking_tolerance_m_s of the command, on the
+               velocity averaged over tracking_window_s), tracking_tolerance_m_s,
+               tracking_window_s, judged_on, running_s, tracked_s, distance_m, forward_m,
+               mean_forward_speed_m_s, window_s, windows [{start_s, end_s, running_s,
+               tracked_s, success_rate}], min_window_success_rate, peak_winding_c {hip, thigh,
+               calf}}
         faults {scheduled, injected, survived, responses {held, safe_stop, resumed, latched,
                 not_running}, events [{kind, start_s, duration_s, magnitude, response, survived,
                 causes, ...}]},
@@ -37,7 +46,8 @@ often is a policy leaning on it, not a robot beyond its limits.
         estimator {missing_readings, stale_readings, reinitializations},
         thermal {joints, derating_start_c, max_winding_c, peak_c, derating_band_s,
                  over_temperature_s, curve {t_s, winding_c {joint: [...]}}},
-        curves {t_s, goals_issued, goals_reached, violations {type | any: [...]},
+        curves {t_s, goals_issued, goals_reached (legged: commands, falls, distance_m,
+                running_s, tracked_s), violations {type | any: [...]},
                 interventions {check | any: [...]}, mode}   (cumulative counts)
         drift {friction_final_nm}, diverged (message or null),
         checks {name: {passed, message}},
@@ -50,7 +60,10 @@ often is a policy leaning on it, not a robot beyond its limits.
                     rate_per_hour, per_hour [{hour, counts, any}]}, interventions {ticks, checks
                     {check: {count, fraction}}, any {count, fraction}, warnings, per_hour [{hour,
                     ticks, counts, any, fraction}]}, goals {issued, reached, success_rate,
-                    min_window_success_rate, missed, missed_dropped}, faults {injected, survived,
+                    min_window_success_rate, missed, missed_dropped} (arm sessions),
+                    locomotion (legged sessions, else null) {sessions, falls, falls_per_hour,
+                    tracking_success, min_window_success_rate, distance_m,
+                    mean_forward_speed_m_s, running_s, peak_winding_c}, faults {injected, survived,
                     responses, by_kind}, latched_faults, operator_resets, thermal {peak_c,
                     derating_band_s, over_temperature_s}, diverged [ids], tick_cost_us
     checks          {name: {passed, failed_sessions}}
@@ -68,8 +81,10 @@ hard-limit safe stop of the runtime), ``no_latched_fault``, ``no_over_temperatur
 above its maximum, or an over-temperature safe stop), ``success_rate`` (at least
 ``min_success_rate`` over the session), ``window_success`` (at least ``min_window_success_rate``
 in every window of ``window_minutes`` with a goal), ``interventions`` (ticks with any
-intervention at most ``max_intervention_rate`` of the ticks), ``no_divergence``. junit.xml has one
-testcase per session and check, and one for the baseline comparison.
+intervention at most ``max_intervention_rate`` of the ticks), ``no_divergence``, ``falls`` (a
+legged session: at most ``max_falls_per_hour``; an arm passes). For a legged session the success
+checks judge its tracking success (``locomotion``). junit.xml has one testcase per session and
+check, and one for the baseline comparison.
 
 Baseline comparison: :mod:`eval.report_baseline` (campaign totals against an earlier report of
 schema 2). The report's vocabulary (``SCHEMA_VERSION``, ``CHECKS``, :class:`Thresholds`,
@@ -149,9 +164,45 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     th = result["thermal"]
     hot = [j for j in th["joints"] if th["peak_c"][j] > th["max_winding_c"][j]]
     thermal_stops = result["runtime"]["by_cause"].get("over_temperature", 0)
+    loco = result.get("locomotion")
     goals = result["goals"]
-    rate = goals["success_rate"]
-    window = goals["min_window_success_rate"]
+    if loco is not None:  # a legged session: its success is the tracking success
+        rate, window = loco["tracking_success"], loco["min_window_success_rate"]
+        success_message = (
+            f"tracking success {rate:.3f} (threshold {thresholds.min_success_rate:.3f}, "
+            f"{loco['tracked_s']:.0f}/{loco['running_s']:.0f} s RUNNING within "
+            f"{loco['tracking_tolerance_m_s']:g} m/s of the command)"
+            if rate is not None
+            else "never RUNNING"
+        )
+        window_message = (
+            f"lowest tracking success in a {loco['window_s'] / 60:g}-minute window {window:.3f} "
+            f"(threshold {thresholds.min_window_success_rate:.3f}, "
+            f"{len(loco['windows'])} windows)"
+            if window is not None
+            else "never RUNNING"
+        )
+        falls_ok = loco["falls_per_hour"] <= thresholds.max_falls_per_hour
+        falls_message = (
+            f"{loco['falls']} falls, {loco['falls_per_hour']:.2f} per hour (threshold "
+            f"{thresholds.max_falls_per_hour:g})"
+        )
+    else:
+        rate, window = goals["success_rate"], goals["min_window_success_rate"]
+        success_message = (
+            f"success rate {rate:.3f} (threshold {thresholds.min_success_rate:.3f}, "
+            f"{goals['reached']}/{goals['issued']} goals)"
+            if rate is not None
+            else "no goal was issued"
+        )
+        window_message = (
+            f"lowest success rate in a {goals['window_s'] / 60:g}-minute window {window:.3f} "
+            f"(threshold {thresholds.min_window_success_rate:.3f}, "
+            f"{len(goals['windows'])} windows)"
+            if window is not None
+            else "no goal was issued"
+        )
+        falls_ok, falls_message = True, "fixed base: no falls"
     iv = result["interventions"]
     share = iv["any"]["fraction"]
     causes = sorted({x["cause"] for x in result["runtime"]["latches"] if x.get("cause")})
@@ -181,23 +232,13 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
         ),
         "success_rate": (
             rate is not None and rate >= thresholds.min_success_rate,
-            (
-                f"success rate {rate:.3f} (threshold {thresholds.min_success_rate:.3f}, "
-                f"{goals['reached']}/{goals['issued']} goals)"
-                if rate is not None
-                else "no goal was issued"
-            ),
+            success_message,
         ),
         "window_success": (
             window is not None and window >= thresholds.min_window_success_rate,
-            (
-                f"lowest success rate in a {goals['window_s'] / 60:g}-minute window {window:.3f} "
-                f"(threshold {thresholds.min_window_success_rate:.3f}, "
-                f"{len(goals['windows'])} windows)"
-                if window is not None
-                else "no goal was issued"
-            ),
+            window_message,
         ),
+        "falls": (falls_ok, falls_message),
         "interventions": (
             share <= thresholds.max_intervention_rate,
             f"{100 * share:.3f} % of ticks with an intervention (threshold "
@@ -259,11 +300,12 @@ def totals(results: list[dict]) -> dict:
     def entry(count: int) -> dict:
         return {"count": count, "fraction": count / ticks if ticks else 0.0}
 
-    issued = sum(r["goals"]["issued"] for r in results)
-    reached = sum(r["goals"]["reached"] for r in results)
+    arms = [r for r in results if r["goals"] is not None]
+    issued = sum(r["goals"]["issued"] for r in arms)
+    reached = sum(r["goals"]["reached"] for r in arms)
     windows = [
         r["goals"]["min_window_success_rate"]
-        for r in results
+        for r in arms
         if r["goals"]["min_window_success_rate"] is not None
     ]
     responses: dict[str, int] = {}
@@ -312,9 +354,10 @@ def totals(results: list[dict]) -> dict:
             "reached": reached,
             "success_rate": reached / issued if issued else None,
             "min_window_success_rate": min(windows) if windows else None,
-            "missed": sum(len(r["goals"]["missed"]) for r in results),
-            "missed_dropped": sum(r["goals"]["missed_dropped"] for r in results),
+            "missed": sum(len(r["goals"]["missed"]) for r in arms),
+            "missed_dropped": sum(r["goals"]["missed_dropped"] for r in arms),
         },
+        "locomotion": _locomotion_totals(results),
         "faults": {
             "injected": sum(r["faults"]["injected"] for r in results),
             "survived": sum(r["faults"]["survived"] for r in results),
@@ -338,6 +381,33 @@ def totals(results: list[dict]) -> dict:
     }
 
 
+def _locomotion_totals(results: list[dict]) -> dict | None:
+    """Totals of the legged sessions' ``locomotion`` sections (None without any)."""
+    legs = [r["locomotion"] for r in results if r.get("locomotion") is not None]
+    if not legs:
+        return None
+    hours = sum(r["simulated_hours"] for r in results if r.get("locomotion") is not None)
+    falls = sum(x["falls"] for x in legs)
+    running = sum(x["running_s"] for x in legs)
+    windows = [
+        x["min_window_success_rate"] for x in legs if x["min_window_success_rate"] is not None
+    ]
+    kinds = sorted({k for x in legs for k in x["peak_winding_c"]})
+    return {
+        "sessions": len(legs),
+        "falls": falls,
+        "falls_per_hour": falls / hours if hours > 0 else 0.0,
+        "tracking_success": sum(x["tracked_s"] for x in legs) / running if running else None,
+        "min_window_success_rate": min(windows) if windows else None,
+        "distance_m": sum(x["distance_m"] for x in legs),
+        "mean_forward_speed_m_s": sum(x["forward_m"] for x in legs) / running if running else None,
+        "running_s": running,
+        "peak_winding_c": {
+            k: max(x["peak_winding_c"][k] for x in legs if k in x["peak_winding_c"]) for k in kinds
+        },
+    }
+
+
 def missed_states(report: dict) -> list[dict]:
     """The missed goals of every session of a report, in session order.
 
@@ -351,7 +421,9 @@ def missed_states(report: dict) -> list[dict]:
     """
     out = []
     for i, s in enumerate(report.get("sessions", [])):
-        missed = s.get("goals", {}).get("missed")
+        if s.get("locomotion") is not None:
+            continue  # a legged session: no goals
+        missed = (s.get("goals") or {}).get("missed")
         if missed is None:
             raise ReportError(
                 f"report: field 'sessions[{i}].goals.missed' is missing (expected a list; "
@@ -453,13 +525,26 @@ def summary_text(report: dict) -> str:
         f"{t['simulated_hours']:.3f} simulated h: {'PASSED' if report['passed'] else 'FAILED'}"
     ]
     rate = t["goals"]["success_rate"]
-    lines.append(
-        f"  goals        {t['goals']['reached']}/{t['goals']['issued']} reached"
-        + (f" ({100 * rate:.1f} %)" if rate is not None else "")
-    )
+    loco = t.get("locomotion")
+    if loco is None or t["goals"]["issued"]:
+        lines.append(
+            f"  goals        {t['goals']['reached']}/{t['goals']['issued']} reached"
+            + (f" ({100 * rate:.1f} %)" if rate is not None else "")
+        )
     w = t["goals"]["min_window_success_rate"]
     if w is not None:
         lines.append(f"  windows      lowest success rate in a window {100 * w:.1f} %")
+    if loco is not None:
+        ts, speed = loco["tracking_success"], loco["mean_forward_speed_m_s"]
+        lines.append(
+            f"  locomotion   falls {loco['falls']} ({loco['falls_per_hour']:.2f} per hour); "
+            f"tracking success {'n/a' if ts is None else f'{100 * ts:.1f} %'} (within 0.2 m/s); "
+            f"distance {loco['distance_m']:.0f} m; mean forward speed "
+            f"{'n/a' if speed is None else f'{speed:.3f} m/s'}"
+        )
+        lw = loco["min_window_success_rate"]
+        if lw is not None:
+            lines.append(f"  windows      lowest tracking success in a window {100 * lw:.1f} %")
     v = ", ".join(f"{k} {n}" for k, n in t["violations"]["total"].items())
     lines.append(f"  violations   (true state, ticks) {v}")
     iv = t["interventions"]

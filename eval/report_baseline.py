@@ -97,6 +97,24 @@ def compare_with_baseline(
             current < allowed,
             f"{label} fell from {base:.3f} to {current:.3f} (allowed {allowed:.3f})",
         )
+    new_loco, old_loco = new.get("locomotion"), old.get("locomotion")
+    for key, label in (
+        ("tracking_success", "tracking success (legged)"),
+        ("min_window_success_rate", "lowest windowed tracking success (legged)"),
+    ):
+        if not new_loco or not old_loco or old_loco.get(key) is None:
+            continue
+        rate, base = new_loco[key], old_loco[key]
+        allowed = base - thresholds.success_tolerance
+        current = 0.0 if rate is None else rate
+        add(
+            f"locomotion.{key}",
+            base,
+            rate,
+            allowed,
+            current < allowed,
+            f"{label} fell from {base:.3f} to {current:.3f} (allowed {allowed:.3f})",
+        )
     for joint, peak in new["thermal"]["peak_c"].items():
         base = old["thermal"]["peak_c"].get(joint)
         if base is None:

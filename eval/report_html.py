@@ -130,6 +130,16 @@ def film_html(report: dict, base: Path | None = None) -> str:
     return _render("film.html", sessions=sessions).removesuffix("\n")
 
 
+def _success_cells(s: dict) -> list:
+    """A session's success rate, lowest window success and missed goals; a legged session's
+    tracking success, lowest window tracking success and falls."""
+    loco = s.get("locomotion")
+    if loco is not None:
+        return [loco["tracking_success"], loco["min_window_success_rate"], loco["falls"]]
+    g = s["goals"]
+    return [g["success_rate"], g["min_window_success_rate"], len(g["missed"]) + g["missed_dropped"]]
+
+
 def _tables(report: dict) -> dict[str, dict]:
     """The tables of report.html (campaign, checks, baseline, sessions, interventions, faults,
     randomization) as ``{"header", "rows"}``."""
@@ -184,9 +194,9 @@ def _tables(report: dict) -> dict[str, dict]:
             "hard-limit violations (true, ticks)",
             "violations/h (true, all types)",
             "interventions (% of ticks)",
-            "success rate",
+            "success rate (legged: tracking)",
             "lowest window success",
-            "missed goals",
+            "missed goals (legged: falls)",
             "faults injected",
             "survived",
             "latched",
@@ -201,9 +211,7 @@ def _tables(report: dict) -> dict[str, dict]:
                 s["violations"]["total"].get("hard_limit", 0),
                 sum(s["violations"]["rate_per_hour"].values()),
                 100 * s["interventions"]["any"]["fraction"],
-                s["goals"]["success_rate"],
-                s["goals"]["min_window_success_rate"],
-                len(s["goals"]["missed"]) + s["goals"]["missed_dropped"],
+                *_success_cells(s),
                 s["faults"]["injected"],
                 s["faults"]["survived"],
                 s["runtime"]["latched_faults"],
@@ -256,6 +264,38 @@ def _tables(report: dict) -> dict[str, dict]:
             ]
             for s in report["sessions"]
             for ev in s["faults"]["events"]
+        ],
+    )
+    legged = [s for s in report["sessions"] if s.get("locomotion") is not None]
+    tables["locomotion"] = _table(
+        [
+            "session",
+            "falls",
+            "falls/h",
+            "tracking success (within 0.2 m/s)",
+            "lowest window tracking",
+            "distance (m)",
+            "mean forward speed (m/s)",
+            "RUNNING (s)",
+            "commands",
+            "floor friction",
+            "peak winding degC (hip, thigh, calf)",
+        ],
+        [
+            [
+                s["id"],
+                s["locomotion"]["falls"],
+                s["locomotion"]["falls_per_hour"],
+                s["locomotion"]["tracking_success"],
+                s["locomotion"]["min_window_success_rate"],
+                s["locomotion"]["distance_m"],
+                s["locomotion"]["mean_forward_speed_m_s"],
+                s["locomotion"]["running_s"],
+                s["locomotion"]["commands_issued"],
+                s["randomization"].get("floor_friction"),
+                list(s["locomotion"]["peak_winding_c"].values()),
+            ]
+            for s in legged
         ],
     )
     tables["randomization"] = _table(

@@ -105,16 +105,20 @@ def plot_success(report: dict) -> str:
     for s in report["sessions"]:
         c = s["curves"]
         t = np.asarray(c["t_s"]) / 3600.0
-        issued = np.diff(np.asarray(c["goals_issued"], dtype=float))
-        reached = np.diff(np.asarray(c["goals_reached"], dtype=float))
+        # a legged session: tracked / RUNNING seconds per interval
+        issued = np.diff(np.asarray(c.get("goals_issued", c.get("running_s")), dtype=float))
+        reached = np.diff(np.asarray(c.get("goals_reached", c.get("tracked_s")), dtype=float))
         with np.errstate(invalid="ignore", divide="ignore"):
-            rate = np.where(issued > 0, reached / np.maximum(issued, 1), np.nan)
+            rate = np.where(issued > 0, reached / np.where(issued > 0, issued, 1), np.nan)
         if len(t) > 1:
             ax.plot(t[1:], rate, marker=".", label=s["id"])
     ax.set_ylim(-0.05, 1.05)
     ax.set_xlabel("simulated time (h)")
     ax.set_ylabel("success rate")
-    ax.set_title("Goals reached / goals issued per interval", fontsize=9)
+    ax.set_title(
+        "Goals reached / goals issued per interval (legged: time tracking the command)",
+        fontsize=9,
+    )
     if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=7, ncol=4)
     return _png(fig)
@@ -126,7 +130,7 @@ def plot_windows(report: dict) -> str:
     fig, axes = _figure(1, 1, 3.0)
     ax = axes[0, 0]
     for i, s in enumerate(report["sessions"]):
-        windows = s["goals"]["windows"]
+        windows = (s.get("goals") or s.get("locomotion") or {}).get("windows", [])
         if windows:  # one segment per window: windows without a goal leave gaps
             ax.hlines(
                 [w["success_rate"] for w in windows],

@@ -25,6 +25,7 @@ CHECKS = (
     "window_success",
     "interventions",
     "no_divergence",
+    "falls",
 )
 
 
@@ -47,6 +48,10 @@ class Thresholds:
         success_tolerance: Drop of the success rate, or of the minimum window success rate
             (absolute), still allowed.
         temperature_tolerance: Rise of a joint's peak winding temperature still allowed, K.
+        max_falls_per_hour: Most falls per simulated hour of a legged session that pass (0:
+            every fall fails, our choice: a fall on hardware is damage). The success thresholds
+            apply to a legged session's tracking success (share of RUNNING time within 0.2 m/s
+            of the velocity command).
 
     Raises:
         ReportError: a negative or non-finite value, or a rate above 1 (named).
@@ -60,6 +65,7 @@ class Thresholds:
     intervention_slack: float = 0.002
     success_tolerance: float = 0.02
     temperature_tolerance: float = 2.0
+    max_falls_per_hour: float = 0.0
 
     def __post_init__(self):
         for name, value in asdict(self).items():

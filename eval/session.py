@@ -8,7 +8,10 @@ rising with wear over the session, the motor thermal model running throughout. I
 ``e`` of a batch (:class:`eval.batch.SessionBatch`); :class:`Session` keeps what is its own there:
 its fault schedule and the runtime's responses, latches, operator resets, hourly rows, curves,
 drift, and its part of a checkpoint. Its folder is ``OUT/sessions/<id>/`` (:func:`session_dir`);
-its result document is built by :mod:`eval.session_result`.
+its result document is built by :mod:`eval.session_result`. A legged robot's session
+(``robot.floating_base``) follows velocity commands instead of goals (:mod:`eval.batch`): its
+``goal_period`` is the period of the commands, ``success_time`` is unused, and its success is the
+tracking success of :class:`deploy.locomotion.CommandTracker`.
 
 The runtime's responses. Every fault is judged ``FAULT_SETTLE`` s after it ends, against the
 runtime's counters and modes at its onset: ``held`` (no safe stop: the runtime held the last
@@ -138,6 +141,7 @@ class Session:
         self.batch, self.e, self.config, self.draw = batch, e, config, draw
         rt, robot = batch.rt, batch.robot
         self.goals = batch.goals  # env e of the batch's scheduler, on this session's own stream
+        self.legged = batch.legged  # velocity commands (batch.commands, batch.tracker), no goals
         dt = robot.control_period
         self.schedule = list(draw.faults)
         self.fault_index = 0
@@ -147,14 +151,19 @@ class Session:
         self.next_fault_tick = self._arm_tick(0, dt)
         self.latches: list[dict] = []
         self.operator_resets = 0
+        self.stood_up = 0  # legged: operator resets that stood the robot up
         self.latched_since = -1.0
         self.hours: list[dict] = []
         self.hour_base = self.counters()
+        if self.legged:  # commands, falls and tracking (cumulative)
+            task = {"commands": [0], "falls": [0], "distance_m": [0.0]}
+            task.update(running_s=[0.0], tracked_s=[0.0])
+        else:
+            task = {"issued": [0], "reached": [0]}
         self.curve: dict = {
             "t_s": [0.0],
             "winding_c": [[float(x) for x in batch.backend.thermal.winding_temperature[e]]],
-            "issued": [0],
-            "reached": [0],
+            **task,
             "violations": [self.hour_base["violations"]],
             "interventions": [self.hour_base["interventions"]],
             "mode": [int(rt.mode[e])],
@@ -263,7 +272,11 @@ class Session:
         ``e``; the book-keeping, options, policy digest and randomization as JSON metadata)."""
         rt, e, b = self.batch.rt, self.e, self.batch
         state = rt.state_dict(e)  # the runtime and its stages, the plant and policy included
-        state.update(prefixed("goals", self.goals.state_dict(e)))
+        if self.legged:
+            state.update(prefixed("commands", b.commands.state_dict(e)))
+            state.update(prefixed("tracker", b.tracker.state_dict(e)))
+        else:
+            state.update(prefixed("goals", self.goals.state_dict(e)))
         state.update(prefixed("stats", b.stats.state_dict(e)))
         state.update(prefixed("violations", b.violations.state_dict(e)))
         state.update(prefixed("interventions", b.interventions.state_dict(e)))
@@ -279,6 +292,7 @@ class Session:
                 "next_fault_tick": self.next_fault_tick,
                 "latches": self.latches,
                 "operator_resets": self.operator_resets,
+                "stood_up": self.stood_up,
                 "latched_since": self.latched_since,
                 "faulted": bool(b.faulted[e]),
                 "hours": self.hours,
@@ -326,7 +340,11 @@ class Session:
                 f"for seed {self.config.seed} (another version of eval.randomization?)"
             )
         ckpt.load_stage(b.rt, arrays, e, where)
-        ckpt.load_stage(self.goals, arrays, e, where, "goals")
+        if self.legged:
+            ckpt.load_stage(b.commands, arrays, e, where, "commands")
+            ckpt.load_stage(b.tracker, arrays, e, where, "tracker")
+        else:
+            ckpt.load_stage(self.goals, arrays, e, where, "goals")
         ckpt.load_stage(b.stats, arrays, e, where, "stats")
         ckpt.load_stage(b.violations, arrays, e, where, "violations")
         ckpt.load_stage(b.interventions, arrays, e, where, "interventions")
@@ -341,6 +359,7 @@ class Session:
             ckpt.load_stage(inj, arrays, None, where, "injector")
         self.latches = s["latches"]
         self.operator_resets = int(s["operator_resets"])
+        self.stood_up = int(s.get("stood_up", 0))
         self.latched_since = float(s["latched_since"])
         b.faulted[e] = bool(s["faulted"])
         self.hours = s["hours"]

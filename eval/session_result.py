@@ -6,6 +6,11 @@ A finished session writes ``result.json`` in its folder (``OUT/sessions/<id>/``,
 of running the session again, after checking that it was run with the same options
 (:func:`check_result`). The document's schema is in :mod:`eval.report`; everything in it but
 ``wall`` (wall-clock time, tick cost) follows from the session's seed and options.
+
+A legged session (``robot.floating_base``) has ``goals`` None and a ``locomotion`` section
+instead (:func:`locomotion_result`): falls, falls per hour, tracking success (its success rate),
+distance, forward speed, per window too; its curves have commands, falls, distance and tracking
+instead of goals. An arm's result has ``locomotion`` None.
 """
 
 from __future__ import annotations
@@ -23,6 +28,54 @@ from eval import checkpoint as ckpt
 from eval.session import RESPONSES, Session, SessionConfig, session_dir
 
 VIOLATION_SOURCE = "true state (simulation ground truth)"
+#: A legged session's task curves (cumulative; ``curves`` of its result).
+LEGGED_CURVES = ("commands", "falls", "distance_m", "running_s", "tracked_s")
+#: Joint kinds of a quadruped whose peak winding temperature a legged result lists (by name).
+LEG_JOINTS = ("hip", "thigh", "calf")
+
+
+def locomotion_result(session: Session) -> dict:
+    """The ``locomotion`` section of a legged session's result (see :mod:`eval.report`)."""
+    from dataclasses import asdict
+
+    from deploy.locomotion import TRACKING_TOLERANCE, TRACKING_WINDOW
+
+    b, e, rt = session.batch, session.e, session.batch.rt
+    tr, cmd = b.tracker, b.commands
+    t_end = rt.time
+    sim_h = t_end / 3600.0
+    falls = int(tr.falls[e])
+    running = float(tr.running_time[e])
+    windows = tr.windows(e, t_end)
+    names = list(b.robot.joint_names)
+    peaks = {}
+    for kind in LEG_JOINTS:
+        hits = [i for i, j in enumerate(names) if f"_{kind}" in j]
+        if hits:
+            peaks[kind] = float(b.peak[e, hits].max())
+    return {
+        "commands_issued": int(cmd.issued[e]),
+        "command_period_s": session.config.goal_period,
+        "command_ranges": asdict(cmd.ranges),
+        "final_command": [float(x) for x in rt.velocity_command[e]],
+        "falls": falls,
+        "falls_per_hour": falls / sim_h if sim_h > 0 else 0.0,
+        "fall_stops": int(rt.counters.faults["fall"][e]),
+        "stood_up": session.stood_up,
+        "tracking_success": float(tr.tracked_time[e]) / running if running else None,
+        "tracking_tolerance_m_s": TRACKING_TOLERANCE,
+        "tracking_window_s": TRACKING_WINDOW,
+        "judged_on": tr.judged_on,
+        "running_s": running,
+        "tracked_s": float(tr.tracked_time[e]),
+        "distance_m": float(tr.distance[e]),
+        "forward_m": float(tr.forward[e]),
+        "mean_forward_speed_m_s": float(tr.forward[e]) / running if running else None,
+        "window_s": tr.success_window,
+        "windows": windows,
+        "min_window_success_rate": (min(w["success_rate"] for w in windows) if windows else None),
+        "peak_winding_c": peaks,
+    }
 
 
 def session_result(session: Session) -> dict:
@@ -42,8 +95,9 @@ def session_result(session: Session) -> dict:
     now = session.counters()
     sim_h = t_end / 3600.0
     g, e = session.goals, session.e
-    times = g.hit_times[e]
-    windows = g.windows(e, t_end)
+    legged = session.legged
+    times = [] if legged else g.hit_times[e]
+    windows = [] if legged else g.windows(e, t_end)
     true = now["violations"]
     interventions = b.interventions.summary(e)
     responses = {r: 0 for r in RESPONSES}
@@ -96,7 +150,9 @@ def session_result(session: Session) -> dict:
                 for h in hours
             ],
         },
-        "goals": {
+        "goals": None
+        if legged
+        else {
             "issued": int(g.issued[e]),
             "reached": int(g.hit_count[e]),
             "success_rate": int(g.hit_count[e]) / int(g.issued[e]) if g.issued[e] else None,
@@ -111,6 +167,7 @@ def session_result(session: Session) -> dict:
             "missed": list(g.missed[e]),
             "missed_dropped": int(g.missed_dropped[e]),
         },
+        "locomotion": locomotion_result(session) if legged else None,
         "faults": {
             "scheduled": len(session.schedule),
             "injected": len(session.fault_events),
@@ -157,8 +214,14 @@ def session_result(session: Session) -> dict:
         },
         "curves": {
             "t_s": session.curve["t_s"],
-            "goals_issued": session.curve["issued"],
-            "goals_reached": session.curve["reached"],
+            **(
+                {k: session.curve[k] for k in LEGGED_CURVES}
+                if legged
+                else {
+                    "goals_issued": session.curve["issued"],
+                    "goals_reached": session.curve["reached"],
+                }
+            ),
             "violations": {
                 k: [row[k] for row in session.curve["violations"]]
                 for k in (*VIOLATION_TYPES, "any")

@@ -69,6 +69,13 @@ ACCEL_BIAS_WALK = 4e-3  # m/s^2/sqrt(s)
 #: least 5 N.
 FORCE_NOISE_FRACTION = 0.05
 CONTACT_THRESHOLD_SIGMAS = 3.0
+#: The soak's pushes on the base (``[soak] push_force``): the largest gives the robot legged_gym's
+#: largest push, a base velocity change of ``PUSH_VELOCITY`` (unitree_rl_gym
+#: LeggedRobotCfg.domain_rand.max_push_vel_xy), over the longest push, ``PUSH_TIME`` (eval.
+#: fault_schedule.FaultRanges.push_duration); the smallest ``PUSH_LOW`` of it (our choice).
+PUSH_VELOCITY = 1.0  # m/s
+PUSH_TIME = 0.5  # s
+PUSH_LOW = 0.2
 
 
 def choose_feet(prepared: PreparedSource, flags: list[str]) -> list[str]:
@@ -304,6 +311,7 @@ def write_legged_toml(
     low = {(j, q): (a, b) for j, q, a, b, _ in lowered}
     feet = legged["feet"]
     load = mass * ACCELERATION_SCALE / len(feet)
+    push = mass * PUSH_VELOCITY / PUSH_TIME  # N, the soak's largest push
     force_sigma = _sig(FORCE_NOISE_FRACTION * load, 2)
     threshold = _sig(max(5.0, CONTACT_THRESHOLD_SIGMAS * force_sigma), 2)
     lines = [
@@ -386,6 +394,15 @@ def write_legged_toml(
         + " m (the foot collision box's mean half-size)",
         "feet = [" + ", ".join(f'"{f}"' for f in feet) + "]",
         f"standing_height = {_f(legged['standing_height'])}  # m, base above the floor at home",
+        "",
+        "[soak]",
+        "# Pushes on the base: up to the impulse of legged_gym's largest push (a "
+        f"{PUSH_VELOCITY:g} m/s base velocity",
+        "# change, unitree_rl_gym LeggedRobotCfg.domain_rand.max_push_vel_xy) delivered over the "
+        "longest",
+        f"# push ({PUSH_TIME:g} s): {mass:.1f} kg x {PUSH_VELOCITY:g} m/s / {PUSH_TIME:g} s; the "
+        f"low end {PUSH_LOW:g} of it.",
+        f"push_force = [{_f(_sig(PUSH_LOW * push))}, {_f(_sig(push))}]  # N",
         "",
     ]
     path.write_text("\n".join(lines), encoding="utf-8")

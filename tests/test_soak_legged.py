@@ -1,0 +1,239 @@
+"""The soak's legged mode (issue 17): go2 follows seeded velocity commands
+(:class:`deploy.locomotion.CommandSchedule`), its tracking, falls and distance are measured
+(:class:`deploy.locomotion.CommandTracker`) and reported, and a kill -9 + resume equals an
+uninterrupted run."""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from deploy.locomotion import CommandSchedule, CommandTracker
+from eval import checkpoint as ckpt
+from eval.batch import SessionBatch
+from eval.fault_schedule import fault_ranges
+from eval.randomization import SessionRanges, sample_session, session_ranges
+from eval.report import build_report
+from eval.session import SessionConfig, session_dir
+from eval.soak import run_campaign
+from robots import load_robot
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def go2():
+    return load_robot("go2")
+
+
+@pytest.fixture(scope="module")
+def policy(tmp_path_factory):
+    from deploy.export import export_policy
+
+    out = tmp_path_factory.mktemp("go2policy") / "go2.onnx"
+    export_policy(REPO / "policies" / "go2.pt", out=out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def config(policy, go2):
+    """36 s of go2 with faults every ~10 s (pushes on the base among them), checkpoints every
+    12 s."""
+    return SessionConfig(
+        robot="go2",
+        policy=str(policy),
+        seed=0,
+        hours=0.01,
+        goal_period=4.0,
+        checkpoint_minutes=0.2,
+        curve_seconds=6.0,
+        window_minutes=0.25,
+        ranges=session_ranges(go2, 10.0),
+    )
+
+
+def seeded(result: dict) -> dict:
+    return {k: v for k, v in result.items() if k != "wall"}
+
+
+def test_a_legged_session_draws_imu_floor_friction_and_no_cable(go2):
+    draw = sample_session(go2, 3, 3600.0, SessionRanges(faults=fault_ranges(go2, 30.0)))
+    assert draw.imu is not None and 0.5 <= draw.floor_friction <= 1.25
+    kinds = {f.kind for f in draw.faults}
+    assert "cable" not in kinds and "push" in kinds
+    pushes = [f.magnitude for f in draw.faults if f.kind == "push"]
+    assert all(6.4 <= p <= 32.0 for p in pushes)  # go2's [soak] push_force
+    doc = draw.to_dict()
+    assert type(draw).from_dict(doc) == draw and "imu" in doc and "floor_friction" in doc
+
+
+def test_command_schedule_and_tracker_state_round_trip():
+    class Rt:
+        def __init__(self):
+            self.mode = np.array([2, 2])
+            self.time, self.ticks = 0.0, 0
+            self.velocity_command = np.zeros((2, 3))
+            self.counters = type("C", (), {"faults": {"fall": np.zeros(2, dtype=np.int64)}})
+
+    class Backend:
+        def __init__(self):
+            self.rng = np.random.default_rng(1)
+
+        def true_base_state(self):
+            s = np.zeros((2, 13))
+            s[:, 3] = 1.0
+            s[:, 7:9] = 0.3 + 0.05 * self.rng.standard_normal((2, 2))
+            return s
+
+    def run(schedule, tracker, rt, ticks):
+        for _ in range(ticks):
+            rt.ticks += 1
+            rt.time = rt.ticks * 0.02
+            schedule(rt)
+            tracker(rt)
+
+    def make():
+        streams = [np.random.default_rng([s, 5]) for s in (0, 1)]
+        return CommandSchedule(2, 1.0, streams), CommandTracker(2, 0.02, Backend(), window=2.0)
+
+    a_s, a_t = make()
+    rt_a = Rt()
+    run(a_s, a_t, rt_a, 300)
+    b_s, b_t = make()
+    rt_b = Rt()
+    run(b_s, b_t, rt_b, 130)
+    c_s, c_t = make()
+    c_t.truth = b_t.truth  # the same plant
+    for e in (0, 1):  # one env at a time, as a session's checkpoint
+        c_s.load_state_dict(b_s.state_dict(e), e)
+        c_t.load_state_dict(b_t.state_dict(e), e)
+    rt_c = Rt()
+    rt_c.ticks, rt_c.time = rt_b.ticks, rt_b.time
+    rt_c.velocity_command[:] = rt_b.velocity_command
+    run(c_s, c_t, rt_c, 170)
+    assert a_s.issued.tolist() == c_s.issued.tolist() and (a_s.issued >= 5).all()
+    np.testing.assert_array_equal(a_s.command, c_s.command)
+    np.testing.assert_array_equal(a_t.tracked_time, c_t.tracked_time)
+    np.testing.assert_array_equal(a_t.distance, c_t.distance)
+    assert a_t.windows(0, rt_a.time) == c_t.windows(0, rt_c.time)
+    assert len(a_t.windows(0, rt_a.time)) == 3
+
+
+def test_a_short_go2_soak_reports_falls_tracking_and_distance(policy, tmp_path, capsys):
+    from eval.cli import main
+
+    out = tmp_path / "soak"
+    code = main(
+        [
+            "--robot",
+            "go2",
+            "--policy",
+            str(policy),
+            "--hours",
+            "0.02",
+            "--sessions",
+            "1",
+            "--seed",
+            "0",
+            "--out",
+            str(out),
+            "--no-progress",
+            "--no-film",
+            "--fault-interval",
+            "20",
+        ]
+    )
+    text = capsys.readouterr().out
+    report = json.loads((out / "report.json").read_text())
+    assert report["exit_code"] == code
+    s = report["sessions"][0]
+    loco = s["locomotion"]
+    assert s["goals"] is None and s["simulated_s"] == pytest.approx(72.0)
+    for key in ("falls", "falls_per_hour", "tracking_success", "distance_m"):
+        assert key in loco
+    assert loco["running_s"] > 0 and loco["distance_m"] > 0 and loco["commands_issued"] > 1
+    assert 0.0 <= loco["tracking_success"] <= 1.0
+    assert loco["falls_per_hour"] == pytest.approx(loco["falls"] / 0.02)
+    assert set(loco["peak_winding_c"]) == {"hip", "thigh", "calf"}
+    assert "floor_friction" in s["randomization"] and "imu" in s["randomization"]
+    assert all(e["kind"] != "cable" for e in s["faults"]["events"])
+    assert "falls" in s["checks"] and "falls" in report["checks"]
+    assert report["totals"]["locomotion"]["falls"] == loco["falls"]
+    assert "locomotion   falls" in text
+    assert "Locomotion" in (out / "report.html").read_text()
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(config, tmp_path_factory):
+    out = tmp_path_factory.mktemp("legged_whole")
+    return SessionBatch([config], out, progress=False).run()[0]
+
+
+def test_kill_and_resume_of_a_go2_session_equals_an_uninterrupted_run(
+    config, uninterrupted, tmp_path
+):
+    out = tmp_path / "campaign"
+    cfg_file = tmp_path / "config.pkl"
+    cfg_file.write_bytes(pickle.dumps(config))
+    script = (
+        "import pickle, sys\n"
+        "from eval.soak import run_campaign\n"
+        "run_campaign(pickle.load(open(sys.argv[1], 'rb')), 1, sys.argv[2], progress=False)\n"
+    )
+    env = dict(os.environ, ORT_DISABLE_TELEMETRY="1")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script, str(cfg_file), str(out)],
+        cwd=REPO,
+        env=env,
+        start_new_session=True,
+    )
+    manifest = session_dir(out, 0) / ckpt.MANIFEST
+    deadline = time.monotonic() + 120
+    try:
+        while not manifest.exists():
+            assert proc.poll() is None, "the session ended before its first checkpoint"
+            assert time.monotonic() < deadline, "no checkpoint within 120 s"
+            time.sleep(0.02)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    assert not (session_dir(out, 0) / "result.json").exists()
+    arrays, meta = ckpt.read_checkpoint(session_dir(out, 0))
+    assert 0 < meta["tick"] < 1800
+    assert "commands/rng" in arrays and arrays["tracker/ring"].shape == (1, 40, 2)
+    assert not any(k.startswith("goals/") for k in arrays)
+    resumed = run_campaign(replace(config, seed=0), 1, out, resume=True, progress=False)[0]
+    assert seeded(resumed) == seeded(uninterrupted)
+    assert resumed["locomotion"]["commands_issued"] > 1
+    a = build_report({"robot": "go2"}, [resumed])
+    b = build_report({"robot": "go2"}, [uninterrupted])
+    assert a["totals"] | {"tick_cost_us": None} == b["totals"] | {"tick_cost_us": None}
+    shutil.rmtree(out)
+
+
+def test_robot_import_writes_go2s_soak_table(tmp_path):
+    """Regenerating go2 with the command in its robot.toml header gives the shipped file, its
+    ``[soak]`` pushes included (the table is the importer's, not a hand edit it would drop)."""
+    import shlex
+
+    from robots.importer import main
+
+    shipped = (REPO / "robots" / "go2" / "robot.toml").read_text()
+    command = shlex.split(shipped.splitlines()[2].removeprefix("#   "))
+    out = tmp_path / "go2"
+    command[command.index("--out") + 1] = str(out)
+    assert main(command[1:]) == 0
+    written = (out / "robot.toml").read_text()
+    assert "[soak]\n" in written and "push_force = [6.4, 32.0]  # N" in written
+    assert written.replace(str(out), "robots/go2") == shipped

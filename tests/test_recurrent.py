@@ -21,6 +21,7 @@ from deploy.export import run_export
 from deploy.policy import OnnxPolicy, PolicyLoadError
 from deploy.runtime import Mode, Runtime
 from tests.helpers_policies import make_spec, write_spec
+from tests.soak_fixtures import kill_after_first_checkpoint
 
 rsl_rl = pytest.importorskip("rsl_rl.modules")
 tensordict = pytest.importorskip("tensordict")
@@ -363,13 +364,6 @@ def test_deploy_run_exits_3_on_a_state_input_without_batch_axis(arm3, tmp_path, 
 
 # ---------------------------------------------------------------- soak: kill and resume
 def test_soak_with_a_recurrent_policy_resumes_exactly_after_kill(exported, tmp_path):
-    import os
-    import pickle
-    import signal
-    import subprocess
-    import sys
-    import time
-    from pathlib import Path
 
     from eval import checkpoint as ckpt
     from eval.soak import SessionBatch, SessionConfig, run_campaign, session_dir
@@ -399,30 +393,7 @@ def test_soak_with_a_recurrent_policy_resumes_exactly_after_kill(exported, tmp_p
     )
     (whole,) = SessionBatch([config], tmp_path / "whole").run()
     out = tmp_path / "campaign"
-    cfg_file = tmp_path / "config.pkl"
-    cfg_file.write_bytes(pickle.dumps(config))
-    script = (
-        "import pickle, sys, torch\n"
-        "torch.set_num_threads(1)\n"
-        "from eval.soak import run_campaign\n"
-        "run_campaign(pickle.load(open(sys.argv[1], 'rb')), 1, sys.argv[2], progress=False)\n"
-    )
-    proc = subprocess.Popen(
-        [sys.executable, "-c", script, str(cfg_file), str(out)],
-        cwd=Path(__file__).resolve().parent.parent,
-        env=dict(os.environ, ORT_DISABLE_TELEMETRY="1"),
-        start_new_session=True,
-    )
-    manifest = session_dir(out, config.seed) / ckpt.MANIFEST
-    deadline = time.monotonic() + 120
-    try:
-        while not manifest.exists():
-            assert proc.poll() is None, "the session ended before its first checkpoint"
-            assert time.monotonic() < deadline, "no checkpoint within 120 s"
-            time.sleep(0.02)
-    finally:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
+    kill_after_first_checkpoint(config, out)
     arrays, meta = ckpt.read_checkpoint(session_dir(out, config.seed))
     assert arrays["policy/h_in"].shape == (1, HIDDEN) and "policy/c_in" in arrays
     assert 0 < meta["tick"] < 1600

@@ -6,14 +6,8 @@ are a function of its seed and options only.
 """
 
 import json
-import os
-import pickle
 import re
 import shutil
-import signal
-import subprocess
-import sys
-import time
 import xml.etree.ElementTree as ET
 from copy import deepcopy
 from dataclasses import replace
@@ -48,6 +42,7 @@ from eval.report import (
     write_reports,
 )
 from eval.soak import SessionBatch, SessionConfig, run_campaign, session_dir
+from tests.soak_fixtures import kill_after_first_checkpoint
 
 REPO = Path(__file__).resolve().parent.parent
 #: Thresholds every check of the tiny policy passes but the latched-fault and divergence ones.
@@ -244,30 +239,7 @@ def killed(config, tmp_path_factory):
     """Session 0 started in a subprocess and SIGKILLed after its first checkpoint."""
     root = tmp_path_factory.mktemp("killed")
     out = root / "campaign"
-    cfg_file = root / "config.pkl"
-    cfg_file.write_bytes(pickle.dumps(replace(config, seed=0)))
-    script = (
-        "import pickle, sys\n"
-        "from eval.soak import run_campaign\n"
-        "run_campaign(pickle.load(open(sys.argv[1], 'rb')), 1, sys.argv[2], progress=False)\n"
-    )
-    env = dict(os.environ, ORT_DISABLE_TELEMETRY="1")
-    proc = subprocess.Popen(
-        [sys.executable, "-c", script, str(cfg_file), str(out)],
-        cwd=REPO,
-        env=env,
-        start_new_session=True,
-    )
-    manifest = session_dir(out, 0) / ckpt.MANIFEST
-    deadline = time.monotonic() + 120
-    try:
-        while not manifest.exists():
-            assert proc.poll() is None, "the session ended before its first checkpoint"
-            assert time.monotonic() < deadline, "no checkpoint within 120 s"
-            time.sleep(0.02)
-    finally:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
+    kill_after_first_checkpoint(replace(config, seed=0), out)
     assert not (session_dir(out, 0) / "result.json").exists()
     pristine = root / "pristine"
     shutil.copytree(out, pristine)

@@ -6,13 +6,7 @@ uninterrupted run."""
 from __future__ import annotations
 
 import json
-import os
-import pickle
 import shutil
-import signal
-import subprocess
-import sys
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -28,6 +22,7 @@ from eval.report import build_report
 from eval.session import SessionConfig, session_dir
 from eval.soak import run_campaign
 from robots import load_robot
+from tests.soak_fixtures import kill_after_first_checkpoint
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -184,30 +179,7 @@ def test_kill_and_resume_of_a_go2_session_equals_an_uninterrupted_run(
     config, uninterrupted, tmp_path
 ):
     out = tmp_path / "campaign"
-    cfg_file = tmp_path / "config.pkl"
-    cfg_file.write_bytes(pickle.dumps(config))
-    script = (
-        "import pickle, sys\n"
-        "from eval.soak import run_campaign\n"
-        "run_campaign(pickle.load(open(sys.argv[1], 'rb')), 1, sys.argv[2], progress=False)\n"
-    )
-    env = dict(os.environ, ORT_DISABLE_TELEMETRY="1")
-    proc = subprocess.Popen(
-        [sys.executable, "-c", script, str(cfg_file), str(out)],
-        cwd=REPO,
-        env=env,
-        start_new_session=True,
-    )
-    manifest = session_dir(out, 0) / ckpt.MANIFEST
-    deadline = time.monotonic() + 120
-    try:
-        while not manifest.exists():
-            assert proc.poll() is None, "the session ended before its first checkpoint"
-            assert time.monotonic() < deadline, "no checkpoint within 120 s"
-            time.sleep(0.02)
-    finally:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
+    kill_after_first_checkpoint(config, out)
     assert not (session_dir(out, 0) / "result.json").exists()
     arrays, meta = ckpt.read_checkpoint(session_dir(out, 0))
     assert 0 < meta["tick"] < 1800

@@ -1,0 +1,53 @@
+"""A soak session killed with SIGKILL right after its first checkpoint (the kill-and-resume tests
+of arms, recurrent policies and legged robots share it)."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from eval import checkpoint as ckpt
+from eval.soak import session_dir
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def kill_after_first_checkpoint(config, out: Path, timeout: float = 120.0) -> None:
+    """Run ``config``'s session (``run_campaign`` with one worker, into ``out``) in a
+    subprocess, and SIGKILL its process group as soon as the session's first checkpoint exists.
+
+    Raises:
+        AssertionError: the session ended before its first checkpoint, or wrote none within
+            ``timeout`` s.
+    """
+    out = Path(out)
+    cfg_file = out.parent / f"{out.name}.config.pkl"
+    cfg_file.write_bytes(pickle.dumps(config))
+    script = (
+        "import pickle, sys\n"
+        "import torch\n"
+        "torch.set_num_threads(1)\n"
+        "from eval.soak import run_campaign\n"
+        "run_campaign(pickle.load(open(sys.argv[1], 'rb')), 1, sys.argv[2], progress=False)\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script, str(cfg_file), str(out)],
+        cwd=REPO,
+        env=dict(os.environ, ORT_DISABLE_TELEMETRY="1"),
+        start_new_session=True,
+    )
+    manifest = session_dir(out, config.seed) / ckpt.MANIFEST
+    deadline = time.monotonic() + timeout
+    try:
+        while not manifest.exists():
+            assert proc.poll() is None, "the session ended before its first checkpoint"
+            assert time.monotonic() < deadline, f"no checkpoint within {timeout} s"
+            time.sleep(0.02)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()

@@ -24,6 +24,10 @@ from deploy.backends.servo.control_tables import DYNAMIXEL_ALERT, ServoModel
 
 #: Reported when the Alert bit is set but Hardware_Error_Status could not be read.
 UNKNOWN_HARDWARE_ERROR = DYNAMIXEL_ALERT
+#: Attempts at reading Hardware_Error_Status after a status packet's alert bit (our choice: the
+#: servo has just latched a fault and the runtime may stop reading once it latches too; a loaded
+#: bus or host drops a reply now and then, 3 tries cost ~1 ms only when a fault happens).
+HARDWARE_ERROR_READS = 3
 
 
 class DynamixelBackend(SdkServoBus):
@@ -57,6 +61,8 @@ class DynamixelBackend(SdkServoBus):
         if not error_byte & DYNAMIXEL_ALERT:
             return 0  # an instruction error number (bits 0-6), not a hardware error
         reg = self.models[j].register("hardware_error")
-        data = self._read_register(self.ids[j], reg.address, reg.size)
-        bits = reg.decode(data) if data is not None else 0
-        return bits or UNKNOWN_HARDWARE_ERROR
+        for _ in range(HARDWARE_ERROR_READS):  # a dropped reply must not lose the diagnosis
+            data = self._read_register(self.ids[j], reg.address, reg.size)
+            if data is not None:
+                return reg.decode(data) or UNKNOWN_HARDWARE_ERROR
+        return UNKNOWN_HARDWARE_ERROR

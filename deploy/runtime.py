@@ -309,6 +309,10 @@ class Runtime:
             if self.mode_name == "velocity"
             else TRACKING_TOLERANCE
         )
+        #: (envs, n) zeros: the velocity the smoother restarts from after a stop (a stopped arm;
+        #: the estimate's speed under encoder noise is not: started from 2 rad/s of noise, the
+        #: first trajectory after a reset drove so101 onto its hard limits, stop after stop)
+        self._at_rest = np.zeros((envs, n))
         #: (envs,) bool: the envs whose stop damps the joints instead of holding a pose: a
         #: legged robot's every safe stop (holding its stance against gravity with a low-gain PD
         #: heated the thighs past 200 degC in simulation: it lies down instead)
@@ -530,7 +534,7 @@ class Runtime:
         self.cause[faulted] = -1
         self.damping[faulted] = False
         self.guard.reset(self.state.q, envs=faulted)
-        self.smoother.sync(self.state.q, self.state.dq, envs=faulted)
+        self.smoother.sync(self.state.q, self._at_rest, envs=faulted)  # stopped: no speed
         self._reset_policy(faulted)
 
     def restart(self, envs: np.ndarray, q: np.ndarray, t) -> None:
@@ -688,7 +692,7 @@ class Runtime:
                 self._reset_policy(flags[sv.TOOK_OVER].copy())
             if code & sv.SUPERVISE_RESUME:
                 resume = flags[sv.RESUMED].copy()
-                self.smoother.sync(state.q, state.dq, envs=resume)
+                self.smoother.sync(state.q, self._at_rest, envs=resume)
                 self._reset_policy(resume)
             if code & (sv.SUPERVISE_RESUME | sv.SUPERVISE_ANCHOR):
                 self._reanchor(state)
@@ -734,7 +738,7 @@ class Runtime:
                 if resume.any():
                     mode[resume] = RAMP_IN
                     self.cause[resume] = -1
-                    self.smoother.sync(state.q, state.dq, envs=resume)
+                    self.smoother.sync(state.q, self._at_rest, envs=resume)
                     self._reset_policy(resume)
         self._reanchor(state)
 

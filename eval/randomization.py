@@ -521,13 +521,31 @@ class SessionRanges:
 def session_ranges(robot: Robot, mean_interval: float | None = None) -> SessionRanges:
     """The soak's ranges for ``robot`` (what ``soak-test`` runs): the defaults with the faults
     sized to it (:func:`eval.fault_schedule.fault_ranges`, ``mean_interval`` s between faults
-    when given) and, for a floating-base robot, ``LEGGED_DYNAMICS`` and ``LEGGED_SENSORS``."""
+    when given), the encoder noise scaled to the robot's own (:func:`sensor_ranges`) and, for a
+    floating-base robot, ``LEGGED_DYNAMICS`` and ``LEGGED_SENSORS``."""
     from eval.fault_schedule import fault_ranges
 
     faults = fault_ranges(robot, mean_interval)
     if robot.floating_base:
         return SessionRanges(dynamics=LEGGED_DYNAMICS, sensors=LEGGED_SENSORS, faults=faults)
-    return SessionRanges(faults=faults)
+    return SessionRanges(sensors=sensor_ranges(robot), faults=faults)
+
+
+#: The nominal encoder noise the seed's range is drawn about, rad: seed section 5's 0.005 on
+#: angle / pi, as arm3's and arm6's robot.toml round it (``encoder_noise_sigma = 0.0157``).
+SEED_ENCODER_NOISE = 0.0157
+
+
+def sensor_ranges(robot: Robot) -> SensorRanges:
+    """An arm's encoder ranges: the seed's noise range (0.4-2x its nominal 0.005 pi rad) scaled
+    to the robot's own nominal noise (``sensors.encoder_noise_sigma``): arm3 and arm6 get the
+    seed's range exactly; an SO-101 (one count, 0.00153 rad) 0.4-2 counts instead of the 4-20
+    counts the absolute range gave it, whose noise kept its estimated speeds above REST_SPEED
+    (RAMP_IN never ended, stops never came to rest) and its estimate crossing hard limits the
+    joints never reached."""
+    ratio = robot.config.sensors.encoder_noise_sigma / SEED_ENCODER_NOISE
+    low, high = SensorRanges().noise_sigma
+    return SensorRanges(noise_sigma=(low * ratio, high * ratio))
 
 
 @dataclass(frozen=True)

@@ -123,3 +123,16 @@ def test_cable_pull_loads_the_motors(arm3):
     for _ in range(200):
         backend.advance()
     assert np.abs(backend.joint_torque()[0]).sum() > before + 5.0
+
+
+def test_encoder_noise_is_drawn_about_each_robots_own_noise():
+    """arm3 keeps the seed's range exactly (its results do not move); an SO-101 with one-count
+    (0.00153 rad) encoders gets 0.4-2 counts, not the 4-20 counts of the absolute range."""
+    from eval.randomization import SensorRanges, sensor_ranges, session_ranges
+    from robots import load_robot
+
+    assert sensor_ranges(load_robot("arm3")).noise_sigma == SensorRanges().noise_sigma
+    so101 = load_robot("so101")
+    low, high = session_ranges(so101).sensors.noise_sigma
+    count = so101.config.sensors.encoder_noise_sigma
+    assert abs(low / count - 0.4) < 0.01 and abs(high / count - 2.0) < 0.01

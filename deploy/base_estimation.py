@@ -123,6 +123,20 @@ class BaseState:
         g[:, 2] = -1.0
         return cls(q, g, np.zeros((envs, 3)), np.zeros((envs, 3)), np.zeros((envs, 3)))
 
+    def set_truth(self, truth: np.ndarray) -> BaseState:
+        """Fill every field from a simulated base's true state (evaluation and parity replays):
+        ``truth`` (envs, 13) as :meth:`deploy.backends.sim.SimBackend.true_base_state` gives it
+        (position m, quaternion ``[w, x, y, z]``, linear velocity m/s world, angular velocity
+        rad/s base frame). Returns self."""
+        for e in range(truth.shape[0]):
+            rot = quaternion_to_matrix(truth[e, 3:7])
+            self.orientation[e] = truth[e, 3:7]
+            self.projected_gravity[e] = -rot[2]
+            self.angular_velocity[e] = truth[e, 10:13]
+            self.linear_velocity_world[e] = truth[e, 7:10]
+            self.linear_velocity[e] = rot.T @ truth[e, 7:10]
+        return self
+
     @property
     def tilt(self) -> np.ndarray:
         """(envs,) rad, angle between the base's z axis and the world's up (:func:`tilt_of`)."""

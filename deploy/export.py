@@ -1060,17 +1060,7 @@ def closed_loop_parity(
 
 def _true_base(plant: SimBackend, state: RobotState, t: float) -> None:
     """Fill a legged state's base fields from the plant's truth (parity replays only)."""
-    from deploy.base_estimation import quaternion_to_matrix
-
-    truth = plant.true_base_state()
-    base = state.base
-    for e in range(state.q.shape[0]):
-        rot = quaternion_to_matrix(truth[e, 3:7])
-        base.orientation[e] = truth[e, 3:7]
-        base.projected_gravity[e] = -rot[2]
-        base.angular_velocity[e] = truth[e, 10:13]
-        base.linear_velocity_world[e] = truth[e, 7:10]
-        base.linear_velocity[e] = rot.T @ truth[e, 7:10]
+    state.base.set_truth(plant.true_base_state())
     state.foot_contact[:] = plant.read().foot_contact
     state.clock[:] = t
 

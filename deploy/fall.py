@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from deploy.base_estimation import quaternion_to_matrix
+from deploy.base_estimation import quaternion_to_matrix, tilt_of
 from deploy.state import RobotState
 from robots import Robot
 
@@ -66,9 +66,7 @@ class FallDetector:
             state: A floating-base robot's estimate (``RobotState.legged``: ``base``,
                 ``foot_contact``, ``q``).
         """
-        g = state.base.projected_gravity
-        tilt = np.arccos(np.clip(-g[:, 2] / np.linalg.norm(g, axis=1), -1.0, 1.0))
-        fallen = tilt > self.tilt_limit
+        fallen = tilt_of(state.base.projected_gravity) > self.tilt_limit
         if self.height_limit > 0.0:
             contact = state.foot_contact > 0.5
             self.height[:] = np.nan

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from deploy.base_estimation import BaseState
 from deploy.stateful import (
     StateDictError,
     check,
@@ -196,6 +197,8 @@ class CommandTracker:
     def __init__(self, envs: int, control_period: float, backend, window: float | None = None):
         self.envs, self.dt = envs, float(control_period)
         self.truth = getattr(backend, "true_base_state", None)
+        #: the true base (simulation): a BaseState filled from ``truth`` every tick
+        self._true_base = BaseState.zeros(envs) if self.truth is not None else None
         self.distance = np.zeros(envs)
         self.forward = np.zeros(envs)
         self.running_time = np.zeros(envs)
@@ -339,14 +342,7 @@ class CommandTracker:
     def _planar_velocity(self, runtime) -> np.ndarray:
         if self.truth is None:
             return runtime.state.base.linear_velocity[:, :2].copy()
-        from deploy.base_estimation import quaternion_to_matrix
-
-        truth = self.truth()
-        out = np.empty((self.envs, 2))
-        for e in range(self.envs):
-            rot = quaternion_to_matrix(truth[e, 3:7])
-            out[e] = (rot.T @ truth[e, 7:10])[:2]
-        return out
+        return self._true_base.set_truth(self.truth()).linear_velocity[:, :2].copy()
 
     def summary(self, runtime) -> dict:
         """The report's ``locomotion`` entry (sums over the envs; speeds per RUNNING second)."""

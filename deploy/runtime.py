@@ -313,10 +313,6 @@ class Runtime:
         #: the estimate's speed under encoder noise is not: started from 2 rad/s of noise, the
         #: first trajectory after a reset drove so101 onto its hard limits, stop after stop)
         self._at_rest = np.zeros((envs, n))
-        #: (envs,) bool: the envs whose stop damps the joints instead of holding a pose: a
-        #: legged robot's every safe stop (holding its stance against gravity with a low-gain PD
-        #: heated the thighs past 200 degC in simulation: it lies down instead)
-        self.damping = np.zeros(envs, dtype=bool)
         self.mode = np.full(envs, Mode.IDLE, dtype=np.int8)
         self.cause = np.full(envs, -1, dtype=np.int8)  # index into FAULT_CAUSES
         #: (envs, n) int64, OR of the hardware error bits each drive reported (cause servo_error)
@@ -515,7 +511,6 @@ class Runtime:
             acc = frame.imu_acceleration
             finite = np.isfinite(acc).all() and (np.linalg.norm(acc, axis=1) > 0).all()
             self.base_estimator.reset(frame.time, acceleration=acc if finite else None)
-            self.damping[:] = False
         self.mode[:] = RAMP_IN
         self._reset_policy(np.ones(self.envs, dtype=bool))
         self.clock.start()
@@ -530,12 +525,17 @@ class Runtime:
         faulted = self.mode == Mode.FAULTED
         if envs is not None:
             faulted &= np.asarray(envs, dtype=bool)
-        self.mode[faulted] = Mode.RAMP_IN
-        self.cause[faulted] = -1
-        self.damping[faulted] = False
-        self.guard.reset(self.state.q, envs=faulted)
-        self.smoother.sync(self.state.q, self._at_rest, envs=faulted)  # stopped: no speed
-        self._reset_policy(faulted)
+        self._ramp_in_at_rest(faulted)
+
+    def _ramp_in_at_rest(self, envs: np.ndarray) -> None:
+        """RAMP_IN for the envs of ``envs`` (bool mask) from the estimated pose, at rest: faults
+        cleared, the guard and the smoother (no speed: a stopped robot) anchored there, the
+        policy's state reset."""
+        self.mode[envs] = RAMP_IN
+        self.cause[envs] = -1
+        self.guard.reset(self.state.q, envs=envs)
+        self.smoother.sync(self.state.q, self._at_rest, envs=envs)
+        self._reset_policy(envs)
 
     def restart(self, envs: np.ndarray, q: np.ndarray, t) -> None:
         """An operator's restart of the envs of ``envs`` (bool mask (envs,)) after the robot was
@@ -559,14 +559,9 @@ class Runtime:
             counter[envs] = value
         if self.base_estimator is not None:
             self.base_estimator.reset(t, envs=envs)
-            self.damping[envs] = False
         self.state.q[envs] = q[envs]
         self.state.dq[envs] = 0.0
-        self.guard.reset(self.state.q, envs=envs)
-        self.smoother.sync(self.state.q, self.state.dq, envs=envs)
-        self.mode[envs] = RAMP_IN
-        self.cause[envs] = -1
-        self._reset_policy(envs)
+        self._ramp_in_at_rest(envs)
 
     # ------------------------------------------------------------------ the tick
     def tick(self) -> None:
@@ -596,9 +591,9 @@ class Runtime:
         st[5] = clock_ns()
         cmd = self.smoother.step(target, out=self._cmd)
         if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
-            np.logical_or(self.mode == SAFE_STOP, self.mode == FAULTED, out=self.damping)
-        if self.damping.any():
-            self._damp(cmd, state)  # a fallen legged robot: joint damping, not a stiff hold
+            damp = self.damping
+            if damp.any():
+                self._damp(cmd, state, damp)
         st[6] = clock_ns()
         self.backend.write(cmd)
         st[7] = clock_ns()
@@ -752,15 +747,22 @@ class Runtime:
         stale = self.base_estimator.time_since_fresh > self.robot.config.safety.stale_limit
         self._safe_stop(stale, "stale_sensor")
         fallen = self.fall_detector.check(state) & ((self.mode == RUNNING) | (self.mode == RAMP_IN))
-        if fallen.any():
-            self._safe_stop(fallen, "fall")
-            self.damping |= fallen
+        self._safe_stop(fallen, "fall")
 
-    def _damp(self, cmd: np.ndarray, state: RobotState) -> None:
-        """The command of the envs in a fall stop (``self.damping``): position mode, the
-        measured pose (the servo's PD then only damps, ``-kd dq``); velocity mode, zero speed;
-        torque mode, ``-STOP_DAMPING * effort_limit * dq``."""
-        damp = self.damping
+    @property
+    def damping(self) -> np.ndarray:
+        """(envs,) bool: the envs whose command damps the joints instead of holding a pose: a
+        legged robot's envs in SAFE_STOP or FAULTED (holding its stance against gravity with a
+        low-gain PD heated the thighs past 200 degC in simulation: it lies down instead); all
+        False for an arm."""
+        if self.base_estimator is None:
+            return np.zeros(self.envs, dtype=bool)
+        return (self.mode == SAFE_STOP) | (self.mode == FAULTED)
+
+    def _damp(self, cmd: np.ndarray, state: RobotState, damp: np.ndarray) -> None:
+        """The command of the envs of ``damp`` (bool mask): position mode, the measured pose
+        (the servo's PD then only damps, ``-kd dq``); velocity mode, zero speed; torque mode,
+        ``-STOP_DAMPING * effort_limit * dq``."""
         if self.mode_name == "position":
             cmd[damp] = state.q[damp]
         elif self.mode_name == "velocity":
@@ -866,7 +868,6 @@ class Runtime:
         for name in ("q", "dq", "ee_position", "ee_rotation", "winding_temperature", "last_action"):
             fields[f"state/{name}"] = getattr(st, name)
         if st.base is not None:  # a floating base: its estimate, contacts, command, clock
-            fields["damping"] = self.damping
             for name in ("foot_contact", "command", "clock"):
                 fields[f"state/{name}"] = getattr(st, name)
             for name, value in vars(st.base).items():

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import numpy as np
 import onnx
+from onnx import TensorProto, helper, numpy_helper
 
 from deploy.adversarial import adversarial_model
 from deploy.spec import PolicySpec
@@ -12,4 +16,41 @@ def adversarial_onnx(tmp_path, robot, mode, nan_probability=0.0, name="adv.onnx"
     spec = PolicySpec.for_robot(robot, mode=mode)
     path = tmp_path / f"{robot.name}_{mode}_{name}"
     onnx.save(adversarial_model(spec, nan_probability), path)
+    return path
+
+
+def feedback_mlp_onnx(path: Path, spec: PolicySpec, name: str = "tiny") -> Path:
+    """A deterministic MLP (seeded, 16 tanh units) plus a stabilizing joint-position and
+    velocity feedback, for ``spec`` (whose first blocks are joint_position, joint_velocity),
+    written to ``path`` with the spec in its metadata."""
+    d, n, h = spec.obs_dim, spec.act_dim, 16
+    rng = np.random.default_rng(0)
+    w1 = rng.normal(0, 0.5, (d, h)).astype(np.float32)
+    w2 = rng.normal(0, 0.3, (h, n)).astype(np.float32)
+    feedback = np.zeros((d, n), np.float32)
+    feedback[:n, :n] = -1.5 * np.eye(n)  # joint_position block comes first
+    feedback[n : 2 * n, :n] = -0.3 * np.eye(n)  # then joint_velocity
+    nodes = [
+        helper.make_node("MatMul", ["obs", "w1"], ["a"]),
+        helper.make_node("Tanh", ["a"], ["b"]),
+        helper.make_node("MatMul", ["b", "w2"], ["c"]),
+        helper.make_node("MatMul", ["obs", "feedback"], ["f"]),
+        helper.make_node("Add", ["c", "f"], ["g"]),
+        helper.make_node("Tanh", ["g"], ["action"]),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        name,
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
+        initializer=[
+            numpy_helper.from_array(w1, "w1"),
+            numpy_helper.from_array(w2, "w2"),
+            numpy_helper.from_array(feedback, "feedback"),
+        ],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    model.ir_version = 9
+    helper.set_model_props(model, {"policy_spec": spec.to_json()})
+    onnx.save(model, path)
     return path

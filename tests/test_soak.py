@@ -14,9 +14,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import onnx
 import pytest
-from onnx import TensorProto, helper, numpy_helper
 
 from deploy.goals import success_windows
 from deploy.interventions import INTERVENTION_CHECKS
@@ -42,6 +40,7 @@ from eval.report import (
     write_reports,
 )
 from eval.soak import SessionBatch, SessionConfig, run_campaign, session_dir
+from tests.runtime_fixtures import feedback_mlp_onnx
 from tests.soak_fixtures import kill_after_first_checkpoint
 
 REPO = Path(__file__).resolve().parent.parent
@@ -70,37 +69,7 @@ def tiny_policy(path: Path, robot) -> Path:
     sessions have interventions."""
     spec = PolicySpec.for_robot(robot)
     spec = replace(spec, action=replace(spec.action, scale=tuple(map(float, robot.velocity_limit))))
-    d, n, h = spec.obs_dim, spec.act_dim, 16
-    rng = np.random.default_rng(0)
-    w1 = rng.normal(0, 0.5, (d, h)).astype(np.float32)
-    w2 = rng.normal(0, 0.3, (h, n)).astype(np.float32)
-    feedback = np.zeros((d, n), np.float32)
-    feedback[:n, :n] = -1.5 * np.eye(n)  # joint_position block comes first
-    feedback[n : 2 * n, :n] = -0.3 * np.eye(n)  # then joint_velocity
-    nodes = [
-        helper.make_node("MatMul", ["obs", "w1"], ["a"]),
-        helper.make_node("Tanh", ["a"], ["b"]),
-        helper.make_node("MatMul", ["b", "w2"], ["c"]),
-        helper.make_node("MatMul", ["obs", "feedback"], ["f"]),
-        helper.make_node("Add", ["c", "f"], ["g"]),
-        helper.make_node("Tanh", ["g"], ["action"]),
-    ]
-    graph = helper.make_graph(
-        nodes,
-        "tiny_policy",
-        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
-        initializer=[
-            numpy_helper.from_array(w1, "w1"),
-            numpy_helper.from_array(w2, "w2"),
-            numpy_helper.from_array(feedback, "feedback"),
-        ],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
-    model.ir_version = 9
-    helper.set_model_props(model, {"policy_spec": spec.to_json()})
-    onnx.save(model, path)
-    return path
+    return feedback_mlp_onnx(path, spec, "tiny_policy")
 
 
 @pytest.fixture(scope="module")

@@ -16,9 +16,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-import onnx
 import pytest
-from onnx import TensorProto, helper, numpy_helper
 
 from deploy.backends.base import SensorFrame
 from deploy.backends.sim import SimBackend
@@ -32,6 +30,7 @@ from deploy.smoothing import CommandSmoother
 from deploy.spec import PolicySpec
 from deploy.state import RobotState
 from deploy.stateful import StateDictError, load_part, prefixed, put, take
+from tests.runtime_fixtures import feedback_mlp_onnx
 
 REPO = Path(__file__).resolve().parent.parent
 ENVS = 2
@@ -304,37 +303,7 @@ def tiny_onnx(path: Path, robot, mode: str) -> Path:
     spec = PolicySpec.for_robot(robot, mode=mode)
     if mode == "torque":  # gentle torques: the arm stays inside its limits
         spec = replace(spec, action=replace(spec.action, scale=tuple(0.2 * robot.effort_limit)))
-    d, n, h = spec.obs_dim, spec.act_dim, 16
-    rng = np.random.default_rng(0)
-    w1 = rng.normal(0, 0.5, (d, h)).astype(np.float32)
-    w2 = rng.normal(0, 0.3, (h, n)).astype(np.float32)
-    feedback = np.zeros((d, n), np.float32)
-    feedback[:n, :n] = -1.5 * np.eye(n)
-    feedback[n : 2 * n, :n] = -0.3 * np.eye(n)
-    nodes = [
-        helper.make_node("MatMul", ["obs", "w1"], ["a"]),
-        helper.make_node("Tanh", ["a"], ["b"]),
-        helper.make_node("MatMul", ["b", "w2"], ["c"]),
-        helper.make_node("MatMul", ["obs", "feedback"], ["f"]),
-        helper.make_node("Add", ["c", "f"], ["g"]),
-        helper.make_node("Tanh", ["g"], ["action"]),
-    ]
-    graph = helper.make_graph(
-        nodes,
-        "tiny",
-        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
-        initializer=[
-            numpy_helper.from_array(w1, "w1"),
-            numpy_helper.from_array(w2, "w2"),
-            numpy_helper.from_array(feedback, "feedback"),
-        ],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
-    model.ir_version = 9
-    helper.set_model_props(model, {"policy_spec": spec.to_json()})
-    onnx.save(model, path)
-    return path
+    return feedback_mlp_onnx(path, spec, "tiny")
 
 
 def runtime_rig(robot, mode: str, tmp_path: Path):

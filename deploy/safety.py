@@ -7,7 +7,10 @@ Checks, each with its own counter (``SafetyGuard.counts[name]``, (envs,) int64),
   limit; a warning.
 - ``hard_limit``: target position beyond the hard limit, or the estimated (or, in velocity mode,
   predicted) position beyond it. A violation: :attr:`SafetyGuard.hard_violation` is set and the
-  runtime makes a safe stop.
+  runtime makes a safe stop. A floating-base robot's *target* past a hard limit is clamped to the
+  soft limit (``soft_limit``) instead: its low-gain PD's targets act as torques
+  (``kp (target - q)``), and legged policies command past the joint range by design (legged_gym
+  trains without any bound on the targets); its estimated position past a hard limit still stops.
 - ``velocity``: a velocity that could not stop before the soft limit, ``d`` the distance left:
   velocity limits that shrink to zero at the position limits. Clamp. Position and velocity mode:
   under the acceleration and jerk limits with one control period of delay,
@@ -164,6 +167,9 @@ class SafetyGuard:
         self.lower, self.upper = robot.position_lower, robot.position_upper
         self._target_lower = self.lower - TARGET_TOLERANCE
         self._target_upper = self.upper + TARGET_TOLERANCE
+        if robot.floating_base:  # targets are torques through a low-gain PD: clamp, not stop
+            self._target_lower = np.full(robot.n_joints, -np.inf)
+            self._target_upper = np.full(robot.n_joints, np.inf)
         self.soft_lower, self.soft_upper = robot.soft_lower, robot.soft_upper
         self.acc = robot.acceleration_limit
         self.jerk = robot.jerk_limit

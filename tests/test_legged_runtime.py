@@ -167,3 +167,27 @@ def test_shipped_go2_trot_walks_at_the_commanded_speed_through_the_runtime(tmp_p
     assert walk["tracking_success"] > 0.8, walk
     assert r["violations"]["by_type"]["hard_limit"] == 0
     assert set(r["peak_winding_temperature_c"]) == set(load_robot("go2").joint_names)
+
+
+@pytest.mark.parametrize("reference", [False, True])
+def test_a_legged_target_past_a_hard_limit_is_clamped_but_an_estimate_past_one_stops(
+    go2, reference
+):
+    """A Go2's PD targets act as torques: a calf target past its hard limit (what a legged policy
+    or its exploration commands) is clamped to the soft limit and counted, not a safe stop; the
+    estimated calf past the hard limit still is a violation."""
+    from deploy.safety import SafetyGuard
+    from deploy.state import RobotState
+
+    guard = SafetyGuard(go2, 2, "position", reference=reference)
+    state = RobotState.legged(2, go2.n_joints, go2.n_feet, 25.0)
+    state.q[:] = go2.home
+    guard.reset(state.q)
+    calf = go2.joint_names.index("FL_calf_joint")
+    target = np.tile(go2.home, (2, 1))
+    target[0, calf] = go2.position_lower[calf] - 0.2
+    state.q[1, calf] = go2.position_lower[calf] - 0.01
+    out = guard.filter(target.copy(), state, out=np.empty_like(target))
+    assert out[0, calf] == pytest.approx(go2.soft_lower[calf])
+    assert guard.counts["soft_limit"][0] == 1
+    assert guard.hard_violation.tolist() == [False, True]

@@ -1,0 +1,292 @@
+"""The legged velocity-tracking task on the sim plant, run through the deployed runtime.
+
+Train what you deploy, to the letter: :class:`LocomotionTask` steps a
+:class:`~deploy.runtime.Runtime` (the tick the robot runs: joint and base estimators, the fall
+check, the supervision and its safe stops, the guard, the Ruckig smoother, the damping of a
+stopped legged robot) over a batched :class:`~deploy.backends.sim.SimBackend`. The learner sits
+in the runtime's policy slot (:class:`LearnerPolicy`): the runtime hands it the observation it
+built and receives the action, so the learner sees exactly what ``deploy-run`` feeds the exported
+policy, one call per tick, in the tick's own order (read, estimate, supervise, observe, act,
+guard, smooth, write, physics).
+
+The learner's output is a *residual* on the trot generator of :mod:`deploy.gait_prior` (PMTG,
+Iscen et al. 2018): the action the runtime receives is ``prior(obs) + residual``, the sum an
+exported :class:`~deploy.checkpoint.MLPActor` with ``gait`` computes.
+
+Episode: ``episode_seconds`` of walking from the MJCF's standing pose, after the runtime's RAMP_IN
+to home. Each episode draws a soak session's randomization (:func:`eval.randomization.
+sample_session` of the legged ranges: dynamics, encoder noise and latency, IMU noise and bias,
+floor friction), a velocity command every ``command_period`` s (:class:`deploy.locomotion.
+CommandRanges`, the soak's ranges) and pushes on the base. It ends (terminated) when the runtime
+leaves RUNNING for a safe stop (a fall, a hard limit, a stale sensor...) and is truncated at its
+length.
+
+Reward per control tick (:class:`LocomotionReward`; legged_gym's terms and scales, Rudin et al.,
+CoRL 2021, ``legged_gym/envs/base/legged_robot_config.py``, each times the control period, plus
+ours)::
+
+    + tracking_linear  * exp(-|v_cmd,xy - v_xy|^2 / sigma)   base frame, true velocity
+    + tracking_angular * exp(-(w_cmd,z - w_z)^2 / sigma)
+    + vertical_velocity * v_z^2 + angular_velocity_xy * |w_xy|^2            (negative)
+    + orientation * |g_xy|^2      the projected gravity's tilt               (negative)
+    + action_rate * |a - a_prev|^2                                           (negative)
+    + heat * sum (tau / tau_cont)^2   Joule heating relative to each motor's rated continuous
+                                      torque (ours: what overheats a Go2's thighs in a soak)
+    + intervention     per tick on which the guard or the smoother changed the command (ours)
+    + stop             once, when the runtime makes a safe stop (the episode ends)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from deploy.backends.sim import SimBackend
+from deploy.interventions import InterventionMonitor
+from deploy.locomotion import CommandRanges
+from deploy.runtime import Mode, Runtime
+from deploy.spec import PolicySpec
+from eval.randomization import (
+    apply_floor_friction,
+    apply_imu,
+    apply_sensors,
+    randomized_model,
+    sample_session,
+    session_ranges,
+)
+from robots import Robot
+
+
+@dataclass(frozen=True)
+class LocomotionReward:
+    """Reward coefficients per second (multiplied by the control period each tick), except
+    ``intervention`` (per tick) and ``stop`` (once). Defaults: legged_gym's ``rewards.scales``
+    for the terms it has (tracking 1.0 and 0.5, sigma 0.25, lin_vel_z -2.0, ang_vel_xy -0.05,
+    action_rate -0.01, orientation -0.2 as unitree_rl_gym's go2 config sets it); ours for
+    heat, intervention and stop."""
+
+    tracking_linear: float = 1.0
+    tracking_angular: float = 0.5
+    tracking_sigma: float = 0.25
+    vertical_velocity: float = -2.0
+    angular_velocity_xy: float = -0.05
+    orientation: float = -0.2
+    action_rate: float = -0.01
+    heat: float = -0.01
+    intervention: float = -0.02
+    stop: float = -2.0
+
+
+@dataclass(frozen=True)
+class LocomotionConfig:
+    """Task settings.
+
+    Attributes:
+        episode_seconds: Episode length, s (legged_gym: 20 s).
+        command_period: A new velocity command every this many s.
+        commands: The command ranges (the soak's :class:`~deploy.locomotion.CommandRanges`).
+        push_interval: Mean time between pushes on the base, s (exponential).
+        push_force: Horizontal push force range, N (the soak pushes 5-25 N; ours up to 40).
+        push_duration: Push duration range, s (the soak's).
+        randomize: Draw each episode's dynamics, sensors, IMU and floor like a soak session.
+        reward: The coefficients.
+    """
+
+    episode_seconds: float = 20.0
+    command_period: float = 10.0
+    commands: CommandRanges = CommandRanges()
+    push_interval: float = 8.0
+    push_force: tuple[float, float] = (5.0, 40.0)
+    push_duration: tuple[float, float] = (0.05, 0.5)
+    randomize: bool = True
+    reward: LocomotionReward = field(default_factory=LocomotionReward)
+
+
+class LearnerPolicy:
+    """The runtime's policy slot during training: ``(envs, obs_dim) float32 -> (envs, 12)``.
+
+    ``act`` (set by the trainer) maps the observation the runtime built to the action it must
+    return; the policy keeps the observation so that the trainer can store it with the action.
+    """
+
+    def __init__(self, spec: PolicySpec, envs: int):
+        self.spec = spec
+        self.act = None
+        self.obs = np.zeros((envs, spec.obs_dim), dtype=np.float32)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        np.copyto(self.obs, obs)
+        return self.act(self.obs)
+
+
+def base_frame(quaternion: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """World vectors (envs, 3) expressed in the base frame of unit quaternions (envs, 4) ``w, x,
+    y, z`` (base to world): ``R^T v``."""
+    w = quaternion[:, :1]
+    u = -quaternion[:, 1:]  # the conjugate rotates world to base
+    t = 2.0 * np.cross(u, vector)
+    return vector + w * t + np.cross(u, t)
+
+
+class LocomotionTask:
+    """``envs`` legged robots walking through one :class:`~deploy.runtime.Runtime`.
+
+    Args:
+        robot: A floating-base robot.
+        spec: The policy contract (the learner's observation and action).
+        envs: Number of robots.
+        config: Task settings.
+        seed: Seed of the episodes' draws (session seeds, commands, pushes).
+
+    Raises:
+        ValueError: a fixed-base robot.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        spec: PolicySpec,
+        envs: int,
+        config: LocomotionConfig | None = None,
+        seed: int = 0,
+    ):
+        if not robot.floating_base:
+            raise ValueError(f"LocomotionTask: robot {robot.name} has no floating base")
+        self.robot, self.spec, self.envs = robot, spec, envs
+        self.config = config = config or LocomotionConfig()
+        self.dt = robot.control_period
+        self.rng = np.random.default_rng(seed)
+        self.ranges = session_ranges(robot)
+        self.backend = SimBackend(robot, mode=spec.action.mode, envs=envs, seed=seed + 1)
+        self.policy = LearnerPolicy(spec, envs)
+        self.runtime = Runtime(robot, self.policy, self.backend)
+        self.monitor = InterventionMonitor(self.runtime.guard, self.runtime.smoother)
+        self._continuous = np.array([m.continuous_torque for m in robot.motors])
+        self._previous_action = np.zeros((envs, robot.n_joints))
+        self._before = np.zeros(envs, dtype=np.int64)
+        self.t_episode = np.zeros(envs)
+        self.t_command = np.zeros(envs)
+        self.push_until = np.zeros(envs)
+        self.episode_return = np.zeros(envs)
+        self.episode_ticks = np.zeros(envs, dtype=np.int64)
+        self.tracked = np.zeros(envs)  # RUNNING ticks within 0.2 m/s of the command
+        self.running = np.zeros(envs)
+        self.distance = np.zeros(envs)
+        self.policy.act = lambda obs: np.zeros((envs, robot.n_joints), dtype=np.float32)
+        self.runtime.start()
+        self.reset(np.ones(envs, dtype=bool))
+
+    # ------------------------------------------------------------------ episodes
+    def reset(self, which: np.ndarray) -> None:
+        """New episodes for the envs of the boolean mask ``which``: a new randomization, the robot
+        standing at the start, the runtime restarted there (RAMP_IN), a new command."""
+        b, rt, cfg = self.backend, self.runtime, self.config
+        idx = np.nonzero(which)[0]
+        for e in idx:
+            if cfg.randomize:
+                draw = sample_session(
+                    self.robot,
+                    int(self.rng.integers(2**31)),
+                    cfg.episode_seconds,
+                    self.ranges,
+                    faults=False,
+                )
+                model = randomized_model(self.robot, self.spec.action.mode, draw.dynamics)
+                apply_floor_friction(model, draw.floor_friction)
+                b.set_model(e, model)
+                apply_sensors(b, e, draw.sensors)
+                apply_imu(b, e, draw.imu)
+            b.set_external_force(e, np.zeros(3))
+            rt.velocity_command[e] = cfg.commands.sample(self.rng)
+        b.reset(envs=which)
+        rt.restart(which, self.robot.home, b.frame.time)
+        self.t_episode[idx] = 0.0
+        self.t_command[idx] = 0.0
+        self.push_until[idx] = 0.0
+        self.episode_return[idx] = 0.0
+        self.episode_ticks[idx] = 0
+        self.tracked[idx] = 0.0
+        self.running[idx] = 0.0
+        self.distance[idx] = 0.0
+        self._previous_action[idx] = 0.0
+
+    def _disturb(self) -> None:
+        """New commands where their period ended; pushes start and end."""
+        cfg, b, rt = self.config, self.backend, self.runtime
+        for e in np.nonzero(self.t_episode - self.t_command >= cfg.command_period)[0]:
+            rt.velocity_command[e] = cfg.commands.sample(self.rng)
+            self.t_command[e] = self.t_episode[e]
+        ended = (self.push_until > 0) & (self.t_episode >= self.push_until)
+        for e in np.nonzero(ended)[0]:
+            b.set_external_force(e, np.zeros(3))
+            self.push_until[e] = 0.0
+        start = (self.push_until == 0) & (self.rng.random(self.envs) < self.dt / cfg.push_interval)
+        for e in np.nonzero(start)[0]:
+            angle = self.rng.uniform(0, 2 * np.pi)
+            force = self.rng.uniform(*cfg.push_force)
+            b.set_external_force(e, force * np.array([np.cos(angle), np.sin(angle), 0.0]))
+            self.push_until[e] = self.t_episode[e] + self.rng.uniform(*cfg.push_duration)
+
+    # ------------------------------------------------------------------ the step
+    def tick(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One runtime tick for every env (the learner acts inside it, through
+        :class:`LearnerPolicy`), then the reward from the plant's true state.
+
+        Returns:
+            ``(reward, terminated, truncated)``, (envs,) each. Finished envs are not reset here.
+        """
+        rew, rt = self.config.reward, self.runtime
+        self._disturb()
+        running_before = rt.mode == Mode.RUNNING
+        np.copyto(self._before, self.monitor.any)
+        rt.tick()
+        self.monitor.update()
+        intervened = (self.monitor.any > self._before) & running_before
+
+        base = self.backend.true_base_state()
+        quaternion, velocity, omega = base[:, 3:7], base[:, 7:10], base[:, 10:13]
+        v = base_frame(quaternion, velocity)
+        gravity = base_frame(quaternion, np.tile([0.0, 0.0, -1.0], (self.envs, 1)))
+        command = rt.velocity_command
+        tau = self.backend.joint_torque()
+        action = rt.action
+        error = np.square(command[:, :2] - v[:, :2]).sum(axis=1)
+        r = rew.tracking_linear * np.exp(-error / rew.tracking_sigma)
+        r += rew.tracking_angular * np.exp(
+            -np.square(command[:, 2] - omega[:, 2]) / rew.tracking_sigma
+        )
+        r += rew.vertical_velocity * np.square(v[:, 2])
+        r += rew.angular_velocity_xy * np.square(omega[:, :2]).sum(axis=1)
+        r += rew.orientation * np.square(gravity[:, :2]).sum(axis=1)
+        r += rew.action_rate * np.square(action - self._previous_action).sum(axis=1)
+        r += rew.heat * np.square(tau / self._continuous).sum(axis=1)
+        r *= self.dt
+        r *= running_before  # RAMP_IN: the runtime, not the learner, drives the joints
+        r += rew.intervention * intervened
+        self._previous_action[:] = action
+        stopped = (rt.mode == Mode.SAFE_STOP) | (rt.mode == Mode.FAULTED)
+        r += rew.stop * stopped
+
+        self.t_episode += self.dt
+        self.episode_ticks += 1
+        self.episode_return += r
+        self.running += running_before
+        self.tracked += running_before & (np.sqrt(error) <= 0.2)
+        self.distance += running_before * v[:, 0] * self.dt
+        truncated = (self.t_episode >= self.config.episode_seconds - 1e-9) & ~stopped
+        return r, stopped, truncated
+
+    def episode_info(self, e: int) -> dict:
+        """Env ``e``'s episode so far, for the logs: SB3's ``episode`` (return, length, time),
+        ``tracking`` (fraction of RUNNING time within 0.2 m/s of the command) and ``distance``
+        (m, forward, base frame)."""
+        return {
+            "episode": {
+                "r": float(self.episode_return[e]),
+                "l": int(self.episode_ticks[e]),
+                "t": float(self.t_episode[e]),
+            },
+            "tracking": float(self.tracked[e] / max(self.running[e], 1.0)),
+            "distance": float(self.distance[e]),
+        }

@@ -6,7 +6,10 @@ fields and by the joint estimator's ``q``, ``dq`` (:class:`deploy.estimation.Joi
 Attitude: Mahony's explicit complementary filter with gyroscope bias estimation (R. Mahony, T.
 Hamel, J.-M. Pflimlin, "Nonlinear complementary filters on the special orthogonal group", IEEE
 TAC 53(5), 2008), as the maintained ``ahrs`` package implements it
-(``ahrs.filters.Mahony.updateIMU``; gains ``k_P = 1``, ``k_I = 0.3``, the package's defaults).
+(``ahrs.filters.Mahony.updateIMU``; gains ``k_P = 1``, ``k_I = 0.3``, the package's defaults):
+the default implementation (``"vectorized"``) runs the same update over every env at once
+(:func:`mahony_update`); ``"filterpy"`` calls one ``ahrs`` filter per env, the reference it is
+tested against (equal within 1e-12).
 The IMU readings are turned into the base frame first (the IMU site's fixed orientation on the
 base); the lever arm of the accelerometer is neglected. Outputs: the orientation (yaw drifts:
 nothing observes it), the projected gravity ``R^T [0, 0, -1]`` (unit vector, base frame) and the
@@ -22,9 +25,10 @@ measures ``v``::
     update:   z = R mean_i(-(omega x p_i + J_i(q) dq))   R_z = leg_sigma^2 / n_contact I
 
 with ``p_i`` the foot position and ``J_i`` its Jacobian in the base frame (Pinocchio, the base
-held). With isotropic ``Q`` and ``R_z`` the covariance stays ``p I``: the default implementation
-(``"vectorized"``) runs that scalar recursion over the envs; ``"filterpy"`` runs one
-``filterpy.kalman.KalmanFilter(dim_x=3, dim_z=3)`` per env, the reference it is tested against.
+held; one call per env in contact). With isotropic ``Q`` and ``R_z`` the covariance stays ``p I``:
+the default implementation (``"vectorized"``) runs that scalar recursion over the envs at once;
+``"filterpy"`` runs one ``filterpy.kalman.KalmanFilter(dim_x=3, dim_z=3)`` per env, the reference
+it is tested against.
 
 Missing and stale data, as in the joint estimator: an IMU reading that is NaN, not newer than
 the last one absorbed or stamped after the frame's time is not fed to any filter (counted in
@@ -68,6 +72,51 @@ def _quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         ],
         axis=-1,
     )
+
+
+def mahony_update(
+    quaternion: np.ndarray,
+    bias: np.ndarray,
+    gyro: np.ndarray,
+    acceleration: np.ndarray,
+    dt: np.ndarray,
+    k_p: float,
+    k_i: float,
+) -> np.ndarray:
+    """One step of ``ahrs.filters.Mahony.updateIMU`` for k filters at once.
+
+    Args:
+        quaternion: (k, 4) base-to-world ``[w, x, y, z]`` (normalized first, as ``ahrs`` does).
+        bias: (k, 3) rad/s, the gyro bias estimates; updated in place.
+        gyro: (k, 3) rad/s and acceleration: (k, 3) m/s^2, base frame.
+        dt: (k,) s. k_p, k_i: the gains.
+
+    Returns:
+        (k, 4) the new unit quaternions. A zero gyro reading leaves its quaternion and bias
+        unchanged and a zero acceleration skips the correction, as in ``ahrs``.
+    """
+    q = quaternion / np.linalg.norm(quaternion, axis=1, keepdims=True)
+    moving = np.linalg.norm(gyro, axis=1) != 0
+    a_norm = np.linalg.norm(acceleration, axis=1)
+    corrected = moving & (a_norm > 0)
+    up = quaternion_to_matrix(q)[:, 2, :]  # R^T [0, 0, 1]
+    safe = np.where(a_norm > 0, a_norm, 1.0)[:, None]
+    error = np.cross(acceleration / safe, up) * corrected[:, None]
+    bias += (-k_i * error) * dt[:, None]
+    omega = np.where(corrected[:, None], gyro - bias + k_p * error, gyro)
+    rate = 0.5 * _quat_multiply(q, np.concatenate([np.zeros((len(q), 1)), omega], axis=1))
+    new = q + rate * dt[:, None]
+    new /= np.linalg.norm(new, axis=1, keepdims=True)
+    return np.where(moving[:, None], new, q)
+
+
+def rotation_quaternions(rotvec: np.ndarray) -> np.ndarray:
+    """Quaternions ``[w, x, y, z]`` (k, 4) of rotation vectors (k, 3) rad."""
+    angle = np.linalg.norm(rotvec, axis=1)
+    small = angle < 1e-12
+    half = np.where(small, 0.5, np.sin(angle / 2) / np.where(small, 1.0, angle))
+    w = np.where(small, 1.0, np.cos(angle / 2))
+    return np.concatenate([w[:, None], rotvec * half[:, None]], axis=1)
 
 
 def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
@@ -195,12 +244,15 @@ class BaseStateEstimator:
         if m.body(m.site_bodyid[robot.imu_site_id]).name != robot.base_body:
             raise ValueError(f"robot {robot.name}: the IMU site is not on the base body")
         self._imu_to_base = quaternion_to_matrix(m.site_quat[robot.imu_site_id])
-        self._mahony = [Mahony(k_P=k_p, k_I=k_i, frequency=1.0 / robot.control_period)]
-        self._mahony += [
-            Mahony(k_P=k_p, k_I=k_i, frequency=1.0 / robot.control_period) for _ in range(envs - 1)
-        ]
+        self.k_p, self.k_i = float(k_p), float(k_i)
+        #: (envs, 3) rad/s, Mahony's gyro bias (the vectorized filter's; the reference keeps it
+        #: in its ``ahrs`` objects)
+        self._bias = np.zeros((envs, 3))
+        self._mahony = []
         self._kfs: list[KalmanFilter] = []
         if implementation == "filterpy":
+            frequency = 1.0 / robot.control_period
+            self._mahony = [Mahony(k_P=k_p, k_I=k_i, frequency=frequency) for _ in range(envs)]
             for _ in range(envs):
                 kf = KalmanFilter(dim_x=3, dim_z=3)
                 kf.F = np.eye(3)
@@ -244,7 +296,9 @@ class BaseStateEstimator:
                     raise ValueError(f"reset: env {e}: acceleration {a} is not a finite reading")
                 q = _align_up(a / np.linalg.norm(a))
             self.orientation[e] = q
-            self._mahony[e].b = np.zeros(3)
+            self._bias[e] = 0.0
+            if self._mahony:
+                self._mahony[e].b = np.zeros(3)
             if self._kfs:
                 self._kfs[e].x = np.zeros((3, 1))
                 self._kfs[e].P = np.eye(3) * INITIAL_VELOCITY_SIGMA**2
@@ -279,7 +333,9 @@ class BaseStateEstimator:
         term) and ``initialized`` (envs,) bool; the env axis has length 1 for one env ``env``.
         The filterpy reference's ``x`` and ``P`` are ``velocity`` and ``velocity_variance I``."""
         out = take(self._state_fields(), env)
-        bias = np.array([np.asarray(f.b, dtype=np.float64) for f in self._mahony])
+        bias = self._bias
+        if self._mahony:
+            bias = np.array([np.asarray(f.b, dtype=np.float64) for f in self._mahony])
         out["gyro_bias"] = bias[env_index(env)].copy()
         return out
 
@@ -294,7 +350,9 @@ class BaseStateEstimator:
         put(self._state_fields(), state, env)
         sel = np.arange(self.envs)[env_index(env)]
         for k, e in enumerate(sel):
-            self._mahony[e].b = np.array(state["gyro_bias"][k], dtype=np.float64)
+            self._bias[e] = state["gyro_bias"][k]
+            if self._mahony:
+                self._mahony[e].b = np.array(state["gyro_bias"][k], dtype=np.float64)
             if self._kfs:
                 self._kfs[e].x = self.velocity[e].reshape(3, 1).copy()
                 self._kfs[e].P = np.eye(3) * self.velocity_variance[e]
@@ -319,11 +377,49 @@ class BaseStateEstimator:
         if frame.imu_stamp is None:
             raise ValueError("frame: no IMU fields (a floating-base robot's frame expected)")
         out = BaseState.zeros(self.envs) if out is None else out
-        for e in range(self.envs):
-            self._update_env(e, frame, q[e], dq[e], out)
+        if self.implementation == "filterpy":
+            for e in range(self.envs):
+                self._update_env(e, frame, q[e], dq[e], out)
+            return out
+        now, stamp = frame.time, frame.imu_stamp
+        gyro, acc = frame.imu_angular_velocity, frame.imu_acceleration
+        finite = np.isfinite(stamp) & np.isfinite(gyro).all(axis=1) & np.isfinite(acc).all(axis=1)
+        with np.errstate(invalid="ignore"):  # NaN stamps are not fresh
+            fresh = finite & (self.filter_time < stamp) & (stamp <= now)
+        self.missing_readings += ~finite
+        self.stale_readings += finite & ~fresh
+        if fresh.any():
+            e = np.nonzero(fresh)[0]
+            dt = stamp[e] - self.filter_time[e]
+            gyro_b, acc_b = gyro[e] @ self._imu_to_base.T, acc[e] @ self._imu_to_base.T
+            bias = self._bias[e]
+            quat = mahony_update(self.orientation[e], bias, gyro_b, acc_b, dt, self.k_p, self.k_i)
+            self._bias[e] = bias
+            self.orientation[e] = quat
+            self.angular_velocity[e] = gyro_b - bias
+            rot = quaternion_to_matrix(quat)
+            self.velocity[e] += dt[:, None] * (np.einsum("eij,ej->ei", rot, acc_b) + self.gravity)
+            self.velocity_variance[e] += dt * dt * self.accel_variance
+            self.filter_time[e] = stamp[e]
+            for k, env in enumerate(e):
+                self._leg_update(env, frame, q[env], dq[env], rot[k])
+        # output: predicted from filter_time to now (orientation turned by omega; v held)
+        age = now - self.filter_time
+        self.time_since_fresh[:] = age
+        turn = rotation_quaternions(self.angular_velocity * np.maximum(age, 0.0)[:, None])
+        quat = np.where(
+            (age > 0)[:, None], _quat_multiply(self.orientation, turn), self.orientation
+        )
+        rot = quaternion_to_matrix(quat)
+        out.orientation[:] = quat
+        out.projected_gravity[:] = -rot[:, 2]
+        out.angular_velocity[:] = self.angular_velocity
+        out.linear_velocity_world[:] = self.velocity
+        out.linear_velocity[:] = np.einsum("eji,ej->ei", rot, self.velocity)
         return out
 
     def _update_env(self, e: int, frame: SensorFrame, q, dq, out: BaseState) -> None:
+        """The reference's update of env ``e`` (``ahrs`` and filterpy)."""
         now, stamp = float(frame.time[e]), float(frame.imu_stamp[e])
         gyro, acc = frame.imu_angular_velocity[e], frame.imu_acceleration[e]
         if not (np.isfinite(stamp) and np.isfinite(gyro).all() and np.isfinite(acc).all()):
@@ -355,17 +451,13 @@ class BaseStateEstimator:
         out.linear_velocity[e] = rot.T @ self.velocity[e]
 
     def _predict_velocity(self, e: int, dt: float, acceleration: np.ndarray) -> None:
-        q_var = dt * dt * self.accel_variance
-        if self._kfs:
-            kf = self._kfs[e]
-            kf.B = np.eye(3) * dt
-            kf.Q = np.eye(3) * q_var
-            kf.predict(u=acceleration.reshape(3, 1))
-            self.velocity[e] = kf.x[:, 0]
-            self.velocity_variance[e] = kf.P[0, 0]
-            return
-        self.velocity[e] += dt * acceleration
-        self.velocity_variance[e] += q_var
+        """The reference's prediction (filterpy)."""
+        kf = self._kfs[e]
+        kf.B = np.eye(3) * dt
+        kf.Q = np.eye(3) * dt * dt * self.accel_variance
+        kf.predict(u=acceleration.reshape(3, 1))
+        self.velocity[e] = kf.x[:, 0]
+        self.velocity_variance[e] = kf.P[0, 0]
 
     def _leg_update(self, e: int, frame: SensorFrame, q, dq, rot: np.ndarray) -> None:
         contact = frame.foot_contact[e]

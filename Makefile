@@ -47,11 +47,15 @@ export: install
 # included), then ships it only if a 1-hour randomized soak passes; TensorBoard logs in runs/train/.
 #   make train               policies/arm.pt   (arm3, velocity mode)
 #   make train ROBOT=so101   policies/so101.pt (SO-101, position mode, the same recipe)
+#   make train ROBOT=go2     policies/go2.pt   (Go2: PPO residual on the trot generator, through
+#                            the runtime; policies/train_legged.py, logs in runs/train_legged/)
 TRAIN_arm3  := --start-poses policies/arm3_missed_poses.json
 TRAIN_so101 := --robot so101 --mode position --steps 8000000 --out policies/so101.pt
+TRAIN_go2   := --steps 5000000 --out policies/go2.pt
+TRAINER     := $(if $(filter go2,$(ROBOT)),policies.train_legged,policies.train)
 train: install
-	$(if $(TRAIN_$(ROBOT)),,$(error make train: no recipe for ROBOT=$(ROBOT); shipped: arm3, so101))
-	$(PY) -m policies.train $(TRAIN_$(ROBOT))
+	$(if $(TRAIN_$(ROBOT)),,$(error make train: no recipe for ROBOT=$(ROBOT); shipped: arm3, so101, go2))
+	$(PY) -m $(TRAINER) $(TRAIN_$(ROBOT))
 
 # The position-mode variant of the same recipe (seed section 11's comparison, README).
 train-position: install

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import sys
 import time
 from pathlib import Path
 
@@ -281,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
         "--out", type=Path, default=None, help="copy the candidate here (policies/go2.pt)"
     )
     args = p.parse_args(argv)
-    args.argv = list(argv) if argv is not None else []
+    args.argv = list(argv) if argv is not None else sys.argv[1:]
     train(args)
     return 0
 

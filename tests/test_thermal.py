@@ -5,6 +5,7 @@ import pytest
 
 from deploy.safety import motion_bounds
 from deploy.thermal import EffortDerating, TwoNodeThermalModel, derating_factor
+from robots.robot import load_motor, motor_catalog
 
 
 def test_capacities_follow_the_datasheet_time_constants(arm3):
@@ -62,3 +63,15 @@ def test_a_drive_derated_to_its_continuous_torque_cannot_overheat_its_motor(arm3
         # and the floor is what the law gives at and above the maximum
         hot = derating.factor(np.array([derating.maximum, derating.maximum + 30.0]))
         np.testing.assert_allclose(hot, np.vstack([derating.floor] * 2))
+
+
+@pytest.mark.parametrize("name", sorted(motor_catalog()))
+def test_every_catalog_motor_sustains_its_continuous_torque(name):
+    """A continuous rating is the torque a motor holds forever at its maximum winding temperature
+    in 25 degC air: the catalog's thermal constants must agree with it (within 2 K: sts3215's
+    derivation left out copper's temperature coefficient, 1.3 K). GO-M8010-6's first estimates
+    put that steady state at 404 degC: a standing Go2 overheated within minutes."""
+    motor = load_motor(name)
+    model = TwoNodeThermalModel([motor], envs=1, ambient_temperature=25.0)
+    steady = model.steady_state(np.array([[motor.continuous_torque]]))
+    assert steady[0, 0] <= motor.max_winding_temperature + 2.0, steady

@@ -48,7 +48,7 @@ BACKENDS = ("sim", "feetech", "dynamixel")
 
 
 def policy_export_main(argv: list[str] | None = None) -> int:
-    """``policy-export``: see :func:`deploy.export.main`."""
+    """``policy-export``: see :func:`deploy.export.cli.main`."""
     from deploy.export import main
 
     return main(argv)

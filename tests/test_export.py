@@ -36,6 +36,7 @@ from deploy.checkpoint import (
     save_checkpoint,
 )
 from deploy.export import ExportError, ParityError, export_policy, main, run_export
+from deploy.export import cli as export_cli
 from deploy.policy import OnnxPolicy, spec_differences
 from deploy.spec import PolicySpec
 from robots import load_robot
@@ -520,7 +521,7 @@ def test_bare_name_is_found_in_policies(tmp_path, spec, monkeypatch, capsys):
     policies = tmp_path / "policies"
     policies.mkdir()
     save_checkpoint(policies / "tiny.pt", make_actor(), spec)
-    monkeypatch.setattr(export_module, "POLICIES_DIR", policies)
+    monkeypatch.setattr(export_cli, "POLICIES_DIR", policies)
     monkeypatch.chdir(tmp_path)
     assert main(["tiny.pt"]) == 0
     assert (policies / "tiny.onnx").is_file()

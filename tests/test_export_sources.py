@@ -23,7 +23,7 @@ from torch import nn
 
 from deploy.export import ExportError, run_export
 from deploy.export import main as export_main
-from deploy.inspect_policy import InspectError, inspect_file
+from deploy.export.inspect_policy import InspectError, inspect_file
 from deploy.policy import OnnxPolicy
 from tests.helpers_policies import PlainNet, make_spec, write_spec
 

@@ -13,10 +13,10 @@ the buffers). Calling the file is stateful and only works at batch 1.
 
 :func:`load_legged_gym_lstm` recognises that layout (those two buffer names, an LSTM ``memory``, a
 Sequential ``actor``), rebuilds the LSTM and the actor as plain torch modules and lifts the buffers
-into explicit state I/O (:mod:`deploy.export_recurrent`: ``obs``, ``h_in``, ``c_in`` -> ``action``,
+into explicit state I/O (:mod:`deploy.export.recurrent`: ``obs``, ``h_in``, ``c_in`` -> ``action``,
 ``h_out``, ``c_out``, state ``[layers, batch, hidden]``; initial state zeros, as ``reset_memory``
 sets it). The file itself (:class:`StatefulScriptReference`, batch 1, buffers zeroed on reset) is
-the reference of the extra parity run :func:`deploy.export_recurrent.source_sequence_parity`.
+the reference of the extra parity run :func:`deploy.export.parity.source_sequence_parity`.
 
 Any other TorchScript whose state changes when it runs is refused by :func:`check_stateless`:
 a buffer that ``forward`` modifies, a ``prim::SetAttr`` in ``forward``, or two calls on the same
@@ -33,7 +33,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from deploy.export_recurrent import RecurrentCore, RecurrentPolicyModule
+from deploy.export.errors import ExportError, _first_line
+from deploy.export.network import check_finite_tensors
+from deploy.export.recurrent import RecurrentCore, RecurrentPolicyModule
+from deploy.export.source import SourcePolicy
 from deploy.spec import PolicySpec
 
 #: The buffers of legged_gym's PolicyExporterLSTM (hidden state, cell state), in that order.
@@ -149,52 +152,50 @@ def load_legged_gym_lstm(path: Path, net: torch.jit.ScriptModule, spec: PolicySp
             Sequential actor, other buffers), buffers not ``(layers, 1, hidden)``, non-finite
             weights, sizes that do not fit the spec.
     """
-    from deploy import export as ex  # deploy.export imports this module lazily
-
     buffers = dict(net.named_buffers(recurse=False))
     children = dict(net.named_children())
     extra = sorted(set(buffers) - set(STATE_BUFFERS))
     missing = [b for b in STATE_BUFFERS if b not in buffers]
     if missing or extra or "memory" not in children or "actor" not in children:
         found = {k: tuple(v.shape) for k, v in buffers.items()}
-        raise ex.ExportError(
+        raise ExportError(
             f"{path}: stateful TorchScript of an unknown layout: buffers {found}, submodules "
             f"{sorted(children)}; only {LAYOUT} is lifted into explicit state"
         )
-    ex.check_finite_tensors(dict(net.state_dict()), str(path))
-    rnn = _lstm_from_script(children["memory"], path, ex.ExportError)
+    check_finite_tensors(dict(net.state_dict()), str(path))
+    rnn = _lstm_from_script(children["memory"], path, ExportError)
     expected = (rnn.num_layers, 1, rnn.hidden_size)
     for name in STATE_BUFFERS:
         if tuple(buffers[name].shape) != expected:
-            raise ex.ExportError(
+            raise ExportError(
                 f"{path}: buffer '{name}' has shape {tuple(buffers[name].shape)}, expected "
                 f"{expected} (layers, 1, hidden) for the LSTM 'memory'"
             )
     if rnn.input_size != spec.obs_dim:
-        raise ex.ExportError(
+        raise ExportError(
             f"{path}: wrong input size: the LSTM 'memory' takes {rnn.input_size} inputs, the "
             f"spec's observation has {spec.obs_dim}"
         )
-    actor = _module_from_script(children["actor"], path, "actor", ex.ExportError).eval()
+    actor = _module_from_script(children["actor"], path, "actor", ExportError).eval()
     core = RecurrentCore(rnn, actor).eval()
     probe = RecurrentPolicyModule(core, None, spec.action.clip).eval()
     try:
         with torch.no_grad():
             action, *_ = probe(torch.zeros(2, spec.obs_dim), *core.layout.zeros(2))
     except Exception as exc:  # noqa: BLE001 - shapes that do not chain
-        raise ex.ExportError(
+        raise ExportError(
             f"{path}: the 'actor' does not take the LSTM's {rnn.hidden_size} outputs: "
-            f"{ex._first_line(exc)}"
+            f"{_first_line(exc)}"
         ) from None
     if tuple(action.shape) != (2, spec.act_dim):
-        raise ex.ExportError(
+        raise ExportError(
             f"{path}: wrong output size: the actor returns {action.shape[-1]} values, the "
             f"spec's action has {spec.act_dim}"
         )
     if not torch.isfinite(action).all():
-        raise ex.ExportError(f"{path}: the action for the zero observation is not finite")
+        raise ExportError(f"{path}: the action for the zero observation is not finite")
     clip = spec.action.clip
-    return ex.SourcePolicy(
+    return SourcePolicy(
         net=core,
         spec=spec,
         source_format=f"legged_gym PolicyExporterLSTM TorchScript (lstm, {rnn.num_layers} "

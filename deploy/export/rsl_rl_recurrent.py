@@ -4,8 +4,8 @@ rsl_rl (``rsl-rl-lib`` 2.x/3.x) saves ``{"model_state_dict": ..., ...}`` with ``
 recurrent actor-critic keeps its actor's memory under ``memory_a.rnn.*`` (an ``nn.LSTM`` or
 ``nn.GRU``: ``weight_ih_l<k>``, ``weight_hh_l<k>``, ``bias_ih_l<k>``, ``bias_hh_l<k>``), then the
 actor MLP ``actor.<i>.weight`` / ``.bias`` (ELU by default) on the RNN's output, and optionally the
-``EmpiricalNormalization`` of the actor's observation (:func:`deploy.export.rsl_rl_normalizer`).
-Its deterministic action (``act_inference``) is
+``EmpiricalNormalization`` of the actor's observation
+(:func:`deploy.export.rsl_rl.rsl_rl_normalizer`). Its deterministic action (``act_inference``) is
 ``actor(memory_a(normalizer(obs)))``; the critic (``memory_c``, ``critic``) is not exported.
 
 The kind is read from the shapes: ``weight_hh_l0`` is (4 hidden, hidden) for an LSTM and
@@ -21,7 +21,10 @@ from pathlib import Path
 
 import torch
 
-from deploy.export_recurrent import recurrent_source, rnn_from_state_dict
+from deploy.export.errors import ExportError
+from deploy.export.network import _build_mlp, _linear_stack, check_finite_tensors
+from deploy.export.recurrent import recurrent_source, rnn_from_state_dict
+from deploy.export.rsl_rl import RSL_RL_EPS, rsl_rl_normalizer
 from deploy.spec import PolicySpec
 
 RNN_PREFIX = "memory_a.rnn."
@@ -44,31 +47,29 @@ def load_rsl_rl_recurrent(
         deploy.export.ExportError: missing or malformed ``memory_a.rnn`` or ``actor`` layers,
             non-finite weights, sizes that do not fit the spec.
     """
-    from deploy import export as ex  # deploy.export imports this module lazily
-
-    ex.check_finite_tensors(
+    check_finite_tensors(
         {k: v for k, v in msd.items() if k.startswith(RNN_PREFIX)}, f"{path}: memory_a"
     )
     weights = {k[len(RNN_PREFIX) :]: v for k, v in msd.items() if k.startswith(RNN_PREFIX)}
-    rnn = rnn_from_state_dict(weights, spec.obs_dim, f"{path}: {RNN_PREFIX}", ex.ExportError)
+    rnn = rnn_from_state_dict(weights, spec.obs_dim, f"{path}: {RNN_PREFIX}", ExportError)
     actor_keys = {k: v for k, v in msd.items() if re.fullmatch(r"actor\.\d+\.(weight|bias)", k)}
     if not actor_keys:
-        raise ex.ExportError(
+        raise ExportError(
             f"{path}: recurrent rsl_rl checkpoint without 'actor.<i>.weight' layers "
             f"(keys: {sorted(msd)[:8]})"
         )
-    layers = ex._linear_stack(actor_keys, "actor.", path)
+    layers = _linear_stack(actor_keys, "actor.", path)
     if layers[0][0].shape[1] != rnn.hidden_size:
-        raise ex.ExportError(
+        raise ExportError(
             f"{path}: the actor MLP takes {layers[0][0].shape[1]} inputs, the recurrent memory "
             f"gives {rnn.hidden_size}"
         )
     if layers[-1][0].shape[0] != spec.act_dim:
-        raise ex.ExportError(
+        raise ExportError(
             f"{path}: wrong output size: the actor returns {layers[-1][0].shape[0]} values, the "
             f"spec's action has {spec.act_dim} (a state-dependent std is not supported)"
         )
-    mlp = ex._build_mlp(layers, activation or "elu", None, path, "rsl_rl actor")
-    norm = ex.rsl_rl_normalizer(path, obj, msd, spec)
-    kind = None if norm is None else f"rsl_rl EmpiricalNormalization (eps {ex.RSL_RL_EPS})"
+    mlp = _build_mlp(layers, activation or "elu", None, path, "rsl_rl actor")
+    norm = rsl_rl_normalizer(path, obj, msd, spec)
+    kind = None if norm is None else f"rsl_rl EmpiricalNormalization (eps {RSL_RL_EPS})"
     return recurrent_source(rnn, mlp, norm, spec, path, "rsl_rl recurrent", kind)

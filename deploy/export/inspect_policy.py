@@ -286,8 +286,8 @@ def _inspect_sb3(path: Path) -> dict[str, Any]:
 
 def _inspect_torchscript(path: Path) -> dict[str, Any]:
 
-    from deploy.export import load_torchscript
-    from deploy.export_torchscript_lstm import LAYOUT, STATE_BUFFERS, is_legged_gym_lstm
+    from deploy.export.torchscript import load_torchscript
+    from deploy.export.torchscript_lstm import LAYOUT, STATE_BUFFERS, is_legged_gym_lstm
 
     net = load_torchscript(path, InspectError)
     buffers = {k: list(v.shape) for k, v in net.named_buffers()}

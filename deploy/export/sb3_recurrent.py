@@ -1,6 +1,6 @@
 """SB3-contrib ``RecurrentPPO`` zips (``MlpLstmPolicy``) for ``policy-export``.
 
-Read without unpickling, as for PPO (:func:`deploy.export._load_sb3`): ``policy.pth`` (the
+Read without unpickling, as for PPO (:func:`deploy.export.sb3._load_sb3`): ``policy.pth`` (the
 ``RecurrentActorCriticPolicy`` state dict, ``torch.load(weights_only=True)``) and the ``data``
 JSON. The deterministic action of sb3-contrib's ``predict(obs, state, episode_start,
 deterministic=True)`` is
@@ -12,7 +12,7 @@ deterministic=True)`` is
 is), then clipped to the action space, which must be Box(-1, 1) (the spec's action clip is
 baked in). ``episode_start`` zeroes an env's state before its step: :meth:`OnnxPolicy.reset`
 does the same. The LSTM (``lstm_actor.weight_ih_l<k>``, ... ; layers and hidden size from the
-shapes) becomes a :class:`deploy.export_recurrent.RecurrentCore` with the policy net and
+shapes) becomes a :class:`deploy.export.recurrent.RecurrentCore` with the policy net and
 ``action_net`` as its MLP; the critic (``lstm_critic``, ``value_net``) is not exported. The
 hidden activation is ``policy_kwargs.activation_fn`` when recorded, else Tanh (SB3's default for
 actor-critic policies); ``--activation`` overrides.
@@ -25,7 +25,10 @@ from pathlib import Path
 
 import torch
 
-from deploy.export_recurrent import recurrent_source, rnn_from_state_dict
+from deploy.export.errors import ExportError
+from deploy.export.network import _build_mlp, _linear_stack, check_finite_tensors
+from deploy.export.recurrent import recurrent_source, rnn_from_state_dict
+from deploy.export.sb3 import _sb3_activation
 from deploy.spec import PolicySpec
 
 PREFIX = "lstm_actor."
@@ -49,11 +52,9 @@ def load_recurrent_ppo(
             (``batch_first``, ``bidirectional``, ``proj_size``), malformed ``lstm_actor`` or
             actor layers, non-finite weights, sizes that do not fit the spec.
     """
-    from deploy import export as ex  # deploy.export imports this module lazily
-
     kwargs = data.get("policy_kwargs") if isinstance(data.get("policy_kwargs"), Mapping) else {}
     if data.get("use_sde") or kwargs.get("use_sde") or kwargs.get("squash_output"):
-        raise ex.ExportError(
+        raise ExportError(
             f"{path}: RecurrentPPO with use_sde or squash_output is not supported (the "
             "deterministic action must be the Gaussian mean)"
         )
@@ -62,31 +63,31 @@ def load_recurrent_ppo(
     )
     for key, plain in (("batch_first", False), ("bidirectional", False), ("proj_size", 0)):
         if lstm_kwargs.get(key, plain) != plain:
-            raise ex.ExportError(
+            raise ExportError(
                 f"{path}: policy_kwargs.lstm_kwargs.{key} = {lstm_kwargs[key]!r} is not supported "
                 "(a one-directional, sequence-first LSTM without projection is expected)"
             )
     weights = {k[len(PREFIX) :]: v for k, v in sd.items() if k.startswith(PREFIX)}
-    ex.check_finite_tensors(weights, f"{path}: {PREFIX.rstrip('.')}")
-    rnn = rnn_from_state_dict(weights, spec.obs_dim, f"{path}: {PREFIX}", ex.ExportError)
+    check_finite_tensors(weights, f"{path}: {PREFIX.rstrip('.')}")
+    rnn = rnn_from_state_dict(weights, spec.obs_dim, f"{path}: {PREFIX}", ExportError)
     if not isinstance(rnn, torch.nn.LSTM):
-        raise ex.ExportError(f"{path}: '{PREFIX}*' is not an LSTM (RecurrentPPO uses nn.LSTM)")
+        raise ExportError(f"{path}: '{PREFIX}*' is not an LSTM (RecurrentPPO uses nn.LSTM)")
     if "action_net.weight" not in sd or "action_net.bias" not in sd:
-        raise ex.ExportError(
+        raise ExportError(
             f"{path}: RecurrentPPO policy without 'action_net' (keys: {sorted(sd)[:8]})"
         )
-    layers = ex._linear_stack(sd, "mlp_extractor.policy_net.", path)
+    layers = _linear_stack(sd, "mlp_extractor.policy_net.", path)
     layers.append((sd["action_net.weight"], sd["action_net.bias"]))
     if layers[0][0].shape[1] != rnn.hidden_size:
-        raise ex.ExportError(
+        raise ExportError(
             f"{path}: the policy net takes {layers[0][0].shape[1]} inputs, the LSTM gives "
             f"{rnn.hidden_size}"
         )
     if layers[-1][0].shape[0] != spec.act_dim:
-        raise ex.ExportError(
+        raise ExportError(
             f"{path}: wrong output size: action_net returns {layers[-1][0].shape[0]} values, "
             f"the spec's action has {spec.act_dim}"
         )
-    act = activation or ex._sb3_activation(data, "tanh", path)
-    mlp = ex._build_mlp(layers, act, None, path, "RecurrentPPO actor")
+    act = activation or _sb3_activation(data, "tanh", path)
+    mlp = _build_mlp(layers, act, None, path, "RecurrentPPO actor")
     return recurrent_source(rnn, mlp, None, spec, path, "sb3-contrib RecurrentPPO")

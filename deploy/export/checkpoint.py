@@ -1,0 +1,38 @@
+"""Our checkpoints (the :mod:`deploy.checkpoint` format: MLP actor, PolicySpec and observation
+normalizer inside) as a :class:`~deploy.export.source.SourcePolicy`; a ``--spec`` given must agree
+with the spec inside.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+from deploy.checkpoint import CheckpointError, checkpoint_from_dict
+from deploy.export.errors import ExportError
+from deploy.export.source import SourcePolicy, normalizer_module
+from deploy.policy import spec_differences
+from deploy.spec import PolicySpec
+
+
+def _load_checkpoint(path: Path, obj: Mapping, spec: PolicySpec | None) -> SourcePolicy:
+    try:
+        ckpt = checkpoint_from_dict(obj, path)
+    except CheckpointError as exc:
+        raise ExportError(str(exc)) from None
+    if spec is not None:
+        diff = spec_differences(ckpt.spec, spec)
+        if diff:
+            raise ExportError(
+                f"{path}: the checkpoint's spec differs from the --spec given in {diff}"
+            )
+    norm = None
+    if ckpt.obs_normalizer is not None:
+        norm = normalizer_module(ckpt.obs_normalizer)
+    return SourcePolicy(
+        net=ckpt.actor,
+        spec=ckpt.spec,
+        source_format="checkpoint",
+        normalizer=norm,
+        normalizer_kind=None if norm is None else "checkpoint obs_normalizer",
+    )

@@ -1,0 +1,226 @@
+"""The export itself: :func:`export_policy` (and :func:`run_export`, which returns the figures as
+an :class:`ExportResult`) loads the source, builds the ONNX graph, writes it under a temporary name
+in the destination folder, runs the parity gate on it, and moves it into place only if every check
+passes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnx
+
+from deploy.export.errors import ExportError, ParityError, _first_line
+from deploy.export.graph import OPSET, _recurrent_to_onnx, set_metadata, to_onnx, tool_versions
+from deploy.export.load import load_source
+from deploy.export.parity import (
+    PARITY_SAMPLES,
+    TOLERANCE,
+    TorchRecurrentReference,
+    _max_abs,
+    closed_loop_parity,
+    parity_observations,
+    sequence_parity,
+    source_sequence_parity,
+    static_parity,
+)
+from deploy.files import atomic_path, sha256_file
+from deploy.policy import OnnxPolicy, PolicyLoadError
+from deploy.spec import PolicySpec, SpecError
+from robots import Robot, load_robot
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    """What an export produced.
+
+    Attributes:
+        path: The ONNX file. source_format: Detected input format. parity: Parity figures.
+        seconds: Wall time of the whole export. spec: The spec stored in the file.
+    """
+
+    path: Path
+    source_format: str
+    parity: dict[str, Any]
+    seconds: float
+    spec: PolicySpec
+    exporter: str
+
+
+def _resolve_robot(robot: Robot | str | os.PathLike | None, spec: PolicySpec, where: str) -> Robot:
+    if isinstance(robot, Robot):
+        return robot
+    name = spec.robot if robot is None else robot
+    try:
+        return load_robot(name)
+    except Exception as exc:  # noqa: BLE001 - RobotSpecError, FileNotFoundError, ...
+        raise ExportError(f"{where}: cannot load robot '{name}': {_first_line(exc)}") from None
+
+
+def _write(model: onnx.ModelProto, path: Path) -> None:
+    path.write_bytes(model.SerializeToString())  # fsync-ed by atomic_path before the rename
+
+
+def run_export(
+    source: str | os.PathLike,
+    out: str | os.PathLike | None = None,
+    spec: PolicySpec | str | os.PathLike | None = None,
+    trust_pickle: bool = False,
+    vecnormalize: str | os.PathLike | None = None,
+    activation: str | None = None,
+    robot: Robot | str | os.PathLike | None = None,
+    exporter: str = "torchscript",
+    seed: int = 0,
+) -> ExportResult:
+    """:func:`export_policy`, returning the parity figures and timing as well."""
+    t0 = time.perf_counter()
+    source = Path(source)
+    src = load_source(source, spec, trust_pickle, vecnormalize, activation)
+    out = source.with_suffix(".onnx") if out is None else Path(out)
+    if out.resolve() == source.resolve():
+        raise ExportError(f"{out}: the output would overwrite the source")
+    if not out.parent.is_dir():
+        raise ExportError(f"{out}: the output folder {out.parent} does not exist")
+    the_robot = _resolve_robot(robot, src.spec, str(source))
+    try:
+        src.spec.check_robot(the_robot)
+    except SpecError as exc:
+        raise ExportError(f"{source}: {exc}") from None
+
+    module = src.module()
+    if src.recurrent:
+        model = _recurrent_to_onnx(module, src.spec.obs_dim, exporter)
+    else:
+        model = to_onnx(module, src.spec.obs_dim, exporter)
+    baked = {"observation_normalizer": src.normalizer is not None, "action_clip": True}
+    exporter_text = f"torch.onnx.export(dynamo={exporter == 'dynamo'}), opset {OPSET}" + (
+        " (TorchScript-based)" if exporter == "torchscript" else " (torch.export-based)"
+    )
+    base_meta = {
+        "source_sha256": sha256_file(source),
+        "source_format": src.source_format,
+        "tool_versions": json.dumps(tool_versions(), sort_keys=True),
+        "exporter": exporter_text,
+        **src.extra_hashes,
+    }
+    if src.normalizer_kind:
+        base_meta["observation_normalizer"] = src.normalizer_kind
+
+    # the file is written and checked under a temporary name, moved onto ``out`` only if it passes
+    try:
+        with atomic_path(out) as tmp:
+            pending = dataclasses.replace(src.spec, baked=baked, parity={})
+            set_metadata(model, {"policy_spec": pending.to_json(), **base_meta})
+            model.doc_string = (
+                f"{src.spec.robot} policy exported by policy-export from {source.name}"
+            )
+            _write(model, tmp)
+            try:
+                policy = OnnxPolicy(tmp, the_robot)
+            except PolicyLoadError as exc:
+                raise ExportError(
+                    f"the exported graph does not load in the runtime: {exc}"
+                ) from None
+            reference = None
+            if src.recurrent:
+                static_err, n_samples = sequence_parity(policy, module, src.spec, seed)
+                reference = TorchRecurrentReference(module)
+            else:
+                static_err, n_samples = static_parity(
+                    policy, module, src.spec, PARITY_SAMPLES, seed
+                )
+            loop = closed_loop_parity(policy, module, the_robot, seed=seed, reference=reference)
+            figures = {
+                "tolerance": TOLERANCE,
+                "max_abs_error": static_err,
+                "samples": n_samples,
+                "replay_max_abs_error": loop["max_abs_error"],
+                "replay_ticks": loop["ticks"],
+                "replay_envs": loop["envs"],
+                "replay_mode": loop["mode"],
+                "replay_plant_resets": loop["plant_resets"],
+            }
+            worst = max(static_err, loop["max_abs_error"])
+            if src.sequence_reference is not None:
+                src_err, src_steps = source_sequence_parity(
+                    policy, src.sequence_reference(), src.spec, seed
+                )
+                figures.update(source_max_abs_error=src_err, source_steps=src_steps)
+                worst = max(worst, src_err)
+                static_err = max(static_err, src_err)
+            if not worst <= TOLERANCE:
+                raise ParityError(
+                    f"{source}: ONNX and torch disagree: max abs error {static_err:.3g} over "
+                    f"{n_samples} observations, {loop['max_abs_error']:.3g} over the "
+                    f"{loop['ticks']}-tick closed-loop replay (tolerance {TOLERANCE:g}); nothing "
+                    "written",
+                    figures,
+                )
+            final = dataclasses.replace(src.spec, baked=baked, parity=figures)
+            set_metadata(
+                model,
+                {"policy_spec": final.to_json(), **base_meta, "parity": json.dumps(figures)},
+            )
+            _write(model, tmp)
+            check = OnnxPolicy(tmp, the_robot)  # the final bytes load and give the same actions
+            probe = parity_observations(src.spec, 16, np.random.default_rng(seed + 1))
+            if _max_abs(check(probe).copy(), policy(probe).copy()) != 0.0:
+                raise ParityError(f"{source}: the final file gives different actions", figures)
+    except OSError as exc:
+        raise ExportError(f"{out}: cannot write in {out.parent}: {exc.strerror or exc}") from None
+    return ExportResult(
+        path=out,
+        source_format=src.source_format,
+        parity=figures,
+        seconds=time.perf_counter() - t0,
+        spec=final,
+        exporter=exporter_text,
+    )
+
+
+def export_policy(
+    source: str | os.PathLike,
+    out: str | os.PathLike | None = None,
+    spec: PolicySpec | str | os.PathLike | None = None,
+    trust_pickle: bool = False,
+    vecnormalize: str | os.PathLike | None = None,
+    activation: str | None = None,
+    robot: Robot | str | os.PathLike | None = None,
+    exporter: str = "torchscript",
+    seed: int = 0,
+) -> Path:
+    """Export a trained policy to ONNX with its PolicySpec, after the parity gate.
+
+    Args:
+        source: Policy file: our checkpoint, TorchScript, SB3 PPO/SAC zip, rsl_rl checkpoint, or a
+            pickled nn.Module (see :mod:`deploy.export`).
+        out: Destination; default ``source`` with the suffix ``.onnx``. Its folder must exist.
+        spec: PolicySpec or spec JSON file; required unless the source is our checkpoint.
+        trust_pickle: Allow unpickling (pickled modules, VecNormalize pickles). Never needed for
+            the other formats.
+        vecnormalize: SB3 VecNormalize statistics (``.npz``, ``.json``, or pickle if trusted).
+        activation: Override the hidden activation of rebuilt SB3 / rsl_rl networks.
+        robot: Robot (or name / path) to check against and replay on; default the spec's robot.
+        exporter: 'torchscript' (default) or 'dynamo'.
+        seed: Seed of the parity observations, goals and plant noise.
+
+    Returns:
+        The ONNX file written.
+
+    Raises:
+        ExportError: bad input (missing, truncated or corrupt file; unknown format; missing spec;
+            wrong input or output size; non-finite weights; spec/robot mismatch; untrusted
+            pickle). Nothing is written.
+        ParityError: ONNX Runtime and torch disagree by more than ``TOLERANCE``. Nothing is
+            written.
+    """
+    return run_export(
+        source, out, spec, trust_pickle, vecnormalize, activation, robot, exporter, seed
+    ).path

@@ -1,0 +1,105 @@
+"""What a source-format loader returns: :class:`SourcePolicy` (the network, its PolicySpec, the
+observation normalizer around it), and the torch modules its graph is assembled from: the
+observation normalizers (:func:`normalizer_module`) and the spec's action clip
+(:class:`ActionClip`).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from torch import nn
+
+from deploy.checkpoint import ObservationNormalizer
+from deploy.spec import PolicySpec
+
+
+class Normalize(nn.Module):
+    """``clamp((obs - mean) / denom, -clip, clip)``: an empirical observation normalizer."""
+
+    def __init__(self, mean: torch.Tensor, denom: torch.Tensor, clip: float):
+        super().__init__()
+        self.register_buffer("mean", mean.detach().to(torch.float32).reshape(-1).clone())
+        self.register_buffer("denom", denom.detach().to(torch.float32).reshape(-1).clone())
+        self.clip = float(clip)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return torch.clamp((obs - self.mean) / self.denom, -self.clip, self.clip)
+
+
+class NormalizeNoClip(nn.Module):
+    """``(obs - mean) / denom`` (rsl_rl's EmpiricalNormalization has no clip)."""
+
+    def __init__(self, mean: torch.Tensor, denom: torch.Tensor):
+        super().__init__()
+        self.register_buffer("mean", mean.detach().to(torch.float32).reshape(-1).clone())
+        self.register_buffer("denom", denom.detach().to(torch.float32).reshape(-1).clone())
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return (obs - self.mean) / self.denom
+
+
+class ActionClip(nn.Module):
+    """``clamp(action, -clip, clip)``: the spec's action clip, baked into the graph."""
+
+    def __init__(self, clip: float):
+        super().__init__()
+        self.clip = float(clip)
+
+    def forward(self, action: torch.Tensor) -> torch.Tensor:
+        return torch.clamp(action, -self.clip, self.clip)
+
+
+def normalizer_module(norm: ObservationNormalizer) -> nn.Module:
+    """The graph module of an :class:`ObservationNormalizer`."""
+    if math.isinf(norm.clip):
+        return NormalizeNoClip(norm.mean, norm.denominator())
+    return Normalize(norm.mean, norm.denominator(), norm.clip)
+
+
+@dataclass
+class SourcePolicy:
+    """A loaded source: the network (normalized observation -> raw action) and what goes around.
+
+    Attributes:
+        net: The network, eval mode, float32. spec: Its PolicySpec. source_format: The format.
+        normalizer: Observation normalizer module (or None). normalizer_kind: Its description.
+        scripted: ``net`` is TorchScript (the graph module is scripted too).
+    """
+
+    net: nn.Module
+    spec: PolicySpec
+    source_format: str
+    normalizer: nn.Module | None = None
+    normalizer_kind: str | None = None
+    scripted: bool = False
+    extra_hashes: dict[str, str] = field(default_factory=dict)
+    #: recurrent sources that can run as they are (a stateful TorchScript file): a factory of
+    #: the batch-1 reference of :func:`deploy.export.parity.source_sequence_parity`
+    sequence_reference: Any = None
+
+    @property
+    def recurrent(self) -> bool:
+        """The net is a :class:`deploy.export.recurrent.RecurrentCore` (explicit state I/O)."""
+        from deploy.export.recurrent import RecurrentCore
+
+        return isinstance(self.net, RecurrentCore)
+
+    def module(self) -> nn.Module:
+        """normalizer -> net -> action clip, eval mode; scripted when the net is TorchScript.
+        A recurrent net gives a :class:`deploy.export.recurrent.RecurrentPolicyModule`."""
+        if self.recurrent:
+            from deploy.export.recurrent import RecurrentPolicyModule
+
+            return RecurrentPolicyModule(self.net, self.normalizer, self.spec.action.clip).eval()
+        parts = [] if self.normalizer is None else [self.normalizer]
+        seq = nn.Sequential(*parts, self.net, ActionClip(self.spec.action.clip)).eval()
+        if self.scripted:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                seq = torch.jit.script(seq)
+        return seq

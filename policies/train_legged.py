@@ -16,6 +16,7 @@ the soak's success) and ``walk/distance``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shutil
 import sys
@@ -32,7 +33,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from deploy.checkpoint import MLPActor, save_checkpoint
 from deploy.export import sb3_actor
 from policies.gait import make_policy
-from policies.locomotion import LocomotionConfig, LocomotionTask
+from policies.locomotion import LocomotionConfig, LocomotionReward, LocomotionTask
 from robots import load_robot
 
 #: The residual network (legged_gym's actor is 512-256-128 with ELU; a residual needs less).
@@ -197,7 +198,8 @@ def train(args: argparse.Namespace) -> Path:
     torch.set_num_threads(args.threads)
     robot = load_robot(args.robot)
     template, spec = make_policy(args.robot)
-    task = LocomotionTask(robot, spec, args.envs, LocomotionConfig(), seed=args.seed)
+    config = LocomotionConfig(reward=args.reward)
+    task = LocomotionTask(robot, spec, args.envs, config, seed=args.seed)
     env = TaskVecEnv(task)
     if args.init_from is not None:
         model = RuntimePPO.load(args.init_from, env=env, device="cpu")
@@ -235,6 +237,8 @@ def train(args: argparse.Namespace) -> Path:
             "seed": args.seed,
             "timesteps": int(model.num_timesteps),
             "wall_seconds": round(time.perf_counter() - start, 1),
+            "init_from": None if args.init_from is None else str(args.init_from),
+            "reward": dataclasses.asdict(args.reward),
             "curve": history,
         }
         save_checkpoint(candidate, candidate_actor(model, template), spec, info=info)
@@ -261,6 +265,23 @@ def train(args: argparse.Namespace) -> Path:
     return candidate
 
 
+def parse_reward(overrides: list[str], parser: argparse.ArgumentParser) -> LocomotionReward:
+    """``LocomotionReward`` with ``NAME=VALUE`` overrides; a bad name or value exits with usage."""
+    names = {f.name for f in dataclasses.fields(LocomotionReward)}
+    values = {}
+    for item in overrides:
+        name, _, value = item.partition("=")
+        if name not in names:
+            parser.error(
+                f"--reward {item}: unknown coefficient '{name}', expected one of {sorted(names)}"
+            )
+        try:
+            values[name] = float(value)
+        except ValueError:
+            parser.error(f"--reward {item}: expected a number after '{name}='")
+    return LocomotionReward(**values)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m policies.train_legged", description=__doc__.split("\n")[0]
@@ -281,7 +302,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--out", type=Path, default=None, help="copy the candidate here (policies/go2.pt)"
     )
+    p.add_argument(
+        "--reward",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a LocomotionReward coefficient (repeatable)",
+    )
     args = p.parse_args(argv)
+    args.reward = parse_reward(args.reward, p)
     args.argv = list(argv) if argv is not None else sys.argv[1:]
     train(args)
     return 0

@@ -56,6 +56,17 @@ IMPLEMENTATIONS: tuple[str, ...] = ("compiled", "vectorized", "filterpy")
 #: 7.3 mrad against 15.6 mrad raw; 0.1 lags (25 mrad).
 PROCESS_NOISE_FRACTION = 0.5
 
+#: Largest tracking index ``sigma_a dt^2 / sigma_r`` the default measurement noise allows (``dt``
+#: the control period; P. R. Kalata, "The tracking index: a generalized parameter for alpha-beta
+#: and alpha-beta-gamma target trackers", IEEE TAES 20(2), 1984). The filter's steady-state
+#: velocity gain beta grows with the index: past beta = 1 the velocity error alternates in sign
+#: from one reading to the next, and beta tends to 2, where it no longer decays. At 3, beta is
+#: 0.94. A fine encoder read at a slow rate for a joint allowed large accelerations exceeds it:
+#: go2 (one count, 3e-5 rad; 500 rad/s^2 of process noise; 50 Hz) had an index of 6,600: its
+#: estimate of a calf turning at 2 rad/s alternated between +-40 rad/s, and one dropped reading
+#: then extrapolated the calf 0.8 rad past its hard limit (a safe stop).
+MAX_TRACKING_INDEX = 3.0
+
 #: Degeneracy bound of the velocity standard deviation, in velocity limits (our choice): an
 #: uncertainty of several times the fastest possible speed means the filter has lost track.
 VELOCITY_SIGMA_BOUND = 10.0
@@ -73,7 +84,9 @@ class JointStateEstimator:
             sec. 6.3.2: standard deviation 0.5 to 1 times the largest acceleration).
         measurement_sigma: Encoder noise standard deviation, rad; scalar or (n,). Default
             ``robot.config.sensors.encoder_noise_sigma``, floored at the quantization noise
-            ``(2 pi / encoder_resolution) / sqrt(12)`` (uniform rounding error) so that ``R > 0``.
+            ``(2 pi / encoder_resolution) / sqrt(12)`` (uniform rounding error) so that ``R > 0``,
+            and at ``sqrt(process_noise) dt^2 / MAX_TRACKING_INDEX`` (a velocity estimate that
+            does not oscillate; ``dt`` the control period).
         implementation: ``"compiled"`` (default, one numba kernel per tick), ``"vectorized"``
             (numpy) or ``"filterpy"`` (reference).
 
@@ -119,10 +132,11 @@ class JointStateEstimator:
         sensors = robot.config.sensors
         if process_noise is None:
             process_noise = (PROCESS_NOISE_FRACTION * robot.acceleration_limit) ** 2
+        self.process_noise = self._per_joint("process_noise", process_noise)
         if measurement_sigma is None:
             floor = 2.0 * np.pi / sensors.encoder_resolution / np.sqrt(12.0)
-            measurement_sigma = max(sensors.encoder_noise_sigma, floor)
-        self.process_noise = self._per_joint("process_noise", process_noise)
+            stable = np.sqrt(self.process_noise) * robot.control_period**2 / MAX_TRACKING_INDEX
+            measurement_sigma = np.maximum(max(sensors.encoder_noise_sigma, floor), stable)
         self.measurement_variance = self._per_joint("measurement_sigma", measurement_sigma) ** 2
         self.initial_covariance = np.zeros((n, 2, 2))
         self.initial_covariance[:, 0, 0] = self.measurement_variance

@@ -10,10 +10,11 @@ own per-tick bookkeeping) with ``--report`` to a temporary file, its printed sum
 policy, building the runtime; imports excluded, they are done once per process). Extrapolated
 linearly: ``estimate_8h_s = setup_s + wall_s * 28800 / duration_s``.
 
-**Wall-clock mode** (:func:`wallclock`): ``deploy-run --realtime``, a :class:`deploy.clock.
-WallClock` with the robot's control period (arm6: 1/500 s), for ``duration`` seconds of real
-time, once per configuration of ``WALLCLOCK_MODES``: each wait strategy (sleep, hybrid, spin) at
-normal priority, hybrid and spin at SCHED_FIFO priority ``RT_PRIORITY`` with the memory locked
+**Wall-clock mode** (:func:`wallclock`): ``deploy-run --realtime``, a
+:class:`deploy.runtime.clock.WallClock` with the robot's control period (arm6: 1/500 s), for
+``duration`` seconds of real time, once per configuration of ``WALLCLOCK_MODES``: each wait
+strategy (sleep, hybrid, spin) at normal priority, hybrid and spin at SCHED_FIFO priority
+``RT_PRIORITY`` with the memory locked
 (``--rt-priority``; where the system refuses, the row says so in its ``notes`` and ran at normal
 priority), and hybrid at that priority pinned to one CPU (``--cpu``, the last one; ``spin+fifo+cpu``
 on request). Reported per configuration: deadline overruns (ticks that ended after their

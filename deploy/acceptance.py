@@ -198,7 +198,7 @@ def check_adversarial(
     if rt.counters.non_finite_actions.sum() == 0 and nan_probability > 0:
         failures.append("the policy never produced NaN: the NaN path was not exercised")
     modes, causes = rt.mode_names(), rt.cause_names()
-    hot = bool((backend.thermal.winding_temperature > rt._temp_start).any())
+    hot = bool((backend.thermal.winding_temperature > rt.supervision.temp_start).any())
     if causes == ["over_temperature"]:
         # the random torques heated a winding past its maximum: a safe stop that resumes once
         # every winding is below the derating start (the fault table's thermal row)

@@ -19,12 +19,13 @@ are judged on the estimated state, as there is no ground truth). On a servo bus 
 once the fault is latched (FAULTED), and the torque goes off at the end unless
 ``--hold-on-close``.
 
-Real time (the wall clock): ``--wait sleep|hybrid|spin`` or ``--spin`` (:mod:`deploy.clock`),
-``--rt-priority N``, ``--cpu N[,M]``, ``--lock-memory`` (on by default with ``--rt-priority``)
-and ``--require-rt`` (:mod:`deploy.realtime`), applied around the loop only and read back into
-the report's ``realtime_settings``. A refused priority or memory lock is a one-line notice and the
-run goes on without it (exit 3 with ``--require-rt``); a CPU the process may not use, or a
-priority out of range, is exit 3 before anything is loaded. The safe stop on overruns stays.
+Real time (the wall clock): ``--wait sleep|hybrid|spin`` or ``--spin``
+(:mod:`deploy.runtime.clock`), ``--rt-priority N``, ``--cpu N[,M]``, ``--lock-memory`` (on by
+default with ``--rt-priority``) and ``--require-rt`` (:mod:`deploy.runtime.realtime`), applied
+around the loop only and read back into the report's ``realtime_settings``. A refused priority or
+memory lock is a one-line notice and the run goes on without it (exit 3 with ``--require-rt``); a
+CPU the process may not use, or a priority out of range, is exit 3 before anything is loaded. The
+safe stop on overruns stays.
 """
 
 from __future__ import annotations
@@ -39,9 +40,9 @@ from pathlib import Path
 import numpy as np
 
 from deploy.backends.base import SimulatedPlant
-from deploy.clock import WAIT_MODES
 from deploy.files import atomic_write
 from deploy.goals import GoalScheduler
+from deploy.runtime.clock import WAIT_MODES
 
 EXIT_CLEAN, EXIT_HARD_VIOLATION, EXIT_FAULT, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 1, 2, 3, 4
 BACKENDS = ("sim", "feetech", "dynamixel")
@@ -249,7 +250,7 @@ def run(args) -> int:
 
 
 def realtime_options(args, realtime: bool):
-    """The wall clock's wait mode and the :class:`~deploy.realtime.RealtimeRequest` of
+    """The wall clock's wait mode and the :class:`~deploy.runtime.realtime.RealtimeRequest` of
     ``--wait``/``--spin``, ``--rt-priority``, ``--cpu``, ``--lock-memory`` and ``--require-rt``
     (validated against this machine: the CPUs exist for this process, the priority is in range).
 
@@ -259,9 +260,10 @@ def realtime_options(args, realtime: bool):
         ValueError: ``--spin`` with another ``--wait``; a wait mode or ``--rt-priority`` without
             the wall clock (a lockstep run never waits, and a lockstep run at real-time priority
             would take a core from everything else);
-            :class:`~deploy.realtime.RealtimeError` for a bad ``--cpu`` or ``--rt-priority``.
+            :class:`~deploy.runtime.realtime.RealtimeError` for a bad ``--cpu`` or
+            ``--rt-priority``.
     """
-    from deploy.realtime import RealtimeRequest, parse_cpus
+    from deploy.runtime.realtime import RealtimeRequest, parse_cpus
 
     if args.spin and args.wait not in (None, "spin"):
         raise ValueError(f"--spin and --wait {args.wait} disagree: give one of them")
@@ -288,8 +290,8 @@ def _run_opened(
 ) -> int:
     from deploy.backends.sim import SimulationDivergedError
     from deploy.interventions import InterventionMonitor
-    from deploy.realtime import RealtimeRequest, RealtimeSettings
     from deploy.runtime import FAULTED, RUNNING, STAGES, Runtime
+    from deploy.runtime.realtime import RealtimeRequest, RealtimeSettings
     from deploy.telemetry import LatencyHistogram, Telemetry
     from deploy.violations import ViolationMonitor
 

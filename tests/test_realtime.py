@@ -17,7 +17,7 @@ import time
 import pytest
 
 from deploy.cli import EXIT_BAD_INPUT, deploy_run_main
-from deploy.clock import SPIN_MARGIN_NS, WallClock
+from deploy.runtime.clock import SPIN_MARGIN_NS, WallClock
 from tests.runtime_fixtures import adversarial_onnx
 
 PERIOD = 0.002  # s: arm6's control period
@@ -112,10 +112,10 @@ def test_an_overrun_skips_the_missed_periods_in_every_wait_mode(wait):
 
 
 def test_wall_clock_refuses_an_unknown_wait_mode_and_runtime_still_exports_it():
-    import deploy.clock
     import deploy.runtime
+    import deploy.runtime.clock
 
-    assert deploy.runtime.WallClock is deploy.clock.WallClock
+    assert deploy.runtime.WallClock is deploy.runtime.clock.WallClock
     with pytest.raises(ValueError, match="expected one of sleep, hybrid, spin, got 'busy'"):
         WallClock(PERIOD, wait="busy")
 

@@ -47,7 +47,7 @@ STALE_LIMIT, OVERRUN_LIMIT, REST_SPEED, HOME_TOLERANCE, TRACKING_TOLERANCE, STOP
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _stop(e, why, mode, cause, safe_stops, faults, flags) -> bool:
-    """``Runtime._safe_stop`` for env ``e``; whether it was new."""
+    """``Supervision.safe_stop`` (deploy.runtime.supervision) for env ``e``; whether it was new."""
     m = mode[e]
     if m == SAFE_STOP or m == FAULTED:
         return False

@@ -15,7 +15,7 @@ strategy (``WAIT_MODES``):
 
 The runtime's safe stop on overruns (``deploy.runtime.OVERRUN_RATE_LIMIT``) is the same whatever
 the strategy. The process settings a real-time loop also wants (SCHED_FIFO priority, CPU
-affinity, locked memory) are in :mod:`deploy.realtime`.
+affinity, locked memory) are in :mod:`deploy.runtime.realtime`.
 """
 
 from __future__ import annotations

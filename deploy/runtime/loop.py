@@ -1,0 +1,541 @@
+"""The control loop (:class:`Runtime`): its stages built over one backend, its lifecycle (start,
+restart after the robot was moved, an operator's reset of latched faults), the tick (read top to
+bottom in :meth:`Runtime.tick`), the run with the garbage collector frozen, and its state
+(:meth:`Runtime.state_dict`). The package's docstring (:mod:`deploy.runtime`) describes the tick
+and the state machine.
+"""
+
+from __future__ import annotations
+
+import gc
+import time
+
+import numpy as np
+
+from deploy.estimation import JointStateEstimator
+from deploy.kernels import latency as lk
+from deploy.runtime.anchoring import reanchor, tracking_tolerance
+from deploy.runtime.clock import SimClock
+from deploy.runtime.compiled import CompiledSupervision
+from deploy.runtime.modes import (
+    FAULT_CAUSES,
+    FAULTED,
+    OVERRUN_RATE_LIMIT,
+    OVERRUN_WINDOW,
+    RAMP_IN,
+    RUNNING,
+    SAFE_STOP,
+    START_TIMEOUT,
+    Mode,
+)
+from deploy.runtime.supervision import Supervision
+from deploy.safety import SafetyGuard
+from deploy.smoothing import CommandSmoother
+from deploy.spec import PolicySpec
+from deploy.state import Kinematics, RobotState
+from deploy.stateful import check, load_part, prefixed, put, scalar, take
+from deploy.telemetry import BIN_NS, BINS, LatencyHistogram
+from robots import Robot
+
+#: The tick's stages, as its latency histogram counts them (``Runtime.latency``).
+STAGES = ("read", "estimate", "observe", "infer", "guard", "smooth", "write", "physics")
+
+
+def _no_reset(envs: np.ndarray) -> None:
+    """The reset of a policy without state."""
+
+
+class Runtime:
+    """The control loop for ``envs`` robots behind one backend.
+
+    Args:
+        robot: Robot description.
+        policy: Callable ``(envs, obs_dim) float32 -> (envs, act_dim) float32`` with a ``spec``
+            attribute (:class:`~deploy.policy.OnnxPolicy`); its ``reset(envs)`` (boolean mask
+            (envs,)), if it has one, is called where the policy's state must start afresh.
+        backend: A :class:`~deploy.backends.base.Backend` (``read``, ``write``, ``advance``,
+            ``drive_errors``), opened: :class:`~deploy.backends.sim.SimBackend` or a servo bus.
+        clock: :class:`SimClock` (default) or :class:`WallClock`.
+        injector: Optional :class:`~deploy.faults.FaultInjector` (simulation only).
+        telemetry: Optional :class:`~deploy.telemetry.Telemetry` recorder.
+        overrun_rate_limit: Fraction of overrun ticks over the last ``OVERRUN_WINDOW`` that makes
+            a safe stop with the wall clock (default ``OVERRUN_RATE_LIMIT``, 5 %, our choice).
+        reference: Run the numpy references of the tick's numeric logic (supervision, action
+            screen, observation, guard, smoother) instead of the compiled kernels of
+            :mod:`deploy.kernels` (the default); both give the same numbers bit for bit
+            (``tests/test_compiled_tick.py``). The estimator is the compiled one either way.
+
+    Raises:
+        ValueError: a policy of another control mode than the backend's, or an
+            ``overrun_rate_limit`` outside (0, 1].
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        policy,
+        backend,
+        clock=None,
+        injector=None,
+        telemetry=None,
+        overrun_rate_limit: float = OVERRUN_RATE_LIMIT,
+        reference: bool = False,
+    ):
+        if not 0.0 < overrun_rate_limit <= 1.0:
+            raise ValueError(f"overrun_rate_limit: expected in (0, 1], got {overrun_rate_limit}")
+        self.overrun_rate_limit = overrun_rate_limit
+        self.robot, self.policy, self.backend = robot, policy, backend
+        self._reset_policy = getattr(policy, "reset", None) or _no_reset
+        self.spec: PolicySpec = policy.spec
+        self.spec.check_robot(robot)
+        if self.spec.action.mode != backend.mode:
+            raise ValueError(
+                f"policy action mode '{self.spec.action.mode}' differs from the backend's control "
+                f"mode '{backend.mode}'"
+            )
+        envs, n = backend.envs, robot.n_joints
+        self.envs, self.n = envs, n
+        self.mode_name = backend.mode
+        self.dt = robot.control_period
+        self.clock = clock or SimClock(self.dt)
+        self.injector = injector
+        self.telemetry = telemetry
+        self.estimator = JointStateEstimator(robot, envs)
+        self.kinematics = Kinematics(robot)
+        self.reference = reference
+        self.guard = SafetyGuard(robot, envs, self.mode_name, reference=reference)
+        self.smoother = CommandSmoother(robot, envs, self.mode_name, reference=reference)
+        ambient = robot.config.sensors.ambient_temperature
+        self.state = RobotState.zeros(envs, n, ambient)
+        self.goal = np.zeros((envs, 3))
+        #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check
+        self.base_estimator = self.fall_detector = None
+        if robot.floating_base:
+            from deploy.base_estimation import BaseStateEstimator
+            from deploy.fall import FallDetector
+
+            self.state = RobotState.legged(envs, n, robot.n_feet, ambient)
+            self.base_estimator = BaseStateEstimator(robot, envs)
+            self.fall_detector = FallDetector(robot, envs)
+        #: (envs, 3) the velocity command of a legged robot (vx, vy m/s, yaw rate rad/s, base
+        #: frame): the operator's (deploy-run --command) or the soak's schedule; write into it
+        self.velocity_command = (
+            self.state.command if self.state.command is not None else np.zeros((envs, 3))
+        )
+        #: rad: the re-anchoring's tolerance (:func:`reanchor`; inf for a legged robot)
+        self.tracking_tolerance = tracking_tolerance(robot, self.mode_name)
+        #: the state machine, one per env (:class:`~deploy.runtime.supervision.Supervision`):
+        #: its arrays below are the runtime's, its transitions in numpy
+        self.supervision = sup = Supervision(
+            robot,
+            envs,
+            self.mode_name,
+            self.estimator,
+            self.guard,
+            self.smoother,
+            self.clock,
+            overrun_rate_limit,
+            self._reset_policy,
+        )
+        #: (envs,) int8 modes (:class:`Mode`), and causes (index into FAULT_CAUSES, -1: none)
+        self.mode, self.cause = sup.mode, sup.cause
+        #: (envs, n) int64, OR of the hardware error bits each drive reported (cause servo_error)
+        self.drive_errors = sup.drive_errors
+        self.counters = sup.counters
+        #: (envs,) int64, supervised ticks since each env's safe stop began (0 outside SAFE_STOP)
+        self.stop_ticks = sup.stop_ticks
+        self.latency = LatencyHistogram(len(STAGES))
+        self.tick_cost = LatencyHistogram()
+        self.ticks = 0
+        self.time = 0.0
+        self._obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
+        self._target = np.zeros((envs, n))
+        self._cmd = np.zeros((envs, n))
+        self._stamps = np.zeros(len(STAGES) + 1, dtype=np.int64)
+        self._tracking = np.zeros(envs)
+        self._anchored = np.zeros(envs, dtype=np.int64)
+        # velocity mode: the position the commands integrate to (Ruckig's state), else None
+        self._commanded = self.smoother.position if self.mode_name == "velocity" else None
+        #: the estimator's control input: the acceleration commanded over the last period (the
+        #: smoother's trajectory); torque mode commands no motion, the filter runs without one
+        self._input = None if self.mode_name == "torque" else self.smoother.mean_acceleration
+        # latency histograms' bins (deploy.telemetry)
+        self._bins = np.array([BIN_NS, BINS], dtype=np.int64)
+        #: the compiled action screen and supervision (deploy.kernels); None with ``reference``
+        self._compiled = None if reference else self._compile()
+
+    def _compile(self) -> CompiledSupervision:
+        """The compiled path: :class:`CompiledSupervision` over the runtime's arrays, and one call
+        of the observation's and the latency histograms' kernels: compiled (or loaded from
+        numba's cache) now, not in the first tick."""
+        compiled = CompiledSupervision(
+            self.supervision,
+            self.spec,
+            self.state,
+            self._target,
+            self.tracking_tolerance,
+            self._reanchor,
+        )
+        self.spec.observation(self.state, self.goal, out=self._obs)  # builds and warms its plan
+        lat, cost, c = self.latency, self.tick_cost, np.copy
+        lk.add_stages(
+            self._stamps, self._bins, c(lat.counts), c(lat.max_ns), c(cost.counts), c(cost.max_ns)
+        )
+        return compiled
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Anchor every stage at the measured state and enter RAMP_IN.
+
+        Waits (``backend.advance()``, the drives holding their initial command) up to
+        ``START_TIMEOUT`` s for a reading of every joint: with encoder latency the first readings
+        arrive a few ticks late.
+
+        Raises:
+            RuntimeError: some joint sent no reading within ``START_TIMEOUT``.
+        """
+        if self.clock.realtime:  # wall clock: the policy's first call (slow) before the anchor
+            self.policy(self._obs)
+        frame = self.backend.read()
+        for _ in range(int(np.ceil(START_TIMEOUT / self.dt))):
+            if not np.isnan(frame.position).any():
+                break
+            self.backend.advance()
+            if self.clock.realtime:  # hardware: advance returns at once, the clock paces
+                time.sleep(self.dt)
+            frame = self.backend.read()
+        missing = np.isnan(frame.position)
+        if missing.any():
+            raise RuntimeError(
+                f"Runtime.start: no encoder reading for joints {np.argwhere(missing).tolist()} "
+                f"(env, joint) within {START_TIMEOUT} s; cannot anchor the estimator at a "
+                "measured pose"
+            )
+        q = frame.position.copy()
+        self.estimator.reset(q, frame.position_stamp)
+        self.state.q[:] = q
+        self.state.dq[:] = 0.0
+        self.guard.reset(q)
+        self.smoother.reset(q, self.state.dq)
+        if self.base_estimator is not None:  # upright as the accelerometer says, yaw 0
+            acc = frame.imu_acceleration
+            finite = np.isfinite(acc).all() and (np.linalg.norm(acc, axis=1) > 0).all()
+            self.base_estimator.reset(frame.time, acceleration=acc if finite else None)
+        self.mode[:] = RAMP_IN
+        self._reset_policy(np.ones(self.envs, dtype=bool))
+        self.clock.start()
+
+    def reset_faults(self, envs: np.ndarray | None = None) -> None:
+        """Clear latched faults (an operator's reset): FAULTED envs start again with RAMP_IN.
+
+        Args:
+            envs: Optional boolean mask (envs,) of the envs to reset; default all. Other envs are
+                untouched (sessions batched in one runtime stay independent).
+        """
+        faulted = self.mode == Mode.FAULTED
+        if envs is not None:
+            faulted &= np.asarray(envs, dtype=bool)
+        self.supervision.ramp_in_at_rest(faulted, self.state.q)
+
+    def restart(self, envs: np.ndarray, q: np.ndarray, t) -> None:
+        """An operator's restart of the envs of ``envs`` (bool mask (envs,)) after the robot was
+        moved by hand (stood back up, carried): the joint estimate re-anchored at the pose ``q``
+        ((n,) or (envs, n) rad) at rest at time ``t`` (s; float or (envs,)), and the base
+        estimator upright, as :meth:`start` anchors them (the estimators' counters of those envs
+        are kept: a session's tallies survive its restarts); the guard and smoother at ``q``;
+        latched faults cleared; RAMP_IN. Other envs are untouched.
+
+        A filter that tracked the jump instead would hand the smoother a joint speed of tens of
+        rad/s."""
+        envs = np.asarray(envs, dtype=bool)
+        if not envs.any():
+            return
+        est = self.estimator
+        counters = (est.stale_per_joint, est.missing_per_joint, est.reinitializations_per_joint)
+        kept = [c[envs].copy() for c in counters]
+        q = np.broadcast_to(np.asarray(q, dtype=np.float64), self.state.q.shape)
+        est.reset(q, t, envs=envs)
+        for counter, value in zip(counters, kept, strict=True):
+            counter[envs] = value
+        if self.base_estimator is not None:
+            self.base_estimator.reset(t, envs=envs)
+        self.state.q[envs] = q[envs]
+        self.state.dq[envs] = 0.0
+        self.supervision.ramp_in_at_rest(envs, self.state.q)
+
+    # ------------------------------------------------------------------ the tick
+    def tick(self) -> None:
+        """One control period for every env (see :mod:`deploy.runtime`)."""
+        st, clock_ns = self._stamps, time.perf_counter_ns
+        st[0] = clock_ns()
+        if self.injector is not None:
+            self.injector.before_read(self.time)
+        frame = self.backend.read()
+        if self.injector is not None:
+            frame = self.injector.filter_frame(self.time, frame)
+        drive_errors = self.backend.drive_errors()  # None: drives without error reports
+        st[1] = clock_ns()
+        state = self.estimator.update(frame, self.state, self._input)
+        self.kinematics.update(state)
+        if self.base_estimator is not None:
+            self._update_base(frame, state)  # IMU, contacts, the gait clock; falls
+        self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
+        st[2] = clock_ns()
+        obs = self.spec.observation(state, self.goal, out=self._obs, reference=self.reference)
+        st[3] = clock_ns()
+        policy_output = self.policy(obs)
+        st[4] = clock_ns()
+        action, target = self._act(policy_output, state)  # screen, action_to_target, override
+        target = self.guard.filter(target, state, out=target, commanded_position=self._commanded)
+        self._on_violation()
+        st[5] = clock_ns()
+        cmd = self.smoother.step(target, out=self._cmd)
+        if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
+            damp = self.damping
+            if damp.any():
+                self.supervision.damp(cmd, state, damp)
+        st[6] = clock_ns()
+        self.backend.write(cmd)
+        st[7] = clock_ns()
+        self.backend.advance()
+        st[8] = clock_ns()
+        state.last_action[:] = action
+        self.ticks += 1
+        self.time += self.dt
+        if self.reference:
+            self.latency.add_stages(st)
+            self.tick_cost.add(0, st[8] - st[0] - (st[8] - st[7]))  # runtime cost w/o physics
+        else:
+            lat, cost = self.latency, self.tick_cost
+            lk.add_stages(st, self._bins, lat.counts, lat.max_ns, cost.counts, cost.max_ns)
+        if self.telemetry is not None:
+            self.telemetry.record(self)
+        overrun = self.clock.wait()
+        self.supervision.overrun_ring[self.ticks % OVERRUN_WINDOW] = overrun
+
+    # ------------------------------------------------------------------ stages' helpers
+    def _act(self, action: np.ndarray, state: RobotState) -> tuple[np.ndarray, np.ndarray]:
+        """The policy's output to a target: the fault injector's filter, the screen of
+        non-finite actions, ``spec.action_to_target``, the overrides of the envs not RUNNING;
+        returns ``(action, target)``, the screened action (float32) and the target (units of the
+        mode), (envs, n) each.
+
+        Compiled: :meth:`CompiledSupervision.screen`; reference: :meth:`Supervision.screen`
+        and :meth:`Supervision.override` (:mod:`deploy.runtime.supervision`)."""
+        if self.injector is not None:
+            action = self.injector.filter_action(self.time, action)
+        if self.reference:
+            action = self.supervision.screen(action)
+            target = self.spec.action_to_target(action, state, out=self._target)
+            return action, self.supervision.override(target, state)
+        self._compiled.screen(action, state, self.spec)
+        return self.supervision.action, self._target
+
+    def _supervise(self, state: RobotState, drive_errors: np.ndarray | None) -> None:
+        """The thermal derating of the guard's effort limits; stale sensors, over-temperature,
+        drive errors, overruns; end of RAMP_IN and of safe stops; re-anchoring.
+
+        Compiled: :meth:`CompiledSupervision.supervise`; reference: the guard's
+        ``update_thermal``, :meth:`Supervision.supervise` and :meth:`_reanchor`."""
+        if self.reference:
+            self.guard.update_thermal(state.winding_temperature)
+            self.supervision.supervise(state, drive_errors)
+            self._reanchor(state)
+        else:
+            self._compiled.supervise(state, drive_errors)
+
+    def _update_base(self, frame, state: RobotState) -> None:
+        """A floating-base robot's tick: the base estimate from the IMU and leg kinematics, the
+        feet's contact, the gait clock; an IMU silent past ``safety.stale_limit`` makes a safe
+        stop (stale_sensor), a fall (:class:`deploy.fall.FallDetector`) a damped one (fall)."""
+        self.base_estimator.update(frame, state.q, state.dq, out=state.base)
+        state.foot_contact[:] = frame.foot_contact
+        state.clock[:] = self.time
+        stale = self.base_estimator.time_since_fresh > self.robot.config.safety.stale_limit
+        self.supervision.safe_stop(stale, "stale_sensor")
+        fallen = self.fall_detector.check(state) & ((self.mode == RUNNING) | (self.mode == RAMP_IN))
+        self.supervision.safe_stop(fallen, "fall")
+
+    @property
+    def damping(self) -> np.ndarray:
+        """(envs,) bool: the envs whose command damps the joints instead of holding a pose: a
+        legged robot's envs in SAFE_STOP or FAULTED (holding its stance against gravity with a
+        low-gain PD heated the thighs past 200 degC in simulation: it lies down instead); all
+        False for an arm."""
+        if self.base_estimator is None:
+            return np.zeros(self.envs, dtype=bool)
+        return (self.mode == SAFE_STOP) | (self.mode == FAULTED)
+
+    def _reanchor(self, state: RobotState) -> None:
+        """:func:`reanchor` the smoother and count it (anchors or resyncs)."""
+        moved = reanchor(
+            self.smoother, state, self._tracking, self._anchored, self.mode, self.tracking_tolerance
+        )
+        if moved is not None:
+            counter = (
+                self.counters.anchors if self.mode_name == "velocity" else self.counters.resyncs
+            )
+            counter += moved
+
+    def _on_violation(self) -> None:
+        self.supervision.safe_stop(self.guard.hard_violation, "hard_limit")
+
+    # ------------------------------------------------------------------ running
+    def run(self, ticks: int, on_tick=None) -> None:
+        """Run ``ticks`` control periods with the garbage collector frozen and disabled.
+
+        ``on_tick(runtime)``, if given, runs after each tick (goal scheduling, evaluation); when
+        it returns True the run ends early (e.g. a latched fault on real hardware).
+        """
+        gc.collect()
+        gc.freeze()
+        was_enabled = gc.isenabled()
+        gc.disable()
+        if getattr(self.clock, "fresh", False):  # a wall clock not yet waited on: the collection
+            self.clock.start()  # (tens of ms) is set-up, not the first tick's overrun
+        try:
+            for _ in range(ticks):
+                self.tick()
+                if on_tick is not None and on_tick(self):
+                    break
+        finally:
+            if was_enabled:
+                gc.enable()
+            gc.unfreeze()
+
+    # ------------------------------------------------------------------ state
+    def _state_fields(self) -> dict[str, np.ndarray]:
+        """The runtime's own per-env arrays (leading env axis), its state machine's included."""
+        c, st, sup = self.counters, self.state, self.supervision
+        fields = {
+            "mode": self.mode,
+            "cause": self.cause,
+            "goal": self.goal,
+            "drive_errors": self.drive_errors,
+            "action": sup.action,
+            "last_valid_action": sup.last_valid_action,
+            "nan_streak": sup.nan_streak,
+            "stop_ticks": self.stop_ticks,
+            "target": self._target,
+            "command": self._cmd,
+            "counters/non_finite_actions": c.non_finite_actions,
+            "counters/safe_stops": c.safe_stops,
+            "counters/resyncs": c.resyncs,
+            "counters/anchors": c.anchors,
+            "counters/safe_stop_timeouts": c.safe_stop_timeouts,
+        }
+        fields.update({f"counters/faults/{k}": v for k, v in c.faults.items()})
+        for name in ("q", "dq", "ee_position", "ee_rotation", "winding_temperature", "last_action"):
+            fields[f"state/{name}"] = getattr(st, name)
+        if st.base is not None:  # a floating base: its estimate, contacts, command, clock
+            for name in ("foot_contact", "command", "clock"):
+                fields[f"state/{name}"] = getattr(st, name)
+            for name, value in vars(st.base).items():
+                fields[f"state/base/{name}"] = value
+        return fields
+
+    def _shared_fields(self) -> dict[str, np.ndarray]:
+        """Arrays the envs share: the overrun window, the wall-clock histograms."""
+        fields = {
+            "overrun_ring": self.supervision.overrun_ring,
+            "latency/counts": self.latency.counts,
+            "latency/max_ns": self.latency.max_ns,
+            "tick_cost/counts": self.tick_cost.counts,
+            "tick_cost/max_ns": self.tick_cost.max_ns,
+        }
+        jitter = getattr(self.clock, "jitter", None)
+        if jitter is not None:
+            fields["clock/jitter/counts"] = jitter.counts
+            fields["clock/jitter/max_ns"] = jitter.max_ns
+        return fields
+
+    def _parts(self) -> dict:
+        """The stages whose state is part of the runtime's: the estimator, guard and smoother,
+        and the policy, backend and fault injector where they have a ``state_dict``."""
+        parts = {"estimator": self.estimator, "guard": self.guard, "smoother": self.smoother}
+        if self.base_estimator is not None:
+            parts["base_estimator"] = self.base_estimator
+        for name, part in (
+            ("policy", self.policy),
+            ("backend", self.backend),
+            ("injector", self.injector),
+        ):
+            if part is not None and hasattr(part, "state_dict"):
+                parts[name] = part
+        return parts
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The state of the loop and of its stages (copies; conventions of
+        :mod:`deploy.stateful`).
+
+        The runtime's own fields, (envs, ...) (length 1 for one env ``env``): ``mode``,
+        ``cause`` (int8), ``goal`` (envs, 3) m, ``drive_errors``, the screened ``action`` and
+        ``last_valid_action`` (float32), ``nan_streak``, ``stop_ticks`` (int64, ticks since the
+        safe stop began), the last ``target`` and ``command`` (the
+        units of the mode), ``counters/<name>`` and ``counters/faults/<cause>`` (int64) and the
+        estimated ``state/<field>`` (:class:`~deploy.state.RobotState`). Shared by the batch:
+        ``ticks`` (int), ``time`` (float, s), ``overrun_ring`` (``OVERRUN_WINDOW``,) bool, the
+        wall-clock histograms ``latency/*``, ``tick_cost/*`` and ``clock/*`` (measurements, not
+        seeded; a wall clock's next deadline is not state: a resumed loop starts its own).
+        Then each stage's ``state_dict(env)`` under its name: ``estimator/``, ``guard/``,
+        ``smoother/``, and ``policy/``, ``backend/``, ``injector/`` where the policy (a
+        recurrent one), the backend (:class:`~deploy.backends.sim.SimBackend`) or the fault
+        injector has one.
+        """
+        out: dict = take(self._state_fields(), env)
+        out.update({k: np.array(v, copy=True) for k, v in self._shared_fields().items()})
+        out["ticks"], out["time"] = int(self.ticks), float(self.time)
+        clock = self.clock
+        out["clock/overruns"] = int(clock.overruns)
+        out["clock/missed_periods"] = int(clock.missed_periods)
+        for name, part in self._parts().items():
+            out.update(prefixed(name, part.state_dict(env)))
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``; the shared fields
+        either way), into a runtime built with the same robot, policy, backend kind and clock.
+        A started runtime is not needed: the state replaces what :meth:`start` sets (a wall
+        clock's deadlines start anew here).
+
+        Raises:
+            StateDictError: a missing field or a shape that differs, named with its stage's
+                prefix (e.g. ``estimator/covariance``). The runtime's own fields are checked
+                before anything is written; a stage's error leaves the stages before it loaded.
+        """
+        ticks, now = scalar(state, "ticks", int), scalar(state, "time", float)
+        overruns = scalar(state, "clock/overruns", int)
+        missed = scalar(state, "clock/missed_periods", int)
+        shared = self._shared_fields()
+        check(shared, state, None)
+        put(self._state_fields(), state, env)
+        put(shared, state, None)
+        self.ticks, self.time = ticks, now
+        self.clock.overruns, self.clock.missed_periods = overruns, missed
+        for name, part in self._parts().items():
+            load_part(name, part, state, env)
+        self.clock.start()
+
+    def mode_names(self) -> list[str]:
+        return [Mode(int(m)).name for m in self.mode]
+
+    def cause_names(self) -> list[str | None]:
+        return [FAULT_CAUSES[c] if c >= 0 else None for c in self.cause]
+
+    # ------------------------------------------------------------------ read-only views
+    @property
+    def action(self) -> np.ndarray:
+        """(envs, n) float32: the last tick's screened policy action in [-1, 1] (a view)."""
+        return self.supervision.action
+
+    @property
+    def target(self) -> np.ndarray:
+        """(envs, n): the last tick's guarded target, in the units of the control mode (position
+        rad, velocity rad/s, torque N m; a view)."""
+        return self._target
+
+    @property
+    def command(self) -> np.ndarray:
+        """(envs, n): the command the last tick wrote to the backend, in the units of the
+        control mode (position rad, velocity rad/s, torque N m; a view)."""
+        return self._cmd

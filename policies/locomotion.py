@@ -84,7 +84,8 @@ class LocomotionConfig:
 
     Attributes:
         episode_seconds: Episode length, s (legged_gym: 20 s).
-        command_period: A new velocity command every this many s.
+        command_period: A new velocity command every this many s (the soak's default
+            ``--goal-period``, 4 s).
         commands: The command ranges (the soak's :class:`~deploy.locomotion.CommandRanges`).
         push_interval: Mean time between pushes on the base, s (exponential).
         push_force: Horizontal push force range, N (the soak pushes 5-25 N; ours up to 40).
@@ -94,7 +95,7 @@ class LocomotionConfig:
     """
 
     episode_seconds: float = 20.0
-    command_period: float = 10.0
+    command_period: float = 4.0
     commands: CommandRanges = CommandRanges()
     push_interval: float = 8.0
     push_force: tuple[float, float] = (5.0, 40.0)

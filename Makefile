@@ -51,7 +51,7 @@ export: install
 #                            the runtime; policies/train_legged.py, logs in runs/train_legged/)
 TRAIN_arm3  := --start-poses policies/arm3_missed_poses.json
 TRAIN_so101 := --robot so101 --mode position --steps 8000000 --out policies/so101.pt
-TRAIN_go2   := --steps 5000000 --out policies/go2.pt
+TRAIN_go2   := --steps 5500000 --out policies/go2.pt
 TRAINER     := $(if $(filter go2,$(ROBOT)),policies.train_legged,policies.train)
 train: install
 	$(if $(TRAIN_$(ROBOT)),,$(error make train: no recipe for ROBOT=$(ROBOT); shipped: arm3, so101, go2))

@@ -94,7 +94,7 @@ def test_dropout_frequency_matches_configuration(arm3):
 
 def test_sensors_run_at_their_own_rates(arm3):
     plant = SimBackend(arm3)
-    plant._encoder_every = 2  # a 100 Hz encoder under a 200 Hz control loop
+    plant.joint_sensors._encoder_every = 2  # a 100 Hz encoder under a 200 Hz control loop
     stamps, fresh = set(), []
     for _ in range(100):
         frame = plant.read()

@@ -133,7 +133,7 @@ class BaseSensorModel:
         """Draw the turn-on biases of the envs ``which`` (bool (envs,)); ``full``: clear every
         buffer (the backend's clock restarts); else clear those envs' readings and take one now
         (MuJoCo's sensors were computed by ``mj_forward`` at the reset pose)."""
-        rng = self.backend._rng
+        rng = self.backend.joint_sensors.rng
         rng.standard_normal(out=self._noise6)
         self.gyro_bias[which] = (self._noise6[:, :3] * self.gyro_bias_sigma[:, None])[which]
         self.accel_bias[which] = (self._noise6[:, 3:] * self.accel_bias_sigma[:, None])[which]
@@ -155,7 +155,7 @@ class BaseSensorModel:
         (``force``: both now, for the envs ``envs`` only when given)."""
         size = self._buf_imu_stamp.shape[0]
         slot = tick % size
-        rng = self.backend._rng
+        rng = self.backend.joint_sensors.rng
         sel = slice(None) if envs is None else envs
         if force or tick % self.imu_every == 0:
             dt = self.imu_every * self.robot.control_period

@@ -1,23 +1,18 @@
-"""The simulated robot ("plant"): MuJoCo physics, an encoder and drive sensor model, motor heat.
+"""The simulated robot ("plant"): MuJoCo physics, the drives, motor heat; its sensors composed in.
 
 One :class:`SimBackend` drives ``envs`` copies of a robot in lockstep (the runtime's batch axis),
 each with its own ``MjData`` and, where the soak harness randomizes dynamics, its own ``MjModel``.
 Per control tick the runtime calls ``read()``, ``write(command)`` and ``advance()``; ``advance``
 runs ``decimation`` physics steps and integrates the two-node motor thermal model.
 
-Sensor model (defaults from the robot's ``[sensors]`` table), applied in this order:
-    1. a sample of the true joint angle at the encoder's own rate,
-    2. Gaussian noise (sigma ``encoder_noise_sigma``, rad; seed section 5),
-    3. quantization to the encoder resolution (``2 pi / encoder_resolution``),
-    4. dropout: each reading lost with probability ``encoder_dropout`` (per joint and reading),
-    5. latency: a reading arrives ``encoder_latency_ticks`` control ticks after it was sampled.
+Sensor model: the encoders (sampling, noise, quantization, dropout, latency) and the drives'
+temperature reports, :class:`deploy.backends.sim_sensors.JointSensorModel` (defaults from the
+robot's ``[sensors]`` table).
 Drive model: the mode's servo loop (:meth:`robots.Robot.mjspec`), its actuator torque limited to
 the joint's effort limit, which the drive derates from its own (true) winding temperature with
 :class:`deploy.thermal.EffortDerating` (peak torque below the derating start, continuous torque, or
 the arm's gravity load where that is more, at the maximum winding temperature), applied before
 every control period's physics steps.
-Winding temperatures are reported as a drive reports them: the model's winding temperature rounded
-to ``temperature_resolution`` and refreshed at ``temperature_rate``.
 A floating-base (legged) robot's plant also has an IMU (gyroscope and accelerometer with white
 noise and bias random walk) and foot contact (thresholded normal force), each at its own rate and
 latency: :mod:`deploy.backends.legged_sensors`; its joints follow MuJoCo's free joint in ``qpos``
@@ -46,20 +41,10 @@ import numpy as np
 
 from deploy.backends.base import BackendLifecycle, SensorFrame
 from deploy.backends.legged_sensors import BaseSensorModel
+from deploy.backends.sim_sensors import JointSensorModel
 from deploy.errors import Sim2RealError
 from deploy.safety import motion_bounds
-from deploy.stateful import (
-    StateDictError,
-    check,
-    env_index,
-    from_json,
-    put,
-    rng_state,
-    scalar,
-    set_rng_state,
-    take,
-    to_json,
-)
+from deploy.stateful import check, env_index, from_json, put, scalar, take
 from deploy.thermal import EffortDerating, TwoNodeThermalModel
 from robots import CONTROL_MODES, Robot, load_robot
 
@@ -86,31 +71,6 @@ class SimulationDivergedError(Sim2RealError, RuntimeError):
 
 class NonFiniteCommandError(Sim2RealError, ValueError):
     """A command with NaN or inf was written; it was rejected and never reached MuJoCo."""
-
-
-class PerEnvGenerators:
-    """One numpy ``Generator`` per env in place of the batch's one sensor stream
-    (:meth:`SimBackend.set_sensor_streams`).
-
-    It answers the two calls the sensor model makes (``standard_normal(out=...)`` and
-    ``random(shape)``, arrays shaped (envs, n)) row by row from each env's own generator, so that
-    env ``e`` sees the same numbers alone or batched.
-    """
-
-    def __init__(self, generators: Sequence[np.random.Generator]):
-        self.generators = list(generators)
-
-    def standard_normal(self, size=None, dtype=np.float64, out=None):
-        out = np.empty(size, dtype=dtype) if out is None else out
-        for e, g in enumerate(self.generators):
-            g.standard_normal(dtype=dtype, out=out[e])
-        return out
-
-    def random(self, size=None, dtype=np.float64, out=None):
-        out = np.empty(size, dtype=dtype) if out is None else out
-        for e, g in enumerate(self.generators):
-            g.random(dtype=dtype, out=out[e])
-        return out
 
 
 class SimBackend(BackendLifecycle):
@@ -176,33 +136,17 @@ class SimBackend(BackendLifecycle):
         self.decimation = robot.decimation
         self.control_period = robot.control_period
 
-        s = robot.config.sensors
-        self.noise_sigma = np.full(envs, s.encoder_noise_sigma)
-        self.dropout_probability = np.full(envs, s.encoder_dropout)
-        self.latency_ticks = np.full(envs, s.encoder_latency_ticks, dtype=np.int64)
-        if s.encoder_latency_ticks > max_latency_ticks:
-            raise ValueError(
-                f"encoder_latency_ticks = {s.encoder_latency_ticks} exceeds max_latency_ticks = "
-                f"{max_latency_ticks}"
-            )
-        self.max_latency_ticks = max_latency_ticks
-        self.encoder_quantum = 2.0 * np.pi / s.encoder_resolution
-        rate = 1.0 / robot.control_period
-        self._encoder_every = max(1, int(round(rate / s.encoder_rate)))
-        self._temperature_every = max(1, int(round(rate / s.temperature_rate)))
-        self.temperature_resolution = s.temperature_resolution
+        self.frame = SensorFrame.empty(envs, n, robot.n_feet if robot.floating_base else None)
+        #: encoders and temperature reports (settings, latency buffers, the sensor streams)
+        self._joint_sensors = JointSensorModel(robot, envs, self.frame, seed, max_latency_ticks)
 
-        self.thermal = TwoNodeThermalModel(robot.motors, envs, s.ambient_temperature)
-        self._rng = np.random.Generator(np.random.PCG64(seed))
-        size = max_latency_ticks + 1
-        self._buf_position = np.full((size, envs, n), np.nan)
-        self._buf_stamp = np.full((size, envs), np.nan)
-        self._env_index = np.arange(envs)
+        self.thermal = TwoNodeThermalModel(
+            robot.motors, envs, robot.config.sensors.ambient_temperature
+        )
         self._command = np.zeros((envs, n))
         self._qpos = np.zeros((envs, n))
         self._qvel = np.zeros((envs, n))
         self._torque = np.zeros((envs, n))
-        self.frame = SensorFrame.empty(envs, n, robot.n_feet if robot.floating_base else None)
         self.tick = 0
         #: IMU and foot contact of a floating-base robot (None for an arm)
         self._base_sensors = BaseSensorModel(self, robot) if robot.floating_base else None
@@ -242,20 +186,14 @@ class SimBackend(BackendLifecycle):
             self._base_sensors.reset(which, envs is None)
         if envs is None:
             self.thermal.reset()
-            self._buf_position.fill(np.nan)
-            self._buf_stamp.fill(np.nan)
+            self._joint_sensors.clear()
             self.tick = 0
-            self.frame.temperature_stamp.fill(np.nan)
             self.true_position()  # _sample_sensors reads the gathered joint angles
             self._sample_sensors()
             return
         self.thermal.winding_temperature[which] = self.thermal.ambient[which]
         self.thermal.housing_temperature[which] = self.thermal.ambient[which]
-        quantized = np.round(q0[which] / self.encoder_quantum) * self.encoder_quantum
-        self._buf_position[:, which] = quantized
-        self._buf_stamp[:, which] = self.time
-        res = self.temperature_resolution
-        self.frame.winding_temperature[which] = np.round(self.thermal.ambient[which] / res) * res
+        self._joint_sensors.restart(which, q0[which], self.time, self.thermal.ambient)
 
     def set_model(self, env: int, model: mujoco.MjModel) -> None:
         """Give ``env`` a new compiled model (randomized dynamics; from ``robot.mjspec(mode)``)
@@ -297,10 +235,48 @@ class SimBackend(BackendLifecycle):
         """Plant clock, s (identical for every env)."""
         return self.tick * self.control_period
 
+    # ------------------------------------------------------------------ the joint sensors
+    @property
+    def joint_sensors(self) -> JointSensorModel:
+        """The encoder and temperature-report model (per-env settings, latency buffers, the
+        sensor streams)."""
+        return self._joint_sensors
+
+    @property
+    def noise_sigma(self) -> np.ndarray:
+        """(envs,) rad, encoder noise sigma per env (the sensor model's array: write in place)."""
+        return self._joint_sensors.noise_sigma
+
+    @property
+    def dropout_probability(self) -> np.ndarray:
+        """(envs,) probability that an encoder reading is lost (the sensor model's array)."""
+        return self._joint_sensors.dropout_probability
+
+    @property
+    def latency_ticks(self) -> np.ndarray:
+        """(envs,) int, control ticks from an encoder sample to its arrival (the sensor
+        model's array)."""
+        return self._joint_sensors.latency_ticks
+
+    @property
+    def max_latency_ticks(self) -> int:
+        """Capacity of the latency buffers: the largest ``latency_ticks`` allowed."""
+        return self._joint_sensors.max_latency_ticks
+
+    @property
+    def encoder_quantum(self) -> float:
+        """Rad, the encoder resolution (``2 pi / encoder_resolution``)."""
+        return self._joint_sensors.encoder_quantum
+
+    @property
+    def temperature_resolution(self) -> float:
+        """DegC, the resolution of the drives' temperature reports."""
+        return self._joint_sensors.temperature_resolution
+
     @property
     def encoder_every(self) -> int:
         """Control ticks between two encoder samples (``control rate / encoder_rate``)."""
-        return self._encoder_every
+        return self._joint_sensors.encoder_every
 
     def set_sensor_streams(self, generators: Sequence[np.random.Generator]) -> None:
         """Draw each env's encoder noise and dropout from its own generator (one per env, in env
@@ -311,11 +287,7 @@ class SimBackend(BackendLifecycle):
         Raises:
             ValueError: not one generator per env.
         """
-        if len(generators) != self.envs:
-            raise ValueError(
-                f"generators: expected {self.envs} (one per env), got {len(generators)}"
-            )
-        self._rng = PerEnvGenerators(generators)
+        self._joint_sensors.set_streams(generators)
 
     # ------------------------------------------------------------------ state
     def _state_fields(self) -> dict[str, np.ndarray]:
@@ -326,11 +298,7 @@ class SimBackend(BackendLifecycle):
             "command": self._command,
             "torque": self._torque,
             "effort_limit": self.effort_limit,
-            "noise_sigma": self.noise_sigma,
-            "dropout_probability": self.dropout_probability,
-            "latency_ticks": self.latency_ticks,
-            "buffer/position": np.moveaxis(self._buf_position, 1, 0),
-            "buffer/stamp": np.moveaxis(self._buf_stamp, 1, 0),
+            **self._joint_sensors.state_fields(),
             "frame/time": f.time,
             "frame/position": f.position,
             "frame/position_stamp": f.position_stamp,
@@ -378,11 +346,7 @@ class SimBackend(BackendLifecycle):
         index = env_index(env)
         out.update({k: v[index] for k, v in self._mujoco_fields().items()})
         out["tick"] = int(self.tick)
-        if isinstance(self._rng, PerEnvGenerators):
-            envs = range(self.envs) if env is None else [env]
-            out["sensor_rng"] = to_json([rng_state(self._rng.generators[e]) for e in envs])
-        else:
-            out["sensor_rng"] = to_json(rng_state(self._rng))
+        out["sensor_rng"] = self._joint_sensors.stream_state(env)
         return out
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
@@ -401,10 +365,7 @@ class SimBackend(BackendLifecycle):
         tick = scalar(state, "tick", int)
         envs = list(range(self.envs)) if env is None else [env]
         rng = from_json(state, "sensor_rng")
-        per_env = isinstance(self._rng, PerEnvGenerators)
-        if per_env != (isinstance(rng, list) and len(rng) == len(envs)):
-            kind = f"{len(envs)} per-env stream state(s)" if per_env else "one stream's state"
-            raise StateDictError("sensor_rng", f": expected {kind}")
+        self._joint_sensors.check_stream_state(rng, envs)
         put(fields, state, env)
         for i, e in enumerate(envs):
             m, d = self.models[e], self.datas[e]
@@ -413,11 +374,7 @@ class SimBackend(BackendLifecycle):
             m.dof_frictionloss[:] = state["mujoco/dof_frictionloss"][i]
             self._derated[e] = True  # re-derate from the loaded winding temperatures
         self.tick = tick
-        if per_env:
-            for e, value in zip(envs, rng, strict=True):
-                set_rng_state(self._rng.generators[e], value, "sensor_rng")
-        else:
-            set_rng_state(self._rng, rng, "sensor_rng")
+        self._joint_sensors.load_stream_state(rng, envs)
         self.true_position()  # the gathered joint angles follow the loaded state
         self.true_velocity()
 
@@ -450,15 +407,7 @@ class SimBackend(BackendLifecycle):
         """
         f = self.frame
         f.time.fill(self.time)
-        origin = self.tick - self.latency_ticks  # tick at which the arriving reading was sampled
-        slot = origin % self._buf_stamp.shape[0]
-        f.position[:] = self._buf_position[slot, self._env_index]
-        f.position_stamp[:] = self._buf_stamp[slot, self._env_index][:, None]
-        too_early = origin < 0
-        if too_early.any():
-            f.position[too_early] = np.nan
-            f.position_stamp[too_early] = np.nan
-        f.position_stamp[np.isnan(f.position)] = np.nan
+        self._joint_sensors.read(self.tick)
         if self._base_sensors is not None:
             self._base_sensors.read(f, self.tick)
         return f
@@ -632,27 +581,10 @@ class SimBackend(BackendLifecycle):
             )
 
     def _sample_sensors(self) -> None:
-        slot = self.tick % self._buf_stamp.shape[0]
-        if self.tick % self._encoder_every == 0:
-            q = self._qpos  # gathered by advance (or reset)
-            sample = self._buf_position[slot]
-            self._rng.standard_normal(out=sample)
-            sample *= self.noise_sigma[:, None]
-            sample += q
-            np.round(sample / self.encoder_quantum, out=sample)
-            sample *= self.encoder_quantum
-            lost = self._rng.random(sample.shape) < self.dropout_probability[:, None]
-            sample[lost] = np.nan
-            self._buf_stamp[slot] = self.time
-        else:
-            self._buf_position[slot] = np.nan
-            self._buf_stamp[slot] = np.nan
-        if self.tick % self._temperature_every == 0:
-            f = self.frame
-            res = self.temperature_resolution
-            np.round(self.thermal.winding_temperature / res, out=f.winding_temperature)
-            f.winding_temperature *= res
-            f.temperature_stamp.fill(self.time)
+        """Take the readings due at this tick: the encoders and temperature reports, then the IMU
+        and foot contact (in this order from the sensor streams)."""
+        q = self._qpos  # gathered by advance (or reset)
+        self._joint_sensors.sample(self.tick, self.time, q, self.thermal.winding_temperature)
         if self._base_sensors is not None:
             self._base_sensors.sample(self.tick, self.time)
 

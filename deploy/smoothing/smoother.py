@@ -1,45 +1,11 @@
-"""Command smoothing: jerk-limited commands with Ruckig (community edition), batched over ``envs``.
+"""The command smoother, :class:`CommandSmoother`: jerk-limited commands with Ruckig, batched
+over ``envs`` (the package docstring, :mod:`deploy.smoothing`, describes the modes, the sync to
+the measured state and the safe stop).
 
-One ``ruckig.Ruckig`` instance serves the whole batch: its degrees of freedom are the ``envs * n``
-joints (DoF ``e * n + j``), ``Synchronization.No`` makes them independent, ``delta_time`` is the
-robot's control period and the limits are the robot's per-joint soft velocity limit (the margin
-to the hard velocity limit absorbs the servo's overshoot), acceleration and jerk limits, tiled over
-the envs. The result equals one instance per env to rounding (~1e-16), not bit
-for bit: Ruckig recalculates only when its input changed, otherwise it samples the trajectory it
-has, and a batch's input changes whenever any env's target does.
-
-"Starts from the measured state". :meth:`CommandSmoother.sync` (and :meth:`~CommandSmoother.reset`)
-writes the *measured* joint position and velocity into Ruckig's current state, with zero
-acceleration. Between syncs Ruckig's own output is passed back as its next input
-(``OutputParameter.pass_to_input``), so consecutive commands are continuous in position, velocity
-and acceleration and never jump to follow sensor noise. The runtime syncs at start, on every
-state-machine transition, and when :meth:`~CommandSmoother.tracking_error` (commanded against
-measured position) exceeds its tolerance.
-
-Modes (the robot's control modes):
-    position: ``ControlInterface.Position``; target position clamped to the hard position limits
-        (the community edition has no position limits), target velocity 0; the command is Ruckig's
-        ``new_position``, clipped to the hard limits. Where the trajectory's position extrema leave
-        the limits (a joint too fast to stop in time, typically right after a sync) the clip bites
-        and ``extrema_violations`` counts it.
-    velocity: ``ControlInterface.Velocity``; target velocity clamped to +-soft_velocity_limit and
-        to the speed from which the joint can still stop before its *soft* limits
-        (:func:`stopping_speed` of the distance left, counted in ``stopping_distance_clamps``);
-        and set to 0 (Ruckig's time-optimal, hence shortest, brake) where one more period of the
-        worst acceleration the jerk limit allows would leave too little room to stop. Ruckig's
-        integrated position thus never passes a soft limit (unless a sync put the joint beyond
-        saving), the velocity-mode analogue of the guard clamping position targets to the soft
-        limits; the margin to the hard limits is left to the drive's tracking error and the
-        estimator's noise. The command is Ruckig's ``new_velocity``.
-    torque: no Ruckig; the command is the target clamped to +-effort_limit and rate limited to
-        ``effort_limit / TORQUE_RISE_TIME`` (N m/s).
-
-Safe stop. :meth:`CommandSmoother.safe_stop` switches the chosen envs to
-``ControlInterface.Velocity`` with target velocity 0 (also in position mode) and returns the time
-Ruckig predicts to reach rest;
-:meth:`~CommandSmoother.step` then ignores their targets, brings them to zero velocity within the
-acceleration and jerk limits and holds them there (position mode: the command settles at the
-stopping position) until the next :meth:`~CommandSmoother.sync`.
+It holds the limits and work arrays, the lifecycle (reset, sync, safe stop) and the tick (the
+compiled kernels of :mod:`deploy.kernels.smoothing` around Ruckig); Ruckig's call and the state
+dict come from :class:`~deploy.smoothing.ruckig_state.RuckigState`, the numpy reference of the
+step from :class:`~deploy.smoothing.reference.ReferenceStep`.
 """
 
 from __future__ import annotations
@@ -56,9 +22,10 @@ from ruckig import (
     Trajectory,
 )
 
-from deploy.errors import Sim2RealError
 from deploy.kernels import smoothing as sk
-from deploy.stateful import env_index, put, scalar, take
+from deploy.smoothing.braking import stopping_distance
+from deploy.smoothing.reference import ReferenceStep
+from deploy.smoothing.ruckig_state import RuckigState, SmoothingError
 from robots import CONTROL_MODES, Robot
 
 #: Torque rise time, s: full effort may be reached from zero in 50 ms at the fastest, i.e. a rate
@@ -72,49 +39,7 @@ TORQUE_RISE_TIME = 0.05
 EXTREMA_SCREEN_FACTOR = 1.5
 
 
-#: Ruckig's per-DoF input fields a smoother's state holds (``InputParameter`` attributes).
-RUCKIG_INPUT_FIELDS = (
-    "current_position",
-    "current_velocity",
-    "current_acceleration",
-    "target_position",
-    "target_velocity",
-    "target_acceleration",
-)
-
-#: Rad. Ruckig's extrema of a trajectory that ends exactly at a limit come out up to ~1e-13 rad
-#: beyond it (rounding); the check ignores excursions below this (the finest encoder of our robots
-#: resolves 2 pi / 2^20 = 6e-6 rad).
-EXTREMA_TOLERANCE = 1e-9
-
-
-class SmoothingError(Sim2RealError, RuntimeError):
-    """Ruckig could not compute a trajectory; the message has Ruckig's result and the input."""
-
-
-def stopping_distance(velocity, acceleration_limit, jerk_limit):
-    """Distance, rad, a joint moving at ``velocity`` (rad/s, with zero acceleration) needs to stop
-    under the acceleration limit (rad/s^2) and jerk limit (rad/s^3):
-    ``v^2 / (2 a) + |v| a / (2 j)``.
-
-    Exact for a jerk-limited brake that reaches the acceleration limit (``|v| >= a^2 / j``: jerk
-    ramp, constant deceleration, jerk ramp, symmetric in time, average speed ``|v| / 2`` over
-    ``|v| / a + a / j``); an upper bound below (the distance is then ``|v|^1.5 / sqrt(j)``).
-    Arrays broadcast.
-    """
-    v = np.abs(velocity)
-    return v * v / (2.0 * acceleration_limit) + v * acceleration_limit / (2.0 * jerk_limit)
-
-
-def stopping_speed(distance, acceleration_limit, jerk_limit, latency=0.0):
-    """Largest speed, rad/s, from which a joint stops within ``distance`` (rad, >= 0) when the
-    brake begins ``latency`` s (>= 0) later: the inverse of ``v latency + stopping_distance(v)``,
-    ``(sqrt(b^2 + 8 a d) - b) / 2`` with ``b = a^2 / j + 2 a latency``. Arrays broadcast."""
-    b = acceleration_limit**2 / jerk_limit + 2.0 * acceleration_limit * latency
-    return 0.5 * (np.sqrt(b * b + 8.0 * acceleration_limit * np.maximum(distance, 0.0)) - b)
-
-
-class CommandSmoother:
+class CommandSmoother(RuckigState, ReferenceStep):
     """Jerk-limited commands for ``envs`` robots of ``n`` joints.
 
     Args:
@@ -300,84 +225,6 @@ class CommandSmoother:
     def stopping_distance_clamps(self) -> np.ndarray:
         """(envs,) velocity-mode targets reduced so that the joint stops before its limit."""
         return self.stopping_distance_clamps_per_joint.sum(axis=1)
-
-    # ------------------------------------------------------------------ state
-    def _state_fields(self) -> dict[str, np.ndarray]:
-        shape = (self.envs, self.n_joints)
-        return {
-            "command": self.command,
-            "position": self.position,
-            "velocity": self.velocity,
-            "acceleration": self.acceleration,
-            "mean_acceleration": self.mean_acceleration,
-            "commanded_position": self._cmd_position2d,
-            "held": self._held.reshape(shape),
-            "stopping": self.stopping,
-            "non_finite_per_joint": self.non_finite_per_joint,
-            "target_clamps_per_joint": self.target_clamps_per_joint,
-            "extrema_violations_per_joint": self.extrema_violations_per_joint,
-            "stopping_distance_clamps_per_joint": self.stopping_distance_clamps_per_joint,
-        }
-
-    def _ruckig_input(self) -> dict[str, np.ndarray]:
-        """Copies of Ruckig's per-DoF input, (envs, n) (the binding returns lists)."""
-        if self.mode == "torque":
-            return {}
-        shape = (self.envs, self.n_joints)
-        return {
-            f"ruckig/{name}": np.asarray(getattr(self._inp, name), dtype=np.float64).reshape(shape)
-            for name in RUCKIG_INPUT_FIELDS
-        }
-
-    def recalculate(self) -> None:
-        """Make the next :meth:`step` calculate every trajectory afresh from Ruckig's input
-        (``Ruckig.reset()``) instead of sampling the one it keeps. The two agree to ~1e-16, not
-        bit for bit (module docstring); a recalculation depends on the input alone: the same
-        numbers whatever the other envs of the batch, and after :meth:`load_state_dict`."""
-        if self.mode != "torque":
-            self._ruckig.reset()
-
-    def state_dict(self, env: int | None = None) -> dict:
-        """The smoother's state (copies; conventions of :mod:`deploy.stateful`).
-
-        Fields, (envs, n) unless stated (length 1 for one env ``env``): ``command`` (the units of
-        the mode), Ruckig's state ``position``, ``velocity``, ``acceleration`` (rad, rad/s,
-        rad/s^2) and ``mean_acceleration``, ``commanded_position`` (rad), ``held`` (the last
-        finite target), ``stopping`` (envs,) bool, the per-joint counters (int64); Ruckig's input
-        ``ruckig/<field>`` (``RUCKIG_INPUT_FIELDS``; not in torque mode) and ``synced`` (bool,
-        shared).
-
-        Ruckig keeps the trajectory it calculated inside the ``Ruckig`` object, which its Python
-        binding can neither read nor set. Taking the state therefore calls :meth:`recalculate`:
-        this smoother's next step calculates from the input, as a smoother loaded from this
-        state does, and both continue bit for bit alike.
-        """
-        out: dict = take(self._state_fields(), env)
-        index = env_index(env)
-        out.update({k: v[index].copy() for k, v in self._ruckig_input().items()})
-        out["synced"] = bool(self._synced)
-        self.recalculate()
-        return out
-
-    def load_state_dict(self, state: dict, env: int | None = None) -> None:
-        """Inverse of :meth:`state_dict` (of every env, or of env ``env``): Ruckig's input is
-        re-seeded (current and target position, velocity, acceleration), the per-DoF control
-        interfaces follow the ``stopping`` flags, and the next step recalculates
-        (:meth:`recalculate`).
-
-        Raises:
-            StateDictError: a missing field or a shape that differs; nothing is changed.
-        """
-        synced = scalar(state, "synced", bool)
-        ruckig = self._ruckig_input()
-        put({**self._state_fields(), **ruckig}, state, env)
-        for key, values in ruckig.items():
-            setattr(self._inp, key.split("/", 1)[1], values.reshape(-1))
-        self._stop_dof[:] = np.repeat(self.stopping, self.n_joints)
-        self._synced = synced
-        if self.mode != "torque":
-            self._set_interfaces()
-        self.recalculate()
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self, q: np.ndarray, dq: np.ndarray, effort: np.ndarray | None = None) -> None:
@@ -637,180 +484,3 @@ class CommandSmoother:
         self._inp.current_position = self._pos
         np.copyto(self._cmd_position, self._pos)
         return out
-
-    # ------------------------------------------------------------------ internals
-    def _increment(self, counter: np.ndarray, mask: np.ndarray) -> None:
-        flat = counter.reshape(-1)
-        np.add(flat, self._one_int, out=self._count)
-        np.copyto(flat, self._count, where=mask)
-
-    def _count_changed(self, counter: np.ndarray, before: np.ndarray, after: np.ndarray) -> None:
-        np.not_equal(before, after, out=self._mask2)
-        if np.count_nonzero(self._mask2):
-            np.logical_and(self._mask2, ~self._stop_dof, out=self._mask2)
-            self._increment(counter, self._mask2)
-
-    def _set_interfaces(self) -> None:
-        """Per-DoF control interface: velocity (target 0) for stopping envs."""
-        inp = self._inp
-        if not self.stopping.any():
-            inp.per_dof_control_interface = None
-            inp.control_interface = self._interface
-        elif self.stopping.all():
-            inp.per_dof_control_interface = None
-            inp.control_interface = ControlInterface.Velocity
-        else:
-            inp.per_dof_control_interface = [
-                ControlInterface.Velocity if s else self._interface for s in self._stop_dof
-            ]
-
-    def _update(self) -> None:
-        try:
-            result = self._ruckig.update(self._inp, self._out)
-        except RuckigError as exc:
-            raise SmoothingError(f"Ruckig rejected the input: {exc}") from exc
-        if result != Result.Working and result != Result.Finished:
-            raise SmoothingError(
-                f"Ruckig returned {result!r}: current position {self._pos.tolist()}, velocity "
-                f"{self._vel.tolist()}, acceleration {self._acc.tolist()}, targets "
-                f"{self._goal.tolist()}"
-            )
-
-    def _step_position(self) -> None:
-        raw, goal, out, cmd = self._raw, self._goal, self._out, self._cmd
-        np.minimum(np.maximum(raw, self._lo, out=goal), self._hi, out=goal)
-        self._count_changed(self.target_clamps_per_joint, raw, goal)
-        self._inp.target_position = goal
-        self._update()
-        cmd[:] = out.new_position
-        self._pos[:] = cmd
-        self._vel[:] = out.new_velocity
-        self._acc[:] = out.new_acceleration
-        if out.new_calculation:
-            self._check_extrema()
-        np.minimum(np.maximum(cmd, self._lo, out=cmd), self._hi, out=cmd)
-        np.copyto(self._cmd_position, cmd)
-        out.pass_to_input(self._inp)
-
-    def _near_limits(self) -> bool:
-        """``_mask`` = DoFs within ``EXTREMA_SCREEN_FACTOR`` worst-case stopping distances of a
-        hard limit, or faster than the velocity limit (possible right after a sync): only these
-        can reach a limit within one trajectory. Returns whether any."""
-        near, tmp = self._mask, self._mask2
-        np.greater(self._pos, self._screen_hi, out=near)
-        np.less(self._pos, self._screen_lo, out=tmp)
-        np.logical_or(near, tmp, out=near)
-        np.abs(self._vel, out=self._tmp)
-        np.greater(self._tmp, self._vmax, out=tmp)
-        np.logical_or(near, tmp, out=near)
-        return bool(np.count_nonzero(near))
-
-    def _check_extrema(self) -> None:
-        """Count the DoFs whose new trajectory leaves the hard limits (screened by
-        :meth:`_near_limits`: far from the limits the extrema are not even computed)."""
-        if self._near_limits():
-            self._count_extrema()
-
-    def _count_extrema(self) -> None:
-        """Count the DoFs marked in ``_mask`` whose new trajectory leaves the hard limits."""
-        near = self._mask
-        extrema = self._out.trajectory.position_extrema
-        for i in np.flatnonzero(near):
-            bound = extrema[i]
-            if (
-                bound.min < self._lo[i] - EXTREMA_TOLERANCE
-                or bound.max > self._hi[i] + EXTREMA_TOLERANCE
-            ):
-                self.extrema_violations_per_joint.reshape(-1)[i] += 1
-
-    def _step_velocity(self) -> None:
-        raw, goal, out, tmp = self._raw, self._goal, self._out, self._tmp
-        np.minimum(np.maximum(raw, self._neg_vmax, out=goal), self._vmax, out=goal)
-        self._count_changed(self.target_clamps_per_joint, raw, goal)
-        np.copyto(goal, 0.0, where=self._stop_dof)
-        np.copyto(raw, goal)
-        if self._near_limits():
-            # stopping guard 1 (smooth): |v_target| <= stopping_speed(distance to the limit ahead)
-            np.subtract(self._hi, self._pos, out=tmp)
-            self._stopping_speed(tmp)
-            np.minimum(goal, tmp, out=goal)
-            np.subtract(self._pos, self._lo, out=tmp)
-            self._stopping_speed(tmp)
-            np.negative(tmp, out=tmp)
-            np.maximum(goal, tmp, out=goal)
-            # stopping guard 2 (exact): brake now where the next state could not stop in time
-            if self._brake_needed():
-                unsafe = self._unsafe
-                np.minimum(goal, 0.0, out=tmp)
-                np.copyto(goal, tmp, where=unsafe[0])
-                np.maximum(goal, 0.0, out=tmp)
-                np.copyto(goal, tmp, where=unsafe[1])
-        self._count_changed(self.stopping_distance_clamps_per_joint, raw, goal)
-        self._inp.target_velocity = goal
-        self._update()
-        self._cmd[:] = out.new_velocity
-        self._pos[:] = out.new_position
-        self._vel[:] = self._cmd
-        self._acc[:] = out.new_acceleration
-        np.copyto(self._cmd_position, self._pos)
-        out.pass_to_input(self._inp)
-
-    def _brake_needed(self) -> bool:
-        """Fill ``_unsafe`` (2, dofs): rows toward the upper / lower limit, True where, after one
-        more period of the worst acceleration the jerk limit allows, the joint could no longer
-        stop before the limit. Ruckig's brake to velocity 0 is time-optimal, hence the shortest;
-        its distance from velocity u and acceleration b toward the limit is at most
-        ``u1 b1 / j + b1^3 / (3 j^2) + stopping_distance(u1 + b1^2 / (2 j))`` (ramp the
-        acceleration to 0, then brake; ``u1, b1`` the worst next state). Returns whether any."""
-        w, dt = self._guard, self.control_period
-        u, b, room, t1, t2, t3 = w["u"], w["b"], w["room"], w["t1"], w["t2"], w["t3"]
-        np.multiply(self._sign, self._vel, out=u)
-        np.multiply(self._sign, self._acc, out=b)
-        np.subtract(self._limits, self._pos, out=room)
-        np.multiply(room, self._sign, out=room)
-        # worst next displacement u dt + b dt^2 / 2 + j dt^3 / 6 uses up room
-        np.multiply(u, dt, out=t1)
-        np.multiply(b, 0.5 * dt * dt, out=t2)
-        np.add(t1, t2, out=t1)
-        np.add(t1, self._jdt3_6, out=t1)
-        np.subtract(room, t1, out=room)
-        # worst next speed u1 = max(u + b dt + j dt^2 / 2, 0), acceleration b1 = clip(b + j dt)
-        np.multiply(b, dt, out=t2)
-        np.add(t2, u, out=t2)
-        np.add(t2, self._jdt2_2, out=t2)
-        np.maximum(t2, 0.0, out=t2)
-        np.add(b, self._jdt, out=t3)
-        np.minimum(np.maximum(t3, 0.0, out=t3), self._amax, out=t3)
-        # braking distance from (u1, b1)
-        np.multiply(t3, self._inv_j, out=t1)  # b1 / j
-        np.multiply(t2, t1, out=b)  # u1 b1 / j
-        np.multiply(t1, t1, out=t1)
-        np.multiply(t1, t3, out=t1)
-        np.multiply(t1, 1.0 / 3.0, out=t1)  # b1^3 / (3 j^2)
-        np.add(b, t1, out=b)
-        np.multiply(t3, t3, out=t1)
-        np.multiply(t1, self._inv_2j, out=t1)
-        np.add(t1, t2, out=t1)  # u2 = u1 + b1^2 / (2 j)
-        np.multiply(t1, self._inv_2a, out=t2)
-        np.add(t2, self._a_2j, out=t2)
-        np.multiply(t2, t1, out=t2)  # stopping_distance(u2)
-        np.add(b, t2, out=b)
-        np.greater(b, room, out=self._unsafe)
-        return bool(np.count_nonzero(self._unsafe))
-
-    def _stopping_speed(self, distance: np.ndarray) -> None:
-        """In place: ``distance`` (rad) -> :func:`stopping_speed` (rad/s), no allocation."""
-        np.maximum(distance, 0.0, out=distance)
-        np.multiply(distance, self._8a, out=distance)
-        np.add(distance, self._c2, out=distance)
-        np.sqrt(distance, out=distance)
-        np.subtract(distance, self._c, out=distance)
-        np.multiply(distance, 0.5, out=distance)
-
-    def _step_torque(self) -> None:
-        raw, goal, tmp, cmd = self._raw, self._goal, self._tmp, self._cmd
-        np.clip(raw, self._neg_emax, self._emax, out=goal)
-        self._count_changed(self.target_clamps_per_joint, raw, goal)
-        np.subtract(goal, cmd, out=tmp)
-        np.clip(tmp, self._neg_rate, self._rate, out=tmp)
-        np.add(cmd, tmp, out=cmd)

@@ -1,12 +1,14 @@
-"""Write ``policies/go2.pt``: the Go2's trot generator with a residual network that starts at zero.
+"""The Go2's trot generator with a residual network that starts at zero: where training starts.
 
-``python -m policies.gait`` builds go2's default legged spec (:meth:`deploy.spec.PolicySpec.
-for_robot`: IMU and joint blocks, the velocity command, a gait clock of ``PERIOD``) and an
+:func:`make_policy` builds go2's default legged spec (:meth:`deploy.spec.PolicySpec.for_robot`:
+IMU and joint blocks, the velocity command, a gait clock of ``PERIOD``) and an
 :class:`~deploy.checkpoint.MLPActor` whose ``gait`` is the trot generator of
 :mod:`deploy.gait_prior` with the constants below and whose network's last layer is zero: the
-policy is the generator alone until a residual is trained on top of it (PMTG, Iscen et al. 2018).
-It is not a trained policy; the constants were chosen by a sweep through the full runtime
-(``deploy-run --robot go2 --command 0.5,0,0 --duration 20``: forward speed, falls, interventions).
+policy is the generator alone until a residual is trained on top of it (PMTG, Iscen et al. 2018)
+by :mod:`policies.train_legged`, which ships ``policies/go2.pt``. The constants were chosen by a
+sweep through the full runtime (``deploy-run --robot go2 --command 0.5,0,0 --duration 20``:
+forward speed, falls, interventions). ``python -m policies.gait --out FILE`` writes the untrained
+policy, to try the runtime with the bare generator.
 """
 
 from __future__ import annotations
@@ -65,7 +67,7 @@ def make_policy(robot_name: str = "go2") -> tuple[MLPActor, PolicySpec]:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m policies.gait", description=__doc__.split("\n")[0])
     p.add_argument("--robot", default="go2")
-    p.add_argument("--out", type=Path, default=Path("policies/go2.pt"))
+    p.add_argument("--out", type=Path, default=Path("go2_gait.pt"))
     args = p.parse_args(argv)
     actor, spec = make_policy(args.robot)
     info = {

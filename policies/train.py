@@ -402,9 +402,11 @@ def train(args: argparse.Namespace) -> Path | None:
     return args.out
 
 
-def parse_reward(overrides: list[str], parser: argparse.ArgumentParser) -> RewardConfig:
-    """``RewardConfig`` with ``NAME=VALUE`` overrides; a bad name or value exits with usage."""
-    names = {f.name for f in dataclasses.fields(RewardConfig)}
+def parse_reward(overrides: list[str], parser: argparse.ArgumentParser, config=RewardConfig):
+    """``config`` (a dataclass of reward coefficients: :class:`RewardConfig` by default,
+    :class:`policies.locomotion.LocomotionReward` for legs) with ``NAME=VALUE`` overrides; a bad
+    name or value exits with usage."""
+    names = {f.name for f in dataclasses.fields(config)}
     values = {}
     for item in overrides:
         name, _, value = item.partition("=")
@@ -416,7 +418,7 @@ def parse_reward(overrides: list[str], parser: argparse.ArgumentParser) -> Rewar
             values[name] = float(value)
         except ValueError:
             parser.error(f"--reward {item}: expected a number after '{name}='")
-    return RewardConfig(**values)
+    return config(**values)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -34,6 +34,7 @@ from deploy.checkpoint import MLPActor, save_checkpoint
 from deploy.export import sb3_actor
 from policies.gait import make_policy
 from policies.locomotion import LocomotionConfig, LocomotionReward, LocomotionTask
+from policies.train import parse_reward
 from robots import load_robot
 
 #: The residual network (legged_gym's actor is 512-256-128 with ELU; a residual needs less).
@@ -265,23 +266,6 @@ def train(args: argparse.Namespace) -> Path:
     return candidate
 
 
-def parse_reward(overrides: list[str], parser: argparse.ArgumentParser) -> LocomotionReward:
-    """``LocomotionReward`` with ``NAME=VALUE`` overrides; a bad name or value exits with usage."""
-    names = {f.name for f in dataclasses.fields(LocomotionReward)}
-    values = {}
-    for item in overrides:
-        name, _, value = item.partition("=")
-        if name not in names:
-            parser.error(
-                f"--reward {item}: unknown coefficient '{name}', expected one of {sorted(names)}"
-            )
-        try:
-            values[name] = float(value)
-        except ValueError:
-            parser.error(f"--reward {item}: expected a number after '{name}='")
-    return LocomotionReward(**values)
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m policies.train_legged", description=__doc__.split("\n")[0]
@@ -310,7 +294,7 @@ def main(argv: list[str] | None = None) -> int:
         help="override a LocomotionReward coefficient (repeatable)",
     )
     args = p.parse_args(argv)
-    args.reward = parse_reward(args.reward, p)
+    args.reward = parse_reward(args.reward, p, LocomotionReward)
     args.argv = list(argv) if argv is not None else sys.argv[1:]
     train(args)
     return 0

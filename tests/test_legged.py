@@ -11,7 +11,12 @@ import pinocchio as pin
 import pytest
 
 from deploy.backends.sim import SimBackend
-from deploy.base_estimation import BaseStateEstimator, projected_gravity, quaternion_to_matrix
+from deploy.base_estimation import (
+    BaseStateEstimator,
+    projected_gravity,
+    quaternion_to_matrix,
+    tilt_of,
+)
 from deploy.estimation import JointStateEstimator
 from deploy.state import RobotState
 from robots import RobotSpecError, load_robot
@@ -287,3 +292,19 @@ def test_velocity_filter_equals_filterpy_reference_with_imu_dropout(go2):
     np.testing.assert_allclose(v0, v1, atol=1e-9)
     np.testing.assert_allclose(p0, p1, atol=1e-12)
     np.testing.assert_allclose(g0, g1, atol=1e-12)
+
+
+def test_the_attitude_starts_from_the_accelerometer_only_at_rest(go2):
+    """At rest the accelerometer reads gravity: the initial roll and pitch follow it. A robot
+    dropped onto its feet reads something else (here 0.6 g, 17 degrees off): it starts upright
+    instead of at a tilt that is not there."""
+    base = BaseStateEstimator(go2, 2)
+    a = np.radians(10.0)
+    at_rest = 9.81 * np.array([0.0, np.sin(a), np.cos(a)])  # tilted 10 degrees, at rest
+    dropped = 0.6 * 9.81 * np.array([0.0, np.sin(0.3), np.cos(0.3)])
+    # the readings are in the IMU frame: turn the base-frame vectors into it
+    imu_to_base = quaternion_to_matrix(go2.mj_model.site_quat[go2.imu_site_id])
+    base.reset(0.0, np.stack([imu_to_base.T @ at_rest, imu_to_base.T @ dropped]))
+    tilt = tilt_of(projected_gravity(base.orientation))
+    assert np.degrees(tilt[0]) == pytest.approx(10.0, abs=1e-6)
+    assert tilt[1] == pytest.approx(0.0, abs=1e-12)

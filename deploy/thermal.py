@@ -23,6 +23,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from deploy.kernels.thermal import thermal_step
 from robots.schema import MotorConfig
 
 
@@ -65,6 +66,21 @@ class TwoNodeThermalModel:
         self.current = np.zeros(shape)
         self.power = np.zeros(shape)
         self._flow = np.zeros(shape)
+        # the kernel's per-joint constants, rows in deploy.kernels.thermal.thermal_step's order
+        self._constants = np.ascontiguousarray(
+            np.stack(
+                [
+                    self.torque_per_amp,
+                    self.t_ref,
+                    self.alpha,
+                    self.r_ref,
+                    self.r_wh,
+                    self.r_ha,
+                    self.c_w,
+                    self.c_h,
+                ]
+            )
+        )
         self.reset()
 
     def reset(self) -> None:
@@ -78,8 +94,24 @@ class TwoNodeThermalModel:
         """Advance the temperatures by ``dt`` seconds under ``joint_torque`` (envs, n_joints), N m.
 
         Explicit Euler; with dt of a control period (ms) against thermal time constants of tens of
-        seconds the integration error is far below a millikelvin. Allocates nothing.
+        seconds the integration error is far below a millikelvin. Allocates nothing. Compiled
+        (:func:`deploy.kernels.thermal.thermal_step`); :meth:`step_reference` is its numpy
+        reference, equal bit for bit.
         """
+        thermal_step(
+            np.asarray(joint_torque, dtype=np.float64),
+            float(dt),
+            self._constants,
+            self.ambient,
+            self.winding_temperature,
+            self.housing_temperature,
+            self.current,
+            self.power,
+            self._flow,
+        )
+
+    def step_reference(self, joint_torque: np.ndarray, dt: float) -> None:
+        """:meth:`step` in numpy (the compiled kernel's tested reference)."""
         np.abs(joint_torque, out=self.current)
         self.current /= self.torque_per_amp
         # P = I^2 R_ref (1 + alpha (T_w - T_ref))

@@ -17,6 +17,7 @@ module                     what it computes
                            screen, the screens of the per-env Pinocchio checks, effort clamp
 :mod:`.smoothing`          the smoother's finite-target and limit clamps, the velocity-mode
                            stopping guards and brake trigger, the extrema screen, torque rate limit
+:mod:`.thermal`            the sim plant's two-node motor thermal model (one Euler step)
 =========================  =====================================================================
 
 A kernel stops where Python must act (Ruckig, Pinocchio, a policy reset) and returns a code that

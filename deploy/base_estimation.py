@@ -117,7 +117,8 @@ def mahony_update(
 
 
 def rotation_quaternions(rotvec: np.ndarray) -> np.ndarray:
-    """Quaternions ``[w, x, y, z]`` (k, 4) of rotation vectors (k, 3) rad."""
+    """Quaternions ``[w, x, y, z]`` (k, 4) of rotation vectors (k, 3) rad (below 1e-12 rad the
+    first-order ``[1, rotvec / 2]``)."""
     angle = np.linalg.norm(rotvec, axis=1)
     small = angle < 1e-12
     half = np.where(small, 0.5, np.sin(angle / 2) / np.where(small, 1.0, angle))
@@ -179,17 +180,17 @@ class BaseState:
         return cls(q, g, np.zeros((envs, 3)), np.zeros((envs, 3)), np.zeros((envs, 3)))
 
     def set_truth(self, truth: np.ndarray) -> BaseState:
-        """Fill every field from a simulated base's true state (evaluation and parity replays):
-        ``truth`` (envs, 13) as :meth:`deploy.backends.sim.SimBackend.true_base_state` gives it
-        (position m, quaternion ``[w, x, y, z]``, linear velocity m/s world, angular velocity
-        rad/s base frame). Returns self."""
-        for e in range(truth.shape[0]):
-            rot = quaternion_to_matrix(truth[e, 3:7])
-            self.orientation[e] = truth[e, 3:7]
-            self.projected_gravity[e] = -rot[2]
-            self.angular_velocity[e] = truth[e, 10:13]
-            self.linear_velocity_world[e] = truth[e, 7:10]
-            self.linear_velocity[e] = rot.T @ truth[e, 7:10]
+        """Fill every field from a simulated base's true state (evaluation, parity replays and
+        training rewards): ``truth`` (envs, 13) as :meth:`deploy.backends.sim.SimBackend.
+        true_base_state` gives it (position m, quaternion ``[w, x, y, z]``, linear velocity m/s
+        world, angular velocity rad/s base frame). Returns self."""
+        rot = quaternion_to_matrix(truth[:, 3:7])
+        velocity = truth[:, 7:10]
+        self.orientation[:] = truth[:, 3:7]
+        self.projected_gravity[:] = -rot[:, 2]
+        self.angular_velocity[:] = truth[:, 10:13]
+        self.linear_velocity_world[:] = velocity
+        self.linear_velocity[:] = np.matmul(rot.transpose(0, 2, 1), velocity[:, :, None])[:, :, 0]
         return self
 
     @property
@@ -452,7 +453,8 @@ class BaseStateEstimator:
         self.time_since_fresh[e] = age
         quat = self.orientation[e]
         if age > 0:
-            quat = _quat_multiply(quat, _rotation_quaternion(self.angular_velocity[e] * age))
+            turn = rotation_quaternions((self.angular_velocity[e] * age)[None])[0]
+            quat = _quat_multiply(quat, turn)
         rot = quaternion_to_matrix(quat)
         out.orientation[e] = quat
         out.projected_gravity[e] = -rot[2]
@@ -503,15 +505,6 @@ class BaseStateEstimator:
         self.velocity_variance[e] = (1 - gain) ** 2 * p + gain**2 * r_var
 
 
-def _rotation_quaternion(rotvec: np.ndarray) -> np.ndarray:
-    """Quaternion ``[w, x, y, z]`` of a rotation vector (rad)."""
-    angle = float(np.linalg.norm(rotvec))
-    if angle < 1e-12:
-        return np.array([1.0, *(0.5 * rotvec)])
-    axis = rotvec / angle
-    return np.array([np.cos(angle / 2), *(np.sin(angle / 2) * axis)])
-
-
 def _align_up(up: np.ndarray) -> np.ndarray:
     """Base-to-world quaternion (yaw 0) that turns the unit vector ``up`` (base frame) onto the
     world's +z."""
@@ -520,4 +513,4 @@ def _align_up(up: np.ndarray) -> np.ndarray:
     s, c = np.linalg.norm(axis), float(np.dot(up, z))
     if s < 1e-12:
         return np.array([1.0, 0.0, 0.0, 0.0]) if c > 0 else np.array([0.0, 1.0, 0.0, 0.0])
-    return _rotation_quaternion(axis / s * np.arctan2(s, c))
+    return rotation_quaternions((axis / s * np.arctan2(s, c))[None])[0]

@@ -43,8 +43,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from deploy.backends.sim import SimBackend
+from deploy.base_estimation import BaseState
 from deploy.interventions import InterventionMonitor
-from deploy.locomotion import CommandRanges
+from deploy.locomotion import TRACKING_TOLERANCE, CommandRanges
 from deploy.runtime import Mode, Runtime
 from deploy.spec import PolicySpec
 from eval.randomization import (
@@ -123,15 +124,6 @@ class LearnerPolicy:
         return self.act(self.obs)
 
 
-def base_frame(quaternion: np.ndarray, vector: np.ndarray) -> np.ndarray:
-    """World vectors (envs, 3) expressed in the base frame of unit quaternions (envs, 4) ``w, x,
-    y, z`` (base to world): ``R^T v``."""
-    w = quaternion[:, :1]
-    u = -quaternion[:, 1:]  # the conjugate rotates world to base
-    t = 2.0 * np.cross(u, vector)
-    return vector + w * t + np.cross(u, t)
-
-
 class LocomotionTask:
     """``envs`` legged robots walking through one :class:`~deploy.runtime.Runtime`.
 
@@ -168,12 +160,13 @@ class LocomotionTask:
         self._continuous = np.array([m.continuous_torque for m in robot.motors])
         self._previous_action = np.zeros((envs, robot.n_joints))
         self._before = np.zeros(envs, dtype=np.int64)
+        self._true_base = BaseState.zeros(envs)  # the plant's base in the estimate's terms
         self.t_episode = np.zeros(envs)
         self.t_command = np.zeros(envs)
         self.push_until = np.zeros(envs)
         self.episode_return = np.zeros(envs)
         self.episode_ticks = np.zeros(envs, dtype=np.int64)
-        self.tracked = np.zeros(envs)  # RUNNING ticks within 0.2 m/s of the command
+        self.tracked = np.zeros(envs)  # RUNNING ticks within TRACKING_TOLERANCE of the command
         self.running = np.zeros(envs)
         self.distance = np.zeros(envs)
         self.policy.act = lambda obs: np.zeros((envs, robot.n_joints), dtype=np.float32)
@@ -247,10 +240,8 @@ class LocomotionTask:
         self.monitor.update()
         intervened = (self.monitor.any > self._before) & running_before
 
-        base = self.backend.true_base_state()
-        quaternion, velocity, omega = base[:, 3:7], base[:, 7:10], base[:, 10:13]
-        v = base_frame(quaternion, velocity)
-        gravity = base_frame(quaternion, np.tile([0.0, 0.0, -1.0], (self.envs, 1)))
+        base = self._true_base.set_truth(self.backend.true_base_state())
+        v, omega, gravity = base.linear_velocity, base.angular_velocity, base.projected_gravity
         command = rt.velocity_command
         tau = self.backend.joint_torque()
         action = rt.action
@@ -275,7 +266,7 @@ class LocomotionTask:
         self.episode_ticks += 1
         self.episode_return += r
         self.running += running_before
-        self.tracked += running_before & (np.sqrt(error) <= 0.2)
+        self.tracked += running_before & (np.sqrt(error) <= TRACKING_TOLERANCE)
         self.distance += running_before * v[:, 0] * self.dt
         truncated = (self.t_episode >= self.config.episode_seconds - 1e-9) & ~stopped
         return r, stopped, truncated

@@ -191,3 +191,40 @@ def test_a_sustained_pull_cannot_overheat_a_derating_drive(arm3):
     q = plant.true_position()[0]
     assert q[0] < -0.2  # it did give way
     assert np.all(q > arm3.soft_lower) and np.all(q < arm3.soft_upper)
+
+
+@pytest.mark.parametrize("per_env_streams", [False, True])
+def test_compiled_sensor_model_equals_its_numpy_reference(arm6, per_env_streams):
+    """The encoder kernels give the numpy reference's readings and stamps bit for bit, and draw
+    the same numbers from the streams, through changes of noise, dropout and latency."""
+    from deploy.backends.base import SensorFrame
+    from deploy.backends.sim_sensors import JointSensorModel
+
+    envs, n = 3, arm6.n_joints
+    models = []
+    for _ in range(2):
+        m = JointSensorModel(arm6, envs, SensorFrame.empty(envs, n, None), 7, max_latency_ticks=4)
+        if per_env_streams:
+            m.set_streams([np.random.default_rng(100 + e) for e in range(envs)])
+        models.append(m)
+    compiled, reference = models
+    walk = np.random.default_rng(0)
+    q = np.zeros((envs, n))
+    for tick in range(3000):
+        if tick % 250 == 0:  # new settings, as the fault injector and randomization set them
+            sigma = walk.uniform(0.0, 0.01)
+            for m in models:
+                m.noise_sigma[:] = sigma
+                m.dropout_probability[:] = [0.0, 0.2, 0.9][tick // 250 % 3]
+                m.latency_ticks[:] = (tick // 250 + np.arange(envs)) % 5
+        q += walk.normal(0.0, 0.01, q.shape)
+        temperature = 25.0 + walk.uniform(0.0, 60.0, q.shape)
+        compiled.read(tick)
+        reference.read_reference(tick)
+        for field in ("position", "position_stamp", "winding_temperature", "temperature_stamp"):
+            a, b = getattr(compiled.frame, field), getattr(reference.frame, field)
+            np.testing.assert_array_equal(a, b, err_msg=f"{field} at tick {tick}")
+        compiled.sample(tick, tick * 0.002, q, temperature)
+        reference.sample_reference(tick, tick * 0.002, q, temperature)
+    assert compiled.stream_state() == reference.stream_state()
+    assert np.isnan(compiled.frame.position).any() and np.isfinite(compiled.frame.position).any()

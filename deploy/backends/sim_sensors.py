@@ -26,6 +26,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from deploy.backends.base import SensorFrame
+from deploy.kernels.sensors import encoder_read, encoder_sample
 from deploy.stateful import StateDictError, rng_state, set_rng_state, to_json
 from robots import Robot
 
@@ -100,6 +101,7 @@ class JointSensorModel:
         self._buf_position = np.full((size, envs, n), np.nan)
         self._buf_stamp = np.full((size, envs), np.nan)
         self._env_index = np.arange(envs)
+        self._uniform = np.zeros((envs, n))
         self.frame = frame
 
     @property
@@ -144,7 +146,34 @@ class JointSensorModel:
     ) -> None:
         """Take the readings due at control tick ``tick`` (s ``time``): the joint angles ``q``
         (envs, n) rad into the latency buffer every ``encoder_every`` ticks, the winding
-        temperatures (envs, n) degC into the frame at the temperature rate."""
+        temperatures (envs, n) degC into the frame at the temperature rate.
+
+        The draws come from :attr:`rng`; the arithmetic is the kernel
+        :func:`deploy.kernels.sensors.encoder_sample` (:meth:`sample_reference`: numpy)."""
+        slot = tick % self._buf_stamp.shape[0]
+        if tick % self._encoder_every == 0:
+            sample = self._buf_position[slot]
+            self.rng.standard_normal(out=sample)
+            self.rng.random(out=self._uniform)
+            encoder_sample(
+                sample,
+                self._uniform,
+                q,
+                self.noise_sigma,
+                self.encoder_quantum,
+                self.dropout_probability,
+            )
+            self._buf_stamp[slot] = time
+        else:
+            self._buf_position[slot] = np.nan
+            self._buf_stamp[slot] = np.nan
+        if tick % self._temperature_every == 0:
+            self._sample_temperature(time, winding_temperature)
+
+    def sample_reference(
+        self, tick: int, time: float, q: np.ndarray, winding_temperature: np.ndarray
+    ) -> None:
+        """:meth:`sample` in numpy: the reference of its kernel (the same readings and draws)."""
         slot = tick % self._buf_stamp.shape[0]
         if tick % self._encoder_every == 0:
             sample = self._buf_position[slot]
@@ -160,14 +189,31 @@ class JointSensorModel:
             self._buf_position[slot] = np.nan
             self._buf_stamp[slot] = np.nan
         if tick % self._temperature_every == 0:
-            f = self.frame
-            res = self.temperature_resolution
-            np.round(winding_temperature / res, out=f.winding_temperature)
-            f.winding_temperature *= res
-            f.temperature_stamp.fill(time)
+            self._sample_temperature(time, winding_temperature)
+
+    def _sample_temperature(self, time: float, winding_temperature: np.ndarray) -> None:
+        f = self.frame
+        res = self.temperature_resolution
+        np.round(winding_temperature / res, out=f.winding_temperature)
+        f.winding_temperature *= res
+        f.temperature_stamp.fill(time)
 
     def read(self, tick: int) -> None:
-        """Fill the frame's joint position fields with the readings arriving at ``tick``."""
+        """Fill the frame's joint position fields with the readings arriving at ``tick``
+        (the kernel :func:`deploy.kernels.sensors.encoder_read`; :meth:`read_reference`:
+        numpy)."""
+        f = self.frame
+        encoder_read(
+            tick,
+            self.latency_ticks,
+            self._buf_position,
+            self._buf_stamp,
+            f.position,
+            f.position_stamp,
+        )
+
+    def read_reference(self, tick: int) -> None:
+        """:meth:`read` in numpy: the reference of its kernel."""
         f = self.frame
         origin = tick - self.latency_ticks  # tick at which the arriving reading was sampled
         slot = origin % self._buf_stamp.shape[0]

@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from deploy.backends.base import SimulatedPlant
+from deploy.kernels import monitors as mk
 from deploy.stateful import (
     StateDictError,
     check,
@@ -119,6 +120,9 @@ class GoalScheduler:
             its period.
         max_missed: Missed goals recorded per env; later ones are only counted
             (``missed_dropped``).
+        reference: Run each tick in numpy instead of the kernels
+            (:func:`deploy.kernels.monitors.goal_screen`, ``goal_hits``): the same results, the
+            tested reference.
 
     Attributes:
         t_goal: (envs,) s, when each env's goal was issued, moved on while the env was not
@@ -148,8 +152,11 @@ class GoalScheduler:
         window: float = 600.0,
         interventions=None,
         max_missed: int = 2000,
+        reference: bool = False,
     ):
         self.robot, self.period, self.fixed = robot, period, fixed
+        #: True: every tick in numpy (the reference of the kernels of deploy.kernels.monitors)
+        self.reference = bool(reference)
         self.streams = list(rng) if isinstance(rng, (list, tuple)) else None
         if self.streams is not None and len(self.streams) != envs:
             raise ValueError(f"rng: expected {envs} generators (one per env), got {len(rng)}")
@@ -179,6 +186,11 @@ class GoalScheduler:
         self._ee = np.zeros((envs, 3))
         self._diff = np.zeros((envs, 3))
         self._distance = np.zeros(envs)
+        self._age = np.zeros(envs)
+        self._due = np.zeros(envs, dtype=bool)
+        self._check = np.zeros(envs, dtype=bool)
+        self._hit = np.zeros(envs, dtype=bool)
+        mk.warm_up()
 
     # ------------------------------------------------------------------ state
     def _state_fields(self) -> dict[str, np.ndarray]:
@@ -340,6 +352,30 @@ class GoalScheduler:
         return rt.state.ee_position
 
     def __call__(self, rt) -> None:
+        """One tick after the runtime's: issue the goals that are due (in env order), record the
+        goals reached (class doc)."""
+        if self.reference:
+            self.call_reference(rt)
+            return
+        t = rt.time
+        due, check, hit = self._due, self._check, self._hit
+        bits = mk.goal_screen(
+            t, rt.mode, 2, self.issued, self.t_goal, self.reached, self.period,
+            self.fixed is None, self.success_time, self._age, due, check,
+        )  # fmt: skip
+        if bits & mk.ANY_DUE:
+            for e in np.flatnonzero(due):  # in env order (one stream for a batch)
+                self.new_goal(rt, e)
+        if bits & mk.ANY_CHECK:
+            ee = self.end_effector(rt)
+            any_hit = mk.goal_hits(
+                ee, rt.goal, check, self.best_distance, self.success_radius, self._distance, hit
+            )
+            if any_hit:
+                self._record_hits(np.flatnonzero(hit), self._age)
+
+    def call_reference(self, rt) -> None:
+        """:meth:`__call__` in numpy: the reference of its kernels."""
         t = rt.time
         running = rt.mode == 2
         if not running.all():  # only RUNNING time counts
@@ -364,8 +400,12 @@ class GoalScheduler:
             np.sqrt(distance, out=distance)
             np.minimum(self.best_distance, distance, out=self.best_distance, where=check)
             hit = check & (distance <= self.success_radius)
-            for e in np.flatnonzero(hit):
-                self.reached[e] = True
-                self.hit_count[e] += 1
-                self.hit_times[e].append(float(age[e]))
-                self._window(self.window_reached[e], self.issued_at[e])
+            self._record_hits(np.flatnonzero(hit), age)
+
+    def _record_hits(self, envs: np.ndarray, age: np.ndarray) -> None:
+        """The envs ``envs`` reached their goal at ``age[e]`` s after it was issued."""
+        for e in envs:
+            self.reached[e] = True
+            self.hit_count[e] += 1
+            self.hit_times[e].append(float(age[e]))
+            self._window(self.window_reached[e], self.issued_at[e])

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from deploy.kernels import monitors as mk
 from deploy.safety import CHECKS as GUARD_CHECKS
 from deploy.violations import MonitorState
 
@@ -59,6 +60,9 @@ class InterventionMonitor(MonitorState):
     Args:
         guard: The runtime's :class:`~deploy.safety.SafetyGuard`.
         smoother: The runtime's :class:`~deploy.smoothing.CommandSmoother`.
+        reference: Compare the counters in numpy instead of the kernel
+            (:func:`deploy.kernels.monitors.counters_moved`): the same counts, the tested
+            reference.
 
     Attributes:
         counts: dict check (``INTERVENTION_CHECKS``) -> (envs,) int64, ticks on which that check
@@ -71,10 +75,11 @@ class InterventionMonitor(MonitorState):
     counter moved.
     """
 
-    def __init__(self, guard, smoother):
+    def __init__(self, guard, smoother, reference: bool = False):
         if GUARD_CHECKS[0] != "soft_limit":  # the rows below rely on the guard's order
             raise RuntimeError("deploy.safety.CHECKS must start with 'soft_limit'")
         self.mode = guard.mode
+        self.reference = bool(reference)
         self.envs = envs = guard.envs
         first = 0 if self.mode == "position" else 1  # the soft-limit row is a clamp only there
         self._guard = guard
@@ -97,6 +102,7 @@ class InterventionMonitor(MonitorState):
         self._rose = np.zeros(envs, dtype=bool)
         self._flags = np.zeros(envs, dtype=bool)
         self.resync()
+        mk.warm_up()
 
     def resync(self) -> None:
         """Take the guard's and smoother's counters as they stand as the reference (after
@@ -111,13 +117,28 @@ class InterventionMonitor(MonitorState):
     def update(self) -> None:
         """Count this tick's interventions (call once after each tick)."""
         self.ticks += 1
+        if self.reference:
+            changed = self._moved_reference()
+        else:
+            (_, a), (_, b) = self._smoother
+            prev = self._prev_smoother
+            changed = (
+                mk.counters_moved(self._guard_rows, self._prev_guard)
+                or mk.counters_moved(a, prev[0])
+                or mk.counters_moved(b, prev[1])
+            )
+        if changed:  # some counter moved: which checks, which envs
+            self._count()
+
+    def _moved_reference(self) -> bool:
+        """Whether a counter moved, in numpy: the reference of
+        :func:`deploy.kernels.monitors.counters_moved`."""
         np.not_equal(self._guard_rows, self._prev_guard, out=self._guard_changed)
         changed = np.count_nonzero(self._guard_changed)
         for i, (_, counter) in enumerate(self._smoother):
             np.not_equal(counter, self._prev_smoother[i], out=self._smoother_changed)
             changed += np.count_nonzero(self._smoother_changed)
-        if changed:  # some counter moved: which checks, which envs
-            self._count()
+        return bool(changed)
 
     def _count(self) -> None:
         """Per check: which envs' counters rose this tick (only on ticks where some did)."""

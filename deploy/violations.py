@@ -39,6 +39,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from deploy.kernels import monitors as mk
 from robots import Robot
 
 VIOLATION_TYPES = ("hard_limit", "soft_limit", "velocity", "effort", "workspace", "self_collision")
@@ -88,6 +89,9 @@ class ViolationMonitor(MonitorState):
     Args:
         robot: The robot description (limits, workspace box, collision pairs).
         envs: Batch size (the backend's ``envs``).
+        reference: Screen in numpy instead of the kernel
+            (:func:`deploy.kernels.monitors.violation_screen`): the same counts, the tested
+            reference.
 
     Attributes:
         counts: dict type (``VIOLATION_TYPES``) -> (envs,) int64, ticks on which that type
@@ -96,19 +100,20 @@ class ViolationMonitor(MonitorState):
         ticks: int, ticks observed (calls of :meth:`update`).
 
     Per tick (:meth:`update`) it allocates nothing unless some env is near a limit: one
-    vectorized screen (``|x - centre| > half range`` over joint positions, speeds, torques and the
+    compiled screen (``|x - centre| > half range`` over joint positions, speeds, torques and the
     end effector) decides whether the exact per-type tests run, and coal checks the collision
     pairs of each env.
     """
 
     _state_name = "violations"
 
-    def __init__(self, robot: Robot, envs: int):
+    def __init__(self, robot: Robot, envs: int, reference: bool = False):
         from deploy.safety import SafetyGuard
 
         if envs < 1:
             raise ValueError(f"envs: expected an integer >= 1, got {envs}")
         self.robot, self.envs = robot, envs
+        self.reference = bool(reference)
         n = self.n = robot.n_joints
         self.counts = {t: np.zeros(envs, dtype=np.int64) for t in VIOLATION_TYPES}
         self.any = np.zeros(envs, dtype=np.int64)
@@ -153,6 +158,7 @@ class ViolationMonitor(MonitorState):
         self._data = self._model.createData()
         self._geom_model, self._geom_data = SafetyGuard.collision_model(robot)
         self._has_pairs = bool(self._geom_model.collisionPairs)
+        mk.warm_up()
 
     # ------------------------------------------------------------------ per tick
     def update(self, backend) -> None:
@@ -164,14 +170,8 @@ class ViolationMonitor(MonitorState):
                 (envs, n), and ``end_effector_position(out)`` m, (envs, 3)).
         """
         q, dq, tau = backend.true_position(), backend.true_velocity(), backend.joint_torque()
-        np.subtract(q, self._offset_q, out=self._q_part)
-        np.copyto(self._dq_part, dq)
-        np.copyto(self._tau_part, tau)
         if self._has_workspace:
-            ee = backend.end_effector_position(out=self._ee)
-            np.subtract(ee, self._offset_ee, out=self._ee_part)
-        np.abs(self._buf, out=self._buf)
-        np.greater(self._buf, self._bound, out=self._mask)
+            backend.end_effector_position(out=self._ee)
         self.ticks += 1
         collided = False
         if self._has_pairs:
@@ -182,8 +182,26 @@ class ViolationMonitor(MonitorState):
                         self._collided.fill(False)
                         collided = True
                     self._collided[e] = True
-        if collided or np.count_nonzero(self._mask):
+        if self.reference:
+            flagged = self._screen_reference(q, dq, tau)
+        else:
+            flagged = mk.violation_screen(
+                q, dq, tau, self._ee, self._offset_q, self._offset_ee, self._bound,
+                self._has_workspace,
+            )  # fmt: skip
+        if collided or flagged:
             self._count(q, dq, tau, collided)
+
+    def _screen_reference(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> bool:
+        """:func:`deploy.kernels.monitors.violation_screen` in numpy: its reference."""
+        np.subtract(q, self._offset_q, out=self._q_part)
+        np.copyto(self._dq_part, dq)
+        np.copyto(self._tau_part, tau)
+        if self._has_workspace:
+            np.subtract(self._ee, self._offset_ee, out=self._ee_part)
+        np.abs(self._buf, out=self._buf)
+        np.greater(self._buf, self._bound, out=self._mask)
+        return bool(np.count_nonzero(self._mask))
 
     def _count(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray, collided: bool) -> None:
         """The exact per-type tests (only on ticks the screen or coal flagged)."""

@@ -64,6 +64,7 @@ from deploy.errors import Sim2RealError
 from deploy.files import atomic_write, sha256_file
 from deploy.goals import GoalScheduler
 from deploy.interventions import InterventionMonitor
+from deploy.kernels.monitors import temperature_bands
 from deploy.runtime import Mode
 from deploy.stateful import put, take
 from deploy.violations import ViolationMonitor
@@ -203,7 +204,6 @@ class SessionBatch:
         self.window_peak = self.peak.copy()
         self.band_ticks = np.zeros((k, n), dtype=np.int64)
         self.over_ticks = np.zeros((k, n), dtype=np.int64)
-        self._mask = np.zeros((k, n), dtype=bool)
         self._t_start = np.array([m.derating_start_temperature for m in robot.motors])
         self._t_max = np.array([m.max_winding_temperature for m in robot.motors])
         self.faulted = np.zeros(k, dtype=bool)
@@ -312,13 +312,15 @@ class SessionBatch:
             self.tracker(rt)
         else:
             self.goals(rt)
-        temp = self.backend.thermal.winding_temperature
-        np.maximum(self.peak, temp, out=self.peak)
-        np.maximum(self.window_peak, temp, out=self.window_peak)
-        np.greater_equal(temp, self._t_start, out=self._mask)
-        self.band_ticks += self._mask
-        np.greater(temp, self._t_max, out=self._mask)
-        self.over_ticks += self._mask
+        temperature_bands(
+            self.backend.thermal.winding_temperature,
+            self._t_start,
+            self._t_max,
+            self.peak,
+            self.window_peak,
+            self.band_ticks,
+            self.over_ticks,
+        )
         if rt.ticks >= self._next_event:
             self._supervise(rt)
 

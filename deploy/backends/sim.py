@@ -43,6 +43,7 @@ from deploy.backends.base import BackendLifecycle, SensorFrame
 from deploy.backends.legged_sensors import BaseSensorModel
 from deploy.backends.sim_sensors import JointSensorModel
 from deploy.errors import Sim2RealError
+from deploy.kernels.thermal import derating_due
 from deploy.safety import motion_bounds
 from deploy.stateful import check, env_index, from_json, put, scalar, take
 from deploy.thermal import EffortDerating, TwoNodeThermalModel
@@ -129,6 +130,7 @@ class SimBackend(BackendLifecycle):
         self.effort_limit = np.tile(self.derating.peak, (envs, 1))
         self._derate = np.ones((envs, n))
         self._derated = np.zeros(envs, dtype=bool)  # envs whose model may hold a derated limit
+        self._hot = np.zeros(envs, dtype=bool)  # envs with a winding above its derating start
         self._lag = np.zeros((envs, n))
         self._abs_lag = np.zeros((envs, n))
         for e in range(envs):
@@ -526,11 +528,12 @@ class SimBackend(BackendLifecycle):
         """Each drive's torque limit from its winding temperature (module docstring): MuJoCo's
         ``jnt_actfrcrange`` and, in velocity mode, the anti-windup bound follow it. Only envs with a
         winding above its derating start, or derated before, are touched."""
-        hot = (self.thermal.winding_temperature > self.derating.start).any(axis=1)
-        touch = hot | self._derated
-        if not touch.any():
+        hot = self._hot
+        if not derating_due(
+            self.thermal.winding_temperature, self.derating.start, self._derated, hot
+        ):
             return
-        for e in np.flatnonzero(touch):
+        for e in np.flatnonzero(hot | self._derated):
             limit = self.effort_limit[e]
             np.multiply(
                 self.derating.factor(self.thermal.winding_temperature[e], out=self._derate[e]),

@@ -56,3 +56,24 @@ def thermal_step(
             current[e, j] = i
             power[e, j] = p
             flow[e, j] = f
+
+
+@numba.njit(cache=True, nogil=True)
+def derating_due(
+    winding: np.ndarray, start: np.ndarray, derated: np.ndarray, hot: np.ndarray
+) -> bool:
+    """Which envs a drive derates in: ``hot[e]`` (written, (envs,) bool) is whether any winding
+    of env ``e`` (``winding`` (envs, n) degC) is above its derating start (``start`` (n,) degC);
+    returns whether any env is hot or was derated before (``derated`` (envs,) bool), the
+    envs whose torque limits must be set."""
+    envs, n = winding.shape
+    due = False
+    for e in range(envs):
+        h = False
+        for j in range(n):
+            if winding[e, j] > start[j]:
+                h = True
+                break
+        hot[e] = h
+        due = due or h or derated[e]
+    return due

@@ -1,0 +1,177 @@
+"""The compiled monitors (deploy/kernels/monitors.py) count what their numpy references count.
+
+Goals, violations, interventions and motor heat are what a soak report is made of: the kernels
+only decide faster whether anything happened on a tick, so every count, record and state must
+equal the reference's exactly (no tolerance: the goal distance keeps numpy's operation order).
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from deploy.backends.sim import SimBackend
+from deploy.faults import Fault, FaultInjector
+from deploy.goals import GoalScheduler
+from deploy.interventions import InterventionMonitor
+from deploy.kernels.monitors import temperature_bands
+from deploy.policy import OnnxPolicy
+from deploy.runtime import Mode, Runtime
+from deploy.violations import ViolationMonitor
+from tests.runtime_fixtures import adversarial_onnx
+from tests.test_compiled_tick import SweepingPolicy
+
+
+def scripted_run(robot, reference: bool, ticks: int = 6000) -> GoalScheduler:
+    """A goal scheduler over 3 envs whose modes and end effectors follow a seeded script: envs
+    pause (not RUNNING) at random, and the end effector jumps around the goal."""
+    envs, dt = 3, 0.01
+    radius = robot.config.task.success_radius
+    script = np.random.default_rng(11)
+    rt = SimpleNamespace(
+        time=0.0,
+        mode=np.full(envs, Mode.RUNNING, dtype=np.int8),
+        goal=np.zeros((envs, 3)),
+        backend=None,  # not a simulated plant: the scheduler judges rt.state
+        state=SimpleNamespace(
+            ee_position=np.zeros((envs, 3)), q=np.zeros((envs, 2)), dq=np.zeros((envs, 2))
+        ),
+    )
+    goals = GoalScheduler(robot, envs, 1.5, None, 0.8, np.random.default_rng(5), window=10.0,
+                          reference=reference)  # fmt: skip
+    for _ in range(ticks):
+        rt.time += dt
+        rt.mode[:] = np.where(script.random(envs) < 0.003, Mode.SAFE_STOP, Mode.RUNNING)
+        if script.random() < 0.002:
+            rt.mode[:] = Mode.IDLE  # no env runs
+        # within the success radius on ~0.5 % of ticks: about a third of the goals are reached
+        rt.state.ee_position[:] = rt.goal + script.normal(0.0, 4.0 * radius, (envs, 3))
+        goals(rt)
+    return goals
+
+
+def test_compiled_goal_scheduler_equals_the_reference(arm3):
+    a, b = scripted_run(arm3, reference=False), scripted_run(arm3, reference=True)
+    sa, sb = a.state_dict(), b.state_dict()
+    assert sa.keys() == sb.keys()
+    for key in sa:
+        np.testing.assert_array_equal(sa[key], sb[key], err_msg=key)
+    # the script exercised what it is meant to: hits, misses, paused goals
+    assert a.hits > 20 and a.goals - a.hits > 20, (a.hits, a.goals)
+    assert np.isfinite(a.best_distance).any() and len(a.missed[0]) > 0
+
+
+@pytest.mark.parametrize("mode", ["position", "velocity", "torque"])
+def test_compiled_violation_and_intervention_monitors_equal_the_references(tmp_path, arm6, mode):
+    """Both monitors watch the same run of an adversarial policy (random actions on a square wave
+    that sweeps the joints into their limits, a push and a cable pull)."""
+    dt = arm6.control_period
+    plant = SimBackend(arm6, mode=mode, envs=2, seed=3)
+    faults = [
+        Fault("push", 100 * dt, 40 * dt, envs=(0,), magnitude=40.0),
+        Fault("cable", 300 * dt, 200 * dt, envs=(1,), magnitude=30.0),
+    ]
+    policy = SweepingPolicy(OnnxPolicy(adversarial_onnx(tmp_path, arm6, mode), arm6), dt)
+    rt = Runtime(arm6, policy, plant, injector=FaultInjector(faults, plant))
+    rt.start()
+    monitors = [
+        (ViolationMonitor(arm6, 2, reference=r), InterventionMonitor(rt.guard, rt.smoother, r))
+        for r in (False, True)
+    ]
+    for _ in range(2500):
+        rt.tick()
+        for violations, interventions in monitors:
+            violations.update(plant)
+            interventions.update()
+    (va, ia), (vb, ib) = monitors
+    for x, y in ((va, vb), (ia, ib)):
+        sx, sy = x.state_dict(), y.state_dict()
+        assert sx.keys() == sy.keys()
+        for key in sx:
+            np.testing.assert_array_equal(sx[key], sy[key], err_msg=key)
+    assert va.totals()["any"] > 0 and ia.any.sum() > 0, (va.totals(), ia.summary())
+
+
+class ScriptedTruth:
+    """A backend's ground truth drawn at random around the limits, one part at a time."""
+
+    def __init__(self, robot, envs: int, seed: int):
+        self.robot, self.rng, self.envs = robot, np.random.default_rng(seed), envs
+        n = robot.n_joints
+        self.q, self.dq, self.tau = np.zeros((envs, n)), np.zeros((envs, n)), np.zeros((envs, n))
+        self.ee = np.zeros((envs, 3))
+
+    def draw(self) -> None:
+        r, rng, shape = self.robot, self.rng, self.q.shape
+        lo, hi = r.position_lower, r.position_upper
+        self.q[:] = rng.uniform(0.7 * lo + 0.3 * hi, 0.3 * lo + 0.7 * hi, shape)  # inside
+        self.dq[:] = rng.uniform(-0.5, 0.5, shape) * r.velocity_limit
+        self.tau[:] = rng.uniform(-0.5, 0.5, shape) * r.effort_limit
+        ws_min, ws_max = (np.array(v) for v in (r.config.safety.workspace_min,
+                                                  r.config.safety.workspace_max))  # fmt: skip
+        self.ee[:] = rng.uniform(0.6 * ws_min + 0.4 * ws_max, 0.4 * ws_min + 0.6 * ws_max)
+        part = rng.integers(5)  # one part (or none) near or past its limit, in one env
+        e, j = rng.integers(self.envs), rng.integers(shape[1])
+        near = rng.uniform(0.9, 1.1)
+        if part == 0:
+            self.q[e, j] = lo[j] + (hi[j] - lo[j]) * rng.choice([1 - near, near])
+        elif part == 1:
+            self.dq[e, j] = rng.choice([-near, near]) * r.velocity_limit[j]
+        elif part == 2:
+            self.tau[e, j] = rng.choice([-near, near]) * r.effort_limit[j] * 1.05
+        elif part == 3:
+            i = rng.integers(3)
+            self.ee[e, i] = ws_min[i] + (ws_max[i] - ws_min[i]) * rng.choice([1 - near, near])
+
+    def true_position(self):
+        return self.q
+
+    def true_velocity(self):
+        return self.dq
+
+    def joint_torque(self):
+        return self.tau
+
+    def end_effector_position(self, out):
+        out[:] = self.ee
+        return out
+
+
+def test_compiled_violation_screen_misses_nothing_the_reference_counts(arm6):
+    """States drawn at and around each limit in turn (joint angle, speed, torque, workspace):
+    the compiled screen lets through exactly the violations the reference counts."""
+    truth = ScriptedTruth(arm6, envs=3, seed=4)
+    monitors = [ViolationMonitor(arm6, 3, reference=r) for r in (False, True)]
+    for _ in range(4000):
+        truth.draw()
+        for m in monitors:
+            m.update(truth)
+    a, b = (m.state_dict() for m in monitors)
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    totals = monitors[0].totals()
+    for kind in ("hard_limit", "soft_limit", "velocity", "effort", "workspace"):
+        assert totals[kind] > 50, totals
+
+
+def test_temperature_bands_count_as_numpy_does():
+    rng = np.random.default_rng(0)
+    start, maximum = np.array([60.0, 70.0, 80.0]), np.array([90.0, 100.0, 110.0])
+    peak = np.full((4, 3), 25.0)
+    window = peak.copy()
+    band = np.zeros((4, 3), dtype=np.int64)
+    over = band.copy()
+    ref = [peak.copy(), window.copy(), band.copy(), over.copy()]
+    for _ in range(500):
+        t = rng.uniform(20.0, 130.0, (4, 3))
+        t[0, 0] = 60.0  # at the derating start: in the band
+        temperature_bands(t, start, maximum, peak, window, band, over)
+        np.maximum(ref[0], t, out=ref[0])
+        np.maximum(ref[1], t, out=ref[1])
+        ref[2] += t >= start
+        ref[3] += t > maximum
+    for got, want in zip((peak, window, band, over), ref, strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert band.min() > 0 and over.max() > 0

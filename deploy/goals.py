@@ -190,6 +190,7 @@ class GoalScheduler:
         self._due = np.zeros(envs, dtype=bool)
         self._check = np.zeros(envs, dtype=bool)
         self._hit = np.zeros(envs, dtype=bool)
+        self._backend, self._is_plant = None, False  # the last backend seen (see _simulated)
         mk.warm_up()
 
     # ------------------------------------------------------------------ state
@@ -321,7 +322,7 @@ class GoalScheduler:
         goal = rt.goal[e]
         ee = self.end_effector(rt)[e]
         best = float(self.best_distance[e])
-        true = isinstance(rt.backend, SimulatedPlant)
+        true = self._simulated(rt.backend)
         q = rt.backend.true_position() if true else rt.state.q
         dq = rt.backend.true_velocity() if true else rt.state.dq
         record = {
@@ -345,9 +346,16 @@ class GoalScheduler:
             }
         self.missed[e].append(record)
 
+    def _simulated(self, backend) -> bool:
+        """Whether ``backend`` is a simulated plant (a Protocol check: ~5 us, so remembered per
+        backend)."""
+        if backend is not self._backend:
+            self._backend, self._is_plant = backend, isinstance(backend, SimulatedPlant)
+        return self._is_plant
+
     def end_effector(self, rt) -> np.ndarray:
         """(envs, 3) m: the true end effector (simulation) or the estimated one (class doc)."""
-        if isinstance(rt.backend, SimulatedPlant):
+        if self._simulated(rt.backend):
             return rt.backend.end_effector_position(out=self._ee)
         return rt.state.ee_position
 

@@ -43,7 +43,7 @@ from deploy.backends.base import BackendLifecycle, SensorFrame
 from deploy.backends.legged_sensors import BaseSensorModel
 from deploy.backends.sim_sensors import JointSensorModel
 from deploy.errors import Sim2RealError
-from deploy.kernels.thermal import derating_due
+from deploy.kernels.thermal import derating_due, windup_exceeded
 from deploy.safety import motion_bounds
 from deploy.stateful import check, env_index, from_json, put, scalar, take
 from deploy.thermal import EffortDerating, TwoNodeThermalModel
@@ -132,7 +132,6 @@ class SimBackend(BackendLifecycle):
         self._derated = np.zeros(envs, dtype=bool)  # envs whose model may hold a derated limit
         self._hot = np.zeros(envs, dtype=bool)  # envs with a winding above its derating start
         self._lag = np.zeros((envs, n))
-        self._abs_lag = np.zeros((envs, n))
         for e in range(envs):
             self._bind(e)
         self.decimation = robot.decimation
@@ -561,10 +560,8 @@ class SimBackend(BackendLifecycle):
         lag, bound, acts = self._lag, self._windup_bound, self._acts
         for e, act in enumerate(acts):
             lag[e] = act
-        lag -= self._qpos
-        np.abs(lag, out=self._abs_lag)
-        wound = self._abs_lag > bound
-        if np.count_nonzero(wound):
+        if windup_exceeded(lag, self._qpos, bound):
+            wound = np.abs(lag) > bound
             for e in np.flatnonzero(wound.any(axis=1)):
                 q = self._qpos[e]
                 np.clip(acts[e], q - bound[e], q + bound[e], out=acts[e])

@@ -77,3 +77,19 @@ def derating_due(
         hot[e] = h
         due = due or h or derated[e]
     return due
+
+
+@numba.njit(cache=True, nogil=True)
+def windup_exceeded(setpoint: np.ndarray, q: np.ndarray, bound: np.ndarray) -> bool:
+    """Velocity-mode anti-windup screen: turns ``setpoint`` (envs, n) rad, the drives' integrated
+    setpoints, into their lag ``setpoint - q`` (in place) and returns whether any ``|lag|``
+    exceeds ``bound`` (envs, n) rad (the present torque limit over the gain)."""
+    envs, n = setpoint.shape
+    wound = False
+    for e in range(envs):
+        for j in range(n):
+            lag = setpoint[e, j] - q[e, j]
+            setpoint[e, j] = lag
+            if abs(lag) > bound[e, j]:
+                wound = True
+    return wound

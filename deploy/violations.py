@@ -108,7 +108,7 @@ class ViolationMonitor(MonitorState):
     _state_name = "violations"
 
     def __init__(self, robot: Robot, envs: int, reference: bool = False):
-        from deploy.safety import SafetyGuard
+        from deploy.safety import SCREEN_MARGIN, SafetyGuard, motion_bounds
 
         if envs < 1:
             raise ValueError(f"envs: expected an integer >= 1, got {envs}")
@@ -158,6 +158,13 @@ class ViolationMonitor(MonitorState):
         self._data = self._model.createData()
         self._geom_model, self._geom_data = SafetyGuard.collision_model(robot)
         self._has_pairs = bool(self._geom_model.collisionPairs)
+        # the collision screen (compiled path): two geometries approach by at most 2 sweep m per
+        # radian of sum |dq_i| (deploy.safety.motion_bounds), so no pair can touch while the
+        # clearance computed at checked_q exceeds that bound (an exact screen, as the guard's)
+        self._reach, self._margin = 2.0 * motion_bounds(robot)[0], SCREEN_MARGIN
+        self._checked_q = np.zeros((envs, n))
+        self._clearance = np.full(envs, -np.inf)  # none computed yet: check
+        self._need = np.zeros(envs, dtype=bool)
         mk.warm_up()
 
     # ------------------------------------------------------------------ per tick
@@ -175,13 +182,20 @@ class ViolationMonitor(MonitorState):
         self.ticks += 1
         collided = False
         if self._has_pairs:
-            args = (self._model, self._data, self._geom_model, self._geom_data)
-            for e in range(self.envs):
-                if pin.computeCollisions(*args, q[e], True):
-                    if not collided:
-                        self._collided.fill(False)
-                        collided = True
-                    self._collided[e] = True
+            need = self._need
+            if self.reference:
+                need.fill(True)
+            elif not mk.collision_screen(
+                q, self._checked_q, self._clearance, self._reach, self._margin, need
+            ):
+                need = None
+            if need is not None:
+                for e in np.flatnonzero(need):
+                    if self._in_collision(q, e):
+                        if not collided:
+                            self._collided.fill(False)
+                            collided = True
+                        self._collided[e] = True
         if self.reference:
             flagged = self._screen_reference(q, dq, tau)
         else:
@@ -191,6 +205,20 @@ class ViolationMonitor(MonitorState):
             )  # fmt: skip
         if collided or flagged:
             self._count(q, dq, tau, collided)
+
+    def _in_collision(self, q: np.ndarray, e: int) -> bool:
+        """Whether a collision pair of env ``e`` touches at ``q[e]`` (coal); the compiled path
+        also remembers the clearance there for its screen."""
+        args = (self._model, self._data, self._geom_model, self._geom_data, q[e])
+        hit = bool(pin.computeCollisions(*args, True))
+        if not self.reference:
+            self._checked_q[e] = q[e]
+            if hit:
+                self._clearance[e] = -np.inf
+            else:
+                pin.computeDistances(*args)
+                self._clearance[e] = min(r.min_distance for r in self._geom_data.distanceResults)
+        return hit
 
     def _screen_reference(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> bool:
         """:func:`deploy.kernels.monitors.violation_screen` in numpy: its reference."""

@@ -134,6 +134,31 @@ def violation_screen(
 
 
 @numba.njit(cache=True, nogil=True)
+def collision_screen(
+    q: np.ndarray,
+    checked_q: np.ndarray,
+    clearance: np.ndarray,
+    reach: float,
+    margin: float,
+    need: np.ndarray,
+) -> bool:
+    """The envs whose collision pairs may touch at ``q`` (envs, n) rad: ``need[e]`` (written,
+    (envs,) bool) unless the clearance (m) computed at ``checked_q`` exceeds ``reach * sum_j
+    |q - checked_q|`` plus ``margin`` (m); ``reach`` (m/rad) bounds how fast two geometries
+    approach per radian of joint motion. Returns whether any env needs a check."""
+    envs, n = q.shape
+    any_need = False
+    for e in range(envs):
+        move = 0.0
+        for j in range(n):
+            move += abs(q[e, j] - checked_q[e, j])
+        nd = clearance[e] <= reach * move + margin
+        need[e] = nd
+        any_need = any_need or nd
+    return any_need
+
+
+@numba.njit(cache=True, nogil=True)
 def counters_moved(current: np.ndarray, previous: np.ndarray) -> bool:
     """Whether any counter of ``current`` differs from ``previous`` (same shape, int64)."""
     a, b = current.ravel(), previous.ravel()
@@ -181,5 +206,6 @@ def warm_up() -> None:
     q = np.zeros((2, 3))
     violation_screen(q, q, q, q, np.zeros(3), np.zeros(3), np.ones(12), True)
     counters_moved(np.zeros((2, 3), dtype=np.int64), np.zeros((2, 3), dtype=np.int64))
+    collision_screen(q, q, np.zeros(2), 1.0, 0.0, b.copy())
     temperature_bands(q, np.zeros(3), np.zeros(3), q.copy(), q.copy(), q.astype(np.int64),
                       q.astype(np.int64))  # fmt: skip

@@ -30,11 +30,12 @@ position mode, ``q + v dt`` in velocity mode and ``q + dq dt`` in torque mode.
 Speed: the per-env Pinocchio calls (forward kinematics, coal collision, gravity) run only when
 an exact bound says they could fire. Every point of the robot moves at most ``sweep * sum|dq_i|``
 (m) when the joints move by ``dq`` (rad), ``sweep`` being the longest kinematic chain plus the
-largest geometry radius; so the end effector cannot leave the workspace box while its last computed
-margin exceeds that bound, two geometries cannot touch while their last computed clearance exceeds
-twice the bound, and gravity cannot exceed the effort limit while a per-joint bound (the masses
-beyond the joint at their longest lever) stays below it. The outcome is exactly that of checking
-every tick; only the cost differs.
+largest geometry radius, and the end effector at most ``sum lever_i |dq_i|``, ``lever_i`` the
+chain from joint ``i`` to it (:func:`end_effector_lever`); so the end effector cannot leave the
+workspace box while its last computed margin exceeds its bound, two geometries cannot touch while
+their last computed clearance exceeds twice the sweep bound, and gravity cannot exceed the effort
+limit while a per-joint bound (the masses beyond the joint at their longest lever) stays below
+it. The outcome is exactly that of checking every tick; only the cost differs.
 
 Collision geometry: the MJCF geoms. The plant keeps them at ``contype="0"`` (MuJoCo does not
 simulate self-contact), so Pinocchio's MJCF parser files them as visual geometry; the guard builds
@@ -194,6 +195,11 @@ class SafetyGuard:
         self._has_pairs = bool(self.geom_model.collisionPairs)
         #: m per rad: bound on any point's displacement per unit of sum |dq| (module docstring).
         self.sweep, self.gravity_bound = motion_bounds(robot)
+        #: (n,) m per rad: bound on the end effector's displacement per radian of each joint
+        #: (:func:`end_effector_lever`; ``sweep`` each without a workspace box)
+        self.ee_lever = (
+            end_effector_lever(robot) if s.workspace_min is not None else np.full(n, self.sweep)
+        )
         self.derating = EffortDerating(robot, hold=self.gravity_bound)
         # caches of the screens: configuration of the last computation and its result (rows of
         # one array each for the kernel: workspace, collision)
@@ -219,6 +225,7 @@ class SafetyGuard:
         lim[gk.SPEED_B] = self.acc**2 / self.jerk + 2.0 * self.acc * self.dt
         lim[gk.EIGHT_A] = 8.0 * self.acc
         lim[gk.EFFORT], lim[gk.GRAVITY_BOUND] = robot.effort_limit, self.gravity_bound
+        lim[gk.EE_LEVER] = self.ee_lever
         self._lim = lim
         self._scalars = np.array([self.dt, self.sweep, SCREEN_MARGIN, float(self._has_pairs)])
         self._over = np.zeros((envs, n))
@@ -406,8 +413,9 @@ class SafetyGuard:
         move = self._move
         np.subtract(self._pred, self._ws_q, out=self._tmp)
         np.abs(self._tmp, out=self._tmp)
+        np.multiply(self._tmp, self.ee_lever, out=self._tmp)
         np.sum(self._tmp, axis=1, out=move)
-        check_ws = self._ws_margin <= self.sweep * move + SCREEN_MARGIN
+        check_ws = self._ws_margin <= move + SCREEN_MARGIN
         check_col = self._no_env
         if self._has_pairs:
             np.subtract(self._pred, self._col_q, out=self._tmp)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from deploy.safety import CHECKS, SafetyGuard, motion_bounds
+from deploy.safety import CHECKS, SafetyGuard, end_effector_lever, motion_bounds
 from deploy.smoothing import stopping_distance
 from deploy.state import RobotState
 
@@ -24,8 +24,18 @@ def random_walk(robot, envs, ticks, seed):
 def test_screened_guard_equals_the_exhaustive_guard(request, robot_name, mode):
     robot = request.getfixturevalue(robot_name)
     envs = 8
-    fast, slow = SafetyGuard(robot, envs, mode), SafetyGuard(robot, envs, mode)
+    fast = SafetyGuard(robot, envs, mode)
+    slow = SafetyGuard(robot, envs, mode, reference=True)  # numpy: reads its bounds every tick
     slow.sweep, slow.gravity_bound = 1e12, np.full(robot.n_joints, 1e12)  # check everything
+    slow.ee_lever = np.full(robot.n_joints, 1e12)
+    checked = {"workspace": 0}
+    ee_outside = slow._ee_outside
+
+    def counting(q, cache=None):
+        checked["workspace"] += cache is not None
+        return ee_outside(q, cache)
+
+    slow._ee_outside = counting
     state = RobotState.zeros(envs, robot.n_joints)
     rng = np.random.default_rng(1)
     hot = np.linspace(25.0, 124.0, envs)[:, None] * np.ones(robot.n_joints)  # some derated
@@ -47,16 +57,22 @@ def test_screened_guard_equals_the_exhaustive_guard(request, robot_name, mode):
         np.testing.assert_array_equal(fast.counts[check], slow.counts[check], err_msg=check)
     # the walk exercised the geometric checks, so the equality above means something
     assert fast.totals()["workspace"] + fast.totals()["self_collision"] > 0
+    # the slow guard checked every env every tick (but where the predicted configuration is the
+    # one it last checked: a target clamped to the same limits twice)
+    assert checked["workspace"] >= 0.99 * 400 * envs
 
 
 def test_motion_bounds_bound_the_motion_and_gravity(arm6):
     sweep, gravity_bound = motion_bounds(arm6)
+    lever = end_effector_lever(arm6)
+    assert (lever <= sweep).all() and lever[-1] < lever[0]
     rng = np.random.default_rng(2)
     for _ in range(200):
         q = rng.uniform(arm6.position_lower, arm6.position_upper)
         dq = rng.normal(0, 0.05, arm6.n_joints)
         moved = np.linalg.norm(arm6.forward_kinematics(q + dq) - arm6.forward_kinematics(q))
         assert moved <= sweep * np.abs(dq).sum()
+        assert moved <= lever @ np.abs(dq)  # the end effector's own, tighter, bound
         assert np.all(np.abs(arm6.gravity_torque(q)) <= gravity_bound + 1e-9)
 
 

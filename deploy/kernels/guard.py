@@ -24,7 +24,8 @@ from deploy.kernels import np_max, np_min, row_sum
 #: Rows of ``lim``.
 LOWER, UPPER, TARGET_LOWER, TARGET_UPPER, SOFT_LOWER, SOFT_UPPER = 0, 1, 2, 3, 4, 5
 VEL, ACC, SPEED_B, EIGHT_A, EFFORT, GRAVITY_BOUND = 6, 7, 8, 9, 10, 11
-ROWS = 12
+EE_LEVER = 12  # m per rad: bound of the end effector's displacement per radian of each joint
+ROWS = 13
 #: Modes.
 POSITION, VELOCITY, TORQUE = 0, 1, 2
 #: Rows of the count matrix (deploy.safety.CHECKS).
@@ -152,9 +153,9 @@ def guard_filter(
         # screens of the per-env checks at the predicted state
         for e in range(envs):
             for j in range(n):
-                tmp[e, j] = abs(pred[e, j] - screen[0, e, j])
+                tmp[e, j] = abs(pred[e, j] - screen[0, e, j]) * lim[EE_LEVER, j]
             move = row_sum(tmp, e)
-            ws = clearance_screen[0, e] <= sweep * move + margin
+            ws = clearance_screen[0, e] <= move + margin
             col = False
             if has_pairs:
                 for j in range(n):

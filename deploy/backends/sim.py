@@ -43,6 +43,7 @@ from deploy.backends.base import BackendLifecycle, SensorFrame
 from deploy.backends.legged_sensors import BaseSensorModel
 from deploy.backends.sim_sensors import JointSensorModel
 from deploy.errors import Sim2RealError
+from deploy.kernels import all_finite
 from deploy.kernels.thermal import derating_due, windup_exceeded
 from deploy.safety import motion_bounds
 from deploy.stateful import check, env_index, from_json, put, scalar, take
@@ -131,6 +132,7 @@ class SimBackend(BackendLifecycle):
         self._derate = np.ones((envs, n))
         self._derated = np.zeros(envs, dtype=bool)  # envs whose model may hold a derated limit
         self._hot = np.zeros(envs, dtype=bool)  # envs with a winding above its derating start
+        all_finite(self._hot[:, None] * 0.0)  # compiled (or loaded from cache) before a tick
         self._lag = np.zeros((envs, n))
         for e in range(envs):
             self._bind(e)
@@ -423,7 +425,7 @@ class SimBackend(BackendLifecycle):
         command = np.asarray(command, dtype=np.float64)
         if command.shape != self._command.shape:
             raise ValueError(f"command: expected shape {self._command.shape}, got {command.shape}")
-        if not np.isfinite(command).all():
+        if not all_finite(command):
             raise NonFiniteCommandError(
                 f"command rejected at t={self.time:.4f} s: non-finite values in envs "
                 f"{np.unique(np.nonzero(~np.isfinite(command))[0]).tolist()}"
@@ -447,7 +449,7 @@ class SimBackend(BackendLifecycle):
                 self._check_divergence(e, d)
             torque[e] = force
             qpos[e] = q
-        if not np.isfinite(qpos).all():  # bad values after the last substep
+        if not all_finite(qpos):  # bad values after the last substep
             for e, d in enumerate(self.datas):
                 self._check_divergence(e, d)
         if self.mode == "velocity":

@@ -79,3 +79,21 @@ def row_sum(a, e: int) -> float:
 @numba.njit(cache=True, nogil=True, inline="always")
 def finite(x: float) -> bool:
     return math.isfinite(x)
+
+
+@numba.njit(cache=True, nogil=True)
+def any_true(mask) -> bool:
+    """``mask.any()`` of a boolean array (any shape) without numpy's reduction machinery."""
+    for x in mask.flat:
+        if x:
+            return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
+def all_finite(a) -> bool:
+    """``np.isfinite(a).all()`` of a float array (any shape) without a temporary."""
+    for x in a.flat:
+        if not math.isfinite(x):
+            return False
+    return True

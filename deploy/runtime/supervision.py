@@ -15,6 +15,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from deploy.kernels import any_true
 from deploy.runtime.modes import (
     FAULT_CAUSES,
     FAULTED,
@@ -74,6 +75,7 @@ class Supervision:
         #: first trajectory after a reset drove so101 onto its hard limits, stop after stop)
         self.at_rest = np.zeros((envs, n))
         self.mode = np.full(envs, Mode.IDLE, dtype=np.int8)
+        any_true(self.mode == RUNNING)  # compiled (or loaded from its cache) before the first tick
         self.cause = np.full(envs, -1, dtype=np.int8)  # index into FAULT_CAUSES
         #: (envs, n) int64, OR of the hardware error bits each drive reported (cause servo_error)
         self.drive_errors = np.zeros((envs, n), dtype=np.int64)
@@ -116,7 +118,7 @@ class Supervision:
     def safe_stop(self, which: np.ndarray, cause: str) -> None:
         """SAFE_STOP, for ``cause`` (one of ``FAULT_CAUSES``), of the envs of ``which`` (bool
         mask) not already in SAFE_STOP or FAULTED: counted, and the smoother brakes them."""
-        if not which.any():
+        if not any_true(which):
             return
         new = which & (self.mode != SAFE_STOP) & (self.mode != FAULTED)
         if new.any():

@@ -124,6 +124,7 @@ class SimBackend(BackendLifecycle):
         self.models = list(models)
         self.datas = [mujoco.MjData(m) for m in self.models]
         self._views: list[tuple] = [()] * envs
+        self._qvel_views: list[np.ndarray] = [np.zeros(0)] * envs  # the joints' qvel (see _bind)
         self._acts: list[np.ndarray] = [np.empty(0)] * envs  # velocity mode: drive setpoints
         self._windup_bound = np.zeros((envs, n))
         self.derating = EffortDerating(robot, hold=motion_bounds(robot)[1])
@@ -228,6 +229,7 @@ class SimBackend(BackendLifecycle):
         ctrl = d.ctrl.reshape(-1, self.n_joints)
         qpos, force = d.qpos[self._qpos_offset :], d.qfrc_actuator[self._qvel_offset :]
         self._views[e] = (m, d, ctrl, qpos, force, d.warning.number[_WARNING_SLICE])
+        self._qvel_views[e] = d.qvel[self._qvel_offset :]
         if self.mode == "velocity":  # the setpoints and their anti-windup bound
             self._acts[e] = d.act
             kp = m.actuator_gainprm[: self.n_joints, 0]
@@ -479,8 +481,8 @@ class SimBackend(BackendLifecycle):
 
     def true_velocity(self) -> np.ndarray:
         """(envs, n_joints) rad/s, the simulator's joint velocities (evaluation only)."""
-        for e, d in enumerate(self.datas):
-            self._qvel[e] = d.qvel[self._qvel_offset :]
+        for e, qvel in enumerate(self._qvel_views):
+            self._qvel[e] = qvel
         return self._qvel
 
     def joint_torque(self) -> np.ndarray:

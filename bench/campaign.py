@@ -12,6 +12,12 @@ end (``time.monotonic``, one clock for all processes on Linux)::
     throughput = workers * k * duration / wall      (simulated seconds per wall second, "x")
 
 The best k is the one with the highest throughput.
+
+**Physics only**, in the same run and the same pattern (every worker, each k, after a barrier):
+the runtime's own plant models (``rt.backend.models`` / ``datas``, still at the state the run
+left them) stepped with ``mujoco.mj_step(nstep=decimation)`` per control tick and nothing else,
+for as many ticks. ``physics_fraction = throughput / physics-only throughput`` is the share of
+bare MuJoCo stepping the whole toolkit keeps (issue 18's machine-independent target: >= 0.6).
 """
 
 from __future__ import annotations
@@ -47,6 +53,7 @@ def _worker(index, robot_name, policy_path, envs_list, duration, barrier, result
             start = time.monotonic()
             rt.run(ticks, on_tick=goals)
             end = time.monotonic()
+            physics = _physics_only(rt.backend, ticks, barrier)
             results.put(
                 {
                     "worker": index,
@@ -59,11 +66,28 @@ def _worker(index, robot_name, policy_path, envs_list, duration, barrier, result
                     "physics_p50_us": rt.latency.summary(7)["p50_us"],
                     "safe_stops": int(rt.counters.safe_stops.sum()),
                     "running": int((rt.mode == 2).sum()),
+                    "physics_start": physics[0],
+                    "physics_end": physics[1],
                 }
             )
     except BaseException:  # noqa: BLE001 - reported to the parent, which raises
         barrier.abort()
         results.put({"worker": index, "error": traceback.format_exc()})
+
+
+def _physics_only(backend, ticks: int, barrier) -> tuple[float, float]:
+    """Step ``backend``'s MuJoCo models alone for ``ticks`` control ticks (after the barrier);
+    returns the (start, end) monotonic times."""
+    import mujoco
+
+    step, nstep = mujoco.mj_step, backend.decimation
+    pairs = list(zip(backend.models, backend.datas, strict=True))
+    barrier.wait(BARRIER_TIMEOUT_S)
+    start = time.monotonic()
+    for _ in range(ticks):
+        for m, d in pairs:
+            step(m, d, nstep=nstep)
+    return start, time.monotonic()
 
 
 def measure(
@@ -118,6 +142,7 @@ def measure(
     for k in envs:
         mine = [r for r in rows if r["envs"] == k]
         wall = max(r["end"] for r in mine) - min(r["start"] for r in mine)
+        physics_wall = max(r["physics_end"] for r in mine) - min(r["physics_start"] for r in mine)
         simulated = sum(r["simulated_s"] * k for r in mine)
         configs.append(
             {
@@ -127,6 +152,8 @@ def measure(
                 "simulated_s_per_session": mine[0]["simulated_s"],
                 "wall_s": wall,
                 "throughput_x": simulated / wall,
+                "physics_only_x": simulated / physics_wall,
+                "physics_fraction": physics_wall / wall,
                 "per_worker_loop_s": [r["end"] - r["start"] for r in mine],
                 "setup_s": max(r["setup_s"] for r in mine),
                 "tick_cost_p50_us": max(r["tick_cost_us"]["p50_us"] for r in mine),
@@ -140,7 +167,11 @@ def measure(
         "robot": robot_name,
         "workers": workers,
         "configs": configs,
-        "best": {k: best[k] for k in ("envs_per_worker", "workers", "throughput_x")},
+        "best": {
+            k: best[k]
+            for k in ("envs_per_worker", "workers", "throughput_x", "physics_only_x")
+            + ("physics_fraction",)
+        },
         "section_wall_s": total_wall,
         "method": "workers * envs * simulated_s / (last end - first start); start-up, model "
         "loading and RAMP_IN excluded",

@@ -42,6 +42,7 @@ import numpy as np
 from deploy.backends.base import SimulatedPlant
 from deploy.files import atomic_write
 from deploy.goals import GoalScheduler
+from deploy.kernels.monitors import motion_statistics
 from deploy.runtime.clock import WAIT_MODES
 
 EXIT_CLEAN, EXIT_HARD_VIOLATION, EXIT_FAULT, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 1, 2, 3, 4
@@ -338,6 +339,7 @@ def _run_opened(
     dt = robot.control_period
     motion = {k: np.zeros((args.envs, robot.n_joints)) for k in ("dq", "acc", "jerk_sum")}
     motion_ticks = np.zeros(args.envs, dtype=np.int64)
+    running = np.zeros(args.envs, dtype=bool)
     monitor_cost = LatencyHistogram()
     clock_ns = time.perf_counter_ns
 
@@ -373,18 +375,11 @@ def _run_opened(
         )
         np.fmax(peak, temperature, out=peak)
         dq = backend.true_velocity() if simulated else r.state.dq
-        np.maximum(max_speed, np.abs(dq).max(axis=0), out=max_speed)
-        acc = (dq - motion["dq"]) / dt
-        running = (r.mode == RUNNING)[:, None]
-        if r.ticks > 2:
-            np.add(
-                motion["jerk_sum"],
-                np.abs(acc - motion["acc"]) / dt * running,
-                out=motion["jerk_sum"],
-            )
-            motion_ticks[:] += running[:, 0]
-        motion["dq"][:] = dq
-        motion["acc"][:] = acc
+        np.equal(r.mode, RUNNING, out=running)
+        motion_statistics(
+            dq, motion["dq"], motion["acc"], dt, running, r.ticks > 2, motion["jerk_sum"],
+            motion_ticks, max_speed,
+        )  # fmt: skip
         closed = False
         for viewer in viewers:
             closed |= bool(viewer(r))  # the viewer's window was closed: end the run

@@ -347,8 +347,8 @@ class GoalScheduler:
         self.missed[e].append(record)
 
     def _simulated(self, backend) -> bool:
-        """Whether ``backend`` is a simulated plant (a Protocol check: ~5 us, so remembered per
-        backend)."""
+        """Whether ``backend`` is a simulated plant (remembered per backend: a Protocol's
+        isinstance check is slow)."""
         if backend is not self._backend:
             self._backend, self._is_plant = backend, isinstance(backend, SimulatedPlant)
         return self._is_plant

@@ -14,6 +14,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from deploy.kernels import np_max
+
 #: Bits of :func:`goal_screen`'s answer.
 ANY_RUNNING, ANY_DUE, ANY_CHECK = 1, 2, 4
 
@@ -196,6 +198,42 @@ def temperature_bands(
                 over_ticks[e, j] += 1
 
 
+@numba.njit(cache=True, nogil=True)
+def motion_statistics(
+    dq: np.ndarray,
+    previous_dq: np.ndarray,
+    previous_acc: np.ndarray,
+    dt: float,
+    running: np.ndarray,
+    count_jerk: bool,
+    jerk_sum: np.ndarray,
+    jerk_ticks: np.ndarray,
+    max_speed: np.ndarray,
+) -> None:
+    """One tick of ``deploy-run``'s motion summary from the joint velocities ``dq`` (envs, n)
+    rad/s: the acceleration ``(dq - previous_dq) / dt`` (rad/s^2), with ``count_jerk`` the jerk
+    ``|acc - previous_acc| / dt`` (rad/s^3) added to ``jerk_sum`` (envs, n) and 1 to
+    ``jerk_ticks`` (envs,) int64 for the envs ``running`` (envs,) bool; ``previous_dq`` and
+    ``previous_acc`` become this tick's; ``max_speed`` (n,) rad/s rises to ``max_e |dq|``. The
+    arithmetic is the numpy expressions' of ``deploy.cli`` (``* running`` as 1.0 or 0.0)."""
+    envs, n = dq.shape
+    for e in range(envs):
+        r = 1.0 if running[e] else 0.0
+        for j in range(n):
+            acc = (dq[e, j] - previous_dq[e, j]) / dt
+            if count_jerk:
+                jerk_sum[e, j] = jerk_sum[e, j] + abs(acc - previous_acc[e, j]) / dt * r
+            previous_dq[e, j] = dq[e, j]
+            previous_acc[e, j] = acc
+        if count_jerk and running[e]:
+            jerk_ticks[e] += 1
+    for j in range(n):
+        m = abs(dq[0, j])
+        for e in range(1, envs):
+            m = np_max(m, abs(dq[e, j]))
+        max_speed[j] = np_max(max_speed[j], m)
+
+
 def warm_up() -> None:
     """Call every kernel once on small arrays of the production types (compiled, or loaded from
     numba's cache, here rather than in the first tick of a run)."""
@@ -209,3 +247,4 @@ def warm_up() -> None:
     collision_screen(q, q, np.zeros(2), 1.0, 0.0, b.copy())
     temperature_bands(q, np.zeros(3), np.zeros(3), q.copy(), q.copy(), q.astype(np.int64),
                       q.astype(np.int64))  # fmt: skip
+    motion_statistics(q, q.copy(), q.copy(), 0.01, b, True, q.copy(), i8.copy(), np.zeros(3))

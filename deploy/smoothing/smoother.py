@@ -415,12 +415,12 @@ class CommandSmoother(RuckigState, ReferenceStep):
         if mode != sk.TORQUE:
             result = self._out
             if mode == sk.POSITION:
-                self._inp.target_position = self._goal.tolist()  # a list converts 4x faster
+                self._inp.target_position = self._goal.tolist()  # pybind converts a list faster
                 self._update()
                 self._cmd[:] = result.new_position
                 self._vel[:] = result.new_velocity
             else:
-                self._inp.target_velocity = self._goal.tolist()  # a list converts 4x faster
+                self._inp.target_velocity = self._goal.tolist()  # pybind converts a list faster
                 self._update()
                 self._cmd[:] = result.new_velocity
                 self._pos[:] = result.new_position

@@ -33,7 +33,8 @@ an exact bound says they could fire. Every point of the robot moves at most ``sw
 largest geometry radius, and the end effector at most ``sum lever_i |dq_i|``, ``lever_i`` the
 chain from joint ``i`` to it (:func:`end_effector_lever`); so the end effector cannot leave the
 workspace box while its last computed margin exceeds its bound, two geometries cannot touch while
-their last computed clearance exceeds twice the sweep bound, and gravity cannot exceed the effort
+their last computed distance exceeds the pair's own bound (:func:`collision_pair_weights`: only
+the joints between the two move them apart or together), and gravity cannot exceed the effort
 limit while a per-joint bound (the masses beyond the joint at their longest lever) stays below
 it. The outcome is exactly that of checking every tick; only the cost differs.
 
@@ -44,6 +45,7 @@ its coal collision pairs from those shapes and the pairs named in robot.toml.
 
 from __future__ import annotations
 
+import warnings
 from types import SimpleNamespace
 
 import mujoco
@@ -139,6 +141,46 @@ def end_effector_lever(robot: Robot, model: mujoco.MjModel | None = None) -> np.
     )
 
 
+def collision_pair_weights(robot: Robot, model: mujoco.MjModel | None = None) -> np.ndarray:
+    """(pairs, n) m/rad, for each pair of ``safety.collision_pairs`` (in that order): a bound of how
+    fast its two geometries approach per radian of each joint.
+
+    A joint upstream of both geometries (or of neither) moves them together: weight 0. A joint
+    upstream of one moves that geometry's points by at most the chain length from the joint's
+    body to the geometry's body, plus the geometry's offset and bounding radius and the joint
+    anchor offset, per radian (the chain bounds of :func:`motion_bounds`). So the pair's distance
+    changes by at most ``weights[p] @ |dq|`` when the joints move by ``dq``.
+
+    Args:
+        robot: The robot (collision pairs, joint names).
+        model: The MuJoCo model; default ``robot.mj_model``.
+    """
+    m = robot.mj_model if model is None else model
+    chain = chain_lengths(m)
+    anchor = float(np.linalg.norm(m.jnt_pos, axis=1).max()) if m.njnt else 0.0
+    joint_bodies = [m.jnt_bodyid[m.joint(name).id] for name in robot.joint_names]
+
+    def below(joint_body: int, b: int) -> bool:
+        while b > 0:
+            if b == joint_body:
+                return True
+            b = m.body_parentid[b]
+        return False
+
+    pairs = robot.config.safety.collision_pairs
+    weights = np.zeros((len(pairs), robot.n_joints))
+    for p, names in enumerate(pairs):
+        geoms = [m.geom(name).id for name in names]
+        bodies = [m.geom_bodyid[g] for g in geoms]
+        for i, jb in enumerate(joint_bodies):
+            moved = [below(jb, b) for b in bodies]
+            if moved[0] != moved[1]:
+                g, b = (geoms[0], bodies[0]) if moved[0] else (geoms[1], bodies[1])
+                offset = np.linalg.norm(m.geom_pos[g]) + m.geom_rbound[g]
+                weights[p, i] = chain[b] - chain[jb] + offset + anchor
+    return weights
+
+
 class SafetyGuard:
     """Clamp or reject targets that would break a limit; count every intervention.
 
@@ -209,6 +251,9 @@ class SafetyGuard:
         self._ws_margin = self._screen_m[0]  # m inside the workspace box (-inf: unknown)
         self._col_q = self._screen_q[1]
         self._clearance = self._screen_m[1]  # m between the closest listed pair
+        #: (pairs, n) m/rad: how fast each collision pair approaches per radian of each joint
+        self.pair_weights = collision_pair_weights(robot)
+        self._pair_clearance = np.full((envs, len(self.pair_weights)), -np.inf)  # m, per pair
         if s.workspace_min is None:  # no workspace box (a legged robot): never screened
             self._ws_margin[:] = np.inf
         self._move = np.zeros(envs)
@@ -261,7 +306,16 @@ class SafetyGuard:
                         f"'{name}' is not in {robot.mjcf_path.name} (geoms: {names})"
                     )
             geom.addCollisionPair(pin.CollisionPair(names.index(a), names.index(b)))
-        return geom, pin.GeometryData(geom)
+        data = pin.GeometryData(geom)
+        # Pinocchio's GeometryData warm-starts coal's GJK from the last query's result
+        # (enable_cached_gjk_guess). The answer then depends on the query history: from a cached
+        # guess coal reported no contact for arm6 pairs penetrating by 9 mm, which a fresh query
+        # finds (tests/test_safety.py). Every query starts from coal's default guess instead.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)  # the flag is deprecated in coal
+            for request in [*data.collisionRequests, *data.distanceRequests]:
+                request.enable_cached_gjk_guess = False
+        return geom, data
 
     def reset(self, q: np.ndarray, envs: np.ndarray | None = None) -> None:
         """Start from measured positions ``q`` (envs, n): they become the hold target.
@@ -282,6 +336,7 @@ class SafetyGuard:
             workspace_margin=self._ws_margin,
             collision_q=self._col_q,
             clearance=self._clearance,
+            pair_clearance=self._pair_clearance,
         )
         return fields
 
@@ -290,7 +345,8 @@ class SafetyGuard:
         (envs,) int64, ``hard_violation`` (envs,) bool, ``effort_scale`` (envs, n),
         ``last_valid`` (envs, n) the hold target (rad in position mode), and the screens' caches
         (``workspace_q``, ``collision_q`` (envs, n) rad; ``workspace_margin``, ``clearance``
-        (envs,) m); the env axis has length 1 for one env ``env``."""
+        (envs,) m; ``pair_clearance`` (envs, pairs) m); the env axis has length 1 for one env
+        ``env``."""
         return take(self._state_fields(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
@@ -332,11 +388,13 @@ class SafetyGuard:
         hit = bool(pin.computeCollisions(*args, True))
         if cache is not None:
             self._col_q[cache] = q
+            pairs = self._pair_clearance[cache]
             if hit:
-                self._clearance[cache] = -np.inf
+                pairs.fill(-np.inf)
             else:
                 pin.computeDistances(*args)
-                self._clearance[cache] = min(r.min_distance for r in self.geom_data.distanceResults)
+                pairs[:] = [r.min_distance for r in self.geom_data.distanceResults]
+            self._clearance[cache] = pairs.min()
         return hit
 
     # ------------------------------------------------------------------ the check
@@ -418,10 +476,13 @@ class SafetyGuard:
         check_ws = self._ws_margin <= move + SCREEN_MARGIN
         check_col = self._no_env
         if self._has_pairs:
-            np.subtract(self._pred, self._col_q, out=self._tmp)
-            np.abs(self._tmp, out=self._tmp)
-            np.sum(self._tmp, axis=1, out=move)
-            check_col = self._clearance <= 2.0 * self.sweep * move + SCREEN_MARGIN
+            check_col = np.zeros(self.envs, dtype=bool)
+            for p, weights in enumerate(self.pair_weights):
+                np.subtract(self._pred, self._col_q, out=self._tmp)
+                np.abs(self._tmp, out=self._tmp)
+                np.multiply(self._tmp, weights, out=self._tmp)
+                np.sum(self._tmp, axis=1, out=move)
+                check_col |= self._pair_clearance[:, p] <= move + SCREEN_MARGIN
         check_effort = (self.gravity_bound > effort * self.effort_scale).any(axis=1)
         held = self._held
         held[:] = False
@@ -477,6 +538,8 @@ class SafetyGuard:
             _kernel_mode=self._kernel_mode,
             _lim=self._lim,
             _scalars=self._scalars,
+            _pair_clearance=self._pair_clearance,  # read only
+            pair_weights=self.pair_weights,
         )
 
     def _kernel(self, q: np.ndarray, dq: np.ndarray, commanded: np.ndarray | None, out):
@@ -527,6 +590,8 @@ class SafetyGuard:
             g._checks,
             g._held,
             g._last_valid,
+            g._pair_clearance,
+            g.pair_weights,
         )
 
     def _velocity_band(self, q: np.ndarray, commanded: np.ndarray | None):

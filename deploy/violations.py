@@ -108,7 +108,7 @@ class ViolationMonitor(MonitorState):
     _state_name = "violations"
 
     def __init__(self, robot: Robot, envs: int, reference: bool = False):
-        from deploy.safety import SCREEN_MARGIN, SafetyGuard, motion_bounds
+        from deploy.safety import SCREEN_MARGIN, SafetyGuard, collision_pair_weights
 
         if envs < 1:
             raise ValueError(f"envs: expected an integer >= 1, got {envs}")
@@ -158,12 +158,13 @@ class ViolationMonitor(MonitorState):
         self._data = self._model.createData()
         self._geom_model, self._geom_data = SafetyGuard.collision_model(robot)
         self._has_pairs = bool(self._geom_model.collisionPairs)
-        # the collision screen (compiled path): two geometries approach by at most 2 sweep m per
-        # radian of sum |dq_i| (deploy.safety.motion_bounds), so no pair can touch while the
-        # clearance computed at checked_q exceeds that bound (an exact screen, as the guard's)
-        self._reach, self._margin = 2.0 * motion_bounds(robot)[0], SCREEN_MARGIN
+        # the collision screen (compiled path): no pair can touch while its distance computed at
+        # checked_q exceeds its own bound on how far the joints moved since
+        # (deploy.safety.collision_pair_weights; an exact screen, as the guard's)
+        self._pair_weights = collision_pair_weights(robot)
+        self._margin = SCREEN_MARGIN
         self._checked_q = np.zeros((envs, n))
-        self._clearance = np.full(envs, -np.inf)  # none computed yet: check
+        self._clearance = np.full((envs, len(self._pair_weights)), -np.inf)  # none yet: check
         self._need = np.zeros(envs, dtype=bool)
         mk.warm_up()
 
@@ -186,7 +187,7 @@ class ViolationMonitor(MonitorState):
             if self.reference:
                 need.fill(True)
             elif not mk.collision_screen(
-                q, self._checked_q, self._clearance, self._reach, self._margin, need
+                q, self._checked_q, self._clearance, self._pair_weights, self._margin, need
             ):
                 need = None
             if need is not None:
@@ -217,7 +218,7 @@ class ViolationMonitor(MonitorState):
                 self._clearance[e] = -np.inf
             else:
                 pin.computeDistances(*args)
-                self._clearance[e] = min(r.min_distance for r in self._geom_data.distanceResults)
+                self._clearance[e] = [r.min_distance for r in self._geom_data.distanceResults]
         return hit
 
     def _screen_reference(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> bool:

@@ -1,11 +1,19 @@
 """SafetyGuard: the screened checks give exactly the answers of checking every env every tick."""
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
-from deploy.safety import CHECKS, SafetyGuard, end_effector_lever, motion_bounds
+from deploy.safety import (
+    CHECKS,
+    SafetyGuard,
+    collision_pair_weights,
+    end_effector_lever,
+    motion_bounds,
+)
 from deploy.smoothing import stopping_distance
 from deploy.state import RobotState
+from robots import load_robot
 
 
 def random_walk(robot, envs, ticks, seed):
@@ -28,6 +36,7 @@ def test_screened_guard_equals_the_exhaustive_guard(request, robot_name, mode):
     slow = SafetyGuard(robot, envs, mode, reference=True)  # numpy: reads its bounds every tick
     slow.sweep, slow.gravity_bound = 1e12, np.full(robot.n_joints, 1e12)  # check everything
     slow.ee_lever = np.full(robot.n_joints, 1e12)
+    slow.pair_weights = np.full_like(slow.pair_weights, 1e12)
     checked = {"workspace": 0}
     ee_outside = slow._ee_outside
 
@@ -74,6 +83,55 @@ def test_motion_bounds_bound_the_motion_and_gravity(arm6):
         assert moved <= sweep * np.abs(dq).sum()
         assert moved <= lever @ np.abs(dq)  # the end effector's own, tighter, bound
         assert np.all(np.abs(arm6.gravity_torque(q)) <= gravity_bound + 1e-9)
+
+
+@pytest.mark.parametrize("robot_name", ["arm3", "arm6", "so101"])
+def test_collision_pair_weights_bound_how_fast_each_pair_approaches(robot_name):
+    """A pair's distance changes by at most ``weights[p] @ |dq|``; a joint upstream of both
+    geometries of a pair (the base joint for every pair above it) has weight 0."""
+    robot = load_robot(robot_name)
+    weights = collision_pair_weights(robot)
+    model = robot.fixed_base_model
+    data = model.createData()
+    geom_model, geom_data = SafetyGuard.collision_model(robot)
+    assert weights.shape == (len(geom_model.collisionPairs), robot.n_joints)
+
+    def distances(q):
+        pin.computeDistances(model, data, geom_model, geom_data, q)
+        return np.array([r.min_distance for r in geom_data.distanceResults])
+
+    rng = np.random.default_rng(5)
+    worst = 0.0
+    for _ in range(200):
+        q = rng.uniform(robot.position_lower, robot.position_upper)
+        dq = rng.normal(0.0, 0.1, robot.n_joints)
+        change = np.abs(distances(q + dq) - distances(q))
+        bound = weights @ np.abs(dq)
+        assert (change <= bound + 1e-9).all()
+        worst = max(worst, float((change / bound).max()))
+    assert worst > 0.2  # the bound is not vacuous
+    assert (weights == 0.0).any() and (weights.max(axis=0) < 2.0 * motion_bounds(robot)[0]).all()
+
+
+def test_collision_answers_do_not_depend_on_the_previous_query(arm6):
+    """The guard's coal queries give the answer of a fresh query whatever came before: with
+    Pinocchio's default warm start (the cached GJK guess of the last query) coal reported no
+    contact for pairs penetrating by millimetres after a query at another configuration."""
+    model = arm6.fixed_base_model
+    data = model.createData()
+    geom_model, geom_data = SafetyGuard.collision_model(arm6)
+    rng = np.random.default_rng(7)
+    lo, hi = arm6.position_lower, arm6.position_upper
+    q = rng.uniform(lo, hi)
+    hits = 0
+    for _ in range(3000):  # a walk, as the guard queries: small and large steps
+        q = np.clip(q + rng.normal(0.0, rng.choice([0.02, 0.5]), q.shape), lo, hi)
+        reused = pin.computeCollisions(model, data, geom_model, geom_data, q, True)
+        fresh_data = pin.GeometryData(geom_model)
+        fresh = pin.computeCollisions(model, model.createData(), geom_model, fresh_data, q, True)
+        assert reused == fresh, q.tolist()
+        hits += fresh
+    assert hits > 100
 
 
 def test_velocity_band_leaves_room_to_brake_before_the_soft_limit(arm3):

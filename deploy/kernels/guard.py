@@ -65,6 +65,8 @@ def guard_filter(
     checks: np.ndarray,
     held: np.ndarray,
     last_valid: np.ndarray,
+    pair_clearance: np.ndarray,
+    pair_weights: np.ndarray,
 ) -> int:
     """One :meth:`~deploy.safety.SafetyGuard.filter` from ``phase`` on (module docstring).
 
@@ -72,11 +74,13 @@ def guard_filter(
     ``effort_scale``, ``pred``, ``tmp``, ``over``, ``under``, ``last_valid`` (envs, n);
     ``screen`` (2, envs, n) rows workspace_q, collision_q; ``clearance_screen`` (2, envs) rows
     workspace margin, clearance (m); ``scalars``: dt (s), sweep (m/rad), screen margin (m),
-    has_pairs (1.0 or 0.0). Units as in the guard.
+    has_pairs (1.0 or 0.0); ``pair_clearance`` (envs, pairs) m, each collision pair's distance at
+    the collision screen's configuration; ``pair_weights`` (pairs, n) m/rad
+    (:func:`deploy.safety.collision_pair_weights`). Units as in the guard.
     """
     envs, n = out.shape
     if phase == 0:
-        dt, sweep, margin = scalars[0], scalars[1], scalars[2]
+        dt, margin = scalars[0], scalars[2]
         has_pairs = scalars[3] != 0.0
         any_governor = False
         any_screen = False
@@ -158,10 +162,13 @@ def guard_filter(
             ws = clearance_screen[0, e] <= move + margin
             col = False
             if has_pairs:
-                for j in range(n):
-                    tmp[e, j] = abs(pred[e, j] - screen[1, e, j])
-                move = row_sum(tmp, e)
-                col = clearance_screen[1, e] <= 2.0 * sweep * move + margin
+                for p in range(pair_weights.shape[0]):
+                    for j in range(n):
+                        tmp[e, j] = abs(pred[e, j] - screen[1, e, j]) * pair_weights[p, j]
+                    move = row_sum(tmp, e)
+                    if pair_clearance[e, p] <= move + margin:
+                        col = True
+                        break
             eff = False
             for j in range(n):
                 if lim[GRAVITY_BOUND, j] > lim[EFFORT, j] * effort_scale[e, j]:

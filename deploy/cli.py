@@ -1,5 +1,8 @@
 """Command-line entry points: ``deploy-run`` and ``policy-export``.
 
+``deploy-run``'s options are parsed by :mod:`deploy.run_parser`; the summary it prints at the end
+is :mod:`deploy.run_summary`'s.
+
 ``deploy-run`` exit codes:
 
 ====  =====================================================================================
@@ -30,7 +33,6 @@ safe stop on overruns stays.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -43,10 +45,10 @@ from deploy.backends.base import SimulatedPlant
 from deploy.files import atomic_write
 from deploy.goals import GoalScheduler
 from deploy.kernels.monitors import motion_statistics
-from deploy.runtime.clock import WAIT_MODES
+from deploy.run_parser import build_parser
+from deploy.run_summary import print_summary
 
 EXIT_CLEAN, EXIT_HARD_VIOLATION, EXIT_FAULT, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 1, 2, 3, 4
-BACKENDS = ("sim", "feetech", "dynamixel")
 
 
 def policy_export_main(argv: list[str] | None = None) -> int:
@@ -54,131 +56,6 @@ def policy_export_main(argv: list[str] | None = None) -> int:
     from deploy.export import main
 
     return main(argv)
-
-
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="deploy-run",
-        description="Run an exported ONNX policy through the safety runtime.",
-        epilog="Exit codes: 0 clean, 1 hard violation, 2 latched fault, 3 bad input, "
-        "4 simulation diverged.",
-    )
-    p.add_argument(
-        "--backend",
-        choices=BACKENDS,
-        default="sim",
-        help="sim (MuJoCo plant), feetech or dynamixel (serial-bus servos; wall clock only)",
-    )
-    p.add_argument("--port", default="/dev/ttyACM0", help="serial port of a servo bus")
-    p.add_argument("--baudrate", type=int, default=1_000_000, help="servo bus bit/s")
-    p.add_argument(
-        "--calibration",
-        type=Path,
-        default=None,
-        help="LeRobot calibration JSON (servo IDs, homing offsets, directions, ranges); "
-        "default: IDs 1..n, 2048 ticks = 0 rad",
-    )
-    p.add_argument(
-        "--hold-on-close",
-        action="store_true",
-        help="servo bus: leave the torque on at the end (default: off)",
-    )
-    p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
-    p.add_argument("--policy", required=True, help="ONNX policy (made by policy-export)")
-    p.add_argument("--spec", default=None, help="PolicySpec JSON for an ONNX without our metadata")
-    p.add_argument("--duration", type=float, default=60.0, help="seconds of (simulated) time")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--envs", type=int, default=1, help="robots simulated in lockstep")
-    p.add_argument("--realtime", action="store_true", help="wall clock with absolute deadlines")
-    p.add_argument(
-        "--overrun-limit",
-        type=float,
-        default=None,
-        help="wall clock: fraction of overrun ticks (over the last 200) that makes a safe stop "
-        "(default 0.05)",
-    )
-    p.add_argument(
-        "--wait",
-        choices=WAIT_MODES,
-        default=None,
-        help="wall clock: how to wait for each deadline: sleep, hybrid (sleep, then busy-wait "
-        "the last 150 us; default) or spin (busy-wait the whole period: one core kept hot)",
-    )
-    p.add_argument("--spin", action="store_true", help="wall clock: the same as --wait spin")
-    p.add_argument(
-        "--rt-priority",
-        type=int,
-        default=None,
-        metavar="N",
-        help="wall clock: run the loop at SCHED_FIFO priority N (1..99) where permitted "
-        "(CAP_SYS_NICE or an rtprio limit); otherwise a one-line notice and normal priority",
-    )
-    p.add_argument(
-        "--cpu",
-        default=None,
-        metavar="N[,M]",
-        help="run the loop on these CPUs (sched_setaffinity); a CPU the process may not use "
-        "is an error (exit 3)",
-    )
-    p.add_argument(
-        "--lock-memory",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="lock the process's memory (mlockall) where permitted (CAP_IPC_LOCK or a memlock "
-        "limit); default: on with --rt-priority",
-    )
-    p.add_argument(
-        "--require-rt",
-        action="store_true",
-        help="a refused --rt-priority or memory lock is an error (exit 3), not a notice",
-    )
-    p.add_argument(
-        "--command",
-        default=None,
-        help="legged robots: velocity command VX,VY,WZ (m/s, m/s, rad/s, base frame)",
-    )
-    p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
-    p.add_argument("--goal", default=None, help="fixed goal X,Y,Z (m, base frame)")
-    p.add_argument(
-        "--success-time",
-        type=float,
-        default=3.0,
-        help="a goal counts as reached within this many seconds",
-    )
-    p.add_argument(
-        "--inject",
-        action="append",
-        default=[],
-        metavar="KIND@SECONDS[:DURATION]",
-        help="fault injection (sim): dropout, stale, nan-action, latency, push",
-    )
-    p.add_argument("--report", type=Path, default=None, help="write the summary as JSON")
-    p.add_argument(
-        "--telemetry",
-        type=Path,
-        default=None,
-        help="write downsampled MCAP (with the foxglove extra: link poses, joint states, "
-        "commands and guard events in Foxglove's schemas)",
-    )
-    p.add_argument(
-        "--print-joints",
-        type=float,
-        default=None,
-        metavar="HZ",
-        help="print q, dq, command and winding temperature per joint HZ times per second",
-    )
-    p.add_argument(
-        "--video", type=Path, default=None, help="render the run offscreen to an H.264 MP4"
-    )
-    p.add_argument("--camera", default=None, help="--video: MJCF camera name (default: free)")
-    p.add_argument("--fps", type=float, default=30.0, help="--video: frames per second")
-    p.add_argument("--size", default="640x480", help="--video: WIDTHxHEIGHT pixels")
-    p.add_argument(
-        "--viewer",
-        action="store_true",
-        help="MuJoCo's interactive passive viewer (needs a display); lockstep, or --realtime",
-    )
-    return p
 
 
 def make_backend(args, robot, mode: str):
@@ -500,119 +377,9 @@ def _run_opened(
     return code
 
 
-def print_summary(r: dict) -> None:
-    print(
-        f"deploy-run: {r['robot']}, {r['control_mode']} control at {r['control_rate_hz']:.0f} Hz, "
-        f"{r['duration_s']:.1f} s {'wall-clock' if r['realtime'] else 'simulated'} "
-        f"in {r['wall_s']:.2f} s"
-    )
-    g, loco = r["goals"], r.get("locomotion")
-    if g is not None:
-        rate = f"{100 * g['success_rate']:.1f} %" if g["success_rate"] is not None else "n/a"
-        print(
-            f"  goals reached     {g['reached']}/{g['issued']} within {g['within_s']:.1f} s "
-            f"({rate})"
-        )
-    if loco is not None:
-        speed, track = loco["mean_forward_speed_m_s"], loco["tracking_success"]
-        print(
-            f"  walked            {loco['distance_m']:.2f} m, mean forward speed "
-            + (f"{speed:.3f} m/s" if speed is not None else "n/a")
-            + f" (command {', '.join(f'{c:g}' for c in loco['command'][0])}); tracking "
-            + (f"{100 * track:.1f} %" if track is not None else "n/a")
-            + f" of RUNNING time within {loco['tracking_tolerance_m_s']} m/s; falls {loco['falls']}"
-        )
-    v = r["violations"]
-    if v is not None:
-        text = ", ".join(f"{k} {n}" for k, n in v["by_type"].items())
-        print(f"  violations (true state, sim)  ticks: {text}")
-    else:
-        print(
-            "  violations        n/a (no ground truth on a servo bus; the guard's hard-limit "
-            f"stops: {r['faults']['by_cause']['hard_limit']})"
-        )
-    iv = r["interventions"]
-    text = ", ".join(
-        f"{k} {100 * c['fraction']:.2f}" for k, c in iv["checks"].items() if c["count"]
-    )
-    warn = iv["warnings"]["soft_band_estimate"]
-    print(
-        f"  interventions (% of ticks)    any {100 * iv['any']['fraction']:.2f}"
-        + (f" ({text})" if text else "")
-        + f"; warning: estimate in soft band {100 * warn['fraction']:.2f}"
-    )
-    f = r["faults"]
-    causes = ", ".join(f"{k} {n}" for k, n in f["by_cause"].items() if n) or "none"
-    print(
-        f"  faults            non-finite actions {f['non_finite_actions']}, safe stops "
-        f"{f['safe_stops']} ({causes}"
-        + (
-            f"; not at rest, timed out {f['safe_stop_timeouts']}"
-            if f.get("safe_stop_timeouts")
-            else ""
-        )
-        + f"); estimator: stale {f['estimator']['stale_readings']}, "
-        f"missing {f['estimator']['missing_readings']}, re-inits "
-        f"{f['estimator']['reinitializations']}"
-    )
-    for text in f.get("drive_errors", []):
-        print(f"  servo error       {text}")
-    b = r.get("bus")
-    if b:
-        rd, wr = b["read_us"], b["write_us"]
-        drops = ", ".join(f"{k} {n}" for k, n in b["dropouts"].items())
-        print(
-            f"  bus               {b['protocol']} {b['port']} at {b['baudrate']} bit/s: "
-            f"{b['sync_reads']} sync reads, dropouts {drops} "
-            f"({100 * b['dropout_fraction']:.2f} % of replies); read p50 {rd['p50_us']:.0f} "
-            f"p99 {rd['p99_us']:.0f} us, write p50 {wr['p50_us']:.0f} us"
-        )
-    temps = ", ".join(f"{k} {t:.1f}" for k, t in r["peak_winding_temperature_c"].items())
-    print(f"  peak winding degC {temps}")
-    speed = max(r["max_joint_speed_rad_s"].values())
-    jerk = ", ".join(f"{k} {v:.0f}" for k, v in r["mean_abs_jerk_rad_s3"].items())
-    source = "true" if r["violations"] is not None else "estimated"
-    print(f"  max joint speed   {speed:.2f} rad/s; mean |jerk| rad/s^3 ({source}, RUNNING) {jerk}")
-    t = r["tick_cost_us"]
-    print(
-        f"  tick cost (us)    p50 {t['p50_us']:.1f}  p99 {t['p99_us']:.1f}  "
-        f"p99.9 {t['p99.9_us']:.1f}  (runtime, without physics)"
-    )
-    m = r["monitor_cost_us"]
-    print(
-        f"  monitors (us)     p50 {m['p50_us']:.1f}  p99 {m['p99_us']:.1f}  (violations + "
-        "interventions, per tick, outside the runtime)"
-    )
-    stages = "  ".join(f"{k} {s['p50_us']:.0f}" for k, s in r["stage_cost_us"].items())
-    print(f"  stages p50 (us)   {stages}")
-    d = r["deadline"]
-    line = f"  deadlines         overruns {d['overruns']}, missed periods {d['missed_periods']}"
-    if d["jitter_us"]:
-        j = d["jitter_us"]
-        line += f", jitter p50 {j['p50_us']:.1f} p99 {j['p99_us']:.1f} p99.9 {j['p99.9_us']:.1f} us"
-    print(line)
-    rts = r.get("realtime_settings")
-    if rts and (r["realtime"] or rts["requested"]["cpus"] is not None):
-        sched = rts["scheduler"] or "scheduler unknown"
-        if rts["scheduler"] == "SCHED_FIFO":
-            sched += f" {rts['priority']}"
-        print(
-            f"  real time         wait {d.get('wait') or 'none (lockstep)'}, {sched}, CPUs "
-            f"{','.join(map(str, rts['cpus']))}, memory "
-            f"{'locked' if rts['memory_locked'] else 'not locked'}"
-        )
-    print(
-        f"  final state       {', '.join(r['final_state'])}"
-        + (f" ({', '.join(c for c in r['final_cause'] if c)})" if any(r["final_cause"]) else "")
-    )
-    if r["diverged"]:
-        print(f"  SIMULATION DIVERGED: {r['diverged']}")
-    print(f"  exit code         {r['exit_code']}")
-
-
 def deploy_run_main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
-    args = _parser().parse_args(argv)
+    args = build_parser().parse_args(argv)
     if args.viewer:  # a window or nothing: refuse before the run starts
         from deploy.viewer import NoDisplayError, check_display
 

@@ -45,17 +45,18 @@ is given (no allocation in the control loop).
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from deploy.errors import Sim2RealError
-from deploy.kernels.observation import KIND_CODES
-from deploy.kernels.observation import observation as observation_kernel
-from deploy.state import Kinematics, RobotState
+from deploy.state import RobotState
 from robots import CONTROL_MODES, Robot
+
+if TYPE_CHECKING:
+    from deploy.observation_plan import ObservationPlan
 
 FORMAT_VERSION = 1
 #: Blocks of a floating-base (legged) robot, all in the base frame, SI units (seed section 9: the
@@ -238,111 +239,14 @@ class PolicySpec:
         Default blocks: ``joint_position``, ``joint_position_sincos`` (only when the robot has
         wrapping joints), ``joint_velocity``, ``ee_position``, ``goal_position``, ``goal_in_ee``.
 
+        Built by :func:`deploy.spec_defaults.spec_for_robot`.
+
         Raises:
             SpecError: unknown block kind or control mode.
         """
-        mode = robot.control_mode if mode is None else mode
-        if mode not in CONTROL_MODES:
-            raise SpecError(f"action.mode: '{mode}' is unknown; expected one of {CONTROL_MODES}")
-        n = robot.n_joints
-        lo, hi = robot.position_lower, robot.position_upper
-        wrapping = tuple(i for i in range(n) if hi[i] - lo[i] > 2 * np.pi + 1e-9)
-        bounded = tuple(i for i in range(n) if i not in wrapping)
-        legged = robot.floating_base
-        if blocks is None and legged:
-            blocks = LEGGED_DEFAULT_BLOCKS
-        elif blocks is None:
-            blocks = (
-                ("joint_position",)
-                + (("joint_position_sincos",) if wrapping else ())
-                + (
-                    "joint_velocity",
-                    "ee_position",
-                    "goal_position",
-                    "goal_in_ee",
-                )
-            )
-        reach = Kinematics(robot).reach() if robot.ee_frame_id >= 0 else 1.0
-        motors = robot.motors
-        ambient = robot.config.sensors.ambient_temperature
-        out = []
-        for kind in blocks:
-            if kind == "joint_position" and legged:  # about the default pose, unscaled
-                idx = tuple(range(n))
-                home = tuple(float(h) for h in robot.home)
-                out.append(ObservationBlock(kind, n, (1.0,) * n, home, joints=idx))
-            elif kind == "joint_position":
-                idx = bounded
-                scale = tuple((hi[i] - lo[i]) / 2 for i in idx)
-                offset = tuple((hi[i] + lo[i]) / 2 for i in idx)
-                out.append(ObservationBlock(kind, len(idx), scale, offset, joints=idx))
-            elif kind == "joint_velocity":
-                idx = tuple(range(n))
-                if legged:
-                    scale = (LEGGED_SCALES["joint_velocity"],) * n
-                else:
-                    scale = tuple(float(v) for v in robot.velocity_limit)
-                out.append(ObservationBlock(kind, n, scale, (0.0,) * n, joints=idx))
-            elif kind in LEGGED_KINDS:
-                size = robot.n_feet if kind == "foot_contact" else FIXED_SIZES[kind]
-                scale = LEGGED_SCALES.get(kind, (1.0,) * size)
-                period = GAIT_PERIOD if kind == "gait_phase" else 0.0
-                out.append(ObservationBlock(kind, size, tuple(scale), (0.0,) * size, period=period))
-            elif kind == "joint_position_sincos":
-                k = len(wrapping)
-                out.append(
-                    ObservationBlock(kind, 2 * k, (1.0,) * 2 * k, (0.0,) * 2 * k, joints=wrapping)
-                )
-            elif kind in ("ee_position", "goal_position", "goal_in_ee"):
-                out.append(ObservationBlock(kind, 3, (reach,) * 3, (0.0,) * 3))
-            elif kind == "last_action":
-                out.append(
-                    ObservationBlock(kind, n, (1.0,) * n, (0.0,) * n, joints=tuple(range(n)))
-                )
-            elif kind == "winding_temperature":
-                scale = tuple(m.max_winding_temperature - ambient for m in motors)
-                out.append(ObservationBlock(kind, n, scale, (ambient,) * n, joints=tuple(range(n))))
-            else:
-                raise SpecError(
-                    f"observation: block '{kind}' is unknown; expected one of {OBSERVATION_KINDS}"
-                )
-        if mode == "position" and legged and reference == "absolute":
-            scale, offset = (LEGGED_ACTION_SCALE,) * n, tuple(float(h) for h in robot.home)
-        elif mode == "position":
-            if reference == "absolute":
-                scale = tuple((hi - lo) / 2)
-                offset = tuple((hi + lo) / 2)
-            else:
-                # a full action moves one control period at the velocity limit
-                scale = tuple(robot.velocity_limit * robot.control_period)
-                offset = (0.0,) * n
-        elif mode == "velocity":
-            # a full action is the fastest command the runtime issues (the smoother's soft
-            # velocity limit): no action in [-1, 1] is clamped, so a clamp is a real intervention
-            scale, offset = tuple(robot.soft_velocity_limit), (0.0,) * n
-        else:
-            scale, offset = tuple(robot.effort_limit), (0.0,) * n
-        action = ActionSpec(
-            mode=mode,
-            size=n,
-            scale=tuple(float(s) for s in scale),
-            offset=tuple(float(o) for o in offset),
-            clip=LEGGED_ACTION_CLIP if legged else 1.0,
-            reference=reference,
-        )
-        spec = cls(
-            robot=robot.name,
-            joint_names=robot.joint_names,
-            robot_hash=robot.description_hash,
-            observation_blocks=tuple(
-                replace(b, scale=tuple(map(float, b.scale)), offset=tuple(map(float, b.offset)))
-                for b in out
-            ),
-            action=action,
-            control_rate=1.0 / robot.control_period,
-        )
-        spec.validate()
-        return spec
+        from deploy.spec_defaults import spec_for_robot
+
+        return spec_for_robot(cls, robot, blocks, mode, reference)
 
     # ------------------------------------------------------------------ properties
     @property
@@ -480,63 +384,17 @@ class PolicySpec:
             out: Optional float32 (envs, obs_dim) array to write into.
             reference: Run the numpy reference instead of the compiled kernel
                 (:mod:`deploy.kernels.observation`); both give the same numbers bit for bit.
+
+        The spec's compiled plan (:class:`deploy.observation_plan.ObservationPlan`, built on the
+        first call) assembles it.
         """
-        envs = state.q.shape[0]
-        if out is None:
-            out = np.empty((envs, self.obs_dim), dtype=np.float32)
-        plan = self._plan
-        raw = plan.raw(envs)
-        if plan.compiled and not reference:
-            observation_kernel(
-                plan.kinds,
-                plan.starts,
-                plan.joints,
-                state.q,
-                state.dq,
-                state.ee_position,
-                state.ee_rotation,
-                goal,
-                state.last_action,
-                state.winding_temperature,
-                plan.norm,
-                plan._raw,
-                out,
-            )
-            return out
-        for kind, dst, joints in plan.blocks:
-            if kind == "joint_position":
-                np.take(state.q, joints, axis=1, out=raw[:, dst])
-            elif kind == "joint_velocity":
-                np.take(state.dq, joints, axis=1, out=raw[:, dst])
-            elif kind == "joint_position_sincos":
-                q = state.q[:, joints]
-                k = len(joints)
-                np.sin(q, out=raw[:, dst.start : dst.start + k])
-                np.cos(q, out=raw[:, dst.start + k : dst.stop])
-            elif kind == "ee_position":
-                raw[:, dst] = state.ee_position
-            elif kind == "goal_position":
-                raw[:, dst] = goal
-            elif kind == "goal_in_ee":
-                np.subtract(goal, state.ee_position, out=plan.vec[:envs])
-                np.matmul(plan.vec[:envs, None, :], state.ee_rotation, out=plan.rot[:envs, None, :])
-                raw[:, dst] = plan.rot[:envs]
-            elif kind == "last_action":
-                np.take(state.last_action, joints, axis=1, out=raw[:, dst])
-            elif kind == "winding_temperature":
-                np.take(state.winding_temperature, joints, axis=1, out=raw[:, dst])
-            else:
-                _legged_block(kind, state, raw[:, dst], plan.periods[dst.start])
-        raw -= plan.offset
-        raw /= plan.scale
-        np.minimum(raw, plan.clip, out=raw)
-        np.maximum(raw, -plan.clip, out=raw)
-        out[:] = raw
-        return out
+        return self._plan.observation(state, goal, out, reference)
 
     @cached_property
-    def _plan(self) -> _ObservationPlan:
-        return _ObservationPlan(self)
+    def _plan(self) -> ObservationPlan:
+        from deploy.observation_plan import ObservationPlan
+
+        return ObservationPlan(self)
 
     def action_to_target(
         self, action: np.ndarray, state: RobotState, out: np.ndarray | None = None
@@ -604,101 +462,3 @@ class PolicySpec:
         except SpecError as exc:
             raise SpecError(f"{source}: {exc}") from None
         return spec
-
-
-def _legged_block(kind: str, state: RobotState, raw: np.ndarray, period: float) -> None:
-    """Write the raw entries (envs, size) of one of ``LEGGED_KINDS`` from ``state``.
-
-    Raises:
-        SpecError: a state without the floating-base fields (``RobotState.legged``).
-    """
-    base = state.base
-    if base is None:
-        raise SpecError(f"observation: block '{kind}' needs a floating-base robot's state")
-    if kind == "base_linear_velocity":
-        raw[:] = base.linear_velocity
-    elif kind == "base_angular_velocity":
-        raw[:] = base.angular_velocity
-    elif kind == "projected_gravity":
-        raw[:] = base.projected_gravity
-    elif kind == "velocity_command":
-        raw[:] = state.command
-    elif kind == "gait_phase":
-        phase = (2.0 * np.pi / period) * state.clock
-        raw[:, 0] = np.sin(phase)
-        raw[:, 1] = np.cos(phase)
-    elif kind == "foot_contact":
-        raw[:] = state.foot_contact
-    else:  # heading_sincos: the yaw of the base's x axis in the filter's world frame
-        w, x, y, z = base.orientation.T
-        yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-        raw[:, 0] = np.sin(yaw)
-        raw[:, 1] = np.cos(yaw)
-
-
-class _ObservationPlan:
-    """:meth:`PolicySpec.observation` precompiled: per-entry offset, scale and clip arrays, joint
-    index arrays, and work buffers grown to the largest batch seen (no allocation per tick)."""
-
-    def __init__(self, spec: PolicySpec):
-        self.blocks = []
-        start = 0
-        for b in spec.observation_blocks:
-            dst = slice(start, start + b.size)
-            self.blocks.append((b.name, dst, np.array(b.joints, dtype=np.intp)))
-            start += b.size
-        bl = spec.observation_blocks
-        self.offset = np.concatenate([np.asarray(b.offset, float) for b in bl]) if bl else []
-        self.scale = np.concatenate([np.asarray(b.scale, float) for b in bl]) if bl else []
-        self.clip = np.concatenate([np.full(b.size, float(b.clip)) for b in bl]) if bl else []
-        self.dim = start
-        #: per entry: the gait clock's period of its block (s; 0 outside gait_phase blocks)
-        self.periods = np.concatenate([np.full(b.size, b.period) for b in bl]) if bl else []
-        self._raw = np.zeros((0, start))
-        self.vec = np.zeros((0, 3))
-        self.rot = np.zeros((0, 3))
-        # the compiled kernel's layout (deploy.kernels.observation); kinds it does not know run
-        # the reference
-        self.compiled = bool(bl) and all(
-            b.name in KIND_CODES
-            and (b.name != "joint_position_sincos" or b.size == 2 * len(b.joints))
-            for b in bl
-        )
-        if self.compiled:
-            self.kinds = np.array([KIND_CODES[b.name] for b in bl], dtype=np.int64)
-            self.starts = np.array([s.start for _, s, _ in self.blocks], dtype=np.int64)
-            width = max(1, max(len(b.joints) for b in bl))
-            self.joints = np.full((len(bl), width), -1, dtype=np.int64)
-            for i, b in enumerate(bl):
-                self.joints[i, : len(b.joints)] = b.joints
-            self.norm = np.ascontiguousarray(np.stack([self.offset, self.scale, self.clip]))
-            self._warm()
-
-    def _warm(self) -> None:
-        """Compile the kernel (or load numba's cache) now, not in the first tick."""
-        n = int(self.joints.max()) + 1
-        state = RobotState.zeros(1, max(n, 1))
-        goal = np.zeros((1, 3))
-        out = np.zeros((1, self.dim), dtype=np.float32)
-        observation_kernel(
-            self.kinds,
-            self.starts,
-            self.joints,
-            state.q,
-            state.dq,
-            state.ee_position,
-            state.ee_rotation,
-            goal,
-            state.last_action,
-            state.winding_temperature,
-            self.norm,
-            self.raw(1),
-            out,
-        )
-
-    def raw(self, envs: int) -> np.ndarray:
-        if self._raw.shape[0] < envs:
-            self._raw = np.zeros((envs, self.dim))
-            self.vec = np.zeros((envs, 3))
-            self.rot = np.zeros((envs, 3))
-        return self._raw[:envs]

@@ -135,7 +135,7 @@ def run_campaign(
         workers: Local processes (default: one per core).
         progress: Show a progress bar (simulated hours and speed).
         film: Record for the film strip (:class:`eval.batch.SessionBatch`;
-            :func:`eval.film.film_campaign` renders it afterwards).
+            :func:`eval.film_render.film_campaign` renders it afterwards).
 
     Raises:
         SessionError: bad options (named).

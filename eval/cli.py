@@ -300,8 +300,8 @@ def run(args) -> int:
         progress=not args.no_progress,
         film=not args.no_film,
     )
-    if not args.no_film:  # replayed from the kept checkpoints and rendered (eval.film)
-        from eval.film import film_campaign
+    if not args.no_film:  # replayed from the kept checkpoints and rendered (eval.film_render)
+        from eval.film_render import film_campaign
 
         results = film_campaign(template, results, args.out, workers=args.workers)
     wall = time.perf_counter() - wall

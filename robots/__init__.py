@@ -6,7 +6,8 @@
 ('shoulder', 'elbow', 'wrist')
 """
 
-from robots.robot import Robot, RobotSpecError, load_robot, resolve_robot_toml
+from robots.loading import load_robot, resolve_robot_toml
+from robots.robot import Robot, RobotSpecError
 from robots.schema import CONTROL_MODES, MotorConfig, RobotConfig
 
 __all__ = [

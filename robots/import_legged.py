@@ -269,7 +269,7 @@ def finish_floating_mjcf(
 
 def robot_mass(mjcf_path: Path) -> float:
     """Total mass (kg) of the robot in ``mjcf_path`` (MuJoCo, resolved meshdir)."""
-    from robots.robot import _resolved_mjcf
+    from robots.loading import _resolved_mjcf
 
     model = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
     return float(model.body_subtreemass[0])
@@ -476,7 +476,8 @@ def import_floating_base(
         derive_motion_limits,
     )
     from robots.importer import _add_contact_excludes, _disabled_by
-    from robots.robot import RobotSpecError, _resolved_mjcf, load_robot
+    from robots.loading import _resolved_mjcf, load_robot
+    from robots.robot import RobotSpecError
 
     foot_links = choose_feet(urdf, feet)
     imu_link = choose_imu(urdf, imu, log)

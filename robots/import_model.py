@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 
 from robots.import_urdf import PreparedSource, RobotImportError, SrdfInfo
-from robots.robot import _resolved_mjcf
+from robots.loading import _resolved_mjcf
 from robots.schema import MotorConfig
 
 #: Soft-limit fraction written for every joint (as arm3/arm6).

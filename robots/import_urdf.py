@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from robots.robot import PACKAGE_SCHEME, RobotSpecError, package_root
+from robots.loading import PACKAGE_SCHEME, package_root
+from robots.robot import RobotSpecError
 
 #: Mesh formats MuJoCo decodes itself; others (COLLADA .dae) are replaced by a fitted box.
 MUJOCO_MESH_FORMATS = (".stl", ".obj", ".msh")

@@ -50,15 +50,15 @@ from robots.import_model import (
     write_robot_toml,
 )
 from robots.import_urdf import PreparedSource, RobotImportError, SrdfInfo, prepare_urdf, read_srdf
-from robots.robot import (
+from robots.loading import (
     PACKAGE_SCHEME,
-    RobotSpecError,
     _resolved_mjcf,
     load_motor,
     load_robot,
     motor_catalog,
     package_root,
 )
+from robots.robot import RobotSpecError
 from robots.schema import MotorConfig
 
 __all__ = ["ImportReport", "RobotImportError", "import_robot", "main", "resolve_source"]

@@ -1,5 +1,5 @@
-"""The soak's film strip (eval.film): moments, replay from checkpoints, clips in report.html, and
-the clip playing in a real headless browser (Chromium through Selenium)."""
+"""The soak's film strip (eval.film, eval.film_render): moments, replay from checkpoints, clips in
+report.html, and the clip playing in a real headless browser (Chromium through Selenium)."""
 
 import json
 import os
@@ -87,7 +87,7 @@ def filmed(tmp_path_factory, arm3):
     checkpointed every 15 s; its film rendered small (240x180, 10 fps, 2 clips)."""
     if not egl_works():
         pytest.skip("no EGL OpenGL context here (MUJOCO_GL=egl): the film cannot be rendered")
-    from eval.film import film_campaign
+    from eval.film_render import film_campaign
 
     tmp = tmp_path_factory.mktemp("film")
     policy = adversarial_onnx(tmp, arm3, "velocity")
@@ -170,7 +170,7 @@ def test_a_deterministic_policy_replays_exactly_from_a_kept_checkpoint(tmp_path,
     first kept checkpoint start from it, and reproduce the run bit for bit."""
     if not egl_works():
         pytest.skip("no EGL OpenGL context here (MUJOCO_GL=egl): the film cannot be rendered")
-    from eval.film import film_campaign
+    from eval.film_render import film_campaign
     from tests.test_soak import tiny_policy
 
     faults = FaultRanges(

@@ -15,7 +15,7 @@ import pytest
 from deploy.acceptance import check_adversarial
 from robots import load_robot
 from robots.importer import EXIT_REFUSED, import_robot, main, resolve_source
-from robots.robot import ROBOTS_DIR, package_root
+from robots.loading import ROBOTS_DIR, package_root
 
 pytest.importorskip("coal")
 try:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from robots import RobotSpecError, load_robot
-from robots.robot import ROBOTS_DIR
+from robots.loading import ROBOTS_DIR
 
 
 @pytest.fixture
@@ -244,7 +244,7 @@ def test_description_hash_unchanged_by_the_motor_catalog(name):
 
 
 def test_every_catalog_motor_validates():
-    from robots.robot import load_motor, motor_catalog
+    from robots.loading import load_motor, motor_catalog
 
     names = set(motor_catalog())
     assert {"sts3215", "xm430_w350", "xl430_w250", "go_m8010_6", "ec45flat70_gp42c"} <= names

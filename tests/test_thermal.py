@@ -5,7 +5,7 @@ import pytest
 
 from deploy.safety import motion_bounds
 from deploy.thermal import EffortDerating, TwoNodeThermalModel, derating_factor
-from robots.robot import load_motor, motor_catalog
+from robots.loading import load_motor, motor_catalog
 
 
 def test_capacities_follow_the_datasheet_time_constants(arm3):

@@ -20,6 +20,10 @@ and ``qvel``, and :meth:`SimBackend.true_base_state` gives the base's true pose 
 
 The true state stays available (:meth:`SimBackend.true_position`, ...) for evaluation only.
 
+Its state dict (``state_dict`` / ``load_state_dict``, what a soak checkpoint keeps) comes from
+the base class :class:`deploy.backends.sim_state.SimState`; a scripted demo run of the plant is
+``python -m deploy.backends.sim_demo``.
+
 Interfaces (:mod:`deploy.backends.base`): :class:`~deploy.backends.base.Backend` (its lifecycle
 calls are no-ops: the plant is ready from construction and its drives are always on) and
 :class:`~deploy.backends.base.SimulatedPlant` (ground truth, fault hooks, external forces).
@@ -32,8 +36,6 @@ would otherwise zero every actuator for that step).
 
 from __future__ import annotations
 
-import argparse
-import time as _time
 from collections.abc import Sequence
 
 import mujoco
@@ -42,13 +44,13 @@ import numpy as np
 from deploy.backends.base import BackendLifecycle, SensorFrame
 from deploy.backends.legged_sensors import BaseSensorModel
 from deploy.backends.sim_sensors import JointSensorModel
+from deploy.backends.sim_state import SimState
 from deploy.errors import Sim2RealError
 from deploy.kernels import all_finite
 from deploy.kernels.thermal import derating_due, windup_exceeded
 from deploy.safety import motion_bounds
-from deploy.stateful import check, env_index, from_json, put, scalar, take
 from deploy.thermal import EffortDerating, TwoNodeThermalModel
-from robots import CONTROL_MODES, Robot, load_robot
+from robots import CONTROL_MODES, Robot
 
 _DIVERGENCE_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQACC,
@@ -62,9 +64,6 @@ _WARNING_SLICE = slice(
     min(int(w) for w in _DIVERGENCE_WARNINGS), max(int(w) for w in _DIVERGENCE_WARNINGS) + 1
 )
 assert _WARNING_SLICE.stop - _WARNING_SLICE.start == len(_DIVERGENCE_WARNINGS)
-#: MuJoCo's state a plant's ``state_dict`` keeps: everything a step reads (time, qpos, qvel, act,
-#: warm start, ctrl, applied forces, mocap, equality flags, user data, plugin state).
-_MJ_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
 class SimulationDivergedError(Sim2RealError, RuntimeError):
@@ -75,7 +74,7 @@ class NonFiniteCommandError(Sim2RealError, ValueError):
     """A command with NaN or inf was written; it was rejected and never reached MuJoCo."""
 
 
-class SimBackend(BackendLifecycle):
+class SimBackend(SimState, BackendLifecycle):
     """MuJoCo plant with sensor and motor-thermal models, batched over ``envs``.
 
     Args:
@@ -294,95 +293,6 @@ class SimBackend(BackendLifecycle):
         """
         self._joint_sensors.set_streams(generators)
 
-    # ------------------------------------------------------------------ state
-    def _state_fields(self) -> dict[str, np.ndarray]:
-        """The plant's per-env arrays, env axis first (the latency buffers are (slots, envs, ...)
-        inside: views with the env axis moved to the front)."""
-        f, th = self.frame, self.thermal
-        return {
-            "command": self._command,
-            "torque": self._torque,
-            "effort_limit": self.effort_limit,
-            **self._joint_sensors.state_fields(),
-            "frame/time": f.time,
-            "frame/position": f.position,
-            "frame/position_stamp": f.position_stamp,
-            "frame/winding_temperature": f.winding_temperature,
-            "frame/temperature_stamp": f.temperature_stamp,
-            "thermal/winding_temperature": th.winding_temperature,
-            "thermal/housing_temperature": th.housing_temperature,
-            "thermal/current": th.current,
-            "thermal/power": th.power,
-            "thermal/ambient": th.ambient,
-            **(self._base_sensors.state_fields() if self._base_sensors is not None else {}),
-        }
-
-    def _mujoco_fields(self) -> dict[str, np.ndarray]:
-        """Copies of MuJoCo's per-env state, (envs, ...): ``mj_getState`` of
-        ``mjSTATE_INTEGRATION`` (time, qpos, qvel, act, warm start, ctrl, applied forces, ...),
-        the warning counters and the model's ``dof_frictionloss`` (drift edits it)."""
-        states, warnings, friction = [], [], []
-        for m, d in zip(self.models, self.datas, strict=True):
-            state = np.empty(mujoco.mj_stateSize(m, _MJ_STATE))
-            mujoco.mj_getState(m, d, state, _MJ_STATE)
-            states.append(state)
-            warnings.append(d.warning.number.copy())
-            friction.append(m.dof_frictionloss.copy())
-        return {
-            "mujoco/state": np.stack(states),
-            "mujoco/warnings": np.stack(warnings),
-            "mujoco/dof_frictionloss": np.stack(friction),
-        }
-
-    def state_dict(self, env: int | None = None) -> dict:
-        """The plant's state (copies; conventions of :mod:`deploy.stateful`).
-
-        Per env, env axis first (length 1 for one env ``env``): ``mujoco/state`` (MuJoCo's
-        ``mjSTATE_INTEGRATION``), ``mujoco/warnings``, ``mujoco/dof_frictionloss``; the drive
-        ``command`` and ``torque`` (N m), ``effort_limit`` (N m), the sensor settings
-        ``noise_sigma`` (rad), ``dropout_probability``, ``latency_ticks``; the latency buffers
-        ``buffer/position`` (envs, slots, n) rad and ``buffer/stamp`` (envs, slots) s; the last
-        ``frame/<field>`` (a drive repeats its temperature between reports); the thermal nodes
-        ``thermal/<field>`` (degC, A, W). Shared: ``tick`` (int) and ``sensor_rng``, JSON of the
-        sensor streams' ``bit_generator.state`` (a list over the envs with
-        :meth:`set_sensor_streams`, the batch's one stream otherwise).
-        """
-        out: dict = take(self._state_fields(), env)
-        index = env_index(env)
-        out.update({k: v[index] for k, v in self._mujoco_fields().items()})
-        out["tick"] = int(self.tick)
-        out["sensor_rng"] = self._joint_sensors.stream_state(env)
-        return out
-
-    def load_state_dict(self, state: dict, env: int | None = None) -> None:
-        """Inverse of :meth:`state_dict` (of every env, or of env ``env``), into a backend built
-        with the same robot, mode and models (the same kind of sensor streams). MuJoCo's state
-        is set without ``mj_forward`` (which would rewrite the warm start); the drives' torque
-        limits are derated afresh from the thermal state at the next :meth:`advance`.
-
-        Raises:
-            StateDictError: a missing field, a shape that differs (a MuJoCo state of another
-                model), or sensor streams of another kind; nothing is changed.
-        """
-        fields = self._state_fields()
-        mj = self._mujoco_fields()
-        check({**fields, **mj}, state, env)
-        tick = scalar(state, "tick", int)
-        envs = list(range(self.envs)) if env is None else [env]
-        rng = from_json(state, "sensor_rng")
-        self._joint_sensors.check_stream_state(rng, envs)
-        put(fields, state, env)
-        for i, e in enumerate(envs):
-            m, d = self.models[e], self.datas[e]
-            mujoco.mj_setState(m, d, np.asarray(state["mujoco/state"][i]), _MJ_STATE)
-            d.warning.number[:] = state["mujoco/warnings"][i]
-            m.dof_frictionloss[:] = state["mujoco/dof_frictionloss"][i]
-            self._derated[e] = True  # re-derate from the loaded winding temperatures
-        self.tick = tick
-        self._joint_sensors.load_stream_state(rng, envs)
-        self.true_position()  # the gathered joint angles follow the loaded state
-        self.true_velocity()
-
     # ------------------------------------------------------------------ the Backend lifecycle
     def open(self) -> None:
         """Nothing to connect: the plant is ready from construction (``Backend`` contract)."""
@@ -593,68 +503,7 @@ class SimBackend(BackendLifecycle):
             self._base_sensors.sample(self.tick, self.time)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Hold the robot at its home pose with a scripted controller and print a summary.
+if __name__ == "__main__":  # the demo's former home: python -m deploy.backends.sim_demo
+    from deploy.backends.sim_demo import main
 
-    The controller acts on the *measured* (noisy, quantized) encoder angles only, like a real one.
-    """
-    p = argparse.ArgumentParser(prog="python -m deploy.backends.sim", description=main.__doc__)
-    p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
-    p.add_argument("--mode", choices=CONTROL_MODES, default=None, help="default: from robot.toml")
-    p.add_argument("--duration", type=float, default=60.0, help="simulated seconds")
-    p.add_argument("--seed", type=int, default=0)
-    args = p.parse_args(argv)
-
-    robot = load_robot(args.robot)
-    plant = SimBackend(robot, mode=args.mode, seed=args.seed)
-    ticks = int(round(args.duration / robot.control_period))
-    target = robot.home[None, :]
-    last = target.copy()
-    peak = np.full(robot.n_joints, -np.inf)
-    worst_error = np.zeros(robot.n_joints)
-    dropped = 0
-    t0 = _time.perf_counter()
-    step_time = 0.0
-    for _ in range(ticks):
-        frame = plant.read()
-        missing = np.isnan(frame.position)
-        dropped += int(missing.sum())
-        q = np.where(missing, last, frame.position)
-        last = q
-        if plant.mode == "position":
-            cmd = target
-        elif plant.mode == "velocity":
-            cmd = np.clip(5.0 * (target - q), -robot.velocity_limit, robot.velocity_limit)
-        else:
-            cmd = robot.gravity_torque(q[0])[None, :] + 50.0 * (target - q)
-        plant.write(cmd)
-        s = _time.perf_counter()
-        plant.advance()
-        step_time += _time.perf_counter() - s
-        peak = np.maximum(peak, frame.winding_temperature[0])
-        worst_error = np.maximum(worst_error, np.abs(plant.true_position()[0] - robot.home))
-    wall = _time.perf_counter() - t0
-    names = robot.joint_names
-    print(
-        f"robot {robot.name}: {robot.n_joints} joints, {plant.mode} control, "
-        f"{1 / robot.control_period:.0f} Hz control, {1 / robot.physics_timestep:.0f} Hz physics"
-    )
-    print(
-        f"simulated {args.duration:.1f} s in {wall:.2f} s wall "
-        f"({args.duration / wall:.0f}x real time); "
-        f"physics + thermal {1e6 * step_time / ticks:.1f} us per control tick"
-    )
-    print("scripted controller: hold the home pose on measured encoder angles")
-    print(f"encoder readings dropped: {dropped} of {ticks * robot.n_joints}")
-    for i, name in enumerate(names):
-        print(
-            f"  {name:>14}: max |q - home| {worst_error[i]:.4f} rad, torque "
-            f"{plant.joint_torque()[0, i]:+7.3f} N m, "
-            f"winding {plant.thermal.winding_temperature[0, i]:6.2f} degC "
-            f"(reported peak {peak[i]:.0f} degC, max {robot.motors[i].max_winding_temperature:.0f})"
-        )
-    return 0
-
-
-if __name__ == "__main__":
     raise SystemExit(main())

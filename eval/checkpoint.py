@@ -65,7 +65,9 @@ FORMAT = "soak-checkpoint"
 #: 3: the composition of the stages' state dicts (2 read and wrote their private attributes).
 #: 4: the runtime's safe-stop timeout (``stop_ticks``, ``counters/safe_stop_timeouts``); a
 #: version 3 checkpoint has neither, and its sessions restart.
-VERSION = 4
+#: 5: the guard's distance per collision pair (``pair_clearance``, its per-pair screen); a
+#: version 4 checkpoint has none.
+VERSION = 5
 MANIFEST = "checkpoint.json"
 
 

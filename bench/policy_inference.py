@@ -3,8 +3,9 @@
 Run: ``.venv/bin/python -m bench.policy_inference [--calls 10000]``, or as the ``inference``
 item of ``python -m bench``.
 
-An arm3-sized MLP (obs 21, hidden [64, 64] ELU, act 3, with an observation normalizer) is saved
-as our checkpoint and exported with ``policy-export``'s code path (parity gate included); the
+An arm3-sized MLP (every observation block of ``BLOCKS``, hidden [64, 64] ELU, act 3, with an
+observation normalizer) is saved as our checkpoint and exported with ``policy-export``'s code
+path (parity gate included); the
 export wall time is reported for the first export in the process (cold: imports and first trace)
 and for a second one (warm). Inference: median and 99th percentile of ``calls`` batch-1 calls
 after a warm-up, timed one by one with ``time.perf_counter_ns``, the garbage collector frozen:
@@ -33,11 +34,13 @@ import torch  # noqa: E402
 from deploy.checkpoint import MLPActor, ObservationNormalizer, save_checkpoint  # noqa: E402
 from deploy.export import load_source, run_export  # noqa: E402
 from deploy.policy import OnnxPolicy  # noqa: E402
-from deploy.spec import OBSERVATION_KINDS, PolicySpec  # noqa: E402
+from deploy.spec import LEGGED_KINDS, OBSERVATION_KINDS, PolicySpec  # noqa: E402
 from robots import load_robot  # noqa: E402
 
-#: Every observation block a robot without wrapping joints has (arm3, arm6).
-BLOCKS = tuple(k for k in OBSERVATION_KINDS if k != "joint_position_sincos")
+#: Every observation block a fixed-base robot without wrapping joints has (arm3, arm6).
+BLOCKS = tuple(
+    k for k in OBSERVATION_KINDS if k != "joint_position_sincos" and k not in LEGGED_KINDS
+)
 
 
 def time_calls(fn: Callable[[], object], calls: int, warmup: int = 500) -> np.ndarray:
@@ -71,7 +74,9 @@ def measure(calls: int = 10_000) -> dict:
     rng = np.random.default_rng(0)
     torch.manual_seed(0)
     actor = MLPActor(spec.obs_dim, spec.act_dim, hidden=(64, 64), activation="elu")
-    norm = ObservationNormalizer(rng.normal(0, 0.1, spec.obs_dim), rng.uniform(0.5, 2, 21))
+    norm = ObservationNormalizer(
+        rng.normal(0, 0.1, spec.obs_dim), rng.uniform(0.5, 2, spec.obs_dim)
+    )
     rows = []
     threads = torch.get_num_threads()
     with tempfile.TemporaryDirectory() as tmp:

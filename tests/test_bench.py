@@ -64,8 +64,44 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
     assert "28800" in session["extrapolation"]
 
     targets = {t["key"]: t for t in r["targets"]}
-    assert set(targets) == {"tick_ratio", "overhead_p50", "overhead_p999", "session_8h", "campaign"}
+    assert set(targets) == {
+        "tick_ratio",
+        "overhead_p50",
+        "overhead_p999",
+        "session_8h",
+        "campaign",
+        "campaign_physics",
+    }
     assert targets["session_8h"]["pass"] in (True, False)
     assert targets["session_8h"]["value"] == session["estimate_8h_s"]
     assert targets["tick_ratio"]["pass"] is None  # arm6 was not measured
     assert targets["campaign"]["pass"] is None
+    assert targets["campaign_physics"]["pass"] is None
+
+
+def test_quick_inference_and_campaign_with_its_physics_only_baseline(tmp_path):
+    """The export/inference item runs, and the campaign reports the physics-only stepping of the
+    same models beside its throughput (the fraction is their ratio)."""
+    out = tmp_path / "results.json"
+    env = dict(os.environ, ORT_DISABLE_TELEMETRY="1")
+    argv = ["--quick", "--only", "inference,campaign", "--campaign-envs", "1,2", "--out", str(out)]
+    proc = subprocess.run(
+        [sys.executable, "-m", "bench", *argv],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    r = json.loads(out.read_text())
+    inference = r["sections"]["inference"]
+    assert all(e["parity"] for e in inference["exports"]), inference["exports"]
+    assert {row["name"] for row in inference["rows"]} >= {"OnnxPolicy (IOBinding, 1 thread)"}
+    campaign = r["sections"]["campaign"]
+    assert [c["envs_per_worker"] for c in campaign["configs"]] == [1, 2]
+    for c in campaign["configs"]:
+        assert positive_finite(c["throughput_x"]) and positive_finite(c["physics_only_x"])
+        assert math.isclose(c["physics_fraction"], c["throughput_x"] / c["physics_only_x"])
+    targets = {t["key"]: t for t in r["targets"]}
+    assert targets["campaign_physics"]["value"] == campaign["best"]["physics_fraction"]

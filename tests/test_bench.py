@@ -18,19 +18,23 @@ def positive_finite(x) -> bool:
     return isinstance(x, int | float) and math.isfinite(x) and x > 0
 
 
-def test_quick_tick_and_session_on_arm3(tmp_path):
-    out = tmp_path / "results.json"
-    env = dict(os.environ, ORT_DISABLE_TELEMETRY="1")
-    argv = ["--quick", "--only", "tick,session", "--robots", "arm3", "--out", str(out)]
+def run_bench(out: Path, *argv: str) -> subprocess.CompletedProcess:
+    """``python -m bench --quick ARGV --out OUT`` in the repository; asserts it exits 0."""
     proc = subprocess.run(
-        [sys.executable, "-m", "bench", *argv],
+        [sys.executable, "-m", "bench", "--quick", *argv, "--out", str(out)],
         cwd=REPO,
-        env=env,
+        env=dict(os.environ, ORT_DISABLE_TELEMETRY="1"),
         capture_output=True,
         text=True,
-        timeout=120,
+        timeout=300,
     )
     assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+def test_quick_tick_and_session_on_arm3(tmp_path):
+    out = tmp_path / "results.json"
+    proc = run_bench(out, "--only", "tick,session", "--robots", "arm3")
     assert "targets" in proc.stdout
     assert sorted(p.name for p in tmp_path.iterdir()) == ["results.json"]  # no temp file left
 
@@ -83,17 +87,7 @@ def test_quick_inference_and_campaign_with_its_physics_only_baseline(tmp_path):
     """The export/inference item runs, and the campaign reports the physics-only stepping of the
     same models beside its throughput (the fraction is their ratio)."""
     out = tmp_path / "results.json"
-    env = dict(os.environ, ORT_DISABLE_TELEMETRY="1")
-    argv = ["--quick", "--only", "inference,campaign", "--campaign-envs", "1,2", "--out", str(out)]
-    proc = subprocess.run(
-        [sys.executable, "-m", "bench", *argv],
-        cwd=REPO,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert proc.returncode == 0, proc.stderr
+    run_bench(out, "--only", "inference,campaign", "--campaign-envs", "1,2")
     r = json.loads(out.read_text())
     inference = r["sections"]["inference"]
     assert all(e["parity"] for e in inference["exports"]), inference["exports"]

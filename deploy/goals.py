@@ -99,11 +99,12 @@ def success_windows(issued: list[int], reached: list[int], window: float, end: f
 class GoalScheduler:
     """New goals every ``period`` s (or one fixed goal); records when each was reached (sim).
 
-    Only time in RUNNING counts: an env that is not running has its goal clock held, and gets its
-    first goal when it starts running. A goal counts as reached when the end effector comes
-    within ``task.success_radius`` of it at most ``success_time`` s after it was issued. A goal
-    replaced by the next one without having been reached is *missed*: its end state is recorded
-    (:attr:`missed`).
+    Only time in RUNNING counts: while an env is not running its unreached goal's clock is reset
+    (so after a safe stop the goal gets its full ``period`` and ``success_time`` again), and an
+    env gets its first goal when it starts running. A goal counts as reached when the end
+    effector comes within ``task.success_radius`` of it at most ``success_time`` s after it was
+    issued. A goal replaced by the next one without having been reached is *missed*: its end
+    state is recorded (:attr:`missed`).
 
     Args:
         robot: The robot (task region, success radius).

@@ -74,14 +74,14 @@ def film_dir(out: str | os.PathLike, session_id: str) -> Path:
     return Path(out) / FILM / session_id
 
 
-def _read_json(path: Path):
+def read_json(path: Path):
     try:
         return json.loads(path.read_text())
     except (OSError, ValueError):
         return None
 
 
-def _write_json(path: Path, doc) -> None:
+def write_json(path: Path, doc) -> None:
     atomic_write(path, json.dumps(doc))
 
 
@@ -106,7 +106,7 @@ class FilmRecorder:
             state = None
             if rt.ticks > 0:  # resumed: the recorder's state kept with that checkpoint
                 kept = retain_dir(batch.out, s.config.seed)
-                state = _read_json(kept / f"{rt.ticks:012d}" / STATE)
+                state = read_json(kept / f"{rt.ticks:012d}" / STATE)
             if state is None:
                 state = {
                     "hard": [],
@@ -189,7 +189,7 @@ class FilmRecorder:
                     os.link(f, tmp / f.name)  # the checkpoint writer replaces, never rewrites
                 except OSError:
                     shutil.copy2(f, tmp / f.name)
-            _write_json(tmp / STATE, {**st, "tick": tick})
+            write_json(tmp / STATE, {**st, "tick": tick})
             shutil.rmtree(dst, ignore_errors=True)
             os.replace(tmp, dst)
 
@@ -199,7 +199,7 @@ class FilmRecorder:
         for s, st in zip(b.sessions, self.states, strict=True):
             d = retain_dir(b.out, s.config.seed)
             d.mkdir(parents=True, exist_ok=True)
-            _write_json(d / FINAL, {**st, "tick": int(b.rt.ticks)})
+            write_json(d / FINAL, {**st, "tick": int(b.rt.ticks)})
 
 
 def kept_checkpoints(out: str | os.PathLike, seed: int) -> dict[int, Path]:
@@ -212,11 +212,11 @@ def kept_checkpoints(out: str | os.PathLike, seed: int) -> dict[int, Path]:
 
 def recorder_state(out: str | os.PathLike, seed: int) -> dict | None:
     """The recorder's state at the session's end (or at its last kept checkpoint)."""
-    final = _read_json(retain_dir(out, seed) / FINAL)
+    final = read_json(retain_dir(out, seed) / FINAL)
     if final is not None:
         return final
     kept = kept_checkpoints(out, seed)
-    return _read_json(kept[max(kept)] / STATE) if kept else None
+    return read_json(kept[max(kept)] / STATE) if kept else None
 
 
 # ====================================================================== what to film

@@ -45,14 +45,14 @@ from eval.film import (
     MAX_CLIPS,
     STATE,
     FilmError,
-    _read_json,
-    _write_json,
     film_dir,
     kept_checkpoints,
     plan_clips,
+    read_json,
     recorder_state,
     retain_dir,
     select_moments,
+    write_json,
 )
 
 #: Frames per simulated second, pixels (width, height), x264 rate factor of the clips.
@@ -272,7 +272,7 @@ def render_session(
         "wall_s": time.perf_counter() - wall,
         "frames_per_s": (sum(c["frames"] for c in clips_out) / render_s if render_s else None),
     }
-    _write_json(dest / "film.json", doc)
+    write_json(dest / "film.json", doc)
     if stream is not None:
         exact = [c["replay_exact"] for c in clips_out if c["replay_exact"] is not None]
         print(
@@ -295,7 +295,7 @@ def _finished(out: Path, result: dict) -> dict | None:
     """The film already rendered for this very session result, or None."""
     if (retain_dir(out, result["seed"]) / FINAL).exists():
         return None  # recorded anew since: render anew
-    doc = _read_json(film_dir(out, result["id"]) / "film.json")
+    doc = read_json(film_dir(out, result["id"]) / "film.json")
     if not doc or doc.get("seed") != result["seed"]:
         return None
     if doc.get("policy_sha256") != result.get("policy_sha256"):
@@ -364,7 +364,7 @@ def film_campaign(
             env=env,
         )
         if done.returncode == 0:
-            doc = _read_json(film_dir(out, r["id"]) / "film.json")
+            doc = read_json(film_dir(out, r["id"]) / "film.json")
             if doc is not None:
                 shutil.rmtree(retain_dir(out, r["seed"]), ignore_errors=True)
                 print(done.stdout.decode(errors="replace").strip())

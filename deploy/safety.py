@@ -78,6 +78,22 @@ def chain_lengths(model: mujoco.MjModel) -> np.ndarray:
     return chain
 
 
+def anchor_offset(model: mujoco.MjModel) -> float:
+    """m, the largest offset of a joint's anchor from its body's origin (0 without joints): the
+    chain bounds add it once for the joint a motion turns about."""
+    return float(np.linalg.norm(model.jnt_pos, axis=1).max()) if model.njnt else 0.0
+
+
+def descends(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
+    """Whether ``body`` is ``ancestor`` or below it in the kinematic tree (a joint of
+    ``ancestor`` moves it)."""
+    while body > 0:
+        if body == ancestor:
+            return True
+        body = model.body_parentid[body]
+    return False
+
+
 def motion_bounds(robot: Robot, model: mujoco.MjModel | None = None) -> tuple[float, np.ndarray]:
     """Exact bounds of the screens, from the MuJoCo model at its nominal geometry.
 
@@ -96,27 +112,19 @@ def motion_bounds(robot: Robot, model: mujoco.MjModel | None = None) -> tuple[fl
     """
     m = robot.mj_model if model is None else model
     chain = chain_lengths(m)
-    anchor = float(np.linalg.norm(m.jnt_pos, axis=1).max()) if m.njnt else 0.0
+    anchor = anchor_offset(m)
     reach = [
         chain[m.geom_bodyid[g]] + np.linalg.norm(m.geom_pos[g]) + m.geom_rbound[g]
         for g in range(m.ngeom)
     ]
     reach += [chain[m.site_bodyid[s]] + np.linalg.norm(m.site_pos[s]) for s in range(m.nsite)]
     sweep = float(max(reach)) + anchor
-
-    def beyond(body: int, b: int) -> bool:
-        while b > 0:
-            if b == body:
-                return True
-            b = m.body_parentid[b]
-        return False
-
     g = float(np.linalg.norm(m.opt.gravity))
     bound = np.zeros(robot.n_joints)
     for i, name in enumerate(robot.joint_names):
         jb = m.jnt_bodyid[m.joint(name).id]
         for b in range(1, m.nbody):
-            if beyond(jb, b):
+            if descends(m, b, jb):
                 lever = chain[b] - chain[jb] + np.linalg.norm(m.body_ipos[b]) + anchor
                 bound[i] += m.body_mass[b] * lever
     return sweep, g * bound
@@ -133,7 +141,7 @@ def end_effector_lever(robot: Robot, model: mujoco.MjModel | None = None) -> np.
     """
     m = robot.mj_model if model is None else model
     chain = chain_lengths(m)
-    anchor = float(np.linalg.norm(m.jnt_pos, axis=1).max()) if m.njnt else 0.0
+    anchor = anchor_offset(m)
     site = m.site(robot.config.safety.end_effector_site).id
     tip = chain[m.site_bodyid[site]] + np.linalg.norm(m.site_pos[site])
     return np.array(
@@ -157,28 +165,41 @@ def collision_pair_weights(robot: Robot, model: mujoco.MjModel | None = None) ->
     """
     m = robot.mj_model if model is None else model
     chain = chain_lengths(m)
-    anchor = float(np.linalg.norm(m.jnt_pos, axis=1).max()) if m.njnt else 0.0
+    anchor = anchor_offset(m)
     joint_bodies = [m.jnt_bodyid[m.joint(name).id] for name in robot.joint_names]
-
-    def below(joint_body: int, b: int) -> bool:
-        while b > 0:
-            if b == joint_body:
-                return True
-            b = m.body_parentid[b]
-        return False
-
     pairs = robot.config.safety.collision_pairs
     weights = np.zeros((len(pairs), robot.n_joints))
     for p, names in enumerate(pairs):
         geoms = [m.geom(name).id for name in names]
         bodies = [m.geom_bodyid[g] for g in geoms]
         for i, jb in enumerate(joint_bodies):
-            moved = [below(jb, b) for b in bodies]
+            moved = [descends(m, b, jb) for b in bodies]
             if moved[0] != moved[1]:
                 g, b = (geoms[0], bodies[0]) if moved[0] else (geoms[1], bodies[1])
                 offset = np.linalg.norm(m.geom_pos[g]) + m.geom_rbound[g]
                 weights[p, i] = chain[b] - chain[jb] + offset + anchor
     return weights
+
+
+def collision_query(
+    model: pin.Model,
+    data: pin.Data,
+    geom_model: pin.GeometryModel,
+    geom_data: pin.GeometryData,
+    q: np.ndarray,
+    distances: np.ndarray | None = None,
+) -> bool:
+    """Whether a collision pair of ``geom_model`` touches at ``q`` (rad; coal, stopping at the
+    first contact). With ``distances`` ((pairs,) m, written), also each pair's distance there for
+    the screens: all ``-inf`` when a pair touches (the screen then checks again next tick)."""
+    hit = bool(pin.computeCollisions(model, data, geom_model, geom_data, q, True))
+    if distances is not None:
+        if hit:
+            distances.fill(-np.inf)
+        else:
+            pin.computeDistances(model, data, geom_model, geom_data, q)
+            distances[:] = [r.min_distance for r in geom_data.distanceResults]
+    return hit
 
 
 class SafetyGuard:
@@ -243,14 +264,12 @@ class SafetyGuard:
             end_effector_lever(robot) if s.workspace_min is not None else np.full(n, self.sweep)
         )
         self.derating = EffortDerating(robot, hold=self.gravity_bound)
-        # caches of the screens: configuration of the last computation and its result (rows of
-        # one array each for the kernel: workspace, collision)
+        # caches of the screens: configuration of the last computation (rows of one array for
+        # the kernel: workspace, collision) and its result (the margin; each pair's distance)
         self._screen_q = np.zeros((2, envs, n))
-        self._screen_m = np.full((2, envs), -np.inf)
         self._ws_q = self._screen_q[0]
-        self._ws_margin = self._screen_m[0]  # m inside the workspace box (-inf: unknown)
+        self._ws_margin = np.full(envs, -np.inf)  # m inside the workspace box (-inf: unknown)
         self._col_q = self._screen_q[1]
-        self._clearance = self._screen_m[1]  # m between the closest listed pair
         #: (pairs, n) m/rad: how fast each collision pair approaches per radian of each joint
         self.pair_weights = collision_pair_weights(robot)
         self._pair_clearance = np.full((envs, len(self.pair_weights)), -np.inf)  # m, per pair
@@ -272,7 +291,7 @@ class SafetyGuard:
         lim[gk.EFFORT], lim[gk.GRAVITY_BOUND] = robot.effort_limit, self.gravity_bound
         lim[gk.EE_LEVER] = self.ee_lever
         self._lim = lim
-        self._scalars = np.array([self.dt, self.sweep, SCREEN_MARGIN, float(self._has_pairs)])
+        self._scalars = np.array([self.dt, SCREEN_MARGIN, float(self._has_pairs)])
         self._over = np.zeros((envs, n))
         self._under = np.zeros((envs, n))
         self._checks = np.zeros((3, envs), dtype=bool)
@@ -335,7 +354,6 @@ class SafetyGuard:
             workspace_q=self._ws_q,
             workspace_margin=self._ws_margin,
             collision_q=self._col_q,
-            clearance=self._clearance,
             pair_clearance=self._pair_clearance,
         )
         return fields
@@ -344,9 +362,9 @@ class SafetyGuard:
         """The guard's state (copies; conventions of :mod:`deploy.stateful`): ``counts/<check>``
         (envs,) int64, ``hard_violation`` (envs,) bool, ``effort_scale`` (envs, n),
         ``last_valid`` (envs, n) the hold target (rad in position mode), and the screens' caches
-        (``workspace_q``, ``collision_q`` (envs, n) rad; ``workspace_margin``, ``clearance``
-        (envs,) m; ``pair_clearance`` (envs, pairs) m); the env axis has length 1 for one env
-        ``env``."""
+        (``workspace_q``, ``collision_q`` (envs, n) rad; ``workspace_margin`` (envs,) m;
+        ``pair_clearance`` (envs, pairs) m, each collision pair's distance); the env axis has
+        length 1 for one env ``env``."""
         return take(self._state_fields(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
@@ -380,22 +398,15 @@ class SafetyGuard:
     def _in_collision(self, q: np.ndarray, cache: int | None = None) -> bool:
         """Whether a listed collision pair is in contact at ``q`` (coal).
 
-        With ``cache = e``, also compute and remember the clearance of env ``e`` at ``q``.
+        With ``cache = e``, also compute and remember each pair's distance for env ``e`` at ``q``.
         """
         if not self._has_pairs:
             return False
         args = (self.model, self.data, self.geom_model, self.geom_data, q)
-        hit = bool(pin.computeCollisions(*args, True))
-        if cache is not None:
-            self._col_q[cache] = q
-            pairs = self._pair_clearance[cache]
-            if hit:
-                pairs.fill(-np.inf)
-            else:
-                pin.computeDistances(*args)
-                pairs[:] = [r.min_distance for r in self.geom_data.distanceResults]
-            self._clearance[cache] = pairs.min()
-        return hit
+        if cache is None:
+            return collision_query(*args)
+        self._col_q[cache] = q
+        return collision_query(*args, distances=self._pair_clearance[cache])
 
     # ------------------------------------------------------------------ the check
     def filter(
@@ -477,10 +488,9 @@ class SafetyGuard:
         check_col = self._no_env
         if self._has_pairs:
             check_col = np.zeros(self.envs, dtype=bool)
+            moved = np.abs(self._pred - self._col_q)  # rad per joint since the last check
             for p, weights in enumerate(self.pair_weights):
-                np.subtract(self._pred, self._col_q, out=self._tmp)
-                np.abs(self._tmp, out=self._tmp)
-                np.multiply(self._tmp, weights, out=self._tmp)
+                np.multiply(moved, weights, out=self._tmp)
                 np.sum(self._tmp, axis=1, out=move)
                 check_col |= self._pair_clearance[:, p] <= move + SCREEN_MARGIN
         check_effort = (self.gravity_bound > effort * self.effort_scale).any(axis=1)
@@ -532,7 +542,7 @@ class SafetyGuard:
     def _copies(self) -> SimpleNamespace:
         """Copies of the arrays the kernel writes (the warm-up call must change nothing)."""
         names = ("effort_scale", "count_matrix", "hard_violation", "_pred", "_tmp", "_screen_q")
-        names += ("_screen_m", "_over", "_under", "_checks", "_held", "_last_valid")
+        names += ("_ws_margin", "_over", "_under", "_checks", "_held", "_last_valid")
         return SimpleNamespace(
             **{k: np.copy(getattr(self, k)) for k in names},
             _kernel_mode=self._kernel_mode,
@@ -584,7 +594,7 @@ class SafetyGuard:
             g._pred,
             g._tmp,
             g._screen_q,
-            g._screen_m,
+            g._ws_margin,
             g._over,
             g._under,
             g._checks,

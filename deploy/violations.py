@@ -37,9 +37,9 @@ physics timestep behind the joint positions).
 from __future__ import annotations
 
 import numpy as np
-import pinocchio as pin
 
 from deploy.kernels import monitors as mk
+from deploy.safety import SCREEN_MARGIN, SafetyGuard, collision_pair_weights, collision_query
 from robots import Robot
 
 VIOLATION_TYPES = ("hard_limit", "soft_limit", "velocity", "effort", "workspace", "self_collision")
@@ -102,14 +102,12 @@ class ViolationMonitor(MonitorState):
     Per tick (:meth:`update`) it allocates nothing unless some env is near a limit: one
     compiled screen (``|x - centre| > half range`` over joint positions, speeds, torques and the
     end effector) decides whether the exact per-type tests run, and coal checks the collision
-    pairs of each env.
+    pairs of the envs the guard's exact per-pair screen flags.
     """
 
     _state_name = "violations"
 
     def __init__(self, robot: Robot, envs: int, reference: bool = False):
-        from deploy.safety import SCREEN_MARGIN, SafetyGuard, collision_pair_weights
-
         if envs < 1:
             raise ValueError(f"envs: expected an integer >= 1, got {envs}")
         self.robot, self.envs = robot, envs
@@ -166,6 +164,7 @@ class ViolationMonitor(MonitorState):
         self._checked_q = np.zeros((envs, n))
         self._clearance = np.full((envs, len(self._pair_weights)), -np.inf)  # none yet: check
         self._need = np.zeros(envs, dtype=bool)
+        self._tmp = np.zeros((envs, n))
         mk.warm_up()
 
     # ------------------------------------------------------------------ per tick
@@ -182,21 +181,13 @@ class ViolationMonitor(MonitorState):
             backend.end_effector_position(out=self._ee)
         self.ticks += 1
         collided = False
-        if self._has_pairs:
-            need = self._need
-            if self.reference:
-                need.fill(True)
-            elif not mk.collision_screen(
-                q, self._checked_q, self._clearance, self._pair_weights, self._margin, need
-            ):
-                need = None
-            if need is not None:
-                for e in np.flatnonzero(need):
-                    if self._in_collision(q, e):
-                        if not collided:
-                            self._collided.fill(False)
-                            collided = True
-                        self._collided[e] = True
+        if self._has_pairs and self._collision_screen(q):
+            for e in np.flatnonzero(self._need):
+                if self._in_collision(q, e):
+                    if not collided:
+                        self._collided.fill(False)
+                        collided = True
+                    self._collided[e] = True
         if self.reference:
             flagged = self._screen_reference(q, dq, tau)
         else:
@@ -207,19 +198,24 @@ class ViolationMonitor(MonitorState):
         if collided or flagged:
             self._count(q, dq, tau, collided)
 
+    def _collision_screen(self, q: np.ndarray) -> bool:
+        """Mark in ``_need`` the envs whose pairs coal must check at ``q``; returns whether any:
+        the guard's exact screen (:func:`deploy.kernels.monitors.collision_screen`), every env
+        in the reference."""
+        if self.reference:
+            self._need.fill(True)
+            return True
+        args = (self._checked_q, self._clearance, self._pair_weights, self._margin, self._tmp)
+        return mk.collision_screen(q, *args, self._need)
+
     def _in_collision(self, q: np.ndarray, e: int) -> bool:
         """Whether a collision pair of env ``e`` touches at ``q[e]`` (coal); the compiled path
-        also remembers the clearance there for its screen."""
+        also remembers each pair's distance there for its screen."""
         args = (self._model, self._data, self._geom_model, self._geom_data, q[e])
-        hit = bool(pin.computeCollisions(*args, True))
-        if not self.reference:
-            self._checked_q[e] = q[e]
-            if hit:
-                self._clearance[e] = -np.inf
-            else:
-                pin.computeDistances(*args)
-                self._clearance[e] = [r.min_distance for r in self._geom_data.distanceResults]
-        return hit
+        if self.reference:
+            return collision_query(*args)
+        self._checked_q[e] = q[e]
+        return collision_query(*args, distances=self._clearance[e])
 
     def _screen_reference(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> bool:
         """:func:`deploy.kernels.monitors.violation_screen` in numpy: its reference."""

@@ -47,7 +47,7 @@ from deploy.backends.sim_sensors import JointSensorModel
 from deploy.backends.sim_state import SimState
 from deploy.errors import Sim2RealError
 from deploy.kernels import all_finite
-from deploy.kernels.thermal import derating_due, windup_exceeded
+from deploy.kernels.drives import derating_due, windup_exceeded
 from deploy.safety import motion_bounds
 from deploy.thermal import EffortDerating, TwoNodeThermalModel
 from robots import CONTROL_MODES, Robot

@@ -142,48 +142,40 @@ class JointSensorModel:
 
     # ------------------------------------------------------------------ per tick
     def sample(
-        self, tick: int, time: float, q: np.ndarray, winding_temperature: np.ndarray
+        self,
+        tick: int,
+        time: float,
+        q: np.ndarray,
+        winding_temperature: np.ndarray,
+        reference: bool = False,
     ) -> None:
         """Take the readings due at control tick ``tick`` (s ``time``): the joint angles ``q``
         (envs, n) rad into the latency buffer every ``encoder_every`` ticks, the winding
         temperatures (envs, n) degC into the frame at the temperature rate.
 
         The draws come from :attr:`rng`; the arithmetic is the kernel
-        :func:`deploy.kernels.sensors.encoder_sample` (:meth:`sample_reference`: numpy)."""
+        :func:`deploy.kernels.sensors.encoder_sample`, or with ``reference`` its numpy
+        reference (the same readings and draws)."""
         slot = tick % self._buf_stamp.shape[0]
         if tick % self._encoder_every == 0:
             sample = self._buf_position[slot]
             self.rng.standard_normal(out=sample)
             self.rng.random(out=self._uniform)
-            encoder_sample(
-                sample,
-                self._uniform,
-                q,
-                self.noise_sigma,
-                self.encoder_quantum,
-                self.dropout_probability,
-            )
-            self._buf_stamp[slot] = time
-        else:
-            self._buf_position[slot] = np.nan
-            self._buf_stamp[slot] = np.nan
-        if tick % self._temperature_every == 0:
-            self._sample_temperature(time, winding_temperature)
-
-    def sample_reference(
-        self, tick: int, time: float, q: np.ndarray, winding_temperature: np.ndarray
-    ) -> None:
-        """:meth:`sample` in numpy: the reference of its kernel (the same readings and draws)."""
-        slot = tick % self._buf_stamp.shape[0]
-        if tick % self._encoder_every == 0:
-            sample = self._buf_position[slot]
-            self.rng.standard_normal(out=sample)
-            sample *= self.noise_sigma[:, None]
-            sample += q
-            np.round(sample / self.encoder_quantum, out=sample)
-            sample *= self.encoder_quantum
-            lost = self.rng.random(sample.shape) < self.dropout_probability[:, None]
-            sample[lost] = np.nan
+            if reference:
+                sample *= self.noise_sigma[:, None]
+                sample += q
+                np.round(sample / self.encoder_quantum, out=sample)
+                sample *= self.encoder_quantum
+                sample[self._uniform < self.dropout_probability[:, None]] = np.nan
+            else:
+                encoder_sample(
+                    sample,
+                    self._uniform,
+                    q,
+                    self.noise_sigma,
+                    self.encoder_quantum,
+                    self.dropout_probability,
+                )
             self._buf_stamp[slot] = time
         else:
             self._buf_position[slot] = np.nan
@@ -198,23 +190,17 @@ class JointSensorModel:
         f.winding_temperature *= res
         f.temperature_stamp.fill(time)
 
-    def read(self, tick: int) -> None:
+    def read(self, tick: int, reference: bool = False) -> None:
         """Fill the frame's joint position fields with the readings arriving at ``tick``
-        (the kernel :func:`deploy.kernels.sensors.encoder_read`; :meth:`read_reference`:
-        numpy)."""
+        (the kernel :func:`deploy.kernels.sensors.encoder_read`, or with ``reference`` its
+        numpy reference)."""
         f = self.frame
-        encoder_read(
-            tick,
-            self.latency_ticks,
-            self._buf_position,
-            self._buf_stamp,
-            f.position,
-            f.position_stamp,
-        )
-
-    def read_reference(self, tick: int) -> None:
-        """:meth:`read` in numpy: the reference of its kernel."""
-        f = self.frame
+        if not reference:
+            encoder_read(
+                tick, self.latency_ticks, self._buf_position, self._buf_stamp, f.position,
+                f.position_stamp,
+            )  # fmt: skip
+            return
         origin = tick - self.latency_ticks  # tick at which the arriving reading was sampled
         slot = origin % self._buf_stamp.shape[0]
         f.position[:] = self._buf_position[slot, self._env_index]

@@ -1,8 +1,9 @@
 """The compiled tick: numba kernels for the per-tick numeric logic of the runtime's stages.
 
 Each stage keeps its numpy implementation as the tested reference (``reference=True`` on
-:class:`~deploy.safety.SafetyGuard`, :class:`~deploy.smoothing.CommandSmoother` and
-:class:`~deploy.runtime.Runtime`, ``reference=True`` on :meth:`deploy.spec.PolicySpec.observation`)
+:class:`~deploy.safety.SafetyGuard`, :class:`~deploy.smoothing.CommandSmoother`,
+:class:`~deploy.runtime.Runtime` and the monitors, ``reference=True`` on
+:meth:`deploy.spec.PolicySpec.observation` and the plant's sensor model)
 and runs one of these kernels per tick otherwise, over the stage's preallocated arrays:
 
 =========================  =====================================================================
@@ -18,6 +19,12 @@ module                     what it computes
 :mod:`.smoothing`          the smoother's finite-target and limit clamps, the velocity-mode
                            stopping guards and brake trigger, the extrema screen, torque rate limit
 :mod:`.thermal`            the sim plant's two-node motor thermal model (one Euler step)
+:mod:`.drives`             the sim plant's derating check and velocity-loop anti-windup screen
+:mod:`.sensors`            the sim plant's encoder sample (noise, quantization, dropout) and
+                           latency buffer read
+:mod:`.monitors`           the per-tick screens of the goal scheduler, the violation and
+                           intervention monitors, the soak's motor-heat bands and deploy-run's
+                           motion summary
 =========================  =====================================================================
 
 A kernel stops where Python must act (Ruckig, Pinocchio, a policy reset) and returns a code that
@@ -74,6 +81,23 @@ def row_sum(a, e: int) -> float:
     for i in range(m, n):
         s += a[e, i]
     return s
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def pairs_may_touch(q, e: int, checked_q, pair_clearance, pair_weights, margin: float, tmp) -> bool:
+    """Whether a collision pair of env ``e`` may touch at ``q[e]`` (rad): unless every pair's
+    distance computed at ``checked_q[e]`` (``pair_clearance[e]``, m) exceeds ``pair_weights[p] @
+    |q[e] - checked_q[e]|`` plus ``margin`` (m), the weights (pairs, n) m/rad bounding how fast
+    each pair approaches per radian of each joint (:func:`deploy.safety.collision_pair_weights`).
+    ``tmp`` (envs, n): work row ``e``; the sum in numpy's order (:func:`row_sum`). The one
+    collision screen of the guard and of the violation monitor."""
+    n = q.shape[1]
+    for p in range(pair_weights.shape[0]):
+        for j in range(n):
+            tmp[e, j] = abs(q[e, j] - checked_q[e, j]) * pair_weights[p, j]
+        if pair_clearance[e, p] <= row_sum(tmp, e) + margin:
+            return True
+    return False
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

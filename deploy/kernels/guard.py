@@ -19,7 +19,7 @@ import math
 import numba
 import numpy as np
 
-from deploy.kernels import np_max, np_min, row_sum
+from deploy.kernels import np_max, np_min, pairs_may_touch, row_sum
 
 #: Rows of ``lim``.
 LOWER, UPPER, TARGET_LOWER, TARGET_UPPER, SOFT_LOWER, SOFT_UPPER = 0, 1, 2, 3, 4, 5
@@ -59,7 +59,7 @@ def guard_filter(
     pred: np.ndarray,
     tmp: np.ndarray,
     screen: np.ndarray,
-    clearance_screen: np.ndarray,
+    workspace_margin: np.ndarray,
     over: np.ndarray,
     under: np.ndarray,
     checks: np.ndarray,
@@ -72,16 +72,16 @@ def guard_filter(
 
     Shapes: ``out`` (the target, clamped in place), ``q``, ``dq``, ``commanded``,
     ``effort_scale``, ``pred``, ``tmp``, ``over``, ``under``, ``last_valid`` (envs, n);
-    ``screen`` (2, envs, n) rows workspace_q, collision_q; ``clearance_screen`` (2, envs) rows
-    workspace margin, clearance (m); ``scalars``: dt (s), sweep (m/rad), screen margin (m),
+    ``screen`` (2, envs, n) rows workspace_q, collision_q; ``workspace_margin`` (envs,) m;
+    ``scalars``: dt (s), screen margin (m),
     has_pairs (1.0 or 0.0); ``pair_clearance`` (envs, pairs) m, each collision pair's distance at
     the collision screen's configuration; ``pair_weights`` (pairs, n) m/rad
     (:func:`deploy.safety.collision_pair_weights`). Units as in the guard.
     """
     envs, n = out.shape
     if phase == 0:
-        dt, margin = scalars[0], scalars[2]
-        has_pairs = scalars[3] != 0.0
+        dt, margin = scalars[0], scalars[1]
+        has_pairs = scalars[2] != 0.0
         any_governor = False
         any_screen = False
         for e in range(envs):
@@ -159,16 +159,10 @@ def guard_filter(
             for j in range(n):
                 tmp[e, j] = abs(pred[e, j] - screen[0, e, j]) * lim[EE_LEVER, j]
             move = row_sum(tmp, e)
-            ws = clearance_screen[0, e] <= move + margin
-            col = False
-            if has_pairs:
-                for p in range(pair_weights.shape[0]):
-                    for j in range(n):
-                        tmp[e, j] = abs(pred[e, j] - screen[1, e, j]) * pair_weights[p, j]
-                    move = row_sum(tmp, e)
-                    if pair_clearance[e, p] <= move + margin:
-                        col = True
-                        break
+            ws = workspace_margin[e] <= move + margin
+            col = has_pairs and pairs_may_touch(
+                pred, e, screen[1], pair_clearance, pair_weights, margin, tmp
+            )
             eff = False
             for j in range(n):
                 if lim[GRAVITY_BOUND, j] > lim[EFFORT, j] * effort_scale[e, j]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from deploy.kernels import np_max
+from deploy.kernels import np_max, pairs_may_touch
 
 #: Bits of :func:`goal_screen`'s answer.
 ANY_RUNNING, ANY_DUE, ANY_CHECK = 1, 2, 4
@@ -142,24 +142,15 @@ def collision_screen(
     pair_clearance: np.ndarray,
     pair_weights: np.ndarray,
     margin: float,
+    tmp: np.ndarray,
     need: np.ndarray,
 ) -> bool:
     """The envs whose collision pairs may touch at ``q`` (envs, n) rad: ``need[e]`` (written,
-    (envs,) bool) unless every pair's distance computed at ``checked_q`` (``pair_clearance``
-    (envs, pairs) m) exceeds ``pair_weights[p] @ |q - checked_q|`` plus ``margin`` (m); the
-    weights (pairs, n) m/rad bound how fast each pair approaches per radian of each joint
-    (:func:`deploy.safety.collision_pair_weights`). Returns whether any env needs a check."""
-    envs, n = q.shape
+    (envs,) bool) by the guard's screen (:func:`deploy.kernels.pairs_may_touch`; ``tmp``
+    (envs, n) its work array). Returns whether any env needs a check."""
     any_need = False
-    for e in range(envs):
-        nd = False
-        for p in range(pair_weights.shape[0]):
-            move = 0.0
-            for j in range(n):
-                move += abs(q[e, j] - checked_q[e, j]) * pair_weights[p, j]
-            if pair_clearance[e, p] <= move + margin:
-                nd = True
-                break
+    for e in range(q.shape[0]):
+        nd = pairs_may_touch(q, e, checked_q, pair_clearance, pair_weights, margin, tmp)
         need[e] = nd
         any_need = any_need or nd
     return any_need
@@ -249,7 +240,7 @@ def warm_up() -> None:
     q = np.zeros((2, 3))
     violation_screen(q, q, q, q, np.zeros(3), np.zeros(3), np.ones(12), True)
     counters_moved(np.zeros((2, 3), dtype=np.int64), np.zeros((2, 3), dtype=np.int64))
-    collision_screen(q, q, np.zeros((2, 1)), np.ones((1, 3)), 0.0, b.copy())
+    collision_screen(q, q, np.zeros((2, 1)), np.ones((1, 3)), 0.0, q.copy(), b.copy())
     temperature_bands(q, np.zeros(3), np.zeros(3), q.copy(), q.copy(), q.astype(np.int64),
                       q.astype(np.int64))  # fmt: skip
     motion_statistics(q, q.copy(), q.copy(), 0.01, b, True, q.copy(), i8.copy(), np.zeros(3))

@@ -2,10 +2,9 @@
 
 :func:`encoder_sample` turns the noise and dropout draws of one encoder sample into readings, and
 :func:`encoder_read` delivers the readings due at a tick, each with the arithmetic of the numpy
-references (:meth:`~deploy.backends.sim_sensors.JointSensorModel.sample_reference`,
-:meth:`~deploy.backends.sim_sensors.JointSensorModel.read_reference`) in their order, so both give
-the same readings bit for bit (``tests/test_sim_plant.py``). The random draws stay in numpy's
-``Generator`` (the soak's seeded streams), made before the kernel is called.
+references (``JointSensorModel.sample`` and ``read`` with ``reference=True``) in their order, so
+both give the same readings bit for bit (``tests/test_sim_plant.py``). The random draws stay in
+numpy's ``Generator`` (the soak's seeded streams), made before the kernel is called.
 """
 
 from __future__ import annotations

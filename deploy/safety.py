@@ -52,6 +52,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
+from deploy.envelope import DEFAULT_MARGIN, MotionEnvelope
 from deploy.kernels import guard as gk
 from deploy.smoothing import stopping_speed
 from deploy.state import RobotState
@@ -275,6 +276,16 @@ class SafetyGuard:
         self._pair_clearance = np.full((envs, len(self.pair_weights)), -np.inf)  # m, per pair
         if s.workspace_min is None:  # no workspace box (a legged robot): never screened
             self._ws_margin[:] = np.inf
+        #: the motion envelope (:mod:`deploy.envelope`): checks the smoother's step after it
+        #: (:meth:`check_motion`); None in torque mode and for a floating base
+        self.envelope = None
+        if mode != "torque" and not robot.floating_base:
+            margin = s.clearance_margin if s.clearance_margin is not None else DEFAULT_MARGIN
+            self.envelope = MotionEnvelope(
+                robot, envs, self.collision_model(robot), self.pair_weights, self.ee_lever, margin
+            )
+        self._geometric_rows = [CHECKS.index("self_collision"), CHECKS.index("workspace")]
+        self._counted = np.zeros((2, envs), dtype=np.int64)  # those rows when filter began
         self._move = np.zeros(envs)
         self._held = np.zeros(envs, dtype=bool)
         self._no_env = np.zeros(envs, dtype=bool)  # read only
@@ -431,6 +442,7 @@ class SafetyGuard:
         elif out is not target:
             np.copyto(out, target)
         q, dq = state.q, state.dq
+        np.copyto(self._counted, self.count_matrix[self._geometric_rows])
         if not self.reference:
             return self._kernel(q, dq, commanded_position, out)
         self.hard_violation[:] = False
@@ -506,6 +518,41 @@ class SafetyGuard:
             counts["effort"] += self._mask.any(axis=1)
             np.clip(out, -limit, limit, out=out)
         return out
+
+    def check_motion(self, smoother, state: RobotState, command: np.ndarray) -> np.ndarray:
+        """Certify the smoother's last step with the motion envelope (:mod:`deploy.envelope`):
+        the envs whose committed motion could bring a collision pair, or the end effector and
+        the workspace box's faces, within the clearance margin are braked instead
+        (:meth:`deploy.smoothing.CommandSmoother.brake`) and counted as ``self_collision`` or
+        ``workspace`` interventions (once per env and tick with :meth:`filter`'s).
+
+        Args:
+            smoother: The :class:`~deploy.smoothing.CommandSmoother` that just stepped.
+            state: The estimated state (``q`` rad).
+            command: (envs, n) the command of that step (rewritten where braked).
+
+        Returns:
+            ``command``.
+        """
+        if self.envelope is None:
+            return command
+        unsafe = self.envelope.check(
+            state.q,
+            smoother.before_position,
+            smoother.position,
+            smoother.velocity,
+            smoother.acceleration,
+            ~smoother.stopping,
+        )
+        braked = unsafe[0] | unsafe[1]
+        if not braked.any():
+            return command
+        for k, row in enumerate(self._geometric_rows):
+            first = unsafe[k] & (self.count_matrix[row] == self._counted[k])
+            self.count_matrix[row] += first
+        smoother.brake(braked)
+        command[braked] = smoother.command[braked]
+        return command
 
     def _govern(self, q: np.ndarray, over: np.ndarray, under: np.ndarray, out: np.ndarray) -> None:
         """Torque mode's velocity governor: in the envs with a joint faster than its band

@@ -197,6 +197,10 @@ class SafetyConfig(_Strict):
     # deploy/fall.py (FALL_TILT, FALL_HEIGHT). None keeps them out of the description hash.
     fall_tilt: Positive | None = None
     fall_height: NonNegative | None = None
+    # m kept between listed collision geometries, and from the workspace box's faces, by the
+    # guard's motion envelope (deploy/envelope.py); left out, its DEFAULT_MARGIN (None keeps it
+    # out of the description hash)
+    clearance_margin: NonNegative | None = None
 
     @model_validator(mode="after")
     def _ordered_box(self) -> SafetyConfig:

@@ -290,6 +290,7 @@ class Runtime:
         self._on_violation()
         st[5] = clock_ns()
         cmd = self.smoother.step(target, out=self._cmd)
+        cmd = self.guard.check_motion(self.smoother, state, cmd)  # brake an unsafe path
         if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
             damp = self.damping
             if damp.any():

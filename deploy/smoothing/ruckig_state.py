@@ -121,6 +121,57 @@ class RuckigState:
             self._set_interfaces()
         self.recalculate()
 
+    # ------------------------------------------------------------------ the brake
+    def brake(self, envs: np.ndarray) -> None:
+        """Replace the last step of the selected envs by a brake: one control period of Ruckig's
+        jerk-limited stop (velocity interface, target velocity and acceleration 0, the smoother's
+        limits) from the state before that step. The command, Ruckig's state and input, the
+        commanded position and the mean acceleration of those envs follow; the envs stay in
+        normal operation (the next step plans toward their target again). Counted in
+        ``brakes``. The guard's motion envelope (:mod:`deploy.envelope`) calls it.
+
+        Args:
+            envs: (envs,) bool, the envs to brake.
+
+        Raises:
+            ValueError: torque mode (no trajectory to brake).
+            SmoothingError: Ruckig rejected the brake's input.
+        """
+        if self.mode == "torque":
+            raise ValueError("CommandSmoother.brake: torque mode has no trajectory to brake")
+        dof = np.repeat(np.asarray(envs, dtype=bool), self.n_joints)
+        b, inp, out = self._before, self._brake_inp, self._brake_out
+        inp.current_position = np.where(dof, b[0], 0.0)
+        inp.current_velocity = np.where(dof, b[1], 0.0)
+        inp.current_acceleration = np.where(dof, b[2], 0.0)
+        try:
+            result = self._braker.update(inp, out)
+        except RuckigError as exc:
+            raise SmoothingError(f"Ruckig rejected the brake's input: {exc}") from exc
+        if result != Result.Working and result != Result.Finished:
+            raise SmoothingError(f"Ruckig returned {result!r} for the brake")
+        pos = np.asarray(out.new_position)
+        vel = np.asarray(out.new_velocity)
+        acc = np.asarray(out.new_acceleration)
+        self._pos[dof], self._vel[dof], self._acc[dof] = pos[dof], vel[dof], acc[dof]
+        self._mean_acc[dof] = (vel[dof] - b[1][dof]) * self._inv_dt
+        if self.mode == "position":
+            self._cmd_position[dof] = np.clip(pos[dof], self._lo[dof], self._hi[dof])
+            self._cmd[dof] = self._cmd_position[dof]
+        else:
+            self._cmd_position[dof] = pos[dof]
+            self._cmd[dof] = vel[dof]
+        main = self._inp
+        for name, values in (
+            ("current_position", self._pos),
+            ("current_velocity", self._vel),
+            ("current_acceleration", self._acc),
+        ):
+            current = np.array(getattr(main, name))
+            current[dof] = values[dof]
+            setattr(main, name, current)
+        self.brakes += np.asarray(envs, dtype=bool)
+
     # ------------------------------------------------------------------ Ruckig
     def _set_interfaces(self) -> None:
         """Per-DoF control interface: velocity (target 0) for stopping envs."""

@@ -137,6 +137,11 @@ class CommandSmoother(RuckigState, ReferenceStep):
         self._raw = w[sk.RAW]
         self._raw2d = self._raw.reshape(shape)
         self._goal = w[sk.GOAL]
+        # Ruckig's state (position, velocity, acceleration) before the last step: the start of
+        # the brake that may replace it (brake) and of the guard's motion envelope
+        self._before = np.zeros((3, dofs))
+        self.before_position = self._before[0].reshape(shape)
+        self.brakes = np.zeros(envs, dtype=np.int64)
         self._tmp = np.zeros(dofs)
         self._tmp2d = self._tmp.reshape(shape)
         self._cmd_position2d = self._cmd_position.reshape(shape)
@@ -198,6 +203,15 @@ class CommandSmoother(RuckigState, ReferenceStep):
                 ControlInterface.Position if mode == "position" else ControlInterface.Velocity
             )
             inp.control_interface = self._interface
+            # the brake (brake): to rest under the same limits, one control period per call
+            self._braker = Ruckig(dofs, dt)
+            self._brake_inp = b = InputParameter(dofs)
+            self._brake_out = OutputParameter(dofs)
+            b.synchronization = Synchronization.No
+            b.control_interface = ControlInterface.Velocity
+            b.max_velocity, b.max_acceleration, b.max_jerk = self._vmax, self._amax, self._jmax
+            b.current_position = b.current_velocity = b.current_acceleration = zeros
+            b.target_position = b.target_velocity = b.target_acceleration = zeros
 
     @property
     def commanded(self) -> np.ndarray:
@@ -237,6 +251,7 @@ class CommandSmoother(RuckigState, ReferenceStep):
             self.target_clamps_per_joint,
             self.extrema_violations_per_joint,
             self.stopping_distance_clamps_per_joint,
+            self.brakes,
         ):
             counter[:] = 0
         self.sync(q, dq, effort=effort)
@@ -369,6 +384,7 @@ class CommandSmoother(RuckigState, ReferenceStep):
             raise RuntimeError("CommandSmoother.step before reset(q, dq)")
         if target is not None and target.shape != self.command.shape:
             raise ValueError(f"target: expected shape {self.command.shape}, got {target.shape}")
+        np.copyto(self._before, self._w[sk.POS : sk.ACC + 1])
         if not self.reference:
             return self._step_compiled(target, out)
         raw, mask = self._raw, self._mask

@@ -1,0 +1,171 @@
+"""The motion envelope: no smoother step leaves the guard if the robot, braking from the state
+that step puts it in, could touch itself or leave its workspace box.
+
+The guard (:class:`deploy.safety.SafetyGuard`) checks the *target* of each tick. A target far from
+the present pose (a position-mode policy may ask for any pose of the range, 500 times a second) is
+reached along the smoother's jerk-limited path, and a collision-free target says nothing about
+that path; nor can a moving arm stop at once when the next target turns out bad. The envelope
+closes that gap the way speed-and-separation monitoring does (ISO/TS 15066): after every smoother
+step it checks the whole motion the robot is committed to, and if that motion could bring a listed
+collision pair within ``margin`` or the end effector within ``margin`` of the workspace box's
+faces, the step is replaced by the smoother's brake (:meth:`CommandSmoother.brake`).
+
+The motion an env is committed to lies, joint by joint, in a box: from the estimated position
+(where the joint is; a position servo lags its command), through the smoother's position before
+and after the step, to where the joint comes to rest if the smoother brakes from its new state
+(:func:`deploy.kernels.envelope.brake_reach`, under the smoother's acceleration and jerk limits).
+Every configuration in the box is certified by one exact query at its centre: a pair's distance
+(coal) changes by at most ``weights_p @ |dq|`` (:func:`deploy.safety.collision_pair_weights`), the
+end effector's margin inside the workspace box by at most ``lever @ |dq|``
+(:func:`deploy.safety.end_effector_lever`); the box is safe when the centre's distance exceeds
+that bound over the box's half-widths plus ``margin``. The same bound screens the exact query
+against the last one (``deploy.kernels.envelope``): far from contact no query runs, and the
+decision is the same with or without the cache.
+
+By induction the brake is always safe to take: the previous tick certified the box that holds it.
+A robot already within the margin (pushed there, or started there) may only move so that no
+pair's distance and no workspace margin shrinks, checked at the step's end and at its brake's rest
+point; otherwise it brakes.
+
+Torque mode has no smoother trajectory to certify (the guard's torque hold brakes instead), and a
+floating-base robot's leg targets are PD torques in disguise: neither has an envelope.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from deploy.kernels import envelope as ek
+from robots import Robot
+
+#: m, default clearance kept between listed collision geometries and from the workspace box's
+#: faces: our choice, a few times the estimate's error on the robots we ship (arm6's filtered
+#: encoder error at 1 m of lever is about 2 mm) plus the position servo's deviation from the
+#: box of its command path.
+DEFAULT_MARGIN = 0.01
+
+
+class MotionEnvelope:
+    """Certify each env's committed motion against self-collision and the workspace box.
+
+    Args:
+        robot: The robot (limits, workspace box, collision pairs).
+        envs: Batch size.
+        geometry: ``(geom_model, geom_data)``, the guard's coal model
+            (:meth:`deploy.safety.SafetyGuard.collision_model`; a data of its own).
+        pair_weights: (pairs, n) m/rad, :func:`deploy.safety.collision_pair_weights`.
+        ee_lever: (n,) m/rad, :func:`deploy.safety.end_effector_lever`.
+        margin: m, clearance kept (``safety.clearance_margin`` of robot.toml).
+
+    Attributes:
+        unsafe: (2, envs) bool, rows collision and workspace: the envs the last :meth:`check`
+            found unsafe.
+        queries: int, exact (Pinocchio) queries so far: a cost figure.
+    """
+
+    def __init__(self, robot, envs, geometry, pair_weights, ee_lever, margin=DEFAULT_MARGIN):
+        self.robot, self.envs, self.margin = robot, envs, float(margin)
+        n = robot.n_joints
+        s = robot.config.safety
+        self.model = robot.fixed_base_model
+        self.data = self.model.createData()
+        self.geom_model, self.geom_data = geometry
+        self.pairs = len(pair_weights)
+        self.has_workspace = s.workspace_min is not None
+        self.ws_min = np.array(s.workspace_min) if self.has_workspace else None
+        self.ws_max = np.array(s.workspace_max) if self.has_workspace else None
+        self.amax, self.jmax = robot.acceleration_limit, robot.jerk_limit
+        # rows: each pair's approach bound, then the end effector's lever (0 without a box)
+        self.weights = np.zeros((self.pairs + 1, n))
+        self.weights[: self.pairs] = pair_weights
+        if self.has_workspace:
+            self.weights[self.pairs] = ee_lever
+        # cache of the last exact query: its configuration (rows collision, workspace) and the
+        # distances there (pairs, then the workspace margin); -inf: unknown, inf: nothing to check
+        self._cached_q = np.zeros((2, envs, n))
+        self._clearance = np.full((envs, self.pairs + 1), -np.inf)
+        if not self.has_workspace:
+            self._clearance[:, self.pairs] = np.inf
+        if not self.pairs:
+            self._clearance[:, : self.pairs] = np.inf
+        self._centre = np.zeros((envs, n))
+        self._half = np.zeros((envs, n))
+        self._stop = np.zeros((envs, n))
+        self._need = np.zeros((2, envs), dtype=bool)
+        self.unsafe = np.zeros((2, envs), dtype=bool)
+        self.queries = 0
+        ek.warm_up()
+
+    # ------------------------------------------------------------------ exact queries
+    def distances(self, q: np.ndarray) -> np.ndarray:
+        """(pairs,) m, each listed pair's distance at ``q`` (n,) rad (coal; <= 0 in contact)."""
+        self.queries += 1
+        pin.computeDistances(self.model, self.data, self.geom_model, self.geom_data, q)
+        return np.array([r.min_distance for r in self.geom_data.distanceResults])
+
+    def workspace_margin(self, q: np.ndarray) -> float:
+        """m, how far the end effector at ``q`` (n,) rad lies inside the workspace box (negative
+        outside)."""
+        self.queries += 1
+        pin.forwardKinematics(self.model, self.data, q)
+        ee = pin.updateFramePlacement(self.model, self.data, self.robot.ee_frame_id).translation
+        return float(min((ee - self.ws_min).min(), (self.ws_max - ee).min()))
+
+    # ------------------------------------------------------------------ the check
+    def check(self, q, before, position, velocity, acceleration, active) -> np.ndarray:
+        """Find the envs whose committed motion is not certified safe.
+
+        Args:
+            q: (envs, n) rad, the estimated joint positions.
+            before: (envs, n) rad, the smoother's position before its step.
+            position, velocity, acceleration: (envs, n) rad, rad/s, rad/s^2, its state after.
+            active: (envs,) bool, the envs to check (not those already braking to a stop).
+
+        Returns:
+            :attr:`unsafe`, (2, envs) bool (rows collision, workspace).
+        """
+        self.unsafe.fill(False)
+        c, h, stop = self._centre, self._half, self._stop
+        ek.envelope_boxes(q, before, position, velocity, acceleration, self.amax, self.jmax, c, h,
+                          stop)  # fmt: skip
+        if not ek.envelope_screen(
+            active, c, h, self._cached_q, self._clearance, self.weights, self.margin, self._need
+        ):
+            return self.unsafe
+        for e in np.flatnonzero(self._need[ek.COLLISION]):
+            d = self._clearance[e, : self.pairs]
+            d[:] = self.distances(c[e])
+            self._cached_q[ek.COLLISION, e] = c[e]
+            reach = self.weights[: self.pairs] @ h[e]
+            if np.all(d - reach > self.margin):
+                continue
+            self.unsafe[ek.COLLISION, e] = not self._escapes_contact(
+                before[e], position[e], stop[e]
+            )
+        for e in np.flatnonzero(self._need[ek.WORKSPACE]):
+            inside = self.workspace_margin(c[e])
+            self._clearance[e, self.pairs] = inside
+            self._cached_q[ek.WORKSPACE, e] = c[e]
+            if inside - self.weights[self.pairs] @ h[e] > self.margin:
+                continue
+            self.unsafe[ek.WORKSPACE, e] = not self._escapes_box(before[e], position[e], stop[e])
+        return self.unsafe
+
+    def _escapes_contact(self, start, end, rest) -> bool:
+        """Whether a robot already within the margin at ``start`` moves back out: no pair's
+        distance at the step's ``end`` or the brake's ``rest`` below its distance at ``start``,
+        and no pair brought within the margin. False when ``start`` is clear of the margin (the
+        motion, not the pose, is what fails)."""
+        d0 = self.distances(start)
+        if d0.min() > self.margin:
+            return False
+        floor = np.where(d0 > self.margin, self.margin, d0)
+        return bool(np.all(self.distances(end) >= floor) and np.all(self.distances(rest) >= floor))
+
+    def _escapes_box(self, start, end, rest) -> bool:
+        """:meth:`_escapes_contact` for the workspace box: the margin inside it may not shrink."""
+        m0 = self.workspace_margin(start)
+        if m0 > self.margin:
+            return False
+        return self.workspace_margin(end) >= m0 and self.workspace_margin(rest) >= m0

@@ -5,8 +5,10 @@ Two kinds, each with NaN with probability ``nan_probability`` per call and env:
 - ``uniform``: uniform random actions in ``[-1, 1]``, a new draw every call;
 - ``saturating``: ``sign(W obs + b)``, a fixed random linear map of the observation driven into
   saturation (every action component +-1): a deterministic feedback law that pins the robot
-  against its limits and swings it between corners, as a diverged network does. Run it through the runtime to show that whatever a policy outputs, no command beyond
-the hard position limits or the velocity, acceleration and jerk limits reaches the robot::
+  against its limits and swings it between corners, as a diverged network does.
+
+Run it through the runtime to show that whatever a policy outputs, no command beyond the hard
+position limits or the velocity, acceleration and jerk limits reaches the robot::
 
     python -m deploy.adversarial --robot arm3 --mode velocity --out /tmp/adversarial.onnx
     deploy-run --robot arm3 --policy /tmp/adversarial.onnx --duration 600 \\

@@ -37,7 +37,6 @@ import numpy as np
 import pinocchio as pin
 
 from deploy.kernels import envelope as ek
-from robots import Robot
 
 #: m, default clearance kept between listed collision geometries and from the workspace box's
 #: faces: our choice, a few times the estimate's error on the robots we ship (arm6's filtered

@@ -17,8 +17,12 @@ and after the step, to where the joint comes to rest if the smoother brakes from
 Every configuration in the box is certified by one exact query at its centre: a pair's distance
 (coal) changes by at most ``weights_p @ |dq|`` (:func:`deploy.safety.collision_pair_weights`), the
 end effector's margin inside the workspace box by at most ``lever @ |dq|``
-(:func:`deploy.safety.end_effector_lever`); the box is safe when the centre's distance exceeds
-that bound over the box's half-widths plus ``margin``. The same bound screens the exact query
+(:func:`deploy.safety.end_effector_lever`), per axis of the box where a joint's axis keeps its
+world direction (:func:`axis_levers`: a planar arm's end effector never leaves its plane); the box
+is safe when the centre's distance exceeds
+that bound over the box's half-widths plus ``margin``; a box that one query cannot certify is
+halved along its widest weighted side, up to ``MAX_QUERIES`` queries, before the step is braked.
+Workspace faces beyond the end effector's reach are never crossed and not checked. The same bound screens the exact query
 against the last one (``deploy.kernels.envelope``): far from contact no query runs, and the
 decision is the same with or without the cache.
 
@@ -33,6 +37,7 @@ floating-base robot's leg targets are PD torques in disguise: neither has an env
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 import pinocchio as pin
 
@@ -43,6 +48,37 @@ from deploy.kernels import envelope as ek
 #: encoder error at 1 m of lever is about 2 mm) plus the position servo's deviation from the
 #: box of its command path.
 DEFAULT_MARGIN = 0.01
+#: Exact queries per env, check and tick at most when halving a box (our choice: a few
+#: Pinocchio calls, ~10-30 us each, only near contact or a face).
+MAX_QUERIES = 7
+
+
+def axis_levers(robot, ee_lever: np.ndarray) -> np.ndarray:
+    """(3, n) m/rad, bound of the end effector's displacement along world x, y, z per radian of
+    each joint: ``ee_lever`` (n,), times ``|e_k x a_i|`` where joint ``i``'s axis ``a_i`` keeps
+    its world direction in every configuration (every joint above it turns about a parallel
+    axis; a rotation about ``a_i`` moves points perpendicular to it), else times 1."""
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, d)
+    ids = [m.joint(name).id for name in robot.joint_names]
+    out = np.tile(np.asarray(ee_lever, dtype=float), (3, 1))
+    for i, j in enumerate(ids):
+        axis = d.xaxis[j] / np.linalg.norm(d.xaxis[j])
+        body, invariant = m.jnt_bodyid[j], m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
+        for k in range(m.njnt):
+            if k == j or not invariant:
+                continue
+            above = body
+            while above > 0 and above != m.jnt_bodyid[k]:
+                above = m.body_parentid[above]
+            if above > 0 and np.linalg.norm(np.cross(d.xaxis[k], axis)) > 1e-9 * np.linalg.norm(
+                d.xaxis[k]
+            ):
+                invariant = False
+        if invariant:
+            out[:, i] *= np.linalg.norm(np.cross(np.eye(3), axis), axis=1)
+    return out
 
 
 class MotionEnvelope:
@@ -55,6 +91,7 @@ class MotionEnvelope:
             (:meth:`deploy.safety.SafetyGuard.collision_model`; a data of its own).
         pair_weights: (pairs, n) m/rad, :func:`deploy.safety.collision_pair_weights`.
         ee_lever: (n,) m/rad, :func:`deploy.safety.end_effector_lever`.
+        reach: m, :func:`deploy.safety.end_effector_reach` (faces beyond it are dropped).
         margin: m, clearance kept (``safety.clearance_margin`` of robot.toml).
 
     Attributes:
@@ -63,7 +100,9 @@ class MotionEnvelope:
         queries: int, exact (Pinocchio) queries so far: a cost figure.
     """
 
-    def __init__(self, robot, envs, geometry, pair_weights, ee_lever, margin=DEFAULT_MARGIN):
+    def __init__(
+        self, robot, envs, geometry, pair_weights, ee_lever, reach=np.inf, margin=DEFAULT_MARGIN
+    ):
         self.robot, self.envs, self.margin = robot, envs, float(margin)
         n = robot.n_joints
         s = robot.config.safety
@@ -72,20 +111,23 @@ class MotionEnvelope:
         self.geom_model, self.geom_data = geometry
         self.pairs = len(pair_weights)
         self.has_workspace = s.workspace_min is not None
-        self.ws_min = np.array(s.workspace_min) if self.has_workspace else None
-        self.ws_max = np.array(s.workspace_max) if self.has_workspace else None
+        if self.has_workspace:
+            self.ws_min = np.where(np.array(s.workspace_min) <= -reach, -np.inf, s.workspace_min)
+            self.ws_max = np.where(np.array(s.workspace_max) >= reach, np.inf, s.workspace_max)
         self.amax, self.jmax = robot.acceleration_limit, robot.jerk_limit
-        # rows: each pair's approach bound, then the end effector's lever (0 without a box)
-        self.weights = np.zeros((self.pairs + 1, n))
+        # rows: each pair's approach bound, then the end effector's levers along x, y, z (0
+        # without a box)
+        self.weights = np.zeros((self.pairs + 3, n))
         self.weights[: self.pairs] = pair_weights
         if self.has_workspace:
-            self.weights[self.pairs] = ee_lever
+            self.weights[self.pairs :] = axis_levers(robot, ee_lever)
         # cache of the last exact query: its configuration (rows collision, workspace) and the
-        # distances there (pairs, then the workspace margin); -inf: unknown, inf: nothing to check
+        # distances there (pairs, then the workspace margins along x, y, z); -inf: unknown, inf:
+        # nothing to check
         self._cached_q = np.zeros((2, envs, n))
-        self._clearance = np.full((envs, self.pairs + 1), -np.inf)
+        self._clearance = np.full((envs, self.pairs + 3), -np.inf)
         if not self.has_workspace:
-            self._clearance[:, self.pairs] = np.inf
+            self._clearance[:, self.pairs :] = np.inf
         if not self.pairs:
             self._clearance[:, : self.pairs] = np.inf
         self._centre = np.zeros((envs, n))
@@ -103,13 +145,13 @@ class MotionEnvelope:
         pin.computeDistances(self.model, self.data, self.geom_model, self.geom_data, q)
         return np.array([r.min_distance for r in self.geom_data.distanceResults])
 
-    def workspace_margin(self, q: np.ndarray) -> float:
-        """m, how far the end effector at ``q`` (n,) rad lies inside the workspace box (negative
-        outside)."""
+    def workspace_margin(self, q: np.ndarray) -> np.ndarray:
+        """(3,) m, how far the end effector at ``q`` (n,) rad lies inside the workspace box along
+        x, y, z (negative outside)."""
         self.queries += 1
         pin.forwardKinematics(self.model, self.data, q)
         ee = pin.updateFramePlacement(self.model, self.data, self.robot.ee_frame_id).translation
-        return float(min((ee - self.ws_min).min(), (self.ws_max - ee).min()))
+        return np.minimum(ee - self.ws_min, self.ws_max - ee)
 
     # ------------------------------------------------------------------ the check
     def check(self, q, before, position, velocity, acceleration, active) -> np.ndarray:
@@ -144,9 +186,9 @@ class MotionEnvelope:
             )
         for e in np.flatnonzero(self._need[ek.WORKSPACE]):
             inside = self.workspace_margin(c[e])
-            self._clearance[e, self.pairs] = inside
+            self._clearance[e, self.pairs :] = inside
             self._cached_q[ek.WORKSPACE, e] = c[e]
-            if inside - self.weights[self.pairs] @ h[e] > self.margin:
+            if np.all(inside - self.weights[self.pairs :] @ h[e] > self.margin):
                 continue
             self.unsafe[ek.WORKSPACE, e] = not self._escapes_box(before[e], position[e], stop[e])
         return self.unsafe
@@ -164,7 +206,7 @@ class MotionEnvelope:
 
     def _escapes_box(self, start, end, rest) -> bool:
         """:meth:`_escapes_contact` for the workspace box: the margin inside it may not shrink."""
-        m0 = self.workspace_margin(start)
+        m0 = self.workspace_margin(start).min()
         if m0 > self.margin:
             return False
-        return self.workspace_margin(end) >= m0 and self.workspace_margin(rest) >= m0
+        return self.workspace_margin(end).min() >= m0 and self.workspace_margin(rest).min() >= m0

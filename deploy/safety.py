@@ -150,6 +150,16 @@ def end_effector_lever(robot: Robot, model: mujoco.MjModel | None = None) -> np.
     )
 
 
+def end_effector_reach(robot: Robot, model: mujoco.MjModel | None = None) -> float:
+    """m, bound of the end-effector site's distance from the world origin over all
+    configurations: its chain of body offsets plus the joint anchor offset (the chain bounds of
+    :func:`motion_bounds`). A workspace face farther out can never be crossed."""
+    m = robot.mj_model if model is None else model
+    site = m.site(robot.config.safety.end_effector_site).id
+    chain = chain_lengths(m)
+    return float(chain[m.site_bodyid[site]] + np.linalg.norm(m.site_pos[site]) + anchor_offset(m))
+
+
 def collision_pair_weights(robot: Robot, model: mujoco.MjModel | None = None) -> np.ndarray:
     """(pairs, n) m/rad, for each pair of ``safety.collision_pairs`` (in that order): a bound of how
     fast its two geometries approach per radian of each joint.
@@ -281,8 +291,15 @@ class SafetyGuard:
         self.envelope = None
         if mode != "torque" and not robot.floating_base:
             margin = s.clearance_margin if s.clearance_margin is not None else DEFAULT_MARGIN
+            reach = end_effector_reach(robot) if s.workspace_min is not None else np.inf
             self.envelope = MotionEnvelope(
-                robot, envs, self.collision_model(robot), self.pair_weights, self.ee_lever, margin
+                robot,
+                envs,
+                self.collision_model(robot),
+                self.pair_weights,
+                self.ee_lever,
+                reach,
+                margin,
             )
         self._geometric_rows = [CHECKS.index("self_collision"), CHECKS.index("workspace")]
         self._counted = np.zeros((2, envs), dtype=np.int64)  # those rows when filter began

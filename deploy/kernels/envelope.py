@@ -83,13 +83,14 @@ def envelope_screen(
 ) -> bool:
     """Mark ``need[row, e]`` for the ``active`` envs whose box the cache cannot certify: with
     ``cached_q`` (2, envs, n) rad the configurations of the last exact computation (rows as
-    ``need``), ``clearance`` (envs, pairs + 1) m its pair distances and, last, the end
-    effector's margin inside the workspace box (``inf`` without a box), ``weights`` (pairs + 1,
-    n) m/rad the pairs' approach bounds and, last, the end-effector levers. A quantity can shrink
-    by at most ``weights @ (|centre - cached| + half)`` anywhere in the box. Returns whether any
-    env needs an exact check."""
+    ``need``), ``clearance`` (envs, pairs + 3) m its pair distances and, last, the end
+    effector's margins inside the workspace box along x, y, z (``inf`` without a box),
+    ``weights`` (pairs + 3, n) m/rad the pairs' approach bounds and, last, the end effector's
+    levers along x, y, z. A quantity can shrink by at most ``weights @ (|centre - cached| +
+    half)`` anywhere in the box. Returns whether any env needs an exact check."""
     envs, n = centre.shape
     rows = weights.shape[0]
+    pairs = rows - 3
     any_need = False
     for e in range(envs):
         need[COLLISION, e] = False
@@ -97,7 +98,7 @@ def envelope_screen(
         if not active[e]:
             continue
         for r in range(rows):
-            row = WORKSPACE if r == rows - 1 else COLLISION
+            row = WORKSPACE if r >= pairs else COLLISION
             if need[row, e]:
                 continue
             reach = 0.0
@@ -116,6 +117,6 @@ def warm_up() -> None:
     z = np.zeros((1, 2))
     envelope_boxes(z, z, z, z, z, np.ones(2), np.ones(2), z.copy(), z.copy(), z.copy())
     envelope_screen(
-        np.ones(1, dtype=bool), z, z, np.zeros((2, 1, 2)), np.full((1, 2), math.inf),
-        np.zeros((2, 2)), 0.0, np.zeros((2, 1), dtype=bool),
+        np.ones(1, dtype=bool), z, z, np.zeros((2, 1, 2)), np.full((1, 4), math.inf),
+        np.zeros((4, 2)), 0.0, np.zeros((2, 1), dtype=bool),
     )  # fmt: skip

@@ -22,9 +22,9 @@ world direction (:func:`axis_levers`: a planar arm's end effector never leaves i
 is safe when the centre's distance exceeds
 that bound over the box's half-widths plus ``margin``; a box that one query cannot certify is
 halved along its widest weighted side, up to ``MAX_QUERIES`` queries, before the step is braked.
-Workspace faces beyond the end effector's reach are never crossed and not checked. The same bound screens the exact query
-against the last one (``deploy.kernels.envelope``): far from contact no query runs, and the
-decision is the same with or without the cache.
+Workspace faces beyond the end effector's reach are never crossed and not checked. The same
+bound screens the exact query against the last one (``deploy.kernels.envelope``): far from
+contact no query runs, and the decision is the same with or without the cache.
 
 By induction the brake is always safe to take: the previous tick certified the box that holds it.
 A robot already within the margin (pushed there, or started there) may only move so that no
@@ -46,8 +46,11 @@ from deploy.kernels import envelope as ek
 #: m, default clearance kept between listed collision geometries and from the workspace box's
 #: faces: our choice, a few times the estimate's error on the robots we ship (arm6's filtered
 #: encoder error at 1 m of lever is about 2 mm) plus the position servo's deviation from the
-#: box of its command path.
+#: box of its command path; capped at half the home pose's own clearance (:func:`home_margin`).
 DEFAULT_MARGIN = 0.01
+#: m, distances within this of each other are equal (coal's round-off between configurations
+#: that leave a pair's relative pose unchanged).
+DISTANCE_TOLERANCE = 1e-9
 #: Exact queries per env, check and tick at most when halving a box (our choice: a few
 #: Pinocchio calls, ~10-30 us each, only near contact or a face).
 MAX_QUERIES = 7
@@ -92,7 +95,9 @@ class MotionEnvelope:
         pair_weights: (pairs, n) m/rad, :func:`deploy.safety.collision_pair_weights`.
         ee_lever: (n,) m/rad, :func:`deploy.safety.end_effector_lever`.
         reach: m, :func:`deploy.safety.end_effector_reach` (faces beyond it are dropped).
-        margin: m, clearance kept (``safety.clearance_margin`` of robot.toml).
+        margin: m, clearance kept (``safety.clearance_margin`` of robot.toml); default
+            :data:`DEFAULT_MARGIN`, capped at half the smallest pair distance and workspace
+            margin of the home pose (so101's jaw sits 8.7 mm from its wrist there).
 
     Attributes:
         unsafe: (2, envs) bool, rows collision and workspace: the envs the last :meth:`check`
@@ -100,10 +105,8 @@ class MotionEnvelope:
         queries: int, exact (Pinocchio) queries so far: a cost figure.
     """
 
-    def __init__(
-        self, robot, envs, geometry, pair_weights, ee_lever, reach=np.inf, margin=DEFAULT_MARGIN
-    ):
-        self.robot, self.envs, self.margin = robot, envs, float(margin)
+    def __init__(self, robot, envs, geometry, pair_weights, ee_lever, reach=np.inf, margin=None):
+        self.robot, self.envs = robot, envs
         n = robot.n_joints
         s = robot.config.safety
         self.model = robot.fixed_base_model
@@ -115,6 +118,15 @@ class MotionEnvelope:
             self.ws_min = np.where(np.array(s.workspace_min) <= -reach, -np.inf, s.workspace_min)
             self.ws_max = np.where(np.array(s.workspace_max) >= reach, np.inf, s.workspace_max)
         self.amax, self.jmax = robot.acceleration_limit, robot.jerk_limit
+        self.queries = 0
+        if margin is None:  # the default, capped at half the home pose's clearance
+            home = np.asarray(robot.home, dtype=float)
+            clear = [self.distances(home).min()] if self.pairs else []
+            if self.has_workspace:
+                clear.append(self.workspace_margin(home).min())
+            margin = min([DEFAULT_MARGIN, *(0.5 * c for c in clear if c > 0.0)])
+            self.queries = 0
+        self.margin = float(margin)
         # rows: each pair's approach bound, then the end effector's levers along x, y, z (0
         # without a box)
         self.weights = np.zeros((self.pairs + 3, n))
@@ -135,7 +147,6 @@ class MotionEnvelope:
         self._stop = np.zeros((envs, n))
         self._need = np.zeros((2, envs), dtype=bool)
         self.unsafe = np.zeros((2, envs), dtype=bool)
-        self.queries = 0
         ek.warm_up()
 
     # ------------------------------------------------------------------ exact queries
@@ -178,20 +189,44 @@ class MotionEnvelope:
             d = self._clearance[e, : self.pairs]
             d[:] = self.distances(c[e])
             self._cached_q[ek.COLLISION, e] = c[e]
-            reach = self.weights[: self.pairs] @ h[e]
-            if np.all(d - reach > self.margin):
-                continue
-            self.unsafe[ek.COLLISION, e] = not self._escapes_contact(
-                before[e], position[e], stop[e]
-            )
+            if not self._certified(ek.COLLISION, c[e], h[e], d):
+                escapes = self._escapes_contact(before[e], position[e], stop[e])
+                self.unsafe[ek.COLLISION, e] = not escapes
         for e in np.flatnonzero(self._need[ek.WORKSPACE]):
-            inside = self.workspace_margin(c[e])
-            self._clearance[e, self.pairs :] = inside
+            inside = self._clearance[e, self.pairs :]
+            inside[:] = self.workspace_margin(c[e])
             self._cached_q[ek.WORKSPACE, e] = c[e]
-            if np.all(inside - self.weights[self.pairs :] @ h[e] > self.margin):
-                continue
-            self.unsafe[ek.WORKSPACE, e] = not self._escapes_box(before[e], position[e], stop[e])
+            if not self._certified(ek.WORKSPACE, c[e], h[e], inside):
+                escapes = self._escapes_box(before[e], position[e], stop[e])
+                self.unsafe[ek.WORKSPACE, e] = not escapes
         return self.unsafe
+
+    def _certified(self, kind: int, centre, half, value) -> bool:
+        """Whether the box ``centre +- half`` (n,) rad keeps every quantity of ``kind`` (the
+        pairs' distances, or the workspace margins; ``value`` at the centre) above the margin;
+        an uncertain box is halved along its widest weighted side while queries remain
+        (:data:`MAX_QUERIES`)."""
+        rows = slice(None, self.pairs) if kind == ek.COLLISION else slice(self.pairs, None)
+        weights = self.weights[rows]
+        query = self.distances if kind == ek.COLLISION else self.workspace_margin
+        boxes, queries = [(centre, half, np.array(value))], 1
+        while boxes:
+            c, h, v = boxes.pop()
+            slack = v - weights @ h - self.margin
+            if np.all(slack > 0.0):
+                continue
+            if queries + 2 > MAX_QUERIES or not np.all(v > self.margin):
+                return False
+            worst = int(np.argmin(slack))
+            i = int(np.argmax(weights[worst] * h))
+            h = h.copy()
+            h[i] *= 0.5
+            for sign in (-1.0, 1.0):
+                ci = c.copy()
+                ci[i] += sign * h[i]
+                boxes.append((ci, h, query(ci)))
+                queries += 1
+        return True
 
     def _escapes_contact(self, start, end, rest) -> bool:
         """Whether a robot already within the margin at ``start`` moves back out: no pair's
@@ -201,7 +236,7 @@ class MotionEnvelope:
         d0 = self.distances(start)
         if d0.min() > self.margin:
             return False
-        floor = np.where(d0 > self.margin, self.margin, d0)
+        floor = np.where(d0 > self.margin, self.margin, d0) - DISTANCE_TOLERANCE
         return bool(np.all(self.distances(end) >= floor) and np.all(self.distances(rest) >= floor))
 
     def _escapes_box(self, start, end, rest) -> bool:
@@ -209,4 +244,5 @@ class MotionEnvelope:
         m0 = self.workspace_margin(start).min()
         if m0 > self.margin:
             return False
+        m0 -= DISTANCE_TOLERANCE
         return self.workspace_margin(end).min() >= m0 and self.workspace_margin(rest).min() >= m0

@@ -52,7 +52,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from deploy.envelope import DEFAULT_MARGIN, MotionEnvelope
+from deploy.envelope import MotionEnvelope
 from deploy.kernels import guard as gk
 from deploy.smoothing import stopping_speed
 from deploy.state import RobotState
@@ -290,7 +290,6 @@ class SafetyGuard:
         #: (:meth:`check_motion`); None in torque mode and for a floating base
         self.envelope = None
         if mode != "torque" and not robot.floating_base:
-            margin = s.clearance_margin if s.clearance_margin is not None else DEFAULT_MARGIN
             reach = end_effector_reach(robot) if s.workspace_min is not None else np.inf
             self.envelope = MotionEnvelope(
                 robot,
@@ -299,7 +298,7 @@ class SafetyGuard:
                 self.pair_weights,
                 self.ee_lever,
                 reach,
-                margin,
+                s.clearance_margin,
             )
         self._geometric_rows = [CHECKS.index("self_collision"), CHECKS.index("workspace")]
         self._counted = np.zeros((2, envs), dtype=np.int64)  # those rows when filter began

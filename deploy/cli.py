@@ -362,7 +362,11 @@ def _run_opened(
         "bus": backend.bus_summary() if hasattr(backend, "bus_summary") else None,
         "diverged": diverged,
     }
-    if true["hard_limit"] > 0 or hard_stops > 0:
+    from deploy.violations import HARD_VIOLATION_TYPES
+
+    hard = {k: int(true[k]) for k in HARD_VIOLATION_TYPES if true.get(k, 0)}
+    report["hard_violations"] = hard
+    if hard or hard_stops > 0:
         code = EXIT_HARD_VIOLATION
     elif any(m in ("FAULTED", "SAFE_STOP") for m in report["final_state"]):
         code = EXIT_FAULT

@@ -38,6 +38,10 @@ def print_summary(r: dict) -> None:
     if v is not None:
         text = ", ".join(f"{k} {n}" for k, n in v["by_type"].items())
         print(f"  violations (true state, sim)  ticks: {text}")
+        hard = r.get("hard_violations")
+        if hard:
+            kinds = ", ".join(f"{k} {n}" for k, n in hard.items())
+            print(f"  HARD VIOLATIONS   {kinds} ticks (true state): the run fails (exit code 1)")
     else:
         print(
             "  violations        n/a (no ground truth on a servo bus; the guard's hard-limit "

@@ -43,6 +43,9 @@ from deploy.safety import SCREEN_MARGIN, SafetyGuard, collision_pair_weights, co
 from robots import Robot
 
 VIOLATION_TYPES = ("hard_limit", "soft_limit", "velocity", "effort", "workspace", "self_collision")
+#: The violations of the hard kind: every type but ``soft_limit`` (a warning band). deploy-run
+#: exits 1 after any of them (README, exit codes).
+HARD_VIOLATION_TYPES = tuple(t for t in VIOLATION_TYPES if t != "soft_limit")
 #: Relative tolerance on the effort limit: the plant saturates each joint at exactly its limit.
 EFFORT_TOLERANCE = 1e-9
 #: Relative shrink of the screen's bounds (round-off of ``|x - centre| > half``): a tick within it

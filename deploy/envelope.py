@@ -13,7 +13,9 @@ faces, the step is replaced by the smoother's brake (:meth:`CommandSmoother.brak
 The motion an env is committed to lies, joint by joint, in a box: from the estimated position
 (where the joint is; a position servo lags its command), through the smoother's position before
 and after the step, to where the joint comes to rest if the smoother brakes from its new state
-(:func:`deploy.kernels.envelope.brake_reach`, under the smoother's acceleration and jerk limits).
+(:func:`deploy.kernels.envelope.brake_reach`, under the smoother's acceleration and jerk limits;
+the deceleration scaled down to the torque a thermally derated drive has left above the worst
+gravity load, :func:`deploy.kernels.envelope.brake_headroom`: a hot drive brakes later).
 Every configuration in the box is certified by one exact query at its centre: a pair's distance
 (coal) changes by at most ``weights_p @ |dq|`` (:func:`deploy.safety.collision_pair_weights`), the
 end effector's margin inside the workspace box by at most ``lever @ |dq|``
@@ -44,15 +46,18 @@ import pinocchio as pin
 from deploy.kernels import envelope as ek
 
 #: m, default clearance kept between listed collision geometries and from the workspace box's
-#: faces: our choice, a few times the estimate's error on the robots we ship (arm6's filtered
-#: encoder error at 1 m of lever is about 2 mm) plus the position servo's deviation from the
-#: box of its command path; capped at half the home pose's own clearance (:func:`home_margin`).
+#: faces: our choice, a few times the joint estimate's error times a lever of about a metre, plus
+#: the position servo's deviation from the box of its command path; capped at half the home
+#: pose's own clearance (see ``MotionEnvelope``).
 DEFAULT_MARGIN = 0.01
+#: Smallest share of the full deceleration the envelope assumes of a derated drive (our choice: a
+#: drive derated to its floor still holds the arm; its brake is taken as 20 times longer).
+MIN_HEADROOM = 0.05
 #: m, distances within this of each other are equal (coal's round-off between configurations
 #: that leave a pair's relative pose unchanged).
 DISTANCE_TOLERANCE = 1e-9
 #: Exact queries per env, check and tick at most when halving a box (our choice: a few
-#: Pinocchio calls, ~10-30 us each, only near contact or a face).
+#: Pinocchio calls, only near contact or a face).
 MAX_QUERIES = 7
 
 
@@ -94,10 +99,12 @@ class MotionEnvelope:
             (:meth:`deploy.safety.SafetyGuard.collision_model`; a data of its own).
         pair_weights: (pairs, n) m/rad, :func:`deploy.safety.collision_pair_weights`.
         ee_lever: (n,) m/rad, :func:`deploy.safety.end_effector_lever`.
+        gravity_bound: (n,) N m, each joint's worst gravity torque
+            (:func:`deploy.safety.motion_bounds`).
         reach: m, :func:`deploy.safety.end_effector_reach` (faces beyond it are dropped).
         margin: m, clearance kept (``safety.clearance_margin`` of robot.toml); default
             :data:`DEFAULT_MARGIN`, capped at half the smallest pair distance and workspace
-            margin of the home pose (so101's jaw sits 8.7 mm from its wrist there).
+            margin of the home pose (a gripper's jaw may sit close to its wrist there).
 
     Attributes:
         unsafe: (2, envs) bool, rows collision and workspace: the envs the last :meth:`check`
@@ -105,7 +112,17 @@ class MotionEnvelope:
         queries: int, exact (Pinocchio) queries so far: a cost figure.
     """
 
-    def __init__(self, robot, envs, geometry, pair_weights, ee_lever, reach=np.inf, margin=None):
+    def __init__(
+        self,
+        robot,
+        envs,
+        geometry,
+        pair_weights,
+        ee_lever,
+        gravity_bound,
+        reach=np.inf,
+        margin=None,
+    ):
         self.robot, self.envs = robot, envs
         n = robot.n_joints
         s = robot.config.safety
@@ -118,6 +135,10 @@ class MotionEnvelope:
             self.ws_min = np.where(np.array(s.workspace_min) <= -reach, -np.inf, s.workspace_min)
             self.ws_max = np.where(np.array(s.workspace_max) >= reach, np.inf, s.workspace_max)
         self.amax, self.jmax = robot.acceleration_limit, robot.jerk_limit
+        # (2, n): the worst gravity load's share of each effort limit, and MIN_HEADROOM
+        self.headroom = np.stack(
+            [np.asarray(gravity_bound) / robot.effort_limit, np.full(n, MIN_HEADROOM)]
+        )
         self.queries = 0
         if margin is None:  # the default, capped at half the home pose's clearance
             home = np.asarray(robot.home, dtype=float)
@@ -142,6 +163,7 @@ class MotionEnvelope:
             self._clearance[:, self.pairs :] = np.inf
         if not self.pairs:
             self._clearance[:, : self.pairs] = np.inf
+        self._full = np.ones((envs, n))
         self._centre = np.zeros((envs, n))
         self._half = np.zeros((envs, n))
         self._stop = np.zeros((envs, n))
@@ -165,7 +187,9 @@ class MotionEnvelope:
         return np.minimum(ee - self.ws_min, self.ws_max - ee)
 
     # ------------------------------------------------------------------ the check
-    def check(self, q, before, position, velocity, acceleration, active) -> np.ndarray:
+    def check(
+        self, q, before, position, velocity, acceleration, active, effort_scale=None
+    ) -> np.ndarray:
         """Find the envs whose committed motion is not certified safe.
 
         Args:
@@ -173,14 +197,19 @@ class MotionEnvelope:
             before: (envs, n) rad, the smoother's position before its step.
             position, velocity, acceleration: (envs, n) rad, rad/s, rad/s^2, its state after.
             active: (envs,) bool, the envs to check (not those already braking to a stop).
+            effort_scale: (envs, n), the drives' thermal derating (the guard's
+                ``effort_scale``); default 1 (full torque).
 
         Returns:
             :attr:`unsafe`, (2, envs) bool (rows collision, workspace).
         """
         self.unsafe.fill(False)
         c, h, stop = self._centre, self._half, self._stop
-        ek.envelope_boxes(q, before, position, velocity, acceleration, self.amax, self.jmax, c, h,
-                          stop)  # fmt: skip
+        scale = self._full if effort_scale is None else effort_scale
+        ek.envelope_boxes(
+            q, before, position, velocity, acceleration, self.amax, self.jmax, scale,
+            self.headroom, c, h, stop,
+        )  # fmt: skip
         if not ek.envelope_screen(
             active, c, h, self._cached_q, self._clearance, self.weights, self.margin, self._need
         ):

@@ -297,6 +297,7 @@ class SafetyGuard:
                 self.collision_model(robot),
                 self.pair_weights,
                 self.ee_lever,
+                self.gravity_bound,
                 reach,
                 s.clearance_margin,
             )
@@ -559,6 +560,7 @@ class SafetyGuard:
             smoother.velocity,
             smoother.acceleration,
             ~smoother.stopping,
+            self.effort_scale,
         )
         braked = unsafe[0] | unsafe[1]
         if not braked.any():

@@ -41,6 +41,17 @@ def brake_reach(v: float, a: float, amax: float, jmax: float) -> tuple[float, fl
     return s * forward, -s * back
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def brake_headroom(scale: float, gravity_share: float, floor: float) -> float:
+    """Fraction of the full deceleration a drive derated to ``scale`` (of its effort limit) still
+    has: the torque left above the worst gravity load, ``(scale - g) / (1 - g)`` with ``g`` the
+    gravity bound's share of the effort limit (the share of the limit the acceleration limits
+    were sized from), clipped to ``[floor, 1]``."""
+    if gravity_share >= 1.0:
+        return max(min(scale, 1.0), floor)
+    return max(min((scale - gravity_share) / (1.0 - gravity_share), 1.0), floor)
+
+
 @numba.njit(cache=True, nogil=True)
 def envelope_boxes(
     q: np.ndarray,
@@ -50,18 +61,24 @@ def envelope_boxes(
     acc: np.ndarray,
     amax: np.ndarray,
     jmax: np.ndarray,
+    effort_scale: np.ndarray,
+    headroom: np.ndarray,
     centre: np.ndarray,
     half: np.ndarray,
     stop: np.ndarray,
 ) -> None:
     """The box of every env (module docstring): ``q`` (envs, n) estimated positions, ``before``
     (envs, n) the smoother's position before the step, ``pos``, ``vel``, ``acc`` (envs, n) its
-    state after it; ``amax``, ``jmax`` (n,) the smoother's limits. Writes ``centre``, ``half``
-    and ``stop`` (envs, n), the rest point of the brake."""
+    state after it; ``amax``, ``jmax`` (n,) the smoother's limits. The brake's deceleration is
+    ``amax`` times the drive's torque headroom (:func:`brake_headroom` of ``effort_scale``
+    (envs, n), the thermal derating, with ``headroom`` (2, n): the gravity bound's share of the
+    effort limit, and the smallest headroom assumed). Writes ``centre``, ``half`` and ``stop``
+    (envs, n), the rest point of the brake."""
     envs, n = q.shape
     for e in range(envs):
         for i in range(n):
-            forward, back = brake_reach(vel[e, i], acc[e, i], amax[i], jmax[i])
+            share = brake_headroom(effort_scale[e, i], headroom[0, i], headroom[1, i])
+            forward, back = brake_reach(vel[e, i], acc[e, i], amax[i] * share, jmax[i])
             p = pos[e, i]
             stop[e, i] = p + forward
             lo = min(q[e, i], before[e, i], p, p + forward, p + back)
@@ -115,7 +132,10 @@ def envelope_screen(
 def warm_up() -> None:
     """Compile (or load numba's cache of) the kernels on small arrays, outside any tick."""
     z = np.zeros((1, 2))
-    envelope_boxes(z, z, z, z, z, np.ones(2), np.ones(2), z.copy(), z.copy(), z.copy())
+    ones = np.ones(2)
+    envelope_boxes(
+        z, z, z, z, z, ones, ones, np.ones((1, 2)), np.zeros((2, 2)), z.copy(), z.copy(), z.copy()
+    )
     envelope_screen(
         np.ones(1, dtype=bool), z, z, np.zeros((2, 1, 2)), np.full((1, 4), math.inf),
         np.zeros((4, 2)), 0.0, np.zeros((2, 1), dtype=bool),

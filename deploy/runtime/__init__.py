@@ -10,6 +10,8 @@ The tick (:meth:`Runtime.tick`) reads top to bottom as DESIGN.md draws it::
     target = spec.action_to_target(action, state)  # physical units of the control mode
     target = guard.filter(target, state)           # Pinocchio: clamp or reject, count
     cmd    = smoother.step(target)                 # Ruckig: velocity, acceleration, jerk limits
+    cmd    = guard.check_motion(smoother, state)   # the step and its brake clear of contact
+                                                   # and the workspace faces, or brake instead
     backend.write(cmd)
 
 State machine (one per env): ``IDLE -> RAMP_IN -> RUNNING -> SAFE_STOP -> FAULTED``. RAMP_IN brings

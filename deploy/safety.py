@@ -24,13 +24,13 @@ Checks, each with its own counter (``SafetyGuard.counts[name]``, (envs,) int64),
   (reject and hold); in torque mode also a commanded torque above it (clamp).
 
 "Hold" keeps the robot where it is: the last accepted target in position mode, zero velocity in
-velocity mode, the gravity torque in torque mode.
+velocity mode, the gravity torque in torque mode. The predicted next state is the target itself
+in position mode, ``q + v dt`` in velocity mode and ``q + dq dt`` in torque mode.
 
 A target is not the path to it: after the smoother's step, :meth:`SafetyGuard.check_motion`
 certifies the motion the robot is committed to (the step and the brake after it) with the motion
 envelope (:mod:`deploy.envelope`) and brakes the envs it cannot certify, counted as
-``self_collision`` or ``workspace`` interventions (position and velocity mode, fixed base). The predicted next state is the target itself in
-position mode, ``q + v dt`` in velocity mode and ``q + dq dt`` in torque mode.
+``self_collision`` or ``workspace`` interventions (position and velocity mode, fixed base).
 
 Speed: the per-env Pinocchio calls (forward kinematics, coal collision, gravity) run only when
 an exact bound says they could fire. Every point of the robot moves at most ``sweep * sum|dq_i|``

@@ -134,10 +134,15 @@ class MotionEnvelope:
         if self.has_workspace:
             self.ws_min = np.where(np.array(s.workspace_min) <= -reach, -np.inf, s.workspace_min)
             self.ws_max = np.where(np.array(s.workspace_max) >= reach, np.inf, s.workspace_max)
-        self.amax, self.jmax = robot.acceleration_limit, robot.jerk_limit
-        # (2, n): the worst gravity load's share of each effort limit, and MIN_HEADROOM
-        self.headroom = np.stack(
-            [np.asarray(gravity_bound) / robot.effort_limit, np.full(n, MIN_HEADROOM)]
+        # (4, n): the smoother's acceleration and jerk limits, the worst gravity load's share of
+        # each effort limit, MIN_HEADROOM
+        self.limits = np.stack(
+            [
+                robot.acceleration_limit,
+                robot.jerk_limit,
+                np.asarray(gravity_bound) / robot.effort_limit,
+                np.full(n, MIN_HEADROOM),
+            ]
         )
         self.queries = 0
         if margin is None:  # the default, capped at half the home pose's clearance
@@ -163,12 +168,10 @@ class MotionEnvelope:
             self._clearance[:, self.pairs :] = np.inf
         if not self.pairs:
             self._clearance[:, : self.pairs] = np.inf
-        self._full = np.ones((envs, n))
-        self._centre = np.zeros((envs, n))
-        self._half = np.zeros((envs, n))
-        self._stop = np.zeros((envs, n))
+        self._box = np.zeros((3, envs, n))  # centre, half-width, the brake's rest point
         self._need = np.zeros((2, envs), dtype=bool)
         self.unsafe = np.zeros((2, envs), dtype=bool)
+        self._dirty = False
         ek.warm_up()
 
     # ------------------------------------------------------------------ exact queries
@@ -187,48 +190,47 @@ class MotionEnvelope:
         return np.minimum(ee - self.ws_min, self.ws_max - ee)
 
     # ------------------------------------------------------------------ the check
-    def check(
-        self, q, before, position, velocity, acceleration, active, effort_scale=None
-    ) -> np.ndarray:
-        """Find the envs whose committed motion is not certified safe.
+    def check(self, q, before, after, stopping, effort_scale) -> bool:
+        """Find the envs whose committed motion is not certified safe: :attr:`unsafe`.
 
         Args:
             q: (envs, n) rad, the estimated joint positions.
-            before: (envs, n) rad, the smoother's position before its step.
-            position, velocity, acceleration: (envs, n) rad, rad/s, rad/s^2, its state after.
-            active: (envs,) bool, the envs to check (not those already braking to a stop).
-            effort_scale: (envs, n), the drives' thermal derating (the guard's
-                ``effort_scale``); default 1 (full torque).
+            before: (3, envs, n) the smoother's position, velocity and acceleration (rad, rad/s,
+                rad/s^2) before its step (``CommandSmoother.before``).
+            after: (3, envs, n) the same after it (``CommandSmoother.trajectory``).
+            stopping: (envs,) bool, the envs braking to a stop already (not checked).
+            effort_scale: (envs, n), the drives' thermal derating (the guard's).
 
         Returns:
-            :attr:`unsafe`, (2, envs) bool (rows collision, workspace).
+            Whether any env is unsafe (:attr:`unsafe`, (2, envs) bool, rows collision and
+            workspace, is written only then; it is all False otherwise).
         """
-        self.unsafe.fill(False)
-        c, h, stop = self._centre, self._half, self._stop
-        scale = self._full if effort_scale is None else effort_scale
-        ek.envelope_boxes(
-            q, before, position, velocity, acceleration, self.amax, self.jmax, scale,
-            self.headroom, c, h, stop,
-        )  # fmt: skip
+        if self._dirty:
+            self.unsafe.fill(False)
+            self._dirty = False
+        box, need = self._box, self._need
         if not ek.envelope_screen(
-            active, c, h, self._cached_q, self._clearance, self.weights, self.margin, self._need
-        ):
-            return self.unsafe
-        for e in np.flatnonzero(self._need[ek.COLLISION]):
+            q, before, after, stopping, self.limits, effort_scale, self._cached_q,
+            self._clearance, self.weights, self.margin, box, need,
+        ):  # fmt: skip
+            return False
+        c, h, stop, start, end = box[0], box[1], box[2], before[0], after[0]
+        for e in np.flatnonzero(need[ek.COLLISION]):
             d = self._clearance[e, : self.pairs]
             d[:] = self.distances(c[e])
             self._cached_q[ek.COLLISION, e] = c[e]
             if not self._certified(ek.COLLISION, c[e], h[e], d):
-                escapes = self._escapes_contact(before[e], position[e], stop[e])
+                escapes = self._escapes_contact(start[e], end[e], stop[e])
                 self.unsafe[ek.COLLISION, e] = not escapes
-        for e in np.flatnonzero(self._need[ek.WORKSPACE]):
+        for e in np.flatnonzero(need[ek.WORKSPACE]):
             inside = self._clearance[e, self.pairs :]
             inside[:] = self.workspace_margin(c[e])
             self._cached_q[ek.WORKSPACE, e] = c[e]
             if not self._certified(ek.WORKSPACE, c[e], h[e], inside):
-                escapes = self._escapes_box(before[e], position[e], stop[e])
+                escapes = self._escapes_box(start[e], end[e], stop[e])
                 self.unsafe[ek.WORKSPACE, e] = not escapes
-        return self.unsafe
+        self._dirty = bool(self.unsafe.any())
+        return self._dirty
 
     def _certified(self, kind: int, centre, half, value) -> bool:
         """Whether the box ``centre +- half`` (n,) rad keeps every quantity of ``kind`` (the

@@ -464,7 +464,8 @@ class SafetyGuard:
         elif out is not target:
             np.copyto(out, target)
         q, dq = state.q, state.dq
-        np.copyto(self._counted, self.count_matrix[self._geometric_rows])
+        self._counted[0] = self.count_matrix[self._geometric_rows[0]]
+        self._counted[1] = self.count_matrix[self._geometric_rows[1]]
         if not self.reference:
             return self._kernel(q, dq, commanded_position, out)
         self.hard_violation[:] = False
@@ -556,20 +557,13 @@ class SafetyGuard:
         Returns:
             ``command``.
         """
-        if self.envelope is None:
+        envelope = self.envelope
+        if envelope is None or not envelope.check(
+            state.q, smoother.before, smoother.trajectory, smoother.stopping, self.effort_scale
+        ):
             return command
-        unsafe = self.envelope.check(
-            state.q,
-            smoother.before_position,
-            smoother.position,
-            smoother.velocity,
-            smoother.acceleration,
-            ~smoother.stopping,
-            self.effort_scale,
-        )
+        unsafe = envelope.unsafe
         braked = unsafe[0] | unsafe[1]
-        if not braked.any():
-            return command
         for k, row in enumerate(self._geometric_rows):
             first = unsafe[k] & (self.count_matrix[row] == self._counted[k])
             self.count_matrix[row] += first

@@ -88,10 +88,12 @@ def test_envelope_certifies_a_box_by_its_centre_and_brakes_a_motion_into_contact
     env: MotionEnvelope = guard.envelope
     home = np.asarray(arm6.home, dtype=float)[None]
     zero = np.zeros_like(home)
-    env.check(home, home, home, zero, zero, np.array([True]))
+    moving = np.zeros(1, dtype=bool)
+    full = np.ones_like(home)
+    at_rest = np.stack([home, zero, zero])
+    assert not env.check(home, at_rest, at_rest, moving, full)
     queries = env.queries
-    assert not env.unsafe.any()
-    env.check(home, home, home, zero, zero, np.array([True]))
+    assert not env.check(home, at_rest, at_rest, moving, full)
     assert env.queries == queries  # certified by the cache
     # the elbow folding at full speed toward the upper arm: the step is clear, its brake is not
     folded = home.copy()
@@ -99,5 +101,16 @@ def test_envelope_certifies_a_box_by_its_centre_and_brakes_a_motion_into_contact
     assert env.distances(folded[0]).min() > 0.0
     speed = np.zeros_like(home)
     speed[0, 2] = 2.8
-    env.check(folded, folded, folded, speed, zero, np.array([True]))
+    state = np.stack([folded, speed, zero])
+    assert env.check(folded, state, state, moving, full)
     assert env.unsafe[0, 0]
+    # the same fold at rest is clear, and a hot drive (derated to its floor) brakes later
+    assert not env.check(folded, np.stack([folded, zero, zero]), np.stack([folded, zero, zero]),
+                         moving, full)  # fmt: skip
+    slow = folded.copy()
+    slow[0, 2] = 2.6
+    crawl = zero.copy()
+    crawl[0, 2] = 1.0
+    gentle = np.stack([slow, crawl, zero])
+    assert not env.check(slow, gentle, gentle, moving, full)
+    assert env.check(slow, gentle, gentle, moving, 0.3 * full)

@@ -1,11 +1,9 @@
 """Kernel of :class:`deploy.envelope.MotionEnvelope`: the joint box of each env's motion envelope
-and the screens that say where Pinocchio must look.
+and the screen that says where Pinocchio must look (:func:`envelope_screen`).
 
 The box of env ``e``, joint ``i`` spans the estimated position, the smoother's position before
 and after the step, and the point where the joint comes to rest if the smoother brakes from its
-new state (:func:`brake_reach`). ``centre`` and ``half`` (envs, n) are written for every env;
-``need`` (2, envs) bool, rows collision and workspace, marks the envs whose cached distances
-cannot certify their box.
+new state (:func:`brake_reach`, with a derated drive's deceleration, :func:`brake_headroom`).
 """
 
 from __future__ import annotations
@@ -53,67 +51,58 @@ def brake_headroom(scale: float, gravity_share: float, floor: float) -> float:
 
 
 @numba.njit(cache=True, nogil=True)
-def envelope_boxes(
+def envelope_screen(
     q: np.ndarray,
     before: np.ndarray,
-    pos: np.ndarray,
-    vel: np.ndarray,
-    acc: np.ndarray,
-    amax: np.ndarray,
-    jmax: np.ndarray,
+    after: np.ndarray,
+    stopping: np.ndarray,
+    limits: np.ndarray,
     effort_scale: np.ndarray,
-    headroom: np.ndarray,
-    centre: np.ndarray,
-    half: np.ndarray,
-    stop: np.ndarray,
-) -> None:
-    """The box of every env (module docstring): ``q`` (envs, n) estimated positions, ``before``
-    (envs, n) the smoother's position before the step, ``pos``, ``vel``, ``acc`` (envs, n) its
-    state after it; ``amax``, ``jmax`` (n,) the smoother's limits. The brake's deceleration is
-    ``amax`` times the drive's torque headroom (:func:`brake_headroom` of ``effort_scale``
-    (envs, n), the thermal derating, with ``headroom`` (2, n): the gravity bound's share of the
-    effort limit, and the smallest headroom assumed). Writes ``centre``, ``half`` and ``stop``
-    (envs, n), the rest point of the brake."""
-    envs, n = q.shape
-    for e in range(envs):
-        for i in range(n):
-            share = brake_headroom(effort_scale[e, i], headroom[0, i], headroom[1, i])
-            forward, back = brake_reach(vel[e, i], acc[e, i], amax[i] * share, jmax[i])
-            p = pos[e, i]
-            stop[e, i] = p + forward
-            lo = min(q[e, i], before[e, i], p, p + forward, p + back)
-            hi = max(q[e, i], before[e, i], p, p + forward, p + back)
-            centre[e, i] = 0.5 * (lo + hi)
-            half[e, i] = 0.5 * (hi - lo)
-
-
-@numba.njit(cache=True, nogil=True)
-def envelope_screen(
-    active: np.ndarray,
-    centre: np.ndarray,
-    half: np.ndarray,
     cached_q: np.ndarray,
     clearance: np.ndarray,
     weights: np.ndarray,
     margin: float,
+    box: np.ndarray,
     need: np.ndarray,
 ) -> bool:
-    """Mark ``need[row, e]`` for the ``active`` envs whose box the cache cannot certify: with
-    ``cached_q`` (2, envs, n) rad the configurations of the last exact computation (rows as
-    ``need``), ``clearance`` (envs, pairs + 3) m its pair distances and, last, the end
-    effector's margins inside the workspace box along x, y, z (``inf`` without a box),
-    ``weights`` (pairs + 3, n) m/rad the pairs' approach bounds and, last, the end effector's
-    levers along x, y, z. A quantity can shrink by at most ``weights @ (|centre - cached| +
-    half)`` anywhere in the box. Returns whether any env needs an exact check."""
-    envs, n = centre.shape
+    """The box of every env not ``stopping`` ((envs,) bool), and whether the cache certifies it.
+
+    The box (module docstring): ``q`` (envs, n) estimated positions, ``before`` (3, envs, n) the
+    smoother's position, velocity, acceleration before the step (its position is used) and
+    ``after`` (3, envs, n) after it; ``limits`` (4, n): the smoother's acceleration and jerk
+    limits, the worst gravity load's share of each effort limit and the smallest brake headroom
+    assumed. The brake's deceleration is the acceleration limit times :func:`brake_headroom` of
+    ``effort_scale`` (envs, n), the thermal derating. Writes ``box`` (3, envs, n): centre,
+    half-width and the brake's rest point.
+
+    The screen marks ``need[row, e]`` (rows ``COLLISION``, ``WORKSPACE``) where the cache cannot
+    certify the box: ``cached_q`` (2, envs, n) rad the configurations of the last exact queries
+    (rows as ``need``), ``clearance`` (envs, pairs + 3) m the pair distances there and, last,
+    the end effector's margins inside the workspace box along x, y, z (``inf`` without a box),
+    ``weights`` (pairs + 3, n) m/rad the pairs' approach bounds and the end effector's levers
+    along x, y, z. A quantity can shrink by at most ``weights @ (|centre - cached| + half)``
+    anywhere in the box. Returns whether any env needs an exact query.
+    """
+    envs, n = q.shape
     rows = weights.shape[0]
     pairs = rows - 3
     any_need = False
     for e in range(envs):
         need[COLLISION, e] = False
         need[WORKSPACE, e] = False
-        if not active[e]:
+        if stopping[e]:
             continue
+        for i in range(n):
+            share = brake_headroom(effort_scale[e, i], limits[2, i], limits[3, i])
+            forward, back = brake_reach(
+                after[1, e, i], after[2, e, i], limits[0, i] * share, limits[1, i]
+            )
+            p = after[0, e, i]
+            box[2, e, i] = p + forward
+            lo = min(q[e, i], before[0, e, i], p, p + forward, p + back)
+            hi = max(q[e, i], before[0, e, i], p, p + forward, p + back)
+            box[0, e, i] = 0.5 * (lo + hi)
+            box[1, e, i] = 0.5 * (hi - lo)
         for r in range(rows):
             row = WORKSPACE if r >= pairs else COLLISION
             if need[row, e]:
@@ -121,7 +110,7 @@ def envelope_screen(
             reach = 0.0
             for i in range(n):
                 if weights[r, i] != 0.0:
-                    d = abs(centre[e, i] - cached_q[row, e, i]) + half[e, i]
+                    d = abs(box[0, e, i] - cached_q[row, e, i]) + box[1, e, i]
                     reach += weights[r, i] * d
             if not (clearance[e, r] - reach > margin):  # NaN-safe: unknown means check
                 need[row, e] = True
@@ -130,13 +119,11 @@ def envelope_screen(
 
 
 def warm_up() -> None:
-    """Compile (or load numba's cache of) the kernels on small arrays, outside any tick."""
+    """Compile (or load numba's cache of) the kernel on small arrays, outside any tick."""
     z = np.zeros((1, 2))
-    ones = np.ones(2)
-    envelope_boxes(
-        z, z, z, z, z, ones, ones, np.ones((1, 2)), np.zeros((2, 2)), z.copy(), z.copy(), z.copy()
-    )
+    z3 = np.zeros((3, 1, 2))
     envelope_screen(
-        np.ones(1, dtype=bool), z, z, np.zeros((2, 1, 2)), np.full((1, 4), math.inf),
-        np.zeros((4, 2)), 0.0, np.zeros((2, 1), dtype=bool),
+        z, z3, z3, np.zeros(1, dtype=bool), np.ones((4, 2)), np.ones((1, 2)),
+        np.zeros((2, 1, 2)), np.full((1, 4), math.inf), np.zeros((4, 2)), 0.0, z3.copy(),
+        np.zeros((2, 1), dtype=bool),
     )  # fmt: skip

@@ -132,6 +132,7 @@ class CommandSmoother(RuckigState, ReferenceStep):
         self.position = self._pos.reshape(shape)
         self.velocity = self._vel.reshape(shape)
         self.acceleration = self._acc.reshape(shape)
+        self.trajectory = w[sk.POS : sk.ACC + 1].reshape(3, envs, n)
         self._cmd_position = w[sk.CMD_POSITION]  # what tracking_error compares with
         self._held = w[sk.HELD]  # last finite target
         self._raw = w[sk.RAW]
@@ -140,7 +141,8 @@ class CommandSmoother(RuckigState, ReferenceStep):
         # Ruckig's state (position, velocity, acceleration) before the last step: the start of
         # the brake that may replace it (brake) and of the guard's motion envelope
         self._before = np.zeros((3, dofs))
-        self.before_position = self._before[0].reshape(shape)
+        self.before = self._before.reshape(3, envs, n)
+        self.before_position = self.before[0]
         self.brakes = np.zeros(envs, dtype=np.int64)
         self._tmp = np.zeros(dofs)
         self._tmp2d = self._tmp.reshape(shape)

@@ -1,6 +1,7 @@
 """Shared pieces of the benchmark suite: the benchmark policy, histograms, machine facts, JSON.
 
-Every latency here goes through :class:`deploy.telemetry.LatencyHistogram` (1 us bins up to 20 ms,
+Every latency here goes through :class:`deploy.observe.telemetry.LatencyHistogram` (1 us bins up to
+20 ms,
 percentiles exact to the bin width, reported at the bin centre), the same histogram the runtime
 keeps of its own stages, so that figures of the full runtime and of the bare loop are comparable.
 """
@@ -17,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from deploy.files import atomic_write
-from deploy.telemetry import BIN_NS, BINS, LatencyHistogram
+from deploy.observe.telemetry import BIN_NS, BINS, LatencyHistogram
+from robots.files import atomic_write
 
 #: Hidden layers and seed of the benchmark policy (a deterministic MLPActor, ELU).
 POLICY_HIDDEN = (64, 64)
@@ -33,7 +34,8 @@ class BenchPolicy:
         robot: The :class:`robots.Robot`.
         spec: Its PolicySpec (``PolicySpec.for_robot(robot)``: default blocks, default control
             mode: arm3 velocity, arm6 position).
-        actor: The torch :class:`~deploy.checkpoint.MLPActor` (eval mode), for the bare loop.
+        actor: The torch :class:`~deploy.policy.mlp_checkpoint.MLPActor` (eval mode), for the bare
+        loop.
         path: The ONNX file exported from it by ``deploy.export.run_export`` (parity gate passed).
         export_seconds: Wall time of the export, s.
     """
@@ -117,7 +119,8 @@ def tame_actor(actor, spec, robot, seed: int = POLICY_SEED) -> None:
 def make_policy(robot, folder: Path, seed: int = POLICY_SEED) -> BenchPolicy:
     """Build the deterministic benchmark policy of ``robot`` and export it to ONNX in ``folder``.
 
-    An :class:`~deploy.checkpoint.MLPActor` (obs_dim of the default PolicySpec -> 64 -> 64 ->
+    An :class:`~deploy.policy.mlp_checkpoint.MLPActor` (obs_dim of the default PolicySpec -> 64 ->
+    64 ->
     n_joints, ELU, no normalizer) with weights from ``torch.manual_seed(seed)``, tamed by
     :func:`tame_actor` (small actions around holding the home pose), saved with
     ``save_checkpoint`` and exported with ``run_export`` (the ``policy-export`` code path: parity
@@ -128,9 +131,9 @@ def make_policy(robot, folder: Path, seed: int = POLICY_SEED) -> BenchPolicy:
     """
     import torch
 
-    from deploy.checkpoint import MLPActor, save_checkpoint
     from deploy.export import run_export
-    from deploy.spec import PolicySpec
+    from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
+    from deploy.spec.policy_spec import PolicySpec
 
     spec = PolicySpec.for_robot(robot)
     torch.manual_seed(seed)

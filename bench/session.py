@@ -1,6 +1,7 @@
 """Sessions through ``deploy-run`` itself: the 8-hour-equivalent estimate and wall-clock mode.
 
-Both call :func:`deploy.cli.deploy_run_main` in this process (the shipped code path: robot and
+Both call :func:`deploy.cli.deploy_run.deploy_run_main` in this process (the shipped code path:
+robot and
 policy loading, ``SimBackend``, ``Runtime`` with ``GoalScheduler`` goals every 4 s and deploy-run's
 own per-tick bookkeeping) with ``--report`` to a temporary file, its printed summary captured.
 
@@ -68,7 +69,7 @@ def _deploy_run(
     Raises:
         RuntimeError: deploy-run refused its input (exit 3) or the simulation diverged (exit 4).
     """
-    from deploy.cli import EXIT_BAD_INPUT, EXIT_DIVERGED, deploy_run_main
+    from deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_DIVERGED, deploy_run_main
 
     with tempfile.TemporaryDirectory() as tmp:
         report_path = Path(tmp) / "report.json"

@@ -1,8 +1,9 @@
 """Tick cost: the full runtime against a bare sim2sim loop, same robot, same policy, same process.
 
 **Full runtime** (:class:`deploy.runtime.Runtime`, ``SimClock``, ``SimBackend(envs=1)``, the
-benchmark policy through :class:`~deploy.policy.OnnxPolicy`, goals from
-:class:`deploy.goals.GoalScheduler` every 4 s as in ``deploy-run``), driven by ``Runtime.run`` (the
+benchmark policy through :class:`~deploy.policy.onnx_policy.OnnxPolicy`, goals from
+:class:`deploy.tasks.goals.GoalScheduler` every 4 s as in ``deploy-run``), driven by
+``Runtime.run`` (the
 garbage collector frozen and disabled). Per stage: the runtime's own stamps (``rt.latency``; the
 stages of ``deploy.runtime.STAGES``: read, estimate, observe, infer, guard, smooth, write,
 physics). ``overhead`` is ``rt.tick_cost``: one tick without the physics stage
@@ -51,7 +52,7 @@ class BareLoop:
 
     Args:
         bp: The benchmark policy (its torch ``actor`` and ``spec`` are used).
-        seed: Seed of the goal sequence (goals from ``deploy.goals.sample_goal``).
+        seed: Seed of the goal sequence (goals from ``deploy.tasks.goals.sample_goal``).
 
     Attributes:
         samples: (ticks, 7) int64 ns per tick: the stages of ``BARE_STAGES`` and the whole tick.
@@ -85,7 +86,7 @@ class BareLoop:
         ``Runtime.run``); returns and appends to :attr:`samples` the (ticks, 7) ns stamps."""
         import torch
 
-        from deploy.goals import sample_goal
+        from deploy.tasks.goals import sample_goal
 
         m, d, st, kin, spec = self.m, self.d, self.state, self.kinematics, self.spec
         actor, goal, obs = self.actor, self.goal, self.obs
@@ -171,10 +172,10 @@ class _TickTimer:
 def make_runtime(bp: BenchPolicy, envs: int = 1, seed: int = 0, clock=None):
     """A Runtime as ``deploy-run`` builds it (SimBackend in the policy's mode, SimClock by
     default) and its GoalScheduler (4 s period, 3 s success time, goals seeded ``seed + 1``)."""
-    from deploy.backends.sim import SimBackend
-    from deploy.goals import GoalScheduler
-    from deploy.policy import OnnxPolicy
+    from deploy.backends.sim.plant import SimBackend
+    from deploy.policy.onnx_policy import OnnxPolicy
     from deploy.runtime import Runtime
+    from deploy.tasks.goals import GoalScheduler
 
     robot = bp.robot
     policy = OnnxPolicy(bp.path, robot)

@@ -22,7 +22,7 @@ class RobotState:
         winding_temperature: (envs, n) degC, as last reported by the drives.
         last_action: (envs, n), the policy's previous action in [-1, 1] (0 before the first).
         base: Floating-base robots: the base estimate
-            (:class:`deploy.base_estimation.BaseState`); None for a fixed-base arm.
+            (:class:`deploy.estimation.base.BaseState`); None for a fixed-base arm.
         foot_contact: Floating-base robots: (envs, n_feet) 1.0 where a foot touches, else 0.0.
         command: Floating-base robots: (envs, 3) the velocity command (vx, vy m/s, yaw rate
             rad/s, base frame).
@@ -55,7 +55,7 @@ class RobotState:
     def legged(cls, envs: int, n_joints: int, n_feet: int, ambient: float = 25.0) -> RobotState:
         """A floating-base robot's state: :meth:`zeros` with the base estimate upright at rest,
         no foot contact, a zero command and the clock at 0."""
-        from deploy.base_estimation import BaseState
+        from deploy.estimation.base import BaseState
 
         state = cls.zeros(envs, n_joints, ambient)
         state.base = BaseState.zeros(envs)

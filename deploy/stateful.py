@@ -9,13 +9,14 @@ scheduler, fault injector, policy, simulated plant, monitors) has::
 and loading a state into a fresh instance built with the same arguments continues exactly where
 the source stood: the same outputs, bit for bit.
 
-Conventions (those of :class:`deploy.violations.ViolationMonitor`):
+Conventions (those of :class:`deploy.monitors.violations.ViolationMonitor`):
 
 - Batched stages keep their env axis (leading, unless a field says otherwise): all envs for
   ``env=None``, or length 1 for one env ``env`` (``slice(env, env + 1)``), so that the state of
   one env of a batch also loads into a one-env instance with ``env=None``. Values the batch shares
   (a tick count, a clock, a shared random stream) are in the dict either way and are loaded
-  either way. (:class:`deploy.policy.OnnxPolicy` drops the env axis for one env; the runtime
+  either way. (:class:`deploy.policy.onnx_policy.OnnxPolicy` drops the env axis for one env; the
+  runtime
   passes ``env`` through to it unchanged.)
 - Arrays are copies; scalars are Python ``int``, ``float``, ``bool`` or ``str``. A random
   generator's state (``bit_generator.state``) and ragged records (lists per env) are JSON text.
@@ -30,7 +31,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from deploy.errors import Sim2RealError
+from robots.errors import Sim2RealError
 
 Scalar = int | float | bool | str
 

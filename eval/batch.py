@@ -1,13 +1,14 @@
 """The batched runner: several soak sessions stepped together in one plant and one runtime.
 
 Batching. Several sessions run in one process through the runtime's batch axis: one
-:class:`~deploy.backends.sim.SimBackend` with ``envs = k`` (one randomized ``MjModel`` per env)
+:class:`~deploy.backends.sim.plant.SimBackend` with ``envs = k`` (one randomized ``MjModel`` per
+env)
 and one :class:`~deploy.runtime.Runtime` over all of them (one ONNX Runtime call per tick). A
 session's seeded quantities depend on its own seed only: its randomization; its encoder noise and
 dropout draws (one numpy generator per env,
-:meth:`~deploy.backends.sim.SimBackend.set_sensor_streams`, where SimBackend has one for the
+:meth:`~deploy.backends.sim.plant.SimBackend.set_sensor_streams`, where SimBackend has one for the
 batch); its goals (one ``GoalScheduler`` for the batch with one goal stream per session); its
-faults (a :class:`deploy.faults.FaultInjector` per session on its env,
+faults (a :class:`deploy.backends.sim.faults.FaultInjector` per session on its env,
 :class:`eval.session_faults.SessionFaults`); its operator resets. Every runtime stage computes
 each env on its own, except Ruckig, which serves the whole batch and, when it resamples a
 trajectory for an unchanged input instead of recalculating it, differs from one instance per env
@@ -25,18 +26,22 @@ skips it. Before the runtime starts, the plant streams its sensors for a fixed n
 (the largest latency the ranges allow, plus one encoder period), so that a first reading has
 arrived: the plant's clock is that much ahead of the runtime's.
 
-Violations and interventions. After every tick a :class:`deploy.violations.ViolationMonitor`
+Violations and interventions. After every tick a
+:class:`deploy.monitors.violations.ViolationMonitor`
 counts the true-state violations of every session from the plant's ground truth and a
-:class:`deploy.interventions.InterventionMonitor` the commands the guard or the smoother changed
+:class:`deploy.monitors.interventions.InterventionMonitor` the commands the guard or the smoother
+changed
 (before the goal scheduler, so that a goal's last tick counts for it); both are reported apart, in
 total, per hour and on the curves, and are part of the checkpoints. Goals are also counted per
 window of ``window_minutes`` (by their issue time), and each goal replaced unreached is recorded
-with its true end state (:class:`deploy.goals.GoalScheduler`).
+with its true end state (:class:`deploy.tasks.goals.GoalScheduler`).
 
 Legged robots (``robot.floating_base``): instead of goals, a
-:class:`deploy.locomotion.CommandSchedule` issues a new velocity command every ``goal_period`` s
+:class:`deploy.tasks.locomotion.CommandSchedule` issues a new velocity command every
+``goal_period`` s
 (one command stream per session, the ``goals`` stream of its seed) and a
-:class:`deploy.locomotion.CommandTracker` measures the tracking (the session's success: the share
+:class:`deploy.tasks.locomotion.CommandTracker` measures the tracking (the session's success: the
+share
 of RUNNING time within 0.2 m/s of the command, also per window of ``window_minutes``), distance
 and speed, and the falls (safe stops of cause ``fall`` of a robot that was walking,
 ``CommandTracker.falls``). Each session also draws its IMU
@@ -46,7 +51,8 @@ cable pulls (:func:`eval.fault_schedule.sample_fault_schedule`). Its operator re
 robot up first (:meth:`SessionBatch.stand_up`: a robot lying after a stop cannot get up by
 itself).
 
-Divergence: MuJoCo's divergence (:class:`~deploy.backends.sim.SimulationDivergedError`) ends the
+Divergence: MuJoCo's divergence (:class:`~deploy.backends.sim.plant.SimulationDivergedError`) ends
+the
 session that diverged with ``diverged`` set (:exc:`BatchDiverged`); the other sessions of its
 batch continue from their last checkpoints (:func:`eval.executors.run_sessions`).
 """
@@ -60,14 +66,12 @@ from pathlib import Path
 
 import numpy as np
 
-from deploy.errors import Sim2RealError
-from deploy.files import atomic_write, sha256_file
-from deploy.goals import GoalScheduler
-from deploy.interventions import InterventionMonitor
-from deploy.kernels.monitors import temperature_bands
+from deploy.monitors.interventions import InterventionMonitor
+from deploy.monitors.kernel import temperature_bands
+from deploy.monitors.violations import ViolationMonitor
 from deploy.runtime import Mode
 from deploy.stateful import put, take
-from deploy.violations import ViolationMonitor
+from deploy.tasks.goals import GoalScheduler
 from eval import checkpoint as ckpt
 from eval.randomization import (
     apply_drift,
@@ -82,6 +86,8 @@ from eval.randomization import (
 from eval.session import SESSIONS_DIR, Session, SessionConfig, SessionError, session_dir
 from eval.session_faults import SessionFaults
 from eval.session_result import session_result
+from robots.errors import Sim2RealError
+from robots.files import atomic_write, sha256_file
 
 os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
 
@@ -152,8 +158,8 @@ class SessionBatch:
         on_progress=None,
         film: bool = False,
     ):
-        from deploy.backends.sim import SimBackend
-        from deploy.policy import OnnxPolicy
+        from deploy.backends.sim.plant import SimBackend
+        from deploy.policy.onnx_policy import OnnxPolicy
         from deploy.runtime import Runtime
         from robots import load_robot
 
@@ -226,7 +232,7 @@ class SessionBatch:
         self.interventions = InterventionMonitor(self.rt.guard, self.rt.smoother)
         self.goals = self.commands = self.tracker = None
         if legged:  # velocity commands and their tracking instead of goals
-            from deploy.locomotion import CommandSchedule, CommandTracker
+            from deploy.tasks.locomotion import CommandSchedule, CommandTracker
 
             self.commands = CommandSchedule(
                 k, first.goal_period, [session_rng(c.seed, "goals") for c in configs]
@@ -453,7 +459,7 @@ class SessionBatch:
             BatchDiverged: MuJoCo diverged in some envs; their results are written (``diverged``
                 set), the other sessions must continue from their checkpoints.
         """
-        from deploy.backends.sim import SimulationDivergedError
+        from deploy.backends.sim.plant import SimulationDivergedError
 
         rt = self.rt
         every = self.checkpoint_ticks

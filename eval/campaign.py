@@ -141,7 +141,7 @@ def run_campaign(
         SessionError: bad options (named).
         ValueError: unreadable robot or policy; eval.checkpoint.CheckpointError when resuming.
     """
-    from deploy.policy import OnnxPolicy
+    from deploy.policy.onnx_policy import OnnxPolicy
     from robots import load_robot
 
     if not isinstance(sessions, int) or sessions < 1:

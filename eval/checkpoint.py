@@ -1,7 +1,8 @@
 """Checkpoints of soak sessions: the complete state of one env of a batched runtime, on disk.
 
 A soak session (:mod:`eval.soak`) is one env of a :class:`~deploy.runtime.Runtime` over a batched
-:class:`~deploy.backends.sim.SimBackend`. To resume an interrupted session with nothing lost, and
+:class:`~deploy.backends.sim.plant.SimBackend`. To resume an interrupted session with nothing lost,
+and
 with the same report as an uninterrupted run, a checkpoint holds everything a later tick reads:
 the composition of the stages' state dicts (``state_dict(env)``, :mod:`deploy.stateful`), each
 the env's slice, keyed ``<prefix>/<field>``:
@@ -11,22 +12,24 @@ prefix              stage (its ``state_dict`` documents the fields)
 ==================  ===========================================================================
 (none)              :class:`~deploy.runtime.Runtime`: modes, causes, counters, goal, screened
                     actions, estimated state; ticks, time, overrun window, latency histograms
-``estimator/``      :class:`~deploy.estimation.JointStateEstimator`: filter state, covariance,
+``estimator/``      :class:`~deploy.estimation.joints.JointStateEstimator`: filter state,
+covariance,
                     filter time, freshness, counters
-``guard/``          :class:`~deploy.safety.SafetyGuard`: counters, hard-violation flag,
+``guard/``          :class:`~deploy.safety.guard.SafetyGuard`: counters, hard-violation flag,
                     derating, hold target, screen caches
 ``smoother/``       :class:`~deploy.smoothing.CommandSmoother`: Ruckig's input and state, held
                     target, commanded position, stop flags, counters
-``policy/``         :class:`~deploy.policy.OnnxPolicy`: a recurrent policy's state (nothing for
+``policy/``         :class:`~deploy.policy.onnx_policy.OnnxPolicy`: a recurrent policy's state
+(nothing for
                     a feed-forward one)
-``backend/``        :class:`~deploy.backends.sim.SimBackend`: MuJoCo's integration state,
+``backend/``        :class:`~deploy.backends.sim.plant.SimBackend`: MuJoCo's integration state,
                     friction (drift edits it), sensor buffers, settings and random stream, the
                     last frame, thermal nodes, tick
-``goals/``          :class:`~deploy.goals.GoalScheduler`: goal times, reached flags, counts,
+``goals/``          :class:`~deploy.tasks.goals.GoalScheduler`: goal times, reached flags, counts,
                     times to reach, windows, missed goals, its random stream
-``violations/``     :class:`~deploy.violations.ViolationMonitor`
-``interventions/``  :class:`~deploy.interventions.InterventionMonitor`
-``injector/``       the session's armed :class:`~deploy.faults.FaultInjector`, if any
+``violations/``     :class:`~deploy.monitors.violations.ViolationMonitor`
+``interventions/``  :class:`~deploy.monitors.interventions.InterventionMonitor`
+``injector/``       the session's armed :class:`~deploy.backends.sim.faults.FaultInjector`, if any
 ==================  ===========================================================================
 
 The soak harness adds its own book-keeping (``stats/`` arrays; fault progress, latches, drift,
@@ -41,7 +44,7 @@ every tick), so a restored session continues bit for bit.
 On disk (:func:`write_checkpoint`): ``state-<tick>.npz`` (the arrays; compressed, no pickles)
 and ``checkpoint.json`` (format, version, the npz's name and SHA-256, the state's scalars and the
 JSON metadata), each written to a temporary file and moved into place with ``os.replace``
-(:func:`deploy.files.atomic_write`); the JSON is written last and is the commit point, and the
+(:func:`robots.files.atomic_write`); the JSON is written last and is the commit point, and the
 previous npz is removed only after it. A crash at any moment leaves the previous checkpoint or the
 new one, never a mixture.
 """
@@ -57,9 +60,9 @@ from pathlib import Path
 
 import numpy as np
 
-from deploy.errors import Sim2RealError
-from deploy.files import atomic_write, sha256_file
 from deploy.stateful import StateDictError, section
+from robots.errors import Sim2RealError
+from robots.files import atomic_write, sha256_file
 
 FORMAT = "soak-checkpoint"
 #: 3: the composition of the stages' state dicts (2 read and wrote their private attributes).

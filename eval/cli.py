@@ -51,7 +51,7 @@ import sys
 import time
 from pathlib import Path
 
-from deploy.errors import Sim2RealError
+from robots.errors import Sim2RealError
 
 EXIT_PASSED = 0
 EXIT_HARD_VIOLATION = 1
@@ -252,12 +252,12 @@ def exit_code(report: dict) -> int:
 
 
 def run(args) -> int:
-    from deploy.files import sha256_file
     from eval.campaign import run_campaign
     from eval.randomization import session_ranges
     from eval.report import Thresholds, build_report, load_report, summary_text, write_reports
     from eval.session import SessionConfig
     from robots import load_robot
+    from robots.files import sha256_file
 
     _check_args(args)
     thresholds = Thresholds(

@@ -8,7 +8,7 @@ hanging load the derating drives hold in any pose for the pull's duration). A fa
 budgets would test the sensor or motor sizing, not the runtime: the soak would fail whatever the
 controller did.
 
-Schedules are lists of :class:`deploy.faults.Fault`; :func:`fault_to_dict` and
+Schedules are lists of :class:`deploy.backends.sim.faults.Fault`; :func:`fault_to_dict` and
 :func:`fault_from_dict` write and read them in reports and checkpoints.
 """
 
@@ -47,7 +47,7 @@ class FaultRanges:
         min_gap: Quiet time after each fault, s (at least ``FAULT_SETTLE + 1``; the runtime's
             response is judged ``FAULT_SETTLE`` s after the fault ends).
         warmup: No fault before this session time, s (ramp-in).
-        kinds: Kinds to draw from (``deploy.faults.KINDS``).
+        kinds: Kinds to draw from (``deploy.backends.sim.faults.KINDS``).
         weights: Relative weights of ``kinds`` (None: equal).
         dropout: Duration of a dropout burst, as a fraction of the stale budget.
         stale: Duration of a stale (frozen) sensor frame, as a fraction of the stale budget.
@@ -81,7 +81,7 @@ class FaultRanges:
     cable_duration: tuple[float, float] = (10.0, 60.0)
 
     def __post_init__(self):
-        from deploy.faults import KINDS
+        from deploy.backends.sim.faults import KINDS
 
         owner = "FaultRanges"
         if not (np.isfinite(self.mean_interval) and self.mean_interval > 0):
@@ -170,10 +170,10 @@ def cable_budget(
 
     Worst case over all poses, so a pull within the budget is survivable by design, as the sensor
     faults are sized against the stale budget (:func:`stale_budget`): each joint's load is its
-    gravity bound plus the cable force times its lever (``deploy.safety.motion_bounds`` and
+    gravity bound plus the cable force times its lever (``robots.chain_bounds.motion_bounds`` and
     ``end_effector_lever``, both for ``model``); its motor starts warm from holding the gravity
     bound (the steady state, or the derating start where that is lower or none exists) and must not
-    fold back below the load (:class:`deploy.thermal.EffortDerating`, the plant's law) before the
+    fold back below the load (:class:`robots.thermal.EffortDerating`, the plant's law) before the
     duration ends. A pull above the budget tests the motor sizing, not the runtime: the arm yields
     onto its limits whatever the controller does.
 
@@ -186,8 +186,8 @@ def cable_budget(
         (k,) N, >= 0, non-increasing in the duration; 0 where some joint has no torque left above
         gravity (an arm whose motors cannot hold it stretched gets no cable pulls).
     """
-    from deploy.safety import end_effector_lever, motion_bounds
-    from deploy.thermal import EffortDerating, TwoNodeThermalModel
+    from robots.chain_bounds import end_effector_lever, motion_bounds
+    from robots.thermal import EffortDerating, TwoNodeThermalModel
 
     durations = np.asarray(durations, dtype=np.float64)
     if durations.ndim != 1 or not np.all(np.isfinite(durations)) or np.any(durations < 0):
@@ -252,10 +252,11 @@ def sample_fault_schedule(
     with it): it has no end effector to pull on, and the cable budget is an arm's.
 
     Returns:
-        list of :class:`deploy.faults.Fault` (``envs`` None: every env of the injector they are
+        list of :class:`deploy.backends.sim.faults.Fault` (``envs`` None: every env of the injector
+        they are
         given to), sorted by start.
     """
-    from deploy.faults import Fault
+    from deploy.backends.sim.faults import Fault
 
     ranges = FaultRanges() if ranges is None else ranges
     dt = robot.control_period
@@ -313,7 +314,7 @@ def sample_fault_schedule(
 
 
 def fault_to_dict(fault) -> dict:
-    """A :class:`deploy.faults.Fault` as a JSON-ready dict."""
+    """A :class:`deploy.backends.sim.faults.Fault` as a JSON-ready dict."""
     d = asdict(fault)
     for key in ("envs", "direction"):
         if d.get(key) is not None:
@@ -327,7 +328,7 @@ def fault_from_dict(data: dict):
     Raises:
         ValueError: a missing or invalid field (named).
     """
-    from deploy.faults import KINDS, Fault
+    from deploy.backends.sim.faults import KINDS, Fault
 
     try:
         kind = str(data["kind"])

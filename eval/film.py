@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from deploy.errors import Sim2RealError
-from deploy.files import atomic_write
+from robots.errors import Sim2RealError
+from robots.files import atomic_write
 
 #: Folder of the rendered film under the campaign folder, and of the kept checkpoints under a
 #: session's folder.

@@ -6,7 +6,7 @@ eval.film_render``, several at once; ``MUJOCO_GL=egl`` where nothing is chosen a
 display): for each moment (:func:`eval.film.select_moments`, grouped into clips by
 :func:`eval.film.plan_clips`) it resumes the session from the nearest kept checkpoint before the
 clip (or from its start), runs it through the same harness tick by tick with the same seed and
-fault schedule, and draws env 0 with :class:`deploy.video.VideoRecorder` (the session's
+fault schedule, and draws env 0 with :class:`deploy.observe.video.VideoRecorder` (the session's
 randomized model; goal sphere, end-effector trail, links tinted where the guard acts). At the
 moment's tick the replayed true joint positions are compared with the recorded ones, bit for bit
 (``replay_exact``). A policy with state no checkpoint holds (the adversarial policy draws its
@@ -125,7 +125,7 @@ def _render_clip(
     """Replay clip ``c`` (``start_s``..``end_s``) and render it to ``dest/name.mp4`` and the
     still at its first moment to ``dest/name.png`` (``look``: ``fps``, ``size``, ``crf``); the
     clip's entry of ``film.json``."""
-    from deploy.video import VideoRecorder
+    from deploy.observe.video import VideoRecorder
 
     first = c["moments"][0]
     t0 = int(math.floor(c["start_s"] / dt + 1e-9))
@@ -322,7 +322,8 @@ def film_campaign(
     to ``out``, ``replay_exact``), ``moments`` found per kind, ``not_filmed``, and ``error`` (a
     one-line reason when no film could be made, else None). A session whose film was already
     rendered (a resumed campaign) is not rendered again; a legged session gets none (its
-    ``error`` says so: :class:`deploy.video.VideoRecorder` draws a fixed-base arm). Prints one
+    ``error`` says so: :class:`deploy.observe.video.VideoRecorder` draws a fixed-base arm). Prints
+    one
     line per session.
 
     Args:
@@ -334,7 +335,7 @@ def film_campaign(
     """
     from dataclasses import replace
 
-    from deploy.video import headless_gl_default
+    from deploy.observe.video import headless_gl_default
     from eval.executors import default_workers
 
     out = Path(out)
@@ -351,7 +352,7 @@ def film_campaign(
             todo.append(r)
 
     def render(r: dict) -> tuple[int, dict]:
-        if r.get("locomotion") is not None:  # deploy.video draws a fixed-base arm only
+        if r.get("locomotion") is not None:  # deploy.observe.video draws a fixed-base arm only
             shutil.rmtree(retain_dir(out, r["seed"]), ignore_errors=True)
             reason = "a legged robot's session: the film draws fixed-base arms only"
             print(f"film: {r['id']}: no film: {reason}", file=sys.stderr)

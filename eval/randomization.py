@@ -33,7 +33,8 @@ session seed (:func:`session_rng`), bundled in :class:`SessionRandomization` by
   session's compiled model in place with :func:`apply_drift`;
 - a fault schedule (:mod:`eval.fault_schedule`): dropout bursts, stale frames, non-finite
   actions, latency spikes, pushes and a cable pulling on the end effector, as
-  :class:`deploy.faults.Fault` for :class:`deploy.faults.FaultInjector`, each sized to be
+  :class:`deploy.backends.sim.faults.Fault` for :class:`deploy.backends.sim.faults.FaultInjector`,
+  each sized to be
   survivable in the session's plant.
 """
 
@@ -309,7 +310,7 @@ def sample_sensors(rng: np.random.Generator, ranges: SensorRanges | None = None)
 
 
 def apply_sensors(backend, env: int, draw: SensorDraw) -> None:
-    """Set env ``env`` of a :class:`~deploy.backends.sim.SimBackend` to ``draw``.
+    """Set env ``env`` of a :class:`~deploy.backends.sim.plant.SimBackend` to ``draw``.
 
     Raises:
         ValueError: the latency exceeds the backend's ``max_latency_ticks``.
@@ -403,7 +404,7 @@ def sample_imu(robot: Robot, rng: np.random.Generator, ranges: ImuRanges | None 
 
 
 def apply_imu(backend, env: int, draw: ImuDraw) -> None:
-    """Set env ``env`` of a floating-base :class:`~deploy.backends.sim.SimBackend` to ``draw``
+    """Set env ``env`` of a floating-base :class:`~deploy.backends.sim.plant.SimBackend` to ``draw``
     (its turn-on bias is redrawn at the next reset of the env).
 
     Raises:
@@ -557,7 +558,8 @@ class SessionRandomization:
         dynamics: Link lengths, masses, friction, damping, actuator strength.
         sensors: Encoder noise sigma, latency, dropout.
         drift: Friction rise over the session.
-        faults: The fault schedule (``deploy.faults.Fault``, sorted by start; empty without
+        faults: The fault schedule (``deploy.backends.sim.faults.Fault``, sorted by start; empty
+        without
             faults).
         imu: A floating-base robot's IMU and foot-force noise (:func:`sample_imu`; None for an
             arm).

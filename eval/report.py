@@ -1,8 +1,10 @@
 """Soak reports: report.json, report.html, junit.xml, and the comparison with a baseline.
 
 Two words (DESIGN.md): a **violation** is the robot's *true* state past a limit, counted from the
-simulator's ground truth (:mod:`deploy.violations`); an **intervention** is a command the guard or
-the smoother changed (:mod:`deploy.interventions`). They are reported apart: a guard that clamps
+simulator's ground truth (:mod:`deploy.monitors.violations`); an **intervention** is a command the
+guard or
+the smoother changed (:mod:`deploy.monitors.interventions`). They are reported apart: a guard that
+clamps
 often is a policy leaning on it, not a robot beyond its limits.
 
 ``report.json`` (``schema_version`` ``SCHEMA_VERSION`` = 2)::
@@ -112,7 +114,6 @@ from pathlib import Path
 
 import numpy as np
 
-from deploy.files import atomic_write
 from eval.report_baseline import compare_with_baseline, known_failures
 from eval.report_html import film_html, report_html, write_html
 from eval.report_junit import junit_xml, write_junit
@@ -125,6 +126,7 @@ from eval.report_plots import (
     plot_windows,
 )
 from eval.report_schema import CHECKS, SCHEMA_VERSION, ReportError, Thresholds, load_report
+from robots.files import atomic_write
 
 __all__ = [
     "CHECKS",

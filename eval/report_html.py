@@ -21,7 +21,6 @@ from pathlib import Path
 
 import jinja2
 
-from deploy.files import atomic_write
 from eval.report_plots import (
     plot_interventions,
     plot_success,
@@ -31,6 +30,7 @@ from eval.report_plots import (
     plot_windows,
 )
 from eval.report_schema import CHECKS
+from robots.files import atomic_write
 
 #: The plots of report.html, in order: (title, function returning a base64 PNG).
 PLOTS = (

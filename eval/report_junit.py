@@ -12,8 +12,8 @@ import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from deploy.files import atomic_write
 from eval.report_schema import CHECKS
+from robots.files import atomic_write
 
 
 def junit_xml(report: dict) -> str:

@@ -14,7 +14,7 @@ import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from deploy.errors import Sim2RealError
+from robots.errors import Sim2RealError
 
 SCHEMA_VERSION = 2
 CHECKS = (

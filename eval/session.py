@@ -2,7 +2,8 @@
 
 A **session** is one continuous run of :class:`deploy.runtime.Runtime` with the simulated clock
 (:class:`~deploy.runtime.SimClock`) for ``hours`` of simulated time (8 by default): a new goal
-every ``goal_period`` s (:class:`deploy.goals.GoalScheduler`), dynamics, sensor settings, drift and
+every ``goal_period`` s (:class:`deploy.tasks.goals.GoalScheduler`), dynamics, sensor settings,
+drift and
 a fault schedule drawn from the session seed (:func:`eval.randomization.sample_session`), friction
 rising with wear over the session, the motor thermal model running throughout. It runs as env
 ``e`` of a batch (:class:`eval.batch.SessionBatch`); :class:`Session` keeps what is its own there:
@@ -11,7 +12,7 @@ drift, and its part of a checkpoint. Its folder is ``OUT/sessions/<id>/`` (:func
 its result document is built by :mod:`eval.session_result`. A legged robot's session
 (``robot.floating_base``) follows velocity commands instead of goals (:mod:`eval.batch`): its
 ``goal_period`` is the period of the commands, ``success_time`` is unused, and its success is the
-tracking success of :class:`deploy.locomotion.CommandTracker`.
+tracking success of :class:`deploy.tasks.locomotion.CommandTracker`.
 
 The runtime's responses. Every fault is judged ``FAULT_SETTLE`` s after it ends, against the
 runtime's counters and modes at its onset: ``held`` (no safe stop: the runtime held the last
@@ -30,12 +31,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from deploy.errors import Sim2RealError
 from deploy.runtime import FAULT_CAUSES, Mode
 from deploy.stateful import prefixed
 from eval import checkpoint as ckpt
 from eval.fault_schedule import FAULT_SETTLE
 from eval.randomization import SessionRanges
+from robots.errors import Sim2RealError
 
 if TYPE_CHECKING:
     from eval.batch import SessionBatch

@@ -1,8 +1,9 @@
 """The fault injection of a batch of soak sessions: one injector per session, on its env only.
 
 The runtime of a batch (:class:`eval.batch.SessionBatch`) takes one injector; :class:`SessionFaults`
-is that injector, made of one :class:`deploy.faults.FaultInjector` per session on a one-env view
-of the batch's :class:`~deploy.backends.sim.SimBackend` (its env's sensor settings, model and
+is that injector, made of one :class:`deploy.backends.sim.faults.FaultInjector` per session on a
+one-env view
+of the batch's :class:`~deploy.backends.sim.plant.SimBackend` (its env's sensor settings, model and
 forces). A session's faults (its seeded schedule, :mod:`eval.fault_schedule`) then touch its own
 env only, whatever its neighbours; the session arms an injector ``eval.session.ARM_LEAD`` s before
 each fault and disarms it when the fault is judged (:class:`eval.session.Session`).
@@ -33,7 +34,8 @@ class _BackendSlice:
 
 
 class SessionFaults:
-    """The fault injector the runtime sees: one :class:`deploy.faults.FaultInjector` per session,
+    """The fault injector the runtime sees: one :class:`deploy.backends.sim.faults.FaultInjector`
+    per session,
     on that session's env only, armed from ``eval.session.ARM_LEAD`` s before each fault until it is
     judged.
 
@@ -60,7 +62,7 @@ class SessionFaults:
         self._items: list = []
 
     def arm(self, e: int, fault):
-        from deploy.faults import FaultInjector
+        from deploy.backends.sim.faults import FaultInjector
 
         self.armed[e] = FaultInjector([fault], self.slices[e])
         self._items = [(i, inj) for i, inj in enumerate(self.armed) if inj is not None]

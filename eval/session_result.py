@@ -20,12 +20,12 @@ import os
 
 import numpy as np
 
-from deploy.files import sha256_file
-from deploy.interventions import INTERVENTION_CHECKS
+from deploy.monitors.interventions import INTERVENTION_CHECKS
+from deploy.monitors.violations import VIOLATION_TYPES
 from deploy.runtime import FAULT_CAUSES, STAGES, Mode
-from deploy.violations import VIOLATION_TYPES
 from eval import checkpoint as ckpt
 from eval.session import RESPONSES, Session, SessionConfig, session_dir
+from robots.files import sha256_file
 
 VIOLATION_SOURCE = "true state (simulation ground truth)"
 #: A legged session's task curves (cumulative; ``curves`` of its result).
@@ -38,7 +38,7 @@ def locomotion_result(session: Session) -> dict:
     """The ``locomotion`` section of a legged session's result (see :mod:`eval.report`)."""
     from dataclasses import asdict
 
-    from deploy.locomotion import TRACKING_TOLERANCE, TRACKING_WINDOW
+    from deploy.tasks.locomotion import TRACKING_TOLERANCE, TRACKING_WINDOW
 
     b, e, rt = session.batch, session.e, session.batch.rt
     tr, cmd = b.tracker, b.commands

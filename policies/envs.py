@@ -1,10 +1,13 @@
 """The seed's reach task (sections 6 and 8) on the sim plant, for training.
 
 Train what you deploy: a policy trained here meets exactly the stack the runtime runs. Its
-observations are built by the policy's :class:`~deploy.spec.PolicySpec` from the state the
-runtime's Kalman filter (:class:`~deploy.estimation.JointStateEstimator`) estimates from noisy,
-quantized, late and sometimes missing encoder readings of :class:`~deploy.backends.sim.SimBackend`;
-its actions pass through the runtime's :class:`~deploy.safety.SafetyGuard` and Ruckig
+observations are built by the policy's :class:`~deploy.spec.policy_spec.PolicySpec` from the state
+the
+runtime's Kalman filter (:class:`~deploy.estimation.joints.JointStateEstimator`) estimates from
+noisy,
+quantized, late and sometimes missing encoder readings of
+:class:`~deploy.backends.sim.plant.SimBackend`;
+its actions pass through the runtime's :class:`~deploy.safety.guard.SafetyGuard` and Ruckig
 :class:`~deploy.smoothing.CommandSmoother` (re-anchored to the measured pose as the runtime does)
 before they reach the drives. What the guard and the smoother changed is an *intervention* and is
 penalized: a policy that leans on the guard fails on a robot whose guard is tuned differently.
@@ -55,15 +58,15 @@ from dataclasses import dataclass, field
 import gymnasium as gym
 import numpy as np
 
-from deploy.backends.sim import SimBackend
-from deploy.estimation import JointStateEstimator
-from deploy.goals import sample_goal
-from deploy.interventions import InterventionMonitor
+from deploy.backends.sim.plant import SimBackend
+from deploy.estimation.joints import JointStateEstimator
+from deploy.monitors.interventions import InterventionMonitor
 from deploy.runtime import reanchor
-from deploy.safety import SafetyGuard
+from deploy.safety.guard import SafetyGuard
 from deploy.smoothing import CommandSmoother
-from deploy.spec import PolicySpec
+from deploy.spec.policy_spec import PolicySpec
 from deploy.state import Kinematics, RobotState
+from deploy.tasks.goals import sample_goal
 from eval.randomization import (
     Dynamics,
     DynamicsRanges,
@@ -124,7 +127,7 @@ class ReachConfig:
         mode: Control mode ('velocity' as seed section 8; 'position' as the variant).
         reference: Position mode: 'absolute' (an action spans the joint range) or 'current' (an
             action is a step from the estimated position, at most one control period at the
-            velocity limit); see :class:`deploy.spec.ActionSpec`.
+            velocity limit); see :class:`deploy.spec.policy_spec.ActionSpec`.
         episode_seconds: Episode length, s (truncation).
         goal_timeout: A goal not reached within this time is replaced, s (the runtime's success
             window is 3 s).
@@ -234,7 +237,7 @@ class ReachTask:
         self.ticks = np.zeros(envs, dtype=np.int64)
         self.episode_return = np.zeros(envs)
         self.reset(np.ones(envs, dtype=bool))
-        # the soak's definition of an intervention (deploy.interventions), counted per tick
+        # the soak's definition of an intervention (deploy.monitors.interventions), counted per tick
         self.monitor = InterventionMonitor(self.guard, self.smoother)
         self._any_before = np.zeros(envs, dtype=np.int64)
 

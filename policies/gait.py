@@ -1,9 +1,10 @@
 """The Go2's trot generator with a residual network that starts at zero: where training starts.
 
-:func:`make_policy` builds go2's default legged spec (:meth:`deploy.spec.PolicySpec.for_robot`:
+:func:`make_policy` builds go2's default legged spec
+(:meth:`deploy.spec.policy_spec.PolicySpec.for_robot`:
 IMU and joint blocks, the velocity command, a gait clock of ``PERIOD``) and an
-:class:`~deploy.checkpoint.MLPActor` whose ``gait`` is the trot generator of
-:mod:`deploy.gait_prior` with the constants below and whose network's last layer is zero: the
+:class:`~deploy.policy.mlp_checkpoint.MLPActor` whose ``gait`` is the trot generator of
+:mod:`deploy.policy.gait_prior` with the constants below and whose network's last layer is zero: the
 policy is the generator alone until a residual is trained on top of it (PMTG, Iscen et al. 2018)
 by :mod:`policies.train_legged`, which ships ``policies/go2.pt``. The constants were chosen by a
 sweep through the full runtime (``deploy-run --robot go2 --command 0.5,0,0 --duration 20``:
@@ -19,8 +20,8 @@ from pathlib import Path
 
 import torch
 
-from deploy.checkpoint import MLPActor, save_checkpoint
-from deploy.spec import PolicySpec
+from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
+from deploy.spec.policy_spec import PolicySpec
 from robots import load_robot
 
 #: The trot's period, s (a quarter of a second per step: the Go2's trot at walking speed).

@@ -3,20 +3,21 @@
 Train what you deploy, to the letter: :class:`LocomotionTask` steps a
 :class:`~deploy.runtime.Runtime` (the tick the robot runs: joint and base estimators, the fall
 check, the supervision and its safe stops, the guard, the Ruckig smoother, the damping of a
-stopped legged robot) over a batched :class:`~deploy.backends.sim.SimBackend`. The learner sits
+stopped legged robot) over a batched :class:`~deploy.backends.sim.plant.SimBackend`. The learner
+sits
 in the runtime's policy slot (:class:`LearnerPolicy`): the runtime hands it the observation it
 built and receives the action, so the learner sees exactly what ``deploy-run`` feeds the exported
 policy, one call per tick, in the tick's own order (read, estimate, supervise, observe, act,
 guard, smooth, write, physics).
 
-The learner's output is a *residual* on the trot generator of :mod:`deploy.gait_prior` (PMTG,
+The learner's output is a *residual* on the trot generator of :mod:`deploy.policy.gait_prior` (PMTG,
 Iscen et al. 2018): the action the runtime receives is ``prior(obs) + residual``, the sum an
-exported :class:`~deploy.checkpoint.MLPActor` with ``gait`` computes.
+exported :class:`~deploy.policy.mlp_checkpoint.MLPActor` with ``gait`` computes.
 
 Episode: ``episode_seconds`` of walking from the MJCF's standing pose, after the runtime's RAMP_IN
 to home. Each episode draws a soak session's randomization (:func:`eval.randomization.
 sample_session` of the legged ranges: dynamics, encoder noise and latency, IMU noise and bias,
-floor friction), a velocity command every ``command_period`` s (:class:`deploy.locomotion.
+floor friction), a velocity command every ``command_period`` s (:class:`deploy.tasks.locomotion.
 CommandRanges`, the soak's ranges) and pushes on the base. It ends (terminated) when the runtime
 leaves RUNNING for a safe stop (a fall, a hard limit, a stale sensor...) and is truncated at its
 length.
@@ -42,12 +43,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from deploy.backends.sim import SimBackend
-from deploy.base_estimation import BaseState
-from deploy.interventions import InterventionMonitor
-from deploy.locomotion import TRACKING_TOLERANCE, CommandRanges
+from deploy.backends.sim.plant import SimBackend
+from deploy.estimation.base import BaseState
+from deploy.monitors.interventions import InterventionMonitor
 from deploy.runtime import Mode, Runtime
-from deploy.spec import PolicySpec
+from deploy.spec.policy_spec import PolicySpec
+from deploy.tasks.locomotion import TRACKING_TOLERANCE, CommandRanges
 from eval.randomization import (
     apply_floor_friction,
     apply_imu,
@@ -89,7 +90,7 @@ class LocomotionConfig:
         episode_seconds: Episode length, s (legged_gym: 20 s).
         command_period: A new velocity command every this many s (the soak's default
             ``--goal-period``, 4 s).
-        commands: The command ranges (the soak's :class:`~deploy.locomotion.CommandRanges`).
+        commands: The command ranges (the soak's :class:`~deploy.tasks.locomotion.CommandRanges`).
         push_interval: Mean time between pushes on the base, s (exponential).
         push_force: Horizontal push force range, N (the soak pushes 5-25 N; ours up to 40).
         push_duration: Push duration range, s (the soak's).

@@ -20,8 +20,10 @@ Why 64 robots per batch with 128-step rollouts (the same 8,192 samples per updat
 the policy's forward pass per step is shared by more robots, and the more diverse rollouts learned
 faster per sample (the comparison: ``docs/measurements.md``).
 
-The result is converted to our checkpoint format (:func:`deploy.checkpoint.save_checkpoint`): the
-PPO actor's mean network becomes an :class:`~deploy.checkpoint.MLPActor` with the same weights, and
+The result is converted to our checkpoint format
+(:func:`deploy.policy.mlp_checkpoint.save_checkpoint`): the
+PPO actor's mean network becomes an :class:`~deploy.policy.mlp_checkpoint.MLPActor` with the same
+weights, and
 the PolicySpec the env used travels with it.
 """
 
@@ -40,8 +42,8 @@ from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
-from deploy.checkpoint import MLPActor, save_checkpoint
 from deploy.export import sb3_actor
+from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
 from eval.randomization import DynamicsRanges
 from policies.envs import ReachConfig, ReachTask, RewardConfig
 from robots import load_robot

@@ -7,7 +7,8 @@ is :class:`policies.locomotion.LocomotionTask`: the learner acts from inside the
 (:meth:`RuntimePPO.collect_rollouts`, which fills Stable-Baselines3's own rollout buffer in the
 order SB3's loop does) and everything else is SB3's PPO: the Gaussian policy, GAE, the clipped
 update. The candidate is the Gaussian mean plus the trot generator: an
-:class:`~deploy.checkpoint.MLPActor` with ``gait`` (:func:`policies.gait.make_policy`'s spec and
+:class:`~deploy.policy.mlp_checkpoint.MLPActor` with ``gait`` (:func:`policies.gait.make_policy`'s
+spec and
 generator), exported to ONNX next to it. Logs: TensorBoard (``runs/train_legged/``), SB3's episode
 return and length plus ``walk/tracking`` (fraction of RUNNING time within 0.2 m/s of the command,
 the soak's success) and ``walk/distance``.
@@ -30,8 +31,8 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
-from deploy.checkpoint import MLPActor, save_checkpoint
 from deploy.export import sb3_actor
+from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
 from policies.gait import make_policy
 from policies.locomotion import LocomotionConfig, LocomotionReward, LocomotionTask
 from policies.train import parse_reward

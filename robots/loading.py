@@ -22,7 +22,7 @@ import numpy as np
 import pinocchio as pin
 from pydantic import ValidationError
 
-from deploy.files import atomic_write
+from robots.files import atomic_write
 from robots.robot import Robot, RobotSpecError
 from robots.schema import MotorConfig, RobotConfig
 

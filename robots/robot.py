@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from deploy.errors import Sim2RealError
+from robots.errors import Sim2RealError
 from robots.schema import CONTROL_MODES, MotorConfig, RobotConfig
 
 

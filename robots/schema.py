@@ -194,11 +194,13 @@ class SafetyConfig(_Strict):
     stale_limit: Positive = 0.05  # s without a fresh encoder reading before a safe stop
     # Floating-base robots: a fall is the base tilted past fall_tilt (rad) or lower than
     # fall_height (m) above its feet in contact (0: no height check); left out, the defaults of
-    # deploy/fall.py (FALL_TILT, FALL_HEIGHT). None keeps them out of the description hash.
+    # deploy/estimation/fall.py (FALL_TILT, FALL_HEIGHT). None keeps them out of the description
+    # hash.
     fall_tilt: Positive | None = None
     fall_height: NonNegative | None = None
     # m kept between listed collision geometries, and from the workspace box's faces, by the
-    # guard's motion envelope (deploy/envelope.py); left out, its DEFAULT_MARGIN (None keeps it
+    # guard's motion envelope (deploy/safety/envelope.py); left out, its DEFAULT_MARGIN (None keeps
+    # it
     # out of the description hash)
     clearance_margin: NonNegative | None = None
 

@@ -14,7 +14,7 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 from torch import nn
 
-from deploy.spec import PolicySpec
+from deploy.spec.policy_spec import PolicySpec
 
 #: arm3 with every block the seed's arm uses: obs 21, act 3.
 ARM3_BLOCKS = (

@@ -21,14 +21,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from deploy.backends.sim import SimBackend
-from deploy.faults import Fault, FaultInjector
-from deploy.policy import OnnxPolicy
+from deploy.backends.sim.faults import Fault, FaultInjector
+from deploy.backends.sim.plant import SimBackend
+from deploy.observe.telemetry import LatencyHistogram
+from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import FAULT_CAUSES, Mode, Runtime
-from deploy.safety import CHECKS
-from deploy.spec import ObservationBlock, PolicySpec
+from deploy.safety.guard import CHECKS
+from deploy.spec.policy_spec import ObservationBlock, PolicySpec
 from deploy.state import Kinematics, RobotState
-from deploy.telemetry import LatencyHistogram
 from tests.runtime_fixtures import adversarial_onnx
 
 TICKS = 1667  # per case; 6 cases: 10,002 ticks through each path

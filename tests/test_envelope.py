@@ -8,16 +8,16 @@ import numpy as np
 import onnx
 import pytest
 
-from deploy.adversarial import adversarial_model
-from deploy.backends.sim import SimBackend
-from deploy.envelope import MotionEnvelope
-from deploy.kernels.envelope import brake_reach
-from deploy.policy import OnnxPolicy
+from deploy.backends.sim.plant import SimBackend
+from deploy.monitors.violations import ViolationMonitor
+from deploy.policy.adversarial import adversarial_model
+from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Runtime
-from deploy.safety import SafetyGuard
+from deploy.safety.envelope import MotionEnvelope
+from deploy.safety.envelope_kernel import brake_reach
+from deploy.safety.guard import SafetyGuard
 from deploy.smoothing import CommandSmoother
-from deploy.spec import PolicySpec
-from deploy.violations import ViolationMonitor
+from deploy.spec.policy_spec import PolicySpec
 from robots import load_robot
 
 #: Policy kind and seed per shipped arm. Before the motion envelope, the guard's target check let

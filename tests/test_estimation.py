@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from deploy.backends.base import SensorFrame
-from deploy.backends.sim import SimBackend
-from deploy.estimation import JointStateEstimator
+from deploy.backends.sim.plant import SimBackend
+from deploy.estimation.joints import JointStateEstimator
 from deploy.state import RobotState
 from robots import load_robot
 

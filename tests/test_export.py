@@ -26,7 +26,9 @@ from helpers_policies import (
 from torch import nn
 
 from deploy import export as export_module
-from deploy.checkpoint import (
+from deploy.export import ExportError, ParityError, export_policy, main, run_export
+from deploy.export import cli as export_cli
+from deploy.policy.mlp_checkpoint import (
     FORMAT,
     CheckpointError,
     MLPActor,
@@ -35,10 +37,8 @@ from deploy.checkpoint import (
     read_checkpoint,
     save_checkpoint,
 )
-from deploy.export import ExportError, ParityError, export_policy, main, run_export
-from deploy.export import cli as export_cli
-from deploy.policy import OnnxPolicy, spec_differences
-from deploy.spec import PolicySpec
+from deploy.policy.onnx_policy import OnnxPolicy, spec_differences
+from deploy.spec.policy_spec import PolicySpec
 from robots import load_robot
 
 REPO = Path(__file__).resolve().parent.parent

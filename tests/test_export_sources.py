@@ -24,7 +24,7 @@ from torch import nn
 from deploy.export import ExportError, run_export
 from deploy.export import main as export_main
 from deploy.export.inspect_policy import InspectError, inspect_file
-from deploy.policy import OnnxPolicy
+from deploy.policy.onnx_policy import OnnxPolicy
 from tests.helpers_policies import PlainNet, make_spec, write_spec
 
 STEPS = 500
@@ -48,7 +48,7 @@ def random_walk(steps: int, envs: int, d: int, seed: int) -> np.ndarray:
 
 def deploy_run(policy_path, tmp_path, capsys) -> None:
     """A few simulated seconds of ``deploy-run`` on arm3 with the exported policy."""
-    from deploy.cli import deploy_run_main
+    from deploy.cli.deploy_run import deploy_run_main
 
     report = tmp_path / "run.json"
     code = deploy_run_main(
@@ -415,7 +415,7 @@ def test_state_output_that_ignores_the_batch_axis_exits_3(arm3, tmp_path, capsys
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 
-    from deploy.cli import deploy_run_main
+    from deploy.cli.deploy_run import deploy_run_main
 
     spec = make_spec(arm3)
     consts = [

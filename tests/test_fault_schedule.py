@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from deploy.backends.sim import SimBackend
+from deploy.backends.sim.plant import SimBackend
 from deploy.runtime import NAN_ACTION_LIMIT
-from deploy.safety import end_effector_lever, motion_bounds
 from eval.fault_schedule import FaultRanges, cable_budget, sample_fault_schedule, stale_budget
 from eval.randomization import SensorDraw, randomized_model, sample_session, session_rng
+from robots.chain_bounds import end_effector_lever, motion_bounds
 
 HOURS8 = 8 * 3600.0
 

@@ -34,9 +34,9 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 from torch import nn
 
-from deploy.cli import deploy_run_main
-from deploy.policy import OnnxPolicy, PolicyLoadError
-from deploy.spec import PolicySpec
+from deploy.cli.deploy_run import deploy_run_main
+from deploy.policy.onnx_policy import OnnxPolicy, PolicyLoadError
+from deploy.spec.policy_spec import PolicySpec
 from tests.helpers_policies import make_spec, write_spec
 
 REPO = Path(__file__).resolve().parent.parent

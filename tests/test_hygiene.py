@@ -23,8 +23,8 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
-from deploy.errors import Sim2RealError
-from deploy.files import atomic_path, atomic_write, sha256_file
+from robots.errors import Sim2RealError
+from robots.files import atomic_path, atomic_write, sha256_file
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("deploy", "eval", "robots", "policies")
@@ -91,8 +91,8 @@ def test_sha256_file_is_the_digest_of_the_whole_file(tmp_path):
 
 
 def test_one_atomic_write_and_one_sha256_file_in_the_codebase():
-    """Durable writes and file digests live in deploy/files.py only (no copies to drift)."""
-    home = ROOT / "deploy" / "files.py"
+    """Durable writes and file digests live in robots/files.py only (no copies to drift)."""
+    home = ROOT / "robots" / "files.py"
     copies = []
     for path in _sources(*PACKAGES, "bench"):
         if path == home:
@@ -106,7 +106,7 @@ def test_one_atomic_write_and_one_sha256_file_in_the_codebase():
             copies += [
                 f"{path.relative_to(ROOT)}: {m.group(0)}" for m in re.finditer(pattern, text)
             ]
-    assert not copies, "use deploy.files instead:\n" + "\n".join(copies)
+    assert not copies, "use robots.files instead:\n" + "\n".join(copies)
 
 
 # ====================================================================== exceptions
@@ -134,7 +134,7 @@ def test_every_toolkit_exception_derives_from_the_base_and_keeps_its_builtin_bas
     names = {c.__name__ for c in found}
     assert {"SpecError", "PolicyLoadError", "RobotSpecError", "ServoBusError", "FilmError"} <= names
     wrong = [f"{c.__module__}.{c.__name__}" for c in found if not issubclass(c, Sim2RealError)]
-    assert not wrong, f"derive these from deploy.errors.Sim2RealError: {wrong}"
+    assert not wrong, f"derive these from robots.errors.Sim2RealError: {wrong}"
     builtin = [
         f"{c.__module__}.{c.__name__}"
         for c in found
@@ -205,7 +205,7 @@ def test_a_pickled_object_still_points_to_trust_pickle(tmp_path, capsys):
 
 
 def test_deploy_run_given_a_torch_file_says_to_export_it(capsys):
-    from deploy.cli import EXIT_BAD_INPUT, deploy_run_main
+    from deploy.cli.deploy_run import EXIT_BAD_INPUT, deploy_run_main
 
     pt = ROOT / "policies" / "arm.pt"
     assert deploy_run_main(["--robot", "arm3", "--policy", str(pt), "--duration", "1"]) == (
@@ -248,7 +248,7 @@ def test_deploy_run_runs_without_torch(tmp_path, arm_onnx):
     argv += ["--report", str(report)]
     code = NO_TRAINING_STACK + textwrap.dedent(
         f"""
-        from deploy.cli import deploy_run_main
+        from deploy.cli.deploy_run import deploy_run_main
 
         code = deploy_run_main({argv!r})
         loaded = sorted(m for m in sys.modules if m.partition(".")[0] in BLOCKED)

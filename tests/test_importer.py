@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from deploy.acceptance import check_adversarial
+from deploy.cli.acceptance import check_adversarial
 from robots import load_robot
 from robots.importer import EXIT_REFUSED, import_robot, main, resolve_source
 from robots.loading import ROBOTS_DIR, package_root

@@ -10,14 +10,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from deploy.backends.sim import SimBackend
-from deploy.base_estimation import (
+from deploy.backends.sim.plant import SimBackend
+from deploy.estimation.base import (
     BaseStateEstimator,
     projected_gravity,
     quaternion_to_matrix,
     tilt_of,
 )
-from deploy.estimation import JointStateEstimator
+from deploy.estimation.joints import JointStateEstimator
 from deploy.state import RobotState
 from robots import RobotSpecError, load_robot
 from robots.loading import ROBOTS_DIR

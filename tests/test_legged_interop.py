@@ -21,10 +21,10 @@ import pytest
 import torch
 from torch import nn
 
-from deploy import cli
 from deploy import export as export_mod
-from deploy.backends.sim import SimBackend
-from deploy.policy import OnnxPolicy
+from deploy.backends.sim.plant import SimBackend
+from deploy.cli import deploy_run as cli
+from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Mode, Runtime
 from robots import load_robot
 

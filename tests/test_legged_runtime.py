@@ -11,10 +11,10 @@ import onnx
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
-from deploy.backends.sim import SimBackend
-from deploy.policy import OnnxPolicy
+from deploy.backends.sim.plant import SimBackend
+from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import FAULT_CAUSES, Mode, Runtime
-from deploy.spec import LEGGED_DEFAULT_BLOCKS, PolicySpec, SpecError
+from deploy.spec.policy_spec import LEGGED_DEFAULT_BLOCKS, PolicySpec, SpecError
 from robots import load_robot
 
 pytest.importorskip("ahrs")
@@ -143,9 +143,9 @@ def test_shipped_go2_walks_at_the_commanded_speed_through_the_runtime(tmp_path):
     names the command that trained it."""
     import json
 
-    from deploy.checkpoint import read_checkpoint
-    from deploy.cli import deploy_run_main
+    from deploy.cli.deploy_run import deploy_run_main
     from deploy.export import export_policy
+    from deploy.policy.mlp_checkpoint import read_checkpoint
     from policies.gait import make_policy
 
     shipped = read_checkpoint(REPO / "policies" / "go2.pt")
@@ -175,7 +175,7 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_but_an_estimate_past_one_s
     """A Go2's PD targets act as torques: a calf target past its hard limit (what a legged policy
     or its exploration commands) is clamped to the soft limit and counted, not a safe stop; the
     estimated calf past the hard limit still is a violation."""
-    from deploy.safety import SafetyGuard
+    from deploy.safety.guard import SafetyGuard
     from deploy.state import RobotState
 
     guard = SafetyGuard(go2, 2, "position", reference=reference)

@@ -1,4 +1,4 @@
-"""The compiled monitors (deploy/kernels/monitors.py) count what their numpy references count.
+"""The compiled monitors (deploy/monitors/kernel.py) count what their numpy references count.
 
 Goals, violations, interventions and motor heat are what a soak report is made of: the kernels
 only decide faster whether anything happened on a tick, so every count, record and state must
@@ -12,14 +12,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from deploy.backends.sim import SimBackend
-from deploy.faults import Fault, FaultInjector
-from deploy.goals import GoalScheduler
-from deploy.interventions import InterventionMonitor
-from deploy.kernels.monitors import temperature_bands
-from deploy.policy import OnnxPolicy
+from deploy.backends.sim.faults import Fault, FaultInjector
+from deploy.backends.sim.plant import SimBackend
+from deploy.monitors.interventions import InterventionMonitor
+from deploy.monitors.kernel import temperature_bands
+from deploy.monitors.violations import ViolationMonitor
+from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Mode, Runtime
-from deploy.violations import ViolationMonitor
+from deploy.tasks.goals import GoalScheduler
 from tests.runtime_fixtures import adversarial_onnx
 from tests.test_compiled_tick import SweepingPolicy
 

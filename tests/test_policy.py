@@ -11,9 +11,9 @@ import pytest
 import torch
 from helpers_policies import externalize, linear_onnx, make_spec, torch_out, write_spec
 
-from deploy.checkpoint import MLPActor, ObservationNormalizer, save_checkpoint
 from deploy.export import export_policy
-from deploy.policy import OnnxPolicy, PolicyLoadError
+from deploy.policy.mlp_checkpoint import MLPActor, ObservationNormalizer, save_checkpoint
+from deploy.policy.onnx_policy import OnnxPolicy, PolicyLoadError
 from robots import load_robot
 
 RNG = np.random.default_rng(11)

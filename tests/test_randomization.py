@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from deploy.backends.sim import SimBackend
-from deploy.faults import CABLE_FORCE, Fault, FaultInjector
+from deploy.backends.sim.faults import CABLE_FORCE, Fault, FaultInjector
+from deploy.backends.sim.plant import SimBackend
 from eval.fault_schedule import FaultRanges
 from eval.randomization import (
     Drift,

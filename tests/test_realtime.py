@@ -16,7 +16,7 @@ import time
 
 import pytest
 
-from deploy.cli import EXIT_BAD_INPUT, deploy_run_main
+from deploy.cli.deploy_run import EXIT_BAD_INPUT, deploy_run_main
 from deploy.runtime.clock import SPIN_MARGIN_NS, WallClock
 from tests.runtime_fixtures import adversarial_onnx
 
@@ -122,8 +122,8 @@ def test_wall_clock_refuses_an_unknown_wait_mode_and_runtime_still_exports_it():
 
 @pytest.mark.parametrize("wait", ["spin", "sleep"])
 def test_the_safe_stop_on_overruns_stays_in_every_wait_mode(tmp_path, arm3, wait):
-    from deploy.backends.sim import SimBackend
-    from deploy.policy import OnnxPolicy
+    from deploy.backends.sim.plant import SimBackend
+    from deploy.policy.onnx_policy import OnnxPolicy
     from deploy.runtime import Runtime
 
     policy = OnnxPolicy(adversarial_onnx(tmp_path, arm3, "velocity"), arm3)
@@ -246,7 +246,7 @@ def test_a_refused_priority_and_memory_lock_say_so_and_the_run_continues(
     policy = adversarial_onnx(tmp_path, arm3, "velocity")
     report = tmp_path / "run.json"
     done = run_unprivileged(
-        *("-m", "deploy.cli", "--policy", str(policy), "--duration", "0.1"),
+        *("-m", "deploy.cli.deploy_run", "--policy", str(policy), "--duration", "0.1"),
         *("--realtime", "--rt-priority", "10", "--report", str(report)),
     )
     assert done.returncode in (0, 2), done.stderr  # ran (2: a loaded machine overran it)
@@ -266,7 +266,7 @@ def test_a_refused_priority_and_memory_lock_say_so_and_the_run_continues(
 def test_require_rt_makes_a_refused_priority_exit_3(refused_here, tmp_path, arm3):
     policy = adversarial_onnx(tmp_path, arm3, "velocity")
     done = run_unprivileged(
-        *("-m", "deploy.cli", "--policy", str(policy), "--duration", "0.1"),
+        *("-m", "deploy.cli.deploy_run", "--policy", str(policy), "--duration", "0.1"),
         *("--realtime", "--rt-priority", "10", "--no-lock-memory", "--require-rt"),
     )
     assert done.returncode == EXIT_BAD_INPUT

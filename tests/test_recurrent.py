@@ -18,7 +18,7 @@ from onnx import TensorProto, helper, numpy_helper
 from torch import nn
 
 from deploy.export import run_export
-from deploy.policy import OnnxPolicy, PolicyLoadError
+from deploy.policy.onnx_policy import OnnxPolicy, PolicyLoadError
 from deploy.runtime import Mode, Runtime
 from tests.helpers_policies import make_spec, write_spec
 from tests.soak_fixtures import kill_after_first_checkpoint
@@ -153,7 +153,7 @@ def test_action_after_reset_equals_a_fresh_policys(exported, arm3):
 
 
 def test_runtime_resets_the_state_on_ramp_in_take_over_and_fault_reset(exported, arm3):
-    from deploy.backends.sim import SimBackend
+    from deploy.backends.sim.plant import SimBackend
 
     _, _, result = exported
     policy = OnnxPolicy(result.path, arm3)
@@ -181,7 +181,7 @@ def test_runtime_resets_the_state_on_ramp_in_take_over_and_fault_reset(exported,
 
 
 def test_deploy_run_with_the_exported_recurrent_policy(exported, tmp_path, capsys):
-    from deploy.cli import deploy_run_main
+    from deploy.cli.deploy_run import deploy_run_main
 
     _, _, result = exported
     report = tmp_path / "run.json"
@@ -350,7 +350,7 @@ def test_state_output_shape_that_differs_only_when_run_is_refused(arm3, tmp_path
 
 
 def test_deploy_run_exits_3_on_a_state_input_without_batch_axis(arm3, tmp_path, capsys):
-    from deploy.cli import deploy_run_main
+    from deploy.cli.deploy_run import deploy_run_main
 
     spec = make_spec(arm3)
     path = _gru_like_onnx(tmp_path / "bad.onnx", spec.obs_dim, spec.act_dim, [1, 8], [1, 8])

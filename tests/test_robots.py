@@ -276,7 +276,7 @@ def test_so101_goals_are_reachable_inside_its_task_box():
     the time: a miss that says nothing about a policy)."""
     from scipy.optimize import least_squares
 
-    from deploy.goals import sample_goal
+    from deploy.tasks.goals import sample_goal
 
     so101 = load_robot("so101")
     task = so101.config.task

@@ -8,13 +8,13 @@ import time
 import numpy as np
 import pytest
 
-from deploy.acceptance import RecordingBackend, check_adversarial
-from deploy.backends.sim import SimBackend
-from deploy.faults import Fault, FaultInjector
-from deploy.interventions import INTERVENTION_CHECKS
-from deploy.policy import OnnxPolicy
+from deploy.backends.sim.faults import Fault, FaultInjector
+from deploy.backends.sim.plant import SimBackend
+from deploy.cli.acceptance import RecordingBackend, check_adversarial
+from deploy.monitors.interventions import INTERVENTION_CHECKS
+from deploy.monitors.violations import VIOLATION_TYPES
+from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import NAN_ACTION_LIMIT, Mode, Runtime, WallClock
-from deploy.violations import VIOLATION_TYPES
 from robots import load_robot
 from tests.runtime_fixtures import adversarial_onnx
 
@@ -37,7 +37,7 @@ def seconds(rt, s):
 @pytest.mark.parametrize("mode", ["position", "velocity", "torque"])
 def test_adversarial_policy_never_drives_the_robot_beyond_its_limits(tmp_path, robot_name, mode):
     """Uniform random actions with NaN for 30 simulated seconds (the 10-minute runs of the issue
-    are `python -m deploy.acceptance --seconds 600`): every command is finite, within the hard
+    are `python -m deploy.cli.acceptance --seconds 600`): every command is finite, within the hard
     position limits and the velocity, acceleration and jerk limits (position and velocity mode) or
     the effort and torque-rate limits (torque mode), the joints stay within their hard limits, and
     the runtime ends RUNNING or in the latched safe stop of a predicted hard-limit crossing."""
@@ -202,7 +202,7 @@ def test_push_is_survived(tmp_path, arm3):
 
 
 def test_mismatched_policy_is_refused(tmp_path, arm3, arm6):
-    from deploy.policy import PolicyLoadError
+    from deploy.policy.onnx_policy import PolicyLoadError
 
     with pytest.raises(PolicyLoadError, match="policy is for 'arm3', the robot is 'arm6'"):
         OnnxPolicy(adversarial_onnx(tmp_path, arm3, "position"), arm6)
@@ -217,7 +217,7 @@ def test_deploy_run_prints_a_summary_and_writes_the_report(tmp_path, arm3):
     cmd = [
         sys.executable,
         "-m",
-        "deploy.cli",
+        "deploy.cli.deploy_run",
         "--robot",
         "arm3",
         "--policy",
@@ -258,7 +258,7 @@ def test_deploy_run_bad_input_exit_code(tmp_path):
     bad = tmp_path / "bad.onnx"
     bad.write_bytes(b"not an onnx file")
     done = subprocess.run(
-        [sys.executable, "-m", "deploy.cli", "--policy", str(bad), "--duration", "1"],
+        [sys.executable, "-m", "deploy.cli.deploy_run", "--policy", str(bad), "--duration", "1"],
         capture_output=True,
         text=True,
         timeout=120,
@@ -315,7 +315,7 @@ def test_velocity_mode_keeps_the_commanded_position_on_a_saturated_drive(arm3):
     2 rad in 6 minutes, and the guard then braked the joint far from any limit). The runtime keeps
     it within VELOCITY_TRACKING_TOLERANCE of the measured pose, and counts each re-anchor (anchors, not resyncs: the command stays continuous)."""
     from deploy.runtime import VELOCITY_TRACKING_TOLERANCE
-    from deploy.spec import PolicySpec
+    from deploy.spec.policy_spec import PolicySpec
     from eval.randomization import Dynamics, randomized_model
 
     heavy = Dynamics((1.1,) * 3, (1.2,) * 3, (1.0,) * 3, (1.0,) * 3, (0.9,) * 3)
@@ -354,7 +354,7 @@ class _CalmPolicy:
 
 
 def calm_runtime(robot, mode="position", envs=1, reference=False, seed=0):
-    from deploy.spec import PolicySpec
+    from deploy.spec.policy_spec import PolicySpec
 
     policy = _CalmPolicy(PolicySpec.for_robot(robot, mode=mode))
     policy.nan = np.zeros(envs, dtype=bool)

@@ -4,16 +4,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from deploy.safety import (
-    CHECKS,
-    SafetyGuard,
-    collision_pair_weights,
-    end_effector_lever,
-    motion_bounds,
-)
+from deploy.safety.guard import CHECKS, SafetyGuard
 from deploy.smoothing import stopping_distance
 from deploy.state import RobotState
 from robots import load_robot
+from robots.chain_bounds import collision_pair_weights, end_effector_lever, motion_bounds
 
 
 def random_walk(robot, envs, ticks, seed):
@@ -158,7 +153,7 @@ def test_a_full_absolute_action_is_at_the_limit_not_past_it():
     outputs it often) maps to ``offset +- scale``; float rounding puts it an ulp past so101's
     wrist_roll and gripper limits. That is the limit itself: clamped, not a hard violation.
     A target really past the limit still is one."""
-    from deploy.spec import PolicySpec
+    from deploy.spec.policy_spec import PolicySpec
     from robots import load_robot
 
     so101 = load_robot("so101")

@@ -23,8 +23,8 @@ from deploy.backends.base import Backend, SimulatedPlant
 from deploy.backends.emulator import ServoBusEmulator, WireFaults
 from deploy.backends.servo.calibration import CalibrationError, load_lerobot_calibration
 from deploy.backends.servo_bus import ServoBusError
-from deploy.cli import EXIT_CLEAN, EXIT_FAULT
-from deploy.policy import OnnxPolicy
+from deploy.cli.deploy_run import EXIT_CLEAN, EXIT_FAULT
+from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Runtime, WallClock
 from robots import load_robot
 from tests.runtime_fixtures import adversarial_onnx
@@ -57,7 +57,7 @@ def so101():
 
 
 def _policy(tmp_path, robot):
-    # the adversarial policy: uniform random actions, 2 % NaN (deploy.adversarial)
+    # the adversarial policy: uniform random actions, 2 % NaN (deploy.policy.adversarial)
     return adversarial_onnx(tmp_path, robot, robot.control_mode)
 
 
@@ -101,7 +101,10 @@ def _deploy_run(tmp_path, protocol, emu, seconds, *extra):
     # deploy-run in its own process: the emulator's thread and the SDK's busy receive loop
     # would otherwise share one GIL (a timing coupling a real bus does not have)
     done = subprocess.run(
-        [sys.executable, "-m", "deploy.cli", *argv], capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", "deploy.cli.deploy_run", *argv],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     return done.returncode, json.loads(report.read_text()), done.stdout + done.stderr
 
@@ -117,7 +120,7 @@ def _full_read(backend, tries=10):
 
 # ---------------------------------------------------------------- contract and open()
 def test_backends_keep_the_contract_and_only_the_sim_is_a_plant(so101):
-    from deploy.backends.sim import SimBackend
+    from deploy.backends.sim.plant import SimBackend
 
     sim = SimBackend(so101)
     bus = FeetechBackend(so101, "/dev/null")

@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from deploy.backends.sim import NonFiniteCommandError, SimBackend, SimulationDivergedError
+from deploy.backends.sim.plant import NonFiniteCommandError, SimBackend, SimulationDivergedError
 
 
 def run(plant, command, ticks):
@@ -157,7 +157,7 @@ def test_arm3_held_horizontal_for_one_hour_reaches_the_thermal_steady_state(arm3
 
 
 def test_a_hot_drive_limits_its_torque_to_the_derated_effort(arm3):
-    """Above the derating start the drive's torque limit follows deploy.thermal.EffortDerating
+    """Above the derating start the drive's torque limit follows robots.thermal.EffortDerating
     (down to the continuous torque at the maximum winding temperature): under a pull it cannot
     resist, the joint yields instead of the motor pushing past its derated limit."""
     plant = SimBackend(arm3, mode="velocity")
@@ -198,7 +198,7 @@ def test_compiled_sensor_model_equals_its_numpy_reference(arm6, per_env_streams)
     """The encoder kernels give the numpy reference's readings and stamps bit for bit, and draw
     the same numbers from the streams, through changes of noise, dropout and latency."""
     from deploy.backends.base import SensorFrame
-    from deploy.backends.sim_sensors import JointSensorModel
+    from deploy.backends.sim.sensors import JointSensorModel
 
     envs, n = 3, arm6.n_joints
     models = []

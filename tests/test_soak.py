@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from deploy.goals import success_windows
-from deploy.interventions import INTERVENTION_CHECKS
+from deploy.monitors.interventions import INTERVENTION_CHECKS
+from deploy.monitors.violations import VIOLATION_TYPES
 from deploy.runtime import NAN_ACTION_LIMIT
-from deploy.spec import PolicySpec
-from deploy.violations import VIOLATION_TYPES
+from deploy.spec.policy_spec import PolicySpec
+from deploy.tasks.goals import success_windows
 from eval import checkpoint as ckpt
 from eval import cli
 from eval.fault_schedule import FaultRanges, stale_budget

@@ -1,6 +1,6 @@
 """The soak's legged mode (issue 17): go2 follows seeded velocity commands
-(:class:`deploy.locomotion.CommandSchedule`), its tracking, falls and distance are measured
-(:class:`deploy.locomotion.CommandTracker`) and reported, and a kill -9 + resume equals an
+(:class:`deploy.tasks.locomotion.CommandSchedule`), its tracking, falls and distance are measured
+(:class:`deploy.tasks.locomotion.CommandTracker`) and reported, and a kill -9 + resume equals an
 uninterrupted run."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from deploy.locomotion import CommandSchedule, CommandTracker
+from deploy.tasks.locomotion import CommandSchedule, CommandTracker
 from eval import checkpoint as ckpt
 from eval.batch import SessionBatch
 from eval.fault_schedule import fault_ranges

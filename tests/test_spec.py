@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from helpers_policies import ARM3_BLOCKS as ALL_BLOCKS
 
-from deploy.spec import PolicySpec, SpecError
+from deploy.spec.policy_spec import PolicySpec, SpecError
 from deploy.state import Kinematics, RobotState
 
 
@@ -275,7 +275,7 @@ def test_legged_gym_conventions_are_expressed_exactly(arm6):
     ],
 )
 def test_a_block_the_robot_cannot_provide_is_refused_at_load_naming_it(arm3, block, why, tmp_path):
-    from deploy.policy import OnnxPolicy, PolicyLoadError
+    from deploy.policy.onnx_policy import OnnxPolicy, PolicyLoadError
 
     doc = _arm3_doc(arm3)
     doc["observation"].insert(0, {"name": block, "scale": 4.0})
@@ -320,17 +320,17 @@ def test_bad_shorthand_is_refused_naming_the_field(arm3, edit, message):
 
 # ---------------------------------------------------------------------- the JSON Schema
 def test_committed_schema_is_the_generated_one():
-    from deploy.spec_schema import SCHEMA_PATH, schema_text
+    from deploy.spec.schema import SCHEMA_PATH, schema_text
 
     assert SCHEMA_PATH.read_text() == schema_text(), (
-        "docs/policy_spec.schema.json is stale: run python -m deploy.spec_schema"
+        "docs/policy_spec.schema.json is stale: run python -m deploy.spec.schema"
     )
 
 
 def test_shipped_and_example_specs_validate_against_the_schema(arm3, arm6):
     jsonschema = pytest.importorskip("jsonschema")
     torch = pytest.importorskip("torch")
-    from deploy.spec_schema import SCHEMA_PATH
+    from deploy.spec.schema import SCHEMA_PATH
 
     schema = json.loads(SCHEMA_PATH.read_text())
     validator = jsonschema.Draft202012Validator(schema)

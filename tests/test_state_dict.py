@@ -19,17 +19,17 @@ import numpy as np
 import pytest
 
 from deploy.backends.base import SensorFrame
-from deploy.backends.sim import SimBackend
-from deploy.estimation import JointStateEstimator
-from deploy.faults import Fault, FaultInjector
-from deploy.goals import GoalScheduler
-from deploy.policy import OnnxPolicy
+from deploy.backends.sim.faults import Fault, FaultInjector
+from deploy.backends.sim.plant import SimBackend
+from deploy.estimation.joints import JointStateEstimator
+from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Runtime
-from deploy.safety import SafetyGuard
+from deploy.safety.guard import SafetyGuard
 from deploy.smoothing import CommandSmoother
-from deploy.spec import PolicySpec
+from deploy.spec.policy_spec import PolicySpec
 from deploy.state import RobotState
 from deploy.stateful import StateDictError, load_part, prefixed, put, take
+from deploy.tasks.goals import GoalScheduler
 from tests.runtime_fixtures import feedback_mlp_onnx
 
 REPO = Path(__file__).resolve().parent.parent

@@ -6,10 +6,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from deploy.backends.sim import SimBackend
-from deploy.policy import OnnxPolicy
+from deploy.backends.sim.plant import SimBackend
+from deploy.observe.telemetry import Telemetry
+from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Runtime
-from deploy.telemetry import Telemetry
 from tests.runtime_fixtures import adversarial_onnx
 
 pytest.importorskip("foxglove_schemas_protobuf", reason="the foxglove extra is not installed")

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from deploy.safety import motion_bounds
-from deploy.thermal import EffortDerating, TwoNodeThermalModel, derating_factor
+from robots.chain_bounds import motion_bounds
 from robots.loading import load_motor, motor_catalog
+from robots.thermal import EffortDerating, TwoNodeThermalModel, derating_factor
 
 
 def test_capacities_follow_the_datasheet_time_constants(arm3):

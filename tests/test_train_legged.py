@@ -9,8 +9,8 @@ import torch
 pytest.importorskip("stable_baselines3")
 pytest.importorskip("ahrs")
 
-from deploy.checkpoint import read_checkpoint  # noqa: E402
-from deploy.policy import OnnxPolicy  # noqa: E402
+from deploy.policy.mlp_checkpoint import read_checkpoint  # noqa: E402
+from deploy.policy.onnx_policy import OnnxPolicy  # noqa: E402
 from policies.train_legged import main  # noqa: E402
 from robots import load_robot  # noqa: E402
 

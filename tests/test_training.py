@@ -7,7 +7,7 @@ import pytest
 import torch
 from gymnasium.utils.env_checker import check_env
 
-from deploy.checkpoint import load_checkpoint, save_checkpoint
+from deploy.policy.mlp_checkpoint import load_checkpoint, save_checkpoint
 from eval.randomization import DynamicsRanges
 from policies.envs import ArmReachEnv, ReachConfig, ReachTask, RewardConfig
 
@@ -201,7 +201,7 @@ def test_the_shipped_so101_policy_reaches_its_goals_through_the_runtime(tmp_path
     longer runs; 60 s has 15 goals), no hard violation, a clean exit."""
     import json
 
-    from deploy.cli import deploy_run_main
+    from deploy.cli.deploy_run import deploy_run_main
     from deploy.export import main as export_main
 
     onnx = tmp_path / "so101.onnx"

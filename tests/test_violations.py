@@ -7,13 +7,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from deploy.backends.sim import SimBackend
-from deploy.goals import GoalScheduler, success_windows
-from deploy.interventions import INTERVENTION_CHECKS, InterventionMonitor
-from deploy.safety import SafetyGuard
+from deploy.backends.sim.plant import SimBackend
+from deploy.monitors.interventions import INTERVENTION_CHECKS, InterventionMonitor
+from deploy.monitors.violations import VIOLATION_TYPES, ViolationMonitor
+from deploy.safety.guard import SafetyGuard
 from deploy.smoothing import CommandSmoother
 from deploy.state import RobotState
-from deploy.violations import VIOLATION_TYPES, ViolationMonitor
+from deploy.tasks.goals import GoalScheduler, success_windows
 
 
 def place(backend, e, q, dq=None):

@@ -8,11 +8,13 @@ Two interfaces:
   tick ``read() -> SensorFrame``, ``write(command)``, ``advance()``. A simulated backend steps its
   physics in ``advance``; a hardware backend returns at once from it (the wall clock paces).
 - :class:`SimulatedPlant`, what only a simulation has: ground truth (true joint state, end
-  effector), the fault-injection hooks of :class:`deploy.faults.FaultInjector` (sensor dropout and
+  effector), the fault-injection hooks of :class:`deploy.backends.sim.faults.FaultInjector` (sensor
+  dropout and
   latency settings) and external forces. ``deploy-run`` uses them when ``isinstance(backend,
   SimulatedPlant)``, and only then.
 
-Implementations: :class:`deploy.backends.sim.SimBackend` (both), and the serial-bus servo backends
+Implementations: :class:`deploy.backends.sim.plant.SimBackend` (both), and the serial-bus servo
+backends
 :class:`deploy.backends.feetech.FeetechBackend` and
 :class:`deploy.backends.dynamixel.DynamixelBackend` (``Backend`` only).
 """
@@ -27,7 +29,7 @@ import numpy as np
 if TYPE_CHECKING:
     import mujoco
 
-    from deploy.thermal import TwoNodeThermalModel
+    from robots.thermal import TwoNodeThermalModel
 
 
 @dataclass

@@ -43,9 +43,9 @@ from deploy.backends.servo.calibration import (
     load_lerobot_calibration,
 )
 from deploy.backends.servo.control_tables import ServoModel, model_for_motor
-from deploy.errors import Sim2RealError
-from deploy.telemetry import LatencyHistogram
+from deploy.observe.telemetry import LatencyHistogram
 from robots import Robot
+from robots.errors import Sim2RealError
 
 DROPOUT_KINDS = ("timeout", "corrupt")
 #: Tries of the first pose read in ``open()`` before giving up.

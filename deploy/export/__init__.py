@@ -19,7 +19,8 @@ Input formats (detected from the content, not the file name):
 ==================  ==========================================================================
 format              what is read
 ==================  ==========================================================================
-our checkpoint      ``deploy.checkpoint`` format (MLP, spec and normalizer inside; ``--spec``
+our checkpoint      ``deploy.policy.mlp_checkpoint`` format (MLP, spec and normalizer inside;
+``--spec``
                     optional and then must agree)
 TorchScript         ``torch.jit.save`` archive; needs ``--spec``. Stateful TorchScript is refused
                     (:func:`deploy.export.torchscript_lstm.check_stateless`), except
@@ -76,7 +77,7 @@ both sides. A source that runs as it is (legged_gym's stateful TorchScript) is a
 against the ONNX for 500 steps at batch 1 (figures ``source_max_abs_error``, ``source_steps``).
 
 Parity gate (tolerance ``TOLERANCE`` = 1e-5, max abs error over all action entries), both run
-through :class:`deploy.policy.OnnxPolicy` exactly as the runtime runs it:
+through :class:`deploy.policy.onnx_policy.OnnxPolicy` exactly as the runtime runs it:
     1. 1,000 observations uniform in [-1.2, 1.2] per normalized entry, plus edge cases (zeros,
        +-1, +-1.2, +- each block's clip, each entry alone at +-1), in one batch and the first 32
        again one by one (batch 1), ONNX Runtime vs the torch module (normalizer and clip included);

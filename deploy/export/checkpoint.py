@@ -1,4 +1,5 @@
-"""Our checkpoints (the :mod:`deploy.checkpoint` format: MLP actor, PolicySpec and observation
+"""Our checkpoints (the :mod:`deploy.policy.mlp_checkpoint` format: MLP actor, PolicySpec and
+observation
 normalizer inside) as a :class:`~deploy.export.source.SourcePolicy`; a ``--spec`` given must agree
 with the spec inside.
 """
@@ -8,11 +9,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-from deploy.checkpoint import CheckpointError, checkpoint_from_dict
 from deploy.export.errors import ExportError
 from deploy.export.source import SourcePolicy, normalizer_module
-from deploy.policy import spec_differences
-from deploy.spec import PolicySpec
+from deploy.policy.mlp_checkpoint import CheckpointError, checkpoint_from_dict
+from deploy.policy.onnx_policy import spec_differences
+from deploy.spec.policy_spec import PolicySpec
 
 
 def _load_checkpoint(path: Path, obj: Mapping, spec: PolicySpec | None) -> SourcePolicy:

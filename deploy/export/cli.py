@@ -12,10 +12,10 @@ import traceback
 from collections.abc import Sequence
 from pathlib import Path
 
-from deploy.checkpoint import ACTIVATIONS
 from deploy.export.errors import ExportError, ParityError
 from deploy.export.graph import EXPORTERS
 from deploy.export.pipeline import run_export
+from deploy.policy.mlp_checkpoint import ACTIVATIONS
 
 EXIT_OK, EXIT_PARITY, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 3
 POLICIES_DIR = Path(__file__).resolve().parents[2] / "policies"

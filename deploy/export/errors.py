@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from deploy.errors import Sim2RealError
+from robots.errors import Sim2RealError
 
 
 class ExportError(Sim2RealError, ValueError):

@@ -39,7 +39,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from deploy.errors import Sim2RealError
+from robots.errors import Sim2RealError
 
 #: Godot RL Agents' recurrent-state names (a dummy pair even for MLP policies; PITFALLS.md).
 GODOT_STATE = ("state_ins", "state_outs")
@@ -72,7 +72,7 @@ def _pickle_globals(data: bytes) -> list[str]:
 
 def _spec_summary(text: str, where: str) -> dict[str, Any]:
     """The embedded PolicySpec: its JSON, whether :class:`PolicySpec` accepts it, a summary."""
-    from deploy.spec import PolicySpec
+    from deploy.spec.policy_spec import PolicySpec
 
     try:
         raw = json.loads(text)
@@ -216,7 +216,7 @@ def _inspect_sb3(path: Path) -> dict[str, Any]:
         data = json.loads(data_text)
         sd = torch.load(io.BytesIO(policy_bytes), map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001
-        from deploy.checkpoint import load_failure_cause
+        from deploy.policy.mlp_checkpoint import load_failure_cause
 
         raise InspectError(
             f"{path}: unreadable Stable-Baselines3 entries ('data' JSON, 'policy.pth'): "
@@ -339,7 +339,11 @@ def _inspect_torchscript(path: Path) -> dict[str, Any]:
 
 
 def _inspect_torch(path: Path) -> dict[str, Any]:
-    from deploy.checkpoint import load_weights_only, unreadable_torch_file, unsafe_globals_in
+    from deploy.policy.mlp_checkpoint import (
+        load_weights_only,
+        unreadable_torch_file,
+        unsafe_globals_in,
+    )
 
     try:
         obj = load_weights_only(path)

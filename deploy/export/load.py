@@ -20,14 +20,6 @@ from typing import Any
 import torch
 from torch import nn
 
-from deploy.checkpoint import (
-    ACTIVATIONS,
-    FORMAT,
-    load_weights_only,
-    torch_file_problem,
-    unreadable_torch_file,
-    unsafe_globals_in,
-)
 from deploy.export.checkpoint import _load_checkpoint
 from deploy.export.errors import ExportError, _first_line
 from deploy.export.network import _probe, _require_spec, check_finite_tensors
@@ -36,9 +28,17 @@ from deploy.export.sb3 import _load_sb3
 from deploy.export.source import SourcePolicy, normalizer_module
 from deploy.export.torchscript import _load_torchscript
 from deploy.export.vecnormalize import load_vecnormalize
-from deploy.files import sha256_file
-from deploy.policy import read_spec
-from deploy.spec import PolicySpec, SpecError
+from deploy.policy.mlp_checkpoint import (
+    ACTIVATIONS,
+    FORMAT,
+    load_weights_only,
+    torch_file_problem,
+    unreadable_torch_file,
+    unsafe_globals_in,
+)
+from deploy.policy.onnx_policy import read_spec
+from deploy.spec.policy_spec import PolicySpec, SpecError
+from robots.files import sha256_file
 
 
 def _detect(path: Path) -> str:

@@ -2,7 +2,7 @@
 dict: finite tensors (:func:`check_finite_tensors`), a spec given for a format that carries none
 (:func:`_require_spec`), the network's answer to the spec's observation (:func:`_probe`), and the
 Linear layers of an ``nn.Sequential`` (:func:`_linear_stack`) as an
-:class:`~deploy.checkpoint.MLPActor` (:func:`_build_mlp`).
+:class:`~deploy.policy.mlp_checkpoint.MLPActor` (:func:`_build_mlp`).
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ from typing import Any
 import torch
 from torch import nn
 
-from deploy.checkpoint import MLPActor
 from deploy.export.errors import ExportError, _first_line
-from deploy.spec import PolicySpec
+from deploy.policy.mlp_checkpoint import MLPActor
+from deploy.spec.policy_spec import PolicySpec
 
 
 def check_finite_tensors(tensors: Mapping[str, Any], where: str) -> None:

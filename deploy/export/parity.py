@@ -1,4 +1,5 @@
-"""The parity gate: the ONNX graph, run through :class:`deploy.policy.OnnxPolicy` exactly as the
+"""The parity gate: the ONNX graph, run through :class:`deploy.policy.onnx_policy.OnnxPolicy`
+exactly as the
 runtime runs it, against the torch module (tolerance ``TOLERANCE`` = 1e-5, max abs error over all
 action entries).
 
@@ -26,10 +27,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from deploy.backends.sim import NonFiniteCommandError, SimBackend, SimulationDivergedError
+from deploy.backends.sim.plant import NonFiniteCommandError, SimBackend, SimulationDivergedError
 from deploy.export.recurrent import RecurrentPolicyModule
-from deploy.policy import OnnxPolicy
-from deploy.spec import PolicySpec
+from deploy.policy.onnx_policy import OnnxPolicy
+from deploy.spec.policy_spec import PolicySpec
 from deploy.state import Kinematics, RobotState
 from robots import Robot
 
@@ -169,7 +170,8 @@ def _true_base(plant: SimBackend, state: RobotState, t: float) -> None:
 
 class TorchRecurrentReference:
     """The torch side of a parity run: ``ref(obs)`` -> action (numpy), the state carried per env
-    like :class:`deploy.policy.OnnxPolicy` carries it (a new batch size starts from zeros)."""
+    like :class:`deploy.policy.onnx_policy.OnnxPolicy` carries it (a new batch size starts from
+    zeros)."""
 
     def __init__(self, module: RecurrentPolicyModule):
         self.module = module
@@ -202,7 +204,8 @@ def sequence_parity(
     states are compared.
 
     Args:
-        policy: The :class:`deploy.policy.OnnxPolicy` under test. module: The torch module.
+        policy: The :class:`deploy.policy.onnx_policy.OnnxPolicy` under test. module: The torch
+        module.
 
     Returns:
         ``(max_abs_error, actions compared)``.
@@ -240,7 +243,8 @@ def source_sequence_parity(policy, reference, spec: PolicySpec, seed: int) -> tu
     half (``reference.reset()``, ``policy.reset``).
 
     Args:
-        policy: The :class:`deploy.policy.OnnxPolicy` under test. reference: ``ref(obs)`` ->
+        policy: The :class:`deploy.policy.onnx_policy.OnnxPolicy` under test. reference:
+        ``ref(obs)`` ->
             action (1, act_dim), clip applied, with ``reset()``. spec: The PolicySpec.
 
     Returns:

@@ -31,10 +31,10 @@ from deploy.export.parity import (
     source_sequence_parity,
     static_parity,
 )
-from deploy.files import atomic_path, sha256_file
-from deploy.policy import OnnxPolicy, PolicyLoadError
-from deploy.spec import PolicySpec, SpecError
+from deploy.policy.onnx_policy import OnnxPolicy, PolicyLoadError
+from deploy.spec.policy_spec import PolicySpec, SpecError
 from robots import Robot, load_robot
+from robots.files import atomic_path, sha256_file
 
 
 @dataclass(frozen=True)

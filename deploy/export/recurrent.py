@@ -6,7 +6,8 @@ RecurrentPPO zip, :mod:`deploy.export.sb3_recurrent`; legged_gym's LSTM TorchScr
 :mod:`deploy.export.torchscript_lstm`) loads into a :class:`RecurrentCore` (an ``nn.LSTM`` or
 ``nn.GRU`` followed by the actor MLP; :func:`rnn_from_state_dict`, :func:`recurrent_source`).
 Around it, :class:`RecurrentPolicyModule` adds the observation normalizer (if any) and the action
-clip, and :func:`recurrent_signature` names the graph :class:`deploy.policy.OnnxPolicy` runs::
+clip, and :func:`recurrent_signature` names the graph :class:`deploy.policy.onnx_policy.OnnxPolicy`
+runs::
 
     obs   float32 [batch, obs_dim]            -> action float32 [batch, act_dim]
     h_in  float32 [layers, batch, hidden]     -> h_out  float32 [layers, batch, hidden]
@@ -26,7 +27,7 @@ from torch import nn
 
 from deploy.export.errors import ExportError
 from deploy.export.source import SourcePolicy
-from deploy.spec import PolicySpec
+from deploy.spec.policy_spec import PolicySpec
 
 
 @dataclass(frozen=True)

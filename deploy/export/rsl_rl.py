@@ -22,7 +22,7 @@ from deploy.export.network import (
     check_finite_tensors,
 )
 from deploy.export.source import NormalizeNoClip, SourcePolicy
-from deploy.spec import PolicySpec
+from deploy.spec.policy_spec import PolicySpec
 
 RSL_RL_EPS = 1e-2  # rsl_rl EmpiricalNormalization default eps (not stored in checkpoints)
 

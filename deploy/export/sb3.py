@@ -17,11 +17,16 @@ from typing import Any
 import numpy as np
 import torch
 
-from deploy.checkpoint import MLPActor, load_failure_cause, load_weights_only, unsafe_globals_in
 from deploy.export.errors import ExportError
 from deploy.export.network import _build_mlp, _linear_stack, _probe, _require_spec
 from deploy.export.source import SourcePolicy
-from deploy.spec import PolicySpec
+from deploy.policy.mlp_checkpoint import (
+    MLPActor,
+    load_failure_cause,
+    load_weights_only,
+    unsafe_globals_in,
+)
+from deploy.spec.policy_spec import PolicySpec
 
 
 def _sb3_activation(data: Mapping, default: str, path: Path) -> str:

@@ -29,7 +29,7 @@ from deploy.export.errors import ExportError
 from deploy.export.network import _build_mlp, _linear_stack, check_finite_tensors
 from deploy.export.recurrent import recurrent_source, rnn_from_state_dict
 from deploy.export.sb3 import _sb3_activation
-from deploy.spec import PolicySpec
+from deploy.spec.policy_spec import PolicySpec
 
 PREFIX = "lstm_actor."
 

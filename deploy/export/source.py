@@ -14,8 +14,8 @@ from typing import Any
 import torch
 from torch import nn
 
-from deploy.checkpoint import ObservationNormalizer
-from deploy.spec import PolicySpec
+from deploy.policy.mlp_checkpoint import ObservationNormalizer
+from deploy.spec.policy_spec import PolicySpec
 
 
 class Normalize(nn.Module):

@@ -15,7 +15,7 @@ from deploy.export import torchscript_lstm as lstm_ts
 from deploy.export.errors import ExportError, _first_line
 from deploy.export.network import _probe, _require_spec, check_finite_tensors
 from deploy.export.source import SourcePolicy
-from deploy.spec import PolicySpec
+from deploy.spec.policy_spec import PolicySpec
 
 
 def load_torchscript(path: Path, error=None):

@@ -37,7 +37,7 @@ from deploy.export.errors import ExportError, _first_line
 from deploy.export.network import check_finite_tensors
 from deploy.export.recurrent import RecurrentCore, RecurrentPolicyModule
 from deploy.export.source import SourcePolicy
-from deploy.spec import PolicySpec
+from deploy.spec.policy_spec import PolicySpec
 
 #: The buffers of legged_gym's PolicyExporterLSTM (hidden state, cell state), in that order.
 STATE_BUFFERS = ("hidden_state", "cell_state")

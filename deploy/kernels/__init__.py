@@ -1,31 +1,40 @@
 """The compiled tick: numba kernels for the per-tick numeric logic of the runtime's stages.
 
 Each stage keeps its numpy implementation as the tested reference (``reference=True`` on
-:class:`~deploy.safety.SafetyGuard`, :class:`~deploy.smoothing.CommandSmoother`,
+:class:`~deploy.safety.guard.SafetyGuard`, :class:`~deploy.smoothing.CommandSmoother`,
 :class:`~deploy.runtime.Runtime` and the monitors, ``reference=True`` on
-:meth:`deploy.spec.PolicySpec.observation` and the plant's sensor model)
-and runs one of these kernels per tick otherwise, over the stage's preallocated arrays:
+:meth:`deploy.spec.policy_spec.PolicySpec.observation` and the plant's sensor model)
+and runs its kernel per tick otherwise, over the stage's preallocated arrays:
 
-=========================  =====================================================================
-module                     what it computes
-=========================  =====================================================================
-:mod:`.observation`        the normalized observation vector (every block kind)
-:mod:`.supervision`        thermal derating; stale, over-temperature, drive-error and overrun
-                           stops; the state machine's transitions; the re-anchoring screen; the
-                           screen of non-finite actions, the action-to-target map and the
-                           position/velocity-mode overrides
-:mod:`.guard`              the guard's hard and soft limits, velocity band, torque governor
-                           screen, the screens of the per-env Pinocchio checks, effort clamp
-:mod:`.smoothing`          the smoother's finite-target and limit clamps, the velocity-mode
-                           stopping guards and brake trigger, the extrema screen, torque rate limit
-:mod:`.thermal`            the sim plant's two-node motor thermal model (one Euler step)
-:mod:`.drives`             the sim plant's derating check and velocity-loop anti-windup screen
-:mod:`.sensors`            the sim plant's encoder sample (noise, quantization, dropout) and
-                           latency buffer read
-:mod:`.monitors`           the per-tick screens of the goal scheduler, the violation and
-                           intervention monitors, the soak's motor-heat bands and deploy-run's
-                           motion summary
-=========================  =====================================================================
+==========================================  ====================================================
+module (beside its stage)                   what it computes
+==========================================  ====================================================
+:mod:`deploy.spec.kernel`                   the normalized observation vector (every block kind)
+:mod:`deploy.runtime.supervision_kernel`    thermal derating; stale, over-temperature,
+                                            drive-error and overrun stops; the state machine's
+                                            transitions; the re-anchoring screen; the screen of
+                                            non-finite actions, the action-to-target map and the
+                                            position/velocity-mode overrides
+:mod:`deploy.safety.kernel`                 the guard's hard and soft limits, velocity band,
+                                            torque governor screen, the screens of the per-env
+                                            Pinocchio checks, effort clamp
+:mod:`deploy.safety.envelope_kernel`        the motion envelope's boxes and their screen
+:mod:`deploy.smoothing.kernel`              the smoother's finite-target and limit clamps, the
+                                            velocity-mode stopping guards and brake trigger, the
+                                            extrema screen, torque rate limit
+:mod:`robots.thermal_kernel`                the two-node motor thermal model (one Euler step)
+:mod:`deploy.backends.sim.drives_kernel`    the sim plant's derating check and velocity-loop
+                                            anti-windup screen
+:mod:`deploy.backends.sim.sensors_kernel`   the sim plant's encoder sample (noise,
+                                            quantization, dropout) and latency buffer read
+:mod:`deploy.monitors.kernel`               the per-tick screens of the goal scheduler, the
+                                            violation and intervention monitors, the soak's
+                                            motor-heat bands and deploy-run's motion summary
+:mod:`deploy.observe.latency_kernel`        the tick's stage latency histograms
+==========================================  ====================================================
+
+This package keeps the helpers they share (``np_max``, ``np_min``, ``row_sum``,
+``pairs_may_touch``).
 
 A kernel stops where Python must act (Ruckig, Pinocchio, a policy reset) and returns a code that
 says what; the arithmetic and its order are those of the numpy reference, so both give the same
@@ -88,7 +97,8 @@ def pairs_may_touch(q, e: int, checked_q, pair_clearance, pair_weights, margin: 
     """Whether a collision pair of env ``e`` may touch at ``q[e]`` (rad): unless every pair's
     distance computed at ``checked_q[e]`` (``pair_clearance[e]``, m) exceeds ``pair_weights[p] @
     |q[e] - checked_q[e]|`` plus ``margin`` (m), the weights (pairs, n) m/rad bounding how fast
-    each pair approaches per radian of each joint (:func:`deploy.safety.collision_pair_weights`).
+    each pair approaches per radian of each joint
+    (:func:`robots.chain_bounds.collision_pair_weights`).
     ``tmp`` (envs, n): work row ``e``; the sum in numpy's order (:func:`row_sum`). The one
     collision screen of the guard and of the violation monitor."""
     n = q.shape[1]

@@ -32,7 +32,7 @@ Faults and responses (DESIGN.md): non-finite policy output holds the last valid 
 ``safety.stale_limit`` makes a safe stop; a hard-limit violation makes a safe stop; a winding above
 its maximum makes a safe stop latched until cool, and the effort limit is derated linearly in the
 derating band down to the continuous torque, as the drives derate theirs
-(:class:`deploy.thermal.EffortDerating`); a wall-clock overrun rate above ``OVERRUN_RATE_LIMIT``
+(:class:`robots.thermal.EffortDerating`); a wall-clock overrun rate above ``OVERRUN_RATE_LIMIT``
 makes a safe stop; a hardware error a drive reports (``backend.drive_errors()``: a servo's
 overload, overheating or voltage bits) makes a safe stop (cause ``servo_error``), the bits latched
 per joint in :attr:`Runtime.drive_errors`.
@@ -60,7 +60,7 @@ module                    what it holds
 :mod:`~.supervision`      the state machine (:class:`Supervision`): its arrays, its transitions
                           in numpy (the reference of the compiled supervision and screen)
 :mod:`~.compiled`         the compiled supervision and action screen (the kernels of
-                          :mod:`deploy.kernels.supervision`, bound to the runtime's arrays)
+                          :mod:`deploy.runtime.supervision_kernel`, bound to the runtime's arrays)
 :mod:`~.anchoring`        :func:`reanchor`: the smoother re-anchored at the measured state
 :mod:`~.clock`            :class:`SimClock`, :class:`WallClock` and its wait strategies
 :mod:`~.realtime`         :class:`RealtimeSettings`: SCHED_FIFO priority, CPU affinity, locked
@@ -69,7 +69,8 @@ module                    what it holds
 
 The clocks, the real-time settings and the state machine's vocabulary import without MuJoCo:
 ``deploy-run`` reads its options (``--wait``) before it chooses MuJoCo's OpenGL backend, which
-MuJoCo loads when imported (:mod:`deploy.cli`). The names of the other modules (:class:`Runtime`
+MuJoCo loads when imported (:mod:`deploy.cli.deploy_run`). The names of the other modules
+(:class:`Runtime`
 and the stages that need MuJoCo, Pinocchio, Ruckig and numba) are imported from here when first
 used (``from deploy.runtime import Runtime`` as usual; ``_LAZY``).
 """

@@ -1,5 +1,6 @@
 """The compiled supervision and action screen of the runtime (:class:`CompiledSupervision`): the
-constants and work arrays of the kernels of :mod:`deploy.kernels.supervision`, their arguments over
+constants and work arrays of the kernels of :mod:`deploy.runtime.supervision_kernel`, their
+arguments over
 the runtime's arrays, and what Python does where a kernel says (the smoother's safe stops and
 re-syncs, policy resets, re-anchoring, the torque-mode overrides).
 
@@ -15,7 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from deploy.kernels import supervision as sv
+from deploy.runtime import supervision_kernel as sv
 from deploy.runtime.modes import (
     FAULT_CAUSES,
     HOME_TOLERANCE,
@@ -25,10 +26,10 @@ from deploy.runtime.modes import (
     Mode,
 )
 from deploy.runtime.supervision import Supervision
-from deploy.spec import PolicySpec
+from deploy.spec.policy_spec import PolicySpec
 from deploy.state import RobotState
 
-# the kernels (deploy.kernels.supervision) know the causes and modes by number
+# the kernels (deploy.runtime.supervision_kernel) know the causes and modes by number
 _CAUSE_CODES = {
     "hard_limit": sv.HARD_LIMIT,
     "non_finite_action": sv.NON_FINITE_ACTION,
@@ -45,7 +46,9 @@ if [_CAUSE_CODES[c] for c in FAULT_CAUSES] != list(range(len(FAULT_CAUSES))) or 
     sv.SAFE_STOP,
     sv.FAULTED,
 ] != [int(m) for m in Mode]:
-    raise RuntimeError("deploy.kernels.supervision: causes or modes differ from deploy.runtime")
+    raise RuntimeError(
+        "deploy.runtime.supervision_kernel: causes or modes differ from deploy.runtime"
+    )
 
 
 def _same(a: np.ndarray) -> np.ndarray:
@@ -141,7 +144,8 @@ class CompiledSupervision:
         self._current = a.reference == "current"
 
     def _supervise_args(self, state: RobotState, copy: bool = False) -> tuple:
-        """Arguments of :func:`deploy.kernels.supervision.supervise` (the written arrays copied
+        """Arguments of :func:`deploy.runtime.supervision_kernel.supervise` (the written arrays
+        copied
         with ``copy``, for the warm-up call)."""
         w = np.copy if copy else _same
         return (
@@ -169,7 +173,7 @@ class CompiledSupervision:
         )
 
     def _screen_args(self, action: np.ndarray, state: RobotState, copy: bool = False) -> tuple:
-        """Arguments of :func:`deploy.kernels.supervision.screen_action` (see
+        """Arguments of :func:`deploy.runtime.supervision_kernel.screen_action` (see
         :meth:`_supervise_args`)."""
         w = np.copy if copy else _same
         return (
@@ -198,7 +202,7 @@ class CompiledSupervision:
     def supervise(self, state: RobotState, drive_errors: np.ndarray | None) -> None:
         """The thermal derating of the guard's effort limits; stale sensors, over-temperature,
         drive errors, overruns; end of RAMP_IN and of safe stops: one kernel
-        (:func:`deploy.kernels.supervision.supervise`); Python acts where it says (the
+        (:func:`deploy.runtime.supervision_kernel.supervise`); Python acts where it says (the
         smoother's safe stops and re-syncs, policy resets, re-anchoring)."""
         if drive_errors is not None:
             if drive_errors.any():
@@ -227,7 +231,7 @@ class CompiledSupervision:
         """The screen of the policy's output (non-finite: hold the last valid action and count;
         too many in a row: safe stop), ``spec.action_to_target`` and the overrides of the envs
         not RUNNING, into the runtime's screened action and target: one kernel
-        (:func:`deploy.kernels.supervision.screen_action`); Python starts the smoother's safe
+        (:func:`deploy.runtime.supervision_kernel.screen_action`); Python starts the smoother's safe
         stop of a new non-finite-action stop and, in torque mode, the overrides (Pinocchio's
         gravity)."""
         if spec is not self._act_spec:

@@ -12,8 +12,9 @@ import time
 
 import numpy as np
 
-from deploy.estimation import JointStateEstimator
-from deploy.kernels import latency as lk
+from deploy.estimation.joints import JointStateEstimator
+from deploy.observe import latency_kernel as lk
+from deploy.observe.telemetry import BIN_NS, BINS, LatencyHistogram
 from deploy.runtime.anchoring import reanchor, tracking_tolerance
 from deploy.runtime.clock import SimClock
 from deploy.runtime.compiled import CompiledSupervision
@@ -29,12 +30,11 @@ from deploy.runtime.modes import (
     Mode,
 )
 from deploy.runtime.supervision import Supervision
-from deploy.safety import SafetyGuard
+from deploy.safety.guard import SafetyGuard
 from deploy.smoothing import CommandSmoother
-from deploy.spec import PolicySpec
+from deploy.spec.policy_spec import PolicySpec
 from deploy.state import Kinematics, RobotState
 from deploy.stateful import check, load_part, prefixed, put, scalar, take
-from deploy.telemetry import BIN_NS, BINS, LatencyHistogram
 from robots import Robot
 
 #: The tick's stages, as its latency histogram counts them (``Runtime.latency``).
@@ -51,13 +51,15 @@ class Runtime:
     Args:
         robot: Robot description.
         policy: Callable ``(envs, obs_dim) float32 -> (envs, act_dim) float32`` with a ``spec``
-            attribute (:class:`~deploy.policy.OnnxPolicy`); its ``reset(envs)`` (boolean mask
+            attribute (:class:`~deploy.policy.onnx_policy.OnnxPolicy`); its ``reset(envs)``
+            (boolean mask
             (envs,)), if it has one, is called where the policy's state must start afresh.
         backend: A :class:`~deploy.backends.base.Backend` (``read``, ``write``, ``advance``,
-            ``drive_errors``), opened: :class:`~deploy.backends.sim.SimBackend` or a servo bus.
+            ``drive_errors``), opened: :class:`~deploy.backends.sim.plant.SimBackend` or a servo
+            bus.
         clock: :class:`SimClock` (default) or :class:`WallClock`.
-        injector: Optional :class:`~deploy.faults.FaultInjector` (simulation only).
-        telemetry: Optional :class:`~deploy.telemetry.Telemetry` recorder.
+        injector: Optional :class:`~deploy.backends.sim.faults.FaultInjector` (simulation only).
+        telemetry: Optional :class:`~deploy.observe.telemetry.Telemetry` recorder.
         overrun_rate_limit: Fraction of overrun ticks over the last ``OVERRUN_WINDOW`` that makes
             a safe stop with the wall clock (default ``OVERRUN_RATE_LIMIT``, 5 %, our choice).
         reference: Run the numpy references of the tick's numeric logic (supervision, action
@@ -111,8 +113,8 @@ class Runtime:
         #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check
         self.base_estimator = self.fall_detector = None
         if robot.floating_base:
-            from deploy.base_estimation import BaseStateEstimator
-            from deploy.fall import FallDetector
+            from deploy.estimation.base import BaseStateEstimator
+            from deploy.estimation.fall import FallDetector
 
             self.state = RobotState.legged(envs, n, robot.n_feet, ambient)
             self.base_estimator = BaseStateEstimator(robot, envs)
@@ -159,7 +161,7 @@ class Runtime:
         #: the estimator's control input: the acceleration commanded over the last period (the
         #: smoother's trajectory); torque mode commands no motion, the filter runs without one
         self._input = None if self.mode_name == "torque" else self.smoother.mean_acceleration
-        # latency histograms' bins (deploy.telemetry)
+        # latency histograms' bins (deploy.observe.telemetry)
         self._bins = np.array([BIN_NS, BINS], dtype=np.int64)
         #: the compiled action screen and supervision (deploy.kernels); None with ``reference``
         self._compiled = None if reference else self._compile()
@@ -348,7 +350,8 @@ class Runtime:
     def _update_base(self, frame, state: RobotState) -> None:
         """A floating-base robot's tick: the base estimate from the IMU and leg kinematics, the
         feet's contact, the gait clock; an IMU silent past ``safety.stale_limit`` makes a safe
-        stop (stale_sensor), a fall (:class:`deploy.fall.FallDetector`) a damped one (fall)."""
+        stop (stale_sensor), a fall (:class:`deploy.estimation.fall.FallDetector`) a damped one
+        (fall)."""
         self.base_estimator.update(frame, state.q, state.dq, out=state.base)
         state.foot_contact[:] = frame.foot_contact
         state.clock[:] = self.time
@@ -480,7 +483,7 @@ class Runtime:
         seeded; a wall clock's next deadline is not state: a resumed loop starts its own).
         Then each stage's ``state_dict(env)`` under its name: ``estimator/``, ``guard/``,
         ``smoother/``, and ``policy/``, ``backend/``, ``injector/`` where the policy (a
-        recurrent one), the backend (:class:`~deploy.backends.sim.SimBackend`) or the fault
+        recurrent one), the backend (:class:`~deploy.backends.sim.plant.SimBackend`) or the fault
         injector has one.
         """
         out: dict = take(self._state_fields(), env)

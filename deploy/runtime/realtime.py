@@ -28,7 +28,7 @@ import os
 import sys
 from dataclasses import dataclass
 
-from deploy.errors import Sim2RealError
+from robots.errors import Sim2RealError
 
 #: ``mlockall`` flags (Linux, <sys/mman.h>).
 MCL_CURRENT, MCL_FUTURE = 1, 2

@@ -5,7 +5,8 @@ action) and its transitions in numpy.
 (the targets of the envs not RUNNING; the torque-mode ones need Pinocchio's gravity) and
 :meth:`~Supervision.damp` (a legged robot's stops) serve both paths of the tick;
 :meth:`~Supervision.screen` and :meth:`~Supervision.supervise` are the numpy references of the
-kernels of :mod:`deploy.kernels.supervision` (bound by :mod:`deploy.runtime.compiled`), which give
+kernels of :mod:`deploy.runtime.supervision_kernel` (bound by :mod:`deploy.runtime.compiled`),
+which give
 the same numbers bit for bit (``tests/test_compiled_tick.py``).
 """
 

@@ -3,7 +3,8 @@
 (:func:`stopping_speed`).
 
 The smoother's velocity-mode stopping guards (:mod:`deploy.smoothing.reference`,
-:mod:`deploy.kernels.smoothing`) and the safety guard's stopping bounds (:mod:`deploy.safety`) are
+:mod:`deploy.smoothing.kernel`) and the safety guard's stopping bounds
+(:mod:`deploy.safety.guard`) are
 built on them.
 """
 

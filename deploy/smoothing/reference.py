@@ -5,7 +5,7 @@ clamps counted, the velocity-mode stopping guards near the soft limits (``|v| <=
 screen of the trajectories whose extrema could leave the hard limits, and the torque-mode rate
 limit.
 
-The compiled kernels of :mod:`deploy.kernels.smoothing` do the same, bit for bit
+The compiled kernels of :mod:`deploy.smoothing.kernel` do the same, bit for bit
 (``tests/test_compiled_tick.py``). :class:`ReferenceStep` is a base class of
 :class:`~deploy.smoothing.CommandSmoother`; its methods work on the smoother's attributes (set in
 ``CommandSmoother.__init__``).

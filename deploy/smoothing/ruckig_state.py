@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 from ruckig import ControlInterface, Result, RuckigError
 
-from deploy.errors import Sim2RealError
 from deploy.stateful import env_index, put, scalar, take
+from robots.errors import Sim2RealError
 
 #: Ruckig's per-DoF input fields a smoother's state holds (``InputParameter`` attributes).
 RUCKIG_INPUT_FIELDS = (
@@ -128,7 +128,7 @@ class RuckigState:
         limits) from the state before that step. The command, Ruckig's state and input, the
         commanded position and the mean acceleration of those envs follow; the envs stay in
         normal operation (the next step plans toward their target again). Counted in
-        ``brakes``. The guard's motion envelope (:mod:`deploy.envelope`) calls it.
+        ``brakes``. The guard's motion envelope (:mod:`deploy.safety.envelope`) calls it.
 
         Args:
             envs: (envs,) bool, the envs to brake.

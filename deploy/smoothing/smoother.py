@@ -3,7 +3,7 @@ over ``envs`` (the package docstring, :mod:`deploy.smoothing`, describes the mod
 the measured state and the safe stop).
 
 It holds the limits and work arrays, the lifecycle (reset, sync, safe stop) and the tick (the
-compiled kernels of :mod:`deploy.kernels.smoothing` around Ruckig); Ruckig's call and the state
+compiled kernels of :mod:`deploy.smoothing.kernel` around Ruckig); Ruckig's call and the state
 dict come from :class:`~deploy.smoothing.ruckig_state.RuckigState`, the numpy reference of the
 step from :class:`~deploy.smoothing.reference.ReferenceStep`.
 """
@@ -22,7 +22,7 @@ from ruckig import (
     Trajectory,
 )
 
-from deploy.kernels import smoothing as sk
+from deploy.smoothing import kernel as sk
 from deploy.smoothing.braking import stopping_distance
 from deploy.smoothing.reference import ReferenceStep
 from deploy.smoothing.ruckig_state import RuckigState, SmoothingError
@@ -48,7 +48,7 @@ class CommandSmoother(RuckigState, ReferenceStep):
         mode: ``'position'`` (rad), ``'velocity'`` (rad/s) or ``'torque'`` (N m); default the
             robot's control mode.
         reference: Run the numpy reference of :meth:`step` around Ruckig instead of the compiled
-            kernels (:mod:`deploy.kernels.smoothing`, the default); both give the same numbers
+            kernels (:mod:`deploy.smoothing.kernel`, the default); both give the same numbers
             bit for bit.
 
     Attributes:
@@ -122,7 +122,7 @@ class CommandSmoother(RuckigState, ReferenceStep):
         self._guard = {k: np.zeros((2, dofs)) for k in ("u", "b", "room", "t1", "t2", "t3")}
         self._unsafe = np.zeros((2, dofs), dtype=bool)
 
-        # state and work arrays: rows of one block, the compiled step's (deploy.kernels.smoothing)
+        # state and work arrays: rows of one block, the compiled step's (deploy.smoothing.kernel)
         self._w = w = np.zeros((sk.W_ROWS, dofs))
         self.command = w[sk.CMD].reshape(shape)
         self._cmd = w[sk.CMD]
@@ -417,7 +417,7 @@ class CommandSmoother(RuckigState, ReferenceStep):
         return out
 
     def _step_compiled(self, target: np.ndarray | None, out: np.ndarray | None) -> np.ndarray:
-        """:meth:`step` with the kernels of :mod:`deploy.kernels.smoothing` around Ruckig."""
+        """:meth:`step` with the kernels of :mod:`deploy.smoothing.kernel` around Ruckig."""
         mode, w = self._kernel_mode, self._w
         has = target is not None
         sk.before_ruckig(

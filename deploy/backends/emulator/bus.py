@@ -4,7 +4,7 @@
 Feetech SCS/STS protocol or Dynamixel Protocol 2.0. The vendors' SDKs open the pty's path like a
 serial port; nothing in them knows they talk to an emulator.
 
-Plant: a :class:`deploy.backends.sim.SimBackend` (one env) of the robot, with its sensor and
+Plant: a :class:`deploy.backends.sim.plant.SimBackend` (one env) of the robot, with its sensor and
 thermal models. It advances in simulated time paced by the wall clock: before answering each
 packet, and every control period while the bus is idle, the emulator steps the plant (whole
 control periods) until it has caught up with ``time.monotonic()`` since start. When the plant
@@ -61,7 +61,7 @@ from deploy.backends.emulator.dispatch import DynamixelDispatcher, FeetechDispat
 from deploy.backends.emulator.faults import WireFaults
 from deploy.backends.emulator.servo import EmulatedServo, WriteResult
 from deploy.backends.servo.control_tables import model_for_motor
-from deploy.backends.sim import SimBackend
+from deploy.backends.sim.plant import SimBackend
 from robots import Robot, load_robot
 
 PROTOCOLS = ("feetech", "dynamixel")

@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
         run = [
             sys.executable,
             "-m",
-            "deploy.cli",
+            "deploy.cli.deploy_run",
             "--backend",
             args.protocol,
             "--port",

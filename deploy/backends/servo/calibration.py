@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deploy.errors import Sim2RealError
+from robots.errors import Sim2RealError
 
 #: Keys of one motor's entry in LeRobot's calibration JSON (``MotorCalibration`` fields).
 LEROBOT_KEYS = ("id", "drive_mode", "homing_offset", "range_min", "range_max")

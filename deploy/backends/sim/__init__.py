@@ -1,0 +1,3 @@
+"""The MuJoCo plant behind the Backend interface: the plant, its joint and base sensor models,
+its state, fault injection, and the interactive demo.
+"""

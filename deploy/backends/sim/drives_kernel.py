@@ -1,0 +1,47 @@
+"""Kernels of the simulated drives' per-tick checks (:class:`deploy.backends.sim.plant.SimBackend`):
+which envs' torque limits follow a hot winding (:func:`derating_due`) and the velocity loop's
+anti-windup screen (:func:`windup_exceeded`). Each answers whether Python must act; the action
+(setting MuJoCo's limits, clamping the setpoints) stays in the backend.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True)
+def derating_due(
+    winding: np.ndarray, start: np.ndarray, derated: np.ndarray, hot: np.ndarray
+) -> bool:
+    """Which envs a drive derates in: ``hot[e]`` (written, (envs,) bool) is whether any winding
+    of env ``e`` (``winding`` (envs, n) degC) is above its derating start (``start`` (n,) degC);
+    returns whether any env is hot or was derated before (``derated`` (envs,) bool), the
+    envs whose torque limits must be set."""
+    envs, n = winding.shape
+    due = False
+    for e in range(envs):
+        h = False
+        for j in range(n):
+            if winding[e, j] > start[j]:
+                h = True
+                break
+        hot[e] = h
+        due = due or h or derated[e]
+    return due
+
+
+@numba.njit(cache=True, nogil=True)
+def windup_exceeded(setpoint: np.ndarray, q: np.ndarray, bound: np.ndarray) -> bool:
+    """Velocity-mode anti-windup screen: turns ``setpoint`` (envs, n) rad, the drives' integrated
+    setpoints, into their lag ``setpoint - q`` (in place) and returns whether any ``|lag|``
+    exceeds ``bound`` (envs, n) rad (the present torque limit over the gain)."""
+    envs, n = setpoint.shape
+    wound = False
+    for e in range(envs):
+        for j in range(n):
+            lag = setpoint[e, j] - q[e, j]
+            setpoint[e, j] = lag
+            if abs(lag) > bound[e, j]:
+                wound = True
+    return wound

@@ -1,0 +1,258 @@
+"""Joint sensing of the MuJoCo plant: encoders and drive temperature reports.
+
+:class:`JointSensorModel` belongs to a :class:`deploy.backends.sim.plant.SimBackend`; it turns the
+plant's true joint angles and winding temperatures into what a drive reports, into the backend's
+:class:`~deploy.backends.base.SensorFrame`.
+
+Sensor model (defaults from the robot's ``[sensors]`` table), applied in this order:
+    1. a sample of the true joint angle at the encoder's own rate,
+    2. Gaussian noise (sigma ``encoder_noise_sigma``, rad; seed section 5),
+    3. quantization to the encoder resolution (``2 pi / encoder_resolution``),
+    4. dropout: each reading lost with probability ``encoder_dropout`` (per joint and reading),
+    5. latency: a reading arrives ``encoder_latency_ticks`` control ticks after it was sampled.
+Winding temperatures are reported as a drive reports them: the model's winding temperature rounded
+to ``temperature_resolution`` and refreshed at ``temperature_rate``.
+
+The noise and dropout draws come from the sensor stream(s) :attr:`JointSensorModel.rng`: one
+``numpy.random.PCG64`` for the batch, or one generator per env (:class:`PerEnvGenerators`,
+:meth:`JointSensorModel.set_streams`); a floating-base robot's IMU and contact model
+(:mod:`deploy.backends.sim.legged_sensors`) draws from the same stream(s), after the encoder.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from deploy.backends.base import SensorFrame
+from deploy.backends.sim.sensors_kernel import encoder_read, encoder_sample
+from deploy.stateful import StateDictError, rng_state, set_rng_state, to_json
+from robots import Robot
+
+
+class PerEnvGenerators:
+    """One numpy ``Generator`` per env in place of the batch's one sensor stream
+    (:meth:`~deploy.backends.sim.plant.SimBackend.set_sensor_streams`).
+
+    It answers the two calls the sensor model makes (``standard_normal(out=...)`` and
+    ``random(shape)``, arrays shaped (envs, n)) row by row from each env's own generator, so that
+    env ``e`` sees the same numbers alone or batched.
+    """
+
+    def __init__(self, generators: Sequence[np.random.Generator]):
+        self.generators = list(generators)
+
+    def standard_normal(self, size=None, dtype=np.float64, out=None):
+        out = np.empty(size, dtype=dtype) if out is None else out
+        for e, g in enumerate(self.generators):
+            g.standard_normal(dtype=dtype, out=out[e])
+        return out
+
+    def random(self, size=None, dtype=np.float64, out=None):
+        out = np.empty(size, dtype=dtype) if out is None else out
+        for e, g in enumerate(self.generators):
+            g.random(dtype=dtype, out=out[e])
+        return out
+
+
+class JointSensorModel:
+    """Encoders and winding temperature reports of ``envs`` robots (module docstring).
+
+    Args:
+        robot: The robot description (its ``[sensors]`` table, control period).
+        envs: Number of robots simulated in lockstep.
+        frame: The backend's sensor frame, whose joint position and temperature fields this model
+            fills.
+        seed: Seed of the sensor noise and dropout streams (``numpy.random.PCG64``).
+        max_latency_ticks: Capacity of the latency buffer; ``latency_ticks`` may be raised up to it
+            at run time (fault injection).
+
+    Attributes (per-env sensor settings; change them between ticks to inject faults):
+        noise_sigma: (envs,) rad. dropout_probability: (envs,). latency_ticks: (envs,) int.
+        encoder_quantum: rad, the encoder resolution. temperature_resolution: degC.
+        rng: the sensor stream(s), a ``numpy.random.Generator`` or :class:`PerEnvGenerators`.
+
+    Raises:
+        ValueError: the robot's ``encoder_latency_ticks`` above ``max_latency_ticks``.
+    """
+
+    def __init__(
+        self, robot: Robot, envs: int, frame: SensorFrame, seed: int, max_latency_ticks: int
+    ):
+        self.envs, n = envs, robot.n_joints
+        s = robot.config.sensors
+        self.noise_sigma = np.full(envs, s.encoder_noise_sigma)
+        self.dropout_probability = np.full(envs, s.encoder_dropout)
+        self.latency_ticks = np.full(envs, s.encoder_latency_ticks, dtype=np.int64)
+        if s.encoder_latency_ticks > max_latency_ticks:
+            raise ValueError(
+                f"encoder_latency_ticks = {s.encoder_latency_ticks} exceeds max_latency_ticks = "
+                f"{max_latency_ticks}"
+            )
+        self.max_latency_ticks = max_latency_ticks
+        self.encoder_quantum = 2.0 * np.pi / s.encoder_resolution
+        rate = 1.0 / robot.control_period
+        self._encoder_every = max(1, int(round(rate / s.encoder_rate)))
+        self._temperature_every = max(1, int(round(rate / s.temperature_rate)))
+        self.temperature_resolution = s.temperature_resolution
+        self.rng = np.random.Generator(np.random.PCG64(seed))
+        size = max_latency_ticks + 1
+        self._buf_position = np.full((size, envs, n), np.nan)
+        self._buf_stamp = np.full((size, envs), np.nan)
+        self._env_index = np.arange(envs)
+        self._uniform = np.zeros((envs, n))
+        self.frame = frame
+
+    @property
+    def encoder_every(self) -> int:
+        """Control ticks between two encoder samples (``control rate / encoder_rate``)."""
+        return self._encoder_every
+
+    def set_streams(self, generators: Sequence[np.random.Generator]) -> None:
+        """One generator per env in place of the batch's one stream
+        (:meth:`deploy.backends.sim.plant.SimBackend.set_sensor_streams`).
+
+        Raises:
+            ValueError: not one generator per env.
+        """
+        if len(generators) != self.envs:
+            raise ValueError(
+                f"generators: expected {self.envs} (one per env), got {len(generators)}"
+            )
+        self.rng = PerEnvGenerators(generators)
+
+    # ------------------------------------------------------------------ lifecycle
+    def clear(self) -> None:
+        """Forget every reading (the backend's clock restarts): the latency buffers and the
+        temperature stamps."""
+        self._buf_position.fill(np.nan)
+        self._buf_stamp.fill(np.nan)
+        self.frame.temperature_stamp.fill(np.nan)
+
+    def restart(self, which: np.ndarray, q: np.ndarray, time: float, ambient: np.ndarray) -> None:
+        """The envs ``which`` (bool (envs,)) restart at rest at ``q`` (rad, (restarting envs, n))
+        at ``time`` (s): their sensor history reads the pose, quantized, and their drives report
+        the ambient temperature ``ambient`` (degC, (envs, n))."""
+        quantized = np.round(q / self.encoder_quantum) * self.encoder_quantum
+        self._buf_position[:, which] = quantized
+        self._buf_stamp[:, which] = time
+        res = self.temperature_resolution
+        self.frame.winding_temperature[which] = np.round(ambient[which] / res) * res
+
+    # ------------------------------------------------------------------ per tick
+    def sample(
+        self,
+        tick: int,
+        time: float,
+        q: np.ndarray,
+        winding_temperature: np.ndarray,
+        reference: bool = False,
+    ) -> None:
+        """Take the readings due at control tick ``tick`` (s ``time``): the joint angles ``q``
+        (envs, n) rad into the latency buffer every ``encoder_every`` ticks, the winding
+        temperatures (envs, n) degC into the frame at the temperature rate.
+
+        The draws come from :attr:`rng`; the arithmetic is the kernel
+        :func:`deploy.backends.sim.sensors_kernel.encoder_sample`, or with ``reference`` its numpy
+        reference (the same readings and draws)."""
+        slot = tick % self._buf_stamp.shape[0]
+        if tick % self._encoder_every == 0:
+            sample = self._buf_position[slot]
+            self.rng.standard_normal(out=sample)
+            self.rng.random(out=self._uniform)
+            if reference:
+                sample *= self.noise_sigma[:, None]
+                sample += q
+                np.round(sample / self.encoder_quantum, out=sample)
+                sample *= self.encoder_quantum
+                sample[self._uniform < self.dropout_probability[:, None]] = np.nan
+            else:
+                encoder_sample(
+                    sample,
+                    self._uniform,
+                    q,
+                    self.noise_sigma,
+                    self.encoder_quantum,
+                    self.dropout_probability,
+                )
+            self._buf_stamp[slot] = time
+        else:
+            self._buf_position[slot] = np.nan
+            self._buf_stamp[slot] = np.nan
+        if tick % self._temperature_every == 0:
+            self._sample_temperature(time, winding_temperature)
+
+    def _sample_temperature(self, time: float, winding_temperature: np.ndarray) -> None:
+        f = self.frame
+        res = self.temperature_resolution
+        np.round(winding_temperature / res, out=f.winding_temperature)
+        f.winding_temperature *= res
+        f.temperature_stamp.fill(time)
+
+    def read(self, tick: int, reference: bool = False) -> None:
+        """Fill the frame's joint position fields with the readings arriving at ``tick``
+        (the kernel :func:`deploy.backends.sim.sensors_kernel.encoder_read`, or with ``reference``
+        its
+        numpy reference)."""
+        f = self.frame
+        if not reference:
+            encoder_read(
+                tick, self.latency_ticks, self._buf_position, self._buf_stamp, f.position,
+                f.position_stamp,
+            )  # fmt: skip
+            return
+        origin = tick - self.latency_ticks  # tick at which the arriving reading was sampled
+        slot = origin % self._buf_stamp.shape[0]
+        f.position[:] = self._buf_position[slot, self._env_index]
+        f.position_stamp[:] = self._buf_stamp[slot, self._env_index][:, None]
+        too_early = origin < 0
+        if too_early.any():
+            f.position[too_early] = np.nan
+            f.position_stamp[too_early] = np.nan
+        f.position_stamp[np.isnan(f.position)] = np.nan
+
+    # ------------------------------------------------------------------ state
+    def state_fields(self) -> dict[str, np.ndarray]:
+        """Per-env arrays of the sensor state, env axis first (for the backend's
+        ``state_dict``): settings and latency buffers (the buffers are (slots, envs, ...) inside:
+        views with the env axis moved to the front)."""
+        return {
+            "noise_sigma": self.noise_sigma,
+            "dropout_probability": self.dropout_probability,
+            "latency_ticks": self.latency_ticks,
+            "buffer/position": np.moveaxis(self._buf_position, 1, 0),
+            "buffer/stamp": np.moveaxis(self._buf_stamp, 1, 0),
+        }
+
+    def stream_state(self, env: int | None = None) -> str:
+        """JSON of the sensor streams' ``bit_generator.state``: a list over the envs (all, or env
+        ``env``) with per-env streams, the batch's one stream otherwise."""
+        if isinstance(self.rng, PerEnvGenerators):
+            envs = range(self.envs) if env is None else [env]
+            return to_json([rng_state(self.rng.generators[e]) for e in envs])
+        return to_json(rng_state(self.rng))
+
+    def check_stream_state(self, rng, envs: list[int]) -> None:
+        """Check that ``rng`` (the parsed JSON of :meth:`stream_state`) is of this model's kind of
+        streams for the envs ``envs``.
+
+        Raises:
+            StateDictError: per-env stream states for one stream, or the reverse.
+        """
+        per_env = isinstance(self.rng, PerEnvGenerators)
+        if per_env != (isinstance(rng, list) and len(rng) == len(envs)):
+            kind = f"{len(envs)} per-env stream state(s)" if per_env else "one stream's state"
+            raise StateDictError("sensor_rng", f": expected {kind}")
+
+    def load_stream_state(self, rng, envs: list[int]) -> None:
+        """Inverse of :meth:`stream_state` (parsed), checked by :meth:`check_stream_state`.
+
+        Raises:
+            StateDictError: a state of another bit generator.
+        """
+        if isinstance(self.rng, PerEnvGenerators):
+            for e, value in zip(envs, rng, strict=True):
+                set_rng_state(self.rng.generators[e], value, "sensor_rng")
+        else:
+            set_rng_state(self.rng, rng, "sensor_rng")

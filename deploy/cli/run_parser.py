@@ -1,0 +1,142 @@
+"""The command line of ``deploy-run``: its argument parser (:func:`build_parser`) and the backends
+``--backend`` chooses from (``BACKENDS``).
+
+The options are read before anything heavy is imported: this module imports neither MuJoCo nor
+numba (:mod:`deploy.runtime.clock` is MuJoCo-free), since ``deploy-run`` chooses MuJoCo's OpenGL
+backend after parsing. What the options do, and the exit codes: :mod:`deploy.cli.deploy_run`.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from deploy.runtime.clock import WAIT_MODES
+
+BACKENDS = ("sim", "feetech", "dynamixel")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The parser of ``deploy-run``'s options (:func:`deploy.cli.deploy_run.deploy_run_main`)."""
+    p = argparse.ArgumentParser(
+        prog="deploy-run",
+        description="Run an exported ONNX policy through the safety runtime.",
+        epilog="Exit codes: 0 clean, 1 hard violation, 2 latched fault, 3 bad input, "
+        "4 simulation diverged.",
+    )
+    p.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="sim",
+        help="sim (MuJoCo plant), feetech or dynamixel (serial-bus servos; wall clock only)",
+    )
+    p.add_argument("--port", default="/dev/ttyACM0", help="serial port of a servo bus")
+    p.add_argument("--baudrate", type=int, default=1_000_000, help="servo bus bit/s")
+    p.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        help="LeRobot calibration JSON (servo IDs, homing offsets, directions, ranges); "
+        "default: IDs 1..n, 2048 ticks = 0 rad",
+    )
+    p.add_argument(
+        "--hold-on-close",
+        action="store_true",
+        help="servo bus: leave the torque on at the end (default: off)",
+    )
+    p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
+    p.add_argument("--policy", required=True, help="ONNX policy (made by policy-export)")
+    p.add_argument("--spec", default=None, help="PolicySpec JSON for an ONNX without our metadata")
+    p.add_argument("--duration", type=float, default=60.0, help="seconds of (simulated) time")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--envs", type=int, default=1, help="robots simulated in lockstep")
+    p.add_argument("--realtime", action="store_true", help="wall clock with absolute deadlines")
+    p.add_argument(
+        "--overrun-limit",
+        type=float,
+        default=None,
+        help="wall clock: fraction of overrun ticks (over the last 200) that makes a safe stop "
+        "(default 0.05)",
+    )
+    p.add_argument(
+        "--wait",
+        choices=WAIT_MODES,
+        default=None,
+        help="wall clock: how to wait for each deadline: sleep, hybrid (sleep, then busy-wait "
+        "the last 150 us; default) or spin (busy-wait the whole period: one core kept hot)",
+    )
+    p.add_argument("--spin", action="store_true", help="wall clock: the same as --wait spin")
+    p.add_argument(
+        "--rt-priority",
+        type=int,
+        default=None,
+        metavar="N",
+        help="wall clock: run the loop at SCHED_FIFO priority N (1..99) where permitted "
+        "(CAP_SYS_NICE or an rtprio limit); otherwise a one-line notice and normal priority",
+    )
+    p.add_argument(
+        "--cpu",
+        default=None,
+        metavar="N[,M]",
+        help="run the loop on these CPUs (sched_setaffinity); a CPU the process may not use "
+        "is an error (exit 3)",
+    )
+    p.add_argument(
+        "--lock-memory",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="lock the process's memory (mlockall) where permitted (CAP_IPC_LOCK or a memlock "
+        "limit); default: on with --rt-priority",
+    )
+    p.add_argument(
+        "--require-rt",
+        action="store_true",
+        help="a refused --rt-priority or memory lock is an error (exit 3), not a notice",
+    )
+    p.add_argument(
+        "--command",
+        default=None,
+        help="legged robots: velocity command VX,VY,WZ (m/s, m/s, rad/s, base frame)",
+    )
+    p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
+    p.add_argument("--goal", default=None, help="fixed goal X,Y,Z (m, base frame)")
+    p.add_argument(
+        "--success-time",
+        type=float,
+        default=3.0,
+        help="a goal counts as reached within this many seconds",
+    )
+    p.add_argument(
+        "--inject",
+        action="append",
+        default=[],
+        metavar="KIND@SECONDS[:DURATION]",
+        help="fault injection (sim): dropout, stale, nan-action, latency, push",
+    )
+    p.add_argument("--report", type=Path, default=None, help="write the summary as JSON")
+    p.add_argument(
+        "--telemetry",
+        type=Path,
+        default=None,
+        help="write downsampled MCAP (with the foxglove extra: link poses, joint states, "
+        "commands and guard events in Foxglove's schemas)",
+    )
+    p.add_argument(
+        "--print-joints",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="print q, dq, command and winding temperature per joint HZ times per second",
+    )
+    p.add_argument(
+        "--video", type=Path, default=None, help="render the run offscreen to an H.264 MP4"
+    )
+    p.add_argument("--camera", default=None, help="--video: MJCF camera name (default: free)")
+    p.add_argument("--fps", type=float, default=30.0, help="--video: frames per second")
+    p.add_argument("--size", default="640x480", help="--video: WIDTHxHEIGHT pixels")
+    p.add_argument(
+        "--viewer",
+        action="store_true",
+        help="MuJoCo's interactive passive viewer (needs a display); lockstep, or --realtime",
+    )
+    return p

@@ -1,0 +1,127 @@
+"""The summary ``deploy-run`` prints at the end of a run (:func:`print_summary`).
+
+It reads the report :func:`deploy.cli.deploy_run.run` builds (the JSON of ``--report``): goals or
+the walk,
+violations (true state in simulation) and interventions, faults, the servo bus, peak winding
+temperatures, motion, the costs of the tick, the monitors and the stages, deadlines and the
+real-time settings, the final state and the exit code. It only prints; the exit code is decided
+before.
+"""
+
+from __future__ import annotations
+
+
+def print_summary(r: dict) -> None:
+    """Print the human-readable summary of a ``deploy-run`` report (the dict ``--report`` writes
+    as JSON), one line per topic."""
+    print(
+        f"deploy-run: {r['robot']}, {r['control_mode']} control at {r['control_rate_hz']:.0f} Hz, "
+        f"{r['duration_s']:.1f} s {'wall-clock' if r['realtime'] else 'simulated'} "
+        f"in {r['wall_s']:.2f} s"
+    )
+    g, loco = r["goals"], r.get("locomotion")
+    if g is not None:
+        rate = f"{100 * g['success_rate']:.1f} %" if g["success_rate"] is not None else "n/a"
+        print(
+            f"  goals reached     {g['reached']}/{g['issued']} within {g['within_s']:.1f} s "
+            f"({rate})"
+        )
+    if loco is not None:
+        speed, track = loco["mean_forward_speed_m_s"], loco["tracking_success"]
+        print(
+            f"  walked            {loco['distance_m']:.2f} m, mean forward speed "
+            + (f"{speed:.3f} m/s" if speed is not None else "n/a")
+            + f" (command {', '.join(f'{c:g}' for c in loco['command'][0])}); tracking "
+            + (f"{100 * track:.1f} %" if track is not None else "n/a")
+            + f" of RUNNING time within {loco['tracking_tolerance_m_s']} m/s; falls {loco['falls']}"
+        )
+    v = r["violations"]
+    if v is not None:
+        text = ", ".join(f"{k} {n}" for k, n in v["by_type"].items())
+        print(f"  violations (true state, sim)  ticks: {text}")
+        hard = r.get("hard_violations")
+        if hard:
+            kinds = ", ".join(f"{k} {n}" for k, n in hard.items())
+            print(f"  HARD VIOLATIONS   {kinds} ticks (true state): the run fails (exit code 1)")
+    else:
+        print(
+            "  violations        n/a (no ground truth on a servo bus; the guard's hard-limit "
+            f"stops: {r['faults']['by_cause']['hard_limit']})"
+        )
+    iv = r["interventions"]
+    text = ", ".join(
+        f"{k} {100 * c['fraction']:.2f}" for k, c in iv["checks"].items() if c["count"]
+    )
+    warn = iv["warnings"]["soft_band_estimate"]
+    print(
+        f"  interventions (% of ticks)    any {100 * iv['any']['fraction']:.2f}"
+        + (f" ({text})" if text else "")
+        + f"; warning: estimate in soft band {100 * warn['fraction']:.2f}"
+    )
+    f = r["faults"]
+    causes = ", ".join(f"{k} {n}" for k, n in f["by_cause"].items() if n) or "none"
+    print(
+        f"  faults            non-finite actions {f['non_finite_actions']}, safe stops "
+        f"{f['safe_stops']} ({causes}"
+        + (
+            f"; not at rest, timed out {f['safe_stop_timeouts']}"
+            if f.get("safe_stop_timeouts")
+            else ""
+        )
+        + f"); estimator: stale {f['estimator']['stale_readings']}, "
+        f"missing {f['estimator']['missing_readings']}, re-inits "
+        f"{f['estimator']['reinitializations']}"
+    )
+    for text in f.get("drive_errors", []):
+        print(f"  servo error       {text}")
+    b = r.get("bus")
+    if b:
+        rd, wr = b["read_us"], b["write_us"]
+        drops = ", ".join(f"{k} {n}" for k, n in b["dropouts"].items())
+        print(
+            f"  bus               {b['protocol']} {b['port']} at {b['baudrate']} bit/s: "
+            f"{b['sync_reads']} sync reads, dropouts {drops} "
+            f"({100 * b['dropout_fraction']:.2f} % of replies); read p50 {rd['p50_us']:.0f} "
+            f"p99 {rd['p99_us']:.0f} us, write p50 {wr['p50_us']:.0f} us"
+        )
+    temps = ", ".join(f"{k} {t:.1f}" for k, t in r["peak_winding_temperature_c"].items())
+    print(f"  peak winding degC {temps}")
+    speed = max(r["max_joint_speed_rad_s"].values())
+    jerk = ", ".join(f"{k} {v:.0f}" for k, v in r["mean_abs_jerk_rad_s3"].items())
+    source = "true" if r["violations"] is not None else "estimated"
+    print(f"  max joint speed   {speed:.2f} rad/s; mean |jerk| rad/s^3 ({source}, RUNNING) {jerk}")
+    t = r["tick_cost_us"]
+    print(
+        f"  tick cost (us)    p50 {t['p50_us']:.1f}  p99 {t['p99_us']:.1f}  "
+        f"p99.9 {t['p99.9_us']:.1f}  (runtime, without physics)"
+    )
+    m = r["monitor_cost_us"]
+    print(
+        f"  monitors (us)     p50 {m['p50_us']:.1f}  p99 {m['p99_us']:.1f}  (violations + "
+        "interventions, per tick, outside the runtime)"
+    )
+    stages = "  ".join(f"{k} {s['p50_us']:.0f}" for k, s in r["stage_cost_us"].items())
+    print(f"  stages p50 (us)   {stages}")
+    d = r["deadline"]
+    line = f"  deadlines         overruns {d['overruns']}, missed periods {d['missed_periods']}"
+    if d["jitter_us"]:
+        j = d["jitter_us"]
+        line += f", jitter p50 {j['p50_us']:.1f} p99 {j['p99_us']:.1f} p99.9 {j['p99.9_us']:.1f} us"
+    print(line)
+    rts = r.get("realtime_settings")
+    if rts and (r["realtime"] or rts["requested"]["cpus"] is not None):
+        sched = rts["scheduler"] or "scheduler unknown"
+        if rts["scheduler"] == "SCHED_FIFO":
+            sched += f" {rts['priority']}"
+        print(
+            f"  real time         wait {d.get('wait') or 'none (lockstep)'}, {sched}, CPUs "
+            f"{','.join(map(str, rts['cpus']))}, memory "
+            f"{'locked' if rts['memory_locked'] else 'not locked'}"
+        )
+    print(
+        f"  final state       {', '.join(r['final_state'])}"
+        + (f" ({', '.join(c for c in r['final_cause'] if c)})" if any(r["final_cause"]) else "")
+    )
+    if r["diverged"]:
+        print(f"  SIMULATION DIVERGED: {r['diverged']}")
+    print(f"  exit code         {r['exit_code']}")

@@ -1,0 +1,517 @@
+"""Base state estimation of a floating-base (legged) robot: attitude, angular and linear velocity.
+
+Two filters per env, fed by a :class:`~deploy.backends.base.SensorFrame`'s IMU and foot-contact
+fields and by the joint estimator's ``q``, ``dq``
+(:class:`deploy.estimation.joints.JointStateEstimator`):
+
+Attitude: Mahony's explicit complementary filter with gyroscope bias estimation (R. Mahony, T.
+Hamel, J.-M. Pflimlin, "Nonlinear complementary filters on the special orthogonal group", IEEE
+TAC 53(5), 2008), as the maintained ``ahrs`` package implements it
+(``ahrs.filters.Mahony.updateIMU``; gains ``k_P = 1``, ``k_I = 0.3``, the package's defaults):
+the default implementation (``"vectorized"``) runs the same update over every env at once
+(:func:`mahony_update`); ``"filterpy"`` calls one ``ahrs`` filter per env, the reference it is
+tested against (equal within 1e-12).
+The IMU readings are turned into the base frame first (the IMU site's fixed orientation on the
+base); the lever arm of the accelerometer is neglected. Outputs: the orientation (yaw drifts:
+nothing observes it), the projected gravity ``R^T [0, 0, -1]`` (unit vector, base frame) and the
+bias-corrected angular velocity (rad/s, base frame).
+
+Linear velocity: the kinematic-inertial Kalman filter of legged robots (M. Bloesch et al., "State
+estimation for legged robots: consistent fusion of leg kinematics and IMU", RSS 2012; the linear
+form of G. Bledt et al., "MIT Cheetah 3", IROS 2018): state ``v``, the base velocity in the world
+frame (m/s); the accelerometer is the control input of the prediction, every leg in contact
+measures ``v``::
+
+    predict:  v' = v + dt (R a + g)               Q = dt^2 (accel_sigma^2 + accel_bias_sigma^2) I
+    update:   z = R mean_i(-(omega x p_i + J_i(q) dq))   R_z = leg_sigma^2 / n_contact I
+
+with ``p_i`` the foot position and ``J_i`` its Jacobian in the base frame (Pinocchio, the base
+held; one call per env in contact). With isotropic ``Q`` and ``R_z`` the covariance stays ``p I``:
+the default implementation (``"vectorized"``) runs that scalar recursion over the envs at once;
+``"filterpy"`` runs one ``filterpy.kalman.KalmanFilter(dim_x=3, dim_z=3)`` per env, the reference
+it is tested against.
+
+Missing and stale data, as in the joint estimator: an IMU reading that is NaN, not newer than
+the last one absorbed or stamped after the frame's time is not fed to any filter (counted in
+``missing_readings`` / ``stale_readings``); the output is then predicted from the last absorbed
+reading to ``frame.time`` (the orientation turned by the last angular velocity, the velocity
+held), and ``time_since_fresh`` grows (the runtime decides when that is too old). Contacts
+without a fresh stamp give no velocity update.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+from filterpy.kalman import KalmanFilter
+
+from deploy.backends.base import SensorFrame
+from deploy.stateful import check, env_index, put, take
+from robots import Robot
+
+IMPLEMENTATIONS: tuple[str, ...] = ("vectorized", "filterpy")
+#: Standard gravity, m/s^2 (the world's gravity is read from the robot's model).
+#: Leg odometry noise, m/s (our choice): foot roll and micro-slip of a point foot, and the joint
+#: velocity estimate's noise through the leg Jacobian (about 0.3 m/rad).
+LEG_VELOCITY_SIGMA = 0.1
+#: Initial velocity standard deviation, m/s (our choice: a robot reset at rest).
+INITIAL_VELOCITY_SIGMA = 0.1
+#: An accelerometer reading within this fraction of gravity's magnitude is taken as the robot at
+#: rest when the filter starts (our choice: 10 %, about 6 times the seed's largest accelerometer
+#: noise, 0.1 m/s^2 x bias). Dropped onto its feet at the start of a soak session, a Go2 read
+#: a specific force that put its initial tilt estimate at 0.29 rad (true 0.006): the policy
+#: answered a tilt that was not there and fell within 0.5 s.
+REST_ACCELERATION_TOLERANCE = 0.1
+
+
+def _quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of quaternions ``[w, x, y, z]`` (..., 4)."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def mahony_update(
+    quaternion: np.ndarray,
+    bias: np.ndarray,
+    gyro: np.ndarray,
+    acceleration: np.ndarray,
+    dt: np.ndarray,
+    k_p: float,
+    k_i: float,
+) -> np.ndarray:
+    """One step of ``ahrs.filters.Mahony.updateIMU`` for k filters at once.
+
+    Args:
+        quaternion: (k, 4) base-to-world ``[w, x, y, z]`` (normalized first, as ``ahrs`` does).
+        bias: (k, 3) rad/s, the gyro bias estimates; updated in place.
+        gyro: (k, 3) rad/s and acceleration: (k, 3) m/s^2, base frame.
+        dt: (k,) s. k_p, k_i: the gains.
+
+    Returns:
+        (k, 4) the new unit quaternions. A zero gyro reading leaves its quaternion and bias
+        unchanged and a zero acceleration skips the correction, as in ``ahrs``.
+    """
+    q = quaternion / np.linalg.norm(quaternion, axis=1, keepdims=True)
+    moving = np.linalg.norm(gyro, axis=1) != 0
+    a_norm = np.linalg.norm(acceleration, axis=1)
+    corrected = moving & (a_norm > 0)
+    up = quaternion_to_matrix(q)[:, 2, :]  # R^T [0, 0, 1]
+    safe = np.where(a_norm > 0, a_norm, 1.0)[:, None]
+    error = np.cross(acceleration / safe, up) * corrected[:, None]
+    bias += (-k_i * error) * dt[:, None]
+    omega = np.where(corrected[:, None], gyro - bias + k_p * error, gyro)
+    rate = 0.5 * _quat_multiply(q, np.concatenate([np.zeros((len(q), 1)), omega], axis=1))
+    new = q + rate * dt[:, None]
+    new /= np.linalg.norm(new, axis=1, keepdims=True)
+    return np.where(moving[:, None], new, q)
+
+
+def rotation_quaternions(rotvec: np.ndarray) -> np.ndarray:
+    """Quaternions ``[w, x, y, z]`` (k, 4) of rotation vectors (k, 3) rad (below 1e-12 rad the
+    first-order ``[1, rotvec / 2]``)."""
+    angle = np.linalg.norm(rotvec, axis=1)
+    small = angle < 1e-12
+    half = np.where(small, 0.5, np.sin(angle / 2) / np.where(small, 1.0, angle))
+    w = np.where(small, 1.0, np.cos(angle / 2))
+    return np.concatenate([w[:, None], rotvec * half[:, None]], axis=1)
+
+
+def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions ``[w, x, y, z]`` (..., 4)."""
+    w, x, y, z = np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
+
+
+def projected_gravity(q: np.ndarray) -> np.ndarray:
+    """Unit gravity direction in the base frame, ``R^T [0, 0, -1]``, (..., 3), for base-to-world
+    quaternions ``[w, x, y, z]`` (..., 4)."""
+    return -quaternion_to_matrix(q)[..., 2, :]
+
+
+def tilt_of(gravity: np.ndarray) -> np.ndarray:
+    """Angle (rad) between the base's z axis and the world's up, (...,), from projected gravity
+    (..., 3): 0 upright, pi/2 on its side, pi upside down."""
+    g = np.asarray(gravity, dtype=np.float64)
+    g = g / np.linalg.norm(g, axis=-1, keepdims=True)
+    return np.arccos(np.clip(-g[..., 2], -1.0, 1.0))
+
+
+@dataclass
+class BaseState:
+    """The base estimate of ``envs`` robots at ``frame.time``.
+
+    Attributes:
+        orientation: (envs, 4) base-to-world unit quaternion ``[w, x, y, z]`` (yaw unobserved).
+        projected_gravity: (envs, 3) unit vector, gravity's direction in the base frame.
+        angular_velocity: (envs, 3) rad/s, base frame, gyroscope bias removed.
+        linear_velocity: (envs, 3) m/s, base frame.
+        linear_velocity_world: (envs, 3) m/s, in the (yaw-drifting) world frame of the filter.
+    """
+
+    orientation: np.ndarray
+    projected_gravity: np.ndarray
+    angular_velocity: np.ndarray
+    linear_velocity: np.ndarray
+    linear_velocity_world: np.ndarray
+
+    @classmethod
+    def zeros(cls, envs: int) -> BaseState:
+        q = np.zeros((envs, 4))
+        q[:, 0] = 1.0
+        g = np.zeros((envs, 3))
+        g[:, 2] = -1.0
+        return cls(q, g, np.zeros((envs, 3)), np.zeros((envs, 3)), np.zeros((envs, 3)))
+
+    def set_truth(self, truth: np.ndarray) -> BaseState:
+        """Fill every field from a simulated base's true state (evaluation, parity replays and
+        training rewards): ``truth`` (envs, 13) as :meth:`deploy.backends.sim.plant.SimBackend.
+        true_base_state` gives it (position m, quaternion ``[w, x, y, z]``, linear velocity m/s
+        world, angular velocity rad/s base frame). Returns self."""
+        rot = quaternion_to_matrix(truth[:, 3:7])
+        velocity = truth[:, 7:10]
+        self.orientation[:] = truth[:, 3:7]
+        self.projected_gravity[:] = -rot[:, 2]
+        self.angular_velocity[:] = truth[:, 10:13]
+        self.linear_velocity_world[:] = velocity
+        self.linear_velocity[:] = np.matmul(rot.transpose(0, 2, 1), velocity[:, :, None])[:, :, 0]
+        return self
+
+    @property
+    def tilt(self) -> np.ndarray:
+        """(envs,) rad, angle between the base's z axis and the world's up (:func:`tilt_of`)."""
+        return tilt_of(self.projected_gravity)
+
+
+class BaseStateEstimator:
+    """Attitude and base velocity filters of ``envs`` floating-base robots (module docstring).
+
+    Args:
+        robot: A floating-base robot (``robot.floating_base``).
+        envs: Batch size.
+        k_p, k_i: Mahony's proportional and integral (gyro bias) gains, rad/s per unit error
+            (``ahrs`` defaults).
+        leg_sigma: Leg odometry noise, m/s (``LEG_VELOCITY_SIGMA``).
+        implementation: ``"vectorized"`` (default) or ``"filterpy"`` (reference) for the
+            velocity filter.
+
+    Attributes:
+        velocity_variance: (envs,) m^2/s^2, the velocity filter's covariance ``p`` (``P = p I``).
+        filter_time: (envs,) s, stamp of the last absorbed IMU reading.
+        time_since_fresh: (envs,) s, ``frame.time - filter_time`` at the last update.
+        missing_readings, stale_readings: (envs,) int IMU readings not absorbed.
+        velocity_updates: (envs,) int leg-odometry updates absorbed.
+
+    Raises:
+        ValueError: a fixed-base robot, ``envs < 1`` or an unknown implementation.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        envs: int,
+        k_p: float = 1.0,
+        k_i: float = 0.3,
+        leg_sigma: float = LEG_VELOCITY_SIGMA,
+        implementation: str = "vectorized",
+    ):
+        from ahrs.filters import Mahony
+
+        if not robot.floating_base:
+            raise ValueError(f"robot {robot.name}: base estimation needs a floating base")
+        if envs < 1:
+            raise ValueError(f"envs must be >= 1, got {envs}")
+        if implementation not in IMPLEMENTATIONS:
+            raise ValueError(
+                f"implementation '{implementation}' is unknown; expected one of {IMPLEMENTATIONS}"
+            )
+        self.robot, self.envs, self.implementation = robot, envs, implementation
+        imu = robot.config.sensors.imu
+        self.accel_variance = imu.accel_noise_sigma**2 + imu.accel_bias_sigma**2
+        self.leg_variance = float(leg_sigma) ** 2
+        self.gravity = np.array(robot.mj_model.opt.gravity, dtype=np.float64)
+        # the IMU site's orientation on the base (the site sits on the base body: checked)
+        m = robot.mj_model
+        if m.body(m.site_bodyid[robot.imu_site_id]).name != robot.base_body:
+            raise ValueError(f"robot {robot.name}: the IMU site is not on the base body")
+        self._imu_to_base = quaternion_to_matrix(m.site_quat[robot.imu_site_id])
+        self.k_p, self.k_i = float(k_p), float(k_i)
+        #: (envs, 3) rad/s, Mahony's gyro bias (the vectorized filter's; the reference keeps it
+        #: in its ``ahrs`` objects)
+        self._bias = np.zeros((envs, 3))
+        self._mahony = []
+        self._kfs: list[KalmanFilter] = []
+        if implementation == "filterpy":
+            frequency = 1.0 / robot.control_period
+            self._mahony = [Mahony(k_P=k_p, k_I=k_i, frequency=frequency) for _ in range(envs)]
+            for _ in range(envs):
+                kf = KalmanFilter(dim_x=3, dim_z=3)
+                kf.F = np.eye(3)
+                kf.H = np.eye(3)
+                self._kfs.append(kf)
+        self._pin = robot.pin_model.createData()
+        self._q = robot.pin_configuration(robot.home)
+        self._v = np.zeros(robot.pin_model.nv)
+        self.orientation = np.tile([1.0, 0.0, 0.0, 0.0], (envs, 1))
+        self.angular_velocity = np.zeros((envs, 3))
+        self.velocity = np.zeros((envs, 3))
+        self.velocity_variance = np.full(envs, INITIAL_VELOCITY_SIGMA**2)
+        self.filter_time = np.full(envs, np.nan)
+        self.time_since_fresh = np.full(envs, np.inf)
+        self.missing_readings = np.zeros(envs, dtype=np.int64)
+        self.stale_readings = np.zeros(envs, dtype=np.int64)
+        self.velocity_updates = np.zeros(envs, dtype=np.int64)
+        self._initialized = np.zeros(envs, dtype=bool)
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self, t, acceleration: np.ndarray | None = None, envs=None) -> None:
+        """Start the filters at rest at time ``t`` (s; float or (envs,)).
+
+        ``acceleration``: (envs, 3) accelerometer readings (m/s^2, IMU frame) of the robot at
+        rest: the initial roll and pitch put them along the world's up (yaw 0); default upright.
+        A reading whose magnitude is more than ``REST_ACCELERATION_TOLERANCE`` from gravity's is
+        not the robot at rest (dropped on its feet, landing) and is ignored: upright.
+        Gyro bias estimates restart at 0, velocity at 0 with ``INITIAL_VELOCITY_SIGMA``.
+        ``envs``: bool mask or indices (default all).
+
+        Raises:
+            ValueError: a non-finite ``t`` or acceleration in a reset env.
+        """
+        sel = np.arange(self.envs)[slice(None) if envs is None else envs]
+        t = np.broadcast_to(np.asarray(t, dtype=np.float64), (self.envs,))
+        if not np.isfinite(t[sel]).all():
+            raise ValueError("reset: t must be finite")
+        for e in sel:
+            q = np.array([1.0, 0.0, 0.0, 0.0])
+            if acceleration is not None:
+                a = self._imu_to_base @ np.asarray(acceleration[e], dtype=np.float64)
+                if not (np.isfinite(a).all() and np.linalg.norm(a) > 0):
+                    raise ValueError(f"reset: env {e}: acceleration {a} is not a finite reading")
+                g = np.linalg.norm(self.gravity)
+                if abs(np.linalg.norm(a) - g) <= REST_ACCELERATION_TOLERANCE * g:
+                    q = _align_up(a / np.linalg.norm(a))
+            self.orientation[e] = q
+            self._bias[e] = 0.0
+            if self._mahony:
+                self._mahony[e].b = np.zeros(3)
+            if self._kfs:
+                self._kfs[e].x = np.zeros((3, 1))
+                self._kfs[e].P = np.eye(3) * INITIAL_VELOCITY_SIGMA**2
+        self.angular_velocity[sel] = 0.0
+        self.velocity[sel] = 0.0
+        self.velocity_variance[sel] = INITIAL_VELOCITY_SIGMA**2
+        self.filter_time[sel] = t[sel]
+        self.time_since_fresh[sel] = 0.0
+        for counter in (self.missing_readings, self.stale_readings, self.velocity_updates):
+            counter[sel] = 0
+        self._initialized[sel] = True
+
+    # ------------------------------------------------------------------ state
+    def _state_fields(self) -> dict[str, np.ndarray]:
+        return {
+            "orientation": self.orientation,
+            "angular_velocity": self.angular_velocity,
+            "velocity": self.velocity,
+            "velocity_variance": self.velocity_variance,
+            "filter_time": self.filter_time,
+            "time_since_fresh": self.time_since_fresh,
+            "missing_readings": self.missing_readings,
+            "stale_readings": self.stale_readings,
+            "velocity_updates": self.velocity_updates,
+            "initialized": self._initialized,
+        }
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """The filters' state (copies; conventions of :mod:`deploy.stateful`): the attributes
+        of the class docstring, ``orientation`` (envs, 4), ``angular_velocity`` (envs, 3) rad/s,
+        ``velocity`` (envs, 3) m/s (world), ``gyro_bias`` (envs, 3) rad/s (Mahony's integral
+        term) and ``initialized`` (envs,) bool; the env axis has length 1 for one env ``env``.
+        The filterpy reference's ``x`` and ``P`` are ``velocity`` and ``velocity_variance I``."""
+        out = take(self._state_fields(), env)
+        bias = self._bias
+        if self._mahony:
+            bias = np.array([np.asarray(f.b, dtype=np.float64) for f in self._mahony])
+        out["gyro_bias"] = bias[env_index(env)].copy()
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``).
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        bias = np.zeros((self.envs, 3))
+        check({"gyro_bias": bias}, state, env)
+        put(self._state_fields(), state, env)
+        sel = np.arange(self.envs)[env_index(env)]
+        for k, e in enumerate(sel):
+            self._bias[e] = state["gyro_bias"][k]
+            if self._mahony:
+                self._mahony[e].b = np.array(state["gyro_bias"][k], dtype=np.float64)
+            if self._kfs:
+                self._kfs[e].x = self.velocity[e].reshape(3, 1).copy()
+                self._kfs[e].P = np.eye(3) * self.velocity_variance[e]
+
+    # ------------------------------------------------------------------ the tick
+    def update(
+        self, frame: SensorFrame, q: np.ndarray, dq: np.ndarray, out: BaseState | None = None
+    ) -> BaseState:
+        """Absorb the frame's fresh IMU and contact readings; the base estimate at ``frame.time``.
+
+        Args:
+            frame: A floating-base robot's frame (IMU and contact fields set).
+            q, dq: (envs, n_joints) rad, rad/s, the joint estimate (``RobotState.q``, ``dq``).
+            out: A :class:`BaseState` to fill (default: a new one).
+
+        Raises:
+            RuntimeError: :meth:`reset` was not called for every env.
+            ValueError: a frame without IMU fields.
+        """
+        if not self._initialized.all():
+            raise RuntimeError("BaseStateEstimator.update before reset(t) of every env")
+        if frame.imu_stamp is None:
+            raise ValueError("frame: no IMU fields (a floating-base robot's frame expected)")
+        out = BaseState.zeros(self.envs) if out is None else out
+        if self.implementation == "filterpy":
+            for e in range(self.envs):
+                self._update_env(e, frame, q[e], dq[e], out)
+            return out
+        now, stamp = frame.time, frame.imu_stamp
+        gyro, acc = frame.imu_angular_velocity, frame.imu_acceleration
+        finite = np.isfinite(stamp) & np.isfinite(gyro).all(axis=1) & np.isfinite(acc).all(axis=1)
+        with np.errstate(invalid="ignore"):  # NaN stamps are not fresh
+            fresh = finite & (self.filter_time < stamp) & (stamp <= now)
+        self.missing_readings += ~finite
+        self.stale_readings += finite & ~fresh
+        if fresh.any():
+            e = np.nonzero(fresh)[0]
+            dt = stamp[e] - self.filter_time[e]
+            gyro_b, acc_b = gyro[e] @ self._imu_to_base.T, acc[e] @ self._imu_to_base.T
+            bias = self._bias[e]
+            quat = mahony_update(self.orientation[e], bias, gyro_b, acc_b, dt, self.k_p, self.k_i)
+            self._bias[e] = bias
+            self.orientation[e] = quat
+            self.angular_velocity[e] = gyro_b - bias
+            rot = quaternion_to_matrix(quat)
+            self.velocity[e] += dt[:, None] * (np.einsum("eij,ej->ei", rot, acc_b) + self.gravity)
+            self.velocity_variance[e] += dt * dt * self.accel_variance
+            self.filter_time[e] = stamp[e]
+            for k, env in enumerate(e):
+                self._leg_update(env, frame, q[env], dq[env], rot[k])
+        # output: predicted from filter_time to now (orientation turned by omega; v held)
+        age = now - self.filter_time
+        self.time_since_fresh[:] = age
+        turn = rotation_quaternions(self.angular_velocity * np.maximum(age, 0.0)[:, None])
+        quat = np.where(
+            (age > 0)[:, None], _quat_multiply(self.orientation, turn), self.orientation
+        )
+        rot = quaternion_to_matrix(quat)
+        out.orientation[:] = quat
+        out.projected_gravity[:] = -rot[:, 2]
+        out.angular_velocity[:] = self.angular_velocity
+        out.linear_velocity_world[:] = self.velocity
+        out.linear_velocity[:] = np.einsum("eji,ej->ei", rot, self.velocity)
+        return out
+
+    def _update_env(self, e: int, frame: SensorFrame, q, dq, out: BaseState) -> None:
+        """The reference's update of env ``e`` (``ahrs`` and filterpy)."""
+        now, stamp = float(frame.time[e]), float(frame.imu_stamp[e])
+        gyro, acc = frame.imu_angular_velocity[e], frame.imu_acceleration[e]
+        if not (np.isfinite(stamp) and np.isfinite(gyro).all() and np.isfinite(acc).all()):
+            self.missing_readings[e] += 1
+        elif not (self.filter_time[e] < stamp <= now):
+            self.stale_readings[e] += 1
+        else:
+            dt = stamp - self.filter_time[e]
+            gyro_b, acc_b = self._imu_to_base @ gyro, self._imu_to_base @ acc
+            filt = self._mahony[e]
+            quat = filt.updateIMU(self.orientation[e], gyr=gyro_b, acc=acc_b, dt=dt)
+            self.orientation[e] = quat / np.linalg.norm(quat)
+            self.angular_velocity[e] = gyro_b - filt.b
+            rot = quaternion_to_matrix(self.orientation[e])
+            self._predict_velocity(e, dt, rot @ acc_b + self.gravity)
+            self.filter_time[e] = stamp
+            self._leg_update(e, frame, q, dq, rot)
+        # output: predicted from filter_time to now (orientation turned by omega; v held)
+        age = now - self.filter_time[e]
+        self.time_since_fresh[e] = age
+        quat = self.orientation[e]
+        if age > 0:
+            turn = rotation_quaternions((self.angular_velocity[e] * age)[None])[0]
+            quat = _quat_multiply(quat, turn)
+        rot = quaternion_to_matrix(quat)
+        out.orientation[e] = quat
+        out.projected_gravity[e] = -rot[2]
+        out.angular_velocity[e] = self.angular_velocity[e]
+        out.linear_velocity_world[e] = self.velocity[e]
+        out.linear_velocity[e] = rot.T @ self.velocity[e]
+
+    def _predict_velocity(self, e: int, dt: float, acceleration: np.ndarray) -> None:
+        """The reference's prediction (filterpy)."""
+        kf = self._kfs[e]
+        kf.B = np.eye(3) * dt
+        kf.Q = np.eye(3) * dt * dt * self.accel_variance
+        kf.predict(u=acceleration.reshape(3, 1))
+        self.velocity[e] = kf.x[:, 0]
+        self.velocity_variance[e] = kf.P[0, 0]
+
+    def _leg_update(self, e: int, frame: SensorFrame, q, dq, rot: np.ndarray) -> None:
+        contact = frame.foot_contact[e]
+        if not (np.isfinite(frame.contact_stamp[e]) and contact.any()):
+            return
+        if not (np.isfinite(q).all() and np.isfinite(dq).all()):
+            return
+        model, data = self.robot.pin_model, self._pin
+        self._q[7:] = q
+        self._v[3:6] = self.angular_velocity[e]
+        self._v[6:] = dq
+        pin.forwardKinematics(model, data, self._q, self._v)
+        feet = [f for f, c in zip(self.robot.foot_frame_ids, contact, strict=True) if c]
+        foot_velocity = np.mean(
+            [pin.getFrameVelocity(model, data, f, pin.LOCAL_WORLD_ALIGNED).linear for f in feet],
+            axis=0,
+        )
+        z = rot @ -foot_velocity  # the base's velocity, world frame
+        r_var = self.leg_variance / len(feet)
+        self.velocity_updates[e] += 1
+        if self._kfs:
+            kf = self._kfs[e]
+            kf.R = np.eye(3) * r_var
+            kf.update(z.reshape(3, 1))
+            kf.P = (kf.P + kf.P.T) / 2
+            self.velocity[e] = kf.x[:, 0]
+            self.velocity_variance[e] = kf.P[0, 0]
+            return
+        p = self.velocity_variance[e]
+        gain = p / (p + r_var)
+        self.velocity[e] += gain * (z - self.velocity[e])
+        # Joseph form (filterpy's): (1 - k)^2 p + k^2 r = (1 - k) p for the optimal gain
+        self.velocity_variance[e] = (1 - gain) ** 2 * p + gain**2 * r_var
+
+
+def _align_up(up: np.ndarray) -> np.ndarray:
+    """Base-to-world quaternion (yaw 0) that turns the unit vector ``up`` (base frame) onto the
+    world's +z."""
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(up, z)
+    s, c = np.linalg.norm(axis), float(np.dot(up, z))
+    if s < 1e-12:
+        return np.array([1.0, 0.0, 0.0, 0.0]) if c > 0 else np.array([0.0, 1.0, 0.0, 0.0])
+    return rotation_quaternions((axis / s * np.arctan2(s, c))[None])[0]

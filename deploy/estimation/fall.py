@@ -1,0 +1,83 @@
+"""Fall detection of a floating-base (legged) robot, from what the robot itself measures.
+
+A robot has fallen when its base is tilted past ``safety.fall_tilt`` (rad, the angle between the
+base's z axis and the world's up, from the attitude filter's projected gravity) or when, with a
+foot on the ground, its base is lower than ``safety.fall_height`` (m) above the feet in contact:
+the kinematic base height, ``max_i -(R p_i)_z`` over the feet ``i`` in contact, ``p_i`` the foot
+position in the base frame (Pinocchio, joint estimate) and ``R`` the estimated orientation. No
+ground truth is read: the same check runs on hardware.
+
+The runtime's response (:mod:`deploy.runtime`, cause ``fall``): a safe stop whose command is
+joint damping (position mode: the target follows the measured pose, so the PD servo applies
+``-kd dq`` only; what Unitree's deploy code does after a fall), latched in FAULTED until an
+operator's reset. Every other safe stop of a legged robot damps the same way: holding a stance
+against gravity is what overheats its motors.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from deploy.estimation.base import quaternion_to_matrix, tilt_of
+from deploy.state import RobotState
+from robots import Robot
+
+#: Default tilt limit, rad (our choice): a walking quadruped's base stays within ~0.3 rad of
+#: upright; past 1 rad (57 deg) it cannot catch itself.
+FALL_TILT = 1.0
+#: Default height limit, m (our choice): about half a Go2's calf (0.21 m), the base near the floor.
+FALL_HEIGHT = 0.12
+
+
+class FallDetector:
+    """The fall check of ``robot`` (module docstring).
+
+    Args:
+        robot: A floating-base robot; ``robot.config.safety.fall_tilt`` (rad) and
+            ``fall_height`` (m) are its limits (default ``FALL_TILT``, ``FALL_HEIGHT``).
+        envs: Batch size.
+
+    Attributes:
+        tilt_limit: rad. height_limit: m (0 disables the height check).
+        height: (envs,) m, the last kinematic base height (NaN with no foot in contact).
+
+    Raises:
+        ValueError: a fixed-base robot.
+    """
+
+    def __init__(self, robot: Robot, envs: int):
+        if not robot.floating_base:
+            raise ValueError(f"robot {robot.name}: fall detection needs a floating base")
+        s = robot.config.safety
+        self.tilt_limit = float(FALL_TILT if s.fall_tilt is None else s.fall_tilt)
+        self.height_limit = float(FALL_HEIGHT if s.fall_height is None else s.fall_height)
+        self.model = robot.fixed_base_model
+        self.data = self.model.createData()
+        # the foot sites' frames in the fixed-base model (same names as in pin_model)
+        frames = [robot.pin_model.frames[f] for f in robot.foot_frame_ids]
+        self.feet = [self.model.getFrameId(f.name, f.type) for f in frames]
+        self.height = np.full(envs, np.nan)
+
+    def check(self, state: RobotState) -> np.ndarray:
+        """(envs,) bool: the envs whose estimated base is tilted or low past the limits.
+
+        Args:
+            state: A floating-base robot's estimate (``RobotState.legged``: ``base``,
+                ``foot_contact``, ``q``).
+        """
+        fallen = tilt_of(state.base.projected_gravity) > self.tilt_limit
+        if self.height_limit > 0.0:
+            contact = state.foot_contact > 0.5
+            self.height[:] = np.nan
+            for e in np.flatnonzero(contact.any(axis=1)):
+                pin.forwardKinematics(self.model, self.data, state.q[e])
+                rot = quaternion_to_matrix(state.base.orientation[e])
+                below = [
+                    -(rot @ pin.updateFramePlacement(self.model, self.data, f).translation)[2]
+                    for f, touching in zip(self.feet, contact[e], strict=True)
+                    if touching
+                ]
+                self.height[e] = max(below)
+            fallen |= self.height < self.height_limit  # NaN (no contact) compares False
+        return fallen

@@ -1,0 +1,570 @@
+"""Joint state estimation: a position + velocity Kalman filter per joint, batched over ``envs``.
+
+Model (per joint, state ``x = [q, dq]``, rad and rad/s): the acceleration the drive was commanded
+(control input ``u``, rad/s^2), plus white-noise acceleration that is piecewise constant over each
+prediction interval ("discrete white noise acceleration", Bar-Shalom, Li, Kirubarajan, *Estimation
+with Applications to Tracking and Navigation*, Wiley 2001, sec. 6.3.2;
+``filterpy.common.Q_discrete_white_noise(2, dt, var)``)::
+
+    x' = F(dt) x + B(dt) u
+    F(dt) = [[1, dt], [0, 1]]          Q(dt) = var * [[dt^4 / 4, dt^3 / 2], [dt^3 / 2, dt^2]]
+    B(dt) = [[dt^2 / 2], [dt]]         H = [[1, 0]],  R = measurement_sigma^2
+
+Without an input (``u = 0``) this is the constant-velocity model, which lags an accelerating
+joint by about ``a / omega^2`` (``omega ~ (var / R)^(1/4)``, ~25 rad/s on arm3: 30 mrad at
+20 rad/s^2). The runtime passes the smoother's commanded acceleration
+(:attr:`deploy.smoothing.CommandSmoother.mean_acceleration`) in position and velocity mode; the
+noise then only has to cover the drive's tracking error (the error it saved on arm3:
+``docs/measurements.md``).
+
+Time stamps. The filter of a joint lives at ``filter_time``, the sample time of the last reading it
+absorbed. A reading stamped later than that is absorbed: predict by ``stamp - filter_time``, then
+update. A reading stamped at or before ``filter_time`` (stale, repeated or reordered) or after the
+frame's own time (a clock fault) is discarded and counted in ``stale_readings``. A missing reading
+(NaN, or a non-finite value or stamp) is never fed to the filter (a NaN would poison it for good)
+and is counted in ``missing_readings``. Either way the *output* is the prediction from
+``filter_time`` to ``frame.time`` (``q + (frame.time - filter_time) dq``), which is not stored:
+latency is compensated by extrapolation, and a dropout is a predict-only step. Sensors at their
+own rates need nothing special: a slow sensor simply delivers fewer fresh readings.
+
+Three implementations give the same numbers (to rounding, ~1e-15): ``"compiled"`` (the default),
+the whole tick in one numba kernel (:mod:`deploy.estimation.kernel`); ``"vectorized"``, the same
+closed-form 2x2 algebra as ~70 numpy calls over (envs, n) that allocate nothing per tick; and
+``"filterpy"``, one ``filterpy.kalman.KalmanFilter(dim_x=2, dim_z=1)`` per (env, joint), the
+reference the other two are tested against.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from filterpy.common import Q_discrete_white_noise
+from filterpy.kalman import KalmanFilter
+
+from deploy.backends.base import SensorFrame
+from deploy.estimation.kernel import kalman_tick
+from deploy.state import RobotState
+from deploy.stateful import put, take
+from robots import Robot
+
+IMPLEMENTATIONS: tuple[str, ...] = ("compiled", "vectorized", "filterpy")
+
+#: Default process noise standard deviation as a fraction of the joint's acceleration limit.
+#: Bar-Shalom, Li, Kirubarajan (2001), sec. 6.3.2, give 0.5 a_M <= sigma <= a_M as the practical
+#: range for the discrete white noise acceleration model, a_M the largest acceleration; we take the
+#: lower end (the smoother keeps commanded accelerations within the limit). On the arm3 plant
+#: (sinusoidal motion, default noise) 0.25, 0.5 and 1.0 give position RMS errors of 11, 7.6 and
+#: 7.3 mrad against 15.6 mrad raw; 0.1 lags (25 mrad).
+PROCESS_NOISE_FRACTION = 0.5
+
+#: Largest tracking index ``sigma_a dt^2 / sigma_r`` the default measurement noise allows (``dt``
+#: the control period; P. R. Kalata, "The tracking index: a generalized parameter for alpha-beta
+#: and alpha-beta-gamma target trackers", IEEE TAES 20(2), 1984). The filter's steady-state
+#: velocity gain beta grows with the index: past beta = 1 the velocity error alternates in sign
+#: from one reading to the next, and beta tends to 2, where it no longer decays. At 3, beta is
+#: 0.94. A fine encoder read at a slow rate for a joint allowed large accelerations exceeds it:
+#: go2 (one count, 3e-5 rad; 500 rad/s^2 of process noise; 50 Hz) had an index of 6,600: its
+#: estimate of a calf turning at 2 rad/s alternated between +-40 rad/s, and one dropped reading
+#: then extrapolated the calf 0.8 rad past its hard limit (a safe stop).
+MAX_TRACKING_INDEX = 3.0
+
+#: Degeneracy bound of the velocity standard deviation, in velocity limits (our choice): an
+#: uncertainty of several times the fastest possible speed means the filter has lost track.
+VELOCITY_SIGMA_BOUND = 10.0
+
+
+class JointStateEstimator:
+    """Kalman filter of joint position and velocity for ``envs`` robots of ``n`` joints.
+
+    Args:
+        robot: The robot description (limits, sensor settings).
+        envs: Batch size.
+        process_noise: Variance ``var`` of the white-noise acceleration, (rad/s^2)^2, as
+            ``Q_discrete_white_noise(2, dt, var)`` takes it; scalar or (n,). Default
+            ``(PROCESS_NOISE_FRACTION * robot.acceleration_limit)^2`` (Bar-Shalom et al. 2001,
+            sec. 6.3.2: standard deviation 0.5 to 1 times the largest acceleration).
+        measurement_sigma: Encoder noise standard deviation, rad; scalar or (n,). Default
+            ``robot.config.sensors.encoder_noise_sigma``, floored at the quantization noise
+            ``(2 pi / encoder_resolution) / sqrt(12)`` (uniform rounding error) so that ``R > 0``,
+            and at ``sqrt(process_noise) dt^2 / MAX_TRACKING_INDEX`` (a velocity estimate that
+            does not oscillate; ``dt`` the control period).
+        implementation: ``"compiled"`` (default, one numba kernel per tick), ``"vectorized"``
+            (numpy) or ``"filterpy"`` (reference).
+
+    Attributes:
+        covariance: (envs, n, 2, 2) covariance of ``[q, dq]`` at ``filter_time`` (rad^2,
+            rad^2/s, rad^2/s^2), symmetric. A writable view: a value written into it (fault
+            injection) is checked by the next :meth:`update`.
+        position, velocity: (envs, n) rad, rad/s, the filter state at ``filter_time`` (views).
+        filter_time: (envs, n) s, sample time of the last absorbed reading (or of the reset).
+        time_since_fresh: (envs, n) s, ``frame.time - filter_time`` at the last update: the age of
+            the newest absorbed reading, latency included. The runtime safe-stops when it exceeds
+            ``robot.config.safety.stale_limit``.
+        stale_readings, missing_readings, reinitializations: (envs,) int counters since the last
+            :meth:`reset` (sums over the joints of ``*_per_joint``, (envs, n)).
+        initial_covariance: (n, 2, 2), ``diag(R, velocity_limit^2)``: the pose is known to the
+            encoder's accuracy, the velocity only to within the joint's velocity limit.
+        covariance_bound: (n, 2), largest accepted variances of position and velocity:
+            ``(upper - lower)^2`` (a standard deviation wider than the joint's whole travel) and
+            ``(VELOCITY_SIGMA_BOUND * velocity_limit)^2``.
+
+    Raises:
+        ValueError: ``envs < 1``, an unknown ``implementation``, or noise values that are not
+            finite and positive.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        envs: int,
+        process_noise: float | np.ndarray | None = None,
+        measurement_sigma: float | np.ndarray | None = None,
+        implementation: str = "compiled",
+    ):
+        if envs < 1:
+            raise ValueError(f"envs must be >= 1, got {envs}")
+        if implementation not in IMPLEMENTATIONS:
+            raise ValueError(
+                f"implementation '{implementation}' is unknown; expected one of {IMPLEMENTATIONS}"
+            )
+        n = robot.n_joints
+        self.robot, self.envs, self.n_joints = robot, envs, n
+        self.implementation = implementation
+        sensors = robot.config.sensors
+        if process_noise is None:
+            process_noise = (PROCESS_NOISE_FRACTION * robot.acceleration_limit) ** 2
+        self.process_noise = self._per_joint("process_noise", process_noise)
+        if measurement_sigma is None:
+            floor = 2.0 * np.pi / sensors.encoder_resolution / np.sqrt(12.0)
+            stable = np.sqrt(self.process_noise) * robot.control_period**2 / MAX_TRACKING_INDEX
+            measurement_sigma = np.maximum(max(sensors.encoder_noise_sigma, floor), stable)
+        self.measurement_variance = self._per_joint("measurement_sigma", measurement_sigma) ** 2
+        self.initial_covariance = np.zeros((n, 2, 2))
+        self.initial_covariance[:, 0, 0] = self.measurement_variance
+        self.initial_covariance[:, 1, 1] = robot.velocity_limit**2
+        self.covariance_bound = np.stack(
+            [
+                (robot.position_upper - robot.position_lower) ** 2,
+                (VELOCITY_SIGMA_BOUND * robot.velocity_limit) ** 2,
+            ],
+            axis=-1,
+        )
+
+        shape = (envs, n)
+        # Filter state. x[0] = position, x[1] = velocity; p[k] = P[k // 2, k % 2] (contiguous
+        # rows for the closed-form algebra; ``covariance`` is a (envs, n, 2, 2) view of them).
+        self._x = np.zeros((2, envs, n))
+        self._x[0] = np.nan
+        self._p = np.zeros((4, envs, n))
+        self.filter_time = np.full(shape, np.nan)
+        self.time_since_fresh = np.full(shape, np.inf)
+        self.stale_per_joint = np.zeros(shape, dtype=np.int64)
+        self.missing_per_joint = np.zeros(shape, dtype=np.int64)
+        self.reinitializations_per_joint = np.zeros(shape, dtype=np.int64)
+        self.covariance[:] = self.initial_covariance
+        self._initialized = np.zeros(envs, dtype=bool)
+        self._all_initialized = False
+
+        # constants and work arrays, all (envs, n): the tick allocates nothing
+        def full(value) -> np.ndarray:
+            return np.broadcast_to(np.asarray(value, dtype=np.float64), shape).copy()
+
+        self._var = full(self.process_noise)
+        self._r = full(self.measurement_variance)
+        self._bound0 = full(self.covariance_bound[:, 0])
+        self._bound1 = full(self.covariance_bound[:, 1])
+        self._zero, self._half, self._one = full(0.0), full(0.5), full(1.0)
+        self._u = full(0.0)
+        self._one_int = np.ones(shape, dtype=np.int64)
+        self._now = np.zeros(shape)
+        self._now_t = self._now.T  # (n, envs) view: broadcasts frame.time (envs,) into _now
+        names = ("dt", "dt2", "hdt", "q00", "q01", "q11", "a00", "a01", "a11", "s", "k0", "k1")
+        self._w = {k: np.empty(shape) for k in (*names, "y", "tmp", "det", "xp0", "vp1")}
+        self._nx = np.empty((2, envs, n))
+        self._np = np.empty((4, envs, n))
+        self._count = np.empty(shape, dtype=np.int64)
+        # row views, made once (unpacking a (2, envs, n) array every tick would create them anew)
+        self._xv, self._pv = tuple(self._x), tuple(self._p)
+        self._nxv, self._npv = tuple(self._nx), tuple(self._np)
+        self._valid = np.empty(shape, dtype=bool)
+        self._fresh = np.empty(shape, dtype=bool)
+        self._mask = np.empty(shape, dtype=bool)
+        self._good = np.empty(shape, dtype=bool)
+
+        # the compiled kernel's per-joint constants (contiguous (n,) arrays)
+        self._b0 = np.ascontiguousarray(self.covariance_bound[:, 0])
+        self._b1 = np.ascontiguousarray(self.covariance_bound[:, 1])
+        if implementation == "compiled":  # compile (or load numba's cache) now, not in a tick,
+            # on copies: the call writes its outputs (time_since_fresh among them)
+            args = self._kernel_args(SensorFrame.empty(envs, n), RobotState.zeros(envs, n))
+            kalman_tick(2, *(np.copy(a) for a in args))
+
+        self._kfs: list[list[KalmanFilter]] = []
+        if implementation == "filterpy":
+            for _ in range(envs):
+                row = []
+                for j in range(n):
+                    kf = KalmanFilter(dim_x=2, dim_z=1)
+                    kf.H = np.array([[1.0, 0.0]])
+                    kf.R = np.array([[self.measurement_variance[j]]])
+                    row.append(kf)
+                self._kfs.append(row)
+
+    def _per_joint(self, name: str, value) -> np.ndarray:
+        arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (self.n_joints,)).copy()
+        if not (np.isfinite(arr).all() and (arr > 0).all()):
+            raise ValueError(f"{name} must be finite and > 0 for every joint, got {arr}")
+        return arr
+
+    # ------------------------------------------------------------------ views and counters
+    @property
+    def position(self) -> np.ndarray:
+        """(envs, n) rad, filter position at ``filter_time`` (a view)."""
+        return self._x[0]
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """(envs, n) rad/s, filter velocity at ``filter_time`` (a view)."""
+        return self._x[1]
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """(envs, n, 2, 2) covariance of ``[q, dq]`` at ``filter_time`` (a writable view)."""
+        return self._p.reshape(2, 2, self.envs, self.n_joints).transpose(2, 3, 0, 1)
+
+    @property
+    def stale_readings(self) -> np.ndarray:
+        """(envs,) readings discarded as stale, repeated, reordered or future-stamped."""
+        return self.stale_per_joint.sum(axis=1)
+
+    @property
+    def missing_readings(self) -> np.ndarray:
+        """(envs,) readings that did not arrive or were not finite (predict only)."""
+        return self.missing_per_joint.sum(axis=1)
+
+    @property
+    def reinitializations(self) -> np.ndarray:
+        """(envs,) joints re-initialized after their filter degenerated."""
+        return self.reinitializations_per_joint.sum(axis=1)
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self, q: np.ndarray, t, envs: np.ndarray | None = None) -> None:
+        """Initialize the filters at a measured pose, at rest.
+
+        Sets ``position = q``, ``velocity = 0``, ``covariance = initial_covariance``,
+        ``filter_time = t``, ``time_since_fresh = 0`` and zeroes the counters of the reset envs.
+        A reading stamped ``t`` that arrives later is a repeat of ``q`` and counts as stale.
+
+        Args:
+            q: (envs, n) or (n,) rad, measured joint angles (finite).
+            t: s, sample time of ``q``: a float, (envs,) or (envs, n) (finite).
+            envs: Optional boolean mask (envs,) or indices of the envs to reset; default all.
+
+        Raises:
+            ValueError: ``q`` or ``t`` of the wrong shape, or not finite in a reset env.
+        """
+        shape = (self.envs, self.n_joints)
+        sel = np.arange(self.envs) if envs is None else np.arange(self.envs)[envs]
+        q = np.asarray(q, dtype=np.float64)
+        t = np.asarray(t, dtype=np.float64)
+        try:
+            q = np.broadcast_to(q, shape)
+            t = np.broadcast_to(t[:, None] if t.ndim == 1 else t, shape)
+        except ValueError as exc:
+            raise ValueError(
+                f"reset: q must be (n,) or {shape}, t a float, ({self.envs},) or {shape}; "
+                f"got q {q.shape}, t {t.shape}"
+            ) from exc
+        if not (np.isfinite(q[sel]).all() and np.isfinite(t[sel]).all()):
+            raise ValueError("reset: q and t must be finite (a pose that was actually measured)")
+        self._x[0, sel] = q[sel]
+        self._x[1, sel] = 0.0
+        self.covariance[sel] = self.initial_covariance
+        self.filter_time[sel] = t[sel]
+        self.time_since_fresh[sel] = 0.0
+        for counter in (
+            self.stale_per_joint,
+            self.missing_per_joint,
+            self.reinitializations_per_joint,
+        ):
+            counter[sel] = 0
+        self._initialized[sel] = True
+        self._all_initialized = bool(self._initialized.all())
+
+    # ------------------------------------------------------------------ state
+    def _state_fields(self) -> dict[str, np.ndarray]:
+        return {
+            "position": self._x[0],
+            "velocity": self._x[1],
+            "covariance": self.covariance,
+            "filter_time": self.filter_time,
+            "time_since_fresh": self.time_since_fresh,
+            "stale_per_joint": self.stale_per_joint,
+            "missing_per_joint": self.missing_per_joint,
+            "reinitializations_per_joint": self.reinitializations_per_joint,
+            "initialized": self._initialized,
+        }
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """The filters' state (copies; conventions of :mod:`deploy.stateful`): ``position``,
+        ``velocity`` (envs, n) rad, rad/s and ``covariance`` (envs, n, 2, 2) at
+        ``filter_time`` (envs, n) s, ``time_since_fresh`` (envs, n) s, the per-joint counters
+        (envs, n) int64 and ``initialized`` (envs,) bool (:meth:`reset` was called); the env
+        axis has length 1 for one env ``env``."""
+        return take(self._state_fields(), env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``).
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        put(self._state_fields(), state, env)
+        self._all_initialized = bool(self._initialized.all())
+
+    # ------------------------------------------------------------------ the tick
+    def update(
+        self, frame: SensorFrame, state: RobotState, acceleration: np.ndarray | None = None
+    ) -> RobotState:
+        """Absorb the fresh readings of ``frame`` and write the estimates at ``frame.time``.
+
+        ``acceleration`` is the control input ``u``, (envs, n) rad/s^2: the acceleration the
+        drives were commanded since the previous frame (None: 0, the constant-velocity model).
+        It drives every prediction of this call, readings' and output's.
+
+        Fills ``state.q`` (rad) and ``state.dq`` (rad/s), both (envs, n), predicted from
+        ``filter_time`` to ``frame.time``, and copies ``frame.winding_temperature`` (degC) into
+        ``state.winding_temperature`` where it is finite. Updates the counters,
+        ``time_since_fresh`` and ``covariance`` (see the module docstring for the rules).
+
+        After the step the covariance is symmetrized and every joint checked: a joint whose state
+        is not finite, or whose covariance is not positive definite or exceeds
+        ``covariance_bound``, is re-initialized and counted in ``reinitializations``: from this
+        frame's reading if it had a fresh one (``filter_time`` = its stamp), otherwise from its
+        last estimate (``filter_time`` unchanged); velocity clipped to the velocity limit (0 if not
+        finite), ``covariance = initial_covariance``. A joint whose position itself is lost and
+        has no reading keeps a NaN estimate and ``time_since_fresh = inf`` (the runtime
+        safe-stops) until a reading arrives; it is counted once.
+
+        Returns:
+            ``state``, updated in place.
+
+        Raises:
+            RuntimeError: :meth:`reset` was not called for every env.
+            ValueError: a frame of the wrong shape.
+        """
+        if not self._all_initialized:
+            raise RuntimeError("JointStateEstimator.update before reset(q, t) of every env")
+        z, ts = frame.position, frame.position_stamp
+        x0, x1 = self._xv
+        if z.shape != x0.shape or ts.shape != x0.shape:
+            raise ValueError(
+                f"frame: expected position and position_stamp shaped {x0.shape}, "
+                f"got {z.shape} and {ts.shape}"
+            )
+        if acceleration is None:
+            self._u.fill(0.0)
+        else:
+            np.copyto(self._u, acceleration)
+        if self.implementation == "compiled":
+            args = self._kernel_args(frame, state)
+            status = kalman_tick(0, *args)
+            while status:  # a degenerate joint: re-initialize it, go on from the next phase
+                with np.errstate(invalid="ignore", over="ignore"):
+                    self._reinitialize(z, ts)
+                status = kalman_tick(status, *args)
+            return state
+        valid, fresh, mask, tf = self._valid, self._fresh, self._mask, self.filter_time
+        np.copyto(self._now_t, frame.time)
+        # missing: no finite value or stamp; fresh: stamped after filter_time, not in the future
+        np.isfinite(z, out=valid)
+        np.isfinite(ts, out=mask)
+        np.logical_and(valid, mask, out=valid)
+        np.logical_not(valid, out=mask)
+        self._increment(self.missing_per_joint, mask)
+        np.greater(ts, tf, out=fresh)
+        np.logical_and(fresh, valid, out=fresh)
+        np.less_equal(ts, self._now, out=mask)
+        np.logical_and(fresh, mask, out=fresh)
+        np.logical_xor(valid, fresh, out=mask)
+        self._increment(self.stale_per_joint, mask)
+
+        # a state written from outside may hold inf: its arithmetic must not warn; the check
+        # below re-initializes whatever came out of it
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            # checked before (a state written from outside) and after the step (numerics)
+            if not self._check():
+                self._reinitialize(z, ts)
+            if np.count_nonzero(fresh):
+                if self.implementation == "vectorized":
+                    self._absorb_vectorized(z, ts)
+                else:
+                    self._absorb_filterpy(z, ts)
+                np.copyto(tf, ts, where=fresh)
+                if not self._check():
+                    self._reinitialize(z, ts)
+            # output: prediction from filter_time to frame.time (not stored)
+            age, tmp = self.time_since_fresh, self._w["tmp"]
+            np.subtract(self._now, tf, out=age)
+            np.multiply(age, x1, out=state.q)
+            np.add(state.q, x0, out=state.q)
+            np.multiply(age, self._u, out=state.dq)  # + B(age) u; 0 for a lost joint (age inf)
+            np.isfinite(state.dq, out=mask)
+            np.copyto(state.dq, 0.0, where=~mask)
+            np.multiply(state.dq, age, out=tmp)
+            np.multiply(tmp, 0.5, out=tmp)
+            np.add(state.q, tmp, out=state.q)
+            np.add(state.dq, x1, out=state.dq)
+        np.isfinite(frame.winding_temperature, out=mask)
+        np.copyto(state.winding_temperature, frame.winding_temperature, where=mask)
+        return state
+
+    # ------------------------------------------------------------------ internals
+    def _kernel_args(self, frame: SensorFrame, state: RobotState) -> tuple:
+        """Arguments of :func:`deploy.estimation.kernel.kalman_tick` after ``phase``."""
+        return (
+            frame.position,
+            frame.position_stamp,
+            frame.time,
+            self._x,
+            self._p,
+            self.filter_time,
+            self.process_noise,
+            self.measurement_variance,
+            self._b0,
+            self._b1,
+            self.missing_per_joint,
+            self.stale_per_joint,
+            self._fresh,
+            self._good,
+            self.time_since_fresh,
+            state.q,
+            state.dq,
+            frame.winding_temperature,
+            state.winding_temperature,
+            self._u,
+        )
+
+    def _increment(self, counter: np.ndarray, mask: np.ndarray) -> None:
+        np.add(counter, self._one_int, out=self._count)
+        np.copyto(counter, self._count, where=mask)
+
+    def _absorb_vectorized(self, z: np.ndarray, ts: np.ndarray) -> None:
+        """Closed-form predict + update of every joint; the results are kept where fresh.
+
+        Elsewhere the arithmetic runs on whatever is there (NaN readings included) and is
+        discarded: nothing reaches the filter state but fresh readings.
+        """
+        w, fresh = self._w, self._fresh
+        x0, x1 = self._xv
+        p00, p01, p10, p11 = self._pv
+        dt, dt2, hdt, tmp = w["dt"], w["dt2"], w["hdt"], w["tmp"]
+        q00, q01, q11 = w["q00"], w["q01"], w["q11"]
+        a00, a01, a11, s, k0, k1, y = w["a00"], w["a01"], w["a11"], w["s"], w["k0"], w["k1"], w["y"]
+        nx0, nx1 = self._nxv
+        np00, np01, np10, np11 = self._npv
+        xp0 = w["xp0"]
+        # F = [[1, dt], [0, 1]], Q = var [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]
+        np.subtract(ts, self.filter_time, out=dt)
+        np.multiply(dt, dt, out=dt2)
+        np.multiply(dt, self._half, out=hdt)
+        np.multiply(self._var, dt2, out=q11)
+        np.multiply(q11, hdt, out=q01)
+        np.multiply(q01, hdt, out=q00)
+        # prior: x = F x, P = F P F' + Q (as filterpy's dot(dot(F, P), F.T) + Q)
+        np.multiply(dt, x1, out=tmp)
+        np.add(x0, tmp, out=xp0)
+        # control input: x += B u, B = [dt^2 / 2, dt]
+        u, vp1 = self._u, w["vp1"]
+        np.multiply(hdt, dt, out=tmp)
+        np.multiply(tmp, u, out=tmp)
+        np.add(xp0, tmp, out=xp0)
+        np.multiply(dt, u, out=tmp)
+        np.add(x1, tmp, out=vp1)
+        np.multiply(dt, p11, out=tmp)
+        np.add(p01, tmp, out=a01)  # (F P)_01 = (F P F')_01 - Q_01
+        np.multiply(dt, p10, out=tmp)
+        np.add(p00, tmp, out=a00)  # (F P)_00
+        np.multiply(dt, a01, out=tmp)
+        np.add(a00, tmp, out=a00)
+        np.add(a00, q00, out=a00)
+        np.add(a01, q01, out=a01)
+        np.add(p11, q11, out=a11)
+        # posterior: S = P_00 + R, K = P H' / S, x += K (z - x_0); Joseph form of filterpy,
+        # (I - KH) P (I - KH)' + K R K', in closed form for the optimal gain
+        np.add(a00, self._r, out=s)
+        np.divide(a00, s, out=k0)
+        np.divide(a01, s, out=k1)
+        np.subtract(z, xp0, out=y)
+        np.multiply(k0, y, out=tmp)
+        np.add(xp0, tmp, out=nx0)
+        np.multiply(k1, y, out=tmp)
+        np.add(vp1, tmp, out=nx1)
+        np.subtract(self._one, k0, out=tmp)
+        np.multiply(tmp, a00, out=np00)  # a00 R / S
+        np.multiply(tmp, a01, out=np01)  # a01 R / S
+        np.copyto(np10, np01)
+        np.multiply(k1, a01, out=np11)
+        np.subtract(a11, np11, out=np11)  # a11 - a01^2 / S
+        np.copyto(self._x, self._nx, where=fresh)
+        np.copyto(self._p, self._np, where=fresh)
+
+    def _absorb_filterpy(self, z: np.ndarray, ts: np.ndarray) -> None:
+        """The reference: filterpy's predict + update, one filter per fresh (env, joint)."""
+        cov = self.covariance
+        for e, j in zip(*np.nonzero(self._fresh), strict=True):
+            kf = self._kfs[e][j]
+            kf.x = np.array([[self._x[0, e, j]], [self._x[1, e, j]]])
+            kf.P = cov[e, j].copy()
+            dt = float(ts[e, j] - self.filter_time[e, j])
+            kf.F = np.array([[1.0, dt], [0.0, 1.0]])
+            kf.Q = Q_discrete_white_noise(2, dt=dt, var=float(self.process_noise[j]))
+            kf.B = np.array([[0.5 * dt * dt], [dt]])
+            kf.predict(u=np.array([[self._u[e, j]]]))
+            kf.update(float(z[e, j]))
+            self._x[:, e, j] = kf.x[:, 0]
+            cov[e, j] = kf.P
+
+    def _check(self) -> bool:
+        """Symmetrize P; ``_good`` = finite state, P positive definite and within the bound.
+
+        Returns whether every joint is good.
+        """
+        p00, p01, p10, p11 = self._pv
+        good, mask, det, tmp = self._good, self._mask, self._w["det"], self._w["tmp"]
+        np.add(p01, p10, out=tmp)
+        np.multiply(tmp, self._half, out=p01)
+        np.copyto(p10, p01)
+        # comparisons are False for NaN; inf fails the bounds
+        np.greater(p00, self._zero, out=good)
+        np.less_equal(p00, self._bound0, out=mask)
+        np.logical_and(good, mask, out=good)
+        np.less_equal(p11, self._bound1, out=mask)
+        np.logical_and(good, mask, out=good)
+        np.multiply(p00, p11, out=det)
+        np.multiply(p01, p01, out=tmp)
+        np.subtract(det, tmp, out=det)
+        np.greater(det, self._zero, out=mask)  # with p00 > 0: positive definite
+        np.logical_and(good, mask, out=good)
+        np.add(*self._xv, out=tmp)
+        np.isfinite(tmp, out=mask)
+        np.logical_and(good, mask, out=good)
+        return np.count_nonzero(good) == good.size
+
+    def _reinitialize(self, z: np.ndarray, ts: np.ndarray) -> None:
+        """Re-initialize the joints that are not good (the rare path: it may allocate)."""
+        bad = ~self._good
+        fresh = self._fresh
+        x0, x1 = self._x[0], self._x[1]
+        already_lost = np.isneginf(self.filter_time) & ~fresh
+        self.reinitializations_per_joint += bad & ~already_lost
+        measured = bad & fresh
+        x0[measured] = z[measured]
+        self.filter_time[measured] = ts[measured]
+        fresh[measured] = False  # absorbed by the re-initialization
+        lost = bad & ~measured & ~np.isfinite(x0)
+        x0[lost] = np.nan
+        self.filter_time[lost] = -np.inf
+        vlim = np.broadcast_to(self.robot.velocity_limit, x1.shape)
+        velocity = np.clip(np.where(np.isfinite(x1), x1, 0.0), -vlim, vlim)
+        x1[bad] = velocity[bad]
+        self.covariance[bad] = np.broadcast_to(self.initial_covariance, self.covariance.shape)[bad]

@@ -1,0 +1,297 @@
+"""Violations: the robot's *true* state past a limit, counted from the simulator's ground truth.
+
+A **violation** is what the robot really did (DESIGN.md, "Words"); an **intervention** is a command
+the guard or the smoother changed (:mod:`deploy.monitors.interventions`). The guard acts on the
+*estimate*
+and clamps commands so that violations do not happen: a clamp is an intervention, never a
+violation, and a violation can happen without any clamp (a push, a drive overshooting its command,
+an estimate that lags the joint).
+
+Types (``VIOLATION_TYPES``), each counted per env in control ticks (a tick counts once per type,
+however many joints are past the limit):
+
+- ``hard_limit``: a true joint position outside ``[position_lower, position_upper]``.
+- ``soft_limit``: a true joint position in the soft band: outside ``[soft_lower, soft_upper]`` but
+  not beyond the hard limit (a joint beyond it counts as ``hard_limit``).
+- ``velocity``: a true joint speed above ``velocity_limit`` (the hard velocity limit).
+- ``effort``: a joint's actuator torque above ``effort_limit`` by more than the relative tolerance
+  ``EFFORT_TOLERANCE``: the plant clamps each joint's actuator torque to the effort limit itself,
+  so torque *at* the limit (saturation) is not a violation.
+- ``workspace``: the true end effector (MuJoCo's site, the randomized geometry) outside the box
+  ``safety.workspace_min/max``.
+- ``self_collision``: a pair of ``safety.collision_pairs`` in contact at the true joint positions
+  (coal, with the guard's collision model: :meth:`deploy.safety.guard.SafetyGuard.collision_model`,
+  the
+  robot's *nominal* geometry; checked every tick, which is cheaper than the guard's screen would
+  be: ``docs/measurements.md``).
+
+Ground truth exists only in simulation: :class:`ViolationMonitor` reads
+:class:`~deploy.backends.sim.plant.SimBackend`'s ``true_position()``, ``true_velocity()``,
+``joint_torque()`` and ``end_effector_position()``. On hardware there is no ground truth (the
+encoders *are* the estimate's input); there only interventions and the guard's hard-limit
+detections on the estimate can be reported.
+
+Sampling: once per control tick, after the physics of the tick (the runtime's ``on_tick`` hook).
+The end effector is MuJoCo's site position, computed at the start of the last physics step (one
+physics timestep behind the joint positions).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from deploy.monitors import kernel as mk
+from deploy.safety.guard import SCREEN_MARGIN, SafetyGuard, collision_query
+from robots import Robot
+from robots.chain_bounds import collision_pair_weights
+
+VIOLATION_TYPES = ("hard_limit", "soft_limit", "velocity", "effort", "workspace", "self_collision")
+#: The violations of the hard kind: every type but ``soft_limit`` (a warning band). deploy-run
+#: exits 1 after any of them (README, exit codes).
+HARD_VIOLATION_TYPES = tuple(t for t in VIOLATION_TYPES if t != "soft_limit")
+#: Relative tolerance on the effort limit: the plant saturates each joint at exactly its limit.
+EFFORT_TOLERANCE = 1e-9
+#: Relative shrink of the screen's bounds (round-off of ``|x - centre| > half``): a tick within it
+#: is checked exactly.
+_SCREEN_SHRINK = 1e-12
+
+
+class MonitorState:
+    """``state_dict`` / ``load_state_dict`` of a per-env tick counter (the soak's checkpoints).
+
+    A monitor gives ``_arrays()`` (name -> live array with a leading env axis), ``ticks`` and
+    ``_state_name`` (for error messages); its state is those arrays (copies) and ``ticks``.
+    """
+
+    _state_name = "monitor"
+    ticks: int
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        raise NotImplementedError
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """The monitor's arrays (copies, see the class docstring), each with its leading env
+        axis of length envs, or 1 for one env ``env`` (a soak session's checkpoint), and
+        ``ticks`` (1,) int64."""
+        index = slice(None) if env is None else slice(env, env + 1)
+        out = {k: v[index].copy() for k, v in self._arrays().items()}
+        out["ticks"] = np.array([self.ticks], dtype=np.int64)
+        return out
+
+    def load_state_dict(self, state: dict[str, np.ndarray], env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of all envs, or of env ``env``).
+
+        Raises:
+            ValueError: a missing field, or one whose shape differs (named, with the expected
+                shape).
+        """
+        index = slice(None) if env is None else slice(env, env + 1)
+        self.ticks = load_fields(self._arrays(), state, index, self._state_name)
+
+
+class ViolationMonitor(MonitorState):
+    """Count true-state violations of ``envs`` simulated robots, per env and tick.
+
+    Args:
+        robot: The robot description (limits, workspace box, collision pairs).
+        envs: Batch size (the backend's ``envs``).
+        reference: Screen in numpy instead of the kernel
+            (:func:`deploy.monitors.kernel.violation_screen`): the same counts, the tested
+            reference.
+
+    Attributes:
+        counts: dict type (``VIOLATION_TYPES``) -> (envs,) int64, ticks on which that type
+            occurred.
+        any: (envs,) int64, ticks with at least one violation of any type.
+        ticks: int, ticks observed (calls of :meth:`update`).
+
+    Per tick (:meth:`update`) it allocates nothing unless some env is near a limit: one
+    compiled screen (``|x - centre| > half range`` over joint positions, speeds, torques and the
+    end effector) decides whether the exact per-type tests run, and coal checks the collision
+    pairs of the envs the guard's exact per-pair screen flags.
+    """
+
+    _state_name = "violations"
+
+    def __init__(self, robot: Robot, envs: int, reference: bool = False):
+        if envs < 1:
+            raise ValueError(f"envs: expected an integer >= 1, got {envs}")
+        self.robot, self.envs = robot, envs
+        self.reference = bool(reference)
+        n = self.n = robot.n_joints
+        self.counts = {t: np.zeros(envs, dtype=np.int64) for t in VIOLATION_TYPES}
+        self.any = np.zeros(envs, dtype=np.int64)
+        self.ticks = 0
+        s = robot.config.safety
+        self._lower, self._upper = robot.position_lower, robot.position_upper
+        self._soft_lower, self._soft_upper = robot.soft_lower, robot.soft_upper
+        #: a robot without a workspace box (a legged one): no workspace violations
+        self._has_workspace = s.workspace_min is not None
+        if self._has_workspace:
+            self._ws_min = np.array(s.workspace_min, dtype=np.float64)
+            self._ws_max = np.array(s.workspace_max, dtype=np.float64)
+        else:
+            self._ws_min, self._ws_max = np.full(3, -np.inf), np.full(3, np.inf)
+        self._velocity = robot.velocity_limit
+        self._effort = robot.effort_limit * (1.0 + EFFORT_TOLERANCE)
+        # the screen: one row per env, [q - soft centre, dq, tau, ee - box centre]
+        width = 3 * n + 3
+        self._offset_q = 0.5 * (self._soft_lower + self._soft_upper)
+        self._offset_ee = np.zeros(3)
+        if self._has_workspace:
+            self._offset_ee = 0.5 * (self._ws_min + self._ws_max)
+        bound = np.concatenate(
+            [
+                0.5 * (self._soft_upper - self._soft_lower),
+                self._velocity,
+                self._effort,
+                0.5 * (self._ws_max - self._ws_min),
+            ]
+        )
+        self._bound = bound * (1.0 - _SCREEN_SHRINK)
+        self._buf = np.zeros((envs, width))
+        self._q_part = self._buf[:, :n]
+        self._dq_part = self._buf[:, n : 2 * n]
+        self._tau_part = self._buf[:, 2 * n : 3 * n]
+        self._ee_part = self._buf[:, 3 * n :]
+        self._mask = np.zeros((envs, width), dtype=bool)
+        self._ee = np.zeros((envs, 3))
+        self._collided = np.zeros(envs, dtype=bool)
+        self._hit = np.zeros(envs, dtype=bool)
+        self._model = robot.fixed_base_model
+        self._data = self._model.createData()
+        self._geom_model, self._geom_data = SafetyGuard.collision_model(robot)
+        self._has_pairs = bool(self._geom_model.collisionPairs)
+        # the collision screen (compiled path): no pair can touch while its distance computed at
+        # checked_q exceeds its own bound on how far the joints moved since
+        # (robots.chain_bounds.collision_pair_weights; an exact screen, as the guard's)
+        self._pair_weights = collision_pair_weights(robot)
+        self._margin = SCREEN_MARGIN
+        self._checked_q = np.zeros((envs, n))
+        self._clearance = np.full((envs, len(self._pair_weights)), -np.inf)  # none yet: check
+        self._need = np.zeros(envs, dtype=bool)
+        self._tmp = np.zeros((envs, n))
+        mk.warm_up()
+
+    # ------------------------------------------------------------------ per tick
+    def update(self, backend) -> None:
+        """Count this tick's violations from ``backend``'s ground truth.
+
+        Args:
+            backend: A :class:`~deploy.backends.sim.plant.SimBackend` with ``envs`` envs (its
+                ``true_position()`` rad, ``true_velocity()`` rad/s, ``joint_torque()`` N m, all
+                (envs, n), and ``end_effector_position(out)`` m, (envs, 3)).
+        """
+        q, dq, tau = backend.true_position(), backend.true_velocity(), backend.joint_torque()
+        if self._has_workspace:
+            backend.end_effector_position(out=self._ee)
+        self.ticks += 1
+        collided = False
+        if self._has_pairs and self._collision_screen(q):
+            for e in np.flatnonzero(self._need):
+                if self._in_collision(q, e):
+                    if not collided:
+                        self._collided.fill(False)
+                        collided = True
+                    self._collided[e] = True
+        if self.reference:
+            flagged = self._screen_reference(q, dq, tau)
+        else:
+            flagged = mk.violation_screen(
+                q, dq, tau, self._ee, self._offset_q, self._offset_ee, self._bound,
+                self._has_workspace,
+            )  # fmt: skip
+        if collided or flagged:
+            self._count(q, dq, tau, collided)
+
+    def _collision_screen(self, q: np.ndarray) -> bool:
+        """Mark in ``_need`` the envs whose pairs coal must check at ``q``; returns whether any:
+        the guard's exact screen (:func:`deploy.monitors.kernel.collision_screen`), every env
+        in the reference."""
+        if self.reference:
+            self._need.fill(True)
+            return True
+        args = (self._checked_q, self._clearance, self._pair_weights, self._margin, self._tmp)
+        return mk.collision_screen(q, *args, self._need)
+
+    def _in_collision(self, q: np.ndarray, e: int) -> bool:
+        """Whether a collision pair of env ``e`` touches at ``q[e]`` (coal); the compiled path
+        also remembers each pair's distance there for its screen."""
+        args = (self._model, self._data, self._geom_model, self._geom_data, q[e])
+        if self.reference:
+            return collision_query(*args)
+        self._checked_q[e] = q[e]
+        return collision_query(*args, distances=self._clearance[e])
+
+    def _screen_reference(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> bool:
+        """:func:`deploy.monitors.kernel.violation_screen` in numpy: its reference."""
+        np.subtract(q, self._offset_q, out=self._q_part)
+        np.copyto(self._dq_part, dq)
+        np.copyto(self._tau_part, tau)
+        if self._has_workspace:
+            np.subtract(self._ee, self._offset_ee, out=self._ee_part)
+        np.abs(self._buf, out=self._buf)
+        np.greater(self._buf, self._bound, out=self._mask)
+        return bool(np.count_nonzero(self._mask))
+
+    def _count(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray, collided: bool) -> None:
+        """The exact per-type tests (only on ticks the screen or coal flagged)."""
+        hit, counts = self._hit, self.counts
+        hit.fill(False)
+        beyond = (q < self._lower) | (q > self._upper)
+        band = ((q < self._soft_lower) | (q > self._soft_upper)) & ~beyond
+        ee = self._ee
+        tests = (
+            ("hard_limit", beyond.any(axis=1)),
+            ("soft_limit", band.any(axis=1)),
+            ("velocity", (np.abs(dq) > self._velocity).any(axis=1)),
+            ("effort", (np.abs(tau) > self._effort).any(axis=1)),
+            ("workspace", ((ee < self._ws_min) | (ee > self._ws_max)).any(axis=1)),
+        )
+        for name, flags in tests:
+            counts[name] += flags
+            hit |= flags
+        if collided:
+            counts["self_collision"] += self._collided
+            hit |= self._collided
+        self.any += hit
+
+    # ------------------------------------------------------------------ reading
+    def totals(self) -> dict[str, int]:
+        """Ticks per type, summed over envs (and ``any``: ticks with any violation)."""
+        out = {t: int(v.sum()) for t, v in self.counts.items()}
+        out["any"] = int(self.any.sum())
+        return out
+
+    def env_counts(self, env: int) -> dict[str, int]:
+        """Ticks per type of env ``env`` (and ``any``)."""
+        out = {t: int(v[env]) for t, v in self.counts.items()}
+        out["any"] = int(self.any[env])
+        return out
+
+    # ------------------------------------------------------------------ checkpoints
+    def _arrays(self) -> dict[str, np.ndarray]:
+        out = {f"counts/{t}": v for t, v in self.counts.items()}
+        out["any"] = self.any
+        return out
+
+
+def load_fields(targets: dict[str, np.ndarray], state: dict, index: slice, what: str) -> int:
+    """Write ``state`` (a monitor's ``state_dict``) into ``targets[index]`` after checking every
+    field (present, same shape) and ``state["ticks"]`` (shape (1,)); returns the ticks.
+
+    Raises:
+        ValueError: a missing field or a shape that differs (named, with the expected shape).
+    """
+    expected = {k: v[index].shape for k, v in targets.items()}
+    expected["ticks"] = (1,)
+    for key, shape in expected.items():
+        if key not in state:
+            raise ValueError(f"{what} state: field '{key}' is missing")
+        if np.shape(state[key]) != shape:
+            raise ValueError(
+                f"{what} state: field '{key}': expected shape {shape}, got {np.shape(state[key])}"
+            )
+    for key, target in targets.items():
+        target[index] = state[key]
+    return int(state["ticks"][0])

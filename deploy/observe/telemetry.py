@@ -1,0 +1,280 @@
+"""Per-stage latency histograms and downsampled MCAP telemetry.
+
+MCAP is the robotics log format Foxglove opens. The recorder keeps a preallocated ring buffer,
+samples every ``every``-th tick into it, and flushes it to the MCAP file when full and on close, so
+a long run keeps its whole (downsampled) history with nothing allocated per tick in between. One
+topic per stage of the tick, JSON messages (schemas are JSON Schema):
+
+``/read`` encoder positions (rad) and their stamps (s); ``/estimate`` q (rad), dq (rad/s);
+``/infer`` the policy action; ``/guard`` the guarded target; ``/smooth`` the command sent;
+``/thermal`` reported winding temperatures (degC); ``/state`` the state machine of every env.
+
+Given the robot (``robot=``) and with the ``foxglove`` extra installed, the file also carries
+Foxglove's well-known schemas (:mod:`deploy.observe.foxglove`): ``/tf`` link poses
+(``foxglove.FrameTransforms``), ``/robot`` the robot's geometry (``foxglove.SceneUpdate``),
+``/joint_states`` and ``/joint_commands`` (``foxglove.JointStates``) and ``/guard_events``
+(``foxglove.Log``), so that Foxglove draws the robot moving in 3D. They are built from the ring
+buffer when it is flushed (link poses by forward kinematics of the logged estimated joint
+positions), not in the tick: sampling a tick costs the same few array copies with or without them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+#: Histogram bins: 1 us wide from 0 to 20 ms, plus one overflow bin.
+BIN_NS = 1_000
+BINS = 20_000
+
+
+class LatencyHistogram:
+    """Fixed-bin latency histogram (1 us bins up to 20 ms) for ``stages`` stages; O(1) per sample,
+    no allocation. Percentiles are exact to the bin width."""
+
+    def __init__(self, stages: int = 1):
+        self.counts = np.zeros((stages, BINS + 1), dtype=np.int64)
+        self.max_ns = np.zeros(stages, dtype=np.int64)
+        self._rows = np.arange(stages)
+
+    def add(self, stage: int, ns: int) -> None:
+        ns = int(ns)
+        self.counts[stage, min(ns // BIN_NS, BINS) if ns > 0 else 0] += 1
+        if ns > self.max_ns[stage]:
+            self.max_ns[stage] = ns
+
+    def add_stages(self, stamps: np.ndarray) -> None:
+        """``stamps`` (stages + 1,) int64 ns: stage i took ``stamps[i + 1] - stamps[i]``."""
+        ns = np.diff(stamps)
+        np.maximum(self.max_ns, ns, out=self.max_ns)
+        np.clip(ns // BIN_NS, 0, BINS, out=ns)
+        self.counts[self._rows, ns] += 1
+
+    def clear(self) -> None:
+        """Forget every sample (e.g. after a warm-up)."""
+        self.counts[:] = 0
+        self.max_ns[:] = 0
+
+    def percentile(self, stage: int, p: float) -> float:
+        """p-th percentile (0-100) of stage ``stage``, in us (NaN without samples)."""
+        c = self.counts[stage]
+        total = c.sum()
+        if total == 0:
+            return float("nan")
+        idx = int(np.searchsorted(np.cumsum(c), np.ceil(p / 100.0 * total)))
+        return (idx + 0.5) * BIN_NS / 1e3 if idx < BINS else self.max_ns[stage] / 1e3
+
+    def summary(self, stage: int = 0) -> dict[str, float]:
+        return {
+            "p50_us": self.percentile(stage, 50),
+            "p99_us": self.percentile(stage, 99),
+            "p99.9_us": self.percentile(stage, 99.9),
+            "max_us": float(self.max_ns[stage] / 1e3),
+            "samples": int(self.counts[stage].sum()),
+        }
+
+
+_TOPICS = ("/read", "/estimate", "/infer", "/guard", "/smooth", "/thermal", "/state")
+
+
+class Telemetry:
+    """Downsampled telemetry of a :class:`~deploy.runtime.Runtime`, written as MCAP.
+
+    Args:
+        path: Output ``.mcap`` file; written to ``path + '.part'`` and renamed on close, so a file
+            under the final name is always complete.
+        envs, n_joints: Shapes of the runtime.
+        every: Keep one tick in ``every``.
+        capacity: Rows of the ring buffer before a flush.
+        robot: Optional :class:`~robots.Robot`: adds the Foxglove topics (module docstring).
+        control_mode: With ``robot``: ``position``, ``velocity`` or ``torque`` (the field of
+            ``/joint_commands``); default the robot's.
+        tf_every: With ``robot``: one ``/tf`` message per ``tf_every`` sampled rows (so one per
+            ``every * tf_every`` ticks).
+
+    Raises:
+        ImportError: ``robot`` given without ``foxglove-schemas-protobuf`` installed.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        envs: int,
+        n_joints: int,
+        every: int = 10,
+        capacity: int = 4096,
+        robot=None,
+        control_mode: str | None = None,
+        tf_every: int = 1,
+    ):
+        from mcap.writer import Writer
+
+        self.path = Path(path)
+        self.every, self.capacity = every, capacity
+        self._tmp = self.path.with_name(self.path.name + ".part")
+        self._file = open(self._tmp, "wb")  # noqa: SIM115 - closed in close()
+        self._writer = Writer(self._file)
+        self._writer.start(profile="", library="sim2real-deploy")
+        self._channels = {}
+        for topic in _TOPICS:
+            schema = self._writer.register_schema(
+                name=topic.strip("/"),
+                encoding="jsonschema",
+                data=json.dumps({"type": "object"}).encode(),
+            )
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=schema
+            )
+        self.foxglove = None
+        if robot is not None:
+            self._register_foxglove(robot, envs, control_mode or robot.control_mode)
+        self.tf_every = max(1, int(tf_every))
+        self._sampled = 0  # rows sampled so far (for tf_every)
+        shape = (capacity, envs, n_joints)
+        self._t = np.zeros(capacity)
+        self._pos = np.zeros(shape)
+        self._stamp = np.zeros(shape)
+        self._q = np.zeros(shape)
+        self._dq = np.zeros(shape)
+        self._action = np.zeros(shape, dtype=np.float32)
+        self._target = np.zeros(shape)
+        self._cmd = np.zeros(shape)
+        self._temp = np.zeros(shape)
+        self._mode = np.zeros((capacity, envs), dtype=np.int8)
+        self._cause = np.zeros((capacity, envs), dtype=np.int8)
+        self._guard_counts = None  # (capacity, checks, envs) once the first row shows the guard
+        self._last_mode = np.zeros(envs, dtype=np.int8)  # IDLE
+        self._last_counts = None
+        self._rows = 0
+        self.messages = 0
+
+    def _register_foxglove(self, robot, envs: int, control_mode: str) -> None:
+        from deploy.observe import foxglove as fx
+
+        self.foxglove = enc = fx.FoxgloveEncoder(robot, envs, control_mode)
+        schemas = {
+            name: self._writer.register_schema(
+                name=name, encoding="protobuf", data=fx.file_descriptor_set(enc.classes[name])
+            )
+            for name in enc.classes
+        }
+        for topic, schema_name in (
+            ("/tf", fx.FRAME_TRANSFORMS),
+            ("/robot", fx.SCENE_UPDATE),
+            ("/joint_states", fx.JOINT_STATES),
+            ("/joint_commands", fx.JOINT_STATES),
+            ("/guard_events", fx.LOG),
+        ):
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="protobuf", schema_id=schemas[schema_name]
+            )
+        self._scene_written = False
+
+    def record(self, rt) -> None:
+        """Sample the runtime's latest tick (every ``every``-th call)."""
+        if rt.ticks % self.every:
+            return
+        i = self._rows
+        frame = rt.backend.frame
+        self._t[i] = rt.time
+        self._pos[i] = frame.position
+        self._stamp[i] = frame.position_stamp
+        self._q[i] = rt.state.q
+        self._dq[i] = rt.state.dq
+        self._action[i] = rt.action
+        self._target[i] = rt.target
+        self._cmd[i] = rt.command
+        self._temp[i] = rt.state.winding_temperature
+        self._mode[i] = rt.mode
+        if self.foxglove is not None:
+            self._cause[i] = rt.cause
+            counts = rt.guard.count_matrix
+            if self._guard_counts is None:
+                self._guard_counts = np.zeros((self.capacity, *counts.shape), dtype=np.int64)
+                self._guard_checks = tuple(rt.guard.counts)
+                self._last_counts = np.zeros(counts.shape, dtype=np.int64)
+            self._guard_counts[i] = counts
+        self._rows += 1
+        if self._rows == self.capacity:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the buffered rows to the MCAP file."""
+
+        def clean(a):
+            return np.where(np.isfinite(a), a, None).tolist()
+
+        for i in range(self._rows):
+            t_ns = int(round(self._t[i] * 1e9))
+            msgs = {
+                "/read": {"position": clean(self._pos[i]), "stamp": clean(self._stamp[i])},
+                "/estimate": {"q": self._q[i].tolist(), "dq": self._dq[i].tolist()},
+                "/infer": {"action": clean(self._action[i])},
+                "/guard": {"target": self._target[i].tolist()},
+                "/smooth": {"command": self._cmd[i].tolist()},
+                "/thermal": {"winding_temperature": self._temp[i].tolist()},
+                "/state": {"mode": self._mode[i].tolist()},
+            }
+            for topic, msg in msgs.items():
+                self._writer.add_message(
+                    channel_id=self._channels[topic],
+                    log_time=t_ns,
+                    publish_time=t_ns,
+                    data=json.dumps(msg).encode(),
+                )
+                self.messages += 1
+            if self.foxglove is not None:
+                self._flush_foxglove(i, t_ns)
+        self._rows = 0
+
+    def _flush_foxglove(self, i: int, t_ns: int) -> None:
+        """The Foxglove messages of buffered row ``i`` (module docstring)."""
+        from deploy.runtime import FAULT_CAUSES, Mode
+
+        enc = self.foxglove
+        msgs = []
+        if not self._scene_written:
+            msgs.append(("/robot", enc.scene(t_ns)))
+            self._scene_written = True
+        if self._sampled % self.tf_every == 0:
+            msgs.append(("/tf", enc.frame_transforms(t_ns, self._q[i])))
+        self._sampled += 1
+        msgs.append(("/joint_states", enc.joint_states(t_ns, self._q[i], self._dq[i])))
+        msgs.append(("/joint_commands", enc.joint_commands(t_ns, self._cmd[i])))
+        mode = self._mode[i]
+        for e in np.flatnonzero(mode != self._last_mode):
+            new = Mode(int(mode[e])).name
+            cause = int(self._cause[i, e])
+            text = f"env {e}: {Mode(int(self._last_mode[e])).name} -> {new}"
+            if cause >= 0 and new in ("SAFE_STOP", "FAULTED"):
+                text += f" ({FAULT_CAUSES[cause]})"
+            level = "ERROR" if new in ("SAFE_STOP", "FAULTED") else "INFO"
+            msgs.append(("/guard_events", enc.log(t_ns, level, text)))
+        self._last_mode[:] = mode
+        if self._guard_counts is not None:
+            rose = np.maximum(self._guard_counts[i] - self._last_counts, 0)  # (checks, envs)
+            for e in np.flatnonzero(rose.any(axis=0)):
+                checks = ", ".join(
+                    f"{name} {int(rose[c, e])}"
+                    for c, name in enumerate(self._guard_checks)
+                    if rose[c, e]
+                )
+                text = f"env {e}: guard intervened ({checks} ticks since the last sample)"
+                msgs.append(("/guard_events", enc.log(t_ns, "WARNING", text)))
+            self._last_counts[:] = self._guard_counts[i]
+        for topic, data in msgs:
+            self._writer.add_message(
+                channel_id=self._channels[topic], log_time=t_ns, publish_time=t_ns, data=data
+            )
+            self.messages += 1
+
+    def close(self) -> Path:
+        """Flush, finish the MCAP file and move it to its final name; returns the path."""
+        self.flush()
+        self._writer.finish()
+        self._file.close()
+        os.replace(self._tmp, self.path)
+        return self.path

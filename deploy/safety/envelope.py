@@ -1,0 +1,282 @@
+"""The motion envelope: no smoother step leaves the guard if the robot, braking from the state
+that step puts it in, could touch itself or leave its workspace box.
+
+The guard (:class:`deploy.safety.guard.SafetyGuard`) checks the *target* of each tick. A target far
+from
+the present pose (a position-mode policy may ask for any pose of the range, 500 times a second) is
+reached along the smoother's jerk-limited path, and a collision-free target says nothing about
+that path; nor can a moving arm stop at once when the next target turns out bad. The envelope
+closes that gap the way speed-and-separation monitoring does (ISO/TS 15066): after every smoother
+step it checks the whole motion the robot is committed to, and if that motion could bring a listed
+collision pair within ``margin`` or the end effector within ``margin`` of the workspace box's
+faces, the step is replaced by the smoother's brake (:meth:`CommandSmoother.brake`).
+
+The motion an env is committed to lies, joint by joint, in a box: from the estimated position
+(where the joint is; a position servo lags its command), through the smoother's position before
+and after the step, to where the joint comes to rest if the smoother brakes from its new state
+(:func:`deploy.safety.envelope_kernel.brake_reach`, under the smoother's acceleration and jerk
+limits;
+the deceleration scaled down to the torque a thermally derated drive has left above the worst
+gravity load, :func:`deploy.safety.envelope_kernel.brake_headroom`: a hot drive brakes later).
+Every configuration in the box is certified by one exact query at its centre: a pair's distance
+(coal) changes by at most ``weights_p @ |dq|``
+(:func:`robots.chain_bounds.collision_pair_weights`), the
+end effector's margin inside the workspace box by at most ``lever @ |dq|``
+(:func:`robots.chain_bounds.end_effector_lever`), per axis of the box where a joint's axis keeps its
+world direction (:func:`axis_levers`: a planar arm's end effector never leaves its plane); the box
+is safe when the centre's distance exceeds
+that bound over the box's half-widths plus ``margin``; a box that one query cannot certify is
+halved along its widest weighted side, up to ``MAX_QUERIES`` queries, before the step is braked.
+Workspace faces beyond the end effector's reach are never crossed and not checked. The same
+bound screens the exact query against the last one (``deploy.safety.envelope_kernel``): far from
+contact no query runs, and the decision is the same with or without the cache.
+
+By induction the brake is always safe to take: the previous tick certified the box that holds it.
+A robot already within the margin (pushed there, or started there) may only move so that no
+pair's distance and no workspace margin shrinks, checked at the step's end and at its brake's rest
+point; otherwise it brakes.
+
+Torque mode has no smoother trajectory to certify (the guard's torque hold brakes instead), and a
+floating-base robot's leg targets are PD torques in disguise: neither has an envelope.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+
+from deploy.safety import envelope_kernel as ek
+
+#: m, default clearance kept between listed collision geometries and from the workspace box's
+#: faces: our choice, a few times the joint estimate's error times a lever of about a metre, plus
+#: the position servo's deviation from the box of its command path; capped at half the home
+#: pose's own clearance (see ``MotionEnvelope``).
+DEFAULT_MARGIN = 0.01
+#: Smallest share of the full deceleration the envelope assumes of a derated drive (our choice: a
+#: drive derated to its floor still holds the arm; its brake is taken as 20 times longer).
+MIN_HEADROOM = 0.05
+#: m, distances within this of each other are equal (coal's round-off between configurations
+#: that leave a pair's relative pose unchanged).
+DISTANCE_TOLERANCE = 1e-9
+#: Exact queries per env, check and tick at most when halving a box (our choice: a few
+#: Pinocchio calls, only near contact or a face).
+MAX_QUERIES = 7
+
+
+def axis_levers(robot, ee_lever: np.ndarray) -> np.ndarray:
+    """(3, n) m/rad, bound of the end effector's displacement along world x, y, z per radian of
+    each joint: ``ee_lever`` (n,), times ``|e_k x a_i|`` where joint ``i``'s axis ``a_i`` keeps
+    its world direction in every configuration (every joint above it turns about a parallel
+    axis; a rotation about ``a_i`` moves points perpendicular to it), else times 1."""
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, d)
+    ids = [m.joint(name).id for name in robot.joint_names]
+    out = np.tile(np.asarray(ee_lever, dtype=float), (3, 1))
+    for i, j in enumerate(ids):
+        axis = d.xaxis[j] / np.linalg.norm(d.xaxis[j])
+        body, invariant = m.jnt_bodyid[j], m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
+        for k in range(m.njnt):
+            if k == j or not invariant:
+                continue
+            above = body
+            while above > 0 and above != m.jnt_bodyid[k]:
+                above = m.body_parentid[above]
+            if above > 0 and np.linalg.norm(np.cross(d.xaxis[k], axis)) > 1e-9 * np.linalg.norm(
+                d.xaxis[k]
+            ):
+                invariant = False
+        if invariant:
+            out[:, i] *= np.linalg.norm(np.cross(np.eye(3), axis), axis=1)
+    return out
+
+
+class MotionEnvelope:
+    """Certify each env's committed motion against self-collision and the workspace box.
+
+    Args:
+        robot: The robot (limits, workspace box, collision pairs).
+        envs: Batch size.
+        geometry: ``(geom_model, geom_data)``, the guard's coal model
+            (:meth:`deploy.safety.guard.SafetyGuard.collision_model`; a data of its own).
+        pair_weights: (pairs, n) m/rad, :func:`robots.chain_bounds.collision_pair_weights`.
+        ee_lever: (n,) m/rad, :func:`robots.chain_bounds.end_effector_lever`.
+        gravity_bound: (n,) N m, each joint's worst gravity torque
+            (:func:`robots.chain_bounds.motion_bounds`).
+        reach: m, :func:`robots.chain_bounds.end_effector_reach` (faces beyond it are dropped).
+        margin: m, clearance kept (``safety.clearance_margin`` of robot.toml); default
+            :data:`DEFAULT_MARGIN`, capped at half the smallest pair distance and workspace
+            margin of the home pose (a gripper's jaw may sit close to its wrist there).
+
+    Attributes:
+        unsafe: (2, envs) bool, rows collision and workspace: the envs the last :meth:`check`
+            found unsafe.
+        queries: int, exact (Pinocchio) queries so far: a cost figure.
+    """
+
+    def __init__(
+        self,
+        robot,
+        envs,
+        geometry,
+        pair_weights,
+        ee_lever,
+        gravity_bound,
+        reach=np.inf,
+        margin=None,
+    ):
+        self.robot, self.envs = robot, envs
+        n = robot.n_joints
+        s = robot.config.safety
+        self.model = robot.fixed_base_model
+        self.data = self.model.createData()
+        self.geom_model, self.geom_data = geometry
+        self.pairs = len(pair_weights)
+        self.has_workspace = s.workspace_min is not None
+        if self.has_workspace:
+            self.ws_min = np.where(np.array(s.workspace_min) <= -reach, -np.inf, s.workspace_min)
+            self.ws_max = np.where(np.array(s.workspace_max) >= reach, np.inf, s.workspace_max)
+        # (4, n): the smoother's acceleration and jerk limits, the worst gravity load's share of
+        # each effort limit, MIN_HEADROOM
+        self.limits = np.stack(
+            [
+                robot.acceleration_limit,
+                robot.jerk_limit,
+                np.asarray(gravity_bound) / robot.effort_limit,
+                np.full(n, MIN_HEADROOM),
+            ]
+        )
+        self.queries = 0
+        if margin is None:  # the default, capped at half the home pose's clearance
+            home = np.asarray(robot.home, dtype=float)
+            clear = [self.distances(home).min()] if self.pairs else []
+            if self.has_workspace:
+                clear.append(self.workspace_margin(home).min())
+            margin = min([DEFAULT_MARGIN, *(0.5 * c for c in clear if c > 0.0)])
+            self.queries = 0
+        self.margin = float(margin)
+        # rows: each pair's approach bound, then the end effector's levers along x, y, z (0
+        # without a box)
+        self.weights = np.zeros((self.pairs + 3, n))
+        self.weights[: self.pairs] = pair_weights
+        if self.has_workspace:
+            self.weights[self.pairs :] = axis_levers(robot, ee_lever)
+        # cache of the last exact query: its configuration (rows collision, workspace) and the
+        # distances there (pairs, then the workspace margins along x, y, z); -inf: unknown, inf:
+        # nothing to check
+        self._cached_q = np.zeros((2, envs, n))
+        self._clearance = np.full((envs, self.pairs + 3), -np.inf)
+        if not self.has_workspace:
+            self._clearance[:, self.pairs :] = np.inf
+        if not self.pairs:
+            self._clearance[:, : self.pairs] = np.inf
+        self._box = np.zeros((3, envs, n))  # centre, half-width, the brake's rest point
+        self._need = np.zeros((2, envs), dtype=bool)
+        self.unsafe = np.zeros((2, envs), dtype=bool)
+        self._dirty = False
+        ek.warm_up()
+
+    # ------------------------------------------------------------------ exact queries
+    def distances(self, q: np.ndarray) -> np.ndarray:
+        """(pairs,) m, each listed pair's distance at ``q`` (n,) rad (coal; <= 0 in contact)."""
+        self.queries += 1
+        pin.computeDistances(self.model, self.data, self.geom_model, self.geom_data, q)
+        return np.array([r.min_distance for r in self.geom_data.distanceResults])
+
+    def workspace_margin(self, q: np.ndarray) -> np.ndarray:
+        """(3,) m, how far the end effector at ``q`` (n,) rad lies inside the workspace box along
+        x, y, z (negative outside)."""
+        self.queries += 1
+        pin.forwardKinematics(self.model, self.data, q)
+        ee = pin.updateFramePlacement(self.model, self.data, self.robot.ee_frame_id).translation
+        return np.minimum(ee - self.ws_min, self.ws_max - ee)
+
+    # ------------------------------------------------------------------ the check
+    def check(self, q, before, after, stopping, effort_scale) -> bool:
+        """Find the envs whose committed motion is not certified safe: :attr:`unsafe`.
+
+        Args:
+            q: (envs, n) rad, the estimated joint positions.
+            before: (3, envs, n) the smoother's position, velocity and acceleration (rad, rad/s,
+                rad/s^2) before its step (``CommandSmoother.before``).
+            after: (3, envs, n) the same after it (``CommandSmoother.trajectory``).
+            stopping: (envs,) bool, the envs braking to a stop already (not checked).
+            effort_scale: (envs, n), the drives' thermal derating (the guard's).
+
+        Returns:
+            Whether any env is unsafe (:attr:`unsafe`, (2, envs) bool, rows collision and
+            workspace, is written only then; it is all False otherwise).
+        """
+        if self._dirty:
+            self.unsafe.fill(False)
+            self._dirty = False
+        box, need = self._box, self._need
+        if not ek.envelope_screen(
+            q, before, after, stopping, self.limits, effort_scale, self._cached_q,
+            self._clearance, self.weights, self.margin, box, need,
+        ):  # fmt: skip
+            return False
+        c, h, stop, start, end = box[0], box[1], box[2], before[0], after[0]
+        for e in np.flatnonzero(need[ek.COLLISION]):
+            d = self._clearance[e, : self.pairs]
+            d[:] = self.distances(c[e])
+            self._cached_q[ek.COLLISION, e] = c[e]
+            if not self._certified(ek.COLLISION, c[e], h[e], d):
+                escapes = self._escapes_contact(start[e], end[e], stop[e])
+                self.unsafe[ek.COLLISION, e] = not escapes
+        for e in np.flatnonzero(need[ek.WORKSPACE]):
+            inside = self._clearance[e, self.pairs :]
+            inside[:] = self.workspace_margin(c[e])
+            self._cached_q[ek.WORKSPACE, e] = c[e]
+            if not self._certified(ek.WORKSPACE, c[e], h[e], inside):
+                escapes = self._escapes_box(start[e], end[e], stop[e])
+                self.unsafe[ek.WORKSPACE, e] = not escapes
+        self._dirty = bool(self.unsafe.any())
+        return self._dirty
+
+    def _certified(self, kind: int, centre, half, value) -> bool:
+        """Whether the box ``centre +- half`` (n,) rad keeps every quantity of ``kind`` (the
+        pairs' distances, or the workspace margins; ``value`` at the centre) above the margin;
+        an uncertain box is halved along its widest weighted side while queries remain
+        (:data:`MAX_QUERIES`)."""
+        rows = slice(None, self.pairs) if kind == ek.COLLISION else slice(self.pairs, None)
+        weights = self.weights[rows]
+        query = self.distances if kind == ek.COLLISION else self.workspace_margin
+        boxes, queries = [(centre, half, np.array(value))], 1
+        while boxes:
+            c, h, v = boxes.pop()
+            slack = v - weights @ h - self.margin
+            if np.all(slack > 0.0):
+                continue
+            if queries + 2 > MAX_QUERIES or not np.all(v > self.margin):
+                return False
+            worst = int(np.argmin(slack))
+            i = int(np.argmax(weights[worst] * h))
+            h = h.copy()
+            h[i] *= 0.5
+            for sign in (-1.0, 1.0):
+                ci = c.copy()
+                ci[i] += sign * h[i]
+                boxes.append((ci, h, query(ci)))
+                queries += 1
+        return True
+
+    def _escapes_contact(self, start, end, rest) -> bool:
+        """Whether a robot already within the margin at ``start`` moves back out: no pair's
+        distance at the step's ``end`` or the brake's ``rest`` below its distance at ``start``,
+        and no pair brought within the margin. False when ``start`` is clear of the margin (the
+        motion, not the pose, is what fails)."""
+        d0 = self.distances(start)
+        if d0.min() > self.margin:
+            return False
+        floor = np.where(d0 > self.margin, self.margin, d0) - DISTANCE_TOLERANCE
+        return bool(np.all(self.distances(end) >= floor) and np.all(self.distances(rest) >= floor))
+
+    def _escapes_box(self, start, end, rest) -> bool:
+        """:meth:`_escapes_contact` for the workspace box: the margin inside it may not shrink."""
+        m0 = self.workspace_margin(start).min()
+        if m0 > self.margin:
+            return False
+        m0 -= DISTANCE_TOLERANCE
+        return self.workspace_margin(end).min() >= m0 and self.workspace_margin(rest).min() >= m0

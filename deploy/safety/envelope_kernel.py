@@ -1,0 +1,130 @@
+"""Kernel of :class:`deploy.safety.envelope.MotionEnvelope`: the joint box of each env's motion
+envelope
+and the screen that says where Pinocchio must look (:func:`envelope_screen`).
+
+The box of env ``e``, joint ``i`` spans the estimated position, the smoother's position before
+and after the step, and the point where the joint comes to rest if the smoother brakes from its
+new state (:func:`brake_reach`, with a derated drive's deceleration, :func:`brake_headroom`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+#: Rows of ``need``.
+COLLISION, WORKSPACE = 0, 1
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def brake_reach(v: float, a: float, amax: float, jmax: float) -> tuple[float, float]:
+    """``(forward, back)`` rad: how far a joint at speed ``v`` (rad/s) and acceleration ``a``
+    (rad/s^2) can still move along (``forward``) and against (``back``) its direction of motion
+    while a jerk-limited brake (``amax``, ``jmax``) brings it to rest.
+
+    Forward: the acceleration toward the motion is ramped down first (time ``a / j``, the speed
+    rising by ``a^2 / 2j`` to ``v_eff``), then the brake from ``v_eff`` at zero acceleration,
+    ``v_eff^2 / 2a + v_eff a / 2j`` (:func:`deploy.smoothing.braking.stopping_distance`). Back: an
+    acceleration against the motion cannot be released at once and may carry the joint past rest
+    by at most ``a^3 / (2 j^2)``. Direction: that of ``v``, or of ``a`` at rest.
+    """
+    s = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else (1.0 if a >= 0.0 else -1.0))
+    speed = abs(v)
+    toward = max(a * s, 0.0)
+    against = max(-a * s, 0.0)
+    v_eff = speed + toward * toward / (2.0 * jmax)
+    forward = v_eff * toward / jmax + v_eff * v_eff / (2.0 * amax) + v_eff * amax / (2.0 * jmax)
+    back = against * against * against / (2.0 * jmax * jmax)
+    return s * forward, -s * back
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def brake_headroom(scale: float, gravity_share: float, floor: float) -> float:
+    """Fraction of the full deceleration a drive derated to ``scale`` (of its effort limit) still
+    has: the torque left above the worst gravity load, ``(scale - g) / (1 - g)`` with ``g`` the
+    gravity bound's share of the effort limit (the share of the limit the acceleration limits
+    were sized from), clipped to ``[floor, 1]``."""
+    if gravity_share >= 1.0:
+        return max(min(scale, 1.0), floor)
+    return max(min((scale - gravity_share) / (1.0 - gravity_share), 1.0), floor)
+
+
+@numba.njit(cache=True, nogil=True)
+def envelope_screen(
+    q: np.ndarray,
+    before: np.ndarray,
+    after: np.ndarray,
+    stopping: np.ndarray,
+    limits: np.ndarray,
+    effort_scale: np.ndarray,
+    cached_q: np.ndarray,
+    clearance: np.ndarray,
+    weights: np.ndarray,
+    margin: float,
+    box: np.ndarray,
+    need: np.ndarray,
+) -> bool:
+    """The box of every env not ``stopping`` ((envs,) bool), and whether the cache certifies it.
+
+    The box (module docstring): ``q`` (envs, n) estimated positions, ``before`` (3, envs, n) the
+    smoother's position, velocity, acceleration before the step (its position is used) and
+    ``after`` (3, envs, n) after it; ``limits`` (4, n): the smoother's acceleration and jerk
+    limits, the worst gravity load's share of each effort limit and the smallest brake headroom
+    assumed. The brake's deceleration is the acceleration limit times :func:`brake_headroom` of
+    ``effort_scale`` (envs, n), the thermal derating. Writes ``box`` (3, envs, n): centre,
+    half-width and the brake's rest point.
+
+    The screen marks ``need[row, e]`` (rows ``COLLISION``, ``WORKSPACE``) where the cache cannot
+    certify the box: ``cached_q`` (2, envs, n) rad the configurations of the last exact queries
+    (rows as ``need``), ``clearance`` (envs, pairs + 3) m the pair distances there and, last,
+    the end effector's margins inside the workspace box along x, y, z (``inf`` without a box),
+    ``weights`` (pairs + 3, n) m/rad the pairs' approach bounds and the end effector's levers
+    along x, y, z. A quantity can shrink by at most ``weights @ (|centre - cached| + half)``
+    anywhere in the box. Returns whether any env needs an exact query.
+    """
+    envs, n = q.shape
+    rows = weights.shape[0]
+    pairs = rows - 3
+    any_need = False
+    for e in range(envs):
+        need[COLLISION, e] = False
+        need[WORKSPACE, e] = False
+        if stopping[e]:
+            continue
+        for i in range(n):
+            share = brake_headroom(effort_scale[e, i], limits[2, i], limits[3, i])
+            forward, back = brake_reach(
+                after[1, e, i], after[2, e, i], limits[0, i] * share, limits[1, i]
+            )
+            p = after[0, e, i]
+            box[2, e, i] = p + forward
+            lo = min(q[e, i], before[0, e, i], p, p + forward, p + back)
+            hi = max(q[e, i], before[0, e, i], p, p + forward, p + back)
+            box[0, e, i] = 0.5 * (lo + hi)
+            box[1, e, i] = 0.5 * (hi - lo)
+        for r in range(rows):
+            row = WORKSPACE if r >= pairs else COLLISION
+            if need[row, e]:
+                continue
+            reach = 0.0
+            for i in range(n):
+                if weights[r, i] != 0.0:
+                    d = abs(box[0, e, i] - cached_q[row, e, i]) + box[1, e, i]
+                    reach += weights[r, i] * d
+            if not (clearance[e, r] - reach > margin):  # NaN-safe: unknown means check
+                need[row, e] = True
+                any_need = True
+    return any_need
+
+
+def warm_up() -> None:
+    """Compile (or load numba's cache of) the kernel on small arrays, outside any tick."""
+    z = np.zeros((1, 2))
+    z3 = np.zeros((3, 1, 2))
+    envelope_screen(
+        z, z3, z3, np.zeros(1, dtype=bool), np.ones((4, 2)), np.ones((1, 2)),
+        np.zeros((2, 1, 2)), np.full((1, 4), math.inf), np.zeros((4, 2)), 0.0, z3.copy(),
+        np.zeros((2, 1), dtype=bool),
+    )  # fmt: skip

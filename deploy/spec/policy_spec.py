@@ -1,0 +1,465 @@
+"""PolicySpec: the observation and action contract of a policy.
+
+One spec describes what a policy sees and what its outputs mean. Training builds observations with
+it, export stores it as JSON in the ONNX file, and the runtime refuses a policy whose spec does not
+match the robot. It removes the commonest sim-to-real bug: observations fed in another order, scale
+or unit than in training, or action post-processing forgotten.
+
+Observation: the concatenation of ordered blocks; each block computes a raw quantity in SI units and
+normalizes it as ``clip((raw - offset) / scale, -clip, clip)``. Following the seed's rule (section
+3) the scales are physical maxima (joint limit, maximum velocity, reach, maximum winding
+temperature), never statistics of observed data. Block kinds (``n`` = joints, ``k`` = selected
+joints):
+
+==========================  =====  =================================================================
+kind                        size   raw quantity (base frame unless stated)
+==========================  =====  =================================================================
+``joint_position``          k      q, rad; offset = centre of the limits, scale = half range
+``joint_velocity``          k      dq, rad/s; scale = velocity limit
+``joint_position_sincos``   2k     sin q, cos q of wrapping joints (seed section 9)
+``ee_position``             3      end-effector position, m; scale = reach
+``goal_position``           3      goal position, m; scale = reach
+``goal_in_ee``              3      goal - end effector, in the end-effector frame, m; scale = reach
+``last_action``             n      the previous action, [-1, 1]
+``winding_temperature``     n      degC; offset = ambient, scale = max winding - ambient
+==========================  =====  =================================================================
+
+Convention: ``scale`` is a *divisor* and ``offset`` is subtracted first, per entry, in the raw
+quantity's SI unit. A training library that multiplies instead (legged_gym's ``obs_scales``,
+Isaac Lab's term ``scale``), ``obs = (raw - default) * s``, is ``offset = default``, ``scale =
+1 / s``: legged_gym's ``dof_vel`` 0.05 is ``scale`` 20, ``ang_vel`` 0.25 is 4, ``lin_vel`` 2.0 is
+0.5, ``dof_pos`` 1.0 about ``default_angles`` is ``scale`` 1 with ``offset`` the default pose. In
+JSON ``scale`` and ``offset`` may be one number or one per entry (``deploy.spec.schema``; the
+JSON Schema is ``docs/policy_spec.schema.json``).
+
+Action: ``a`` in ``[-clip, clip]^n`` maps to the target of the control mode,
+``target = offset + scale * a`` (``reference = "absolute"``) or ``target = q + scale * a``
+(position mode, ``reference = "current"``). :meth:`PolicySpec.for_robot` scales a velocity action
+by the soft velocity limit (the fastest command the smoother issues, so a full action is never
+clamped), a torque action by the effort limit and an absolute position action by half the range.
+
+Arrays are shaped (envs, ...). ``observation`` and ``action_to_target`` write into ``out`` when it
+is given (no allocation in the control loop).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from functools import cached_property
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from deploy.state import RobotState
+from robots import CONTROL_MODES, Robot
+from robots.errors import Sim2RealError
+
+if TYPE_CHECKING:
+    from deploy.spec.observation_plan import ObservationPlan
+
+FORMAT_VERSION = 1
+#: Blocks of a floating-base (legged) robot, all in the base frame, SI units (seed section 9: the
+#: base's own motion and the command, never its absolute world position or yaw):
+#: ``base_linear_velocity`` (3, m/s, estimated), ``base_angular_velocity`` (3, rad/s),
+#: ``projected_gravity`` (3, unit vector), ``velocity_command`` (3: vx, vy m/s, yaw rate rad/s),
+#: ``gait_phase`` (2: sin, cos of ``2 pi t / period``, t the runtime's clock), ``foot_contact``
+#: (one per foot, 0 or 1), ``heading_sincos`` (2: sin, cos of the yaw the attitude filter has
+#: turned since the start, not the world's). Joint positions about the default pose are a
+#: ``joint_position`` block with ``offset`` = the home pose.
+LEGGED_KINDS = (
+    "base_linear_velocity",
+    "base_angular_velocity",
+    "projected_gravity",
+    "velocity_command",
+    "gait_phase",
+    "foot_contact",
+    "heading_sincos",
+)
+OBSERVATION_KINDS = (
+    "joint_position",
+    "joint_velocity",
+    "joint_position_sincos",
+    "ee_position",
+    "goal_position",
+    "goal_in_ee",
+    "last_action",
+    "winding_temperature",
+) + LEGGED_KINDS
+#: Entries of the blocks whose size does not follow from their joints (foot_contact: a quadruped's
+#: four by default; checked against the robot's feet by :meth:`PolicySpec.check_robot`).
+FIXED_SIZES = {
+    "ee_position": 3,
+    "goal_position": 3,
+    "goal_in_ee": 3,
+    "base_linear_velocity": 3,
+    "base_angular_velocity": 3,
+    "projected_gravity": 3,
+    "velocity_command": 3,
+    "gait_phase": 2,
+    "heading_sincos": 2,
+    "foot_contact": 4,
+}
+#: A floating-base robot's default observation (legged_gym's, with the gait clock of
+#: unitree_rl_gym and without the base linear velocity, which needs the estimator to converge).
+LEGGED_DEFAULT_BLOCKS = (
+    "base_angular_velocity",
+    "projected_gravity",
+    "velocity_command",
+    "gait_phase",
+    "joint_position",
+    "joint_velocity",
+    "last_action",
+)
+#: Divisors of the legged blocks: 1 / legged_gym's ``obs_scales`` (LeggedRobotCfg.normalization:
+#: lin_vel 2.0, ang_vel 0.25, dof_vel 0.05; commands scaled like the velocities they command).
+LEGGED_SCALES = {
+    "base_linear_velocity": (0.5, 0.5, 0.5),
+    "base_angular_velocity": (4.0, 4.0, 4.0),
+    "velocity_command": (0.5, 0.5, 4.0),
+    "joint_velocity": 20.0,
+}
+#: Position actions about the home pose, rad per unit action (legged_gym
+#: LeggedRobotCfg.control.action_scale).
+LEGGED_ACTION_SCALE = 0.25
+#: A legged policy's action clip (legged_gym LeggedRobotCfg.normalization.clip_actions): its
+#: targets reach past the joints' ranges, where the guard clamps them (counted).
+LEGGED_ACTION_CLIP = 100.0
+#: The gait clock's period, s (unitree_rl_gym legged_gym/envs/go2: the phase period 0.8 s).
+GAIT_PERIOD = 0.8
+#: Default observation clip (in normalized units); generous, since values are already ~[-1, 1].
+DEFAULT_CLIP = 5.0
+#: Blocks published policies read that no robot here provides, by the names legged_gym and Isaac
+#: Lab use; where this toolkit has the quantity, the name it has here.
+UNPROVIDED_KINDS = {
+    "base_lin_vel": "base_linear_velocity",
+    "base_ang_vel": "base_angular_velocity",
+    "commands": "velocity_command",
+    "velocity_commands": "velocity_command",
+    "base_height": None,
+    "height_scan": None,
+}
+
+
+class SpecError(Sim2RealError, ValueError):
+    """A PolicySpec is invalid or does not match a robot; the message names the field."""
+
+
+@dataclass(frozen=True)
+class ObservationBlock:
+    """One block of the observation vector.
+
+    Attributes:
+        name: The block kind (one of ``OBSERVATION_KINDS``).
+        size: Number of entries it contributes.
+        scale: Per-entry divisor (physical maximum), length ``size``.
+        offset: Per-entry offset, length ``size``.
+        clip: Symmetric clip after normalization.
+        joints: Joint indices it reads (joint blocks only), in order.
+        period: ``gait_phase`` only: the gait clock's period, s (> 0); 0 for other blocks.
+    """
+
+    name: str
+    size: int
+    scale: tuple[float, ...]
+    offset: tuple[float, ...]
+    clip: float = DEFAULT_CLIP
+    joints: tuple[int, ...] = ()
+    period: float = 0.0
+
+
+@dataclass(frozen=True)
+class ActionSpec:
+    """How the policy output maps to a target.
+
+    Attributes:
+        mode: 'position' (rad), 'velocity' (rad/s) or 'torque' (N m).
+        size: Number of actions (= joints).
+        scale: Per-joint scale, length ``size`` (units of the mode per unit action).
+        offset: Per-joint offset, length ``size``.
+        clip: The action is clipped to ``[-clip, clip]`` before mapping.
+        reference: 'absolute' (``offset + scale * a``) or 'current' (position mode only:
+            ``q + scale * a``).
+    """
+
+    mode: str
+    size: int
+    scale: tuple[float, ...]
+    offset: tuple[float, ...]
+    clip: float = 1.0
+    reference: str = "absolute"
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """The contract of a policy: robot, joint order, observation layout, action mapping, rates.
+
+    Attributes:
+        robot: Robot name. joint_names: Joint order of observations and actions.
+        robot_hash: ``Robot.description_hash`` of the description trained on.
+        observation_blocks: Ordered observation blocks (JSON key ``observation``).
+        action: The action mapping.
+        control_rate: Hz, the rate the policy was trained at.
+        baked: What the ONNX graph already contains (``observation_normalizer``: an empirical
+            normalizer of a training library; ``action_clip``).
+        parity: Parity figures of the export (max abs error, samples), filled by export.
+        format_version: Version of this JSON format; other versions are refused.
+        constant_inputs: Graph inputs besides the observation and recurrent state, fed this
+            constant every tick (name -> value; JSON key ``constant_inputs``, left out when empty).
+
+    ``robot_hash`` may be empty (a spec written by hand for a policy trained elsewhere): the
+    description hash is then not checked.
+    """
+
+    robot: str
+    joint_names: tuple[str, ...]
+    robot_hash: str
+    observation_blocks: tuple[ObservationBlock, ...]
+    action: ActionSpec
+    control_rate: float
+    baked: dict[str, bool] = field(default_factory=dict)
+    parity: dict[str, Any] = field(default_factory=dict)
+    format_version: int = FORMAT_VERSION
+    constant_inputs: dict[str, float] = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def for_robot(
+        cls,
+        robot: Robot,
+        blocks: tuple[str, ...] | None = None,
+        mode: str | None = None,
+        reference: str = "absolute",
+    ) -> PolicySpec:
+        """Standard spec for ``robot`` with physical scales taken from the robot description.
+
+        Joints whose range exceeds 2 pi (multi-turn) are wrapping joints: ``joint_position``
+        skips them and ``joint_position_sincos`` covers them.
+
+        Default blocks: ``joint_position``, ``joint_position_sincos`` (only when the robot has
+        wrapping joints), ``joint_velocity``, ``ee_position``, ``goal_position``, ``goal_in_ee``.
+
+        Built by :func:`deploy.spec.defaults.spec_for_robot`.
+
+        Raises:
+            SpecError: unknown block kind or control mode.
+        """
+        from deploy.spec.defaults import spec_for_robot
+
+        return spec_for_robot(cls, robot, blocks, mode, reference)
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def obs_dim(self) -> int:
+        return sum(b.size for b in self.observation_blocks)
+
+    @property
+    def act_dim(self) -> int:
+        return self.action.size
+
+    def block_slices(self) -> dict[str, slice]:
+        """Where each block sits in the observation vector."""
+        out, start = {}, 0
+        for b in self.observation_blocks:
+            out[b.name] = slice(start, start + b.size)
+            start += b.size
+        return out
+
+    # ------------------------------------------------------------------ validation
+    def validate(self) -> None:
+        """Check internal consistency.
+
+        Raises:
+            SpecError: naming the field.
+        """
+        if self.format_version != FORMAT_VERSION:
+            raise SpecError(
+                f"format_version: {self.format_version} is not supported; expected {FORMAT_VERSION}"
+            )
+        n = len(self.joint_names)
+        for i, b in enumerate(self.observation_blocks):
+            where = f"observation[{i}] ('{b.name}')"
+            if b.name in UNPROVIDED_KINDS:
+                here = UNPROVIDED_KINDS[b.name]
+                raise SpecError(
+                    f"{where}: block '{b.name}' cannot be provided: "
+                    + (
+                        f"this toolkit calls it '{here}'"
+                        if here
+                        else "no robot here measures it (a height map or base height)"
+                    )
+                    + f"; blocks a robot provides: {', '.join(OBSERVATION_KINDS)}"
+                )
+            if b.name not in OBSERVATION_KINDS:
+                raise SpecError(
+                    f"{where}: block '{b.name}' is unknown: no robot provides it; expected one of "
+                    f"{OBSERVATION_KINDS}"
+                )
+            if b.name == "gait_phase" and not (np.isfinite(b.period) and b.period > 0):
+                raise SpecError(f"{where}: period must be a positive number of s, got {b.period}")
+            if len(b.scale) != b.size or len(b.offset) != b.size:
+                raise SpecError(f"{where}: scale and offset need {b.size} entries")
+            if not all(np.isfinite(s) and s > 0 for s in b.scale):
+                raise SpecError(f"{where}: scale must be finite and positive, got {b.scale}")
+            if not b.clip > 0:
+                raise SpecError(f"{where}: clip must be positive, got {b.clip}")
+            if any(j < 0 or j >= n for j in b.joints):
+                raise SpecError(f"{where}: joints {b.joints} out of range for {n} joints")
+            expected = {
+                "joint_position": len(b.joints),
+                "joint_velocity": len(b.joints),
+                "joint_position_sincos": 2 * len(b.joints),
+                "last_action": n,
+                "winding_temperature": n,
+            }.get(b.name, FIXED_SIZES.get(b.name))
+            if b.name == "foot_contact":
+                expected = b.size  # the robot's feet: check_robot
+            if b.size != expected:
+                raise SpecError(f"{where}: size {b.size}, expected {expected}")
+        a = self.action
+        if a.mode not in CONTROL_MODES:
+            raise SpecError(f"action.mode: '{a.mode}' is unknown; expected one of {CONTROL_MODES}")
+        if a.size != n or len(a.scale) != n or len(a.offset) != n:
+            raise SpecError(f"action: size, scale and offset need one entry per joint ({n})")
+        if a.reference not in ("absolute", "current") or (
+            a.reference == "current" and a.mode != "position"
+        ):
+            raise SpecError(f"action.reference: '{a.reference}' is not valid for mode '{a.mode}'")
+        if not self.control_rate > 0:
+            raise SpecError(f"control_rate: must be positive, got {self.control_rate}")
+        for name, value in self.constant_inputs.items():
+            if not np.isfinite(value):
+                raise SpecError(f"constant_inputs['{name}']: must be finite, got {value}")
+
+    def check_robot(self, robot: Robot, check_hash: bool = True) -> None:
+        """Refuse a robot this policy was not made for.
+
+        Raises:
+            SpecError: naming the mismatch (robot name, joint names/order, control rate, action
+                size, description hash).
+        """
+        if self.robot != robot.name:
+            raise SpecError(f"robot: policy is for '{self.robot}', the robot is '{robot.name}'")
+        if tuple(self.joint_names) != robot.joint_names:
+            raise SpecError(
+                f"joint_names: policy expects {list(self.joint_names)}, "
+                f"the robot has {list(robot.joint_names)}"
+            )
+        for i, b in enumerate(self.observation_blocks):
+            if b.name in LEGGED_KINDS and not robot.floating_base:
+                raise SpecError(
+                    f"observation[{i}] ('{b.name}'): block '{b.name}' cannot be provided: the "
+                    f"robot '{robot.name}' is a fixed-base arm (no IMU, no feet); blocks it "
+                    f"provides: {', '.join(k for k in OBSERVATION_KINDS if k not in LEGGED_KINDS)}"
+                )
+            if b.name == "foot_contact" and b.size != robot.n_feet:
+                raise SpecError(
+                    f"observation[{i}] ('foot_contact'): size {b.size}, the robot '{robot.name}' "
+                    f"has {robot.n_feet} feet"
+                )
+        rate = 1.0 / robot.control_period
+        if abs(self.control_rate - rate) > 1e-6:
+            raise SpecError(
+                f"control_rate: policy runs at {self.control_rate} Hz, the robot at {rate} Hz"
+            )
+        if check_hash and self.robot_hash and self.robot_hash != robot.description_hash:
+            raise SpecError(
+                f"robot_hash: policy was made for description {self.robot_hash[:12]}..., the robot "
+                f"is {robot.description_hash[:12]}... (robot.toml or MJCF changed since training)"
+            )
+
+    # ------------------------------------------------------------------ the two mappings
+    def observation(
+        self,
+        state: RobotState,
+        goal: np.ndarray,
+        out: np.ndarray | None = None,
+        reference: bool = False,
+    ) -> np.ndarray:
+        """Normalized observation, float32 (envs, obs_dim).
+
+        Args:
+            state: Estimated state with end-effector pose filled (``Kinematics.update``).
+            goal: (envs, 3) m, goal position in the base frame.
+            out: Optional float32 (envs, obs_dim) array to write into.
+            reference: Run the numpy reference instead of the compiled kernel
+                (:mod:`deploy.spec.kernel`); both give the same numbers bit for bit.
+
+        The spec's compiled plan (:class:`deploy.spec.observation_plan.ObservationPlan`, built on
+        the
+        first call) assembles it.
+        """
+        return self._plan.observation(state, goal, out, reference)
+
+    @cached_property
+    def _plan(self) -> ObservationPlan:
+        from deploy.spec.observation_plan import ObservationPlan
+
+        return ObservationPlan(self)
+
+    def action_to_target(
+        self, action: np.ndarray, state: RobotState, out: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Target in the units of the control mode, float64 (envs, n).
+
+        Args:
+            action: (envs, n) policy output; clipped to ``[-clip, clip]`` first.
+            state: Estimated state (``q`` is the reference of 'current' position actions).
+            out: Optional (envs, n) float64 array to write into.
+        """
+        a = self.action
+        if out is None:
+            out = np.empty(action.shape, dtype=np.float64)
+        np.minimum(np.maximum(action, -a.clip, out=out), a.clip, out=out)
+        out *= a.scale
+        out += state.q if a.reference == "current" else a.offset
+        return out
+
+    # ------------------------------------------------------------------ JSON
+    def to_json(self) -> str:
+        """The spec as JSON, every field explicit (sorted keys; ``constant_inputs`` only when
+        there are any, so a spec without them writes what earlier versions wrote)."""
+        d = asdict(self)
+        d["observation"] = d.pop("observation_blocks")
+        for block in d["observation"]:
+            if not block["period"]:  # gait_phase only: other blocks write what they wrote before
+                del block["period"]
+        if not d["constant_inputs"]:
+            del d["constant_inputs"]
+        return json.dumps(d, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str, source: str = "spec") -> PolicySpec:
+        """Parse and validate a spec (the format: ``deploy.spec.schema``, whose shorthands it
+        expands: ``scale``/``offset`` as one number, ``size``, ``joints``, ``robot_hash`` left
+        out, joints by name).
+
+        Raises:
+            SpecError: invalid JSON, unknown format version, missing, unknown or invalid field (the
+                message starts with ``source`` and names the field).
+        """
+        from pydantic import ValidationError
+
+        from deploy.spec.schema import PolicySpecDocument, describe_error, to_spec
+
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise SpecError(f"{source}: not valid JSON: {exc}") from exc
+        if not isinstance(d, dict):
+            raise SpecError(f"{source}: expected a JSON object")
+        version = d.get("format_version")
+        if version != FORMAT_VERSION:
+            raise SpecError(
+                f"{source}: format_version {version!r} is not supported; expected {FORMAT_VERSION}"
+            )
+        try:
+            doc = PolicySpecDocument.model_validate(d)
+        except ValidationError as exc:
+            raise SpecError(f"{source}: {describe_error(exc)}") from None
+        try:
+            spec = to_spec(doc)
+            spec.validate()
+        except SpecError as exc:
+            raise SpecError(f"{source}: {exc}") from None
+        return spec

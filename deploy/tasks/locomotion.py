@@ -1,0 +1,360 @@
+"""How well a legged robot follows its velocity command: distance, speed, tracking, falls.
+
+:class:`CommandTracker` is the legged counterpart of :class:`deploy.tasks.goals.GoalScheduler` for
+``deploy-run`` and the soak: called after every tick, it measures the base's planar velocity
+(the plant's truth in simulation, the base estimator's on hardware) against the command while
+the runtime is RUNNING. Tracking success is the fraction of RUNNING time whose planar velocity
+error ``|v_xy - command_xy|`` is within ``TRACKING_TOLERANCE`` (issue 17: 0.2 m/s), measured on
+the velocity averaged over ``TRACKING_WINDOW`` (a trot's body sways within a stride: the
+command is a mean speed). Falls are the runtime's safe stops of cause ``fall``.
+
+:class:`CommandSchedule` is the legged counterpart of :class:`deploy.tasks.goals.GoalScheduler` for
+the
+soak (:mod:`eval.batch`): a new velocity command every ``period`` s of RUNNING time, drawn from a
+seeded stream per env, written into ``runtime.velocity_command``. Both keep their state
+(:mod:`deploy.stateful`) for the soak's checkpoints.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from deploy.estimation.base import BaseState
+from deploy.stateful import (
+    StateDictError,
+    check,
+    from_json,
+    put,
+    rng_state,
+    scalar,
+    set_rng_state,
+    take,
+    to_json,
+)
+
+#: Planar velocity error within which the robot tracks its command, m/s (issue 17).
+TRACKING_TOLERANCE = 0.2
+#: Averaging window of the tracked velocity, s (our choice: two strides of a 0.4 s trot).
+TRACKING_WINDOW = 0.8
+
+
+def parse_command(text: str) -> np.ndarray:
+    """``"VX,VY,WZ"`` (m/s, m/s, rad/s, base frame) -> (3,) float array.
+
+    Raises:
+        ValueError: not three finite numbers (the message quotes ``text``).
+    """
+    try:
+        command = np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        command = np.array([])
+    if command.shape != (3,) or not np.isfinite(command).all():
+        raise ValueError(f"--command {text!r}: expected VX,VY,WZ (m/s, m/s, rad/s)")
+    return command
+
+
+@dataclass(frozen=True)
+class CommandRanges:
+    """What :class:`CommandSchedule` draws a command from (our choice unless noted).
+
+    Attributes:
+        vx: Forward speed, m/s, uniform. Our choice: 0-0.5 m/s, the walking range the shipped
+            trot generator was tuned for (``policies/gait.py``: ``deploy-run --command
+            0.5,0,0``); legged_gym's go2 task samples [-1, 1] m/s (unitree_rl_gym
+            go2_config.py ``commands.ranges.lin_vel_x``), beyond what it was tuned for.
+        vy: Lateral speed, m/s, uniform. Our choice: 0 (the trot generator does not side-step).
+        yaw_rate: rad/s, uniform. Our choice: +-0.5 rad/s (legged_gym: +-1 rad/s).
+        zero_fraction: Probability that a period's command is zero (standing still; our
+            choice: 0.2, as legged_gym zeroes small commands so the policy learns to stand).
+    """
+
+    vx: tuple[float, float] = (0.0, 0.5)
+    vy: tuple[float, float] = (0.0, 0.0)
+    yaw_rate: tuple[float, float] = (-0.5, 0.5)
+    zero_fraction: float = 0.2
+
+    def __post_init__(self):
+        for name in ("vx", "vy", "yaw_rate"):
+            lo, hi = getattr(self, name)
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+                raise ValueError(f"CommandRanges.{name}: expected (low, high), got {(lo, hi)}")
+        if not 0.0 <= self.zero_fraction <= 1.0:
+            raise ValueError(
+                f"CommandRanges.zero_fraction: expected a probability, got {self.zero_fraction}"
+            )
+
+    def sample(self, rng: np.random.Generator) -> np.ndarray:
+        """One command (3,): (vx, vy m/s, yaw rate rad/s); four draws from ``rng`` always."""
+        zero = rng.random() < self.zero_fraction
+        command = np.array(
+            [rng.uniform(*self.vx), rng.uniform(*self.vy), rng.uniform(*self.yaw_rate)]
+        )
+        return np.zeros(3) if zero else command
+
+
+class CommandSchedule:
+    """A new velocity command every ``period`` s for each of ``envs`` legged robots, written into
+    ``runtime.velocity_command[e]`` (the legged counterpart of :class:`deploy.tasks.goals.
+    GoalScheduler`).
+
+    Only RUNNING time counts, as for goals: an env that is not running has its command clock
+    held, and gets its first command when it first runs. Each env draws from its own generator
+    (``rng``: one per env), so that a session's commands do not depend on its neighbours.
+
+    Args:
+        envs: Batch size.
+        period: s of RUNNING time between new commands (> 0).
+        rng: ``envs`` numpy generators, one command stream per env.
+        ranges: What the commands are drawn from (:class:`CommandRanges`).
+
+    Attributes:
+        t_command: (envs,) s, when each env's command was issued, moved on while it was not
+            running. issued: (envs,) int64, commands issued. command: (envs, 3), the current
+            command (zeros before the first).
+    """
+
+    def __init__(self, envs: int, period: float, rng, ranges: CommandRanges | None = None):
+        self.streams = list(rng)
+        if len(self.streams) != envs:
+            raise ValueError(f"rng: expected {envs} generators (one per env), got {len(rng)}")
+        if not (math.isfinite(period) and period > 0):
+            raise ValueError(f"period: expected a number of seconds > 0, got {period}")
+        self.envs, self.period = envs, float(period)
+        self.ranges = CommandRanges() if ranges is None else ranges
+        self.t_command = np.zeros(envs)
+        self.issued = np.zeros(envs, dtype=np.int64)
+        self.command = np.zeros((envs, 3))
+
+    def _fields(self) -> dict[str, np.ndarray]:
+        return {"t_command": self.t_command, "issued": self.issued, "command": self.command}
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """``t_command`` (s), ``issued`` (int64), ``command`` (envs, 3); ``rng``: JSON of the
+        streams' ``bit_generator.state`` (a list over the envs)."""
+        out: dict = take(self._fields(), env)
+        envs = range(self.envs) if env is None else [env]
+        out["rng"] = to_json([rng_state(self.streams[e]) for e in envs])
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``).
+
+        Raises:
+            StateDictError: a missing field, a shape or a stream count that differs; nothing is
+                changed.
+        """
+        check(self._fields(), state, env)
+        envs = list(range(self.envs)) if env is None else [env]
+        rng = from_json(state, "rng")
+        if not (isinstance(rng, list) and len(rng) == len(envs)):
+            raise StateDictError("rng", f": expected {len(envs)} stream state(s), one per env")
+        put(self._fields(), state, env)
+        for e, value in zip(envs, rng, strict=True):
+            set_rng_state(self.streams[e], value, "rng")
+
+    def __call__(self, runtime) -> None:
+        """After a tick of ``runtime``: hold the clocks of stopped envs, issue due commands."""
+        running = runtime.mode == 2  # RUNNING
+        t = runtime.time
+        if not running.all():
+            self.t_command[~running] = t
+            if not running.any():
+                return
+        due = running & ((self.issued == 0) | (t - self.t_command >= self.period))
+        for e in np.flatnonzero(due):
+            self.command[e] = self.ranges.sample(self.streams[e])
+            runtime.velocity_command[e] = self.command[e]
+            self.t_command[e] = t
+            self.issued[e] += 1
+
+
+class CommandTracker:
+    """Command tracking of ``envs`` legged robots (module docstring).
+
+    Args:
+        envs: Batch size.
+        control_period: s.
+        backend: The runtime's backend; its ``true_base_state`` (simulation) is used when it
+            has one, else the runtime's base estimate.
+        window: Optional s: also account the tracking per window of ``window`` s of session
+            time (:meth:`windows`; the soak's windowed success).
+
+    Attributes:
+        distance: (envs,) m, planar path length of the base while RUNNING.
+        forward: (envs,) m, displacement along the base's heading while RUNNING.
+        running_time: (envs,) s RUNNING. tracked_time: (envs,) s of it within tolerance.
+        falls: (envs,) int64, falls: safe stops of cause ``fall`` of a robot that has been
+            RUNNING since its previous safe stop (of any cause: the runtime lays a legged robot
+            down at every stop). A robot still lying after a stop, whose RAMP_IN ends in a fall
+            stop, has not fallen again; the runtime's ``counters.faults["fall"]`` counts those
+            stops too.
+        window_running, window_tracked: per env, s RUNNING and tracked per finished window
+            (with ``window``).
+    """
+
+    def __init__(self, envs: int, control_period: float, backend, window: float | None = None):
+        self.envs, self.dt = envs, float(control_period)
+        self.truth = getattr(backend, "true_base_state", None)
+        #: the true base (simulation): a BaseState filled from ``truth`` every tick
+        self._true_base = BaseState.zeros(envs) if self.truth is not None else None
+        self.distance = np.zeros(envs)
+        self.forward = np.zeros(envs)
+        self.running_time = np.zeros(envs)
+        self.tracked_time = np.zeros(envs)
+        self.window = max(1, int(round(TRACKING_WINDOW / self.dt)))
+        self._ring = np.zeros((self.window, envs, 2))
+        self._filled = np.zeros(envs, dtype=np.int64)
+        self.judged_on = "true base velocity" if self.truth is not None else "estimated base"
+        if window is not None and not (math.isfinite(window) and window > 0):
+            raise ValueError(f"window: expected a number of seconds > 0, got {window}")
+        self.success_window = None if window is None else float(window)
+        self.window_index = 0  # the window being accounted (shared: session time)
+        self._window_base = np.zeros((envs, 2))  # running, tracked s at its start
+        self.window_running: list[list[float]] = [[] for _ in range(envs)]
+        self.window_tracked: list[list[float]] = [[] for _ in range(envs)]
+        self.falls = np.zeros(envs, dtype=np.int64)
+        self._up = np.zeros(envs, dtype=bool)  # RUNNING since the last fall
+        self._fall_stops = np.zeros(envs, dtype=np.int64)  # the runtime's count, last tick
+
+    # ------------------------------------------------------------------ state
+    def _fields(self) -> dict[str, np.ndarray]:
+        return {
+            "distance": self.distance,
+            "forward": self.forward,
+            "running_time": self.running_time,
+            "tracked_time": self.tracked_time,
+            "filled": self._filled,
+            "ring": self._ring.swapaxes(0, 1),  # (envs, window, 2), a view
+            "window_base": self._window_base,
+            "falls": self.falls,
+            "up": self._up,
+            "fall_stops": self._fall_stops,
+        }
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The tracker's state (copies; conventions of :mod:`deploy.stateful`): ``distance``,
+        ``forward`` (m), ``running_time``, ``tracked_time`` (s), ``filled`` (int64),
+        ``ring`` (envs, window, 2) m/s (the averaging window's velocities), ``window_base``
+        (envs, 2) s, ``falls``, ``fall_stops`` (int64), ``up`` (bool); shared:
+        ``window_index`` (int); JSON lists over the envs: ``window_running``,
+        ``window_tracked``."""
+        out: dict = take(self._fields(), env)
+        envs = range(self.envs) if env is None else [env]
+        out["window_index"] = int(self.window_index)
+        out["window_running"] = to_json([self.window_running[e] for e in envs])
+        out["window_tracked"] = to_json([self.window_tracked[e] for e in envs])
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``; the shared window
+        index either way).
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        check(self._fields(), state, env)
+        index = scalar(state, "window_index", int)
+        envs = list(range(self.envs)) if env is None else [env]
+        lists = {k: from_json(state, k) for k in ("window_running", "window_tracked")}
+        for key, value in lists.items():
+            if not isinstance(value, list) or len(value) != len(envs):
+                raise StateDictError(key, f": expected a list of {len(envs)} env(s)")
+        put(self._fields(), state, env)
+        self.window_index = index
+        for e, run, tracked in zip(
+            envs, lists["window_running"], lists["window_tracked"], strict=True
+        ):
+            self.window_running[e] = [float(x) for x in run]
+            self.window_tracked[e] = [float(x) for x in tracked]
+
+    # ------------------------------------------------------------------ windows
+    def _close_windows(self, t: float) -> None:
+        """Close every window that ended by session time ``t`` (s)."""
+        index = int(t // self.success_window + 1e-9)
+        while self.window_index < index:
+            now = np.stack([self.running_time, self.tracked_time], axis=1)
+            delta = now - self._window_base
+            for e in range(self.envs):
+                self.window_running[e].append(float(delta[e, 0]))
+                self.window_tracked[e].append(float(delta[e, 1]))
+            self._window_base[:] = now
+            self.window_index += 1
+
+    def windows(self, e: int, end: float) -> list[dict]:
+        """Env ``e``'s tracking success per window of ``window`` s over ``[0, end]`` s, the open
+        window included (merged into the previous one when shorter than half a window); windows
+        without RUNNING time are left out: ``[{"start_s", "end_s", "running_s", "tracked_s",
+        "success_rate"}]``."""
+        if self.success_window is None:
+            return []
+        w = self.success_window
+        rows = [
+            [k * w, (k + 1) * w, r, x]
+            for k, (r, x) in enumerate(
+                zip(self.window_running[e], self.window_tracked[e], strict=True)
+            )
+        ]
+        start = self.window_index * w
+        last = [
+            start,
+            max(end, start),
+            float(self.running_time[e] - self._window_base[e, 0]),
+            float(self.tracked_time[e] - self._window_base[e, 1]),
+        ]
+        if rows and last[1] - start < 0.5 * w:
+            rows[-1][1] = last[1]
+            rows[-1][2] += last[2]
+            rows[-1][3] += last[3]
+        else:
+            rows.append(last)
+        return [
+            {"start_s": a, "end_s": b, "running_s": r, "tracked_s": x, "success_rate": x / r}
+            for a, b, r, x in rows
+            if r > 0
+        ]
+
+    def __call__(self, runtime) -> None:
+        """Account one tick of ``runtime`` (a floating-base :class:`~deploy.runtime.Runtime`)."""
+        from deploy.runtime import RUNNING, SAFE_STOP
+
+        running = runtime.mode == RUNNING
+        stops = runtime.counters.faults["fall"]
+        self.falls += (stops > self._fall_stops) & self._up
+        self._up &= runtime.mode < SAFE_STOP  # any stop lays a legged robot down (FAULTED too)
+        self._up |= running
+        self._fall_stops[:] = stops
+        velocity = self._planar_velocity(runtime)  # (envs, 2) m/s, base frame
+        step = velocity * self.dt
+        self.distance += np.where(running, np.linalg.norm(step, axis=1), 0.0)
+        self.forward += np.where(running, step[:, 0], 0.0)
+        self._ring[runtime.ticks % self.window] = velocity
+        self._filled = np.where(running, np.minimum(self._filled + 1, self.window), 0)
+        full = self._filled >= self.window
+        mean = self._ring.mean(axis=0)
+        error = np.linalg.norm(mean - runtime.velocity_command[:, :2], axis=1)
+        if self.success_window is not None:
+            self._close_windows(runtime.time - self.dt)  # this tick's time counts in its window
+        self.running_time += running * self.dt
+        self.tracked_time += (running & full & (error <= TRACKING_TOLERANCE)) * self.dt
+
+    def _planar_velocity(self, runtime) -> np.ndarray:
+        if self.truth is None:
+            return runtime.state.base.linear_velocity[:, :2].copy()
+        return self._true_base.set_truth(self.truth()).linear_velocity[:, :2].copy()
+
+    def summary(self, runtime) -> dict:
+        """The report's ``locomotion`` entry (sums over the envs; speeds per RUNNING second)."""
+        running = float(self.running_time.sum())
+        return {
+            "command": runtime.velocity_command.tolist(),
+            "distance_m": float(self.distance.sum()),
+            "mean_forward_speed_m_s": float(self.forward.sum() / running) if running else None,
+            "tracking_success": float(self.tracked_time.sum() / running) if running else None,
+            "tracking_tolerance_m_s": TRACKING_TOLERANCE,
+            "running_s": running,
+            "falls": int(runtime.counters.faults["fall"].sum()),
+            "judged_on": self.judged_on,
+        }

@@ -1,4 +1,5 @@
-"""``soak-test``: run a soak campaign (:mod:`eval.soak`) and write its reports (:mod:`eval.report`).
+"""``soak-test``: run a soak campaign (:mod:`eval.soak`) and write its reports
+(:mod:`eval.report.build`).
 
 Usage::
 
@@ -10,7 +11,8 @@ Usage::
               [--max-falls-per-hour F] ...
 
 It writes ``DIR/report.json``, ``DIR/report.html`` and ``DIR/junit.xml`` (atomically), the film
-strip of each session's worst moments under ``DIR/film/<id>/`` (:mod:`eval.film`; ``--no-film``:
+strip of each session's worst moments under ``DIR/film/<id>/`` (:mod:`eval.film.strip`;
+``--no-film``:
 none), keeps each session's checkpoints, progress and result under ``DIR/sessions/<id>/``, shows
 a progress bar of simulated hours and speed (simulated / wall time), and prints a summary.
 
@@ -37,7 +39,8 @@ Exit codes (when several apply, the first of 4, 1, 5, 2, 6, 8, 9, 7 is returned)
 ====  =====================================================================================
 
 A legged robot (``robot.floating_base``, e.g. go2) follows velocity commands instead of goals
-(:mod:`eval.batch`): ``--goal-period`` is the period of its commands, ``--success-time`` is unused,
+(:mod:`eval.soak.batch`): ``--goal-period`` is the period of its commands, ``--success-time`` is
+unused,
 and ``--min-success`` / ``--min-window-success`` judge its tracking success (share of RUNNING time
 within 0.2 m/s of the command).
 """
@@ -65,7 +68,7 @@ EXIT_INTERVENTIONS = 8
 EXIT_FALLS = 9
 EXIT_INTERRUPTED = 130
 
-#: Failure name (eval.report.failures) -> exit code, in order of precedence.
+#: Failure name (eval.report.build.failures) -> exit code, in order of precedence.
 _EXIT_ORDER = (
     ("no_divergence", EXIT_DIVERGED),
     ("no_hard_violation", EXIT_HARD_VIOLATION),
@@ -242,7 +245,7 @@ def _check_args(args) -> None:
 
 def exit_code(report: dict) -> int:
     """The exit code of a report (see the module docstring)."""
-    from eval.report import failures
+    from eval.report.build import failures
 
     failed = set(failures(report))
     for name, code in _EXIT_ORDER:
@@ -252,10 +255,10 @@ def exit_code(report: dict) -> int:
 
 
 def run(args) -> int:
-    from eval.campaign import run_campaign
-    from eval.randomization import session_ranges
-    from eval.report import Thresholds, build_report, load_report, summary_text, write_reports
-    from eval.session import SessionConfig
+    from eval.report.build import Thresholds, build_report, load_report, summary_text, write_reports
+    from eval.soak.campaign import run_campaign
+    from eval.soak.session import SessionConfig
+    from eval.world.randomization import session_ranges
     from robots import load_robot
     from robots.files import sha256_file
 
@@ -300,8 +303,8 @@ def run(args) -> int:
         progress=not args.no_progress,
         film=not args.no_film,
     )
-    if not args.no_film:  # replayed from the kept checkpoints and rendered (eval.film_render)
-        from eval.film_render import film_campaign
+    if not args.no_film:  # replayed from the kept checkpoints and rendered (eval.film.render)
+        from eval.film.render import film_campaign
 
         results = film_campaign(template, results, args.out, workers=args.workers)
     wall = time.perf_counter() - wall

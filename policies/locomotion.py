@@ -15,7 +15,7 @@ Iscen et al. 2018): the action the runtime receives is ``prior(obs) + residual``
 exported :class:`~deploy.policy.mlp_checkpoint.MLPActor` with ``gait`` computes.
 
 Episode: ``episode_seconds`` of walking from the MJCF's standing pose, after the runtime's RAMP_IN
-to home. Each episode draws a soak session's randomization (:func:`eval.randomization.
+to home. Each episode draws a soak session's randomization (:func:`eval.world.randomization.
 sample_session` of the legged ranges: dynamics, encoder noise and latency, IMU noise and bias,
 floor friction), a velocity command every ``command_period`` s (:class:`deploy.tasks.locomotion.
 CommandRanges`, the soak's ranges) and pushes on the base. It ends (terminated) when the runtime
@@ -49,7 +49,7 @@ from deploy.monitors.interventions import InterventionMonitor
 from deploy.runtime import Mode, Runtime
 from deploy.spec.policy_spec import PolicySpec
 from deploy.tasks.locomotion import TRACKING_TOLERANCE, CommandRanges
-from eval.randomization import (
+from eval.world.randomization import (
     apply_floor_friction,
     apply_imu,
     apply_sensors,

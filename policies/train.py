@@ -44,7 +44,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
 from deploy.export import sb3_actor
 from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
-from eval.randomization import DynamicsRanges
+from eval.world.randomization import DynamicsRanges
 from policies.envs import ReachConfig, ReachTask, RewardConfig
 from robots import load_robot
 
@@ -245,15 +245,16 @@ def start_poses(path: Path | None, robot) -> tuple[tuple[float, ...], ...]:
     """Joint poses (rad) to start episodes from; ``()`` without a path.
 
     ``path`` is a soak's ``report.json`` (the poses where it saw the policy miss its goal,
-    :func:`eval.report.missed_states`) or a JSON file ``{"robot": name, "poses": [[rad, ...]]}``
+    :func:`eval.report.build.missed_states`) or a JSON file ``{"robot": name, "poses": [[rad,
+    ...]]}``
     (such poses kept with the recipe, e.g. ``policies/arm3_missed_poses.json``).
 
     Raises:
-        eval.report.ReportError: unreadable file, poses of another robot or joint count.
+        eval.report.build.ReportError: unreadable file, poses of another robot or joint count.
     """
     if path is None:
         return ()
-    from eval.report import ReportError, load_report, missed_states
+    from eval.report.build import ReportError, load_report, missed_states
 
     try:
         doc = json.loads(Path(path).read_text())

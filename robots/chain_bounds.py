@@ -49,7 +49,8 @@ def motion_bounds(robot: Robot, model: mujoco.MjModel | None = None) -> tuple[fl
     Args:
         robot: The robot (joint names).
         model: The MuJoCo model to bound; default ``robot.mj_model`` (nominal geometry). A
-            randomized plant (``eval.randomization.randomized_model``) gives that plant's bounds.
+            randomized plant (``eval.world.randomization.randomized_model``) gives that plant's
+            bounds.
 
     Returns:
         ``(sweep, gravity_bound)``: ``sweep`` (m/rad) bounds the displacement of any point of the

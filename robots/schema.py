@@ -253,13 +253,14 @@ class TaskConfig(_Strict):
 
 class SoakConfig(_Strict):
     """Disturbances of the soak sized to this robot (``[soak]``; left out of the description
-    hash, as ``[task]``). Unset fields keep :class:`eval.fault_schedule.FaultRanges`' defaults.
+    hash, as ``[task]``). Unset fields keep :class:`eval.world.fault_schedule.FaultRanges`'
+    defaults.
 
     ``push_force``: range (N) of the pushes on the end effector (on the base of a floating-base
     robot). The default 5-25 N suits arm3 (its drives hold 14.9 N at the tip for an instant,
-    ``eval.fault_schedule.cable_budget``); a desktop servo arm holds a fraction of that.
+    ``eval.world.fault_schedule.cable_budget``); a desktop servo arm holds a fraction of that.
     ``robot-import --floating-base`` writes a legged robot's from its mass
-    (``robots.import_legged.PUSH_VELOCITY``).
+    (``robots.importer.legged.PUSH_VELOCITY``).
     """
 
     push_force: tuple[NonNegative, NonNegative] | None = None  # N

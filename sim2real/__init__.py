@@ -94,8 +94,8 @@ _SOURCES = {
     "DynamixelBackend": "deploy.backends.dynamixel",
     "ViolationMonitor": "deploy.monitors.violations",
     "InterventionMonitor": "deploy.monitors.interventions",
-    "SessionConfig": "eval.session",
-    "run_campaign": "eval.campaign",
+    "SessionConfig": "eval.soak.session",
+    "run_campaign": "eval.soak.campaign",
 }
 
 __all__ = sorted(_SOURCES)

@@ -11,8 +11,8 @@ import sys
 import time
 from pathlib import Path
 
-from eval import checkpoint as ckpt
-from eval.soak import session_dir
+from eval.soak import checkpoint as ckpt
+from eval.soak.session import session_dir
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -32,7 +32,7 @@ def kill_after_first_checkpoint(config, out: Path, timeout: float = 120.0) -> No
         "import pickle, sys\n"
         "import torch\n"
         "torch.set_num_threads(1)\n"
-        "from eval.soak import run_campaign\n"
+        "from eval.soak.campaign import run_campaign\n"
         "run_campaign(pickle.load(open(sys.argv[1], 'rb')), 1, sys.argv[2], progress=False)\n"
     )
     proc = subprocess.Popen(

@@ -5,8 +5,8 @@ import pytest
 
 from deploy.backends.sim.plant import SimBackend
 from deploy.runtime import NAN_ACTION_LIMIT
-from eval.fault_schedule import FaultRanges, cable_budget, sample_fault_schedule, stale_budget
-from eval.randomization import SensorDraw, randomized_model, sample_session, session_rng
+from eval.world.fault_schedule import FaultRanges, cable_budget, sample_fault_schedule, stale_budget
+from eval.world.randomization import SensorDraw, randomized_model, sample_session, session_rng
 from robots.chain_bounds import end_effector_lever, motion_bounds
 
 HOURS8 = 8 * 3600.0
@@ -134,7 +134,7 @@ def cable_budget_of_negative_duration():
 def test_soak_pushes_are_sized_by_the_robots_soak_table():
     """so101's [soak] push_force (its drives' instant reserve at the tip) replaces the default
     range made for arm3; arm3 keeps the default."""
-    from eval.fault_schedule import cable_budget, fault_ranges
+    from eval.world.fault_schedule import cable_budget, fault_ranges
     from robots import load_robot
 
     so101, arm3 = load_robot("so101"), load_robot("arm3")

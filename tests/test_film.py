@@ -1,4 +1,4 @@
-"""The soak's film strip (eval.film, eval.film_render): moments, replay from checkpoints, clips in
+"""The soak's film strip (eval.film.strip, eval.film.render): moments, replay from checkpoints, clips in
 report.html, and the clip playing in a real headless browser (Chromium through Selenium)."""
 
 import json
@@ -12,11 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.fault_schedule import FaultRanges
-from eval.film import longest_missed_run, plan_clips, retain_dir, select_moments
-from eval.randomization import SessionRanges
-from eval.report import Thresholds, build_report, write_reports
-from eval.soak import SessionConfig, run_campaign
+from eval.film.strip import longest_missed_run, plan_clips, retain_dir, select_moments
+from eval.report.build import Thresholds, build_report, write_reports
+from eval.soak.campaign import run_campaign
+from eval.soak.session import SessionConfig
+from eval.world.fault_schedule import FaultRanges
+from eval.world.randomization import SessionRanges
 from tests.runtime_fixtures import adversarial_onnx
 
 #: Pushes far beyond what the drives hold: the adversarial policy's arm is thrown past a hard
@@ -87,7 +88,7 @@ def filmed(tmp_path_factory, arm3):
     checkpointed every 15 s; its film rendered small (240x180, 10 fps, 2 clips)."""
     if not egl_works():
         pytest.skip("no EGL OpenGL context here (MUJOCO_GL=egl): the film cannot be rendered")
-    from eval.film_render import film_campaign
+    from eval.film.render import film_campaign
 
     tmp = tmp_path_factory.mktemp("film")
     policy = adversarial_onnx(tmp, arm3, "velocity")
@@ -170,7 +171,7 @@ def test_a_deterministic_policy_replays_exactly_from_a_kept_checkpoint(tmp_path,
     first kept checkpoint start from it, and reproduce the run bit for bit."""
     if not egl_works():
         pytest.skip("no EGL OpenGL context here (MUJOCO_GL=egl): the film cannot be rendered")
-    from eval.film_render import film_campaign
+    from eval.film.render import film_campaign
     from tests.test_soak import tiny_policy
 
     faults = FaultRanges(

@@ -9,8 +9,8 @@ import pytest
 
 from deploy.backends.sim.faults import CABLE_FORCE, Fault, FaultInjector
 from deploy.backends.sim.plant import SimBackend
-from eval.fault_schedule import FaultRanges
-from eval.randomization import (
+from eval.world.fault_schedule import FaultRanges
+from eval.world.randomization import (
     Drift,
     DriftRanges,
     SensorDraw,
@@ -128,7 +128,7 @@ def test_cable_pull_loads_the_motors(arm3):
 def test_encoder_noise_is_drawn_about_each_robots_own_noise():
     """arm3 keeps the seed's range exactly (its results do not move); an SO-101 with one-count
     (0.00153 rad) encoders gets 0.4-2 counts, not the 4-20 counts of the absolute range."""
-    from eval.randomization import SensorRanges, sensor_ranges, session_ranges
+    from eval.world.randomization import SensorRanges, sensor_ranges, session_ranges
     from robots import load_robot
 
     assert sensor_ranges(load_robot("arm3")).noise_sigma == SensorRanges().noise_sigma

@@ -365,8 +365,10 @@ def test_deploy_run_exits_3_on_a_state_input_without_batch_axis(arm3, tmp_path, 
 # ---------------------------------------------------------------- soak: kill and resume
 def test_soak_with_a_recurrent_policy_resumes_exactly_after_kill(exported, tmp_path):
 
-    from eval import checkpoint as ckpt
-    from eval.soak import SessionBatch, SessionConfig, run_campaign, session_dir
+    from eval.soak import checkpoint as ckpt
+    from eval.soak.batch import SessionBatch
+    from eval.soak.campaign import run_campaign
+    from eval.soak.session import SessionConfig, session_dir
     from robots import load_robot
 
     kind, ac, _ = exported

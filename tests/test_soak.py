@@ -21,11 +21,8 @@ from deploy.monitors.violations import VIOLATION_TYPES
 from deploy.runtime import NAN_ACTION_LIMIT
 from deploy.spec.policy_spec import PolicySpec
 from deploy.tasks.goals import success_windows
-from eval import checkpoint as ckpt
 from eval import cli
-from eval.fault_schedule import FaultRanges, stale_budget
-from eval.randomization import SessionRanges
-from eval.report import (
+from eval.report.build import (
     CHECKS,
     SCHEMA_VERSION,
     ReportError,
@@ -39,7 +36,12 @@ from eval.report import (
     session_checks,
     write_reports,
 )
-from eval.soak import SessionBatch, SessionConfig, run_campaign, session_dir
+from eval.soak import checkpoint as ckpt
+from eval.soak.batch import SessionBatch
+from eval.soak.campaign import run_campaign
+from eval.soak.session import SessionConfig, session_dir
+from eval.world.fault_schedule import FaultRanges, stale_budget
+from eval.world.randomization import SessionRanges
 from tests.runtime_fixtures import feedback_mlp_onnx
 from tests.soak_fixtures import kill_after_first_checkpoint
 

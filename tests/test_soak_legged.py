@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 
 from deploy.tasks.locomotion import CommandSchedule, CommandTracker
-from eval import checkpoint as ckpt
-from eval.batch import SessionBatch
-from eval.fault_schedule import fault_ranges
-from eval.randomization import SessionRanges, sample_session, session_ranges
-from eval.report import build_report
-from eval.session import SessionConfig, session_dir
-from eval.soak import run_campaign
+from eval.report.build import build_report
+from eval.soak import checkpoint as ckpt
+from eval.soak.batch import SessionBatch
+from eval.soak.campaign import run_campaign
+from eval.soak.session import SessionConfig, session_dir
+from eval.world.fault_schedule import fault_ranges
+from eval.world.randomization import SessionRanges, sample_session, session_ranges
 from robots import load_robot
 from tests.soak_fixtures import kill_after_first_checkpoint
 
@@ -199,7 +199,7 @@ def test_robot_import_writes_go2s_soak_table(tmp_path):
     ``[soak]`` pushes included (the table is the importer's, not a hand edit it would drop)."""
     import shlex
 
-    from robots.importer import main
+    from robots.importer.cli import main
 
     shipped = (REPO / "robots" / "go2" / "robot.toml").read_text()
     command = shlex.split(shipped.splitlines()[2].removeprefix("#   "))

@@ -1,7 +1,7 @@
 """Kernels of the per-tick bookkeeping that watches a run: goals, violations, interventions and
 motor heat (:class:`deploy.tasks.goals.GoalScheduler`,
 :class:`deploy.monitors.violations.ViolationMonitor`,
-:class:`deploy.monitors.interventions.InterventionMonitor`, :class:`eval.batch.SessionBatch`).
+:class:`deploy.monitors.interventions.InterventionMonitor`, :class:`eval.soak.batch.SessionBatch`).
 
 Each kernel replaces the handful of small numpy calls a monitor made every tick with one call
 that answers "did anything happen?"; the monitor's exact bookkeeping (new goals, hit records,

@@ -6,7 +6,7 @@ itself is the same with or without it. Drawn on top of the robot (env 0): the go
 sphere, the end-effector path of the last ``TRAIL_SECONDS`` as a fading trail, and the links of
 joints whose target the guard changed on the frame's tick tinted red, over a dark backdrop plane
 (no shadows, reflections or skybox: a software renderer draws three times as many frames). The
-soak's film strip (:mod:`eval.film_render`) renders its replays with the same recorder.
+soak's film strip (:mod:`eval.film.render`) renders its replays with the same recorder.
 
 Rendering uses :class:`mujoco.Renderer`, whose OpenGL backend ``MUJOCO_GL`` selects (``egl``
 headless; ``osmesa`` software; ``glfw`` with a display); frames go to ffmpeg through

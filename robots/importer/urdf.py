@@ -6,7 +6,7 @@ relative to one mesh folder, visuals dropped, collision meshes MuJoCo cannot dec
 replaced by their bounding box (read with coal), prismatic and mimic joints frozen, and a
 ``<mujoco><compiler>`` element (radians from the URDF, no static-body fusion, balanced inertias).
 Its result, a :class:`PreparedSource`, is what the rest of the importer reads; MJCF input makes
-the same from :func:`robots.import_mjcf.prepare_mjcf`.
+the same from :func:`robots.importer.mjcf.prepare_mjcf`.
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ session seed (:func:`session_rng`), bundled in :class:`SessionRandomization` by
   :func:`apply_floor_friction`;
 - slow drift (:class:`DriftRanges`): dry friction rising with wear over the session, applied to the
   session's compiled model in place with :func:`apply_drift`;
-- a fault schedule (:mod:`eval.fault_schedule`): dropout bursts, stale frames, non-finite
+- a fault schedule (:mod:`eval.world.fault_schedule`): dropout bursts, stale frames, non-finite
   actions, latency spikes, pushes and a cable pulling on the end effector, as
   :class:`deploy.backends.sim.faults.Fault` for :class:`deploy.backends.sim.faults.FaultInjector`,
   each sized to be
@@ -45,7 +45,7 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
-from eval.fault_schedule import (
+from eval.world.fault_schedule import (
     FaultRanges,
     check_range,
     fault_from_dict,
@@ -521,10 +521,10 @@ class SessionRanges:
 
 def session_ranges(robot: Robot, mean_interval: float | None = None) -> SessionRanges:
     """The soak's ranges for ``robot`` (what ``soak-test`` runs): the defaults with the faults
-    sized to it (:func:`eval.fault_schedule.fault_ranges`, ``mean_interval`` s between faults
+    sized to it (:func:`eval.world.fault_schedule.fault_ranges`, ``mean_interval`` s between faults
     when given), the encoder noise scaled to the robot's own (:func:`sensor_ranges`) and, for a
     floating-base robot, ``LEGGED_DYNAMICS`` and ``LEGGED_SENSORS``."""
-    from eval.fault_schedule import fault_ranges
+    from eval.world.fault_schedule import fault_ranges
 
     faults = fault_ranges(robot, mean_interval)
     if robot.floating_base:

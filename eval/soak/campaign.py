@@ -1,12 +1,13 @@
 """Soak campaigns: several seeded sessions, planned into batches and dispatched to an executor.
 
-A **campaign** is several seeded sessions (seeds ``seed, seed + 1, ...``; :mod:`eval.session`)
+A **campaign** is several seeded sessions (seeds ``seed, seed + 1, ...``; :mod:`eval.soak.session`)
 in one folder ``OUT``: :func:`run_campaign` checks the robot and policy, plans the sessions into
 batches of ``sessions_per_process`` (:func:`plan_batches`; a resumed campaign keeps the batches
 its checkpoints were made in), runs them by local processes (one worker per core; a campaign of a
-single batch runs in the calling process) or by Ray (one task per batch; :mod:`eval.executors`),
+single batch runs in the calling process) or by Ray (one task per batch;
+:mod:`eval.soak.executors`),
 shows the progress in simulated hours and speed, and returns one result per session
-(:mod:`eval.session_result`; :mod:`eval.report` turns them into the campaign's reports).
+(:mod:`eval.soak.result`; :mod:`eval.report.build` turns them into the campaign's reports).
 """
 
 from __future__ import annotations
@@ -18,10 +19,10 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from eval import checkpoint as ckpt
-from eval.executors import default_workers, run_local, run_ray, run_sessions
-from eval.session import SESSIONS_DIR, SessionConfig, SessionError, session_dir
-from eval.session_result import check_result, read_result
+from eval.soak import checkpoint as ckpt
+from eval.soak.executors import default_workers, run_local, run_ray, run_sessions
+from eval.soak.result import check_result, read_result
+from eval.soak.session import SESSIONS_DIR, SessionConfig, SessionError, session_dir
 
 
 def plan_batches(
@@ -134,12 +135,12 @@ def run_campaign(
         sessions_per_process: Sessions batched in one runtime.
         workers: Local processes (default: one per core).
         progress: Show a progress bar (simulated hours and speed).
-        film: Record for the film strip (:class:`eval.batch.SessionBatch`;
-            :func:`eval.film_render.film_campaign` renders it afterwards).
+        film: Record for the film strip (:class:`eval.soak.batch.SessionBatch`;
+            :func:`eval.film.render.film_campaign` renders it afterwards).
 
     Raises:
         SessionError: bad options (named).
-        ValueError: unreadable robot or policy; eval.checkpoint.CheckpointError when resuming.
+        ValueError: unreadable robot or policy; eval.soak.checkpoint.CheckpointError when resuming.
     """
     from deploy.policy.onnx_policy import OnnxPolicy
     from robots import load_robot

@@ -12,7 +12,7 @@ than the baseline. A check that failed in the same sessions of the baseline is a
 
 from __future__ import annotations
 
-from eval.report_schema import ReportError, Thresholds, check_schema
+from eval.report.schema import ReportError, Thresholds, check_schema
 
 
 def compare_with_baseline(

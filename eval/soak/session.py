@@ -4,13 +4,15 @@ A **session** is one continuous run of :class:`deploy.runtime.Runtime` with the 
 (:class:`~deploy.runtime.SimClock`) for ``hours`` of simulated time (8 by default): a new goal
 every ``goal_period`` s (:class:`deploy.tasks.goals.GoalScheduler`), dynamics, sensor settings,
 drift and
-a fault schedule drawn from the session seed (:func:`eval.randomization.sample_session`), friction
+a fault schedule drawn from the session seed (:func:`eval.world.randomization.sample_session`),
+friction
 rising with wear over the session, the motor thermal model running throughout. It runs as env
-``e`` of a batch (:class:`eval.batch.SessionBatch`); :class:`Session` keeps what is its own there:
+``e`` of a batch (:class:`eval.soak.batch.SessionBatch`); :class:`Session` keeps what is its own
+there:
 its fault schedule and the runtime's responses, latches, operator resets, hourly rows, curves,
 drift, and its part of a checkpoint. Its folder is ``OUT/sessions/<id>/`` (:func:`session_dir`);
-its result document is built by :mod:`eval.session_result`. A legged robot's session
-(``robot.floating_base``) follows velocity commands instead of goals (:mod:`eval.batch`): its
+its result document is built by :mod:`eval.soak.result`. A legged robot's session
+(``robot.floating_base``) follows velocity commands instead of goals (:mod:`eval.soak.batch`): its
 ``goal_period`` is the period of the commands, ``success_time`` is unused, and its success is the
 tracking success of :class:`deploy.tasks.locomotion.CommandTracker`.
 
@@ -33,13 +35,13 @@ from typing import TYPE_CHECKING
 
 from deploy.runtime import FAULT_CAUSES, Mode
 from deploy.stateful import prefixed
-from eval import checkpoint as ckpt
-from eval.fault_schedule import FAULT_SETTLE
-from eval.randomization import SessionRanges
+from eval.soak import checkpoint as ckpt
+from eval.world.fault_schedule import FAULT_SETTLE
+from eval.world.randomization import SessionRanges
 from robots.errors import Sim2RealError
 
 if TYPE_CHECKING:
-    from eval.batch import SessionBatch
+    from eval.soak.batch import SessionBatch
 
 #: s before a fault's onset its injector is armed.
 ARM_LEAD = 0.5
@@ -129,13 +131,13 @@ def session_dir(out: str | os.PathLike, seed: int) -> Path:
 # ====================================================================== one session
 class Session:
     """Book-keeping of one session (env ``e`` of a batch): goals, faults, latches, curves; its
-    result document is :func:`eval.session_result.session_result`.
+    result document is :func:`eval.soak.result.session_result`.
 
     Args:
-        batch: The batch the session runs in (:class:`eval.batch.SessionBatch`).
+        batch: The batch the session runs in (:class:`eval.soak.batch.SessionBatch`).
         e: The session's env index in the batch.
         config: The session's options.
-        draw: Its randomization (:func:`eval.randomization.sample_session`).
+        draw: Its randomization (:func:`eval.world.randomization.sample_session`).
     """
 
     def __init__(self, batch: SessionBatch, e: int, config: SessionConfig, draw):
@@ -268,7 +270,8 @@ class Session:
 
     # ------------------------------------------------------------------ checkpoint
     def capture(self) -> tuple[dict, dict]:
-        """The session's checkpoint: ``(arrays, meta)`` for :func:`eval.checkpoint.write_checkpoint`
+        """The session's checkpoint: ``(arrays, meta)`` for
+        :func:`eval.soak.checkpoint.write_checkpoint`
         (the runtime's, goals', thermal accumulators', monitors' and armed injector's state of env
         ``e``; the book-keeping, options, policy digest and randomization as JSON metadata)."""
         rt, e, b = self.batch.rt, self.e, self.batch
@@ -315,7 +318,8 @@ class Session:
         """Continue from a checkpoint made by :meth:`capture` (``where``: its file, for messages).
 
         Raises:
-            eval.checkpoint.CheckpointError: the checkpoint was made with other options (but the
+            eval.soak.checkpoint.CheckpointError: the checkpoint was made with other options (but
+            the
                 policy path and checkpoint interval), another policy file, or another
                 randomization; or an array does not fit (named).
         """
@@ -338,7 +342,7 @@ class Session:
         if meta.get("randomization") != self.draw.to_dict():
             raise ckpt.CheckpointError(
                 f"{where}: the randomization stored in the checkpoint differs from the one drawn "
-                f"for seed {self.config.seed} (another version of eval.randomization?)"
+                f"for seed {self.config.seed} (another version of eval.world.randomization?)"
             )
         ckpt.load_stage(b.rt, arrays, e, where)
         if self.legged:

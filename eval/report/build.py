@@ -54,7 +54,8 @@ often is a policy leaning on it, not a robot beyond its limits.
         drift {friction_final_nm}, diverged (message or null),
         checks {name: {passed, message}},
         wall {wall_s, speed, batch, tick_cost_us, tick_cost_histogram, stage_cost_us},
-        film (only with the film strip, :mod:`eval.film`) {clips [{kind, kinds, label, moments,
+        film (only with the film strip, :mod:`eval.film.strip`) {clips [{kind, kinds, label,
+        moments,
               t_s, start_s, end_s, video, still (paths relative to the report's folder),
               frames, bytes, replay_exact, checked, from_tick}], moments {kind: found},
               not_filmed, fps, size, frames_per_s, error (why there is no film, or null)}
@@ -88,17 +89,17 @@ legged session: at most ``max_falls_per_hour``; an arm passes). For a legged ses
 checks judge its tracking success (``locomotion``). junit.xml has one testcase per session and
 check, and one for the baseline comparison.
 
-Baseline comparison: :mod:`eval.report_baseline` (campaign totals against an earlier report of
+Baseline comparison: :mod:`eval.report.baseline` (campaign totals against an earlier report of
 schema 2). The report's vocabulary (``SCHEMA_VERSION``, ``CHECKS``, :class:`Thresholds`,
-:class:`ReportError`, :func:`load_report`) is in :mod:`eval.report_schema`, junit.xml in
-:mod:`eval.report_junit`, report.html in :mod:`eval.report_html` (a Jinja2 template; plots from
-:mod:`eval.report_plots`); this module builds the report and re-exports their public names.
+:class:`ReportError`, :func:`load_report`) is in :mod:`eval.report.schema`, junit.xml in
+:mod:`eval.report.junit`, report.html in :mod:`eval.report.html` (a Jinja2 template; plots from
+:mod:`eval.report.plots`); this module builds the report and re-exports their public names.
 
 Every file is written to a temporary file and moved into place with ``os.replace``. The HTML is
 self-contained (plots are matplotlib PNGs embedded as base64; no scripts, no external resources),
 and so is the film strip: each session's clips (H.264 MP4 in ``<video>``, the still at the
 moment as its poster) embedded as base64 from ``film/<id>/`` beside the report (at most
-``eval.film.MAX_CLIPS`` short clips per session). In junit.xml a failed check names the still
+``eval.film.strip.MAX_CLIPS`` short clips per session). In junit.xml a failed check names the still
 frame of its first clip (``still frame: film/<id>/NN-<kind>.png``, also as a
 ``[[ATTACHMENT|...]]`` line in the testcase's system-out).
 """
@@ -114,10 +115,10 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.report_baseline import compare_with_baseline, known_failures
-from eval.report_html import film_html, report_html, write_html
-from eval.report_junit import junit_xml, write_junit
-from eval.report_plots import (
+from eval.report.baseline import compare_with_baseline, known_failures
+from eval.report.html import film_html, report_html, write_html
+from eval.report.junit import junit_xml, write_junit
+from eval.report.plots import (
     plot_interventions,
     plot_success,
     plot_temperatures,
@@ -125,7 +126,7 @@ from eval.report_plots import (
     plot_violations,
     plot_windows,
 )
-from eval.report_schema import CHECKS, SCHEMA_VERSION, ReportError, Thresholds, load_report
+from eval.report.schema import CHECKS, SCHEMA_VERSION, ReportError, Thresholds, load_report
 from robots.files import atomic_write
 
 __all__ = [
@@ -446,7 +447,7 @@ def build_report(
 
     Args:
         campaign: Campaign description (robot, policy, options; see the schema).
-        results: Session results from :func:`eval.soak.run_campaign`.
+        results: Session results from :func:`eval.soak.campaign.run_campaign`.
         thresholds: Pass/fail thresholds (default :class:`Thresholds`).
         baseline: An earlier report (:func:`load_report`) to compare with, or None.
         baseline_path: Where the baseline came from (recorded in the report).

@@ -3,13 +3,14 @@ clips planned around them.
 
 A soak session is a function of its seed and options, and resumes from any of its checkpoints
 to the same result bit for bit (:mod:`eval.soak`). The film strip uses that: while a session
-runs, :class:`FilmRecorder` (the ``film=True`` hook of :class:`eval.batch.SessionBatch`) keeps a
+runs, :class:`FilmRecorder` (the ``film=True`` hook of :class:`eval.soak.batch.SessionBatch`) keeps
+a
 copy of every checkpoint (``OUT/sessions/<id>/film/<tick>/``: the checkpoint's files, hard links
 where the file system allows, and the recorder's own state) and notes, at the harness's
-supervision steps (every ``eval.batch.SUPERVISE_PERIOD`` s), when a hard-limit violation of the
+supervision steps (every ``eval.soak.batch.SUPERVISE_PERIOD`` s), when a hard-limit violation of the
 true state or a hard-limit safe stop of the runtime begins, when a fault latches and when the
 hottest winding temperature so far occurs, each with the tick and the true joint positions then
-(the replay's fingerprint). After the campaign, :mod:`eval.film_render` replays each session
+(the replay's fingerprint). After the campaign, :mod:`eval.film.render` replays each session
 from these checkpoints and renders the clips that :func:`select_moments` and :func:`plan_clips`
 choose here.
 
@@ -64,7 +65,7 @@ class FilmError(Sim2RealError, RuntimeError):
 
 def retain_dir(out: str | os.PathLike, seed: int) -> Path:
     """``OUT/sessions/<id>/film``: the checkpoints kept for session ``seed``'s film."""
-    from eval.session import session_dir
+    from eval.soak.session import session_dir
 
     return session_dir(out, seed) / FILM
 
@@ -89,7 +90,8 @@ def write_json(path: Path, doc) -> None:
 class FilmRecorder:
     """The soak's film hook: keeps every checkpoint and notes the moments worth filming.
 
-    :class:`eval.batch.SessionBatch` (``film=True``) calls :meth:`supervise` at each supervision
+    :class:`eval.soak.batch.SessionBatch` (``film=True``) calls :meth:`supervise` at each
+    supervision
     step, :meth:`checkpointed` after writing its checkpoints and :meth:`finish` at the end. It
     only reads the batch: the session's results are the same with or without it.
 
@@ -170,7 +172,7 @@ class FilmRecorder:
 
     def checkpointed(self) -> None:
         """Keep a copy of each session's checkpoint just written, with the recorder's state."""
-        from eval.session import session_dir
+        from eval.soak.session import session_dir
 
         b = self.batch
         tick = int(b.rt.ticks)

@@ -3,7 +3,7 @@ comparison.
 
 A failed check names the still frame of the session's first film clip showing why it failed
 (``still frame: film/<id>/NN-<kind>.png``, also as a ``[[ATTACHMENT|...]]`` line in the
-testcase's system-out; :mod:`eval.film`).
+testcase's system-out; :mod:`eval.film.strip`).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from eval.report_schema import CHECKS
+from eval.report.schema import CHECKS
 from robots.files import atomic_write
 
 
@@ -58,7 +58,7 @@ def junit_xml(report: dict) -> str:
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(suites, encoding="unicode")
 
 
-#: The film's moments that show why a check failed (eval.film.KINDS).
+#: The film's moments that show why a check failed (eval.film.strip.KINDS).
 _CHECK_FILM = {
     "no_hard_violation": "hard_violation",
     "no_latched_fault": "latched_fault",

@@ -1,11 +1,11 @@
 """How batches of soak sessions are dispatched: in this process, in local processes, or on Ray.
 
 Every executor runs the same task, :func:`run_sessions` (one batch in one process, through
-:class:`eval.batch.SessionBatch`): in the calling process (a campaign of a single batch), in a
+:class:`eval.soak.batch.SessionBatch`): in the calling process (a campaign of a single batch), in a
 pool of local processes (:func:`run_local`: ``concurrent.futures.ProcessPoolExecutor`` with the
 ``spawn`` start method, one worker per core by default, :func:`default_workers`), or as one Ray
 task per batch (:func:`run_ray`). While they wait, the executors update the campaign's progress
-display (an object with ``update()``; :mod:`eval.campaign`).
+display (an object with ``update()``; :mod:`eval.soak.campaign`).
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ import multiprocessing
 import os
 from pathlib import Path
 
-from eval.batch import BatchDiverged, SessionBatch
-from eval.session import SessionConfig
-from eval.session_result import check_result, read_result
+from eval.soak.batch import BatchDiverged, SessionBatch
+from eval.soak.result import check_result, read_result
+from eval.soak.session import SessionConfig
 
 
 def run_sessions(
@@ -28,7 +28,7 @@ def run_sessions(
     film: bool = False,
 ) -> list[dict]:
     """Run sessions as one batch in this process (the work of one executor task); ``film``: see
-    :class:`eval.batch.SessionBatch`.
+    :class:`eval.soak.batch.SessionBatch`.
 
     Finished sessions (``result.json``) are skipped when resuming. If MuJoCo diverges in one
     session, it ends there (``diverged`` set) and the others continue from their last

@@ -2,9 +2,10 @@
 ``result.json``.
 
 A finished session writes ``result.json`` in its folder (``OUT/sessions/<id>/``,
-:func:`eval.session.session_dir`); a resumed campaign reads it back (:func:`read_result`) instead
+:func:`eval.soak.session.session_dir`); a resumed campaign reads it back (:func:`read_result`)
+instead
 of running the session again, after checking that it was run with the same options
-(:func:`check_result`). The document's schema is in :mod:`eval.report`; everything in it but
+(:func:`check_result`). The document's schema is in :mod:`eval.report.build`; everything in it but
 ``wall`` (wall-clock time, tick cost) follows from the session's seed and options.
 
 A legged session (``robot.floating_base``) has ``goals`` None and a ``locomotion`` section
@@ -23,8 +24,8 @@ import numpy as np
 from deploy.monitors.interventions import INTERVENTION_CHECKS
 from deploy.monitors.violations import VIOLATION_TYPES
 from deploy.runtime import FAULT_CAUSES, STAGES, Mode
-from eval import checkpoint as ckpt
-from eval.session import RESPONSES, Session, SessionConfig, session_dir
+from eval.soak import checkpoint as ckpt
+from eval.soak.session import RESPONSES, Session, SessionConfig, session_dir
 from robots.files import sha256_file
 
 VIOLATION_SOURCE = "true state (simulation ground truth)"
@@ -35,7 +36,7 @@ LEG_JOINTS = ("hip", "thigh", "calf")
 
 
 def locomotion_result(session: Session) -> dict:
-    """The ``locomotion`` section of a legged session's result (see :mod:`eval.report`)."""
+    """The ``locomotion`` section of a legged session's result (see :mod:`eval.report.build`)."""
     from dataclasses import asdict
 
     from deploy.tasks.locomotion import TRACKING_TOLERANCE, TRACKING_WINDOW
@@ -79,10 +80,10 @@ def locomotion_result(session: Session) -> dict:
 
 
 def session_result(session: Session) -> dict:
-    """The result of a session as it stands (see :mod:`eval.report` for the schema).
+    """The result of a session as it stands (see :mod:`eval.report.build` for the schema).
 
     Args:
-        session: The session's book-keeping in its batch (:class:`eval.session.Session`).
+        session: The session's book-keeping in its batch (:class:`eval.soak.session.Session`).
     """
     b, e, rt, robot = session.batch, session.e, session.batch.rt, session.batch.robot
     names = list(robot.joint_names)
@@ -265,7 +266,7 @@ def check_result(result: dict, config: SessionConfig, out) -> None:
     """A finished session may only stand for ``config`` if it was run with the same options.
 
     Raises:
-        eval.checkpoint.CheckpointError: ``result`` was run with other options (but the policy
+        eval.soak.checkpoint.CheckpointError: ``result`` was run with other options (but the policy
             path and checkpoint interval) or another policy file (named).
     """
     path = session_dir(out, config.seed) / "result.json"

@@ -1,10 +1,11 @@
 """Soak film strip, after the session: each session's clips replayed exactly from the checkpoints
-kept during it (:mod:`eval.film`) and rendered.
+kept during it (:mod:`eval.film.strip`) and rendered.
 
 After the campaign, :func:`film_campaign` renders every session in its own process (``python -m
-eval.film_render``, several at once; ``MUJOCO_GL=egl`` where nothing is chosen and there is no
-display): for each moment (:func:`eval.film.select_moments`, grouped into clips by
-:func:`eval.film.plan_clips`) it resumes the session from the nearest kept checkpoint before the
+eval.film.render``, several at once; ``MUJOCO_GL=egl`` where nothing is chosen and there is no
+display): for each moment (:func:`eval.film.strip.select_moments`, grouped into clips by
+:func:`eval.film.strip.plan_clips`) it resumes the session from the nearest kept checkpoint before
+the
 clip (or from its start), runs it through the same harness tick by tick with the same seed and
 fault schedule, and draws env 0 with :class:`deploy.observe.video.VideoRecorder` (the session's
 randomized model; goal sphere, end-effector trail, links tinted where the guard acts). At the
@@ -18,7 +19,7 @@ Output, per session: ``OUT/film/<id>/NN-<kind>.mp4`` (H.264, ``FPS`` frames per 
 time, ``SIZE`` pixels), ``NN-<kind>.png`` (the frame at the moment) and ``film.json``; after a
 session's film is rendered its kept checkpoints are deleted. An 8-hour session's film is at
 most ``MAX_CLIPS`` clips of ``MAX_CLIP_S`` s (about 1 MB), whatever the session's length.
-:mod:`eval.report` embeds the clips in report.html and names the stills in junit.xml.
+:mod:`eval.report.build` embeds the clips in report.html and names the stills in junit.xml.
 
 Without an OpenGL context (or without imageio-ffmpeg) the film is left out with a one-line
 note naming ``MUJOCO_GL``; the soak's results and exit code do not depend on it.
@@ -38,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.film import (
+from eval.film.strip import (
     FILM,
     FINAL,
     KINDS,
@@ -62,7 +63,7 @@ CRF = 28
 #: s: a clip whose replay from a checkpoint differed is replayed from the session's start if
 #: it begins within this time (a policy with state outside the checkpoint; our choice).
 RETRY_S = 900.0
-#: Exit code of ``python -m eval.film_render`` when no film can be made here (no GL, no
+#: Exit code of ``python -m eval.film.render`` when no film can be made here (no GL, no
 #: ffmpeg).
 EXIT_NO_FILM = 3
 
@@ -81,8 +82,8 @@ class _Replay:
         self.simulated_ticks = 0
 
     def _load(self, tick: int, from_start: bool) -> None:
-        from eval.batch import SessionBatch
-        from eval.session import session_dir
+        from eval.soak.batch import SessionBatch
+        from eval.soak.session import session_dir
 
         best = 0 if from_start else max((t for t in self.kept if t <= tick), default=0)
         if self.batch is not None and best <= self.batch.rt.ticks <= tick:
@@ -201,7 +202,7 @@ def render_session(
     ``OUT/film/<id>/`` (clips, stills, ``film.json``) and return ``film.json``'s document.
 
     Args:
-        config: The session's :class:`eval.session.SessionConfig`.
+        config: The session's :class:`eval.soak.session.SessionConfig`.
         out: The campaign folder.
         stream: Where to print one summary line (None: nowhere).
         fps, size, max_clips, crf: Frames per simulated second, (width, height) pixels, clips
@@ -211,7 +212,7 @@ def render_session(
         FilmError: the session has no result, or no film can be made (no OpenGL context: the
             message names ``MUJOCO_GL``; imageio-ffmpeg missing).
     """
-    from eval.session_result import read_result
+    from eval.soak.result import read_result
     from robots import load_robot
 
     out = Path(out)
@@ -327,8 +328,8 @@ def film_campaign(
     line per session.
 
     Args:
-        template: The campaign's :class:`eval.session.SessionConfig` (sessions differ by seed).
-        results: Session results (:func:`eval.campaign.run_campaign`).
+        template: The campaign's :class:`eval.soak.session.SessionConfig` (sessions differ by seed).
+        results: Session results (:func:`eval.soak.campaign.run_campaign`).
         out: The campaign folder.
         workers: Processes rendering at once.
         **look: ``fps``, ``size``, ``max_clips``, ``crf`` of :func:`render_session`.
@@ -336,7 +337,7 @@ def film_campaign(
     from dataclasses import replace
 
     from deploy.observe.video import headless_gl_default
-    from eval.executors import default_workers
+    from eval.soak.executors import default_workers
 
     out = Path(out)
     env = dict(os.environ)
@@ -359,7 +360,7 @@ def film_campaign(
             return r["seed"], {"clips": [], "error": reason}
         config = replace(template, seed=r["seed"])
         done = subprocess.run(
-            [sys.executable, "-m", "eval.film_render"],
+            [sys.executable, "-m", "eval.film.render"],
             input=pickle.dumps((config, str(out), look)),
             capture_output=True,
             env=env,
@@ -384,7 +385,7 @@ def film_campaign(
 
 
 def _main() -> int:
-    """``python -m eval.film_render`` with a pickled ``(SessionConfig, out)`` on standard input
+    """``python -m eval.film.render`` with a pickled ``(SessionConfig, out)`` on standard input
     (from :func:`film_campaign`, the same program's parent: trusted)."""
     os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
     config, out, look = pickle.loads(sys.stdin.buffer.read())

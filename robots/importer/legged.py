@@ -1,6 +1,6 @@
 """Floating-base (legged) robots for the importer: ``robot-import ... --floating-base``.
 
-After the steps every import shares (:func:`robots.import_model.build_spec`, motor limits), a
+After the steps every import shares (:func:`robots.importer.model.build_spec`, motor limits), a
 floating-base robot gets, in its MJCF (:func:`finish_floating_mjcf`):
 
 - a MuJoCo free joint ``root`` on the root link (Pinocchio's MJCF parser reads it as its
@@ -30,8 +30,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from robots.import_model import Motion, _f, _sig, _vec, joint_lines, limit_notes, sensor_lines
-from robots.import_urdf import PreparedSource, RobotImportError
+from robots.importer.model import Motion, _f, _sig, _vec, joint_lines, limit_notes, sensor_lines
+from robots.importer.urdf import PreparedSource, RobotImportError
 
 #: Name of the MuJoCo free joint of the base (Pinocchio names its free-flyer joint the same).
 FREE_JOINT = "root"
@@ -459,7 +459,7 @@ def import_floating_base(
     command: list[str],
     log,
 ) -> None:
-    """The floating-base half of :func:`robots.importer.import_robot` (its arguments).
+    """The floating-base half of :func:`robots.importer.cli.import_robot` (its arguments).
 
     Raises:
         RobotImportError: see :func:`choose_feet`, :func:`choose_imu`,
@@ -469,13 +469,13 @@ def import_floating_base(
     import shutil
     import tempfile
 
-    from robots.import_model import (
+    from robots.importer.cli import _add_contact_excludes, _disabled_by
+    from robots.importer.model import (
         LEGGED_MAX_ACCELERATION,
         cap_limits,
         choose_collision_pairs,
         derive_motion_limits,
     )
-    from robots.importer import _add_contact_excludes, _disabled_by
     from robots.loading import _resolved_mjcf, load_robot
     from robots.robot import RobotSpecError
 

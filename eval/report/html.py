@@ -1,7 +1,7 @@
 """The report.html of a soak campaign, rendered from Jinja2 templates (``eval/templates/``).
 
 :func:`report_html` gathers what the page shows (the campaign, the checks, the baseline
-comparison, per-session tables, the plots of :mod:`eval.report_plots`, the film strip) and renders
+comparison, per-session tables, the plots of :mod:`eval.report.plots`, the film strip) and renders
 ``templates/report.html``; :func:`film_html` renders the film strip's section
 (``templates/film.html``). The templates are autoescaped: every string from a report (robot and
 policy names, session ids, messages, paths) is escaped.
@@ -9,7 +9,7 @@ policy names, session ids, messages, paths) is escaped.
 The HTML is self-contained (plots are matplotlib PNGs embedded as base64; no scripts, no external
 resources), and so is the film strip: each session's clips (H.264 MP4 in ``<video>``, the still at
 the moment as its poster) embedded as base64 from ``film/<id>/`` beside the report (at most
-``eval.film.MAX_CLIPS`` short clips per session).
+``eval.film.strip.MAX_CLIPS`` short clips per session).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import jinja2
 
-from eval.report_plots import (
+from eval.report.plots import (
     plot_interventions,
     plot_success,
     plot_temperatures,
@@ -29,7 +29,7 @@ from eval.report_plots import (
     plot_violations,
     plot_windows,
 )
-from eval.report_schema import CHECKS
+from eval.report.schema import CHECKS
 from robots.files import atomic_write
 
 #: The plots of report.html, in order: (title, function returning a base64 PNG).

@@ -4,7 +4,7 @@
 
     robot-import example-robot-data:so_arm_description/urdf/so101.urdf --out robots/my_so101 \\
         --motor '*=sts3215'
-    python -m robots.importer panda.urdf --out robots/panda --srdf panda.srdf \\
+    python -m robots.importer.cli panda.urdf --out robots/panda --srdf panda.srdf \\
         --motor 'panda_joint[1-4]=ec90flat_hd101' --motor 'panda_joint[5-7]=ec45flat_hd101'
     robot-import my_arm.xml --out robots/my_arm --motor '*=ec45flat70_gp42c' --velocity '*=3.14'
 
@@ -17,11 +17,11 @@ installed package (``package://...``) and :func:`robots.load_robot` resolves it.
 checked with :func:`robots.load_robot` (MuJoCo/Pinocchio agreement) before it is moved into
 place: a failed import leaves nothing.
 
-The source is a URDF (root ``<robot>``, :mod:`robots.import_urdf`) or an MJCF (root
-``<mujoco>``, :mod:`robots.import_mjcf`); both become a
-:class:`robots.import_urdf.PreparedSource`, and everything after that is the same code.
+The source is a URDF (root ``<robot>``, :mod:`robots.importer.urdf`) or an MJCF (root
+``<mujoco>``, :mod:`robots.importer.mjcf`); both become a
+:class:`robots.importer.urdf.PreparedSource`, and everything after that is the same code.
 Errors (:class:`RobotImportError`, exit code 3) are one line naming the file, the element and
-what was expected. The geometry and model helpers are in :mod:`robots.import_model`.
+what was expected. The geometry and model helpers are in :mod:`robots.importer.model`.
 """
 
 from __future__ import annotations
@@ -39,8 +39,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from robots.import_mjcf import prepare_mjcf
-from robots.import_model import (
+from robots.importer.mjcf import prepare_mjcf
+from robots.importer.model import (
     build_spec,
     cap_limits,
     choose_collision_pairs,
@@ -49,7 +49,7 @@ from robots.import_model import (
     sample_workspace,
     write_robot_toml,
 )
-from robots.import_urdf import PreparedSource, RobotImportError, SrdfInfo, prepare_urdf, read_srdf
+from robots.importer.urdf import PreparedSource, RobotImportError, SrdfInfo, prepare_urdf, read_srdf
 from robots.loading import (
     PACKAGE_SCHEME,
     _resolved_mjcf,
@@ -180,7 +180,7 @@ def import_robot(
             still caps them. control_rate: Hz. physics_timestep: s (an integer fraction of the
             control period). force: replace an existing ``out``. log: where decisions are
             printed.
-        floating_base: A legged robot (:mod:`robots.import_legged`): free joint, floor, IMU,
+        floating_base: A legged robot (:mod:`robots.importer.legged`): free joint, floor, IMU,
             foot spheres with touch sensors, ``[base]`` in robot.toml. feet: foot links (default:
             the last link of each leg). imu: the IMU link (default: a link named ``imu``).
             kp, kd: ``JOINT=VALUE`` (shell patterns) plant PD gains, N m/rad and N m s/rad
@@ -225,7 +225,7 @@ def import_robot(
     spec, model = build_spec(urdf, chosen, motor_cfg, physics_timestep)
     joint_names = [model.joint(i).name for i in range(model.njnt)]
     if floating_base:
-        from robots.import_legged import import_floating_base
+        from robots.importer.legged import import_floating_base
 
         import_floating_base(
             path=path, out=out, name=name, urdf=urdf, srdf_info=srdf_info, srdf_path=srdf_path,

@@ -9,7 +9,7 @@ dropout draws (one numpy generator per env,
 :meth:`~deploy.backends.sim.plant.SimBackend.set_sensor_streams`, where SimBackend has one for the
 batch); its goals (one ``GoalScheduler`` for the batch with one goal stream per session); its
 faults (a :class:`deploy.backends.sim.faults.FaultInjector` per session on its env,
-:class:`eval.session_faults.SessionFaults`); its operator resets. Every runtime stage computes
+:class:`eval.soak.faults.SessionFaults`); its operator resets. Every runtime stage computes
 each env on its own, except Ruckig, which serves the whole batch and, when it resamples a
 trajectory for an unchanged input instead of recalculating it, differs from one instance per env
 at ~1e-16 (:mod:`deploy.smoothing`). The harness calls
@@ -19,7 +19,8 @@ more per tick while an env holds still): a session's results are then the same b
 or batched with any others.
 
 Checkpoints. Every ``checkpoint_minutes`` of simulated time each session of a batch writes its
-complete state (:mod:`eval.checkpoint`) to ``OUT/sessions/<id>/``; ``resume=True`` continues from
+complete state (:mod:`eval.soak.checkpoint`) to ``OUT/sessions/<id>/``; ``resume=True`` continues
+from
 there, and the finished session equals an uninterrupted run bit for bit (the checkpoint interval
 does not change the results). A finished session writes ``result.json``; a resumed campaign
 skips it. Before the runtime starts, the plant streams its sensors for a fixed number of ticks
@@ -45,16 +46,16 @@ share
 of RUNNING time within 0.2 m/s of the command, also per window of ``window_minutes``), distance
 and speed, and the falls (safe stops of cause ``fall`` of a robot that was walking,
 ``CommandTracker.falls``). Each session also draws its IMU
-noise (:func:`eval.randomization.apply_imu`) and its floor friction
-(:func:`eval.randomization.apply_floor_friction`); its pushes act on the base, and it gets no
-cable pulls (:func:`eval.fault_schedule.sample_fault_schedule`). Its operator resets stand the
+noise (:func:`eval.world.randomization.apply_imu`) and its floor friction
+(:func:`eval.world.randomization.apply_floor_friction`); its pushes act on the base, and it gets no
+cable pulls (:func:`eval.world.fault_schedule.sample_fault_schedule`). Its operator resets stand the
 robot up first (:meth:`SessionBatch.stand_up`: a robot lying after a stop cannot get up by
 itself).
 
 Divergence: MuJoCo's divergence (:class:`~deploy.backends.sim.plant.SimulationDivergedError`) ends
 the
 session that diverged with ``diverged`` set (:exc:`BatchDiverged`); the other sessions of its
-batch continue from their last checkpoints (:func:`eval.executors.run_sessions`).
+batch continue from their last checkpoints (:func:`eval.soak.executors.run_sessions`).
 """
 
 from __future__ import annotations
@@ -72,8 +73,11 @@ from deploy.monitors.violations import ViolationMonitor
 from deploy.runtime import Mode
 from deploy.stateful import put, take
 from deploy.tasks.goals import GoalScheduler
-from eval import checkpoint as ckpt
-from eval.randomization import (
+from eval.soak import checkpoint as ckpt
+from eval.soak.faults import SessionFaults
+from eval.soak.result import session_result
+from eval.soak.session import SESSIONS_DIR, Session, SessionConfig, SessionError, session_dir
+from eval.world.randomization import (
     apply_drift,
     apply_floor_friction,
     apply_imu,
@@ -83,9 +87,6 @@ from eval.randomization import (
     sample_session,
     session_rng,
 )
-from eval.session import SESSIONS_DIR, Session, SessionConfig, SessionError, session_dir
-from eval.session_faults import SessionFaults
-from eval.session_result import session_result
 from robots.errors import Sim2RealError
 from robots.files import atomic_write, sha256_file
 
@@ -141,12 +142,12 @@ class SessionBatch:
         progress: Write ``progress.json`` per session every ``PROGRESS_PERIOD`` simulated s.
         on_progress: Optional callable, called after each progress write.
         film: Keep every checkpoint and note the worst moments for the film strip
-            (:class:`eval.film.FilmRecorder`; it only reads the batch).
+            (:class:`eval.film.strip.FilmRecorder`; it only reads the batch).
 
     Raises:
         SessionError: sessions with different options, or duplicate seeds.
         ValueError: unreadable robot or policy (``RobotSpecError``, ``PolicyLoadError``).
-        eval.checkpoint.CheckpointError: a checkpoint that cannot be read or does not fit.
+        eval.soak.checkpoint.CheckpointError: a checkpoint that cannot be read or does not fit.
     """
 
     def __init__(
@@ -259,7 +260,7 @@ class SessionBatch:
             self._resume()
         self.film = None
         if film:
-            from eval.film import FilmRecorder
+            from eval.film.strip import FilmRecorder
 
             self.film = FilmRecorder(self)
 
@@ -297,7 +298,7 @@ class SessionBatch:
         self._wall0 = time.perf_counter()
 
     def checkpoint(self) -> None:
-        """Write every session's checkpoint (atomically, see :mod:`eval.checkpoint`)."""
+        """Write every session's checkpoint (atomically, see :mod:`eval.soak.checkpoint`)."""
         for s in self.sessions:
             arrays, meta = s.capture()
             ckpt.write_checkpoint(session_dir(self.out, s.config.seed), arrays, meta)

@@ -1,0 +1,3 @@
+"""robot-import: a URDF or an MJCF (fixed base or legged) into robots/<name>/ (MJCF plus
+robot.toml); cli is the command, model the shared conversion.
+"""

@@ -144,6 +144,10 @@ class RuckigState:
         inp.current_position = np.where(dof, b[0], 0.0)
         inp.current_velocity = np.where(dof, b[1], 0.0)
         inp.current_acceleration = np.where(dof, b[2], 0.0)
+        # calculate afresh from this input: Ruckig would otherwise go on sampling the trajectory
+        # of its last call whenever the whole batch's input repeats, so that an env's brake would
+        # depend on what the other envs did (RuckigState.recalculate)
+        self._braker.reset()
         try:
             result = self._braker.update(inp, out)
         except RuckigError as exc:

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from deploy.backends.base import SimulatedPlant
+from deploy.backends.registry import make_backend
 from deploy.cli.run_parser import build_parser
 from deploy.cli.run_summary import print_summary
 from deploy.monitors.kernel import motion_statistics
@@ -57,37 +58,6 @@ def policy_export_main(argv: list[str] | None = None) -> int:
     from deploy.export import main
 
     return main(argv)
-
-
-def make_backend(args, robot, mode: str):
-    """The backend ``--backend`` names (not yet opened).
-
-    Raises:
-        ValueError: options a servo bus cannot honour (several envs, fault injection).
-    """
-    if args.backend == "sim":
-        from deploy.backends.sim.plant import SimBackend
-
-        return SimBackend(robot, mode=mode, envs=args.envs, seed=args.seed)
-    if args.envs != 1:
-        raise ValueError(f"--backend {args.backend} drives one robot: --envs must be 1")
-    if args.inject:
-        raise ValueError(
-            f"--inject is simulation-only; with --backend {args.backend} use the emulator's "
-            "faults (python -m deploy.backends.emulator --fault ...)"
-        )
-    if args.backend == "feetech":
-        from deploy.backends.feetech import FeetechBackend as Bus
-    else:
-        from deploy.backends.dynamixel import DynamixelBackend as Bus
-    return Bus(
-        robot,
-        args.port,
-        baudrate=args.baudrate,
-        calibration=args.calibration,
-        mode=mode,
-        hold_on_close=args.hold_on_close,
-    )
 
 
 def run(args) -> int:
@@ -114,7 +84,7 @@ def run(args) -> int:
             assert fixed.shape == (3,)
         except (ValueError, AssertionError):
             raise ValueError(f"--goal {args.goal!r}: expected X,Y,Z in metres") from None
-    backend = make_backend(args, robot, policy.spec.action.mode)
+    backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
     realtime = bool(args.realtime) or not simulated  # hardware: the wall clock only
     injector = FaultInjector(faults, backend) if faults else None
@@ -384,7 +354,7 @@ def _run_opened(
 
 def deploy_run_main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
-    args = build_parser().parse_args(argv)
+    args = build_parser(argv).parse_args(argv)
     if args.viewer:  # a window or nothing: refuse before the run starts
         from deploy.observe.viewer import NoDisplayError, check_display
 

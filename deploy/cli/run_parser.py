@@ -1,5 +1,5 @@
-"""The command line of ``deploy-run``: its argument parser (:func:`build_parser`) and the backends
-``--backend`` chooses from (``BACKENDS``).
+"""The command line of ``deploy-run``: its argument parser (:func:`build_parser`); the backends
+``--backend`` chooses from, and their options, come from :mod:`deploy.backends.registry`.
 
 The options are read before anything heavy is imported: this module imports neither MuJoCo nor
 numba (:mod:`deploy.runtime.clock` is MuJoCo-free), since ``deploy-run`` chooses MuJoCo's OpenGL
@@ -11,39 +11,21 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from deploy.backends.registry import add_backend_options
 from deploy.runtime.clock import WAIT_MODES
 
-BACKENDS = ("sim", "feetech", "dynamixel")
 
-
-def build_parser() -> argparse.ArgumentParser:
-    """The parser of ``deploy-run``'s options (:func:`deploy.cli.deploy_run.deploy_run_main`)."""
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The parser of ``deploy-run``'s options (:func:`deploy.cli.deploy_run.deploy_run_main`),
+    with the options of the backend ``argv`` chooses (:mod:`deploy.backends.registry`; default
+    ``sys.argv``)."""
     p = argparse.ArgumentParser(
         prog="deploy-run",
         description="Run an exported ONNX policy through the safety runtime.",
         epilog="Exit codes: 0 clean, 1 hard violation, 2 latched fault, 3 bad input, "
         "4 simulation diverged.",
     )
-    p.add_argument(
-        "--backend",
-        choices=BACKENDS,
-        default="sim",
-        help="sim (MuJoCo plant), feetech or dynamixel (serial-bus servos; wall clock only)",
-    )
-    p.add_argument("--port", default="/dev/ttyACM0", help="serial port of a servo bus")
-    p.add_argument("--baudrate", type=int, default=1_000_000, help="servo bus bit/s")
-    p.add_argument(
-        "--calibration",
-        type=Path,
-        default=None,
-        help="LeRobot calibration JSON (servo IDs, homing offsets, directions, ranges); "
-        "default: IDs 1..n, 2048 ticks = 0 rad",
-    )
-    p.add_argument(
-        "--hold-on-close",
-        action="store_true",
-        help="servo bus: leave the torque on at the end (default: off)",
-    )
+    add_backend_options(p, argv)
     p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
     p.add_argument("--policy", required=True, help="ONNX policy (made by policy-export)")
     p.add_argument("--spec", default=None, help="PolicySpec JSON for an ONNX without our metadata")

@@ -4,6 +4,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from deploy.safety.collision import collision_model
 from deploy.safety.guard import CHECKS, SafetyGuard
 from deploy.smoothing import stopping_distance
 from deploy.state import RobotState
@@ -88,7 +89,7 @@ def test_collision_pair_weights_bound_how_fast_each_pair_approaches(robot_name):
     weights = collision_pair_weights(robot)
     model = robot.fixed_base_model
     data = model.createData()
-    geom_model, geom_data = SafetyGuard.collision_model(robot)
+    geom_model, geom_data = collision_model(robot)
     assert weights.shape == (len(geom_model.collisionPairs), robot.n_joints)
 
     def distances(q):
@@ -114,7 +115,7 @@ def test_collision_answers_do_not_depend_on_the_previous_query(arm6):
     contact for pairs penetrating by millimetres after a query at another configuration."""
     model = arm6.fixed_base_model
     data = model.createData()
-    geom_model, geom_data = SafetyGuard.collision_model(arm6)
+    geom_model, geom_data = collision_model(arm6)
     rng = np.random.default_rng(7)
     lo, hi = arm6.position_lower, arm6.position_upper
     q = rng.uniform(lo, hi)

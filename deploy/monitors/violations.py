@@ -20,7 +20,7 @@ however many joints are past the limit):
 - ``workspace``: the true end effector (MuJoCo's site, the randomized geometry) outside the box
   ``safety.workspace_min/max``.
 - ``self_collision``: a pair of ``safety.collision_pairs`` in contact at the true joint positions
-  (coal, with the guard's collision model: :meth:`deploy.safety.guard.SafetyGuard.collision_model`,
+  (coal, with the guard's collision model: :func:`deploy.safety.collision.collision_model`,
   the
   robot's *nominal* geometry; checked every tick, which is cheaper than the guard's screen would
   be: ``docs/measurements.md``).
@@ -41,7 +41,8 @@ from __future__ import annotations
 import numpy as np
 
 from deploy.monitors import kernel as mk
-from deploy.safety.guard import SCREEN_MARGIN, SafetyGuard, collision_query
+from deploy.safety.collision import collision_model, collision_query
+from deploy.safety.guard import SCREEN_MARGIN
 from robots import Robot
 from robots.chain_bounds import collision_pair_weights
 
@@ -160,7 +161,7 @@ class ViolationMonitor(MonitorState):
         self._hit = np.zeros(envs, dtype=bool)
         self._model = robot.fixed_base_model
         self._data = self._model.createData()
-        self._geom_model, self._geom_data = SafetyGuard.collision_model(robot)
+        self._geom_model, self._geom_data = collision_model(robot)
         self._has_pairs = bool(self._geom_model.collisionPairs)
         # the collision screen (compiled path): no pair can touch while its distance computed at
         # checked_q exceeds its own bound on how far the joints moved since

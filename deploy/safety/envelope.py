@@ -99,7 +99,7 @@ class MotionEnvelope:
         robot: The robot (limits, workspace box, collision pairs).
         envs: Batch size.
         geometry: ``(geom_model, geom_data)``, the guard's coal model
-            (:meth:`deploy.safety.guard.SafetyGuard.collision_model`; a data of its own).
+            (:func:`deploy.safety.collision.collision_model`; a data of its own).
         pair_weights: (pairs, n) m/rad, :func:`robots.chain_bounds.collision_pair_weights`.
         ee_lever: (n,) m/rad, :func:`robots.chain_bounds.end_effector_lever`.
         gravity_bound: (n,) N m, each joint's worst gravity torque

@@ -50,13 +50,13 @@ its coal collision pairs from those shapes and the pairs named in robot.toml.
 
 from __future__ import annotations
 
-import warnings
 from types import SimpleNamespace
 
 import numpy as np
 import pinocchio as pin
 
 from deploy.safety import kernel as gk
+from deploy.safety.collision import collision_model, collision_query
 from deploy.safety.envelope import MotionEnvelope
 from deploy.smoothing import stopping_speed
 from deploy.state import RobotState
@@ -78,27 +78,6 @@ SCREEN_MARGIN = 1e-9
 # 1 ulp past the limit (4.4e-16 rad on so101's wrist_roll); that is a full action, not a
 # crossing. Far below any encoder count (1.5e-3 rad at 4096 counts/rev).
 TARGET_TOLERANCE = 1e-9
-
-
-def collision_query(
-    model: pin.Model,
-    data: pin.Data,
-    geom_model: pin.GeometryModel,
-    geom_data: pin.GeometryData,
-    q: np.ndarray,
-    distances: np.ndarray | None = None,
-) -> bool:
-    """Whether a collision pair of ``geom_model`` touches at ``q`` (rad; coal, stopping at the
-    first contact). With ``distances`` ((pairs,) m, written), also each pair's distance there for
-    the screens: all ``-inf`` when a pair touches (the screen then checks again next tick)."""
-    hit = bool(pin.computeCollisions(model, data, geom_model, geom_data, q, True))
-    if distances is not None:
-        if hit:
-            distances.fill(-np.inf)
-        else:
-            pin.computeDistances(model, data, geom_model, geom_data, q)
-            distances[:] = [r.min_distance for r in geom_data.distanceResults]
-    return hit
 
 
 class SafetyGuard:
@@ -153,7 +132,7 @@ class SafetyGuard:
         self._brake_gain = 10.0 * robot.effort_limit
         self.model = robot.fixed_base_model
         self.data = self.model.createData()
-        self.geom_model, self.geom_data = self.collision_model(robot)
+        self.geom_model, self.geom_data = collision_model(robot)
         self._has_pairs = bool(self.geom_model.collisionPairs)
         #: m per rad: bound on any point's displacement per unit of sum |dq| (module docstring).
         self.sweep, self.gravity_bound = motion_bounds(robot)
@@ -182,7 +161,7 @@ class SafetyGuard:
             self.envelope = MotionEnvelope(
                 robot,
                 envs,
-                self.collision_model(robot),
+                collision_model(robot),
                 self.pair_weights,
                 self.ee_lever,
                 self.gravity_bound,
@@ -217,40 +196,6 @@ class SafetyGuard:
             gk.guard_filter(0, *args)
             gk.guard_filter(1, *args)
         self._tail = self._kernel_tail(self)
-
-    @staticmethod
-    def collision_model(robot: Robot) -> tuple[pin.GeometryModel, pin.GeometryData]:
-        """The guard's coal collision model of ``robot``: the MJCF geoms (nominal geometry) with
-        the pairs of ``safety.collision_pairs``, and its data. Use it with ``robot.pin_model``
-        (``pin.computeCollisions``; ``robot.fixed_base_model`` for a floating base);
-        :class:`deploy.monitors.violations.ViolationMonitor` checks the true
-        configuration with it.
-
-        Raises:
-            ValueError: a listed geom is not in the MJCF (the message names robot.toml, the field
-                and the geoms there are).
-        """
-        geom = pin.buildGeomFromMJCF(robot.pin_model, str(robot.mjcf_path), pin.VISUAL)
-        geom = robot.fixed_base_geometry(geom)  # a floating base: the legs about a fixed base
-        names = [g.name for g in geom.geometryObjects]
-        for a, b in robot.config.safety.collision_pairs:
-            for name in (a, b):
-                if name not in names:
-                    raise ValueError(
-                        f"{robot.directory / 'robot.toml'}: field 'safety.collision_pairs': geom "
-                        f"'{name}' is not in {robot.mjcf_path.name} (geoms: {names})"
-                    )
-            geom.addCollisionPair(pin.CollisionPair(names.index(a), names.index(b)))
-        data = pin.GeometryData(geom)
-        # Pinocchio's GeometryData warm-starts coal's GJK from the last query's result
-        # (enable_cached_gjk_guess). The answer then depends on the query history: from a cached
-        # guess coal reported no contact for arm6 pairs penetrating by 9 mm, which a fresh query
-        # finds (tests/test_safety.py). Every query starts from coal's default guess instead.
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)  # the flag is deprecated in coal
-            for request in [*data.collisionRequests, *data.distanceRequests]:
-                request.enable_cached_gjk_guess = False
-        return geom, data
 
     def reset(self, q: np.ndarray, envs: np.ndarray | None = None) -> None:
         """Start from measured positions ``q`` (envs, n): they become the hold target.

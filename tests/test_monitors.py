@@ -66,11 +66,12 @@ def test_compiled_goal_scheduler_equals_the_reference(arm3):
 @pytest.mark.parametrize("mode", ["position", "velocity", "torque"])
 def test_compiled_violation_and_intervention_monitors_equal_the_references(tmp_path, arm6, mode):
     """Both monitors watch the same run of an adversarial policy (random actions on a square wave
-    that sweeps the joints into their limits, a push and a cable pull)."""
+    that sweeps the joints into their limits, a push beyond what the servos hold, and a cable
+    pull: with the motion envelope the policy alone no longer breaks a limit)."""
     dt = arm6.control_period
     plant = SimBackend(arm6, mode=mode, envs=2, seed=3)
     faults = [
-        Fault("push", 100 * dt, 40 * dt, envs=(0,), magnitude=40.0),
+        Fault("push", 100 * dt, 40 * dt, envs=(0,), magnitude=400.0),
         Fault("cable", 300 * dt, 200 * dt, envs=(1,), magnitude=30.0),
     ]
     policy = SweepingPolicy(OnnxPolicy(adversarial_onnx(tmp_path, arm6, mode), arm6), dt)

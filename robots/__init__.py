@@ -11,7 +11,7 @@ The names below load on first use: the lowest floor's light modules (:mod:`robot
 
 from __future__ import annotations
 
-import importlib
+from robots.lazy import lazy_names
 
 #: public name -> module of this package that defines it
 _SOURCES = {
@@ -27,10 +27,4 @@ _SOURCES = {
 __all__ = sorted(_SOURCES)
 
 
-def __getattr__(name: str):
-    """Import a public name's module on first use."""
-    if name not in _SOURCES:
-        raise AttributeError(f"module 'robots' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_SOURCES[name]), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, _SOURCES, globals())

@@ -98,16 +98,12 @@ _SOURCES = {
     "run_campaign": "eval.soak.campaign",
 }
 
+from robots.lazy import lazy_names  # noqa: E402 (after the finder: the toolkit's robots)
+
 __all__ = sorted(_SOURCES)
 
 
-def __getattr__(name: str):
-    """Import a public name's module on first use."""
-    if name not in _SOURCES:
-        raise AttributeError(f"module 'sim2real' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_SOURCES[name]), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, _SOURCES, globals())
 
 
 def __dir__() -> list[str]:

@@ -13,7 +13,9 @@ faces, the step is replaced by the smoother's brake (:meth:`CommandSmoother.brak
 
 The motion an env is committed to lies, joint by joint, in a box: from the estimated position
 (where the joint is; a position servo lags its command), through the smoother's position before
-and after the step, to where the joint comes to rest if the smoother brakes from its new state
+and after the step, to where the joint comes to rest if the smoother brakes from its new state (in
+velocity mode the smoother's integrated position, which a drive's PI loop also pulls the joint
+toward)
 (:func:`deploy.safety.envelope_kernel.brake_reach`, under the smoother's acceleration and jerk
 limits;
 the deceleration scaled down to the torque a thermally derated drive has left above the worst
@@ -25,9 +27,13 @@ end effector's margin inside the workspace box by at most ``lever @ |dq|``
 (:func:`robots.chain_bounds.end_effector_lever`), per axis of the box where a joint's axis keeps its
 world direction (:func:`axis_levers`: a planar arm's end effector never leaves its plane); the box
 is safe when the centre's distance exceeds
-that bound over the box's half-widths plus ``margin``; a box that one query cannot certify is
-halved along its widest weighted side, up to ``MAX_QUERIES`` queries, before the step is braked.
-Workspace faces beyond the end effector's reach are never crossed and not checked. The same
+that bound over the box's half-widths plus ``margin`` (for the workspace, also a local bound from
+the
+end effector's Jacobian at the centre). A box that one query cannot certify over-covers the motion
+(its corners combine one joint's start with another's end): the step and Ruckig's brake are then
+cut into segments by time, each joint monotonic within one, and each segment's box is certified
+(:data:`PATH_SEGMENTS`) before the step is braked. Workspace faces beyond the end effector's reach
+are never crossed and not checked. The same
 bound screens the exact query against the last one (``deploy.safety.envelope_kernel``): far from
 contact no query runs, and the decision is the same with or without the cache.
 
@@ -45,6 +51,15 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pinocchio as pin
+from ruckig import (
+    ControlInterface,
+    InputParameter,
+    Result,
+    Ruckig,
+    RuckigError,
+    Synchronization,
+    Trajectory,
+)
 
 from deploy.safety import envelope_kernel as ek
 
@@ -59,9 +74,9 @@ MIN_HEADROOM = 0.05
 #: m, distances within this of each other are equal (coal's round-off between configurations
 #: that leave a pair's relative pose unchanged).
 DISTANCE_TOLERANCE = 1e-9
-#: Exact queries per env, check and tick at most when halving a box (our choice: a few
-#: Pinocchio calls, only near contact or a face).
-MAX_QUERIES = 7
+#: Segments of the brake the path certification cuts by time (our choice: a few Pinocchio
+#: calls, only where the whole box is uncertain).
+PATH_SEGMENTS = 4
 
 
 def axis_levers(robot, ee_lever: np.ndarray) -> np.ndarray:
@@ -162,6 +177,8 @@ class MotionEnvelope:
         self.weights[: self.pairs] = pair_weights
         if self.has_workspace:
             self.weights[self.pairs :] = axis_levers(robot, ee_lever)
+        #: (n, n) m/rad^2: min(lever_i, lever_j), bound of the end effector's second derivatives
+        self._curvature = np.minimum.outer(np.asarray(ee_lever), np.asarray(ee_lever))
         # cache of the last exact query: its configuration (rows collision, workspace) and the
         # distances there (pairs, then the workspace margins along x, y, z); -inf: unknown, inf:
         # nothing to check
@@ -171,8 +188,18 @@ class MotionEnvelope:
             self._clearance[:, self.pairs :] = np.inf
         if not self.pairs:
             self._clearance[:, : self.pairs] = np.inf
-        self._box = np.zeros((3, envs, n))  # centre, half-width, the brake's rest point
+        # centre, half-width, the brake's rest point, the motion's start, the step's end
+        self._box = np.zeros((5, envs, n))
         self._need = np.zeros((2, envs), dtype=bool)
+        # the brake's path (_path_certified): Ruckig to rest, one env's joints at a time
+        self._path_ruckig = Ruckig(n)
+        self._path = Trajectory(n)
+        self._path_inp = inp = InputParameter(n)
+        inp.control_interface = ControlInterface.Velocity
+        inp.synchronization = Synchronization.No
+        inp.max_velocity = 2.0 * np.asarray(robot.velocity_limit)
+        inp.max_jerk = robot.jerk_limit
+        inp.target_velocity = inp.target_acceleration = np.zeros(n)
         self.unsafe = np.zeros((2, envs), dtype=bool)
         self._dirty = False
         ek.warm_up()
@@ -217,50 +244,98 @@ class MotionEnvelope:
             self._clearance, self.weights, self.margin, box, need,
         ):  # fmt: skip
             return False
-        c, h, stop, start, end = box[0], box[1], box[2], before[0], after[0]
+        c, h, stop, start, end = box
         for e in np.flatnonzero(need[ek.COLLISION]):
             d = self._clearance[e, : self.pairs]
             d[:] = self.distances(c[e])
             self._cached_q[ek.COLLISION, e] = c[e]
             if not self._certified(ek.COLLISION, c[e], h[e], d):
-                escapes = self._escapes_contact(start[e], end[e], stop[e])
-                self.unsafe[ek.COLLISION, e] = not escapes
+                self.unsafe[ek.COLLISION, e] = not self._passes(ek.COLLISION, e, q, box, after,
+                                                                effort_scale)  # fmt: skip
         for e in np.flatnonzero(need[ek.WORKSPACE]):
             inside = self._clearance[e, self.pairs :]
             inside[:] = self.workspace_margin(c[e])
             self._cached_q[ek.WORKSPACE, e] = c[e]
             if not self._certified(ek.WORKSPACE, c[e], h[e], inside):
-                escapes = self._escapes_box(start[e], end[e], stop[e])
-                self.unsafe[ek.WORKSPACE, e] = not escapes
+                self.unsafe[ek.WORKSPACE, e] = not self._passes(ek.WORKSPACE, e, q, box, after,
+                                                                effort_scale)  # fmt: skip
         self._dirty = bool(self.unsafe.any())
         return self._dirty
 
+    def _passes(self, kind: int, e: int, q, box, after, effort_scale) -> bool:
+        """Env ``e``'s motion, which its whole box could not certify: certified segment by
+        segment (:meth:`_path_certified`), or a robot already within the margin moving back out
+        (:meth:`_escapes_contact`, :meth:`_escapes_box`)."""
+        start, end, rest = box[3, e], box[4, e], box[2, e]
+        scale = effort_scale[e]
+        g, floor = self.limits[2], self.limits[3]
+        share = np.clip((scale - g) / np.maximum(1.0 - g, 1e-12), floor, 1.0)
+        share = np.where(g >= 1.0, np.clip(scale, floor, 1.0), share)
+        if self._path_certified(kind, q[e], start, end, after[1, e], after[2, e], share):
+            return True
+        if kind == ek.COLLISION:
+            return self._escapes_contact(start, end, rest)
+        return self._escapes_box(start, end, rest)
+
+    def _reach(self, kind: int, centre, half) -> np.ndarray:
+        """How far each quantity of ``kind`` can shrink in the box ``centre +- half`` (n,) rad:
+        the chain bound ``weights @ half``; for the workspace margins also the local bound
+        ``|J(c)| @ half + half @ L @ half / 2`` (``J`` the end effector's translation Jacobian
+        at the centre, ``L_ij = min(lever_i, lever_j)`` a bound of the second derivatives of
+        its position along a chain of revolute joints), whichever is smaller."""
+        if kind == ek.COLLISION:
+            return self.weights[: self.pairs] @ half
+        reach = self.weights[self.pairs :] @ half
+        jacobian = pin.computeFrameJacobian(
+            self.model, self.data, centre, self.robot.ee_frame_id, pin.LOCAL_WORLD_ALIGNED
+        )[:3]
+        local = np.abs(jacobian) @ half + 0.5 * half @ self._curvature @ half
+        return np.minimum(reach, local)
+
     def _certified(self, kind: int, centre, half, value) -> bool:
         """Whether the box ``centre +- half`` (n,) rad keeps every quantity of ``kind`` (the
-        pairs' distances, or the workspace margins; ``value`` at the centre) above the margin;
-        an uncertain box is halved along its widest weighted side while queries remain
-        (:data:`MAX_QUERIES`)."""
-        rows = slice(None, self.pairs) if kind == ek.COLLISION else slice(self.pairs, None)
-        weights = self.weights[rows]
+        pairs' distances, or the workspace margins; ``value`` at the centre) above the margin
+        (:meth:`_reach`)."""
+        return bool(np.all(value - self._reach(kind, centre, half) > self.margin))
+
+    def _path_certified(self, kind: int, q, start, end, velocity, acceleration, share) -> bool:
+        """Whether the motion is safe segment by segment: the step (``start`` to ``end``, with
+        the estimate ``q``), then the brake from ``end`` at ``velocity``, ``acceleration`` (n,)
+        cut into :data:`PATH_SEGMENTS` by time; each joint moves monotonically within a brake
+        segment (up to the reversal :func:`brake_reach` allows), so the boxes of the segments
+        cover the path that the whole box over-covers. The brake is Ruckig's own (velocity
+        interface to rest; deceleration times ``share`` (n,), the derated drives' headroom)."""
         query = self.distances if kind == ek.COLLISION else self.workspace_margin
-        boxes, queries = [(centre, half, np.array(value))], 1
-        while boxes:
-            c, h, v = boxes.pop()
-            slack = v - weights @ h - self.margin
-            if np.all(slack > 0.0):
-                continue
-            if queries + 2 > MAX_QUERIES or not np.all(v > self.margin):
+        inp = self._path_inp
+        inp.current_position = end
+        inp.current_velocity = velocity
+        inp.current_acceleration = acceleration
+        inp.max_acceleration = self.limits[0] * share
+        try:
+            result = self._path_ruckig.calculate(inp, self._path)
+        except RuckigError:
+            return False
+        if result not in (Result.Working, Result.Finished):
+            return False
+        times = np.linspace(0.0, self._path.duration, PATH_SEGMENTS + 1)
+        points = [np.asarray(self._path.at_time(t)[0]) for t in times]
+        # the joints lag their command (a position servo): each segment also holds the points
+        # up to the present lag behind it
+        slack = self._reversal(acceleration, velocity) + np.abs(q - start)
+        segments = [(np.minimum(np.minimum(q, start), end), np.maximum(np.maximum(q, start), end))]
+        for a, b in zip(points[:-1], points[1:], strict=True):
+            segments.append((np.minimum(a, b) - slack, np.maximum(a, b) + slack))
+        for lo, hi in segments:
+            c, h = 0.5 * (lo + hi), 0.5 * (hi - lo)
+            if not self._certified(kind, c, h, query(c)):
                 return False
-            worst = int(np.argmin(slack))
-            i = int(np.argmax(weights[worst] * h))
-            h = h.copy()
-            h[i] *= 0.5
-            for sign in (-1.0, 1.0):
-                ci = c.copy()
-                ci[i] += sign * h[i]
-                boxes.append((ci, h, query(ci)))
-                queries += 1
         return True
+
+    def _reversal(self, acceleration, velocity) -> np.ndarray:
+        """(n,) rad, how far a brake may carry each joint back past rest (``back`` of
+        :func:`deploy.safety.envelope_kernel.brake_reach`)."""
+        against = np.maximum(-acceleration * np.sign(velocity), 0.0)
+        return against**3 / (2.0 * self.limits[1] ** 2)
 
     def _escapes_contact(self, start, end, rest) -> bool:
         """Whether a robot already within the margin at ``start`` moves back out: no pair's

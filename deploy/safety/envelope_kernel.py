@@ -73,8 +73,9 @@ def envelope_screen(
     ``after`` (3, envs, n) after it; ``limits`` (4, n): the smoother's acceleration and jerk
     limits, the worst gravity load's share of each effort limit and the smallest brake headroom
     assumed. The brake's deceleration is the acceleration limit times :func:`brake_headroom` of
-    ``effort_scale`` (envs, n), the thermal derating. Writes ``box`` (3, envs, n): centre,
-    half-width and the brake's rest point.
+    ``effort_scale`` (envs, n), the thermal derating. Writes
+    ``box`` (5, envs, n): centre, half-width, the brake's rest point, and the motion's start and
+    the step's end.
 
     The screen marks ``need[row, e]`` (rows ``COLLISION``, ``WORKSPACE``) where the cache cannot
     certify the box: ``cached_q`` (2, envs, n) rad the configurations of the last exact queries
@@ -98,10 +99,12 @@ def envelope_screen(
             forward, back = brake_reach(
                 after[1, e, i], after[2, e, i], limits[0, i] * share, limits[1, i]
             )
-            p = after[0, e, i]
+            p0, p = before[0, e, i], after[0, e, i]
             box[2, e, i] = p + forward
-            lo = min(q[e, i], before[0, e, i], p, p + forward, p + back)
-            hi = max(q[e, i], before[0, e, i], p, p + forward, p + back)
+            box[3, e, i] = p0
+            box[4, e, i] = p
+            lo = min(q[e, i], p0, p, p + forward, p + back)
+            hi = max(q[e, i], p0, p, p + forward, p + back)
             box[0, e, i] = 0.5 * (lo + hi)
             box[1, e, i] = 0.5 * (hi - lo)
         for r in range(rows):
@@ -125,6 +128,6 @@ def warm_up() -> None:
     z3 = np.zeros((3, 1, 2))
     envelope_screen(
         z, z3, z3, np.zeros(1, dtype=bool), np.ones((4, 2)), np.ones((1, 2)),
-        np.zeros((2, 1, 2)), np.full((1, 4), math.inf), np.zeros((4, 2)), 0.0, z3.copy(),
-        np.zeros((2, 1), dtype=bool),
+        np.zeros((2, 1, 2)), np.full((1, 4), math.inf), np.zeros((4, 2)), 0.0,
+        np.zeros((5, 1, 2)), np.zeros((2, 1), dtype=bool),
     )  # fmt: skip

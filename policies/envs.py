@@ -323,6 +323,7 @@ class ReachTask:
         target = self.spec.action_to_target(action, self.state, out=self._target)
         target = guard.filter(target, self.state, out=target, commanded_position=self._commanded)
         cmd = self.smoother.step(target, out=self._cmd)
+        cmd = guard.check_motion(self.smoother, self.state, cmd)  # the runtime's motion envelope
         # what the guard and the smoother changed (the smoother's brake before a soft limit, its
         # clamp to the velocity limit, the guard's clamps and holds): interventions
         np.copyto(self._any_before, self.monitor.any)

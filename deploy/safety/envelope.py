@@ -119,12 +119,15 @@ class MotionEnvelope:
             (:func:`robots.chain_bounds.motion_bounds`).
         reach: m, :func:`robots.chain_bounds.end_effector_reach` (faces beyond it are dropped).
         margin: m, clearance kept (``safety.clearance_margin`` of robot.toml); default
-            :data:`DEFAULT_MARGIN`, capped at half the smallest pair distance and workspace
-            margin of the home pose (a gripper's jaw may sit close to its wrist there).
+            :data:`DEFAULT_MARGIN`, capped at half of each pair's smallest distance with the
+            joints that move it swept one at a time from home (:meth:`_sweep_clearance`) and
+            at half the home pose's workspace margin.
 
     Attributes:
         unsafe: (2, envs) bool, rows collision and workspace: the envs the last :meth:`check`
             found unsafe.
+        joints: (envs, n) bool, the joints of those envs to brake: the ones that move what
+            could not be certified.
         queries: int, exact (Pinocchio) queries so far: a cost figure.
     """
 
@@ -161,9 +164,9 @@ class MotionEnvelope:
             ]
         )
         self.queries = 0
-        if margin is None:  # the default, capped at half the home pose's clearance
-            home = np.asarray(robot.home, dtype=float)
-            clear = [self.distances(home).min()] if self.pairs else []
+        home = np.asarray(robot.home, dtype=float)
+        if margin is None:  # the default, capped at half the clearance the geometry allows
+            clear = self._sweep_clearance(home, np.asarray(pair_weights)) if self.pairs else []
             if self.has_workspace:
                 clear.append(self.workspace_margin(home).min())
             margin = min([DEFAULT_MARGIN, *(0.5 * c for c in clear if c > 0.0)])
@@ -199,10 +202,28 @@ class MotionEnvelope:
         inp.max_jerk = robot.jerk_limit
         inp.target_velocity = inp.target_acceleration = np.zeros(n)
         self.unsafe = np.zeros((2, envs), dtype=bool)
+        self.joints = np.zeros((envs, n), dtype=bool)
         self._dirty = False
         ek.warm_up()
 
     # ------------------------------------------------------------------ exact queries
+    def _sweep_clearance(self, home: np.ndarray, pair_weights: np.ndarray) -> list[float]:
+        """m, the smallest distance of each pair, at home and with each joint that moves it
+        swept alone across its position range from home (65 poses): what the robot's own
+        geometry allows (a gripper's jaw passes within millimetres of its wrist)."""
+        clear = []
+        for p, w in enumerate(pair_weights):
+            worst = self.distances(home)[p]
+            for j in np.flatnonzero(w):
+                for x in np.linspace(
+                    self.robot.position_lower[j], self.robot.position_upper[j], 65
+                ):
+                    pose = home.copy()
+                    pose[j] = x
+                    worst = min(worst, self.distances(pose)[p])
+            clear.append(worst)
+        return clear
+
     def distances(self, q: np.ndarray) -> np.ndarray:
         """(pairs,) m, each listed pair's distance at ``q`` (n,) rad (coal; <= 0 in contact)."""
         self.queries += 1
@@ -235,6 +256,7 @@ class MotionEnvelope:
         """
         if self._dirty:
             self.unsafe.fill(False)
+            self.joints.fill(False)
             self._dirty = False
         box, need = self._box, self._need
         if not ek.envelope_screen(
@@ -248,17 +270,27 @@ class MotionEnvelope:
             d[:] = self.distances(c[e])
             self._cached_q[ek.COLLISION, e] = c[e]
             if not self._certified(ek.COLLISION, c[e], h[e], d):
-                self.unsafe[ek.COLLISION, e] = not self._passes(ek.COLLISION, e, q, box, after,
-                                                                effort_scale)  # fmt: skip
+                if not self._passes(ek.COLLISION, e, q, box, after, effort_scale):
+                    self.unsafe[ek.COLLISION, e] = True
+                    self._mark_joints(ek.COLLISION, e, c[e], h[e], d)
         for e in np.flatnonzero(need[ek.WORKSPACE]):
             inside = self._clearance[e, self.pairs :]
             inside[:] = self.workspace_margin(c[e])
             self._cached_q[ek.WORKSPACE, e] = c[e]
             if not self._certified(ek.WORKSPACE, c[e], h[e], inside):
-                self.unsafe[ek.WORKSPACE, e] = not self._passes(ek.WORKSPACE, e, q, box, after,
-                                                                effort_scale)  # fmt: skip
+                if not self._passes(ek.WORKSPACE, e, q, box, after, effort_scale):
+                    self.unsafe[ek.WORKSPACE, e] = True
+                    self._mark_joints(ek.WORKSPACE, e, c[e], h[e], inside)
         self._dirty = bool(self.unsafe.any())
         return self._dirty
+
+    def _mark_joints(self, kind: int, e: int, centre, half, value) -> None:
+        """Mark in :attr:`joints` the joints of env ``e`` that move a quantity of ``kind`` the
+        box could not certify (a pair's weight, or the end effector's lever, above zero): only
+        they are braked; the others leave that quantity as it is."""
+        rows = slice(None, self.pairs) if kind == ek.COLLISION else slice(self.pairs, None)
+        uncertain = value - self._reach(kind, centre, half) <= self.margin
+        self.joints[e] |= (self.weights[rows][uncertain] > 0.0).any(axis=0)
 
     def _passes(self, kind: int, e: int, q, box, after, effort_scale) -> bool:
         """Env ``e``'s motion, which its whole box could not certify: certified segment by

@@ -400,7 +400,7 @@ class SafetyGuard:
         for k, row in enumerate(self._geometric_rows):
             first = unsafe[k] & (self.count_matrix[row] == self._counted[k])
             self.count_matrix[row] += first
-        smoother.brake(braked)
+        smoother.brake(braked, envelope.joints)
         command[braked] = smoother.command[braked]
         return command
 

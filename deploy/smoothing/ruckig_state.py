@@ -122,7 +122,7 @@ class RuckigState:
         self.recalculate()
 
     # ------------------------------------------------------------------ the brake
-    def brake(self, envs: np.ndarray) -> None:
+    def brake(self, envs: np.ndarray, joints: np.ndarray | None = None) -> None:
         """Replace the last step of the selected envs by a brake: one control period of Ruckig's
         jerk-limited stop (velocity interface, target velocity and acceleration 0, the smoother's
         limits) from the state before that step. The command, Ruckig's state and input, the
@@ -132,6 +132,7 @@ class RuckigState:
 
         Args:
             envs: (envs,) bool, the envs to brake.
+            joints: Optional (envs, n) bool, only these joints of those envs (default all).
 
         Raises:
             ValueError: torque mode (no trajectory to brake).
@@ -140,6 +141,8 @@ class RuckigState:
         if self.mode == "torque":
             raise ValueError("CommandSmoother.brake: torque mode has no trajectory to brake")
         dof = np.repeat(np.asarray(envs, dtype=bool), self.n_joints)
+        if joints is not None:
+            dof &= np.asarray(joints, dtype=bool).reshape(-1)
         b, inp, out = self._before, self._brake_inp, self._brake_out
         inp.current_position = np.where(dof, b[0], 0.0)
         inp.current_velocity = np.where(dof, b[1], 0.0)

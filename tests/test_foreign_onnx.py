@@ -79,8 +79,11 @@ def deploy_run(capsys, policy: Path, spec: Path, seconds: float = 3.0) -> tuple[
 
 
 def assert_ran(code: int, out: str, err: str) -> None:
-    # an untrained policy may latch a fault (2); it must load, run and not hit a hard limit
-    assert code in (0, 2), out + err
+    # an untrained policy may latch a fault (2), or drive arm3 out of its workspace box (1: velocity
+    # mode has no motion envelope yet, and deploy-run fails a run with a true violation); it must
+    # load, run and not hit a hard limit
+    assert code in (0, 1, 2), out + err
+    assert code != 1 or "hard_limit 0," in out, out
     assert "tick cost" in out and "error" not in err
 
 

@@ -198,7 +198,10 @@ def test_deploy_run_with_the_exported_recurrent_policy(exported, tmp_path, capsy
         ]
     )
     out = capsys.readouterr().out
-    assert code in (0, 2), out  # an untrained policy may fault; it must run
+    # an untrained policy may fault (2) or leave arm3's workspace box (1, a true violation: velocity
+    # mode has no motion envelope yet); it must run, and never past a hard limit
+    assert code in (0, 1, 2), out
+    assert code != 1 or "hard_limit 0," in out, out
     assert report.is_file() and "tick cost" in out
 
 

@@ -10,10 +10,9 @@ The policy of every item but ``inference``: a deterministic
 :class:`deploy.policy.mlp_checkpoint.MLPActor`
 (hidden 64, 64, ELU, weights from ``torch.manual_seed(0)``) over the robot's default
 :class:`~deploy.spec.policy_spec.PolicySpec` (default observation blocks and control mode: arm3
-velocity at
-200 Hz, arm6 position at 500 Hz), its weights tamed so that it holds the arm near home and moves
-it a little with every goal (:func:`bench.common.tame_actor`; a purely random MLP parks the arm
-against a limit or overheats it, a regime a trained policy never runs in), saved with
+velocity at 200 Hz, arm6 position at 500 Hz), its weights tamed so that it holds the arm near home
+and moves it a little with every goal (:func:`bench.common.tame_actor`; a purely random MLP parks
+the arm against a limit or overheats it, a regime a trained policy never runs in), saved with
 ``save_checkpoint`` and exported with ``deploy.export.run_export`` (parity gate included) to a
 temporary folder (:mod:`bench.common`). The runtime stays RUNNING with no guard event for the
 whole run; the tick section reports the ticks spent outside RUNNING.

@@ -1,9 +1,9 @@
 """Shared pieces of the benchmark suite: the benchmark policy, histograms, machine facts, JSON.
 
 Every latency here goes through :class:`deploy.observe.telemetry.LatencyHistogram` (1 us bins up to
-20 ms,
-percentiles exact to the bin width, reported at the bin centre), the same histogram the runtime
-keeps of its own stages, so that figures of the full runtime and of the bare loop are comparable.
+20 ms, percentiles exact to the bin width, reported at the bin centre), the same histogram the
+runtime keeps of its own stages, so that figures of the full runtime and of the bare loop are
+comparable.
 """
 
 from __future__ import annotations
@@ -120,8 +120,7 @@ def make_policy(robot, folder: Path, seed: int = POLICY_SEED) -> BenchPolicy:
     """Build the deterministic benchmark policy of ``robot`` and export it to ONNX in ``folder``.
 
     An :class:`~deploy.policy.mlp_checkpoint.MLPActor` (obs_dim of the default PolicySpec -> 64 ->
-    64 ->
-    n_joints, ELU, no normalizer) with weights from ``torch.manual_seed(seed)``, tamed by
+    64 -> n_joints, ELU, no normalizer) with weights from ``torch.manual_seed(seed)``, tamed by
     :func:`tame_actor` (small actions around holding the home pose), saved with
     ``save_checkpoint`` and exported with ``run_export`` (the ``policy-export`` code path: parity
     gate, metadata), exactly as a trained policy would be.

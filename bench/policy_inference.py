@@ -5,10 +5,10 @@ item of ``python -m bench``.
 
 An arm3-sized MLP (every observation block of ``BLOCKS``, hidden [64, 64] ELU, act 3, with an
 observation normalizer) is saved as our checkpoint and exported with ``policy-export``'s code
-path (parity gate included); the
-export wall time is reported for the first export in the process (cold: imports and first trace)
-and for a second one (warm). Inference: median and 99th percentile of ``calls`` batch-1 calls
-after a warm-up, timed one by one with ``time.perf_counter_ns``, the garbage collector frozen:
+path (parity gate included); the export wall time is reported for the first export in the process
+(cold: imports and first trace) and for a second one (warm). Inference: median and 99th percentile
+of ``calls`` batch-1 calls after a warm-up, timed one by one with ``time.perf_counter_ns``, the
+garbage collector frozen:
     - ``OnnxPolicy``: single-threaded session, IOBinding to preallocated buffers (the runtime);
     - ``session.run``: the same session through the plain ``run`` API (allocates per call);
     - torch eager: the same graph module (normalizer, MLP, action clip) under

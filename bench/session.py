@@ -1,9 +1,9 @@
 """Sessions through ``deploy-run`` itself: the 8-hour-equivalent estimate and wall-clock mode.
 
 Both call :func:`deploy.cli.deploy_run.deploy_run_main` in this process (the shipped code path:
-robot and
-policy loading, ``SimBackend``, ``Runtime`` with ``GoalScheduler`` goals every 4 s and deploy-run's
-own per-tick bookkeeping) with ``--report`` to a temporary file, its printed summary captured.
+robot and policy loading, ``SimBackend``, ``Runtime`` with ``GoalScheduler`` goals every 4 s and
+deploy-run's own per-tick bookkeeping) with ``--report`` to a temporary file, its printed summary
+captured.
 
 **8-hour-equivalent session** (:func:`session`): a run of ``duration`` simulated seconds with
 ``SimClock`` (lockstep, as fast as the CPU allows). The report's ``wall_s`` is the loop alone

@@ -16,8 +16,7 @@ Conventions (those of :class:`deploy.monitors.violations.ViolationMonitor`):
   one env of a batch also loads into a one-env instance with ``env=None``. Values the batch shares
   (a tick count, a clock, a shared random stream) are in the dict either way and are loaded
   either way. (:class:`deploy.policy.onnx_policy.OnnxPolicy` drops the env axis for one env; the
-  runtime
-  passes ``env`` through to it unchanged.)
+  runtime passes ``env`` through to it unchanged.)
 - Arrays are copies; scalars are Python ``int``, ``float``, ``bool`` or ``str``. A random
   generator's state (``bit_generator.state``) and ragged records (lists per env) are JSON text.
 - Composite stages prefix their parts' keys with ``<part>/`` (:func:`prefixed`, :func:`section`).

@@ -40,9 +40,8 @@ Exit codes (when several apply, the first of 4, 1, 5, 2, 6, 8, 9, 7 is returned)
 
 A legged robot (``robot.floating_base``, e.g. go2) follows velocity commands instead of goals
 (:mod:`eval.soak.batch`): ``--goal-period`` is the period of its commands, ``--success-time`` is
-unused,
-and ``--min-success`` / ``--min-window-success`` judge its tracking success (share of RUNNING time
-within 0.2 m/s of the command).
+unused, and ``--min-success`` / ``--min-window-success`` judge its tracking success (share of
+RUNNING time within 0.2 m/s of the command).
 """
 
 from __future__ import annotations

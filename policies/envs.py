@@ -2,10 +2,8 @@
 
 Train what you deploy: a policy trained here meets exactly the stack the runtime runs. Its
 observations are built by the policy's :class:`~deploy.spec.policy_spec.PolicySpec` from the state
-the
-runtime's Kalman filter (:class:`~deploy.estimation.joints.JointStateEstimator`) estimates from
-noisy,
-quantized, late and sometimes missing encoder readings of
+the runtime's Kalman filter (:class:`~deploy.estimation.joints.JointStateEstimator`) estimates from
+noisy, quantized, late and sometimes missing encoder readings of
 :class:`~deploy.backends.sim.plant.SimBackend`;
 its actions pass through the runtime's :class:`~deploy.safety.guard.SafetyGuard` and Ruckig
 :class:`~deploy.smoothing.CommandSmoother` (re-anchored to the measured pose as the runtime does)
@@ -42,8 +40,8 @@ Reward per control tick (:class:`RewardConfig`, seed section 6 coefficients by d
                                          rated continuous torque (ours: over hours, copper loss,
                                          not mechanical power, is what overheats a motor)
     - jerk     * |dq - dq_prev| / dt     (the seed's "jerk": rate of change of velocity)
-    + survival
-    + shaping  * (d_prev - gamma_s * d)  potential-based shaping F = gamma_s Phi(s') - Phi(s) with
+    + survival + shaping * (d_prev - gamma_s * d) potential-based shaping F = gamma_s Phi(s') -
+    Phi(s) with
                                          Phi = -shaping * d, d the goal distance (m). It leaves the
                                          optimal policy unchanged when gamma_s is the learner's
                                          discount (Ng, Harada and Russell, ICML 1999). The shipped
@@ -139,8 +137,7 @@ class ReachConfig:
         start_fraction: Start poses are drawn uniformly within this fraction of the soft limits.
         start_poses: Optional joint poses (rad, each of length n) to start episodes from, e.g.
             where a soak saw the policy miss (:func:`eval.report.build.missed_states`); poses
-            outside
-            the soft limits are clipped into them.
+            outside the soft limits are clipped into them.
         start_pose_probability: Probability that an episode starts at one of ``start_poses``.
         success_radius: m, the goal counts as reached within this distance; default the robot's
             ``task.success_radius`` (what the soak judges). A smaller one trains the policy to

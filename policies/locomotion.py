@@ -4,8 +4,7 @@ Train what you deploy, to the letter: :class:`LocomotionTask` steps a
 :class:`~deploy.runtime.Runtime` (the tick the robot runs: joint and base estimators, the fall
 check, the supervision and its safe stops, the guard, the Ruckig smoother, the damping of a
 stopped legged robot) over a batched :class:`~deploy.backends.sim.plant.SimBackend`. The learner
-sits
-in the runtime's policy slot (:class:`LearnerPolicy`): the runtime hands it the observation it
+sits in the runtime's policy slot (:class:`LearnerPolicy`): the runtime hands it the observation it
 built and receives the action, so the learner sees exactly what ``deploy-run`` feeds the exported
 policy, one call per tick, in the tick's own order (read, estimate, supervise, observe, act,
 guard, smooth, write, physics).

@@ -23,8 +23,7 @@ faster per sample (the comparison: ``docs/measurements.md``).
 The result is converted to our checkpoint format
 (:func:`deploy.policy.mlp_checkpoint.save_checkpoint`): the
 PPO actor's mean network becomes an :class:`~deploy.policy.mlp_checkpoint.MLPActor` with the same
-weights, and
-the PolicySpec the env used travels with it.
+weights, and the PolicySpec the env used travels with it.
 """
 
 from __future__ import annotations

@@ -8,10 +8,9 @@ is :class:`policies.locomotion.LocomotionTask`: the learner acts from inside the
 order SB3's loop does) and everything else is SB3's PPO: the Gaussian policy, GAE, the clipped
 update. The candidate is the Gaussian mean plus the trot generator: an
 :class:`~deploy.policy.mlp_checkpoint.MLPActor` with ``gait`` (:func:`policies.gait.make_policy`'s
-spec and
-generator), exported to ONNX next to it. Logs: TensorBoard (``runs/train_legged/``), SB3's episode
-return and length plus ``walk/tracking`` (fraction of RUNNING time within 0.2 m/s of the command,
-the soak's success) and ``walk/distance``.
+spec and generator), exported to ONNX next to it. Logs: TensorBoard (``runs/train_legged/``), SB3's
+episode return and length plus ``walk/tracking`` (fraction of RUNNING time within 0.2 m/s of the
+command, the soak's success) and ``walk/distance``.
 """
 
 from __future__ import annotations

@@ -179,8 +179,8 @@ def test_a_hot_drive_limits_its_torque_to_the_derated_effort(arm3):
 def test_a_sustained_pull_cannot_overheat_a_derating_drive(arm3):
     """A 15 N cable on the stretched arm held for 15 minutes (three times the soak's cable budget
     for its longest pull, 15 times that duration): the shoulder would need 22 N m, past its
-    continuous rating.
-    The drive derates, the winding settles below its 125 degC maximum, and the arm sags to where
+    continuous rating. The drive derates, the winding settles below its 125 degC maximum, and the
+    arm sags to where
     the continuous torque holds it, inside its soft limits."""
     plant = SimBackend(arm3, mode="position")
     plant.reset(np.zeros(3))

@@ -9,8 +9,8 @@ Two interfaces:
   physics in ``advance``; a hardware backend returns at once from it (the wall clock paces).
 - :class:`SimulatedPlant`, what only a simulation has: ground truth (true joint state, end
   effector), the fault-injection hooks of :class:`deploy.backends.sim.faults.FaultInjector` (sensor
-  dropout and
-  latency settings) and external forces. ``deploy-run`` uses them when ``isinstance(backend,
+  dropout and latency settings) and external forces. ``deploy-run`` uses them when
+  ``isinstance(backend,
   SimulatedPlant)``, and only then.
 
 Implementations: :class:`deploy.backends.sim.plant.SimBackend` (both), and the serial-bus servo

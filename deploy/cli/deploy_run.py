@@ -1,8 +1,7 @@
 """Command-line entry points: ``deploy-run`` and ``policy-export``.
 
 ``deploy-run``'s options are parsed by :mod:`deploy.cli.run_parser`; the summary it prints at the
-end
-is :mod:`deploy.cli.run_summary`'s.
+end is :mod:`deploy.cli.run_summary`'s.
 
 ``deploy-run`` exit codes:
 

@@ -1,9 +1,8 @@
 """The summary ``deploy-run`` prints at the end of a run (:func:`print_summary`).
 
 It reads the report :func:`deploy.cli.deploy_run.run` builds (the JSON of ``--report``): goals or
-the walk,
-violations (true state in simulation) and interventions, faults, the servo bus, peak winding
-temperatures, motion, the costs of the tick, the monitors and the stages, deadlines and the
+the walk, violations (true state in simulation) and interventions, faults, the servo bus, peak
+winding temperatures, motion, the costs of the tick, the monitors and the stages, deadlines and the
 real-time settings, the final state and the exit code. It only prints; the exit code is decided
 before.
 """

@@ -10,11 +10,10 @@ TAC 53(5), 2008), as the maintained ``ahrs`` package implements it
 (``ahrs.filters.Mahony.updateIMU``; gains ``k_P = 1``, ``k_I = 0.3``, the package's defaults):
 the default implementation (``"vectorized"``) runs the same update over every env at once
 (:func:`mahony_update`); ``"filterpy"`` calls one ``ahrs`` filter per env, the reference it is
-tested against (equal within 1e-12).
-The IMU readings are turned into the base frame first (the IMU site's fixed orientation on the
-base); the lever arm of the accelerometer is neglected. Outputs: the orientation (yaw drifts:
-nothing observes it), the projected gravity ``R^T [0, 0, -1]`` (unit vector, base frame) and the
-bias-corrected angular velocity (rad/s, base frame).
+tested against (equal within 1e-12). The IMU readings are turned into the base frame first (the IMU
+site's fixed orientation on the base); the lever arm of the accelerometer is neglected. Outputs: the
+orientation (yaw drifts: nothing observes it), the projected gravity ``R^T [0, 0, -1]`` (unit
+vector, base frame) and the bias-corrected angular velocity (rad/s, base frame).
 
 Linear velocity: the kinematic-inertial Kalman filter of legged robots (M. Bloesch et al., "State
 estimation for legged robots: consistent fusion of leg kinematics and IMU", RSS 2012; the linear

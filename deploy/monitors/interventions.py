@@ -2,13 +2,11 @@
 
 An **intervention** is a command the guard or the smoother changed (DESIGN.md, "Words"); a
 **violation** is the robot's true state past a limit (:mod:`deploy.monitors.violations`). A policy
-that
-leans on the guard has many interventions and may still have no violation; on a robot whose guard
-is tuned differently it would have them.
+that leans on the guard has many interventions and may still have no violation; on a robot whose
+guard is tuned differently it would have them.
 
 Checks (``INTERVENTION_CHECKS``), from :attr:`deploy.safety.guard.SafetyGuard.counts` and the
-counters
-of :class:`deploy.smoothing.CommandSmoother`:
+counters of :class:`deploy.smoothing.CommandSmoother`:
 
 - ``hard_limit``: the guard found the estimate (or the target, or the predicted position) beyond
   a hard limit; the runtime makes a safe stop.

@@ -21,8 +21,7 @@ however many joints are past the limit):
   ``safety.workspace_min/max``.
 - ``self_collision``: a pair of ``safety.collision_pairs`` in contact at the true joint positions
   (coal, with the guard's collision model: :func:`deploy.safety.collision.collision_model`,
-  the
-  robot's *nominal* geometry; checked every tick, which is cheaper than the guard's screen would
+  the robot's *nominal* geometry; checked every tick, which is cheaper than the guard's screen would
   be: ``docs/measurements.md``).
 
 Ground truth exists only in simulation: :class:`ViolationMonitor` reads

@@ -47,9 +47,8 @@ def adversarial_model(
     The spec JSON is stored in the metadata under ``policy_spec``. The random streams are seeded;
     the NaN stream's seed is the first from ``seed + 1`` whose first answer is finite, because
     :class:`~deploy.policy.onnx_policy.OnnxPolicy` probes a policy once with a zero observation and
-    refuses a
-    non-finite answer. ``kind``: one of :data:`KINDS` (module docstring); the saturating map's
-    weights are standard normal draws from ``numpy.random.default_rng(seed)``.
+    refuses a non-finite answer. ``kind``: one of :data:`KINDS` (module docstring); the saturating
+    map's weights are standard normal draws from ``numpy.random.default_rng(seed)``.
 
     Raises:
         ValueError: an unknown ``kind``.

@@ -19,8 +19,7 @@ never runs code)::
         "obs_normalizer": None | {         # empirical normalizer of the training library, applied
             "mean": Tensor (obs_dim,),     # to the spec's observation before the network:
             "var": Tensor (obs_dim,),      #   clip((obs - mean) / sqrt(var + epsilon), -clip, clip)
-            "epsilon": float,
-            "clip": float,
+            "epsilon": float, "clip": float,
         },
         "info": {...},                     # optional plain data (training run, seed, ...)
     }

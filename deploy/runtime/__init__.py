@@ -70,9 +70,8 @@ module                    what it holds
 The clocks, the real-time settings and the state machine's vocabulary import without MuJoCo:
 ``deploy-run`` reads its options (``--wait``) before it chooses MuJoCo's OpenGL backend, which
 MuJoCo loads when imported (:mod:`deploy.cli.deploy_run`). The names of the other modules
-(:class:`Runtime`
-and the stages that need MuJoCo, Pinocchio, Ruckig and numba) are imported from here when first
-used (``from deploy.runtime import Runtime`` as usual; ``_LAZY``).
+(:class:`Runtime` and the stages that need MuJoCo, Pinocchio, Ruckig and numba) are imported from
+here when first used (``from deploy.runtime import Runtime`` as usual; ``_LAZY``).
 """
 
 from __future__ import annotations

@@ -1,8 +1,7 @@
 """The compiled supervision and action screen of the runtime (:class:`CompiledSupervision`): the
 constants and work arrays of the kernels of :mod:`deploy.runtime.supervision_kernel`, their
-arguments over
-the runtime's arrays, and what Python does where a kernel says (the smoother's safe stops and
-re-syncs, policy resets, re-anchoring, the torque-mode overrides).
+arguments over the runtime's arrays, and what Python does where a kernel says (the smoother's safe
+stops and re-syncs, policy resets, re-anchoring, the torque-mode overrides).
 
 Each kernel is called once on copies when :class:`CompiledSupervision` is built: compiled (or
 loaded from numba's cache) then, not in the first tick. The numpy reference is

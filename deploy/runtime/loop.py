@@ -52,8 +52,8 @@ class Runtime:
         robot: Robot description.
         policy: Callable ``(envs, obs_dim) float32 -> (envs, act_dim) float32`` with a ``spec``
             attribute (:class:`~deploy.policy.onnx_policy.OnnxPolicy`); its ``reset(envs)``
-            (boolean mask
-            (envs,)), if it has one, is called where the policy's state must start afresh.
+            (boolean mask (envs,)), if it has one, is called where the policy's state must start
+            afresh.
         backend: A :class:`~deploy.backends.base.Backend` (``read``, ``write``, ``advance``,
             ``drive_errors``), opened: :class:`~deploy.backends.sim.plant.SimBackend` or a servo
             bus.

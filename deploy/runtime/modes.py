@@ -3,8 +3,7 @@ transitions, and the counters it keeps (:class:`RuntimeCounters`).
 
 One state machine per env (:mod:`deploy.runtime`): ``IDLE -> RAMP_IN -> RUNNING -> SAFE_STOP ->
 FAULTED``. The compiled kernels (:mod:`deploy.runtime.supervision_kernel`) know the modes and
-causes by
-number; :mod:`deploy.runtime.compiled` checks that both agree when it is imported.
+causes by number; :mod:`deploy.runtime.compiled` checks that both agree when it is imported.
 """
 
 from __future__ import annotations

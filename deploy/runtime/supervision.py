@@ -6,8 +6,7 @@ action) and its transitions in numpy.
 :meth:`~Supervision.damp` (a legged robot's stops) serve both paths of the tick;
 :meth:`~Supervision.screen` and :meth:`~Supervision.supervise` are the numpy references of the
 kernels of :mod:`deploy.runtime.supervision_kernel` (bound by :mod:`deploy.runtime.compiled`),
-which give
-the same numbers bit for bit (``tests/test_compiled_tick.py``).
+which give the same numbers bit for bit (``tests/test_compiled_tick.py``).
 """
 
 from __future__ import annotations

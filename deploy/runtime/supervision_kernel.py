@@ -11,8 +11,7 @@ that took over, re-sync and reset those that resume, re-anchor.
 :func:`screen_action` (after the policy): non-finite actions held and counted (``NAN_LIMIT`` in a
 row make a safe stop), the action mapped to a target
 (:meth:`deploy.spec.policy_spec.PolicySpec.action_to_target`) and the targets of the envs not
-RUNNING
-overridden (position and velocity mode; torque mode needs Pinocchio's gravity: the
+RUNNING overridden (position and velocity mode; torque mode needs Pinocchio's gravity: the
 ``SCREEN_OVERRIDE`` bit asks Python).
 
 ``flags`` (4, envs) bool: rows new safe stop, took over, resumed (this tick), and a scratch row

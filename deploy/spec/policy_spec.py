@@ -386,8 +386,7 @@ class PolicySpec:
                 (:mod:`deploy.spec.kernel`); both give the same numbers bit for bit.
 
         The spec's compiled plan (:class:`deploy.spec.observation_plan.ObservationPlan`, built on
-        the
-        first call) assembles it.
+        the first call) assembles it.
         """
         return self._plan.observation(state, goal, out, reference)
 

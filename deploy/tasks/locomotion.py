@@ -11,8 +11,7 @@ command is a mean speed). Falls are the runtime's safe stops of cause ``fall``.
 :class:`CommandSchedule` is the legged counterpart of :class:`deploy.tasks.goals.GoalScheduler` for
 the
 soak (:mod:`eval.soak.batch`): a new velocity command every ``period`` s of RUNNING time, drawn
-from a
-seeded stream per env, written into ``runtime.velocity_command``. Both keep their state
+from a seeded stream per env, written into ``runtime.velocity_command``. Both keep their state
 (:mod:`deploy.stateful`) for the soak's checkpoints.
 """
 

@@ -5,8 +5,7 @@ After the campaign, :func:`film_campaign` renders every session in its own proce
 eval.film.render``, several at once; ``MUJOCO_GL=egl`` where nothing is chosen and there is no
 display): for each moment (:func:`eval.film.strip.select_moments`, grouped into clips by
 :func:`eval.film.strip.plan_clips`) it resumes the session from the nearest kept checkpoint before
-the
-clip (or from its start), runs it through the same harness tick by tick with the same seed and
+the clip (or from its start), runs it through the same harness tick by tick with the same seed and
 fault schedule, and draws env 0 with :class:`deploy.observe.video.VideoRecorder` (the session's
 randomized model; goal sphere, end-effector trail, links tinted where the guard acts). At the
 moment's tick the replayed true joint positions are compared with the recorded ones, bit for bit
@@ -324,8 +323,7 @@ def film_campaign(
     one-line reason when no film could be made, else None). A session whose film was already
     rendered (a resumed campaign) is not rendered again; a legged session gets none (its
     ``error`` says so: :class:`deploy.observe.video.VideoRecorder` draws a fixed-base arm). Prints
-    one
-    line per session.
+    one line per session.
 
     Args:
         template: The campaign's :class:`eval.soak.session.SessionConfig` (sessions differ by seed).

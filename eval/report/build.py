@@ -2,9 +2,8 @@
 
 Two words (DESIGN.md): a **violation** is the robot's *true* state past a limit, counted from the
 simulator's ground truth (:mod:`deploy.monitors.violations`); an **intervention** is a command the
-guard or
-the smoother changed (:mod:`deploy.monitors.interventions`). They are reported apart: a guard that
-clamps
+guard or the smoother changed (:mod:`deploy.monitors.interventions`). They are reported apart: a
+guard that clamps
 often is a policy leaning on it, not a robot beyond its limits.
 
 ``report.json`` (``schema_version`` ``SCHEMA_VERSION`` = 2)::

@@ -1,8 +1,8 @@
 """The plots of a soak report.html: matplotlib figures as base64 PNGs.
 
 Each ``plot_*`` function takes a report (:func:`eval.report.build.build_report`) and returns the
-PNG's
-base64 text, which :mod:`eval.report.html` embeds (``data:image/png;base64,...``). matplotlib (the
+PNG's base64 text, which :mod:`eval.report.html` embeds (``data:image/png;base64,...``). matplotlib
+(the
 ``report`` extra) is imported when a plot is drawn.
 """
 

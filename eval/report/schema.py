@@ -2,9 +2,8 @@
 error, and reading one back.
 
 The layout of report.json is described in :mod:`eval.report.build`, which builds it. A report is
-read
-back (:func:`load_report`, e.g. as a baseline) only if it is of schema ``SCHEMA_VERSION`` and has
-every field the baseline comparison reads (:func:`check_schema`; :mod:`eval.report.baseline`).
+read back (:func:`load_report`, e.g. as a baseline) only if it is of schema ``SCHEMA_VERSION`` and
+has every field the baseline comparison reads (:func:`check_schema`; :mod:`eval.report.baseline`).
 """
 
 from __future__ import annotations

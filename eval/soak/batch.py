@@ -2,8 +2,7 @@
 
 Batching. Several sessions run in one process through the runtime's batch axis: one
 :class:`~deploy.backends.sim.plant.SimBackend` with ``envs = k`` (one randomized ``MjModel`` per
-env)
-and one :class:`~deploy.runtime.Runtime` over all of them (one ONNX Runtime call per tick). A
+env) and one :class:`~deploy.runtime.Runtime` over all of them (one ONNX Runtime call per tick). A
 session's seeded quantities depend on its own seed only: its randomization; its encoder noise and
 dropout draws (one numpy generator per env,
 :meth:`~deploy.backends.sim.plant.SimBackend.set_sensor_streams`, where SimBackend has one for the
@@ -20,9 +19,8 @@ or batched with any others.
 
 Checkpoints. Every ``checkpoint_minutes`` of simulated time each session of a batch writes its
 complete state (:mod:`eval.soak.checkpoint`) to ``OUT/sessions/<id>/``; ``resume=True`` continues
-from
-there, and the finished session equals an uninterrupted run bit for bit (the checkpoint interval
-does not change the results). A finished session writes ``result.json``; a resumed campaign
+from there, and the finished session equals an uninterrupted run bit for bit (the checkpoint
+interval does not change the results). A finished session writes ``result.json``; a resumed campaign
 skips it. Before the runtime starts, the plant streams its sensors for a fixed number of ticks
 (the largest latency the ranges allow, plus one encoder period), so that a first reading has
 arrived: the plant's clock is that much ahead of the runtime's.
@@ -31,10 +29,9 @@ Violations and interventions. After every tick a
 :class:`deploy.monitors.violations.ViolationMonitor`
 counts the true-state violations of every session from the plant's ground truth and a
 :class:`deploy.monitors.interventions.InterventionMonitor` the commands the guard or the smoother
-changed
-(before the goal scheduler, so that a goal's last tick counts for it); both are reported apart, in
-total, per hour and on the curves, and are part of the checkpoints. Goals are also counted per
-window of ``window_minutes`` (by their issue time), and each goal replaced unreached is recorded
+changed (before the goal scheduler, so that a goal's last tick counts for it); both are reported
+apart, in total, per hour and on the curves, and are part of the checkpoints. Goals are also counted
+per window of ``window_minutes`` (by their issue time), and each goal replaced unreached is recorded
 with its true end state (:class:`deploy.tasks.goals.GoalScheduler`).
 
 Legged robots (``robot.floating_base``): instead of goals, a
@@ -42,9 +39,8 @@ Legged robots (``robot.floating_base``): instead of goals, a
 ``goal_period`` s
 (one command stream per session, the ``goals`` stream of its seed) and a
 :class:`deploy.tasks.locomotion.CommandTracker` measures the tracking (the session's success: the
-share
-of RUNNING time within 0.2 m/s of the command, also per window of ``window_minutes``), distance
-and speed, and the falls (safe stops of cause ``fall`` of a robot that was walking,
+share of RUNNING time within 0.2 m/s of the command, also per window of ``window_minutes``),
+distance and speed, and the falls (safe stops of cause ``fall`` of a robot that was walking,
 ``CommandTracker.falls``). Each session also draws its IMU
 noise (:func:`eval.world.randomization.apply_imu`) and its floor friction
 (:func:`eval.world.randomization.apply_floor_friction`); its pushes act on the base, and it gets no
@@ -53,8 +49,7 @@ robot up first (:meth:`SessionBatch.stand_up`: a robot lying after a stop cannot
 itself).
 
 Divergence: MuJoCo's divergence (:class:`~deploy.backends.sim.plant.SimulationDivergedError`) ends
-the
-session that diverged with ``diverged`` set (:exc:`BatchDiverged`); the other sessions of its
+the session that diverged with ``diverged`` set (:exc:`BatchDiverged`); the other sessions of its
 batch continue from their last checkpoints (:func:`eval.soak.executors.run_sessions`).
 """
 

@@ -3,13 +3,12 @@
 The runtime of a batch (:class:`eval.soak.batch.SessionBatch`) takes one injector;
 :class:`SessionFaults`
 is that injector, made of one :class:`deploy.backends.sim.faults.FaultInjector` per session on a
-one-env view
-of the batch's :class:`~deploy.backends.sim.plant.SimBackend` (its env's sensor settings, model and
-forces). A session's faults (its seeded schedule, :mod:`eval.world.fault_schedule`) then touch its
+one-env view of the batch's :class:`~deploy.backends.sim.plant.SimBackend` (its env's sensor
+settings, model and forces). A session's faults (its seeded schedule,
+:mod:`eval.world.fault_schedule`) then touch its
 own
 env only, whatever its neighbours; the session arms an injector ``eval.soak.session.ARM_LEAD`` s
-before
-each fault and disarms it when the fault is judged (:class:`eval.soak.session.Session`).
+before each fault and disarms it when the fault is judged (:class:`eval.soak.session.Session`).
 """
 
 from __future__ import annotations
@@ -40,8 +39,7 @@ class SessionFaults:
     """The fault injector the runtime sees: one :class:`deploy.backends.sim.faults.FaultInjector`
     per session,
     on that session's env only, armed from ``eval.soak.session.ARM_LEAD`` s before each fault until
-    it is
-    judged.
+    it is judged.
 
     Per-session injectors keep the sessions of a batch apart (one injector for the batch freezes
     one frame for every stale fault and resets every env's sensor settings each tick), and only

@@ -3,8 +3,7 @@
 
 A finished session writes ``result.json`` in its folder (``OUT/sessions/<id>/``,
 :func:`eval.soak.session.session_dir`); a resumed campaign reads it back (:func:`read_result`)
-instead
-of running the session again, after checking that it was run with the same options
+instead of running the session again, after checking that it was run with the same options
 (:func:`check_result`). The document's schema is in :mod:`eval.report.build`; everything in it but
 ``wall`` (wall-clock time, tick cost) follows from the session's seed and options.
 

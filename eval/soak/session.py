@@ -3,8 +3,8 @@
 A **session** is one continuous run of :class:`deploy.runtime.Runtime` with the simulated clock
 (:class:`~deploy.runtime.SimClock`) for ``hours`` of simulated time (8 by default): a new goal
 every ``goal_period`` s (:class:`deploy.tasks.goals.GoalScheduler`), dynamics, sensor settings,
-drift and
-a fault schedule drawn from the session seed (:func:`eval.world.randomization.sample_session`),
+drift and a fault schedule drawn from the session seed
+(:func:`eval.world.randomization.sample_session`),
 friction
 rising with wear over the session, the motor thermal model running throughout. It runs as env
 ``e`` of a batch (:class:`eval.soak.batch.SessionBatch`); :class:`Session` keeps what is its own

@@ -253,8 +253,7 @@ def sample_fault_schedule(
 
     Returns:
         list of :class:`deploy.backends.sim.faults.Fault` (``envs`` None: every env of the injector
-        they are
-        given to), sorted by start.
+        they are given to), sorted by start.
     """
     from deploy.backends.sim.faults import Fault
 

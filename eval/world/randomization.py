@@ -34,8 +34,7 @@ session seed (:func:`session_rng`), bundled in :class:`SessionRandomization` by
 - a fault schedule (:mod:`eval.world.fault_schedule`): dropout bursts, stale frames, non-finite
   actions, latency spikes, pushes and a cable pulling on the end effector, as
   :class:`deploy.backends.sim.faults.Fault` for :class:`deploy.backends.sim.faults.FaultInjector`,
-  each sized to be
-  survivable in the session's plant.
+  each sized to be survivable in the session's plant.
 """
 
 from __future__ import annotations

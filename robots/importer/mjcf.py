@@ -21,8 +21,8 @@ sensors, tendons, equality constraints (a joint an ``<equality joint>`` couples 
 URDF mimic joint), keyframes, explicit contact pairs, textures and materials, skins and flexes,
 floors (planes of the world body, height fields) and bodies without joints hanging from the
 world (scenery); the other geoms of the world body (a base fused into it) move into a fixed
-body ``base`` that carries the robot.
-Slide and ball joints are frozen at their reference position, as URDF prismatic joints.
+body ``base`` that carries the robot. Slide and ball joints are frozen at their reference position,
+as URDF prismatic joints.
 Refused (:class:`RobotImportError`): a free joint (floating base), an unnamed hinge, a hinge
 without limits (unless ``--limit``), a body with several hinges, several jointed bodies hanging
 from the world, a moving body without mass or inertia, and what MuJoCo itself refuses.

@@ -3,8 +3,7 @@
 ``python -m deploy.backends.emulator --robot so101 --protocol feetech`` prints a pty path and
 answers on it as the robot's servos would (Feetech SCS/STS protocol or Dynamixel Protocol 2.0,
 the real control tables); the MuJoCo plant (:class:`deploy.backends.sim.plant.SimBackend`) runs
-behind
-the registers. In-process::
+behind the registers. In-process::
 
     with ServoBusEmulator(load_robot("so101"), "feetech") as emu:
         port = emu.port  # open it with the vendor's SDK

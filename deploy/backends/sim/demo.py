@@ -3,8 +3,7 @@ home pose on its measured encoder angles and prints what the plant did (joint er
 winding temperature, dropped readings, simulation speed).
 
 The controller sees only the sensor frame (:meth:`deploy.backends.sim.plant.SimBackend.read`), like
-a
-real one; the summary reads the plant's true state.
+a real one; the summary reads the plant's true state.
 """
 
 from __future__ import annotations

@@ -12,9 +12,9 @@ Drive model: the mode's servo loop (:meth:`robots.Robot.mjspec`), its actuator t
 the joint's effort limit, which the drive derates from its own (true) winding temperature with
 :class:`robots.thermal.EffortDerating` (peak torque below the derating start, continuous torque, or
 the arm's gravity load where that is more, at the maximum winding temperature), applied before
-every control period's physics steps.
-A floating-base (legged) robot's plant also has an IMU (gyroscope and accelerometer with white
-noise and bias random walk) and foot contact (thresholded normal force), each at its own rate and
+every control period's physics steps. A floating-base (legged) robot's plant also has an IMU
+(gyroscope and accelerometer with white noise and bias random walk) and foot contact (thresholded
+normal force), each at its own rate and
 latency: :mod:`deploy.backends.sim.legged_sensors`; its joints follow MuJoCo's free joint in
 ``qpos``
 and ``qvel``, and :meth:`SimBackend.true_base_state` gives the base's true pose and velocity.

@@ -9,8 +9,7 @@ the warning counters and the friction that drift edits), the tick and the sensor
 conventions are :mod:`deploy.stateful`'s.
 
 :class:`SimState` is a base class of :class:`~deploy.backends.sim.plant.SimBackend`; its methods
-work on
-the backend's attributes (set in ``SimBackend.__init__``).
+work on the backend's attributes (set in ``SimBackend.__init__``).
 """
 
 from __future__ import annotations

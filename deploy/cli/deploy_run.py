@@ -138,7 +138,7 @@ def _run_opened(
 ) -> int:
     from deploy.backends.sim.plant import SimulationDivergedError
     from deploy.monitors.interventions import InterventionMonitor
-    from deploy.monitors.violations import ViolationMonitor
+    from deploy.monitors.violations import HARD_VIOLATION_TYPES, ViolationMonitor
     from deploy.observe.telemetry import LatencyHistogram, Telemetry
     from deploy.runtime import FAULTED, RUNNING, STAGES, Runtime
     from deploy.runtime.realtime import RealtimeRequest, RealtimeSettings
@@ -332,8 +332,6 @@ def _run_opened(
         "bus": backend.bus_summary() if hasattr(backend, "bus_summary") else None,
         "diverged": diverged,
     }
-    from deploy.monitors.violations import HARD_VIOLATION_TYPES
-
     hard = {k: int(true[k]) for k in HARD_VIOLATION_TYPES if true.get(k, 0)}
     report["hard_violations"] = hard
     if hard or hard_stops > 0:

@@ -60,6 +60,7 @@ from ruckig import (
 )
 
 from deploy.safety import envelope_kernel as ek
+from robots.chain_bounds import descends
 
 #: m, default clearance kept between listed collision geometries and from the workspace box's
 #: faces: our choice, a few times the joint estimate's error times a lever of about a metre, plus
@@ -91,14 +92,9 @@ def axis_levers(robot, ee_lever: np.ndarray) -> np.ndarray:
         axis = d.xaxis[j] / np.linalg.norm(d.xaxis[j])
         body, invariant = m.jnt_bodyid[j], m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
         for k in range(m.njnt):
-            if k == j or not invariant:
+            if k == j or not invariant or not descends(m, body, m.jnt_bodyid[k]):
                 continue
-            above = body
-            while above > 0 and above != m.jnt_bodyid[k]:
-                above = m.body_parentid[above]
-            if above > 0 and np.linalg.norm(np.cross(d.xaxis[k], axis)) > 1e-9 * np.linalg.norm(
-                d.xaxis[k]
-            ):
+            if np.linalg.norm(np.cross(d.xaxis[k], axis)) > 1e-9 * np.linalg.norm(d.xaxis[k]):
                 invariant = False
         if invariant:
             out[:, i] *= np.linalg.norm(np.cross(np.eye(3), axis), axis=1)
@@ -189,7 +185,7 @@ class MotionEnvelope:
             self._clearance[:, self.pairs :] = np.inf
         if not self.pairs:
             self._clearance[:, : self.pairs] = np.inf
-        # centre, half-width, the brake's rest point, the motion's start, the step's end
+        # centre, half-width, the brake's rest point, the brake's headroom, its reversal
         self._box = np.zeros((5, envs, n))
         self._need = np.zeros((2, envs), dtype=bool)
         # the brake's path (_path_certified): Ruckig to rest, one env's joints at a time
@@ -211,18 +207,17 @@ class MotionEnvelope:
         """m, the smallest distance of each pair, at home and with each joint that moves it
         swept alone across its position range from home (65 poses): what the robot's own
         geometry allows (a gripper's jaw passes within millimetres of its wrist)."""
-        clear = []
-        for p, w in enumerate(pair_weights):
-            worst = self.distances(home)[p]
-            for j in np.flatnonzero(w):
-                for x in np.linspace(
-                    self.robot.position_lower[j], self.robot.position_upper[j], 65
-                ):
-                    pose = home.copy()
-                    pose[j] = x
-                    worst = min(worst, self.distances(pose)[p])
-            clear.append(worst)
-        return clear
+        at_home = self.distances(home)
+        swept = np.full((self.robot.n_joints, self.pairs), np.inf)  # per joint, each pair's min
+        for j in np.flatnonzero(np.asarray(pair_weights).any(axis=0)):
+            for x in np.linspace(self.robot.position_lower[j], self.robot.position_upper[j], 65):
+                pose = home.copy()
+                pose[j] = x
+                np.minimum(swept[j], self.distances(pose), out=swept[j])
+        return [
+            float(min(at_home[p], swept[np.flatnonzero(w), p].min(initial=np.inf)))
+            for p, w in enumerate(pair_weights)
+        ]
 
     def distances(self, q: np.ndarray) -> np.ndarray:
         """(pairs,) m, each listed pair's distance at ``q`` (n,) rad (coal; <= 0 in contact)."""
@@ -264,13 +259,13 @@ class MotionEnvelope:
             self._clearance, self.weights, self.margin, box, need,
         ):  # fmt: skip
             return False
-        c, h, stop, start, end = box
+        c, h = box[0], box[1]
         for e in np.flatnonzero(need[ek.COLLISION]):
             d = self._clearance[e, : self.pairs]
             d[:] = self.distances(c[e])
             self._cached_q[ek.COLLISION, e] = c[e]
             if not self._certified(ek.COLLISION, c[e], h[e], d):
-                if not self._passes(ek.COLLISION, e, q, box, after, effort_scale):
+                if not self._passes(ek.COLLISION, e, q, before, after):
                     self.unsafe[ek.COLLISION, e] = True
                     self._mark_joints(ek.COLLISION, e, c[e], h[e], d)
         for e in np.flatnonzero(need[ek.WORKSPACE]):
@@ -278,7 +273,7 @@ class MotionEnvelope:
             inside[:] = self.workspace_margin(c[e])
             self._cached_q[ek.WORKSPACE, e] = c[e]
             if not self._certified(ek.WORKSPACE, c[e], h[e], inside):
-                if not self._passes(ek.WORKSPACE, e, q, box, after, effort_scale):
+                if not self._passes(ek.WORKSPACE, e, q, before, after):
                     self.unsafe[ek.WORKSPACE, e] = True
                     self._mark_joints(ek.WORKSPACE, e, c[e], h[e], inside)
         self._dirty = bool(self.unsafe.any())
@@ -292,16 +287,13 @@ class MotionEnvelope:
         uncertain = value - self._reach(kind, centre, half) <= self.margin
         self.joints[e] |= (self.weights[rows][uncertain] > 0.0).any(axis=0)
 
-    def _passes(self, kind: int, e: int, q, box, after, effort_scale) -> bool:
+    def _passes(self, kind: int, e: int, q, before, after) -> bool:
         """Env ``e``'s motion, which its whole box could not certify: certified segment by
         segment (:meth:`_path_certified`), or a robot already within the margin moving back out
         (:meth:`_escapes_contact`, :meth:`_escapes_box`)."""
-        start, end, rest = box[3, e], box[4, e], box[2, e]
-        scale = effort_scale[e]
-        g, floor = self.limits[2], self.limits[3]
-        share = np.clip((scale - g) / np.maximum(1.0 - g, 1e-12), floor, 1.0)
-        share = np.where(g >= 1.0, np.clip(scale, floor, 1.0), share)
-        if self._path_certified(kind, q[e], start, end, after[1, e], after[2, e], share):
+        start, end, box = before[0, e], after[0, e], self._box[:, e]
+        rest, share, reversal = box[2], box[3], box[4]
+        if self._path_certified(kind, q[e], start, end, after[1, e], after[2, e], share, reversal):
             return True
         if kind == ek.COLLISION:
             return self._escapes_contact(start, end, rest)
@@ -328,13 +320,17 @@ class MotionEnvelope:
         (:meth:`_reach`)."""
         return bool(np.all(value - self._reach(kind, centre, half) > self.margin))
 
-    def _path_certified(self, kind: int, q, start, end, velocity, acceleration, share) -> bool:
+    def _path_certified(
+        self, kind: int, q, start, end, velocity, acceleration, share, reversal
+    ) -> bool:
         """Whether the motion is safe segment by segment: the step (``start`` to ``end``, with
         the estimate ``q``), then the brake from ``end`` at ``velocity``, ``acceleration`` (n,)
         cut into :data:`PATH_SEGMENTS` by time; each joint moves monotonically within a brake
-        segment (up to the reversal :func:`brake_reach` allows), so the boxes of the segments
-        cover the path that the whole box over-covers. The brake is Ruckig's own (velocity
-        interface to rest; deceleration times ``share`` (n,), the derated drives' headroom)."""
+        segment (up to ``reversal`` (n,) rad, the ``back`` of
+        :func:`deploy.safety.envelope_kernel.brake_reach`), so the boxes of the segments cover the
+        path that the whole box over-covers. The brake is Ruckig's own (velocity interface to
+        rest; deceleration times ``share`` (n,), the derated drives' headroom, as the kernel
+        computed both)."""
         query = self.distances if kind == ek.COLLISION else self.workspace_margin
         inp = self._path_inp
         inp.current_position = end
@@ -351,7 +347,7 @@ class MotionEnvelope:
         points = [np.asarray(self._path.at_time(t)[0]) for t in times]
         # the joints lag their command (a position servo): each segment also holds the points
         # up to the present lag behind it
-        slack = self._reversal(acceleration, velocity) + np.abs(q - start)
+        slack = reversal + np.abs(q - start)
         segments = [(np.minimum(np.minimum(q, start), end), np.maximum(np.maximum(q, start), end))]
         for a, b in zip(points[:-1], points[1:], strict=True):
             segments.append((np.minimum(a, b) - slack, np.maximum(a, b) + slack))
@@ -360,12 +356,6 @@ class MotionEnvelope:
             if not self._certified(kind, c, h, query(c)):
                 return False
         return True
-
-    def _reversal(self, acceleration, velocity) -> np.ndarray:
-        """(n,) rad, how far a brake may carry each joint back past rest (``back`` of
-        :func:`deploy.safety.envelope_kernel.brake_reach`)."""
-        against = np.maximum(-acceleration * np.sign(velocity), 0.0)
-        return against**3 / (2.0 * self.limits[1] ** 2)
 
     def _escapes_contact(self, start, end, rest) -> bool:
         """Whether a robot already within the margin at ``start`` moves back out: no pair's

@@ -74,7 +74,8 @@ def envelope_screen(
     load's share of each effort limit and the smallest brake headroom assumed. The brake
     decelerates at the acceleration limit times :func:`brake_headroom` of ``effort_scale``
     (envs, n), the thermal derating. Writes ``box`` (5, envs, n): centre, half-width, the
-    brake's rest point, the motion's start and the step's end.
+    brake's rest point, that headroom and how far the brake may carry the joint back past rest
+    (``back`` of :func:`brake_reach`, as a distance).
 
     The screen marks ``need[row, e]`` (rows ``COLLISION``, ``WORKSPACE``) where the cache cannot
     certify the box: ``cached_q`` (2, envs, n) rad the configurations of the last exact queries
@@ -100,8 +101,8 @@ def envelope_screen(
             )
             p0, p = before[0, e, i], after[0, e, i]
             box[2, e, i] = p + forward
-            box[3, e, i] = p0
-            box[4, e, i] = p
+            box[3, e, i] = share
+            box[4, e, i] = abs(back)
             lo = min(q[e, i], p0, p, p + forward, p + back)
             hi = max(q[e, i], p0, p, p + forward, p + back)
             box[0, e, i] = 0.5 * (lo + hi)

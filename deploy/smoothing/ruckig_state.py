@@ -127,8 +127,8 @@ class RuckigState:
         jerk-limited stop (velocity interface, target velocity and acceleration 0, the smoother's
         limits) from the state before that step. The command, Ruckig's state and input, the
         commanded position and the mean acceleration of those envs follow; the envs stay in
-        normal operation (the next step plans toward their target again). Counted in
-        ``brakes``. The guard's motion envelope (:mod:`deploy.safety.envelope`) calls it.
+        normal operation (the next step plans toward their target again). The guard's motion
+        envelope (:mod:`deploy.safety.envelope`) calls it and counts it.
 
         Args:
             envs: (envs,) bool, the envs to brake.
@@ -177,7 +177,6 @@ class RuckigState:
             current = np.array(getattr(main, name))
             current[dof] = values[dof]
             setattr(main, name, current)
-        self.brakes += np.asarray(envs, dtype=bool)
 
     # ------------------------------------------------------------------ Ruckig
     def _set_interfaces(self) -> None:

@@ -59,6 +59,8 @@ class CommandSmoother(RuckigState, ReferenceStep):
             step (velocity change / control period; 0 after a sync, and in torque mode): the
             control input of the state estimator over the period the command is in force.
         stopping: (envs,) bool, envs in safe stop.
+        trajectory: (3, envs, n) ``position``, ``velocity``, ``acceleration`` as one view.
+        before: (3, envs, n) the same before the last step (where :meth:`brake` starts).
         non_finite_targets, target_clamps, extrema_violations, stopping_distance_clamps: (envs,)
             int counters since :meth:`reset` (sums over the joints of ``*_per_joint``, (envs, n)):
             NaN/inf targets replaced by the previous target; targets clamped to the hard position
@@ -142,8 +144,6 @@ class CommandSmoother(RuckigState, ReferenceStep):
         # the brake that may replace it (brake) and of the guard's motion envelope
         self._before = np.zeros((3, dofs))
         self.before = self._before.reshape(3, envs, n)
-        self.before_position = self.before[0]
-        self.brakes = np.zeros(envs, dtype=np.int64)
         self._tmp = np.zeros(dofs)
         self._tmp2d = self._tmp.reshape(shape)
         self._cmd_position2d = self._cmd_position.reshape(shape)
@@ -253,7 +253,6 @@ class CommandSmoother(RuckigState, ReferenceStep):
             self.target_clamps_per_joint,
             self.extrema_violations_per_joint,
             self.stopping_distance_clamps_per_joint,
-            self.brakes,
         ):
             counter[:] = 0
         self.sync(q, dq, effort=effort)

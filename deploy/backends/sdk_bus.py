@@ -14,6 +14,10 @@ from types import ModuleType
 
 from deploy.backends.servo_bus import ServoBusBackend, ServoBusError
 
+#: s one poll of the port waits for a reply's bytes (pyserial's read timeout): short against a
+#: control period, so the SDK still checks its packet timeout at least this often.
+RECEIVE_WAIT = 5e-4
+
 
 class SdkServoBus(ServoBusBackend):
     """A :class:`~deploy.backends.servo_bus.ServoBusBackend` on a vendor SDK of the dynamixel_sdk
@@ -58,6 +62,11 @@ class SdkServoBus(ServoBusBackend):
             raise ServoBusError(f"cannot open {self.port_name}: {exc}") from exc
         if not opened or not self._port.setBaudRate(self.baudrate):
             raise ServoBusError(f"cannot open {self.port_name} at {self.baudrate} bit/s")
+        # The SDKs open the port with pyserial's timeout 0 and poll it in a busy loop until a
+        # reply's bytes are in: a whole core spent waiting, taken from the servos' emulator (or
+        # anything else) on a small computer. A read timeout of RECEIVE_WAIT makes each poll
+        # wait in select() for the bytes instead; the SDK's own packet timeout is unchanged.
+        self._port.ser.timeout = RECEIVE_WAIT
         self._ph = sdk.PacketHandler(self.packet_protocol)
         start, length = self.block_start, self.block_length
         self._reader = sdk.GroupSyncRead(self._port, self._ph, start, length)

@@ -5,11 +5,14 @@ Feetech SCS/STS protocol or Dynamixel Protocol 2.0. The vendors' SDKs open the p
 serial port; nothing in them knows they talk to an emulator.
 
 Plant: a :class:`deploy.backends.sim.plant.SimBackend` (one env) of the robot, with its sensor and
-thermal models. It advances in simulated time paced by the wall clock: before answering each
-packet, and every control period while the bus is idle, the emulator steps the plant (whole
-control periods) until it has caught up with ``time.monotonic()`` since start. When the plant
-falls more than 0.25 s behind (a machine slower than real time), the time origin moves up and
-``stats['plant_lag_resets']`` counts it. Registers map to the plant so:
+thermal models. It advances in simulated time paced by the wall clock, on its own thread: every
+control period it takes the goal registers, steps (whole control periods) until it has caught up
+with ``time.monotonic()`` since start, and writes the present registers, as a servo's firmware
+samples its sensors on its own cycle. Answering a packet never waits for a plant step, only for
+the register copy: on a busy machine the present registers get older (at most a period or two),
+the replies stay on time. When the plant falls more than 0.25 s behind (a machine slower than
+real time), the time origin moves up and ``stats['plant_lag_resets']`` counts it. Registers map
+to the plant so:
 
 - goal position (position mode) / goal velocity (velocity mode), with torque on -> the plant's
   command (position clipped to the servo's min/max position limit registers);
@@ -25,7 +28,8 @@ falls more than 0.25 s behind (a machine slower than real time), the time origin
   efficiency`` (the thermal model's ``torque_per_amp``); present temperature <- the modelled
   winding temperature (whole degC); present voltage: 12.0 V;
 - the operating mode register chooses the plant's control mode (the last one written: the plant
-  is rebuilt at the present pose and temperatures; a bus mixing modes is not modelled).
+  is rebuilt at the present pose and temperatures at its next step; a bus mixing modes is not
+  modelled).
 
 Bus timing model (half duplex, 10 bits per byte: start, 8 data, stop): a reply is written to the
 pty when its last byte would have arrived on a real bus::
@@ -37,7 +41,7 @@ pty when its last byte would have arrived on a real bus::
 The reply latency is the servo's Return_Delay_Time register (x 2 us; factory default 250 = 500 us
 on both vendors, see ``control_tables``) unless ``latency_us`` overrides it. On the pty the host's
 bytes arrive at once, so ``t_instruction_received`` is when the host wrote them. A reply whose time
-has passed (the plant step took longer) is sent at once and counted (``stats['late_replies']``).
+has passed (the machine was busy) is sent at once and counted (``stats['late_replies']``).
 
 Servo protection: every servo trips ``overheat`` when the modelled winding passes its
 temperature-limit register (torque off, error bit) as the real servo does; the other faults are
@@ -149,6 +153,8 @@ class ServoBusEmulator:
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._plant_thread: threading.Thread | None = None
+        self._pending_mode: str | None = None
         self._leader, self._follower = os.openpty()
         tty.setraw(self._follower)
         self.port = os.ttyname(self._follower)
@@ -171,6 +177,12 @@ class ServoBusEmulator:
             self._thread.daemon = True
             self._thread.start()
 
+    def _start_plant(self) -> None:
+        if self._plant_thread is None:
+            self._plant_thread = threading.Thread(target=self._run_plant, name="emulated-plant")
+            self._plant_thread.daemon = True
+            self._plant_thread.start()
+
     def request_stop(self) -> None:
         """Ask :meth:`serve` to return (safe from a signal handler); :meth:`stop` also closes."""
         self._stop.set()
@@ -178,9 +190,10 @@ class ServoBusEmulator:
     def stop(self) -> None:
         """Stop serving and close the pty (idempotent)."""
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            self._thread = None
+        for thread in (self._thread, self._plant_thread):
+            if thread is not None and thread is not threading.current_thread():
+                thread.join(timeout=5.0)
+        self._thread = self._plant_thread = None
         for fd in (self._leader, self._follower):
             if fd >= 0:
                 try:
@@ -195,7 +208,8 @@ class ServoBusEmulator:
         return time.monotonic() - self._t0
 
     def serve(self) -> None:
-        """Answer packets until :meth:`stop` (blocking)."""
+        """Answer packets until :meth:`stop` (blocking); the plant steps on a second thread."""
+        self._start_plant()
         period = self.robot.control_period
         while not self._stop.is_set():
             try:
@@ -204,14 +218,20 @@ class ServoBusEmulator:
                 return
             received = time.monotonic()
             if not ready:
-                with self._lock:
-                    self._catch_up()
                 continue
             try:
                 data = os.read(self._leader, 4096)
             except OSError:
                 return
             self._answer(data, received)
+
+    def _run_plant(self) -> None:
+        """Step the plant every control period until :meth:`stop` (the plant thread)."""
+        period = self.robot.control_period
+        while not self._stop.is_set():
+            self._catch_up()
+            next_step = self._t0 + (self._steps + 1) * period
+            self._stop.wait(max(0.0, next_step - time.monotonic()))
 
     # ------------------------------------------------------------------ fault API
     def _servo(self, servo_id: int) -> EmulatedServo:
@@ -250,10 +270,7 @@ class ServoBusEmulator:
     # ------------------------------------------------------------------ the bus
     def _answer(self, data: bytes, received: float) -> None:
         with self._lock:
-            self._catch_up()
-            self._refresh()
             exchanges = self._dispatcher.feed(data, self._answering())
-            self._apply_commands()
         tb = 10.0 / self.baudrate
         for ex in exchanges:
             self.stats["packets"] += 1
@@ -297,7 +314,7 @@ class ServoBusEmulator:
             value = servo.get("operating_mode")
             mode = {v: k for k, v in servo.model.operating_modes.items()}.get(value)
             if mode is not None and mode != self.plant.mode:
-                self._switch_mode(mode)
+                self._pending_mode = mode  # the plant thread rebuilds it at its next step
 
     def _switch_mode(self, mode: str) -> None:
         """Rebuild the plant in ``mode`` at the present pose, keeping the motor temperatures."""
@@ -313,24 +330,41 @@ class ServoBusEmulator:
 
     # ------------------------------------------------------------------ the plant
     def _catch_up(self) -> None:
-        """Step the plant until its clock has caught up with the wall clock."""
+        """Step the plant until its clock has caught up with the wall clock (the plant thread).
+
+        The registers are read (goals) and written (present values) under the lock; the MuJoCo
+        step itself runs outside it, so a packet is answered while the plant steps."""
         period = self.robot.control_period
         due = int((time.monotonic() - self._t0) / period)
         if due - self._steps > _MAX_LAG / period:
             self._t0 += (due - self._steps) * period
             self.stats["plant_lag_resets"] += 1
             due = self._steps
-        while self._steps < due:
+        if self._steps >= due:
+            return
+        with self._lock:
+            if self._pending_mode is not None:
+                self._switch_mode(self._pending_mode)
+                self._pending_mode = None
             self._update_faults(self._steps * period)
             self._apply_commands()
-            self.plant.write(self._command)
+            command = self._command.copy()
+        while self._steps < due:
+            self.plant.write(command)
             self.plant.advance()
             self._steps += 1
             self.stats["plant_steps"] += 1
-            self._add_heat(self._steps * period, period)
-            winding = self.plant.thermal.winding_temperature[0]
-            for s in self.servos:
-                s.update_protection(float(winding[s.joint]))
+            with self._lock:
+                self._add_heat(self._steps * period, period)
+                winding = self.plant.thermal.winding_temperature[0]
+                for s in self.servos:
+                    s.update_protection(float(winding[s.joint]))
+                if self._steps < due:
+                    self._update_faults(self._steps * period)
+                    self._apply_commands()
+                    command = self._command.copy()
+        with self._lock:
+            self._refresh()
 
     def _add_heat(self, now: float, dt: float) -> None:
         """The ``heat`` faults: extra winding loss (W) over ``dt`` s into the plant's thermal

@@ -45,9 +45,9 @@ def bench_bus(robot_name: str, protocol: str, ticks: int) -> dict:
     from robots import load_robot
 
     if protocol == "feetech":
-        from deploy.backends.feetech import FeetechBackend as Backend
+        from deploy.backends.servo.feetech import FeetechBackend as Backend
     else:
-        from deploy.backends.dynamixel import DynamixelBackend as Backend
+        from deploy.backends.servo.dynamixel import DynamixelBackend as Backend
     robot = load_robot(robot_name)
     proc, port = start_emulator(robot_name, protocol, BAUDRATE)
     if port is None:

@@ -17,3 +17,18 @@ def arm3():
 @pytest.fixture(scope="session")
 def arm6():
     return load_robot("arm6")
+
+
+@pytest.fixture(scope="session")
+def go2():
+    return load_robot("go2")
+
+
+@pytest.fixture(scope="session")
+def so101():
+    return load_robot("so101")
+
+
+@pytest.fixture(scope="session")
+def arm3_xm430():
+    return load_robot("arm3_xm430")

@@ -23,16 +23,6 @@ SO101_IDS = range(1, 7)
 ARM3_IDS = range(1, 4)
 
 
-@pytest.fixture(scope="module")
-def so101():
-    return load_robot("so101")
-
-
-@pytest.fixture(scope="module")
-def arm3_xm430():
-    return load_robot("arm3_xm430")
-
-
 def _feetech(emu):
     port = scs.PortHandler(emu.port)
     assert port.openPort() and port.setBaudRate(1_000_000)

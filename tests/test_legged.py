@@ -32,11 +32,6 @@ STAND_KP, STAND_KD = 60.0, 5.0
 SETTLE = 100
 
 
-@pytest.fixture(scope="module")
-def go2():
-    return load_robot("go2")
-
-
 def stand_plant(robot, envs=1, seed=0, gravity=None) -> SimBackend:
     """A position-mode plant whose PD servos hold go2 standing (``STAND_KP``, ``STAND_KD``);
     ``gravity``: the model's gravity vector (m/s^2; a tilted floor)."""

@@ -26,7 +26,6 @@ from deploy.backends.sim.plant import SimBackend
 from deploy.cli import deploy_run as cli
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Mode, Runtime
-from robots import load_robot
 
 pytest.importorskip("ahrs")
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:FutureWarning")
@@ -35,11 +34,6 @@ COMMAND = (0.3, 0.0, 0.0)
 #: legged_gym's go2 observation in this toolkit's terms (scale = 1 / obs_scales), the blocks
 #: read from the floating base's IMU and estimator first.
 IMU_BLOCKS = ("base_linear_velocity", "base_angular_velocity", "projected_gravity")
-
-
-@pytest.fixture(scope="module")
-def go2():
-    return load_robot("go2")
 
 
 def legged_gym_actor(obs_dim: int, act_dim: int) -> nn.Module:

@@ -23,11 +23,6 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def go2():
-    return load_robot("go2")
-
-
-@pytest.fixture(scope="module")
 def stand_policy(go2, tmp_path_factory):
     """An ONNX policy of go2's default spec whose action is 0: the home pose (the action's
     offset), whatever it observes."""

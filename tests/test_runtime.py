@@ -383,13 +383,6 @@ def stop_by_nan(rt, envs=None):
     return rt.ticks
 
 
-@pytest.fixture(scope="module")
-def so101():
-    from robots import load_robot as load
-
-    return load("so101")
-
-
 @pytest.mark.parametrize("reference", [False, True])
 def test_a_safe_stop_that_cannot_come_to_rest_latches_after_the_timeout(so101, reference):
     """The soak's so101 stop that never ended: the arm is at rest, but the noisy encoders keep the

@@ -21,7 +21,7 @@ import pytest
 from deploy.backends.base import Backend, SimulatedPlant
 from deploy.backends.emulator import ServoBusEmulator, WireFaults
 from deploy.backends.servo.calibration import CalibrationError, load_lerobot_calibration
-from deploy.backends.servo_bus import ServoBusError
+from deploy.backends.servo.servo_bus import ServoBusError
 from deploy.cli.deploy_run import EXIT_CLEAN, EXIT_FAULT
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Runtime, WallClock
@@ -31,8 +31,8 @@ from tests.runtime_fixtures import adversarial_onnx
 pytest.importorskip("scservo_sdk", reason="pip install '.[servo]'")
 pytest.importorskip("dynamixel_sdk", reason="pip install '.[servo]'")
 
-from deploy.backends.dynamixel import DynamixelBackend  # noqa: E402
-from deploy.backends.feetech import FeetechBackend  # noqa: E402
+from deploy.backends.servo.dynamixel import DynamixelBackend  # noqa: E402
+from deploy.backends.servo.feetech import FeetechBackend  # noqa: E402
 
 CASES = {
     "feetech": ("so101", FeetechBackend),
@@ -48,11 +48,6 @@ def _short_gil_slices():
     sys.setswitchinterval(2e-4)
     yield
     sys.setswitchinterval(old)
-
-
-@pytest.fixture(scope="module")
-def so101():
-    return load_robot("so101")
 
 
 def _policy(tmp_path, robot):

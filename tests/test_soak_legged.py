@@ -21,15 +21,9 @@ from eval.soak.campaign import run_campaign
 from eval.soak.session import SessionConfig, session_dir
 from eval.world.fault_schedule import fault_ranges
 from eval.world.randomization import SessionRanges, sample_session, session_ranges
-from robots import load_robot
 from tests.soak_fixtures import kill_after_first_checkpoint
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(scope="module")
-def go2():
-    return load_robot("go2")
 
 
 @pytest.fixture(scope="module")

@@ -4,6 +4,7 @@ import json
 
 import mujoco
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from deploy.backends.sim.plant import SimBackend
@@ -148,3 +149,34 @@ def test_telemetry_leaves_the_run_bit_for_bit_identical(tmp_path, arm3):
     for a, b in ((plain.state.q, logged.state.q), (plain.command, logged.command)):
         np.testing.assert_array_equal(a, b)
     assert (plain.guard.count_matrix == logged.guard.count_matrix).all()
+
+
+def test_deploy_run_telemetry_on_a_floating_base_robot(tmp_path, go2):
+    """``deploy-run --telemetry`` on the Go2: a complete MCAP whose ``/tf`` poses are forward
+    kinematics of the logged joints with the logged estimate of the base's orientation."""
+    from deploy.cli.deploy_run import deploy_run_main
+
+    policy = adversarial_onnx(tmp_path, go2, "position")
+    path = tmp_path / "go2.mcap"
+    code = deploy_run_main(
+        ["--robot", "go2", "--policy", str(policy), "--command", "0.5,0,0"]
+        + ["--duration", "0.5", "--telemetry", str(path)]
+    )
+    assert code in (0, 2) and path.exists() and not path.with_name("go2.mcap.part").exists()
+    topics = read(path)
+    estimates = {t: json.loads(d) for t, _, _, d in topics["/estimate"]}
+    foot = "FL_foot"
+    data = go2.pin_model.createData()
+    checked = 0
+    for t, _, _, raw in topics["/tf"]:
+        poses = {x.child_frame_id: x for x in FrameTransforms.FromString(raw).transforms}
+        q, wxyz = estimates[t]["q"][0], estimates[t]["base_orientation"][0]
+        r = poses["base"].rotation
+        np.testing.assert_allclose([r.w, r.x, r.y, r.z], wxyz, atol=1e-12)
+        configuration = go2.pin_configuration(np.array(q), None, np.array(wxyz))
+        pin.framesForwardKinematics(go2.pin_model, data, configuration)
+        p = poses[foot].translation
+        expected = data.oMf[go2.pin_model.getFrameId(foot, pin.FrameType.BODY)].translation
+        np.testing.assert_allclose([p.x, p.y, p.z], expected, atol=1e-12)
+        checked += 1
+    assert checked >= 2

@@ -15,8 +15,8 @@ Two interfaces:
 
 Implementations: :class:`deploy.backends.sim.plant.SimBackend` (both), and the serial-bus servo
 backends
-:class:`deploy.backends.feetech.FeetechBackend` and
-:class:`deploy.backends.dynamixel.DynamixelBackend` (``Backend`` only).
+:class:`deploy.backends.servo.feetech.FeetechBackend` and
+:class:`deploy.backends.servo.dynamixel.DynamixelBackend` (``Backend`` only).
 """
 
 from __future__ import annotations

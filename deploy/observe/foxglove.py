@@ -125,16 +125,24 @@ class FoxgloveEncoder:
         """Name of the end-effector site's frame (env 0)."""
         return self.frame_names[0][[i for i, _ in self.frames].index(self.robot.ee_frame_id)]
 
-    def frame_transforms(self, t_ns: int, q: np.ndarray) -> bytes:
+    def frame_transforms(
+        self, t_ns: int, q: np.ndarray, base_orientation: np.ndarray | None = None
+    ) -> bytes:
         """``/tf`` for joint positions ``q`` (envs, n) rad at ``t_ns`` ns: every link frame and
-        the end-effector site in ``world``, by forward kinematics."""
+        the end-effector site in ``world``, by forward kinematics.
+
+        A floating-base robot's base sits at the origin of ``world`` with ``base_orientation``
+        ((envs, 4) unit quaternions ``[w, x, y, z]``, the base estimator's; default upright):
+        the estimator knows the base's attitude, not its position."""
         import pinocchio as pin
         from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 
         msg = self.classes[FRAME_TRANSFORMS]()
         stamp = _stamp(t_ns)
         for e in range(self.envs):
-            pin.framesForwardKinematics(self.model, self.data, np.ascontiguousarray(q[e]))
+            quat = None if base_orientation is None else base_orientation[e]
+            configuration = self.robot.pin_configuration(q[e], None, quat)
+            pin.framesForwardKinematics(self.model, self.data, configuration)
             for (fid, _), name in zip(self.frames, self.frame_names[e], strict=True):
                 placement = self.data.oMf[fid]
                 x, y, z = placement.translation

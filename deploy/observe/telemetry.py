@@ -5,7 +5,8 @@ samples every ``every``-th tick into it, and flushes it to the MCAP file when fu
 a long run keeps its whole (downsampled) history with nothing allocated per tick in between. One
 topic per stage of the tick, JSON messages (schemas are JSON Schema):
 
-``/read`` encoder positions (rad) and their stamps (s); ``/estimate`` q (rad), dq (rad/s);
+``/read`` encoder positions (rad) and their stamps (s); ``/estimate`` q (rad), dq (rad/s) and,
+for a floating base, the estimated base orientation (``base_orientation``, ``[w, x, y, z]``);
 ``/infer`` the policy action; ``/guard`` the guarded target; ``/smooth`` the command sent;
 ``/thermal`` reported winding temperatures (degC); ``/state`` the state machine of every env.
 
@@ -15,7 +16,8 @@ Foxglove's well-known schemas (:mod:`deploy.observe.foxglove`): ``/tf`` link pos
 ``/joint_states`` and ``/joint_commands`` (``foxglove.JointStates``) and ``/guard_events``
 (``foxglove.Log``), so that Foxglove draws the robot moving in 3D. They are built from the ring
 buffer when it is flushed (link poses by forward kinematics of the logged estimated joint
-positions), not in the tick: sampling a tick costs the same few array copies with or without them.
+positions and, for a floating base, the estimated base orientation with the base at the origin),
+not in the tick: sampling a tick costs the same few array copies with or without them.
 """
 
 from __future__ import annotations
@@ -143,6 +145,9 @@ class Telemetry:
         self._target = np.zeros(shape)
         self._cmd = np.zeros(shape)
         self._temp = np.zeros(shape)
+        self._base_orientation = np.zeros((capacity, envs, 4))  # [w, x, y, z]
+        self._base_orientation[..., 0] = 1.0
+        self._legged = False  # a floating base's estimate seen: /estimate has its orientation
         self._mode = np.zeros((capacity, envs), dtype=np.int8)
         self._cause = np.zeros((capacity, envs), dtype=np.int8)
         self._guard_counts = None  # (capacity, checks, envs) once the first row shows the guard
@@ -189,6 +194,9 @@ class Telemetry:
         self._cmd[i] = rt.command
         self._temp[i] = rt.state.winding_temperature
         self._mode[i] = rt.mode
+        if rt.state.base is not None:
+            self._legged = True
+            self._base_orientation[i] = rt.state.base.orientation
         if self.foxglove is not None:
             self._cause[i] = rt.cause
             counts = rt.guard.count_matrix
@@ -209,9 +217,12 @@ class Telemetry:
 
         for i in range(self._rows):
             t_ns = int(round(self._t[i] * 1e9))
+            estimate = {"q": self._q[i].tolist(), "dq": self._dq[i].tolist()}
+            if self._legged:
+                estimate["base_orientation"] = self._base_orientation[i].tolist()
             msgs = {
                 "/read": {"position": clean(self._pos[i]), "stamp": clean(self._stamp[i])},
-                "/estimate": {"q": self._q[i].tolist(), "dq": self._dq[i].tolist()},
+                "/estimate": estimate,
                 "/infer": {"action": clean(self._action[i])},
                 "/guard": {"target": self._target[i].tolist()},
                 "/smooth": {"command": self._cmd[i].tolist()},
@@ -240,7 +251,7 @@ class Telemetry:
             msgs.append(("/robot", enc.scene(t_ns)))
             self._scene_written = True
         if self._sampled % self.tf_every == 0:
-            msgs.append(("/tf", enc.frame_transforms(t_ns, self._q[i])))
+            msgs.append(("/tf", enc.frame_transforms(t_ns, self._q[i], self._base_orientation[i])))
         self._sampled += 1
         msgs.append(("/joint_states", enc.joint_states(t_ns, self._q[i], self._dq[i])))
         msgs.append(("/joint_commands", enc.joint_commands(t_ns, self._cmd[i])))

@@ -38,7 +38,7 @@ overload, overheating or voltage bits) makes a safe stop (cause ``servo_error``)
 per joint in :attr:`Runtime.drive_errors`.
 
 The backend is any :class:`deploy.backends.base.Backend`: the simulated plant, or a servo bus
-(:mod:`deploy.backends.feetech`, :mod:`deploy.backends.dynamixel`) with the wall clock.
+(:mod:`deploy.backends.servo.feetech`, :mod:`deploy.backends.servo.dynamixel`) with the wall clock.
 
 Clocks (:mod:`deploy.runtime.clock`): :class:`SimClock` runs in lockstep with a simulated plant as
 fast as the CPU allows; :class:`WallClock` waits for absolute deadlines (sleep, hybrid or spin),

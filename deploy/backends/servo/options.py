@@ -46,14 +46,14 @@ def _bus(cls, args, robot, mode: str):
 
 def make_feetech(args, robot, mode: str):
     """A Feetech STS bus (``scservo_sdk``) on ``args.port``."""
-    from deploy.backends.feetech import FeetechBackend
+    from deploy.backends.servo.feetech import FeetechBackend
 
     return _bus(FeetechBackend, args, robot, mode)
 
 
 def make_dynamixel(args, robot, mode: str):
     """A Dynamixel X bus (Protocol 2.0, ``dynamixel_sdk``) on ``args.port``."""
-    from deploy.backends.dynamixel import DynamixelBackend
+    from deploy.backends.servo.dynamixel import DynamixelBackend
 
     return _bus(DynamixelBackend, args, robot, mode)
 

@@ -2,9 +2,10 @@
 
 ``scservo_sdk`` (feetech-servo-sdk) is a port of ROBOTIS' ``dynamixel_sdk``: the same
 ``PortHandler``, ``PacketHandler``, ``GroupSyncRead`` / ``GroupSyncWrite`` API and result codes.
-:class:`SdkServoBus` drives a bus through that API; :class:`~deploy.backends.feetech.FeetechBackend`
-and :class:`~deploy.backends.dynamixel.DynamixelBackend` name the SDK module, the packet
-protocol and where a status packet's parameters start, and decode their own error bytes.
+:class:`SdkServoBus` drives a bus through that API;
+:class:`~deploy.backends.servo.feetech.FeetechBackend` and
+:class:`~deploy.backends.servo.dynamixel.DynamixelBackend` name the SDK module, the packet protocol
+and where a status packet's parameters start, and decode their own error bytes.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
-from deploy.backends.servo_bus import ServoBusBackend, ServoBusError
+from deploy.backends.servo.servo_bus import ServoBusBackend, ServoBusError
 
 #: s one poll of the port waits for a reply's bytes (pyserial's read timeout): short against a
 #: control period, so the SDK still checks its packet timeout at least this often.
@@ -20,8 +21,8 @@ RECEIVE_WAIT = 5e-4
 
 
 class SdkServoBus(ServoBusBackend):
-    """A :class:`~deploy.backends.servo_bus.ServoBusBackend` on a vendor SDK of the dynamixel_sdk
-    family. Subclasses set :attr:`packet_protocol`, :attr:`sdk_module` and implement
+    """A :class:`~deploy.backends.servo.servo_bus.ServoBusBackend` on a vendor SDK of the
+    dynamixel_sdk family. Subclasses set :attr:`packet_protocol`, :attr:`sdk_module` and implement
     :meth:`_parameter_start` and ``_hardware_error``.
 
     Attributes:

@@ -1,7 +1,7 @@
 """Dynamixel X servos (Koch, OpenManipulator-X arms) through ``dynamixel-sdk``, Protocol 2.0.
 
-:class:`DynamixelBackend` is a :class:`~deploy.backends.servo_bus.ServoBusBackend` (see there for
-the open sequence, the tick and the fault handling) on Dynamixel Protocol 2.0, with the
+:class:`DynamixelBackend` is a :class:`~deploy.backends.servo.servo_bus.ServoBusBackend` (see
+there for the open sequence, the tick and the fault handling) on Dynamixel Protocol 2.0, with the
 XM430-W350 / XL430-W250 control tables of :mod:`deploy.backends.servo.control_tables`
 (ROBOTIS e-Manual).
 
@@ -19,8 +19,8 @@ Replies are received with the SDK's own ``rxPacket`` and assigned to their servo
 
 from __future__ import annotations
 
-from deploy.backends.sdk_bus import SdkServoBus
 from deploy.backends.servo.control_tables import DYNAMIXEL_ALERT, ServoModel
+from deploy.backends.servo.sdk_bus import SdkServoBus
 
 #: Reported when the Alert bit is set but Hardware_Error_Status could not be read.
 UNKNOWN_HARDWARE_ERROR = DYNAMIXEL_ALERT
@@ -32,7 +32,7 @@ HARDWARE_ERROR_READS = 3
 
 class DynamixelBackend(SdkServoBus):
     """Dynamixel X servo arm on ``port`` in Protocol 2.0 (see the module and
-    :class:`~deploy.backends.servo_bus.ServoBusBackend` for the arguments)."""
+    :class:`~deploy.backends.servo.servo_bus.ServoBusBackend` for the arguments)."""
 
     protocol = "dynamixel"
 

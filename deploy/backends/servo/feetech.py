@@ -1,8 +1,8 @@
 """Feetech STS servos (SO-100 / SO-101 arms) through ``feetech-servo-sdk`` (``scservo_sdk``).
 
-:class:`FeetechBackend` is a :class:`~deploy.backends.servo_bus.ServoBusBackend` (see there for
-the open sequence, the tick and the fault handling) on Feetech's SCS/STS protocol (protocol end 0,
-little endian), with the STS3215 control table of
+:class:`FeetechBackend` is a :class:`~deploy.backends.servo.servo_bus.ServoBusBackend` (see
+there for the open sequence, the tick and the fault handling) on Feetech's SCS/STS protocol
+(protocol end 0, little endian), with the STS3215 control table of
 :mod:`deploy.backends.servo.control_tables`.
 
 Per tick: one SYNC READ of addresses 56-63 (Present_Position, Present_Velocity, Present_Load,
@@ -21,8 +21,8 @@ with torque on, as LeRobot's ``FeetechMotorsBus`` does.
 
 from __future__ import annotations
 
-from deploy.backends.sdk_bus import SdkServoBus
 from deploy.backends.servo.control_tables import ServoModel
+from deploy.backends.servo.sdk_bus import SdkServoBus
 
 #: The STS error-byte bits that are hardware errors (ERRBIT_ANGLE, 2, is not).
 HARDWARE_ERROR_MASK = 1 | 4 | 8 | 32
@@ -30,7 +30,7 @@ HARDWARE_ERROR_MASK = 1 | 4 | 8 | 32
 
 class FeetechBackend(SdkServoBus):
     """Feetech STS3215 servo arm on ``port`` (see the module and
-    :class:`~deploy.backends.servo_bus.ServoBusBackend` for the arguments)."""
+    :class:`~deploy.backends.servo.servo_bus.ServoBusBackend` for the arguments)."""
 
     protocol = "feetech"
 

@@ -1,7 +1,7 @@
 """A serial-bus servo arm as a :class:`~deploy.backends.base.Backend` (one robot, wall clock).
 
-What Feetech STS and Dynamixel X buses share; :mod:`deploy.backends.feetech` and
-:mod:`deploy.backends.dynamixel` bind it to their vendor's SDK (``scservo_sdk``,
+What Feetech STS and Dynamixel X buses share; :mod:`deploy.backends.servo.feetech` and
+:mod:`deploy.backends.servo.dynamixel` bind it to their vendor's SDK (``scservo_sdk``,
 ``dynamixel_sdk``), which frames, checksums and times every packet.
 
 ``open()``: open the port at the baud rate, ping every servo and check its model number against
@@ -60,8 +60,8 @@ class ServoBusError(Sim2RealError, OSError):
 
 
 class ServoBusBackend(BackendLifecycle):
-    """Shared part of the servo-bus backends; use :class:`~deploy.backends.feetech.
-    FeetechBackend` or :class:`~deploy.backends.dynamixel.DynamixelBackend`.
+    """Shared part of the servo-bus backends; use :class:`~deploy.backends.servo.feetech.
+    FeetechBackend` or :class:`~deploy.backends.servo.dynamixel.DynamixelBackend`.
 
     Args:
         robot: The robot; every joint's motor must be a servo of this backend's protocol.

@@ -103,6 +103,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
     p.add_argument("--policy", default="policies/arm.onnx", help="ONNX policy (policy-export)")
+    p.add_argument("--spec", default=None, help="PolicySpec JSON for an ONNX without our metadata")
     p.add_argument("--hours", type=float, default=8.0, help="simulated hours per session")
     p.add_argument("--sessions", type=int, default=1, help="number of seeded sessions")
     p.add_argument("--seed", type=int, default=0, help="seed of the first session (then +1...)")
@@ -234,6 +235,8 @@ def _check_args(args) -> None:
         raise BadInput("--address: only with --executor ray")
     if not Path(args.policy).is_file():
         raise BadInput(f"--policy: {args.policy} is not a file")
+    if args.spec is not None and not Path(args.spec).is_file():
+        raise BadInput(f"--spec: {args.spec} is not a file")
     out = Path(args.out)
     for folder in (out, *out.parents):
         if folder.exists() and not folder.is_dir():
@@ -288,6 +291,7 @@ def run(args) -> int:
         faults=not args.no_faults,
         ranges=session_ranges(robot, args.fault_interval),
         window_minutes=args.window_minutes,
+        spec=None if args.spec is None else str(args.spec),
     )
     wall = time.perf_counter()
     results = run_campaign(

@@ -185,3 +185,32 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_but_an_estimate_past_one_s
     assert out[0, calf] == pytest.approx(go2.soft_lower[calf])
     assert guard.counts["soft_limit"][0] == 1
     assert guard.hard_violation.tolist() == [False, True]
+
+
+def test_every_stop_of_a_walking_robot_counts_as_a_fall_with_its_cause(go2, stand_policy):
+    """The runtime lays a legged robot down at every stop: a stale-sensor stop leaves the base on
+    the ground as a tilt stop does, so both are falls (by cause); a stop during the RAMP_IN of a
+    robot still lying is not another fall."""
+    from deploy.tasks.locomotion import CommandTracker
+
+    rt, plant = runtime(go2, stand_policy)
+    tracker = CommandTracker(2, go2.control_period, plant)
+
+    def run(ticks):
+        for _ in range(ticks):
+            rt.run(1)
+            tracker(rt)
+
+    run(150)
+    plant.set_external_force(0, np.array([0.0, 300.0, 0.0]))  # env 0 shoved over
+    run(15)
+    plant.set_external_force(0, np.zeros(3))
+    rt.supervision.safe_stop(np.array([False, True]), "stale_sensor")  # env 1: a sensor stops
+    run(150)
+    assert tracker.falls.tolist() == [1, 1]
+    assert tracker.causes(0) == {"fall": 1} and tracker.causes(1) == {"stale_sensor": 1}
+    assert tracker.summary(rt)["falls"] == 2
+    rt.reset_faults()
+    rt.supervision.safe_stop(np.array([True, True]), "stale_sensor")  # during RAMP_IN: lying
+    run(5)
+    assert tracker.falls.tolist() == [1, 1]

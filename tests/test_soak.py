@@ -618,3 +618,34 @@ def test_soak_test_bad_input_exits_3_naming_the_problem(policy, tmp_path, capsys
     argv = ["--policy", str(policy), "--hours", "0.001", "--out", str(tmp_path / "o"), *args]
     assert cli.main(argv) == cli.EXIT_BAD_INPUT
     assert message in capsys.readouterr().err
+
+
+def test_soak_test_spec_soaks_an_onnx_without_our_metadata(policy, tmp_path, capsys):
+    """``soak-test --spec``: the same ONNX with its contract stripped from the metadata and given
+    as a JSON file soaks exactly as the original; without the file it is refused (exit 3)."""
+    import onnx
+
+    model = onnx.load(policy)
+    (entry,) = [p for p in model.metadata_props if p.key == "policy_spec"]
+    spec_file = tmp_path / "spec.json"
+    spec_file.write_text(entry.value)
+    model.metadata_props.remove(entry)
+    bare = tmp_path / "bare.onnx"
+    onnx.save(model, bare)
+    base = ["--hours", "0.002", "--seed", "3", "--no-progress", "--no-film"]
+    base += ["--min-success", "0", "--min-window-success", "0", "--max-interventions", "1"]
+    assert cli.main([*base, "--policy", str(policy), "--out", str(tmp_path / "a")]) == 0
+    argv = [*base, "--policy", str(bare), "--spec", str(spec_file), "--out", str(tmp_path / "b")]
+    assert cli.main(argv) == 0
+
+    def result(out):
+        r = json.loads((out / "sessions" / "seed0003" / "result.json").read_text())
+        for key in ("wall", "policy_sha256", "options"):
+            r.pop(key, None)
+        return r
+
+    assert result(tmp_path / "a") == result(tmp_path / "b")
+    capsys.readouterr()
+    argv = [*base, "--policy", str(bare), "--out", str(tmp_path / "c")]
+    assert cli.main(argv) == cli.EXIT_BAD_INPUT
+    assert "bare.onnx" in capsys.readouterr().err

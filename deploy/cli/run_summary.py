@@ -33,6 +33,7 @@ def print_summary(r: dict) -> None:
             + f" (command {', '.join(f'{c:g}' for c in loco['command'][0])}); tracking "
             + (f"{100 * track:.1f} %" if track is not None else "n/a")
             + f" of RUNNING time within {loco['tracking_tolerance_m_s']} m/s; falls {loco['falls']}"
+            + (f" ({_causes(loco['falls_by_cause'])})" if loco.get("falls_by_cause") else "")
         )
     v = r["violations"]
     if v is not None:
@@ -124,3 +125,8 @@ def print_summary(r: dict) -> None:
     if r["diverged"]:
         print(f"  SIMULATION DIVERGED: {r['diverged']}")
     print(f"  exit code         {r['exit_code']}")
+
+
+def _causes(counts: dict[str, int]) -> str:
+    """``hard_limit 1, fall 2`` from ``{cause: count}``."""
+    return ", ".join(f"{cause} {n}" for cause, n in counts.items())

@@ -186,11 +186,14 @@ class CommandTracker:
         distance: (envs,) m, planar path length of the base while RUNNING.
         forward: (envs,) m, displacement along the base's heading while RUNNING.
         running_time: (envs,) s RUNNING. tracked_time: (envs,) s of it within tolerance.
-        falls: (envs,) int64, falls: safe stops of cause ``fall`` of a robot that has been
-            RUNNING since its previous safe stop (of any cause: the runtime lays a legged robot
-            down at every stop). A robot still lying after a stop, whose RAMP_IN ends in a fall
-            stop, has not fallen again; the runtime's ``counters.faults["fall"]`` counts those
+        falls: (envs,) int64, falls: stops (SAFE_STOP or FAULTED, of any cause) of a robot that
+            has been RUNNING since its previous stop. The runtime lays a legged robot down at
+            every stop, so a hard-limit or stale-sensor stop leaves the base on the ground as a
+            tilt (``fall``) stop does. A robot still lying after a stop, whose RAMP_IN ends in
+            another stop, has not fallen again; the runtime's ``counters.faults`` counts those
             stops too.
+        falls_by_cause: (envs, len(FAULT_CAUSES)) int64, ``falls`` by the stop's cause
+            (:data:`deploy.runtime.modes.FAULT_CAUSES` order).
         window_running, window_tracked: per env, s RUNNING and tracked per finished window
             (with ``window``).
     """
@@ -215,9 +218,11 @@ class CommandTracker:
         self._window_base = np.zeros((envs, 2))  # running, tracked s at its start
         self.window_running: list[list[float]] = [[] for _ in range(envs)]
         self.window_tracked: list[list[float]] = [[] for _ in range(envs)]
+        from deploy.runtime.modes import FAULT_CAUSES
+
         self.falls = np.zeros(envs, dtype=np.int64)
-        self._up = np.zeros(envs, dtype=bool)  # RUNNING since the last fall
-        self._fall_stops = np.zeros(envs, dtype=np.int64)  # the runtime's count, last tick
+        self.falls_by_cause = np.zeros((envs, len(FAULT_CAUSES)), dtype=np.int64)
+        self._up = np.zeros(envs, dtype=bool)  # RUNNING since the last stop
 
     # ------------------------------------------------------------------ state
     def _fields(self) -> dict[str, np.ndarray]:
@@ -230,15 +235,16 @@ class CommandTracker:
             "ring": self._ring.swapaxes(0, 1),  # (envs, window, 2), a view
             "window_base": self._window_base,
             "falls": self.falls,
+            "falls_by_cause": self.falls_by_cause,
             "up": self._up,
-            "fall_stops": self._fall_stops,
         }
 
     def state_dict(self, env: int | None = None) -> dict:
         """The tracker's state (copies; conventions of :mod:`deploy.stateful`): ``distance``,
         ``forward`` (m), ``running_time``, ``tracked_time`` (s), ``filled`` (int64),
         ``ring`` (envs, window, 2) m/s (the averaging window's velocities), ``window_base``
-        (envs, 2) s, ``falls``, ``fall_stops`` (int64), ``up`` (bool); shared:
+        (envs, 2) s, ``falls`` (int64), ``falls_by_cause`` (envs, causes) int64, ``up`` (bool);
+        shared:
         ``window_index`` (int); JSON lists over the envs: ``window_running``,
         ``window_tracked``."""
         out: dict = take(self._fields(), env)
@@ -321,11 +327,14 @@ class CommandTracker:
         from deploy.runtime import RUNNING, SAFE_STOP
 
         running = runtime.mode == RUNNING
-        stops = runtime.counters.faults["fall"]
-        self.falls += (stops > self._fall_stops) & self._up
-        self._up &= runtime.mode < SAFE_STOP  # any stop lays a legged robot down (FAULTED too)
+        down = self._up & (runtime.mode >= SAFE_STOP)  # any stop lays it down (FAULTED too)
+        if down.any():
+            self.falls += down
+            for e in np.flatnonzero(down):
+                if runtime.cause[e] >= 0:
+                    self.falls_by_cause[e, runtime.cause[e]] += 1
+        self._up &= ~down
         self._up |= running
-        self._fall_stops[:] = stops
         velocity = self._planar_velocity(runtime)  # (envs, 2) m/s, base frame
         step = velocity * self.dt
         self.distance += np.where(running, np.linalg.norm(step, axis=1), 0.0)
@@ -339,6 +348,13 @@ class CommandTracker:
             self._close_windows(runtime.time - self.dt)  # this tick's time counts in its window
         self.running_time += running * self.dt
         self.tracked_time += (running & full & (error <= TRACKING_TOLERANCE)) * self.dt
+
+    def causes(self, env: int | None = None) -> dict[str, int]:
+        """``{cause: falls}`` of env ``env`` (all envs summed by default), causes that occurred."""
+        from deploy.runtime.modes import FAULT_CAUSES
+
+        counts = self.falls_by_cause.sum(axis=0) if env is None else self.falls_by_cause[env]
+        return {c: int(n) for c, n in zip(FAULT_CAUSES, counts, strict=True) if n}
 
     def _planar_velocity(self, runtime) -> np.ndarray:
         if self.truth is None:
@@ -355,6 +371,7 @@ class CommandTracker:
             "tracking_success": float(self.tracked_time.sum() / running) if running else None,
             "tracking_tolerance_m_s": TRACKING_TOLERANCE,
             "running_s": running,
-            "falls": int(runtime.counters.faults["fall"].sum()),
+            "falls": int(self.falls.sum()),
+            "falls_by_cause": self.causes(),
             "judged_on": self.judged_on,
         }

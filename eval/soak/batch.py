@@ -155,7 +155,6 @@ class SessionBatch:
         film: bool = False,
     ):
         from deploy.backends.sim.plant import SimBackend
-        from deploy.policy.onnx_policy import OnnxPolicy
         from deploy.runtime import Runtime
         from robots import load_robot
 
@@ -173,7 +172,7 @@ class SessionBatch:
         self.write_progress = progress
         self.on_progress = on_progress
         robot = self.robot = load_robot(first.robot)
-        self.policy = OnnxPolicy(first.policy, robot)
+        self.policy = first.load_policy(robot)
         self.policy_sha256 = sha256_file(first.policy)
         self.mode = mode = self.policy.spec.action.mode
         self.dt = dt = robot.control_period

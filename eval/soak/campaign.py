@@ -142,7 +142,6 @@ def run_campaign(
         SessionError: bad options (named).
         ValueError: unreadable robot or policy; eval.soak.checkpoint.CheckpointError when resuming.
     """
-    from deploy.policy.onnx_policy import OnnxPolicy
     from robots import load_robot
 
     if not isinstance(sessions, int) or sessions < 1:
@@ -153,7 +152,7 @@ def run_campaign(
         raise SessionError(f"workers: expected an integer >= 1, got {workers}")
     out = Path(out)
     robot = load_robot(template.robot)
-    OnnxPolicy(template.policy, robot)  # bad input fails here, before any worker starts
+    template.load_policy(robot)  # bad input fails here, before any worker starts
     configs = [replace(template, seed=template.seed + i) for i in range(sessions)]
     if not resume:
         for c in configs:

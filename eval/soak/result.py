@@ -60,6 +60,7 @@ def locomotion_result(session: Session) -> dict:
         "final_command": [float(x) for x in rt.velocity_command[e]],
         "falls": falls,
         "falls_per_hour": falls / sim_h if sim_h > 0 else 0.0,
+        "falls_by_cause": tr.causes(e),
         "fall_stops": int(rt.counters.faults["fall"][e]),
         "stood_up": session.stood_up,
         "tracking_success": float(tr.tracked_time[e]) / running if running else None,

@@ -72,6 +72,7 @@ class SessionConfig:
         faults: Inject the seeded fault schedule.
         ranges: What the randomization draws from.
         window_minutes: Simulated minutes per window of the windowed goal success rate.
+        spec: PolicySpec JSON for an ONNX without our metadata (``deploy-run --spec``), or None.
     """
 
     robot: str = "arm3"
@@ -86,6 +87,7 @@ class SessionConfig:
     faults: bool = True
     ranges: SessionRanges = field(default_factory=SessionRanges)
     window_minutes: float = 10.0
+    spec: str | None = None
 
     def __post_init__(self):
         def bad(name: str, expected: str) -> SessionError:
@@ -115,6 +117,22 @@ class SessionConfig:
     def to_dict(self) -> dict:
         """JSON-ready options (tuples become lists)."""
         return json.loads(json.dumps(asdict(self)))
+
+    def load_policy(self, robot):
+        """The session's :class:`~deploy.policy.onnx_policy.OnnxPolicy` for ``robot``: the ONNX
+        ``policy`` with the contract of ``spec`` when given, else its own metadata.
+
+        Raises:
+            deploy.policy.onnx_policy.PolicyLoadError, deploy.spec.policy_spec.SpecError: an
+                unreadable policy or spec (the message names the file).
+        """
+        from deploy.policy.onnx_policy import OnnxPolicy
+        from deploy.spec.policy_spec import PolicySpec
+
+        spec = None
+        if self.spec is not None:
+            spec = PolicySpec.from_json(Path(self.spec).read_text(), source=self.spec)
+        return OnnxPolicy(self.policy, robot, spec=spec)
 
     def batch_key(self) -> dict:
         """The options sessions of one batch must share (all but the seed)."""

@@ -112,6 +112,19 @@ def test_cable_fault_pulls_along_gravity_then_lets_go(arm3):
     assert Fault.parse("cable@30:20") == Fault("cable", 30.0, 20.0)
 
 
+def test_inject_takes_a_magnitude_where_the_fault_has_one():
+    assert Fault.parse("latency=1@3:2") == Fault("latency", 3.0, 2.0, magnitude=1.0)
+    assert Fault.parse("push=80@5:0.2") == Fault("push", 5.0, 0.2, magnitude=80.0)
+    for text, message in (
+        ("stale=2@1", "stale takes no MAGNITUDE"),
+        ("latency=1.5@1", "latency MAGNITUDE is whole control ticks"),
+        ("push=-3@1", "expected MAGNITUDE > 0"),
+        ("push=x@1", "MAGNITUDE, SECONDS and DURATION must be numbers"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            Fault.parse(text)
+
+
 def test_cable_pull_loads_the_motors(arm3):
     """The sustained pull is a real load: the held arm's motors carry more torque."""
     backend = SimBackend(arm3)

@@ -92,8 +92,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         "--inject",
         action="append",
         default=[],
-        metavar="KIND@SECONDS[:DURATION]",
-        help="fault injection (sim): dropout, stale, nan-action, latency, push",
+        metavar="KIND[=MAGNITUDE]@SECONDS[:DURATION]",
+        help="fault injection (sim): dropout, stale, nan-action, latency, push, cable; "
+        "MAGNITUDE: latency ticks (default 10), push / cable force N (default 20 / 10)",
     )
     p.add_argument("--report", type=Path, default=None, help="write the summary as JSON")
     p.add_argument(

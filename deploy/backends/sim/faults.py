@@ -38,6 +38,8 @@ DEFAULT_DURATION = 0.5  # s
 LATENCY_SPIKE_TICKS = 10  # control ticks (50 ms at 200 Hz)
 PUSH_FORCE = 20.0  # N, a firm shove by hand
 CABLE_FORCE = 10.0  # N, a moderate sustained pull (a cable or hose of about 1 kg)
+#: The kinds that take a magnitude, and its unit.
+MAGNITUDE_UNITS = {"latency": "control ticks", "push": "N", "cable": "N"}
 
 
 @dataclass(frozen=True)
@@ -55,25 +57,39 @@ class Fault:
 
     @classmethod
     def parse(cls, text: str) -> Fault:
-        """Parse ``KIND@SECONDS[:DURATION]``.
+        """Parse ``KIND[=MAGNITUDE]@SECONDS[:DURATION]`` (``latency=1@3:2``: one extra tick of
+        encoder latency from 3 s for 2 s; ``push=80@5:0.2``: 80 N for 0.2 s).
 
         Raises:
             ValueError: naming the bad part and the expected form.
         """
-        kind, sep, when = text.partition("@")
+        form = "KIND[=MAGNITUDE]@SECONDS[:DURATION]"
+        head, sep, when = text.partition("@")
+        kind, eq, size = head.partition("=")
         if not sep or kind not in KINDS:
-            raise ValueError(
-                f"--inject {text!r}: expected KIND@SECONDS[:DURATION] with KIND one of {KINDS}"
-            )
+            raise ValueError(f"--inject {text!r}: expected {form} with KIND one of {KINDS}")
         start, _, duration = when.partition(":")
         try:
             t0 = float(start)
             dt = float(duration) if duration else DEFAULT_DURATION
+            magnitude = float(size) if eq else None
         except ValueError:
-            raise ValueError(f"--inject {text!r}: SECONDS and DURATION must be numbers") from None
+            raise ValueError(
+                f"--inject {text!r}: MAGNITUDE, SECONDS and DURATION must be numbers"
+            ) from None
         if t0 < 0 or dt <= 0:
             raise ValueError(f"--inject {text!r}: expected SECONDS >= 0 and DURATION > 0")
-        return cls(kind, t0, dt)
+        if magnitude is not None:
+            if kind not in MAGNITUDE_UNITS:
+                raise ValueError(
+                    f"--inject {text!r}: {kind} takes no MAGNITUDE (only "
+                    f"{', '.join(MAGNITUDE_UNITS)})"
+                )
+            if not (magnitude > 0 and np.isfinite(magnitude)):
+                raise ValueError(f"--inject {text!r}: expected MAGNITUDE > 0")
+            if kind == "latency" and magnitude != int(magnitude):
+                raise ValueError(f"--inject {text!r}: latency MAGNITUDE is whole control ticks")
+        return cls(kind, t0, dt, magnitude=magnitude)
 
     def active(self, t: float) -> bool:
         return self.start <= t < self.start + self.duration

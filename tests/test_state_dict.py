@@ -350,7 +350,7 @@ MODES = ("position", "velocity", "torque")
 #: stage -> (rig builder, its arguments after the robot); runtime rigs take tmp_path too
 STAGES = {
     "estimator-compiled": (estimator_rig, ("compiled",)),
-    "estimator-vectorized": (estimator_rig, ("vectorized",)),
+    "estimator-filterpy": (estimator_rig, ("filterpy",)),
     **{f"guard-{m}": (guard_rig, (m,)) for m in MODES},
     **{f"smoother-{m}": (smoother_rig, (m,)) for m in MODES},
     "sim-position": (sim_rig, ("position", False)),

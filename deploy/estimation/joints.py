@@ -27,11 +27,10 @@ and is counted in ``missing_readings``. Either way the *output* is the predictio
 latency is compensated by extrapolation, and a dropout is a predict-only step. Sensors at their
 own rates need nothing special: a slow sensor simply delivers fewer fresh readings.
 
-Three implementations give the same numbers (to rounding, ~1e-15): ``"compiled"`` (the default),
-the whole tick in one numba kernel (:mod:`deploy.estimation.kernel`); ``"vectorized"``, the same
-closed-form 2x2 algebra as ~70 numpy calls over (envs, n) that allocate nothing per tick; and
+Two implementations give the same numbers (to rounding, ~1e-15): ``"compiled"`` (the default),
+the whole tick in one numba kernel (:mod:`deploy.estimation.kernel`, closed-form 2x2 algebra), and
 ``"filterpy"``, one ``filterpy.kalman.KalmanFilter(dim_x=2, dim_z=1)`` per (env, joint), the
-reference the other two are tested against.
+reference the kernel is tested against.
 """
 
 from __future__ import annotations
@@ -46,7 +45,7 @@ from deploy.state import RobotState
 from deploy.stateful import put, take
 from robots import Robot
 
-IMPLEMENTATIONS: tuple[str, ...] = ("compiled", "vectorized", "filterpy")
+IMPLEMENTATIONS: tuple[str, ...] = ("compiled", "filterpy")
 
 #: Default process noise standard deviation as a fraction of the joint's acceleration limit.
 #: Bar-Shalom, Li, Kirubarajan (2001), sec. 6.3.2, give 0.5 a_M <= sigma <= a_M as the practical
@@ -87,8 +86,8 @@ class JointStateEstimator:
             ``(2 pi / encoder_resolution) / sqrt(12)`` (uniform rounding error) so that ``R > 0``,
             and at ``sqrt(process_noise) dt^2 / MAX_TRACKING_INDEX`` (a velocity estimate that
             does not oscillate; ``dt`` the control period).
-        implementation: ``"compiled"`` (default, one numba kernel per tick), ``"vectorized"``
-            (numpy) or ``"filterpy"`` (reference).
+        implementation: ``"compiled"`` (default, one numba kernel per tick) or ``"filterpy"``
+            (reference).
 
     Attributes:
         covariance: (envs, n, 2, 2) covariance of ``[q, dq]`` at ``filter_time`` (rad^2,
@@ -177,14 +176,10 @@ class JointStateEstimator:
         self._one_int = np.ones(shape, dtype=np.int64)
         self._now = np.zeros(shape)
         self._now_t = self._now.T  # (n, envs) view: broadcasts frame.time (envs,) into _now
-        names = ("dt", "dt2", "hdt", "q00", "q01", "q11", "a00", "a01", "a11", "s", "k0", "k1")
-        self._w = {k: np.empty(shape) for k in (*names, "y", "tmp", "det", "xp0", "vp1")}
-        self._nx = np.empty((2, envs, n))
-        self._np = np.empty((4, envs, n))
+        self._w = {k: np.empty(shape) for k in ("tmp", "det")}
         self._count = np.empty(shape, dtype=np.int64)
         # row views, made once (unpacking a (2, envs, n) array every tick would create them anew)
         self._xv, self._pv = tuple(self._x), tuple(self._p)
-        self._nxv, self._npv = tuple(self._nx), tuple(self._np)
         self._valid = np.empty(shape, dtype=bool)
         self._fresh = np.empty(shape, dtype=bool)
         self._mask = np.empty(shape, dtype=bool)
@@ -395,10 +390,7 @@ class JointStateEstimator:
             if not self._check():
                 self._reinitialize(z, ts)
             if np.count_nonzero(fresh):
-                if self.implementation == "vectorized":
-                    self._absorb_vectorized(z, ts)
-                else:
-                    self._absorb_filterpy(z, ts)
+                self._absorb_filterpy(z, ts)
                 np.copyto(tf, ts, where=fresh)
                 if not self._check():
                     self._reinitialize(z, ts)
@@ -447,66 +439,6 @@ class JointStateEstimator:
     def _increment(self, counter: np.ndarray, mask: np.ndarray) -> None:
         np.add(counter, self._one_int, out=self._count)
         np.copyto(counter, self._count, where=mask)
-
-    def _absorb_vectorized(self, z: np.ndarray, ts: np.ndarray) -> None:
-        """Closed-form predict + update of every joint; the results are kept where fresh.
-
-        Elsewhere the arithmetic runs on whatever is there (NaN readings included) and is
-        discarded: nothing reaches the filter state but fresh readings.
-        """
-        w, fresh = self._w, self._fresh
-        x0, x1 = self._xv
-        p00, p01, p10, p11 = self._pv
-        dt, dt2, hdt, tmp = w["dt"], w["dt2"], w["hdt"], w["tmp"]
-        q00, q01, q11 = w["q00"], w["q01"], w["q11"]
-        a00, a01, a11, s, k0, k1, y = w["a00"], w["a01"], w["a11"], w["s"], w["k0"], w["k1"], w["y"]
-        nx0, nx1 = self._nxv
-        np00, np01, np10, np11 = self._npv
-        xp0 = w["xp0"]
-        # F = [[1, dt], [0, 1]], Q = var [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]
-        np.subtract(ts, self.filter_time, out=dt)
-        np.multiply(dt, dt, out=dt2)
-        np.multiply(dt, self._half, out=hdt)
-        np.multiply(self._var, dt2, out=q11)
-        np.multiply(q11, hdt, out=q01)
-        np.multiply(q01, hdt, out=q00)
-        # prior: x = F x, P = F P F' + Q (as filterpy's dot(dot(F, P), F.T) + Q)
-        np.multiply(dt, x1, out=tmp)
-        np.add(x0, tmp, out=xp0)
-        # control input: x += B u, B = [dt^2 / 2, dt]
-        u, vp1 = self._u, w["vp1"]
-        np.multiply(hdt, dt, out=tmp)
-        np.multiply(tmp, u, out=tmp)
-        np.add(xp0, tmp, out=xp0)
-        np.multiply(dt, u, out=tmp)
-        np.add(x1, tmp, out=vp1)
-        np.multiply(dt, p11, out=tmp)
-        np.add(p01, tmp, out=a01)  # (F P)_01 = (F P F')_01 - Q_01
-        np.multiply(dt, p10, out=tmp)
-        np.add(p00, tmp, out=a00)  # (F P)_00
-        np.multiply(dt, a01, out=tmp)
-        np.add(a00, tmp, out=a00)
-        np.add(a00, q00, out=a00)
-        np.add(a01, q01, out=a01)
-        np.add(p11, q11, out=a11)
-        # posterior: S = P_00 + R, K = P H' / S, x += K (z - x_0); Joseph form of filterpy,
-        # (I - KH) P (I - KH)' + K R K', in closed form for the optimal gain
-        np.add(a00, self._r, out=s)
-        np.divide(a00, s, out=k0)
-        np.divide(a01, s, out=k1)
-        np.subtract(z, xp0, out=y)
-        np.multiply(k0, y, out=tmp)
-        np.add(xp0, tmp, out=nx0)
-        np.multiply(k1, y, out=tmp)
-        np.add(vp1, tmp, out=nx1)
-        np.subtract(self._one, k0, out=tmp)
-        np.multiply(tmp, a00, out=np00)  # a00 R / S
-        np.multiply(tmp, a01, out=np01)  # a01 R / S
-        np.copyto(np10, np01)
-        np.multiply(k1, a01, out=np11)
-        np.subtract(a11, np11, out=np11)  # a11 - a01^2 / S
-        np.copyto(self._x, self._nx, where=fresh)
-        np.copyto(self._p, self._np, where=fresh)
 
     def _absorb_filterpy(self, z: np.ndarray, ts: np.ndarray) -> None:
         """The reference: filterpy's predict + update, one filter per fresh (env, joint)."""

@@ -1,12 +1,10 @@
 """The compiled tick of :class:`~deploy.estimation.joints.JointStateEstimator` (numba).
 
-One call does, per (env, joint), what the ``"vectorized"`` implementation does with ~70 numpy
-calls on (envs, n) arrays: classify the reading (missing, stale, fresh), check the filter, absorb
-a fresh reading (the same closed-form predict + update as ``filterpy.kalman.KalmanFilter``,
-``predict()`` then ``update(z)`` with the Joseph form), check again and write the prediction to
-the frame's time. One compiled call replaces the per-call overhead of those numpy calls (the
-measured gain: ``docs/measurements.md``; current cost: ``make bench``); the arithmetic and its
-order are those of ``_absorb_vectorized`` (equal to ~1e-15).
+One call does, per (env, joint): classify the reading (missing, stale, fresh), check the
+filter, absorb a fresh reading (the same closed-form predict + update as
+``filterpy.kalman.KalmanFilter``, ``predict()`` then ``update(z)`` with the Joseph form), check
+again and write the prediction to the frame's time, in one compiled call per tick (its cost:
+``make bench``). It equals the ``"filterpy"`` reference to rounding (~1e-15).
 
 The kernel stops where the estimator must re-initialize a degenerate joint (the rare path, left to
 Python) and is called again from the phase after it:

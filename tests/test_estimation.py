@@ -385,3 +385,17 @@ def test_a_fine_encoder_at_a_slow_rate_gives_a_velocity_that_does_not_oscillate(
     # rad/s, against a peak speed of 7.9 rad/s that reverses at once (22 rad/s uncapped)
     assert rms < 6.0, rms
     assert max(jumps) < 0.1, jumps
+
+
+def test_a_run_warns_about_joints_the_filter_keeps_reinitializing():
+    from deploy.estimation.joints import REINIT_WARNING_RATE, reinit_warning
+
+    names = ("hip", "knee")
+    seconds = 20.0
+    rare = np.array([[1, 0], [0, 2]])  # a few, from injected faults: no warning
+    assert reinit_warning(names, rare, seconds) is None
+    every_tick = np.array([[0, 1000], [0, 1000]])
+    text = reinit_warning(names, every_tick, seconds)
+    assert "knee 2000 times in 20.0 s" in text and "hip" not in text
+    edge = int(REINIT_WARNING_RATE * seconds) * 2  # exactly the rate over two envs: no warning
+    assert reinit_warning(names, np.array([[edge // 2, 0], [edge // 2, 0]]), seconds) is None

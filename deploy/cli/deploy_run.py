@@ -137,6 +137,7 @@ def _run_opened(
     args, robot, policy, backend, simulated, realtime, injector, clock, fixed, rt_request=None
 ) -> int:
     from deploy.backends.sim.plant import SimulationDivergedError
+    from deploy.estimation.joints import reinit_warning
     from deploy.monitors.interventions import InterventionMonitor
     from deploy.monitors.violations import HARD_VIOLATION_TYPES, ViolationMonitor
     from deploy.observe.telemetry import LatencyHistogram, Telemetry
@@ -299,6 +300,9 @@ def _run_opened(
                 "stale_readings": int(rt.estimator.stale_readings.sum()),
                 "missing_readings": int(rt.estimator.missing_readings.sum()),
                 "reinitializations": int(rt.estimator.reinitializations.sum()),
+                "warning": reinit_warning(
+                    robot.joint_names, rt.estimator.reinitializations_per_joint, rt.time
+                ),
             },
             "injected": injector.log if injector else [],
             "drive_errors": [

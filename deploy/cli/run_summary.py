@@ -72,6 +72,8 @@ def print_summary(r: dict) -> None:
         f"missing {f['estimator']['missing_readings']}, re-inits "
         f"{f['estimator']['reinitializations']}"
     )
+    if f["estimator"].get("warning"):
+        print(f"  WARNING           {f['estimator']['warning']}")
     for text in f.get("drive_errors", []):
         print(f"  servo error       {text}")
     b = r.get("bus")

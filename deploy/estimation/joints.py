@@ -70,6 +70,35 @@ MAX_TRACKING_INDEX = 3.0
 #: uncertainty of several times the fastest possible speed means the filter has lost track.
 VELOCITY_SIGMA_BOUND = 10.0
 
+#: Re-initializations per joint per second above which a run warns (our choice): a filter that
+#: fits the joint never degenerates; injected faults (a stale or non-finite reading) make a few in
+#: a run; one that re-initializes every few ticks has process noise, measurement noise or a
+#: covariance bound that does not fit the motion (its velocity estimate is then noise).
+REINIT_WARNING_RATE = 0.1
+
+
+def reinit_warning(joint_names, reinitializations: np.ndarray, seconds: float) -> str | None:
+    """A one-line warning naming the joints re-initialized more often than
+    :data:`REINIT_WARNING_RATE` per second over ``seconds`` s of ``envs`` robots
+    (``reinitializations`` (envs, n) counts), or None."""
+    if seconds <= 0:
+        return None
+    counts = np.asarray(reinitializations).sum(axis=0)
+    rate = counts / (seconds * np.asarray(reinitializations).shape[0])
+    bad = [
+        (name, int(c))
+        for name, c, r in zip(joint_names, counts, rate, strict=True)
+        if r > REINIT_WARNING_RATE
+    ]
+    if not bad:
+        return None
+    listed = ", ".join(f"{name} {c}" for name, c in bad)
+    return (
+        f"the joint estimator re-initialized {listed} times in {seconds:.1f} s (more than "
+        f"{REINIT_WARNING_RATE:g} per s): its velocity estimate is unreliable; check the joint's "
+        "acceleration_limit (its process noise) and the encoder noise in robot.toml"
+    )
+
 
 class JointStateEstimator:
     """Kalman filter of joint position and velocity for ``envs`` robots of ``n`` joints.

@@ -26,7 +26,7 @@ from deploy.backends.sim.plant import SimBackend
 from deploy.observe.telemetry import LatencyHistogram
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import FAULT_CAUSES, Mode, Runtime
-from deploy.safety.guard import CHECKS
+from deploy.safety.checks import CHECKS
 from deploy.spec.policy_spec import ObservationBlock, PolicySpec
 from deploy.state import Kinematics, RobotState
 from tests.runtime_fixtures import adversarial_onnx

@@ -4,8 +4,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from deploy.safety.checks import CHECKS
 from deploy.safety.collision import collision_model
-from deploy.safety.guard import CHECKS, SafetyGuard
+from deploy.safety.guard import SafetyGuard
 from deploy.smoothing import stopping_distance
 from deploy.state import RobotState
 from robots import load_robot

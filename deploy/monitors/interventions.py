@@ -36,7 +36,7 @@ import numpy as np
 
 from deploy.monitors import kernel as mk
 from deploy.monitors.violations import MonitorState
-from deploy.safety.guard import CHECKS as GUARD_CHECKS
+from deploy.safety.checks import CHECKS as GUARD_CHECKS
 
 INTERVENTION_CHECKS = (
     "hard_limit",
@@ -77,7 +77,7 @@ class InterventionMonitor(MonitorState):
 
     def __init__(self, guard, smoother, reference: bool = False):
         if GUARD_CHECKS[0] != "soft_limit":  # the rows below rely on the guard's order
-            raise RuntimeError("deploy.safety.guard.CHECKS must start with 'soft_limit'")
+            raise RuntimeError("deploy.safety.checks.CHECKS must start with 'soft_limit'")
         self.mode = guard.mode
         self.reference = bool(reference)
         self.envs = envs = guard.envs

@@ -56,6 +56,7 @@ import numpy as np
 import pinocchio as pin
 
 from deploy.safety import kernel as gk
+from deploy.safety.checks import CHECKS, row
 from deploy.safety.collision import collision_model, collision_query
 from deploy.safety.envelope import MotionEnvelope
 from deploy.smoothing import stopping_speed
@@ -70,7 +71,6 @@ from robots.chain_bounds import (
 )
 from robots.thermal import EffortDerating
 
-CHECKS = ("soft_limit", "hard_limit", "velocity", "workspace", "self_collision", "effort")
 #: Slack of the screens, m (round-off of the kinematics): a check runs when within it.
 SCREEN_MARGIN = 1e-9
 # rad: a position target this close past a hard limit is at the limit. An absolute position
@@ -168,7 +168,7 @@ class SafetyGuard:
                 reach,
                 s.clearance_margin,
             )
-        self._geometric_rows = [CHECKS.index("self_collision"), CHECKS.index("workspace")]
+        self._geometric_rows = [row("self_collision"), row("workspace")]
         self._counted = np.zeros((2, envs), dtype=np.int64)  # those rows when filter began
         self._move = np.zeros(envs)
         self._held = np.zeros(envs, dtype=bool)
@@ -397,9 +397,9 @@ class SafetyGuard:
             return command
         unsafe = envelope.unsafe
         braked = unsafe[0] | unsafe[1]
-        for k, row in enumerate(self._geometric_rows):
-            first = unsafe[k] & (self.count_matrix[row] == self._counted[k])
-            self.count_matrix[row] += first
+        for k, r in enumerate(self._geometric_rows):
+            first = unsafe[k] & (self.count_matrix[r] == self._counted[k])
+            self.count_matrix[r] += first
         smoother.brake(braked, envelope.joints)
         command[braked] = smoother.command[braked]
         return command

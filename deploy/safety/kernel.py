@@ -8,7 +8,7 @@ check could fire; otherwise it goes on with phase 1. Phase 1 keeps the last acce
 (position mode) and clamps torques to the derated effort limit (torque mode).
 
 Arrays: ``lim`` (``ROWS``, n) float64 per-joint constants; ``counts`` the guard's
-``count_matrix`` (``deploy.safety.guard.CHECKS`` order); ``checks`` (3, envs) bool, rows workspace,
+``count_matrix`` (rows: :mod:`deploy.safety.checks`); ``checks`` (3, envs) bool, rows workspace,
 self-collision, effort (which envs' Pinocchio checks must run).
 """
 
@@ -20,6 +20,7 @@ import numba
 import numpy as np
 
 from deploy.kernels import np_max, np_min, pairs_may_touch, row_sum
+from deploy.safety.checks import row
 
 #: Rows of ``lim``.
 LOWER, UPPER, TARGET_LOWER, TARGET_UPPER, SOFT_LOWER, SOFT_UPPER = 0, 1, 2, 3, 4, 5
@@ -28,8 +29,9 @@ EE_LEVER = 12  # m per rad: bound of the end effector's displacement per radian 
 ROWS = 13
 #: Modes.
 POSITION, VELOCITY, TORQUE = 0, 1, 2
-#: Rows of the count matrix (deploy.safety.guard.CHECKS).
-SOFT_LIMIT, HARD_LIMIT, VELOCITY_CHECK, WORKSPACE, SELF_COLLISION, EFFORT_CHECK = range(6)
+#: Rows of the count matrix (deploy.safety.checks).
+SOFT_LIMIT, HARD_LIMIT, VELOCITY_CHECK = row("soft_limit"), row("hard_limit"), row("velocity")
+EFFORT_CHECK = row("effort")
 #: Return bits.
 NEEDS_GOVERNOR, NEEDS_SCREENS = 1, 2
 

@@ -1,0 +1,75 @@
+"""What ``deploy-run`` says and does about a policy's contract before it runs it.
+
+- :func:`contract_messages`: the lines it prints for a policy whose spec came from its training
+  stack's own contract (:mod:`deploy.spec.foreign`): where it was read, what stood in for what
+  was missing, the assumptions; and, for any policy that observes the base's linear velocity, that
+  it gets the runtime's estimate.
+- :func:`drive_robot`: the robot with the policy's PD gains and default pose
+  (:func:`robots.drive.with_drive`) when they differ from robot.toml, and the differences.
+- :func:`check_drive_applied`: a backend other than the simulated plant cannot set its drives'
+  gains: a differing drive is then refused, with the values.
+"""
+
+from __future__ import annotations
+
+from deploy.spec.drive import drive_differences
+from deploy.spec.policy_spec import PolicySpec
+
+
+def contract_messages(policy) -> list[str]:
+    """``deploy-run: note: ...`` / ``deploy-run: warning: ...`` lines for ``policy`` (an
+    :class:`~deploy.policy.onnx_policy.OnnxPolicy`)."""
+    out = []
+    contract = getattr(policy, "foreign", None)
+    if contract is not None:
+        out.append(
+            f"deploy-run: note: {contract.format} policy: spec built from its {contract.source}"
+        )
+        lines = ([contract.joint_order_note] if contract.joint_order_note else []) + list(
+            contract.missing
+        )
+        out += [f"deploy-run: note: {contract.format} policy: {line}" for line in lines]
+    if any(b.name == "base_linear_velocity" for b in policy.spec.observation_blocks):
+        terms = contract.base_velocity_terms() if contract is not None else []
+        named = f" (term {', '.join(map(repr, terms))})" if terms else ""
+        out.append(
+            f"deploy-run: warning: the policy observes the base's linear velocity{named}: it gets "
+            "the runtime's base estimator's estimate (IMU and leg-odometry Kalman filter, "
+            "deploy.estimation.base), not a measurement; its error is the policy's input error"
+        )
+    return out
+
+
+def drive_robot(robot, spec: PolicySpec):
+    """``(robot to run, differences)``: ``robot`` itself when the spec's drive agrees with
+    robot.toml (or records none), else the robot with the policy's kp, kd and default pose as
+    its home; ``differences`` is :func:`deploy.spec.drive.drive_differences`' dict.
+
+    Raises:
+        RobotSpecError: the policy's drive does not fit the robot (a default pose outside the
+            joint limits).
+    """
+    differences = drive_differences(spec.drive, robot)
+    if not differences:
+        return robot, {}
+    from robots.drive import with_drive
+
+    d = spec.drive
+    return with_drive(robot, kp=d.kp, kd=d.kd, home=d.default_pose), differences
+
+
+def check_drive_applied(differences: dict[str, str], simulated: bool, backend_name: str) -> None:
+    """Refuse differing PD gains on a backend that cannot set them (anything but the simulated
+    plant); a differing default pose is the runtime's home on any backend.
+
+    Raises:
+        ValueError: naming the backend and the differing gains.
+    """
+    gains = [line for key, line in differences.items() if key in ("kp", "kd")]
+    if gains and not simulated:
+        raise ValueError(
+            f"the policy was trained with other PD gains than robot.toml's "
+            f"({'; '.join(gains)}); the {backend_name} backend cannot set its drives' "
+            "gains: set kp, kd and control.home in robot.toml to the policy's values (or "
+            "retrain)"
+        )

@@ -25,10 +25,7 @@ def contract_messages(policy) -> list[str]:
         out.append(
             f"deploy-run: note: {contract.format} policy: spec built from its {contract.source}"
         )
-        lines = ([contract.joint_order_note] if contract.joint_order_note else []) + list(
-            contract.missing
-        )
-        out += [f"deploy-run: note: {contract.format} policy: {line}" for line in lines]
+        out += [f"deploy-run: note: {contract.format} policy: {line}" for line in contract.missing]
     if any(b.name == "base_linear_velocity" for b in policy.spec.observation_blocks):
         terms = contract.base_velocity_terms() if contract is not None else []
         named = f" (term {', '.join(map(repr, terms))})" if terms else ""

@@ -281,7 +281,8 @@ class PolicySpec:
         return self.action.size
 
     def block_slices(self) -> dict[str, slice]:
-        """Where each block sits in the observation vector."""
+        """Where each block sits in the observation vector, by kind (a kind that occurs in two
+        blocks, as a velocity command split into its linear and yaw entries: the last)."""
         out, start = {}, 0
         for b in self.observation_blocks:
             out[b.name] = slice(start, start + b.size)
@@ -335,6 +336,10 @@ class PolicySpec:
                 "last_action": n,
                 "winding_temperature": n,
             }.get(b.name, FIXED_SIZES.get(b.name))
+            if b.name in ("last_action", "winding_temperature") and sorted(b.joints) != list(
+                range(n)
+            ):
+                raise SpecError(f"{where}: joints must cover every joint once, got {b.joints}")
             if b.name == "foot_contact":
                 expected = b.size  # the robot's feet: check_robot
             if b.components:

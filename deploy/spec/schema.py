@@ -85,7 +85,7 @@ class ObservationBlockDocument(_Doc):
         default=None,
         description=(
             "Joints read, in order (indices into joint_names, or names); default every joint. "
-            "last_action and winding_temperature always cover every joint."
+            "last_action and winding_temperature cover every joint (in any order)."
         ),
     )
     components: list[int] | None = Field(
@@ -204,7 +204,7 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
     n = len(names)
     blocks = []
     for i, b in enumerate(doc.observation):
-        if b.joints is None or b.name in ("last_action", "winding_temperature"):
+        if b.joints is None:
             joints = tuple(range(n)) if b.name in _JOINT_KINDS else ()
         else:
             where = f"observation[{i}] ('{b.name}').joints"

@@ -53,6 +53,10 @@ UNMAPPED = {
     "joint_pos_limit_normalized": "joint positions normalized by the simulator's soft limits",
 }
 _ALL_JOINTS = (None, [".*"], ".*")
+ORDER_NOTE = (
+    "not in any file; Isaac Lab's articulation order assumed (PhysX: breadth first over the "
+    "robot's kinematic tree)"
+)
 
 
 def detect(facts) -> bool:
@@ -130,6 +134,7 @@ def read(facts) -> ForeignContract:
         )
     robot = get(env, "scene", "robot")
     gains, missing, notes = _gains(robot)
+    missing.insert(0, f"joint order: {ORDER_NOTE}")
     clip = _action_clip(action, env_path, fail)
     dt, decimation = get(env, "sim", "dt"), get(env, "decimation")
     found = [
@@ -147,10 +152,7 @@ def read(facts) -> ForeignContract:
         act_dim=facts.act_dim,
         joint_names=None,
         joint_order_rule="breadth_first",
-        joint_order_note=(
-            "joint order: not in any file; Isaac Lab's articulation order assumed (PhysX: "
-            "breadth first over the robot's kinematic tree)"
-        ),
+        joint_order_note=ORDER_NOTE,
         terms=tuple(terms),
         default_pose=_patterns(robot.get("init_state", {}).get("joint_pos"), default=0.0),
         action_scale=_patterns(action.get("scale", 1.0)),

@@ -70,13 +70,14 @@ def joint_permutation(contract: ForeignContract, robot: Robot) -> tuple[int, ...
 
 
 def _entries(term: Term, value, size: int, contract: ForeignContract) -> np.ndarray:
-    v = np.broadcast_to(np.asarray(value, dtype=float), (size,)) if np.ndim(value) == 0 else None
-    if v is None:
-        v = np.asarray(value, dtype=float)
-        if v.shape != (size,):
-            raise contract.error(
-                f"observation term '{term.name}': {v.size} scale entries, the term has {size}"
-            )
+    """A term's multiplier, one per entry (one number: the same for every entry)."""
+    v = np.asarray(value, dtype=float)
+    if v.ndim == 0:
+        return np.full(size, float(v))
+    if v.shape != (size,):
+        raise contract.error(
+            f"observation term '{term.name}': {v.size} scale entries, the term has {size}"
+        )
     return v
 
 

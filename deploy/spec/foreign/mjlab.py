@@ -112,7 +112,7 @@ def read(facts) -> ForeignContract:
     for i, name in enumerate(observation):
         scale = _scale(per_term, i, fail)
         clip, clip_reason = _clip(per_term, i, scale, fail)
-        history = float(per_term.get("observation_terms_history_length", ["0"])[i] or 0)
+        history = _history(per_term, i, fail)
         kind, size = TERMS.get(name, (None, 0))
         reason = UNMAPPED.get(name, "not a term of mjlab's velocity task (mapped by name)")
         if name == "command" and "twist" not in commands:
@@ -166,6 +166,17 @@ def _scale(per_term: dict, i: int, fail) -> float | tuple[float, ...]:
     except ValueError:
         raise fail(f"metadata 'observation_terms_scale' entry {i} = {text!r}") from None
     return values[0] if len(values) == 1 else values
+
+
+def _history(per_term: dict, i: int, fail) -> float:
+    """Steps of history of term ``i`` (0: none, also when the key is not recorded)."""
+    if "observation_terms_history_length" not in per_term:
+        return 0.0
+    text = per_term["observation_terms_history_length"][i]
+    try:
+        return float(text or 0)
+    except ValueError:
+        raise fail(f"metadata 'observation_terms_history_length' entry {i} = {text!r}") from None
 
 
 def _clip(per_term: dict, i: int, scale, fail) -> tuple[float | None, str]:

@@ -10,7 +10,7 @@ inputs and outputs). :class:`~deploy.policy.onnx_policy.OnnxPolicy` (a file with
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
@@ -50,7 +50,6 @@ class OnnxFacts:
     outputs: tuple[str, ...]
     obs_dim: int | None = None
     act_dim: int | None = None
-    shapes: dict[str, list] = field(default_factory=dict)
 
     @classmethod
     def of(cls, path: str | Path, model: onnx.ModelProto) -> OnnxFacts:
@@ -59,7 +58,6 @@ class OnnxFacts:
         init = {t.name for t in graph.initializer}
         init |= {s.values.name for s in graph.sparse_initializer}
         ins = [i for i in graph.input if i.name not in init]
-        shapes = {v.name: _dims(v) for v in list(ins) + list(graph.output)}
 
         def last(vi) -> int | None:
             d = _dims(vi)
@@ -77,7 +75,6 @@ class OnnxFacts:
             outputs=tuple(o.name for o in graph.output),
             obs_dim=last(primary) if primary is not None else None,
             act_dim=last(action) if action is not None else None,
-            shapes=shapes,
         )
 
     def failure(self, fmt: str):

@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from deploy.cli.deploy_run import deploy_run_main
-from deploy.cli.policy_contract import check_drive_applied, drive_robot
+from deploy.cli.policy_contract import check_drive_applied
 from deploy.export.cli import main as policy_export_main
 from deploy.policy.onnx_policy import OnnxPolicy, PolicyLoadError
+from deploy.spec.drive import drive_robot
 from deploy.spec.policy_spec import PolicySpec
 from deploy.state import RobotState
 from tests import foreign_stacks as fs

@@ -43,10 +43,11 @@ import numpy as np
 
 from deploy.backends.base import SimulatedPlant
 from deploy.backends.registry import make_backend
-from deploy.cli.policy_contract import check_drive_applied, contract_messages, drive_robot
+from deploy.cli.policy_contract import check_drive_applied, contract_messages
 from deploy.cli.run_parser import build_parser
 from deploy.cli.run_summary import print_summary
 from deploy.monitors.kernel import motion_statistics
+from deploy.spec.drive import drive_robot
 from deploy.tasks.goals import GoalScheduler
 from robots.files import atomic_write
 

@@ -4,16 +4,13 @@
   stack's own contract (:mod:`deploy.spec.foreign`): where it was read, what stood in for what
   was missing, the assumptions; and, for any policy that observes the base's linear velocity, that
   it gets the runtime's estimate.
-- :func:`drive_robot`: the robot with the policy's PD gains and default pose
-  (:func:`robots.drive.with_drive`) when they differ from robot.toml, and the differences.
+- :func:`deploy.spec.drive.drive_robot` (used by deploy-run): the robot with the policy's PD
+  gains and default pose when they differ from robot.toml, and the differences.
 - :func:`check_drive_applied`: a backend other than the simulated plant cannot set its drives'
   gains: a differing drive is then refused, with the values.
 """
 
 from __future__ import annotations
-
-from deploy.spec.drive import drive_differences
-from deploy.spec.policy_spec import PolicySpec
 
 
 def contract_messages(policy) -> list[str]:
@@ -35,24 +32,6 @@ def contract_messages(policy) -> list[str]:
             "deploy.estimation.base), not a measurement; its error is the policy's input error"
         )
     return out
-
-
-def drive_robot(robot, spec: PolicySpec):
-    """``(robot to run, differences)``: ``robot`` itself when the spec's drive agrees with
-    robot.toml (or records none), else the robot with the policy's kp, kd and default pose as
-    its home; ``differences`` is :func:`deploy.spec.drive.drive_differences`' dict.
-
-    Raises:
-        RobotSpecError: the policy's drive does not fit the robot (a default pose outside the
-            joint limits).
-    """
-    differences = drive_differences(spec.drive, robot)
-    if not differences:
-        return robot, {}
-    from robots.drive import with_drive
-
-    d = spec.drive
-    return with_drive(robot, kp=d.kp, kd=d.kd, home=d.default_pose), differences
 
 
 def check_drive_applied(differences: dict[str, str], simulated: bool, backend_name: str) -> None:

@@ -7,9 +7,10 @@ relative to. Training stacks that write their contract into the ONNX file (mjlab
 ``drive``, left out when empty), one entry per joint in the spec's ``joint_names`` order.
 
 :func:`drive_differences` compares them with a robot's ``robot.toml`` (``kp``, ``kd``,
-``control.home``). ``deploy-run`` then runs the policy's contract: the simulated plant is built
-with the policy's gains and home pose (:func:`robots.drive.with_drive`); a backend that cannot set
-its drives' gains refuses the run with the values (``deploy.cli.deploy_run``).
+``control.home``); :func:`drive_robot` gives the robot that runs the policy's contract: the
+simulated plant is built with the policy's gains and home pose (:func:`robots.drive.with_drive`),
+in ``deploy-run`` and in the soak; a backend that cannot set its drives' gains refuses differing
+ones with the values (``deploy.cli.policy_contract``).
 """
 
 from __future__ import annotations
@@ -101,3 +102,22 @@ def _values(v: np.ndarray) -> str:
     if v.size and np.all(v == v[0]):
         return f"[{round(float(v[0]), 4)} x {v.size}]"
     return "[" + ", ".join(f"{round(float(x), 4)}" for x in v) + "]"
+
+
+def drive_robot(robot, spec):
+    """``(robot to run, differences)`` of a policy's ``spec`` (a PolicySpec): ``robot`` itself
+    when the spec's drive agrees with robot.toml (or records none), else the robot with the
+    policy's kp, kd and default pose as its home (:func:`robots.drive.with_drive`);
+    ``differences`` is :func:`drive_differences`' dict.
+
+    Raises:
+        RobotSpecError: the policy's drive does not fit the robot (a default pose outside the
+            joint limits).
+    """
+    differences = drive_differences(spec.drive, robot)
+    if not differences:
+        return robot, {}
+    from robots.drive import with_drive
+
+    d = spec.drive
+    return with_drive(robot, kp=d.kp, kd=d.kd, home=d.default_pose), differences

@@ -344,15 +344,7 @@ def load_robot(name_or_path: str | Path) -> Robot:
 
     frac = np.array([j.soft_limit_fraction for j in cfg.joints])
     centre, half = (upper + lower) / 2.0, (upper - lower) / 2.0
-    # The description a policy depends on: everything but the [task] and [soak] tables (where
-    # goals come from and how hard the soak pushes are the evaluation's business, not the
-    # robot's), in canonical form, and the MJCF bytes.
-    # Optional fields left unset (None) are left out, so that adding one to the schema changes no
-    # existing robot's hash. The MJCF is the file in the robot folder (package URIs unresolved).
-    described = json.dumps(
-        cfg.model_dump(exclude={"task", "soak"}, exclude_none=True, mode="json"), sort_keys=True
-    )
-    digest = hashlib.sha256(described.encode() + b"\0" + described_mjcf.read_bytes()).hexdigest()
+    digest = description_hash(cfg, described_mjcf.read_bytes())
     return Robot(
         name=cfg.name,
         directory=toml_path.parent,
@@ -380,6 +372,18 @@ def load_robot(name_or_path: str | Path) -> Robot:
         description_hash=digest,
         **legged,
     )
+
+
+def description_hash(cfg: RobotConfig, mjcf_bytes: bytes) -> str:
+    """sha256 (hex) of the description a policy depends on: every robot.toml field but the
+    ``[task]`` and ``[soak]`` tables (where goals come from and how hard the soak pushes are the
+    evaluation's business, not the robot's), in canonical JSON, and the MJCF bytes (the file in
+    the robot folder, package URIs unresolved). Optional fields left unset (None) are left out,
+    so that adding one to the schema changes no existing robot's hash."""
+    described = json.dumps(
+        cfg.model_dump(exclude={"task", "soak"}, exclude_none=True, mode="json"), sort_keys=True
+    )
+    return hashlib.sha256(described.encode() + b"\0" + mjcf_bytes).hexdigest()
 
 
 def _check_free_joint(toml_path: Path, mjcf: Path, mj_model: mujoco.MjModel, cfg) -> int:

@@ -43,9 +43,11 @@ import numpy as np
 
 from deploy.backends.base import SimulatedPlant
 from deploy.backends.registry import make_backend
+from deploy.cli.policy_contract import check_drive_applied, contract_messages
 from deploy.cli.run_parser import build_parser
 from deploy.cli.run_summary import print_summary
 from deploy.monitors.kernel import motion_statistics
+from deploy.spec.drive import drive_robot
 from deploy.tasks.goals import GoalScheduler
 from robots.files import atomic_write
 
@@ -75,6 +77,9 @@ def run(args) -> int:
     if args.spec:
         spec = PolicySpec.from_json(Path(args.spec).read_text(), source=args.spec)
     policy = OnnxPolicy(args.policy, robot, spec=spec)
+    for line in contract_messages(policy):
+        print(line, file=sys.stderr)
+    robot, drive = drive_robot(robot, policy.spec)  # the policy's PD gains and default pose
     faults = [Fault.parse(s) for s in args.inject]
     fixed = None
     if args.goal:
@@ -85,6 +90,13 @@ def run(args) -> int:
             raise ValueError(f"--goal {args.goal!r}: expected X,Y,Z in metres") from None
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
+    check_drive_applied(drive, simulated, args.backend)
+    for line in drive.values():
+        print(
+            f"deploy-run: warning: robot.toml differs from the policy's drive, which the "
+            f"run uses: {line}",
+            file=sys.stderr,
+        )
     realtime = bool(args.realtime) or not simulated  # hardware: the wall clock only
     injector = FaultInjector(faults, backend) if faults else None
     if realtime:

@@ -59,7 +59,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--inspect",
         action="store_true",
         help="print what SOURCE is (ONNX or any input format: inputs, outputs, recurrent state, "
-        "metadata, spec) and exit without exporting",
+        "metadata, spec; a training stack's own contract, mapped onto --robot when given) and "
+        "exit without exporting",
     )
     args = p.parse_args(argv)
     source = resolve_policy_path(args.source)
@@ -73,8 +74,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         from deploy.export.inspect_policy import InspectError, format_report, inspect_file
 
         try:
-            print(format_report(inspect_file(source)))
-        except InspectError as exc:
+            robot = None
+            if args.robot:
+                from robots import load_robot
+
+                robot = load_robot(args.robot)
+            print(format_report(inspect_file(source, robot)))
+        except (InspectError, ValueError) as exc:  # RobotSpecError is a ValueError
             print(f"policy-export: error: {exc}", file=sys.stderr)
             return EXIT_BAD_INPUT
         return EXIT_OK

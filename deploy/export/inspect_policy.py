@@ -8,7 +8,11 @@ format              what is reported
 ==================  ==========================================================================
 ONNX                inputs and outputs (name, shape, dtype; initializers excluded), recurrent
                     state pairs (``<name>_in`` -> ``<name>_out``; Godot RL's ``state_ins`` ->
-                    ``state_outs``), opset, producer, custom metadata, the embedded PolicySpec
+                    ``state_outs``), opset, producer, custom metadata, the embedded PolicySpec;
+                    without one, the training stack's own contract (mjlab, holosoma metadata,
+                    an Isaac Lab run folder: :mod:`deploy.spec.foreign`): what it records, how
+                    its terms map, what is missing, and with ``--robot`` the PolicySpec
+                    deploy-run would build
 our checkpoint      architecture, normalizer, embedded PolicySpec, training info keys
 TorchScript         buffers, submodules, ``forward`` signature; legged_gym's PolicyExporterLSTM
                     layout (its state buffers and the state I/O an export lifts them into)
@@ -128,7 +132,22 @@ def _state_io(rnn: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 # ---------------------------------------------------------------------- formats
-def _inspect_onnx(path: Path) -> dict[str, Any]:
+def _foreign(path: Path, model, robot) -> dict[str, Any] | None:
+    """The file's foreign contract (:func:`deploy.spec.foreign.report.summary`), or None."""
+    from deploy.spec import foreign
+    from deploy.spec.foreign.report import summary
+
+    facts = foreign.OnnxFacts.of(path, model)
+    fmt = foreign.detect_format(facts)
+    if fmt is None:
+        return None
+    try:
+        return summary(fmt.read(facts), robot)
+    except foreign.ForeignFormatError as exc:
+        return {"format": fmt.NAME, "source": "the file", "error": str(exc)}
+
+
+def _inspect_onnx(path: Path, robot=None) -> dict[str, Any]:
     import onnx
     from onnx import TensorProto
 
@@ -194,6 +213,8 @@ def _inspect_onnx(path: Path) -> dict[str, Any]:
     }
     if "policy_spec" in metadata:
         result["spec"] = _spec_summary(metadata["policy_spec"], f"{path}: metadata 'policy_spec'")
+    else:
+        result["foreign"] = _foreign(path, model, robot)
     if any(s["input"] == GODOT_STATE[0] for s in state):
         result["details"]["layout"] = "Godot RL Agents (state_ins / state_outs)"
     return result
@@ -424,14 +445,20 @@ def _inspect_torch(path: Path) -> dict[str, Any]:
     }
 
 
-def inspect_file(path: str | Path) -> dict[str, Any]:
+def inspect_file(path: str | Path, robot=None) -> dict[str, Any]:
     """What ``path`` is, as plain data.
+
+    Args:
+        path: The policy file. robot: Optional :class:`robots.Robot`: an ONNX file's foreign
+            contract is also mapped onto it.
 
     Returns:
         ``{"file", "format", "inputs", "outputs", "state", "metadata", "details", "spec"}``:
         ``inputs``/``outputs`` lists of ``{"name", "shape", "dtype"}``; ``state`` a list of
         ``{"input", "output", "shape", "dtype", ...}`` (empty: not recurrent); ``spec`` None or
-        ``{"json", "valid", "summary"[, "error"]}``.
+        ``{"json", "valid", "summary"[, "error"]}``; an ONNX file without our spec also has
+        ``foreign``: None or :func:`deploy.spec.foreign.report.summary`'s dict (``{"format",
+        "source", "error"}`` when the contract cannot be read).
 
     Raises:
         InspectError: missing, empty, unreadable or unrecognized file (naming it and why).
@@ -465,7 +492,7 @@ def inspect_file(path: str | Path) -> dict[str, Any]:
     elif head[:1] == b"\x80" or head.startswith(b"PK\x03\x04"):  # a pickle, or a cut zip
         result = _inspect_torch(path)
     else:
-        result = _inspect_onnx(path)  # protobuf has no magic number: try it
+        result = _inspect_onnx(path, robot)  # protobuf has no magic number: try it
     return {"file": str(path), **result}
 
 
@@ -514,6 +541,10 @@ def format_report(info: Mapping[str, Any]) -> str:
             lines.append(f"    {k}: {', '.join(v) if isinstance(v, list) else v}")
         if spec.get("json") is not None:
             lines.append("    json: " + json.dumps(spec["json"], sort_keys=True))
+    elif info.get("foreign"):
+        from deploy.spec.foreign.report import format_lines
+
+        lines += format_lines(info["foreign"])
     else:
         lines.append("  policy spec: none (give one with --spec FILE.json)")
     return "\n".join(lines)

@@ -21,7 +21,8 @@ Loading refuses (with :class:`PolicyLoadError`, naming the file and the problem)
     - a recurrent state input without a batch axis (not ``[layers, batch, hidden]``), or whose
       state output has another shape than the input (declared, or when run);
     - a spec that does not match the robot (``PolicySpec.check_robot``: robot name, joint names and
-      order, control rate, description hash) or a model without our metadata when no spec is given;
+      order, control rate, description hash) or a model without our metadata when no spec is given
+      and no training stack's own contract is found;
     - a spec passed in that contradicts the one stored in the file;
 
 Metadata written by ``policy-export`` (``model.metadata_props``, read with plain ONNX Runtime as
@@ -29,6 +30,11 @@ Metadata written by ``policy-export`` (``model.metadata_props``, read with plain
 JSON, with ``baked`` and ``parity`` filled), ``source_sha256``, ``tool_versions`` (JSON),
 ``parity`` (JSON), ``source_format``, ``exporter``. A foreign ONNX file without them is accepted
 when ``spec`` is given: its single data input and its output are discovered from the graph.
+Without ``spec``, a file that carries its training stack's own contract (mjlab's or holosoma's
+metadata, an Isaac Lab run folder: :mod:`deploy.spec.foreign`) gets the spec built from it
+(``foreign`` holds that contract); an unmappable contract is refused naming the term or joint.
+A spec whose ``action.joints`` orders the graph's outputs otherwise than ``joint_names`` has the
+output reordered into ``joint_names`` order (one ``np.take`` a call).
 
 Recurrent policies (LSTM ``h``, ``c``; GRU ``h``): every graph input ``<name>_in`` besides the
 observation that has a graph output ``<name>_out`` is recurrent state, shaped ``[layers, batch,
@@ -156,6 +162,8 @@ class OnnxPolicy:
     Attributes:
         path: The file. spec: The PolicySpec in force. metadata: The file's custom metadata
             (``str -> str``; ``policy_spec``, ``parity``, ``tool_versions`` hold JSON).
+        foreign: The :class:`~deploy.spec.foreign.ForeignContract` the spec was built from, or
+            None (our metadata or a given spec).
         input_name, output_name: Graph input and output used. obs_dim, act_dim: Sizes.
         states: The recurrent states (:class:`StateTensor`; empty for a feed-forward policy).
         recurrent: Whether there are any. session: The ``onnxruntime.InferenceSession``.
@@ -184,7 +192,9 @@ class OnnxPolicy:
             raise PolicyLoadError(f"{path}: the ONNX checker rejects the model: {exc}") from None
         check_finite_weights(model, path)
         self.metadata: dict[str, str] = {p.key: p.value for p in model.metadata_props}
-        self.spec = self._resolve_spec(path, spec)
+        #: The training stack's own contract the spec was built from (None: ours or --spec).
+        self.foreign = None
+        self.spec = self._resolve_spec(path, spec, model, robot)
         try:
             self.spec.check_robot(robot, check_hash=check_hash)
         except SpecError as exc:  # name the spec file the user gave, else the ONNX file
@@ -195,6 +205,9 @@ class OnnxPolicy:
             model, path
         )
         self.recurrent = bool(self.states)
+        joints = self.spec.action.joints
+        #: spec-order action entry i is graph output _to_spec_order[i] (None: the same order)
+        self._to_spec_order = None if not joints else np.argsort(np.asarray(joints))
 
         options = ort.SessionOptions()
         options.intra_op_num_threads = 1
@@ -256,7 +269,13 @@ class OnnxPolicy:
             raise PolicyLoadError(f"{path}: the ONNX model has no graph (truncated or corrupt?)")
         return model
 
-    def _resolve_spec(self, path: Path, spec: PolicySpec | str | os.PathLike | None) -> PolicySpec:
+    def _resolve_spec(
+        self,
+        path: Path,
+        spec: PolicySpec | str | os.PathLike | None,
+        model: onnx.ModelProto,
+        robot: Robot,
+    ) -> PolicySpec:
         stored = None
         if METADATA_SPEC in self.metadata:
             try:
@@ -272,8 +291,17 @@ class OnnxPolicy:
             except SpecError as exc:
                 raise PolicyLoadError(f"{path}: {exc}") from None
         if stored is None and given is None:
+            from deploy.spec import foreign
+
+            try:
+                self.foreign = foreign.read_contract(foreign.OnnxFacts.of(path, model))
+                if self.foreign is not None:
+                    return foreign.to_spec(self.foreign, robot)
+            except SpecError as exc:
+                raise PolicyLoadError(str(exc)) from None
             raise PolicyLoadError(
-                f"{path}: no '{METADATA_SPEC}' metadata (not written by policy-export); pass the "
+                f"{path}: no '{METADATA_SPEC}' metadata (not written by policy-export) and no "
+                f"training stack's own contract ({foreign.known_formats()}); pass the "
                 "policy's spec (spec=PolicySpec or a spec JSON file)"
             )
         if stored is not None and given is not None:
@@ -506,8 +534,10 @@ class OnnxPolicy:
             )
         self._obs = np.zeros((batch, self.obs_dim), np.float32)
         self._action = np.zeros((batch, self.act_dim), np.float32)
+        # the graph's outputs in its own joint order when it differs (spec action.joints)
+        self._graph_action = self._action if self._to_spec_order is None else self._action.copy()
         self._obs_value = ort.OrtValue.ortvalue_from_numpy(self._obs)
-        self._action_value = ort.OrtValue.ortvalue_from_numpy(self._action)
+        self._action_value = ort.OrtValue.ortvalue_from_numpy(self._graph_action)
         self._binding.clear_binding_inputs()
         self._binding.clear_binding_outputs()
         self._binding.bind_ortvalue_input(self.input_name, self._obs_value)
@@ -559,6 +589,8 @@ class OnnxPolicy:
             self._bind(obs.shape[0])
         np.copyto(self._obs, obs, casting="same_kind")
         self.session.run_with_iobinding(self._binding)
+        if self._to_spec_order is not None:
+            np.take(self._graph_action, self._to_spec_order, axis=1, out=self._action)
         if self._state_pairs:
             for state_in, state_out in self._state_pairs:
                 np.copyto(state_in, state_out)

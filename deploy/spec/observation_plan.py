@@ -20,8 +20,11 @@ from deploy.spec.policy_spec import PolicySpec, SpecError
 from deploy.state import RobotState
 
 
-def _legged_block(kind: str, state: RobotState, raw: np.ndarray, period: float) -> None:
-    """Write the raw entries (envs, size) of one of ``LEGGED_KINDS`` from ``state``.
+def _legged_block(
+    kind: str, state: RobotState, raw: np.ndarray, period: float, components: np.ndarray
+) -> None:
+    """Write the raw entries (envs, size) of one of ``LEGGED_KINDS`` from ``state``; a vector
+    block with ``components`` (non-empty) reads those entries of its 3-vector.
 
     Raises:
         SpecError: a state without the floating-base fields (``RobotState.legged``).
@@ -29,14 +32,17 @@ def _legged_block(kind: str, state: RobotState, raw: np.ndarray, period: float) 
     base = state.base
     if base is None:
         raise SpecError(f"observation: block '{kind}' needs a floating-base robot's state")
-    if kind == "base_linear_velocity":
-        raw[:] = base.linear_velocity
-    elif kind == "base_angular_velocity":
-        raw[:] = base.angular_velocity
-    elif kind == "projected_gravity":
-        raw[:] = base.projected_gravity
-    elif kind == "velocity_command":
-        raw[:] = state.command
+    vectors = {
+        "base_linear_velocity": base.linear_velocity,
+        "base_angular_velocity": base.angular_velocity,
+        "projected_gravity": base.projected_gravity,
+        "velocity_command": state.command,
+    }
+    if kind in vectors:
+        if components.size:
+            np.take(vectors[kind], components, axis=1, out=raw)
+        else:
+            raw[:] = vectors[kind]
     elif kind == "gait_phase":
         phase = (2.0 * np.pi / period) * state.clock
         raw[:, 0] = np.sin(phase)
@@ -56,10 +62,13 @@ class ObservationPlan:
 
     def __init__(self, spec: PolicySpec):
         self.blocks = []
+        #: per block: the entries of its 3-vector it reads (empty: all; ``VECTOR_KINDS`` only)
+        self.components: list[np.ndarray] = []
         start = 0
         for b in spec.observation_blocks:
             dst = slice(start, start + b.size)
             self.blocks.append((b.name, dst, np.array(b.joints, dtype=np.intp)))
+            self.components.append(np.array(b.components, dtype=np.intp))
             start += b.size
         bl = spec.observation_blocks
         self.offset = np.concatenate([np.asarray(b.offset, float) for b in bl]) if bl else []
@@ -146,7 +155,7 @@ class ObservationPlan:
                 out,
             )
             return out
-        for kind, dst, joints in self.blocks:
+        for (kind, dst, joints), components in zip(self.blocks, self.components, strict=True):
             if kind == "joint_position":
                 np.take(state.q, joints, axis=1, out=raw[:, dst])
             elif kind == "joint_velocity":
@@ -169,7 +178,7 @@ class ObservationPlan:
             elif kind == "winding_temperature":
                 np.take(state.winding_temperature, joints, axis=1, out=raw[:, dst])
             else:
-                _legged_block(kind, state, raw[:, dst], self.periods[dst.start])
+                _legged_block(kind, state, raw[:, dst], self.periods[dst.start], components)
         raw -= self.offset
         raw /= self.scale
         np.minimum(raw, self.clip, out=raw)

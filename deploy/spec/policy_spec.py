@@ -51,6 +51,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from deploy.spec.drive import DriveSpec
 from deploy.state import RobotState
 from robots import CONTROL_MODES, Robot
 from robots.errors import Sim2RealError
@@ -86,6 +87,15 @@ OBSERVATION_KINDS = (
     "last_action",
     "winding_temperature",
 ) + LEGGED_KINDS
+#: Blocks of a 3-vector (x, y, z; a velocity command's vx, vy, yaw rate) that may read some of its
+#: entries (``ObservationBlock.components``): training stacks split a command into its linear and
+#: yaw parts (holosoma's ``command_lin_vel``, ``command_ang_vel``).
+VECTOR_KINDS = (
+    "base_linear_velocity",
+    "base_angular_velocity",
+    "projected_gravity",
+    "velocity_command",
+)
 #: Entries of the blocks whose size does not follow from their joints (foot_contact: a quadruped's
 #: four by default; checked against the robot's feet by :meth:`PolicySpec.check_robot`).
 FIXED_SIZES = {
@@ -157,6 +167,8 @@ class ObservationBlock:
         clip: Symmetric clip after normalization.
         joints: Joint indices it reads (joint blocks only), in order.
         period: ``gait_phase`` only: the gait clock's period, s (> 0); 0 for other blocks.
+        components: The vector blocks of ``VECTOR_KINDS`` only: the entries of the raw 3-vector
+            it reads, in order (``(2,)``: the yaw rate of ``velocity_command``); empty: all three.
     """
 
     name: str
@@ -166,6 +178,7 @@ class ObservationBlock:
     clip: float = DEFAULT_CLIP
     joints: tuple[int, ...] = ()
     period: float = 0.0
+    components: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -180,6 +193,11 @@ class ActionSpec:
         clip: The action is clipped to ``[-clip, clip]`` before mapping.
         reference: 'absolute' (``offset + scale * a``) or 'current' (position mode only:
             ``q + scale * a``).
+        joints: The joint each output of the graph drives, in output order (indices into
+            ``joint_names``, a permutation); empty: output ``i`` drives joint ``i``. The policy
+            (:class:`deploy.policy.onnx_policy.OnnxPolicy`) reorders its output into
+            ``joint_names`` order, so ``scale``, ``offset`` and the runtime's ``last_action``
+            are in ``joint_names`` order.
     """
 
     mode: str
@@ -188,6 +206,7 @@ class ActionSpec:
     offset: tuple[float, ...]
     clip: float = 1.0
     reference: str = "absolute"
+    joints: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -206,6 +225,9 @@ class PolicySpec:
         format_version: Version of this JSON format; other versions are refused.
         constant_inputs: Graph inputs besides the observation and recurrent state, fed this
             constant every tick (name -> value; JSON key ``constant_inputs``, left out when empty).
+        drive: The PD gains and default pose the policy was trained with
+            (:class:`deploy.spec.drive.DriveSpec`, ``joint_names`` order; None: not recorded;
+            JSON key ``drive``, left out when None).
 
     ``robot_hash`` may be empty (a spec written by hand for a policy trained elsewhere): the
     description hash is then not checked.
@@ -221,6 +243,7 @@ class PolicySpec:
     parity: dict[str, Any] = field(default_factory=dict)
     format_version: int = FORMAT_VERSION
     constant_inputs: dict[str, float] = field(default_factory=dict)
+    drive: DriveSpec | None = None
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -258,7 +281,8 @@ class PolicySpec:
         return self.action.size
 
     def block_slices(self) -> dict[str, slice]:
-        """Where each block sits in the observation vector."""
+        """Where each block sits in the observation vector, by kind (a kind that occurs in two
+        blocks, as a velocity command split into its linear and yaw entries: the last)."""
         out, start = {}, 0
         for b in self.observation_blocks:
             out[b.name] = slice(start, start + b.size)
@@ -312,8 +336,20 @@ class PolicySpec:
                 "last_action": n,
                 "winding_temperature": n,
             }.get(b.name, FIXED_SIZES.get(b.name))
+            if b.name in ("last_action", "winding_temperature") and sorted(b.joints) != list(
+                range(n)
+            ):
+                raise SpecError(f"{where}: joints must cover every joint once, got {b.joints}")
             if b.name == "foot_contact":
                 expected = b.size  # the robot's feet: check_robot
+            if b.components:
+                if b.name not in VECTOR_KINDS:
+                    raise SpecError(
+                        f"{where}: components is for the vector blocks {VECTOR_KINDS} only"
+                    )
+                if any(c not in (0, 1, 2) for c in b.components):
+                    raise SpecError(f"{where}: components {b.components} must be in 0, 1, 2")
+                expected = len(b.components)
             if b.size != expected:
                 raise SpecError(f"{where}: size {b.size}, expected {expected}")
         a = self.action
@@ -325,8 +361,15 @@ class PolicySpec:
             a.reference == "current" and a.mode != "position"
         ):
             raise SpecError(f"action.reference: '{a.reference}' is not valid for mode '{a.mode}'")
+        if a.joints and sorted(a.joints) != list(range(n)):
+            raise SpecError(
+                f"action.joints: {list(a.joints)} must be a permutation of the {n} joint indices"
+            )
         if not self.control_rate > 0:
             raise SpecError(f"control_rate: must be positive, got {self.control_rate}")
+        problems = self.drive.problems(n) if self.drive is not None else []
+        if problems:
+            raise SpecError(problems[0])
         for name, value in self.constant_inputs.items():
             if not np.isfinite(value):
                 raise SpecError(f"constant_inputs['{name}']: must be finite, got {value}")
@@ -416,15 +459,24 @@ class PolicySpec:
 
     # ------------------------------------------------------------------ JSON
     def to_json(self) -> str:
-        """The spec as JSON, every field explicit (sorted keys; ``constant_inputs`` only when
-        there are any, so a spec without them writes what earlier versions wrote)."""
+        """The spec as JSON, every field explicit (sorted keys; ``constant_inputs``,
+        ``drive``, a block's ``components`` and the action's ``joints`` only when set, so a spec
+        without them writes what earlier versions wrote)."""
         d = asdict(self)
         d["observation"] = d.pop("observation_blocks")
         for block in d["observation"]:
             if not block["period"]:  # gait_phase only: other blocks write what they wrote before
                 del block["period"]
+            if not block["components"]:
+                del block["components"]
+        if not d["action"]["joints"]:
+            del d["action"]["joints"]
         if not d["constant_inputs"]:
             del d["constant_inputs"]
+        if d["drive"] is None:
+            del d["drive"]
+        else:
+            d["drive"] = {k: v for k, v in d["drive"].items() if v}
         return json.dumps(d, sort_keys=True)
 
     @classmethod

@@ -30,6 +30,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from deploy.spec.drive import DriveSpec
 from deploy.spec.policy_spec import (
     DEFAULT_CLIP,
     FIXED_SIZES,
@@ -84,7 +85,15 @@ class ObservationBlockDocument(_Doc):
         default=None,
         description=(
             "Joints read, in order (indices into joint_names, or names); default every joint. "
-            "last_action and winding_temperature always cover every joint."
+            "last_action and winding_temperature cover every joint (in any order)."
+        ),
+    )
+    components: list[int] | None = Field(
+        default=None,
+        description=(
+            "Vector blocks (base_linear_velocity, base_angular_velocity, projected_gravity, "
+            "velocity_command) only: the entries of the 3-vector read, in order (0 x, 1 y, 2 z; "
+            "a velocity command's vx, vy, yaw rate); default all three."
         ),
     )
 
@@ -109,6 +118,27 @@ class ActionDocument(_Doc):
     clip: float = Field(default=1.0, gt=0, description="The action is clipped to [-clip, clip].")
     reference: Literal["absolute", "current"] = Field(
         default="absolute", description="'current' (position mode only): relative to q."
+    )
+    joints: list[int | str] | None = Field(
+        default=None,
+        description=(
+            "The joint each output of the graph drives, in output order (indices into "
+            "joint_names, or names; a permutation); default: output i drives joint i. scale and "
+            "offset stay in joint_names order."
+        ),
+    )
+
+
+class DriveDocument(_Doc):
+    """The PD gains and default pose the policy was trained with, one entry per joint in
+    joint_names order; a list left out was not recorded (the robot's robot.toml holds)."""
+
+    model_config = ConfigDict(title="Drive")
+
+    kp: list[float] | None = Field(default=None, description="Position gains, N m/rad (> 0).")
+    kd: list[float] | None = Field(default=None, description="Damping gains, N m s/rad (>= 0).")
+    default_pose: list[float] | None = Field(
+        default=None, description="The pose actions and joint observations are relative to, rad."
     )
 
 
@@ -145,6 +175,13 @@ class PolicySpecDocument(_Doc):
             "tick (shape from the graph; a symbolic axis 0 is the batch)."
         ),
     )
+    drive: DriveDocument | None = Field(
+        default=None,
+        description=(
+            "PD gains and default pose of training (deploy-run runs the simulated plant with "
+            "them; a backend that cannot set gains refuses differing ones)."
+        ),
+    )
 
 
 #: Blocks that read joints (``joints`` defaults to every joint).
@@ -167,7 +204,7 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
     n = len(names)
     blocks = []
     for i, b in enumerate(doc.observation):
-        if b.joints is None or b.name in ("last_action", "winding_temperature"):
+        if b.joints is None:
             joints = tuple(range(n)) if b.name in _JOINT_KINDS else ()
         else:
             where = f"observation[{i}] ('{b.name}').joints"
@@ -175,6 +212,8 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
         size = b.size
         if size is None and b.name in _JOINT_KINDS:
             size = (2 if b.name == "joint_position_sincos" else 1) * len(joints)
+        elif size is None and b.components is not None:
+            size = len(b.components)
         elif size is None:
             size = FIXED_SIZES.get(b.name, 3)
         blocks.append(
@@ -186,8 +225,10 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
                 clip=float(b.clip),
                 joints=joints,
                 period=float(b.period or 0.0),
+                components=tuple(int(c) for c in b.components or ()),
             )
         )
+
     a = doc.action
     size = n if a.size is None else a.size
     return PolicySpec(
@@ -202,12 +243,20 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
             offset=_entries(a.offset, size),
             clip=float(a.clip),
             reference=a.reference,
+            joints=tuple(_joint_index(j, names, "action.joints") for j in a.joints or ()),
         ),
         control_rate=float(doc.control_rate),
         baked=dict(doc.baked),
         parity=dict(doc.parity),
         format_version=doc.format_version,
         constant_inputs={k: float(v) for k, v in doc.constant_inputs.items()},
+        drive=None
+        if doc.drive is None
+        else DriveSpec(
+            kp=tuple(doc.drive.kp or ()),
+            kd=tuple(doc.drive.kd or ()),
+            default_pose=tuple(doc.drive.default_pose or ()),
+        ),
     )
 
 

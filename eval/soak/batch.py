@@ -171,8 +171,12 @@ class SessionBatch:
         self.out = Path(out)
         self.write_progress = progress
         self.on_progress = on_progress
-        robot = self.robot = load_robot(first.robot)
+        from deploy.spec.drive import drive_robot
+
+        robot = load_robot(first.robot)
         self.policy = first.load_policy(robot)
+        # the plant runs the policy's PD gains and default pose (a policy trained elsewhere)
+        robot = self.robot = drive_robot(robot, self.policy.spec)[0]
         self.policy_sha256 = sha256_file(first.policy)
         self.mode = mode = self.policy.spec.action.mode
         self.dt = dt = robot.control_period

@@ -1,0 +1,296 @@
+"""Policies that carry their own contract deploy on the shipped go2 without a spec file.
+
+One file a training stack, written the way it writes its own (``tests/foreign_stacks.py``: mjlab's
+metadata, holosoma's metadata, an Isaac Lab run folder; rsl_rl's bare export), each with its
+joints in another order than go2's: the spec built from it must put every joint where the stack
+put it, build the observation the stack's own formula gives for a known state, map the actions
+with the stack's scale about its default pose, carry its PD gains, and run through deploy-run.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from deploy.cli.deploy_run import deploy_run_main
+from deploy.cli.policy_contract import check_drive_applied
+from deploy.export.cli import main as policy_export_main
+from deploy.policy.onnx_policy import OnnxPolicy, PolicyLoadError
+from deploy.spec.drive import drive_robot
+from deploy.spec.policy_spec import PolicySpec
+from deploy.state import RobotState
+from tests import foreign_stacks as fs
+
+OBS_DIM = 48
+#: A distinct small bias per graph output: which joint each output drives is visible.
+BIAS = [0.01 * (k + 1) for k in range(12)]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_torch_thread():
+    """Two torch threads spin-wait on a loaded 2-core machine."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def known_state(go2, seed: int = 0) -> RobotState:
+    """A go2 state with every quantity the blocks read set to distinct values."""
+    rng = np.random.default_rng(seed)
+    state = RobotState.legged(1, go2.n_joints, go2.n_feet)
+    state.q[:] = np.asarray(go2.home) + rng.uniform(-0.2, 0.2, (1, 12))
+    state.dq[:] = rng.uniform(-3, 3, (1, 12))
+    state.last_action[:] = rng.uniform(-1, 1, (1, 12))
+    state.base.linear_velocity[:] = [[0.4, -0.1, 0.05]]
+    state.base.angular_velocity[:] = [[0.3, -0.2, 0.7]]
+    g = np.array([0.1, -0.05, -1.0])
+    state.base.projected_gravity[:] = g / np.linalg.norm(g)
+    state.command[:] = [[0.5, 0.2, -0.3]]
+    return state
+
+
+def observe(policy, state) -> np.ndarray:
+    """The runtime's observation of ``state`` under the policy's spec (float32, one env)."""
+    return policy.spec.observation(state, np.zeros((1, 3)))[0]
+
+
+def order_index(go2, names) -> list[int]:
+    return [go2.joint_names.index(n) for n in names]
+
+
+def run_deploy(capsys, path) -> tuple[int, str, str]:
+    code = deploy_run_main(
+        ["--robot", "go2", "--policy", str(path), "--command", "0.5,0,0", "--duration", "1"]
+    )
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def inspect(capsys, path, *extra) -> str:
+    assert policy_export_main(["--inspect", str(path), *extra]) == 0
+    return capsys.readouterr().out
+
+
+def check_actions(policy, go2, order, scale, default) -> None:
+    """Output k of the graph (bias k) drives joint ``order[k]``: target = default + scale * a."""
+    action = policy(np.zeros((1, OBS_DIM), np.float32)).copy()
+    idx = order_index(go2, order)
+    expected = np.zeros(12)
+    expected[idx] = BIAS
+    np.testing.assert_allclose(action[0], expected, atol=2e-3)  # gain 1e-3: bias dominates
+    state = RobotState.legged(1, 12, 4)
+    target = policy.spec.action_to_target(action, state)[0]
+    scale_r, default_r = np.zeros(12), np.zeros(12)
+    scale_r[idx], default_r[idx] = scale, default
+    np.testing.assert_allclose(target, default_r + scale_r * action[0], atol=1e-3)
+
+
+# ------------------------------------------------------------------------------------ mjlab
+def test_mjlab_export_deploys_on_go2_with_its_joint_order_gains_pose_and_scales(
+    go2, tmp_path, capsys
+):
+    md = fs.mjlab_metadata(scales={"base_ang_vel": 0.25, "joint_vel": 0.05})
+    path = fs.write_mjlab(tmp_path / "policy.onnx", md, OBS_DIM, bias=BIAS)
+    policy = OnnxPolicy(path, go2)
+    assert policy.foreign.format == "mjlab" and policy.spec.robot_hash == ""
+    idx = order_index(go2, fs.MJLAB_ORDER)
+    default = np.array(md["default_joint_pos"])  # policy order
+    drive = policy.spec.drive
+    np.testing.assert_allclose(np.array(drive.kp)[idx], md["joint_stiffness"], atol=1e-3)
+    np.testing.assert_allclose(np.array(drive.kd)[idx], md["joint_damping"], atol=1e-3)
+    np.testing.assert_allclose(np.array(drive.default_pose)[idx], default, atol=1e-3)
+    # mjlab's observation: the terms in observation_names order, clip then scale, joints in its
+    # order, joint_pos about its default, actions the last raw action, command the twist
+    state = known_state(go2)
+    base = state.base
+    expected = np.concatenate(
+        [
+            base.linear_velocity[0],
+            0.25 * base.angular_velocity[0],
+            base.projected_gravity[0],
+            state.q[0, idx] - default,
+            0.05 * state.dq[0, idx],
+            state.last_action[0, idx],
+            state.command[0],
+        ]
+    )
+    np.testing.assert_allclose(observe(policy, state), expected, rtol=0, atol=2e-6)
+    check_actions(policy, go2, fs.MJLAB_ORDER, md["action_scale"], default)
+    code, out, err = run_deploy(capsys, path)
+    assert code == 0, out + err
+    assert "mjlab policy: spec built from its ONNX metadata" in err
+    assert "observes the base's linear velocity (term 'base_lin_vel')" in err
+    assert "robot.toml differs from the policy's drive, which the run uses: kp" in err
+    report = inspect(capsys, path)
+    assert "foreign contract: mjlab" in report
+    assert "base_ang_vel [3] -> base_angular_velocity (x 0.25, unclipped)" in report
+    assert "base linear velocity: observed by the policy (base_lin_vel)" in report
+    assert "missing: control rate: not recorded" in report
+
+
+def test_older_mjlab_metadata_without_term_scales_is_unscaled_and_says_so(go2, tmp_path, capsys):
+    path = fs.write_mjlab(tmp_path / "old.onnx", fs.mjlab_metadata(newer=False), OBS_DIM)
+    spec = OnnxPolicy(path, go2).spec
+    assert all(s == 1.0 for b in spec.observation_blocks for s in b.scale)
+    report = inspect(capsys, path)
+    assert "missing: observation scales: not recorded (older mjlab); 1 (unscaled) assumed" in report
+
+
+def test_mjlab_joint_the_robot_lacks_and_unmappable_terms_are_refused_by_name(go2, tmp_path):
+    md = fs.mjlab_metadata()
+    md["joint_names"][1] = "FR_knee_joint"
+    path = fs.write_mjlab(tmp_path / "joint.onnx", md, OBS_DIM)
+    with pytest.raises(PolicyLoadError, match=r"mjlab policy: joints \['FR_knee_joint'\] are not"):
+        OnnxPolicy(path, go2)
+    terms = fs.MJLAB_TERMS[:-1] + ("height_scan",)
+    path = fs.write_mjlab(tmp_path / "scan.onnx", fs.mjlab_metadata(terms=terms), OBS_DIM)
+    with pytest.raises(PolicyLoadError, match="mjlab policy: observation term 'height_scan'"):
+        OnnxPolicy(path, go2)
+
+
+def test_our_policy_spec_metadata_wins_over_the_stacks(go2, tmp_path):
+    import onnx
+
+    path = fs.write_mjlab(tmp_path / "both.onnx", fs.mjlab_metadata(), OBS_DIM)
+    foreign = OnnxPolicy(path, go2).spec
+    ours = json.loads(foreign.to_json())
+    ours["action"]["clip"] = 3.0
+    model = onnx.load(str(path))
+    entry = model.metadata_props.add()
+    entry.key, entry.value = "policy_spec", json.dumps(ours)
+    onnx.save(model, str(path))
+    policy = OnnxPolicy(path, go2)
+    assert policy.foreign is None and policy.spec.action.clip == 3.0
+
+
+# ------------------------------------------------------------------------------------ holosoma
+def test_holosoma_export_deploys_on_go2_with_sorted_terms_and_split_command(go2, tmp_path, capsys):
+    experiment = fs.holosoma_experiment(fs.HOLOSOMA_ORDER)
+    path = fs.write_holosoma(tmp_path / "policy.onnx", experiment, OBS_DIM, bias=BIAS)
+    policy = OnnxPolicy(path, go2)
+    assert policy.foreign.format == "holosoma" and policy.spec.control_rate == 50.0
+    idx = order_index(go2, fs.HOLOSOMA_ORDER)
+    pose = experiment["robot"]["init_state"]["default_joint_angles"]
+    default = np.array([pose[n] for n in fs.HOLOSOMA_ORDER])
+    # holosoma's observation: terms sorted by name, each scaled then clipped (+-100)
+    state = known_state(go2, seed=1)
+    base = state.base
+    expected = np.concatenate(
+        [
+            state.last_action[0, idx],  # actions
+            0.25 * base.angular_velocity[0],  # base_ang_vel
+            2.0 * base.linear_velocity[0],  # base_lin_vel
+            state.command[0, 2:3],  # command_ang_vel
+            state.command[0, :2],  # command_lin_vel
+            state.q[0, idx] - default,  # dof_pos
+            0.05 * state.dq[0, idx],  # dof_vel
+            base.projected_gravity[0],  # projected_gravity
+        ]
+    )
+    np.testing.assert_allclose(observe(policy, state), expected, rtol=0, atol=2e-6)
+    assert policy.spec.action.clip == 100.0  # clip_actions with action_clip_value 100
+    check_actions(policy, go2, fs.HOLOSOMA_ORDER, [0.25] * 12, default)
+    code, out, err = run_deploy(capsys, path)
+    assert code == 0, out + err
+    assert "holosoma policy: spec built from its ONNX metadata" in err
+    assert "differs from the policy's drive" not in err  # kp 20, kd 0.5 and home: go2's own
+    report = inspect(capsys, path, "--robot", "go2")
+    assert "command_ang_vel [1] -> velocity_command (unscaled, entries [2] of the vector" in report
+    assert "drive differs from robot.toml: none" in report
+
+
+def test_holosoma_gait_phase_terms_are_refused_naming_the_term_and_format(go2, tmp_path, capsys):
+    terms = dict(fs.HOLOSOMA_TERMS)
+    terms["sin_phase"] = fs._obs_term("sin_phase")
+    path = fs.write_holosoma(
+        tmp_path / "phase.onnx", fs.holosoma_experiment(fs.HOLOSOMA_ORDER, terms), OBS_DIM + 2
+    )
+    with pytest.raises(PolicyLoadError, match="holosoma policy: observation term 'sin_phase'"):
+        OnnxPolicy(path, go2)
+    code, _, err = run_deploy(capsys, path)
+    assert code == 3 and "cannot be mapped" in err and "gait phase" in err
+    assert "sin_phase [2]: CANNOT BE MAPPED" in inspect(capsys, path)
+
+
+# ------------------------------------------------------------------------------------ Isaac Lab
+def test_isaaclab_run_deploys_on_go2_in_the_articulation_order(go2, tmp_path, capsys):
+    run = tmp_path / "logs" / "rsl_rl" / "unitree_go2_flat" / "2026-01-01_00-00-00"
+    path = fs.write_isaaclab_run(run, fs.isaaclab_env(), OBS_DIM, 12, bias=BIAS)
+    policy = OnnxPolicy(path, go2)
+    assert policy.foreign.format == "isaaclab" and policy.spec.control_rate == 50.0
+    order = fs.isaaclab_order()
+    idx = order_index(go2, order)
+    default = np.asarray(go2.home)[idx]  # UNITREE_GO2_CFG's init_state: go2's home
+    np.testing.assert_array_equal(policy.spec.drive.kp, [25.0] * 12)
+    np.testing.assert_array_equal(policy.spec.drive.kd, [0.5] * 12)
+    # Isaac Lab's observation: the policy group's terms in order, unscaled, joints in the
+    # articulation's (breadth-first) order
+    state = known_state(go2, seed=2)
+    base = state.base
+    expected = np.concatenate(
+        [
+            base.linear_velocity[0],
+            base.angular_velocity[0],
+            base.projected_gravity[0],
+            state.command[0],
+            state.q[0, idx] - default,
+            state.dq[0, idx],
+            state.last_action[0, idx],
+        ]
+    )
+    np.testing.assert_allclose(observe(policy, state), expected, rtol=0, atol=2e-6)
+    check_actions(policy, go2, order, [0.25] * 12, default)
+    code, out, err = run_deploy(capsys, path)
+    assert code == 0, out + err
+    assert "isaaclab policy: joint order: not in any file" in err
+    assert "kp (N m/rad): policy [25.0 x 12], robot.toml [20.0 x 12]" in err
+    report = inspect(capsys, path, "--robot", "go2")
+    assert "foreign contract: isaaclab" in report and "missing: joint order" in report
+    assert "graph outputs -> robot joints: FL_hip_joint -> 0, FR_hip_joint -> 3" in report
+
+
+def test_rsl_rl_export_without_a_run_folder_is_refused_saying_where_it_looked(
+    go2, tmp_path, capsys
+):
+    path = fs._export(
+        fs.Actor(OBS_DIM, 12, 0, 1e-3), OBS_DIM, tmp_path / "p.onnx", 18, ["obs"], ["actions"]
+    )
+    code, _, err = run_deploy(capsys, path)
+    assert code == 3
+    assert "isaaclab policy: Isaac Lab / rsl_rl export (obs -> actions) without metadata" in err
+    assert "params/env.yaml" in err and "pass --spec FILE" in err
+    assert "cannot be read" in inspect(capsys, path)
+
+
+def test_rsl_rl_opset_18_export_in_an_isaaclab_run_folder_deploys(go2, tmp_path):
+    path = fs.write_isaaclab_run(tmp_path / "run", fs.isaaclab_env(), OBS_DIM, 12, opset=18)
+    assert OnnxPolicy(path, go2).foreign.format == "isaaclab"
+
+
+# ------------------------------------------------------------------------------------ drive
+def test_the_policys_gains_drive_the_simulated_plant_and_hardware_refuses_them(go2, tmp_path):
+    path = fs.write_isaaclab_run(tmp_path / "run", fs.isaaclab_env(stiffness=30.0), OBS_DIM, 12)
+    spec = OnnxPolicy(path, go2).spec
+    robot, differences = drive_robot(go2, spec)
+    model = robot.plant_model("position")
+    np.testing.assert_array_equal(model.actuator_gainprm[:12, 0], [30.0] * 12)
+    np.testing.assert_array_equal(-model.actuator_biasprm[:12, 2], [0.5] * 12)
+    assert set(differences) == {"kp"} and robot.description_hash != go2.description_hash
+    check_drive_applied(differences, simulated=True, backend_name="sim")
+    with pytest.raises(ValueError, match="feetech backend cannot set its drives' gains"):
+        check_drive_applied(differences, simulated=False, backend_name="feetech")
+    same, none = drive_robot(go2, PolicySpec.for_robot(go2))
+    assert same is go2 and none == {}
+
+
+def test_a_spec_with_drive_components_and_output_order_round_trips_through_json(go2, tmp_path):
+    experiment = fs.holosoma_experiment(fs.HOLOSOMA_ORDER)
+    spec = OnnxPolicy(fs.write_holosoma(tmp_path / "p.onnx", experiment, OBS_DIM), go2).spec
+    back = PolicySpec.from_json(spec.to_json())
+    assert back == spec and back.action.joints and back.drive.kp
+    assert [b.components for b in back.observation_blocks if b.components] == [(2,), (0, 1)]

@@ -15,7 +15,10 @@ joint by about ``a / omega^2`` (``omega ~ (var / R)^(1/4)``, ~25 rad/s on arm3: 
 20 rad/s^2). The runtime passes the smoother's commanded acceleration
 (:attr:`deploy.smoothing.CommandSmoother.mean_acceleration`) in position and velocity mode; the
 noise then only has to cover the drive's tracking error (the error it saved on arm3:
-``docs/measurements.md``).
+``docs/measurements.md``). The output's extrapolation past the newest reading (latency) uses the
+input only with ``input_extrapolates``: right for a stiff drive that follows its command (an arm),
+wrong for a floating-base robot's PD targets, which lead the joint (the target's acceleration is
+not the joint's), whose output extrapolates at constant velocity instead.
 
 Time stamps. The filter of a joint lives at ``filter_time``, the sample time of the last reading it
 absorbed. A reading stamped later than that is absorbed: predict by ``stamp - filter_time``, then
@@ -117,6 +120,9 @@ class JointStateEstimator:
             does not oscillate; ``dt`` the control period).
         implementation: ``"compiled"`` (default, one numba kernel per tick) or ``"filterpy"``
             (reference).
+        input_extrapolates: Whether the output's extrapolation from the newest reading to the
+            frame's time uses the control input (default) or constant velocity (module
+            docstring; the runtime chooses constant velocity for a floating-base robot).
 
     Attributes:
         covariance: (envs, n, 2, 2) covariance of ``[q, dq]`` at ``filter_time`` (rad^2,
@@ -147,6 +153,7 @@ class JointStateEstimator:
         process_noise: float | np.ndarray | None = None,
         measurement_sigma: float | np.ndarray | None = None,
         implementation: str = "compiled",
+        input_extrapolates: bool = True,
     ):
         if envs < 1:
             raise ValueError(f"envs must be >= 1, got {envs}")
@@ -157,6 +164,7 @@ class JointStateEstimator:
         n = robot.n_joints
         self.robot, self.envs, self.n_joints = robot, envs, n
         self.implementation = implementation
+        self.input_extrapolates = bool(input_extrapolates)
         sensors = robot.config.sensors
         if process_noise is None:
             process_noise = (PROCESS_NOISE_FRACTION * robot.acceleration_limit) ** 2
@@ -220,7 +228,7 @@ class JointStateEstimator:
         if implementation == "compiled":  # compile (or load numba's cache) now, not in a tick,
             # on copies: the call writes its outputs (time_since_fresh among them)
             args = self._kernel_args(SensorFrame.empty(envs, n), RobotState.zeros(envs, n))
-            kalman_tick(2, *(np.copy(a) for a in args))
+            kalman_tick(2, *(np.copy(a) if isinstance(a, np.ndarray) else a for a in args))
 
         self._kfs: list[list[KalmanFilter]] = []
         if implementation == "filterpy":
@@ -429,6 +437,8 @@ class JointStateEstimator:
             np.multiply(age, x1, out=state.q)
             np.add(state.q, x0, out=state.q)
             np.multiply(age, self._u, out=state.dq)  # + B(age) u; 0 for a lost joint (age inf)
+            if not self.input_extrapolates:
+                state.dq.fill(0.0)
             np.isfinite(state.dq, out=mask)
             np.copyto(state.dq, 0.0, where=~mask)
             np.multiply(state.dq, age, out=tmp)
@@ -463,6 +473,7 @@ class JointStateEstimator:
             frame.winding_temperature,
             state.winding_temperature,
             self._u,
+            self.input_extrapolates,
         )
 
     def _increment(self, counter: np.ndarray, mask: np.ndarray) -> None:

@@ -74,13 +74,16 @@ def kalman_tick(
     temperature_in: np.ndarray,
     temperature_out: np.ndarray,
     u: np.ndarray,
+    input_extrapolates: bool,
 ) -> int:
     """One estimator tick from ``phase`` on (see the module docstring).
 
     Shapes: ``z``, ``ts``, ``tf``, ``missing``, ``stale``, ``fresh``, ``good``,
     ``time_since_fresh``, ``q_out``, ``dq_out``, temperatures (envs, n); ``now`` (envs,);
     ``x`` (2, envs, n); ``p`` (4, envs, n), ``p[k] = P[k // 2, k % 2]``; ``var``, ``r``, ``b0``,
-    ``b1`` (n,); ``u`` (envs, n), the control input (commanded acceleration, rad/s^2). Units as in
+    ``b1`` (n,); ``u`` (envs, n), the control input (commanded acceleration, rad/s^2);
+    ``input_extrapolates``: whether the output's extrapolation past the newest reading uses ``u``
+    too (else constant velocity). Units as in
     :class:`~deploy.estimation.joints.JointStateEstimator`.
     """
     envs, n = z.shape
@@ -142,7 +145,7 @@ def kalman_tick(
         for j in range(n):
             age = t - tf[e, j]
             time_since_fresh[e, j] = age
-            du = age * u[e, j]  # B(age) u; 0 for a lost joint (age inf)
+            du = age * u[e, j] if input_extrapolates else 0.0  # B(age) u; 0 for a lost joint
             if not math.isfinite(du):
                 du = 0.0
             q_out[e, j] = age * x[1, e, j] + x[0, e, j] + 0.5 * age * du

@@ -102,7 +102,10 @@ class Runtime:
         self.clock = clock or SimClock(self.dt)
         self.injector = injector
         self.telemetry = telemetry
-        self.estimator = JointStateEstimator(robot, envs)
+        # a floating base's PD targets lead its joints: latency is bridged at constant velocity
+        self.estimator = JointStateEstimator(
+            robot, envs, input_extrapolates=not robot.floating_base
+        )
         self.kinematics = Kinematics(robot)
         self.reference = reference
         self.guard = SafetyGuard(robot, envs, self.mode_name, reference=reference)

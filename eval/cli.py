@@ -260,7 +260,7 @@ def run(args) -> int:
     from eval.report.build import Thresholds, build_report, load_report, summary_text, write_reports
     from eval.soak.campaign import run_campaign
     from eval.soak.session import SessionConfig
-    from eval.world.randomization import session_ranges
+    from eval.world.session_ranges import session_ranges
     from robots import load_robot
     from robots.files import sha256_file
 

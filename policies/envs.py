@@ -16,8 +16,8 @@ stepped in lockstep by one ``SimBackend``.
 
 Episode: continuous operation, as in the soak. The robot starts at rest at a random pose inside its
 soft limits (or, with ``ReachConfig.start_poses``, at one of the poses where a soak saw a policy
-miss its goal), with dynamics drawn by :func:`eval.world.randomization.sample_dynamics` and encoder
-noise, latency and dropout drawn per episode (:class:`eval.world.randomization.SensorRanges`, seed
+miss its goal), with dynamics drawn by :func:`eval.world.dynamics.sample_dynamics` and encoder
+noise, latency and dropout drawn per episode (:class:`eval.world.sensors.SensorRanges`, seed
 section 5). Goals are chained without resets: a goal is drawn from the robot's task region; when
 the end effector comes within ``task.success_radius`` of it, or ``goal_timeout`` s pass, a new goal
 is drawn from wherever the arm is. The episode ends at a hard joint limit crossed by the joint or
@@ -65,14 +65,8 @@ from deploy.smoothing import CommandSmoother
 from deploy.spec.policy_spec import PolicySpec
 from deploy.state import Kinematics, RobotState
 from deploy.tasks.goals import sample_goal
-from eval.world.randomization import (
-    Dynamics,
-    DynamicsRanges,
-    SensorRanges,
-    randomized_model,
-    sample_dynamics,
-    sample_sensors,
-)
+from eval.world.dynamics import Dynamics, DynamicsRanges, randomized_model, sample_dynamics
+from eval.world.sensors import SensorRanges, sample_sensors
 from robots import Robot
 
 
@@ -130,7 +124,7 @@ class ReachConfig:
         goal_timeout: A goal not reached within this time is replaced, s (the runtime's success
             window is 3 s).
         sensors: Encoder noise sigma (rad), latency (ticks) and dropout drawn per episode: the
-            soak's ranges (:class:`eval.world.randomization.SensorRanges`; noise: seed section 5's
+            soak's ranges (:class:`eval.world.sensors.SensorRanges`; noise: seed section 5's
             0.002-0.010 on angle / pi).
         dynamics: Ranges of the dynamics randomization; ``DynamicsRanges.none()`` for the nominal
             robot.

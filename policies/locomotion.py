@@ -14,7 +14,7 @@ Iscen et al. 2018): the action the runtime receives is ``prior(obs) + residual``
 exported :class:`~deploy.policy.mlp_checkpoint.MLPActor` with ``gait`` computes.
 
 Episode: ``episode_seconds`` of walking from the MJCF's standing pose, after the runtime's RAMP_IN
-to home. Each episode draws a soak session's randomization (:func:`eval.world.randomization.
+to home. Each episode draws a soak session's randomization (:func:`eval.world.session_draw.
 sample_session` of the legged ranges: dynamics, encoder noise and latency, IMU noise and bias,
 floor friction), a velocity command every ``command_period`` s (:class:`deploy.tasks.locomotion.
 CommandRanges`, the soak's ranges) and pushes on the base. It ends (terminated) when the runtime
@@ -48,14 +48,11 @@ from deploy.monitors.interventions import InterventionMonitor
 from deploy.runtime import Mode, Runtime
 from deploy.spec.policy_spec import PolicySpec
 from deploy.tasks.locomotion import TRACKING_TOLERANCE, CommandRanges
-from eval.world.randomization import (
-    apply_floor_friction,
-    apply_imu,
-    apply_sensors,
-    randomized_model,
-    sample_session,
-    session_ranges,
-)
+from eval.world.dynamics import randomized_model
+from eval.world.floor import apply_floor_friction
+from eval.world.sensors import apply_imu, apply_sensors
+from eval.world.session_draw import sample_session
+from eval.world.session_ranges import session_ranges
 from robots import Robot
 
 

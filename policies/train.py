@@ -43,7 +43,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
 from deploy.export import sb3_actor
 from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
-from eval.world.randomization import DynamicsRanges
+from eval.world.dynamics import DynamicsRanges
 from policies.envs import ReachConfig, ReachTask, RewardConfig
 from robots import load_robot
 

@@ -41,7 +41,7 @@ from eval.soak.batch import SessionBatch
 from eval.soak.campaign import run_campaign
 from eval.soak.session import SessionConfig, session_dir
 from eval.world.fault_schedule import FaultRanges, stale_budget
-from eval.world.randomization import SessionRanges
+from eval.world.session_ranges import SessionRanges
 from tests.runtime_fixtures import feedback_mlp_onnx
 from tests.soak_fixtures import kill_after_first_checkpoint
 

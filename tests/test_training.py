@@ -8,7 +8,7 @@ import torch
 from gymnasium.utils.env_checker import check_env
 
 from deploy.policy.mlp_checkpoint import load_checkpoint, save_checkpoint
-from eval.world.randomization import DynamicsRanges
+from eval.world.dynamics import DynamicsRanges
 from policies.envs import ArmReachEnv, ReachConfig, ReachTask, RewardConfig
 
 NOMINAL = ReachConfig(dynamics=DynamicsRanges.none())

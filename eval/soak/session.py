@@ -4,7 +4,7 @@ A **session** is one continuous run of :class:`deploy.runtime.Runtime` with the 
 (:class:`~deploy.runtime.SimClock`) for ``hours`` of simulated time (8 by default): a new goal
 every ``goal_period`` s (:class:`deploy.tasks.goals.GoalScheduler`), dynamics, sensor settings,
 drift and a fault schedule drawn from the session seed
-(:func:`eval.world.randomization.sample_session`),
+(:func:`eval.world.session_draw.sample_session`),
 friction
 rising with wear over the session, the motor thermal model running throughout. It runs as env
 ``e`` of a batch (:class:`eval.soak.batch.SessionBatch`); :class:`Session` keeps what is its own
@@ -37,7 +37,7 @@ from deploy.runtime import FAULT_CAUSES, Mode
 from deploy.stateful import prefixed
 from eval.soak import checkpoint as ckpt
 from eval.world.fault_schedule import FAULT_SETTLE
-from eval.world.randomization import SessionRanges
+from eval.world.session_ranges import SessionRanges
 from robots.errors import Sim2RealError
 
 if TYPE_CHECKING:
@@ -155,7 +155,7 @@ class Session:
         batch: The batch the session runs in (:class:`eval.soak.batch.SessionBatch`).
         e: The session's env index in the batch.
         config: The session's options.
-        draw: Its randomization (:func:`eval.world.randomization.sample_session`).
+        draw: Its randomization (:func:`eval.world.session_draw.sample_session`).
     """
 
     def __init__(self, batch: SessionBatch, e: int, config: SessionConfig, draw):
@@ -360,7 +360,7 @@ class Session:
         if meta.get("randomization") != self.draw.to_dict():
             raise ckpt.CheckpointError(
                 f"{where}: the randomization stored in the checkpoint differs from the one drawn "
-                f"for seed {self.config.seed} (another version of eval.world.randomization?)"
+                f"for seed {self.config.seed} (another version of eval.world.session_draw?)"
             )
         ckpt.load_stage(b.rt, arrays, e, where)
         if self.legged:

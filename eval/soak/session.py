@@ -141,6 +141,30 @@ class SessionConfig:
         return d
 
 
+def option_difference(stored: dict, expected: dict) -> tuple[str, object, object] | None:
+    """The first option of ``expected`` (:meth:`SessionConfig.batch_key`) that ``stored`` (a
+    checkpoint's or result's) does not have the same, but the policy path and the checkpoint
+    interval (a resumed run may change those): ``(name, stored value, expected value)``, nested
+    options named by their path (``ranges.sensors.noise_sigma``); None when all agree."""
+
+    def walk(name: str, old, new):
+        if isinstance(old, dict) and isinstance(new, dict):
+            for key in [*new, *(k for k in old if k not in new)]:
+                found = walk(f"{name}.{key}", old.get(key), new.get(key))
+                if found:
+                    return found
+            return None
+        return None if old == new else (name, old, new)
+
+    for key, value in expected.items():
+        if key in ("policy", "checkpoint_minutes"):
+            continue
+        found = walk(key, stored.get(key), value)
+        if found:
+            return found
+    return None
+
+
 def session_dir(out: str | os.PathLike, seed: int) -> Path:
     """Folder of session ``seed`` in campaign folder ``out``."""
     return Path(out) / SESSIONS_DIR / SessionConfig(seed=seed).id
@@ -342,16 +366,13 @@ class Session:
                 randomization; or an array does not fit (named).
         """
         b, e = self.batch, self.e
-        expected = self.config.batch_key()
-        stored = meta.get("config", {})
-        for key, value in expected.items():
-            if key in ("policy", "checkpoint_minutes"):
-                continue
-            if stored.get(key) != value:
-                raise ckpt.CheckpointError(
-                    f"{where}: the checkpoint was made with {key} = {stored.get(key)!r}, this run "
-                    f"has {value!r}; resume with the options of the interrupted campaign"
-                )
+        differs = option_difference(meta.get("config", {}), self.config.batch_key())
+        if differs is not None:
+            key, old, new = differs
+            raise ckpt.CheckpointError(
+                f"{where}: the checkpoint was made with {key} = {old!r}, this run has {new!r}; "
+                f"resume with the options of the interrupted campaign"
+            )
         if meta.get("policy_sha256") != b.policy_sha256:
             raise ckpt.CheckpointError(
                 f"{where}: the checkpoint was made with another policy file (SHA-256 "

@@ -20,7 +20,8 @@ class SensorRanges:
 
     Attributes:
         noise_sigma: Encoder noise sigma, rad. Seed section 5: 0.002-0.010 on angle / pi, i.e.
-            ``(0.002 pi, 0.010 pi)`` rad (as :class:`policies.envs.ReachConfig` trains with).
+            ``(0.002 pi, 0.010 pi)`` rad; a robot's soak and training scale it to its own
+            encoder noise (:func:`eval.world.session_ranges.sensor_ranges`).
         latency_ticks: Encoder latency, control ticks (our choice: 0-2, i.e. 0-10 ms at 200 Hz).
         dropout: Probability that a reading is lost (per reading and joint; our choice).
     """

@@ -46,7 +46,8 @@ export: install
 # Reproduces the shipped policy of ROBOT (seed 1): trains against the deployed stack (guard
 # included), then ships it only if a 1-hour randomized soak passes; TensorBoard logs in runs/train/.
 #   make train               policies/arm.pt   (arm3, velocity mode)
-#   make train ROBOT=so101   policies/so101.pt (SO-101, position mode, the same recipe)
+#   make train ROBOT=so101   policies/so101.pt (SO-101, position mode, the same recipe; trained
+#                            before it drew its soak's encoder noise: not bit for bit)
 #   make train ROBOT=go2     policies/go2.pt   (Go2: PPO residual on the trot generator, through
 #                            the runtime; policies/train_legged.py, logs in runs/train_legged/)
 TRAIN_arm3  := --start-poses policies/arm3_missed_poses.json

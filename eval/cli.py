@@ -6,7 +6,7 @@ Usage::
     soak-test --robot arm3 --policy policies/arm.onnx --hours 8 --sessions 2 --seed 0 --out DIR
               [--resume] [--baseline OLD/report.json] [--executor local|ray] [--address ADDR]
               [--sessions-per-process K] [--workers N] [--checkpoint-minutes M]
-              [--goal-period S] [--no-faults] [--fault-interval S] [--min-success R]
+              [--goal-period S] [--no-faults] [--fault-interval S] [--ranges FILE] [--min-success R]
               [--min-window-success R] [--window-minutes M] [--max-interventions F]
               [--max-falls-per-hour F] ...
 
@@ -127,7 +127,18 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--no-faults", action="store_true", help="no fault injection")
     p.add_argument(
-        "--fault-interval", type=float, default=120.0, help="mean s between injected faults"
+        "--fault-interval",
+        type=float,
+        default=None,
+        help="mean s between injected faults (default 120, or the --ranges file's "
+        "faults.mean_interval)",
+    )
+    p.add_argument(
+        "--ranges",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="TOML file overriding the randomization ranges of the robot kind (README: soak)",
     )
     p.add_argument(
         "--operator-reset",
@@ -206,7 +217,8 @@ def _check_args(args) -> None:
     number("--hours", 0, True)
     number("--goal-period", 0, True)
     number("--success-time", 0, True)
-    number("--fault-interval", 0, True)
+    if args.fault_interval is not None:
+        number("--fault-interval", 0, True)
     number("--curve-seconds", 0, True)
     number("--window-minutes", 0, True)
     number("--checkpoint-minutes", 0, False)
@@ -260,7 +272,8 @@ def run(args) -> int:
     from eval.report.build import Thresholds, build_report, load_report, summary_text, write_reports
     from eval.soak.campaign import run_campaign
     from eval.soak.session import SessionConfig
-    from eval.world.randomization import session_ranges
+    from eval.world.ranges_file import load_ranges, read_overrides
+    from eval.world.session_ranges import session_ranges
     from robots import load_robot
     from robots.files import sha256_file
 
@@ -278,6 +291,16 @@ def run(args) -> int:
     )
     baseline = load_report(args.baseline) if args.baseline else None
     robot = load_robot(args.robot)
+    if args.ranges is None:
+        ranges = session_ranges(robot, args.fault_interval)
+    else:
+        if args.fault_interval is not None and "mean_interval" in read_overrides(args.ranges).get(
+            "faults", {}
+        ):
+            raise BadInput(
+                f"--fault-interval: {args.ranges} sets faults.mean_interval too; give one of them"
+            )
+        ranges = load_ranges(args.ranges, robot, args.fault_interval)
     template = SessionConfig(
         robot=args.robot,
         policy=str(args.policy),
@@ -289,7 +312,7 @@ def run(args) -> int:
         curve_seconds=args.curve_seconds,
         operator_reset=args.operator_reset,
         faults=not args.no_faults,
-        ranges=session_ranges(robot, args.fault_interval),
+        ranges=ranges,
         window_minutes=args.window_minutes,
         spec=None if args.spec is None else str(args.spec),
     )
@@ -322,6 +345,7 @@ def run(args) -> int:
         "sessions": args.sessions,
         "seed": args.seed,
         "session_options": options,
+        "ranges_file": None if args.ranges is None else str(args.ranges),
         "executor": args.executor,
         "address": args.address,
         "sessions_per_process": args.sessions_per_process,

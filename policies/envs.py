@@ -16,11 +16,12 @@ stepped in lockstep by one ``SimBackend``.
 
 Episode: continuous operation, as in the soak. The robot starts at rest at a random pose inside its
 soft limits (or, with ``ReachConfig.start_poses``, at one of the poses where a soak saw a policy
-miss its goal), with dynamics drawn by :func:`eval.world.randomization.sample_dynamics` and encoder
-noise, latency and dropout drawn per episode (:class:`eval.world.randomization.SensorRanges`, seed
-section 5). Goals are chained without resets: a goal is drawn from the robot's task region; when
-the end effector comes within ``task.success_radius`` of it, or ``goal_timeout`` s pass, a new goal
-is drawn from wherever the arm is. The episode ends at a hard joint limit crossed by the joint or
+miss its goal), with dynamics drawn by :func:`eval.world.dynamics.sample_dynamics` and encoder
+noise, latency and dropout drawn per episode, from the soak's ranges of the robot
+(:func:`eval.world.session_ranges.session_ranges`: the same world its soak shows it). Goals are
+chained without resets: a goal is drawn from the robot's task region; when the end effector comes
+within ``task.success_radius`` of it, or ``goal_timeout`` s pass, a new goal is drawn from
+wherever the arm is. The episode ends at a hard joint limit crossed by the joint or
 by the guard's estimate (terminated: the runtime would make a safe stop) or after
 ``episode_seconds`` (truncated; minutes, so that the policy meets the states of continuous
 operation).
@@ -51,7 +52,7 @@ Reward per control tick (:class:`RewardConfig`, seed section 6 coefficients by d
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gymnasium as gym
 import numpy as np
@@ -65,14 +66,9 @@ from deploy.smoothing import CommandSmoother
 from deploy.spec.policy_spec import PolicySpec
 from deploy.state import Kinematics, RobotState
 from deploy.tasks.goals import sample_goal
-from eval.world.randomization import (
-    Dynamics,
-    DynamicsRanges,
-    SensorRanges,
-    randomized_model,
-    sample_dynamics,
-    sample_sensors,
-)
+from eval.world.dynamics import Dynamics, DynamicsRanges, randomized_model, sample_dynamics
+from eval.world.sensors import SensorRanges, sample_sensors
+from eval.world.session_ranges import session_ranges
 from robots import Robot
 
 
@@ -129,11 +125,12 @@ class ReachConfig:
         episode_seconds: Episode length, s (truncation).
         goal_timeout: A goal not reached within this time is replaced, s (the runtime's success
             window is 3 s).
-        sensors: Encoder noise sigma (rad), latency (ticks) and dropout drawn per episode: the
-            soak's ranges (:class:`eval.world.randomization.SensorRanges`; noise: seed section 5's
-            0.002-0.010 on angle / pi).
+        sensors: Encoder noise sigma (rad), latency (ticks) and dropout drawn per episode; None
+            (default): the robot's soak ranges, ``session_ranges(robot).sensors``
+            (:func:`eval.world.session_ranges.session_ranges`: seed section 5's noise range
+            scaled to the robot's own encoder noise).
         dynamics: Ranges of the dynamics randomization; ``DynamicsRanges.none()`` for the nominal
-            robot.
+            robot; None (default): the robot's soak ranges, ``session_ranges(robot).dynamics``.
         start_fraction: Start poses are drawn uniformly within this fraction of the soft limits.
         start_poses: Optional joint poses (rad, each of length n) to start episodes from, e.g.
             where a soak saw the policy miss (:func:`eval.report.build.missed_states`); poses
@@ -150,8 +147,8 @@ class ReachConfig:
     reference: str = "absolute"
     episode_seconds: float = 120.0
     goal_timeout: float = 3.0
-    sensors: SensorRanges = field(default_factory=SensorRanges)
-    dynamics: DynamicsRanges = field(default_factory=DynamicsRanges)
+    sensors: SensorRanges | None = None
+    dynamics: DynamicsRanges | None = None
     start_fraction: float = 0.9
     start_poses: tuple[tuple[float, ...], ...] = ()
     start_pose_probability: float = 0.5
@@ -165,7 +162,8 @@ class ReachTask:
     Args:
         robot: The robot.
         envs: Number of robots.
-        config: Task settings.
+        config: Task settings; its ``sensors`` and ``dynamics`` left None become the robot's soak
+            ranges (``self.config`` holds the ranges drawn from).
         spec: The policy contract; default ``PolicySpec.for_robot(robot, mode=config.mode,
             reference=config.reference)``.
         seed: Seed of every random stream (poses, goals, dynamics, noise, sensors).
@@ -182,7 +180,15 @@ class ReachTask:
         spec: PolicySpec | None = None,
         seed: int = 0,
     ):
-        self.config = config = config or ReachConfig()
+        config = config or ReachConfig()
+        if config.sensors is None or config.dynamics is None:
+            soak = session_ranges(robot)
+            config = replace(
+                config,
+                sensors=soak.sensors if config.sensors is None else config.sensors,
+                dynamics=soak.dynamics if config.dynamics is None else config.dynamics,
+            )
+        self.config = config
         self.spec = spec or PolicySpec.for_robot(
             robot, mode=config.mode, reference=config.reference
         )

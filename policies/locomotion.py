@@ -14,7 +14,7 @@ Iscen et al. 2018): the action the runtime receives is ``prior(obs) + residual``
 exported :class:`~deploy.policy.mlp_checkpoint.MLPActor` with ``gait`` computes.
 
 Episode: ``episode_seconds`` of walking from the MJCF's standing pose, after the runtime's RAMP_IN
-to home. Each episode draws a soak session's randomization (:func:`eval.world.randomization.
+to home. Each episode draws a soak session's randomization (:func:`eval.world.session_draw.
 sample_session` of the legged ranges: dynamics, encoder noise and latency, IMU noise and bias,
 floor friction), a velocity command every ``command_period`` s (:class:`deploy.tasks.locomotion.
 CommandRanges`, the soak's ranges) and pushes on the base. It ends (terminated) when the runtime
@@ -48,14 +48,11 @@ from deploy.monitors.interventions import InterventionMonitor
 from deploy.runtime import Mode, Runtime
 from deploy.spec.policy_spec import PolicySpec
 from deploy.tasks.locomotion import TRACKING_TOLERANCE, CommandRanges
-from eval.world.randomization import (
-    apply_floor_friction,
-    apply_imu,
-    apply_sensors,
-    randomized_model,
-    sample_session,
-    session_ranges,
-)
+from eval.world.dynamics import randomized_model
+from eval.world.floor import apply_floor_friction
+from eval.world.sensors import apply_imu, apply_sensors
+from eval.world.session_draw import sample_session
+from eval.world.session_ranges import SessionRanges, session_ranges
 from robots import Robot
 
 
@@ -94,6 +91,9 @@ class LocomotionConfig:
         push_force: Horizontal push force range, N (the soak pushes 5-25 N; ours up to 40).
         push_duration: Push duration range, s (the soak's).
         randomize: Draw each episode's dynamics, sensors, IMU and floor like a soak session.
+        ranges: The ranges they are drawn from; None (default): the robot's soak ranges
+            (:func:`eval.world.session_ranges.session_ranges`); a ranges file's:
+            :func:`eval.world.ranges_file.load_ranges`.
         reward: The coefficients.
     """
 
@@ -104,6 +104,7 @@ class LocomotionConfig:
     push_force: tuple[float, float] = (5.0, 40.0)
     push_duration: tuple[float, float] = (0.05, 0.5)
     randomize: bool = True
+    ranges: SessionRanges | None = None
     reward: LocomotionReward = field(default_factory=LocomotionReward)
 
 
@@ -152,7 +153,7 @@ class LocomotionTask:
         self.config = config = config or LocomotionConfig()
         self.dt = robot.control_period
         self.rng = np.random.default_rng(seed)
-        self.ranges = session_ranges(robot)
+        self.ranges = session_ranges(robot) if config.ranges is None else config.ranges
         self.backend = SimBackend(robot, mode=spec.action.mode, envs=envs, seed=seed + 1)
         self.policy = LearnerPolicy(spec, envs)
         self.runtime = Runtime(robot, self.policy, self.backend)

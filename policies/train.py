@@ -5,6 +5,10 @@ shipped ``policies/arm.pt`` (seed 1). Logs go to TensorBoard (``runs/train/``): 
 length, return and success rate, plus ``reach/joint_limit_violations``, ``reach/success_rate``
 and ``reach/intervention_rate`` per episode (seed section 10).
 
+Each episode draws its dynamics and encoder settings from the robot's soak ranges
+(:func:`eval.world.session_ranges.session_ranges`), or from ``--ranges FILE``
+(:func:`eval.world.ranges_file.load_ranges`), which the shipping soak then runs too.
+
 Shipping is gated on the soak. Training writes its candidate (and its periodic saves) next to its
 logs, ``<logdir>/<robot>_<mode>_seed<seed>.pt``; at the end it exports the candidate to ONNX and
 runs a randomized soak of ``--gate-hours`` simulated hours (``--gate-sessions`` sessions from
@@ -38,12 +42,14 @@ from pathlib import Path
 import numpy as np
 import torch
 from stable_baselines3 import PPO, SAC
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
 from deploy.export import sb3_actor
 from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
-from eval.world.randomization import DynamicsRanges
+from eval.world.dynamics import DynamicsRanges
+from eval.world.ranges_file import load_ranges
+from eval.world.session_ranges import session_ranges
+from policies.callbacks import NoiseAnneal, ReachLogger
 from policies.envs import ReachConfig, ReachTask, RewardConfig
 from robots import load_robot
 
@@ -102,92 +108,6 @@ class ReachVecEnv(VecEnv):
         if indices is None:
             return range(self.num_envs)
         return [indices] if isinstance(indices, int) else indices
-
-
-class ReachLogger(BaseCallback):
-    """Logs the seed section 10 signals per finished episode to TensorBoard, and every
-    ``save_every`` steps writes the policy so far to ``save`` (a callable taking the model).
-
-    Violations (a hard limit crossed by the joint or the guard's estimate) and interventions
-    (fraction of ticks on which the guard or the smoother changed the command) are logged apart.
-    """
-
-    def __init__(self, save=None, save_every: int = 0, points_every: int = 16):
-        super().__init__()
-        self.save, self.save_every, self._saved_at = save, save_every, 0
-        self.points_every = points_every
-        self.violations: list[int] = []
-        self.success: list[float] = []
-        self.interventions: list[float] = []
-        self.history: list[dict] = []
-
-    def _on_step(self) -> bool:
-        for info, done in zip(self.locals["infos"], self.locals["dones"], strict=True):
-            if done and "joint_limit_violations" in info:
-                self.violations.append(info["joint_limit_violations"])
-                self.success.append(info["is_success"])
-                self.interventions.append(info.get("intervention_rate", 0.0))
-        return True
-
-    def _on_rollout_end(self) -> None:
-        if len(self.success) >= self.points_every:  # one point per so many episodes
-            rate, viol = float(np.mean(self.success)), float(np.mean(self.violations))
-            interventions = float(np.mean(self.interventions))
-            self.logger.record("reach/success_rate", rate)
-            self.logger.record("reach/joint_limit_violations", viol)
-            self.logger.record("reach/intervention_rate", interventions)
-            self.history.append(
-                {
-                    "step": int(self.num_timesteps),
-                    "success_rate": rate,
-                    "joint_limit_violations": viol,
-                    "intervention_rate": interventions,
-                    "episodes": len(self.success),
-                }
-            )
-            self.violations.clear()
-            self.success.clear()
-            self.interventions.clear()
-        if self.save and self.save_every and self.num_timesteps - self._saved_at >= self.save_every:
-            self._saved_at = self.num_timesteps
-            self.save(self.model, self.history)
-
-
-class NoiseAnneal(BaseCallback):
-    """Anneals PPO's exploration noise during the last ``steps`` environment steps: every element
-    of ``policy.log_std`` moves linearly from its learned value to ``final_log_std`` (and is no
-    longer trained).
-
-    Why: the runtime runs the policy's mean action. A policy trained with large exploration noise
-    (gSDE with ``log_std_init = -2`` and 64 tanh features: an action noise of ~0.5) learns to let
-    the noise carry it out of configurations where its mean action is ~0; run deterministically it
-    stops there (measured on the 3 M-step policy: 56 % of goals reached without noise, 72 % with
-    Gaussian action noise of 0.3). Annealing makes the mean itself finish the motion.
-    """
-
-    def __init__(self, total_steps: int, steps: int, final_log_std: float):
-        super().__init__()
-        self.start = max(total_steps - steps, 0)
-        self.span = max(total_steps - self.start, 1)
-        self.final = final_log_std
-        self._initial = None
-
-    def _on_rollout_start(self) -> None:
-        if self.num_timesteps < self.start or not hasattr(self.model.policy, "log_std"):
-            return
-        log_std = self.model.policy.log_std
-        if self._initial is None:
-            self._initial = log_std.detach().clone()
-            log_std.requires_grad_(False)
-        frac = min((self.num_timesteps - self.start) / self.span, 1.0)
-        with torch.no_grad():
-            log_std.copy_(self._initial + frac * (self.final - self._initial))
-        if getattr(self.model, "use_sde", False):
-            self.model.policy.reset_noise(self.model.env.num_envs)
-        self.logger.record("reach/log_std_mean", float(log_std.mean()))
-
-    def _on_step(self) -> bool:
-        return True
 
 
 def actor_from_model(model: PPO | SAC) -> MLPActor:
@@ -307,6 +227,7 @@ def gate(candidate: Path, args: argparse.Namespace) -> tuple[bool, Path]:
             str(out),
             "--no-progress",
         ]
+        + ([] if args.ranges is None else ["--ranges", str(args.ranges)])
     )
     return code == 0, out
 
@@ -320,11 +241,13 @@ def train(args: argparse.Namespace) -> Path | None:
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
     robot = load_robot(args.robot)
-    dynamics = DynamicsRanges() if args.randomize else DynamicsRanges.none()
+    # the soak's ranges of the robot (or of --ranges FILE, which the gate's soak runs too)
+    ranges = session_ranges(robot) if args.ranges is None else load_ranges(args.ranges, robot)
     config = ReachConfig(
         mode=args.mode,
         reference=args.reference,
-        dynamics=dynamics,
+        dynamics=ranges.dynamics if args.randomize else DynamicsRanges.none(),
+        sensors=ranges.sensors,
         reward=args.reward,
         episode_seconds=args.episode_seconds,
         start_poses=start_poses(args.start_poses, robot),
@@ -352,6 +275,7 @@ def train(args: argparse.Namespace) -> Path | None:
             "timesteps": int(model.num_timesteps),
             "wall_seconds": round(time.perf_counter() - start, 1),
             "randomized_dynamics": bool(args.randomize),
+            "ranges": None if args.ranges is None else str(args.ranges),
             "episode_seconds": args.episode_seconds,
             "reward": dataclasses.asdict(args.reward),
             "start_poses": len(config.start_poses),
@@ -462,6 +386,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=1, help="torch threads (1: no spin-waits)")
     p.add_argument(
         "--no-randomize", dest="randomize", action="store_false", help="nominal dynamics only"
+    )
+    p.add_argument(
+        "--ranges",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="TOML file overriding the robot's soak ranges (soak-test --ranges; the gate uses it)",
     )
     p.add_argument(
         "--reward",

@@ -32,6 +32,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from deploy.export import sb3_actor
 from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
+from eval.world.ranges_file import load_ranges
 from policies.gait import make_policy
 from policies.locomotion import LocomotionConfig, LocomotionReward, LocomotionTask
 from policies.train import parse_reward
@@ -199,7 +200,9 @@ def train(args: argparse.Namespace) -> Path:
     torch.set_num_threads(args.threads)
     robot = load_robot(args.robot)
     template, spec = make_policy(args.robot)
-    config = LocomotionConfig(reward=args.reward)
+    # the soak's ranges of the robot, or of --ranges FILE
+    ranges = None if args.ranges is None else load_ranges(args.ranges, robot)
+    config = LocomotionConfig(reward=args.reward, ranges=ranges)
     task = LocomotionTask(robot, spec, args.envs, config, seed=args.seed)
     env = TaskVecEnv(task)
     if args.init_from is not None:
@@ -240,6 +243,7 @@ def train(args: argparse.Namespace) -> Path:
             "wall_seconds": round(time.perf_counter() - start, 1),
             "init_from": None if args.init_from is None else str(args.init_from),
             "reward": dataclasses.asdict(args.reward),
+            "ranges": None if args.ranges is None else str(args.ranges),
             "curve": history,
         }
         save_checkpoint(candidate, candidate_actor(model, template), spec, info=info)
@@ -283,6 +287,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--save-every", type=int, default=500_000)
     p.add_argument("--init-from", type=Path, default=None, help="a saved .zip to continue")
     p.add_argument("--logdir", type=Path, default=Path("runs/train_legged"))
+    p.add_argument(
+        "--ranges",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="TOML file overriding the robot's soak ranges (soak-test --ranges)",
+    )
     p.add_argument(
         "--out", type=Path, default=None, help="copy the candidate here (policies/go2.pt)"
     )

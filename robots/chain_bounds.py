@@ -49,7 +49,7 @@ def motion_bounds(robot: Robot, model: mujoco.MjModel | None = None) -> tuple[fl
     Args:
         robot: The robot (joint names).
         model: The MuJoCo model to bound; default ``robot.mj_model`` (nominal geometry). A
-            randomized plant (``eval.world.randomization.randomized_model``) gives that plant's
+            randomized plant (``eval.world.dynamics.randomized_model``) gives that plant's
             bounds.
 
     Returns:

@@ -5,8 +5,10 @@ import pytest
 
 from deploy.backends.sim.plant import SimBackend
 from deploy.runtime import NAN_ACTION_LIMIT
+from eval.world.dynamics import randomized_model
 from eval.world.fault_schedule import FaultRanges, cable_budget, sample_fault_schedule, stale_budget
-from eval.world.randomization import SensorDraw, randomized_model, sample_session, session_rng
+from eval.world.sensors import SensorDraw
+from eval.world.session_draw import sample_session, session_rng
 from robots.chain_bounds import end_effector_lever, motion_bounds
 
 HOURS8 = 8 * 3600.0

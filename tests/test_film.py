@@ -17,7 +17,7 @@ from eval.report.build import Thresholds, build_report, write_reports
 from eval.soak.campaign import run_campaign
 from eval.soak.session import SessionConfig
 from eval.world.fault_schedule import FaultRanges
-from eval.world.randomization import SessionRanges
+from eval.world.session_ranges import SessionRanges
 from tests.runtime_fixtures import adversarial_onnx
 
 #: Pushes far beyond what the drives hold: the adversarial policy's arm is thrown past a hard

@@ -175,7 +175,8 @@ def test_foot_contacts_on_the_floor_and_in_the_air(go2):
 
 
 def test_imu_settings_are_randomized_per_session(go2):
-    from eval.world.randomization import ImuRanges, apply_imu, sample_imu, session_rng
+    from eval.world.sensors import ImuRanges, apply_imu, sample_imu
+    from eval.world.session_draw import session_rng
 
     plant = stand_plant(go2, envs=2)
     draws = [sample_imu(go2, session_rng(s, "imu")) for s in (1, 2)]

@@ -316,7 +316,7 @@ def test_velocity_mode_keeps_the_commanded_position_on_a_saturated_drive(arm3):
     it within VELOCITY_TRACKING_TOLERANCE of the measured pose, and counts each re-anchor (anchors, not resyncs: the command stays continuous)."""
     from deploy.runtime import VELOCITY_TRACKING_TOLERANCE
     from deploy.spec.policy_spec import PolicySpec
-    from eval.world.randomization import Dynamics, randomized_model
+    from eval.world.dynamics import Dynamics, randomized_model
 
     heavy = Dynamics((1.1,) * 3, (1.2,) * 3, (1.0,) * 3, (1.0,) * 3, (0.9,) * 3)
     backend = SimBackend(arm3, mode="velocity", models=[randomized_model(arm3, "velocity", heavy)])

@@ -41,7 +41,7 @@ from eval.soak.batch import SessionBatch
 from eval.soak.campaign import run_campaign
 from eval.soak.session import SessionConfig, session_dir
 from eval.world.fault_schedule import FaultRanges, stale_budget
-from eval.world.randomization import SessionRanges
+from eval.world.session_ranges import SessionRanges
 from tests.runtime_fixtures import feedback_mlp_onnx
 from tests.soak_fixtures import kill_after_first_checkpoint
 
@@ -594,6 +594,40 @@ def test_soak_test_cli_end_to_end(policy, tmp_path, capsys):
     assert f"FAILED interventions: {', '.join(leaning)}" in capsys.readouterr().out
     assert cli.main([*base, "--resume", "--goal-period", "3"]) == cli.EXIT_BAD_INPUT
     assert "goal_period = 4.0, this run has 3.0" in capsys.readouterr().err
+
+
+def test_soak_test_ranges_file_sets_what_the_sessions_draw(policy, tmp_path, capsys):
+    """``soak-test --ranges FILE``: the sessions draw from the file's ranges and record them; a
+    resume with other ranges is refused naming the range, as other options are."""
+    ranges = tmp_path / "ranges.toml"
+    ranges.write_text(
+        "[sensors]\nnoise_sigma = [0.02, 0.02]\n"
+        "[faults]\nmean_interval = 1.0\nwarmup = 0.5\nmin_gap = 3.0\n"
+    )
+    out = tmp_path / "run"
+    base = ["--policy", str(policy), "--hours", "0.002", "--seed", "2", "--out", str(out)]
+    base += ["--min-success", "0", "--min-window-success", "0", "--max-interventions", "1"]
+    base += ["--no-progress", "--no-film"]
+    assert cli.main([*base, "--ranges", str(ranges)]) == cli.EXIT_PASSED
+    result = json.loads((out / "sessions" / "seed0002" / "result.json").read_text())
+    assert result["randomization"]["sensors"]["noise_sigma"] == 0.02
+    assert result["options"]["ranges"]["sensors"]["noise_sigma"] == [0.02, 0.02]
+    assert result["options"]["ranges"]["faults"]["warmup"] == 0.5
+    assert result["faults"]["injected"] > 0  # after 0.5 s, not the default 10 s
+    report = json.loads((out / "report.json").read_text())
+    assert report["campaign"]["ranges_file"] == str(ranges)
+    capsys.readouterr()
+    assert cli.main([*base, "--resume"]) == cli.EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "ranges.sensors.noise_sigma = [0.02, 0.02], this run has [" in err
+    argv = [*base, "--ranges", str(ranges), "--fault-interval", "3"]
+    assert cli.main(argv) == cli.EXIT_BAD_INPUT
+    assert "--fault-interval: " + str(ranges) + " sets faults.mean_interval" in (
+        capsys.readouterr().err
+    )
+    ranges.write_text("[sensors]\nnoise_sigma = [0.02, 0.01]\n")
+    assert cli.main([*base, "--ranges", str(ranges)]) == cli.EXIT_BAD_INPUT
+    assert f"{ranges}: sensors.noise_sigma: expected a range" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

@@ -20,7 +20,8 @@ from eval.soak.batch import SessionBatch
 from eval.soak.campaign import run_campaign
 from eval.soak.session import SessionConfig, session_dir
 from eval.world.fault_schedule import fault_ranges
-from eval.world.randomization import SessionRanges, sample_session, session_ranges
+from eval.world.session_draw import sample_session
+from eval.world.session_ranges import SessionRanges, session_ranges
 from tests.soak_fixtures import kill_after_first_checkpoint
 
 REPO = Path(__file__).resolve().parents[1]

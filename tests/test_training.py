@@ -8,7 +8,7 @@ import torch
 from gymnasium.utils.env_checker import check_env
 
 from deploy.policy.mlp_checkpoint import load_checkpoint, save_checkpoint
-from eval.world.randomization import DynamicsRanges
+from eval.world.dynamics import DynamicsRanges
 from policies.envs import ArmReachEnv, ReachConfig, ReachTask, RewardConfig
 
 NOMINAL = ReachConfig(dynamics=DynamicsRanges.none())
@@ -87,7 +87,7 @@ def test_pushing_a_joint_into_its_soft_limit_is_an_intervention_and_costs_its_pe
 
 def test_episodes_draw_noise_and_dynamics_per_env(arm3):
     task = ReachTask(arm3, 4, ReachConfig(), seed=4)
-    lo, hi = ReachConfig().sensors.noise_sigma
+    lo, hi = task.config.sensors.noise_sigma  # the robot's soak ranges
     assert np.all((task.backend.noise_sigma >= lo) & (task.backend.noise_sigma <= hi))
     assert len({d.mass for d in task.dynamics}) == 4  # one draw per env
     masses = [m.body_mass[m.jnt_bodyid[0]] for m in task.backend.models]

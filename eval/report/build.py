@@ -10,11 +10,13 @@ often is a policy leaning on it, not a robot beyond its limits.
 
     schema_version, tool, created (UTC, ISO 8601)
     campaign        robot, policy, policy_sha256, hours, sessions, seed, options of the sessions,
-                    executor, sessions_per_process, wall_s
+                    ranges_file (soak-test --ranges, or null), executor, sessions_per_process,
+                    wall_s
     thresholds      the pass/fail thresholds and baseline tolerances (:class:`Thresholds`)
     sessions[]      one per session (eval.soak's result):
         id, seed, status ('complete' | 'diverged'), simulated_s, simulated_hours, ticks,
-        control_mode, randomization {dynamics, sensors, drift, faults[]},
+        control_mode, options (the session's, ranges {dynamics, sensors, drift, faults, imu,
+        floor_friction} among them), randomization {dynamics, sensors, drift, faults[]},
         violations {source, total {type: ticks}, any, per_hour [{hour, start_s, end_s,
                     counts {type: ticks}, any}], rate_per_hour {type: ticks per hour}}
                     (types: hard_limit, soft_limit, velocity, effort, workspace, self_collision;

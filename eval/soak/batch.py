@@ -42,8 +42,8 @@ Legged robots (``robot.floating_base``): instead of goals, a
 share of RUNNING time within 0.2 m/s of the command, also per window of ``window_minutes``),
 distance and speed, and the falls (safe stops of cause ``fall`` of a robot that was walking,
 ``CommandTracker.falls``). Each session also draws its IMU
-noise (:func:`eval.world.randomization.apply_imu`) and its floor friction
-(:func:`eval.world.randomization.apply_floor_friction`); its pushes act on the base, and it gets no
+noise (:func:`eval.world.sensors.apply_imu`) and its floor friction
+(:func:`eval.world.floor.apply_floor_friction`); its pushes act on the base, and it gets no
 cable pulls (:func:`eval.world.fault_schedule.sample_fault_schedule`). Its operator resets stand the
 robot up first (:meth:`SessionBatch.stand_up`: a robot lying after a stop cannot get up by
 itself).
@@ -72,16 +72,11 @@ from eval.soak import checkpoint as ckpt
 from eval.soak.faults import SessionFaults
 from eval.soak.result import session_result
 from eval.soak.session import SESSIONS_DIR, Session, SessionConfig, SessionError, session_dir
-from eval.world.randomization import (
-    apply_drift,
-    apply_floor_friction,
-    apply_imu,
-    apply_sensors,
-    joint_dofs,
-    randomized_model,
-    sample_session,
-    session_rng,
-)
+from eval.world.drift import apply_drift, joint_dofs
+from eval.world.dynamics import randomized_model
+from eval.world.floor import apply_floor_friction
+from eval.world.sensors import apply_imu, apply_sensors
+from eval.world.session_draw import sample_session, session_rng
 from robots.errors import Sim2RealError
 from robots.files import atomic_write, sha256_file
 

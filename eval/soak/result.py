@@ -24,7 +24,7 @@ from deploy.monitors.interventions import INTERVENTION_CHECKS
 from deploy.monitors.violations import VIOLATION_TYPES
 from deploy.runtime import FAULT_CAUSES, STAGES, Mode
 from eval.soak import checkpoint as ckpt
-from eval.soak.session import RESPONSES, Session, SessionConfig, session_dir
+from eval.soak.session import RESPONSES, Session, SessionConfig, option_difference, session_dir
 from robots.files import sha256_file
 
 VIOLATION_SOURCE = "true state (simulation ground truth)"
@@ -270,13 +270,13 @@ def check_result(result: dict, config: SessionConfig, out) -> None:
             path and checkpoint interval) or another policy file (named).
     """
     path = session_dir(out, config.seed) / "result.json"
-    stored, expected = result.get("options", {}), config.batch_key()
-    for key, value in expected.items():
-        if key not in ("policy", "checkpoint_minutes") and stored.get(key) != value:
-            raise ckpt.CheckpointError(
-                f"{path}: the session was run with {key} = {stored.get(key)!r}, this run has "
-                f"{value!r}; resume with the options of that campaign or use another --out"
-            )
+    differs = option_difference(result.get("options", {}), config.batch_key())
+    if differs is not None:
+        key, old, new = differs
+        raise ckpt.CheckpointError(
+            f"{path}: the session was run with {key} = {old!r}, this run has {new!r}; resume "
+            f"with the options of that campaign or use another --out"
+        )
     if result.get("policy_sha256") != sha256_file(config.policy):
         raise ckpt.CheckpointError(
             f"{path}: the session was run with another policy file than {config.policy}"

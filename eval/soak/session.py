@@ -4,7 +4,7 @@ A **session** is one continuous run of :class:`deploy.runtime.Runtime` with the 
 (:class:`~deploy.runtime.SimClock`) for ``hours`` of simulated time (8 by default): a new goal
 every ``goal_period`` s (:class:`deploy.tasks.goals.GoalScheduler`), dynamics, sensor settings,
 drift and a fault schedule drawn from the session seed
-(:func:`eval.world.randomization.sample_session`),
+(:func:`eval.world.session_draw.sample_session`),
 friction
 rising with wear over the session, the motor thermal model running throughout. It runs as env
 ``e`` of a batch (:class:`eval.soak.batch.SessionBatch`); :class:`Session` keeps what is its own
@@ -37,7 +37,7 @@ from deploy.runtime import FAULT_CAUSES, Mode
 from deploy.stateful import prefixed
 from eval.soak import checkpoint as ckpt
 from eval.world.fault_schedule import FAULT_SETTLE
-from eval.world.randomization import SessionRanges
+from eval.world.session_ranges import SessionRanges
 from robots.errors import Sim2RealError
 
 if TYPE_CHECKING:
@@ -141,6 +141,30 @@ class SessionConfig:
         return d
 
 
+def option_difference(stored: dict, expected: dict) -> tuple[str, object, object] | None:
+    """The first option of ``expected`` (:meth:`SessionConfig.batch_key`) that ``stored`` (a
+    checkpoint's or result's) does not have the same, but the policy path and the checkpoint
+    interval (a resumed run may change those): ``(name, stored value, expected value)``, nested
+    options named by their path (``ranges.sensors.noise_sigma``); None when all agree."""
+
+    def walk(name: str, old, new):
+        if isinstance(old, dict) and isinstance(new, dict):
+            for key in [*new, *(k for k in old if k not in new)]:
+                found = walk(f"{name}.{key}", old.get(key), new.get(key))
+                if found:
+                    return found
+            return None
+        return None if old == new else (name, old, new)
+
+    for key, value in expected.items():
+        if key in ("policy", "checkpoint_minutes"):
+            continue
+        found = walk(key, stored.get(key), value)
+        if found:
+            return found
+    return None
+
+
 def session_dir(out: str | os.PathLike, seed: int) -> Path:
     """Folder of session ``seed`` in campaign folder ``out``."""
     return Path(out) / SESSIONS_DIR / SessionConfig(seed=seed).id
@@ -155,7 +179,7 @@ class Session:
         batch: The batch the session runs in (:class:`eval.soak.batch.SessionBatch`).
         e: The session's env index in the batch.
         config: The session's options.
-        draw: Its randomization (:func:`eval.world.randomization.sample_session`).
+        draw: Its randomization (:func:`eval.world.session_draw.sample_session`).
     """
 
     def __init__(self, batch: SessionBatch, e: int, config: SessionConfig, draw):
@@ -342,16 +366,13 @@ class Session:
                 randomization; or an array does not fit (named).
         """
         b, e = self.batch, self.e
-        expected = self.config.batch_key()
-        stored = meta.get("config", {})
-        for key, value in expected.items():
-            if key in ("policy", "checkpoint_minutes"):
-                continue
-            if stored.get(key) != value:
-                raise ckpt.CheckpointError(
-                    f"{where}: the checkpoint was made with {key} = {stored.get(key)!r}, this run "
-                    f"has {value!r}; resume with the options of the interrupted campaign"
-                )
+        differs = option_difference(meta.get("config", {}), self.config.batch_key())
+        if differs is not None:
+            key, old, new = differs
+            raise ckpt.CheckpointError(
+                f"{where}: the checkpoint was made with {key} = {old!r}, this run has {new!r}; "
+                f"resume with the options of the interrupted campaign"
+            )
         if meta.get("policy_sha256") != b.policy_sha256:
             raise ckpt.CheckpointError(
                 f"{where}: the checkpoint was made with another policy file (SHA-256 "
@@ -360,7 +381,7 @@ class Session:
         if meta.get("randomization") != self.draw.to_dict():
             raise ckpt.CheckpointError(
                 f"{where}: the randomization stored in the checkpoint differs from the one drawn "
-                f"for seed {self.config.seed} (another version of eval.world.randomization?)"
+                f"for seed {self.config.seed} (another version of eval.world.session_draw?)"
             )
         ckpt.load_stage(b.rt, arrays, e, where)
         if self.legged:

@@ -24,7 +24,7 @@ import numpy as np
 from robots import Robot
 
 if TYPE_CHECKING:
-    from eval.world.randomization import SensorDraw
+    from eval.world.sensors import SensorDraw
 
 
 def check_range(owner: str, name: str, lo: float, hi: float, minimum: float = 0.0) -> None:

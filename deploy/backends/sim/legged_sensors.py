@@ -16,7 +16,7 @@ frame; a reading is lost with probability ``dropout``. Foot contact (``[sensors.
 foot's normal force plus Gaussian noise (N), ``foot_contact = force > threshold``.
 
 The noise settings are per env (``(envs,)`` arrays, change them between ticks: per-session
-randomization, :func:`eval.world.randomization.apply_imu`). The draws come from the backend's sensor
+randomization, :func:`eval.world.sensors.apply_imu`). The draws come from the backend's sensor
 stream(s), after the encoder's, so an arm's readings are unchanged. MuJoCo computes the sensors at
 the start of each physics step: a reading is the state one physics timestep before the end of the
 control period.

@@ -1,0 +1,156 @@
+"""Randomized dynamics: seeded samplers and appliers for the plant's masses, lengths, friction.
+
+Training (:mod:`policies.envs`) and the soak harness draw from the same samplers, so a policy is
+trained and tested on the same family of "slightly broken worlds" (seed section 5). Every draw is a
+plain dataclass that can be written to a report and replayed exactly.
+
+Dynamics (``DynamicsRanges``; defaults from the seed's section 11 "Randomize the arm"):
+
+===================  ==========  ===================================================================
+quantity             default     applied to (``mujoco.MjSpec`` before compiling)
+===================  ==========  ===================================================================
+link length          +-10 %      every moving body's frame contents: child body and site positions,
+                                 geom positions, ``fromto`` and sizes, centre of mass; inertia x s^2
+mass                 +-20 %      body mass and inertia (same factor: the shape is unchanged)
+joint friction       +-50 %      ``frictionloss`` (dry friction, N m)
+joint damping        +-50 %      ``damping`` (viscous, N m s/rad)
+actuator strength    +-10 %      servo gains kp, kd (position, velocity mode); motor gear (torque)
+===================  ==========  ===================================================================
+
+The runtime keeps the nominal Pinocchio model: randomization is the gap between what the
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import mujoco
+import numpy as np
+
+from robots import Robot
+
+
+@dataclass(frozen=True)
+class DynamicsRanges:
+    """Relative half-ranges of the dynamics factors: a factor is drawn from ``U(1 - r, 1 + r)``.
+
+    Attributes:
+        link_length: Link length (seed section 11: +-10 %).
+        mass: Link mass (seed section 11: +-20 %).
+        friction: Joint dry friction (seed section 11: +-50 %).
+        damping: Joint viscous damping.
+        actuator_strength: Servo gains or motor gear.
+    """
+
+    link_length: float = 0.10
+    mass: float = 0.20
+    friction: float = 0.50
+    damping: float = 0.50
+    actuator_strength: float = 0.10
+
+    def __post_init__(self):
+        for name, value in asdict(self).items():
+            if not 0.0 <= value < 1.0:
+                raise ValueError(f"DynamicsRanges.{name}: expected a value in [0, 1), got {value}")
+
+    @classmethod
+    def none(cls) -> DynamicsRanges:
+        """No randomization: the nominal robot."""
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Dynamics:
+    """One draw of dynamics factors, one per moving link / joint (tuples of length n_joints).
+
+    A factor of 1.0 is the nominal value. ``Dynamics.nominal(n)`` is the unrandomized robot.
+    """
+
+    link_length: tuple[float, ...]
+    mass: tuple[float, ...]
+    friction: tuple[float, ...]
+    damping: tuple[float, ...]
+    actuator_strength: tuple[float, ...]
+
+    @classmethod
+    def nominal(cls, n_joints: int) -> Dynamics:
+        ones = (1.0,) * n_joints
+        return cls(ones, ones, ones, ones, ones)
+
+    def to_dict(self) -> dict[str, list[float]]:
+        return {k: list(v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Dynamics:
+        return cls(**{k: tuple(float(x) for x in data[k]) for k in cls.__dataclass_fields__})
+
+
+def sample_dynamics(
+    robot: Robot, rng: np.random.Generator, ranges: DynamicsRanges | None = None
+) -> Dynamics:
+    """Draw one :class:`Dynamics` for ``robot`` from ``rng`` (uniform, independent per joint)."""
+    ranges = DynamicsRanges() if ranges is None else ranges
+    n = robot.n_joints
+
+    def draw(r: float) -> tuple[float, ...]:
+        return tuple(float(x) for x in rng.uniform(1.0 - r, 1.0 + r, n))
+
+    return Dynamics(
+        link_length=draw(ranges.link_length),
+        mass=draw(ranges.mass),
+        friction=draw(ranges.friction),
+        damping=draw(ranges.damping),
+        actuator_strength=draw(ranges.actuator_strength),
+    )
+
+
+def apply_dynamics(spec: mujoco.MjSpec, robot: Robot, dynamics: Dynamics, mode: str) -> None:
+    """Edit ``spec`` (from ``robot.mjspec(mode)``) in place to the randomized dynamics.
+
+    The moving body of joint ``i`` is scaled by ``dynamics.link_length[i]`` about its own frame
+    (so its child bodies, sites and geoms move out with it and the link's centre of mass and
+    inertia stay those of the same shape), and its mass and inertia by ``dynamics.mass[i]``.
+
+    Raises:
+        ValueError: a joint of the robot is missing from the spec.
+    """
+    for i, name in enumerate(robot.joint_names):
+        joint = spec.joint(name)
+        if joint is None:
+            raise ValueError(f"apply_dynamics: joint '{name}' is not in the MuJoCo spec")
+        body = joint.parent
+        s, m = dynamics.link_length[i], dynamics.mass[i]
+        for child in body.bodies:
+            child.pos = np.asarray(child.pos) * s
+        for site in body.sites:
+            site.pos = np.asarray(site.pos) * s
+        for geom in body.geoms:
+            geom.pos = np.asarray(geom.pos) * s
+            geom.size = np.asarray(geom.size) * s
+            fromto = np.asarray(geom.fromto)
+            if np.isfinite(fromto).all():
+                geom.fromto = fromto * s
+        body.ipos = np.asarray(body.ipos) * s
+        body.mass = body.mass * m
+        body.inertia = np.asarray(body.inertia) * (m * s * s)
+        joint.frictionloss = joint.frictionloss * dynamics.friction[i]
+        joint.damping = joint.damping * dynamics.damping[i]
+    strength = dict(zip(robot.joint_names, dynamics.actuator_strength, strict=True))
+    for act in spec.actuators:  # every actuator of a joint (velocity mode: the PI loop's two)
+        k = strength[act.target]
+        if mode == "torque":
+            gear = np.asarray(act.gear)
+            gear[0] *= k
+            act.gear = gear
+        else:
+            gain, bias = np.asarray(act.gainprm), np.asarray(act.biasprm)
+            gain[0] *= k
+            bias[1:3] *= k
+            act.gainprm, act.biasprm = gain, bias
+
+
+def randomized_model(robot: Robot, mode: str, dynamics: Dynamics) -> mujoco.MjModel:
+    """Compiled plant model of ``robot`` in control ``mode`` with ``dynamics`` applied."""
+    spec = robot.mjspec(mode)
+    apply_dynamics(spec, robot, dynamics, mode)
+    return spec.compile()

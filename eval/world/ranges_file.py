@@ -1,0 +1,219 @@
+"""A TOML file of session ranges: overrides of the defaults a robot kind's soak and training draw
+from (:func:`eval.world.session_ranges.session_ranges`), read by ``soak-test --ranges FILE`` and
+the training recipes' ``--ranges FILE`` (:func:`load_ranges`).
+
+Every table and key is optional; what the file leaves out keeps the robot kind's default. A range
+is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the class it sets::
+
+    floor_friction = [0.6, 1.0]   # floor sliding friction (floating-base robots only)
+
+    [dynamics]    # relative half-ranges in [0, 1): a factor is drawn from U(1 - r, 1 + r)
+    mass = 0.3    # also link_length, friction, damping, actuator_strength
+
+    [sensors]     # encoder: noise_sigma (rad), latency_ticks (control ticks), dropout
+    noise_sigma = [0.005, 0.02]
+
+    [imu]         # floating-base robots only: gyro_noise_sigma (rad/s), accel_noise_sigma
+                  # (m/s^2), bias_scale, latency_ticks, force_noise_fraction
+    [drift]       # friction_rate (1/h)
+    [faults]      # mean_interval, min_gap, warmup (s), kinds, weights, dropout, stale,
+                  # nan_ticks, latency_ticks, latency_duration, push_force (N), push_duration,
+                  # cable_force, cable_duration
+
+The tables are :class:`~eval.world.dynamics.DynamicsRanges`,
+:class:`~eval.world.sensors.SensorRanges`, :class:`~eval.world.sensors.ImuRanges`,
+:class:`~eval.world.drift.DriftRanges` and :class:`~eval.world.fault_schedule.FaultRanges`; their
+docstrings give each key's meaning, unit and default. An unknown table or key, a value of the
+wrong type, an inverted or out-of-bounds range, or an IMU or floor setting for a fixed-base robot
+is a :class:`RangesError` naming the file, the ``table.key`` and the value expected.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import types
+import typing
+from pathlib import Path
+
+from eval.world.drift import DriftRanges
+from eval.world.dynamics import DynamicsRanges
+from eval.world.fault_schedule import FaultRanges
+from eval.world.sensors import ImuRanges, SensorRanges
+from eval.world.session_ranges import SessionRanges, session_ranges
+from robots import Robot
+from robots.errors import Sim2RealError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+#: The tables of a ranges file and the class each one sets (a field of :class:`SessionRanges`).
+TABLES = {
+    "dynamics": DynamicsRanges,
+    "sensors": SensorRanges,
+    "imu": ImuRanges,
+    "drift": DriftRanges,
+    "faults": FaultRanges,
+}
+#: Keys of a ranges file outside any table, with their type.
+TOP_LEVEL = {"floor_friction": tuple[float, float]}
+#: What only a floating-base robot draws.
+FLOATING_BASE_ONLY = ("imu", "floor_friction")
+
+
+class RangesError(Sim2RealError, ValueError):
+    """A bad ranges file; the message names the file, the ``table.key`` and the value expected."""
+
+
+def _expected(hint) -> str:
+    """What a value of type ``hint`` looks like in TOML, for messages."""
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        return _expected(next(a for a in typing.get_args(hint) if a is not type(None)))
+    if typing.get_origin(hint) is tuple:
+        args = typing.get_args(hint)
+        item = {float: "numbers", int: "integers", str: "strings"}[args[0]]
+        if len(args) == 2 and args[1] is Ellipsis:
+            return f"a list of {item}"
+        return f"a range [low, high] of two {item}"
+    return {float: "a number", int: "an integer", str: "a string"}[hint]
+
+
+def _convert(value, hint):
+    """``value`` (parsed TOML) as type ``hint``; raises ``TypeError`` when it is not one."""
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        return _convert(value, next(a for a in typing.get_args(hint) if a is not type(None)))
+    if typing.get_origin(hint) is tuple:
+        args = typing.get_args(hint)
+        if not isinstance(value, list):
+            raise TypeError
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(v, args[0]) for v in value)
+        if len(value) != len(args):
+            raise TypeError
+        return tuple(_convert(v, a) for v, a in zip(value, args, strict=True))
+    if isinstance(value, bool):
+        raise TypeError
+    if hint is float and isinstance(value, (int, float)):
+        return float(value)
+    if hint in (int, str) and isinstance(value, hint):
+        return value
+    raise TypeError
+
+
+def _typed(path: Path, where: str, value, hint):
+    try:
+        return _convert(value, hint)
+    except TypeError:
+        raise RangesError(f"{path}: {where}: expected {_expected(hint)}, got {value!r}") from None
+
+
+def read_overrides(path: str | Path) -> dict:
+    """The overrides of ranges file ``path``, parsed and type-checked (the ranges' own bounds are
+    checked when they are applied, :func:`apply_overrides`).
+
+    Returns:
+        ``{table: {key: value}}`` for the tables of ``TABLES``, and ``floor_friction: (low, high)``
+        when set; ranges as tuples, numbers as float (int where the field is an integer).
+
+    Raises:
+        RangesError: an unreadable file, invalid TOML, an unknown table or key, or a value of the
+            wrong type (named).
+    """
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise RangesError(f"{path}: cannot read the ranges file ({exc.strerror})") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise RangesError(f"{path}: not valid TOML: {exc}") from None
+    known = [f"[{t}]" for t in TABLES] + list(TOP_LEVEL)
+    out: dict = {}
+    for key, value in doc.items():
+        if key in TOP_LEVEL:
+            out[key] = _typed(path, key, value, TOP_LEVEL[key])
+            continue
+        if key not in TABLES:
+            raise RangesError(f"{path}: unknown key '{key}'; expected one of {', '.join(known)}")
+        if not isinstance(value, dict):
+            raise RangesError(f"{path}: {key}: expected a table [{key}], got {value!r}")
+        hints = typing.get_type_hints(TABLES[key])
+        table = {}
+        for name, item in value.items():
+            if name not in hints:
+                raise RangesError(
+                    f"{path}: {key}.{name}: unknown key; expected one of {', '.join(hints)}"
+                )
+            table[name] = _typed(path, f"{key}.{name}", item, hints[name])
+        out[key] = table
+    return out
+
+
+def _reason(exc: ValueError, owner: str, name: str) -> str:
+    """The message of a range class's check without its own ``Owner.name: `` prefix."""
+    message = str(exc)
+    prefix = f"{owner}.{name}: "
+    return message[len(prefix) :] if message.startswith(prefix) else message
+
+
+def apply_overrides(
+    ranges: SessionRanges, overrides: dict, robot: Robot, source: str | Path
+) -> SessionRanges:
+    """``ranges`` with ``overrides`` (from :func:`read_overrides` of file ``source``) set.
+
+    Keys are set in the order of their class's fields (``kinds`` before ``weights``), each
+    checked by its class (:meth:`FaultRanges.__post_init__` and the others).
+
+    Raises:
+        RangesError: an IMU or floor setting for a fixed-base robot, or a range its class refuses
+            (inverted, out of bounds; named with the file and ``table.key``).
+    """
+    if not robot.floating_base:
+        for key in FLOATING_BASE_ONLY:
+            if key in overrides:
+                raise RangesError(
+                    f"{source}: {key}: robot {robot.name} has a fixed base (no IMU, no floor "
+                    f"drawn); {key} applies to floating-base robots only"
+                )
+    changes = {}
+    for table, cls in TABLES.items():
+        if table not in overrides:
+            continue
+        current = getattr(ranges, table)
+        if current is None:  # a floating-base robot's ranges without IMU: start from defaults
+            current = cls()
+        for field in dataclasses.fields(cls):
+            if field.name not in overrides[table]:
+                continue
+            try:
+                current = dataclasses.replace(current, **{field.name: overrides[table][field.name]})
+            except ValueError as exc:
+                raise RangesError(
+                    f"{source}: {table}.{field.name}: {_reason(exc, cls.__name__, field.name)}"
+                ) from None
+        changes[table] = current
+    for key in TOP_LEVEL:
+        if key in overrides:
+            try:
+                dataclasses.replace(ranges, **{key: overrides[key]})
+            except ValueError as exc:
+                raise RangesError(
+                    f"{source}: {key}: {_reason(exc, 'SessionRanges', key)}"
+                ) from None
+            changes[key] = overrides[key]
+    return dataclasses.replace(ranges, **changes)
+
+
+def load_ranges(
+    path: str | Path, robot: Robot, mean_interval: float | None = None
+) -> SessionRanges:
+    """The ranges of ``robot``'s sessions with ranges file ``path``: the robot kind's defaults
+    (:func:`eval.world.session_ranges.session_ranges` with ``mean_interval`` s between faults when
+    given), then the file's overrides (module docstring).
+
+    Raises:
+        RangesError: a bad file (:func:`read_overrides`, :func:`apply_overrides`; named).
+    """
+    overrides = read_overrides(path)
+    return apply_overrides(session_ranges(robot, mean_interval), overrides, robot, path)

@@ -1,0 +1,157 @@
+"""One soak session's randomization, drawn from its seed: each part from its own named stream
+(:func:`session_rng`), bundled in :class:`SessionRandomization` by :func:`sample_session`:
+
+- dynamics (:mod:`eval.world.dynamics`);
+- sensors (:mod:`eval.world.sensors`): encoder noise, latency and dropout; a floating-base robot's
+  IMU and foot force noise;
+- a floating-base robot's floor friction (:mod:`eval.world.floor`);
+- slow drift (:mod:`eval.world.drift`);
+- a fault schedule (:mod:`eval.world.fault_schedule`): dropout bursts, stale frames, non-finite
+  actions, latency spikes, pushes and a cable pulling on the end effector, as
+  :class:`deploy.backends.sim.faults.Fault` for :class:`deploy.backends.sim.faults.FaultInjector`,
+  each sized to be survivable in the session's plant.
+
+The ranges it draws from are :class:`eval.world.session_ranges.SessionRanges`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from eval.world.drift import Drift, sample_drift
+from eval.world.dynamics import Dynamics, randomized_model, sample_dynamics
+from eval.world.fault_schedule import fault_from_dict, fault_to_dict, sample_fault_schedule
+from eval.world.sensors import ImuDraw, SensorDraw, sample_imu, sample_sensors
+from eval.world.session_ranges import SessionRanges
+from robots import Robot
+
+#: Named random streams of a session: ``numpy.random.default_rng([seed, STREAMS[name]])``.
+STREAMS = {
+    "dynamics": 0,
+    "sensors": 1,
+    "drift": 2,
+    "faults": 3,
+    "sensor_noise": 4,  # the backend's encoder noise and dropout draws
+    "goals": 5,
+    "imu": 6,  # floating-base robots: IMU and foot-force noise scales (ImuRanges)
+    "floor": 7,  # floating-base robots: the floor's sliding friction (floor_friction)
+}
+
+
+def session_rng(seed: int, stream: str) -> np.random.Generator:
+    """The generator of one named stream (``STREAMS``) of session ``seed`` (an int >= 0).
+
+    Raises:
+        ValueError: an unknown stream name or a negative seed.
+    """
+    if stream not in STREAMS:
+        raise ValueError(f"session_rng: stream '{stream}' is unknown; expected one of {STREAMS}")
+    if int(seed) < 0:
+        raise ValueError(f"session_rng: seed must be >= 0, got {seed}")
+    return np.random.default_rng([int(seed), STREAMS[stream]])
+
+
+@dataclass(frozen=True)
+class SessionRandomization:
+    """Everything drawn for one soak session from its seed: replayable and reportable.
+
+    Attributes:
+        seed: The session seed.
+        dynamics: Link lengths, masses, friction, damping, actuator strength.
+        sensors: Encoder noise sigma, latency, dropout.
+        drift: Friction rise over the session.
+        faults: The fault schedule (``deploy.backends.sim.faults.Fault``, sorted by start; empty
+            without faults).
+        imu: A floating-base robot's IMU and foot-force noise (:func:`sample_imu`; None for an
+            arm).
+        floor_friction: A floating-base robot's floor sliding friction (drawn from
+            :attr:`SessionRanges.floor_friction`; None for an arm).
+    """
+
+    seed: int
+    dynamics: Dynamics
+    sensors: SensorDraw
+    drift: Drift
+    faults: tuple
+    imu: ImuDraw | None = None
+    floor_friction: float | None = None
+
+    def to_dict(self) -> dict:
+        out = {
+            "seed": self.seed,
+            "dynamics": self.dynamics.to_dict(),
+            "sensors": self.sensors.to_dict(),
+            "drift": self.drift.to_dict(),
+            "faults": [fault_to_dict(f) for f in self.faults],
+        }
+        if self.imu is not None:  # a floating-base robot's (an arm's document is unchanged)
+            out["imu"] = self.imu.to_dict()
+        if self.floor_friction is not None:
+            out["floor_friction"] = self.floor_friction
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> SessionRandomization:
+        return cls(
+            int(data["seed"]),
+            Dynamics.from_dict(data["dynamics"]),
+            SensorDraw.from_dict(data["sensors"]),
+            Drift.from_dict(data["drift"]),
+            tuple(fault_from_dict(f) for f in data["faults"]),
+            ImuDraw.from_dict(data["imu"]) if data.get("imu") is not None else None,
+            float(data["floor_friction"]) if data.get("floor_friction") is not None else None,
+        )
+
+
+def sample_session(
+    robot: Robot,
+    seed: int,
+    duration: float,
+    ranges: SessionRanges | None = None,
+    faults: bool = True,
+) -> SessionRandomization:
+    """Draw a session's randomization from its ``seed``: each part from its own stream
+    (:func:`session_rng`), so that e.g. turning faults off leaves the dynamics unchanged. A
+    floating-base robot also draws its IMU noise (``imu`` stream) and floor friction (``floor``).
+
+    Args:
+        robot: The robot.
+        seed: Session seed (int >= 0).
+        duration: Session length, s (the fault schedule ends before it).
+        ranges: The ranges; default :class:`SessionRanges` (the robot kind's own:
+            :func:`eval.world.session_ranges.session_ranges`).
+        faults: False: an empty fault schedule.
+
+    Raises:
+        ValueError: a floating-base robot with ranges without ``imu`` or ``floor_friction``.
+    """
+    ranges = SessionRanges() if ranges is None else ranges
+    sensors = sample_sensors(session_rng(seed, "sensors"), ranges.sensors)
+    dynamics = sample_dynamics(robot, session_rng(seed, "dynamics"), ranges.dynamics)
+    schedule = []
+    if faults:
+        # faults are sized against this session's plant (its masses and link lengths)
+        plant = randomized_model(robot, robot.config.control.mode, dynamics)
+        rng = session_rng(seed, "faults")
+        schedule = sample_fault_schedule(robot, rng, duration, sensors, ranges.faults, plant)
+    imu = floor = None
+    if robot.floating_base:
+        if ranges.imu is None or ranges.floor_friction is None:
+            raise ValueError(
+                f"sample_session: robot {robot.name} has a floating base: expected ranges with "
+                f"imu and floor_friction (eval.world.session_ranges.session_ranges), got imu = "
+                f"{ranges.imu}, floor_friction = {ranges.floor_friction}"
+            )
+        imu = sample_imu(robot, session_rng(seed, "imu"), ranges.imu)
+        floor = float(session_rng(seed, "floor").uniform(*ranges.floor_friction))
+    return SessionRandomization(
+        seed=int(seed),
+        dynamics=dynamics,
+        sensors=sensors,
+        drift=sample_drift(robot, session_rng(seed, "drift"), ranges.drift),
+        faults=tuple(schedule),
+        imu=imu,
+        floor_friction=floor,
+    )

@@ -1,0 +1,178 @@
+"""The ranges a session draws from: each robot kind's defaults (session_ranges), a TOML file's
+overrides (load_ranges) and their errors, and training drawing from the same ranges as the soak.
+
+soak-test --ranges end to end: tests/test_soak.py."""
+
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eval.world.dynamics import DynamicsRanges
+from eval.world.fault_schedule import fault_ranges
+from eval.world.floor import FLOOR_FRICTION
+from eval.world.ranges_file import RangesError, load_ranges
+from eval.world.sensors import ImuRanges
+from eval.world.session_draw import sample_session
+from eval.world.session_ranges import (
+    LEGGED_DYNAMICS,
+    LEGGED_SENSORS,
+    SessionRanges,
+    sensor_ranges,
+    session_ranges,
+)
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "eval" / "world" / "example_ranges.toml"
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "ranges.toml"
+    path.write_text(text)
+    return path
+
+
+def test_each_robot_kind_gets_its_own_defaults(arm3, go2):
+    arm = session_ranges(arm3, 30.0)
+    assert arm.sensors == sensor_ranges(arm3) and arm.dynamics == DynamicsRanges()
+    assert arm.faults == fault_ranges(arm3, 30.0) and arm.faults.mean_interval == 30.0
+    assert arm.imu is None and arm.floor_friction is None  # an arm draws neither
+    legged = session_ranges(go2)
+    assert (legged.dynamics, legged.sensors) == (LEGGED_DYNAMICS, LEGGED_SENSORS)
+    assert legged.imu == ImuRanges() and legged.floor_friction == FLOOR_FRICTION
+
+
+def test_the_example_file_overrides_only_what_it_sets(arm3):
+    ranges = load_ranges(EXAMPLE, arm3)
+    default = session_ranges(arm3)
+    assert ranges.dynamics.mass == 0.3 and ranges.dynamics.friction == 0.6
+    assert ranges.dynamics.link_length == default.dynamics.link_length
+    assert ranges.sensors.noise_sigma == (0.004, 0.04) and ranges.sensors.latency_ticks == (0, 3)
+    assert ranges.drift.friction_rate == (0.02, 0.08)
+    assert ranges.faults.mean_interval == 90.0 and ranges.faults.push_force == (5.0, 20.0)
+    assert ranges.faults.weights == (1.0, 1.0, 1.0, 1.0, 2.0, 1.0)
+    assert ranges.faults.cable_force == default.faults.cable_force
+    assert (ranges.imu, ranges.floor_friction) == (None, None)
+    # the file wins over the fault interval given with it; without the key, the interval holds
+    assert load_ranges(EXAMPLE, arm3, mean_interval=10.0).faults.mean_interval == 90.0
+
+
+def test_a_value_in_the_file_reaches_the_sessions_draw(tmp_path, arm3, go2):
+    arm = write(tmp_path, "[sensors]\nnoise_sigma = [0.05, 0.05]\n[dynamics]\nmass = 0\n")
+    draw = sample_session(arm3, 4, 60.0, load_ranges(arm, arm3), faults=False)
+    assert draw.sensors.noise_sigma == 0.05
+    assert draw.dynamics.mass == (1.0,) * arm3.n_joints
+    assert sample_session(arm3, 4, 60.0, session_ranges(arm3), faults=False).sensors != (
+        draw.sensors
+    )
+    legged = write(
+        tmp_path,
+        "floor_friction = [0.9, 0.9]\n[imu]\ngyro_noise_sigma = [0.07, 0.07]\n"
+        "[faults]\nkinds = ['push']\nmean_interval = 20.0\n",
+    )
+    draw = sample_session(go2, 4, 300.0, load_ranges(legged, go2, mean_interval=100.0))
+    assert draw.floor_friction == 0.9 and draw.imu.gyro_noise_sigma == 0.07
+    assert draw.faults and {f.kind for f in draw.faults} == {"push"}
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[sensors]\nnoise = [0.01, 0.02]\n", "sensors.noise: unknown key; expected one of"),
+        ("[sensor]\nnoise_sigma = [0.01, 0.02]\n", "unknown key 'sensor'; expected one of"),
+        (
+            "[sensors]\nnoise_sigma = [0.02, 0.01]\n",
+            "sensors.noise_sigma: expected a range (low, high) with 0.0 <= low <= high, got "
+            "(0.02, 0.01)",
+        ),
+        ("floor_friction = [1.0, 0.5]\n", "floor_friction: expected a range (low, high)"),
+        ("[dynamics]\nmass = 'high'\n", "dynamics.mass: expected a number, got 'high'"),
+        ("[dynamics]\nmass = 1.5\n", "dynamics.mass: expected a value in [0, 1), got 1.5"),
+        (
+            "[sensors]\nlatency_ticks = [0, 1.5]\n",
+            "sensors.latency_ticks: expected a range [low, high] of two integers, got [0, 1.5]",
+        ),
+        (
+            "[faults]\nkinds = 'push'\n",
+            "faults.kinds: expected a list of strings, got 'push'",
+        ),
+        ("[faults]\nkinds = ['sneeze']\n", "faults.kinds: 'sneeze' is unknown"),
+        ("drift = 0.1\n", "drift: expected a table [drift], got 0.1"),
+        ("[sensors\n", "not valid TOML"),
+    ],
+)
+def test_a_bad_file_names_the_file_the_key_and_the_value_expected(tmp_path, go2, text, message):
+    path = write(tmp_path, text)
+    with pytest.raises(RangesError) as info:
+        load_ranges(path, go2)
+    assert str(info.value).startswith(f"{path}: ")
+    assert message in str(info.value)
+
+
+@pytest.mark.parametrize("text", ["floor_friction = [0.6, 1.0]\n", "[imu]\nbias_scale = [1, 2]\n"])
+def test_an_arm_refuses_the_floating_base_ranges(tmp_path, arm3, text):
+    path = write(tmp_path, text)
+    with pytest.raises(RangesError, match=f"{path}: .*robot arm3 has a fixed base"):
+        load_ranges(path, arm3)
+
+
+def test_a_missing_file_is_named(tmp_path, arm3):
+    with pytest.raises(RangesError, match="nothing.toml: cannot read the ranges file"):
+        load_ranges(tmp_path / "nothing.toml", arm3)
+
+
+def test_every_range_class_field_can_be_set_from_a_file():
+    """The file's schema is the classes': every field of every table is a key of it."""
+    from eval.world.ranges_file import TABLES, TOP_LEVEL
+
+    assert set(TABLES) | set(TOP_LEVEL) == {f.name for f in fields(SessionRanges)}
+
+
+# ====================================================================== training
+def test_so101_training_draws_the_encoder_noise_of_its_soak(so101):
+    """The SO-101's reach task draws its encoder noise from the range its soak draws from (0.4-2
+    counts of its encoders), not from the seed's absolute range (4-20 counts)."""
+    from policies.envs import ReachConfig, ReachTask
+
+    soak = session_ranges(so101).sensors
+    task = ReachTask(so101, 8, ReachConfig(dynamics=DynamicsRanges.none(), mode="position"))
+    assert task.config.sensors == soak
+    low, high = soak.noise_sigma
+    assert np.all((task.backend.noise_sigma >= low) & (task.backend.noise_sigma <= high))
+
+
+def test_arm3_training_draws_what_it_drew_before(arm3):
+    """arm3's soak ranges are the seed's absolute ones: its training world is unchanged."""
+    from eval.world.sensors import SensorRanges
+    from policies.envs import ReachConfig, ReachTask
+
+    task = ReachTask(arm3, 2, ReachConfig())
+    assert task.config.sensors == SensorRanges() and task.config.dynamics == DynamicsRanges()
+
+
+def test_the_training_recipe_draws_from_the_ranges_file(tmp_path, so101, monkeypatch):
+    """``python -m policies.train --ranges FILE``: the task draws from the file's ranges (over
+    the robot's defaults), and the checkpoint records the file."""
+    pytest.importorskip("stable_baselines3")
+    import policies.train as train
+    from deploy.policy.mlp_checkpoint import read_checkpoint
+
+    seen = []
+
+    class Spy(train.ReachTask):
+        def __init__(self, robot, envs, config, seed=0):
+            super().__init__(robot, envs, config, seed=seed)
+            seen.append(self)
+
+    monkeypatch.setattr(train, "ReachTask", Spy)
+    path = write(tmp_path, "[sensors]\nnoise_sigma = [0.002, 0.003]\n[dynamics]\nmass = 0.25\n")
+    args = ["--robot", "so101", "--mode", "position", "--steps", "64", "--envs", "2"]
+    args += ["--n-steps", "32", "--batch-size", "32", "--anneal-steps", "0", "--gate-hours", "0"]
+    args += ["--logdir", str(tmp_path), "--out", str(tmp_path / "ship.pt"), "--no-progress"]
+    assert train.main([*args, "--ranges", str(path)]) == 0
+    (task,) = seen
+    assert task.config.sensors.noise_sigma == (0.002, 0.003)
+    assert task.config.sensors.latency_ticks == session_ranges(so101).sensors.latency_ticks
+    assert task.config.dynamics.mass == 0.25
+    assert np.all((task.backend.noise_sigma >= 0.002) & (task.backend.noise_sigma <= 0.003))
+    assert read_checkpoint(tmp_path / "ship.pt").info["ranges"] == str(path)

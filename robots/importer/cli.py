@@ -27,7 +27,6 @@ what was expected. The geometry and model helpers are in :mod:`robots.importer.m
 from __future__ import annotations
 
 import argparse
-import fnmatch
 import shutil
 import sys
 import tempfile
@@ -39,6 +38,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from robots.importer import flags
 from robots.importer.mjcf import prepare_mjcf
 from robots.importer.model import (
     build_spec,
@@ -53,7 +53,6 @@ from robots.importer.urdf import PreparedSource, RobotImportError, SrdfInfo, pre
 from robots.loading import (
     PACKAGE_SCHEME,
     _resolved_mjcf,
-    load_motor,
     load_robot,
     motor_catalog,
     package_root,
@@ -112,35 +111,57 @@ def resolve_source(source: str) -> Path:
     raise RobotImportError(f"{source}: no such file (expected a URDF or MJCF file, or PKG:path)")
 
 
-def _assign_motors(urdf: Path, joints: list[str], flags: list[str]) -> dict[str, str]:
-    """Joint -> motor model from ``--motor JOINT=MODEL`` flags (shell patterns; later flags win)."""
+def _assign_motors(
+    source: Path, joints: list[str], flag_texts: list[str]
+) -> tuple[dict[str, str], dict[str, MotorConfig], dict[str, tuple[Path, dict]]]:
+    """Joint -> motor name from ``--motor JOINT=MODEL`` flags (shell patterns; later flags win;
+    MODEL a catalog model or a motor TOML file). Returns ``(chosen, configs by name, tables of
+    the motors given as files by name)``."""
+    from robots.importer.flags import read_motor_flag
+
+    motors: dict[str, tuple[MotorConfig, dict | None, Path]] = {}
+
+    def parse(model: str) -> str:
+        name, config, table = read_motor_flag(text, model)
+        path = Path(model).expanduser().resolve()
+        if name in motors and motors[name][1] is not None and table is not None:
+            if motors[name][2] != path:
+                raise RobotImportError(
+                    f"--motor '{text}': motor name '{name}' is already given by "
+                    f"{motors[name][2]}; expected motor files with different names"
+                )
+        if name in motors and (motors[name][1] is None) != (table is None):
+            raise RobotImportError(
+                f"--motor '{text}': motor file {path} has the name of the catalog model "
+                f"'{name}'; rename the file"
+            )
+        motors[name] = (config, table, path)
+        return name
+
     chosen: dict[str, str] = {}
-    catalog = motor_catalog()
-    for flag in flags:
-        pattern, sep, model = flag.partition("=")
-        if not sep or not pattern or not model:
-            raise RobotImportError(f"--motor '{flag}': expected JOINT=MODEL (JOINT may be '*')")
-        if model not in catalog:
-            raise RobotImportError(
-                f"--motor '{flag}': motor model '{model}' is not in the catalog "
-                f"{Path(next(iter(catalog.values()), Path('robots/motors/x'))).parent} "
-                f"(known: {sorted(catalog)}); add robots/motors/{model}.toml"
+    for text in flag_texts:
+        chosen.update(
+            flags.per_joint(
+                [text],
+                joints,
+                "--motor",
+                parse,
+                "JOINT=MODEL (JOINT may be '*'; MODEL a catalog model or a motor TOML file)",
+                source.name,
             )
-        hits = [j for j in joints if fnmatch.fnmatchcase(j, pattern)]
-        if not hits:
-            raise RobotImportError(
-                f"--motor '{flag}': pattern '{pattern}' matches no joint of {urdf.name} "
-                f"(joints: {joints})"
-            )
-        for j in hits:
-            chosen[j] = model
+        )
     for j in joints:
         if j not in chosen:
             raise RobotImportError(
-                f"{urdf}: <joint name='{j}'>: no motor model; expected --motor {j}=MODEL "
-                f"(or --motor '*=MODEL'; catalog: {sorted(catalog)})"
+                f"{source}: <joint name='{j}'>: no motor model; expected --motor {j}=MODEL "
+                f"(or --motor '*=MODEL'; catalog: {sorted(motor_catalog())}, or a motor TOML file)"
             )
-    return chosen
+    used = set(chosen.values())
+    configs = {name: motors[name][0] for name in used}
+    tables = {
+        name: (motors[name][2], motors[name][1]) for name in used if motors[name][1] is not None
+    }
+    return chosen, configs, tables
 
 
 def import_robot(
@@ -155,6 +176,7 @@ def import_robot(
     physics_timestep: float = DEFAULT_PHYSICS_TIMESTEP,
     force: bool = False,
     log=print,
+    drop_missing_meshes: bool = False,
     floating_base: bool = False,
     feet: list[str] | tuple[str, ...] = (),
     imu: str | None = None,
@@ -171,23 +193,30 @@ def import_robot(
         out: The robot folder to create (its name is the robot's).
         srdf: SRDF whose ``disable_collisions`` pairs are not checked (MJCF: added to its
             ``<contact><exclude>`` pairs; else: non-adjacent links that do not touch at the home
-            pose). motors: ``JOINT=MODEL`` (shell patterns).
+            pose). motors: ``JOINT=MODEL`` (shell patterns; MODEL a catalog model or the path of
+            a motor TOML file, whose table robot.toml then holds).
         ee_site: Link (MJCF: body, or one of its sites) carrying the end-effector site (default:
             an MJCF site named ``ee``, else the deepest link of the longest chain). limits:
-            ``JOINT=LOWER:UPPER`` (rad) for joints the description leaves unlimited.
+            ``JOINT=LOWER:UPPER`` (rad, shell patterns) for joints the description leaves
+            unlimited, or to replace their range.
             velocities: ``JOINT=RAD_S`` (shell patterns): velocity limits where the description
             has none (MJCF never has one) or to replace its value; the motor's no-load speed
             still caps them. control_rate: Hz. physics_timestep: s (an integer fraction of the
             control period). force: replace an existing ``out``. log: where decisions are
-            printed.
-        floating_base: A legged robot (:mod:`robots.importer.legged`): free joint, floor, IMU,
-            foot spheres with touch sensors, ``[base]`` in robot.toml. feet: foot links (default:
-            the last link of each leg). imu: the IMU link (default: a link named ``imu``).
+            printed. drop_missing_meshes: drop the geoms (URDF: the elements) whose mesh file
+            is missing, each printed, instead of refusing.
+        floating_base: A legged robot (:mod:`robots.importer.legged`): free joint (an MJCF's own
+            free joint is replaced), floor, IMU, foot sites with touch sensors, ``[base]`` in
+            robot.toml. feet: foot links (default: the last link of each leg). imu: the IMU link,
+            or an MJCF site (default: a site or a link named ``imu``, else the root link).
             kp, kd: ``JOINT=VALUE`` (shell patterns) plant PD gains, N m/rad and N m s/rad
             (default: the importer's rule). home: ``JOINT=RAD`` (shell patterns) home pose.
             notes: comment lines for robot.toml's header (the sources of flag values).
             command: the command line printed in robot.toml to regenerate the folder. feet, imu,
             kp, kd, home and notes need ``floating_base``.
+
+    The parent folders of ``out`` are created when missing (as ``mkdir -p``; removed again when
+    the import fails).
 
     Returns:
         An :class:`ImportReport`.
@@ -197,8 +226,66 @@ def import_robot(
             (continuous or MJCF hinge joint without limits, unresolvable mesh, zero inertia,
             duplicate joint, SRDF naming an unknown link, motor not in the catalog, floating
             base or MJCF free joint without ``floating_base``, no velocity limit from
-            description, flag or motor, ...). Nothing is left in ``out``.
+            description, flag or motor, a flag pattern matching no joint, ``out`` or a parent
+            of it being a file, ...). Nothing is left in ``out``.
     """
+    out = Path(out).expanduser().resolve()
+    created = _make_parents(out)
+    try:
+        return _import(
+            source, out, srdf, motors, ee_site, limits, velocities, control_rate,
+            physics_timestep, force, log, drop_missing_meshes, floating_base, feet, imu, kp, kd,
+            home, notes, command,
+        )  # fmt: skip
+    except BaseException:
+        for folder in created:  # deepest first
+            try:
+                folder.rmdir()
+            except OSError:
+                break
+        raise
+
+
+def _make_parents(out: Path) -> list[Path]:
+    """Create the missing parent folders of ``out``; return them, deepest first.
+
+    Raises:
+        RobotImportError: ``out`` or one of its parents exists and is not a folder.
+    """
+    for folder in (out, *out.parents):
+        if folder.exists() and not folder.is_dir():
+            raise RobotImportError(f"--out {out}: {folder} exists and is not a folder")
+    missing = [p for p in out.parents if not p.exists()]
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RobotImportError(f"--out {out}: cannot create {out.parent}: {exc}") from None
+    return missing
+
+
+def _import(
+    source,
+    out: Path,
+    srdf,
+    motors,
+    ee_site,
+    limits,
+    velocities,
+    control_rate,
+    physics_timestep,
+    force,
+    log,
+    drop_missing_meshes,
+    floating_base,
+    feet,
+    imu,
+    kp,
+    kd,
+    home,
+    notes,
+    command,
+) -> ImportReport:
+    """:func:`import_robot` once the parents of ``out`` exist (its arguments)."""
     start = time.perf_counter()
     legged_flags = {"--foot": feet, "--imu": imu, "--kp": kp, "--kd": kd, "--home": home}
     legged_flags["--note"] = notes
@@ -206,20 +293,17 @@ def import_robot(
     if used and not floating_base:
         raise RobotImportError(f"{', '.join(used)}: only with --floating-base (a legged robot)")
     path = resolve_source(str(source))
-    out = Path(out).resolve()
     name = out.name
     if out.exists() and any(out.iterdir()) and not force:
         raise RobotImportError(f"--out {out}: folder exists and is not empty (use --force)")
     srdf_path = resolve_source(str(srdf)) if srdf is not None else None
-    limit_overrides = _parse_limits(limits)
 
-    urdf, srdf_info = _prepare(path, srdf_path, limit_overrides, floating_base)
+    urdf, srdf_info = _prepare(path, srdf_path, list(limits), floating_base, drop_missing_meshes)
     for note in urdf.notes:
         log(f"note: {note}")
     _apply_velocities(urdf, list(velocities))
 
-    chosen = _assign_motors(path, urdf.movable, list(motors))
-    motor_cfg: dict[str, MotorConfig] = {m: load_motor(m) for m in set(chosen.values())}
+    chosen, motor_cfg, motor_tables = _assign_motors(path, urdf.movable, list(motors))
 
     report = ImportReport(out=out, joints=list(urdf.movable), notes=list(urdf.notes))
     spec, model = build_spec(urdf, chosen, motor_cfg, physics_timestep)
@@ -230,8 +314,9 @@ def import_robot(
         import_floating_base(
             path=path, out=out, name=name, urdf=urdf, srdf_info=srdf_info, srdf_path=srdf_path,
             spec=spec, model=model, joint_names=joint_names, chosen=chosen, motor_cfg=motor_cfg,
-            report=report, feet=list(feet), imu=imu, kp=list(kp), kd=list(kd), home=list(home),
-            notes=list(notes), control_rate=control_rate, physics_timestep=physics_timestep,
+            motor_tables=motor_tables, report=report, feet=list(feet), imu=imu, kp=list(kp),
+            kd=list(kd), home=list(home), notes=list(notes), control_rate=control_rate,
+            physics_timestep=physics_timestep,
             command=command or ["robot-import", str(source), "--out", str(out)], log=log,
         )  # fmt: skip
         report.seconds = time.perf_counter() - start
@@ -285,6 +370,7 @@ def import_robot(
             physics_timestep=physics_timestep,
             disabled_by=_disabled_by(urdf, srdf_path),
             lowered=report.lowered,
+            motor_tables=motor_tables,
         )
         try:
             load_robot(work)
@@ -301,15 +387,14 @@ def import_robot(
 def _prepare(
     path: Path,
     srdf_path: Path | None,
-    limit_overrides: dict[str, tuple[float, float]],
+    limit_flags: list[str],
     floating_base: bool = False,
+    drop_missing_meshes: bool = False,
 ) -> tuple[PreparedSource, SrdfInfo | None]:
     """The prepared description and the link pairs left unchecked (SRDF, MJCF excludes)."""
     root = _parse_xml(path)
-    if floating_base and root.tag != "robot":
-        raise RobotImportError(f"{path}: --floating-base: expected a URDF <robot> (MJCF later)")
     if root.tag == "mujoco":
-        source = prepare_mjcf(path, limit_overrides)
+        source = prepare_mjcf(path, limit_flags, floating_base, drop_missing_meshes)
         srdf_info = None
         if srdf_path is not None:
             srdf_info = read_srdf(srdf_path, set(source.links), "MJCF")
@@ -325,7 +410,8 @@ def _prepare(
     srdf_info = (
         read_srdf(srdf_path, links, floating_base=floating_base) if srdf_path is not None else None
     )
-    return prepare_urdf(path, root, limit_overrides, srdf_info, floating_base), srdf_info
+    prepared = prepare_urdf(path, root, limit_flags, srdf_info, floating_base, drop_missing_meshes)
+    return prepared, srdf_info
 
 
 def _disabled_by(source: PreparedSource, srdf_path: Path | None) -> str | None:
@@ -338,30 +424,19 @@ def _disabled_by(source: PreparedSource, srdf_path: Path | None) -> str | None:
     return " or ".join(named) or None
 
 
-def _apply_velocities(source: PreparedSource, flags: list[str]) -> None:
+def _apply_velocities(source: PreparedSource, flag_texts: list[str]) -> None:
     """Set joint velocity limits from ``--velocity JOINT=RAD_S`` (shell patterns; later win)."""
-    for flag in flags:
-        pattern, sep, value = flag.partition("=")
-        try:
-            if not sep or not pattern:
-                raise ValueError
-            velocity = float(value)
-            if not (np.isfinite(velocity) and velocity > 0):
-                raise ValueError
-        except ValueError:
-            raise RobotImportError(
-                f"--velocity '{flag}': expected JOINT=RAD_S with a positive limit in rad/s "
-                "(JOINT may be a pattern, e.g. '*=3.14')"
-            ) from None
-        hits = [j for j in source.movable if fnmatch.fnmatchcase(j, pattern)]
-        if not hits:
-            raise RobotImportError(
-                f"--velocity '{flag}': pattern '{pattern}' matches no joint of "
-                f"{source.path.name} (joints: {source.movable})"
-            )
-        for j in hits:
-            source.joints[j].velocity = velocity
-            source.joints[j].velocity_from = "--velocity"
+    values = flags.per_joint(
+        flag_texts,
+        source.movable,
+        "--velocity",
+        flags.positive,
+        "JOINT=RAD_S with a positive limit in rad/s (JOINT may be a pattern, e.g. '*=3.14')",
+        source.path.name,
+    )
+    for j, velocity in values.items():
+        source.joints[j].velocity = velocity
+        source.joints[j].velocity_from = "--velocity"
 
 
 def _parse_xml(path: Path) -> ET.Element:
@@ -369,22 +444,6 @@ def _parse_xml(path: Path) -> ET.Element:
         return ET.parse(path).getroot()
     except ET.ParseError as exc:
         raise RobotImportError(f"{path}: not valid XML: {exc}") from None
-
-
-def _parse_limits(flags) -> dict[str, tuple[float, float]]:
-    out = {}
-    for flag in flags:
-        joint, sep, rng = flag.partition("=")
-        lo, sep2, hi = rng.partition(":")
-        try:
-            if not (sep and sep2):
-                raise ValueError
-            out[joint] = (float(lo), float(hi))
-        except ValueError:
-            raise RobotImportError(
-                f"--limit '{flag}': expected JOINT=LOWER:UPPER in rad (e.g. j1=-3.14:3.14)"
-            ) from None
-    return out
 
 
 def _finish_mjcf(spec, ee_body: str, ee_frame: str | None, urdf, mjcf_path: Path) -> None:
@@ -459,7 +518,8 @@ def main(argv: list[str] | None = None) -> int:
         action="append",
         default=[],
         metavar="JOINT=MODEL",
-        help="motor model of a joint (shell pattern, '*' = every joint); repeatable",
+        help="motor of a joint (shell pattern, '*' = every joint): a catalog model or the path "
+        "of a motor TOML file (the catalog's schema); repeatable",
     )
     p.add_argument(
         "--ee-site",
@@ -472,7 +532,8 @@ def main(argv: list[str] | None = None) -> int:
         action="append",
         default=[],
         metavar="JOINT=LOWER:UPPER",
-        help="position limits (rad) for a continuous joint the description leaves unlimited",
+        help="position limits (rad) for joints the description leaves unlimited, or to replace "
+        "them (shell pattern); repeatable",
     )
     p.add_argument(
         "--velocity",
@@ -485,6 +546,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--control-rate", type=float, default=DEFAULT_CONTROL_RATE, help="Hz")
     p.add_argument("--physics-timestep", type=float, default=DEFAULT_PHYSICS_TIMESTEP, help="s")
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
+    p.add_argument(
+        "--drop-missing-meshes",
+        action="store_true",
+        help="drop the geoms whose mesh file is missing (each printed) instead of refusing",
+    )
     legged = p.add_argument_group("floating-base (legged) robots")
     legged.add_argument(
         "--floating-base",
@@ -492,7 +558,9 @@ def main(argv: list[str] | None = None) -> int:
         help="a legged robot: free joint, floor, IMU and foot contact sensors",
     )
     legged.add_argument("--foot", action="append", default=[], metavar="LINK", help="a foot link")
-    legged.add_argument("--imu", default=None, metavar="LINK", help="the IMU link")
+    legged.add_argument(
+        "--imu", default=None, metavar="LINK", help="the IMU link (MJCF: or a site)"
+    )
     for flag, unit in (("--kp", "N m/rad"), ("--kd", "N m s/rad"), ("--home", "rad")):
         legged.add_argument(
             flag,
@@ -517,6 +585,7 @@ def main(argv: list[str] | None = None) -> int:
             control_rate=args.control_rate,
             physics_timestep=args.physics_timestep,
             force=args.force,
+            drop_missing_meshes=args.drop_missing_meshes,
             floating_base=args.floating_base,
             feet=args.foot,
             imu=args.imu,

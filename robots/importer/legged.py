@@ -7,14 +7,19 @@ floating-base robot gets, in its MJCF (:func:`finish_floating_mjcf`):
   free-flyer root joint, ``pin.JointModelFreeFlyer``), the base placed so that the feet touch
   the floor at the home pose;
 - a flat floor (a plane ``floor`` in the world body) and a light;
-- a site ``imu`` at the IMU link (a link named ``imu``, or ``--imu LINK``) with MuJoCo ``gyro``
-  and ``accelerometer`` sensors;
+- a site ``imu`` at the IMU (``--imu LINK`` or an MJCF site, else a site or link named
+  ``imu``, else the root link) with MuJoCo ``gyro`` and ``accelerometer`` sensors;
 - per foot (leaf links at the end of the longest chains of movable joints, or ``--foot LINK``):
-  the foot link's collision box replaced by a sphere of the box's mean half-size (a point-like
-  foot, as legged simulators model one), a site ``<foot>`` at its centre and a MuJoCo ``touch``
-  sensor on it (the normal force of the contacts inside the site: foot contact). Sphere and site
-  go on the nearest body a joint moves (the calf): Pinocchio's MJCF parser misplaces sites of
-  joint-less child bodies, and a touch sensor counts the contacts of its own body.
+  the foot's collision geometry kept as the description has it (a sole's box, capsules, several
+  contact spheres); only a box the importer fitted to a compact foot mesh becomes the sphere of
+  its mean half-size (a point foot, as legged simulators model a quadruped's,
+  ``POINT_FOOT_ASPECT``). A site ``<foot>`` encloses the foot's geoms (a sphere around one
+  sphere, else a box, ``TOUCH_MARGIN`` larger) with a MuJoCo ``touch`` sensor on it (the normal
+  force of the contacts inside the site: foot contact). Geoms and site go on the nearest body a
+  joint moves (the calf): Pinocchio's MJCF parser misplaces sites of joint-less child bodies,
+  and a touch sensor counts the contacts of its own body;
+- on the other bodies a hinge moves, each box fitted to a mesh becomes the capsule along its
+  long axis (:func:`_box_to_capsule`); the description's own primitives stay as they are.
 
 robot.toml (:func:`write_legged_toml`) then has a ``[base]`` table, ``[sensors.imu]`` and
 ``[sensors.contact]`` with the defaults below (each with its source), no workspace box and no
@@ -30,7 +35,16 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from robots.importer.model import Motion, _f, _sig, _vec, joint_lines, limit_notes, sensor_lines
+from robots.importer.model import (
+    Motion,
+    _f,
+    _sig,
+    _vec,
+    joint_lines,
+    limit_notes,
+    motor_table_lines,
+    sensor_lines,
+)
 from robots.importer.urdf import PreparedSource, RobotImportError
 
 #: Name of the MuJoCo free joint of the base (Pinocchio names its free-flyer joint the same).
@@ -41,9 +55,13 @@ IMU_SITE = "imu"
 #: plant: the importer's bounding boxes of neighbouring legs' links (the rear hips of go2 are
 #: 1-2 mm apart and touch as soon as the legs carry the body) overlap where the meshes do not.
 LEG_CLEARANCE = 0.01
-#: The foot site (and its touch sensor's) margin over the foot sphere, m: the contact point of
-#: a sphere on a plane lies inside the sphere by half the penetration (a few mm at most).
+#: The foot site's (its touch sensor's) margin over the foot's geoms, m: the contact point of a
+#: geom on a plane lies inside the geom by half the penetration (a few mm at most).
 TOUCH_MARGIN = 0.005
+#: A foot's box fitted to a mesh whose shortest side is at least this fraction of its longest
+#: is a point foot (a quadruped's rubber ball, go2's foot_convex.stl) and becomes the sphere of
+#: its mean half-size; a flat sole (a humanoid's) is far thinner than long and stays a box.
+POINT_FOOT_ASPECT = 0.5
 
 #: Normalizers of the seed's IMU noise figures (section 5 gives sigma on normalized readings):
 #: angular rate over 4 rad/s (legged_gym's ``obs_scales.ang_vel = 0.25``, i.e. 1 / 4 rad/s),
@@ -113,20 +131,29 @@ def choose_feet(prepared: PreparedSource, flags: list[str]) -> list[str]:
     return feet
 
 
-def choose_imu(prepared: PreparedSource, flag: str | None, log) -> str:
-    """The IMU link: ``--imu LINK``, else a link named ``imu``, else the root link.
+def choose_imu(prepared: PreparedSource, flag: str | None, log) -> tuple[str, str | None]:
+    """The IMU: ``(link, site or None)``: ``--imu LINK`` or (MJCF) ``--imu SITE``, else a site
+    named ``imu``, else a link named ``imu``, else the root link.
 
     Raises:
-        RobotImportError: ``--imu`` names no link.
+        RobotImportError: ``--imu`` names neither a link nor a site.
     """
     if flag is not None:
+        if flag in prepared.sites:
+            return prepared.sites[flag], flag
         if flag not in prepared.links:
-            raise RobotImportError(f"--imu {flag}: not a link of {prepared.path.name}")
-        return flag
+            sites = f", sites: {sorted(prepared.sites)}" if prepared.sites else ""
+            raise RobotImportError(
+                f"--imu {flag}: not a link{' or site' if sites else ''} of {prepared.path.name} "
+                f"(links: {prepared.links}{sites})"
+            )
+        return flag, None
+    if IMU_SITE in prepared.sites:
+        return prepared.sites[IMU_SITE], IMU_SITE
     if "imu" in prepared.links:
-        return "imu"
+        return "imu", None
     log(f"note: no link named 'imu': the IMU site is at the root link {prepared.root_link}")
-    return prepared.root_link
+    return prepared.root_link, None
 
 
 def _moving_ancestor(model: mujoco.MjModel, body: int) -> int:
@@ -140,9 +167,9 @@ def _relative(data: mujoco.MjData, anc: int, pos: np.ndarray) -> np.ndarray:
 
 
 def _box_to_capsule(geom) -> None:
-    """Replace a leg link's collision box by the capsule along its long axis (radius: the mean
-    of the two other half-sizes; legged_gym turns its legs' cylinders into capsules too): the
-    corners of a calf's box reach below the foot sphere once the calf leans (go2's front calves
+    """Replace a leg link's box fitted to a mesh by the capsule along its long axis (radius: the
+    mean of the two other half-sizes; legged_gym turns its legs' cylinders into capsules too):
+    the corners of a calf's box reach below the foot once the calf leans (go2's front calves
     touched the floor standing), a thigh's below the knee."""
     size = np.asarray(geom.size, dtype=np.float64)
     axis = int(np.argmax(size))
@@ -160,20 +187,71 @@ def _box_to_capsule(geom) -> None:
     geom.size = [radius, half, 0.0]
 
 
+#: Geom attributes copied when a foot geom moves to the body a joint moves.
+_GEOM_FIELDS = (
+    "type", "size", "contype", "conaffinity", "condim", "priority", "friction", "solmix",
+    "solref", "solimp", "margin", "gap", "rgba", "group", "meshname", "fromto",
+)  # fmt: skip
+
+
+def _move_geom(spec: mujoco.MjSpec, geom, host, pos: np.ndarray, quat: np.ndarray):
+    """A copy of ``geom`` on body ``host`` at ``pos``, ``quat`` (host frame); ``geom`` deleted."""
+    name = geom.name
+    copy = host.add_geom()
+    for attr in _GEOM_FIELDS:
+        setattr(copy, attr, getattr(geom, attr))
+    copy.pos, copy.quat = pos, quat
+    spec.delete(geom)
+    copy.name = name
+    return copy
+
+
+def _geom_points(model: mujoco.MjModel, g: int, pos, rot) -> np.ndarray:
+    """Points whose bounding box in the frame of ``pos``/``rot`` (the geom's pose there, m)
+    bounds geom ``g``: exact for spheres, capsules, boxes and meshes (their vertices); the
+    bounding box's corners for cylinders and ellipsoids."""
+    kind, size = model.geom_type[g], model.geom_size[g]
+    axes = np.vstack([np.eye(3), -np.eye(3)])
+    if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+        return pos + size[0] * axes
+    if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        ends = [pos + rot[:, 2] * size[1], pos - rot[:, 2] * size[1]]
+        return np.vstack([end + size[0] * axes for end in ends])
+    if kind == mujoco.mjtGeom.mjGEOM_MESH:
+        mesh = model.geom_dataid[g]
+        start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+        return pos + model.mesh_vert[start : start + count] @ rot.T
+    half = {
+        mujoco.mjtGeom.mjGEOM_CYLINDER: [size[0], size[0], size[1]],
+        mujoco.mjtGeom.mjGEOM_ELLIPSOID: size,
+    }.get(kind, size)
+    signs = np.array(np.meshgrid(*[[-1, 1]] * 3)).reshape(3, -1).T
+    return pos + (signs * np.asarray(half)) @ rot.T
+
+
+def _point_foot(geom, fitted: set[str]) -> bool:
+    """Whether a foot geom is a box the importer fitted to a compact mesh (its sides within
+    ``POINT_FOOT_ASPECT`` of each other): it becomes a sphere."""
+    if geom.name not in fitted or geom.type != mujoco.mjtGeom.mjGEOM_BOX:
+        return False
+    size = np.asarray(geom.size, dtype=np.float64)
+    return float(size.min() / size.max()) >= POINT_FOOT_ASPECT
+
+
 def finish_floating_mjcf(
     spec: mujoco.MjSpec,
     prepared: PreparedSource,
     feet: list[str],
-    imu_link: str,
+    imu: tuple[str, str | None],
     joint_names: list[str],
     home: np.ndarray,
     mjcf_path: Path,
 ) -> dict:
-    """Add the free joint, floor, IMU and foot sites, foot spheres and sensors (module
-    docstring) to ``spec`` and write the MJCF to ``mjcf_path``.
+    """Add the free joint, floor, IMU and foot sites and sensors (module docstring) to ``spec``
+    and write the MJCF to ``mjcf_path``. ``imu``: (link, MJCF site or None).
 
     Returns:
-        ``{"feet": foot site names, "foot_radius": m, "standing_height": m}``.
+        ``{"feet": foot site names, "foot_shapes": foot -> description, "standing_height": m}``.
 
     Raises:
         RobotImportError: a foot link without a collision geometry.
@@ -181,69 +259,93 @@ def finish_floating_mjcf(
     model = spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)  # base at the origin, joints at 0
-    radius = {}
+    shapes, foot_geoms = {}, {}
     for foot in feet:
         body = spec.body(foot)
-        geoms = list(body.geoms)
         b = model.body(foot).id
-        if not geoms:
+        if not list(body.geoms):
             raise RobotImportError(
                 f"{prepared.path}: <link name='{foot}'> (a foot): no collision geometry; "
-                "expected one (its size gives the foot sphere)"
+                "expected one (its contact geometry)"
             )
-        corners = []
-        for geom in geoms:
-            g = model.geom(geom.name).id
-            rot = data.geom_xmat[g].reshape(3, 3)
-            for sign in np.array(np.meshgrid(*[[-1, 1]] * 3)).reshape(3, -1).T:
-                corners.append(data.geom_xpos[g] + rot @ (sign * model.geom_size[g]))
-            spec.delete(geom)
-        corners = np.array(corners)
-        centre = (corners.min(axis=0) + corners.max(axis=0)) / 2
-        r = float(np.mean(corners.max(axis=0) - corners.min(axis=0)) / 2)
-        radius[foot] = r = _sig(r, 3)
         anc = _moving_ancestor(model, b)
-        pos = _relative(data, anc, centre)
         host = spec.body(model.body(anc).name)
-        host.add_geom(name=foot, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[r, 0, 0], pos=pos)
-        host.add_site(name=foot, size=[r + TOUCH_MARGIN, 0, 0], pos=pos)
+        rot_anc = data.xmat[anc].reshape(3, 3)
+        points, kept = [], []
+        for geom in list(body.geoms):
+            g = model.geom(geom.name).id
+            pos = _relative(data, anc, data.geom_xpos[g])
+            rot = rot_anc.T @ data.geom_xmat[g].reshape(3, 3)
+            if _point_foot(geom, prepared.fitted_geoms):  # a point foot, as legged simulators
+                geom.type = mujoco.mjtGeom.mjGEOM_SPHERE
+                geom.size = [_sig(float(np.mean(geom.size)), 3), 0.0, 0.0]
+                model = spec.compile()  # the sphere's size for the points below
+                data = mujoco.MjData(model)
+                mujoco.mj_kinematics(model, data)
+                g = model.geom(geom.name).id
+            points.append(_geom_points(model, g, pos, rot))
+            if anc != b:  # the touch sensor counts the contacts of its site's body
+                spec_pos = np.asarray(geom.pos, dtype=np.float64)
+                spec_quat = np.asarray(geom.quat, dtype=np.float64)
+                spec_quat = spec_quat / np.linalg.norm(spec_quat)
+                rel = _relative(data, anc, data.xpos[b] + data.xmat[b].reshape(3, 3) @ spec_pos)
+                q, inv = np.zeros(4), np.zeros(4)
+                mujoco.mju_negQuat(inv, data.xquat[anc])
+                mujoco.mju_mulQuat(q, inv, data.xquat[b])
+                mujoco.mju_mulQuat(q, q.copy(), spec_quat)
+                geom = _move_geom(spec, geom, host, rel, q)
+            kept.append(geom)
+        foot_geoms[foot] = [g.name for g in kept]
+        pts = np.vstack(points)
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        one = kept[0] if len(kept) == 1 else None
+        if one is not None and one.type == mujoco.mjtGeom.mjGEOM_SPHERE:
+            r = float(one.size[0])
+            host.add_site(name=foot, size=[r + TOUCH_MARGIN, 0, 0], pos=(lo + hi) / 2)
+            shapes[foot] = f"a sphere of radius {r:g} m"
+        else:
+            host.add_site(
+                name=foot,
+                type=mujoco.mjtGeom.mjGEOM_BOX,
+                size=(hi - lo) / 2 + TOUCH_MARGIN,
+                pos=(lo + hi) / 2,
+            )
+            kinds = sorted({mujoco.mjtGeom(int(g.type)).name[7:].lower() for g in kept})
+            size = " x ".join(f"{x * 100:.1f}" for x in hi - lo)
+            count = f"{len(kept)} geoms" if len(kept) > 1 else "1 geom"
+            shapes[foot] = f"{count} ({', '.join(kinds)}) in a {size} cm box"
         spec.add_sensor(
             name=f"{foot}_touch",
             type=mujoco.mjtSensor.mjSENS_TOUCH,
             objtype=mujoco.mjtObj.mjOBJ_SITE,
             objname=foot,
         )
+    on_feet = {name for names in foot_geoms.values() for name in names}
     for body in spec.bodies:  # leg links (bodies a hinge moves): capsules, as legged_gym's
         if any(j.type == mujoco.mjtJoint.mjJNT_HINGE for j in body.joints):
             for geom in list(body.geoms):
-                if geom.type == mujoco.mjtGeom.mjGEOM_BOX:
-                    _box_to_capsule(geom)
-    b = model.body(imu_link).id
-    anc = _moving_ancestor(model, b)
-    imu_quat, inv = np.zeros(4), np.zeros(4)
-    mujoco.mju_negQuat(inv, data.xquat[anc])
-    mujoco.mju_mulQuat(imu_quat, inv, data.xquat[b])
-    spec.body(model.body(anc).name).add_site(
-        name=IMU_SITE,
-        size=[0.01, 0.01, 0.01],
-        pos=_relative(data, anc, data.xpos[b]),
-        quat=imu_quat,
-    )
-    for kind, name in (
-        (mujoco.mjtSensor.mjSENS_GYRO, "imu_gyro"),
-        (mujoco.mjtSensor.mjSENS_ACCELEROMETER, "imu_accelerometer"),
-    ):
-        spec.add_sensor(name=name, type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=IMU_SITE)
+                if geom.name in prepared.fitted_geoms and geom.name not in on_feet:
+                    if geom.type == mujoco.mjtGeom.mjGEOM_BOX:
+                        _box_to_capsule(geom)
+    _add_imu(spec, model, data, imu)
 
-    # standing height: the lowest foot sphere touches the floor at the home pose
+    # standing height: the lowest point of the feet touches the floor at the home pose
     model = spec.compile()
     data = mujoco.MjData(model)
     data.qpos[:] = home
     mujoco.mj_kinematics(model, data)
-    bottom = min(data.site_xpos[model.site(f).id][2] - radius[f] for f in feet)
-    height = _sig(-bottom, 4)
+    bottom = min(
+        float(
+            _geom_points(model, g, data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3))[:, 2].min()
+        )
+        for names in foot_geoms.values()
+        for g in (model.geom(n).id for n in names)
+    )
+    root_z = float(data.xpos[model.body(prepared.root_link).id][2])  # an MJCF places its root
+    height = _sig(root_z - bottom, 4)
     root = spec.body(prepared.root_link)
     root.pos = [0.0, 0.0, height]
+    root.quat = [1.0, 0.0, 0.0, 0.0]
     root.add_freejoint(name=FREE_JOINT)
     spec.worldbody.add_geom(
         name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05], rgba=[0.5] * 3 + [1]
@@ -261,10 +363,38 @@ def finish_floating_mjcf(
         f"<!-- Generated by robot-import (floating base) from {prepared.display} with MuJoCo's "
         f"{prepared.kind} compiler (mujoco.MjSpec). Radians, explicit inertials, no actuators "
         "(Robot.mjspec adds them per control mode). A free joint 'root' on the base, a flat "
-        "floor, an IMU site with gyro and accelerometer, foot spheres with touch sensors. -->\n"
+        "floor, an IMU site with gyro and accelerometer, foot sites with touch sensors. -->\n"
     )
     mjcf_path.write_text(header + xml, encoding="utf-8")
-    return {"feet": list(feet), "foot_radius": radius, "standing_height": height}
+    return {"feet": list(feet), "foot_shapes": shapes, "standing_height": height}
+
+
+def _add_imu(spec, model, data, imu: tuple[str, str | None]) -> None:
+    """The ``imu`` site (at the IMU link's frame, or at the MJCF's IMU site) on the nearest body
+    a joint moves, and its gyro and accelerometer."""
+    link, site = imu
+    b = model.body(link).id
+    anc = _moving_ancestor(model, b)
+    if site is None:
+        pos, xmat = data.xpos[b], data.xmat[b]
+    else:
+        s = model.site(site).id
+        pos, xmat = data.site_xpos[s], data.site_xmat[s]
+    quat, inv, imu_quat = np.zeros(4), np.zeros(4), np.zeros(4)
+    mujoco.mju_mat2Quat(quat, xmat)
+    mujoco.mju_negQuat(inv, data.xquat[anc])
+    mujoco.mju_mulQuat(imu_quat, inv, quat)
+    old = spec.site(IMU_SITE)
+    if old is not None:  # the MJCF's own 'imu' site: replaced by the one placed here
+        spec.delete(old)
+    spec.body(model.body(anc).name).add_site(
+        name=IMU_SITE, size=[0.01, 0.01, 0.01], pos=_relative(data, anc, pos), quat=imu_quat
+    )
+    for kind, name in (
+        (mujoco.mjtSensor.mjSENS_GYRO, "imu_gyro"),
+        (mujoco.mjtSensor.mjSENS_ACCELEROMETER, "imu_accelerometer"),
+    ):
+        spec.add_sensor(name=name, type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=IMU_SITE)
 
 
 def robot_mass(mjcf_path: Path) -> float:
@@ -298,14 +428,17 @@ def write_legged_toml(
     lowered: list,
     notes: list[str],
     command: list[str],
+    motor_tables: dict | None = None,
 ) -> None:
     """robot.toml of a floating-base robot, a comment giving the reason of every value.
 
     ``gains_from``: joint -> where its kp and kd came from ('--kp/--kd' or the importer's
     rule); ``notes``: ``--note`` lines for the header (sources of flag values); ``command``:
-    the command line that regenerates the folder.
+    the command line that regenerates the folder; ``motor_tables``: the motors given as files
+    (:func:`robots.importer.model.motor_table_lines`).
     """
     kind = prepared.kind
+    motor_tables = motor_tables or {}
     resolution = min(motor_cfg[m].encoder_resolution or 16384 for m in set(chosen.values()))
     quantum = 2 * math.pi / resolution
     low = {(j, q): (a, b) for j, q, a, b, _ in lowered}
@@ -345,7 +478,7 @@ def write_legged_toml(
         )
     lines += [
         "",
-        *sensor_lines(chosen, resolution, quantum, control_rate, "degC"),
+        *sensor_lines(chosen, resolution, quantum, control_rate, "degC", motor_tables),
         "",
         "# IMU at site 'imu' (link " + imu_link + "): Kalibr's noise model (robots/schema.py).",
         "[sensors.imu]",
@@ -389,9 +522,8 @@ def write_legged_toml(
         "[base]",
         f'body = "{prepared.root_link}"  # carries the free joint "{FREE_JOINT}"',
         f'imu_site = "{IMU_SITE}"',
-        "# foot sites, spheres of radius "
-        + ", ".join(f"{legged['foot_radius'][f]:g}" for f in feet)
-        + " m (the foot collision box's mean half-size)",
+        "# foot sites (touch sensors) around each foot's collision geometry:",
+        *[f"#   {f}: {legged['foot_shapes'][f]}" for f in feet],
         "feet = [" + ", ".join(f'"{f}"' for f in feet) + "]",
         f"standing_height = {_f(legged['standing_height'])}  # m, base above the floor at home",
         "",
@@ -403,35 +535,10 @@ def write_legged_toml(
         f"# push ({PUSH_TIME:g} s): {mass:.1f} kg x {PUSH_VELOCITY:g} m/s / {PUSH_TIME:g} s; the "
         f"low end {PUSH_LOW:g} of it.",
         f"push_force = [{_f(_sig(PUSH_LOW * push))}, {_f(_sig(push))}]  # N",
+        *motor_table_lines(motor_tables),
         "",
     ]
     path.write_text("\n".join(lines), encoding="utf-8")
-
-
-def _per_joint(flags: list[str], joint_names: list[str], flag: str) -> dict[str, float]:
-    """``JOINT=VALUE`` flags (shell patterns; later flags win) -> joint -> value."""
-    import fnmatch
-
-    out: dict[str, float] = {}
-    for text in flags:
-        pattern, sep, value = text.partition("=")
-        try:
-            number = float(value)
-            if not sep or not pattern or not math.isfinite(number):
-                raise ValueError
-        except ValueError:
-            raise RobotImportError(
-                f"{flag} '{text}': expected JOINT=VALUE with a finite number (JOINT may be a "
-                "shell pattern, e.g. '*_calf_joint=-1.5')"
-            ) from None
-        hits = [j for j in joint_names if fnmatch.fnmatchcase(j, pattern)]
-        if not hits:
-            raise RobotImportError(
-                f"{flag} '{text}': pattern '{pattern}' matches no joint (joints: {joint_names})"
-            )
-        for j in hits:
-            out[j] = number
-    return out
 
 
 def import_floating_base(
@@ -447,6 +554,7 @@ def import_floating_base(
     joint_names: list[str],
     chosen: dict,
     motor_cfg: dict,
+    motor_tables: dict,
     report,
     feet: list[str],
     imu: str | None,
@@ -469,6 +577,7 @@ def import_floating_base(
     import shutil
     import tempfile
 
+    from robots.importer import flags
     from robots.importer.cli import _add_contact_excludes, _disabled_by
     from robots.importer.model import (
         LEGGED_MAX_ACCELERATION,
@@ -480,14 +589,17 @@ def import_floating_base(
     from robots.robot import RobotSpecError
 
     foot_links = choose_feet(urdf, feet)
-    imu_link = choose_imu(urdf, imu, log)
-    log(f"note: feet {foot_links}, IMU at link {imu_link}")
+    imu_link, imu_site = choose_imu(urdf, imu, log)
+    at = f"site {imu_site} of link {imu_link}" if imu_site else f"link {imu_link}"
+    log(f"note: feet {foot_links}, IMU at {at}")
     limits_out, lowered, lnotes = cap_limits(urdf, chosen, motor_cfg, log)
     report.lowered += lowered
     report.notes += lnotes
-    home_set = _per_joint(home, joint_names, "--home")
-    kp_set = _per_joint(kp, joint_names, "--kp")
-    kd_set = _per_joint(kd, joint_names, "--kd")
+    expected = "JOINT=VALUE with a finite number (JOINT may be a pattern, e.g. '*_knee_joint=0.3')"
+    home_set, kp_set, kd_set = (
+        flags.per_joint(values, joint_names, flag, flags.finite, expected, urdf.path.name)
+        for flag, values in (("--home", home), ("--kp", kp), ("--kd", kd))
+    )
     for flag, values in (("--kp", kp_set), ("--kd", kd_set)):
         bad = {j: v for j, v in values.items() if v < 0 or (flag == "--kp" and v == 0)}
         if bad:
@@ -521,7 +633,7 @@ def import_floating_base(
         work.mkdir()
         mjcf_path = work / f"{name}.xml"
         legged = finish_floating_mjcf(
-            spec, urdf, foot_links, imu_link, joint_names, motion.home, mjcf_path
+            spec, urdf, foot_links, (imu_link, imu_site), joint_names, motion.home, mjcf_path
         )
         written = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
         for i, j in enumerate(joint_names):  # the MJCF writes 6 significant digits
@@ -557,6 +669,7 @@ def import_floating_base(
             lowered=report.lowered,
             notes=notes,
             command=command,
+            motor_tables=motor_tables,
         )
         try:
             load_robot(work)

@@ -40,6 +40,7 @@ import numpy as np
 
 from robots.importer.urdf import (
     COLLISION_BOXES,
+    DROP_MISSING,
     FLOATING_BASE,
     MIN_INERTIA,
     MIN_MASS,
@@ -57,17 +58,28 @@ _KIND = {
 }
 
 
-def prepare_mjcf(path: Path, limit_overrides: dict[str, tuple[float, float]]) -> PreparedSource:
+def prepare_mjcf(
+    path: Path,
+    limit_flags: list[str],
+    floating_base: bool = False,
+    drop_missing_meshes: bool = False,
+) -> PreparedSource:
     """Check the MJCF at ``path`` and reduce it for the importer (see the module docstring).
 
     Args:
-        path: The MJCF file (root ``<mujoco>``). limit_overrides: joint -> (lower, upper) in
-            rad, from ``--limit``, for hinges the file leaves unlimited (or to replace a range).
+        path: The MJCF file (root ``<mujoco>``). limit_flags: ``--limit JOINT=LOWER:UPPER``
+            texts (rad, shell patterns over the hinges; later flags win) for hinges the file
+            leaves unlimited (or to replace a range). floating_base: a legged robot: the free
+            joint of the robot's root body (if any) is removed (the importer adds its own), the
+            world body's other geoms are dropped. drop_missing_meshes: drop the geoms whose mesh
+            file does not exist (each printed) instead of refusing.
 
     Returns:
         A :class:`PreparedSource` of kind "MJCF" whose ``text`` is the reduced model in MuJoCo's
         canonical MJCF (radians), ``disabled`` its ``<contact><exclude>`` body pairs and
-        ``sites`` its sites by body.
+        ``sites`` its sites by body. Its links are the bodies, the world body first for a
+        fixed base; for a floating base the root link is the robot's root body and the world
+        is not a link.
 
     Raises:
         RobotImportError: one line naming the file, the element and what was expected (see the
@@ -75,19 +87,28 @@ def prepare_mjcf(path: Path, limit_overrides: dict[str, tuple[float, float]]) ->
     """
     notes: list[str] = []
     spec = _from_file(path)
+    _drop_appearance(spec)
+    _missing_meshes(spec, path, drop_missing_meshes, notes)
     _name_unnamed(spec.bodies[1:], "body")
     model = _compile(spec, path)
-    for j in range(model.njnt):
-        if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
-            body = model.body(model.jnt_bodyid[j]).name
+    free = [j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+    for j in free:
+        body = model.body(model.jnt_bodyid[j]).name
+        element = f"<body name='{body}'><joint name='{model.joint(j).name}' type='free'>"
+        if not floating_base:
+            raise RobotImportError(f"{path}: {element}: " + FLOATING_BASE)
+        if model.body_parentid[model.jnt_bodyid[j]] != 0 or len(free) > 1:
             raise RobotImportError(
-                f"{path}: <body name='{body}'><joint name='{model.joint(j).name}' type='free'>: "
-                + FLOATING_BASE
+                f"{path}: {element}: expected one free joint, on the root body of the robot (a "
+                f"body of the world body); free joints: {[model.joint(k).name for k in free]}"
             )
     efforts = _efforts(model)
     disabled = {tuple(sorted((e.bodyname1, e.bodyname2))) for e in spec.excludes}
     frozen = _drop_elements(spec, notes)
     _drop_scenery(spec, model, path, notes)
+    root_body = None
+    if floating_base:
+        root_body = _floating_root(spec, path, notes)
     _freeze_joints(spec, path, frozen, notes)
 
     # Canonical form: radians, quaternions, explicit inertials computed from the full geometry.
@@ -96,32 +117,40 @@ def prepare_mjcf(path: Path, limit_overrides: dict[str, tuple[float, float]]) ->
         spec.meshdir = os.path.join(spec.modelfiledir or str(path.parent), spec.meshdir)
     elif not spec.meshdir:
         spec.meshdir = spec.modelfiledir or str(path.parent)
-    spec = _from_string(_base_body(_to_xml(spec, path), notes), path)
+    text = _to_xml(spec, path)
+    spec = _from_string(text if floating_base else _base_body(text, notes), path)
     spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
     _name_unnamed(spec.geoms, "geom")  # to find them in the compiled model
 
-    hinges = [j.name for j in spec.joints]
-    unknown = set(limit_overrides) - set(hinges)
-    if unknown:
-        raise RobotImportError(
-            f"--limit: no hinge joint {sorted(unknown)} in {path.name} (hinges: {hinges})"
-        )
+    from robots.importer import flags
+
+    limit_overrides = flags.per_joint(
+        limit_flags,
+        [j.name for j in spec.joints],
+        "--limit",
+        flags.position_range,
+        "JOINT=LOWER:UPPER in rad with LOWER < UPPER (JOINT may be a pattern, e.g. "
+        "'joint*=-3.14:3.14')",
+        path.name,
+    )
     for name, (lo, hi) in limit_overrides.items():
         spec.joint(name).range = [lo, hi]
         spec.joint(name).limited = mujoco.mjtLimited.mjLIMITED_TRUE
     model = _compile(spec, path)
     joints = _hinge_limits(model, path, efforts)
-    meshdir_abs = _simplify_geoms(spec, model, notes)
+    meshdir_abs, fitted = _simplify_geoms(spec, model, notes)
     text = _to_xml(spec, path)
     model = _compile(_from_string(text, path), path)
 
-    links = [model.body(b).name for b in range(model.nbody)]
+    names = [model.body(b).name for b in range(model.nbody)]
     parent = {}
     for b in range(1, model.nbody):
         n = model.body_jntnum[b]
         joint = model.joint(model.body_jntadr[b]).name if n else ""
-        parent[links[b]] = (links[model.body_parentid[b]], joint, "revolute" if n else "fixed")
-    sites = {model.site(s).name: links[model.site_bodyid[s]] for s in range(model.nsite)}
+        if names[b] != root_body:
+            parent[names[b]] = (names[model.body_parentid[b]], joint, "revolute" if n else "fixed")
+    links = names[1:] if root_body else names
+    sites = {model.site(s).name: names[model.site_bodyid[s]] for s in range(model.nsite)}
     return PreparedSource(
         path=path,
         display=_display(path),
@@ -130,14 +159,88 @@ def prepare_mjcf(path: Path, limit_overrides: dict[str, tuple[float, float]]) ->
         movable=list(joints),
         parent=parent,
         links=links,
-        root_link=links[0],
+        root_link=root_body or links[0],
         meshdir_abs=meshdir_abs,
         meshdir_uri=meshdir_abs or "",
         notes=notes,
         kind="MJCF",
         disabled={p for p in disabled if p[0] in links and p[1] in links},
         sites={k: v for k, v in sites.items() if k},
+        fitted=fitted,
     )
+
+
+def _drop_appearance(spec: mujoco.MjSpec) -> None:
+    """Delete materials and textures (their image files need not be there: nothing the toolkit
+    reads depends on them)."""
+    for geom in spec.geoms:
+        geom.material = ""
+    for site in spec.sites:
+        site.material = ""
+    for element in [*spec.materials, *spec.textures]:
+        spec.delete(element)
+
+
+def _mesh_file(spec: mujoco.MjSpec, mesh, path: Path) -> Path:
+    """Where MuJoCo looks for a mesh asset's file: ``meshdir`` (else ``assetdir``) relative to
+    the model's folder, unless absolute."""
+    folder = spec.meshdir or spec.assetdir or ""
+    base = Path(spec.modelfiledir or str(path.parent))
+    return (base / folder / mesh.file).resolve()
+
+
+def _missing_meshes(spec: mujoco.MjSpec, path: Path, drop: bool, notes: list[str]) -> None:
+    """Refuse mesh assets whose file is missing, or (``drop``) delete them and the geoms that
+    use them, each noted."""
+    missing = {m.name: _mesh_file(spec, m, path) for m in spec.meshes if m.file}
+    missing = {k: v for k, v in missing.items() if not v.is_file()}
+    if not missing:
+        return
+    users = {k: [g for g in spec.geoms if g.meshname == k] for k in missing}
+    if not drop:
+        name, file = next(iter(missing.items()))
+        where = [g.parent.name or "world" for g in users[name]]
+        more = f" ({len(missing) - 1} more missing)" if len(missing) > 1 else ""
+        raise RobotImportError(
+            f"{path}: <mesh name='{name}'>: file {file} does not exist (used by geoms of bodies "
+            f"{where}){more}; {DROP_MISSING}"
+        )
+    for name, file in missing.items():
+        where = [g.name or f"{g.parent.name or 'world'} (unnamed)" for g in users[name]]
+        for geom in users[name]:
+            spec.delete(geom)
+        spec.delete(spec.mesh(name))
+        notes.append(f"mesh '{name}' ({file}) missing: its geoms {where} dropped")
+
+
+def _floating_root(spec: mujoco.MjSpec, path: Path, notes: list[str]) -> str:
+    """The robot's root body of a floating-base MJCF: its free joint (if any) and the other
+    geoms of the world body removed, its orientation reset (the importer adds the free joint,
+    the floor and the standing height)."""
+    bodies = list(spec.worldbody.bodies)
+    if len(bodies) != 1:  # pragma: no cover - _drop_scenery refuses several robots
+        raise RobotImportError(f"{path}: <worldbody>: expected one robot, found {bodies}")
+    root = bodies[0]
+    for joint in list(root.joints):
+        if joint.type == mujoco.mjtJoint.mjJNT_FREE:
+            spec.delete(joint)
+            notes.append(
+                f"free joint {joint.name or '(unnamed)'} of body {root.name} replaced by the "
+                "importer's (base above the floor at the home pose)"
+            )
+    if root.joints:
+        raise RobotImportError(
+            f"{path}: <body name='{root.name}'>: joints {[j.name for j in root.joints]} on the "
+            "root body; expected only a free joint there (a floating base)"
+        )
+    world = list(spec.worldbody.geoms)
+    for geom in world:
+        spec.delete(geom)
+    if world:
+        notes.append(f"{len(world)} geoms of the world body dropped: scenery")
+    root.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
+    root.quat = [1.0, 0.0, 0.0, 0.0]
+    return root.name
 
 
 def _name_unnamed(elements, prefix: str) -> None:
@@ -231,10 +334,6 @@ def _efforts(model: mujoco.MjModel) -> dict[str, tuple[float, str]]:
 def _drop_elements(spec: mujoco.MjSpec, notes: list[str]) -> set[str]:
     """Delete what the toolkit does not simulate; return the joints equalities couple."""
     frozen = {e.name1 for e in spec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT and e.name1}
-    for geom in spec.geoms:
-        geom.material = ""
-    for site in spec.sites:
-        site.material = ""
     for what, elements, why in (
         ("actuators", spec.actuators, "Robot.mjspec adds the drives of each control mode"),
         ("sensors", spec.sensors, "the sim backend models robot.toml's sensors"),
@@ -245,8 +344,6 @@ def _drop_elements(spec: mujoco.MjSpec, notes: list[str]) -> set[str]:
         ("skins", spec.skins, "not simulated"),
         ("flexes", spec.flexes, "not simulated"),
         ("contact excludes", spec.excludes, ""),  # kept as the importer's disabled pairs
-        ("materials", spec.materials, ""),  # their textures name files beside the source
-        ("textures", spec.textures, ""),
     ):
         elements = list(elements)
         for element in elements:
@@ -304,7 +401,7 @@ def _drop_scenery(spec: mujoco.MjSpec, model: mujoco.MjModel, path: Path, notes)
     if len(jointed) > 1:
         raise RobotImportError(
             f"{path}: <worldbody>: several bodies with joints hang from the world {jointed}; "
-            "expected one fixed-base arm"
+            "expected one robot"
         )
 
 
@@ -332,7 +429,7 @@ def _freeze_joints(spec: mujoco.MjSpec, path: Path, frozen: set[str], notes) -> 
                 f"{[j.name for j in body.joints]}; expected one joint per body"
             )
     if not spec.joints:
-        raise RobotImportError(f"{path}: <mujoco>: no hinge joint; expected a fixed-base arm")
+        raise RobotImportError(f"{path}: <mujoco>: no hinge joint; expected a robot's hinges")
 
 
 def _hinge_limits(model: mujoco.MjModel, path: Path, efforts) -> dict[str, JointInfo]:
@@ -367,13 +464,19 @@ def _hinge_limits(model: mujoco.MjModel, path: Path, efforts) -> dict[str, Joint
     return joints
 
 
-def _simplify_geoms(spec: mujoco.MjSpec, model: mujoco.MjModel, notes) -> str | None:
-    """Drop visual-only geoms beside collision geoms; one box per body for its mesh geoms;
-    every geom in group 0.
+def _simplify_geoms(
+    spec: mujoco.MjSpec, model: mujoco.MjModel, notes
+) -> tuple[str | None, set[tuple[str, int]]]:
+    """Drop visual-only geoms beside collision geoms; each mesh geom becomes its bounding box in
+    the mesh's own frame (``COLLISION_BOXES``; other geoms stay as they are); every geom in
+    group 0.
 
-    Returns the absolute mesh folder when meshes are kept (``COLLISION_BOXES`` False), else None.
+    Returns ``(meshdir, fitted)``: the absolute mesh folder when meshes are kept
+    (``COLLISION_BOXES`` False), else None; the ``(body, k)`` of the boxes (``k``: the geom's
+    index in its body).
     """
-    visual = boxed = 0
+    visual = 0
+    boxed: list[str] = []
     for body in spec.bodies:
         geoms = list(body.geoms)
         if any(g.contype or g.conaffinity for g in geoms):
@@ -382,29 +485,12 @@ def _simplify_geoms(spec: mujoco.MjSpec, model: mujoco.MjModel, notes) -> str | 
                     spec.delete(g)
                     visual += 1
             geoms = [g for g in geoms if g.contype or g.conaffinity]
-        meshes = [g for g in geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH]
-        if not COLLISION_BOXES or not meshes:
+        if not COLLISION_BOXES:
             continue
-        corners = []
-        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
-        for g in meshes:
-            gid = model.geom(g.name).id
-            rot = np.zeros(9)
-            mujoco.mju_quat2Mat(rot, model.geom_quat[gid])
-            aabb = model.geom_aabb[gid]
-            local = aabb[:3] + signs * aabb[3:]
-            corners.append(model.geom_pos[gid] + local @ rot.reshape(3, 3).T)
-        pts = np.vstack(corners)
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        box = body.add_geom()
-        box.type = mujoco.mjtGeom.mjGEOM_BOX
-        box.pos = (lo + hi) / 2
-        box.size = np.maximum((hi - lo) / 2, 5e-5)
-        box.contype, box.conaffinity = meshes[0].contype, meshes[0].conaffinity
-        box.rgba = meshes[0].rgba
-        for g in meshes:
-            spec.delete(g)
-        boxed += len(meshes)
+        for g in geoms:
+            if g.type == mujoco.mjtGeom.mjGEOM_MESH:
+                _mesh_to_box(g, model)
+                boxed.append(g.name)
     for geom in spec.geoms:
         # Pinocchio's MJCF parser leaves group-3 geoms (the usual collision class) out of the
         # VISUAL geometry the guard and the importer check; the group only matters for drawing.
@@ -413,21 +499,49 @@ def _simplify_geoms(spec: mujoco.MjSpec, model: mujoco.MjModel, notes) -> str | 
         notes.append(f"{visual} visual-only geoms (contype = conaffinity = 0) dropped")
     if boxed:
         notes.append(
-            f"{boxed} collision meshes replaced by one bounding box per body (COLLISION_BOXES)"
+            f"{len(boxed)} mesh geoms replaced by their bounding boxes in the mesh frame, one "
+            "box per geom (COLLISION_BOXES)"
         )
+    fitted = {
+        (body.name, k) for body in spec.bodies for k, g in enumerate(body.geoms) if g.name in boxed
+    }
     used = {g.meshname for g in spec.geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH}
     for mesh in list(spec.meshes):
         if mesh.name not in used:
             spec.delete(mesh)
     if not spec.meshes:
         spec.meshdir = ""
-        return None
+        return None, fitted
     files = [Path(spec.meshdir, m.file).resolve() for m in spec.meshes]
     base = Path(os.path.commonpath([str(f.parent) for f in files]))
     for mesh, file in zip(spec.meshes, files, strict=True):
         mesh.file = Path(os.path.relpath(file, base)).as_posix()
     spec.meshdir = base.as_posix()
-    return spec.meshdir
+    return spec.meshdir, fitted
+
+
+def _mesh_to_box(geom, model: mujoco.MjModel) -> None:
+    """Turn a mesh geom into the box bounding its vertices in the geom's own frame (the frame
+    the MJCF places the mesh file in: a CAD export's axes, such as a foot's sole)."""
+    g = model.geom(geom.name).id
+    mesh = int(model.geom_dataid[g])
+    start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+    vertices = model.mesh_vert[start : start + count].astype(np.float64)
+    compiled = np.zeros(9)
+    mujoco.mju_quat2Mat(compiled, model.geom_quat[g])
+    in_body = model.geom_pos[g] + vertices @ compiled.reshape(3, 3).T
+    quat = np.asarray(geom.quat, dtype=np.float64)
+    quat = quat / np.linalg.norm(quat)
+    own = np.zeros(9)
+    mujoco.mju_quat2Mat(own, quat)
+    own = own.reshape(3, 3)
+    local = (in_body - np.asarray(geom.pos, dtype=np.float64)) @ own
+    lo, hi = local.min(axis=0), local.max(axis=0)
+    geom.type = mujoco.mjtGeom.mjGEOM_BOX
+    geom.meshname = ""
+    geom.pos = np.asarray(geom.pos, dtype=np.float64) + own @ ((lo + hi) / 2)
+    geom.quat = quat
+    geom.size = np.maximum((hi - lo) / 2, 5e-5)
 
 
 def _one_line(exc: Exception) -> str:

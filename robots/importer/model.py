@@ -9,6 +9,7 @@ value it writes.
 from __future__ import annotations
 
 import itertools
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,6 +45,16 @@ TOUCH_CLEARANCE = 0.001
 SAMPLES = 400
 #: Margin (m) of the workspace box around the sampled reachable positions.
 WORKSPACE_MARGIN = 0.05
+#: The task's ``joint_fraction``: goals are end-effector positions of poses within this fraction
+#: of each joint's half range about home (as arm3/arm6).
+TASK_JOINT_FRACTION = 0.7
+#: Smallest side of the task box, m (our choice: the task box of a planar arm has no extent
+#: across its plane).
+TASK_MIN_WIDTH = 0.01
+#: Smallest fraction of the goal sampler's poses whose end effector lies in the 10th-90th
+#: percentile box; below it the box spans every such pose (``GOAL_TRIES`` = 1000 draws of
+#: ``deploy.tasks.goals.sample_goal`` then miss with probability below 1e-20).
+TASK_MIN_HITS = 0.05
 
 
 @dataclass
@@ -72,9 +83,10 @@ def build_spec(
     motor_cfg: dict[str, MotorConfig],
     physics_timestep: float,
 ) -> tuple[mujoco.MjSpec, mujoco.MjModel]:
-    """MjSpec from the prepared URDF or MJCF: named geoms, armature ``rotor_inertia *
-    gear_ratio**2`` from each joint's motor, no actuator force range (``Robot.mjspec`` sets it),
-    the physics timestep and the implicit-fast integrator.
+    """MjSpec from the prepared URDF or MJCF: named geoms (``urdf.fitted_geoms`` gets the names
+    of the boxes fitted to meshes), armature ``rotor_inertia * gear_ratio**2`` from each joint's
+    motor, no actuator force range (``Robot.mjspec`` sets it), the physics timestep and the
+    implicit-fast integrator.
 
     Raises:
         RobotImportError: MuJoCo's URDF (or MJCF) compiler refuses the description.
@@ -83,8 +95,9 @@ def build_spec(
         spec = mujoco.MjSpec.from_string(urdf.text)
         spec.compile()
     except ValueError as exc:
+        message = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
         raise RobotImportError(
-            f"{urdf.path}: MuJoCo's {urdf.kind} compiler refuses it: {exc}"
+            f"{urdf.path}: MuJoCo's {urdf.kind} compiler refuses it: {message}"
         ) from None
     spec.compiler.degree = False  # URDF: radians; MJCF: canonical text, radians already
     spec.option.timestep = physics_timestep
@@ -98,6 +111,8 @@ def build_spec(
         geoms = list(body.geoms)
         for k, geom in enumerate(geoms):
             geom.name = body.name if len(geoms) == 1 else f"{body.name}_{k}"
+            if (body.name, k) in urdf.fitted:
+                urdf.fitted_geoms.add(geom.name)
     model = spec.compile()
     return spec, model
 
@@ -273,7 +288,8 @@ def choose_collision_pairs(
 ):
     """Self-collision pairs for the guard (geom names) and the MuJoCo contact exclusions.
 
-    Candidates: links of different rigid groups that are not parent and child, minus the SRDF's
+    Candidates: the geoms that can touch (``contype`` or ``conaffinity`` set: visual-only geoms
+    never do) of links of different rigid groups that are not parent and child, minus the SRDF's
     ``disable_collisions`` pairs when there is an SRDF; pairs closer than ``clearance`` (m) at
     the home pose are dropped (they touch by design or through a coarse collision shape). The
     plant (MuJoCo) checks contact only between the pairs the guard checks.
@@ -289,7 +305,9 @@ def choose_collision_pairs(
     index = {g.name: i for i, g in enumerate(geom.geometryObjects)}
     body_geoms: dict[str, list[str]] = {}
     for g in range(model.ngeom):
-        body_geoms.setdefault(model.body(model.geom_bodyid[g]).name, []).append(model.geom(g).name)
+        if model.geom_contype[g] or model.geom_conaffinity[g]:  # visual-only geoms never touch
+            body = model.body(model.geom_bodyid[g]).name
+            body_geoms.setdefault(body, []).append(model.geom(g).name)
     group = _groups(urdf)
     adjacent = {
         tuple(sorted((group[child], group[par])))
@@ -339,8 +357,11 @@ def sample_workspace(mjcf_path: Path, joint_names, limits, home) -> dict:
 
     Workspace: the box of every sampled end-effector position within the hard limits, plus
     ``WORKSPACE_MARGIN``, cut at 5 cm below the base (the table) unless home is lower. Task: the
-    10th-90th percentile box of positions reached within 70 % of each joint range about home,
-    above the table; success radius 6 % of the largest reach (at least 1 cm).
+    10th-90th percentile box of the positions the goal sampler draws (poses within
+    ``TASK_JOINT_FRACTION`` of each joint's half range about home, in the soft limits), above the
+    table, each side at least ``TASK_MIN_WIDTH``, rounded outward to 0.1 mm; the box of all of
+    them when fewer than ``TASK_MIN_HITS`` fall inside. Success radius 6 % of the largest reach
+    (at least 1 cm).
     """
     model = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
     data = mujoco.MjData(model)
@@ -356,18 +377,23 @@ def sample_workspace(mjcf_path: Path, joint_names, limits, home) -> dict:
 
     full = np.array([ee(rng.uniform(lo, hi)) for _ in range(4 * SAMPLES)])
     home_ee = ee(home)
-    span = 0.7 * (hi - lo) / 2
+    span = TASK_JOINT_FRACTION * (hi - lo) / 2
+    # the goal sampler's draw (deploy.tasks.goals.sample_goal): about home, in the soft limits
+    centre, half = (lo + hi) / 2, SOFT_LIMIT_FRACTION * (hi - lo) / 2
     inner = np.array(
-        [ee(np.clip(home + rng.uniform(-span, span), lo, hi)) for _ in range(4 * SAMPLES)]
+        [
+            ee(np.clip(home + rng.uniform(-span, span), centre - half, centre + half))
+            for _ in range(4 * SAMPLES)
+        ]
     )
     ws_min = full.min(axis=0) - WORKSPACE_MARGIN
     ws_max = full.max(axis=0) + WORKSPACE_MARGIN
     ws_min[2] = max(ws_min[2], min(-0.05, home_ee[2] - WORKSPACE_MARGIN))
     above = inner[inner[:, 2] > ws_min[2] + WORKSPACE_MARGIN]
     above = above if len(above) > 20 else inner
-    task_min = np.percentile(above, 10, axis=0)
-    task_max = np.percentile(above, 90, axis=0)
-    task_max = np.maximum(task_max, task_min + 0.01)
+    task_min, task_max = _task_box(above, 10)
+    if np.mean(np.all((inner >= task_min) & (inner <= task_max), axis=1)) < TASK_MIN_HITS:
+        task_min, task_max = _task_box(inner, 0)
     reach = float(np.max(np.linalg.norm(full, axis=1)))
     return {
         "workspace_min": ws_min,
@@ -377,6 +403,16 @@ def sample_workspace(mjcf_path: Path, joint_names, limits, home) -> dict:
         "success_radius": max(0.01, _sig(0.06 * reach)),
         "home_ee": home_ee,
     }
+
+
+def _task_box(points: np.ndarray, percent: float) -> tuple[np.ndarray, np.ndarray]:
+    """The ``percent``-th to ``100 - percent``-th percentile box of ``points`` (m), each side at
+    least ``TASK_MIN_WIDTH`` about its middle (a planar arm's end effector keeps one coordinate),
+    rounded outward to the 0.1 mm robot.toml writes."""
+    a = np.percentile(points, percent, axis=0)
+    b = np.percentile(points, 100 - percent, axis=0)
+    middle, half = (a + b) / 2, np.maximum((b - a) / 2, TASK_MIN_WIDTH / 2)
+    return np.floor((middle - half) * 1e4) / 1e4, np.ceil((middle + half) * 1e4) / 1e4
 
 
 def _f(x: float) -> str:
@@ -431,11 +467,46 @@ def joint_lines(
     ]
 
 
-def sensor_lines(chosen, resolution: int, quantum: float, control_rate: float, temp_note: str):
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)  # JSON's escapes are TOML basic-string escapes
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"no TOML form for {value!r}")
+
+
+def motor_table_lines(tables: dict[str, tuple[Path, dict]]) -> list[str]:
+    """``[motors.NAME]`` tables of robot.toml for the motors given as files (``--motor
+    JOINT=path.toml``): ``tables`` maps the name to (file, its validated table)."""
+    lines: list[str] = []
+    for name, (path, table) in sorted(tables.items()):
+        lines += ["", f"# motor {name}: from {path} (--motor JOINT=FILE)", f"[motors.{name}]"]
+        nested = {k: v for k, v in table.items() if isinstance(v, dict)}
+        lines += [f"{k} = {_toml_value(v)}" for k, v in table.items() if k not in nested]
+        for key, sub in nested.items():
+            lines.append(f"[motors.{name}.{key}]")
+            lines += [f"{k} = {_toml_value(v)}" for k, v in sub.items()]
+    return lines
+
+
+def sensor_lines(
+    chosen, resolution: int, quantum: float, control_rate: float, temp_note: str, files=()
+):
     """The motor-catalog comment and the ``[sensors]`` encoder and temperature lines of
-    robot.toml: one encoder count of noise at the coarsest motor encoder, read every tick."""
+    robot.toml: one encoder count of noise at the coarsest motor encoder, read every tick.
+    ``files``: the motors given as files (their tables close robot.toml)."""
+    catalog = sorted(set(chosen.values()) - set(files))
+    where = []
+    if catalog:
+        where.append("Motors " + ", ".join(catalog) + ": the catalog, robots/motors/.")
+    if files:
+        where.append("Motors " + ", ".join(sorted(files)) + ": [motors.*] tables at the end.")
     return [
-        "# Motors " + ", ".join(sorted(set(chosen.values()))) + ": the catalog, robots/motors/.",
+        "# " + " ".join(where),
         "",
         "[sensors]",
         f"encoder_resolution = {resolution}  # counts/rev, the coarsest motor encoder",
@@ -466,12 +537,15 @@ def write_robot_toml(
     physics_timestep,
     disabled_by: str | None,
     lowered,
+    motor_tables: dict[str, tuple[Path, dict]] | None = None,
 ) -> None:
     """Write robot.toml with a comment giving the reason of every value.
 
     ``prepared``: the description (its file, kind and where each joint's limits came from);
-    ``disabled_by``: what named the link pairs left unchecked ("the SRDF (x.srdf)"), or None.
+    ``disabled_by``: what named the link pairs left unchecked ("the SRDF (x.srdf)"), or None;
+    ``motor_tables``: the motors given as files (:func:`motor_table_lines`).
     """
+    motor_tables = motor_tables or {}
     kind = prepared.kind
 
     resolutions = [
@@ -511,7 +585,9 @@ def write_robot_toml(
         lines += joint_lines(j, i, (lo, hi, vel, eff), kind, (vnote, enote), motion, m)
     lines += [
         "",
-        *sensor_lines(chosen, resolution, quantum, control_rate, "degC, as servos report it"),
+        *sensor_lines(
+            chosen, resolution, quantum, control_rate, "degC, as servos report it", motor_tables
+        ),
         "",
         "[safety]",
         'end_effector_site = "ee"',
@@ -533,10 +609,11 @@ def write_robot_toml(
         "# 10th-90th percentile box of positions reached within 70 % of each range about home;",
         "# goals are such positions inside the box (joint_fraction): every goal is reachable.",
         'region = "box"',
-        "joint_fraction = 0.7",
+        f"joint_fraction = {TASK_JOINT_FRACTION}",
         f"box_min = {_vec(workspace['task_min'])}",
         f"box_max = {_vec(workspace['task_max'])}",
         f"success_radius = {_f(workspace['success_radius'])}  # m, 6 % of the reach",
+        *motor_table_lines(motor_tables),
         "",
     ]
     path.write_text("\n".join(lines), encoding="utf-8")

@@ -20,45 +20,31 @@ place: a failed import leaves nothing.
 The source is a URDF (root ``<robot>``, :mod:`robots.importer.urdf`) or an MJCF (root
 ``<mujoco>``, :mod:`robots.importer.mjcf`); both become a
 :class:`robots.importer.urdf.PreparedSource`, and everything after that is the same code.
+The per-joint flags (shell patterns, motors from the catalog or from a file) are read by
+:mod:`robots.importer.flags`; the model steps (limits, gains, pairs, workspace) are in
+:mod:`robots.importer.model`; an arm is finished by :mod:`robots.importer.fixed_base`, a legged
+robot (``--floating-base``) by :mod:`robots.importer.legged` (its MJCF:
+:mod:`robots.importer.floating_mjcf`); robot.toml's text is :mod:`robots.importer.toml_text`.
 Errors (:class:`RobotImportError`, exit code 3) are one line naming the file, the element and
-what was expected. The geometry and model helpers are in :mod:`robots.importer.model`.
+what was expected.
 """
 
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
-import tempfile
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import mujoco
-import numpy as np
-
 from robots.importer import flags
+from robots.importer.fixed_base import import_fixed_base
 from robots.importer.mjcf import prepare_mjcf
-from robots.importer.model import (
-    build_spec,
-    cap_limits,
-    choose_collision_pairs,
-    choose_ee_body,
-    derive_motion_limits,
-    sample_workspace,
-    write_robot_toml,
-)
+from robots.importer.model import build_spec
 from robots.importer.urdf import PreparedSource, RobotImportError, SrdfInfo, prepare_urdf, read_srdf
-from robots.loading import (
-    PACKAGE_SCHEME,
-    _resolved_mjcf,
-    load_robot,
-    motor_catalog,
-    package_root,
-)
+from robots.loading import motor_catalog, package_root
 from robots.robot import RobotSpecError
-from robots.schema import MotorConfig
 
 __all__ = ["ImportReport", "RobotImportError", "import_robot", "main", "resolve_source"]
 
@@ -109,59 +95,6 @@ def resolve_source(source: str) -> Path:
             f"{source}: no file '{rel}' in package '{package}' ({root}, {root / 'robots'})"
         )
     raise RobotImportError(f"{source}: no such file (expected a URDF or MJCF file, or PKG:path)")
-
-
-def _assign_motors(
-    source: Path, joints: list[str], flag_texts: list[str]
-) -> tuple[dict[str, str], dict[str, MotorConfig], dict[str, tuple[Path, dict]]]:
-    """Joint -> motor name from ``--motor JOINT=MODEL`` flags (shell patterns; later flags win;
-    MODEL a catalog model or a motor TOML file). Returns ``(chosen, configs by name, tables of
-    the motors given as files by name)``."""
-    from robots.importer.flags import read_motor_flag
-
-    motors: dict[str, tuple[MotorConfig, dict | None, Path]] = {}
-
-    def parse(model: str) -> str:
-        name, config, table = read_motor_flag(text, model)
-        path = Path(model).expanduser().resolve()
-        if name in motors and motors[name][1] is not None and table is not None:
-            if motors[name][2] != path:
-                raise RobotImportError(
-                    f"--motor '{text}': motor name '{name}' is already given by "
-                    f"{motors[name][2]}; expected motor files with different names"
-                )
-        if name in motors and (motors[name][1] is None) != (table is None):
-            raise RobotImportError(
-                f"--motor '{text}': motor file {path} has the name of the catalog model "
-                f"'{name}'; rename the file"
-            )
-        motors[name] = (config, table, path)
-        return name
-
-    chosen: dict[str, str] = {}
-    for text in flag_texts:
-        chosen.update(
-            flags.per_joint(
-                [text],
-                joints,
-                "--motor",
-                parse,
-                "JOINT=MODEL (JOINT may be '*'; MODEL a catalog model or a motor TOML file)",
-                source.name,
-            )
-        )
-    for j in joints:
-        if j not in chosen:
-            raise RobotImportError(
-                f"{source}: <joint name='{j}'>: no motor model; expected --motor {j}=MODEL "
-                f"(or --motor '*=MODEL'; catalog: {sorted(motor_catalog())}, or a motor TOML file)"
-            )
-    used = set(chosen.values())
-    configs = {name: motors[name][0] for name in used}
-    tables = {
-        name: (motors[name][2], motors[name][1]) for name in used if motors[name][1] is not None
-    }
-    return chosen, configs, tables
 
 
 def import_robot(
@@ -303,7 +236,7 @@ def _import(
         log(f"note: {note}")
     _apply_velocities(urdf, list(velocities))
 
-    chosen, motor_cfg, motor_tables = _assign_motors(path, urdf.movable, list(motors))
+    chosen, motor_cfg, motor_tables = flags.assign_motors(path, urdf.movable, list(motors))
 
     report = ImportReport(out=out, joints=list(urdf.movable), notes=list(urdf.notes))
     spec, model = build_spec(urdf, chosen, motor_cfg, physics_timestep)
@@ -323,62 +256,12 @@ def _import(
         log(f"wrote {out} ({len(joint_names)} joints, floating base) in {report.seconds:.1f} s")
         return report
 
-    ee_body, ee_frame = choose_ee_body(model, urdf, ee_site, path)
-    if ee_site is None:
-        where = f"at site '{ee_frame}' of" if ee_frame else "on"
-        log(
-            f"note: end-effector site 'ee' {where} link '{ee_body}' (choose another with --ee-site)"
-        )
-
-    limits_out, lowered, notes = cap_limits(urdf, chosen, motor_cfg, log)
-    report.lowered += lowered
-    report.notes += notes
-
-    with tempfile.TemporaryDirectory(prefix=f".{name}-", dir=out.parent) as tmp:
-        work = Path(tmp) / name
-        work.mkdir()
-        mjcf_path = work / f"{name}.xml"
-        _finish_mjcf(spec, ee_body, ee_frame, urdf, mjcf_path)
-        # the MJCF writes ranges to 6 significant digits: robot.toml must say the same
-        written = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
-        for i, j in enumerate(joint_names):
-            lo, hi = (float(x) for x in written.jnt_range[i])
-            limits_out[j] = (lo, hi, *limits_out[j][2:])
-        motion = derive_motion_limits(spec, model, joint_names, limits_out, motor_cfg, chosen)
-        home = motion.home
-        pairs, excluded, dropped = choose_collision_pairs(
-            mjcf_path, model, urdf, srdf_info, home, path
-        )
-        for a, b, d in dropped:
-            log(f"note: links {a} and {b} are {d * 1000:.1f} mm apart at home: pair not checked")
-        if excluded:
-            _add_contact_excludes(mjcf_path, excluded)
-        ws = sample_workspace(mjcf_path, joint_names, limits_out, home)
-        write_robot_toml(
-            work / "robot.toml",
-            name=name,
-            prepared=urdf,
-            mjcf=mjcf_path.name,
-            joint_names=joint_names,
-            limits=limits_out,
-            motion=motion,
-            chosen=chosen,
-            motor_cfg=motor_cfg,
-            pairs=pairs,
-            workspace=ws,
-            control_rate=control_rate,
-            physics_timestep=physics_timestep,
-            disabled_by=_disabled_by(urdf, srdf_path),
-            lowered=report.lowered,
-            motor_tables=motor_tables,
-        )
-        try:
-            load_robot(work)
-        except RobotSpecError as exc:
-            raise RobotImportError(f"{path}: the imported robot does not load: {exc}") from None
-        if out.exists():
-            shutil.rmtree(out)
-        work.rename(out)
+    import_fixed_base(
+        path=path, out=out, name=name, urdf=urdf, srdf_info=srdf_info, srdf_path=srdf_path,
+        spec=spec, model=model, joint_names=joint_names, chosen=chosen, motor_cfg=motor_cfg,
+        motor_tables=motor_tables, report=report, ee_site=ee_site, control_rate=control_rate,
+        physics_timestep=physics_timestep, log=log,
+    )  # fmt: skip
     report.seconds = time.perf_counter() - start
     log(f"wrote {out} ({len(joint_names)} joints) in {report.seconds:.1f} s")
     return report
@@ -414,16 +297,6 @@ def _prepare(
     return prepared, srdf_info
 
 
-def _disabled_by(source: PreparedSource, srdf_path: Path | None) -> str | None:
-    """What named the unchecked link pairs, for robot.toml's comment (None: nothing did)."""
-    named = []
-    if srdf_path is not None:
-        named.append(f"the SRDF ({Path(srdf_path).name})")
-    if source.disabled:
-        named.append(f"the MJCF's <contact><exclude> ({source.path.name})")
-    return " or ".join(named) or None
-
-
 def _apply_velocities(source: PreparedSource, flag_texts: list[str]) -> None:
     """Set joint velocity limits from ``--velocity JOINT=RAD_S`` (shell patterns; later win)."""
     values = flags.per_joint(
@@ -444,64 +317,6 @@ def _parse_xml(path: Path) -> ET.Element:
         return ET.parse(path).getroot()
     except ET.ParseError as exc:
         raise RobotImportError(f"{path}: not valid XML: {exc}") from None
-
-
-def _finish_mjcf(spec, ee_body: str, ee_frame: str | None, urdf, mjcf_path: Path) -> None:
-    """Add the ``ee`` site (at link ``ee_body``, or at its site ``ee_frame``), write the MJCF
-    with the package meshdir placeholder."""
-    # The site goes on the nearest body that a joint moves, at the fixed transform of the chosen
-    # link: Pinocchio's MJCF parser misplaces sites of joint-less child bodies (0.107 m on panda).
-    model = spec.compile()
-    data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)
-    b = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, ee_body)
-    anc = b
-    while anc > 0 and model.body_jntnum[anc] == 0:
-        anc = model.body_parentid[anc]
-    if ee_frame is None:
-        target_pos, target_quat = data.xpos[b], data.xquat[b]
-    else:
-        s = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, ee_frame)
-        target_pos, target_quat = data.site_xpos[s], np.zeros(4)
-        mujoco.mju_mat2Quat(target_quat, data.site_xmat[s])
-    rot = data.xmat[anc].reshape(3, 3)
-    pos = rot.T @ (target_pos - data.xpos[anc])
-    quat = np.zeros(4)
-    inv = np.zeros(4)
-    mujoco.mju_negQuat(inv, data.xquat[anc])
-    mujoco.mju_mulQuat(quat, inv, target_quat)
-    old = spec.site("ee")
-    if old is not None:  # an MJCF's own 'ee' site: replaced by the one placed here
-        spec.delete(old)
-    spec.body(model.body(anc).name).add_site(
-        name="ee", size=[0.005, 0.005, 0.005], pos=pos, quat=quat
-    )
-    spec.compile()
-    xml = spec.to_xml()
-    if urdf.meshdir_abs is not None:
-        xml = xml.replace(f'meshdir="{urdf.meshdir_abs}"', f'meshdir="{urdf.meshdir_uri}"', 1)
-        if urdf.meshdir_uri.startswith(PACKAGE_SCHEME) and urdf.meshdir_uri not in xml:
-            raise RobotImportError(f"{mjcf_path}: <compiler meshdir>: could not be written")
-    header = (
-        f"<!-- Generated by robot-import from {urdf.display} with MuJoCo's {urdf.kind} compiler "
-        "(mujoco.MjSpec). Radians, explicit inertials, no actuators (Robot.mjspec adds them per "
-        "control mode). Meshes are read from the installed package named by meshdir. -->\n"
-    )
-    mjcf_path.write_text(header + xml, encoding="utf-8")
-
-
-def _add_contact_excludes(mjcf_path: Path, excluded: list[tuple[str, str]]) -> None:
-    tree = ET.parse(mjcf_path)
-    root = tree.getroot()
-    contact = root.find("contact")
-    if contact is None:
-        contact = ET.SubElement(root, "contact")
-    for a, b in excluded:
-        ET.SubElement(contact, "exclude", body1=a, body2=b)
-    ET.indent(tree, "  ")
-    text = ET.tostring(root, encoding="unicode")
-    head = mjcf_path.read_text(encoding="utf-8").split("\n", 1)[0]
-    mjcf_path.write_text(head + "\n" + text + "\n", encoding="utf-8")
 
 
 def main(argv: list[str] | None = None) -> int:

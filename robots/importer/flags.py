@@ -70,6 +70,8 @@ def per_joint(
         pattern, value = split(flag, text, expected)
         try:
             parsed = parse(value)
+        except RobotSpecError:  # a ValueError with its own message (a motor file's)
+            raise
         except ValueError:
             raise RobotImportError(f"{flag} '{text}': expected {expected}") from None
         for j in matching(flag, text, pattern, joints, source):
@@ -145,3 +147,54 @@ def read_motor_flag(flag_text: str, model: str) -> tuple[str, MotorConfig, dict 
     if path.parent == MOTORS_DIR.resolve():
         return path.stem, config, None
     return path.stem, config, table
+
+
+def assign_motors(
+    source: Path, joints: list[str], flag_texts: list[str]
+) -> tuple[dict[str, str], dict[str, MotorConfig], dict[str, tuple[Path, dict]]]:
+    """Joint -> motor name from ``--motor JOINT=MODEL`` flags (shell patterns; later flags win;
+    MODEL a catalog model or a motor TOML file). Returns ``(chosen, configs by name, tables of
+    the motors given as files by name)``."""
+    motors: dict[str, tuple[MotorConfig, dict | None, Path]] = {}
+
+    def parse(model: str) -> str:
+        name, config, table = read_motor_flag(text, model)
+        path = Path(model).expanduser().resolve()
+        if name in motors and motors[name][1] is not None and table is not None:
+            if motors[name][2] != path:
+                raise RobotImportError(
+                    f"--motor '{text}': motor name '{name}' is already given by "
+                    f"{motors[name][2]}; expected motor files with different names"
+                )
+        if name in motors and (motors[name][1] is None) != (table is None):
+            raise RobotImportError(
+                f"--motor '{text}': motor file {path} has the name of the catalog model "
+                f"'{name}'; rename the file"
+            )
+        motors[name] = (config, table, path)
+        return name
+
+    chosen: dict[str, str] = {}
+    for text in flag_texts:
+        chosen.update(
+            per_joint(
+                [text],
+                joints,
+                "--motor",
+                parse,
+                "JOINT=MODEL (JOINT may be '*'; MODEL a catalog model or a motor TOML file)",
+                source.name,
+            )
+        )
+    for j in joints:
+        if j not in chosen:
+            raise RobotImportError(
+                f"{source}: <joint name='{j}'>: no motor model; expected --motor {j}=MODEL "
+                f"(or --motor '*=MODEL'; catalog: {sorted(motor_catalog())}, or a motor TOML file)"
+            )
+    used = set(chosen.values())
+    configs = {name: motors[name][0] for name in used}
+    tables = {
+        name: (motors[name][2], motors[name][1]) for name in used if motors[name][1] is not None
+    }
+    return chosen, configs, tables

@@ -110,6 +110,7 @@ def import_robot(
     force: bool = False,
     log=print,
     drop_missing_meshes: bool = False,
+    link_boxes: bool = False,
     floating_base: bool = False,
     feet: list[str] | tuple[str, ...] = (),
     imu: str | None = None,
@@ -137,7 +138,9 @@ def import_robot(
             still caps them. control_rate: Hz. physics_timestep: s (an integer fraction of the
             control period). force: replace an existing ``out``. log: where decisions are
             printed. drop_missing_meshes: drop the geoms (URDF: the elements) whose mesh file
-            is missing, each printed, instead of refusing.
+            is missing, each printed, instead of refusing. link_boxes: one bounding box per link
+            around all its collision meshes (what robot-import wrote before one box per mesh;
+            coarser, fewer collision pairs) instead of one box per mesh.
         floating_base: A legged robot (:mod:`robots.importer.legged`): free joint (an MJCF's own
             free joint is replaced), floor, IMU, foot sites with touch sensors, ``[base]`` in
             robot.toml. feet: foot links (default: the last link of each leg). imu: the IMU link,
@@ -167,8 +170,8 @@ def import_robot(
     try:
         return _import(
             source, out, srdf, motors, ee_site, limits, velocities, control_rate,
-            physics_timestep, force, log, drop_missing_meshes, floating_base, feet, imu, kp, kd,
-            home, notes, command,
+            physics_timestep, force, log, drop_missing_meshes, link_boxes, floating_base, feet,
+            imu, kp, kd, home, notes, command,
         )  # fmt: skip
     except BaseException:
         for folder in created:  # deepest first
@@ -209,6 +212,7 @@ def _import(
     force,
     log,
     drop_missing_meshes,
+    link_boxes,
     floating_base,
     feet,
     imu,
@@ -231,7 +235,9 @@ def _import(
         raise RobotImportError(f"--out {out}: folder exists and is not empty (use --force)")
     srdf_path = resolve_source(str(srdf)) if srdf is not None else None
 
-    urdf, srdf_info = _prepare(path, srdf_path, list(limits), floating_base, drop_missing_meshes)
+    urdf, srdf_info = _prepare(
+        path, srdf_path, list(limits), floating_base, drop_missing_meshes, link_boxes
+    )
     for note in urdf.notes:
         log(f"note: {note}")
     _apply_velocities(urdf, list(velocities))
@@ -273,11 +279,12 @@ def _prepare(
     limit_flags: list[str],
     floating_base: bool = False,
     drop_missing_meshes: bool = False,
+    link_boxes: bool = False,
 ) -> tuple[PreparedSource, SrdfInfo | None]:
     """The prepared description and the link pairs left unchecked (SRDF, MJCF excludes)."""
     root = _parse_xml(path)
     if root.tag == "mujoco":
-        source = prepare_mjcf(path, limit_flags, floating_base, drop_missing_meshes)
+        source = prepare_mjcf(path, limit_flags, floating_base, drop_missing_meshes, link_boxes)
         srdf_info = None
         if srdf_path is not None:
             srdf_info = read_srdf(srdf_path, set(source.links), "MJCF")
@@ -293,7 +300,9 @@ def _prepare(
     srdf_info = (
         read_srdf(srdf_path, links, floating_base=floating_base) if srdf_path is not None else None
     )
-    prepared = prepare_urdf(path, root, limit_flags, srdf_info, floating_base, drop_missing_meshes)
+    prepared = prepare_urdf(
+        path, root, limit_flags, srdf_info, floating_base, drop_missing_meshes, link_boxes
+    )
     return prepared, srdf_info
 
 
@@ -366,6 +375,12 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="drop the geoms whose mesh file is missing (each printed) instead of refusing",
     )
+    p.add_argument(
+        "--link-boxes",
+        action="store_true",
+        help="one collision box per link around all its meshes (coarser, fewer pairs; what "
+        "robot-import wrote before one box per mesh) instead of one box per mesh",
+    )
     legged = p.add_argument_group("floating-base (legged) robots")
     legged.add_argument(
         "--floating-base",
@@ -401,6 +416,7 @@ def main(argv: list[str] | None = None) -> int:
             physics_timestep=args.physics_timestep,
             force=args.force,
             drop_missing_meshes=args.drop_missing_meshes,
+            link_boxes=args.link_boxes,
             floating_base=args.floating_base,
             feet=args.foot,
             imu=args.imu,

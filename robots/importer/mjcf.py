@@ -63,6 +63,7 @@ def prepare_mjcf(
     limit_flags: list[str],
     floating_base: bool = False,
     drop_missing_meshes: bool = False,
+    link_boxes: bool = False,
 ) -> PreparedSource:
     """Check the MJCF at ``path`` and reduce it for the importer (see the module docstring).
 
@@ -72,7 +73,9 @@ def prepare_mjcf(
             leaves unlimited (or to replace a range). floating_base: a legged robot: the free
             joint of the robot's root body (if any) is removed (the importer adds its own), the
             world body's other geoms are dropped. drop_missing_meshes: drop the geoms whose mesh
-            file does not exist (each printed) instead of refusing.
+            file does not exist (each printed) instead of refusing. link_boxes: one bounding
+            box per body around all its mesh geoms (coarser, fewer pairs) instead of one per
+            mesh geom.
 
     Returns:
         A :class:`PreparedSource` of kind "MJCF" whose ``text`` is the reduced model in MuJoCo's
@@ -138,7 +141,7 @@ def prepare_mjcf(
         spec.joint(name).limited = mujoco.mjtLimited.mjLIMITED_TRUE
     model = _compile(spec, path)
     joints = _hinge_limits(model, path, efforts)
-    meshdir_abs, fitted = _simplify_geoms(spec, model, notes)
+    meshdir_abs, fitted = _simplify_geoms(spec, model, notes, link_boxes)
     text = _to_xml(spec, path)
     model = _compile(_from_string(text, path), path)
 
@@ -465,11 +468,12 @@ def _hinge_limits(model: mujoco.MjModel, path: Path, efforts) -> dict[str, Joint
 
 
 def _simplify_geoms(
-    spec: mujoco.MjSpec, model: mujoco.MjModel, notes
+    spec: mujoco.MjSpec, model: mujoco.MjModel, notes, link_boxes: bool = False
 ) -> tuple[str | None, set[tuple[str, int]]]:
     """Drop visual-only geoms beside collision geoms; each mesh geom becomes its bounding box in
-    the mesh's own frame (``COLLISION_BOXES``; other geoms stay as they are); every geom in
-    group 0.
+    the mesh's own frame (``COLLISION_BOXES``; ``link_boxes``: one box per body, in the body
+    frame, around its mesh geoms, added after its other geoms); other geoms stay as they are;
+    every geom in group 0.
 
     Returns ``(meshdir, fitted)``: the absolute mesh folder when meshes are kept
     (``COLLISION_BOXES`` False), else None; the ``(body, k)`` of the boxes (``k``: the geom's
@@ -487,6 +491,9 @@ def _simplify_geoms(
             geoms = [g for g in geoms if g.contype or g.conaffinity]
         if not COLLISION_BOXES:
             continue
+        if link_boxes:
+            boxed += _body_box(spec, body, geoms, model)
+            continue
         for g in geoms:
             if g.type == mujoco.mjtGeom.mjGEOM_MESH:
                 _mesh_to_box(g, model)
@@ -497,7 +504,9 @@ def _simplify_geoms(
         geom.group = 0
     if visual:
         notes.append(f"{visual} visual-only geoms (contype = conaffinity = 0) dropped")
-    if boxed:
+    if boxed and link_boxes:
+        notes.append(f"mesh geoms replaced by one bounding box per body {boxed} (--link-boxes)")
+    elif boxed:
         notes.append(
             f"{len(boxed)} mesh geoms replaced by their bounding boxes in the mesh frame, one "
             "box per geom (COLLISION_BOXES)"
@@ -518,6 +527,33 @@ def _simplify_geoms(
         mesh.file = Path(os.path.relpath(file, base)).as_posix()
     spec.meshdir = base.as_posix()
     return spec.meshdir, fitted
+
+
+def _body_box(spec: mujoco.MjSpec, body, geoms, model: mujoco.MjModel) -> list[str]:
+    """Replace a body's mesh geoms by one box around them (body frame); return its name."""
+    meshes = [g for g in geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH]
+    if not meshes:
+        return []
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    corners = []
+    for g in meshes:
+        gid = model.geom(g.name).id
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, model.geom_quat[gid])
+        aabb = model.geom_aabb[gid]
+        corners.append(model.geom_pos[gid] + (aabb[:3] + signs * aabb[3:]) @ rot.reshape(3, 3).T)
+    pts = np.vstack(corners)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    box = body.add_geom()
+    box.type = mujoco.mjtGeom.mjGEOM_BOX
+    box.pos = (lo + hi) / 2
+    box.size = np.maximum((hi - lo) / 2, 5e-5)
+    box.contype, box.conaffinity = meshes[0].contype, meshes[0].conaffinity
+    box.rgba = meshes[0].rgba
+    box.name = f"{body.name}_box"
+    for g in meshes:
+        spec.delete(g)
+    return [box.name]
 
 
 def _mesh_to_box(geom, model: mujoco.MjModel) -> None:

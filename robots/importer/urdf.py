@@ -14,6 +14,7 @@ the same from :func:`robots.importer.mjcf.prepare_mjcf`.
 from __future__ import annotations
 
 import copy
+import itertools
 import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -213,6 +214,7 @@ def prepare_urdf(
     srdf: SrdfInfo | None,
     floating_base: bool = False,
     drop_missing_meshes: bool = False,
+    link_boxes: bool = False,
 ) -> PreparedSource:
     """Check the URDF and rewrite it for MuJoCo's URDF compiler (see the module docstring).
 
@@ -220,7 +222,8 @@ def prepare_urdf(
         limit_flags: ``--limit JOINT=LOWER:UPPER`` texts (rad, shell patterns over the revolute
             and continuous joints; later flags win). drop_missing_meshes: drop the ``<collision>``
             and ``<visual>`` elements whose mesh file does not exist (each printed) instead of
-            refusing.
+            refusing. link_boxes: one bounding box per link around all its collision meshes
+            (coarser, fewer pairs) instead of one per mesh.
 
     Raises:
         RobotImportError: duplicate joint or link name, continuous joint without limits (and no
@@ -329,7 +332,9 @@ def prepare_urdf(
         child = joints[name].child
         _check_inertia(path, link_els[child], name)
 
-    meshdir_abs, meshdir_uri, fitted = _rewrite_meshes(path, root, notes, drop_missing_meshes)
+    meshdir_abs, meshdir_uri, fitted = _rewrite_meshes(
+        path, root, notes, drop_missing_meshes, link_boxes
+    )
     for link in root.findall("link"):
         for visual in link.findall("visual"):
             link.remove(visual)
@@ -402,12 +407,18 @@ def _check_inertia(path: Path, link: ET.Element, joint: str) -> None:
 
 
 def _rewrite_meshes(
-    path: Path, root: ET.Element, notes: list[str], drop_missing: bool = False
+    path: Path,
+    root: ET.Element,
+    notes: list[str],
+    drop_missing: bool = False,
+    link_boxes: bool = False,
 ) -> tuple[str | None, str, set[tuple[str, int]]]:
     """Resolve every mesh; refer to the kept ones relative to one folder (returned), or replace
-    each collision mesh by its bounding box in place (``COLLISION_BOXES``). Returns
-    ``(meshdir_abs, meshdir_uri, fitted)``: ``fitted`` the ``(link, k)`` of the boxes, ``k``
-    counting the link's ``<collision>`` elements (the order MuJoCo's geoms keep)."""
+    each collision mesh by its bounding box in place (``COLLISION_BOXES``; ``link_boxes``: one
+    box per link, in the link frame, around all its meshes' boxes, appended after its other
+    collision elements). Returns ``(meshdir_abs, meshdir_uri, fitted)``: ``fitted`` the
+    ``(link, k)`` of the boxes, ``k`` counting the link's ``<collision>`` elements (the order
+    MuJoCo's geoms keep)."""
     resolved: list[tuple[ET.Element, ET.Element, Path, str | None]] = []
     missing: list[tuple[ET.Element, ET.Element, str, Path, str]] = []
     for link in root.findall("link"):
@@ -445,7 +456,8 @@ def _rewrite_meshes(
             meshdir_uri = str(base)
         meshdir_abs = base.as_posix()
     boxed: set[int] = set()
-    for _link, el, file, _ in resolved:
+    corners: dict[str, list[np.ndarray]] = {}
+    for link, el, file, _ in resolved:
         mesh = el.find("geometry/mesh")
         if file.suffix.lower() in keep:
             mesh.set("filename", Path(os.path.relpath(file, meshdir_abs)).as_posix())
@@ -455,6 +467,13 @@ def _rewrite_meshes(
         origin = el.find("origin")
         xyz = np.array([float(x) for x in (_attr(origin, "xyz") or "0 0 0").split()])
         rpy = np.array([float(x) for x in (_attr(origin, "rpy") or "0 0 0").split()])
+        boxed.add(id(el))
+        if link_boxes:
+            signs = np.array(list(itertools.product((-0.5, 0.5), repeat=3)))
+            pts = xyz + (centre + signs * size) @ _rpy_matrix(rpy).T
+            corners.setdefault(link.get("name"), []).append(pts)
+            link.remove(el)
+            continue
         # the box keeps the mesh's frame: its centre moves into the element's origin
         if origin is None:
             origin = ET.SubElement(el, "origin")
@@ -463,13 +482,27 @@ def _rewrite_meshes(
         geometry = el.find("geometry")
         geometry.remove(mesh)
         ET.SubElement(geometry, "box", size=" ".join(repr(float(v)) for v in size))
-        boxed.add(id(el))
+    for link in root.findall("link"):
+        if link.get("name") not in corners:
+            continue
+        pts = np.vstack(corners[link.get("name")])
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        col = ET.SubElement(link, "collision")
+        ET.SubElement(col, "origin", xyz=" ".join(repr(float(v)) for v in (lo + hi) / 2))
+        geometry = ET.SubElement(col, "geometry")
+        ET.SubElement(geometry, "box", size=" ".join(repr(float(v)) for v in hi - lo))
+        boxed.add(id(col))
     fitted = set()
     for link in root.findall("link"):
         for k, el in enumerate(link.findall("collision")):
             if id(el) in boxed:
                 fitted.add((link.get("name"), k))
-    if boxed:
+    if corners:
+        meshes = sum(len(c) for c in corners.values())
+        notes.append(
+            f"{meshes} collision meshes replaced by one bounding box per link (--link-boxes)"
+        )
+    elif boxed:
         notes.append(
             f"{len(boxed)} collision meshes replaced by their bounding boxes in the mesh frame, "
             "one box per mesh (COLLISION_BOXES)"

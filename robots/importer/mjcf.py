@@ -185,9 +185,9 @@ def _drop_appearance(spec: mujoco.MjSpec) -> None:
 
 
 def _mesh_file(spec: mujoco.MjSpec, mesh, path: Path) -> Path:
-    """Where MuJoCo looks for a mesh asset's file: ``meshdir`` (else ``assetdir``) relative to
-    the model's folder, unless absolute."""
-    folder = spec.meshdir or spec.assetdir or ""
+    """Where MuJoCo looks for a mesh asset's file: in ``meshdir`` relative to the model's folder
+    (unless absolute)."""
+    folder = spec.meshdir or ""
     base = Path(spec.modelfiledir or str(path.parent))
     return (base / folder / mesh.file).resolve()
 

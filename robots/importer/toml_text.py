@@ -81,12 +81,18 @@ def motor_table_lines(tables: dict[str, tuple[Path, dict]]) -> list[str]:
     JOINT=path.toml``): ``tables`` maps the name to (file, its validated table)."""
     lines: list[str] = []
     for name, (path, table) in sorted(tables.items()):
-        lines += ["", f"# motor {name}: from {path} (--motor JOINT=FILE)", f"[motors.{name}]"]
-        nested = {k: v for k, v in table.items() if isinstance(v, dict)}
-        lines += [f"{k} = {_toml_value(v)}" for k, v in table.items() if k not in nested]
-        for key, sub in nested.items():
-            lines.append(f"[motors.{name}.{key}]")
-            lines += [f"{k} = {_toml_value(v)}" for k, v in sub.items()]
+        lines += ["", f"# motor {name}: from {path} (--motor JOINT=FILE)"]
+        lines += _table_lines(f"motors.{name}", table)
+    return lines
+
+
+def _table_lines(header: str, table: dict) -> list[str]:
+    """``[header]``, its keys, then its sub-tables (``[header.key]``), recursively."""
+    nested = {k: v for k, v in table.items() if isinstance(v, dict)}
+    lines = [f"[{header}]"]
+    lines += [f"{k} = {_toml_value(v)}" for k, v in table.items() if k not in nested]
+    for key, sub in nested.items():
+        lines += _table_lines(f"{header}.{key}", sub)
     return lines
 
 

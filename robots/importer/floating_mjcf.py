@@ -160,7 +160,7 @@ def finish_floating_mjcf(
         anc = _moving_ancestor(model, b)
         host = spec.body(model.body(anc).name)
         rot_anc = data.xmat[anc].reshape(3, 3)
-        points, kept = [], []
+        points, kept, fitted_sphere = [], [], False
         for geom in list(body.geoms):
             g = model.geom(geom.name).id
             pos = _relative(data, anc, data.geom_xpos[g])
@@ -168,6 +168,7 @@ def finish_floating_mjcf(
             if _point_foot(geom, prepared.fitted_geoms):  # a point foot, as legged simulators
                 geom.type = mujoco.mjtGeom.mjGEOM_SPHERE
                 geom.size = [_sig(float(np.mean(geom.size)), 3), 0.0, 0.0]
+                fitted_sphere = True
                 model = spec.compile()  # the sphere's size for the points below
                 data = mujoco.MjData(model)
                 mujoco.mj_kinematics(model, data)
@@ -191,7 +192,8 @@ def finish_floating_mjcf(
         if one is not None and one.type == mujoco.mjtGeom.mjGEOM_SPHERE:
             r = float(one.size[0])
             host.add_site(name=foot, size=[r + TOUCH_MARGIN, 0, 0], pos=(lo + hi) / 2)
-            shapes[foot] = f"a sphere of radius {r:g} m"
+            made = " (the mean half-size of its compact mesh's box)" if fitted_sphere else ""
+            shapes[foot] = f"a sphere of radius {r:g} m{made}"
         else:
             host.add_site(
                 name=foot,

@@ -365,6 +365,8 @@ def import_floating_base(
         legged = finish_floating_mjcf(
             spec, urdf, foot_links, (imu_link, imu_site), joint_names, motion.home, mjcf_path
         )
+        for foot, shape in legged["foot_shapes"].items():
+            log(f"note: foot {foot}: {shape}")
         written = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
         for i, j in enumerate(joint_names):  # the MJCF writes 6 significant digits
             lo, hi = (float(x) for x in written.jnt_range[i + 1])

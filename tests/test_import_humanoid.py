@@ -302,3 +302,31 @@ def test_a_missing_mesh_is_refused_or_its_geoms_dropped(humanoid, tmp_path, caps
     model = load_robot(out).mj_model
     pelvis = [g for g in range(model.ngeom) if model.geom_bodyid[g] == model.body("pelvis").id]
     assert len(pelvis) == 2  # pelvis and torso: both arm geoms (and their visual copies) gone
+
+
+def test_the_imu_rides_on_the_base(humanoid, tmp_path, capsys):
+    """--imu names an MJCF site (the H1-2's ``imu`` on its torso): on the base it carries the
+    IMU there; on a link a joint moves it is refused (the runtime estimates the base from it)."""
+    _, folder, _ = humanoid
+    text = (folder / "tiny_humanoid.xml").read_text()
+    text = text.replace(
+        '<joint name="floating_base_joint"',
+        '<site name="imu" pos="-0.04 0.02 0.25"/>\n      <joint name="floating_base_joint"',
+    )
+    text = text.replace(
+        '<joint name="left_knee_joint"',
+        '<site name="shin_imu"/>\n          <joint name="left_knee_joint"',
+    )
+    source = folder / "with_imu.xml"
+    source.write_text(text)
+    out = tmp_path / "with_imu"
+    assert main([str(source), "--out", str(out), *FLAGS, "--imu", "imu"]) == 0
+    robot = load_robot(out)
+    site = robot.mj_model.site(robot.imu_site_id)
+    assert robot.mj_model.body(int(site.bodyid[0])).name == "pelvis"
+    np.testing.assert_allclose(site.pos, [-0.04, 0.02, 0.25], atol=1e-9)
+
+    code = main([str(source), "--out", str(tmp_path / "no"), *FLAGS, "--imu", "shin_imu"])
+    err = capsys.readouterr().err.strip()
+    assert code == EXIT_REFUSED and "\n" not in err
+    assert "--imu shin_imu: on link left_knee_link, which joint 'left_knee_joint' moves" in err

@@ -104,27 +104,58 @@ def choose_feet(prepared: PreparedSource, flags: list[str]) -> list[str]:
 
 def choose_imu(prepared: PreparedSource, flag: str | None, log) -> tuple[str, str | None]:
     """The IMU: ``(link, site or None)``: ``--imu LINK`` or (MJCF) ``--imu SITE``, else a site
-    named ``imu``, else a link named ``imu``, else the root link.
+    named ``imu``, else a link named ``imu``, else the root link. The IMU must ride on the base
+    (the root link, or a link fixed to it): the runtime estimates the base from it; a default
+    elsewhere falls back to the root link, with a note.
 
     Raises:
-        RobotImportError: ``--imu`` names neither a link nor a site.
+        RobotImportError: ``--imu`` names neither a link nor a site, or one a joint moves
+            relative to the base.
     """
     if flag is not None:
         if flag in prepared.sites:
-            return prepared.sites[flag], flag
-        if flag not in prepared.links:
+            link, site = prepared.sites[flag], flag
+        elif flag in prepared.links:
+            link, site = flag, None
+        else:
             sites = f", sites: {sorted(prepared.sites)}" if prepared.sites else ""
             raise RobotImportError(
                 f"--imu {flag}: not a link{' or site' if sites else ''} of {prepared.path.name} "
                 f"(links: {prepared.links}{sites})"
             )
-        return flag, None
+        joint = _joint_to_base(prepared, link)
+        if joint is not None:
+            raise RobotImportError(
+                f"--imu {flag}: on link {link}, which joint '{joint}' moves relative to the base "
+                f"{prepared.root_link}; expected the base or a link fixed to it (the runtime "
+                "estimates the base from the IMU)"
+            )
+        return link, site
     if IMU_SITE in prepared.sites:
-        return prepared.sites[IMU_SITE], IMU_SITE
-    if "imu" in prepared.links:
+        link = prepared.sites[IMU_SITE]
+        joint = _joint_to_base(prepared, link)
+        if joint is None:
+            return link, IMU_SITE
+        log(
+            f"note: site '{IMU_SITE}' is on link {link}, which joint '{joint}' moves: the IMU "
+            f"site is at the root link {prepared.root_link} (--imu names another)"
+        )
+        return prepared.root_link, None
+    if "imu" in prepared.links and _joint_to_base(prepared, "imu") is None:
         return "imu", None
-    log(f"note: no link named 'imu': the IMU site is at the root link {prepared.root_link}")
+    root = prepared.root_link
+    log(f"note: no link named 'imu' on the base: the IMU site is at the root link {root}")
     return prepared.root_link, None
+
+
+def _joint_to_base(prepared: PreparedSource, link: str) -> str | None:
+    """The first joint between ``link`` and the root link that moves, or None (fixed to it)."""
+    while link in prepared.parent:
+        par, joint, kind = prepared.parent[link]
+        if kind != "fixed":
+            return joint
+        link = par
+    return None
 
 
 def robot_mass(mjcf_path: Path) -> float:

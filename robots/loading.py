@@ -94,14 +94,28 @@ def _catalog_table(name: str, where: str | None) -> dict:
             f"{prefix}motor '{name}' is neither a [motors.{name}] table in robot.toml nor a "
             f"model of the catalog {MOTORS_DIR} (known: {known}); add {MOTORS_DIR}/{name}.toml"
         )
+    return read_motor_file(path)
+
+
+def read_motor_file(path: Path) -> dict:
+    """The table of a motor TOML file (the catalog's schema: ``MotorConfig`` fields at the top
+    level), validated.
+
+    Raises:
+        RobotSpecError: unreadable file, invalid TOML, or a missing or invalid field (one line
+            naming the file and the field).
+    """
+    path = Path(path)
     try:
         table = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+    except OSError as exc:
+        raise RobotSpecError(f"{path}: cannot read: {exc}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise RobotSpecError(f"{path}: not valid TOML: {exc}") from exc
     try:
         MotorConfig.model_validate(table)
     except ValidationError as exc:
-        raise RobotSpecError(_format_validation_error(path, exc)) from None
+        raise RobotSpecError(_format_validation_error(path, exc).replace("\n", "; ")) from None
     return table
 
 

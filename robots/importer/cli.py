@@ -20,46 +20,31 @@ place: a failed import leaves nothing.
 The source is a URDF (root ``<robot>``, :mod:`robots.importer.urdf`) or an MJCF (root
 ``<mujoco>``, :mod:`robots.importer.mjcf`); both become a
 :class:`robots.importer.urdf.PreparedSource`, and everything after that is the same code.
+The per-joint flags (shell patterns, motors from the catalog or from a file) are read by
+:mod:`robots.importer.flags`; the model steps (limits, gains, pairs, workspace) are in
+:mod:`robots.importer.model`; an arm is finished by :mod:`robots.importer.fixed_base`, a legged
+robot (``--floating-base``) by :mod:`robots.importer.legged` (its MJCF:
+:mod:`robots.importer.floating_mjcf`); robot.toml's text is :mod:`robots.importer.toml_text`.
 Errors (:class:`RobotImportError`, exit code 3) are one line naming the file, the element and
-what was expected. The geometry and model helpers are in :mod:`robots.importer.model`.
+what was expected.
 """
 
 from __future__ import annotations
 
 import argparse
-import fnmatch
-import shutil
 import sys
-import tempfile
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import mujoco
-import numpy as np
-
+from robots.importer import flags
+from robots.importer.fixed_base import import_fixed_base
 from robots.importer.mjcf import prepare_mjcf
-from robots.importer.model import (
-    build_spec,
-    cap_limits,
-    choose_collision_pairs,
-    choose_ee_body,
-    derive_motion_limits,
-    sample_workspace,
-    write_robot_toml,
-)
+from robots.importer.model import build_spec
 from robots.importer.urdf import PreparedSource, RobotImportError, SrdfInfo, prepare_urdf, read_srdf
-from robots.loading import (
-    PACKAGE_SCHEME,
-    _resolved_mjcf,
-    load_motor,
-    load_robot,
-    motor_catalog,
-    package_root,
-)
+from robots.loading import motor_catalog, package_root
 from robots.robot import RobotSpecError
-from robots.schema import MotorConfig
 
 __all__ = ["ImportReport", "RobotImportError", "import_robot", "main", "resolve_source"]
 
@@ -112,37 +97,6 @@ def resolve_source(source: str) -> Path:
     raise RobotImportError(f"{source}: no such file (expected a URDF or MJCF file, or PKG:path)")
 
 
-def _assign_motors(urdf: Path, joints: list[str], flags: list[str]) -> dict[str, str]:
-    """Joint -> motor model from ``--motor JOINT=MODEL`` flags (shell patterns; later flags win)."""
-    chosen: dict[str, str] = {}
-    catalog = motor_catalog()
-    for flag in flags:
-        pattern, sep, model = flag.partition("=")
-        if not sep or not pattern or not model:
-            raise RobotImportError(f"--motor '{flag}': expected JOINT=MODEL (JOINT may be '*')")
-        if model not in catalog:
-            raise RobotImportError(
-                f"--motor '{flag}': motor model '{model}' is not in the catalog "
-                f"{Path(next(iter(catalog.values()), Path('robots/motors/x'))).parent} "
-                f"(known: {sorted(catalog)}); add robots/motors/{model}.toml"
-            )
-        hits = [j for j in joints if fnmatch.fnmatchcase(j, pattern)]
-        if not hits:
-            raise RobotImportError(
-                f"--motor '{flag}': pattern '{pattern}' matches no joint of {urdf.name} "
-                f"(joints: {joints})"
-            )
-        for j in hits:
-            chosen[j] = model
-    for j in joints:
-        if j not in chosen:
-            raise RobotImportError(
-                f"{urdf}: <joint name='{j}'>: no motor model; expected --motor {j}=MODEL "
-                f"(or --motor '*=MODEL'; catalog: {sorted(catalog)})"
-            )
-    return chosen
-
-
 def import_robot(
     source: str | Path,
     out: str | Path,
@@ -155,6 +109,8 @@ def import_robot(
     physics_timestep: float = DEFAULT_PHYSICS_TIMESTEP,
     force: bool = False,
     log=print,
+    drop_missing_meshes: bool = False,
+    link_boxes: bool = False,
     floating_base: bool = False,
     feet: list[str] | tuple[str, ...] = (),
     imu: str | None = None,
@@ -171,23 +127,32 @@ def import_robot(
         out: The robot folder to create (its name is the robot's).
         srdf: SRDF whose ``disable_collisions`` pairs are not checked (MJCF: added to its
             ``<contact><exclude>`` pairs; else: non-adjacent links that do not touch at the home
-            pose). motors: ``JOINT=MODEL`` (shell patterns).
+            pose). motors: ``JOINT=MODEL`` (shell patterns; MODEL a catalog model or the path of
+            a motor TOML file, whose table robot.toml then holds).
         ee_site: Link (MJCF: body, or one of its sites) carrying the end-effector site (default:
             an MJCF site named ``ee``, else the deepest link of the longest chain). limits:
-            ``JOINT=LOWER:UPPER`` (rad) for joints the description leaves unlimited.
+            ``JOINT=LOWER:UPPER`` (rad, shell patterns) for joints the description leaves
+            unlimited, or to replace their range.
             velocities: ``JOINT=RAD_S`` (shell patterns): velocity limits where the description
             has none (MJCF never has one) or to replace its value; the motor's no-load speed
             still caps them. control_rate: Hz. physics_timestep: s (an integer fraction of the
             control period). force: replace an existing ``out``. log: where decisions are
-            printed.
-        floating_base: A legged robot (:mod:`robots.importer.legged`): free joint, floor, IMU,
-            foot spheres with touch sensors, ``[base]`` in robot.toml. feet: foot links (default:
-            the last link of each leg). imu: the IMU link (default: a link named ``imu``).
+            printed. drop_missing_meshes: drop the geoms (URDF: the elements) whose mesh file
+            is missing, each printed, instead of refusing. link_boxes: one bounding box per link
+            around all its collision meshes (what robot-import wrote before one box per mesh;
+            coarser, fewer collision pairs) instead of one box per mesh.
+        floating_base: A legged robot (:mod:`robots.importer.legged`): free joint (an MJCF's own
+            free joint is replaced), floor, IMU, foot sites with touch sensors, ``[base]`` in
+            robot.toml. feet: foot links (default: the last link of each leg). imu: the IMU link,
+            or an MJCF site (default: a site or a link named ``imu``, else the root link).
             kp, kd: ``JOINT=VALUE`` (shell patterns) plant PD gains, N m/rad and N m s/rad
             (default: the importer's rule). home: ``JOINT=RAD`` (shell patterns) home pose.
             notes: comment lines for robot.toml's header (the sources of flag values).
             command: the command line printed in robot.toml to regenerate the folder. feet, imu,
             kp, kd, home and notes need ``floating_base``.
+
+    The parent folders of ``out`` are created when missing (as ``mkdir -p``; removed again when
+    the import fails).
 
     Returns:
         An :class:`ImportReport`.
@@ -197,8 +162,67 @@ def import_robot(
             (continuous or MJCF hinge joint without limits, unresolvable mesh, zero inertia,
             duplicate joint, SRDF naming an unknown link, motor not in the catalog, floating
             base or MJCF free joint without ``floating_base``, no velocity limit from
-            description, flag or motor, ...). Nothing is left in ``out``.
+            description, flag or motor, a flag pattern matching no joint, ``out`` or a parent
+            of it being a file, ...). Nothing is left in ``out``.
     """
+    out = Path(out).expanduser().resolve()
+    created = _make_parents(out)
+    try:
+        return _import(
+            source, out, srdf, motors, ee_site, limits, velocities, control_rate,
+            physics_timestep, force, log, drop_missing_meshes, link_boxes, floating_base, feet,
+            imu, kp, kd, home, notes, command,
+        )  # fmt: skip
+    except BaseException:
+        for folder in created:  # deepest first
+            try:
+                folder.rmdir()
+            except OSError:
+                break
+        raise
+
+
+def _make_parents(out: Path) -> list[Path]:
+    """Create the missing parent folders of ``out``; return them, deepest first.
+
+    Raises:
+        RobotImportError: ``out`` or one of its parents exists and is not a folder.
+    """
+    for folder in (out, *out.parents):
+        if folder.exists() and not folder.is_dir():
+            raise RobotImportError(f"--out {out}: {folder} exists and is not a folder")
+    missing = [p for p in out.parents if not p.exists()]
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RobotImportError(f"--out {out}: cannot create {out.parent}: {exc}") from None
+    return missing
+
+
+def _import(
+    source,
+    out: Path,
+    srdf,
+    motors,
+    ee_site,
+    limits,
+    velocities,
+    control_rate,
+    physics_timestep,
+    force,
+    log,
+    drop_missing_meshes,
+    link_boxes,
+    floating_base,
+    feet,
+    imu,
+    kp,
+    kd,
+    home,
+    notes,
+    command,
+) -> ImportReport:
+    """:func:`import_robot` once the parents of ``out`` exist (its arguments)."""
     start = time.perf_counter()
     legged_flags = {"--foot": feet, "--imu": imu, "--kp": kp, "--kd": kd, "--home": home}
     legged_flags["--note"] = notes
@@ -206,20 +230,19 @@ def import_robot(
     if used and not floating_base:
         raise RobotImportError(f"{', '.join(used)}: only with --floating-base (a legged robot)")
     path = resolve_source(str(source))
-    out = Path(out).resolve()
     name = out.name
     if out.exists() and any(out.iterdir()) and not force:
         raise RobotImportError(f"--out {out}: folder exists and is not empty (use --force)")
     srdf_path = resolve_source(str(srdf)) if srdf is not None else None
-    limit_overrides = _parse_limits(limits)
 
-    urdf, srdf_info = _prepare(path, srdf_path, limit_overrides, floating_base)
+    urdf, srdf_info = _prepare(
+        path, srdf_path, list(limits), floating_base, drop_missing_meshes, link_boxes
+    )
     for note in urdf.notes:
         log(f"note: {note}")
     _apply_velocities(urdf, list(velocities))
 
-    chosen = _assign_motors(path, urdf.movable, list(motors))
-    motor_cfg: dict[str, MotorConfig] = {m: load_motor(m) for m in set(chosen.values())}
+    chosen, motor_cfg, motor_tables = flags.assign_motors(path, urdf.movable, list(motors))
 
     report = ImportReport(out=out, joints=list(urdf.movable), notes=list(urdf.notes))
     spec, model = build_spec(urdf, chosen, motor_cfg, physics_timestep)
@@ -230,69 +253,21 @@ def import_robot(
         import_floating_base(
             path=path, out=out, name=name, urdf=urdf, srdf_info=srdf_info, srdf_path=srdf_path,
             spec=spec, model=model, joint_names=joint_names, chosen=chosen, motor_cfg=motor_cfg,
-            report=report, feet=list(feet), imu=imu, kp=list(kp), kd=list(kd), home=list(home),
-            notes=list(notes), control_rate=control_rate, physics_timestep=physics_timestep,
+            motor_tables=motor_tables, report=report, feet=list(feet), imu=imu, kp=list(kp),
+            kd=list(kd), home=list(home), notes=list(notes), control_rate=control_rate,
+            physics_timestep=physics_timestep,
             command=command or ["robot-import", str(source), "--out", str(out)], log=log,
         )  # fmt: skip
         report.seconds = time.perf_counter() - start
         log(f"wrote {out} ({len(joint_names)} joints, floating base) in {report.seconds:.1f} s")
         return report
 
-    ee_body, ee_frame = choose_ee_body(model, urdf, ee_site, path)
-    if ee_site is None:
-        where = f"at site '{ee_frame}' of" if ee_frame else "on"
-        log(
-            f"note: end-effector site 'ee' {where} link '{ee_body}' (choose another with --ee-site)"
-        )
-
-    limits_out, lowered, notes = cap_limits(urdf, chosen, motor_cfg, log)
-    report.lowered += lowered
-    report.notes += notes
-
-    with tempfile.TemporaryDirectory(prefix=f".{name}-", dir=out.parent) as tmp:
-        work = Path(tmp) / name
-        work.mkdir()
-        mjcf_path = work / f"{name}.xml"
-        _finish_mjcf(spec, ee_body, ee_frame, urdf, mjcf_path)
-        # the MJCF writes ranges to 6 significant digits: robot.toml must say the same
-        written = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
-        for i, j in enumerate(joint_names):
-            lo, hi = (float(x) for x in written.jnt_range[i])
-            limits_out[j] = (lo, hi, *limits_out[j][2:])
-        motion = derive_motion_limits(spec, model, joint_names, limits_out, motor_cfg, chosen)
-        home = motion.home
-        pairs, excluded, dropped = choose_collision_pairs(
-            mjcf_path, model, urdf, srdf_info, home, path
-        )
-        for a, b, d in dropped:
-            log(f"note: links {a} and {b} are {d * 1000:.1f} mm apart at home: pair not checked")
-        if excluded:
-            _add_contact_excludes(mjcf_path, excluded)
-        ws = sample_workspace(mjcf_path, joint_names, limits_out, home)
-        write_robot_toml(
-            work / "robot.toml",
-            name=name,
-            prepared=urdf,
-            mjcf=mjcf_path.name,
-            joint_names=joint_names,
-            limits=limits_out,
-            motion=motion,
-            chosen=chosen,
-            motor_cfg=motor_cfg,
-            pairs=pairs,
-            workspace=ws,
-            control_rate=control_rate,
-            physics_timestep=physics_timestep,
-            disabled_by=_disabled_by(urdf, srdf_path),
-            lowered=report.lowered,
-        )
-        try:
-            load_robot(work)
-        except RobotSpecError as exc:
-            raise RobotImportError(f"{path}: the imported robot does not load: {exc}") from None
-        if out.exists():
-            shutil.rmtree(out)
-        work.rename(out)
+    import_fixed_base(
+        path=path, out=out, name=name, urdf=urdf, srdf_info=srdf_info, srdf_path=srdf_path,
+        spec=spec, model=model, joint_names=joint_names, chosen=chosen, motor_cfg=motor_cfg,
+        motor_tables=motor_tables, report=report, ee_site=ee_site, control_rate=control_rate,
+        physics_timestep=physics_timestep, log=log,
+    )  # fmt: skip
     report.seconds = time.perf_counter() - start
     log(f"wrote {out} ({len(joint_names)} joints) in {report.seconds:.1f} s")
     return report
@@ -301,15 +276,15 @@ def import_robot(
 def _prepare(
     path: Path,
     srdf_path: Path | None,
-    limit_overrides: dict[str, tuple[float, float]],
+    limit_flags: list[str],
     floating_base: bool = False,
+    drop_missing_meshes: bool = False,
+    link_boxes: bool = False,
 ) -> tuple[PreparedSource, SrdfInfo | None]:
     """The prepared description and the link pairs left unchecked (SRDF, MJCF excludes)."""
     root = _parse_xml(path)
-    if floating_base and root.tag != "robot":
-        raise RobotImportError(f"{path}: --floating-base: expected a URDF <robot> (MJCF later)")
     if root.tag == "mujoco":
-        source = prepare_mjcf(path, limit_overrides)
+        source = prepare_mjcf(path, limit_flags, floating_base, drop_missing_meshes, link_boxes)
         srdf_info = None
         if srdf_path is not None:
             srdf_info = read_srdf(srdf_path, set(source.links), "MJCF")
@@ -325,43 +300,25 @@ def _prepare(
     srdf_info = (
         read_srdf(srdf_path, links, floating_base=floating_base) if srdf_path is not None else None
     )
-    return prepare_urdf(path, root, limit_overrides, srdf_info, floating_base), srdf_info
+    prepared = prepare_urdf(
+        path, root, limit_flags, srdf_info, floating_base, drop_missing_meshes, link_boxes
+    )
+    return prepared, srdf_info
 
 
-def _disabled_by(source: PreparedSource, srdf_path: Path | None) -> str | None:
-    """What named the unchecked link pairs, for robot.toml's comment (None: nothing did)."""
-    named = []
-    if srdf_path is not None:
-        named.append(f"the SRDF ({Path(srdf_path).name})")
-    if source.disabled:
-        named.append(f"the MJCF's <contact><exclude> ({source.path.name})")
-    return " or ".join(named) or None
-
-
-def _apply_velocities(source: PreparedSource, flags: list[str]) -> None:
+def _apply_velocities(source: PreparedSource, flag_texts: list[str]) -> None:
     """Set joint velocity limits from ``--velocity JOINT=RAD_S`` (shell patterns; later win)."""
-    for flag in flags:
-        pattern, sep, value = flag.partition("=")
-        try:
-            if not sep or not pattern:
-                raise ValueError
-            velocity = float(value)
-            if not (np.isfinite(velocity) and velocity > 0):
-                raise ValueError
-        except ValueError:
-            raise RobotImportError(
-                f"--velocity '{flag}': expected JOINT=RAD_S with a positive limit in rad/s "
-                "(JOINT may be a pattern, e.g. '*=3.14')"
-            ) from None
-        hits = [j for j in source.movable if fnmatch.fnmatchcase(j, pattern)]
-        if not hits:
-            raise RobotImportError(
-                f"--velocity '{flag}': pattern '{pattern}' matches no joint of "
-                f"{source.path.name} (joints: {source.movable})"
-            )
-        for j in hits:
-            source.joints[j].velocity = velocity
-            source.joints[j].velocity_from = "--velocity"
+    values = flags.per_joint(
+        flag_texts,
+        source.movable,
+        "--velocity",
+        flags.positive,
+        "JOINT=RAD_S with a positive limit in rad/s (JOINT may be a pattern, e.g. '*=3.14')",
+        source.path.name,
+    )
+    for j, velocity in values.items():
+        source.joints[j].velocity = velocity
+        source.joints[j].velocity_from = "--velocity"
 
 
 def _parse_xml(path: Path) -> ET.Element:
@@ -369,80 +326,6 @@ def _parse_xml(path: Path) -> ET.Element:
         return ET.parse(path).getroot()
     except ET.ParseError as exc:
         raise RobotImportError(f"{path}: not valid XML: {exc}") from None
-
-
-def _parse_limits(flags) -> dict[str, tuple[float, float]]:
-    out = {}
-    for flag in flags:
-        joint, sep, rng = flag.partition("=")
-        lo, sep2, hi = rng.partition(":")
-        try:
-            if not (sep and sep2):
-                raise ValueError
-            out[joint] = (float(lo), float(hi))
-        except ValueError:
-            raise RobotImportError(
-                f"--limit '{flag}': expected JOINT=LOWER:UPPER in rad (e.g. j1=-3.14:3.14)"
-            ) from None
-    return out
-
-
-def _finish_mjcf(spec, ee_body: str, ee_frame: str | None, urdf, mjcf_path: Path) -> None:
-    """Add the ``ee`` site (at link ``ee_body``, or at its site ``ee_frame``), write the MJCF
-    with the package meshdir placeholder."""
-    # The site goes on the nearest body that a joint moves, at the fixed transform of the chosen
-    # link: Pinocchio's MJCF parser misplaces sites of joint-less child bodies (0.107 m on panda).
-    model = spec.compile()
-    data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)
-    b = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, ee_body)
-    anc = b
-    while anc > 0 and model.body_jntnum[anc] == 0:
-        anc = model.body_parentid[anc]
-    if ee_frame is None:
-        target_pos, target_quat = data.xpos[b], data.xquat[b]
-    else:
-        s = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, ee_frame)
-        target_pos, target_quat = data.site_xpos[s], np.zeros(4)
-        mujoco.mju_mat2Quat(target_quat, data.site_xmat[s])
-    rot = data.xmat[anc].reshape(3, 3)
-    pos = rot.T @ (target_pos - data.xpos[anc])
-    quat = np.zeros(4)
-    inv = np.zeros(4)
-    mujoco.mju_negQuat(inv, data.xquat[anc])
-    mujoco.mju_mulQuat(quat, inv, target_quat)
-    old = spec.site("ee")
-    if old is not None:  # an MJCF's own 'ee' site: replaced by the one placed here
-        spec.delete(old)
-    spec.body(model.body(anc).name).add_site(
-        name="ee", size=[0.005, 0.005, 0.005], pos=pos, quat=quat
-    )
-    spec.compile()
-    xml = spec.to_xml()
-    if urdf.meshdir_abs is not None:
-        xml = xml.replace(f'meshdir="{urdf.meshdir_abs}"', f'meshdir="{urdf.meshdir_uri}"', 1)
-        if urdf.meshdir_uri.startswith(PACKAGE_SCHEME) and urdf.meshdir_uri not in xml:
-            raise RobotImportError(f"{mjcf_path}: <compiler meshdir>: could not be written")
-    header = (
-        f"<!-- Generated by robot-import from {urdf.display} with MuJoCo's {urdf.kind} compiler "
-        "(mujoco.MjSpec). Radians, explicit inertials, no actuators (Robot.mjspec adds them per "
-        "control mode). Meshes are read from the installed package named by meshdir. -->\n"
-    )
-    mjcf_path.write_text(header + xml, encoding="utf-8")
-
-
-def _add_contact_excludes(mjcf_path: Path, excluded: list[tuple[str, str]]) -> None:
-    tree = ET.parse(mjcf_path)
-    root = tree.getroot()
-    contact = root.find("contact")
-    if contact is None:
-        contact = ET.SubElement(root, "contact")
-    for a, b in excluded:
-        ET.SubElement(contact, "exclude", body1=a, body2=b)
-    ET.indent(tree, "  ")
-    text = ET.tostring(root, encoding="unicode")
-    head = mjcf_path.read_text(encoding="utf-8").split("\n", 1)[0]
-    mjcf_path.write_text(head + "\n" + text + "\n", encoding="utf-8")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -459,7 +342,8 @@ def main(argv: list[str] | None = None) -> int:
         action="append",
         default=[],
         metavar="JOINT=MODEL",
-        help="motor model of a joint (shell pattern, '*' = every joint); repeatable",
+        help="motor of a joint (shell pattern, '*' = every joint): a catalog model or the path "
+        "of a motor TOML file (the catalog's schema); repeatable",
     )
     p.add_argument(
         "--ee-site",
@@ -472,7 +356,8 @@ def main(argv: list[str] | None = None) -> int:
         action="append",
         default=[],
         metavar="JOINT=LOWER:UPPER",
-        help="position limits (rad) for a continuous joint the description leaves unlimited",
+        help="position limits (rad) for joints the description leaves unlimited, or to replace "
+        "them (shell pattern); repeatable",
     )
     p.add_argument(
         "--velocity",
@@ -485,6 +370,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--control-rate", type=float, default=DEFAULT_CONTROL_RATE, help="Hz")
     p.add_argument("--physics-timestep", type=float, default=DEFAULT_PHYSICS_TIMESTEP, help="s")
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
+    p.add_argument(
+        "--drop-missing-meshes",
+        action="store_true",
+        help="drop the geoms whose mesh file is missing (each printed) instead of refusing",
+    )
+    p.add_argument(
+        "--link-boxes",
+        action="store_true",
+        help="one collision box per link around all its meshes (coarser, fewer pairs; what "
+        "robot-import wrote before one box per mesh) instead of one box per mesh",
+    )
     legged = p.add_argument_group("floating-base (legged) robots")
     legged.add_argument(
         "--floating-base",
@@ -492,7 +388,9 @@ def main(argv: list[str] | None = None) -> int:
         help="a legged robot: free joint, floor, IMU and foot contact sensors",
     )
     legged.add_argument("--foot", action="append", default=[], metavar="LINK", help="a foot link")
-    legged.add_argument("--imu", default=None, metavar="LINK", help="the IMU link")
+    legged.add_argument(
+        "--imu", default=None, metavar="LINK", help="the IMU link (MJCF: or a site)"
+    )
     for flag, unit in (("--kp", "N m/rad"), ("--kd", "N m s/rad"), ("--home", "rad")):
         legged.add_argument(
             flag,
@@ -517,6 +415,8 @@ def main(argv: list[str] | None = None) -> int:
             control_rate=args.control_rate,
             physics_timestep=args.physics_timestep,
             force=args.force,
+            drop_missing_meshes=args.drop_missing_meshes,
+            link_boxes=args.link_boxes,
             floating_base=args.floating_base,
             feet=args.foot,
             imu=args.imu,

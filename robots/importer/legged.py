@@ -1,20 +1,9 @@
 """Floating-base (legged) robots for the importer: ``robot-import ... --floating-base``.
 
 After the steps every import shares (:func:`robots.importer.model.build_spec`, motor limits), a
-floating-base robot gets, in its MJCF (:func:`finish_floating_mjcf`):
-
-- a MuJoCo free joint ``root`` on the root link (Pinocchio's MJCF parser reads it as its
-  free-flyer root joint, ``pin.JointModelFreeFlyer``), the base placed so that the feet touch
-  the floor at the home pose;
-- a flat floor (a plane ``floor`` in the world body) and a light;
-- a site ``imu`` at the IMU link (a link named ``imu``, or ``--imu LINK``) with MuJoCo ``gyro``
-  and ``accelerometer`` sensors;
-- per foot (leaf links at the end of the longest chains of movable joints, or ``--foot LINK``):
-  the foot link's collision box replaced by a sphere of the box's mean half-size (a point-like
-  foot, as legged simulators model one), a site ``<foot>`` at its centre and a MuJoCo ``touch``
-  sensor on it (the normal force of the contacts inside the site: foot contact). Sphere and site
-  go on the nearest body a joint moves (the calf): Pinocchio's MJCF parser misplaces sites of
-  joint-less child bodies, and a touch sensor counts the contacts of its own body.
+floating-base robot gets the free joint, floor, IMU and feet of
+:func:`robots.importer.floating_mjcf.finish_floating_mjcf` in its MJCF, its collision pairs
+(``LEG_CLEARANCE``) and a robot.toml (:func:`write_legged_toml`).
 
 robot.toml (:func:`write_legged_toml`) then has a ``[base]`` table, ``[sensors.imu]`` and
 ``[sensors.contact]`` with the defaults below (each with its source), no workspace box and no
@@ -28,23 +17,23 @@ import shlex
 from pathlib import Path
 
 import mujoco
-import numpy as np
 
-from robots.importer.model import Motion, _f, _sig, _vec, joint_lines, limit_notes, sensor_lines
+from robots.importer.floating_mjcf import FREE_JOINT, IMU_SITE, finish_floating_mjcf
+from robots.importer.model import Motion, _sig
+from robots.importer.toml_text import (
+    _f,
+    _vec,
+    joint_lines,
+    limit_notes,
+    motor_table_lines,
+    sensor_lines,
+)
 from robots.importer.urdf import PreparedSource, RobotImportError
 
-#: Name of the MuJoCo free joint of the base (Pinocchio names its free-flyer joint the same).
-FREE_JOINT = "root"
-#: Site of the IMU (its gyro and accelerometer sensors are ``imu_gyro``, ``imu_accelerometer``).
-IMU_SITE = "imu"
 #: Link pairs closer than this at the home pose (m) are not checked and never collide in the
 #: plant: the importer's bounding boxes of neighbouring legs' links (the rear hips of go2 are
 #: 1-2 mm apart and touch as soon as the legs carry the body) overlap where the meshes do not.
 LEG_CLEARANCE = 0.01
-#: The foot site (and its touch sensor's) margin over the foot sphere, m: the contact point of
-#: a sphere on a plane lies inside the sphere by half the penetration (a few mm at most).
-TOUCH_MARGIN = 0.005
-
 #: Normalizers of the seed's IMU noise figures (section 5 gives sigma on normalized readings):
 #: angular rate over 4 rad/s (legged_gym's ``obs_scales.ang_vel = 0.25``, i.e. 1 / 4 rad/s),
 #: acceleration over standard gravity.
@@ -113,158 +102,60 @@ def choose_feet(prepared: PreparedSource, flags: list[str]) -> list[str]:
     return feet
 
 
-def choose_imu(prepared: PreparedSource, flag: str | None, log) -> str:
-    """The IMU link: ``--imu LINK``, else a link named ``imu``, else the root link.
+def choose_imu(prepared: PreparedSource, flag: str | None, log) -> tuple[str, str | None]:
+    """The IMU: ``(link, site or None)``: ``--imu LINK`` or (MJCF) ``--imu SITE``, else a site
+    named ``imu``, else a link named ``imu``, else the root link. The IMU must ride on the base
+    (the root link, or a link fixed to it): the runtime estimates the base from it; a default
+    elsewhere falls back to the root link, with a note.
 
     Raises:
-        RobotImportError: ``--imu`` names no link.
+        RobotImportError: ``--imu`` names neither a link nor a site, or one a joint moves
+            relative to the base.
     """
     if flag is not None:
-        if flag not in prepared.links:
-            raise RobotImportError(f"--imu {flag}: not a link of {prepared.path.name}")
-        return flag
-    if "imu" in prepared.links:
-        return "imu"
-    log(f"note: no link named 'imu': the IMU site is at the root link {prepared.root_link}")
-    return prepared.root_link
-
-
-def _moving_ancestor(model: mujoco.MjModel, body: int) -> int:
-    while body > 0 and model.body_jntnum[body] == 0 and model.body_parentid[body] > 0:
-        body = model.body_parentid[body]
-    return body
-
-
-def _relative(data: mujoco.MjData, anc: int, pos: np.ndarray) -> np.ndarray:
-    return data.xmat[anc].reshape(3, 3).T @ (pos - data.xpos[anc])
-
-
-def _box_to_capsule(geom) -> None:
-    """Replace a leg link's collision box by the capsule along its long axis (radius: the mean
-    of the two other half-sizes; legged_gym turns its legs' cylinders into capsules too): the
-    corners of a calf's box reach below the foot sphere once the calf leans (go2's front calves
-    touched the floor standing), a thigh's below the knee."""
-    size = np.asarray(geom.size, dtype=np.float64)
-    axis = int(np.argmax(size))
-    radius = float(np.mean(np.delete(size, axis)))
-    half = max(float(size[axis]) - radius, 1e-4)
-    # the capsule's axis is its local z: turn the box's long axis onto it
-    to_z = {0: [0.5**0.5, 0.0, 0.5**0.5, 0.0], 1: [0.5**0.5, -(0.5**0.5), 0.0, 0.0]}
-    quat = np.asarray(geom.quat, dtype=np.float64)
-    if axis in to_z:
-        out = np.zeros(4)
-        mujoco.mju_mulQuat(out, quat, np.array(to_z[axis]))
-        quat = out
-    geom.type = mujoco.mjtGeom.mjGEOM_CAPSULE
-    geom.quat = quat
-    geom.size = [radius, half, 0.0]
-
-
-def finish_floating_mjcf(
-    spec: mujoco.MjSpec,
-    prepared: PreparedSource,
-    feet: list[str],
-    imu_link: str,
-    joint_names: list[str],
-    home: np.ndarray,
-    mjcf_path: Path,
-) -> dict:
-    """Add the free joint, floor, IMU and foot sites, foot spheres and sensors (module
-    docstring) to ``spec`` and write the MJCF to ``mjcf_path``.
-
-    Returns:
-        ``{"feet": foot site names, "foot_radius": m, "standing_height": m}``.
-
-    Raises:
-        RobotImportError: a foot link without a collision geometry.
-    """
-    model = spec.compile()
-    data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)  # base at the origin, joints at 0
-    radius = {}
-    for foot in feet:
-        body = spec.body(foot)
-        geoms = list(body.geoms)
-        b = model.body(foot).id
-        if not geoms:
+        if flag in prepared.sites:
+            link, site = prepared.sites[flag], flag
+        elif flag in prepared.links:
+            link, site = flag, None
+        else:
+            sites = f", sites: {sorted(prepared.sites)}" if prepared.sites else ""
             raise RobotImportError(
-                f"{prepared.path}: <link name='{foot}'> (a foot): no collision geometry; "
-                "expected one (its size gives the foot sphere)"
+                f"--imu {flag}: not a link{' or site' if sites else ''} of {prepared.path.name} "
+                f"(links: {prepared.links}{sites})"
             )
-        corners = []
-        for geom in geoms:
-            g = model.geom(geom.name).id
-            rot = data.geom_xmat[g].reshape(3, 3)
-            for sign in np.array(np.meshgrid(*[[-1, 1]] * 3)).reshape(3, -1).T:
-                corners.append(data.geom_xpos[g] + rot @ (sign * model.geom_size[g]))
-            spec.delete(geom)
-        corners = np.array(corners)
-        centre = (corners.min(axis=0) + corners.max(axis=0)) / 2
-        r = float(np.mean(corners.max(axis=0) - corners.min(axis=0)) / 2)
-        radius[foot] = r = _sig(r, 3)
-        anc = _moving_ancestor(model, b)
-        pos = _relative(data, anc, centre)
-        host = spec.body(model.body(anc).name)
-        host.add_geom(name=foot, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[r, 0, 0], pos=pos)
-        host.add_site(name=foot, size=[r + TOUCH_MARGIN, 0, 0], pos=pos)
-        spec.add_sensor(
-            name=f"{foot}_touch",
-            type=mujoco.mjtSensor.mjSENS_TOUCH,
-            objtype=mujoco.mjtObj.mjOBJ_SITE,
-            objname=foot,
+        joint = _joint_to_base(prepared, link)
+        if joint is not None:
+            raise RobotImportError(
+                f"--imu {flag}: on link {link}, which joint '{joint}' moves relative to the base "
+                f"{prepared.root_link}; expected the base or a link fixed to it (the runtime "
+                "estimates the base from the IMU)"
+            )
+        return link, site
+    if IMU_SITE in prepared.sites:
+        link = prepared.sites[IMU_SITE]
+        joint = _joint_to_base(prepared, link)
+        if joint is None:
+            return link, IMU_SITE
+        log(
+            f"note: site '{IMU_SITE}' is on link {link}, which joint '{joint}' moves: the IMU "
+            f"site is at the root link {prepared.root_link} (--imu names another)"
         )
-    for body in spec.bodies:  # leg links (bodies a hinge moves): capsules, as legged_gym's
-        if any(j.type == mujoco.mjtJoint.mjJNT_HINGE for j in body.joints):
-            for geom in list(body.geoms):
-                if geom.type == mujoco.mjtGeom.mjGEOM_BOX:
-                    _box_to_capsule(geom)
-    b = model.body(imu_link).id
-    anc = _moving_ancestor(model, b)
-    imu_quat, inv = np.zeros(4), np.zeros(4)
-    mujoco.mju_negQuat(inv, data.xquat[anc])
-    mujoco.mju_mulQuat(imu_quat, inv, data.xquat[b])
-    spec.body(model.body(anc).name).add_site(
-        name=IMU_SITE,
-        size=[0.01, 0.01, 0.01],
-        pos=_relative(data, anc, data.xpos[b]),
-        quat=imu_quat,
-    )
-    for kind, name in (
-        (mujoco.mjtSensor.mjSENS_GYRO, "imu_gyro"),
-        (mujoco.mjtSensor.mjSENS_ACCELEROMETER, "imu_accelerometer"),
-    ):
-        spec.add_sensor(name=name, type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=IMU_SITE)
+        return prepared.root_link, None
+    if "imu" in prepared.links and _joint_to_base(prepared, "imu") is None:
+        return "imu", None
+    root = prepared.root_link
+    log(f"note: no link named 'imu' on the base: the IMU site is at the root link {root}")
+    return prepared.root_link, None
 
-    # standing height: the lowest foot sphere touches the floor at the home pose
-    model = spec.compile()
-    data = mujoco.MjData(model)
-    data.qpos[:] = home
-    mujoco.mj_kinematics(model, data)
-    bottom = min(data.site_xpos[model.site(f).id][2] - radius[f] for f in feet)
-    height = _sig(-bottom, 4)
-    root = spec.body(prepared.root_link)
-    root.pos = [0.0, 0.0, height]
-    root.add_freejoint(name=FREE_JOINT)
-    spec.worldbody.add_geom(
-        name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05], rgba=[0.5] * 3 + [1]
-    )
-    spec.worldbody.add_light(
-        name="sun", pos=[0, 0, 3], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
-    )
-    spec.compile()
-    xml = spec.to_xml()
-    if prepared.meshdir_abs is not None:
-        xml = xml.replace(
-            f'meshdir="{prepared.meshdir_abs}"', f'meshdir="{prepared.meshdir_uri}"', 1
-        )
-    header = (
-        f"<!-- Generated by robot-import (floating base) from {prepared.display} with MuJoCo's "
-        f"{prepared.kind} compiler (mujoco.MjSpec). Radians, explicit inertials, no actuators "
-        "(Robot.mjspec adds them per control mode). A free joint 'root' on the base, a flat "
-        "floor, an IMU site with gyro and accelerometer, foot spheres with touch sensors. -->\n"
-    )
-    mjcf_path.write_text(header + xml, encoding="utf-8")
-    return {"feet": list(feet), "foot_radius": radius, "standing_height": height}
+
+def _joint_to_base(prepared: PreparedSource, link: str) -> str | None:
+    """The first joint between ``link`` and the root link that moves, or None (fixed to it)."""
+    while link in prepared.parent:
+        par, joint, kind = prepared.parent[link]
+        if kind != "fixed":
+            return joint
+        link = par
+    return None
 
 
 def robot_mass(mjcf_path: Path) -> float:
@@ -298,14 +189,17 @@ def write_legged_toml(
     lowered: list,
     notes: list[str],
     command: list[str],
+    motor_tables: dict | None = None,
 ) -> None:
     """robot.toml of a floating-base robot, a comment giving the reason of every value.
 
     ``gains_from``: joint -> where its kp and kd came from ('--kp/--kd' or the importer's
     rule); ``notes``: ``--note`` lines for the header (sources of flag values); ``command``:
-    the command line that regenerates the folder.
+    the command line that regenerates the folder; ``motor_tables``: the motors given as files
+    (:func:`robots.importer.model.motor_table_lines`).
     """
     kind = prepared.kind
+    motor_tables = motor_tables or {}
     resolution = min(motor_cfg[m].encoder_resolution or 16384 for m in set(chosen.values()))
     quantum = 2 * math.pi / resolution
     low = {(j, q): (a, b) for j, q, a, b, _ in lowered}
@@ -345,7 +239,7 @@ def write_legged_toml(
         )
     lines += [
         "",
-        *sensor_lines(chosen, resolution, quantum, control_rate, "degC"),
+        *sensor_lines(chosen, resolution, quantum, control_rate, "degC", motor_tables),
         "",
         "# IMU at site 'imu' (link " + imu_link + "): Kalibr's noise model (robots/schema.py).",
         "[sensors.imu]",
@@ -389,9 +283,8 @@ def write_legged_toml(
         "[base]",
         f'body = "{prepared.root_link}"  # carries the free joint "{FREE_JOINT}"',
         f'imu_site = "{IMU_SITE}"',
-        "# foot sites, spheres of radius "
-        + ", ".join(f"{legged['foot_radius'][f]:g}" for f in feet)
-        + " m (the foot collision box's mean half-size)",
+        "# foot sites (touch sensors) around each foot's collision geometry:",
+        *[f"#   {f}: {legged['foot_shapes'][f]}" for f in feet],
         "feet = [" + ", ".join(f'"{f}"' for f in feet) + "]",
         f"standing_height = {_f(legged['standing_height'])}  # m, base above the floor at home",
         "",
@@ -403,35 +296,10 @@ def write_legged_toml(
         f"# push ({PUSH_TIME:g} s): {mass:.1f} kg x {PUSH_VELOCITY:g} m/s / {PUSH_TIME:g} s; the "
         f"low end {PUSH_LOW:g} of it.",
         f"push_force = [{_f(_sig(PUSH_LOW * push))}, {_f(_sig(push))}]  # N",
+        *motor_table_lines(motor_tables),
         "",
     ]
     path.write_text("\n".join(lines), encoding="utf-8")
-
-
-def _per_joint(flags: list[str], joint_names: list[str], flag: str) -> dict[str, float]:
-    """``JOINT=VALUE`` flags (shell patterns; later flags win) -> joint -> value."""
-    import fnmatch
-
-    out: dict[str, float] = {}
-    for text in flags:
-        pattern, sep, value = text.partition("=")
-        try:
-            number = float(value)
-            if not sep or not pattern or not math.isfinite(number):
-                raise ValueError
-        except ValueError:
-            raise RobotImportError(
-                f"{flag} '{text}': expected JOINT=VALUE with a finite number (JOINT may be a "
-                "shell pattern, e.g. '*_calf_joint=-1.5')"
-            ) from None
-        hits = [j for j in joint_names if fnmatch.fnmatchcase(j, pattern)]
-        if not hits:
-            raise RobotImportError(
-                f"{flag} '{text}': pattern '{pattern}' matches no joint (joints: {joint_names})"
-            )
-        for j in hits:
-            out[j] = number
-    return out
 
 
 def import_floating_base(
@@ -447,6 +315,7 @@ def import_floating_base(
     joint_names: list[str],
     chosen: dict,
     motor_cfg: dict,
+    motor_tables: dict,
     report,
     feet: list[str],
     imu: str | None,
@@ -469,7 +338,8 @@ def import_floating_base(
     import shutil
     import tempfile
 
-    from robots.importer.cli import _add_contact_excludes, _disabled_by
+    from robots.importer import flags
+    from robots.importer.fixed_base import add_contact_excludes, disabled_by
     from robots.importer.model import (
         LEGGED_MAX_ACCELERATION,
         cap_limits,
@@ -480,14 +350,17 @@ def import_floating_base(
     from robots.robot import RobotSpecError
 
     foot_links = choose_feet(urdf, feet)
-    imu_link = choose_imu(urdf, imu, log)
-    log(f"note: feet {foot_links}, IMU at link {imu_link}")
+    imu_link, imu_site = choose_imu(urdf, imu, log)
+    at = f"site {imu_site} of link {imu_link}" if imu_site else f"link {imu_link}"
+    log(f"note: feet {foot_links}, IMU at {at}")
     limits_out, lowered, lnotes = cap_limits(urdf, chosen, motor_cfg, log)
     report.lowered += lowered
     report.notes += lnotes
-    home_set = _per_joint(home, joint_names, "--home")
-    kp_set = _per_joint(kp, joint_names, "--kp")
-    kd_set = _per_joint(kd, joint_names, "--kd")
+    expected = "JOINT=VALUE with a finite number (JOINT may be a pattern, e.g. '*_knee_joint=0.3')"
+    home_set, kp_set, kd_set = (
+        flags.per_joint(values, joint_names, flag, flags.finite, expected, urdf.path.name)
+        for flag, values in (("--home", home), ("--kp", kp), ("--kd", kd))
+    )
     for flag, values in (("--kp", kp_set), ("--kd", kd_set)):
         bad = {j: v for j, v in values.items() if v < 0 or (flag == "--kp" and v == 0)}
         if bad:
@@ -521,8 +394,10 @@ def import_floating_base(
         work.mkdir()
         mjcf_path = work / f"{name}.xml"
         legged = finish_floating_mjcf(
-            spec, urdf, foot_links, imu_link, joint_names, motion.home, mjcf_path
+            spec, urdf, foot_links, (imu_link, imu_site), joint_names, motion.home, mjcf_path
         )
+        for foot, shape in legged["foot_shapes"].items():
+            log(f"note: foot {foot}: {shape}")
         written = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
         for i, j in enumerate(joint_names):  # the MJCF writes 6 significant digits
             lo, hi = (float(x) for x in written.jnt_range[i + 1])
@@ -534,7 +409,7 @@ def import_floating_base(
         for a, b, d in dropped:
             log(f"note: links {a} and {b} are {d * 1000:.1f} mm apart at home: pair not checked")
         if excluded:
-            _add_contact_excludes(mjcf_path, excluded)
+            add_contact_excludes(mjcf_path, excluded)
         write_legged_toml(
             work / "robot.toml",
             name=name,
@@ -553,10 +428,11 @@ def import_floating_base(
             control_rate=control_rate,
             physics_timestep=physics_timestep,
             home_from=home_from,
-            disabled_by=_disabled_by(urdf, srdf_path),
+            disabled_by=disabled_by(urdf, srdf_path),
             lowered=report.lowered,
             notes=notes,
             command=command,
+            motor_tables=motor_tables,
         )
         try:
             load_robot(work)

@@ -7,10 +7,11 @@ defaults, includes, degrees or radians) and makes the same
 - hinge joints, their ranges (the text handed on is MuJoCo's canonical form: ``angle="radian"``,
   quaternions, so a model written in degrees is converted), damping and friction loss (the
   armature becomes the motor's, as for URDF);
-- geometry (geoms with ``contype = conaffinity = 0`` are visual-only and dropped from a body that
-  also has collision geoms; mesh geoms become one bounding box per body, as for URDF,
-  ``COLLISION_BOXES``) and inertials, written explicitly for every body (Pinocchio's MJCF parser
-  does not derive them from geoms);
+- geometry (:mod:`robots.importer.mjcf_geoms`: geoms with ``contype = conaffinity = 0`` are
+  visual-only and dropped from a body that also has collision geoms; each mesh geom becomes its
+  bounding box in the mesh's frame, as for URDF, ``COLLISION_BOXES``; primitives stay as they
+  are) and inertials, written explicitly for every body (Pinocchio's MJCF parser does not derive
+  them from geoms);
 - ``<contact><exclude>`` pairs: they play the role of an SRDF's ``disable_collisions``;
 - effort limits: ``actuatorfrcrange``, else the removed actuators' ``forcerange`` (or a direct
   motor's ``ctrlrange``) times their gear. MJCF has no velocity limit: the motor's (or
@@ -21,11 +22,15 @@ sensors, tendons, equality constraints (a joint an ``<equality joint>`` couples 
 URDF mimic joint), keyframes, explicit contact pairs, textures and materials, skins and flexes,
 floors (planes of the world body, height fields) and bodies without joints hanging from the
 world (scenery); the other geoms of the world body (a base fused into it) move into a fixed
-body ``base`` that carries the robot. Slide and ball joints are frozen at their reference position,
-as URDF prismatic joints.
-Refused (:class:`RobotImportError`): a free joint (floating base), an unnamed hinge, a hinge
-without limits (unless ``--limit``), a body with several hinges, several jointed bodies hanging
-from the world, a moving body without mass or inertia, and what MuJoCo itself refuses.
+body ``base`` that carries the robot (a floating base: they are dropped). Slide and ball joints
+are frozen at their reference position, as URDF prismatic joints. With ``--floating-base`` the
+free joint of the robot's root body is removed (:mod:`robots.importer.legged` adds its own);
+with ``--drop-missing-meshes`` the geoms whose mesh file is missing are dropped.
+Refused (:class:`RobotImportError`): a free joint without ``--floating-base``, or one that is not
+on the robot's root body; a missing mesh file (without ``--drop-missing-meshes``); an unnamed
+hinge, a hinge without limits (unless ``--limit``), a body with several hinges, several jointed
+bodies hanging from the world, a moving body without mass or inertia, and what MuJoCo itself
+refuses.
 """
 
 from __future__ import annotations
@@ -38,8 +43,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from robots.importer.mjcf_geoms import missing_meshes, simplify_geoms
 from robots.importer.urdf import (
-    COLLISION_BOXES,
     FLOATING_BASE,
     MIN_INERTIA,
     MIN_MASS,
@@ -57,17 +62,31 @@ _KIND = {
 }
 
 
-def prepare_mjcf(path: Path, limit_overrides: dict[str, tuple[float, float]]) -> PreparedSource:
+def prepare_mjcf(
+    path: Path,
+    limit_flags: list[str],
+    floating_base: bool = False,
+    drop_missing_meshes: bool = False,
+    link_boxes: bool = False,
+) -> PreparedSource:
     """Check the MJCF at ``path`` and reduce it for the importer (see the module docstring).
 
     Args:
-        path: The MJCF file (root ``<mujoco>``). limit_overrides: joint -> (lower, upper) in
-            rad, from ``--limit``, for hinges the file leaves unlimited (or to replace a range).
+        path: The MJCF file (root ``<mujoco>``). limit_flags: ``--limit JOINT=LOWER:UPPER``
+            texts (rad, shell patterns over the hinges; later flags win) for hinges the file
+            leaves unlimited (or to replace a range). floating_base: a legged robot: the free
+            joint of the robot's root body (if any) is removed (the importer adds its own), the
+            world body's other geoms are dropped. drop_missing_meshes: drop the geoms whose mesh
+            file does not exist (each printed) instead of refusing. link_boxes: one bounding
+            box per body around all its mesh geoms (coarser, fewer pairs) instead of one per
+            mesh geom.
 
     Returns:
         A :class:`PreparedSource` of kind "MJCF" whose ``text`` is the reduced model in MuJoCo's
         canonical MJCF (radians), ``disabled`` its ``<contact><exclude>`` body pairs and
-        ``sites`` its sites by body.
+        ``sites`` its sites by body. Its links are the bodies, the world body first for a
+        fixed base; for a floating base the root link is the robot's root body and the world
+        is not a link.
 
     Raises:
         RobotImportError: one line naming the file, the element and what was expected (see the
@@ -75,19 +94,28 @@ def prepare_mjcf(path: Path, limit_overrides: dict[str, tuple[float, float]]) ->
     """
     notes: list[str] = []
     spec = _from_file(path)
+    _drop_appearance(spec)
+    missing_meshes(spec, path, drop_missing_meshes, notes)
     _name_unnamed(spec.bodies[1:], "body")
     model = _compile(spec, path)
-    for j in range(model.njnt):
-        if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
-            body = model.body(model.jnt_bodyid[j]).name
+    free = [j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+    for j in free:
+        body = model.body(model.jnt_bodyid[j]).name
+        element = f"<body name='{body}'><joint name='{model.joint(j).name}' type='free'>"
+        if not floating_base:
+            raise RobotImportError(f"{path}: {element}: " + FLOATING_BASE)
+        if model.body_parentid[model.jnt_bodyid[j]] != 0 or len(free) > 1:
             raise RobotImportError(
-                f"{path}: <body name='{body}'><joint name='{model.joint(j).name}' type='free'>: "
-                + FLOATING_BASE
+                f"{path}: {element}: expected one free joint, on the root body of the robot (a "
+                f"body of the world body); free joints: {[model.joint(k).name for k in free]}"
             )
     efforts = _efforts(model)
     disabled = {tuple(sorted((e.bodyname1, e.bodyname2))) for e in spec.excludes}
     frozen = _drop_elements(spec, notes)
     _drop_scenery(spec, model, path, notes)
+    root_body = None
+    if floating_base:
+        root_body = _floating_root(spec, path, notes)
     _freeze_joints(spec, path, frozen, notes)
 
     # Canonical form: radians, quaternions, explicit inertials computed from the full geometry.
@@ -96,32 +124,40 @@ def prepare_mjcf(path: Path, limit_overrides: dict[str, tuple[float, float]]) ->
         spec.meshdir = os.path.join(spec.modelfiledir or str(path.parent), spec.meshdir)
     elif not spec.meshdir:
         spec.meshdir = spec.modelfiledir or str(path.parent)
-    spec = _from_string(_base_body(_to_xml(spec, path), notes), path)
+    text = _to_xml(spec, path)
+    spec = _from_string(text if floating_base else _base_body(text, notes), path)
     spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
     _name_unnamed(spec.geoms, "geom")  # to find them in the compiled model
 
-    hinges = [j.name for j in spec.joints]
-    unknown = set(limit_overrides) - set(hinges)
-    if unknown:
-        raise RobotImportError(
-            f"--limit: no hinge joint {sorted(unknown)} in {path.name} (hinges: {hinges})"
-        )
+    from robots.importer import flags
+
+    limit_overrides = flags.per_joint(
+        limit_flags,
+        [j.name for j in spec.joints],
+        "--limit",
+        flags.position_range,
+        "JOINT=LOWER:UPPER in rad with LOWER < UPPER (JOINT may be a pattern, e.g. "
+        "'joint*=-3.14:3.14')",
+        path.name,
+    )
     for name, (lo, hi) in limit_overrides.items():
         spec.joint(name).range = [lo, hi]
         spec.joint(name).limited = mujoco.mjtLimited.mjLIMITED_TRUE
     model = _compile(spec, path)
     joints = _hinge_limits(model, path, efforts)
-    meshdir_abs = _simplify_geoms(spec, model, notes)
+    meshdir_abs, fitted = simplify_geoms(spec, model, notes, link_boxes)
     text = _to_xml(spec, path)
     model = _compile(_from_string(text, path), path)
 
-    links = [model.body(b).name for b in range(model.nbody)]
+    names = [model.body(b).name for b in range(model.nbody)]
     parent = {}
     for b in range(1, model.nbody):
         n = model.body_jntnum[b]
         joint = model.joint(model.body_jntadr[b]).name if n else ""
-        parent[links[b]] = (links[model.body_parentid[b]], joint, "revolute" if n else "fixed")
-    sites = {model.site(s).name: links[model.site_bodyid[s]] for s in range(model.nsite)}
+        if names[b] != root_body:
+            parent[names[b]] = (names[model.body_parentid[b]], joint, "revolute" if n else "fixed")
+    links = names[1:] if root_body else names
+    sites = {model.site(s).name: names[model.site_bodyid[s]] for s in range(model.nsite)}
     return PreparedSource(
         path=path,
         display=_display(path),
@@ -130,14 +166,56 @@ def prepare_mjcf(path: Path, limit_overrides: dict[str, tuple[float, float]]) ->
         movable=list(joints),
         parent=parent,
         links=links,
-        root_link=links[0],
+        root_link=root_body or links[0],
         meshdir_abs=meshdir_abs,
         meshdir_uri=meshdir_abs or "",
         notes=notes,
         kind="MJCF",
         disabled={p for p in disabled if p[0] in links and p[1] in links},
         sites={k: v for k, v in sites.items() if k},
+        fitted=fitted,
     )
+
+
+def _drop_appearance(spec: mujoco.MjSpec) -> None:
+    """Delete materials and textures (their image files need not be there: nothing the toolkit
+    reads depends on them)."""
+    for geom in spec.geoms:
+        geom.material = ""
+    for site in spec.sites:
+        site.material = ""
+    for element in [*spec.materials, *spec.textures]:
+        spec.delete(element)
+
+
+def _floating_root(spec: mujoco.MjSpec, path: Path, notes: list[str]) -> str:
+    """The robot's root body of a floating-base MJCF: its free joint (if any) and the other
+    geoms of the world body removed, its orientation reset (the importer adds the free joint,
+    the floor and the standing height)."""
+    bodies = list(spec.worldbody.bodies)
+    if len(bodies) != 1:  # pragma: no cover - _drop_scenery refuses several robots
+        raise RobotImportError(f"{path}: <worldbody>: expected one robot, found {bodies}")
+    root = bodies[0]
+    for joint in list(root.joints):
+        if joint.type == mujoco.mjtJoint.mjJNT_FREE:
+            spec.delete(joint)
+            notes.append(
+                f"free joint {joint.name or '(unnamed)'} of body {root.name} replaced by the "
+                "importer's (base above the floor at the home pose)"
+            )
+    if root.joints:
+        raise RobotImportError(
+            f"{path}: <body name='{root.name}'>: joints {[j.name for j in root.joints]} on the "
+            "root body; expected only a free joint there (a floating base)"
+        )
+    world = list(spec.worldbody.geoms)
+    for geom in world:
+        spec.delete(geom)
+    if world:
+        notes.append(f"{len(world)} geoms of the world body dropped: scenery")
+    root.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
+    root.quat = [1.0, 0.0, 0.0, 0.0]
+    return root.name
 
 
 def _name_unnamed(elements, prefix: str) -> None:
@@ -231,10 +309,6 @@ def _efforts(model: mujoco.MjModel) -> dict[str, tuple[float, str]]:
 def _drop_elements(spec: mujoco.MjSpec, notes: list[str]) -> set[str]:
     """Delete what the toolkit does not simulate; return the joints equalities couple."""
     frozen = {e.name1 for e in spec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT and e.name1}
-    for geom in spec.geoms:
-        geom.material = ""
-    for site in spec.sites:
-        site.material = ""
     for what, elements, why in (
         ("actuators", spec.actuators, "Robot.mjspec adds the drives of each control mode"),
         ("sensors", spec.sensors, "the sim backend models robot.toml's sensors"),
@@ -245,8 +319,6 @@ def _drop_elements(spec: mujoco.MjSpec, notes: list[str]) -> set[str]:
         ("skins", spec.skins, "not simulated"),
         ("flexes", spec.flexes, "not simulated"),
         ("contact excludes", spec.excludes, ""),  # kept as the importer's disabled pairs
-        ("materials", spec.materials, ""),  # their textures name files beside the source
-        ("textures", spec.textures, ""),
     ):
         elements = list(elements)
         for element in elements:
@@ -304,7 +376,7 @@ def _drop_scenery(spec: mujoco.MjSpec, model: mujoco.MjModel, path: Path, notes)
     if len(jointed) > 1:
         raise RobotImportError(
             f"{path}: <worldbody>: several bodies with joints hang from the world {jointed}; "
-            "expected one fixed-base arm"
+            "expected one robot"
         )
 
 
@@ -332,7 +404,7 @@ def _freeze_joints(spec: mujoco.MjSpec, path: Path, frozen: set[str], notes) -> 
                 f"{[j.name for j in body.joints]}; expected one joint per body"
             )
     if not spec.joints:
-        raise RobotImportError(f"{path}: <mujoco>: no hinge joint; expected a fixed-base arm")
+        raise RobotImportError(f"{path}: <mujoco>: no hinge joint; expected a robot's hinges")
 
 
 def _hinge_limits(model: mujoco.MjModel, path: Path, efforts) -> dict[str, JointInfo]:
@@ -365,69 +437,6 @@ def _hinge_limits(model: mujoco.MjModel, path: Path, efforts) -> dict[str, Joint
             name, "hinge", par, child, lo, hi, None, effort, "MJCF", effort_from
         )
     return joints
-
-
-def _simplify_geoms(spec: mujoco.MjSpec, model: mujoco.MjModel, notes) -> str | None:
-    """Drop visual-only geoms beside collision geoms; one box per body for its mesh geoms;
-    every geom in group 0.
-
-    Returns the absolute mesh folder when meshes are kept (``COLLISION_BOXES`` False), else None.
-    """
-    visual = boxed = 0
-    for body in spec.bodies:
-        geoms = list(body.geoms)
-        if any(g.contype or g.conaffinity for g in geoms):
-            for g in geoms:
-                if not (g.contype or g.conaffinity):
-                    spec.delete(g)
-                    visual += 1
-            geoms = [g for g in geoms if g.contype or g.conaffinity]
-        meshes = [g for g in geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH]
-        if not COLLISION_BOXES or not meshes:
-            continue
-        corners = []
-        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
-        for g in meshes:
-            gid = model.geom(g.name).id
-            rot = np.zeros(9)
-            mujoco.mju_quat2Mat(rot, model.geom_quat[gid])
-            aabb = model.geom_aabb[gid]
-            local = aabb[:3] + signs * aabb[3:]
-            corners.append(model.geom_pos[gid] + local @ rot.reshape(3, 3).T)
-        pts = np.vstack(corners)
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        box = body.add_geom()
-        box.type = mujoco.mjtGeom.mjGEOM_BOX
-        box.pos = (lo + hi) / 2
-        box.size = np.maximum((hi - lo) / 2, 5e-5)
-        box.contype, box.conaffinity = meshes[0].contype, meshes[0].conaffinity
-        box.rgba = meshes[0].rgba
-        for g in meshes:
-            spec.delete(g)
-        boxed += len(meshes)
-    for geom in spec.geoms:
-        # Pinocchio's MJCF parser leaves group-3 geoms (the usual collision class) out of the
-        # VISUAL geometry the guard and the importer check; the group only matters for drawing.
-        geom.group = 0
-    if visual:
-        notes.append(f"{visual} visual-only geoms (contype = conaffinity = 0) dropped")
-    if boxed:
-        notes.append(
-            f"{boxed} collision meshes replaced by one bounding box per body (COLLISION_BOXES)"
-        )
-    used = {g.meshname for g in spec.geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH}
-    for mesh in list(spec.meshes):
-        if mesh.name not in used:
-            spec.delete(mesh)
-    if not spec.meshes:
-        spec.meshdir = ""
-        return None
-    files = [Path(spec.meshdir, m.file).resolve() for m in spec.meshes]
-    base = Path(os.path.commonpath([str(f.parent) for f in files]))
-    for mesh, file in zip(spec.meshes, files, strict=True):
-        mesh.file = Path(os.path.relpath(file, base)).as_posix()
-    spec.meshdir = base.as_posix()
-    return spec.meshdir
 
 
 def _one_line(exc: Exception) -> str:

@@ -44,6 +44,16 @@ TOUCH_CLEARANCE = 0.001
 SAMPLES = 400
 #: Margin (m) of the workspace box around the sampled reachable positions.
 WORKSPACE_MARGIN = 0.05
+#: The task's ``joint_fraction``: goals are end-effector positions of poses within this fraction
+#: of each joint's half range about home (as arm3/arm6).
+TASK_JOINT_FRACTION = 0.7
+#: Smallest side of the task box, m (our choice: the task box of a planar arm has no extent
+#: across its plane).
+TASK_MIN_WIDTH = 0.01
+#: Smallest fraction of the goal sampler's poses whose end effector lies in the 10th-90th
+#: percentile box; below it the box spans every such pose (``GOAL_TRIES`` = 1000 draws of
+#: ``deploy.tasks.goals.sample_goal`` then miss with probability below 1e-20).
+TASK_MIN_HITS = 0.05
 
 
 @dataclass
@@ -72,9 +82,10 @@ def build_spec(
     motor_cfg: dict[str, MotorConfig],
     physics_timestep: float,
 ) -> tuple[mujoco.MjSpec, mujoco.MjModel]:
-    """MjSpec from the prepared URDF or MJCF: named geoms, armature ``rotor_inertia *
-    gear_ratio**2`` from each joint's motor, no actuator force range (``Robot.mjspec`` sets it),
-    the physics timestep and the implicit-fast integrator.
+    """MjSpec from the prepared URDF or MJCF: named geoms (``urdf.fitted_geoms`` gets the names
+    of the boxes fitted to meshes), armature ``rotor_inertia * gear_ratio**2`` from each joint's
+    motor, no actuator force range (``Robot.mjspec`` sets it), the physics timestep and the
+    implicit-fast integrator.
 
     Raises:
         RobotImportError: MuJoCo's URDF (or MJCF) compiler refuses the description.
@@ -83,8 +94,9 @@ def build_spec(
         spec = mujoco.MjSpec.from_string(urdf.text)
         spec.compile()
     except ValueError as exc:
+        message = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
         raise RobotImportError(
-            f"{urdf.path}: MuJoCo's {urdf.kind} compiler refuses it: {exc}"
+            f"{urdf.path}: MuJoCo's {urdf.kind} compiler refuses it: {message}"
         ) from None
     spec.compiler.degree = False  # URDF: radians; MJCF: canonical text, radians already
     spec.option.timestep = physics_timestep
@@ -98,6 +110,8 @@ def build_spec(
         geoms = list(body.geoms)
         for k, geom in enumerate(geoms):
             geom.name = body.name if len(geoms) == 1 else f"{body.name}_{k}"
+            if (body.name, k) in urdf.fitted:
+                urdf.fitted_geoms.add(geom.name)
     model = spec.compile()
     return spec, model
 
@@ -273,7 +287,8 @@ def choose_collision_pairs(
 ):
     """Self-collision pairs for the guard (geom names) and the MuJoCo contact exclusions.
 
-    Candidates: links of different rigid groups that are not parent and child, minus the SRDF's
+    Candidates: the geoms that can touch (``contype`` or ``conaffinity`` set: visual-only geoms
+    never do) of links of different rigid groups that are not parent and child, minus the SRDF's
     ``disable_collisions`` pairs when there is an SRDF; pairs closer than ``clearance`` (m) at
     the home pose are dropped (they touch by design or through a coarse collision shape). The
     plant (MuJoCo) checks contact only between the pairs the guard checks.
@@ -289,7 +304,9 @@ def choose_collision_pairs(
     index = {g.name: i for i, g in enumerate(geom.geometryObjects)}
     body_geoms: dict[str, list[str]] = {}
     for g in range(model.ngeom):
-        body_geoms.setdefault(model.body(model.geom_bodyid[g]).name, []).append(model.geom(g).name)
+        if model.geom_contype[g] or model.geom_conaffinity[g]:  # visual-only geoms never touch
+            body = model.body(model.geom_bodyid[g]).name
+            body_geoms.setdefault(body, []).append(model.geom(g).name)
     group = _groups(urdf)
     adjacent = {
         tuple(sorted((group[child], group[par])))
@@ -339,8 +356,11 @@ def sample_workspace(mjcf_path: Path, joint_names, limits, home) -> dict:
 
     Workspace: the box of every sampled end-effector position within the hard limits, plus
     ``WORKSPACE_MARGIN``, cut at 5 cm below the base (the table) unless home is lower. Task: the
-    10th-90th percentile box of positions reached within 70 % of each joint range about home,
-    above the table; success radius 6 % of the largest reach (at least 1 cm).
+    10th-90th percentile box of the positions the goal sampler draws (poses within
+    ``TASK_JOINT_FRACTION`` of each joint's half range about home, in the soft limits), above the
+    table, each side at least ``TASK_MIN_WIDTH``, rounded outward to 0.1 mm; the box of all of
+    them when fewer than ``TASK_MIN_HITS`` fall inside. Success radius 6 % of the largest reach
+    (at least 1 cm).
     """
     model = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
     data = mujoco.MjData(model)
@@ -356,18 +376,23 @@ def sample_workspace(mjcf_path: Path, joint_names, limits, home) -> dict:
 
     full = np.array([ee(rng.uniform(lo, hi)) for _ in range(4 * SAMPLES)])
     home_ee = ee(home)
-    span = 0.7 * (hi - lo) / 2
+    span = TASK_JOINT_FRACTION * (hi - lo) / 2
+    # the goal sampler's draw (deploy.tasks.goals.sample_goal): about home, in the soft limits
+    centre, half = (lo + hi) / 2, SOFT_LIMIT_FRACTION * (hi - lo) / 2
     inner = np.array(
-        [ee(np.clip(home + rng.uniform(-span, span), lo, hi)) for _ in range(4 * SAMPLES)]
+        [
+            ee(np.clip(home + rng.uniform(-span, span), centre - half, centre + half))
+            for _ in range(4 * SAMPLES)
+        ]
     )
     ws_min = full.min(axis=0) - WORKSPACE_MARGIN
     ws_max = full.max(axis=0) + WORKSPACE_MARGIN
     ws_min[2] = max(ws_min[2], min(-0.05, home_ee[2] - WORKSPACE_MARGIN))
     above = inner[inner[:, 2] > ws_min[2] + WORKSPACE_MARGIN]
     above = above if len(above) > 20 else inner
-    task_min = np.percentile(above, 10, axis=0)
-    task_max = np.percentile(above, 90, axis=0)
-    task_max = np.maximum(task_max, task_min + 0.01)
+    task_min, task_max = _task_box(above, 10)
+    if np.mean(np.all((inner >= task_min) & (inner <= task_max), axis=1)) < TASK_MIN_HITS:
+        task_min, task_max = _task_box(inner, 0)
     reach = float(np.max(np.linalg.norm(full, axis=1)))
     return {
         "workspace_min": ws_min,
@@ -379,164 +404,11 @@ def sample_workspace(mjcf_path: Path, joint_names, limits, home) -> dict:
     }
 
 
-def _f(x: float) -> str:
-    return repr(float(x))
-
-
-def _vec(v) -> str:
-    return "[" + ", ".join(_f(round(float(x), 4)) for x in v) + "]"
-
-
-def limit_notes(joint: str, src, low: dict) -> tuple[str, str]:
-    """The robot.toml comments of a joint's velocity and effort limits: where each came from
-    (the source description, or the motor's no-load speed / peak torque when that is lower or
-    the source gives none). ``src``: the joint of the prepared source; ``low``: (joint,
-    quantity) -> (source value, ...) of the limits the motor capped (:func:`cap_limits`)."""
-    return tuple(
-        f"motor {what} ({origin} {low[(joint, q)][0]:g})"
-        if (joint, q) in low
-        else (f"motor {what}" if value is None or value <= 0 else origin)
-        for q, what, value, origin in (
-            ("velocity", "no-load speed", src.velocity, src.velocity_from),
-            ("effort", "peak torque", src.effort, src.effort_from),
-        )
-    )
-
-
-def joint_lines(
-    j: str, i: int, limits, kind: str, notes, motion: Motion, motor: str, gains_note=None
-) -> list[str]:
-    """The ``[[joints]]`` table of joint ``j`` (index ``i``) in robot.toml: ``limits`` (lower,
-    upper rad, velocity rad/s, effort N m) with the source ``kind`` and the velocity/effort
-    ``notes`` (:func:`limit_notes`), the derived motion limits and gains of ``motion``, and an
-    optional source note on the gains."""
-    lo, hi, vel, eff = limits
-    vnote, enote = notes
-    kp, kd = f"kp = {_f(motion.kp[i])}", f"kd = {_f(motion.kd[i])}"
-    if gains_note:
-        kp, kd = f"{kp}  # N m/rad, {gains_note}", f"{kd}  # N m s/rad, {gains_note}"
-    return [
-        "",
-        "[[joints]]",
-        f'name = "{j}"',
-        f"position_limit = [{_f(lo)}, {_f(hi)}]  # {kind}",
-        f"velocity_limit = {_f(vel)}  # rad/s, {vnote}",
-        f"acceleration_limit = {_f(motion.acceleration[i])}",
-        f"jerk_limit = {_f(motion.jerk[i])}",
-        f"effort_limit = {_f(eff)}  # N m, {enote}",
-        f"soft_limit_fraction = {SOFT_LIMIT_FRACTION}",
-        f'motor = "{motor}"',
-        kp,
-        kd,
-    ]
-
-
-def sensor_lines(chosen, resolution: int, quantum: float, control_rate: float, temp_note: str):
-    """The motor-catalog comment and the ``[sensors]`` encoder and temperature lines of
-    robot.toml: one encoder count of noise at the coarsest motor encoder, read every tick."""
-    return [
-        "# Motors " + ", ".join(sorted(set(chosen.values()))) + ": the catalog, robots/motors/.",
-        "",
-        "[sensors]",
-        f"encoder_resolution = {resolution}  # counts/rev, the coarsest motor encoder",
-        f"encoder_noise_sigma = {_f(_sig(quantum, 3))}  # rad, one encoder count",
-        f"encoder_rate = {_f(control_rate)}  # Hz, read every control tick",
-        "encoder_latency_ticks = 0",
-        "encoder_dropout = 0.0",
-        f"temperature_resolution = 1.0  # {temp_note}",
-        "temperature_rate = 10.0  # Hz",
-        "ambient_temperature = 25.0  # degC",
-    ]
-
-
-def write_robot_toml(
-    path: Path,
-    *,
-    name,
-    prepared: PreparedSource,
-    mjcf,
-    joint_names,
-    limits,
-    motion: Motion,
-    chosen,
-    motor_cfg,
-    pairs,
-    workspace,
-    control_rate,
-    physics_timestep,
-    disabled_by: str | None,
-    lowered,
-) -> None:
-    """Write robot.toml with a comment giving the reason of every value.
-
-    ``prepared``: the description (its file, kind and where each joint's limits came from);
-    ``disabled_by``: what named the link pairs left unchecked ("the SRDF (x.srdf)"), or None.
-    """
-    kind = prepared.kind
-
-    resolutions = [
-        motor_cfg[m].encoder_resolution
-        for m in set(chosen.values())
-        if motor_cfg[m].encoder_resolution
-    ]
-    resolution = min(resolutions) if resolutions else 16384
-    quantum = 2 * math.pi / resolution
-    low = {(j, q): (a, b) for j, q, a, b, _ in lowered}
-    lines = [
-        f"# {name}: imported by robot-import from {prepared.display}.",
-        f"# Joint order and position limits from the {kind}; velocity and effort limits are the "
-        "lower",
-        f"# of the {kind}'s and the motor's (robots/motors/<model>.toml); SI units, radians.",
-        f'name = "{name}"',
-        f'mjcf = "{mjcf}"',
-        "",
-        "[control]",
-        'mode = "position"            # joint position targets (a servo\'s native mode)',
-        f"control_rate = {_f(control_rate)}          # Hz (robot-import --control-rate)",
-        f"physics_timestep = {_f(physics_timestep)}     # s (robot-import --physics-timestep)",
-        "# rad: 0 clipped into the soft limits. End effector there at "
-        f"{_vec(workspace['home_ee'])} m.",
-        f"home = {_vec(motion.home)}",
-        "",
-        "# acceleration_limit: 0.5 x (effort - worst gravity torque) / worst joint inertia with",
-        "# armature (rotor inertia x ratio^2), 400 seeded poses; jerk_limit: 20 x acceleration.",
-        "# kp: full effort at 0.05 rad error (capped for stability at the physics step);",
-        "# kd: critical damping for the worst inertia. Plant servo gains, not datasheet values.",
-    ]
-    for i, j in enumerate(joint_names):
-        lo, hi, vel, eff = limits[j]
-        m = chosen[j]
-        src = prepared.joints[j]
-        vnote, enote = limit_notes(j, src, low)
-        lines += joint_lines(j, i, (lo, hi, vel, eff), kind, (vnote, enote), motion, m)
-    lines += [
-        "",
-        *sensor_lines(chosen, resolution, quantum, control_rate, "degC, as servos report it"),
-        "",
-        "[safety]",
-        'end_effector_site = "ee"',
-        "# Box of every reachable end-effector position + 5 cm, cut 5 cm below the base (table).",
-        f"workspace_min = {_vec(workspace['workspace_min'])}",
-        f"workspace_max = {_vec(workspace['workspace_max'])}",
-        (
-            f"# Geom pairs of links {disabled_by} does not disable, "
-            if disabled_by
-            else "# Geom pairs of non-adjacent links, "
-        )
-        + "apart at home; the plant checks contact only between these.",
-        "collision_pairs = [",
-        *[f'  ["{a}", "{b}"],' for a, b in pairs],
-        "]",
-        "stale_limit = 0.05",
-        "",
-        "[task]",
-        "# 10th-90th percentile box of positions reached within 70 % of each range about home;",
-        "# goals are such positions inside the box (joint_fraction): every goal is reachable.",
-        'region = "box"',
-        "joint_fraction = 0.7",
-        f"box_min = {_vec(workspace['task_min'])}",
-        f"box_max = {_vec(workspace['task_max'])}",
-        f"success_radius = {_f(workspace['success_radius'])}  # m, 6 % of the reach",
-        "",
-    ]
-    path.write_text("\n".join(lines), encoding="utf-8")
+def _task_box(points: np.ndarray, percent: float) -> tuple[np.ndarray, np.ndarray]:
+    """The ``percent``-th to ``100 - percent``-th percentile box of ``points`` (m), each side at
+    least ``TASK_MIN_WIDTH`` about its middle (a planar arm's end effector keeps one coordinate),
+    rounded outward to the 0.1 mm robot.toml writes."""
+    a = np.percentile(points, percent, axis=0)
+    b = np.percentile(points, 100 - percent, axis=0)
+    middle, half = (a + b) / 2, np.maximum((b - a) / 2, TASK_MIN_WIDTH / 2)
+    return np.floor((middle - half) * 1e4) / 1e4, np.ceil((middle + half) * 1e4) / 1e4

@@ -2,8 +2,10 @@
 
 :func:`prepare_urdf` checks what the importer cannot guess (limits of continuous joints, meshes,
 inertias, duplicate names, floating bases) and rewrites the URDF for ``mujoco.MjSpec``: mesh URIs
-relative to one mesh folder, visuals dropped, collision meshes MuJoCo cannot decode (COLLADA)
-replaced by their bounding box (read with coal), prismatic and mimic joints frozen, and a
+relative to one mesh folder, visuals dropped, each collision mesh replaced by its bounding box in
+the mesh's own frame (read with coal; one box per mesh, ``COLLISION_BOXES``; primitives kept as
+they are), missing mesh files refused or, with ``--drop-missing-meshes``, their elements dropped,
+prismatic and mimic joints frozen, and a
 ``<mujoco><compiler>`` element (radians from the URDF, no static-body fusion, balanced inertias).
 Its result, a :class:`PreparedSource`, is what the rest of the importer reads; MJCF input makes
 the same from :func:`robots.importer.mjcf.prepare_mjcf`.
@@ -25,10 +27,16 @@ from robots.robot import RobotSpecError
 
 #: Mesh formats MuJoCo decodes itself; others (COLLADA .dae) are replaced by a fitted box.
 MUJOCO_MESH_FORMATS = (".stl", ".obj", ".msh")
-#: Collision meshes are replaced by their bounding boxes: the guard checks every listed pair
-#: each tick with coal, and mesh-mesh pairs (85 on the SO-101) made 60 simulated seconds take
-#: over 10 minutes; boxes keep it to seconds. Set False to keep the meshes (package:// meshdir).
+#: Each collision mesh is replaced by its bounding box in the mesh's own frame (one box per
+#: mesh, primitives kept as they are): the guard checks every listed pair each tick with coal,
+#: and mesh-mesh pairs (85 on the SO-101) made 60 simulated seconds take over 10 minutes; boxes
+#: keep it to seconds. Set False to keep the meshes (package:// meshdir).
 COLLISION_BOXES = True
+#: How a refusal for missing mesh files ends (URDF and MJCF alike).
+DROP_MISSING = (
+    "expected the mesh files (or --drop-missing-meshes to drop the geoms that use them, as "
+    "MuJoCo users delete them)"
+)
 #: Smallest mass (kg) and principal inertia (kg m^2) accepted for a moving link.
 MIN_MASS, MIN_INERTIA = 1e-9, 1e-12
 #: How every refusal of a floating-base robot ends (URDF, SRDF and MJCF alike).
@@ -70,7 +78,10 @@ class PreparedSource:
     ``meshdir_uri``: the mesh folder and how the MJCF names it (``package://...`` or a path
     relative to the robot folder's parent); ``notes``: decisions to print; ``disabled``: link
     pairs the description itself says are never checked (MJCF ``<contact><exclude>``), as sorted
-    tuples; ``sites``: site name -> its body (MJCF).
+    tuples; ``sites``: site name -> its body (MJCF); ``fitted``: ``(link, k)`` of the ``k``-th
+    geom of a link that is a box fitted to a collision mesh (the importer's approximation, not
+    the author's shape); ``fitted_geoms``: their geom names once named
+    (:func:`robots.importer.model.build_spec`).
     """
 
     path: Path
@@ -87,6 +98,8 @@ class PreparedSource:
     kind: str = "URDF"
     disabled: set[tuple[str, str]] = field(default_factory=set)
     sites: dict[str, str] = field(default_factory=dict)
+    fitted: set[tuple[str, int]] = field(default_factory=set)
+    fitted_geoms: set[str] = field(default_factory=set)
 
 
 @dataclass
@@ -197,17 +210,28 @@ def _legs(links, parent) -> int:
 def prepare_urdf(
     path: Path,
     root: ET.Element,
-    limit_overrides: dict[str, tuple[float, float]],
+    limit_flags: list[str],
     srdf: SrdfInfo | None,
     floating_base: bool = False,
+    drop_missing_meshes: bool = False,
+    link_boxes: bool = False,
 ) -> PreparedSource:
     """Check the URDF and rewrite it for MuJoCo's URDF compiler (see the module docstring).
+
+    Args:
+        limit_flags: ``--limit JOINT=LOWER:UPPER`` texts (rad, shell patterns over the revolute
+            and continuous joints; later flags win). drop_missing_meshes: drop the ``<collision>``
+            and ``<visual>`` elements whose mesh file does not exist (each printed) instead of
+            refusing. link_boxes: one bounding box per link around all its collision meshes
+            (coarser, fewer pairs) instead of one per mesh.
 
     Raises:
         RobotImportError: duplicate joint or link name, continuous joint without limits (and no
             ``--limit``), mesh that does not resolve, moving link without positive mass and
             inertia, floating base (several legs from the root), no movable joint.
     """
+    from robots.importer import flags
+
     root = copy.deepcopy(root)
     notes: list[str] = []
     links = [link.get("name") for link in root.findall("link")]
@@ -225,9 +249,20 @@ def prepare_urdf(
                 f"{path}: <joint name='{name}'>: duplicate joint name; expected unique names"
             )
         names.add(name)
-    unknown = set(limit_overrides) - names
-    if unknown:
-        raise RobotImportError(f"--limit: no joint {sorted(unknown)} in {path.name}")
+    rotary = [
+        j.get("name")
+        for j in joint_els
+        if j.get("type") in ("revolute", "continuous") and j.find("mimic") is None
+    ]
+    limit_overrides = flags.per_joint(
+        limit_flags,
+        rotary,
+        "--limit",
+        flags.position_range,
+        "JOINT=LOWER:UPPER in rad with LOWER < UPPER (JOINT may be a pattern, e.g. "
+        "'joint*=-3.14:3.14')",
+        path.name,
+    )
 
     joints: dict[str, JointInfo] = {}
     movable: list[str] = []
@@ -297,7 +332,9 @@ def prepare_urdf(
         child = joints[name].child
         _check_inertia(path, link_els[child], name)
 
-    meshdir_abs, meshdir_uri = _rewrite_meshes(path, root, notes)
+    meshdir_abs, meshdir_uri, fitted = _rewrite_meshes(
+        path, root, notes, drop_missing_meshes, link_boxes
+    )
     for link in root.findall("link"):
         for visual in link.findall("visual"):
             link.remove(visual)
@@ -328,6 +365,7 @@ def prepare_urdf(
         meshdir_abs=meshdir_abs,
         meshdir_uri=meshdir_uri,
         notes=notes,
+        fitted=fitted,
     )
 
 
@@ -368,9 +406,21 @@ def _check_inertia(path: Path, link: ET.Element, joint: str) -> None:
         )
 
 
-def _rewrite_meshes(path: Path, root: ET.Element, notes: list[str]) -> tuple[str | None, str]:
-    """Resolve every collision mesh; refer to them relative to one folder (returned)."""
+def _rewrite_meshes(
+    path: Path,
+    root: ET.Element,
+    notes: list[str],
+    drop_missing: bool = False,
+    link_boxes: bool = False,
+) -> tuple[str | None, str, set[tuple[str, int]]]:
+    """Resolve every mesh; refer to the kept ones relative to one folder (returned), or replace
+    each collision mesh by its bounding box in place (``COLLISION_BOXES``; ``link_boxes``: one
+    box per link, in the link frame, around all its meshes' boxes, appended after its other
+    collision elements). Returns ``(meshdir_abs, meshdir_uri, fitted)``: ``fitted`` the
+    ``(link, k)`` of the boxes, ``k`` counting the link's ``<collision>`` elements (the order
+    MuJoCo's geoms keep)."""
     resolved: list[tuple[ET.Element, ET.Element, Path, str | None]] = []
+    missing: list[tuple[ET.Element, ET.Element, str, Path, str]] = []
     for link in root.findall("link"):
         for tag in ("collision", "visual"):
             for el in link.findall(tag):
@@ -378,13 +428,20 @@ def _rewrite_meshes(path: Path, root: ET.Element, notes: list[str]) -> tuple[str
                     uri = mesh.get("filename", "")
                     file, package = _resolve_mesh(uri, path)
                     if not file.is_file():
-                        raise RobotImportError(
-                            f"{path}: <link name='{link.get('name')}'><{tag}><mesh "
-                            f"filename='{uri}'>: does not resolve (looked for {file}); expected "
-                            "an existing mesh file (package:// needs the package installed)"
-                        )
-                    if tag == "collision":
+                        missing.append((link, el, uri, file, tag))
+                    elif tag == "collision":
                         resolved.append((link, el, file, package))
+    if missing and not drop_missing:
+        link, _, uri, file, tag = missing[0]
+        more = f" ({len(missing) - 1} more missing)" if len(missing) > 1 else ""
+        raise RobotImportError(
+            f"{path}: <link name='{link.get('name')}'><{tag}><mesh filename='{uri}'>: does not "
+            f"resolve (looked for {file}){more}; {DROP_MISSING} (package:// needs the package "
+            "installed)"
+        )
+    for link, el, uri, _, tag in missing:
+        link.remove(el)
+        notes.append(f"link {link.get('name')}: <{tag}> mesh '{uri}' missing: dropped")
     keep = () if COLLISION_BOXES else MUJOCO_MESH_FORMATS
     files = [f for _, _, f, _ in resolved if f.suffix.lower() in keep]
     packages = {p for _, _, f, p in resolved if f.suffix.lower() in keep}
@@ -398,7 +455,7 @@ def _rewrite_meshes(path: Path, root: ET.Element, notes: list[str]) -> tuple[str
             base = Path(os.path.commonpath([str(f.parent) for f in files]))
             meshdir_uri = str(base)
         meshdir_abs = base.as_posix()
-    boxed = 0
+    boxed: set[int] = set()
     corners: dict[str, list[np.ndarray]] = {}
     for link, el, file, _ in resolved:
         mesh = el.find("geometry/mesh")
@@ -410,11 +467,21 @@ def _rewrite_meshes(path: Path, root: ET.Element, notes: list[str]) -> tuple[str
         origin = el.find("origin")
         xyz = np.array([float(x) for x in (_attr(origin, "xyz") or "0 0 0").split()])
         rpy = np.array([float(x) for x in (_attr(origin, "rpy") or "0 0 0").split()])
-        signs = np.array(list(itertools.product((-0.5, 0.5), repeat=3)))
-        pts = xyz + (centre + signs * size) @ _rpy_matrix(rpy).T
-        corners.setdefault(link.get("name"), []).append(pts)
-        link.remove(el)
-        boxed += 1
+        boxed.add(id(el))
+        if link_boxes:
+            signs = np.array(list(itertools.product((-0.5, 0.5), repeat=3)))
+            pts = xyz + (centre + signs * size) @ _rpy_matrix(rpy).T
+            corners.setdefault(link.get("name"), []).append(pts)
+            link.remove(el)
+            continue
+        # the box keeps the mesh's frame: its centre moves into the element's origin
+        if origin is None:
+            origin = ET.SubElement(el, "origin")
+        origin.set("xyz", " ".join(repr(float(v)) for v in xyz + _rpy_matrix(rpy) @ centre))
+        origin.set("rpy", " ".join(repr(float(v)) for v in rpy))
+        geometry = el.find("geometry")
+        geometry.remove(mesh)
+        ET.SubElement(geometry, "box", size=" ".join(repr(float(v)) for v in size))
     for link in root.findall("link"):
         if link.get("name") not in corners:
             continue
@@ -424,8 +491,20 @@ def _rewrite_meshes(path: Path, root: ET.Element, notes: list[str]) -> tuple[str
         ET.SubElement(col, "origin", xyz=" ".join(repr(float(v)) for v in (lo + hi) / 2))
         geometry = ET.SubElement(col, "geometry")
         ET.SubElement(geometry, "box", size=" ".join(repr(float(v)) for v in hi - lo))
-    if boxed:
+        boxed.add(id(col))
+    fitted = set()
+    for link in root.findall("link"):
+        for k, el in enumerate(link.findall("collision")):
+            if id(el) in boxed:
+                fitted.add((link.get("name"), k))
+    if corners:
+        meshes = sum(len(c) for c in corners.values())
         notes.append(
-            f"{boxed} collision meshes replaced by one bounding box per link (COLLISION_BOXES)"
+            f"{meshes} collision meshes replaced by one bounding box per link (--link-boxes)"
         )
-    return meshdir_abs, meshdir_uri
+    elif boxed:
+        notes.append(
+            f"{len(boxed)} collision meshes replaced by their bounding boxes in the mesh frame, "
+            "one box per mesh (COLLISION_BOXES)"
+        )
+    return meshdir_abs, meshdir_uri, fitted

@@ -6,8 +6,12 @@ differ depends on the network: a deep or recurrent one with large activations (a
 whose cell state grows over a long sequence) rounds far above a small MLP. The gate therefore
 measures it: a float64 copy of the source (:func:`float64_twin`, ``copy.deepcopy(module)
 .double()``) runs on the very observations of the parity runs, beside the float32 source, and the
-largest ``|float32 - float64|`` is the network's *float32 noise floor* (actions and, for a
-recurrent policy, its state, each with its own floor). The tolerance is::
+largest ``|float32 - float64|`` is the network's *float32 noise floor*. Each part of the gate is
+judged against the floor measured on its own observations (``PHASES``: the parity observations
+or sequences, the closed-loop replay, the recurrent state at the end of the sequences; figure
+names ``noise_floor`` / ``tolerance`` with the prefix ``''``, ``replay_``, ``state_``), so a
+regime where float32 drifts (a long replay carrying a large LSTM state) does not loosen the
+others. The tolerance of a part is::
 
     tolerance = max(TOLERANCE, NOISE_MULTIPLIER * noise floor)
 
@@ -43,8 +47,11 @@ TOLERANCE = 1e-5
 #: tolerance = max(TOLERANCE, NOISE_MULTIPLIER x the float32 noise floor).
 NOISE_MULTIPLIER = 4.0
 #: A floor above this fraction of the largest value compared (and of 1) marks a network whose
-#: float32 result is not stable; the absolute ``TOLERANCE`` applies then.
-UNSTABLE_FRACTION = 1e-4
+#: float32 result is not stable (float32 keeps about 7 significant digits; this is 3 left); the
+#: absolute ``TOLERANCE`` applies to that part then.
+UNSTABLE_FRACTION = 1e-3
+#: The parts of the gate with their own floor, and the prefix of their figures.
+PHASES = {"observations": "", "replay": "replay_", "state": "state_"}
 
 
 def _max_abs(a: np.ndarray, b: np.ndarray) -> float:
@@ -127,8 +134,8 @@ class FloorStepper:
     recurrent parity run: ``stepper(obs)`` adds ``|action32 - action64|`` to the floor,
     ``reset(mask)`` zeroes envs on both, ``compare_states()`` adds ``|state32 - state64|``."""
 
-    def __init__(self, floor: NoiseFloor):
-        self.floor = floor
+    def __init__(self, floor: NoiseFloor, phase: str):
+        self.floor, self.phase = floor, phase
         self.f32 = _Stepper(floor.module, floor.layout, torch.float32)
         self.f64 = _Stepper(floor.twin, floor.layout, torch.float64)
 
@@ -137,11 +144,11 @@ class FloorStepper:
         self.f64.reset(envs)
 
     def __call__(self, obs: np.ndarray) -> None:
-        self.floor.actions.add(self.f32(obs), self.f64(obs))
+        self.floor.floors[self.phase].add(self.f32(obs), self.f64(obs))
 
     def compare_states(self) -> None:
         for s32, s64 in zip(self.f32.state, self.f64.state, strict=True):
-            self.floor.states.add(s32.numpy(), s64.numpy())
+            self.floor.floors["state"].add(s32.numpy(), s64.numpy())
 
 
 class NoiseFloor:
@@ -153,76 +160,69 @@ class NoiseFloor:
 
     Attributes:
         twin: The float64 copy, or None (``unavailable`` says why).
-        actions, states: :class:`_Floor` of the actions and of the recurrent state.
+        floors: A :class:`_Floor` for each of ``PHASES``.
     """
 
     def __init__(self, module: nn.Module, recurrent: bool, obs_dim: int):
         self.module, self.recurrent = module, recurrent
         self.layout = getattr(module, "layout", None)
         self.twin, self.unavailable = float64_twin(module, recurrent, obs_dim)
-        self.actions, self.states = _Floor(), _Floor()
+        self.floors = {phase: _Floor() for phase in PHASES}
 
     @property
     def measured(self) -> bool:
         return self.twin is not None
 
-    def stateless(self, obs: np.ndarray, ref32: np.ndarray) -> None:
-        """Run the twin on ``obs`` (float32 (batch, obs_dim)) and add ``|ref32 - float64|``
-        (``ref32``: the float32 module's answer on ``obs``)."""
+    def stateless(self, obs: np.ndarray, ref32: np.ndarray, phase: str = "observations") -> None:
+        """Run the twin on ``obs`` (float32 (batch, obs_dim)) and add ``|ref32 - float64|`` to
+        ``phase``'s floor (``ref32``: the float32 module's answer on ``obs``)."""
         if self.twin is None:
             return
         with torch.no_grad():
             ref64 = self.twin(torch.from_numpy(obs).double()).numpy()
-        self.actions.add(ref32, ref64)
+        self.floors[phase].add(ref32, ref64)
 
-    def stepper(self) -> FloorStepper | None:
-        """A fresh :class:`FloorStepper` (None without a twin or for a stateless source)."""
+    def stepper(self, phase: str = "observations") -> FloorStepper | None:
+        """A fresh :class:`FloorStepper` adding to ``phase``'s floor (None without a twin or for
+        a stateless source)."""
         if self.twin is None or not self.recurrent:
             return None
-        return FloorStepper(self)
+        return FloorStepper(self, phase)
 
     def tolerances(self, explicit: float | None = None) -> dict:
         """The gate's tolerances and how they were reached.
 
         Returns:
-            ``{"tolerance", "state_tolerance", "noise_floor", "state_noise_floor",
-            "noise_multiplier", "tolerance_basis"}``; the basis is 'explicit' (``explicit``
-            given), 'relative' (the floor measured), or 'absolute' (``TOLERANCE``; then
-            ``tolerance_note`` says why).
+            For each part of ``PHASES`` (the state only for a recurrent source), with its
+            prefix: ``noise_floor`` (None when not measured), ``tolerance``, and
+            ``tolerance_note`` when the absolute ``TOLERANCE`` applies (why); and
+            ``noise_multiplier``, ``tolerance_basis``: 'explicit' (``explicit`` given),
+            'relative' (the floor measured), or 'absolute' (no float64 twin).
         """
-        out = {
-            "noise_floor": self.actions.floor if self.measured else None,
-            "noise_multiplier": NOISE_MULTIPLIER,
-        }
-        if self.recurrent:
-            out["state_noise_floor"] = self.states.floor if self.measured else None
-        if explicit is not None:
-            out.update(tolerance=float(explicit), tolerance_basis="explicit")
-            if self.recurrent:
-                out["state_tolerance"] = float(explicit)
-            return out
-        note = self.unavailable
-        if self.measured:
-            floors = [("actions'", self.actions)] + [("state's", self.states)] * self.recurrent
-            for what, f in floors:
-                if not math.isfinite(f.floor) or f.floor > UNSTABLE_FRACTION * max(1.0, f.scale):
-                    note = (
-                        f"the {what} float32 noise floor {_num(f.floor)} is above "
-                        f"{UNSTABLE_FRACTION:g} of the largest value {_num(f.scale)}: the "
-                        "network is not stable in float32"
-                    )
-                    break
-        if note:
-            out.update(tolerance=TOLERANCE, tolerance_basis="absolute", tolerance_note=note)
-            if self.recurrent:
-                out["state_tolerance"] = TOLERANCE
-            return out
-        out.update(
-            tolerance=max(TOLERANCE, NOISE_MULTIPLIER * self.actions.floor),
-            tolerance_basis="relative",
-        )
-        if self.recurrent:
-            out["state_tolerance"] = max(TOLERANCE, NOISE_MULTIPLIER * self.states.floor)
+        out: dict = {"noise_multiplier": NOISE_MULTIPLIER}
+        basis = "explicit" if explicit is not None else "relative" if self.measured else "absolute"
+        out["tolerance_basis"] = basis
+        for phase, prefix in PHASES.items():
+            if phase == "state" and not self.recurrent:
+                continue
+            f = self.floors[phase]
+            out[f"{prefix}noise_floor"] = f.floor if self.measured else None
+            if basis == "explicit":
+                out[f"{prefix}tolerance"] = float(explicit)
+                continue
+            note = self.unavailable
+            if self.measured and (
+                not math.isfinite(f.floor) or f.floor > UNSTABLE_FRACTION * max(1.0, f.scale)
+            ):
+                note = (
+                    f"the float32 noise floor {_num(f.floor)} is above {UNSTABLE_FRACTION:g} of "
+                    f"the largest value {_num(f.scale)}: not stable in float32"
+                )
+            if note:
+                out[f"{prefix}tolerance"] = TOLERANCE
+                out[f"{prefix}tolerance_note"] = note
+            else:
+                out[f"{prefix}tolerance"] = max(TOLERANCE, NOISE_MULTIPLIER * f.floor)
         return out
 
 
@@ -233,20 +233,21 @@ def _num(x: float) -> str:
 
 def describe_tolerance(figures: dict, what: str = "") -> str:
     """The tolerance of ``figures`` (:meth:`NoiseFloor.tolerances`) in words, e.g.
-    ``tolerance 2.00e-04 = 4 x the float32 noise floor 5.00e-05`` (``what`` '' for actions,
-    'state_' for the recurrent state)."""
+    ``tolerance 2.00e-04 = 4 x the float32 noise floor 5.00e-05`` (``what``: the part's prefix
+    in ``PHASES``, '' for the parity observations)."""
     tol = figures[f"{what}tolerance"]
     floor = figures.get(f"{what}noise_floor")
     basis = figures.get("tolerance_basis", "absolute")
+    note = figures.get(f"{what}tolerance_note")
     k = figures.get("noise_multiplier", NOISE_MULTIPLIER)
     if basis == "explicit":
         measured = "" if floor is None else f"; float32 noise floor {_num(floor)}"
         return f"tolerance {_num(tol)} (--parity-tolerance{measured})"
-    if basis == "relative":
+    if basis == "relative" and not note:
         if k * floor >= TOLERANCE:
             return f"tolerance {_num(tol)} = {k:g} x the float32 noise floor {_num(floor)}"
         return (
             f"tolerance {_num(tol)} (the least; {k:g} x the float32 noise floor {_num(floor)} is "
             "below it)"
         )
-    return f"tolerance {_num(tol)} (absolute: {figures.get('tolerance_note', 'no floor')})"
+    return f"tolerance {_num(tol)} (absolute: {note or 'no float32 noise floor'})"

@@ -128,7 +128,7 @@ def closed_loop_parity(
     obs = np.zeros((envs, spec.obs_dim), np.float32)
     target = np.zeros((envs, n))
     worst, resets = 0.0, 0
-    twin = floor.stepper() if floor is not None and reference is not None else None
+    twin = floor.stepper("replay") if floor is not None and reference is not None else None
     for tick in range(ticks):
         if tick and tick % goal_every == 0 and not legged:
             goal = sample_goals(robot, rng, envs)
@@ -148,7 +148,7 @@ def closed_loop_parity(
             with torch.no_grad():
                 ref = module(torch.from_numpy(obs)).numpy()
             if floor is not None:
-                floor.stateless(obs, ref)
+                floor.stateless(obs, ref, "replay")
         worst = max(worst, _max_abs(action, ref))
         if not np.isfinite(action).all():
             break

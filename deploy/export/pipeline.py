@@ -22,7 +22,7 @@ import onnx
 from deploy.export.errors import ExportError, ParityError, _first_line
 from deploy.export.graph import OPSET, _recurrent_to_onnx, set_metadata, to_onnx, tool_versions
 from deploy.export.load import load_source
-from deploy.export.noise_floor import NoiseFloor, _max_abs, _num, describe_tolerance
+from deploy.export.noise_floor import PHASES, NoiseFloor, _max_abs, _num, describe_tolerance
 from deploy.export.parity import (
     PARITY_SAMPLES,
     TorchRecurrentReference,
@@ -85,16 +85,16 @@ def _check_tolerance(tolerance: float | None) -> None:
 
 
 def _parity_message(source: Path, f: dict[str, Any]) -> str:
-    """What the gate found, in one line: errors, noise floor and tolerance of actions (and of
-    the recurrent state)."""
+    """What the gate found, in one line: each part's error with its tolerance and floor."""
     text = (
         f"{source}: ONNX and torch disagree: max abs error {_num(f['max_abs_error'])} over "
-        f"{f['samples']} observations, {_num(f['replay_max_abs_error'])} over the "
-        f"{f['replay_ticks']}-tick closed-loop replay ({describe_tolerance(f)})"
+        f"{f['samples']} observations ({describe_tolerance(f)}), "
+        f"{_num(f['replay_max_abs_error'])} over the {f['replay_ticks']}-tick closed-loop replay "
+        f"({describe_tolerance(f, 'replay_')})"
     )
     if "state_max_abs_error" in f:
         state = _num(f["state_max_abs_error"])
-        text += f"; recurrent state {state} ({describe_tolerance(f, 'state_')})"
+        text += f", recurrent state {state} ({describe_tolerance(f, 'state_')})"
     return text
 
 
@@ -228,10 +228,11 @@ def _parity_gate(
     if state_err is not None:
         figures["state_max_abs_error"] = state_err
     figures.update(floor.tolerances(tolerance))
-    worst = max(figures["max_abs_error"], loop["max_abs_error"])
-    passed = worst <= figures["tolerance"]
-    if state_err is not None:
-        passed = passed and state_err <= figures["state_tolerance"]
+    passed = all(
+        figures[f"{prefix}max_abs_error"] <= figures[f"{prefix}tolerance"]
+        for prefix in PHASES.values()
+        if f"{prefix}tolerance" in figures
+    )
     if not passed:
         raise ParityError(_parity_message(source, figures), figures)
     figures["passed"] = True

@@ -134,7 +134,7 @@ def test_a_wrong_export_fails_and_is_kept_under_a_failed_name(wide, tmp_path, ca
         main([str(src), "--spec", str(spec), "--out", str(out), "--parity-tolerance", "1e3"]) == 0
     )
     stdout = capsys.readouterr().out
-    assert "(--parity-tolerance; float32 noise floor" in stdout
+    assert "from --parity-tolerance, float32 noise floor" in stdout
     assert folder(tmp_path) == {"wide.onnx"}
     assert (
         json.loads({p.key: p.value for p in onnx.load(str(out)).metadata_props}["parity"])[
@@ -167,4 +167,4 @@ def test_a_source_that_cannot_run_in_float64_keeps_the_absolute_tolerance_and_sa
     spec = write_spec(make_spec(arm3), tmp_path / "spec.json")
     assert main([str(src), "--spec", str(spec)]) == 0
     stdout = capsys.readouterr().out
-    assert "tolerance 1.00e-05 (absolute: the source cannot run in float64" in stdout
+    assert "tolerance 1.00e-05, absolute: the source cannot run in float64" in stdout

@@ -5,6 +5,7 @@ Usage::
     policy-export SOURCE [--spec SPEC.json] [--out FILE.onnx] [--trust-pickle]
                   [--vecnormalize FILE(.npz|.json|.pkl)] [--activation elu|tanh|relu]
                   [--robot NAME|PATH] [--exporter torchscript|dynamo] [--parity-tolerance X]
+    policy-export SOURCE --from-config DEPLOY.yaml --robot DIR [--write-robot]
     policy-export --inspect FILE     # what FILE is (deploy.export.inspect_policy); nothing exported
 
 ``SOURCE`` is a file (a bare name that does not exist as given is looked up in ``policies/``); the
@@ -15,6 +16,11 @@ folder and is moved into place (``os.replace``) last; an ONNX file already at th
 left untouched by a failed export. A candidate that fails the parity gate is kept beside it as
 ``<stem>.parity-failed.onnx`` (:func:`~deploy.export.pipeline.failed_path`; its ``parity``
 metadata says ``"passed": false``) and named in the error; a later successful export removes it.
+
+``--from-config`` takes the spec from a legged_gym / unitree_rl_gym deploy config (YAML) and a
+robot folder instead of ``--spec`` (:mod:`deploy.export.deploy_config`: unitree_rl_gym's
+deploy_mujoco observation and action); the robot's kp, kd and home must equal the config's, or
+``--write-robot`` writes them into its robot.toml (:mod:`robots.pd_gains`).
 
 Input formats (detected from the content, not the file name):
 
@@ -117,6 +123,7 @@ module                      what it holds
 :mod:`~.graph`              the ONNX graph (exporters, checker, metadata)
 :mod:`~.parity`             the parity gate
 :mod:`~.noise_floor`        the gate's tolerance: the float32 noise floor of the source
+:mod:`~.deploy_config`      ``--from-config``: a legged_gym deploy config as the spec
 :mod:`~.inspect_policy`     ``policy-export --inspect``
 :mod:`~.errors`             :class:`ExportError`, :class:`ParityError`
 ==========================  ==================================================================

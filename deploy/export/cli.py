@@ -142,12 +142,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     print(
         f"  closed-loop replay ({f['replay_ticks']} ticks, {f['replay_envs']} envs): max |onnx - "
-        f"torch| {f['replay_max_abs_error']:.2e}; {describe_tolerance(f, 'replay_')}"
+        f"torch| {f['replay_max_abs_error']:.2e}; "
+        f"{describe_tolerance(f, 'replay_', f.get('tolerance_note', ''))}"
     )
     if "state_max_abs_error" in f:
         print(
             f"  recurrent state: max |onnx - torch| {f['state_max_abs_error']:.2e}; "
-            f"{describe_tolerance(f, 'state_')}"
+            f"{describe_tolerance(f, 'state_', f.get('tolerance_note', ''))}"
         )
     print(f"  export time {result.seconds:.2f} s; {result.exporter}")
     if args.from_config is not None:

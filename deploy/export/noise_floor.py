@@ -22,6 +22,8 @@ floor cannot be measured:
 
 - the source cannot run in float64 (a TorchScript module whose code fixes float32, a copy that
   fails): the reason is named in the figures and messages;
+- the source is not deterministic (a second float32 run on the same observations answers
+  differently): its noise is not rounding;
 - the floor is not finite, or above ``UNSTABLE_FRACTION`` of the largest value compared (the
   network's float32 result is not stable: a tolerance scaled on it would accept anything).
 
@@ -143,8 +145,14 @@ class FloorStepper:
         self.f32.reset(envs)
         self.f64.reset(envs)
 
-    def __call__(self, obs: np.ndarray) -> None:
-        self.floor.floors[self.phase].add(self.f32(obs), self.f64(obs))
+    def __call__(self, obs: np.ndarray, ref32: np.ndarray | None = None) -> None:
+        """Step both on ``obs``; ``ref32``: the float32 source's own answer on it in the parity
+        run, which this second float32 run must repeat bit for bit (else the source is not
+        deterministic and has no floor)."""
+        action32 = self.f32(obs)
+        if ref32 is not None and not np.array_equal(action32, ref32):
+            self.floor.nondeterministic = True
+        self.floor.floors[self.phase].add(action32, self.f64(obs))
 
     def compare_states(self) -> None:
         for s32, s64 in zip(self.f32.state, self.f64.state, strict=True):
@@ -168,18 +176,24 @@ class NoiseFloor:
         self.layout = getattr(module, "layout", None)
         self.twin, self.unavailable = float64_twin(module, recurrent, obs_dim)
         self.floors = {phase: _Floor() for phase in PHASES}
+        #: the source answered the same observation differently twice (noise in its forward)
+        self.nondeterministic = False
 
     @property
     def measured(self) -> bool:
-        return self.twin is not None
+        return self.twin is not None and not self.nondeterministic
 
     def stateless(self, obs: np.ndarray, ref32: np.ndarray, phase: str = "observations") -> None:
         """Run the twin on ``obs`` (float32 (batch, obs_dim)) and add ``|ref32 - float64|`` to
-        ``phase``'s floor (``ref32``: the float32 module's answer on ``obs``)."""
+        ``phase``'s floor (``ref32``: the float32 module's answer on ``obs``, which a second
+        float32 run must repeat bit for bit, else the source is not deterministic)."""
         if self.twin is None:
             return
         with torch.no_grad():
+            again = self.module(torch.from_numpy(obs)).numpy()
             ref64 = self.twin(torch.from_numpy(obs).double()).numpy()
+        if not np.array_equal(again, ref32):
+            self.nondeterministic = True
         self.floors[phase].add(ref32, ref64)
 
     def stepper(self, phase: str = "observations") -> FloorStepper | None:
@@ -201,16 +215,22 @@ class NoiseFloor:
         """
         out: dict = {"noise_multiplier": NOISE_MULTIPLIER}
         basis = "explicit" if explicit is not None else "relative" if self.measured else "absolute"
+        measured = self.twin is not None
         out["tolerance_basis"] = basis
         for phase, prefix in PHASES.items():
             if phase == "state" and not self.recurrent:
                 continue
             f = self.floors[phase]
-            out[f"{prefix}noise_floor"] = f.floor if self.measured else None
+            out[f"{prefix}noise_floor"] = f.floor if measured else None
             if basis == "explicit":
                 out[f"{prefix}tolerance"] = float(explicit)
                 continue
-            note = self.unavailable
+            note = self.unavailable or (
+                "the source answers the same observation differently (not deterministic): no "
+                "float32 noise floor"
+                if self.nondeterministic
+                else ""
+            )
             if self.measured and (
                 not math.isfinite(f.floor) or f.floor > UNSTABLE_FRACTION * max(1.0, f.scale)
             ):
@@ -231,23 +251,25 @@ def _num(x: float) -> str:
     return f"{x:.3g}" if x == 0 or not math.isfinite(x) or abs(x) >= 1e-3 else f"{x:.2e}"
 
 
-def describe_tolerance(figures: dict, what: str = "") -> str:
+def describe_tolerance(figures: dict, what: str = "", note_said: str = "") -> str:
     """The tolerance of ``figures`` (:meth:`NoiseFloor.tolerances`) in words, e.g.
     ``tolerance 2.00e-04 = 4 x the float32 noise floor 5.00e-05`` (``what``: the part's prefix
-    in ``PHASES``, '' for the parity observations)."""
+    in ``PHASES``, '' for the parity observations); an absolute tolerance's reason is given
+    unless it is ``note_said`` (said already: 'as above')."""
     tol = figures[f"{what}tolerance"]
     floor = figures.get(f"{what}noise_floor")
     basis = figures.get("tolerance_basis", "absolute")
     note = figures.get(f"{what}tolerance_note")
     k = figures.get("noise_multiplier", NOISE_MULTIPLIER)
     if basis == "explicit":
-        measured = "" if floor is None else f"; float32 noise floor {_num(floor)}"
-        return f"tolerance {_num(tol)} (--parity-tolerance{measured})"
+        measured = "" if floor is None else f", float32 noise floor {_num(floor)}"
+        return f"tolerance {_num(tol)} from --parity-tolerance{measured}"
     if basis == "relative" and not note:
         if k * floor >= TOLERANCE:
             return f"tolerance {_num(tol)} = {k:g} x the float32 noise floor {_num(floor)}"
         return (
-            f"tolerance {_num(tol)} (the least; {k:g} x the float32 noise floor {_num(floor)} is "
-            "below it)"
+            f"tolerance {_num(tol)}, the least: {k:g} x the float32 noise floor {_num(floor)} is "
+            "below it"
         )
-    return f"tolerance {_num(tol)} (absolute: {note or 'no float32 noise floor'})"
+    note = note or "no float32 noise floor"
+    return f"tolerance {_num(tol)}, absolute: {'as above' if note == note_said else note}"

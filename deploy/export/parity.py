@@ -143,7 +143,7 @@ def closed_loop_parity(
         if reference is not None:
             ref = reference(obs)
             if twin is not None:
-                twin(obs)
+                twin(obs, ref)
         else:
             with torch.no_grad():
                 ref = module(torch.from_numpy(obs)).numpy()
@@ -240,9 +240,10 @@ def sequence_parity(
             ref.reset(mask)
             if twin is not None:
                 twin.reset(mask)
-        worst = max(worst, _max_abs(policy(walk[t]).copy(), ref(walk[t])))
+        expected = ref(walk[t])
+        worst = max(worst, _max_abs(policy(walk[t]).copy(), expected))
         if twin is not None:
-            twin(walk[t])
+            twin(walk[t], expected)
         compared += envs
     state_err = 0.0
     for s, t in zip(policy.states, ref.state, strict=True):
@@ -251,9 +252,10 @@ def sequence_parity(
         twin.compare_states()
     policy.reset(np.ones(1, dtype=bool))
     for t in range(SEQUENCE_BATCH1_STEPS):
-        worst = max(worst, _max_abs(policy(walk[t, :1]).copy(), ref(walk[t, :1])))
+        expected = ref(walk[t, :1])
+        worst = max(worst, _max_abs(policy(walk[t, :1]).copy(), expected))
         if twin is not None:
-            twin(walk[t, :1])
+            twin(walk[t, :1], expected)
         compared += 1
     return worst, state_err, compared
 

@@ -86,16 +86,19 @@ def _check_tolerance(tolerance: float | None) -> None:
 
 def _parity_message(source: Path, f: dict[str, Any]) -> str:
     """What the gate found, in one line: each part's error with its tolerance and floor."""
-    text = (
-        f"{source}: ONNX and torch disagree: max abs error {_num(f['max_abs_error'])} over "
-        f"{f['samples']} observations ({describe_tolerance(f)}), "
-        f"{_num(f['replay_max_abs_error'])} over the {f['replay_ticks']}-tick closed-loop replay "
-        f"({describe_tolerance(f, 'replay_')})"
-    )
-    if "state_max_abs_error" in f:
-        state = _num(f["state_max_abs_error"])
-        text += f", recurrent state {state} ({describe_tolerance(f, 'state_')})"
-    return text
+    parts = [
+        ("", f"{f['samples']} observations"),
+        ("replay_", f"the {f['replay_ticks']}-tick closed-loop replay"),
+        ("state_", "the recurrent state"),
+    ]
+    said, text = "", []
+    for prefix, where in parts:
+        if f"{prefix}max_abs_error" not in f:
+            continue
+        tolerance = describe_tolerance(f, prefix, said)
+        said = f.get(f"{prefix}tolerance_note", said)
+        text.append(f"{_num(f[prefix + 'max_abs_error'])} over {where} ({tolerance})")
+    return f"{source}: ONNX and torch disagree: max abs error " + ", ".join(text)
 
 
 def run_export(

@@ -27,7 +27,7 @@ from deploy.observe.telemetry import LatencyHistogram
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import FAULT_CAUSES, Mode, Runtime
 from deploy.safety.checks import CHECKS
-from deploy.spec.policy_spec import ObservationBlock, PolicySpec
+from deploy.spec.policy_spec import ObservationBlock, PolicySpec, SpecError
 from deploy.state import Kinematics, RobotState
 from tests.runtime_fixtures import adversarial_onnx
 
@@ -245,3 +245,52 @@ def test_compiled_observation_equals_the_reference_for_every_block(request, robo
         np.testing.assert_array_equal(out_a, out_b)
         clipped += int((np.abs(out_a) == 0.8).sum())
     assert clipped > 0  # the clip ran
+
+
+def test_compiled_observation_equals_the_reference_for_the_floating_base_blocks(go2):
+    """Every floating-base block kind (base velocities, gravity, command, gait phase with its
+    period, foot contact, heading) runs in the kernel, not the reference, and equals numpy's bit
+    for bit; a fixed-base state is refused in the kernel's path as in the reference's."""
+    n, feet = go2.n_joints, go2.n_feet
+    legged = (
+        ObservationBlock("base_linear_velocity", 3, (0.5, 0.5, 0.5), (0.0,) * 3, 100.0),
+        ObservationBlock("base_angular_velocity", 3, (4.0,) * 3, (0.1, 0.0, -0.1), 100.0),
+        ObservationBlock("projected_gravity", 3, (1.0,) * 3, (0.0,) * 3, 0.9),
+        ObservationBlock("velocity_command", 3, (0.5, 0.5, 4.0), (0.0,) * 3, 100.0),
+        ObservationBlock("gait_phase", 2, (1.0, 1.0), (0.0, 0.0), 100.0, period=0.8),
+        ObservationBlock("foot_contact", feet, (1.0,) * feet, (0.0,) * feet, 5.0),
+        ObservationBlock("heading_sincos", 2, (1.0, 1.0), (0.0, 0.0), 5.0),
+        ObservationBlock("gait_phase", 2, (2.0, 2.0), (0.0, 0.0), 100.0, period=0.37),
+    )
+    base = PolicySpec.for_robot(go2)
+    spec = replace(base, observation_blocks=legged + base.observation_blocks)
+    assert spec._plan.compiled  # the kernel runs these blocks
+    envs = 4
+    rng = np.random.default_rng(5)
+    state = RobotState.legged(envs, n, feet)
+    out_a = np.zeros((envs, spec.obs_dim), dtype=np.float32)
+    out_b = np.zeros_like(out_a)
+    goal = np.zeros((envs, 3))
+    clipped = 0
+    for tick in range(300):
+        state.q[:] = rng.uniform(go2.position_lower, go2.position_upper, (envs, n))
+        state.dq[:] = rng.normal(0.0, 3.0, (envs, n))
+        state.last_action[:] = rng.uniform(-3.0, 3.0, (envs, n))
+        b = state.base
+        b.linear_velocity[:] = rng.normal(0.0, 1.0, (envs, 3))
+        b.angular_velocity[:] = rng.normal(0.0, 2.0, (envs, 3))
+        quat = rng.normal(size=(envs, 4))
+        b.orientation[:] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+        b.projected_gravity[:] = rng.normal(0.0, 0.7, (envs, 3))
+        state.command[:] = rng.uniform(-1.0, 1.0, (envs, 3))
+        state.foot_contact[:] = rng.integers(0, 2, (envs, feet))
+        state.clock[:] = tick * 0.02 + rng.uniform(0.0, 100.0, envs)
+        spec.observation(state, goal, out=out_a)
+        spec.observation(state, goal, out=out_b, reference=True)
+        np.testing.assert_array_equal(out_a, out_b)
+        clipped += int((np.abs(out_a[:, 6:9]) == np.float32(0.9)).sum())
+    assert clipped > 0  # the gravity block's clip ran
+    fixed = RobotState.zeros(envs, n)
+    for reference in (False, True):
+        with pytest.raises(SpecError, match="needs a floating-base robot's state"):
+            spec.observation(fixed, np.zeros((envs, 3)), reference=reference)

@@ -397,7 +397,13 @@ def test_parity_failure_writes_nothing(tmp_path, spec, capsys):
     with pytest.raises(ParityError, match=r"noisy.pt: ONNX and torch disagree") as info:
         export_policy(src, spec=spec, trust_pickle=True)
     assert info.value.figures["max_abs_error"] > 1e-5
-    assert folder(tmp_path) == {"noisy.pt", "noisy.onnx"}  # no temporary file
+    assert "the candidate kept as" in str(info.value)
+    # its noise is not rounding: no float32 noise floor, the absolute tolerance
+    assert "tolerance 1.00e-05, absolute: the source answers the same observation differently" in (
+        str(info.value)
+    )
+    # no temporary file; the candidate kept under a failed name
+    assert folder(tmp_path) == {"noisy.pt", "noisy.onnx", "noisy.parity-failed.onnx"}
     assert previous.read_bytes() == b"an older export"  # untouched
     spec_file = write_spec(spec, tmp_path / "spec.json")
     assert main([str(src), "--spec", str(spec_file), "--trust-pickle"]) == 1
@@ -417,8 +423,8 @@ def test_perturbed_onnx_output_fails_the_gate(tmp_path, spec, monkeypatch, capsy
     assert main([str(src)]) == 1
     err = capsys.readouterr().err
     assert re.search(r"max abs error 2\.\d+e-05 over 1049 observations", err)
-    assert "tolerance 1e-05" in err
-    assert folder(tmp_path) == {"arm.pt"}
+    assert "(tolerance 1.00e-05, the least: 4 x the float32 noise floor" in err
+    assert folder(tmp_path) == {"arm.pt", "arm.parity-failed.onnx"}
 
 
 # ---------------------------------------------------------------------- bad input

@@ -4,15 +4,23 @@ Usage::
 
     policy-export SOURCE [--spec SPEC.json] [--out FILE.onnx] [--trust-pickle]
                   [--vecnormalize FILE(.npz|.json|.pkl)] [--activation elu|tanh|relu]
-                  [--robot NAME|PATH] [--exporter torchscript|dynamo]
+                  [--robot NAME|PATH] [--exporter torchscript|dynamo] [--parity-tolerance X]
+    policy-export SOURCE --from-config DEPLOY.yaml --robot DIR [--write-robot]
     policy-export --inspect FILE     # what FILE is (deploy.export.inspect_policy); nothing exported
 
 ``SOURCE`` is a file (a bare name that does not exist as given is looked up in ``policies/``); the
 ONNX file is written beside it with the same stem unless ``--out`` is given. Exit status: 0
-exported, 1 parity failure, 2 bad input (3: internal error, a bug). Nothing is written unless
-every check passes: the graph goes to a temporary file in the destination folder and is moved into
-place (``os.replace``) last; an ONNX file already at the destination is left untouched by a failed
-export.
+exported, 1 parity failure, 2 bad input (3: internal error, a bug). Nothing is written under the
+output name unless every check passes: the graph goes to a temporary file in the destination
+folder and is moved into place (``os.replace``) last; an ONNX file already at the destination is
+left untouched by a failed export. A candidate that fails the parity gate is kept beside it as
+``<stem>.parity-failed.onnx`` (:func:`~deploy.export.pipeline.failed_path`; its ``parity``
+metadata says ``"passed": false``) and named in the error; a later successful export removes it.
+
+``--from-config`` takes the spec from a legged_gym / unitree_rl_gym deploy config (YAML) and a
+robot folder instead of ``--spec`` (:mod:`deploy.export.deploy_config`: unitree_rl_gym's
+deploy_mujoco observation and action); the robot's kp, kd and home must equal the config's, or
+``--write-robot`` writes them into its robot.toml (:mod:`robots.pd_gains`).
 
 Input formats (detected from the content, not the file name):
 
@@ -76,8 +84,14 @@ sequential steps, state carried, resets half way), and the replay of step 2 carr
 both sides. A source that runs as it is (legged_gym's stateful TorchScript) is also stepped
 against the ONNX for 500 steps at batch 1 (figures ``source_max_abs_error``, ``source_steps``).
 
-Parity gate (tolerance ``TOLERANCE`` = 1e-5, max abs error over all action entries), both run
-through :class:`deploy.policy.onnx_policy.OnnxPolicy` exactly as the runtime runs it:
+Parity gate (max abs error over all action entries), both run through
+:class:`deploy.policy.onnx_policy.OnnxPolicy` exactly as the runtime runs it. The tolerance is
+judged against what float32 can reach (:mod:`deploy.export.noise_floor`): a float64 copy of the
+source runs on the same observations, the largest ``|float32 - float64|`` is the network's float32
+noise floor, and the tolerance is ``max(TOLERANCE, NOISE_MULTIPLIER x floor)`` (1e-5, 4); a
+recurrent state is judged the same way against its own floor. A source that cannot run in float64
+keeps the absolute ``TOLERANCE`` (the figures and messages say why); ``--parity-tolerance X`` sets
+the tolerance. The runs:
     1. 1,000 observations uniform in [-1.2, 1.2] per normalized entry, plus edge cases (zeros,
        +-1, +-1.2, +- each block's clip, each entry alone at +-1), in one batch and the first 32
        again one by one (batch 1), ONNX Runtime vs the torch module (normalizer and clip included);
@@ -108,6 +122,8 @@ module                      what it holds
 :mod:`~.recurrent`          the recurrent module with explicit state I/O
 :mod:`~.graph`              the ONNX graph (exporters, checker, metadata)
 :mod:`~.parity`             the parity gate
+:mod:`~.noise_floor`        the gate's tolerance: the float32 noise floor of the source
+:mod:`~.deploy_config`      ``--from-config``: a legged_gym deploy config as the spec
 :mod:`~.inspect_policy`     ``policy-export --inspect``
 :mod:`~.errors`             :class:`ExportError`, :class:`ParityError`
 ==========================  ==================================================================
@@ -133,6 +149,7 @@ from deploy.export.graph import (
 )
 from deploy.export.load import load_source
 from deploy.export.network import check_finite_tensors
+from deploy.export.noise_floor import NOISE_MULTIPLIER, NoiseFloor
 from deploy.export.parity import (
     GOAL_PERIOD,
     PARITY_BATCH1,
@@ -145,7 +162,7 @@ from deploy.export.parity import (
     sample_goals,
     static_parity,
 )
-from deploy.export.pipeline import ExportResult, export_policy, run_export
+from deploy.export.pipeline import ExportResult, export_policy, failed_path, run_export
 from deploy.export.rsl_rl import RSL_RL_EPS, rsl_rl_normalizer
 from deploy.export.sb3 import sb3_actor
 from deploy.export.source import (
@@ -165,6 +182,7 @@ __all__ = [
     "EXIT_PARITY",
     "EXPORTERS",
     "GOAL_PERIOD",
+    "NOISE_MULTIPLIER",
     "OPSET",
     "PARITY_BATCH1",
     "PARITY_SAMPLES",
@@ -176,6 +194,7 @@ __all__ = [
     "ActionClip",
     "ExportError",
     "ExportResult",
+    "NoiseFloor",
     "Normalize",
     "NormalizeNoClip",
     "ParityError",
@@ -183,6 +202,7 @@ __all__ = [
     "check_finite_tensors",
     "closed_loop_parity",
     "export_policy",
+    "failed_path",
     "load_source",
     "load_torchscript",
     "load_vecnormalize",

@@ -1,7 +1,8 @@
 """The parity gate: the ONNX graph, run through :class:`deploy.policy.onnx_policy.OnnxPolicy`
-exactly as the
-runtime runs it, against the torch module (tolerance ``TOLERANCE`` = 1e-5, max abs error over all
-action entries).
+exactly as the runtime runs it, against the torch module (max abs error over all action entries;
+the tolerance is judged against the network's own float32 noise floor, measured on the same
+observations by a float64 copy of the source when it has one, at least ``TOLERANCE`` = 1e-5:
+:mod:`deploy.export.noise_floor`).
 
 1. :func:`static_parity`: ``PARITY_SAMPLES`` observations uniform in [-1.2, 1.2] per normalized
    entry, plus edge cases (:func:`parity_observations`), in one batch and the first
@@ -20,7 +21,6 @@ as it is (legged_gym's stateful TorchScript) is also stepped against the ONNX at
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -28,13 +28,13 @@ import torch
 from torch import nn
 
 from deploy.backends.sim.plant import NonFiniteCommandError, SimBackend, SimulationDivergedError
+from deploy.export.noise_floor import TOLERANCE, NoiseFloor, _max_abs  # noqa: F401 - TOLERANCE
 from deploy.export.recurrent import RecurrentPolicyModule
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.spec.policy_spec import PolicySpec
 from deploy.state import Kinematics, RobotState
 from robots import Robot
 
-TOLERANCE = 1e-5
 PARITY_SAMPLES = 1000
 PARITY_BATCH1 = 32
 REPLAY_TICKS = 1000
@@ -46,12 +46,6 @@ SEQUENCE_ENVS = 4
 SEQUENCE_BATCH1_STEPS = 100
 #: Per-step standard deviation of the random walk through the normalized observation space.
 WALK_SIGMA = 0.15
-
-
-def _max_abs(a: np.ndarray, b: np.ndarray) -> float:
-    if a.shape != b.shape or not (np.isfinite(a).all() and np.isfinite(b).all()):
-        return math.inf
-    return float(np.max(np.abs(a.astype(np.float64) - b.astype(np.float64)), initial=0.0))
 
 
 def parity_observations(spec: PolicySpec, samples: int, rng: np.random.Generator) -> np.ndarray:
@@ -75,12 +69,20 @@ def sample_goals(robot: Robot, rng: np.random.Generator, envs: int) -> np.ndarra
 
 
 def static_parity(
-    policy: OnnxPolicy, module: nn.Module, spec: PolicySpec, samples: int, seed: int
+    policy: OnnxPolicy,
+    module: nn.Module,
+    spec: PolicySpec,
+    samples: int,
+    seed: int,
+    floor: NoiseFloor | None = None,
 ) -> tuple[float, int]:
-    """Max abs error ONNX vs torch over the parity observations (batch and batch-1 runs)."""
+    """Max abs error ONNX vs torch over the parity observations (batch and batch-1 runs);
+    ``floor`` (if given) measures the float32 noise floor on the same observations."""
     obs = parity_observations(spec, samples, np.random.default_rng(seed))
     with torch.no_grad():
         ref = module(torch.from_numpy(obs)).numpy()
+    if floor is not None:
+        floor.stateless(obs, ref)
     err = _max_abs(policy(obs).copy(), ref)
     for i in range(min(PARITY_BATCH1, len(obs))):
         err = max(err, _max_abs(policy(obs[i : i + 1]).copy(), ref[i : i + 1]))
@@ -95,13 +97,15 @@ def closed_loop_parity(
     envs: int = REPLAY_ENVS,
     seed: int = 0,
     reference=None,
+    floor: NoiseFloor | None = None,
 ) -> dict[str, Any]:
     """Drive the MuJoCo plant with the ONNX policy for ``ticks`` control ticks and compare torch
     and ONNX actions at every tick.
 
     ``reference(obs) -> action`` (numpy, (envs, act_dim)) replaces ``module`` as the torch side
     when given (a recurrent policy's :class:`TorchRecurrentReference`,
-    which carries the state as the ONNX policy does).
+    which carries the state as the ONNX policy does). ``floor`` (if given) runs the float64 twin
+    on the same observations (:mod:`deploy.export.noise_floor`).
 
     Returns:
         ``{"max_abs_error", "ticks", "envs", "mode", "plant_resets"}``.
@@ -124,6 +128,7 @@ def closed_loop_parity(
     obs = np.zeros((envs, spec.obs_dim), np.float32)
     target = np.zeros((envs, n))
     worst, resets = 0.0, 0
+    twin = floor.stepper("replay") if floor is not None and reference is not None else None
     for tick in range(ticks):
         if tick and tick % goal_every == 0 and not legged:
             goal = sample_goals(robot, rng, envs)
@@ -137,9 +142,13 @@ def closed_loop_parity(
         action = policy(obs)
         if reference is not None:
             ref = reference(obs)
+            if twin is not None:
+                twin(obs, ref)
         else:
             with torch.no_grad():
                 ref = module(torch.from_numpy(obs)).numpy()
+            if floor is not None:
+                floor.stateless(obs, ref, "replay")
         worst = max(worst, _max_abs(action, ref))
         if not np.isfinite(action).all():
             break
@@ -194,27 +203,33 @@ class TorchRecurrentReference:
 
 
 def sequence_parity(
-    policy, module: RecurrentPolicyModule, spec: PolicySpec, seed: int
-) -> tuple[float, int]:
+    policy,
+    module: RecurrentPolicyModule,
+    spec: PolicySpec,
+    seed: int,
+    floor: NoiseFloor | None = None,
+) -> tuple[float, float, int]:
     """Max abs error ONNX vs torch over sequences, the state carried on both sides.
 
     ``SEQUENCE_ENVS`` envs walk ``SEQUENCE_STEPS`` steps through [-1.2, 1.2]^obs_dim (random walk,
     ``WALK_SIGMA`` a step); at the half, envs 0 and 2 are reset on both sides (``policy.reset``);
     then env 0's walk again at batch 1 for ``SEQUENCE_BATCH1_STEPS`` steps. Actions and the final
-    states are compared.
+    states of the first part are compared.
 
     Args:
         policy: The :class:`deploy.policy.onnx_policy.OnnxPolicy` under test. module: The torch
-        module.
+        module. floor: Measures the float32 noise floor of actions and state on the same walk
+        (:mod:`deploy.export.noise_floor`).
 
     Returns:
-        ``(max_abs_error, actions compared)``.
+        ``(max abs error of the actions, max abs error of the final state, actions compared)``.
     """
     rng = np.random.default_rng(seed)
     envs, d = SEQUENCE_ENVS, spec.obs_dim
     steps = rng.normal(0.0, WALK_SIGMA, (SEQUENCE_STEPS, envs, d))
     walk = np.clip(np.cumsum(steps, axis=0), -1.2, 1.2).astype(np.float32)
     ref = TorchRecurrentReference(module)
+    twin = floor.stepper() if floor is not None else None
     worst, compared = 0.0, 0
     mask = np.zeros(envs, dtype=bool)
     mask[::2] = True
@@ -223,18 +238,31 @@ def sequence_parity(
         if t == SEQUENCE_STEPS // 2:
             policy.reset(mask)
             ref.reset(mask)
-        worst = max(worst, _max_abs(policy(walk[t]).copy(), ref(walk[t])))
+            if twin is not None:
+                twin.reset(mask)
+        expected = ref(walk[t])
+        worst = max(worst, _max_abs(policy(walk[t]).copy(), expected))
+        if twin is not None:
+            twin(walk[t], expected)
         compared += envs
+    state_err = 0.0
     for s, t in zip(policy.states, ref.state, strict=True):
-        worst = max(worst, _max_abs(policy.state_dict()[s.input], t.numpy()))
+        state_err = max(state_err, _max_abs(policy.state_dict()[s.input], t.numpy()))
+    if twin is not None:
+        twin.compare_states()
     policy.reset(np.ones(1, dtype=bool))
     for t in range(SEQUENCE_BATCH1_STEPS):
-        worst = max(worst, _max_abs(policy(walk[t, :1]).copy(), ref(walk[t, :1])))
+        expected = ref(walk[t, :1])
+        worst = max(worst, _max_abs(policy(walk[t, :1]).copy(), expected))
+        if twin is not None:
+            twin(walk[t, :1], expected)
         compared += 1
-    return worst, compared
+    return worst, state_err, compared
 
 
-def source_sequence_parity(policy, reference, spec: PolicySpec, seed: int) -> tuple[float, int]:
+def source_sequence_parity(
+    policy, reference, spec: PolicySpec, seed: int, floor: NoiseFloor | None = None
+) -> tuple[float, int]:
     """Max abs error ONNX vs the source itself, stepped at batch 1 with its own state.
 
     For sources whose original form can be run (a stateful TorchScript file,
@@ -244,8 +272,9 @@ def source_sequence_parity(policy, reference, spec: PolicySpec, seed: int) -> tu
 
     Args:
         policy: The :class:`deploy.policy.onnx_policy.OnnxPolicy` under test. reference:
-        ``ref(obs)`` ->
-            action (1, act_dim), clip applied, with ``reset()``. spec: The PolicySpec.
+            ``ref(obs)`` -> action (1, act_dim), clip applied, with ``reset()``.
+        spec: The PolicySpec. floor: Measures the float32 noise floor on the same walk (the
+            rebuilt module in float32 and float64, not the source file).
 
     Returns:
         ``(max_abs_error, actions compared)``.
@@ -253,6 +282,7 @@ def source_sequence_parity(policy, reference, spec: PolicySpec, seed: int) -> tu
     rng = np.random.default_rng(seed + 1)
     steps = rng.normal(0.0, WALK_SIGMA, (SEQUENCE_STEPS, 1, spec.obs_dim))
     walk = np.clip(np.cumsum(steps, axis=0), -1.2, 1.2).astype(np.float32)
+    twin = floor.stepper() if floor is not None else None
     one = np.ones(1, dtype=bool)
     policy.reset(one)
     reference.reset()
@@ -261,5 +291,9 @@ def source_sequence_parity(policy, reference, spec: PolicySpec, seed: int) -> tu
         if t == SEQUENCE_STEPS // 2:
             policy.reset(one)
             reference.reset()
+            if twin is not None:
+                twin.reset()
         worst = max(worst, _max_abs(policy(walk[t]).copy(), reference(walk[t])))
+        if twin is not None:
+            twin(walk[t])
     return worst, SEQUENCE_STEPS

@@ -1,7 +1,9 @@
 """The export itself: :func:`export_policy` (and :func:`run_export`, which returns the figures as
 an :class:`ExportResult`) loads the source, builds the ONNX graph, writes it under a temporary name
 in the destination folder, runs the parity gate on it, and moves it into place only if every check
-passes.
+passes. A candidate that fails the gate is kept under :func:`failed_path` (``<stem>.parity-failed
+.onnx`` beside the destination, its ``parity`` metadata saying ``"passed": false``) for
+inspection; nothing is written under the real name.
 """
 
 from __future__ import annotations
@@ -20,11 +22,10 @@ import onnx
 from deploy.export.errors import ExportError, ParityError, _first_line
 from deploy.export.graph import OPSET, _recurrent_to_onnx, set_metadata, to_onnx, tool_versions
 from deploy.export.load import load_source
+from deploy.export.noise_floor import PHASES, NoiseFloor, _max_abs, _num, describe_tolerance
 from deploy.export.parity import (
     PARITY_SAMPLES,
-    TOLERANCE,
     TorchRecurrentReference,
-    _max_abs,
     closed_loop_parity,
     parity_observations,
     sequence_parity,
@@ -34,7 +35,10 @@ from deploy.export.parity import (
 from deploy.policy.onnx_policy import OnnxPolicy, PolicyLoadError
 from deploy.spec.policy_spec import PolicySpec, SpecError
 from robots import Robot, load_robot
-from robots.files import atomic_path, sha256_file
+from robots.files import atomic_path, atomic_write, sha256_file
+
+#: The name a candidate that fails the parity gate is kept under (see :func:`failed_path`).
+FAILED_SUFFIX = ".parity-failed.onnx"
 
 
 @dataclass(frozen=True)
@@ -68,6 +72,35 @@ def _write(model: onnx.ModelProto, path: Path) -> None:
     path.write_bytes(model.SerializeToString())  # fsync-ed by atomic_path before the rename
 
 
+def failed_path(out: str | os.PathLike) -> Path:
+    """Where a candidate that failed the parity gate is kept: ``<stem>.parity-failed.onnx``
+    beside ``out`` (``h1.onnx`` -> ``h1.parity-failed.onnx``)."""
+    out = Path(out)
+    return out.with_name(out.stem + FAILED_SUFFIX)
+
+
+def _check_tolerance(tolerance: float | None) -> None:
+    if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
+        raise ExportError(f"--parity-tolerance: expected a finite number > 0, got {tolerance}")
+
+
+def _parity_message(source: Path, f: dict[str, Any]) -> str:
+    """What the gate found, in one line: each part's error with its tolerance and floor."""
+    parts = [
+        ("", f"{f['samples']} observations"),
+        ("replay_", f"the {f['replay_ticks']}-tick closed-loop replay"),
+        ("state_", "the recurrent state"),
+    ]
+    said, text = "", []
+    for prefix, where in parts:
+        if f"{prefix}max_abs_error" not in f:
+            continue
+        tolerance = describe_tolerance(f, prefix, said)
+        said = f.get(f"{prefix}tolerance_note", said)
+        text.append(f"{_num(f[prefix + 'max_abs_error'])} over {where} ({tolerance})")
+    return f"{source}: ONNX and torch disagree: max abs error " + ", ".join(text)
+
+
 def run_export(
     source: str | os.PathLike,
     out: str | os.PathLike | None = None,
@@ -78,10 +111,12 @@ def run_export(
     robot: Robot | str | os.PathLike | None = None,
     exporter: str = "torchscript",
     seed: int = 0,
+    tolerance: float | None = None,
 ) -> ExportResult:
     """:func:`export_policy`, returning the parity figures and timing as well."""
     t0 = time.perf_counter()
     source = Path(source)
+    _check_tolerance(tolerance)
     src = load_source(source, spec, trust_pickle, vecnormalize, activation)
     out = source.with_suffix(".onnx") if out is None else Path(out)
     if out.resolve() == source.resolve():
@@ -128,41 +163,12 @@ def run_export(
                 raise ExportError(
                     f"the exported graph does not load in the runtime: {exc}"
                 ) from None
-            reference = None
-            if src.recurrent:
-                static_err, n_samples = sequence_parity(policy, module, src.spec, seed)
-                reference = TorchRecurrentReference(module)
-            else:
-                static_err, n_samples = static_parity(
-                    policy, module, src.spec, PARITY_SAMPLES, seed
-                )
-            loop = closed_loop_parity(policy, module, the_robot, seed=seed, reference=reference)
-            figures = {
-                "tolerance": TOLERANCE,
-                "max_abs_error": static_err,
-                "samples": n_samples,
-                "replay_max_abs_error": loop["max_abs_error"],
-                "replay_ticks": loop["ticks"],
-                "replay_envs": loop["envs"],
-                "replay_mode": loop["mode"],
-                "replay_plant_resets": loop["plant_resets"],
-            }
-            worst = max(static_err, loop["max_abs_error"])
-            if src.sequence_reference is not None:
-                src_err, src_steps = source_sequence_parity(
-                    policy, src.sequence_reference(), src.spec, seed
-                )
-                figures.update(source_max_abs_error=src_err, source_steps=src_steps)
-                worst = max(worst, src_err)
-                static_err = max(static_err, src_err)
-            if not worst <= TOLERANCE:
-                raise ParityError(
-                    f"{source}: ONNX and torch disagree: max abs error {static_err:.3g} over "
-                    f"{n_samples} observations, {loop['max_abs_error']:.3g} over the "
-                    f"{loop['ticks']}-tick closed-loop replay (tolerance {TOLERANCE:g}); nothing "
-                    "written",
-                    figures,
-                )
+            try:
+                figures = _parity_gate(source, policy, module, src, the_robot, seed, tolerance)
+            except ParityError as exc:
+                kept = _keep_failed(model, pending, base_meta, exc.figures, out)
+                message = f"{exc}; nothing written, the candidate kept as {kept}"
+                raise ParityError(message, exc.figures) from None
             final = dataclasses.replace(src.spec, baked=baked, parity=figures)
             set_metadata(
                 model,
@@ -175,6 +181,7 @@ def run_export(
                 raise ParityError(f"{source}: the final file gives different actions", figures)
     except OSError as exc:
         raise ExportError(f"{out}: cannot write in {out.parent}: {exc.strerror or exc}") from None
+    failed_path(out).unlink(missing_ok=True)  # a candidate kept by an earlier failed export
     return ExportResult(
         path=out,
         source_format=src.source_format,
@@ -183,6 +190,67 @@ def run_export(
         spec=final,
         exporter=exporter_text,
     )
+
+
+def _parity_gate(
+    source: Path, policy, module, src, robot: Robot, seed: int, tolerance: float | None
+) -> dict:
+    """Run the parity runs (:mod:`deploy.export.parity`) with the float32 noise floor measured
+    beside them (:mod:`deploy.export.noise_floor`) and judge them.
+
+    Returns:
+        The parity figures (errors, observations compared, replay, floors, tolerances).
+
+    Raises:
+        ParityError: an error above its tolerance (actions, or a recurrent state).
+    """
+    spec = src.spec
+    floor = NoiseFloor(module, src.recurrent, spec.obs_dim)
+    reference, state_err = None, None
+    if src.recurrent:
+        static_err, state_err, n_samples = sequence_parity(policy, module, spec, seed, floor)
+        reference = TorchRecurrentReference(module)
+    else:
+        static_err, n_samples = static_parity(policy, module, spec, PARITY_SAMPLES, seed, floor)
+    loop = closed_loop_parity(policy, module, robot, seed=seed, reference=reference, floor=floor)
+    figures = {
+        "max_abs_error": static_err,
+        "samples": n_samples,
+        "replay_max_abs_error": loop["max_abs_error"],
+        "replay_ticks": loop["ticks"],
+        "replay_envs": loop["envs"],
+        "replay_mode": loop["mode"],
+        "replay_plant_resets": loop["plant_resets"],
+    }
+    if src.sequence_reference is not None:
+        src_err, src_steps = source_sequence_parity(
+            policy, src.sequence_reference(), spec, seed, floor
+        )
+        figures.update(source_max_abs_error=src_err, source_steps=src_steps)
+        figures["max_abs_error"] = max(static_err, src_err)
+    if state_err is not None:
+        figures["state_max_abs_error"] = state_err
+    figures.update(floor.tolerances(tolerance))
+    passed = all(
+        figures[f"{prefix}max_abs_error"] <= figures[f"{prefix}tolerance"]
+        for prefix in PHASES.values()
+        if f"{prefix}tolerance" in figures
+    )
+    if not passed:
+        raise ParityError(_parity_message(source, figures), figures)
+    figures["passed"] = True
+    return figures
+
+
+def _keep_failed(
+    model: onnx.ModelProto, spec: PolicySpec, meta: dict, figures: dict, out: Path
+) -> Path:
+    """Write the candidate that failed the gate to :func:`failed_path` (its ``parity`` metadata
+    with ``"passed": false``); returns the path."""
+    figures = {**figures, "passed": False}
+    failed = dataclasses.replace(spec, parity=figures)
+    set_metadata(model, {"policy_spec": failed.to_json(), **meta, "parity": json.dumps(figures)})
+    return atomic_write(failed_path(out), model.SerializeToString())
 
 
 def export_policy(
@@ -195,6 +263,7 @@ def export_policy(
     robot: Robot | str | os.PathLike | None = None,
     exporter: str = "torchscript",
     seed: int = 0,
+    tolerance: float | None = None,
 ) -> Path:
     """Export a trained policy to ONNX with its PolicySpec, after the parity gate.
 
@@ -210,6 +279,9 @@ def export_policy(
         robot: Robot (or name / path) to check against and replay on; default the spec's robot.
         exporter: 'torchscript' (default) or 'dynamo'.
         seed: Seed of the parity observations, goals and plant noise.
+        tolerance: The parity tolerance (max abs error, action units and recurrent state);
+            default ``max(TOLERANCE, NOISE_MULTIPLIER x`` the source's float32 noise floor``)``
+            (:mod:`deploy.export.noise_floor`).
 
     Returns:
         The ONNX file written.
@@ -218,9 +290,9 @@ def export_policy(
         ExportError: bad input (missing, truncated or corrupt file; unknown format; missing spec;
             wrong input or output size; non-finite weights; spec/robot mismatch; untrusted
             pickle). Nothing is written.
-        ParityError: ONNX Runtime and torch disagree by more than ``TOLERANCE``. Nothing is
-            written.
+        ParityError: ONNX Runtime and torch disagree by more than the tolerance. Nothing is
+            written under ``out``; the candidate is kept under :func:`failed_path`.
     """
     return run_export(
-        source, out, spec, trust_pickle, vecnormalize, activation, robot, exporter, seed
+        source, out, spec, trust_pickle, vecnormalize, activation, robot, exporter, seed, tolerance
     ).path

@@ -6,7 +6,11 @@ The blocks are coded as integers (``KIND_CODES``, the order of
 is not assumed); each block has its start column, size and joint indices (a (blocks, max_joints)
 int64 array, padded). The arithmetic is the reference's: ``(raw - offset) / scale``, then the
 upper clip, then the lower clip, then the cast to float32; ``goal_in_ee`` is
-``(goal - ee) @ R`` summed in the order of numpy's matmul loop.
+``(goal - ee) @ R`` summed in the order of numpy's matmul loop. The floating-base blocks read the
+base estimate (linear and angular velocity, projected gravity, orientation), the velocity command,
+the clock and the foot contacts; ``gait_phase`` is ``sin, cos`` of ``(2 pi / period) * clock``
+and ``heading_sincos`` of the yaw ``atan2(2 (w z + x y), 1 - 2 (y^2 + z^2))``, as the reference
+computes them (:func:`deploy.spec.observation_plan._legged_block`).
 """
 
 from __future__ import annotations
@@ -27,6 +31,13 @@ KIND_CODES = {
     "goal_in_ee": 5,
     "last_action": 6,
     "winding_temperature": 7,
+    "base_linear_velocity": 8,
+    "base_angular_velocity": 9,
+    "projected_gravity": 10,
+    "velocity_command": 11,
+    "gait_phase": 12,
+    "foot_contact": 13,
+    "heading_sincos": 14,
 }
 
 
@@ -35,6 +46,7 @@ def observation(
     kinds: np.ndarray,
     starts: np.ndarray,
     joints: np.ndarray,
+    periods: np.ndarray,
     q: np.ndarray,
     dq: np.ndarray,
     ee_position: np.ndarray,
@@ -42,6 +54,13 @@ def observation(
     goal: np.ndarray,
     last_action: np.ndarray,
     temperature: np.ndarray,
+    linear_velocity: np.ndarray,
+    angular_velocity: np.ndarray,
+    gravity: np.ndarray,
+    command: np.ndarray,
+    orientation: np.ndarray,
+    clock: np.ndarray,
+    contact: np.ndarray,
     norm: np.ndarray,
     raw: np.ndarray,
     out: np.ndarray,
@@ -51,8 +70,13 @@ def observation(
     Args:
         kinds, starts: (blocks,) int64, block codes (``KIND_CODES``) and first columns.
         joints: (blocks, k) int64 joint indices, -1 padded (a block's size is its column span).
+        periods: (blocks,) float64, the gait clock's period of a ``gait_phase`` block, s.
         q, dq, last_action, temperature: (envs, n); ee_position, goal (envs, 3); ee_rotation
             (envs, 3, 3): the inputs of the reference, same units.
+        linear_velocity, angular_velocity, gravity, command: (envs, 3) base linear velocity
+            (m/s), angular velocity (rad/s), projected gravity, velocity command (vx, vy m/s,
+            yaw rate rad/s), base frame; orientation (envs, 4) ``[w, x, y, z]``; clock (envs,)
+            s; contact (envs, feet). Read by the floating-base blocks only.
         norm: (3, dim) float64 rows offset, scale, clip.
         raw: (>= envs, dim) float64 work array.
     """
@@ -95,9 +119,34 @@ def observation(
             elif kind == 6:
                 for i in range(size):
                     raw[e, s0 + i] = last_action[e, joints[b, i]]
-            else:
+            elif kind == 7:
                 for i in range(size):
                     raw[e, s0 + i] = temperature[e, joints[b, i]]
+            elif kind == 8:
+                for i in range(size):
+                    raw[e, s0 + i] = linear_velocity[e, i]
+            elif kind == 9:
+                for i in range(size):
+                    raw[e, s0 + i] = angular_velocity[e, i]
+            elif kind == 10:
+                for i in range(size):
+                    raw[e, s0 + i] = gravity[e, i]
+            elif kind == 11:
+                for i in range(size):
+                    raw[e, s0 + i] = command[e, i]
+            elif kind == 12:
+                phase = (2.0 * math.pi / periods[b]) * clock[e]
+                raw[e, s0] = math.sin(phase)
+                raw[e, s0 + 1] = math.cos(phase)
+            elif kind == 13:
+                for i in range(size):
+                    raw[e, s0 + i] = contact[e, i]
+            else:
+                w, x = orientation[e, 0], orientation[e, 1]
+                y, z = orientation[e, 2], orientation[e, 3]
+                yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+                raw[e, s0] = math.sin(yaw)
+                raw[e, s0 + 1] = math.cos(yaw)
         for i in range(dim):
             v = raw[e, i] - norm[0, i]
             v = v / norm[1, i]

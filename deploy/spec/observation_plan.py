@@ -4,9 +4,9 @@
 A spec builds its plan once, when first asked for an observation: the blocks flattened to
 per-entry offset, scale and clip arrays, joint index arrays and the block codes of the compiled
 kernel (:mod:`deploy.spec.kernel`), and work buffers grown to the largest batch seen. The
-plan assembles the observation with that kernel, or with the numpy reference (``reference=True``,
-and the blocks the kernel does not know, such as the legged ones); both give the same numbers bit
-for bit. The layout itself (block kinds, sizes, scales) is the spec's
+plan assembles the observation with that kernel (every block kind, the floating-base ones
+included), or with the numpy reference (``reference=True``); both give the same numbers bit for
+bit. The layout itself (block kinds, sizes, scales) is the spec's
 (:mod:`deploy.spec.policy_spec`).
 """
 
@@ -16,8 +16,12 @@ import numpy as np
 
 from deploy.spec.kernel import KIND_CODES
 from deploy.spec.kernel import observation as observation_kernel
-from deploy.spec.policy_spec import PolicySpec, SpecError
+from deploy.spec.policy_spec import LEGGED_KINDS, PolicySpec, SpecError
 from deploy.state import RobotState
+
+
+def _no_base(kind: str) -> SpecError:
+    return SpecError(f"observation: block '{kind}' needs a floating-base robot's state")
 
 
 def _legged_block(
@@ -31,7 +35,7 @@ def _legged_block(
     """
     base = state.base
     if base is None:
-        raise SpecError(f"observation: block '{kind}' needs a floating-base robot's state")
+        raise _no_base(kind)
     vectors = {
         "base_linear_velocity": base.linear_velocity,
         "base_angular_velocity": base.angular_velocity,
@@ -61,6 +65,7 @@ class ObservationPlan:
     index arrays, and work buffers grown to the largest batch seen (no allocation per tick)."""
 
     def __init__(self, spec: PolicySpec):
+        self.spec_blocks = spec.observation_blocks
         self.blocks = []
         #: per block: the entries of its 3-vector it reads (empty: all; ``VECTOR_KINDS`` only)
         self.components: list[np.ndarray] = []
@@ -80,15 +85,20 @@ class ObservationPlan:
         self._raw = np.zeros((0, start))
         self.vec = np.zeros((0, 3))
         self.rot = np.zeros((0, 3))
-        # the compiled kernel's layout (deploy.spec.kernel); kinds it does not know run
-        # the reference
+        #: the first floating-base block (a state without a base is refused), or None
+        self.legged = next((b.name for b in bl if b.name in LEGGED_KINDS), None)
+        self._no_base: tuple[np.ndarray, ...] = ()
+        # the compiled kernel's layout (deploy.spec.kernel); a vector block that reads some of
+        # its components (a split velocity command) runs the reference
         self.compiled = bool(bl) and all(
             b.name in KIND_CODES
             and (b.name != "joint_position_sincos" or b.size == 2 * len(b.joints))
+            and not b.components
             for b in bl
         )
         if self.compiled:
             self.kinds = np.array([KIND_CODES[b.name] for b in bl], dtype=np.int64)
+            self.block_periods = np.array([float(b.period) for b in bl], dtype=np.float64)
             self.starts = np.array([s.start for _, s, _ in self.blocks], dtype=np.int64)
             width = max(1, max(len(b.joints) for b in bl))
             self.joints = np.full((len(bl), width), -1, dtype=np.int64)
@@ -99,14 +109,45 @@ class ObservationPlan:
 
     def _warm(self) -> None:
         """Compile the kernel (or load numba's cache) now, not in the first tick."""
-        n = int(self.joints.max()) + 1
-        state = RobotState.zeros(1, max(n, 1))
-        goal = np.zeros((1, 3))
+        n = max(int(self.joints.max()) + 1, 1)
+        feet = max((b.size for b in self.spec_blocks if b.name == "foot_contact"), default=0)
+        state = RobotState.legged(1, n, feet) if self.legged else RobotState.zeros(1, n)
         out = np.zeros((1, self.dim), dtype=np.float32)
+        self._run_kernel(state, np.zeros((1, 3)), out)
+
+    def _base_inputs(self, state: RobotState, envs: int) -> tuple[np.ndarray, ...]:
+        """The kernel's floating-base inputs: the state's, or zeros for a fixed-base state
+        (never read: the plan has no floating-base block then).
+
+        Raises:
+            SpecError: a floating-base block and a state without a base.
+        """
+        base = state.base
+        if base is not None:
+            return (
+                base.linear_velocity,
+                base.angular_velocity,
+                base.projected_gravity,
+                state.command,
+                base.orientation,
+                state.clock,
+                state.foot_contact,
+            )
+        if self.legged is not None:
+            raise _no_base(self.legged)
+        if not self._no_base or self._no_base[0].shape[0] < envs:
+            v = np.zeros((envs, 3))
+            self._no_base = (v, v, v, v, np.zeros((envs, 4)), np.zeros(envs), np.zeros((envs, 0)))
+        return self._no_base
+
+    def _run_kernel(self, state: RobotState, goal: np.ndarray, out: np.ndarray) -> None:
+        envs = state.q.shape[0]
+        self.raw(envs)
         observation_kernel(
             self.kinds,
             self.starts,
             self.joints,
+            self.block_periods,
             state.q,
             state.dq,
             state.ee_position,
@@ -114,8 +155,9 @@ class ObservationPlan:
             goal,
             state.last_action,
             state.winding_temperature,
+            *self._base_inputs(state, envs),
             self.norm,
-            self.raw(1),
+            self._raw,
             out,
         )
 
@@ -139,21 +181,7 @@ class ObservationPlan:
             out = np.empty((envs, self.dim), dtype=np.float32)
         raw = self.raw(envs)
         if self.compiled and not reference:
-            observation_kernel(
-                self.kinds,
-                self.starts,
-                self.joints,
-                state.q,
-                state.dq,
-                state.ee_position,
-                state.ee_rotation,
-                goal,
-                state.last_action,
-                state.winding_temperature,
-                self.norm,
-                self._raw,
-                out,
-            )
+            self._run_kernel(state, goal, out)
             return out
         for (kind, dst, joints), components in zip(self.blocks, self.components, strict=True):
             if kind == "joint_position":

@@ -58,6 +58,18 @@ IMPLEMENTATIONS: tuple[str, ...] = ("compiled", "filterpy")
 #: 7.3 mrad against 15.6 mrad raw; 0.1 lags (25 mrad).
 PROCESS_NOISE_FRACTION = 0.5
 
+
+def motion_acceleration(robot: Robot) -> np.ndarray:
+    """(n,) rad/s^2, the largest acceleration the filter's motion model expects of each joint:
+    the smoother's acceleration limit, but no more than the whole velocity range (from
+    ``-velocity_limit`` to ``+velocity_limit``) crossed in one control period. A legged robot's
+    PD targets may step far faster than its joints move (``robot-import --target-limits pd``):
+    process noise from such a limit would make the filter trust no reading (its measurement
+    noise is raised with it by ``MAX_TRACKING_INDEX``), wider than the joint's travel,
+    re-initialized every tick."""
+    return np.minimum(robot.acceleration_limit, 2.0 * robot.velocity_limit / robot.control_period)
+
+
 #: Largest tracking index ``sigma_a dt^2 / sigma_r`` the default measurement noise allows (``dt``
 #: the control period; P. R. Kalata, "The tracking index: a generalized parameter for alpha-beta
 #: and alpha-beta-gamma target trackers", IEEE TAES 20(2), 1984). The filter's steady-state
@@ -111,7 +123,7 @@ class JointStateEstimator:
         envs: Batch size.
         process_noise: Variance ``var`` of the white-noise acceleration, (rad/s^2)^2, as
             ``Q_discrete_white_noise(2, dt, var)`` takes it; scalar or (n,). Default
-            ``(PROCESS_NOISE_FRACTION * robot.acceleration_limit)^2`` (Bar-Shalom et al. 2001,
+            ``(PROCESS_NOISE_FRACTION * motion_acceleration(robot))^2`` (Bar-Shalom et al. 2001,
             sec. 6.3.2: standard deviation 0.5 to 1 times the largest acceleration).
         measurement_sigma: Encoder noise standard deviation, rad; scalar or (n,). Default
             ``robot.config.sensors.encoder_noise_sigma``, floored at the quantization noise
@@ -167,7 +179,7 @@ class JointStateEstimator:
         self.input_extrapolates = bool(input_extrapolates)
         sensors = robot.config.sensors
         if process_noise is None:
-            process_noise = (PROCESS_NOISE_FRACTION * robot.acceleration_limit) ** 2
+            process_noise = (PROCESS_NOISE_FRACTION * motion_acceleration(robot)) ** 2
         self.process_noise = self._per_joint("process_noise", process_noise)
         if measurement_sigma is None:
             floor = 2.0 * np.pi / sensors.encoder_resolution / np.sqrt(12.0)

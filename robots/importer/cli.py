@@ -118,6 +118,7 @@ def import_robot(
     kd: list[str] | tuple[str, ...] = (),
     home: list[str] | tuple[str, ...] = (),
     notes: list[str] | tuple[str, ...] = (),
+    target_limits: str = "pd",
     command: list[str] | None = None,
 ) -> ImportReport:
     """Import ``source`` (URDF or MJCF path, or ``PACKAGE:path``) into the robot folder ``out``.
@@ -148,8 +149,10 @@ def import_robot(
             kp, kd: ``JOINT=VALUE`` (shell patterns) plant PD gains, N m/rad and N m s/rad
             (default: the importer's rule). home: ``JOINT=RAD`` (shell patterns) home pose.
             notes: comment lines for robot.toml's header (the sources of flag values).
-            command: the command line printed in robot.toml to regenerate the folder. feet, imu,
-            kp, kd, home and notes need ``floating_base``.
+            command: the command line printed in robot.toml to regenerate the folder.
+            target_limits: ``"pd"`` or ``"motion"``, the rule of a legged robot's acceleration
+            and jerk limits (:func:`robots.importer.legged.pd_target_limits`). feet, imu, kp,
+            kd, home and notes need ``floating_base``.
 
     The parent folders of ``out`` are created when missing (as ``mkdir -p``; removed again when
     the import fails).
@@ -171,7 +174,7 @@ def import_robot(
         return _import(
             source, out, srdf, motors, ee_site, limits, velocities, control_rate,
             physics_timestep, force, log, drop_missing_meshes, link_boxes, floating_base, feet,
-            imu, kp, kd, home, notes, command,
+            imu, kp, kd, home, notes, command, target_limits,
         )  # fmt: skip
     except BaseException:
         for folder in created:  # deepest first
@@ -221,6 +224,7 @@ def _import(
     home,
     notes,
     command,
+    target_limits="pd",
 ) -> ImportReport:
     """:func:`import_robot` once the parents of ``out`` exist (its arguments)."""
     start = time.perf_counter()
@@ -255,7 +259,7 @@ def _import(
             spec=spec, model=model, joint_names=joint_names, chosen=chosen, motor_cfg=motor_cfg,
             motor_tables=motor_tables, report=report, feet=list(feet), imu=imu, kp=list(kp),
             kd=list(kd), home=list(home), notes=list(notes), control_rate=control_rate,
-            physics_timestep=physics_timestep,
+            physics_timestep=physics_timestep, target_limits=target_limits,
             command=command or ["robot-import", str(source), "--out", str(out)], log=log,
         )  # fmt: skip
         report.seconds = time.perf_counter() - start
@@ -402,6 +406,14 @@ def main(argv: list[str] | None = None) -> int:
     legged.add_argument(
         "--note", action="append", default=[], help="a comment line for robot.toml's header"
     )
+    legged.add_argument(
+        "--target-limits",
+        choices=("pd", "motion"),
+        default="pd",
+        help="smoother and guard acceleration and jerk limits: 'pd' (default) lets a PD target "
+        "move, rest to rest within one control period, as far as the drive's full torque reaches "
+        "(effort / kp); 'motion' only what the joint itself can accelerate (the arms' rule)",
+    )
     args = p.parse_args(argv)
     try:
         import_robot(
@@ -423,6 +435,7 @@ def main(argv: list[str] | None = None) -> int:
             kp=args.kp,
             kd=args.kd,
             home=args.home,
+            target_limits=args.target_limits,
             notes=args.note,
             command=["robot-import", *(sys.argv[1:] if argv is None else argv)],
         )

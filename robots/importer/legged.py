@@ -17,6 +17,7 @@ import shlex
 from pathlib import Path
 
 import mujoco
+import numpy as np
 
 from robots.importer.floating_mjcf import FREE_JOINT, IMU_SITE, finish_floating_mjcf
 from robots.importer.model import Motion, _sig
@@ -190,6 +191,7 @@ def write_legged_toml(
     notes: list[str],
     command: list[str],
     motor_tables: dict | None = None,
+    target_limits: str = "pd",
 ) -> None:
     """robot.toml of a floating-base robot, a comment giving the reason of every value.
 
@@ -230,6 +232,14 @@ def write_legged_toml(
         "# armature (rotor inertia x ratio^2), base held, 400 seeded poses; jerk_limit: 20 x",
         "# acceleration. kp, kd: see the comment of each joint.",
     ]
+    if target_limits == "pd":
+        lines += [
+            "# PD targets (robot-import --target-limits pd): acceleration_limit at least",
+            "# 4 x (effort / kp) / control_period^2 and jerk_limit at least acceleration_limit /",
+            "# (0.5 x control_period): a target may move, rest to rest within one control period,",
+            "# as far as the drive's full torque reaches (effort / kp), as a policy trained",
+            "# without a smoother steps it.",
+        ]
     for i, j in enumerate(joint_names):
         lo, hi, vel, eff = limits[j]
         src = prepared.joints[j]
@@ -302,6 +312,35 @@ def write_legged_toml(
     path.write_text("\n".join(lines), encoding="utf-8")
 
 
+#: Jerk limit of a PD target per unit of its acceleration limit, in control periods: the full
+#: acceleration is reached within half a period (our choice, with ``pd_target_limits``).
+PD_JERK_PERIODS = 0.5
+
+
+def pd_target_limits(
+    effort: np.ndarray, kp: np.ndarray, period: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Acceleration (rad/s^2) and jerk (rad/s^3) limits, (n,), that let a PD position target
+    move, rest to rest within one control period, as far as the drive's full torque reaches.
+
+    A legged policy's position target is a torque in disguise: the drive applies
+    ``kp (target - q) - kd dq``, so a target ``effort / kp`` from the joint asks for the full
+    torque, and policies trained without a smoother (legged_gym, Isaac Lab, mjlab) step their
+    targets that far from one control period to the next. A rest-to-rest move of ``d`` in time
+    ``T`` with acceleration ``a`` needs ``a = 4 d / T^2``; the jerk reaches ``a`` within
+    ``PD_JERK_PERIODS`` of a period. Limits below these make the smoother, not the policy,
+    decide how the legs move: the policy falls where it walks in its own loop.
+
+    Args:
+        effort: (n,) N m, the joints' effort limits. kp: (n,) N m/rad, the drives' gains.
+        period: s, the control period.
+    """
+    reach = np.asarray(effort, dtype=np.float64) / np.asarray(kp, dtype=np.float64)
+    acc = 4.0 * reach / period**2
+    jerk = acc / (PD_JERK_PERIODS * period)
+    return np.array([_sig(a) for a in acc]), np.array([_sig(j) for j in jerk])
+
+
 def import_floating_base(
     *,
     path,
@@ -327,6 +366,7 @@ def import_floating_base(
     physics_timestep: float,
     command: list[str],
     log,
+    target_limits: str = "pd",
 ) -> None:
     """The floating-base half of :func:`robots.importer.cli.import_robot` (its arguments).
 
@@ -379,6 +419,11 @@ def import_floating_base(
                 raise RobotImportError(
                     f"--home: joint {j} at {motion.home[i]} rad is outside its limits [{lo}, {hi}]"
                 )
+        if target_limits == "pd":
+            effort = np.array([limits_out[j][3] for j in joint_names])
+            acc, jerk = pd_target_limits(effort, motion.kp, 1.0 / control_rate)
+            motion.acceleration[:] = np.maximum(motion.acceleration, acc)
+            motion.jerk[:] = np.maximum(motion.jerk, jerk)
         return motion
 
     motion = motion_now()
@@ -433,6 +478,7 @@ def import_floating_base(
             notes=notes,
             command=command,
             motor_tables=motor_tables,
+            target_limits=target_limits,
         )
         try:
             load_robot(work)

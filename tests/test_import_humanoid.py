@@ -330,3 +330,30 @@ def test_the_imu_rides_on_the_base(humanoid, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == EXIT_REFUSED and "\n" not in err
     assert "--imu shin_imu: on link left_knee_link, which joint 'left_knee_joint' moves" in err
+
+
+def test_pd_targets_may_step_as_far_as_the_full_torque_reaches_and_the_estimator_holds(humanoid):
+    """A legged robot's smoother lets a PD target move, within one control period, as far as the
+    drive's full torque reaches (effort / kp), as policies trained without a smoother step it; the
+    joint estimator stays consistent at those limits (no re-initialization) on a standing run
+    with encoder noise."""
+    from deploy.backends.sim.plant import SimBackend
+    from deploy.estimation.joints import JointStateEstimator, motion_acceleration
+    from deploy.state import RobotState
+
+    robot, _, _ = humanoid
+    period = robot.control_period
+    reach = robot.effort_limit / np.array([j.kp for j in robot.config.joints])
+    assert (robot.acceleration_limit >= 4.0 * reach / period**2 * 0.98).all()  # 2 digits
+    assert (robot.jerk_limit >= robot.acceleration_limit / (0.5 * period) * 0.98).all()
+    assert (motion_acceleration(robot) <= 2.0 * robot.velocity_limit / period).all()
+    plant = SimBackend(robot, "position", envs=1, seed=0)
+    estimator = JointStateEstimator(robot, 1, input_extrapolates=False)
+    state = RobotState.zeros(1, robot.n_joints)
+    estimator.reset(plant.true_position(), 0.0)
+    for _ in range(100):
+        plant.write(robot.home[None, :])
+        plant.advance()
+        estimator.update(plant.read(), state)
+    assert estimator.reinitializations.tolist() == [0]
+    assert np.abs(state.q - plant.true_position()).max() < 0.05

@@ -344,13 +344,15 @@ def load_robot(name_or_path: str | Path) -> Robot:
 
     frac = np.array([j.soft_limit_fraction for j in cfg.joints])
     centre, half = (upper + lower) / 2.0, (upper - lower) / 2.0
-    # The description a policy depends on: everything but the [task] and [soak] tables (where
-    # goals come from and how hard the soak pushes are the evaluation's business, not the
-    # robot's), in canonical form, and the MJCF bytes.
+    # The description a policy depends on: everything but the [task], [soak] and [unitree] tables
+    # (where goals come from and how hard the soak pushes are the evaluation's business, how
+    # joints map to a Unitree robot's motor slots the backend's, not the robot's), in canonical
+    # form, and the MJCF bytes.
     # Optional fields left unset (None) are left out, so that adding one to the schema changes no
     # existing robot's hash. The MJCF is the file in the robot folder (package URIs unresolved).
+    wiring = {"task", "soak", "unitree"}
     described = json.dumps(
-        cfg.model_dump(exclude={"task", "soak"}, exclude_none=True, mode="json"), sort_keys=True
+        cfg.model_dump(exclude=wiring, exclude_none=True, mode="json"), sort_keys=True
     )
     digest = hashlib.sha256(described.encode() + b"\0" + described_mjcf.read_bytes()).hexdigest()
     return Robot(

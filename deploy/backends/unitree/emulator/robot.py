@@ -46,6 +46,8 @@ from robots import Robot, load_robot
 MAX_LAG = 0.25
 #: Physics steps between two polls of the motion switcher's requests.
 SERVICE_EVERY = 10
+#: Commands kept in :attr:`UnitreeEmulator.commands` (ten minutes at 50 Hz).
+COMMAND_LOG = 30_000
 #: Physics steps between two samples of the base's true trajectory (:attr:`UnitreeEmulator.trace`).
 TRACE_EVERY = 10
 #: K above the motor's maximum winding temperature (robot.toml's motor) at which the emulated
@@ -104,6 +106,8 @@ class UnitreeEmulator:
         cutoff_log: (seconds after the first LowCmd, motor slot) of each driver cut-off.
         damping_onsets: (monotonic time, s since the last LowState published) of each switch
             of the commands to damping (every joint's kp 0, kd > 0).
+        commands: The last ``COMMAND_LOG`` commands taken, in joint order: (monotonic time,
+            q_des, kp, kd), each (n,).
         true_distance: m, the base's planar path length since the first LowCmd.
         trace: Rows (monotonic time s, x m, y m, yaw rad, vx m/s, vy m/s: the base's true
             planar position in the world and velocity in its heading frame) every
@@ -170,6 +174,9 @@ class UnitreeEmulator:
         self.damping_onsets: list[tuple[float, float]] = []
         self.true_distance = 0.0
         self.trace: list[tuple[float, ...]] = []
+        self.commands: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque(
+            maxlen=COMMAND_LOG
+        )
         self._damping = False
         self._pending: list[int] = []
         self._delayed: deque[tuple[float, bytes]] = deque()
@@ -284,9 +291,10 @@ class UnitreeEmulator:
             self.drivers.take(motor_cmd)
             self._pending.append(stamp)
             kp, kd = motor_cmd["kp"][self.slots], motor_cmd["kd"][self.slots]
+            now = time.monotonic()
+            self.commands.append((now, motor_cmd["q"][self.slots].copy(), kp, kd))
             damping = bool((kp == 0).all() and (kd > 0).all())
             if damping and not self._damping:
-                now = time.monotonic()
                 self.damping_onsets.append((now, now - self._last_published))
             self._damping = damping
 

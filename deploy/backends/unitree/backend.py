@@ -42,9 +42,10 @@ import numpy as np
 
 from deploy.backends.base import BackendLifecycle, SensorFrame
 from deploy.backends.unitree import bringup
+from deploy.backends.unitree import family as families
 from deploy.backends.unitree.codec import MessageCodec
 from deploy.backends.unitree.dds import DdsLink
-from deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE, family
+from deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
 from deploy.observe.telemetry import LatencyHistogram
 from robots import Robot
 
@@ -109,7 +110,7 @@ class UnitreeBackend(BackendLifecycle):
                 "damping_kd): --backend unitree needs the robot's motor slots"
             )
         self.robot, self.config, self.log = robot, cfg, log
-        self.family = _family(family or cfg.family)
+        self.family = families.family(family or cfg.family)
         self.mode = mode or robot.control_mode
         if self.mode not in ("position", "torque"):
             raise ValueError(
@@ -414,7 +415,3 @@ class UnitreeBackend(BackendLifecycle):
                 self.describe_drive_error(j, int(b)) for j, b in enumerate(self.latched_errors) if b
             ],
         }
-
-
-def _family(name: str):
-    return family(name)

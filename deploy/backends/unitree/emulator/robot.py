@@ -32,13 +32,14 @@ from collections import Counter, deque
 import numpy as np
 
 from deploy.backends.sim.plant import SimBackend
+from deploy.backends.unitree import family as families
 from deploy.backends.unitree.codec import MessageCodec
 from deploy.backends.unitree.dds import DdsLink
 from deploy.backends.unitree.emulator.drivers import MotorDrivers, pd_model
 from deploy.backends.unitree.emulator.faults import EmulatorFaults
 from deploy.backends.unitree.emulator.lowstate import LowStateBuilder
 from deploy.backends.unitree.emulator.services import MotionSwitcherService
-from deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE, family
+from deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
 from deploy.observe.telemetry import LatencyHistogram
 from robots import Robot, load_robot
 
@@ -137,7 +138,7 @@ class UnitreeEmulator:
             raise ValueError(f"{self.robot.directory / 'robot.toml'}: no [unitree] table")
         if start not in ("standing", "lying"):
             raise ValueError(f"start '{start}': expected 'standing' or 'lying'")
-        self.family = _family(family or cfg.family)
+        self.family = families.family(family or cfg.family)
         self.slots = np.array(cfg.motor_index)
         self.joint_of = {int(s): j for j, s in enumerate(self.slots)}
         self.faults = faults if faults is not None else EmulatorFaults()
@@ -345,14 +346,16 @@ class UnitreeEmulator:
     # ------------------------------------------------------------------ report
     def counters(self) -> dict:
         """The emulator's figures: its counters, the LowState rate achieved (Hz), the
-        command-to-state latency (us percentiles), the drivers cut off (motor slots), the base's
-        true path length (m)."""
+        command-to-state latency (us percentiles), the drivers cut off (motor slots), each switch
+        to damping's delay after the last LowState published (s), the base's true path length
+        (m)."""
         wall = time.monotonic() - self._started
         return {
             **dict(self.stats),
             "lowstate_rate_hz": self.stats["lowstate_published"] / wall if wall > 0 else 0.0,
             "command_to_state_us": self.command_to_state.summary(),
             "cutoff_slots": [slot for _, slot in self.cutoff_log],
+            "damping_onsets_after_last_state_s": [round(d, 4) for _, d in self.damping_onsets],
             "true_distance_m": self.true_distance,
         }
 
@@ -374,7 +377,3 @@ def _planar(t: float, base: np.ndarray) -> tuple[float, ...]:
     c, s = np.cos(yaw), np.sin(yaw)
     vx, vy = base[7], base[8]
     return (t, float(base[0]), float(base[1]), yaw, float(c * vx + s * vy), float(c * vy - s * vx))
-
-
-def _family(name: str):
-    return family(name)

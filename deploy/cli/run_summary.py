@@ -45,7 +45,7 @@ def print_summary(r: dict) -> None:
             print(f"  HARD VIOLATIONS   {kinds} ticks (true state): the run fails (exit code 1)")
     else:
         print(
-            "  violations        n/a (no ground truth on a servo bus; the guard's hard-limit "
+            "  violations        n/a (no ground truth on hardware; the guard's hard-limit "
             f"stops: {r['faults']['by_cause']['hard_limit']})"
         )
     iv = r["interventions"]

@@ -154,6 +154,7 @@ class UnitreeBackend(BackendLifecycle):
         self._link: DdsLink | None = None
         self._reader = self._writer = None
         self._lock = threading.Lock()
+        self._read_lock = threading.Lock()
         self._hold_stop = threading.Event()
         self._hold: threading.Thread | None = None
         self._hold_target = np.asarray(robot.home, dtype=np.float64).copy()
@@ -226,9 +227,15 @@ class UnitreeBackend(BackendLifecycle):
         self._hold.start()
 
     def _hold_loop(self) -> None:
-        """Send the home pose every control period until the runtime's first command."""
+        """Until the runtime's first command, every control period: take the states (their
+        counters stay whole; none for ``safety.stale_limit``: damping from then on) and send the
+        home pose."""
         next_t = time.monotonic()
+        stale_limit = self.robot.config.safety.stale_limit
         while not self._hold_stop.is_set():
+            self.read()
+            if time.monotonic() - self._t0 - self._last_fresh > stale_limit:
+                self._damping = True
             self._send(self._hold_target, self.kp, self.kd)
             next_t += self.period
             self._hold_stop.wait(max(0.0, next_t - time.monotonic()))
@@ -244,6 +251,10 @@ class UnitreeBackend(BackendLifecycle):
         """Take every LowState received since the last read; the frame from the newest valid
         one (NaN where none arrived, or where that joint's motor lost its packet). The frame is
         overwritten by the next read."""
+        with self._read_lock:  # the bring-up's hold thread reads until the runtime's first write
+            return self._read()
+
+    def _read(self) -> SensorFrame:
         t0 = time.perf_counter_ns()
         now = time.monotonic() - self._t0
         f = self.frame

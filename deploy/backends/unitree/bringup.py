@@ -79,6 +79,8 @@ def bring_up(b) -> None:
             )
         else:
             b.log("      none active")
+    else:
+        b.log("      skipped (--skip-sport-mode-check)")
     b.log(f"[4/5] damping for {DAMPING_TIME:g} s (kp 0, kd {_kd(b)})")
     b._damping = True
     _run(b, DAMPING_TIME, lambda t: b._hold_target)

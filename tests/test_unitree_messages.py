@@ -169,3 +169,17 @@ def test_emulator_faults_parse_and_refuse_nonsense():
     for bad in ("lose:2", "warp:1", "heat:4=-1", "silent:x"):
         with pytest.raises(ValueError, match="--fault"):
             parse_fault(bad, EmulatorFaults())
+
+
+def test_importer_derives_unitree_slots_from_the_joint_names_and_refuses_others():
+    from robots.importer.unitree import foot_slot, motor_slot
+    from robots.importer.urdf import RobotImportError
+
+    assert [motor_slot(j) for j in ("FR_hip_joint", "FL_calf_joint", "RL_thigh_joint")] == [
+        0,
+        5,
+        10,
+    ]
+    assert foot_slot("RR_foot") == 2
+    with pytest.raises(RobotImportError, match="left_knee_joint.*<LEG>_<part>_joint"):
+        motor_slot("left_knee_joint")

@@ -163,6 +163,7 @@ def import_robot(
     home: list[str] | tuple[str, ...] = (),
     notes: list[str] | tuple[str, ...] = (),
     command: list[str] | None = None,
+    unitree: dict | None = None,
 ) -> ImportReport:
     """Import ``source`` (URDF or MJCF path, or ``PACKAGE:path``) into the robot folder ``out``.
 
@@ -186,8 +187,10 @@ def import_robot(
             kp, kd: ``JOINT=VALUE`` (shell patterns) plant PD gains, N m/rad and N m s/rad
             (default: the importer's rule). home: ``JOINT=RAD`` (shell patterns) home pose.
             notes: comment lines for robot.toml's header (the sources of flag values).
-            command: the command line printed in robot.toml to regenerate the folder. feet, imu,
-            kp, kd, home and notes need ``floating_base``.
+            command: the command line printed in robot.toml to regenerate the folder.
+            unitree: a Unitree quadruped's ``[unitree]`` table: ``family``, ``damping_kd``,
+            ``ramp_kp``, ``ramp_kd`` (:func:`robots.importer.unitree.unitree_lines`). feet, imu,
+            kp, kd, home, notes and unitree need ``floating_base``.
 
     Returns:
         An :class:`ImportReport`.
@@ -202,6 +205,7 @@ def import_robot(
     start = time.perf_counter()
     legged_flags = {"--foot": feet, "--imu": imu, "--kp": kp, "--kd": kd, "--home": home}
     legged_flags["--note"] = notes
+    legged_flags["--unitree"] = unitree
     used = [k for k, v in legged_flags.items() if v]
     if used and not floating_base:
         raise RobotImportError(f"{', '.join(used)}: only with --floating-base (a legged robot)")
@@ -233,6 +237,7 @@ def import_robot(
             report=report, feet=list(feet), imu=imu, kp=list(kp), kd=list(kd), home=list(home),
             notes=list(notes), control_rate=control_rate, physics_timestep=physics_timestep,
             command=command or ["robot-import", str(source), "--out", str(out)], log=log,
+            unitree=unitree,
         )  # fmt: skip
         report.seconds = time.perf_counter() - start
         log(f"wrote {out} ({len(joint_names)} joints, floating base) in {report.seconds:.1f} s")
@@ -504,7 +509,30 @@ def main(argv: list[str] | None = None) -> int:
     legged.add_argument(
         "--note", action="append", default=[], help="a comment line for robot.toml's header"
     )
+    legged.add_argument(
+        "--unitree",
+        default=None,
+        metavar="FAMILY",
+        help="a Unitree quadruped: write its [unitree] table (motor slots from the joint names; "
+        "unitree_go or unitree_hg) for deploy-run --backend unitree",
+    )
+    legged.add_argument(
+        "--unitree-damping-kd", type=float, default=None, help="N m s/rad of the damping command"
+    )
+    legged.add_argument("--unitree-ramp-kp", type=float, default=None, help="bring-up N m/rad")
+    legged.add_argument("--unitree-ramp-kd", type=float, default=None, help="bring-up N m s/rad")
     args = p.parse_args(argv)
+    unitree = None
+    if args.unitree is not None:
+        if args.unitree_damping_kd is None:
+            print("robot-import: error: --unitree needs --unitree-damping-kd", file=sys.stderr)
+            return EXIT_REFUSED
+        unitree = {
+            "family": args.unitree,
+            "damping_kd": args.unitree_damping_kd,
+            "ramp_kp": args.unitree_ramp_kp,
+            "ramp_kd": args.unitree_ramp_kd,
+        }
     try:
         import_robot(
             args.source,
@@ -525,6 +553,7 @@ def main(argv: list[str] | None = None) -> int:
             home=args.home,
             notes=args.note,
             command=["robot-import", *(sys.argv[1:] if argv is None else argv)],
+            unitree=unitree,
         )
     except RobotImportError as exc:
         print(f"robot-import: error: {exc}", file=sys.stderr)

@@ -298,12 +298,14 @@ def write_legged_toml(
     lowered: list,
     notes: list[str],
     command: list[str],
+    tables: list[str] = (),
 ) -> None:
     """robot.toml of a floating-base robot, a comment giving the reason of every value.
 
     ``gains_from``: joint -> where its kp and kd came from ('--kp/--kd' or the importer's
     rule); ``notes``: ``--note`` lines for the header (sources of flag values); ``command``:
-    the command line that regenerates the folder.
+    the command line that regenerates the folder; ``tables``: lines of more tables, at the end
+    (``[unitree]``: :mod:`robots.importer.unitree`).
     """
     kind = prepared.kind
     resolution = min(motor_cfg[m].encoder_resolution or 16384 for m in set(chosen.values()))
@@ -403,6 +405,7 @@ def write_legged_toml(
         f"# push ({PUSH_TIME:g} s): {mass:.1f} kg x {PUSH_VELOCITY:g} m/s / {PUSH_TIME:g} s; the "
         f"low end {PUSH_LOW:g} of it.",
         f"push_force = [{_f(_sig(PUSH_LOW * push))}, {_f(_sig(push))}]  # N",
+        *tables,
         "",
     ]
     path.write_text("\n".join(lines), encoding="utf-8")
@@ -458,6 +461,7 @@ def import_floating_base(
     physics_timestep: float,
     command: list[str],
     log,
+    unitree: dict | None = None,
 ) -> None:
     """The floating-base half of :func:`robots.importer.cli.import_robot` (its arguments).
 
@@ -481,6 +485,11 @@ def import_floating_base(
 
     foot_links = choose_feet(urdf, feet)
     imu_link = choose_imu(urdf, imu, log)
+    tables = []
+    if unitree is not None:
+        from robots.importer.unitree import unitree_lines
+
+        tables = unitree_lines(joint_names=joint_names, feet=foot_links, **unitree)
     log(f"note: feet {foot_links}, IMU at link {imu_link}")
     limits_out, lowered, lnotes = cap_limits(urdf, chosen, motor_cfg, log)
     report.lowered += lowered
@@ -557,6 +566,7 @@ def import_floating_base(
             lowered=report.lowered,
             notes=notes,
             command=command,
+            tables=tables,
         )
         try:
             load_robot(work)

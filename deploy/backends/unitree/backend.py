@@ -155,6 +155,7 @@ class UnitreeBackend(BackendLifecycle):
         self._reader = self._writer = None
         self._lock = threading.Lock()
         self._read_lock = threading.Lock()
+        self._hold_reads = False
         self._hold_stop = threading.Event()
         self._hold: threading.Thread | None = None
         self._hold_target = np.asarray(robot.home, dtype=np.float64).copy()
@@ -223,19 +224,22 @@ class UnitreeBackend(BackendLifecycle):
     # ------------------------------------------------------------------ hold until the runtime
     def _start_hold(self) -> None:
         self._hold_stop.clear()
+        self._hold_reads = True
         self._hold = threading.Thread(target=self._hold_loop, name="unitree-hold", daemon=True)
         self._hold.start()
 
     def _hold_loop(self) -> None:
-        """Until the runtime's first command, every control period: take the states (their
-        counters stay whole; none for ``safety.stale_limit``: damping from then on) and send the
-        home pose."""
+        """Until the runtime's first command, every control period: send the home pose, and
+        until the runtime's first read, take the states (their counters stay whole; none for
+        ``safety.stale_limit``: damping from then on)."""
         next_t = time.monotonic()
         stale_limit = self.robot.config.safety.stale_limit
         while not self._hold_stop.is_set():
-            self.read()
-            if time.monotonic() - self._t0 - self._last_fresh > stale_limit:
-                self._damping = True
+            with self._read_lock:
+                if self._hold_reads:
+                    self._read()
+                    if time.monotonic() - self._t0 - self._last_fresh > stale_limit:
+                        self._damping = True
             self._send(self._hold_target, self.kp, self.kd)
             next_t += self.period
             self._hold_stop.wait(max(0.0, next_t - time.monotonic()))
@@ -251,7 +255,8 @@ class UnitreeBackend(BackendLifecycle):
         """Take every LowState received since the last read; the frame from the newest valid
         one (NaN where none arrived, or where that joint's motor lost its packet). The frame is
         overwritten by the next read."""
-        with self._read_lock:  # the bring-up's hold thread reads until the runtime's first write
+        with self._read_lock:  # the bring-up's hold thread reads until this first call
+            self._hold_reads = False
             return self._read()
 
     def _read(self) -> SensorFrame:

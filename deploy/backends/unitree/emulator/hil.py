@@ -54,6 +54,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--domain-id", type=int, default=1, help="DDS domain (default 1)")
     p.add_argument("--seed", type=int, default=0, help="the emulator plant's seed")
     p.add_argument("--start", choices=("standing", "lying"), default="standing")
+    p.add_argument(
+        "--family",
+        choices=("unitree_go", "unitree_hg"),
+        default=None,
+        help="message family of both ends (default: robot.toml's)",
+    )
     p.add_argument("--fault", action="append", default=[], metavar="FAULT", help=FAULT_HELP)
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="hil-") as tmp:
@@ -66,6 +72,9 @@ def _run(args, rest: list[str], tmp: Path) -> int:
         rest = [*rest, "--report", str(tmp / "report.json")]
     report = Path(rest[rest.index("--report") + 1])
     extra = ["--start", args.start, "--trace", str(trace)]
+    if args.family:
+        extra += ["--family", args.family]
+        rest = [*rest, "--family", args.family]
     emulator, ready = start_emulator(
         args.robot, args.domain_id, args.seed, args.fault, extra, stderr=None
     )

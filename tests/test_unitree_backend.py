@@ -190,6 +190,20 @@ def test_bringup_refuses_an_active_sport_mode_and_says_how_to_release_it(go2):
     assert "ReleaseMode" in str(err.value)
 
 
+def test_bringup_stops_damped_when_the_robot_rejects_every_command_crc(go2):
+    """A lying robot whose board rejects every LowCmd (its CRC fails: a wrong layout or
+    firmware): the ramp is not followed, the bring-up says so and leaves the commands damping."""
+    domain = _domain()
+    faults = EmulatorFaults(corrupt_command=1.0)
+    with UnitreeEmulator(go2, domain_id=domain, faults=faults, start="lying") as emu:
+        backend = UnitreeBackend(go2, interface="lo", domain_id=domain, log=lambda s: None)
+        with pytest.raises(BringupError, match="did not follow the ramp.*CRC the robot rejects"):
+            backend.open()
+        assert emu.stats["lowcmd_bad_crc"] == emu.stats["lowcmd_received"] > 0
+        assert not emu.commands  # not one command taken
+    assert backend.sent > 0 and backend._damping  # its last commands were damping
+
+
 def test_unitree_hg_echoes_mode_machine_in_every_command(go2):
     """The unitree_hg family (G1, H1-2) on the Go2's description: the robot's mode_machine is
     read from LowState and carried by every LowCmd; CRCs hold both ways."""

@@ -10,9 +10,10 @@
 4. **damping** for ``DAMPING_TIME`` (kp 0, the damping kd): the robot settles where it lies.
 5. **ramp** from the measured pose to the home pose in ``[unitree] ramp_time`` (linear in time,
    as unitree_rl_gym's ``deploy_real`` moves to its default pose) with ``[unitree] ramp_kp`` /
-   ``ramp_kd``, then ``SETTLE_TIME`` at home while the gains blend linearly into the joints'
-   kp/kd (the policy's: no jump at the hand-over). A joint farther than ``RAMP_TOLERANCE`` from
-   home after it is a :class:`BringupError` (the robot did not take the commands).
+   ``ramp_kd`` and ``SETTLE_TIME`` at home. A joint farther than ``RAMP_TOLERANCE`` from home
+   then is a :class:`BringupError` (the robot did not take the commands). Then ``BLEND_TIME``
+   at home while the gains blend linearly into the joints' kp/kd (the policy's: no jump at the
+   hand-over; a soft policy PD lets the robot sag under its weight).
 
 A LowState silent for ``BRINGUP_STALE`` during stages 4-5 stops the bring-up (damping, then a
 :class:`BringupError`). The backend then holds the home pose until the runtime's first command.
@@ -32,11 +33,12 @@ from robots.errors import Sim2RealError
 LOWSTATE_TIMEOUT = 5.0
 #: s of damping before the ramp (our choice).
 DAMPING_TIME = 1.0
-#: s at the home pose after the ramp, the gains blending into the joints', before the check (our
-#: choice).
-SETTLE_TIME = 0.5
-#: rad: a joint farther from home after the ramp did not follow the commands (our choice: well
-#: above the Go2's sag under its own weight at kp 20, well below a lying leg's distance).
+#: s at the home pose after the ramp, at the ramp's gains, before the check (our choice).
+SETTLE_TIME = 0.3
+#: s at the home pose after the check, the gains blending into the joints' (our choice).
+BLEND_TIME = 0.5
+#: rad: a joint farther from home after the ramp did not follow the commands (our choice: above
+#: a leg's sag under the robot's weight at the ramp's gains, below a lying leg's distance).
 RAMP_TOLERANCE = 0.3
 #: s without a LowState that stops the bring-up (our choice).
 BRINGUP_STALE = 0.5
@@ -91,12 +93,7 @@ def bring_up(b) -> None:
     b.log(f"[5/5] ramp to the home pose over {ramp:g} s (farthest joint {far:.2f} rad away)")
     b._damping = False
     _run(b, ramp, lambda t: q0 + min(1.0, t / ramp) * (home - q0), (b.ramp_kp, b.ramp_kd))
-
-    def blend(t: float):
-        a = min(1.0, t / SETTLE_TIME)
-        return ((1 - a) * b.ramp_kp + a * b.kp, (1 - a) * b.ramp_kd + a * b.kd)
-
-    _run(b, SETTLE_TIME, lambda t: home, blend)
+    _run(b, SETTLE_TIME, lambda t: home, (b.ramp_kp, b.ramp_kd))
     q = _pose(b)
     off = np.abs(q - home)
     if off.max() > RAMP_TOLERANCE:
@@ -108,6 +105,12 @@ def bring_up(b) -> None:
             "the commands refused (a CRC the robot rejects, a motor mode it does not take: "
             "robot.toml [unitree] motor_mode), or does another controller command the motors?"
         )
+
+    def blend(t: float):
+        a = min(1.0, t / BLEND_TIME)
+        return ((1 - a) * b.ramp_kp + a * b.kp, (1 - a) * b.ramp_kd + a * b.kd)
+
+    _run(b, BLEND_TIME, lambda t: home, blend)
     b.log("      at home; holding it until the policy starts")
 
 

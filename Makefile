@@ -67,15 +67,27 @@ train-position: install
 $(ONNX): $(POLICY) $(STAMP)
 	$(VENV)/bin/policy-export $(POLICY)
 
-# Hardware in the loop without the hardware: the shipped SO-101 policy for 60 s through
-# deploy-run --backend feetech (the vendor SDK, wall clock, 1 Mbaud) against the wire-protocol
-# emulator on a pty; prints the same summary as `make run`.
-hil: install policies/so101.onnx
-	$(PY) -m deploy.backends.emulator.hil --robot so101 --protocol feetech -- \
-		--policy policies/so101.onnx --duration 60
+# Hardware in the loop without the hardware; prints the same summary as `make run`.
+#   make hil             the shipped SO-101 policy for 60 s through deploy-run --backend feetech
+#                        (the vendor SDK, wall clock, 1 Mbaud) against the wire-protocol emulator
+#                        on a pty
+#   make hil ROBOT=go2   the shipped Go2 policy walking for 60 s through deploy-run --backend
+#                        unitree (DDS on the loopback, domain 1) against the Unitree emulator
+#                        (rt/lowstate at 500 Hz, the MuJoCo plant behind it); then the walk as
+#                        the emulator saw it (true distance, speed, tracking)
+HIL_ROBOT := $(if $(filter go2,$(ROBOT)),go2,so101)
+HIL_so101 := $(PY) -m deploy.backends.emulator.hil --robot so101 --protocol feetech -- \
+	--policy policies/so101.onnx --duration 60
+HIL_go2   := $(PY) -m deploy.backends.unitree.emulator.hil --robot go2 -- \
+	--policy policies/go2.onnx --command 0.5,0,0 --duration 60
+hil: install policies/$(HIL_ROBOT).onnx
+	$(HIL_$(HIL_ROBOT))
 
 policies/so101.onnx: policies/so101.pt $(STAMP)
 	$(VENV)/bin/policy-export policies/so101.pt
+
+policies/go2.onnx: policies/go2.pt $(STAMP)
+	$(VENV)/bin/policy-export policies/go2.pt
 
 soak: install $(ONNX)
 	$(VENV)/bin/soak-test --robot $(ROBOT) --policy $(ONNX) --hours 8 --sessions 1 --seed 0 --out runs/soak

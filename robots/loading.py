@@ -390,12 +390,14 @@ def load_robot(name_or_path: str | Path) -> Robot:
 
 def description_hash(cfg: RobotConfig, mjcf_bytes: bytes) -> str:
     """sha256 (hex) of the description a policy depends on: every robot.toml field but the
-    ``[task]`` and ``[soak]`` tables (where goals come from and how hard the soak pushes are the
-    evaluation's business, not the robot's), in canonical JSON, and the MJCF bytes (the file in
+    ``[task]``, ``[soak]`` and ``[unitree]`` tables (where goals come from and how hard the soak
+    pushes are the evaluation's business, how joints map to a Unitree robot's motor slots the
+    backend's, not the robot's), in canonical JSON, and the MJCF bytes (the file in
     the robot folder, package URIs unresolved). Optional fields left unset (None) are left out,
     so that adding one to the schema changes no existing robot's hash."""
     described = json.dumps(
-        cfg.model_dump(exclude={"task", "soak"}, exclude_none=True, mode="json"), sort_keys=True
+        cfg.model_dump(exclude={"task", "soak", "unitree"}, exclude_none=True, mode="json"),
+        sort_keys=True,
     )
     return hashlib.sha256(described.encode() + b"\0" + mjcf_bytes).hexdigest()
 

@@ -58,8 +58,8 @@ class Robot:
             the MJCF ``<option gravity>``.
         ee_frame_id: Pinocchio frame id of the end-effector site.
         ee_site_id: MuJoCo site id of the end-effector site.
-        description_hash: sha256 (hex) of the robot.toml fields except ``[task]`` and
-            ``[soak]`` (canonical JSON) and the MJCF bytes; a policy records it.
+        description_hash: sha256 (hex) of the robot.toml fields except ``[task]``, ``[soak]``
+            and ``[unitree]`` (canonical JSON) and the MJCF bytes; a policy records it.
         floating_base: True for a robot whose base moves freely (``[base]`` in robot.toml):
             MuJoCo's ``<freejoint>`` (qpos ``[x y z, qw qx qy qz, joints]``, qvel ``[v world,
             omega body, dq]``) and Pinocchio's free-flyer root joint (q ``[x y z, qx qy qz qw,

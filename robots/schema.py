@@ -272,6 +272,49 @@ class SoakConfig(_Strict):
         return self
 
 
+class UnitreeConfig(_Strict):
+    """How a Unitree robot's low-level DDS interface maps to this description (``[unitree]``;
+    ``deploy-run --backend unitree``; left out of the description hash, as ``[task]``: wiring,
+    not dynamics).
+
+    ``family``: the message family the robot speaks (``unitree_go``: Go2, Go1, B2, H1;
+    ``unitree_hg``: G1, H1-2). ``motor_index``: the motor slot of each joint, in joint order
+    (the Go2's motors run FR, FL, RR, RL, hip-thigh-calf; its description's joints FL, FR, RL,
+    RR). ``foot_index``: the ``foot_force`` slot of each ``[base] feet`` entry (``unitree_go``).
+    ``motor_mode``: the ``mode`` byte of an enabled motor (0x01 on the Go2 and the
+    ``unitree_hg`` robots; 0x0A on the H1's servo motors). ``damping_kd``: N m s/rad, the
+    damping command's gain (kp 0), per joint or one for all. ``ramp_time``: s, the bring-up's
+    ramp from the measured to the home pose; ``ramp_kp`` (N m/rad), ``ramp_kd`` (N m s/rad): its
+    gains, per joint or one for all (default: the joints' kp/kd; a policy's gains may be too
+    soft to stand a robot up), blended into the joints' at the end of the ramp.
+    ``foot_force_scale``: N per ``foot_force`` count.
+    ``driver_errors``: read the drivers' error codes (``unitree_go``: ``motor_state.reserve[0]``;
+    ``unitree_hg``: ``motor_state.motorstate``) as faults.
+    """
+
+    family: Literal["unitree_go", "unitree_hg"]
+    motor_index: list[Annotated[int, Field(ge=0)]]
+    foot_index: list[Annotated[int, Field(ge=0)]] = []
+    motor_mode: Annotated[int, Field(ge=0, le=255)] = 1
+    damping_kd: NonNegative | list[NonNegative]
+    ramp_time: Positive = 2.0  # s
+    ramp_kp: Positive | list[Positive] | None = None  # N m/rad
+    ramp_kd: NonNegative | list[NonNegative] | None = None  # N m s/rad
+    foot_force_scale: Positive = 1.0  # N per count
+    driver_errors: bool = True
+
+    @model_validator(mode="after")
+    def _distinct(self) -> UnitreeConfig:
+        slots = 20 if self.family == "unitree_go" else 35
+        for name in ("motor_index", "foot_index"):
+            index = getattr(self, name)
+            if len(set(index)) != len(index) or any(i >= slots for i in index):
+                raise ValueError(
+                    f"{name}: expected distinct slots below {slots} ({self.family}), got {index}"
+                )
+        return self
+
+
 class RobotConfig(_Strict):
     """The whole ``robot.toml``."""
 
@@ -285,6 +328,7 @@ class RobotConfig(_Strict):
     task: TaskConfig | None = None  # required for a fixed-base arm
     base: BaseConfig | None = None  # a floating-base robot (legged)
     soak: SoakConfig | None = None  # the soak's disturbances sized to this robot
+    unitree: UnitreeConfig | None = None  # deploy-run --backend unitree: motor slots, family
 
     @model_validator(mode="after")
     def _cross_references(self) -> RobotConfig:
@@ -317,4 +361,24 @@ class RobotConfig(_Strict):
         names = [j.name for j in self.joints]
         if len(set(names)) != len(names):
             raise ValueError(f"joint names must be unique, got {names}")
+        u = self.unitree
+        if u is not None:
+            if len(u.motor_index) != len(self.joints):
+                raise ValueError(
+                    f"unitree.motor_index has {len(u.motor_index)} slots, expected one per joint "
+                    f"({len(self.joints)})"
+                )
+            for name in ("damping_kd", "ramp_kp", "ramp_kd"):
+                value = getattr(u, name)
+                if isinstance(value, list) and len(value) != len(self.joints):
+                    raise ValueError(
+                        f"unitree.{name} has {len(value)} values, expected one or one per joint "
+                        f"({len(self.joints)})"
+                    )
+            feet = len(self.base.feet) if self.base is not None else 0
+            if len(u.foot_index) not in (0, feet):
+                raise ValueError(
+                    f"unitree.foot_index has {len(u.foot_index)} slots, expected one per "
+                    f"[base] feet entry ({feet})"
+                )
         return self

@@ -13,10 +13,10 @@ Two interfaces:
   ``isinstance(backend,
   SimulatedPlant)``, and only then.
 
-Implementations: :class:`deploy.backends.sim.plant.SimBackend` (both), and the serial-bus servo
-backends
-:class:`deploy.backends.servo.feetech.FeetechBackend` and
-:class:`deploy.backends.servo.dynamixel.DynamixelBackend` (``Backend`` only).
+Implementations: :class:`deploy.backends.sim.plant.SimBackend` (both), the serial-bus servo
+backends :class:`deploy.backends.servo.feetech.FeetechBackend` and
+:class:`deploy.backends.servo.dynamixel.DynamixelBackend`, and a Unitree robot's DDS interface
+:class:`deploy.backends.unitree.backend.UnitreeBackend` (``Backend`` only).
 """
 
 from __future__ import annotations
@@ -113,6 +113,10 @@ class Backend(Protocol):
     Lifecycle: ``open()`` connects and prepares the robot and ends with the drives' torque on
     (``enable``); ``close()`` switches it off (unless the backend was told to hold) and releases
     the connection. Both are idempotent; ``with backend:`` calls them.
+
+    Optional: ``damp(envs)`` ((envs,) bool), for drives with a damping mode of their own (a
+    Unitree robot's drivers: kp 0, a damping kd). The runtime calls it on every tick of a legged
+    robot with the envs it lays down (SAFE_STOP, FAULTED); their commands are then damping.
     """
 
     envs: int

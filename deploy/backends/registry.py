@@ -21,7 +21,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 #: Modules whose import registers the built-in backends (light: no MuJoCo, no SDK).
-BUILTIN = ("deploy.backends.sim.options", "deploy.backends.servo.options")
+BUILTIN = (
+    "deploy.backends.sim.options",
+    "deploy.backends.servo.options",
+    "deploy.backends.unitree.options",
+)
 
 
 @dataclass(frozen=True)

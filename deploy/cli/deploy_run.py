@@ -11,16 +11,18 @@ end is :mod:`deploy.cli.run_summary`'s.
       guard found the estimate beyond one (a safe stop)
 2     a latched fault: some env ended FAULTED (or in a safe stop) after a fault of the table
 3     bad input: unreadable robot, policy or spec, mismatching contract, bad option; a servo bus
-      that does not come up (port, missing servo, wrong model number, calibration)
+      that does not come up (port, missing servo, wrong model number, calibration); a Unitree
+      robot that does not come up (no LowState, a high-level mode active, a ramp not followed)
 4     the simulation diverged (MuJoCo reported a bad state)
 ====  =====================================================================================
 
 Backends (``--backend``): ``sim`` (the MuJoCo plant, simulated or wall clock, many envs, fault
 injection, true-state violation counting), ``feetech`` and ``dynamixel`` (a real servo bus through
-the vendor's SDK, or the emulator's pty: one robot, wall clock only; goals and motion figures
-are judged on the estimated state, as there is no ground truth). On a servo bus the run ends early
-once the fault is latched (FAULTED), and the torque goes off at the end unless
-``--hold-on-close``.
+the vendor's SDK, or the emulator's pty), ``unitree`` (a Unitree robot's low-level DDS interface,
+or its emulator): one robot, wall clock only; goals and motion figures are judged on the
+estimated state, as there is no ground truth. On hardware the run ends early once the fault is
+latched (FAULTED); at the end a servo bus's torque goes off unless ``--hold-on-close``, a Unitree
+robot is left damped.
 
 Real time (the wall clock): ``--wait sleep|hybrid|spin`` or ``--spin``
 (:mod:`deploy.runtime.clock`), ``--rt-priority N``, ``--cpu N[,M]``, ``--lock-memory`` (on by

@@ -45,7 +45,7 @@ def print_summary(r: dict) -> None:
             print(f"  HARD VIOLATIONS   {kinds} ticks (true state): the run fails (exit code 1)")
     else:
         print(
-            "  violations        n/a (no ground truth on a servo bus; the guard's hard-limit "
+            "  violations        n/a (no ground truth on hardware; the guard's hard-limit "
             f"stops: {r['faults']['by_cause']['hard_limit']})"
         )
     iv = r["interventions"]
@@ -77,7 +77,9 @@ def print_summary(r: dict) -> None:
     for text in f.get("drive_errors", []):
         print(f"  servo error       {text}")
     b = r.get("bus")
-    if b:
+    if b and b.get("transport") == "dds":
+        _print_dds(b)
+    elif b:
         rd, wr = b["read_us"], b["write_us"]
         drops = ", ".join(f"{k} {n}" for k, n in b["dropouts"].items())
         print(
@@ -132,3 +134,23 @@ def print_summary(r: dict) -> None:
 def _causes(counts: dict[str, int]) -> str:
     """``hard_limit 1, fall 2`` from ``{cause: count}``."""
     return ", ".join(f"{cause} {n}" for cause, n in counts.items())
+
+
+def _print_dds(b: dict) -> None:
+    """The DDS line of a Unitree robot's run (:meth:`deploy.backends.unitree.backend.
+    UnitreeBackend.bus_summary`)."""
+    rd, wr, age = b["read_us"], b["write_us"], b["state_age_us"]
+    drops = ", ".join(f"{k} {n}" for k, n in b["dropouts"].items())
+    where = f"{b['interface'] or 'default interface'}, domain {b['domain_id']}"
+    print(
+        f"  bus               DDS {b['family']} on {where}: LowState {b['lowstate_received']} "
+        f"at {b['lowstate_rate_hz']:.0f} Hz, dropouts {drops} "
+        f"({100 * b['dropout_fraction']:.2f} %); LowCmd {b['lowcmd_sent']}; read p50 "
+        f"{rd['p50_us']:.0f} p99 {rd['p99_us']:.0f} us, write p50 {wr['p50_us']:.0f} p99 "
+        f"{wr['p99_us']:.0f} us; state age p50 {age['p50_us']:.0f} p99 {age['p99_us']:.0f} us"
+    )
+    if b.get("mode_machine") is not None:
+        print(f"  mode_machine      {b['mode_machine']}")
+    if b["motor_lost"]:
+        lost = ", ".join(f"motor {k} {n}" for k, n in b["motor_lost"].items())
+        print(f"  motor lost        {lost} packets")

@@ -15,7 +15,9 @@ The tick (:meth:`Runtime.tick`) reads top to bottom as DESIGN.md draws it::
     backend.write(cmd)
 
 State machine (one per env): ``IDLE -> RAMP_IN -> RUNNING -> SAFE_STOP -> FAULTED``. RAMP_IN brings
-the robot from its measured pose to the home pose before the policy takes over. A recurrent
+the robot from its measured pose to the home pose before the policy takes over (at rest, within
+``HOME_TOLERANCE`` of home: the estimate, or for a legged robot in position mode the commanded
+position, as its soft PD holds its weight short of home). A recurrent
 policy's state is reset (``policy.reset(envs)``) for the envs that enter RAMP_IN (start, operator
 reset, cool-down resume) and again for those whose RAMP_IN ends: the policy takes control from its
 initial state, as in a fresh episode. SAFE_STOP brings

@@ -107,6 +107,7 @@ class CompiledSupervision:
                 HOME_TOLERANCE,
                 tolerance,
                 self._stop_timeout,
+                float(s.home_from_command),
             ]
         )
         self._bind_action(spec)

@@ -166,6 +166,9 @@ class Runtime:
         self._input = None if self.mode_name == "torque" else self.smoother.mean_acceleration
         # latency histograms' bins (deploy.observe.telemetry)
         self._bins = np.array([BIN_NS, BINS], dtype=np.int64)
+        #: the backend's ``damp(envs)`` (drivers with their own damping mode, e.g. a Unitree
+        #: robot's: kp 0, a damping kd), told every tick of a legged robot which envs damp
+        self._backend_damp = getattr(backend, "damp", None)
         #: the compiled action screen and supervision (deploy.kernels); None with ``reference``
         self._compiled = None if reference else self._compile()
 
@@ -300,6 +303,8 @@ class Runtime:
             damp = self.damping
             if damp.any():
                 self.supervision.damp(cmd, state, damp)
+            if self._backend_damp is not None:  # drivers with a damping mode of their own
+                self._backend_damp(damp)
         st[6] = clock_ns()
         self.backend.write(cmd)
         st[7] = clock_ns()

@@ -30,7 +30,8 @@ REST_SPEED = 0.05
 SAFE_STOP_TIMEOUT = 2.0
 #: Runtime.start waits this long for the first reading of every joint, s.
 START_TIMEOUT = 0.5
-#: RAMP_IN ends within this distance of the home pose, rad.
+#: RAMP_IN ends within this distance of the home pose, rad (the estimate's; a legged robot's
+#: commanded position's in position mode: ``Supervision.home_from_command``).
 HOME_TOLERANCE = 0.05
 #: Gain of the RAMP_IN approach in velocity and torque mode, 1/s (the smoother bounds the rest).
 RAMP_GAIN = 2.0

@@ -100,6 +100,10 @@ class Supervision:
         #: (OVERRUN_WINDOW,) bool: the last ticks' wall-clock overruns (the runtime writes it)
         self.overrun_ring = np.zeros(OVERRUN_WINDOW, dtype=bool)
         self.home = np.asarray(robot.home)
+        #: RAMP_IN ends on the smoother's commanded position at home (not the estimate's): a
+        #: legged robot in position mode, whose drives' soft PD (the gains it was trained with)
+        #: holds its weight short of the home pose, which its estimate would never reach
+        self.home_from_command = robot.floating_base and mode_name == "position"
         self.stop_damping = STOP_DAMPING * robot.effort_limit
         # the thermal band of the derating law the guard and the drives share
         self.temp_start = self.guard.derating.start
@@ -198,7 +202,8 @@ class Supervision:
         mode = self.mode
         if not (mode == RUNNING).all():  # else nothing to end (the common case)
             at_rest = (np.abs(state.dq) < REST_SPEED).all(axis=1)
-            home = (np.abs(state.q - self.home) < HOME_TOLERANCE).all(axis=1)
+            pose = self.smoother.commanded if self.home_from_command else state.q
+            home = (np.abs(pose - self.home) < HOME_TOLERANCE).all(axis=1)
             took_over = (mode == RAMP_IN) & at_rest & home
             if took_over.any():
                 mode[took_over] = RUNNING

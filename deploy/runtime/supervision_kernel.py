@@ -43,6 +43,9 @@ SCREEN_STOP, SCREEN_OVERRIDE = 1, 2
 POSITION, VELOCITY, TORQUE = 0, 1, 2
 #: Rows of ``params`` of :func:`supervise`.
 STALE_LIMIT, OVERRUN_LIMIT, REST_SPEED, HOME_TOLERANCE, TRACKING_TOLERANCE, STOP_TIMEOUT = range(6)
+#: Row of ``params``: 1 where RAMP_IN ends on the commanded position reaching home (a legged
+#: robot in position mode, whose soft PD holds its weight short of home), 0 on the estimate.
+HOME_FROM_COMMAND = 6
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -96,10 +99,12 @@ def supervise(
         overrun_ring: (window,) bool, overruns of the last ticks; read when ``realtime``.
         params: ``STALE_LIMIT`` s, ``OVERRUN_LIMIT`` fraction, ``REST_SPEED`` rad/s,
             ``HOME_TOLERANCE`` rad, ``TRACKING_TOLERANCE`` rad (of the control mode),
-            ``STOP_TIMEOUT`` ticks (``deploy.runtime.SAFE_STOP_TIMEOUT``).
+            ``STOP_TIMEOUT`` ticks (``deploy.runtime.SAFE_STOP_TIMEOUT``),
+            ``HOME_FROM_COMMAND`` (1: RAMP_IN's home is judged on ``commanded``, 0: on ``q``).
         q, dq: (envs, n) rad, rad/s, the estimate; home (n,) rad.
         commanded: (envs, n) rad, the smoother's commanded position (Ruckig's position in
-            velocity mode); unused in torque mode.
+            velocity mode); unused in torque mode (and for RAMP_IN's end unless
+            ``HOME_FROM_COMMAND``).
         mode, cause: (envs,) int8, the state machine (written).
         safe_stops: (envs,) int64; faults (causes, envs) int64: counters (written).
         stop_ticks: (envs,) int64, ticks since each safe stop began, 0 outside SAFE_STOP
@@ -142,6 +147,7 @@ def supervise(
             for e in range(envs):
                 if _stop(e, OVERRUN, mode, cause, safe_stops, faults, flags):
                     code |= SUPERVISE_STOP
+    from_command = params[HOME_FROM_COMMAND] != 0.0
     for e in range(envs):
         m = mode[e]
         if m != RAMP_IN and m != SAFE_STOP:
@@ -151,7 +157,8 @@ def supervise(
         for j in range(n):
             if not abs(dq[e, j]) < params[REST_SPEED]:
                 at_rest = False
-            if not abs(q[e, j] - home[j]) < params[HOME_TOLERANCE]:
+            pose = commanded[e, j] if from_command else q[e, j]
+            if not abs(pose - home[j]) < params[HOME_TOLERANCE]:
                 at_home = False
         if m == RAMP_IN:
             if at_rest and at_home:

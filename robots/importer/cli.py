@@ -120,6 +120,7 @@ def import_robot(
     notes: list[str] | tuple[str, ...] = (),
     target_limits: str = "pd",
     command: list[str] | None = None,
+    unitree: dict | None = None,
 ) -> ImportReport:
     """Import ``source`` (URDF or MJCF path, or ``PACKAGE:path``) into the robot folder ``out``.
 
@@ -151,8 +152,10 @@ def import_robot(
             notes: comment lines for robot.toml's header (the sources of flag values).
             command: the command line printed in robot.toml to regenerate the folder.
             target_limits: ``"pd"`` or ``"motion"``, the rule of a legged robot's acceleration
-            and jerk limits (:func:`robots.importer.legged.pd_target_limits`). feet, imu, kp,
-            kd, home and notes need ``floating_base``.
+            and jerk limits (:func:`robots.importer.legged.pd_target_limits`).
+            unitree: a Unitree quadruped's ``[unitree]`` table: ``family``, ``damping_kd``,
+            ``ramp_kp``, ``ramp_kd`` (:func:`robots.importer.unitree.unitree_lines`). feet, imu,
+            kp, kd, home, notes and unitree need ``floating_base``.
 
     The parent folders of ``out`` are created when missing (as ``mkdir -p``; removed again when
     the import fails).
@@ -174,7 +177,7 @@ def import_robot(
         return _import(
             source, out, srdf, motors, ee_site, limits, velocities, control_rate,
             physics_timestep, force, log, drop_missing_meshes, link_boxes, floating_base, feet,
-            imu, kp, kd, home, notes, command, target_limits,
+            imu, kp, kd, home, notes, command, target_limits, unitree,
         )  # fmt: skip
     except BaseException:
         for folder in created:  # deepest first
@@ -225,11 +228,13 @@ def _import(
     notes,
     command,
     target_limits="pd",
+    unitree=None,
 ) -> ImportReport:
     """:func:`import_robot` once the parents of ``out`` exist (its arguments)."""
     start = time.perf_counter()
     legged_flags = {"--foot": feet, "--imu": imu, "--kp": kp, "--kd": kd, "--home": home}
     legged_flags["--note"] = notes
+    legged_flags["--unitree"] = unitree
     used = [k for k, v in legged_flags.items() if v]
     if used and not floating_base:
         raise RobotImportError(f"{', '.join(used)}: only with --floating-base (a legged robot)")
@@ -261,6 +266,7 @@ def _import(
             kd=list(kd), home=list(home), notes=list(notes), control_rate=control_rate,
             physics_timestep=physics_timestep, target_limits=target_limits,
             command=command or ["robot-import", str(source), "--out", str(out)], log=log,
+            unitree=unitree,
         )  # fmt: skip
         report.seconds = time.perf_counter() - start
         log(f"wrote {out} ({len(joint_names)} joints, floating base) in {report.seconds:.1f} s")
@@ -414,7 +420,30 @@ def main(argv: list[str] | None = None) -> int:
         "move, rest to rest within one control period, as far as the drive's full torque reaches "
         "(effort / kp); 'motion' only what the joint itself can accelerate (the arms' rule)",
     )
+    legged.add_argument(
+        "--unitree",
+        default=None,
+        metavar="FAMILY",
+        help="a Unitree quadruped: write its [unitree] table (motor slots from the joint names; "
+        "unitree_go or unitree_hg) for deploy-run --backend unitree",
+    )
+    legged.add_argument(
+        "--unitree-damping-kd", type=float, default=None, help="N m s/rad of the damping command"
+    )
+    legged.add_argument("--unitree-ramp-kp", type=float, default=None, help="bring-up N m/rad")
+    legged.add_argument("--unitree-ramp-kd", type=float, default=None, help="bring-up N m s/rad")
     args = p.parse_args(argv)
+    unitree = None
+    if args.unitree is not None:
+        if args.unitree_damping_kd is None:
+            print("robot-import: error: --unitree needs --unitree-damping-kd", file=sys.stderr)
+            return EXIT_REFUSED
+        unitree = {
+            "family": args.unitree,
+            "damping_kd": args.unitree_damping_kd,
+            "ramp_kp": args.unitree_ramp_kp,
+            "ramp_kd": args.unitree_ramp_kd,
+        }
     try:
         import_robot(
             args.source,
@@ -438,6 +467,7 @@ def main(argv: list[str] | None = None) -> int:
             target_limits=args.target_limits,
             notes=args.note,
             command=["robot-import", *(sys.argv[1:] if argv is None else argv)],
+            unitree=unitree,
         )
     except RobotImportError as exc:
         print(f"robot-import: error: {exc}", file=sys.stderr)

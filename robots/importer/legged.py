@@ -192,13 +192,15 @@ def write_legged_toml(
     command: list[str],
     motor_tables: dict | None = None,
     target_limits: str = "pd",
+    tables: list[str] = (),
 ) -> None:
     """robot.toml of a floating-base robot, a comment giving the reason of every value.
 
     ``gains_from``: joint -> where its kp and kd came from ('--kp/--kd' or the importer's
     rule); ``notes``: ``--note`` lines for the header (sources of flag values); ``command``:
     the command line that regenerates the folder; ``motor_tables``: the motors given as files
-    (:func:`robots.importer.model.motor_table_lines`).
+    (:func:`robots.importer.model.motor_table_lines`); ``tables``: lines of more tables, at the
+    end (``[unitree]``: :mod:`robots.importer.unitree`).
     """
     kind = prepared.kind
     motor_tables = motor_tables or {}
@@ -307,6 +309,7 @@ def write_legged_toml(
         f"low end {PUSH_LOW:g} of it.",
         f"push_force = [{_f(_sig(PUSH_LOW * push))}, {_f(_sig(push))}]  # N",
         *motor_table_lines(motor_tables),
+        *tables,
         "",
     ]
     path.write_text("\n".join(lines), encoding="utf-8")
@@ -367,6 +370,7 @@ def import_floating_base(
     command: list[str],
     log,
     target_limits: str = "pd",
+    unitree: dict | None = None,
 ) -> None:
     """The floating-base half of :func:`robots.importer.cli.import_robot` (its arguments).
 
@@ -392,6 +396,11 @@ def import_floating_base(
     foot_links = choose_feet(urdf, feet)
     imu_link, imu_site = choose_imu(urdf, imu, log)
     at = f"site {imu_site} of link {imu_link}" if imu_site else f"link {imu_link}"
+    tables = []
+    if unitree is not None:
+        from robots.importer.unitree import unitree_lines
+
+        tables = unitree_lines(joint_names=joint_names, feet=foot_links, **unitree)
     log(f"note: feet {foot_links}, IMU at {at}")
     limits_out, lowered, lnotes = cap_limits(urdf, chosen, motor_cfg, log)
     report.lowered += lowered
@@ -479,6 +488,7 @@ def import_floating_base(
             command=command,
             motor_tables=motor_tables,
             target_limits=target_limits,
+            tables=tables,
         )
         try:
             load_robot(work)

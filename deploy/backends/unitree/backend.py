@@ -1,0 +1,433 @@
+"""A Unitree robot's low-level DDS interface as a :class:`~deploy.backends.base.Backend` (one
+robot, wall clock): ``deploy-run --backend unitree``.
+
+The robot's PD runs on each motor's driver, ``tau = tau_ff + kp (q_des - q) + kd (dq_des - dq)``:
+position mode sends the runtime's targets with the joints' ``kp``/``kd`` (robot.toml), torque mode
+sends ``tau_ff`` with ``kp = kd = 0``; velocity mode is refused (the drivers have no integral
+term, the plant's velocity loop does). Joints map to motor slots through robot.toml's
+``[unitree] motor_index``. Commands go out on ``rt/lowcmd`` with their CRC
+(:mod:`deploy.backends.unitree.crc`); states come in on ``rt/lowstate`` (500 Hz on the robots)
+and are taken, all of them, at every :meth:`UnitreeBackend.read`.
+
+``open()`` is the bring-up, each stage printed as it starts
+(:mod:`deploy.backends.unitree.bringup`): wait for LowState (a clear error naming the interface
+and domain when none comes), read and echo ``mode_machine`` (``unitree_hg``; echoed in every
+command), refuse when the motion switcher reports a high-level mode still active
+(:mod:`deploy.backends.unitree.motion_switcher`), damping, a timed ramp from the measured to the
+home pose, and a hold there until the runtime's first command (its RAMP_IN then starts at
+home). ``close()``: damping for
+``CLOSE_DAMPING_TIME``, the last command the robot keeps.
+
+Damping (``kp`` 0, ``kd`` robot.toml's ``[unitree] damping_kd``), never a frozen stiff pose: the
+runtime asks for it (:meth:`UnitreeBackend.damp`) on a legged robot's every safe stop: a stale
+LowState, a fall, an over-temperature, a driver error.
+
+What the states tell, counted in :meth:`UnitreeBackend.bus_summary` as the servo bus counts its
+dropouts: a sample whose CRC fails (``bad_crc``), that does not decode (``malformed``), whose
+``tick`` is not newer than the last (``stale``: late, repeated or reordered), ``tick`` gaps
+(``lost``: samples the network or the reader's queue lost), and each motor's ``lost`` packets
+(``unitree_go``; a joint whose count rose in the newest sample is a missing reading, NaN). The
+drivers' error codes (:meth:`~deploy.backends.unitree.family.Family.errors`) are
+:meth:`UnitreeBackend.drive_errors`; the runtime stops on them (cause ``servo_error``).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from collections import Counter
+
+import numpy as np
+
+from deploy.backends.base import BackendLifecycle, SensorFrame
+from deploy.backends.unitree import bringup
+from deploy.backends.unitree import family as families
+from deploy.backends.unitree.codec import MessageCodec
+from deploy.backends.unitree.dds import DdsLink
+from deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
+from deploy.observe.telemetry import LatencyHistogram
+from robots import Robot
+
+DROPOUT_KINDS = ("lost", "stale", "bad_crc", "malformed")
+#: States kept between two reads: a control period of 500 Hz states with room to spare.
+STATE_DEPTH = 64
+#: s of damping ``close()`` sends before it leaves (our choice: 25 commands at 50 Hz).
+CLOSE_DAMPING_TIME = 0.5
+#: Driver error codes by name (Unitree's motors: 4 is over temperature, as the maintainers of
+#: unitree_actuator_sdk answer for the A1 motor's error 4).
+DRIVER_ERRORS = {4: "over temperature"}
+
+
+def _stderr(text: str) -> None:
+    print(f"unitree: {text}", file=sys.stderr, flush=True)
+
+
+class UnitreeBackend(BackendLifecycle):
+    """A Unitree robot over DDS (module docstring).
+
+    Args:
+        robot: The robot; its robot.toml needs a ``[unitree]`` table.
+        interface: Network interface the robot is on (e.g. ``eth0``; ``lo`` for the emulator);
+            None: Cyclone DDS chooses.
+        domain_id: DDS domain (0 on the robots, 1 in Unitree's simulation bridges).
+        family: ``unitree_go`` or ``unitree_hg``; default robot.toml's ``[unitree] family``.
+        mode: 'position' or 'torque' (default robot.toml's).
+        lowstate_timeout: s ``open()`` waits for the first LowState.
+        check_sport_mode: ask the motion switcher whether a high-level mode is active.
+        log: Where bring-up stages are printed (default: stderr, ``unitree: ...``).
+
+    Attributes:
+        envs: 1. mode: the control mode. frame: the last :class:`SensorFrame`.
+        dropouts: Counter of states lost or refused by kind (``DROPOUT_KINDS``).
+        motor_lost: (n_joints,) int64, packets each joint's motor lost (``unitree_go``).
+        received: LowState samples taken. sent: LowCmd samples written.
+        read_cost, write_cost: :class:`LatencyHistogram` (ns) of a read and a write (the DDS
+            layer's cost per tick). state_age: :class:`LatencyHistogram` of the newest state's
+            age at a read (its source timestamp to now: meaningful when the robot's clock is
+            synchronised with this computer's, as on the loopback).
+        mode_machine: the robot's ``mode_machine`` (``unitree_hg``), once open.
+
+    Raises:
+        ValueError: no ``[unitree]`` table, velocity mode, an unknown family.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        interface: str | None = None,
+        domain_id: int = 0,
+        family: str | None = None,
+        mode: str | None = None,
+        lowstate_timeout: float = bringup.LOWSTATE_TIMEOUT,
+        check_sport_mode: bool = True,
+        log=_stderr,
+    ):
+        cfg = robot.config.unitree
+        if cfg is None:
+            raise ValueError(
+                f"{robot.directory / 'robot.toml'}: no [unitree] table (family, motor_index, "
+                "damping_kd): --backend unitree needs the robot's motor slots"
+            )
+        self.robot, self.config, self.log = robot, cfg, log
+        self.family = families.family(family or cfg.family)
+        self.mode = mode or robot.control_mode
+        if self.mode not in ("position", "torque"):
+            raise ValueError(
+                f"--backend unitree: mode '{self.mode}' is not supported (the motor drivers run "
+                "a PD: 'position' or 'torque')"
+            )
+        self.interface, self.domain_id = interface, int(domain_id)
+        self.lowstate_timeout, self.check_sport_mode = lowstate_timeout, check_sport_mode
+        self.envs, self.n = 1, robot.n_joints
+        self.names = list(robot.joint_names)
+        self.slots = np.array(cfg.motor_index, dtype=np.int64)
+        self.kp = np.array([j.kp for j in robot.config.joints])
+        self.kd = np.array([j.kd for j in robot.config.joints])
+        self.damping_kd = np.broadcast_to(np.asarray(cfg.damping_kd, dtype=np.float64), self.n)
+        self.ramp_kp = self.kp if cfg.ramp_kp is None else np.broadcast_to(cfg.ramp_kp, self.n)
+        self.ramp_kd = self.kd if cfg.ramp_kd is None else np.broadcast_to(cfg.ramp_kd, self.n)
+        self.period = robot.control_period
+        self.feet = None
+        if self.family.has_feet and robot.floating_base and cfg.foot_index:
+            self.feet = np.array(cfg.foot_index, dtype=np.int64)
+        self.contact_threshold = (
+            robot.config.sensors.contact.threshold if robot.config.sensors.contact else 0.0
+        )
+        self.frame = SensorFrame.empty(1, self.n, robot.n_feet if robot.floating_base else None)
+        self._state = MessageCodec(self.family.low_state)
+        self._cmd = MessageCodec(self.family.low_cmd)
+        self.dropouts: Counter[str] = Counter({k: 0 for k in DROPOUT_KINDS})
+        self.motor_lost = np.zeros(self.n, dtype=np.int64)
+        self.received = self.sent = self.reads = 0
+        self.read_cost, self.write_cost = LatencyHistogram(), LatencyHistogram()
+        self.state_age = LatencyHistogram()
+        self.mode_machine: int | None = None
+        self.latched_errors = np.zeros(self.n, dtype=np.int64)
+        self._errors = np.zeros((1, self.n), dtype=np.int64)
+        self._last_tick: int | None = None
+        self._tick_step: int | None = None
+        self._prev_lost: np.ndarray | None = None
+        self._last_fresh = -np.inf
+        self._damping = False
+        self._enabled = False
+        self._link: DdsLink | None = None
+        self._reader = self._writer = None
+        self._lock = threading.Lock()
+        self._read_lock = threading.Lock()
+        self._hold_reads = False
+        self._hold_stop = threading.Event()
+        self._hold: threading.Thread | None = None
+        self._hold_target = np.asarray(robot.home, dtype=np.float64).copy()
+        self._t0 = time.monotonic()
+        self._opened_at = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def open(self) -> None:
+        """Join the domain and bring the robot up (module docstring); idempotent.
+
+        Raises:
+            deploy.backends.unitree.bringup.BringupError: no LowState, a high-level mode still
+                active, a pose the robot did not follow; the robot is left damped.
+            deploy.backends.unitree.dds.DdsError: the domain cannot be joined.
+        """
+        if self._link is not None:
+            return
+        self._link = DdsLink(self.domain_id, self.interface)
+        self._reader = self._link.reader(TOPIC_LOWSTATE, self.family.low_state, STATE_DEPTH)
+        self._writer = self._link.writer(TOPIC_LOWCMD, self.family.low_cmd)
+        self._opened_at = time.monotonic()
+        try:
+            bringup.bring_up(self)
+        except BaseException:
+            self._close_link(damp=self.sent > 0)
+            raise
+        self._enabled = True
+        self._start_hold()
+
+    def close(self) -> None:
+        """Damping for ``CLOSE_DAMPING_TIME`` (the last command the robot keeps), then leave the
+        domain; idempotent."""
+        self._stop_hold()
+        self._close_link(damp=True)
+
+    def _close_link(self, damp: bool) -> None:
+        if self._link is None:
+            return
+        try:
+            if damp:
+                self._damping = True
+                end = time.monotonic() + CLOSE_DAMPING_TIME
+                while time.monotonic() < end:
+                    self._send(self._hold_target)
+                    time.sleep(self.period)
+        finally:
+            self._reader = self._writer = None
+            self._link.close()
+            self._link = None
+            self._enabled = False
+
+    def enable(self) -> None:
+        """The drivers' PD takes the commands again (after :meth:`disable`)."""
+        self._damping = False
+        self._enabled = True
+
+    def disable(self) -> None:
+        """Damping from the next command on (kp 0, ``damping_kd``): the robot lies down."""
+        self._damping = True
+        self._enabled = False
+
+    def damp(self, envs: np.ndarray) -> None:
+        """The runtime's request: damping (``envs[0]`` True) or the commands (False)."""
+        self._damping = bool(envs[0]) or not self._enabled
+
+    # ------------------------------------------------------------------ hold until the runtime
+    def _start_hold(self) -> None:
+        self._hold_stop.clear()
+        self._hold_reads = True
+        self._hold = threading.Thread(target=self._hold_loop, name="unitree-hold", daemon=True)
+        self._hold.start()
+
+    def _hold_loop(self) -> None:
+        """Until the runtime's first command, every control period: send the home pose, and
+        until the runtime's first read, take the states (their counters stay whole; none for
+        ``safety.stale_limit``: damping from then on)."""
+        next_t = time.monotonic()
+        stale_limit = self.robot.config.safety.stale_limit
+        while not self._hold_stop.is_set():
+            with self._read_lock:
+                if self._hold_reads:
+                    self._read()
+                    if time.monotonic() - self._t0 - self._last_fresh > stale_limit:
+                        self._damping = True
+            self._send(self._hold_target, self.kp, self.kd)
+            next_t += self.period
+            self._hold_stop.wait(max(0.0, next_t - time.monotonic()))
+
+    def _stop_hold(self) -> None:
+        if self._hold is not None:
+            self._hold_stop.set()
+            self._hold.join(timeout=2.0)
+            self._hold = None
+
+    # ------------------------------------------------------------------ the three calls
+    def read(self) -> SensorFrame:
+        """Take every LowState received since the last read; the frame from the newest valid
+        one (NaN where none arrived, or where that joint's motor lost its packet). The frame is
+        overwritten by the next read."""
+        with self._read_lock:  # the bring-up's hold thread reads until this first call
+            self._hold_reads = False
+            return self._read()
+
+    def _read(self) -> SensorFrame:
+        t0 = time.perf_counter_ns()
+        now = time.monotonic() - self._t0
+        f = self.frame
+        f.time[0] = now
+        newest, newest_stamp, newest_lost = None, 0, None
+        decoded = None
+        for data, stamp in self._reader.take_raw(STATE_DEPTH):
+            self.received += 1
+            decoded = data
+            try:
+                valid = self._state.decode(data)
+            except ValueError:
+                self.dropouts["malformed"] += 1
+                continue
+            if not valid:
+                self.dropouts["bad_crc"] += 1
+                continue
+            if not self._fresh_tick(int(self._state.message["tick"])):
+                continue
+            lost = self.family.lost(self._state.message, self.slots)
+            if lost is not None:
+                lost = lost.astype(np.int64)
+                if self._prev_lost is not None:
+                    increase = (lost - self._prev_lost) % (1 << 32)
+                    self.motor_lost += increase
+                    newest_lost = increase > 0
+                self._prev_lost = lost
+            newest, newest_stamp = data, stamp
+        if newest is None:
+            self._no_reading(f)
+        else:
+            if decoded is not newest:  # the newest valid sample is not the one in the record
+                self._state.decode(newest)
+            self._fill(f, now, newest_lost)
+            self._last_fresh = now
+            self.state_age.add(0, max(0, time.time_ns() - newest_stamp))
+        self.reads += 1
+        self.read_cost.add(0, time.perf_counter_ns() - t0)
+        return f
+
+    def _fresh_tick(self, tick: int) -> bool:
+        """Whether ``tick`` is newer than the last accepted one; counts stale and lost states."""
+        last = self._last_tick
+        if last is not None:
+            step = ((tick - last + (1 << 31)) % (1 << 32)) - (1 << 31)  # signed, wrapping
+            if step <= 0:
+                self.dropouts["stale"] += 1
+                return False
+            if self._tick_step is None or step < self._tick_step:
+                self._tick_step = step
+            self.dropouts["lost"] += max(0, round(step / self._tick_step) - 1)
+        self._last_tick = tick
+        return True
+
+    def _no_reading(self, f: SensorFrame) -> None:
+        f.position[0] = f.position_stamp[0] = np.nan
+        self._errors.fill(0)
+        if f.imu_stamp is not None:
+            f.imu_angular_velocity[0] = f.imu_acceleration[0] = np.nan
+            f.imu_stamp[0] = f.contact_stamp[0] = np.nan
+
+    def _fill(self, f: SensorFrame, now: float, lost: np.ndarray | None) -> None:
+        m, fam = self._state.message, self.family
+        ms = m["motor_state"]
+        f.position[0] = ms["q"][self.slots]
+        f.position_stamp[0] = now
+        if lost is not None and lost.any():
+            f.position[0, lost] = f.position_stamp[0, lost] = np.nan
+        f.winding_temperature[0] = fam.temperature(m, self.slots)
+        f.temperature_stamp[0] = now
+        if self.mode_machine is None:
+            self.mode_machine = fam.mode_machine(m)
+        if self.config.driver_errors:
+            self._errors[0] = fam.errors(m, self.slots)
+            self.latched_errors |= self._errors[0]
+        if f.imu_stamp is not None:
+            imu = m["imu_state"]
+            f.imu_angular_velocity[0] = imu["gyroscope"]
+            f.imu_acceleration[0] = imu["accelerometer"]
+            f.imu_stamp[0] = now
+            if self.feet is not None:
+                force = m["foot_force"][self.feet] * self.config.foot_force_scale
+                f.foot_force[0] = force
+                f.foot_contact[0] = force > self.contact_threshold
+                f.contact_stamp[0] = now
+
+    def write(self, command: np.ndarray) -> None:
+        """One LowCmd: position targets (rad) with the joints' kp/kd, or torques (N m), or
+        damping while the runtime asks for it; ``command`` shaped (1, n_joints). The first
+        call ends the bring-up's hold.
+
+        Raises:
+            ValueError: wrong shape or a non-finite value (nothing is written).
+        """
+        command = np.asarray(command, dtype=np.float64)
+        if command.shape != (1, self.n):
+            raise ValueError(f"command: expected shape (1, {self.n}), got {command.shape}")
+        if not np.isfinite(command).all():
+            raise ValueError(f"command rejected, non-finite values: {command.tolist()}")
+        if self._hold is not None:
+            self._stop_hold()
+        t0 = time.perf_counter_ns()
+        self._send(command[0])
+        self.write_cost.add(0, time.perf_counter_ns() - t0)
+
+    def _send(self, target: np.ndarray, kp=None, kd=None) -> None:
+        """Encode and write one LowCmd: damping, or ``target`` as the mode's command; with
+        ``kp``/``kd`` ((n,) or scalars), ``target`` is a position target with those gains."""
+        with self._lock:
+            mc = self._cmd.message["motor_cmd"]
+            s = self.slots
+            mc["mode"][s] = self.config.motor_mode
+            mc["dq"][s] = 0.0
+            if self._damping:
+                mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = 0.0, 0.0, 0.0, self.damping_kd
+            elif kp is not None:
+                mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = target, 0.0, kp, kd
+            elif self.mode == "position":
+                mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = target, 0.0, self.kp, self.kd
+            else:
+                mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = 0.0, target, 0.0, 0.0
+            self.family.init_command(self._cmd.message, self.mode_machine or 0)
+            self._writer.write_raw(self._cmd.encode())
+            self.sent += 1
+
+    def advance(self) -> None:
+        """Nothing: the robot runs on its own; the runtime's wall clock paces the loop."""
+
+    # ------------------------------------------------------------------ reports
+    def drive_errors(self) -> np.ndarray:
+        """(1, n_joints) int64 driver error codes of the newest state (0: none)."""
+        return self._errors
+
+    def describe_drive_error(self, joint: int, bits: int) -> str:
+        """``'motor 3 (FL_hip_joint): driver error 0x4 (over temperature)'``."""
+        name = DRIVER_ERRORS.get(int(bits), "unknown")
+        return (
+            f"motor {int(self.slots[joint])} ({self.names[joint]}): driver error {bits:#x} ({name})"
+        )
+
+    def bus_summary(self) -> dict:
+        """Figures for the run's report: family, interface, domain, ``mode_machine``, states
+        taken and their rate, dropouts by kind and their fraction of the states the robot sent,
+        packets each motor lost, commands sent, the cost of a read and a write, the newest
+        state's age at a read (us percentiles), latched driver errors."""
+        elapsed = time.monotonic() - (self._opened_at or self._t0)
+        expected = self.received + self.dropouts["lost"]
+        return {
+            "transport": "dds",
+            "family": self.family.name,
+            "interface": self.interface,
+            "domain_id": self.domain_id,
+            "mode_machine": self.mode_machine,
+            "reads": self.reads,
+            "lowstate_received": self.received,
+            "lowstate_rate_hz": self.received / elapsed if elapsed > 0 else 0.0,
+            "lowcmd_sent": self.sent,
+            "dropouts": dict(self.dropouts),
+            "dropout_fraction": sum(self.dropouts.values()) / expected if expected else 0.0,
+            "motor_lost": {
+                f"{int(self.slots[j])} ({self.names[j]})": int(n)
+                for j, n in enumerate(self.motor_lost)
+                if n
+            },
+            "read_us": self.read_cost.summary(),
+            "write_us": self.write_cost.summary(),
+            "state_age_us": self.state_age.summary(),
+            "driver_errors": [
+                self.describe_drive_error(j, int(b)) for j, b in enumerate(self.latched_errors) if b
+            ],
+        }

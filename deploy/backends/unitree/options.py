@@ -1,0 +1,71 @@
+"""``deploy-run --backend unitree``: a Unitree robot's low-level DDS interface, its registration
+and options (:mod:`deploy.backends.registry`)."""
+
+from __future__ import annotations
+
+from deploy.backends.registry import register_backend
+
+
+def add_options(group) -> None:
+    """The DDS options: network interface, domain, message family, bring-up."""
+    group.add_argument(
+        "--network-interface",
+        default=None,
+        metavar="IF",
+        help="network interface the robot is on (e.g. eth0; lo for the emulator); default: "
+        "Cyclone DDS chooses",
+    )
+    group.add_argument(
+        "--domain-id",
+        type=int,
+        default=0,
+        help="DDS domain (Unitree robots 0, Unitree's simulation bridges 1)",
+    )
+    group.add_argument(
+        "--family",
+        choices=("unitree_go", "unitree_hg"),
+        default=None,
+        help="message family (default: robot.toml [unitree] family; unitree_go: Go2, H1; "
+        "unitree_hg: G1, H1-2)",
+    )
+    group.add_argument(
+        "--lowstate-timeout",
+        type=float,
+        default=5.0,
+        help="s to wait for the first LowState",
+    )
+    group.add_argument(
+        "--skip-sport-mode-check",
+        action="store_true",
+        help="do not ask the motion switcher whether a high-level mode is active",
+    )
+
+
+def make(args, robot, mode: str):
+    """A Unitree robot over DDS on ``args.network_interface``, domain ``args.domain_id``."""
+    if args.envs != 1:
+        raise ValueError("--backend unitree drives one robot: --envs must be 1")
+    if args.inject:
+        raise ValueError(
+            "--inject is simulation-only; with --backend unitree use the emulator's faults "
+            "(python -m deploy.backends.unitree.emulator --fault ...)"
+        )
+    from deploy.backends.unitree.backend import UnitreeBackend
+
+    return UnitreeBackend(
+        robot,
+        interface=args.network_interface,
+        domain_id=args.domain_id,
+        family=args.family,
+        mode=mode,
+        lowstate_timeout=args.lowstate_timeout,
+        check_sport_mode=not args.skip_sport_mode_check,
+    )
+
+
+register_backend(
+    "unitree",
+    "a Unitree robot's low-level DDS interface (rt/lowcmd, rt/lowstate; wall clock only)",
+    "deploy.backends.unitree.options:make",
+    add_options,
+)

@@ -1,0 +1,306 @@
+"""``deploy-run --backend unitree`` over real DDS (Cyclone DDS on the loopback) against the
+Unitree emulator (:class:`deploy.backends.unitree.emulator.UnitreeEmulator`, the MuJoCo plant
+behind the robot's own topics): the bring-up, the bytes on the wire, a walk with LowState lost,
+and the faults: LowState stopped, bad CRCs, a hot motor. Each test has its own DDS domain.
+
+The emulator serves from a thread of this process; deploy-run runs in its own process, as a
+robot and its controller do. Runs are a few seconds each; assertions count ticks and messages,
+not wall-clock time.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto, helper, numpy_helper
+
+pytest.importorskip("cyclonedds", reason="pip install '.[unitree]'")
+pytest.importorskip("ahrs", reason="pip install '.[legged]'")
+
+from deploy.backends.unitree import unitree_go  # noqa: E402
+from deploy.backends.unitree.backend import UnitreeBackend  # noqa: E402
+from deploy.backends.unitree.bringup import BringupError  # noqa: E402
+from deploy.backends.unitree.dds import DdsLink  # noqa: E402
+from deploy.backends.unitree.emulator import EmulatorFaults, UnitreeEmulator  # noqa: E402
+from deploy.backends.unitree.emulator.truth import walk_truth  # noqa: E402
+from deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT  # noqa: E402
+from deploy.spec.policy_spec import PolicySpec  # noqa: E402
+from tests.unitree_reference import crc_bitwise, go_lowcmd_c_struct, le_words  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+_DOMAINS = itertools.count()
+
+
+def _domain() -> int:
+    """A DDS domain of this test alone (ids 100-219, by process and test)."""
+    return 100 + (os.getpid() * 13 + next(_DOMAINS)) % 120
+
+
+@pytest.fixture(scope="module")
+def stand_onnx(go2, tmp_path_factory):
+    """An ONNX policy of go2's default spec whose action is 0: the home pose, whatever it
+    observes."""
+    spec = PolicySpec.for_robot(go2)
+    d, n = spec.obs_dim, spec.act_dim
+    graph = helper.make_graph(
+        [helper.make_node("MatMul", ["obs", "w"], ["action"])],
+        "stand",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
+        initializer=[numpy_helper.from_array(np.zeros((d, n), np.float32), "w")],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    helper.set_model_props(model, {"policy_spec": spec.to_json()})
+    path = tmp_path_factory.mktemp("unitree") / "stand.onnx"
+    onnx.save(model, path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def go2_onnx(tmp_path_factory):
+    """The shipped Go2 policy (policies/go2.pt), exported."""
+    pytest.importorskip("torch")
+    from deploy.export import export_policy
+
+    return export_policy(
+        REPO / "policies" / "go2.pt", out=tmp_path_factory.mktemp("go2") / "go2.onnx"
+    )
+
+
+def _deploy_run(tmp_path, domain, policy, seconds, *extra):
+    report = tmp_path / "run.json"
+    argv = [
+        "--backend", "unitree", "--network-interface", "lo", "--domain-id", str(domain),
+        "--robot", "go2", "--policy", str(policy), "--duration", str(seconds),
+        "--report", str(report),
+        # these tests judge the link and its faults, not deadline keeping: the emulator's
+        # plant shares this machine with deploy-run
+        "--overrun-limit", "0.5",
+        *extra,
+    ]  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-m", "deploy.cli.deploy_run", *argv],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    out = done.stdout + done.stderr
+    return done.returncode, json.loads(report.read_text()) if report.exists() else None, out
+
+
+def _policy_started(emu, robot) -> int | None:
+    """Index in ``emu.commands`` of the runtime's first command: the joints' kp, a target off
+    the home pose (the bring-up holds exactly home; RAMP_IN starts from the measured pose)."""
+    kp = np.array([j.kp for j in robot.config.joints])
+    for i, (_, q, k, _kd) in enumerate(list(emu.commands)):
+        if np.allclose(k, kp) and np.abs(q - robot.home).max() > 1e-3:
+            return i
+    return None
+
+
+def _when_running(emu, robot, action, after: float = 0.5):
+    """Call ``action`` (a fault) ``after`` s once the runtime's commands arrive."""
+
+    def watch():
+        while _policy_started(emu, robot) is None:
+            time.sleep(0.05)
+        time.sleep(after)
+        action()
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
+# ------------------------------------------------------------------ bring-up and the wire
+def test_bringup_then_lowcmd_on_the_wire_is_byte_identical_to_the_idl(go2):
+    domain = _domain()
+    with UnitreeEmulator(go2, domain_id=domain) as emu:
+        backend = UnitreeBackend(go2, interface="lo", domain_id=domain, log=lambda s: None)
+        listen = DdsLink(domain, "lo")
+        raw = listen.reader("rt/lowcmd", unitree_go.LowCmd_)
+        with backend:
+            frame = backend.read()
+            # the bring-up stood the robot up: damping, then the ramp to home at its gains
+            assert emu.damping_onsets, "no damping before the ramp"
+            assert np.abs(emu.drivers.q_des - go2.home).max() < 1e-6
+            target = np.asarray(go2.home) + np.linspace(-0.05, 0.05, go2.n_joints)
+            raw.take_raw(64)  # what the hold thread sent
+            backend.write(target[None])
+            time.sleep(0.2)
+            sent = [s for s, _ in raw.take_raw(64)]
+        listen.close()
+        bus = backend.bus_summary()
+    assert not np.isnan(frame.position).any()
+    assert bus["dropouts"]["bad_crc"] == 0 and bus["lowstate_received"] > 100
+    assert emu.stats["lowcmd_bad_crc"] == 0 and emu.stats["lowcmd_received"] > 100
+    ours = sent[0]  # the runtime's command, the first after the hold ended
+    # built field by field from the IDL: robot.toml's slots, kp and kd, the Go2's header
+    motors = [(0, 0.0, 0.0, 0.0, 0.0, 0.0)] * 20
+    for j, slot in enumerate(go2.config.unitree.motor_index):
+        joint = go2.config.joints[j]
+        q = float(np.float32(target[j]))
+        motors[slot] = (1, q, 0.0, 0.0, float(np.float32(joint.kp)), float(np.float32(joint.kd)))
+    crc = crc_bitwise(le_words(go_lowcmd_c_struct((0xFE, 0xEF), 0xFF, motors, 0, 0, 0)[:-4]))
+    built = unitree_go.LowCmd_(
+        head=[0xFE, 0xEF],
+        level_flag=0xFF,
+        motor_cmd=[
+            unitree_go.MotorCmd_(mode=m, q=q, dq=dq, tau=tau, kp=kp, kd=kd)
+            for m, q, dq, tau, kp, kd in motors
+        ],
+        crc=crc,
+    )
+    assert ours == built.serialize()
+    # the close left the robot damped (kp 0, kd robot.toml's damping_kd), not stiff
+    _, _, kp, kd = emu.commands[-1]
+    assert (kp == 0).all() and np.allclose(kd, go2.config.unitree.damping_kd)
+
+
+def test_bringup_without_lowstate_names_the_interface_and_domain(go2, stand_onnx, capsys):
+    from deploy.cli.deploy_run import deploy_run_main
+
+    domain = _domain()  # nobody publishes there
+    code = deploy_run_main(
+        ["--backend", "unitree", "--network-interface", "lo", "--domain-id", str(domain),
+         "--robot", "go2", "--policy", str(stand_onnx), "--lowstate-timeout", "1"]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == EXIT_BAD_INPUT
+    assert f"no LowState on rt/lowstate within 1 s (interface lo, DDS domain {domain}" in err
+    assert "--network-interface" in err and "--domain-id" in err
+
+
+def test_bringup_refuses_an_active_sport_mode_and_says_how_to_release_it(go2):
+    domain = _domain()
+    with UnitreeEmulator(go2, domain_id=domain, sport_mode="normal") as emu:
+        backend = UnitreeBackend(go2, interface="lo", domain_id=domain, log=lambda s: None)
+        with pytest.raises(BringupError, match="high-level motion mode 'normal' active") as err:
+            backend.open()
+        assert emu.stats["lowcmd_received"] == 0  # refused before commanding anything
+    assert "ReleaseMode" in str(err.value)
+
+
+def test_bringup_stops_damped_when_the_robot_rejects_every_command_crc(go2):
+    """A lying robot whose board rejects every LowCmd (its CRC fails: a wrong layout or
+    firmware): the ramp is not followed, the bring-up says so and leaves the commands damping."""
+    domain = _domain()
+    faults = EmulatorFaults(corrupt_command=1.0)
+    with UnitreeEmulator(go2, domain_id=domain, faults=faults, start="lying") as emu:
+        backend = UnitreeBackend(go2, interface="lo", domain_id=domain, log=lambda s: None)
+        with pytest.raises(BringupError, match="did not follow the ramp.*CRC the robot rejects"):
+            backend.open()
+        assert emu.stats["lowcmd_bad_crc"] == emu.stats["lowcmd_received"] > 0
+        assert not emu.commands  # not one command taken
+    assert backend.sent > 0 and backend._damping  # its last commands were damping
+
+
+def test_unitree_hg_echoes_mode_machine_in_every_command(go2):
+    """The unitree_hg family (G1, H1-2) on the Go2's description: the robot's mode_machine is
+    read from LowState and carried by every LowCmd; CRCs hold both ways."""
+    domain = _domain()
+    with UnitreeEmulator(go2, family="unitree_hg", domain_id=domain, mode_machine=5) as emu:
+        backend = UnitreeBackend(
+            go2, interface="lo", domain_id=domain, family="unitree_hg", log=lambda s: None
+        )
+        with backend:
+            backend.write(np.asarray(go2.home)[None])
+            time.sleep(0.1)
+            echoed = int(emu._cmd.message["mode_machine"])
+        bus = backend.bus_summary()
+    assert backend.mode_machine == 5 and echoed == 5 and bus["mode_machine"] == 5
+    assert emu.stats["lowcmd_bad_crc"] == 0 and bus["dropouts"]["bad_crc"] == 0
+    assert emu.stats["lowcmd_received"] > 100 and bus["family"] == "unitree_hg"
+
+
+# ------------------------------------------------------------------ deploy-run and faults
+def test_walks_with_one_percent_of_lowstate_lost_and_no_wrong_command(tmp_path, go2, go2_onnx):
+    domain = _domain()
+    with UnitreeEmulator(go2, domain_id=domain, faults=EmulatorFaults(lose=0.01)) as emu:
+        code, report, out = _deploy_run(tmp_path, domain, go2_onnx, 5.0, "--command", "0.5,0,0")
+        lost = emu.stats["lowstate_lost"]
+        first = _policy_started(emu, go2)
+        commands = list(emu.commands)
+        trace, end = np.array(emu.trace), emu.damping_onsets[-1][0]
+    assert code == EXIT_CLEAN, out
+    assert report["final_state"] == ["RUNNING"] and report["locomotion"]["falls"] == 0, out
+    bus = report["bus"]
+    assert lost > 0 and bus["dropouts"]["lost"] > 0, bus  # counted, as the servo bus's dropouts
+    assert bus["dropout_fraction"] >= 0.005, bus
+    # no wrong command: from the runtime's first on, finite targets within the joint limits at
+    # the joints' gains (no damping: no stop)
+    kp = np.array([j.kp for j in go2.config.joints])
+    for _, q, k, _kd in commands[first:-1]:
+        if not (k == 0).all():
+            assert np.isfinite(q).all() and np.allclose(k, kp)
+            assert (q >= go2.position_lower).all() and (q <= go2.position_upper).all()
+    # still walking, as the emulator's plant saw it
+    truth = walk_truth(trace, end, report["locomotion"]["running_s"], np.array([0.5, 0, 0]))
+    assert truth["mean_forward_speed_m_s"] > 0.3, truth
+
+
+def test_lowstate_stopped_damps_within_the_stale_limit_and_exits_2(tmp_path, go2, stand_onnx):
+    domain = _domain()
+    faults = EmulatorFaults()
+    with UnitreeEmulator(go2, domain_id=domain, faults=faults) as emu:
+        _when_running(emu, go2, lambda: faults.bursts.append((emu.elapsed, float("inf"))), 1.0)
+        code, report, out = _deploy_run(tmp_path, domain, stand_onnx, 6.0)
+        commands = list(emu.commands)
+        silent_since = emu._last_published
+    assert code == EXIT_FAULT, out
+    assert report["faults"]["by_cause"]["stale_sensor"] == 1, out
+    assert report["final_state"] in (["FAULTED"], ["SAFE_STOP"])
+    # the commands after the last LowState: at most the ticks of the stale limit (and one in
+    # flight) before damping, then damping only, never a stiff pose
+    after = [(kp == 0).all() for t, _, kp, _ in commands if t > silent_since]
+    ticks = int(np.ceil(go2.config.safety.stale_limit / go2.control_period)) + 1
+    assert after and after[-1], "not damped at the end"
+    first_damping = after.index(True)
+    assert first_damping <= ticks, after[: ticks + 3]
+    assert all(after[first_damping:])
+
+
+def test_bad_crcs_are_counted_by_the_robot_and_reported_by_the_runtime(tmp_path, go2, stand_onnx):
+    domain = _domain()
+    faults = EmulatorFaults(corrupt_state=0.05, corrupt_command=0.05)
+    with UnitreeEmulator(go2, domain_id=domain, faults=faults) as emu:
+        code, report, out = _deploy_run(tmp_path, domain, stand_onnx, 3.0)
+        refused = emu.stats["lowcmd_bad_crc"]
+        corrupted = emu.stats["lowstate_corrupted"]
+    assert code == EXIT_CLEAN and report["final_state"] == ["RUNNING"], out
+    assert refused > 0  # the robot dropped the damaged commands and counted them
+    bus = report["bus"]
+    assert 0 < bus["dropouts"]["bad_crc"] <= corrupted, bus  # never a corrupt state used
+    assert "bad_crc" in out
+
+
+def test_hot_motor_meets_the_runtime_thermal_stop_before_its_driver_cuts_off(
+    tmp_path, go2, stand_onnx
+):
+    """Motor slot 3 (FL_hip_joint) takes 2 kW of extra winding loss (a shorted turn): the
+    runtime's thermal stop (robot.toml's motor maximum) comes first, damping; the loss goes on,
+    the driver cuts off at its own limit, reported with its motor slot; no resume."""
+    domain = _domain()
+    faults = EmulatorFaults()
+    with UnitreeEmulator(go2, domain_id=domain, faults=faults) as emu:
+        _when_running(emu, go2, lambda: faults.heat.update({3: (2000.0, emu.elapsed)}), 0.5)
+        code, report, out = _deploy_run(tmp_path, domain, stand_onnx, 10.0)
+        cutoffs = list(emu.cutoff_log)
+    assert code == EXIT_FAULT, out
+    causes = report["faults"]["by_cause"]
+    assert causes["over_temperature"] == 1 and causes["servo_error"] == 0, out
+    assert report["final_cause"] == ["over_temperature"]
+    assert [slot for _, slot in cutoffs] == [3]
+    (error,) = report["faults"]["drive_errors"]
+    assert error == "motor 3 (FL_hip_joint): driver error 0x4 (over temperature)", error
+    hip = go2.motors[go2.joint_names.index("FL_hip_joint")]
+    assert report["peak_winding_temperature_c"]["FL_hip_joint"] > hip.max_winding_temperature

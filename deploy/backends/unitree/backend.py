@@ -146,6 +146,7 @@ class UnitreeBackend(BackendLifecycle):
         self.latched_errors = np.zeros(self.n, dtype=np.int64)
         self._errors = np.zeros((1, self.n), dtype=np.int64)
         self._last_tick: int | None = None
+        self._refused = 0  # states refused (bad CRC, malformed) since the last accepted one
         self._tick_step: int | None = None
         self._prev_lost: np.ndarray | None = None
         self._last_fresh = -np.inf
@@ -273,9 +274,11 @@ class UnitreeBackend(BackendLifecycle):
                 valid = self._state.decode(data)
             except ValueError:
                 self.dropouts["malformed"] += 1
+                self._refused += 1
                 continue
             if not valid:
                 self.dropouts["bad_crc"] += 1
+                self._refused += 1
                 continue
             if not self._fresh_tick(int(self._state.message["tick"])):
                 continue
@@ -310,8 +313,10 @@ class UnitreeBackend(BackendLifecycle):
                 return False
             if self._tick_step is None or step < self._tick_step:
                 self._tick_step = step
-            self.dropouts["lost"] += max(0, round(step / self._tick_step) - 1)
+            # the states in the gap that arrived refused are counted as such, not as lost
+            self.dropouts["lost"] += max(0, round(step / self._tick_step) - 1 - self._refused)
         self._last_tick = tick
+        self._refused = 0
         return True
 
     def _no_reading(self, f: SensorFrame) -> None:

@@ -29,7 +29,7 @@ pytest.importorskip("ahrs", reason="pip install '.[legged]'")
 
 from deploy.backends.unitree import unitree_go  # noqa: E402
 from deploy.backends.unitree.backend import UnitreeBackend  # noqa: E402
-from deploy.backends.unitree.bringup import BringupError  # noqa: E402
+from deploy.backends.unitree.bringup import BLEND_TIME, BringupError  # noqa: E402
 from deploy.backends.unitree.dds import DdsLink  # noqa: E402
 from deploy.backends.unitree.emulator import EmulatorFaults, UnitreeEmulator  # noqa: E402
 from deploy.backends.unitree.emulator.truth import walk_truth  # noqa: E402
@@ -100,11 +100,12 @@ def _deploy_run(tmp_path, domain, policy, seconds, *extra):
 
 
 def _policy_started(emu, robot) -> int | None:
-    """Index in ``emu.commands`` of the runtime's first command: the joints' kp, a target off
-    the home pose (the bring-up holds exactly home; RAMP_IN starts from the measured pose)."""
-    kp = np.array([j.kp for j in robot.config.joints])
-    for i, (_, q, k, _kd) in enumerate(list(emu.commands)):
-        if np.allclose(k, kp) and np.abs(q - robot.home).max() > 1e-3:
+    """Index in ``emu.commands`` of the runtime's first command: the first whose gains are
+    neither damping (kp 0) nor the bring-up's (``[unitree] ramp_kp``, until the hand-over
+    blends them into the joints')."""
+    ramp = robot.config.unitree.ramp_kp
+    for i, (_, _q, k, _kd) in enumerate(list(emu.commands)):
+        if (k > 0).all() and (k < ramp - 1e-3).all():
             return i
     return None
 
@@ -130,11 +131,18 @@ def test_bringup_then_lowcmd_on_the_wire_is_byte_identical_to_the_idl(go2):
         raw = listen.reader("rt/lowcmd", unitree_go.LowCmd_)
         with backend:
             frame = backend.read()
+            while np.isnan(frame.position).any():  # the hold took the last states
+                time.sleep(0.005)
+                frame = backend.read()
             # the bring-up stood the robot up: damping, then the ramp to home at its gains
             assert emu.damping_onsets, "no damping before the ramp"
             assert np.abs(emu.drivers.q_des - go2.home).max() < 1e-6
             target = np.asarray(go2.home) + np.linspace(-0.05, 0.05, go2.n_joints)
             raw.take_raw(64)  # what the hold thread sent
+            backend.write(target[None])  # ends the hold: the ramp's gains blend into the joints'
+            time.sleep(0.1)
+            first = unitree_go.LowCmd_.deserialize(raw.take_raw(64)[-1][0])
+            time.sleep(BLEND_TIME)
             backend.write(target[None])
             time.sleep(0.2)
             sent = [s for s, _ in raw.take_raw(64)]
@@ -143,7 +151,10 @@ def test_bringup_then_lowcmd_on_the_wire_is_byte_identical_to_the_idl(go2):
     assert not np.isnan(frame.position).any()
     assert bus["dropouts"]["bad_crc"] == 0 and bus["lowstate_received"] > 100
     assert emu.stats["lowcmd_bad_crc"] == 0 and emu.stats["lowcmd_received"] > 100
-    ours = sent[0]  # the runtime's command, the first after the hold ended
+    # the hand-over: the first command still near the ramp's gains, no jump to the policy's
+    slot0 = go2.config.unitree.motor_index.index(0)
+    assert first.motor_cmd[0].kp > 0.8 * go2.config.unitree.ramp_kp > go2.config.joints[slot0].kp
+    ours = sent[-1]
     # built field by field from the IDL: robot.toml's slots, kp and kd, the Go2's header
     motors = [(0, 0.0, 0.0, 0.0, 0.0, 0.0)] * 20
     for j, slot in enumerate(go2.config.unitree.motor_index):
@@ -237,12 +248,14 @@ def test_walks_with_one_percent_of_lowstate_lost_and_no_wrong_command(tmp_path, 
     assert lost > 0 and bus["dropouts"]["lost"] > 0, bus  # counted, as the servo bus's dropouts
     assert bus["dropout_fraction"] >= 0.005, bus
     # no wrong command: from the runtime's first on, finite targets within the joint limits at
-    # the joints' gains (no damping: no stop)
+    # the gains of the hand-over's blend, then the joints' (no damping before the close)
     kp = np.array([j.kp for j in go2.config.joints])
-    for _, q, k, _kd in commands[first:-1]:
-        if not (k == 0).all():
-            assert np.isfinite(q).all() and np.allclose(k, kp)
-            assert (q >= go2.position_lower).all() and (q <= go2.position_upper).all()
+    ramp = go2.config.unitree.ramp_kp
+    close = next(i for i in range(first, len(commands)) if (commands[i][2] == 0).all())
+    for _, q, k, _kd in commands[first:close]:  # up to the close's damping
+        assert np.isfinite(q).all() and (k >= kp - 1e-4).all() and (k <= ramp).all()
+        assert (q >= go2.position_lower).all() and (q <= go2.position_upper).all()
+    assert np.allclose(commands[close - 1][2], kp)  # the joints' gains, once blended
     # still walking, as the emulator's plant saw it
     truth = walk_truth(trace, end, report["locomotion"]["running_s"], np.array([0.5, 0, 0]))
     assert truth["mean_forward_speed_m_s"] > 0.3, truth

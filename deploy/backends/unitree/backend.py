@@ -14,9 +14,9 @@ and are taken, all of them, at every :meth:`UnitreeBackend.read`.
 and domain when none comes), read and echo ``mode_machine`` (``unitree_hg``; echoed in every
 command), refuse when the motion switcher reports a high-level mode still active
 (:mod:`deploy.backends.unitree.motion_switcher`), damping, a timed ramp from the measured to the
-home pose, and a hold there until the runtime's first command (its RAMP_IN then starts at
-home). ``close()``: damping for
-``CLOSE_DAMPING_TIME``, the last command the robot keeps.
+home pose, and a hold there at the ramp's gains until the runtime's first command (its RAMP_IN
+then starts at home), blended into the joints' gains over ``bringup.BLEND_TIME`` from there.
+``close()``: damping for ``CLOSE_DAMPING_TIME``, the last command the robot keeps.
 
 Damping (``kp`` 0, ``kd`` robot.toml's ``[unitree] damping_kd``), never a frozen stiff pose: the
 runtime asks for it (:meth:`UnitreeBackend.damp`) on a legged robot's every safe stop: a stale
@@ -146,6 +146,7 @@ class UnitreeBackend(BackendLifecycle):
         self.latched_errors = np.zeros(self.n, dtype=np.int64)
         self._errors = np.zeros((1, self.n), dtype=np.int64)
         self._last_tick: int | None = None
+        self._refused = 0  # states refused (bad CRC, malformed) since the last accepted one
         self._tick_step: int | None = None
         self._prev_lost: np.ndarray | None = None
         self._last_fresh = -np.inf
@@ -156,6 +157,7 @@ class UnitreeBackend(BackendLifecycle):
         self._lock = threading.Lock()
         self._read_lock = threading.Lock()
         self._hold_reads = False
+        self._handover: float | None = None
         self._hold_stop = threading.Event()
         self._hold: threading.Thread | None = None
         self._hold_target = np.asarray(robot.home, dtype=np.float64).copy()
@@ -231,16 +233,15 @@ class UnitreeBackend(BackendLifecycle):
     def _hold_loop(self) -> None:
         """Until the runtime's first command, every control period: send the home pose, and
         until the runtime's first read, take the states (their counters stay whole; none for
-        ``safety.stale_limit``: damping from then on)."""
+        ``bringup.BRINGUP_STALE``, as in the bring-up: damping from then on)."""
         next_t = time.monotonic()
-        stale_limit = self.robot.config.safety.stale_limit
         while not self._hold_stop.is_set():
             with self._read_lock:
                 if self._hold_reads:
                     self._read()
-                    if time.monotonic() - self._t0 - self._last_fresh > stale_limit:
+                    if time.monotonic() - self._t0 - self._last_fresh > bringup.BRINGUP_STALE:
                         self._damping = True
-            self._send(self._hold_target, self.kp, self.kd)
+            self._send(self._hold_target, self.ramp_kp, self.ramp_kd)
             next_t += self.period
             self._hold_stop.wait(max(0.0, next_t - time.monotonic()))
 
@@ -273,9 +274,11 @@ class UnitreeBackend(BackendLifecycle):
                 valid = self._state.decode(data)
             except ValueError:
                 self.dropouts["malformed"] += 1
+                self._refused += 1
                 continue
             if not valid:
                 self.dropouts["bad_crc"] += 1
+                self._refused += 1
                 continue
             if not self._fresh_tick(int(self._state.message["tick"])):
                 continue
@@ -310,8 +313,10 @@ class UnitreeBackend(BackendLifecycle):
                 return False
             if self._tick_step is None or step < self._tick_step:
                 self._tick_step = step
-            self.dropouts["lost"] += max(0, round(step / self._tick_step) - 1)
+            # the states in the gap that arrived refused are counted as such, not as lost
+            self.dropouts["lost"] += max(0, round(step / self._tick_step) - 1 - self._refused)
         self._last_tick = tick
+        self._refused = 0
         return True
 
     def _no_reading(self, f: SensorFrame) -> None:
@@ -361,6 +366,7 @@ class UnitreeBackend(BackendLifecycle):
             raise ValueError(f"command rejected, non-finite values: {command.tolist()}")
         if self._hold is not None:
             self._stop_hold()
+            self._handover = time.monotonic()
         t0 = time.perf_counter_ns()
         self._send(command[0])
         self.write_cost.add(0, time.perf_counter_ns() - t0)
@@ -378,12 +384,24 @@ class UnitreeBackend(BackendLifecycle):
             elif kp is not None:
                 mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = target, 0.0, kp, kd
             elif self.mode == "position":
-                mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = target, 0.0, self.kp, self.kd
+                kp, kd = self._gains()
+                mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = target, 0.0, kp, kd
             else:
                 mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = 0.0, target, 0.0, 0.0
             self.family.init_command(self._cmd.message, self.mode_machine or 0)
             self._writer.write_raw(self._cmd.encode())
             self.sent += 1
+
+    def _gains(self) -> tuple[np.ndarray, np.ndarray]:
+        """The joints' kp, kd; within ``bringup.BLEND_TIME`` of the runtime's first command, the
+        ramp's blending linearly into them."""
+        if self._handover is None:
+            return self.kp, self.kd
+        a = (time.monotonic() - self._handover) / bringup.BLEND_TIME
+        if a >= 1.0:
+            self._handover = None
+            return self.kp, self.kd
+        return (1 - a) * self.ramp_kp + a * self.kp, (1 - a) * self.ramp_kd + a * self.kd
 
     def advance(self) -> None:
         """Nothing: the robot runs on its own; the runtime's wall clock paces the loop."""

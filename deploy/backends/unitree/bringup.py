@@ -11,12 +11,13 @@
 5. **ramp** from the measured pose to the home pose in ``[unitree] ramp_time`` (linear in time,
    as unitree_rl_gym's ``deploy_real`` moves to its default pose) with ``[unitree] ramp_kp`` /
    ``ramp_kd`` and ``SETTLE_TIME`` at home. A joint farther than ``RAMP_TOLERANCE`` from home
-   then is a :class:`BringupError` (the robot did not take the commands). Then ``BLEND_TIME``
-   at home while the gains blend linearly into the joints' kp/kd (the policy's: no jump at the
-   hand-over; a soft policy PD lets the robot sag under its weight).
+   then is a :class:`BringupError` (the robot did not take the commands).
 
 A LowState silent for ``BRINGUP_STALE`` during stages 4-5 stops the bring-up (damping, then a
-:class:`BringupError`). The backend then holds the home pose until the runtime's first command.
+:class:`BringupError`). The backend then holds the home pose at the ramp's gains until the
+runtime's first command, and blends them into the joints' kp/kd over ``BLEND_TIME`` from there
+(the policy's gains, without a jump at the hand-over: a soft policy PD held alone would let the
+robot sag and its feet slide apart for as long as the runtime takes to start).
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ LOWSTATE_TIMEOUT = 5.0
 DAMPING_TIME = 1.0
 #: s at the home pose after the ramp, at the ramp's gains, before the check (our choice).
 SETTLE_TIME = 0.3
-#: s at the home pose after the check, the gains blending into the joints' (our choice).
+#: s after the runtime's first command over which the ramp's gains blend into the joints' (our
+#: choice).
 BLEND_TIME = 0.5
 #: rad: a joint farther from home after the ramp did not follow the commands (our choice: above
 #: a leg's sag under the robot's weight at the ramp's gains, below a lying leg's distance).
@@ -106,12 +108,10 @@ def bring_up(b) -> None:
             "robot.toml [unitree] motor_mode), or does another controller command the motors?"
         )
 
-    def blend(t: float):
-        a = min(1.0, t / BLEND_TIME)
-        return ((1 - a) * b.ramp_kp + a * b.kp, (1 - a) * b.ramp_kd + a * b.kd)
-
-    _run(b, BLEND_TIME, lambda t: home, blend)
-    b.log("      at home; holding it until the policy starts")
+    b.log(
+        "      at home; holding it until the policy starts, then blending into its gains over "
+        f"{BLEND_TIME:g} s"
+    )
 
 
 def _kd(b) -> str:

@@ -34,7 +34,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="degC at which a driver cuts off (default: the motor's maximum winding + 10 K)",
     )
-    p.add_argument("--start", choices=("standing", "lying"), default="standing")
+    p.add_argument(
+        "--start",
+        choices=("lying", "standing"),
+        default="lying",
+        help="lying: folded on the floor, drivers off (as after the robot's stand-down); "
+        "standing: holding the home pose until the first LowCmd",
+    )
     p.add_argument("--fault", action="append", default=[], metavar="FAULT", help=FAULT_HELP)
     p.add_argument(
         "--trace",

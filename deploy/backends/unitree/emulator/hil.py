@@ -53,7 +53,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--robot", required=True, help="shipped robot name or robot.toml path")
     p.add_argument("--domain-id", type=int, default=1, help="DDS domain (default 1)")
     p.add_argument("--seed", type=int, default=0, help="the emulator plant's seed")
-    p.add_argument("--start", choices=("standing", "lying"), default="standing")
+    p.add_argument(
+        "--start",
+        choices=("lying", "standing"),
+        default="lying",
+        help="lying: folded on the floor, drivers off (as after the robot's stand-down); "
+        "standing: holding the home pose until the first LowCmd",
+    )
     p.add_argument(
         "--family",
         choices=("unitree_go", "unitree_hg"),

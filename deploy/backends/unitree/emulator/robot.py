@@ -16,9 +16,10 @@ plant, lets each driver protect itself (its over-temperature cut-off), and publi
 falls more than ``MAX_LAG`` behind the wall clock (a machine slower than real time) its time
 origin moves up and ``stats['plant_lag_resets']`` counts it.
 
-Until the first LowCmd the drivers hold the home pose with the joints' kp/kd: the robot stands,
-as the plant of ``--backend sim`` starts (``start='lying'``: the drivers start off and the robot
-settles on the floor first).
+The robot starts as a low-level program finds it (``start='lying'``, the default): lying down
+after its own stand-down, legs folded (``LYING_POSES``; a robot without one collapses where it
+stands), its drivers off. ``start='standing'``: the drivers hold the home pose with the joints'
+kp/kd until the first LowCmd, as the plant of ``--backend sim`` starts.
 """
 
 from __future__ import annotations
@@ -47,6 +48,13 @@ from robots import Robot, load_robot
 MAX_LAG = 0.25
 #: Physics steps between two polls of the motion switcher's requests.
 SERVICE_EVERY = 10
+#: The folded pose a robot lies in after its own stand-down, rad, in Unitree's motor order: the
+#: Go2's from unitree_mujoco's example/python/stand_go2.py (``stand_down_joint_pos``).
+LYING_POSES = {
+    "go2": (0.0473455, 1.22187, -2.44375, -0.0473455, 1.22187, -2.44375) * 2,
+}
+#: s of simulated time a lying robot settles on the floor before the emulator serves (our choice).
+SETTLE_TIME = 1.0
 #: Commands kept in :attr:`UnitreeEmulator.commands` (ten minutes at 50 Hz).
 COMMAND_LOG = 30_000
 #: Physics steps between two samples of the base's true trajectory (:attr:`UnitreeEmulator.trace`).
@@ -93,8 +101,8 @@ class UnitreeEmulator:
         mode_machine: The ``mode_machine`` a ``unitree_hg`` robot reports.
         cutoff_temperature: degC at which each driver cuts off (default: the motor's maximum
             winding temperature + ``CUTOFF_MARGIN``).
-        start: 'standing' (the drivers hold the home pose until the first LowCmd) or 'lying'
-            (the drivers start off).
+        start: 'lying' (folded on the floor, the drivers off) or 'standing' (the drivers hold
+            the home pose until the first LowCmd); see the module docstring.
 
     Attributes:
         plant: The :class:`SimBackend`. drivers: The :class:`.drivers.MotorDrivers`.
@@ -130,7 +138,7 @@ class UnitreeEmulator:
         sport_mode: str = "",
         mode_machine: int = 0,
         cutoff_temperature: float | None = None,
-        start: str = "standing",
+        start: str = "lying",
     ):
         self.robot = robot if isinstance(robot, Robot) else load_robot(robot)
         cfg = self.robot.config.unitree
@@ -156,6 +164,8 @@ class UnitreeEmulator:
         else:
             cutoff = cutoff_temperature
         self.drivers = MotorDrivers(self.fast, self.slots, cutoff, hold_home=start == "standing")
+        if start == "lying":
+            self._lie_down()
         feet = None
         if self.family.has_feet and cfg.foot_index:
             feet = np.array(cfg.foot_index)
@@ -191,6 +201,24 @@ class UnitreeEmulator:
         self._t0 = time.monotonic()
         self._started = self._t0
         self._steps = 0
+
+    def _lie_down(self) -> None:
+        """The robot folded on the floor (``LYING_POSES``: dropped there, the drivers holding the
+        pose for ``SETTLE_TIME``), then its drivers off; without a lying pose, the drivers off
+        and the robot settling for ``SETTLE_TIME`` where it stood."""
+        pose = LYING_POSES.get(self.robot.name)
+        d = self.drivers
+        if pose is not None:
+            folded = np.asarray(pose)[self.slots]
+            self.plant.reset(folded)
+            d.q_des[:], d.mode[:] = folded, 1
+            d.kp[:] = [j.kp for j in self.robot.config.joints]
+            d.kd[:] = [j.kd for j in self.robot.config.joints]
+        for _ in range(int(round(SETTLE_TIME / self.period))):
+            self.plant.write(d.apply(self.model))
+            self.plant.advance()
+        d.mode[:] = 0
+        d.kp[:] = d.kd[:] = 0.0
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> UnitreeEmulator:

@@ -11,12 +11,8 @@ import pinocchio as pin
 import pytest
 
 from deploy.backends.sim.plant import SimBackend
-from deploy.estimation.base import (
-    BaseStateEstimator,
-    projected_gravity,
-    quaternion_to_matrix,
-    tilt_of,
-)
+from deploy.estimation.attitude import projected_gravity, quaternion_to_matrix, tilt_of
+from deploy.estimation.base import BaseStateEstimator
 from deploy.estimation.joints import JointStateEstimator
 from deploy.state import RobotState
 from robots import RobotSpecError, load_robot

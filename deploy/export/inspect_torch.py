@@ -87,7 +87,7 @@ def inspect_sb3(path: Path) -> dict[str, Any]:
         data = json.loads(data_text)
         sd = torch.load(io.BytesIO(policy_bytes), map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001
-        from deploy.policy.mlp_checkpoint import load_failure_cause
+        from deploy.policy.torch_file import load_failure_cause
 
         raise InspectError(
             f"{path}: unreadable Stable-Baselines3 entries ('data' JSON, 'policy.pth'): "
@@ -214,11 +214,7 @@ def inspect_torchscript(path: Path) -> dict[str, Any]:
 
 
 def inspect_torch(path: Path) -> dict[str, Any]:
-    from deploy.policy.mlp_checkpoint import (
-        load_weights_only,
-        unreadable_torch_file,
-        unsafe_globals_in,
-    )
+    from deploy.policy.torch_file import load_weights_only, unreadable_torch_file, unsafe_globals_in
 
     try:
         obj = load_weights_only(path)

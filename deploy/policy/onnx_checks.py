@@ -1,7 +1,7 @@
-"""Checks of an ONNX file before anything runs it: external data that stays in the model's
-folder, and finite weights (:func:`check_finite_weights`).
+"""Checks of an ONNX file before anything runs it: a readable model (:func:`read_model`), external
+data that stays in the model's folder, and finite weights (:func:`check_finite_weights`).
 
-Both raise :class:`PolicyLoadError` naming the file and the tensor.
+Each raises :class:`PolicyLoadError` naming the file (and the tensor).
 """
 
 from __future__ import annotations

@@ -32,7 +32,8 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from deploy.export import load_source, run_export  # noqa: E402
-from deploy.policy.mlp_checkpoint import MLPActor, ObservationNormalizer, save_checkpoint  # noqa: E402
+from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint  # noqa: E402
+from deploy.policy.obs_normalizer import ObservationNormalizer  # noqa: E402
 from deploy.policy.onnx_policy import OnnxPolicy  # noqa: E402
 from deploy.spec.policy_spec import LEGGED_KINDS, OBSERVATION_KINDS, PolicySpec  # noqa: E402
 from robots import load_robot  # noqa: E402

@@ -269,7 +269,9 @@ def exit_code(report: dict) -> int:
 
 
 def run(args) -> int:
-    from eval.report.build import Thresholds, build_report, load_report, summary_text, write_reports
+    from eval.report.build import build_report, write_reports
+    from eval.report.schema import Thresholds, load_report
+    from eval.report.summary import summary_text
     from eval.soak.campaign import run_campaign
     from eval.soak.session import SessionConfig
     from eval.world.ranges_file import load_ranges, read_overrides

@@ -169,11 +169,12 @@ def start_poses(path: Path | None, robot) -> tuple[tuple[float, ...], ...]:
     (such poses kept with the recipe, e.g. ``policies/arm3_missed_poses.json``).
 
     Raises:
-        eval.report.build.ReportError: unreadable file, poses of another robot or joint count.
+        eval.report.schema.ReportError: unreadable file, poses of another robot or joint count.
     """
     if path is None:
         return ()
-    from eval.report.build import ReportError, load_report, missed_states
+    from eval.report.build import missed_states
+    from eval.report.schema import ReportError, load_report
 
     try:
         doc = json.loads(Path(path).read_text())

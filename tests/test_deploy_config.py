@@ -22,10 +22,11 @@ import yaml
 from helpers_policies import folder
 from torch import nn
 
-from deploy.estimation.base import projected_gravity
+from deploy.estimation.attitude import projected_gravity
 from deploy.export import main
 from deploy.export.deploy_config import GAIT_PERIOD, spec_and_robot
-from deploy.policy.onnx_policy import OnnxPolicy, spec_differences
+from deploy.policy.onnx_policy import OnnxPolicy
+from deploy.policy.onnx_spec import spec_differences
 from deploy.state import RobotState
 from robots import load_robot
 

@@ -30,14 +30,15 @@ from deploy.export import ExportError, ParityError, export_policy, main, run_exp
 from deploy.export import cli as export_cli
 from deploy.policy.mlp_checkpoint import (
     FORMAT,
-    CheckpointError,
     MLPActor,
-    ObservationNormalizer,
     load_checkpoint,
     read_checkpoint,
     save_checkpoint,
 )
-from deploy.policy.onnx_policy import OnnxPolicy, spec_differences
+from deploy.policy.obs_normalizer import ObservationNormalizer
+from deploy.policy.onnx_policy import OnnxPolicy
+from deploy.policy.onnx_spec import spec_differences
+from deploy.policy.torch_file import CheckpointError
 from deploy.spec.policy_spec import PolicySpec
 from robots import load_robot
 

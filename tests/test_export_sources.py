@@ -23,7 +23,8 @@ from torch import nn
 
 from deploy.export import ExportError, run_export
 from deploy.export import main as export_main
-from deploy.export.inspect_policy import InspectError, inspect_file
+from deploy.export.errors import InspectError
+from deploy.export.inspect_policy import inspect_file
 from deploy.policy.onnx_policy import OnnxPolicy
 from tests.helpers_policies import PlainNet, make_spec, write_spec
 

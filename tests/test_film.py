@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from eval.film.strip import longest_missed_run, plan_clips, retain_dir, select_moments
-from eval.report.build import Thresholds, build_report, write_reports
+from eval.report.build import build_report, write_reports
+from eval.report.schema import Thresholds
 from eval.soak.campaign import run_campaign
 from eval.soak.session import SessionConfig
 from eval.world.fault_schedule import FaultRanges

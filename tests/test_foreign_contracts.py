@@ -17,7 +17,8 @@ import pytest
 from deploy.cli.deploy_run import deploy_run_main
 from deploy.cli.policy_contract import check_drive_applied
 from deploy.export.cli import main as policy_export_main
-from deploy.policy.onnx_policy import OnnxPolicy, PolicyLoadError
+from deploy.policy.onnx_checks import PolicyLoadError
+from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.spec.drive import drive_robot
 from deploy.spec.policy_spec import PolicySpec
 from deploy.state import RobotState

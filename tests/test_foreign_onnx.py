@@ -35,7 +35,8 @@ from onnx import TensorProto, helper, numpy_helper
 from torch import nn
 
 from deploy.cli.deploy_run import deploy_run_main
-from deploy.policy.onnx_policy import OnnxPolicy, PolicyLoadError
+from deploy.policy.onnx_checks import PolicyLoadError
+from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.spec.policy_spec import PolicySpec
 from tests.helpers_policies import make_spec, write_spec
 

@@ -15,7 +15,8 @@ import pytest
 from deploy.cli.acceptance import check_adversarial
 from robots import load_robot
 from robots.importer.cli import EXIT_REFUSED, import_robot, main, resolve_source
-from robots.loading import ROBOTS_DIR, package_root
+from robots.loading import ROBOTS_DIR
+from robots.packages import package_root
 
 pytest.importorskip("coal")
 try:

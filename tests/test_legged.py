@@ -11,12 +11,8 @@ import pinocchio as pin
 import pytest
 
 from deploy.backends.sim.plant import SimBackend
-from deploy.estimation.base import (
-    BaseStateEstimator,
-    projected_gravity,
-    quaternion_to_matrix,
-    tilt_of,
-)
+from deploy.estimation.attitude import projected_gravity, quaternion_to_matrix, tilt_of
+from deploy.estimation.base import BaseStateEstimator
 from deploy.estimation.joints import JointStateEstimator
 from deploy.state import RobotState
 from robots import RobotSpecError, load_robot
@@ -101,7 +97,7 @@ def test_go2_loads_with_a_free_flyer_base_and_feet_that_agree_with_mujoco(go2):
 def test_the_agreement_check_covers_the_feet_and_the_base(go2, edit, what):
     """A MuJoCo model that differs from Pinocchio's in one leg (a calf's mass, a foot site) is
     caught at random base poses: the check the loader runs on every floating-base robot."""
-    from robots.loading import _check_agreement
+    from robots.crosscheck import _check_agreement
 
     spec = mujoco.MjSpec.from_file(str(go2.mjcf_path))
     edit(spec)

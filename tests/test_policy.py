@@ -12,8 +12,10 @@ import torch
 from helpers_policies import externalize, linear_onnx, make_spec, torch_out, write_spec
 
 from deploy.export import export_policy
-from deploy.policy.mlp_checkpoint import MLPActor, ObservationNormalizer, save_checkpoint
-from deploy.policy.onnx_policy import OnnxPolicy, PolicyLoadError
+from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
+from deploy.policy.obs_normalizer import ObservationNormalizer
+from deploy.policy.onnx_checks import PolicyLoadError
+from deploy.policy.onnx_policy import OnnxPolicy
 from robots import load_robot
 
 RNG = np.random.default_rng(11)

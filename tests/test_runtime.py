@@ -202,7 +202,7 @@ def test_push_is_survived(tmp_path, arm3):
 
 
 def test_mismatched_policy_is_refused(tmp_path, arm3, arm6):
-    from deploy.policy.onnx_policy import PolicyLoadError
+    from deploy.policy.onnx_checks import PolicyLoadError
 
     with pytest.raises(PolicyLoadError, match="policy is for 'arm3', the robot is 'arm6'"):
         OnnxPolicy(adversarial_onnx(tmp_path, arm3, "position"), arm6)

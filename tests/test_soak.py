@@ -22,20 +22,16 @@ from deploy.runtime import NAN_ACTION_LIMIT
 from deploy.spec.policy_spec import PolicySpec
 from deploy.tasks.goals import success_windows
 from eval import cli
+from eval.report.baseline import compare_with_baseline
 from eval.report.build import (
-    CHECKS,
-    SCHEMA_VERSION,
-    ReportError,
-    Thresholds,
     build_report,
-    compare_with_baseline,
     failures,
-    load_report,
     missed_states,
-    report_html,
     session_checks,
     write_reports,
 )
+from eval.report.html import report_html
+from eval.report.schema import CHECKS, SCHEMA_VERSION, ReportError, Thresholds, load_report
 from eval.soak import checkpoint as ckpt
 from eval.soak.batch import SessionBatch
 from eval.soak.campaign import run_campaign

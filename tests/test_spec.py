@@ -275,7 +275,8 @@ def test_legged_gym_conventions_are_expressed_exactly(arm6):
     ],
 )
 def test_a_block_the_robot_cannot_provide_is_refused_at_load_naming_it(arm3, block, why, tmp_path):
-    from deploy.policy.onnx_policy import OnnxPolicy, PolicyLoadError
+    from deploy.policy.onnx_checks import PolicyLoadError
+    from deploy.policy.onnx_policy import OnnxPolicy
 
     doc = _arm3_doc(arm3)
     doc["observation"].insert(0, {"name": block, "scale": 4.0})

@@ -172,8 +172,8 @@ def test_emulator_faults_parse_and_refuse_nonsense():
 
 
 def test_importer_derives_unitree_slots_from_the_joint_names_and_refuses_others():
+    from robots.importer.source import RobotImportError
     from robots.importer.unitree import foot_slot, motor_slot
-    from robots.importer.urdf import RobotImportError
 
     assert [motor_slot(j) for j in ("FR_hip_joint", "FL_calf_joint", "RL_thigh_joint")] == [
         0,

@@ -1,41 +1,25 @@
 """Base state estimation of a floating-base (legged) robot: attitude, angular and linear velocity.
 
 Two filters per env, fed by a :class:`~deploy.backends.base.SensorFrame`'s IMU and foot-contact
-fields and by the joint estimator's ``q``, ``dq``
-(:class:`deploy.estimation.joints.JointStateEstimator`):
+fields and by the joint estimate ``q``, ``dq`` (rad, rad/s):
 
-Attitude: Mahony's explicit complementary filter with gyroscope bias estimation (R. Mahony, T.
-Hamel, J.-M. Pflimlin, "Nonlinear complementary filters on the special orthogonal group", IEEE
-TAC 53(5), 2008), as the maintained ``ahrs`` package implements it
-(``ahrs.filters.Mahony.updateIMU``; gains ``k_P = 1``, ``k_I = 0.3``, the package's defaults):
-the default implementation (``"vectorized"``) runs the same update over every env at once
-(:func:`mahony_update`); ``"filterpy"`` calls one ``ahrs`` filter per env, the reference it is
-tested against (equal within 1e-12). The IMU readings are turned into the base frame first (the IMU
-site's fixed orientation on the base); the lever arm of the accelerometer is neglected. Outputs: the
-orientation (yaw drifts: nothing observes it), the projected gravity ``R^T [0, 0, -1]`` (unit
-vector, base frame) and the bias-corrected angular velocity (rad/s, base frame).
-
-Linear velocity: the kinematic-inertial Kalman filter of legged robots (M. Bloesch et al., "State
-estimation for legged robots: consistent fusion of leg kinematics and IMU", RSS 2012; the linear
-form of G. Bledt et al., "MIT Cheetah 3", IROS 2018): state ``v``, the base velocity in the world
-frame (m/s); the accelerometer is the control input of the prediction, every leg in contact
-measures ``v``::
+- attitude: Mahony's complementary filter with gyro bias (:mod:`deploy.estimation.attitude`; gains
+  ``k_P = 1``, ``k_I = 0.3``, the ``ahrs`` defaults), on the IMU readings turned into the base frame
+  (accelerometer lever arm neglected): orientation (yaw unobserved), projected gravity, angular
+  velocity (rad/s, base frame);
+- linear velocity: the kinematic-inertial Kalman filter of legged robots (M. Bloesch et al., RSS
+  2012; the linear form of G. Bledt et al., "MIT Cheetah 3", IROS 2018), state ``v`` (m/s, world)::
 
     predict:  v' = v + dt (R a + g)               Q = dt^2 (accel_sigma^2 + accel_bias_sigma^2) I
     update:   z = R mean_i(-(omega x p_i + J_i(q) dq))   R_z = leg_sigma^2 / n_contact I
 
-with ``p_i`` the foot position and ``J_i`` its Jacobian in the base frame (Pinocchio, the base
-held; one call per env in contact). With isotropic ``Q`` and ``R_z`` the covariance stays ``p I``:
-the default implementation (``"vectorized"``) runs that scalar recursion over the envs at once;
-``"filterpy"`` runs one ``filterpy.kalman.KalmanFilter(dim_x=3, dim_z=3)`` per env, the reference
-it is tested against.
+  with ``p_i``, ``J_i`` a foot's position and Jacobian in the base frame (Pinocchio).
 
-Missing and stale data, as in the joint estimator: an IMU reading that is NaN, not newer than
-the last one absorbed or stamped after the frame's time is not fed to any filter (counted in
-``missing_readings`` / ``stale_readings``); the output is then predicted from the last absorbed
-reading to ``frame.time`` (the orientation turned by the last angular velocity, the velocity
-held), and ``time_since_fresh`` grows (the runtime decides when that is too old). Contacts
-without a fresh stamp give no velocity update.
+``"vectorized"`` (default) runs both over every env at once; ``"filterpy"`` runs one ``ahrs``
+filter and one ``filterpy`` KalmanFilter per env, the reference it is tested against. An IMU
+reading that is NaN, not newer than the last one absorbed or stamped after ``frame.time`` is not
+fed (``missing_readings`` / ``stale_readings``): the output is predicted to ``frame.time`` and
+``time_since_fresh`` grows. Contacts without a fresh stamp give no velocity update.
 """
 
 from __future__ import annotations
@@ -47,11 +31,18 @@ import pinocchio as pin
 from filterpy.kalman import KalmanFilter
 
 from deploy.backends.base import SensorFrame
+from deploy.estimation.attitude import (
+    align_up,
+    mahony_update,
+    quat_multiply,
+    quaternion_to_matrix,
+    rotation_quaternions,
+    tilt_of,
+)
 from deploy.stateful import check, env_index, put, take
 from robots import Robot
 
 IMPLEMENTATIONS: tuple[str, ...] = ("vectorized", "filterpy")
-#: Standard gravity, m/s^2 (the world's gravity is read from the robot's model).
 #: Leg odometry noise, m/s (our choice): foot roll and micro-slip of a point foot, and the joint
 #: velocity estimate's noise through the leg Jacobian (about 0.3 m/rad).
 LEG_VELOCITY_SIGMA = 0.1
@@ -63,94 +54,6 @@ INITIAL_VELOCITY_SIGMA = 0.1
 #: a specific force that put its initial tilt estimate at 0.29 rad (true 0.006): the policy
 #: answered a tilt that was not there and fell within 0.5 s.
 REST_ACCELERATION_TOLERANCE = 0.1
-
-
-def _quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of quaternions ``[w, x, y, z]`` (..., 4)."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
-
-
-def mahony_update(
-    quaternion: np.ndarray,
-    bias: np.ndarray,
-    gyro: np.ndarray,
-    acceleration: np.ndarray,
-    dt: np.ndarray,
-    k_p: float,
-    k_i: float,
-) -> np.ndarray:
-    """One step of ``ahrs.filters.Mahony.updateIMU`` for k filters at once.
-
-    Args:
-        quaternion: (k, 4) base-to-world ``[w, x, y, z]`` (normalized first, as ``ahrs`` does).
-        bias: (k, 3) rad/s, the gyro bias estimates; updated in place.
-        gyro: (k, 3) rad/s and acceleration: (k, 3) m/s^2, base frame.
-        dt: (k,) s. k_p, k_i: the gains.
-
-    Returns:
-        (k, 4) the new unit quaternions. A zero gyro reading leaves its quaternion and bias
-        unchanged and a zero acceleration skips the correction, as in ``ahrs``.
-    """
-    q = quaternion / np.linalg.norm(quaternion, axis=1, keepdims=True)
-    moving = np.linalg.norm(gyro, axis=1) != 0
-    a_norm = np.linalg.norm(acceleration, axis=1)
-    corrected = moving & (a_norm > 0)
-    up = quaternion_to_matrix(q)[:, 2, :]  # R^T [0, 0, 1]
-    safe = np.where(a_norm > 0, a_norm, 1.0)[:, None]
-    error = np.cross(acceleration / safe, up) * corrected[:, None]
-    bias += (-k_i * error) * dt[:, None]
-    omega = np.where(corrected[:, None], gyro - bias + k_p * error, gyro)
-    rate = 0.5 * _quat_multiply(q, np.concatenate([np.zeros((len(q), 1)), omega], axis=1))
-    new = q + rate * dt[:, None]
-    new /= np.linalg.norm(new, axis=1, keepdims=True)
-    return np.where(moving[:, None], new, q)
-
-
-def rotation_quaternions(rotvec: np.ndarray) -> np.ndarray:
-    """Quaternions ``[w, x, y, z]`` (k, 4) of rotation vectors (k, 3) rad (below 1e-12 rad the
-    first-order ``[1, rotvec / 2]``)."""
-    angle = np.linalg.norm(rotvec, axis=1)
-    small = angle < 1e-12
-    half = np.where(small, 0.5, np.sin(angle / 2) / np.where(small, 1.0, angle))
-    w = np.where(small, 1.0, np.cos(angle / 2))
-    return np.concatenate([w[:, None], rotvec * half[:, None]], axis=1)
-
-
-def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) of unit quaternions ``[w, x, y, z]`` (..., 4)."""
-    w, x, y, z = np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=-2,
-    )
-
-
-def projected_gravity(q: np.ndarray) -> np.ndarray:
-    """Unit gravity direction in the base frame, ``R^T [0, 0, -1]``, (..., 3), for base-to-world
-    quaternions ``[w, x, y, z]`` (..., 4)."""
-    return -quaternion_to_matrix(q)[..., 2, :]
-
-
-def tilt_of(gravity: np.ndarray) -> np.ndarray:
-    """Angle (rad) between the base's z axis and the world's up, (...,), from projected gravity
-    (..., 3): 0 upright, pi/2 on its side, pi upside down."""
-    g = np.asarray(gravity, dtype=np.float64)
-    g = g / np.linalg.norm(g, axis=-1, keepdims=True)
-    return np.arccos(np.clip(-g[..., 2], -1.0, 1.0))
 
 
 @dataclass
@@ -305,7 +208,7 @@ class BaseStateEstimator:
                     raise ValueError(f"reset: env {e}: acceleration {a} is not a finite reading")
                 g = np.linalg.norm(self.gravity)
                 if abs(np.linalg.norm(a) - g) <= REST_ACCELERATION_TOLERANCE * g:
-                    q = _align_up(a / np.linalg.norm(a))
+                    q = align_up(a / np.linalg.norm(a))
             self.orientation[e] = q
             self._bias[e] = 0.0
             if self._mahony:
@@ -418,9 +321,7 @@ class BaseStateEstimator:
         age = now - self.filter_time
         self.time_since_fresh[:] = age
         turn = rotation_quaternions(self.angular_velocity * np.maximum(age, 0.0)[:, None])
-        quat = np.where(
-            (age > 0)[:, None], _quat_multiply(self.orientation, turn), self.orientation
-        )
+        quat = np.where((age > 0)[:, None], quat_multiply(self.orientation, turn), self.orientation)
         rot = quaternion_to_matrix(quat)
         out.orientation[:] = quat
         out.projected_gravity[:] = -rot[:, 2]
@@ -454,7 +355,7 @@ class BaseStateEstimator:
         quat = self.orientation[e]
         if age > 0:
             turn = rotation_quaternions((self.angular_velocity[e] * age)[None])[0]
-            quat = _quat_multiply(quat, turn)
+            quat = quat_multiply(quat, turn)
         rot = quaternion_to_matrix(quat)
         out.orientation[e] = quat
         out.projected_gravity[e] = -rot[2]
@@ -503,14 +404,3 @@ class BaseStateEstimator:
         self.velocity[e] += gain * (z - self.velocity[e])
         # Joseph form (filterpy's): (1 - k)^2 p + k^2 r = (1 - k) p for the optimal gain
         self.velocity_variance[e] = (1 - gain) ** 2 * p + gain**2 * r_var
-
-
-def _align_up(up: np.ndarray) -> np.ndarray:
-    """Base-to-world quaternion (yaw 0) that turns the unit vector ``up`` (base frame) onto the
-    world's +z."""
-    z = np.array([0.0, 0.0, 1.0])
-    axis = np.cross(up, z)
-    s, c = np.linalg.norm(axis), float(np.dot(up, z))
-    if s < 1e-12:
-        return np.array([1.0, 0.0, 0.0, 0.0]) if c > 0 else np.array([0.0, 1.0, 0.0, 0.0])
-    return rotation_quaternions((axis / s * np.arctan2(s, c))[None])[0]

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from deploy.estimation.base import quaternion_to_matrix, tilt_of
+from deploy.estimation.attitude import quaternion_to_matrix, tilt_of
 from deploy.state import RobotState
 from robots import Robot
 

@@ -124,8 +124,9 @@ module                      what it holds
 :mod:`~.parity`             the parity gate
 :mod:`~.noise_floor`        the gate's tolerance: the float32 noise floor of the source
 :mod:`~.deploy_config`      ``--from-config``: a legged_gym deploy config as the spec
-:mod:`~.inspect_policy`     ``policy-export --inspect``
-:mod:`~.errors`             :class:`ExportError`, :class:`ParityError`
+:mod:`~.inspect_policy`     ``policy-export --inspect`` (ONNX; torch files: :mod:`~.inspect_torch`;
+                            the report's entries and text: :mod:`~.inspect_report`)
+:mod:`~.errors`             :class:`ExportError`, :class:`ParityError`, :class:`InspectError`
 ==========================  ==================================================================
 """
 

@@ -11,8 +11,9 @@ from pathlib import Path
 
 from deploy.export.errors import ExportError
 from deploy.export.source import SourcePolicy, normalizer_module
-from deploy.policy.mlp_checkpoint import CheckpointError, checkpoint_from_dict
-from deploy.policy.onnx_policy import spec_differences
+from deploy.policy.mlp_checkpoint import checkpoint_from_dict
+from deploy.policy.onnx_spec import spec_differences
+from deploy.policy.torch_file import CheckpointError
 from deploy.spec.policy_spec import PolicySpec
 
 

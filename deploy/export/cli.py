@@ -94,7 +94,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         return EXIT_BAD_INPUT
     if args.inspect:
-        from deploy.export.inspect_policy import InspectError, format_report, inspect_file
+        from deploy.export.errors import InspectError
+        from deploy.export.inspect_policy import inspect_file
+        from deploy.export.inspect_report import format_report
 
         try:
             robot = None

@@ -1,6 +1,6 @@
-"""The export's errors: :class:`ExportError` (bad input, exit status 2) and :class:`ParityError`
-(the graph disagrees with its source, exit status 1), and :func:`_first_line`, how a caught
-exception is named in their messages.
+"""The export's errors: :class:`ExportError` (bad input, exit status 2), :class:`ParityError`
+(the graph disagrees with its source, exit status 1) and :class:`InspectError` (``--inspect``
+cannot read the file), and :func:`_first_line`, how a caught exception is named in their messages.
 """
 
 from __future__ import annotations
@@ -24,6 +24,11 @@ class ParityError(Sim2RealError, RuntimeError):
     def __init__(self, message: str, figures: dict[str, Any]):
         super().__init__(message)
         self.figures = figures
+
+
+class InspectError(Sim2RealError, ValueError):
+    """``--inspect``: the file cannot be read as any policy format; the message names the file and
+    why."""
 
 
 def _first_line(exc: BaseException) -> str:

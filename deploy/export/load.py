@@ -28,15 +28,14 @@ from deploy.export.sb3 import _load_sb3
 from deploy.export.source import SourcePolicy, normalizer_module
 from deploy.export.torchscript import _load_torchscript
 from deploy.export.vecnormalize import load_vecnormalize
-from deploy.policy.mlp_checkpoint import (
-    ACTIVATIONS,
-    FORMAT,
+from deploy.policy.mlp_checkpoint import ACTIVATIONS, FORMAT
+from deploy.policy.onnx_spec import read_spec
+from deploy.policy.torch_file import (
     load_weights_only,
     torch_file_problem,
     unreadable_torch_file,
     unsafe_globals_in,
 )
-from deploy.policy.onnx_policy import read_spec
 from deploy.spec.policy_spec import PolicySpec, SpecError
 from robots.files import sha256_file
 

@@ -32,7 +32,8 @@ from deploy.export.parity import (
     source_sequence_parity,
     static_parity,
 )
-from deploy.policy.onnx_policy import OnnxPolicy, PolicyLoadError
+from deploy.policy.onnx_checks import PolicyLoadError
+from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.spec.policy_spec import PolicySpec, SpecError
 from robots import Robot, load_robot
 from robots.files import atomic_path, atomic_write, sha256_file

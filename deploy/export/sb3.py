@@ -20,12 +20,8 @@ import torch
 from deploy.export.errors import ExportError
 from deploy.export.network import _build_mlp, _linear_stack, _probe, _require_spec
 from deploy.export.source import SourcePolicy
-from deploy.policy.mlp_checkpoint import (
-    MLPActor,
-    load_failure_cause,
-    load_weights_only,
-    unsafe_globals_in,
-)
+from deploy.policy.mlp_checkpoint import MLPActor
+from deploy.policy.torch_file import load_failure_cause, load_weights_only, unsafe_globals_in
 from deploy.spec.policy_spec import PolicySpec
 
 

@@ -14,7 +14,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from deploy.policy.mlp_checkpoint import ObservationNormalizer
+from deploy.policy.obs_normalizer import ObservationNormalizer
 from deploy.spec.policy_spec import PolicySpec
 
 

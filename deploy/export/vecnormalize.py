@@ -1,6 +1,6 @@
 """SB3 ``VecNormalize`` statistics for ``--vecnormalize`` (:func:`load_vecnormalize`): an ``.npz``
 or ``.json`` with ``mean``, ``var``, ``clip_obs``, ``epsilon``, or SB3's own pickle with
-``--trust-pickle``; they become an :class:`~deploy.policy.mlp_checkpoint.ObservationNormalizer`,
+``--trust-pickle``; they become an :class:`~deploy.policy.obs_normalizer.ObservationNormalizer`,
 ``clip((obs - mean) / sqrt(var + epsilon), -clip_obs, clip_obs)``.
 """
 
@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from deploy.export.errors import ExportError, _first_line
-from deploy.policy.mlp_checkpoint import CheckpointError, ObservationNormalizer
+from deploy.policy.obs_normalizer import ObservationNormalizer
+from deploy.policy.torch_file import CheckpointError
 
 
 def load_vecnormalize(path: Path, trust_pickle: bool, obs_dim: int) -> ObservationNormalizer | None:

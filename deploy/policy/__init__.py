@@ -1,4 +1,4 @@
-"""Policies as the runtime runs them: OnnxPolicy (feed-forward and recurrent), the ONNX
-checks at load, our MLP checkpoint format, the gait prior inside a legged actor, and the
-adversarial policy.
+"""Policies as the runtime runs them: OnnxPolicy (feed-forward and recurrent; its spec, its graph),
+the ONNX checks at load, our MLP checkpoint format (torch files read safely, the observation
+normalizer), the gait prior inside a legged actor, and the adversarial policy.
 """

@@ -1,59 +1,41 @@
 """Our policy checkpoint format: a deterministic MLP actor, its PolicySpec and its normalizer.
 
-A checkpoint is a ``.pt`` file holding one plain dict that loads with
-``torch.load(path, weights_only=True)`` (tensors, strings, numbers, lists and dicts only: loading it
-never runs code)::
+A ``.pt`` file holding one plain dict that loads with ``torch.load(path, weights_only=True)``
+(tensors, strings, numbers, lists and dicts only: loading it never runs code)::
 
     {
-        "format": "sim2real-deploy/mlp",
-        "format_version": 1,
+        "format": "sim2real-deploy/mlp", "format_version": 1,
         "architecture": {
-            "obs_dim": 21,                 # int, = spec.obs_dim
-            "act_dim": 3,                  # int, = spec.act_dim
+            "obs_dim": 21, "act_dim": 3,   # int: spec.obs_dim, spec.act_dim
             "hidden": [64, 64],            # widths of the hidden layers ([] = linear policy)
             "activation": "elu",           # "elu" | "tanh" | "relu", after every hidden layer
             "output": None,                # None (unsquashed) | "tanh"
         },
         "state_dict": {...},               # MLPActor.state_dict(): "net.0.weight", ...
         "spec": "<PolicySpec JSON>",       # PolicySpec.to_json()
-        "obs_normalizer": None | {         # empirical normalizer of the training library, applied
-            "mean": Tensor (obs_dim,),     # to the spec's observation before the network:
-            "var": Tensor (obs_dim,),      #   clip((obs - mean) / sqrt(var + epsilon), -clip, clip)
-            "epsilon": float, "clip": float,
-        },
+        "obs_normalizer": None | {"mean", "var", "epsilon", "clip"},  # ObservationNormalizer
         "info": {...},                     # optional plain data (training run, seed, ...)
     }
 
 The actor maps the spec's normalized observation, float32 (batch, obs_dim), to the action, float32
-(batch, act_dim); the spec's action clip is applied after it (by the exporter, baked into the ONNX
-graph). :func:`save_checkpoint` writes atomically (temporary file in the same folder, then
-``os.replace``); :func:`load_checkpoint` validates every field and raises :class:`CheckpointError`
-naming the file and the field.
-
->>> actor = MLPActor(obs_dim=15, act_dim=3, hidden=(64, 64))
->>> save_checkpoint("policies/arm.pt", actor, spec)                # doctest: +SKIP
->>> actor, spec, normalizer = load_checkpoint("policies/arm.pt")  # doctest: +SKIP
+(batch, act_dim), before the spec's action clip. :func:`save_checkpoint` writes atomically;
+:func:`load_checkpoint` validates every field and raises
+:class:`~deploy.policy.torch_file.CheckpointError` naming the file and the field.
 """
 
 from __future__ import annotations
 
-import io
-import math
-import os
-import pickle
-import re
-import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from torch import nn
 
+from deploy.policy.obs_normalizer import ObservationNormalizer
+from deploy.policy.torch_file import CheckpointError, finite_check, read_torch_file
 from deploy.spec.policy_spec import PolicySpec, SpecError
-from robots.errors import Sim2RealError
 from robots.files import atomic_path
 
 FORMAT = "sim2real-deploy/mlp"
@@ -62,22 +44,6 @@ FORMAT_VERSION = 1
 ACTIVATIONS: dict[str, type[nn.Module]] = {"elu": nn.ELU, "tanh": nn.Tanh, "relu": nn.ReLU}
 #: Output squashing, by its name in ``architecture["output"]``.
 OUTPUTS = (None, "tanh")
-
-
-class CheckpointError(Sim2RealError, ValueError):
-    """A checkpoint is missing, unreadable or invalid; the message names the file and the field."""
-
-
-def _finite_check(tensors: Mapping[str, Any], where: str) -> None:
-    """Raise CheckpointError if a floating tensor in ``tensors`` holds NaN or inf."""
-    for name, t in tensors.items():
-        if isinstance(t, torch.Tensor) and t.is_floating_point():
-            bad = int((~torch.isfinite(t)).sum())
-            if bad:
-                raise CheckpointError(
-                    f"{where}['{name}']: {bad} non-finite value(s) (NaN or inf) in a tensor of "
-                    f"shape {tuple(t.shape)}"
-                )
 
 
 class MLPActor(nn.Module):
@@ -230,102 +196,6 @@ class MLPActor(nn.Module):
 
 
 @dataclass(frozen=True, eq=False)
-class ObservationNormalizer:
-    """Empirical observation normalizer (e.g. SB3 ``VecNormalize``):
-    ``clip((obs - mean) / sqrt(var + epsilon), -clip, clip)``, applied to the spec's observation.
-
-    Attributes:
-        mean: (obs_dim,) running mean of the observation.
-        var: (obs_dim,) running variance (>= 0).
-        epsilon: Added to ``var`` before the square root.
-        clip: Symmetric clip of the result (> 0; ``inf`` for none).
-    """
-
-    mean: torch.Tensor
-    var: torch.Tensor
-    epsilon: float = 1e-8
-    clip: float = 10.0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mean", torch.as_tensor(np.asarray(self.mean, dtype=np.float64)))
-        object.__setattr__(self, "var", torch.as_tensor(np.asarray(self.var, dtype=np.float64)))
-        object.__setattr__(self, "epsilon", float(self.epsilon))
-        object.__setattr__(self, "clip", float(self.clip))
-
-    @property
-    def obs_dim(self) -> int:
-        return int(self.mean.shape[0])
-
-    def validate(self, where: str = "obs_normalizer", obs_dim: int | None = None) -> None:
-        """Check shapes and values.
-
-        Raises:
-            CheckpointError: naming the field (the message starts with ``where``).
-        """
-        for key in ("mean", "var"):
-            t = getattr(self, key)
-            if t.ndim != 1 or (obs_dim is not None and t.shape[0] != obs_dim):
-                raise CheckpointError(
-                    f"{where}.{key}: shape {tuple(t.shape)}, expected ({obs_dim or 'obs_dim'},)"
-                )
-        if self.mean.shape != self.var.shape:
-            raise CheckpointError(
-                f"{where}: mean {tuple(self.mean.shape)} and var {tuple(self.var.shape)} differ"
-            )
-        _finite_check({"mean": self.mean, "var": self.var}, where)
-        if (self.var < 0).any():
-            raise CheckpointError(f"{where}.var: negative variance")
-        if not (math.isfinite(self.epsilon) and self.epsilon >= 0):
-            raise CheckpointError(f"{where}.epsilon: must be finite and >= 0, got {self.epsilon}")
-        if not self.clip > 0:
-            raise CheckpointError(f"{where}.clip: must be positive, got {self.clip}")
-        if ((self.var + self.epsilon) <= 0).any():
-            raise CheckpointError(f"{where}: var + epsilon is 0 for some entries (division by 0)")
-
-    def denominator(self) -> torch.Tensor:
-        """``sqrt(var + epsilon)``, float32 (obs_dim,), computed in float64."""
-        return torch.sqrt(self.var.double() + self.epsilon).float()
-
-    def normalize(self, obs: np.ndarray) -> np.ndarray:
-        """The normalized observation, float32, same shape as ``obs`` (float32 arithmetic)."""
-        x = (np.asarray(obs, np.float32) - self.mean.float().numpy()) / self.denominator().numpy()
-        return np.clip(x, -self.clip, self.clip).astype(np.float32)
-
-    def to_dict(self) -> dict[str, Any]:
-        """The ``obs_normalizer`` entry of a checkpoint."""
-        return {
-            "mean": self.mean.clone(),
-            "var": self.var.clone(),
-            "epsilon": self.epsilon,
-            "clip": self.clip,
-        }
-
-    @classmethod
-    def from_dict(cls, d: Any, where: str = "obs_normalizer") -> ObservationNormalizer:
-        """Parse an ``obs_normalizer`` entry.
-
-        Raises:
-            CheckpointError: missing or invalid field.
-        """
-        if not isinstance(d, Mapping):
-            raise CheckpointError(f"{where}: expected None or a dict, got {type(d).__name__}")
-        for key in ("mean", "var", "epsilon", "clip"):
-            if key not in d:
-                raise CheckpointError(f"{where}.{key}: missing")
-        try:
-            norm = cls(
-                mean=np.asarray(d["mean"], dtype=np.float64),
-                var=np.asarray(d["var"], dtype=np.float64),
-                epsilon=float(d["epsilon"]),
-                clip=float(d["clip"]),
-            )
-        except (TypeError, ValueError, RuntimeError) as exc:
-            raise CheckpointError(f"{where}: invalid value: {exc}") from None
-        norm.validate(where)
-        return norm
-
-
-@dataclass(frozen=True, eq=False)
 class Checkpoint:
     """The validated content of a checkpoint file (see the module docstring)."""
 
@@ -352,118 +222,6 @@ def _check_plain(value: Any, where: str) -> None:
     raise CheckpointError(
         f"{where}: {type(value).__name__} is not plain data (str, numbers, lists, dicts)"
     )
-
-
-def unsafe_globals_in(exc: BaseException) -> str | None:
-    """The class named by a ``weights_only`` unpickling refusal, or None if ``exc`` is not one."""
-    m = re.search(r"Unsupported global: GLOBAL ([\w.]+)", str(exc))
-    return m.group(1) if m else None
-
-
-def torch_file_problem(path: str | os.PathLike) -> str | None:
-    """What makes ``path`` no torch file at all, or None if it could be one.
-
-    ``torch.save`` writes a zip archive (since PyTorch 1.6; TorchScript and Stable-Baselines3
-    files are zip archives too) or, in the legacy format, a pickle, whose first byte is the
-    PROTO opcode 0x80 (pickle protocol 2 and later). Anything else is refused before torch's own
-    error (which suggests ``weights_only=False``, advice that does not apply to a damaged file).
-    """
-    with open(path, "rb") as f:
-        head = f.read(4)
-    if head.startswith(b"PK\x03\x04") or head[:1] == b"\x80":
-        return None
-    return (
-        f"not a torch file: it starts with bytes {head.hex(' ')}, neither a zip archive "
-        "(torch.save, TorchScript, Stable-Baselines3) nor a pickle (legacy torch.save); the "
-        "file is damaged or of another kind"
-    )
-
-
-def unreadable_torch_file(path: str | os.PathLike, exc: BaseException) -> str:
-    """Our words for a ``torch.load(..., weights_only=True)`` failure that is not a refusal of a
-    pickled object (:func:`unsafe_globals_in` returned None): the file is truncated, corrupted
-    or was not written by ``torch.save``.
-
-    torch's own message for such a file says that ``weights_only=False`` "will likely succeed";
-    for a damaged file that advice is wrong, and following it would unpickle untrusted bytes. The
-    message returned here names the file, its size and what it looked like, and keeps only the
-    low-level cause (the unpickler's complaint or the first sentence of the reader's error).
-
-    Args:
-        path: The file that failed to load (named in the message; read for its size and head).
-        exc: What ``torch.load`` raised.
-
-    Returns:
-        A one-line message starting with ``path``.
-    """
-    path = Path(path)
-    try:
-        size = f"{path.stat().st_size} bytes"
-        with open(path, "rb") as f:
-            zipped = f.read(4).startswith(b"PK\x03\x04")
-    except OSError:
-        size, zipped = "unreadable", False
-    kind = "a zip archive (torch.save)" if zipped else "a pickle (legacy torch.save)"
-    return (
-        f"{path}: not a readable torch file (truncated or corrupt?): it starts like {kind} "
-        f"but cannot be read ({size}; {load_failure_cause(exc)}); it was cut short, damaged, "
-        "or not written by torch.save"
-    )
-
-
-def load_failure_cause(exc: BaseException) -> str:
-    """The low-level cause of a ``torch.load`` failure, without torch's advice (see
-    :func:`unreadable_torch_file`): e.g. ``"the unpickler found Unsupported operand 8"``."""
-    text = str(exc)
-    m = re.search(r"WeightsUnpickler error:\s*(\S[^\n]*)", text)
-    if m:  # torch's weights_only unpickler met an opcode or type a tensor file never holds
-        return f"the unpickler found {m.group(1).strip()}"
-    first = text.strip().splitlines()[0] if text.strip() else ""
-    if "weights_only" in first:
-        return type(exc).__name__
-    first = first.split(". ")[0].rstrip(".")  # torch appends advice after the first sentence
-    return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
-
-
-def read_torch_file(path: Path) -> Any:
-    """``torch.load(path, weights_only=True)`` on CPU with errors that name the file.
-
-    Raises:
-        CheckpointError: missing, empty, truncated or corrupt file, or a file holding pickled
-            Python objects (whose loading could run arbitrary code).
-    """
-    if not path.is_file():
-        raise CheckpointError(f"{path}: no such file")
-    if path.stat().st_size == 0:
-        raise CheckpointError(f"{path}: the file is empty")
-    problem = torch_file_problem(path)
-    if problem is not None:
-        raise CheckpointError(f"{path}: {problem}")
-    try:
-        return load_weights_only(path)
-    except pickle.UnpicklingError as exc:
-        name = unsafe_globals_in(exc)
-        if name is not None:
-            raise CheckpointError(
-                f"{path}: holds pickled Python objects ({name}), not plain tensors and data; "
-                "refusing to unpickle it (that could run arbitrary code)"
-            ) from None
-        raise CheckpointError(unreadable_torch_file(path, exc)) from None
-    except Exception as exc:  # noqa: BLE001 - torch raises many types for damaged files
-        raise CheckpointError(unreadable_torch_file(path, exc)) from None
-
-
-def load_weights_only(source: str | os.PathLike | io.BytesIO) -> Any:
-    """``torch.load(source, map_location="cpu", weights_only=True)``, without torch's warning
-    about an unusual pickle protocol (a damaged file's first bytes; the error that follows is
-    reported by :func:`unreadable_torch_file`).
-
-    Raises:
-        Whatever ``torch.load`` raises (``pickle.UnpicklingError``, ``RuntimeError``, ...).
-    """
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="Detected pickle protocol")
-        return torch.load(source, map_location="cpu", weights_only=True)
 
 
 def checkpoint_from_dict(d: Any, source: str | Path) -> Checkpoint:
@@ -511,7 +269,7 @@ def checkpoint_from_dict(d: Any, source: str | Path) -> Checkpoint:
                 f"{src}: field 'state_dict'['{key}']: shape {tuple(sd[key].shape)}, the "
                 f"architecture needs {tuple(t.shape)}"
             )
-    _finite_check(sd, f"{src}: field 'state_dict'")
+    finite_check(sd, f"{src}: field 'state_dict'")
     actor.load_state_dict({k: v.to(torch.float32) for k, v in sd.items()})
     actor.eval()
     if not isinstance(d["spec"], str):
@@ -610,7 +368,7 @@ def save_checkpoint(
     state_dict = {
         k: v.detach().to("cpu", torch.float32).clone() for k, v in actor.state_dict().items()
     }
-    _finite_check(state_dict, f"{path}: state_dict")
+    finite_check(state_dict, f"{path}: state_dict")
     norm = None
     if obs_normalizer is not None:
         if not isinstance(obs_normalizer, ObservationNormalizer):

@@ -1,7 +1,7 @@
-"""Checks of an ONNX file before anything runs it: external data that stays in the model's
-folder, and finite weights (:func:`check_finite_weights`).
+"""Checks of an ONNX file before anything runs it: a readable model (:func:`read_model`), external
+data that stays in the model's folder, and finite weights (:func:`check_finite_weights`).
 
-Both raise :class:`PolicyLoadError` naming the file and the tensor.
+Each raises :class:`PolicyLoadError` naming the file (and the tensor).
 """
 
 from __future__ import annotations
@@ -229,3 +229,33 @@ def check_finite_weights(model: onnx.ModelProto, path: Path) -> None:
                 f"{path}: {label} holds {bad} non-finite value(s) (NaN or inf) and feeds a {op} "
                 "(a weight); refusing the model"
             )
+
+
+def read_model(path: Path) -> onnx.ModelProto:
+    """The ONNX model of ``path``, its external data not loaded yet.
+
+    Raises:
+        PolicyLoadError: a missing, empty, unreadable or graphless file (a torch file is told to
+            be exported first).
+    """
+    if not path.is_file():
+        raise PolicyLoadError(f"{path}: no such file")
+    if path.stat().st_size == 0:
+        raise PolicyLoadError(f"{path}: the file is empty")
+    try:
+        model = onnx.load(str(path), load_external_data=False)
+    except Exception as exc:  # noqa: BLE001 - protobuf DecodeError and friends
+        with open(path, "rb") as f:
+            head = f.read(4)
+        if head.startswith(b"PK\x03\x04") or head[:1] == b"\x80":  # zip or pickle
+            raise PolicyLoadError(
+                f"{path}: not an ONNX file but a zip archive or pickle (a torch checkpoint, "
+                "TorchScript or Stable-Baselines3 file?); the runtime runs ONNX: export it "
+                f"first with `policy-export {path}`"
+            ) from None
+        raise PolicyLoadError(
+            f"{path}: not a valid ONNX file (truncated or corrupt?): {exc}"
+        ) from None
+    if not len(model.graph.node) or not len(model.graph.output):
+        raise PolicyLoadError(f"{path}: the ONNX model has no graph (truncated or corrupt?)")
+    return model

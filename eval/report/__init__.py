@@ -1,3 +1,3 @@
-"""The soak's reports: report.json (build, schema, the baseline comparison), report.html
-(html, plots; Jinja2 templates in eval/templates/) and junit.xml.
+"""The soak's reports: report.json (build, totals, schema, the baseline comparison), report.html
+(html, plots; Jinja2 templates in eval/templates/), junit.xml and the console summary.
 """

@@ -1,167 +1,43 @@
-"""Soak reports: report.json, report.html, junit.xml, and the comparison with a baseline.
+"""Soak reports: report.json built from the sessions' results, its checks, and the files written.
 
-Two words (DESIGN.md): a **violation** is the robot's *true* state past a limit, counted from the
-simulator's ground truth (:mod:`deploy.monitors.violations`); an **intervention** is a command the
-guard or the smoother changed (:mod:`deploy.monitors.interventions`). They are reported apart: a
-guard that clamps
-often is a policy leaning on it, not a robot beyond its limits.
-
-``report.json`` (``schema_version`` ``SCHEMA_VERSION`` = 2)::
-
-    schema_version, tool, created (UTC, ISO 8601)
-    campaign        robot, policy, policy_sha256, hours, sessions, seed, options of the sessions,
-                    ranges_file (soak-test --ranges, or null), executor, sessions_per_process,
-                    wall_s
-    thresholds      the pass/fail thresholds and baseline tolerances (:class:`Thresholds`)
-    sessions[]      one per session (eval.soak's result):
-        id, seed, status ('complete' | 'diverged'), simulated_s, simulated_hours, ticks,
-        control_mode, options (the session's, ranges {dynamics, sensors, drift, faults, imu,
-        floor_friction} among them), randomization {dynamics, sensors, drift, faults[]},
-        violations {source, total {type: ticks}, any, per_hour [{hour, start_s, end_s,
-                    counts {type: ticks}, any}], rate_per_hour {type: ticks per hour}}
-                    (types: hard_limit, soft_limit, velocity, effort, workspace, self_collision;
-                    a tick counts once per type)
-        interventions {ticks, checks {check: {count, fraction}}, any {count, fraction},
-                    warnings {soft_band_estimate: {count, fraction}}, per_hour [{hour, start_s,
-                    end_s, ticks, counts {check: ticks}, any, warnings}]}
-                    (checks: hard_limit, soft_limit, velocity, workspace, self_collision, effort,
-                    stopping_distance, target_clamp; count = ticks on which the check changed a
-                    command, fraction = count / ticks)
-        goals (null for a legged robot) {issued, reached, success_rate,
-               median_time_to_reach_s, within_s, period_s,
-               window_s, windows [{start_s, end_s, issued, reached, success_rate}],
-               min_window_success_rate, missed [{t_s, issued_s, goal, q, dq, q_estimate,
-               distance_m, best_distance_m, interventions {check: ticks, any}}],
-               missed_dropped}
-        locomotion (null for an arm) {commands_issued, command_period_s, command_ranges,
-               final_command, falls, falls_per_hour, tracking_success (the session's success
-               rate: share of RUNNING time within tracking_tolerance_m_s of the command, on the
-               velocity averaged over tracking_window_s), tracking_tolerance_m_s,
-               tracking_window_s, judged_on, running_s, tracked_s, distance_m, forward_m,
-               mean_forward_speed_m_s, window_s, windows [{start_s, end_s, running_s,
-               tracked_s, success_rate}], min_window_success_rate, peak_winding_c {hip, thigh,
-               calf}}
-        faults {scheduled, injected, survived, responses {held, safe_stop, resumed, latched,
-                not_running}, events [{kind, start_s, duration_s, magnitude, response, survived,
-                causes, ...}]},
-        runtime {safe_stops, by_cause, non_finite_actions, resyncs, anchors, latched_faults,
-                 latches[], operator_resets, final_mode, final_cause},
-        estimator {missing_readings, stale_readings, reinitializations},
-        thermal {joints, derating_start_c, max_winding_c, peak_c, derating_band_s,
-                 over_temperature_s, curve {t_s, winding_c {joint: [...]}}},
-        curves {t_s, goals_issued, goals_reached (legged: commands, falls, distance_m,
-                running_s, tracked_s), violations {type | any: [...]},
-                interventions {check | any: [...]}, mode}   (cumulative counts)
-        drift {friction_final_nm}, diverged (message or null),
-        checks {name: {passed, message}},
-        wall {wall_s, speed, batch, tick_cost_us, tick_cost_histogram, stage_cost_us},
-        film (only with the film strip, :mod:`eval.film.strip`) {clips [{kind, kinds, label,
-        moments,
-              t_s, start_s, end_s, video, still (paths relative to the report's folder),
-              frames, bytes, replay_exact, checked, from_tick}], moments {kind: found},
-              not_filmed, fps, size, frames_per_s, error (why there is no film, or null)}
-    totals          over every session: simulated_hours, ticks, violations {total, any,
-                    rate_per_hour, per_hour [{hour, counts, any}]}, interventions {ticks, checks
-                    {check: {count, fraction}}, any {count, fraction}, warnings, per_hour [{hour,
-                    ticks, counts, any, fraction}]}, goals {issued, reached, success_rate,
-                    min_window_success_rate, missed, missed_dropped} (arm sessions),
-                    locomotion (legged sessions, else null) {sessions, falls, falls_per_hour,
-                    tracking_success, min_window_success_rate, distance_m,
-                    mean_forward_speed_m_s, running_s, peak_winding_c}, faults {injected, survived,
-                    responses, by_kind}, latched_faults, operator_resets, thermal {peak_c,
-                    derating_band_s, over_temperature_s}, diverged [ids], tick_cost_us
-    checks          {name: {passed, failed_sessions}}
-    baseline        null, or {path, passed, regressions [{metric, baseline, current, allowed,
-                    message}], compared {metric: {baseline, current, allowed}},
-                    known_failures [{check, sessions, message}]: checks failed in the same
-                    sessions of the baseline too (:func:`known_failures`)}
-    passed          every check and the baseline comparison passed
-
-Everything in a session except ``wall`` (wall-clock time, tick cost) follows from the session's
-seed and options: a repeated or resumed session reproduces it exactly.
-
-Session checks (``CHECKS``): ``no_hard_violation`` (no true-state hard-limit violation and no
-hard-limit safe stop of the runtime), ``no_latched_fault``, ``no_over_temperature`` (a winding
-above its maximum, or an over-temperature safe stop), ``success_rate`` (at least
-``min_success_rate`` over the session), ``window_success`` (at least ``min_window_success_rate``
-in every window of ``window_minutes`` with a goal), ``interventions`` (ticks with any
-intervention at most ``max_intervention_rate`` of the ticks), ``no_divergence``, ``falls`` (a
-legged session: at most ``max_falls_per_hour``; an arm passes). For a legged session the success
-checks judge its tracking success (``locomotion``). junit.xml has one testcase per session and
-check, and one for the baseline comparison.
-
-Baseline comparison: :mod:`eval.report.baseline` (campaign totals against an earlier report of
-schema 2). The report's vocabulary (``SCHEMA_VERSION``, ``CHECKS``, :class:`Thresholds`,
-:class:`ReportError`, :func:`load_report`) is in :mod:`eval.report.schema`, junit.xml in
-:mod:`eval.report.junit`, report.html in :mod:`eval.report.html` (a Jinja2 template; plots from
-:mod:`eval.report.plots`); this module builds the report and re-exports their public names.
-
-Every file is written to a temporary file and moved into place with ``os.replace``. The HTML is
-self-contained (plots are matplotlib PNGs embedded as base64; no scripts, no external resources),
-and so is the film strip: each session's clips (H.264 MP4 in ``<video>``, the still at the
-moment as its poster) embedded as base64 from ``film/<id>/`` beside the report (at most
-``eval.film.strip.MAX_CLIPS`` short clips per session). In junit.xml a failed check names the still
-frame of its first clip (``still frame: film/<id>/NN-<kind>.png``, also as a
-``[[ATTACHMENT|...]]`` line in the testcase's system-out).
+:func:`build_report` makes the report.json document (its layout is in its docstring; a
+**violation** is the robot's true state past a limit, an **intervention** a command the guard or
+the smoother changed: they are reported apart); :func:`write_reports` writes report.json,
+report.html (:mod:`eval.report.html`) and junit.xml (:mod:`eval.report.junit`), each atomically.
+The campaign totals are :mod:`eval.report.totals`, the console lines :mod:`eval.report.summary`,
+the comparison with a baseline :mod:`eval.report.baseline`, and the report's vocabulary
+(``SCHEMA_VERSION``, ``CHECKS``, ``Thresholds``, ``ReportError``, ``load_report``)
+:mod:`eval.report.schema`.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import os
 from dataclasses import asdict
 from datetime import datetime, timezone
 from pathlib import Path
 
-import numpy as np
-
-from eval.report.baseline import compare_with_baseline, known_failures
-from eval.report.html import film_html, report_html, write_html
-from eval.report.junit import junit_xml, write_junit
-from eval.report.plots import (
-    plot_interventions,
-    plot_success,
-    plot_temperatures,
-    plot_tick_cost,
-    plot_violations,
-    plot_windows,
-)
-from eval.report.schema import CHECKS, SCHEMA_VERSION, ReportError, Thresholds, load_report
+from eval.report.baseline import compare_with_baseline
+from eval.report.html import write_html
+from eval.report.junit import write_junit
+from eval.report.schema import CHECKS, SCHEMA_VERSION, ReportError, Thresholds
+from eval.report.totals import totals
 from robots.files import atomic_write
-
-__all__ = [
-    "CHECKS",
-    "SCHEMA_VERSION",
-    "ReportError",
-    "Thresholds",
-    "build_report",
-    "compare_with_baseline",
-    "failures",
-    "film_html",
-    "junit_xml",
-    "known_failures",
-    "load_report",
-    "missed_states",
-    "plot_interventions",
-    "plot_success",
-    "plot_temperatures",
-    "plot_tick_cost",
-    "plot_violations",
-    "plot_windows",
-    "report_html",
-    "session_checks",
-    "summary_text",
-    "totals",
-    "write_html",
-    "write_json",
-    "write_junit",
-    "write_reports",
-]
 
 
 def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
-    """The checks of one session result: ``{name: {"passed": bool, "message": str}}``."""
+    """The checks of one session result: ``{name: {"passed": bool, "message": str}}``.
+
+    ``no_hard_violation`` (no true-state hard-limit violation and no hard-limit safe stop of the
+    runtime), ``no_latched_fault``, ``no_over_temperature`` (a winding above its maximum, or an
+    over-temperature safe stop), ``success_rate`` (at least ``min_success_rate`` over the
+    session), ``window_success`` (at least ``min_window_success_rate`` in every window of
+    ``window_minutes`` with a goal), ``interventions`` (ticks with any intervention at most
+    ``max_intervention_rate`` of the ticks), ``no_divergence``, ``falls`` (a legged session: at
+    most ``max_falls_per_hour``; an arm passes). For a legged session the success checks judge its
+    tracking success (``locomotion``).
+    """
     hard = result["violations"]["total"].get("hard_limit", 0)
     hard_stops = result["runtime"]["by_cause"].get("hard_limit", 0)
     latched = result["runtime"]["latched_faults"]
@@ -257,161 +133,6 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     return {k: {"passed": bool(p), "message": m} for k, (p, m) in checks.items()}
 
 
-def _histogram_summary(bins: list[int], counts: list[int]) -> dict:
-    """Percentiles (us) of a sparse 1-us-bin histogram, as LatencyHistogram.summary."""
-    if not counts:
-        return {"p50_us": None, "p99_us": None, "p99.9_us": None, "samples": 0}
-    order = np.argsort(bins)
-    b = np.asarray(bins)[order]
-    c = np.cumsum(np.asarray(counts)[order])
-    total = int(c[-1])
-
-    def pct(p):
-        return float(b[np.searchsorted(c, math.ceil(p / 100.0 * total))] + 0.5)
-
-    return {"p50_us": pct(50), "p99_us": pct(99), "p99.9_us": pct(99.9), "samples": total}
-
-
-def _sum_rows(results: list[dict], section: str, keys: list[str]) -> list[dict]:
-    """Per-hour rows of ``section`` summed over sessions by hour index."""
-    rows: dict[int, dict] = {}
-    for r in results:
-        for h in r[section]["per_hour"]:
-            row = rows.setdefault(h["hour"], {"counts": dict.fromkeys(keys, 0), "any": 0})
-            for k, v in h["counts"].items():
-                row["counts"][k] = row["counts"].get(k, 0) + v
-            row["any"] += h["any"]
-            if "ticks" in h:
-                row["ticks"] = row.get("ticks", 0) + h["ticks"]
-    out = []
-    for hour in sorted(rows):
-        row = {"hour": hour, **rows[hour]}
-        if "ticks" in row:
-            row["fraction"] = row["any"] / row["ticks"] if row["ticks"] else 0.0
-        out.append(row)
-    return out
-
-
-def totals(results: list[dict]) -> dict:
-    """Campaign totals over session results (see the module docstring)."""
-    hours = sum(r["simulated_hours"] for r in results)
-    types = list(results[0]["violations"]["total"]) if results else []
-    total = {k: sum(r["violations"]["total"][k] for r in results) for k in types}
-    ticks = sum(r["interventions"]["ticks"] for r in results)
-    checks = list(results[0]["interventions"]["checks"]) if results else []
-    warnings = list(results[0]["interventions"]["warnings"]) if results else []
-
-    def entry(count: int) -> dict:
-        return {"count": count, "fraction": count / ticks if ticks else 0.0}
-
-    arms = [r for r in results if r["goals"] is not None]
-    issued = sum(r["goals"]["issued"] for r in arms)
-    reached = sum(r["goals"]["reached"] for r in arms)
-    windows = [
-        r["goals"]["min_window_success_rate"]
-        for r in arms
-        if r["goals"]["min_window_success_rate"] is not None
-    ]
-    responses: dict[str, int] = {}
-    by_kind: dict[str, dict] = {}
-    for r in results:
-        for k, v in r["faults"]["responses"].items():
-            responses[k] = responses.get(k, 0) + v
-        for ev in r["faults"]["events"]:
-            kind = by_kind.setdefault(ev["kind"], {"injected": 0, "survived": 0, "responses": {}})
-            kind["injected"] += 1
-            kind["survived"] += int(ev["survived"])
-            kind["responses"][ev["response"]] = kind["responses"].get(ev["response"], 0) + 1
-    joints = results[0]["thermal"]["joints"] if results else []
-    bins: dict[int, int] = {}
-    for r in results:
-        hist = r["wall"]["tick_cost_histogram"]
-        for b, c in zip(hist["bin_us"], hist["count"], strict=True):
-            bins[b] = bins.get(b, 0) + c
-    latched = sum(r["runtime"]["latched_faults"] for r in results)
-    return {
-        "sessions": len(results),
-        "simulated_hours": hours,
-        "ticks": ticks,
-        "violations": {
-            "source": results[0]["violations"]["source"] if results else None,
-            "total": total,
-            "any": sum(r["violations"]["any"] for r in results),
-            "rate_per_hour": {k: (v / hours if hours > 0 else 0.0) for k, v in total.items()},
-            "per_hour": _sum_rows(results, "violations", types),
-        },
-        "interventions": {
-            "ticks": ticks,
-            "checks": {
-                k: entry(sum(r["interventions"]["checks"][k]["count"] for r in results))
-                for k in checks
-            },
-            "any": entry(sum(r["interventions"]["any"]["count"] for r in results)),
-            "warnings": {
-                k: entry(sum(r["interventions"]["warnings"][k]["count"] for r in results))
-                for k in warnings
-            },
-            "per_hour": _sum_rows(results, "interventions", checks),
-        },
-        "goals": {
-            "issued": issued,
-            "reached": reached,
-            "success_rate": reached / issued if issued else None,
-            "min_window_success_rate": min(windows) if windows else None,
-            "missed": sum(len(r["goals"]["missed"]) for r in arms),
-            "missed_dropped": sum(r["goals"]["missed_dropped"] for r in arms),
-        },
-        "locomotion": _locomotion_totals(results),
-        "faults": {
-            "injected": sum(r["faults"]["injected"] for r in results),
-            "survived": sum(r["faults"]["survived"] for r in results),
-            "responses": responses,
-            "by_kind": by_kind,
-        },
-        "latched_faults": latched,
-        "latched_faults_per_hour": latched / hours if hours > 0 else 0.0,
-        "operator_resets": sum(r["runtime"]["operator_resets"] for r in results),
-        "thermal": {
-            "peak_c": {j: max(r["thermal"]["peak_c"][j] for r in results) for j in joints},
-            "derating_band_s": {
-                j: sum(r["thermal"]["derating_band_s"][j] for r in results) for j in joints
-            },
-            "over_temperature_s": {
-                j: sum(r["thermal"]["over_temperature_s"][j] for r in results) for j in joints
-            },
-        },
-        "diverged": [r["id"] for r in results if r["diverged"]],
-        "tick_cost_us": _histogram_summary(list(bins), list(bins.values())),
-    }
-
-
-def _locomotion_totals(results: list[dict]) -> dict | None:
-    """Totals of the legged sessions' ``locomotion`` sections (None without any)."""
-    legs = [r["locomotion"] for r in results if r.get("locomotion") is not None]
-    if not legs:
-        return None
-    hours = sum(r["simulated_hours"] for r in results if r.get("locomotion") is not None)
-    falls = sum(x["falls"] for x in legs)
-    running = sum(x["running_s"] for x in legs)
-    windows = [
-        x["min_window_success_rate"] for x in legs if x["min_window_success_rate"] is not None
-    ]
-    kinds = sorted({k for x in legs for k in x["peak_winding_c"]})
-    return {
-        "sessions": len(legs),
-        "falls": falls,
-        "falls_per_hour": falls / hours if hours > 0 else 0.0,
-        "tracking_success": sum(x["tracked_s"] for x in legs) / running if running else None,
-        "min_window_success_rate": min(windows) if windows else None,
-        "distance_m": sum(x["distance_m"] for x in legs),
-        "mean_forward_speed_m_s": sum(x["forward_m"] for x in legs) / running if running else None,
-        "running_s": running,
-        "peak_winding_c": {
-            k: max(x["peak_winding_c"][k] for x in legs if k in x["peak_winding_c"]) for k in kinds
-        },
-    }
-
-
 def missed_states(report: dict) -> list[dict]:
     """The missed goals of every session of a report, in session order.
 
@@ -444,7 +165,80 @@ def build_report(
     baseline: dict | None = None,
     baseline_path: str | None = None,
 ) -> dict:
-    """The report.json document (see the module docstring).
+    """The report.json document (``schema_version`` ``SCHEMA_VERSION`` = 2)::
+
+        schema_version, tool, created (UTC, ISO 8601)
+        campaign        robot, policy, policy_sha256, hours, sessions, seed, options of the
+                        sessions, ranges_file (soak-test --ranges, or null), executor,
+                        sessions_per_process, wall_s
+        thresholds      the pass/fail thresholds and baseline tolerances
+                        (:class:`~eval.report.schema.Thresholds`)
+        sessions[]      one per session (eval.soak's result):
+            id, seed, status ('complete' | 'diverged'), simulated_s, simulated_hours, ticks,
+            control_mode, options (the session's, ranges {dynamics, sensors, drift, faults, imu,
+            floor_friction} among them), randomization {dynamics, sensors, drift, faults[]},
+            violations {source, total {type: ticks}, any, per_hour [{hour, start_s, end_s,
+                        counts {type: ticks}, any}], rate_per_hour {type: ticks per hour}}
+                        (types: hard_limit, soft_limit, velocity, effort, workspace, self_collision;
+                        a tick counts once per type)
+            interventions {ticks, checks {check: {count, fraction}}, any {count, fraction},
+                        warnings {soft_band_estimate: {count, fraction}}, per_hour [{hour, start_s,
+                        end_s, ticks, counts {check: ticks}, any, warnings}]}
+                        (checks: hard_limit, soft_limit, velocity, workspace, self_collision,
+                        effort, stopping_distance, target_clamp; count = ticks on which the check
+                        changed a command, fraction = count / ticks)
+            goals (null for a legged robot) {issued, reached, success_rate,
+                   median_time_to_reach_s, within_s, period_s,
+                   window_s, windows [{start_s, end_s, issued, reached, success_rate}],
+                   min_window_success_rate, missed [{t_s, issued_s, goal, q, dq, q_estimate,
+                   distance_m, best_distance_m, interventions {check: ticks, any}}],
+                   missed_dropped}
+            locomotion (null for an arm) {commands_issued, command_period_s, command_ranges,
+                   final_command, falls, falls_per_hour, tracking_success (the session's success
+                   rate: share of RUNNING time within tracking_tolerance_m_s of the command, on the
+                   velocity averaged over tracking_window_s), tracking_tolerance_m_s,
+                   tracking_window_s, judged_on, running_s, tracked_s, distance_m, forward_m,
+                   mean_forward_speed_m_s, window_s, windows [{start_s, end_s, running_s,
+                   tracked_s, success_rate}], min_window_success_rate, peak_winding_c {hip, thigh,
+                   calf}}
+            faults {scheduled, injected, survived, responses {held, safe_stop, resumed, latched,
+                    not_running}, events [{kind, start_s, duration_s, magnitude, response, survived,
+                    causes, ...}]},
+            runtime {safe_stops, by_cause, non_finite_actions, resyncs, anchors, latched_faults,
+                     latches[], operator_resets, final_mode, final_cause},
+            estimator {missing_readings, stale_readings, reinitializations},
+            thermal {joints, derating_start_c, max_winding_c, peak_c, derating_band_s,
+                     over_temperature_s, curve {t_s, winding_c {joint: [...]}}},
+            curves {t_s, goals_issued, goals_reached (legged: commands, falls, distance_m,
+                    running_s, tracked_s), violations {type | any: [...]},
+                    interventions {check | any: [...]}, mode}   (cumulative counts)
+            drift {friction_final_nm}, diverged (message or null),
+            checks {name: {passed, message}},
+            wall {wall_s, speed, batch, tick_cost_us, tick_cost_histogram, stage_cost_us},
+            film (only with the film strip, :mod:`eval.film.strip`) {clips [{kind, kinds, label,
+                  moments, t_s, start_s, end_s, video, still (paths relative to the report's
+                  folder), frames, bytes, replay_exact, checked, from_tick}], moments {kind:
+                  found}, not_filmed, fps, size, frames_per_s, error (why there is no film, or
+                  null)}
+        totals          over every session: simulated_hours, ticks, violations {total, any,
+                        rate_per_hour, per_hour [{hour, counts, any}]}, interventions {ticks,
+                        checks {check: {count, fraction}}, any {count, fraction}, warnings,
+                        per_hour [{hour, ticks, counts, any, fraction}]}, goals {issued, reached,
+                        success_rate, min_window_success_rate, missed, missed_dropped} (arm
+                        sessions), locomotion (legged sessions, else null) {sessions, falls,
+                        falls_per_hour, tracking_success, min_window_success_rate, distance_m,
+                        mean_forward_speed_m_s, running_s, peak_winding_c}, faults {injected,
+                        survived, responses, by_kind}, latched_faults, operator_resets, thermal
+                        {peak_c, derating_band_s, over_temperature_s}, diverged [ids], tick_cost_us
+        checks          {name: {passed, failed_sessions}}
+        baseline        null, or {path, passed, regressions [{metric, baseline, current, allowed,
+                        message}], compared {metric: {baseline, current, allowed}},
+                        known_failures [{check, sessions, message}]: checks failed in the same
+                        sessions of the baseline too (:func:`eval.report.baseline.known_failures`)}
+        passed          every check and the baseline comparison passed
+
+    Everything in a session except ``wall`` (wall-clock time, tick cost) follows from the
+    session's seed and options: a repeated or resumed session reproduces it exactly.
 
     Args:
         campaign: Campaign description (robot, policy, options; see the schema).
@@ -519,66 +313,3 @@ def write_reports(out: str | os.PathLike, report: dict) -> dict[str, Path]:
         "html": write_html(out / "report.html", report),
         "junit": write_junit(out / "junit.xml", report),
     }
-
-
-def summary_text(report: dict) -> str:
-    """A few lines for the console."""
-    t = report["totals"]
-    lines = [
-        f"soak-test: {report['campaign'].get('robot')}, {t['sessions']} sessions, "
-        f"{t['simulated_hours']:.3f} simulated h: {'PASSED' if report['passed'] else 'FAILED'}"
-    ]
-    rate = t["goals"]["success_rate"]
-    loco = t.get("locomotion")
-    if loco is None or t["goals"]["issued"]:
-        lines.append(
-            f"  goals        {t['goals']['reached']}/{t['goals']['issued']} reached"
-            + (f" ({100 * rate:.1f} %)" if rate is not None else "")
-        )
-    w = t["goals"]["min_window_success_rate"]
-    if w is not None:
-        lines.append(f"  windows      lowest success rate in a window {100 * w:.1f} %")
-    if loco is not None:
-        ts, speed = loco["tracking_success"], loco["mean_forward_speed_m_s"]
-        lines.append(
-            f"  locomotion   falls {loco['falls']} ({loco['falls_per_hour']:.2f} per hour); "
-            f"tracking success {'n/a' if ts is None else f'{100 * ts:.1f} %'} (within 0.2 m/s); "
-            f"distance {loco['distance_m']:.0f} m; mean forward speed "
-            f"{'n/a' if speed is None else f'{speed:.3f} m/s'}"
-        )
-        lw = loco["min_window_success_rate"]
-        if lw is not None:
-            lines.append(f"  windows      lowest tracking success in a window {100 * lw:.1f} %")
-    v = ", ".join(f"{k} {n}" for k, n in t["violations"]["total"].items())
-    lines.append(f"  violations   (true state, ticks) {v}")
-    iv = t["interventions"]
-    used = ", ".join(
-        f"{k} {100 * c['fraction']:.3f}" for k, c in iv["checks"].items() if c["count"]
-    )
-    lines.append(
-        f"  interventions {100 * iv['any']['fraction']:.3f} % of ticks"
-        + (f" ({used})" if used else "")
-    )
-    f = t["faults"]
-    resp = ", ".join(f"{k} {n}" for k, n in f["responses"].items() if n)
-    lines.append(
-        f"  faults       {f['injected']} injected, {f['survived']} survived ({resp or 'none'}); "
-        f"latched {t['latched_faults']}, operator resets {t['operator_resets']}"
-    )
-    peaks = ", ".join(f"{j} {p:.1f}" for j, p in t["thermal"]["peak_c"].items())
-    lines.append(f"  peak winding degC {peaks}")
-    tc = t["tick_cost_us"]
-    if tc["samples"]:
-        lines.append(f"  tick cost us p50 {tc['p50_us']:.0f}, p99 {tc['p99_us']:.0f}")
-    b = report.get("baseline")
-    known = {k["check"] for k in (b or {}).get("known_failures", [])}
-    for name, c in report["checks"].items():
-        if not c["passed"]:
-            tag = "FAILED (known: in the baseline too)" if name in known else "FAILED"
-            lines.append(f"  {tag} {name}: {', '.join(c['failed_sessions'])}")
-    if b is not None:
-        if b["passed"]:
-            lines.append(f"  baseline     no regression against {b['path']}")
-        for r in b["regressions"]:
-            lines.append(f"  REGRESSION   {r['message']}")
-    return "\n".join(lines)

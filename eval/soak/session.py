@@ -123,7 +123,7 @@ class SessionConfig:
         ``policy`` with the contract of ``spec`` when given, else its own metadata.
 
         Raises:
-            deploy.policy.onnx_policy.PolicyLoadError, deploy.spec.policy_spec.SpecError: an
+            deploy.policy.onnx_checks.PolicyLoadError, deploy.spec.policy_spec.SpecError: an
                 unreadable policy or spec (the message names the file).
         """
         from deploy.policy.onnx_policy import OnnxPolicy

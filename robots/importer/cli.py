@@ -19,7 +19,7 @@ place: a failed import leaves nothing.
 
 The source is a URDF (root ``<robot>``, :mod:`robots.importer.urdf`) or an MJCF (root
 ``<mujoco>``, :mod:`robots.importer.mjcf`); both become a
-:class:`robots.importer.urdf.PreparedSource`, and everything after that is the same code.
+:class:`robots.importer.source.PreparedSource`, and everything after that is the same code.
 The per-joint flags (shell patterns, motors from the catalog or from a file) are read by
 :mod:`robots.importer.flags`; the model steps (limits, gains, pairs, workspace) are in
 :mod:`robots.importer.model`; an arm is finished by :mod:`robots.importer.fixed_base`, a legged
@@ -42,8 +42,10 @@ from robots.importer import flags
 from robots.importer.fixed_base import import_fixed_base
 from robots.importer.mjcf import prepare_mjcf
 from robots.importer.model import build_spec
-from robots.importer.urdf import PreparedSource, RobotImportError, SrdfInfo, prepare_urdf, read_srdf
-from robots.loading import motor_catalog, package_root
+from robots.importer.source import PreparedSource, RobotImportError, SrdfInfo, read_srdf
+from robots.importer.urdf import prepare_urdf
+from robots.loading import motor_catalog
+from robots.packages import package_root
 from robots.robot import RobotSpecError
 
 __all__ = ["ImportReport", "RobotImportError", "import_robot", "main", "resolve_source"]

@@ -19,9 +19,10 @@ from robots.importer.model import (
     derive_motion_limits,
     sample_workspace,
 )
+from robots.importer.source import PreparedSource, RobotImportError
 from robots.importer.toml_text import write_robot_toml
-from robots.importer.urdf import PreparedSource, RobotImportError
-from robots.loading import PACKAGE_SCHEME, _resolved_mjcf, load_robot
+from robots.loading import load_robot
+from robots.packages import PACKAGE_SCHEME, _resolved_mjcf
 from robots.robot import RobotSpecError
 
 

@@ -14,7 +14,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from robots.importer.urdf import RobotImportError
+from robots.importer.source import RobotImportError
 from robots.loading import MOTORS_DIR, motor_catalog, read_motor_file
 from robots.robot import RobotSpecError
 from robots.schema import MotorConfig

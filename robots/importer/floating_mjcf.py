@@ -30,7 +30,7 @@ import mujoco
 import numpy as np
 
 from robots.importer.model import _sig
-from robots.importer.urdf import PreparedSource, RobotImportError
+from robots.importer.source import PreparedSource, RobotImportError
 
 #: Name of the MuJoCo free joint of the base (Pinocchio names its free-flyer joint the same).
 FREE_JOINT = "root"

@@ -21,6 +21,7 @@ import numpy as np
 
 from robots.importer.floating_mjcf import FREE_JOINT, IMU_SITE, finish_floating_mjcf
 from robots.importer.model import Motion, _sig
+from robots.importer.source import PreparedSource, RobotImportError
 from robots.importer.toml_text import (
     _f,
     _vec,
@@ -29,7 +30,7 @@ from robots.importer.toml_text import (
     motor_table_lines,
     sensor_lines,
 )
-from robots.importer.urdf import PreparedSource, RobotImportError
+from robots.packages import _resolved_mjcf
 
 #: Link pairs closer than this at the home pose (m) are not checked and never collide in the
 #: plant: the importer's bounding boxes of neighbouring legs' links (the rear hips of go2 are
@@ -161,8 +162,6 @@ def _joint_to_base(prepared: PreparedSource, link: str) -> str | None:
 
 def robot_mass(mjcf_path: Path) -> float:
     """Total mass (kg) of the robot in ``mjcf_path`` (MuJoCo, resolved meshdir)."""
-    from robots.loading import _resolved_mjcf
-
     model = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
     return float(model.body_subtreemass[0])
 
@@ -390,7 +389,7 @@ def import_floating_base(
         choose_collision_pairs,
         derive_motion_limits,
     )
-    from robots.loading import _resolved_mjcf, load_robot
+    from robots.loading import load_robot
     from robots.robot import RobotSpecError
 
     foot_links = choose_feet(urdf, feet)

@@ -2,7 +2,7 @@
 
 :func:`prepare_mjcf` loads the file with ``mujoco.MjSpec.from_file`` (MuJoCo's own parser:
 defaults, includes, degrees or radians) and makes the same
-:class:`robots.importer.urdf.PreparedSource` a URDF makes; the rest of the import is shared. Kept:
+:class:`robots.importer.source.PreparedSource` a URDF makes; the rest of the import is shared. Kept:
 
 - hinge joints, their ranges (the text handed on is MuJoCo's canonical form: ``angle="radian"``,
   quaternions, so a model written in degrees is converted), damping and friction loss (the
@@ -44,7 +44,7 @@ import mujoco
 import numpy as np
 
 from robots.importer.mjcf_geoms import missing_meshes, simplify_geoms
-from robots.importer.urdf import (
+from robots.importer.source import (
     FLOATING_BASE,
     MIN_INERTIA,
     MIN_MASS,

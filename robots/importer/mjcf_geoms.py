@@ -10,7 +10,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from robots.importer.urdf import COLLISION_BOXES, DROP_MISSING, RobotImportError
+from robots.importer.source import DROP_MISSING, RobotImportError
+from robots.importer.urdf import COLLISION_BOXES
 
 
 def _mesh_file(spec: mujoco.MjSpec, mesh, path: Path) -> Path:

@@ -1,7 +1,7 @@
 """Model-side steps of the importer, shared by URDF and MJCF input: MJCF through
 ``mujoco.MjSpec``, limits, end effector, pairs, robot.toml.
 
-They read a :class:`robots.importer.urdf.PreparedSource` whatever the input format. Every constant
+They read a :class:`robots.importer.source.PreparedSource` whatever the input format. Every constant
 the importer chooses is named here with its reason; robot.toml repeats the reason beside each
 value it writes.
 """
@@ -16,8 +16,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from robots.importer.urdf import PreparedSource, RobotImportError, SrdfInfo
-from robots.loading import _resolved_mjcf
+from robots.importer.source import PreparedSource, RobotImportError, SrdfInfo
+from robots.packages import _resolved_mjcf
 from robots.schema import MotorConfig
 
 #: Soft-limit fraction written for every joint (as arm3/arm6).

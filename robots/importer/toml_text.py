@@ -9,7 +9,7 @@ import math
 from pathlib import Path
 
 from robots.importer.model import SOFT_LIMIT_FRACTION, TASK_JOINT_FRACTION, Motion, _sig
-from robots.importer.urdf import PreparedSource
+from robots.importer.source import PreparedSource
 
 
 def _f(x: float) -> str:

@@ -11,7 +11,7 @@ otherwise is refused (humanoids: write the table by hand).
 
 from __future__ import annotations
 
-from robots.importer.urdf import RobotImportError
+from robots.importer.source import RobotImportError
 
 #: Unitree's leg order and the joints of a leg (unitree_legged_const ``LegID``).
 LEGS = ("FR", "FL", "RR", "RL")

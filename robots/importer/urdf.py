@@ -1,4 +1,4 @@
-"""URDF and SRDF reading for the importer: validation and preparation for MuJoCo's URDF compiler.
+"""URDF reading for the importer: validation and preparation for MuJoCo's URDF compiler.
 
 :func:`prepare_urdf` checks what the importer cannot guess (limits of continuous joints, meshes,
 inertias, duplicate names, floating bases) and rewrites the URDF for ``mujoco.MjSpec``: mesh URIs
@@ -7,8 +7,7 @@ the mesh's own frame (read with coal; one box per mesh, ``COLLISION_BOXES``; pri
 they are), missing mesh files refused or, with ``--drop-missing-meshes``, their elements dropped,
 prismatic and mimic joints frozen, and a
 ``<mujoco><compiler>`` element (radians from the URDF, no static-body fusion, balanced inertias).
-Its result, a :class:`PreparedSource`, is what the rest of the importer reads; MJCF input makes
-the same from :func:`robots.importer.mjcf.prepare_mjcf`.
+Its result is a :class:`robots.importer.source.PreparedSource`.
 """
 
 from __future__ import annotations
@@ -17,12 +16,22 @@ import copy
 import itertools
 import os
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from robots.loading import PACKAGE_SCHEME, package_root
+from robots.importer.source import (
+    DROP_MISSING,
+    FLOATING_BASE,
+    MIN_INERTIA,
+    MIN_MASS,
+    JointInfo,
+    PreparedSource,
+    RobotImportError,
+    SrdfInfo,
+    _display,
+)
+from robots.packages import PACKAGE_SCHEME, package_root
 from robots.robot import RobotSpecError
 
 #: Mesh formats MuJoCo decodes itself; others (COLLADA .dae) are replaced by a fitted box.
@@ -32,117 +41,6 @@ MUJOCO_MESH_FORMATS = (".stl", ".obj", ".msh")
 #: and mesh-mesh pairs (85 on the SO-101) made 60 simulated seconds take over 10 minutes; boxes
 #: keep it to seconds. Set False to keep the meshes (package:// meshdir).
 COLLISION_BOXES = True
-#: How a refusal for missing mesh files ends (URDF and MJCF alike).
-DROP_MISSING = (
-    "expected the mesh files (or --drop-missing-meshes to drop the geoms that use them, as "
-    "MuJoCo users delete them)"
-)
-#: Smallest mass (kg) and principal inertia (kg m^2) accepted for a moving link.
-MIN_MASS, MIN_INERTIA = 1e-9, 1e-12
-#: How every refusal of a floating-base robot ends (URDF, SRDF and MJCF alike).
-FLOATING_BASE = "a floating-base robot; expected a fixed-base arm (or --floating-base, legged)"
-
-
-class RobotImportError(RobotSpecError):
-    """The description cannot be imported; a one-line message naming file, element, expectation."""
-
-
-@dataclass
-class JointInfo:
-    """One movable joint as imported: limits in rad, rad/s and N m (``None`` when absent).
-
-    ``velocity_from`` / ``effort_from``: where the description's value came from, as printed
-    ("URDF", "MJCF actuatorfrcrange", "--velocity", ...).
-    """
-
-    name: str
-    kind: str
-    parent: str
-    child: str
-    lower: float = 0.0
-    upper: float = 0.0
-    velocity: float | None = None
-    effort: float | None = None
-    velocity_from: str = "URDF"
-    effort_from: str = "URDF"
-
-
-@dataclass
-class PreparedSource:
-    """A checked description (URDF or MJCF) ready for ``mujoco.MjSpec.from_string``.
-
-    ``kind``: "URDF" or "MJCF"; ``text``: the rewritten URDF, or the MJCF in MuJoCo's canonical
-    form (radians); ``joints``: movable joints by name; ``movable``: their names in file order;
-    ``parent``: link -> (parent link, joint name, joint type) as imported (frozen joints are
-    'fixed'; an MJCF body is a link); ``links``: link names in file order; ``meshdir_abs`` /
-    ``meshdir_uri``: the mesh folder and how the MJCF names it (``package://...`` or a path
-    relative to the robot folder's parent); ``notes``: decisions to print; ``disabled``: link
-    pairs the description itself says are never checked (MJCF ``<contact><exclude>``), as sorted
-    tuples; ``sites``: site name -> its body (MJCF); ``fitted``: ``(link, k)`` of the ``k``-th
-    geom of a link that is a box fitted to a collision mesh (the importer's approximation, not
-    the author's shape); ``fitted_geoms``: their geom names once named
-    (:func:`robots.importer.model.build_spec`).
-    """
-
-    path: Path
-    display: str
-    text: str
-    joints: dict[str, JointInfo]
-    movable: list[str]
-    parent: dict[str, tuple[str, str, str]]
-    links: list[str]
-    root_link: str
-    meshdir_abs: str | None = None
-    meshdir_uri: str = ""
-    notes: list[str] = field(default_factory=list)
-    kind: str = "URDF"
-    disabled: set[tuple[str, str]] = field(default_factory=set)
-    sites: dict[str, str] = field(default_factory=dict)
-    fitted: set[tuple[str, int]] = field(default_factory=set)
-    fitted_geoms: set[str] = field(default_factory=set)
-
-
-@dataclass
-class SrdfInfo:
-    """The SRDF's ``disable_collisions`` link pairs (sorted tuples) and its path."""
-
-    path: Path
-    disabled: set[tuple[str, str]]
-
-
-def read_srdf(
-    path: Path, links: set[str], kind: str = "URDF", floating_base: bool = False
-) -> SrdfInfo:
-    """Read ``disable_collisions`` pairs; refuse a floating virtual joint or an unknown link.
-
-    Args:
-        path: The SRDF. links: Link names of the description (MJCF: body names). kind: "URDF"
-            or "MJCF", for the messages. floating_base: accept a floating virtual joint.
-
-    Raises:
-        RobotImportError: invalid XML, a link not in the description, or ``<virtual_joint
-            type="floating">`` (a legged robot).
-    """
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise RobotImportError(f"{path}: not valid XML: {exc}") from None
-    for vj in root.iter("virtual_joint"):
-        if vj.get("type") == "floating" and not floating_base:
-            raise RobotImportError(
-                f"{path}: <virtual_joint name='{vj.get('name')}' type='floating'>: " + FLOATING_BASE
-            )
-    disabled = set()
-    for dc in root.iter("disable_collisions"):
-        a, b = dc.get("link1"), dc.get("link2")
-        for link in (a, b):
-            if link not in links:
-                raise RobotImportError(
-                    f"{path}: <disable_collisions link1='{a}' link2='{b}'>: link '{link}' is "
-                    f"not in the {kind}; expected one of {sorted(x for x in links if x)}"
-                )
-        disabled.add(tuple(sorted((a, b))))
-    return SrdfInfo(path=path, disabled=disabled)
 
 
 def _attr(el: ET.Element | None, attr: str) -> str | None:
@@ -367,14 +265,6 @@ def prepare_urdf(
         notes=notes,
         fitted=fitted,
     )
-
-
-def _display(path: Path) -> str:
-    try:
-        root = package_root("example-robot-data")
-        return f"example-robot-data:{path.relative_to(root / 'robots').as_posix()}"
-    except (RobotSpecError, ValueError):
-        return path.name
 
 
 def _freeze(j: ET.Element) -> None:

@@ -1,3 +1,3 @@
-"""The MuJoCo plant behind the Backend interface: the plant, its joint and base sensor models,
-its state, fault injection, and the interactive demo.
+"""The MuJoCo plant behind the Backend interface: the plant, its drives, its joint and base sensor
+models, its state, fault injection, and the interactive demo.
 """

@@ -1,4 +1,4 @@
-"""Fault injection on the simulated robot: the faults of DESIGN.md's table, on a schedule.
+"""Fault injection on the simulated robot: the faults the runtime must answer, on a schedule.
 
 A fault is ``KIND@START[:DURATION]`` (seconds of simulated time; DURATION defaults to
 ``DEFAULT_DURATION``):

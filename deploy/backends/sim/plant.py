@@ -2,37 +2,20 @@
 
 One :class:`SimBackend` drives ``envs`` copies of a robot in lockstep (the runtime's batch axis),
 each with its own ``MjData`` and, where the soak harness randomizes dynamics, its own ``MjModel``.
-Per control tick the runtime calls ``read()``, ``write(command)`` and ``advance()``; ``advance``
-runs ``decimation`` physics steps and integrates the two-node motor thermal model.
+Per control tick: ``read()``, ``write(command)`` and ``advance()``, which runs ``decimation``
+physics steps and integrates the two-node motor thermal model.
 
-Sensor model: the encoders (sampling, noise, quantization, dropout, latency) and the drives'
-temperature reports, :class:`deploy.backends.sim.sensors.JointSensorModel` (defaults from the
-robot's ``[sensors]`` table).
-Drive model: the mode's servo loop (:meth:`robots.Robot.mjspec`), its actuator torque limited to
-the joint's effort limit, which the drive derates from its own (true) winding temperature with
-:class:`robots.thermal.EffortDerating` (peak torque below the derating start, continuous torque, or
-the arm's gravity load where that is more, at the maximum winding temperature), applied before
-every control period's physics steps. A floating-base (legged) robot's plant also has an IMU
-(gyroscope and accelerometer with white noise and bias random walk) and foot contact (thresholded
-normal force), each at its own rate and
-latency: :mod:`deploy.backends.sim.legged_sensors`; its joints follow MuJoCo's free joint in
-``qpos``
-and ``qvel``, and :meth:`SimBackend.true_base_state` gives the base's true pose and velocity.
-
-The true state stays available (:meth:`SimBackend.true_position`, ...) for evaluation only.
-
-Its state dict (``state_dict`` / ``load_state_dict``, what a soak checkpoint keeps) comes from
-the base class :class:`deploy.backends.sim.state.SimState`; a scripted demo run of the plant is
-``python -m deploy.backends.sim.demo``.
-
-Interfaces (:mod:`deploy.backends.base`): :class:`~deploy.backends.base.Backend` (its lifecycle
-calls are no-ops: the plant is ready from construction and its drives are always on) and
+Composed of: the encoders and temperature reports (:mod:`deploy.backends.sim.sensors`), a
+floating base's IMU and foot contact (:mod:`deploy.backends.sim.legged_sensors`), the drives
+(:mod:`deploy.backends.sim.drives`: the mode's servo loop of :meth:`robots.Robot.mjspec`, derated
+torque limits, anti-windup) and the state dict (:mod:`deploy.backends.sim.state`). The true state
+(:meth:`SimBackend.true_position`, :meth:`SimBackend.true_base_state`, ...) is for evaluation only.
+Interfaces: :class:`~deploy.backends.base.Backend` (lifecycle calls are no-ops) and
 :class:`~deploy.backends.base.SimulatedPlant` (ground truth, fault hooks, external forces).
 
-Safety of the simulation itself: MuJoCo's autoreset is disabled and its warning counters are read
-after every ``advance``; a divergence raises :class:`SimulationDivergedError` instead of silently
-resetting. Non-finite commands raise :class:`NonFiniteCommandError` and never reach MuJoCo (which
-would otherwise zero every actuator for that step).
+Errors: MuJoCo's autoreset is disabled and its warning counters are read after every ``advance``:
+a divergence raises :class:`SimulationDivergedError`. A non-finite command raises
+:class:`NonFiniteCommandError` and never reaches MuJoCo.
 """
 
 from __future__ import annotations
@@ -43,7 +26,7 @@ import mujoco
 import numpy as np
 
 from deploy.backends.base import BackendLifecycle, SensorFrame
-from deploy.backends.sim.drives_kernel import derating_due, windup_exceeded
+from deploy.backends.sim.drives import SimDrives
 from deploy.backends.sim.legged_sensors import BaseSensorModel
 from deploy.backends.sim.sensors import JointSensorModel
 from deploy.backends.sim.state import SimState
@@ -75,7 +58,7 @@ class NonFiniteCommandError(Sim2RealError, ValueError):
     """A command with NaN or inf was written; it was rejected and never reached MuJoCo."""
 
 
-class SimBackend(SimState, BackendLifecycle):
+class SimBackend(SimState, SimDrives, BackendLifecycle):
     """MuJoCo plant with sensor and motor-thermal models, batched over ``envs``.
 
     Args:
@@ -438,49 +421,6 @@ class SimBackend(SimState, BackendLifecycle):
         return out
 
     # ------------------------------------------------------------------ internals
-    def _derate_drives(self) -> None:
-        """Each drive's torque limit from its winding temperature (module docstring): MuJoCo's
-        ``jnt_actfrcrange`` and, in velocity mode, the anti-windup bound follow it. Only envs with a
-        winding above its derating start, or derated before, are touched."""
-        hot = self._hot
-        if not derating_due(
-            self.thermal.winding_temperature, self.derating.start, self._derated, hot
-        ):
-            return
-        for e in np.flatnonzero(hot | self._derated):
-            limit = self.effort_limit[e]
-            np.multiply(
-                self.derating.factor(self.thermal.winding_temperature[e], out=self._derate[e]),
-                self.derating.peak,
-                out=limit,
-            )
-            m = self.models[e]
-            joints = slice(self._jnt_offset, self._jnt_offset + self.n_joints)
-            m.jnt_actfrcrange[joints, 0] = -limit
-            m.jnt_actfrcrange[joints, 1] = limit
-            if self.mode == "velocity":
-                np.divide(limit, m.actuator_gainprm[: self.n_joints, 0], out=self._windup_bound[e])
-        self._derated[:] = hot
-
-    def _anti_windup(self) -> None:
-        """Velocity mode: keep each drive's setpoint within ``effort_limit / kp`` of its joint
-        (the drive's present, derated, limit).
-
-        The integral term of the PI velocity loop, ``kp (s - q)``, then never asks for more than
-        the drive's peak torque: when the torque saturates (a command accelerating faster than the
-        motor can under load) the setpoint stops running ahead, and the joint does not overshoot
-        the commanded speed to catch up afterwards (clamping anti-windup, K. J. Astrom and T.
-        Hagglund, *Advanced PID Control*, ISA 2006, sec. 3.5). Applied once per control period.
-        """
-        lag, bound, acts = self._lag, self._windup_bound, self._acts
-        for e, act in enumerate(acts):
-            lag[e] = act
-        if windup_exceeded(lag, self._qpos, bound):
-            wound = np.abs(lag) > bound
-            for e in np.flatnonzero(wound.any(axis=1)):
-                q = self._qpos[e]
-                np.clip(acts[e], q - bound[e], q + bound[e], out=acts[e])
-
     def check_divergence(self, env: int) -> None:
         """Raise :class:`SimulationDivergedError` if MuJoCo flagged env ``env``'s state as
         diverged (warning counters) or its ``qpos``/``qvel`` are not finite; else nothing."""

@@ -1,0 +1,111 @@
+"""Attitude math of the base estimator: quaternions ``[w, x, y, z]``, Mahony's filter update.
+
+Mahony's explicit complementary filter with gyroscope bias estimation (R. Mahony, T. Hamel, J.-M.
+Pflimlin, "Nonlinear complementary filters on the special orthogonal group", IEEE TAC 53(5), 2008),
+as the maintained ``ahrs`` package implements it (``ahrs.filters.Mahony.updateIMU``), run over k
+filters at once (:func:`mahony_update`). Angles in rad, angular velocities in rad/s, quaternions
+base-to-world, arrays batch-first.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of quaternions ``[w, x, y, z]`` (..., 4)."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def mahony_update(
+    quaternion: np.ndarray,
+    bias: np.ndarray,
+    gyro: np.ndarray,
+    acceleration: np.ndarray,
+    dt: np.ndarray,
+    k_p: float,
+    k_i: float,
+) -> np.ndarray:
+    """One step of ``ahrs.filters.Mahony.updateIMU`` for k filters at once.
+
+    Args:
+        quaternion: (k, 4) base-to-world ``[w, x, y, z]`` (normalized first, as ``ahrs`` does).
+        bias: (k, 3) rad/s, the gyro bias estimates; updated in place.
+        gyro: (k, 3) rad/s and acceleration: (k, 3) m/s^2, base frame.
+        dt: (k,) s. k_p, k_i: the gains.
+
+    Returns:
+        (k, 4) the new unit quaternions. A zero gyro reading leaves its quaternion and bias
+        unchanged and a zero acceleration skips the correction, as in ``ahrs``.
+    """
+    q = quaternion / np.linalg.norm(quaternion, axis=1, keepdims=True)
+    moving = np.linalg.norm(gyro, axis=1) != 0
+    a_norm = np.linalg.norm(acceleration, axis=1)
+    corrected = moving & (a_norm > 0)
+    up = quaternion_to_matrix(q)[:, 2, :]  # R^T [0, 0, 1]
+    safe = np.where(a_norm > 0, a_norm, 1.0)[:, None]
+    error = np.cross(acceleration / safe, up) * corrected[:, None]
+    bias += (-k_i * error) * dt[:, None]
+    omega = np.where(corrected[:, None], gyro - bias + k_p * error, gyro)
+    rate = 0.5 * quat_multiply(q, np.concatenate([np.zeros((len(q), 1)), omega], axis=1))
+    new = q + rate * dt[:, None]
+    new /= np.linalg.norm(new, axis=1, keepdims=True)
+    return np.where(moving[:, None], new, q)
+
+
+def rotation_quaternions(rotvec: np.ndarray) -> np.ndarray:
+    """Quaternions ``[w, x, y, z]`` (k, 4) of rotation vectors (k, 3) rad (below 1e-12 rad the
+    first-order ``[1, rotvec / 2]``)."""
+    angle = np.linalg.norm(rotvec, axis=1)
+    small = angle < 1e-12
+    half = np.where(small, 0.5, np.sin(angle / 2) / np.where(small, 1.0, angle))
+    w = np.where(small, 1.0, np.cos(angle / 2))
+    return np.concatenate([w[:, None], rotvec * half[:, None]], axis=1)
+
+
+def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions ``[w, x, y, z]`` (..., 4)."""
+    w, x, y, z = np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
+
+
+def projected_gravity(q: np.ndarray) -> np.ndarray:
+    """Unit gravity direction in the base frame, ``R^T [0, 0, -1]``, (..., 3), for base-to-world
+    quaternions ``[w, x, y, z]`` (..., 4)."""
+    return -quaternion_to_matrix(q)[..., 2, :]
+
+
+def tilt_of(gravity: np.ndarray) -> np.ndarray:
+    """Angle (rad) between the base's z axis and the world's up, (...,), from projected gravity
+    (..., 3): 0 upright, pi/2 on its side, pi upside down."""
+    g = np.asarray(gravity, dtype=np.float64)
+    g = g / np.linalg.norm(g, axis=-1, keepdims=True)
+    return np.arccos(np.clip(-g[..., 2], -1.0, 1.0))
+
+
+def align_up(up: np.ndarray) -> np.ndarray:
+    """Base-to-world quaternion (yaw 0) that turns the unit vector ``up`` (base frame) onto the
+    world's +z."""
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(up, z)
+    s, c = np.linalg.norm(axis), float(np.dot(up, z))
+    if s < 1e-12:
+        return np.array([1.0, 0.0, 0.0, 0.0]) if c > 0 else np.array([0.0, 1.0, 0.0, 0.0])
+    return rotation_quaternions((axis / s * np.arctan2(s, c))[None])[0]

@@ -1,0 +1,66 @@
+"""The soak's console summary of a report: a few lines, what passed and what failed."""
+
+from __future__ import annotations
+
+
+def summary_text(report: dict) -> str:
+    """A few lines for the console."""
+    t = report["totals"]
+    lines = [
+        f"soak-test: {report['campaign'].get('robot')}, {t['sessions']} sessions, "
+        f"{t['simulated_hours']:.3f} simulated h: {'PASSED' if report['passed'] else 'FAILED'}"
+    ]
+    rate = t["goals"]["success_rate"]
+    loco = t.get("locomotion")
+    if loco is None or t["goals"]["issued"]:
+        lines.append(
+            f"  goals        {t['goals']['reached']}/{t['goals']['issued']} reached"
+            + (f" ({100 * rate:.1f} %)" if rate is not None else "")
+        )
+    w = t["goals"]["min_window_success_rate"]
+    if w is not None:
+        lines.append(f"  windows      lowest success rate in a window {100 * w:.1f} %")
+    if loco is not None:
+        ts, speed = loco["tracking_success"], loco["mean_forward_speed_m_s"]
+        lines.append(
+            f"  locomotion   falls {loco['falls']} ({loco['falls_per_hour']:.2f} per hour); "
+            f"tracking success {'n/a' if ts is None else f'{100 * ts:.1f} %'} (within 0.2 m/s); "
+            f"distance {loco['distance_m']:.0f} m; mean forward speed "
+            f"{'n/a' if speed is None else f'{speed:.3f} m/s'}"
+        )
+        lw = loco["min_window_success_rate"]
+        if lw is not None:
+            lines.append(f"  windows      lowest tracking success in a window {100 * lw:.1f} %")
+    v = ", ".join(f"{k} {n}" for k, n in t["violations"]["total"].items())
+    lines.append(f"  violations   (true state, ticks) {v}")
+    iv = t["interventions"]
+    used = ", ".join(
+        f"{k} {100 * c['fraction']:.3f}" for k, c in iv["checks"].items() if c["count"]
+    )
+    lines.append(
+        f"  interventions {100 * iv['any']['fraction']:.3f} % of ticks"
+        + (f" ({used})" if used else "")
+    )
+    f = t["faults"]
+    resp = ", ".join(f"{k} {n}" for k, n in f["responses"].items() if n)
+    lines.append(
+        f"  faults       {f['injected']} injected, {f['survived']} survived ({resp or 'none'}); "
+        f"latched {t['latched_faults']}, operator resets {t['operator_resets']}"
+    )
+    peaks = ", ".join(f"{j} {p:.1f}" for j, p in t["thermal"]["peak_c"].items())
+    lines.append(f"  peak winding degC {peaks}")
+    tc = t["tick_cost_us"]
+    if tc["samples"]:
+        lines.append(f"  tick cost us p50 {tc['p50_us']:.0f}, p99 {tc['p99_us']:.0f}")
+    b = report.get("baseline")
+    known = {k["check"] for k in (b or {}).get("known_failures", [])}
+    for name, c in report["checks"].items():
+        if not c["passed"]:
+            tag = "FAILED (known: in the baseline too)" if name in known else "FAILED"
+            lines.append(f"  {tag} {name}: {', '.join(c['failed_sessions'])}")
+    if b is not None:
+        if b["passed"]:
+            lines.append(f"  baseline     no regression against {b['path']}")
+        for r in b["regressions"]:
+            lines.append(f"  REGRESSION   {r['message']}")
+    return "\n".join(lines)

@@ -1,0 +1,103 @@
+"""What a robot is asked to do, as one protocol (:class:`Task`), and the one place that chooses it
+for a robot (:func:`task_for`): reach goals (a fixed-base arm, :class:`deploy.tasks.goals.GoalTask`)
+or follow velocity commands (a floating-base robot,
+:class:`deploy.tasks.locomotion.VelocityTask`). ``deploy-run``, the soak and training build their
+task here; a new kind of task implements :class:`Task` and is chosen in :func:`task_for`.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from deploy.robot_kind import robot_kind
+
+
+class Task(Protocol):
+    """A task of ``envs`` robots behind one runtime.
+
+    Attributes:
+        name: The task's section of a report: ``"goals"`` or ``"locomotion"``.
+    """
+
+    name: str
+
+    def reset(self, runtime, envs: np.ndarray) -> None:
+        """Episode start for the envs of the boolean mask ``envs``: what is drawn or written
+        then (a fixed velocity command); a goal or scheduled command is issued by the ticks."""
+
+    def __call__(self, runtime) -> None:
+        """After every tick of ``runtime``: write goals into ``runtime.goal`` or velocity
+        commands into ``runtime.velocity_command``, and account the success."""
+
+    def success(self, env: int | None = None) -> float | None:
+        """The task's success measure (of env ``env``, or of all envs): the share of goals
+        reached, or of RUNNING time tracking the command; None before there is any."""
+
+    def report(self, runtime) -> dict:
+        """``deploy-run``'s report entries: ``goals``, ``locomotion`` (one of them None) and
+        ``missed_goals``."""
+
+    def curve_start(self) -> dict[str, list]:
+        """The task's cumulative curves of a soak session, at their first point."""
+
+    def curve_point(self, curve: dict[str, list], e: int) -> None:
+        """Append env ``e``'s counts now to its ``curve`` (of :meth:`curve_start`)."""
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The task's state, each part's fields under its prefix (:mod:`deploy.stateful`)."""
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict`; raises ``StateDictError`` (a field under its prefix)."""
+
+
+def task_for(
+    robot,
+    envs: int,
+    backend,
+    *,
+    period: float,
+    rng,
+    success_time: float = 3.0,
+    fixed: np.ndarray | None = None,
+    command: str | None = None,
+    window: float | None = None,
+    interventions=None,
+    schedule: bool = True,
+) -> Task:
+    """The task of ``robot`` (:func:`deploy.robot_kind.robot_kind`): goals for an arm, velocity
+    commands for a legged robot.
+
+    Args:
+        robot: The robot.
+        envs: Batch size.
+        backend: The runtime's backend (a simulated plant's truth judges the task).
+        period: s of RUNNING time between new goals or scheduled commands.
+        rng: One numpy generator for the batch, or ``envs`` of them (one stream per env). A
+            legged robot's schedule needs one per env.
+        success_time: s within which a goal counts as reached (an arm).
+        fixed: Optional fixed goal (3,) m, base frame (an arm).
+        command: Optional fixed velocity command ``"VX,VY,WZ"`` (a legged robot; m/s, m/s,
+            rad/s, :func:`deploy.tasks.locomotion.parse_command`): written at
+            :meth:`Task.reset`, none scheduled. An arm ignores it.
+        window: Optional s: account the success per window of session time too.
+        interventions: Optional :class:`deploy.monitors.interventions.InterventionMonitor` (an
+            arm: a missed goal records the interventions during its period).
+        schedule: A legged robot without ``command``: draw a new command every ``period`` s
+            (the soak); False: the command stays as the runtime holds it (``deploy-run``).
+
+    Raises:
+        ValueError: a ``command`` that is not three finite numbers (a legged robot).
+    """
+    if robot_kind(robot).task == "locomotion":
+        from deploy.tasks.locomotion import VelocityTask, parse_command
+
+        if command is not None:
+            command = parse_command(command)
+        if command is not None or not schedule:
+            rng = None  # no schedule
+        return VelocityTask(envs, robot.control_period, backend, period, rng, command, window)
+    from deploy.tasks.goals import GoalTask
+
+    return GoalTask(robot, envs, period, fixed, success_time, rng, window, interventions)

@@ -65,6 +65,9 @@ def task_for(
     window: float | None = None,
     interventions=None,
     schedule: bool = True,
+    clock: np.ndarray | None = None,
+    success_radius: float | None = None,
+    ranges=None,
 ) -> Task:
     """The task of ``robot`` (:func:`deploy.robot_kind.robot_kind`): goals for an arm, velocity
     commands for a legged robot.
@@ -86,11 +89,29 @@ def task_for(
             arm: a missed goal records the interventions during its period).
         schedule: A legged robot without ``command``: draw a new command every ``period`` s
             (the soak); False: the command stays as the runtime holds it (``deploy-run``).
+        clock: Training: the episodes' clock, (envs,) s; the task is episodic
+            (:mod:`deploy.tasks.episodes`): ``period`` is an arm's goal timeout or a legged
+            robot's command period in episode time, ``rng`` the episodes' one generator.
+        success_radius: Training, an arm: m, a goal is reached within it (default the robot's
+            ``task.success_radius``).
+        ranges: Training, a legged robot: the
+            :class:`~deploy.tasks.locomotion.CommandRanges` (default its defaults).
 
     Raises:
         ValueError: a ``command`` that is not three finite numbers (a legged robot).
     """
-    if robot_kind(robot).task == "locomotion":
+    legged = robot_kind(robot).task == "locomotion"
+    if clock is not None:
+        from deploy.tasks.episodes import EpisodeCommands, EpisodeGoals
+        from deploy.tasks.locomotion import CommandRanges
+
+        if legged:
+            ranges = CommandRanges() if ranges is None else ranges
+            return EpisodeCommands(envs, period, ranges, rng, clock)
+        if success_radius is None:
+            success_radius = robot.config.task.success_radius
+        return EpisodeGoals(robot, envs, period, rng, clock, success_radius)
+    if legged:
         from deploy.tasks.locomotion import VelocityTask, parse_command
 
         if command is not None:

@@ -1,5 +1,6 @@
 """Goals of a reaching run and whether they were reached: the goal scheduler ``deploy-run`` and the
-soak harness share (:class:`GoalScheduler`), the task-region sampler training uses too
+soak harness share (:class:`GoalScheduler`), as their task (:class:`GoalTask`, chosen by
+:func:`deploy.tasks.task.task_for`), the task-region sampler training uses too
 (:func:`sample_goal`), and the success rate per window of time (:func:`success_windows`).
 """
 

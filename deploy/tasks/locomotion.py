@@ -12,7 +12,8 @@ command is a mean speed). Falls are the runtime's safe stops of cause ``fall``.
 the
 soak (:mod:`eval.soak.batch`): a new velocity command every ``period`` s of RUNNING time, drawn
 from a seeded stream per env, written into ``runtime.velocity_command``. Both keep their state
-(:mod:`deploy.stateful`) for the soak's checkpoints.
+(:mod:`deploy.stateful`) for the soak's checkpoints. :class:`VelocityTask` is the task
+(:func:`deploy.tasks.task.task_for`) they make together, a fixed command or a schedule.
 """
 
 from __future__ import annotations

@@ -56,6 +56,16 @@ def test_a_task_state_round_trips_under_its_checkpoint_prefixes(arm3, go2):
         assert prefixes == set(task.parts())
         task.load_state_dict(state)
         assert task.success() is None  # nothing issued or run yet
+    clock = np.zeros(2)
+    for robot, prefix in ((arm3, "goals"), (go2, "commands")):
+        task = task_for(robot, 2, None, period=1.0, rng=np.random.default_rng(0), clock=clock)
+        task.reset(_Runtime(2), np.ones(2, dtype=bool))
+        state = task.state_dict()
+        assert {key.split("/")[0] for key in state} == {prefix}
+        again = task_for(robot, 2, None, period=1.0, rng=np.random.default_rng(1), clock=clock)
+        again.load_state_dict(state)
+        for key, value in again.state_dict().items():
+            np.testing.assert_array_equal(value, state[key])
 
 
 def test_training_tasks_are_episodic_on_the_trainer_clock(arm3, go2):

@@ -13,9 +13,34 @@ from __future__ import annotations
 
 import numpy as np
 
-from deploy.stateful import put, take
+from deploy.stateful import load_part, prefixed, put, take
 from deploy.tasks.goals import sample_goal
 from deploy.tasks.locomotion import TRACKING_TOLERANCE, CommandRanges
+
+
+class _Arrays:
+    """A task's arrays as one stateful part (:mod:`deploy.stateful`): ``fields()`` names them."""
+
+    def __init__(self, fields):
+        self.fields = fields
+
+    def state_dict(self, env: int | None = None) -> dict:
+        return take(self.fields(), env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        put(self.fields(), state, env)
+
+
+def _state_dict(task, env: int | None) -> dict:
+    out: dict = {}
+    for prefix, part in task.parts().items():
+        out.update(prefixed(prefix, part.state_dict(env)))
+    return out
+
+
+def _load_state_dict(task, state: dict, env: int | None) -> None:
+    for prefix, part in task.parts().items():
+        load_part(prefix, part, state, env)
 
 
 class EpisodeGoals:
@@ -89,16 +114,17 @@ class EpisodeGoals:
         decided = reached + int(self.missed.sum() if env is None else self.missed[env])
         return float(reached) / decided if decided else 0.0
 
-    def _fields(self) -> dict[str, np.ndarray]:
+    def parts(self) -> dict:
+        """``goals``: ``goal`` (envs, 3) m, ``t_goal`` s, ``issued``, ``reached``, ``missed``
+        (int64); the generator is the trainer's."""
         names = ("goal", "t_goal", "issued", "reached", "missed")
-        return {k: getattr(self, k) for k in names}
+        return {"goals": _Arrays(lambda: {k: getattr(self, k) for k in names})}
 
     def state_dict(self, env: int | None = None) -> dict:
-        """``goal`` (envs, 3) m, ``t_goal`` s, ``issued``, ``reached``, ``missed`` (int64)."""
-        return take(self._fields(), env)
+        return _state_dict(self, env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
-        put(self._fields(), state, env)
+        _load_state_dict(self, state, env)
 
 
 class EpisodeCommands:
@@ -154,12 +180,14 @@ class EpisodeCommands:
         running = self.running.sum() if env is None else self.running[env]
         return float(tracked / max(running, 1.0))
 
-    def _fields(self) -> dict[str, np.ndarray]:
-        return {"t_command": self.t_command, "running": self.running, "tracked": self.tracked}
+    def parts(self) -> dict:
+        """``commands``: ``t_command`` s, ``running``, ``tracked`` ticks; the generator is the
+        trainer's."""
+        names = ("t_command", "running", "tracked")
+        return {"commands": _Arrays(lambda: {k: getattr(self, k) for k in names})}
 
     def state_dict(self, env: int | None = None) -> dict:
-        """``t_command`` s, ``running``, ``tracked`` ticks; the generator is the trainer's."""
-        return take(self._fields(), env)
+        return _state_dict(self, env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
-        put(self._fields(), state, env)
+        _load_state_dict(self, state, env)

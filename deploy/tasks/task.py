@@ -45,6 +45,9 @@ class Task(Protocol):
     def curve_point(self, curve: dict[str, list], e: int) -> None:
         """Append env ``e``'s counts now to its ``curve`` (of :meth:`curve_start`)."""
 
+    def parts(self) -> dict:
+        """The task's stateful parts by checkpoint prefix (``goals``; ``commands``, ``tracker``)."""
+
     def state_dict(self, env: int | None = None) -> dict:
         """The task's state, each part's fields under its prefix (:mod:`deploy.stateful`)."""
 

@@ -38,9 +38,9 @@ Exit codes (when several apply, the first of 4, 1, 5, 2, 6, 8, 9, 7 is returned)
 130   interrupted (Ctrl-C); the checkpoints are kept and ``--resume`` continues
 ====  =====================================================================================
 
-A legged robot (``robot.floating_base``, e.g. go2) follows velocity commands instead of goals
-(:mod:`eval.soak.batch`): ``--goal-period`` is the period of its commands, ``--success-time`` is
-unused, and ``--min-success`` / ``--min-window-success`` judge its tracking success (share of
+A legged robot (:func:`deploy.robot_kind.robot_kind`, e.g. go2) follows velocity commands instead of
+goals (:mod:`eval.soak.batch`): ``--goal-period`` is the period of its commands, ``--success-time``
+is unused, and ``--min-success`` / ``--min-window-success`` judge its tracking success (share of
 RUNNING time within 0.2 m/s of the command).
 """
 

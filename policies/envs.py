@@ -65,7 +65,7 @@ from deploy.safety.guard import SafetyGuard
 from deploy.smoothing import CommandSmoother
 from deploy.spec.policy_spec import PolicySpec
 from deploy.state import Kinematics, RobotState
-from deploy.tasks.goals import sample_goal
+from deploy.tasks.task import task_for
 from eval.world.dynamics import Dynamics, DynamicsRanges, randomized_model, sample_dynamics
 from eval.world.sensors import SensorRanges, sample_sensors
 from eval.world.session_ranges import session_ranges
@@ -222,7 +222,6 @@ class ReachTask:
         self.state = RobotState.zeros(envs, self.n, robot.config.sensors.ambient_temperature)
         self.randomize = config.dynamics != DynamicsRanges.none()
         self.dynamics = [Dynamics.nominal(self.n)] * envs
-        self.goal = np.zeros((envs, 3))
         self._ws_min = np.asarray(robot.config.safety.workspace_min)
         self._ws_max = np.asarray(robot.config.safety.workspace_max)
         self.obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
@@ -231,11 +230,18 @@ class ReachTask:
         self._distance = np.zeros(envs)
         self._prev_dq = np.zeros((envs, self.n))
         self.t_episode = np.zeros(envs)
-        self.t_goal = np.zeros(envs)
+        #: the goals, chained (deploy.tasks.episodes.EpisodeGoals: goals issued, reached, missed)
+        self.task = task_for(
+            robot,
+            envs,
+            self.backend,
+            period=config.goal_timeout,
+            rng=self.rng,
+            clock=self.t_episode,
+            success_radius=self.success_radius,
+        )
+        self.goal = self.task.goal  # (envs, 3) m
         # per-episode statistics
-        self.goals = np.zeros(envs, dtype=np.int64)
-        self.reached = np.zeros(envs, dtype=np.int64)
-        self.missed = np.zeros(envs, dtype=np.int64)
         self.limit_violations = np.zeros(envs, dtype=np.int64)
         self.interventions = np.zeros(envs, dtype=np.int64)
         self.ticks = np.zeros(envs, dtype=np.int64)
@@ -282,15 +288,11 @@ class ReachTask:
         self.guard.reset(self.state.q, envs=which)
         self._prev_dq[idx] = 0.0
         self.t_episode[idx] = 0.0
-        self.goals[idx] = 0
-        self.reached[idx] = 0
-        self.missed[idx] = 0
         self.limit_violations[idx] = 0
         self.interventions[idx] = 0
         self.ticks[idx] = 0
         self.episode_return[idx] = 0.0
-        for e in idx:
-            self._new_goal(e)
+        self.task.reset(self, which)  # new goals
         self.kinematics.update(self.state)
         self.spec.observation(self.state, self.goal, out=self.obs)
         self._distance[idx] = self._true_distance()[idx]
@@ -301,11 +303,6 @@ class ReachTask:
         clip = max(b.clip for b in self.spec.observation_blocks)
         obs = gym.spaces.Box(-clip, clip, (self.spec.obs_dim,), np.float32)
         return obs, gym.spaces.Box(-1.0, 1.0, (self.spec.act_dim,), np.float32)
-
-    def _new_goal(self, e: int) -> None:
-        self.goal[e] = sample_goal(self.robot, self.rng)
-        self.t_goal[e] = self.t_episode[e]
-        self.goals[e] += 1
 
     def _true_distance(self) -> np.ndarray:
         return np.linalg.norm(self.backend.end_effector_position() - self.goal, axis=1)
@@ -352,8 +349,7 @@ class ReachTask:
         soft = ((q < robot.soft_lower) | (q > robot.soft_upper)).sum(axis=1)
         ee = self.backend.end_effector_position()
         outside = ((ee < self._ws_min) | (ee > self._ws_max)).any(axis=1)
-        distance = np.linalg.norm(ee - self.goal, axis=1)
-        success = distance <= self.success_radius
+        distance, success = self.task.judge(ee)
 
         reward = np.full(self.envs, rew.survival)
         reward += rew.shaping * (self._distance - rew.shaping_gamma * distance)
@@ -367,15 +363,11 @@ class ReachTask:
         reward -= rew.jerk * np.linalg.norm(dq - self._prev_dq, axis=1) / self.dt
         self._prev_dq[:] = dq
 
-        self.reached += success
         self.limit_violations += hard
         self.interventions += intervened
         self.episode_return += reward
-        expired = ((self.t_episode - self.t_goal) >= self.config.goal_timeout) & ~success
-        self.missed += expired
-        new = success | expired
-        for e in np.nonzero(new)[0]:
-            self._new_goal(e)
+        self.task(self)  # goals reached or timed out: new ones
+        new = self.task.new
         if new.any():  # the goal changed: distances and observations refer to the new goal
             distance[new] = np.linalg.norm(ee[new] - self.goal[new], axis=1)
             self.spec.observation(state, self.goal, out=self.obs)
@@ -388,11 +380,10 @@ class ReachTask:
 
         ``is_success`` is the fraction of decided goals (reached, or timed out) that were reached.
         """
-        decided = int(self.reached[e] + self.missed[e])
         return {
-            "is_success": float(self.reached[e]) / decided if decided else 0.0,
-            "goals_reached": int(self.reached[e]),
-            "goals_missed": int(self.missed[e]),
+            "is_success": self.task.success(e),
+            "goals_reached": int(self.task.reached[e]),
+            "goals_missed": int(self.task.missed[e]),
             "joint_limit_violations": int(self.limit_violations[e]),
             "intervention_rate": float(self.interventions[e]) / max(int(self.ticks[e]), 1),
         }

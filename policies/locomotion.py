@@ -45,9 +45,11 @@ import numpy as np
 from deploy.backends.sim.plant import SimBackend
 from deploy.estimation.base import BaseState
 from deploy.monitors.interventions import InterventionMonitor
+from deploy.robot_kind import robot_kind
 from deploy.runtime import Mode, Runtime
 from deploy.spec.policy_spec import PolicySpec
-from deploy.tasks.locomotion import TRACKING_TOLERANCE, CommandRanges
+from deploy.tasks.locomotion import CommandRanges
+from deploy.tasks.task import task_for
 from eval.world.dynamics import randomized_model
 from eval.world.floor import apply_floor_friction
 from eval.world.sensors import apply_imu, apply_sensors
@@ -147,7 +149,7 @@ class LocomotionTask:
         config: LocomotionConfig | None = None,
         seed: int = 0,
     ):
-        if not robot.floating_base:
+        if robot_kind(robot).task != "locomotion":
             raise ValueError(f"LocomotionTask: robot {robot.name} has no floating base")
         self.robot, self.spec, self.envs = robot, spec, envs
         self.config = config = config or LocomotionConfig()
@@ -163,12 +165,20 @@ class LocomotionTask:
         self._before = np.zeros(envs, dtype=np.int64)
         self._true_base = BaseState.zeros(envs)  # the plant's base in the estimate's terms
         self.t_episode = np.zeros(envs)
-        self.t_command = np.zeros(envs)
+        #: the velocity commands (deploy.tasks.episodes.EpisodeCommands) and their tracking
+        self.task = task_for(
+            robot,
+            envs,
+            self.backend,
+            period=config.command_period,
+            rng=self.rng,
+            clock=self.t_episode,
+            ranges=config.commands,
+        )
+        self._one = np.eye(envs, dtype=bool)  # env e's mask, row e
         self.push_until = np.zeros(envs)
         self.episode_return = np.zeros(envs)
         self.episode_ticks = np.zeros(envs, dtype=np.int64)
-        self.tracked = np.zeros(envs)  # RUNNING ticks within TRACKING_TOLERANCE of the command
-        self.running = np.zeros(envs)
         self.distance = np.zeros(envs)
         self.policy.act = lambda obs: np.zeros((envs, robot.n_joints), dtype=np.float32)
         self.runtime.start()
@@ -195,25 +205,20 @@ class LocomotionTask:
                 apply_sensors(b, e, draw.sensors)
                 apply_imu(b, e, draw.imu)
             b.set_external_force(e, np.zeros(3))
-            rt.velocity_command[e] = cfg.commands.sample(self.rng)
+            self.task.reset(rt, self._one[e])  # a new command, drawn after the episode's world
         b.reset(envs=which)
         rt.restart(which, self.robot.home, b.frame.time)
         self.t_episode[idx] = 0.0
-        self.t_command[idx] = 0.0
         self.push_until[idx] = 0.0
         self.episode_return[idx] = 0.0
         self.episode_ticks[idx] = 0
-        self.tracked[idx] = 0.0
-        self.running[idx] = 0.0
         self.distance[idx] = 0.0
         self._previous_action[idx] = 0.0
 
     def _disturb(self) -> None:
         """New commands where their period ended; pushes start and end."""
-        cfg, b, rt = self.config, self.backend, self.runtime
-        for e in np.nonzero(self.t_episode - self.t_command >= cfg.command_period)[0]:
-            rt.velocity_command[e] = cfg.commands.sample(self.rng)
-            self.t_command[e] = self.t_episode[e]
+        cfg, b = self.config, self.backend
+        self.task(self.runtime)
         ended = (self.push_until > 0) & (self.t_episode >= self.push_until)
         for e in np.nonzero(ended)[0]:
             b.set_external_force(e, np.zeros(3))
@@ -266,8 +271,7 @@ class LocomotionTask:
         self.t_episode += self.dt
         self.episode_ticks += 1
         self.episode_return += r
-        self.running += running_before
-        self.tracked += running_before & (np.sqrt(error) <= TRACKING_TOLERANCE)
+        self.task.track(running_before, error)
         self.distance += running_before * v[:, 0] * self.dt
         truncated = (self.t_episode >= self.config.episode_seconds - 1e-9) & ~stopped
         return r, stopped, truncated
@@ -282,6 +286,6 @@ class LocomotionTask:
                 "l": int(self.episode_ticks[e]),
                 "t": float(self.t_episode[e]),
             },
-            "tracking": float(self.tracked[e] / max(self.running[e], 1.0)),
+            "tracking": self.task.success(e),
             "distance": float(self.distance[e]),
         }

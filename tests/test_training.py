@@ -38,7 +38,7 @@ def test_reaching_the_goal_pays_the_success_reward_and_draws_a_new_goal(arm3):
     old_goal = task.goal[0].copy()
     _, reward, terminated, _ = task.step(np.zeros((1, 3)))
     assert reward[0] > 0.9  # +1 success, tiny penalties
-    assert task.reached[0] == 1 and not terminated[0]
+    assert task.task.reached[0] == 1 and not terminated[0]
     assert not np.array_equal(task.goal[0], old_goal)
 
 

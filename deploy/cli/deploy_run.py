@@ -50,7 +50,7 @@ from deploy.cli.run_parser import build_parser
 from deploy.cli.run_summary import print_summary
 from deploy.monitors.kernel import motion_statistics
 from deploy.spec.drive import drive_robot
-from deploy.tasks.goals import GoalScheduler
+from deploy.tasks.task import task_for
 from robots.files import atomic_write
 
 EXIT_CLEAN, EXIT_HARD_VIOLATION, EXIT_FAULT, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 1, 2, 3, 4
@@ -207,23 +207,19 @@ def _run_opened(
 
     violations = ViolationMonitor(robot, args.envs) if simulated else None
     interventions = InterventionMonitor(rt.guard, rt.smoother)
-    if robot.floating_base:  # a legged robot follows a velocity command, not goals
-        from deploy.tasks.locomotion import CommandTracker, parse_command
-
-        if args.command is not None:
-            rt.velocity_command[:] = parse_command(args.command)
-        goals = tracker = CommandTracker(args.envs, robot.control_period, backend)
-    else:
-        tracker = None
-        goals = GoalScheduler(
-            robot,
-            args.envs,
-            args.goal_period,
-            fixed,
-            args.success_time,
-            np.random.default_rng(args.seed + 1),
-            interventions=interventions,
-        )
+    task = task_for(
+        robot,
+        args.envs,
+        backend,
+        period=args.goal_period,
+        rng=np.random.default_rng(args.seed + 1),
+        success_time=args.success_time,
+        fixed=fixed,
+        command=args.command,
+        interventions=interventions,
+        schedule=False,
+    )
+    task.reset(rt, np.ones(args.envs, dtype=bool))
 
     def on_tick(r):
         t0 = clock_ns()
@@ -231,7 +227,7 @@ def _run_opened(
             violations.update(backend)
         interventions.update()
         monitor_cost.add(0, clock_ns() - t0)
-        goals(r)
+        task(r)
         temperature = (
             backend.thermal.winding_temperature if simulated else r.state.winding_temperature
         )
@@ -278,6 +274,7 @@ def _run_opened(
     else:
         true = {"hard_limit": 0}
         violation_report = None  # no ground truth on hardware: the guard's counts stand in
+    sections = task.report(rt)  # goals or locomotion, and the missed goals
     report = {
         "robot": robot.name,
         "backend": args.backend,
@@ -289,22 +286,11 @@ def _run_opened(
         "realtime": realtime,
         "envs": args.envs,
         "seed": args.seed,
-        "goals": None
-        if tracker
-        else {
-            "issued": goals.goals,
-            "reached": goals.hits,
-            "success_rate": goals.hits / goals.goals if goals.goals else None,
-            "median_time_to_reach_s": float(np.median(goals.times)) if goals.times else None,
-            "within_s": args.success_time,
-            "judged_on": "true end effector" if simulated else "estimated end effector",
-        },
-        "locomotion": tracker.summary(rt) if tracker else None,
+        "goals": sections["goals"],
+        "locomotion": sections["locomotion"],
         "violations": violation_report,
         "interventions": interventions.summary(),
-        "missed_goals": 0
-        if tracker
-        else sum(len(m) for m in goals.missed) + int(goals.missed_dropped.sum()),
+        "missed_goals": sections["missed_goals"],
         "faults": {
             "non_finite_actions": int(rt.counters.non_finite_actions.sum()),
             "safe_stops": int(rt.counters.safe_stops.sum()),

@@ -31,6 +31,7 @@ from deploy.backends.sim.plant import NonFiniteCommandError, SimBackend, Simulat
 from deploy.export.noise_floor import TOLERANCE, NoiseFloor, _max_abs  # noqa: F401 - TOLERANCE
 from deploy.export.recurrent import RecurrentPolicyModule
 from deploy.policy.onnx_policy import OnnxPolicy
+from deploy.robot_kind import robot_kind
 from deploy.spec.policy_spec import PolicySpec
 from deploy.state import Kinematics, RobotState
 from robots import Robot
@@ -114,15 +115,14 @@ def closed_loop_parity(
     n = robot.n_joints
     plant = SimBackend(robot, mode=spec.action.mode, envs=envs, seed=seed)
     kin = Kinematics(robot)
-    ambient = robot.config.sensors.ambient_temperature
     rng = np.random.default_rng(seed)
-    legged = robot.floating_base
+    kind = robot_kind(robot)
+    state = kind.state(robot, envs)  # the runtime's layout
+    legged = kind.legged
     if legged:  # the base from the plant's truth, a random velocity command per env
-        state = RobotState.legged(envs, n, robot.n_feet, ambient)
         state.command[:] = rng.uniform([-0.5, -0.3, -1.0], [1.0, 0.3, 1.0], (envs, 3))
         goal = np.zeros((envs, 3))
     else:
-        state = RobotState.zeros(envs, n, ambient)
         goal = sample_goals(robot, rng, envs)
     goal_every = max(1, int(round(GOAL_PERIOD / robot.control_period)))
     obs = np.zeros((envs, spec.obs_dim), np.float32)

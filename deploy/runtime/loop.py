@@ -15,6 +15,7 @@ import numpy as np
 from deploy.estimation.joints import JointStateEstimator
 from deploy.observe import latency_kernel as lk
 from deploy.observe.telemetry import BIN_NS, BINS, LatencyHistogram
+from deploy.robot_kind import robot_kind
 from deploy.runtime.anchoring import reanchor, tracking_tolerance
 from deploy.runtime.clock import SimClock
 from deploy.runtime.compiled import CompiledSupervision
@@ -102,26 +103,19 @@ class Runtime:
         self.clock = clock or SimClock(self.dt)
         self.injector = injector
         self.telemetry = telemetry
+        kind = robot_kind(robot)  # the stages and state layout of an arm or a legged robot
         # a floating base's PD targets lead its joints: latency is bridged at constant velocity
         self.estimator = JointStateEstimator(
-            robot, envs, input_extrapolates=not robot.floating_base
+            robot, envs, input_extrapolates=kind.input_extrapolates
         )
         self.kinematics = Kinematics(robot)
         self.reference = reference
         self.guard = SafetyGuard(robot, envs, self.mode_name, reference=reference)
         self.smoother = CommandSmoother(robot, envs, self.mode_name, reference=reference)
-        ambient = robot.config.sensors.ambient_temperature
-        self.state = RobotState.zeros(envs, n, ambient)
+        self.state: RobotState = kind.state(robot, envs)
         self.goal = np.zeros((envs, 3))
         #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check
-        self.base_estimator = self.fall_detector = None
-        if robot.floating_base:
-            from deploy.estimation.base import BaseStateEstimator
-            from deploy.estimation.fall import FallDetector
-
-            self.state = RobotState.legged(envs, n, robot.n_feet, ambient)
-            self.base_estimator = BaseStateEstimator(robot, envs)
-            self.fall_detector = FallDetector(robot, envs)
+        self.base_estimator, self.fall_detector = kind.base_stages(robot, envs)
         #: (envs, 3) the velocity command of a legged robot (vx, vy m/s, yaw rate rad/s, base
         #: frame): the operator's (deploy-run --command) or the soak's schedule; write into it
         self.velocity_command = (

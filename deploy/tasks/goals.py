@@ -1,5 +1,6 @@
 """Goals of a reaching run and whether they were reached: the goal scheduler ``deploy-run`` and the
-soak harness share (:class:`GoalScheduler`), the task-region sampler training uses too
+soak harness share (:class:`GoalScheduler`), as their task (:class:`GoalTask`, chosen by
+:func:`deploy.tasks.task.task_for`), the task-region sampler training uses too
 (:func:`sample_goal`), and the success rate per window of time (:func:`success_windows`).
 """
 
@@ -15,6 +16,7 @@ from deploy.stateful import (
     StateDictError,
     check,
     from_json,
+    load_part,
     put,
     rng_state,
     set_rng_state,
@@ -419,3 +421,68 @@ class GoalScheduler:
             self.hit_count[e] += 1
             self.hit_times[e].append(float(age[e]))
             self._window(self.window_reached[e], self.issued_at[e])
+
+
+class GoalTask:
+    """The reach-goals task (:class:`deploy.tasks.task.Task`) of an arm: a :class:`GoalScheduler`
+    (its arguments; ``window`` None: its default).
+
+    Attributes:
+        scheduler: The :class:`GoalScheduler`; checkpoint prefix ``goals``.
+    """
+
+    name = "goals"
+
+    def __init__(
+        self, robot, envs, period, fixed, success_time, rng, window=None, interventions=None
+    ):
+        extra = {} if window is None else {"window": window}
+        self.scheduler = GoalScheduler(
+            robot, envs, period, fixed, success_time, rng, interventions=interventions, **extra
+        )
+
+    def reset(self, runtime, envs: np.ndarray) -> None:
+        """Nothing: an env gets its first goal when it first runs."""
+
+    def __call__(self, runtime) -> None:
+        self.scheduler(runtime)
+
+    def success(self, env: int | None = None) -> float | None:
+        """Goals reached / goals issued (of env ``env``, or all envs); None before any."""
+        s = self.scheduler
+        issued = s.goals if env is None else int(s.issued[env])
+        hits = s.hits if env is None else int(s.hit_count[env])
+        return hits / issued if issued else None
+
+    def report(self, runtime) -> dict:
+        s = self.scheduler
+        judged = "true" if s._simulated(runtime.backend) else "estimated"
+        return {
+            "goals": {
+                "issued": s.goals,
+                "reached": s.hits,
+                "success_rate": self.success(),
+                "median_time_to_reach_s": float(np.median(s.times)) if s.times else None,
+                "within_s": s.success_time,
+                "judged_on": f"{judged} end effector",
+            },
+            "locomotion": None,
+            "missed_goals": sum(len(m) for m in s.missed) + int(s.missed_dropped.sum()),
+        }
+
+    def curve_start(self) -> dict[str, list]:
+        return {"issued": [0], "reached": [0]}
+
+    def curve_point(self, curve: dict[str, list], e: int) -> None:
+        curve["issued"].append(int(self.scheduler.issued[e]))
+        curve["reached"].append(int(self.scheduler.hit_count[e]))
+
+    def parts(self) -> dict:
+        """The task's stateful parts by checkpoint prefix."""
+        return {"goals": self.scheduler}
+
+    def state_dict(self, env: int | None = None) -> dict:
+        return {f"goals/{k}": v for k, v in self.scheduler.state_dict(env).items()}
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        load_part("goals", self.scheduler, state, env)

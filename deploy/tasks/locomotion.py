@@ -12,7 +12,8 @@ command is a mean speed). Falls are the runtime's safe stops of cause ``fall``.
 the
 soak (:mod:`eval.soak.batch`): a new velocity command every ``period`` s of RUNNING time, drawn
 from a seeded stream per env, written into ``runtime.velocity_command``. Both keep their state
-(:mod:`deploy.stateful`) for the soak's checkpoints.
+(:mod:`deploy.stateful`) for the soak's checkpoints. :class:`VelocityTask` is the task
+(:func:`deploy.tasks.task.task_for`) they make together, a fixed command or a schedule.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from deploy.stateful import (
     StateDictError,
     check,
     from_json,
+    load_part,
     put,
     rng_state,
     scalar,
@@ -375,3 +377,78 @@ class CommandTracker:
             "falls_by_cause": self.causes(),
             "judged_on": self.judged_on,
         }
+
+
+class VelocityTask:
+    """The velocity-command task (:class:`deploy.tasks.task.Task`) of a legged robot: a fixed
+    command, a :class:`CommandSchedule` or neither (the command the runtime holds), and a
+    :class:`CommandTracker` judging it.
+
+    Args:
+        envs, control_period, backend, window: The tracker's (:class:`CommandTracker`).
+        period: s between scheduled commands.
+        rng: ``envs`` generators: a :class:`CommandSchedule` on them; None: no schedule.
+        command: Optional fixed command (3,), written at :meth:`reset` (no schedule then).
+
+    Attributes:
+        schedule: The :class:`CommandSchedule` (checkpoint prefix ``commands``) or None.
+        tracker: The :class:`CommandTracker` (checkpoint prefix ``tracker``).
+    """
+
+    name = "locomotion"
+
+    def __init__(self, envs, control_period, backend, period, rng, command=None, window=None):
+        self.command = command
+        self.schedule = None
+        if command is None and rng is not None:
+            self.schedule = CommandSchedule(envs, period, rng)
+        self.tracker = CommandTracker(envs, control_period, backend, window=window)
+
+    def reset(self, runtime, envs: np.ndarray) -> None:
+        """Write the fixed command, if any, for the envs of ``envs``."""
+        if self.command is not None:
+            runtime.velocity_command[envs] = self.command
+
+    def __call__(self, runtime) -> None:
+        if self.schedule is not None:
+            self.schedule(runtime)
+        self.tracker(runtime)
+
+    def success(self, env: int | None = None) -> float | None:
+        """Tracking success: RUNNING time within tolerance / RUNNING time; None before any."""
+        tr = self.tracker
+        running = float(tr.running_time.sum() if env is None else tr.running_time[env])
+        tracked = float(tr.tracked_time.sum() if env is None else tr.tracked_time[env])
+        return tracked / running if running else None
+
+    def report(self, runtime) -> dict:
+        return {"goals": None, "locomotion": self.tracker.summary(runtime), "missed_goals": 0}
+
+    def curve_start(self) -> dict[str, list]:
+        curve = {"commands": [0], "falls": [0], "distance_m": [0.0]}
+        return curve | {"running_s": [0.0], "tracked_s": [0.0]}
+
+    def curve_point(self, curve: dict[str, list], e: int) -> None:
+        tr = self.tracker
+        issued = self.schedule.issued[e] if self.schedule is not None else 0
+        curve["commands"].append(int(issued))
+        curve["falls"].append(int(tr.falls[e]))
+        curve["distance_m"].append(float(tr.distance[e]))
+        curve["running_s"].append(float(tr.running_time[e]))
+        curve["tracked_s"].append(float(tr.tracked_time[e]))
+
+    def parts(self) -> dict:
+        """The task's stateful parts by checkpoint prefix."""
+        parts = {"commands": self.schedule} if self.schedule is not None else {}
+        return parts | {"tracker": self.tracker}
+
+    def state_dict(self, env: int | None = None) -> dict:
+        return {
+            f"{prefix}/{k}": v
+            for prefix, part in self.parts().items()
+            for k, v in part.state_dict(env).items()
+        }
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        for prefix, part in self.parts().items():
+            load_part(prefix, part, state, env)

@@ -34,7 +34,8 @@ apart, in total, per hour and on the curves, and are part of the checkpoints. Go
 per window of ``window_minutes`` (by their issue time), and each goal replaced unreached is recorded
 with its true end state (:class:`deploy.tasks.goals.GoalScheduler`).
 
-Legged robots (``robot.floating_base``): instead of goals, a
+Legged robots (:func:`deploy.robot_kind.robot_kind`; the task is
+:func:`deploy.tasks.task.task_for`'s): instead of goals, a
 :class:`deploy.tasks.locomotion.CommandSchedule` issues a new velocity command every
 ``goal_period`` s
 (one command stream per session, the ``goals`` stream of its seed) and a
@@ -65,9 +66,10 @@ import numpy as np
 from deploy.monitors.interventions import InterventionMonitor
 from deploy.monitors.kernel import temperature_bands
 from deploy.monitors.violations import ViolationMonitor
+from deploy.robot_kind import robot_kind
 from deploy.runtime import Mode
 from deploy.stateful import put, take
-from deploy.tasks.goals import GoalScheduler
+from deploy.tasks.task import task_for
 from eval.soak import checkpoint as ckpt
 from eval.soak.faults import SessionFaults
 from eval.soak.result import session_result
@@ -178,15 +180,15 @@ class SessionBatch:
         k = len(configs)
         draws = [sample_session(robot, c.seed, c.duration, c.ranges, c.faults) for c in configs]
         models = [randomized_model(robot, mode, d.dynamics) for d in draws]
-        self.legged = legged = bool(robot.floating_base)
-        if legged:
-            for m, d in zip(models, draws, strict=True):
+        self.kind = robot_kind(robot)
+        for m, d in zip(models, draws, strict=True):
+            if d.floor_friction is not None:  # a legged robot's floor
                 apply_floor_friction(m, d.floor_friction)
         backend = self.backend = SimBackend(robot, mode=mode, envs=k, models=models)
         backend.set_sensor_streams([session_rng(c.seed, "sensor_noise") for c in configs])
         for e, d in enumerate(draws):
             apply_sensors(backend, e, d.sensors)
-            if legged:
+            if d.imu is not None:  # a legged robot's IMU
                 apply_imu(backend, e, d.imu)
         backend.reset()  # the first readings from the sessions' own streams and settings
         # the drives stream for a while before the runtime starts, so that a reading has arrived
@@ -224,25 +226,18 @@ class SessionBatch:
         # what the plant really did (true state) and what the guard and smoother changed
         self.violations = ViolationMonitor(robot, k)
         self.interventions = InterventionMonitor(self.rt.guard, self.rt.smoother)
-        self.goals = self.commands = self.tracker = None
-        if legged:  # velocity commands and their tracking instead of goals
-            from deploy.tasks.locomotion import CommandSchedule, CommandTracker
-
-            self.commands = CommandSchedule(
-                k, first.goal_period, [session_rng(c.seed, "goals") for c in configs]
-            )
-            self.tracker = CommandTracker(k, dt, backend, window=first.window_minutes * 60.0)
-        else:
-            self.goals = GoalScheduler(
-                robot,
-                k,
-                first.goal_period,
-                None,
-                first.success_time,
-                [session_rng(c.seed, "goals") for c in configs],
-                window=first.window_minutes * 60.0,
-                interventions=self.interventions,
-            )
+        #: goals (an arm) or velocity commands (a legged robot), one stream per session
+        self.task = task_for(
+            robot,
+            k,
+            backend,
+            period=first.goal_period,
+            rng=[session_rng(c.seed, "goals") for c in configs],
+            success_time=first.success_time,
+            window=first.window_minutes * 60.0,
+            interventions=self.interventions,
+        )
+        self.task.reset(self.rt, np.ones(k, dtype=bool))
         self.sessions = [
             Session(self, e, c, d) for e, (c, d) in enumerate(zip(configs, draws, strict=True))
         ]
@@ -307,11 +302,7 @@ class SessionBatch:
             rt.smoother.recalculate()
         self.violations.update(self.backend)
         self.interventions.update()  # before the goals: a goal's last tick counts for it
-        if self.legged:
-            self.commands(rt)
-            self.tracker(rt)
-        else:
-            self.goals(rt)
+        self.task(rt)
         temperature_bands(
             self.backend.thermal.winding_temperature,
             self._t_start,
@@ -340,7 +331,7 @@ class SessionBatch:
                 for e in np.flatnonzero(faulted):
                     if t - self.sessions[e].latched_since >= reset_after - 1e-9:
                         due[e] = True
-                if self.legged and due.any():  # the operator stands the robot up first
+                if self.kind.stand_up_on_reset and due.any():  # the operator stands it up first
                     self.stand_up(due)
                     for e in np.flatnonzero(due):
                         self.sessions[e].stood_up += 1
@@ -372,16 +363,7 @@ class SessionBatch:
                 c, e = s.curve, s.e
                 c["t_s"].append(t)
                 c["winding_c"].append([float(x) for x in self.window_peak[e]])
-                if self.legged:
-                    tr = self.tracker
-                    c["commands"].append(int(self.commands.issued[e]))
-                    c["falls"].append(int(tr.falls[e]))
-                    c["distance_m"].append(float(tr.distance[e]))
-                    c["running_s"].append(float(tr.running_time[e]))
-                    c["tracked_s"].append(float(tr.tracked_time[e]))
-                else:
-                    c["issued"].append(int(self.goals.issued[e]))
-                    c["reached"].append(int(self.goals.hit_count[e]))
+                self.task.curve_point(c, e)
                 now = s.counters()
                 c["violations"].append(now["violations"])
                 c["interventions"].append(now["interventions"])

@@ -7,10 +7,10 @@ instead of running the session again, after checking that it was run with the sa
 (:func:`check_result`). The document's schema is in :mod:`eval.report.build`; everything in it but
 ``wall`` (wall-clock time, tick cost) follows from the session's seed and options.
 
-A legged session (``robot.floating_base``) has ``goals`` None and a ``locomotion`` section
-instead (:func:`locomotion_result`): falls, falls per hour, tracking success (its success rate),
-distance, forward speed, per window too; its curves have commands, falls, distance and tracking
-instead of goals. An arm's result has ``locomotion`` None.
+A legged session (its task a :class:`deploy.tasks.locomotion.VelocityTask`) has ``goals`` None and
+a ``locomotion`` section instead (:func:`locomotion_result`): falls, falls per hour, tracking
+success (its success rate), distance, forward speed, per window too; its curves have commands,
+falls, distance and tracking instead of goals. An arm's result has ``locomotion`` None.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ def locomotion_result(session: Session) -> dict:
     from deploy.tasks.locomotion import TRACKING_TOLERANCE, TRACKING_WINDOW
 
     b, e, rt = session.batch, session.e, session.batch.rt
-    tr, cmd = b.tracker, b.commands
+    tr, cmd = session.task.tracker, session.task.schedule
     t_end = rt.time
     sim_h = t_end / 3600.0
     falls = int(tr.falls[e])
@@ -79,6 +79,26 @@ def locomotion_result(session: Session) -> dict:
     }
 
 
+def goals_result(session: Session) -> dict:
+    """The ``goals`` section of an arm's session result (see :mod:`eval.report.build`)."""
+    g, e, t_end = session.task.scheduler, session.e, session.batch.rt.time
+    times = g.hit_times[e]
+    windows = g.windows(e, t_end)
+    return {
+        "issued": int(g.issued[e]),
+        "reached": int(g.hit_count[e]),
+        "success_rate": int(g.hit_count[e]) / int(g.issued[e]) if g.issued[e] else None,
+        "median_time_to_reach_s": float(np.median(times)) if times else None,
+        "within_s": session.config.success_time,
+        "period_s": session.config.goal_period,
+        "window_s": g.window,
+        "windows": windows,
+        "min_window_success_rate": (min(w["success_rate"] for w in windows) if windows else None),
+        "missed": list(g.missed[e]),
+        "missed_dropped": int(g.missed_dropped[e]),
+    }
+
+
 def session_result(session: Session) -> dict:
     """The result of a session as it stands (see :mod:`eval.report.build` for the schema).
 
@@ -95,10 +115,8 @@ def session_result(session: Session) -> dict:
         hours.append(session.hour_row(last_end, t_end))
     now = session.counters()
     sim_h = t_end / 3600.0
-    g, e = session.goals, session.e
-    legged = session.legged
-    times = [] if legged else g.hit_times[e]
-    windows = [] if legged else g.windows(e, t_end)
+    e = session.e
+    name = session.task.name  # the task's section: goals or locomotion
     true = now["violations"]
     interventions = b.interventions.summary(e)
     responses = {r: 0 for r in RESPONSES}
@@ -151,24 +169,8 @@ def session_result(session: Session) -> dict:
                 for h in hours
             ],
         },
-        "goals": None
-        if legged
-        else {
-            "issued": int(g.issued[e]),
-            "reached": int(g.hit_count[e]),
-            "success_rate": int(g.hit_count[e]) / int(g.issued[e]) if g.issued[e] else None,
-            "median_time_to_reach_s": float(np.median(times)) if times else None,
-            "within_s": session.config.success_time,
-            "period_s": session.config.goal_period,
-            "window_s": g.window,
-            "windows": windows,
-            "min_window_success_rate": (
-                min(w["success_rate"] for w in windows) if windows else None
-            ),
-            "missed": list(g.missed[e]),
-            "missed_dropped": int(g.missed_dropped[e]),
-        },
-        "locomotion": locomotion_result(session) if legged else None,
+        "goals": goals_result(session) if name == "goals" else None,
+        "locomotion": locomotion_result(session) if name == "locomotion" else None,
         "faults": {
             "scheduled": len(session.schedule),
             "injected": len(session.fault_events),
@@ -217,7 +219,7 @@ def session_result(session: Session) -> dict:
             "t_s": session.curve["t_s"],
             **(
                 {k: session.curve[k] for k in LEGGED_CURVES}
-                if legged
+                if name == "locomotion"
                 else {
                     "goals_issued": session.curve["issued"],
                     "goals_reached": session.curve["reached"],

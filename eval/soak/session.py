@@ -12,9 +12,9 @@ there:
 its fault schedule and the runtime's responses, latches, operator resets, hourly rows, curves,
 drift, and its part of a checkpoint. Its folder is ``OUT/sessions/<id>/`` (:func:`session_dir`);
 its result document is built by :mod:`eval.soak.result`. A legged robot's session
-(``robot.floating_base``) follows velocity commands instead of goals (:mod:`eval.soak.batch`): its
-``goal_period`` is the period of the commands, ``success_time`` is unused, and its success is the
-tracking success of :class:`deploy.tasks.locomotion.CommandTracker`.
+(:func:`deploy.tasks.task.task_for`) follows velocity commands instead of goals
+(:mod:`eval.soak.batch`): its ``goal_period`` is the period of the commands, ``success_time`` is
+unused, and its success is the tracking success of :class:`deploy.tasks.locomotion.CommandTracker`.
 
 The runtime's responses. Every fault is judged ``FAULT_SETTLE`` s after it ends, against the
 runtime's counters and modes at its onset: ``held`` (no safe stop: the runtime held the last
@@ -185,8 +185,8 @@ class Session:
     def __init__(self, batch: SessionBatch, e: int, config: SessionConfig, draw):
         self.batch, self.e, self.config, self.draw = batch, e, config, draw
         rt, robot = batch.rt, batch.robot
-        self.goals = batch.goals  # env e of the batch's scheduler, on this session's own stream
-        self.legged = batch.legged  # velocity commands (batch.commands, batch.tracker), no goals
+        #: env e of the batch's task (goals or velocity commands), on this session's own stream
+        self.task = batch.task
         dt = robot.control_period
         self.schedule = list(draw.faults)
         self.fault_index = 0
@@ -200,15 +200,10 @@ class Session:
         self.latched_since = -1.0
         self.hours: list[dict] = []
         self.hour_base = self.counters()
-        if self.legged:  # commands, falls and tracking (cumulative)
-            task = {"commands": [0], "falls": [0], "distance_m": [0.0]}
-            task.update(running_s=[0.0], tracked_s=[0.0])
-        else:
-            task = {"issued": [0], "reached": [0]}
         self.curve: dict = {
             "t_s": [0.0],
             "winding_c": [[float(x) for x in batch.backend.thermal.winding_temperature[e]]],
-            **task,
+            **self.task.curve_start(),  # goals, or commands, falls and tracking (cumulative)
             "violations": [self.hour_base["violations"]],
             "interventions": [self.hour_base["interventions"]],
             "mode": [int(rt.mode[e])],
@@ -318,11 +313,8 @@ class Session:
         ``e``; the book-keeping, options, policy digest and randomization as JSON metadata)."""
         rt, e, b = self.batch.rt, self.e, self.batch
         state = rt.state_dict(e)  # the runtime and its stages, the plant and policy included
-        if self.legged:
-            state.update(prefixed("commands", b.commands.state_dict(e)))
-            state.update(prefixed("tracker", b.tracker.state_dict(e)))
-        else:
-            state.update(prefixed("goals", self.goals.state_dict(e)))
+        for prefix, part in self.task.parts().items():
+            state.update(prefixed(prefix, part.state_dict(e)))
         state.update(prefixed("stats", b.stats.state_dict(e)))
         state.update(prefixed("violations", b.violations.state_dict(e)))
         state.update(prefixed("interventions", b.interventions.state_dict(e)))
@@ -384,11 +376,8 @@ class Session:
                 f"for seed {self.config.seed} (another version of eval.world.session_draw?)"
             )
         ckpt.load_stage(b.rt, arrays, e, where)
-        if self.legged:
-            ckpt.load_stage(b.commands, arrays, e, where, "commands")
-            ckpt.load_stage(b.tracker, arrays, e, where, "tracker")
-        else:
-            ckpt.load_stage(self.goals, arrays, e, where, "goals")
+        for prefix, part in self.task.parts().items():
+            ckpt.load_stage(part, arrays, e, where, prefix)
         ckpt.load_stage(b.stats, arrays, e, where, "stats")
         ckpt.load_stage(b.violations, arrays, e, where, "violations")
         ckpt.load_stage(b.interventions, arrays, e, where, "interventions")

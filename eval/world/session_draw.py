@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from deploy.robot_kind import robot_kind
 from eval.world.drift import Drift, sample_drift
 from eval.world.dynamics import Dynamics, randomized_model, sample_dynamics
 from eval.world.fault_schedule import fault_from_dict, fault_to_dict, sample_fault_schedule
@@ -137,7 +138,7 @@ def sample_session(
         rng = session_rng(seed, "faults")
         schedule = sample_fault_schedule(robot, rng, duration, sensors, ranges.faults, plant)
     imu = floor = None
-    if robot.floating_base:
+    if robot_kind(robot).legged:  # an IMU and a floor
         if ranges.imu is None or ranges.floor_friction is None:
             raise ValueError(
                 f"sample_session: robot {robot.name} has a floating base: expected ranges with "

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from deploy.robot_kind import robot_kind
 from eval.world.drift import DriftRanges
 from eval.world.dynamics import DynamicsRanges
 from eval.world.fault_schedule import FaultRanges, check_range, fault_ranges
@@ -66,7 +67,7 @@ def session_ranges(robot: Robot, mean_interval: float | None = None) -> SessionR
     ``LEGGED_DYNAMICS``, ``LEGGED_SENSORS``, the default :class:`ImuRanges` and
     ``FLOOR_FRICTION``."""
     faults = fault_ranges(robot, mean_interval)
-    if robot.floating_base:
+    if robot_kind(robot).legged:
         return SessionRanges(
             dynamics=LEGGED_DYNAMICS,
             sensors=LEGGED_SENSORS,

@@ -1,0 +1,75 @@
+"""A robot's kind, decided in one place (:func:`robot_kind`): a fixed-base arm or a floating-base
+(legged) robot, and what the assembly around it takes from that.
+
+The kind chooses which stages the runtime builds (a legged robot's base estimator and fall check,
+and its state layout: :meth:`RobotKind.state`, :meth:`RobotKind.base_stages`), whether the joint
+estimator bridges latency with the commanded input, the task (:func:`deploy.tasks.task.task_for`:
+goals or velocity commands), and what an operator does before clearing a latched fault (a legged
+robot lies damped after every stop: it is stood up first). Branches that are a physics difference
+of a floating base (the plant's free joint, the guard's unbounded PD targets, the re-anchoring's
+tolerance) ask ``robot.floating_base`` where they are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from deploy.state import RobotState
+
+
+@dataclass(frozen=True)
+class RobotKind:
+    """What the assembly of a robot depends on.
+
+    Attributes:
+        name: ``"arm"`` (fixed base) or ``"legged"`` (floating base).
+        legged: A floating base: IMU and feet in the state, a base estimator and a fall check.
+        task: The task's name (:func:`deploy.tasks.task.task_for`): ``"goals"`` or
+            ``"locomotion"``.
+        input_extrapolates: The joint estimator bridges latency with the commanded input
+            (:class:`~deploy.estimation.joints.JointStateEstimator`); a floating base's PD
+            targets lead its joints, so its latency is bridged at constant velocity instead.
+        stand_up_on_reset: An operator stands the robot up before clearing a latched fault (the
+            runtime lays a legged robot down, damped, at every stop).
+    """
+
+    name: str
+    legged: bool
+    task: str
+    input_extrapolates: bool
+    stand_up_on_reset: bool
+
+    def state(self, robot, envs: int) -> RobotState:
+        """The runtime's state layout for ``envs`` robots at the robot's ambient temperature:
+        :meth:`RobotState.zeros`, or :meth:`RobotState.legged` with the base and feet."""
+        ambient = robot.config.sensors.ambient_temperature
+        if self.legged:
+            return RobotState.legged(envs, robot.n_joints, robot.n_feet, ambient)
+        return RobotState.zeros(envs, robot.n_joints, ambient)
+
+    def base_stages(self, robot, envs: int) -> tuple:
+        """``(base_estimator, fall_detector)`` of a legged robot
+        (:class:`~deploy.estimation.base.BaseStateEstimator`,
+        :class:`~deploy.estimation.fall.FallDetector`); ``(None, None)`` for an arm."""
+        if not self.legged:
+            return None, None
+        from deploy.estimation.base import BaseStateEstimator
+        from deploy.estimation.fall import FallDetector
+
+        return BaseStateEstimator(robot, envs), FallDetector(robot, envs)
+
+
+#: A fixed-base arm: reach goals.
+ARM = RobotKind(
+    name="arm", legged=False, task="goals", input_extrapolates=True, stand_up_on_reset=False
+)
+#: A floating-base (legged) robot: follow velocity commands.
+LEGGED = RobotKind(
+    name="legged", legged=True, task="locomotion", input_extrapolates=False, stand_up_on_reset=True
+)
+
+
+def robot_kind(robot) -> RobotKind:
+    """The kind of ``robot``: :data:`LEGGED` for a floating base (``robot.floating_base``, a free
+    joint in its MJCF), else :data:`ARM`."""
+    return LEGGED if robot.floating_base else ARM

@@ -45,7 +45,7 @@ from typing import Any
 
 from robots.errors import Sim2RealError
 
-#: Godot RL Agents' recurrent-state names (a dummy pair even for MLP policies; PITFALLS.md).
+#: Godot RL Agents' recurrent-state names (a dummy pair even for MLP policies).
 GODOT_STATE = ("state_ins", "state_outs")
 
 

@@ -58,7 +58,7 @@ train: install
 	$(if $(TRAIN_$(ROBOT)),,$(error make train: no recipe for ROBOT=$(ROBOT); shipped: arm3, so101, go2))
 	$(PY) -m $(TRAINER) $(TRAIN_$(ROBOT))
 
-# The position-mode variant of the same recipe (seed section 11's comparison, README).
+# The position-mode variant of the same recipe (README, "Velocity vs position control").
 train-position: install
 	$(PY) -m policies.train --mode position --start-poses policies/arm3_missed_poses.json \
 		--out policies/arm_position.pt

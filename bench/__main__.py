@@ -5,8 +5,9 @@ Usage::
     python -m bench [--quick] [--only ITEM[,ITEM...]] [--robots arm3,arm6] [--out FILE]
                     [--wallclock-seconds S] [--wallclock-modes sleep,hybrid,spin,...]
 
-Items (default: all but ``profile``, in this order; see bench/__init__.py for what each measures
-and the JSON layout): plant, inference, tick, session, campaign, wallclock, bus, profile.
+Items (default: all but ``profile``, in this order; see bench/__init__.py for what each
+measures, README.md, "Speed", for the JSON layout): plant, inference, tick, session, campaign,
+wallclock, bus, profile.
 ``--quick`` shortens every item to a few seconds (a smoke test; its percentiles are rough).
 With ``--only``, sections of an existing results file that were not run are kept (each section
 records when it was measured and whether it was quick).
@@ -60,7 +61,7 @@ QUICK = {
     "profile_ticks": 1_000,
 }
 
-#: Targets of issues 7 and 18: (key, label, robot, limit, comparison, unit).
+#: The targets the table ends with: (key, label, robot, limit, comparison, unit).
 TARGETS = (
     ("tick_ratio", "full tick / bare loop, p50, physics included", "arm6", 1.0, "<=", "x"),
     ("overhead_p50", "runtime overhead per tick excl. physics, p50", "arm6", 50.0, "<=", "us"),

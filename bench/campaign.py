@@ -17,7 +17,7 @@ The best k is the one with the highest throughput.
 the runtime's own plant models (``rt.backend.models`` / ``datas``, still at the state the run
 left them) stepped with ``mujoco.mj_step(nstep=decimation)`` per control tick and nothing else,
 for as many ticks. ``physics_fraction = throughput / physics-only throughput`` is the share of
-bare MuJoCo stepping the whole toolkit keeps (issue 18's machine-independent target: >= 0.6).
+bare MuJoCo stepping the whole toolkit keeps (the bench's machine-independent target: >= 0.6).
 """
 
 from __future__ import annotations

@@ -59,10 +59,10 @@ _SHIFT = 6.0
 def tame_actor(actor, spec, robot, seed: int = POLICY_SEED) -> None:
     """Make a seeded random MLPActor behave like a policy that holds its robot near home.
 
-    A purely random MLP parks the arm against a limit: in our runs it drove arm6 into an
-    over-temperature safe stop after about 40 s (a high-torque pose held) and held arm3 at its
-    workspace edge with a rejected target on every tick, so a benchmark would measure the runtime
-    in a regime a trained policy never sees. In place, on ``actor``'s three Linear layers:
+    A purely random MLP parks the arm against a limit: it can drive arm6 into an over-temperature
+    safe stop (a high-torque pose held) and hold arm3 at its workspace edge with a rejected target
+    on every tick, so a benchmark would measure the runtime in a regime a trained policy never sees.
+    In place, on ``actor``'s three Linear layers:
 
     - the random part (the network as seeded) is re-centred and scaled, per action, to a spread
       of ``WIGGLE`` physical units over observations uniform in [-1, 1] (it still depends on the

@@ -56,7 +56,7 @@ WALLCLOCK_MODES = {
 }
 #: The configurations of a bench run without ``--wallclock-modes``.
 DEFAULT_WALLCLOCK_MODES = ("sleep", "hybrid", "spin", "hybrid+fifo", "spin+fifo", "hybrid+fifo+cpu")
-#: Target of issue 18: overrun rate of arm6 at 500 Hz over 10 minutes of wall clock.
+#: Target of the wallclock item: overrun rate of arm6 at 500 Hz over 10 minutes of wall clock.
 WALLCLOCK_TARGET = {"overrun_rate": 1e-4, "duration_s": 600.0}
 
 

@@ -12,36 +12,19 @@ Usage::
 
 It writes ``DIR/report.json``, ``DIR/report.html`` and ``DIR/junit.xml`` (atomically), the film
 strip of each session's worst moments under ``DIR/film/<id>/`` (:mod:`eval.film.strip`;
-``--no-film``:
-none), keeps each session's checkpoints, progress and result under ``DIR/sessions/<id>/``, shows
-a progress bar of simulated hours and speed (simulated / wall time), and prints a summary.
+``--no-film``: none), keeps each session's checkpoints, progress and result under
+``DIR/sessions/<id>/``, shows a progress bar of simulated hours and speed (simulated / wall time),
+and prints a summary. A legged robot (:func:`deploy.robot_kind.robot_kind`) follows velocity commands instead of
+goals (:mod:`eval.soak.batch`): ``--goal-period`` is their period, and the success options judge
+its tracking success.
 
-Exit codes (when several apply, the first of 4, 1, 5, 2, 6, 8, 9, 7 is returned):
-
-====  =====================================================================================
-0     every check passed, and no regression against ``--baseline``; with ``--baseline``, a
-      check that failed only in sessions where the baseline failed it too is a known failure:
-      printed and in the reports, but not in the exit code (a nightly reports what is new)
-1     a hard-limit violation: a joint's true position beyond a hard limit, or a hard-limit safe
-      stop of the runtime
-2     a latched fault (an env ended in FAULTED at least once)
-3     bad input: a bad option, or an unreadable robot, policy, baseline (schema 1 included) or
-      checkpoint (the message names the file and the field)
-4     the simulation diverged (MuJoCo reported a bad state)
-5     over-temperature: a winding above its maximum, or an over-temperature safe stop
-6     goal success rate below ``--min-success`` over a session, or below
-      ``--min-window-success`` in one of its windows of ``--window-minutes``
-7     regression against ``--baseline``
-8     interventions: the guard or the smoother changed the command on more than
-      ``--max-interventions`` of the ticks
-9     falls: a legged session fell more than ``--max-falls-per-hour`` times per simulated hour
-130   interrupted (Ctrl-C); the checkpoints are kept and ``--resume`` continues
-====  =====================================================================================
-
-A legged robot (:func:`deploy.robot_kind.robot_kind`, e.g. go2) follows velocity commands instead of
-goals (:mod:`eval.soak.batch`): ``--goal-period`` is the period of its commands, ``--success-time``
-is unused, and ``--min-success`` / ``--min-window-success`` judge its tracking success (share of
-RUNNING time within 0.2 m/s of the command).
+Exit codes (``EXIT_*``; when several apply, the first of 4, 1, 5, 2, 6, 8, 9, 7): 0 passed (with
+``--baseline``, a check that failed only where the baseline failed it too is a known failure, not
+in the exit code), 1 hard-limit violation or hard-limit safe stop, 2 latched fault, 3 bad input
+(the message names the file and the field), 4 simulation diverged, 5 over-temperature, 6 goal
+success below ``--min-success`` (session) or ``--min-window-success`` (a window), 7 regression
+against ``--baseline``, 8 interventions above ``--max-interventions``, 9 falls above
+``--max-falls-per-hour``, 130 interrupted (Ctrl-C; ``--resume`` continues from the checkpoints).
 """
 
 from __future__ import annotations

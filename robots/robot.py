@@ -45,8 +45,7 @@ class Robot:
         velocity_limit: Hard velocity limit, rad/s: the joint itself must stay within it.
         soft_velocity_limit: ``soft_limit_fraction`` of ``velocity_limit``, rad/s: the fastest
             command the smoother issues. The margin is for the drive's servo, which tracks a
-            velocity command with overshoot (arm3: true speed up to 3.09 rad/s under commands of
-            2.83 rad/s, 9 % over, ``deploy-run --robot arm3 --duration 400``).
+            velocity command with overshoot (figures: docs/measurements.md).
         acceleration_limit: rad/s^2. jerk_limit: rad/s^3.
         effort_limit: N m at the joint.
         motors: The motor of each joint, per joint.

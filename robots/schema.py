@@ -225,7 +225,7 @@ class ControlConfig(_Strict):
 class TaskConfig(_Strict):
     """Where goals are sampled.
 
-    ``planar_annulus``: radius and angle in the XY plane (seed section 8); ``box``: uniform in
+    ``planar_annulus``: radius and angle in the XY plane; ``box``: uniform in
     [box_min, box_max], or, with ``joint_fraction``, the end effector at joint poses drawn
     uniformly within that fraction of each joint's range about home (clipped into the soft
     limits), kept when inside the box: every goal is one the arm reaches (a box corner may not

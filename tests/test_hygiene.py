@@ -1,7 +1,8 @@
-"""What a newcomer notices (issue 18): one atomic write and one file hash, one exception base
-class, clear errors for a file given as the soak's folder and for damaged torch files, the runtime
-install running without torch, package metadata without deprecated license fields, and no
-measured figures in docstrings."""
+"""What a newcomer notices: one atomic write and one file hash, one exception base class, clear
+errors for a file given as the soak's folder and for damaged torch files, the runtime install
+running without torch, package metadata without deprecated license fields, and docs a reader can
+follow: no measured figures in docstrings, no citations of documents a reader of the repository
+does not have, short module docstrings."""
 
 import ast
 import hashlib
@@ -13,6 +14,7 @@ import re
 import subprocess
 import sys
 import textwrap
+import tokenize
 from pathlib import Path
 
 import numpy as np
@@ -293,3 +295,183 @@ def test_no_measured_figures_in_docstrings():
             doc = ast.get_docstring(node) or ""
             hits += [f"{path.relative_to(ROOT)}: {m.group(0)!r}" for m in MEASURED.finditer(doc)]
     assert not hits, "move measured figures to docs/measurements.md:\n" + "\n".join(hits)
+
+
+#: Every package whose docstrings and comments a reader meets.
+DOC_PACKAGES = (*PACKAGES, "sim2real", "bench")
+
+
+def _docstrings(path: Path) -> list[tuple[str, str]]:
+    """(where, docstring) of the module and of every class and function of ``path``."""
+    tree = ast.parse(path.read_text())
+    nodes = [tree] + [
+        n
+        for n in ast.walk(tree)
+        if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef)
+    ]
+    return [
+        (getattr(n, "name", "module"), doc)
+        for n in nodes
+        if (doc := ast.get_docstring(n)) is not None
+    ]
+
+
+def _comments(path: Path) -> list[tuple[int, str]]:
+    """(line, text) of every ``#`` comment of ``path``."""
+    with path.open("rb") as f:
+        tokens = list(tokenize.tokenize(f.readline))
+    return [(t.start[0], t.string) for t in tokens if t.type == tokenize.COMMENT]
+
+
+# A figure: a number (thousands separated by commas, decimals, exponent) and a unit, a unit being
+# a time, a size, a rate (anything per second), a physical unit, ``%`` or a factor ``x``. Counts
+# (steps, ticks, samples) are settings far more often than results and are not units here.
+_NUMBER = r"(?:\d{1,3}(?:,\d{3})+|\d+)(?:\.\d+)?(?:e-?\d+)?"
+_UNIT = (
+    r"(?:%|x\b(?!\s*\d)|[a-zA-Zµ]+/s\b|(?:us|µs|ns|ms|s|sec|secs|seconds?|min|mins|minutes?|h|hr"
+    r"|hours?|days?|B|bytes?|kB|KB|KiB|MB|MiB|GB|GiB|Hz|kHz|MHz|rad|mrad|deg|degC|°C?|K|N|Nm"
+    r"|N\s?m|mm|cm|m|km|W|mW|kW|V|mV|A|mA|J|fps)\b)"
+)
+_FIGURE = re.compile(r"(?<![\w.\-/])" + _NUMBER + r"\s*" + _UNIT)
+#: An approximate figure: ``~40 s``, ``about 3 %``, ``≈ 12 MB``, ``roughly 2-3 min``.
+APPROXIMATE = re.compile(
+    r"(?:~|≈|\babout\b|\broughly\b|\baround\b)\s*"
+    + _NUMBER
+    + r"(?:\s*(?:-|to)\s*"
+    + _NUMBER
+    + r")?\s*"
+    + _UNIT
+)
+#: Words that make a figure in the same sentence a measurement (``wall`` but not wall clock).
+MEASUREMENT_WORD = re.compile(
+    r"\bmeasured\b|\btook\b|\btakes about\b|\bobserved\b|\bprofiled\b|\bbenchmark(?:ed|s)?\b"
+    r"|\bp50\b|\bp99(?:\.9)?\b|\bmedian\b|\bwall\b(?![ -]?clock)|\bfaster\b|\bslower\b"
+    r"|\bspeed-?ups?\b|\bper second on this machine\b|\bin our runs?\b",
+    re.IGNORECASE,
+)
+#: A run cited as a figure's source: ``(..., 9 %, ``deploy-run --robot arm3 --duration 400``)``.
+CITED_RUN = re.compile(r"``(?:deploy-run|soak-test|make \w+|python -m [\w.]+) [^`]*``")
+#: What makes a figure a limit or a setting, not a result: a bound just before it (``<= 50 us``,
+#: ``more than 0.25 s``, ``every 2 s``) or a named constant it is the value of
+#: (``TRACKING_TOLERANCE`` (0.2 m/s)).
+_BOUND = re.compile(
+    r"(?:<=?|>=?|=|≤|≥|\bat (?:most|least)|\bmore than|\bless than|\bunder|\bover|\bwithin"
+    r"|\bup to|\bbelow|\babove|\bevery|\blimit|\btarget)\s*$",
+    re.IGNORECASE,
+)
+_CONSTANT = re.compile(r"``[A-Z][A-Z0-9_]*``[^.;`]{0,20}$")
+_SENTENCE_END = re.compile(r"(?<=[.!?;])\s+|\n\s*\n")
+
+
+def _a_limit(text: str, start: int) -> bool:
+    before = text[:start]
+    return bool(_BOUND.search(before[-30:]) or _CONSTANT.search(before))
+
+
+def measured_figures(doc: str) -> list[str]:
+    """The measured figures of a docstring: approximate figures, figures in a sentence with a
+    word of measurement, and figures beside a cited run; limits and named constants excepted."""
+    hits = [m.group(0) for m in APPROXIMATE.finditer(doc)]
+    for sentence in _SENTENCE_END.split(doc):
+        sentence = " ".join(sentence.split())
+        word = MEASUREMENT_WORD.search(sentence)
+        if word:
+            hits += [
+                f"{m.group(0)} ({word.group(0)})"
+                for m in _FIGURE.finditer(sentence)
+                if not _a_limit(sentence, m.start())
+            ]
+    for group in re.finditer(r"\(([^()]*)\)", " ".join(doc.split())):
+        inside = group.group(1)
+        if CITED_RUN.search(inside):
+            hits += [
+                f"{m.group(0)} (a cited run)"
+                for m in _FIGURE.finditer(inside)
+                if not _a_limit(inside, m.start())
+            ]
+    return hits
+
+
+def test_the_measured_figure_patterns_tell_figures_from_constants():
+    measured = [
+        "The soak took 9.9 min on one core.",
+        "Its export ran in ~0.1 s.",
+        "A film is about 1 MB.",
+        "The cache is ≈ 12 MB.",
+        "It lost roughly 3 % of the frames.",
+        "The kernel was measured at 5 us per tick.",
+        "p50 of the tick: 62.5 us.",
+        "The batched path is 15x faster.",
+        "In our runs it stopped after 40 s.",
+        "(arm3: 9 % over, ``deploy-run --robot arm3 --duration 400``)",
+    ]
+    constants = [
+        "Encoder noise sigma 0.0157 rad (the datasheet's resolution).",
+        "A new goal every 4 s; the default period is 2.5 s.",
+        "Return delay 500 us, the factory default (e-Manual).",
+        "When the plant falls more than 0.25 s behind (a machine slower than real time), it resets.",
+        "Target: overhead without physics <= 50 us p50.",
+        "Within ``TRACKING_TOLERANCE`` (0.2 m/s), measured on the averaged velocity.",
+        "``flags`` (4, envs) bool: rows new safe stop, took over, resumed.",
+        "Latencies in 1 us bins; the wall clock's period is 1/500 s.",
+        "The same 8,192 samples per update as 16 x 512 learned faster per sample.",
+        "factor ~ U(1 - r, 1 + r)",
+    ]
+    assert [s for s in measured if not measured_figures(s)] == []
+    assert {s: measured_figures(s) for s in constants if measured_figures(s)} == {}
+
+
+def test_no_measured_figures_in_docstrings_in_any_unit():
+    """A figure measured by running the code goes stale as the code changes: timings, sizes,
+    rates, success rates and speed-ups belong in docs/measurements.md, dated by commit."""
+    hits = [
+        f"{path.relative_to(ROOT)}: {where}: {figure!r}"
+        for path in _sources(*DOC_PACKAGES)
+        for where, doc in _docstrings(path)
+        for figure in measured_figures(doc)
+    ]
+    assert not hits, "move measured figures to docs/measurements.md:\n" + "\n".join(hits)
+
+
+#: Documents a reader of the repository does not have: the design notes and pitfalls of the
+#: project's planning, its issue tracker (``issue 18``; an upstream issue is cited as
+#: ``owner/repo#N`` or a URL) and the sections of its seed specification.
+UNAVAILABLE_REFERENCE = re.compile(
+    r"\b(?:DESIGN|PITFALLS)\.md\b|\bissues?\s+#?\d+|\bseed(?:'s)?\s+sections?\s+\d+",
+    re.IGNORECASE,
+)
+
+
+def test_no_docstring_or_comment_cites_a_document_the_reader_does_not_have():
+    hits = []
+    for path in _sources(*DOC_PACKAGES):
+        name = path.relative_to(ROOT)
+        for where, doc in _docstrings(path):
+            hits += [
+                f"{name}: docstring of {where}: {m.group(0)!r}"
+                for m in UNAVAILABLE_REFERENCE.finditer(doc)
+            ]
+        for line, comment in _comments(path):
+            hits += [
+                f"{name}:{line}: comment: {m.group(0)!r}"
+                for m in UNAVAILABLE_REFERENCE.finditer(comment)
+            ]
+    assert not hits, "say what the reference says, or cite what a reader can open:\n" + "\n".join(
+        hits
+    )
+
+
+#: The longest module docstring: what the module is, shapes, units, errors, sources of
+#: constants. User documentation goes to README.md, the design to docs/architecture.md.
+MODULE_DOCSTRING_LINES = 30
+
+
+def test_module_docstrings_are_short():
+    long = []
+    for path in _sources(*DOC_PACKAGES):
+        doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+        if len(doc.splitlines()) > MODULE_DOCSTRING_LINES:
+            long.append(f"{path.relative_to(ROOT)}: {len(doc.splitlines())} lines")
+    assert not long, f"module docstrings of at most {MODULE_DOCSTRING_LINES} lines:\n" + "\n".join(
+        long
+    )

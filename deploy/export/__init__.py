@@ -8,23 +8,14 @@ Usage::
     policy-export SOURCE --from-config DEPLOY.yaml --robot DIR [--write-robot]
     policy-export --inspect FILE     # what FILE is (deploy.export.inspect_policy); nothing exported
 
-``SOURCE`` is a file (a bare name that does not exist as given is looked up in ``policies/``); the
-ONNX file is written beside it with the same stem unless ``--out`` is given. Exit status: 0
-exported, 1 parity failure, 2 bad input (3: internal error, a bug). Nothing is written under the
-output name unless every check passes: the graph goes to a temporary file in the destination
-folder and is moved into place (``os.replace``) last; an ONNX file already at the destination is
-left untouched by a failed export. A candidate that fails the parity gate is kept beside it as
-``<stem>.parity-failed.onnx`` (:func:`~deploy.export.pipeline.failed_path`; its ``parity``
-metadata says ``"passed": false``) and named in the error; a later successful export removes it.
+Exit status (:mod:`~.cli`): 0 exported, 1 parity failure (:class:`ParityError`), 2 bad input
+(:class:`ExportError`), 3 internal error (a bug). The format is detected from the content
+(:mod:`~.load`), one module each: our checkpoint (:mod:`~.checkpoint`), TorchScript
+(:mod:`~.torchscript`; legged_gym's stateful LSTM: :mod:`~.torchscript_lstm`), SB3 PPO / SAC and
+RecurrentPPO zips (:mod:`~.sb3`, :mod:`~.sb3_recurrent`), rsl_rl checkpoints (:mod:`~.rsl_rl`,
+:mod:`~.rsl_rl_recurrent`), a pickled ``nn.Module`` only with ``--trust-pickle``. Every source but
+our checkpoint needs ``--spec``, or ``--from-config`` (:mod:`~.deploy_config`).
 
-``--from-config`` takes the spec from a legged_gym / unitree_rl_gym deploy config (YAML) and a
-robot folder instead of ``--spec`` (:mod:`deploy.export.deploy_config`: unitree_rl_gym's
-deploy_mujoco observation and action); the robot's kp, kd and home must equal the config's, or
-``--write-robot`` writes them into its robot.toml (:mod:`robots.pd_gains`).
-
-Input formats (detected from the content, not the file name):
-
-==================  ==========================================================================
 format              what is read
 ==================  ==========================================================================
 our checkpoint      ``deploy.policy.mlp_checkpoint`` format (MLP, spec and normalizer inside;
@@ -128,6 +119,16 @@ module                      what it holds
                             the report's entries and text: :mod:`~.inspect_report`)
 :mod:`~.errors`             :class:`ExportError`, :class:`ParityError`, :class:`InspectError`
 ==========================  ==================================================================
+=======
+The graph (:mod:`~.graph`): ``obs`` float32 [batch, obs_dim] -> ``action`` float32 [batch,
+act_dim], dynamic batch axis, opset ``OPSET``, the observation normalizer (:mod:`~.source`,
+:mod:`~.vecnormalize`) and the spec's action clip baked in, the PolicySpec, source hash, tool
+versions and parity figures in its metadata; a recurrent source adds its state, ``h_in`` (,
+``c_in``) -> ``h_out`` (, ``c_out``), shaped [layers, batch, hidden] (:mod:`~.recurrent`). It is
+written under a temporary name and moved into place (:mod:`~.pipeline`) only after the parity gate
+(:mod:`~.parity`) passes within its tolerance (:mod:`~.noise_floor`); a candidate that fails is
+kept as ``<stem>.parity-failed.onnx``. :mod:`~.network` holds the checks every loader runs and the
+MLPs rebuilt from state dicts. Formats and options in use: README.md, "Export a policy".
 """
 
 from deploy.export.cli import (

@@ -13,23 +13,17 @@ unitree_rl_gym's MuJoCo deployment (``deploy/deploy_mujoco/deploy_mujoco.py`` wi
     obs[9+3n:9+3n+2]  = sin, cos(2 pi phase)               phase = (t mod 0.8) / 0.8
 
 and maps the action to position targets ``action * action_scale + default_angles``, a new action
-every ``control_decimation`` physics steps of ``simulation_dt``. :func:`spec_from_config` turns the
-config into the same contract in this toolkit's terms (scale = 1 / their multiplier, offset = the
-default pose): blocks ``base_angular_velocity``, ``projected_gravity``, ``velocity_command``,
-``joint_position``, ``joint_velocity``, ``last_action``, ``gait_phase`` (period
-``GAIT_PERIOD``), action in position mode about ``default_angles`` with scale ``action_scale``,
-control rate ``1 / (simulation_dt * control_decimation)``.
-
-Fields read (:func:`read_config`): ``kps``, ``kds``, ``default_angles`` (one per joint),
-``ang_vel_scale``, ``dof_pos_scale``, ``dof_vel_scale``, ``action_scale``, ``cmd_scale`` (3),
-``num_actions``, ``num_obs``, ``control_decimation``, ``simulation_dt``, and the optional
-``cmd_init`` (3: the command deploy_mujoco walks with; shown as ``deploy-run --command``). Other
-keys (``policy_path``, ``xml_path``, ``simulation_duration``) are not used.
-
-The config's per-joint lists are in the MJCF's joint order (deploy_mujoco reads ``qpos[7:]`` and
-writes ``ctrl`` in it), which is the robot folder's joint order (robot-import keeps the
-description's): entry ``i`` is ``robot.joint_names[i]``. The robot's PD gains and home pose are
-compared with ``kps``, ``kds``, ``default_angles`` (:func:`robots.pd_gains.gain_differences`).
+every ``control_decimation`` physics steps of ``simulation_dt``. :func:`spec_from_config` writes the
+same contract in this toolkit's terms (scale = 1 / their multiplier, offset = the default pose;
+``gait_phase`` of period ``GAIT_PERIOD``). :func:`read_config` reads ``kps``, ``kds``,
+``default_angles`` (one per joint), ``ang_vel_scale``, ``dof_pos_scale``, ``dof_vel_scale``,
+``action_scale``, ``cmd_scale`` (3), ``num_actions``, ``num_obs``, ``control_decimation``,
+``simulation_dt`` and the optional ``cmd_init`` (3: the command deploy_mujoco walks with); other
+keys (``policy_path``, ``xml_path``, ``simulation_duration``) are not used. The per-joint lists are
+in the MJCF's joint order (deploy_mujoco reads ``qpos[7:]`` and writes ``ctrl`` in it), which is the
+robot folder's (robot-import keeps the description's): entry ``i`` is ``robot.joint_names[i]``. The
+robot's PD gains and home pose are compared with ``kps``, ``kds``, ``default_angles``
+(:func:`robots.pd_gains.gain_differences`).
 """
 
 from __future__ import annotations

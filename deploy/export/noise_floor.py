@@ -1,34 +1,25 @@
 """The parity gate's tolerance, judged against what float32 can reach: :class:`NoiseFloor`.
 
 ONNX Runtime and torch evaluate the same network in float32, each with its own rounding (the
-order of a GEMM's sums, an LSTM kernel's activations). How far two float32 evaluations may
-differ depends on the network: a deep or recurrent one with large activations (a legged_gym LSTM
-whose cell state grows over a long sequence) rounds far above a small MLP. The gate therefore
+order of a GEMM's sums, an LSTM kernel's activations), and how far they may differ depends on the
+network: a deep or recurrent one with large activations rounds far above a small MLP. So the gate
 measures it: a float64 copy of the source (:func:`float64_twin`, ``copy.deepcopy(module)
-.double()``) runs on the very observations of the parity runs, beside the float32 source, and the
-largest ``|float32 - float64|`` is the network's *float32 noise floor*. Each part of the gate is
-judged against the floor measured on its own observations (``PHASES``: the parity observations
-or sequences, the closed-loop replay, the recurrent state at the end of the sequences; figure
-names ``noise_floor`` / ``tolerance`` with the prefix ``''``, ``replay_``, ``state_``), so a
-regime where float32 drifts (a long replay carrying a large LSTM state) does not loosen the
-others. The tolerance of a part is::
+.double()``) runs on the very observations of the parity runs, and the largest ``|float32 -
+float64|`` is the network's *float32 noise floor*. Each part of the gate (``PHASES``: the parity
+observations or sequences, the closed-loop replay, the recurrent state; figures ``noise_floor``
+and ``tolerance`` with the prefix ``''``, ``replay_``, ``state_``) is judged against the floor of
+its own observations, so a regime where float32 drifts does not loosen the others::
 
     tolerance = max(TOLERANCE, NOISE_MULTIPLIER * noise floor)
 
-Two float32 evaluations each within about one floor of the float64 result differ by up to twice
-it; ``NOISE_MULTIPLIER`` = 4 leaves another factor 2 for kernels that round differently from
-torch's. ``TOLERANCE`` (1e-5, absolute) is the least tolerance, and the whole tolerance when the
-floor cannot be measured:
-
-- the source cannot run in float64 (a TorchScript module whose code fixes float32, a copy that
-  fails): the reason is named in the figures and messages;
-- the source is not deterministic (a second float32 run on the same observations answers
-  differently): its noise is not rounding;
-- the floor is not finite, or above ``UNSTABLE_FRACTION`` of the largest value compared (the
-  network's float32 result is not stable: a tolerance scaled on it would accept anything).
-
-``--parity-tolerance X`` (``tolerance=`` of :func:`deploy.export.run_export`) sets the tolerance
-of actions and states to X; the floor is still measured and reported.
+``TOLERANCE`` (absolute) is the least tolerance, and the whole tolerance when the floor cannot be
+measured: the source cannot run in float64 (a TorchScript module whose code fixes float32, a copy
+that fails; the reason is named in the figures and messages), it is not deterministic (a second
+float32 run answers differently: its noise is not rounding), or the floor is not finite or above
+``UNSTABLE_FRACTION`` of the largest value compared (the network's float32 result is not stable:
+a tolerance scaled on it would accept anything). ``--parity-tolerance X`` (``tolerance=`` of
+:func:`deploy.export.run_export`) sets the tolerance of actions and states to X; the floor is
+still measured and reported.
 """
 
 from __future__ import annotations
@@ -46,7 +37,9 @@ from deploy.export.errors import _first_line
 
 #: The least tolerance, absolute (max abs error over all action entries).
 TOLERANCE = 1e-5
-#: tolerance = max(TOLERANCE, NOISE_MULTIPLIER x the float32 noise floor).
+#: tolerance = max(TOLERANCE, NOISE_MULTIPLIER x the float32 noise floor). Two float32
+#: evaluations each within about one floor of the float64 result differ by up to twice it; 4
+#: leaves another factor 2 for kernels that round differently from torch's.
 NOISE_MULTIPLIER = 4.0
 #: A floor above this fraction of the largest value compared (and of 1) marks a network whose
 #: float32 result is not stable (float32 keeps about 7 significant digits; this is 3 left); the

@@ -1,48 +1,26 @@
-"""The compiled tick: numba kernels for the per-tick numeric logic of the runtime's stages.
+"""The compiled tick: numba helpers shared by the kernels of the runtime's stages (``np_max``,
+``np_min``, ``row_sum``, ``pairs_may_touch``).
 
 Each stage keeps its numpy implementation as the tested reference (``reference=True`` on
 :class:`~deploy.safety.guard.SafetyGuard`, :class:`~deploy.smoothing.CommandSmoother`,
-:class:`~deploy.runtime.Runtime` and the monitors, ``reference=True`` on
-:meth:`deploy.spec.policy_spec.PolicySpec.observation` and the plant's sensor model)
-and runs its kernel per tick otherwise, over the stage's preallocated arrays:
-
-==========================================  ====================================================
-module (beside its stage)                   what it computes
-==========================================  ====================================================
-:mod:`deploy.spec.kernel`                   the normalized observation vector (every block kind)
-:mod:`deploy.runtime.supervision_kernel`    thermal derating; stale, over-temperature,
-                                            drive-error and overrun stops; the state machine's
-                                            transitions; the re-anchoring screen; the screen of
-                                            non-finite actions, the action-to-target map and the
-                                            position/velocity-mode overrides
-:mod:`deploy.safety.kernel`                 the guard's hard and soft limits, velocity band,
-                                            torque governor screen, the screens of the per-env
-                                            Pinocchio checks, effort clamp
-:mod:`deploy.safety.envelope_kernel`        the motion envelope's boxes and their screen
-:mod:`deploy.smoothing.kernel`              the smoother's finite-target and limit clamps, the
-                                            velocity-mode stopping guards and brake trigger, the
-                                            extrema screen, torque rate limit
-:mod:`robots.thermal_kernel`                the two-node motor thermal model (one Euler step)
-:mod:`deploy.backends.sim.drives_kernel`    the sim plant's derating check and velocity-loop
-                                            anti-windup screen
-:mod:`deploy.backends.sim.sensors_kernel`   the sim plant's encoder sample (noise,
-                                            quantization, dropout) and latency buffer read
-:mod:`deploy.monitors.kernel`               the per-tick screens of the goal scheduler, the
-                                            violation and intervention monitors, the soak's
-                                            motor-heat bands and deploy-run's motion summary
-:mod:`deploy.observe.latency_kernel`        the tick's stage latency histograms
-==========================================  ====================================================
-
-This package keeps the helpers they share (``np_max``, ``np_min``, ``row_sum``,
-``pairs_may_touch``).
+:class:`~deploy.runtime.Runtime`, the monitors, :meth:`deploy.spec.policy_spec.PolicySpec
+.observation` and the plant's sensor model) and otherwise runs its kernel per tick, over the
+stage's preallocated arrays. The kernels live beside their stages: :mod:`deploy.spec.kernel`
+(the observation), :mod:`deploy.runtime.supervision_kernel` (derating, stops, the state
+machine, the action screen and map), :mod:`deploy.safety.kernel` (the guard's limits and
+screens), :mod:`deploy.safety.envelope_kernel` (the motion envelope),
+:mod:`deploy.smoothing.kernel` (the smoother's clamps, stopping guards and brake trigger),
+:mod:`robots.thermal_kernel` (the motor thermal model), :mod:`deploy.backends.sim.drives_kernel`
+and :mod:`deploy.backends.sim.sensors_kernel` (the sim plant's drives and encoders),
+:mod:`deploy.monitors.kernel` (the goal, violation, intervention and heat screens) and
+:mod:`deploy.observe.latency_kernel` (the stage latency histograms).
 
 A kernel stops where Python must act (Ruckig, Pinocchio, a policy reset) and returns a code that
 says what; the arithmetic and its order are those of the numpy reference, so both give the same
 numbers bit for bit (``tests/test_compiled_tick.py``; row sums follow numpy's pairwise order).
 Every kernel is compiled with ``cache=True`` and called once when its stage is built, so the first
 tick runs compiled code. numba's cache of a kernel is keyed on its own file: after editing a helper
-of this module (``np_max``, ``np_min``, ``row_sum``), delete ``deploy/kernels/__pycache__`` so the
-kernels that inline it are recompiled.
+of this module, delete ``deploy/kernels/__pycache__`` so the kernels that inline it are recompiled.
 """
 
 from __future__ import annotations

@@ -91,8 +91,8 @@ class PassiveViewer:
 def exit_now(code: int) -> None:
     """End the process with ``code`` without the interpreter's teardown (standard streams
     flushed): the passive viewer's thread can crash destroying its GLX context at exit (X error
-    GLXBadContext/GLXBadDrawable, then SIGSEGV, github.com/google-deepmind/mujoco/issues/1138;
-    seen under Xvfb), which would replace the run's exit code by 139."""
+    GLXBadContext/GLXBadDrawable, then SIGSEGV: google-deepmind/mujoco#1138, often under Xvfb),
+    which would replace the run's exit code by 139."""
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(code)

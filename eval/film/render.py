@@ -17,7 +17,7 @@ differing otherwise.
 Output, per session: ``OUT/film/<id>/NN-<kind>.mp4`` (H.264, ``FPS`` frames per s of simulated
 time, ``SIZE`` pixels), ``NN-<kind>.png`` (the frame at the moment) and ``film.json``; after a
 session's film is rendered its kept checkpoints are deleted. An 8-hour session's film is at
-most ``MAX_CLIPS`` clips of ``MAX_CLIP_S`` s (about 1 MB), whatever the session's length.
+most ``MAX_CLIPS`` clips of ``MAX_CLIP_S`` s, whatever the session's length.
 :mod:`eval.report.build` embeds the clips in report.html and names the stills in junit.xml.
 
 Without an OpenGL context (or without imageio-ffmpeg) the film is left out with a one-line

@@ -1,52 +1,26 @@
 """Checkpoints of soak sessions: the complete state of one env of a batched runtime, on disk.
 
 A soak session (:mod:`eval.soak`) is one env of a :class:`~deploy.runtime.Runtime` over a batched
-:class:`~deploy.backends.sim.plant.SimBackend`. To resume an interrupted session with nothing lost,
-and
-with the same report as an uninterrupted run, a checkpoint holds everything a later tick reads:
-the composition of the stages' state dicts (``state_dict(env)``, :mod:`deploy.stateful`), each
-the env's slice, keyed ``<prefix>/<field>``:
-
-==================  ===========================================================================
-prefix              stage (its ``state_dict`` documents the fields)
-==================  ===========================================================================
-(none)              :class:`~deploy.runtime.Runtime`: modes, causes, counters, goal, screened
-                    actions, estimated state; ticks, time, overrun window, latency histograms
-``estimator/``      :class:`~deploy.estimation.joints.JointStateEstimator`: filter state,
-covariance,
-                    filter time, freshness, counters
-``guard/``          :class:`~deploy.safety.guard.SafetyGuard`: counters, hard-violation flag,
-                    derating, hold target, screen caches
-``smoother/``       :class:`~deploy.smoothing.CommandSmoother`: Ruckig's input and state, held
-                    target, commanded position, stop flags, counters
-``policy/``         :class:`~deploy.policy.onnx_policy.OnnxPolicy`: a recurrent policy's state
-(nothing for
-                    a feed-forward one)
-``backend/``        :class:`~deploy.backends.sim.plant.SimBackend`: MuJoCo's integration state,
-                    friction (drift edits it), sensor buffers, settings and random stream, the
-                    last frame, thermal nodes, tick
-``goals/``          :class:`~deploy.tasks.goals.GoalScheduler`: goal times, reached flags, counts,
-                    times to reach, windows, missed goals, its random stream
-``violations/``     :class:`~deploy.monitors.violations.ViolationMonitor`
-``interventions/``  :class:`~deploy.monitors.interventions.InterventionMonitor`
-``injector/``       the session's armed :class:`~deploy.backends.sim.faults.FaultInjector`, if any
-==================  ===========================================================================
-
-The soak harness adds its own book-keeping (``stats/`` arrays; fault progress, latches, drift,
-curves and report accumulators in the metadata, :mod:`eval.soak`).
-
-Ruckig keeps the trajectory it calculated inside the ``Ruckig`` object, which its Python binding
-can neither read nor set; the smoother's state is Ruckig's input, and a restored smoother
-recalculates from it (:meth:`~deploy.smoothing.CommandSmoother.state_dict`). The soak harness
-makes every step recalculate anyway (:meth:`~deploy.smoothing.CommandSmoother.recalculate` after
-every tick), so a restored session continues bit for bit.
+:class:`~deploy.backends.sim.plant.SimBackend`. So that an interrupted session resumes with
+nothing lost, to the same report as an uninterrupted run, a checkpoint holds everything a later
+tick reads: the composition of the stages' state dicts (``state_dict(env)``,
+:mod:`deploy.stateful`; each stage's documents its fields), each the env's slice, keyed
+``<prefix>/<field>``. Prefixes: none for the :class:`~deploy.runtime.Runtime`; ``estimator/``,
+``guard/``, ``smoother/``, ``policy/`` (a recurrent policy's state; nothing for a feed-forward
+one), ``backend/`` (MuJoCo's integration state, friction, sensor buffers and random stream,
+thermal nodes), ``goals/``, ``violations/``, ``interventions/`` and ``injector/`` (the session's
+armed fault injector, if any). The soak harness adds its own book-keeping (``stats/`` arrays;
+fault progress, latches, drift, curves and report accumulators in the metadata). Ruckig's
+trajectory cannot be read from its binding; a restored smoother recalculates it from its input
+(:meth:`~deploy.smoothing.CommandSmoother.state_dict`; :mod:`eval.soak.batch` has every step
+recalculate anyway, so a restored session continues bit for bit).
 
 On disk (:func:`write_checkpoint`): ``state-<tick>.npz`` (the arrays; compressed, no pickles)
-and ``checkpoint.json`` (format, version, the npz's name and SHA-256, the state's scalars and the
-JSON metadata), each written to a temporary file and moved into place with ``os.replace``
-(:func:`robots.files.atomic_write`); the JSON is written last and is the commit point, and the
-previous npz is removed only after it. A crash at any moment leaves the previous checkpoint or the
-new one, never a mixture.
+and ``checkpoint.json`` (``FORMAT``, ``VERSION``, the npz's name and SHA-256, the state's scalars
+and the JSON metadata), each written atomically (:func:`robots.files.atomic_write`); the JSON is
+written last and is the commit point, and the previous npz is removed only after it. A crash at
+any moment leaves the previous checkpoint or the new one, never a mixture. A checkpoint that
+cannot be read or does not fit the session is a :class:`CheckpointError` naming the file.
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
 """Randomized dynamics: seeded samplers and appliers for the plant's masses, lengths, friction.
 
 Training (:mod:`policies.envs`) and the soak harness draw from the same samplers, so a policy is
-trained and tested on the same family of "slightly broken worlds" (seed section 5). Every draw is a
+trained and tested on the same family of "slightly broken worlds". Every draw is a
 plain dataclass that can be written to a report and replayed exactly.
 
-Dynamics (``DynamicsRanges``; defaults from the seed's section 11 "Randomize the arm"):
+Dynamics (``DynamicsRanges``; defaults: the ranges the toolkit was specified with):
 
 ===================  ==========  ===================================================================
 quantity             default     applied to (``mujoco.MjSpec`` before compiling)
@@ -35,9 +35,9 @@ class DynamicsRanges:
     """Relative half-ranges of the dynamics factors: a factor is drawn from ``U(1 - r, 1 + r)``.
 
     Attributes:
-        link_length: Link length (seed section 11: +-10 %).
-        mass: Link mass (seed section 11: +-20 %).
-        friction: Joint dry friction (seed section 11: +-50 %).
+        link_length: Link length (default +-10 %).
+        mass: Link mass (default +-20 %).
+        friction: Joint dry friction (default +-50 %).
         damping: Joint viscous damping.
         actuator_strength: Servo gains or motor gear.
     """

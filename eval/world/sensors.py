@@ -1,6 +1,6 @@
 """Randomized sensors of a session: encoder noise, latency and dropout (:class:`SensorRanges`,
-seed section 5: 0.002-0.010 on angle / pi) applied with :func:`apply_sensors`; a floating-base
-robot's IMU and foot force noise (:class:`ImuRanges`, seed section 5), :func:`sample_imu` and
+specified: 0.002-0.010 on angle / pi) applied with :func:`apply_sensors`; a floating-base
+robot's IMU and foot force noise (:class:`ImuRanges`), :func:`sample_imu` and
 :func:`apply_imu`. Each draw is a plain dataclass a report stores and replays.
 """
 
@@ -19,7 +19,7 @@ class SensorRanges:
     """Per-session encoder settings, drawn uniformly (integers inclusive).
 
     Attributes:
-        noise_sigma: Encoder noise sigma, rad. Seed section 5: 0.002-0.010 on angle / pi, i.e.
+        noise_sigma: Encoder noise sigma, rad. Specified range: 0.002-0.010 on angle / pi, i.e.
             ``(0.002 pi, 0.010 pi)`` rad; a robot's soak and training scale it to its own
             encoder noise (:func:`eval.world.session_ranges.sensor_ranges`).
         latency_ticks: Encoder latency, control ticks (our choice: 0-2, i.e. 0-10 ms at 200 Hz).
@@ -93,16 +93,16 @@ class ImuRanges:
     inclusive), as :class:`SensorRanges` does for the encoders.
 
     Attributes:
-        gyro_noise_sigma: Gyroscope white noise, rad/s. Seed section 5: IMU angular rate
+        gyro_noise_sigma: Gyroscope white noise, rad/s. Specified range: IMU angular rate
             0.01-0.03 normalized; normalized over 4 rad/s (legged_gym's angular velocity scale
             0.25): ``(0.04, 0.12)`` rad/s.
-        accel_noise_sigma: Accelerometer white noise, m/s^2. Seed section 5: linear acceleration
+        accel_noise_sigma: Accelerometer white noise, m/s^2. Specified range: linear acceleration
             0.03-0.08 normalized, over standard gravity: ``(0.29, 0.78)`` m/s^2.
         bias_scale: Factor on the robot's ``[sensors.imu]`` turn-on bias and bias random walk
             (our choice: 0.5-2, a unit better or worse than the nominal one).
         latency_ticks: IMU latency, control ticks (our choice: 0-1).
         force_noise_fraction: Foot force noise over the standing load of one foot (m g / feet).
-            Seed section 5: force sensors 0.05-0.10 normalized.
+            Specified range: force sensors 0.05-0.10 normalized.
     """
 
     gyro_noise_sigma: tuple[float, float] = (0.01 * 4.0, 0.03 * 4.0)

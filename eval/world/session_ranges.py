@@ -78,7 +78,7 @@ def session_ranges(robot: Robot, mean_interval: float | None = None) -> SessionR
     return SessionRanges(sensors=sensor_ranges(robot), faults=faults, imu=None, floor_friction=None)
 
 
-#: The nominal encoder noise the seed's range is drawn about, rad: seed section 5's 0.005 on
+#: The nominal encoder noise the specified range is drawn about, rad: the specified 0.005 on
 #: angle / pi, as arm3's and arm6's robot.toml round it (``encoder_noise_sigma = 0.0157``).
 SEED_ENCODER_NOISE = 0.0157
 

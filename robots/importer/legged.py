@@ -41,7 +41,7 @@ LEG_CLEARANCE = 0.01
 #: acceleration over standard gravity.
 ANGULAR_RATE_SCALE = 4.0  # rad/s
 ACCELERATION_SCALE = 9.80665  # m/s^2
-#: Default IMU white noise: the middle of seed section 5's ranges (angular rate 0.01-0.03,
+#: Default IMU white noise: the middle of the specified ranges (angular rate 0.01-0.03,
 #: linear acceleration 0.03-0.08, normalized).
 GYRO_NOISE_SIGMA = 0.02 * ANGULAR_RATE_SCALE  # 0.08 rad/s
 ACCEL_NOISE_SIGMA = 0.055 * ACCELERATION_SCALE  # 0.54 m/s^2
@@ -55,7 +55,7 @@ ACCEL_BIAS_SIGMA = 0.05  # m/s^2
 #: temperature, as Kalibr's "IMU Noise Model" page advises for real conditions.
 GYRO_BIAS_WALK = 4e-4  # rad/s/sqrt(s)
 ACCEL_BIAS_WALK = 4e-3  # m/s^2/sqrt(s)
-#: Foot force noise: seed section 5 (force sensors 0.05-0.10 normalized), the lower end, over
+#: Foot force noise: the specified range (force sensors 0.05-0.10 normalized), the lower end, over
 #: the standing load of one foot (m g / n_feet). Contact threshold: 3 sigma above it, and at
 #: least 5 N.
 FORCE_NOISE_FRACTION = 0.05

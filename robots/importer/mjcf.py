@@ -4,33 +4,25 @@
 defaults, includes, degrees or radians) and makes the same
 :class:`robots.importer.source.PreparedSource` a URDF makes; the rest of the import is shared. Kept:
 
-- hinge joints, their ranges (the text handed on is MuJoCo's canonical form: ``angle="radian"``,
-  quaternions, so a model written in degrees is converted), damping and friction loss (the
-  armature becomes the motor's, as for URDF);
-- geometry (:mod:`robots.importer.mjcf_geoms`: geoms with ``contype = conaffinity = 0`` are
-  visual-only and dropped from a body that also has collision geoms; each mesh geom becomes its
-  bounding box in the mesh's frame, as for URDF, ``COLLISION_BOXES``; primitives stay as they
-  are) and inertials, written explicitly for every body (Pinocchio's MJCF parser does not derive
-  them from geoms);
-- ``<contact><exclude>`` pairs: they play the role of an SRDF's ``disable_collisions``;
+- hinge joints, their ranges (in MuJoCo's canonical form: radians, quaternions), damping and
+  friction loss (the armature becomes the motor's, as for URDF);
+- geometry (:mod:`robots.importer.mjcf_geoms`: visual-only geoms, ``contype = conaffinity = 0``,
+  dropped beside collision geoms; each mesh geom becomes its bounding box, ``COLLISION_BOXES``)
+  and inertials, written for every body (Pinocchio's MJCF parser does not derive them);
+- ``<contact><exclude>`` pairs, as an SRDF's ``disable_collisions``;
 - effort limits: ``actuatorfrcrange``, else the removed actuators' ``forcerange`` (or a direct
-  motor's ``ctrlrange``) times their gear. MJCF has no velocity limit: the motor's (or
-  ``--velocity``) gives it.
+  motor's ``ctrlrange``) times their gear; velocity limits come from the motor or ``--velocity``.
 
-Removed, each with a printed note: actuators (``Robot.mjspec`` adds drives per control mode),
-sensors, tendons, equality constraints (a joint an ``<equality joint>`` couples is frozen, as a
-URDF mimic joint), keyframes, explicit contact pairs, textures and materials, skins and flexes,
-floors (planes of the world body, height fields) and bodies without joints hanging from the
-world (scenery); the other geoms of the world body (a base fused into it) move into a fixed
-body ``base`` that carries the robot (a floating base: they are dropped). Slide and ball joints
-are frozen at their reference position, as URDF prismatic joints. With ``--floating-base`` the
-free joint of the robot's root body is removed (:mod:`robots.importer.legged` adds its own);
-with ``--drop-missing-meshes`` the geoms whose mesh file is missing are dropped.
-Refused (:class:`RobotImportError`): a free joint without ``--floating-base``, or one that is not
-on the robot's root body; a missing mesh file (without ``--drop-missing-meshes``); an unnamed
-hinge, a hinge without limits (unless ``--limit``), a body with several hinges, several jointed
-bodies hanging from the world, a moving body without mass or inertia, and what MuJoCo itself
-refuses.
+Removed, each with a printed note: actuators, sensors, tendons, equality constraints (a coupled
+joint is frozen), keyframes, explicit contact pairs, textures, materials, skins, flexes, floors
+and jointless bodies hanging from the world; the world body's other geoms move into a fixed body
+``base`` (dropped for a floating base). Slide and ball joints are frozen at their reference
+position. ``--floating-base`` removes the root body's free joint (:mod:`robots.importer.legged`
+adds its own); ``--drop-missing-meshes`` drops the geoms of missing mesh files.
+Refused (:class:`RobotImportError`): a free joint without ``--floating-base`` or off the root
+body; a missing mesh file; an unnamed hinge, a hinge without limits (unless ``--limit``), a body
+with several hinges, several jointed bodies hanging from the world, a moving body without mass
+or inertia, and what MuJoCo itself refuses.
 """
 
 from __future__ import annotations

@@ -1,51 +1,32 @@
 """The emulated servo bus: a pseudo-terminal, the servos on it, the MuJoCo plant behind them.
 
 :class:`ServoBusEmulator` opens a pty and answers on it as the servos of a robot would, in the
-Feetech SCS/STS protocol or Dynamixel Protocol 2.0. The vendors' SDKs open the pty's path like a
-serial port; nothing in them knows they talk to an emulator.
+Feetech SCS/STS protocol or Dynamixel Protocol 2.0; the vendors' SDKs open the pty's path like a
+serial port. The plant, a one-env :class:`deploy.backends.sim.plant.SimBackend` with its sensor
+and thermal models, steps on its own thread in whole control periods until it has caught up with
+the wall clock, taking the goal registers and writing the present ones, as a servo's firmware
+samples on its own cycle: a reply waits for the register copy only, never for a step. A plant
+more than ``_MAX_LAG`` behind moves its time origin up (``stats['plant_lag_resets']``). Registers:
 
-Plant: a :class:`deploy.backends.sim.plant.SimBackend` (one env) of the robot, with its sensor and
-thermal models. It advances in simulated time paced by the wall clock, on its own thread: every
-control period it takes the goal registers, steps (whole control periods) until it has caught up
-with ``time.monotonic()`` since start, and writes the present registers, as a servo's firmware
-samples its sensors on its own cycle. Answering a packet never waits for a plant step, only for
-the register copy: on a busy machine the present registers get older (at most a period or two),
-the replies stay on time. When the plant falls more than 0.25 s behind (a machine slower than
-real time), the time origin moves up and ``stats['plant_lag_resets']`` counts it. Registers map
-to the plant so:
+- goal position or goal velocity (the operating mode register, the last one written, chooses the
+  plant's control mode; the plant is rebuilt at its pose), torque on -> the plant's command,
+  positions clipped to the min/max position limit registers; torque off: position mode commands
+  the present angle every period (the joint sags, damped), velocity mode 0 rad/s;
+- present position / velocity <- the plant's joint (``resolution`` ticks per turn, ``resolution /
+  2`` at 0 rad), shifted by Homing_Offset as the servo does: present = actual - offset on Feetech
+  (LeRobot's ``FeetechMotorsBus._get_half_turn_homings``), actual + offset on Dynamixel (e-Manual,
+  Homing Offset(20)); goal positions are in the same frame;
+- present current (or load) <- the actuator torque over the thermal model's ``torque_per_amp``;
+  present temperature <- the modelled winding (whole degC); present voltage 12.0 V.
 
-- goal position (position mode) / goal velocity (velocity mode), with torque on -> the plant's
-  command (position clipped to the servo's min/max position limit registers);
-- torque off: position mode commands the joint's present angle every control period (the drive's
-  P term acts on one period's motion only: the joint sags, damped); velocity mode commands 0 rad/s
-  (the plant's PI velocity loop holds: SimBackend has no limp drive);
-- present position / velocity <- the plant's joint angle / velocity (ticks: ``resolution`` per
-  turn with ``resolution / 2`` at 0 rad; velocity counts of the model's unit); the Homing_Offset
-  register shifts the position registers as the servo does: present = actual - offset on Feetech
-  (LeRobot's ``FeetechMotorsBus._get_half_turn_homings``), present = actual + offset on Dynamixel
-  (e-Manual, Homing Offset(20)); goal positions are in the same shifted frame;
-- present current (or load) <- the plant's actuator torque over ``gear ratio x torque constant x
-  efficiency`` (the thermal model's ``torque_per_amp``); present temperature <- the modelled
-  winding temperature (whole degC); present voltage: 12.0 V;
-- the operating mode register chooses the plant's control mode (the last one written: the plant
-  is rebuilt at the present pose and temperatures at its next step; a bus mixing modes is not
-  modelled).
-
-Bus timing model (half duplex, 10 bits per byte: start, 8 data, stop): a reply is written to the
-pty when its last byte would have arrived on a real bus::
-
-    t_reply = t_instruction_received + n_instruction x 10 / baud
-              + sum over this and the earlier replies to the same instruction of
-                (reply latency + n_reply x 10 / baud)
-
-The reply latency is the servo's Return_Delay_Time register (x 2 us; factory default 250 = 500 us
-on both vendors, see ``control_tables``) unless ``latency_us`` overrides it. On the pty the host's
-bytes arrive at once, so ``t_instruction_received`` is when the host wrote them. A reply whose time
-has passed (the machine was busy) is sent at once and counted (``stats['late_replies']``).
-
-Servo protection: every servo trips ``overheat`` when the modelled winding passes its
-temperature-limit register (torque off, error bit) as the real servo does; the other faults are
-injected on request (:class:`.faults.WireFaults`).
+Bus timing (half duplex, 10 bits per byte: start, 8 data, stop): a reply is written when its last
+byte would arrive on a real bus, ``n_instruction x 10 / baud`` after the host wrote the
+instruction plus, for this and each earlier reply to it, the reply latency and ``n_reply x 10 /
+baud``. The latency is the Return_Delay_Time register (x 2 us; factory default 250 = 500 us on
+both vendors, :mod:`deploy.backends.servo.control_tables`) unless ``latency_us`` overrides it; a
+reply already late is sent at once and counted (``stats['late_replies']``). Every servo trips
+``overheat`` when the modelled winding passes its temperature-limit register, as the real servo
+does; other faults are injected on request (:class:`.faults.WireFaults`).
 """
 
 from __future__ import annotations
@@ -317,7 +298,8 @@ class ServoBusEmulator:
                 self._pending_mode = mode  # the plant thread rebuilds it at its next step
 
     def _switch_mode(self, mode: str) -> None:
-        """Rebuild the plant in ``mode`` at the present pose, keeping the motor temperatures."""
+        """Rebuild the plant in ``mode`` at the present pose, keeping the motor temperatures (one
+        mode for the whole bus: a bus mixing modes is not modelled)."""
         old = self.plant
         q = old.true_position()[0].copy()
         winding = old.thermal.winding_temperature.copy()
@@ -421,6 +403,9 @@ class ServoBusEmulator:
                     actual = ticks - self._homing_shift(s)
                     self._command[0, j] = s.model.ticks_to_rad(actual, s.resolution)
                 else:
+                    # torque off: the drive's P term acts on one period's motion only, so the
+                    # joint sags, damped; velocity mode below commands 0 rad/s, held by the
+                    # plant's PI velocity loop (SimBackend has no limp drive)
                     self._command[0, j] = q[j]
             else:
                 v = s.model.counts_to_velocity(s.get("goal_velocity")) if on else 0.0

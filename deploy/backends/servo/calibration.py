@@ -8,27 +8,21 @@ calibration maps them to the robot description's joint angle::
 
 Without a calibration file (:func:`default_calibration`): servo IDs 1..n in joint order,
 ``zero = resolution / 2`` (2048 of 4096 ticks is 0 rad), direction +1, the full tick range.
-
 LeRobot's calibration JSON (:func:`load_lerobot_calibration`; what ``lerobot-calibrate`` writes for
-an SO-100 / SO-101), one entry per motor name::
-
-    {"shoulder_pan": {"id": 1, "drive_mode": 0, "homing_offset": -1207,
-                      "range_min": 760, "range_max": 3300}, ...}
-
-Semantics, as LeRobot's motor bus applies them (huggingface/lerobot,
-``src/lerobot/motors/motors_bus.py`` and ``src/lerobot/motors/feetech/feetech.py``):
+an SO-100 / SO-101) has one entry per motor name, ``{"shoulder_pan": {"id": 1, "drive_mode": 0,
+"homing_offset": -1207, "range_min": 760, "range_max": 3300}, ...}``, read as LeRobot's motor bus
+applies it (huggingface/lerobot, ``src/lerobot/motors/motors_bus.py`` and
+``src/lerobot/motors/feetech/feetech.py``):
 
 - ``homing_offset`` lives in the servo's Homing_Offset register (sign-magnitude, sign bit 11 on
-  the STS3215), written there by LeRobot's ``write_calibration``; the servo applies it itself:
-  Present_Position = actual position - Homing_Offset (Feetech; Dynamixel X adds it). The backend
-  writes it to the register at ``open()`` and then reads positions already offset.
-- ``range_min`` / ``range_max`` are ticks in that offset frame; LeRobot writes them to the
-  Min/Max_Position_Limit registers (the servo refuses goals outside) and maps the range's middle
-  to 0 degrees (its ``MotorNormMode.DEGREES``: ``(ticks - (min + max) / 2) x 360 / 4095``): here
-  ``zero = (range_min + range_max) / 2``. (LeRobot scales by 4095 ticks per turn; we use the
-  encoder's 4096, 0.02 % apart.)
-- ``drive_mode`` 1 inverts the joint's direction (LeRobot negates the normalized value): here
-  ``direction = -1``.
+  the STS3215) and the servo applies it itself: Present_Position = actual position -
+  Homing_Offset (Feetech; Dynamixel X adds it). The backend writes it at ``open()`` and then reads
+  positions already offset.
+- ``range_min`` / ``range_max`` are ticks in that offset frame (LeRobot writes them to the
+  Min/Max_Position_Limit registers) and LeRobot maps the range's middle to 0 degrees: here ``zero
+  = (range_min + range_max) / 2``. (LeRobot scales by 4095 ticks per turn; we use the encoder's
+  4096, 0.02 % apart.)
+- ``drive_mode`` 1 inverts the joint's direction: here ``direction = -1``.
 """
 
 from __future__ import annotations

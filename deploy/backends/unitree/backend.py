@@ -4,31 +4,23 @@ robot, wall clock): ``deploy-run --backend unitree``.
 The robot's PD runs on each motor's driver, ``tau = tau_ff + kp (q_des - q) + kd (dq_des - dq)``:
 position mode sends the runtime's targets with the joints' ``kp``/``kd`` (robot.toml), torque mode
 sends ``tau_ff`` with ``kp = kd = 0``; velocity mode is refused (the drivers have no integral
-term, the plant's velocity loop does). Joints map to motor slots through robot.toml's
-``[unitree] motor_index``. Commands go out on ``rt/lowcmd`` with their CRC
-(:mod:`deploy.backends.unitree.crc`); states come in on ``rt/lowstate`` (500 Hz on the robots)
-and are taken, all of them, at every :meth:`UnitreeBackend.read`.
+term). Joints map to motor slots through robot.toml's ``[unitree] motor_index``. Commands go out
+on ``rt/lowcmd`` with their CRC (:mod:`deploy.backends.unitree.crc`); states come in on
+``rt/lowstate`` and are taken, all of them, at every :meth:`UnitreeBackend.read`.
 
-``open()`` is the bring-up, each stage printed as it starts
-(:mod:`deploy.backends.unitree.bringup`): wait for LowState (a clear error naming the interface
-and domain when none comes), read and echo ``mode_machine`` (``unitree_hg``; echoed in every
-command), refuse when the motion switcher reports a high-level mode still active
-(:mod:`deploy.backends.unitree.motion_switcher`), damping, a timed ramp from the measured to the
-home pose, and a hold there at the ramp's gains until the runtime's first command (its RAMP_IN
-then starts at home), blended into the joints' gains over ``bringup.BLEND_TIME`` from there.
-``close()``: damping for ``CLOSE_DAMPING_TIME``, the last command the robot keeps.
+``open()`` is the bring-up (:mod:`deploy.backends.unitree.bringup`: LowState, ``mode_machine``, the
+motion switcher's check, damping, a ramp to the home pose and a hold there, blended into the joints'
+gains after the runtime's first command); ``close()`` damps for ``CLOSE_DAMPING_TIME``, the last
+command the robot keeps. Damping (``kp`` 0, ``kd`` robot.toml's ``[unitree] damping_kd``), never a
+frozen stiff pose, is what the runtime asks for (:meth:`UnitreeBackend.damp`) on a legged robot's
+every safe stop.
 
-Damping (``kp`` 0, ``kd`` robot.toml's ``[unitree] damping_kd``), never a frozen stiff pose: the
-runtime asks for it (:meth:`UnitreeBackend.damp`) on a legged robot's every safe stop: a stale
-LowState, a fall, an over-temperature, a driver error.
-
-What the states tell, counted in :meth:`UnitreeBackend.bus_summary` as the servo bus counts its
-dropouts: a sample whose CRC fails (``bad_crc``), that does not decode (``malformed``), whose
-``tick`` is not newer than the last (``stale``: late, repeated or reordered), ``tick`` gaps
-(``lost``: samples the network or the reader's queue lost), and each motor's ``lost`` packets
-(``unitree_go``; a joint whose count rose in the newest sample is a missing reading, NaN). The
-drivers' error codes (:meth:`~deploy.backends.unitree.family.Family.errors`) are
-:meth:`UnitreeBackend.drive_errors`; the runtime stops on them (cause ``servo_error``).
+:meth:`UnitreeBackend.bus_summary` counts the states as the servo bus counts its dropouts: a
+failed CRC (``bad_crc``), a sample that does not decode (``malformed``), a ``tick`` not newer than
+the last (``stale``: late, repeated or reordered), ``tick`` gaps (``lost``), and each motor's
+``lost`` packets (``unitree_go``; a joint whose count rose in the newest sample is a missing
+reading, NaN). The drivers' error codes (:meth:`~deploy.backends.unitree.family.Family.errors`)
+are :meth:`UnitreeBackend.drive_errors`; the runtime stops on them (cause ``servo_error``).
 """
 
 from __future__ import annotations

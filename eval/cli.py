@@ -14,9 +14,9 @@ It writes ``DIR/report.json``, ``DIR/report.html`` and ``DIR/junit.xml`` (atomic
 strip of each session's worst moments under ``DIR/film/<id>/`` (:mod:`eval.film.strip`;
 ``--no-film``: none), keeps each session's checkpoints, progress and result under
 ``DIR/sessions/<id>/``, shows a progress bar of simulated hours and speed (simulated / wall time),
-and prints a summary. A legged robot (:func:`deploy.robot_kind.robot_kind`) follows velocity commands instead of
-goals (:mod:`eval.soak.batch`): ``--goal-period`` is their period, and the success options judge
-its tracking success.
+and prints a summary. A legged robot (:func:`deploy.robot_kind.robot_kind`) follows velocity
+commands instead of goals (:mod:`eval.soak.batch`): ``--goal-period`` is their period, and the
+success options judge its tracking success.
 
 Exit codes (``EXIT_*``; when several apply, the first of 4, 1, 5, 2, 6, 8, 9, 7): 0 passed (with
 ``--baseline``, a check that failed only where the baseline failed it too is a known failure, not

@@ -1,4 +1,4 @@
-"""The seed's reach task (sections 6 and 8) on the sim plant, for training.
+"""The reach task on the sim plant, for training.
 
 Train what you deploy: a policy trained here meets exactly the stack the runtime runs. Its
 observations are built by the policy's :class:`~deploy.spec.policy_spec.PolicySpec` from the state
@@ -26,28 +26,7 @@ by the guard's estimate (terminated: the runtime would make a safe stop) or afte
 ``episode_seconds`` (truncated; minutes, so that the policy meets the states of continuous
 operation).
 
-Reward per control tick (:class:`RewardConfig`, seed section 6 coefficients by default)::
-
-    + success        at each goal reached
-    + soft_limit     per joint whose true position is in the soft band (beyond 90 % of the
-                     range; seed section 6)                                       (negative)
-    + intervention   per tick on which the guard or the smoother changed the     (negative)
-                     command (velocity clamp, workspace / collision / effort hold, the
-                     smoother's brake before a soft limit; ours)
-    + workspace      end effector outside the guard's workspace box            (negative)
-    + hard_limit     at a hard limit, and the episode terminates                (negative)
-    - energy   * sum |tau * dq|                                                  (W)
-    - heat     * sum (tau / tau_cont)^2  Joule heating of the windings relative to the motor's
-                                         rated continuous torque (ours: over hours, copper loss,
-                                         not mechanical power, is what overheats a motor)
-    - jerk     * |dq - dq_prev| / dt     (the seed's "jerk": rate of change of velocity)
-    + survival + shaping * (d_prev - gamma_s * d) potential-based shaping F = gamma_s Phi(s') -
-    Phi(s) with
-                                         Phi = -shaping * d, d the goal distance (m). It leaves the
-                                         optimal policy unchanged when gamma_s is the learner's
-                                         discount (Ng, Harada and Russell, ICML 1999). The shipped
-                                         recipe uses gamma_s = 1, the plain distance difference,
-                                         which adds a constant pull toward the goal.
+The reward per control tick is :class:`RewardConfig`'s (its docstring gives the terms).
 """
 
 from __future__ import annotations
@@ -74,26 +53,49 @@ from robots import Robot
 
 @dataclass(frozen=True)
 class RewardConfig:
-    """Reward coefficients; defaults are the seed's section 6 stack plus goal-distance shaping.
+    """Reward coefficients: the course's reach reward stack plus goal-distance shaping.
+
+    Reward per control tick::
+
+        + success        at each goal reached
+        + soft_limit     per joint whose true position is in the soft band (beyond 90 % of the
+                         range)                                                       (negative)
+        + intervention   per tick on which the guard or the smoother changed the     (negative)
+                         command (velocity clamp, workspace / collision / effort hold, the
+                         smoother's brake before a soft limit; ours)
+        + workspace      end effector outside the guard's workspace box            (negative)
+        + hard_limit     at a hard limit, and the episode terminates                (negative)
+        - energy   * sum |tau * dq|                                                  (W)
+        - heat     * sum (tau / tau_cont)^2  Joule heating of the windings relative to the motor's
+                                             rated continuous torque (ours: over hours, copper loss,
+                                             not mechanical power, is what overheats a motor)
+        - jerk     * |dq - dq_prev| / dt     (rate of change of velocity)
+        + survival
+        + shaping  * (d_prev - gamma_s * d)  potential-based shaping F = gamma_s Phi(s') - Phi(s)
+                                             with Phi = -shaping * d, d the goal distance (m): it
+                                             leaves the optimal policy unchanged when gamma_s is
+                                             the learner's discount (Ng, Harada and Russell, ICML
+                                             1999); the shipped recipe uses gamma_s = 1, the plain
+                                             distance difference, a constant pull toward the goal.
 
     Attributes:
-        success: Reward per goal reached (seed: +1).
-        soft_limit: Per joint and tick whose true position is beyond the soft limit (seed: -0.1
+        success: Reward per goal reached (default: +1).
+        soft_limit: Per joint and tick whose true position is beyond the soft limit (default: -0.1
             in the soft band).
         intervention: Per tick on which the guard or the smoother changed the command (ours,
             twice the soft-limit coefficient: the soak counts these and fails above 1 % of
             ticks).
-        hard_limit: At a hard limit; the episode terminates (seed: -1).
+        hard_limit: At a hard limit; the episode terminates (default: -1).
         workspace: Per tick with the end effector outside ``safety.workspace_min/max`` (ours, the
             soft-limit coefficient: there the runtime's guard rejects commands and holds).
-        energy: Coefficient of the mechanical power sum |tau dq|, per W (seed: 1e-4).
+        energy: Coefficient of the mechanical power sum |tau dq|, per W (default: 1e-4).
         heat: Coefficient of ``sum_j (tau_j / continuous_torque_j)^2``, the windings' copper
             loss relative to the rated continuous load (ours; at 5e-4 a joint at its rated
             torque for a 4-s goal period costs 0.4). It trades reaching speed for cooler drives
             and, the arm being redundant, postures that load them less; 0 (off) in the shipped
             recipe, the README gives the comparison.
-        jerk: Coefficient of |dq - dq_prev| / dt, per rad/s^2 (seed: 1e-5).
-        survival: Per tick (seed: +0.001).
+        jerk: Coefficient of |dq - dq_prev| / dt, per rad/s^2 (default: 1e-5).
+        survival: Per tick (default: +0.001).
         shaping: Per metre the end effector comes closer to the goal (ours; 0 disables it).
         shaping_gamma: The discount of the potential-based shaping: 1.0 (default, the shipped
             recipe) gives the plain distance difference; the learner's ``gamma`` gives the
@@ -118,7 +120,7 @@ class ReachConfig:
     """Task settings.
 
     Attributes:
-        mode: Control mode ('velocity' as seed section 8; 'position' as the variant).
+        mode: Control mode ('velocity', the shipped recipe; 'position' as the variant).
         reference: Position mode: 'absolute' (an action spans the joint range) or 'current' (an
             action is a step from the estimated position, at most one control period at the
             velocity limit); see :class:`deploy.spec.policy_spec.ActionSpec`.
@@ -127,8 +129,8 @@ class ReachConfig:
             window is 3 s).
         sensors: Encoder noise sigma (rad), latency (ticks) and dropout drawn per episode; None
             (default): the robot's soak ranges, ``session_ranges(robot).sensors``
-            (:func:`eval.world.session_ranges.session_ranges`: seed section 5's noise range
-            scaled to the robot's own encoder noise).
+            (:func:`eval.world.session_ranges.session_ranges`: a noise range scaled to the
+            robot's own encoder noise).
         dynamics: Ranges of the dynamics randomization; ``DynamicsRanges.none()`` for the nominal
             robot; None (default): the robot's soak ranges, ``session_ranges(robot).dynamics``.
         start_fraction: Start poses are drawn uniformly within this fraction of the soft limits.

@@ -21,19 +21,7 @@ CommandRanges`, the soak's ranges) and pushes on the base. It ends (terminated) 
 leaves RUNNING for a safe stop (a fall, a hard limit, a stale sensor...) and is truncated at its
 length.
 
-Reward per control tick (:class:`LocomotionReward`; legged_gym's terms and scales, Rudin et al.,
-CoRL 2021, ``legged_gym/envs/base/legged_robot_config.py``, each times the control period, plus
-ours)::
-
-    + tracking_linear  * exp(-|v_cmd,xy - v_xy|^2 / sigma)   base frame, true velocity
-    + tracking_angular * exp(-(w_cmd,z - w_z)^2 / sigma)
-    + vertical_velocity * v_z^2 + angular_velocity_xy * |w_xy|^2            (negative)
-    + orientation * |g_xy|^2      the projected gravity's tilt               (negative)
-    + action_rate * |a - a_prev|^2                                           (negative)
-    + heat * sum (tau / tau_cont)^2   Joule heating relative to each motor's rated continuous
-                                      torque (ours: what overheats a Go2's thighs in a soak)
-    + intervention     per tick on which the guard or the smoother changed the command (ours)
-    + stop             once, when the runtime makes a safe stop (the episode ends)
+The reward per control tick is :class:`LocomotionReward`'s (its docstring gives the terms).
 """
 
 from __future__ import annotations
@@ -66,7 +54,22 @@ class LocomotionReward:
     -0.01, orientation -0.2 as unitree_rl_gym's go2 config sets it); ours for heat,
     intervention, stop and ``tracking_sigma``: 0.1 (m/s)^2 instead of legged_gym's 0.25, whose
     commands reach 1 m/s; over our 0-0.5 m/s its reward barely told 0.2 from 0.5 m/s, and with
-    an intervention penalty of 0.02 per tick the policy learned to walk at 0.2 m/s."""
+    an intervention penalty of 0.02 per tick the policy learned to walk at 0.2 m/s.
+
+    Reward per control tick (:class:`LocomotionReward`; legged_gym's terms and scales, Rudin et al.,
+    CoRL 2021, ``legged_gym/envs/base/legged_robot_config.py``, each times the control period, plus
+    ours)::
+
+        + tracking_linear  * exp(-|v_cmd,xy - v_xy|^2 / sigma)   base frame, true velocity
+        + tracking_angular * exp(-(w_cmd,z - w_z)^2 / sigma)
+        + vertical_velocity * v_z^2 + angular_velocity_xy * |w_xy|^2            (negative)
+        + orientation * |g_xy|^2      the projected gravity's tilt               (negative)
+        + action_rate * |a - a_prev|^2                                           (negative)
+        + heat * sum (tau / tau_cont)^2   Joule heating relative to each motor's rated continuous
+                                          torque (ours: what overheats a Go2's thighs in a soak)
+        + intervention     per tick on which the guard or the smoother changed the command (ours)
+        + stop             once, when the runtime makes a safe stop (the episode ends)
+    """
 
     tracking_linear: float = 1.0
     tracking_angular: float = 0.5

@@ -3,7 +3,7 @@
 ``make train`` runs ``python -m policies.train`` with the defaults below, which reproduce the
 shipped ``policies/arm.pt`` (seed 1). Logs go to TensorBoard (``runs/train/``): SB3's episode
 length, return and success rate, plus ``reach/joint_limit_violations``, ``reach/success_rate``
-and ``reach/intervention_rate`` per episode (seed section 10).
+and ``reach/intervention_rate`` per episode.
 
 Each episode draws its dynamics and encoder settings from the robot's soak ranges
 (:func:`eval.world.session_ranges.session_ranges`), or from ``--ranges FILE``
@@ -16,9 +16,9 @@ runs a randomized soak of ``--gate-hours`` simulated hours (``--gate-sessions`` 
 candidate whose soak passes is copied to ``--out`` (with its ``.onnx`` and ``.curve.json``); a
 failed one stays in the log folder with the soak's report, and the command exits with 1.
 
-Why PPO: it is the seed's algorithm, and with one batched MuJoCo plant stepping many robots per
-call it turns the machine's two cores into samples faster than SAC's one gradient step per sample
-would (SAC spends most of its wall time in updates at this simulation speed).
+Why PPO: it is the field's usual choice for reaching and locomotion, and with one batched MuJoCo
+plant stepping many robots per call it turns the machine's two cores into samples faster than
+SAC's one gradient step per sample would (SAC spends most of its wall time in updates at this simulation speed).
 
 Why 64 robots per batch with 128-step rollouts (the same 8,192 samples per update as 16 x 512):
 the policy's forward pass per step is shared by more robots, and the more diverse rollouts learned
@@ -120,7 +120,7 @@ def actor_from_model(model: PPO | SAC) -> MLPActor:
 
 
 def make_model(args: argparse.Namespace, env) -> PPO | SAC:
-    """The learner: PPO (default, the seed's algorithm) or SAC."""
+    """The learner: PPO (default) or SAC."""
     common = {"tensorboard_log": str(args.logdir), "seed": args.seed, "device": "cpu"}
     if args.algo == "sac":
         return SAC(
@@ -255,7 +255,7 @@ def train(args: argparse.Namespace) -> Path | None:
         success_radius=args.success_radius,
     )
     task = ReachTask(robot, args.envs, config, seed=args.seed)
-    # Rewards (not observations: those are already scaled by physical maxima, seed section 3) are
+    # Rewards (not observations: those are already scaled by physical maxima) are
     # normalized by a running estimate of the return's scale, as SB3's PPO recipes do.
     env = VecNormalize(VecMonitor(ReachVecEnv(task)), norm_obs=False, gamma=args.gamma)
     if args.init_from is not None:  # fine-tune: weights, optimizer state and noise of a saved run

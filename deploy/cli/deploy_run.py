@@ -24,13 +24,8 @@ estimated state, as there is no ground truth. On hardware the run ends early onc
 latched (FAULTED); at the end a servo bus's torque goes off unless ``--hold-on-close``, a Unitree
 robot is left damped.
 
-Real time (the wall clock): ``--wait sleep|hybrid|spin`` or ``--spin``
-(:mod:`deploy.runtime.clock`), ``--rt-priority N``, ``--cpu N[,M]``, ``--lock-memory`` (on by
-default with ``--rt-priority``) and ``--require-rt`` (:mod:`deploy.runtime.realtime`), applied
-around the loop only and read back into the report's ``realtime_settings``. A refused priority or
-memory lock is a one-line notice and the run goes on without it (exit 3 with ``--require-rt``); a
-CPU the process may not use, or a priority out of range, is exit 3 before anything is loaded. The
-safe stop on overruns stays.
+Real time (``--wait``, ``--rt-priority``, ``--cpu``, ``--lock-memory``, ``--require-rt``):
+:mod:`deploy.runtime.clock` and :mod:`deploy.runtime.realtime`, applied around the loop only.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@
 ``deploy-run`` and the soak: called after every tick, it measures the base's planar velocity
 (the plant's truth in simulation, the base estimator's on hardware) against the command while
 the runtime is RUNNING. Tracking success is the fraction of RUNNING time whose planar velocity
-error ``|v_xy - command_xy|`` is within ``TRACKING_TOLERANCE`` (issue 17: 0.2 m/s), measured on
+error ``|v_xy - command_xy|`` is within ``TRACKING_TOLERANCE`` (0.2 m/s), measured on
 the velocity averaged over ``TRACKING_WINDOW`` (a trot's body sways within a stride: the
 command is a mean speed). Falls are the runtime's safe stops of cause ``fall``.
 
@@ -37,7 +37,8 @@ from deploy.stateful import (
     to_json,
 )
 
-#: Planar velocity error within which the robot tracks its command, m/s (issue 17).
+#: Planar velocity error within which the robot tracks its command, m/s (our acceptance
+#: criterion for walking policies; README: soak).
 TRACKING_TOLERANCE = 0.2
 #: Averaging window of the tracked velocity, s (our choice: two strides of a 0.4 s trot).
 TRACKING_WINDOW = 0.8

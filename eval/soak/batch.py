@@ -1,57 +1,30 @@
 """The batched runner: several soak sessions stepped together in one plant and one runtime.
 
-Batching. Several sessions run in one process through the runtime's batch axis: one
-:class:`~deploy.backends.sim.plant.SimBackend` with ``envs = k`` (one randomized ``MjModel`` per
-env) and one :class:`~deploy.runtime.Runtime` over all of them (one ONNX Runtime call per tick). A
-session's seeded quantities depend on its own seed only: its randomization; its encoder noise and
-dropout draws (one numpy generator per env,
-:meth:`~deploy.backends.sim.plant.SimBackend.set_sensor_streams`, where SimBackend has one for the
-batch); its goals (one ``GoalScheduler`` for the batch with one goal stream per session); its
-faults (a :class:`deploy.backends.sim.faults.FaultInjector` per session on its env,
-:class:`eval.soak.faults.SessionFaults`); its operator resets. Every runtime stage computes
-each env on its own, except Ruckig, which serves the whole batch and, when it resamples a
-trajectory for an unchanged input instead of recalculating it, differs from one instance per env
-at ~1e-16 (:mod:`deploy.smoothing`). The harness calls
-:meth:`~deploy.smoothing.CommandSmoother.recalculate` (``Ruckig.reset()``) after every tick, so
-that every step recalculates (as it does anyway whenever a target changes; a few microseconds
-more per tick while an env holds still): a session's results are then the same bit for bit alone
-or batched with any others.
+Batching: one :class:`~deploy.backends.sim.plant.SimBackend` with ``envs = k`` (one randomized
+``MjModel`` per env) and one :class:`~deploy.runtime.Runtime` over all of them. A session's seeded
+quantities (randomization, encoder noise and dropout, goals or commands, faults, operator resets)
+depend on its own seed only, one stream per env. Every stage computes each env on its own except
+Ruckig, which serves the batch and, when it resamples an unchanged trajectory instead of
+recalculating it, differs at ~1e-16; the harness calls
+:meth:`~deploy.smoothing.CommandSmoother.recalculate` after every tick, so a session's result is
+the same bit for bit alone or batched with any others.
 
-Checkpoints. Every ``checkpoint_minutes`` of simulated time each session of a batch writes its
-complete state (:mod:`eval.soak.checkpoint`) to ``OUT/sessions/<id>/``; ``resume=True`` continues
-from there, and the finished session equals an uninterrupted run bit for bit (the checkpoint
-interval does not change the results). A finished session writes ``result.json``; a resumed campaign
-skips it. Before the runtime starts, the plant streams its sensors for a fixed number of ticks
-(the largest latency the ranges allow, plus one encoder period), so that a first reading has
-arrived: the plant's clock is that much ahead of the runtime's.
+Checkpoints: every ``checkpoint_minutes`` of simulated time each session writes its complete state
+(:mod:`eval.soak.checkpoint`) to ``OUT/sessions/<id>/``; ``resume=True`` continues from there and
+the finished session equals an uninterrupted run bit for bit. Before the runtime starts the plant
+streams its sensors for the largest latency the ranges allow plus one encoder period.
 
-Violations and interventions. After every tick a
-:class:`deploy.monitors.violations.ViolationMonitor`
-counts the true-state violations of every session from the plant's ground truth and a
-:class:`deploy.monitors.interventions.InterventionMonitor` the commands the guard or the smoother
-changed (before the goal scheduler, so that a goal's last tick counts for it); both are reported
-apart, in total, per hour and on the curves, and are part of the checkpoints. Goals are also counted
-per window of ``window_minutes`` (by their issue time), and each goal replaced unreached is recorded
-with its true end state (:class:`deploy.tasks.goals.GoalScheduler`).
+After every tick a :class:`~deploy.monitors.violations.ViolationMonitor` counts the true-state
+violations and an :class:`~deploy.monitors.interventions.InterventionMonitor` the changed
+commands (before the task, so a goal's last tick counts for it); both are reported apart, per hour
+and on the curves. The task is :func:`deploy.tasks.task.task_for`'s: reach goals, or for a legged
+robot (:func:`deploy.robot_kind.robot_kind`) velocity commands every ``goal_period`` s with their
+tracking, distance and falls; a legged session also draws its IMU noise and floor friction, gets
+no cable pulls, and its operator resets stand the robot up first (:meth:`SessionBatch.stand_up`).
 
-Legged robots (:func:`deploy.robot_kind.robot_kind`; the task is
-:func:`deploy.tasks.task.task_for`'s): instead of goals, a
-:class:`deploy.tasks.locomotion.CommandSchedule` issues a new velocity command every
-``goal_period`` s
-(one command stream per session, the ``goals`` stream of its seed) and a
-:class:`deploy.tasks.locomotion.CommandTracker` measures the tracking (the session's success: the
-share of RUNNING time within 0.2 m/s of the command, also per window of ``window_minutes``),
-distance and speed, and the falls (safe stops of cause ``fall`` of a robot that was walking,
-``CommandTracker.falls``). Each session also draws its IMU
-noise (:func:`eval.world.sensors.apply_imu`) and its floor friction
-(:func:`eval.world.floor.apply_floor_friction`); its pushes act on the base, and it gets no
-cable pulls (:func:`eval.world.fault_schedule.sample_fault_schedule`). Its operator resets stand the
-robot up first (:meth:`SessionBatch.stand_up`: a robot lying after a stop cannot get up by
-itself).
-
-Divergence: MuJoCo's divergence (:class:`~deploy.backends.sim.plant.SimulationDivergedError`) ends
-the session that diverged with ``diverged`` set (:exc:`BatchDiverged`); the other sessions of its
-batch continue from their last checkpoints (:func:`eval.soak.executors.run_sessions`).
+Divergence: MuJoCo's (:class:`~deploy.backends.sim.plant.SimulationDivergedError`) ends the
+session that diverged (:exc:`BatchDiverged`); the others continue from their last checkpoints
+(:func:`eval.soak.executors.run_sessions`).
 """
 
 from __future__ import annotations

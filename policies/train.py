@@ -18,7 +18,8 @@ failed one stays in the log folder with the soak's report, and the command exits
 
 Why PPO: it is the field's usual choice for reaching and locomotion, and with one batched MuJoCo
 plant stepping many robots per call it turns the machine's two cores into samples faster than
-SAC's one gradient step per sample would (SAC spends most of its wall time in updates at this simulation speed).
+SAC's one gradient step per sample would (SAC spends most of its wall time in updates at this
+simulation speed).
 
 Why 64 robots per batch with 128-step rollouts (the same 8,192 samples per update as 16 x 512):
 the policy's forward pass per step is shared by more robots, and the more diverse rollouts learned

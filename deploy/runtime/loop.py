@@ -31,6 +31,7 @@ from deploy.runtime.modes import (
 )
 from deploy.runtime.supervision import Supervision
 from deploy.safety.guard import SafetyGuard
+from deploy.safety.reference import ReferenceGuard
 from deploy.smoothing import CommandSmoother
 from deploy.spec.policy_spec import PolicySpec
 from deploy.state import Kinematics, RobotState
@@ -108,7 +109,7 @@ class Runtime:
         )
         self.kinematics = Kinematics(robot)
         self.reference = reference
-        self.guard = SafetyGuard(robot, envs, self.mode_name, reference=reference)
+        self.guard = (ReferenceGuard if reference else SafetyGuard)(robot, envs, self.mode_name)
         self.smoother = CommandSmoother(robot, envs, self.mode_name, reference=reference)
         ambient = robot.config.sensors.ambient_temperature
         self.state = RobotState.zeros(envs, n, ambient)

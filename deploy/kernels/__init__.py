@@ -1,7 +1,8 @@
 """The compiled tick: numba kernels for the per-tick numeric logic of the runtime's stages.
 
-Each stage keeps its numpy implementation as the tested reference (``reference=True`` on
-:class:`~deploy.safety.guard.SafetyGuard`, :class:`~deploy.smoothing.CommandSmoother`,
+Each stage keeps its numpy implementation as the tested reference
+(:class:`~deploy.safety.reference.ReferenceGuard`; ``reference=True`` on
+:class:`~deploy.smoothing.CommandSmoother`,
 :class:`~deploy.runtime.Runtime` and the monitors, ``reference=True`` on
 :meth:`deploy.spec.policy_spec.PolicySpec.observation` and the plant's sensor model)
 and runs its kernel per tick otherwise, over the stage's preallocated arrays:
@@ -15,9 +16,10 @@ module (beside its stage)                   what it computes
                                             transitions; the re-anchoring screen; the screen of
                                             non-finite actions, the action-to-target map and the
                                             position/velocity-mode overrides
-:mod:`deploy.safety.kernel`                 the guard's hard and soft limits, velocity band,
-                                            torque governor screen, the screens of the per-env
-                                            Pinocchio checks, effort clamp
+:mod:`deploy.safety.kernel`                 the guard's checks (:mod:`deploy.safety.checks`):
+                                            hard and soft limits, velocity band, torque governor
+                                            screen, the screens of the per-env Pinocchio checks,
+                                            effort clamp
 :mod:`deploy.safety.envelope_kernel`        the motion envelope's boxes and their screen
 :mod:`deploy.smoothing.kernel`              the smoother's finite-target and limit clamps, the
                                             velocity-mode stopping guards and brake trigger, the

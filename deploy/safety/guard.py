@@ -1,51 +1,25 @@
 """SafetyGuard: every target is checked with Pinocchio before it may reach the smoother.
 
-Checks, each with its own counter (``SafetyGuard.counts[name]``, (envs,) int64), and the response:
-
-- ``soft_limit``: target position beyond the soft limit (``soft_limit_fraction`` of the range, 90 %
-  by default; seed section 6), or the estimated position inside the soft band. Clamp to the soft
-  limit; a warning.
-- ``hard_limit``: target position beyond the hard limit, or the estimated (or, in velocity mode,
-  predicted) position beyond it. A violation: :attr:`SafetyGuard.hard_violation` is set and the
-  runtime makes a safe stop. A floating-base robot's *target* past a hard limit is clamped to the
-  soft limit (``soft_limit``) instead: its low-gain PD's targets act as torques
-  (``kp (target - q)``), and legged policies command past the joint range by design (legged_gym
-  trains without any bound on the targets); its estimated position past a hard limit still stops.
-- ``velocity``: a velocity that could not stop before the soft limit, ``d`` the distance left:
-  velocity limits that shrink to zero at the position limits. Clamp. Position and velocity mode:
-  under the acceleration and jerk limits with one control period of delay,
-  ``v dt + v^2 / (2 a) + v a / (2 j) <= d``; torque mode: ``|v| <= sqrt(2 a_max d)``. (In velocity
-  mode the smoother also brakes exactly at the soft limits from Ruckig's own state.)
-- ``workspace``: end effector of the predicted next state outside the workspace box (and not moving
-  back toward it). Reject and hold.
-- ``self_collision``: a listed collision pair in contact at the predicted next state (coal).
-  Reject and hold.
-- ``effort``: gravity torque at the predicted state above the temperature-derated effort limit
-  (reject and hold); in torque mode also a commanded torque above it (clamp).
-
-"Hold" keeps the robot where it is: the last accepted target in position mode, zero velocity in
-velocity mode, the gravity torque in torque mode. The predicted next state is the target itself
-in position mode, ``q + v dt`` in velocity mode and ``q + dq dt`` in torque mode.
+The checks are listed in :mod:`deploy.safety.checks` (limits: :mod:`~deploy.safety.limits`,
+velocity band: :mod:`~deploy.safety.velocity`, the checks at the predicted state:
+:mod:`~deploy.safety.predicted`), each with its own counter (``SafetyGuard.counts[name]``,
+(envs,) int64). A clamp changes the target; a reject holds the env: the last accepted target in
+position mode, zero velocity in velocity mode, gravity compensation with a brake in torque mode.
+The predicted next state is the target itself in position mode, ``q + v dt`` in velocity mode
+and ``q + dq dt`` in torque mode.
 
 A target is not the path to it: after the smoother's step, :meth:`SafetyGuard.check_motion`
-certifies the motion the robot is committed to (the step and the brake after it) with the motion
-envelope (:mod:`deploy.safety.envelope`) and brakes the envs it cannot certify, counted as
+certifies the motion the robot is committed to with the motion envelope
+(:mod:`deploy.safety.envelope`) and brakes the envs it cannot certify, counted as
 ``self_collision`` or ``workspace`` interventions (position mode, fixed base).
 
-Speed: the per-env Pinocchio calls (forward kinematics, coal collision, gravity) run only when
-an exact bound says they could fire. Every point of the robot moves at most ``sweep * sum|dq_i|``
-(m) when the joints move by ``dq`` (rad), ``sweep`` being the longest kinematic chain plus the
-largest geometry radius, and the end effector at most ``sum lever_i |dq_i|``, ``lever_i`` the
-chain from joint ``i`` to it (:func:`end_effector_lever`); so the end effector cannot leave the
-workspace box while its last computed margin exceeds its bound, two geometries cannot touch while
-their last computed distance exceeds the pair's own bound (:func:`collision_pair_weights`: only
-the joints between the two move them apart or together), and gravity cannot exceed the effort
-limit while a per-joint bound (the masses beyond the joint at their longest lever) stays below
-it. The outcome is exactly that of checking every tick; only the cost differs.
-
-Collision geometry: the MJCF geoms. The plant keeps them at ``contype="0"`` (MuJoCo does not
-simulate self-contact), so Pinocchio's MJCF parser files them as visual geometry; the guard builds
-its coal collision pairs from those shapes and the pairs named in robot.toml.
+Speed: the per-env Pinocchio calls run only when an exact bound says they could fire: every point
+moves at most ``sweep * sum|dq_i|`` (m) when the joints move by ``dq`` (rad), the end effector at
+most ``sum lever_i |dq_i|`` (:func:`end_effector_lever`), a collision pair's distance at most
+``weights_p @ |dq|`` (:func:`collision_pair_weights`), and gravity stays below a per-joint bound
+(the masses beyond the joint at their longest lever). The outcome is exactly that of checking
+every tick; only the cost differs. Collision geometry: the MJCF geoms (the plant keeps them at
+``contype="0"``, so Pinocchio files them as visual geometry) and the pairs named in robot.toml.
 """
 
 from __future__ import annotations

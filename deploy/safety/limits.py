@@ -1,5 +1,14 @@
-"""The guard's position-limit checks: ``soft_limit`` (clamp into the soft band) and ``hard_limit``
-(the estimate, a target or, in velocity mode, the predicted position past a hard limit: a stop).
+"""The guard's position-limit checks: ``soft_limit`` and ``hard_limit``.
+
+``soft_limit``: a target position beyond the soft limit (``soft_limit_fraction`` of the range,
+90 % by default) is clamped to it; in velocity and torque mode the estimate inside the soft band
+is counted (a warning). ``hard_limit``: the target, the estimate or (velocity mode) the predicted
+position beyond the hard limit: :attr:`SafetyGuard.hard_violation
+<deploy.safety.guard.SafetyGuard.hard_violation>` is set and the runtime makes a safe stop. A
+floating-base robot's *target* past a hard limit is clamped to the soft limit instead: its
+low-gain PD's targets act as torques (``kp (target - q)``), and legged policies command past the
+joint range by design (legged_gym trains without any bound on the targets); its estimate past a
+hard limit still stops.
 
 Each is a :class:`deploy.safety.check.GuardCheck`: its numpy reference and its compiled per-env
 function do the same operations in the same order. Units: rad.

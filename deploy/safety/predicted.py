@@ -65,9 +65,7 @@ def self_collision_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own
     if stage != PREDICTED or g.scalars[HAS_PAIRS] == 0.0:
         return 0
     margin = g.scalars[MARGIN]
-    touch = pairs_may_touch(
-        g.pred, e, g.screen[1], g.pair_clearance, g.pair_weights, margin, g.tmp
-    )
+    touch = pairs_may_touch(g.pred, e, g.screen[1], g.pair_clearance, g.pair_weights, margin, g.tmp)
     return NEEDS_PYTHON if touch else 0
 
 

@@ -1,8 +1,11 @@
 """The guard's ``velocity`` check: velocity limits that shrink to zero at the soft limits.
 
 Velocity mode clamps a target velocity into the band from which each joint still stops before its
-soft limit (:func:`velocity_band`); torque mode's governor replaces the torque of a joint faster
-than its band by gravity compensation plus a brake (:meth:`Velocity.resolve`, Pinocchio).
+soft limit ``d`` away (:func:`velocity_band`): under the acceleration and jerk limits with one
+control period of delay, ``v dt + v^2 / (2 a) + v a / (2 j) <= d`` (the smoother also brakes
+exactly at the soft limits from Ruckig's own state). Torque mode's governor replaces the torque of
+a joint faster than ``sqrt(2 a_max d)`` by gravity compensation plus a brake
+(:meth:`Velocity.resolve`, Pinocchio).
 Units: rad, rad/s, N m.
 """
 

@@ -27,6 +27,7 @@ from deploy.observe.telemetry import LatencyHistogram
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import FAULT_CAUSES, Mode, Runtime
 from deploy.safety.checks import CHECKS
+from deploy.safety.reference import ReferenceGuard
 from deploy.spec.policy_spec import ObservationBlock, PolicySpec, SpecError
 from deploy.state import Kinematics, RobotState
 from tests.runtime_fixtures import adversarial_onnx
@@ -186,8 +187,8 @@ def test_compiled_tick_equals_the_reference(tmp_path, request, robot_name, mode)
     path = adversarial_onnx(tmp_path, robot, mode, nan_probability=0.02)
     compiled = build(robot, mode, path, reference=False)
     reference = build(robot, mode, path, reference=True)
-    assert not compiled.guard.reference and not compiled.smoother.reference
-    assert reference.guard.reference and reference.smoother.reference
+    assert not isinstance(compiled.guard, ReferenceGuard) and not compiled.smoother.reference
+    assert isinstance(reference.guard, ReferenceGuard) and reference.smoother.reference
     a, b = record(compiled, TICKS), record(reference, TICKS)
     for key in a:
         for k in range(TICKS):  # the first tick that differs, named

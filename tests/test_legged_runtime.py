@@ -171,9 +171,10 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_but_an_estimate_past_one_s
     or its exploration commands) is clamped to the soft limit and counted, not a safe stop; the
     estimated calf past the hard limit still is a violation."""
     from deploy.safety.guard import SafetyGuard
+    from deploy.safety.reference import ReferenceGuard
     from deploy.state import RobotState
 
-    guard = SafetyGuard(go2, 2, "position", reference=reference)
+    guard = (ReferenceGuard if reference else SafetyGuard)(go2, 2, "position")
     state = RobotState.legged(2, go2.n_joints, go2.n_feet, 25.0)
     state.q[:] = go2.home
     guard.reset(state.q)

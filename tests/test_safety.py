@@ -7,6 +7,7 @@ import pytest
 from deploy.safety.checks import CHECKS
 from deploy.safety.collision import collision_model
 from deploy.safety.guard import SafetyGuard
+from deploy.safety.reference import ReferenceGuard
 from deploy.smoothing import stopping_distance
 from deploy.state import RobotState
 from robots import load_robot
@@ -30,7 +31,7 @@ def test_screened_guard_equals_the_exhaustive_guard(request, robot_name, mode):
     robot = request.getfixturevalue(robot_name)
     envs = 8
     fast = SafetyGuard(robot, envs, mode)
-    slow = SafetyGuard(robot, envs, mode, reference=True)  # numpy: reads its bounds every tick
+    slow = ReferenceGuard(robot, envs, mode)  # numpy: reads its bounds every tick
     slow.sweep, slow.gravity_bound = 1e12, np.full(robot.n_joints, 1e12)  # check everything
     slow.ee_lever = np.full(robot.n_joints, 1e12)
     slow.pair_weights = np.full_like(slow.pair_weights, 1e12)

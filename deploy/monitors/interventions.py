@@ -38,15 +38,13 @@ from deploy.monitors import kernel as mk
 from deploy.monitors.violations import MonitorState
 from deploy.safety.checks import CHECKS as GUARD_CHECKS
 
+#: The smoother's checks (its counters of :meth:`InterventionMonitor.__init__`).
+SMOOTHER_CHECKS = ("stopping_distance", "target_clamp")
+#: The guard's checks (``hard_limit`` first, then the guard's count-row order), the smoother's.
 INTERVENTION_CHECKS = (
     "hard_limit",
-    "soft_limit",
-    "velocity",
-    "workspace",
-    "self_collision",
-    "effort",
-    "stopping_distance",
-    "target_clamp",
+    *(c for c in GUARD_CHECKS if c != "hard_limit"),
+    *SMOOTHER_CHECKS,
 )
 WARNINGS = ("soft_band_estimate",)
 

@@ -32,6 +32,7 @@ from deploy.runtime.modes import (
 )
 from deploy.runtime.supervision import Supervision
 from deploy.safety.guard import SafetyGuard
+from deploy.safety.reference import ReferenceGuard
 from deploy.smoothing import CommandSmoother
 from deploy.spec.policy_spec import PolicySpec
 from deploy.state import Kinematics, RobotState
@@ -110,7 +111,7 @@ class Runtime:
         )
         self.kinematics = Kinematics(robot)
         self.reference = reference
-        self.guard = SafetyGuard(robot, envs, self.mode_name, reference=reference)
+        self.guard = (ReferenceGuard if reference else SafetyGuard)(robot, envs, self.mode_name)
         self.smoother = CommandSmoother(robot, envs, self.mode_name, reference=reference)
         self.state: RobotState = kind.state(robot, envs)
         self.goal = np.zeros((envs, 3))

@@ -1,37 +1,38 @@
-"""The guard's checks: one list that the guard's counters, the compiled kernel's count rows and
-the intervention monitor's names all come from.
+"""The guard's checks: the one list that the guard's counters, the compiled kernel's count rows
+and stages and the intervention monitor's names all come from.
 
-A check here is what :meth:`deploy.safety.guard.SafetyGuard.filter` counts when it changes a
-target (an intervention). Its row in ``SafetyGuard.count_matrix`` is its index in
-:data:`GUARD_CHECKS`; the kernel (:mod:`deploy.safety.kernel`) and the numpy reference take their
-row numbers from :func:`row`, so adding a check is one entry here plus its code in the guard's two
-paths (their outputs are compared by the guard's tests, check by check).
+A check (:class:`deploy.safety.check.GuardCheck`) is what
+:meth:`deploy.safety.guard.SafetyGuard.filter` counts when it changes a target (an
+intervention). Its row in ``SafetyGuard.count_matrix`` is its index in :data:`GUARD_CHECKS`, and
+both the compiled guard (:func:`deploy.safety.kernel.guard_filter`, through :data:`KERNELS`) and
+the numpy reference (:mod:`deploy.safety.reference`) run the checks in this order, so adding a
+check is its class (numpy reference and compiled function) and one entry here; the guard's tests
+compare the two paths check by check. The order of a stage matters where two checks act in the
+same stage and mode (e.g. a clamp after another): soft_limit comes first (the intervention
+monitor relies on it).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
-
-@dataclass(frozen=True)
-class GuardCheck:
-    """One check: ``name`` (the counter's and the intervention's name) and ``what`` it does."""
-
-    name: str
-    what: str
-
+from deploy.safety.check import GuardCheck
+from deploy.safety.limits import HardLimit, SoftLimit
+from deploy.safety.predicted import Effort, SelfCollision, Workspace
+from deploy.safety.velocity import Velocity
 
 GUARD_CHECKS: tuple[GuardCheck, ...] = (
-    GuardCheck("soft_limit", "a position target clamped into the soft joint limits"),
-    GuardCheck("hard_limit", "the estimate or a target past a hard limit (a safe stop)"),
-    GuardCheck("velocity", "a speed clamped to what still stops before the soft limit"),
-    GuardCheck("workspace", "a target whose end effector leaves the workspace box: held"),
-    GuardCheck("self_collision", "a target in self-collision: held"),
-    GuardCheck("effort", "a torque clamped to the derated effort limit"),
+    SoftLimit(),
+    HardLimit(),
+    Velocity(),
+    Workspace(),
+    SelfCollision(),
+    Effort(),
 )
 
 #: The checks' names in count-row order.
 CHECKS: tuple[str, ...] = tuple(c.name for c in GUARD_CHECKS)
+
+#: The checks' compiled functions in count-row order (the kernel unrolls over them).
+KERNELS = tuple(c.kernel for c in GUARD_CHECKS)
 
 
 def row(name: str) -> int:

@@ -11,30 +11,6 @@ could bring a listed collision pair within ``margin``, or the end effector withi
 a face of the workspace box, the step is replaced by the smoother's brake
 (:meth:`deploy.smoothing.CommandSmoother.brake`).
 
-The committed motion lies, joint by joint, in a box: from the estimated position (a position
-servo lags its command), through the smoother's position before and after the step, to where the
-joint rests if the smoother brakes from its new state
-(:func:`deploy.safety.envelope_kernel.brake_reach`; a thermally derated drive brakes with the
-torque it has left above the worst gravity load,
-:func:`deploy.safety.envelope_kernel.brake_headroom`).
-
-One exact query at the box's centre certifies the whole box: a pair's distance (coal) changes by
-at most ``weights_p @ |dq|`` (:func:`robots.chain_bounds.collision_pair_weights`), the end
-effector's margin along each axis by at most ``lever @ |dq|``
-(:func:`robots.chain_bounds.end_effector_lever`; zero along an axis a joint's rotation never
-moves, :func:`axis_levers`) or by the local bound of the end effector's Jacobian at the centre
-(:meth:`MotionEnvelope._reach`). The same bound screens each box against the last query, so far
-from contact no query runs (the decision is the same with or without that cache). A box one query
-cannot certify over-covers the motion (its corners combine one joint's start with another's
-end): the step and Ruckig's own brake are then cut into :data:`PATH_SEGMENTS` by time, each joint
-monotonic within one, and each segment is certified. Workspace faces beyond the end effector's
-reach are never crossed and not checked.
-
-By induction the brake is always safe to take: the previous tick certified the motion that holds
-it. A robot already within the margin (pushed there, or started there) may only move so that no
-pair's distance and no workspace margin shrinks, checked at the step's end and at its brake's
-rest point; otherwise it brakes.
-
 The envelope certifies position-mode commands of fixed-base robots. Velocity mode has none yet: a
 PI velocity drive runs ahead of its braking command and pulls the joint toward a setpoint the
 runtime does not see, and every bound of that tried so far either let the adversarial policy out
@@ -42,6 +18,8 @@ of arm3's box or braked the shipped arm3 policy often enough to fail its soak
 (``docs/measurements.md`` has the figures). Torque mode has no smoother trajectory to certify
 (the guard's torque hold brakes instead), and a floating-base robot's leg targets are PD torques
 in disguise.
+
+How a motion is certified: :class:`MotionEnvelope`.
 """
 
 from __future__ import annotations
@@ -103,6 +81,30 @@ def axis_levers(robot, ee_lever: np.ndarray) -> np.ndarray:
 
 class MotionEnvelope:
     """Certify each env's committed motion against self-collision and the workspace box.
+
+    The committed motion lies, joint by joint, in a box: from the estimated position (a position
+    servo lags its command), through the smoother's position before and after the step, to where the
+    joint rests if the smoother brakes from its new state
+    (:func:`deploy.safety.envelope_kernel.brake_reach`; a thermally derated drive brakes with the
+    torque it has left above the worst gravity load,
+    :func:`deploy.safety.envelope_kernel.brake_headroom`).
+
+    One exact query at the box's centre certifies the whole box: a pair's distance (coal) changes by
+    at most ``weights_p @ |dq|`` (:func:`robots.chain_bounds.collision_pair_weights`), the end
+    effector's margin along each axis by at most ``lever @ |dq|``
+    (:func:`robots.chain_bounds.end_effector_lever`; zero along an axis a joint's rotation never
+    moves, :func:`axis_levers`) or by the local bound of the end effector's Jacobian at the centre
+    (:meth:`MotionEnvelope._reach`). The same bound screens each box against the last query, so far
+    from contact no query runs (the decision is the same with or without that cache). A box one
+    query cannot certify over-covers the motion (its corners combine one joint's start with
+    another's end): the step and Ruckig's own brake are then cut into :data:`PATH_SEGMENTS` by
+    time, each joint monotonic within one, and each segment is certified. Workspace faces beyond
+    the end effector's reach are never crossed and not checked.
+
+    By induction the brake is always safe to take: the previous tick certified the motion that holds
+    it. A robot already within the margin (pushed there, or started there) may only move so that no
+    pair's distance and no workspace margin shrinks, checked at the step's end and at its brake's
+    rest point; otherwise it brakes.
 
     Args:
         robot: The robot (limits, workspace box, collision pairs).

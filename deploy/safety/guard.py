@@ -1,65 +1,51 @@
 """SafetyGuard: every target is checked with Pinocchio before it may reach the smoother.
 
-Checks, each with its own counter (``SafetyGuard.counts[name]``, (envs,) int64), and the response:
-
-- ``soft_limit``: target position beyond the soft limit (``soft_limit_fraction`` of the range, 90 %
-  by default; seed section 6), or the estimated position inside the soft band. Clamp to the soft
-  limit; a warning.
-- ``hard_limit``: target position beyond the hard limit, or the estimated (or, in velocity mode,
-  predicted) position beyond it. A violation: :attr:`SafetyGuard.hard_violation` is set and the
-  runtime makes a safe stop. A floating-base robot's *target* past a hard limit is clamped to the
-  soft limit (``soft_limit``) instead: its low-gain PD's targets act as torques
-  (``kp (target - q)``), and legged policies command past the joint range by design (legged_gym
-  trains without any bound on the targets); its estimated position past a hard limit still stops.
-- ``velocity``: a velocity that could not stop before the soft limit, ``d`` the distance left:
-  velocity limits that shrink to zero at the position limits. Clamp. Position and velocity mode:
-  under the acceleration and jerk limits with one control period of delay,
-  ``v dt + v^2 / (2 a) + v a / (2 j) <= d``; torque mode: ``|v| <= sqrt(2 a_max d)``. (In velocity
-  mode the smoother also brakes exactly at the soft limits from Ruckig's own state.)
-- ``workspace``: end effector of the predicted next state outside the workspace box (and not moving
-  back toward it). Reject and hold.
-- ``self_collision``: a listed collision pair in contact at the predicted next state (coal).
-  Reject and hold.
-- ``effort``: gravity torque at the predicted state above the temperature-derated effort limit
-  (reject and hold); in torque mode also a commanded torque above it (clamp).
-
-"Hold" keeps the robot where it is: the last accepted target in position mode, zero velocity in
-velocity mode, the gravity torque in torque mode. The predicted next state is the target itself
-in position mode, ``q + v dt`` in velocity mode and ``q + dq dt`` in torque mode.
+The checks are listed in :mod:`deploy.safety.checks` (limits: :mod:`~deploy.safety.limits`,
+velocity band: :mod:`~deploy.safety.velocity`, the checks at the predicted state:
+:mod:`~deploy.safety.predicted`), each with its own counter (``SafetyGuard.counts[name]``,
+(envs,) int64). A clamp changes the target; a reject holds the env: the last accepted target in
+position mode, zero velocity in velocity mode, gravity compensation with a brake in torque mode.
+The predicted next state is the target itself in position mode, ``q + v dt`` in velocity mode
+and ``q + dq dt`` in torque mode.
 
 A target is not the path to it: after the smoother's step, :meth:`SafetyGuard.check_motion`
-certifies the motion the robot is committed to (the step and the brake after it) with the motion
-envelope (:mod:`deploy.safety.envelope`) and brakes the envs it cannot certify, counted as
+certifies the motion the robot is committed to with the motion envelope
+(:mod:`deploy.safety.envelope`) and brakes the envs it cannot certify, counted as
 ``self_collision`` or ``workspace`` interventions (position mode, fixed base).
 
-Speed: the per-env Pinocchio calls (forward kinematics, coal collision, gravity) run only when
-an exact bound says they could fire. Every point of the robot moves at most ``sweep * sum|dq_i|``
-(m) when the joints move by ``dq`` (rad), ``sweep`` being the longest kinematic chain plus the
-largest geometry radius, and the end effector at most ``sum lever_i |dq_i|``, ``lever_i`` the
-chain from joint ``i`` to it (:func:`end_effector_lever`); so the end effector cannot leave the
-workspace box while its last computed margin exceeds its bound, two geometries cannot touch while
-their last computed distance exceeds the pair's own bound (:func:`collision_pair_weights`: only
-the joints between the two move them apart or together), and gravity cannot exceed the effort
-limit while a per-joint bound (the masses beyond the joint at their longest lever) stays below
-it. The outcome is exactly that of checking every tick; only the cost differs.
-
-Collision geometry: the MJCF geoms. The plant keeps them at ``contype="0"`` (MuJoCo does not
-simulate self-contact), so Pinocchio's MJCF parser files them as visual geometry; the guard builds
-its coal collision pairs from those shapes and the pairs named in robot.toml.
+Speed: the per-env Pinocchio calls run only when an exact bound says they could fire: every point
+moves at most ``sweep * sum|dq_i|`` (m) when the joints move by ``dq`` (rad), the end effector at
+most ``sum lever_i |dq_i|`` (:func:`end_effector_lever`), a collision pair's distance at most
+``weights_p @ |dq|`` (:func:`collision_pair_weights`), and gravity stays below a per-joint bound
+(the masses beyond the joint at their longest lever). The outcome is exactly that of checking
+every tick; only the cost differs. Collision geometry: the MJCF geoms (the plant keeps them at
+``contype="0"``, so Pinocchio files them as visual geometry) and the pairs named in robot.toml.
 """
 
 from __future__ import annotations
 
-from types import SimpleNamespace
+import warnings
 
 import numpy as np
 import pinocchio as pin
+from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from deploy.safety import kernel as gk
-from deploy.safety.checks import CHECKS, row
+from deploy.safety.check import (
+    ACC,
+    EFFORT,
+    LIM_ROWS,
+    LOWER,
+    MODES,
+    SOFT_LOWER,
+    SOFT_UPPER,
+    TORQUE,
+    UPPER,
+    VEL,
+)
+from deploy.safety.checks import CHECKS, GUARD_CHECKS, row
 from deploy.safety.collision import collision_model, collision_query
 from deploy.safety.envelope import MotionEnvelope
-from deploy.smoothing import stopping_speed
 from deploy.state import RobotState
 from deploy.stateful import put, take
 from robots import Robot
@@ -87,8 +73,6 @@ class SafetyGuard:
         robot: The robot description (limits, workspace, collision pairs, motors).
         envs: Batch size.
         mode: Control mode of the targets: 'position' (rad), 'velocity' (rad/s), 'torque' (N m).
-        reference: Run the numpy reference of :meth:`filter` instead of the compiled kernel
-            (:mod:`deploy.safety.kernel`, the default); both give the same numbers bit for bit.
 
     Attributes:
         counts: dict check name -> (envs,) int64, interventions so far; each check counts at
@@ -101,9 +85,8 @@ class SafetyGuard:
             effort limits, from the winding temperatures (see :meth:`update_thermal`).
     """
 
-    def __init__(self, robot: Robot, envs: int, mode: str, reference: bool = False):
+    def __init__(self, robot: Robot, envs: int, mode: str):
         self.robot, self.envs, self.mode = robot, envs, mode
-        self.reference = reference
         n = robot.n_joints
         self.dt = robot.control_period
         self.lower, self.upper = robot.position_lower, robot.position_upper
@@ -172,30 +155,61 @@ class SafetyGuard:
         self._counted = np.zeros((2, envs), dtype=np.int64)  # those rows when filter began
         self._move = np.zeros(envs)
         self._held = np.zeros(envs, dtype=bool)
-        self._no_env = np.zeros(envs, dtype=bool)  # read only
-        # the kernel's constants (rows of deploy.safety.kernel) and work arrays
-        self._kernel_mode = {"position": gk.POSITION, "velocity": gk.VELOCITY}.get(mode, gk.TORQUE)
-        lim = np.zeros((gk.ROWS, n))
-        lim[gk.LOWER], lim[gk.UPPER] = self.lower, self.upper
-        lim[gk.TARGET_LOWER], lim[gk.TARGET_UPPER] = self._target_lower, self._target_upper
-        lim[gk.SOFT_LOWER], lim[gk.SOFT_UPPER] = self.soft_lower, self.soft_upper
-        lim[gk.VEL], lim[gk.ACC] = self.vel, self.acc
-        # stopping_speed(d, a, j, dt) = 0.5 (sqrt(b^2 + 8 a d) - b), b as stopping_speed has it
-        lim[gk.SPEED_B] = self.acc**2 / self.jerk + 2.0 * self.acc * self.dt
-        lim[gk.EIGHT_A] = 8.0 * self.acc
-        lim[gk.EFFORT], lim[gk.GRAVITY_BOUND] = robot.effort_limit, self.gravity_bound
-        lim[gk.EE_LEVER] = self.ee_lever
-        self._lim = lim
-        self._scalars = np.array([self.dt, SCREEN_MARGIN, float(self._has_pairs)])
-        self._over = np.zeros((envs, n))
-        self._under = np.zeros((envs, n))
-        self._checks = np.zeros((3, envs), dtype=bool)
-        if not reference:  # compile (or load numba's cache) now, on copies, not in a tick
-            zeros = np.zeros((envs, n))
-            args = self._kernel_args(self._copies(), zeros, zeros, None, np.zeros((envs, n)))
-            gk.guard_filter(0, *args)
-            gk.guard_filter(1, *args)
-        self._tail = self._kernel_tail(self)
+        self.screen_margin = SCREEN_MARGIN
+        # the kernel's arrays (deploy.safety.kernel.GuardArrays)
+        self._needs = np.zeros((len(CHECKS), envs), dtype=bool)
+        self._over = np.zeros((envs, n))  # torque mode: rad/s above each joint's band
+        self._under = np.zeros((envs, n))  # and below it (deploy.safety.velocity)
+        self._arrays = self._kernel_arrays()
+        self._warm_up()
+
+    def _kernel_arrays(self) -> gk.GuardArrays:
+        """The arrays of :func:`deploy.safety.kernel.guard_filter` (:class:`GuardArrays`): the
+        guard's own, updated in place, and the checks' constants."""
+        lim = np.zeros((LIM_ROWS, self.robot.n_joints))
+        lim[LOWER], lim[UPPER] = self.lower, self.upper
+        lim[SOFT_LOWER], lim[SOFT_UPPER] = self.soft_lower, self.soft_upper
+        lim[VEL], lim[ACC], lim[EFFORT] = self.vel, self.acc, self.robot.effort_limit
+        envs = self.envs
+        return gk.GuardArrays(
+            mode=MODES.get(self.mode, TORQUE),
+            lim=lim,
+            scalars=np.array([self.dt, SCREEN_MARGIN, float(self._has_pairs)]),
+            effort_scale=self.effort_scale,
+            counts=self.count_matrix,
+            hard_violation=self.hard_violation,
+            pred=self._pred,
+            tmp=self._tmp,
+            screen=self._screen_q,
+            workspace_margin=self._ws_margin,
+            over=self._over,
+            under=self._under,
+            held=self._held,
+            last_valid=self._last_valid,
+            pair_clearance=self._pair_clearance,
+            pair_weights=self.pair_weights,
+            fired=np.zeros((len(CHECKS), envs), dtype=bool),
+            needs=self._needs,
+            stops=np.array([c.stops for c in GUARD_CHECKS]),
+            own=tuple(np.ascontiguousarray(c.constants(self)) for c in GUARD_CHECKS),
+        )
+
+    def _warm_up(self) -> None:
+        """Compile the kernel (or load numba's cache) now, on copies, not in a tick."""
+        a = self._arrays
+        copies = a._replace(
+            **{
+                k: np.copy(getattr(a, k))
+                for k in a._fields
+                if isinstance(getattr(a, k), np.ndarray) and k not in ("lim", "scalars")
+            }
+        )
+        zeros = np.zeros((self.envs, self.robot.n_joints))
+        out = np.zeros_like(zeros)
+        with warnings.catch_warnings():  # numba: a tuple of functions is "experimental"
+            warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
+            gk.guard_filter(0, out, zeros, zeros, zeros, False, copies)
+            gk.guard_filter(1, out, zeros, zeros, zeros, False, copies)
 
     def reset(self, q: np.ndarray, envs: np.ndarray | None = None) -> None:
         """Start from measured positions ``q`` (envs, n): they become the hold target.
@@ -291,84 +305,32 @@ class SafetyGuard:
             out = target.copy()
         elif out is not target:
             np.copyto(out, target)
-        q, dq = state.q, state.dq
         self._counted[0] = self.count_matrix[self._geometric_rows[0]]
         self._counted[1] = self.count_matrix[self._geometric_rows[1]]
-        if not self.reference:
-            return self._kernel(q, dq, commanded_position, out)
-        self.hard_violation[:] = False
-        counts = self.counts
+        return self._filter(state.q, state.dq, commanded_position, out)
 
-        # hard limits: the estimated state itself, then the target
-        np.logical_or(q < self.lower, q > self.upper, out=self._mask)
-        crossed = self._mask.any(axis=1)
-        if self.mode == "position":
-            np.logical_or(out < self._target_lower, out > self._target_upper, out=self._mask)
-            crossed |= self._mask.any(axis=1)
-            # soft limits: clamp positions into the soft band
-            np.logical_or(out < self.soft_lower, out > self.soft_upper, out=self._mask)
-            counts["soft_limit"] += self._mask.any(axis=1)
-            np.minimum(np.maximum(out, self.soft_lower, out=out), self.soft_upper, out=out)
-            self._pred[:] = out
-        elif self.mode == "velocity":
-            v_up, v_down = self._velocity_band(q, commanded_position)
-            np.logical_or(out > v_up, out < -v_down, out=self._mask)
-            counts["velocity"] += self._mask.any(axis=1)
-            np.negative(v_down, out=v_down)
-            np.minimum(np.maximum(out, v_down, out=out), v_up, out=out)
-            np.logical_or(q > self.soft_upper, q < self.soft_lower, out=self._mask)
-            counts["soft_limit"] += self._mask.any(axis=1)
-            np.multiply(out, self.dt, out=self._pred)
-            self._pred += q
-            np.logical_or(self._pred < self.lower, self._pred > self.upper, out=self._mask)
-            crossed |= self._mask.any(axis=1)
-        else:  # torque
-            np.multiply(dq, self.dt, out=self._pred)
-            self._pred += q
-            np.logical_or(q > self.soft_upper, q < self.soft_lower, out=self._mask)
-            counts["soft_limit"] += self._mask.any(axis=1)
-            # velocity governor: torque may not drive a joint faster than it can stop before its
-            # soft limit; above that speed it is replaced by gravity compensation plus braking
-            v_up, v_down = self._velocity_band(q, None)
-            over = np.maximum(dq - v_up, 0.0)
-            under = np.maximum(-v_down - dq, 0.0)
-            np.logical_or(over > 0, under > 0, out=self._mask)
-            if self._mask.any():
-                counts["velocity"] += self._mask.any(axis=1)
-                self._govern(q, over, under, out)
-        counts["hard_limit"] += crossed
-        self.hard_violation |= crossed
-
-        # per-env geometric and effort checks at the predicted next state, where a bound says
-        # they could fire (module docstring)
-        effort = self.robot.effort_limit
-        move = self._move
-        np.subtract(self._pred, self._ws_q, out=self._tmp)
-        np.abs(self._tmp, out=self._tmp)
-        np.multiply(self._tmp, self.ee_lever, out=self._tmp)
-        np.sum(self._tmp, axis=1, out=move)
-        check_ws = self._ws_margin <= move + SCREEN_MARGIN
-        check_col = self._no_env
-        if self._has_pairs:
-            check_col = np.zeros(self.envs, dtype=bool)
-            moved = np.abs(self._pred - self._col_q)  # rad per joint since the last check
-            for p, weights in enumerate(self.pair_weights):
-                np.multiply(moved, weights, out=self._tmp)
-                np.sum(self._tmp, axis=1, out=move)
-                check_col |= self._pair_clearance[:, p] <= move + SCREEN_MARGIN
-        check_effort = (self.gravity_bound > effort * self.effort_scale).any(axis=1)
-        held = self._held
-        held[:] = False
-        self._check_predicted(check_ws, check_col, check_effort, q, dq, out)
-        if self.mode == "position":
-            keep = ~held
-            self._last_valid[keep] = out[keep]
-        if self.mode == "torque":
-            limit = effort * self.effort_scale
-            np.logical_or(out > limit, out < -limit, out=self._mask)
-            counts["effort"] += self._mask.any(axis=1)
-            np.clip(out, -limit, limit, out=out)
+    def _filter(self, q: np.ndarray, dq: np.ndarray, commanded: np.ndarray | None, out):
+        """:meth:`filter` with the kernel: phase 0, the checks' Python parts, phase 1."""
+        has = commanded is not None
+        args = (out, q, dq, commanded if has else q, has, self._arrays)
+        if gk.guard_filter(0, *args):
+            self._resolve(self._needs, q, dq, out)
+            gk.guard_filter(1, *args)
         return out
+
+    def _resolve(self, needs: np.ndarray, q: np.ndarray, dq: np.ndarray, out) -> None:
+        """The Python (Pinocchio) parts of the checks, in count-row order, for the envs each
+        asked for (``needs`` (checks, envs) bool)."""
+        for k, check in enumerate(GUARD_CHECKS):
+            if needs[k].any():
+                check.resolve(self, k, needs[k], q, dq, out)
+
+    def reject(self, k: int, e: int, q: np.ndarray, dq: np.ndarray, out: np.ndarray) -> None:
+        """Check ``k`` rejects env ``e``'s target: count it, hold (:meth:`_hold`; ``q``, ``dq``
+        env ``e``'s estimate, (n,)) and mark the env held (the later checks skip it)."""
+        self.count_matrix[k, e] += 1
+        self._hold(e, q, dq, out)
+        self._held[e] = True
 
     def check_motion(self, smoother, state: RobotState, command: np.ndarray) -> np.ndarray:
         """Certify the smoother's last step with the motion envelope
@@ -403,123 +365,6 @@ class SafetyGuard:
         smoother.brake(braked, envelope.joints)
         command[braked] = smoother.command[braked]
         return command
-
-    def _govern(self, q: np.ndarray, over: np.ndarray, under: np.ndarray, out: np.ndarray) -> None:
-        """Torque mode's velocity governor: in the envs with a joint faster than its band
-        (``over``, ``under`` > 0, rad/s), cap the torque toward the limit at gravity plus the
-        brake (one Pinocchio gravity call per such env)."""
-        for e in np.flatnonzero((over > 0).any(axis=1) | (under > 0).any(axis=1)):
-            g = pin.computeGeneralizedGravity(self.model, self.data, q[e])
-            brake = self._brake_gain * (under[e] - over[e])
-            out[e] = np.where(over[e] > 0, np.minimum(out[e], g + brake), out[e])
-            out[e] = np.where(under[e] > 0, np.maximum(out[e], g + brake), out[e])
-
-    def _check_predicted(self, check_ws, check_col, check_effort, q, dq, out) -> None:
-        """The per-env Pinocchio checks at the predicted state ``_pred`` of the envs the screens
-        flagged ((envs,) bool each): count, hold and mark ``_held`` the envs that fail one."""
-        effort, counts, held = self.robot.effort_limit, self.counts, self._held
-        for e in np.flatnonzero(check_ws | check_col | check_effort):
-            qp = self._pred[e]
-            reason = None
-            if check_ws[e]:
-                outside = self._ee_outside(qp, cache=e)
-                if outside > 0.0 and outside >= self._ee_outside(q[e]) - 1e-12:
-                    reason = "workspace"
-            if reason is None and check_col[e] and self._in_collision(qp, cache=e):
-                reason = "self_collision"
-            if reason is None and check_effort[e]:
-                g = pin.computeGeneralizedGravity(self.model, self.data, qp)
-                if np.any(np.abs(g) > effort * self.effort_scale[e]):
-                    reason = "effort"
-            if reason is not None:
-                counts[reason][e] += 1
-                self._hold(e, q[e], dq[e], out)
-                held[e] = True
-
-    def _copies(self) -> SimpleNamespace:
-        """Copies of the arrays the kernel writes (the warm-up call must change nothing)."""
-        names = ("effort_scale", "count_matrix", "hard_violation", "_pred", "_tmp", "_screen_q")
-        names += ("_ws_margin", "_over", "_under", "_checks", "_held", "_last_valid")
-        return SimpleNamespace(
-            **{k: np.copy(getattr(self, k)) for k in names},
-            _kernel_mode=self._kernel_mode,
-            _lim=self._lim,
-            _scalars=self._scalars,
-            _pair_clearance=self._pair_clearance,  # read only
-            pair_weights=self.pair_weights,
-        )
-
-    def _kernel(self, q: np.ndarray, dq: np.ndarray, commanded: np.ndarray | None, out):
-        """:meth:`filter` with the kernel: phase 0, Pinocchio where it says, phase 1."""
-        has = commanded is not None
-        mode = self._kernel_mode
-        code = gk.guard_filter(0, mode, out, q, dq, commanded if has else q, has, *self._tail)
-        if code:
-            if code & gk.NEEDS_GOVERNOR:
-                self._govern(q, self._over, self._under, out)
-            if code & gk.NEEDS_SCREENS:
-                c = self._checks
-                self._check_predicted(c[0], c[1], c[2], q, dq, out)
-            gk.guard_filter(1, *self._kernel_args(self, q, dq, commanded, out))
-        return out
-
-    @staticmethod
-    def _kernel_args(g, q: np.ndarray, dq: np.ndarray, commanded: np.ndarray | None, out):
-        """Arguments of :func:`deploy.safety.kernel.guard_filter` after ``phase``, on the arrays
-        of ``g`` (the guard, or its :meth:`_copies` to warm the kernel up)."""
-        has = commanded is not None
-        return (
-            g._kernel_mode,
-            out,
-            q,
-            dq,
-            commanded if has else q,
-            has,
-            *SafetyGuard._kernel_tail(g),
-        )
-
-    @staticmethod
-    def _kernel_tail(g) -> tuple:
-        """The arguments of :func:`deploy.safety.kernel.guard_filter` after ``has_commanded``
-        (the guard's own arrays: made once, updated in place)."""
-        return (
-            g._lim,
-            g._scalars,
-            g.effort_scale,
-            g.count_matrix,
-            g.hard_violation,
-            g._pred,
-            g._tmp,
-            g._screen_q,
-            g._ws_margin,
-            g._over,
-            g._under,
-            g._checks,
-            g._held,
-            g._last_valid,
-            g._pair_clearance,
-            g.pair_weights,
-        )
-
-    def _velocity_band(self, q: np.ndarray, commanded: np.ndarray | None):
-        """(v_up, v_down) >= 0, (envs, n): speeds from which each joint still stops before its
-        soft limit, capped at the velocity limit. Position and velocity mode: under the
-        acceleration and jerk limits of the smoother's trajectories, the brake beginning one
-        control period later (:func:`deploy.smoothing.stopping_speed`). Torque mode (no Ruckig,
-        the torque governor brakes): ``sqrt(2 a d)``, ``a`` scaled by the thermal derating."""
-        upper = q if commanded is None else np.maximum(q, commanded)
-        lower = q if commanded is None else np.minimum(q, commanded)
-        d_up = np.maximum(self.soft_upper - upper, 0.0)
-        d_down = np.maximum(lower - self.soft_lower, 0.0)
-        if self.mode == "torque":
-            # a derated drive brakes with a proportionally smaller torque
-            acc = self.acc * self.effort_scale
-            v_up = np.minimum(np.sqrt(2.0 * acc * d_up), self.vel)
-            v_down = np.minimum(np.sqrt(2.0 * acc * d_down), self.vel)
-        else:
-            v_up = np.minimum(stopping_speed(d_up, self.acc, self.jerk, self.dt), self.vel)
-            v_down = np.minimum(stopping_speed(d_down, self.acc, self.jerk, self.dt), self.vel)
-        return v_up, v_down
 
     def _hold(self, e: int, q: np.ndarray, dq: np.ndarray, out: np.ndarray) -> None:
         """Replace env ``e``'s target by a hold: the last accepted target (position mode), zero

@@ -29,8 +29,11 @@ run: install
 	$(VENV)/bin/deploy-run --backend sim --robot arm3 --policy $(ONNX) --duration 60 \
 		$(if $(VIDEO),--video $(VIDEO))
 
+# Two pytest-xdist workers, one per core of the 2-core machine CI runs on (TEST_WORKERS=0 runs in
+# this process). --dist loadgroup keeps the tests of one xdist_group mark on one worker.
+TEST_WORKERS ?= 2
 test: install lint
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
 
 lint: install
 	$(VENV)/bin/ruff check .

@@ -8,10 +8,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parent.parent
 SUMMARY_KEYS = {"p50_us", "p99_us", "p99.9_us", "max_us", "mean_us", "samples"}
 FULL_STAGES = {"read", "estimate", "observe", "infer", "guard", "smooth", "write", "physics"}
 BARE_STAGES = {"read", "observe", "infer", "target", "pd", "physics"}
+# One pytest-xdist worker runs both (make test's --dist loadgroup): each bench subprocess loads
+# every kernel and starts a campaign process per CPU; two at once only crowd each other.
+pytestmark = pytest.mark.xdist_group("bench")
 
 
 def positive_finite(x) -> bool:

@@ -31,6 +31,9 @@ HARD_PUSHES = FaultRanges(
     push_duration=(0.3, 0.6),
 )
 LOOK = {"fps": 10.0, "size": (240, 180), "max_clips": 2}
+#: The tests of the filmed session, on one pytest-xdist worker (make test's --dist loadgroup):
+#: the module fixture films it once per worker.
+ON_ONE_WORKER = pytest.mark.xdist_group("film")
 
 
 def egl_works() -> bool:
@@ -110,6 +113,7 @@ def filmed(tmp_path_factory, arm3):
     return out, report, paths, kept
 
 
+@ON_ONE_WORKER
 def test_a_hard_violation_is_filmed_from_an_exact_replay(filmed):
     out, report, _, kept = filmed
     (s,) = report["sessions"]
@@ -147,6 +151,7 @@ def test_a_hard_violation_is_filmed_from_an_exact_replay(filmed):
     assert abs(int(np.argmin(errors)) - k) <= 1 and min(errors) < 3.0
 
 
+@ON_ONE_WORKER
 def test_report_embeds_the_clips_and_junit_names_the_still(filmed):
     out, report, paths, _ = filmed
     text = paths["html"].read_text()
@@ -216,6 +221,7 @@ def _browser():
     return browser, driver
 
 
+@ON_ONE_WORKER
 def test_the_clip_loads_and_plays_in_headless_chromium(filmed):
     browser, driver = _browser()
     from selenium import webdriver

@@ -42,6 +42,9 @@ from tests.runtime_fixtures import feedback_mlp_onnx
 from tests.soak_fixtures import kill_after_first_checkpoint
 
 REPO = Path(__file__).resolve().parent.parent
+# One pytest-xdist worker (make test's --dist loadgroup) runs this module: most of its tests share
+# the module's batched and killed sessions, which would otherwise be simulated once per worker.
+pytestmark = pytest.mark.xdist_group("soak")
 #: Thresholds every check of the tiny policy passes but the latched-fault and divergence ones.
 LENIENT = Thresholds(min_success_rate=0.0, min_window_success_rate=0.0, max_intervention_rate=1.0)
 

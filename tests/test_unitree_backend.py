@@ -42,8 +42,13 @@ _DOMAINS = itertools.count()
 
 
 def _domain() -> int:
-    """A DDS domain of this test alone (ids 100-219, by process and test)."""
-    return 100 + (os.getpid() * 13 + next(_DOMAINS)) % 120
+    """A DDS domain of this test alone: ids 100-219 split into one block per pytest-xdist worker
+    (DDS on the loopback is machine-wide: two tests in one domain would read each other's
+    LowState), and within a block by process and test."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
+    size = 120 // workers
+    return 100 + worker * size + (os.getpid() * 13 + next(_DOMAINS)) % size
 
 
 @pytest.fixture(scope="module")

@@ -185,6 +185,24 @@ def test_feetech_ping_and_sync_write_read_move_the_plant(so101):
         assert emu.stats["plant_steps"] > 0
 
 
+def test_feetech_torque_on_before_any_goal_write_holds_the_joint(so101):
+    """A servo powers up with its goal register at its present position (as the firmware does):
+    switching torque on without writing a goal holds the arm where it is, it does not drive
+    every joint to tick 0."""
+    with ServoBusEmulator(so101, "feetech") as emu:
+        port, ph = _feetech(emu)
+        before = {sid: ph.read2ByteTxRx(port, sid, 56)[0] for sid in SO101_IDS}
+        for sid in SO101_IDS:
+            assert ph.read2ByteTxRx(port, sid, 42)[0] == before[sid]  # goal = present
+            assert ph.write1ByteTxRx(port, sid, 40, 1) == (scs.COMM_SUCCESS, 0)
+        _run_plant(emu, 0.4)
+        for sid in SO101_IDS:
+            after, result, _ = ph.read2ByteTxRx(port, sid, 56)
+            assert result == scs.COMM_SUCCESS
+            assert abs(after - before[sid]) < 60, (sid, before[sid], after)  # ~5 deg
+        port.closePort()
+
+
 def test_feetech_corrupt_reply_is_a_failed_communication(so101):
     with ServoBusEmulator(so101, "feetech", faults=WireFaults(corrupt=1.0)) as emu:
         port, ph = _feetech(emu)

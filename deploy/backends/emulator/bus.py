@@ -142,6 +142,12 @@ class ServoBusEmulator:
         self._t0 = time.monotonic()
         self._steps = 0
         self._refresh()
+        # a servo powers up holding where it is: its firmware copies the present position into
+        # the goal register (Feetech STS and Dynamixel X alike), so torque on before any goal
+        # write holds the joint instead of driving it to tick 0
+        for servo in self.servos:
+            if servo.model.has("goal_position"):
+                servo.set("goal_position", servo.get("present_position"))
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> ServoBusEmulator:

@@ -14,6 +14,7 @@ from onnx import TensorProto, helper, numpy_helper
 from deploy.backends.sim.plant import SimBackend
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import FAULT_CAUSES, Mode, Runtime
+from deploy.runtime.reference import ReferenceRuntime
 from deploy.spec.policy_spec import LEGGED_DEFAULT_BLOCKS, PolicySpec, SpecError
 from robots import load_robot
 
@@ -45,7 +46,7 @@ def stand_policy(go2, tmp_path_factory):
 
 def runtime(go2, policy, envs=2, seed=0, reference=False) -> tuple[Runtime, SimBackend]:
     plant = SimBackend(go2, "position", envs=envs, seed=seed)
-    rt = Runtime(go2, policy, plant, reference=reference)
+    rt = (ReferenceRuntime if reference else Runtime)(go2, policy, plant)
     rt.start()
     return rt, plant
 
@@ -171,9 +172,10 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_but_an_estimate_past_one_s
     or its exploration commands) is clamped to the soft limit and counted, not a safe stop; the
     estimated calf past the hard limit still is a violation."""
     from deploy.safety.guard import SafetyGuard
+    from deploy.safety.reference import ReferenceGuard
     from deploy.state import RobotState
 
-    guard = SafetyGuard(go2, 2, "position", reference=reference)
+    guard = (ReferenceGuard if reference else SafetyGuard)(go2, 2, "position")
     state = RobotState.legged(2, go2.n_joints, go2.n_feet, 25.0)
     state.q[:] = go2.home
     guard.reset(state.q)

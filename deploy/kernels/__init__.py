@@ -1,10 +1,10 @@
 """The compiled tick: numba kernels for the per-tick numeric logic of the runtime's stages.
 
-Each stage keeps its numpy implementation as the tested reference (``reference=True`` on
-:class:`~deploy.safety.guard.SafetyGuard`, :class:`~deploy.smoothing.CommandSmoother`,
-:class:`~deploy.runtime.Runtime` and the monitors, ``reference=True`` on
-:meth:`deploy.spec.policy_spec.PolicySpec.observation` and the plant's sensor model)
-and runs its kernel per tick otherwise, over the stage's preallocated arrays:
+Each stage runs its kernel per tick, over the stage's preallocated arrays, and keeps its numpy
+implementation as the tested reference in ``reference.py`` beside it: a subclass
+``Reference<Class>`` with the same constructor (``ReferenceGuard``, ``ReferenceSmoother``,
+``ReferenceRuntime``, the monitors' and goal scheduler's, the plant's sensor model's) or, for the
+observation, :func:`deploy.spec.reference.observation_reference`:
 
 ==========================================  ====================================================
 module (beside its stage)                   what it computes

@@ -1,8 +1,8 @@
 """The compiled tick gives the reference's results: every command, counter and state, bit for bit.
 
-Two runtimes, one with the compiled kernels of ``deploy.kernels`` (the default) and one with
-``reference=True`` (the numpy references of the supervision, action screen, observation, guard
-and smoother; the estimator is the compiled one in both), run the same ticks against identical
+Two runtimes, one with the compiled kernels of ``deploy.kernels`` (:class:`Runtime`) and one with
+the numpy references of the supervision, action screen, observation, guard and smoother
+(:class:`ReferenceRuntime`; the estimator is the compiled one in both), run the same ticks against identical
 seeded plants: arm3 and arm6 in position, velocity and torque mode, 2 envs each, ``TICKS`` ticks
 per case (10,000 ticks over the six cases). The policy is the adversarial one (uniform random
 actions, 2 % NaN) and the plant has its sensor noise and dropouts, the fault injector's dropout,
@@ -26,8 +26,10 @@ from deploy.backends.sim.plant import SimBackend
 from deploy.observe.telemetry import LatencyHistogram
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import FAULT_CAUSES, Mode, Runtime
+from deploy.runtime.reference import ReferenceRuntime
 from deploy.safety.checks import CHECKS
 from deploy.safety.reference import ReferenceGuard
+from deploy.smoothing.reference import ReferenceSmoother
 from deploy.spec.policy_spec import ObservationBlock, PolicySpec, SpecError
 from deploy.state import Kinematics, RobotState
 from tests.runtime_fixtures import adversarial_onnx
@@ -107,7 +109,7 @@ class ScriptedClock:
         return late
 
 
-def build(robot, mode: str, policy_path, reference: bool) -> Runtime:
+def build(robot, mode: str, policy_path, runtime: type[Runtime]) -> Runtime:
     dt = robot.control_period
     plant = SimBackend(robot, mode=mode, envs=ENVS, seed=7)
     plant.dropout_probability[:] = 0.05
@@ -122,13 +124,12 @@ def build(robot, mode: str, policy_path, reference: bool) -> Runtime:
         Fault("dropout", 1550 * dt, 80 * dt, envs=(1,)),  # long: a stale-sensor stop
     ]
     policy = SweepingPolicy(OnnxPolicy(policy_path, robot), dt)
-    rt = Runtime(
+    rt = runtime(
         robot,
         policy,
         backend,
         clock=ScriptedClock(dt),
         injector=FaultInjector(faults, plant),
-        reference=reference,
     )
     rt.start()
     return rt
@@ -185,10 +186,12 @@ def record(rt: Runtime, ticks: int) -> dict[str, np.ndarray]:
 def test_compiled_tick_equals_the_reference(tmp_path, request, robot_name, mode):
     robot = request.getfixturevalue(robot_name)
     path = adversarial_onnx(tmp_path, robot, mode, nan_probability=0.02)
-    compiled = build(robot, mode, path, reference=False)
-    reference = build(robot, mode, path, reference=True)
-    assert not isinstance(compiled.guard, ReferenceGuard) and not compiled.smoother.reference
-    assert isinstance(reference.guard, ReferenceGuard) and reference.smoother.reference
+    compiled = build(robot, mode, path, Runtime)
+    reference = build(robot, mode, path, ReferenceRuntime)
+    refs = (ReferenceGuard, ReferenceSmoother)
+    assert not isinstance(compiled.guard, refs) and not isinstance(compiled.smoother, refs)
+    assert isinstance(reference.guard, ReferenceGuard)
+    assert isinstance(reference.smoother, ReferenceSmoother)
     a, b = record(compiled, TICKS), record(reference, TICKS)
     for key in a:
         for k in range(TICKS):  # the first tick that differs, named

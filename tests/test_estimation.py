@@ -8,10 +8,14 @@ import pytest
 from deploy.backends.base import SensorFrame
 from deploy.backends.sim.plant import SimBackend
 from deploy.estimation.joints import JointStateEstimator
+from deploy.estimation.reference import ReferenceJointStateEstimator
 from deploy.state import RobotState
 from robots import load_robot
 
-IMPLEMENTATIONS = ("compiled", "filterpy")
+#: the compiled estimator and its filterpy reference
+ESTIMATORS = pytest.mark.parametrize(
+    "estimator", [JointStateEstimator, ReferenceJointStateEstimator], ids=["compiled", "filterpy"]
+)
 
 
 def frame(time, position, stamp, envs=1, n=3, temperature=30.0):
@@ -37,14 +41,13 @@ def sinusoid_acceleration(robot, t0, t1):
 
 
 def test_compiled_kernel_equals_filterpy_reference_for_10000_ticks(arm3):
-    implementation = "compiled"
     envs = 2
     plant = SimBackend(arm3, mode="position", envs=envs, seed=7)
     plant.dropout_probability[:] = 0.1
     plant.latency_ticks[:] = [2, 3]
     plant.reset()
-    fast = JointStateEstimator(arm3, envs, implementation=implementation)
-    reference = JointStateEstimator(arm3, envs, implementation="filterpy")
+    fast = JointStateEstimator(arm3, envs)
+    reference = ReferenceJointStateEstimator(arm3, envs)
     states = [RobotState.zeros(envs, 3), RobotState.zeros(envs, 3)]
     for est in (fast, reference):
         est.reset(plant.true_position(), 0.0)
@@ -69,14 +72,14 @@ def test_compiled_kernel_equals_filterpy_reference_for_10000_ticks(arm3):
     assert (fast.reinitializations == 0).all()
 
 
-@pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
-def test_commanded_acceleration_input_removes_the_lag(arm3, implementation):
+@ESTIMATORS
+def test_commanded_acceleration_input_removes_the_lag(arm3, estimator):
     """With the commanded acceleration as control input the filter follows an accelerating joint
     instead of lagging behind it (a constant-velocity model lags by ~a / omega^2). Measured, mean
     absolute error: 18.9 mrad without the input, 4.7 mrad with it."""
     plant = SimBackend(arm3, mode="velocity", envs=2, seed=5)  # env 1: with the input
     plant.reset()
-    est = JointStateEstimator(arm3, 2, implementation=implementation)
+    est = estimator(arm3, 2)
     state = RobotState.zeros(2, 3)
     est.reset(plant.true_position(), 0.0)
     dt, err = arm3.control_period, []
@@ -174,9 +177,9 @@ def test_multi_rate_readings_track_a_constant_velocity(arm3):
             assert est.time_since_fresh[0, 0] == pytest.approx((k % 4) * dt)
 
 
-@pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
-def test_dropout_predicts_only_and_time_since_fresh_grows(arm3, implementation):
-    est = JointStateEstimator(arm3, 1, implementation=implementation)
+@ESTIMATORS
+def test_dropout_predicts_only_and_time_since_fresh_grows(arm3, estimator):
+    est = estimator(arm3, 1)
     state = RobotState.zeros(1, 3)
     dt = arm3.control_period
     est.reset(np.zeros(3), 0.0)
@@ -199,9 +202,9 @@ def test_dropout_predicts_only_and_time_since_fresh_grows(arm3, implementation):
     assert (est.time_since_fresh < arm3.config.safety.stale_limit).all()
 
 
-@pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
-def test_stale_reordered_and_future_readings_are_discarded_and_counted(arm3, implementation):
-    est = JointStateEstimator(arm3, 1, implementation=implementation)
+@ESTIMATORS
+def test_stale_reordered_and_future_readings_are_discarded_and_counted(arm3, estimator):
+    est = estimator(arm3, 1)
     state = RobotState.zeros(1, 3)
     est.reset(np.zeros(3), 0.0)
     est.update(frame(0.010, 0.01, 0.010), state)
@@ -218,9 +221,9 @@ def test_stale_reordered_and_future_readings_are_discarded_and_counted(arm3, imp
     np.testing.assert_allclose(est.time_since_fresh, 0.030)  # still the reading of t = 0.020
 
 
-@pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
-def test_non_finite_readings_never_poison_the_state(arm3, implementation):
-    est = JointStateEstimator(arm3, 1, implementation=implementation)
+@ESTIMATORS
+def test_non_finite_readings_never_poison_the_state(arm3, estimator):
+    est = estimator(arm3, 1)
     state = RobotState.zeros(1, 3)
     est.reset(np.zeros(3), 0.0)
     dt = arm3.control_period
@@ -243,7 +246,7 @@ def test_non_finite_readings_never_poison_the_state(arm3, implementation):
     assert (est.reinitializations == 0).all()
 
 
-@pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
+@ESTIMATORS
 @pytest.mark.parametrize(
     "P",
     [
@@ -254,8 +257,8 @@ def test_non_finite_readings_never_poison_the_state(arm3, implementation):
     ],
     ids=["nan", "huge", "indefinite", "negative"],
 )
-def test_degenerate_covariance_is_reinitialized_and_counted(arm3, implementation, P):
-    est = JointStateEstimator(arm3, 2, implementation=implementation)
+def test_degenerate_covariance_is_reinitialized_and_counted(arm3, estimator, P):
+    est = estimator(arm3, 2)
     state = RobotState.zeros(2, 3)
     dt = arm3.control_period
     est.reset(np.zeros((2, 3)), 0.0)
@@ -340,8 +343,6 @@ def test_update_allocates_no_arrays(arm6):
 
 
 def test_argument_errors(arm3):
-    with pytest.raises(ValueError, match="implementation"):
-        JointStateEstimator(arm3, 1, implementation="numba")
     with pytest.raises(ValueError, match="measurement_sigma"):
         JointStateEstimator(arm3, 1, measurement_sigma=0.0)
     est = JointStateEstimator(arm3, 2)

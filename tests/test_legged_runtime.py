@@ -14,6 +14,7 @@ from onnx import TensorProto, helper, numpy_helper
 from deploy.backends.sim.plant import SimBackend
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import FAULT_CAUSES, Mode, Runtime
+from deploy.runtime.reference import ReferenceRuntime
 from deploy.spec.policy_spec import LEGGED_DEFAULT_BLOCKS, PolicySpec, SpecError
 from robots import load_robot
 
@@ -45,7 +46,7 @@ def stand_policy(go2, tmp_path_factory):
 
 def runtime(go2, policy, envs=2, seed=0, reference=False) -> tuple[Runtime, SimBackend]:
     plant = SimBackend(go2, "position", envs=envs, seed=seed)
-    rt = Runtime(go2, policy, plant, reference=reference)
+    rt = (ReferenceRuntime if reference else Runtime)(go2, policy, plant)
     rt.start()
     return rt, plant
 

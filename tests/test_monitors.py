@@ -16,15 +16,17 @@ from deploy.backends.sim.faults import Fault, FaultInjector
 from deploy.backends.sim.plant import SimBackend
 from deploy.monitors.interventions import InterventionMonitor
 from deploy.monitors.kernel import temperature_bands
+from deploy.monitors.reference import ReferenceInterventionMonitor, ReferenceViolationMonitor
 from deploy.monitors.violations import ViolationMonitor
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Mode, Runtime
 from deploy.tasks.goals import GoalScheduler
+from deploy.tasks.reference import ReferenceGoalScheduler
 from tests.runtime_fixtures import adversarial_onnx
 from tests.test_compiled_tick import SweepingPolicy
 
 
-def scripted_run(robot, reference: bool, ticks: int = 6000) -> GoalScheduler:
+def scripted_run(robot, scheduler: type[GoalScheduler], ticks: int = 6000) -> GoalScheduler:
     """A goal scheduler over 3 envs whose modes and end effectors follow a seeded script: envs
     pause (not RUNNING) at random, and the end effector jumps around the goal."""
     envs, dt = 3, 0.01
@@ -39,8 +41,7 @@ def scripted_run(robot, reference: bool, ticks: int = 6000) -> GoalScheduler:
             ee_position=np.zeros((envs, 3)), q=np.zeros((envs, 2)), dq=np.zeros((envs, 2))
         ),
     )
-    goals = GoalScheduler(robot, envs, 1.5, None, 0.8, np.random.default_rng(5), window=10.0,
-                          reference=reference)  # fmt: skip
+    goals = scheduler(robot, envs, 1.5, None, 0.8, np.random.default_rng(5), window=10.0)
     for _ in range(ticks):
         rt.time += dt
         rt.mode[:] = np.where(script.random(envs) < 0.003, Mode.SAFE_STOP, Mode.RUNNING)
@@ -53,7 +54,7 @@ def scripted_run(robot, reference: bool, ticks: int = 6000) -> GoalScheduler:
 
 
 def test_compiled_goal_scheduler_equals_the_reference(arm3):
-    a, b = scripted_run(arm3, reference=False), scripted_run(arm3, reference=True)
+    a, b = scripted_run(arm3, GoalScheduler), scripted_run(arm3, ReferenceGoalScheduler)
     sa, sb = a.state_dict(), b.state_dict()
     assert sa.keys() == sb.keys()
     for key in sa:
@@ -78,8 +79,11 @@ def test_compiled_violation_and_intervention_monitors_equal_the_references(tmp_p
     rt = Runtime(arm6, policy, plant, injector=FaultInjector(faults, plant))
     rt.start()
     monitors = [
-        (ViolationMonitor(arm6, 2, reference=r), InterventionMonitor(rt.guard, rt.smoother, r))
-        for r in (False, True)
+        (violation(arm6, 2), intervention(rt.guard, rt.smoother))
+        for violation, intervention in (
+            (ViolationMonitor, InterventionMonitor),
+            (ReferenceViolationMonitor, ReferenceInterventionMonitor),
+        )
     ]
     for _ in range(2500):
         rt.tick()
@@ -144,7 +148,7 @@ def test_compiled_violation_screen_misses_nothing_the_reference_counts(arm6):
     """States drawn at and around each limit in turn (joint angle, speed, torque, workspace):
     the compiled screen lets through exactly the violations the reference counts."""
     truth = ScriptedTruth(arm6, envs=3, seed=4)
-    monitors = [ViolationMonitor(arm6, 3, reference=r) for r in (False, True)]
+    monitors = [monitor(arm6, 3) for monitor in (ViolationMonitor, ReferenceViolationMonitor)]
     for _ in range(4000):
         truth.draw()
         for m in monitors:

@@ -15,6 +15,7 @@ from deploy.monitors.interventions import INTERVENTION_CHECKS
 from deploy.monitors.violations import VIOLATION_TYPES
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import NAN_ACTION_LIMIT, Mode, Runtime, WallClock
+from deploy.runtime.reference import ReferenceRuntime
 from robots import load_robot
 from tests.runtime_fixtures import adversarial_onnx
 
@@ -353,13 +354,13 @@ class _CalmPolicy:
         return action
 
 
-def calm_runtime(robot, mode="position", envs=1, reference=False, seed=0):
+def calm_runtime(robot, mode="position", envs=1, runtime=Runtime, seed=0):
     from deploy.spec.policy_spec import PolicySpec
 
     policy = _CalmPolicy(PolicySpec.for_robot(robot, mode=mode))
     policy.nan = np.zeros(envs, dtype=bool)
     backend = SimBackend(robot, mode=mode, envs=envs, seed=seed)
-    rt = Runtime(robot, policy, backend, reference=reference)
+    rt = runtime(robot, policy, backend)
     rt.start()
     return rt
 
@@ -383,14 +384,14 @@ def stop_by_nan(rt, envs=None):
     return rt.ticks
 
 
-@pytest.mark.parametrize("reference", [False, True])
-def test_a_safe_stop_that_cannot_come_to_rest_latches_after_the_timeout(so101, reference):
+@pytest.mark.parametrize("runtime", [Runtime, ReferenceRuntime], ids=["compiled", "reference"])
+def test_a_safe_stop_that_cannot_come_to_rest_latches_after_the_timeout(so101, runtime):
     """The soak's so101 stop that never ended: the arm is at rest, but the noisy encoders keep the
     estimated velocities above REST_SPEED. SAFE_STOP_TIMEOUT after it began the stop ends FAULTED
     (latched: an operator resets it), counted in safe_stop_timeouts; its cause is kept."""
     from deploy.runtime import REST_SPEED, SAFE_STOP_TIMEOUT
 
-    rt = calm_runtime(so101, reference=reference)
+    rt = calm_runtime(so101, runtime=runtime)
     began = stop_by_nan(rt)
     rt.backend.noise_sigma[:] = NOISY_ENCODER
     timeout = int(np.ceil(SAFE_STOP_TIMEOUT / rt.dt - 1e-9))
@@ -456,7 +457,7 @@ def test_safe_stop_timeout_compiled_equals_reference_and_resumes_exactly(so101):
     and a stop that rests (env 1): every mode, stop tick, counter and command equal; a runtime
     loaded from the state dict in the middle of the stop ends it on the same tick."""
     a = calm_runtime(so101, envs=2)
-    b = calm_runtime(so101, envs=2, reference=True)
+    b = calm_runtime(so101, envs=2, runtime=ReferenceRuntime)
     for rt in (a, b):
         stop_by_nan(rt)
         rt.backend.noise_sigma[:] = (NOISY_ENCODER, 0.0)  # env 1: a perfect encoder, it rests

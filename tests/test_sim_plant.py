@@ -198,12 +198,13 @@ def test_compiled_sensor_model_equals_its_numpy_reference(arm6, per_env_streams)
     """The encoder kernels give the numpy reference's readings and stamps bit for bit, and draw
     the same numbers from the streams, through changes of noise, dropout and latency."""
     from deploy.backends.base import SensorFrame
+    from deploy.backends.sim.reference import ReferenceJointSensorModel
     from deploy.backends.sim.sensors import JointSensorModel
 
     envs, n = 3, arm6.n_joints
     models = []
-    for _ in range(2):
-        m = JointSensorModel(arm6, envs, SensorFrame.empty(envs, n, None), 7, max_latency_ticks=4)
+    for model in (JointSensorModel, ReferenceJointSensorModel):
+        m = model(arm6, envs, SensorFrame.empty(envs, n, None), 7, max_latency_ticks=4)
         if per_env_streams:
             m.set_streams([np.random.default_rng(100 + e) for e in range(envs)])
         models.append(m)
@@ -220,11 +221,11 @@ def test_compiled_sensor_model_equals_its_numpy_reference(arm6, per_env_streams)
         q += walk.normal(0.0, 0.01, q.shape)
         temperature = 25.0 + walk.uniform(0.0, 60.0, q.shape)
         compiled.read(tick)
-        reference.read(tick, reference=True)
+        reference.read(tick)
         for field in ("position", "position_stamp", "winding_temperature", "temperature_stamp"):
             a, b = getattr(compiled.frame, field), getattr(reference.frame, field)
             np.testing.assert_array_equal(a, b, err_msg=f"{field} at tick {tick}")
         compiled.sample(tick, tick * 0.002, q, temperature)
-        reference.sample(tick, tick * 0.002, q, temperature, reference=True)
+        reference.sample(tick, tick * 0.002, q, temperature)
     assert compiled.stream_state() == reference.stream_state()
     assert np.isnan(compiled.frame.position).any() and np.isfinite(compiled.frame.position).any()

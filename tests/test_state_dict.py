@@ -22,6 +22,7 @@ from deploy.backends.base import SensorFrame
 from deploy.backends.sim.faults import Fault, FaultInjector
 from deploy.backends.sim.plant import SimBackend
 from deploy.estimation.joints import JointStateEstimator
+from deploy.estimation.reference import ReferenceJointStateEstimator
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Runtime
 from deploy.safety.guard import SafetyGuard
@@ -137,12 +138,12 @@ def mode_targets(robot, mode: str, ticks: int, seed: int, hold: int = 1) -> np.n
 
 
 # ---------------------------------------------------------------- the stages
-def estimator_rig(robot, implementation: str):
+def estimator_rig(robot, estimator: type[JointStateEstimator]):
     frames = sim_frames(robot, N + M)
     acc = np.random.default_rng(2).normal(0.0, 5.0, (N + M, ENVS, robot.n_joints))
 
     def build():
-        est = JointStateEstimator(robot, ENVS, implementation=implementation)
+        est = estimator(robot, ENVS)
         est.reset(robot.home, 0.0)
 
         def step(k):
@@ -349,8 +350,8 @@ def runtime_rig(robot, mode: str, tmp_path: Path):
 MODES = ("position", "velocity", "torque")
 #: stage -> (rig builder, its arguments after the robot); runtime rigs take tmp_path too
 STAGES = {
-    "estimator-compiled": (estimator_rig, ("compiled",)),
-    "estimator-filterpy": (estimator_rig, ("filterpy",)),
+    "estimator-compiled": (estimator_rig, (JointStateEstimator,)),
+    "estimator-filterpy": (estimator_rig, (ReferenceJointStateEstimator,)),
     **{f"guard-{m}": (guard_rig, (m,)) for m in MODES},
     **{f"smoother-{m}": (smoother_rig, (m,)) for m in MODES},
     "sim-position": (sim_rig, ("position", False)),

@@ -30,25 +30,21 @@ and is counted in ``missing_readings``. Either way the *output* is the predictio
 latency is compensated by extrapolation, and a dropout is a predict-only step. Sensors at their
 own rates need nothing special: a slow sensor simply delivers fewer fresh readings.
 
-Two implementations give the same numbers (to rounding, ~1e-15): ``"compiled"`` (the default),
-the whole tick in one numba kernel (:mod:`deploy.estimation.kernel`, closed-form 2x2 algebra), and
-``"filterpy"``, one ``filterpy.kalman.KalmanFilter(dim_x=2, dim_z=1)`` per (env, joint), the
-reference the kernel is tested against.
+The tick runs in one numba kernel (:mod:`deploy.estimation.kernel`, closed-form 2x2 algebra). Its
+reference, :class:`deploy.estimation.reference.ReferenceJointStateEstimator`, runs one
+``filterpy.kalman.KalmanFilter(dim_x=2, dim_z=1)`` per (env, joint); both give the same numbers
+(to rounding, ~1e-15).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from filterpy.common import Q_discrete_white_noise
-from filterpy.kalman import KalmanFilter
 
 from deploy.backends.base import SensorFrame
 from deploy.estimation.kernel import kalman_tick
 from deploy.state import RobotState
 from deploy.stateful import put, take
 from robots import Robot
-
-IMPLEMENTATIONS: tuple[str, ...] = ("compiled", "filterpy")
 
 #: Default process noise standard deviation as a fraction of the joint's acceleration limit.
 #: Bar-Shalom, Li, Kirubarajan (2001), sec. 6.3.2, give 0.5 a_M <= sigma <= a_M as the practical
@@ -130,8 +126,6 @@ class JointStateEstimator:
             ``(2 pi / encoder_resolution) / sqrt(12)`` (uniform rounding error) so that ``R > 0``,
             and at ``sqrt(process_noise) dt^2 / MAX_TRACKING_INDEX`` (a velocity estimate that
             does not oscillate; ``dt`` the control period).
-        implementation: ``"compiled"`` (default, one numba kernel per tick) or ``"filterpy"``
-            (reference).
         input_extrapolates: Whether the output's extrapolation from the newest reading to the
             frame's time uses the control input (default) or constant velocity (module
             docstring; the runtime chooses constant velocity for a floating-base robot).
@@ -154,8 +148,7 @@ class JointStateEstimator:
             ``(VELOCITY_SIGMA_BOUND * velocity_limit)^2``.
 
     Raises:
-        ValueError: ``envs < 1``, an unknown ``implementation``, or noise values that are not
-            finite and positive.
+        ValueError: ``envs < 1``, or noise values that are not finite and positive.
     """
 
     def __init__(
@@ -164,18 +157,12 @@ class JointStateEstimator:
         envs: int,
         process_noise: float | np.ndarray | None = None,
         measurement_sigma: float | np.ndarray | None = None,
-        implementation: str = "compiled",
         input_extrapolates: bool = True,
     ):
         if envs < 1:
             raise ValueError(f"envs must be >= 1, got {envs}")
-        if implementation not in IMPLEMENTATIONS:
-            raise ValueError(
-                f"implementation '{implementation}' is unknown; expected one of {IMPLEMENTATIONS}"
-            )
         n = robot.n_joints
         self.robot, self.envs, self.n_joints = robot, envs, n
-        self.implementation = implementation
         self.input_extrapolates = bool(input_extrapolates)
         sensors = robot.config.sensors
         if process_noise is None:
@@ -212,46 +199,24 @@ class JointStateEstimator:
         self._initialized = np.zeros(envs, dtype=bool)
         self._all_initialized = False
 
-        # constants and work arrays, all (envs, n): the tick allocates nothing
-        def full(value) -> np.ndarray:
-            return np.broadcast_to(np.asarray(value, dtype=np.float64), shape).copy()
-
-        self._var = full(self.process_noise)
-        self._r = full(self.measurement_variance)
-        self._bound0 = full(self.covariance_bound[:, 0])
-        self._bound1 = full(self.covariance_bound[:, 1])
-        self._zero, self._half, self._one = full(0.0), full(0.5), full(1.0)
-        self._u = full(0.0)
-        self._one_int = np.ones(shape, dtype=np.int64)
-        self._now = np.zeros(shape)
-        self._now_t = self._now.T  # (n, envs) view: broadcasts frame.time (envs,) into _now
-        self._w = {k: np.empty(shape) for k in ("tmp", "det")}
-        self._count = np.empty(shape, dtype=np.int64)
+        # work arrays, (envs, n): the tick allocates nothing
+        self._u = np.zeros(shape)
         # row views, made once (unpacking a (2, envs, n) array every tick would create them anew)
-        self._xv, self._pv = tuple(self._x), tuple(self._p)
-        self._valid = np.empty(shape, dtype=bool)
+        self._xv = tuple(self._x)
         self._fresh = np.empty(shape, dtype=bool)
-        self._mask = np.empty(shape, dtype=bool)
         self._good = np.empty(shape, dtype=bool)
 
         # the compiled kernel's per-joint constants (contiguous (n,) arrays)
         self._b0 = np.ascontiguousarray(self.covariance_bound[:, 0])
         self._b1 = np.ascontiguousarray(self.covariance_bound[:, 1])
-        if implementation == "compiled":  # compile (or load numba's cache) now, not in a tick,
-            # on copies: the call writes its outputs (time_since_fresh among them)
-            args = self._kernel_args(SensorFrame.empty(envs, n), RobotState.zeros(envs, n))
-            kalman_tick(2, *(np.copy(a) if isinstance(a, np.ndarray) else a for a in args))
+        self._warm_up()
 
-        self._kfs: list[list[KalmanFilter]] = []
-        if implementation == "filterpy":
-            for _ in range(envs):
-                row = []
-                for j in range(n):
-                    kf = KalmanFilter(dim_x=2, dim_z=1)
-                    kf.H = np.array([[1.0, 0.0]])
-                    kf.R = np.array([[self.measurement_variance[j]]])
-                    row.append(kf)
-                self._kfs.append(row)
+    def _warm_up(self) -> None:
+        """Compile :func:`~deploy.estimation.kernel.kalman_tick` (or load numba's cache) now, not
+        in a tick, on copies: the call writes its outputs (time_since_fresh among them)."""
+        envs, n = self.envs, self.n_joints
+        args = self._kernel_args(SensorFrame.empty(envs, n), RobotState.zeros(envs, n))
+        kalman_tick(2, *(np.copy(a) if isinstance(a, np.ndarray) else a for a in args))
 
     def _per_joint(self, name: str, value) -> np.ndarray:
         arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (self.n_joints,)).copy()
@@ -399,7 +364,7 @@ class JointStateEstimator:
         if not self._all_initialized:
             raise RuntimeError("JointStateEstimator.update before reset(q, t) of every env")
         z, ts = frame.position, frame.position_stamp
-        x0, x1 = self._xv
+        x0 = self._xv[0]
         if z.shape != x0.shape or ts.shape != x0.shape:
             raise ValueError(
                 f"frame: expected position and position_stamp shaped {x0.shape}, "
@@ -409,56 +374,18 @@ class JointStateEstimator:
             self._u.fill(0.0)
         else:
             np.copyto(self._u, acceleration)
-        if self.implementation == "compiled":
-            args = self._kernel_args(frame, state)
-            status = kalman_tick(0, *args)
-            while status:  # a degenerate joint: re-initialize it, go on from the next phase
-                with np.errstate(invalid="ignore", over="ignore"):
-                    self._reinitialize(z, ts)
-                status = kalman_tick(status, *args)
-            return state
-        valid, fresh, mask, tf = self._valid, self._fresh, self._mask, self.filter_time
-        np.copyto(self._now_t, frame.time)
-        # missing: no finite value or stamp; fresh: stamped after filter_time, not in the future
-        np.isfinite(z, out=valid)
-        np.isfinite(ts, out=mask)
-        np.logical_and(valid, mask, out=valid)
-        np.logical_not(valid, out=mask)
-        self._increment(self.missing_per_joint, mask)
-        np.greater(ts, tf, out=fresh)
-        np.logical_and(fresh, valid, out=fresh)
-        np.less_equal(ts, self._now, out=mask)
-        np.logical_and(fresh, mask, out=fresh)
-        np.logical_xor(valid, fresh, out=mask)
-        self._increment(self.stale_per_joint, mask)
+        return self._tick(frame, state)
 
-        # a state written from outside may hold inf: its arithmetic must not warn; the check
-        # below re-initializes whatever came out of it
-        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-            # checked before (a state written from outside) and after the step (numerics)
-            if not self._check():
+    def _tick(self, frame: SensorFrame, state: RobotState) -> RobotState:
+        """:meth:`update` after its checks, with ``_u`` set: the kernel
+        :func:`~deploy.estimation.kernel.kalman_tick`."""
+        z, ts = frame.position, frame.position_stamp
+        args = self._kernel_args(frame, state)
+        status = kalman_tick(0, *args)
+        while status:  # a degenerate joint: re-initialize it, go on from the next phase
+            with np.errstate(invalid="ignore", over="ignore"):
                 self._reinitialize(z, ts)
-            if np.count_nonzero(fresh):
-                self._absorb_filterpy(z, ts)
-                np.copyto(tf, ts, where=fresh)
-                if not self._check():
-                    self._reinitialize(z, ts)
-            # output: prediction from filter_time to frame.time (not stored)
-            age, tmp = self.time_since_fresh, self._w["tmp"]
-            np.subtract(self._now, tf, out=age)
-            np.multiply(age, x1, out=state.q)
-            np.add(state.q, x0, out=state.q)
-            np.multiply(age, self._u, out=state.dq)  # + B(age) u; 0 for a lost joint (age inf)
-            if not self.input_extrapolates:
-                state.dq.fill(0.0)
-            np.isfinite(state.dq, out=mask)
-            np.copyto(state.dq, 0.0, where=~mask)
-            np.multiply(state.dq, age, out=tmp)
-            np.multiply(tmp, 0.5, out=tmp)
-            np.add(state.q, tmp, out=state.q)
-            np.add(state.dq, x1, out=state.dq)
-        np.isfinite(frame.winding_temperature, out=mask)
-        np.copyto(state.winding_temperature, frame.winding_temperature, where=mask)
+            status = kalman_tick(status, *args)
         return state
 
     # ------------------------------------------------------------------ internals
@@ -487,52 +414,6 @@ class JointStateEstimator:
             self._u,
             self.input_extrapolates,
         )
-
-    def _increment(self, counter: np.ndarray, mask: np.ndarray) -> None:
-        np.add(counter, self._one_int, out=self._count)
-        np.copyto(counter, self._count, where=mask)
-
-    def _absorb_filterpy(self, z: np.ndarray, ts: np.ndarray) -> None:
-        """The reference: filterpy's predict + update, one filter per fresh (env, joint)."""
-        cov = self.covariance
-        for e, j in zip(*np.nonzero(self._fresh), strict=True):
-            kf = self._kfs[e][j]
-            kf.x = np.array([[self._x[0, e, j]], [self._x[1, e, j]]])
-            kf.P = cov[e, j].copy()
-            dt = float(ts[e, j] - self.filter_time[e, j])
-            kf.F = np.array([[1.0, dt], [0.0, 1.0]])
-            kf.Q = Q_discrete_white_noise(2, dt=dt, var=float(self.process_noise[j]))
-            kf.B = np.array([[0.5 * dt * dt], [dt]])
-            kf.predict(u=np.array([[self._u[e, j]]]))
-            kf.update(float(z[e, j]))
-            self._x[:, e, j] = kf.x[:, 0]
-            cov[e, j] = kf.P
-
-    def _check(self) -> bool:
-        """Symmetrize P; ``_good`` = finite state, P positive definite and within the bound.
-
-        Returns whether every joint is good.
-        """
-        p00, p01, p10, p11 = self._pv
-        good, mask, det, tmp = self._good, self._mask, self._w["det"], self._w["tmp"]
-        np.add(p01, p10, out=tmp)
-        np.multiply(tmp, self._half, out=p01)
-        np.copyto(p10, p01)
-        # comparisons are False for NaN; inf fails the bounds
-        np.greater(p00, self._zero, out=good)
-        np.less_equal(p00, self._bound0, out=mask)
-        np.logical_and(good, mask, out=good)
-        np.less_equal(p11, self._bound1, out=mask)
-        np.logical_and(good, mask, out=good)
-        np.multiply(p00, p11, out=det)
-        np.multiply(p01, p01, out=tmp)
-        np.subtract(det, tmp, out=det)
-        np.greater(det, self._zero, out=mask)  # with p00 > 0: positive definite
-        np.logical_and(good, mask, out=good)
-        np.add(*self._xv, out=tmp)
-        np.isfinite(tmp, out=mask)
-        np.logical_and(good, mask, out=good)
-        return np.count_nonzero(good) == good.size
 
     def _reinitialize(self, z: np.ndarray, ts: np.ndarray) -> None:
         """Re-initialize the joints that are not good (the rare path: it may allocate)."""

@@ -1,19 +1,17 @@
 """The compiled tick: numba helpers shared by the kernels of the runtime's stages (``np_max``,
 ``np_min``, ``row_sum``, ``pairs_may_touch``).
 
-Each stage keeps its numpy implementation as the tested reference (``reference=True`` on
-:class:`~deploy.safety.guard.SafetyGuard`, :class:`~deploy.smoothing.CommandSmoother`,
-:class:`~deploy.runtime.Runtime`, the monitors, :meth:`deploy.spec.policy_spec.PolicySpec
-.observation` and the plant's sensor model) and otherwise runs its kernel per tick, over the
-stage's preallocated arrays. The kernels live beside their stages: :mod:`deploy.spec.kernel`
-(the observation), :mod:`deploy.runtime.supervision_kernel` (derating, stops, the state
-machine, the action screen and map), :mod:`deploy.safety.kernel` (the guard's limits and
-screens), :mod:`deploy.safety.envelope_kernel` (the motion envelope),
-:mod:`deploy.smoothing.kernel` (the smoother's clamps, stopping guards and brake trigger),
-:mod:`robots.thermal_kernel` (the motor thermal model), :mod:`deploy.backends.sim.drives_kernel`
-and :mod:`deploy.backends.sim.sensors_kernel` (the sim plant's drives and encoders),
-:mod:`deploy.monitors.kernel` (the goal, violation, intervention and heat screens) and
-:mod:`deploy.observe.latency_kernel` (the stage latency histograms).
+Each stage runs its kernel per tick, over the stage's preallocated arrays, and keeps its numpy
+implementation as the tested reference in ``reference.py`` beside it: a subclass
+``Reference<Class>`` with the same constructor (``ReferenceGuard``, ``ReferenceSmoother``,
+``ReferenceRuntime``, the monitors', the goal scheduler's, the joint estimator's, the plant's
+sensor model's) or, for the observation, :func:`deploy.spec.reference.observation_reference`.
+The kernels live beside their stages: :mod:`deploy.spec.kernel`,
+:mod:`deploy.runtime.supervision_kernel`, :mod:`deploy.safety.kernel`,
+:mod:`deploy.safety.envelope_kernel`, :mod:`deploy.smoothing.kernel`,
+:mod:`robots.thermal_kernel`, :mod:`deploy.backends.sim.drives_kernel`,
+:mod:`deploy.backends.sim.sensors_kernel`, :mod:`deploy.monitors.kernel` and
+:mod:`deploy.observe.latency_kernel`.
 
 A kernel stops where Python must act (Ruckig, Pinocchio, a policy reset) and returns a code that
 says what; the arithmetic and its order are those of the numpy reference, so both give the same

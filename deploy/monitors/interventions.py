@@ -58,9 +58,6 @@ class InterventionMonitor(MonitorState):
     Args:
         guard: The runtime's :class:`~deploy.safety.guard.SafetyGuard`.
         smoother: The runtime's :class:`~deploy.smoothing.CommandSmoother`.
-        reference: Compare the counters in numpy instead of the kernel
-            (:func:`deploy.monitors.kernel.counters_moved`): the same counts, the tested
-            reference.
 
     Attributes:
         counts: dict check (``INTERVENTION_CHECKS``) -> (envs,) int64, ticks on which that check
@@ -70,14 +67,14 @@ class InterventionMonitor(MonitorState):
 
     Per tick it compares the counters with their values after the last tick (three comparisons
     without allocation); which check rose in which env is worked out only on ticks where some
-    counter moved.
+    counter moved (the kernel :func:`deploy.monitors.kernel.counters_moved`; its numpy reference
+    is :class:`deploy.monitors.reference.ReferenceInterventionMonitor`).
     """
 
-    def __init__(self, guard, smoother, reference: bool = False):
+    def __init__(self, guard, smoother):
         if GUARD_CHECKS[0] != "soft_limit":  # the rows below rely on the guard's order
             raise RuntimeError("deploy.safety.checks.CHECKS must start with 'soft_limit'")
         self.mode = guard.mode
-        self.reference = bool(reference)
         self.envs = envs = guard.envs
         first = 0 if self.mode == "position" else 1  # the soft-limit row is a clamp only there
         self._guard = guard
@@ -115,28 +112,19 @@ class InterventionMonitor(MonitorState):
     def update(self) -> None:
         """Count this tick's interventions (call once after each tick)."""
         self.ticks += 1
-        if self.reference:
-            changed = self._moved_reference()
-        else:
-            (_, a), (_, b) = self._smoother
-            prev = self._prev_smoother
-            changed = (
-                mk.counters_moved(self._guard_rows, self._prev_guard)
-                or mk.counters_moved(a, prev[0])
-                or mk.counters_moved(b, prev[1])
-            )
-        if changed:  # some counter moved: which checks, which envs
+        if self._moved():  # some counter moved: which checks, which envs
             self._count()
 
-    def _moved_reference(self) -> bool:
-        """Whether a counter moved, in numpy: the reference of
-        :func:`deploy.monitors.kernel.counters_moved`."""
-        np.not_equal(self._guard_rows, self._prev_guard, out=self._guard_changed)
-        changed = np.count_nonzero(self._guard_changed)
-        for i, (_, counter) in enumerate(self._smoother):
-            np.not_equal(counter, self._prev_smoother[i], out=self._smoother_changed)
-            changed += np.count_nonzero(self._smoother_changed)
-        return bool(changed)
+    def _moved(self) -> bool:
+        """Whether a guard or smoother counter moved since the last tick (the kernel
+        :func:`deploy.monitors.kernel.counters_moved`)."""
+        (_, a), (_, b) = self._smoother
+        prev = self._prev_smoother
+        return (
+            mk.counters_moved(self._guard_rows, self._prev_guard)
+            or mk.counters_moved(a, prev[0])
+            or mk.counters_moved(b, prev[1])
+        )
 
     def _count(self) -> None:
         """Per check: which envs' counters rose this tick (only on ticks where some did)."""

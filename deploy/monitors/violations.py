@@ -95,9 +95,6 @@ class ViolationMonitor(MonitorState):
     Args:
         robot: The robot description (limits, workspace box, collision pairs).
         envs: Batch size (the backend's ``envs``).
-        reference: Screen in numpy instead of the kernel
-            (:func:`deploy.monitors.kernel.violation_screen`): the same counts, the tested
-            reference.
 
     Attributes:
         counts: dict type (``VIOLATION_TYPES``) -> (envs,) int64, ticks on which that type
@@ -108,16 +105,16 @@ class ViolationMonitor(MonitorState):
     Per tick (:meth:`update`) it allocates nothing unless some env is near a limit: one
     compiled screen (``|x - centre| > half range`` over joint positions, speeds, torques and the
     end effector) decides whether the exact per-type tests run, and coal checks the collision
-    pairs of the envs the guard's exact per-pair screen flags.
+    pairs of the envs the guard's exact per-pair screen flags. Its numpy reference is
+    :class:`deploy.monitors.reference.ReferenceViolationMonitor`.
     """
 
     _state_name = "violations"
 
-    def __init__(self, robot: Robot, envs: int, reference: bool = False):
+    def __init__(self, robot: Robot, envs: int):
         if envs < 1:
             raise ValueError(f"envs: expected an integer >= 1, got {envs}")
         self.robot, self.envs = robot, envs
-        self.reference = bool(reference)
         n = self.n = robot.n_joints
         self.counts = {t: np.zeros(envs, dtype=np.int64) for t in VIOLATION_TYPES}
         self.any = np.zeros(envs, dtype=np.int64)
@@ -194,45 +191,30 @@ class ViolationMonitor(MonitorState):
                         self._collided.fill(False)
                         collided = True
                     self._collided[e] = True
-        if self.reference:
-            flagged = self._screen_reference(q, dq, tau)
-        else:
-            flagged = mk.violation_screen(
-                q, dq, tau, self._ee, self._offset_q, self._offset_ee, self._bound,
-                self._has_workspace,
-            )  # fmt: skip
+        flagged = self._screen(q, dq, tau)
         if collided or flagged:
             self._count(q, dq, tau, collided)
 
+    def _screen(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> bool:
+        """Whether some env may be past a limit (the kernel
+        :func:`deploy.monitors.kernel.violation_screen`)."""
+        return mk.violation_screen(
+            q, dq, tau, self._ee, self._offset_q, self._offset_ee, self._bound,
+            self._has_workspace,
+        )  # fmt: skip
+
     def _collision_screen(self, q: np.ndarray) -> bool:
         """Mark in ``_need`` the envs whose pairs coal must check at ``q``; returns whether any:
-        the guard's exact screen (:func:`deploy.monitors.kernel.collision_screen`), every env
-        in the reference."""
-        if self.reference:
-            self._need.fill(True)
-            return True
+        the guard's exact screen (:func:`deploy.monitors.kernel.collision_screen`)."""
         args = (self._checked_q, self._clearance, self._pair_weights, self._margin, self._tmp)
         return mk.collision_screen(q, *args, self._need)
 
     def _in_collision(self, q: np.ndarray, e: int) -> bool:
-        """Whether a collision pair of env ``e`` touches at ``q[e]`` (coal); the compiled path
-        also remembers each pair's distance there for its screen."""
+        """Whether a collision pair of env ``e`` touches at ``q[e]`` (coal); also remembers each
+        pair's distance there for :meth:`_collision_screen`."""
         args = (self._model, self._data, self._geom_model, self._geom_data, q[e])
-        if self.reference:
-            return collision_query(*args)
         self._checked_q[e] = q[e]
         return collision_query(*args, distances=self._clearance[e])
-
-    def _screen_reference(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> bool:
-        """:func:`deploy.monitors.kernel.violation_screen` in numpy: its reference."""
-        np.subtract(q, self._offset_q, out=self._q_part)
-        np.copyto(self._dq_part, dq)
-        np.copyto(self._tau_part, tau)
-        if self._has_workspace:
-            np.subtract(self._ee, self._offset_ee, out=self._ee_part)
-        np.abs(self._buf, out=self._buf)
-        np.greater(self._buf, self._bound, out=self._mask)
-        return bool(np.count_nonzero(self._mask))
 
     def _count(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray, collided: bool) -> None:
         """The exact per-type tests (only on ticks the screen or coal flagged)."""

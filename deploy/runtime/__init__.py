@@ -56,7 +56,10 @@ The package, one module per concept (each module's docstring says what it holds)
 module                    what it holds
 ========================  ====================================================================
 :mod:`~.loop`             :class:`Runtime`: its stages, start / restart / reset of faults, the
-                          tick, the run, its state dict; ``STAGES``
+                          tick, the run; ``STAGES``
+:mod:`~.state`            :class:`~.state.RuntimeState`: the runtime's state dict
+:mod:`~.reference`        :class:`ReferenceRuntime`: the tick's numpy references (guard,
+                          smoother, observation, supervision, screen, latency histograms)
 :mod:`~.modes`            the state machine's vocabulary: :class:`Mode`, ``FAULT_CAUSES``, the
                           constants of its transitions, :class:`RuntimeCounters`
 :mod:`~.supervision`      the state machine (:class:`Supervision`): its arrays, its transitions
@@ -118,6 +121,7 @@ if TYPE_CHECKING:
     )
     from deploy.runtime.compiled import CompiledSupervision
     from deploy.runtime.loop import STAGES, Runtime
+    from deploy.runtime.reference import ReferenceRuntime
     from deploy.runtime.supervision import Supervision
 
 #: The names imported when first used, and their modules.
@@ -129,6 +133,7 @@ _LAZY = {
     "CompiledSupervision": "compiled",
     "STAGES": "loop",
     "Runtime": "loop",
+    "ReferenceRuntime": "reference",
     "Supervision": "supervision",
 }
 
@@ -171,6 +176,7 @@ __all__ = [
     "RealtimeError",
     "RealtimeRequest",
     "RealtimeSettings",
+    "ReferenceRuntime",
     "Runtime",
     "RuntimeCounters",
     "SimClock",

@@ -1,8 +1,8 @@
 """The control loop (:class:`Runtime`): its stages built over one backend, its lifecycle (start,
 restart after the robot was moved, an operator's reset of latched faults), the tick (read top to
-bottom in :meth:`Runtime.tick`), the run with the garbage collector frozen, and its state
-(:meth:`Runtime.state_dict`). The package's docstring (:mod:`deploy.runtime`) describes the tick
-and the state machine.
+bottom in :meth:`Runtime.tick`) and the run with the garbage collector frozen; its state dict
+comes from :class:`~deploy.runtime.state.RuntimeState`. The package's docstring
+(:mod:`deploy.runtime`) describes the tick and the state machine.
 """
 
 from __future__ import annotations
@@ -30,13 +30,12 @@ from deploy.runtime.modes import (
     START_TIMEOUT,
     Mode,
 )
+from deploy.runtime.state import RuntimeState
 from deploy.runtime.supervision import Supervision
 from deploy.safety.guard import SafetyGuard
-from deploy.safety.reference import ReferenceGuard
 from deploy.smoothing import CommandSmoother
 from deploy.spec.policy_spec import PolicySpec
 from deploy.state import Kinematics, RobotState
-from deploy.stateful import check, load_part, prefixed, put, scalar, take
 from robots import Robot
 
 #: The tick's stages, as its latency histogram counts them (``Runtime.latency``).
@@ -47,7 +46,7 @@ def _no_reset(envs: np.ndarray) -> None:
     """The reset of a policy without state."""
 
 
-class Runtime:
+class Runtime(RuntimeState):
     """The control loop for ``envs`` robots behind one backend.
 
     Args:
@@ -64,10 +63,12 @@ class Runtime:
         telemetry: Optional :class:`~deploy.observe.telemetry.Telemetry` recorder.
         overrun_rate_limit: Fraction of overrun ticks over the last ``OVERRUN_WINDOW`` that makes
             a safe stop with the wall clock (default ``OVERRUN_RATE_LIMIT``, 5 %, our choice).
-        reference: Run the numpy references of the tick's numeric logic (supervision, action
-            screen, observation, guard, smoother) instead of the compiled kernels of
-            :mod:`deploy.kernels` (the default); both give the same numbers bit for bit
-            (``tests/test_compiled_tick.py``). The estimator is the compiled one either way.
+
+    The tick's numeric logic (supervision, action screen, observation, guard, smoother, latency
+    histograms) runs in the compiled kernels of :mod:`deploy.kernels`; its numpy reference is
+    :class:`deploy.runtime.reference.ReferenceRuntime`, whose stages and small methods
+    (:meth:`_build_stages`, :meth:`_compile`, :meth:`_supervise`, :meth:`_observe`,
+    :meth:`_act`, :meth:`_record_latency`) replace these.
 
     Raises:
         ValueError: a policy of another control mode than the backend's, or an
@@ -83,7 +84,6 @@ class Runtime:
         injector=None,
         telemetry=None,
         overrun_rate_limit: float = OVERRUN_RATE_LIMIT,
-        reference: bool = False,
     ):
         if not 0.0 < overrun_rate_limit <= 1.0:
             raise ValueError(f"overrun_rate_limit: expected in (0, 1], got {overrun_rate_limit}")
@@ -110,9 +110,7 @@ class Runtime:
             robot, envs, input_extrapolates=kind.input_extrapolates
         )
         self.kinematics = Kinematics(robot)
-        self.reference = reference
-        self.guard = (ReferenceGuard if reference else SafetyGuard)(robot, envs, self.mode_name)
-        self.smoother = CommandSmoother(robot, envs, self.mode_name, reference=reference)
+        self.guard, self.smoother = self._build_stages()
         self.state: RobotState = kind.state(robot, envs)
         self.goal = np.zeros((envs, 3))
         #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check
@@ -164,10 +162,15 @@ class Runtime:
         #: the backend's ``damp(envs)`` (drivers with their own damping mode, e.g. a Unitree
         #: robot's: kp 0, a damping kd), told every tick of a legged robot which envs damp
         self._backend_damp = getattr(backend, "damp", None)
-        #: the compiled action screen and supervision (deploy.kernels); None with ``reference``
-        self._compiled = None if reference else self._compile()
+        #: the compiled action screen and supervision (deploy.kernels); None in the reference
+        self._compiled = self._compile()
 
-    def _compile(self) -> CompiledSupervision:
+    def _build_stages(self) -> tuple[SafetyGuard, CommandSmoother]:
+        """The guard and the smoother (compiled)."""
+        envs, mode = self.envs, self.mode_name
+        return SafetyGuard(self.robot, envs, mode), CommandSmoother(self.robot, envs, mode)
+
+    def _compile(self) -> CompiledSupervision | None:
         """The compiled path: :class:`CompiledSupervision` over the runtime's arrays, and one call
         of the observation's and the latency histograms' kernels: compiled (or loaded from
         numba's cache) now, not in the first tick."""
@@ -284,7 +287,7 @@ class Runtime:
             self._update_base(frame, state)  # IMU, contacts, the gait clock; falls
         self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
         st[2] = clock_ns()
-        obs = self.spec.observation(state, self.goal, out=self._obs, reference=self.reference)
+        obs = self._observe(state)
         st[3] = clock_ns()
         policy_output = self.policy(obs)
         st[4] = clock_ns()
@@ -308,47 +311,39 @@ class Runtime:
         state.last_action[:] = action
         self.ticks += 1
         self.time += self.dt
-        if self.reference:
-            self.latency.add_stages(st)
-            self.tick_cost.add(0, st[8] - st[0] - (st[8] - st[7]))  # runtime cost w/o physics
-        else:
-            lat, cost = self.latency, self.tick_cost
-            lk.add_stages(st, self._bins, lat.counts, lat.max_ns, cost.counts, cost.max_ns)
+        self._record_latency(st)
         if self.telemetry is not None:
             self.telemetry.record(self)
         overrun = self.clock.wait()
         self.supervision.overrun_ring[self.ticks % OVERRUN_WINDOW] = overrun
 
     # ------------------------------------------------------------------ stages' helpers
+    def _supervise(self, state: RobotState, drive_errors: np.ndarray | None) -> None:
+        """The thermal derating of the guard's effort limits; stale sensors, over-temperature,
+        drive errors, overruns; end of RAMP_IN and of safe stops; re-anchoring
+        (:meth:`CompiledSupervision.supervise`)."""
+        self._compiled.supervise(state, drive_errors)
+
+    def _observe(self, state: RobotState) -> np.ndarray:
+        """(envs, obs_dim) float32: the policy's observation (``spec.observation``, compiled)."""
+        return self.spec.observation(state, self.goal, out=self._obs)
+
     def _act(self, action: np.ndarray, state: RobotState) -> tuple[np.ndarray, np.ndarray]:
         """The policy's output to a target: the fault injector's filter, the screen of
-        non-finite actions, ``spec.action_to_target``, the overrides of the envs not RUNNING;
-        returns ``(action, target)``, the screened action (float32) and the target (units of the
-        mode), (envs, n) each.
-
-        Compiled: :meth:`CompiledSupervision.screen`; reference: :meth:`Supervision.screen`
-        and :meth:`Supervision.override` (:mod:`deploy.runtime.supervision`)."""
+        non-finite actions, ``spec.action_to_target``, the overrides of the envs not RUNNING
+        (:meth:`CompiledSupervision.screen`); returns ``(action, target)``, the screened action
+        (float32) and the target (units of the mode), (envs, n) each."""
         if self.injector is not None:
             action = self.injector.filter_action(self.time, action)
-        if self.reference:
-            action = self.supervision.screen(action)
-            target = self.spec.action_to_target(action, state, out=self._target)
-            return action, self.supervision.override(target, state)
         self._compiled.screen(action, state, self.spec)
         return self.supervision.action, self._target
 
-    def _supervise(self, state: RobotState, drive_errors: np.ndarray | None) -> None:
-        """The thermal derating of the guard's effort limits; stale sensors, over-temperature,
-        drive errors, overruns; end of RAMP_IN and of safe stops; re-anchoring.
-
-        Compiled: :meth:`CompiledSupervision.supervise`; reference: the guard's
-        ``update_thermal``, :meth:`Supervision.supervise` and :meth:`_reanchor`."""
-        if self.reference:
-            self.guard.update_thermal(state.winding_temperature)
-            self.supervision.supervise(state, drive_errors)
-            self._reanchor(state)
-        else:
-            self._compiled.supervise(state, drive_errors)
+    def _record_latency(self, stamps: np.ndarray) -> None:
+        """Add the tick's stage durations (``stamps``, ns, one per stage boundary) to
+        :attr:`latency` and its cost without physics to :attr:`tick_cost` (the kernel
+        :func:`deploy.observe.latency_kernel.add_stages`)."""
+        lat, cost = self.latency, self.tick_cost
+        lk.add_stages(stamps, self._bins, lat.counts, lat.max_ns, cost.counts, cost.max_ns)
 
     def _update_base(self, frame, state: RobotState) -> None:
         """A floating-base robot's tick: the base estimate from the IMU and leg kinematics, the
@@ -409,119 +404,6 @@ class Runtime:
             if was_enabled:
                 gc.enable()
             gc.unfreeze()
-
-    # ------------------------------------------------------------------ state
-    def _state_fields(self) -> dict[str, np.ndarray]:
-        """The runtime's own per-env arrays (leading env axis), its state machine's included."""
-        c, st, sup = self.counters, self.state, self.supervision
-        fields = {
-            "mode": self.mode,
-            "cause": self.cause,
-            "goal": self.goal,
-            "drive_errors": self.drive_errors,
-            "action": sup.action,
-            "last_valid_action": sup.last_valid_action,
-            "nan_streak": sup.nan_streak,
-            "stop_ticks": self.stop_ticks,
-            "target": self._target,
-            "command": self._cmd,
-            "counters/non_finite_actions": c.non_finite_actions,
-            "counters/safe_stops": c.safe_stops,
-            "counters/resyncs": c.resyncs,
-            "counters/anchors": c.anchors,
-            "counters/safe_stop_timeouts": c.safe_stop_timeouts,
-        }
-        fields.update({f"counters/faults/{k}": v for k, v in c.faults.items()})
-        for name in ("q", "dq", "ee_position", "ee_rotation", "winding_temperature", "last_action"):
-            fields[f"state/{name}"] = getattr(st, name)
-        if st.base is not None:  # a floating base: its estimate, contacts, command, clock
-            for name in ("foot_contact", "command", "clock"):
-                fields[f"state/{name}"] = getattr(st, name)
-            for name, value in vars(st.base).items():
-                fields[f"state/base/{name}"] = value
-        return fields
-
-    def _shared_fields(self) -> dict[str, np.ndarray]:
-        """Arrays the envs share: the overrun window, the wall-clock histograms."""
-        fields = {
-            "overrun_ring": self.supervision.overrun_ring,
-            "latency/counts": self.latency.counts,
-            "latency/max_ns": self.latency.max_ns,
-            "tick_cost/counts": self.tick_cost.counts,
-            "tick_cost/max_ns": self.tick_cost.max_ns,
-        }
-        jitter = getattr(self.clock, "jitter", None)
-        if jitter is not None:
-            fields["clock/jitter/counts"] = jitter.counts
-            fields["clock/jitter/max_ns"] = jitter.max_ns
-        return fields
-
-    def _parts(self) -> dict:
-        """The stages whose state is part of the runtime's: the estimator, guard and smoother,
-        and the policy, backend and fault injector where they have a ``state_dict``."""
-        parts = {"estimator": self.estimator, "guard": self.guard, "smoother": self.smoother}
-        if self.base_estimator is not None:
-            parts["base_estimator"] = self.base_estimator
-        for name, part in (
-            ("policy", self.policy),
-            ("backend", self.backend),
-            ("injector", self.injector),
-        ):
-            if part is not None and hasattr(part, "state_dict"):
-                parts[name] = part
-        return parts
-
-    def state_dict(self, env: int | None = None) -> dict:
-        """The state of the loop and of its stages (copies; conventions of
-        :mod:`deploy.stateful`).
-
-        The runtime's own fields, (envs, ...) (length 1 for one env ``env``): ``mode``,
-        ``cause`` (int8), ``goal`` (envs, 3) m, ``drive_errors``, the screened ``action`` and
-        ``last_valid_action`` (float32), ``nan_streak``, ``stop_ticks`` (int64, ticks since the
-        safe stop began), the last ``target`` and ``command`` (the
-        units of the mode), ``counters/<name>`` and ``counters/faults/<cause>`` (int64) and the
-        estimated ``state/<field>`` (:class:`~deploy.state.RobotState`). Shared by the batch:
-        ``ticks`` (int), ``time`` (float, s), ``overrun_ring`` (``OVERRUN_WINDOW``,) bool, the
-        wall-clock histograms ``latency/*``, ``tick_cost/*`` and ``clock/*`` (measurements, not
-        seeded; a wall clock's next deadline is not state: a resumed loop starts its own).
-        Then each stage's ``state_dict(env)`` under its name: ``estimator/``, ``guard/``,
-        ``smoother/``, and ``policy/``, ``backend/``, ``injector/`` where the policy (a
-        recurrent one), the backend (:class:`~deploy.backends.sim.plant.SimBackend`) or the fault
-        injector has one.
-        """
-        out: dict = take(self._state_fields(), env)
-        out.update({k: np.array(v, copy=True) for k, v in self._shared_fields().items()})
-        out["ticks"], out["time"] = int(self.ticks), float(self.time)
-        clock = self.clock
-        out["clock/overruns"] = int(clock.overruns)
-        out["clock/missed_periods"] = int(clock.missed_periods)
-        for name, part in self._parts().items():
-            out.update(prefixed(name, part.state_dict(env)))
-        return out
-
-    def load_state_dict(self, state: dict, env: int | None = None) -> None:
-        """Inverse of :meth:`state_dict` (of every env, or of env ``env``; the shared fields
-        either way), into a runtime built with the same robot, policy, backend kind and clock.
-        A started runtime is not needed: the state replaces what :meth:`start` sets (a wall
-        clock's deadlines start anew here).
-
-        Raises:
-            StateDictError: a missing field or a shape that differs, named with its stage's
-                prefix (e.g. ``estimator/covariance``). The runtime's own fields are checked
-                before anything is written; a stage's error leaves the stages before it loaded.
-        """
-        ticks, now = scalar(state, "ticks", int), scalar(state, "time", float)
-        overruns = scalar(state, "clock/overruns", int)
-        missed = scalar(state, "clock/missed_periods", int)
-        shared = self._shared_fields()
-        check(shared, state, None)
-        put(self._state_fields(), state, env)
-        put(shared, state, None)
-        self.ticks, self.time = ticks, now
-        self.clock.overruns, self.clock.missed_periods = overruns, missed
-        for name, part in self._parts().items():
-            load_part(name, part, state, env)
-        self.clock.start()
 
     def mode_names(self) -> list[str]:
         return [Mode(int(m)).name for m in self.mode]

@@ -54,7 +54,7 @@ module                    what it holds
                           (:class:`SmoothingError`), the control interfaces, the extrema of its
                           trajectories, and the state dict that restores Ruckig's input
                           (``RUCKIG_INPUT_FIELDS``, ``EXTREMA_TOLERANCE``)
-:mod:`~.reference`        the numpy reference of the step around Ruckig (``reference=True``):
+:mod:`~.reference`        :class:`~.reference.ReferenceSmoother`, the numpy reference of the step:
                           the clamps, counters and velocity-mode stopping guards
 :mod:`~.braking`          the stopping math of a jerk-limited joint: :func:`stopping_distance`,
                           :func:`stopping_speed`

@@ -56,7 +56,7 @@ def _near(w: np.ndarray, c: np.ndarray, i: int) -> bool:
 @numba.njit(cache=True, nogil=True)
 def _brake_bound(u: float, b: float, room: float, c: np.ndarray, i: int, dt: float) -> bool:
     """Whether the joint, after one more period of the worst acceleration, could no longer stop
-    within ``room`` (``CommandSmoother._brake_needed`` for one row and DoF)."""
+    within ``room`` (``ReferenceSmoother._brake_needed`` for one row and DoF)."""
     t1 = u * dt
     t2 = b * (0.5 * dt * dt)
     t1 = t1 + t2

@@ -1,23 +1,58 @@
-"""The numpy reference of :meth:`deploy.smoothing.CommandSmoother.step` around the Ruckig call
-(``CommandSmoother(..., reference=True)``): per mode, the targets clamped to the limits and the
+""":class:`ReferenceSmoother`, the numpy reference of :meth:`deploy.smoothing.CommandSmoother.step`
+around the Ruckig call: per mode, the targets clamped to the limits and the
 clamps counted, the velocity-mode stopping guards near the soft limits (``|v| <=``
 :func:`~deploy.smoothing.stopping_speed` of the room left, and the exact brake trigger), the
 screen of the trajectories whose extrema could leave the hard limits, and the torque-mode rate
 limit.
 
 The compiled kernels of :mod:`deploy.smoothing.kernel` do the same, bit for bit
-(``tests/test_compiled_tick.py``). :class:`ReferenceStep` is a base class of
-:class:`~deploy.smoothing.CommandSmoother`; its methods work on the smoother's attributes (set in
-``CommandSmoother.__init__``).
+(``tests/test_compiled_tick.py``). :class:`ReferenceSmoother` is a
+:class:`~deploy.smoothing.CommandSmoother` (same constructor) whose step runs in numpy; it
+compiles nothing.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from deploy.smoothing.smoother import CommandSmoother
 
-class ReferenceStep:
-    """The numpy step of a :class:`~deploy.smoothing.CommandSmoother` (module docstring)."""
+
+class ReferenceSmoother(CommandSmoother):
+    """A :class:`~deploy.smoothing.CommandSmoother` whose :meth:`step` runs the numpy reference
+    around Ruckig (module docstring); the same arguments, attributes and errors."""
+
+    def _warm_up(self) -> None:
+        """Nothing to compile."""
+
+    def _step(self, target: np.ndarray | None, out: np.ndarray | None) -> np.ndarray:
+        """:meth:`step` after its checks, in numpy."""
+        raw, mask = self._raw, self._mask
+        if target is not None:
+            np.copyto(self._raw2d, target)
+            np.isfinite(raw, out=self._finite)
+            if np.count_nonzero(self._finite) != self.dofs:
+                np.logical_not(self._finite, out=mask)
+                np.logical_and(mask, ~self._stop_dof, out=mask)
+                self._increment(self.non_finite_per_joint, mask)
+                np.copyto(raw, self._held, where=~self._finite)
+            np.copyto(self._held, raw)
+        else:
+            np.copyto(raw, self._held)
+        if self.mode == "torque":
+            self._step_torque()
+        else:
+            np.copyto(self._mean_acc, self._vel)  # Ruckig's velocity before the step
+            if self.mode == "position":
+                self._step_position()
+            else:
+                self._step_velocity()
+            np.subtract(self._vel, self._mean_acc, out=self._mean_acc)
+            self._mean_acc *= self._inv_dt
+        if out is None:
+            return self.command
+        np.copyto(out, self.command)
+        return out
 
     def _increment(self, counter: np.ndarray, mask: np.ndarray) -> None:
         flat = counter.reshape(-1)

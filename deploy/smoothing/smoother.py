@@ -4,8 +4,8 @@ the measured state and the safe stop).
 
 It holds the limits and work arrays, the lifecycle (reset, sync, safe stop) and the tick (the
 compiled kernels of :mod:`deploy.smoothing.kernel` around Ruckig); Ruckig's call and the state
-dict come from :class:`~deploy.smoothing.ruckig_state.RuckigState`, the numpy reference of the
-step from :class:`~deploy.smoothing.reference.ReferenceStep`.
+dict come from :class:`~deploy.smoothing.ruckig_state.RuckigState`. Its numpy reference is
+:class:`~deploy.smoothing.reference.ReferenceSmoother`.
 """
 
 from __future__ import annotations
@@ -24,7 +24,6 @@ from ruckig import (
 
 from deploy.smoothing import kernel as sk
 from deploy.smoothing.braking import stopping_distance
-from deploy.smoothing.reference import ReferenceStep
 from deploy.smoothing.ruckig_state import RuckigState, SmoothingError
 from robots import CONTROL_MODES, Robot
 
@@ -39,7 +38,7 @@ TORQUE_RISE_TIME = 0.05
 EXTREMA_SCREEN_FACTOR = 1.5
 
 
-class CommandSmoother(RuckigState, ReferenceStep):
+class CommandSmoother(RuckigState):
     """Jerk-limited commands for ``envs`` robots of ``n`` joints.
 
     Args:
@@ -47,9 +46,6 @@ class CommandSmoother(RuckigState, ReferenceStep):
         envs: Batch size.
         mode: ``'position'`` (rad), ``'velocity'`` (rad/s) or ``'torque'`` (N m); default the
             robot's control mode.
-        reference: Run the numpy reference of :meth:`step` around Ruckig instead of the compiled
-            kernels (:mod:`deploy.smoothing.kernel`, the default); both give the same numbers
-            bit for bit.
 
     Attributes:
         command: (envs, n) the last command, in the units of the mode (overwritten by each step).
@@ -72,7 +68,7 @@ class CommandSmoother(RuckigState, ReferenceStep):
         ValueError: ``envs < 1`` or an unknown mode.
     """
 
-    def __init__(self, robot: Robot, envs: int, mode: str | None = None, reference: bool = False):
+    def __init__(self, robot: Robot, envs: int, mode: str | None = None):
         mode = robot.control_mode if mode is None else mode
         if mode not in CONTROL_MODES:
             raise ValueError(f"control mode '{mode}' is unknown; expected one of {CONTROL_MODES}")
@@ -113,7 +109,7 @@ class CommandSmoother(RuckigState, ReferenceStep):
         # velocity guard constants: stopping_speed(d) = 0.5 (sqrt(c^2 + 8 a d) - c)
         self._c = self._amax**2 / self._jmax
         self._c2, self._8a = self._c**2, 8.0 * self._amax
-        # exact brake trigger (see _brake_needed): rows toward the upper / the lower limit
+        # exact brake trigger (ReferenceSmoother._brake_needed): rows toward the upper / lower limit
         self._sign = np.array([[1.0], [-1.0]])
         self._limits = np.stack([self._hi, self._lo])
         self._jdt, self._jdt2_2 = self._jmax * dt, self._jmax * dt**2 / 2.0
@@ -160,7 +156,6 @@ class CommandSmoother(RuckigState, ReferenceStep):
         self.extrema_violations_per_joint = counts[sk.EXTREMA].reshape(shape)
         self.stopping_distance_clamps_per_joint = counts[sk.STOPPING].reshape(shape)
         self._synced = False
-        self.reference = reference
         self._kernel_mode = {"position": sk.POSITION, "velocity": sk.VELOCITY}.get(mode, sk.TORQUE)
         c = np.zeros((sk.C_ROWS, dofs))
         c[sk.LO], c[sk.HI], c[sk.VMAX], c[sk.AMAX] = self._lo, self._hi, self._vmax, self._amax
@@ -171,19 +166,7 @@ class CommandSmoother(RuckigState, ReferenceStep):
         c[sk.INV_J], c[sk.INV_2J] = self._inv_j, self._inv_2j
         c[sk.INV_2A], c[sk.A_2J] = self._inv_2a, self._a_2j
         self._c_rows = c
-        if not reference:  # compile (or load numba's cache) now, on copies, not in a tick
-            for has_target in (True, False):
-                sk.before_ruckig(
-                    self._kernel_mode,
-                    np.zeros(shape),
-                    has_target,
-                    w.copy(),
-                    c,
-                    counts.copy(),
-                    self._stop_dof.copy(),
-                    dt,
-                )
-            sk.after_ruckig(self._kernel_mode, True, w.copy(), c, self._inv_dt, self._mask.copy())
+        self._warm_up()
 
         if mode != "torque":
             self._ruckig = Ruckig(dofs, dt)
@@ -214,6 +197,23 @@ class CommandSmoother(RuckigState, ReferenceStep):
             b.max_velocity, b.max_acceleration, b.max_jerk = self._vmax, self._amax, self._jmax
             b.current_position = b.current_velocity = b.current_acceleration = zeros
             b.target_position = b.target_velocity = b.target_acceleration = zeros
+
+    def _warm_up(self) -> None:
+        """Compile the kernels of :mod:`deploy.smoothing.kernel` (or load numba's cache) now, on
+        copies of the work arrays, not in a tick."""
+        w, c, shape = self._w, self._c_rows, (self.envs, self.n_joints)
+        for has_target in (True, False):
+            sk.before_ruckig(
+                self._kernel_mode,
+                np.zeros(shape),
+                has_target,
+                w.copy(),
+                c,
+                self._counts.copy(),
+                self._stop_dof.copy(),
+                self.control_period,
+            )
+        sk.after_ruckig(self._kernel_mode, True, w.copy(), c, self._inv_dt, self._mask.copy())
 
     @property
     def commanded(self) -> np.ndarray:
@@ -386,37 +386,11 @@ class CommandSmoother(RuckigState, ReferenceStep):
         if target is not None and target.shape != self.command.shape:
             raise ValueError(f"target: expected shape {self.command.shape}, got {target.shape}")
         np.copyto(self._before, self._w[sk.POS : sk.ACC + 1])
-        if not self.reference:
-            return self._step_compiled(target, out)
-        raw, mask = self._raw, self._mask
-        if target is not None:
-            np.copyto(self._raw2d, target)
-            np.isfinite(raw, out=self._finite)
-            if np.count_nonzero(self._finite) != self.dofs:
-                np.logical_not(self._finite, out=mask)
-                np.logical_and(mask, ~self._stop_dof, out=mask)
-                self._increment(self.non_finite_per_joint, mask)
-                np.copyto(raw, self._held, where=~self._finite)
-            np.copyto(self._held, raw)
-        else:
-            np.copyto(raw, self._held)
-        if self.mode == "torque":
-            self._step_torque()
-        else:
-            np.copyto(self._mean_acc, self._vel)  # Ruckig's velocity before the step
-            if self.mode == "position":
-                self._step_position()
-            else:
-                self._step_velocity()
-            np.subtract(self._vel, self._mean_acc, out=self._mean_acc)
-            self._mean_acc *= self._inv_dt
-        if out is None:
-            return self.command
-        np.copyto(out, self.command)
-        return out
+        return self._step(target, out)
 
-    def _step_compiled(self, target: np.ndarray | None, out: np.ndarray | None) -> np.ndarray:
-        """:meth:`step` with the kernels of :mod:`deploy.smoothing.kernel` around Ruckig."""
+    def _step(self, target: np.ndarray | None, out: np.ndarray | None) -> np.ndarray:
+        """:meth:`step` after its checks: the kernels of :mod:`deploy.smoothing.kernel` around
+        Ruckig."""
         mode, w = self._kernel_mode, self._w
         has = target is not None
         sk.before_ruckig(

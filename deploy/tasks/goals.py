@@ -124,9 +124,6 @@ class GoalScheduler:
             its period.
         max_missed: Missed goals recorded per env; later ones are only counted
             (``missed_dropped``).
-        reference: Run each tick in numpy instead of the kernels
-            (:func:`deploy.monitors.kernel.goal_screen`, ``goal_hits``): the same results, the
-            tested reference.
 
     Attributes:
         t_goal: (envs,) s, when each env's goal was issued, moved on while the env was not
@@ -156,11 +153,8 @@ class GoalScheduler:
         window: float = 600.0,
         interventions=None,
         max_missed: int = 2000,
-        reference: bool = False,
     ):
         self.robot, self.period, self.fixed = robot, period, fixed
-        #: True: every tick in numpy (the reference of the kernels of deploy.monitors.kernel)
-        self.reference = bool(reference)
         self.streams = list(rng) if isinstance(rng, (list, tuple)) else None
         if self.streams is not None and len(self.streams) != envs:
             raise ValueError(f"rng: expected {envs} generators (one per env), got {len(rng)}")
@@ -365,10 +359,9 @@ class GoalScheduler:
 
     def __call__(self, rt) -> None:
         """One tick after the runtime's: issue the goals that are due (in env order), record the
-        goals reached (class doc)."""
-        if self.reference:
-            self.call_reference(rt)
-            return
+        goals reached (class doc), with the kernels :func:`deploy.monitors.kernel.goal_screen`
+        and ``goal_hits`` (their numpy reference:
+        :class:`deploy.tasks.reference.ReferenceGoalScheduler`)."""
         t = rt.time
         due, check, hit = self._due, self._check, self._hit
         bits = mk.goal_screen(
@@ -385,34 +378,6 @@ class GoalScheduler:
             )
             if any_hit:
                 self._record_hits(np.flatnonzero(hit), self._age)
-
-    def call_reference(self, rt) -> None:
-        """:meth:`__call__` in numpy: the reference of its kernels."""
-        t = rt.time
-        running = rt.mode == 2
-        if not running.all():  # only RUNNING time counts
-            paused = ~running & ~self.reached
-            self.t_goal[paused] = t
-            if not running.any():
-                return
-        age = t - self.t_goal
-        due = running & (self.issued == 0)
-        if self.fixed is None:
-            due |= running & (age >= self.period)
-        if due.any():
-            for e in np.flatnonzero(due):  # in env order (one stream for a batch)
-                self.new_goal(rt, e)
-        check = running & ~due & ~self.reached & (age <= self.success_time)
-        if check.any():
-            ee = self.end_effector(rt)
-            diff, distance = self._diff, self._distance
-            np.subtract(ee, rt.goal, out=diff)
-            np.multiply(diff, diff, out=diff)
-            np.sum(diff, axis=1, out=distance)
-            np.sqrt(distance, out=distance)
-            np.minimum(self.best_distance, distance, out=self.best_distance, where=check)
-            hit = check & (distance <= self.success_radius)
-            self._record_hits(np.flatnonzero(hit), age)
 
     def _record_hits(self, envs: np.ndarray, age: np.ndarray) -> None:
         """The envs ``envs`` reached their goal at ``age[e]`` s after it was issued."""

@@ -75,6 +75,9 @@ class JointSensorModel:
 
     Raises:
         ValueError: the robot's ``encoder_latency_ticks`` above ``max_latency_ticks``.
+
+    The encoder arithmetic runs in the kernels of :mod:`deploy.backends.sim.sensors_kernel`; their
+    numpy reference is :class:`deploy.backends.sim.reference.ReferenceJointSensorModel`.
     """
 
     def __init__(
@@ -142,46 +145,38 @@ class JointSensorModel:
 
     # ------------------------------------------------------------------ per tick
     def sample(
-        self,
-        tick: int,
-        time: float,
-        q: np.ndarray,
-        winding_temperature: np.ndarray,
-        reference: bool = False,
+        self, tick: int, time: float, q: np.ndarray, winding_temperature: np.ndarray
     ) -> None:
         """Take the readings due at control tick ``tick`` (s ``time``): the joint angles ``q``
         (envs, n) rad into the latency buffer every ``encoder_every`` ticks, the winding
         temperatures (envs, n) degC into the frame at the temperature rate.
 
-        The draws come from :attr:`rng`; the arithmetic is the kernel
-        :func:`deploy.backends.sim.sensors_kernel.encoder_sample`, or with ``reference`` its numpy
-        reference (the same readings and draws)."""
+        The draws come from :attr:`rng`; the arithmetic is :meth:`_encode`."""
         slot = tick % self._buf_stamp.shape[0]
         if tick % self._encoder_every == 0:
             sample = self._buf_position[slot]
             self.rng.standard_normal(out=sample)
             self.rng.random(out=self._uniform)
-            if reference:
-                sample *= self.noise_sigma[:, None]
-                sample += q
-                np.round(sample / self.encoder_quantum, out=sample)
-                sample *= self.encoder_quantum
-                sample[self._uniform < self.dropout_probability[:, None]] = np.nan
-            else:
-                encoder_sample(
-                    sample,
-                    self._uniform,
-                    q,
-                    self.noise_sigma,
-                    self.encoder_quantum,
-                    self.dropout_probability,
-                )
+            self._encode(sample, q)
             self._buf_stamp[slot] = time
         else:
             self._buf_position[slot] = np.nan
             self._buf_stamp[slot] = np.nan
         if tick % self._temperature_every == 0:
             self._sample_temperature(time, winding_temperature)
+
+    def _encode(self, sample: np.ndarray, q: np.ndarray) -> None:
+        """In place: the standard normal draws ``sample`` (envs, n) become the readings of ``q``
+        (envs, n) rad (noise, quantization, dropout by the uniform draws ``_uniform``): the kernel
+        :func:`deploy.backends.sim.sensors_kernel.encoder_sample`."""
+        encoder_sample(
+            sample,
+            self._uniform,
+            q,
+            self.noise_sigma,
+            self.encoder_quantum,
+            self.dropout_probability,
+        )
 
     def _sample_temperature(self, time: float, winding_temperature: np.ndarray) -> None:
         f = self.frame
@@ -190,27 +185,14 @@ class JointSensorModel:
         f.winding_temperature *= res
         f.temperature_stamp.fill(time)
 
-    def read(self, tick: int, reference: bool = False) -> None:
+    def read(self, tick: int) -> None:
         """Fill the frame's joint position fields with the readings arriving at ``tick``
-        (the kernel :func:`deploy.backends.sim.sensors_kernel.encoder_read`, or with ``reference``
-        its
-        numpy reference)."""
+        (the kernel :func:`deploy.backends.sim.sensors_kernel.encoder_read`)."""
         f = self.frame
-        if not reference:
-            encoder_read(
-                tick, self.latency_ticks, self._buf_position, self._buf_stamp, f.position,
-                f.position_stamp,
-            )  # fmt: skip
-            return
-        origin = tick - self.latency_ticks  # tick at which the arriving reading was sampled
-        slot = origin % self._buf_stamp.shape[0]
-        f.position[:] = self._buf_position[slot, self._env_index]
-        f.position_stamp[:] = self._buf_stamp[slot, self._env_index][:, None]
-        too_early = origin < 0
-        if too_early.any():
-            f.position[too_early] = np.nan
-            f.position_stamp[too_early] = np.nan
-        f.position_stamp[np.isnan(f.position)] = np.nan
+        encoder_read(
+            tick, self.latency_ticks, self._buf_position, self._buf_stamp, f.position,
+            f.position_stamp,
+        )  # fmt: skip
 
     # ------------------------------------------------------------------ state
     def state_fields(self) -> dict[str, np.ndarray]:

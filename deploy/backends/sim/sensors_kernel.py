@@ -2,7 +2,7 @@
 
 :func:`encoder_sample` turns the noise and dropout draws of one encoder sample into readings, and
 :func:`encoder_read` delivers the readings due at a tick, each with the arithmetic of the numpy
-references (``JointSensorModel.sample`` and ``read`` with ``reference=True``) in their order, so
+references (:class:`deploy.backends.sim.reference.ReferenceJointSensorModel`) in their order, so
 both give the same readings bit for bit (``tests/test_sim_plant.py``). The random draws stay in
 numpy's ``Generator`` (the soak's seeded streams), made before the kernel is called.
 """

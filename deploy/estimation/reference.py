@@ -1,0 +1,159 @@
+"""The numpy reference of the joint state estimator's kernel (:mod:`deploy.estimation.kernel`):
+:class:`ReferenceJointStateEstimator`, a :class:`~deploy.estimation.joints.JointStateEstimator`
+with the same constructor whose tick runs in numpy around one
+``filterpy.kalman.KalmanFilter(dim_x=2, dim_z=1)`` per (env, joint) (filterpy's predict and update
+for each fresh reading). Both give the same numbers to rounding (``tests/test_estimation.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from filterpy.common import Q_discrete_white_noise
+from filterpy.kalman import KalmanFilter
+
+from deploy.backends.base import SensorFrame
+from deploy.estimation.joints import JointStateEstimator
+from deploy.state import RobotState
+from robots import Robot
+
+
+class ReferenceJointStateEstimator(JointStateEstimator):
+    """A :class:`~deploy.estimation.joints.JointStateEstimator` whose tick runs in numpy and
+    filterpy (module docstring); the same arguments, attributes and errors. It compiles nothing."""
+
+    def __init__(
+        self,
+        robot: Robot,
+        envs: int,
+        process_noise: float | np.ndarray | None = None,
+        measurement_sigma: float | np.ndarray | None = None,
+        input_extrapolates: bool = True,
+    ):
+        super().__init__(robot, envs, process_noise, measurement_sigma, input_extrapolates)
+        n, shape = self.n_joints, (envs, self.n_joints)
+
+        # constants and work arrays of the numpy tick, all (envs, n): it allocates nothing
+        def full(value) -> np.ndarray:
+            return np.broadcast_to(np.asarray(value, dtype=np.float64), shape).copy()
+
+        self._var = full(self.process_noise)
+        self._r = full(self.measurement_variance)
+        self._bound0 = full(self.covariance_bound[:, 0])
+        self._bound1 = full(self.covariance_bound[:, 1])
+        self._zero, self._half, self._one = full(0.0), full(0.5), full(1.0)
+        self._one_int = np.ones(shape, dtype=np.int64)
+        self._now = np.zeros(shape)
+        self._now_t = self._now.T  # (n, envs) view: broadcasts frame.time (envs,) into _now
+        self._w = {k: np.empty(shape) for k in ("tmp", "det")}
+        self._count = np.empty(shape, dtype=np.int64)
+        # row views, made once (unpacking a (2, envs, n) array every tick would create them anew)
+        self._pv = tuple(self._p)
+        self._valid = np.empty(shape, dtype=bool)
+        self._mask = np.empty(shape, dtype=bool)
+
+        self._kfs: list[list[KalmanFilter]] = []
+        for _ in range(envs):
+            row = []
+            for j in range(n):
+                kf = KalmanFilter(dim_x=2, dim_z=1)
+                kf.H = np.array([[1.0, 0.0]])
+                kf.R = np.array([[self.measurement_variance[j]]])
+                row.append(kf)
+            self._kfs.append(row)
+
+    def _warm_up(self) -> None:
+        """Nothing to compile."""
+
+    def _tick(self, frame: SensorFrame, state: RobotState) -> RobotState:
+        """:meth:`update` after its checks, with ``_u`` set, in numpy and filterpy."""
+        z, ts = frame.position, frame.position_stamp
+        x0, x1 = self._xv
+        valid, fresh, mask, tf = self._valid, self._fresh, self._mask, self.filter_time
+        np.copyto(self._now_t, frame.time)
+        # missing: no finite value or stamp; fresh: stamped after filter_time, not in the future
+        np.isfinite(z, out=valid)
+        np.isfinite(ts, out=mask)
+        np.logical_and(valid, mask, out=valid)
+        np.logical_not(valid, out=mask)
+        self._increment(self.missing_per_joint, mask)
+        np.greater(ts, tf, out=fresh)
+        np.logical_and(fresh, valid, out=fresh)
+        np.less_equal(ts, self._now, out=mask)
+        np.logical_and(fresh, mask, out=fresh)
+        np.logical_xor(valid, fresh, out=mask)
+        self._increment(self.stale_per_joint, mask)
+
+        # a state written from outside may hold inf: its arithmetic must not warn; the check
+        # below re-initializes whatever came out of it
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            # checked before (a state written from outside) and after the step (numerics)
+            if not self._check():
+                self._reinitialize(z, ts)
+            if np.count_nonzero(fresh):
+                self._absorb_filterpy(z, ts)
+                np.copyto(tf, ts, where=fresh)
+                if not self._check():
+                    self._reinitialize(z, ts)
+            # output: prediction from filter_time to frame.time (not stored)
+            age, tmp = self.time_since_fresh, self._w["tmp"]
+            np.subtract(self._now, tf, out=age)
+            np.multiply(age, x1, out=state.q)
+            np.add(state.q, x0, out=state.q)
+            np.multiply(age, self._u, out=state.dq)  # + B(age) u; 0 for a lost joint (age inf)
+            if not self.input_extrapolates:
+                state.dq.fill(0.0)
+            np.isfinite(state.dq, out=mask)
+            np.copyto(state.dq, 0.0, where=~mask)
+            np.multiply(state.dq, age, out=tmp)
+            np.multiply(tmp, 0.5, out=tmp)
+            np.add(state.q, tmp, out=state.q)
+            np.add(state.dq, x1, out=state.dq)
+        np.isfinite(frame.winding_temperature, out=mask)
+        np.copyto(state.winding_temperature, frame.winding_temperature, where=mask)
+        return state
+
+    def _increment(self, counter: np.ndarray, mask: np.ndarray) -> None:
+        np.add(counter, self._one_int, out=self._count)
+        np.copyto(counter, self._count, where=mask)
+
+    def _absorb_filterpy(self, z: np.ndarray, ts: np.ndarray) -> None:
+        """The reference: filterpy's predict + update, one filter per fresh (env, joint)."""
+        cov = self.covariance
+        for e, j in zip(*np.nonzero(self._fresh), strict=True):
+            kf = self._kfs[e][j]
+            kf.x = np.array([[self._x[0, e, j]], [self._x[1, e, j]]])
+            kf.P = cov[e, j].copy()
+            dt = float(ts[e, j] - self.filter_time[e, j])
+            kf.F = np.array([[1.0, dt], [0.0, 1.0]])
+            kf.Q = Q_discrete_white_noise(2, dt=dt, var=float(self.process_noise[j]))
+            kf.B = np.array([[0.5 * dt * dt], [dt]])
+            kf.predict(u=np.array([[self._u[e, j]]]))
+            kf.update(float(z[e, j]))
+            self._x[:, e, j] = kf.x[:, 0]
+            cov[e, j] = kf.P
+
+    def _check(self) -> bool:
+        """Symmetrize P; ``_good`` = finite state, P positive definite and within the bound.
+
+        Returns whether every joint is good.
+        """
+        p00, p01, p10, p11 = self._pv
+        good, mask, det, tmp = self._good, self._mask, self._w["det"], self._w["tmp"]
+        np.add(p01, p10, out=tmp)
+        np.multiply(tmp, self._half, out=p01)
+        np.copyto(p10, p01)
+        # comparisons are False for NaN; inf fails the bounds
+        np.greater(p00, self._zero, out=good)
+        np.less_equal(p00, self._bound0, out=mask)
+        np.logical_and(good, mask, out=good)
+        np.less_equal(p11, self._bound1, out=mask)
+        np.logical_and(good, mask, out=good)
+        np.multiply(p00, p11, out=det)
+        np.multiply(p01, p01, out=tmp)
+        np.subtract(det, tmp, out=det)
+        np.greater(det, self._zero, out=mask)  # with p00 > 0: positive definite
+        np.logical_and(good, mask, out=good)
+        np.add(*self._xv, out=tmp)
+        np.isfinite(tmp, out=mask)
+        np.logical_and(good, mask, out=good)
+        return np.count_nonzero(good) == good.size

@@ -33,6 +33,7 @@ from deploy.runtime.supervision import Supervision
 from deploy.safety.guard import SafetyGuard
 from deploy.smoothing import CommandSmoother
 from deploy.spec.policy_spec import PolicySpec
+from deploy.spec.reference import observation_reference
 from deploy.state import Kinematics, RobotState
 from deploy.stateful import check, load_part, prefixed, put, scalar, take
 from robots import Robot
@@ -289,7 +290,11 @@ class Runtime:
             self._update_base(frame, state)  # IMU, contacts, the gait clock; falls
         self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
         st[2] = clock_ns()
-        obs = self.spec.observation(state, self.goal, out=self._obs, reference=self.reference)
+        obs = (
+            observation_reference(self.spec, state, self.goal, out=self._obs)
+            if self.reference
+            else self.spec.observation(state, self.goal, out=self._obs)
+        )
         st[3] = clock_ns()
         policy_output = self.policy(obs)
         st[4] = clock_ns()

@@ -20,9 +20,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from deploy.spec import kernel, reference
+from robots.errors import Sim2RealError
 
 
-class KindError(ValueError):
+class KindError(Sim2RealError, ValueError):
     """An observation kind cannot be registered; the message names the kind and the field."""
 
 
@@ -73,13 +74,21 @@ def register_kind(kind: ObservationKind) -> ObservationKind:
     """Add ``kind`` to the registry; returns it.
 
     Raises:
-        KindError: no kernel code (every kind runs in the compiled kernel), a code the kernel has
-            no branch for or another kind's, no numpy writer, a name already registered, or
-            inconsistent sizes.
+        KindError: a name already registered, no numpy writer, inconsistent sizes, no kernel
+            code (every kind runs in the compiled kernel), or a code the kernel has no branch for
+            or another kind's.
     """
     where = f"observation kind '{kind.name}'"
     if not kind.name or kind.name in KINDS:
         raise KindError(f"{where}: the name is empty or already registered")
+    if kind.numpy is None:
+        raise KindError(f"{where}: no numpy writer (the reference the kernel is tested against)")
+    if (kind.per_joint > 0) == (kind.size > 0):
+        raise KindError(f"{where}: give either a fixed size or entries per joint, not both")
+    if kind.every_joint and not kind.per_joint:
+        raise KindError(f"{where}: every_joint is for joint kinds")
+    if kind.vector and kind.size != 3:
+        raise KindError(f"{where}: a vector kind has 3 entries")
     if kind.kernel_code is None:
         raise KindError(
             f"{where}: no kernel_code: every kind runs in the compiled kernel; add its branch to "
@@ -93,14 +102,6 @@ def register_kind(kind: ObservationKind) -> ObservationKind:
     taken = [k.name for k in KINDS.values() if k.kernel_code == kind.kernel_code]
     if taken:
         raise KindError(f"{where}: kernel_code {kind.kernel_code} is the code of '{taken[0]}'")
-    if kind.numpy is None:
-        raise KindError(f"{where}: no numpy writer (the reference the kernel is tested against)")
-    if (kind.per_joint > 0) == (kind.size > 0):
-        raise KindError(f"{where}: give either a fixed size or entries per joint, not both")
-    if kind.every_joint and not kind.per_joint:
-        raise KindError(f"{where}: every_joint is for joint kinds")
-    if kind.vector and kind.size != 3:
-        raise KindError(f"{where}: a vector kind has 3 entries")
     KINDS[kind.name] = kind
     return kind
 

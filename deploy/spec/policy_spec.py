@@ -21,12 +21,9 @@ JSON Schema is ``docs/policy_spec.schema.json``).
 
 Action: ``a`` in ``[-clip, clip]^n`` maps to the target of the control mode,
 ``target = offset + scale * a`` (``reference = "absolute"``) or ``target = q + scale * a``
-(position mode, ``reference = "current"``). :meth:`PolicySpec.for_robot` scales a velocity action
-by the soft velocity limit (the fastest command the smoother issues, so a full action is never
-clamped), a torque action by the effort limit and an absolute position action by half the range.
-
-Arrays are shaped (envs, ...). ``observation`` and ``action_to_target`` write into ``out`` when it
-is given (no allocation in the control loop).
+(position mode, ``reference = "current"``); :mod:`deploy.spec.defaults` gives a robot's scales.
+Arrays are shaped (envs, ...); ``observation`` and ``action_to_target`` write into ``out`` when
+it is given (no allocation in the control loop).
 """
 
 from __future__ import annotations
@@ -185,7 +182,10 @@ class PolicySpec:
         """Standard spec for ``robot`` with physical scales taken from the robot description.
 
         Joints whose range exceeds 2 pi (multi-turn) are wrapping joints: ``joint_position``
-        skips them and ``joint_position_sincos`` covers them.
+        skips them and ``joint_position_sincos`` covers them. A velocity action is scaled by the
+        soft velocity limit (the fastest command the smoother issues, so a full action is never
+        clamped), a torque action by the effort limit, an absolute position action by half the
+        range.
 
         Default blocks: ``joint_position``, ``joint_position_sincos`` (only when the robot has
         wrapping joints), ``joint_velocity``, ``ee_position``, ``goal_position``, ``goal_in_ee``.

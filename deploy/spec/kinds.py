@@ -143,6 +143,7 @@ UNPROVIDED_KINDS = {
 }
 
 
+# The built-in kinds' numpy writers are the functions of the same name in deploy.spec.reference.
 def _joint(name: str, units: str, code: int, per_joint: int = 1, every: bool = False) -> None:
     register_kind(ObservationKind(name, units, getattr(reference, name), code, 0, per_joint, every))
 

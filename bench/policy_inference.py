@@ -35,13 +35,12 @@ from deploy.export import load_source, run_export  # noqa: E402
 from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint  # noqa: E402
 from deploy.policy.obs_normalizer import ObservationNormalizer  # noqa: E402
 from deploy.policy.onnx_policy import OnnxPolicy  # noqa: E402
-from deploy.spec.policy_spec import LEGGED_KINDS, OBSERVATION_KINDS, PolicySpec  # noqa: E402
+from deploy.spec.kinds import kind_names  # noqa: E402
+from deploy.spec.policy_spec import PolicySpec  # noqa: E402
 from robots import load_robot  # noqa: E402
 
 #: Every observation block a fixed-base robot without wrapping joints has (arm3, arm6).
-BLOCKS = tuple(
-    k for k in OBSERVATION_KINDS if k != "joint_position_sincos" and k not in LEGGED_KINDS
-)
+BLOCKS = tuple(k for k in kind_names(floating_base=False) if k != "joint_position_sincos")
 
 
 def time_calls(fn: Callable[[], object], calls: int, warmup: int = 500) -> np.ndarray:

@@ -17,6 +17,7 @@ operation order (numpy's pairwise row sums included), so equality is exact.
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 import pytest
@@ -31,6 +32,7 @@ from deploy.safety.checks import CHECKS
 from deploy.safety.reference import ReferenceGuard
 from deploy.smoothing.reference import ReferenceSmoother
 from deploy.spec.policy_spec import ObservationBlock, PolicySpec, SpecError
+from deploy.spec.reference import observation_reference
 from deploy.state import Kinematics, RobotState
 from tests.runtime_fixtures import adversarial_onnx
 
@@ -245,7 +247,7 @@ def test_compiled_observation_equals_the_reference_for_every_block(request, robo
         kin.update(state)
         goal = rng.uniform(-1.0, 1.0, (envs, 3))
         spec.observation(state, goal, out=out_a)
-        spec.observation(state, goal, out=out_b, reference=True)
+        observation_reference(spec, state, goal, out=out_b)
         np.testing.assert_array_equal(out_a, out_b)
         clipped += int((np.abs(out_a) == 0.8).sum())
     assert clipped > 0  # the clip ran
@@ -290,11 +292,11 @@ def test_compiled_observation_equals_the_reference_for_the_floating_base_blocks(
         state.foot_contact[:] = rng.integers(0, 2, (envs, feet))
         state.clock[:] = tick * 0.02 + rng.uniform(0.0, 100.0, envs)
         spec.observation(state, goal, out=out_a)
-        spec.observation(state, goal, out=out_b, reference=True)
+        observation_reference(spec, state, goal, out=out_b)
         np.testing.assert_array_equal(out_a, out_b)
         clipped += int((np.abs(out_a[:, 6:9]) == np.float32(0.9)).sum())
     assert clipped > 0  # the gravity block's clip ran
     fixed = RobotState.zeros(envs, n)
-    for reference in (False, True):
+    for observe in (spec.observation, partial(observation_reference, spec)):
         with pytest.raises(SpecError, match="needs a floating-base robot's state"):
-            spec.observation(fixed, np.zeros((envs, 3)), reference=reference)
+            observe(fixed, np.zeros((envs, 3)))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import shutil
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,7 @@ from deploy.export import main
 from deploy.export.deploy_config import GAIT_PERIOD, spec_and_robot
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.policy.onnx_spec import spec_differences
+from deploy.spec.reference import observation_reference
 from deploy.state import RobotState
 from robots import load_robot
 
@@ -138,8 +140,8 @@ def test_the_spec_from_a_config_computes_deploy_mujocos_observation(go2, tmp_pat
     rng = np.random.default_rng(11)
     for state, inputs in random_states(go2, rng, 200):
         theirs = deploy_mujoco_observation(cfg, *inputs)
-        for reference in (False, True):
-            ours = spec.observation(state, np.zeros((1, 3)), reference=reference)[0]
+        for observe in (spec.observation, partial(observation_reference, spec)):
+            ours = observe(state, np.zeros((1, 3)))[0]
             np.testing.assert_allclose(ours, theirs, rtol=2e-6, atol=2e-6)
 
 

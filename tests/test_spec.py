@@ -351,3 +351,63 @@ def test_the_readme_shows_the_example_specs_as_they_are_tested():
     readme = (REPO / "README.md").read_text()
     for path in sorted(EXAMPLES.glob("*.json")):
         assert path.read_text().strip() in readme, path.name
+
+
+# ---------------------------------------------------------------------- the kind registry
+def test_every_registered_kind_has_a_kernel_branch_and_a_numpy_writer():
+    from deploy.spec import kernel
+    from deploy.spec.kinds import KINDS
+
+    codes = [k.kernel_code for k in KINDS.values()]
+    assert sorted(codes) == sorted(kernel.BRANCHES)  # one kind per branch, no branch unused
+    assert all(callable(k.numpy) and k.units for k in KINDS.values())
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"kernel_code": None}, r"'joint_torque': no kernel_code: every kind runs in the compiled"),
+        ({"kernel_code": 999}, r"'joint_torque': kernel_code 999 has no branch"),
+        ({"kernel_code": 0}, r"'joint_torque': kernel_code 0 is the code of 'joint_position'"),
+        ({"numpy": None}, r"'joint_torque': no numpy writer"),
+        ({"name": "joint_velocity"}, r"'joint_velocity': the name is empty or already registered"),
+        ({"size": 3}, r"either a fixed size or entries per joint"),
+    ],
+)
+def test_a_kind_without_a_kernel_branch_is_refused_at_registration(changes, message):
+    from deploy.spec.kinds import KINDS, KindError, ObservationKind, register_kind
+
+    before = dict(KINDS)
+    kind = ObservationKind("joint_torque", "N m", lambda *a: None, None, per_joint=1)
+    kind = dataclasses.replace(kind, **{"kernel_code": None, **changes})
+    with pytest.raises(KindError, match=message):
+        register_kind(kind)
+    assert KINDS == before  # nothing registered
+
+
+def test_the_reference_gives_the_kernels_numbers_and_components_run_it_explicitly(go2):
+    """``observation_reference`` equals ``observation`` bit for bit; a block reading some
+    components of its vector (holosoma's split command) runs the numpy writers, and the plan
+    says why."""
+    from deploy.spec.policy_spec import ObservationBlock
+    from deploy.spec.reference import observation_reference
+
+    base = PolicySpec.for_robot(go2)
+    assert base._plan.compiled and base._plan.numpy_reason is None
+    yaw = ObservationBlock("velocity_command", 1, (0.25,), (0.0,), components=(2,))
+    split = dataclasses.replace(base, observation_blocks=(yaw,) + base.observation_blocks)
+    split.validate()
+    assert not split._plan.compiled
+    assert split._plan.numpy_reason == "block 'velocity_command' reads components [2] of its vector"
+    rng = np.random.default_rng(2)
+    state = RobotState.legged(3, go2.n_joints, go2.n_feet)
+    state.q[:] = rng.uniform(go2.position_lower, go2.position_upper, (3, go2.n_joints))
+    state.command[:] = rng.uniform(-1.0, 1.0, (3, 3))
+    state.clock[:] = rng.uniform(0.0, 10.0, 3)
+    goal = np.zeros((3, 3))
+    for spec in (base, split):
+        np.testing.assert_array_equal(
+            spec.observation(state, goal), observation_reference(spec, state, goal)
+        )
+    obs = split.observation(state, goal)
+    np.testing.assert_array_equal(obs[:, 0], (state.command[:, 2] / 0.25).astype(np.float32))

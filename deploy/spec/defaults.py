@@ -4,9 +4,9 @@ construction.
 From the robot description alone: the default observation blocks (an arm's joint, end-effector and
 goal blocks; a floating-base robot's ``LEGGED_DEFAULT_BLOCKS``), each with its physical scale and
 offset (joint limits, velocity limits, reach, winding temperature limits, legged_gym's divisors),
-and the action mapping of the control mode. The tables it reads (``LEGGED_SCALES``,
-``FIXED_SIZES``, ...) are :mod:`deploy.spec.policy_spec`'s, the one description of the observation
-layout.
+and the action mapping of the control mode. The kinds' sizes are the registry's
+(:mod:`deploy.spec.kinds`); the legged tables (``LEGGED_SCALES``, ...) are
+:mod:`deploy.spec.policy_spec`'s.
 """
 
 from __future__ import annotations
@@ -15,15 +15,13 @@ from dataclasses import replace
 
 import numpy as np
 
+from deploy.spec.kinds import KINDS, kind_names
 from deploy.spec.policy_spec import (
-    FIXED_SIZES,
     GAIT_PERIOD,
     LEGGED_ACTION_CLIP,
     LEGGED_ACTION_SCALE,
     LEGGED_DEFAULT_BLOCKS,
-    LEGGED_KINDS,
     LEGGED_SCALES,
-    OBSERVATION_KINDS,
     ActionSpec,
     ObservationBlock,
     PolicySpec,
@@ -88,10 +86,10 @@ def spec_for_robot(
             else:
                 scale = tuple(float(v) for v in robot.velocity_limit)
             out.append(ObservationBlock(kind, n, scale, (0.0,) * n, joints=idx))
-        elif kind in LEGGED_KINDS:
-            size = robot.n_feet if kind == "foot_contact" else FIXED_SIZES[kind]
+        elif kind in KINDS and KINDS[kind].floating_base:
+            size = robot.n_feet if KINDS[kind].per_foot else KINDS[kind].size
             scale = LEGGED_SCALES.get(kind, (1.0,) * size)
-            period = GAIT_PERIOD if kind == "gait_phase" else 0.0
+            period = GAIT_PERIOD if KINDS[kind].periodic else 0.0
             out.append(ObservationBlock(kind, size, tuple(scale), (0.0,) * size, period=period))
         elif kind == "joint_position_sincos":
             k = len(wrapping)
@@ -107,7 +105,7 @@ def spec_for_robot(
             out.append(ObservationBlock(kind, n, scale, (ambient,) * n, joints=tuple(range(n))))
         else:
             raise SpecError(
-                f"observation: block '{kind}' is unknown; expected one of {OBSERVATION_KINDS}"
+                f"observation: block '{kind}' is unknown; expected one of {kind_names()}"
             )
     if mode == "position" and legged and reference == "absolute":
         scale, offset = (LEGGED_ACTION_SCALE,) * n, tuple(float(h) for h in robot.home)

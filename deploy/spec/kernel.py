@@ -1,16 +1,14 @@
 """Kernel of :meth:`deploy.spec.policy_spec.PolicySpec.observation`: assemble, normalize, clip,
 cast.
 
-The blocks are coded as integers (``KIND_CODES``, the order of
-``deploy.spec.policy_spec.OBSERVATION_KINDS``
-is not assumed); each block has its start column, size and joint indices (a (blocks, max_joints)
-int64 array, padded). The arithmetic is the reference's: ``(raw - offset) / scale``, then the
-upper clip, then the lower clip, then the cast to float32; ``goal_in_ee`` is
-``(goal - ee) @ R`` summed in the order of numpy's matmul loop. The floating-base blocks read the
-base estimate (linear and angular velocity, projected gravity, orientation), the velocity command,
-the clock and the foot contacts; ``gait_phase`` is ``sin, cos`` of ``(2 pi / period) * clock``
-and ``heading_sincos`` of the yaw ``atan2(2 (w z + x y), 1 - 2 (y^2 + z^2))``, as the reference
-computes them (:func:`deploy.spec.observation_plan._legged_block`).
+Each block is coded by its kind's branch code (``ObservationKind.kernel_code`` in the registry
+:mod:`deploy.spec.kinds`, one of ``BRANCHES`` below); each block has its start column, size and
+joint indices (a (blocks, max_joints) int64 array, padded). The arithmetic is the reference's
+(:mod:`deploy.spec.reference`): ``(raw - offset) / scale``, then the upper clip, then the lower
+clip, then the cast to float32; ``goal_in_ee`` is ``(goal - ee) @ R`` summed in the order of
+numpy's matmul loop; ``gait_phase`` is ``sin, cos`` of ``(2 pi / period) * clock`` and
+``heading_sincos`` of the yaw ``atan2(2 (w z + x y), 1 - 2 (y^2 + z^2))``. A new kind adds its
+branch here (a new code in ``BRANCHES``, and its input array when the state has a new field).
 """
 
 from __future__ import annotations
@@ -22,23 +20,42 @@ import numpy as np
 
 from deploy.kernels import np_max, np_min
 
-KIND_CODES = {
-    "joint_position": 0,
-    "joint_velocity": 1,
-    "joint_position_sincos": 2,
-    "ee_position": 3,
-    "goal_position": 4,
-    "goal_in_ee": 5,
-    "last_action": 6,
-    "winding_temperature": 7,
-    "base_linear_velocity": 8,
-    "base_angular_velocity": 9,
-    "projected_gravity": 10,
-    "velocity_command": 11,
-    "gait_phase": 12,
-    "foot_contact": 13,
-    "heading_sincos": 14,
-}
+#: The kernel's branch codes, one per block kind it assembles.
+JOINT_POSITION = 0
+JOINT_VELOCITY = 1
+JOINT_POSITION_SINCOS = 2
+EE_POSITION = 3
+GOAL_POSITION = 4
+GOAL_IN_EE = 5
+LAST_ACTION = 6
+WINDING_TEMPERATURE = 7
+BASE_LINEAR_VELOCITY = 8
+BASE_ANGULAR_VELOCITY = 9
+PROJECTED_GRAVITY = 10
+VELOCITY_COMMAND = 11
+GAIT_PHASE = 12
+FOOT_CONTACT = 13
+HEADING_SINCOS = 14
+#: Every code the kernel has a branch for (``deploy.spec.kinds.register_kind`` refuses others).
+BRANCHES = frozenset(
+    (
+        JOINT_POSITION,
+        JOINT_VELOCITY,
+        JOINT_POSITION_SINCOS,
+        EE_POSITION,
+        GOAL_POSITION,
+        GOAL_IN_EE,
+        LAST_ACTION,
+        WINDING_TEMPERATURE,
+        BASE_LINEAR_VELOCITY,
+        BASE_ANGULAR_VELOCITY,
+        PROJECTED_GRAVITY,
+        VELOCITY_COMMAND,
+        GAIT_PHASE,
+        FOOT_CONTACT,
+        HEADING_SINCOS,
+    )
+)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -68,7 +85,7 @@ def observation(
     """Write the observation of every env into ``out`` (float32 (envs, dim)).
 
     Args:
-        kinds, starts: (blocks,) int64, block codes (``KIND_CODES``) and first columns.
+        kinds, starts: (blocks,) int64, block codes (``BRANCHES``) and first columns.
         joints: (blocks, k) int64 joint indices, -1 padded (a block's size is its column span).
         periods: (blocks,) float64, the gait clock's period of a ``gait_phase`` block, s.
         q, dq, last_action, temperature: (envs, n); ee_position, goal (envs, 3); ee_rotation
@@ -88,25 +105,25 @@ def observation(
             kind, s0 = kinds[b], starts[b]
             s1 = starts[b + 1] if b + 1 < blocks else dim
             size = s1 - s0
-            if kind == 0:
+            if kind == JOINT_POSITION:
                 for i in range(size):
                     raw[e, s0 + i] = q[e, joints[b, i]]
-            elif kind == 1:
+            elif kind == JOINT_VELOCITY:
                 for i in range(size):
                     raw[e, s0 + i] = dq[e, joints[b, i]]
-            elif kind == 2:
+            elif kind == JOINT_POSITION_SINCOS:
                 k = size // 2
                 for i in range(k):
                     raw[e, s0 + i] = math.sin(q[e, joints[b, i]])
                 for i in range(k):
                     raw[e, s0 + k + i] = math.cos(q[e, joints[b, i]])
-            elif kind == 3:
+            elif kind == EE_POSITION:
                 for i in range(size):
                     raw[e, s0 + i] = ee_position[e, i]
-            elif kind == 4:
+            elif kind == GOAL_POSITION:
                 for i in range(size):
                     raw[e, s0 + i] = goal[e, i]
-            elif kind == 5:
+            elif kind == GOAL_IN_EE:
                 v0 = goal[e, 0] - ee_position[e, 0]
                 v1 = goal[e, 1] - ee_position[e, 1]
                 v2 = goal[e, 2] - ee_position[e, 2]
@@ -116,32 +133,32 @@ def observation(
                     acc += v1 * ee_rotation[e, 1, i]
                     acc += v2 * ee_rotation[e, 2, i]
                     raw[e, s0 + i] = acc
-            elif kind == 6:
+            elif kind == LAST_ACTION:
                 for i in range(size):
                     raw[e, s0 + i] = last_action[e, joints[b, i]]
-            elif kind == 7:
+            elif kind == WINDING_TEMPERATURE:
                 for i in range(size):
                     raw[e, s0 + i] = temperature[e, joints[b, i]]
-            elif kind == 8:
+            elif kind == BASE_LINEAR_VELOCITY:
                 for i in range(size):
                     raw[e, s0 + i] = linear_velocity[e, i]
-            elif kind == 9:
+            elif kind == BASE_ANGULAR_VELOCITY:
                 for i in range(size):
                     raw[e, s0 + i] = angular_velocity[e, i]
-            elif kind == 10:
+            elif kind == PROJECTED_GRAVITY:
                 for i in range(size):
                     raw[e, s0 + i] = gravity[e, i]
-            elif kind == 11:
+            elif kind == VELOCITY_COMMAND:
                 for i in range(size):
                     raw[e, s0 + i] = command[e, i]
-            elif kind == 12:
+            elif kind == GAIT_PHASE:
                 phase = (2.0 * math.pi / periods[b]) * clock[e]
                 raw[e, s0] = math.sin(phase)
                 raw[e, s0 + 1] = math.cos(phase)
-            elif kind == 13:
+            elif kind == FOOT_CONTACT:
                 for i in range(size):
                     raw[e, s0 + i] = contact[e, i]
-            else:
+            elif kind == HEADING_SINCOS:
                 w, x = orientation[e, 0], orientation[e, 1]
                 y, z = orientation[e, 2], orientation[e, 3]
                 yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))

@@ -1,22 +1,26 @@
 """The compiled form of :meth:`deploy.spec.policy_spec.PolicySpec.observation`
 (:class:`ObservationPlan`).
 
-A spec builds its plan once, when first asked for an observation: the blocks flattened to
-per-entry offset, scale and clip arrays, joint index arrays and the block codes of the compiled
-kernel (:mod:`deploy.spec.kernel`), and work buffers grown to the largest batch seen. The
-plan assembles the observation with that kernel (every block kind, the floating-base ones
-included), or with the numpy reference (``reference=True``); both give the same numbers bit for
-bit. The layout itself (block kinds, sizes, scales) is the spec's
-(:mod:`deploy.spec.policy_spec`).
+A spec builds its plan once, when first asked for an observation: the blocks with their
+registered kinds (:mod:`deploy.spec.kinds`), flattened to per-entry offset, scale and clip
+arrays, joint index arrays and the kinds' kernel codes (:mod:`deploy.spec.kernel`), and work
+buffers grown to the largest batch seen. The plan assembles the observation with that kernel;
+the numpy reference (:mod:`deploy.spec.reference`) gives the same numbers bit for bit, and runs
+in the plan's place only for a block that reads some components of a vector
+(:func:`deploy.spec.kinds.numpy_reason`, kept in ``numpy_reason``). The layout itself (block
+kinds, sizes, scales) is the spec's (:mod:`deploy.spec.policy_spec`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from deploy.spec.kernel import KIND_CODES
 from deploy.spec.kernel import observation as observation_kernel
-from deploy.spec.policy_spec import LEGGED_KINDS, PolicySpec, SpecError
+from deploy.spec.kinds import KINDS, ObservationKind, numpy_reason
+from deploy.spec.policy_spec import PolicySpec, SpecError
+from deploy.spec.reference import assemble
 from deploy.state import RobotState
 
 
@@ -24,40 +28,21 @@ def _no_base(kind: str) -> SpecError:
     return SpecError(f"observation: block '{kind}' needs a floating-base robot's state")
 
 
-def _legged_block(
-    kind: str, state: RobotState, raw: np.ndarray, period: float, components: np.ndarray
-) -> None:
-    """Write the raw entries (envs, size) of one of ``LEGGED_KINDS`` from ``state``; a vector
-    block with ``components`` (non-empty) reads those entries of its 3-vector.
+@dataclass(frozen=True)
+class PlanBlock:
+    """One block as the plan runs it.
 
-    Raises:
-        SpecError: a state without the floating-base fields (``RobotState.legged``).
+    Attributes:
+        kind: Its registered kind. columns: Its columns in the observation.
+        joints: (k,) intp, the joints it reads. components: (c,) intp, the entries of its
+            3-vector it reads (empty: all). period: The gait clock's period, s (0: none).
     """
-    base = state.base
-    if base is None:
-        raise _no_base(kind)
-    vectors = {
-        "base_linear_velocity": base.linear_velocity,
-        "base_angular_velocity": base.angular_velocity,
-        "projected_gravity": base.projected_gravity,
-        "velocity_command": state.command,
-    }
-    if kind in vectors:
-        if components.size:
-            np.take(vectors[kind], components, axis=1, out=raw)
-        else:
-            raw[:] = vectors[kind]
-    elif kind == "gait_phase":
-        phase = (2.0 * np.pi / period) * state.clock
-        raw[:, 0] = np.sin(phase)
-        raw[:, 1] = np.cos(phase)
-    elif kind == "foot_contact":
-        raw[:] = state.foot_contact
-    else:  # heading_sincos: the yaw of the base's x axis in the filter's world frame
-        w, x, y, z = base.orientation.T
-        yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-        raw[:, 0] = np.sin(yaw)
-        raw[:, 1] = np.cos(yaw)
+
+    kind: ObservationKind
+    columns: slice
+    joints: np.ndarray
+    components: np.ndarray
+    period: float
 
 
 class ObservationPlan:
@@ -65,41 +50,36 @@ class ObservationPlan:
     index arrays, and work buffers grown to the largest batch seen (no allocation per tick)."""
 
     def __init__(self, spec: PolicySpec):
-        self.spec_blocks = spec.observation_blocks
-        self.blocks = []
-        #: per block: the entries of its 3-vector it reads (empty: all; ``VECTOR_KINDS`` only)
-        self.components: list[np.ndarray] = []
+        self.spec_blocks = bl = spec.observation_blocks
+        unknown = [b.name for b in bl if b.name not in KINDS]
+        if unknown:
+            raise SpecError(f"observation: block '{unknown[0]}' is not a registered kind")
+        self.blocks: list[PlanBlock] = []
         start = 0
-        for b in spec.observation_blocks:
-            dst = slice(start, start + b.size)
-            self.blocks.append((b.name, dst, np.array(b.joints, dtype=np.intp)))
-            self.components.append(np.array(b.components, dtype=np.intp))
+        for b in bl:
+            joints = np.array(b.joints, dtype=np.intp)
+            components = np.array(b.components, dtype=np.intp)
+            columns = slice(start, start + b.size)
+            self.blocks.append(PlanBlock(KINDS[b.name], columns, joints, components, b.period))
             start += b.size
-        bl = spec.observation_blocks
         self.offset = np.concatenate([np.asarray(b.offset, float) for b in bl]) if bl else []
         self.scale = np.concatenate([np.asarray(b.scale, float) for b in bl]) if bl else []
         self.clip = np.concatenate([np.full(b.size, float(b.clip)) for b in bl]) if bl else []
         self.dim = start
-        #: per entry: the gait clock's period of its block (s; 0 outside gait_phase blocks)
-        self.periods = np.concatenate([np.full(b.size, b.period) for b in bl]) if bl else []
         self._raw = np.zeros((0, start))
         self.vec = np.zeros((0, 3))
         self.rot = np.zeros((0, 3))
         #: the first floating-base block (a state without a base is refused), or None
-        self.legged = next((b.name for b in bl if b.name in LEGGED_KINDS), None)
+        self.legged = next((b.name for b in bl if KINDS[b.name].floating_base), None)
         self._no_base: tuple[np.ndarray, ...] = ()
-        # the compiled kernel's layout (deploy.spec.kernel); a vector block that reads some of
-        # its components (a split velocity command) runs the reference
-        self.compiled = bool(bl) and all(
-            b.name in KIND_CODES
-            and (b.name != "joint_position_sincos" or b.size == 2 * len(b.joints))
-            and not b.components
-            for b in bl
-        )
+        #: why the plan runs the numpy reference, not the kernel (None: it runs the kernel;
+        #: ``deploy.spec.kinds.numpy_reason``); an empty spec has nothing to compile
+        self.numpy_reason = next(filter(None, map(numpy_reason, bl)), None)
+        self.compiled = bool(bl) and self.numpy_reason is None
         if self.compiled:
-            self.kinds = np.array([KIND_CODES[b.name] for b in bl], dtype=np.int64)
+            self.kinds = np.array([KINDS[b.name].kernel_code for b in bl], dtype=np.int64)
             self.block_periods = np.array([float(b.period) for b in bl], dtype=np.float64)
-            self.starts = np.array([s.start for _, s, _ in self.blocks], dtype=np.int64)
+            self.starts = np.array([p.columns.start for p in self.blocks], dtype=np.int64)
             width = max(1, max(len(b.joints) for b in bl))
             self.joints = np.full((len(bl), width), -1, dtype=np.int64)
             for i, b in enumerate(bl):
@@ -110,7 +90,7 @@ class ObservationPlan:
     def _warm(self) -> None:
         """Compile the kernel (or load numba's cache) now, not in the first tick."""
         n = max(int(self.joints.max()) + 1, 1)
-        feet = max((b.size for b in self.spec_blocks if b.name == "foot_contact"), default=0)
+        feet = max((b.size for b in self.spec_blocks if KINDS[b.name].per_foot), default=0)
         state = RobotState.legged(1, n, feet) if self.legged else RobotState.zeros(1, n)
         out = np.zeros((1, self.dim), dtype=np.float32)
         self._run_kernel(state, np.zeros((1, 3)), out)
@@ -168,48 +148,19 @@ class ObservationPlan:
             self.rot = np.zeros((envs, 3))
         return self._raw[:envs]
 
+    def require_base(self, state: RobotState) -> None:
+        """Raises SpecError: the plan has a floating-base block and ``state`` no base."""
+        if self.legged is not None and state.base is None:
+            raise _no_base(self.legged)
+
     def observation(
-        self,
-        state: RobotState,
-        goal: np.ndarray,
-        out: np.ndarray | None = None,
-        reference: bool = False,
+        self, state: RobotState, goal: np.ndarray, out: np.ndarray | None = None
     ) -> np.ndarray:
-        """:meth:`PolicySpec.observation` (see there) with this plan."""
-        envs = state.q.shape[0]
+        """:meth:`PolicySpec.observation` (see there) with this plan: the kernel, or the numpy
+        reference for a plan with a ``numpy_reason``."""
+        if not self.compiled:
+            return assemble(self, state, goal, out)
         if out is None:
-            out = np.empty((envs, self.dim), dtype=np.float32)
-        raw = self.raw(envs)
-        if self.compiled and not reference:
-            self._run_kernel(state, goal, out)
-            return out
-        for (kind, dst, joints), components in zip(self.blocks, self.components, strict=True):
-            if kind == "joint_position":
-                np.take(state.q, joints, axis=1, out=raw[:, dst])
-            elif kind == "joint_velocity":
-                np.take(state.dq, joints, axis=1, out=raw[:, dst])
-            elif kind == "joint_position_sincos":
-                q = state.q[:, joints]
-                k = len(joints)
-                np.sin(q, out=raw[:, dst.start : dst.start + k])
-                np.cos(q, out=raw[:, dst.start + k : dst.stop])
-            elif kind == "ee_position":
-                raw[:, dst] = state.ee_position
-            elif kind == "goal_position":
-                raw[:, dst] = goal
-            elif kind == "goal_in_ee":
-                np.subtract(goal, state.ee_position, out=self.vec[:envs])
-                np.matmul(self.vec[:envs, None, :], state.ee_rotation, out=self.rot[:envs, None, :])
-                raw[:, dst] = self.rot[:envs]
-            elif kind == "last_action":
-                np.take(state.last_action, joints, axis=1, out=raw[:, dst])
-            elif kind == "winding_temperature":
-                np.take(state.winding_temperature, joints, axis=1, out=raw[:, dst])
-            else:
-                _legged_block(kind, state, raw[:, dst], self.periods[dst.start], components)
-        raw -= self.offset
-        raw /= self.scale
-        np.minimum(raw, self.clip, out=raw)
-        np.maximum(raw, -self.clip, out=raw)
-        out[:] = raw
+            out = np.empty((state.q.shape[0], self.dim), dtype=np.float32)
+        self._run_kernel(state, goal, out)
         return out

@@ -6,23 +6,10 @@ match the robot. It removes the commonest sim-to-real bug: observations fed in a
 or unit than in training, or action post-processing forgotten.
 
 Observation: the concatenation of ordered blocks; each block computes a raw quantity in SI units and
-normalizes it as ``clip((raw - offset) / scale, -clip, clip)``. Following the seed's rule (section
-3) the scales are physical maxima (joint limit, maximum velocity, reach, maximum winding
-temperature), never statistics of observed data. Block kinds (``n`` = joints, ``k`` = selected
-joints):
-
-==========================  =====  =================================================================
-kind                        size   raw quantity (base frame unless stated)
-==========================  =====  =================================================================
-``joint_position``          k      q, rad; offset = centre of the limits, scale = half range
-``joint_velocity``          k      dq, rad/s; scale = velocity limit
-``joint_position_sincos``   2k     sin q, cos q of wrapping joints (seed section 9)
-``ee_position``             3      end-effector position, m; scale = reach
-``goal_position``           3      goal position, m; scale = reach
-``goal_in_ee``              3      goal - end effector, in the end-effector frame, m; scale = reach
-``last_action``             n      the previous action, [-1, 1]
-``winding_temperature``     n      degC; offset = ambient, scale = max winding - ambient
-==========================  =====  =================================================================
+normalizes it as ``clip((raw - offset) / scale, -clip, clip)``. The scales are physical maxima
+(joint limit, maximum velocity, reach, maximum winding temperature), never statistics of observed
+data. The block kinds, with their sizes, units and scales, are the registry
+:mod:`deploy.spec.kinds`.
 
 Convention: ``scale`` is a *divisor* and ``offset`` is subtracted first, per entry, in the raw
 quantity's SI unit. A training library that multiplies instead (legged_gym's ``obs_scales``,
@@ -34,12 +21,9 @@ JSON Schema is ``docs/policy_spec.schema.json``).
 
 Action: ``a`` in ``[-clip, clip]^n`` maps to the target of the control mode,
 ``target = offset + scale * a`` (``reference = "absolute"``) or ``target = q + scale * a``
-(position mode, ``reference = "current"``). :meth:`PolicySpec.for_robot` scales a velocity action
-by the soft velocity limit (the fastest command the smoother issues, so a full action is never
-clamped), a torque action by the effort limit and an absolute position action by half the range.
-
-Arrays are shaped (envs, ...). ``observation`` and ``action_to_target`` write into ``out`` when it
-is given (no allocation in the control loop).
+(position mode, ``reference = "current"``); :mod:`deploy.spec.defaults` gives a robot's scales.
+Arrays are shaped (envs, ...); ``observation`` and ``action_to_target`` write into ``out`` when
+it is given (no allocation in the control loop).
 """
 
 from __future__ import annotations
@@ -52,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from deploy.spec.drive import DriveSpec
+from deploy.spec.kinds import KINDS, UNPROVIDED_KINDS, kind_names, vector_kind_names
 from deploy.state import RobotState
 from robots import CONTROL_MODES, Robot
 from robots.errors import Sim2RealError
@@ -60,56 +45,6 @@ if TYPE_CHECKING:
     from deploy.spec.observation_plan import ObservationPlan
 
 FORMAT_VERSION = 1
-#: Blocks of a floating-base (legged) robot, all in the base frame, SI units (seed section 9: the
-#: base's own motion and the command, never its absolute world position or yaw):
-#: ``base_linear_velocity`` (3, m/s, estimated), ``base_angular_velocity`` (3, rad/s),
-#: ``projected_gravity`` (3, unit vector), ``velocity_command`` (3: vx, vy m/s, yaw rate rad/s),
-#: ``gait_phase`` (2: sin, cos of ``2 pi t / period``, t the runtime's clock), ``foot_contact``
-#: (one per foot, 0 or 1), ``heading_sincos`` (2: sin, cos of the yaw the attitude filter has
-#: turned since the start, not the world's). Joint positions about the default pose are a
-#: ``joint_position`` block with ``offset`` = the home pose.
-LEGGED_KINDS = (
-    "base_linear_velocity",
-    "base_angular_velocity",
-    "projected_gravity",
-    "velocity_command",
-    "gait_phase",
-    "foot_contact",
-    "heading_sincos",
-)
-OBSERVATION_KINDS = (
-    "joint_position",
-    "joint_velocity",
-    "joint_position_sincos",
-    "ee_position",
-    "goal_position",
-    "goal_in_ee",
-    "last_action",
-    "winding_temperature",
-) + LEGGED_KINDS
-#: Blocks of a 3-vector (x, y, z; a velocity command's vx, vy, yaw rate) that may read some of its
-#: entries (``ObservationBlock.components``): training stacks split a command into its linear and
-#: yaw parts (holosoma's ``command_lin_vel``, ``command_ang_vel``).
-VECTOR_KINDS = (
-    "base_linear_velocity",
-    "base_angular_velocity",
-    "projected_gravity",
-    "velocity_command",
-)
-#: Entries of the blocks whose size does not follow from their joints (foot_contact: a quadruped's
-#: four by default; checked against the robot's feet by :meth:`PolicySpec.check_robot`).
-FIXED_SIZES = {
-    "ee_position": 3,
-    "goal_position": 3,
-    "goal_in_ee": 3,
-    "base_linear_velocity": 3,
-    "base_angular_velocity": 3,
-    "projected_gravity": 3,
-    "velocity_command": 3,
-    "gait_phase": 2,
-    "heading_sincos": 2,
-    "foot_contact": 4,
-}
 #: A floating-base robot's default observation (legged_gym's, with the gait clock of
 #: unitree_rl_gym and without the base linear velocity, which needs the estimator to converge).
 LEGGED_DEFAULT_BLOCKS = (
@@ -139,16 +74,6 @@ LEGGED_ACTION_CLIP = 100.0
 GAIT_PERIOD = 0.8
 #: Default observation clip (in normalized units); generous, since values are already ~[-1, 1].
 DEFAULT_CLIP = 5.0
-#: Blocks published policies read that no robot here provides, by the names legged_gym and Isaac
-#: Lab use; where this toolkit has the quantity, the name it has here.
-UNPROVIDED_KINDS = {
-    "base_lin_vel": "base_linear_velocity",
-    "base_ang_vel": "base_angular_velocity",
-    "commands": "velocity_command",
-    "velocity_commands": "velocity_command",
-    "base_height": None,
-    "height_scan": None,
-}
 
 
 class SpecError(Sim2RealError, ValueError):
@@ -160,14 +85,14 @@ class ObservationBlock:
     """One block of the observation vector.
 
     Attributes:
-        name: The block kind (one of ``OBSERVATION_KINDS``).
+        name: The block kind (a kind registered in :mod:`deploy.spec.kinds`).
         size: Number of entries it contributes.
         scale: Per-entry divisor (physical maximum), length ``size``.
         offset: Per-entry offset, length ``size``.
         clip: Symmetric clip after normalization.
         joints: Joint indices it reads (joint blocks only), in order.
         period: ``gait_phase`` only: the gait clock's period, s (> 0); 0 for other blocks.
-        components: The vector blocks of ``VECTOR_KINDS`` only: the entries of the raw 3-vector
+        components: The vector kinds' blocks only: the entries of the raw 3-vector
             it reads, in order (``(2,)``: the yaw rate of ``velocity_command``); empty: all three.
     """
 
@@ -257,7 +182,10 @@ class PolicySpec:
         """Standard spec for ``robot`` with physical scales taken from the robot description.
 
         Joints whose range exceeds 2 pi (multi-turn) are wrapping joints: ``joint_position``
-        skips them and ``joint_position_sincos`` covers them.
+        skips them and ``joint_position_sincos`` covers them. A velocity action is scaled by the
+        soft velocity limit (the fastest command the smoother issues, so a full action is never
+        clamped), a torque action by the effort limit, an absolute position action by half the
+        range.
 
         Default blocks: ``joint_position``, ``joint_position_sincos`` (only when the robot has
         wrapping joints), ``joint_velocity``, ``ee_position``, ``goal_position``, ``goal_in_ee``.
@@ -312,14 +240,15 @@ class PolicySpec:
                         if here
                         else "no robot here measures it (a height map or base height)"
                     )
-                    + f"; blocks a robot provides: {', '.join(OBSERVATION_KINDS)}"
+                    + f"; blocks a robot provides: {', '.join(kind_names())}"
                 )
-            if b.name not in OBSERVATION_KINDS:
+            kind = KINDS.get(b.name)
+            if kind is None:
                 raise SpecError(
                     f"{where}: block '{b.name}' is unknown: no robot provides it; expected one of "
-                    f"{OBSERVATION_KINDS}"
+                    f"{kind_names()}"
                 )
-            if b.name == "gait_phase" and not (np.isfinite(b.period) and b.period > 0):
+            if kind.periodic and not (np.isfinite(b.period) and b.period > 0):
                 raise SpecError(f"{where}: period must be a positive number of s, got {b.period}")
             if len(b.scale) != b.size or len(b.offset) != b.size:
                 raise SpecError(f"{where}: scale and offset need {b.size} entries")
@@ -329,23 +258,14 @@ class PolicySpec:
                 raise SpecError(f"{where}: clip must be positive, got {b.clip}")
             if any(j < 0 or j >= n for j in b.joints):
                 raise SpecError(f"{where}: joints {b.joints} out of range for {n} joints")
-            expected = {
-                "joint_position": len(b.joints),
-                "joint_velocity": len(b.joints),
-                "joint_position_sincos": 2 * len(b.joints),
-                "last_action": n,
-                "winding_temperature": n,
-            }.get(b.name, FIXED_SIZES.get(b.name))
-            if b.name in ("last_action", "winding_temperature") and sorted(b.joints) != list(
-                range(n)
-            ):
+            if kind.every_joint and sorted(b.joints) != list(range(n)):
                 raise SpecError(f"{where}: joints must cover every joint once, got {b.joints}")
-            if b.name == "foot_contact":
-                expected = b.size  # the robot's feet: check_robot
+            # per-foot kinds: the robot's feet (check_robot)
+            expected = b.size if kind.per_foot else kind.block_size(len(b.joints))
             if b.components:
-                if b.name not in VECTOR_KINDS:
+                if not kind.vector:
                     raise SpecError(
-                        f"{where}: components is for the vector blocks {VECTOR_KINDS} only"
+                        f"{where}: components is for the vector blocks {vector_kind_names()} only"
                     )
                 if any(c not in (0, 1, 2) for c in b.components):
                     raise SpecError(f"{where}: components {b.components} must be in 0, 1, 2")
@@ -389,15 +309,16 @@ class PolicySpec:
                 f"the robot has {list(robot.joint_names)}"
             )
         for i, b in enumerate(self.observation_blocks):
-            if b.name in LEGGED_KINDS and not robot.floating_base:
+            kind = KINDS.get(b.name)
+            if kind is not None and kind.floating_base and not robot.floating_base:
                 raise SpecError(
                     f"observation[{i}] ('{b.name}'): block '{b.name}' cannot be provided: the "
                     f"robot '{robot.name}' is a fixed-base arm (no IMU, no feet); blocks it "
-                    f"provides: {', '.join(k for k in OBSERVATION_KINDS if k not in LEGGED_KINDS)}"
+                    f"provides: {', '.join(kind_names(floating_base=False))}"
                 )
-            if b.name == "foot_contact" and b.size != robot.n_feet:
+            if kind is not None and kind.per_foot and b.size != robot.n_feet:
                 raise SpecError(
-                    f"observation[{i}] ('foot_contact'): size {b.size}, the robot '{robot.name}' "
+                    f"observation[{i}] ('{b.name}'): size {b.size}, the robot '{robot.name}' "
                     f"has {robot.n_feet} feet"
                 )
         rate = 1.0 / robot.control_period
@@ -413,11 +334,7 @@ class PolicySpec:
 
     # ------------------------------------------------------------------ the two mappings
     def observation(
-        self,
-        state: RobotState,
-        goal: np.ndarray,
-        out: np.ndarray | None = None,
-        reference: bool = False,
+        self, state: RobotState, goal: np.ndarray, out: np.ndarray | None = None
     ) -> np.ndarray:
         """Normalized observation, float32 (envs, obs_dim).
 
@@ -425,13 +342,15 @@ class PolicySpec:
             state: Estimated state with end-effector pose filled (``Kinematics.update``).
             goal: (envs, 3) m, goal position in the base frame.
             out: Optional float32 (envs, obs_dim) array to write into.
-            reference: Run the numpy reference instead of the compiled kernel
-                (:mod:`deploy.spec.kernel`); both give the same numbers bit for bit.
 
         The spec's compiled plan (:class:`deploy.spec.observation_plan.ObservationPlan`, built on
-        the first call) assembles it.
+        the first call) assembles it; the numpy reference is
+        :func:`deploy.spec.reference.observation_reference` (the same numbers bit for bit).
+
+        Raises:
+            SpecError: a floating-base block and a state without a base.
         """
-        return self._plan.observation(state, goal, out, reference)
+        return self._plan.observation(state, goal, out)
 
     @cached_property
     def _plan(self) -> ObservationPlan:

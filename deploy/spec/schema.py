@@ -31,11 +31,10 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from deploy.spec.drive import DriveSpec
+from deploy.spec.kinds import KINDS, kind_names
 from deploy.spec.policy_spec import (
     DEFAULT_CLIP,
-    FIXED_SIZES,
     FORMAT_VERSION,
-    OBSERVATION_KINDS,
     ActionSpec,
     ObservationBlock,
     PolicySpec,
@@ -60,7 +59,7 @@ class ObservationBlockDocument(_Doc):
 
     name: str = Field(
         description="Block kind: the raw quantity, in SI units and radians, base frame.",
-        json_schema_extra={"enum": list(OBSERVATION_KINDS)},
+        json_schema_extra={"enum": list(kind_names())},
     )
     size: int | None = Field(
         default=None, ge=0, description="Entries contributed; derived from the kind when left out."
@@ -184,16 +183,6 @@ class PolicySpecDocument(_Doc):
     )
 
 
-#: Blocks that read joints (``joints`` defaults to every joint).
-_JOINT_KINDS = (
-    "joint_position",
-    "joint_velocity",
-    "joint_position_sincos",
-    "last_action",
-    "winding_temperature",
-)
-
-
 def to_spec(doc: PolicySpecDocument) -> PolicySpec:
     """The :class:`PolicySpec` of a parsed document, shorthands expanded (not yet validated).
 
@@ -204,18 +193,20 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
     n = len(names)
     blocks = []
     for i, b in enumerate(doc.observation):
+        kind = KINDS.get(b.name)  # an unknown kind is refused by PolicySpec.validate
+        per_joint = kind.per_joint if kind is not None else 0
         if b.joints is None:
-            joints = tuple(range(n)) if b.name in _JOINT_KINDS else ()
+            joints = tuple(range(n)) if per_joint else ()
         else:
             where = f"observation[{i}] ('{b.name}').joints"
             joints = tuple(_joint_index(j, names, where) for j in b.joints)
         size = b.size
-        if size is None and b.name in _JOINT_KINDS:
-            size = (2 if b.name == "joint_position_sincos" else 1) * len(joints)
+        if size is None and per_joint:
+            size = per_joint * len(joints)
         elif size is None and b.components is not None:
             size = len(b.components)
         elif size is None:
-            size = FIXED_SIZES.get(b.name, 3)
+            size = kind.size if kind is not None else 3
         blocks.append(
             ObservationBlock(
                 name=b.name,

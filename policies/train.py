@@ -25,10 +25,8 @@ Why 64 robots per batch with 128-step rollouts (the same 8,192 samples per updat
 the policy's forward pass per step is shared by more robots, and the more diverse rollouts learned
 faster per sample (the comparison: ``docs/measurements.md``).
 
-The result is converted to our checkpoint format
-(:func:`deploy.policy.mlp_checkpoint.save_checkpoint`): the
-PPO actor's mean network becomes an :class:`~deploy.policy.mlp_checkpoint.MLPActor` with the same
-weights, and the PolicySpec the env used travels with it.
+The PPO actor's mean network becomes an :class:`~deploy.policy.mlp_checkpoint.MLPActor` with the
+same weights and the env's PolicySpec (:func:`deploy.policy.mlp_checkpoint.save_checkpoint`).
 """
 
 from __future__ import annotations

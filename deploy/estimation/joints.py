@@ -10,30 +10,24 @@ with Applications to Tracking and Navigation*, Wiley 2001, sec. 6.3.2;
     F(dt) = [[1, dt], [0, 1]]          Q(dt) = var * [[dt^4 / 4, dt^3 / 2], [dt^3 / 2, dt^2]]
     B(dt) = [[dt^2 / 2], [dt]]         H = [[1, 0]],  R = measurement_sigma^2
 
-Without an input (``u = 0``) this is the constant-velocity model, which lags an accelerating
-joint by about ``a / omega^2`` (``omega ~ (var / R)^(1/4)``, ~25 rad/s on arm3: 30 mrad at
-20 rad/s^2). The runtime passes the smoother's commanded acceleration
-(:attr:`deploy.smoothing.CommandSmoother.mean_acceleration`) in position and velocity mode; the
-noise then only has to cover the drive's tracking error (the error it saved on arm3:
-``docs/measurements.md``). The output's extrapolation past the newest reading (latency) uses the
-input only with ``input_extrapolates``: right for a stiff drive that follows its command (an arm),
-wrong for a floating-base robot's PD targets, which lead the joint (the target's acceleration is
-not the joint's), whose output extrapolates at constant velocity instead.
+Without an input (``u = 0``) this is the constant-velocity model, which lags an accelerating joint
+by about ``a / omega^2`` (``omega ~ (var / R)^(1/4)``). The runtime passes the smoother's commanded
+acceleration (:attr:`deploy.smoothing.CommandSmoother.mean_acceleration`) in position and velocity
+mode; the noise then only has to cover the drive's tracking error. The output's extrapolation past
+the newest reading (latency) uses the input only with ``input_extrapolates``: right for a stiff
+drive that follows its command (an arm), wrong for a floating-base robot's PD targets, which lead
+the joint (the target's acceleration is not the joint's), whose output extrapolates at constant
+velocity instead.
 
-Time stamps. The filter of a joint lives at ``filter_time``, the sample time of the last reading it
-absorbed. A reading stamped later than that is absorbed: predict by ``stamp - filter_time``, then
-update. A reading stamped at or before ``filter_time`` (stale, repeated or reordered) or after the
-frame's own time (a clock fault) is discarded and counted in ``stale_readings``. A missing reading
-(NaN, or a non-finite value or stamp) is never fed to the filter (a NaN would poison it for good)
-and is counted in ``missing_readings``. Either way the *output* is the prediction from
-``filter_time`` to ``frame.time`` (``q + (frame.time - filter_time) dq``), which is not stored:
-latency is compensated by extrapolation, and a dropout is a predict-only step. Sensors at their
-own rates need nothing special: a slow sensor simply delivers fewer fresh readings.
+Time stamps: a joint's filter lives at ``filter_time``, the sample time of the last reading it
+absorbed; a later reading is absorbed (predict by ``stamp - filter_time``, update), an older,
+repeated or future one is counted in ``stale_readings``, a missing (non-finite) one in
+``missing_readings`` and never fed to the filter. The *output* is the prediction from
+``filter_time`` to ``frame.time``, not stored: latency is bridged by extrapolation, a dropout is a
+predict-only step.
 
-The tick runs in one numba kernel (:mod:`deploy.estimation.kernel`, closed-form 2x2 algebra). Its
-reference, :class:`deploy.estimation.reference.ReferenceJointStateEstimator`, runs one
-``filterpy.kalman.KalmanFilter(dim_x=2, dim_z=1)`` per (env, joint); both give the same numbers
-(to rounding, ~1e-15).
+The tick is one numba kernel (:mod:`deploy.estimation.kernel`); its reference runs one
+``filterpy.kalman.KalmanFilter(dim_x=2, dim_z=1)`` per (env, joint) (:mod:`~.reference`).
 """
 
 from __future__ import annotations

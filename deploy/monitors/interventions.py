@@ -1,7 +1,7 @@
 """Interventions: commands the safety guard or the command smoother changed, per check and tick.
 
-An **intervention** is a command the guard or the smoother changed (DESIGN.md, "Words"); a
-**violation** is the robot's true state past a limit (:mod:`deploy.monitors.violations`). A policy
+An **intervention** is a command the guard or the smoother changed (docs/architecture.md, "Words");
+a **violation** is the robot's true state past a limit (:mod:`deploy.monitors.violations`). A policy
 that leans on the guard has many interventions and may still have no violation; on a robot whose
 guard is tuned differently it would have them.
 

@@ -1,11 +1,9 @@
 """Violations: the robot's *true* state past a limit, counted from the simulator's ground truth.
 
-A **violation** is what the robot really did (DESIGN.md, "Words"); an **intervention** is a command
-the guard or the smoother changed (:mod:`deploy.monitors.interventions`). The guard acts on the
-*estimate*
-and clamps commands so that violations do not happen: a clamp is an intervention, never a
-violation, and a violation can happen without any clamp (a push, a drive overshooting its command,
-an estimate that lags the joint).
+A **violation** is what the robot really did (docs/architecture.md, "Words"); an
+**intervention** is a command the guard or the smoother changed
+(:mod:`deploy.monitors.interventions`). A clamp is an intervention, never a violation; a violation
+can happen without any clamp (a push, a drive overshooting its command, a lagging estimate).
 
 Types (``VIOLATION_TYPES``), each counted per env in control ticks (a tick counts once per type,
 however many joints are past the limit):
@@ -20,19 +18,12 @@ however many joints are past the limit):
 - ``workspace``: the true end effector (MuJoCo's site, the randomized geometry) outside the box
   ``safety.workspace_min/max``.
 - ``self_collision``: a pair of ``safety.collision_pairs`` in contact at the true joint positions
-  (coal, with the guard's collision model: :func:`deploy.safety.collision.collision_model`,
-  the robot's *nominal* geometry; checked every tick, which is cheaper than the guard's screen would
-  be: ``docs/measurements.md``).
+  (coal, the guard's collision model of the *nominal* geometry:
+  :func:`deploy.safety.collision.collision_model`).
 
-Ground truth exists only in simulation: :class:`ViolationMonitor` reads
-:class:`~deploy.backends.sim.plant.SimBackend`'s ``true_position()``, ``true_velocity()``,
-``joint_torque()`` and ``end_effector_position()``. On hardware there is no ground truth (the
-encoders *are* the estimate's input); there only interventions and the guard's hard-limit
-detections on the estimate can be reported.
-
-Sampling: once per control tick, after the physics of the tick (the runtime's ``on_tick`` hook).
-The end effector is MuJoCo's site position, computed at the start of the last physics step (one
-physics timestep behind the joint positions).
+Ground truth exists only in simulation (:class:`~deploy.backends.sim.plant.SimBackend`'s true
+state), sampled once per control tick after its physics; on hardware only interventions and the
+guard's hard-limit detections on the estimate can be reported.
 """
 
 from __future__ import annotations

@@ -1,12 +1,7 @@
-"""The command smoother, :class:`CommandSmoother`: jerk-limited commands with Ruckig, batched
-over ``envs`` (the package docstring, :mod:`deploy.smoothing`, describes the modes, the sync to
-the measured state and the safe stop).
-
-It holds the limits and work arrays, the lifecycle (reset, sync, safe stop) and the tick (the
-compiled kernels of :mod:`deploy.smoothing.kernel` around Ruckig); Ruckig's call and the state
-dict come from :class:`~deploy.smoothing.ruckig_state.RuckigState`. Its numpy reference is
-:class:`~deploy.smoothing.reference.ReferenceSmoother`.
-"""
+"""The command smoother, :class:`CommandSmoother`: the limits, work arrays, lifecycle and tick
+(the kernels of :mod:`deploy.smoothing.kernel` around Ruckig); Ruckig's call and state dict:
+:class:`~deploy.smoothing.ruckig_state.RuckigState`; numpy reference:
+:class:`~deploy.smoothing.reference.ReferenceSmoother`."""
 
 from __future__ import annotations
 
@@ -40,6 +35,33 @@ EXTREMA_SCREEN_FACTOR = 1.5
 
 class CommandSmoother(RuckigState):
     """Jerk-limited commands for ``envs`` robots of ``n`` joints.
+
+    :meth:`sync` (and :meth:`reset`) writes the *measured* position and velocity into Ruckig's
+    state, zero acceleration; between syncs Ruckig's output is its next input, so commands are
+    continuous and never follow sensor noise. The runtime syncs at start, on every state-machine
+    transition, and when :meth:`tracking_error` exceeds its tolerance.
+
+    Modes (the robot's control modes):
+
+    - position: ``ControlInterface.Position``; the target clamped to the hard position limits
+      (the community edition has none), target velocity 0; the command is Ruckig's
+      ``new_position``, clipped to the hard limits. Where the trajectory's extrema leave the
+      limits (a joint too fast to stop in time, typically right after a sync) the clip bites and
+      ``extrema_violations`` counts it.
+    - velocity: ``ControlInterface.Velocity``; the target velocity clamped to
+      +-soft_velocity_limit and to the speed from which the joint can still stop before its
+      *soft* limits (:func:`~deploy.smoothing.braking.stopping_speed` of the distance left,
+      counted in ``stopping_distance_clamps``), and set to 0 (Ruckig's time-optimal brake) where
+      one more period of the worst acceleration the jerk limit allows would leave too little room
+      to stop: Ruckig's integrated position never passes a soft limit (unless a sync put the joint
+      beyond saving). The command is Ruckig's ``new_velocity``.
+    - torque: no Ruckig; the target clamped to +-effort_limit and rate limited to
+      ``effort_limit / TORQUE_RISE_TIME`` (N m/s).
+
+    Safe stop: :meth:`safe_stop` switches the chosen envs to ``ControlInterface.Velocity`` with
+    target velocity 0 (also in position mode) and returns the time Ruckig predicts to reach rest;
+    :meth:`step` then ignores their targets, brings them to rest within the acceleration and jerk
+    limits and holds them (position mode: at the stopping position) until the next :meth:`sync`.
 
     Args:
         robot: The robot description (limits, control period).

@@ -6,7 +6,7 @@ plant's true joint angles and winding temperatures into what a drive reports, in
 
 Sensor model (defaults from the robot's ``[sensors]`` table), applied in this order:
     1. a sample of the true joint angle at the encoder's own rate,
-    2. Gaussian noise (sigma ``encoder_noise_sigma``, rad; seed section 5),
+    2. Gaussian noise (sigma ``encoder_noise_sigma``, rad),
     3. quantization to the encoder resolution (``2 pi / encoder_resolution``),
     4. dropout: each reading lost with probability ``encoder_dropout`` (per joint and reading),
     5. latency: a reading arrives ``encoder_latency_ticks`` control ticks after it was sampled.

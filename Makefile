@@ -29,9 +29,10 @@ run: install
 	$(VENV)/bin/deploy-run --backend sim --robot arm3 --policy $(ONNX) --duration 60 \
 		$(if $(VIDEO),--video $(VIDEO))
 
-# Two pytest-xdist workers, one per core of the 2-core machine CI runs on (TEST_WORKERS=0 runs in
-# this process). --dist loadgroup keeps the tests of one xdist_group mark on one worker.
-TEST_WORKERS ?= 2
+# TEST_WORKERS=N runs the suite on N pytest-xdist workers (--dist loadgroup keeps the tests of one
+# xdist_group mark on one worker). Default 0, one process: on 2 cores two workers were slower
+# (torch, ONNX Runtime and numba's first compiles contend; docs/measurements.md).
+TEST_WORKERS ?= 0
 test: install lint
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
 

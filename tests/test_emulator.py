@@ -193,7 +193,8 @@ def test_feetech_torque_on_before_any_goal_write_holds_the_joint(so101):
         port, ph = _feetech(emu)
         before = {sid: ph.read2ByteTxRx(port, sid, 56)[0] for sid in SO101_IDS}
         for sid in SO101_IDS:
-            assert ph.read2ByteTxRx(port, sid, 42)[0] == before[sid]  # goal = present
+            goal = ph.read2ByteTxRx(port, sid, 42)[0]  # the present position at power-up
+            assert abs(goal - before[sid]) <= 5, (sid, goal, before[sid])  # it sags by a tick
             assert ph.write1ByteTxRx(port, sid, 40, 1) == (scs.COMM_SUCCESS, 0)
         _run_plant(emu, 0.4)
         for sid in SO101_IDS:

@@ -120,6 +120,42 @@ def test_command_schedule_and_tracker_state_round_trip():
     assert len(a_t.windows(0, rt_a.time)) == 3
 
 
+def test_a_robot_that_follows_each_command_step_at_once_tracks_all_of_its_running_time():
+    """The tracked velocity is averaged over TRACKING_WINDOW; so is the command it is judged
+    against, so the window's own lag after a command step is not counted as the robot's error."""
+
+    class Rt:
+        def __init__(self):
+            self.mode = np.array([2, 2])  # RUNNING
+            self.time, self.ticks = 0.0, 0
+            self.velocity_command = np.zeros((2, 3))
+
+    rt = Rt()
+
+    class Follower:  # the true base moves at the command of this very tick (base frame)
+        def true_base_state(self):
+            s = np.zeros((2, 13))
+            s[:, 3] = 1.0
+            s[:, 7:9] = rt.velocity_command[:, :2]
+            return s
+
+    streams = [np.random.default_rng([s, 9]) for s in (0, 1)]
+    schedule, tracker = CommandSchedule(2, 1.0, streams), CommandTracker(2, 0.02, Follower())
+    largest_step = np.zeros(2)
+    for _ in range(1000):  # 20 s, a new command every second
+        rt.ticks += 1
+        rt.time = rt.ticks * 0.02
+        before = rt.velocity_command[:, :2].copy()
+        schedule(rt)
+        step = np.linalg.norm(rt.velocity_command[:, :2] - before, axis=1)
+        largest_step = np.maximum(largest_step, step)
+        tracker(rt)
+    assert (schedule.issued >= 15).all()
+    assert (largest_step > 0.3).all()  # steps beyond the tolerance: a lagging judge fails them
+    settled = tracker.running_time - (tracker.window - 1) * 0.02  # the first window fills
+    np.testing.assert_allclose(tracker.tracked_time, settled, atol=1e-9)
+
+
 def test_a_short_go2_soak_reports_falls_tracking_and_distance(policy, tmp_path, capsys):
     from eval.cli import main
 

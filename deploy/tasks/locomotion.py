@@ -4,9 +4,10 @@
 ``deploy-run`` and the soak: called after every tick, it measures the base's planar velocity
 (the plant's truth in simulation, the base estimator's on hardware) against the command while
 the runtime is RUNNING. Tracking success is the fraction of RUNNING time whose planar velocity
-error ``|v_xy - command_xy|`` is within ``TRACKING_TOLERANCE`` (0.2 m/s), measured on
-the velocity averaged over ``TRACKING_WINDOW`` (a trot's body sways within a stride: the
-command is a mean speed). Falls are the runtime's safe stops of cause ``fall``.
+error ``|mean v_xy - mean command_xy|`` is within ``TRACKING_TOLERANCE`` (0.2 m/s), both averaged
+over the same ``TRACKING_WINDOW`` (a trot's body sways within a stride: the command is a mean
+speed; averaging the command too keeps the window's own lag out of the error, so a robot that
+follows a step of the command at once tracks it at once). Falls are the runtime's safe stops.
 
 :class:`CommandSchedule` is the legged counterpart of :class:`deploy.tasks.goals.GoalScheduler` for
 the
@@ -212,6 +213,7 @@ class CommandTracker:
         self.tracked_time = np.zeros(envs)
         self.window = max(1, int(round(TRACKING_WINDOW / self.dt)))
         self._ring = np.zeros((self.window, envs, 2))
+        self._command_ring = np.zeros((self.window, envs, 2))
         self._filled = np.zeros(envs, dtype=np.int64)
         self.judged_on = "true base velocity" if self.truth is not None else "estimated base"
         if window is not None and not (math.isfinite(window) and window > 0):
@@ -236,6 +238,7 @@ class CommandTracker:
             "tracked_time": self.tracked_time,
             "filled": self._filled,
             "ring": self._ring.swapaxes(0, 1),  # (envs, window, 2), a view
+            "command_ring": self._command_ring.swapaxes(0, 1),
             "window_base": self._window_base,
             "falls": self.falls,
             "falls_by_cause": self.falls_by_cause,
@@ -245,7 +248,8 @@ class CommandTracker:
     def state_dict(self, env: int | None = None) -> dict:
         """The tracker's state (copies; conventions of :mod:`deploy.stateful`): ``distance``,
         ``forward`` (m), ``running_time``, ``tracked_time`` (s), ``filled`` (int64),
-        ``ring`` (envs, window, 2) m/s (the averaging window's velocities), ``window_base``
+        ``ring`` and ``command_ring`` (envs, window, 2) m/s (the averaging window's planar
+        velocities and commands), ``window_base``
         (envs, 2) s, ``falls`` (int64), ``falls_by_cause`` (envs, causes) int64, ``up`` (bool);
         shared:
         ``window_index`` (int); JSON lists over the envs: ``window_running``,
@@ -342,11 +346,13 @@ class CommandTracker:
         step = velocity * self.dt
         self.distance += np.where(running, np.linalg.norm(step, axis=1), 0.0)
         self.forward += np.where(running, step[:, 0], 0.0)
-        self._ring[runtime.ticks % self.window] = velocity
+        slot = runtime.ticks % self.window
+        self._ring[slot] = velocity
+        self._command_ring[slot] = runtime.velocity_command[:, :2]
         self._filled = np.where(running, np.minimum(self._filled + 1, self.window), 0)
         full = self._filled >= self.window
         mean = self._ring.mean(axis=0)
-        error = np.linalg.norm(mean - runtime.velocity_command[:, :2], axis=1)
+        error = np.linalg.norm(mean - self._command_ring.mean(axis=0), axis=1)
         if self.success_window is not None:
             self._close_windows(runtime.time - self.dt)  # this tick's time counts in its window
         self.running_time += running * self.dt

@@ -195,9 +195,10 @@ def build_report(
                    missed_dropped}
             locomotion (null for an arm) {commands_issued, command_period_s, command_ranges,
                    final_command, falls, falls_per_hour, tracking_success (the session's success
-                   rate: share of RUNNING time within tracking_tolerance_m_s of the command, on the
-                   velocity averaged over tracking_window_s), tracking_tolerance_m_s,
-                   tracking_window_s, judged_on, running_s, tracked_s, distance_m, forward_m,
+                   rate: share of RUNNING time within tracking_tolerance_m_s of the command, the
+                   velocity and the command both averaged over tracking_window_s),
+                   tracking_tolerance_m_s, tracking_window_s, judged_on, running_s,
+                   standing_fraction (RUNNING s / session s), tracked_s, distance_m, forward_m,
                    mean_forward_speed_m_s, window_s, windows [{start_s, end_s, running_s,
                    tracked_s, success_rate}], min_window_success_rate, peak_winding_c {hip, thigh,
                    calf}}

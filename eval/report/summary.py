@@ -28,6 +28,9 @@ def summary_text(report: dict) -> str:
             f"distance {loco['distance_m']:.0f} m; mean forward speed "
             f"{'n/a' if speed is None else f'{speed:.3f} m/s'}"
         )
+        up = loco.get("standing_fraction")
+        if up is not None:
+            lines.append(f"  standing     {100 * up:.2f} % of the session RUNNING (on its feet)")
         lw = loco["min_window_success_rate"]
         if lw is not None:
             lines.append(f"  windows      lowest tracking success in a window {100 * lw:.1f} %")

@@ -163,6 +163,7 @@ def _locomotion_totals(results: list[dict]) -> dict | None:
         "distance_m": sum(x["distance_m"] for x in legs),
         "mean_forward_speed_m_s": sum(x["forward_m"] for x in legs) / running if running else None,
         "running_s": running,
+        "standing_fraction": running / (3600.0 * hours) if hours > 0 else None,
         "peak_winding_c": {
             k: max(x["peak_winding_c"][k] for x in legs if k in x["peak_winding_c"]) for k in kinds
         },

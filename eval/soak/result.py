@@ -68,6 +68,7 @@ def locomotion_result(session: Session) -> dict:
         "tracking_window_s": TRACKING_WINDOW,
         "judged_on": tr.judged_on,
         "running_s": running,
+        "standing_fraction": running / t_end if t_end > 0 else None,
         "tracked_s": float(tr.tracked_time[e]),
         "distance_m": float(tr.distance[e]),
         "forward_m": float(tr.forward[e]),

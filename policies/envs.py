@@ -356,7 +356,7 @@ class ReachTask:
         """
         robot, rew, guard = self.robot, self.config.reward, self.guard
         action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-        faults = None if self.faults is None else self.faults.injector
+        faults = self.faults
         if faults is not None:  # a nan-action fault; the runtime's screen holds the last action
             faults.filter_action(self.backend.time, action)
             bad = ~np.isfinite(action).all(axis=1)

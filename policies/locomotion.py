@@ -177,8 +177,7 @@ class LocomotionTask:
         self.push_force = np.zeros((envs, 3))  # N, each env's push of _disturb
         #: the episodes' fault schedules (None: faults off)
         self.faults = EpisodeFaults(self.backend, self.push_force) if config.faults else None
-        injector = None if self.faults is None else self.faults.injector
-        self.runtime = Runtime(robot, self.policy, self.backend, injector=injector)
+        self.runtime = Runtime(robot, self.policy, self.backend, injector=self.faults)
         self.monitor = InterventionMonitor(self.runtime.guard, self.runtime.smoother)
         self._continuous = np.array([m.continuous_torque for m in robot.motors])
         self._previous_action = np.zeros((envs, robot.n_joints))

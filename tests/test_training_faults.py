@@ -38,24 +38,26 @@ def forced(monkeypatch, module, schedules: list) -> list:
 def test_a_latency_fault_raises_its_envs_latency_exactly_during_it(arm3, monkeypatch):
     """Env 0's schedule holds one latency fault at 0.5 s for 0.25 s: its latency is raised by the
     fault's ticks on exactly the ticks the fault covers (episode time from its start) and back
-    after; env 1 keeps its own latency throughout."""
+    after; env 1 keeps its own latency throughout. Only then is env 0's injector armed."""
     fault = Fault("latency", 0.5, 0.25, magnitude=3.0)
     forced(monkeypatch, reach_envs, [[fault]])
     task = ReachTask(arm3, 2, NOMINAL, seed=1)
     t0 = task.backend.time  # the episode's start (the task's clock: the plant's)
     assert task.faults.schedules[0] == (fault,) and task.faults.schedules[1] == ()
     shifted = dataclasses.replace(fault, start=fault.start + t0)
-    latency, other, active = [], [], []
+    latency, other, active, armed = [], [], [], []
     for _ in range(200):  # 1 s
         task.step(np.zeros((2, arm3.n_joints)))
         active.append(shifted.active(task.backend.time))  # the time of the tick's reading
         latency.append(int(task.backend.latency_ticks[0]))
         other.append(int(task.backend.latency_ticks[1]))
+        armed.append([inj is not None for inj in task.faults.session_faults.armed])
     assert latency == [4 if on else 1 for on in active]
+    assert armed == [[on, False] for on in active]  # an injector only while its fault is on
     assert sum(active) == round(fault.duration / arm3.control_period)
     assert latency[-1] == 1  # restored after the fault
     assert other == [1] * 200
-    log = task.faults.injector.armed[0].log
+    log = task.faults.log[0]
     assert [(e["kind"], round(e["start"] - t0, 6)) for e in log] == [("latency", fault.start)]
 
 
@@ -84,7 +86,7 @@ def test_a_reset_mid_fault_leaves_no_fault_behind(arm3, monkeypatch):
     env1 = (int(b.latency_ticks[1]), float(b.dropout_probability[1]))
 
     task.reset(np.array([True, False]))  # the next schedule is empty
-    assert task.faults.injector.armed[0] is None and task.faults.schedules[0] == ()
+    assert task.faults.session_faults.armed[0] is None and task.faults.schedules[0] == ()
     assert (int(b.latency_ticks[0]), float(b.dropout_probability[0])) == (1, 0.001)
     assert not b.datas[0].xfrc_applied[:, :3].any()
     stamps = []
@@ -110,7 +112,7 @@ def test_non_finite_actions_are_held_and_never_reach_the_reward(arm3, monkeypatc
         assert np.isfinite(task.smoother.position).all()
         held.append(task.state.last_action[0].copy())
     np.testing.assert_array_equal(np.array(held), np.full((60, arm3.n_joints), 0.3))
-    assert [e["kind"] for e in task.faults.injector.armed[0].log] == ["nan-action"]
+    assert [e["kind"] for e in task.faults.log[0]] == ["nan-action"]
 
 
 def training_ranges(robot, interval: float):
@@ -195,7 +197,7 @@ def test_a_legged_episode_meets_its_latency_fault_through_the_runtime(go2, go2_s
         assert b.latency_ticks[1] == base[1]
     assert rt.counters.non_finite_actions[0] == 5 and rt.counters.non_finite_actions[1] == 0
     task.reset(np.array([True, False]))  # mid-burst; the new 5-s episode has no faults
-    assert task.faults.injector.armed[0] is None and task.faults.schedules[0] == ()
+    assert task.faults.session_faults.armed[0] is None and task.faults.schedules[0] == ()
     new = calls[-1][3].sensors.latency_ticks
     for _ in range(20):  # past the old burst's end
         task.tick()

@@ -19,8 +19,8 @@ import numpy as np
 from eval.soak.faults import SessionFaults
 from eval.world.fault_schedule import FaultRanges
 
-#: s, no fault before this episode time (the soak's warmup is 10 s; an episode's RAMP_IN and
-#: first steps are over within a second).
+#: s, no fault before this episode time (our choice; the soak's ``FaultRanges.warmup`` of 10 s
+#: would leave a 20-s episode little time for its faults).
 FAULT_WARMUP = 1.0
 
 

@@ -3,14 +3,12 @@
 ``make train`` runs ``python -m policies.train`` with the defaults below; with ``--no-faults``
 they reproduce the shipped ``policies/arm.pt`` (seed 1). Logs go to TensorBoard
 (``runs/train/``): SB3's episode length, return and success rate, plus
-``reach/joint_limit_violations``, ``reach/success_rate`` and ``reach/intervention_rate`` per
-episode.
+``reach/joint_limit_violations``, ``reach/success_rate`` and ``reach/intervention_rate``.
 
-Each episode draws its dynamics and encoder settings from the robot's soak ranges
+Each episode draws its dynamics, encoder settings and fault schedule (at ``--fault-interval``,
+:mod:`policies.episode_faults`; ``--no-faults``: none) from the robot's soak ranges
 (:func:`eval.world.session_ranges.session_ranges`), or from ``--ranges FILE``
-(:func:`eval.world.ranges_file.load_ranges`), which the shipping soak then runs too, and its fault
-schedule from their fault ranges with ``--fault-interval`` s between faults
-(:mod:`policies.episode_faults`; ``--no-faults``: none, as the shipped policies were trained).
+(:func:`eval.world.ranges_file.load_ranges`), which the shipping soak then runs too.
 
 Shipping is gated on the soak. Training writes its candidate (and its periodic saves) next to its
 logs, ``<logdir>/<robot>_<mode>_seed<seed>.pt``; at the end it exports the candidate to ONNX and

@@ -10,7 +10,9 @@ update. The candidate is the Gaussian mean plus the trot generator: an
 :class:`~deploy.policy.mlp_checkpoint.MLPActor` with ``gait`` (:func:`policies.gait.make_policy`'s
 spec and generator), exported to ONNX next to it. Logs: TensorBoard (``runs/train_legged/``), SB3's
 episode return and length plus ``walk/tracking`` (fraction of RUNNING time within 0.2 m/s of the
-command, the soak's success) and ``walk/distance``.
+command, the soak's success) and ``walk/distance``. Each episode meets the soak's faults at the
+training interval (``--fault-interval S``; ``--no-faults``: none, as the shipped go2.pt was
+trained): :mod:`policies.episode_faults`.
 """
 
 from __future__ import annotations
@@ -33,9 +35,10 @@ from stable_baselines3.common.vec_env import VecEnv
 from deploy.export import sb3_actor
 from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
 from eval.world.ranges_file import load_ranges
+from policies.episode_faults import fault_settings
 from policies.gait import make_policy
 from policies.locomotion import LocomotionConfig, LocomotionReward, LocomotionTask
-from policies.train import parse_reward
+from policies.train import add_fault_flags, parse_reward
 from robots import load_robot
 
 #: The residual network (legged_gym's actor is 512-256-128 with ELU; a residual needs less).
@@ -202,7 +205,9 @@ def train(args: argparse.Namespace) -> Path:
     template, spec = make_policy(args.robot)
     # the soak's ranges of the robot, or of --ranges FILE
     ranges = None if args.ranges is None else load_ranges(args.ranges, robot)
-    config = LocomotionConfig(reward=args.reward, ranges=ranges)
+    config = LocomotionConfig(reward=args.reward, ranges=ranges, faults=args.faults)
+    if args.fault_interval is not None:
+        config = dataclasses.replace(config, fault_interval=args.fault_interval)
     task = LocomotionTask(robot, spec, args.envs, config, seed=args.seed)
     env = TaskVecEnv(task)
     if args.init_from is not None:
@@ -244,6 +249,7 @@ def train(args: argparse.Namespace) -> Path:
             "init_from": None if args.init_from is None else str(args.init_from),
             "reward": dataclasses.asdict(args.reward),
             "ranges": None if args.ranges is None else str(args.ranges),
+            "faults": fault_settings(config.faults, task.ranges.faults),
             "curve": history,
         }
         save_checkpoint(candidate, candidate_actor(model, template), spec, info=info)
@@ -304,8 +310,11 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME=VALUE",
         help="override a LocomotionReward coefficient (repeatable)",
     )
+    add_fault_flags(p, LocomotionConfig.fault_interval)
     args = p.parse_args(argv)
     args.reward = parse_reward(args.reward, p, LocomotionReward)
+    if args.fault_interval is not None and not args.fault_interval > 0:
+        p.error(f"--fault-interval: expected > 0 s, got {args.fault_interval}")
     args.argv = list(argv) if argv is not None else sys.argv[1:]
     train(args)
     return 0

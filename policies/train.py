@@ -200,6 +200,22 @@ def start_poses(path: Path | None, robot) -> tuple[tuple[float, ...], ...]:
     return poses
 
 
+def add_gate_arguments(p: argparse.ArgumentParser) -> None:
+    """The shipping soak's options (both recipes): ``--gate-hours`` (0: off), ``--gate-sessions``
+    (several seeds, not one) and ``--gate-seed`` (the first; the nightly and the README's soaks
+    use other seeds)."""
+    p.add_argument(
+        "--gate-hours",
+        type=float,
+        default=1.0,
+        help="simulated hours per session of the shipping soak (0: off)",
+    )
+    p.add_argument("--gate-sessions", type=int, default=3, help="sessions (seeds) of the gate")
+    p.add_argument(
+        "--gate-seed", type=int, default=100, help="first session seed of the shipping soak"
+    )
+
+
 def gate(candidate: Path, args: argparse.Namespace) -> tuple[bool, Path]:
     """Export ``candidate`` to ONNX and soak it (see the module docstring).
 
@@ -455,16 +471,7 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="m, training's goal radius (default the robot's task.success_radius, as the soak)",
     )
-    p.add_argument(
-        "--gate-hours",
-        type=float,
-        default=1.0,
-        help="simulated hours of the shipping soak (0: off)",
-    )
-    p.add_argument("--gate-sessions", type=int, default=2, help="sessions of the shipping soak")
-    p.add_argument(
-        "--gate-seed", type=int, default=100, help="first session seed of the shipping soak"
-    )
+    add_gate_arguments(p)
     add_fault_flags(p, ReachConfig.fault_interval)
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.add_argument("--logdir", type=Path, default=Path("runs/train"))

@@ -47,8 +47,9 @@ format: install
 export: install
 	$(VENV)/bin/policy-export $(POLICY)
 
-# Reproduces the shipped policy of ROBOT (seed 1): trains against the deployed stack (guard
+# The recipe of the shipped policy of ROBOT (seed 1): trains against the deployed stack (guard
 # included), then ships it only if a 1-hour randomized soak passes; TensorBoard logs in runs/train/.
+# Episodes now meet the soak's faults; the shipped policies were trained without (--no-faults).
 #   make train               policies/arm.pt   (arm3, velocity mode)
 #   make train ROBOT=so101   policies/so101.pt (SO-101, position mode, the same recipe; trained
 #                            before it drew its soak's encoder noise: not bit for bit)

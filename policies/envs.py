@@ -16,15 +16,13 @@ stepped in lockstep by one ``SimBackend``.
 
 Episode: continuous operation, as in the soak. The robot starts at rest at a random pose inside its
 soft limits (or, with ``ReachConfig.start_poses``, at one of the poses where a soak saw a policy
-miss its goal), with dynamics drawn by :func:`eval.world.dynamics.sample_dynamics` and encoder
-noise, latency and dropout drawn per episode, from the soak's ranges of the robot
-(:func:`eval.world.session_ranges.session_ranges`: the same world its soak shows it). Goals are
-chained without resets: a goal is drawn from the robot's task region; when the end effector comes
-within ``task.success_radius`` of it, or ``goal_timeout`` s pass, a new goal is drawn from
-wherever the arm is. The episode ends at a hard joint limit crossed by the joint or
-by the guard's estimate (terminated: the runtime would make a safe stop) or after
-``episode_seconds`` (truncated; minutes, so that the policy meets the states of continuous
-operation).
+miss its goal), with dynamics, encoder noise, latency and dropout drawn from the robot's soak ranges
+(:func:`eval.world.session_ranges.session_ranges`) and a fault schedule from its soak's fault
+ranges at the training interval (:mod:`policies.episode_faults`). Goals are chained without
+resets: a new goal is drawn when the end effector comes within ``task.success_radius`` of it or
+after ``goal_timeout`` s. The episode ends at a hard joint limit crossed by the joint or by the
+guard's estimate (terminated: the runtime would make a safe stop) or after ``episode_seconds``
+(truncated; minutes, so that the policy meets the states of continuous operation).
 
 The reward per control tick is :class:`RewardConfig`'s (its docstring gives the terms).
 """
@@ -46,9 +44,16 @@ from deploy.spec.policy_spec import PolicySpec
 from deploy.state import Kinematics, RobotState
 from deploy.tasks.task import task_for
 from eval.world.dynamics import Dynamics, DynamicsRanges, randomized_model, sample_dynamics
+from eval.world.fault_schedule import FaultRanges
 from eval.world.sensors import SensorRanges, sample_sensors
+from eval.world.session_draw import sample_faults
 from eval.world.session_ranges import session_ranges
+from policies.episode_faults import EpisodeFaults, training_fault_ranges
 from robots import Robot
+
+#: The stream of the episodes' fault seeds (``numpy.random.default_rng([seed, FAULT_SEEDS])``):
+#: apart from the task's own stream, so that the other draws do not depend on the faults.
+FAULT_SEEDS = 3
 
 
 @dataclass(frozen=True)
@@ -142,6 +147,11 @@ class ReachConfig:
             ``task.success_radius`` (what the soak judges). A smaller one trains the policy to
             come closer than the soak requires, a margin for the gap between the runtime's
             nominal kinematics and a randomized arm (link lengths +-10 %).
+        faults: Each episode meets a fault schedule drawn from ``fault_ranges`` (False: none).
+        fault_interval: Mean time between faults in training, s (replaces the soak's
+            ``mean_interval``; our choice: most 120-s episodes meet one or two faults).
+        fault_ranges: The soak's fault ranges; None (default): the robot's,
+            ``session_ranges(robot).faults``.
         reward: The reward coefficients.
     """
 
@@ -155,6 +165,9 @@ class ReachConfig:
     start_poses: tuple[tuple[float, ...], ...] = ()
     start_pose_probability: float = 0.5
     success_radius: float | None = None
+    faults: bool = True
+    fault_interval: float = 90.0
+    fault_ranges: FaultRanges | None = None
     reward: RewardConfig = field(default_factory=RewardConfig)
 
 
@@ -168,7 +181,8 @@ class ReachTask:
             ranges (``self.config`` holds the ranges drawn from).
         spec: The policy contract; default ``PolicySpec.for_robot(robot, mode=config.mode,
             reference=config.reference)``.
-        seed: Seed of every random stream (poses, goals, dynamics, noise, sensors).
+        seed: Seed of every random stream (poses, goals, dynamics, noise, sensors; the episodes'
+            fault seeds from their own stream, ``FAULT_SEEDS``).
 
     Raises:
         ValueError: the spec's action mode differs from ``config.mode``.
@@ -183,12 +197,13 @@ class ReachTask:
         seed: int = 0,
     ):
         config = config or ReachConfig()
-        if config.sensors is None or config.dynamics is None:
+        if config.sensors is None or config.dynamics is None or config.fault_ranges is None:
             soak = session_ranges(robot)
             config = replace(
                 config,
                 sensors=soak.sensors if config.sensors is None else config.sensors,
                 dynamics=soak.dynamics if config.dynamics is None else config.dynamics,
+                fault_ranges=soak.faults if config.fault_ranges is None else config.fault_ranges,
             )
         self.config = config
         self.spec = spec or PolicySpec.for_robot(
@@ -204,6 +219,11 @@ class ReachTask:
         self.dt = robot.control_period
         self.rng = np.random.default_rng(seed)
         self.backend = SimBackend(robot, mode=config.mode, envs=envs, seed=seed + 1)
+        #: the episodes' fault schedules (None: faults off) and what they are drawn from
+        self.faults = EpisodeFaults(self.backend) if config.faults else None
+        self.fault_ranges = training_fault_ranges(config.fault_ranges, config.fault_interval)
+        self._fault_seeds = np.random.default_rng([seed, FAULT_SEEDS])
+        self.fault_seed = np.zeros(envs, dtype=np.int64)  # each env's episode fault seed
         self.estimator = JointStateEstimator(robot, envs)
         self.kinematics = Kinematics(robot)
         self.smoother = CommandSmoother(robot, envs, config.mode)
@@ -258,6 +278,9 @@ class ReachTask:
         """Start new episodes for the envs in the boolean mask ``which``."""
         robot, cfg = self.robot, self.config
         idx = np.nonzero(which)[0]
+        if self.faults is not None:
+            for e in idx:  # a fault of the last episode still in force ends with it
+                self.faults.stop(e)
         if self.randomize:
             for e in idx:
                 self.dynamics[e] = sample_dynamics(robot, self.rng, cfg.dynamics)
@@ -276,6 +299,17 @@ class ReachTask:
             self.backend.noise_sigma[e] = draw.noise_sigma
             self.backend.latency_ticks[e] = draw.latency_ticks
             self.backend.dropout_probability[e] = draw.dropout_probability
+            if self.faults is not None:  # sized against this episode's sensors and plant
+                self.fault_seed[e] = self._fault_seeds.integers(2**31)
+                schedule = sample_faults(
+                    robot,
+                    int(self.fault_seed[e]),
+                    cfg.episode_seconds,
+                    draw,
+                    self.fault_ranges,
+                    self.backend.models[e],
+                )
+                self.faults.start(e, schedule, self.backend.time)
         frame = self.backend.read()
         # the robot has rested at q0: where no reading has arrived yet (latency at the plant's
         # first ticks, a dropout), the pose itself stands in for it, as Runtime.start waits for
@@ -322,6 +356,12 @@ class ReachTask:
         """
         robot, rew, guard = self.robot, self.config.reward, self.guard
         action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        faults = self.faults
+        if faults is not None:  # a nan-action fault; the runtime's screen holds the last action
+            faults.filter_action(self.backend.time, action)
+            bad = ~np.isfinite(action).all(axis=1)
+            if bad.any():
+                action[bad] = self.state.last_action[bad]
         target = self.spec.action_to_target(action, self.state, out=self._target)
         target = guard.filter(target, self.state, out=target, commanded_position=self._commanded)
         cmd = self.smoother.step(target, out=self._cmd)
@@ -333,7 +373,11 @@ class ReachTask:
         intervened = self.monitor.any > self._any_before
         self.backend.write(cmd)
         self.backend.advance()
+        if faults is not None:  # the runtime's tick: plant-side faults, then the frame's
+            faults.before_read(self.backend.time)
         frame = self.backend.read()
+        if faults is not None:
+            frame = faults.filter_frame(self.backend.time, frame)
         state = self.estimator.update(frame, self.state, self._input)
         state.last_action[:] = action
         guard.update_thermal(state.winding_temperature)

@@ -16,16 +16,18 @@ exported :class:`~deploy.policy.mlp_checkpoint.MLPActor` with ``gait`` computes.
 Episode: ``episode_seconds`` of walking from the MJCF's standing pose, after the runtime's RAMP_IN
 to home. Each episode draws a soak session's randomization (:func:`eval.world.session_draw.
 sample_session` of the legged ranges: dynamics, encoder noise and latency, IMU noise and bias,
-floor friction), a velocity command every ``command_period`` s (:class:`deploy.tasks.locomotion.
-CommandRanges`, the soak's ranges) and pushes on the base. It ends (terminated) when the runtime
-leaves RUNNING for a safe stop (a fall, a hard limit, a stale sensor...) and is truncated at its
-length.
+floor friction, and a fault schedule at the training interval, :mod:`policies.episode_faults`,
+which the runtime's injector applies), a velocity command every ``command_period`` s
+(:class:`deploy.tasks.locomotion.CommandRanges`, the soak's ranges) and pushes on the base (a
+scheduled push adds to them). It ends (terminated) when the runtime leaves RUNNING for a safe stop
+(a fall, a hard limit, a stale sensor...) and is truncated at its length.
 
 The reward per control tick is :class:`LocomotionReward`'s (its docstring gives the terms).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,9 +42,10 @@ from deploy.tasks.locomotion import CommandRanges
 from deploy.tasks.task import task_for
 from eval.world.dynamics import randomized_model
 from eval.world.floor import apply_floor_friction
-from eval.world.sensors import apply_imu, apply_sensors
-from eval.world.session_draw import sample_session
+from eval.world.sensors import SensorDraw, apply_imu, apply_sensors
+from eval.world.session_draw import sample_faults, sample_session
 from eval.world.session_ranges import SessionRanges, session_ranges
+from policies.episode_faults import EpisodeFaults, training_fault_ranges
 from robots import Robot
 
 
@@ -96,6 +99,10 @@ class LocomotionConfig:
         push_force: Horizontal push force range, N (the soak pushes 5-25 N; ours up to 40).
         push_duration: Push duration range, s (the soak's).
         randomize: Draw each episode's dynamics, sensors, IMU and floor like a soak session.
+        faults: Each episode meets a fault schedule drawn, like a soak session's, from the
+            ranges' ``faults`` at ``fault_interval`` (False: none).
+        fault_interval: Mean time between faults in training, s (replaces the soak's
+            ``mean_interval``; our choice: most 20-s episodes meet one fault).
         ranges: The ranges they are drawn from; None (default): the robot's soak ranges
             (:func:`eval.world.session_ranges.session_ranges`); a ranges file's:
             :func:`eval.world.ranges_file.load_ranges`.
@@ -109,6 +116,8 @@ class LocomotionConfig:
     push_force: tuple[float, float] = (5.0, 40.0)
     push_duration: tuple[float, float] = (0.05, 0.5)
     randomize: bool = True
+    faults: bool = True
+    fault_interval: float = 10.0
     ranges: SessionRanges | None = None
     reward: LocomotionReward = field(default_factory=LocomotionReward)
 
@@ -158,10 +167,17 @@ class LocomotionTask:
         self.config = config = config or LocomotionConfig()
         self.dt = robot.control_period
         self.rng = np.random.default_rng(seed)
-        self.ranges = session_ranges(robot) if config.ranges is None else config.ranges
+        ranges = session_ranges(robot) if config.ranges is None else config.ranges
+        #: what the episodes draw from: the soak's ranges, faults at the training interval
+        self.ranges = dataclasses.replace(
+            ranges, faults=training_fault_ranges(ranges.faults, config.fault_interval)
+        )
         self.backend = SimBackend(robot, mode=spec.action.mode, envs=envs, seed=seed + 1)
         self.policy = LearnerPolicy(spec, envs)
-        self.runtime = Runtime(robot, self.policy, self.backend)
+        self.push_force = np.zeros((envs, 3))  # N, each env's push of _disturb
+        #: the episodes' fault schedules (None: faults off)
+        self.faults = EpisodeFaults(self.backend, self.push_force) if config.faults else None
+        self.runtime = Runtime(robot, self.policy, self.backend, injector=self.faults)
         self.monitor = InterventionMonitor(self.runtime.guard, self.runtime.smoother)
         self._continuous = np.array([m.continuous_torque for m in robot.motors])
         self._previous_action = np.zeros((envs, robot.n_joints))
@@ -193,20 +209,36 @@ class LocomotionTask:
         standing at the start, the runtime restarted there (RAMP_IN), a new command."""
         b, rt, cfg = self.backend, self.runtime, self.config
         idx = np.nonzero(which)[0]
+        self.push_force[idx] = 0.0
         for e in idx:
+            if self.faults is not None:  # a fault of the last episode still in force ends
+                self.faults.stop(e)
             if cfg.randomize:
                 draw = sample_session(
                     self.robot,
                     int(self.rng.integers(2**31)),
                     cfg.episode_seconds,
                     self.ranges,
-                    faults=False,
+                    faults=cfg.faults,
                 )
                 model = randomized_model(self.robot, self.spec.action.mode, draw.dynamics)
                 apply_floor_friction(model, draw.floor_friction)
                 b.set_model(e, model)
                 apply_sensors(b, e, draw.sensors)
                 apply_imu(b, e, draw.imu)
+                if self.faults is not None:  # its times from the episode's start
+                    self.faults.start(e, draw.faults, rt.time)
+            elif self.faults is not None:  # the nominal world: sized against the plant's sensors
+                sensors = SensorDraw(
+                    float(b.noise_sigma[e]),
+                    int(b.latency_ticks[e]),
+                    float(b.dropout_probability[e]),
+                )
+                seed = int(self.rng.integers(2**31))
+                schedule = sample_faults(
+                    self.robot, seed, cfg.episode_seconds, sensors, self.ranges.faults, b.models[e]
+                )
+                self.faults.start(e, schedule, rt.time)
             b.set_external_force(e, np.zeros(3))
             self.task.reset(rt, self._one[e])  # a new command, drawn after the episode's world
         b.reset(envs=which)
@@ -224,13 +256,15 @@ class LocomotionTask:
         self.task(self.runtime)
         ended = (self.push_until > 0) & (self.t_episode >= self.push_until)
         for e in np.nonzero(ended)[0]:
-            b.set_external_force(e, np.zeros(3))
+            self.push_force[e] = 0.0
+            b.set_external_force(e, self.push_force[e])
             self.push_until[e] = 0.0
         start = (self.push_until == 0) & (self.rng.random(self.envs) < self.dt / cfg.push_interval)
         for e in np.nonzero(start)[0]:
             angle = self.rng.uniform(0, 2 * np.pi)
             force = self.rng.uniform(*cfg.push_force)
-            b.set_external_force(e, force * np.array([np.cos(angle), np.sin(angle), 0.0]))
+            self.push_force[e] = force * np.array([np.cos(angle), np.sin(angle), 0.0])
+            b.set_external_force(e, self.push_force[e])
             self.push_until[e] = self.t_episode[e] + self.rng.uniform(*cfg.push_duration)
 
     # ------------------------------------------------------------------ the step

@@ -1,11 +1,12 @@
 """Train the shipped arm policy with Stable-Baselines3 PPO and write ``policies/arm.pt``.
 
-``make train`` runs ``python -m policies.train`` with the defaults below, which reproduce the
-shipped ``policies/arm.pt`` (seed 1). Logs go to TensorBoard (``runs/train/``): SB3's episode
-length, return and success rate, plus ``reach/joint_limit_violations``, ``reach/success_rate``
-and ``reach/intervention_rate`` per episode.
+``make train`` runs ``python -m policies.train`` with the defaults below; with ``--no-faults``
+they reproduce the shipped ``policies/arm.pt`` (seed 1). Logs go to TensorBoard
+(``runs/train/``): SB3's episode length, return and success rate, plus
+``reach/joint_limit_violations``, ``reach/success_rate`` and ``reach/intervention_rate``.
 
-Each episode draws its dynamics and encoder settings from the robot's soak ranges
+Each episode draws its dynamics, encoder settings and fault schedule (at ``--fault-interval``,
+:mod:`policies.episode_faults`; ``--no-faults``: none) from the robot's soak ranges
 (:func:`eval.world.session_ranges.session_ranges`), or from ``--ranges FILE``
 (:func:`eval.world.ranges_file.load_ranges`), which the shipping soak then runs too.
 
@@ -46,10 +47,12 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 from deploy.export import sb3_actor
 from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
 from eval.world.dynamics import DynamicsRanges
+from eval.world.fault_schedule import FaultRanges
 from eval.world.ranges_file import load_ranges
 from eval.world.session_ranges import session_ranges
 from policies.callbacks import NoiseAnneal, ReachLogger
 from policies.envs import ReachConfig, ReachTask, RewardConfig
+from policies.episode_faults import fault_settings
 from robots import load_robot
 
 HIDDEN = (64, 64)
@@ -197,6 +200,22 @@ def start_poses(path: Path | None, robot) -> tuple[tuple[float, ...], ...]:
     return poses
 
 
+def add_gate_arguments(p: argparse.ArgumentParser) -> None:
+    """The shipping soak's options (both recipes): ``--gate-hours`` (0: off), ``--gate-sessions``
+    (several seeds, not one) and ``--gate-seed`` (the first; the nightly and the README's soaks
+    use other seeds)."""
+    p.add_argument(
+        "--gate-hours",
+        type=float,
+        default=1.0,
+        help="simulated hours per session of the shipping soak (0: off)",
+    )
+    p.add_argument("--gate-sessions", type=int, default=3, help="sessions (seeds) of the gate")
+    p.add_argument(
+        "--gate-seed", type=int, default=100, help="first session seed of the shipping soak"
+    )
+
+
 def gate(candidate: Path, args: argparse.Namespace) -> tuple[bool, Path]:
     """Export ``candidate`` to ONNX and soak it (see the module docstring).
 
@@ -252,7 +271,11 @@ def train(args: argparse.Namespace) -> Path | None:
         episode_seconds=args.episode_seconds,
         start_poses=start_poses(args.start_poses, robot),
         success_radius=args.success_radius,
+        faults=args.faults,
+        fault_ranges=ranges.faults,
     )
+    if args.fault_interval is not None:
+        config = dataclasses.replace(config, fault_interval=args.fault_interval)
     task = ReachTask(robot, args.envs, config, seed=args.seed)
     # Rewards (not observations: those are already scaled by physical maxima) are
     # normalized by a running estimate of the return's scale, as SB3's PPO recipes do.
@@ -280,6 +303,7 @@ def train(args: argparse.Namespace) -> Path | None:
             "reward": dataclasses.asdict(args.reward),
             "start_poses": len(config.start_poses),
             "success_radius": task.success_radius,
+            "faults": fault_settings(config.faults, task.fault_ranges),
             "curve": history,
         }
         save_checkpoint(candidate, actor, task.spec, info=info)
@@ -326,6 +350,25 @@ def train(args: argparse.Namespace) -> Path | None:
     curve.write_text(json.dumps(info, indent=1) + "\n")
     print(f"wrote {args.out}")
     return args.out
+
+
+def add_fault_flags(parser: argparse.ArgumentParser, interval: float) -> None:
+    """``--no-faults`` (``args.faults``) and ``--fault-interval S`` (``args.fault_interval``, None:
+    the task's default ``interval`` s)."""
+    parser.add_argument(
+        "--no-faults",
+        dest="faults",
+        action="store_false",
+        help="episodes meet no faults (default: each draws the soak's fault schedule)",
+    )
+    parser.add_argument(
+        "--fault-interval",
+        type=float,
+        default=None,
+        metavar="S",
+        help=f"mean time between faults in training, s (default {interval:g}; the soak's "
+        f"{FaultRanges.mean_interval:g})",
+    )
 
 
 def parse_reward(overrides: list[str], parser: argparse.ArgumentParser, config=RewardConfig):
@@ -428,21 +471,15 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="m, training's goal radius (default the robot's task.success_radius, as the soak)",
     )
-    p.add_argument(
-        "--gate-hours",
-        type=float,
-        default=1.0,
-        help="simulated hours of the shipping soak (0: off)",
-    )
-    p.add_argument("--gate-sessions", type=int, default=2, help="sessions of the shipping soak")
-    p.add_argument(
-        "--gate-seed", type=int, default=100, help="first session seed of the shipping soak"
-    )
+    add_gate_arguments(p)
+    add_fault_flags(p, ReachConfig.fault_interval)
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.add_argument("--logdir", type=Path, default=Path("runs/train"))
     p.add_argument("--out", type=Path, default=Path("policies/arm.pt"))
     args = p.parse_args(argv)
     args.reward = parse_reward(args.reward, p)
+    if args.fault_interval is not None and not args.fault_interval > 0:
+        p.error(f"--fault-interval: expected > 0 s, got {args.fault_interval}")
     args.argv = list(argv) if argv is not None else __import__("sys").argv[1:]
     return 0 if train(args) is not None else 1
 

@@ -10,7 +10,11 @@ update. The candidate is the Gaussian mean plus the trot generator: an
 :class:`~deploy.policy.mlp_checkpoint.MLPActor` with ``gait`` (:func:`policies.gait.make_policy`'s
 spec and generator), exported to ONNX next to it. Logs: TensorBoard (``runs/train_legged/``), SB3's
 episode return and length plus ``walk/tracking`` (fraction of RUNNING time within 0.2 m/s of the
-command, the soak's success) and ``walk/distance``.
+command, the soak's success) and ``walk/distance``. Each episode meets the soak's faults at the
+training interval (``--fault-interval S``; ``--no-faults``: none, as the shipped go2.pt was
+trained): :mod:`policies.episode_faults`. Shipping is gated as the arm's recipe is
+(:func:`policies.train.gate`): a randomized soak of ``--gate-sessions`` seeds; only a candidate
+that passes is copied to ``--out``.
 """
 
 from __future__ import annotations
@@ -33,9 +37,10 @@ from stable_baselines3.common.vec_env import VecEnv
 from deploy.export import sb3_actor
 from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
 from eval.world.ranges_file import load_ranges
+from policies.episode_faults import fault_settings
 from policies.gait import make_policy
 from policies.locomotion import LocomotionConfig, LocomotionReward, LocomotionTask
-from policies.train import parse_reward
+from policies.train import add_fault_flags, add_gate_arguments, gate, parse_reward
 from robots import load_robot
 
 #: The residual network (legged_gym's actor is 512-256-128 with ELU; a residual needs less).
@@ -194,15 +199,18 @@ def candidate_actor(model: PPO, template: MLPActor) -> MLPActor:
     return actor
 
 
-def train(args: argparse.Namespace) -> Path:
-    """Train, save and export (module docstring); returns the candidate's path."""
+def train(args: argparse.Namespace) -> Path | None:
+    """Train, save, export and gate (module docstring); returns the candidate's path, or None
+    when it failed the shipping soak (then ``--out`` is not written)."""
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
     robot = load_robot(args.robot)
     template, spec = make_policy(args.robot)
     # the soak's ranges of the robot, or of --ranges FILE
     ranges = None if args.ranges is None else load_ranges(args.ranges, robot)
-    config = LocomotionConfig(reward=args.reward, ranges=ranges)
+    config = LocomotionConfig(reward=args.reward, ranges=ranges, faults=args.faults)
+    if args.fault_interval is not None:
+        config = dataclasses.replace(config, fault_interval=args.fault_interval)
     task = LocomotionTask(robot, spec, args.envs, config, seed=args.seed)
     env = TaskVecEnv(task)
     if args.init_from is not None:
@@ -244,6 +252,7 @@ def train(args: argparse.Namespace) -> Path:
             "init_from": None if args.init_from is None else str(args.init_from),
             "reward": dataclasses.asdict(args.reward),
             "ranges": None if args.ranges is None else str(args.ranges),
+            "faults": fault_settings(config.faults, task.ranges.faults),
             "curve": history,
         }
         save_checkpoint(candidate, candidate_actor(model, template), spec, info=info)
@@ -261,6 +270,22 @@ def train(args: argparse.Namespace) -> Path:
         f"trained {candidate}: {info['timesteps']} steps in {info['wall_seconds'] / 60:.1f} min "
         f"({rate:.0f} steps/s)"
     )
+    if args.gate_hours > 0:
+        passed, soak = gate(candidate, args)
+        info["gate"] = {
+            "hours": args.gate_hours,
+            "sessions": args.gate_sessions,
+            "seed": args.gate_seed,
+            "passed": passed,
+            "report": str(soak / "report.json"),
+        }
+        if not passed:
+            print(
+                f"NOT shipped: the {args.gate_hours} h soak of {candidate} failed (see "
+                f"{soak / 'report.html'}); {args.out} is unchanged"
+            )
+            return None
+        print(f"the {args.gate_hours} h soak passed ({soak / 'report.html'})")
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(candidate, args.out)
@@ -297,6 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--out", type=Path, default=None, help="copy the candidate here (policies/go2.pt)"
     )
+    add_gate_arguments(p)
     p.add_argument(
         "--reward",
         action="append",
@@ -304,11 +330,13 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME=VALUE",
         help="override a LocomotionReward coefficient (repeatable)",
     )
+    add_fault_flags(p, LocomotionConfig.fault_interval)
     args = p.parse_args(argv)
     args.reward = parse_reward(args.reward, p, LocomotionReward)
+    if args.fault_interval is not None and not args.fault_interval > 0:
+        p.error(f"--fault-interval: expected > 0 s, got {args.fault_interval}")
     args.argv = list(argv) if argv is not None else sys.argv[1:]
-    train(args)
-    return 0
+    return 0 if train(args) is not None else 1
 
 
 if __name__ == "__main__":

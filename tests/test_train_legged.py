@@ -37,7 +37,7 @@ def test_training_acts_through_the_runtime_and_ships_generator_plus_residual(tmp
     monkeypatch.setattr(tl.RuntimePPO, "collect_rollouts", spy)
     main(
         ["--envs", "2", "--steps", "32", "--n-steps", "16", "--batch-size", "16"]
-        + ["--epochs", "1", "--save-every", "0", "--logdir", str(tmp_path)]
+        + ["--epochs", "1", "--save-every", "0", "--logdir", str(tmp_path), "--gate-hours", "0"]
     )
     np.testing.assert_array_equal(seen["last_obs"], seen["runtime_obs"])
     np.testing.assert_allclose(seen["action"], seen["prior"] + seen["residual"], atol=1e-6)
@@ -51,3 +51,20 @@ def test_training_acts_through_the_runtime_and_ships_generator_plus_residual(tmp
         expected = ckpt.actor(torch.as_tensor(obs)).numpy()
     onnx = OnnxPolicy(candidate.with_suffix(".onnx"), go2)
     np.testing.assert_allclose(onnx(obs), expected, atol=1e-5)
+
+
+def test_a_candidate_ships_only_through_its_soak_gate(tmp_path):
+    """make train ROBOT=go2 ends with the shipping soak over several seeds: --out is written
+    only when the gate's report passed, and the gate's sessions are the seeds asked for."""
+    import json
+
+    out = tmp_path / "ship" / "go2.pt"
+    args = ["--envs", "2", "--steps", "32", "--n-steps", "16", "--batch-size", "16"]
+    args += ["--epochs", "1", "--save-every", "0", "--logdir", str(tmp_path), "--out", str(out)]
+    code = main(args + ["--gate-hours", "0.002", "--gate-sessions", "2", "--gate-seed", "40"])
+    report = json.loads((tmp_path / "go2_seed1.gate" / "report.json").read_text())
+    assert [s["seed"] for s in report["sessions"]] == [40, 41]
+    assert code == (0 if report["passed"] else 1)
+    assert out.exists() == report["passed"]
+    if out.exists():
+        assert json.loads(out.with_suffix(".curve.json").read_text())["gate"]["passed"]

@@ -262,7 +262,7 @@ class Session:
         rt, dt = batch.rt, batch.dt
         if not self.fault_armed:
             fault = self.schedule[self.fault_index]
-            batch.faults.arm(e, fault)
+            batch.faults.arm(e, [fault])
             self.fault_armed = True
             self.fault_snapshot = self._counters()
             self.fault_snapshot["mode"] = Mode(int(rt.mode[e])).name
@@ -388,7 +388,7 @@ class Session:
         self.fault_events = s["fault_events"]
         self.next_fault_tick = s["next_fault_tick"]
         if self.fault_armed:
-            inj = b.faults.arm(e, self.schedule[self.fault_index])
+            inj = b.faults.arm(e, [self.schedule[self.fault_index]])
             ckpt.load_stage(inj, arrays, None, where, "injector")
         self.latches = s["latches"]
         self.operator_resets = int(s["operator_resets"])

@@ -18,12 +18,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
 
 from deploy.robot_kind import robot_kind
 from eval.world.drift import Drift, sample_drift
 from eval.world.dynamics import Dynamics, randomized_model, sample_dynamics
-from eval.world.fault_schedule import fault_from_dict, fault_to_dict, sample_fault_schedule
+from eval.world.fault_schedule import (
+    FaultRanges,
+    fault_from_dict,
+    fault_to_dict,
+    sample_fault_schedule,
+)
 from eval.world.sensors import ImuDraw, SensorDraw, sample_imu, sample_sensors
 from eval.world.session_ranges import SessionRanges
 from robots import Robot
@@ -106,6 +112,26 @@ class SessionRandomization:
         )
 
 
+def sample_faults(
+    robot: Robot,
+    seed: int,
+    duration: float,
+    sensors: SensorDraw,
+    ranges: FaultRanges,
+    plant: mujoco.MjModel | None = None,
+) -> list:
+    """The fault schedule of session ``seed`` (its ``faults`` stream) over ``[0, duration)`` s:
+    :func:`eval.world.fault_schedule.sample_fault_schedule` sized against the session's encoder
+    latency (``sensors``) and plant model ``plant`` (default the nominal one). What
+    :func:`sample_session` draws, and a training episode with its own sensors and plant.
+
+    Raises:
+        ValueError: an unknown stream or a negative seed (:func:`session_rng`).
+    """
+    rng = session_rng(seed, "faults")
+    return sample_fault_schedule(robot, rng, duration, sensors, ranges, plant)
+
+
 def sample_session(
     robot: Robot,
     seed: int,
@@ -135,8 +161,7 @@ def sample_session(
     if faults:
         # faults are sized against this session's plant (its masses and link lengths)
         plant = randomized_model(robot, robot.config.control.mode, dynamics)
-        rng = session_rng(seed, "faults")
-        schedule = sample_fault_schedule(robot, rng, duration, sensors, ranges.faults, plant)
+        schedule = sample_faults(robot, seed, duration, sensors, ranges.faults, plant)
     imu = floor = None
     if robot_kind(robot).legged:  # an IMU and a floor
         if ranges.imu is None or ranges.floor_friction is None:

@@ -207,6 +207,19 @@ class FaultInjector:
             for e in range(b.envs):
                 b.set_external_force(e, push[e])
 
+    def restore(self) -> None:
+        """Undo every fault in force (an episode cut short mid-fault): the backend's dropout and
+        latency back to the settings without faults, no force where the schedule pushes or
+        pulls, no frozen frame, no fault active."""
+        b = self.backend
+        b.dropout_probability[:] = self._base_dropout
+        b.latency_ticks[:] = self._base_latency
+        if self._has_push:
+            for e in range(b.envs):
+                b.set_external_force(e, np.zeros(3))
+        self._frozen = None
+        self._active.clear()
+
     def _cable_direction(self, f: Fault, env: int) -> np.ndarray:
         """Unit vector (3,) of a cable's pull: ``f.direction``, or along the env's gravity."""
         if f.direction is not None:

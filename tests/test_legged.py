@@ -14,6 +14,7 @@ from deploy.backends.sim.plant import SimBackend
 from deploy.estimation.attitude import projected_gravity, quaternion_to_matrix, tilt_of
 from deploy.estimation.base import BaseStateEstimator
 from deploy.estimation.joints import JointStateEstimator
+from deploy.estimation.reference import ReferenceBaseStateEstimator
 from deploy.state import RobotState
 from robots import RobotSpecError, load_robot
 from robots.loading import ROBOTS_DIR
@@ -187,13 +188,13 @@ def test_imu_settings_are_randomized_per_session(go2):
 
 
 # ---------------------------------------------------------------- part 4: base estimation
-def estimate(plant, ticks, push=None, implementation="vectorized", envs_check=None):
+def estimate(plant, ticks, push=None, estimator=BaseStateEstimator, envs_check=None):
     """Run the joint and base estimators on ``plant`` (already settled) for ``ticks`` ticks;
     ``push(k) -> force`` (N, world) on the base. Returns per tick: estimated and true projected
     gravity, estimated and true base velocity (base frame), and the estimator."""
     robot = plant.robot
     joints = JointStateEstimator(robot, plant.envs)
-    base = BaseStateEstimator(robot, plant.envs, implementation=implementation)
+    base = estimator(robot, plant.envs)
     frame = plant.read()
     joints.reset(plant.true_position(), frame.time)
     base.reset(frame.time, frame.imu_acceleration)
@@ -267,7 +268,7 @@ def test_pushed_over_robot_shows_the_fall_in_its_tilt(go2):
 
 def test_velocity_filter_equals_filterpy_reference_with_imu_dropout(go2):
     results = []
-    for implementation in ("vectorized", "filterpy"):
+    for estimator in (BaseStateEstimator, ReferenceBaseStateEstimator):
         plant = stand_plant(go2, seed=9)
         plant.base_sensors.imu_dropout[:] = 0.2
         run(plant, 20)
@@ -276,7 +277,7 @@ def test_velocity_filter_equals_filterpy_reference_with_imu_dropout(go2):
             plant,
             100,
             push=lambda k, force=force: force if k < 10 else np.zeros(3),
-            implementation=implementation,
+            estimator=estimator,
         )
         results.append((g, v, base.velocity_variance.copy(), base.missing_readings.copy()))
     (g0, v0, p0, m0), (g1, v1, p1, m1) = results

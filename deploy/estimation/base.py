@@ -15,8 +15,9 @@ fields and by the joint estimate ``q``, ``dq`` (rad, rad/s):
 
   with ``p_i``, ``J_i`` a foot's position and Jacobian in the base frame (Pinocchio).
 
-``"vectorized"`` (default) runs both over every env at once; ``"filterpy"`` runs one ``ahrs``
-filter and one ``filterpy`` KalmanFilter per env, the reference it is tested against. An IMU
+Both run over every env at once; their reference
+(:class:`~deploy.estimation.reference.ReferenceBaseStateEstimator`) runs one ``ahrs`` filter and
+one ``filterpy`` KalmanFilter per env. An IMU
 reading that is NaN, not newer than the last one absorbed or stamped after ``frame.time`` is not
 fed (``missing_readings`` / ``stale_readings``): the output is predicted to ``frame.time`` and
 ``time_since_fresh`` grows. Contacts without a fresh stamp give no velocity update.
@@ -28,7 +29,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
-from filterpy.kalman import KalmanFilter
 
 from deploy.backends.base import SensorFrame
 from deploy.estimation.attitude import (
@@ -42,7 +42,6 @@ from deploy.estimation.attitude import (
 from deploy.stateful import check, env_index, put, take
 from robots import Robot
 
-IMPLEMENTATIONS: tuple[str, ...] = ("vectorized", "filterpy")
 #: Leg odometry noise, m/s (our choice): foot roll and micro-slip of a point foot, and the joint
 #: velocity estimate's noise through the leg Jacobian (about 0.3 m/rad).
 LEG_VELOCITY_SIGMA = 0.1
@@ -111,8 +110,6 @@ class BaseStateEstimator:
         k_p, k_i: Mahony's proportional and integral (gyro bias) gains, rad/s per unit error
             (``ahrs`` defaults).
         leg_sigma: Leg odometry noise, m/s (``LEG_VELOCITY_SIGMA``).
-        implementation: ``"vectorized"`` (default) or ``"filterpy"`` (reference) for the
-            velocity filter.
 
     Attributes:
         velocity_variance: (envs,) m^2/s^2, the velocity filter's covariance ``p`` (``P = p I``).
@@ -122,7 +119,7 @@ class BaseStateEstimator:
         velocity_updates: (envs,) int leg-odometry updates absorbed.
 
     Raises:
-        ValueError: a fixed-base robot, ``envs < 1`` or an unknown implementation.
+        ValueError: a fixed-base robot or ``envs < 1``.
     """
 
     def __init__(
@@ -132,19 +129,12 @@ class BaseStateEstimator:
         k_p: float = 1.0,
         k_i: float = 0.3,
         leg_sigma: float = LEG_VELOCITY_SIGMA,
-        implementation: str = "vectorized",
     ):
-        from ahrs.filters import Mahony
-
         if not robot.floating_base:
             raise ValueError(f"robot {robot.name}: base estimation needs a floating base")
         if envs < 1:
             raise ValueError(f"envs must be >= 1, got {envs}")
-        if implementation not in IMPLEMENTATIONS:
-            raise ValueError(
-                f"implementation '{implementation}' is unknown; expected one of {IMPLEMENTATIONS}"
-            )
-        self.robot, self.envs, self.implementation = robot, envs, implementation
+        self.robot, self.envs = robot, envs
         imu = robot.config.sensors.imu
         self.accel_variance = imu.accel_noise_sigma**2 + imu.accel_bias_sigma**2
         self.leg_variance = float(leg_sigma) ** 2
@@ -155,19 +145,8 @@ class BaseStateEstimator:
             raise ValueError(f"robot {robot.name}: the IMU site is not on the base body")
         self._imu_to_base = quaternion_to_matrix(m.site_quat[robot.imu_site_id])
         self.k_p, self.k_i = float(k_p), float(k_i)
-        #: (envs, 3) rad/s, Mahony's gyro bias (the vectorized filter's; the reference keeps it
-        #: in its ``ahrs`` objects)
+        #: (envs, 3) rad/s, Mahony's gyro bias (the reference keeps it in its ``ahrs`` objects)
         self._bias = np.zeros((envs, 3))
-        self._mahony = []
-        self._kfs: list[KalmanFilter] = []
-        if implementation == "filterpy":
-            frequency = 1.0 / robot.control_period
-            self._mahony = [Mahony(k_P=k_p, k_I=k_i, frequency=frequency) for _ in range(envs)]
-            for _ in range(envs):
-                kf = KalmanFilter(dim_x=3, dim_z=3)
-                kf.F = np.eye(3)
-                kf.H = np.eye(3)
-                self._kfs.append(kf)
         self._pin = robot.pin_model.createData()
         self._q = robot.pin_configuration(robot.home)
         self._v = np.zeros(robot.pin_model.nv)
@@ -211,11 +190,6 @@ class BaseStateEstimator:
                     q = align_up(a / np.linalg.norm(a))
             self.orientation[e] = q
             self._bias[e] = 0.0
-            if self._mahony:
-                self._mahony[e].b = np.zeros(3)
-            if self._kfs:
-                self._kfs[e].x = np.zeros((3, 1))
-                self._kfs[e].P = np.eye(3) * INITIAL_VELOCITY_SIGMA**2
         self.angular_velocity[sel] = 0.0
         self.velocity[sel] = 0.0
         self.velocity_variance[sel] = INITIAL_VELOCITY_SIGMA**2
@@ -247,11 +221,12 @@ class BaseStateEstimator:
         term) and ``initialized`` (envs,) bool; the env axis has length 1 for one env ``env``.
         The filterpy reference's ``x`` and ``P`` are ``velocity`` and ``velocity_variance I``."""
         out = take(self._state_fields(), env)
-        bias = self._bias
-        if self._mahony:
-            bias = np.array([np.asarray(f.b, dtype=np.float64) for f in self._mahony])
-        out["gyro_bias"] = bias[env_index(env)].copy()
+        out["gyro_bias"] = self._gyro_bias()[env_index(env)].copy()
         return out
+
+    def _gyro_bias(self) -> np.ndarray:
+        """(envs, 3) rad/s, Mahony's integral term of every env."""
+        return self._bias
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
         """Inverse of :meth:`state_dict` (of every env, or of env ``env``).
@@ -265,11 +240,6 @@ class BaseStateEstimator:
         sel = np.arange(self.envs)[env_index(env)]
         for k, e in enumerate(sel):
             self._bias[e] = state["gyro_bias"][k]
-            if self._mahony:
-                self._mahony[e].b = np.array(state["gyro_bias"][k], dtype=np.float64)
-            if self._kfs:
-                self._kfs[e].x = self.velocity[e].reshape(3, 1).copy()
-                self._kfs[e].P = np.eye(3) * self.velocity_variance[e]
 
     # ------------------------------------------------------------------ the tick
     def update(
@@ -291,10 +261,6 @@ class BaseStateEstimator:
         if frame.imu_stamp is None:
             raise ValueError("frame: no IMU fields (a floating-base robot's frame expected)")
         out = BaseState.zeros(self.envs) if out is None else out
-        if self.implementation == "filterpy":
-            for e in range(self.envs):
-                self._update_env(e, frame, q[e], dq[e], out)
-            return out
         now, stamp = frame.time, frame.imu_stamp
         gyro, acc = frame.imu_angular_velocity, frame.imu_acceleration
         finite = np.isfinite(stamp) & np.isfinite(gyro).all(axis=1) & np.isfinite(acc).all(axis=1)
@@ -330,48 +296,6 @@ class BaseStateEstimator:
         out.linear_velocity[:] = np.einsum("eji,ej->ei", rot, self.velocity)
         return out
 
-    def _update_env(self, e: int, frame: SensorFrame, q, dq, out: BaseState) -> None:
-        """The reference's update of env ``e`` (``ahrs`` and filterpy)."""
-        now, stamp = float(frame.time[e]), float(frame.imu_stamp[e])
-        gyro, acc = frame.imu_angular_velocity[e], frame.imu_acceleration[e]
-        if not (np.isfinite(stamp) and np.isfinite(gyro).all() and np.isfinite(acc).all()):
-            self.missing_readings[e] += 1
-        elif not (self.filter_time[e] < stamp <= now):
-            self.stale_readings[e] += 1
-        else:
-            dt = stamp - self.filter_time[e]
-            gyro_b, acc_b = self._imu_to_base @ gyro, self._imu_to_base @ acc
-            filt = self._mahony[e]
-            quat = filt.updateIMU(self.orientation[e], gyr=gyro_b, acc=acc_b, dt=dt)
-            self.orientation[e] = quat / np.linalg.norm(quat)
-            self.angular_velocity[e] = gyro_b - filt.b
-            rot = quaternion_to_matrix(self.orientation[e])
-            self._predict_velocity(e, dt, rot @ acc_b + self.gravity)
-            self.filter_time[e] = stamp
-            self._leg_update(e, frame, q, dq, rot)
-        # output: predicted from filter_time to now (orientation turned by omega; v held)
-        age = now - self.filter_time[e]
-        self.time_since_fresh[e] = age
-        quat = self.orientation[e]
-        if age > 0:
-            turn = rotation_quaternions((self.angular_velocity[e] * age)[None])[0]
-            quat = quat_multiply(quat, turn)
-        rot = quaternion_to_matrix(quat)
-        out.orientation[e] = quat
-        out.projected_gravity[e] = -rot[2]
-        out.angular_velocity[e] = self.angular_velocity[e]
-        out.linear_velocity_world[e] = self.velocity[e]
-        out.linear_velocity[e] = rot.T @ self.velocity[e]
-
-    def _predict_velocity(self, e: int, dt: float, acceleration: np.ndarray) -> None:
-        """The reference's prediction (filterpy)."""
-        kf = self._kfs[e]
-        kf.B = np.eye(3) * dt
-        kf.Q = np.eye(3) * dt * dt * self.accel_variance
-        kf.predict(u=acceleration.reshape(3, 1))
-        self.velocity[e] = kf.x[:, 0]
-        self.velocity_variance[e] = kf.P[0, 0]
-
     def _leg_update(self, e: int, frame: SensorFrame, q, dq, rot: np.ndarray) -> None:
         contact = frame.foot_contact[e]
         if not (np.isfinite(frame.contact_stamp[e]) and contact.any()):
@@ -389,16 +313,12 @@ class BaseStateEstimator:
             axis=0,
         )
         z = rot @ -foot_velocity  # the base's velocity, world frame
-        r_var = self.leg_variance / len(feet)
         self.velocity_updates[e] += 1
-        if self._kfs:
-            kf = self._kfs[e]
-            kf.R = np.eye(3) * r_var
-            kf.update(z.reshape(3, 1))
-            kf.P = (kf.P + kf.P.T) / 2
-            self.velocity[e] = kf.x[:, 0]
-            self.velocity_variance[e] = kf.P[0, 0]
-            return
+        self._absorb_leg_velocity(e, z, self.leg_variance / len(feet))
+
+    def _absorb_leg_velocity(self, e: int, z: np.ndarray, r_var: float) -> None:
+        """The velocity filter's update of env ``e`` with the leg odometry ``z`` (3,) m/s (world)
+        of variance ``r_var`` (m^2/s^2, per axis)."""
         p = self.velocity_variance[e]
         gain = p / (p + r_var)
         self.velocity[e] += gain * (z - self.velocity[e])

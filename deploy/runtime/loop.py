@@ -75,6 +75,10 @@ class Runtime(RuntimeState):
             ``overrun_rate_limit`` outside (0, 1].
     """
 
+    #: The state machine's class (:class:`~deploy.runtime.reference.ReferenceRuntime` takes its
+    #: numpy reference).
+    supervision_type = Supervision
+
     def __init__(
         self,
         robot: Robot,
@@ -124,7 +128,7 @@ class Runtime(RuntimeState):
         self.tracking_tolerance = tracking_tolerance(robot, self.mode_name)
         #: the state machine, one per env (:class:`~deploy.runtime.supervision.Supervision`):
         #: its arrays below are the runtime's, its transitions in numpy
-        self.supervision = sup = Supervision(
+        self.supervision = sup = self.supervision_type(
             robot,
             envs,
             self.mode_name,

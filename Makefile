@@ -29,10 +29,10 @@ run: install
 	$(VENV)/bin/deploy-run --backend sim --robot arm3 --policy $(ONNX) --duration 60 \
 		$(if $(VIDEO),--video $(VIDEO))
 
-# TEST_WORKERS=N runs the suite on N pytest-xdist workers (--dist loadgroup keeps the tests of one
-# xdist_group mark on one worker). Default 0, one process: on 2 cores two workers were slower
-# (torch, ONNX Runtime and numba's first compiles contend; docs/measurements.md).
-TEST_WORKERS ?= 0
+# The suite runs on TEST_WORKERS pytest-xdist workers (--dist loadgroup keeps the tests of one
+# xdist_group mark on one worker; TEST_WORKERS=0: one process). Each worker runs one thread and
+# the numba kernels are compiled once before the workers start (tests/conftest.py).
+TEST_WORKERS ?= 2
 test: install lint
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
 

@@ -97,8 +97,18 @@ policies/go2.onnx: policies/go2.pt $(STAMP)
 soak: install $(ONNX)
 	$(VENV)/bin/soak-test --robot $(ROBOT) --policy $(ONNX) --hours 8 --sessions 1 --seed 0 --out runs/soak
 
-nightly: install $(ONNX)
-	$(VENV)/bin/soak-test --robot $(ROBOT) --policy $(ONNX) --hours 8 --sessions 2 --seed 0 --out runs/nightly --baseline bench/baseline/report.json
+# The nightly: one 8-hour session (seed 0) of each shipped robot's policy, each compared with its
+# committed baseline where there is one (bench/baseline/ROBOT.json); every robot runs, then the
+# target fails if any of them did (reports in runs/nightly/ROBOT/).
+NIGHTLY_ROBOTS := arm3 so101 go2
+nightly: install $(ONNX) policies/so101.onnx policies/go2.onnx
+	@failed=""; for r in $(NIGHTLY_ROBOTS); do \
+		policy=policies/$$r.onnx; [ $$r = arm3 ] && policy=$(ONNX); \
+		base=bench/baseline/$$r.json; [ -f $$base ] && base="--baseline $$base" || base=""; \
+		$(VENV)/bin/soak-test --robot $$r --policy $$policy --hours 8 --sessions 1 --seed 0 \
+			--out runs/nightly/$$r $$base || failed="$$failed $$r"; \
+	done; \
+	if [ -n "$$failed" ]; then echo "make nightly: failed:$$failed"; exit 1; fi
 
 bench: install
 	$(PY) -m bench

@@ -130,3 +130,61 @@ def test_envelope_certifies_a_box_by_its_centre_and_brakes_a_motion_into_contact
     gentle = np.stack([slow, crawl, zero])
     assert not env.check(slow, gentle, gentle, moving, full)
     assert env.check(slow, gentle, gentle, moving, 0.3 * full)
+
+
+def test_pairs_the_joints_between_them_cannot_bring_into_contact_are_proved_apart(so101):
+    """SO-101's jaw is hinged to the gripper, which turns about the wrist roll: no pose within
+    the limits brings the jaw to the wrist link (or the gripper to the lower arm). The proof
+    keeps those two apart, and only those: the upper arm does come within a millimetre of the
+    base. A random sample of poses confirms each pair proved apart never touches."""
+    import pinocchio as pin
+
+    from deploy.safety.collision import collision_model, pairs_kept_apart
+    from robots.chain_bounds import collision_pair_weights
+
+    geometry = collision_model(so101)
+    apart = pairs_kept_apart(so101, geometry, collision_pair_weights(so101))
+    pairs = [tuple(p) for p in so101.config.safety.collision_pairs]
+    kept = {pairs[p] for p in np.flatnonzero(apart)}
+    assert kept == {
+        ("wrist_link", "moving_jaw_so101_v1_link"),
+        ("lower_arm_link", "gripper_link"),
+    }
+    model = so101.fixed_base_model
+    data = model.createData()
+    geom_model, geom_data = geometry
+    rng = np.random.default_rng(0)
+    lower, upper = np.asarray(so101.position_lower), np.asarray(so101.position_upper)
+    least = np.full(len(pairs), np.inf)
+    for q in rng.uniform(lower, upper, (2000, so101.n_joints)):
+        pin.computeDistances(model, data, geom_model, geom_data, q)
+        least = np.minimum(least, [r.min_distance for r in geom_data.distanceResults])
+    assert (least[apart] > 0.0).all()
+
+
+def test_a_gripper_opening_and_closing_next_to_its_wrist_is_not_braked(so101):
+    """The shipped SO-101 policy works its gripper all the time; the jaw then passes within
+    millimetres of the wrist link, which it cannot touch (proved apart). Opening and closing
+    the gripper at home, a pair that cannot touch must not make the motion envelope brake."""
+    spec = PolicySpec.for_robot(so101, mode="position")
+    g = so101.joint_names.index("gripper")
+    scale, offset = np.asarray(spec.action.scale), np.asarray(spec.action.offset)
+    home = np.asarray(so101.home, dtype=np.float64)
+    lo, hi = so101.soft_lower[g], so101.soft_upper[g]
+    ticks = {"n": 0}
+
+    def policy(obs):
+        target = home.copy()
+        target[g] = lo if (ticks["n"] // 100) % 2 else hi  # 1 s open, 1 s closed
+        ticks["n"] += 1
+        return ((target - offset) / scale)[None].astype(np.float32)
+
+    policy.spec = spec
+    plant = SimBackend(so101, mode="position", envs=1, seed=0)
+    rt = Runtime(so101, policy, plant)
+    rt.start()
+    rt.run(800)
+    moved = plant.true_position()[0, g]
+    assert ticks["n"] > 600 and min(abs(moved - lo), abs(moved - hi)) < 0.2  # it did move
+    assert rt.guard.envelope.apart.any()
+    assert int(rt.guard.counts["self_collision"].sum()) == 0

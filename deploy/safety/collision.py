@@ -66,3 +66,58 @@ def collision_query(
             pin.computeDistances(model, data, geom_model, geom_data, q)
             distances[:] = [r.min_distance for r in geom_data.distanceResults]
     return hit
+
+
+#: Most joints between the two links of a pair for :func:`pairs_kept_apart` to try a proof (a
+#: grid of every joint between them: ``GRID_POINTS[-1] ** MAX_PROOF_JOINTS`` queries at most).
+MAX_PROOF_JOINTS = 2
+#: Points per joint of the successive grids of :func:`pairs_kept_apart` (each refines the last).
+GRID_POINTS = (33, 65, 129, 257)
+
+
+def pairs_kept_apart(robot: Robot, geometry, pair_weights: np.ndarray) -> np.ndarray:
+    """Which listed collision pairs the joints between their two links cannot bring into contact
+    anywhere within the position limits (MoveIt's "never in collision" pairs, here proved rather
+    than sampled): a gripper's jaw hinged next to its wrist, say.
+
+    A pair's distance depends only on the joints its approach bound moves (``pair_weights[p] >
+    0``). With at most :data:`MAX_PROOF_JOINTS` of them, their range box is gridded
+    (:data:`GRID_POINTS` per joint, finer until decided); every configuration lies within half a
+    grid step ``s_j / 2`` of a grid point, so the distance stays above the grid's least distance
+    minus ``sum_j w_pj s_j / 2``. A pair is kept apart when that bound is above zero; one the
+    grid finds in contact, or with more joints between its links, is not.
+
+    Args:
+        robot: The robot (position limits, home pose).
+        geometry: ``(geom_model, geom_data)`` of :func:`collision_model` (its data is used).
+        pair_weights: (pairs, n) m/rad, :func:`robots.chain_bounds.collision_pair_weights`.
+
+    Returns:
+        (pairs,) bool.
+    """
+    geom_model, geom_data = geometry
+    model = robot.fixed_base_model
+    data = model.createData()
+    lower, upper = np.asarray(robot.position_lower), np.asarray(robot.position_upper)
+    apart = np.zeros(len(pair_weights), dtype=bool)
+    for p, weights in enumerate(np.asarray(pair_weights)):
+        joints = np.flatnonzero(weights > 0.0)
+        if not 0 < len(joints) <= MAX_PROOF_JOINTS:
+            continue
+        for points in GRID_POINTS:
+            axes = [np.linspace(lower[j], upper[j], points) for j in joints]
+            least = np.inf
+            q = np.asarray(robot.home, dtype=np.float64).copy()
+            for values in np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, len(joints)):
+                q[joints] = values
+                pin.updateGeometryPlacements(model, data, geom_model, geom_data, q)
+                least = min(least, pin.computeDistance(geom_model, geom_data, p).min_distance)
+                if least <= 0.0:
+                    break
+            if least <= 0.0:
+                break
+            step = (upper[joints] - lower[joints]) / (points - 1)
+            if least - weights[joints] @ (0.5 * step) > 0.0:
+                apart[p] = True
+                break
+    return apart

@@ -38,6 +38,7 @@ from ruckig import (
 )
 
 from deploy.safety import envelope_kernel as ek
+from deploy.safety.collision import pairs_kept_apart
 from robots.chain_bounds import descends
 
 #: m, default clearance kept between listed collision geometries and from the workspace box's
@@ -161,6 +162,12 @@ class MotionEnvelope:
                 np.full(n, MIN_HEADROOM),
             ]
         )
+        #: (pairs,) bool, the pairs the joints between their links cannot bring into contact
+        #: (:func:`deploy.safety.collision.pairs_kept_apart`): left out of the certification (their
+        #: distance reads as infinite), so a gripper's jaw closing next to its wrist brakes nothing
+        self.apart = np.zeros(0, dtype=bool)
+        if self.pairs:
+            self.apart = pairs_kept_apart(robot, geometry, pair_weights)
         self.queries = 0
         home = np.asarray(robot.home, dtype=float)
         if margin is None:  # the default, capped at half the clearance the geometry allows
@@ -222,10 +229,13 @@ class MotionEnvelope:
         ]
 
     def distances(self, q: np.ndarray) -> np.ndarray:
-        """(pairs,) m, each listed pair's distance at ``q`` (n,) rad (coal; <= 0 in contact)."""
+        """(pairs,) m, each listed pair's distance at ``q`` (n,) rad (coal; <= 0 in contact;
+        ``inf`` for a pair kept apart, :attr:`apart`)."""
         self.queries += 1
         pin.computeDistances(self.model, self.data, self.geom_model, self.geom_data, q)
-        return np.array([r.min_distance for r in self.geom_data.distanceResults])
+        d = np.array([r.min_distance for r in self.geom_data.distanceResults])
+        d[self.apart] = np.inf
+        return d
 
     def workspace_margin(self, q: np.ndarray) -> np.ndarray:
         """(3,) m, how far the end effector at ``q`` (n,) rad lies inside the workspace box along

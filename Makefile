@@ -31,10 +31,13 @@ run: install
 
 # The suite runs on TEST_WORKERS pytest-xdist workers (--dist loadgroup keeps the tests of one
 # xdist_group mark on one worker; TEST_WORKERS=0: one process). Each worker runs one thread and
-# the numba kernels are compiled once before the workers start (tests/conftest.py).
+# the numba kernels are compiled once before the workers start (tests/conftest.py). The tests on
+# the wall clock against an emulator (mark wallclock) run after it in one process, so the suite's
+# own workers do not starve them.
 TEST_WORKERS ?= 2
 test: install lint
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not wallclock"
+	$(PY) -m pytest -q -m wallclock
 
 lint: install
 	$(VENV)/bin/ruff check .

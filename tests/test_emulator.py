@@ -17,6 +17,10 @@ from deploy.backends.servo import feetech_protocol as ft_codec
 from deploy.backends.servo.control_tables import STS3215, XM430_W350
 from robots import load_robot
 
+# On the wall clock against an emulator: run apart from the parallel suite (Makefile), so the
+# suite's own workers do not starve it; it must still hold beside other jobs.
+pytestmark = pytest.mark.wallclock
+
 scs = pytest.importorskip("scservo_sdk", reason="pip install '.[servo]'")
 dxl = pytest.importorskip("dynamixel_sdk", reason="pip install '.[servo]'")
 

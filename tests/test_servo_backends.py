@@ -34,6 +34,10 @@ pytest.importorskip("dynamixel_sdk", reason="pip install '.[servo]'")
 from deploy.backends.servo.dynamixel import DynamixelBackend  # noqa: E402
 from deploy.backends.servo.feetech import FeetechBackend  # noqa: E402
 
+# On the wall clock against an emulator: run apart from the parallel suite (Makefile), so the
+# suite's own workers do not starve it; it must still hold beside other jobs.
+pytestmark = pytest.mark.wallclock
+
 CASES = {
     "feetech": ("so101", FeetechBackend),
     "dynamixel": ("arm3_xm430", DynamixelBackend),

@@ -37,6 +37,10 @@ from deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT  # noqa
 from deploy.spec.policy_spec import PolicySpec  # noqa: E402
 from tests.unitree_reference import crc_bitwise, go_lowcmd_c_struct, le_words  # noqa: E402
 
+# On the wall clock against an emulator: run apart from the parallel suite (Makefile), so the
+# suite's own workers do not starve it; it must still hold beside other jobs.
+pytestmark = pytest.mark.wallclock
+
 REPO = Path(__file__).resolve().parents[1]
 _DOMAINS = itertools.count()
 

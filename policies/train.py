@@ -217,16 +217,15 @@ def add_gate_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def gate(candidate: Path, args: argparse.Namespace) -> tuple[bool, Path]:
-    """Export ``candidate`` to ONNX and soak it (see the module docstring).
+    """Soak ``candidate``'s ONNX export (``candidate.with_suffix(".onnx")``, written by the
+    caller; see the module docstring).
 
     Returns:
         ``(passed, soak folder)``; the soak's report.json and report.html are in the folder.
     """
-    from deploy.export import export_policy
     from eval.cli import main as soak_main
 
     onnx = candidate.with_suffix(".onnx")
-    export_policy(candidate, onnx)
     out = candidate.with_suffix(".gate")
     if out.exists():
         shutil.rmtree(out)
@@ -328,6 +327,9 @@ def train(args: argparse.Namespace) -> Path | None:
             f"{100 * row['intervention_rate']:.2f} % of ticks"
         )
     if args.gate_hours > 0:
+        from deploy.export import export_policy
+
+        export_policy(candidate, candidate.with_suffix(".onnx"))
         passed, soak = gate(candidate, args)
         if not passed:
             print(

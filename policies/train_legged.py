@@ -14,7 +14,9 @@ command, the soak's success) and ``walk/distance``. Each episode meets the soak'
 training interval (``--fault-interval S``; ``--no-faults``: none, as the shipped go2.pt was
 trained): :mod:`policies.episode_faults`. Shipping is gated as the arm's recipe is
 (:func:`policies.train.gate`): a randomized soak of ``--gate-sessions`` seeds; only a candidate
-that passes is copied to ``--out``.
+that passes is copied to ``--out``. ``--init-from policies/go2.pt`` fine-tunes a shipped policy
+(its actor; ``--critic-warmup`` trains the fresh critic first), e.g. on the slippery floors of
+``--ranges policies/go2_slippery.toml``.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
 from deploy.export import sb3_actor
-from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
+from deploy.policy.mlp_checkpoint import MLPActor, load_checkpoint, save_checkpoint
 from eval.world.ranges_file import load_ranges
 from policies.episode_faults import fault_settings
 from policies.gait import make_policy
@@ -199,6 +201,45 @@ def candidate_actor(model: PPO, template: MLPActor) -> MLPActor:
     return actor
 
 
+def load_shipped_actor(model: PPO, checkpoint: Path, spec) -> None:
+    """Start ``model``'s Gaussian mean from a checkpoint's actor (a shipped ``go2.pt``, written
+    by :func:`~deploy.policy.mlp_checkpoint.save_checkpoint`): its linear layers are copied into
+    ``mlp_extractor.policy_net`` and ``action_net``; the critic and the noise keep their fresh
+    initialization (``--critic-warmup`` trains the critic first).
+
+    Raises:
+        ValueError: the checkpoint's observation layout or action size is not ``spec``'s, or its
+            hidden layers are not :data:`HIDDEN` (the file and the expected value named).
+    """
+    actor, source, _ = load_checkpoint(checkpoint)
+    if source.to_json() != spec.to_json():
+        raise ValueError(
+            f"{checkpoint}: --init-from expected a checkpoint of this recipe's spec (robot "
+            f"{spec.robot}, obs {spec.obs_dim}, act {spec.act_dim}); its spec differs"
+        )
+    layers = [m for m in actor.net if isinstance(m, torch.nn.Linear)]
+    policy = model.policy
+    targets = [m for m in policy.mlp_extractor.policy_net if isinstance(m, torch.nn.Linear)]
+    targets.append(policy.action_net)
+    widths = tuple(m.out_features for m in layers[:-1])
+    if widths != HIDDEN:
+        raise ValueError(f"{checkpoint}: hidden layers {widths}, expected {HIDDEN}")
+    with torch.no_grad():
+        for source_layer, target in zip(layers, targets, strict=True):
+            target.weight.copy_(source_layer.weight)
+            target.bias.copy_(source_layer.bias)
+
+
+def actor_parameters(model: PPO) -> list[torch.nn.Parameter]:
+    """The parameters of ``model``'s actor: its mean network and its log standard deviation."""
+    policy = model.policy
+    return [
+        *policy.mlp_extractor.policy_net.parameters(),
+        *policy.action_net.parameters(),
+        policy.log_std,
+    ]
+
+
 def train(args: argparse.Namespace) -> Path | None:
     """Train, save, export and gate (module docstring); returns the candidate's path, or None
     when it failed the shipping soak (then ``--out`` is not written)."""
@@ -213,7 +254,7 @@ def train(args: argparse.Namespace) -> Path | None:
         config = dataclasses.replace(config, fault_interval=args.fault_interval)
     task = LocomotionTask(robot, spec, args.envs, config, seed=args.seed)
     env = TaskVecEnv(task)
-    if args.init_from is not None:
+    if args.init_from is not None and args.init_from.suffix == ".zip":
         model = RuntimePPO.load(args.init_from, env=env, device="cpu")
     else:
         model = RuntimePPO(
@@ -237,6 +278,8 @@ def train(args: argparse.Namespace) -> Path | None:
             seed=args.seed,
             device="cpu",
         )
+    if args.init_from is not None and args.init_from.suffix != ".zip":
+        load_shipped_actor(model, args.init_from, spec)
     model.prior = template.gait
     args.logdir.mkdir(parents=True, exist_ok=True)
     candidate = args.logdir / f"{args.robot}_seed{args.seed}.pt"
@@ -250,6 +293,7 @@ def train(args: argparse.Namespace) -> Path | None:
             "timesteps": int(model.num_timesteps),
             "wall_seconds": round(time.perf_counter() - start, 1),
             "init_from": None if args.init_from is None else str(args.init_from),
+            "critic_warmup": args.critic_warmup,
             "reward": dataclasses.asdict(args.reward),
             "ranges": None if args.ranges is None else str(args.ranges),
             "faults": fault_settings(config.faults, task.ranges.faults),
@@ -260,7 +304,20 @@ def train(args: argparse.Namespace) -> Path | None:
         return info
 
     logger = WalkLogger(save, args.save_every)
-    model.learn(args.steps, callback=logger, tb_log_name=f"ppo_{args.robot}")
+    warmup = min(args.critic_warmup, args.steps)
+    if warmup:
+        # the critic learns the returns of the starting actor before the actor moves
+        for parameter in actor_parameters(model):
+            parameter.requires_grad_(False)
+        model.learn(warmup, callback=logger, tb_log_name=f"ppo_{args.robot}")
+        for parameter in actor_parameters(model):
+            parameter.requires_grad_(True)
+    model.learn(
+        args.steps - warmup,
+        callback=logger,
+        tb_log_name=f"ppo_{args.robot}",
+        reset_num_timesteps=not warmup,
+    )
     info = save(model, logger.history)
     from deploy.export import export_policy
 
@@ -310,7 +367,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--save-every", type=int, default=500_000)
-    p.add_argument("--init-from", type=Path, default=None, help="a saved .zip to continue")
+    p.add_argument(
+        "--init-from",
+        type=Path,
+        default=None,
+        help="a saved .zip to continue, or a checkpoint .pt (policies/go2.pt) to fine-tune",
+    )
+    p.add_argument(
+        "--critic-warmup",
+        type=int,
+        default=0,
+        metavar="STEPS",
+        help="first train the critic alone for STEPS steps (the actor frozen)",
+    )
     p.add_argument("--logdir", type=Path, default=Path("runs/train_legged"))
     p.add_argument(
         "--ranges",

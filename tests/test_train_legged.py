@@ -68,3 +68,33 @@ def test_a_candidate_ships_only_through_its_soak_gate(tmp_path):
     assert out.exists() == report["passed"]
     if out.exists():
         assert json.loads(out.with_suffix(".curve.json").read_text())["gate"]["passed"]
+
+
+def test_fine_tuning_starts_from_the_shipped_actor_and_warms_the_critic_first(tmp_path):
+    """--init-from policies/go2.pt starts the Gaussian mean at the shipped actor: while the critic
+    warms up (--critic-warmup) the actor does not move, so a run that is all warm-up writes a
+    candidate equal to the shipped policy; after the warm-up it learns."""
+    from pathlib import Path
+
+    shipped = read_checkpoint(Path("policies/go2.pt")).actor.state_dict()
+    common = ["--envs", "2", "--n-steps", "16", "--batch-size", "16", "--epochs", "1"]
+    common += ["--save-every", "0", "--gate-hours", "0", "--init-from", "policies/go2.pt"]
+    common += ["--initial-std", "0.2"]
+    main(common + ["--steps", "32", "--critic-warmup", "32", "--logdir", str(tmp_path / "w")])
+    warmed = read_checkpoint(tmp_path / "w" / "go2_seed1.pt").actor.state_dict()
+    assert shipped.keys() == warmed.keys()
+    for key in shipped:
+        torch.testing.assert_close(warmed[key], shipped[key], rtol=0, atol=0)
+
+    main(common + ["--steps", "64", "--critic-warmup", "32", "--logdir", str(tmp_path / "t")])
+    tuned = read_checkpoint(tmp_path / "t" / "go2_seed1.pt").actor.state_dict()
+    assert any(not torch.equal(tuned[k], shipped[k]) for k in shipped)
+
+
+def test_fine_tuning_from_another_recipes_checkpoint_names_the_file(tmp_path):
+    """A checkpoint of another robot or observation layout is refused before training starts."""
+    with pytest.raises(ValueError, match=r"so101\.pt.*spec"):
+        main(
+            ["--envs", "2", "--steps", "16", "--n-steps", "8", "--batch-size", "16"]
+            + ["--init-from", "policies/so101.pt", "--logdir", str(tmp_path), "--gate-hours", "0"]
+        )

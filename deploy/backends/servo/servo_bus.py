@@ -82,7 +82,7 @@ class ServoBusBackend(BackendLifecycle):
             current (N m estimate: load x peak torque, or current x gear ratio x torque constant x
             efficiency), input voltage (V) and temperature (degC); NaN where never read.
         dropouts: Counter of missing replies by kind (``DROPOUT_KINDS``).
-        latched_errors: Servo ID -> OR of the hardware error bits it reported.
+        latched_errors: Servo ID -> OR of the hardware error bits it reported (and ``TORQUE_OFF``).
         reads: SYNC READs sent. read_cost, write_cost: :class:`LatencyHistogram` of the bus
             transactions (ns).
         torque_checks, check_cost: SYNC READs of Torque_Enable sent, and their cost (ns).
@@ -357,13 +357,14 @@ class ServoBusBackend(BackendLifecycle):
         return f
 
     def _check_torque(self) -> None:
-        """Read Torque_Enable back; a servo found off without a hardware error reported since
-        open gets ``TORQUE_OFF`` in this read's :meth:`drive_errors` and in ``latched_errors``."""
+        """Read Torque_Enable back; a servo found off that reports no hardware error at this
+        read gets ``TORQUE_OFF`` in this read's :meth:`drive_errors` and in ``latched_errors``
+        (again at every check while it stays off: an operator's reset does not resume it)."""
         t0 = time.perf_counter_ns()
         torque = self._read_torque()
         self.torque_checks += 1
         for j, sid in enumerate(self.ids):
-            if torque.get(sid, 1) == 0 and not self.latched_errors.get(sid, 0) & ~TORQUE_OFF:
+            if torque.get(sid, 1) == 0 and not self._errors[0, j]:
                 self._errors[0, j] |= TORQUE_OFF
                 self.latched_errors[sid] = self.latched_errors.get(sid, 0) | TORQUE_OFF
         self.check_cost.add(0, time.perf_counter_ns() - t0)

@@ -13,7 +13,7 @@ Torque_Enable of every servo (one SYNC READ of one byte):
   readings as its winding temperatures), so the check comes in that tick, before the runtime
   can resume. A reply lost in that check is found at the next periodic one.
 
-A servo found off that has reported no hardware error is a drive error of its own, ``TORQUE_OFF``
+A servo found off that reports no hardware error is a drive error of its own, ``TORQUE_OFF``
 (a bit above the vendors' 8-bit error bytes): the runtime makes a safe stop of it (``servo_error``)
 and does not resume.
 """
@@ -79,7 +79,7 @@ class TorqueWatch:
     def describe(self, joint: int) -> str:
         """What a ``TORQUE_OFF`` of ``joint`` means; an overheat shutdown is named where the
         servo was read within 1 degC of its cut-off (it reports whole degrees)."""
-        text = "torque off by the servo while commanded on, no error bit read"
+        text = "torque off by the servo while commanded on"
         peak, limit = self.peak[joint], self.limit[joint]
         if np.isfinite(peak) and np.isfinite(limit) and peak >= limit - 1.0:
             text += f" (read {peak:.0f} degC, cut-off {limit:.0f} degC: an overheat shutdown)"

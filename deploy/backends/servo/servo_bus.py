@@ -351,8 +351,10 @@ class ServoBusBackend(BackendLifecycle):
         corrupt = min(corrupt, missing)
         self.dropouts["corrupt"] += corrupt
         self.dropouts["timeout"] += missing - corrupt
-        self.read_cost.add(0, time.perf_counter_ns() - t0)
-        if self._enabled and self._watch.due(self.temperature[0]):
+        cost = time.perf_counter_ns() - t0
+        self.read_cost.add(0, cost)
+        slow = cost > 0.5e9 * self.read_timeout
+        if self._enabled and self._watch.due(self.temperature[0], slow):
             self._check_torque()
         return f
 

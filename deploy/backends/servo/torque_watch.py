@@ -7,7 +7,9 @@ a host that read no status in that window never sees the bit, and a runtime endi
 would drive the arm with that joint limp. So while the host has the torque on, the backend reads
 Torque_Enable of every servo (one SYNC READ of one byte):
 
-- every ``TORQUE_CHECK_PERIOD`` s, and
+- every ``TORQUE_CHECK_PERIOD`` s, at the first read after it that was not slow (a read that
+  took over half its timeout: the bus or the host is late this tick, and the check would push
+  the tick past its period), and
 - at the first read at which every temperature reading is below its motor's derating start
   after one was not: the condition on which the runtime ends a thermal safe stop (it takes the
   readings as its winding temperatures), so the check comes in that tick, before the runtime
@@ -63,14 +65,14 @@ class TorqueWatch:
         self._reads = 0
         self._warm = False
 
-    def due(self, temperature: np.ndarray) -> bool:
+    def due(self, temperature: np.ndarray, slow: bool = False) -> bool:
         """Whether to check at this read; ``temperature`` (n,) degC, the readings (NaN: never
-        read)."""
+        read); ``slow``: this read took over half its timeout (a periodic check waits)."""
         np.fmax(self.peak, temperature, out=self.peak)
         self._reads += 1
         cool = bool((temperature < self.cool_below).all())
         self._warm |= not cool
-        if self._reads >= self.every or (cool and self._warm):
+        if (self._reads >= self.every and not slow) or (cool and self._warm):
             self._reads = 0
             self._warm = not cool
             return True

@@ -22,6 +22,7 @@ from deploy.backends.base import Backend, SimulatedPlant
 from deploy.backends.emulator import ServoBusEmulator, WireFaults
 from deploy.backends.servo.calibration import CalibrationError, load_lerobot_calibration
 from deploy.backends.servo.servo_bus import ServoBusError
+from deploy.backends.servo.torque_watch import TORQUE_CHECK_PERIOD, TORQUE_OFF
 from deploy.cli.deploy_run import EXIT_CLEAN, EXIT_FAULT
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Runtime, WallClock
@@ -321,3 +322,72 @@ def test_overheating_servo_meets_the_runtime_thermal_stop_first(tmp_path, protoc
     (error,) = report["faults"]["drive_errors"]  # the servo tripped at its own limit after it
     assert error.startswith("servo ID 3") and "overheat" in error, error
     assert peak >= servo_limit - 1
+
+
+@pytest.mark.parametrize("protocol", ["feetech", "dynamixel"])
+def test_a_servo_that_cut_its_torque_unseen_is_a_drive_error_naming_it(protocol):
+    """A servo that switched its torque off leaving no error bit to read (a Feetech servo clears
+    its overheat bit once the winding cools below its limit) is found by reading Torque_Enable
+    back: a drive error of that servo within a check period; none while the host itself has the
+    torque off."""
+    name, cls = CASES[protocol]
+    robot = load_robot(name)
+    reads = 4 * int(np.ceil(TORQUE_CHECK_PERIOD / robot.control_period))  # room for a lost reply
+    with _emulator(robot, protocol) as emu, cls(robot, emu.port) as bus:
+        _full_read(bus)
+        emu.cut_torque(2)
+        for _ in range(reads):
+            bus.read()
+            if bus.drive_errors().any():
+                break
+        errors = bus.drive_errors()[0].tolist()
+        assert errors == [0, TORQUE_OFF] + [0] * (robot.n_joints - 2), bus.bus_summary()
+        assert bus.latched_errors == {2: TORQUE_OFF}
+        text = bus.describe_drive_error(1, TORQUE_OFF)
+        assert text.startswith(f"servo ID 2 ({robot.joint_names[1]}): torque off"), text
+        assert "overheat" not in text  # it was never read near its cut-off
+        checks = bus.torque_checks
+        bus.disable()  # the host's own torque off is no error, and nothing to check
+        for _ in range(reads):
+            bus.read()
+            assert not bus.drive_errors().any()
+        assert bus.torque_checks == checks >= 1
+
+
+@pytest.mark.parametrize("protocol", ["feetech", "dynamixel"])
+def test_a_servo_shut_down_unseen_in_a_thermal_stop_latches_it_and_never_resumes(
+    tmp_path, protocol
+):
+    """The race a host can lose: a Feetech servo cuts its torque at its temperature limit and
+    clears its overheat bit as soon as the winding has cooled below it, moments later; a host
+    that read no status packet in between never sees the bit. Made deterministic here: servo 3
+    heats (its own cut-off raised out of reach) until the runtime's thermal stop holds the arm,
+    then switches its torque off leaving no bit to read. Once cooled, the runtime must not
+    resume with that joint limp: the stop latches (FAULTED), naming servo 3."""
+    name, _ = CASES[protocol]
+    robot = load_robot(name)
+    motor = robot.motors[2]
+    cut_at = motor.max_winding_temperature + 2.0  # past the runtime's stop, below the servo's
+
+    def heat_then_cut():
+        emu.set_temperature_limit(3, 200)  # no shutdown of its own: the cut below is the only one
+        emu.set_heat(3, 100.0)
+        while emu.plant.thermal.winding_temperature[0, 2] < cut_at:
+            time.sleep(0.002)
+        emu.cut_torque(3)
+
+    with _emulator(robot, protocol) as emu:
+        _when_running(emu, heat_then_cut)
+        code, report, out = _deploy_run(tmp_path, protocol, emu, 15.0)
+        torque = [s.get("torque_enable") for s in emu.servos]
+    assert code == EXIT_FAULT, out
+    assert report["faults"]["by_cause"]["over_temperature"] == 1, out
+    assert report["faults"]["safe_stops"] == 1, out  # no second stop after a resume
+    assert report["final_cause"] == ["over_temperature"]
+    # the stop ended (at rest, cooled below the derating start) and latched instead of resuming
+    assert report["final_state"] == ["FAULTED"], out
+    assert report["duration_s"] < 15.0
+    (error,) = report["faults"]["drive_errors"]
+    assert error.startswith("servo ID 3") and "torque off" in error, error
+    assert "servo error       servo ID 3" in out
+    assert torque == [0] * robot.n_joints

@@ -245,6 +245,17 @@ class ServoBusEmulator:
         self._servo(servo_id)
         self.faults.overload[servo_id] = self.elapsed if at is None else at
 
+    def cut_torque(self, servo_id: int) -> None:
+        """Servo ``servo_id`` switches its torque off by itself and keeps no error bit: what a
+        host sees of a Feetech overheat shutdown whose bit cleared (the winding cooled below the
+        limit) before it read a status packet, or of a servo reset by a supply dip.
+
+        Raises:
+            KeyError: no such servo.
+        """
+        with self._lock:
+            self._servo(servo_id).set("torque_enable", 0)
+
     def set_temperature_limit(self, servo_id: int, degc: int) -> None:
         """Write ``degc`` to the temperature-limit register of servo ``servo_id``.
 

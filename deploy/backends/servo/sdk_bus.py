@@ -73,8 +73,11 @@ class SdkServoBus(ServoBusBackend):
         self._reader = sdk.GroupSyncRead(self._port, self._ph, start, length)
         reg = self.goal_register
         self._writer = sdk.GroupSyncWrite(self._port, self._ph, reg.address, reg.size)
+        torque = self.models[0].register("torque_enable")
+        self._torque_reader = sdk.GroupSyncRead(self._port, self._ph, torque.address, torque.size)
         for sid in self.ids:
             self._reader.addParam(sid)
+            self._torque_reader.addParam(sid)
             self._writer.addParam(sid, [0] * reg.size)
 
     def _ping(self, servo_id: int) -> tuple[int, int]:
@@ -93,8 +96,16 @@ class SdkServoBus(ServoBusBackend):
         return self._ph.rxPacket(port)
 
     def _sync_read(self) -> tuple[dict[int, tuple[bytes, int]], int]:
-        """Send the SDK group's SYNC READ, then receive every status packet with ``rxPacket``
-        (the group's own receive stops at the first missing reply and drops the error bytes).
+        return self._group_read(self._reader, self.block_length)
+
+    def _read_torque(self) -> dict[int, int]:
+        replies, _ = self._group_read(self._torque_reader, 1)
+        return {sid: data[0] for sid, (data, _error) in replies.items()}
+
+    def _group_read(self, reader, length: int) -> tuple[dict[int, tuple[bytes, int]], int]:
+        """Send the SDK group ``reader``'s SYNC READ of ``length`` bytes, then receive every
+        status packet with ``rxPacket`` (the group's own receive stops at the first missing reply
+        and drops the error bytes).
 
         Returns:
             ``({servo_id: (parameter bytes, error byte)}, corrupt replies)``.
@@ -103,16 +114,17 @@ class SdkServoBus(ServoBusBackend):
         port.ser.reset_input_buffer()  # a late reply of the last tick is not this tick's
         replies: dict[int, tuple[bytes, int]] = {}
         corrupt = 0
-        if self._reader.txPacket() != sdk.COMM_SUCCESS:
+        if reader.txPacket() != sdk.COMM_SUCCESS:
             return replies, corrupt
         port.setPacketTimeoutMillis(1e3 * self.read_timeout)
         p0 = self._parameter_start(sdk)
-        end = p0 + self.block_length
+        end = p0 + length
         for _ in range(2 * self.n + 2):  # every reply, plus room for corrupt ones
             packet, result = self._receive(port)
             if result == sdk.COMM_SUCCESS:
                 sid = packet[sdk.PKT_ID]
-                if sid in self._reader.data_dict and len(packet) >= end + self.status_trailer:
+                # exactly this read's length: a late reply to the other group is not this one's
+                if sid in reader.data_dict and len(packet) == end + self.status_trailer:
                     replies[sid] = (bytes(packet[p0:end]), packet[sdk.PKT_ERROR])
             elif result == sdk.COMM_RX_CORRUPT:
                 corrupt += 1

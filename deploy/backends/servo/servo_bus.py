@@ -23,7 +23,8 @@ at once: the runtime's wall clock paces the loop.
 
 Hardware errors (overload, overheating, input voltage, ...: the status packet's error byte on
 Feetech, Hardware_Error_Status on Dynamixel) are reported by :meth:`drive_errors`; the runtime
-makes a safe stop of them (cause ``servo_error``).
+makes a safe stop of them (cause ``servo_error``). So is a servo found with its torque off while
+the host has it on (:mod:`deploy.backends.servo.torque_watch`: when Torque_Enable is read back).
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ from deploy.backends.servo.calibration import (
     load_lerobot_calibration,
 )
 from deploy.backends.servo.control_tables import ServoModel, model_for_motor
+from deploy.backends.servo.torque_watch import TORQUE_OFF, TorqueWatch
 from deploy.observe.telemetry import LatencyHistogram
 from robots import Robot
 from robots.errors import Sim2RealError
@@ -80,9 +82,10 @@ class ServoBusBackend(BackendLifecycle):
             current (N m estimate: load x peak torque, or current x gear ratio x torque constant x
             efficiency), input voltage (V) and temperature (degC); NaN where never read.
         dropouts: Counter of missing replies by kind (``DROPOUT_KINDS``).
-        latched_errors: Servo ID -> OR of the hardware error bits it reported.
+        latched_errors: Servo ID -> OR of the hardware error bits it reported (and ``TORQUE_OFF``).
         reads: SYNC READs sent. read_cost, write_cost: :class:`LatencyHistogram` of the bus
             transactions (ns).
+        torque_checks, check_cost: SYNC READs of Torque_Enable sent, and their cost (ns).
 
     Raises:
         ValueError: a motor of another protocol, torque mode, bad calibration.
@@ -135,6 +138,8 @@ class ServoBusBackend(BackendLifecycle):
         self.latched_errors: dict[int, int] = {}
         self.reads = 0
         self.read_cost, self.write_cost = LatencyHistogram(), LatencyHistogram()
+        self.torque_checks, self.check_cost = 0, LatencyHistogram()
+        self._watch = TorqueWatch(robot)
         self._errors = np.zeros((1, self.n), dtype=np.int64)
         self._ticks = np.zeros(self.n)
         self._goal = np.zeros(self.n)
@@ -173,6 +178,10 @@ class ServoBusBackend(BackendLifecycle):
 
     def _sync_read(self) -> tuple[dict[int, tuple[bytes, int]], int]:
         """One SYNC READ of the block: ({servo ID: (block bytes, error byte)}, corrupt replies)."""
+        raise NotImplementedError
+
+    def _read_torque(self) -> dict[int, int]:
+        """One SYNC READ of Torque_Enable: {servo ID: value} of the servos that answered."""
         raise NotImplementedError
 
     def _sync_write(self, data: list[bytes]) -> None:
@@ -241,6 +250,7 @@ class ServoBusBackend(BackendLifecycle):
         for j in range(self.n):
             self._set(j, "torque_enable", 1)
         self._enabled = True
+        self._watch.restart()
 
     def disable(self) -> None:
         """Torque off, every servo that answers (an unplugged one cannot be reached)."""
@@ -341,8 +351,25 @@ class ServoBusBackend(BackendLifecycle):
         corrupt = min(corrupt, missing)
         self.dropouts["corrupt"] += corrupt
         self.dropouts["timeout"] += missing - corrupt
-        self.read_cost.add(0, time.perf_counter_ns() - t0)
+        cost = time.perf_counter_ns() - t0
+        self.read_cost.add(0, cost)
+        slow = cost > 0.5e9 * self.read_timeout
+        if self._enabled and self._watch.due(self.temperature[0], slow):
+            self._check_torque()
         return f
+
+    def _check_torque(self) -> None:
+        """Read Torque_Enable back; a servo found off that reports no hardware error at this
+        read gets ``TORQUE_OFF`` in this read's :meth:`drive_errors` and in ``latched_errors``
+        (again at every check while it stays off: an operator's reset does not resume it)."""
+        t0 = time.perf_counter_ns()
+        torque = self._read_torque()
+        self.torque_checks += 1
+        for j, sid in enumerate(self.ids):
+            if torque.get(sid, 1) == 0 and not self._errors[0, j]:
+                self._errors[0, j] |= TORQUE_OFF
+                self.latched_errors[sid] = self.latched_errors.get(sid, 0) | TORQUE_OFF
+        self.check_cost.add(0, time.perf_counter_ns() - t0)
 
     def write(self, command: np.ndarray) -> None:
         """One SYNC WRITE of goal positions (rad, clipped to each joint's calibrated range) or
@@ -376,13 +403,14 @@ class ServoBusBackend(BackendLifecycle):
         return self._errors
 
     def describe_drive_error(self, joint: int, bits: int) -> str:
-        """``'servo ID 2 (shoulder_lift): error bits 0x20 (overload)'``."""
-        model = self.models[joint]
-        names = [k for k, b in model.error_bits.items() if bits & b] or ["unknown"]
-        return (
-            f"servo ID {self.ids[joint]} ({self.names[joint]}): error bits {bits:#04x} "
-            f"({', '.join(names)})"
-        )
+        """``'servo ID 2 (shoulder_lift): error bits 0x20 (overload)'``, or ``'servo ID 2
+        (shoulder_lift): torque off by the servo while commanded on, ...'`` (``TORQUE_OFF``)."""
+        model, hardware = self.models[joint], bits & ~TORQUE_OFF
+        parts = [self._watch.describe(joint)] if bits & TORQUE_OFF else []
+        if hardware or not parts:
+            names = [k for k, b in model.error_bits.items() if hardware & b] or ["unknown"]
+            parts.insert(0, f"error bits {hardware:#04x} ({', '.join(names)})")
+        return f"servo ID {self.ids[joint]} ({self.names[joint]}): " + "; ".join(parts)
 
     def bus_summary(self) -> dict:
         """Bus figures for the run's report: port, baud rate, SYNC READs sent, dropouts by kind
@@ -398,6 +426,8 @@ class ServoBusBackend(BackendLifecycle):
             "dropout_fraction": sum(self.dropouts.values()) / slots if slots else 0.0,
             "read_us": self.read_cost.summary(),
             "write_us": self.write_cost.summary(),
+            "torque_checks": self.torque_checks,
+            "torque_check_us": self.check_cost.summary(),
             "servo_errors": [
                 self.describe_drive_error(self.ids.index(sid), bits)
                 for sid, bits in sorted(self.latched_errors.items())

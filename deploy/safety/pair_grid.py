@@ -31,8 +31,9 @@ MAX_PROOF_JOINTS = 2
 GRID_POINTS = (33, 65, 129, 257)
 #: Joints a table spans (a pair moved by one joint has one cell across the second).
 TABLE_AXES = 2
-#: Fewest points per joint of a table's grid: a pair the grid finds in contact is refined to it
-#: (our choice: a fraction of a degree per cell at a cost of ``TABLE_POINTS ** 2`` queries).
+#: Fewest points per joint of a table's grid: a pair a grid finds in contact is gridded once more
+#: with the first of :data:`GRID_POINTS` that has as many (our choice: a fraction of a degree per
+#: cell at a cost of ``TABLE_POINTS ** 2`` queries).
 TABLE_POINTS = 129
 #: Most cells per joint one lookup reads (our choice): a wider box reads a coarser level.
 LOOKUP_CELLS = 8
@@ -155,10 +156,11 @@ def pair_grids(robot: Robot, geometry, pair_weights: np.ndarray) -> tuple[np.nda
 
     A pair moved by at most :data:`MAX_PROOF_JOINTS` joints is gridded (:data:`GRID_POINTS` per
     joint, finer until decided) and kept apart when the grid's least distance minus ``sum_j w_pj
-    s_j / 2`` is above zero; a grid that finds it in contact ends the proof. A pair not kept apart
-    and moved by at most :data:`TABLE_AXES` joints gets a table of its finest grid (refined to at
-    least :data:`TABLE_POINTS` points when in contact). Kept in memory per robot description
-    hash, limits, home and ``pair_weights`` (the last :data:`CACHED_ROBOTS`).
+    s_j / 2`` is above zero; a grid that finds it in contact ends the proof. A pair not kept
+    apart and moved by at most :data:`TABLE_AXES` joints gets a table of its last grid (for a
+    pair found in contact, the grid of :data:`TABLE_POINTS` the contact skips to). Kept in memory
+    per robot description hash, limits, home and ``pair_weights`` (the last
+    :data:`CACHED_ROBOTS`).
 
     Args:
         robot: The robot (position limits, home pose).
@@ -188,6 +190,8 @@ def pair_grids(robot: Robot, geometry, pair_weights: np.ndarray) -> tuple[np.nda
             continue
         touched = len(joints) > MAX_PROOF_JOINTS  # no proof tried: only the table
         for points in GRID_POINTS:
+            if touched and points < TABLE_POINTS:
+                continue
             dist = _grid_distances(robot, geometry, p, joints, points)
             least = dist.min()
             touched = touched or bool(least <= 0.0)

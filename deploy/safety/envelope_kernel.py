@@ -15,12 +15,15 @@ import math
 import numba
 import numpy as np
 
-from deploy.safety import pair_grid
-
 #: Rows of ``need``.
 COLLISION, WORKSPACE = 0, 1
-#: Most cells per joint a table lookup reads, and its index slack (:mod:`deploy.safety.pair_grid`).
-LOOKUP_CELLS, INDEX_SLACK = pair_grid.LOOKUP_CELLS, pair_grid.INDEX_SLACK
+#: Most cells per joint a pair table's lookup reads (our choice): a wider box reads a coarser
+#: level (:mod:`deploy.safety.pair_grid`). Here, not there: numba's cache of this module's kernels
+#: is keyed on this file.
+LOOKUP_CELLS = 8
+#: Cells of slack on each side of a lookup's index range: round-off in ``(x - lower) / step``
+#: never puts a box's edge in the wrong cell.
+INDEX_SLACK = 1e-9
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -201,5 +204,7 @@ def warm_up() -> None:
     envelope_screen(
         z, z3, z3, np.zeros(1, dtype=bool), np.ones((4, 2)), np.ones((1, 2)),
         np.zeros((2, 1, 2)), np.full((1, 4), math.inf), np.zeros((4, 2)), 0.0,
-        np.zeros((5, 1, 2)), np.zeros((2, 1), dtype=bool), *pair_grid.PairTables.empty(1).arrays(),
+        np.zeros((5, 1, 2)), np.zeros((2, 1), dtype=bool),
+        np.full((1, 2), -1, dtype=np.int64), np.ones((1, 2, 3)), np.ones((1, 2), dtype=np.int64),
+        np.full((1, 1), -1, dtype=np.int64), np.zeros(0),  # no pair table
     )  # fmt: skip

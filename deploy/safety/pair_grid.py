@@ -6,11 +6,12 @@ A pair's distance depends only on the joints its approach bound moves (``pair_we
 :func:`robots.chain_bounds.collision_pair_weights`). With few of them, their range box is gridded;
 every configuration of a grid cell lies within half a grid step ``s_j / 2`` of one of the cell's
 corners, so the distance anywhere in the cell stays above the least distance at its corners minus
-``sum_j w_pj s_j / 2``, and outside the grid above the nearest grid point's bound minus
-``sum_j w_pj`` times how far the box reaches past it. Cells are pooled by twos into coarser levels
-so that a lookup reads at most :data:`LOOKUP_CELLS` cells per joint. The motion envelope looks a
-box up here (the numpy reference) and in its compiled screen
-(:func:`deploy.safety.envelope_kernel.table_bound`), the same arithmetic in the same order.
+``sum_j w_pj s_j / 2``. A configuration past the grid is within ``|q_j - clip(q_j)|`` of one in
+it, which costs ``sum_j w_pj |q_j - clip(q_j)|`` more. Cells are pooled by twos into coarser
+levels, so that a lookup reads at most ``LOOKUP_CELLS`` cells per joint
+(:mod:`deploy.safety.envelope_kernel`). The motion envelope looks a box up here (the numpy
+reference) and in its compiled screen (:func:`deploy.safety.envelope_kernel.table_bound`): the
+same arithmetic in the same order.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from deploy.safety.envelope_kernel import INDEX_SLACK, LOOKUP_CELLS
 from robots import Robot
 
 #: Most joints between the two links of a pair for :func:`pairs_kept_apart` to try a proof (a
@@ -35,11 +37,6 @@ TABLE_AXES = 2
 #: with the first of :data:`GRID_POINTS` that has as many (our choice: a fraction of a degree per
 #: cell at a cost of ``TABLE_POINTS ** 2`` queries).
 TABLE_POINTS = 129
-#: Most cells per joint one lookup reads (our choice): a wider box reads a coarser level.
-LOOKUP_CELLS = 8
-#: Cells of slack on each side of a lookup's index range: round-off in ``(x - lower) / step``
-#: never puts a box's edge in the wrong cell.
-INDEX_SLACK = 1e-9
 #: Robots' grids kept in memory (:func:`pair_grids`).
 CACHED_ROBOTS = 8
 
@@ -223,7 +220,7 @@ def table_bound(
 ) -> float:
     """m, a lower bound of pair ``p``'s distance over the box ``centre +- half`` (n,) rad from
     its table (``-inf`` without one, or for a NaN box): the least cell bound the box covers (at
-    the finest level that reads at most :data:`LOOKUP_CELLS` cells per joint), minus ``weights @
+    the finest level that reads at most ``LOOKUP_CELLS`` cells per joint), minus ``weights @
     overshoot`` (``weights`` (n,) m/rad, the pair's approach bound) where the box reaches past
     the grid. The numpy reference of :func:`deploy.safety.envelope_kernel.table_bound`."""
     if tables.offset[p, 0] < 0:

@@ -90,7 +90,7 @@ def table_bound(
         g_lo, g_hi, step = grid[p, k, 0], grid[p, k, 1], grid[p, k, 2]
         overshoot += weights[j] * max(g_lo - lo, hi - g_hi, 0.0)
         lo, hi = min(max(lo, g_lo), g_hi), min(max(hi, g_lo), g_hi)
-        first = max(math.floor((lo - g_lo) / step - INDEX_SLACK), 0)
+        first = min(max(math.floor((lo - g_lo) / step - INDEX_SLACK), 0), cells[p, k] - 1)
         last = min(math.floor((hi - g_lo) / step + INDEX_SLACK), cells[p, k] - 1)
         if k == 0:
             f0, l0 = first, last

@@ -238,7 +238,9 @@ def table_bound(
         g_lo, g_hi, step = tables.grid[p, k]
         overshoot += weights[j] * max(g_lo - lo, hi - g_hi, 0.0)
         lo, hi = min(max(lo, g_lo), g_hi), min(max(hi, g_lo), g_hi)
-        first[k] = max(math.floor((lo - g_lo) / step - INDEX_SLACK), 0)
+        first[k] = min(
+            max(math.floor((lo - g_lo) / step - INDEX_SLACK), 0), int(tables.cells[p, k]) - 1
+        )
         last[k] = min(math.floor((hi - g_lo) / step + INDEX_SLACK), int(tables.cells[p, k]) - 1)
     level = 0
     while any((last[k] >> level) - (first[k] >> level) + 1 > LOOKUP_CELLS

@@ -139,7 +139,8 @@ def test_pairs_the_joints_between_them_cannot_bring_into_contact_are_proved_apar
     base. A random sample of poses confirms each pair proved apart never touches."""
     import pinocchio as pin
 
-    from deploy.safety.collision import collision_model, pairs_kept_apart
+    from deploy.safety.collision import collision_model
+    from deploy.safety.pair_grid import pairs_kept_apart
     from robots.chain_bounds import collision_pair_weights
 
     geometry = collision_model(so101)

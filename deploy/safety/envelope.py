@@ -38,7 +38,7 @@ from ruckig import (
 )
 
 from deploy.safety import envelope_kernel as ek
-from deploy.safety.collision import pairs_kept_apart
+from deploy.safety.pair_grid import PairTables, pair_grids, table_bound
 from robots.chain_bounds import descends
 
 #: m, default clearance kept between listed collision geometries and from the workspace box's
@@ -95,7 +95,11 @@ class MotionEnvelope:
     effector's margin along each axis by at most ``lever @ |dq|``
     (:func:`robots.chain_bounds.end_effector_lever`; zero along an axis a joint's rotation never
     moves, :func:`axis_levers`) or by the local bound of the end effector's Jacobian at the centre
-    (:meth:`MotionEnvelope._reach`). The same bound screens each box against the last query, so far
+    (:meth:`MotionEnvelope._reach`). A pair moved by at most two joints also has a table of lower
+    bounds over a grid of those joints (:mod:`deploy.safety.pair_grid`): its distance stays above
+    the least bound of the cells the box covers, which certifies boxes the chain bound does not
+    where the distance hardly changes with a joint (the SO-101's base about its pan axis); the
+    higher of the two bounds counts. The same bounds screen each box against the last query, so far
     from contact no query runs (the decision is the same with or without that cache). A box one
     query cannot certify over-covers the motion (its corners combine one joint's start with
     another's end): the step and Ruckig's own brake are then cut into :data:`PATH_SEGMENTS` by
@@ -163,11 +167,14 @@ class MotionEnvelope:
             ]
         )
         #: (pairs,) bool, the pairs the joints between their links cannot bring into contact
-        #: (:func:`deploy.safety.collision.pairs_kept_apart`): left out of the certification (their
+        #: (:func:`deploy.safety.pair_grid.pairs_kept_apart`): left out of the certification (their
         #: distance reads as infinite), so a gripper's jaw closing next to its wrist brakes nothing
         self.apart = np.zeros(0, dtype=bool)
+        #: the other pairs' lower-bound tables over the joints that move them
+        #: (:class:`deploy.safety.pair_grid.PairTables`), from the same grids
+        self.tables = PairTables.empty(self.pairs)
         if self.pairs:
-            self.apart = pairs_kept_apart(robot, geometry, pair_weights)
+            self.apart, self.tables = pair_grids(robot, geometry, pair_weights)
         self.queries = 0
         home = np.asarray(robot.home, dtype=float)
         if margin is None:  # the default, capped at half the clearance the geometry allows
@@ -268,7 +275,7 @@ class MotionEnvelope:
         box, need = self._box, self._need
         if not ek.envelope_screen(
             q, before, after, stopping, self.limits, effort_scale, self._cached_q,
-            self._clearance, self.weights, self.margin, box, need,
+            self._clearance, self.weights, self.margin, box, need, *self.tables.arrays(),
         ):  # fmt: skip
             return False
         c, h = box[0], box[1]
@@ -296,7 +303,7 @@ class MotionEnvelope:
         box could not certify (a pair's weight, or the end effector's lever, above zero): only
         they are braked; the others leave that quantity as it is."""
         rows = slice(None, self.pairs) if kind == ek.COLLISION else slice(self.pairs, None)
-        uncertain = value - self._reach(kind, centre, half) <= self.margin
+        uncertain = self._lower_bounds(kind, centre, half, value) <= self.margin
         self.joints[e] |= (self.weights[rows][uncertain] > 0.0).any(axis=0)
 
     def _passes(self, kind: int, e: int, q, before, after) -> bool:
@@ -326,11 +333,23 @@ class MotionEnvelope:
         local = np.abs(jacobian) @ half + 0.5 * half @ self._curvature @ half
         return np.minimum(reach, local)
 
+    def _lower_bounds(self, kind: int, centre, half, value) -> np.ndarray:
+        """m, a lower bound of each quantity of ``kind`` (the pairs' distances, or the workspace
+        margins; ``value`` at the centre) over the box ``centre +- half`` (n,) rad: ``value``
+        less :meth:`_reach`; for a pair with a table, its bound over the box
+        (:func:`deploy.safety.pair_grid.table_bound`) where that is higher."""
+        bound = value - self._reach(kind, centre, half)
+        if kind == ek.COLLISION:
+            for p in np.flatnonzero(self.tables.offset[:, 0] >= 0):
+                table = table_bound(self.tables, p, centre, half, self.weights[p])
+                bound[p] = np.fmax(bound[p], table)
+        return bound
+
     def _certified(self, kind: int, centre, half, value) -> bool:
         """Whether the box ``centre +- half`` (n,) rad keeps every quantity of ``kind`` (the
         pairs' distances, or the workspace margins; ``value`` at the centre) above the margin
-        (:meth:`_reach`)."""
-        return bool(np.all(value - self._reach(kind, centre, half) > self.margin))
+        (:meth:`_lower_bounds`)."""
+        return bool(np.all(self._lower_bounds(kind, centre, half, value) > self.margin))
 
     def _path_certified(
         self, kind: int, q, start, end, velocity, acceleration, share, reversal

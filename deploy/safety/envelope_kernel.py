@@ -1,6 +1,7 @@
 """Kernel of :class:`deploy.safety.envelope.MotionEnvelope`: the joint box of each env's motion
 envelope
-and the screen that says where Pinocchio must look (:func:`envelope_screen`).
+and the screen that says where Pinocchio must look (:func:`envelope_screen`), with the lookup of
+a pair's lower-bound table (:func:`table_bound`, of :mod:`deploy.safety.pair_grid`).
 
 The box of env ``e``, joint ``i`` spans the estimated position, the smoother's position before
 and after the step, and the point where the joint comes to rest if the smoother brakes from its
@@ -16,6 +17,13 @@ import numpy as np
 
 #: Rows of ``need``.
 COLLISION, WORKSPACE = 0, 1
+#: Most cells per joint a pair table's lookup reads (our choice): a wider box reads a coarser
+#: level (:mod:`deploy.safety.pair_grid`). Here, not there: numba's cache of this module's kernels
+#: is keyed on this file.
+LOOKUP_CELLS = 8
+#: Cells of slack on each side of a lookup's index range: round-off in ``(x - lower) / step``
+#: never puts a box's edge in the wrong cell.
+INDEX_SLACK = 1e-9
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -52,6 +60,57 @@ def brake_headroom(scale: float, gravity_share: float, floor: float) -> float:
 
 
 @numba.njit(cache=True, nogil=True)
+def table_bound(
+    p: int,
+    centre: np.ndarray,
+    half: np.ndarray,
+    weights: np.ndarray,
+    joint: np.ndarray,
+    grid: np.ndarray,
+    cells: np.ndarray,
+    offset: np.ndarray,
+    values: np.ndarray,
+) -> float:
+    """m, a lower bound of pair ``p``'s distance over the box ``centre +- half`` (n,) rad from its
+    table (the arrays of :class:`deploy.safety.pair_grid.PairTables`; ``weights`` (n,) m/rad the
+    pair's approach bound); ``-inf`` without a table or for a NaN box. Compiled
+    :func:`deploy.safety.pair_grid.table_bound` (two axes), the same arithmetic in the same
+    order."""
+    if offset[p, 0] < 0:
+        return -math.inf
+    f0 = f1 = l0 = l1 = 0
+    overshoot = 0.0
+    for k in range(2):
+        j = joint[p, k]
+        if j < 0:
+            continue
+        lo, hi = centre[j] - half[j], centre[j] + half[j]
+        if not lo <= hi:
+            return -math.inf
+        g_lo, g_hi, step = grid[p, k, 0], grid[p, k, 1], grid[p, k, 2]
+        overshoot += weights[j] * max(g_lo - lo, hi - g_hi, 0.0)
+        lo, hi = min(max(lo, g_lo), g_hi), min(max(hi, g_lo), g_hi)
+        first = min(max(math.floor((lo - g_lo) / step - INDEX_SLACK), 0), cells[p, k] - 1)
+        last = min(math.floor((hi - g_lo) / step + INDEX_SLACK), cells[p, k] - 1)
+        if k == 0:
+            f0, l0 = first, last
+        else:
+            f1, l1 = first, last
+    level = 0
+    while (l0 >> level) - (f0 >> level) + 1 > LOOKUP_CELLS or (
+        (l1 >> level) - (f1 >> level) + 1 > LOOKUP_CELLS
+    ):
+        level += 1
+    width = -(-cells[p, 1] // (1 << level))
+    start = offset[p, level]
+    least = math.inf
+    for a in range(f0 >> level, (l0 >> level) + 1):
+        for b in range(f1 >> level, (l1 >> level) + 1):
+            least = min(least, values[start + a * width + b])
+    return least - overshoot
+
+
+@numba.njit(cache=True, nogil=True)
 def envelope_screen(
     q: np.ndarray,
     before: np.ndarray,
@@ -65,6 +124,11 @@ def envelope_screen(
     margin: float,
     box: np.ndarray,
     need: np.ndarray,
+    joint: np.ndarray,
+    grid: np.ndarray,
+    cells: np.ndarray,
+    offset: np.ndarray,
+    values: np.ndarray,
 ) -> bool:
     """The box of every env not ``stopping`` ((envs,) bool), and whether the cache certifies it.
 
@@ -83,7 +147,10 @@ def envelope_screen(
     the end effector's margins inside the workspace box along x, y, z (``inf`` without a box),
     ``weights`` (pairs + 3, n) m/rad the pairs' approach bounds and the end effector's levers
     along x, y, z. A quantity can shrink by at most ``weights @ (|centre - cached| + half)``
-    anywhere in the box. Returns whether any env needs an exact query.
+    anywhere in the box; a pair's distance also stays above its table's bound over the box
+    (:func:`table_bound`; ``joint`` to ``values`` the arrays of
+    :class:`deploy.safety.pair_grid.PairTables`), whichever is higher. Returns whether any env
+    needs an exact query.
     """
     envs, n = q.shape
     rows = weights.shape[0]
@@ -117,6 +184,14 @@ def envelope_screen(
                     d = abs(box[0, e, i] - cached_q[row, e, i]) + box[1, e, i]
                     reach += weights[r, i] * d
             if not (clearance[e, r] - reach > margin):  # NaN-safe: unknown means check
+                if (
+                    r < pairs
+                    and table_bound(
+                        r, box[0, e], box[1, e], weights[r], joint, grid, cells, offset, values
+                    )
+                    > margin
+                ):
+                    continue
                 need[row, e] = True
                 any_need = True
     return any_need
@@ -130,4 +205,6 @@ def warm_up() -> None:
         z, z3, z3, np.zeros(1, dtype=bool), np.ones((4, 2)), np.ones((1, 2)),
         np.zeros((2, 1, 2)), np.full((1, 4), math.inf), np.zeros((4, 2)), 0.0,
         np.zeros((5, 1, 2)), np.zeros((2, 1), dtype=bool),
+        np.full((1, 2), -1, dtype=np.int64), np.ones((1, 2, 3)), np.ones((1, 2), dtype=np.int64),
+        np.full((1, 1), -1, dtype=np.int64), np.zeros(0),  # no pair table
     )  # fmt: skip

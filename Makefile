@@ -58,6 +58,10 @@ export: install
 #                            before it drew its soak's encoder noise: not bit for bit)
 #   make train ROBOT=go2     policies/go2.pt   (Go2: PPO residual on the trot generator, through
 #                            the runtime; policies/train_legged.py, logs in runs/train_legged/)
+#                            the shipped go2.pt is that run fine-tuned on slippery floors:
+#                            python -m policies.train_legged --init-from policies/go2.pt
+#                            --critic-warmup 200000 --steps 2000000 --initial-std 0.2
+#                            --learning-rate 1e-4 --ranges policies/go2_slippery.toml
 TRAIN_arm3  := --start-poses policies/arm3_missed_poses.json
 TRAIN_so101 := --robot so101 --mode position --steps 8000000 --out policies/so101.pt
 TRAIN_go2   := --steps 5500000 --out policies/go2.pt

@@ -289,9 +289,17 @@ def test_unplugged_servo_stops_safely_torque_off_exit_2(tmp_path, protocol):
 def test_overload_error_bit_stops_safely_naming_the_servo(tmp_path, protocol):
     name, _ = CASES[protocol]
     robot = load_robot(name)
-    with _emulator(robot, protocol) as emu:
-        _when_running(emu, lambda: emu.set_overload(3))
-        code, report, out = _deploy_run(tmp_path, protocol, emu, 3.0)
+    # one more try when the run stopped before the fault was even set (stale replies in its
+    # first ticks: the in-process emulator starved of CPU on a busy machine, which is not
+    # what this test judges; a real servo answers in microseconds)
+    for _ in range(2):
+        with _emulator(robot, protocol) as emu:
+            injected = threading.Event()
+            _when_running(emu, lambda emu=emu, done=injected: (emu.set_overload(3), done.set()))
+            code, report, out = _deploy_run(tmp_path, protocol, emu, 3.0)
+        if injected.is_set():
+            break
+    assert injected.is_set(), out
     assert code == EXIT_FAULT, out
     assert report["faults"]["by_cause"]["servo_error"] == 1, out
     (error,) = report["faults"]["drive_errors"]

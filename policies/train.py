@@ -17,6 +17,10 @@ runs a randomized soak of ``--gate-hours`` simulated hours (``--gate-sessions`` 
 candidate whose soak passes is copied to ``--out`` (with its ``.onnx`` and ``.curve.json``); a
 failed one stays in the log folder with the soak's report, and the command exits with 1.
 
+``--init-from policies/arm.pt`` fine-tunes a shipped policy (:mod:`policies.finetune`: its actor
+into a fresh learner; ``--critic-warmup`` trains the critic alone first); ``--init-from RUN.zip``
+continues a saved run.
+
 Why PPO: it is the field's usual choice for reaching and locomotion, and with one batched MuJoCo
 plant stepping many robots per call it turns the machine's two cores into samples faster than
 SAC's one gradient step per sample would (SAC spends most of its wall time in updates at this
@@ -53,6 +57,7 @@ from eval.world.session_ranges import session_ranges
 from policies.callbacks import NoiseAnneal, ReachLogger
 from policies.envs import ReachConfig, ReachTask, RewardConfig
 from policies.episode_faults import fault_settings
+from policies.finetune import learn_with_critic_warmup, load_shipped_actor
 from robots import load_robot
 
 HIDDEN = (64, 64)
@@ -279,11 +284,16 @@ def train(args: argparse.Namespace) -> Path | None:
     # Rewards (not observations: those are already scaled by physical maxima) are
     # normalized by a running estimate of the return's scale, as SB3's PPO recipes do.
     env = VecNormalize(VecMonitor(ReachVecEnv(task)), norm_obs=False, gamma=args.gamma)
-    if args.init_from is not None:  # fine-tune: weights, optimizer state and noise of a saved run
+    if args.init_from is not None and args.init_from.suffix == ".zip":
+        # continue a saved run: weights, optimizer state and noise
         algo = SAC if args.algo == "sac" else PPO
         model = algo.load(args.init_from, env=env, device="cpu", tensorboard_log=str(args.logdir))
     else:
         model = make_model(args, env)
+    if args.init_from is not None and args.init_from.suffix != ".zip":
+        if args.algo != "ppo":
+            raise ValueError(f"{args.init_from}: --init-from a shipped .pt needs --algo ppo")
+        load_shipped_actor(model, args.init_from, task.spec, args.hidden)
     start = time.perf_counter()
     args.logdir.mkdir(parents=True, exist_ok=True)
     candidate = args.logdir / f"{args.robot}_{args.mode}_seed{args.seed}.pt"
@@ -303,6 +313,8 @@ def train(args: argparse.Namespace) -> Path | None:
             "start_poses": len(config.start_poses),
             "success_radius": task.success_radius,
             "faults": fault_settings(config.faults, task.fault_ranges),
+            "init_from": None if args.init_from is None else str(args.init_from),
+            "critic_warmup": args.critic_warmup,
             "curve": history,
         }
         save_checkpoint(candidate, actor, task.spec, info=info)
@@ -316,7 +328,14 @@ def train(args: argparse.Namespace) -> Path | None:
         callbacks.append(NoiseAnneal(args.steps, args.anneal_steps, args.final_log_std))
     logger = callbacks[0]
     name = f"{args.algo}_{args.robot}_{args.mode}"
-    model.learn(args.steps, callback=callbacks, progress_bar=args.progress, tb_log_name=name)
+    learn_with_critic_warmup(
+        model,
+        args.steps,
+        args.critic_warmup,
+        callback=callbacks,
+        progress_bar=args.progress,
+        tb_log_name=name,
+    )
     info = save(model, logger.history)
     wall = info["wall_seconds"]
     print(f"trained {candidate} in {args.steps} steps, {wall / 60:.1f} min")
@@ -463,9 +482,16 @@ def main(argv: list[str] | None = None) -> int:
         "--init-from",
         type=Path,
         default=None,
-        metavar="MODEL.zip",
-        help="continue training a saved learner (the .zip beside a candidate), e.g. from "
-        "--start-poses",
+        metavar="MODEL.zip|POLICY.pt",
+        help="continue training a saved learner (the .zip beside a candidate), or fine-tune a "
+        "shipped policy (a .pt: its actor, with a fresh critic), e.g. with --start-poses",
+    )
+    p.add_argument(
+        "--critic-warmup",
+        type=int,
+        default=0,
+        metavar="STEPS",
+        help="first train the critic alone for STEPS steps (the actor frozen)",
     )
     p.add_argument(
         "--success-radius",

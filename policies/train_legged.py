@@ -37,9 +37,10 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
 from deploy.export import sb3_actor
-from deploy.policy.mlp_checkpoint import MLPActor, load_checkpoint, save_checkpoint
+from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
 from eval.world.ranges_file import load_ranges
 from policies.episode_faults import fault_settings
+from policies.finetune import learn_with_critic_warmup, load_shipped_actor
 from policies.gait import make_policy
 from policies.locomotion import LocomotionConfig, LocomotionReward, LocomotionTask
 from policies.train import add_fault_flags, add_gate_arguments, gate, parse_reward
@@ -201,45 +202,6 @@ def candidate_actor(model: PPO, template: MLPActor) -> MLPActor:
     return actor
 
 
-def load_shipped_actor(model: PPO, checkpoint: Path, spec) -> None:
-    """Start ``model``'s Gaussian mean from a checkpoint's actor (a shipped ``go2.pt``, written
-    by :func:`~deploy.policy.mlp_checkpoint.save_checkpoint`): its linear layers are copied into
-    ``mlp_extractor.policy_net`` and ``action_net``; the critic and the noise keep their fresh
-    initialization (``--critic-warmup`` trains the critic first).
-
-    Raises:
-        ValueError: the checkpoint's observation layout or action size is not ``spec``'s, or its
-            hidden layers are not :data:`HIDDEN` (the file and the expected value named).
-    """
-    actor, source, _ = load_checkpoint(checkpoint)
-    if source.to_json() != spec.to_json():
-        raise ValueError(
-            f"{checkpoint}: --init-from expected a checkpoint of this recipe's spec (robot "
-            f"{spec.robot}, obs {spec.obs_dim}, act {spec.act_dim}); its spec differs"
-        )
-    layers = [m for m in actor.net if isinstance(m, torch.nn.Linear)]
-    policy = model.policy
-    targets = [m for m in policy.mlp_extractor.policy_net if isinstance(m, torch.nn.Linear)]
-    targets.append(policy.action_net)
-    widths = tuple(m.out_features for m in layers[:-1])
-    if widths != HIDDEN:
-        raise ValueError(f"{checkpoint}: hidden layers {widths}, expected {HIDDEN}")
-    with torch.no_grad():
-        for source_layer, target in zip(layers, targets, strict=True):
-            target.weight.copy_(source_layer.weight)
-            target.bias.copy_(source_layer.bias)
-
-
-def actor_parameters(model: PPO) -> list[torch.nn.Parameter]:
-    """The parameters of ``model``'s actor: its mean network and its log standard deviation."""
-    policy = model.policy
-    return [
-        *policy.mlp_extractor.policy_net.parameters(),
-        *policy.action_net.parameters(),
-        policy.log_std,
-    ]
-
-
 def train(args: argparse.Namespace) -> Path | None:
     """Train, save, export and gate (module docstring); returns the candidate's path, or None
     when it failed the shipping soak (then ``--out`` is not written)."""
@@ -279,7 +241,7 @@ def train(args: argparse.Namespace) -> Path | None:
             device="cpu",
         )
     if args.init_from is not None and args.init_from.suffix != ".zip":
-        load_shipped_actor(model, args.init_from, spec)
+        load_shipped_actor(model, args.init_from, spec, HIDDEN)
     model.prior = template.gait
     args.logdir.mkdir(parents=True, exist_ok=True)
     candidate = args.logdir / f"{args.robot}_seed{args.seed}.pt"
@@ -304,19 +266,8 @@ def train(args: argparse.Namespace) -> Path | None:
         return info
 
     logger = WalkLogger(save, args.save_every)
-    warmup = min(args.critic_warmup, args.steps)
-    if warmup:
-        # the critic learns the returns of the starting actor before the actor moves
-        for parameter in actor_parameters(model):
-            parameter.requires_grad_(False)
-        model.learn(warmup, callback=logger, tb_log_name=f"ppo_{args.robot}")
-        for parameter in actor_parameters(model):
-            parameter.requires_grad_(True)
-    model.learn(
-        args.steps - warmup,
-        callback=logger,
-        tb_log_name=f"ppo_{args.robot}",
-        reset_num_timesteps=not warmup,
+    learn_with_critic_warmup(
+        model, args.steps, args.critic_warmup, callback=logger, tb_log_name=f"ppo_{args.robot}"
     )
     info = save(model, logger.history)
     from deploy.export import export_policy

@@ -175,6 +175,31 @@ def test_training_ships_only_a_policy_that_passes_the_soak(tmp_path):
     assert out.exists() and out.with_suffix(".curve.json").exists()
 
 
+def test_fine_tuning_the_shipped_arm_starts_from_its_actor_and_warms_the_critic_first(tmp_path):
+    """--init-from policies/arm.pt starts PPO's mean at the shipped actor: a run that is all critic
+    warm-up writes a candidate equal to arm.pt; after the warm-up the actor learns; another
+    robot's checkpoint is refused with the file named."""
+    pytest.importorskip("stable_baselines3")
+    from policies.train import main
+
+    shipped = load_checkpoint("policies/arm.pt")[0].state_dict()
+    common = ["--envs", "2", "--n-steps", "16", "--batch-size", "16", "--epochs", "1"]
+    common += ["--anneal-steps", "0", "--no-progress", "--gate-hours", "0"]
+    common += ["--init-from", "policies/arm.pt", "--out", str(tmp_path / "ship" / "arm.pt")]
+    main(common + ["--steps", "32", "--critic-warmup", "32", "--logdir", str(tmp_path / "w")])
+    warmed = load_checkpoint(tmp_path / "w" / "arm3_velocity_seed1.pt")[0].state_dict()
+    assert shipped.keys() == warmed.keys()
+    for key in shipped:
+        torch.testing.assert_close(warmed[key], shipped[key], rtol=0, atol=0)
+
+    main(common + ["--steps", "64", "--critic-warmup", "32", "--logdir", str(tmp_path / "t")])
+    tuned = load_checkpoint(tmp_path / "t" / "arm3_velocity_seed1.pt")[0].state_dict()
+    assert any(not torch.equal(tuned[k], shipped[k]) for k in shipped)
+
+    with pytest.raises(ValueError, match=r"so101\.pt.*spec"):
+        main(common[:-4] + ["--init-from", "policies/so101.pt", "--steps", "16"])
+
+
 def test_holding_the_arm_against_gravity_costs_its_joule_heat(arm3):
     """The heat term charges sum (tau / continuous_torque)^2: the stretched arm, held against
     gravity at rest, costs more than the arm hanging down, and exactly the formula's amount."""

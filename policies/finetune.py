@@ -1,0 +1,74 @@
+"""Fine-tuning a shipped policy: its actor copied into a fresh PPO learner, and a critic warm-up.
+
+A shipped checkpoint (:func:`~deploy.policy.mlp_checkpoint.save_checkpoint`) keeps the actor only.
+:func:`load_shipped_actor` writes it into PPO's Gaussian mean (``mlp_extractor.policy_net`` and
+``action_net``; the reverse of :func:`deploy.export.sb3_actor`); the critic and the noise keep their
+fresh initialization. :func:`learn_with_critic_warmup` then trains the critic alone for a number
+of steps, with the actor and its noise frozen, so that a random critic's advantages do not move the
+shipped actor before the critic has learnt its returns.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+from stable_baselines3 import PPO
+
+from deploy.policy.mlp_checkpoint import load_checkpoint
+
+
+def load_shipped_actor(model: PPO, checkpoint: Path, spec, hidden: tuple[int, ...]) -> None:
+    """Start ``model``'s Gaussian mean from a checkpoint's actor.
+
+    Args:
+        model: a PPO learner whose ``net_arch["pi"]`` is ``hidden``.
+        checkpoint: a shipped ``.pt`` (``policies/go2.pt``, ``policies/arm.pt``...).
+        spec: the recipe's :class:`~deploy.policy.spec.PolicySpec`; the checkpoint's must equal it.
+        hidden: the recipe's hidden layer widths.
+
+    Raises:
+        ValueError: the checkpoint's observation layout or action size is not ``spec``'s, or its
+            hidden layers are not ``hidden`` (the file and the expected value named).
+    """
+    actor, source, _ = load_checkpoint(checkpoint)
+    if source.to_json() != spec.to_json():
+        raise ValueError(
+            f"{checkpoint}: --init-from expected a checkpoint of this recipe's spec (robot "
+            f"{spec.robot}, obs {spec.obs_dim}, act {spec.act_dim}); its spec differs"
+        )
+    layers = [m for m in actor.net if isinstance(m, torch.nn.Linear)]
+    policy = model.policy
+    targets = [m for m in policy.mlp_extractor.policy_net if isinstance(m, torch.nn.Linear)]
+    targets.append(policy.action_net)
+    widths = tuple(m.out_features for m in layers[:-1])
+    if widths != tuple(hidden):
+        raise ValueError(f"{checkpoint}: hidden layers {widths}, expected {tuple(hidden)}")
+    with torch.no_grad():
+        for source_layer, target in zip(layers, targets, strict=True):
+            target.weight.copy_(source_layer.weight)
+            target.bias.copy_(source_layer.bias)
+
+
+def actor_parameters(model: PPO) -> list[torch.nn.Parameter]:
+    """The parameters of ``model``'s actor: its mean network and its log standard deviation."""
+    policy = model.policy
+    return [
+        *policy.mlp_extractor.policy_net.parameters(),
+        *policy.action_net.parameters(),
+        policy.log_std,
+    ]
+
+
+def learn_with_critic_warmup(model: PPO, steps: int, warmup: int, **learn_kwargs) -> None:
+    """``model.learn(steps)``, of which the first ``min(warmup, steps)`` environment steps train
+    the critic alone (every actor parameter frozen); ``learn_kwargs`` go to both ``learn`` calls
+    (``callback``, ``tb_log_name``, ``progress_bar``). The step count runs on across the two."""
+    warmup = min(warmup, steps)
+    if warmup:
+        for parameter in actor_parameters(model):
+            parameter.requires_grad_(False)
+        model.learn(warmup, **learn_kwargs)
+        for parameter in actor_parameters(model):
+            parameter.requires_grad_(True)
+    model.learn(steps - warmup, reset_num_timesteps=not warmup, **learn_kwargs)

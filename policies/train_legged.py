@@ -13,7 +13,7 @@ episode return and length plus ``walk/tracking`` (fraction of RUNNING time withi
 command, the soak's success) and ``walk/distance``. Each episode meets the soak's faults at the
 training interval (``--fault-interval S``; ``--no-faults``: none, as the shipped go2.pt was
 trained): :mod:`policies.episode_faults`. Shipping is gated as the arm's recipe is
-(:func:`policies.train.gate`): a randomized soak of ``--gate-sessions`` seeds; only a candidate
+(:func:`policies.gate.gate`): a randomized soak of ``--gate-sessions`` seeds; only a candidate
 that passes is copied to ``--out``. ``--init-from policies/go2.pt`` fine-tunes a shipped policy
 (its actor; ``--critic-warmup`` trains the fresh critic first), e.g. on the slippery floors of
 ``--ranges policies/go2_slippery.toml``.
@@ -42,8 +42,9 @@ from eval.world.ranges_file import load_ranges
 from policies.episode_faults import fault_settings
 from policies.finetune import learn_with_critic_warmup, load_shipped_actor
 from policies.gait import make_policy
+from policies.gate import add_gate_arguments, gate
 from policies.locomotion import LocomotionConfig, LocomotionReward, LocomotionTask
-from policies.train import add_fault_flags, add_gate_arguments, gate, parse_reward
+from policies.train import add_fault_flags, parse_reward
 from robots import load_robot
 
 #: The residual network (legged_gym's actor is 512-256-128 with ELU; a residual needs less).

@@ -53,7 +53,12 @@ export: install
 # The recipe of the shipped policy of ROBOT (seed 1): trains against the deployed stack (guard
 # included), then ships it only if a 1-hour randomized soak passes; TensorBoard logs in runs/train/.
 # Episodes now meet the soak's faults; the shipped policies were trained without (--no-faults).
-#   make train               policies/arm.pt   (arm3, velocity mode)
+#   make train               policies/arm.pt   (arm3, velocity mode; the shipped arm.pt is that
+#                            run (without faults) fine-tuned with them, policies/arm.curve.json:
+#                            python -m policies.train --init-from policies/arm.pt
+#                            --critic-warmup 300000 --steps 3000000 --log-std-init -3
+#                            --anneal-steps 1500000 --final-log-std -4 --learning-rate 1e-4
+#                            --start-poses policies/arm3_missed_poses.json)
 #   make train ROBOT=so101   policies/so101.pt (SO-101, position mode, the same recipe; trained
 #                            before it drew its soak's encoder noise: not bit for bit)
 #   make train ROBOT=go2     policies/go2.pt   (Go2: PPO residual on the trot generator, through

@@ -116,6 +116,39 @@ def test_fall_detection_trips_on_a_pushed_over_robot_and_not_on_a_standing_one(
     assert FAULT_CAUSES.index("fall") == 6
 
 
+def test_a_low_base_trips_the_fall_check_only_when_it_stays_low(go2, stand_policy):
+    """The height check trips once the base has stayed under the limit for FALL_HEIGHT_TIME (a
+    collapsed robot), not on the single-tick dips of a low trot's estimate on one foot (the
+    shipped Go2 was stopped as fallen, walking, by one such tick); the count is state."""
+    from copy import deepcopy
+
+    from deploy.estimation.fall import FALL_HEIGHT_TIME
+
+    rt, _ = runtime(go2, stand_policy)
+    rt.run(50)  # standing: every foot in contact
+    detector = rt.fall_detector
+    standing = deepcopy(rt.state)
+    collapsed = deepcopy(rt.state)
+    collapsed.q[:] = standing.q
+    for leg in range(4):  # thighs forward and calves folded: the base sinks to the feet
+        collapsed.q[:, 3 * leg + 1] = 1.5
+        collapsed.q[:, 3 * leg + 2] = -2.7
+    assert not detector.check(standing).any()
+    assert detector.height_ticks == round(FALL_HEIGHT_TIME / go2.control_period) == 10
+    for _ in range(20):  # a dip on every other tick never persists
+        assert not detector.check(collapsed).any()
+        assert (detector.height < detector.height_limit).all()
+        assert not detector.check(standing).any()
+    for _ in range(detector.height_ticks - 1):
+        assert not detector.check(collapsed).any()
+    saved = detector.state_dict()
+    assert saved["low_ticks"].tolist() == [9, 9]
+    assert detector.check(collapsed).all()  # the tenth tick in a row
+    detector.load_state_dict(saved)
+    assert detector.check(collapsed).all()
+    assert "fall_detector/low_ticks" in rt.state_dict()
+
+
 def test_base_estimate_and_gait_clock_survive_state_dict(go2, stand_policy):
     rt, plant = runtime(go2, stand_policy, seed=3)
     rt.velocity_command[:] = [0.4, 0.0, 0.0]

@@ -2,9 +2,11 @@
 
 A robot has fallen when its base is tilted past ``safety.fall_tilt`` (rad, the angle between the
 base's z axis and the world's up, from the attitude filter's projected gravity) or when, with a
-foot on the ground, its base is lower than ``safety.fall_height`` (m) above the feet in contact:
-the kinematic base height, ``max_i -(R p_i)_z`` over the feet ``i`` in contact, ``p_i`` the foot
-position in the base frame (Pinocchio, joint estimate) and ``R`` the estimated orientation. No
+foot on the ground, its base has stayed lower than ``safety.fall_height`` (m) above the feet in
+contact for ``FALL_HEIGHT_TIME`` s: the kinematic base height, ``max_i -(R p_i)_z`` over the feet
+``i`` in contact, ``p_i`` the foot position in the base frame (Pinocchio, joint estimate) and ``R``
+the estimated orientation. The tilt trips at once; the height must persist, because a low trot
+on one foot in contact dips under the limit for a tick while a collapsed base stays down. No
 ground truth is read: the same check runs on hardware.
 
 The runtime's response (:mod:`deploy.runtime`, cause ``fall``): a safe stop whose command is
@@ -21,6 +23,7 @@ import pinocchio as pin
 
 from deploy.estimation.attitude import quaternion_to_matrix, tilt_of
 from deploy.state import RobotState
+from deploy.stateful import check, put, take
 from robots import Robot
 
 #: Default tilt limit, rad (our choice): a walking quadruped's base stays within ~0.3 rad of
@@ -28,6 +31,9 @@ from robots import Robot
 FALL_TILT = 1.0
 #: Default height limit, m (our choice): about half a Go2's calf (0.21 m), the base near the floor.
 FALL_HEIGHT = 0.12
+#: How long the base must stay under the height limit, s (our choice): ten ticks at 50 Hz. A
+#: collapsed base stays down for far longer; a one-tick dip of a walking robot's estimate does not.
+FALL_HEIGHT_TIME = 0.2
 
 
 class FallDetector:
@@ -40,7 +46,10 @@ class FallDetector:
 
     Attributes:
         tilt_limit: rad. height_limit: m (0 disables the height check).
+        height_ticks: control ticks the height must stay under ``height_limit``
+            (``FALL_HEIGHT_TIME`` over the robot's control period, rounded up).
         height: (envs,) m, the last kinematic base height (NaN with no foot in contact).
+        low_ticks: (envs,) int64, consecutive checks so far with ``height`` under the limit.
 
     Raises:
         ValueError: a fixed-base robot.
@@ -58,6 +67,23 @@ class FallDetector:
         frames = [robot.pin_model.frames[f] for f in robot.foot_frame_ids]
         self.feet = [self.model.getFrameId(f.name, f.type) for f in frames]
         self.height = np.full(envs, np.nan)
+        self.height_ticks = max(1, int(np.ceil(FALL_HEIGHT_TIME / robot.control_period - 1e-9)))
+        self.low_ticks = np.zeros(envs, dtype=np.int64)
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """``height`` (envs,) m and ``low_ticks`` (envs,) int64 (copies; conventions of
+        :mod:`deploy.stateful`; the env axis has length 1 for one env ``env``)."""
+        return take({"height": self.height, "low_ticks": self.low_ticks}, env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``).
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        fields = {"height": self.height, "low_ticks": self.low_ticks}
+        check(fields, state, env)
+        put(fields, state, env)
 
     def check(self, state: RobotState) -> np.ndarray:
         """(envs,) bool: the envs whose estimated base is tilted or low past the limits.
@@ -79,5 +105,7 @@ class FallDetector:
                     if touching
                 ]
                 self.height[e] = max(below)
-            fallen |= self.height < self.height_limit  # NaN (no contact) compares False
+            low = self.height < self.height_limit  # NaN (no contact) compares False
+            self.low_ticks[:] = np.where(low, self.low_ticks + 1, 0)
+            fallen |= self.low_ticks >= self.height_ticks
         return fallen

@@ -72,6 +72,7 @@ class RuntimeState:
         parts = {"estimator": self.estimator, "guard": self.guard, "smoother": self.smoother}
         if self.base_estimator is not None:
             parts["base_estimator"] = self.base_estimator
+            parts["fall_detector"] = self.fall_detector
         for name, part in (
             ("policy", self.policy),
             ("backend", self.backend),
@@ -95,9 +96,9 @@ class RuntimeState:
         wall-clock histograms ``latency/*``, ``tick_cost/*`` and ``clock/*`` (measurements, not
         seeded; a wall clock's next deadline is not state: a resumed loop starts its own).
         Then each stage's ``state_dict(env)`` under its name: ``estimator/``, ``guard/``,
-        ``smoother/``, and ``policy/``, ``backend/``, ``injector/`` where the policy (a
-        recurrent one), the backend (:class:`~deploy.backends.sim.plant.SimBackend`) or the fault
-        injector has one.
+        ``smoother/``, a legged robot's ``base_estimator/`` and ``fall_detector/``, and
+        ``policy/``, ``backend/``, ``injector/`` where the policy (a recurrent one), the backend
+        (:class:`~deploy.backends.sim.plant.SimBackend`) or the fault injector has one.
         """
         out: dict = take(self._state_fields(), env)
         out.update({k: np.array(v, copy=True) for k, v in self._shared_fields().items()})

@@ -44,7 +44,9 @@ FORMAT = "soak-checkpoint"
 #: version 3 checkpoint has neither, and its sessions restart.
 #: 5: the guard's distance per collision pair (``pair_clearance``, its per-pair screen); a
 #: version 4 checkpoint has none.
-VERSION = 5
+#: 6: a legged robot's fall check (``fall_detector/low_ticks``: the height must persist); a
+#: version 5 checkpoint has none.
+VERSION = 6
 MANIFEST = "checkpoint.json"
 
 

@@ -10,6 +10,7 @@ shipped actor before the critic has learnt its returns.
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import torch
@@ -72,3 +73,24 @@ def learn_with_critic_warmup(model: PPO, steps: int, warmup: int, **learn_kwargs
         for parameter in actor_parameters(model):
             parameter.requires_grad_(True)
     model.learn(steps - warmup, reset_num_timesteps=not warmup, **learn_kwargs)
+
+
+def add_finetune_arguments(p: argparse.ArgumentParser, shipped: str) -> None:
+    """``--init-from`` (``args.init_from``: a saved run's ``.zip`` to continue, or a shipped
+    ``.pt`` such as ``shipped`` to fine-tune) and ``--critic-warmup`` (``args.critic_warmup``,
+    environment steps)."""
+    p.add_argument(
+        "--init-from",
+        type=Path,
+        default=None,
+        metavar="RUN.zip|POLICY.pt",
+        help="continue training a saved learner (the .zip beside a candidate), or fine-tune a "
+        f"shipped policy ({shipped}: its actor, with a fresh critic)",
+    )
+    p.add_argument(
+        "--critic-warmup",
+        type=int,
+        default=0,
+        metavar="STEPS",
+        help="first train the critic alone for STEPS steps (the actor frozen)",
+    )

@@ -57,7 +57,11 @@ from eval.world.session_ranges import session_ranges
 from policies.callbacks import NoiseAnneal, ReachLogger
 from policies.envs import ReachConfig, ReachTask, RewardConfig
 from policies.episode_faults import fault_settings
-from policies.finetune import learn_with_critic_warmup, load_shipped_actor
+from policies.finetune import (
+    add_finetune_arguments,
+    learn_with_critic_warmup,
+    load_shipped_actor,
+)
 from policies.gate import add_gate_arguments, gate
 from robots import load_robot
 
@@ -429,21 +433,7 @@ def main(argv: list[str] | None = None) -> int:
         metavar="REPORT.json",
         help="also start episodes where this soak report saw the policy miss its goal",
     )
-    p.add_argument(
-        "--init-from",
-        type=Path,
-        default=None,
-        metavar="MODEL.zip|POLICY.pt",
-        help="continue training a saved learner (the .zip beside a candidate), or fine-tune a "
-        "shipped policy (a .pt: its actor, with a fresh critic), e.g. with --start-poses",
-    )
-    p.add_argument(
-        "--critic-warmup",
-        type=int,
-        default=0,
-        metavar="STEPS",
-        help="first train the critic alone for STEPS steps (the actor frozen)",
-    )
+    add_finetune_arguments(p, "policies/arm.pt")
     p.add_argument(
         "--success-radius",
         type=float,

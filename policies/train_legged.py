@@ -40,7 +40,11 @@ from deploy.export import sb3_actor
 from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
 from eval.world.ranges_file import load_ranges
 from policies.episode_faults import fault_settings
-from policies.finetune import learn_with_critic_warmup, load_shipped_actor
+from policies.finetune import (
+    add_finetune_arguments,
+    learn_with_critic_warmup,
+    load_shipped_actor,
+)
 from policies.gait import make_policy
 from policies.gate import add_gate_arguments, gate
 from policies.locomotion import LocomotionConfig, LocomotionReward, LocomotionTask
@@ -319,19 +323,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--save-every", type=int, default=500_000)
-    p.add_argument(
-        "--init-from",
-        type=Path,
-        default=None,
-        help="a saved .zip to continue, or a checkpoint .pt (policies/go2.pt) to fine-tune",
-    )
-    p.add_argument(
-        "--critic-warmup",
-        type=int,
-        default=0,
-        metavar="STEPS",
-        help="first train the critic alone for STEPS steps (the actor frozen)",
-    )
+    add_finetune_arguments(p, "policies/go2.pt")
     p.add_argument("--logdir", type=Path, default=Path("runs/train_legged"))
     p.add_argument(
         "--ranges",

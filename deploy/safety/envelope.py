@@ -38,7 +38,7 @@ from ruckig import (
 )
 
 from deploy.safety import envelope_kernel as ek
-from deploy.safety.local_reach import LocalReach, local_reach
+from deploy.safety.local_reach import LocalReach
 from deploy.safety.pair_grid import PairTables, pair_grids, table_bound
 from robots.chain_bounds import descends
 
@@ -331,7 +331,7 @@ class MotionEnvelope:
 
     def _reach(self, kind: int, centre, half, speeds=None) -> np.ndarray:
         """How far each quantity of ``kind`` can shrink in the box ``centre +- half`` (n,) rad:
-        for the pairs the local bound (:func:`deploy.safety.local_reach.local_reach`; ``speeds``
+        for the pairs the local bound (:func:`deploy.safety.envelope_kernel.pairs_reach`; ``speeds``
         (pairs, n) m/rad :meth:`deploy.safety.local_reach.LocalReach.speeds` at the centre,
         computed when not given), never above the chain bound ``weights @ half``; for the
         workspace margins the chain bound or the local bound
@@ -341,8 +341,8 @@ class MotionEnvelope:
         if kind == ek.COLLISION:
             if speeds is None:
                 speeds = self.local.speeds(centre)
-            local = self.local
-            return local_reach(self.weights[: self.pairs], speeds, half, local.order, local.nest)
+            local, out = self.local, np.empty(self.pairs)
+            return ek.pairs_reach(self.weights, speeds, half, local.order, local.nest, out)
         reach = self.weights[self.pairs :] @ half
         jacobian = pin.computeFrameJacobian(
             self.model, self.data, centre, self.robot.ee_frame_id, pin.LOCAL_WORLD_ALIGNED

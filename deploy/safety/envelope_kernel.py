@@ -143,6 +143,24 @@ def pair_reach(
 
 
 @numba.njit(cache=True, nogil=True)
+def pairs_reach(
+    weights: np.ndarray,
+    speeds: np.ndarray,
+    spread: np.ndarray,
+    order: np.ndarray,
+    nest: np.ndarray,
+    out: np.ndarray,
+) -> np.ndarray:
+    """:func:`pair_reach` of every pair (arguments as there), written to ``out`` (pairs,) m and
+    returned: the numpy path's local bound (:meth:`deploy.safety.envelope.MotionEnvelope._reach`),
+    the compiled :func:`deploy.safety.local_reach.local_reach`."""
+    bound = np.empty(spread.shape[0])
+    for p in range(out.shape[0]):
+        out[p] = pair_reach(p, weights, speeds, spread, order, nest, bound)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def envelope_screen(
     q: np.ndarray,
     before: np.ndarray,
@@ -254,3 +272,5 @@ def warm_up() -> None:
         np.full((1, 1), -1, dtype=np.int64), np.zeros(0),  # no pair table
         np.zeros((1, 1, 2)), np.arange(2), np.zeros((1, 2, 2), dtype=np.int8),
     )  # fmt: skip
+    pairs_reach(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros(2), np.arange(2),
+                np.zeros((1, 2, 2), dtype=np.int8), np.zeros(1))  # fmt: skip

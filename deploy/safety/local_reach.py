@@ -16,8 +16,8 @@ the geometry together, turning a joint ``k`` below ``j`` moves the geometry's po
 ``r_pk`` each and not the axis, so ``r_pj <= R_pj = min(w_pj, r_pj(c) + sum_k R_pk D_k)``, the
 joints below first (``w`` the global weights; a joint on ``j``'s own body counts ``w_pk D_k``).
 Along coordinate paths inside the box the distance then shrinks by at most ``sum_j R_pj D_j``
-(:func:`local_reach`; compiled: :func:`deploy.safety.envelope_kernel.pair_reach`, the same
-arithmetic in the same order).
+(:func:`local_reach`; compiled, as the envelope runs it:
+:func:`deploy.safety.envelope_kernel.pair_reach`, the same arithmetic in the same order).
 """
 
 from __future__ import annotations
@@ -61,9 +61,16 @@ class LocalReach:
             for j in np.flatnonzero(weights[p] > 0.0):
                 first = descends(m, m.geom_bodyid[m.geom(pair[0]).id], bodies[j])
                 self.moved[p, j] = names.index(pair[0] if first else pair[1])
-        # per geometry: points (k, 3) m in its frame and a radius (m) about each
-        self._support = [_support(g.geometry) for g in self.geom_model.geometryObjects]
+        # the moved geometries: their points (geoms, k, 3) m in their frames (padded by
+        # repeating the first) and a radius (m) about each; rows of moved in that list
         self._geoms = np.unique(self.moved[self.moved >= 0])
+        support = [_support(self.geom_model.geometryObjects[int(g)].geometry) for g in self._geoms]
+        k = max([len(points) for points, _ in support], default=1)
+        self._points = np.array([np.concatenate([pts, np.repeat(pts[:1], k - len(pts), 0)])
+                                 for pts, _ in support]).reshape(-1, k, 3)  # fmt: skip
+        self._radius = np.array([radius for _, radius in support])
+        self._row = np.searchsorted(self._geoms, np.maximum(self.moved, 0))
+        self._rows, self._cols = np.nonzero(self.moved >= 0)
 
     def speeds(self, q: np.ndarray) -> np.ndarray:
         """(pairs, n) m/rad, ``r_pj`` at ``q`` (n,) rad: the speed of the fastest point of the
@@ -73,17 +80,21 @@ class LocalReach:
         pin.updateGeometryPlacements(self.model, self.data, self.geom_model, self.geom_data)
         jacobian = self.data.J  # (6, n): v at the world origin, then w
         v, w = jacobian[:3].T, jacobian[3:].T  # (n, 3)
-        spin = np.linalg.norm(w, axis=1)
-        fastest = np.zeros((len(self._support), len(v)))
-        for g in self._geoms:
-            points, radius = self._support[g]
-            placement = self.geom_data.oMg[int(g)]
-            world = points @ placement.rotation.T + placement.translation  # (k, 3)
-            speed = np.linalg.norm(v[None] + np.cross(w[None], world[:, None]), axis=2)
-            fastest[g] = speed.max(axis=0) + spin * radius
+        placements = [self.geom_data.oMg[int(g)] for g in self._geoms]
+        rotation = np.array([m.rotation for m in placements])  # (geoms, 3, 3)
+        translation = np.array([m.translation for m in placements])
+        world = np.einsum("gij,gkj->gki", rotation, self._points) + translation[:, None]
+        x, y, z = world[..., 0, None], world[..., 1, None], world[..., 2, None]  # (geoms, k, 1)
+        # (geoms, k, n): |v_j + w_j x p| of each point p
+        speed = np.sqrt(
+            (v[:, 0] + w[:, 1] * z - w[:, 2] * y) ** 2
+            + (v[:, 1] + w[:, 2] * x - w[:, 0] * z) ** 2
+            + (v[:, 2] + w[:, 0] * y - w[:, 1] * x) ** 2
+        )
+        fastest = speed.max(axis=1) + np.outer(self._radius, np.linalg.norm(w, axis=1))
         out = np.zeros(self.moved.shape)
-        rows, cols = np.nonzero(self.moved >= 0)
-        out[rows, cols] = fastest[self.moved[rows, cols], cols]
+        rows, cols = self._rows, self._cols
+        out[rows, cols] = fastest[self._row[rows, cols], cols]
         return out
 
 
@@ -108,7 +119,7 @@ def local_reach(
     (n,) rad (module docstring): ``weights`` (pairs, n) m/rad the global bound, ``speeds``
     (pairs, n) m/rad :meth:`LocalReach.speeds` at ``c``, ``order`` and ``nest``
     :func:`robots.chain_bounds.collision_pair_nesting`. Never above ``weights @ spread``. The
-    numpy reference of :func:`deploy.safety.envelope_kernel.pair_reach`."""
+    numpy reference of :func:`deploy.safety.envelope_kernel.pair_reach` and ``pairs_reach``."""
     pairs, n = weights.shape
     bound = np.zeros((pairs, n))
     for j in order:

@@ -5,7 +5,8 @@ both the plant and the guard).
 :func:`motion_bounds` bounds any point's displacement and each joint's gravity torque,
 :func:`end_effector_lever` and :func:`end_effector_reach` the end effector's displacement per
 joint and its distance from the origin, :func:`collision_pair_weights` how fast each listed
-collision pair approaches per radian of each joint. The guard's screens
+collision pair approaches per radian of each joint, :func:`collision_pair_nesting` which of those
+joints lie below which. The guard's screens
 (:mod:`deploy.safety.guard`), the motion envelope (:mod:`deploy.safety.envelope`), the violation
 monitor and the plant's derating floor are built on them.
 """
@@ -139,3 +140,40 @@ def collision_pair_weights(robot: Robot, model: mujoco.MjModel | None = None) ->
                 offset = np.linalg.norm(m.geom_pos[g]) + m.geom_rbound[g]
                 weights[p, i] = chain[b] - chain[jb] + offset + anchor
     return weights
+
+
+def collision_pair_nesting(robot: Robot, model: mujoco.MjModel | None = None):
+    """The order of the joints below one another along each pair's chain, for the local approach
+    bounds of the motion envelope (:mod:`deploy.safety.local_reach`).
+
+    Args:
+        robot: The robot (collision pairs, joint names).
+        model: The MuJoCo model; default ``robot.mj_model``.
+
+    Returns:
+        ``(order, nest)``: ``order`` (n,) int64, the joints deepest body first (a joint's body
+        below another's comes before it); ``nest`` (pairs, n, n) int8: for two joints ``j != k``
+        that both move pair ``p`` (nonzero :func:`collision_pair_weights`), 1 where ``k``'s body
+        lies strictly below ``j``'s (turning ``k`` moves the geometry ``j`` moves but not
+        ``j``'s axis), 2 where both are on one body (either may come first), else 0.
+    """
+    m = robot.mj_model if model is None else model
+    weights = collision_pair_weights(robot, m)
+    bodies = [m.jnt_bodyid[m.joint(name).id] for name in robot.joint_names]
+    depth = np.zeros(len(bodies), dtype=np.int64)
+    for i, b in enumerate(bodies):
+        while b > 0:
+            b = m.body_parentid[b]
+            depth[i] += 1
+    order = np.argsort(-depth, kind="stable").astype(np.int64)
+    nest = np.zeros((len(weights), len(bodies), len(bodies)), dtype=np.int8)
+    for p, w in enumerate(weights):
+        for j in np.flatnonzero(w > 0.0):
+            for k in np.flatnonzero(w > 0.0):
+                if k == j:
+                    continue
+                if bodies[k] == bodies[j]:
+                    nest[p, j, k] = 2
+                elif descends(m, bodies[k], bodies[j]):
+                    nest[p, j, k] = 1
+    return order, nest

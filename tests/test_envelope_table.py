@@ -125,7 +125,8 @@ def test_pair_grids_are_built_once_per_robot(so101):
 def _pan_sweep(robot, target, ticks, tables=True):
     """Run ``robot`` in the simulator with a policy that holds ``target`` (n,) rad but swings
     the shoulder pan between -1.2 and 1.2 rad every second; ``tables=False`` runs the envelope
-    without its pair tables (the chain bound alone). Returns ``(self-collision interventions,
+    without its pair tables and without its local approach bounds (the speeds read as the
+    global weights: the chain bound alone). Returns ``(self-collision interventions,
     least true base / upper-arm distance (m), the pan's span (rad), the envelope)``."""
     spec = PolicySpec.for_robot(robot, mode="position")
     scale, offset = np.asarray(spec.action.scale), np.asarray(spec.action.offset)
@@ -143,6 +144,8 @@ def _pan_sweep(robot, target, ticks, tables=True):
     env = rt.guard.envelope
     if not tables:
         env.tables = PairTables.empty(env.pairs)
+        chain = env.weights[: env.pairs].copy()
+        env.local.speeds = lambda q: chain.copy()
     pair = [tuple(p) for p in robot.config.safety.collision_pairs].index(
         ("base_link", "upper_arm_link")
     )

@@ -38,6 +38,7 @@ from ruckig import (
 )
 
 from deploy.safety import envelope_kernel as ek
+from deploy.safety.local_reach import LocalReach
 from deploy.safety.pair_grid import PairTables, pair_grids, table_bound
 from robots.chain_bounds import descends
 
@@ -91,7 +92,9 @@ class MotionEnvelope:
     :func:`deploy.safety.envelope_kernel.brake_headroom`).
 
     One exact query at the box's centre certifies the whole box: a pair's distance (coal) changes by
-    at most ``weights_p @ |dq|`` (:func:`robots.chain_bounds.collision_pair_weights`), the end
+    at most ``weights_p @ |dq|`` (:func:`robots.chain_bounds.collision_pair_weights`), or by the
+    local bound of the speeds of its points at the centre where that is smaller
+    (:mod:`deploy.safety.local_reach`), the end
     effector's margin along each axis by at most ``lever @ |dq|``
     (:func:`robots.chain_bounds.end_effector_lever`; zero along an axis a joint's rotation never
     moves, :func:`axis_levers`) or by the local bound of the end effector's Jacobian at the centre
@@ -175,6 +178,8 @@ class MotionEnvelope:
         self.tables = PairTables.empty(self.pairs)
         if self.pairs:
             self.apart, self.tables = pair_grids(robot, geometry, pair_weights)
+        #: the pairs' local approach bounds (:class:`deploy.safety.local_reach.LocalReach`)
+        self.local = LocalReach(robot, geometry)
         self.queries = 0
         home = np.asarray(robot.home, dtype=float)
         if margin is None:  # the default, capped at half the clearance the geometry allows
@@ -201,6 +206,10 @@ class MotionEnvelope:
             self._clearance[:, self.pairs :] = np.inf
         if not self.pairs:
             self._clearance[:, : self.pairs] = np.inf
+        # m/rad, the pairs' speeds at the cached collision query (LocalReach.speeds); the global
+        # weights until the first
+        self._speeds = np.tile(np.asarray(pair_weights, dtype=float).reshape(self.pairs, n),
+                               (envs, 1, 1))  # fmt: skip
         # centre, half-width, the brake's rest point, the brake's headroom, its reversal
         self._box = np.zeros((5, envs, n))
         self._need = np.zeros((2, envs), dtype=bool)
@@ -276,14 +285,16 @@ class MotionEnvelope:
         if not ek.envelope_screen(
             q, before, after, stopping, self.limits, effort_scale, self._cached_q,
             self._clearance, self.weights, self.margin, box, need, *self.tables.arrays(),
+            self._speeds, self.local.order, self.local.nest,
         ):  # fmt: skip
             return False
         c, h = box[0], box[1]
         for e in np.flatnonzero(need[ek.COLLISION]):
             d = self._clearance[e, : self.pairs]
             d[:] = self.distances(c[e])
+            self._speeds[e] = self.local.speeds(c[e])
             self._cached_q[ek.COLLISION, e] = c[e]
-            if not self._certified(ek.COLLISION, c[e], h[e], d):
+            if not self._certified(ek.COLLISION, c[e], h[e], d, self._speeds[e]):
                 if not self._passes(ek.COLLISION, e, q, before, after):
                     self.unsafe[ek.COLLISION, e] = True
                     self._mark_joints(ek.COLLISION, e, c[e], h[e], d)
@@ -318,14 +329,20 @@ class MotionEnvelope:
             return self._escapes_contact(start, end, rest)
         return self._escapes_box(start, end, rest)
 
-    def _reach(self, kind: int, centre, half) -> np.ndarray:
+    def _reach(self, kind: int, centre, half, speeds=None) -> np.ndarray:
         """How far each quantity of ``kind`` can shrink in the box ``centre +- half`` (n,) rad:
-        the chain bound ``weights @ half``; for the workspace margins also the local bound
+        for the pairs the local bound (:func:`deploy.safety.envelope_kernel.pairs_reach`; ``speeds``
+        (pairs, n) m/rad :meth:`deploy.safety.local_reach.LocalReach.speeds` at the centre,
+        computed when not given), never above the chain bound ``weights @ half``; for the
+        workspace margins the chain bound or the local bound
         ``|J(c)| @ half + half @ L @ half / 2`` (``J`` the end effector's translation Jacobian
         at the centre, ``L_ij = min(lever_i, lever_j)`` a bound of the second derivatives of
         its position along a chain of revolute joints), whichever is smaller."""
         if kind == ek.COLLISION:
-            return self.weights[: self.pairs] @ half
+            if speeds is None:
+                speeds = self.local.speeds(centre)
+            local, out = self.local, np.empty(self.pairs)
+            return ek.pairs_reach(self.weights, speeds, half, local.order, local.nest, out)
         reach = self.weights[self.pairs :] @ half
         jacobian = pin.computeFrameJacobian(
             self.model, self.data, centre, self.robot.ee_frame_id, pin.LOCAL_WORLD_ALIGNED
@@ -333,23 +350,30 @@ class MotionEnvelope:
         local = np.abs(jacobian) @ half + 0.5 * half @ self._curvature @ half
         return np.minimum(reach, local)
 
-    def _lower_bounds(self, kind: int, centre, half, value) -> np.ndarray:
+    def _lower_bounds(self, kind: int, centre, half, value, speeds=None) -> np.ndarray:
         """m, a lower bound of each quantity of ``kind`` (the pairs' distances, or the workspace
         margins; ``value`` at the centre) over the box ``centre +- half`` (n,) rad: ``value``
-        less :meth:`_reach`; for a pair with a table, its bound over the box
+        less :meth:`_reach` (``speeds`` as there); for a pair with a table, its bound over the box
         (:func:`deploy.safety.pair_grid.table_bound`) where that is higher."""
-        bound = value - self._reach(kind, centre, half)
+        bound = value - self._reach(kind, centre, half, speeds)
         if kind == ek.COLLISION:
             for p in np.flatnonzero(self.tables.offset[:, 0] >= 0):
                 table = table_bound(self.tables, p, centre, half, self.weights[p])
                 bound[p] = np.fmax(bound[p], table)
         return bound
 
-    def _certified(self, kind: int, centre, half, value) -> bool:
+    def _certified(self, kind: int, centre, half, value, speeds=None) -> bool:
         """Whether the box ``centre +- half`` (n,) rad keeps every quantity of ``kind`` (the
         pairs' distances, or the workspace margins; ``value`` at the centre) above the margin
-        (:meth:`_lower_bounds`)."""
-        return bool(np.all(self._lower_bounds(kind, centre, half, value) > self.margin))
+        (:meth:`_lower_bounds`, ``speeds`` as there). Without ``speeds``, the chain bound is
+        tried first (the local bound is never lower: the same answer, without the speeds'
+        Pinocchio call where the chain bound suffices)."""
+        if kind == ek.COLLISION and speeds is None:
+            chain = self._lower_bounds(kind, centre, half, value, self.weights[: self.pairs])
+            if np.all(chain > self.margin):
+                return True
+        bound = self._lower_bounds(kind, centre, half, value, speeds)
+        return bool(np.all(bound > self.margin))
 
     def _path_certified(
         self, kind: int, q, start, end, velocity, acceleration, share, reversal

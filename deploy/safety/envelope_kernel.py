@@ -1,7 +1,8 @@
 """Kernel of :class:`deploy.safety.envelope.MotionEnvelope`: the joint box of each env's motion
 envelope
 and the screen that says where Pinocchio must look (:func:`envelope_screen`), with the lookup of
-a pair's lower-bound table (:func:`table_bound`, of :mod:`deploy.safety.pair_grid`).
+a pair's lower-bound table (:func:`table_bound`, of :mod:`deploy.safety.pair_grid`) and a pair's
+local approach bound (:func:`pair_reach`, of :mod:`deploy.safety.local_reach`).
 
 The box of env ``e``, joint ``i`` spans the estimated position, the smoother's position before
 and after the step, and the point where the joint comes to rest if the smoother brakes from its
@@ -111,6 +112,55 @@ def table_bound(
 
 
 @numba.njit(cache=True, nogil=True)
+def pair_reach(
+    p: int,
+    weights: np.ndarray,
+    speeds: np.ndarray,
+    spread: np.ndarray,
+    order: np.ndarray,
+    nest: np.ndarray,
+    bound: np.ndarray,
+) -> float:
+    """m, how far pair ``p``'s distance can shrink over the box ``|q - c| <= spread`` (n,) rad:
+    ``weights`` (pairs, n) m/rad the global bound, ``speeds`` (pairs, n) m/rad the speeds of the
+    pairs' moved points at ``c``, ``order`` (n,) and ``nest`` (pairs, n, n) the joints' nesting;
+    ``bound`` (n,) scratch. Compiled :func:`deploy.safety.local_reach.local_reach` for one pair,
+    the same arithmetic in the same order."""
+    n = spread.shape[0]
+    for j in order:
+        s = speeds[p, j]
+        for k in range(n):
+            if nest[p, j, k] == 1:
+                s = s + bound[k] * spread[k]
+            elif nest[p, j, k] == 2:
+                s = s + weights[p, k] * spread[k]
+        bound[j] = s if s < weights[p, j] else weights[p, j]
+    reach = 0.0
+    for j in range(n):
+        if weights[p, j] != 0.0:
+            reach = reach + bound[j] * spread[j]
+    return reach
+
+
+@numba.njit(cache=True, nogil=True)
+def pairs_reach(
+    weights: np.ndarray,
+    speeds: np.ndarray,
+    spread: np.ndarray,
+    order: np.ndarray,
+    nest: np.ndarray,
+    out: np.ndarray,
+) -> np.ndarray:
+    """:func:`pair_reach` of every pair (arguments as there), written to ``out`` (pairs,) m and
+    returned: the numpy path's local bound (:meth:`deploy.safety.envelope.MotionEnvelope._reach`),
+    the compiled :func:`deploy.safety.local_reach.local_reach`."""
+    bound = np.empty(spread.shape[0])
+    for p in range(out.shape[0]):
+        out[p] = pair_reach(p, weights, speeds, spread, order, nest, bound)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def envelope_screen(
     q: np.ndarray,
     before: np.ndarray,
@@ -129,6 +179,9 @@ def envelope_screen(
     cells: np.ndarray,
     offset: np.ndarray,
     values: np.ndarray,
+    speeds: np.ndarray,
+    order: np.ndarray,
+    nest: np.ndarray,
 ) -> bool:
     """The box of every env not ``stopping`` ((envs,) bool), and whether the cache certifies it.
 
@@ -147,8 +200,11 @@ def envelope_screen(
     the end effector's margins inside the workspace box along x, y, z (``inf`` without a box),
     ``weights`` (pairs + 3, n) m/rad the pairs' approach bounds and the end effector's levers
     along x, y, z. A quantity can shrink by at most ``weights @ (|centre - cached| + half)``
-    anywhere in the box; a pair's distance also stays above its table's bound over the box
-    (:func:`table_bound`; ``joint`` to ``values`` the arrays of
+    anywhere in the box, a pair's distance by at most :func:`pair_reach` of that spread
+    (``speeds`` (envs, pairs, n) m/rad the speeds at the cached configuration,
+    :meth:`deploy.safety.local_reach.LocalReach.speeds`; ``order``, ``nest``
+    :func:`robots.chain_bounds.collision_pair_nesting`); a pair's distance also stays above its
+    table's bound over the box (:func:`table_bound`; ``joint`` to ``values`` the arrays of
     :class:`deploy.safety.pair_grid.PairTables`), whichever is higher. Returns whether any env
     needs an exact query.
     """
@@ -156,6 +212,8 @@ def envelope_screen(
     rows = weights.shape[0]
     pairs = rows - 3
     any_need = False
+    spread = np.empty(n)
+    bound = np.empty(n)
     for e in range(envs):
         need[COLLISION, e] = False
         need[WORKSPACE, e] = False
@@ -179,10 +237,15 @@ def envelope_screen(
             if need[row, e]:
                 continue
             reach = 0.0
-            for i in range(n):
-                if weights[r, i] != 0.0:
-                    d = abs(box[0, e, i] - cached_q[row, e, i]) + box[1, e, i]
-                    reach += weights[r, i] * d
+            if r < pairs:
+                for i in range(n):
+                    spread[i] = abs(box[0, e, i] - cached_q[row, e, i]) + box[1, e, i]
+                reach = pair_reach(r, weights, speeds[e], spread, order, nest, bound)
+            else:
+                for i in range(n):
+                    if weights[r, i] != 0.0:
+                        d = abs(box[0, e, i] - cached_q[row, e, i]) + box[1, e, i]
+                        reach += weights[r, i] * d
             if not (clearance[e, r] - reach > margin):  # NaN-safe: unknown means check
                 if (
                     r < pairs
@@ -207,4 +270,7 @@ def warm_up() -> None:
         np.zeros((5, 1, 2)), np.zeros((2, 1), dtype=bool),
         np.full((1, 2), -1, dtype=np.int64), np.ones((1, 2, 3)), np.ones((1, 2), dtype=np.int64),
         np.full((1, 1), -1, dtype=np.int64), np.zeros(0),  # no pair table
+        np.zeros((1, 1, 2)), np.arange(2), np.zeros((1, 2, 2), dtype=np.int8),
     )  # fmt: skip
+    pairs_reach(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros(2), np.arange(2),
+                np.zeros((1, 2, 2), dtype=np.int8), np.zeros(1))  # fmt: skip

@@ -1,9 +1,11 @@
 """Train the shipped arm policy with Stable-Baselines3 PPO and write ``policies/arm.pt``.
 
-``make train`` runs ``python -m policies.train`` with the defaults below; with ``--no-faults``
-they reproduce the shipped ``policies/arm.pt`` (seed 1). Logs go to TensorBoard
-(``runs/train/``): SB3's episode length, return and success rate, plus
-``reach/joint_limit_violations``, ``reach/success_rate`` and ``reach/intervention_rate``.
+``make train`` runs ``python -m policies.train`` with the defaults below (seed 1); the shipped
+``policies/arm.pt`` is such a run without faults, fine-tuned with them (``--init-from
+policies/arm.pt``, :mod:`policies.finetune`; ``--init-from RUN.zip`` continues a saved run; both
+stages in ``policies/arm.curve.json``). Logs go to TensorBoard (``runs/train/``): SB3's episode
+length, return and success rate, plus ``reach/joint_limit_violations``, ``reach/success_rate``
+and ``reach/intervention_rate``.
 
 Each episode draws its dynamics, encoder settings and fault schedule (at ``--fault-interval``,
 :mod:`policies.episode_faults`; ``--no-faults``: none) from the robot's soak ranges
@@ -17,18 +19,11 @@ runs a randomized soak of ``--gate-hours`` simulated hours (``--gate-sessions`` 
 candidate whose soak passes is copied to ``--out`` (with its ``.onnx`` and ``.curve.json``); a
 failed one stays in the log folder with the soak's report, and the command exits with 1.
 
-``--init-from policies/arm.pt`` fine-tunes a shipped policy (:mod:`policies.finetune`: its actor
-into a fresh learner; ``--critic-warmup`` trains the critic alone first); ``--init-from RUN.zip``
-continues a saved run.
-
-Why PPO: it is the field's usual choice for reaching and locomotion, and with one batched MuJoCo
-plant stepping many robots per call it turns the machine's two cores into samples faster than
-SAC's one gradient step per sample would (SAC spends most of its wall time in updates at this
-simulation speed).
-
-Why 64 robots per batch with 128-step rollouts (the same 8,192 samples per update as 16 x 512):
-the policy's forward pass per step is shared by more robots, and the more diverse rollouts learned
-faster per sample (the comparison: ``docs/measurements.md``).
+Why PPO: the field's usual choice for reaching and locomotion; with one batched MuJoCo plant
+stepping many robots per call it turns two cores into samples faster than SAC's one update per
+sample. Why 64 robots with 128-step rollouts (8,192 samples per update, as 16 x 512): the forward
+pass is shared by more robots and the more diverse rollouts learned faster per sample
+(``docs/measurements.md``).
 
 The PPO actor's mean network becomes an :class:`~deploy.policy.mlp_checkpoint.MLPActor` with the
 same weights and the env's PolicySpec (:func:`deploy.policy.mlp_checkpoint.save_checkpoint`).

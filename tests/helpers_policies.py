@@ -28,6 +28,22 @@ ARM3_BLOCKS = (
 )
 
 
+def target_policy(robot, target_at):
+    """A scripted position-mode policy of ``robot`` for the runtime: on its ``n``-th call it
+    commands ``target_at(n)`` (n,) rad, as the action that the spec's scale and offset map to
+    that target. ``policy.calls`` counts its calls."""
+    spec = PolicySpec.for_robot(robot, mode="position")
+    scale, offset = np.asarray(spec.action.scale), np.asarray(spec.action.offset)
+
+    def policy(obs):
+        target = np.asarray(target_at(policy.calls), dtype=np.float64)
+        policy.calls += 1
+        return ((target - offset) / scale)[None].astype(np.float32)
+
+    policy.spec, policy.calls = spec, 0
+    return policy
+
+
 def make_spec(robot, blocks=ARM3_BLOCKS, **kwargs) -> PolicySpec:
     return PolicySpec.for_robot(robot, blocks=blocks, **kwargs)
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import onnx
 import pytest
+from helpers_policies import target_policy
 
 from deploy.backends.sim.plant import SimBackend
 from deploy.monitors.violations import ViolationMonitor
@@ -167,25 +168,21 @@ def test_a_gripper_opening_and_closing_next_to_its_wrist_is_not_braked(so101):
     """The shipped SO-101 policy works its gripper all the time; the jaw then passes within
     millimetres of the wrist link, which it cannot touch (proved apart). Opening and closing
     the gripper at home, a pair that cannot touch must not make the motion envelope brake."""
-    spec = PolicySpec.for_robot(so101, mode="position")
     g = so101.joint_names.index("gripper")
-    scale, offset = np.asarray(spec.action.scale), np.asarray(spec.action.offset)
     home = np.asarray(so101.home, dtype=np.float64)
     lo, hi = so101.soft_lower[g], so101.soft_upper[g]
-    ticks = {"n": 0}
 
-    def policy(obs):
+    def target_at(n):
         target = home.copy()
-        target[g] = lo if (ticks["n"] // 100) % 2 else hi  # 1 s open, 1 s closed
-        ticks["n"] += 1
-        return ((target - offset) / scale)[None].astype(np.float32)
+        target[g] = lo if (n // 100) % 2 else hi  # 1 s open, 1 s closed
+        return target
 
-    policy.spec = spec
+    policy = target_policy(so101, target_at)
     plant = SimBackend(so101, mode="position", envs=1, seed=0)
     rt = Runtime(so101, policy, plant)
     rt.start()
     rt.run(800)
     moved = plant.true_position()[0, g]
-    assert ticks["n"] > 600 and min(abs(moved - lo), abs(moved - hi)) < 0.2  # it did move
+    assert policy.calls > 600 and min(abs(moved - lo), abs(moved - hi)) < 0.2  # it did move
     assert rt.guard.envelope.apart.any()
     assert int(rt.guard.counts["self_collision"].sum()) == 0

@@ -10,6 +10,7 @@ import dataclasses
 import numpy as np
 import pinocchio as pin
 import pytest
+from helpers_policies import target_policy
 
 from deploy.backends.sim.plant import SimBackend
 from deploy.runtime import Runtime
@@ -17,7 +18,6 @@ from deploy.safety import envelope_kernel as ek
 from deploy.safety.collision import collision_model
 from deploy.safety.guard import SafetyGuard
 from deploy.safety.pair_grid import PairTables, pair_grids, table_bound
-from deploy.spec.policy_spec import PolicySpec
 from robots import load_robot
 from robots.chain_bounds import collision_pair_weights
 
@@ -128,17 +128,13 @@ def _pan_sweep(robot, target, ticks, tables=True):
     without its pair tables and without its local approach bounds (the speeds read as the
     global weights: the chain bound alone). Returns ``(self-collision interventions,
     least true base / upper-arm distance (m), the pan's span (rad), the envelope)``."""
-    spec = PolicySpec.for_robot(robot, mode="position")
-    scale, offset = np.asarray(spec.action.scale), np.asarray(spec.action.offset)
-    ticks_run = {"n": 0}
 
-    def policy(obs):
+    def target_at(n):
         t = np.array(target, dtype=np.float64)
-        t[0] = 1.2 if (ticks_run["n"] // 100) % 2 else -1.2
-        ticks_run["n"] += 1
-        return ((t - offset) / scale)[None].astype(np.float32)
+        t[0] = 1.2 if (n // 100) % 2 else -1.2
+        return t
 
-    policy.spec = spec
+    policy = target_policy(robot, target_at)
     plant = SimBackend(robot, mode="position", envs=1, seed=0)
     rt = Runtime(robot, policy, plant)
     env = rt.guard.envelope

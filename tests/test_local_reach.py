@@ -13,13 +13,13 @@ import json
 import numpy as np
 import pinocchio as pin
 import pytest
+from helpers_policies import target_policy
 
 from deploy.backends.sim.plant import SimBackend
 from deploy.runtime import Runtime
 from deploy.safety import envelope_kernel as ek
 from deploy.safety.collision import collision_model
 from deploy.safety.local_reach import LocalReach, local_reach
-from deploy.spec.policy_spec import PolicySpec
 from robots import load_robot
 from robots.chain_bounds import collision_pair_weights
 
@@ -121,16 +121,7 @@ def _drive(robot, targets, period, ticks):
     """Run ``robot`` in the simulator with a policy that holds each of ``targets`` (n,) rad in
     turn for ``period`` ticks. Returns ``(self-collision interventions, (pairs,) least true
     distance (m), the envelope)``."""
-    spec = PolicySpec.for_robot(robot, mode="position")
-    scale, offset = np.asarray(spec.action.scale), np.asarray(spec.action.offset)
-    ticks_run = {"n": 0}
-
-    def policy(obs):
-        t = np.asarray(targets[(ticks_run["n"] // period) % len(targets)], dtype=np.float64)
-        ticks_run["n"] += 1
-        return ((t - offset) / scale)[None].astype(np.float32)
-
-    policy.spec = spec
+    policy = target_policy(robot, lambda n: targets[(n // period) % len(targets)])
     plant = SimBackend(robot, mode="position", envs=1, seed=0)
     rt = Runtime(robot, policy, plant)
     env = rt.guard.envelope

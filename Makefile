@@ -110,17 +110,25 @@ soak: install $(ONNX)
 	$(VENV)/bin/soak-test --robot $(ROBOT) --policy $(ONNX) --hours 8 --sessions 1 --seed 0 --out runs/soak
 
 # The nightly: one 8-hour session (seed 0) of each shipped robot's policy, each compared with its
-# committed baseline where there is one (bench/baseline/ROBOT.json); every robot runs, then the
-# target fails if any of them did (reports in runs/nightly/ROBOT/).
+# committed baseline where there is one (bench/baseline/ROBOT.json). The robots run side by side
+# (the machine's cores share them); each writes runs/nightly/ROBOT/ and its output to
+# runs/nightly/ROBOT.log. Every robot runs to its end, then the target fails if any of them did.
 NIGHTLY_ROBOTS := arm3 so101 go2
 nightly: install $(ONNX) policies/so101.onnx policies/go2.onnx
-	@failed=""; for r in $(NIGHTLY_ROBOTS); do \
+	@mkdir -p runs/nightly; for r in $(NIGHTLY_ROBOTS); do \
 		policy=policies/$$r.onnx; [ $$r = arm3 ] && policy=$(ONNX); \
 		base=bench/baseline/$$r.json; [ -f $$base ] && base="--baseline $$base" || base=""; \
-		$(VENV)/bin/soak-test --robot $$r --policy $$policy --hours 8 --sessions 1 --seed 0 \
-			--out runs/nightly/$$r $$base || failed="$$failed $$r"; \
+		rm -f runs/nightly/$$r.exit; echo "make nightly: $$r running, output in runs/nightly/$$r.log"; \
+		( $(VENV)/bin/soak-test --robot $$r --policy $$policy --hours 8 --sessions 1 --seed 0 \
+			--out runs/nightly/$$r $$base --no-progress > runs/nightly/$$r.log 2>&1; \
+		  echo $$? > runs/nightly/$$r.exit ) & \
+	done; wait; \
+	failed=""; for r in $(NIGHTLY_ROBOTS); do \
+		echo "== $$r (runs/nightly/$$r.log)"; tail -n 25 runs/nightly/$$r.log; \
+		[ "$$(cat runs/nightly/$$r.exit 2>/dev/null)" = 0 ] || failed="$$failed $$r"; \
 	done; \
-	if [ -n "$$failed" ]; then echo "make nightly: failed:$$failed"; exit 1; fi
+	if [ -n "$$failed" ]; then echo "make nightly: failed:$$failed"; exit 1; fi; \
+	echo "make nightly: every robot passed"
 
 bench: install
 	$(PY) -m bench

@@ -115,17 +115,16 @@ soak: install $(ONNX)
 # runs/nightly/ROBOT.log. Every robot runs to its end, then the target fails if any of them did.
 NIGHTLY_ROBOTS := arm3 so101 go2
 nightly: install $(ONNX) policies/so101.onnx policies/go2.onnx
-	@mkdir -p runs/nightly; for r in $(NIGHTLY_ROBOTS); do \
+	@mkdir -p runs/nightly; pids=""; for r in $(NIGHTLY_ROBOTS); do \
 		policy=policies/$$r.onnx; [ $$r = arm3 ] && policy=$(ONNX); \
 		base=bench/baseline/$$r.json; [ -f $$base ] && base="--baseline $$base" || base=""; \
-		rm -f runs/nightly/$$r.exit; echo "make nightly: $$r running, output in runs/nightly/$$r.log"; \
-		( $(VENV)/bin/soak-test --robot $$r --policy $$policy --hours 8 --sessions 1 --seed 0 \
-			--out runs/nightly/$$r $$base --no-progress > runs/nightly/$$r.log 2>&1; \
-		  echo $$? > runs/nightly/$$r.exit ) & \
-	done; wait; \
-	failed=""; for r in $(NIGHTLY_ROBOTS); do \
+		echo "make nightly: $$r running, output in runs/nightly/$$r.log"; \
+		$(VENV)/bin/soak-test --robot $$r --policy $$policy --hours 8 --sessions 1 --seed 0 \
+			--out runs/nightly/$$r $$base --no-progress > runs/nightly/$$r.log 2>&1 & pids="$$pids $$!"; \
+	done; \
+	failed=""; set -- $$pids; for r in $(NIGHTLY_ROBOTS); do \
+		wait $$1 || failed="$$failed $$r"; shift; \
 		echo "== $$r (runs/nightly/$$r.log)"; tail -n 25 runs/nightly/$$r.log; \
-		[ "$$(cat runs/nightly/$$r.exit 2>/dev/null)" = 0 ] || failed="$$failed $$r"; \
 	done; \
 	if [ -n "$$failed" ]; then echo "make nightly: failed:$$failed"; exit 1; fi; \
 	echo "make nightly: every robot passed"

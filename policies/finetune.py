@@ -11,8 +11,10 @@ shipped actor before the critic has learnt its returns.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
+import numpy as np
 import torch
 from stable_baselines3 import PPO
 
@@ -25,15 +27,19 @@ def load_shipped_actor(model: PPO, checkpoint: Path, spec, hidden: tuple[int, ..
     Args:
         model: a PPO learner whose ``net_arch["pi"]`` is ``hidden``.
         checkpoint: a shipped ``.pt`` (``policies/go2.pt``, ``policies/arm.pt``...).
-        spec: the recipe's :class:`~deploy.policy.spec.PolicySpec`; the checkpoint's must equal it.
+        spec: the recipe's :class:`~deploy.policy.spec.PolicySpec`; the checkpoint's must equal
+            it, or differ only in the action's scale and offset (:func:`action_remap`: the output
+            layer is then rescaled so that the mean gives the same targets).
         hidden: the recipe's hidden layer widths.
 
     Raises:
-        ValueError: the checkpoint's observation layout or action size is not ``spec``'s, or its
-            hidden layers are not ``hidden`` (the file and the expected value named).
+        ValueError: the checkpoint's spec is not ``spec``'s (beyond the action's scale and
+            offset), or its hidden layers are not ``hidden`` (the file and the expected value
+            named).
     """
     actor, source, _ = load_checkpoint(checkpoint)
-    if source.to_json() != spec.to_json():
+    remap = action_remap(source, spec) if source.to_json() != spec.to_json() else None
+    if source.to_json() != spec.to_json() and remap is None:
         raise ValueError(
             f"{checkpoint}: --init-from expected a checkpoint of this recipe's spec (robot "
             f"{spec.robot}, obs {spec.obs_dim}, act {spec.act_dim}); its spec differs"
@@ -49,6 +55,28 @@ def load_shipped_actor(model: PPO, checkpoint: Path, spec, hidden: tuple[int, ..
         for source_layer, target in zip(layers, targets, strict=True):
             target.weight.copy_(source_layer.weight)
             target.bias.copy_(source_layer.bias)
+        if remap is not None:  # the same targets under the recipe's action scale and offset
+            gain, shift = (torch.as_tensor(v, dtype=policy.action_net.weight.dtype) for v in remap)
+            policy.action_net.weight.mul_(gain[:, None])
+            policy.action_net.bias.mul_(gain).add_(shift)
+
+
+def action_remap(source, spec) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per-joint ``(gain, shift)`` with ``gain * a + shift`` the action under ``spec`` that gives
+    the target action ``a`` gives under ``source``, both (act_dim,); ``None`` unless the two
+    specs differ only in the action's scale and offset (the same robot, observation layout,
+    mode, reference and clip). A fine-tune of a policy trained when a full absolute position
+    action was the hard limit (``position_range="hard"``) starts from the same targets under
+    today's soft range; a target it reached past the new full action is then clipped to it.
+    """
+    a, b = source.action, spec.action
+    same_action = dataclasses.replace(a, scale=b.scale, offset=b.offset) == b
+    rest = dataclasses.replace(source, action=b).to_json() == spec.to_json()
+    if not (same_action and rest) or a.reference == "current":
+        return None
+    s_old, o_old = np.asarray(a.scale), np.asarray(a.offset)
+    s_new, o_new = np.asarray(b.scale), np.asarray(b.offset)
+    return s_old / s_new, (o_old - o_new) / s_new
 
 
 def actor_parameters(model: PPO) -> list[torch.nn.Parameter]:

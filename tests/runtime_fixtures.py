@@ -13,7 +13,7 @@ from deploy.spec.policy_spec import PolicySpec
 
 
 def adversarial_onnx(tmp_path, robot, mode, nan_probability=0.0, name="adv.onnx"):
-    spec = PolicySpec.for_robot(robot, mode=mode)
+    spec = PolicySpec.for_robot(robot, mode=mode, position_range="hard")  # past the soft limits
     path = tmp_path / f"{robot.name}_{mode}_{name}"
     onnx.save(adversarial_model(spec, nan_probability), path)
     return path

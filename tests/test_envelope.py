@@ -49,7 +49,7 @@ def test_adversarial_policy_keeps_the_true_state_out_of_contact_and_in_the_box(
     tmp_path, name, kind, seed, seconds
 ):
     robot = load_robot(name)
-    spec = PolicySpec.for_robot(robot)
+    spec = PolicySpec.for_robot(robot, position_range="hard")  # past the soft limits
     path = tmp_path / f"{name}_{kind}.onnx"
     onnx.save(adversarial_model(spec, 0.02, float(seed), kind), path)
     backend = SimBackend(robot, envs=1, seed=0)

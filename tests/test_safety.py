@@ -160,7 +160,7 @@ def test_a_full_absolute_action_is_at_the_limit_not_past_it():
     from robots import load_robot
 
     so101 = load_robot("so101")
-    spec = PolicySpec.for_robot(so101, mode="position")
+    spec = PolicySpec.for_robot(so101, mode="position", position_range="hard")
     state = RobotState.zeros(2, so101.n_joints)
     guard = SafetyGuard(so101, 2, "position")
     target = spec.action_to_target(np.array([[1.0] * 6, [-1.0] * 6]), state)

@@ -147,7 +147,10 @@ def test_action_to_target_in_each_mode(arm3):
     torque = PolicySpec.for_robot(arm3, mode="torque").action_to_target(a, state)
     np.testing.assert_allclose(torque, [[22.5, -11.25, 22.5]])
     absolute = PolicySpec.for_robot(arm3, mode="position").action_to_target(a, state)
-    np.testing.assert_allclose(absolute, [[1.57, -0.785, 1.57]])
+    # a full absolute action is the soft limit, 0.9 x 1.57 rad about the centre
+    np.testing.assert_allclose(absolute, [[1.413, -0.7065, 1.413]])
+    hard = PolicySpec.for_robot(arm3, mode="position", position_range="hard")
+    np.testing.assert_allclose(hard.action_to_target(a, state), [[1.57, -0.785, 1.57]])
     current = PolicySpec.for_robot(arm3, mode="position", reference="current")
     step = 3.14 * arm3.control_period
     np.testing.assert_allclose(
@@ -155,6 +158,37 @@ def test_action_to_target_in_each_mode(arm3):
     )
     out = np.empty((1, 3))
     assert current.action_to_target(a, state, out=out) is out
+
+
+@pytest.mark.parametrize("name", ["arm3", "arm6", "so101"])
+def test_a_full_absolute_position_action_is_never_clamped_by_the_guard(name):
+    """The default spec maps +-1 to the soft limits, inside them in float64 (a saturated joint,
+    such as a gripper held closed, is not a soft-limit intervention on every tick); the
+    adversary's hard range is clamped."""
+    from deploy.safety.guard import SafetyGuard
+    from robots import load_robot
+
+    robot = load_robot(name)
+    n = robot.n_joints
+    rng = np.random.default_rng(0)
+    actions = np.vstack([np.ones(n), -np.ones(n), rng.choice([-1.0, 1.0], (62, n))])
+    state = RobotState.zeros(len(actions), n)
+    state.q[:] = robot.home
+    target = PolicySpec.for_robot(robot, mode="position").action_to_target(actions, state)
+    assert (target >= robot.soft_lower).all() and (target <= robot.soft_upper).all()
+    np.testing.assert_allclose(target[0], robot.soft_upper, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(target[1], robot.soft_lower, rtol=0, atol=1e-12)
+    guard = SafetyGuard(robot, len(actions), "position")
+    guard.filter(target.copy(), state)
+    assert guard.totals()["soft_limit"] == 0
+    hard = PolicySpec.for_robot(robot, mode="position", position_range="hard")
+    guard.filter(hard.action_to_target(actions, state), state)
+    assert guard.totals()["soft_limit"] == len(actions)
+
+
+def test_an_unknown_position_range_is_refused(arm3):
+    with pytest.raises(SpecError, match=r"position range 'wide' is unknown; expected one of"):
+        PolicySpec.for_robot(arm3, mode="position", position_range="wide")
 
 
 def test_current_reference_only_in_position_mode(arm3):

@@ -200,6 +200,36 @@ def test_fine_tuning_the_shipped_arm_starts_from_its_actor_and_warms_the_critic_
         main(common[:-4] + ["--init-from", "policies/so101.pt", "--steps", "16"])
 
 
+def test_fine_tuning_a_hard_range_checkpoint_keeps_its_targets_inside_the_soft_limits(tmp_path):
+    """A position policy trained when a full absolute action was the hard limit (today's
+    ``position_range="hard"``) fine-tunes under the default soft range: the output layer is
+    rescaled, so a run that is all critic warm-up gives the same targets, clipped to the soft
+    limits (where the old policy saturated, as so101's gripper did, the new one rests on the
+    soft limit, which the guard does not clamp)."""
+    pytest.importorskip("stable_baselines3")
+    from deploy.spec.policy_spec import PolicySpec
+    from policies.train import main
+    from robots import load_robot
+
+    so101 = load_robot("so101")
+    actor = load_checkpoint("policies/so101.pt")[0]
+    hard = PolicySpec.for_robot(so101, mode="position", position_range="hard")
+    save_checkpoint(tmp_path / "hard.pt", actor, hard)
+    args = ["--robot", "so101", "--mode", "position", "--envs", "2", "--n-steps", "16"]
+    args += ["--batch-size", "16", "--epochs", "1", "--anneal-steps", "0", "--no-progress"]
+    args += ["--gate-hours", "0", "--init-from", str(tmp_path / "hard.pt"), "--steps", "32"]
+    args += ["--critic-warmup", "32", "--logdir", str(tmp_path / "w")]
+    main(args + ["--out", str(tmp_path / "ship" / "so101.pt")])
+    tuned, spec, _ = load_checkpoint(tmp_path / "w" / "so101_position_seed1.pt")
+    assert spec.to_json() == PolicySpec.for_robot(so101, mode="position").to_json()
+    obs = torch.as_tensor(np.random.default_rng(0).normal(0, 1, (512, spec.obs_dim)))
+    with torch.no_grad():
+        before = actor(obs.float()).numpy().clip(-1, 1) * hard.action.scale + hard.action.offset
+        after = tuned(obs.float()).numpy().clip(-1, 1) * spec.action.scale + spec.action.offset
+    np.testing.assert_allclose(after, before.clip(so101.soft_lower, so101.soft_upper), atol=1e-5)
+    assert (before < so101.soft_lower).any() or (before > so101.soft_upper).any()
+
+
 def test_holding_the_arm_against_gravity_costs_its_joule_heat(arm3):
     """The heat term charges sum (tau / continuous_torque)^2: the stretched arm, held against
     gravity at rest, costs more than the arm hanging down, and exactly the formula's amount."""

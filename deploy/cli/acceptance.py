@@ -151,7 +151,8 @@ def check_adversarial(
     """
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(workdir or tmp) / f"adversarial_{robot.name}_{mode}.onnx"
-        onnx.save(adversarial_model(PolicySpec.for_robot(robot, mode=mode), nan_probability), path)
+        spec = PolicySpec.for_robot(robot, mode=mode, position_range="hard")  # past soft limits
+        onnx.save(adversarial_model(spec, nan_probability), path)
         policy = OnnxPolicy(path, robot)
     ticks = int(round(seconds / robot.control_period))
     backend = RecordingBackend(SimBackend(robot, mode=mode, seed=seed), ticks)

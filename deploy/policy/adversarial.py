@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, required=True)
     args = p.parse_args(argv)
     robot = load_robot(args.robot)
-    spec = PolicySpec.for_robot(robot, mode=args.mode)
+    spec = PolicySpec.for_robot(robot, mode=args.mode, position_range="hard")
     model = adversarial_model(spec, args.nan_probability, float(args.seed), args.kind)
     with atomic_path(args.out) as tmp:
         onnx.save(model, tmp)

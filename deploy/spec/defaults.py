@@ -30,6 +30,21 @@ from deploy.spec.policy_spec import (
 from deploy.state import Kinematics
 from robots import CONTROL_MODES, Robot
 
+#: What a full absolute position action reaches: ``soft`` (the default) the soft joint limits,
+#: ``hard`` the hard ones (an adversarial policy's, to exercise the guard's soft clamp).
+POSITION_RANGES = ("soft", "hard")
+
+
+def _inside_range(lower: np.ndarray, upper: np.ndarray) -> tuple[tuple, tuple]:
+    """Per-joint ``(scale, offset)`` with ``offset -+ scale`` inside ``[lower, upper]`` in float64
+    (half the range about its centre, the scale shrunk by an ulp where rounding would put a full
+    action past a limit)."""
+    scale, offset = (upper - lower) / 2, (upper + lower) / 2
+    for j in range(len(scale)):
+        while offset[j] - scale[j] < lower[j] or offset[j] + scale[j] > upper[j]:
+            scale[j] = np.nextafter(scale[j], 0.0)
+    return tuple(scale), tuple(offset)
+
 
 def spec_for_robot(
     cls: type[PolicySpec],
@@ -37,16 +52,22 @@ def spec_for_robot(
     blocks: tuple[str, ...] | None = None,
     mode: str | None = None,
     reference: str = "absolute",
+    position_range: str = "soft",
 ) -> PolicySpec:
     """:meth:`PolicySpec.for_robot` (see there): the standard spec of ``robot``, an instance of
     ``cls``.
 
     Raises:
-        SpecError: unknown block kind or control mode.
+        SpecError: unknown block kind, control mode or position range.
     """
     mode = robot.control_mode if mode is None else mode
     if mode not in CONTROL_MODES:
         raise SpecError(f"action.mode: '{mode}' is unknown; expected one of {CONTROL_MODES}")
+    if position_range not in POSITION_RANGES:
+        raise SpecError(
+            f"action: position range '{position_range}' is unknown; expected one of "
+            f"{POSITION_RANGES}"
+        )
     n = robot.n_joints
     lo, hi = robot.position_lower, robot.position_upper
     wrapping = tuple(i for i in range(n) if hi[i] - lo[i] > 2 * np.pi + 1e-9)
@@ -110,9 +131,12 @@ def spec_for_robot(
     if mode == "position" and legged and reference == "absolute":
         scale, offset = (LEGGED_ACTION_SCALE,) * n, tuple(float(h) for h in robot.home)
     elif mode == "position":
-        if reference == "absolute":
-            scale = tuple((hi - lo) / 2)
-            offset = tuple((hi + lo) / 2)
+        if reference == "absolute" and position_range == "soft":
+            # a full action is the soft limit, the furthest target the guard passes unchanged:
+            # no action in [-1, 1] is clamped, so a clamp is a real intervention
+            scale, offset = _inside_range(robot.soft_lower, robot.soft_upper)
+        elif reference == "absolute":  # the hard range: an adversary's, past the soft limits
+            scale, offset = tuple((hi - lo) / 2), tuple((hi + lo) / 2)
         else:
             # a full action moves one control period at the velocity limit
             scale = tuple(robot.velocity_limit * robot.control_period)

@@ -178,6 +178,7 @@ class PolicySpec:
         blocks: tuple[str, ...] | None = None,
         mode: str | None = None,
         reference: str = "absolute",
+        position_range: str = "soft",
     ) -> PolicySpec:
         """Standard spec for ``robot`` with physical scales taken from the robot description.
 
@@ -185,7 +186,10 @@ class PolicySpec:
         skips them and ``joint_position_sincos`` covers them. A velocity action is scaled by the
         soft velocity limit (the fastest command the smoother issues, so a full action is never
         clamped), a torque action by the effort limit, an absolute position action by half the
-        range.
+        soft range about its centre (``position_range="soft"``: a full action is the soft limit,
+        so no action in ``[-1, 1]`` is clamped by the guard) or by half the hard range
+        (``position_range="hard"``: an adversary's, past the soft limits). Legged robots' absolute
+        position actions are legged_gym's (``LEGGED_ACTION_SCALE`` about the default pose).
 
         Default blocks: ``joint_position``, ``joint_position_sincos`` (only when the robot has
         wrapping joints), ``joint_velocity``, ``ee_position``, ``goal_position``, ``goal_in_ee``.
@@ -193,11 +197,11 @@ class PolicySpec:
         Built by :func:`deploy.spec.defaults.spec_for_robot`.
 
         Raises:
-            SpecError: unknown block kind or control mode.
+            SpecError: unknown block kind, control mode or position range.
         """
         from deploy.spec.defaults import spec_for_robot
 
-        return spec_for_robot(cls, robot, blocks, mode, reference)
+        return spec_for_robot(cls, robot, blocks, mode, reference, position_range)
 
     # ------------------------------------------------------------------ properties
     @property

@@ -60,7 +60,14 @@ export: install
 #                            --anneal-steps 1500000 --final-log-std -4 --learning-rate 1e-4
 #                            --start-poses policies/arm3_missed_poses.json)
 #   make train ROBOT=so101   policies/so101.pt (SO-101, position mode, the same recipe; trained
-#                            before it drew its soak's encoder noise: not bit for bit)
+#                            before it drew its soak's encoder noise: not bit for bit); the
+#                            shipped so101.pt is that run fine-tuned under the soft position
+#                            range (a full action is the soft limit) at twice the intervention
+#                            penalty, policies/so101.curve.json:
+#                            python -m policies.train --robot so101 --mode position
+#                            --init-from policies/so101.pt --critic-warmup 300000
+#                            --steps 3000000 --log-std-init -3 --anneal-steps 1500000
+#                            --final-log-std -4 --learning-rate 1e-4 --reward intervention=-0.4
 #   make train ROBOT=go2     policies/go2.pt   (Go2: PPO residual on the trot generator, through
 #                            the runtime; policies/train_legged.py, logs in runs/train_legged/)
 #                            the shipped go2.pt is that run fine-tuned on slippery floors:

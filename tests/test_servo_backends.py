@@ -285,21 +285,27 @@ def test_unplugged_servo_stops_safely_torque_off_exit_2(tmp_path, protocol):
     assert report["duration_s"] < 3.0 or report["final_state"] == ["SAFE_STOP"]
 
 
-@pytest.mark.parametrize("protocol", ["feetech", "dynamixel"])
-def test_overload_error_bit_stops_safely_naming_the_servo(tmp_path, protocol):
-    name, _ = CASES[protocol]
-    robot = load_robot(name)
-    # one more try when the run stopped before the fault was even set (stale replies in its
-    # first ticks: the in-process emulator starved of CPU on a busy machine, which is not
-    # what this test judges; a real servo answers in microseconds)
+def _deploy_run_with_fault(tmp_path, protocol, robot, seconds, fault, *args):
+    """``_deploy_run`` against an emulator whose ``fault(*args)`` is set once the runtime is
+    RUNNING. One more try when the run stopped before the fault was even set (stale replies in
+    its first ticks: the in-process emulator starved of CPU on a busy machine, which is not what
+    these tests judge; a real servo answers in microseconds)."""
     for _ in range(2):
         with _emulator(robot, protocol) as emu:
             injected = threading.Event()
-            _when_running(emu, lambda emu=emu, done=injected: (emu.set_overload(3), done.set()))
-            code, report, out = _deploy_run(tmp_path, protocol, emu, 3.0)
+            set_fault = getattr(emu, fault)
+            _when_running(emu, lambda f=set_fault, done=injected: (f(*args), done.set()))
+            code, report, out = _deploy_run(tmp_path, protocol, emu, seconds)
         if injected.is_set():
             break
     assert injected.is_set(), out
+    return code, report, out
+
+
+@pytest.mark.parametrize("protocol", ["feetech", "dynamixel"])
+def test_overload_error_bit_stops_safely_naming_the_servo(tmp_path, protocol):
+    robot = load_robot(CASES[protocol][0])
+    code, report, out = _deploy_run_with_fault(tmp_path, protocol, robot, 3.0, "set_overload", 3)
     assert code == EXIT_FAULT, out
     assert report["faults"]["by_cause"]["servo_error"] == 1, out
     (error,) = report["faults"]["drive_errors"]
@@ -313,12 +319,10 @@ def test_overheating_servo_meets_the_runtime_thermal_stop_first(tmp_path, protoc
     stop (max_winding_temperature, 5 K below the servo's cut-off in the catalog) fires first; the
     loss goes on while the arm is held, so the servo's protection trips after it, and that is
     reported with the servo's ID and no resume follows (its torque is off)."""
-    name, _ = CASES[protocol]
-    robot = load_robot(name)
+    robot = load_robot(CASES[protocol][0])
     servo_limit = robot.motors[2].protection.temperature_limit
-    with _emulator(robot, protocol) as emu:
-        _when_running(emu, lambda: emu.set_heat(3, 200.0))  # ~3 s to the servo's limit
-        code, report, out = _deploy_run(tmp_path, protocol, emu, 8.0)
+    # ~3 s to the servo's limit
+    code, report, out = _deploy_run_with_fault(tmp_path, protocol, robot, 8.0, "set_heat", 3, 200.0)
     assert code == EXIT_FAULT, out
     assert report["faults"]["by_cause"]["over_temperature"] == 1, out
     assert report["faults"]["by_cause"]["servo_error"] == 0, out  # the runtime's stop came first

@@ -38,8 +38,9 @@ def load_shipped_actor(model: PPO, checkpoint: Path, spec, hidden: tuple[int, ..
             named).
     """
     actor, source, _ = load_checkpoint(checkpoint)
-    remap = action_remap(source, spec) if source.to_json() != spec.to_json() else None
-    if source.to_json() != spec.to_json() and remap is None:
+    same = source.to_json() == spec.to_json()
+    remap = None if same else action_remap(source, spec)
+    if not same and remap is None:
         raise ValueError(
             f"{checkpoint}: --init-from expected a checkpoint of this recipe's spec (robot "
             f"{spec.robot}, obs {spec.obs_dim}, act {spec.act_dim}); its spec differs"
@@ -70,9 +71,10 @@ def action_remap(source, spec) -> tuple[np.ndarray, np.ndarray] | None:
     today's soft range; a target it reached past the new full action is then clipped to it.
     """
     a, b = source.action, spec.action
-    same_action = dataclasses.replace(a, scale=b.scale, offset=b.offset) == b
-    rest = dataclasses.replace(source, action=b).to_json() == spec.to_json()
-    if not (same_action and rest) or a.reference == "current":
+    aligned = dataclasses.replace(
+        source, action=dataclasses.replace(a, scale=b.scale, offset=b.offset)
+    )
+    if aligned.to_json() != spec.to_json() or a.reference == "current":
         return None
     s_old, o_old = np.asarray(a.scale), np.asarray(a.offset)
     s_new, o_new = np.asarray(b.scale), np.asarray(b.offset)

@@ -177,3 +177,28 @@ def collision_pair_nesting(robot: Robot, model: mujoco.MjModel | None = None):
                 elif descends(m, bodies[k], bodies[j]):
                     nest[p, j, k] = 1
     return order, nest
+
+
+def inertia_bound(robot: Robot, model: mujoco.MjModel | None = None) -> np.ndarray:
+    """(n,) kg m^2, bound of each joint's own inertia (the diagonal of the joint-space mass matrix)
+    over all configurations: its armature plus, over the bodies beyond the joint, each body's mass
+    times its centre of mass's chain lever squared (the lever of :func:`motion_bounds`) plus the
+    largest principal moment of its inertia.
+
+    Args:
+        robot: The robot (joint names).
+        model: The MuJoCo model; default ``robot.mj_model``.
+    """
+    m = robot.mj_model if model is None else model
+    chain = chain_lengths(m)
+    anchor = anchor_offset(m)
+    bound = np.zeros(robot.n_joints)
+    for i, name in enumerate(robot.joint_names):
+        j = m.joint(name).id
+        jb = m.jnt_bodyid[j]
+        bound[i] = m.dof_armature[m.jnt_dofadr[j]]
+        for b in range(1, m.nbody):
+            if descends(m, b, jb):
+                lever = chain[b] - chain[jb] + np.linalg.norm(m.body_ipos[b]) + anchor
+                bound[i] += m.body_mass[b] * lever**2 + float(m.body_inertia[b].max())
+    return bound

@@ -113,7 +113,7 @@ class Supervision:
         the policy's state reset."""
         self.mode[envs] = RAMP_IN
         self.cause[envs] = -1
-        self.guard.reset(q, envs=envs)
+        self.guard.reset(q, envs=envs, drives=False)  # the drives ran on through the stop
         self.smoother.sync(q, self.at_rest, envs=envs)
         self.reset_policy(envs)
 

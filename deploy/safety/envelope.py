@@ -147,8 +147,12 @@ class MotionEnvelope:
         gravity_bound,
         reach=np.inf,
         margin=None,
+        drive=None,
     ):
         self.robot, self.envs = robot, envs
+        #: the velocity drives' model (:class:`deploy.safety.drive.VelocityDrive`), or None for
+        #: position servos, whose command path is the motion
+        self.drive = drive
         n = robot.n_joints
         s = robot.config.safety
         self.model = robot.fixed_base_model
@@ -225,6 +229,13 @@ class MotionEnvelope:
         self.unsafe = np.zeros((2, envs), dtype=bool)
         self.joints = np.zeros((envs, n), dtype=bool)
         self._dirty = False
+        #: (envs, n) rad, how far a joint may stray from the certified path (0: a position servo)
+        self._slack = np.zeros((envs, n))
+        #: (envs, n) rad, signed: how far past the brake's rest a joint may run (a velocity
+        #: drive's lead, :meth:`deploy.safety.drive.VelocityDrive.lead`; 0: a position servo)
+        self._lead = np.zeros((envs, n))
+        # a velocity drive's path: the smoother's state with its equilibrium as the position
+        self._drive_path = np.zeros((2, 3, envs, n))
         ek.warm_up()
 
     # ------------------------------------------------------------------ exact queries
@@ -281,11 +292,14 @@ class MotionEnvelope:
             self.unsafe.fill(False)
             self.joints.fill(False)
             self._dirty = False
+        if self.drive is not None:
+            before, after = self._drive_motion(q, before, after, effort_scale)
         box, need = self._box, self._need
         if not ek.envelope_screen(
             q, before, after, stopping, self.limits, effort_scale, self._cached_q,
             self._clearance, self.weights, self.margin, box, need, *self.tables.arrays(),
-            self._speeds, self.local.order, self.local.nest,
+            self._speeds, self.local.order, self.local.nest, self._slack,
+            self._lead,
         ):  # fmt: skip
             return False
         c, h = box[0], box[1]
@@ -309,6 +323,32 @@ class MotionEnvelope:
         self._dirty = bool(self.unsafe.any())
         return self._dirty
 
+    def _drive_motion(self, q, before, after, effort_scale):
+        """A velocity drive's motion (:mod:`deploy.safety.drive`): the smoother's state before and
+        after its step with the drives' equilibrium in place of the smoother's position (before:
+        where the joints rest if the commands stop now; after: once the step's command has been
+        integrated), and the drives' slack (:attr:`_slack`). Returns ``(before, after)``
+        (3, envs, n) each."""
+        drive = self.drive
+        drive.settle(q, effort_scale)
+        path = self._drive_path
+        np.copyto(path[0], before)
+        np.copyto(path[1], after)
+        path[0, 0] = drive.equilibrium(q)
+        np.clip(path[0, 0] + after[1] * drive.dt, drive.lower, drive.upper, out=path[1, 0])
+        self._slack[:] = drive.slack(after[1])
+        g, floor = self.limits[2], self.limits[3]
+        share = np.clip((effort_scale - g) / np.where(g < 1.0, 1.0 - g, 1.0), floor, 1.0)
+        self._lead[:] = drive.lead(after[1], after[2], share, effort_scale)
+        return path[0], path[1]
+
+    def commit(self, command: np.ndarray) -> None:
+        """The tick's final ``command`` (envs, n), as written to the drives: a velocity drive's
+        integrators take it (:meth:`deploy.safety.drive.VelocityDrive.integrate`); nothing for
+        a position servo."""
+        if self.drive is not None:
+            self.drive.integrate(command)
+
     def _mark_joints(self, kind: int, e: int, centre, half, value) -> None:
         """Mark in :attr:`joints` the joints of env ``e`` that move a quantity of ``kind`` the
         box could not certify (a pair's weight, or the end effector's lever, above zero): only
@@ -323,7 +363,9 @@ class MotionEnvelope:
         (:meth:`_escapes_contact`, :meth:`_escapes_box`)."""
         start, end, box = before[0, e], after[0, e], self._box[:, e]
         rest, share, reversal = box[2], box[3], box[4]
-        if self._path_certified(kind, q[e], start, end, after[1, e], after[2, e], share, reversal):
+        if self._path_certified(
+            kind, q[e], start, end, after[1, e], after[2, e], share, reversal, self._slack[e]
+        ):
             return True
         if kind == ek.COLLISION:
             return self._escapes_contact(start, end, rest)
@@ -376,7 +418,7 @@ class MotionEnvelope:
         return bool(np.all(bound > self.margin))
 
     def _path_certified(
-        self, kind: int, q, start, end, velocity, acceleration, share, reversal
+        self, kind: int, q, start, end, velocity, acceleration, share, reversal, widen
     ) -> bool:
         """Whether the motion is safe segment by segment: the step (``start`` to ``end``, with
         the estimate ``q``), then the brake from ``end`` at ``velocity``, ``acceleration`` (n,)
@@ -403,7 +445,12 @@ class MotionEnvelope:
         # the joints lag their command (a position servo): each segment also holds the points
         # up to the present lag behind it
         slack = reversal + np.abs(q - start)
-        segments = [(np.minimum(np.minimum(q, start), end), np.maximum(np.maximum(q, start), end))]
+        segments = [
+            (
+                np.minimum(np.minimum(q, start), end) - widen,
+                np.maximum(np.maximum(q, start), end) + widen,
+            )
+        ]
         for a, b in zip(points[:-1], points[1:], strict=True):
             segments.append((np.minimum(a, b) - slack, np.maximum(a, b) + slack))
         for lo, hi in segments:

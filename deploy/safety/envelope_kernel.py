@@ -182,6 +182,8 @@ def envelope_screen(
     speeds: np.ndarray,
     order: np.ndarray,
     nest: np.ndarray,
+    slack: np.ndarray,
+    lead: np.ndarray,
 ) -> bool:
     """The box of every env not ``stopping`` ((envs,) bool), and whether the cache certifies it.
 
@@ -191,8 +193,12 @@ def envelope_screen(
     load's share of each effort limit and the smallest brake headroom assumed. The brake
     decelerates at the acceleration limit times :func:`brake_headroom` of ``effort_scale``
     (envs, n), the thermal derating. Writes ``box`` (5, envs, n): centre, half-width, the
-    brake's rest point, that headroom and how far the brake may carry the joint back past rest
-    (``back`` of :func:`brake_reach`, as a distance).
+    brake's rest point, that headroom and how far the joint may stray from the path: the brake's
+    reversal past rest (``back`` of :func:`brake_reach`, as a distance) plus ``slack`` (envs, n)
+    rad, the drive's own (0 for a position servo; a velocity drive's lead, sag and friction,
+    :meth:`deploy.safety.drive.VelocityDrive.slack`), by which the box is widened on each side;
+    the box also holds the rest point moved by ``lead`` (envs, n) rad, signed (a velocity drive
+    running ahead of its braking integrator, :meth:`deploy.safety.drive.VelocityDrive.lead`).
 
     The screen marks ``need[row, e]`` (rows ``COLLISION``, ``WORKSPACE``) where the cache cannot
     certify the box: ``cached_q`` (2, envs, n) rad the configurations of the last exact queries
@@ -227,9 +233,10 @@ def envelope_screen(
             p0, p = before[0, e, i], after[0, e, i]
             box[2, e, i] = p + forward
             box[3, e, i] = share
-            box[4, e, i] = abs(back)
-            lo = min(q[e, i], p0, p, p + forward, p + back)
-            hi = max(q[e, i], p0, p, p + forward, p + back)
+            box[4, e, i] = abs(back) + slack[e, i] + abs(lead[e, i])
+            ahead = p + forward + lead[e, i]
+            lo = min(q[e, i], p0, p, p + forward, p + back, ahead) - slack[e, i]
+            hi = max(q[e, i], p0, p, p + forward, p + back, ahead) + slack[e, i]
             box[0, e, i] = 0.5 * (lo + hi)
             box[1, e, i] = 0.5 * (hi - lo)
         for r in range(rows):
@@ -270,7 +277,8 @@ def warm_up() -> None:
         np.zeros((5, 1, 2)), np.zeros((2, 1), dtype=bool),
         np.full((1, 2), -1, dtype=np.int64), np.ones((1, 2, 3)), np.ones((1, 2), dtype=np.int64),
         np.full((1, 1), -1, dtype=np.int64), np.zeros(0),  # no pair table
-        np.zeros((1, 1, 2)), np.arange(2), np.zeros((1, 2, 2), dtype=np.int8),
+        np.zeros((1, 1, 2)), np.arange(2), np.zeros((1, 2, 2), dtype=np.int8), np.zeros((1, 2)),
+        np.zeros((1, 2)),
     )  # fmt: skip
     pairs_reach(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros(2), np.arange(2),
                 np.zeros((1, 2, 2), dtype=np.int8), np.zeros(1))  # fmt: skip

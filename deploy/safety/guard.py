@@ -45,6 +45,7 @@ from deploy.safety.check import (
 )
 from deploy.safety.checks import CHECKS, GUARD_CHECKS, row
 from deploy.safety.collision import collision_model, collision_query
+from deploy.safety.drive import VelocityDrive
 from deploy.safety.envelope import MotionEnvelope
 from deploy.state import RobotState
 from deploy.stateful import put, take
@@ -137,9 +138,10 @@ class SafetyGuard:
         if s.workspace_min is None:  # no workspace box (a legged robot): never screened
             self._ws_margin[:] = np.inf
         #: the motion envelope (:mod:`deploy.safety.envelope`): checks the smoother's step after it
-        #: (:meth:`check_motion`); position mode and a fixed base only (deploy.safety.envelope)
+        #: (:meth:`check_motion`); position and velocity mode (the drives' model,
+        #: :mod:`deploy.safety.drive`), a fixed base only
         self.envelope = None
-        if mode == "position" and not robot.floating_base:
+        if mode in ("position", "velocity") and not robot.floating_base:
             reach = end_effector_reach(robot) if s.workspace_min is not None else np.inf
             self.envelope = MotionEnvelope(
                 robot,
@@ -150,6 +152,7 @@ class SafetyGuard:
                 self.gravity_bound,
                 reach,
                 s.clearance_margin,
+                VelocityDrive(robot, envs) if mode == "velocity" else None,
             )
         self._geometric_rows = [row("self_collision"), row("workspace")]
         self._counted = np.zeros((2, envs), dtype=np.int64)  # those rows when filter began
@@ -211,14 +214,20 @@ class SafetyGuard:
             gk.guard_filter(0, out, zeros, zeros, zeros, False, copies)
             gk.guard_filter(1, out, zeros, zeros, zeros, False, copies)
 
-    def reset(self, q: np.ndarray, envs: np.ndarray | None = None) -> None:
+    def reset(self, q: np.ndarray, envs: np.ndarray | None = None, drives: bool = True) -> None:
         """Start from measured positions ``q`` (envs, n): they become the hold target.
 
-        ``envs``: optional boolean mask (envs,) of the envs to reset; default all.
+        ``envs``: optional boolean mask (envs,) of the envs to reset; default all. ``drives``:
+        the drives were (re-)enabled at ``q`` (a start, a new episode): a velocity drive's
+        integrator starts there (:meth:`deploy.safety.drive.VelocityDrive.reset`); False when
+        the drives ran on (a resume after a safe stop), so the model keeps what they integrated.
         """
         which = slice(None) if envs is None else np.asarray(envs, dtype=bool)
         self._last_valid[which] = q[which]
         self.hard_violation[which] = False
+        drive = self.envelope.drive if self.envelope is not None else None
+        if drives and drive is not None:
+            drive.reset(q, envs)
 
     def _state_fields(self) -> dict[str, np.ndarray]:
         fields = {f"counts/{name}": values for name, values in self.counts.items()}
@@ -231,6 +240,8 @@ class SafetyGuard:
             collision_q=self._col_q,
             pair_clearance=self._pair_clearance,
         )
+        if self.envelope is not None and self.envelope.drive is not None:
+            fields["drive_setpoint"] = self.envelope.drive.setpoint
         return fields
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
@@ -238,8 +249,10 @@ class SafetyGuard:
         (envs,) int64, ``hard_violation`` (envs,) bool, ``effort_scale`` (envs, n),
         ``last_valid`` (envs, n) the hold target (rad in position mode), and the screens' caches
         (``workspace_q``, ``collision_q`` (envs, n) rad; ``workspace_margin`` (envs,) m;
-        ``pair_clearance`` (envs, pairs) m, each collision pair's distance); the env axis has
-        length 1 for one env ``env``."""
+        ``pair_clearance`` (envs, pairs) m, each collision pair's distance), in velocity mode
+        ``drive_setpoint`` (envs, n) rad, the drives' integrators
+        (:class:`deploy.safety.drive.VelocityDrive`); the env axis has length 1 for one env
+        ``env``."""
         return take(self._state_fields(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
@@ -349,21 +362,23 @@ class SafetyGuard:
             ``command``.
         """
         envelope = self.envelope
-        if envelope is None or not envelope.check(
+        if envelope is None:
+            return command
+        if envelope.check(
             state.q,
             smoother.before,
             smoother.trajectory,
             smoother.stopping,
             self.effort_scale,
         ):
-            return command
-        unsafe = envelope.unsafe
-        braked = unsafe[0] | unsafe[1]
-        for k, r in enumerate(self._geometric_rows):
-            first = unsafe[k] & (self.count_matrix[r] == self._counted[k])
-            self.count_matrix[r] += first
-        smoother.brake(braked, envelope.joints)
-        command[braked] = smoother.command[braked]
+            unsafe = envelope.unsafe
+            braked = unsafe[0] | unsafe[1]
+            for k, r in enumerate(self._geometric_rows):
+                first = unsafe[k] & (self.count_matrix[r] == self._counted[k])
+                self.count_matrix[r] += first
+            smoother.brake(braked, envelope.joints)
+            command[braked] = smoother.command[braked]
+        envelope.commit(command)
         return command
 
     def _hold(self, e: int, q: np.ndarray, dq: np.ndarray, out: np.ndarray) -> None:

@@ -1,0 +1,163 @@
+"""The guard's model of a velocity-mode drive: where its PI loop will take the joint.
+
+A velocity drive is not a speed source. Its PI velocity loop (robot.toml's ``kp``, ``kd``; the
+plant's, :meth:`robots.Robot.mjspec`) is
+
+    tau = kd (v_cmd - dq) + kp (s - q),     s' = v_cmd,
+
+with ``s`` the integral of the commands (the loop's integrator, started at the pose when the
+drive is enabled, kept within ``effort_limit / kp`` of the joint by its anti-windup and within
+the joint's range). Written for the lag ``e = s - q``, the joint is a position servo with
+velocity feed-forward:
+
+    e'' + (kd / M) e' + (kp / M) e = a_cmd - d / M,
+
+``M`` the joint's inertia, ``d`` gravity, friction and the other joints' coupling. Wherever the
+commands stop, the joint comes to rest where its lag balances gravity, ``q = s - g(q) / kp``
+(:meth:`VelocityDrive.equilibrium`); while the commands brake at ``a`` it runs ahead of ``s``
+by up to ``M a / kp`` (the lead), and the loop's anti-windup never lets ``|e|`` exceed
+``effort_limit / kp``. So the motion a velocity command commits the robot to is the path of the
+equilibrium ``s - g / kp`` (the integral of the smoother's commands and of its brake), widened
+by the lead, the uncertainty of the gravity load and the dry friction the loop must overcome
+(:meth:`VelocityDrive.slack`). The motion envelope (:mod:`deploy.safety.envelope`) certifies
+that, as it certifies the command path of a position servo.
+
+The runtime does not see ``s``; it integrates its own commands as the drive does
+(:meth:`VelocityDrive.integrate`), with the same anti-windup on the estimated pose: the model is
+exact up to the estimate's error wherever the anti-windup clamps.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from deploy.stateful import put, take
+from robots import Robot
+from robots.chain_bounds import inertia_bound
+
+#: Share of each joint's gravity torque the guard does not trust (our choice): the soak
+#: randomizes link masses +-20 % and actuator strength +-10 % (``eval.world.dynamics``).
+GRAVITY_UNCERTAINTY = 0.3
+#: Multiple of the model's dry friction (``frictionloss``) the drive may have to overcome (our
+#: choice): the soak's +-50 % and its drift of up to 6 % per hour over 8 hours.
+FRICTION_FACTOR = 3.0
+
+
+class VelocityDrive:
+    """The guard's model of ``envs`` velocity drives' PI loops (module docstring).
+
+    Args:
+        robot: The robot (``kp``, ``kd`` per joint, the effort and acceleration limits, the
+            control period, the MJCF's dry friction).
+        envs: Batch size.
+
+    Attributes:
+        setpoint: (envs, n) rad, each drive's integrator ``s``: the integral of the commands
+            since :meth:`reset`, kept within the joint's range and within ``effort_limit / kp``
+            of the estimated pose.
+        kp: (n,) N m/rad; kd (n,) N m s/rad; from robot.toml.
+        inertia: (n,) kg m^2, :func:`robots.chain_bounds.inertia_bound`.
+
+    Raises:
+        RobotSpecError: (from the robot) a joint without ``kp`` (a velocity drive needs it).
+    """
+
+    def __init__(self, robot: Robot, envs: int):
+        self.robot, self.envs = robot, envs
+        n = robot.n_joints
+        self.dt = robot.control_period
+        self.kp = np.array([j.kp for j in robot.config.joints], dtype=float)
+        self.kd = np.array([j.kd for j in robot.config.joints], dtype=float)
+        self.inertia = inertia_bound(robot)
+        m = robot.mj_model
+        dofs = [m.jnt_dofadr[m.joint(name).id] for name in robot.joint_names]
+        self.friction = FRICTION_FACTOR * np.asarray(m.dof_frictionloss[dofs], dtype=float)
+        self.lower, self.upper = robot.position_lower, robot.position_upper
+        self.setpoint = np.tile(np.asarray(robot.home, dtype=float), (envs, 1))
+        self._model = robot.fixed_base_model
+        self._data = self._model.createData()
+        self._sag = np.zeros((envs, n))
+        self._bound = np.zeros((envs, n))
+
+    def reset(self, q: np.ndarray, envs: np.ndarray | None = None) -> None:
+        """The drives of ``envs`` (bool mask (envs,), default all) enabled at the estimated pose
+        ``q`` (envs, n) rad: the integrator starts there."""
+        which = slice(None) if envs is None else np.asarray(envs, dtype=bool)
+        self.setpoint[which] = q[which]
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """``setpoint`` (envs, n) rad (a copy; the env axis has length 1 for one env ``env``)."""
+        return take({"setpoint": self.setpoint}, env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict`.
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        put({"setpoint": self.setpoint}, state, env)
+
+    def windup_bound(self, effort_scale: np.ndarray) -> np.ndarray:
+        """(envs, n) rad, the largest lag ``|s - q|`` the anti-windup allows: the (derated)
+        effort limit over ``kp``; a view reused per call."""
+        np.multiply(effort_scale, self.robot.effort_limit / self.kp, out=self._bound)
+        return self._bound
+
+    def equilibrium(self, q: np.ndarray) -> np.ndarray:
+        """(envs, n) rad, where each joint comes to rest if the commands stop now: the setpoint
+        less the gravity sag ``g(q) / kp`` at the estimated pose ``q`` (envs, n) (Pinocchio's
+        gravity torque at the nominal masses); a new array."""
+        for e in range(self.envs):
+            self._sag[e] = self.gravity(q[e])
+        return self.setpoint - self._sag / self.kp
+
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """(n,) N m, the gravity torque at ``q`` (n,) rad; a view reused per call."""
+        import pinocchio as pin
+
+        return pin.computeGeneralizedGravity(self._model, self._data, q)
+
+    def slack(self, velocity: np.ndarray) -> np.ndarray:
+        """(envs, n) rad, how far a joint may stray either way from the path of its equilibrium
+        (:meth:`equilibrium`): the untrusted share of the gravity sag (of the last
+        :meth:`equilibrium`), the dry friction over ``kp``, and one period of the commanded
+        ``velocity`` (envs, n) rad/s (the drive holds each command for a period; the smoother's
+        position integrates it continuously). A new array."""
+        slack = GRAVITY_UNCERTAINTY * np.abs(self._sag) / self.kp
+        slack += self.friction / self.kp
+        slack += np.abs(velocity) * self.dt
+        return slack
+
+    def lead(
+        self, velocity: np.ndarray, acceleration: np.ndarray, share: np.ndarray, effort_scale
+    ) -> np.ndarray:
+        """(envs, n) rad, signed: how far past the brake's rest point a joint runs ahead of its
+        integrator while the smoother brakes it from ``velocity`` (rad/s) and ``acceleration``
+        (rad/s^2), (envs, n) each, at the acceleration limit times ``share`` (envs, n) (a
+        derated drive's headroom): ``inertia * a_peak / kp`` in the direction of the motion,
+        ``a_peak`` the brake's peak deceleration (the limit, or ``sqrt(v j)`` for a brake too
+        short to reach it, ``v`` the speed once the acceleration toward the motion is ramped
+        down), never above the anti-windup's bound at the drives' derating ``effort_scale``
+        (envs, n). A new array."""
+        j = self.robot.jerk_limit
+        sign = np.where(velocity != 0.0, np.sign(velocity), np.sign(acceleration))
+        toward = np.maximum(acceleration * sign, 0.0)
+        v_eff = np.abs(velocity) + toward * toward / (2.0 * j)
+        amax = self.robot.acceleration_limit * share
+        peak = np.minimum(amax, np.sqrt(v_eff * j))
+        lead = np.minimum(self.inertia * peak / self.kp, self.windup_bound(effort_scale))
+        return sign * lead
+
+    def settle(self, q: np.ndarray, effort_scale: np.ndarray) -> None:
+        """The anti-windup of the period just ended: each integrator within the (derated)
+        ``effort_limit / kp`` of the estimated pose ``q`` (envs, n) rad, as the drive keeps it
+        of the true one."""
+        bound = self.windup_bound(effort_scale)
+        np.clip(self.setpoint, q - bound, q + bound, out=self.setpoint)
+
+    def integrate(self, command: np.ndarray) -> None:
+        """One control period of the integrators under ``command`` (envs, n) rad/s, within the
+        joints' range."""
+        s = self.setpoint
+        s += command * self.dt
+        np.clip(s, self.lower, self.upper, out=s)

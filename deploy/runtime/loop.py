@@ -159,8 +159,13 @@ class Runtime(RuntimeState):
         # velocity mode: the position the commands integrate to (Ruckig's state), else None
         self._commanded = self.smoother.position if self.mode_name == "velocity" else None
         #: the estimator's control input: the acceleration commanded over the last period (the
-        #: smoother's trajectory); torque mode commands no motion, the filter runs without one
-        self._input = None if self.mode_name == "torque" else self.smoother.mean_acceleration
+        #: smoother's trajectory; in torque mode the forward dynamics of the torque at the
+        #: estimate, the guard's :class:`deploy.safety.torque_drive.TorqueDrive`, and none for a
+        #: floating base)
+        self._input = self.smoother.mean_acceleration
+        if self.mode_name == "torque":
+            envelope = self.guard.envelope
+            self._input = envelope.torque.acceleration if envelope is not None else None
         # latency histograms' bins (deploy.observe.telemetry)
         self._bins = np.array([BIN_NS, BINS], dtype=np.int64)
         #: the backend's ``damp(envs)`` (drivers with their own damping mode, e.g. a Unitree

@@ -148,11 +148,17 @@ class MotionEnvelope:
         reach=np.inf,
         margin=None,
         drive=None,
+        torque=None,
     ):
         self.robot, self.envs = robot, envs
         #: the velocity drives' model (:class:`deploy.safety.drive.VelocityDrive`), or None for
         #: position servos, whose command path is the motion
         self.drive = drive
+        #: torque mode's motion and brake (:class:`deploy.safety.torque_drive.TorqueDrive`), or
+        #: None: a smoother's trajectory is the motion
+        self.torque = torque
+        #: (envs,) bool, torque mode: the envs whose motion box left a soft joint limit
+        self.beyond = np.zeros(envs, dtype=bool)
         n = robot.n_joints
         s = robot.config.safety
         self.model = robot.fixed_base_model
@@ -173,6 +179,8 @@ class MotionEnvelope:
                 np.full(n, MIN_HEADROOM),
             ]
         )
+        if torque is not None:  # the guard's computed-torque stop, not the smoother's brake
+            self.limits[:2] = torque.brake_limits
         #: (pairs,) bool, the pairs the joints between their links cannot bring into contact
         #: (:func:`deploy.safety.pair_grid.pairs_kept_apart`): left out of the certification (their
         #: distance reads as infinite), so a gripper's jaw closing next to its wrist brakes nothing
@@ -224,7 +232,7 @@ class MotionEnvelope:
         inp.control_interface = ControlInterface.Velocity
         inp.synchronization = Synchronization.No
         inp.max_velocity = 2.0 * np.asarray(robot.velocity_limit)
-        inp.max_jerk = robot.jerk_limit
+        inp.max_jerk = self.limits[1]
         inp.target_velocity = inp.target_acceleration = np.zeros(n)
         self.unsafe = np.zeros((2, envs), dtype=bool)
         self.joints = np.zeros((envs, n), dtype=bool)
@@ -273,7 +281,7 @@ class MotionEnvelope:
         return np.minimum(ee - self.ws_min, self.ws_max - ee)
 
     # ------------------------------------------------------------------ the check
-    def check(self, q, before, after, stopping, effort_scale) -> bool:
+    def check(self, q, before, after, stopping, effort_scale, dq=None, command=None) -> bool:
         """Find the envs whose committed motion is not certified safe: :attr:`unsafe`.
 
         Args:
@@ -283,6 +291,9 @@ class MotionEnvelope:
             after: (3, envs, n) the same after it (``CommandSmoother.trajectory``).
             stopping: (envs,) bool, the envs braking to a stop already (not checked).
             effort_scale: (envs, n), the drives' thermal derating (the guard's).
+            dq: (envs, n) rad/s, the estimated joint velocities; torque mode only.
+            command: (envs, n) N m, the step's torque; torque mode only (``before`` and
+                ``after`` are then unused: the smoother has no trajectory).
 
         Returns:
             Whether any env is unsafe (:attr:`unsafe`, (2, envs) bool, rows collision and
@@ -291,8 +302,12 @@ class MotionEnvelope:
         if self._dirty:
             self.unsafe.fill(False)
             self.joints.fill(False)
+            self.beyond.fill(False)
             self._dirty = False
-        if self.drive is not None:
+        if self.torque is not None:
+            before, after, slack = self.torque.motion(q, dq, command)
+            np.copyto(self._slack, slack)
+        elif self.drive is not None:
             before, after = self._drive_motion(q, before, after, effort_scale)
         box, need = self._box, self._need
         if not ek.envelope_screen(
@@ -301,7 +316,14 @@ class MotionEnvelope:
             self._speeds, self.local.order, self.local.nest, self._slack,
             self._lead,
         ):  # fmt: skip
-            return False
+            if self.torque is None or not self.torque.beyond_limits(box, self.beyond).any():
+                return False
+            self.beyond &= ~stopping
+            self._dirty = bool(self.beyond.any())
+            return self._dirty
+        if self.torque is not None:
+            self.torque.beyond_limits(box, self.beyond)
+            self.beyond &= ~stopping
         c, h = box[0], box[1]
         for e in np.flatnonzero(need[ek.COLLISION]):
             d = self._clearance[e, : self.pairs]
@@ -320,7 +342,7 @@ class MotionEnvelope:
                 if not self._passes(ek.WORKSPACE, e, q, before, after):
                     self.unsafe[ek.WORKSPACE, e] = True
                     self._mark_joints(ek.WORKSPACE, e, c[e], h[e], inside)
-        self._dirty = bool(self.unsafe.any())
+        self._dirty = bool(self.unsafe.any() or self.beyond.any())
         return self._dirty
 
     def _drive_motion(self, q, before, after, effort_scale):
@@ -344,10 +366,13 @@ class MotionEnvelope:
 
     def commit(self, command: np.ndarray) -> None:
         """The tick's final ``command`` (envs, n), as written to the drives: a velocity drive's
-        integrators take it (:meth:`deploy.safety.drive.VelocityDrive.integrate`); nothing for
-        a position servo."""
+        integrators take it (:meth:`deploy.safety.drive.VelocityDrive.integrate`), torque mode
+        its acceleration (:meth:`deploy.safety.torque_drive.TorqueDrive.commit`); nothing for a
+        position servo."""
         if self.drive is not None:
             self.drive.integrate(command)
+        elif self.torque is not None:
+            self.torque.commit(command)
 
     def _mark_joints(self, kind: int, e: int, centre, half, value) -> None:
         """Mark in :attr:`joints` the joints of env ``e`` that move a quantity of ``kind`` the

@@ -47,6 +47,7 @@ from deploy.safety.checks import CHECKS, GUARD_CHECKS, row
 from deploy.safety.collision import collision_model, collision_query
 from deploy.safety.drive import VelocityDrive
 from deploy.safety.envelope import MotionEnvelope
+from deploy.safety.torque_drive import TorqueDrive
 from deploy.state import RobotState
 from deploy.stateful import put, take
 from robots import Robot
@@ -141,7 +142,7 @@ class SafetyGuard:
         #: (:meth:`check_motion`); position and velocity mode (the drives' model,
         #: :mod:`deploy.safety.drive`), a fixed base only
         self.envelope = None
-        if mode in ("position", "velocity") and not robot.floating_base:
+        if not robot.floating_base:
             reach = end_effector_reach(robot) if s.workspace_min is not None else np.inf
             self.envelope = MotionEnvelope(
                 robot,
@@ -153,9 +154,12 @@ class SafetyGuard:
                 reach,
                 s.clearance_margin,
                 VelocityDrive(robot, envs) if mode == "velocity" else None,
+                TorqueDrive(robot, envs) if mode == "torque" else None,
             )
-        self._geometric_rows = [row("self_collision"), row("workspace")]
-        self._counted = np.zeros((2, envs), dtype=np.int64)  # those rows when filter began
+        # the rows the motion envelope counts in: its collision and workspace rows, then torque
+        # mode's joint limits (the velocity governor's row)
+        self._geometric_rows = [row("self_collision"), row("workspace"), row("velocity")]
+        self._counted = np.zeros((3, envs), dtype=np.int64)  # those rows when filter began
         self._move = np.zeros(envs)
         self._held = np.zeros(envs, dtype=bool)
         self.screen_margin = SCREEN_MARGIN
@@ -318,8 +322,8 @@ class SafetyGuard:
             out = target.copy()
         elif out is not target:
             np.copyto(out, target)
-        self._counted[0] = self.count_matrix[self._geometric_rows[0]]
-        self._counted[1] = self.count_matrix[self._geometric_rows[1]]
+        for k, r in enumerate(self._geometric_rows):
+            self._counted[k] = self.count_matrix[r]
         return self._filter(state.q, state.dq, commanded_position, out)
 
     def _filter(self, q: np.ndarray, dq: np.ndarray, commanded: np.ndarray | None, out):
@@ -370,14 +374,22 @@ class SafetyGuard:
             smoother.trajectory,
             smoother.stopping,
             self.effort_scale,
+            dq=state.dq,
+            command=command,
         ):
             unsafe = envelope.unsafe
-            braked = unsafe[0] | unsafe[1]
-            for k, r in enumerate(self._geometric_rows):
-                first = unsafe[k] & (self.count_matrix[r] == self._counted[k])
+            braked = unsafe[0] | unsafe[1] | envelope.beyond
+            for k, (r, fired) in enumerate(
+                zip(self._geometric_rows, (unsafe[0], unsafe[1], envelope.beyond), strict=True)
+            ):
+                first = fired & (self.count_matrix[r] == self._counted[k])
                 self.count_matrix[r] += first
-            smoother.brake(braked, envelope.joints)
-            command[braked] = smoother.command[braked]
+            if envelope.torque is not None:  # the computed-torque stop; the rate limit follows
+                envelope.torque.brake(state.q, state.dq, self.effort_scale, braked, command)
+                smoother.sync(state.q, state.dq, envs=braked, effort=command)
+            else:
+                smoother.brake(braked, envelope.joints)
+                command[braked] = smoother.command[braked]
         envelope.commit(command)
         return command
 

@@ -1,0 +1,123 @@
+"""The guard's model of torque mode: the motion a torque command commits the robot to, and the
+brake that ends it.
+
+A torque command has no trajectory: the plant integrates it. What it commits the robot to is one
+control period under that torque (the joints' acceleration from Pinocchio's forward dynamics at
+the estimated state, :meth:`TorqueDrive.motion`) and then the brake the guard can always apply:
+a computed-torque stop (:meth:`TorqueDrive.brake`), ``tau = M(q) a + C(q, dq) dq + g(q)`` with
+each joint decelerating at its acceleration limit (times the derated drive's headroom) until it
+rests, which takes the coupling between the joints out of the stop. The motion envelope
+(:mod:`deploy.safety.envelope`) certifies that motion as it certifies a servo's command path
+(the brake's deceleration taken at :data:`BRAKE_TRUST` of the commanded one, for the masses and
+friction the model does not know), and the same box must stay inside the soft joint limits
+(:meth:`TorqueDrive.beyond_limits`). A step whose motion cannot be certified is replaced by the
+brake; the next tick's step starts from it (the smoother's rate limit follows).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from robots import Robot
+
+#: Share of the commanded deceleration the guard counts on (our choice): the soak randomizes link
+#: masses +-20 % and actuator strength +-10 %; the computed torque assumes the nominal masses.
+BRAKE_TRUST = 0.7
+#: Share of the step's acceleration by which the true one may differ from the model's (our
+#: choice, as :data:`BRAKE_TRUST`).
+STEP_UNCERTAINTY = 0.3
+#: A jerk limit for the envelope's brake, rad/s^3: a torque steps within a current loop's period
+#: (~1 ms), so the brake's deceleration is taken as immediate (our choice: large, finite for
+#: Ruckig's path in :meth:`deploy.safety.envelope.MotionEnvelope._path_certified`).
+STEP_JERK = 1.0e6
+
+
+class TorqueDrive:
+    """Torque mode's motion and brake for ``envs`` robots (module docstring).
+
+    Args:
+        robot: The robot (acceleration, velocity and effort limits, soft joint limits, control
+            period, the nominal dynamics of its MJCF through Pinocchio).
+        envs: Batch size.
+
+    Attributes:
+        deceleration: (n,) rad/s^2, the brake's commanded deceleration at full effort: the
+            acceleration limits (robot.toml, sized against the worst gravity load).
+        brake_limits: (2, n) the deceleration the envelope counts on (:data:`BRAKE_TRUST` of
+            ``deceleration``) and :data:`STEP_JERK`: the envelope's brake.
+    """
+
+    def __init__(self, robot: Robot, envs: int):
+        self.robot, self.envs = robot, envs
+        n = robot.n_joints
+        self.dt = robot.control_period
+        self.deceleration = np.asarray(robot.acceleration_limit, dtype=float)
+        self.brake_limits = np.stack([BRAKE_TRUST * self.deceleration, np.full(n, STEP_JERK)])
+        self.lower, self.upper = robot.soft_lower, robot.soft_upper
+        self._model = robot.fixed_base_model
+        self._data = self._model.createData()
+        self.velocity_limit = np.asarray(robot.soft_velocity_limit, dtype=float)
+        self._path = np.zeros((2, 3, envs, n))
+        self._slack = np.zeros((envs, n))
+        self._acc = np.zeros((envs, n))
+        self._state = np.zeros((2, envs, n))
+        #: (envs, n) rad/s^2, the acceleration the last committed torque gives at the estimate
+        #: (:meth:`commit`): the joint estimator's control input in torque mode
+        self.acceleration = np.zeros((envs, n))
+
+    def motion(self, q, dq, command):
+        """The step's motion for the envelope: ``(before, after, slack)``, (3, envs, n) the
+        position, velocity and acceleration at the estimate (``q`` rad, ``dq`` rad/s) and one
+        period of ``command`` (envs, n) N m later (acceleration 0: the brake steps it), and
+        (envs, n) rad the slack of the step's unknown share (:data:`STEP_UNCERTAINTY` of its
+        displacement by acceleration); views reused per call."""
+        dt, acc = self.dt, self._acc
+        self._state[0], self._state[1] = q, dq
+        for e in range(self.envs):
+            acc[e] = pin.aba(self._model, self._data, q[e], dq[e], command[e])
+        before, after = self._path
+        before[0], before[1], before[2] = q, dq, 0.0
+        np.multiply(acc, dt, out=after[1])
+        after[1] += dq
+        np.multiply(dq, dt, out=after[0])
+        after[0] += q
+        after[0] += 0.5 * dt * dt * acc
+        after[2] = 0.0
+        np.multiply(np.abs(acc), STEP_UNCERTAINTY * dt * dt, out=self._slack)
+        return before, after, self._slack
+
+    def beyond_limits(self, box: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """(envs,) bool into ``out``: the envs whose motion box (``box`` (5, envs, n) of the
+        envelope's kernel: centre, half-width, ...) leaves a soft joint limit (one already
+        outside may only move back: its bound is the estimate), or whose speed
+        after the step (of the last :meth:`motion`, with its unknown share) exceeds the soft
+        velocity limit."""
+        lo, hi = box[0] - box[1], box[0] + box[1]
+        # a joint already past a soft limit (pushed, or run out before) may move back, not on
+        q, slack = self._state[0], self._slack
+        lower = np.minimum(self.lower, q - slack)
+        upper = np.maximum(self.upper, q + slack)
+        speed = np.abs(self._path[1, 1]) + STEP_UNCERTAINTY * self.dt * np.abs(self._acc)
+        np.any((lo < lower) | (hi > upper) | (speed > self.velocity_limit), axis=1, out=out)
+        return out
+
+    def commit(self, command: np.ndarray) -> None:
+        """The tick's final torque ``command`` (envs, n) N m: :attr:`acceleration` at the
+        estimate of the last :meth:`motion`."""
+        q, dq = self._state
+        for e in range(self.envs):
+            self.acceleration[e] = pin.aba(self._model, self._data, q[e], dq[e], command[e])
+
+    def brake(self, q, dq, effort_scale, envs, out) -> None:
+        """The computed-torque stop of the envs of ``envs`` ((envs,) bool) into ``out`` (envs,
+        n) N m: each joint decelerates at ``deceleration`` times its drive's derating
+        ``effort_scale`` (envs, n) (never past rest within one period), ``tau = M(q) a +
+        C(q, dq) dq + g(q)`` (Pinocchio's RNEA at ``q`` rad, ``dq`` rad/s), clipped to the
+        derated effort limits."""
+        limit = self.robot.effort_limit
+        for e in np.flatnonzero(envs):
+            most = self.deceleration * effort_scale[e]
+            a = np.clip(-dq[e] / self.dt, -most, most)
+            tau = pin.rnea(self._model, self._data, q[e], dq[e], a)
+            np.clip(tau, -limit * effort_scale[e], limit * effort_scale[e], out=out[e])

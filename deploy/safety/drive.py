@@ -43,6 +43,30 @@ GRAVITY_UNCERTAINTY = 0.3
 FRICTION_FACTOR = 3.0
 
 
+#: Shares of each joint's inertia bound over which :func:`unwind_factor` takes its worst case
+#: (our choice: a joint's inertia changes with the pose; a lighter load unwinds faster).
+INERTIA_SHARES = (0.25, 0.5, 1.0)
+
+
+def unwind_factor(kp: np.ndarray, kd: np.ndarray, inertia: np.ndarray) -> np.ndarray:
+    """(n,) 1/s, the peak speed error per radian of lag of a PI velocity loop's free response,
+    ``max_t |e'(t)| / e(0)`` for ``M e'' + kd e' + kp e = 0`` from ``e(0) = 1``, ``e'(0) = 0``,
+    worst over ``M`` in :data:`INERTIA_SHARES` of ``inertia`` (n,) kg m^2; ``kp`` (n,) N m/rad,
+    ``kd`` (n,) N m s/rad. Integrated numerically (semi-implicit Euler, 4,000 steps over ten
+    undamped periods)."""
+    worst = np.zeros(len(kp))
+    for share in INERTIA_SHARES:
+        m = share * np.asarray(inertia, dtype=float)
+        omega = np.sqrt(kp / m)
+        dt = 10.0 * 2.0 * np.pi / omega / 4000.0
+        e, de = np.ones(len(kp)), np.zeros(len(kp))
+        for _ in range(4000):
+            de += dt * (-(kd * de + kp * e) / m)
+            e += dt * de
+            np.maximum(worst, np.abs(de), out=worst)
+    return worst
+
+
 class VelocityDrive:
     """The guard's model of ``envs`` velocity drives' PI loops (module docstring).
 
@@ -57,6 +81,7 @@ class VelocityDrive:
             of the estimated pose.
         kp: (n,) N m/rad; kd (n,) N m s/rad; from robot.toml.
         inertia: (n,) kg m^2, :func:`robots.chain_bounds.inertia_bound`.
+        unwind: (n,) 1/s, :func:`unwind_factor`.
 
     Raises:
         RobotSpecError: (from the robot) a joint without ``kp`` (a velocity drive needs it).
@@ -69,6 +94,11 @@ class VelocityDrive:
         self.kp = np.array([j.kp for j in robot.config.joints], dtype=float)
         self.kd = np.array([j.kd for j in robot.config.joints], dtype=float)
         self.inertia = inertia_bound(robot)
+        self.unwind = unwind_factor(self.kp, self.kd, self.inertia)
+        # (n, n) s: |a_j| rad/s^2 of joint j pushes joint i's speed by at most [j, i] * |a_j|
+        coupling = np.sqrt(np.outer(self.inertia, self.inertia)) / self.kd[None, :]
+        np.fill_diagonal(coupling, 0.0)
+        self._coupling = coupling
         m = robot.mj_model
         dofs = [m.jnt_dofadr[m.joint(name).id] for name in robot.joint_names]
         self.friction = FRICTION_FACTOR * np.asarray(m.dof_frictionloss[dofs], dtype=float)
@@ -147,6 +177,24 @@ class VelocityDrive:
         peak = np.minimum(amax, np.sqrt(v_eff * j))
         lead = np.minimum(self.inertia * peak / self.kp, self.windup_bound(effort_scale))
         return sign * lead
+
+    def overspeed(
+        self, q: np.ndarray, velocity: np.ndarray, acceleration: np.ndarray, out: np.ndarray
+    ) -> np.ndarray:
+        """(envs,) bool into ``out``: the envs where a joint commanded ``velocity`` (envs, n)
+        rad/s may run past its hard velocity limit as its loop unwinds the lag it carries
+        (the integrator ``s`` ahead of the estimate ``q`` (envs, n) rad in the direction of
+        the command): the peak speed error of the loop's free response from that lag,
+        :attr:`unwind` ``* |s - q|`` (an acceleration phase leaves that lag; ur5's first wrist
+        joint ran 12 % past its command after one), plus the speed the other joints' commanded
+        ``acceleration`` (envs, n) rad/s^2 pushes it by through the mass matrix's coupling
+        (``sqrt(M_i M_j) |a_j| / kd_i``, the bound of a positive definite matrix's off-diagonal
+        term)."""
+        lag = (self.setpoint - q) * np.sign(velocity)
+        excess = np.abs(velocity) + self.unwind * np.maximum(lag, 0.0)
+        excess += np.abs(acceleration) @ self._coupling
+        np.any(excess > self.robot.velocity_limit, axis=1, out=out)
+        return out
 
     def settle(self, q: np.ndarray, effort_scale: np.ndarray) -> None:
         """The anti-windup of the period just ended: each integrator within the (derated)

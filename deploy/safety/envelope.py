@@ -157,7 +157,9 @@ class MotionEnvelope:
         #: torque mode's motion and brake (:class:`deploy.safety.torque_drive.TorqueDrive`), or
         #: None: a smoother's trajectory is the motion
         self.torque = torque
-        #: (envs,) bool, torque mode: the envs whose motion box left a soft joint limit
+        #: (envs,) bool: torque mode, the envs whose motion box left a soft joint limit or whose
+        #: speed would pass the soft velocity limit; velocity mode, those whose drive would run
+        #: past its velocity limit (:meth:`deploy.safety.drive.VelocityDrive.overspeed`)
         self.beyond = np.zeros(envs, dtype=bool)
         n = robot.n_joints
         s = robot.config.safety
@@ -316,14 +318,17 @@ class MotionEnvelope:
             self._speeds, self.local.order, self.local.nest, self._slack,
             self._lead,
         ):  # fmt: skip
-            if self.torque is None or not self.torque.beyond_limits(box, self.beyond).any():
+            if self.torque is not None:
+                self.torque.beyond_limits(box, self.beyond)
+            if not self.beyond.any():
                 return False
             self.beyond &= ~stopping
+            self.joints[self.beyond] = True  # every joint of those envs brakes
             self._dirty = bool(self.beyond.any())
             return self._dirty
         if self.torque is not None:
             self.torque.beyond_limits(box, self.beyond)
-            self.beyond &= ~stopping
+        self.beyond &= ~stopping
         c, h = box[0], box[1]
         for e in np.flatnonzero(need[ek.COLLISION]):
             d = self._clearance[e, : self.pairs]
@@ -342,6 +347,7 @@ class MotionEnvelope:
                 if not self._passes(ek.WORKSPACE, e, q, before, after):
                     self.unsafe[ek.WORKSPACE, e] = True
                     self._mark_joints(ek.WORKSPACE, e, c[e], h[e], inside)
+        self.joints[self.beyond] = True  # every joint of those envs brakes
         self._dirty = bool(self.unsafe.any() or self.beyond.any())
         return self._dirty
 
@@ -362,6 +368,7 @@ class MotionEnvelope:
         g, floor = self.limits[2], self.limits[3]
         share = np.clip((effort_scale - g) / np.where(g < 1.0, 1.0 - g, 1.0), floor, 1.0)
         self._lead[:] = drive.lead(after[1], after[2], share, effort_scale)
+        drive.overspeed(q, after[1], after[2], self.beyond)
         return path[0], path[1]
 
     def commit(self, command: np.ndarray) -> None:

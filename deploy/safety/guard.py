@@ -246,6 +246,9 @@ class SafetyGuard:
         )
         if self.envelope is not None and self.envelope.drive is not None:
             fields["drive_setpoint"] = self.envelope.drive.setpoint
+        if self.envelope is not None and self.envelope.torque is not None:
+            fields["torque_command"] = self.envelope.torque.command
+            fields["torque_acceleration"] = self.envelope.torque.acceleration
         return fields
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
@@ -255,8 +258,10 @@ class SafetyGuard:
         (``workspace_q``, ``collision_q`` (envs, n) rad; ``workspace_margin`` (envs,) m;
         ``pair_clearance`` (envs, pairs) m, each collision pair's distance), in velocity mode
         ``drive_setpoint`` (envs, n) rad, the drives' integrators
-        (:class:`deploy.safety.drive.VelocityDrive`); the env axis has length 1 for one env
-        ``env``."""
+        (:class:`deploy.safety.drive.VelocityDrive`), in torque mode ``torque_command`` (envs,
+        n) N m and ``torque_acceleration`` (envs, n) rad/s^2, the last committed torque and its
+        acceleration (:class:`deploy.safety.torque_drive.TorqueDrive`); the env axis has length
+        1 for one env ``env``."""
         return take(self._state_fields(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:

@@ -19,7 +19,9 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from deploy.smoothing.smoother import TORQUE_RISE_TIME
 from robots import Robot
+from robots.chain_bounds import inertia_bound
 
 #: Share of the commanded deceleration the guard counts on (our choice): the soak randomizes link
 #: masses +-20 % and actuator strength +-10 %; the computed torque assumes the nominal masses.
@@ -27,10 +29,6 @@ BRAKE_TRUST = 0.7
 #: Share of the step's acceleration by which the true one may differ from the model's (our
 #: choice, as :data:`BRAKE_TRUST`).
 STEP_UNCERTAINTY = 0.3
-#: A jerk limit for the envelope's brake, rad/s^3: a torque steps within a current loop's period
-#: (~1 ms), so the brake's deceleration is taken as immediate (our choice: large, finite for
-#: Ruckig's path in :meth:`deploy.safety.envelope.MotionEnvelope._path_certified`).
-STEP_JERK = 1.0e6
 
 
 class TorqueDrive:
@@ -45,7 +43,9 @@ class TorqueDrive:
         deceleration: (n,) rad/s^2, the brake's commanded deceleration at full effort: the
             acceleration limits (robot.toml, sized against the worst gravity load).
         brake_limits: (2, n) the deceleration the envelope counts on (:data:`BRAKE_TRUST` of
-            ``deceleration``) and :data:`STEP_JERK`: the envelope's brake.
+            ``deceleration``) and the jerk of the smoother's torque rate limit on the heaviest
+            load, ``effort_limit / (TORQUE_RISE_TIME * inertia_bound)``: the envelope's brake.
+        command: (envs, n) N m, the last committed torque (the brake's rate limit starts there).
     """
 
     def __init__(self, robot: Robot, envs: int):
@@ -53,7 +53,10 @@ class TorqueDrive:
         n = robot.n_joints
         self.dt = robot.control_period
         self.deceleration = np.asarray(robot.acceleration_limit, dtype=float)
-        self.brake_limits = np.stack([BRAKE_TRUST * self.deceleration, np.full(n, STEP_JERK)])
+        jerk = robot.effort_limit / (TORQUE_RISE_TIME * inertia_bound(robot))
+        self.brake_limits = np.stack([BRAKE_TRUST * self.deceleration, jerk])
+        self._rate = robot.effort_limit * self.dt / TORQUE_RISE_TIME
+        self.command = np.zeros((envs, n))
         self.lower, self.upper = robot.soft_lower, robot.soft_upper
         self._model = robot.fixed_base_model
         self._data = self._model.createData()
@@ -69,7 +72,8 @@ class TorqueDrive:
     def motion(self, q, dq, command):
         """The step's motion for the envelope: ``(before, after, slack)``, (3, envs, n) the
         position, velocity and acceleration at the estimate (``q`` rad, ``dq`` rad/s) and one
-        period of ``command`` (envs, n) N m later (acceleration 0: the brake steps it), and
+        period of ``command`` (envs, n) N m later (with the torque's acceleration, which the
+        brake ramps down at the rate limit), and
         (envs, n) rad the slack of the step's unknown share (:data:`STEP_UNCERTAINTY` of its
         displacement by acceleration); views reused per call."""
         dt, acc = self.dt, self._acc
@@ -83,7 +87,7 @@ class TorqueDrive:
         np.multiply(dq, dt, out=after[0])
         after[0] += q
         after[0] += 0.5 * dt * dt * acc
-        after[2] = 0.0
+        after[2] = acc
         np.multiply(np.abs(acc), STEP_UNCERTAINTY * dt * dt, out=self._slack)
         return before, after, self._slack
 
@@ -91,21 +95,25 @@ class TorqueDrive:
         """(envs,) bool into ``out``: the envs whose motion box (``box`` (5, envs, n) of the
         envelope's kernel: centre, half-width, ...) leaves a soft joint limit (one already
         outside may only move back: its bound is the estimate), or whose speed
-        after the step (of the last :meth:`motion`, with its unknown share) exceeds the soft
-        velocity limit."""
+        after the step (of the last :meth:`motion`, with its unknown share, and what it gains
+        while the brake ramps its acceleration down) exceeds the soft velocity limit."""
         lo, hi = box[0] - box[1], box[0] + box[1]
         # a joint already past a soft limit (pushed, or run out before) may move back, not on
         q, slack = self._state[0], self._slack
         lower = np.minimum(self.lower, q - slack)
         upper = np.maximum(self.upper, q + slack)
-        speed = np.abs(self._path[1, 1]) + STEP_UNCERTAINTY * self.dt * np.abs(self._acc)
+        v, a = self._path[1, 1], self._acc
+        toward = np.maximum(a * np.sign(v), 0.0)  # gained while the brake ramps it down
+        speed = np.abs(v) + STEP_UNCERTAINTY * self.dt * np.abs(a)
+        speed += toward * toward / (2.0 * self.brake_limits[1])
         np.any((lo < lower) | (hi > upper) | (speed > self.velocity_limit), axis=1, out=out)
         return out
 
     def commit(self, command: np.ndarray) -> None:
         """The tick's final torque ``command`` (envs, n) N m: :attr:`acceleration` at the
-        estimate of the last :meth:`motion`."""
+        estimate of the last :meth:`motion`, and :attr:`command`."""
         q, dq = self._state
+        np.copyto(self.command, command)
         for e in range(self.envs):
             self.acceleration[e] = pin.aba(self._model, self._data, q[e], dq[e], command[e])
 
@@ -114,10 +122,13 @@ class TorqueDrive:
         n) N m: each joint decelerates at ``deceleration`` times its drive's derating
         ``effort_scale`` (envs, n) (never past rest within one period), ``tau = M(q) a +
         C(q, dq) dq + g(q)`` (Pinocchio's RNEA at ``q`` rad, ``dq`` rad/s), clipped to the
-        derated effort limits."""
+        derated effort limits and to the smoother's rate limit from the last committed torque
+        (:attr:`command`)."""
         limit = self.robot.effort_limit
         for e in np.flatnonzero(envs):
             most = self.deceleration * effort_scale[e]
             a = np.clip(-dq[e] / self.dt, -most, most)
             tau = pin.rnea(self._model, self._data, q[e], dq[e], a)
             np.clip(tau, -limit * effort_scale[e], limit * effort_scale[e], out=out[e])
+            last = self.command[e]
+            np.clip(out[e], last - self._rate, last + self._rate, out=out[e])

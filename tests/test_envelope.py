@@ -58,17 +58,7 @@ def adversarial_run(tmp_path, name, mode, kind, seed, seconds):
     return hard, rt, moved[0]
 
 
-#: Known gap, not hidden: ur5 in torque mode under the saturating policy leaves its workspace
-#: box (737 true ticks in 20 s at this commit) since the guard's computed-torque stop follows
-#: the smoother's torque rate limit; issue 42's note has the figures. Every other case is 0.
-KNOWN_GAPS = {("ur5", "torque", "saturating")}
-CASES = [
-    (name, mode, kind)
-    for name in ARMS
-    for mode in MODES
-    for kind in KINDS
-    if (name, mode, kind) not in KNOWN_GAPS
-]
+CASES = [(name, mode, kind) for name in ARMS for mode in MODES for kind in KINDS]
 
 
 @pytest.mark.parametrize(("name", "mode", "kind"), CASES)

@@ -166,6 +166,9 @@ class Runtime(RuntimeState):
         if self.mode_name == "torque":
             envelope = self.guard.envelope
             self._input = envelope.torque.acceleration if envelope is not None else None
+            if envelope is not None:
+                # torque mode's motion starts at the estimate: the envelope widens it by its error
+                envelope.torque.covariance = self.estimator.covariance
         # latency histograms' bins (deploy.observe.telemetry)
         self._bins = np.array([BIN_NS, BINS], dtype=np.int64)
         #: the backend's ``damp(envs)`` (drivers with their own damping mode, e.g. a Unitree

@@ -38,6 +38,9 @@ from robots.chain_bounds import inertia_bound
 #: Share of each joint's gravity torque the guard does not trust (our choice): the soak
 #: randomizes link masses +-20 % and actuator strength +-10 % (``eval.world.dynamics``).
 GRAVITY_UNCERTAINTY = 0.3
+#: Share by which a joint's true inertia may exceed the nominal model's (our choice): the soak's
+#: link masses +-20 % and link lengths +-10 % (inertia ~ m l^2: 1.2 x 1.1^2 = 1.45).
+INERTIA_UNCERTAINTY = 0.45
 #: Multiple of the model's dry friction (``frictionloss``) the drive may have to overcome (our
 #: choice): the soak's +-50 % and its drift of up to 6 % per hour over 8 hours.
 FRICTION_FACTOR = 3.0
@@ -95,10 +98,8 @@ class VelocityDrive:
         self.kd = np.array([j.kd for j in robot.config.joints], dtype=float)
         self.inertia = inertia_bound(robot)
         self.unwind = unwind_factor(self.kp, self.kd, self.inertia)
-        # (n, n) s: |a_j| rad/s^2 of joint j pushes joint i's speed by at most [j, i] * |a_j|
-        coupling = np.sqrt(np.outer(self.inertia, self.inertia)) / self.kd[None, :]
-        np.fill_diagonal(coupling, 0.0)
-        self._coupling = coupling
+        #: rad/s: a joint estimated faster than the middle of its soft velocity band runs away
+        self._runaway = np.asarray(robot.velocity_limit, dtype=float)
         m = robot.mj_model
         dofs = [m.jnt_dofadr[m.joint(name).id] for name in robot.joint_names]
         self.friction = FRICTION_FACTOR * np.asarray(m.dof_frictionloss[dofs], dtype=float)
@@ -107,6 +108,7 @@ class VelocityDrive:
         self._model = robot.fixed_base_model
         self._data = self._model.createData()
         self._sag = np.zeros((envs, n))
+        self._mass = np.zeros((envs, n, n))
         self._bound = np.zeros((envs, n))
 
     def reset(self, q: np.ndarray, envs: np.ndarray | None = None) -> None:
@@ -136,16 +138,18 @@ class VelocityDrive:
     def equilibrium(self, q: np.ndarray) -> np.ndarray:
         """(envs, n) rad, where each joint comes to rest if the commands stop now: the setpoint
         less the gravity sag ``g(q) / kp`` at the estimated pose ``q`` (envs, n) (Pinocchio's
-        gravity torque at the nominal masses); a new array."""
-        for e in range(self.envs):
-            self._sag[e] = self.gravity(q[e])
-        return self.setpoint - self._sag / self.kp
-
-    def gravity(self, q: np.ndarray) -> np.ndarray:
-        """(n,) N m, the gravity torque at ``q`` (n,) rad; a view reused per call."""
+        gravity torque at the nominal masses); a new array. Also keeps the mass matrix at ``q``
+        (CRBA) for :meth:`lead` and :meth:`overspeed`."""
         import pinocchio as pin
 
-        return pin.computeGeneralizedGravity(self._model, self._data, q)
+        model, data = self._model, self._data
+        for e in range(self.envs):
+            self._sag[e] = pin.computeGeneralizedGravity(model, data, q[e])
+            upper = pin.crba(model, data, q[e])  # the upper triangle
+            mass = self._mass[e]
+            np.copyto(mass, upper)
+            mass += np.triu(upper, 1).T
+        return self.setpoint - self._sag / self.kp
 
     def slack(self, velocity: np.ndarray) -> np.ndarray:
         """(envs, n) rad, how far a joint may stray either way from the path of its equilibrium
@@ -165,7 +169,9 @@ class VelocityDrive:
         integrator while the smoother brakes it from ``velocity`` (rad/s) and ``acceleration``
         (rad/s^2), (envs, n) each, at the acceleration limit times ``share`` (envs, n) (a
         derated drive's headroom): ``inertia * a_peak / kp`` in the direction of the motion,
-        ``a_peak`` the brake's peak deceleration (the limit, or ``sqrt(v j)`` for a brake too
+        ``inertia`` the mass matrix's diagonal at the pose of the last :meth:`equilibrium`
+        (:data:`INERTIA_UNCERTAINTY` above it), ``a_peak`` the brake's peak deceleration (the
+        limit, or ``sqrt(v j)`` for a brake too
         short to reach it, ``v`` the speed once the acceleration toward the motion is ramped
         down), never above the anti-windup's bound at the drives' derating ``effort_scale``
         (envs, n). A new array."""
@@ -175,25 +181,32 @@ class VelocityDrive:
         v_eff = np.abs(velocity) + toward * toward / (2.0 * j)
         amax = self.robot.acceleration_limit * share
         peak = np.minimum(amax, np.sqrt(v_eff * j))
-        lead = np.minimum(self.inertia * peak / self.kp, self.windup_bound(effort_scale))
+        inertia = (1.0 + INERTIA_UNCERTAINTY) * np.diagonal(self._mass, axis1=1, axis2=2)
+        lead = np.minimum(inertia * peak / self.kp, self.windup_bound(effort_scale))
         return sign * lead
 
     def overspeed(
-        self, q: np.ndarray, velocity: np.ndarray, acceleration: np.ndarray, out: np.ndarray
+        self, q: np.ndarray, dq: np.ndarray, velocity, acceleration, out: np.ndarray
     ) -> np.ndarray:
         """(envs,) bool into ``out``: the envs where a joint commanded ``velocity`` (envs, n)
-        rad/s may run past its hard velocity limit as its loop unwinds the lag it carries
-        (the integrator ``s`` ahead of the estimate ``q`` (envs, n) rad in the direction of
-        the command): the peak speed error of the loop's free response from that lag,
-        :attr:`unwind` ``* |s - q|`` (an acceleration phase leaves that lag; ur5's first wrist
-        joint ran 12 % past its command after one), plus the speed the other joints' commanded
-        ``acceleration`` (envs, n) rad/s^2 pushes it by through the mass matrix's coupling
-        (``sqrt(M_i M_j) |a_j| / kd_i``, the bound of a positive definite matrix's off-diagonal
-        term)."""
+        rad/s may run past its hard velocity limit, or already runs past the middle of its
+        soft velocity band (the estimate ``dq`` (envs, n) rad/s). A drive gives way to two
+        things: the lag it carries (the integrator ``s`` ahead of the estimate ``q`` (envs, n)
+        rad in the direction of the command), whose unwinding peaks at :attr:`unwind`
+        ``* |s - q|`` (an acceleration phase leaves that lag; ur5's first wrist joint ran 12 %
+        past its command after one); and the torque the other joints' commanded
+        ``acceleration`` (envs, n) rad/s^2 push it with through the mass matrix's coupling at the
+        pose of the last :meth:`equilibrium`, ``|M_ij| |a_j| / kd_i`` (a PI loop's speed error
+        under a disturbance torque, before its integral catches up;
+        :data:`INERTIA_UNCERTAINTY` above the model)."""
         lag = (self.setpoint - q) * np.sign(velocity)
         excess = np.abs(velocity) + self.unwind * np.maximum(lag, 0.0)
-        excess += np.abs(acceleration) @ self._coupling
-        np.any(excess > self.robot.velocity_limit, axis=1, out=out)
+        push = np.abs(self._mass) @ np.abs(acceleration)[:, :, None]
+        push = push[:, :, 0] - np.abs(np.diagonal(self._mass, axis1=1, axis2=2) * acceleration)
+        excess += (1.0 + INERTIA_UNCERTAINTY) * push / self.kd
+        over = excess > self.robot.velocity_limit
+        over |= np.abs(dq) > self._runaway
+        np.any(over, axis=1, out=out)
         return out
 
     def settle(self, q: np.ndarray, effort_scale: np.ndarray) -> None:

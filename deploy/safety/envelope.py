@@ -56,6 +56,11 @@ DISTANCE_TOLERANCE = 1e-9
 #: Segments of the brake the path certification cuts by time (our choice: a few Pinocchio
 #: calls, only where the whole box is uncertain).
 PATH_SEGMENTS = 4
+#: m, how much a robot within the margin must gain back per step in torque mode (our choice,
+#: about the estimate's noise times a lever of a metre): the start of a torque step is the noisy
+#: estimate, and "no closer than now" then let a ur5 pressed down by its policy random-walk
+#: through its box's floor; a servo's command path has no such noise.
+TORQUE_ESCAPE = 1e-3
 
 
 def axis_levers(robot, ee_lever: np.ndarray) -> np.ndarray:
@@ -161,6 +166,9 @@ class MotionEnvelope:
         #: speed would pass the soft velocity limit; velocity mode, those whose drive would run
         #: past its velocity limit (:meth:`deploy.safety.drive.VelocityDrive.overspeed`)
         self.beyond = np.zeros(envs, dtype=bool)
+        #: m, what a robot within the margin must gain back per step (:data:`TORQUE_ESCAPE` in
+        #: torque mode, else 0)
+        self._escape = TORQUE_ESCAPE if torque is not None else 0.0
         n = robot.n_joints
         s = robot.config.safety
         self.model = robot.fixed_base_model
@@ -293,7 +301,7 @@ class MotionEnvelope:
             after: (3, envs, n) the same after it (``CommandSmoother.trajectory``).
             stopping: (envs,) bool, the envs braking to a stop already (not checked).
             effort_scale: (envs, n), the drives' thermal derating (the guard's).
-            dq: (envs, n) rad/s, the estimated joint velocities; torque mode only.
+            dq: (envs, n) rad/s, the estimated joint velocities; torque and velocity mode.
             command: (envs, n) N m, the step's torque; torque mode only (``before`` and
                 ``after`` are then unused: the smoother has no trajectory).
 
@@ -310,7 +318,7 @@ class MotionEnvelope:
             before, after, slack = self.torque.motion(q, dq, command)
             np.copyto(self._slack, slack)
         elif self.drive is not None:
-            before, after = self._drive_motion(q, before, after, effort_scale)
+            before, after = self._drive_motion(q, dq, before, after, effort_scale)
         box, need = self._box, self._need
         if not ek.envelope_screen(
             q, before, after, stopping, self.limits, effort_scale, self._cached_q,
@@ -351,7 +359,7 @@ class MotionEnvelope:
         self._dirty = bool(self.unsafe.any() or self.beyond.any())
         return self._dirty
 
-    def _drive_motion(self, q, before, after, effort_scale):
+    def _drive_motion(self, q, dq, before, after, effort_scale):
         """A velocity drive's motion (:mod:`deploy.safety.drive`): the smoother's state before and
         after its step with the drives' equilibrium in place of the smoother's position (before:
         where the joints rest if the commands stop now; after: once the step's command has been
@@ -368,7 +376,7 @@ class MotionEnvelope:
         g, floor = self.limits[2], self.limits[3]
         share = np.clip((effort_scale - g) / np.where(g < 1.0, 1.0 - g, 1.0), floor, 1.0)
         self._lead[:] = drive.lead(after[1], after[2], share, effort_scale)
-        drive.overspeed(q, after[1], after[2], self.beyond)
+        drive.overspeed(q, dq, after[1], after[2], self.beyond)
         return path[0], path[1]
 
     def commit(self, command: np.ndarray) -> None:
@@ -499,7 +507,7 @@ class MotionEnvelope:
         d0 = self.distances(start)
         if d0.min() > self.margin:
             return False
-        floor = np.where(d0 > self.margin, self.margin, d0) - DISTANCE_TOLERANCE
+        floor = np.where(d0 > self.margin, self.margin, d0 + self._escape) - DISTANCE_TOLERANCE
         return bool(np.all(self.distances(end) >= floor) and np.all(self.distances(rest) >= floor))
 
     def _escapes_box(self, start, end, rest) -> bool:
@@ -507,5 +515,5 @@ class MotionEnvelope:
         m0 = self.workspace_margin(start).min()
         if m0 > self.margin:
             return False
-        m0 -= DISTANCE_TOLERANCE
+        m0 += self._escape - DISTANCE_TOLERANCE
         return self.workspace_margin(end).min() >= m0 and self.workspace_margin(rest).min() >= m0

@@ -249,6 +249,8 @@ class SafetyGuard:
         if self.envelope is not None and self.envelope.torque is not None:
             fields["torque_command"] = self.envelope.torque.command
             fields["torque_acceleration"] = self.envelope.torque.acceleration
+            fields["torque_hold"] = self.envelope.torque.hold
+            fields["torque_braked"] = self.envelope.torque.braked
         return fields
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
@@ -260,7 +262,9 @@ class SafetyGuard:
         ``drive_setpoint`` (envs, n) rad, the drives' integrators
         (:class:`deploy.safety.drive.VelocityDrive`), in torque mode ``torque_command`` (envs,
         n) N m and ``torque_acceleration`` (envs, n) rad/s^2, the last committed torque and its
-        acceleration (:class:`deploy.safety.torque_drive.TorqueDrive`); the env axis has length
+        acceleration, ``torque_hold`` (envs, n) rad and ``torque_braked`` (envs,) bool, where
+        the stop began and whether the last tick braked
+        (:class:`deploy.safety.torque_drive.TorqueDrive`); the env axis has length
         1 for one env ``env``."""
         return take(self._state_fields(), env)
 

@@ -26,6 +26,15 @@ from robots.chain_bounds import inertia_bound
 #: Share of the commanded deceleration the guard counts on (our choice): the soak randomizes link
 #: masses +-20 % and actuator strength +-10 %; the computed torque assumes the nominal masses.
 BRAKE_TRUST = 0.7
+#: Standard deviations of the joint estimate the torque-mode motion is widened by (our choice):
+#: every figure of torque mode comes from the estimate (a servo's command path does not), and
+#: arm3's encoder noise (0.0157 rad) put its estimated tip 2 cm from where it was.
+ESTIMATE_SIGMAS = 3.0
+#: rad/s, the stop's hold: once braked, each joint is pulled back to where its stop began by a
+#: critically damped PD of this natural frequency (our choice: 2 Hz, slow against the drives'
+#: current loops, fast against a sag), its acceleration within the stop's deceleration. Without it
+#: a velocity-only stop drifts with the estimate's noise (a braked ur5 sank out of its box).
+HOLD_FREQUENCY = 4.0 * np.pi
 #: Share of the step's acceleration by which the true one may differ from the model's (our
 #: choice, as :data:`BRAKE_TRUST`).
 STEP_UNCERTAINTY = 0.3
@@ -57,6 +66,15 @@ class TorqueDrive:
         self.brake_limits = np.stack([BRAKE_TRUST * self.deceleration, jerk])
         self._rate = robot.effort_limit * self.dt / TORQUE_RISE_TIME
         self.command = np.zeros((envs, n))
+        #: (envs, n, 2, 2) the joint estimator's covariance of ``[q, dq]`` (rad^2, rad^2/s^2),
+        #: a view the runtime sets (:class:`deploy.estimation.joints.JointStateEstimator`), or
+        #: None: the estimate's error then widens nothing
+        self.covariance = None
+        #: (envs, n) rad, where each env's current stop began (:meth:`brake`)
+        self.hold = np.zeros((envs, n))
+        #: (envs,) bool, the envs the last committed tick braked
+        self.braked = np.zeros(envs, dtype=bool)
+        self._braking = np.zeros(envs, dtype=bool)
         self.lower, self.upper = robot.soft_lower, robot.soft_upper
         self._model = robot.fixed_base_model
         self._data = self._model.createData()
@@ -75,7 +93,9 @@ class TorqueDrive:
         period of ``command`` (envs, n) N m later (with the torque's acceleration, which the
         brake ramps down at the rate limit), and
         (envs, n) rad the slack of the step's unknown share (:data:`STEP_UNCERTAINTY` of its
-        displacement by acceleration); views reused per call."""
+        displacement by acceleration) and of the estimate's (:data:`ESTIMATE_SIGMAS` standard
+        deviations of its position, and of its speed over the stop, from :attr:`covariance`);
+        views reused per call."""
         dt, acc = self.dt, self._acc
         self._state[0], self._state[1] = q, dq
         for e in range(self.envs):
@@ -89,6 +109,11 @@ class TorqueDrive:
         after[0] += 0.5 * dt * dt * acc
         after[2] = acc
         np.multiply(np.abs(acc), STEP_UNCERTAINTY * dt * dt, out=self._slack)
+        if self.covariance is not None:  # the estimate's error, and its speed's over the stop
+            p = self.covariance
+            stop = np.abs(after[1]) / self.brake_limits[0] + dt
+            self._slack += ESTIMATE_SIGMAS * np.sqrt(np.maximum(p[..., 0, 0], 0.0))
+            self._slack += ESTIMATE_SIGMAS * np.sqrt(np.maximum(p[..., 1, 1], 0.0)) * stop
         return before, after, self._slack
 
     def beyond_limits(self, box: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -114,20 +139,26 @@ class TorqueDrive:
         estimate of the last :meth:`motion`, and :attr:`command`."""
         q, dq = self._state
         np.copyto(self.command, command)
+        np.copyto(self.braked, self._braking)
+        self._braking.fill(False)
         for e in range(self.envs):
             self.acceleration[e] = pin.aba(self._model, self._data, q[e], dq[e], command[e])
 
     def brake(self, q, dq, effort_scale, envs, out) -> None:
         """The computed-torque stop of the envs of ``envs`` ((envs,) bool) into ``out`` (envs,
-        n) N m: each joint decelerates at ``deceleration`` times its drive's derating
-        ``effort_scale`` (envs, n) (never past rest within one period), ``tau = M(q) a +
-        C(q, dq) dq + g(q)`` (Pinocchio's RNEA at ``q`` rad, ``dq`` rad/s), clipped to the
-        derated effort limits and to the smoother's rate limit from the last committed torque
+        n) N m: each joint decelerates at up to ``deceleration`` times its drive's derating
+        ``effort_scale`` (envs, n), held by a critically damped PD (:data:`HOLD_FREQUENCY`) at
+        the estimate where the env's stop began (:attr:`hold`), ``tau = M(q) a + C(q, dq) dq +
+        g(q)`` (Pinocchio's RNEA at ``q`` rad, ``dq`` rad/s), clipped to the derated effort
+        limits and to the smoother's rate limit from the last committed torque
         (:attr:`command`)."""
-        limit = self.robot.effort_limit
+        limit, w = self.robot.effort_limit, HOLD_FREQUENCY
+        start = envs & ~self.braked
+        self.hold[start] = q[start]
+        self._braking[:] = envs
         for e in np.flatnonzero(envs):
             most = self.deceleration * effort_scale[e]
-            a = np.clip(-dq[e] / self.dt, -most, most)
+            a = np.clip(-2.0 * w * dq[e] - w * w * (q[e] - self.hold[e]), -most, most)
             tau = pin.rnea(self._model, self._data, q[e], dq[e], a)
             np.clip(tau, -limit * effort_scale[e], limit * effort_scale[e], out=out[e])
             last = self.command[e]

@@ -169,6 +169,9 @@ class Runtime(RuntimeState):
             if envelope is not None:
                 # torque mode's motion starts at the estimate: the envelope widens it by its error
                 envelope.torque.covariance = self.estimator.covariance
+        if self.mode_name == "velocity" and self.guard.envelope is not None:
+            # a drive counts as running away only beyond its estimate's error
+            self.guard.envelope.drive.covariance = self.estimator.covariance
         # latency histograms' bins (deploy.observe.telemetry)
         self._bins = np.array([BIN_NS, BINS], dtype=np.int64)
         #: the backend's ``damp(envs)`` (drivers with their own damping mode, e.g. a Unitree

@@ -44,6 +44,10 @@ INERTIA_UNCERTAINTY = 0.45
 #: Multiple of the model's dry friction (``frictionloss``) the drive may have to overcome (our
 #: choice): the soak's +-50 % and its drift of up to 6 % per hour over 8 hours.
 FRICTION_FACTOR = 3.0
+#: Standard deviations of the estimated speed a joint must be past its velocity limit by before
+#: the guard trusts that it runs away (our choice: three, a 0.3 % false alarm per joint and tick
+#: for a Gaussian error; the estimate of a drive commanded at its limit crosses it half the time).
+ESTIMATE_SIGMAS = 3.0
 
 
 #: Shares of each joint's inertia bound over which :func:`unwind_factor` takes its worst case
@@ -98,7 +102,7 @@ class VelocityDrive:
         self.kd = np.array([j.kd for j in robot.config.joints], dtype=float)
         self.inertia = inertia_bound(robot)
         self.unwind = unwind_factor(self.kp, self.kd, self.inertia)
-        #: rad/s: a joint estimated faster than the middle of its soft velocity band runs away
+        #: rad/s: a joint estimated faster than its hard velocity limit runs away
         self._runaway = np.asarray(robot.velocity_limit, dtype=float)
         m = robot.mj_model
         dofs = [m.jnt_dofadr[m.joint(name).id] for name in robot.joint_names]
@@ -110,6 +114,10 @@ class VelocityDrive:
         self._sag = np.zeros((envs, n))
         self._mass = np.zeros((envs, n, n))
         self._bound = np.zeros((envs, n))
+        #: (envs, n, 2, 2) the joint estimator's covariance of ``[q, dq]`` (rad^2, rad^2/s^2),
+        #: a view the runtime sets (:class:`deploy.estimation.joints.JointStateEstimator`), or
+        #: None: then no joint counts as running away
+        self.covariance = None
 
     def reset(self, q: np.ndarray, envs: np.ndarray | None = None) -> None:
         """The drives of ``envs`` (bool mask (envs,), default all) enabled at the estimated pose
@@ -189,23 +197,35 @@ class VelocityDrive:
         self, q: np.ndarray, dq: np.ndarray, velocity, acceleration, out: np.ndarray
     ) -> np.ndarray:
         """(envs,) bool into ``out``: the envs where a joint commanded ``velocity`` (envs, n)
-        rad/s may run past its hard velocity limit, or already runs past the middle of its
-        soft velocity band (the estimate ``dq`` (envs, n) rad/s). A drive gives way to two
+        rad/s may run past its hard velocity limit, or already runs past it
+        (the estimate ``dq`` (envs, n) rad/s). A drive gives way to two
         things: the lag it carries (the integrator ``s`` ahead of the estimate ``q`` (envs, n)
-        rad in the direction of the command), whose unwinding peaks at :attr:`unwind`
-        ``* |s - q|`` (an acceleration phase leaves that lag; ur5's first wrist joint ran 12 %
-        past its command after one); and the torque the other joints' commanded
+        rad in the direction of the command, less the gravity sag that holds it steady, of which
+        :data:`GRAVITY_UNCERTAINTY` is not trusted), whose unwinding peaks at :attr:`unwind`
+        times that lag (an acceleration phase leaves it; ur5's first wrist joint ran 12 % past
+        its command after one); and the torque the other joints' commanded
         ``acceleration`` (envs, n) rad/s^2 push it with through the mass matrix's coupling at the
-        pose of the last :meth:`equilibrium`, ``|M_ij| |a_j| / kd_i`` (a PI loop's speed error
-        under a disturbance torque, before its integral catches up;
-        :data:`INERTIA_UNCERTAINTY` above the model)."""
-        lag = (self.setpoint - q) * np.sign(velocity)
+        pose of the last :meth:`equilibrium`, the sum of ``-M_ij a_j`` along joint ``i``'s
+        motion over ``kd_i`` (a PI loop's speed error under a step disturbance torque, before
+        its integral catches up, peaks below ``D / kd``; :data:`INERTIA_UNCERTAINTY` above the
+        model; a push against the motion is not credited). A joint whose estimated speed is past
+        its hard velocity limit by more than :data:`ESTIMATE_SIGMAS` of its error
+        (:attr:`covariance`) runs away: its env brakes too."""
+        # the lag that unwinds: what the gravity sag (its untrusted share aside) does not hold
+        sag = self._sag / self.kp
+        lag = (self.setpoint - q - sag) * np.sign(velocity) + GRAVITY_UNCERTAINTY * np.abs(sag)
         excess = np.abs(velocity) + self.unwind * np.maximum(lag, 0.0)
-        push = np.abs(self._mass) @ np.abs(acceleration)[:, :, None]
-        push = push[:, :, 0] - np.abs(np.diagonal(self._mass, axis1=1, axis2=2) * acceleration)
+        # joint j's acceleration pushes joint i with -M_ij a_j; only the pushes along i's
+        # motion count, none is credited against it
+        sign = np.sign(velocity)
+        push = -self._mass * acceleration[:, None, :] * sign[:, :, None]
+        np.maximum(push, 0.0, out=push)
+        push = push.sum(axis=2) - np.diagonal(push, axis1=1, axis2=2)
         excess += (1.0 + INERTIA_UNCERTAINTY) * push / self.kd
         over = excess > self.robot.velocity_limit
-        over |= np.abs(dq) > self._runaway
+        if self.covariance is not None:  # the estimate's speed, less its error, past the limit
+            sigma = np.sqrt(np.maximum(self.covariance[..., 1, 1], 0.0))
+            over |= np.abs(dq) - ESTIMATE_SIGMAS * sigma > self._runaway
         np.any(over, axis=1, out=out)
         return out
 

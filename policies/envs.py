@@ -228,6 +228,7 @@ class ReachTask:
         self.kinematics = Kinematics(robot)
         self.smoother = CommandSmoother(robot, envs, config.mode)
         self.guard = SafetyGuard(robot, envs, config.mode)
+        self.guard.trust_estimate(self.estimator.covariance)  # as the runtime does
         # the estimator's control input, as in the runtime (deploy.runtime.Runtime)
         self._input = None if config.mode == "torque" else self.smoother.mean_acceleration
         # velocity mode: the guard's stopping bounds read Ruckig's integrated position too

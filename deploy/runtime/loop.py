@@ -166,12 +166,7 @@ class Runtime(RuntimeState):
         if self.mode_name == "torque":
             envelope = self.guard.envelope
             self._input = envelope.torque.acceleration if envelope is not None else None
-            if envelope is not None:
-                # torque mode's motion starts at the estimate: the envelope widens it by its error
-                envelope.torque.covariance = self.estimator.covariance
-        if self.mode_name == "velocity" and self.guard.envelope is not None:
-            # a drive counts as running away only beyond its estimate's error
-            self.guard.envelope.drive.covariance = self.estimator.covariance
+        self.guard.trust_estimate(self.estimator.covariance)
         # latency histograms' bins (deploy.observe.telemetry)
         self._bins = np.array([BIN_NS, BINS], dtype=np.int64)
         #: the backend's ``damp(envs)`` (drivers with their own damping mode, e.g. a Unitree

@@ -276,6 +276,19 @@ class SafetyGuard:
         """
         put(self._state_fields(), state, env)
 
+    def trust_estimate(self, covariance: np.ndarray) -> None:
+        """The joint estimator's covariance ``covariance`` (envs, n, 2, 2) of ``[q, dq]``
+        (rad^2, rad^2/s^2; a view the estimator keeps current,
+        :attr:`deploy.estimation.joints.JointStateEstimator.covariance`) for the motion
+        envelope's drive models: torque mode widens the motion by the estimate's error, velocity
+        mode counts a drive as running away only beyond it. Nothing in position mode or for a
+        floating base."""
+        if self.envelope is None:
+            return
+        for model in (self.envelope.drive, self.envelope.torque):
+            if model is not None:
+                model.covariance = covariance
+
     def update_thermal(self, winding_temperature: np.ndarray) -> np.ndarray:
         """Derate the effort limits as the drives do (:class:`robots.thermal.EffortDerating`:
         linearly across the derating band, down to the continuous torque); returns

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from deploy.safety import drive_kernel as dk
 from deploy.stateful import put, take
 from robots import Robot
 from robots.chain_bounds import inertia_bound
@@ -102,8 +103,6 @@ class VelocityDrive:
         self.kd = np.array([j.kd for j in robot.config.joints], dtype=float)
         self.inertia = inertia_bound(robot)
         self.unwind = unwind_factor(self.kp, self.kd, self.inertia)
-        #: rad/s: a joint estimated faster than its hard velocity limit runs away
-        self._runaway = np.asarray(robot.velocity_limit, dtype=float)
         m = robot.mj_model
         dofs = [m.jnt_dofadr[m.joint(name).id] for name in robot.joint_names]
         self.friction = FRICTION_FACTOR * np.asarray(m.dof_frictionloss[dofs], dtype=float)
@@ -111,13 +110,32 @@ class VelocityDrive:
         self.setpoint = np.tile(np.asarray(robot.home, dtype=float), (envs, 1))
         self._model = robot.fixed_base_model
         self._data = self._model.createData()
-        self._sag = np.zeros((envs, n))
+        self._gravity = np.zeros((envs, n))
         self._mass = np.zeros((envs, n, n))
-        self._bound = np.zeros((envs, n))
-        #: (envs, n, 2, 2) the joint estimator's covariance of ``[q, dq]`` (rad^2, rad^2/s^2),
-        #: a view the runtime sets (:class:`deploy.estimation.joints.JointStateEstimator`), or
-        #: None: then no joint counts as running away
+        # the kernel's per-joint figures (deploy.safety.drive_kernel.velocity_drive_motion)
+        self._joint = np.zeros((12, n))
+        self._joint[:10] = [
+            self.kp, self.kd, self.unwind, self.friction, robot.effort_limit,
+            self.lower, self.upper, robot.jerk_limit, robot.acceleration_limit,
+            robot.velocity_limit,
+        ]  # fmt: skip
+        self._uncertainty = np.array([GRAVITY_UNCERTAINTY, INERTIA_UNCERTAINTY, ESTIMATE_SIGMAS])
         self.covariance = None
+        dk.warm_up()
+
+    @property
+    def covariance(self) -> np.ndarray | None:
+        """(envs, n, 2, 2) the joint estimator's covariance of ``[q, dq]`` (rad^2, rad^2/s^2), a
+        view the runtime sets (:meth:`deploy.safety.guard.SafetyGuard.trust_estimate`), or None:
+        the estimated speed is then taken as exact."""
+        return self._covariance
+
+    @covariance.setter
+    def covariance(self, value: np.ndarray | None) -> None:
+        self._covariance = value
+        # the speed's variance, a strided view (one kernel specialization either way)
+        source = np.zeros((self.envs, self.robot.n_joints, 2, 2)) if value is None else value
+        self._variance = source[..., 1, 1]
 
     def reset(self, q: np.ndarray, envs: np.ndarray | None = None) -> None:
         """The drives of ``envs`` (bool mask (envs,), default all) enabled at the estimated pose
@@ -137,104 +155,75 @@ class VelocityDrive:
         """
         put({"setpoint": self.setpoint}, state, env)
 
-    def windup_bound(self, effort_scale: np.ndarray) -> np.ndarray:
-        """(envs, n) rad, the largest lag ``|s - q|`` the anti-windup allows: the (derated)
-        effort limit over ``kp``; a view reused per call."""
-        np.multiply(effort_scale, self.robot.effort_limit / self.kp, out=self._bound)
-        return self._bound
+    def motion(
+        self,
+        q: np.ndarray,
+        dq: np.ndarray,
+        after: np.ndarray,
+        effort_scale: np.ndarray,
+        limits: np.ndarray,
+        start: np.ndarray,
+        end: np.ndarray,
+        slack: np.ndarray,
+        lead: np.ndarray,
+        beyond: np.ndarray,
+    ) -> None:
+        """The drives' part of the step's motion, into the arrays given (one compiled call,
+        :func:`deploy.safety.drive_kernel.velocity_drive_motion`, after Pinocchio's gravity
+        torque and mass matrix (CRBA) at the estimate, nominal masses).
 
-    def equilibrium(self, q: np.ndarray) -> np.ndarray:
-        """(envs, n) rad, where each joint comes to rest if the commands stop now: the setpoint
-        less the gravity sag ``g(q) / kp`` at the estimated pose ``q`` (envs, n) (Pinocchio's
-        gravity torque at the nominal masses); a new array. Also keeps the mass matrix at ``q``
-        (CRBA) for :meth:`lead` and :meth:`overspeed`."""
+        First the anti-windup of the period just ended: each integrator within the (derated)
+        ``effort_limit / kp`` of the estimated pose, as the drive keeps it of the true one. Then:
+
+        - ``start``, ``end`` (envs, n) rad: where each joint comes to rest if the commands stop
+          now, the setpoint less the gravity sag ``g(q) / kp``, and once the step's command
+          (``after[1]``) has been integrated for a period (within the joint's range).
+        - ``slack`` (envs, n) rad: how far a joint may stray either way from that path: the
+          untrusted share (:data:`GRAVITY_UNCERTAINTY`) of the sag, the dry friction
+          (:data:`FRICTION_FACTOR` times the MJCF's) over ``kp``, and one period of the commanded
+          speed (the drive holds each command for a period; the smoother's position integrates
+          it continuously).
+        - ``lead`` (envs, n) rad, signed along the motion: how far past the brake's rest point a
+          joint runs ahead of its integrator while the smoother brakes it from ``after[1]`` and
+          ``after[2]``: ``M_ii a_peak / kp`` (:data:`INERTIA_UNCERTAINTY` above the model's
+          diagonal), ``a_peak`` the brake's peak deceleration (the acceleration limit at the
+          derated drive's headroom, or ``sqrt(v j)`` for a brake too short to reach it, ``v``
+          the speed once the acceleration toward the motion is ramped down), never above the
+          anti-windup's bound.
+        - ``beyond`` (envs,) bool: a joint commanded ``after[1]`` may run past its hard velocity
+          limit, or already runs past it. A drive gives way to two things: the lag it carries
+          (the integrator ahead of the estimate along the command, less the gravity sag that
+          holds it steady, of which :data:`GRAVITY_UNCERTAINTY` is not trusted), whose unwinding
+          peaks at :attr:`unwind` times that lag (an acceleration phase leaves it; ur5's first
+          wrist joint ran 12 % past its command after one); and the torque the other joints'
+          commanded accelerations push it with through the mass matrix, the sum of
+          ``-M_ij a_j`` along joint ``i``'s motion over ``kd_i`` (a PI loop's speed error under
+          a step disturbance torque, before its integral catches up, peaks below ``D / kd``;
+          :data:`INERTIA_UNCERTAINTY` above the model; a push against the motion is not
+          credited). A joint whose estimated speed is past its hard velocity limit by more than
+          :data:`ESTIMATE_SIGMAS` of its error (:attr:`covariance`) runs away.
+
+        Args:
+            q: (envs, n) rad, dq: (envs, n) rad/s, the estimate.
+            after: (3, envs, n), the smoother's position, velocity and acceleration after its
+                step (rad, rad/s, rad/s^2).
+            effort_scale: (envs, n), the drives' thermal derating.
+            limits: (4, n) the envelope's limits: rows 2 and 3 the worst gravity load's share of
+                the effort limit and the brake's headroom floor
+                (:func:`deploy.safety.envelope_kernel.brake_headroom`).
+        """
         import pinocchio as pin
 
         model, data = self._model, self._data
         for e in range(self.envs):
-            self._sag[e] = pin.computeGeneralizedGravity(model, data, q[e])
-            upper = pin.crba(model, data, q[e])  # the upper triangle
-            mass = self._mass[e]
-            np.copyto(mass, upper)
-            mass += np.triu(upper, 1).T
-        return self.setpoint - self._sag / self.kp
-
-    def slack(self, velocity: np.ndarray) -> np.ndarray:
-        """(envs, n) rad, how far a joint may stray either way from the path of its equilibrium
-        (:meth:`equilibrium`): the untrusted share of the gravity sag (of the last
-        :meth:`equilibrium`), the dry friction over ``kp``, and one period of the commanded
-        ``velocity`` (envs, n) rad/s (the drive holds each command for a period; the smoother's
-        position integrates it continuously). A new array."""
-        slack = GRAVITY_UNCERTAINTY * np.abs(self._sag) / self.kp
-        slack += self.friction / self.kp
-        slack += np.abs(velocity) * self.dt
-        return slack
-
-    def lead(
-        self, velocity: np.ndarray, acceleration: np.ndarray, share: np.ndarray, effort_scale
-    ) -> np.ndarray:
-        """(envs, n) rad, signed: how far past the brake's rest point a joint runs ahead of its
-        integrator while the smoother brakes it from ``velocity`` (rad/s) and ``acceleration``
-        (rad/s^2), (envs, n) each, at the acceleration limit times ``share`` (envs, n) (a
-        derated drive's headroom): ``inertia * a_peak / kp`` in the direction of the motion,
-        ``inertia`` the mass matrix's diagonal at the pose of the last :meth:`equilibrium`
-        (:data:`INERTIA_UNCERTAINTY` above it), ``a_peak`` the brake's peak deceleration (the
-        limit, or ``sqrt(v j)`` for a brake too
-        short to reach it, ``v`` the speed once the acceleration toward the motion is ramped
-        down), never above the anti-windup's bound at the drives' derating ``effort_scale``
-        (envs, n). A new array."""
-        j = self.robot.jerk_limit
-        sign = np.where(velocity != 0.0, np.sign(velocity), np.sign(acceleration))
-        toward = np.maximum(acceleration * sign, 0.0)
-        v_eff = np.abs(velocity) + toward * toward / (2.0 * j)
-        amax = self.robot.acceleration_limit * share
-        peak = np.minimum(amax, np.sqrt(v_eff * j))
-        inertia = (1.0 + INERTIA_UNCERTAINTY) * np.diagonal(self._mass, axis1=1, axis2=2)
-        lead = np.minimum(inertia * peak / self.kp, self.windup_bound(effort_scale))
-        return sign * lead
-
-    def overspeed(
-        self, q: np.ndarray, dq: np.ndarray, velocity, acceleration, out: np.ndarray
-    ) -> np.ndarray:
-        """(envs,) bool into ``out``: the envs where a joint commanded ``velocity`` (envs, n)
-        rad/s may run past its hard velocity limit, or already runs past it
-        (the estimate ``dq`` (envs, n) rad/s). A drive gives way to two
-        things: the lag it carries (the integrator ``s`` ahead of the estimate ``q`` (envs, n)
-        rad in the direction of the command, less the gravity sag that holds it steady, of which
-        :data:`GRAVITY_UNCERTAINTY` is not trusted), whose unwinding peaks at :attr:`unwind`
-        times that lag (an acceleration phase leaves it; ur5's first wrist joint ran 12 % past
-        its command after one); and the torque the other joints' commanded
-        ``acceleration`` (envs, n) rad/s^2 push it with through the mass matrix's coupling at the
-        pose of the last :meth:`equilibrium`, the sum of ``-M_ij a_j`` along joint ``i``'s
-        motion over ``kd_i`` (a PI loop's speed error under a step disturbance torque, before
-        its integral catches up, peaks below ``D / kd``; :data:`INERTIA_UNCERTAINTY` above the
-        model; a push against the motion is not credited). A joint whose estimated speed is past
-        its hard velocity limit by more than :data:`ESTIMATE_SIGMAS` of its error
-        (:attr:`covariance`) runs away: its env brakes too."""
-        # the lag that unwinds: what the gravity sag (its untrusted share aside) does not hold
-        sag = self._sag / self.kp
-        lag = (self.setpoint - q - sag) * np.sign(velocity) + GRAVITY_UNCERTAINTY * np.abs(sag)
-        excess = np.abs(velocity) + self.unwind * np.maximum(lag, 0.0)
-        # joint j's acceleration pushes joint i with -M_ij a_j; only the pushes along i's
-        # motion count, none is credited against it
-        sign = np.sign(velocity)
-        push = -self._mass * acceleration[:, None, :] * sign[:, :, None]
-        np.maximum(push, 0.0, out=push)
-        push = push.sum(axis=2) - np.diagonal(push, axis1=1, axis2=2)
-        excess += (1.0 + INERTIA_UNCERTAINTY) * push / self.kd
-        over = excess > self.robot.velocity_limit
-        if self.covariance is not None:  # the estimate's speed, less its error, past the limit
-            sigma = np.sqrt(np.maximum(self.covariance[..., 1, 1], 0.0))
-            over |= np.abs(dq) - ESTIMATE_SIGMAS * sigma > self._runaway
-        np.any(over, axis=1, out=out)
-        return out
-
-    def settle(self, q: np.ndarray, effort_scale: np.ndarray) -> None:
-        """The anti-windup of the period just ended: each integrator within the (derated)
-        ``effort_limit / kp`` of the estimated pose ``q`` (envs, n) rad, as the drive keeps it
-        of the true one."""
-        bound = self.windup_bound(effort_scale)
-        np.clip(self.setpoint, q - bound, q + bound, out=self.setpoint)
+            self._gravity[e] = pin.computeGeneralizedGravity(model, data, q[e])
+            self._mass[e] = pin.crba(model, data, q[e])  # the upper triangle is read
+        self._joint[10:] = limits[2:4]
+        dk.velocity_drive_motion(
+            self.setpoint, q, dq, after[1], after[2], self._gravity, self._mass, effort_scale,
+            self._joint, self._variance, self._uncertainty, self.dt, start, end, slack, lead,
+            beyond,
+        )  # fmt: skip
 
     def integrate(self, command: np.ndarray) -> None:
         """One control period of the integrators under ``command`` (envs, n) rad/s, within the

@@ -164,7 +164,7 @@ class MotionEnvelope:
         self.torque = torque
         #: (envs,) bool: torque mode, the envs whose motion box left a soft joint limit or whose
         #: speed would pass the soft velocity limit; velocity mode, those whose drive would run
-        #: past its velocity limit (:meth:`deploy.safety.drive.VelocityDrive.overspeed`)
+        #: past its velocity limit (:meth:`deploy.safety.drive.VelocityDrive.motion`)
         self.beyond = np.zeros(envs, dtype=bool)
         #: m, what a robot within the margin must gain back per step (:data:`TORQUE_ESCAPE` in
         #: torque mode, else 0)
@@ -365,18 +365,13 @@ class MotionEnvelope:
         where the joints rest if the commands stop now; after: once the step's command has been
         integrated), and the drives' slack (:attr:`_slack`). Returns ``(before, after)``
         (3, envs, n) each."""
-        drive = self.drive
-        drive.settle(q, effort_scale)
         path = self._drive_path
         np.copyto(path[0], before)
         np.copyto(path[1], after)
-        path[0, 0] = drive.equilibrium(q)
-        np.clip(path[0, 0] + after[1] * drive.dt, drive.lower, drive.upper, out=path[1, 0])
-        self._slack[:] = drive.slack(after[1])
-        g, floor = self.limits[2], self.limits[3]
-        share = np.clip((effort_scale - g) / np.where(g < 1.0, 1.0 - g, 1.0), floor, 1.0)
-        self._lead[:] = drive.lead(after[1], after[2], share, effort_scale)
-        drive.overspeed(q, dq, after[1], after[2], self.beyond)
+        self.drive.motion(
+            q, dq, after, effort_scale, self.limits, path[0, 0], path[1, 0], self._slack,
+            self._lead, self.beyond,
+        )  # fmt: skip
         return path[0], path[1]
 
     def commit(self, command: np.ndarray) -> None:

@@ -301,15 +301,22 @@ def load_robot(name_or_path: str | Path) -> Robot:
     )
 
 
+#: What the description hash leaves out: the ``[task]``, ``[soak]`` and ``[unitree]`` tables and
+#: the guard's ``safety.link_length_tolerance`` (how sure the guard is of the MJCF, not what the
+#: policy sees or commands).
+HASH_EXCLUDED = {"task": True, "soak": True, "unitree": True, "safety": {"link_length_tolerance"}}
+
+
 def description_hash(cfg: RobotConfig, mjcf_bytes: bytes) -> str:
     """sha256 (hex) of the description a policy depends on: every robot.toml field but the
     ``[task]``, ``[soak]`` and ``[unitree]`` tables (where goals come from and how hard the soak
     pushes are the evaluation's business, how joints map to a Unitree robot's motor slots the
-    backend's, not the robot's), in canonical JSON, and the MJCF bytes (the file in
-    the robot folder, package URIs unresolved). Optional fields left unset (None) are left out,
-    so that adding one to the schema changes no existing robot's hash."""
+    backend's, not the robot's) and :data:`HASH_EXCLUDED`'s guard setting, in canonical JSON,
+    and the MJCF bytes (the file in the robot folder, package URIs unresolved). Optional fields
+    left unset (None) are left out, so that adding one to the schema changes no existing robot's
+    hash."""
     described = json.dumps(
-        cfg.model_dump(exclude={"task", "soak", "unitree"}, exclude_none=True, mode="json"),
+        cfg.model_dump(exclude=HASH_EXCLUDED, exclude_none=True, mode="json"),
         sort_keys=True,
     )
     return hashlib.sha256(described.encode() + b"\0" + mjcf_bytes).hexdigest()

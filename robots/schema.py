@@ -203,6 +203,11 @@ class SafetyConfig(_Strict):
     # it
     # out of the description hash)
     clearance_margin: NonNegative | None = None
+    # How far each link's length may differ from the MJCF's, as a share of it (0.10: +-10 %);
+    # left out, 0: the description is exact. The motion envelope keeps the end effector inside
+    # the workspace box for every chain within it (deploy/safety/envelope.py). A guard setting,
+    # not part of what a policy depends on: left out of the description hash.
+    link_length_tolerance: NonNegative | None = None
 
     @model_validator(mode="after")
     def _ordered_box(self) -> SafetyConfig:

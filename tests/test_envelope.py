@@ -192,3 +192,40 @@ def test_a_gripper_opening_and_closing_next_to_its_wrist_is_not_braked(so101):
     assert policy.calls > 600 and min(abs(moved - lo), abs(moved - hi)) < 0.2  # it did move
     assert rt.guard.envelope.apart.any()
     assert int(rt.guard.counts["self_collision"].sum()) == 0
+
+
+def test_workspace_margin_holds_for_every_arm_within_the_link_length_tolerance():
+    """arm3 declares its links +-10 % (the soak's range): the envelope's workspace margin at a pose
+    is never above the true margin of an arm whose links are drawn within that tolerance (the
+    soak's own scaling, eval.world.dynamics). Before, a 9 % longer arm whipping through the
+    stretched pose left the box on 225 ticks of a 0.1-h soak (seed 101)."""
+    import mujoco
+
+    from eval.world.dynamics import Dynamics, randomized_model
+
+    arm3 = load_robot("arm3")
+    assert arm3.config.safety.link_length_tolerance == pytest.approx(0.10)
+    guard = SafetyGuard(arm3, 1, "velocity")
+    envelope = guard.envelope
+    tol = envelope.link_length_tolerance
+    # the 1.0-m faces lie past the longest arm's reach (0.99 m): only the base plane is left,
+    # 0.95 m from the stretched arm's nominal tip, less 10 % of its 0.9 m along x
+    assert np.isinf(envelope.ws_max[:2]).all()
+    np.testing.assert_allclose(envelope.workspace_margin(np.zeros(3))[0], 0.95 - 0.09)
+    rng = np.random.default_rng(0)
+    site = arm3.config.safety.end_effector_site
+    lo, hi = np.array(arm3.config.safety.workspace_min), np.array(arm3.config.safety.workspace_max)
+    for _ in range(20):
+        scale = rng.uniform(1.0 - tol, 1.0 + tol, 3)
+        ones = np.ones(3)
+        model = randomized_model(arm3, "position", Dynamics(scale, ones, ones, ones, ones))
+        data = mujoco.MjData(model)
+        for q in rng.uniform(arm3.position_lower, arm3.position_upper, (20, 3)):
+            data.qpos[:3] = q
+            mujoco.mj_kinematics(model, data)
+            ee = data.site(site).xpos
+            # the plane's axes (z: the +-6 cm slab the arm moves in)
+            true_margin = np.minimum(ee - envelope.ws_min, envelope.ws_max - ee)[:2]
+            assert np.all(envelope.workspace_margin(q)[:2] <= true_margin + 1e-9)
+            assert np.all(ee[:2] < hi[:2])  # the faces left out are never reached
+            assert np.all(ee[:2] > lo[:2]) or envelope.workspace_margin(q).min() < 0.0

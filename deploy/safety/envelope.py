@@ -176,7 +176,15 @@ class MotionEnvelope:
         self.geom_model, self.geom_data = geometry
         self.pairs = len(pair_weights)
         self.has_workspace = s.workspace_min is not None
-        if self.has_workspace:
+        #: the share by which each link may be longer or shorter than the MJCF's
+        #: (``safety.link_length_tolerance``; 0: the description is exact)
+        self.link_length_tolerance = float(s.link_length_tolerance or 0.0)
+        tol = self.link_length_tolerance
+        # the end effector's chain: Pinocchio's joints from the base to it, and their q indices
+        frame = self.model.frames[robot.ee_frame_id]
+        self._ee_chain = [j for j in self.model.supports[frame.parentJoint] if j > 0]
+        if self.has_workspace:  # a face beyond the longest chain's reach can never be crossed
+            reach = (1.0 + tol) * reach
             self.ws_min = np.where(np.array(s.workspace_min) <= -reach, -np.inf, s.workspace_min)
             self.ws_max = np.where(np.array(s.workspace_max) >= reach, np.inf, s.workspace_max)
         # (4, n): the smoother's acceleration and jerk limits, the worst gravity load's share of
@@ -215,8 +223,11 @@ class MotionEnvelope:
         # without a box)
         self.weights = np.zeros((self.pairs + 3, n))
         self.weights[: self.pairs] = pair_weights
+        #: (n,) m/rad: how fast the end effector's error bound (:meth:`kinematic_error`) can
+        #: change per radian of each joint, ``tolerance`` times the chain's length beyond it
+        self._error_weight = tol * self._chain_beyond(home)
         if self.has_workspace:
-            self.weights[self.pairs :] = axis_levers(robot, ee_lever)
+            self.weights[self.pairs :] = axis_levers(robot, ee_lever) + self._error_weight
         #: (n, n) m/rad^2: min(lever_i, lever_j), bound of the end effector's second derivatives
         self._curvature = np.minimum.outer(np.asarray(ee_lever), np.asarray(ee_lever))
         # cache of the last exact query: its configuration (rows collision, workspace) and the
@@ -284,11 +295,38 @@ class MotionEnvelope:
 
     def workspace_margin(self, q: np.ndarray) -> np.ndarray:
         """(3,) m, how far the end effector at ``q`` (n,) rad lies inside the workspace box along
-        x, y, z (negative outside)."""
+        x, y, z (negative outside), for every chain within the link-length tolerance: the
+        nominal margin less :meth:`kinematic_error`."""
         self.queries += 1
         pin.forwardKinematics(self.model, self.data, q)
         ee = pin.updateFramePlacement(self.model, self.data, self.robot.ee_frame_id).translation
-        return np.minimum(ee - self.ws_min, self.ws_max - ee)
+        margin = np.minimum(ee - self.ws_min, self.ws_max - ee)
+        if self.link_length_tolerance > 0.0:
+            margin -= self.kinematic_error(ee)
+        return margin
+
+    def kinematic_error(self, ee: np.ndarray) -> np.ndarray:
+        """(3,) m, bound of how far along x, y, z the true end effector lies from ``ee`` (3,) m,
+        the model's at the configuration of the last forward kinematics, when each link is
+        longer or shorter by up to :attr:`link_length_tolerance` of its length: that share of
+        the sum of the absolute components of the chain's segments (joint to joint, the last
+        to the end effector). A link scaled by ``s`` scales its segment (as the soak's link
+        lengths do, :func:`eval.world.dynamics.apply_dynamics`); the base's offset is exact."""
+        points = [self.data.oMi[j].translation for j in self._ee_chain] + [ee]
+        return self.link_length_tolerance * np.abs(np.diff(points, axis=0)).sum(axis=0)
+
+    def _chain_beyond(self, q: np.ndarray) -> np.ndarray:
+        """(n,) m, for each joint of the end effector's chain the summed length of the chain's
+        segments beyond it (0 for the other joints): a segment's length does not change with
+        the pose, and a joint turns every segment beyond it."""
+        pin.forwardKinematics(self.model, self.data, q)
+        ee = pin.updateFramePlacement(self.model, self.data, self.robot.ee_frame_id).translation
+        points = [self.data.oMi[j].translation for j in self._ee_chain] + [ee]
+        lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
+        out = np.zeros(self.robot.n_joints)
+        for k, j in enumerate(self._ee_chain):
+            out[self.model.joints[j].idx_q] = lengths[k:].sum()
+        return out
 
     # ------------------------------------------------------------------ the check
     def check(self, q, before, after, stopping, effort_scale, dq=None, command=None) -> bool:
@@ -425,6 +463,7 @@ class MotionEnvelope:
             self.model, self.data, centre, self.robot.ee_frame_id, pin.LOCAL_WORLD_ALIGNED
         )[:3]
         local = np.abs(jacobian) @ half + 0.5 * half @ self._curvature @ half
+        local += self._error_weight @ half  # the error bound's change over the box
         return np.minimum(reach, local)
 
     def _lower_bounds(self, kind: int, centre, half, value, speeds=None) -> np.ndarray:

@@ -237,7 +237,9 @@ def test_kill_and_resume_equals_an_uninterrupted_run(killed, config, batched, tm
     assert arrays["estimator/covariance"].shape == (1, 3, 2, 2) and arrays["mode"].shape == (1,)
     assert isinstance(arrays["ticks"], int) and isinstance(arrays["backend/sensor_rng"], str)
     resumed = run_campaign(replace(config, seed=0), 1, out, resume=True, progress=False)[0]
-    assert resumed["interventions"]["any"]["count"] > 0 and resumed["violations"]["any"] > 0
+    # (since the envelope covers velocity mode this session has no violation left to carry; the
+    # violation monitor's state round trip: tests/test_violations.py)
+    assert resumed["interventions"]["any"]["count"] > 0
     assert resumed["goals"]["missed"] and resumed["goals"]["windows"]
     assert seeded(resumed) == seeded(batched[0])
     a = build_report({"robot": "arm3"}, [resumed])

@@ -58,7 +58,9 @@ export: install
 #                            python -m policies.train --init-from policies/arm.pt
 #                            --critic-warmup 300000 --steps 3000000 --log-std-init -3
 #                            --anneal-steps 1500000 --final-log-std -4 --learning-rate 1e-4
-#                            --start-poses policies/arm3_missed_poses.json)
+#                            --start-poses policies/arm3_missed_poses.json; then twice more with
+#                            the motion envelope, the second from the first's result with
+#                            --steps 4000000 --log-std-init -3.5 --anneal-steps 2000000)
 #   make train ROBOT=so101   policies/so101.pt (SO-101, position mode, the same recipe; trained
 #                            before it drew its soak's encoder noise: not bit for bit); the
 #                            shipped so101.pt is that run fine-tuned under the soft position

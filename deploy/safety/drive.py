@@ -14,12 +14,12 @@ velocity feed-forward:
 
 ``M`` the joint's inertia, ``d`` gravity, friction and the other joints' coupling. Wherever the
 commands stop, the joint comes to rest where its lag balances gravity, ``q = s - g(q) / kp``
-(:meth:`VelocityDrive.equilibrium`); while the commands brake at ``a`` it runs ahead of ``s``
+(:meth:`VelocityDrive.motion`); while the commands brake at ``a`` it runs ahead of ``s``
 by up to ``M a / kp`` (the lead), and the loop's anti-windup never lets ``|e|`` exceed
 ``effort_limit / kp``. So the motion a velocity command commits the robot to is the path of the
 equilibrium ``s - g / kp`` (the integral of the smoother's commands and of its brake), widened
 by the lead, the uncertainty of the gravity load and the dry friction the loop must overcome
-(:meth:`VelocityDrive.slack`). The motion envelope (:mod:`deploy.safety.envelope`) certifies
+(:meth:`VelocityDrive.motion`). The motion envelope (:mod:`deploy.safety.envelope`) certifies
 that, as it certifies the command path of a position servo.
 
 The runtime does not see ``s``; it integrates its own commands as the drive does
@@ -45,9 +45,12 @@ INERTIA_UNCERTAINTY = 0.45
 #: Multiple of the model's dry friction (``frictionloss``) the drive may have to overcome (our
 #: choice): the soak's +-50 % and its drift of up to 6 % per hour over 8 hours.
 FRICTION_FACTOR = 3.0
-#: Standard deviations of the estimated speed a joint must be past its velocity limit by before
-#: the guard trusts that it runs away (our choice: three, a 0.3 % false alarm per joint and tick
-#: for a Gaussian error; the estimate of a drive commanded at its limit crosses it half the time).
+#: Standard deviations of the joint estimate's error the guard allows for (our choice: three, a
+#: 0.3 % false alarm per joint and tick for a Gaussian error). Velocity mode: how far past its
+#: velocity limit a joint's estimated speed must be before the guard trusts that it runs away
+#: (the estimate of a drive commanded at its limit crosses it half the time). Torque mode
+#: (:mod:`deploy.safety.torque_drive`): how far its motion is widened (every figure of torque
+#: mode comes from the estimate; arm3's encoder noise put its estimated tip 2 cm from where it was).
 ESTIMATE_SIGMAS = 3.0
 
 
@@ -113,12 +116,11 @@ class VelocityDrive:
         self._gravity = np.zeros((envs, n))
         self._mass = np.zeros((envs, n, n))
         # the kernel's per-joint figures (deploy.safety.drive_kernel.velocity_drive_motion)
-        self._joint = np.zeros((12, n))
-        self._joint[:10] = [
+        self._joint = np.array([
             self.kp, self.kd, self.unwind, self.friction, robot.effort_limit,
             self.lower, self.upper, robot.jerk_limit, robot.acceleration_limit,
             robot.velocity_limit,
-        ]  # fmt: skip
+        ], dtype=float)  # fmt: skip
         self._uncertainty = np.array([GRAVITY_UNCERTAINTY, INERTIA_UNCERTAINTY, ESTIMATE_SIGMAS])
         self.covariance = None
         dk.warm_up()
@@ -218,11 +220,10 @@ class VelocityDrive:
         for e in range(self.envs):
             self._gravity[e] = pin.computeGeneralizedGravity(model, data, q[e])
             self._mass[e] = pin.crba(model, data, q[e])  # the upper triangle is read
-        self._joint[10:] = limits[2:4]
         dk.velocity_drive_motion(
             self.setpoint, q, dq, after[1], after[2], self._gravity, self._mass, effort_scale,
-            self._joint, self._variance, self._uncertainty, self.dt, start, end, slack, lead,
-            beyond,
+            self._joint, limits, self._variance, self._uncertainty, self.dt, start, end, slack,
+            lead, beyond,
         )  # fmt: skip
 
     def integrate(self, command: np.ndarray) -> None:

@@ -15,6 +15,11 @@ import numba
 import numpy as np
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _sign(x: float) -> float:
+    return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
+
+
 @numba.njit(cache=True, nogil=True)
 def velocity_drive_motion(
     setpoint: np.ndarray,
@@ -26,6 +31,7 @@ def velocity_drive_motion(
     mass: np.ndarray,
     effort_scale: np.ndarray,
     joint: np.ndarray,
+    limits: np.ndarray,
     variance: np.ndarray,
     uncertainty: np.ndarray,
     dt: float,
@@ -46,10 +52,12 @@ def velocity_drive_motion(
         mass: (envs, n, n) kg m^2, the mass matrix at ``q`` (Pinocchio's CRBA: only its upper
             triangle is read).
         effort_scale: (envs, n), the drives' thermal derating.
-        joint: (12, n) per joint: ``kp`` N m/rad, ``kd`` N m s/rad, ``unwind`` 1/s, dry friction
+        joint: (10, n) per joint: ``kp`` N m/rad, ``kd`` N m s/rad, ``unwind`` 1/s, dry friction
             N m (times its factor), effort limit N m, lower and upper position limits rad,
-            jerk limit rad/s^3, acceleration limit rad/s^2, hard velocity limit rad/s, the
-            worst gravity load's share of the effort limit and the brake's headroom floor.
+            jerk limit rad/s^3, acceleration limit rad/s^2, hard velocity limit rad/s.
+        limits: (4, n) the motion envelope's: rows 2 and 3 the worst gravity load's share of the
+            effort limit and the brake's headroom floor
+            (:func:`deploy.safety.envelope_kernel.brake_headroom`).
         variance: (envs, n) rad^2/s^2, the variance of the estimated speed.
         uncertainty: (3,) the gravity's and the inertia's untrusted shares and the runaway's
             standard deviations.
@@ -75,20 +83,18 @@ def velocity_drive_motion(
             slack[e, i] = g_unc * abs(sag) + joint[3, i] / kp + abs(v) * dt
             # the lead: the mass matrix's diagonal (and its uncertainty) over kp at the brake's
             # peak deceleration, never past the anti-windup's bound
-            sign = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else (1.0 if a > 0.0 else -1.0))
-            if v == 0.0 and a == 0.0:
-                sign = 0.0
+            vs = _sign(v)
+            sign = vs if v != 0.0 else _sign(a)  # the motion's direction, or the push's at rest
             jerk = joint[7, i]
             toward = max(a * sign, 0.0)
             v_eff = abs(v) + toward * toward / (2.0 * jerk)
-            g, floor = joint[10, i], joint[11, i]
+            g, floor = limits[2, i], limits[3, i]
             share = effort_scale[e, i] - g
             share = share / (1.0 - g) if g < 1.0 else share
             share = min(max(share, floor), 1.0)
             peak = min(joint[8, i] * share, math.sqrt(v_eff * jerk))
             lead[e, i] = sign * min((1.0 + i_unc) * mass[e, i, i] * peak / kp, bound)
             # overspeed: the lag that unwinds, and the coupling pushes along the motion
-            vs = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
             lag = (s - q[e, i] - sag) * vs + g_unc * abs(sag)
             excess = abs(v) + joint[2, i] * max(lag, 0.0)
             push = 0.0
@@ -110,7 +116,7 @@ def warm_up() -> None:
     speed's variance is a strided view, as the estimator's covariance gives it)."""
     z = np.zeros((1, 2))
     velocity_drive_motion(
-        z.copy(), z, z, z, z, z, np.zeros((1, 2, 2)), np.ones((1, 2)), np.ones((12, 2)),
-        np.zeros((1, 2, 2))[..., 1], np.zeros(3), 0.01, z.copy(), z.copy(), z.copy(), z.copy(),
-        np.zeros(1, dtype=bool),
+        z.copy(), z, z, z, z, z, np.zeros((1, 2, 2)), np.ones((1, 2)), np.ones((10, 2)),
+        np.ones((4, 2)), np.zeros((1, 2, 2))[..., 1], np.zeros(3), 0.01, z.copy(), z.copy(),
+        z.copy(), z.copy(), np.zeros(1, dtype=bool),
     )  # fmt: skip

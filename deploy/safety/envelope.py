@@ -261,7 +261,7 @@ class MotionEnvelope:
         #: (envs, n) rad, how far a joint may stray from the certified path (0: a position servo)
         self._slack = np.zeros((envs, n))
         #: (envs, n) rad, signed: how far past the brake's rest a joint may run (a velocity
-        #: drive's lead, :meth:`deploy.safety.drive.VelocityDrive.lead`; 0: a position servo)
+        #: drive's lead, :meth:`deploy.safety.drive.VelocityDrive.motion`; 0: a position servo)
         self._lead = np.zeros((envs, n))
         # a velocity drive's path: the smoother's state with its equilibrium as the position
         self._drive_path = np.zeros((2, 3, envs, n))
@@ -312,8 +312,13 @@ class MotionEnvelope:
         the sum of the absolute components of the chain's segments (joint to joint, the last
         to the end effector). A link scaled by ``s`` scales its segment (as the soak's link
         lengths do, :func:`eval.world.dynamics.apply_dynamics`); the base's offset is exact."""
+        return self.link_length_tolerance * np.abs(self._segments(ee)).sum(axis=0)
+
+    def _segments(self, ee: np.ndarray) -> np.ndarray:
+        """(k, 3) m, the end effector's chain at the last forward kinematics, joint to joint and
+        the last to ``ee`` (3,) m."""
         points = [self.data.oMi[j].translation for j in self._ee_chain] + [ee]
-        return self.link_length_tolerance * np.abs(np.diff(points, axis=0)).sum(axis=0)
+        return np.diff(points, axis=0)
 
     def _chain_beyond(self, q: np.ndarray) -> np.ndarray:
         """(n,) m, for each joint of the end effector's chain the summed length of the chain's
@@ -321,8 +326,7 @@ class MotionEnvelope:
         the pose, and a joint turns every segment beyond it."""
         pin.forwardKinematics(self.model, self.data, q)
         ee = pin.updateFramePlacement(self.model, self.data, self.robot.ee_frame_id).translation
-        points = [self.data.oMi[j].translation for j in self._ee_chain] + [ee]
-        lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
+        lengths = np.linalg.norm(self._segments(ee), axis=1)
         out = np.zeros(self.robot.n_joints)
         for k, j in enumerate(self._ee_chain):
             out[self.model.joints[j].idx_q] = lengths[k:].sum()
@@ -358,23 +362,27 @@ class MotionEnvelope:
         elif self.drive is not None:
             before, after = self._drive_motion(q, dq, before, after, effort_scale)
         box, need = self._box, self._need
-        if not ek.envelope_screen(
+        uncertain = ek.envelope_screen(
             q, before, after, stopping, self.limits, effort_scale, self._cached_q,
             self._clearance, self.weights, self.margin, box, need, *self.tables.arrays(),
             self._speeds, self.local.order, self.local.nest, self._slack,
             self._lead,
-        ):  # fmt: skip
-            if self.torque is not None:
-                self.torque.beyond_limits(box, self.beyond)
-            if not self.beyond.any():
-                return False
-            self.beyond &= ~stopping
-            self.joints[self.beyond] = True  # every joint of those envs brakes
-            self._dirty = bool(self.beyond.any())
-            return self._dirty
+        )  # fmt: skip
         if self.torque is not None:
             self.torque.beyond_limits(box, self.beyond)
         self.beyond &= ~stopping
+        beyond = bool(self.beyond.any())
+        if beyond:
+            self.joints[self.beyond] = True  # every joint of those envs brakes
+        self._dirty = beyond
+        if uncertain:
+            self._query(q, before, after, box, need)
+            self._dirty |= bool(self.unsafe.any())
+        return self._dirty
+
+    def _query(self, q, before, after, box, need) -> None:
+        """Certify with Pinocchio the envs the screen marked in ``need``; mark the others in
+        :attr:`unsafe` and their joints in :attr:`joints`."""
         c, h = box[0], box[1]
         for e in np.flatnonzero(need[ek.COLLISION]):
             d = self._clearance[e, : self.pairs]
@@ -393,9 +401,6 @@ class MotionEnvelope:
                 if not self._passes(ek.WORKSPACE, e, q, before, after):
                     self.unsafe[ek.WORKSPACE, e] = True
                     self._mark_joints(ek.WORKSPACE, e, c[e], h[e], inside)
-        self.joints[self.beyond] = True  # every joint of those envs brakes
-        self._dirty = bool(self.unsafe.any() or self.beyond.any())
-        return self._dirty
 
     def _drive_motion(self, q, dq, before, after, effort_scale):
         """A velocity drive's motion (:mod:`deploy.safety.drive`): the smoother's state before and

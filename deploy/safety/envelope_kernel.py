@@ -195,10 +195,10 @@ def envelope_screen(
     (envs, n), the thermal derating. Writes ``box`` (5, envs, n): centre, half-width, the
     brake's rest point, that headroom and how far the joint may stray from the path: the brake's
     reversal past rest (``back`` of :func:`brake_reach`, as a distance) plus ``slack`` (envs, n)
-    rad, the drive's own (0 for a position servo; a velocity drive's lead, sag and friction,
-    :meth:`deploy.safety.drive.VelocityDrive.slack`), by which the box is widened on each side;
-    the box also holds the rest point moved by ``lead`` (envs, n) rad, signed (a velocity drive
-    running ahead of its braking integrator, :meth:`deploy.safety.drive.VelocityDrive.lead`).
+    rad, the drive's own (0 for a position servo; a velocity drive's sag, friction and command
+    period, :meth:`deploy.safety.drive.VelocityDrive.motion`), by which the box is widened on each
+    side; the box also holds the rest point moved by ``lead`` (envs, n) rad, signed (a velocity
+    drive running ahead of its braking integrator, the same method).
 
     The screen marks ``need[row, e]`` (rows ``COLLISION``, ``WORKSPACE``) where the cache cannot
     certify the box: ``cached_q`` (2, envs, n) rad the configurations of the last exact queries

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from deploy.safety.drive import ESTIMATE_SIGMAS
 from deploy.smoothing.smoother import TORQUE_RISE_TIME
 from robots import Robot
 from robots.chain_bounds import inertia_bound
@@ -26,10 +27,6 @@ from robots.chain_bounds import inertia_bound
 #: Share of the commanded deceleration the guard counts on (our choice): the soak randomizes link
 #: masses +-20 % and actuator strength +-10 %; the computed torque assumes the nominal masses.
 BRAKE_TRUST = 0.7
-#: Standard deviations of the joint estimate the torque-mode motion is widened by (our choice):
-#: every figure of torque mode comes from the estimate (a servo's command path does not), and
-#: arm3's encoder noise (0.0157 rad) put its estimated tip 2 cm from where it was.
-ESTIMATE_SIGMAS = 3.0
 #: rad/s, the stop's hold: once braked, each joint is pulled back to where its stop began by a
 #: critically damped PD of this natural frequency (our choice: 2 Hz, slow against the drives'
 #: current loops, fast against a sag), its acceleration within the stop's deceleration. Without it
@@ -136,13 +133,16 @@ class TorqueDrive:
 
     def commit(self, command: np.ndarray) -> None:
         """The tick's final torque ``command`` (envs, n) N m: :attr:`acceleration` at the
-        estimate of the last :meth:`motion`, and :attr:`command`."""
+        estimate of the last :meth:`motion` (its own for the envs that kept the step's torque,
+        Pinocchio's forward dynamics again for those :meth:`brake` replaced), and
+        :attr:`command`."""
         q, dq = self._state
         np.copyto(self.command, command)
+        np.copyto(self.acceleration, self._acc)
+        for e in np.flatnonzero(self._braking):
+            self.acceleration[e] = pin.aba(self._model, self._data, q[e], dq[e], command[e])
         np.copyto(self.braked, self._braking)
         self._braking.fill(False)
-        for e in range(self.envs):
-            self.acceleration[e] = pin.aba(self._model, self._data, q[e], dq[e], command[e])
 
     def brake(self, q, dq, effort_scale, envs, out) -> None:
         """The computed-torque stop of the envs of ``envs`` ((envs,) bool) into ``out`` (envs,

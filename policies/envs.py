@@ -230,7 +230,7 @@ class ReachTask:
         self.guard = SafetyGuard(robot, envs, config.mode)
         self.guard.trust_estimate(self.estimator.covariance)  # as the runtime does
         # the estimator's control input, as in the runtime (deploy.runtime.Runtime)
-        self._input = None if config.mode == "torque" else self.smoother.mean_acceleration
+        self._input = self.guard.estimator_input(self.smoother)
         # velocity mode: the guard's stopping bounds read Ruckig's integrated position too
         self._commanded = self.smoother.position if config.mode == "velocity" else None
         self._moved = np.zeros(envs, dtype=np.int64)

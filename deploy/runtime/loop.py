@@ -158,14 +158,8 @@ class Runtime(RuntimeState):
         self._anchored = np.zeros(envs, dtype=np.int64)
         # velocity mode: the position the commands integrate to (Ruckig's state), else None
         self._commanded = self.smoother.position if self.mode_name == "velocity" else None
-        #: the estimator's control input: the acceleration commanded over the last period (the
-        #: smoother's trajectory; in torque mode the forward dynamics of the torque at the
-        #: estimate, the guard's :class:`deploy.safety.torque_drive.TorqueDrive`, and none for a
-        #: floating base)
-        self._input = self.smoother.mean_acceleration
-        if self.mode_name == "torque":
-            envelope = self.guard.envelope
-            self._input = envelope.torque.acceleration if envelope is not None else None
+        #: the estimator's control input (:meth:`SafetyGuard.estimator_input`)
+        self._input = self.guard.estimator_input(self.smoother)
         self.guard.trust_estimate(self.estimator.covariance)
         # latency histograms' bins (deploy.observe.telemetry)
         self._bins = np.array([BIN_NS, BINS], dtype=np.int64)

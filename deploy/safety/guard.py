@@ -289,6 +289,16 @@ class SafetyGuard:
             if model is not None:
                 model.covariance = covariance
 
+    def estimator_input(self, smoother) -> np.ndarray | None:
+        """(envs, n) rad/s^2, a view: the joint estimator's control input, the acceleration
+        commanded over the last period: the smoother's (``mean_acceleration``, position and
+        velocity mode); in torque mode the last committed torque's at the estimate
+        (:attr:`deploy.safety.torque_drive.TorqueDrive.acceleration`), or None without a motion
+        envelope (a floating base: the filter then runs without one)."""
+        if self.mode != "torque":
+            return smoother.mean_acceleration
+        return self.envelope.torque.acceleration if self.envelope is not None else None
+
     def update_thermal(self, winding_temperature: np.ndarray) -> np.ndarray:
         """Derate the effort limits as the drives do (:class:`robots.thermal.EffortDerating`:
         linearly across the derating band, down to the continuous torque); returns

@@ -41,7 +41,7 @@ ENVS = 2
 #: Ticks of the scripted events (each on env 0 or 1, see ScriptedBackend / ScriptedClock).
 HOT = (300, 420)  # env 1 reports a winding 5 degC above its maximum, then ambient (cool)
 DRIVE_ERROR = 700  # env 0's drive reports an error bit
-OVERRUN = (1000, 1015)  # the clock reports 15 overruns in a row (7.5 % of the window)
+OVERRUN = (1000, 1002)  # the clock reports 2 overruns that missed 300 periods each
 SWEEP_PERIOD = 4.0  # s
 #: Fields of the runtime's state that are measurements of wall time, not results.
 TIMING = ("latency/", "tick_cost/", "clock/jitter/")
@@ -95,6 +95,7 @@ class ScriptedClock:
     """A real-time clock that never waits and reports overruns at scripted ticks."""
 
     realtime = True
+    late_ns = 0
 
     def __init__(self, period: float):
         self.period, self.overruns, self.missed_periods = period, 0, 0
@@ -104,11 +105,11 @@ class ScriptedClock:
     def start(self) -> None:
         pass
 
-    def wait(self) -> bool:
+    def wait(self) -> int:
         self.ticks += 1
         late = OVERRUN[0] <= self.ticks < OVERRUN[1]
         self.overruns += late
-        return late
+        return 300 if late else 0
 
 
 def build(robot, mode: str, policy_path, runtime: type[Runtime]) -> Runtime:

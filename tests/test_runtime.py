@@ -190,10 +190,39 @@ def test_wall_clock_counts_overruns_and_skips_missed_periods(tmp_path, arm3):
             return slow(obs)
 
     rt.policy = Slow()
-    rt.run(20)
+    rt.run(80)  # 2 of 3 periods missed: past velocity mode's 25 % of a second in ~0.4 s
     assert rt.clock.overruns >= 15
     assert rt.clock.missed_periods >= 15  # skipped, not run back to back
     assert rt.cause_names()[0] == "overrun"
+
+
+def test_a_transient_stall_is_ridden_through_and_named_in_the_long_ticks(tmp_path, arm3):
+    """A busy computer stalls the loop 100 ms every 40 ticks (a third of the wall time): the
+    drives hold the last command through each stall and the runtime keeps RUNNING (position
+    mode stops past half the periods of a second); the long-tick record names the stalls, in
+    the policy's stage (``infer``), with the loop thread off the CPU (asleep)."""
+    rt = make_runtime(tmp_path, arm3, "position", clock=WallClock(arm3.control_period))
+    fast = rt.policy
+    calls = [0]
+
+    class Stalling:
+        spec = fast.spec
+
+        def __call__(self, obs):
+            calls[0] += 1
+            if calls[0] % 40 == 0:
+                time.sleep(0.1)
+            return fast(obs)
+
+    rt.policy = Stalling()
+    rt.run(400)
+    assert rt.clock.overruns >= 9
+    assert rt.mode_names() == ["RUNNING"]
+    assert rt.counters.faults["overrun"][0] == 0
+    stalls = [t for t in rt.long_ticks.rows(rt.dt) if t["period_us"] > 90_000]
+    assert len(stalls) >= 9
+    assert all(t["largest"] == "infer" and t["overran"] for t in stalls)
+    assert all(t["cause"] == "off CPU in infer" for t in stalls)
 
 
 def test_push_is_survived(tmp_path, arm3):

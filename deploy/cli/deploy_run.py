@@ -251,7 +251,7 @@ def _run_opened(
             diverged = str(exc)
         wall = time.perf_counter() - wall
     if telemetry is not None:
-        telemetry.close()
+        telemetry.close(rt.long_ticks.rows(rt.dt), rt.dt)
     if video is not None:
         video.close()
     if window is not None:
@@ -326,6 +326,7 @@ def _run_opened(
             "missed_periods": clock.missed_periods,
             "jitter_us": clock.jitter.summary() if realtime else None,
             "wait": clock.wait_mode,
+            "long_ticks": rt.long_ticks.rows(rt.dt),
         },
         "realtime_settings": settings.summary(),
         "bus": backend.bus_summary() if hasattr(backend, "bus_summary") else None,

@@ -37,8 +37,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         "--overrun-limit",
         type=float,
         default=None,
-        help="wall clock: fraction of overrun ticks (over the last 200) that makes a safe stop "
-        "(default 0.05)",
+        help="wall clock: fraction of the control periods of the last second the loop may miss "
+        "before a safe stop (default: position mode 0.5, velocity and torque 0.25); a shorter "
+        "stall is ridden through, the drives holding the last command",
     )
     p.add_argument(
         "--wait",

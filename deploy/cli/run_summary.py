@@ -112,6 +112,13 @@ def print_summary(r: dict) -> None:
         j = d["jitter_us"]
         line += f", jitter p50 {j['p50_us']:.1f} p99 {j['p99_us']:.1f} p99.9 {j['p99.9_us']:.1f} us"
     print(line)
+    long = [t for t in d.get("long_ticks", []) if t["overran"]][:3]
+    if long:
+        print(
+            "  longest overruns  "
+            + "; ".join(f"{t['period_us'] / 1e3:.1f} ms {t['cause']}" for t in long)
+            + " (report.json deadline.long_ticks)"
+        )
     rts = r.get("realtime_settings")
     if rts and (r["realtime"] or rts["requested"]["cpus"] is not None):
         sched = rts["scheduler"] or "scheduler unknown"

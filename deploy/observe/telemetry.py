@@ -8,7 +8,9 @@ topic per stage of the tick, JSON messages (schemas are JSON Schema):
 ``/read`` encoder positions (rad) and their stamps (s); ``/estimate`` q (rad), dq (rad/s) and,
 for a floating base, the estimated base orientation (``base_orientation``, ``[w, x, y, z]``);
 ``/infer`` the policy action; ``/guard`` the guarded target; ``/smooth`` the command sent;
-``/thermal`` reported winding temperatures (degC); ``/state`` the state machine of every env.
+``/thermal`` reported winding temperatures (degC); ``/state`` the state machine of every env;
+``/long_ticks`` (one message at the end, :meth:`Telemetry.close`) the run's longest control periods
+and their parts (:meth:`deploy.observe.long_ticks.LongTicks.rows`), stamped at their ticks' times.
 
 Given the robot (``robot=``) and with the ``foxglove`` extra installed, the file also carries
 Foxglove's well-known schemas (:mod:`deploy.observe.foxglove`): ``/tf`` link poses
@@ -79,7 +81,7 @@ class LatencyHistogram:
         }
 
 
-_TOPICS = ("/read", "/estimate", "/infer", "/guard", "/smooth", "/thermal", "/state")
+_TOPICS = ("/read", "/estimate", "/infer", "/guard", "/smooth", "/thermal", "/state", "/long_ticks")
 
 
 class Telemetry:
@@ -282,9 +284,24 @@ class Telemetry:
             )
             self.messages += 1
 
-    def close(self) -> Path:
-        """Flush, finish the MCAP file and move it to its final name; returns the path."""
+    def close(self, long_ticks: list[dict] | None = None, period: float | None = None) -> Path:
+        """Flush, finish the MCAP file and move it to its final name; returns the path.
+
+        Args:
+            long_ticks: Optional rows of :meth:`deploy.observe.long_ticks.LongTicks.rows`: one
+                ``/long_ticks`` message per row, stamped at its tick's time (``tick * period``).
+            period: The control period, s (with ``long_ticks``).
+        """
         self.flush()
+        for row in long_ticks or ():
+            t_ns = int(round(row["tick"] * (period or 0.0) * 1e9))
+            self._writer.add_message(
+                channel_id=self._channels["/long_ticks"],
+                log_time=t_ns,
+                publish_time=t_ns,
+                data=json.dumps(row).encode(),
+            )
+            self.messages += 1
         self._writer.finish()
         self._file.close()
         os.replace(self._tmp, self.path)

@@ -43,6 +43,9 @@ class SimClock:
     realtime = False
     wait_mode = None
 
+    #: ns, how late the last wake-up was (never, in lockstep)
+    late_ns = 0
+
     def __init__(self, period: float):
         self.period = period
         self.overruns = 0
@@ -52,9 +55,9 @@ class SimClock:
     def start(self) -> None:
         pass
 
-    def wait(self) -> bool:
-        """Return whether the last tick overran its period (never, in lockstep)."""
-        return False
+    def wait(self) -> int:
+        """The control periods the last tick missed (none, in lockstep)."""
+        return 0
 
 
 class WallClock:
@@ -103,6 +106,8 @@ class WallClock:
         self.overruns = 0
         self.missed_periods = 0
         self.jitter = LatencyHistogram()
+        #: ns, how late the last wake-up was against its deadline
+        self.late_ns = 0
         self._now = now_ns
         self._sleep = sleep
         self._next = 0
@@ -115,17 +120,19 @@ class WallClock:
         self._next = self._now() + self.period_ns
         self.fresh = True
 
-    def wait(self) -> bool:
-        """Wait for the next deadline; return whether the tick that just ended overran its own
-        (then the missed periods are skipped and counted in ``missed_periods``)."""
+    def wait(self) -> int:
+        """Wait for the next deadline; return the control periods the tick that just ended
+        missed: 0 on time; an overrun, 1 + the periods skipped (counted in ``missed_periods``;
+        the next deadline is the next one in the future)."""
         self.fresh = False
         now = self._now()
-        overrun = now > self._next
-        if overrun:
+        missed = 0
+        if now > self._next:
             self.overruns += 1
-            missed = (now - self._next) // self.period_ns
-            self.missed_periods += int(missed)
-            self._next += (missed + 1) * self.period_ns
+            skipped = (now - self._next) // self.period_ns
+            self.missed_periods += int(skipped)
+            self._next += (skipped + 1) * self.period_ns
+            missed = 1 + int(skipped)
         deadline = self._next
         mode = self.wait_mode
         if mode == "spin":
@@ -140,6 +147,7 @@ class WallClock:
             now = self._now()
             while now < deadline:  # hybrid: the last margin; sleep: never (sleep is not early)
                 now = self._now()
-        self.jitter.add(0, now - deadline)
+        self.late_ns = now - deadline
+        self.jitter.add(0, self.late_ns)
         self._next = deadline + self.period_ns
-        return overrun
+        return missed

@@ -14,6 +14,7 @@ import numpy as np
 
 from deploy.estimation.joints import JointStateEstimator
 from deploy.observe import latency_kernel as lk
+from deploy.observe import long_ticks as lt
 from deploy.observe.telemetry import BIN_NS, BINS, LatencyHistogram
 from deploy.robot_kind import robot_kind
 from deploy.runtime.anchoring import reanchor, tracking_tolerance
@@ -23,7 +24,6 @@ from deploy.runtime.modes import (
     FAULT_CAUSES,
     FAULTED,
     OVERRUN_RATE_LIMIT,
-    OVERRUN_WINDOW,
     RAMP_IN,
     RUNNING,
     SAFE_STOP,
@@ -61,8 +61,11 @@ class Runtime(RuntimeState):
         clock: :class:`SimClock` (default) or :class:`WallClock`.
         injector: Optional :class:`~deploy.backends.sim.faults.FaultInjector` (simulation only).
         telemetry: Optional :class:`~deploy.observe.telemetry.Telemetry` recorder.
-        overrun_rate_limit: Fraction of overrun ticks over the last ``OVERRUN_WINDOW`` that makes
-            a safe stop with the wall clock (default ``OVERRUN_RATE_LIMIT``, 5 %, our choice).
+        overrun_rate_limit: Fraction of the control periods of the last ``OVERRUN_WINDOW_S``
+            seconds the loop may miss on the wall clock before a safe stop (cause ``overrun``);
+            default ``OVERRUN_RATE_LIMIT`` of the control mode (0.5 position, 0.25 velocity and
+            torque; our choice, :mod:`deploy.runtime.modes`). A transient stall is ridden
+            through, the drives holding the last command.
 
     The tick's numeric logic (supervision, action screen, observation, guard, smoother, latency
     histograms) runs in the compiled kernels of :mod:`deploy.kernels`; its numpy reference is
@@ -87,8 +90,10 @@ class Runtime(RuntimeState):
         clock=None,
         injector=None,
         telemetry=None,
-        overrun_rate_limit: float = OVERRUN_RATE_LIMIT,
+        overrun_rate_limit: float | None = None,
     ):
+        if overrun_rate_limit is None:
+            overrun_rate_limit = OVERRUN_RATE_LIMIT[backend.mode]
         if not 0.0 < overrun_rate_limit <= 1.0:
             raise ValueError(f"overrun_rate_limit: expected in (0, 1], got {overrun_rate_limit}")
         self.overrun_rate_limit = overrun_rate_limit
@@ -148,6 +153,13 @@ class Runtime(RuntimeState):
         self.stop_ticks = sup.stop_ticks
         self.latency = LatencyHistogram(len(STAGES))
         self.tick_cost = LatencyHistogram()
+        #: the longest control periods and their parts (:class:`~deploy.observe.long_ticks.
+        #: LongTicks`): the wake-up's lateness, each stage, the work outside the stages, the
+        #: loop thread's CPU time (wall clock)
+        self.long_ticks = lt.LongTicks(STAGES)
+        # the period's stamps (long_ticks.PREV_WAKE ... END_CPU) and the CPU clock (wall clock)
+        self._period = np.array([0, 0, -1, 0, 0], dtype=np.int64)
+        self._cpu_ns = time.thread_time_ns if self.clock.realtime else None
         self.ticks = 0
         self.time = 0.0
         self._obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
@@ -191,6 +203,7 @@ class Runtime(RuntimeState):
         lk.add_stages(
             self._stamps, self._bins, c(lat.counts), c(lat.max_ns), c(cost.counts), c(cost.max_ns)
         )
+        lt.record(c(self.long_ticks.table), self._stamps, c(self._period), 0)
         return compiled
 
     # ------------------------------------------------------------------ lifecycle
@@ -318,8 +331,20 @@ class Runtime(RuntimeState):
         self._record_latency(st)
         if self.telemetry is not None:
             self.telemetry.record(self)
-        overrun = self.clock.wait()
-        self.supervision.overrun_ring[self.ticks % OVERRUN_WINDOW] = overrun
+        period, cpu_ns = self._period, self._cpu_ns
+        period[lt.END] = clock_ns()
+        if cpu_ns is not None:
+            period[lt.END_CPU] = cpu_ns()
+        lt.record(self.long_ticks.table, st, period, self.ticks)
+        self.supervision.note_periods(self.clock.wait())  # the periods missed: 0 on time
+        self._woke(clock_ns())
+
+    def _woke(self, now_ns: int) -> None:
+        """The period's stamps at a wake-up (:mod:`deploy.observe.long_ticks`)."""
+        period = self._period
+        period[lt.PREV_WAKE] = now_ns
+        period[lt.PREV_LATE] = self.clock.late_ns
+        period[lt.PREV_CPU] = self._cpu_ns() if self._cpu_ns is not None else -1
 
     # ------------------------------------------------------------------ stages' helpers
     def _supervise(self, state: RobotState, drive_errors: np.ndarray | None) -> None:
@@ -399,6 +424,7 @@ class Runtime(RuntimeState):
         gc.disable()
         if getattr(self.clock, "fresh", False):  # a wall clock not yet waited on: the collection
             self.clock.start()  # (tens of ms) is set-up, not the first tick's overrun
+        self._woke(time.perf_counter_ns())
         try:
             for _ in range(ticks):
                 self.tick()

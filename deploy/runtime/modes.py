@@ -15,9 +15,18 @@ import numpy as np
 
 #: Consecutive non-finite policy outputs before a safe stop (0.05 s at 200 Hz).
 NAN_ACTION_LIMIT = 10
-#: Fraction of overrun ticks over the last ``OVERRUN_WINDOW`` ticks that makes a safe stop.
-OVERRUN_RATE_LIMIT = 0.05
-OVERRUN_WINDOW = 200
+#: The wall clock's safe stop on a loop that cannot keep up: the fraction of the control
+#: periods of the last ``OVERRUN_WINDOW_S`` seconds that the loop missed (no tick finished in
+#: them: an overrun tick and the periods it skipped), by control mode, beyond which the loop
+#: stops. A transient stall (a busy computer: a tick preempted for 100 ms) misses a few periods
+#: and is ridden through with the drives holding the last command; a loop that misses most of
+#: its periods for a second cannot keep up and stops. Our choice: a position drive holds its last
+#: target (a fixed point of its PD), so half the periods of a second may be missed; a velocity or
+#: a torque drive keeps moving on its last command, beyond the one period the guard certified, so
+#: a quarter. The same for an arm and a legged robot: a walking robot whose loop misses more than
+#: half its periods for a second no longer walks on its policy.
+OVERRUN_RATE_LIMIT = {"position": 0.5, "velocity": 0.25, "torque": 0.25}
+OVERRUN_WINDOW_S = 1.0
 #: A joint is at rest below this speed, rad/s (ends a safe stop, ends RAMP_IN).
 REST_SPEED = 0.05
 #: A safe stop whose joints are not all at rest this long after it began ends FAULTED anyway

@@ -92,7 +92,7 @@ class RuntimeState:
         safe stop began), the last ``target`` and ``command`` (the
         units of the mode), ``counters/<name>`` and ``counters/faults/<cause>`` (int64) and the
         estimated ``state/<field>`` (:class:`~deploy.state.RobotState`). Shared by the batch:
-        ``ticks`` (int), ``time`` (float, s), ``overrun_ring`` (``OVERRUN_WINDOW``,) bool, the
+        ``ticks`` (int), ``time`` (float, s), ``overrun_ring`` (window,) int64 missed periods, the
         wall-clock histograms ``latency/*``, ``tick_cost/*`` and ``clock/*`` (measurements, not
         seeded; a wall clock's next deadline is not state: a resumed loop starts its own).
         Then each stage's ``state_dict(env)`` under its name: ``estimator/``, ``guard/``,

@@ -21,7 +21,7 @@ from deploy.runtime.modes import (
     FAULT_CAUSES,
     FAULTED,
     IDLE,
-    OVERRUN_WINDOW,
+    OVERRUN_WINDOW_S,
     RAMP_GAIN,
     RAMP_IN,
     RUNNING,
@@ -47,8 +47,8 @@ class Supervision:
         guard: The safety guard (its thermal derating band and ``gravity``).
         smoother: The command smoother (its ``safe_stop`` and ``sync``).
         clock: The runtime's clock (``realtime``: whether overruns count).
-        overrun_rate_limit: Fraction of overrun ticks over the last ``OVERRUN_WINDOW`` that makes
-            a safe stop with the wall clock.
+        overrun_rate_limit: Fraction of the control periods of the last ``OVERRUN_WINDOW_S``
+            seconds the loop may miss before a safe stop with the wall clock (``overrun``).
         reset_policy: The policy's ``reset(envs)`` (bool mask (envs,)).
     """
 
@@ -95,8 +95,12 @@ class Supervision:
         self.last_valid_action = np.zeros((envs, n), dtype=np.float32)
         #: (envs,) int64: consecutive non-finite actions
         self.nan_streak = np.zeros(envs, dtype=np.int64)
-        #: (OVERRUN_WINDOW,) bool: the last ticks' wall-clock overruns (the runtime writes it)
-        self.overrun_ring = np.zeros(OVERRUN_WINDOW, dtype=bool)
+        #: (window,) int64: the last ``OVERRUN_WINDOW_S`` seconds of control periods on the wall
+        #: clock, 1 where the loop missed the period (:meth:`note_periods`), 0 where a tick
+        #: finished in it
+        window = max(1, int(np.ceil(OVERRUN_WINDOW_S / robot.control_period - 1e-9)))
+        self.overrun_ring = np.zeros(window, dtype=np.int64)
+        self._ring_at = 0
         self.home = np.asarray(robot.home)
         #: RAMP_IN ends on the smoother's commanded position at home (not the estimate's): a
         #: legged robot in position mode, whose drives' soft PD (the gains it was trained with)
@@ -106,6 +110,20 @@ class Supervision:
         # the thermal band of the derating law the guard and the drives share
         self.temp_start = self.guard.derating.start
         self.temp_max = self.guard.derating.maximum
+
+    def note_periods(self, missed: int) -> None:
+        """Write the last tick's periods into :attr:`overrun_ring`: one 0 for a tick on time,
+        else ``missed`` 1s (its own period and those it skipped; ``WallClock.wait``'s return)."""
+        ring, at = self.overrun_ring, self._ring_at
+        w = ring.shape[0]
+        if not missed:
+            ring[at] = 0
+            self._ring_at = (at + 1) % w
+            return
+        for _ in range(min(int(missed), w)):
+            ring[at] = 1
+            at = (at + 1) % w
+        self._ring_at = at
 
     def ramp_in_at_rest(self, envs: np.ndarray, q: np.ndarray) -> None:
         """RAMP_IN for the envs of ``envs`` (bool mask) from the estimated pose ``q``, at rest:

@@ -96,7 +96,8 @@ def supervise(
         time_since_fresh: (envs, n) s since each joint's last fresh reading.
         drive_any: (envs,) bool, a drive of the env reported an error this tick.
         drive_errors: (envs, n) int64, the latched drive error bits.
-        overrun_ring: (window,) bool, overruns of the last ticks; read when ``realtime``.
+        overrun_ring: (window,) int64, the last control periods, 1 where the loop missed one;
+            read when ``realtime``: a stop when their mean passes ``OVERRUN_LIMIT``.
         params: ``STALE_LIMIT`` s, ``OVERRUN_LIMIT`` fraction, ``REST_SPEED`` rad/s,
             ``HOME_TOLERANCE`` rad, ``TRACKING_TOLERANCE`` rad (of the control mode),
             ``STOP_TIMEOUT`` ticks (``deploy.runtime.SAFE_STOP_TIMEOUT``),
@@ -141,8 +142,7 @@ def supervise(
     if realtime:
         late = 0
         for k in range(overrun_ring.shape[0]):
-            if overrun_ring[k]:
-                late += 1
+            late += overrun_ring[k]
         if late / overrun_ring.shape[0] > params[OVERRUN_LIMIT]:
             for e in range(envs):
                 if _stop(e, OVERRUN, mode, cause, safe_stops, faults, flags):

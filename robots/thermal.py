@@ -82,6 +82,8 @@ class TwoNodeThermalModel:
             )
         )
         self.reset()
+        # compile (or load numba's cache of) the kernel before any tick: dt 0 changes nothing
+        self.step(np.zeros(shape), 0.0)
 
     def reset(self) -> None:
         """Both nodes at ambient temperature (a cold motor)."""

@@ -122,8 +122,7 @@ class VelocityDrive:
             robot.velocity_limit,
         ], dtype=float)  # fmt: skip
         self._uncertainty = np.array([GRAVITY_UNCERTAINTY, INERTIA_UNCERTAINTY, ESTIMATE_SIGMAS])
-        self.covariance = None
-        dk.warm_up()
+        self.covariance = None  # compiles the kernel for it (the setter)
 
     @property
     def covariance(self) -> np.ndarray | None:
@@ -138,6 +137,7 @@ class VelocityDrive:
         # the speed's variance, a strided view (one kernel specialization either way)
         source = np.zeros((self.envs, self.robot.n_joints, 2, 2)) if value is None else value
         self._variance = source[..., 1, 1]
+        dk.warm_up(self._variance)  # its layout's specialization, before any tick
 
     def reset(self, q: np.ndarray, envs: np.ndarray | None = None) -> None:
         """The drives of ``envs`` (bool mask (envs,), default all) enabled at the estimated pose

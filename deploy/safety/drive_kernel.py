@@ -111,12 +111,15 @@ def velocity_drive_motion(
         beyond[e] = over
 
 
-def warm_up() -> None:
-    """Compile (or load numba's cache of) the kernel on small arrays, outside any tick (the
-    speed's variance is a strided view, as the estimator's covariance gives it)."""
-    z = np.zeros((1, 2))
+def warm_up(variance: np.ndarray | None = None) -> None:
+    """Compile (or load numba's cache of) the kernel outside any tick, for the speed's
+    ``variance`` (envs, n) the drive model will pass (its layout, contiguous or a strided view
+    of the estimator's covariance, picks the kernel's specialization); default a strided view."""
+    v = np.zeros((1, 2, 2))[..., 1] if variance is None else variance
+    envs, n = v.shape
+    z = np.zeros((envs, n))
     velocity_drive_motion(
-        z.copy(), z, z, z, z, z, np.zeros((1, 2, 2)), np.ones((1, 2)), np.ones((10, 2)),
-        np.ones((4, 2)), np.zeros((1, 2, 2))[..., 1], np.zeros(3), 0.01, z.copy(), z.copy(),
-        z.copy(), z.copy(), np.zeros(1, dtype=bool),
+        z.copy(), z, z, z, z, z, np.zeros((envs, n, n)), np.ones((envs, n)), np.ones((10, n)),
+        np.ones((4, n)), v, np.zeros(3), 0.01, z.copy(), z.copy(),
+        z.copy(), z.copy(), np.zeros(envs, dtype=bool),
     )  # fmt: skip

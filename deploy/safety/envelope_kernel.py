@@ -271,12 +271,16 @@ def warm_up() -> None:
     """Compile (or load numba's cache of) the kernel on small arrays, outside any tick."""
     z = np.zeros((1, 2))
     z3 = np.zeros((3, 1, 2))
+    tables = (  # read-only, as the envelope's tables are (a specialization of their own)
+        np.full((1, 2), -1, dtype=np.int64), np.ones((1, 2, 3)), np.ones((1, 2), dtype=np.int64),
+        np.full((1, 1), -1, dtype=np.int64), np.zeros(0),  # no pair table
+    )  # fmt: skip
+    for table in tables:
+        table.flags.writeable = False
     envelope_screen(
         z, z3, z3, np.zeros(1, dtype=bool), np.ones((4, 2)), np.ones((1, 2)),
         np.zeros((2, 1, 2)), np.full((1, 4), math.inf), np.zeros((4, 2)), 0.0,
-        np.zeros((5, 1, 2)), np.zeros((2, 1), dtype=bool),
-        np.full((1, 2), -1, dtype=np.int64), np.ones((1, 2, 3)), np.ones((1, 2), dtype=np.int64),
-        np.full((1, 1), -1, dtype=np.int64), np.zeros(0),  # no pair table
+        np.zeros((5, 1, 2)), np.zeros((2, 1), dtype=bool), *tables,
         np.zeros((1, 1, 2)), np.arange(2), np.zeros((1, 2, 2), dtype=np.int8), np.zeros((1, 2)),
         np.zeros((1, 2)),
     )  # fmt: skip

@@ -27,6 +27,7 @@ import numpy as np
 
 from deploy.backends.base import BackendLifecycle, SensorFrame
 from deploy.backends.sim.drives import SimDrives
+from deploy.backends.sim.drives_kernel import derating_due, windup_exceeded
 from deploy.backends.sim.legged_sensors import BaseSensorModel
 from deploy.backends.sim.sensors import JointSensorModel
 from deploy.backends.sim.state import SimState
@@ -118,6 +119,10 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
         self._hot = np.zeros(envs, dtype=bool)  # envs with a winding above its derating start
         all_finite(self._hot[:, None] * 0.0)  # compiled (or loaded from cache) before a tick
         self._lag = np.zeros((envs, n))
+        # the drive kernels too (deploy.backends.sim.drives_kernel), on arrays of their types
+        z = np.zeros((envs, n))
+        derating_due(z, np.zeros(n), np.zeros(envs, dtype=bool), np.zeros(envs, dtype=bool))
+        windup_exceeded(z.copy(), z, z)
         for e in range(envs):
             self._bind(e)
         self.decimation = robot.decimation

@@ -198,28 +198,46 @@ def test_shipped_go2_walks_at_the_commanded_speed_through_the_runtime(tmp_path):
 
 
 @pytest.mark.parametrize("reference", [False, True])
-def test_a_legged_target_past_a_hard_limit_is_clamped_but_an_estimate_past_one_stops(
+def test_a_legged_target_past_a_hard_limit_is_clamped_and_an_estimate_stops_only_when_held_or_far(
     go2, reference
 ):
     """A Go2's PD targets act as torques: a calf target past its hard limit (what a legged policy
-    or its exploration commands) is clamped to the soft limit and counted, not a safe stop; the
-    estimated calf past the hard limit still is a violation."""
+    or its exploration commands) is clamped to the soft limit and counted, not a safe stop. Its
+    estimate a few hundredths of a radian past the hard limit for part of a stride (0.1 s) is
+    not a stop either (a stop lays a walking robot down); held past it longer than
+    ``LEGGED_HARD_LIMIT_DURATION`` (0.2 s), or more than ``LEGGED_HARD_LIMIT_TOLERANCE`` (0.1
+    rad) past it, is."""
     from deploy.safety.guard import SafetyGuard
+    from deploy.safety.limits import LEGGED_HARD_LIMIT_DURATION, LEGGED_HARD_LIMIT_TOLERANCE
     from deploy.safety.reference import ReferenceGuard
     from deploy.state import RobotState
 
-    guard = (ReferenceGuard if reference else SafetyGuard)(go2, 2, "position")
-    state = RobotState.legged(2, go2.n_joints, go2.n_feet, 25.0)
+    envs = 3
+    guard = (ReferenceGuard if reference else SafetyGuard)(go2, envs, "position")
+    state = RobotState.legged(envs, go2.n_joints, go2.n_feet, 25.0)
     state.q[:] = go2.home
     guard.reset(state.q)
     calf = go2.joint_names.index("FL_calf_joint")
-    target = np.tile(go2.home, (2, 1))
-    target[0, calf] = go2.position_lower[calf] - 0.2
-    state.q[1, calf] = go2.position_lower[calf] - 0.01
-    out = guard.filter(target.copy(), state, out=np.empty_like(target))
+    lower = go2.position_lower[calf]
+    target = np.tile(go2.home, (envs, 1))
+    target[0, calf] = lower - 0.2
+
+    def tick(q_calf):
+        state.q[:, calf] = q_calf
+        out = guard.filter(target.copy(), state, out=np.empty_like(target))
+        return out, guard.hard_violation.tolist()
+
+    out, stops = tick([go2.home[calf], lower - 0.04, lower - LEGGED_HARD_LIMIT_TOLERANCE - 0.02])
     assert out[0, calf] == pytest.approx(go2.soft_lower[calf])
     assert guard.counts["soft_limit"][0] == 1
-    assert guard.hard_violation.tolist() == [False, True]
+    assert stops == [False, False, True]  # far past: at once
+    stride = round(0.1 / go2.control_period)  # 0.1 s past the limit, then back
+    for _ in range(stride - 1):
+        assert tick([go2.home[calf], lower - 0.04, go2.home[calf]])[1] == [False, False, False]
+    assert tick([go2.home[calf], lower + 0.01, go2.home[calf]])[1] == [False, False, False]
+    held = round(LEGGED_HARD_LIMIT_DURATION / go2.control_period)
+    verdicts = [tick([go2.home[calf], lower - 0.04, go2.home[calf]])[1][1] for _ in range(held + 1)]
+    assert verdicts == [False] * held + [True]  # held past it: a stop after 0.2 s
 
 
 def test_every_stop_of_a_walking_robot_counts_as_a_fall_with_its_cause(go2, stand_policy):

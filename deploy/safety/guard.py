@@ -107,6 +107,9 @@ class SafetyGuard:
         self.count_matrix = np.zeros((len(CHECKS), envs), dtype=np.int64)
         self.counts = {name: self.count_matrix[i] for i, name in enumerate(CHECKS)}
         self.hard_violation = np.zeros(envs, dtype=bool)
+        #: (envs,) int64, consecutive ticks with an estimate past a hard limit (a floating
+        #: base's tolerance, :mod:`deploy.safety.limits`)
+        self.beyond_ticks = np.zeros(envs, dtype=np.int64)
         self.effort_scale = np.ones((envs, n))
         self._last_valid = np.tile(robot.home, (envs, 1))
         self._pred = np.zeros((envs, n))
@@ -185,6 +188,7 @@ class SafetyGuard:
             effort_scale=self.effort_scale,
             counts=self.count_matrix,
             hard_violation=self.hard_violation,
+            beyond_ticks=self.beyond_ticks,
             pred=self._pred,
             tmp=self._tmp,
             screen=self._screen_q,
@@ -229,6 +233,7 @@ class SafetyGuard:
         which = slice(None) if envs is None else np.asarray(envs, dtype=bool)
         self._last_valid[which] = q[which]
         self.hard_violation[which] = False
+        self.beyond_ticks[which] = 0
         drive = self.envelope.drive if self.envelope is not None else None
         if drives and drive is not None:
             drive.reset(q, envs)
@@ -237,6 +242,7 @@ class SafetyGuard:
         fields = {f"counts/{name}": values for name, values in self.counts.items()}
         fields.update(
             hard_violation=self.hard_violation,
+            beyond_ticks=self.beyond_ticks,
             effort_scale=self.effort_scale,
             last_valid=self._last_valid,
             workspace_q=self._ws_q,
@@ -255,7 +261,7 @@ class SafetyGuard:
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
         """The guard's state (copies; conventions of :mod:`deploy.stateful`): ``counts/<check>``
-        (envs,) int64, ``hard_violation`` (envs,) bool, ``effort_scale`` (envs, n),
+        (envs,) int64, ``hard_violation`` (envs,) bool, ``beyond_ticks`` (envs,) int64, ``effort_scale`` (envs, n),
         ``last_valid`` (envs, n) the hold target (rad in position mode), and the screens' caches
         (``workspace_q``, ``collision_q`` (envs, n) rad; ``workspace_margin`` (envs,) m;
         ``pair_clearance`` (envs, pairs) m, each collision pair's distance), in velocity mode

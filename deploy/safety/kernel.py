@@ -43,6 +43,7 @@ class GuardArrays(NamedTuple):
     effort_scale: np.ndarray  # (envs, n) thermal derating of the effort limits
     counts: np.ndarray  # (K, envs) int64, the guard's count_matrix
     hard_violation: np.ndarray  # (envs,) bool
+    beyond_ticks: np.ndarray  # (envs,) int64, consecutive ticks of an estimate past a hard limit
     pred: np.ndarray  # (envs, n) the predicted next position, rad
     tmp: np.ndarray  # (envs, n) work
     screen: np.ndarray  # (2, envs, n) rad: configurations of the workspace, collision screens

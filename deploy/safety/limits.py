@@ -7,8 +7,15 @@ position beyond the hard limit: :attr:`SafetyGuard.hard_violation
 <deploy.safety.guard.SafetyGuard.hard_violation>` is set and the runtime makes a safe stop. A
 floating-base robot's *target* past a hard limit is clamped to the soft limit instead: its
 low-gain PD's targets act as torques (``kp (target - q)``), and legged policies command past the
-joint range by design (legged_gym trains without any bound on the targets); its estimate past a
-hard limit still stops.
+joint range by design (legged_gym trains without any bound on the targets).
+
+A floating-base robot's *estimate* past a hard limit stops it when it is more than
+``LEGGED_HARD_LIMIT_TOLERANCE`` past, or past at all for longer than
+``LEGGED_HARD_LIMIT_DURATION``; an arm's stops at once. For a walking robot every stop is a fall
+(it lies down, damped): an estimate a few hundredths of a radian past a hip's limit at the end of
+a stride (the soak's heavier links or stiffer joints carry a swing a little further; the
+estimate's noise does the rest) is not worth dropping a 50 kg robot, a joint driven into its stop
+and held there is. The soak's violation monitor still counts every true tick past the limit.
 
 Each is a :class:`deploy.safety.check.GuardCheck`: its numpy reference and its compiled per-env
 function do the same operations in the same order. Units: rad.
@@ -35,8 +42,19 @@ from deploy.safety.check import (
 )
 
 #: Rows of the hard-limit check's constants: the bounds of a position target (hard limits
-#: widened by the guard's target tolerance; infinite for a floating base).
-TARGET_LOWER, TARGET_UPPER = 0, 1
+#: widened by the guard's target tolerance; infinite for a floating base), how far past a hard
+#: limit the estimate may be (rad) and for how many ticks (both 0 for an arm: a stop at once).
+TARGET_LOWER, TARGET_UPPER, TOLERANCE, DURATION = 0, 1, 2, 3
+#: A floating-base robot: the estimate this far past a hard limit stops it at once, rad. Our
+#: choice: 0.1 rad (5.7 deg), above the 0.02-0.06 rad the H1's hips' estimates crossed by at the
+#: end of a stride in the soak's randomized dynamics, below the few tenths of a radian between a
+#: humanoid's or a quadruped's joint range in its MJCF and its mechanical stop.
+LEGGED_HARD_LIMIT_TOLERANCE = 0.1
+#: A floating-base robot: the estimate past a hard limit (by less than the tolerance) this long
+#: stops it, s. Our choice: 0.2 s, shorter than a walking gait's stance or swing phase (0.3-0.4 s
+#: for the Go2's and the H1's policies): a swing that overshoots comes back within it, a joint
+#: held against its stop does not.
+LEGGED_HARD_LIMIT_DURATION = 0.2
 
 
 @numba.njit(cache=True, nogil=True)
@@ -89,9 +107,19 @@ def hard_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
     lim = g.lim
     crossed = False
     if stage == INSPECT:
+        past = False
         for j in range(n):
-            if q[e, j] < lim[LOWER, j] or q[e, j] > lim[UPPER, j]:
+            over = np_max(lim[LOWER, j] - q[e, j], q[e, j] - lim[UPPER, j])
+            if over > 0.0:
+                past = True
+                if over > own[TOLERANCE, j]:
+                    crossed = True
+        if past:
+            g.beyond_ticks[e] += 1
+            if g.beyond_ticks[e] > own[DURATION, 0]:
                 crossed = True
+        else:
+            g.beyond_ticks[e] = 0
         if g.mode == POSITION:
             for j in range(n):
                 t = out[e, j]
@@ -106,9 +134,10 @@ def hard_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
 
 
 class HardLimit(GuardCheck):
-    """The estimate past a hard limit, a position target past it (a floating base's targets are
-    clamped instead: their bounds are infinite) or, in velocity mode, the predicted position:
-    a hard violation (the runtime's safe stop)."""
+    """The estimate past a hard limit (a floating base's: more than its tolerance past, or past
+    longer than its duration; module docstring), a position target past it (a floating base's
+    targets are clamped instead: their bounds are infinite) or, in velocity mode, the predicted
+    position: a hard violation (the runtime's safe stop)."""
 
     name = "hard_limit"
     what = "the estimate or a target past a hard limit (a safe stop)"
@@ -116,13 +145,24 @@ class HardLimit(GuardCheck):
     kernel = hard_limit_kernel
 
     def constants(self, guard) -> np.ndarray:
-        return np.array([guard._target_lower, guard._target_upper], dtype=np.float64)
+        n = guard.robot.n_joints
+        legged = guard.robot.floating_base
+        tolerance = LEGGED_HARD_LIMIT_TOLERANCE if legged else 0.0
+        ticks = round(LEGGED_HARD_LIMIT_DURATION / guard.dt) if legged else 0
+        return np.array(
+            [guard._target_lower, guard._target_upper, np.full(n, tolerance), np.full(n, ticks)],
+            dtype=np.float64,
+        )
 
     def reference(self, stage, g, out, q, dq, commanded):
         mask = g._mask
         if stage == INSPECT:
-            np.logical_or(q < g.lower, q > g.upper, out=mask)
-            crossed = mask.any(axis=1)
+            own = self.constants(g)
+            over = np.maximum(g.lower - q, q - g.upper)
+            past = (over > 0.0).any(axis=1)
+            crossed = (over > own[TOLERANCE]).any(axis=1)
+            g.beyond_ticks[:] = np.where(past, g.beyond_ticks + 1, 0)
+            crossed |= past & (g.beyond_ticks > own[DURATION, 0])
             if g.mode == "position":
                 np.logical_or(out < g._target_lower, out > g._target_upper, out=mask)
                 crossed |= mask.any(axis=1)

@@ -261,17 +261,18 @@ class SafetyGuard:
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
         """The guard's state (copies; conventions of :mod:`deploy.stateful`): ``counts/<check>``
-        (envs,) int64, ``hard_violation`` (envs,) bool, ``beyond_ticks`` (envs,) int64, ``effort_scale`` (envs, n),
-        ``last_valid`` (envs, n) the hold target (rad in position mode), and the screens' caches
-        (``workspace_q``, ``collision_q`` (envs, n) rad; ``workspace_margin`` (envs,) m;
-        ``pair_clearance`` (envs, pairs) m, each collision pair's distance), in velocity mode
-        ``drive_setpoint`` (envs, n) rad, the drives' integrators
-        (:class:`deploy.safety.drive.VelocityDrive`), in torque mode ``torque_command`` (envs,
-        n) N m and ``torque_acceleration`` (envs, n) rad/s^2, the last committed torque and its
-        acceleration, ``torque_hold`` (envs, n) rad and ``torque_braked`` (envs,) bool, where
-        the stop began and whether the last tick braked
-        (:class:`deploy.safety.torque_drive.TorqueDrive`); the env axis has length
-        1 for one env ``env``."""
+        (envs,) int64, ``hard_violation`` (envs,) bool, ``beyond_ticks`` (envs,) int64,
+        ``effort_scale`` (envs, n), ``last_valid`` (envs, n) the hold target (rad in position mode),
+        and the screens' caches (``workspace_q``, ``collision_q`` (envs, n) rad;
+        ``workspace_margin`` (envs,) m; ``pair_clearance`` (envs, pairs) m, each collision pair's
+        distance), in velocity mode ``drive_setpoint`` (envs, n) rad, the drives' integrators
+        (:class:`deploy.safety.drive.VelocityDrive`), in torque mode ``torque_command`` (envs, n) N
+        m and ``torque_acceleration`` (envs, n) rad/s^2, the last committed torque and its
+        acceleration, ``torque_hold`` (envs, n) rad and ``torque_braked`` (envs,) bool, where the
+        stop began and whether the last tick braked
+        (:class:`deploy.safety.torque_drive.TorqueDrive`); the env axis has length 1 for one env
+        ``env``.
+        """
         return take(self._state_fields(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:

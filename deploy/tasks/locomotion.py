@@ -198,6 +198,9 @@ class CommandTracker:
             stops too.
         falls_by_cause: (envs, len(FAULT_CAUSES)) int64, ``falls`` by the stop's cause
             (:data:`deploy.runtime.modes.FAULT_CAUSES` order).
+        fall_log: Per env, one dict per fall: ``t_s`` (session time), ``cause`` (the stop's,
+            ``FAULT_CAUSES``) and, for a ``hard_limit`` stop, the estimate that began it:
+            ``joint`` (the joint farthest past its hard limit) and ``past_rad`` (how far).
         window_running, window_tracked: per env, s RUNNING and tracked per finished window
             (with ``window``).
     """
@@ -227,6 +230,7 @@ class CommandTracker:
 
         self.falls = np.zeros(envs, dtype=np.int64)
         self.falls_by_cause = np.zeros((envs, len(FAULT_CAUSES)), dtype=np.int64)
+        self.fall_log: list[list[dict]] = [[] for _ in range(envs)]
         self._up = np.zeros(envs, dtype=bool)  # RUNNING since the last stop
 
     # ------------------------------------------------------------------ state
@@ -259,6 +263,7 @@ class CommandTracker:
         out["window_index"] = int(self.window_index)
         out["window_running"] = to_json([self.window_running[e] for e in envs])
         out["window_tracked"] = to_json([self.window_tracked[e] for e in envs])
+        out["fall_log"] = to_json([self.fall_log[e] for e in envs])
         return out
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
@@ -282,6 +287,9 @@ class CommandTracker:
         ):
             self.window_running[e] = [float(x) for x in run]
             self.window_tracked[e] = [float(x) for x in tracked]
+        logs = from_json(state, "fall_log") if "fall_log" in state else [[] for _ in envs]
+        for e, log in zip(envs, logs, strict=True):
+            self.fall_log[e] = [dict(x) for x in log]
 
     # ------------------------------------------------------------------ windows
     def _close_windows(self, t: float) -> None:
@@ -340,6 +348,7 @@ class CommandTracker:
             for e in np.flatnonzero(down):
                 if runtime.cause[e] >= 0:
                     self.falls_by_cause[e, runtime.cause[e]] += 1
+                self.fall_log[e].append(self._fall(runtime, e))
         self._up &= ~down
         self._up |= running
         velocity = self._planar_velocity(runtime)  # (envs, 2) m/s, base frame
@@ -357,6 +366,20 @@ class CommandTracker:
             self._close_windows(runtime.time - self.dt)  # this tick's time counts in its window
         self.running_time += running * self.dt
         self.tracked_time += (running & full & (error <= TRACKING_TOLERANCE)) * self.dt
+
+    @staticmethod
+    def _fall(runtime, e: int) -> dict:
+        """The record of env ``e``'s fall (``fall_log``)."""
+        from deploy.runtime.modes import FAULT_CAUSES
+
+        cause = int(runtime.cause[e])
+        out = {"t_s": float(runtime.time), "cause": FAULT_CAUSES[cause] if cause >= 0 else None}
+        if out["cause"] == "hard_limit":
+            robot, q = runtime.robot, runtime.state.q[e]
+            past = np.maximum(robot.position_lower - q, q - robot.position_upper)
+            j = int(np.argmax(past))
+            out.update(joint=robot.joint_names[j], past_rad=float(past[j]))
+        return out
 
     def causes(self, env: int | None = None) -> dict[str, int]:
         """``{cause: falls}`` of env ``env`` (all envs summed by default), causes that occurred."""

@@ -28,6 +28,11 @@ def summary_text(report: dict) -> str:
             f"distance {loco['distance_m']:.0f} m; mean forward speed "
             f"{'n/a' if speed is None else f'{speed:.3f} m/s'}"
         )
+        origins = loco.get("falls_by_origin")
+        if loco["falls"] and origins:
+            by = ", ".join(f"{o.replace('_', ' ')} {n}" for o, n in origins.items() if n)
+            causes = ", ".join(f"{c} {n}" for c, n in loco.get("falls_by_cause", {}).items())
+            lines.append(f"  falls began  {by} (stops by cause: {causes or 'none'})")
         up = loco.get("standing_fraction")
         if up is not None:
             lines.append(f"  standing     {100 * up:.2f} % of the session RUNNING (on its feet)")

@@ -154,10 +154,19 @@ def _locomotion_totals(results: list[dict]) -> dict | None:
         x["min_window_success_rate"] for x in legs if x["min_window_success_rate"] is not None
     ]
     kinds = sorted({k for x in legs for k in x["peak_winding_c"]})
+    from eval.soak.falls import ORIGINS
+
+    origins = {o: sum(x.get("falls_by_origin", {}).get(o, 0) for x in legs) for o in ORIGINS}
+    causes: dict[str, int] = {}
+    for x in legs:
+        for cause, n in x.get("falls_by_cause", {}).items():
+            causes[cause] = causes.get(cause, 0) + n
     return {
         "sessions": len(legs),
         "falls": falls,
         "falls_per_hour": falls / hours if hours > 0 else 0.0,
+        "falls_by_origin": origins,
+        "falls_by_cause": causes,
         "tracking_success": sum(x["tracked_s"] for x in legs) / running if running else None,
         "min_window_success_rate": min(windows) if windows else None,
         "distance_m": sum(x["distance_m"] for x in legs),

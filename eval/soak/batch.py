@@ -48,8 +48,9 @@ from eval.soak.faults import SessionFaults
 from eval.soak.result import session_result
 from eval.soak.session import SESSIONS_DIR, Session, SessionConfig, SessionError, session_dir
 from eval.world.drift import apply_drift, joint_dofs
-from eval.world.dynamics import randomized_model
+from eval.world.dynamics import add_base_mass, randomized_model
 from eval.world.floor import apply_floor_friction
+from eval.world.pushes import DomainPushes
 from eval.world.sensors import apply_imu, apply_sensors
 from eval.world.session_draw import sample_session, session_rng
 from robots.errors import Sim2RealError
@@ -157,6 +158,8 @@ class SessionBatch:
         for m, d in zip(models, draws, strict=True):
             if d.floor_friction is not None:  # a legged robot's floor
                 apply_floor_friction(m, d.floor_friction)
+            if d.added_base_mass is not None:  # a payload of its training domain
+                add_base_mass(m, robot, d.added_base_mass)
         backend = self.backend = SimBackend(robot, mode=mode, envs=k, models=models)
         backend.set_sensor_streams([session_rng(c.seed, "sensor_noise") for c in configs])
         for e, d in enumerate(draws):
@@ -171,6 +174,9 @@ class SessionBatch:
         dofs = joint_dofs(models[0], robot)
         self.initial_friction = np.stack([m.dof_frictionloss[dofs].copy() for m in models])
         self.faults = SessionFaults(backend)
+        #: the pushes of the policy's training domain (legged_gym's push_robots), or None
+        pushes = first.ranges.pushes if self.kind.legged else None
+        self.pushes = None if pushes is None else DomainPushes(seeds, pushes, dt)
         self.rt = Runtime(robot, self.policy, backend, injector=self.faults)
         self.rt.start()
 
@@ -276,6 +282,8 @@ class SessionBatch:
         self.violations.update(self.backend)
         self.interventions.update()  # before the goals: a goal's last tick counts for it
         self.task(rt)
+        if self.pushes is not None:
+            self.pushes(rt, self.backend)
         temperature_bands(
             self.backend.thermal.winding_temperature,
             self._t_start,

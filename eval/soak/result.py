@@ -24,6 +24,7 @@ from deploy.monitors.interventions import INTERVENTION_CHECKS
 from deploy.monitors.violations import VIOLATION_TYPES
 from deploy.runtime import FAULT_CAUSES, STAGES, Mode
 from eval.soak import checkpoint as ckpt
+from eval.soak.falls import attribute_falls, falls_by_origin
 from eval.soak.session import RESPONSES, Session, SessionConfig, option_difference, session_dir
 from robots.files import sha256_file
 
@@ -53,6 +54,11 @@ def locomotion_result(session: Session) -> dict:
         hits = [i for i, j in enumerate(names) if f"_{kind}" in j]
         if hits:
             peaks[kind] = float(b.peak[e, hits].max())
+    schedule = [
+        {"kind": f.kind, "start_s": f.start, "duration_s": f.duration} for f in session.schedule
+    ]
+    pushes = b.pushes.times[e] if b.pushes is not None else []
+    fall_records = attribute_falls(tr.fall_log[e], schedule, pushes)
     return {
         "commands_issued": int(cmd.issued[e]),
         "command_period_s": session.config.goal_period,
@@ -61,6 +67,9 @@ def locomotion_result(session: Session) -> dict:
         "falls": falls,
         "falls_per_hour": falls / sim_h if sim_h > 0 else 0.0,
         "falls_by_cause": tr.causes(e),
+        "falls_by_origin": falls_by_origin(fall_records),
+        "fall_records": fall_records,
+        "domain_pushes": len(pushes),
         "fall_stops": int(rt.counters.faults["fall"][e]),
         "stood_up": session.stood_up,
         "tracking_success": float(tr.tracked_time[e]) / running if running else None,

@@ -338,6 +338,7 @@ class Session:
                 "curve": self.curve,
                 "friction": self.friction,
                 "wall_s": self.wall_s + b.wall_elapsed(),
+                "push_times": b.pushes.times[e] if b.pushes is not None else None,
             },
             "next": dict(b.next_ticks),
             "config": self.config.batch_key(),
@@ -400,3 +401,5 @@ class Session:
         self.curve = s["curve"]
         self.friction = s["friction"]
         self.wall_s = float(s["wall_s"])
+        if b.pushes is not None:
+            b.pushes.times[e] = [float(t) for t in s.get("push_times") or []]

@@ -154,3 +154,23 @@ def randomized_model(robot: Robot, mode: str, dynamics: Dynamics) -> mujoco.MjMo
     spec = robot.mjspec(mode)
     apply_dynamics(spec, robot, dynamics, mode)
     return spec.compile()
+
+
+def add_base_mass(model: mujoco.MjModel, robot: Robot, kg: float) -> None:
+    """Add ``kg`` to the mass of ``robot``'s base body in the compiled ``model``, in place, its
+    inertia unchanged (legged_gym's ``randomize_base_mass``: a payload at the base's centre of
+    mass), and recompute the model's derived constants (``mj_setConst``).
+
+    Raises:
+        ValueError: a fixed-base robot, or a base whose mass would not stay positive.
+    """
+    if not robot.floating_base:
+        raise ValueError(f"add_base_mass: robot {robot.name} has no floating base")
+    body = model.body(robot.base_body).id
+    if not model.body_mass[body] + kg > 0:
+        raise ValueError(
+            f"add_base_mass: {kg} kg leaves the base '{robot.base_body}' of robot {robot.name} "
+            f"without mass (it has {model.body_mass[body]:.3f} kg)"
+        )
+    model.body_mass[body] += kg
+    mujoco.mj_setConst(model, mujoco.MjData(model))

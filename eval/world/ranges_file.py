@@ -6,6 +6,7 @@ Every table and key is optional; what the file leaves out keeps the robot kind's
 is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the class it sets::
 
     floor_friction = [0.6, 1.0]   # floor sliding friction (floating-base robots only)
+    added_base_mass = [-1.0, 3.0] # kg added to the base body (floating-base robots only)
 
     [dynamics]    # relative half-ranges in [0, 1): a factor is drawn from U(1 - r, 1 + r)
     mass = 0.3    # also link_length, friction, damping, actuator_strength
@@ -19,10 +20,13 @@ is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the cl
     [faults]      # mean_interval, min_gap, warmup (s), kinds, weights, dropout, stale,
                   # nan_ticks, latency_ticks, latency_duration, push_force (N), push_duration,
                   # cable_force, cable_duration
+    [pushes]      # floating-base robots only: legged_gym's pushes, interval (s) and
+                  # max_velocity (m/s): the base's x and y velocity set to U(-max, max)
 
 The tables are :class:`~eval.world.dynamics.DynamicsRanges`,
 :class:`~eval.world.sensors.SensorRanges`, :class:`~eval.world.sensors.ImuRanges`,
-:class:`~eval.world.drift.DriftRanges` and :class:`~eval.world.fault_schedule.FaultRanges`; their
+:class:`~eval.world.drift.DriftRanges`, :class:`~eval.world.fault_schedule.FaultRanges` and
+:class:`~eval.world.pushes.PushRanges`; their
 docstrings give each key's meaning, unit and default. An unknown table or key, a value of the
 wrong type, an inverted or out-of-bounds range, or an IMU or floor setting for a fixed-base robot
 is a :class:`RangesError` naming the file, the ``table.key`` and the value expected.
@@ -39,6 +43,7 @@ from pathlib import Path
 from eval.world.drift import DriftRanges
 from eval.world.dynamics import DynamicsRanges
 from eval.world.fault_schedule import FaultRanges
+from eval.world.pushes import PushRanges
 from eval.world.sensors import ImuRanges, SensorRanges
 from eval.world.session_ranges import SessionRanges, session_ranges
 from robots import Robot
@@ -56,11 +61,12 @@ TABLES = {
     "imu": ImuRanges,
     "drift": DriftRanges,
     "faults": FaultRanges,
+    "pushes": PushRanges,
 }
 #: Keys of a ranges file outside any table, with their type.
-TOP_LEVEL = {"floor_friction": tuple[float, float]}
+TOP_LEVEL = {"floor_friction": tuple[float, float], "added_base_mass": tuple[float, float]}
 #: What only a floating-base robot draws.
-FLOATING_BASE_ONLY = ("imu", "floor_friction")
+FLOATING_BASE_ONLY = ("imu", "floor_friction", "added_base_mass", "pushes")
 
 
 class RangesError(Sim2RealError, ValueError):

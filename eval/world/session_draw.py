@@ -44,6 +44,7 @@ STREAMS = {
     "goals": 5,
     "imu": 6,  # floating-base robots: IMU and foot-force noise scales (ImuRanges)
     "floor": 7,  # floating-base robots: the floor's sliding friction (floor_friction)
+    "base_mass": 8,  # floating-base robots: mass added to the base (added_base_mass)
 }
 
 
@@ -75,6 +76,8 @@ class SessionRandomization:
             arm).
         floor_friction: A floating-base robot's floor sliding friction (drawn from
             :attr:`SessionRanges.floor_friction`; None for an arm).
+        added_base_mass: kg added to a floating-base robot's base (drawn from
+            :attr:`SessionRanges.added_base_mass`; None where the ranges add none).
     """
 
     seed: int
@@ -84,6 +87,7 @@ class SessionRandomization:
     faults: tuple
     imu: ImuDraw | None = None
     floor_friction: float | None = None
+    added_base_mass: float | None = None
 
     def to_dict(self) -> dict:
         out = {
@@ -97,6 +101,8 @@ class SessionRandomization:
             out["imu"] = self.imu.to_dict()
         if self.floor_friction is not None:
             out["floor_friction"] = self.floor_friction
+        if self.added_base_mass is not None:
+            out["added_base_mass"] = self.added_base_mass
         return out
 
     @classmethod
@@ -109,6 +115,7 @@ class SessionRandomization:
             tuple(fault_from_dict(f) for f in data["faults"]),
             ImuDraw.from_dict(data["imu"]) if data.get("imu") is not None else None,
             float(data["floor_friction"]) if data.get("floor_friction") is not None else None,
+            float(data["added_base_mass"]) if data.get("added_base_mass") is not None else None,
         )
 
 
@@ -162,7 +169,7 @@ def sample_session(
         # faults are sized against this session's plant (its masses and link lengths)
         plant = randomized_model(robot, robot.config.control.mode, dynamics)
         schedule = sample_faults(robot, seed, duration, sensors, ranges.faults, plant)
-    imu = floor = None
+    imu = floor = added = None
     if robot_kind(robot).legged:  # an IMU and a floor
         if ranges.imu is None or ranges.floor_friction is None:
             raise ValueError(
@@ -172,6 +179,8 @@ def sample_session(
             )
         imu = sample_imu(robot, session_rng(seed, "imu"), ranges.imu)
         floor = float(session_rng(seed, "floor").uniform(*ranges.floor_friction))
+        if ranges.added_base_mass is not None:
+            added = float(session_rng(seed, "base_mass").uniform(*ranges.added_base_mass))
     return SessionRandomization(
         seed=int(seed),
         dynamics=dynamics,
@@ -180,4 +189,5 @@ def sample_session(
         faults=tuple(schedule),
         imu=imu,
         floor_friction=floor,
+        added_base_mass=added,
     )

@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from deploy.robot_kind import robot_kind
@@ -13,6 +14,7 @@ from eval.world.drift import DriftRanges
 from eval.world.dynamics import DynamicsRanges
 from eval.world.fault_schedule import FaultRanges, check_range, fault_ranges
 from eval.world.floor import FLOOR_FRICTION
+from eval.world.pushes import PushRanges
 from eval.world.sensors import ImuRanges, SensorRanges
 from robots import Robot
 
@@ -42,6 +44,11 @@ class SessionRanges:
             arm's, :func:`session_ranges`).
         floor_friction: A floating-base robot's floor sliding friction coefficient ``(low,
             high)``, uniform (default ``FLOOR_FRICTION``); None: no floor is drawn (an arm's).
+        added_base_mass: A floating-base robot's mass added to its base body, ``(low, high)``
+            kg, uniform (legged_gym's ``domain_rand.added_mass_range``); None: none (default).
+        pushes: A floating-base robot's pushes of its training domain
+            (:class:`eval.world.pushes.PushRanges`, legged_gym's ``push_robots``); None: none
+            (default; the fault schedule's force pushes are apart).
 
     Raises:
         ValueError: ``floor_friction`` is not a range ``0 <= low <= high`` (named).
@@ -53,10 +60,14 @@ class SessionRanges:
     faults: FaultRanges = FaultRanges()
     imu: ImuRanges | None = ImuRanges()
     floor_friction: tuple[float, float] | None = FLOOR_FRICTION
+    added_base_mass: tuple[float, float] | None = None
+    pushes: PushRanges | None = None
 
     def __post_init__(self):
         if self.floor_friction is not None:
             check_range("SessionRanges", "floor_friction", *self.floor_friction)
+        if self.added_base_mass is not None:
+            check_range("SessionRanges", "added_base_mass", *self.added_base_mass, -math.inf)
 
 
 def session_ranges(robot: Robot, mean_interval: float | None = None) -> SessionRanges:

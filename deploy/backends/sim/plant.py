@@ -359,6 +359,18 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
         self.thermal.step(self._torque, self.control_period)
         self._sample_sensors()
 
+    def set_base_velocity(self, env: int, velocity_xy: np.ndarray) -> None:
+        """Set the floating base's horizontal velocity of ``env`` to ``velocity_xy`` (2,) m/s,
+        world frame, at once: legged_gym's push (``LeggedRobot._push_robots`` sets the root's x
+        and y velocity to a random value), a shove the robot must recover from.
+
+        Raises:
+            ValueError: a fixed-base robot.
+        """
+        if not self.robot.floating_base:
+            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        self.datas[env].qvel[:2] = velocity_xy
+
     def set_external_force(self, env: int, force: np.ndarray, body: str | None = None) -> None:
         """Apply a constant force (N, world frame, shape (3,)) to ``env`` until changed.
 

@@ -121,7 +121,32 @@ def _parser() -> argparse.ArgumentParser:
         type=Path,
         default=None,
         metavar="FILE",
-        help="TOML file overriding the randomization ranges of the robot kind (README: soak)",
+        help="TOML file overriding the randomization ranges of the robot kind (README: soak); "
+        "replaces the policy's training domain",
+    )
+    p.add_argument(
+        "--sweep",
+        action="store_true",
+        help="after the campaign, the robustness sweep: widen each randomized quantity in turn "
+        "until the policy fails (eval.soak.sweep); its margins go into report.json and .html",
+    )
+    p.add_argument(
+        "--sweep-minutes",
+        type=float,
+        default=5.0,
+        help="simulated minutes of each session of a level of the sweep (default 5)",
+    )
+    p.add_argument(
+        "--sweep-sessions",
+        type=int,
+        default=2,
+        help="sessions per level of the sweep (default 2; seeds SEED..)",
+    )
+    p.add_argument(
+        "--no-domain",
+        action="store_true",
+        help="the robot kind's own ranges even where the policy carries its training domain "
+        "(policy-export --domain)",
     )
     p.add_argument(
         "--operator-reset",
@@ -251,13 +276,25 @@ def exit_code(report: dict) -> int:
     return EXIT_PASSED
 
 
+def _first_line(text: str) -> str:
+    """The first line of a training domain's text without its comment mark."""
+    return text.strip().splitlines()[0].lstrip("# ").strip() if text.strip() else ""
+
+
 def run(args) -> int:
     from eval.report.build import build_report, write_reports
     from eval.report.schema import Thresholds, load_report
     from eval.report.summary import summary_text
     from eval.soak.campaign import run_campaign
+    from eval.soak.executors import default_workers
     from eval.soak.session import SessionConfig
-    from eval.world.ranges_file import load_ranges, read_overrides
+    from eval.world.domain import training_domain
+    from eval.world.ranges_file import (
+        load_ranges,
+        load_ranges_text,
+        parse_overrides,
+        read_overrides,
+    )
     from eval.world.session_ranges import session_ranges
     from robots import load_robot
     from robots.files import sha256_file
@@ -276,7 +313,16 @@ def run(args) -> int:
     )
     baseline = load_report(args.baseline) if args.baseline else None
     robot = load_robot(args.robot)
-    if args.ranges is None:
+    domain = None if args.ranges is not None or args.no_domain else training_domain(args.policy)
+    if domain is not None:
+        if args.fault_interval is not None and "mean_interval" in parse_overrides(
+            domain, "training domain"
+        ).get("faults", {}):
+            raise BadInput("--fault-interval: the policy's training domain sets it too")
+        source = f"{args.policy} (training_domain)"
+        ranges = load_ranges_text(domain, source, robot, args.fault_interval)
+        print(f"soak-test: ranges: the policy's training domain ({_first_line(domain)})")
+    elif args.ranges is None:
         ranges = session_ranges(robot, args.fault_interval)
     else:
         if args.fault_interval is not None and "mean_interval" in read_overrides(args.ranges).get(
@@ -331,6 +377,7 @@ def run(args) -> int:
         "seed": args.seed,
         "session_options": options,
         "ranges_file": None if args.ranges is None else str(args.ranges),
+        "training_domain": domain,
         "executor": args.executor,
         "address": args.address,
         "sessions_per_process": args.sessions_per_process,
@@ -345,6 +392,20 @@ def run(args) -> int:
         baseline,
         str(args.baseline) if args.baseline else None,
     )
+    if args.sweep:
+        from eval.soak.sweep import margin_text, run_sweep
+
+        sweep = run_sweep(
+            template,
+            Path(args.out) / "sweep",
+            minutes=args.sweep_minutes,
+            workers=args.workers or default_workers(),
+            sessions=args.sweep_sessions,
+        )
+        report["robustness"] = sweep
+        print(f"soak-test: robustness sweep ({sweep['wall_s']:.0f} s wall)")
+        for row in sweep["quantities"]:
+            print(f"  {row['label']:24} {margin_text(row)}")
     code = exit_code(report)
     report["exit_code"] = code
     paths = write_reports(args.out, report)

@@ -69,6 +69,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="with --from-config: write the config's kps, kds and default_angles into the "
         "robot's robot.toml where they differ (without it a difference is refused)",
     )
+    p.add_argument(
+        "--domain",
+        type=Path,
+        metavar="FILE",
+        help="the policy's training domain, stored in the ONNX file (metadata training_domain) "
+        "for soak-test to run: a legged_gym config (.py, its domain_rand and noise classes, read "
+        "as text) or a ranges file (.toml)",
+    )
     p.add_argument("--exporter", choices=EXPORTERS, default="torchscript")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
@@ -113,6 +121,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.from_config is not None or args.write_robot:
             spec, robot, notes = _from_config(args)
+        metadata = _domain(args, robot) if args.domain is not None else None
         result = run_export(
             source,
             out=args.out,
@@ -124,6 +133,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             exporter=args.exporter,
             seed=args.seed,
             tolerance=args.parity_tolerance,
+            metadata=metadata,
         )
     except ParityError as exc:
         print(f"policy-export: parity check FAILED: {exc}", file=sys.stderr)
@@ -159,6 +169,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{describe_tolerance(f, 'state_', f.get('tolerance_note', ''))}"
         )
     print(f"  export time {result.seconds:.2f} s; {result.exporter}")
+    if metadata is not None:
+        print(f"  training domain from {args.domain} (soak-test runs it; metadata training_domain)")
     if args.from_config is not None:
         blocks = ", ".join(b.name for b in s.observation_blocks)
         print(f"  spec from {args.from_config}: {blocks}; joints {', '.join(s.joint_names)}")
@@ -168,6 +180,27 @@ def main(argv: Sequence[str] | None = None) -> int:
             + (f" --command {command}" if command else "")
         )
     return EXIT_OK
+
+
+def _domain(args, robot) -> dict[str, str]:
+    """``--domain``: the metadata entry of the training domain, checked against the robot.
+
+    Raises:
+        ExportError: a source that is not a legged_gym config or a ranges file, or whose ranges
+            the robot refuses (named).
+    """
+    from eval.world.domain import METADATA_KEY, DomainError, domain_toml
+    from eval.world.ranges_file import RangesError, load_ranges_text
+    from robots import load_robot
+
+    try:
+        text = domain_toml(args.domain)
+        if robot is not None:
+            the_robot = load_robot(robot) if isinstance(robot, (str, Path)) else robot
+            load_ranges_text(text, str(args.domain), the_robot)
+    except (DomainError, RangesError) as exc:
+        raise ExportError(f"--domain: {exc}") from None
+    return {METADATA_KEY: text}
 
 
 def _from_config(args):

@@ -113,8 +113,10 @@ def run_export(
     exporter: str = "torchscript",
     seed: int = 0,
     tolerance: float | None = None,
+    metadata: dict[str, str] | None = None,
 ) -> ExportResult:
-    """:func:`export_policy`, returning the parity figures and timing as well."""
+    """:func:`export_policy`, returning the parity figures and timing as well; ``metadata``:
+    more entries of the file's metadata (e.g. ``training_domain``, :mod:`eval.world.domain`)."""
     t0 = time.perf_counter()
     source = Path(source)
     _check_tolerance(tolerance)
@@ -148,6 +150,7 @@ def run_export(
     }
     if src.normalizer_kind:
         base_meta["observation_normalizer"] = src.normalizer_kind
+    base_meta.update(metadata or {})
 
     # the file is written and checked under a temporary name, moved onto ``out`` only if it passes
     try:

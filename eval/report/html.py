@@ -23,6 +23,7 @@ import jinja2
 
 from eval.report.plots import (
     plot_interventions,
+    plot_robustness,
     plot_success,
     plot_temperatures,
     plot_tick_cost,
@@ -40,6 +41,7 @@ PLOTS = (
     ("Success over time", plot_success),
     ("Success per window", plot_windows),
     ("Tick cost", plot_tick_cost),
+    ("Robustness sweep: success per level of each quantity", plot_robustness),
 )
 
 
@@ -300,6 +302,25 @@ def _tables(report: dict) -> dict[str, dict]:
             for s in legged
         ],
     )
+    sweep = report.get("robustness")
+    if sweep is not None:
+        from eval.soak.sweep import margin_text
+
+        tables["robustness"] = _table(
+            ["quantity", "margin", "first level that failed", "levels (success, falls)"],
+            [
+                [
+                    row["label"],
+                    margin_text(row),
+                    row["failed_at"],
+                    "; ".join(
+                        f"{lv['level']:g}: {_fmt(lv['success'])}, {lv['falls']}"
+                        for lv in row["levels"]
+                    ),
+                ]
+                for row in sweep["quantities"]
+            ],
+        )
     tables["randomization"] = _table(
         [
             "session",
@@ -355,7 +376,7 @@ def report_html(report: dict, base: str | os.PathLike | None = None) -> str:
             "path": str(b["path"]),
             "known_failures": [k["message"] for k in b.get("known_failures", [])],
         },
-        plots=[(title, plot(report)) for title, plot in PLOTS],
+        plots=[(title, img) for title, plot in PLOTS if (img := plot(report))],
     )
 
 

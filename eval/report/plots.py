@@ -177,3 +177,36 @@ def plot_tick_cost(report: dict) -> str:
     if seen:
         ax.legend(fontsize=7)
     return _png(fig)
+
+
+def plot_robustness(report: dict) -> str | None:
+    """The robustness sweep (:mod:`eval.soak.sweep`): success (tracking or goals) per level of
+    each quantity, a red cross where the level's session fell, the reference's success as a
+    line; None without a sweep."""
+    sweep = report.get("robustness")
+    if sweep is None:
+        return None
+    rows = [r for r in sweep["quantities"] if r["levels"]]
+    if not rows:
+        return None
+    cols = 3
+    fig, axes = _figure((len(rows) + cols - 1) // cols, cols, 2.4)
+    ref = sweep["reference"]["success"]
+    for ax in axes.flat[len(rows) :]:
+        ax.set_visible(False)
+    for ax, row in zip(axes.flat, rows, strict=False):
+        levels = [lv["level"] for lv in row["levels"]]
+        success = [np.nan if lv["success"] is None else lv["success"] for lv in row["levels"]]
+        ax.plot(levels, success, "o-", color="tab:blue")
+        pairs = zip(row["levels"], success, strict=True)
+        fell = [(lv["level"], s) for lv, s in pairs if lv["falls"]]
+        if fell:
+            ax.plot(*zip(*fell, strict=True), "x", color="tab:red", markersize=10, label="fell")
+        if ref is not None:
+            ax.axhline(ref, color="gray", lw=0.8)
+            ax.axhline(ref - sweep["tolerance"], color="gray", lw=0.8, ls="--")
+        ax.set_title(f"{row['label']} ({row['unit']})", fontsize=9)
+        ax.set_ylim(0, 1.05)
+        if row["unit"] == "mu":
+            ax.invert_xaxis()
+    return _png(fig)

@@ -246,3 +246,22 @@ def domain_toml(path: str | Path) -> str:
     raise DomainError(
         f"{path}: a training domain is a legged_gym config (.py) or a ranges file (.toml)"
     )
+
+
+def training_domain(policy: str | Path) -> str | None:
+    """The training domain an ONNX policy carries (metadata ``training_domain``, the text of a
+    ranges file), or None.
+
+    Raises:
+        DomainError: the file cannot be read as ONNX (named).
+    """
+    import onnx
+
+    try:
+        model = onnx.load(str(policy), load_external_data=False)
+    except Exception as exc:  # noqa: BLE001 - onnx raises OSError, DecodeError, ...
+        raise DomainError(f"{policy}: cannot read the ONNX file's metadata ({exc})") from None
+    for prop in model.metadata_props:
+        if prop.key == METADATA_KEY:
+            return prop.value
+    return None

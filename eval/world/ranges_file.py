@@ -129,10 +129,24 @@ def read_overrides(path: str | Path) -> dict:
     """
     path = Path(path)
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise RangesError(f"{path}: cannot read the ranges file ({exc.strerror})") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError as exc:
+        raise RangesError(f"{path}: not valid TOML: {exc}") from None
+    return parse_overrides(text, path)
+
+
+def parse_overrides(text: str, path: str | Path) -> dict:
+    """:func:`read_overrides` of the TOML ``text`` of ranges file ``path`` (named in errors; a
+    policy's training domain, :mod:`eval.world.domain`, is such a text).
+
+    Raises:
+        RangesError: invalid TOML, an unknown table or key, or a value of the wrong type.
+    """
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
         raise RangesError(f"{path}: not valid TOML: {exc}") from None
     known = [f"[{t}]" for t in TABLES] + list(TOP_LEVEL)
     out: dict = {}
@@ -223,3 +237,15 @@ def load_ranges(
     """
     overrides = read_overrides(path)
     return apply_overrides(session_ranges(robot, mean_interval), overrides, robot, path)
+
+
+def load_ranges_text(
+    text: str, source: str, robot: Robot, mean_interval: float | None = None
+) -> SessionRanges:
+    """:func:`load_ranges` of a ranges file's TOML ``text`` (``source`` names it in errors).
+
+    Raises:
+        RangesError: a bad text (named with ``source``).
+    """
+    overrides = parse_overrides(text, source)
+    return apply_overrides(session_ranges(robot, mean_interval), overrides, robot, source)

@@ -1,0 +1,182 @@
+"""A policy's training domain (legged_gym's config read as text, ranges files with pushes and an
+added base mass), the pushes the soak applies, the attribution of falls and the robustness
+sweep's margins."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eval.soak.falls import ORIGINS, attribute_falls, falls_by_origin
+from eval.soak.sweep import FALL_ALLOWANCE, QUANTITIES, TOLERANCE, margin_text, margins
+from eval.world.domain import DomainError, legged_gym_domain, training_domain
+from eval.world.pushes import DomainPushes, PushRanges, push_velocity
+from eval.world.ranges_file import RangesError, load_ranges, load_ranges_text
+
+DATA = Path(__file__).parent / "data" / "unitree_rl_gym"
+
+
+def test_legged_gym_h1_config_becomes_its_training_domain():
+    """unitree_rl_gym's own h1_config.py (as published): floor friction 0.1-1.25 averaged with
+    the terrain's 1.0 (PhysX), base mass -1..+3 kg, pushes of 1.5 m/s every 5 s, its
+    observation noise as sensor sigmas (uniform +-s: s / sqrt(3)), no latency, no bias, no
+    link or joint randomization; the text loads as the H1's ranges."""
+    from robots import load_robot
+
+    text = legged_gym_domain(DATA / "h1" / "h1_config.py")
+    ranges = load_ranges_text(text, "h1_config.py", load_robot("h1"))
+    assert ranges.floor_friction == pytest.approx((0.55, 1.125))
+    assert ranges.added_base_mass == pytest.approx((-1.0, 3.0))
+    assert ranges.pushes == PushRanges(interval=5.0, max_velocity=1.5)
+    assert ranges.imu.gyro_noise_sigma == pytest.approx((0.0, 0.2 / math.sqrt(3)), rel=1e-4)
+    assert ranges.imu.accel_noise_sigma[1] == pytest.approx(9.80665 * 0.05 / math.sqrt(3), 1e-4)
+    assert ranges.imu.bias_scale == (0.0, 0.0) and ranges.imu.latency_ticks == (0, 0)
+    assert ranges.sensors.noise_sigma[1] == pytest.approx(0.01 / math.sqrt(3), rel=1e-4)
+    d = ranges.dynamics
+    assert (d.mass, d.friction, d.damping, d.link_length, d.actuator_strength) == (0,) * 5
+
+
+def test_a_config_without_domain_rand_keeps_legged_gyms_defaults(tmp_path):
+    """A config class that sets nothing of domain_rand (go2_config.py in unitree_rl_gym) gets
+    LeggedRobotCfg's: friction 0.5-1.25, no base mass, pushes of 1 m/s every 15 s."""
+    cfg = tmp_path / "go2_config.py"
+    cfg.write_text(
+        "from legged_gym.envs.base.legged_robot_config import LeggedRobotCfg\n"
+        "class GO2RoughCfg(LeggedRobotCfg):\n"
+        "    class control(LeggedRobotCfg.control):\n"
+        "        stiffness = {'joint': 20.}\n"
+    )
+    text = legged_gym_domain(cfg)
+    assert "floor_friction = [0.75, 1.125]" in text
+    assert "added_base_mass" not in text
+    assert "interval = 15" in text and "max_velocity = 1" in text
+
+
+def test_bad_domain_sources_name_the_file_and_the_key(tmp_path, arm3):
+    from robots import load_robot
+
+    bad = tmp_path / "cfg.py"
+    bad.write_text(
+        "class Cfg(LeggedRobotCfg):\n    class domain_rand:\n        friction_range = [1.0]\n"
+    )
+    with pytest.raises(DomainError, match=r"cfg.py: domain_rand.friction_range: expected"):
+        legged_gym_domain(bad)
+    none = tmp_path / "none.py"
+    none.write_text("x = 1\n")
+    with pytest.raises(DomainError, match="no legged_gym config class"):
+        legged_gym_domain(none)
+    arm = tmp_path / "arm.toml"
+    arm.write_text("added_base_mass = [0.0, 1.0]\n[pushes]\ninterval = 2.0\n")
+    with pytest.raises(RangesError, match="added_base_mass: robot arm3 has a fixed base"):
+        load_ranges(arm, arm3)
+    inverted = tmp_path / "inv.toml"
+    inverted.write_text("[pushes]\ninterval = 0.0\n")
+    with pytest.raises(RangesError, match=r"inv.toml: pushes.interval: expected > 0 s"):
+        load_ranges(inverted, load_robot("go2"))
+
+
+def test_pushes_set_the_base_velocity_from_the_seed_alone(go2):
+    """A push sets the base's horizontal velocity (legged_gym's push), drawn from the session
+    seed and the push's index only: a resumed session pushes as an uninterrupted one."""
+    from deploy.backends.sim.plant import SimBackend
+
+    a, b = push_velocity(7, 3, 1.5), push_velocity(7, 3, 1.5)
+    assert np.array_equal(a, b) and np.all(np.abs(a) <= 1.5)
+    assert not np.array_equal(a, push_velocity(7, 4, 1.5))
+    plant = SimBackend(go2, envs=2)
+    plant.set_base_velocity(1, np.array([0.7, -0.2]))
+    assert plant.datas[1].qvel[:2].tolist() == [0.7, -0.2]
+    assert plant.datas[0].qvel[:2].tolist() == [0.0, 0.0]
+
+    class Rt:  # the runtime's fields DomainPushes reads
+        ticks, mode = 0, np.array([2, 0], dtype=np.int8)  # env 0 RUNNING, env 1 IDLE
+
+    pushes = DomainPushes([7, 8], PushRanges(interval=1.0, max_velocity=1.5), go2.control_period)
+    pushes(Rt, plant)
+    assert plant.datas[0].qvel[:2] == pytest.approx(push_velocity(7, 0, 1.5))
+    assert plant.datas[1].qvel[:2].tolist() == [0.7, -0.2]  # not running: not pushed
+    assert pushes.times == [[0.0], []]
+
+
+def test_every_fall_is_attributed_to_what_began_it():
+    faults = [
+        {"kind": "stale", "start_s": 10.0, "duration_s": 0.5},
+        {"kind": "push", "start_s": 30.0, "duration_s": 0.2},
+    ]
+    log = [
+        {"t_s": 11.0, "cause": "stale_sensor"},  # the runtime's stop during a fault
+        {"t_s": 12.0, "cause": "fall"},  # 1.5 s after the stale frames ended
+        {"t_s": 31.5, "cause": "fall"},  # after a push fault
+        {"t_s": 50.5, "cause": "fall"},  # after a domain push at 50 s
+        {"t_s": 80.0, "cause": "fall"},  # nothing before it
+        {"t_s": 90.0, "cause": "hard_limit", "joint": "left_hip_roll_joint", "past_rad": 0.2},
+    ]
+    falls = attribute_falls(log, faults, push_times=[50.0])
+    assert [f["origin"] for f in falls] == [
+        "runtime_stop",
+        "fault",
+        "push",
+        "push",
+        "policy",
+        "runtime_stop",
+    ]
+    assert falls[0]["during"] == "stale" and falls[3]["during"] == "domain push"
+    assert falls[5]["joint"] == "left_hip_roll_joint"
+    assert falls_by_origin(falls) == dict(zip(ORIGINS, (2, 2, 1, 1), strict=True))
+
+
+def test_sweep_margin_is_the_last_level_held_in_a_row():
+    q = next(x for x in QUANTITIES if x.name == "link_mass")
+    ok = {"success": 0.9, "falls": 0}
+    results = {("reference", 0.0): ok}
+    results.update({("link_mass", lv): ok for lv in q.levels[:2]})
+    results[("link_mass", q.levels[2])] = {"success": 0.9 - TOLERANCE - 0.01, "falls": 0}
+    results[("link_mass", q.levels[3])] = ok  # holds again: the margin stays at level 2
+    results[("link_mass", q.levels[4])] = {"success": 0.9, "falls": FALL_ALLOWANCE + 1}
+    out = margins(results, [q], {"link_mass": True})
+    row = out["quantities"][0]
+    assert out["reference"]["holds"]
+    assert row["margin"] == q.levels[1] and row["failed_at"] == q.levels[2]
+    assert margin_text(row) == f"+-{100 * q.levels[1]:.0f} %"
+    assert [lv["holds"] for lv in row["levels"]] == [True, True, False, True, False]
+    fell = {("reference", 0.0): {"success": 0.9, "falls": FALL_ALLOWANCE + 1}}
+    fell.update({("link_mass", lv): ok for lv in q.levels})
+    row = margins(fell, [q], {"link_mass": True})["quantities"][0]
+    assert row["margin"] is None and "does not hold in the reference world" in margin_text(row)
+    assert margin_text({**row, "applies": False}) == "n/a (not in the robot's model)"
+
+
+def test_soak_runs_the_training_domain_the_policy_carries(tmp_path):
+    """An ONNX policy with a training domain (``policy-export --domain``; here its metadata set
+    directly): soak-test runs it (pushes every 2 s, a payload on the base) unless --no-domain,
+    and the report says so."""
+    import onnx
+
+    from eval.cli import main as soak_main
+
+    domain = (
+        "floor_friction = [0.9, 1.0]\nadded_base_mass = [0.5, 1.0]\n"
+        "[pushes]\ninterval = 2.0\nmax_velocity = 0.3\n"
+    )
+    model = onnx.load("policies/go2.onnx")
+    prop = model.metadata_props.add()
+    prop.key, prop.value = "training_domain", domain
+    policy = tmp_path / "go2_domain.onnx"
+    onnx.save(model, str(policy))
+    assert training_domain(policy) == domain
+    common = ["--robot", "go2", "--policy", str(policy), "--hours", "0.01", "--no-progress"]
+    common += ["--no-film", "--no-faults", "--checkpoint-minutes", "0"]
+    soak_main([*common, "--out", str(tmp_path / "with")])
+    report = json.loads((tmp_path / "with" / "report.json").read_text())
+    s = report["sessions"][0]
+    assert report["campaign"]["training_domain"] == domain
+    assert 0.5 <= s["randomization"]["added_base_mass"] <= 1.0
+    assert s["locomotion"]["domain_pushes"] >= 10
+    soak_main([*common, "--no-domain", "--out", str(tmp_path / "without")])
+    report = json.loads((tmp_path / "without" / "report.json").read_text())
+    assert report["campaign"]["training_domain"] is None
+    assert report["sessions"][0]["locomotion"]["domain_pushes"] == 0

@@ -203,10 +203,10 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_and_an_estimate_stops_only
 ):
     """A Go2's PD targets act as torques: a calf target past its hard limit (what a legged policy
     or its exploration commands) is clamped to the soft limit and counted, not a safe stop. Its
-    estimate a few hundredths of a radian past the hard limit for part of a stride (0.1 s) is
-    not a stop either (a stop lays a walking robot down); held past it longer than
-    ``LEGGED_HARD_LIMIT_DURATION`` (0.2 s), or more than ``LEGGED_HARD_LIMIT_TOLERANCE`` (0.1
-    rad) past it, is."""
+    estimate a few hundredths of a radian past the hard limit for one stride (0.8 s, the H1's gait
+    cycle) is not a stop either (a stop lays a walking robot down); held past it longer than
+    ``LEGGED_HARD_LIMIT_DURATION`` (1 s), or more than ``LEGGED_HARD_LIMIT_TOLERANCE`` (0.1 rad)
+    past it, is."""
     from deploy.safety.guard import SafetyGuard
     from deploy.safety.limits import LEGGED_HARD_LIMIT_DURATION, LEGGED_HARD_LIMIT_TOLERANCE
     from deploy.safety.reference import ReferenceGuard
@@ -231,13 +231,13 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_and_an_estimate_stops_only
     assert out[0, calf] == pytest.approx(go2.soft_lower[calf])
     assert guard.counts["soft_limit"][0] == 1
     assert stops == [False, False, True]  # far past: at once
-    stride = round(0.1 / go2.control_period)  # 0.1 s past the limit, then back
+    stride = round(0.8 / go2.control_period)  # a stride past the limit, then back
     for _ in range(stride - 1):
         assert tick([go2.home[calf], lower - 0.04, go2.home[calf]])[1] == [False, False, False]
     assert tick([go2.home[calf], lower + 0.01, go2.home[calf]])[1] == [False, False, False]
     held = round(LEGGED_HARD_LIMIT_DURATION / go2.control_period)
     verdicts = [tick([go2.home[calf], lower - 0.04, go2.home[calf]])[1][1] for _ in range(held + 1)]
-    assert verdicts == [False] * held + [True]  # held past it: a stop after 0.2 s
+    assert verdicts == [False] * held + [True]  # held past it: a stop after 1 s
 
 
 def test_every_stop_of_a_walking_robot_counts_as_a_fall_with_its_cause(go2, stand_policy):

@@ -51,10 +51,11 @@ TARGET_LOWER, TARGET_UPPER, TOLERANCE, DURATION = 0, 1, 2, 3
 #: humanoid's or a quadruped's joint range in its MJCF and its mechanical stop.
 LEGGED_HARD_LIMIT_TOLERANCE = 0.1
 #: A floating-base robot: the estimate past a hard limit (by less than the tolerance) this long
-#: stops it, s. Our choice: 0.2 s, shorter than a walking gait's stance or swing phase (0.3-0.4 s
-#: for the Go2's and the H1's policies): a swing that overshoots comes back within it, a joint
-#: held against its stop does not.
-LEGGED_HARD_LIMIT_DURATION = 0.2
+#: stops it, s. Our choice: 1 s, longer than one gait cycle of the shipped legged policies (the
+#: H1's and H1-2's 0.8 s, unitree_rl_gym's deploy_mujoco.py ``period``; the Go2's trot is
+#: shorter): an estimate past the limit for a stride comes back within it, a joint driven into
+#: its stop and held there does not.
+LEGGED_HARD_LIMIT_DURATION = 1.0
 
 
 @numba.njit(cache=True, nogil=True)

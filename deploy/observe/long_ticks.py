@@ -1,8 +1,7 @@
 """The longest ticks of a run and where their time went (:class:`LongTicks`).
 
-A latency histogram says how long ticks took; it cannot say why one tick of a 50 Hz loop took
-139 ms. :class:`LongTicks` keeps the ``capacity`` longest *periods* of a run, each with its
-parts, so that a long tick names its cause:
+A latency histogram says how long ticks took, not why the longest did. :class:`LongTicks` keeps the
+``capacity`` longest *periods* of a run, each with its parts, so that a long tick names its cause:
 
 - ``wake_late``: how late the clock woke the loop for this tick (the scheduler's wake-up latency,
   or the previous tick's overrun);

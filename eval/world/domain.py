@@ -15,27 +15,7 @@ Where it comes from:
 ``policy-export --domain FILE`` stores the domain in the ONNX file (metadata ``training_domain``,
 :data:`METADATA_KEY`: the ranges file's text); ``soak-test`` runs it when no ``--ranges`` is given.
 
-legged_gym's quantities and what they become here:
-
-==============================================  ============================================
-legged_gym (``domain_rand``, ``noise``)         ranges file
-==============================================  ============================================
-``friction_range`` [a, b] (robot shapes)        ``floor_friction = [(a + 1) / 2, (b + 1) / 2]``:
-                                                PhysX averages the shapes' coefficient with the
-                                                terrain's 1.0; here the contact takes the floor's
-``added_mass_range`` [a, b] kg                  ``added_base_mass = [a, b]``
-``push_interval_s``, ``max_push_vel_xy``        ``[pushes] interval, max_velocity``
-link masses, lengths, joint friction, damping,  ``[dynamics]`` all 0: legged_gym does not
-motor strength                                  randomize them (keys some forks add, e.g.
-                                                ``link_mass_range``, are read where known)
-``noise_scales.dof_pos`` s (uniform +-s)        ``[sensors] noise_sigma = [0, s / sqrt(3)]``
-``noise_scales.ang_vel`` s                      ``[imu] gyro_noise_sigma = [0, s / sqrt(3)]``
-``noise_scales.gravity`` s (unit vector)        ``[imu] accel_noise_sigma = [0, g s / sqrt(3)]``
-(no latency, no IMU bias)                       latencies ``[0, 0]``, ``bias_scale = [0, 0]``
-==============================================  ============================================
-
-Each ``noise_scales`` entry is multiplied by ``noise.noise_level`` (0 without ``add_noise``); a
-uniform noise of half-width ``s`` has the standard deviation ``s / sqrt(3)``.
+legged_gym's quantities and what they become: :func:`legged_gym_domain`.
 """
 
 from __future__ import annotations
@@ -173,8 +153,22 @@ def _pair(value, path: Path, key: str) -> tuple[float, float]:
 
 
 def legged_gym_domain(path: str | Path, config_class: str | None = None) -> str:
-    """The ranges file (TOML text) of a legged_gym task's training domain (module docstring's
-    table).
+    """The ranges file (TOML text) of a legged_gym task's training domain:
+
+    - shape ``friction_range`` [a, b] -> ``floor_friction = [(a + 1) / 2, (b + 1) / 2]``
+      (PhysX averages the shapes' coefficient with the terrain's 1.0; here the contact takes the
+      floor's);
+    - ``added_mass_range`` [a, b] kg -> ``added_base_mass = [a, b]``;
+    - ``push_interval_s``, ``max_push_vel_xy`` -> ``[pushes] interval, max_velocity``;
+    - link masses, lengths, joint friction, damping, motor strength -> ``[dynamics]`` all 0
+      (legged_gym does not randomize them; a fork's ``link_mass_range`` is read);
+    - ``noise_scales.dof_pos`` s (uniform +-s) -> ``[sensors] noise_sigma = [0, s / sqrt(3)]``;
+      ``ang_vel`` -> ``[imu] gyro_noise_sigma``; ``gravity`` (a unit vector's) ->
+      ``[imu] accel_noise_sigma = [0, g s / sqrt(3)]``;
+    - no latency, no IMU bias: latencies ``[0, 0]``, ``bias_scale = [0, 0]``.
+
+    Each ``noise_scales`` entry is multiplied by ``noise.noise_level`` (0 without ``add_noise``); a
+    uniform noise of half-width ``s`` has the standard deviation ``s / sqrt(3)``.
 
     Raises:
         DomainError: an unreadable config or a malformed range (named).
@@ -183,7 +177,8 @@ def legged_gym_domain(path: str | Path, config_class: str | None = None) -> str:
     cfg = read_legged_gym_config(path, config_class)
     dr, noise = cfg["domain_rand"], cfg["noise"]
     lines = [
-        f"# The training domain of {cfg['source']}, read by eval.world.domain.legged_gym_domain.",
+        f"# training domain of {cfg['source']}",
+        "# (read by eval.world.domain.legged_gym_domain)",
         "# legged_gym randomizes no link mass, length, joint friction, damping or motor strength.",
     ]
     if dr.get("randomize_friction"):

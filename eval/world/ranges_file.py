@@ -5,8 +5,7 @@ the training recipes' ``--ranges FILE`` (:func:`load_ranges`).
 Every table and key is optional; what the file leaves out keeps the robot kind's default. A range
 is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the class it sets::
 
-    floor_friction = [0.6, 1.0]   # floor sliding friction (floating-base robots only)
-    added_base_mass = [-1.0, 3.0] # kg added to the base body (floating-base robots only)
+    floor_friction = [0.6, 1.0]   # floating-base robots only, as added_base_mass (kg)
 
     [dynamics]    # relative half-ranges in [0, 1): a factor is drawn from U(1 - r, 1 + r)
     mass = 0.3    # also link_length, friction, damping, actuator_strength
@@ -20,8 +19,7 @@ is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the cl
     [faults]      # mean_interval, min_gap, warmup (s), kinds, weights, dropout, stale,
                   # nan_ticks, latency_ticks, latency_duration, push_force (N), push_duration,
                   # cable_force, cable_duration
-    [pushes]      # floating-base robots only: legged_gym's pushes, interval (s) and
-                  # max_velocity (m/s): the base's x and y velocity set to U(-max, max)
+    [pushes]      # floating-base robots only: interval (s), max_velocity (m/s)
 
 The tables are :class:`~eval.world.dynamics.DynamicsRanges`,
 :class:`~eval.world.sensors.SensorRanges`, :class:`~eval.world.sensors.ImuRanges`,

@@ -162,7 +162,13 @@ def test_soak_runs_the_training_domain_the_policy_carries(tmp_path):
         "floor_friction = [0.9, 1.0]\nadded_base_mass = [0.5, 1.0]\n"
         "[pushes]\ninterval = 2.0\nmax_velocity = 0.3\n"
     )
-    model = onnx.load("policies/go2.onnx")
+    from deploy.export import export_policy
+
+    shipped = DATA / "h1" / "h1.onnx"  # the shipped H1 carries its own (policy-export --domain)
+    assert training_domain(shipped) == legged_gym_domain(DATA / "h1" / "h1_config.py")
+    source = tmp_path / "go2.onnx"
+    export_policy(Path(__file__).resolve().parents[1] / "policies" / "go2.pt", out=source)
+    model = onnx.load(str(source))
     prop = model.metadata_props.add()
     prop.key, prop.value = "training_domain", domain
     policy = tmp_path / "go2_domain.onnx"

@@ -10,7 +10,10 @@ measures, README.md, "Speed", for the JSON layout): plant, inference, tick, sess
 wallclock, bus, profile.
 ``--quick`` shortens every item to a few seconds (a smoke test; its percentiles are rough).
 With ``--only``, sections of an existing results file that were not run are kept (each section
-records when it was measured and whether it was quick).
+records when it was measured and whether it was quick). The targets (``TARGETS``, issue 45) are
+judged on ratios of figures measured in the same run; every run appends an entry (its commit,
+the targets' values) to the file's ``history``, and the table compares each target with the last
+full run, flagging a move of more than ``REGRESSION`` the wrong way.
 """
 
 from __future__ import annotations
@@ -61,15 +64,23 @@ QUICK = {
     "profile_ticks": 1_000,
 }
 
-#: The targets the table ends with: (key, label, robot, limit, comparison, unit).
+#: The targets the table ends with (issue 45), each judged on figures of one run (these machines
+#: differ by 4x; a ratio of two figures measured side by side does not): (key, label, robot,
+#: limit (None: stated, not judged), comparison, unit).
 TARGETS = (
-    ("tick_ratio", "full tick / bare loop, p50, physics included", "arm6", 1.0, "<=", "x"),
-    ("overhead_p50", "runtime overhead per tick excl. physics, p50", "arm6", 50.0, "<=", "us"),
-    ("overhead_p999", "runtime overhead per tick excl. physics, p99.9", "arm6", 150.0, "<=", "us"),
-    ("session_8h", "8-hour-equivalent session, wall time", "arm3", 480.0, "<=", "s"),
+    ("tick_ratio", "full tick / bare loop, p50, physics included", "arm6", 0.8, "<=", "x"),
+    ("overhead_ratio", "runtime overhead / the plant's own step, p50", "arm6", 0.5, "<=", "x"),
+    ("overhead_p50", "runtime overhead per tick excl. physics, p50", "arm6", None, "", "us"),
+    ("session_8h", "8-hour-equivalent session, wall time", "arm3", 300.0, "<=", "s"),
+    ("session_8h", "8-hour-equivalent session, wall time", "arm6", 900.0, "<=", "s"),
     ("campaign", "campaign throughput, whole machine", "arm3", 500.0, ">=", "x"),
-    ("campaign_physics", "campaign / physics-only stepping, same run", "arm3", 0.6, ">=", ""),
+    ("campaign_physics", "campaign / physics-only stepping, same run", "arm3", 0.8, ">=", ""),
+    ("wallclock_stops", "wall-clock configurations that ended stopped", "arm6", 0.0, "<=", ""),
 )
+#: Entries of results.json's history kept (oldest dropped first).
+HISTORY = 200
+#: A target that moved this much the wrong way since the last full run is a regression.
+REGRESSION = 0.10
 
 
 def _csv(text: str) -> list[str]:
@@ -158,25 +169,38 @@ def _get(d: dict, *keys):
     return d
 
 
+def _target_value(key: str, robot: str, sections: dict):
+    """A target's figure from the measured sections (None: not measured)."""
+    tick = _get(sections, "tick", "robots", robot)
+    if key == "tick_ratio":
+        return _get(tick, "ratio", "tick_p50")
+    if key == "overhead_p50":
+        return _get(tick, "full", "overhead", "p50_us")
+    if key == "overhead_ratio":
+        over = _get(tick, "full", "overhead", "p50_us")
+        step = _get(tick, "full", "stages", "physics", "p50_us")
+        return over / step if over is not None and step else None
+    if key == "session_8h":
+        return _get(sections, "session", "robots", robot, "estimate_8h_s")
+    if key == "wallclock_stops":
+        w = sections.get("wallclock")
+        if w is None or w.get("robot") != robot:
+            return None
+        stopped = ("FAULTED", "SAFE_STOP")
+        return float(sum(any(m in stopped for m in r["final_state"]) for r in w.get("rows", [])))
+    c = sections.get("campaign")
+    field = "physics_fraction" if key == "campaign_physics" else "throughput_x"
+    return _get(c, "best", field) if _get(c, "robot") == robot else None
+
+
 def evaluate_targets(sections: dict) -> list[dict]:
     """The PASS/FAIL rows of results.json from the measured sections (``pass`` None: the figure
-    was not measured in the file)."""
+    was not measured in the file, or the row is stated only, ``limit`` None)."""
     out = []
     for key, label, robot, limit, cmp, unit in TARGETS:
-        if key == "tick_ratio":
-            value = _get(sections, "tick", "robots", robot, "ratio", "tick_p50")
-        elif key == "overhead_p50":
-            value = _get(sections, "tick", "robots", robot, "full", "overhead", "p50_us")
-        elif key == "overhead_p999":
-            value = _get(sections, "tick", "robots", robot, "full", "overhead", "p99.9_us")
-        elif key == "session_8h":
-            value = _get(sections, "session", "robots", robot, "estimate_8h_s")
-        else:
-            c = sections.get("campaign")
-            field = "physics_fraction" if key == "campaign_physics" else "throughput_x"
-            value = _get(c, "best", field) if _get(c, "robot") == robot else None
+        value = _target_value(key, robot, sections)
         ok = None
-        if value is not None and math.isfinite(value):
+        if limit is not None and value is not None and math.isfinite(value):
             ok = bool(value <= limit) if cmp == "<=" else bool(value >= limit)
         out.append(
             {
@@ -188,6 +212,64 @@ def evaluate_targets(sections: dict) -> list[dict]:
                 "comparison": cmp,
                 "unit": unit,
                 "pass": ok,
+            }
+        )
+    return out
+
+
+def git_commit() -> str | None:
+    """The repository's commit (``-dirty`` with uncommitted changes), None without git."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain"], cwd=root, capture_output=True, text=True, check=True
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return head + ("-dirty" if dirty else "")
+
+
+def history_entry(results: dict) -> dict:
+    """One entry of results.json's ``history``: when, which commit, quick or not, the items and
+    every target's value (``key/robot``)."""
+    return {
+        "generated": results["generated"],
+        "commit": results.get("commit"),
+        "quick": results["quick"],
+        "items": results["items"],
+        "targets": {f"{t['key']}/{t['robot']}": t["value"] for t in results["targets"]},
+    }
+
+
+def compare_history(results: dict) -> list[dict]:
+    """Each target against the last full (not ``--quick``) run before this one in the history:
+    ``{key, robot, value, previous, commit, change (fraction), regression}``; a regression moved
+    more than ``REGRESSION`` the wrong way (a stated-only row: up is worse)."""
+    past = [h for h in results.get("history", [])[:-1] if not h["quick"]]
+    out = []
+    for t in results["targets"]:
+        name = f"{t['key']}/{t['robot']}"
+        prev = next((h for h in reversed(past) if h["targets"].get(name) is not None), None)
+        if prev is None or t["value"] is None:
+            continue
+        old = prev["targets"][name]
+        change = (t["value"] - old) / abs(old) if old else None
+        worse = t["comparison"] != ">="  # lower is better unless the goal is a floor
+        regression = change is not None and (change > REGRESSION if worse else change < -REGRESSION)
+        out.append(
+            {
+                "key": t["key"],
+                "robot": t["robot"],
+                "value": t["value"],
+                "previous": old,
+                "commit": prev["commit"],
+                "change": change,
+                "regression": regression,
             }
         )
     return out
@@ -355,16 +437,29 @@ def render(results: dict) -> str:
             )
 
     add("")
-    add("== targets (issues 7 and 18)")
-    add(f"   {'target':50} {'robot':6} {'measured':>10} {'limit':>10}  result")
+    add("== targets (issue 45; ratios of figures measured in this run)")
+    add(f"   {'target':50} {'robot':6} {'measured':>10} {'goal':>10}  result")
     for t in results["targets"]:
         verdict = {True: "PASS", False: "FAIL", None: "n/a"}[t["pass"]]
-        v = _f(t["value"], ".2f" if t["unit"] == "x" else ".1f")
-        lim = f"{t['comparison']} {t['limit']:g}"
+        if t["limit"] is None:
+            verdict = "stated"
+        v = _f(t["value"], ".2f" if t["unit"] in ("x", "") else ".1f")
+        lim = "" if t["limit"] is None else f"{t['comparison']} {t['limit']:g}"
         add(
             f"   {t['label']:50} {t['robot']:6} {v:>7} {t['unit']:<2} {lim:>7} {t['unit']:<2} "
             f"{verdict}"
         )
+    trend = compare_history(results)
+    if trend:
+        add("")
+        add("== against the last full run (bench/results.json history)")
+        for c in trend:
+            change = "n/a" if c["change"] is None else f"{100 * c['change']:+.1f} %"
+            flag = "  REGRESSION" if c["regression"] else ""
+            add(
+                f"   {c['key'] + '/' + c['robot']:28} {_f(c['value'], '.2f'):>10} was "
+                f"{_f(c['previous'], '.2f'):>10} at {str(c['commit'])[:12]:12} {change}{flag}"
+            )
     return "\n".join(lines)
 
 
@@ -385,14 +480,16 @@ def main(argv: list[str] | None = None) -> int:
         "policies": {},
         "sections": {},
     }
-    if args.only and args.out.is_file():  # keep the sections not re-measured
+    old = {}
+    if args.out.is_file():  # its history is kept; with --only, the sections not re-measured too
         try:
             old = json.loads(args.out.read_text())
         except (OSError, ValueError):
             old = {}
-        if old.get("schema") == SCHEMA:
-            results["sections"].update(old.get("sections", {}))
-            results["policies"].update(old.get("policies", {}))
+    history = list(old.get("history", [])) if isinstance(old.get("history"), list) else []
+    if args.only and old.get("schema") == SCHEMA:
+        results["sections"].update(old.get("sections", {}))
+        results["policies"].update(old.get("policies", {}))
 
     from robots import load_robot
 
@@ -479,6 +576,8 @@ def main(argv: list[str] | None = None) -> int:
             sections[item] = sec
 
     results["targets"] = evaluate_targets(results["sections"])
+    results["commit"] = git_commit()
+    results["history"] = (history + [history_entry(results)])[-HISTORY:]
     results["wall_s"] = time.perf_counter() - t_start
     write_json_atomic(args.out, results)
     print(render(results))

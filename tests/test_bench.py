@@ -72,20 +72,52 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
     assert session["estimate_8h_s"] >= session["wall_s"]
     assert "28800" in session["extrapolation"]
 
-    targets = {t["key"]: t for t in r["targets"]}
+    targets = {(t["key"], t["robot"]): t for t in r["targets"]}
     assert set(targets) == {
-        "tick_ratio",
-        "overhead_p50",
-        "overhead_p999",
-        "session_8h",
-        "campaign",
-        "campaign_physics",
+        ("tick_ratio", "arm6"),
+        ("overhead_ratio", "arm6"),
+        ("overhead_p50", "arm6"),
+        ("session_8h", "arm3"),
+        ("session_8h", "arm6"),
+        ("campaign", "arm3"),
+        ("campaign_physics", "arm3"),
+        ("wallclock_stops", "arm6"),
     }
-    assert targets["session_8h"]["pass"] in (True, False)
-    assert targets["session_8h"]["value"] == session["estimate_8h_s"]
-    assert targets["tick_ratio"]["pass"] is None  # arm6 was not measured
-    assert targets["campaign"]["pass"] is None
-    assert targets["campaign_physics"]["pass"] is None
+    assert targets["session_8h", "arm3"]["pass"] in (True, False)
+    assert targets["session_8h", "arm3"]["value"] == session["estimate_8h_s"]
+    assert targets["tick_ratio", "arm6"]["pass"] is None  # arm6 was not measured
+    assert targets["campaign", "arm3"]["pass"] is None
+    assert r["history"][-1]["targets"]["session_8h/arm3"] == session["estimate_8h_s"]
+    assert r["history"][-1]["quick"] is True
+
+
+def test_history_is_kept_and_a_regression_against_the_last_full_run_is_flagged():
+    """Each run appends its targets to results.json's history; the table compares a target with
+    the last full run (quick runs are recorded, never the comparison point) and flags a move of
+    more than REGRESSION the wrong way."""
+    from bench.__main__ import REGRESSION, compare_history, evaluate_targets, history_entry
+
+    def run(ratio, fraction, quick, history):
+        sections = {
+            "tick": {"robots": {"arm6": {"ratio": {"tick_p50": ratio}}}},
+            "campaign": {"robot": "arm3", "best": {"physics_fraction": fraction}},
+        }
+        r = {"generated": "t", "commit": f"c{len(history)}", "quick": quick, "items": []}
+        r["targets"] = evaluate_targets(sections)
+        r["history"] = history + [history_entry(r)]
+        return r
+
+    first = run(1.0, 0.5, False, [])
+    quick = run(9.0, 0.1, True, first["history"])  # a rough quick run: recorded, not compared
+    later = run(1.0 + 2 * REGRESSION, 0.5 * (1 - 2 * REGRESSION), False, quick["history"])
+    assert [h["commit"] for h in later["history"]] == ["c0", "c1", "c2"]
+    trend = {(c["key"], c["robot"]): c for c in compare_history(later)}
+    assert trend["tick_ratio", "arm6"]["previous"] == 1.0  # the full run, not the quick one
+    assert trend["tick_ratio", "arm6"]["commit"] == "c0"
+    assert trend["tick_ratio", "arm6"]["regression"]  # up is worse for a ceiling
+    assert trend["campaign_physics", "arm3"]["regression"]  # down is worse for a floor
+    steady = run(1.0, 0.5, False, first["history"])
+    assert not any(c["regression"] for c in compare_history(steady))
 
 
 def test_quick_inference_and_campaign_with_its_physics_only_baseline(tmp_path):

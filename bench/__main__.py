@@ -35,7 +35,17 @@ from bench.common import machine_info, make_policy, policy_info, write_json_atom
 
 RESULTS = Path(__file__).resolve().parent / "results.json"
 SCHEMA = "sim2real-deploy/bench/1"
-ITEMS = ("plant", "inference", "tick", "session", "campaign", "wallclock", "bus", "profile")
+ITEMS = (
+    "plant",
+    "inference",
+    "tick",
+    "session",
+    "campaign",
+    "wallclock",
+    "busy",
+    "bus",
+    "profile",
+)
 DEFAULT_ITEMS = ITEMS[:-1]
 
 #: Settings of a full run and of a --quick run.
@@ -48,6 +58,7 @@ FULL = {
     "campaign_s": 15.0,
     "campaign_envs": (1, 4, 16, 32, 64, 128),
     "wallclock_s": 60.0,
+    "busy_s": 30.0,
     "bus_ticks": 3_000,
     "profile_ticks": 5_000,
 }
@@ -60,6 +71,7 @@ QUICK = {
     "campaign_s": 1.0,
     "campaign_envs": (1, 4),
     "wallclock_s": 2.0,
+    "busy_s": 2.0,
     "bus_ticks": 200,
     "profile_ticks": 1_000,
 }
@@ -76,6 +88,7 @@ TARGETS = (
     ("campaign", "campaign throughput, whole machine", "arm3", 500.0, ">=", "x"),
     ("campaign_physics", "campaign / physics-only stepping, same run", "arm3", 0.8, ">=", ""),
     ("wallclock_stops", "wall-clock configurations that ended stopped", "arm6", 0.0, "<=", ""),
+    ("busy_stops", "runs beside a CPU-bound job per core that stopped", "go2+arm6", 0.0, "<=", ""),
 )
 #: Entries of results.json's history kept (oldest dropped first).
 HISTORY = 200
@@ -182,6 +195,14 @@ def _target_value(key: str, robot: str, sections: dict):
         return over / step if over is not None and step else None
     if key == "session_8h":
         return _get(sections, "session", "robots", robot, "estimate_8h_s")
+    if key == "busy_stops":
+        rows = _get(sections, "busy", "rows")
+        stopped = ("FAULTED", "SAFE_STOP")
+        return (
+            None
+            if rows is None
+            else float(sum(any(m in stopped for m in r["final_state"]) for r in rows))
+        )
     if key == "wallclock_stops":
         w = sections.get("wallclock")
         if w is None or w.get("robot") != robot:
@@ -409,6 +430,24 @@ def render(results: dict) -> str:
             for note in r.get("notes", []):
                 add(f"     {note}")
 
+    if "busy" in sec:
+        b = sec["busy"]
+        add("")
+        add(
+            f"== busy: deploy-run --realtime beside {b['burners']} CPU-bound processes, "
+            f"{b['duration_s']:.0f} s each"
+        )
+        for r in b["rows"]:
+            falls = "" if r["falls"] is None else f", falls {r['falls']}"
+            causes = ", ".join(f"{c} {n}" for c, n in r["overrun_causes"].items()) or "none"
+            longest = ", ".join(f"{t['period_us'] / 1e3:.1f} ms" for t in r["longest"])
+            add(
+                f"   {r['robot']:6} ticks {r['ticks']}, overruns {r['overruns']} "
+                f"({100 * r['overrun_rate']:.3f} %), missed {r['missed_periods']}; final "
+                f"{','.join(r['final_state'])}{falls}; longest {longest}; overruns by cause: "
+                f"{causes}"
+            )
+
     if "bus" in sec:
         b = sec["bus"]
         add("")
@@ -555,6 +594,10 @@ def main(argv: list[str] | None = None) -> int:
                 sec = session.wallclock(
                     policy(args.wallclock_robot), cfg["wallclock_s"], args.wallclock_modes
                 )
+            elif item == "busy":
+                from bench import busy
+
+                sec = busy.measure(policy("arm6"), Path(tmp), cfg["busy_s"])
             elif item == "bus":
                 from bench import bus
 

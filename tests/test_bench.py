@@ -136,3 +136,22 @@ def test_quick_inference_and_campaign_with_its_physics_only_baseline(tmp_path):
         assert math.isclose(c["physics_fraction"], c["throughput_x"] / c["physics_only_x"])
     targets = {t["key"]: t for t in r["targets"]}
     assert targets["campaign_physics"]["value"] == campaign["best"]["physics_fraction"]
+
+
+def test_quick_busy_runs_go2_and_arm6_beside_a_burner_per_core_and_names_long_ticks(tmp_path):
+    """The busy item runs both robots on the wall clock beside CPU-bound processes, reports their
+    overruns with the long-tick record's causes and judges whether any run stopped."""
+    out = tmp_path / "results.json"
+    run_bench(out, "--only", "busy")
+    r = json.loads(out.read_text())
+    busy = r["sections"]["busy"]
+    assert busy["burners"] >= 1
+    assert [row["robot"] for row in busy["rows"]] == ["go2", "arm6"]
+    for row in busy["rows"]:
+        assert row["ticks"] > 0 and row["longest"], row
+        assert all("cause" in t and "stages_us" in t for t in row["longest"])
+    target = next(t for t in r["targets"] if t["key"] == "busy_stops")
+    stopped = sum(
+        any(m in ("FAULTED", "SAFE_STOP") for m in row["final_state"]) for row in busy["rows"]
+    )
+    assert target["value"] == stopped

@@ -10,7 +10,7 @@ measures, README.md, "Speed", for the JSON layout): plant, inference, tick, sess
 wallclock, bus, profile.
 ``--quick`` shortens every item to a few seconds (a smoke test; its percentiles are rough).
 With ``--only``, sections of an existing results file that were not run are kept (each section
-records when it was measured and whether it was quick). The targets (``TARGETS``, issue 45) are
+records when it was measured and whether it was quick). The targets (``TARGETS``) are
 judged on ratios of figures measured in the same run; every run appends an entry (its commit,
 the targets' values) to the file's ``history``, and the table compares each target with the last
 full run, flagging a move of more than ``REGRESSION`` the wrong way.
@@ -76,7 +76,7 @@ QUICK = {
     "profile_ticks": 1_000,
 }
 
-#: The targets the table ends with (issue 45), each judged on figures of one run (these machines
+#: The targets the table ends with, each judged on figures of one run (these machines
 #: differ by 4x; a ratio of two figures measured side by side does not): (key, label, robot,
 #: limit (None: stated, not judged), comparison, unit).
 TARGETS = (
@@ -476,7 +476,7 @@ def render(results: dict) -> str:
             )
 
     add("")
-    add("== targets (issue 45; ratios of figures measured in this run)")
+    add("== targets (ratios of figures measured in this run)")
     add(f"   {'target':50} {'robot':6} {'measured':>10} {'goal':>10}  result")
     for t in results["targets"]:
         verdict = {True: "PASS", False: "FAIL", None: "n/a"}[t["pass"]]

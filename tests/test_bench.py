@@ -82,6 +82,7 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
         ("campaign", "arm3"),
         ("campaign_physics", "arm3"),
         ("wallclock_stops", "arm6"),
+        ("busy_stops", "go2+arm6"),
     }
     assert targets["session_8h", "arm3"]["pass"] in (True, False)
     assert targets["session_8h", "arm3"]["value"] == session["estimate_8h_s"]

@@ -215,6 +215,13 @@ def _run_opened(
         schedule=False,
     )
     task.reset(rt, np.ones(args.envs, dtype=bool))
+    node = None
+    if args.ros2:
+        from deploy.ros2.bridge import RuntimeNode
+
+        node = RuntimeNode(
+            rt, namespace=args.ros2_namespace, task=task, interventions=interventions
+        )  # off the control thread; after_tick hands it each tick
 
     def on_tick(r):
         t0 = clock_ns()
@@ -223,6 +230,8 @@ def _run_opened(
         interventions.update()
         monitor_cost.add(0, clock_ns() - t0)
         task(r)
+        if node is not None:
+            node.after_tick(r)
         temperature = (
             backend.thermal.winding_temperature if simulated else r.state.winding_temperature
         )
@@ -249,6 +258,9 @@ def _run_opened(
             rt.run(ticks, on_tick=on_tick)
         except SimulationDivergedError as exc:
             diverged = str(exc)
+        finally:
+            if node is not None:
+                node.close()
         wall = time.perf_counter() - wall
     if telemetry is not None:
         telemetry.close(rt.long_ticks.rows(rt.dt), rt.dt)
@@ -330,6 +342,7 @@ def _run_opened(
         },
         "realtime_settings": settings.summary(),
         "bus": backend.bus_summary() if hasattr(backend, "bus_summary") else None,
+        "ros2": node.summary() if node is not None else None,
         "diverged": diverged,
     }
     hard = {k: int(true[k]) for k in HARD_VIOLATION_TYPES if true.get(k, 0)}

@@ -97,6 +97,16 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         help="fault injection (sim): dropout, stale, nan-action, latency, push, cable; "
         "MAGNITUDE: latency ticks (default 10), push / cable force N (default 20 / 10)",
     )
+    p.add_argument(
+        "--ros2",
+        action="store_true",
+        help="run as a ROS 2 node (extra 'ros2'): publish joint_states, imu, odom (legged), "
+        "/diagnostics; take cmd_vel (legged) or goal_point (arm); services ~/stop, ~/resume, "
+        "~/reset_faults",
+    )
+    p.add_argument(
+        "--ros2-namespace", default="", metavar="NS", help="--ros2: the node's namespace"
+    )
     p.add_argument("--report", type=Path, default=None, help="write the summary as JSON")
     p.add_argument(
         "--telemetry",

@@ -37,6 +37,7 @@ _CAUSE_CODES = {
     "over_temperature": sv.OVER_TEMPERATURE,
     "servo_error": sv.SERVO_ERROR,
     "fall": sv.FALL,
+    "operator": sv.OPERATOR,
 }
 if [_CAUSE_CODES[c] for c in FAULT_CAUSES] != list(range(len(FAULT_CAUSES))) or [
     sv.IDLE,

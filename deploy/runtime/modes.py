@@ -61,6 +61,7 @@ IDLE, RAMP_IN, RUNNING, SAFE_STOP, FAULTED = (int(m) for m in Mode)
 
 #: Causes of a safe stop. ``servo_error``: a drive reported a hardware error (overload,
 #: overheating, input voltage, ...; ``Backend.drive_errors``), latched in ``Runtime.drive_errors``.
+#: ``operator``: an operator's stop (``deploy-run --ros2``'s ``~/stop`` service), ended by resume.
 FAULT_CAUSES = (
     "hard_limit",
     "non_finite_action",
@@ -69,6 +70,7 @@ FAULT_CAUSES = (
     "over_temperature",
     "servo_error",
     "fall",
+    "operator",
 )
 
 

@@ -30,9 +30,10 @@ from deploy.kernels import np_max, np_min
 
 #: Modes of the state machine (deploy.runtime.Mode).
 IDLE, RAMP_IN, RUNNING, SAFE_STOP, FAULTED = 0, 1, 2, 3, 4
-#: Indices of deploy.runtime.FAULT_CAUSES (FALL: set by the runtime's fall check, not here).
+#: Indices of deploy.runtime.FAULT_CAUSES (FALL: set by the runtime's fall check, OPERATOR by
+#: an operator's stop, not here).
 HARD_LIMIT, NON_FINITE_ACTION, STALE_SENSOR, OVERRUN, OVER_TEMPERATURE, SERVO_ERROR = range(6)
-FALL = 6
+FALL, OPERATOR = 6, 7
 #: Rows of ``flags``.
 NEW_STOP, TOOK_OVER, RESUMED, BAD_ACTION = 0, 1, 2, 3
 #: Return bits of :func:`supervise`.

@@ -412,6 +412,15 @@ class GoalTask:
     def __call__(self, runtime) -> None:
         self.scheduler(runtime)
 
+    def set_goal(self, runtime, goal) -> None:
+        """An operator's goal ((3,) m, base frame; ``deploy-run --ros2``'s ``goal_point``):
+        issued at once to every env and kept (a fixed goal) until the next one; the goal it
+        replaces counts as missed if it was not reached."""
+        s = self.scheduler
+        s.fixed = np.array(goal, dtype=np.float64).reshape(3)
+        for e in range(runtime.envs):
+            s.new_goal(runtime, e)
+
     def success(self, env: int | None = None) -> float | None:
         """Goals reached / goals issued (of env ``env``, or all envs); None before any."""
         s = self.scheduler

@@ -106,8 +106,21 @@ HIL_so101 := $(PY) -m deploy.backends.emulator.hil --robot so101 --protocol feet
 	--policy policies/so101.onnx --duration 60
 HIL_go2   := $(PY) -m deploy.backends.unitree.emulator.hil --robot go2 -- \
 	--policy policies/go2.onnx --command 0.5,0,0 --duration 60
+#   make hil BACKEND=ros2 [ROBOT=so101]
+#                        the shipped arm3 (or SO-101) policy for 60 s through deploy-run --backend
+#                        ros2 against the ros2_control emulator (joint_states and a forward
+#                        command controller over the MuJoCo plant, its own process, ROS 2 domain
+#                        42 on this computer), then the same run on --backend sim, side by side
+HIL_ROS2_ROBOT  := $(if $(filter so101,$(ROBOT)),so101,arm3)
+HIL_ROS2_POLICY := $(if $(filter so101,$(ROBOT)),policies/so101.onnx,$(ONNX))
+ifeq ($(BACKEND),ros2)
+hil: install $(HIL_ROS2_POLICY)
+	$(if $(filter arm3 so101,$(ROBOT)),,$(error make hil BACKEND=ros2: ROBOT=$(ROBOT) has no shipped policy; use ROBOT=arm3 or ROBOT=so101))
+	$(PY) -m deploy.ros2.hil --robot $(HIL_ROS2_ROBOT) -- --policy $(HIL_ROS2_POLICY) --duration 60
+else
 hil: install policies/$(HIL_ROBOT).onnx
 	$(HIL_$(HIL_ROBOT))
+endif
 
 policies/so101.onnx: policies/so101.pt $(STAMP)
 	$(VENV)/bin/policy-export policies/so101.pt

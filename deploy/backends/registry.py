@@ -25,6 +25,7 @@ BUILTIN = (
     "deploy.backends.sim.options",
     "deploy.backends.servo.options",
     "deploy.backends.unitree.options",
+    "deploy.ros2.options",
 )
 
 

@@ -79,6 +79,16 @@ def print_summary(r: dict) -> None:
     b = r.get("bus")
     if b and b.get("transport") == "dds":
         _print_dds(b)
+    elif b and b.get("transport") == "ros2":
+        rd, wr, age = b["read_us"], b["write_us"], b["state_age_us"]
+        print(
+            f"  ros2_control      joint_states {b['joint_states_received']} at "
+            f"{b['joint_states_rate_hz']:.0f} Hz, stale reads {b['stale_reads']}, missing "
+            f"joint readings {b['missing_joint_readings']}; {b['commands_sent']} commands on "
+            f"{b['command_topic']}; read p50 {rd['p50_us']:.0f} p99 {rd['p99_us']:.0f} us, "
+            f"write p50 {wr['p50_us']:.0f} p99 {wr['p99_us']:.0f} us, state age p50 "
+            f"{age['p50_us']:.0f} us"
+        )
     elif b:
         rd, wr = b["read_us"], b["write_us"]
         drops = ", ".join(f"{k} {n}" for k, n in b["dropouts"].items())
@@ -87,6 +97,14 @@ def print_summary(r: dict) -> None:
             f"{b['sync_reads']} sync reads, dropouts {drops} "
             f"({100 * b['dropout_fraction']:.2f} % of replies); read p50 {rd['p50_us']:.0f} "
             f"p99 {rd['p99_us']:.0f} us, write p50 {wr['p50_us']:.0f} us"
+        )
+    n = r.get("ros2")
+    if n:
+        pub = ", ".join(f"{k} {v}" for k, v in n["published"].items() if v)
+        got = ", ".join(f"{k} {v}" for k, v in n["received"].items() if v) or "nothing"
+        print(
+            f"  ros2 node         {n['node']}: published {pub}; received {got}; ticks skipped "
+            f"{n['ticks_skipped']}, cmd_vel time-outs {n['cmd_vel_timeouts']}"
         )
     temps = ", ".join(f"{k} {t:.1f}" for k, t in r["peak_winding_temperature_c"].items())
     print(f"  peak winding degC {temps}")

@@ -49,8 +49,16 @@ import time
 import numpy as np
 
 from deploy.ros2.context import NodeThread
-from deploy.ros2.messages import ERROR, OK, WARN, Status, diagnostic_array
-from deploy.ros2.messages import fill_imu, fill_joint_state, fill_odometry
+from deploy.ros2.messages import (
+    ERROR,
+    OK,
+    WARN,
+    Status,
+    diagnostic_array,
+    fill_imu,
+    fill_joint_state,
+    fill_odometry,
+)
 from deploy.ros2.snapshot import TripleBuffer
 
 #: The node's default name.

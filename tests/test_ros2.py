@@ -1,0 +1,258 @@
+"""ROS 2: deploy-run as a node steered by a second, real ROS 2 process, and the ros2 backend
+driving arm3 against its ros2_control emulator (real rclpy, real message types; the extra
+``ros2``). Each test talks on a ROS 2 domain of its own, on this computer only."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from deploy.ros2.controllers import command_order, controller_joints
+from robots import load_robot
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _ros_env(domain: int) -> dict:
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(domain)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    return env
+
+
+def _domain() -> int:
+    """A domain no other test run on this computer is likely to share."""
+    return 100 + (os.getpid() + int(time.time())) % 100
+
+
+@pytest.fixture
+def ros_domain(monkeypatch):
+    pytest.importorskip("rclpy", reason="the extra 'ros2' (ROS 2 Kilted wheels) is not installed")
+    domain = _domain()
+    for k, v in _ros_env(domain).items():
+        if k.startswith("ROS_"):
+            monkeypatch.setenv(k, v)
+    return domain
+
+
+# ---------------------------------------------------------------------- no ROS needed
+def test_controller_joint_order_is_checked_against_the_robot(tmp_path):
+    robot = load_robot("arm3")
+    names = list(robot.joint_names)
+    yaml_file = tmp_path / "controllers.yaml"
+    yaml_file.write_text(
+        "forward_velocity_controller:\n  ros__parameters:\n"
+        f"    joints: {list(reversed(names))}\n    interface_name: velocity\n"
+    )
+    joints = controller_joints(yaml_file, "forward_velocity_controller", "velocity")
+    assert command_order(names, joints, str(yaml_file)) == list(reversed(range(len(names))))
+    with pytest.raises(ValueError, match=r"interface_name.*'effort'"):
+        controller_joints(yaml_file, "forward_velocity_controller", "torque")
+    with pytest.raises(ValueError, match=r"forward_effort_controller.ros__parameters.joints"):
+        controller_joints(yaml_file, "forward_effort_controller", "torque")
+    with pytest.raises(ValueError, match=rf"does not command the robot's joints \['{names[0]}'\]"):
+        command_order(names, names[1:], "controllers.yaml")
+    with pytest.raises(ValueError, match=r"the robot does not have \['gripper'\]"):
+        command_order(names, [*names, "gripper"], "controllers.yaml")
+
+
+# ---------------------------------------------------------------------- the runtime as a node
+@pytest.mark.wallclock
+def test_a_second_process_steers_the_go2_with_cmd_vel_and_sees_its_state(ros_domain, tmp_path):
+    """deploy-run --ros2 walks forward, then turns, as a separate process's cmd_vel says; that
+    process sees joint_states at the control rate with the robot's joint names, and a
+    /diagnostics entry that changes when a fault is injected."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Twist
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import JointState
+
+    from deploy.ros2.context import NodeThread
+
+    robot = load_robot("go2")
+    report = tmp_path / "go2.json"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli.deploy_run", "--robot", "go2",
+         "--policy", os.path.join(ROOT, "policies", "go2.onnx"), "--ros2", "--realtime",
+         "--duration", "16", "--inject", "nan-action@13:0.1", "--report", str(report)],
+        env=_ros_env(ros_domain), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        text=True,
+    )  # fmt: skip
+    joint_stamps, names, odom, diag = [], set(), [], []
+    with NodeThread("operator") as op:
+        n = op.node
+        n.create_subscription(
+            JointState, "/joint_states",
+            lambda m: (joint_stamps.append(time.monotonic()), names.add(tuple(m.name))), 50,
+        )  # fmt: skip
+        n.create_subscription(
+            Odometry, "/odom", lambda m: odom.append((time.monotonic(), m.pose.pose)), 50
+        )
+        n.create_subscription(
+            DiagnosticArray, "/diagnostics", lambda m: diag.append((time.monotonic(), m)), 50
+        )
+        cmd = n.create_publisher(Twist, "/cmd_vel", 10)
+        while not joint_stamps and run.poll() is None:  # the node is up
+            time.sleep(0.05)
+        t0 = time.monotonic()
+        phases = []
+        while run.poll() is None and time.monotonic() - t0 < 15:
+            t = time.monotonic() - t0
+            tw = Twist()
+            if 1.0 <= t < 6.0:
+                tw.linear.x = 0.5
+            elif 6.0 <= t < 11.0:  # the shipped go2 turns walking, hardly on the spot
+                tw.linear.x, tw.angular.z = 0.4, 0.5
+            cmd.publish(tw)
+            phases.append(t)
+            time.sleep(0.05)
+        err = run.communicate(timeout=60)[1]
+    assert report.is_file(), err[-2000:]
+    r = json.loads(report.read_text())
+    assert r["ros2"]["received"]["cmd_vel"] > 100
+    # joint_states: the robot's joint names, at the control rate (50 Hz) while running
+    assert names == {tuple(robot.joint_names)}
+    steady = np.array(joint_stamps)
+    steady = steady[(steady > t0 + 1) & (steady < t0 + 12)]
+    rate = (len(steady) - 1) / (steady[-1] - steady[0])
+    assert 0.8 * 50 <= rate <= 1.2 * 50, rate
+
+    def pose_at(t):
+        k = np.searchsorted([s for s, _ in odom], t0 + t)
+        return odom[min(k, len(odom) - 1)][1]
+
+    def yaw(p):
+        q = p.orientation
+        return math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+
+    start, forward, turned = pose_at(1.0), pose_at(6.0), pose_at(11.0)
+    dx = forward.position.x - start.position.x
+    dy = forward.position.y - start.position.y
+    assert math.hypot(dx, dy) > 1.0  # walked forward ~0.5 m/s for 5 s
+    assert abs(math.atan2(dy, dx) - yaw(start)) < 0.5  # along its heading
+    turn = (yaw(turned) - yaw(forward) + math.pi) % (2 * math.pi) - math.pi
+    assert turn > 1.0, turn  # left, 0.5 rad/s for 5 s (yaw: the attitude filter's)
+    assert r["locomotion"]["falls"] == 0
+
+    def nan_actions(m):
+        for s in m.status:
+            if s.name.endswith(": runtime"):
+                return int({kv.key: kv.value for kv in s.values}["non_finite_actions"])
+        raise AssertionError("no runtime status")
+
+    before = [nan_actions(m) for t, m in diag if t < t0 + 12.5]
+    after = [nan_actions(m) for t, m in diag if t > t0 + 13.5]
+    assert before and after and before[-1] == 0 and after[-1] > 0
+
+
+@pytest.mark.wallclock
+def test_operator_services_stop_and_resume_the_arm(ros_domain, tmp_path):
+    """~/stop makes a safe stop (cause operator) that latches; ~/resume ends it; ~/reset_faults
+    refuses nothing to reset; /diagnostics says each state."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PointStamped
+    from std_srvs.srv import Trigger
+
+    from deploy.ros2.context import NodeThread
+
+    report = tmp_path / "arm.json"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli.deploy_run", "--robot", "arm3",
+         "--policy", os.path.join(ROOT, "policies", "arm.onnx"), "--ros2", "--realtime",
+         "--duration", "14", "--report", str(report)],
+        env=_ros_env(ros_domain), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        text=True,
+    )  # fmt: skip
+    states = []
+
+    def on_diag(m):
+        for s in m.status:
+            if s.name.endswith(": runtime"):
+                states.append(s.message)
+
+    with NodeThread("operator") as op:
+        n = op.node
+        n.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 50)
+        clients = {k: n.create_client(Trigger, f"/deploy_runtime/{k}") for k in
+                   ("stop", "resume", "reset_faults")}  # fmt: skip
+        goal = n.create_publisher(PointStamped, "/goal_point", 10)
+
+        def call(kind):
+            assert clients[kind].wait_for_service(timeout_sec=30), kind
+            future = clients[kind].call_async(Trigger.Request())
+            end = time.monotonic() + 10
+            while not future.done() and time.monotonic() < end:
+                time.sleep(0.02)
+            return future.result()
+
+        while not any(s.startswith("RUNNING") for s in states) and run.poll() is None:
+            time.sleep(0.05)
+        p = PointStamped()
+        p.point.x, p.point.y, p.point.z = 0.3, 0.1, 0.3
+        goal.publish(p)
+        stopped = call("stop")
+        assert stopped.success and "operator" in stopped.message
+        end = time.monotonic() + 8
+        while not any(s == "FAULTED (operator)" for s in states) and time.monotonic() < end:
+            time.sleep(0.05)
+        assert "FAULTED (operator)" in states, states
+        resumed = call("resume")
+        assert resumed.success, resumed.message
+        end = time.monotonic() + 8
+        tail = []
+        while time.monotonic() < end:
+            tail = states[states.index("FAULTED (operator)") :]
+            if "RUNNING" in tail:
+                break
+            time.sleep(0.05)
+        assert "RUNNING" in tail, tail
+        nothing = call("reset_faults")
+        assert nothing.success and "nothing to reset_faults" in nothing.message
+        err = run.communicate(timeout=60)[1]
+    r = json.loads(report.read_text())
+    assert r["faults"]["by_cause"]["operator"] == 1, err[-2000:]
+    assert r["ros2"]["received"]["goal_point"] == 1
+    assert r["ros2"]["services"] == {"stop": 1, "resume": 1, "reset_faults": 1}
+    assert r["final_state"] == ["RUNNING"]
+
+
+# ---------------------------------------------------------------------- the ros2 backend
+def _hil(domain: int, *args: str, timeout: float = 240) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "deploy.ros2.hil", "--robot", "arm3", "--domain-id", str(domain),
+         *args],
+        cwd=ROOT, capture_output=True, text=True, timeout=timeout,
+    )  # fmt: skip
+
+
+@pytest.mark.wallclock
+def test_ros2_backend_drives_arm3_against_its_emulator_as_the_simulated_plant(ros_domain):
+    """Through the ros2 backend (joint_states in, forward_velocity_controller out, its own
+    process) the arm reaches its goals as on --backend sim, with no true violation and no
+    stop."""
+    policy = os.path.join(ROOT, "policies", "arm.onnx")
+    done = _hil(ros_domain, "--", "--policy", policy, "--duration", "16")
+    out = done.stdout + done.stderr
+    assert done.returncode == 0, out[-3000:]
+    assert "they agree" in out, out[-3000:]
+    assert "violations (true ticks) ros2 0, sim 0" in out, out[-3000:]
+    assert "stops none" in out, out[-3000:]
+
+
+@pytest.mark.wallclock
+def test_silent_joint_states_stop_the_arm_as_a_stale_sensor(ros_domain):
+    """A controller manager that stops publishing joint_states for 1 s: the runtime's
+    stale-sensor watchdog stops the arm (a latched fault, exit 2)."""
+    policy = os.path.join(ROOT, "policies", "arm.onnx")
+    done = _hil(ros_domain, "--silence", "3:1", "--no-sim", "--", "--policy", policy,
+                "--duration", "8")  # fmt: skip
+    out = done.stdout + done.stderr
+    assert done.returncode == 2, out[-3000:]
+    assert "stale_sensor" in out, out[-3000:]

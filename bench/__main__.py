@@ -7,7 +7,7 @@ Usage::
 
 Items (default: all but ``profile``, in this order; see bench/__init__.py for what each
 measures, README.md, "Speed", for the JSON layout): plant, inference, tick, session, campaign,
-wallclock, bus, profile.
+wallclock, busy, ros2, bus, profile.
 ``--quick`` shortens every item to a few seconds (a smoke test; its percentiles are rough).
 With ``--only``, sections of an existing results file that were not run are kept (each section
 records when it was measured and whether it was quick). The targets (``TARGETS``) are
@@ -43,6 +43,7 @@ ITEMS = (
     "campaign",
     "wallclock",
     "busy",
+    "ros2",
     "bus",
     "profile",
 )
@@ -59,6 +60,7 @@ FULL = {
     "campaign_envs": (1, 4, 16, 32, 64, 128),
     "wallclock_s": 60.0,
     "busy_s": 30.0,
+    "ros2_s": 30.0,
     "bus_ticks": 3_000,
     "profile_ticks": 5_000,
 }
@@ -72,6 +74,7 @@ QUICK = {
     "campaign_envs": (1, 4),
     "wallclock_s": 2.0,
     "busy_s": 2.0,
+    "ros2_s": 3.0,
     "bus_ticks": 200,
     "profile_ticks": 1_000,
 }
@@ -89,6 +92,7 @@ TARGETS = (
     ("campaign_physics", "campaign / physics-only stepping, same run", "arm3", 0.8, ">=", ""),
     ("wallclock_stops", "wall-clock configurations that ended stopped", "arm6", 0.0, "<=", ""),
     ("busy_stops", "runs beside a CPU-bound job per core that stopped", "go2+arm6", 0.0, "<=", ""),
+    ("ros2_overruns", "overruns with --ros2 and a slow ROS 2 peer", "go2", 0.0, "<=", ""),
 )
 #: Entries of results.json's history kept (oldest dropped first).
 HISTORY = 200
@@ -203,6 +207,9 @@ def _target_value(key: str, robot: str, sections: dict):
             if rows is None
             else float(sum(any(m in stopped for m in r["final_state"]) for r in rows))
         )
+    if key == "ros2_overruns":
+        rows = {r["config"]: r for r in _get(sections, "ros2", "rows") or []}
+        return float(rows["on+slow"]["overruns"]) if "on+slow" in rows else None
     if key == "wallclock_stops":
         w = sections.get("wallclock")
         if w is None or w.get("robot") != robot:
@@ -448,6 +455,28 @@ def render(results: dict) -> str:
                 f"{causes}"
             )
 
+    if "ros2" in sec:
+        r2 = sec["ros2"]
+        add("")
+        if r2.get("skipped"):
+            add(f"== ros2: skipped: {r2['skipped']}")
+        else:
+            add(
+                f"== ros2: deploy-run --realtime on {r2['robot']}, {r2['duration_s']:.0f} s per "
+                "row; us p50/p99 (tick without physics, wake-up jitter, the node's after_tick)"
+            )
+            for r in r2["rows"]:
+                tc, jit, at = r["tick_cost_us"], r["jitter_us"], r["after_tick_us"] or {}
+                sent = sum((r["published"] or {}).values())
+                add(
+                    f"   {r['config']:8} tick {_f(tc['p50_us'], '.0f')}/{_f(tc['p99_us'], '.0f')}"
+                    f"  jitter {_f(jit['p50_us'], '.0f')}/{_f(jit['p99_us'], '.0f')}"
+                    f"  after_tick {_f(at.get('p50_us'), '.0f')}/{_f(at.get('p99_us'), '.0f')}"
+                    f"  overruns {r['overruns']}  published {sent}"
+                    f"  skipped {r['ticks_skipped'] if r['ticks_skipped'] is not None else '-'}"
+                    f"  final {','.join(r['final_state'])}"
+                )
+
     if "bus" in sec:
         b = sec["bus"]
         add("")
@@ -598,6 +627,10 @@ def main(argv: list[str] | None = None) -> int:
                 from bench import busy
 
                 sec = busy.measure(policy("arm6"), Path(tmp), cfg["busy_s"])
+            elif item == "ros2":
+                from bench import ros2
+
+                sec = ros2.measure(Path(tmp), cfg["ros2_s"])
             elif item == "bus":
                 from bench import bus
 

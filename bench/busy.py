@@ -15,6 +15,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 from pathlib import Path
+from types import SimpleNamespace
 
 from bench.common import BenchPolicy
 
@@ -47,6 +48,17 @@ def _row(name: str, report: dict) -> dict:
     }
 
 
+def shipped_go2(folder: Path):
+    """The shipped Go2 policy exported to ``folder/go2.onnx``, as what
+    :func:`bench.session._deploy_run` reads of a :class:`~bench.common.BenchPolicy` (``robot.name``,
+    ``path``)."""
+    from deploy.export import export_policy
+
+    repo = Path(__file__).resolve().parents[1]
+    path = export_policy(repo / "policies" / "go2.pt", out=folder / "go2.onnx")
+    return SimpleNamespace(robot=SimpleNamespace(name="go2"), path=path)
+
+
 def measure(arm6: BenchPolicy, folder: Path, duration: float) -> dict:
     """The ``busy`` entry of results.json: ``{duration_s, burners, rows: [...]}`` (module
     docstring).
@@ -56,22 +68,15 @@ def measure(arm6: BenchPolicy, folder: Path, duration: float) -> dict:
             _deploy_run`).
     """
     from bench.session import _deploy_run
-    from deploy.export import export_policy
 
-    repo = Path(__file__).resolve().parents[1]
-    go2_path = export_policy(repo / "policies" / "go2.pt", out=folder / "go2.onnx")
-
-    class Go2:  # what _deploy_run reads of a BenchPolicy
-        robot = type("R", (), {"name": "go2"})()
-        path = go2_path
-
+    go2 = shipped_go2(folder)
     burners = os.cpu_count() or 1
     procs = [multiprocessing.get_context("spawn").Process(target=_burn) for _ in range(burners)]
     rows = []
     try:
         for p in procs:
             p.start()
-        report, _, _ = _deploy_run(Go2, duration, True, ("--command", "0.5,0,0"))
+        report, _, _ = _deploy_run(go2, duration, True, ("--command", "0.5,0,0"))
         rows.append(_row("go2", report))
         report, _, _ = _deploy_run(arm6, duration, True)
         rows.append(_row(arm6.robot.name, report))

@@ -83,6 +83,7 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
         ("campaign_physics", "arm3"),
         ("wallclock_stops", "arm6"),
         ("busy_stops", "go2+arm6"),
+        ("ros2_overruns", "go2"),
     }
     assert targets["session_8h", "arm3"]["pass"] in (True, False)
     assert targets["session_8h", "arm3"]["value"] == session["estimate_8h_s"]
@@ -156,3 +157,25 @@ def test_quick_busy_runs_go2_and_arm6_beside_a_burner_per_core_and_names_long_ti
         any(m in ("FAULTED", "SAFE_STOP") for m in row["final_state"]) for row in busy["rows"]
     )
     assert target["value"] == stopped
+
+
+@pytest.mark.wallclock
+def test_quick_ros2_measures_the_tick_with_the_node_off_on_and_beside_a_slow_peer(tmp_path):
+    """The ros2 item runs go2 without ROS 2, with --ros2, and with --ros2 beside a second ROS 2
+    process whose callbacks are slower than a tick; each row has the tick's cost, the node's own
+    cost on the control thread, and the messages that crossed."""
+    pytest.importorskip("rclpy", reason="the extra 'ros2' (ROS 2 Kilted wheels) is not installed")
+    out = tmp_path / "results.json"
+    run_bench(out, "--only", "ros2")
+    r = json.loads(out.read_text())
+    rows = {row["config"]: row for row in r["sections"]["ros2"]["rows"]}
+    assert list(rows) == ["off", "on", "on+slow"]
+    assert rows["off"]["after_tick_us"] is None and rows["off"]["published"] is None
+    for name in ("on", "on+slow"):
+        row = rows[name]
+        assert positive_finite(row["tick_cost_us"]["p50_us"]), row
+        assert row["after_tick_us"]["samples"] > 0, row
+        assert row["published"]["joint_states"] > 0, row
+    assert rows["on+slow"]["received"]["cmd_vel"] > 0  # the peer was there and talking
+    target = next(t for t in r["targets"] if t["key"] == "ros2_overruns")
+    assert target["value"] == rows["on+slow"]["overruns"]

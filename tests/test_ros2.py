@@ -42,6 +42,24 @@ def ros_domain(monkeypatch):
     return domain
 
 
+@pytest.fixture(scope="module")
+def shipped(tmp_path_factory):
+    """The shipped policies exported fresh (ONNX files are built, not committed): a function
+    ``name -> path`` of ``policies/<name>.pt`` exported to a folder of this module's."""
+    from deploy.export import export_policy
+
+    folder = tmp_path_factory.mktemp("shipped")
+    cache: dict[str, str] = {}
+
+    def path(name: str) -> str:
+        if name not in cache:
+            src = os.path.join(ROOT, "policies", f"{name}.pt")
+            cache[name] = str(export_policy(src, out=folder / f"{name}.onnx"))
+        return cache[name]
+
+    return path
+
+
 # ---------------------------------------------------------------------- no ROS needed
 def test_controller_joint_order_is_checked_against_the_robot(tmp_path):
     robot = load_robot("arm3")
@@ -65,7 +83,9 @@ def test_controller_joint_order_is_checked_against_the_robot(tmp_path):
 
 # ---------------------------------------------------------------------- the runtime as a node
 @pytest.mark.wallclock
-def test_a_second_process_steers_the_go2_with_cmd_vel_and_sees_its_state(ros_domain, tmp_path):
+def test_a_second_process_steers_the_go2_with_cmd_vel_and_sees_its_state(
+    ros_domain, tmp_path, shipped
+):
     """deploy-run --ros2 walks forward, then turns, as a separate process's cmd_vel says; that
     process sees joint_states at the control rate with the robot's joint names, and a
     /diagnostics entry that changes when a fault is injected."""
@@ -80,7 +100,7 @@ def test_a_second_process_steers_the_go2_with_cmd_vel_and_sees_its_state(ros_dom
     report = tmp_path / "go2.json"
     run = subprocess.Popen(
         [sys.executable, "-m", "deploy.cli.deploy_run", "--robot", "go2",
-         "--policy", os.path.join(ROOT, "policies", "go2.onnx"), "--ros2", "--realtime",
+         "--policy", shipped("go2"), "--ros2", "--realtime",
          "--duration", "16", "--inject", "nan-action@13:0.1", "--report", str(report)],
         env=_ros_env(ros_domain), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
         text=True,
@@ -153,7 +173,7 @@ def test_a_second_process_steers_the_go2_with_cmd_vel_and_sees_its_state(ros_dom
 
 
 @pytest.mark.wallclock
-def test_operator_services_stop_and_resume_the_arm(ros_domain, tmp_path):
+def test_operator_services_stop_and_resume_the_arm(ros_domain, tmp_path, shipped):
     """~/stop makes a safe stop (cause operator) that latches; ~/resume ends it; ~/reset_faults
     refuses nothing to reset; /diagnostics says each state."""
     from diagnostic_msgs.msg import DiagnosticArray
@@ -165,7 +185,7 @@ def test_operator_services_stop_and_resume_the_arm(ros_domain, tmp_path):
     report = tmp_path / "arm.json"
     run = subprocess.Popen(
         [sys.executable, "-m", "deploy.cli.deploy_run", "--robot", "arm3",
-         "--policy", os.path.join(ROOT, "policies", "arm.onnx"), "--ros2", "--realtime",
+         "--policy", shipped("arm"), "--ros2", "--realtime",
          "--duration", "14", "--report", str(report)],
         env=_ros_env(ros_domain), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
         text=True,
@@ -233,11 +253,11 @@ def _hil(domain: int, *args: str, timeout: float = 240) -> subprocess.CompletedP
 
 
 @pytest.mark.wallclock
-def test_ros2_backend_drives_arm3_against_its_emulator_as_the_simulated_plant(ros_domain):
+def test_ros2_backend_drives_arm3_against_its_emulator_as_the_simulated_plant(ros_domain, shipped):
     """Through the ros2 backend (joint_states in, forward_velocity_controller out, its own
     process) the arm reaches its goals as on --backend sim, with no true violation and no
     stop."""
-    policy = os.path.join(ROOT, "policies", "arm.onnx")
+    policy = shipped("arm")
     done = _hil(ros_domain, "--", "--policy", policy, "--duration", "16")
     out = done.stdout + done.stderr
     assert done.returncode == 0, out[-3000:]
@@ -247,10 +267,10 @@ def test_ros2_backend_drives_arm3_against_its_emulator_as_the_simulated_plant(ro
 
 
 @pytest.mark.wallclock
-def test_silent_joint_states_stop_the_arm_as_a_stale_sensor(ros_domain):
+def test_silent_joint_states_stop_the_arm_as_a_stale_sensor(ros_domain, shipped):
     """A controller manager that stops publishing joint_states for 1 s: the runtime's
     stale-sensor watchdog stops the arm (a latched fault, exit 2)."""
-    policy = os.path.join(ROOT, "policies", "arm.onnx")
+    policy = shipped("arm")
     done = _hil(ros_domain, "--silence", "3:1", "--no-sim", "--", "--policy", policy,
                 "--duration", "8")  # fmt: skip
     out = done.stdout + done.stderr

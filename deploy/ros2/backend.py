@@ -36,6 +36,7 @@ from deploy.backends.base import BackendLifecycle, SensorFrame
 from deploy.observe.telemetry import LatencyHistogram
 from deploy.ros2.context import NodeThread
 from deploy.ros2.controllers import FORWARD_CONTROLLERS, command_order, command_topic
+from robots.errors import Sim2RealError
 
 #: s ``open()`` waits for the first ``joint_states``.
 STATE_TIMEOUT = 5.0
@@ -45,7 +46,7 @@ RATE_WINDOW = 0.5
 QOS_DEPTH = 10
 
 
-class Ros2BackendError(OSError):
+class Ros2BackendError(Sim2RealError, OSError):
     """The ros2_control robot does not come up (no state, joints missing): ``deploy-run``
     exits 3."""
 

@@ -2,32 +2,17 @@
 
 :class:`RuntimeNode` is an rclpy node (:class:`~deploy.ros2.context.NodeThread`, its own
 thread) beside one robot's :class:`~deploy.runtime.Runtime`. Topic names are relative to
-``--ros2-namespace`` (``/diagnostics`` excepted, where ``diagnostic_aggregator`` listens):
+``--ros2-namespace`` (``/diagnostics`` excepted, where ``diagnostic_aggregator`` listens); the
+README's "ROS 2" section has the table of types and rates:
 
-==========================  ===================================  ===============================
-topic / service             type                                 what, rate
-==========================  ===================================  ===============================
-``joint_states``            ``sensor_msgs/JointState``           estimated q, dq (effort: the
-                                                                 commanded torque in torque
-                                                                 mode), every control tick
-``imu`` (legged)            ``sensor_msgs/Imu``                  base orientation estimate,
-                                                                 gyro, accelerometer; every tick
-``odom`` (legged)           ``nav_msgs/Odometry``                the base estimate: velocity
-                                                                 (base frame), dead-reckoned
-                                                                 pose; every tick
-``/diagnostics``            ``diagnostic_msgs/DiagnosticArray``  ``<node>: runtime``, ``motors``,
-                                                                 ``timing``; every
-                                                                 ``DIAGNOSTICS_PERIOD`` and at
-                                                                 once when the state changes
-``cmd_vel`` (legged, in)    ``geometry_msgs/Twist``              the velocity command (linear.x,
-                                                                 linear.y m/s, angular.z rad/s)
-``goal_point`` (arm, in)    ``geometry_msgs/PointStamped``       a goal for the end effector (m,
-                                                                 the robot's base frame)
-``~/stop``                  ``std_srvs/Trigger``                 an operator's safe stop (cause
-                                                                 ``operator``)
-``~/resume``                ``std_srvs/Trigger``                 end an operator's stop
-``~/reset_faults``          ``std_srvs/Trigger``                 clear a latched fault
-==========================  ===================================  ===============================
+- out, every control tick: ``joint_states`` (``sensor_msgs/JointState``, the estimate), for a
+  legged robot ``imu`` (``sensor_msgs/Imu``) and ``odom`` (``nav_msgs/Odometry``, the base
+  estimate); ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``: ``<node>: runtime``,
+  ``motors``, ``timing``) every ``DIAGNOSTICS_PERIOD`` and at once when the state changes;
+- in: ``cmd_vel`` (``geometry_msgs/Twist``, legged) or ``goal_point``
+  (``geometry_msgs/PointStamped``, arm, m in the base frame);
+- services (``std_srvs/Trigger``): ``~/stop`` (an operator's safe stop, cause ``operator``),
+  ``~/resume`` (end it), ``~/reset_faults`` (clear a latched fault).
 
 The tick never waits for the node. After every tick the control thread (:meth:`RuntimeNode.
 after_tick`, the runtime's ``on_tick``) applies what arrived (the newest ``cmd_vel``, a goal,
@@ -48,6 +33,7 @@ import time
 
 import numpy as np
 
+from deploy.observe.telemetry import LatencyHistogram
 from deploy.ros2.context import NodeThread
 from deploy.ros2.messages import (
     ERROR,
@@ -99,6 +85,9 @@ class RuntimeNode:
         published: Messages published by topic. received: Messages received by topic.
         cmd_vel_timeouts: Times the command went to zero for want of a ``cmd_vel``.
         services: Service calls answered, by name.
+        after_tick_cost: :class:`~deploy.observe.telemetry.LatencyHistogram` of
+            :meth:`after_tick`'s duration on the control thread (ns), the node's whole cost to
+            the loop outside the tick.
 
     Raises:
         ValueError: a runtime of more than one env.
@@ -163,12 +152,15 @@ class RuntimeNode:
         self._diag_every = max(1, int(round(DIAGNOSTICS_PERIOD / self.dt)))
         self._last_state = (-1, -2)
         self._position = np.zeros(3)
+        self.after_tick_cost = LatencyHistogram()
         self.thread.start()
 
     # ------------------------------------------------------------------ the control thread
     def after_tick(self, rt) -> None:
         """After each tick, on the control thread: apply what arrived, hand the tick to the
-        node. Costs a few array copies; never waits for the node."""
+        node. Costs a few array copies; never waits for the node. Its own duration goes to
+        :attr:`after_tick_cost`."""
+        t0 = time.perf_counter_ns()
         self._apply_inputs(rt)
         s = self.buffer.back
         s.tick, s.time, s.wall_ns = rt.ticks, rt.time, time.time_ns()
@@ -190,6 +182,7 @@ class RuntimeNode:
             self._last_state = state
             self._statuses = self._diagnose(rt)
             self._wake_diag.trigger()
+        self.after_tick_cost.add(0, time.perf_counter_ns() - t0)
 
     def _apply_inputs(self, rt) -> None:
         if self._cmd_new:
@@ -356,6 +349,7 @@ class RuntimeNode:
             "ticks_skipped": self.buffer.skipped,
             "cmd_vel_timeouts": self.cmd_vel_timeouts,
             "services": dict(self.services),
+            "after_tick_us": self.after_tick_cost.summary(),
         }
 
     def close(self) -> None:

@@ -14,12 +14,13 @@ from __future__ import annotations
 import threading
 
 from deploy.ros2 import available
+from robots.errors import Sim2RealError
 
 #: s the executor waits per spin before it looks at its stop flag (our choice).
 SPIN_TIMEOUT = 0.1
 
 
-class Ros2UnavailableError(ValueError):
+class Ros2UnavailableError(Sim2RealError, ValueError):
     """rclpy or a message package does not import (the extra ``ros2`` is not installed): bad
     input for a command line that asked for ROS 2 (``deploy-run`` exits 3)."""
 

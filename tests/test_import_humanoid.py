@@ -224,26 +224,41 @@ def test_it_stands_on_its_four_sphere_feet_and_the_feet_sense_its_weight(humanoi
     assert min(touch) > 0.3 * weight
 
 
-def test_each_collision_mesh_is_its_own_box_in_mujoco_and_the_guard(humanoid):
-    """The pelvis carries four collision meshes (pelvis, torso, two arms): four boxes of the
-    meshes' own sizes, not one box around the arms; the visual copies are gone; the arms and the
-    thighs, 4 cm apart, are pairs the guard checks, apart in a forward stride too."""
+def test_each_collision_mesh_is_its_own_hull_in_mujoco_and_the_guard(humanoid):
+    """The pelvis carries four collision meshes (pelvis, torso, two arms): four convex hulls of
+    the meshes' own shapes (cuboids here: their eight corners), not one shape around the arms;
+    the visual copies are gone; the arms and the thighs, 4 cm apart, are pairs the guard checks,
+    apart in a forward stride too."""
+    import coal
+
     from deploy.safety.collision import collision_model, collision_query
 
     robot, _, _ = humanoid
     model = robot.mj_model
     pelvis = [g for g in range(model.ngeom) if model.geom_bodyid[g] == model.body("pelvis").id]
-    assert [model.geom_type[g] for g in pelvis] == [mujoco.mjtGeom.mjGEOM_BOX] * 4
+    assert [model.geom_type[g] for g in pelvis] == [mujoco.mjtGeom.mjGEOM_MESH] * 4
     halves = {name: np.array(half) for name, (half, _) in MESHES.items()}
     expected = [halves["pelvis"], halves["torso"], halves["arm"], halves["arm"]]
-    np.testing.assert_allclose(model.geom_size[pelvis], expected, atol=1e-9)
-    centres = [(0, 0, 0), (0, 0, 0.2), (0, 0.2, 0.05), (0, -0.2, 0.05)]
-    np.testing.assert_allclose(model.geom_pos[pelvis], centres, atol=1e-9)
+    centres = np.array([(0, 0, 0), (0, 0, 0.2), (0, 0.2, 0.05), (0, -0.2, 0.05)])
+    for g, half, centre in zip(pelvis, expected, centres, strict=True):
+        mesh = model.geom_dataid[g]
+        start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, model.geom_quat[g])
+        body = model.geom_pos[g] + model.mesh_vert[start : start + count] @ rot.reshape(3, 3).T
+        assert count == 8
+        np.testing.assert_allclose(body.min(axis=0), centre - half, atol=1e-6)
+        np.testing.assert_allclose(body.max(axis=0), centre + half, atol=1e-6)
 
     geom_model, geom_data = collision_model(robot)
-    boxes = {g.name: g.geometry for g in geom_model.geometryObjects}
-    for g, half in zip(pelvis, expected, strict=True):
-        np.testing.assert_allclose(boxes[model.geom(g).name].halfSide, half, atol=1e-9)
+    hulls = {g.name: g for g in geom_model.geometryObjects}
+    for g, half, centre in zip(pelvis, expected, centres, strict=True):
+        obj = hulls[model.geom(g).name]
+        assert isinstance(obj.geometry, coal.Convex)
+        pts = np.asarray(obj.geometry.points())
+        body = obj.placement.translation + pts @ obj.placement.rotation.T
+        np.testing.assert_allclose(body.min(axis=0), centre - half, atol=1e-6)
+        np.testing.assert_allclose(body.max(axis=0), centre + half, atol=1e-6)
     pairs = {frozenset(p) for p in robot.config.safety.collision_pairs}
     left_arm, left_thigh = model.geom(pelvis[2]).name, "left_hip_pitch_link"
     assert frozenset((left_arm, left_thigh)) in pairs

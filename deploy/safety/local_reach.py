@@ -108,6 +108,11 @@ def _support(geometry) -> tuple[np.ndarray, float]:
     if isinstance(geometry, (coal.Capsule, coal.Cylinder)):
         ends = np.array([[0.0, 0.0, -geometry.halfLength], [0.0, 0.0, geometry.halfLength]])
         return ends, float(geometry.radius)
+    if isinstance(geometry, coal.ConvexBase):  # a mesh's hull: its bounding box's corners
+        pts = np.asarray(geometry.points(), dtype=float).reshape(-1, 3)  # (8 points, not 100s)
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        signs = np.array(np.meshgrid([0.0, 1.0], [0.0, 1.0], [0.0, 1.0])).reshape(3, -1).T
+        return lo + signs * (hi - lo), 0.0
     geometry.computeLocalAABB()
     return np.asarray(geometry.aabb_center, dtype=float)[None], float(geometry.aabb_radius)
 

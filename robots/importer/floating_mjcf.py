@@ -10,15 +10,16 @@ A floating-base robot gets, in its MJCF:
   ``imu``, else the root link) with MuJoCo ``gyro`` and ``accelerometer`` sensors;
 - per foot (leaf links at the end of the longest chains of movable joints, or ``--foot LINK``):
   the foot's collision geometry kept as the description has it (a sole's box, capsules, several
-  contact spheres); only a box the importer fitted to a compact foot mesh becomes the sphere of
-  its mean half-size (a point foot, as legged simulators model a quadruped's,
-  ``POINT_FOOT_ASPECT``). A site ``<foot>`` encloses the foot's geoms (a sphere around one
-  sphere, else a box, ``TOUCH_MARGIN`` larger) with a MuJoCo ``touch`` sensor on it (the normal
-  force of the contacts inside the site: foot contact). Geoms and site go on the nearest body a
-  joint moves (the calf): Pinocchio's MJCF parser misplaces sites of joint-less child bodies,
-  and a touch sensor counts the contacts of its own body;
-- on the other bodies a hinge moves, each box fitted to a mesh becomes the capsule along its
-  long axis (:func:`_box_to_capsule`); the description's own primitives stay as they are.
+  contact spheres, a foot mesh's convex hull); only a hull the importer fitted to a compact foot
+  mesh becomes the sphere of its bounding box's mean half-size (a point foot, as legged
+  simulators model a quadruped's, ``POINT_FOOT_ASPECT``). A site ``<foot>`` encloses the foot's
+  geoms (a sphere around one sphere, else a box, ``TOUCH_MARGIN`` larger) with a MuJoCo
+  ``touch`` sensor on it (the normal force of the contacts inside the site: foot contact).
+  Geoms and site go on the nearest body a joint moves (the calf): Pinocchio's MJCF parser
+  misplaces sites of joint-less child bodies, and a touch sensor counts the contacts of its
+  own body;
+- on the other bodies a hinge moves, each hull fitted to a mesh becomes the capsule along its
+  bounding box's long axis (:func:`_box_to_capsule`); the description's own primitives stay.
 
 """
 
@@ -29,6 +30,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from robots.importer.mjcf_geoms import drop_unused_meshes, hull_points, hull_to_box
 from robots.importer.model import _sig
 from robots.importer.source import PreparedSource, RobotImportError
 
@@ -118,12 +120,18 @@ def _geom_points(model: mujoco.MjModel, g: int, pos, rot) -> np.ndarray:
     return pos + (signs * np.asarray(half)) @ rot.T
 
 
-def _point_foot(geom, fitted: set[str]) -> bool:
-    """Whether a foot geom is a box the importer fitted to a compact mesh (its sides within
-    ``POINT_FOOT_ASPECT`` of each other): it becomes a sphere."""
-    if geom.name not in fitted or geom.type != mujoco.mjtGeom.mjGEOM_BOX:
+def _point_foot(spec: mujoco.MjSpec, geom, fitted: set[str]) -> bool:
+    """Whether a foot geom is a hull or box the importer fitted to a compact mesh (the sides of
+    its bounding box within ``POINT_FOOT_ASPECT`` of each other): it becomes a sphere."""
+    if geom.name not in fitted:
         return False
-    size = np.asarray(geom.size, dtype=np.float64)
+    if geom.type == mujoco.mjtGeom.mjGEOM_MESH:
+        pts = hull_points(spec, geom)
+        size = (pts.max(axis=0) - pts.min(axis=0)) / 2
+    elif geom.type == mujoco.mjtGeom.mjGEOM_BOX:
+        size = np.asarray(geom.size, dtype=np.float64)
+    else:
+        return False
     return float(size.min() / size.max()) >= POINT_FOOT_ASPECT
 
 
@@ -165,7 +173,9 @@ def finish_floating_mjcf(
             g = model.geom(geom.name).id
             pos = _relative(data, anc, data.geom_xpos[g])
             rot = rot_anc.T @ data.geom_xmat[g].reshape(3, 3)
-            if _point_foot(geom, prepared.fitted_geoms):  # a point foot, as legged simulators
+            if _point_foot(spec, geom, prepared.fitted_geoms):  # a point foot, as legged sims
+                if geom.type == mujoco.mjtGeom.mjGEOM_MESH:
+                    hull_to_box(spec, geom)
                 geom.type = mujoco.mjtGeom.mjGEOM_SPHERE
                 geom.size = [_sig(float(np.mean(geom.size)), 3), 0.0, 0.0]
                 fitted_sphere = True
@@ -216,8 +226,11 @@ def finish_floating_mjcf(
         if any(j.type == mujoco.mjtJoint.mjJNT_HINGE for j in body.joints):
             for geom in list(body.geoms):
                 if geom.name in prepared.fitted_geoms and geom.name not in on_feet:
+                    if geom.type == mujoco.mjtGeom.mjGEOM_MESH:
+                        hull_to_box(spec, geom)
                     if geom.type == mujoco.mjtGeom.mjGEOM_BOX:
                         _box_to_capsule(geom)
+    drop_unused_meshes(spec)
     _add_imu(spec, model, data, imu)
 
     # standing height: the lowest point of the feet touches the floor at the home pose

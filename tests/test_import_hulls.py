@@ -1,0 +1,122 @@
+"""robot-import keeps each collision mesh as its convex hull (MuJoCo's own hull of the mesh,
+written into the MJCF), so two links whose meshes pass close are neither counted as touching nor
+dropped from the checked pairs, as their bounding boxes would be."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from robots import load_robot
+from robots.importer import mjcf_geoms
+from robots.importer.cli import import_robot
+
+pytest.importorskip("coal")
+
+#: A wedge (right triangular prism): legs L along x and H along z, width 2 W along y, m.
+L, H, W = 0.2, 0.1, 0.03
+#: Gap between the two wedges' slanted faces, m.
+GAP = 0.01
+
+WEDGES = """<mujoco model="wedges">
+  <compiler angle="radian" meshdir="meshes/"/>
+  <asset>
+    <mesh name="front" file="front.obj"/>
+    <mesh name="back" file="back.obj"/>
+  </asset>
+  <worldbody>
+    <body name="base">
+      <geom type="cylinder" size="0.02 0.01" pos="0 0 -0.3"/>
+      <body name="a">
+        <joint name="j1" axis="0 0 1" range="-1 1"/>
+        <inertial pos="0.05 0 0.03" mass="0.5" diaginertia="0.001 0.001 0.001"/>
+        <geom type="mesh" mesh="front"/>
+      </body>
+      <body name="b">
+        <joint name="j2" axis="0 1 0" range="-1 1"/>
+        <inertial pos="0.15 0 0.07" mass="0.5" diaginertia="0.001 0.001 0.001"/>
+        <geom type="mesh" mesh="back"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor joint="j1" ctrlrange="-1 1"/>
+    <motor joint="j2" ctrlrange="-1 1"/>
+  </actuator>
+</mujoco>
+"""
+
+
+def _write_prism(path: Path, triangle: np.ndarray) -> None:
+    """An OBJ prism: ``triangle`` (3, 2) (x, z) m extruded over y in [-W, W]."""
+    v = [(x, y, z) for y in (-W, W) for x, z in triangle]
+    faces = [(1, 2, 3), (4, 6, 5), (1, 4, 5), (1, 5, 2), (2, 5, 6), (2, 6, 3), (3, 6, 4), (3, 4, 1)]
+    lines = [f"v {x} {y} {z}" for x, y, z in v] + [f"f {a} {b} {c}" for a, b, c in faces]
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.fixture
+def wedges(tmp_path) -> Path:
+    """Two wedges on sibling links whose slanted faces are GAP apart: their bounding boxes
+    overlap by most of their volume, their hulls do not touch."""
+    (tmp_path / "meshes").mkdir()
+    front = np.array([(0.0, 0.0), (L, 0.0), (0.0, H)])
+    normal = np.array([H, L]) / np.hypot(H, L)  # the slanted face's outward normal (x, z)
+    back = np.array([(L, H), (0.0, H), (L, 0.0)]) + GAP * normal
+    _write_prism(tmp_path / "meshes" / "front.obj", front)
+    _write_prism(tmp_path / "meshes" / "back.obj", back)
+    path = tmp_path / "wedges.xml"
+    path.write_text(WEDGES)
+    return path
+
+
+def _import(source: Path, out: Path):
+    import_robot(source, out, motors=["*=xm430_w350"], log=lambda *a: None)
+    return load_robot(out)
+
+
+def test_collision_meshes_become_their_hulls_and_close_links_stay_checked_and_apart(
+    wedges, tmp_path
+):
+    from deploy.safety.collision import collision_model, collision_query
+
+    robot = _import(wedges, tmp_path / "hull")
+    model = robot.mj_model
+    for body in ("a", "b"):
+        (g,) = [g for g in range(model.ngeom) if model.geom_bodyid[g] == model.body(body).id]
+        assert model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH
+        assert model.mesh_vertnum[model.geom_dataid[g]] == 6  # the prism's corners, no more
+    written = robot.mjcf_path.read_text()
+    assert "vertex=" in written and ".obj" not in written  # no mesh file to ship
+    pairs = {frozenset(p) for p in robot.config.safety.collision_pairs}
+    assert frozenset(("a", "b")) in pairs, pairs  # checked: apart at home
+    geom_model, geom_data = collision_model(robot)
+    import coal
+
+    kinds = {o.name: type(o.geometry) for o in geom_model.geometryObjects}
+    assert sum(k is coal.Convex for k in kinds.values()) == 2, kinds
+    fixed = robot.fixed_base_model
+    distances = np.zeros(len(geom_model.collisionPairs))
+    assert not collision_query(
+        fixed, fixed.createData(), geom_model, geom_data, np.zeros(2), distances
+    )
+    assert distances.min() == pytest.approx(GAP, abs=1e-4)
+    # b tilted about y by 0.1 rad: its slanted face turns into a's wedge, the pair touches
+    assert collision_query(fixed, fixed.createData(), geom_model, geom_data, np.array([0, 0.1]))
+    assert not collision_query(
+        fixed, fixed.createData(), geom_model, geom_data, np.array([0, -0.1])
+    )
+
+
+def test_bounding_boxes_would_drop_the_pair_as_touching_at_home(wedges, tmp_path, monkeypatch):
+    """The previous collision geometry (MESH_COLLISION = "box"): the boxes overlap, so the import
+    drops the pair and the guard never checks it: what the hull fixes."""
+    monkeypatch.setattr(mjcf_geoms, "MESH_COLLISION", "box")
+    robot = _import(wedges, tmp_path / "box")
+    model = robot.mj_model
+    assert mujoco.mjtGeom.mjGEOM_BOX in set(model.geom_type)
+    pairs = {frozenset(p) for p in robot.config.safety.collision_pairs}
+    assert frozenset(("a", "b")) not in pairs

@@ -73,8 +73,8 @@ def wedges(tmp_path) -> Path:
     return path
 
 
-def _import(source: Path, out: Path):
-    import_robot(source, out, motors=["*=xm430_w350"], log=lambda *a: None)
+def _import(source: Path, out: Path, **kwargs):
+    import_robot(source, out, motors=["*=xm430_w350"], log=lambda *a: None, **kwargs)
     return load_robot(out)
 
 
@@ -111,11 +111,11 @@ def test_collision_meshes_become_their_hulls_and_close_links_stay_checked_and_ap
     )
 
 
-def test_bounding_boxes_would_drop_the_pair_as_touching_at_home(wedges, tmp_path, monkeypatch):
-    """The previous collision geometry (MESH_COLLISION = "box"): the boxes overlap, so the import
-    drops the pair and the guard never checks it: what the hull fixes."""
-    monkeypatch.setattr(mjcf_geoms, "MESH_COLLISION", "box")
-    robot = _import(wedges, tmp_path / "box")
+def test_bounding_boxes_would_drop_the_pair_as_touching_at_home(wedges, tmp_path):
+    """The previous collision geometry (--mesh-boxes): the boxes overlap, so the import drops
+    the pair and the guard never checks it: what the hull fixes."""
+    robot = _import(wedges, tmp_path / "box", mesh_boxes=True)
+    assert mjcf_geoms.MESH_COLLISION == "hull"  # the default again after the import
     model = robot.mj_model
     assert mujoco.mjtGeom.mjGEOM_BOX in set(model.geom_type)
     pairs = {frozenset(p) for p in robot.config.safety.collision_pairs}

@@ -38,7 +38,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from robots.importer import flags
+from robots.importer import flags, mjcf_geoms
 from robots.importer.fixed_base import import_fixed_base
 from robots.importer.mjcf import prepare_mjcf
 from robots.importer.model import build_spec
@@ -123,6 +123,7 @@ def import_robot(
     target_limits: str = "pd",
     command: list[str] | None = None,
     unitree: dict | None = None,
+    mesh_boxes: bool = False,
 ) -> ImportReport:
     """Import ``source`` (URDF or MJCF path, or ``PACKAGE:path``) into the robot folder ``out``.
 
@@ -157,7 +158,9 @@ def import_robot(
             and jerk limits (:func:`robots.importer.legged.pd_target_limits`).
             unitree: a Unitree quadruped's ``[unitree]`` table: ``family``, ``damping_kd``,
             ``ramp_kp``, ``ramp_kd`` (:func:`robots.importer.unitree.unitree_lines`). feet, imu,
-            kp, kd, home, notes and unitree need ``floating_base``.
+            kp, kd, home, notes and unitree need ``floating_base``. mesh_boxes: an MJCF's
+            collision meshes become their bounding boxes, not their convex hulls
+            (:data:`robots.importer.mjcf_geoms.MESH_COLLISION`).
 
     The parent folders of ``out`` are created when missing (as ``mkdir -p``; removed again when
     the import fails).
@@ -176,11 +179,12 @@ def import_robot(
     out = Path(out).expanduser().resolve()
     created = _make_parents(out)
     try:
-        return _import(
-            source, out, srdf, motors, ee_site, limits, velocities, control_rate,
-            physics_timestep, force, log, drop_missing_meshes, link_boxes, floating_base, feet,
-            imu, kp, kd, home, notes, command, target_limits, unitree,
-        )  # fmt: skip
+        with mjcf_geoms.mesh_collision("box" if mesh_boxes else mjcf_geoms.MESH_COLLISION):
+            return _import(
+                source, out, srdf, motors, ee_site, limits, velocities, control_rate,
+                physics_timestep, force, log, drop_missing_meshes, link_boxes, floating_base,
+                feet, imu, kp, kd, home, notes, command, target_limits, unitree,
+            )  # fmt: skip
     except BaseException:
         for folder in created:  # deepest first
             try:
@@ -393,6 +397,12 @@ def main(argv: list[str] | None = None) -> int:
         help="one collision box per link around all its meshes (coarser, fewer pairs; what "
         "robot-import wrote before one box per mesh) instead of one box per mesh",
     )
+    p.add_argument(
+        "--mesh-boxes",
+        action="store_true",
+        help="an MJCF's collision meshes become their bounding boxes (what robot-import wrote "
+        "before) instead of their convex hulls",
+    )
     legged = p.add_argument_group("floating-base (legged) robots")
     legged.add_argument(
         "--floating-base",
@@ -460,6 +470,7 @@ def main(argv: list[str] | None = None) -> int:
             force=args.force,
             drop_missing_meshes=args.drop_missing_meshes,
             link_boxes=args.link_boxes,
+            mesh_boxes=args.mesh_boxes,
             floating_base=args.floating_base,
             feet=args.foot,
             imu=args.imu,

@@ -6,6 +6,8 @@ the MJCF, ``MESH_COLLISION``)."""
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import mujoco
@@ -21,6 +23,26 @@ from robots.importer.urdf import COLLISION_BOXES
 #: to ship; ``"box"``: its bounding box in the geom's frame, which counts feet passing close as
 #: touching.
 MESH_COLLISION = "hull"
+
+
+@contextmanager
+def mesh_collision(kind: str) -> Iterator[None]:
+    """``MESH_COLLISION`` set to ``kind`` (``"hull"`` or ``"box"``) for the ``with`` block
+    (``robot-import --mesh-boxes``).
+
+    Raises:
+        ValueError: another ``kind``.
+    """
+    global MESH_COLLISION
+    if kind not in ("hull", "box"):
+        raise ValueError(f"mesh collision {kind!r}: expected 'hull' or 'box'")
+    saved, MESH_COLLISION = MESH_COLLISION, kind
+    try:
+        yield
+    finally:
+        MESH_COLLISION = saved
+
+
 #: Suffix of the inline hull mesh made for a geom (``<body>_<k>_hull``, the body's k-th geom).
 HULL_SUFFIX = "_hull"
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from deploy.backends.sim.faults import Fault, FaultInjector
@@ -180,3 +181,35 @@ def test_temperature_bands_count_as_numpy_does():
     for got, want in zip((peak, window, band, over), ref, strict=True):
         np.testing.assert_array_equal(got, want)
     assert band.min() > 0 and over.max() > 0
+
+
+def test_self_collision_ticks_are_counted_by_the_pair_that_touched(arm6):
+    """Drawn poses anywhere within the hard limits (a fifth of them fold arm6 into itself): every
+    self-collision tick is put on the pairs coal finds touching, so the pairs' ticks name what
+    collided and add up to at least the self-collision ticks; the reference counts the same."""
+    from deploy.safety.collision import collision_model
+
+    truth = ScriptedTruth(arm6, envs=2, seed=7)
+    monitors = [monitor(arm6, 2) for monitor in (ViolationMonitor, ReferenceViolationMonitor)]
+    geom_model, geom_data = collision_model(arm6)
+    model = arm6.fixed_base_model
+    data = model.createData()
+    expected = np.zeros((2, len(geom_model.collisionPairs)), dtype=np.int64)
+    rng = np.random.default_rng(8)
+    for _ in range(300):
+        truth.draw()
+        truth.q[:] = rng.uniform(arm6.position_lower, arm6.position_upper, truth.q.shape)
+        for e in range(2):
+            pin.computeCollisions(model, data, geom_model, geom_data, truth.q[e], False)
+            expected[e] += [r.isCollision() for r in geom_data.collisionResults]
+        for m in monitors:
+            m.update(truth)
+    for m in monitors:
+        np.testing.assert_array_equal(m.pair_ticks, expected)
+    ours = monitors[0]
+    collided = ours.counts["self_collision"]
+    assert collided.sum() > 20
+    assert (expected.sum(axis=1) >= collided).all()
+    top, ticks = next(iter(ours.pair_counts(0).items()))
+    k = ours.pair_names.index(top)
+    assert ticks == expected[0].max() == expected[0, k] and "|" in top

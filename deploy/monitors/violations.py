@@ -29,6 +29,7 @@ guard's hard-limit detections on the estimate can be reported.
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 
 from deploy.monitors import kernel as mk
 from deploy.safety.collision import collision_model, collision_query
@@ -90,6 +91,9 @@ class ViolationMonitor(MonitorState):
     Attributes:
         counts: dict type (``VIOLATION_TYPES``) -> (envs,) int64, ticks on which that type
             occurred.
+        pair_ticks: (envs, pairs) int64, ticks on which each collision pair of the guard's
+            model (``pair_names``) touched: which links make the ``self_collision`` ticks.
+        pair_names: (pairs,) ``"geom_a|geom_b"``, the guard's collision pairs in its order.
         any: (envs,) int64, ticks with at least one violation of any type.
         ticks: int, ticks observed (calls of :meth:`update`).
 
@@ -150,6 +154,12 @@ class ViolationMonitor(MonitorState):
         self._data = self._model.createData()
         self._geom_model, self._geom_data = collision_model(robot)
         self._has_pairs = bool(self._geom_model.collisionPairs)
+        objects = self._geom_model.geometryObjects
+        self.pair_names = [
+            f"{objects[p.first].name}|{objects[p.second].name}"
+            for p in self._geom_model.collisionPairs
+        ]
+        self.pair_ticks = np.zeros((envs, len(self.pair_names)), dtype=np.int64)
         # the collision screen (compiled path): no pair can touch while its distance computed at
         # checked_q exceeds its own bound on how far the joints moved since
         # (robots.chain_bounds.collision_pair_weights; an exact screen, as the guard's)
@@ -182,6 +192,7 @@ class ViolationMonitor(MonitorState):
                         self._collided.fill(False)
                         collided = True
                     self._collided[e] = True
+                    self._count_pairs(e)
         flagged = self._screen(q, dq, tau)
         if collided or flagged:
             self._count(q, dq, tau, collided)
@@ -206,6 +217,21 @@ class ViolationMonitor(MonitorState):
         args = (self._model, self._data, self._geom_model, self._geom_data, q[e])
         self._checked_q[e] = q[e]
         return collision_query(*args, distances=self._clearance[e])
+
+    def _count_pairs(self, e: int) -> None:
+        """Add a tick to each pair of env ``e`` that touches (after a hit of
+        :meth:`_in_collision`, whose placements the geometry data still holds)."""
+        pin.computeCollisions(self._geom_model, self._geom_data, False)
+        for k, result in enumerate(self._geom_data.collisionResults):
+            if result.isCollision():
+                self.pair_ticks[e, k] += 1
+
+    def pair_counts(self, env: int) -> dict[str, int]:
+        """Env ``env``'s ticks per collision pair that ever touched (``"geom_a|geom_b"``),
+        most first."""
+        ticks = self.pair_ticks[env]
+        order = np.argsort(-ticks, kind="stable")
+        return {self.pair_names[k]: int(ticks[k]) for k in order if ticks[k] > 0}
 
     def _count(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray, collided: bool) -> None:
         """The exact per-type tests (only on ticks the screen or coal flagged)."""
@@ -246,6 +272,7 @@ class ViolationMonitor(MonitorState):
     def _arrays(self) -> dict[str, np.ndarray]:
         out = {f"counts/{t}": v for t, v in self.counts.items()}
         out["any"] = self.any
+        out["pair_ticks"] = self.pair_ticks
         return out
 
 

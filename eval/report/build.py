@@ -178,7 +178,8 @@ def build_report(
             control_mode, options (the session's, ranges {dynamics, sensors, drift, faults, imu,
             floor_friction} among them), randomization {dynamics, sensors, drift, faults[]},
             violations {source, total {type: ticks}, any, per_hour [{hour, start_s, end_s,
-                        counts {type: ticks}, any}], rate_per_hour {type: ticks per hour}}
+                        counts {type: ticks}, any}], rate_per_hour {type: ticks per hour},
+                        self_collision_pairs {"geom_a|geom_b": ticks}, most first}
                         (types: hard_limit, soft_limit, velocity, effort, workspace, self_collision;
                         a tick counts once per type)
             interventions {ticks, checks {check: {count, fraction}}, any {count, fraction},
@@ -222,7 +223,8 @@ def build_report(
                   found}, not_filmed, fps, size, frames_per_s, error (why there is no film, or
                   null)}
         totals          over every session: simulated_hours, ticks, violations {total, any,
-                        rate_per_hour, per_hour [{hour, counts, any}]}, interventions {ticks,
+                        rate_per_hour, per_hour [{hour, counts, any}], self_collision_pairs},
+                        interventions {ticks,
                         checks {check: {count, fraction}}, any {count, fraction}, warnings,
                         per_hour [{hour, ticks, counts, any, fraction}]}, goals {issued, reached,
                         success_rate, min_window_success_rate, missed, missed_dropped} (arm

@@ -41,6 +41,11 @@ def summary_text(report: dict) -> str:
             lines.append(f"  windows      lowest tracking success in a window {100 * lw:.1f} %")
     v = ", ".join(f"{k} {n}" for k, n in t["violations"]["total"].items())
     lines.append(f"  violations   (true state, ticks) {v}")
+    pairs = list(t["violations"].get("self_collision_pairs", {}).items())
+    if pairs:
+        top = ", ".join(f"{p} {n}" for p, n in pairs[:3])
+        more = f" (+{len(pairs) - 3} more pairs)" if len(pairs) > 3 else ""
+        lines.append(f"  self-collision pairs (ticks) {top}{more}")
     iv = t["interventions"]
     used = ", ".join(
         f"{k} {100 * c['fraction']:.3f}" for k, c in iv["checks"].items() if c["count"]

@@ -48,6 +48,16 @@ def _sum_rows(results: list[dict], section: str, keys: list[str]) -> list[dict]:
     return out
 
 
+def _pair_ticks(results: list[dict]) -> dict[str, int]:
+    """Ticks per collision pair over the sessions (``violations.self_collision_pairs``; absent in
+    a report written before it), most first."""
+    pairs: dict[str, int] = {}
+    for r in results:
+        for pair, n in r["violations"].get("self_collision_pairs", {}).items():
+            pairs[pair] = pairs.get(pair, 0) + n
+    return dict(sorted(pairs.items(), key=lambda kv: -kv[1]))
+
+
 def totals(results: list[dict]) -> dict:
     """Campaign totals over session results (the ``totals`` of
     :func:`eval.report.build.build_report`'s layout)."""
@@ -96,6 +106,7 @@ def totals(results: list[dict]) -> dict:
             "any": sum(r["violations"]["any"] for r in results),
             "rate_per_hour": {k: (v / hours if hours > 0 else 0.0) for k, v in total.items()},
             "per_hour": _sum_rows(results, "violations", types),
+            "self_collision_pairs": _pair_ticks(results),
         },
         "interventions": {
             "ticks": ticks,

@@ -27,6 +27,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from deploy.backends.emulator.hil import split_passthrough
 from deploy.backends.unitree.emulator.hil import stop_emulator
 
 #: s to wait for the emulator's ready line (loading the robot and its plant, joining ROS 2).
@@ -77,11 +78,7 @@ def policy_mode(policy: str, robot: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else list(argv)
-    rest: list[str] = []
-    if "--" in argv:
-        cut = argv.index("--")
-        argv, rest = argv[:cut], argv[cut + 1 :]
+    argv, rest = split_passthrough(argv)
     p = argparse.ArgumentParser(
         prog="python -m deploy.ros2.hil",
         description="deploy-run --backend ros2 against the ros2_control emulator, then "

@@ -31,13 +31,19 @@ START_TIMEOUT = 60.0
 EXIT_BAD_INPUT = 3
 
 
+def split_passthrough(argv: Sequence[str] | None) -> tuple[list[str], list[str]]:
+    """``(own, rest)``: the arguments before a ``--`` (this command's) and after it (passed on
+    to deploy-run); ``argv`` None: ``sys.argv[1:]``."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if "--" not in argv:
+        return argv, []
+    cut = argv.index("--")
+    return argv[:cut], argv[cut + 1 :]
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the emulator and deploy-run against it; see the module docstring."""
-    argv = sys.argv[1:] if argv is None else list(argv)
-    rest: list[str] = []
-    if "--" in argv:
-        cut = argv.index("--")
-        argv, rest = argv[:cut], argv[cut + 1 :]
+    argv, rest = split_passthrough(argv)
     p = argparse.ArgumentParser(
         prog="python -m deploy.backends.emulator.hil",
         description="deploy-run on a servo bus served by the wire-protocol emulator; arguments "

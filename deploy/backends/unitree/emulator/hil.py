@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from deploy.backends.emulator.hil import split_passthrough
 from deploy.backends.unitree.emulator.faults import FAULT_HELP
 from deploy.backends.unitree.emulator.truth import walk_truth
 
@@ -40,11 +41,7 @@ EXIT_BAD_INPUT = 3
 
 def main(argv: list[str] | None = None) -> int:
     """Run the emulator and deploy-run against it; see the module docstring."""
-    argv = sys.argv[1:] if argv is None else list(argv)
-    rest: list[str] = []
-    if "--" in argv:
-        cut = argv.index("--")
-        argv, rest = argv[:cut], argv[cut + 1 :]
+    argv, rest = split_passthrough(argv)
     p = argparse.ArgumentParser(
         prog="python -m deploy.backends.unitree.emulator.hil",
         description="deploy-run --backend unitree against the Unitree emulator on the loopback "

@@ -201,3 +201,17 @@ class BackendLifecycle:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def checked_command(command: np.ndarray, n: int) -> np.ndarray:
+    """``command`` as float64 (1, ``n``), checked before a hardware backend writes it.
+
+    Raises:
+        ValueError: wrong shape or a non-finite value (the backend then writes nothing).
+    """
+    command = np.asarray(command, dtype=np.float64)
+    if command.shape != (1, n):
+        raise ValueError(f"command: expected shape (1, {n}), got {command.shape}")
+    if not np.isfinite(command).all():
+        raise ValueError(f"command rejected, non-finite values: {command.tolist()}")
+    return command

@@ -32,7 +32,7 @@ import time
 
 import numpy as np
 
-from deploy.backends.base import BackendLifecycle, SensorFrame
+from deploy.backends.base import BackendLifecycle, SensorFrame, checked_command
 from deploy.observe.telemetry import LatencyHistogram
 from deploy.ros2.context import NodeThread
 from deploy.ros2.controllers import FORWARD_CONTROLLERS, command_order, command_topic
@@ -253,11 +253,7 @@ class Ros2ControlBackend(BackendLifecycle):
         Raises:
             ValueError: wrong shape or a non-finite value (nothing is written).
         """
-        command = np.asarray(command, dtype=np.float64)
-        if command.shape != (1, self.n):
-            raise ValueError(f"command: expected shape (1, {self.n}), got {command.shape}")
-        if not np.isfinite(command).all():
-            raise ValueError(f"command rejected, non-finite values: {command.tolist()}")
+        command = checked_command(command, self.n)
         t0 = time.perf_counter_ns()
         self._publish(command[0])
         self.write_cost.add(0, time.perf_counter_ns() - t0)

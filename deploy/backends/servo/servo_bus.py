@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deploy.backends.base import BackendLifecycle, SensorFrame
+from deploy.backends.base import BackendLifecycle, SensorFrame, checked_command
 from deploy.backends.servo.calibration import (
     JointCalibration,
     calibration_arrays,
@@ -378,11 +378,7 @@ class ServoBusBackend(BackendLifecycle):
         Raises:
             ValueError: wrong shape or a non-finite value (nothing is written).
         """
-        command = np.asarray(command, dtype=np.float64)
-        if command.shape != (1, self.n):
-            raise ValueError(f"command: expected shape (1, {self.n}), got {command.shape}")
-        if not np.isfinite(command).all():
-            raise ValueError(f"command rejected, non-finite values: {command.tolist()}")
+        command = checked_command(command, self.n)
         t0 = time.perf_counter_ns()
         c = self._cal
         if self.mode == "position":

@@ -32,7 +32,7 @@ from collections import Counter
 
 import numpy as np
 
-from deploy.backends.base import BackendLifecycle, SensorFrame
+from deploy.backends.base import BackendLifecycle, SensorFrame, checked_command
 from deploy.backends.unitree import bringup
 from deploy.backends.unitree import family as families
 from deploy.backends.unitree.codec import MessageCodec
@@ -351,11 +351,7 @@ class UnitreeBackend(BackendLifecycle):
         Raises:
             ValueError: wrong shape or a non-finite value (nothing is written).
         """
-        command = np.asarray(command, dtype=np.float64)
-        if command.shape != (1, self.n):
-            raise ValueError(f"command: expected shape (1, {self.n}), got {command.shape}")
-        if not np.isfinite(command).all():
-            raise ValueError(f"command rejected, non-finite values: {command.tolist()}")
+        command = checked_command(command, self.n)
         if self._hold is not None:
             self._stop_hold()
             self._handover = time.monotonic()

@@ -36,6 +36,7 @@ import sys
 import time
 from pathlib import Path
 
+from deploy.backends.sim.engines import ENGINES
 from robots.errors import Sim2RealError
 
 EXIT_PASSED = 0
@@ -101,6 +102,13 @@ def _parser() -> argparse.ArgumentParser:
         "--sessions-per-process", type=int, default=1, help="sessions batched in one runtime"
     )
     p.add_argument("--workers", type=int, default=None, help="processes (default: one per core)")
+    p.add_argument(
+        "--engine",
+        choices=ENGINES,
+        default=ENGINES[0],
+        help="physics engine of the plant (default mujoco; pybullet: the same sessions on a "
+        "second engine, see sim2sim)",
+    )
     p.add_argument(
         "--checkpoint-minutes", type=float, default=5.0, help="simulated minutes (0: none)"
     )
@@ -346,6 +354,7 @@ def run(args) -> int:
         ranges=ranges,
         window_minutes=args.window_minutes,
         spec=None if args.spec is None else str(args.spec),
+        engine=args.engine,
     )
     wall = time.perf_counter()
     results = run_campaign(
@@ -370,6 +379,7 @@ def run(args) -> int:
     simulated = sum(r["simulated_s"] for r in results)
     campaign = {
         "robot": robot.name,
+        "engine": args.engine,
         "policy": str(args.policy),
         "policy_sha256": sha256_file(args.policy),
         "hours": args.hours,

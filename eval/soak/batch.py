@@ -125,7 +125,7 @@ class SessionBatch:
         on_progress=None,
         film: bool = False,
     ):
-        from deploy.backends.sim.plant import SimBackend
+        from deploy.backends.sim.engines import make_plant
         from deploy.runtime import Runtime
         from robots import load_robot
 
@@ -160,7 +160,7 @@ class SessionBatch:
                 apply_floor_friction(m, d.floor_friction)
             if d.added_base_mass is not None:  # a payload of its training domain
                 add_base_mass(m, robot, d.added_base_mass)
-        backend = self.backend = SimBackend(robot, mode=mode, envs=k, models=models)
+        backend = self.backend = make_plant(first.engine, robot, mode=mode, envs=k, models=models)
         backend.set_sensor_streams([session_rng(c.seed, "sensor_noise") for c in configs])
         for e, d in enumerate(draws):
             apply_sensors(backend, e, d.sensors)

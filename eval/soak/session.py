@@ -73,6 +73,7 @@ class SessionConfig:
         ranges: What the randomization draws from.
         window_minutes: Simulated minutes per window of the windowed goal success rate.
         spec: PolicySpec JSON for an ONNX without our metadata (``deploy-run --spec``), or None.
+        engine: Physics engine of the plant (:data:`deploy.backends.sim.engines.ENGINES`).
     """
 
     robot: str = "arm3"
@@ -88,6 +89,7 @@ class SessionConfig:
     ranges: SessionRanges = field(default_factory=SessionRanges)
     window_minutes: float = 10.0
     spec: str | None = None
+    engine: str = "mujoco"
 
     def __post_init__(self):
         def bad(name: str, expected: str) -> SessionError:
@@ -99,6 +101,10 @@ class SessionConfig:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise bad(name, "a finite number > 0")
+        from deploy.backends.sim.engines import ENGINES
+
+        if self.engine not in ENGINES:
+            raise bad("engine", f"one of {ENGINES}")
         for name in ("checkpoint_minutes", "operator_reset"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
@@ -159,7 +165,8 @@ def option_difference(stored: dict, expected: dict) -> tuple[str, object, object
     for key, value in expected.items():
         if key in ("policy", "checkpoint_minutes"):
             continue
-        found = walk(key, stored.get(key), value)
+        # results written before the engine option ran on MuJoCo
+        found = walk(key, stored.get(key, "mujoco" if key == "engine" else None), value)
         if found:
             return found
     return None

@@ -1,15 +1,35 @@
-"""``deploy-run --backend sim``: the MuJoCo plant (:mod:`deploy.backends.registry`)."""
+"""``deploy-run --backend sim``: the simulated plant on MuJoCo or pybullet
+(:mod:`deploy.backends.registry`, :mod:`deploy.backends.sim.engines`)."""
 
 from __future__ import annotations
 
 from deploy.backends.registry import register_backend
+from deploy.backends.sim.engines import ENGINES
+
+
+def add_options(group) -> None:
+    """``--engine``: the physics engine of the plant."""
+    group.add_argument(
+        "--engine",
+        choices=ENGINES,
+        default=ENGINES[0],
+        help="physics engine of the simulated plant (default mujoco; pybullet: a second "
+        "opinion with rigid contacts, sim-to-sim)",
+    )
 
 
 def make(args, robot, mode: str):
-    """The plant for ``args.envs`` robots, its sensor streams seeded with ``args.seed``."""
-    from deploy.backends.sim.plant import SimBackend
+    """The plant for ``args.envs`` robots on ``args.engine``, its sensor streams seeded with
+    ``args.seed``."""
+    from deploy.backends.sim.engines import make_plant
 
-    return SimBackend(robot, mode=mode, envs=args.envs, seed=args.seed)
+    engine = getattr(args, "engine", ENGINES[0])
+    return make_plant(engine, robot, mode=mode, envs=args.envs, seed=args.seed)
 
 
-register_backend("sim", "MuJoCo plant", "deploy.backends.sim.options:make")
+register_backend(
+    "sim",
+    "simulated plant (MuJoCo, or pybullet with --engine)",
+    "deploy.backends.sim.options:make",
+    add_options,
+)

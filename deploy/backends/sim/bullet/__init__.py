@@ -1,0 +1,1 @@
+"""The plant on pybullet, a second physics engine for sim-to-sim checks (see :mod:`.plant`)."""

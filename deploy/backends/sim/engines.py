@@ -33,7 +33,8 @@ def plant_class(engine: str):
             from deploy.backends.sim.bullet.plant import BulletBackend
         except ImportError as exc:  # pragma: no cover - the extra is part of .[all]
             raise ValueError(
-                "engine 'pybullet' needs the pybullet package: pip install 'sim2real-deploy[pybullet]'"
+                "engine 'pybullet' needs the pybullet package: "
+                "pip install 'sim2real-deploy[pybullet]'"
             ) from exc
         return BulletBackend
     raise ValueError(f"engine '{engine}' is unknown; expected one of {ENGINES}")

@@ -6,8 +6,11 @@ env, randomized by the soak), so link masses and lengths, joint friction and dam
 friction and added payloads reach both engines alike. What pybullet cannot hold is mapped:
 
 - **Armature** (a drive's reflected rotor inertia, ``dof_armature``): pybullet's multibodies have
-  none. It is folded into the child link's inertia about the joint axis; joints upstream with a
-  parallel axis then feel it too (a gear ratio of one instead of the drive's real ratio).
+  none. A fixed-base arm gets it exactly, in joint space, from the plant's torques
+  (:meth:`~deploy.backends.sim.bullet.plant.BulletBackend`, ``armature_torque``). A floating
+  base (contacts make that inexact) gets it folded into the child link's inertia about the joint
+  axis: the link then keeps its orientation like a flywheel of gear ratio one, and joints
+  upstream with a parallel axis feel it too.
 - **Friction pairs**: bullet multiplies the two surfaces' friction coefficients where MuJoCo takes
   the larger (or the floor's, with its priority). Robot links get 1 and the floor the coefficient
   MuJoCo's rule gives a foot on it.
@@ -136,12 +139,13 @@ def _collision_shape(client: int, shapes: list[dict]) -> int:
     )
 
 
-def _inertia(m: mujoco.MjModel, b: int, anchor: np.ndarray) -> tuple[list, list, list]:
+def _inertia(m: mujoco.MjModel, b: int, anchor: np.ndarray, fold: bool) -> tuple[list, list, list]:
     """Body ``b``'s inertial frame position (link frame), orientation (x, y, z, w) and principal
-    moments (kg m^2), with its joint's armature folded in about the joint axis."""
+    moments (kg m^2), with its joint's armature folded in about the joint axis when ``fold``."""
     rot = quat_to_mat(m.body_iquat[b])
     tensor = rot @ np.diag(m.body_inertia[b]) @ rot.T
-    for j in range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b]):
+    joints = range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b]) if fold else ()
+    for j in joints:
         if int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE):
             axis = m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j])
             tensor = tensor + m.dof_armature[m.jnt_dofadr[j]] * np.outer(axis, axis)
@@ -151,6 +155,23 @@ def _inertia(m: mujoco.MjModel, b: int, anchor: np.ndarray) -> tuple[list, list,
     quat = np.empty(4)
     mujoco.mju_mat2Quat(quat, axes.reshape(-1))
     return (m.body_ipos[b] - anchor).tolist(), xyzw(quat), np.maximum(moments, 1e-9).tolist()
+
+
+def change_dynamics(client: int, body: int, link: int, **fields) -> None:
+    """``pybullet.changeDynamics`` one field a call: given several fields at once, pybullet 3.2
+    silently keeps only some (a link's inertia given with its damping is dropped, joint limits
+    given with the maximum joint velocity too). ``jointLimits``: (lower, upper), set together."""
+    for name, value in fields.items():
+        if name == "jointLimits":
+            pb.changeDynamics(
+                body,
+                link,
+                jointLowerLimit=value[0],
+                jointUpperLimit=value[1],
+                physicsClientId=client,
+            )
+        else:
+            pb.changeDynamics(body, link, **{name: value}, physicsClientId=client)
 
 
 def _weld_pair_filtered(m: mujoco.MjModel, b1: int, b2: int) -> bool:
@@ -273,7 +294,7 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
         pos = m.body_pos[b] + rot @ anchors[b] - anchors[parent]
         return pos.tolist(), xyzw(m.body_quat[b])
 
-    inertials = {b: _inertia(m, b, anchors[b]) for b in robot}
+    inertials = {b: _inertia(m, b, anchors[b], fold=floating) for b in robot}
     root_pos, root_quat = m.body_pos[root] + anchors[root], m.body_quat[root]
     if floating:  # the free joint's reference pose
         j = int(m.body_jntadr[root])
@@ -307,8 +328,8 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
     # exact inertias (createMultiBody derives them from the shapes), no extra damping
     for b in robot:
         link = int(link_of_body[b])
-        extra = {} if link >= 0 or floating else {}
-        pb.changeDynamics(
+        change_dynamics(
+            client,
             body,
             link,
             localInertiaDiagonal=inertials[b][2],
@@ -316,8 +337,6 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
             angularDamping=0.0,
             lateralFriction=1.0,
             restitution=0.0,
-            physicsClientId=client,
-            **extra,
         )
     joint_index = []
     for j in range(m.njnt):
@@ -328,16 +347,10 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
         if link < 0:
             raise UnsupportedModelError(f"joint '{m.joint(j).name}' is outside the robot's tree")
         joint_index.append(link)
-        lo, hi = m.jnt_range[j] if m.jnt_limited[j] else (0.0, -1.0)
-        pb.changeDynamics(
-            body,
-            link,
-            jointLowerLimit=float(lo),
-            jointUpperLimit=float(hi),
-            maxJointVelocity=1e3,
-            jointDamping=0.0,
-            physicsClientId=client,
-        )
+        change_dynamics(client, body, link, maxJointVelocity=1e3, jointDamping=0.0)
+        if m.jnt_limited[j]:
+            lo, hi = m.jnt_range[j]
+            change_dynamics(client, body, link, jointLimits=(float(lo), float(hi)))
     if len(joint_index) != n_joints:
         raise UnsupportedModelError(
             f"the model has {len(joint_index)} hinge or slide joints; the robot has {n_joints}"
@@ -402,9 +415,7 @@ def _build_world_geoms(client, m, body, robot, link_of_body) -> None:
                 baseOrientation=xyzw(world_quat),
                 physicsClientId=client,
             )
-            pb.changeDynamics(
-                static, -1, lateralFriction=mu, restitution=0.0, physicsClientId=client
-            )
+            change_dynamics(client, static, -1, lateralFriction=mu, restitution=0.0)
             for rb in robot:
                 geoms = _body_geoms(m, rb)
                 if not any(_geoms_collide(m, g, h) for h in geoms):

@@ -97,6 +97,8 @@ class BulletBackend(SimBackend):
         self._ctrl = np.zeros(self._nu)
         self._dq_before = np.zeros(self.n_joints)
         self._base_before = np.zeros(6)
+        self._bias = np.zeros(self.models[0].nv)
+        self._accel = np.zeros((1, self.models[0].nv))
         self.reset()  # the mirror's contacts replaced by pybullet's before the first reading
 
     # ------------------------------------------------------------------ building
@@ -218,18 +220,18 @@ class BulletBackend(SimBackend):
             )
         dt, nstep = float(m.opt.timestep), self.decimation
         act, tau = d.act, d.qfrc_actuator[dofs]
+        armature = not w.floating and bool(m.dof_armature.any())
         state = np.empty(13)
         for s in range(nstep):
             states = pb.getJointStates(body, idx, physicsClientId=c)
             q = np.fromiter((x[0] for x in states), float, len(idx))
             dq = np.fromiter((x[1] for x in states), float, len(idx))
             tau[:] = law.torque(ctrl, act, q, dq, dt)
+            applied = tau + law.passive
+            if armature:
+                applied = self._armature_torque(m, d, applied, q, dq)
             pb.setJointMotorControlArray(
-                body,
-                idx,
-                pb.TORQUE_CONTROL,
-                forces=(tau + law.passive).tolist(),
-                physicsClientId=c,
+                body, idx, pb.TORQUE_CONTROL, forces=applied.tolist(), physicsClientId=c
             )
             if self._forces[e]:
                 self._apply_forces(w, self._forces[e])
@@ -240,6 +242,29 @@ class BulletBackend(SimBackend):
                     self._base_before[:] = state[7:]
             pb.stepSimulation(physicsClientId=c)
         self._pull(e, m, d, dt * nstep)
+
+    def _armature_torque(
+        self, m: mujoco.MjModel, d: mujoco.MjData, tau: np.ndarray, q: np.ndarray, dq: np.ndarray
+    ) -> np.ndarray:
+        """The joint torque (N m, (n,)) under which pybullet's rigid-body dynamics ``M ddq =
+        tau' - h`` accelerate a fixed-base arm as its drives with armature ``A`` would,
+        ``(M + A) ddq = tau - h``: ``tau' = tau - A (M + A)^-1 (tau - h)``. ``M + A`` and ``h``
+        (gravity, Coriolis) come from MuJoCo on the env's mirror at ``q``, ``dq`` (pybullet's
+        own inverse dynamics ignore a rotated base's gravity direction). Exact without
+        constraints; a constraint force (a limit, a self-collision, dry friction) accelerates
+        the links without the rotors."""
+        d.qpos[:] = q
+        d.qvel[:] = dq
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_crb(m, d)  # M with the armature
+        mujoco.mj_factorM(m, d)
+        mujoco.mj_comVel(m, d)
+        bias = self._bias
+        mujoco.mj_rne(m, d, 0, bias)
+        accel = self._accel
+        mujoco.mj_solveM(m, d, accel, (tau - bias)[None, :])
+        return tau - m.dof_armature * accel[0]
 
     def _apply_forces(self, w: BulletWorld, forces: dict[int, np.ndarray]) -> None:
         """The external forces of an env (applied at each body's centre of mass; pybullet clears

@@ -36,6 +36,12 @@ from deploy.backends.sim.bullet.drive_law import DriveLaw
 from deploy.backends.sim.plant import SimBackend, SimulationDivergedError
 from robots import Robot
 
+#: rad/s, the speed below which an arm's dry joint friction (``dof_frictionloss``) falls off
+#: linearly to zero (a regularized Coulomb model; MuJoCo's own frictionloss is a soft constraint
+#: that also creeps): small against the joints' working speeds, large enough for the explicit
+#: viscous slope ``frictionloss / DRY_FRICTION_SPEED`` to stay stable with the armature.
+DRY_FRICTION_SPEED = 0.01
+
 #: A state component beyond this magnitude is a divergence (MuJoCo's own bound, ``mjMAXVAL``).
 MAX_STATE = 1e10
 
@@ -207,20 +213,23 @@ class BulletBackend(SimBackend):
         w, law = self._worlds[e], self._laws[e]
         c, body, idx = w.client, w.body, w.joint_index
         dofs = slice(self._qvel_offset, self._qvel_offset + self.n_joints)
+        # dry friction: a zero-velocity motor's torque, or with the armature's joint-space
+        # torques (a constraint would act without the rotors) a regularized Coulomb torque
+        armature = not w.floating and bool(m.dof_armature.any())
         friction = m.dof_frictionloss[dofs]
-        if self._friction[e] is None or not np.array_equal(self._friction[e], friction):
-            self._friction[e] = friction.copy()  # dry friction: a zero-velocity motor's torque
+        motor = np.zeros_like(friction) if armature else friction
+        if self._friction[e] is None or not np.array_equal(self._friction[e], motor):
+            self._friction[e] = motor.copy()
             pb.setJointMotorControlArray(
                 body,
                 idx,
                 pb.VELOCITY_CONTROL,
                 targetVelocities=[0.0] * len(idx),
-                forces=friction.tolist(),
+                forces=motor.tolist(),
                 physicsClientId=c,
             )
         dt, nstep = float(m.opt.timestep), self.decimation
         act, tau = d.act, d.qfrc_actuator[dofs]
-        armature = not w.floating and bool(m.dof_armature.any())
         state = np.empty(13)
         for s in range(nstep):
             states = pb.getJointStates(body, idx, physicsClientId=c)
@@ -229,6 +238,7 @@ class BulletBackend(SimBackend):
             tau[:] = law.torque(ctrl, act, q, dq, dt)
             applied = tau + law.passive
             if armature:
+                applied -= friction * np.clip(dq / DRY_FRICTION_SPEED, -1.0, 1.0)
                 applied = self._armature_torque(m, d, applied, q, dq)
             pb.setJointMotorControlArray(
                 body, idx, pb.TORQUE_CONTROL, forces=applied.tolist(), physicsClientId=c

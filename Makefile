@@ -9,7 +9,7 @@ ONNX   := $(POLICY:.pt=.onnx)
 export ORT_DISABLE_TELEMETRY := 1
 export MPLBACKEND := Agg
 
-.PHONY: install run test lint format export train train-position hil soak nightly bench clean
+.PHONY: install run test lint format export train train-position hil soak nightly sim2sim bench clean
 
 install: $(STAMP)
 
@@ -150,6 +150,16 @@ nightly: install $(ONNX) policies/so101.onnx policies/go2.onnx
 	done; \
 	if [ -n "$$failed" ]; then echo "make nightly: failed:$$failed"; exit 1; fi; \
 	echo "make nightly: every robot passed"
+
+# Sim-to-sim: ROBOT's shipped policy (arm3, so101, go2), one HOURS-long session of seed SEED on
+# MuJoCo and on pybullet, compared figure by figure into runs/sim2sim/ROBOT (sim2sim.md/.json/.png);
+# fails (exit 3) when the policy's result depends on the engine.
+HOURS ?= 1
+SEED  ?= 0
+SIM2SIM_POLICY := $(if $(filter arm3,$(ROBOT)),$(ONNX),policies/$(ROBOT).onnx)
+sim2sim: install $(SIM2SIM_POLICY)
+	$(VENV)/bin/sim2sim --robot $(ROBOT) --policy $(SIM2SIM_POLICY) --hours $(HOURS) \
+		--seed $(SEED) --out runs/sim2sim/$(ROBOT) --no-progress --no-film
 
 bench: install
 	$(PY) -m bench

@@ -104,6 +104,7 @@ class BulletBackend(SimBackend):
         self._dq_before = np.zeros(self.n_joints)
         self._base_before = np.zeros(6)
         self._bias = np.zeros(self.models[0].nv)
+        self._force = np.zeros(self.models[0].nv)
         self._accel = np.zeros((1, self.models[0].nv))
         self.reset()  # the mirror's contacts replaced by pybullet's before the first reading
 
@@ -239,7 +240,7 @@ class BulletBackend(SimBackend):
             applied = tau + law.passive
             if armature:
                 applied -= friction * np.clip(dq / DRY_FRICTION_SPEED, -1.0, 1.0)
-                applied = self._armature_torque(m, d, applied, q, dq)
+                applied = self._armature_torque(e, m, d, applied, q, dq)
             pb.setJointMotorControlArray(
                 body, idx, pb.TORQUE_CONTROL, forces=applied.tolist(), physicsClientId=c
             )
@@ -254,15 +255,22 @@ class BulletBackend(SimBackend):
         self._pull(e, m, d, dt * nstep)
 
     def _armature_torque(
-        self, m: mujoco.MjModel, d: mujoco.MjData, tau: np.ndarray, q: np.ndarray, dq: np.ndarray
+        self,
+        e: int,
+        m: mujoco.MjModel,
+        d: mujoco.MjData,
+        tau: np.ndarray,
+        q: np.ndarray,
+        dq: np.ndarray,
     ) -> np.ndarray:
         """The joint torque (N m, (n,)) under which pybullet's rigid-body dynamics ``M ddq =
         tau' - h`` accelerate a fixed-base arm as its drives with armature ``A`` would,
-        ``(M + A) ddq = tau - h``: ``tau' = tau - A (M + A)^-1 (tau - h)``. ``M + A`` and ``h``
-        (gravity, Coriolis) come from MuJoCo on the env's mirror at ``q``, ``dq`` (pybullet's
-        own inverse dynamics ignore a rotated base's gravity direction). Exact without
-        constraints; a constraint force (a limit, a self-collision, dry friction) accelerates
-        the links without the rotors."""
+        ``(M + A) ddq = tau - h + J^T f``: ``tau' = tau - A (M + A)^-1 (tau - h + J^T f)``, with
+        ``f`` the applied external forces (a cable, a push). ``M + A``, ``h`` (gravity, Coriolis)
+        and ``J^T f`` come from MuJoCo on the env's mirror at ``q``, ``dq`` (pybullet's own
+        inverse dynamics ignore a rotated base's gravity direction). Exact without constraints;
+        a constraint force (a limit, a self-collision) accelerates the links without the
+        rotors."""
         d.qpos[:] = q
         d.qvel[:] = dq
         mujoco.mj_kinematics(m, d)
@@ -272,8 +280,14 @@ class BulletBackend(SimBackend):
         mujoco.mj_comVel(m, d)
         bias = self._bias
         mujoco.mj_rne(m, d, 0, bias)
+        force = self._force  # the generalized force of the applied external forces
+        force[:] = tau - bias
+        if self._forces[e]:  # J^T f of each applied force, at its body's centre of mass
+            for b in np.flatnonzero(np.any(d.xfrc_applied, axis=1)):
+                xfrc = d.xfrc_applied[b]
+                mujoco.mj_applyFT(m, d, xfrc[:3], xfrc[3:], d.xipos[b], int(b), force)
         accel = self._accel
-        mujoco.mj_solveM(m, d, accel, (tau - bias)[None, :])
+        mujoco.mj_solveM(m, d, accel, force[None, :])
         return tau - m.dof_armature * accel[0]
 
     def _apply_forces(self, w: BulletWorld, forces: dict[int, np.ndarray]) -> None:

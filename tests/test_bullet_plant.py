@@ -155,9 +155,9 @@ def test_encoder_readings_keep_their_noise_statistics(arm3):
     assert errors.std() == pytest.approx(0.01, rel=0.1)
 
 
-def test_a_push_and_an_external_force_reach_pybullet(go2, arm3):
-    """``set_base_velocity`` moves the go2's base in pybullet; a force on the arm's end effector
-    moves its joints away from where they rest without it."""
+def test_a_push_and_a_cable_pull_reach_pybullet_as_on_mujoco(go2, so101):
+    """``set_base_velocity`` moves the go2's base in pybullet; a 3 N cable on the SO-101's end
+    effector (rotor inertia a hundred times its links') moves its joints as on MuJoCo."""
     dog = BulletBackend(go2)
     run(dog, 5)
     x0 = dog.true_base_state()[0, 0]
@@ -165,11 +165,15 @@ def test_a_push_and_an_external_force_reach_pybullet(go2, arm3):
     run(dog, 2)
     assert dog.true_base_state()[0, 0] - x0 > 0.02
 
-    free, pulled = BulletBackend(arm3, mode="position"), BulletBackend(arm3, mode="position")
-    pulled.set_external_force(0, np.array([30.0, 0.0, 0.0]))  # in the arm's (horizontal) plane
-    for plant in (free, pulled):
-        run(plant, 50)
-    assert np.abs(pulled.true_position() - free.true_position()).max() > 5e-3
+    mj, pb = both(so101, mode="position")
+    free = BulletBackend(so101, mode="position")
+    for plant in (mj, pb):
+        plant.set_external_force(0, np.array([0.0, 0.0, -3.0]))
+    for plant in (mj, pb, free):
+        run(plant, int(round(0.5 / so101.control_period)))
+    moved = np.abs(pb.true_position() - free.true_position()).max()
+    assert moved > 0.01
+    assert np.abs(pb.true_position() - mj.true_position()).max() < 0.05 * moved
 
 
 def test_a_checkpoint_resumes_the_arm_where_it_was(arm3):

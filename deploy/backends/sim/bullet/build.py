@@ -7,10 +7,8 @@ friction and added payloads reach both engines alike. What pybullet cannot hold 
 
 - **Armature** (a drive's reflected rotor inertia, ``dof_armature``): pybullet's multibodies have
   none. A fixed-base arm gets it exactly, in joint space, from the plant's torques
-  (:meth:`~deploy.backends.sim.bullet.plant.BulletBackend`, ``armature_torque``). A floating
-  base (contacts make that inexact) gets it folded into the child link's inertia about the joint
-  axis: the link then keeps its orientation like a flywheel of gear ratio one, and joints
-  upstream with a parallel axis feel it too.
+  (``BulletBackend._armature_torque``). A floating base (whose contacts make that inexact) gets a
+  rotor link per drive, geared to its joint (:data:`ROTOR_GEAR_RATIO`).
 - **Friction pairs**: bullet multiplies the two surfaces' friction coefficients where MuJoCo takes
   the larger (or the floor's, with its priority). Robot links get 1 and the floor the coefficient
   MuJoCo's rule gives a foot on it.
@@ -34,6 +32,14 @@ import numpy as np
 import pybullet as pb
 
 from robots.errors import Sim2RealError
+
+#: A legged robot's drives: each armature is a rotor link of ``armature / ROTOR_GEAR_RATIO^2``
+#: geared ``ROTOR_GEAR_RATIO`` to its joint (a bullet gear constraint). MuJoCo's armature is the
+#: limit of an infinite ratio; at 30 the cross terms a rotor adds to the joints upstream are 3 %
+#: of its armature, and bullet's solver still resolves the gear within a step.
+ROTOR_GEAR_RATIO = 30.0
+#: kg, a rotor link's mass (it must have one; small against any link's).
+ROTOR_MASS = 1e-4
 
 
 class UnsupportedModelError(Sim2RealError, ValueError):
@@ -78,6 +84,8 @@ class BulletWorld:
             the base's pose at its inertial frame); zeros for a fixed base.
         com_quat: (4,) (w, x, y, z) the base's inertial frame in its body frame.
         floating: The robot's base is a free joint.
+        rotor_index: (n_joints,) pybullet joint index of each joint's rotor link (-1: none),
+            geared ``ROTOR_GEAR_RATIO`` to it.
     """
 
     client: int
@@ -87,6 +95,7 @@ class BulletWorld:
     com_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
     com_quat: np.ndarray = field(default_factory=lambda: np.array([1.0, 0, 0, 0]))
     floating: bool = False
+    rotor_index: list[int] = field(default_factory=list)
 
 
 def _shape(m: mujoco.MjModel, g: int, anchor: np.ndarray) -> dict | None:
@@ -139,22 +148,14 @@ def _collision_shape(client: int, shapes: list[dict]) -> int:
     )
 
 
-def _inertia(m: mujoco.MjModel, b: int, anchor: np.ndarray, fold: bool) -> tuple[list, list, list]:
+def _inertia(m: mujoco.MjModel, b: int, anchor: np.ndarray) -> tuple[list, list, list]:
     """Body ``b``'s inertial frame position (link frame), orientation (x, y, z, w) and principal
-    moments (kg m^2), with its joint's armature folded in about the joint axis when ``fold``."""
-    rot = quat_to_mat(m.body_iquat[b])
-    tensor = rot @ np.diag(m.body_inertia[b]) @ rot.T
-    joints = range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b]) if fold else ()
-    for j in joints:
-        if int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE):
-            axis = m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j])
-            tensor = tensor + m.dof_armature[m.jnt_dofadr[j]] * np.outer(axis, axis)
-    moments, axes = np.linalg.eigh(tensor)
-    if np.linalg.det(axes) < 0:
-        axes[:, 0] = -axes[:, 0]
-    quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, axes.reshape(-1))
-    return (m.body_ipos[b] - anchor).tolist(), xyzw(quat), np.maximum(moments, 1e-9).tolist()
+    moments (kg m^2)."""
+    return (
+        (m.body_ipos[b] - anchor).tolist(),
+        xyzw(m.body_iquat[b]),
+        np.maximum(m.body_inertia[b], 1e-9).tolist(),
+    )
 
 
 def change_dynamics(client: int, body: int, link: int, **fields) -> None:
@@ -261,22 +262,17 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
     # the bodies of the robot: the root's subtree, in MuJoCo's (parents first) order
     robot = [b for b in range(m.nbody) if b == root or _descends(m, b, root)]
     links = robot[1:]
-    link_of_body = np.full(m.nbody, -2, dtype=np.int64)
-    link_of_body[root] = -1
-    for i, b in enumerate(links):
-        link_of_body[b] = i
     anchors = {b: _anchor(m, b) for b in robot}
     shapes = {b: [s for g in _body_geoms(m, b) if (s := _shape(m, g, anchors[b]))] for b in robot}
 
-    kinds, axes = [], []
+    kinds, axes = {}, {}  # per body of ``links``
     for b in links:
         if m.body_jntnum[b] > 1:
             raise UnsupportedModelError(
                 f"body '{m.body(b).name}' has {m.body_jntnum[b]} joints; pybullet links take one"
             )
         if m.body_jntnum[b] == 0:
-            kinds.append(pb.JOINT_FIXED)
-            axes.append([0.0, 0.0, 1.0])
+            kinds[b], axes[b] = pb.JOINT_FIXED, [0.0, 0.0, 1.0]
             continue
         j = int(m.body_jntadr[b])
         if int(m.jnt_type[j]) not in _JOINT:
@@ -284,8 +280,8 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
                 f"joint '{m.joint(j).name}': type {mujoco.mjtJoint(m.jnt_type[j]).name} has no "
                 "pybullet link joint here (expected hinge or slide)"
             )
-        kinds.append(_JOINT[int(m.jnt_type[j])])
-        axes.append((m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j])).tolist())
+        kinds[b] = _JOINT[int(m.jnt_type[j])]
+        axes[b] = (m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j])).tolist()
 
     def placement(b: int) -> tuple[list, list]:
         """Link frame of ``b`` in its parent's link frame."""
@@ -294,7 +290,31 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
         pos = m.body_pos[b] + rot @ anchors[b] - anchors[parent]
         return pos.tolist(), xyzw(m.body_quat[b])
 
-    inertials = {b: _inertia(m, b, anchors[b], fold=floating) for b in robot}
+    inertials = {b: _inertia(m, b, anchors[b]) for b in robot}
+    rotors = {r.body: r for r in _rotors(m, links, axes, placement)} if floating else {}
+    # pybullet orders the links depth first, each link's children in the order given: a rotor
+    # goes just before the link it drives (its sibling), so that this order is pybullet's
+    order: list = []
+    for b in links:
+        if b in rotors:
+            order.append(rotors[b])
+        order.append(b)
+    link_of_body = np.full(m.nbody, -2, dtype=np.int64)
+    link_of_body[root] = -1
+    rotor_link = {}
+    for i, entry in enumerate(order):
+        if isinstance(entry, _Rotor):
+            rotor_link[entry.body] = i
+        else:
+            link_of_body[entry] = i
+
+    def parent_of(entry) -> int:
+        b = entry.body if isinstance(entry, _Rotor) else entry
+        return int(link_of_body[m.body_parentid[b]]) + 1
+
+    def field_of(entry, body_value, rotor_value):
+        return rotor_value(entry) if isinstance(entry, _Rotor) else body_value(entry)
+
     root_pos, root_quat = m.body_pos[root] + anchors[root], m.body_quat[root]
     if floating:  # the free joint's reference pose
         j = int(m.body_jntadr[root])
@@ -312,19 +332,36 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
         baseOrientation=xyzw(np.asarray(root_quat)),
         baseInertialFramePosition=inertials[root][0],
         baseInertialFrameOrientation=inertials[root][1],
-        linkMasses=[float(m.body_mass[b]) for b in links],
-        linkCollisionShapeIndices=[_collision_shape(client, shapes[b]) for b in links],
-        linkVisualShapeIndices=[-1] * len(links),
-        linkPositions=[placement(b)[0] for b in links],
-        linkOrientations=[placement(b)[1] for b in links],
-        linkInertialFramePositions=[inertials[b][0] for b in links],
-        linkInertialFrameOrientations=[inertials[b][1] for b in links],
-        linkParentIndices=[int(link_of_body[m.body_parentid[b]]) + 1 for b in links],
-        linkJointTypes=kinds,
-        linkJointAxis=axes,
+        linkMasses=[
+            field_of(e, lambda b: float(m.body_mass[b]), lambda r: ROTOR_MASS) for e in order
+        ],
+        linkCollisionShapeIndices=[
+            field_of(e, lambda b: _collision_shape(client, shapes[b]), lambda r: -1) for e in order
+        ],
+        linkVisualShapeIndices=[-1] * len(order),
+        linkPositions=[field_of(e, lambda b: placement(b)[0], lambda r: r.position) for e in order],
+        linkOrientations=[
+            field_of(e, lambda b: placement(b)[1], lambda r: r.orientation) for e in order
+        ],
+        linkInertialFramePositions=[
+            field_of(e, lambda b: inertials[b][0], lambda r: [0.0, 0.0, 0.0]) for e in order
+        ],
+        linkInertialFrameOrientations=[
+            field_of(e, lambda b: inertials[b][1], lambda r: r.inertial_orientation) for e in order
+        ],
+        linkParentIndices=[parent_of(e) for e in order],
+        linkJointTypes=[field_of(e, kinds.get, lambda r: pb.JOINT_REVOLUTE) for e in order],
+        linkJointAxis=[field_of(e, axes.get, lambda r: r.axis) for e in order],
         flags=pb.URDF_USE_SELF_COLLISION if self_collision else 0,
         physicsClientId=client,
     )
+    for i, entry in enumerate(order):
+        got = pb.getJointInfo(body, i, physicsClientId=client)[16]
+        if got != parent_of(entry) - 1:
+            raise UnsupportedModelError(
+                f"pybullet reordered the links of body '{m.body(root).name}' (link {i}: parent "
+                f"{got}, expected {parent_of(entry) - 1}); expected MuJoCo's depth-first order"
+            )
     # exact inertias (createMultiBody derives them from the shapes), no extra damping
     for b in robot:
         link = int(link_of_body[b])
@@ -368,9 +405,89 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
                         physicsClientId=client,
                     )
     _build_world_geoms(client, m, body, robot, link_of_body)
+    rotor_index = [-1] * len(joint_index)
+    for b, r in rotors.items():
+        link, drives = rotor_link[b], int(link_of_body[b])
+        rotor_index[joint_index.index(drives)] = link
+        change_dynamics(
+            client,
+            body,
+            link,
+            localInertiaDiagonal=r.inertia,
+            linearDamping=0.0,
+            angularDamping=0.0,
+            maxJointVelocity=1e6,
+            jointDamping=0.0,
+        )
+        gear = pb.createConstraint(
+            body,
+            drives,
+            body,
+            link,
+            jointType=pb.JOINT_GEAR,
+            jointAxis=r.axis,
+            parentFramePosition=[0.0, 0.0, 0.0],
+            childFramePosition=[0.0, 0.0, 0.0],
+            physicsClientId=client,
+        )
+        # velocities only (erp 0): the rotor's angle is free, only its speed is geared
+        pb.changeConstraint(
+            gear, gearRatio=1.0 / ROTOR_GEAR_RATIO, maxForce=1e9, erp=0.0, physicsClientId=client
+        )
+    if rotors:  # no motor of their own
+        spinning = sorted(rotor_link.values())
+        pb.setJointMotorControlArray(
+            body,
+            spinning,
+            pb.VELOCITY_CONTROL,
+            forces=[0.0] * len(spinning),
+            physicsClientId=client,
+        )
     com = np.asarray(inertials[root][0]) if floating else np.zeros(3)
     com_quat = wxyz(inertials[root][1]) if floating else np.array([1.0, 0, 0, 0])
-    return BulletWorld(client, body, link_of_body, joint_index, com, com_quat, floating)
+    return BulletWorld(
+        client, body, link_of_body, joint_index, com, com_quat, floating, rotor_index
+    )
+
+
+@dataclass
+class _Rotor:
+    """A drive's rotor link: on the joint's parent, at the joint, spinning about its axis."""
+
+    body: int  # MuJoCo body whose joint it is geared to
+    position: list
+    orientation: list
+    axis: list
+    inertial_orientation: list
+    inertia: list
+
+
+def _rotors(m: mujoco.MjModel, links: list[int], axes: dict, placement) -> list[_Rotor]:
+    """One rotor link per hinge with armature: ``armature / ROTOR_GEAR_RATIO^2`` about the axis,
+    geared ``ROTOR_GEAR_RATIO`` to its joint, so that the joint feels the armature."""
+    out = []
+    for b in links:
+        if m.body_jntnum[b] != 1:
+            continue
+        j = int(m.body_jntadr[b])
+        armature = float(m.dof_armature[m.jnt_dofadr[j]])
+        if int(m.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_HINGE) or armature <= 0.0:
+            continue
+        spin = armature / ROTOR_GEAR_RATIO**2
+        z_to_axis = np.empty(4)
+        mujoco.mju_quatZ2Vec(z_to_axis, np.asarray(axes[b], dtype=np.float64))
+        position, orientation = placement(b)
+        out.append(
+            _Rotor(
+                body=b,
+                position=position,
+                orientation=orientation,
+                axis=axes[b],
+                inertial_orientation=xyzw(z_to_axis),
+                inertia=[spin / 2, spin / 2, spin],
+            )
+        )
+    return out
 
 
 def _descends(m: mujoco.MjModel, b: int, root: int) -> bool:

@@ -13,8 +13,9 @@ pybullet's state (joint and base position and velocity, the last physics step's 
 and MuJoCo computes kinematics and the IMU from it; the feet's touch readings are pybullet's
 contact normal forces. The runtime, monitors and reports cannot tell the engines apart.
 
-What pybullet does not model the way MuJoCo does: armature (folded into link inertia, see
-:mod:`.build`), soft contacts (bullet's are rigid, with error reduction), friction combination.
+What pybullet does not model the way MuJoCo does: armature (joint-space torques on an arm,
+geared rotor links on a legged robot, see :mod:`.build`), soft contacts (bullet's are rigid,
+with error reduction), friction combination.
 A checkpoint restores the state from the mirror (positions, velocities, drive integrators):
 pybullet's contact warm start is not kept, so a resumed session is close to, not bit-identical
 with, an uninterrupted one.
@@ -31,7 +32,14 @@ import mujoco
 import numpy as np
 import pybullet as pb
 
-from deploy.backends.sim.bullet.build import BulletWorld, build_world, quat_to_mat, wxyz, xyzw
+from deploy.backends.sim.bullet.build import (
+    ROTOR_GEAR_RATIO,
+    BulletWorld,
+    build_world,
+    quat_to_mat,
+    wxyz,
+    xyzw,
+)
 from deploy.backends.sim.bullet.drive_law import DriveLaw
 from deploy.backends.sim.plant import SimBackend, SimulationDivergedError
 from robots import Robot
@@ -142,6 +150,14 @@ class BulletBackend(SimBackend):
         q, dq = d.qpos[self._qpos_offset :], d.qvel[self._qvel_offset :]
         for i, j in enumerate(w.joint_index):
             pb.resetJointState(body, j, float(q[i]), float(dq[i]), physicsClientId=c)
+            if w.rotor_index and w.rotor_index[i] >= 0:  # its rotor at the geared speed
+                pb.resetJointState(
+                    body,
+                    w.rotor_index[i],
+                    0.0,
+                    -ROTOR_GEAR_RATIO * float(dq[i]),
+                    physicsClientId=c,
+                )
         if w.floating:
             self._push_base(e)
 

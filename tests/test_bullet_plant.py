@@ -252,3 +252,32 @@ def test_a_legged_robots_drives_carry_their_armature_on_pybullet(go2):
         out[name] = plant.true_position()[0, calves] - q0
     assert np.all(out["mujoco"] > 0.1)
     np.testing.assert_allclose(out["pybullet"], out["mujoco"], rtol=0.05)
+
+
+def test_soak_test_runs_on_pybullet_and_sim2sim_compares_it_with_mujoco(tmp_path):
+    """``soak-test --engine pybullet`` (arm3, 18 simulated s, faults every 4 s) writes a report
+    that names its engine; ``sim2sim --compare-only`` sets it beside the same campaign on MuJoCo
+    and finds the shipped policy's goals the same on both."""
+    import json
+
+    from deploy.export import export_policy
+    from eval import cli as soak_cli
+    from eval.sim2sim import cli as sim2sim_cli
+
+    pt = tmp_path / "arm.pt"
+    pt.write_bytes((Path(__file__).resolve().parent.parent / "policies" / "arm.pt").read_bytes())
+    policy = export_policy(pt)
+    for engine in ENGINES:
+        argv = ["--robot", "arm3", "--policy", str(policy), "--hours", "0.005", "--seed", "3"]
+        argv += ["--fault-interval", "4", "--no-progress", "--no-film", "--engine", engine]
+        code = soak_cli.main([*argv, "--out", str(tmp_path / engine)])
+        assert code != soak_cli.EXIT_BAD_INPUT
+        report = json.loads((tmp_path / engine / "report.json").read_text())
+        assert report["campaign"]["engine"] == engine
+    code = sim2sim_cli.main(["--compare-only", "--out", str(tmp_path)])
+    result = json.loads((tmp_path / "sim2sim.json").read_text())
+    assert result["engines"] == list(ENGINES) and result["robot"] == "arm3"
+    goals = {f["name"]: f for f in result["totals"]}["goals_reached"]
+    assert set(goals["values"]) == set(ENGINES) and not goals["engine_dependent"]
+    expected = sim2sim_cli.EXIT_ENGINE_DEPENDENT if result["engine_dependent"] else 0
+    assert code == expected

@@ -200,6 +200,7 @@ class BulletBackend(SimBackend):
         super().reset(q, envs)
         which = np.ones(self.envs, dtype=bool) if envs is None else np.asarray(envs, dtype=bool)
         for e in np.flatnonzero(which):
+            self._forces[e] = {}  # as MuJoCo's reset clears xfrc_applied
             self._push_state(e)
 
     def advance(self) -> None:

@@ -151,6 +151,18 @@ class BaseStateEstimator:
         self._q = robot.pin_configuration(robot.home)
         self._v = np.zeros(robot.pin_model.nv)
         self.orientation = np.tile([1.0, 0.0, 0.0, 0.0], (envs, 1))
+        # the attitude kernels compiled (or loaded from cache) before the first tick
+        quat_multiply(self.orientation, self.orientation)
+        quaternion_to_matrix(self.orientation)
+        mahony_update(
+            self.orientation,
+            np.zeros((envs, 3)),
+            np.ones((envs, 3)),
+            np.ones((envs, 3)),
+            np.ones(envs),
+            k_p,
+            k_i,
+        )
         self.angular_velocity = np.zeros((envs, 3))
         self.velocity = np.zeros((envs, 3))
         self.velocity_variance = np.full(envs, INITIAL_VELOCITY_SIGMA**2)

@@ -38,3 +38,17 @@ def test_mahony_update_compiled_equals_its_numpy_reference_bit_for_bit():
     np.testing.assert_array_equal(got, expected)
     np.testing.assert_array_equal(bias, expected_bias)
     assert not np.array_equal(bias[80:], 0.01 * np.zeros((k - 80, 3)))
+
+
+def test_rotation_quaternions_and_one_quaternions_matrix_compiled_bit_for_bit():
+    rng = np.random.default_rng(9)
+    for scale in (1e-14, 1e-3, 3.0):  # below the first-order threshold, small, large
+        rotvec = scale * rng.normal(size=(300, 3))
+        np.testing.assert_array_equal(
+            attitude.rotation_quaternions(rotvec), attitude.rotation_quaternions_reference(rotvec)
+        )
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    np.testing.assert_array_equal(
+        attitude.quaternion_to_matrix(q), attitude.quaternion_to_matrix(q[None, None])[0, 0]
+    )

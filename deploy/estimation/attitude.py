@@ -12,7 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from deploy.estimation.attitude_kernel import mahony_rows, quat_mul_rows, quat_to_mat_rows
+from deploy.estimation.attitude_kernel import (
+    mahony_rows,
+    quat_mul_rows,
+    quat_to_mat_rows,
+    rotation_rows,
+)
 
 
 def _rows(q) -> np.ndarray | None:
@@ -113,6 +118,15 @@ def mahony_update_reference(
 def rotation_quaternions(rotvec: np.ndarray) -> np.ndarray:
     """Quaternions ``[w, x, y, z]`` (k, 4) of rotation vectors (k, 3) rad (below 1e-12 rad the
     first-order ``[1, rotvec / 2]``)."""
+    if isinstance(rotvec, np.ndarray) and rotvec.ndim == 2 and rotvec.shape[1] == 3:
+        out = np.empty((rotvec.shape[0], 4))
+        rotation_rows(np.ascontiguousarray(rotvec, dtype=np.float64), out)  # compiled
+        return out
+    return rotation_quaternions_reference(rotvec)
+
+
+def rotation_quaternions_reference(rotvec: np.ndarray) -> np.ndarray:
+    """:func:`rotation_quaternions` in numpy (the reference of its kernel)."""
     angle = np.linalg.norm(rotvec, axis=1)
     small = angle < 1e-12
     half = np.where(small, 0.5, np.sin(angle / 2) / np.where(small, 1.0, angle))
@@ -127,6 +141,10 @@ def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
         out = np.empty((rows.shape[0], 3, 3))
         quat_to_mat_rows(rows, out)  # the same expressions, compiled
         return out
+    if np.ndim(q) == 1 and np.shape(q)[0] == 4:  # one quaternion: its row
+        out = np.empty((1, 3, 3))
+        quat_to_mat_rows(np.ascontiguousarray(q, dtype=np.float64).reshape(1, 4), out)
+        return out[0]
     w, x, y, z = np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)
     return np.stack(
         [

@@ -89,3 +89,17 @@ def mahony_rows(quaternion, bias, gyro, acceleration, dt, k_p: float, k_i: float
         n0, n1, n2, n3 = w + r0 * dt[e], x + r1 * dt[e], y + r2 * dt[e], z + r3 * dt[e]
         m = _norm(n0, n1, n2, n3)
         out[e, 0], out[e, 1], out[e, 2], out[e, 3] = n0 / m, n1 / m, n2 / m, n3 / m
+
+
+@numba.njit(cache=True, nogil=True)
+def rotation_rows(rotvec, out) -> None:
+    """``out[e]`` (4,) = :func:`deploy.estimation.attitude.rotation_quaternions` of ``rotvec[e]``
+    (k, 3) rad (below 1e-12 rad the first-order ``[1, rotvec / 2]``)."""
+    for e in range(rotvec.shape[0]):
+        r0, r1, r2 = rotvec[e, 0], rotvec[e, 1], rotvec[e, 2]
+        angle = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        if angle < 1e-12:
+            half, w = 0.5, 1.0
+        else:
+            half, w = math.sin(angle / 2) / angle, math.cos(angle / 2)
+        out[e, 0], out[e, 1], out[e, 2], out[e, 3] = w, r0 * half, r1 * half, r2 * half

@@ -154,6 +154,7 @@ class BaseStateEstimator:
         # the attitude kernels compiled (or loaded from cache) before the first tick
         quat_multiply(self.orientation, self.orientation)
         quaternion_to_matrix(self.orientation)
+        rotation_quaternions(np.zeros((envs, 3)))
         mahony_update(
             self.orientation,
             np.zeros((envs, 3)),

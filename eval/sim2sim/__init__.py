@@ -10,6 +10,8 @@ less likely to rely on one engine's modelling quirks, and a step closer to the r
 whose figures differ shows where: falls on one engine only, goals or tracking lost, hotter
 motors, violations or safe stops that appear on one engine only.
 
+- :mod:`eval.sim2sim.reports`: reads and checks each engine's ``report.json`` (errors name the
+  file, the field and the value expected) and extracts the figures compared.
 - :mod:`eval.sim2sim.compare`: :func:`~eval.sim2sim.compare.compare` matches the reports'
   sessions by seed and gives each figure's value per engine, its gap and its engine-dependent
   flag (the thresholds are module constants with their reasons), and the verdict.

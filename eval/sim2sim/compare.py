@@ -1,28 +1,29 @@
 """Sim-to-sim comparison: the soak reports of one policy on several physics engines, figure by
 figure.
 
-:func:`compare` reads each engine's soak folder (its ``report.json``, :mod:`eval.report.build`),
-matches the sessions by seed and returns, per session and over the campaign, each figure's value
-per engine, the gap between the engines and whether that gap makes the result engine-dependent.
-The figures (:data:`FIGURE_FIELDS` names the report.json field each is read from) are the soak's
-own: goals reached (arm) or tracking success, falls and mean forward speed (legged robot), true
-violations by type, guard interventions, peak winding temperature, safe stops, latched faults and
-diverged sessions. Each threshold is a module constant below, with the reason for its value.
+:func:`compare` reads each engine's soak folder (its ``report.json``, read and checked by
+:mod:`eval.sim2sim.reports`), matches the sessions by seed and returns, per session and over the
+campaign, each figure's value per engine, the gap between the engines and whether that gap makes
+the result engine-dependent, and the verdict (:data:`VERDICT_SAME`, :data:`VERDICT_DEPENDS`).
+The figures (:data:`~eval.sim2sim.reports.FIGURE_FIELDS` names the report.json field each is read
+from) are the soak's own: goals reached (arm) or tracking success, falls and mean forward speed
+(legged robot), true violations by type, guard interventions, peak winding temperature, safe
+stops, latched faults and diverged sessions. Each threshold is a module constant below, with the
+reason for its value.
 
 A gap is the spread of the engines' values (largest minus smallest, in the figure's unit); the
 relative gap is the spread over the largest magnitude (0 when every value is 0). A figure that is
 defined on some engines and not on others (no goal issued, never RUNNING) is engine-dependent.
 
-Errors: :class:`Sim2SimError` (a ``ValueError``) names the file, the field and the value expected:
-a missing or unreadable report.json, another schema version, a field missing or of the wrong
-type, or reports of different robots, policies, durations or seeds (such gaps are not the
-engines'). Option differences that do not prevent the comparison are returned as ``warnings``.
+Errors: :class:`~eval.sim2sim.reports.Sim2SimError` (a ``ValueError``, importable from here too)
+names the file, the field and the value expected: a report that cannot be read or checked
+(:mod:`eval.sim2sim.reports`), or reports of different robots, policies, durations or seeds (such
+gaps are not the engines'). Option differences that do not prevent the comparison are returned as
+``warnings``.
 """
 
 from __future__ import annotations
 
-import json
-import math
 import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -30,7 +31,32 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from eval.report.schema import SCHEMA_VERSION, ReportError
+from eval.sim2sim.reports import (
+    FIGURE_FIELDS,
+    VIOLATION_LABELS,
+    FigureValue,
+    Sim2SimError,
+    SoakReport,
+    is_number,
+    option_warnings,
+    read_figures,
+    report_info,
+)
+
+__all__ = [
+    "COUNT_MAX_RATIO",
+    "FIGURE_FIELDS",
+    "GOALS_MAX_RELATIVE_GAP",
+    "INTERVENTIONS_MAX_GAP_PP",
+    "PEAK_WINDING_MAX_GAP_C",
+    "SPEED_MAX_GAP_M_S",
+    "TRACKING_MAX_GAP_PP",
+    "VERDICT_DEPENDS",
+    "VERDICT_SAME",
+    "VIOLATION_LABELS",
+    "Sim2SimError",
+    "compare",
+]
 
 #: Largest gap of a legged robot's tracking success (share of RUNNING time within the soak's
 #: tracking tolerance of the command), percentage points, that is still the same result: twice
@@ -68,213 +94,11 @@ SPEED_MAX_GAP_M_S = 0.05
 #: magnitude, as a few simulated hours hold too few rare events for a finer comparison.
 COUNT_MAX_RATIO = 10.0
 
-#: The report.json field of each figure: ``sessions[i].FIELD`` per session; the totals read
-#: ``totals.FIELD`` where the report has one, else the sum over the sessions.
-FIGURE_FIELDS = {
-    "goals_reached": "goals.success_rate, goals.reached, goals.issued (arm)",
-    "tracking_success": "locomotion.tracking_success (legged)",
-    "falls": "locomotion.falls (legged)",
-    "mean_speed": "locomotion.mean_forward_speed_m_s (legged)",
-    "violations.<type>": "violations.total.<type> (hard_limit, soft_limit, velocity, effort, "
-    "workspace, self_collision)",
-    "interventions": "interventions.any.fraction",
-    "peak_winding": "thermal.peak_c (max over the joints)",
-    "safe_stops": "runtime.safe_stops, runtime.by_cause (totals: summed over the sessions)",
-    "latched_faults": "runtime.latched_faults (totals: totals.latched_faults)",
-    "diverged": "diverged (message or null; totals: totals.diverged, the ids)",
-}
-
-#: Labels of the violation types (deploy.monitors.violations), in the order of the report.
-VIOLATION_LABELS = {
-    "hard_limit": "hard-limit violations",
-    "soft_limit": "soft-limit violations",
-    "velocity": "velocity violations",
-    "effort": "effort (torque) violations",
-    "workspace": "workspace violations",
-    "self_collision": "self-collision violations",
-}
-
 VERDICT_SAME = "same on both"
 VERDICT_DEPENDS = "the policy's result depends on the engine"
 
 
-class Sim2SimError(ReportError):
-    """Reports that cannot be compared; the message names the file, the field and the value
-    expected."""
-
-
-# ---------------------------------------------------------------------- reading
-
-
-def _dotted(keys: tuple) -> str:
-    out = ""
-    for k in keys:
-        out += f"[{k}]" if isinstance(k, int) else (f".{k}" if out else str(k))
-    return out
-
-
-def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _is_count(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
-
-
-class _Report:
-    """One engine's report.json with typed field access (errors name the file and field)."""
-
-    def __init__(self, engine: str, folder: Path):
-        self.engine = engine
-        self.folder = folder
-        self.path = folder / "report.json"
-        if folder.exists() and not folder.is_dir():
-            raise Sim2SimError(f"{folder}: expected a soak output folder (with report.json)")
-        try:
-            self.doc = json.loads(self.path.read_text())
-        except FileNotFoundError:
-            raise Sim2SimError(
-                f"{self.path}: no report.json (expected the soak output of engine {engine!r}: "
-                f"soak-test --engine {engine} --out {folder})"
-            ) from None
-        except OSError as exc:
-            raise Sim2SimError(f"{self.path}: cannot read the report: {exc}") from None
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise Sim2SimError(f"{self.path}: not valid JSON: {exc}") from None
-        if not isinstance(self.doc, dict):
-            raise Sim2SimError(f"{self.path}: expected a JSON object (a soak report.json)")
-        version = self.doc.get("schema_version")
-        if version != SCHEMA_VERSION:
-            raise Sim2SimError(
-                f"{self.path}: field 'schema_version': expected {SCHEMA_VERSION}, got {version!r}"
-            )
-
-    def get(self, keys: tuple, expected: str, ok: Callable[[Any], bool]) -> Any:
-        node = self.doc
-        for i, k in enumerate(keys):
-            container_ok = isinstance(node, list) if isinstance(k, int) else isinstance(node, dict)
-            if not container_ok:
-                kind = "a list" if isinstance(k, int) else "an object"
-                raise Sim2SimError(
-                    f"{self.path}: field '{_dotted(keys[:i]) or '(top)'}': expected {kind}, "
-                    f"got {node!r:.80}"
-                )
-            if (isinstance(k, int) and not 0 <= k < len(node)) or (
-                not isinstance(k, int) and k not in node
-            ):
-                raise Sim2SimError(
-                    f"{self.path}: field '{_dotted(keys[: i + 1])}' is missing (expected "
-                    f"{expected if i == len(keys) - 1 else 'it in a soak report.json'})"
-                )
-            node = node[k]
-        if not ok(node):
-            raise Sim2SimError(
-                f"{self.path}: field '{_dotted(keys)}': expected {expected}, got {node!r:.80}"
-            )
-        return node
-
-    def number(
-        self, keys: tuple, low: float | None = 0.0, high: float | None = None, null=False
-    ) -> float | None:
-        """A finite number in [low, high] (a bound None: none), or None when ``null``."""
-        if low is not None and high is not None:
-            span = f" in [{low:g}, {high:g}]"
-        elif low is not None or high is not None:
-            span = f" >= {low:g}" if low is not None else f" <= {high:g}"
-        else:
-            span = ""
-        expected = f"a number{span}" + (" or null" if null else "")
-        return self.get(
-            keys,
-            expected,
-            lambda v: (
-                (null and v is None)
-                or (_is_number(v) and (low is None or v >= low) and (high is None or v <= high))
-            ),
-        )
-
-    def count(self, keys: tuple) -> int:
-        return self.get(keys, "an integer >= 0", _is_count)
-
-    def counts(self, keys: tuple) -> dict[str, int]:
-        return self.get(
-            keys,
-            "an object of integers >= 0",
-            lambda v: isinstance(v, dict) and all(_is_count(x) for x in v.values()),
-        )
-
-    def temperatures(self, keys: tuple) -> dict[str, float]:
-        return self.get(
-            keys,
-            "an object of joint: degC (finite numbers), one joint at least",
-            lambda v: isinstance(v, dict) and v and all(_is_number(x) for x in v.values()),
-        )
-
-
-# ---------------------------------------------------------------------- figures
-
-
-@dataclass(frozen=True)
-class _Value:
-    """One engine's value of a figure: the number (None: undefined), a note for the reader (e.g.
-    ``"12/13"``), and counts by kind that the figure's rule judges too (safe stops by cause)."""
-
-    value: float | None
-    note: str | None = None
-    breakdown: dict[str, int] | None = None
-
-
-def _read_figures(r: _Report, base: tuple, legged: bool, totals: bool) -> dict[str, _Value]:
-    """The figures of one session (``base`` = ("sessions", i)) or of the totals (("totals",))."""
-    out: dict[str, _Value] = {}
-    if legged:
-        loco = base + ("locomotion",)
-        ts = r.number(loco + ("tracking_success",), 0.0, 1.0, null=True)
-        out["tracking_success"] = _Value(None if ts is None else 100.0 * ts)
-        out["falls"] = _Value(r.count(loco + ("falls",)))
-        speed = r.number(loco + ("mean_forward_speed_m_s",), None, null=True)
-        out["mean_speed"] = _Value(speed)
-    else:
-        goals = base + ("goals",)
-        rate = r.number(goals + ("success_rate",), 0.0, 1.0, null=True)
-        reached, issued = r.count(goals + ("reached",)), r.count(goals + ("issued",))
-        out["goals_reached"] = _Value(None if rate is None else 100.0 * rate, f"{reached}/{issued}")
-    violations = r.counts(base + ("violations", "total"))
-    for kind in (*VIOLATION_LABELS, *sorted(set(violations) - set(VIOLATION_LABELS))):
-        if kind in violations:
-            out[f"violations.{kind}"] = _Value(violations[kind])
-    fraction = r.number(base + ("interventions", "any", "fraction"), 0.0, 1.0)
-    out["interventions"] = _Value(100.0 * fraction)
-    peaks = r.temperatures(base + ("thermal", "peak_c"))
-    joint = max(peaks, key=peaks.get)
-    out["peak_winding"] = _Value(float(peaks[joint]), joint)
-    if totals:
-        n = len(r.get(("sessions",), "a list of sessions", lambda v: isinstance(v, list)))
-        stops, causes = 0, {}
-        for i in range(n):
-            stops += r.count(("sessions", i, "runtime", "safe_stops"))
-            for cause, k in r.counts(("sessions", i, "runtime", "by_cause")).items():
-                causes[cause] = causes.get(cause, 0) + k
-        latched = r.count(("totals", "latched_faults"))
-        diverged = len(
-            r.get(("totals", "diverged"), "a list of session ids", lambda v: isinstance(v, list))
-        )
-    else:
-        stops = r.count(base + ("runtime", "safe_stops"))
-        causes = r.counts(base + ("runtime", "by_cause"))
-        latched = r.count(base + ("runtime", "latched_faults"))
-        message = r.get(
-            base + ("diverged",),
-            "null or a message",
-            lambda v: v is None or isinstance(v, str),
-        )
-        diverged = int(message is not None)
-    used = {c: k for c, k in causes.items() if k}
-    note = ", ".join(f"{c} {k}" for c, k in used.items()) or None
-    out["safe_stops"] = _Value(stops, note, dict(causes))
-    out["latched_faults"] = _Value(latched)
-    out["diverged"] = _Value(diverged)
-    return out
+# ---------------------------------------------------------------------- judging
 
 
 def _count_reason(values: Mapping[str, float], what: str = "") -> str | None:
@@ -381,7 +205,7 @@ def _spec(name: str) -> _Spec:
     return specs[name]
 
 
-def _judge(name: str, per_engine: dict[str, _Value]) -> dict:
+def _judge(name: str, per_engine: dict[str, FigureValue]) -> dict:
     """One figure's entry: values per engine, gap, relative gap, flag and its reason."""
     spec = _spec(name)
     values = {e: v.value for e, v in per_engine.items()}
@@ -416,13 +240,14 @@ def _judge(name: str, per_engine: dict[str, _Value]) -> dict:
     return entry
 
 
-def _figure_table(per_engine: dict[str, dict[str, _Value]]) -> list[dict]:
+def _figure_table(per_engine: dict[str, dict[str, FigureValue]]) -> list[dict]:
     """Judge every figure any engine has (an engine without it has the value None)."""
     names: list[str] = []
     for figures in per_engine.values():
         names += [n for n in figures if n not in names]
     return [
-        _judge(n, {e: figs.get(n, _Value(None)) for e, figs in per_engine.items()}) for n in names
+        _judge(n, {e: figs.get(n, FigureValue(None)) for e, figs in per_engine.items()})
+        for n in names
     ]
 
 
@@ -469,7 +294,7 @@ def compare(reports: Mapping[str, str | os.PathLike]) -> dict:
         raise Sim2SimError(
             f"reports: expected two engines or more (engine -> soak folder), got {list(reports)}"
         )
-    loaded = [_Report(str(e), Path(folder)) for e, folder in reports.items()]
+    loaded = [SoakReport(str(e), Path(folder)) for e, folder in reports.items()]
     first = loaded[0]
 
     def same(key: str, expected: str, ok: Callable[[Any], bool]) -> Any:
@@ -486,7 +311,7 @@ def compare(reports: Mapping[str, str | os.PathLike]) -> dict:
 
     robot = same("robot", "a robot name", lambda v: isinstance(v, str))
     sha = same("policy_sha256", "the policy's SHA-256", lambda v: isinstance(v, str))
-    hours = same("hours", "a number > 0 (simulated h)", lambda v: _is_number(v) and v > 0)
+    hours = same("hours", "a number > 0 (simulated h)", lambda v: is_number(v) and v > 0)
     policy = first.get(("campaign", "policy"), "a path", lambda v: isinstance(v, str))
 
     seeds: dict[str, dict[int, int]] = {}  # engine -> seed -> index in sessions
@@ -521,7 +346,7 @@ def compare(reports: Mapping[str, str | os.PathLike]) -> dict:
         is not None
     )
     totals = _figure_table(
-        {r.engine: _read_figures(r, ("totals",), legged, totals=True) for r in loaded}
+        {r.engine: read_figures(r, ("totals",), legged, totals=True) for r in loaded}
     )
     session_rows = []
     for seed in ordered:
@@ -529,7 +354,7 @@ def compare(reports: Mapping[str, str | os.PathLike]) -> dict:
         ids = {}
         for r in loaded:
             i = seeds[r.engine][seed]
-            per_engine[r.engine] = _read_figures(r, ("sessions", i), legged, totals=False)
+            per_engine[r.engine] = read_figures(r, ("sessions", i), legged, totals=False)
             ids[r.engine] = r.get(
                 ("sessions", i, "id"), "a session id", lambda v: isinstance(v, str)
             )
@@ -569,7 +394,7 @@ def compare(reports: Mapping[str, str | os.PathLike]) -> dict:
         "policy_sha256": sha,
         "hours": hours,
         "seeds": ordered,
-        "reports": {r.engine: _report_info(r) for r in loaded},
+        "reports": {r.engine: report_info(r) for r in loaded},
         "thresholds": {
             "TRACKING_MAX_GAP_PP": TRACKING_MAX_GAP_PP,
             "GOALS_MAX_RELATIVE_GAP": GOALS_MAX_RELATIVE_GAP,
@@ -585,68 +410,5 @@ def compare(reports: Mapping[str, str | os.PathLike]) -> dict:
         "dependent_figures": dependent,
         "engine_dependent": bool(dependent),
         "verdict": verdict,
-        "warnings": _warnings(loaded),
+        "warnings": option_warnings(loaded),
     }
-
-
-def _declared_engine(doc: dict) -> str | None:
-    """The engine a report says it ran on: its top-level ``engine``, else ``campaign.engine``
-    (None: neither, a report written before ``soak-test --engine``)."""
-    engine = doc.get("engine")
-    if engine is None and isinstance(doc.get("campaign"), dict):
-        engine = doc["campaign"].get("engine")
-    return engine if isinstance(engine, str) else None
-
-
-def _report_info(r: _Report) -> dict:
-    checks = r.doc.get("checks")
-    failed = (
-        sorted(k for k, c in checks.items() if isinstance(c, dict) and not c.get("passed", True))
-        if isinstance(checks, dict)
-        else []
-    )
-    return {
-        "path": str(r.path),
-        "engine": _declared_engine(r.doc),
-        "passed": r.doc.get("passed"),
-        "exit_code": r.doc.get("exit_code"),
-        "failed_checks": failed,
-    }
-
-
-def _warnings(loaded: list[_Report]) -> list[str]:
-    """What does not prevent the comparison but may explain a gap: options that differ between
-    the campaigns (an engine option excepted), and reports that name the same engine."""
-    out = []
-    first = loaded[0]
-
-    def options(r: _Report) -> dict:
-        opts = (r.doc.get("campaign") or {}).get("session_options") or {}
-        return (
-            {k: v for k, v in opts.items() if "engine" not in k} if isinstance(opts, dict) else {}
-        )
-
-    base = options(first)
-    for r in loaded[1:]:
-        other = options(r)
-        for key in sorted(set(base) | set(other)):
-            if base.get(key) != other.get(key):
-                out.append(
-                    f"campaign.session_options.{key} differs: {first.engine} "
-                    f"{base.get(key)!r:.60}, {r.engine} {other.get(key)!r:.60} (a gap may come "
-                    "from the option, not the engine)"
-                )
-    declared: dict[str, list[str]] = {}
-    for r in loaded:
-        engine = _declared_engine(r.doc)
-        if engine is not None:
-            declared.setdefault(engine, []).append(r.engine)
-            if engine != r.engine:
-                out.append(f"{r.path}: the report's engine is {engine!r}, compared as {r.engine!r}")
-    for engine, names in declared.items():
-        if len(names) > 1:
-            out.append(
-                f"the reports of {', '.join(names)} were all run on engine {engine!r}: their "
-                "gaps are not an engine's"
-            )
-    return out

@@ -448,45 +448,13 @@ def test_cli_refuses_its_own_options_after_the_separator(tmp_path, capsys):
 
 
 def test_soak_command_passes_the_options_through(tmp_path):
-    args = cli._parser().parse_args(
-        [
-            "--robot",
-            "go2",
-            "--policy",
-            "p.onnx",
-            "--hours",
-            "0.5",
-            "--seed",
-            "3",
-            "--sessions",
-            "2",
-            "--out",
-            str(tmp_path),
-            "--no-film",
-        ]
-    )
+    options = "--robot go2 --policy p.onnx --hours 0.5 --seed 3 --sessions 2".split()
+    args = cli._parser().parse_args([*options, "--out", str(tmp_path), "--no-film"])
     cmd = cli.soak_command(args, "pybullet", ["--fault-interval", "30"])
     assert cmd == [
-        sys.executable,
-        "-m",
-        "eval.cli",
-        "--robot",
-        "go2",
-        "--policy",
-        "p.onnx",
-        "--hours",
-        "0.5",
-        "--seed",
-        "3",
-        "--sessions",
-        "2",
-        "--engine",
-        "pybullet",
-        "--out",
-        str(tmp_path / "pybullet"),
-        "--no-film",
-        "--fault-interval",
-        "30",
+        *(sys.executable, "-m", "eval.cli", *options),
+        *("--engine", "pybullet", "--out", str(tmp_path / "pybullet")),
+        *("--no-film", "--fault-interval", "30"),
     ]
 
 

@@ -120,3 +120,24 @@ def test_bounding_boxes_would_drop_the_pair_as_touching_at_home(wedges, tmp_path
     assert mujoco.mjtGeom.mjGEOM_BOX in set(model.geom_type)
     pairs = {frozenset(p) for p in robot.config.safety.collision_pairs}
     assert frozenset(("a", "b")) not in pairs
+
+
+@pytest.mark.parametrize("engine", ["mujoco", "pybullet"])
+def test_hull_links_collide_as_hulls_on_either_engine(wedges, tmp_path, engine):
+    """An imported robot's hull meshes are its contact geometry on both plants: turned one way,
+    wedge b runs into wedge a and stops short of its command; turned the other way it reaches
+    it (pybullet builds each hull from the compiled mesh)."""
+    pytest.importorskip("pybullet")
+    from deploy.backends.sim.engines import make_plant
+
+    robot = _import(wedges, tmp_path / "hull")
+    reached = {}
+    for turn in (0.2, -0.2):
+        plant = make_plant(engine, robot, mode="position")
+        command = np.array([[0.0, turn]])
+        for _ in range(int(round(1.0 / robot.control_period))):
+            plant.write(command)
+            plant.advance()
+        reached[turn] = plant.true_position()[0, 1]
+    assert reached[-0.2] < -0.15  # free (the servo sags under gravity)
+    assert reached[0.2] < 0.1  # blocked by the other wedge (touching at about 0.05 rad)

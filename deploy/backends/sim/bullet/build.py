@@ -17,15 +17,18 @@ friction and added payloads reach both engines alike. What pybullet cannot hold 
 - Joint dry friction (``dof_frictionloss``) is pybullet's zero-velocity motor with that maximum
   torque; damping and the drives are the plant's explicit torques (:mod:`.world`).
 
-Geoms: planes, spheres, capsules, cylinders and boxes (the shapes robot-import writes). Each body
-holds at most one hinge or slide joint (or none: a fixed link).
+Geoms: planes, spheres, capsules, cylinders, boxes and meshes (as their convex hulls, like
+MuJoCo's; robot-import writes hulls). Each body holds at most one hinge or slide joint (or none:
+a fixed link).
 
 Errors: :class:`UnsupportedModelError` names the body, joint or geom pybullet cannot build.
 """
 
 from __future__ import annotations
 
+import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -98,9 +101,11 @@ class BulletWorld:
     rotor_index: list[int] = field(default_factory=list)
 
 
-def _shape(m: mujoco.MjModel, g: int, anchor: np.ndarray) -> dict | None:
+def _shape(m: mujoco.MjModel, g: int, anchor: np.ndarray, meshdir: Path) -> dict | None:
     """pybullet's collision-shape arguments of geom ``g`` in its body's link frame (the body frame
-    moved to the joint ``anchor``), or None for a visual geom."""
+    moved to the joint ``anchor``), or None for a visual geom. A mesh is written to ``meshdir``
+    as an OBJ of the compiled mesh's vertices and faces (MuJoCo collides its convex hull, and so
+    does pybullet with a mesh file)."""
     if m.geom_contype[g] == 0 and m.geom_conaffinity[g] == 0:
         return None
     t, size = int(m.geom_type[g]), m.geom_size[g]
@@ -116,13 +121,29 @@ def _shape(m: mujoco.MjModel, g: int, anchor: np.ndarray) -> dict | None:
         args = dict(shapeType=pb.GEOM_BOX, halfExtents=size.tolist())
     elif t == _GEOM.mjGEOM_PLANE:
         args = dict(shapeType=pb.GEOM_PLANE, planeNormal=[0.0, 0.0, 1.0])
+    elif t == _GEOM.mjGEOM_MESH:
+        args = dict(shapeType=pb.GEOM_MESH, fileName=_mesh_obj(m, int(m.geom_dataid[g]), meshdir))
     else:
         raise UnsupportedModelError(
             f"geom '{m.geom(g).name or g}' of body '{m.body(m.geom_bodyid[g]).name}': type "
             f"{_GEOM(t).name} has no pybullet shape here (expected plane, sphere, capsule, "
-            "cylinder or box)"
+            "cylinder, box or mesh)"
         )
     return dict(args, pos=pos, quat=quat)
+
+
+def _mesh_obj(m: mujoco.MjModel, mesh: int, meshdir: Path) -> str:
+    """Mesh ``mesh`` of the compiled model (its frame: MuJoCo's recentred vertices) as an OBJ file
+    in ``meshdir``; its path."""
+    path = meshdir / f"mesh{mesh}.obj"
+    if not path.exists():
+        start, count = int(m.mesh_vertadr[mesh]), int(m.mesh_vertnum[mesh])
+        faces = m.mesh_face[m.mesh_faceadr[mesh] : m.mesh_faceadr[mesh] + m.mesh_facenum[mesh]]
+        verts = m.mesh_vert[start : start + count].astype(np.float64)
+        lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in verts.tolist()]
+        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
+        path.write_text("\n".join(lines) + "\n")
+    return str(path)
 
 
 def _collision_shape(client: int, shapes: list[dict]) -> int:
@@ -141,6 +162,7 @@ def _collision_shape(client: int, shapes: list[dict]) -> int:
         radii=[s.get("radius", 0.0) for s in shapes],
         halfExtents=[s.get("halfExtents", [0.0, 0.0, 0.0]) for s in shapes],
         lengths=[s.get("height", 0.0) for s in shapes],
+        fileNames=[s.get("fileName", "") for s in shapes],
         planeNormals=[s.get("planeNormal", [0.0, 0.0, 1.0]) for s in shapes],
         collisionFramePositions=[s["pos"] for s in shapes],
         collisionFrameOrientations=[s["quat"] for s in shapes],
@@ -238,7 +260,8 @@ def build_world(m: mujoco.MjModel, root: int, n_joints: int, floating: bool) -> 
     """
     client = pb.connect(pb.DIRECT)
     try:
-        return _build(client, m, root, n_joints, floating)
+        with tempfile.TemporaryDirectory(prefix="bullet-meshes-") as meshdir:  # read at creation
+            return _build(client, m, root, n_joints, floating, Path(meshdir))
     except Exception:
         pb.disconnect(client)
         raise
@@ -254,7 +277,7 @@ def _anchor(m: mujoco.MjModel, b: int) -> np.ndarray:
     return m.jnt_pos[j].copy()
 
 
-def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: bool):
+def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: bool, meshdir: Path):
     pb.setGravity(*m.opt.gravity.tolist(), physicsClientId=client)
     pb.setPhysicsEngineParameter(
         fixedTimeStep=float(m.opt.timestep), numSubSteps=0, physicsClientId=client
@@ -263,7 +286,9 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
     robot = [b for b in range(m.nbody) if b == root or _descends(m, b, root)]
     links = robot[1:]
     anchors = {b: _anchor(m, b) for b in robot}
-    shapes = {b: [s for g in _body_geoms(m, b) if (s := _shape(m, g, anchors[b]))] for b in robot}
+    shapes = {
+        b: [s for g in _body_geoms(m, b) if (s := _shape(m, g, anchors[b], meshdir))] for b in robot
+    }
 
     kinds, axes = {}, {}  # per body of ``links``
     for b in links:
@@ -404,7 +429,7 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
                         0,
                         physicsClientId=client,
                     )
-    _build_world_geoms(client, m, body, robot, link_of_body)
+    _build_world_geoms(client, m, body, robot, link_of_body, meshdir)
     rotor_index = [-1] * len(joint_index)
     for b, r in rotors.items():
         link, drives = rotor_link[b], int(link_of_body[b])
@@ -506,7 +531,7 @@ def _body_geoms(m: mujoco.MjModel, b: int) -> range:
     )
 
 
-def _build_world_geoms(client, m, body, robot, link_of_body) -> None:
+def _build_world_geoms(client, m, body, robot, link_of_body, meshdir: Path) -> None:
     """The geoms outside the robot (the floor, a table) as static bodies, each filtered against
     the robot's links by MuJoCo's rule, with the floor friction MuJoCo's rule gives."""
     mu = floor_friction(m)
@@ -517,7 +542,7 @@ def _build_world_geoms(client, m, body, robot, link_of_body) -> None:
         if b != 0 and m.body_jntnum[b]:
             continue  # another moving body: not part of this plant
         for g in _body_geoms(m, b):
-            shape = _shape(m, g, np.zeros(3))
+            shape = _shape(m, g, np.zeros(3), meshdir)
             if shape is None:
                 continue
             pos, quat = shape.pop("pos"), shape.pop("quat")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 import numba
+import numpy as np
 
 
 @numba.njit(cache=True, nogil=True)
@@ -103,3 +104,113 @@ def rotation_rows(rotvec, out) -> None:
         else:
             half, w = math.sin(angle / 2) / angle, math.cos(angle / 2)
         out[e, 0], out[e, 1], out[e, 2], out[e, 3] = w, r0 * half, r1 * half, r2 * half
+
+
+@numba.njit(cache=True, nogil=True)
+def imu_rows(
+    envs,
+    stamp,
+    gyro,
+    acc,
+    imu_to_base,
+    filter_time,
+    orientation,
+    bias,
+    angular_velocity,
+    velocity,
+    velocity_variance,
+    gravity,
+    accel_variance: float,
+    k_p: float,
+    k_i: float,
+    rot_out,
+) -> None:
+    """The base estimator's IMU step (:meth:`deploy.estimation.base.BaseStateEstimator.update`)
+    for the envs ``envs`` (int64 (k,)) with a fresh reading: the readings turned into the base
+    frame, Mahony's update, the velocity filter's prediction; the state arrays (env axis first)
+    updated in place and each env's new rotation matrix in ``rot_out`` (k, 3, 3)."""
+    q_in = np.empty((1, 4))
+    b_row = np.empty((1, 3))
+    g_row = np.empty((1, 3))
+    a_row = np.empty((1, 3))
+    dt_row = np.empty(1)
+    q_out = np.empty((1, 4))
+    rot = np.empty((1, 3, 3))
+    for k in range(envs.shape[0]):
+        e = envs[k]
+        dt = stamp[e] - filter_time[e]
+        for i in range(3):
+            g_row[0, i] = (
+                gyro[e, 0] * imu_to_base[i, 0]
+                + gyro[e, 1] * imu_to_base[i, 1]
+                + gyro[e, 2] * imu_to_base[i, 2]
+            )
+            a_row[0, i] = (
+                acc[e, 0] * imu_to_base[i, 0]
+                + acc[e, 1] * imu_to_base[i, 1]
+                + acc[e, 2] * imu_to_base[i, 2]
+            )
+            b_row[0, i] = bias[e, i]
+        for i in range(4):
+            q_in[0, i] = orientation[e, i]
+        dt_row[0] = dt
+        mahony_rows(q_in, b_row, g_row, a_row, dt_row, k_p, k_i, q_out)
+        quat_to_mat_rows(q_out, rot)
+        for i in range(4):
+            orientation[e, i] = q_out[0, i]
+        for i in range(3):
+            bias[e, i] = b_row[0, i]
+            angular_velocity[e, i] = g_row[0, i] - b_row[0, i]
+        for i in range(3):
+            world = (
+                rot[0, i, 0] * a_row[0, 0] + rot[0, i, 1] * a_row[0, 1] + rot[0, i, 2] * a_row[0, 2]
+            )
+            velocity[e, i] += dt * (world + gravity[i])
+            for j in range(3):
+                rot_out[k, i, j] = rot[0, i, j]
+        velocity_variance[e] += dt * dt * accel_variance
+        filter_time[e] = stamp[e]
+
+
+@numba.njit(cache=True, nogil=True)
+def predict_rows(
+    now,
+    filter_time,
+    angular_velocity,
+    orientation,
+    velocity,
+    time_since_fresh,
+    out_orientation,
+    out_gravity,
+    out_velocity,
+) -> None:
+    """The base estimate predicted from each env's filter time to ``now`` (k,) s: the orientation
+    turned by its angular velocity (held where the filter is not behind), projected gravity and
+    the body-frame linear velocity (the velocity held)."""
+    turn = np.empty((1, 4))
+    omega_dt = np.empty((1, 3))
+    q_row = np.empty((1, 4))
+    turned = np.empty((1, 4))
+    rot = np.empty((1, 3, 3))
+    for e in range(orientation.shape[0]):
+        age = now[e] - filter_time[e]
+        time_since_fresh[e] = age
+        for i in range(4):
+            q_row[0, i] = orientation[e, i]
+        if age > 0:
+            for i in range(3):
+                omega_dt[0, i] = angular_velocity[e, i] * age
+            rotation_rows(omega_dt, turn)
+            quat_mul_rows(q_row, turn, turned)
+            for i in range(4):
+                q_row[0, i] = turned[0, i]
+        quat_to_mat_rows(q_row, rot)
+        for i in range(4):
+            out_orientation[e, i] = q_row[0, i]
+        for i in range(3):
+            out_gravity[e, i] = -rot[0, 2, i]
+            out_velocity[e, i] = (
+                rot[0, 0, i] * velocity[e, 0]
+                + rot[0, 1, i] * velocity[e, 1]
+                + rot[0, 2, i] * velocity[e, 2]
+            )

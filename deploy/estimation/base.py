@@ -31,14 +31,8 @@ import numpy as np
 import pinocchio as pin
 
 from deploy.backends.base import SensorFrame
-from deploy.estimation.attitude import (
-    align_up,
-    mahony_update,
-    quat_multiply,
-    quaternion_to_matrix,
-    rotation_quaternions,
-    tilt_of,
-)
+from deploy.estimation.attitude import align_up, quaternion_to_matrix, tilt_of
+from deploy.estimation.attitude_kernel import imu_rows, predict_rows
 from deploy.stateful import check, env_index, put, take
 from robots import Robot
 
@@ -151,19 +145,7 @@ class BaseStateEstimator:
         self._q = robot.pin_configuration(robot.home)
         self._v = np.zeros(robot.pin_model.nv)
         self.orientation = np.tile([1.0, 0.0, 0.0, 0.0], (envs, 1))
-        # the attitude kernels compiled (or loaded from cache) before the first tick
-        quat_multiply(self.orientation, self.orientation)
-        quaternion_to_matrix(self.orientation)
-        rotation_quaternions(np.zeros((envs, 3)))
-        mahony_update(
-            self.orientation,
-            np.zeros((envs, 3)),
-            np.ones((envs, 3)),
-            np.ones((envs, 3)),
-            np.ones(envs),
-            k_p,
-            k_i,
-        )
+        self._rot = np.zeros((envs, 3, 3))  # the IMU step's rotation matrices
         self.angular_velocity = np.zeros((envs, 3))
         self.velocity = np.zeros((envs, 3))
         self.velocity_variance = np.full(envs, INITIAL_VELOCITY_SIGMA**2)
@@ -173,6 +155,42 @@ class BaseStateEstimator:
         self.stale_readings = np.zeros(envs, dtype=np.int64)
         self.velocity_updates = np.zeros(envs, dtype=np.int64)
         self._initialized = np.zeros(envs, dtype=bool)
+        self._warm_kernels()
+
+    def _warm_kernels(self) -> None:
+        """Compile (or load from numba's cache) the attitude kernels before the first tick, on
+        scratch copies of the state (nothing of the estimator changes)."""
+        n = self.envs
+        fields = [a.copy() for a in (self.filter_time, self.orientation, self._bias)]
+        imu_rows(
+            np.zeros(0, dtype=np.int64),
+            np.zeros(n),
+            np.zeros((n, 3)),
+            np.zeros((n, 3)),
+            self._imu_to_base,
+            *fields,
+            np.zeros((n, 3)),
+            np.zeros((n, 3)),
+            np.zeros(n),
+            self.gravity,
+            self.accel_variance,
+            self.k_p,
+            self.k_i,
+            self._rot.copy(),
+        )
+        out = BaseState.zeros(n)
+        predict_rows(
+            np.zeros(n),
+            np.zeros(n),
+            np.zeros((n, 3)),
+            np.tile([1.0, 0, 0, 0], (n, 1)),
+            np.zeros((n, 3)),
+            np.zeros(n),
+            out.orientation,
+            out.projected_gravity,
+            out.linear_velocity,
+        )
+        quaternion_to_matrix(out.orientation)  # the leg update's and the fall check's
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self, t, acceleration: np.ndarray | None = None, envs=None) -> None:
@@ -282,31 +300,42 @@ class BaseStateEstimator:
         self.missing_readings += ~finite
         self.stale_readings += finite & ~fresh
         if fresh.any():
-            e = np.nonzero(fresh)[0]
-            dt = stamp[e] - self.filter_time[e]
-            gyro_b, acc_b = gyro[e] @ self._imu_to_base.T, acc[e] @ self._imu_to_base.T
-            bias = self._bias[e]
-            quat = mahony_update(self.orientation[e], bias, gyro_b, acc_b, dt, self.k_p, self.k_i)
-            self._bias[e] = bias
-            self.orientation[e] = quat
-            self.angular_velocity[e] = gyro_b - bias
-            rot = quaternion_to_matrix(quat)
-            self.velocity[e] += dt[:, None] * (np.einsum("eij,ej->ei", rot, acc_b) + self.gravity)
-            self.velocity_variance[e] += dt * dt * self.accel_variance
-            self.filter_time[e] = stamp[e]
+            e = np.flatnonzero(fresh)
+            rot = self._rot[: len(e)]
+            imu_rows(
+                e,
+                np.ascontiguousarray(stamp),
+                np.ascontiguousarray(gyro),
+                np.ascontiguousarray(acc),
+                self._imu_to_base,
+                self.filter_time,
+                self.orientation,
+                self._bias,
+                self.angular_velocity,
+                self.velocity,
+                self.velocity_variance,
+                self.gravity,
+                self.accel_variance,
+                self.k_p,
+                self.k_i,
+                rot,
+            )
             for k, env in enumerate(e):
                 self._leg_update(env, frame, q[env], dq[env], rot[k])
         # output: predicted from filter_time to now (orientation turned by omega; v held)
-        age = now - self.filter_time
-        self.time_since_fresh[:] = age
-        turn = rotation_quaternions(self.angular_velocity * np.maximum(age, 0.0)[:, None])
-        quat = np.where((age > 0)[:, None], quat_multiply(self.orientation, turn), self.orientation)
-        rot = quaternion_to_matrix(quat)
-        out.orientation[:] = quat
-        out.projected_gravity[:] = -rot[:, 2]
+        predict_rows(
+            np.ascontiguousarray(now),
+            self.filter_time,
+            self.angular_velocity,
+            self.orientation,
+            self.velocity,
+            self.time_since_fresh,
+            out.orientation,
+            out.projected_gravity,
+            out.linear_velocity,
+        )
         out.angular_velocity[:] = self.angular_velocity
         out.linear_velocity_world[:] = self.velocity
-        out.linear_velocity[:] = np.einsum("eji,ej->ei", rot, self.velocity)
         return out
 
     def _leg_update(self, e: int, frame: SensorFrame, q, dq, rot: np.ndarray) -> None:

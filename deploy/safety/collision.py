@@ -64,5 +64,17 @@ def collision_query(
             distances.fill(-np.inf)
         else:
             pin.computeDistances(model, data, geom_model, geom_data, q)
-            distances[:] = [r.min_distance for r in geom_data.distanceResults]
+            distances[:] = [r.min_distance for r in _distance_results(geom_data)]
     return hit
+
+
+def _distance_results(geom_data: pin.GeometryData) -> list:
+    """``geom_data.distanceResults`` as a kept list of its proxies (made again if its length
+    changed). Iterating the vector builds a proxy per pair on every pass, most of a walking
+    robot's query; kept proxies read the vector's current entries. The list lives on the
+    ``GeometryData`` itself, and goes with it."""
+    kept = getattr(geom_data, "_kept_distance_results", None)
+    if kept is None or len(kept) != len(geom_data.distanceResults):
+        kept = list(geom_data.distanceResults)
+        geom_data._kept_distance_results = kept
+    return kept

@@ -285,7 +285,8 @@ class BulletBackend(SimBackend):
         ``(M + A) ddq = tau - h + J^T f``: ``tau' = tau - A (M + A)^-1 (tau - h + J^T f)``, with
         ``f`` the applied external forces (a cable, a push). ``M + A``, ``h`` (gravity, Coriolis)
         and ``J^T f`` come from MuJoCo on the env's mirror at ``q``, ``dq`` (pybullet's own
-        inverse dynamics ignore a rotated base's gravity direction). Exact without constraints;
+        ``calculateInverseDynamics`` disagreed with MuJoCo's gravity torques on the SO-101 while
+        its mass matrix agreed; not used). Exact without constraints;
         a constraint force (a limit, a self-collision) accelerates the links without the
         rotors."""
         d.qpos[:] = q

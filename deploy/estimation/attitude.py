@@ -4,37 +4,20 @@ Mahony's explicit complementary filter with gyroscope bias estimation (R. Mahony
 Pflimlin, "Nonlinear complementary filters on the special orthogonal group", IEEE TAC 53(5), 2008),
 as the maintained ``ahrs`` package implements it (``ahrs.filters.Mahony.updateIMU``), run over k
 filters at once (:func:`mahony_update`). Angles in rad, angular velocities in rad/s, quaternions
-base-to-world, arrays batch-first. Rows of quaternions, (k, 4), go through the compiled
-:mod:`deploy.estimation.attitude_kernel` (the same numbers).
+base-to-world, arrays batch-first. These numpy functions are the references of the compiled
+rows of :mod:`deploy.estimation.attitude_kernel` that the base estimator runs (the same numbers);
+:func:`quaternion_to_matrix` itself goes through its kernel for rows and single quaternions.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from deploy.estimation.attitude_kernel import (
-    mahony_rows,
-    quat_mul_rows,
-    quat_to_mat_rows,
-    rotation_rows,
-)
-
-
-def _rows(q) -> np.ndarray | None:
-    """``q`` as a C-contiguous float64 (k, 4) array for the kernels, or None (other shapes)."""
-    q = np.asarray(q)
-    if q.ndim != 2 or q.shape[1] != 4:
-        return None
-    return np.ascontiguousarray(q, dtype=np.float64)
+from deploy.estimation.attitude_kernel import quat_to_mat_rows
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of quaternions ``[w, x, y, z]`` (..., 4)."""
-    ra, rb = _rows(a), _rows(b)
-    if ra is not None and rb is not None and ra.shape == rb.shape:
-        out = np.empty(ra.shape)
-        quat_mul_rows(ra, rb, out)  # the same expressions, compiled
-        return out
     aw, ax, ay, az = np.moveaxis(a, -1, 0)
     bw, bx, by, bz = np.moveaxis(b, -1, 0)
     return np.stack(
@@ -69,37 +52,6 @@ def mahony_update(
         (k, 4) the new unit quaternions. A zero gyro reading leaves its quaternion and bias
         unchanged and a zero acceleration skips the correction, as in ``ahrs``.
     """
-    if (
-        isinstance(bias, np.ndarray)
-        and bias.dtype == np.float64
-        and bias.flags.c_contiguous
-        and bias.ndim == 2
-    ):  # the same expressions, compiled (bias in place)
-        out = np.empty((len(bias), 4))
-        mahony_rows(
-            np.ascontiguousarray(quaternion, dtype=np.float64),
-            bias,
-            np.ascontiguousarray(gyro, dtype=np.float64),
-            np.ascontiguousarray(acceleration, dtype=np.float64),
-            np.ascontiguousarray(dt, dtype=np.float64),
-            float(k_p),
-            float(k_i),
-            out,
-        )
-        return out
-    return mahony_update_reference(quaternion, bias, gyro, acceleration, dt, k_p, k_i)
-
-
-def mahony_update_reference(
-    quaternion: np.ndarray,
-    bias: np.ndarray,
-    gyro: np.ndarray,
-    acceleration: np.ndarray,
-    dt: np.ndarray,
-    k_p: float,
-    k_i: float,
-) -> np.ndarray:
-    """:func:`mahony_update` in numpy (the reference of its kernel; same arguments)."""
     q = quaternion / np.linalg.norm(quaternion, axis=1, keepdims=True)
     moving = np.linalg.norm(gyro, axis=1) != 0
     a_norm = np.linalg.norm(acceleration, axis=1)
@@ -118,15 +70,6 @@ def mahony_update_reference(
 def rotation_quaternions(rotvec: np.ndarray) -> np.ndarray:
     """Quaternions ``[w, x, y, z]`` (k, 4) of rotation vectors (k, 3) rad (below 1e-12 rad the
     first-order ``[1, rotvec / 2]``)."""
-    if isinstance(rotvec, np.ndarray) and rotvec.ndim == 2 and rotvec.shape[1] == 3:
-        out = np.empty((rotvec.shape[0], 4))
-        rotation_rows(np.ascontiguousarray(rotvec, dtype=np.float64), out)  # compiled
-        return out
-    return rotation_quaternions_reference(rotvec)
-
-
-def rotation_quaternions_reference(rotvec: np.ndarray) -> np.ndarray:
-    """:func:`rotation_quaternions` in numpy (the reference of its kernel)."""
     angle = np.linalg.norm(rotvec, axis=1)
     small = angle < 1e-12
     half = np.where(small, 0.5, np.sin(angle / 2) / np.where(small, 1.0, angle))
@@ -136,15 +79,12 @@ def rotation_quaternions_reference(rotvec: np.ndarray) -> np.ndarray:
 
 def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) of unit quaternions ``[w, x, y, z]`` (..., 4)."""
-    rows = _rows(q)
-    if rows is not None:
+    q = np.asarray(q, dtype=np.float64)
+    if q.ndim in (1, 2):  # a row of rows, or one quaternion: the same expressions, compiled
+        rows = np.ascontiguousarray(q.reshape(-1, 4))
         out = np.empty((rows.shape[0], 3, 3))
-        quat_to_mat_rows(rows, out)  # the same expressions, compiled
-        return out
-    if np.ndim(q) == 1 and np.shape(q)[0] == 4:  # one quaternion: its row
-        out = np.empty((1, 3, 3))
-        quat_to_mat_rows(np.ascontiguousarray(q, dtype=np.float64).reshape(1, 4), out)
-        return out[0]
+        quat_to_mat_rows(rows, out)
+        return out if q.ndim == 2 else out[0]
     w, x, y, z = np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)
     return np.stack(
         [

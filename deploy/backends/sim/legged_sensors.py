@@ -30,7 +30,12 @@ import numpy as np
 from robots import Robot
 
 
-def _sensor_adr(model: mujoco.MjModel, kind, site: int) -> int:
+def sensor_address(model: mujoco.MjModel, kind, site: int) -> int:
+    """``sensordata`` address of the ``kind`` (``mjtSensor``) sensor at site ``site``.
+
+    Raises:
+        ValueError: the model has no such sensor there.
+    """
     for k in range(model.nsensor):
         if (
             model.sensor_type[k] == kind
@@ -98,9 +103,9 @@ class BaseSensorModel:
         self.accel_bias = np.zeros((envs, 3))
 
         m = backend.models[0]
-        gyro = _sensor_adr(m, mujoco.mjtSensor.mjSENS_GYRO, robot.imu_site_id)
-        acc = _sensor_adr(m, mujoco.mjtSensor.mjSENS_ACCELEROMETER, robot.imu_site_id)
-        touch = [_sensor_adr(m, mujoco.mjtSensor.mjSENS_TOUCH, s) for s in robot.foot_site_ids]
+        gyro = sensor_address(m, mujoco.mjtSensor.mjSENS_GYRO, robot.imu_site_id)
+        acc = sensor_address(m, mujoco.mjtSensor.mjSENS_ACCELEROMETER, robot.imu_site_id)
+        touch = [sensor_address(m, mujoco.mjtSensor.mjSENS_TOUCH, s) for s in robot.foot_site_ids]
         self._gyro, self._acc, self._touch = slice(gyro, gyro + 3), slice(acc, acc + 3), touch
         size = backend.max_latency_ticks + 1
         self._buf_imu = np.full((size, envs, 6), np.nan)

@@ -41,6 +41,7 @@ from deploy.backends.sim.bullet.build import (
     xyzw,
 )
 from deploy.backends.sim.bullet.drive_law import DriveLaw
+from deploy.backends.sim.legged_sensors import sensor_address
 from deploy.backends.sim.plant import SimBackend, SimulationDivergedError
 from robots import Robot
 
@@ -62,21 +63,6 @@ def _root_body(m: mujoco.MjModel, robot: Robot) -> int:
     while m.body_parentid[b] != 0:
         b = int(m.body_parentid[b])
     return b
-
-
-def _touch_addresses(m: mujoco.MjModel, sites: Sequence[int]) -> list[int]:
-    """``sensordata`` addresses of the touch sensors at ``sites``."""
-    out = []
-    for s in sites:
-        k = next(
-            k
-            for k in range(m.nsensor)
-            if m.sensor_type[k] == mujoco.mjtSensor.mjSENS_TOUCH
-            and m.sensor_objtype[k] == mujoco.mjtObj.mjOBJ_SITE
-            and m.sensor_objid[k] == s
-        )
-        out.append(int(m.sensor_adr[k]))
-    return out
 
 
 class BulletBackend(SimBackend):
@@ -104,13 +90,15 @@ class BulletBackend(SimBackend):
         self._forces: list[dict[int, np.ndarray]] = [{} for _ in range(max(envs, 1))]
         super().__init__(robot, mode, envs, seed, models, max_latency_ticks)
         m = self.models[0]
-        self._touch = _touch_addresses(m, robot.foot_site_ids) if robot.floating_base else []
+        touch = mujoco.mjtSensor.mjSENS_TOUCH
+        self._touch = [sensor_address(m, touch, s) for s in robot.foot_site_ids]
         self._foot_links = [
             int(self._worlds[0].link_of_body[m.site_bodyid[s]]) for s in robot.foot_site_ids
         ]
         self._ctrl = np.zeros(self._nu)
         self._dq_before = np.zeros(self.n_joints)
         self._base_before = np.zeros(6)
+        self._base = np.zeros(13)  # a base state read from pybullet (_base_state)
         self._bias = np.zeros(self.models[0].nv)
         self._force = np.zeros(self.models[0].nv)
         self._accel = np.zeros((1, self.models[0].nv))
@@ -127,7 +115,7 @@ class BulletBackend(SimBackend):
         self._worlds[e] = build_world(m, root, self.n_joints, self.robot.floating_base)
         self._laws[e] = DriveLaw(m, self._jnt_offset, self._qvel_offset, self.n_joints)
         self._friction[e] = None  # set before the next physics step
-        self._forces[e] = {}
+        self._sync_forces(e)
 
     def close(self) -> None:
         """Disconnect every env's pybullet client (the backend cannot step afterwards)."""
@@ -200,7 +188,7 @@ class BulletBackend(SimBackend):
         super().reset(q, envs)
         which = np.ones(self.envs, dtype=bool) if envs is None else np.asarray(envs, dtype=bool)
         for e in np.flatnonzero(which):
-            self._forces[e] = {}  # as MuJoCo's reset clears xfrc_applied
+            self._sync_forces(e)  # MuJoCo's reset cleared xfrc_applied
             self._push_state(e)
 
     def advance(self) -> None:
@@ -248,7 +236,7 @@ class BulletBackend(SimBackend):
             )
         dt, nstep = float(m.opt.timestep), self.decimation
         act, tau = d.act, d.qfrc_actuator[dofs]
-        state = np.empty(13)
+        state = self._base
         for s in range(nstep):
             states = pb.getJointStates(body, idx, physicsClientId=c)
             q = np.fromiter((x[0] for x in states), float, len(idx))
@@ -333,7 +321,7 @@ class BulletBackend(SimBackend):
         d.qvel[voff:] = [x[1] for x in states]
         d.qacc[voff:] = (d.qvel[voff:] - self._dq_before) / period
         if w.floating:
-            state = np.empty(13)
+            state = self._base
             self._base_state(w, state)
             d.qpos[:7] = state[:7]
             d.qvel[:6] = state[7:]
@@ -344,12 +332,10 @@ class BulletBackend(SimBackend):
                 f"(qpos={np.array2string(d.qpos, precision=3)})"
             )
         d.time += period
-        qacc = d.qacc.copy()
-        mujoco.mj_fwdPosition(m, d)
+        mujoco.mj_fwdPosition(m, d)  # these four leave the qacc set above
         mujoco.mj_sensorPos(m, d)
         mujoco.mj_fwdVelocity(m, d)
         mujoco.mj_sensorVel(m, d)
-        d.qacc[:] = qacc
         mujoco.mj_rnePostConstraint(m, d)  # cacc from this qacc (mj_sensorAcc may skip it)
         mujoco.mj_sensorAcc(m, d)
         for adr, link in zip(self._touch, self._foot_links, strict=True):
@@ -366,25 +352,24 @@ class BulletBackend(SimBackend):
         """As :meth:`SimBackend.set_external_force`: applied at the body's centre of mass at
         every pybullet step until changed."""
         super().set_external_force(env, force, body)
-        m = self.models[env]
-        if body is None and self.robot.floating_base:
-            body = self.robot.base_body
-        bid = m.site_bodyid[self.robot.ee_site_id] if body is None else m.body(body).id
-        link = int(self._worlds[env].link_of_body[bid])
-        f = np.asarray(force, dtype=np.float64).copy()
-        if np.any(f):
-            self._forces[env][link] = f
-        else:
-            self._forces[env].pop(link, None)
+        self._sync_forces(env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
         """As :meth:`SimBackend.load_state_dict`; pybullet's robots take the loaded state."""
         super().load_state_dict(state, env)
         for e in range(self.envs) if env is None else [env]:
             self._push_state(e)
-            for bid in np.flatnonzero(np.any(self.datas[e].xfrc_applied[:, :3], axis=1)):
-                link = int(self._worlds[e].link_of_body[bid])
-                self._forces[e][link] = self.datas[e].xfrc_applied[bid, :3].copy()
+            self._sync_forces(e)
+
+    def _sync_forces(self, e: int) -> None:
+        """Env ``e``'s forces for pybullet (link -> (3,) N, world frame) from its mirror's
+        ``xfrc_applied``, which holds them (set, reset and checkpointed by the MuJoCo plant)."""
+        xfrc = self.datas[e].xfrc_applied
+        link_of_body = self._worlds[e].link_of_body
+        self._forces[e] = {
+            int(link_of_body[b]): xfrc[b, :3].copy()
+            for b in np.flatnonzero(np.any(xfrc[:, :3], axis=1))
+        }
 
     def check_divergence(self, env: int) -> None:
         """Raise :class:`SimulationDivergedError` if env ``env``'s state is not finite."""

@@ -45,6 +45,20 @@ ROTOR_GEAR_RATIO = 30.0
 ROTOR_MASS = 1e-4
 
 
+#: createMultiBody's per-link arguments, in the order of ``_build``'s ``link_args``.
+_LINK_FIELDS = (
+    "linkMasses",
+    "linkCollisionShapeIndices",
+    "linkPositions",
+    "linkOrientations",
+    "linkInertialFramePositions",
+    "linkInertialFrameOrientations",
+    "linkParentIndices",
+    "linkJointTypes",
+    "linkJointAxis",
+)
+
+
 class UnsupportedModelError(Sim2RealError, ValueError):
     """The MuJoCo model holds something the pybullet world cannot represent."""
 
@@ -337,9 +351,22 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
         b = entry.body if isinstance(entry, _Rotor) else entry
         return int(link_of_body[m.body_parentid[b]]) + 1
 
-    def field_of(entry, body_value, rotor_value):
-        return rotor_value(entry) if isinstance(entry, _Rotor) else body_value(entry)
+    def link_args(entry) -> tuple:
+        """createMultiBody's per-link arguments of a body or a rotor, in ``_LINK_FIELDS`` order."""
+        if isinstance(entry, _Rotor):
+            return (
+                ROTOR_MASS, -1, entry.position, entry.orientation, [0.0, 0.0, 0.0],
+                entry.inertial_orientation, parent_of(entry), pb.JOINT_REVOLUTE, entry.axis,
+            )  # fmt: skip
+        position, orientation = placement(entry)
+        return (
+            float(m.body_mass[entry]), _collision_shape(client, shapes[entry]), position,
+            orientation, inertials[entry][0], inertials[entry][1], parent_of(entry),
+            kinds[entry], axes[entry],
+        )  # fmt: skip
 
+    args = [link_args(entry) for entry in order]
+    per_link = {name: [a[k] for a in args] for k, name in enumerate(_LINK_FIELDS)}
     root_pos, root_quat = m.body_pos[root] + anchors[root], m.body_quat[root]
     if floating:  # the free joint's reference pose
         j = int(m.body_jntadr[root])
@@ -357,26 +384,8 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
         baseOrientation=xyzw(np.asarray(root_quat)),
         baseInertialFramePosition=inertials[root][0],
         baseInertialFrameOrientation=inertials[root][1],
-        linkMasses=[
-            field_of(e, lambda b: float(m.body_mass[b]), lambda r: ROTOR_MASS) for e in order
-        ],
-        linkCollisionShapeIndices=[
-            field_of(e, lambda b: _collision_shape(client, shapes[b]), lambda r: -1) for e in order
-        ],
         linkVisualShapeIndices=[-1] * len(order),
-        linkPositions=[field_of(e, lambda b: placement(b)[0], lambda r: r.position) for e in order],
-        linkOrientations=[
-            field_of(e, lambda b: placement(b)[1], lambda r: r.orientation) for e in order
-        ],
-        linkInertialFramePositions=[
-            field_of(e, lambda b: inertials[b][0], lambda r: [0.0, 0.0, 0.0]) for e in order
-        ],
-        linkInertialFrameOrientations=[
-            field_of(e, lambda b: inertials[b][1], lambda r: r.inertial_orientation) for e in order
-        ],
-        linkParentIndices=[parent_of(e) for e in order],
-        linkJointTypes=[field_of(e, kinds.get, lambda r: pb.JOINT_REVOLUTE) for e in order],
-        linkJointAxis=[field_of(e, axes.get, lambda r: r.axis) for e in order],
+        **per_link,
         flags=pb.URDF_USE_SELF_COLLISION if self_collision else 0,
         physicsClientId=client,
     )
@@ -524,11 +533,8 @@ def _descends(m: mujoco.MjModel, b: int, root: int) -> bool:
 
 
 def _body_geoms(m: mujoco.MjModel, b: int) -> range:
-    return (
-        range(m.body_geomadr[b], m.body_geomadr[b] + m.body_geomnum[b])
-        if m.body_geomnum[b]
-        else range(0)
-    )
+    """Body ``b``'s geom ids (empty for none: its ``geomadr`` is then -1)."""
+    return range(m.body_geomadr[b], m.body_geomadr[b] + m.body_geomnum[b])
 
 
 def _build_world_geoms(client, m, body, robot, link_of_body, meshdir: Path) -> None:

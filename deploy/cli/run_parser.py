@@ -9,6 +9,8 @@ backend after parsing. What the options do, and the exit codes: :mod:`deploy.cli
 from __future__ import annotations
 
 import argparse
+import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 from deploy.backends.registry import add_backend_options
@@ -134,3 +136,13 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         help="MuJoCo's interactive passive viewer (needs a display); lockstep, or --realtime",
     )
     return p
+
+
+def split_passthrough(argv: Sequence[str] | None) -> tuple[list[str], list[str]]:
+    """``(own, rest)``: the arguments before a ``--`` (this command's) and after it (passed on
+    to the command it runs: deploy-run, soak-test); ``argv`` None: ``sys.argv[1:]``."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if "--" not in argv:
+        return argv, []
+    cut = argv.index("--")
+    return argv[:cut], argv[cut + 1 :]

@@ -27,8 +27,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from deploy.backends.emulator.hil import split_passthrough
 from deploy.backends.unitree.emulator.hil import stop_emulator
+from deploy.cli.run_parser import split_passthrough
 
 #: s to wait for the emulator's ready line (loading the robot and its plant, joining ROS 2).
 START_TIMEOUT = 60.0

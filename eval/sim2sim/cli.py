@@ -30,6 +30,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from deploy.cli.run_parser import split_passthrough
 from eval.sim2sim.compare import Sim2SimError, compare
 from robots.errors import Sim2RealError
 
@@ -83,14 +84,6 @@ def _parser() -> argparse.ArgumentParser:
         help="run nothing: compare the existing OUT/<engine>/report.json",
     )
     return p
-
-
-def _split(argv: list[str]) -> tuple[list[str], list[str]]:
-    """(sim2sim's arguments, soak-test's: those after the first ``--``)."""
-    if "--" not in argv:
-        return argv, []
-    cut = argv.index("--")
-    return argv[:cut], argv[cut + 1 :]
 
 
 def _engines(text: str) -> list[str]:
@@ -193,7 +186,7 @@ def run(args, rest: list[str]) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``sim2sim``; returns the exit code (see the module docstring)."""
     os.environ.setdefault("MPLBACKEND", "Agg")
-    own, rest = _split(sys.argv[1:] if argv is None else list(argv))
+    own, rest = split_passthrough(argv)
     try:
         args = _parser().parse_args(own)
         return run(args, rest)

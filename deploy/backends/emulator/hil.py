@@ -25,20 +25,11 @@ from collections.abc import Sequence
 
 from deploy.backends.emulator.bus import PROTOCOLS
 from deploy.backends.emulator.faults import FAULT_HELP
+from deploy.cli.run_parser import split_passthrough
 
 #: s to wait for the emulator's first line (its pty path): loading the robot and its plant.
 START_TIMEOUT = 60.0
 EXIT_BAD_INPUT = 3
-
-
-def split_passthrough(argv: Sequence[str] | None) -> tuple[list[str], list[str]]:
-    """``(own, rest)``: the arguments before a ``--`` (this command's) and after it (passed on
-    to deploy-run); ``argv`` None: ``sys.argv[1:]``."""
-    argv = sys.argv[1:] if argv is None else list(argv)
-    if "--" not in argv:
-        return argv, []
-    cut = argv.index("--")
-    return argv[:cut], argv[cut + 1 :]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -30,9 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from deploy.backends.emulator.hil import split_passthrough
 from deploy.backends.unitree.emulator.faults import FAULT_HELP
 from deploy.backends.unitree.emulator.truth import walk_truth
+from deploy.cli.run_parser import split_passthrough
 
 #: s to wait for the emulator's first line: loading the robot, its plant, joining DDS.
 START_TIMEOUT = 60.0

@@ -6,7 +6,7 @@ model", mujoco.readthedocs.io, Computation chapter)::
 
     u   = act_k (integrator dynamics) or clip(ctrl_k, ctrlrange_k)
     f_k = gain_k u + bias0_k + bias1_k (g q_j) + bias2_k (g dq_j)    (clipped to forcerange_k)
-    tau_j = clip(sum_k g f_k, actfrcrange_j) - damping_j dq_j
+    tau_j = clip(sum_k g f_k, actfrcrange_j)              (and passive: - damping_j dq_j)
     act_k <- clip(act_k + dt ctrl_k, actrange_k)                      (after the force)
 
 which covers the drives of :meth:`robots.Robot.mjspec`: position servos (``gain kp``, ``bias
@@ -106,6 +106,9 @@ class DriveLaw:
         if act.size:  # MuJoCo's integrator dynamics, after the force (act_dot = ctrl)
             act += dt * np.clip(ctrl, self.ctrl_lo, self.ctrl_hi)[integ]
             np.clip(act, self.act_lo, self.act_hi, out=act)
-        # the passive torque: the joints' viscous damping (the drives' actuator torque excludes it)
-        self.passive = -m.dof_damping[self.dofs] * dq
         return tau
+
+    def passive(self, dq: np.ndarray) -> np.ndarray:
+        """The joints' viscous damping torque (N m, (n,)) at velocities ``dq`` (rad/s): passive,
+        apart from the drives' actuator torque."""
+        return -self.m.dof_damping[self.dofs] * dq

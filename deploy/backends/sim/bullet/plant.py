@@ -242,7 +242,7 @@ class BulletBackend(SimBackend):
             q = np.fromiter((x[0] for x in states), float, len(idx))
             dq = np.fromiter((x[1] for x in states), float, len(idx))
             tau[:] = law.torque(ctrl, act, q, dq, dt)
-            applied = tau + law.passive
+            applied = tau + law.passive(dq)
             if armature:
                 applied -= friction * np.clip(dq / DRY_FRICTION_SPEED, -1.0, 1.0)
                 applied = self._armature_torque(e, m, d, applied, q, dq)

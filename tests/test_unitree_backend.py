@@ -43,6 +43,8 @@ pytestmark = pytest.mark.wallclock
 
 REPO = Path(__file__).resolve().parents[1]
 _DOMAINS = itertools.count()
+#: s: the go2's gait from standing to its walking speed, left out of the walk's mean speed
+GAIT_START_S = 1.0
 
 
 def _domain() -> int:
@@ -265,8 +267,11 @@ def test_walks_with_one_percent_of_lowstate_lost_and_no_wrong_command(tmp_path, 
         assert np.isfinite(q).all() and (k >= kp - 1e-4).all() and (k <= ramp).all()
         assert (q >= go2.position_lower).all() and (q <= go2.position_upper).all()
     assert np.allclose(commands[close - 1][2], kp)  # the joints' gains, once blended
-    # still walking, as the emulator's plant saw it
-    truth = walk_truth(trace, end, report["locomotion"]["running_s"], np.array([0.5, 0, 0]))
+    # still walking, as the emulator's plant saw it, once the gait has started from the stance
+    # (the first second's acceleration from rest is not the walk; a busy machine's run has fewer
+    # running seconds for it to be averaged with)
+    steady_s = report["locomotion"]["running_s"] - GAIT_START_S
+    truth = walk_truth(trace, end, steady_s, np.array([0.5, 0, 0]))
     assert truth["mean_forward_speed_m_s"] > 0.3, truth
 
 

@@ -12,7 +12,7 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def quat_to_mat_rows(q, out) -> None:
     """``out[e]`` (3, 3) = the rotation matrix of unit quaternion ``q[e]`` (k, 4) float64."""
     for e in range(q.shape[0]):
@@ -28,7 +28,7 @@ def quat_to_mat_rows(q, out) -> None:
         out[e, 2, 2] = 1 - 2 * (x * x + y * y)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def quat_mul_rows(a, b, out) -> None:
     """``out[e]`` (4,) = the Hamilton product ``a[e] b[e]`` of (k, 4) float64 quaternions."""
     for e in range(a.shape[0]):
@@ -40,13 +40,13 @@ def quat_mul_rows(a, b, out) -> None:
         out[e, 3] = aw * bz + ax * by - ay * bx + az * bw
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def _norm(v0: float, v1: float, v2: float, v3: float) -> float:
     """``np.linalg.norm`` of a row of 4 (3 with ``v3 = 0``): numpy's sequential sum of squares."""
     return math.sqrt(v0 * v0 + v1 * v1 + v2 * v2 + v3 * v3)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def mahony_rows(quaternion, bias, gyro, acceleration, dt, k_p: float, k_i: float, out) -> None:
     """:func:`deploy.estimation.attitude.mahony_update` of k filters, row by row, into ``out``
     (k, 4); ``bias`` (k, 3) updated in place. The same expressions in the same order."""
@@ -92,7 +92,7 @@ def mahony_rows(quaternion, bias, gyro, acceleration, dt, k_p: float, k_i: float
         out[e, 0], out[e, 1], out[e, 2], out[e, 3] = n0 / m, n1 / m, n2 / m, n3 / m
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def rotation_rows(rotvec, out) -> None:
     """``out[e]`` (4,) = :func:`deploy.estimation.attitude.rotation_quaternions` of ``rotvec[e]``
     (k, 3) rad (below 1e-12 rad the first-order ``[1, rotvec / 2]``)."""

@@ -29,7 +29,7 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def _check(x, p, b0, b1, good) -> bool:
     envs, n = good.shape
     ok = True
@@ -51,7 +51,7 @@ def _check(x, p, b0, b1, good) -> bool:
     return ok
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def kalman_tick(
     phase: int,
     z: np.ndarray,

@@ -17,8 +17,13 @@ A kernel stops where Python must act (Ruckig, Pinocchio, a policy reset) and ret
 says what; the arithmetic and its order are those of the numpy reference, so both give the same
 numbers bit for bit (``tests/test_compiled_tick.py``; row sums follow numpy's pairwise order).
 Every kernel is compiled with ``cache=True`` and called once when its stage is built, so the first
-tick runs compiled code. numba's cache of a kernel is keyed on its own file: after editing a helper
-of this module, delete ``deploy/kernels/__pycache__`` so the kernels that inline it are recompiled.
+tick runs compiled code. A kernel that allocates nothing is also compiled without numba's
+reference counting (``_nrt=False``): with it, each array a kernel takes from a tuple (the guard's
+``GuardArrays``) or keeps across a branch is counted up and down with atomic calls, which cost
+more than the arithmetic of a small robot's check; such a kernel may not create an array (numba
+refuses it at compile time). numba's cache of a kernel is keyed on its own file: after editing a
+helper of this module, delete ``deploy/kernels/__pycache__`` so the kernels that inline it are
+recompiled.
 """
 
 from __future__ import annotations
@@ -40,7 +45,7 @@ def np_min(a: float, b: float) -> float:
     return a if (a <= b or a != a) else b
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def row_sum(a, e: int) -> float:
     """``a[e].sum()`` of a 2-d float64 array in numpy's order (sequential below 8 entries, then
     eight partial sums: numpy's pairwise summation for rows of at most 128)."""
@@ -91,7 +96,7 @@ def finite(x: float) -> bool:
     return math.isfinite(x)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def any_true(mask) -> bool:
     """``mask.any()`` of a boolean array (any shape) without numpy's reduction machinery."""
     for x in mask.flat:
@@ -100,7 +105,7 @@ def any_true(mask) -> bool:
     return False
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def all_finite(a) -> bool:
     """``np.isfinite(a).all()`` of a float array (any shape) without a temporary."""
     for x in a.flat:

@@ -21,7 +21,7 @@ from deploy.kernels import np_max, pairs_may_touch
 ANY_RUNNING, ANY_DUE, ANY_CHECK = 1, 2, 4
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def goal_screen(
     t: float,
     mode: np.ndarray,
@@ -72,7 +72,7 @@ def goal_screen(
     return bits
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def goal_hits(
     ee: np.ndarray,
     goal: np.ndarray,
@@ -106,7 +106,7 @@ def goal_hits(
     return any_hit
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def violation_screen(
     q: np.ndarray,
     dq: np.ndarray,
@@ -136,7 +136,7 @@ def violation_screen(
     return False
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def collision_screen(
     q: np.ndarray,
     checked_q: np.ndarray,
@@ -167,7 +167,7 @@ def counters_moved(current: np.ndarray, previous: np.ndarray) -> bool:
     return False
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def temperature_bands(
     temperature: np.ndarray,
     derating_start: np.ndarray,
@@ -195,7 +195,7 @@ def temperature_bands(
                 over_ticks[e, j] += 1
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def motion_statistics(
     dq: np.ndarray,
     previous_dq: np.ndarray,

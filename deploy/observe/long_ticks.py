@@ -32,7 +32,7 @@ HEAD = 5
 PREV_WAKE, PREV_LATE, PREV_CPU, END, END_CPU = range(5)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def record(table: np.ndarray, stamps: np.ndarray, period: np.ndarray, tick: int) -> None:
     """Keep the tick if its period is among the longest.
 

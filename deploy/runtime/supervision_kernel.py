@@ -63,7 +63,7 @@ def _stop(e, why, mode, cause, safe_stops, faults, flags) -> bool:
     return True
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def supervise(
     control: int,
     temperature: np.ndarray,
@@ -199,7 +199,7 @@ def supervise(
     return code
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def screen_action(
     control: int,
     action: np.ndarray,

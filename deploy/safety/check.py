@@ -37,7 +37,8 @@ class GuardCheck:
     """Base of a guard check; subclasses set ``name``, ``what`` and ``kernel`` and override
     :meth:`reference` (and :meth:`constants`, :meth:`resolve` where they need them).
 
-    ``kernel`` is a ``numba.njit(cache=True, nogil=True)`` function with the fixed signature
+    ``kernel`` is a ``numba.njit(cache=True, nogil=True, _nrt=False)`` function (no array
+    created; :mod:`deploy.kernels`) with the fixed signature
     ``kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int``: env ``e``'s
     share of one stage. ``out`` the target (envs, n), written in place by clamps; ``q``, ``dq``
     the estimate (envs, n); ``commanded`` velocity mode's integrated command (envs, n; ``q``

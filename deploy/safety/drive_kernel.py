@@ -20,7 +20,7 @@ def _sign(x: float) -> float:
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def velocity_drive_motion(
     setpoint: np.ndarray,
     q: np.ndarray,

@@ -60,7 +60,7 @@ def brake_headroom(scale: float, gravity_share: float, floor: float) -> float:
     return max(min((scale - gravity_share) / (1.0 - gravity_share), 1.0), floor)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def table_bound(
     p: int,
     centre: np.ndarray,
@@ -111,7 +111,7 @@ def table_bound(
     return least - overshoot
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def pair_reach(
     p: int,
     weights: np.ndarray,

@@ -60,7 +60,7 @@ class GuardArrays(NamedTuple):
     own: tuple  # K arrays (rows, n) float64: each check's constants
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def _stage(stage, e, out, q, dq, commanded, has_commanded, g) -> bool:
     """Run ``stage`` of env ``e`` through every check; record ``fired`` and ``needs``; return
     whether a check needs its Python part."""
@@ -77,7 +77,7 @@ def _stage(stage, e, out, q, dq, commanded, has_commanded, g) -> bool:
     return python
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def guard_filter(phase, out, q, dq, commanded, has_commanded, g) -> int:
     """One :meth:`~deploy.safety.guard.SafetyGuard.filter` from ``phase`` on (module docstring).
 

@@ -58,7 +58,7 @@ LEGGED_HARD_LIMIT_TOLERANCE = 0.1
 LEGGED_HARD_LIMIT_DURATION = 1.0
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def soft_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int:
     """:class:`SoftLimit`'s compiled share (signature of :class:`GuardCheck`)."""
     n = out.shape[1]
@@ -101,7 +101,7 @@ class SoftLimit(GuardCheck):
         return None, None
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def hard_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int:
     """:class:`HardLimit`'s compiled share (signature of :class:`GuardCheck`)."""
     n = out.shape[1]

@@ -20,7 +20,7 @@ from deploy.safety.check import EFFORT, FINAL, FIRED, NEEDS_PYTHON, PREDICTED, T
 DT, MARGIN, HAS_PAIRS = 0, 1, 2
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def workspace_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int:
     """:class:`Workspace`'s compiled share; ``own[0]`` the end-effector lever (m/rad)."""
     if stage != PREDICTED:
@@ -59,7 +59,7 @@ class Workspace(GuardCheck):
                 g.reject(k, e, q[e], dq[e], out)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def self_collision_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int:
     """:class:`SelfCollision`'s compiled share (signature of :class:`GuardCheck`)."""
     if stage != PREDICTED or g.scalars[HAS_PAIRS] == 0.0:
@@ -93,7 +93,7 @@ class SelfCollision(GuardCheck):
                 g.reject(k, e, q[e], dq[e], out)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def effort_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int:
     """:class:`Effort`'s compiled share; ``own[0]`` the gravity bound (N m)."""
     n = out.shape[1]

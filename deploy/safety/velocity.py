@@ -46,7 +46,7 @@ def _stopping_speed(d: float, b: float, eight_a: float, vel: float) -> float:
     return np_min(s, vel)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def velocity_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int:
     """:class:`Velocity`'s compiled share (signature of :class:`GuardCheck`)."""
     n = out.shape[1]

@@ -47,13 +47,13 @@ def _speed(d: float, c: np.ndarray, i: int) -> float:
     return d * 0.5
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def _near(w: np.ndarray, c: np.ndarray, i: int) -> bool:
     p = w[POS, i]
     return p > c[SCREEN_HI, i] or p < c[SCREEN_LO, i] or abs(w[VEL, i]) > c[VMAX, i]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def _brake_bound(u: float, b: float, room: float, c: np.ndarray, i: int, dt: float) -> bool:
     """Whether the joint, after one more period of the worst acceleration, could no longer stop
     within ``room`` (``ReferenceSmoother._brake_needed`` for one row and DoF)."""
@@ -84,7 +84,7 @@ def _brake_bound(u: float, b: float, room: float, c: np.ndarray, i: int, dt: flo
     return b > room
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def before_ruckig(
     mode: int,
     target: np.ndarray,
@@ -160,7 +160,7 @@ def before_ruckig(
             counts[STOPPING, i] += 1
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def after_ruckig(
     mode: int, new_calculation: bool, w: np.ndarray, c: np.ndarray, inv_dt: float, near: np.ndarray
 ) -> bool:

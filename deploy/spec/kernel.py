@@ -58,7 +58,7 @@ BRANCHES = frozenset(
 )
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def observation(
     kinds: np.ndarray,
     starts: np.ndarray,

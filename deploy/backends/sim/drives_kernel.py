@@ -10,7 +10,7 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def derating_due(
     winding: np.ndarray, start: np.ndarray, derated: np.ndarray, hot: np.ndarray
 ) -> bool:
@@ -31,7 +31,7 @@ def derating_due(
     return due
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def windup_exceeded(setpoint: np.ndarray, q: np.ndarray, bound: np.ndarray) -> bool:
     """Velocity-mode anti-windup screen: turns ``setpoint`` (envs, n) rad, the drives' integrated
     setpoints, into their lag ``setpoint - q`` (in place) and returns whether any ``|lag|``

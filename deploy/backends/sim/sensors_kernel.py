@@ -13,7 +13,7 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def encoder_sample(
     sample: np.ndarray,
     uniform: np.ndarray,
@@ -46,7 +46,7 @@ def encoder_sample(
             sample[e, j] = s
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def encoder_read(
     tick: int,
     latency_ticks: np.ndarray,

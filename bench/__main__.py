@@ -32,6 +32,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from bench.common import machine_info, make_policy, policy_info, write_json_atomic  # noqa: E402
+from bench.tick import FLOOR_OF_STAGE  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results.json"
 SCHEMA = "sim2real-deploy/bench/1"
@@ -86,6 +87,7 @@ TARGETS = (
     ("tick_ratio", "full tick / bare loop, p50, physics included", "arm6", 0.8, "<=", "x"),
     ("overhead_ratio", "runtime overhead / the plant's own step, p50", "arm6", 0.5, "<=", "x"),
     ("overhead_p50", "runtime overhead per tick excl. physics, p50", "arm6", None, "", "us"),
+    ("floor_ratio", "its floor (ORT + Ruckig + FK alone) / plant step", "arm6", None, "", "x"),
     ("session_8h", "8-hour-equivalent session, wall time", "arm3", 300.0, "<=", "s"),
     ("session_8h", "8-hour-equivalent session, wall time", "arm6", 900.0, "<=", "s"),
     ("campaign", "campaign throughput, whole machine", "arm3", 500.0, ">=", "x"),
@@ -197,6 +199,10 @@ def _target_value(key: str, robot: str, sections: dict):
         over = _get(tick, "full", "overhead", "p50_us")
         step = _get(tick, "full", "stages", "physics", "p50_us")
         return over / step if over is not None and step else None
+    if key == "floor_ratio":
+        floor = _get(tick, "floors", "overhead", "p50_us")
+        step = _get(tick, "full", "stages", "physics", "p50_us")
+        return floor / step if floor is not None and step else None
     if key == "session_8h":
         return _get(sections, "session", "robots", robot, "estimate_8h_s")
     if key == "busy_stops":
@@ -358,6 +364,14 @@ def render(results: dict) -> str:
             add(f"     {s:30} {_pct(v)}")
         add(f"     {'= overhead (tick - mj_step)':30} {_pct(bare['overhead'])}")
         add(f"     {'= tick incl. physics':30} {_pct(bare['tick'])}")
+        fl = t.get("floors")
+        if fl is not None:
+            add(f"   floors: the library calls alone  {pct_head}   stage p50 - floor p50")
+            glue = {f: (s, fl["glue_p50_us"][s]) for s, f in FLOOR_OF_STAGE.items()}
+            for s, v in fl["stages"].items():
+                stage, g = glue[s]
+                add(f"     {s:30} {_pct(v)}   {stage} {g:+.1f} us")
+            add(f"     {'= overhead floor (no mj_step)':30} {_pct(fl['overhead'])}")
         r = t["ratio"]
         add(
             f"   full / bare: tick p50 {_f(r['tick_p50'], '.2f')}x, mean "

@@ -24,7 +24,13 @@ home`` (unitree's ``action_scale`` and ``default_angles``); then ``decimation`` 
 sensor or thermal model. Its ``physics`` is the time inside ``mj_step`` alone; ``overhead`` is
 the tick minus that (the Python PD at the physics rate counts as overhead: it is the controller).
 
-The two loops run in alternating blocks (``rounds``), so a load change on the machine hits both.
+**Floors** (:class:`bench.floors.FloorLoop`): the library calls of a tick alone (ONNX Runtime's
+call, Ruckig's step, Pinocchio's forward kinematics, ``decimation`` MuJoCo steps), each set
+beside the stage that wraps it (``FLOOR_OF_STAGE``; ``glue_p50_us`` is the stage's p50 minus its
+floor's), and the sum of those outside physics (``floors.overhead``): the least a tick's overhead
+can cost with these libraries.
+
+The three loops run in alternating blocks (``rounds``), so a load change on the machine hits all.
 Ratios are full / bare, of the medians (``*_p50``, the PASS/FAIL figure) and of the means.
 """
 
@@ -37,6 +43,7 @@ import mujoco
 import numpy as np
 
 from bench.common import BenchPolicy, clear, histogram, ratio, summary
+from bench.floors import FLOOR_STAGES, FloorLoop
 
 #: Bare loop: unitree_rl_gym's ``action_scale`` (rad per unit action) around the home pose.
 BARE_ACTION_SCALE = 0.25
@@ -45,6 +52,10 @@ GOAL_PERIOD = 4.0
 #: Ticks after RAMP_IN before the histograms are cleared.
 WARMUP_TICKS = 500
 BARE_STAGES = ("read", "observe", "infer", "target", "pd", "physics")
+#: The runtime's stage that wraps each floor (:mod:`bench.floors`).
+FLOOR_OF_STAGE = {"infer": "infer", "smooth": "ruckig", "estimate": "fk", "physics": "mj_step"}
+#: The floors that are part of the runtime's overhead (the tick without physics).
+FLOOR_OUTSIDE_PHYSICS = ("infer", "ruckig", "fk")
 
 
 class BareLoop:
@@ -216,11 +227,15 @@ def measure(bp: BenchPolicy, ticks: int, rounds: int) -> dict:
         bare = BareLoop(bp)
         bare.run(WARMUP_TICKS)
         bare.samples = bare.samples[:0]
+        floors = FloorLoop(rt)
+        floors.run(WARMUP_TICKS)
+        floors.samples = floors.samples[:0]
         per_round = [ticks // rounds + (1 if r < ticks % rounds else 0) for r in range(rounds)]
         for n in per_round:
             timer.new_round()
             rt.run(n, on_tick=timer)
             bare.run(n)
+            floors.run(n)
     finally:
         torch.set_num_threads(threads)
 
@@ -231,6 +246,10 @@ def measure(bp: BenchPolicy, ticks: int, rounds: int) -> dict:
     bare_stages = {s: summary(histogram(b[:, i])) for i, s in enumerate(BARE_STAGES)}
     bare_overhead = summary(histogram(b[:, 6] - b[:, 5]))
     bare_tick = summary(histogram(b[:, 6]))
+    f = floors.samples
+    floor_stages = {s: summary(histogram(f[:, i])) for i, s in enumerate(FLOOR_STAGES)}
+    outside = [FLOOR_STAGES.index(s) for s in FLOOR_OUTSIDE_PHYSICS]
+    floor_overhead = summary(histogram(f[:, outside].sum(axis=1)))
     return {
         "ticks": int(ticks),
         "rounds": int(rounds),
@@ -250,6 +269,14 @@ def measure(bp: BenchPolicy, ticks: int, rounds: int) -> dict:
             "stages": bare_stages,
             "overhead": bare_overhead,
             "tick": bare_tick,
+        },
+        "floors": {
+            "stages": floor_stages,
+            "overhead": floor_overhead,
+            "glue_p50_us": {
+                stage: full_stages[stage]["p50_us"] - floor_stages[floor]["p50_us"]
+                for stage, floor in FLOOR_OF_STAGE.items()
+            },
         },
         "ratio": {
             "tick_p50": ratio(full_tick["p50_us"], bare_tick["p50_us"]),

@@ -65,6 +65,13 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
     assert set(tick["ratio"]) == {"tick_p50", "tick_mean", "overhead_p50", "overhead_mean"}
     assert all(positive_finite(v) for v in tick["ratio"].values())
     assert full["final_state"] == ["RUNNING"]
+    # the library calls alone, beside the stages that wrap them: a floor below its stage
+    floors = tick["floors"]
+    assert set(floors["stages"]) == {"infer", "ruckig", "fk", "mj_step"}
+    for s in (*floors["stages"].values(), floors["overhead"]):
+        assert all(positive_finite(s[k]) for k in ("p50_us", "p99_us", "p99.9_us", "mean_us"))
+    assert set(floors["glue_p50_us"]) == {"infer", "smooth", "estimate", "physics"}
+    assert floors["overhead"]["p50_us"] < full["overhead"]["p50_us"]
 
     session = r["sections"]["session"]["robots"]["arm3"]
     for key in ("simulated_s", "wall_s", "real_time_factor", "estimate_8h_s"):
@@ -77,6 +84,7 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
         ("tick_ratio", "arm6"),
         ("overhead_ratio", "arm6"),
         ("overhead_p50", "arm6"),
+        ("floor_ratio", "arm6"),
         ("session_8h", "arm3"),
         ("session_8h", "arm6"),
         ("campaign", "arm3"),

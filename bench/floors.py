@@ -1,0 +1,123 @@
+"""The floors of the tick: what the libraries the runtime calls cost on their own.
+
+A stage of the tick (``deploy.runtime.STAGES``) is a library call wrapped in the runtime's own
+work: ``infer`` is one ONNX Runtime call, ``smooth`` one Ruckig step, ``estimate`` one Pinocchio
+forward kinematics (besides the Kalman filter, ours), ``physics`` ``decimation`` MuJoCo steps.
+:class:`FloorLoop` times those calls alone, per tick, on objects of its own built from the same
+robot and policy, so the tick benchmark can set each stage beside its floor in the same run: the
+stage minus its floor is the runtime's own work (checks, estimation, models, bookkeeping), the
+part a faster runtime can remove. The sum of the floors outside physics is the least a tick can
+cost with these libraries, whatever the runtime does around them.
+
+Per tick (``FLOOR_STAGES``):
+
+- ``infer``: ``InferenceSession.run_with_iobinding`` of a second session of the policy file,
+  with the runtime's session options (one thread, sequential, all graph optimizations) and its
+  observation and action bound once (``OnnxPolicy`` binds them the same way).
+- ``ruckig``: ``Ruckig.update`` and ``OutputParameter.pass_to_input`` of a ``Ruckig(n, dt)``
+  with the robot's velocity, acceleration and jerk limits, its target moved each tick (a policy's
+  target moves each tick, so Ruckig computes a new trajectory each tick, as in the runtime), the
+  new position read back (a position drive needs it).
+- ``fk``: ``pinocchio.forwardKinematics`` and ``updateFramePlacement`` of the end-effector frame
+  (what ``deploy.state.Kinematics`` calls; a legged robot has no end effector: its joint
+  placements only).
+- ``mj_step``: ``mujoco.mj_step(m, d, nstep=decimation)`` on a copy of the plant's first env,
+  set before each call (untimed) to the plant's state and controls of the moment.
+"""
+
+from __future__ import annotations
+
+import time
+
+import mujoco
+import numpy as np
+
+FLOOR_STAGES = ("infer", "ruckig", "fk", "mj_step")
+#: rad: the amplitude of the target's motion around the home pose (a small goal-reaching motion)
+TARGET_AMPLITUDE = 0.2
+#: ticks per period of the target's motion
+TARGET_PERIOD = 500
+
+
+class FloorLoop:
+    """The library calls of one tick, each alone (see the module docstring).
+
+    Args:
+        rt: The runtime whose policy session, robot and plant the floors are built from (its
+            own objects are read, never called).
+
+    Attributes:
+        samples: (ticks, 4) int64 ns per tick, the calls of ``FLOOR_STAGES``.
+    """
+
+    def __init__(self, rt):
+        import onnxruntime as ort
+        import pinocchio as pin
+        from ruckig import InputParameter, OutputParameter, Ruckig
+
+        robot, policy, backend = rt.robot, rt.policy, rt.backend
+        self._pin = pin
+        n = robot.n_joints
+        session = policy.session
+        self._session = session
+        self._binding = session.io_binding()
+        self._obs = np.zeros((1, policy.obs_dim), np.float32)
+        self._act = np.zeros((1, policy.act_dim), np.float32)
+        self._values = [ort.OrtValue.ortvalue_from_numpy(a) for a in (self._obs, self._act)]
+        self._binding.bind_ortvalue_input(policy.input_name, self._values[0])
+        self._binding.bind_ortvalue_output(policy.output_name, self._values[1])
+        self._ruckig = Ruckig(n, robot.control_period)
+        self._inp, self._out = InputParameter(n), OutputParameter(n)
+        self._inp.current_position = list(robot.home)
+        self._inp.current_velocity = [0.0] * n
+        self._inp.current_acceleration = [0.0] * n
+        self._inp.max_velocity = list(robot.soft_velocity_limit)
+        self._inp.max_acceleration = list(robot.acceleration_limit)
+        self._inp.max_jerk = list(robot.jerk_limit)
+        self._home = np.asarray(robot.home, dtype=np.float64)
+        self._phase = np.linspace(0.0, np.pi, n)
+        self._model = robot.pin_model
+        self._data = self._model.createData()
+        self._frame = robot.ee_frame_id
+        self._q = np.asarray(rt.state.q[0])  # the runtime's estimate, read at each call
+        self._m = backend.models[0]
+        self._live = backend.datas[0]
+        self._d = mujoco.MjData(self._m)
+        mujoco.mj_copyData(self._d, self._m, self._live)
+        self._nstep = robot.decimation
+        self._k = 0
+        self.samples = np.zeros((0, len(FLOOR_STAGES)), dtype=np.int64)
+
+    def run(self, ticks: int) -> np.ndarray:
+        """Time ``ticks`` ticks of the four calls; returns and appends to :attr:`samples` the
+        (ticks, 4) ns."""
+        pin, clock = self._pin, time.perf_counter_ns
+        session, binding = self._session, self._binding
+        ruckig, inp, out = self._ruckig, self._inp, self._out
+        model, data, frame, q = self._model, self._data, self._frame, self._q
+        m, d, live, nstep, step = self._m, self._d, self._live, self._nstep, mujoco.mj_step
+        rec = np.zeros((ticks, len(FLOOR_STAGES)), dtype=np.int64)
+        for i in range(ticks):
+            self._k += 1
+            s = np.sin(2 * np.pi * self._k / TARGET_PERIOD + self._phase)
+            target = (self._home + TARGET_AMPLITUDE * s).tolist()
+            self._obs[0, :] = 0.1 * s[0]
+            d.qpos[:], d.qvel[:], d.ctrl[:] = live.qpos, live.qvel, live.ctrl
+            d.act[:] = live.act
+            t0 = clock()
+            session.run_with_iobinding(binding)
+            t1 = clock()
+            inp.target_position = target
+            ruckig.update(inp, out)
+            _ = out.new_position
+            out.pass_to_input(inp)
+            t2 = clock()
+            pin.forwardKinematics(model, data, q)
+            if frame >= 0:
+                pin.updateFramePlacement(model, data, frame)
+            t3 = clock()
+            step(m, d, nstep=nstep)
+            t4 = clock()
+            rec[i] = (t1 - t0, t2 - t1, t3 - t2, t4 - t3)
+        self.samples = np.concatenate([self.samples, rec])
+        return rec

@@ -40,3 +40,62 @@ def test_published_humanoid_walks_without_a_fall_or_a_safe_stop(robot, tmp_path)
     assert walk["distance_m"] >= 3.0, walk
     # the first two seconds accelerate from standing, outside the 0.2 m/s band
     assert walk["tracking_success"] >= 0.7, walk
+
+
+@pytest.mark.parametrize("reference", [False, True], ids=["compiled", "reference"])
+def test_a_humanoids_legs_predicted_to_touch_are_not_held(reference):
+    """The H1's legs brush in a recovery step; holding every joint's target there lays it down.
+    Its target with both hips rolled inward until the legs touch passes the guard unchanged (an
+    arm's is held: tests/test_safety.py); the violation monitor counts true contacts."""
+    import numpy as np
+
+    from deploy.safety.guard import SafetyGuard
+    from deploy.safety.reference import ReferenceGuard
+    from deploy.state import RobotState
+    from robots import load_robot
+
+    h1 = load_robot("h1")
+    guard = (ReferenceGuard if reference else SafetyGuard)(h1, 1, "position")
+    state = RobotState.legged(1, h1.n_joints, h1.n_feet, 25.0)
+    state.q[:] = h1.home
+    guard.reset(state.q)
+    target = np.array([h1.home])
+    target[0, h1.joint_names.index("left_hip_roll_joint")] = -0.3  # legs touch from 0.24
+    target[0, h1.joint_names.index("right_hip_roll_joint")] = 0.3
+    for _ in range(3):
+        out = guard.filter(target.copy(), state, out=np.empty_like(target))
+        np.testing.assert_array_equal(out, target)
+    assert guard.counts["self_collision"].tolist() == [0]
+
+
+@pytest.mark.parametrize("push_seed", [1, 4])
+def test_the_published_h1_walks_through_half_metre_per_second_pushes(push_seed):
+    """legged_gym's push (the base's horizontal velocity set to U(-0.5, 0.5) m/s per axis every
+    5 s) on the H1 walking at 0.5 m/s through the full runtime with its default sensor noise:
+    40 s without a fall, as in unitree_rl_gym's own loop (deploy_mujoco.py, no guard). With the
+    guard holding the legs' predicted contacts and clamping targets into the soft limits, both
+    seeds fell within 23 s."""
+    import numpy as np
+
+    from deploy.backends.sim.plant import SimBackend
+    from deploy.policy.onnx_policy import OnnxPolicy
+    from deploy.runtime import RUNNING, Runtime
+    from eval.world.pushes import push_velocity
+    from robots import load_robot
+
+    h1 = load_robot("h1")
+    policy = OnnxPolicy(DATA / "h1" / "h1.onnx", h1)
+    plant = SimBackend(h1, "position", envs=1, seed=0)
+    rt = Runtime(h1, policy, plant)
+    rt.velocity_command[0] = [0.5, 0.0, 0.0]
+    rt.start()
+    every = round(5.0 / rt.dt)
+    pushes = 0
+    for k in range(round(40.0 / rt.dt)):
+        rt.tick()
+        assert rt.mode[0] == RUNNING or pushes == 0, (rt.cause_names(), k * rt.dt)
+        if rt.mode[0] == RUNNING and k % every == 0:
+            plant.set_base_velocity(0, push_velocity(push_seed, k // every, 0.5))
+            pushes += 1
+    assert pushes >= 7
+    assert plant.true_base_state()[0, 0] > 5.0  # it walked on

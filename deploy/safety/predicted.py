@@ -18,6 +18,8 @@ from deploy.safety.check import EFFORT, FINAL, FIRED, NEEDS_PYTHON, PREDICTED, T
 
 #: Rows of ``g.scalars``: dt (s), the screens' margin (m), whether there are collision pairs.
 DT, MARGIN, HAS_PAIRS = 0, 1, 2
+#: Row of the self-collision check's constants: 1.0 where it holds (a fixed base), else 0.0.
+HOLDS = 0
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
@@ -62,7 +64,7 @@ class Workspace(GuardCheck):
 @numba.njit(cache=True, nogil=True, _nrt=False)
 def self_collision_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int:
     """:class:`SelfCollision`'s compiled share (signature of :class:`GuardCheck`)."""
-    if stage != PREDICTED or g.scalars[HAS_PAIRS] == 0.0:
+    if stage != PREDICTED or g.scalars[HAS_PAIRS] == 0.0 or own[HOLDS, 0] == 0.0:
         return 0
     margin = g.scalars[MARGIN]
     touch = pairs_may_touch(g.pred, e, g.screen[1], g.pair_clearance, g.pair_weights, margin, g.tmp)
@@ -70,14 +72,23 @@ def self_collision_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own
 
 
 class SelfCollision(GuardCheck):
-    """A listed collision pair in contact at the predicted state (coal): held."""
+    """A listed collision pair in contact at the predicted state (coal): held. Not for a
+    floating-base robot (:data:`HOLDS`): its legs pass close in every stride and brush in a
+    recovery step, and a target held mid-stride lays a walking robot down, a response worse than
+    the brush it answers; the violation monitor counts its true contacts by pair."""
 
     name = "self_collision"
     what = "a target in self-collision: held"
     kernel = self_collision_kernel
 
+    def constants(self, guard) -> np.ndarray:
+        """Row ``HOLDS``: 1.0 where the check holds a target in self-collision (a fixed base),
+        0.0 where it does not act (a floating base)."""
+        holds = 0.0 if guard.robot.floating_base else 1.0
+        return np.full((1, guard.robot.n_joints), holds)
+
     def reference(self, stage, g, out, q, dq, commanded):
-        if stage != PREDICTED or not g._has_pairs:
+        if stage != PREDICTED or not g._has_pairs or g.robot.floating_base:
             return None, None
         check = np.zeros(g.envs, dtype=bool)
         moved = np.abs(g._pred - g._col_q)  # rad per joint since the last check

@@ -2,16 +2,7 @@
 
 ``soft_limit``: a target position beyond the soft limit (``soft_limit_fraction`` of the range,
 90 % by default) is clamped to it; in velocity and torque mode the estimate inside the soft band
-is counted (a warning). A floating-base robot's position target may reach past the soft limit by
-the drive's torque allowance ``effort_limit / kp`` while its joint is at least a soft band (the
-range between soft and hard limit) inside the soft limit, an allowance that shrinks linearly to
-nothing as the joint crosses that last band (:data:`TARGET_ALLOWANCE`): its target is a torque
-command, ``kp (target - q)``, and a target clamped to the soft limit while the joint is far from
-it cuts the torque the gait was trained to use (unitree_rl_gym's H1 commands past a hard limit on
-a quarter of its ticks in its own loop, and its joints pass one on almost none). A target more
-than ``effort_limit / kp`` past the joint asks for more than the drive's peak torque anyway.
-
-``hard_limit``: the target, the estimate or (velocity mode) the predicted
+is counted (a warning). ``hard_limit``: the target, the estimate or (velocity mode) the predicted
 position beyond the hard limit: :attr:`SafetyGuard.hard_violation
 <deploy.safety.guard.SafetyGuard.hard_violation>` is set and the runtime makes a safe stop. A
 floating-base robot's *target* past a hard limit is clamped to the soft limit instead: its
@@ -65,45 +56,6 @@ LEGGED_HARD_LIMIT_TOLERANCE = 0.1
 #: shorter): an estimate past the limit for a stride comes back within it, a joint driven into
 #: its stop and held there does not.
 LEGGED_HARD_LIMIT_DURATION = 1.0
-#: Rows of the soft-limit check's constants: how far past the soft limit a position target may
-#: reach while the joint is a band or more inside it (rad; ``effort_limit / kp`` for a floating
-#: base, 0 for an arm), and that band (rad, the hard limit minus the soft limit).
-TARGET_ALLOWANCE, SOFT_BAND, REACH = 0, 1, 2
-
-
-def target_allowance(robot) -> np.ndarray:
-    """(n,) rad: how far past its soft limit a position target may reach, at most: for a
-    floating-base robot ``effort_limit / kp`` of each joint (the offset at which its PD servo
-    gives its peak torque; module docstring), zeros for an arm. The guard's soft-limit check
-    grants it by the joint's room to its limit; the smoother's backstop
-    (:class:`deploy.smoothing.CommandSmoother`) bounds targets by the widest it grants."""
-    allowance = np.zeros(robot.n_joints)
-    if robot.floating_base:
-        kp = np.array([j.kp for j in robot.config.joints], dtype=np.float64)
-        allowance[:] = np.asarray(robot.effort_limit, dtype=np.float64) / kp
-    return allowance
-
-
-@numba.njit(cache=True, nogil=True, _nrt=False)
-def _taper(room: float, band: float) -> float:
-    """The share of the allowance kept with the joint ``room`` rad inside its soft limit: 1 from a
-    band inside, falling linearly to 0 at the soft limit; 0 past it (or for a NaN ``room``)."""
-    if not room > 0.0:
-        return 0.0
-    if room >= band:
-        return 1.0
-    return room / band
-
-
-@numba.njit(cache=True, nogil=True, _nrt=False)
-def _target_bounds(lim, own, qj: float, j: int) -> tuple[float, float]:
-    """The lowest and highest position target of joint ``j`` at its estimate ``qj`` (rad): the
-    soft limits, widened by the allowance kept (:func:`_taper`) with the joint's room to its hard
-    limit plus ``REACH``."""
-    allow, band, reach = own[TARGET_ALLOWANCE, j], own[SOFT_BAND, j], own[REACH, j]
-    lo = lim[SOFT_LOWER, j] - allow * _taper(qj - lim[LOWER, j] + reach, band)
-    hi = lim[SOFT_UPPER, j] + allow * _taper(lim[UPPER, j] + reach - qj, band)
-    return lo, hi
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
@@ -115,9 +67,8 @@ def soft_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
     if stage == INSPECT:
         if g.mode == POSITION:
             for j in range(n):
-                lo, hi = _target_bounds(lim, own, q[e, j], j)
                 t = out[e, j]
-                if t < lo or t > hi:
+                if t < lim[SOFT_LOWER, j] or t > lim[SOFT_UPPER, j]:
                     soft = True
         else:
             for j in range(n):
@@ -125,54 +76,28 @@ def soft_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
                     soft = True
     elif stage == CLAMP and g.mode == POSITION:
         for j in range(n):
-            lo, hi = _target_bounds(lim, own, q[e, j], j)
-            out[e, j] = np_min(np_max(out[e, j], lo), hi)
+            out[e, j] = np_min(np_max(out[e, j], lim[SOFT_LOWER, j]), lim[SOFT_UPPER, j])
     return FIRED if soft else 0
 
 
 class SoftLimit(GuardCheck):
-    """Position mode: a target past the soft limit is clamped to it (a floating base's, past the
-    soft limit widened by its torque allowance; module docstring). Velocity and torque mode: the
-    estimate inside the soft band (a warning; nothing changed)."""
+    """Position mode: a target past the soft limit is clamped to it. Velocity and torque mode:
+    the estimate inside the soft band (a warning; nothing changed)."""
 
     name = "soft_limit"
     what = "a position target clamped into the soft joint limits"
     kernel = soft_limit_kernel
 
-    def constants(self, guard) -> np.ndarray:
-        """Rows ``TARGET_ALLOWANCE`` (rad: ``effort_limit / kp`` of each joint with a position
-        gain, for a floating base; 0 for an arm) and ``SOFT_BAND`` (rad)."""
-        robot = guard.robot
-        allowance = target_allowance(robot)
-        reach = np.full(robot.n_joints, LEGGED_HARD_LIMIT_TOLERANCE if robot.floating_base else 0.0)
-        band = np.asarray(guard.upper, dtype=np.float64) - np.asarray(guard.soft_upper) + reach
-        return np.array([allowance, band, reach], dtype=np.float64)
-
-    @staticmethod
-    def _bounds(g, own, q) -> tuple[np.ndarray, np.ndarray]:
-        """(envs, n) each: the lowest and highest position target allowed at estimate ``q``."""
-        allow, band, reach = own[TARGET_ALLOWANCE], own[SOFT_BAND], own[REACH]
-
-        def taper(room):
-            share = np.where(room >= band, 1.0, room / np.where(band > 0.0, band, 1.0))
-            return np.where(room > 0.0, share, 0.0)
-
-        lo = g.soft_lower - allow * taper(q - g.lower + reach)
-        hi = g.soft_upper + allow * taper(g.upper + reach - q)
-        return lo, hi
-
     def reference(self, stage, g, out, q, dq, commanded):
         mask = g._mask
         if stage == INSPECT:
             if g.mode == "position":
-                lo, hi = self._bounds(g, self.constants(g), q)
-                np.logical_or(out < lo, out > hi, out=mask)
+                np.logical_or(out < g.soft_lower, out > g.soft_upper, out=mask)
             else:
                 np.logical_or(q > g.soft_upper, q < g.soft_lower, out=mask)
             return mask.any(axis=1), None
         if stage == CLAMP and g.mode == "position":
-            lo, hi = self._bounds(g, self.constants(g), q)
-            np.minimum(np.maximum(out, lo, out=out), hi, out=out)
+            np.minimum(np.maximum(out, g.soft_lower, out=out), g.soft_upper, out=out)
         return None, None
 
 

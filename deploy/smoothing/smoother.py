@@ -17,7 +17,6 @@ from ruckig import (
     Trajectory,
 )
 
-from deploy.safety.limits import target_allowance
 from deploy.smoothing import kernel as sk
 from deploy.smoothing.braking import stopping_distance
 from deploy.smoothing.ruckig_state import RuckigState, SmoothingError
@@ -113,16 +112,10 @@ class CommandSmoother(RuckigState):
         # acceleration, and a joint accelerating toward a limit needs a / j more time to brake
         # than any velocity-only rule allows for; the margin to the hard limits is then left to
         # the drive's tracking error and the estimator's noise.
-        # A floating base's position targets act as torques and may reach past the soft limits
-        # by the guard's allowance (deploy.safety.limits.target_allowance): its backstop is the
-        # widest the guard grants, or the hard limits where that is narrower.
         if mode == "velocity":
             self._lo, self._hi = tiled(robot.soft_lower), tiled(robot.soft_upper)
         else:
-            allowance = target_allowance(robot)
-            lo = np.minimum(robot.position_lower, np.asarray(robot.soft_lower) - allowance)
-            hi = np.maximum(robot.position_upper, np.asarray(robot.soft_upper) + allowance)
-            self._lo, self._hi = tiled(lo), tiled(hi)
+            self._lo, self._hi = tiled(robot.position_lower), tiled(robot.position_upper)
         # commands stay within the soft velocity limit: the margin to the hard limit absorbs the
         # servo's tracking overshoot (see ``Robot.soft_velocity_limit``)
         self._vmax, self._amax = tiled(robot.soft_velocity_limit), tiled(robot.acceleration_limit)

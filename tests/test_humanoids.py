@@ -74,7 +74,6 @@ def test_the_published_h1_walks_through_half_metre_per_second_pushes(push_seed):
     5 s) on the H1 walking at 0.5 m/s through the full runtime with its default sensor noise:
     40 s without a fall, as in unitree_rl_gym's own loop (deploy_mujoco.py, no guard). With the
     guard holding every joint where the legs were predicted to touch, seed 4 fell at 21.7 s."""
-    import numpy as np
 
     from deploy.backends.sim.plant import SimBackend
     from deploy.policy.onnx_policy import OnnxPolicy

@@ -24,14 +24,10 @@ home`` (unitree's ``action_scale`` and ``default_angles``); then ``decimation`` 
 sensor or thermal model. Its ``physics`` is the time inside ``mj_step`` alone; ``overhead`` is
 the tick minus that (the Python PD at the physics rate counts as overhead: it is the controller).
 
-**Floors** (:class:`bench.floors.FloorLoop`): the library calls of a tick alone (ONNX Runtime's
-call, Ruckig's step, Pinocchio's forward kinematics, ``decimation`` MuJoCo steps), each set
-beside the stage that wraps it (``FLOOR_OF_STAGE``; ``glue_p50_us`` is the stage's p50 minus its
-floor's), and the sum of those outside physics (``floors.overhead``): the least a tick's overhead
-can cost with these libraries.
-
-The three loops run in alternating blocks (``rounds``), so a load change on the machine hits all.
-Ratios are full / bare, of the medians (``*_p50``, the PASS/FAIL figure) and of the means.
+**Floors** (:mod:`bench.floors`): the library calls of a tick alone, each beside its stage
+(``FLOOR_OF_STAGE``). The three loops run in alternating blocks (``rounds``), so a load change
+on the machine hits all. Ratios are full / bare, of the medians (``*_p50``, the PASS/FAIL
+figure) and of the means.
 """
 
 from __future__ import annotations

@@ -11,9 +11,9 @@ cost with these libraries, whatever the runtime does around them.
 
 Per tick (``FLOOR_STAGES``):
 
-- ``infer``: ``InferenceSession.run_with_iobinding`` of a second session of the policy file,
-  with the runtime's session options (one thread, sequential, all graph optimizations) and its
-  observation and action bound once (``OnnxPolicy`` binds them the same way).
+- ``infer``: ``InferenceSession.run_with_iobinding`` of the policy's own session (the runtime's
+  options: one thread, sequential, all graph optimizations) through a second binding of its
+  own, observation and action bound once (``OnnxPolicy`` binds them the same way).
 - ``ruckig``: ``Ruckig.update`` and ``OutputParameter.pass_to_input`` of a ``Ruckig(n, dt)``
   with the robot's velocity, acceleration and jerk limits, its target moved each tick (a policy's
   target moves each tick, so Ruckig computes a new trajectory each tick, as in the runtime), the
@@ -43,8 +43,8 @@ class FloorLoop:
     """The library calls of one tick, each alone (see the module docstring).
 
     Args:
-        rt: The runtime whose policy session, robot and plant the floors are built from (its
-            own objects are read, never called).
+        rt: The runtime whose policy session, robot and plant the floors are built from. Only
+            the session is called (through a binding of its own); the rest is read.
 
     Attributes:
         samples: (ticks, 4) int64 ns per tick, the calls of ``FLOOR_STAGES``.

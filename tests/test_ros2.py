@@ -269,6 +269,39 @@ def test_ros2_backend_drives_arm3_against_its_emulator_as_the_simulated_plant(ro
 
 
 @pytest.mark.wallclock
+def test_the_runtime_starts_from_a_current_joint_state_only(ros_domain, shipped):
+    """A controller manager gone silent after the backend joined it: its last joint_states
+    (0.3 s old) is no pose to start from. ``Runtime.start`` waits for a reading younger than
+    half of ``safety.stale_limit`` and then refuses to start, naming that age, instead of
+    anchoring at the old pose (which stops the arm as a stale sensor in its first tick)."""
+    import threading
+
+    from deploy.policy.onnx_policy import OnnxPolicy
+    from deploy.ros2.backend import Ros2ControlBackend
+    from deploy.ros2.emulator import ControllerManagerEmulator
+    from deploy.runtime import WallClock
+    from deploy.runtime.loop import Runtime
+
+    arm3 = load_robot("arm3")
+    emulator = ControllerManagerEmulator(arm3)
+    serving = threading.Thread(target=emulator.serve, daemon=True)
+    serving.start()
+    backend = Ros2ControlBackend(arm3, arm3.control_mode)
+    try:
+        backend.open()
+        emulator.request_stop()
+        serving.join()
+        time.sleep(0.3)
+        rt = Runtime(arm3, OnnxPolicy(shipped("arm"), arm3), backend,
+                     clock=WallClock(arm3.control_period))  # fmt: skip
+        with pytest.raises(RuntimeError, match=r"younger than 0\.025 s"):
+            rt.start()
+    finally:
+        backend.close()
+        emulator.close()
+
+
+@pytest.mark.wallclock
 def test_silent_joint_states_stop_the_arm_as_a_stale_sensor(ros_domain, shipped):
     """A controller manager that stops publishing joint_states for 1 s: the runtime's
     stale-sensor watchdog stops the arm (a latched fault, exit 2)."""

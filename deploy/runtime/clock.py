@@ -115,8 +115,8 @@ class WallClock:
 
     def start(self) -> None:
         """The first deadline is one period from now. Until the first :meth:`wait`, ``fresh`` is
-        True: a caller that did slow set-up work meanwhile (``Runtime.run`` collects the garbage,
-        tens of ms) starts again, so that the set-up does not count as the first tick's overrun."""
+        True: a caller that did set-up work meanwhile (``Runtime.run`` freezes the garbage
+        collector) starts again, so that the set-up does not count as the first tick's overrun."""
         self._next = self._now() + self.period_ns
         self.fresh = True
 

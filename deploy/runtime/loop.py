@@ -212,27 +212,35 @@ class Runtime(RuntimeState):
 
         Waits (``backend.advance()``, the drives holding their initial command) up to
         ``START_TIMEOUT`` s for a reading of every joint: with encoder latency the first readings
-        arrive a few ticks late.
+        arrive a few ticks late. On a wall clock (hardware) the set-up comes first (the policy's
+        first call, a garbage collection) and the anchor must be current: each reading younger
+        than half of ``safety.stale_limit``, so that a late first tick is not a silent sensor.
+        An anchor aged by set-up done after it (``run``'s collection, 200 ms with torch and
+        rclpy loaded) stopped the arm as a stale sensor in its first tick.
 
         Raises:
-            RuntimeError: some joint sent no reading within ``START_TIMEOUT``.
+            RuntimeError: some joint sent no (current) reading within ``START_TIMEOUT``.
         """
-        if self.clock.realtime:  # wall clock: the policy's first call (slow) before the anchor
+        realtime = self.clock.realtime
+        if realtime:
             self.policy(self._obs)
+            gc.collect()  # holds the GIL a backend's reader thread needs: before the anchor
+        max_age = 0.5 * self.robot.config.safety.stale_limit if realtime else np.inf
         frame = self.backend.read()
         for _ in range(int(np.ceil(START_TIMEOUT / self.dt))):
-            if not np.isnan(frame.position).any():
+            if self._current(frame, max_age).all():
                 break
             self.backend.advance()
-            if self.clock.realtime:  # hardware: advance returns at once, the clock paces
+            if realtime:  # hardware: advance returns at once, the clock paces
                 time.sleep(self.dt)
             frame = self.backend.read()
-        missing = np.isnan(frame.position)
+        missing = ~self._current(frame, max_age)
         if missing.any():
             raise RuntimeError(
                 f"Runtime.start: no encoder reading for joints {np.argwhere(missing).tolist()} "
-                f"(env, joint) within {START_TIMEOUT} s; cannot anchor the estimator at a "
-                "measured pose"
+                f"(env, joint) within {START_TIMEOUT} s"
+                + (f" younger than {max_age:g} s" if realtime else "")
+                + "; cannot anchor the estimator at a measured pose"
             )
         q = frame.position.copy()
         self.estimator.reset(q, frame.position_stamp)
@@ -247,6 +255,12 @@ class Runtime(RuntimeState):
         self.mode[:] = RAMP_IN
         self._reset_policy(np.ones(self.envs, dtype=bool))
         self.clock.start()
+
+    @staticmethod
+    def _current(frame, max_age: float) -> np.ndarray:
+        """(envs, n) bool: the frame's readings that are finite and at most ``max_age`` s old."""
+        age = frame.time[:, None] - frame.position_stamp
+        return np.isfinite(frame.position) & ~(age > max_age)
 
     def reset_faults(self, envs: np.ndarray | None = None) -> None:
         """Clear latched faults (an operator's reset): FAULTED envs start again with RAMP_IN.
@@ -418,12 +432,14 @@ class Runtime(RuntimeState):
         ``on_tick(runtime)``, if given, runs after each tick (goal scheduling, evaluation); when
         it returns True the run ends early (e.g. a latched fault on real hardware).
         """
-        gc.collect()
+        fresh = getattr(self.clock, "fresh", False)  # a wall clock's first run: start() collected
+        if not fresh:
+            gc.collect()
         gc.freeze()
         was_enabled = gc.isenabled()
         gc.disable()
-        if getattr(self.clock, "fresh", False):  # a wall clock not yet waited on: the collection
-            self.clock.start()  # (tens of ms) is set-up, not the first tick's overrun
+        if fresh:  # a wall clock not yet waited on: the set-up since start() is not the first
+            self.clock.start()  # tick's overrun
         self._woke(time.perf_counter_ns())
         try:
             for _ in range(ticks):

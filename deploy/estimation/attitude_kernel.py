@@ -119,6 +119,7 @@ def imu_rows(
     angular_velocity,
     velocity,
     velocity_variance,
+    motion_acceleration,
     gravity,
     accel_variance: float,
     k_p: float,
@@ -127,12 +128,18 @@ def imu_rows(
 ) -> None:
     """The base estimator's IMU step (:meth:`deploy.estimation.base.BaseStateEstimator.update`)
     for the envs ``envs`` (int64 (k,)) with a fresh reading: the readings turned into the base
-    frame, Mahony's update, the velocity filter's prediction; the state arrays (env axis first)
+    frame, the base's own acceleration ``motion_acceleration + omega x v`` taken off the
+    accelerometer's (``omega`` the gyro less the bias, ``v`` the base velocity estimate in the
+    base frame, ``motion_acceleration`` (envs, 3) m/s^2 the leg odometry's), Mahony's update on it,
+    the velocity filter's prediction on the reading itself; the state arrays (env axis first)
     updated in place and each env's new rotation matrix in ``rot_out`` (k, 3, 3)."""
     q_in = np.empty((1, 4))
     b_row = np.empty((1, 3))
     g_row = np.empty((1, 3))
     a_row = np.empty((1, 3))
+    up_row = np.empty((1, 3))
+    v_b = np.empty(3)
+    w = np.empty(3)
     dt_row = np.empty(1)
     q_out = np.empty((1, 4))
     rot = np.empty((1, 3, 3))
@@ -153,8 +160,20 @@ def imu_rows(
             b_row[0, i] = bias[e, i]
         for i in range(4):
             q_in[0, i] = orientation[e, i]
+        quat_to_mat_rows(q_in, rot)  # the previous orientation: v in the base frame
+        for i in range(3):
+            v_b[i] = (
+                rot[0, 0, i] * velocity[e, 0]
+                + rot[0, 1, i] * velocity[e, 1]
+                + rot[0, 2, i] * velocity[e, 2]
+            )
+            w[i] = g_row[0, i] - b_row[0, i]
+        m = motion_acceleration
+        up_row[0, 0] = a_row[0, 0] - (m[e, 0] + (w[1] * v_b[2] - w[2] * v_b[1]))
+        up_row[0, 1] = a_row[0, 1] - (m[e, 1] + (w[2] * v_b[0] - w[0] * v_b[2]))
+        up_row[0, 2] = a_row[0, 2] - (m[e, 2] + (w[0] * v_b[1] - w[1] * v_b[0]))
         dt_row[0] = dt
-        mahony_rows(q_in, b_row, g_row, a_row, dt_row, k_p, k_i, q_out)
+        mahony_rows(q_in, b_row, g_row, up_row, dt_row, k_p, k_i, q_out)
         quat_to_mat_rows(q_out, rot)
         for i in range(4):
             orientation[e, i] = q_out[0, i]

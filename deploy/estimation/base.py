@@ -6,7 +6,10 @@ fields and by the joint estimate ``q``, ``dq`` (rad, rad/s):
 - attitude: Mahony's complementary filter with gyro bias (:mod:`deploy.estimation.attitude`; gains
   ``k_P = 1``, ``k_I = 0.3``, the ``ahrs`` defaults), on the IMU readings turned into the base frame
   (accelerometer lever arm neglected): orientation (yaw unobserved), projected gravity, angular
-  velocity (rad/s, base frame);
+  velocity (rad/s, base frame). Its accelerometer reading has the base's own acceleration taken
+  off, ``dv/dt + omega x v`` (base frame; ``dv/dt`` the leg odometry's difference between
+  readings, bounded and low-passed, needing no attitude; ``omega x v`` from the gyro and the
+  velocity filter): a walking humanoid's acceleration and turn, taken for tilt, threw its policy;
 - linear velocity: the kinematic-inertial Kalman filter of legged robots (M. Bloesch et al., RSS
   2012; the linear form of G. Bledt et al., "MIT Cheetah 3", IROS 2018), state ``v`` (m/s, world)::
 
@@ -47,6 +50,14 @@ INITIAL_VELOCITY_SIGMA = 0.1
 #: a specific force that put its initial tilt estimate at 0.29 rad (true 0.006): the policy
 #: answered a tilt that was not there and fell within 0.5 s.
 REST_ACCELERATION_TOLERANCE = 0.1
+#: Time constant, s, of the first-order low-pass on the leg odometry's difference (our choice,
+#: tried against 0.03 and 0.2 s and none on a turning G1): differenced at 50 Hz, joint-velocity
+#: noise makes metres per second squared per reading, which the attitude took for tilt.
+MOTION_ACCELERATION_TAU = 0.1
+#: Bound, m/s^2, on one reading's leg-odometry difference (our choice: 0.3 g, above a walking
+#: base's own acceleration; tried against 10 m/s^2 and none on the H1 and G1): a robot dropped
+#: onto its feet, or a slipping foot, makes tens of m/s^2 that are not the base's.
+MAX_MOTION_ACCELERATION = 3.0
 
 
 @dataclass
@@ -154,6 +165,11 @@ class BaseStateEstimator:
         self.missing_readings = np.zeros(envs, dtype=np.int64)
         self.stale_readings = np.zeros(envs, dtype=np.int64)
         self.velocity_updates = np.zeros(envs, dtype=np.int64)
+        #: (envs, 3) m/s, base frame: the last leg odometry (attitude-free), at ``leg_time``
+        self.leg_velocity = np.zeros((envs, 3))
+        self.leg_time = np.full(envs, np.nan)
+        #: (envs, 3) m/s^2, base frame: the base's acceleration, the leg odometry's difference
+        self.motion_acceleration = np.zeros((envs, 3))
         self._initialized = np.zeros(envs, dtype=bool)
         self._warm_kernels()
 
@@ -172,6 +188,7 @@ class BaseStateEstimator:
             np.zeros((n, 3)),
             np.zeros((n, 3)),
             np.zeros(n),
+            np.zeros((n, 3)),
             self.gravity,
             self.accel_variance,
             self.k_p,
@@ -223,6 +240,9 @@ class BaseStateEstimator:
             self._bias[e] = 0.0
         self.angular_velocity[sel] = 0.0
         self.velocity[sel] = 0.0
+        self.leg_velocity[sel] = 0.0
+        self.leg_time[sel] = np.nan
+        self.motion_acceleration[sel] = 0.0
         self.velocity_variance[sel] = INITIAL_VELOCITY_SIGMA**2
         self.filter_time[sel] = t[sel]
         self.time_since_fresh[sel] = 0.0
@@ -242,6 +262,9 @@ class BaseStateEstimator:
             "missing_readings": self.missing_readings,
             "stale_readings": self.stale_readings,
             "velocity_updates": self.velocity_updates,
+            "leg_velocity": self.leg_velocity,
+            "leg_time": self.leg_time,
+            "motion_acceleration": self.motion_acceleration,
             "initialized": self._initialized,
         }
 
@@ -302,6 +325,7 @@ class BaseStateEstimator:
         if fresh.any():
             e = np.flatnonzero(fresh)
             rot = self._rot[: len(e)]
+            legs = [self._leg_odometry(env, frame, q[env], dq[env]) for env in e]
             imu_rows(
                 e,
                 np.ascontiguousarray(stamp),
@@ -314,6 +338,7 @@ class BaseStateEstimator:
                 self.angular_velocity,
                 self.velocity,
                 self.velocity_variance,
+                self.motion_acceleration,
                 self.gravity,
                 self.accel_variance,
                 self.k_p,
@@ -321,7 +346,8 @@ class BaseStateEstimator:
                 rot,
             )
             for k, env in enumerate(e):
-                self._leg_update(env, frame, q[env], dq[env], rot[k])
+                if legs[k] is not None:
+                    self._absorb_leg_velocity(env, rot[k] @ legs[k][0], legs[k][1])
         # output: predicted from filter_time to now (orientation turned by omega; v held)
         predict_rows(
             np.ascontiguousarray(now),
@@ -338,15 +364,23 @@ class BaseStateEstimator:
         out.linear_velocity_world[:] = self.velocity
         return out
 
-    def _leg_update(self, e: int, frame: SensorFrame, q, dq, rot: np.ndarray) -> None:
+    def _leg_odometry(self, e: int, frame: SensorFrame, q, dq) -> tuple[np.ndarray, float] | None:
+        """Env ``e``'s leg odometry at its fresh IMU stamp: the base velocity (3,) m/s in the
+        base frame, ``-mean_i(omega x p_i + J_i dq)`` over the feet in contact (``omega`` the
+        gyro less the bias), and its variance (m^2/s^2, per axis); None without a fresh contact
+        reading or a finite joint estimate. It sets ``motion_acceleration[e]`` (m/s^2, base
+        frame), the odometry's difference since the last (0 after a gap), which the IMU step
+        takes off the accelerometer's reading with the centripetal term."""
         contact = frame.foot_contact[e]
-        if not (np.isfinite(frame.contact_stamp[e]) and contact.any()):
-            return
-        if not (np.isfinite(q).all() and np.isfinite(dq).all()):
-            return
+        fresh = np.isfinite(frame.contact_stamp[e]) and contact.any()
+        if not (fresh and np.isfinite(q).all() and np.isfinite(dq).all()):
+            self.leg_time[e] = np.nan
+            self.motion_acceleration[e] = 0.0
+            return None
         model, data = self.robot.pin_model, self._pin
         self._q[7:] = q
-        self._v[3:6] = self.angular_velocity[e]
+        gyro = self._imu_to_base @ frame.imu_angular_velocity[e]
+        self._v[3:6] = gyro - self._gyro_bias()[e]
         self._v[6:] = dq
         pin.forwardKinematics(model, data, self._q, self._v)
         feet = [f for f, c in zip(self.robot.foot_frame_ids, contact, strict=True) if c]
@@ -354,9 +388,20 @@ class BaseStateEstimator:
             [pin.getFrameVelocity(model, data, f, pin.LOCAL_WORLD_ALIGNED).linear for f in feet],
             axis=0,
         )
-        z = rot @ -foot_velocity  # the base's velocity, world frame
+        v, t = -foot_velocity, float(frame.imu_stamp[e])
+        gap = t - self.leg_time[e]
+        if gap > 0:
+            alpha = gap / (MOTION_ACCELERATION_TAU + gap)
+            raw = (v - self.leg_velocity[e]) / gap
+            size = np.linalg.norm(raw)
+            if size > MAX_MOTION_ACCELERATION:
+                raw *= MAX_MOTION_ACCELERATION / size
+            self.motion_acceleration[e] += alpha * (raw - self.motion_acceleration[e])
+        else:
+            self.motion_acceleration[e] = 0.0
+        self.leg_velocity[e], self.leg_time[e] = v, t
         self.velocity_updates[e] += 1
-        self._absorb_leg_velocity(e, z, self.leg_variance / len(feet))
+        return v, self.leg_variance / len(feet)
 
     def _absorb_leg_velocity(self, e: int, z: np.ndarray, r_var: float) -> None:
         """The velocity filter's update of env ``e`` with the leg odometry ``z`` (3,) m/s (world)

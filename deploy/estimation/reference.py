@@ -233,13 +233,18 @@ class ReferenceBaseStateEstimator(BaseStateEstimator):
             dt = stamp - self.filter_time[e]
             gyro_b, acc_b = self._imu_to_base @ gyro, self._imu_to_base @ acc
             filt = self._mahony[e]
-            quat = filt.updateIMU(self.orientation[e], gyr=gyro_b, acc=acc_b, dt=dt)
+            leg = self._leg_odometry(e, frame, q, dq)
+            v_b = quaternion_to_matrix(self.orientation[e]).T @ self.velocity[e]
+            # the base's own acceleration off: the leg odometry's and the centripetal term
+            up = acc_b - (self.motion_acceleration[e] + np.cross(gyro_b - filt.b, v_b))
+            quat = filt.updateIMU(self.orientation[e], gyr=gyro_b, acc=up, dt=dt)
             self.orientation[e] = quat / np.linalg.norm(quat)
             self.angular_velocity[e] = gyro_b - filt.b
             rot = quaternion_to_matrix(self.orientation[e])
             self._predict_velocity(e, dt, rot @ acc_b + self.gravity)
             self.filter_time[e] = stamp
-            self._leg_update(e, frame, q, dq, rot)
+            if leg is not None:
+                self._absorb_leg_velocity(e, rot @ leg[0], leg[1])
         # output: predicted from filter_time to now (orientation turned by omega; v held)
         age = now - self.filter_time[e]
         self.time_since_fresh[e] = age

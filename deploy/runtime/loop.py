@@ -214,9 +214,8 @@ class Runtime(RuntimeState):
         ``START_TIMEOUT`` s for a reading of every joint: with encoder latency the first readings
         arrive a few ticks late. On a wall clock (hardware) the set-up comes first (the policy's
         first call, a garbage collection) and the anchor must be current: each reading younger
-        than half of ``safety.stale_limit``, so that a late first tick is not a silent sensor.
-        An anchor aged by set-up done after it (``run``'s collection, 200 ms with torch and
-        rclpy loaded) stopped the arm as a stale sensor in its first tick.
+        than half of ``safety.stale_limit``, so that set-up done after the anchor (a collection
+        holds the GIL a backend's reader thread needs) is not taken for a silent sensor.
 
         Raises:
             RuntimeError: some joint sent no (current) reading within ``START_TIMEOUT``.

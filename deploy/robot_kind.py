@@ -3,11 +3,12 @@
 
 The kind chooses which stages the runtime builds (a legged robot's base estimator and fall check,
 and its state layout: :meth:`RobotKind.state`, :meth:`RobotKind.base_stages`), whether the joint
-estimator bridges latency with the commanded input, the task (:func:`deploy.tasks.task.task_for`:
-goals or velocity commands), and what an operator does before clearing a latched fault (a legged
-robot lies damped after every stop: it is stood up first). Branches that are a physics difference
-of a floating base (the plant's free joint, the guard's unbounded PD targets, the re-anchoring's
-tolerance) ask ``robot.floating_base`` where they are.
+estimator takes the commanded acceleration as its control input, the task
+(:func:`deploy.tasks.task.task_for`: goals or velocity commands), and what an operator does
+before clearing a latched fault (a legged robot lies damped after every stop: it is stood up
+first). Branches that are a physics difference of a floating base (the plant's free joint, the
+guard's unbounded PD targets, the re-anchoring's tolerance) ask ``robot.floating_base`` where
+they are.
 """
 
 from __future__ import annotations
@@ -26,9 +27,13 @@ class RobotKind:
         legged: A floating base: IMU and feet in the state, a base estimator and a fall check.
         task: The task's name (:func:`deploy.tasks.task.task_for`): ``"goals"`` or
             ``"locomotion"``.
-        input_extrapolates: The joint estimator bridges latency with the commanded input
-            (:class:`~deploy.estimation.joints.JointStateEstimator`); a floating base's PD
-            targets lead its joints, so its latency is bridged at constant velocity instead.
+        joint_input: The joint estimator (:class:`~deploy.estimation.joints.JointStateEstimator`)
+            takes the smoother's commanded acceleration as its control input, in its prediction
+            and in the extrapolation that bridges latency (:meth:`SafetyGuard.estimator_input
+            <deploy.safety.guard.SafetyGuard.estimator_input>`). An arm's stiff drives follow
+            their command. A floating base's low-gain PD targets lead its joints and may step
+            from tick to tick (a legged policy's targets are torques): their acceleration is not
+            the joints', so its filter runs the constant-velocity model instead.
         stand_up_on_reset: An operator stands the robot up before clearing a latched fault (the
             runtime lays a legged robot down, damped, at every stop).
     """
@@ -36,7 +41,7 @@ class RobotKind:
     name: str
     legged: bool
     task: str
-    input_extrapolates: bool
+    joint_input: bool
     stand_up_on_reset: bool
 
     def state(self, robot, envs: int) -> RobotState:
@@ -60,12 +65,10 @@ class RobotKind:
 
 
 #: A fixed-base arm: reach goals.
-ARM = RobotKind(
-    name="arm", legged=False, task="goals", input_extrapolates=True, stand_up_on_reset=False
-)
+ARM = RobotKind(name="arm", legged=False, task="goals", joint_input=True, stand_up_on_reset=False)
 #: A floating-base (legged) robot: follow velocity commands.
 LEGGED = RobotKind(
-    name="legged", legged=True, task="locomotion", input_extrapolates=False, stand_up_on_reset=True
+    name="legged", legged=True, task="locomotion", joint_input=False, stand_up_on_reset=True
 )
 
 

@@ -240,6 +240,68 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_and_an_estimate_stops_only
     assert verdicts == [False] * held + [True]  # held past it: a stop after 1 s
 
 
+@pytest.fixture(scope="module")
+def chatter_policy(go2, tmp_path_factory):
+    """An ONNX policy of go2's default spec whose action alternates between ``CHATTER`` and 0 on
+    every joint from one tick to the next (``action = CHATTER - last_action``): PD targets that
+    jump up to 0.15 rad each tick, which the low-gain drives barely follow."""
+    spec = PolicySpec.for_robot(go2)
+    d, n = spec.obs_dim, spec.act_dim
+    w = np.zeros((d, n), np.float32)
+    w[d - n :, :] = -np.eye(n, dtype=np.float32)  # the last block is last_action
+    graph = helper.make_graph(
+        [
+            helper.make_node("MatMul", ["obs", "w"], ["minus_last"]),
+            helper.make_node("Add", ["minus_last", "b"], ["action"]),
+        ],
+        "chatter",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
+        initializer=[
+            numpy_helper.from_array(w, "w"),
+            numpy_helper.from_array(np.full(n, CHATTER, np.float32), "b"),
+        ],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    helper.set_model_props(model, {"policy_spec": spec.to_json()})
+    path = tmp_path_factory.mktemp("go2") / "chatter.onnx"
+    onnx.save(model, path)
+    return OnnxPolicy(path, go2)
+
+
+#: The chatter policy's action on every joint every other tick (0.15 rad of target at the Go2's
+#: action scale of 0.25).
+CHATTER = 0.6
+
+
+@pytest.mark.parametrize("latency", [0, 1])
+def test_a_legged_joint_estimate_does_not_follow_its_pd_targets_chatter(
+    go2, chatter_policy, latency
+):
+    """A floating base's PD targets are torques, not the joints' motion: targets that jump by
+    a tenth of a radian every tick (a legged policy answering a late reading, as the H1-2 did in a latency
+    fault of its soak) move the Go2's joints by a few hundredths. The joint estimate must follow
+    the joints, not the targets, with and without a tick of encoder latency. Fed the smoother's
+    acceleration as its control input, the estimate swung with the targets, 0.12 rad off without
+    latency (in the H1-2's soak, 0.47 rad off with it)."""
+    plant = SimBackend(go2, "position", envs=1, seed=0)
+    plant.latency_ticks[:] = latency
+    rt = Runtime(go2, chatter_policy, plant)
+    rt.start()
+    rt.run(150)  # 3 s: through RAMP_IN into RUNNING, the chatter at full size
+    errors, targets = [], []
+    for _ in range(100):
+        joints = plant.true_position()[0].copy()  # where the joints are at the tick's time
+        rt.run(1)
+        errors.append(np.abs(rt.state.q[0] - joints).max())
+        targets.append(rt.command[0].copy())
+    assert rt.mode_names() == ["RUNNING"], rt.cause_names()
+    swing = np.abs(np.diff(np.array(targets), axis=0)).max()
+    assert swing > 0.05, swing  # the targets do chatter
+    assert max(errors) < 0.05, (max(errors), swing)
+
+
 def test_every_stop_of_a_walking_robot_counts_as_a_fall_with_its_cause(go2, stand_policy):
     """The runtime lays a legged robot down at every stop: a stale-sensor stop leaves the base on
     the ground as a tilt stop does, so both are falls (by cause); a stop during the RAMP_IN of a

@@ -11,13 +11,15 @@ with Applications to Tracking and Navigation*, Wiley 2001, sec. 6.3.2;
     B(dt) = [[dt^2 / 2], [dt]]         H = [[1, 0]],  R = measurement_sigma^2
 
 Without an input (``u = 0``) this is the constant-velocity model, which lags an accelerating joint
-by about ``a / omega^2`` (``omega ~ (var / R)^(1/4)``). The runtime passes the smoother's commanded
-acceleration (:attr:`deploy.smoothing.CommandSmoother.mean_acceleration`) in position and velocity
-mode; the noise then only has to cover the drive's tracking error. The output's extrapolation past
-the newest reading (latency) uses the input only with ``input_extrapolates``: right for a stiff
-drive that follows its command (an arm), wrong for a floating-base robot's PD targets, which lead
-the joint (the target's acceleration is not the joint's), whose output extrapolates at constant
-velocity instead.
+by about ``a / omega^2`` (``omega ~ (var / R)^(1/4)``). For an arm the runtime passes the
+smoother's commanded acceleration (:attr:`deploy.smoothing.CommandSmoother.mean_acceleration`) in
+position and velocity mode; the noise then only has to cover the drive's tracking error. The
+output's extrapolation past the newest reading (latency) uses the input only with
+``input_extrapolates``. A floating-base robot's filter gets no input
+(:meth:`deploy.safety.guard.SafetyGuard.estimator_input`): its low-gain PD targets lead the
+joints and may step from tick to tick, and their acceleration (thousands of rad/s^2) is not the
+joints'; fed to the prediction, a policy's target alternating from tick to tick drives the
+estimate to alternate with it while the joint barely moves.
 
 Time stamps: a joint's filter lives at ``filter_time``, the sample time of the last reading it
 absorbed; a later reading is absorbed (predict by ``stamp - filter_time``, update), an older,

@@ -30,6 +30,7 @@ import numpy as np
 import pinocchio as pin
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
+from deploy.robot_kind import robot_kind
 from deploy.safety import kernel as gk
 from deploy.safety.check import (
     ACC,
@@ -300,8 +301,11 @@ class SafetyGuard:
         """(envs, n) rad/s^2, a view: the joint estimator's control input, the acceleration
         commanded over the last period: the smoother's (``mean_acceleration``, position and
         velocity mode); in torque mode the last committed torque's at the estimate
-        (:attr:`deploy.safety.torque_drive.TorqueDrive.acceleration`), or None without a motion
-        envelope (a floating base: the filter then runs without one)."""
+        (:attr:`deploy.safety.torque_drive.TorqueDrive.acceleration`). None for a floating base
+        (:attr:`deploy.robot_kind.RobotKind.joint_input`): its filter runs the constant-velocity
+        model, since its PD targets' acceleration is not its joints'."""
+        if not robot_kind(self.robot).joint_input:
+            return None
         if self.mode != "torque":
             return smoother.mean_acceleration
         return self.envelope.torque.acceleration if self.envelope is not None else None

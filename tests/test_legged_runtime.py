@@ -204,11 +204,16 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_and_an_estimate_stops_only
     """A Go2's PD targets act as torques: a calf target past its hard limit (what a legged policy
     or its exploration commands) is clamped to the soft limit and counted, not a safe stop. Its
     estimate a few hundredths of a radian past the hard limit for one stride (0.8 s, the H1's gait
-    cycle) is not a stop either (a stop lays a walking robot down); held past it longer than
-    ``LEGGED_HARD_LIMIT_DURATION`` (1 s), or more than ``LEGGED_HARD_LIMIT_TOLERANCE`` (0.1 rad)
-    past it, is."""
+    cycle) is not a stop either (a stop lays a walking robot down), nor is a joint bouncing off its
+    stop more than ``LEGGED_HARD_LIMIT_TOLERANCE`` (0.1 rad) past it for a tick or two. Held past
+    it longer than ``LEGGED_HARD_LIMIT_DURATION`` (1 s), or more than the tolerance past it
+    after ``LEGGED_HARD_LIMIT_BOUNCE`` (0.1 s) past, is."""
     from deploy.safety.guard import SafetyGuard
-    from deploy.safety.limits import LEGGED_HARD_LIMIT_DURATION, LEGGED_HARD_LIMIT_TOLERANCE
+    from deploy.safety.limits import (
+        LEGGED_HARD_LIMIT_BOUNCE,
+        LEGGED_HARD_LIMIT_DURATION,
+        LEGGED_HARD_LIMIT_TOLERANCE,
+    )
     from deploy.safety.reference import ReferenceGuard
     from deploy.state import RobotState
 
@@ -227,10 +232,17 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_and_an_estimate_stops_only
         out = guard.filter(target.copy(), state, out=np.empty_like(target))
         return out, guard.hard_violation.tolist()
 
-    out, stops = tick([go2.home[calf], lower - 0.04, lower - LEGGED_HARD_LIMIT_TOLERANCE - 0.02])
+    far = lower - LEGGED_HARD_LIMIT_TOLERANCE - 0.02
+    out, stops = tick([go2.home[calf], lower - 0.04, far])
     assert out[0, calf] == pytest.approx(go2.soft_lower[calf])
     assert guard.counts["soft_limit"][0] == 1
-    assert stops == [False, False, True]  # far past: at once
+    assert stops == [False, False, False]  # far past for a tick: a bounce off the stop
+    assert tick([go2.home[calf], go2.home[calf], lower - 0.01])[1] == [False, False, False]
+    assert tick([go2.home[calf], go2.home[calf], go2.home[calf]])[1] == [False, False, False]
+    bounce = round(LEGGED_HARD_LIMIT_BOUNCE / go2.control_period)
+    verdicts = [tick([go2.home[calf], go2.home[calf], far])[1][2] for _ in range(bounce + 1)]
+    assert verdicts == [False] * bounce + [True]  # far past and staying: a stop after 0.1 s
+    guard.reset(state.q)
     stride = round(0.8 / go2.control_period)  # a stride past the limit, then back
     for _ in range(stride - 1):
         assert tick([go2.home[calf], lower - 0.04, go2.home[calf]])[1] == [False, False, False]

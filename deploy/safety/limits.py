@@ -10,12 +10,15 @@ low-gain PD's targets act as torques (``kp (target - q)``), and legged policies 
 joint range by design (legged_gym trains without any bound on the targets).
 
 A floating-base robot's *estimate* past a hard limit stops it when it is more than
-``LEGGED_HARD_LIMIT_TOLERANCE`` past, or past at all for longer than
-``LEGGED_HARD_LIMIT_DURATION``; an arm's stops at once. For a walking robot every stop is a fall
-(it lies down, damped): an estimate a few hundredths of a radian past a hip's limit at the end of
-a stride (the soak's heavier links or stiffer joints carry a swing a little further; the
-estimate's noise does the rest) is not worth dropping a 50 kg robot, a joint driven into its stop
-and held there is. The soak's violation monitor still counts every true tick past the limit.
+``LEGGED_HARD_LIMIT_TOLERANCE`` past after being past for longer than ``LEGGED_HARD_LIMIT_BOUNCE``,
+or past at all for longer than ``LEGGED_HARD_LIMIT_DURATION``; an arm's stops at once. For a
+walking robot every stop is a fall (it lies down, damped): an estimate a few hundredths of a radian
+past a hip's limit at the end of a stride (the soak's heavier links or stiffer joints carry a swing
+a little further; the estimate's noise does the rest) is not worth dropping a 50 kg robot, nor is a
+joint that a stumble swings into its stop and that bounces off it within a few ticks (the impact
+has happened; a stop adds a fall to it); a joint driven into its stop and held there is, and so is
+an estimate far past it that stays there (a broken encoder or joint). The soak's violation monitor
+still counts every true tick past the limit.
 
 Each is a :class:`deploy.safety.check.GuardCheck`: its numpy reference and its compiled per-env
 function do the same operations in the same order. Units: rad.
@@ -43,8 +46,9 @@ from deploy.safety.check import (
 
 #: Rows of the hard-limit check's constants: the bounds of a position target (hard limits
 #: widened by the guard's target tolerance; infinite for a floating base), how far past a hard
-#: limit the estimate may be (rad) and for how many ticks (both 0 for an arm: a stop at once).
-TARGET_LOWER, TARGET_UPPER, TOLERANCE, DURATION = 0, 1, 2, 3
+#: limit the estimate may be (rad), for how many ticks past at all, and after how many ticks past
+#: it may no longer be farther than that (all 0 for an arm: a stop at once).
+TARGET_LOWER, TARGET_UPPER, TOLERANCE, DURATION, BOUNCE = 0, 1, 2, 3, 4
 #: A floating-base robot: the estimate this far past a hard limit stops it at once, rad. Our
 #: choice: 0.1 rad (5.7 deg), above the 0.02-0.06 rad the H1's hips' estimates crossed by at the
 #: end of a stride in the soak's randomized dynamics, below the few tenths of a radian between a
@@ -56,6 +60,13 @@ LEGGED_HARD_LIMIT_TOLERANCE = 0.1
 #: shorter): an estimate past the limit for a stride comes back within it, a joint driven into
 #: its stop and held there does not.
 LEGGED_HARD_LIMIT_DURATION = 1.0
+#: A floating-base robot: the estimate more than ``LEGGED_HARD_LIMIT_TOLERANCE`` past a hard limit
+#: stops it once it has been past for longer than this, s. Our choice: 0.1 s (5 ticks at the
+#: shipped legged robots' 50 Hz), longer than a joint's bounce off its stop: in a 1-hour soak
+#: (seed 4320) a stumble swung the H1's hip roll into its stop at about 10 rad/s, 0.09 rad past
+#: it in MuJoCo's soft limit (the estimate 0.11) and back inside within 3 ticks; a stop on that
+#: tick laid it down.
+LEGGED_HARD_LIMIT_BOUNCE = 0.1
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
@@ -109,15 +120,18 @@ def hard_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
     crossed = False
     if stage == INSPECT:
         past = False
+        far = False
         for j in range(n):
             over = np_max(lim[LOWER, j] - q[e, j], q[e, j] - lim[UPPER, j])
             if over > 0.0:
                 past = True
                 if over > own[TOLERANCE, j]:
-                    crossed = True
+                    far = True
         if past:
             g.beyond_ticks[e] += 1
             if g.beyond_ticks[e] > own[DURATION, 0]:
+                crossed = True
+            if far and g.beyond_ticks[e] > own[BOUNCE, 0]:
                 crossed = True
         else:
             g.beyond_ticks[e] = 0
@@ -135,10 +149,11 @@ def hard_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
 
 
 class HardLimit(GuardCheck):
-    """The estimate past a hard limit (a floating base's: more than its tolerance past, or past
-    longer than its duration; module docstring), a position target past it (a floating base's
-    targets are clamped instead: their bounds are infinite) or, in velocity mode, the predicted
-    position: a hard violation (the runtime's safe stop)."""
+    """The estimate past a hard limit (a floating base's: more than its tolerance past once
+    past for longer than a bounce, or past longer than its duration; module docstring), a
+    position target past it (a floating base's targets are clamped instead: their bounds are
+    infinite) or, in velocity mode, the predicted position: a hard violation (the runtime's safe
+    stop)."""
 
     name = "hard_limit"
     what = "the estimate or a target past a hard limit (a safe stop)"
@@ -150,8 +165,15 @@ class HardLimit(GuardCheck):
         legged = guard.robot.floating_base
         tolerance = LEGGED_HARD_LIMIT_TOLERANCE if legged else 0.0
         ticks = round(LEGGED_HARD_LIMIT_DURATION / guard.dt) if legged else 0
+        bounce = round(LEGGED_HARD_LIMIT_BOUNCE / guard.dt) if legged else 0
         return np.array(
-            [guard._target_lower, guard._target_upper, np.full(n, tolerance), np.full(n, ticks)],
+            [
+                guard._target_lower,
+                guard._target_upper,
+                np.full(n, tolerance),
+                np.full(n, ticks),
+                np.full(n, bounce),
+            ],
             dtype=np.float64,
         )
 
@@ -161,9 +183,10 @@ class HardLimit(GuardCheck):
             own = self.constants(g)
             over = np.maximum(g.lower - q, q - g.upper)
             past = (over > 0.0).any(axis=1)
-            crossed = (over > own[TOLERANCE]).any(axis=1)
+            far = (over > own[TOLERANCE]).any(axis=1)
             g.beyond_ticks[:] = np.where(past, g.beyond_ticks + 1, 0)
-            crossed |= past & (g.beyond_ticks > own[DURATION, 0])
+            crossed = past & (g.beyond_ticks > own[DURATION, 0])
+            crossed |= far & (g.beyond_ticks > own[BOUNCE, 0])
             if g.mode == "position":
                 np.logical_or(out < g._target_lower, out > g._target_upper, out=mask)
                 crossed |= mask.any(axis=1)

@@ -29,17 +29,26 @@ def stand_policy(go2, tmp_path_factory):
     offset), whatever it observes."""
     spec = PolicySpec.for_robot(go2)
     d, n = spec.obs_dim, spec.act_dim
+    nodes = [helper.make_node("MatMul", ["obs", "w"], ["action"])]
+    weights = {"w": np.zeros((d, n), np.float32)}
+    return _linear_policy(go2, spec, "stand", nodes, weights, tmp_path_factory)
+
+
+def _linear_policy(go2, spec, name, nodes, weights, tmp_path_factory) -> OnnxPolicy:
+    """An ONNX policy of ``spec`` on ``go2``: ``nodes`` from input ``obs`` to output ``action``
+    with the initializers ``weights`` (name -> float32 array), saved in a temporary folder."""
+    d, n = spec.obs_dim, spec.act_dim
     graph = helper.make_graph(
-        [helper.make_node("MatMul", ["obs", "w"], ["action"])],
-        "stand",
+        nodes,
+        name,
         [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
         [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
-        initializer=[numpy_helper.from_array(np.zeros((d, n), np.float32), "w")],
+        initializer=[numpy_helper.from_array(v, k) for k, v in weights.items()],
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8
     helper.set_model_props(model, {"policy_spec": spec.to_json()})
-    path = tmp_path_factory.mktemp("go2") / "stand.onnx"
+    path = tmp_path_factory.mktemp("go2") / f"{name}.onnx"
     onnx.save(model, path)
     return OnnxPolicy(path, go2)
 
@@ -261,25 +270,12 @@ def chatter_policy(go2, tmp_path_factory):
     d, n = spec.obs_dim, spec.act_dim
     w = np.zeros((d, n), np.float32)
     w[d - n :, :] = -np.eye(n, dtype=np.float32)  # the last block is last_action
-    graph = helper.make_graph(
-        [
-            helper.make_node("MatMul", ["obs", "w"], ["minus_last"]),
-            helper.make_node("Add", ["minus_last", "b"], ["action"]),
-        ],
-        "chatter",
-        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
-        initializer=[
-            numpy_helper.from_array(w, "w"),
-            numpy_helper.from_array(np.full(n, CHATTER, np.float32), "b"),
-        ],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    helper.set_model_props(model, {"policy_spec": spec.to_json()})
-    path = tmp_path_factory.mktemp("go2") / "chatter.onnx"
-    onnx.save(model, path)
-    return OnnxPolicy(path, go2)
+    nodes = [
+        helper.make_node("MatMul", ["obs", "w"], ["minus_last"]),
+        helper.make_node("Add", ["minus_last", "b"], ["action"]),
+    ]
+    weights = {"w": w, "b": np.full(n, CHATTER, np.float32)}
+    return _linear_policy(go2, spec, "chatter", nodes, weights, tmp_path_factory)
 
 
 #: The chatter policy's action on every joint every other tick (0.15 rad of target at the Go2's

@@ -16,10 +16,8 @@ smoother's commanded acceleration (:attr:`deploy.smoothing.CommandSmoother.mean_
 position and velocity mode; the noise then only has to cover the drive's tracking error. The
 output's extrapolation past the newest reading (latency) uses the input only with
 ``input_extrapolates``. A floating-base robot's filter gets no input
-(:meth:`deploy.safety.guard.SafetyGuard.estimator_input`): its low-gain PD targets lead the
-joints and may step from tick to tick, and their acceleration (thousands of rad/s^2) is not the
-joints'; fed to the prediction, a policy's target alternating from tick to tick drives the
-estimate to alternate with it while the joint barely moves.
+(:meth:`deploy.safety.guard.SafetyGuard.estimator_input`): its low-gain PD targets may jump from
+tick to tick, and their acceleration is not the joints'.
 
 Time stamps: a joint's filter lives at ``filter_time``, the sample time of the last reading it
 absorbed; a later reading is absorbed (predict by ``stamp - filter_time``, update), an older,

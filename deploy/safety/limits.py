@@ -49,10 +49,11 @@ from deploy.safety.check import (
 #: limit the estimate may be (rad), for how many ticks past at all, and after how many ticks past
 #: it may no longer be farther than that (all 0 for an arm: a stop at once).
 TARGET_LOWER, TARGET_UPPER, TOLERANCE, DURATION, BOUNCE = 0, 1, 2, 3, 4
-#: A floating-base robot: the estimate this far past a hard limit stops it at once, rad. Our
-#: choice: 0.1 rad (5.7 deg), above the 0.02-0.06 rad the H1's hips' estimates crossed by at the
-#: end of a stride in the soak's randomized dynamics, below the few tenths of a radian between a
-#: humanoid's or a quadruped's joint range in its MJCF and its mechanical stop.
+#: A floating-base robot: the estimate this far past a hard limit stops it once past for longer
+#: than ``LEGGED_HARD_LIMIT_BOUNCE``, rad. Our choice: 0.1 rad (5.7 deg), above the 0.02-0.06 rad
+#: the H1's hips' estimates crossed by at the end of a stride in the soak's randomized dynamics,
+#: below the few tenths of a radian between a humanoid's or a quadruped's joint range in its MJCF
+#: and its mechanical stop.
 LEGGED_HARD_LIMIT_TOLERANCE = 0.1
 #: A floating-base robot: the estimate past a hard limit (by less than the tolerance) this long
 #: stops it, s. Our choice: 1 s, longer than one gait cycle of the shipped legged policies (the

@@ -122,7 +122,7 @@ class JointStateEstimator:
             does not oscillate; ``dt`` the control period).
         input_extrapolates: Whether the output's extrapolation from the newest reading to the
             frame's time uses the control input (default) or constant velocity (module
-            docstring; the runtime chooses constant velocity for a floating-base robot).
+            docstring; the runtime gives a floating-base robot's filter no input at all).
 
     Attributes:
         covariance: (envs, n, 2, 2) covariance of ``[q, dq]`` at ``filter_time`` (rad^2,

@@ -114,8 +114,8 @@ class Runtime(RuntimeState):
         self.injector = injector
         self.telemetry = telemetry
         kind = robot_kind(robot)  # the stages and state layout of an arm or a legged robot
-        # a floating base's PD targets lead its joints: its filter runs without them as input
-        self.estimator = JointStateEstimator(robot, envs, input_extrapolates=kind.joint_input)
+        # its control input, none for a floating base: SafetyGuard.estimator_input
+        self.estimator = JointStateEstimator(robot, envs)
         self.kinematics = Kinematics(robot)
         self.guard, self.smoother = self._build_stages()
         self.state: RobotState = kind.state(robot, envs)

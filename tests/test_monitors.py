@@ -213,3 +213,39 @@ def test_self_collision_ticks_are_counted_by_the_pair_that_touched(arm6):
     top, ticks = next(iter(ours.pair_counts(0).items()))
     k = ours.pair_names.index(top)
     assert ticks == expected[0].max() == expected[0, k] and "|" in top
+
+
+def test_violations_of_a_robot_lying_down_are_counted_apart_and_none_is_lost(arm6):
+    """Ticks on which an env is down (a legged robot lying damped after a stop) go to
+    ``down_counts``, the others to ``counts``: together they are what a monitor told nothing
+    counts, type by type, and the pairs' ticks are those of the ticks up; both kinds survive a
+    state_dict round trip (the soak's checkpoints)."""
+    truth = ScriptedTruth(arm6, envs=2, seed=5)
+    split, whole = ViolationMonitor(arm6, 2), ViolationMonitor(arm6, 2)
+    rng = np.random.default_rng(9)
+    up_only = ViolationMonitor(arm6, 2)
+    down_ticks = 0
+    for _ in range(3000):
+        truth.draw()
+        down = np.array([rng.random() < 0.5, False])
+        down_ticks += int(down[0])
+        split.update(truth, down=down)
+        whole.update(truth)
+        if not down[0]:
+            up_only.update(truth)
+    for kind in split.counts:
+        np.testing.assert_array_equal(
+            split.counts[kind] + split.down_counts[kind], whole.counts[kind], err_msg=kind
+        )
+        assert split.down_counts[kind][1] == 0  # env 1 was never down
+        assert split.counts[kind][0] == up_only.counts[kind][0], kind
+    np.testing.assert_array_equal(split.any + split.down_any, whole.any)
+    assert split.down_any[0] > 0 and split.totals(down=True)["any"] == split.down_any.sum()
+    assert split.env_counts(0, down=True)["hard_limit"] == split.down_counts["hard_limit"][0] > 0
+    np.testing.assert_array_equal(split.pair_ticks[0], up_only.pair_ticks[0])
+    restored = ViolationMonitor(arm6, 2)
+    restored.load_state_dict(split.state_dict())
+    for kind in split.counts:
+        np.testing.assert_array_equal(restored.down_counts[kind], split.down_counts[kind])
+        np.testing.assert_array_equal(restored.counts[kind], split.counts[kind])
+    assert 0 < down_ticks < 3000

@@ -226,7 +226,7 @@ def _run_opened(
     def on_tick(r):
         t0 = clock_ns()
         if violations is not None:
-            violations.update(backend)
+            violations.update(backend, down=r.damping)  # a legged robot lying down: apart
         interventions.update()
         monitor_cost.add(0, clock_ns() - t0)
         task(r)
@@ -271,15 +271,16 @@ def _run_opened(
 
     hard_stops = int(rt.counters.faults["hard_limit"].sum())
     if violations is not None:
-        true = violations.totals()
+        true, down = violations.totals(), violations.totals(down=True)
         violation_report = {
             "source": "true state (simulation ground truth)",
             "ticks": violations.ticks * args.envs,
             "by_type": {k: v for k, v in true.items() if k != "any"},
             "any": true["any"],
+            "while_down": down,  # lying damped after a stop: apart, and still a hard violation
         }
     else:
-        true = {"hard_limit": 0}
+        true, down = {"hard_limit": 0}, {}
         violation_report = None  # no ground truth on hardware: the guard's counts stand in
     sections = task.report(rt)  # goals or locomotion, and the missed goals
     report = {
@@ -345,7 +346,11 @@ def _run_opened(
         "ros2": node.summary() if node is not None else None,
         "diverged": diverged,
     }
-    hard = {k: int(true[k]) for k in HARD_VIOLATION_TYPES if true.get(k, 0)}
+    hard = {
+        k: int(true[k]) + int(down.get(k, 0))
+        for k in HARD_VIOLATION_TYPES
+        if true.get(k, 0) + down.get(k, 0)
+    }
     report["hard_violations"] = hard
     if hard or hard_stops > 0:
         code = EXIT_HARD_VIOLATION

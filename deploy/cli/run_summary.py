@@ -39,6 +39,10 @@ def print_summary(r: dict) -> None:
     if v is not None:
         text = ", ".join(f"{k} {n}" for k, n in v["by_type"].items())
         print(f"  violations (true state, sim)  ticks: {text}")
+        down = v.get("while_down") or {}
+        if down.get("any"):
+            text = ", ".join(f"{k} {n}" for k, n in down.items() if k != "any" and n)
+            print(f"  violations lying down after a stop (true state, sim)  ticks: {text}")
         hard = r.get("hard_violations")
         if hard:
             kinds = ", ".join(f"{k} {n}" for k, n in hard.items())

@@ -6,7 +6,8 @@ A **violation** is what the robot really did (docs/architecture.md, "Words"); an
 can happen without any clamp (a push, a drive overshooting its command, a lagging estimate).
 
 Types (``VIOLATION_TYPES``), each counted per env in control ticks (a tick counts once per type,
-however many joints are past the limit):
+however many joints are past the limit), apart for the ticks a legged robot lies damped after a
+stop (``down``: what the fallen robot's joints do on the floor is not what its policy did):
 
 - ``hard_limit``: a true joint position outside ``[position_lower, position_upper]``.
 - ``soft_limit``: a true joint position in the soft band: outside ``[soft_lower, soft_upper]`` but
@@ -90,11 +91,16 @@ class ViolationMonitor(MonitorState):
 
     Attributes:
         counts: dict type (``VIOLATION_TYPES``) -> (envs,) int64, ticks on which that type
-            occurred.
+            occurred while the env was up.
         pair_ticks: (envs, pairs) int64, ticks on which each collision pair of the guard's
-            model (``pair_names``) touched: which links make the ``self_collision`` ticks.
+            model (``pair_names``) touched while the env was up: which links make the
+            ``self_collision`` ticks of ``counts``.
         pair_names: (pairs,) ``"geom_a|geom_b"``, the guard's collision pairs in its order.
         any: (envs,) int64, ticks with at least one violation of any type.
+        down_counts, down_any: the same, of the ticks on which the env was *down*: a legged
+            robot lying damped after a stop (``down`` of :meth:`update`). What a fallen robot's
+            joints do while it lies on the floor is counted there, apart from what the robot
+            did while it stood and walked (``counts``); nothing is dropped.
         ticks: int, ticks observed (calls of :meth:`update`).
 
     Per tick (:meth:`update`) it allocates nothing unless some env is near a limit: one
@@ -113,6 +119,10 @@ class ViolationMonitor(MonitorState):
         n = self.n = robot.n_joints
         self.counts = {t: np.zeros(envs, dtype=np.int64) for t in VIOLATION_TYPES}
         self.any = np.zeros(envs, dtype=np.int64)
+        self.down_counts = {t: np.zeros(envs, dtype=np.int64) for t in VIOLATION_TYPES}
+        self.down_any = np.zeros(envs, dtype=np.int64)
+        self._up = np.ones(envs, dtype=bool)
+        self._down = np.zeros(envs, dtype=bool)
         self.ticks = 0
         s = robot.config.safety
         self._lower, self._upper = robot.position_lower, robot.position_upper
@@ -172,14 +182,24 @@ class ViolationMonitor(MonitorState):
         mk.warm_up()
 
     # ------------------------------------------------------------------ per tick
-    def update(self, backend) -> None:
+    def update(self, backend, down: np.ndarray | None = None) -> None:
         """Count this tick's violations from ``backend``'s ground truth.
 
         Args:
             backend: A :class:`~deploy.backends.sim.plant.SimBackend` with ``envs`` envs (its
                 ``true_position()`` rad, ``true_velocity()`` rad/s, ``joint_torque()`` N m, all
                 (envs, n), and ``end_effector_position(out)`` m, (envs, 3)).
+            down: (envs,) bool, the envs lying damped after a stop this tick
+                (:attr:`deploy.runtime.Runtime.damping`); their ticks go to
+                :attr:`down_counts`. None: every env is up (an arm).
         """
+        if down is None:
+            if not self._up.all():
+                self._up.fill(True)
+                self._down.fill(False)
+        else:
+            np.copyto(self._down, down)
+            np.logical_not(down, out=self._up)
         q, dq, tau = backend.true_position(), backend.true_velocity(), backend.joint_torque()
         if self._has_workspace:
             backend.end_effector_position(out=self._ee)
@@ -192,7 +212,8 @@ class ViolationMonitor(MonitorState):
                         self._collided.fill(False)
                         collided = True
                     self._collided[e] = True
-                    self._count_pairs(e)
+                    if self._up[e]:  # which pairs touched while the robot was up
+                        self._count_pairs(e)
         flagged = self._screen(q, dq, tau)
         if collided or flagged:
             self._count(q, dq, tau, collided)
@@ -247,31 +268,38 @@ class ViolationMonitor(MonitorState):
             ("effort", (np.abs(tau) > self._effort).any(axis=1)),
             ("workspace", ((ee < self._ws_min) | (ee > self._ws_max)).any(axis=1)),
         )
-        for name, flags in tests:
-            counts[name] += flags
-            hit |= flags
         if collided:
-            counts["self_collision"] += self._collided
-            hit |= self._collided
-        self.any += hit
+            tests += (("self_collision", self._collided),)
+        up, down = self._up, self._down
+        for name, flags in tests:
+            counts[name] += flags & up
+            self.down_counts[name] += flags & down
+            hit |= flags
+        self.any += hit & up
+        self.down_any += hit & down
 
     # ------------------------------------------------------------------ reading
-    def totals(self) -> dict[str, int]:
-        """Ticks per type, summed over envs (and ``any``: ticks with any violation)."""
-        out = {t: int(v.sum()) for t, v in self.counts.items()}
-        out["any"] = int(self.any.sum())
+    def totals(self, down: bool = False) -> dict[str, int]:
+        """Ticks per type, summed over envs (and ``any``: ticks with any violation); of the
+        ticks the envs were up, or with ``down`` of those they lay damped after a stop."""
+        counts, any_ = (self.down_counts, self.down_any) if down else (self.counts, self.any)
+        out = {t: int(v.sum()) for t, v in counts.items()}
+        out["any"] = int(any_.sum())
         return out
 
-    def env_counts(self, env: int) -> dict[str, int]:
-        """Ticks per type of env ``env`` (and ``any``)."""
-        out = {t: int(v[env]) for t, v in self.counts.items()}
-        out["any"] = int(self.any[env])
+    def env_counts(self, env: int, down: bool = False) -> dict[str, int]:
+        """Ticks per type of env ``env`` (and ``any``); with ``down``, of its ticks down."""
+        counts, any_ = (self.down_counts, self.down_any) if down else (self.counts, self.any)
+        out = {t: int(v[env]) for t, v in counts.items()}
+        out["any"] = int(any_[env])
         return out
 
     # ------------------------------------------------------------------ checkpoints
     def _arrays(self) -> dict[str, np.ndarray]:
         out = {f"counts/{t}": v for t, v in self.counts.items()}
         out["any"] = self.any
+        out.update({f"down/{t}": v for t, v in self.down_counts.items()})
+        out["down_any"] = self.down_any
         out["pair_ticks"] = self.pair_ticks
         return out
 

@@ -29,16 +29,18 @@ from robots.files import atomic_write
 def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     """The checks of one session result: ``{name: {"passed": bool, "message": str}}``.
 
-    ``no_hard_violation`` (no true-state hard-limit violation and no hard-limit safe stop of the
-    runtime), ``no_latched_fault``, ``no_over_temperature`` (a winding above its maximum, or an
-    over-temperature safe stop), ``success_rate`` (at least ``min_success_rate`` over the
-    session), ``window_success`` (at least ``min_window_success_rate`` in every window of
-    ``window_minutes`` with a goal), ``interventions`` (ticks with any intervention at most
-    ``max_intervention_rate`` of the ticks), ``no_divergence``, ``falls`` (a legged session: at
-    most ``max_falls_per_hour``; an arm passes). For a legged session the success checks judge its
+    ``no_hard_violation`` (no true-state hard-limit violation, standing or lying down after a
+    stop, and no hard-limit safe stop of the runtime), ``no_latched_fault``,
+    ``no_over_temperature`` (a winding above its maximum, or an over-temperature safe stop),
+    ``success_rate`` (at least ``min_success_rate`` over the session), ``window_success`` (at
+    least ``min_window_success_rate`` in every window of ``window_minutes`` with a goal),
+    ``interventions`` (ticks with any intervention at most ``max_intervention_rate`` of the
+    ticks), ``no_divergence``, ``falls`` (a legged session: at most ``max_falls_per_hour``; an arm
+    passes). For a legged session the success checks judge its
     tracking success (``locomotion``).
     """
     hard = result["violations"]["total"].get("hard_limit", 0)
+    hard_down = result["violations"].get("while_down", {}).get("hard_limit", 0)
     hard_stops = result["runtime"]["by_cause"].get("hard_limit", 0)
     latched = result["runtime"]["latched_faults"]
     th = result["thermal"]
@@ -91,10 +93,11 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     )[:3]
     checks = {
         "no_hard_violation": (
-            hard == 0 and hard_stops == 0,
-            f"{hard} ticks with a joint beyond a hard limit (true state), {hard_stops} "
-            "hard-limit safe stops"
-            if hard or hard_stops
+            hard == 0 and hard_down == 0 and hard_stops == 0,
+            f"{hard} ticks with a joint beyond a hard limit (true state)"
+            + (f" and {hard_down} more lying down after a stop" if hard_down else "")
+            + f", {hard_stops} hard-limit safe stops"
+            if hard or hard_down or hard_stops
             else "no hard-limit violation (true state), no hard-limit safe stop",
         ),
         "no_latched_fault": (
@@ -179,7 +182,9 @@ def build_report(
             floor_friction} among them), randomization {dynamics, sensors, drift, faults[]},
             violations {source, total {type: ticks}, any, per_hour [{hour, start_s, end_s,
                         counts {type: ticks}, any}], rate_per_hour {type: ticks per hour},
-                        self_collision_pairs {"geom_a|geom_b": ticks}, most first}
+                        self_collision_pairs {"geom_a|geom_b": ticks}, most first,
+                        while_down {type: ticks, any}: a legged robot's ticks lying damped after
+                        a stop, counted apart from the others}
                         (types: hard_limit, soft_limit, velocity, effort, workspace, self_collision;
                         a tick counts once per type)
             interventions {ticks, checks {check: {count, fraction}}, any {count, fraction},
@@ -223,7 +228,8 @@ def build_report(
                   found}, not_filmed, fps, size, frames_per_s, error (why there is no film, or
                   null)}
         totals          over every session: simulated_hours, ticks, violations {total, any,
-                        rate_per_hour, per_hour [{hour, counts, any}], self_collision_pairs},
+                        rate_per_hour, per_hour [{hour, counts, any}], self_collision_pairs,
+                        while_down},
                         interventions {ticks,
                         checks {check: {count, fraction}}, any {count, fraction}, warnings,
                         per_hour [{hour, ticks, counts, any, fraction}]}, goals {issued, reached,

@@ -41,6 +41,10 @@ def summary_text(report: dict) -> str:
             lines.append(f"  windows      lowest tracking success in a window {100 * lw:.1f} %")
     v = ", ".join(f"{k} {n}" for k, n in t["violations"]["total"].items())
     lines.append(f"  violations   (true state, ticks) {v}")
+    down = t["violations"].get("while_down", {})
+    if down.get("any"):
+        d = ", ".join(f"{k} {n}" for k, n in down.items() if k != "any" and n)
+        lines.append(f"  while down   (lying damped after a stop, ticks; not counted above) {d}")
     pairs = list(t["violations"].get("self_collision_pairs", {}).items())
     if pairs:
         top = ", ".join(f"{p} {n}" for p, n in pairs[:3])

@@ -58,6 +58,16 @@ def _pair_ticks(results: list[dict]) -> dict[str, int]:
     return dict(sorted(pairs.items(), key=lambda kv: -kv[1]))
 
 
+def _while_down(results: list[dict]) -> dict[str, int]:
+    """Violation ticks per type (and ``any``) of legged robots lying damped after a stop, over
+    the sessions (``violations.while_down``; absent in a report written before it: zeros)."""
+    out: dict[str, int] = {}
+    for r in results:
+        for k, n in r["violations"].get("while_down", {}).items():
+            out[k] = out.get(k, 0) + n
+    return out
+
+
 def totals(results: list[dict]) -> dict:
     """Campaign totals over session results (the ``totals`` of
     :func:`eval.report.build.build_report`'s layout)."""
@@ -107,6 +117,7 @@ def totals(results: list[dict]) -> dict:
             "rate_per_hour": {k: (v / hours if hours > 0 else 0.0) for k, v in total.items()},
             "per_hour": _sum_rows(results, "violations", types),
             "self_collision_pairs": _pair_ticks(results),
+            "while_down": _while_down(results),
         },
         "interventions": {
             "ticks": ticks,

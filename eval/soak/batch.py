@@ -279,7 +279,7 @@ class SessionBatch:
             # the next step recalculates every trajectory from its input, in every env: the same
             # numbers whatever the neighbours (see the module docstring) and across a restore
             rt.smoother.recalculate()
-        self.violations.update(self.backend)
+        self.violations.update(self.backend, down=rt.damping if self.kind.legged else None)
         self.interventions.update()  # before the goals: a goal's last tick counts for it
         self.task(rt)
         if self.pushes is not None:

@@ -46,7 +46,9 @@ FORMAT = "soak-checkpoint"
 #: version 4 checkpoint has none.
 #: 6: a legged robot's fall check (``fall_detector/low_ticks``: the height must persist); a
 #: version 5 checkpoint has none.
-VERSION = 6
+#: 7: the violation monitor's ticks of a legged robot lying damped after a stop
+#: (``violations/down/...``, ``violations/down_any``); a version 6 checkpoint has none.
+VERSION = 7
 MANIFEST = "checkpoint.json"
 
 

@@ -4,18 +4,16 @@ Mahony's explicit complementary filter with gyroscope bias estimation (R. Mahony
 Pflimlin, "Nonlinear complementary filters on the special orthogonal group", IEEE TAC 53(5), 2008),
 as the maintained ``ahrs`` package implements it (``ahrs.filters.Mahony.updateIMU``), run over k
 filters at once (:func:`mahony_update`). Angles in rad, angular velocities in rad/s, quaternions
-base-to-world, arrays batch-first. Where the accelerometer's reading is far from 1 g the
-correction's gains are scaled down (:func:`accel_trust`). These numpy functions are the
-references of the compiled rows of :mod:`deploy.estimation.attitude_kernel` that the base
-estimator runs (the same numbers); :func:`quaternion_to_matrix` itself goes through its kernel for
-rows and single quaternions.
+base-to-world, arrays batch-first. These numpy functions are the references of the compiled
+rows of :mod:`deploy.estimation.attitude_kernel` that the base estimator runs (the same numbers);
+:func:`quaternion_to_matrix` itself goes through its kernel for rows and single quaternions.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from deploy.estimation.attitude_kernel import ACCEL_TRUST_FULL, ACCEL_TRUST_NONE, quat_to_mat_rows
+from deploy.estimation.attitude_kernel import quat_to_mat_rows
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -67,16 +65,6 @@ def mahony_update(
     new = q + rate * dt[:, None]
     new /= np.linalg.norm(new, axis=1, keepdims=True)
     return np.where(moving[:, None], new, q)
-
-
-def accel_trust(acceleration: np.ndarray, g_norm: float) -> np.ndarray:
-    """The factor (0 to 1) on Mahony's gains for gravity references ``acceleration`` (..., 3)
-    m/s^2: 1 within ``ACCEL_TRUST_FULL`` of gravity's magnitude ``g_norm`` (relative), 0 beyond
-    ``ACCEL_TRUST_NONE``, linear between (Valenti et al. 2015's adaptive gain; the constants and
-    the compiled rows in :mod:`deploy.estimation.attitude_kernel`). Shape (...,)."""
-    error = np.abs(np.linalg.norm(acceleration, axis=-1) - g_norm) / g_norm
-    span = ACCEL_TRUST_NONE - ACCEL_TRUST_FULL
-    return np.clip((ACCEL_TRUST_NONE - error) / span, 0.0, 1.0)
 
 
 def rotation_quaternions(rotvec: np.ndarray) -> np.ndarray:

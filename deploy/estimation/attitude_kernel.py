@@ -46,29 +46,6 @@ def _norm(v0: float, v1: float, v2: float, v3: float) -> float:
     return math.sqrt(v0 * v0 + v1 * v1 + v2 * v2 + v3 * v3)
 
 
-#: Accelerometer trust: below this magnitude error ``| |a| - g | / g`` of the gravity reference
-#: Mahony's correction has its full gains, above :data:`ACCEL_TRUST_NONE` none, linear between:
-#: the adaptive gain of R. G. Valenti, I. Dryanovski, J. Xiao, "Keeping a Good Attitude: A
-#: Quaternion-Based Orientation Filter for IMUs and MARGs", Sensors 15(8), 2015, its thresholds
-#: 0.1 and 0.2. A reading far from 1 g is not gravity (an impact, a stumble, a fall): the gyro
-#: alone carries the attitude through it, and the bias estimate does not learn from it.
-ACCEL_TRUST_FULL = 0.1
-ACCEL_TRUST_NONE = 0.2
-
-
-@numba.njit(cache=True, nogil=True, _nrt=False)
-def accel_trust(a0: float, a1: float, a2: float, g_norm: float) -> float:
-    """The factor (0 to 1) on Mahony's gains for the gravity reference ``(a0, a1, a2)``
-    m/s^2 against gravity's magnitude ``g_norm`` m/s^2 (:data:`ACCEL_TRUST_FULL`,
-    :data:`ACCEL_TRUST_NONE`)."""
-    error = abs(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) - g_norm) / g_norm
-    if error <= ACCEL_TRUST_FULL:
-        return 1.0
-    if error >= ACCEL_TRUST_NONE:
-        return 0.0
-    return (ACCEL_TRUST_NONE - error) / (ACCEL_TRUST_NONE - ACCEL_TRUST_FULL)
-
-
 @numba.njit(cache=True, nogil=True, _nrt=False)
 def mahony_rows(quaternion, bias, gyro, acceleration, dt, k_p: float, k_i: float, out) -> None:
     """:func:`deploy.estimation.attitude.mahony_update` of k filters, row by row, into ``out``
@@ -166,7 +143,6 @@ def imu_rows(
     dt_row = np.empty(1)
     q_out = np.empty((1, 4))
     rot = np.empty((1, 3, 3))
-    g_norm = math.sqrt(gravity[0] * gravity[0] + gravity[1] * gravity[1] + gravity[2] * gravity[2])
     for k in range(envs.shape[0]):
         e = envs[k]
         dt = stamp[e] - filter_time[e]
@@ -197,8 +173,7 @@ def imu_rows(
         up_row[0, 1] = a_row[0, 1] - (m[e, 1] + (w[2] * v_b[0] - w[0] * v_b[2]))
         up_row[0, 2] = a_row[0, 2] - (m[e, 2] + (w[0] * v_b[1] - w[1] * v_b[0]))
         dt_row[0] = dt
-        trust = accel_trust(up_row[0, 0], up_row[0, 1], up_row[0, 2], g_norm)
-        mahony_rows(q_in, b_row, g_row, up_row, dt_row, k_p * trust, k_i * trust, q_out)
+        mahony_rows(q_in, b_row, g_row, up_row, dt_row, k_p, k_i, q_out)
         quat_to_mat_rows(q_out, rot)
         for i in range(4):
             orientation[e, i] = q_out[0, i]

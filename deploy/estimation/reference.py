@@ -18,12 +18,7 @@ from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
 from deploy.backends.base import SensorFrame
-from deploy.estimation.attitude import (
-    accel_trust,
-    quat_multiply,
-    quaternion_to_matrix,
-    rotation_quaternions,
-)
+from deploy.estimation.attitude import quat_multiply, quaternion_to_matrix, rotation_quaternions
 from deploy.estimation.base import INITIAL_VELOCITY_SIGMA, BaseState, BaseStateEstimator
 from deploy.estimation.joints import JointStateEstimator
 from deploy.state import RobotState
@@ -242,8 +237,6 @@ class ReferenceBaseStateEstimator(BaseStateEstimator):
             v_b = quaternion_to_matrix(self.orientation[e]).T @ self.velocity[e]
             # the base's own acceleration off: the leg odometry's and the centripetal term
             up = acc_b - (self.motion_acceleration[e] + np.cross(gyro_b - filt.b, v_b))
-            trust = float(accel_trust(up, float(np.linalg.norm(self.gravity))))
-            filt.k_P, filt.k_I = self.k_p * trust, self.k_i * trust  # Valenti's adaptive gain
             quat = filt.updateIMU(self.orientation[e], gyr=gyro_b, acc=up, dt=dt)
             self.orientation[e] = quat / np.linalg.norm(quat)
             self.angular_velocity[e] = gyro_b - filt.b

@@ -121,8 +121,7 @@ class ViolationMonitor(MonitorState):
         self.any = np.zeros(envs, dtype=np.int64)
         self.down_counts = {t: np.zeros(envs, dtype=np.int64) for t in VIOLATION_TYPES}
         self.down_any = np.zeros(envs, dtype=np.int64)
-        self._up = np.ones(envs, dtype=bool)
-        self._down = np.zeros(envs, dtype=bool)
+        self._down = np.zeros(envs, dtype=bool)  # this tick's ``down`` of :meth:`update`
         self.ticks = 0
         s = robot.config.safety
         self._lower, self._upper = robot.position_lower, robot.position_upper
@@ -194,12 +193,9 @@ class ViolationMonitor(MonitorState):
                 :attr:`down_counts`. None: every env is up (an arm).
         """
         if down is None:
-            if not self._up.all():
-                self._up.fill(True)
-                self._down.fill(False)
+            self._down.fill(False)
         else:
             np.copyto(self._down, down)
-            np.logical_not(down, out=self._up)
         q, dq, tau = backend.true_position(), backend.true_velocity(), backend.joint_torque()
         if self._has_workspace:
             backend.end_effector_position(out=self._ee)
@@ -212,7 +208,7 @@ class ViolationMonitor(MonitorState):
                         self._collided.fill(False)
                         collided = True
                     self._collided[e] = True
-                    if self._up[e]:  # which pairs touched while the robot was up
+                    if not self._down[e]:  # which pairs touched while the robot was up
                         self._count_pairs(e)
         flagged = self._screen(q, dq, tau)
         if collided or flagged:
@@ -270,7 +266,8 @@ class ViolationMonitor(MonitorState):
         )
         if collided:
             tests += (("self_collision", self._collided),)
-        up, down = self._up, self._down
+        down = self._down
+        up = ~down  # only on a tick something was flagged
         for name, flags in tests:
             counts[name] += flags & up
             self.down_counts[name] += flags & down

@@ -36,6 +36,7 @@ import mujoco
 import numpy as np
 import yaml
 
+from deploy.estimation.attitude import projected_gravity
 from eval.world.pushes import push_velocity
 
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "unitree_rl_gym"
@@ -47,13 +48,6 @@ PUSH_INTERVAL = 5.0
 GAIT_PERIOD = 0.8
 
 
-def projected_gravity(quat: np.ndarray) -> np.ndarray:
-    """``R^T [0, 0, -1]`` of a base-to-world quaternion ``[w, x, y, z]`` (as deploy_mujoco.py's
-    ``get_gravity_orientation``)."""
-    w, x, y, z = quat
-    return np.array([2 * (-z * x + w * y), -2 * (z * y + w * x), 1 - 2 * (w * w + z * z)])
-
-
 def unitree_observation(cfg: dict, qpos, qvel, last_action, t: float) -> np.ndarray:
     """deploy_mujoco.py's observation (3 + 3 + 3 + 3 n + 2,) float32 from the true state."""
     n = len(last_action)
@@ -61,7 +55,7 @@ def unitree_observation(cfg: dict, qpos, qvel, last_action, t: float) -> np.ndar
     return np.concatenate(
         [
             qvel[3:6] * cfg["ang_vel_scale"],
-            projected_gravity(qpos[3:7]),
+            projected_gravity(qpos[3:7]),  # deploy_mujoco.py's get_gravity_orientation
             np.array(cfg["cmd_init"]) * np.array(cfg["cmd_scale"]),
             (qpos[7 : 7 + n] - np.array(cfg["default_angles"])) * cfg["dof_pos_scale"],
             qvel[6 : 6 + n] * cfg["dof_vel_scale"],
@@ -162,9 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     rows, run = [], (a.seconds, a.max_velocity)
     for seed in range(lo, hi + 1):
         ref = unitree_loop(robot, cfg, load_torchscript(folder / "motion.pt"), seed, *run)
-        ours, cause = runtime_loop(
-            robot, cfg, folder / f"{a.robot}.onnx", seed, a.seconds, a.max_velocity
-        )
+        ours, cause = runtime_loop(robot, cfg, folder / f"{a.robot}.onnx", seed, *run)
         rows.append((seed, ref, ours, cause))
         print(
             f"seed {seed:3d}  fell at: unitree's loop {_s(ref)}, ours {_s(ours)} ({cause})",

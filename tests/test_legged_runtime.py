@@ -299,11 +299,14 @@ def test_a_legged_joint_estimate_does_not_follow_its_pd_targets_chatter(
     rt.start()
     rt.run(150)  # 3 s: through RAMP_IN into RUNNING, the chatter at full size
     errors, targets = [], []
-    for _ in range(100):
-        joints = plant.true_position()[0].copy()  # where the joints are at the tick's time
-        rt.run(1)
-        errors.append(np.abs(rt.state.q[0] - joints).max())
-        targets.append(rt.command[0].copy())
+    joints = [plant.true_position()[0].copy()]  # where the joints are at each tick's time
+
+    def compare(r):
+        errors.append(np.abs(r.state.q[0] - joints[-1]).max())
+        targets.append(r.command[0].copy())
+        joints.append(plant.true_position()[0].copy())
+
+    rt.run(100, on_tick=compare)
     assert rt.mode_names() == ["RUNNING"], rt.cause_names()
     swing = np.abs(np.diff(np.array(targets), axis=0)).max()
     assert swing > 0.05, swing  # the targets do chatter

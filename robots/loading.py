@@ -284,6 +284,14 @@ def load_robot(name_or_path: str | Path) -> Robot:
         soft_upper=_readonly(centre + frac * half),
         velocity_limit=_readonly([j.velocity_limit for j in cfg.joints]),
         soft_velocity_limit=_readonly(frac * np.array([j.velocity_limit for j in cfg.joints])),
+        command_velocity_limit=_readonly(
+            [
+                j.command_velocity_limit
+                if j.command_velocity_limit is not None
+                else j.soft_limit_fraction * j.velocity_limit
+                for j in cfg.joints
+            ]
+        ),
         acceleration_limit=_readonly([j.acceleration_limit for j in cfg.joints]),
         jerk_limit=_readonly([j.jerk_limit for j in cfg.joints]),
         effort_limit=_readonly([j.effort_limit for j in cfg.joints]),

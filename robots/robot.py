@@ -43,9 +43,14 @@ class Robot:
         soft_lower, soft_upper: Soft limits (``soft_limit_fraction`` of the range about its
             centre), rad. Crossing one is a warning, not a violation.
         velocity_limit: Hard velocity limit, rad/s: the joint itself must stay within it.
-        soft_velocity_limit: ``soft_limit_fraction`` of ``velocity_limit``, rad/s: the fastest
-            command the smoother issues. The margin is for the drive's servo, which tracks a
-            velocity command with overshoot (figures: docs/measurements.md).
+        soft_velocity_limit: ``soft_limit_fraction`` of ``velocity_limit``, rad/s. The margin
+            is for the drive's servo, which tracks a velocity command with overshoot (figures:
+            docs/measurements.md).
+        command_velocity_limit: rad/s, the fastest command the smoother issues: robot.toml's
+            ``command_velocity_limit`` of the joint, else ``soft_velocity_limit``. A legged
+            robot's PD position targets have their own (``robot-import --target-limits pd``,
+            :func:`robots.importer.legged.pd_target_limits`): its drive, not its target's
+            speed, bounds how fast the joint moves.
         acceleration_limit: rad/s^2. jerk_limit: rad/s^3.
         effort_limit: N m at the joint.
         motors: The motor of each joint, per joint.
@@ -83,6 +88,7 @@ class Robot:
     soft_upper: np.ndarray
     velocity_limit: np.ndarray
     soft_velocity_limit: np.ndarray
+    command_velocity_limit: np.ndarray
     acceleration_limit: np.ndarray
     jerk_limit: np.ndarray
     effort_limit: np.ndarray

@@ -35,6 +35,11 @@ class JointConfig(_Strict):
     jerk_limit: Positive  # rad/s^3
     effort_limit: Positive  # N m at the joint
     soft_limit_fraction: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.9
+    # rad/s, the fastest command the smoother issues; default soft_limit_fraction x
+    # velocity_limit (a servo tracks its command). A legged robot's PD targets get their
+    # own (robot-import --target-limits pd): the joint's speed is bounded by its drive, not by
+    # how fast its target moves
+    command_velocity_limit: Positive | None = None
     motor: str  # key into [motors]
     kp: Positive  # N m/rad, plant position servo stiffness
     kd: NonNegative  # N m s/rad, plant position servo damping

@@ -49,7 +49,7 @@ class CommandSmoother(RuckigState):
       limits (a joint too fast to stop in time, typically right after a sync) the clip bites and
       ``extrema_violations`` counts it.
     - velocity: ``ControlInterface.Velocity``; the target velocity clamped to
-      +-soft_velocity_limit and to the speed from which the joint can still stop before its
+      +-command_velocity_limit and to the speed from which the joint can still stop before its
       *soft* limits (:func:`~deploy.smoothing.braking.stopping_speed` of the distance left,
       counted in ``stopping_distance_clamps``), and set to 0 (Ruckig's time-optimal brake) where
       one more period of the worst acceleration the jerk limit allows would leave too little room
@@ -116,9 +116,11 @@ class CommandSmoother(RuckigState):
             self._lo, self._hi = tiled(robot.soft_lower), tiled(robot.soft_upper)
         else:
             self._lo, self._hi = tiled(robot.position_lower), tiled(robot.position_upper)
-        # commands stay within the soft velocity limit: the margin to the hard limit absorbs the
-        # servo's tracking overshoot (see ``Robot.soft_velocity_limit``)
-        self._vmax, self._amax = tiled(robot.soft_velocity_limit), tiled(robot.acceleration_limit)
+        # commands stay within the command velocity limit: the soft velocity limit, whose margin
+        # to the hard limit absorbs the servo's tracking overshoot, or a legged robot's PD
+        # targets' own (see ``Robot.command_velocity_limit``)
+        self._vmax = tiled(robot.command_velocity_limit)
+        self._amax = tiled(robot.acceleration_limit)
         self._jmax, self._emax = tiled(robot.jerk_limit), tiled(robot.effort_limit)
         self._rate = self._emax * dt / TORQUE_RISE_TIME
         self._neg_vmax, self._neg_emax, self._neg_rate = -self._vmax, -self._emax, -self._rate

@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 
 from robots.importer.floating_mjcf import FREE_JOINT, IMU_SITE, finish_floating_mjcf
-from robots.importer.model import Motion, _sig
+from robots.importer.model import SOFT_LIMIT_FRACTION, Motion, _sig
 from robots.importer.source import PreparedSource, RobotImportError
 from robots.importer.toml_text import (
     _f,
@@ -239,7 +239,8 @@ def write_legged_toml(
             "# 4 x (effort / kp) / control_period^2 and jerk_limit at least acceleration_limit /",
             "# (0.5 x control_period): a target may move, rest to rest within one control period,",
             "# as far as the drive's full torque reaches (effort / kp), as a policy trained",
-            "# without a smoother steps it.",
+            "# without a smoother steps it; command_velocity_limit, the target's speed in that",
+            "# move, 2 x (effort / kp) / control_period (the joint's own stays velocity_limit).",
         ]
     for i, j in enumerate(joint_names):
         lo, hi, vel, eff = limits[j]
@@ -321,26 +322,30 @@ PD_JERK_PERIODS = 0.5
 
 def pd_target_limits(
     effort: np.ndarray, kp: np.ndarray, period: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Acceleration (rad/s^2) and jerk (rad/s^3) limits, (n,), that let a PD position target
-    move, rest to rest within one control period, as far as the drive's full torque reaches.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Velocity (rad/s), acceleration (rad/s^2) and jerk (rad/s^3) limits, (n,), that let a PD
+    position target move, rest to rest within one control period, as far as the drive's full
+    torque reaches.
 
     A legged policy's position target is a torque in disguise: the drive applies
     ``kp (target - q) - kd dq``, so a target ``effort / kp`` from the joint asks for the full
     torque, and policies trained without a smoother (legged_gym, Isaac Lab, mjlab) step their
     targets that far from one control period to the next. A rest-to-rest move of ``d`` in time
-    ``T`` with acceleration ``a`` needs ``a = 4 d / T^2``; the jerk reaches ``a`` within
-    ``PD_JERK_PERIODS`` of a period. Limits below these make the smoother, not the policy,
-    decide how the legs move: the policy falls where it walks in its own loop.
+    ``T`` with acceleration ``a`` needs ``a = 4 d / T^2`` and reaches ``v = 2 d / T``; the jerk
+    reaches ``a`` within ``PD_JERK_PERIODS`` of a period. Limits below these make the smoother,
+    not the policy, decide how the legs move: the policy falls where it walks in its own loop.
+    The velocity is the target's, not the joint's: the joint's own limit (the motor's no-load
+    speed) still bounds what the guard and the monitors accept of the joint.
 
     Args:
         effort: (n,) N m, the joints' effort limits. kp: (n,) N m/rad, the drives' gains.
         period: s, the control period.
     """
     reach = np.asarray(effort, dtype=np.float64) / np.asarray(kp, dtype=np.float64)
+    vel = 2.0 * reach / period
     acc = 4.0 * reach / period**2
     jerk = acc / (PD_JERK_PERIODS * period)
-    return np.array([_sig(a) for a in acc]), np.array([_sig(j) for j in jerk])
+    return tuple(np.array([_sig(x) for x in values]) for values in (vel, acc, jerk))
 
 
 def import_floating_base(
@@ -429,7 +434,9 @@ def import_floating_base(
                 )
         if target_limits == "pd":
             effort = np.array([limits_out[j][3] for j in joint_names])
-            acc, jerk = pd_target_limits(effort, motion.kp, 1.0 / control_rate)
+            vel, acc, jerk = pd_target_limits(effort, motion.kp, 1.0 / control_rate)
+            soft = SOFT_LIMIT_FRACTION * np.array([limits_out[j][2] for j in joint_names])
+            motion.command_velocity = np.maximum(soft, vel)
             motion.acceleration[:] = np.maximum(motion.acceleration, acc)
             motion.jerk[:] = np.maximum(motion.jerk, jerk)
         return motion

@@ -59,7 +59,9 @@ TASK_MIN_HITS = 0.05
 @dataclass
 class Motion:
     """Per-joint choices, arrays in joint order: home (rad), acceleration (rad/s^2), jerk
-    (rad/s^3), kp (N m/rad), kd (N m s/rad), worst inertia (kg m^2) and gravity torque (N m)."""
+    (rad/s^3), kp (N m/rad), kd (N m s/rad), worst inertia (kg m^2) and gravity torque (N m);
+    ``command_velocity`` (rad/s) the smoother's own velocity limit where it is not the soft
+    velocity limit (a legged robot's PD targets), else None."""
 
     home: np.ndarray
     acceleration: np.ndarray
@@ -68,6 +70,7 @@ class Motion:
     kd: np.ndarray
     inertia: np.ndarray
     gravity: np.ndarray
+    command_velocity: np.ndarray | None = None
 
 
 def _sig(x: float, digits: int = 2) -> float:

@@ -48,12 +48,18 @@ def joint_lines(
     kp, kd = f"kp = {_f(motion.kp[i])}", f"kd = {_f(motion.kd[i])}"
     if gains_note:
         kp, kd = f"{kp}  # N m/rad, {gains_note}", f"{kd}  # N m s/rad, {gains_note}"
+    command = (
+        []
+        if motion.command_velocity is None
+        else [f"command_velocity_limit = {_f(motion.command_velocity[i])}  # rad/s, PD target"]
+    )
     return [
         "",
         "[[joints]]",
         f'name = "{j}"',
         f"position_limit = [{_f(lo)}, {_f(hi)}]  # {kind}",
         f"velocity_limit = {_f(vel)}  # rad/s, {vnote}",
+        *command,
         f"acceleration_limit = {_f(motion.acceleration[i])}",
         f"jerk_limit = {_f(motion.jerk[i])}",
         f"effort_limit = {_f(eff)}  # N m, {enote}",

@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from deploy.smoothing import CommandSmoother
 from robots import load_robot
 from robots.importer.cli import EXIT_REFUSED, import_robot, main
 
@@ -362,6 +363,22 @@ def test_pd_targets_may_step_as_far_as_the_full_torque_reaches_and_the_estimator
     assert (robot.acceleration_limit >= 4.0 * reach / period**2 * 0.98).all()  # 2 digits
     assert (robot.jerk_limit >= robot.acceleration_limit / (0.5 * period) * 0.98).all()
     assert (motion_acceleration(robot) <= 2.0 * robot.velocity_limit / period).all()
+    # the smoother, not only its limits: a target step of the full reach toward the farther
+    # hard limit is commanded within two periods (the motor's no-load speed on the target
+    # held the H1-2's hips to 0.4 rad per period and its ankles to 0.16)
+    smoother = CommandSmoother(robot, 1, "position")
+    home = robot.home[None, :]
+    smoother.reset(home, np.zeros_like(home))
+    up = robot.position_upper - robot.home > robot.home - robot.position_lower
+    step = np.where(up, 1.0, -1.0) * np.minimum(
+        reach,
+        0.9 * np.maximum(robot.position_upper - robot.home, robot.home - robot.position_lower),
+    )
+    assert (np.abs(step) > 2.0 * period * robot.soft_velocity_limit).any()  # the old cap bites
+    target = home + step
+    for _ in range(2):
+        command = smoother.step(target.copy())
+    np.testing.assert_allclose(command, target, atol=1e-6)
     plant = SimBackend(robot, "position", envs=1, seed=0)
     estimator = JointStateEstimator(robot, 1, input_extrapolates=False)
     state = RobotState.zeros(1, robot.n_joints)

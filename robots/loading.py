@@ -270,6 +270,7 @@ def load_robot(name_or_path: str | Path) -> Robot:
     _check_agreement(mjcf, mj_model, pin_model, sites, frames, lower, upper, floating)
 
     frac = np.array([j.soft_limit_fraction for j in cfg.joints])
+    velocity = np.array([j.velocity_limit for j in cfg.joints])
     centre, half = (upper + lower) / 2.0, (upper - lower) / 2.0
     digest = description_hash(cfg, described_mjcf.read_bytes())
     return Robot(
@@ -282,14 +283,12 @@ def load_robot(name_or_path: str | Path) -> Robot:
         position_upper=_readonly(upper),
         soft_lower=_readonly(centre - frac * half),
         soft_upper=_readonly(centre + frac * half),
-        velocity_limit=_readonly([j.velocity_limit for j in cfg.joints]),
-        soft_velocity_limit=_readonly(frac * np.array([j.velocity_limit for j in cfg.joints])),
+        velocity_limit=_readonly(velocity),
+        soft_velocity_limit=_readonly(frac * velocity),
         command_velocity_limit=_readonly(
             [
-                j.command_velocity_limit
-                if j.command_velocity_limit is not None
-                else j.soft_limit_fraction * j.velocity_limit
-                for j in cfg.joints
+                soft if j.command_velocity_limit is None else j.command_velocity_limit
+                for j, soft in zip(cfg.joints, frac * velocity, strict=True)
             ]
         ),
         acceleration_limit=_readonly([j.acceleration_limit for j in cfg.joints]),

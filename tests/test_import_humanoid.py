@@ -369,10 +369,9 @@ def test_pd_targets_may_step_as_far_as_the_full_torque_reaches_and_the_estimator
     smoother = CommandSmoother(robot, 1, "position")
     home = robot.home[None, :]
     smoother.reset(home, np.zeros_like(home))
-    up = robot.position_upper - robot.home > robot.home - robot.position_lower
-    step = np.where(up, 1.0, -1.0) * np.minimum(
-        reach,
-        0.9 * np.maximum(robot.position_upper - robot.home, robot.home - robot.position_lower),
+    room_up, room_down = robot.position_upper - robot.home, robot.home - robot.position_lower
+    step = np.where(room_up > room_down, 1.0, -1.0) * np.minimum(
+        reach, 0.9 * np.maximum(room_up, room_down)
     )
     assert (np.abs(step) > 2.0 * period * robot.soft_velocity_limit).any()  # the old cap bites
     target = home + step

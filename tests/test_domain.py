@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.soak.falls import ORIGINS, attribute_falls, falls_by_origin
+from eval.soak.falls import ORIGINS, attribute_falls, falls_by_origin, stops_while_falling
 from eval.soak.sweep import FALL_ALLOWANCE, QUANTITIES, TOLERANCE, margin_text, margins
 from eval.world.domain import DomainError, legged_gym_domain, training_domain
 from eval.world.pushes import DomainPushes, PushRanges, push_velocity
@@ -114,8 +114,11 @@ def test_every_fall_is_attributed_to_what_began_it():
         {"t_s": 50.5, "cause": "fall"},  # after a domain push at 50 s
         {"t_s": 80.0, "cause": "fall"},  # nothing before it
         {"t_s": 90.0, "cause": "hard_limit", "joint": "left_hip_roll_joint", "past_rad": 0.2},
+        # hard-limit stops the soak replayed without the stop: the replay stood / fell anyway
+        {"t_s": 100.5, "cause": "hard_limit", "past_rad": 0.15, "would_fall": False},
+        {"t_s": 101.0, "cause": "hard_limit", "past_rad": 0.15, "would_fall": True},  # push at 100
     ]
-    falls = attribute_falls(log, faults, push_times=[50.0])
+    falls = attribute_falls(log, faults, push_times=[50.0, 100.0])
     assert [f["origin"] for f in falls] == [
         "runtime_stop",
         "fault",
@@ -123,10 +126,14 @@ def test_every_fall_is_attributed_to_what_began_it():
         "push",
         "policy",
         "runtime_stop",
+        "runtime_stop",
+        "push",
     ]
     assert falls[0]["during"] == "stale" and falls[3]["during"] == "domain push"
     assert falls[5]["joint"] == "left_hip_roll_joint"
-    assert falls_by_origin(falls) == dict(zip(ORIGINS, (2, 2, 1, 1), strict=True))
+    assert [f["stopped_while_falling"] for f in falls[5:]] == [False, False, True]
+    assert falls_by_origin(falls) == dict(zip(ORIGINS, (3, 3, 1, 1), strict=True))
+    assert stops_while_falling(falls) == 1
 
 
 def test_sweep_margin_is_the_last_level_held_in_a_row():

@@ -97,3 +97,46 @@ def test_the_published_h1_walks_through_half_metre_per_second_pushes(push_seed):
             pushes += 1
     assert pushes >= 7
     assert plant.true_base_state()[0, 0] > 5.0  # it walked on
+
+
+def test_the_soak_tells_a_stop_on_a_falling_robot_from_a_stop_that_felled_it(tmp_path):
+    """H1-2 in its training domain (legged_gym's pushes), one session each: seed 1's robot is
+    stopped at 6.0 s (its right ankle pitch's estimate 0.15 rad past the hard limit), seed 20's
+    at 55.6 s (0.10 rad). Replayed without the stop, seed 1's falls 0.06 s later (the ankle went
+    past its stop as the robot toppled after a push: the push began the fall) and seed 20's
+    stands (the stop felled it). The replay repeats the session: with the stop left on it stops
+    on the same tick, the estimate as far past."""
+    from eval.soak.batch import SessionBatch
+    from eval.soak.falls import attribute_falls
+    from eval.soak.session import SessionConfig
+    from eval.world.domain import training_domain
+    from eval.world.ranges_file import load_ranges_text
+    from robots import load_robot
+
+    policy = "tests/data/unitree_rl_gym/h1_2/h1_2.onnx"
+    ranges = load_ranges_text(training_domain(policy), policy, load_robot("h1_2"), None)
+    stops, batches = [], []
+    for seed, until in ((1, 7.0), (20, 56.5)):
+        config = SessionConfig(robot="h1_2", policy=policy, seed=seed, hours=1.0, ranges=ranges)
+        batch = SessionBatch([config], tmp_path / str(seed), progress=False)
+        batch.rt.run(int(round(until / batch.dt)), on_tick=batch.on_tick)
+        log = batch.task.parts()["tracker"].fall_log[0]
+        stops.append([r for r in log if r["cause"] == "hard_limit"])
+        batches.append(batch)
+    assert [[r["would_fall"] for r in s] for s in stops] == [[True], [False]]
+    origins = [
+        attribute_falls(s, [], b.pushes.times[0]) for s, b in zip(stops, batches, strict=True)
+    ]
+    assert [[f["origin"] for f in o] for o in origins] == [["push"], ["runtime_stop"]]
+    # seed 20's replay with the stop on: the same stop on the same tick
+    replay = batches[1].stop_replay
+    twin = replay.copies[0]
+    arrays, meta = replay.captures[0]
+    twin.restore(arrays, json.loads(json.dumps(meta)), "test")
+    log = twin.task.parts()["tracker"].fall_log[0]
+    before = len(log)
+    stop = stops[1][0]
+    twin.rt.run(int(round((stop["t_s"] + 0.5 - twin.rt.time) / twin.dt)), on_tick=twin.on_tick)
+    assert [(r["t_s"], r["cause"], r["past_rad"]) for r in log[before:]] == [
+        (stop["t_s"], "hard_limit", stop["past_rad"])
+    ]

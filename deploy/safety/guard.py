@@ -284,6 +284,22 @@ class SafetyGuard:
         """
         put(self._state_fields(), state, env)
 
+    def set_stopping(self, check: str, stops: bool) -> None:
+        """Whether check ``check``'s firing is a hard violation (the runtime's safe stop).
+
+        Evaluation only: the soak replays the moment of a stop with it off, to tell a stop that
+        laid a standing robot down from one on a robot already falling
+        (:mod:`eval.soak.counterfactual`). The check still runs and counts. A setting, not
+        state: :meth:`state_dict` leaves it out and :meth:`load_state_dict` does not change it.
+
+        Raises:
+            KeyError: ``check`` is not a guard check name (:data:`deploy.safety.check.CHECKS`).
+        """
+        names = [c.name for c in GUARD_CHECKS]
+        if check not in names:
+            raise KeyError(f"check: expected one of {names}, got {check!r}")
+        self._arrays.stops[names.index(check)] = bool(stops)
+
     def trust_estimate(self, covariance: np.ndarray) -> None:
         """The joint estimator's covariance ``covariance`` (envs, n, 2, 2) of ``[q, dq]``
         (rad^2, rad^2/s^2; a view the estimator keeps current,

@@ -33,6 +33,12 @@ def summary_text(report: dict) -> str:
             by = ", ".join(f"{o.replace('_', ' ')} {n}" for o, n in origins.items() if n)
             causes = ", ".join(f"{c} {n}" for c, n in loco.get("falls_by_cause", {}).items())
             lines.append(f"  falls began  {by} (stops by cause: {causes or 'none'})")
+            falling = loco.get("stops_while_falling", 0)
+            if falling:
+                lines.append(
+                    f"  stops        {falling} runtime stop(s) on a robot already falling (its "
+                    "replay without the stop fell too; counted above by what began the fall)"
+                )
         up = loco.get("standing_fraction")
         if up is not None:
             lines.append(f"  standing     {100 * up:.2f} % of the session RUNNING (on its feet)")

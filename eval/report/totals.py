@@ -188,6 +188,7 @@ def _locomotion_totals(results: list[dict]) -> dict | None:
         "falls": falls,
         "falls_per_hour": falls / hours if hours > 0 else 0.0,
         "falls_by_origin": origins,
+        "stops_while_falling": sum(x.get("stops_while_falling", 0) for x in legs),
         "falls_by_cause": causes,
         "tracking_success": sum(x["tracked_s"] for x in legs) / running if running else None,
         "min_window_success_rate": min(windows) if windows else None,

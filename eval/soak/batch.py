@@ -109,6 +109,9 @@ class SessionBatch:
         on_progress: Optional callable, called after each progress write.
         film: Keep every checkpoint and note the worst moments for the film strip
             (:class:`eval.film.strip.FilmRecorder`; it only reads the batch).
+        replay_stops: A floating-base robot's hard-limit stops are replayed without the stop
+            (:class:`eval.soak.counterfactual.StopReplay`), so each fall says whether the robot
+            was falling anyway. False in the replay's own copy of the batch.
 
     Raises:
         SessionError: sessions with different options, or duplicate seeds.
@@ -124,6 +127,7 @@ class SessionBatch:
         progress: bool = True,
         on_progress=None,
         film: bool = False,
+        replay_stops: bool = True,
     ):
         from deploy.backends.sim.engines import make_plant
         from deploy.runtime import Runtime
@@ -222,6 +226,11 @@ class SessionBatch:
         ]
         self._next_event = self.every
         self._ruckig = mode != "torque"
+        self.stop_replay = None
+        if replay_stops and self.kind.legged:
+            from eval.soak.counterfactual import StopReplay
+
+            self.stop_replay = StopReplay(self)
         self._wall0 = time.perf_counter()
         if resume:
             self._resume()
@@ -258,11 +267,32 @@ class SessionBatch:
                 f"{self.out / SESSIONS_DIR}"
             )
         _, _, (_, m0) = have[0]
-        self.next_ticks = {k: int(v) for k, v in m0["next"].items()}
         for s, d, (arrays, meta) in have:
             s.restore(arrays, meta, d / ckpt.MANIFEST)
+        self._align_events(m0)
+
+    def _align_events(self, meta: dict) -> None:
+        """The supervision's next ticks from a capture's ``meta``, after its restore."""
+        self.next_ticks = {k: int(v) for k, v in meta["next"].items()}
         self._next_event = (self.rt.ticks // self.every + 1) * self.every
         self._wall0 = time.perf_counter()
+
+    def restore(self, arrays: dict, meta: dict, where) -> None:
+        """Continue a one-session batch from its session's :meth:`Session.capture
+        <eval.soak.session.Session.capture>` (a checkpoint's content, in memory; ``where`` names
+        it in messages). The batch then repeats the captured session tick for tick.
+
+        Raises:
+            eval.soak.checkpoint.CheckpointError: the capture does not fit (see
+                :meth:`Session.restore <eval.soak.session.Session.restore>`).
+            SessionError: the batch has more than one session.
+        """
+        if len(self.sessions) != 1:
+            raise SessionError(
+                f"restore: expected a batch of one session, got {len(self.sessions)}"
+            )
+        self.sessions[0].restore(arrays, meta, where)
+        self._align_events(meta)
 
     def checkpoint(self) -> None:
         """Write every session's checkpoint (atomically, see :mod:`eval.soak.checkpoint`)."""
@@ -295,6 +325,8 @@ class SessionBatch:
         )
         if rt.ticks >= self._next_event:
             self._supervise(rt)
+        if self.stop_replay is not None:  # last: a capture must hold this whole tick
+            self.stop_replay(rt)
 
     def _supervise(self, rt) -> None:
         ticks, t = rt.ticks, rt.time

@@ -14,6 +14,12 @@ whose estimate was past its limit and by how much). Its origin:
   (dropout, stale frames, latency, non-finite actions), named (``during``).
 - ``policy``: the fall detector's stop with no stop, push or fault before it: the policy lost
   its balance in the session's world (its dynamics, floor, sensors).
+
+A hard-limit stop that the soak replayed without the stop (:mod:`eval.soak.counterfactual`)
+carries ``would_fall``. True: the replay fell all the same (its fall detector fired within
+``HORIZON`` s), so the stop came on a robot already falling and the fall goes to what began it,
+as the fall detector's stop would (push, fault, policy), with ``stopped_while_falling`` True.
+False, or not replayed: ``runtime_stop``.
 """
 
 from __future__ import annotations
@@ -33,7 +39,8 @@ def attribute_falls(
     fault or push it followed, or None).
 
     Args:
-        fall_log: The tracker's records (``t_s`` s, ``cause``, optional ``joint``, ``past_rad``).
+        fall_log: The tracker's records (``t_s`` s, ``cause``, optional ``joint``, ``past_rad``,
+            ``would_fall``).
         faults: The session's faults, dicts with ``kind``, ``start_s``, ``duration_s`` (s).
         push_times: The session times of the training domain's pushes, s.
     """
@@ -47,7 +54,8 @@ def attribute_falls(
             if f["start_s"] <= t <= f["start_s"] + f["duration_s"] + ATTRIBUTION_WINDOW
         ]
         during = recent[-1]["kind"] if recent else None
-        if fall.get("cause") not in (None, "fall"):
+        falling = fall.get("would_fall") is True
+        if fall.get("cause") not in (None, "fall") and not falling:
             origin = "runtime_stop"
         elif any(p <= t <= p + ATTRIBUTION_WINDOW for p in pushes):
             origin, during = "push", "domain push"
@@ -57,10 +65,16 @@ def attribute_falls(
             origin = "fault"
         else:
             origin = "policy"
-        out.append({**fall, "origin": origin, "during": during})
+        out.append({**fall, "origin": origin, "during": during, "stopped_while_falling": falling})
     return out
 
 
 def falls_by_origin(falls: list[dict]) -> dict[str, int]:
     """``{origin: falls}`` over ``ORIGINS`` (every origin, zeros included)."""
     return {o: sum(1 for f in falls if f["origin"] == o) for o in ORIGINS}
+
+
+def stops_while_falling(falls: list[dict]) -> int:
+    """How many of ``falls`` (:func:`attribute_falls`'s) began with a runtime stop on a robot
+    that its replay showed falling anyway."""
+    return sum(1 for f in falls if f.get("stopped_while_falling"))

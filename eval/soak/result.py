@@ -24,7 +24,7 @@ from deploy.monitors.interventions import INTERVENTION_CHECKS
 from deploy.monitors.violations import VIOLATION_TYPES
 from deploy.runtime import FAULT_CAUSES, STAGES, Mode
 from eval.soak import checkpoint as ckpt
-from eval.soak.falls import attribute_falls, falls_by_origin
+from eval.soak.falls import attribute_falls, falls_by_origin, stops_while_falling
 from eval.soak.session import RESPONSES, Session, SessionConfig, option_difference, session_dir
 from robots.files import sha256_file
 
@@ -68,6 +68,7 @@ def locomotion_result(session: Session) -> dict:
         "falls_per_hour": falls / sim_h if sim_h > 0 else 0.0,
         "falls_by_cause": tr.causes(e),
         "falls_by_origin": falls_by_origin(fall_records),
+        "stops_while_falling": stops_while_falling(fall_records),
         "fall_records": fall_records,
         "domain_pushes": len(pushes),
         "fall_stops": int(rt.counters.faults["fall"][e]),

@@ -23,7 +23,7 @@ Not replayed (``would_fall`` stays absent): stops of another cause (a stale sens
 actions, an overrun: the runtime cannot walk on without the sensor it lost), and a hard-limit
 stop whose episode began before a resume (its capture was not in the checkpoint).
 
-Cost: a capture of one env per episode past a hard limit (about 2 ms), and per replayed stop
+Cost: a capture of one env per episode past a hard limit, and per replayed stop
 the copy's ``HORIZON`` s plus up to ``LEGGED_HARD_LIMIT_DURATION`` s before the stop.
 """
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from deploy.backends.sim.sensors import draw
 from robots import Robot
 
 
@@ -139,8 +140,7 @@ class BaseSensorModel:
         """Draw the turn-on biases of the envs ``which`` (bool (envs,)); ``full``: clear every
         buffer (the backend's clock restarts); else clear those envs' readings and take one now
         (MuJoCo's sensors were computed by ``mj_forward`` at the reset pose)."""
-        rng = self.backend.joint_sensors.rng
-        rng.standard_normal(out=self._noise6)
+        draw(self.backend.joint_sensors.rng, "standard_normal", self._noise6, which)
         self.gyro_bias[which] = (self._noise6[:, :3] * self.gyro_bias_sigma[:, None])[which]
         self.accel_bias[which] = (self._noise6[:, 3:] * self.accel_bias_sigma[:, None])[which]
         if full:
@@ -166,21 +166,21 @@ class BaseSensorModel:
         if force or tick % self.imu_every == 0:
             dt = self.imu_every * self.robot.control_period
             root = np.sqrt(dt)
-            rng.standard_normal(out=self._noise6)
+            draw(rng, "standard_normal", self._noise6, envs)
             self.gyro_bias[sel] += (self._noise6[:, :3] * (self.gyro_bias_walk * root)[:, None])[
                 sel
             ]
             self.accel_bias[sel] += (self._noise6[:, 3:] * (self.accel_bias_walk * root)[:, None])[
                 sel
             ]
-            rng.standard_normal(out=self._noise6)
+            draw(rng, "standard_normal", self._noise6, envs)
             reading = self.true_imu().copy()
             reading[:, :3] += self.gyro_bias + self._noise6[:, :3] * self.gyro_noise_sigma[:, None]
             reading[:, 3:] += (
                 self.accel_bias + self._noise6[:, 3:] * self.accel_noise_sigma[:, None]
             )
             stamp = np.full(self.envs, time)
-            lost = rng.random((self.envs, 1)) < self.imu_dropout[:, None]
+            lost = draw(rng, "random", np.ones((self.envs, 1)), envs) < self.imu_dropout[:, None]
             reading[lost[:, 0]] = np.nan
             stamp[lost[:, 0]] = np.nan
             self._buf_imu[slot, sel] = reading[sel]
@@ -189,7 +189,7 @@ class BaseSensorModel:
             self._buf_imu[slot] = np.nan
             self._buf_imu_stamp[slot] = np.nan
         if force or tick % self.contact_every == 0:
-            rng.standard_normal(out=self._noise_f)
+            draw(rng, "standard_normal", self._noise_f, envs)
             reading = self.true_foot_force() + self._noise_f * self.force_noise_sigma[:, None]
             self._buf_force[slot, sel] = reading[sel]
             self._buf_contact_stamp[slot, sel] = time

@@ -43,17 +43,33 @@ class PerEnvGenerators:
     def __init__(self, generators: Sequence[np.random.Generator]):
         self.generators = list(generators)
 
-    def standard_normal(self, size=None, dtype=np.float64, out=None):
+    def standard_normal(self, size=None, dtype=np.float64, out=None, envs=None):
+        """Normal draws, row ``e`` from env ``e``'s generator; with ``envs`` (bool (envs,)) only
+        those rows are drawn (the others' streams do not move)."""
         out = np.empty(size, dtype=dtype) if out is None else out
         for e, g in enumerate(self.generators):
-            g.standard_normal(dtype=dtype, out=out[e])
+            if envs is None or envs[e]:
+                g.standard_normal(dtype=dtype, out=out[e])
         return out
 
-    def random(self, size=None, dtype=np.float64, out=None):
+    def random(self, size=None, dtype=np.float64, out=None, envs=None):
+        """Uniform draws in [0, 1), as :meth:`standard_normal`."""
         out = np.empty(size, dtype=dtype) if out is None else out
         for e, g in enumerate(self.generators):
-            g.random(dtype=dtype, out=out[e])
+            if envs is None or envs[e]:
+                g.random(dtype=dtype, out=out[e])
         return out
+
+
+def draw(rng, kind: str, out: np.ndarray, envs: np.ndarray | None) -> np.ndarray:
+    """``rng.<kind>(out=out)`` (``kind``: ``"standard_normal"`` or ``"random"``; ``out`` (envs,
+    ...)), drawing only the rows of the envs ``envs`` (bool (envs,)) when ``rng`` is a
+    :class:`PerEnvGenerators`: a reset of some envs leaves the other envs' streams where they
+    were, so a session draws the same numbers alone or batched. A single stream draws every
+    row."""
+    if isinstance(rng, PerEnvGenerators):
+        return getattr(rng, kind)(out=out, envs=envs)
+    return getattr(rng, kind)(out=out)
 
 
 class JointSensorModel:

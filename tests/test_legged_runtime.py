@@ -214,9 +214,10 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_and_an_estimate_stops_only
     or its exploration commands) is clamped to the soft limit and counted, not a safe stop. Its
     estimate a few hundredths of a radian past the hard limit for one stride (0.8 s, the H1's gait
     cycle) is not a stop either (a stop lays a walking robot down), nor is a joint bouncing off its
-    stop more than ``LEGGED_HARD_LIMIT_TOLERANCE`` (0.1 rad) past it for a tick or two. Held past
-    it longer than ``LEGGED_HARD_LIMIT_DURATION`` (1 s), or more than the tolerance past it
-    after ``LEGGED_HARD_LIMIT_BOUNCE`` (0.1 s) past, is."""
+    stop more than ``LEGGED_HARD_LIMIT_TOLERANCE`` (0.1 rad) past it for a tick or two, however
+    long it was past by less before. Held past it longer than ``LEGGED_HARD_LIMIT_DURATION``
+    (1 s), or more than the tolerance past it for longer than ``LEGGED_HARD_LIMIT_BOUNCE``
+    (0.1 s), is."""
     from deploy.safety.guard import SafetyGuard
     from deploy.safety.limits import (
         LEGGED_HARD_LIMIT_BOUNCE,
@@ -251,6 +252,14 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_and_an_estimate_stops_only
     bounce = round(LEGGED_HARD_LIMIT_BOUNCE / go2.control_period)
     verdicts = [tick([go2.home[calf], go2.home[calf], far])[1][2] for _ in range(bounce + 1)]
     assert verdicts == [False] * bounce + [True]  # far past and staying: a stop after 0.1 s
+    # past by a little for 0.1 s (a crouch), then far past for two ticks (the stop's impact):
+    # a bounce, however long it was past before (the H1-2's ankle, seed 20 of its domain)
+    guard.reset(state.q)
+    for _ in range(bounce + 1):
+        assert tick([go2.home[calf], go2.home[calf], lower - 0.02])[1] == [False, False, False]
+    for _ in range(2):
+        assert tick([go2.home[calf], go2.home[calf], far])[1] == [False, False, False]
+    assert tick([go2.home[calf], go2.home[calf], lower - 0.02])[1] == [False, False, False]
     guard.reset(state.q)
     stride = round(0.8 / go2.control_period)  # a stride past the limit, then back
     for _ in range(stride - 1):

@@ -111,6 +111,9 @@ class SafetyGuard:
         #: (envs,) int64, consecutive ticks with an estimate past a hard limit (a floating
         #: base's tolerance, :mod:`deploy.safety.limits`)
         self.beyond_ticks = np.zeros(envs, dtype=np.int64)
+        #: (envs,) int64, consecutive ticks with an estimate farther past a hard limit than a
+        #: floating base's tolerance
+        self.far_ticks = np.zeros(envs, dtype=np.int64)
         self.effort_scale = np.ones((envs, n))
         self._last_valid = np.tile(robot.home, (envs, 1))
         self._pred = np.zeros((envs, n))
@@ -190,6 +193,7 @@ class SafetyGuard:
             counts=self.count_matrix,
             hard_violation=self.hard_violation,
             beyond_ticks=self.beyond_ticks,
+            far_ticks=self.far_ticks,
             pred=self._pred,
             tmp=self._tmp,
             screen=self._screen_q,
@@ -235,6 +239,7 @@ class SafetyGuard:
         self._last_valid[which] = q[which]
         self.hard_violation[which] = False
         self.beyond_ticks[which] = 0
+        self.far_ticks[which] = 0
         drive = self.envelope.drive if self.envelope is not None else None
         if drives and drive is not None:
             drive.reset(q, envs)
@@ -244,6 +249,7 @@ class SafetyGuard:
         fields.update(
             hard_violation=self.hard_violation,
             beyond_ticks=self.beyond_ticks,
+            far_ticks=self.far_ticks,
             effort_scale=self.effort_scale,
             last_valid=self._last_valid,
             workspace_q=self._ws_q,
@@ -262,7 +268,8 @@ class SafetyGuard:
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
         """The guard's state (copies; conventions of :mod:`deploy.stateful`): ``counts/<check>``
-        (envs,) int64, ``hard_violation`` (envs,) bool, ``beyond_ticks`` (envs,) int64,
+        (envs,) int64, ``hard_violation`` (envs,) bool, ``beyond_ticks`` and ``far_ticks`` (envs,)
+        int64 (:mod:`deploy.safety.limits`),
         ``effort_scale`` (envs, n), ``last_valid`` (envs, n) the hold target (rad in position mode),
         and the screens' caches (``workspace_q``, ``collision_q`` (envs, n) rad;
         ``workspace_margin`` (envs,) m; ``pair_clearance`` (envs, pairs) m, each collision pair's

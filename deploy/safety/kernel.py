@@ -44,6 +44,7 @@ class GuardArrays(NamedTuple):
     counts: np.ndarray  # (K, envs) int64, the guard's count_matrix
     hard_violation: np.ndarray  # (envs,) bool
     beyond_ticks: np.ndarray  # (envs,) int64, consecutive ticks of an estimate past a hard limit
+    far_ticks: np.ndarray  # (envs,) int64, consecutive ticks of one farther than its tolerance
     pred: np.ndarray  # (envs, n) the predicted next position, rad
     tmp: np.ndarray  # (envs, n) work
     screen: np.ndarray  # (2, envs, n) rad: configurations of the workspace, collision screens

@@ -9,9 +9,9 @@ floating-base robot's *target* past a hard limit is clamped to the soft limit in
 low-gain PD's targets act as torques (``kp (target - q)``), and legged policies command past the
 joint range by design (legged_gym trains without any bound on the targets).
 
-A floating-base robot's *estimate* past a hard limit stops it when it is more than
-``LEGGED_HARD_LIMIT_TOLERANCE`` past after being past for longer than ``LEGGED_HARD_LIMIT_BOUNCE``,
-or past at all for longer than ``LEGGED_HARD_LIMIT_DURATION``; an arm's stops at once. For a
+A floating-base robot's *estimate* past a hard limit stops it when it has been more than
+``LEGGED_HARD_LIMIT_TOLERANCE`` past for longer than ``LEGGED_HARD_LIMIT_BOUNCE``, or past at all
+for longer than ``LEGGED_HARD_LIMIT_DURATION``; an arm's stops at once. For a
 walking robot every stop is a fall (it lies down, damped): an estimate a few hundredths of a radian
 past a hip's limit at the end of a stride (the soak's heavier links or stiffer joints carry a swing
 a little further; the estimate's noise does the rest) is not worth dropping a 50 kg robot, nor is a
@@ -46,8 +46,8 @@ from deploy.safety.check import (
 
 #: Rows of the hard-limit check's constants: the bounds of a position target (hard limits
 #: widened by the guard's target tolerance; infinite for a floating base), how far past a hard
-#: limit the estimate may be (rad), for how many ticks past at all, and after how many ticks past
-#: it may no longer be farther than that (all 0 for an arm: a stop at once).
+#: limit the estimate may be (rad), for how many ticks past at all, and for how many ticks
+#: farther than that (all 0 for an arm: a stop at once).
 TARGET_LOWER, TARGET_UPPER, TOLERANCE, DURATION, BOUNCE = 0, 1, 2, 3, 4
 #: A floating-base robot: the estimate this far past a hard limit stops it once past for longer
 #: than ``LEGGED_HARD_LIMIT_BOUNCE``, rad. Our choice: 0.1 rad (5.7 deg), above the 0.02-0.06 rad
@@ -62,11 +62,13 @@ LEGGED_HARD_LIMIT_TOLERANCE = 0.1
 #: its stop and held there does not.
 LEGGED_HARD_LIMIT_DURATION = 1.0
 #: A floating-base robot: the estimate more than ``LEGGED_HARD_LIMIT_TOLERANCE`` past a hard limit
-#: stops it once it has been past for longer than this, s. Our choice: 0.1 s (5 ticks at the
-#: shipped legged robots' 50 Hz), longer than a joint's bounce off its stop: in a 1-hour soak
-#: (seed 4320) a stumble swung the H1's hip roll into its stop at about 10 rad/s, 0.09 rad past
-#: it in MuJoCo's soft limit (the estimate 0.11) and back inside within 3 ticks; a stop on that
-#: tick laid it down.
+#: for longer than this stops it, s. Our choice: 0.1 s (5 ticks at the shipped legged robots'
+#: 50 Hz), longer than a joint's bounce off its stop: a stumble swung the H1's hip roll into its
+#: stop at about 10 rad/s, 0.09 rad past it in MuJoCo's soft limit (the estimate 0.11) and back
+#: inside within 3 ticks (1-hour soak, seed 4320). Counted while farther than the tolerance, not
+#: while past at all: the H1-2's ankle, past by a little for 0.1 s as it crouched to catch a
+#: stumble, then 0.105 rad past for 2 ticks (seed 20, 55.6 s of its training domain), stood when
+#: the soak replayed it without the stop (:mod:`eval.soak.counterfactual`).
 LEGGED_HARD_LIMIT_BOUNCE = 0.1
 
 
@@ -132,10 +134,14 @@ def hard_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
             g.beyond_ticks[e] += 1
             if g.beyond_ticks[e] > own[DURATION, 0]:
                 crossed = True
-            if far and g.beyond_ticks[e] > own[BOUNCE, 0]:
-                crossed = True
         else:
             g.beyond_ticks[e] = 0
+        if far:
+            g.far_ticks[e] += 1
+            if g.far_ticks[e] > own[BOUNCE, 0]:
+                crossed = True
+        else:
+            g.far_ticks[e] = 0
         if g.mode == POSITION:
             for j in range(n):
                 t = out[e, j]
@@ -186,8 +192,9 @@ class HardLimit(GuardCheck):
             past = (over > 0.0).any(axis=1)
             far = (over > own[TOLERANCE]).any(axis=1)
             g.beyond_ticks[:] = np.where(past, g.beyond_ticks + 1, 0)
+            g.far_ticks[:] = np.where(far, g.far_ticks + 1, 0)
             crossed = past & (g.beyond_ticks > own[DURATION, 0])
-            crossed |= far & (g.beyond_ticks > own[BOUNCE, 0])
+            crossed |= g.far_ticks > own[BOUNCE, 0]
             if g.mode == "position":
                 np.logical_or(out < g._target_lower, out > g._target_upper, out=mask)
                 crossed |= mask.any(axis=1)

@@ -50,7 +50,7 @@ class ReferenceGuard(SafetyGuard):
             self._pred += q
         self._stage(PREDICTED, fired, needs, out, q, dq, commanded)
         self.count_matrix += fired
-        stops = [k for k, check in enumerate(GUARD_CHECKS) if check.stops]
+        stops = np.flatnonzero(self._arrays.stops)  # SafetyGuard.set_stopping may change them
         np.any(fired[stops], axis=0, out=self.hard_violation)
         self._resolve(needs, q, dq, out)
         if self.mode == "position":

@@ -271,6 +271,7 @@ def load_robot(name_or_path: str | Path) -> Robot:
 
     frac = np.array([j.soft_limit_fraction for j in cfg.joints])
     velocity = np.array([j.velocity_limit for j in cfg.joints])
+    soft_velocity = frac * velocity
     centre, half = (upper + lower) / 2.0, (upper - lower) / 2.0
     digest = description_hash(cfg, described_mjcf.read_bytes())
     return Robot(
@@ -284,11 +285,11 @@ def load_robot(name_or_path: str | Path) -> Robot:
         soft_lower=_readonly(centre - frac * half),
         soft_upper=_readonly(centre + frac * half),
         velocity_limit=_readonly(velocity),
-        soft_velocity_limit=_readonly(frac * velocity),
+        soft_velocity_limit=_readonly(soft_velocity),
         command_velocity_limit=_readonly(
             [
                 soft if j.command_velocity_limit is None else j.command_velocity_limit
-                for j, soft in zip(cfg.joints, frac * velocity, strict=True)
+                for j, soft in zip(cfg.joints, soft_velocity, strict=True)
             ]
         ),
         acceleration_limit=_readonly([j.acceleration_limit for j in cfg.joints]),

@@ -116,6 +116,14 @@ class SoftLimit(GuardCheck):
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
+def _run_longer(ticks, e, on, limit) -> bool:
+    """Count env ``e``'s run of consecutive ticks with ``on`` in ``ticks`` (envs,) (reset to 0
+    when ``on`` is False) and return whether it is longer than ``limit`` ticks."""
+    ticks[e] = ticks[e] + 1 if on else 0
+    return ticks[e] > limit
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def hard_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int:
     """:class:`HardLimit`'s compiled share (signature of :class:`GuardCheck`)."""
     n = out.shape[1]
@@ -130,18 +138,10 @@ def hard_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
                 past = True
                 if over > own[TOLERANCE, j]:
                     far = True
-        if past:
-            g.beyond_ticks[e] += 1
-            if g.beyond_ticks[e] > own[DURATION, 0]:
-                crossed = True
-        else:
-            g.beyond_ticks[e] = 0
-        if far:
-            g.far_ticks[e] += 1
-            if g.far_ticks[e] > own[BOUNCE, 0]:
-                crossed = True
-        else:
-            g.far_ticks[e] = 0
+        if _run_longer(g.beyond_ticks, e, past, own[DURATION, 0]):
+            crossed = True
+        if _run_longer(g.far_ticks, e, far, own[BOUNCE, 0]):
+            crossed = True
         if g.mode == POSITION:
             for j in range(n):
                 t = out[e, j]

@@ -21,7 +21,8 @@ laid a standing robot down.
 
 Not replayed (``would_fall`` stays absent): stops of another cause (a stale sensor, non-finite
 actions, an overrun: the runtime cannot walk on without the sensor it lost), and a hard-limit
-stop whose episode began before a resume (its capture was not in the checkpoint).
+stop whose episode past the limit began before a resume (its capture was not in the checkpoint)
+or while the robot was not RUNNING (ramping in after a stand-up).
 
 Cost: a capture of one env per episode past a hard limit, and per replayed stop
 the copy's ``HORIZON`` s plus up to ``LEGGED_HARD_LIMIT_DURATION`` s before the stop.
@@ -70,7 +71,7 @@ class StopReplay:
         logs = self.tracker.fall_log
         for e, log in enumerate(logs):
             for record in log[self.seen[e] :]:
-                if record.get("cause") in REPLAYED_CAUSES and e in self.captures:
+                if record.get("cause") in REPLAYED_CAUSES and self._captured(e, rt):
                     fell = self.replay(e, float(record["t_s"]))
                     record["would_fall"] = fell is not None
                     record["replay_fall_s"] = fell
@@ -80,6 +81,12 @@ class StopReplay:
             arrays, meta = self.batch.sessions[e].capture()
             # the meta holds the session's own lists (hours, curve): keep a copy of this moment
             self.captures[int(e)] = (arrays, copy.deepcopy(meta))
+
+    def _captured(self, e: int, rt) -> bool:
+        """Whether env ``e``'s capture was taken on the first tick of the episode past a hard
+        limit that this tick's stop ends (not of an earlier one)."""
+        got = self.captures.get(e)
+        return got is not None and got[1]["tick"] == rt.ticks - int(rt.guard.beyond_ticks[e]) + 1
 
     def replay(self, e: int, t_stop: float) -> float | None:
         """When (session time, s) env ``e``'s robot falls (its fall detector's stop) by

@@ -1,11 +1,6 @@
-"""Attitude math of the base estimator: quaternions ``[w, x, y, z]``, Mahony's filter update.
-
-Mahony's explicit complementary filter with gyroscope bias estimation (R. Mahony, T. Hamel, J.-M.
-Pflimlin, "Nonlinear complementary filters on the special orthogonal group", IEEE TAC 53(5), 2008),
-as the maintained ``ahrs`` package implements it (``ahrs.filters.Mahony.updateIMU``), run over k
-filters at once (:func:`mahony_update`). Angles in rad, angular velocities in rad/s, quaternions
-base-to-world, arrays batch-first. These numpy functions are the references of the compiled
-rows of :mod:`deploy.estimation.attitude_kernel` that the base estimator runs (the same numbers);
+"""Attitude math of the base estimator: quaternions ``[w, x, y, z]`` (base-to-world), rotation
+vectors, projected gravity and tilt. Angles in rad, arrays batch-first. These numpy functions are
+the references of the compiled rows of :mod:`deploy.estimation.attitude_kernel` (the same numbers);
 :func:`quaternion_to_matrix` itself goes through its kernel for rows and single quaternions.
 """
 
@@ -29,42 +24,6 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         ],
         axis=-1,
     )
-
-
-def mahony_update(
-    quaternion: np.ndarray,
-    bias: np.ndarray,
-    gyro: np.ndarray,
-    acceleration: np.ndarray,
-    dt: np.ndarray,
-    k_p: float,
-    k_i: float,
-) -> np.ndarray:
-    """One step of ``ahrs.filters.Mahony.updateIMU`` for k filters at once.
-
-    Args:
-        quaternion: (k, 4) base-to-world ``[w, x, y, z]`` (normalized first, as ``ahrs`` does).
-        bias: (k, 3) rad/s, the gyro bias estimates; updated in place.
-        gyro: (k, 3) rad/s and acceleration: (k, 3) m/s^2, base frame.
-        dt: (k,) s. k_p, k_i: the gains.
-
-    Returns:
-        (k, 4) the new unit quaternions. A zero gyro reading leaves its quaternion and bias
-        unchanged and a zero acceleration skips the correction, as in ``ahrs``.
-    """
-    q = quaternion / np.linalg.norm(quaternion, axis=1, keepdims=True)
-    moving = np.linalg.norm(gyro, axis=1) != 0
-    a_norm = np.linalg.norm(acceleration, axis=1)
-    corrected = moving & (a_norm > 0)
-    up = quaternion_to_matrix(q)[:, 2, :]  # R^T [0, 0, 1]
-    safe = np.where(a_norm > 0, a_norm, 1.0)[:, None]
-    error = np.cross(acceleration / safe, up) * corrected[:, None]
-    bias += (-k_i * error) * dt[:, None]
-    omega = np.where(corrected[:, None], gyro - bias + k_p * error, gyro)
-    rate = 0.5 * quat_multiply(q, np.concatenate([np.zeros((len(q), 1)), omega], axis=1))
-    new = q + rate * dt[:, None]
-    new /= np.linalg.norm(new, axis=1, keepdims=True)
-    return np.where(moving[:, None], new, q)
 
 
 def rotation_quaternions(rotvec: np.ndarray) -> np.ndarray:

@@ -1,28 +1,43 @@
 """Base state estimation of a floating-base (legged) robot: attitude, angular and linear velocity.
 
-Two filters per env, fed by a :class:`~deploy.backends.base.SensorFrame`'s IMU and foot-contact
-fields and by the joint estimate ``q``, ``dq`` (rad, rad/s):
+One error-state extended Kalman filter per env, fed by a
+:class:`~deploy.backends.base.SensorFrame`'s IMU and foot-contact fields and by the joint
+estimate ``q``, ``dq`` (rad, rad/s): the
+kinematic-inertial filter of legged robots with leg odometry as a velocity measurement (M. Bloesch
+et al., "State estimation for legged robots", RSS 2012; M. Camurri et al., "Pronto", Frontiers in
+Robotics and AI 2020), reduced to the states a velocity policy observes.
 
-- attitude: Mahony's complementary filter with gyro bias (:mod:`deploy.estimation.attitude`; gains
-  ``MAHONY_K_P = 0.3``, ``MAHONY_K_I = 0.03``), on the IMU readings turned into the base frame
-  (accelerometer lever arm neglected): orientation (yaw unobserved), projected gravity, angular
-  velocity (rad/s, base frame). Its accelerometer reading has the base's own acceleration taken
-  off, ``dv/dt + omega x v`` (base frame; ``dv/dt`` the leg odometry's difference between
-  readings, bounded and low-passed, needing no attitude; ``omega x v`` from the gyro and the
-  velocity filter): a walking humanoid's acceleration and turn, taken for tilt, threw its policy;
-- linear velocity: the kinematic-inertial Kalman filter of legged robots (M. Bloesch et al., RSS
-  2012; the linear form of G. Bledt et al., "MIT Cheetah 3", IROS 2018), state ``v`` (m/s, world)::
+Nominal state (per env): the base-to-world rotation ``R``, the base velocity ``v`` (m/s, world,
+at the base origin) and the gyro bias ``b`` (rad/s, base frame). Error state (9,): ``dtheta``
+(rad, world frame, ``R_true = Exp(dtheta) R``), ``dv``, ``db``. At each fresh IMU reading, with the
+gyro ``omega = w - b`` and the specific force at the base origin ``f = a - omega x (omega x r)``
+(``r`` the IMU site's position on the base: its lever arm)::
 
-    predict:  v' = v + dt (R a + g)               Q = dt^2 (accel_sigma^2 + accel_bias_sigma^2) I
-    update:   z = R mean_i(-(omega x p_i + J_i(q) dq))   R_z = leg_sigma^2 / n_contact I
+    predict:  v' = v + dt (R f + g)     R' = R Exp(omega dt)     b' = b
+              F = [[I, 0, -R dt], [-dt [R f]x, I, 0], [0, 0, I]]
+              Q = diag(sigma_g^2 dt^2 I, sigma_a^2 dt^2 I, walk_g^2 dt I)
+    gravity:  z = f,  h = R^T (-g) + omega x R^T v,  H = [R^T [-g]x + [omega]x R^T [v]x,
+              [omega]x R^T, 0],  noise ACCEL_MEASUREMENT_SIGMA
+              (only while |f| is within REST_ACCELERATION_TOLERANCE x 3 of |g|)
+    legs:     per foot in contact, z_i = -(omega x p_i + J_i dq + omega_i x (rho_i u)),  h = R^T v,
+              H = [R^T [v]x, R^T, 0],  noise LEG_VELOCITY_SIGMA
 
-  with ``p_i``, ``J_i`` a foot's position and Jacobian in the base frame (Pinocchio).
+with ``p_i``, ``J_i`` a foot's position and Jacobian in the base frame (Pinocchio), ``omega_i`` its
+link's angular velocity, ``rho_i`` the radius of its contact sphere (a rolling sphere's centre moves
+at ``omega_i x rho_i u`` over its still contact point; 0 for a foot that is not a sphere) and ``u``
+the world's down in the base frame. A foot whose reading is more than ``SLIP_GATE`` (chi-square,
+3 dof) from the prediction is slipping and not absorbed (``rejected_contacts``), unless no foot
+has been absorbed for ``MAX_REJECTED_READINGS`` readings (the prediction itself is then suspect).
 
-Both run over every env at once; their reference
-(:class:`~deploy.estimation.reference.ReferenceBaseStateEstimator`) runs one ``ahrs`` filter and
-one ``filterpy`` KalmanFilter per env. An IMU
-reading that is NaN, not newer than the last one absorbed or stamped after ``frame.time`` is not
-fed (``missing_readings`` / ``stale_readings``): the output is predicted to ``frame.time`` and
+Unlike a complementary filter that takes the accelerometer for gravity, the tilt is observed
+through the velocity: a tilt error puts gravity into the integrated acceleration, which the legs
+contradict. A walking robot's own acceleration is not taken for tilt, and the leg odometry's
+noise is averaged against the IMU instead of passed to the policy.
+
+The reference (:class:`~deploy.estimation.reference.ReferenceBaseStateEstimator`) runs the same
+prediction and corrections through one ``filterpy`` KalmanFilter per env. An IMU reading that is
+NaN, not newer than the last one absorbed or stamped after ``frame.time`` is not fed
+(``missing_readings`` / ``stale_readings``): the output is predicted to ``frame.time`` and
 ``time_since_fresh`` grows. Contacts without a fresh stamp give no velocity update.
 """
 
@@ -34,24 +49,36 @@ import numpy as np
 import pinocchio as pin
 
 from deploy.backends.base import SensorFrame
-from deploy.estimation.attitude import align_up, quaternion_to_matrix, tilt_of
-from deploy.estimation.attitude_kernel import imu_rows, predict_rows
+from deploy.estimation.attitude import (
+    align_up,
+    quat_multiply,
+    quaternion_to_matrix,
+    rotation_quaternions,
+    tilt_of,
+)
 from deploy.stateful import check, env_index, put, take
 from robots import Robot
 
-#: Mahony's proportional and integral gains, rad/s per unit error (our choice; ``ahrs``'s
-#: defaults are 1 and 0.3). Under legged_gym's pushes (``python -m bench.push_reference``, 50
-#: sequences of 60 s) the accelerometer's reading of a recovering base's own acceleration pulled
-#: the attitude with the defaults: the H1, H1-2 and a G1 survived 107, 45 and 176 pushes, against
-#: 126, 54 and 281 in unitree_rl_gym's own loop on the true state; with 0.3 and 0.03, 139, 50 and
-#: 278. The turn-on gyro bias (0.01 rad/s on the shipped humanoids) then tilts the estimate by
-#: ``bias / k_p`` until the integral term has learned it (time constant about ``k_p / k_i`` s).
-MAHONY_K_P = 0.3
-MAHONY_K_I = 0.03
-#: Leg odometry noise, m/s (our choice): foot roll and micro-slip of a point foot, and the joint
-#: velocity estimate's noise through the leg Jacobian (about 0.3 m/rad).
+#: Leg odometry noise, m/s per foot (our choice): foot roll and micro-slip, and the joint velocity
+#: estimate's noise through the leg Jacobian (about 0.3 m/rad). Tried 0.05, 0.15 and 0.2 on the
+#: go2, h1 and h1_2 walking (``python -m bench.estimation``).
 LEG_VELOCITY_SIGMA = 0.1
-#: Initial velocity standard deviation, m/s (our choice: a robot reset at rest).
+#: Unmodelled acceleration, m/s^2, added to the accelerometer's white noise in the prediction
+#: (our choice): the lever arm's angular-acceleration term and a reading sampled once a tick
+#: (tried 1.5 and 3: the tilt follows the legs' errors).
+UNMODELLED_ACCELERATION = 0.5
+#: The accelerometer as a gravity measurement, m/s^2 (our choice): a walking base's own
+#: acceleration, which averages out over a gait cycle (tried 0.5 and 1: 0.5 deg more tilt error).
+ACCEL_MEASUREMENT_SIGMA = 2.0
+#: Chi-square bound (3 dof, p about 0.001) past which a foot's velocity reading is a slip.
+SLIP_GATE = 16.0
+#: Readings in a row without an absorbed foot after which the gate opens (our choice: 0.1 s at 50
+#: Hz; a prediction that drifted must not lock every foot out).
+MAX_REJECTED_READINGS = 5
+#: Initial standard deviations (our choice: a robot reset at rest on level ground): roll and
+#: pitch rad, yaw rad (unobserved, kept small), velocity m/s.
+INITIAL_TILT_SIGMA = 0.02
+INITIAL_YAW_SIGMA = 1e-3
 INITIAL_VELOCITY_SIGMA = 0.1
 #: An accelerometer reading within this fraction of gravity's magnitude is taken as the robot at
 #: rest when the filter starts (our choice: 10 %, about 6 times the seed's largest accelerometer
@@ -59,14 +86,39 @@ INITIAL_VELOCITY_SIGMA = 0.1
 #: a specific force that put its initial tilt estimate at 0.29 rad (true 0.006): the policy
 #: answered a tilt that was not there and fell within 0.5 s.
 REST_ACCELERATION_TOLERANCE = 0.1
-#: Time constant, s, of the first-order low-pass on the leg odometry's difference (our choice,
-#: tried against 0.03 and 0.2 s and none on a turning G1): differenced at 50 Hz, joint-velocity
-#: noise makes metres per second squared per reading, which the attitude took for tilt.
-MOTION_ACCELERATION_TAU = 0.1
-#: Bound, m/s^2, on one reading's leg-odometry difference (our choice: 0.3 g, above a walking
-#: base's own acceleration; tried against 10 m/s^2 and none on the H1 and G1): a robot dropped
-#: onto its feet, or a slipping foot, makes tens of m/s^2 that are not the base's.
-MAX_MOTION_ACCELERATION = 3.0
+#: Floor of the gyro bias walk and bias sigma, rad/s (/sqrt(s)): a robot.toml with a perfect
+#: gyro still lets the filter learn a bias (our choice).
+MIN_GYRO_BIAS_WALK = 1e-5
+MIN_GYRO_BIAS_SIGMA = 1e-3
+#: Error-state size: dtheta, dv, db.
+N_ERROR = 9
+
+
+def skew(a: np.ndarray) -> np.ndarray:
+    """(3, 3) cross-product matrix ``[a]x`` of a (3,) vector: ``[a]x b = a x b``."""
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def exp_so3(phi: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation matrix of a rotation vector ``phi`` (3,) rad (Rodrigues)."""
+    return quaternion_to_matrix(rotation_quaternions(np.asarray(phi, dtype=np.float64)[None])[0])
+
+
+def foot_radii(robot: Robot) -> np.ndarray:
+    """(n_feet,) m: each foot's contact-sphere radius, the sphere geom centred on its foot site
+    (the importer's and example-robot-data's point feet); 0 where the foot is not one sphere."""
+    m = robot.mj_model
+    out = np.zeros(len(robot.foot_site_ids))
+    for i, s in enumerate(robot.foot_site_ids):
+        body = m.site_bodyid[s]
+        for g in range(m.ngeom):
+            if (
+                m.geom_bodyid[g] == body
+                and m.geom_type[g] == 2  # mjGEOM_SPHERE
+                and np.allclose(m.geom_pos[g], m.site_pos[s], atol=1e-6)
+            ):
+                out[i] = float(m.geom_size[g, 0])
+    return out
 
 
 @dataclass
@@ -116,33 +168,40 @@ class BaseState:
 
 
 class BaseStateEstimator:
-    """Attitude and base velocity filters of ``envs`` floating-base robots (module docstring).
+    """The kinematic-inertial error-state filter of ``envs`` floating-base robots (module
+    docstring).
 
     Args:
         robot: A floating-base robot (``robot.floating_base``).
         envs: Batch size.
-        k_p, k_i: Mahony's proportional and integral (gyro bias) gains, rad/s per unit error
-            (``MAHONY_K_P``, ``MAHONY_K_I``).
         leg_sigma: Leg odometry noise, m/s (``LEG_VELOCITY_SIGMA``).
+        accel_sigma: The accelerometer as a gravity measurement, m/s^2
+            (``ACCEL_MEASUREMENT_SIGMA``).
+        slip_gate: Chi-square bound of a foot's reading (``SLIP_GATE``); ``inf``: no gate.
 
     Attributes:
-        velocity_variance: (envs,) m^2/s^2, the velocity filter's covariance ``p`` (``P = p I``).
+        orientation: (envs, 4) base-to-world quaternion at ``filter_time``.
+        velocity: (envs, 3) m/s, base velocity, world frame.
+        gyro_bias: (envs, 3) rad/s, base frame.
+        covariance: (envs, 9, 9) the error state's covariance (rad, m/s, rad/s).
+        velocity_variance: (envs,) m^2/s^2, the mean of the velocity block's diagonal.
         filter_time: (envs,) s, stamp of the last absorbed IMU reading.
         time_since_fresh: (envs,) s, ``frame.time - filter_time`` at the last update.
         missing_readings, stale_readings: (envs,) int IMU readings not absorbed.
-        velocity_updates: (envs,) int leg-odometry updates absorbed.
+        velocity_updates: (envs,) int feet readings absorbed; rejected_contacts: (envs,) int
+            feet in contact whose reading was gated out as a slip.
 
     Raises:
-        ValueError: a fixed-base robot or ``envs < 1``.
+        ValueError: a fixed-base robot, an IMU site off the base body or ``envs < 1``.
     """
 
     def __init__(
         self,
         robot: Robot,
         envs: int,
-        k_p: float = MAHONY_K_P,
-        k_i: float = MAHONY_K_I,
         leg_sigma: float = LEG_VELOCITY_SIGMA,
+        accel_sigma: float = ACCEL_MEASUREMENT_SIGMA,
+        slip_gate: float = SLIP_GATE,
     ):
         if not robot.floating_base:
             raise ValueError(f"robot {robot.name}: base estimation needs a floating base")
@@ -150,73 +209,44 @@ class BaseStateEstimator:
             raise ValueError(f"envs must be >= 1, got {envs}")
         self.robot, self.envs = robot, envs
         imu = robot.config.sensors.imu
-        self.accel_variance = imu.accel_noise_sigma**2 + imu.accel_bias_sigma**2
-        self.leg_variance = float(leg_sigma) ** 2
-        self.gravity = np.array(robot.mj_model.opt.gravity, dtype=np.float64)
-        # the IMU site's orientation on the base (the site sits on the base body: checked)
         m = robot.mj_model
         if m.body(m.site_bodyid[robot.imu_site_id]).name != robot.base_body:
             raise ValueError(f"robot {robot.name}: the IMU site is not on the base body")
         self._imu_to_base = quaternion_to_matrix(m.site_quat[robot.imu_site_id])
-        self.k_p, self.k_i = float(k_p), float(k_i)
-        #: (envs, 3) rad/s, Mahony's gyro bias (the reference keeps it in its ``ahrs`` objects)
-        self._bias = np.zeros((envs, 3))
+        #: (3,) m, the IMU site on the base (the accelerometer's lever arm)
+        self.lever_arm = np.array(m.site_pos[robot.imu_site_id], dtype=np.float64)
+        self.gravity = np.array(m.opt.gravity, dtype=np.float64)
+        self.gyro_variance = imu.gyro_noise_sigma**2
+        self.accel_variance = imu.accel_noise_sigma**2 + UNMODELLED_ACCELERATION**2
+        self.bias_walk_variance = max(imu.gyro_bias_walk, MIN_GYRO_BIAS_WALK) ** 2
+        self.bias_variance = max(imu.gyro_bias_sigma, MIN_GYRO_BIAS_SIGMA) ** 2
+        self.leg_variance = float(leg_sigma) ** 2
+        self.accel_meas_variance = float(accel_sigma) ** 2
+        self.slip_gate = float(slip_gate)
+        self.radii = foot_radii(robot)
         self._pin = robot.pin_model.createData()
         self._q = robot.pin_configuration(robot.home)
         self._v = np.zeros(robot.pin_model.nv)
         self.orientation = np.tile([1.0, 0.0, 0.0, 0.0], (envs, 1))
-        self._rot = np.zeros((envs, 3, 3))  # the IMU step's rotation matrices
         self.angular_velocity = np.zeros((envs, 3))
         self.velocity = np.zeros((envs, 3))
+        self.gyro_bias = np.zeros((envs, 3))
+        self.covariance = np.tile(self._initial_covariance(), (envs, 1, 1))
         self.velocity_variance = np.full(envs, INITIAL_VELOCITY_SIGMA**2)
         self.filter_time = np.full(envs, np.nan)
         self.time_since_fresh = np.full(envs, np.inf)
         self.missing_readings = np.zeros(envs, dtype=np.int64)
         self.stale_readings = np.zeros(envs, dtype=np.int64)
         self.velocity_updates = np.zeros(envs, dtype=np.int64)
-        #: (envs, 3) m/s, base frame: the last leg odometry (attitude-free), at ``leg_time``
-        self.leg_velocity = np.zeros((envs, 3))
-        self.leg_time = np.full(envs, np.nan)
-        #: (envs, 3) m/s^2, base frame: the base's acceleration, the leg odometry's difference
-        self.motion_acceleration = np.zeros((envs, 3))
+        self.rejected_contacts = np.zeros(envs, dtype=np.int64)
+        self._rejected_run = np.zeros(envs, dtype=np.int64)
         self._initialized = np.zeros(envs, dtype=bool)
-        self._warm_kernels()
 
-    def _warm_kernels(self) -> None:
-        """Compile (or load from numba's cache) the attitude kernels before the first tick, on
-        scratch copies of the state (nothing of the estimator changes)."""
-        n = self.envs
-        fields = [a.copy() for a in (self.filter_time, self.orientation, self._bias)]
-        imu_rows(
-            np.zeros(0, dtype=np.int64),
-            np.zeros(n),
-            np.zeros((n, 3)),
-            np.zeros((n, 3)),
-            self._imu_to_base,
-            *fields,
-            np.zeros((n, 3)),
-            np.zeros((n, 3)),
-            np.zeros(n),
-            np.zeros((n, 3)),
-            self.gravity,
-            self.accel_variance,
-            self.k_p,
-            self.k_i,
-            self._rot.copy(),
-        )
-        out = BaseState.zeros(n)
-        predict_rows(
-            np.zeros(n),
-            np.zeros(n),
-            np.zeros((n, 3)),
-            np.tile([1.0, 0, 0, 0], (n, 1)),
-            np.zeros((n, 3)),
-            np.zeros(n),
-            out.orientation,
-            out.projected_gravity,
-            out.linear_velocity,
-        )
-        quaternion_to_matrix(out.orientation)  # the leg update's and the fall check's
+    def _initial_covariance(self) -> np.ndarray:
+        """(9, 9) the error state's covariance at a reset (``INITIAL_*_SIGMA``, the gyro's
+        turn-on bias)."""
+        sigma = [INITIAL_TILT_SIGMA] * 2 + [INITIAL_YAW_SIGMA] + [INITIAL_VELOCITY_SIGMA] * 3
+        return np.diag(np.concatenate([np.array(sigma) ** 2, np.full(3, self.bias_variance)]))
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self, t, acceleration: np.ndarray | None = None, envs=None) -> None:
@@ -226,7 +256,7 @@ class BaseStateEstimator:
         rest: the initial roll and pitch put them along the world's up (yaw 0); default upright.
         A reading whose magnitude is more than ``REST_ACCELERATION_TOLERANCE`` from gravity's is
         not the robot at rest (dropped on its feet, landing) and is ignored: upright.
-        Gyro bias estimates restart at 0, velocity at 0 with ``INITIAL_VELOCITY_SIGMA``.
+        Gyro bias estimates restart at 0, velocity at 0, the covariance at its initial value.
         ``envs``: bool mask or indices (default all).
 
         Raises:
@@ -246,18 +276,26 @@ class BaseStateEstimator:
                 if abs(np.linalg.norm(a) - g) <= REST_ACCELERATION_TOLERANCE * g:
                     q = align_up(a / np.linalg.norm(a))
             self.orientation[e] = q
-            self._bias[e] = 0.0
+            self.covariance[e] = self._initial_covariance()
+            self._restart_filter(e)
+        self.gyro_bias[sel] = 0.0
         self.angular_velocity[sel] = 0.0
         self.velocity[sel] = 0.0
-        self.leg_velocity[sel] = 0.0
-        self.leg_time[sel] = np.nan
-        self.motion_acceleration[sel] = 0.0
         self.velocity_variance[sel] = INITIAL_VELOCITY_SIGMA**2
         self.filter_time[sel] = t[sel]
         self.time_since_fresh[sel] = 0.0
-        for counter in (self.missing_readings, self.stale_readings, self.velocity_updates):
+        for counter in (
+            self.missing_readings,
+            self.stale_readings,
+            self.velocity_updates,
+            self.rejected_contacts,
+            self._rejected_run,
+        ):
             counter[sel] = 0
         self._initialized[sel] = True
+
+    def _restart_filter(self, e: int) -> None:
+        """Hook of the reference: env ``e``'s filter objects restart from ``covariance[e]``."""
 
     # ------------------------------------------------------------------ state
     def _state_fields(self) -> dict[str, np.ndarray]:
@@ -265,31 +303,25 @@ class BaseStateEstimator:
             "orientation": self.orientation,
             "angular_velocity": self.angular_velocity,
             "velocity": self.velocity,
+            "gyro_bias": self.gyro_bias,
+            "covariance": self.covariance,
             "velocity_variance": self.velocity_variance,
             "filter_time": self.filter_time,
             "time_since_fresh": self.time_since_fresh,
             "missing_readings": self.missing_readings,
             "stale_readings": self.stale_readings,
             "velocity_updates": self.velocity_updates,
-            "leg_velocity": self.leg_velocity,
-            "leg_time": self.leg_time,
-            "motion_acceleration": self.motion_acceleration,
+            "rejected_contacts": self.rejected_contacts,
+            "rejected_run": self._rejected_run,
             "initialized": self._initialized,
         }
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
-        """The filters' state (copies; conventions of :mod:`deploy.stateful`): the attributes
-        of the class docstring, ``orientation`` (envs, 4), ``angular_velocity`` (envs, 3) rad/s,
-        ``velocity`` (envs, 3) m/s (world), ``gyro_bias`` (envs, 3) rad/s (Mahony's integral
-        term) and ``initialized`` (envs,) bool; the env axis has length 1 for one env ``env``.
-        The filterpy reference's ``x`` and ``P`` are ``velocity`` and ``velocity_variance I``."""
-        out = take(self._state_fields(), env)
-        out["gyro_bias"] = self._gyro_bias()[env_index(env)].copy()
-        return out
-
-    def _gyro_bias(self) -> np.ndarray:
-        """(envs, 3) rad/s, Mahony's integral term of every env."""
-        return self._bias
+        """The filter's state (copies; conventions of :mod:`deploy.stateful`): the attributes
+        of the class docstring, ``rejected_run`` (envs,) int (readings in a row without an
+        absorbed foot) and ``initialized`` (envs,) bool; the env axis has length 1 for one env
+        ``env``."""
+        return take(self._state_fields(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
         """Inverse of :meth:`state_dict` (of every env, or of env ``env``).
@@ -297,12 +329,38 @@ class BaseStateEstimator:
         Raises:
             StateDictError: a missing field or a shape that differs; nothing is changed.
         """
-        bias = np.zeros((self.envs, 3))
-        check({"gyro_bias": bias}, state, env)
+        check(self._state_fields(), state, env)
         put(self._state_fields(), state, env)
-        sel = np.arange(self.envs)[env_index(env)]
-        for k, e in enumerate(sel):
-            self._bias[e] = state["gyro_bias"][k]
+        for e in np.arange(self.envs)[env_index(env)]:
+            self._restart_filter(int(e))
+
+    # ------------------------------------------------------------------ the filter's algebra
+    def _predict(self, e: int, F: np.ndarray, Q: np.ndarray) -> None:
+        """``P = F P F^T + Q`` of env ``e`` (the reference: filterpy's ``predict``)."""
+        P = self.covariance[e]
+        self.covariance[e] = F @ P @ F.T + Q
+
+    def _innovation_variance(self, e: int, H: np.ndarray, R: np.ndarray) -> np.ndarray:
+        return H @ self.covariance[e] @ H.T + R
+
+    def _correct(self, e: int, y: np.ndarray, H: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """The error state's update of env ``e`` with innovation ``y``: returns ``dx`` (9,) and
+        sets the covariance (Joseph form, filterpy's; the reference: filterpy's ``update``)."""
+        P = self.covariance[e]
+        S = H @ P @ H.T + R
+        K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S and P symmetric)
+        ikh = np.eye(N_ERROR) - K @ H
+        P = ikh @ P @ ikh.T + K @ R @ K.T
+        self.covariance[e] = 0.5 * (P + P.T)
+        return K @ y
+
+    def _inject(self, e: int, dx: np.ndarray) -> None:
+        """Fold the error ``dx`` (9,) into env ``e``'s nominal state."""
+        turn = rotation_quaternions(dx[None, 0:3])[0]
+        q = quat_multiply(turn, self.orientation[e])  # R = Exp(dtheta) R: world-frame error
+        self.orientation[e] = q / np.linalg.norm(q)
+        self.velocity[e] += dx[3:6]
+        self.gyro_bias[e] += dx[6:9]
 
     # ------------------------------------------------------------------ the tick
     def update(
@@ -331,92 +389,99 @@ class BaseStateEstimator:
             fresh = finite & (self.filter_time < stamp) & (stamp <= now)
         self.missing_readings += ~finite
         self.stale_readings += finite & ~fresh
-        if fresh.any():
-            e = np.flatnonzero(fresh)
-            rot = self._rot[: len(e)]
-            legs = [self._leg_odometry(env, frame, q[env], dq[env]) for env in e]
-            imu_rows(
-                e,
-                np.ascontiguousarray(stamp),
-                np.ascontiguousarray(gyro),
-                np.ascontiguousarray(acc),
-                self._imu_to_base,
-                self.filter_time,
-                self.orientation,
-                self._bias,
-                self.angular_velocity,
-                self.velocity,
-                self.velocity_variance,
-                self.motion_acceleration,
-                self.gravity,
-                self.accel_variance,
-                self.k_p,
-                self.k_i,
-                rot,
-            )
-            for k, env in enumerate(e):
-                if legs[k] is not None:
-                    self._absorb_leg_velocity(env, rot[k] @ legs[k][0], legs[k][1])
+        for e in np.flatnonzero(fresh):
+            self._imu_step(e, float(stamp[e]), gyro[e], acc[e])
+            self._legs_step(e, frame, q[e], dq[e])
         # output: predicted from filter_time to now (orientation turned by omega; v held)
-        predict_rows(
-            np.ascontiguousarray(now),
-            self.filter_time,
-            self.angular_velocity,
-            self.orientation,
-            self.velocity,
-            self.time_since_fresh,
-            out.orientation,
-            out.projected_gravity,
-            out.linear_velocity,
-        )
+        for e in range(self.envs):
+            age = float(now[e] - self.filter_time[e])
+            self.time_since_fresh[e] = age
+            quat = self.orientation[e]
+            if age > 0:
+                turn = rotation_quaternions((self.angular_velocity[e] * age)[None])[0]
+                quat = quat_multiply(quat, turn)
+            rot = quaternion_to_matrix(quat)
+            out.orientation[e] = quat
+            out.projected_gravity[e] = -rot[2]
+            out.linear_velocity[e] = rot.T @ self.velocity[e]
         out.angular_velocity[:] = self.angular_velocity
         out.linear_velocity_world[:] = self.velocity
+        self.velocity_variance[:] = np.trace(self.covariance[:, 3:6, 3:6], axis1=1, axis2=2) / 3
         return out
 
-    def _leg_odometry(self, e: int, frame: SensorFrame, q, dq) -> tuple[np.ndarray, float] | None:
-        """Env ``e``'s leg odometry at its fresh IMU stamp: the base velocity (3,) m/s in the
-        base frame, ``-mean_i(omega x p_i + J_i dq)`` over the feet in contact (``omega`` the
-        gyro less the bias), and its variance (m^2/s^2, per axis); None without a fresh contact
-        reading or a finite joint estimate. It sets ``motion_acceleration[e]`` (m/s^2, base
-        frame), the odometry's difference since the last (0 after a gap), which the IMU step
-        takes off the accelerometer's reading with the centripetal term."""
+    def _imu_step(self, e: int, stamp: float, gyro: np.ndarray, acc: np.ndarray) -> None:
+        """Env ``e``'s prediction to ``stamp`` and the accelerometer's gravity correction."""
+        dt = stamp - self.filter_time[e]
+        omega = self._imu_to_base @ gyro - self.gyro_bias[e]
+        r = self.lever_arm
+        f = self._imu_to_base @ acc - np.cross(omega, np.cross(omega, r))
+        rot = quaternion_to_matrix(self.orientation[e])
+        rf = rot @ f
+        F = np.eye(N_ERROR)
+        F[0:3, 6:9] = -rot * dt
+        F[3:6, 0:3] = -dt * skew(rf)
+        Q = np.diag(
+            np.concatenate(
+                [
+                    np.full(3, self.gyro_variance * dt * dt),
+                    np.full(3, self.accel_variance * dt * dt),
+                    np.full(3, self.bias_walk_variance * dt),
+                ]
+            )
+        )
+        self.velocity[e] += dt * (rf + self.gravity)
+        turn = rotation_quaternions((omega * dt)[None])[0]
+        quat = quat_multiply(self.orientation[e], turn)
+        self.orientation[e] = quat / np.linalg.norm(quat)
+        self._predict(e, F, Q)
+        self.filter_time[e] = stamp
+        self.angular_velocity[e] = omega
+        g = np.linalg.norm(self.gravity)
+        if abs(np.linalg.norm(f) - g) < 3 * REST_ACCELERATION_TOLERANCE * g:
+            # f = R^T (-g) + omega x R^T v: a steady turn's centripetal term is not tilt
+            up, v = -self.gravity, self.velocity[e]
+            rot = quaternion_to_matrix(self.orientation[e])
+            turn = skew(omega) @ rot.T
+            H = np.zeros((3, N_ERROR))
+            H[:, 0:3] = rot.T @ skew(up) + turn @ skew(v)
+            H[:, 3:6] = turn
+            h = rot.T @ up + turn @ v
+            dx = self._correct(e, f - h, H, np.eye(3) * self.accel_meas_variance)
+            self._inject(e, dx)
+        self.angular_velocity[e] = self._imu_to_base @ gyro - self.gyro_bias[e]
+
+    def _legs_step(self, e: int, frame: SensorFrame, q, dq) -> None:
+        """Env ``e``'s leg odometry: one gated velocity correction per foot in contact."""
         contact = frame.foot_contact[e]
-        fresh = np.isfinite(frame.contact_stamp[e]) and contact.any()
-        if not (fresh and np.isfinite(q).all() and np.isfinite(dq).all()):
-            self.leg_time[e] = np.nan
-            self.motion_acceleration[e] = 0.0
-            return None
+        if not (np.isfinite(frame.contact_stamp[e]) and contact.any()):
+            return
+        if not (np.isfinite(q).all() and np.isfinite(dq).all()):
+            return
         model, data = self.robot.pin_model, self._pin
         self._q[7:] = q
-        gyro = self._imu_to_base @ frame.imu_angular_velocity[e]
-        self._v[3:6] = gyro - self._gyro_bias()[e]
+        self._v[3:6] = self.angular_velocity[e]
         self._v[6:] = dq
         pin.forwardKinematics(model, data, self._q, self._v)
-        feet = [f for f, c in zip(self.robot.foot_frame_ids, contact, strict=True) if c]
-        foot_velocity = np.mean(
-            [pin.getFrameVelocity(model, data, f, pin.LOCAL_WORLD_ALIGNED).linear for f in feet],
-            axis=0,
-        )
-        v, t = -foot_velocity, float(frame.imu_stamp[e])
-        gap = t - self.leg_time[e]
-        if gap > 0:
-            alpha = gap / (MOTION_ACCELERATION_TAU + gap)
-            raw = (v - self.leg_velocity[e]) / gap
-            size = np.linalg.norm(raw)
-            if size > MAX_MOTION_ACCELERATION:
-                raw *= MAX_MOTION_ACCELERATION / size
-            self.motion_acceleration[e] += alpha * (raw - self.motion_acceleration[e])
-        else:
-            self.motion_acceleration[e] = 0.0
-        self.leg_velocity[e], self.leg_time[e] = v, t
-        self.velocity_updates[e] += 1
-        return v, self.leg_variance / len(feet)
-
-    def _absorb_leg_velocity(self, e: int, z: np.ndarray, r_var: float) -> None:
-        """The velocity filter's update of env ``e`` with the leg odometry ``z`` (3,) m/s (world)
-        of variance ``r_var`` (m^2/s^2, per axis)."""
-        p = self.velocity_variance[e]
-        gain = p / (p + r_var)
-        self.velocity[e] += gain * (z - self.velocity[e])
-        # Joseph form (filterpy's): (1 - k)^2 p + k^2 r = (1 - k) p for the optimal gain
-        self.velocity_variance[e] = (1 - gain) ** 2 * p + gain**2 * r_var
+        gate = self.slip_gate if self._rejected_run[e] < MAX_REJECTED_READINGS else np.inf
+        absorbed = False
+        for i, (fid, c) in enumerate(zip(self.robot.foot_frame_ids, contact, strict=True)):
+            if not c:
+                continue
+            rot = quaternion_to_matrix(self.orientation[e])
+            down = rot[2] * -1.0  # the world's down in the base frame
+            vel = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
+            z = -(vel.linear + np.cross(vel.angular, self.radii[i] * down))
+            v = self.velocity[e]
+            H = np.zeros((3, N_ERROR))
+            H[:, 0:3] = rot.T @ skew(v)
+            H[:, 3:6] = rot.T
+            R = np.eye(3) * self.leg_variance
+            y = z - rot.T @ v
+            S = self._innovation_variance(e, H, R)
+            if y @ np.linalg.solve(S, y) > gate:
+                self.rejected_contacts[e] += 1
+                continue
+            self._inject(e, self._correct(e, y, H, R))
+            self.velocity_updates[e] += 1
+            absorbed = True
+        self._rejected_run[e] = 0 if absorbed else self._rejected_run[e] + 1

@@ -4,9 +4,9 @@
   (:mod:`deploy.estimation.kernel`): its tick runs in numpy around one
   ``filterpy.kalman.KalmanFilter(dim_x=2, dim_z=1)`` per (env, joint) (filterpy's predict and
   update for each fresh reading; ``tests/test_estimation.py``);
-- :class:`ReferenceBaseStateEstimator`, of the base estimator's batched filters
-  (:mod:`deploy.estimation.base`): one ``ahrs`` Mahony filter and one
-  ``filterpy.kalman.KalmanFilter(dim_x=3, dim_z=3)`` per env, env by env (``tests/test_legged.py``).
+- :class:`ReferenceBaseStateEstimator`, of the base estimator's error-state algebra
+  (:mod:`deploy.estimation.base`): one ``filterpy.kalman.KalmanFilter(dim_x=9, dim_z=3)`` per env
+  (``tests/test_legged.py``).
 
 Each gives the same numbers as its estimator to rounding.
 """
@@ -18,11 +18,9 @@ from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
 from deploy.backends.base import SensorFrame
-from deploy.estimation.attitude import quat_multiply, quaternion_to_matrix, rotation_quaternions
-from deploy.estimation.base import INITIAL_VELOCITY_SIGMA, BaseState, BaseStateEstimator
+from deploy.estimation.base import N_ERROR, BaseStateEstimator
 from deploy.estimation.joints import JointStateEstimator
 from deploy.state import RobotState
-from deploy.stateful import env_index
 from robots import Robot
 
 
@@ -169,109 +167,38 @@ class ReferenceJointStateEstimator(JointStateEstimator):
 
 
 class ReferenceBaseStateEstimator(BaseStateEstimator):
-    """A :class:`~deploy.estimation.base.BaseStateEstimator` whose filters are one ``ahrs``
-    Mahony filter and one filterpy KalmanFilter per env, updated env by env (module docstring);
-    the same arguments, attributes, state and errors."""
+    """A :class:`~deploy.estimation.base.BaseStateEstimator` whose error-state algebra runs in one
+    ``filterpy.kalman.KalmanFilter(dim_x=9, dim_z=3)`` per env (filterpy's ``predict`` with the
+    error-state transition and ``update`` with each measurement's ``H`` and ``R``; the error
+    state is folded into the nominal state and zeroed after each update); the same arguments,
+    attributes, state and errors."""
 
     def __init__(self, robot: Robot, envs: int, *args, **kwargs):
-        from ahrs.filters import Mahony
-
+        self._kfs: list[KalmanFilter] = [KalmanFilter(dim_x=N_ERROR, dim_z=3) for _ in range(envs)]
         super().__init__(robot, envs, *args, **kwargs)
-        frequency = 1.0 / robot.control_period
-        self._mahony = [
-            Mahony(k_P=self.k_p, k_I=self.k_i, frequency=frequency) for _ in range(envs)
-        ]
-        self._kfs: list[KalmanFilter] = []
-        for _ in range(envs):
-            kf = KalmanFilter(dim_x=3, dim_z=3)
-            kf.F = np.eye(3)
-            kf.H = np.eye(3)
-            self._kfs.append(kf)
+        for e in range(envs):
+            self._restart_filter(e)
 
-    def reset(self, t, acceleration: np.ndarray | None = None, envs=None) -> None:
-        """:meth:`BaseStateEstimator.reset`, and each reset env's filters restarted."""
-        super().reset(t, acceleration, envs)
-        for e in np.arange(self.envs)[slice(None) if envs is None else envs]:
-            self._mahony[e].b = np.zeros(3)
-            self._kfs[e].x = np.zeros((3, 1))
-            self._kfs[e].P = np.eye(3) * INITIAL_VELOCITY_SIGMA**2
-
-    def _gyro_bias(self) -> np.ndarray:
-        return np.array([np.asarray(f.b, dtype=np.float64) for f in self._mahony])
-
-    def load_state_dict(self, state: dict, env: int | None = None) -> None:
-        """:meth:`BaseStateEstimator.load_state_dict`, into the filters too (their ``x`` and
-        ``P`` are ``velocity`` and ``velocity_variance I``)."""
-        super().load_state_dict(state, env)
-        for k, e in enumerate(np.arange(self.envs)[env_index(env)]):
-            self._mahony[e].b = np.array(state["gyro_bias"][k], dtype=np.float64)
-            self._kfs[e].x = self.velocity[e].reshape(3, 1).copy()
-            self._kfs[e].P = np.eye(3) * self.velocity_variance[e]
-
-    def update(
-        self, frame: SensorFrame, q: np.ndarray, dq: np.ndarray, out: BaseState | None = None
-    ) -> BaseState:
-        """:meth:`BaseStateEstimator.update`, env by env."""
-        if not self._initialized.all():
-            raise RuntimeError("BaseStateEstimator.update before reset(t) of every env")
-        if frame.imu_stamp is None:
-            raise ValueError("frame: no IMU fields (a floating-base robot's frame expected)")
-        out = BaseState.zeros(self.envs) if out is None else out
-        for e in range(self.envs):
-            self._update_env(e, frame, q[e], dq[e], out)
-        return out
-
-    def _update_env(self, e: int, frame: SensorFrame, q, dq, out: BaseState) -> None:
-        """The reference's update of env ``e`` (``ahrs`` and filterpy)."""
-        now, stamp = float(frame.time[e]), float(frame.imu_stamp[e])
-        gyro, acc = frame.imu_angular_velocity[e], frame.imu_acceleration[e]
-        if not (np.isfinite(stamp) and np.isfinite(gyro).all() and np.isfinite(acc).all()):
-            self.missing_readings[e] += 1
-        elif not (self.filter_time[e] < stamp <= now):
-            self.stale_readings[e] += 1
-        else:
-            dt = stamp - self.filter_time[e]
-            gyro_b, acc_b = self._imu_to_base @ gyro, self._imu_to_base @ acc
-            filt = self._mahony[e]
-            leg = self._leg_odometry(e, frame, q, dq)
-            v_b = quaternion_to_matrix(self.orientation[e]).T @ self.velocity[e]
-            # the base's own acceleration off: the leg odometry's and the centripetal term
-            up = acc_b - (self.motion_acceleration[e] + np.cross(gyro_b - filt.b, v_b))
-            quat = filt.updateIMU(self.orientation[e], gyr=gyro_b, acc=up, dt=dt)
-            self.orientation[e] = quat / np.linalg.norm(quat)
-            self.angular_velocity[e] = gyro_b - filt.b
-            rot = quaternion_to_matrix(self.orientation[e])
-            self._predict_velocity(e, dt, rot @ acc_b + self.gravity)
-            self.filter_time[e] = stamp
-            if leg is not None:
-                self._absorb_leg_velocity(e, rot @ leg[0], leg[1])
-        # output: predicted from filter_time to now (orientation turned by omega; v held)
-        age = now - self.filter_time[e]
-        self.time_since_fresh[e] = age
-        quat = self.orientation[e]
-        if age > 0:
-            turn = rotation_quaternions((self.angular_velocity[e] * age)[None])[0]
-            quat = quat_multiply(quat, turn)
-        rot = quaternion_to_matrix(quat)
-        out.orientation[e] = quat
-        out.projected_gravity[e] = -rot[2]
-        out.angular_velocity[e] = self.angular_velocity[e]
-        out.linear_velocity_world[e] = self.velocity[e]
-        out.linear_velocity[e] = rot.T @ self.velocity[e]
-
-    def _predict_velocity(self, e: int, dt: float, acceleration: np.ndarray) -> None:
-        """The reference's prediction (filterpy)."""
+    def _restart_filter(self, e: int) -> None:
+        if not hasattr(self, "_kfs"):
+            return
         kf = self._kfs[e]
-        kf.B = np.eye(3) * dt
-        kf.Q = np.eye(3) * dt * dt * self.accel_variance
-        kf.predict(u=acceleration.reshape(3, 1))
-        self.velocity[e] = kf.x[:, 0]
-        self.velocity_variance[e] = kf.P[0, 0]
+        kf.x = np.zeros((N_ERROR, 1))
+        kf.P = self.covariance[e].copy()
 
-    def _absorb_leg_velocity(self, e: int, z: np.ndarray, r_var: float) -> None:
+    def _predict(self, e: int, F: np.ndarray, Q: np.ndarray) -> None:
         kf = self._kfs[e]
-        kf.R = np.eye(3) * r_var
-        kf.update(z.reshape(3, 1))
-        kf.P = (kf.P + kf.P.T) / 2
-        self.velocity[e] = kf.x[:, 0]
-        self.velocity_variance[e] = kf.P[0, 0]
+        kf.F, kf.Q = F, Q
+        kf.predict()
+        self.covariance[e] = kf.P
+
+    def _correct(self, e: int, y: np.ndarray, H: np.ndarray, R: np.ndarray) -> np.ndarray:
+        kf = self._kfs[e]
+        kf.x = np.zeros((N_ERROR, 1))
+        # filterpy's residual is z - H x: with x = 0 the innovation is z itself
+        kf.update(y.reshape(3, 1), R=R, H=H)
+        kf.P = 0.5 * (kf.P + kf.P.T)
+        self.covariance[e] = kf.P
+        dx = kf.x[:, 0].copy()
+        kf.x = np.zeros((N_ERROR, 1))
+        return dx

@@ -201,6 +201,11 @@ def _run_opened(
     clock_ns = time.perf_counter_ns
 
     violations = ViolationMonitor(robot, args.envs) if simulated else None
+    estimation = None  # the base estimate against the truth, and true falls (sim, legged)
+    if simulated and robot.floating_base:
+        from deploy.monitors.estimation import EstimationMonitor
+
+        estimation = EstimationMonitor(robot, args.envs)
     interventions = InterventionMonitor(rt.guard, rt.smoother)
     task = task_for(
         robot,
@@ -229,6 +234,8 @@ def _run_opened(
             # a legged robot lying damped after a stop: its ticks are counted apart
             violations.update(backend, down=r.damping if robot.floating_base else None)
         interventions.update()
+        if estimation is not None:
+            estimation.update(r, backend.true_base_state())
         monitor_cost.add(0, clock_ns() - t0)
         task(r)
         if node is not None:
@@ -284,6 +291,14 @@ def _run_opened(
         true, down = {"hard_limit": 0}, {}
         violation_report = None  # no ground truth on hardware: the guard's counts stand in
     sections = task.report(rt)  # goals or locomotion, and the missed goals
+    est_summary = estimation.summary() if estimation is not None else None
+    true_falls = int(estimation.true_falls.sum()) if estimation is not None else 0
+    loco = sections["locomotion"]
+    if loco is not None and estimation is not None:
+        # in simulation a fall is the truth's: one the runtime did not see counts too
+        loco["runtime_falls"] = loco["falls"]
+        loco["true_falls"] = true_falls
+        loco["falls"] = max(loco["falls"], true_falls)
     report = {
         "robot": robot.name,
         "backend": args.backend,
@@ -298,6 +313,7 @@ def _run_opened(
         "goals": sections["goals"],
         "locomotion": sections["locomotion"],
         "violations": violation_report,
+        "estimation": est_summary,
         "interventions": interventions.summary(),
         "missed_goals": sections["missed_goals"],
         "faults": {
@@ -355,7 +371,7 @@ def _run_opened(
     report["hard_violations"] = hard
     if hard or hard_stops > 0:
         code = EXIT_HARD_VIOLATION
-    elif any(m in ("FAULTED", "SAFE_STOP") for m in report["final_state"]):
+    elif any(m in ("FAULTED", "SAFE_STOP") for m in report["final_state"]) or true_falls:
         code = EXIT_FAULT
     else:
         code = EXIT_CLEAN

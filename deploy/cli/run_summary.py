@@ -35,6 +35,21 @@ def print_summary(r: dict) -> None:
             + f" of RUNNING time within {loco['tracking_tolerance_m_s']} m/s; falls {loco['falls']}"
             + (f" ({_causes(loco['falls_by_cause'])})" if loco.get("falls_by_cause") else "")
         )
+    if loco is not None and loco.get("true_falls", 0) > loco.get("runtime_falls", 0):
+        print(
+            f"  TRUE FALLS        {loco['true_falls']} of the true base (sim), of which the "
+            f"runtime detected {loco['runtime_falls']}: the run fails (exit code 2)"
+        )
+    est = r.get("estimation")
+    if est is not None:
+        att, bias = est["attitude_error_deg"], est["velocity_bias_fraction"]
+        print(
+            f"  base estimate vs truth (sim)  attitude error mean {att['mean']:.2f} deg, "
+            f"p95 {att['p95']:.2f}; forward speed {est['forward_speed_m_s']['estimated']:.3f} "
+            f"against {est['forward_speed_m_s']['true']:.3f} m/s ("
+            + (f"bias {100 * bias:+.1f} %" if bias is not None else "bias n/a")
+            + f"), planar RMS {est['velocity_rms_m_s']:.3f} m/s"
+        )
     v = r["violations"]
     if v is not None:
         text = ", ".join(f"{k} {n}" for k, n in v["by_type"].items())

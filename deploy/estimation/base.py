@@ -34,8 +34,9 @@ through the velocity: a tilt error puts gravity into the integrated acceleration
 contradict. A walking robot's own acceleration is not taken for tilt, and the leg odometry's
 noise is averaged against the IMU instead of passed to the policy.
 
-The reference (:class:`~deploy.estimation.reference.ReferenceBaseStateEstimator`) runs the same
-prediction and corrections through one ``filterpy`` KalmanFilter per env. An IMU reading that is
+The steps are compiled (:mod:`deploy.estimation.base_kernel`); the reference
+(:class:`~deploy.estimation.reference.ReferenceBaseStateEstimator`) runs the same prediction and
+corrections in numpy through one ``filterpy`` KalmanFilter per env. An IMU reading that is
 NaN, not newer than the last one absorbed or stamped after ``frame.time`` is not fed
 (``missing_readings`` / ``stale_readings``): the output is predicted to ``frame.time`` and
 ``time_since_fresh`` grows. Contacts without a fresh stamp give no velocity update.
@@ -56,6 +57,7 @@ from deploy.estimation.attitude import (
     rotation_quaternions,
     tilt_of,
 )
+from deploy.estimation.base_kernel import imu_step, leg_step
 from deploy.stateful import check, env_index, put, take
 from robots import Robot
 
@@ -90,18 +92,6 @@ REST_ACCELERATION_TOLERANCE = 0.1
 #: gyro still lets the filter learn a bias (our choice).
 MIN_GYRO_BIAS_WALK = 1e-5
 MIN_GYRO_BIAS_SIGMA = 1e-3
-#: Error-state size: dtheta, dv, db.
-N_ERROR = 9
-
-
-def skew(a: np.ndarray) -> np.ndarray:
-    """(3, 3) cross-product matrix ``[a]x`` of a (3,) vector: ``[a]x b = a x b``."""
-    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-
-
-def exp_so3(phi: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation matrix of a rotation vector ``phi`` (3,) rad (Rodrigues)."""
-    return quaternion_to_matrix(rotation_quaternions(np.asarray(phi, dtype=np.float64)[None])[0])
 
 
 def foot_radii(robot: Robot) -> np.ndarray:
@@ -334,34 +324,6 @@ class BaseStateEstimator:
         for e in np.arange(self.envs)[env_index(env)]:
             self._restart_filter(int(e))
 
-    # ------------------------------------------------------------------ the filter's algebra
-    def _predict(self, e: int, F: np.ndarray, Q: np.ndarray) -> None:
-        """``P = F P F^T + Q`` of env ``e`` (the reference: filterpy's ``predict``)."""
-        P = self.covariance[e]
-        self.covariance[e] = F @ P @ F.T + Q
-
-    def _innovation_variance(self, e: int, H: np.ndarray, R: np.ndarray) -> np.ndarray:
-        return H @ self.covariance[e] @ H.T + R
-
-    def _correct(self, e: int, y: np.ndarray, H: np.ndarray, R: np.ndarray) -> np.ndarray:
-        """The error state's update of env ``e`` with innovation ``y``: returns ``dx`` (9,) and
-        sets the covariance (Joseph form, filterpy's; the reference: filterpy's ``update``)."""
-        P = self.covariance[e]
-        S = H @ P @ H.T + R
-        K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S and P symmetric)
-        ikh = np.eye(N_ERROR) - K @ H
-        P = ikh @ P @ ikh.T + K @ R @ K.T
-        self.covariance[e] = 0.5 * (P + P.T)
-        return K @ y
-
-    def _inject(self, e: int, dx: np.ndarray) -> None:
-        """Fold the error ``dx`` (9,) into env ``e``'s nominal state."""
-        turn = rotation_quaternions(dx[None, 0:3])[0]
-        q = quat_multiply(turn, self.orientation[e])  # R = Exp(dtheta) R: world-frame error
-        self.orientation[e] = q / np.linalg.norm(q)
-        self.velocity[e] += dx[3:6]
-        self.gyro_bias[e] += dx[6:9]
-
     # ------------------------------------------------------------------ the tick
     def update(
         self, frame: SensorFrame, q: np.ndarray, dq: np.ndarray, out: BaseState | None = None
@@ -410,78 +372,65 @@ class BaseStateEstimator:
         return out
 
     def _imu_step(self, e: int, stamp: float, gyro: np.ndarray, acc: np.ndarray) -> None:
-        """Env ``e``'s prediction to ``stamp`` and the accelerometer's gravity correction."""
-        dt = stamp - self.filter_time[e]
-        omega = self._imu_to_base @ gyro - self.gyro_bias[e]
-        r = self.lever_arm
-        f = self._imu_to_base @ acc - np.cross(omega, np.cross(omega, r))
-        rot = quaternion_to_matrix(self.orientation[e])
-        rf = rot @ f
-        F = np.eye(N_ERROR)
-        F[0:3, 6:9] = -rot * dt
-        F[3:6, 0:3] = -dt * skew(rf)
-        Q = np.diag(
-            np.concatenate(
-                [
-                    np.full(3, self.gyro_variance * dt * dt),
-                    np.full(3, self.accel_variance * dt * dt),
-                    np.full(3, self.bias_walk_variance * dt),
-                ]
-            )
+        """Env ``e``'s prediction to ``stamp`` and the accelerometer's gravity correction
+        (:func:`deploy.estimation.base_kernel.imu_step`)."""
+        imu_step(
+            self.orientation[e],
+            self.velocity[e],
+            self.gyro_bias[e],
+            self.covariance[e],
+            self._imu_to_base @ gyro,
+            self._imu_to_base @ acc,
+            stamp - self.filter_time[e],
+            self.lever_arm,
+            self.gravity,
+            self.gyro_variance,
+            self.accel_variance,
+            self.bias_walk_variance,
+            self.accel_meas_variance,
+            3 * REST_ACCELERATION_TOLERANCE,
+            self.angular_velocity[e],
         )
-        self.velocity[e] += dt * (rf + self.gravity)
-        turn = rotation_quaternions((omega * dt)[None])[0]
-        quat = quat_multiply(self.orientation[e], turn)
-        self.orientation[e] = quat / np.linalg.norm(quat)
-        self._predict(e, F, Q)
         self.filter_time[e] = stamp
-        self.angular_velocity[e] = omega
-        g = np.linalg.norm(self.gravity)
-        if abs(np.linalg.norm(f) - g) < 3 * REST_ACCELERATION_TOLERANCE * g:
-            # f = R^T (-g) + omega x R^T v: a steady turn's centripetal term is not tilt
-            up, v = -self.gravity, self.velocity[e]
-            rot = quaternion_to_matrix(self.orientation[e])
-            turn = skew(omega) @ rot.T
-            H = np.zeros((3, N_ERROR))
-            H[:, 0:3] = rot.T @ skew(up) + turn @ skew(v)
-            H[:, 3:6] = turn
-            h = rot.T @ up + turn @ v
-            dx = self._correct(e, f - h, H, np.eye(3) * self.accel_meas_variance)
-            self._inject(e, dx)
-        self.angular_velocity[e] = self._imu_to_base @ gyro - self.gyro_bias[e]
 
-    def _legs_step(self, e: int, frame: SensorFrame, q, dq) -> None:
-        """Env ``e``'s leg odometry: one gated velocity correction per foot in contact."""
-        contact = frame.foot_contact[e]
-        if not (np.isfinite(frame.contact_stamp[e]) and contact.any()):
-            return
-        if not (np.isfinite(q).all() and np.isfinite(dq).all()):
-            return
+    def _foot_velocities(self, e: int, q, dq):
+        """Env ``e``'s feet's velocities, linear and angular, (n_feet, 3) each (m/s, rad/s, base
+        frame, the base at the origin turning at ``angular_velocity[e]``: Pinocchio)."""
         model, data = self.robot.pin_model, self._pin
         self._q[7:] = q
         self._v[3:6] = self.angular_velocity[e]
         self._v[6:] = dq
         pin.forwardKinematics(model, data, self._q, self._v)
+        frames = [
+            pin.getFrameVelocity(model, data, f, pin.LOCAL_WORLD_ALIGNED)
+            for f in self.robot.foot_frame_ids
+        ]
+        return [m.linear for m in frames], [m.angular for m in frames]
+
+    def _legs_step(self, e: int, frame: SensorFrame, q, dq) -> None:
+        """Env ``e``'s leg odometry: one gated velocity correction per foot in contact
+        (:func:`deploy.estimation.base_kernel.leg_step`)."""
+        contact = frame.foot_contact[e]
+        if not (np.isfinite(frame.contact_stamp[e]) and contact.any()):
+            return
+        if not (np.isfinite(q).all() and np.isfinite(dq).all()):
+            return
+        linear, angular = self._foot_velocities(e, q, dq)
         gate = self.slip_gate if self._rejected_run[e] < MAX_REJECTED_READINGS else np.inf
         absorbed = False
-        for i, (fid, c) in enumerate(zip(self.robot.foot_frame_ids, contact, strict=True)):
-            if not c:
-                continue
-            rot = quaternion_to_matrix(self.orientation[e])
-            down = rot[2] * -1.0  # the world's down in the base frame
-            vel = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
-            z = -(vel.linear + np.cross(vel.angular, self.radii[i] * down))
-            v = self.velocity[e]
-            H = np.zeros((3, N_ERROR))
-            H[:, 0:3] = rot.T @ skew(v)
-            H[:, 3:6] = rot.T
-            R = np.eye(3) * self.leg_variance
-            y = z - rot.T @ v
-            S = self._innovation_variance(e, H, R)
-            if y @ np.linalg.solve(S, y) > gate:
-                self.rejected_contacts[e] += 1
-                continue
-            self._inject(e, self._correct(e, y, H, R))
-            self.velocity_updates[e] += 1
-            absorbed = True
+        for i in np.flatnonzero(contact):
+            ok = leg_step(
+                self.orientation[e],
+                self.velocity[e],
+                self.gyro_bias[e],
+                self.covariance[e],
+                linear[i],
+                angular[i],
+                float(self.radii[i]),
+                self.leg_variance,
+                gate,
+            )
+            self.velocity_updates[e] += ok
+            self.rejected_contacts[e] += not ok
+            absorbed |= ok
         self._rejected_run[e] = 0 if absorbed else self._rejected_run[e] + 1

@@ -18,7 +18,13 @@ from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
 from deploy.backends.base import SensorFrame
-from deploy.estimation.base import N_ERROR, BaseStateEstimator
+from deploy.estimation.attitude import quat_multiply, quaternion_to_matrix, rotation_quaternions
+from deploy.estimation.base import (
+    MAX_REJECTED_READINGS,
+    REST_ACCELERATION_TOLERANCE,
+    BaseStateEstimator,
+)
+from deploy.estimation.base_kernel import N_ERROR
 from deploy.estimation.joints import JointStateEstimator
 from deploy.state import RobotState
 from robots import Robot
@@ -202,3 +208,79 @@ class ReferenceBaseStateEstimator(BaseStateEstimator):
         dx = kf.x[:, 0].copy()
         kf.x = np.zeros((N_ERROR, 1))
         return dx
+
+    def _inject(self, e: int, dx: np.ndarray) -> None:
+        """Fold the error ``dx`` (9,) into env ``e``'s nominal state."""
+        turn = rotation_quaternions(dx[None, 0:3])[0]
+        q = quat_multiply(turn, self.orientation[e])  # R = Exp(dtheta) R: world-frame error
+        self.orientation[e] = q / np.linalg.norm(q)
+        self.velocity[e] += dx[3:6]
+        self.gyro_bias[e] += dx[6:9]
+
+    def _imu_step(self, e: int, stamp: float, gyro: np.ndarray, acc: np.ndarray) -> None:
+        dt = stamp - self.filter_time[e]
+        omega = self._imu_to_base @ gyro - self.gyro_bias[e]
+        f = self._imu_to_base @ acc - np.cross(omega, np.cross(omega, self.lever_arm))
+        rot = quaternion_to_matrix(self.orientation[e])
+        rf = rot @ f
+        F = np.eye(N_ERROR)
+        F[0:3, 6:9] = -rot * dt
+        F[3:6, 0:3] = -dt * skew(rf)
+        Q = np.diag(
+            np.concatenate(
+                [
+                    np.full(3, self.gyro_variance * dt * dt),
+                    np.full(3, self.accel_variance * dt * dt),
+                    np.full(3, self.bias_walk_variance * dt),
+                ]
+            )
+        )
+        self.velocity[e] += dt * (rf + self.gravity)
+        turn = rotation_quaternions((omega * dt)[None])[0]
+        quat = quat_multiply(self.orientation[e], turn)
+        self.orientation[e] = quat / np.linalg.norm(quat)
+        self._predict(e, F, Q)
+        self.filter_time[e] = stamp
+        g = np.linalg.norm(self.gravity)
+        if abs(np.linalg.norm(f) - g) < 3 * REST_ACCELERATION_TOLERANCE * g:
+            up, v = -self.gravity, self.velocity[e]
+            rot = quaternion_to_matrix(self.orientation[e])
+            turn = skew(omega) @ rot.T
+            H = np.zeros((3, N_ERROR))
+            H[:, 0:3] = rot.T @ skew(up) + turn @ skew(v)
+            H[:, 3:6] = turn
+            y = f - (rot.T @ up + turn @ v)
+            self._inject(e, self._correct(e, y, H, np.eye(3) * self.accel_meas_variance))
+        self.angular_velocity[e] = self._imu_to_base @ gyro - self.gyro_bias[e]
+
+    def _legs_step(self, e: int, frame: SensorFrame, q, dq) -> None:
+        contact = frame.foot_contact[e]
+        if not (np.isfinite(frame.contact_stamp[e]) and contact.any()):
+            return
+        if not (np.isfinite(q).all() and np.isfinite(dq).all()):
+            return
+        linear, angular = self._foot_velocities(e, q, dq)
+        gate = self.slip_gate if self._rejected_run[e] < MAX_REJECTED_READINGS else np.inf
+        absorbed = False
+        for i in np.flatnonzero(contact):
+            rot = quaternion_to_matrix(self.orientation[e])
+            z = -(linear[i] + np.cross(angular[i], self.radii[i] * -rot[2]))
+            v = self.velocity[e]
+            H = np.zeros((3, N_ERROR))
+            H[:, 0:3] = rot.T @ skew(v)
+            H[:, 3:6] = rot.T
+            R = np.eye(3) * self.leg_variance
+            y = z - rot.T @ v
+            S = H @ self.covariance[e] @ H.T + R
+            if y @ np.linalg.solve(S, y) > gate:
+                self.rejected_contacts[e] += 1
+                continue
+            self._inject(e, self._correct(e, y, H, R))
+            self.velocity_updates[e] += 1
+            absorbed = True
+        self._rejected_run[e] = 0 if absorbed else self._rejected_run[e] + 1
+
+
+def skew(a: np.ndarray) -> np.ndarray:
+    """(3, 3) cross-product matrix ``[a]x`` of a (3,) vector: ``[a]x b = a x b``."""
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])

@@ -1,0 +1,163 @@
+"""Compiled steps of the base estimator's error-state filter (:mod:`deploy.estimation.base`): the
+IMU's prediction with the accelerometer's gravity correction, and one foot's velocity correction,
+of one env. The numpy reference of the same algebra (filterpy's predict and update) is
+:class:`deploy.estimation.reference.ReferenceBaseStateEstimator`; in numpy these steps cost most
+of the legged estimate stage (tens of small-matrix calls a foot).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+N_ERROR = 9
+
+
+@numba.njit(cache=True, nogil=True)
+def _skew(a, out) -> None:
+    out[0, 0], out[0, 1], out[0, 2] = 0.0, -a[2], a[1]
+    out[1, 0], out[1, 1], out[1, 2] = a[2], 0.0, -a[0]
+    out[2, 0], out[2, 1], out[2, 2] = -a[1], a[0], 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _quat_to_mat(q, out) -> None:
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    out[0, 0] = 1 - 2 * (y * y + z * z)
+    out[0, 1] = 2 * (x * y - w * z)
+    out[0, 2] = 2 * (x * z + w * y)
+    out[1, 0] = 2 * (x * y + w * z)
+    out[1, 1] = 1 - 2 * (x * x + z * z)
+    out[1, 2] = 2 * (y * z - w * x)
+    out[2, 0] = 2 * (x * z - w * y)
+    out[2, 1] = 2 * (y * z + w * x)
+    out[2, 2] = 1 - 2 * (x * x + y * y)
+
+
+@numba.njit(cache=True, nogil=True)
+def _turn(rotvec, q, left: bool) -> None:
+    """``q`` (4,) <- ``Exp(rotvec) q`` (left) or ``q Exp(rotvec)``, normalized."""
+    angle = math.sqrt(rotvec[0] ** 2 + rotvec[1] ** 2 + rotvec[2] ** 2)
+    if angle < 1e-12:
+        half, bw = 0.5, 1.0
+    else:
+        half, bw = math.sin(angle / 2) / angle, math.cos(angle / 2)
+    bx, by, bz = rotvec[0] * half, rotvec[1] * half, rotvec[2] * half
+    aw, ax, ay, az = q[0], q[1], q[2], q[3]
+    if left:  # b a
+        aw, ax, ay, az, bw, bx, by, bz = bw, bx, by, bz, aw, ax, ay, az
+    w = aw * bw - ax * bx - ay * by - az * bz
+    x = aw * bx + ax * bw + ay * bz - az * by
+    y = aw * by - ax * bz + ay * bw + az * bx
+    z = aw * bz + ax * by - ay * bx + az * bw
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    q[0], q[1], q[2], q[3] = w / n, x / n, y / n, z / n
+
+
+@numba.njit(cache=True, nogil=True)
+def _correct(P, y, H, r_var: float, q, v, b, gate: float) -> bool:
+    """The error-state update with innovation ``y`` (3,), ``H`` (3, 9), noise ``r_var I``,
+    folded into the nominal state ``q``, ``v``, ``b``; False (nothing changed) when the
+    innovation's chi-square exceeds ``gate``."""
+    PHt = P @ H.T
+    S = H @ PHt
+    for i in range(3):
+        S[i, i] += r_var
+    if gate < np.inf:
+        if y @ np.linalg.solve(S, y) > gate:
+            return False
+    K = np.linalg.solve(S, PHt.T).T
+    ikh = np.eye(N_ERROR) - K @ H
+    P2 = ikh @ P @ ikh.T + r_var * (K @ K.T)
+    for i in range(N_ERROR):
+        for j in range(N_ERROR):
+            P[i, j] = 0.5 * (P2[i, j] + P2[j, i])
+    dx = K @ y
+    _turn(dx[0:3], q, True)  # R = Exp(dtheta) R: a world-frame error
+    for i in range(3):
+        v[i] += dx[3 + i]
+        b[i] += dx[6 + i]
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def imu_step(
+    q,
+    v,
+    b,
+    P,
+    gyro_b,
+    acc_b,
+    dt: float,
+    lever,
+    gravity,
+    gyro_var: float,
+    accel_var: float,
+    walk_var: float,
+    accel_meas_var: float,
+    rest_band: float,
+    omega_out,
+) -> None:
+    """One env's prediction over ``dt`` (s) from a reading already in the base frame and the
+    accelerometer's gravity correction (:mod:`deploy.estimation.base`); ``q``, ``v``, ``b``,
+    ``P`` in place, the bias-free angular velocity in ``omega_out`` (3,)."""
+    omega = gyro_b - b
+    f = acc_b - np.cross(omega, np.cross(omega, lever))
+    R = np.empty((3, 3))
+    _quat_to_mat(q, R)
+    rf = R @ f
+    F = np.eye(N_ERROR)
+    sk = np.empty((3, 3))
+    _skew(rf, sk)
+    for i in range(3):
+        for j in range(3):
+            F[i, 6 + j] = -R[i, j] * dt
+            F[3 + i, j] = -dt * sk[i, j]
+    P2 = F @ P @ F.T
+    for i in range(3):
+        P2[i, i] += gyro_var * dt * dt
+        P2[3 + i, 3 + i] += accel_var * dt * dt
+        P2[6 + i, 6 + i] += walk_var * dt
+    P[:, :] = P2
+    for i in range(3):
+        v[i] += dt * (rf[i] + gravity[i])
+    _turn(omega * dt, q, False)
+    g = math.sqrt(gravity[0] ** 2 + gravity[1] ** 2 + gravity[2] ** 2)
+    fn = math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2)
+    if abs(fn - g) < rest_band * g:
+        up = -gravity
+        _quat_to_mat(q, R)
+        turn = np.empty((3, 3))
+        _skew(omega, sk)
+        turn[:, :] = sk @ R.T
+        sk_up = np.empty((3, 3))
+        _skew(up, sk_up)
+        sk_v = np.empty((3, 3))
+        _skew(v, sk_v)
+        H = np.zeros((3, N_ERROR))
+        H[:, 0:3] = R.T @ sk_up + turn @ sk_v
+        H[:, 3:6] = turn
+        y = f - (R.T @ up + turn @ v)
+        _correct(P, y, H, accel_meas_var, q, v, b, np.inf)
+    for i in range(3):
+        omega_out[i] = gyro_b[i] - b[i]
+
+
+@numba.njit(cache=True, nogil=True)
+def leg_step(q, v, b, P, foot_linear, foot_angular, radius: float, leg_var: float, gate: float):
+    """One foot's velocity correction of one env: the foot's velocity (linear, angular; m/s,
+    rad/s, base frame at the base's pose) taken as the base's (a rolling sphere of ``radius``);
+    True when absorbed, False when gated out as a slip."""
+    R = np.empty((3, 3))
+    _quat_to_mat(q, R)
+    down = -R[2]  # the world's down in the base frame
+    z = -(foot_linear + np.cross(foot_angular, radius * down))
+    sk_v = np.empty((3, 3))
+    _skew(v, sk_v)
+    H = np.zeros((3, N_ERROR))
+    H[:, 0:3] = R.T @ sk_v
+    H[:, 3:6] = R.T
+    y = z - R.T @ v
+    return _correct(P, y, H, leg_var, q, v, b, gate)

@@ -204,6 +204,40 @@ def test_shipped_go2_walks_at_the_commanded_speed_through_the_runtime(tmp_path):
     assert walk["tracking_success"] > 0.8, walk
     assert r["violations"]["by_type"]["hard_limit"] == 0
     assert set(r["peak_winding_temperature_c"]) == set(load_robot("go2").joint_names)
+    # the base estimate against the truth, over the whole run (settling included): the
+    # Mahony + velocity-KF estimator it replaced read the forward speed 13 % low
+    est = r["estimation"]
+    assert walk["true_falls"] == 0 and est["true_falls"] == 0
+    assert est["attitude_error_deg"]["mean"] < 2.5, est
+    assert abs(est["velocity_bias_fraction"]) < 0.08, est
+    assert est["velocity_rms_m_s"] < 0.12, est
+
+
+def test_a_true_fall_the_runtime_did_not_see_is_counted_once_until_the_robot_is_up(go2):
+    """EstimationMonitor on the truth alone: a base that sinks below 0.4 of its standing
+    height while RUNNING is one true fall however long it lies there, a second after it was up;
+    an estimate equal to the truth has no attitude error and no velocity bias."""
+    from types import SimpleNamespace
+
+    from deploy.estimation.base import BaseState
+    from deploy.monitors.estimation import EstimationMonitor
+
+    monitor = EstimationMonitor(go2, 1)
+    stand = go2.config.base.standing_height
+    truth = np.zeros((1, 13))
+    truth[0, 3] = 1.0  # upright
+    truth[0, 7] = 0.5  # 0.5 m/s forward
+    rt = SimpleNamespace(mode=np.array([int(Mode.RUNNING)]), state=SimpleNamespace(base=None))
+    heights = [stand] * 5 + [0.1 * stand] * 10 + [stand] * 5 + [0.2 * stand] * 3
+    for h in heights:
+        truth[0, 2] = h
+        rt.state.base = BaseState.zeros(1).set_truth(truth)
+        monitor.update(rt, truth)
+    s = monitor.summary()
+    assert s["true_falls"] == 2
+    assert s["attitude_error_deg"]["mean"] < 1e-6
+    assert s["velocity_bias_fraction"] == pytest.approx(0.0, abs=1e-12)
+    assert EstimationMonitor(go2, 1).summary() is None  # never RUNNING: unknown, not zero
 
 
 @pytest.mark.parametrize("reference", [False, True])

@@ -407,6 +407,19 @@ class BaseStateEstimator:
         ]
         return [m.linear for m in frames], [m.angular for m in frames]
 
+    def _gate(self, e: int) -> float:
+        """Env ``e``'s slip gate for this reading: ``slip_gate``, or ``inf`` after
+        ``MAX_REJECTED_READINGS`` readings without an absorbed foot. Opening it, the velocity
+        restarts from the legs: its block of the covariance is widened (``INITIAL_VELOCITY_SIGMA``
+        added) and its correlation with the attitude and bias dropped, so that a base whose
+        velocity jumped (a push, a landing) is not read as a tilt."""
+        if self._rejected_run[e] < MAX_REJECTED_READINGS:
+            return self.slip_gate
+        P = self.covariance[e]
+        P[3:6, :3] = P[:3, 3:6] = P[3:6, 6:] = P[6:, 3:6] = 0.0
+        P[3:6, 3:6] += np.eye(3) * INITIAL_VELOCITY_SIGMA**2
+        return np.inf
+
     def _legs_step(self, e: int, frame: SensorFrame, q, dq) -> None:
         """Env ``e``'s leg odometry: one gated velocity correction per foot in contact
         (:func:`deploy.estimation.base_kernel.leg_step`)."""
@@ -416,7 +429,7 @@ class BaseStateEstimator:
         if not (np.isfinite(q).all() and np.isfinite(dq).all()):
             return
         linear, angular = self._foot_velocities(e, q, dq)
-        gate = self.slip_gate if self._rejected_run[e] < MAX_REJECTED_READINGS else np.inf
+        gate = self._gate(e)
         absorbed = False
         for i in np.flatnonzero(contact):
             ok = leg_step(

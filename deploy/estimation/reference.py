@@ -20,7 +20,6 @@ from filterpy.kalman import KalmanFilter
 from deploy.backends.base import SensorFrame
 from deploy.estimation.attitude import quat_multiply, quaternion_to_matrix, rotation_quaternions
 from deploy.estimation.base import (
-    MAX_REJECTED_READINGS,
     REST_ACCELERATION_TOLERANCE,
     BaseStateEstimator,
 )
@@ -260,7 +259,9 @@ class ReferenceBaseStateEstimator(BaseStateEstimator):
         if not (np.isfinite(q).all() and np.isfinite(dq).all()):
             return
         linear, angular = self._foot_velocities(e, q, dq)
-        gate = self.slip_gate if self._rejected_run[e] < MAX_REJECTED_READINGS else np.inf
+        gate = self._gate(e)
+        if gate == np.inf:
+            self._kfs[e].P = self.covariance[e].copy()
         absorbed = False
         for i in np.flatnonzero(contact):
             rot = quaternion_to_matrix(self.orientation[e])

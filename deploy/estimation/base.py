@@ -2,41 +2,23 @@
 
 One error-state extended Kalman filter per env, fed by a
 :class:`~deploy.backends.base.SensorFrame`'s IMU and foot-contact fields and by the joint
-estimate ``q``, ``dq`` (rad, rad/s): the
-kinematic-inertial filter of legged robots with leg odometry as a velocity measurement (M. Bloesch
-et al., "State estimation for legged robots", RSS 2012; M. Camurri et al., "Pronto", Frontiers in
-Robotics and AI 2020), reduced to the states a velocity policy observes.
-
-Nominal state (per env): the base-to-world rotation ``R``, the base velocity ``v`` (m/s, world,
-at the base origin) and the gyro bias ``b`` (rad/s, base frame). Error state (9,): ``dtheta``
-(rad, world frame, ``R_true = Exp(dtheta) R``), ``dv``, ``db``. At each fresh IMU reading, with the
-gyro ``omega = w - b`` and the specific force at the base origin ``f = a - omega x (omega x r)``
-(``r`` the IMU site's position on the base: its lever arm)::
-
-    predict:  v' = v + dt (R f + g)     R' = R Exp(omega dt)     b' = b
-              F = [[I, 0, -R dt], [-dt [R f]x, I, 0], [0, 0, I]]
-              Q = diag(sigma_g^2 dt^2 I, sigma_a^2 dt^2 I, walk_g^2 dt I)
-    gravity:  z = f,  h = R^T (-g) + omega x R^T v,  H = [R^T [-g]x + [omega]x R^T [v]x,
-              [omega]x R^T, 0],  noise ACCEL_MEASUREMENT_SIGMA
-              (only while |f| is within REST_ACCELERATION_TOLERANCE x 3 of |g|)
-    legs:     per foot in contact, z_i = -(omega x p_i + J_i dq + omega_i x (rho_i u)),  h = R^T v,
-              H = [R^T [v]x, R^T, 0],  noise LEG_VELOCITY_SIGMA
-
-with ``p_i``, ``J_i`` a foot's position and Jacobian in the base frame (Pinocchio), ``omega_i`` its
-link's angular velocity, ``rho_i`` the radius of its contact sphere (a rolling sphere's centre moves
-at ``omega_i x rho_i u`` over its still contact point; 0 for a foot that is not a sphere) and ``u``
-the world's down in the base frame. A foot whose reading is more than ``SLIP_GATE`` (chi-square,
-3 dof) from the prediction is slipping and not absorbed (``rejected_contacts``), unless no foot
-has been absorbed for ``MAX_REJECTED_READINGS`` readings (the prediction itself is then suspect).
+estimate ``q``, ``dq`` (rad, rad/s): the kinematic-inertial filter of legged robots with leg
+odometry as a velocity measurement (M. Bloesch et al., "State estimation for legged robots", RSS
+2012; M. Camurri et al., "Pronto", Frontiers in Robotics and AI 2020), reduced to the states a
+velocity policy observes: the base-to-world rotation, the base velocity (world, at the base
+origin) and the gyro bias. The IMU predicts (the accelerometer's lever arm and a turn's
+centripetal term taken off); the accelerometer is a weak gravity measurement; each foot in
+contact measures the base velocity through the leg kinematics (a rolling sphere's centre is not
+its contact point). A foot whose reading is more than ``SLIP_GATE`` (chi-square, 3 dof) from the
+prediction is slipping and not absorbed (``rejected_contacts``), unless no foot has been absorbed
+for ``MAX_REJECTED_READINGS`` readings: the velocity then restarts from the legs. The equations
+are in :mod:`deploy.estimation.base_kernel`, which compiles them; the reference
+(:class:`~deploy.estimation.reference.ReferenceBaseStateEstimator`) runs them in numpy through one
+``filterpy`` KalmanFilter per env.
 
 Unlike a complementary filter that takes the accelerometer for gravity, the tilt is observed
 through the velocity: a tilt error puts gravity into the integrated acceleration, which the legs
-contradict. A walking robot's own acceleration is not taken for tilt, and the leg odometry's
-noise is averaged against the IMU instead of passed to the policy.
-
-The steps are compiled (:mod:`deploy.estimation.base_kernel`); the reference
-(:class:`~deploy.estimation.reference.ReferenceBaseStateEstimator`) runs the same prediction and
-corrections in numpy through one ``filterpy`` KalmanFilter per env. An IMU reading that is
+contradict, so a walking robot's own acceleration is not taken for tilt. An IMU reading that is
 NaN, not newer than the last one absorbed or stamped after ``frame.time`` is not fed
 (``missing_readings`` / ``stale_readings``): the output is predicted to ``frame.time`` and
 ``time_since_fresh`` grows. Contacts without a fresh stamp give no velocity update.
@@ -231,6 +213,22 @@ class BaseStateEstimator:
         self.rejected_contacts = np.zeros(envs, dtype=np.int64)
         self._rejected_run = np.zeros(envs, dtype=np.int64)
         self._initialized = np.zeros(envs, dtype=bool)
+        self._warm_kernels()
+
+    def _warm_kernels(self) -> None:
+        """Compile (or load from numba's cache) the filter's steps before the first tick, for
+        the argument types the tick passes, on scratch copies (nothing of the estimator
+        changes): a first call inside a tick costs milliseconds."""
+        q, v, b = self.orientation[0].copy(), self.velocity[0].copy(), self.gyro_bias[0].copy()
+        P, omega = self.covariance[0].copy(), np.zeros(3)
+        up = -self.gravity
+        imu_step(
+            q, v, b, P, np.zeros(3), up, 0.02, self.lever_arm, self.gravity,
+            self.gyro_variance, self.accel_variance, self.bias_walk_variance,
+            self.accel_meas_variance, 3 * REST_ACCELERATION_TOLERANCE, omega,
+        )  # fmt: skip
+        leg_step(q, v, b, P, np.zeros(3), np.zeros(3), 0.0, self.leg_variance, self.slip_gate)
+        leg_step(q, v, b, P, np.zeros(3), np.zeros(3), 0.0, self.leg_variance, np.inf)
 
     def _initial_covariance(self) -> np.ndarray:
         """(9, 9) the error state's covariance at a reset (``INITIAL_*_SIGMA``, the gyro's

@@ -1,8 +1,23 @@
-"""Compiled steps of the base estimator's error-state filter (:mod:`deploy.estimation.base`): the
-IMU's prediction with the accelerometer's gravity correction, and one foot's velocity correction,
-of one env. The numpy reference of the same algebra (filterpy's predict and update) is
-:class:`deploy.estimation.reference.ReferenceBaseStateEstimator`; in numpy these steps cost most
-of the legged estimate stage (tens of small-matrix calls a foot).
+"""Compiled steps of the base estimator's error-state filter (:mod:`deploy.estimation.base`) of
+one env; the numpy reference of the same algebra (filterpy's predict and update) is
+:class:`deploy.estimation.reference.ReferenceBaseStateEstimator`.
+
+Nominal state: rotation ``R`` (base to world), velocity ``v`` (m/s, world), gyro bias ``b`` (rad/s,
+base frame). Error state (9,): ``dtheta`` (rad, world frame, ``R_true = Exp(dtheta) R``), ``dv``,
+``db``. With the gyro ``omega = w - b`` and the specific force at the base origin
+``f = a - omega x (omega x r)`` (``r`` the IMU's lever arm)::
+
+    predict:  v' = v + dt (R f + g)     R' = R Exp(omega dt)     b' = b
+              F = [[I, 0, -R dt], [-dt [R f]x, I, 0], [0, 0, I]]
+              Q = diag(sigma_g^2 dt^2 I, sigma_a^2 dt^2 I, walk_g^2 dt I)
+    gravity:  z = f,  h = R^T (-g) + omega x R^T v,
+              H = [R^T [-g]x + [omega]x R^T [v]x, [omega]x R^T, 0]
+              (only while |f| is within ``rest_band`` of |g|)
+    a foot:   z = -(v_foot + omega_foot x (rho u)),  h = R^T v,  H = [R^T [v]x, R^T, 0]
+
+with ``v_foot``, ``omega_foot`` the foot's velocity in the base frame (the base at the origin,
+turning at ``omega``), ``rho`` its contact sphere's radius and ``u`` the world's down in the base
+frame. Updates are Joseph-form, the error folded into the nominal state and zeroed.
 """
 
 from __future__ import annotations

@@ -8,7 +8,11 @@ policies in ``tests/data/unitree_rl_gym``) walks at ``--command`` m/s through
 noise model its ``robot.toml`` ships; :class:`deploy.monitors.estimation.EstimationMonitor`
 compares the base estimate with the truth on every RUNNING tick after ``--settle`` s: attitude
 error (mean, p95, deg), forward speed estimated and true, the bias (target within 5 %) and the
-planar RMS error (target 0.1 m/s); attitude targets: mean 1 deg, p95 2 deg.
+planar RMS error (target 0.1 m/s); attitude targets: mean 1 deg, p95 2 deg. For the published
+humanoid policies it also gives the walking speed (planar path over the same window, truth)
+through the runtime and in the policy's own loop on the true state (unitree_rl_gym's
+deploy_mujoco loop, :func:`bench.push_reference.unitree_loop`): a policy trained on the
+simulator's state should walk within 10 % of its own loop's speed through the runtime.
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ POLICIES = {
     "h1": ROOT / "tests" / "data" / "unitree_rl_gym" / "h1" / "h1.onnx",
     "h1_2": ROOT / "tests" / "data" / "unitree_rl_gym" / "h1_2" / "h1_2.onnx",
 }
+#: Robots whose published policy's own loop runs here (unitree_rl_gym's deploy_mujoco loop).
+OWN_LOOP = ("h1", "h1_2")
 #: The targets of a policy-grade estimate (deg, deg, fraction, m/s).
 TARGETS = {"attitude_mean": 1.0, "attitude_p95": 2.0, "bias": 0.05, "rms": 0.1}
 
@@ -50,15 +56,54 @@ def measure(robot_name: str, seconds: float, command: float, settle: float, seed
     rt.velocity_command[:] = (command, 0.0, 0.0)
     monitor = EstimationMonitor(robot, 1)
 
+    start = {}
+
     def on_tick(r):
         if r.time >= settle:
-            monitor.update(r, backend.true_base_state())
+            truth = backend.true_base_state()
+            monitor.update(r, truth)
+            start.setdefault("xy", truth[0, :2].copy())
+            start.setdefault("t", r.time)
 
     rt.start()
     rt.run(int(round(seconds / robot.control_period)), on_tick=on_tick)
     out = monitor.summary() or {}
     out["final_state"] = rt.mode_names()[0]
+    if start:
+        out["speed_m_s"] = _speed(start, rt.time, backend.true_base_state()[0, :2])
+    if robot_name in OWN_LOOP:
+        out["own_loop_speed_m_s"] = own_loop_speed(robot, robot_name, seconds, command, settle)
     return out
+
+
+def _speed(start: dict, t: float, xy) -> float:
+    """m/s, the base's planar displacement since ``start`` over the time since."""
+    return float(np.linalg.norm(np.asarray(xy) - start["xy"]) / (t - start["t"]))
+
+
+def own_loop_speed(robot, robot_name: str, seconds: float, command: float, settle: float):
+    """m/s, the published policy's speed in its own stack's loop on the true state
+    (:func:`bench.push_reference.unitree_loop`, no push), over the same window; None if it
+    fell."""
+    import yaml
+
+    from bench.push_reference import DATA, load_torchscript, unitree_loop
+
+    cfg = yaml.safe_load((DATA / robot_name / f"{robot_name}.yaml").read_text())
+    cfg["cmd_init"] = [command, 0.0, 0.0]
+    path: list = []
+    fell = unitree_loop(
+        robot, cfg, load_torchscript(DATA / robot_name / "motion.pt"), 0, seconds, 0.0, path
+    )
+    if fell is not None:
+        return None
+    rows = np.array(path)
+    k = int(np.searchsorted(rows[:, 0], settle))
+    return _speed({"xy": rows[k, 1:], "t": rows[k, 0]}, rows[-1, 0], rows[-1, 1:])
+
+
+def _f(x) -> str:
+    return "n/a" if x is None else f"{x:.3f}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -72,8 +117,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     rows = {}
     print("| robot | attitude error mean / p95 (deg) | forward speed est / true (m/s) | bias | "
-          "planar RMS (m/s) | final |")  # fmt: skip
-    print("| --- | --- | --- | --- | --- | --- |")
+          "planar RMS (m/s) | speed: runtime / own loop (m/s) | final |")  # fmt: skip
+    print("| --- | --- | --- | --- | --- | --- | --- |")
     for name in args.robots.split(","):
         r = measure(name, args.seconds, args.command, args.settle, args.seed)
         rows[name] = r
@@ -89,7 +134,8 @@ def main(argv: list[str] | None = None) -> int:
             f"| {name} | {att['mean']:.2f} / {att['p95']:.2f} | {speed['estimated']:.3f} / "
             f"{speed['true']:.3f} | "
             + (f"{100 * bias:+.1f} %" if bias is not None and np.isfinite(bias) else "n/a")
-            + f" | {r['velocity_rms_m_s']:.3f} | {r['final_state']} |"
+            + f" | {r['velocity_rms_m_s']:.3f} | {_f(r.get('speed_m_s'))} / "
+            f"{_f(r.get('own_loop_speed_m_s'))} | {r['final_state']} |"
         )
     if args.json is not None:
         args.json.write_text(json.dumps({"targets": TARGETS, "robots": rows}, indent=2))

@@ -76,9 +76,10 @@ def load_torchscript(path: Path):
         return torch.jit.load(str(path)).eval()
 
 
-def unitree_loop(robot, cfg: dict, net, seed: int, seconds: float, vmax: float):
+def unitree_loop(robot, cfg: dict, net, seed: int, seconds: float, vmax: float, path=None):
     """One run of unitree's loop (module docstring) with ``net`` (the TorchScript policy, eval
-    mode); returns the fall time s, or None."""
+    mode); returns the fall time s, or None. ``path``: a list that receives ``(t, x, y)`` (s, m)
+    of the base after each control tick."""
     import torch
 
     m = robot.plant_model("torque")
@@ -101,9 +102,11 @@ def unitree_loop(robot, cfg: dict, net, seed: int, seconds: float, vmax: float):
             obs = unitree_observation(cfg, d.qpos, d.qvel, action, t)
             action = net(torch.from_numpy(obs)[None]).numpy()[0].astype(np.float32)
         target = action * cfg["action_scale"] + default
+        if path is not None:
+            path.append((t, float(d.qpos[0]), float(d.qpos[1])))
         if d.qpos[2] < FALL_HEIGHT or not np.isfinite(d.qpos).all():
             return t
-        if tick % every == 0:
+        if vmax > 0 and tick % every == 0:  # vmax 0: no push (setting 0 would stop the base)
             d.qvel[:2] = push_velocity(seed, tick // every, vmax)
     return None
 

@@ -309,10 +309,17 @@ def load_robot(name_or_path: str | Path) -> Robot:
     )
 
 
-#: What the description hash leaves out: the ``[task]``, ``[soak]`` and ``[unitree]`` tables and
+#: What the description hash leaves out: the ``[task]``, ``[soak]`` and ``[unitree]`` tables,
 #: the guard's ``safety.link_length_tolerance`` (how sure the guard is of the MJCF, not what the
-#: policy sees or commands).
-HASH_EXCLUDED = {"task": True, "soak": True, "unitree": True, "safety": {"link_length_tolerance"}}
+#: policy sees or commands), the drives' velocity reading and the IMU's onboard attitude (the
+#: base estimator's inputs).
+HASH_EXCLUDED = {
+    "task": True,
+    "soak": True,
+    "unitree": True,
+    "safety": {"link_length_tolerance"},
+    "sensors": {"velocity_noise_sigma": True, "imu": {"orientation_sigma", "orientation_tau"}},
+}
 
 
 def description_hash(cfg: RobotConfig, mjcf_bytes: bytes) -> str:

@@ -129,6 +129,10 @@ class SensorConfig(_Strict):
     encoder_rate: Positive  # Hz
     encoder_latency_ticks: Annotated[int, Field(ge=0)] = 0  # control ticks
     encoder_dropout: Probability = 0.0  # probability per reading and joint
+    # The joint velocity the drive reports with each encoder reading (Unitree's motor_state.dq,
+    # Dynamixel's present velocity): the true velocity plus white noise of this sigma; None: the
+    # drives report none. Out of the description hash (an estimator input, not a policy's).
+    velocity_noise_sigma: NonNegative | None = None  # rad/s
     temperature_resolution: Positive = 1.0  # degC
     temperature_rate: Positive = 10.0  # Hz
     ambient_temperature: Finite = 25.0  # degC
@@ -156,6 +160,12 @@ class ImuConfig(_Strict):
     rate: Positive  # Hz
     latency_ticks: Annotated[int, Field(ge=0)] = 0  # control ticks
     dropout: Probability = 0.0  # probability per reading
+    # The IMU's own attitude estimate (an AHRS module's quaternion, as Unitree's LowState sends):
+    # roll and pitch errors (rad) each a first-order Gauss-Markov process of stationary standard
+    # deviation orientation_sigma and correlation time orientation_tau (s); None: the IMU sends
+    # no attitude. Out of the description hash (an estimator input, not a policy's).
+    orientation_sigma: NonNegative | None = None  # rad
+    orientation_tau: Positive = 1.0  # s
 
 
 class ContactConfig(_Strict):

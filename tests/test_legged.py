@@ -153,6 +153,45 @@ def test_imu_white_noise_and_bias_walk_match_their_settings(go2):
         assert abs(np.var(d50) / var50 - 1) < 3 * np.sqrt(2 / d50.size), name
 
 
+def test_the_imus_own_attitude_and_the_drives_velocity_have_their_configured_errors(go2):
+    """The IMU's own attitude (``orientation_sigma``, ``orientation_tau``) errs from the true
+    attitude by roll and pitch errors of that spread and correlation time (a Gauss-Markov
+    process: its 1 s autocorrelation exp(-1 / tau)), never in yaw; the drives' joint velocity
+    reading errs by white noise of ``velocity_noise_sigma``. An arm's frame has neither."""
+    from deploy.estimation.attitude import quat_multiply
+
+    envs = 4
+    plant = stand_plant(go2, envs=envs, seed=12)
+    sensors = plant.base_sensors
+    sigma, tau = go2.config.sensors.imu.orientation_sigma, go2.config.sensors.imu.orientation_tau
+    run(plant, SETTLE)
+    site = go2.mj_model.site_quat[go2.imu_site_id]
+    errors, velocity = [], []
+
+    def record(k, frame):
+        true = quat_multiply(plant.true_base_state()[:, 3:7], np.tile(site, (envs, 1)))
+        # the reading's rotation from the truth, world frame: R_read R_true^T
+        rel = quaternion_to_matrix(frame.imu_orientation) @ quaternion_to_matrix(true).transpose(
+            0, 2, 1
+        )
+        errors.append(np.stack([rel[:, 2, 1], rel[:, 0, 2], rel[:, 1, 0]], axis=1))  # small
+        velocity.append(frame.velocity - plant.true_velocity())
+
+    run(plant, 3000, each=record)
+    err = np.array(errors)  # (ticks, envs, 3): roll, pitch, yaw about the world's axes
+    assert np.abs(err[:, :, 2]).max() < 0.05 * sigma  # no yaw (second order of roll x pitch)
+    spread = err[:, :, :2].std()
+    assert abs(spread / sigma - 1) < 0.2, spread
+    lag = int(round(1.0 / go2.control_period))
+    a, b = err[:-lag, :, :2].ravel(), err[lag:, :, :2].ravel()
+    assert abs(np.corrcoef(a, b)[0, 1] - np.exp(-1.0 / tau)) < 0.12
+    noise = np.array(velocity)
+    assert abs(noise.std() / go2.config.sensors.velocity_noise_sigma - 1) < 0.05
+    assert sensors.has_orientation
+    arm = SimBackend(load_robot("arm3"), "position")
+    assert arm.read().imu_orientation is None and np.isnan(arm.read().velocity).all()
+
+
 def test_foot_contacts_on_the_floor_and_in_the_air(go2):
     plant = stand_plant(go2, seed=2)
     run(plant, SETTLE)
@@ -197,7 +236,7 @@ def estimate(plant, ticks, push=None, estimator=BaseStateEstimator, envs_check=N
     base = estimator(robot, plant.envs)
     frame = plant.read()
     joints.reset(plant.true_position(), frame.time)
-    base.reset(frame.time, frame.imu_acceleration)
+    base.reset(frame.time, frame.imu_acceleration, orientation=frame.imu_orientation)
     state = RobotState.zeros(plant.envs, robot.n_joints)
     rows = []
 

@@ -145,6 +145,9 @@ def test_bringup_then_lowcmd_on_the_wire_is_byte_identical_to_the_idl(go2):
             while np.isnan(frame.position).any():  # the hold took the last states
                 time.sleep(0.005)
                 frame = backend.read()
+            # the IMU's own attitude (imu_state.quaternion) and the drives' velocities
+            # (motor_state.dq) come through, as the estimator takes them
+            attitude, velocity = frame.imu_orientation[0].copy(), frame.velocity[0].copy()
             # the bring-up stood the robot up: damping, then the ramp to home at its gains
             assert emu.damping_onsets, "no damping before the ramp"
             assert np.abs(emu.drivers.q_des - go2.home).max() < 1e-6
@@ -160,6 +163,8 @@ def test_bringup_then_lowcmd_on_the_wire_is_byte_identical_to_the_idl(go2):
         listen.close()
         bus = backend.bus_summary()
     assert not np.isnan(frame.position).any()
+    assert abs(np.linalg.norm(attitude) - 1) < 1e-4 and np.isfinite(velocity).all()
+    assert np.degrees(np.arccos(1 - 2 * (attitude[1] ** 2 + attitude[2] ** 2))) < 10  # standing
     assert bus["dropouts"]["bad_crc"] == 0 and bus["lowstate_received"] > 100
     assert emu.stats["lowcmd_bad_crc"] == 0 and emu.stats["lowcmd_received"] > 100
     # the hand-over: the first command still near the ramp's gains, no jump to the policy's

@@ -44,6 +44,8 @@ class SensorFrame:
             noisy; NaN where no reading arrived (dropout, or a sensor slower than the control rate).
         position_stamp: (envs, n_joints) s, when each reading was sampled (earlier than ``time``
             by the sensor latency); NaN where ``position`` is NaN.
+        velocity: (envs, n_joints) rad/s, the joint velocity each drive reported with its encoder
+            reading (noisy); NaN where none arrived or the drives report none.
         winding_temperature: (envs, n_joints) degC, as the drive reports it (quantized, at the
             drive's reporting rate: the last reported value is repeated in between).
         temperature_stamp: (envs,) s, when ``winding_temperature`` was last sampled.
@@ -54,6 +56,10 @@ class SensorFrame:
         imu_acceleration: (envs, 3) m/s^2, the accelerometer's specific force in the IMU
             site's frame (about ``+9.81`` along the site's up axis at rest); NaN likewise.
         imu_stamp: (envs,) s, when the IMU reading was sampled; NaN when none arrived.
+        imu_orientation: (envs, 4) the IMU's own attitude estimate, unit quaternion
+            ``[w, x, y, z]`` of the IMU site's frame to the world (yaw arbitrary), as an AHRS
+            module (Unitree's LowState ``imu_state.quaternion``) reports it; NaN where the IMU
+            sends none or no reading arrived.
         foot_force: (envs, n_feet) N, each foot's measured normal contact force (noisy).
         foot_contact: (envs, n_feet) bool, ``foot_force`` above the contact threshold.
         contact_stamp: (envs,) s, when the foot forces were sampled; NaN when none arrived.
@@ -64,9 +70,11 @@ class SensorFrame:
     position_stamp: np.ndarray
     winding_temperature: np.ndarray
     temperature_stamp: np.ndarray
+    velocity: np.ndarray | None = None
     imu_angular_velocity: np.ndarray | None = None
     imu_acceleration: np.ndarray | None = None
     imu_stamp: np.ndarray | None = None
+    imu_orientation: np.ndarray | None = None
     foot_force: np.ndarray | None = None
     foot_contact: np.ndarray | None = None
     contact_stamp: np.ndarray | None = None
@@ -82,6 +90,7 @@ class SensorFrame:
                 imu_angular_velocity=np.full((envs, 3), np.nan),
                 imu_acceleration=np.full((envs, 3), np.nan),
                 imu_stamp=np.full(envs, np.nan),
+                imu_orientation=np.full((envs, 4), np.nan),
                 foot_force=np.full((envs, n_feet), np.nan),
                 foot_contact=np.zeros((envs, n_feet), dtype=bool),
                 contact_stamp=np.full(envs, np.nan),
@@ -92,6 +101,7 @@ class SensorFrame:
             position_stamp=nan.copy(),
             winding_temperature=nan.copy(),
             temperature_stamp=np.full(envs, np.nan),
+            velocity=nan.copy(),
             **legged,
         )
 

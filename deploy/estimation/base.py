@@ -39,7 +39,7 @@ from deploy.estimation.attitude import (
     rotation_quaternions,
     tilt_of,
 )
-from deploy.estimation.base_kernel import imu_step, leg_step
+from deploy.estimation.base_kernel import attitude_step, imu_step, leg_step
 from deploy.stateful import check, env_index, put, take
 from robots import Robot
 
@@ -54,11 +54,18 @@ UNMODELLED_ACCELERATION = 0.5
 #: The accelerometer as a gravity measurement, m/s^2 (our choice): a walking base's own
 #: acceleration, which averages out over a gait cycle (tried 0.5 and 1: 0.5 deg more tilt error).
 ACCEL_MEASUREMENT_SIGMA = 2.0
-#: Chi-square bound (3 dof, p about 0.001) past which a foot's velocity reading is a slip.
-SLIP_GATE = 16.0
+#: Chi-square bound (3 dof, p about 0.03) past which a foot's velocity reading is a slip (tried
+#: 6 and 16 on the go2, h1 and h1_2 over seeds 0-2: 16 let the Go2's sliding rear feet read it 5-7 %
+#: slow).
+SLIP_GATE = 9.0
 #: Readings in a row without an absorbed foot after which the gate opens (our choice: 0.1 s at 50
 #: Hz; a prediction that drifted must not lock every foot out).
 MAX_REJECTED_READINGS = 5
+#: The IMU's own attitude as a measurement: its ``orientation_sigma`` times this factor (our
+#: choice: its error is correlated over ``orientation_tau``, so one reading a tick is not
+#: independent of the last), at least ``MIN_ATTITUDE_SIGMA`` rad.
+ATTITUDE_SIGMA_FACTOR = 3.0
+MIN_ATTITUDE_SIGMA = 0.002
 #: Initial standard deviations (our choice: a robot reset at rest on level ground): roll and
 #: pitch rad, yaw rad (unobserved, kept small), velocity m/s.
 INITIAL_TILT_SIGMA = 0.02
@@ -187,7 +194,9 @@ class BaseStateEstimator:
         self._imu_to_base = quaternion_to_matrix(m.site_quat[robot.imu_site_id])
         #: (3,) m, the IMU site on the base (the accelerometer's lever arm)
         self.lever_arm = np.array(m.site_pos[robot.imu_site_id], dtype=np.float64)
-        self.gravity = np.array(m.opt.gravity, dtype=np.float64)
+        # the filter's world frame is the gravity frame: its z axis up against gravity (the
+        # model's gravity may be tilted to stand for a slope; an IMU knows only gravity)
+        self.gravity = np.array([0.0, 0.0, -np.linalg.norm(m.opt.gravity)])
         self.gyro_variance = imu.gyro_noise_sigma**2
         self.accel_variance = imu.accel_noise_sigma**2 + UNMODELLED_ACCELERATION**2
         self.bias_walk_variance = max(imu.gyro_bias_walk, MIN_GYRO_BIAS_WALK) ** 2
@@ -195,6 +204,12 @@ class BaseStateEstimator:
         self.leg_variance = float(leg_sigma) ** 2
         self.accel_meas_variance = float(accel_sigma) ** 2
         self.slip_gate = float(slip_gate)
+        onboard = imu.orientation_sigma
+        self.attitude_variance = (
+            None
+            if onboard is None
+            else max(onboard * ATTITUDE_SIGMA_FACTOR, MIN_ATTITUDE_SIGMA) ** 2
+        )
         self.radii = foot_radii(robot)
         self._pin = robot.pin_model.createData()
         self._q = robot.pin_configuration(robot.home)
@@ -213,6 +228,9 @@ class BaseStateEstimator:
         self.rejected_contacts = np.zeros(envs, dtype=np.int64)
         self._rejected_run = np.zeros(envs, dtype=np.int64)
         self._initialized = np.zeros(envs, dtype=bool)
+        #: (envs, n_joints) rad, s: each encoder's last reading and its stamp
+        self._encoder_position = np.full((envs, robot.n_joints), np.nan)
+        self._encoder_stamp = np.full((envs, robot.n_joints), np.nan)
         self._warm_kernels()
 
     def _warm_kernels(self) -> None:
@@ -228,6 +246,7 @@ class BaseStateEstimator:
             self.accel_meas_variance, 3 * REST_ACCELERATION_TOLERANCE, omega,
         )  # fmt: skip
         leg_step(q, v, b, P, np.zeros(3), np.zeros(3), 0.0, self.leg_variance, self.slip_gate)
+        attitude_step(q, v, b, P, np.eye(3), MIN_ATTITUDE_SIGMA**2)
         leg_step(q, v, b, P, np.zeros(3), np.zeros(3), 0.0, self.leg_variance, np.inf)
 
     def _initial_covariance(self) -> np.ndarray:
@@ -237,9 +256,11 @@ class BaseStateEstimator:
         return np.diag(np.concatenate([np.array(sigma) ** 2, np.full(3, self.bias_variance)]))
 
     # ------------------------------------------------------------------ lifecycle
-    def reset(self, t, acceleration: np.ndarray | None = None, envs=None) -> None:
+    def reset(self, t, acceleration: np.ndarray | None = None, envs=None, orientation=None) -> None:
         """Start the filters at rest at time ``t`` (s; float or (envs,)).
 
+        ``orientation``: (envs, 4) the IMU's own attitude (``SensorFrame.imu_orientation``):
+        where a row is finite, the initial roll and pitch are its (yaw 0). Else
         ``acceleration``: (envs, 3) accelerometer readings (m/s^2, IMU frame) of the robot at
         rest: the initial roll and pitch put them along the world's up (yaw 0); default upright.
         A reading whose magnitude is more than ``REST_ACCELERATION_TOLERANCE`` from gravity's is
@@ -256,7 +277,10 @@ class BaseStateEstimator:
             raise ValueError("reset: t must be finite")
         for e in sel:
             q = np.array([1.0, 0.0, 0.0, 0.0])
-            if acceleration is not None:
+            if orientation is not None and np.isfinite(orientation[e]).all():
+                measured = quaternion_to_matrix(orientation[e]) @ self._imu_to_base.T
+                q = align_up(measured[2])  # the world's up in the base frame: its tilt, yaw 0
+            elif acceleration is not None:
                 a = self._imu_to_base @ np.asarray(acceleration[e], dtype=np.float64)
                 if not (np.isfinite(a).all() and np.linalg.norm(a) > 0):
                     raise ValueError(f"reset: env {e}: acceleration {a} is not a finite reading")
@@ -349,9 +373,13 @@ class BaseStateEstimator:
             fresh = finite & (self.filter_time < stamp) & (stamp <= now)
         self.missing_readings += ~finite
         self.stale_readings += finite & ~fresh
+        onboard = frame.imu_orientation
+        rate = self._encoder_rate(frame, dq)
         for e in np.flatnonzero(fresh):
             self._imu_step(e, float(stamp[e]), gyro[e], acc[e])
-            self._legs_step(e, frame, q[e], dq[e])
+            if self.attitude_variance is not None and np.isfinite(onboard[e]).all():
+                self._attitude_step(e, onboard[e])
+            self._legs_step(e, frame, q[e], rate[e])
         # output: predicted from filter_time to now (orientation turned by omega; v held)
         for e in range(self.envs):
             age = float(now[e] - self.filter_time[e])
@@ -390,6 +418,39 @@ class BaseStateEstimator:
             self.angular_velocity[e],
         )
         self.filter_time[e] = stamp
+
+    def _encoder_rate(self, frame: SensorFrame, dq: np.ndarray) -> np.ndarray:
+        """(envs, n_joints) rad/s, the joint velocities the leg odometry uses: the velocity the
+        drive reported (``frame.velocity``) where it did; else each encoder's reading differenced
+        against its previous one over their stamps (half a reading's period behind; the joint
+        filter's constant-velocity estimate lags a stepping leg by two to three control periods);
+        else the joint estimate ``dq``."""
+        pos, stamp = frame.position, frame.position_stamp
+        with np.errstate(invalid="ignore", divide="ignore"):
+            gap = stamp - self._encoder_stamp
+            rate = (pos - self._encoder_position) / gap
+            ok = np.isfinite(rate) & (gap > 0) & (gap <= 2.5 * self.robot.control_period)
+        out = np.where(ok, rate, dq)
+        if frame.velocity is not None:
+            reported = np.isfinite(frame.velocity)
+            out[reported] = frame.velocity[reported]
+        fresh = np.isfinite(pos) & np.isfinite(stamp)
+        self._encoder_position[fresh] = pos[fresh]
+        self._encoder_stamp[fresh] = stamp[fresh]
+        return out
+
+    def _attitude_step(self, e: int, quaternion: np.ndarray) -> None:
+        """Env ``e``'s correction by the IMU's own attitude (``quaternion``: the IMU site to
+        the world; :func:`deploy.estimation.base_kernel.attitude_step`)."""
+        measured = quaternion_to_matrix(quaternion) @ self._imu_to_base.T  # base to world
+        attitude_step(
+            self.orientation[e],
+            self.velocity[e],
+            self.gyro_bias[e],
+            self.covariance[e],
+            measured,
+            self.attitude_variance,
+        )
 
     def _foot_velocities(self, e: int, q, dq):
         """Env ``e``'s feet's velocities, linear and angular, (n_feet, 3) each (m/s, rad/s, base

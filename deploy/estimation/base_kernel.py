@@ -14,6 +14,8 @@ base frame). Error state (9,): ``dtheta`` (rad, world frame, ``R_true = Exp(dthe
               H = [R^T [-g]x + [omega]x R^T [v]x, [omega]x R^T, 0]
               (only while |f| is within ``rest_band`` of |g|)
     a foot:   z = -(v_foot + omega_foot x (rho u)),  h = R^T v,  H = [R^T [v]x, R^T, 0]
+    attitude: z = -R_imu[2] (the IMU's own attitude, where it sends one),  h = -R[2],
+              H = [R^T [(0, 0, -1)]x, 0, 0]
 
 with ``v_foot``, ``omega_foot`` the foot's velocity in the base frame (the base at the origin,
 turning at ``omega``), ``rho`` its contact sphere's radius and ``u`` the world's down in the base
@@ -176,3 +178,19 @@ def leg_step(q, v, b, P, foot_linear, foot_angular, radius: float, leg_var: floa
     H[:, 3:6] = R.T
     y = z - R.T @ v
     return _correct(P, y, H, leg_var, q, v, b, gate)
+
+
+@numba.njit(cache=True, nogil=True)
+def attitude_step(q, v, b, P, measured, var: float) -> None:
+    """One env's correction by the IMU's own attitude ``measured`` (3, 3), the base-to-world
+    rotation it implies: its projected gravity ``z = -measured[2]`` against ``h = R^T (0, 0, -1)``,
+    ``H = [R^T [(0, 0, -1)]x, 0, 0]``, noise ``var I``."""
+    R = np.empty((3, 3))
+    _quat_to_mat(q, R)
+    down = np.array([0.0, 0.0, -1.0])
+    sk = np.empty((3, 3))
+    _skew(down, sk)
+    H = np.zeros((3, N_ERROR))
+    H[:, 0:3] = R.T @ sk
+    y = -measured[2] - (-R[2])
+    _correct(P, y, H, var, q, v, b, np.inf)

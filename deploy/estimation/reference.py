@@ -252,6 +252,14 @@ class ReferenceBaseStateEstimator(BaseStateEstimator):
             self._inject(e, self._correct(e, y, H, np.eye(3) * self.accel_meas_variance))
         self.angular_velocity[e] = self._imu_to_base @ gyro - self.gyro_bias[e]
 
+    def _attitude_step(self, e: int, quaternion: np.ndarray) -> None:
+        measured = quaternion_to_matrix(quaternion) @ self._imu_to_base.T
+        rot = quaternion_to_matrix(self.orientation[e])
+        H = np.zeros((3, N_ERROR))
+        H[:, 0:3] = rot.T @ skew(np.array([0.0, 0.0, -1.0]))
+        y = -measured[2] + rot[2]
+        self._inject(e, self._correct(e, y, H, np.eye(3) * self.attitude_variance))
+
     def _legs_step(self, e: int, frame: SensorFrame, q, dq) -> None:
         contact = frame.foot_contact[e]
         if not (np.isfinite(frame.contact_stamp[e]) and contact.any()):

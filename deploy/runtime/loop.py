@@ -246,10 +246,12 @@ class Runtime(RuntimeState):
         self.state.dq[:] = 0.0
         self.guard.reset(q)
         self.smoother.reset(q, self.state.dq)
-        if self.base_estimator is not None:  # upright as the accelerometer says, yaw 0
+        if self.base_estimator is not None:  # as the IMU's attitude or accelerometer says, yaw 0
             acc = frame.imu_acceleration
             finite = np.isfinite(acc).all() and (np.linalg.norm(acc, axis=1) > 0).all()
-            self.base_estimator.reset(frame.time, acceleration=acc if finite else None)
+            self.base_estimator.reset(
+                frame.time, acceleration=acc if finite else None, orientation=frame.imu_orientation
+            )
         self.mode[:] = RAMP_IN
         self._reset_policy(np.ones(self.envs, dtype=bool))
         self.clock.start()

@@ -54,6 +54,13 @@ ACCEL_BIAS_SIGMA = 0.05  # m/s^2
 #: accelerometer_random_walk 4.3e-4 m/s^3/sqrt(Hz)) inflated 10x for a robot's vibration and
 #: temperature, as Kalibr's "IMU Noise Model" page advises for real conditions.
 GYRO_BIAS_WALK = 4e-4  # rad/s/sqrt(s)
+#: rad/s, the noise of the joint velocity a drive reports (our estimate: a rotor encoder's count
+#: differenced at a 1 kHz or faster current loop and filtered, through the gear).
+VELOCITY_NOISE_SIGMA = 0.02
+#: The IMU's own attitude: roll and pitch error (rad, 0.5 deg: Xsens MTi-3 datasheet, static) and
+#: its correlation time (s, our choice).
+ORIENTATION_SIGMA = 0.0087
+ORIENTATION_TAU = 1.0
 ACCEL_BIAS_WALK = 4e-3  # m/s^2/sqrt(s)
 #: Foot force noise: the specified range (force sensors 0.05-0.10 normalized), the lower end, over
 #: the standing load of one foot (m g / n_feet). Contact threshold: 3 sigma above it, and at
@@ -252,6 +259,10 @@ def write_legged_toml(
     lines += [
         "",
         *sensor_lines(chosen, resolution, quantum, control_rate, "degC", motor_tables),
+        "# the joint velocity each drive reports with its angle (Unitree's motor_state.dq, from",
+        "# its rotor encoder at the current loop's rate): white noise, our estimate. Delete the",
+        "# line if the drives report none.",
+        f"velocity_noise_sigma = {_f(VELOCITY_NOISE_SIGMA)}  # rad/s",
         "",
         "# IMU at site 'imu' (link " + imu_link + "): Kalibr's noise model (robots/schema.py).",
         "[sensors.imu]",
@@ -269,6 +280,13 @@ def write_legged_toml(
         f"rate = {_f(control_rate)}  # Hz, one reading a control tick",
         "latency_ticks = 0",
         "dropout = 0.0",
+        "# The IMU's own attitude, as a legged robot's AHRS sends it (Unitree's LowState",
+        "# imu_state.quaternion, the attitude unitree_rl_gym's deploy_real feeds its policies):",
+        "# roll and pitch errors as first-order Gauss-Markov processes (robots/schema.py); the",
+        "# static roll/pitch accuracy MEMS AHRS modules specify (Xsens MTi-3 datasheet: 0.5 deg;",
+        "# dynamic 1.0 deg), 1 s correlation. Delete both lines if the IMU sends no attitude.",
+        f"orientation_sigma = {_f(ORIENTATION_SIGMA)}  # rad",
+        f"orientation_tau = {_f(ORIENTATION_TAU)}  # s",
         "",
         "# Foot contact: the touch sensor's normal force (N) + noise, thresholded.",
         "[sensors.contact]",

@@ -242,6 +242,8 @@ class FaultInjector:
             ]
             frame.position[envs] = frozen.position[envs]
             frame.position_stamp[envs] = frozen.position_stamp[envs]
+            if frame.velocity is not None and frozen.velocity is not None:
+                frame.velocity[envs] = frozen.velocity[envs]
             return frame
         self._frozen = None
         return frame

@@ -12,8 +12,10 @@ IMU (``[sensors.imu]``, Kalibr's IMU noise model, per axis, sample period ``dt``
     y_k = true_k + b_k + sigma N(0, 1)
 
 for the gyroscope (rad/s) and the accelerometer (specific force, m/s^2), both in the IMU site's
-frame; a reading is lost with probability ``dropout``. Foot contact (``[sensors.contact]``): each
-foot's normal force plus Gaussian noise (N), ``foot_contact = force > threshold``.
+frame; a reading is lost with probability ``dropout``. An IMU with ``orientation_sigma`` also
+sends its own attitude (:meth:`BaseSensorModel._onboard_attitude`). Foot contact
+(``[sensors.contact]``): each foot's normal force plus Gaussian noise (N),
+``foot_contact = force > threshold``.
 
 The noise settings are per env (``(envs,)`` arrays, change them between ticks: per-session
 randomization, :func:`eval.world.sensors.apply_imu`). The draws come from the backend's sensor
@@ -28,6 +30,7 @@ import mujoco
 import numpy as np
 
 from deploy.backends.sim.sensors import draw
+from deploy.estimation.attitude import align_up, quat_multiply, rotation_quaternions
 from robots import Robot
 
 
@@ -102,6 +105,18 @@ class BaseSensorModel:
         self.contact_latency_ticks = full(contact.latency_ticks, np.int64)
         self.gyro_bias = np.zeros((envs, 3))
         self.accel_bias = np.zeros((envs, 3))
+        #: the IMU sends its own attitude (``[sensors.imu] orientation_sigma`` set)
+        self.has_orientation = imu.orientation_sigma is not None
+        self.orientation_sigma = full(imu.orientation_sigma or 0.0)
+        self.orientation_tau = full(imu.orientation_tau)
+        #: (envs, 2) rad, the onboard attitude's present roll and pitch errors (ground truth;
+        #: world-frame rotation about x and y)
+        self.orientation_error = np.zeros((envs, 2))
+        self._noise2 = np.empty((envs, 2))
+        self._site_quat = np.array(backend.models[0].site_quat[robot.imu_site_id], dtype=float)
+        # an AHRS's attitude is relative to gravity: the world turned so that gravity is -z
+        g = np.array(backend.models[0].opt.gravity, dtype=float)
+        self._gravity_frame = align_up(-g / np.linalg.norm(g))
 
         m = backend.models[0]
         gyro = sensor_address(m, mujoco.mjtSensor.mjSENS_GYRO, robot.imu_site_id)
@@ -109,7 +124,7 @@ class BaseSensorModel:
         touch = [sensor_address(m, mujoco.mjtSensor.mjSENS_TOUCH, s) for s in robot.foot_site_ids]
         self._gyro, self._acc, self._touch = slice(gyro, gyro + 3), slice(acc, acc + 3), touch
         size = backend.max_latency_ticks + 1
-        self._buf_imu = np.full((size, envs, 6), np.nan)
+        self._buf_imu = np.full((size, envs, 10), np.nan)  # gyro, accel, attitude
         self._buf_imu_stamp = np.full((size, envs), np.nan)
         self._buf_force = np.full((size, envs, nf), np.nan)
         self._buf_contact_stamp = np.full((size, envs), np.nan)
@@ -143,6 +158,10 @@ class BaseSensorModel:
         draw(self.backend.joint_sensors.rng, "standard_normal", self._noise6, which)
         self.gyro_bias[which] = (self._noise6[:, :3] * self.gyro_bias_sigma[:, None])[which]
         self.accel_bias[which] = (self._noise6[:, 3:] * self.accel_bias_sigma[:, None])[which]
+        if self.has_orientation:  # the onboard filter's error starts in its stationary spread
+            draw(self.backend.joint_sensors.rng, "standard_normal", self._noise2, which)
+            start = self._noise2 * self.orientation_sigma[:, None]
+            self.orientation_error[which] = start[which]
         if full:
             for buf in (self._buf_imu, self._buf_imu_stamp, self._buf_force):
                 buf.fill(np.nan)
@@ -174,11 +193,14 @@ class BaseSensorModel:
                 sel
             ]
             draw(rng, "standard_normal", self._noise6, envs)
-            reading = self.true_imu().copy()
+            reading = np.full((self.envs, 10), np.nan)
+            reading[:, :6] = self.true_imu()
             reading[:, :3] += self.gyro_bias + self._noise6[:, :3] * self.gyro_noise_sigma[:, None]
-            reading[:, 3:] += (
+            reading[:, 3:6] += (
                 self.accel_bias + self._noise6[:, 3:] * self.accel_noise_sigma[:, None]
             )
+            if self.has_orientation:
+                reading[:, 6:] = self._onboard_attitude(dt, envs)
             stamp = np.full(self.envs, time)
             lost = draw(rng, "random", np.ones((self.envs, 1)), envs) < self.imu_dropout[:, None]
             reading[lost[:, 0]] = np.nan
@@ -197,6 +219,24 @@ class BaseSensorModel:
             self._buf_force[slot] = np.nan
             self._buf_contact_stamp[slot] = np.nan
 
+    def _onboard_attitude(self, dt: float, envs) -> np.ndarray:
+        """(envs, 4) the IMU's own attitude after ``dt`` s: each roll and pitch error steps its
+        Gauss-Markov process (``e' = a e + sqrt(1 - a^2) sigma N(0, 1)``, ``a = exp(-dt / tau)``;
+        only the envs ``envs`` when given) and turns the IMU site's true attitude (relative to
+        gravity) about the world's x and y axes."""
+        draw(self.backend.joint_sensors.rng, "standard_normal", self._noise2, envs)
+        a = np.exp(-dt / self.orientation_tau)[:, None]
+        step = a * self.orientation_error + np.sqrt(1 - a * a) * (
+            self._noise2 * self.orientation_sigma[:, None]
+        )
+        sel = slice(None) if envs is None else envs
+        self.orientation_error[sel] = step[sel]
+        site = quat_multiply(self.backend.true_base_state()[:, 3:7], self._site_quat[None])
+        site = quat_multiply(np.broadcast_to(self._gravity_frame, site.shape), site)
+        error = np.zeros((self.envs, 3))
+        error[:, :2] = self.orientation_error
+        return quat_multiply(rotation_quaternions(error), site)
+
     def read(self, frame, tick: int) -> None:
         """Fill the frame's IMU and contact fields with the readings arriving at ``tick``."""
         size = self._buf_imu_stamp.shape[0]
@@ -205,12 +245,14 @@ class BaseSensorModel:
         slot = origin % size
         imu = self._buf_imu[slot, idx]
         frame.imu_angular_velocity[:] = imu[:, :3]
-        frame.imu_acceleration[:] = imu[:, 3:]
+        frame.imu_acceleration[:] = imu[:, 3:6]
+        frame.imu_orientation[:] = imu[:, 6:]
         frame.imu_stamp[:] = self._buf_imu_stamp[slot, idx]
         early = origin < 0
         if early.any():
             frame.imu_angular_velocity[early] = np.nan
             frame.imu_acceleration[early] = np.nan
+            frame.imu_orientation[early] = np.nan
             frame.imu_stamp[early] = np.nan
         origin = tick - self.contact_latency_ticks
         slot = origin % size
@@ -237,6 +279,9 @@ class BaseSensorModel:
             "imu/latency_ticks": self.imu_latency_ticks,
             "imu/gyro_bias": self.gyro_bias,
             "imu/accel_bias": self.accel_bias,
+            "imu/orientation_sigma": self.orientation_sigma,
+            "imu/orientation_tau": self.orientation_tau,
+            "imu/orientation_error": self.orientation_error,
             "imu/buffer": np.moveaxis(self._buf_imu, 1, 0),
             "imu/buffer_stamp": np.moveaxis(self._buf_imu_stamp, 1, 0),
             "contact/force_noise_sigma": self.force_noise_sigma,

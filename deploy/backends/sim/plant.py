@@ -456,7 +456,8 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
         """Take the readings due at this tick: the encoders and temperature reports, then the IMU
         and foot contact (in this order from the sensor streams)."""
         q = self._qpos  # gathered by advance (or reset)
-        self._joint_sensors.sample(self.tick, self.time, q, self.thermal.winding_temperature)
+        dq = self.true_velocity() if self._joint_sensors.has_velocity else None
+        self._joint_sensors.sample(self.tick, self.time, q, self.thermal.winding_temperature, dq)
         if self._base_sensors is not None:
             self._base_sensors.sample(self.tick, self.time)
 

@@ -118,6 +118,10 @@ class JointSensorModel:
         self.rng = np.random.Generator(np.random.PCG64(seed))
         size = max_latency_ticks + 1
         self._buf_position = np.full((size, envs, n), np.nan)
+        #: the drives report a joint velocity (``[sensors] velocity_noise_sigma`` set)
+        self.has_velocity = s.velocity_noise_sigma is not None
+        self.velocity_noise_sigma = np.full(envs, s.velocity_noise_sigma or 0.0)
+        self._buf_velocity = np.full((size, envs, n), np.nan)
         self._buf_stamp = np.full((size, envs), np.nan)
         self._env_index = np.arange(envs)
         self._uniform = np.zeros((envs, n))
@@ -146,6 +150,7 @@ class JointSensorModel:
         """Forget every reading (the backend's clock restarts): the latency buffers and the
         temperature stamps."""
         self._buf_position.fill(np.nan)
+        self._buf_velocity.fill(np.nan)
         self._buf_stamp.fill(np.nan)
         self.frame.temperature_stamp.fill(np.nan)
 
@@ -155,19 +160,28 @@ class JointSensorModel:
         the ambient temperature ``ambient`` (degC, (envs, n))."""
         quantized = np.round(q / self.encoder_quantum) * self.encoder_quantum
         self._buf_position[:, which] = quantized
+        self._buf_velocity[:, which] = 0.0 if self.has_velocity else np.nan
         self._buf_stamp[:, which] = time
         res = self.temperature_resolution
         self.frame.winding_temperature[which] = np.round(ambient[which] / res) * res
 
     # ------------------------------------------------------------------ per tick
     def sample(
-        self, tick: int, time: float, q: np.ndarray, winding_temperature: np.ndarray
+        self,
+        tick: int,
+        time: float,
+        q: np.ndarray,
+        winding_temperature: np.ndarray,
+        dq: np.ndarray | None = None,
     ) -> None:
         """Take the readings due at control tick ``tick`` (s ``time``): the joint angles ``q``
-        (envs, n) rad into the latency buffer every ``encoder_every`` ticks, the winding
-        temperatures (envs, n) degC into the frame at the temperature rate.
+        (envs, n) rad into the latency buffer every ``encoder_every`` ticks (and, where the drives
+        report one, the joint velocity ``dq`` (envs, n) rad/s with white noise, NaN where the
+        angle dropped out), the winding temperatures (envs, n) degC into the frame at the
+        temperature rate.
 
-        The draws come from :attr:`rng`; the arithmetic is :meth:`_encode`."""
+        The draws come from :attr:`rng` (the velocity's after the angle's); the angle's
+        arithmetic is :meth:`_encode`."""
         slot = tick % self._buf_stamp.shape[0]
         if tick % self._encoder_every == 0:
             sample = self._buf_position[slot]
@@ -175,8 +189,15 @@ class JointSensorModel:
             self.rng.random(out=self._uniform)
             self._encode(sample, q)
             self._buf_stamp[slot] = time
+            if self.has_velocity and dq is not None:
+                velocity = self._buf_velocity[slot]
+                self.rng.standard_normal(out=velocity)
+                velocity *= self.velocity_noise_sigma[:, None]
+                velocity += dq
+                velocity[np.isnan(sample)] = np.nan
         else:
             self._buf_position[slot] = np.nan
+            self._buf_velocity[slot] = np.nan
             self._buf_stamp[slot] = np.nan
         if tick % self._temperature_every == 0:
             self._sample_temperature(time, winding_temperature)
@@ -209,6 +230,10 @@ class JointSensorModel:
             tick, self.latency_ticks, self._buf_position, self._buf_stamp, f.position,
             f.position_stamp,
         )  # fmt: skip
+        if self.has_velocity:  # the velocity reported with each angle read
+            origin = tick - self.latency_ticks
+            f.velocity[:] = self._buf_velocity[origin % self._buf_stamp.shape[0], self._env_index]
+            f.velocity[origin < 0] = np.nan
 
     # ------------------------------------------------------------------ state
     def state_fields(self) -> dict[str, np.ndarray]:
@@ -220,6 +245,8 @@ class JointSensorModel:
             "dropout_probability": self.dropout_probability,
             "latency_ticks": self.latency_ticks,
             "buffer/position": np.moveaxis(self._buf_position, 1, 0),
+            "buffer/velocity": np.moveaxis(self._buf_velocity, 1, 0),
+            "velocity_noise_sigma": self.velocity_noise_sigma,
             "buffer/stamp": np.moveaxis(self._buf_stamp, 1, 0),
         }
 

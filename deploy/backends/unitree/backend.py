@@ -312,19 +312,21 @@ class UnitreeBackend(BackendLifecycle):
         return True
 
     def _no_reading(self, f: SensorFrame) -> None:
-        f.position[0] = f.position_stamp[0] = np.nan
+        f.position[0] = f.position_stamp[0] = f.velocity[0] = np.nan
         self._errors.fill(0)
         if f.imu_stamp is not None:
             f.imu_angular_velocity[0] = f.imu_acceleration[0] = np.nan
+            f.imu_orientation[0] = np.nan
             f.imu_stamp[0] = f.contact_stamp[0] = np.nan
 
     def _fill(self, f: SensorFrame, now: float, lost: np.ndarray | None) -> None:
         m, fam = self._state.message, self.family
         ms = m["motor_state"]
         f.position[0] = ms["q"][self.slots]
+        f.velocity[0] = ms["dq"][self.slots]  # the drives' own velocity reading
         f.position_stamp[0] = now
         if lost is not None and lost.any():
-            f.position[0, lost] = f.position_stamp[0, lost] = np.nan
+            f.position[0, lost] = f.position_stamp[0, lost] = f.velocity[0, lost] = np.nan
         f.winding_temperature[0] = fam.temperature(m, self.slots)
         f.temperature_stamp[0] = now
         if self.mode_machine is None:
@@ -336,6 +338,10 @@ class UnitreeBackend(BackendLifecycle):
             imu = m["imu_state"]
             f.imu_angular_velocity[0] = imu["gyroscope"]
             f.imu_acceleration[0] = imu["accelerometer"]
+            quat = np.asarray(imu["quaternion"], dtype=np.float64)  # w, x, y, z
+            norm = np.linalg.norm(quat)
+            # the IMU's own attitude; a zero quaternion (a bridge that fills none): no attitude
+            f.imu_orientation[0] = quat / norm if norm > 0.5 else np.nan
             f.imu_stamp[0] = now
             if self.feet is not None:
                 force = m["foot_force"][self.feet] * self.config.foot_force_scale

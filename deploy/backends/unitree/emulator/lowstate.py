@@ -67,7 +67,8 @@ class LowStateBuilder:
         self._q[answering] = f.position[0, answering]
         ms = m["motor_state"]
         ms["q"][s] = self._q
-        ms["dq"][s] = plant.true_velocity()[0]
+        velocity = f.velocity[0]  # the plant's drives' reading where they report one
+        ms["dq"][s] = np.where(np.isfinite(velocity), velocity, plant.true_velocity()[0])
         ms["tau_est"][s] = plant.joint_torque()[0]
         ms["mode"][s] = np.where(drivers.on, self.motor_mode, 0)
         winding = np.clip(np.rint(plant.thermal.winding_temperature[0]), 0, 255)
@@ -81,7 +82,9 @@ class LowStateBuilder:
         imu = m["imu_state"]
         imu["gyroscope"] = f.imu_angular_velocity[0]
         imu["accelerometer"] = f.imu_acceleration[0]
-        quat = plant.true_base_state(out=self._base)[0, 3:7]
+        quat = f.imu_orientation[0]  # the plant's IMU's own attitude, as the robot's sends it
+        if not np.isfinite(quat).all():  # an IMU modelled without one: the true attitude
+            quat = plant.true_base_state(out=self._base)[0, 3:7]
         imu["quaternion"] = quat
         imu["rpy"] = _rpy(*quat)
         if self.feet is not None:

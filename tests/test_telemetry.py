@@ -1,6 +1,7 @@
 """MCAP telemetry: the raw per-stage topics and Foxglove's well-known schemas read back."""
 
 import json
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -20,6 +21,7 @@ from foxglove_schemas_protobuf.Log_pb2 import Log  # noqa: E402
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate  # noqa: E402
 from mcap.reader import make_reader  # noqa: E402
 
+REPO = Path(__file__).resolve().parent.parent
 RAW_TOPICS = {"/read", "/estimate", "/infer", "/guard", "/smooth", "/thermal", "/state"}
 
 
@@ -180,3 +182,31 @@ def test_deploy_run_telemetry_on_a_floating_base_robot(tmp_path, go2):
         np.testing.assert_allclose([p.x, p.y, p.z], expected, atol=1e-12)
         checked += 1
     assert checked >= 2
+
+
+def test_a_legged_runs_telemetry_carries_the_base_estimate_beside_the_truth(tmp_path, go2):
+    """``/estimate`` has the base's projected gravity, linear and angular velocity; ``/truth``
+    (simulation) the simulator's, stamped alike: a user plots one against the other. The
+    shipped Go2 walking: the logged estimate follows the logged truth."""
+    from deploy.cli.deploy_run import deploy_run_main
+    from deploy.export import export_policy
+
+    policy = export_policy(REPO / "policies" / "go2.pt", out=tmp_path / "go2.onnx")
+    path = tmp_path / "go2.mcap"
+    code = deploy_run_main(
+        ["--robot", "go2", "--policy", str(policy), "--command", "0.5,0,0"]
+        + ["--duration", "6", "--telemetry", str(path)]
+    )
+    assert code == 0 and path.exists()
+    topics = read(path)
+    est = {t: json.loads(d) for t, _, _, d in topics["/estimate"]}
+    true = {t: json.loads(d) for t, _, _, d in topics["/truth"]}
+    assert set(est) == set(true) and len(true) > 20
+    late = [t for t in true if t > 3e9]  # walking
+    g_e = np.array([est[t]["projected_gravity"][0] for t in late])
+    g_t = np.array([true[t]["projected_gravity"][0] for t in late])
+    v_e = np.array([est[t]["linear_velocity"][0] for t in late])
+    v_t = np.array([true[t]["linear_velocity"][0] for t in late])
+    assert np.degrees(np.arccos(np.clip((g_e * g_t).sum(1), -1, 1))).mean() < 2.0
+    assert abs(v_e[:, 0].mean() - v_t[:, 0].mean()) < 0.05 and v_t[:, 0].mean() > 0.3
+    assert all(0.1 < true[t]["height"][0] < 0.4 for t in late)

@@ -6,7 +6,10 @@ a long run keeps its whole (downsampled) history with nothing allocated per tick
 topic per stage of the tick, JSON messages (schemas are JSON Schema):
 
 ``/read`` encoder positions (rad) and their stamps (s); ``/estimate`` q (rad), dq (rad/s) and,
-for a floating base, the estimated base orientation (``base_orientation``, ``[w, x, y, z]``);
+for a floating base, the estimated base orientation (``base_orientation``, ``[w, x, y, z]``),
+``projected_gravity``, ``linear_velocity`` (m/s) and ``angular_velocity`` (rad/s, base frame);
+``/truth`` (a floating base in simulation) the same four of the simulator's base and its height
+(``height``, m), for plotting the estimate against it;
 ``/infer`` the policy action; ``/guard`` the guarded target; ``/smooth`` the command sent;
 ``/thermal`` reported winding temperatures (degC); ``/state`` the state machine of every env;
 ``/long_ticks`` (one message at the end, :meth:`Telemetry.close`) the run's longest control periods
@@ -81,7 +84,24 @@ class LatencyHistogram:
         }
 
 
-_TOPICS = ("/read", "/estimate", "/infer", "/guard", "/smooth", "/thermal", "/state", "/long_ticks")
+_TOPICS = (
+    "/read",
+    "/estimate",
+    "/infer",
+    "/guard",
+    "/smooth",
+    "/thermal",
+    "/state",
+    "/long_ticks",
+    "/truth",
+)
+#: The base fields of ``/estimate`` and ``/truth``: name, width.
+_BASE_FIELDS = (
+    ("base_orientation", 4),
+    ("projected_gravity", 3),
+    ("linear_velocity", 3),
+    ("angular_velocity", 3),
+)
 
 
 class Telemetry:
@@ -147,9 +167,15 @@ class Telemetry:
         self._target = np.zeros(shape)
         self._cmd = np.zeros(shape)
         self._temp = np.zeros(shape)
-        self._base_orientation = np.zeros((capacity, envs, 4))  # [w, x, y, z]
+        # a floating base's estimate and (simulation) truth: the _BASE_FIELDS, and the height
+        self._base = {k: np.zeros((capacity, envs, w)) for k, w in _BASE_FIELDS}
+        self._base_orientation = self._base["base_orientation"]  # [w, x, y, z]
         self._base_orientation[..., 0] = 1.0
-        self._legged = False  # a floating base's estimate seen: /estimate has its orientation
+        self._true = {k: np.zeros((capacity, envs, w)) for k, w in _BASE_FIELDS}
+        self._true_height = np.zeros((capacity, envs))
+        self._true_base = None  # a BaseState filled from the plant's truth (simulation)
+        self._legged = False  # a floating base's estimate seen: /estimate has its base
+        self._truth = False  # ... and the simulator's base: /truth
         self._mode = np.zeros((capacity, envs), dtype=np.int8)
         self._cause = np.zeros((capacity, envs), dtype=np.int8)
         self._guard_counts = None  # (capacity, checks, envs) once the first row shows the guard
@@ -198,7 +224,7 @@ class Telemetry:
         self._mode[i] = rt.mode
         if rt.state.base is not None:
             self._legged = True
-            self._base_orientation[i] = rt.state.base.orientation
+            self._sample_base(i, rt)
         if self.foxglove is not None:
             self._cause[i] = rt.cause
             counts = rt.guard.count_matrix
@@ -211,6 +237,29 @@ class Telemetry:
         if self._rows == self.capacity:
             self.flush()
 
+    def _sample_base(self, i: int, rt) -> None:
+        """Row ``i``'s floating base: the estimate and, in simulation, the truth."""
+        base = rt.state.base
+        self._base["base_orientation"][i] = base.orientation
+        self._base["projected_gravity"][i] = base.projected_gravity
+        self._base["linear_velocity"][i] = base.linear_velocity
+        self._base["angular_velocity"][i] = base.angular_velocity
+        truth = getattr(rt.backend, "true_base_state", None)
+        if truth is None:
+            return
+        from deploy.estimation.base import BaseState
+
+        if self._true_base is None:
+            self._true_base = BaseState.zeros(rt.envs)
+        state = truth()
+        t = self._true_base.set_truth(state)
+        self._truth = True
+        self._true["base_orientation"][i] = t.orientation
+        self._true["projected_gravity"][i] = t.projected_gravity
+        self._true["linear_velocity"][i] = t.linear_velocity
+        self._true["angular_velocity"][i] = t.angular_velocity
+        self._true_height[i] = state[:, 2]
+
     def flush(self) -> None:
         """Write the buffered rows to the MCAP file."""
 
@@ -221,7 +270,7 @@ class Telemetry:
             t_ns = int(round(self._t[i] * 1e9))
             estimate = {"q": self._q[i].tolist(), "dq": self._dq[i].tolist()}
             if self._legged:
-                estimate["base_orientation"] = self._base_orientation[i].tolist()
+                estimate.update({k: self._base[k][i].tolist() for k, _ in _BASE_FIELDS})
             msgs = {
                 "/read": {"position": clean(self._pos[i]), "stamp": clean(self._stamp[i])},
                 "/estimate": estimate,
@@ -231,6 +280,9 @@ class Telemetry:
                 "/thermal": {"winding_temperature": self._temp[i].tolist()},
                 "/state": {"mode": self._mode[i].tolist()},
             }
+            if self._truth:
+                msgs["/truth"] = {k: self._true[k][i].tolist() for k, _ in _BASE_FIELDS}
+                msgs["/truth"]["height"] = self._true_height[i].tolist()
             for topic, msg in msgs.items():
                 self._writer.add_message(
                     channel_id=self._channels[topic],

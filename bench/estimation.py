@@ -35,21 +35,30 @@ OWN_LOOP = ("h1", "h1_2")
 TARGETS = {"attitude_mean": 1.0, "attitude_p95": 2.0, "bias": 0.05, "rms": 0.1}
 
 
-def measure(robot_name: str, seconds: float, command: float, settle: float, seed: int) -> dict:
+def measure(
+    robot_name: str,
+    seconds: float,
+    command: float,
+    settle: float,
+    seed: int,
+    user: dict | None = None,
+) -> dict:
     """One robot's walk; the :meth:`EstimationMonitor.summary` of its RUNNING ticks after
-    ``settle`` s, with ``"final_state"``."""
+    ``settle`` s, with ``"final_state"``. ``user``: a user's robot (``{"robot": folder,
+    "policy": ONNX}`` and, for its own loop, ``"config"``: unitree_rl_gym's deploy_mujoco yaml,
+    ``"torchscript"``: its ``motion.pt``) in place of a shipped one."""
     from deploy.backends.sim.plant import SimBackend
     from deploy.monitors.estimation import EstimationMonitor
     from deploy.policy.onnx_policy import OnnxPolicy
     from deploy.runtime import Runtime
     from robots import load_robot
 
-    path = POLICIES[robot_name]
+    path = Path(user["policy"]) if user else POLICIES[robot_name]
     if not path.exists() and path.with_suffix(".pt").exists():
         from deploy.export import run_export
 
         run_export(path.with_suffix(".pt"))
-    robot = load_robot(robot_name)
+    robot = load_robot(user["robot"] if user else robot_name)
     policy = OnnxPolicy(path, robot)
     backend = SimBackend(robot, mode=policy.spec.action.mode, seed=seed)
     rt = Runtime(robot, policy, backend)
@@ -71,8 +80,14 @@ def measure(robot_name: str, seconds: float, command: float, settle: float, seed
     out["final_state"] = rt.mode_names()[0]
     if start:
         out["speed_m_s"] = _speed(start, rt.time, backend.true_base_state()[0, :2])
-    if robot_name in OWN_LOOP:
-        out["own_loop_speed_m_s"] = own_loop_speed(robot, robot_name, seconds, command, settle)
+    if user and "config" in user:
+        files = (Path(user["config"]), Path(user["torchscript"]))
+        out["own_loop_speed_m_s"] = own_loop_speed(robot, files, seconds, command, settle)
+    elif robot_name in OWN_LOOP:
+        from bench.push_reference import DATA
+
+        files = (DATA / robot_name / f"{robot_name}.yaml", DATA / robot_name / "motion.pt")
+        out["own_loop_speed_m_s"] = own_loop_speed(robot, files, seconds, command, settle)
     return out
 
 
@@ -81,20 +96,18 @@ def _speed(start: dict, t: float, xy) -> float:
     return float(np.linalg.norm(np.asarray(xy) - start["xy"]) / (t - start["t"]))
 
 
-def own_loop_speed(robot, robot_name: str, seconds: float, command: float, settle: float):
+def own_loop_speed(robot, files, seconds: float, command: float, settle: float):
     """m/s, the published policy's speed in its own stack's loop on the true state
     (:func:`bench.push_reference.unitree_loop`, no push), over the same window; None if it
     fell."""
     import yaml
 
-    from bench.push_reference import DATA, load_torchscript, unitree_loop
+    from bench.push_reference import load_torchscript, unitree_loop
 
-    cfg = yaml.safe_load((DATA / robot_name / f"{robot_name}.yaml").read_text())
+    cfg = yaml.safe_load(Path(files[0]).read_text())
     cfg["cmd_init"] = [command, 0.0, 0.0]
     path: list = []
-    fell = unitree_loop(
-        robot, cfg, load_torchscript(DATA / robot_name / "motion.pt"), 0, seconds, 0.0, path
-    )
+    fell = unitree_loop(robot, cfg, load_torchscript(Path(files[1])), 0, seconds, 0.0, path)
     if fell is not None:
         return None
     rows = np.array(path)
@@ -114,13 +127,29 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--command", type=float, default=0.5)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument(
+        "--user",
+        action="append",
+        default=[],
+        metavar="NAME=ROBOT_DIR,POLICY_ONNX[,DEPLOY_YAML,MOTION_PT]",
+        help="a user's imported robot and exported policy (and, for its own loop's speed, "
+        "unitree_rl_gym's deploy_mujoco yaml and TorchScript policy); repeatable",
+    )
     args = p.parse_args(argv)
     rows = {}
     print("| robot | attitude error mean / p95 (deg) | forward speed est / true (m/s) | bias | "
           "planar RMS (m/s) | speed: runtime / own loop (m/s) | final |")  # fmt: skip
     print("| --- | --- | --- | --- | --- | --- | --- |")
-    for name in args.robots.split(","):
-        r = measure(name, args.seconds, args.command, args.settle, args.seed)
+    users = {}
+    for item in args.user:
+        name, _, rest = item.partition("=")
+        parts = rest.split(",")
+        if not name or len(parts) not in (2, 4):
+            p.error(f"--user {item!r}: expected NAME=ROBOT_DIR,POLICY[,DEPLOY_YAML,MOTION_PT]")
+        users[name] = dict(zip(("robot", "policy", "config", "torchscript"), parts, strict=False))
+    names = [n for n in args.robots.split(",") if n] + list(users)
+    for name in names:
+        r = measure(name, args.seconds, args.command, args.settle, args.seed, users.get(name))
         rows[name] = r
         if "attitude_error_deg" not in r:
             print(f"| {name} | n/a (never RUNNING) | | | | {r['final_state']} |")

@@ -158,6 +158,34 @@ def test_a_low_base_trips_the_fall_check_only_when_it_stays_low(go2, stand_polic
     assert "fall_detector/low_ticks" in rt.state_dict()
 
 
+def test_a_base_sinking_upright_trips_the_fall_check_with_its_feet_still_under_it(
+    go2, stand_policy
+):
+    """The feet fall with the base (through a floor, a robot dropped on a slack support): the
+    kinematic height and the tilt stay normal, the estimated base sinks faster than FALL_SPEED;
+    five ticks in a row trip the check, four do not; a walking base's bob never does."""
+    from copy import deepcopy
+
+    from deploy.estimation.fall import FALL_SPEED
+
+    rt, _ = runtime(go2, stand_policy)
+    rt.run(50)
+    detector = rt.fall_detector
+    standing, sinking = deepcopy(rt.state), deepcopy(rt.state)
+    sinking.base.linear_velocity_world[:, 2] = -1.5 * FALL_SPEED
+    bobbing = deepcopy(rt.state)
+    for k in range(40):  # +-0.3 m/s, the walk's vertical velocity
+        bobbing.base.linear_velocity_world[:, 2] = 0.3 * (-1) ** k
+        assert not detector.check(bobbing).any()
+    for _ in range(detector.speed_ticks - 1):
+        assert not detector.check(sinking).any()
+    assert not detector.check(standing).any()  # the count starts again
+    for _ in range(detector.speed_ticks - 1):
+        assert not detector.check(sinking).any()
+    assert detector.check(sinking).all() and detector.speed_ticks == 5
+    assert (detector.height > detector.height_limit).all()  # the feet did not say so
+
+
 def test_base_estimate_and_gait_clock_survive_state_dict(go2, stand_policy):
     rt, plant = runtime(go2, stand_policy, seed=3)
     rt.velocity_command[:] = [0.4, 0.0, 0.0]

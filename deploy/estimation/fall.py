@@ -6,8 +6,10 @@ foot on the ground, its base has stayed lower than ``safety.fall_height`` (m) ab
 contact for ``FALL_HEIGHT_TIME`` s: the kinematic base height, ``max_i -(R p_i)_z`` over the feet
 ``i`` in contact, ``p_i`` the foot position in the base frame (Pinocchio, joint estimate) and ``R``
 the estimated orientation. The tilt trips at once; the height must persist, because a low trot
-on one foot in contact dips under the limit for a tick while a collapsed base stays down. No
-ground truth is read: the same check runs on hardware.
+on one foot in contact dips under the limit for a tick while a collapsed base stays down. A third
+signal needs neither the feet nor the tilt: the estimated base sinking faster than
+``FALL_SPEED`` for ``FALL_SPEED_TIME`` s (the kinematic height falls with the feet, a base can
+drop upright). No ground truth is read: the same check runs on hardware.
 
 The runtime's response (:mod:`deploy.runtime`, cause ``fall``): a safe stop whose command is
 joint damping (position mode: the target follows the measured pose, so the PD servo applies
@@ -34,6 +36,11 @@ FALL_HEIGHT = 0.12
 #: How long the base must stay under the height limit, s (our choice): ten ticks at 50 Hz. A
 #: collapsed base stays down for far longer; a one-tick dip of a walking robot's estimate does not.
 FALL_HEIGHT_TIME = 0.2
+#: Sinking speed, m/s, and for how long, s (our choice): a walking base's vertical velocity
+#: stays within about 0.3 m/s; a base in free fall passes 1 m/s after 0.1 s and is then 5 cm
+#: lower. Five ticks at 50 Hz.
+FALL_SPEED = 1.0
+FALL_SPEED_TIME = 0.1
 
 
 class FallDetector:
@@ -50,6 +57,8 @@ class FallDetector:
             (``FALL_HEIGHT_TIME`` over the robot's control period, rounded up).
         height: (envs,) m, the last kinematic base height (NaN with no foot in contact).
         low_ticks: (envs,) int64, consecutive checks so far with ``height`` under the limit.
+        speed_ticks: control ticks the base must sink faster than ``FALL_SPEED``.
+        sinking_ticks: (envs,) int64, consecutive checks so far with the base sinking so.
 
     Raises:
         ValueError: a fixed-base robot.
@@ -69,11 +78,20 @@ class FallDetector:
         self.height = np.full(envs, np.nan)
         self.height_ticks = max(1, int(np.ceil(FALL_HEIGHT_TIME / robot.control_period - 1e-9)))
         self.low_ticks = np.zeros(envs, dtype=np.int64)
+        self.speed_ticks = max(1, int(np.ceil(FALL_SPEED_TIME / robot.control_period - 1e-9)))
+        self.sinking_ticks = np.zeros(envs, dtype=np.int64)
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
-        """``height`` (envs,) m and ``low_ticks`` (envs,) int64 (copies; conventions of
-        :mod:`deploy.stateful`; the env axis has length 1 for one env ``env``)."""
-        return take({"height": self.height, "low_ticks": self.low_ticks}, env)
+        """``height`` (envs,) m, ``low_ticks`` and ``sinking_ticks`` (envs,) int64 (copies;
+        conventions of :mod:`deploy.stateful`; the env axis has length 1 for one env ``env``)."""
+        return take(self._fields(), env)
+
+    def _fields(self) -> dict[str, np.ndarray]:
+        return {
+            "height": self.height,
+            "low_ticks": self.low_ticks,
+            "sinking_ticks": self.sinking_ticks,
+        }
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
         """Inverse of :meth:`state_dict` (of every env, or of env ``env``).
@@ -81,18 +99,21 @@ class FallDetector:
         Raises:
             StateDictError: a missing field or a shape that differs; nothing is changed.
         """
-        fields = {"height": self.height, "low_ticks": self.low_ticks}
-        check(fields, state, env)
-        put(fields, state, env)
+        check(self._fields(), state, env)
+        put(self._fields(), state, env)
 
     def check(self, state: RobotState) -> np.ndarray:
-        """(envs,) bool: the envs whose estimated base is tilted or low past the limits.
+        """(envs,) bool: the envs whose estimated base is tilted, low or sinking past the
+        limits.
 
         Args:
             state: A floating-base robot's estimate (``RobotState.legged``: ``base``,
                 ``foot_contact``, ``q``).
         """
         fallen = tilt_of(state.base.projected_gravity) > self.tilt_limit
+        sinking = state.base.linear_velocity_world[:, 2] < -FALL_SPEED
+        self.sinking_ticks[:] = np.where(sinking, self.sinking_ticks + 1, 0)
+        fallen |= self.sinking_ticks >= self.speed_ticks
         if self.height_limit > 0.0:
             contact = state.foot_contact > 0.5
             self.height[:] = np.nan

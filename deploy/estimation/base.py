@@ -66,6 +66,13 @@ MAX_REJECTED_READINGS = 5
 #: independent of the last), at least ``MIN_ATTITUDE_SIGMA`` rad.
 ATTITUDE_SIGMA_FACTOR = 3.0
 MIN_ATTITUDE_SIGMA = 0.002
+#: s a foot's force reading may stay the same before its sensor is taken for dead (our choice:
+#: a live sensor's noise changes every reading; a Go2 with a dead foot sensor, and Unitree's
+#: simulation bridge, report a constant, often 0). Latched until :meth:`reset`.
+DEAD_FOOT_TIME = 1.0
+#: m, a foot whose sensor is dead is in contact when it is this close to the lowest foot, by
+#: the leg kinematics in the gravity frame (our choice: a trot lifts its swing feet 5-8 cm).
+KINEMATIC_CONTACT_BAND = 0.02
 #: Initial standard deviations (our choice: a robot reset at rest on level ground): roll and
 #: pitch rad, yaw rad (unobserved, kept small), velocity m/s.
 INITIAL_TILT_SIGMA = 0.02
@@ -229,6 +236,13 @@ class BaseStateEstimator:
         self._rejected_run = np.zeros(envs, dtype=np.int64)
         self._initialized = np.zeros(envs, dtype=bool)
         #: (envs, n_joints) rad, s: each encoder's last reading and its stamp
+        #: (envs, n_feet) bool: the feet in contact at the last update: the sensor's, or (at a
+        #: fresh IMU reading) the kinematics' for a foot in ``dead_feet``
+        self.contact = np.zeros((envs, robot.n_feet), dtype=bool)
+        #: (envs, n_feet) bool: feet whose force reading stayed the same for ``DEAD_FOOT_TIME``
+        self.dead_feet = np.zeros((envs, robot.n_feet), dtype=bool)
+        self._force_last = np.full((envs, robot.n_feet), np.nan)
+        self._force_since = np.full((envs, robot.n_feet), np.nan)
         self._encoder_position = np.full((envs, robot.n_joints), np.nan)
         self._encoder_stamp = np.full((envs, robot.n_joints), np.nan)
         self._warm_kernels()
@@ -296,6 +310,10 @@ class BaseStateEstimator:
         self.velocity_variance[sel] = INITIAL_VELOCITY_SIGMA**2
         self.filter_time[sel] = t[sel]
         self.time_since_fresh[sel] = 0.0
+        self.contact[sel] = False
+        self.dead_feet[sel] = False
+        self._force_last[sel] = np.nan
+        self._force_since[sel] = np.nan
         for counter in (
             self.missing_readings,
             self.stale_readings,
@@ -325,6 +343,10 @@ class BaseStateEstimator:
             "velocity_updates": self.velocity_updates,
             "rejected_contacts": self.rejected_contacts,
             "rejected_run": self._rejected_run,
+            "contact": self.contact,
+            "dead_feet": self.dead_feet,
+            "force_last": self._force_last,
+            "force_since": self._force_since,
             "initialized": self._initialized,
         }
 
@@ -375,6 +397,8 @@ class BaseStateEstimator:
         self.stale_readings += finite & ~fresh
         onboard = frame.imu_orientation
         rate = self._encoder_rate(frame, dq)
+        self._watch_feet(frame)
+        np.logical_and(frame.foot_contact, ~self.dead_feet, out=self.contact)  # the sensors'
         for e in np.flatnonzero(fresh):
             self._imu_step(e, float(stamp[e]), gyro[e], acc[e])
             if self.attitude_variance is not None and np.isfinite(onboard[e]).all():
@@ -460,6 +484,8 @@ class BaseStateEstimator:
         self._v[3:6] = self.angular_velocity[e]
         self._v[6:] = dq
         pin.forwardKinematics(model, data, self._q, self._v)
+        for f in self.robot.foot_frame_ids:  # placements too: the kinematic contact
+            pin.updateFramePlacement(model, data, f)
         frames = [
             pin.getFrameVelocity(model, data, f, pin.LOCAL_WORLD_ALIGNED)
             for f in self.robot.foot_frame_ids
@@ -479,15 +505,48 @@ class BaseStateEstimator:
         P[3:6, 3:6] += np.eye(3) * INITIAL_VELOCITY_SIGMA**2
         return np.inf
 
+    def _watch_feet(self, frame: SensorFrame) -> None:
+        """Latch ``dead_feet``: a foot whose force reading (finite) has not changed for
+        ``DEAD_FOOT_TIME`` s of the frame's time."""
+        force = frame.foot_force
+        with np.errstate(invalid="ignore"):
+            changed = np.isfinite(force) & (force != self._force_last)
+        now = np.broadcast_to(frame.time[:, None], force.shape)
+        self._force_since[changed] = now[changed]
+        self._force_last[changed] = force[changed]
+        with np.errstate(invalid="ignore"):
+            self.dead_feet |= (now - self._force_since) >= DEAD_FOOT_TIME
+
+    def _contacts(self, e: int, frame: SensorFrame) -> np.ndarray | None:
+        """Env ``e``'s feet in contact for the leg odometry, (n_feet,) bool, into
+        ``contact[e]``: the sensor's where it is alive and fresh, the kinematics' (within
+        ``KINEMATIC_CONTACT_BAND`` of the lowest foot, gravity frame; Pinocchio's placements of
+        the last :meth:`_foot_velocities`) for a dead foot; None without either."""
+        dead = self.dead_feet[e]
+        fresh = np.isfinite(frame.contact_stamp[e])
+        contact = self.contact[e] if fresh else np.zeros_like(dead)
+        if dead.any():
+            rot = quaternion_to_matrix(self.orientation[e])
+            data = self._pin
+            height = np.array(
+                [(rot @ data.oMf[f].translation)[2] for f in self.robot.foot_frame_ids]
+            )
+            height -= self.radii
+            contact = contact | (dead & (height - height.min() < KINEMATIC_CONTACT_BAND))
+        elif not fresh:
+            return None
+        self.contact[e] = contact
+        return contact
+
     def _legs_step(self, e: int, frame: SensorFrame, q, dq) -> None:
         """Env ``e``'s leg odometry: one gated velocity correction per foot in contact
-        (:func:`deploy.estimation.base_kernel.leg_step`)."""
-        contact = frame.foot_contact[e]
-        if not (np.isfinite(frame.contact_stamp[e]) and contact.any()):
-            return
+        (:meth:`_contacts`; :func:`deploy.estimation.base_kernel.leg_step`)."""
         if not (np.isfinite(q).all() and np.isfinite(dq).all()):
             return
         linear, angular = self._foot_velocities(e, q, dq)
+        contact = self._contacts(e, frame)
+        if contact is None or not contact.any():
+            return
         gate = self._gate(e)
         absorbed = False
         for i in np.flatnonzero(contact):

@@ -261,12 +261,12 @@ class ReferenceBaseStateEstimator(BaseStateEstimator):
         self._inject(e, self._correct(e, y, H, np.eye(3) * self.attitude_variance))
 
     def _legs_step(self, e: int, frame: SensorFrame, q, dq) -> None:
-        contact = frame.foot_contact[e]
-        if not (np.isfinite(frame.contact_stamp[e]) and contact.any()):
-            return
         if not (np.isfinite(q).all() and np.isfinite(dq).all()):
             return
         linear, angular = self._foot_velocities(e, q, dq)
+        contact = self._contacts(e, frame)
+        if contact is None or not contact.any():
+            return
         gate = self._gate(e)
         if gate == np.inf:
             self._kfs[e].P = self.covariance[e].copy()

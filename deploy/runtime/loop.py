@@ -394,7 +394,7 @@ class Runtime(RuntimeState):
         stop (stale_sensor), a fall (:class:`deploy.estimation.fall.FallDetector`) a damped one
         (fall)."""
         self.base_estimator.update(frame, state.q, state.dq, out=state.base)
-        state.foot_contact[:] = frame.foot_contact
+        state.foot_contact[:] = self.base_estimator.contact  # the sensor's, or the kinematics'
         state.clock[:] = self.time
         stale = self.base_estimator.time_since_fresh > self.robot.config.safety.stale_limit
         self.supervision.safe_stop(stale, "stale_sensor")

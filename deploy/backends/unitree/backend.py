@@ -42,6 +42,9 @@ from deploy.observe.telemetry import LatencyHistogram
 from robots import Robot
 
 DROPOUT_KINDS = ("lost", "stale", "bad_crc", "malformed")
+#: Hz, the LowCmd stream's default rate: Unitree's low-level examples publish a LowCmd every 2 ms
+#: (unitree_sdk2 example/go2/go2_low_level, unitree_mujoco example/python/stand_go2.py).
+LOWCMD_RATE = 500.0
 #: States kept between two reads: a control period of 500 Hz states with room to spare.
 STATE_DEPTH = 64
 #: s of damping ``close()`` sends before it leaves (our choice: 25 commands at 50 Hz).
@@ -67,6 +70,15 @@ class UnitreeBackend(BackendLifecycle):
         mode: 'position' or 'torque' (default robot.toml's).
         lowstate_timeout: s ``open()`` waits for the first LowState.
         check_sport_mode: ask the motion switcher whether a high-level mode is active.
+        lowcmd_rate: Hz at which the last command is re-sent between the runtime's (and the
+            bring-up's) commands, from the backend's own thread, each with its CRC
+            (``LOWCMD_RATE``, the rate of Unitree's own low-level examples); 0: one LowCmd a
+            control period. A driver applies its last command until the next; a simulation
+            bridge that computes the PD torque only when a command arrives holds that torque.
+        lowstate_unchecked: accept LowState samples that carry no CRC and no tick (both 0), as
+            Unitree's simulation bridges (unitree_mujoco) publish them: such a sample is taken
+            as it arrives, the newest one per read. Samples with a CRC are still checked. Never
+            on a robot: a real robot fills both, and a sample without them is corrupt.
         log: Where bring-up stages are printed (default: stderr, ``unitree: ...``).
 
     Attributes:
@@ -94,6 +106,8 @@ class UnitreeBackend(BackendLifecycle):
         lowstate_timeout: float = bringup.LOWSTATE_TIMEOUT,
         check_sport_mode: bool = True,
         log=_stderr,
+        lowstate_unchecked: bool = False,
+        lowcmd_rate: float | None = None,
     ):
         cfg = robot.config.unitree
         if cfg is None:
@@ -111,6 +125,21 @@ class UnitreeBackend(BackendLifecycle):
             )
         self.interface, self.domain_id = interface, int(domain_id)
         self.lowstate_timeout, self.check_sport_mode = lowstate_timeout, check_sport_mode
+        self.lowstate_unchecked = bool(lowstate_unchecked)
+        rate = LOWCMD_RATE if lowcmd_rate is None else float(lowcmd_rate)
+        if not (np.isfinite(rate) and rate >= 0):
+            raise ValueError(f"--lowcmd-rate: expected a rate >= 0 Hz, got {lowcmd_rate}")
+        #: s between two LowCmd at most (None: one a control period, no re-sending)
+        self.resend_period = 1.0 / rate if rate > 0 else None
+        self.resent = 0  # LowCmd re-sent by the stream thread
+        self._last_send: tuple | None = None
+        self._last_send_at = 0.0
+        self._stream_stop = threading.Event()
+        self._stream: threading.Thread | None = None
+        #: samples refused for their CRC whose ``crc`` field was 0 (a bridge that fills none)
+        self.zero_crc = 0
+        #: samples taken unchecked (``lowstate_unchecked``: no CRC, no tick)
+        self.unchecked = 0
         self.envs, self.n = 1, robot.n_joints
         self.names = list(robot.joint_names)
         self.slots = np.array(cfg.motor_index, dtype=np.int64)
@@ -171,6 +200,7 @@ class UnitreeBackend(BackendLifecycle):
         self._reader = self._link.reader(TOPIC_LOWSTATE, self.family.low_state, STATE_DEPTH)
         self._writer = self._link.writer(TOPIC_LOWCMD, self.family.low_cmd)
         self._opened_at = time.monotonic()
+        self._start_stream()
         try:
             bringup.bring_up(self)
         except BaseException:
@@ -196,6 +226,7 @@ class UnitreeBackend(BackendLifecycle):
                     self._send(self._hold_target)
                     time.sleep(self.period)
         finally:
+            self._stop_stream()
             self._reader = self._writer = None
             self._link.close()
             self._link = None
@@ -214,6 +245,31 @@ class UnitreeBackend(BackendLifecycle):
     def damp(self, envs: np.ndarray) -> None:
         """The runtime's request: damping (``envs[0]`` True) or the commands (False)."""
         self._damping = bool(envs[0]) or not self._enabled
+
+    # ------------------------------------------------------------------ the command stream
+    def _start_stream(self) -> None:
+        """Re-send the last command every ``resend_period`` s when nothing else was sent."""
+        if self.resend_period is None or self._stream is not None:
+            return
+        self._stream_stop.clear()
+        self._stream = threading.Thread(
+            target=self._stream_loop, name="unitree-lowcmd", daemon=True
+        )
+        self._stream.start()
+
+    def _stream_loop(self) -> None:
+        period = self.resend_period
+        while not self._stream_stop.wait(period):
+            last = self._last_send
+            if last is not None and time.monotonic() - self._last_send_at >= 0.9 * period:
+                self._send(*last)
+                self.resent += 1
+
+    def _stop_stream(self) -> None:
+        if self._stream is not None:
+            self._stream_stop.set()
+            self._stream.join(timeout=2.0)
+            self._stream = None
 
     # ------------------------------------------------------------------ hold until the runtime
     def _start_hold(self) -> None:
@@ -268,11 +324,15 @@ class UnitreeBackend(BackendLifecycle):
                 self.dropouts["malformed"] += 1
                 self._refused += 1
                 continue
-            if not valid:
+            unchecked = int(self._state.message["crc"]) == 0
+            if not valid and not (unchecked and self.lowstate_unchecked):
                 self.dropouts["bad_crc"] += 1
+                self.zero_crc += unchecked
                 self._refused += 1
                 continue
-            if not self._fresh_tick(int(self._state.message["tick"])):
+            if unchecked and not valid:  # a simulator's sample: no tick to order it by
+                self.unchecked += 1
+            elif not self._fresh_tick(int(self._state.message["tick"])):
                 continue
             lost = self.family.lost(self._state.message, self.slots)
             if lost is not None:
@@ -369,6 +429,11 @@ class UnitreeBackend(BackendLifecycle):
         """Encode and write one LowCmd: damping, or ``target`` as the mode's command; with
         ``kp``/``kd`` ((n,) or scalars), ``target`` is a position target with those gains."""
         with self._lock:
+            if self._writer is None:  # closed meanwhile (the stream thread's last turn)
+                return
+            # a copy: the runtime reuses its command buffer for the next tick's
+            self._last_send = (np.array(target, dtype=np.float64), kp, kd)
+            self._last_send_at = time.monotonic()
             mc = self._cmd.message["motor_cmd"]
             s = self.slots
             mc["mode"][s] = self.config.motor_mode
@@ -429,7 +494,10 @@ class UnitreeBackend(BackendLifecycle):
             "lowstate_received": self.received,
             "lowstate_rate_hz": self.received / elapsed if elapsed > 0 else 0.0,
             "lowcmd_sent": self.sent,
+            "lowcmd_resent": self.resent,
+            "lowcmd_rate_hz": None if self.resend_period is None else 1.0 / self.resend_period,
             "dropouts": dict(self.dropouts),
+            "lowstate_unchecked": self.unchecked if self.lowstate_unchecked else None,
             "dropout_fraction": sum(self.dropouts.values()) / expected if expected else 0.0,
             "motor_lost": {
                 f"{int(self.slots[j])} ({self.names[j]})": int(n)

@@ -132,6 +132,13 @@ def _wait_for_state(b, where: str) -> None:
         if b.received
         else "none arrived"
     )
+    if b.received and b.zero_crc == b.dropouts["bad_crc"] == b.received:
+        raise BringupError(
+            f"no valid LowState on {TOPIC_LOWSTATE} within {b.lowstate_timeout:g} s ({where}): "
+            f"all {b.received} samples carry crc 0, as Unitree's simulation bridges "
+            "(unitree_mujoco) publish them; for a simulator pass --lowstate-unchecked (never "
+            "for a robot: a real robot fills its CRC)"
+        )
     raise BringupError(
         f"no LowState on {TOPIC_LOWSTATE} within {b.lowstate_timeout:g} s ({where}): {heard}. "
         "Is the robot on, this computer on its network (the Go2's is 192.168.123.0/24; `ip addr` "

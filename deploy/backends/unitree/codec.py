@@ -61,9 +61,10 @@ class MessageCodec:
         """The CRC of the record as it stands (its ``crc`` field excluded)."""
         return message_crc(self.buffer)
 
-    def encode(self) -> bytes:
-        """The record as a DDS sample (header and XCDR1 body), its ``crc`` field set first."""
-        self.message["crc"] = message_crc(self.buffer)
+    def encode(self, crc: bool = True) -> bytes:
+        """The record as a DDS sample (header and XCDR1 body), its ``crc`` field set first
+        (``crc=False``: left 0, as Unitree's simulation bridges publish their states)."""
+        self.message["crc"] = message_crc(self.buffer) if crc else 0
         return CDR_LE + self._ext[self._gather].tobytes()
 
     def decode(self, sample: bytes) -> bool:

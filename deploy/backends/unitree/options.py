@@ -35,6 +35,20 @@ def add_options(group) -> None:
         help="s to wait for the first LowState",
     )
     group.add_argument(
+        "--lowcmd-rate",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="re-send the last LowCmd at this rate between the policy's ticks (default 500, as "
+        "Unitree's examples; 0: one a control period)",
+    )
+    group.add_argument(
+        "--lowstate-unchecked",
+        action="store_true",
+        help="accept LowState samples with no CRC and no tick (crc 0), as Unitree's simulation "
+        "bridges (unitree_mujoco) publish them; never for a robot",
+    )
+    group.add_argument(
         "--skip-sport-mode-check",
         action="store_true",
         help="do not ask the motion switcher whether a high-level mode is active",
@@ -60,6 +74,8 @@ def make(args, robot, mode: str):
         mode=mode,
         lowstate_timeout=args.lowstate_timeout,
         check_sport_mode=not args.skip_sport_mode_check,
+        lowstate_unchecked=args.lowstate_unchecked,
+        lowcmd_rate=args.lowcmd_rate,
     )
 
 

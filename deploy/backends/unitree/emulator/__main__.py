@@ -41,6 +41,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="lying: folded on the floor, drivers off (as after the robot's stand-down); "
         "standing: holding the home pose until the first LowCmd",
     )
+    p.add_argument(
+        "--bridge",
+        choices=("unitree_mujoco",),
+        default=None,
+        help="behave as Unitree's simulation bridge: LowState without CRC, tick or foot forces, "
+        "the PD torque computed on a LowCmd's arrival and held",
+    )
     p.add_argument("--fault", action="append", default=[], metavar="FAULT", help=FAULT_HELP)
     p.add_argument(
         "--trace",
@@ -77,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
             mode_machine=args.mode_machine,
             cutoff_temperature=args.cutoff_temperature,
             start=args.start,
+            bridge=args.bridge,
         )
     except (ValueError, OSError) as err:
         print(f"unitree emulator: error: {err}", file=sys.stderr)

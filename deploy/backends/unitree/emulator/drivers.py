@@ -9,6 +9,11 @@ sets both), so that MuJoCo's implicit integrator treats the damping term as its 
 servo's; the joint's actuator force is limited to its effort limit (robot.toml), which the
 plant derates from the winding temperature as every simulated drive does.
 
+``hold_torque`` drivers behave as unitree_mujoco's bridge does instead: the PD torque is computed
+once, from the joint state when a command arrives, and held until the next one (a real driver
+recomputes it at its own rate: between two commands 20 ms apart the bridge's joints get no
+damping).
+
 A driver is on while its last command's ``mode`` byte is non-zero; off, silent or cut off, it
 applies nothing. The cut-off: a winding above ``cutoff_temperature`` switches the driver off for
 good and reports error code 4 (Unitree's motors' over-temperature code, as the backend reads it:
@@ -45,6 +50,8 @@ class MotorDrivers:
         cutoff_temperature: degC, each driver's own cut-off (scalar or (n,)).
         hold_home: Start holding the home pose with the joints' kp/kd (a robot standing);
             else every driver starts off (limp).
+        hold_torque: unitree_mujoco's bridge: the PD torque computed on a command's arrival and
+            held (module docstring).
 
     Attributes:
         q_des, dq_des, tau_ff, kp, kd: (n,) the last command taken (rad, rad/s, N m, N m/rad,
@@ -52,7 +59,15 @@ class MotorDrivers:
             int64 error code reported. lost: (n,) int64 packets lost (a silent motor's grow).
     """
 
-    def __init__(self, robot: Robot, slots: np.ndarray, cutoff_temperature, hold_home: bool):
+    def __init__(
+        self,
+        robot: Robot,
+        slots: np.ndarray,
+        cutoff_temperature,
+        hold_home: bool,
+        hold_torque: bool = False,
+    ):
+        self.hold_torque = bool(hold_torque)
         n = robot.n_joints
         self.n, self.slots = n, np.asarray(slots)
         self.cutoff_temperature = np.broadcast_to(np.asarray(cutoff_temperature, float), n)
@@ -66,15 +81,18 @@ class MotorDrivers:
         self.error = np.zeros(n, dtype=np.int64)
         self.lost = np.zeros(n, dtype=np.int64)
         self._ctrl = np.zeros((1, n))
+        #: (n,) N m, the torque held since the last command (``hold_torque``)
+        self.held = np.zeros(n)
 
     @property
     def on(self) -> np.ndarray:
         """(n,) bool: the drivers that apply their command."""
         return (self.mode != 0) & ~self.cut_off & ~self.silent
 
-    def take(self, motor_cmd: np.ndarray) -> None:
+    def take(self, motor_cmd: np.ndarray, q=None, dq=None) -> None:
         """The command of each joint from a LowCmd record's ``motor_cmd`` (a silent motor
-        takes none)."""
+        takes none); ``hold_torque``: its PD torque at the joint state ``q``, ``dq`` (rad,
+        rad/s, (n,)), held."""
         s, keep = self.slots, ~self.silent
         for name, field in (
             ("mode", "mode"),
@@ -85,11 +103,19 @@ class MotorDrivers:
             ("kd", "kd"),
         ):
             getattr(self, name)[keep] = motor_cmd[field][s][keep]
+        if self.hold_torque and q is not None:
+            self.held[:] = (
+                self.tau_ff + self.kp * (self.q_des - q) + self.kd * (self.dq_des - np.asarray(dq))
+            )
 
     def apply(self, model: mujoco.MjModel) -> np.ndarray:
         """Set the actuators' bias to ``-kp q - kd dq`` and return the control (1, n)
         ``tau_ff + kp q_des + kd dq_des`` (zero where a driver is off)."""
         on = self.on
+        if self.hold_torque:  # the torque of the last command's arrival, no PD in between
+            model.actuator_biasprm[: self.n, 1:3] = 0.0
+            self._ctrl[0] = np.where(on, self.held, 0.0)
+            return self._ctrl
         kp, kd = np.where(on, self.kp, 0.0), np.where(on, self.kd, 0.0)
         model.actuator_biasprm[: self.n, 1] = -kp
         model.actuator_biasprm[: self.n, 2] = -kd

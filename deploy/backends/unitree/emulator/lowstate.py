@@ -9,6 +9,10 @@ gyroscope and accelerometer of the sensor model (the IMU site's frame), the base
 orientation as ``quaternion`` (w, x, y, z) and ``rpy``. ``foot_force`` (``unitree_go``): each
 foot's measured normal force over ``[unitree] foot_force_scale``, in its slot. ``tick``: the
 plant's clock in ms.
+
+``bridge=True`` builds the state as unitree_mujoco's bridge does (its
+``simulate_python/unitree_sdk2py_bridge.py``, read, not copied): ``crc`` and ``tick`` 0, no
+``foot_force`` (0), the true joint angles and velocities and the true attitude.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ class LowStateBuilder:
         family: The message family. slots: (n,) motor slot of each joint. feet: (n_feet,) the
             ``foot_force`` slot of each foot, or None. foot_force_scale: N per count.
         motor_mode: The mode byte of a driver that is on. mode_machine: ``unitree_hg``'s.
+        bridge: The state of unitree_mujoco's bridge (module docstring).
     """
 
     def __init__(
@@ -46,7 +51,9 @@ class LowStateBuilder:
         foot_force_scale: float,
         motor_mode: int,
         mode_machine: int = 0,
+        bridge: bool = False,
     ):
+        self.bridge = bool(bridge)
         self.family, self.slots, self.feet = family, np.asarray(slots), feet
         self.scale, self.motor_mode = foot_force_scale, motor_mode
         self.codec = MessageCodec(family.low_state)
@@ -91,10 +98,20 @@ class LowStateBuilder:
             ff = np.clip(np.rint(f.foot_force[0] / self.scale), -32768, 32767)
             m["foot_force"][self.feet] = ff
         m["tick"] = int(round(plant.time * 1000.0)) % (1 << 32)
+        if self.bridge:  # unitree_mujoco's bridge: the simulator's truth, no tick, no feet
+            ms["q"][s] = plant.true_position()[0]
+            ms["dq"][s] = plant.true_velocity()[0]
+            true_imu = plant.base_sensors.true_imu()[0]
+            imu["gyroscope"], imu["accelerometer"] = true_imu[:3], true_imu[3:]
+            quat = plant.true_base_state(out=self._base)[0, 3:7]
+            imu["quaternion"], imu["rpy"] = quat, _rpy(*quat)
+            if self.feet is not None:
+                m["foot_force"][self.feet] = 0
+            m["tick"] = 0
 
     def encode(self, corrupt: bool = False) -> bytes:
         """The DDS sample of the record; ``corrupt``: its CRC off by one bit."""
-        sample = self.codec.encode()
+        sample = self.codec.encode(crc=not self.bridge)
         if not corrupt:
             return sample
         damaged = bytearray(sample)

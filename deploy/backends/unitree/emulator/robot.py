@@ -103,6 +103,10 @@ class UnitreeEmulator:
             winding temperature + ``CUTOFF_MARGIN``).
         start: 'lying' (folded on the floor, the drivers off) or 'standing' (the drivers hold
             the home pose until the first LowCmd); see the module docstring.
+        bridge: None (a robot: CRC and tick filled, foot forces, each driver's PD at every
+            physics step) or ``'unitree_mujoco'``: what Unitree's simulation bridge does
+            (LowState without CRC, tick or foot forces; the PD torque computed on a LowCmd's
+            arrival and held until the next; :mod:`.lowstate`, :mod:`.drivers`).
 
     Attributes:
         plant: The :class:`SimBackend`. drivers: The :class:`.drivers.MotorDrivers`.
@@ -139,7 +143,11 @@ class UnitreeEmulator:
         mode_machine: int = 0,
         cutoff_temperature: float | None = None,
         start: str = "lying",
+        bridge: str | None = None,
     ):
+        if bridge not in (None, "unitree_mujoco"):
+            raise ValueError(f"bridge '{bridge}': expected None or 'unitree_mujoco'")
+        self.bridge = bridge
         self.robot = robot if isinstance(robot, Robot) else load_robot(robot)
         cfg = self.robot.config.unitree
         if cfg is None:
@@ -163,14 +171,26 @@ class UnitreeEmulator:
             cutoff = [m.max_winding_temperature + CUTOFF_MARGIN for m in self.robot.motors]
         else:
             cutoff = cutoff_temperature
-        self.drivers = MotorDrivers(self.fast, self.slots, cutoff, hold_home=start == "standing")
+        self.drivers = MotorDrivers(
+            self.fast,
+            self.slots,
+            cutoff,
+            hold_home=start == "standing",
+            hold_torque=bridge is not None,
+        )
         if start == "lying":
             self._lie_down()
         feet = None
         if self.family.has_feet and cfg.foot_index:
             feet = np.array(cfg.foot_index)
         self.builder = LowStateBuilder(
-            self.family, self.slots, feet, cfg.foot_force_scale, cfg.motor_mode, mode_machine
+            self.family,
+            self.slots,
+            feet,
+            cfg.foot_force_scale,
+            cfg.motor_mode,
+            mode_machine,
+            bridge=bridge is not None,
         )
         self.link = DdsLink(domain_id, interface)
         self.domain_id, self.interface = domain_id, interface
@@ -317,7 +337,12 @@ class UnitreeEmulator:
                 self.stats["lowcmd_ignored"] += 1
                 continue
             motor_cmd = self._cmd.message["motor_cmd"]
-            self.drivers.take(motor_cmd)
+            if self.drivers.hold_torque:  # the bridge's PD, from the state at arrival
+                self.drivers.take(
+                    motor_cmd, self.plant.true_position()[0], self.plant.true_velocity()[0]
+                )
+            else:
+                self.drivers.take(motor_cmd)
             self._pending.append(stamp)
             kp, kd = motor_cmd["kp"][self.slots], motor_cmd["kd"][self.slots]
             now = time.monotonic()

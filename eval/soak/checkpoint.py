@@ -48,7 +48,10 @@ FORMAT = "soak-checkpoint"
 #: version 5 checkpoint has none.
 #: 7: the violation monitor's ticks of a legged robot lying damped after a stop
 #: (``violations/down/...``, ``violations/down_any``); a version 6 checkpoint has none.
-VERSION = 7
+#: 8: a legged robot's error-state base filter (``base_estimator/covariance``, ...), its fall
+#: check's sinking count, the plant's IMU attitude and drive velocity readings; a version 7
+#: checkpoint has the complementary filter's state.
+VERSION = 8
 MANIFEST = "checkpoint.json"
 
 

@@ -9,6 +9,10 @@ before.
 
 from __future__ import annotations
 
+#: deg of heading change the commands did not ask for past which the summary flags a drift (our
+#: choice: a straight 20 s walk that turns 30 deg ends 5 m off a 10 m line).
+HEADING_DRIFT_DEG = 30.0
+
 
 def print_summary(r: dict) -> None:
     """Print the human-readable summary of a ``deploy-run`` report (the dict ``--report`` writes
@@ -34,6 +38,20 @@ def print_summary(r: dict) -> None:
             + (f"{100 * track:.1f} %" if track is not None else "n/a")
             + f" of RUNNING time within {loco['tracking_tolerance_m_s']} m/s; falls {loco['falls']}"
             + (f" ({_causes(loco['falls_by_cause'])})" if loco.get("falls_by_cause") else "")
+        )
+    if loco is not None and loco.get("heading_change_deg") is not None:
+        turn, asked = loco["heading_change_deg"], loco["commanded_turn_deg"]
+        height = loco.get("base_height_m")
+        flag = abs(turn - asked) > HEADING_DRIFT_DEG
+        print(
+            f"  heading           turned {turn:+.1f} deg (the commands asked {asked:+.1f})"
+            + (" - A TURN THE COMMAND DID NOT ASK FOR" if flag else "")
+            + (
+                f"; base height {height:.3f} m by its kinematics "
+                f"(standing {loco['standing_height_m']:.3f})"
+                if height is not None and loco.get("standing_height_m")
+                else ""
+            )
         )
     if loco is not None and loco.get("true_falls", 0) > loco.get("runtime_falls", 0):
         print(

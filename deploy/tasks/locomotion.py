@@ -203,6 +203,11 @@ class CommandTracker:
             ``joint`` (the joint farthest past its hard limit) and ``past_rad`` (how far).
         window_running, window_tracked: per env, s RUNNING and tracked per finished window
             (with ``window``).
+        heading_change, commanded_turn: (envs,) rad, the base's heading change while RUNNING
+            (the estimate's yaw rate about the world's up; on hardware nothing else knows it)
+            and the turn the commands asked for (their yaw rate, integrated).
+        height_sum: (envs,) m s, the fall check's kinematic base height integrated while
+            RUNNING (its mean: the height the robot walked at, by its own estimate).
     """
 
     def __init__(self, envs: int, control_period: float, backend, window: float | None = None):
@@ -232,6 +237,10 @@ class CommandTracker:
         self.falls_by_cause = np.zeros((envs, len(FAULT_CAUSES)), dtype=np.int64)
         self.fall_log: list[list[dict]] = [[] for _ in range(envs)]
         self._up = np.zeros(envs, dtype=bool)  # RUNNING since the last stop
+        self.heading_change = np.zeros(envs)
+        self.commanded_turn = np.zeros(envs)
+        self.height_sum = np.zeros(envs)
+        self.height_time = np.zeros(envs)
 
     # ------------------------------------------------------------------ state
     def _fields(self) -> dict[str, np.ndarray]:
@@ -247,6 +256,10 @@ class CommandTracker:
             "falls": self.falls,
             "falls_by_cause": self.falls_by_cause,
             "up": self._up,
+            "heading_change": self.heading_change,
+            "commanded_turn": self.commanded_turn,
+            "height_sum": self.height_sum,
+            "height_time": self.height_time,
         }
 
     def state_dict(self, env: int | None = None) -> dict:
@@ -366,6 +379,17 @@ class CommandTracker:
             self._close_windows(runtime.time - self.dt)  # this tick's time counts in its window
         self.running_time += running * self.dt
         self.tracked_time += (running & full & (error <= TRACKING_TOLERANCE)) * self.dt
+        # the truth's in simulation (the tracker filled it above), else the estimate's
+        base = self._true_base if self.truth is not None else runtime.state.base
+        # the yaw rate about the world's up: the angular velocity along -projected gravity
+        yaw_rate = -(base.angular_velocity * base.projected_gravity).sum(axis=1)
+        self.heading_change += np.where(running, yaw_rate * self.dt, 0.0)
+        self.commanded_turn += np.where(running, runtime.velocity_command[:, 2] * self.dt, 0.0)
+        detector = getattr(runtime, "fall_detector", None)
+        if detector is not None:
+            known = running & np.isfinite(detector.height)
+            self.height_sum += np.where(known, detector.height, 0.0) * self.dt
+            self.height_time += known * self.dt
 
     @staticmethod
     def _fall(runtime, e: int) -> dict:
@@ -406,6 +430,14 @@ class CommandTracker:
             "falls": int(self.falls.sum()),
             "falls_by_cause": self.causes(),
             "judged_on": self.judged_on,
+            "heading_change_deg": float(np.degrees(self.heading_change.sum())),
+            "commanded_turn_deg": float(np.degrees(self.commanded_turn.sum())),
+            "base_height_m": (
+                float(self.height_sum.sum() / self.height_time.sum())
+                if self.height_time.sum() > 0
+                else None
+            ),
+            "standing_height_m": float(runtime.robot.config.base.standing_height),
         }
 
 

@@ -338,3 +338,52 @@ def test_hot_motor_meets_the_runtime_thermal_stop_before_its_driver_cuts_off(
     assert error == "motor 3 (FL_hip_joint): driver error 0x4 (over temperature)", error
     hip = go2.motors[go2.joint_names.index("FL_hip_joint")]
     assert report["peak_winding_temperature_c"]["FL_hip_joint"] > hip.max_winding_temperature
+
+
+def test_a_bridge_state_without_crc_is_refused_in_one_line_naming_the_flag(go2, stand_onnx):
+    """A robot fills its LowState's CRC; Unitree's simulation bridge (the emulator's
+    ``unitree_mujoco`` mode) leaves it 0. By default the backend refuses such states and says
+    in one line which flag takes a simulator's; a real robot's bad CRC is refused as before."""
+    domain = _domain()
+    with UnitreeEmulator(go2, domain_id=domain, bridge="unitree_mujoco"):
+        backend = UnitreeBackend(
+            go2, interface="lo", domain_id=domain, lowstate_timeout=1.0, log=lambda s: None
+        )
+        with pytest.raises(BringupError) as err:
+            backend.open()
+    message = str(err.value)
+    assert "--lowstate-unchecked" in message and "crc 0" in message and "\n" not in message
+    assert backend.dropouts["bad_crc"] == backend.received > 100
+    # a robot's corrupted states (a CRC that is not 0) stay refused with the flag given
+    with UnitreeEmulator(go2, domain_id=domain, faults=EmulatorFaults(corrupt_state=1.0)):
+        backend = UnitreeBackend(
+            go2, interface="lo", domain_id=domain, lowstate_timeout=1.0, log=lambda s: None,
+            lowstate_unchecked=True,
+        )  # fmt: skip
+        with pytest.raises(BringupError) as err:
+            backend.open()
+    assert "--lowstate-unchecked" not in str(err.value) and backend.unchecked == 0
+
+
+def test_walks_on_a_unitree_mujoco_like_bridge_with_the_command_stream(tmp_path, go2, go2_onnx):
+    """The emulator as Unitree's simulation bridge (no CRC, tick or foot force; the PD torque
+    computed when a LowCmd arrives and held): with --lowstate-unchecked and the 500 Hz command
+    stream the Go2 stands up and walks; its dead foot sensors are found and the contacts come
+    from the kinematics, so the summary's distance stays within 15 % of the simulator's truth
+    (the foot sensors' zeros made it 7x the truth). The bridge's states were all taken."""
+    domain = _domain()
+    with UnitreeEmulator(go2, domain_id=domain, bridge="unitree_mujoco") as emu:
+        code, report, out = _deploy_run(
+            tmp_path, domain, go2_onnx, 8.0, "--command", "0.5,0,0", "--lowstate-unchecked"
+        )
+        trace = np.array(emu.trace)
+        true_path = emu.true_distance
+        resent = emu.stats["lowcmd_received"]
+    assert code == EXIT_CLEAN, out
+    walk, bus = report["locomotion"], report["bus"]
+    assert walk["falls"] == 0 and report["final_state"] == ["RUNNING"], out
+    assert bus["lowstate_unchecked"] > 1000 and bus["dropouts"]["bad_crc"] == 0, bus
+    assert bus["lowcmd_resent"] > 5 * bus["lowcmd_sent"] / 10 and resent > 2000, bus
+    forward = trace[-1, 1] - trace[0, 1]
+    assert forward > 1.5, trace[-1]  # walking (0.5 m/s for about 6 s after the bring-up)
+    assert abs(walk["distance_m"] / true_path - 1) < 0.15, (walk["distance_m"], true_path)

@@ -241,6 +241,10 @@ class CommandTracker:
         self.commanded_turn = np.zeros(envs)
         self.height_sum = np.zeros(envs)
         self.height_time = np.zeros(envs)
+        robot = getattr(backend, "robot", None)
+        base_cfg = getattr(getattr(robot, "config", None), "base", None)
+        #: m, the robot's standing height (robot.toml ``[base]``), for the summary's comparison
+        self.standing_height = None if base_cfg is None else float(base_cfg.standing_height)
 
     # ------------------------------------------------------------------ state
     def _fields(self) -> dict[str, np.ndarray]:
@@ -379,6 +383,8 @@ class CommandTracker:
             self._close_windows(runtime.time - self.dt)  # this tick's time counts in its window
         self.running_time += running * self.dt
         self.tracked_time += (running & full & (error <= TRACKING_TOLERANCE)) * self.dt
+        if not running.any():
+            return
         # the truth's in simulation (the tracker filled it above), else the estimate's
         base = self._true_base if self.truth is not None else runtime.state.base
         # the yaw rate about the world's up: the angular velocity along -projected gravity
@@ -437,7 +443,7 @@ class CommandTracker:
                 if self.height_time.sum() > 0
                 else None
             ),
-            "standing_height_m": float(runtime.robot.config.base.standing_height),
+            "standing_height_m": self.standing_height,
         }
 
 

@@ -55,8 +55,8 @@ LYING_POSES = {
 }
 #: s of simulated time a lying robot settles on the floor before the emulator serves (our choice).
 SETTLE_TIME = 1.0
-#: Commands kept in :attr:`UnitreeEmulator.commands` (ten minutes at 50 Hz).
-COMMAND_LOG = 30_000
+#: Commands kept in :attr:`UnitreeEmulator.commands` (ten minutes at the backend's 500 Hz stream).
+COMMAND_LOG = 300_000
 #: Physics steps between two samples of the base's true trajectory (:attr:`UnitreeEmulator.trace`).
 TRACE_EVERY = 10
 #: K above the motor's maximum winding temperature (robot.toml's motor) at which the emulated

@@ -55,8 +55,9 @@ LYING_POSES = {
 }
 #: s of simulated time a lying robot settles on the floor before the emulator serves (our choice).
 SETTLE_TIME = 1.0
-#: Commands kept in :attr:`UnitreeEmulator.commands` (ten minutes at the backend's 500 Hz stream).
-COMMAND_LOG = 300_000
+#: Commands kept in :attr:`UnitreeEmulator.commands` (two minutes at the backend's 500 Hz stream,
+#: ten at one a 50 Hz tick; about 700 bytes each).
+COMMAND_LOG = 60_000
 #: Physics steps between two samples of the base's true trajectory (:attr:`UnitreeEmulator.trace`).
 TRACE_EVERY = 10
 #: K above the motor's maximum winding temperature (robot.toml's motor) at which the emulated

@@ -547,7 +547,11 @@ class BaseStateEstimator:
         contact = self._contacts(e, frame)
         if contact is None or not contact.any():
             return
-        gate = self._gate(e)
+        self._absorb_feet(e, contact, linear, angular, self._gate(e))
+
+    def _absorb_feet(self, e: int, contact, linear, angular, gate: float) -> None:
+        """Env ``e``'s velocity corrections by its feet in ``contact`` ((n_feet,) bool; their
+        velocities ``linear``, ``angular``), each gated at ``gate`` (chi-square)."""
         absorbed = False
         for i in np.flatnonzero(contact):
             ok = leg_step(

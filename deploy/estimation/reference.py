@@ -260,14 +260,7 @@ class ReferenceBaseStateEstimator(BaseStateEstimator):
         y = -measured[2] + rot[2]
         self._inject(e, self._correct(e, y, H, np.eye(3) * self.attitude_variance))
 
-    def _legs_step(self, e: int, frame: SensorFrame, q, dq) -> None:
-        if not (np.isfinite(q).all() and np.isfinite(dq).all()):
-            return
-        linear, angular = self._foot_velocities(e, q, dq)
-        contact = self._contacts(e, frame)
-        if contact is None or not contact.any():
-            return
-        gate = self._gate(e)
+    def _absorb_feet(self, e: int, contact, linear, angular, gate: float) -> None:
         if gate == np.inf:
             self._kfs[e].P = self.covariance[e].copy()
         absorbed = False

@@ -170,7 +170,7 @@ class BaseStateEstimator:
         velocity: (envs, 3) m/s, base velocity, world frame.
         gyro_bias: (envs, 3) rad/s, base frame.
         covariance: (envs, 9, 9) the error state's covariance (rad, m/s, rad/s).
-        velocity_variance: (envs,) m^2/s^2, the mean of the velocity block's diagonal.
+        velocity_variance: (envs,) m^2/s^2, the mean of the velocity block's diagonal (derived).
         filter_time: (envs,) s, stamp of the last absorbed IMU reading.
         time_since_fresh: (envs,) s, ``frame.time - filter_time`` at the last update.
         missing_readings, stale_readings: (envs,) int IMU readings not absorbed.
@@ -226,7 +226,6 @@ class BaseStateEstimator:
         self.velocity = np.zeros((envs, 3))
         self.gyro_bias = np.zeros((envs, 3))
         self.covariance = np.tile(self._initial_covariance(), (envs, 1, 1))
-        self.velocity_variance = np.full(envs, INITIAL_VELOCITY_SIGMA**2)
         self.filter_time = np.full(envs, np.nan)
         self.time_since_fresh = np.full(envs, np.inf)
         self.missing_readings = np.zeros(envs, dtype=np.int64)
@@ -269,6 +268,11 @@ class BaseStateEstimator:
         sigma = [INITIAL_TILT_SIGMA] * 2 + [INITIAL_YAW_SIGMA] + [INITIAL_VELOCITY_SIGMA] * 3
         return np.diag(np.concatenate([np.array(sigma) ** 2, np.full(3, self.bias_variance)]))
 
+    @property
+    def velocity_variance(self) -> np.ndarray:
+        """(envs,) m^2/s^2, the mean of the covariance's velocity block's diagonal."""
+        return np.trace(self.covariance[:, 3:6, 3:6], axis1=1, axis2=2) / 3
+
     # ------------------------------------------------------------------ lifecycle
     def reset(self, t, acceleration: np.ndarray | None = None, envs=None, orientation=None) -> None:
         """Start the filters at rest at time ``t`` (s; float or (envs,)).
@@ -307,7 +311,6 @@ class BaseStateEstimator:
         self.gyro_bias[sel] = 0.0
         self.angular_velocity[sel] = 0.0
         self.velocity[sel] = 0.0
-        self.velocity_variance[sel] = INITIAL_VELOCITY_SIGMA**2
         self.filter_time[sel] = t[sel]
         self.time_since_fresh[sel] = 0.0
         self.contact[sel] = False
@@ -335,7 +338,6 @@ class BaseStateEstimator:
             "velocity": self.velocity,
             "gyro_bias": self.gyro_bias,
             "covariance": self.covariance,
-            "velocity_variance": self.velocity_variance,
             "filter_time": self.filter_time,
             "time_since_fresh": self.time_since_fresh,
             "missing_readings": self.missing_readings,
@@ -404,21 +406,19 @@ class BaseStateEstimator:
             if self.attitude_variance is not None and np.isfinite(onboard[e]).all():
                 self._attitude_step(e, onboard[e])
             self._legs_step(e, frame, q[e], rate[e])
-        # output: predicted from filter_time to now (orientation turned by omega; v held)
-        for e in range(self.envs):
-            age = float(now[e] - self.filter_time[e])
-            self.time_since_fresh[e] = age
-            quat = self.orientation[e]
-            if age > 0:
-                turn = rotation_quaternions((self.angular_velocity[e] * age)[None])[0]
-                quat = quat_multiply(quat, turn)
-            rot = quaternion_to_matrix(quat)
-            out.orientation[e] = quat
-            out.projected_gravity[e] = -rot[2]
-            out.linear_velocity[e] = rot.T @ self.velocity[e]
+        # output: predicted from filter_time to now (orientation turned by omega; v held), every
+        # env at once (an env not behind turns by a zero rotation: its quaternion unchanged)
+        np.subtract(now, self.filter_time, out=self.time_since_fresh)
+        age = np.maximum(self.time_since_fresh, 0.0)[:, None]
+        quat = quat_multiply(self.orientation, rotation_quaternions(self.angular_velocity * age))
+        rot = quaternion_to_matrix(quat)
+        out.orientation[:] = quat
+        out.projected_gravity[:] = -rot[:, 2]
+        out.linear_velocity[:] = np.matmul(rot.transpose(0, 2, 1), self.velocity[:, :, None])[
+            :, :, 0
+        ]
         out.angular_velocity[:] = self.angular_velocity
         out.linear_velocity_world[:] = self.velocity
-        self.velocity_variance[:] = np.trace(self.covariance[:, 3:6, 3:6], axis1=1, axis2=2) / 3
         return out
 
     def _imu_step(self, e: int, stamp: float, gyro: np.ndarray, acc: np.ndarray) -> None:

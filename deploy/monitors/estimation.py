@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from deploy.estimation.attitude import quaternion_to_matrix
+from deploy.estimation.base import BaseState
 from deploy.estimation.fall import FALL_TILT
 
 #: Fraction of ``[base] standing_height`` under which the true base has fallen (our choice: a
@@ -52,12 +52,12 @@ class EstimationMonitor:
         self._sum = np.zeros(5)  # attitude deg, est vx, true vx, planar sq err, n
         self.true_falls = np.zeros(envs, dtype=np.int64)
         self._down = np.zeros(envs, dtype=bool)
+        self._truth = BaseState.zeros(envs)  # filled from the plant's truth every update
 
     def update(self, runtime, truth: np.ndarray) -> None:
         """After a tick: ``truth`` (envs, 13), the plant's ``true_base_state()``."""
-        rot = quaternion_to_matrix(truth[:, 3:7])
-        g_true = -rot[:, 2]  # R^T [0, 0, -1]
-        v_true = np.einsum("eji,ej->ei", rot, truth[:, 7:10])
+        true_base = self._truth.set_truth(truth)
+        g_true, v_true = true_base.projected_gravity, true_base.linear_velocity
         running = runtime.mode == 2  # RUNNING
         tilt = np.arccos(np.clip(-g_true[:, 2], -1.0, 1.0))
         down = (truth[:, 2] < self.fall_height) | (tilt > self.fall_tilt)

@@ -1,20 +1,20 @@
 """Base state estimation of a floating-base (legged) robot: attitude, angular and linear velocity.
-
 One error-state extended Kalman filter per env, fed by a
 :class:`~deploy.backends.base.SensorFrame`'s IMU and foot-contact fields and by the joint
-estimate ``q``, ``dq`` (rad, rad/s): the kinematic-inertial filter of legged robots with leg
+estimate ``q``, ``dq`` (rad, rad/s): the kinematic- inertial filter of legged robots with leg
 odometry as a velocity measurement (M. Bloesch et al., "State estimation for legged robots", RSS
 2012; M. Camurri et al., "Pronto", Frontiers in Robotics and AI 2020), reduced to the states a
 velocity policy observes: the base-to-world rotation, the base velocity (world, at the base
-origin) and the gyro bias. The IMU predicts (the accelerometer's lever arm and a turn's
-centripetal term taken off); the accelerometer is a weak gravity measurement; each foot in
-contact measures the base velocity through the leg kinematics (a rolling sphere's centre is not
-its contact point). A foot whose reading is more than ``SLIP_GATE`` (chi-square, 3 dof) from the
-prediction is slipping and not absorbed (``rejected_contacts``), unless no foot has been absorbed
-for ``MAX_REJECTED_READINGS`` readings: the velocity then restarts from the legs. The equations
-are in :mod:`deploy.estimation.base_kernel`, which compiles them; the reference
-(:class:`~deploy.estimation.reference.ReferenceBaseStateEstimator`) runs them in numpy through one
-``filterpy`` KalmanFilter per env.
+origin) and the IMU's biases, the gyro's and the accelerometer's. The IMU predicts (the
+accelerometer's lever arm and a turn's centripetal term taken off); the accelerometer is a weak
+gravity measurement; each foot in contact measures the base velocity through the leg kinematics
+(a rolling sphere's centre is not its contact point). A foot whose reading is more than
+``SLIP_GATE`` (chi-square, 3 dof) from the prediction is slipping and not absorbed
+(``rejected_contacts``), unless no foot has been absorbed for ``MAX_REJECTED_READINGS`` readings:
+the velocity then restarts from the legs. The equations are in
+:mod:`deploy.estimation.base_kernel`, which compiles them; the reference
+(:class:`~deploy.estimation.reference.ReferenceBaseStateEstimator`) runs them in numpy through
+one ``filterpy`` KalmanFilter per env.
 
 Unlike a complementary filter that takes the accelerometer for gravity, the tilt is observed
 through the velocity: a tilt error puts gravity into the integrated acceleration, which the legs
@@ -88,6 +88,9 @@ REST_ACCELERATION_TOLERANCE = 0.1
 #: gyro still lets the filter learn a bias (our choice).
 MIN_GYRO_BIAS_WALK = 1e-5
 MIN_GYRO_BIAS_SIGMA = 1e-3
+#: The same floors for the accelerometer's bias, m/s^2 (/sqrt(s)) (our choice).
+MIN_ACCEL_BIAS_WALK = 1e-4
+MIN_ACCEL_BIAS_SIGMA = 0.01
 
 
 def foot_radii(robot: Robot) -> np.ndarray:
@@ -168,8 +171,10 @@ class BaseStateEstimator:
     Attributes:
         orientation: (envs, 4) base-to-world quaternion at ``filter_time``.
         velocity: (envs, 3) m/s, base velocity, world frame.
-        gyro_bias: (envs, 3) rad/s, base frame.
-        covariance: (envs, 9, 9) the error state's covariance (rad, m/s, rad/s).
+        bias: (envs, 6) the IMU's biases, base frame: the gyro's (rad/s, ``gyro_bias``, a view
+            of the first three columns) and the accelerometer's (m/s^2, ``accel_bias``, the
+            last three).
+        covariance: (envs, 12, 12) the error state's covariance (rad, m/s, rad/s, m/s^2).
         velocity_variance: (envs,) m^2/s^2, the mean of the velocity block's diagonal (derived).
         filter_time: (envs,) s, stamp of the last absorbed IMU reading.
         time_since_fresh: (envs,) s, ``frame.time - filter_time`` at the last update.
@@ -208,6 +213,8 @@ class BaseStateEstimator:
         self.accel_variance = imu.accel_noise_sigma**2 + UNMODELLED_ACCELERATION**2
         self.bias_walk_variance = max(imu.gyro_bias_walk, MIN_GYRO_BIAS_WALK) ** 2
         self.bias_variance = max(imu.gyro_bias_sigma, MIN_GYRO_BIAS_SIGMA) ** 2
+        self.accel_bias_walk_variance = max(imu.accel_bias_walk, MIN_ACCEL_BIAS_WALK) ** 2
+        self.accel_bias_variance = max(imu.accel_bias_sigma, MIN_ACCEL_BIAS_SIGMA) ** 2
         self.leg_variance = float(leg_sigma) ** 2
         self.accel_meas_variance = float(accel_sigma) ** 2
         self.slip_gate = float(slip_gate)
@@ -224,7 +231,9 @@ class BaseStateEstimator:
         self.orientation = np.tile([1.0, 0.0, 0.0, 0.0], (envs, 1))
         self.angular_velocity = np.zeros((envs, 3))
         self.velocity = np.zeros((envs, 3))
-        self.gyro_bias = np.zeros((envs, 3))
+        self.bias = np.zeros((envs, 6))
+        self.gyro_bias = self.bias[:, :3]  # views: written in place, never rebound
+        self.accel_bias = self.bias[:, 3:]
         self.covariance = np.tile(self._initial_covariance(), (envs, 1, 1))
         self.filter_time = np.full(envs, np.nan)
         self.time_since_fresh = np.full(envs, np.inf)
@@ -250,23 +259,32 @@ class BaseStateEstimator:
         """Compile (or load from numba's cache) the filter's steps before the first tick, for
         the argument types the tick passes, on scratch copies (nothing of the estimator
         changes): a first call inside a tick costs milliseconds."""
-        q, v, b = self.orientation[0].copy(), self.velocity[0].copy(), self.gyro_bias[0].copy()
+        q, v, b = self.orientation[0].copy(), self.velocity[0].copy(), self.bias[0].copy()
         P, omega = self.covariance[0].copy(), np.zeros(3)
         up = -self.gravity
         imu_step(
             q, v, b, P, np.zeros(3), up, 0.02, self.lever_arm, self.gravity,
             self.gyro_variance, self.accel_variance, self.bias_walk_variance,
-            self.accel_meas_variance, 3 * REST_ACCELERATION_TOLERANCE, omega,
+            self.accel_bias_walk_variance, self.accel_meas_variance,
+            3 * REST_ACCELERATION_TOLERANCE, omega,
         )  # fmt: skip
         leg_step(q, v, b, P, np.zeros(3), np.zeros(3), 0.0, self.leg_variance, self.slip_gate)
         attitude_step(q, v, b, P, np.eye(3), MIN_ATTITUDE_SIGMA**2)
         leg_step(q, v, b, P, np.zeros(3), np.zeros(3), 0.0, self.leg_variance, np.inf)
 
     def _initial_covariance(self) -> np.ndarray:
-        """(9, 9) the error state's covariance at a reset (``INITIAL_*_SIGMA``, the gyro's
-        turn-on bias)."""
+        """(12, 12) the error state's covariance at a reset (``INITIAL_*_SIGMA``, the IMU's
+        turn-on biases)."""
         sigma = [INITIAL_TILT_SIGMA] * 2 + [INITIAL_YAW_SIGMA] + [INITIAL_VELOCITY_SIGMA] * 3
-        return np.diag(np.concatenate([np.array(sigma) ** 2, np.full(3, self.bias_variance)]))
+        return np.diag(
+            np.concatenate(
+                [
+                    np.array(sigma) ** 2,
+                    np.full(3, self.bias_variance),
+                    np.full(3, self.accel_bias_variance),
+                ]
+            )
+        )
 
     @property
     def velocity_variance(self) -> np.ndarray:
@@ -283,7 +301,7 @@ class BaseStateEstimator:
         rest: the initial roll and pitch put them along the world's up (yaw 0); default upright.
         A reading whose magnitude is more than ``REST_ACCELERATION_TOLERANCE`` from gravity's is
         not the robot at rest (dropped on its feet, landing) and is ignored: upright.
-        Gyro bias estimates restart at 0, velocity at 0, the covariance at its initial value.
+        Bias estimates restart at 0, velocity at 0, the covariance at its initial value.
         ``envs``: bool mask or indices (default all).
 
         Raises:
@@ -308,7 +326,7 @@ class BaseStateEstimator:
             self.orientation[e] = q
             self.covariance[e] = self._initial_covariance()
             self._restart_filter(e)
-        self.gyro_bias[sel] = 0.0
+        self.bias[sel] = 0.0
         self.angular_velocity[sel] = 0.0
         self.velocity[sel] = 0.0
         self.filter_time[sel] = t[sel]
@@ -337,6 +355,7 @@ class BaseStateEstimator:
             "angular_velocity": self.angular_velocity,
             "velocity": self.velocity,
             "gyro_bias": self.gyro_bias,
+            "accel_bias": self.accel_bias,
             "covariance": self.covariance,
             "filter_time": self.filter_time,
             "time_since_fresh": self.time_since_fresh,
@@ -427,7 +446,7 @@ class BaseStateEstimator:
         imu_step(
             self.orientation[e],
             self.velocity[e],
-            self.gyro_bias[e],
+            self.bias[e],
             self.covariance[e],
             self._imu_to_base @ gyro,
             self._imu_to_base @ acc,
@@ -437,6 +456,7 @@ class BaseStateEstimator:
             self.gyro_variance,
             self.accel_variance,
             self.bias_walk_variance,
+            self.accel_bias_walk_variance,
             self.accel_meas_variance,
             3 * REST_ACCELERATION_TOLERANCE,
             self.angular_velocity[e],
@@ -470,7 +490,7 @@ class BaseStateEstimator:
         attitude_step(
             self.orientation[e],
             self.velocity[e],
-            self.gyro_bias[e],
+            self.bias[e],
             self.covariance[e],
             measured,
             self.attitude_variance,
@@ -557,7 +577,7 @@ class BaseStateEstimator:
             ok = leg_step(
                 self.orientation[e],
                 self.velocity[e],
-                self.gyro_bias[e],
+                self.bias[e],
                 self.covariance[e],
                 linear[i],
                 angular[i],

@@ -2,20 +2,25 @@
 one env; the numpy reference of the same algebra (filterpy's predict and update) is
 :class:`deploy.estimation.reference.ReferenceBaseStateEstimator`.
 
-Nominal state: rotation ``R`` (base to world), velocity ``v`` (m/s, world), gyro bias ``b`` (rad/s,
-base frame). Error state (9,): ``dtheta`` (rad, world frame, ``R_true = Exp(dtheta) R``), ``dv``,
-``db``. With the gyro ``omega = w - b`` and the specific force at the base origin
-``f = a - omega x (omega x r)`` (``r`` the IMU's lever arm)::
+Nominal state: rotation ``R`` (base to world), velocity ``v`` (m/s, world), the biases ``b``
+(6,): the gyro's ``b_g`` (rad/s) and the accelerometer's ``b_a`` (m/s^2), base frame. Error state
+(12,): ``dtheta`` (rad, world frame, ``R_true = Exp(dtheta) R``), ``dv``, ``db_g``, ``db_a``. With
+the gyro ``omega = w - b_g`` and the specific force at the base origin
+``f = a - b_a - omega x (omega x r)`` (``r`` the IMU's lever arm)::
 
     predict:  v' = v + dt (R f + g)     R' = R Exp(omega dt)     b' = b
-              F = [[I, 0, -R dt], [-dt [R f]x, I, 0], [0, 0, I]]
-              Q = diag(sigma_g^2 dt^2 I, sigma_a^2 dt^2 I, walk_g^2 dt I)
+              F = [[I, 0, -R dt, 0], [-dt [R f]x, I, 0, -R dt], [0, 0, I, 0], [0, 0, 0, I]]
+              Q = diag(sigma_g^2 dt^2 I, sigma_a^2 dt^2 I, walk_g^2 dt I, walk_a^2 dt I)
     gravity:  z = f,  h = R^T (-g) + omega x R^T v,
-              H = [R^T [-g]x + [omega]x R^T [v]x, [omega]x R^T, 0]
+              H = [R^T [-g]x + [omega]x R^T [v]x, [omega]x R^T, 0, I]
               (only while |f| is within ``rest_band`` of |g|)
-    a foot:   z = -(v_foot + omega_foot x (rho u)),  h = R^T v,  H = [R^T [v]x, R^T, 0]
+    a foot:   z = -(v_foot + omega_foot x (rho u)),  h = R^T v,  H = [R^T [v]x, R^T, 0, 0]
     attitude: z = -R_imu[2] (the IMU's own attitude, where it sends one),  h = -R[2],
-              H = [R^T [(0, 0, -1)]x, 0, 0]
+              H = [R^T [(0, 0, -1)]x, 0, 0, 0]
+
+The accelerometer's bias drifts (a MEMS part's bias random walk, hours of a soak): unmodelled, a
+vertical bias of 1 m/s^2 reads a trotting Go2 sinking at 1 m/s between the feet's corrections.
+The legs make it observable: the velocity they measure does not drift.
 
 with ``v_foot``, ``omega_foot`` the foot's velocity in the base frame (the base at the origin,
 turning at ``omega``), ``rho`` its contact sphere's radius and ``u`` the world's down in the base
@@ -29,7 +34,7 @@ import math
 import numba
 import numpy as np
 
-N_ERROR = 9
+N_ERROR = 12
 
 
 @numba.njit(cache=True, nogil=True)
@@ -75,8 +80,8 @@ def _turn(rotvec, q, left: bool) -> None:
 
 @numba.njit(cache=True, nogil=True)
 def _correct(P, y, H, r_var: float, q, v, b, gate: float) -> bool:
-    """The error-state update with innovation ``y`` (3,), ``H`` (3, 9), noise ``r_var I``,
-    folded into the nominal state ``q``, ``v``, ``b``; False (nothing changed) when the
+    """The error-state update with innovation ``y`` (3,), ``H`` (3, 12), noise ``r_var I``,
+    folded into the nominal state ``q``, ``v``, ``b`` (6,); False (nothing changed) when the
     innovation's chi-square exceeds ``gate``."""
     PHt = P @ H.T
     S = H @ PHt
@@ -95,6 +100,7 @@ def _correct(P, y, H, r_var: float, q, v, b, gate: float) -> bool:
     _turn(dx[0:3], q, True)  # R = Exp(dtheta) R: a world-frame error
     for i in range(3):
         v[i] += dx[3 + i]
+    for i in range(6):
         b[i] += dx[6 + i]
     return True
 
@@ -113,6 +119,7 @@ def imu_step(
     gyro_var: float,
     accel_var: float,
     walk_var: float,
+    accel_walk_var: float,
     accel_meas_var: float,
     rest_band: float,
     omega_out,
@@ -120,8 +127,8 @@ def imu_step(
     """One env's prediction over ``dt`` (s) from a reading already in the base frame and the
     accelerometer's gravity correction (:mod:`deploy.estimation.base`); ``q``, ``v``, ``b``,
     ``P`` in place, the bias-free angular velocity in ``omega_out`` (3,)."""
-    omega = gyro_b - b
-    f = acc_b - np.cross(omega, np.cross(omega, lever))
+    omega = gyro_b - b[0:3]
+    f = acc_b - b[3:6] - np.cross(omega, np.cross(omega, lever))
     R = np.empty((3, 3))
     _quat_to_mat(q, R)
     rf = R @ f
@@ -132,11 +139,13 @@ def imu_step(
         for j in range(3):
             F[i, 6 + j] = -R[i, j] * dt
             F[3 + i, j] = -dt * sk[i, j]
+            F[3 + i, 9 + j] = -R[i, j] * dt
     P2 = F @ P @ F.T
     for i in range(3):
         P2[i, i] += gyro_var * dt * dt
         P2[3 + i, 3 + i] += accel_var * dt * dt
         P2[6 + i, 6 + i] += walk_var * dt
+        P2[9 + i, 9 + i] += accel_walk_var * dt
     P[:, :] = P2
     for i in range(3):
         v[i] += dt * (rf[i] + gravity[i])
@@ -156,6 +165,8 @@ def imu_step(
         H = np.zeros((3, N_ERROR))
         H[:, 0:3] = R.T @ sk_up + turn @ sk_v
         H[:, 3:6] = turn
+        for i in range(3):
+            H[i, 9 + i] = 1.0
         y = f - (R.T @ up + turn @ v)
         _correct(P, y, H, accel_meas_var, q, v, b, np.inf)
     for i in range(3):

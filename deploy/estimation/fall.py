@@ -41,6 +41,8 @@ FALL_HEIGHT_TIME = 0.2
 #: lower. Five ticks at 50 Hz.
 FALL_SPEED = 1.0
 FALL_SPEED_TIME = 0.1
+#: The three signals of a fall, the columns of :attr:`FallDetector.signals`.
+SIGNALS = ("tilt", "height", "sinking")
 
 
 class FallDetector:
@@ -59,6 +61,8 @@ class FallDetector:
         low_ticks: (envs,) int64, consecutive checks so far with ``height`` under the limit.
         speed_ticks: control ticks the base must sink faster than ``FALL_SPEED``.
         sinking_ticks: (envs,) int64, consecutive checks so far with the base sinking so.
+        signals: (envs, 3) bool, which signal of the last :meth:`check` fired, columns in
+            :data:`SIGNALS` order (for the logs: a fall record says why it was called).
 
     Raises:
         ValueError: a fixed-base robot.
@@ -80,6 +84,7 @@ class FallDetector:
         self.low_ticks = np.zeros(envs, dtype=np.int64)
         self.speed_ticks = max(1, int(np.ceil(FALL_SPEED_TIME / robot.control_period - 1e-9)))
         self.sinking_ticks = np.zeros(envs, dtype=np.int64)
+        self.signals = np.zeros((envs, len(SIGNALS)), dtype=bool)
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
         """``height`` (envs,) m, ``low_ticks`` and ``sinking_ticks`` (envs,) int64 (copies;
@@ -110,10 +115,12 @@ class FallDetector:
             state: A floating-base robot's estimate (``RobotState.legged``: ``base``,
                 ``foot_contact``, ``q``).
         """
-        fallen = tilt_of(state.base.projected_gravity) > self.tilt_limit
+        signals = self.signals
+        signals[:] = False
+        signals[:, 0] = tilt_of(state.base.projected_gravity) > self.tilt_limit
         sinking = state.base.linear_velocity_world[:, 2] < -FALL_SPEED
         self.sinking_ticks[:] = np.where(sinking, self.sinking_ticks + 1, 0)
-        fallen |= self.sinking_ticks >= self.speed_ticks
+        signals[:, 2] = self.sinking_ticks >= self.speed_ticks
         if self.height_limit > 0.0:
             contact = state.foot_contact > 0.5
             self.height[:] = np.nan
@@ -128,5 +135,5 @@ class FallDetector:
                 self.height[e] = max(below)
             low = self.height < self.height_limit  # NaN (no contact) compares False
             self.low_ticks[:] = np.where(low, self.low_ticks + 1, 0)
-            fallen |= self.low_ticks >= self.height_ticks
-        return fallen
+            signals[:, 1] = self.low_ticks >= self.height_ticks
+        return signals.any(axis=1)

@@ -5,7 +5,7 @@
   ``filterpy.kalman.KalmanFilter(dim_x=2, dim_z=1)`` per (env, joint) (filterpy's predict and
   update for each fresh reading; ``tests/test_estimation.py``);
 - :class:`ReferenceBaseStateEstimator`, of the base estimator's error-state algebra
-  (:mod:`deploy.estimation.base`): one ``filterpy.kalman.KalmanFilter(dim_x=9, dim_z=3)`` per env
+  (:mod:`deploy.estimation.base`): one ``filterpy.kalman.KalmanFilter(dim_x=12, dim_z=3)`` per env
   (``tests/test_legged.py``).
 
 Each gives the same numbers as its estimator to rounding.
@@ -173,7 +173,7 @@ class ReferenceJointStateEstimator(JointStateEstimator):
 
 class ReferenceBaseStateEstimator(BaseStateEstimator):
     """A :class:`~deploy.estimation.base.BaseStateEstimator` whose error-state algebra runs in one
-    ``filterpy.kalman.KalmanFilter(dim_x=9, dim_z=3)`` per env (filterpy's ``predict`` with the
+    ``filterpy.kalman.KalmanFilter(dim_x=12, dim_z=3)`` per env (filterpy's ``predict`` with the
     error-state transition and ``update`` with each measurement's ``H`` and ``R``; the error
     state is folded into the nominal state and zeroed after each update); the same arguments,
     attributes, state and errors."""
@@ -209,28 +209,31 @@ class ReferenceBaseStateEstimator(BaseStateEstimator):
         return dx
 
     def _inject(self, e: int, dx: np.ndarray) -> None:
-        """Fold the error ``dx`` (9,) into env ``e``'s nominal state."""
+        """Fold the error ``dx`` (12,) into env ``e``'s nominal state."""
         turn = rotation_quaternions(dx[None, 0:3])[0]
         q = quat_multiply(turn, self.orientation[e])  # R = Exp(dtheta) R: world-frame error
         self.orientation[e] = q / np.linalg.norm(q)
         self.velocity[e] += dx[3:6]
-        self.gyro_bias[e] += dx[6:9]
+        self.bias[e] += dx[6:12]
 
     def _imu_step(self, e: int, stamp: float, gyro: np.ndarray, acc: np.ndarray) -> None:
         dt = stamp - self.filter_time[e]
         omega = self._imu_to_base @ gyro - self.gyro_bias[e]
-        f = self._imu_to_base @ acc - np.cross(omega, np.cross(omega, self.lever_arm))
+        f = self._imu_to_base @ acc - self.accel_bias[e]
+        f -= np.cross(omega, np.cross(omega, self.lever_arm))
         rot = quaternion_to_matrix(self.orientation[e])
         rf = rot @ f
         F = np.eye(N_ERROR)
         F[0:3, 6:9] = -rot * dt
         F[3:6, 0:3] = -dt * skew(rf)
+        F[3:6, 9:12] = -rot * dt
         Q = np.diag(
             np.concatenate(
                 [
                     np.full(3, self.gyro_variance * dt * dt),
                     np.full(3, self.accel_variance * dt * dt),
                     np.full(3, self.bias_walk_variance * dt),
+                    np.full(3, self.accel_bias_walk_variance * dt),
                 ]
             )
         )
@@ -248,6 +251,7 @@ class ReferenceBaseStateEstimator(BaseStateEstimator):
             H = np.zeros((3, N_ERROR))
             H[:, 0:3] = rot.T @ skew(up) + turn @ skew(v)
             H[:, 3:6] = turn
+            H[:, 9:12] = np.eye(3)
             y = f - (rot.T @ up + turn @ v)
             self._inject(e, self._correct(e, y, H, np.eye(3) * self.accel_meas_variance))
         self.angular_velocity[e] = self._imu_to_base @ gyro - self.gyro_bias[e]

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from deploy.estimation.attitude import quaternion_to_matrix, tilt_of
 from deploy.estimation.base import BaseState
 from deploy.stateful import (
     StateDictError,
@@ -365,7 +366,7 @@ class CommandTracker:
             for e in np.flatnonzero(down):
                 if runtime.cause[e] >= 0:
                     self.falls_by_cause[e, runtime.cause[e]] += 1
-                self.fall_log[e].append(self._fall(runtime, e))
+                self.fall_log[e].append(self._fall(runtime, e, self._truth_now()))
         self._up &= ~down
         self._up |= running
         velocity = self._planar_velocity(runtime)  # (envs, 2) m/s, base frame
@@ -397,13 +398,30 @@ class CommandTracker:
             self.height_sum += np.where(known, detector.height, 0.0) * self.dt
             self.height_time += known * self.dt
 
+    def _truth_now(self) -> np.ndarray | None:
+        """(envs, 13) the simulator's base state (``backend.true_base_state``), None on hardware."""
+        return None if self.truth is None else self.truth()
+
     @staticmethod
-    def _fall(runtime, e: int) -> dict:
-        """The record of env ``e``'s fall (``fall_log``)."""
+    def _fall(runtime, e: int, truth: np.ndarray | None = None) -> dict:
+        """The record of env ``e``'s fall (``fall_log``): with a fall stop, ``signals`` (which
+        of the fall check's signals fired, :data:`deploy.estimation.fall.SIGNALS`); in
+        simulation, the true base at the stop: ``true_height_m`` (the base origin's height
+        above the world's origin) and ``true_tilt_deg``, beside the estimate's ``tilt_deg``."""
+        from deploy.estimation.fall import SIGNALS
         from deploy.runtime.modes import FAULT_CAUSES
 
         cause = int(runtime.cause[e])
         out = {"t_s": float(runtime.time), "cause": FAULT_CAUSES[cause] if cause >= 0 else None}
+        detector = getattr(runtime, "fall_detector", None)
+        if out["cause"] == "fall" and detector is not None:
+            out["signals"] = [s for s, on in zip(SIGNALS, detector.signals[e], strict=True) if on]
+        base = runtime.state.base
+        out["tilt_deg"] = float(np.degrees(tilt_of(base.projected_gravity[e : e + 1])[0]))
+        if truth is not None:
+            up = quaternion_to_matrix(truth[e : e + 1, 3:7])[0, 2, 2]
+            out["true_height_m"] = float(truth[e, 2])
+            out["true_tilt_deg"] = float(np.degrees(np.arccos(np.clip(up, -1.0, 1.0))))
         if out["cause"] == "hard_limit":
             robot, q = runtime.robot, runtime.state.q[e]
             past = np.maximum(robot.position_lower - q, q - robot.position_upper)

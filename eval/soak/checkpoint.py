@@ -51,7 +51,9 @@ FORMAT = "soak-checkpoint"
 #: 8: a legged robot's error-state base filter (``base_estimator/covariance``, ...), its fall
 #: check's sinking count, the plant's IMU attitude and drive velocity readings; a version 7
 #: checkpoint has the complementary filter's state.
-VERSION = 8
+#: 9: the base filter's accelerometer bias (``base_estimator/accel_bias``, a 12-state
+#: covariance); a version 8 checkpoint has neither.
+VERSION = 9
 MANIFEST = "checkpoint.json"
 
 

@@ -311,3 +311,67 @@ def test_gains_that_differ_are_refused_and_written_with_write_robot(
     assert all("go2.yaml (policy-export --from-config --write-robot)" in b for _, b in changed)
     # written once: the same config now fits
     assert spec_and_robot(config, go2_copy)[2] == []
+
+
+def deploy_real_config(go2, **changes) -> dict:
+    """unitree_rl_gym's hardware config form (deploy_real/configs/g1.yaml): ``control_dt``, the
+    policy's joints as motor slots (``leg_joint2motor_idx``) and the held ones (``arm_waist_*``),
+    here a policy over the Go2's front legs (Unitree slots 0-5: FR, then FL) holding the rear."""
+    slots, held = [0, 1, 2, 3, 4, 5], [6, 7, 8, 9, 10, 11]
+    joint_of = {s: i for i, s in enumerate(go2.config.unitree.motor_index)}
+    cfg = {
+        "control_dt": 0.02,
+        "msg_type": "go",
+        "leg_joint2motor_idx": slots,
+        "kps": [20] * 6,
+        "kds": [0.5] * 6,
+        "default_angles": [float(go2.home[joint_of[s]]) for s in slots],
+        "arm_waist_joint2motor_idx": held,
+        "arm_waist_kps": [20] * 6,
+        "arm_waist_kds": [0.5] * 6,
+        "arm_waist_target": [float(go2.home[joint_of[s]]) for s in held],
+        "ang_vel_scale": 0.25,
+        "dof_pos_scale": 1.0,
+        "dof_vel_scale": 0.05,
+        "action_scale": 0.25,
+        "cmd_scale": [2.0, 2.0, 0.25],
+        "num_actions": 6,
+        "num_obs": 9 + 3 * 6 + 2,
+        "max_cmd": [0.8, 0.5, 1.57],
+    }
+    cfg.update(changes)
+    return cfg
+
+
+def test_a_hardware_config_names_the_policys_joints_by_motor_slot_and_holds_the_rest(go2, tmp_path):
+    """deploy_real's form: the spec's joints are the Go2 joints of slots 0-5 in slot order (FR
+    hip, thigh, calf, then FL), the rate is control_dt's, and the held joints' gains and target
+    are checked like the policy's: a different arm_waist_target is refused, naming the joint."""
+    path = write_config(tmp_path / "real.yaml", deploy_real_config(go2))
+    spec, _, notes = spec_and_robot(path, go2)
+    assert notes == []
+    assert spec.joint_names == (
+        "FR_hip_joint",
+        "FR_thigh_joint",
+        "FR_calf_joint",
+        "FL_hip_joint",
+        "FL_thigh_joint",
+        "FL_calf_joint",
+    )
+    assert spec.control_rate == pytest.approx(50.0)
+    wide = spec.on_robot(go2)
+    assert wide.joint_names == go2.joint_names and wide.obs_dim == spec.obs_dim
+    cfg = deploy_real_config(go2)
+    cfg["arm_waist_target"][0] += 0.1  # slot 6: RR_hip_joint
+    with pytest.raises(Exception, match="RR_hip_joint home"):
+        spec_and_robot(write_config(tmp_path / "other.yaml", cfg), go2)
+
+
+def test_a_config_over_part_of_the_robot_without_motor_slots_is_refused_naming_the_field(
+    go2, tmp_path
+):
+    cfg = go2_config(go2, num_actions=6, num_obs=9 + 18 + 2)
+    for key in ("kps", "kds", "default_angles"):
+        cfg[key] = cfg[key][:6]
+    with pytest.raises(Exception, match="leg_joint2motor_idx"):
+        spec_and_robot(write_config(tmp_path / "six.yaml", cfg), go2)

@@ -24,6 +24,17 @@ in the MJCF's joint order (deploy_mujoco reads ``qpos[7:]`` and writes ``ctrl`` 
 robot folder's (robot-import keeps the description's): entry ``i`` is ``robot.joint_names[i]``. The
 robot's PD gains and home pose are compared with ``kps``, ``kds``, ``default_angles``
 (:func:`robots.pd_gains.gain_differences`).
+
+The hardware config of the same stack (``deploy/deploy_real/configs/<robot>.yaml``, read by
+``deploy_real.py``) is read too. It gives the rate as ``control_dt`` (s) instead of
+``simulation_dt`` and ``control_decimation``, and says which motor each policy joint drives:
+``leg_joint2motor_idx`` (entry ``i``: the motor slot of policy joint ``i``). The robot joint of a
+slot is the one whose ``robot.toml`` ``[unitree] motor_index`` is that slot, or, without one,
+``robot.joint_names[slot]``. A robot with more joints than the policy drives (the 29-joint G1
+under unitree_rl_gym's 12-joint policy) runs it with the others held
+(:mod:`deploy.spec.subset`); ``deploy_real.py`` holds them at ``arm_waist_target`` with
+``arm_waist_kps`` / ``arm_waist_kds`` (slots ``arm_waist_joint2motor_idx``), which are compared
+with the robot's home, kp and kd like the policy joints' values.
 """
 
 from __future__ import annotations
@@ -68,6 +79,13 @@ class DeployConfig:
         cmd_scale: (3,) multipliers of vx, vy, yaw rate. num_actions, num_obs: Sizes.
         control_decimation: Physics steps a control tick. simulation_dt: Physics step, s.
         cmd_init: (3,) the initial command (vx, vy m/s, yaw rate rad/s), or None.
+        control_dt: s, a hardware config's control period (``simulation_dt`` is then that and
+            ``control_decimation`` 1: the config names no physics step), or None.
+        motor_index: (num_actions,) the motor slot of each policy joint
+            (``leg_joint2motor_idx``), or None (joint ``i`` is the robot's joint ``i``).
+        held: The joints the policy does not drive, held by the deploy code: ``(slots, kps,
+            kds, targets)`` from ``arm_waist_joint2motor_idx``, ``arm_waist_kps``,
+            ``arm_waist_kds``, ``arm_waist_target``; None when the config has none.
     """
 
     path: Path
@@ -84,6 +102,9 @@ class DeployConfig:
     control_decimation: int
     simulation_dt: float
     cmd_init: np.ndarray | None
+    control_dt: float | None = None
+    motor_index: tuple[int, ...] | None = None
+    held: tuple[tuple[int, ...], np.ndarray, np.ndarray, np.ndarray] | None = None
 
     @property
     def control_rate(self) -> float:
@@ -125,6 +146,29 @@ def _numbers(path: Path, raw: dict, field: str, size: int, positive: bool = Fals
     return arr
 
 
+def _slots(path: Path, raw: dict, field: str, size: int | None = None) -> tuple[int, ...]:
+    value = raw.get(field)
+    kind = "a list of distinct motor slots (integers >= 0)" + (
+        f", {size} of them" if size is not None else ""
+    )
+    if (
+        not isinstance(value, list)
+        or (size is not None and len(value) != size)
+        or any(isinstance(v, bool) or not isinstance(v, int) or v < 0 for v in value)
+        or len(set(value)) != len(value)
+    ):
+        raise _bad(path, field, kind, value)
+    return tuple(value)
+
+
+def _rate(path: Path, raw: dict) -> tuple[float, int]:
+    """``(simulation_dt, control_decimation)``; a deploy_real config's ``control_dt`` is one
+    step of one physics step each."""
+    if "simulation_dt" not in raw and "control_decimation" not in raw and "control_dt" in raw:
+        return _positive(path, raw, "control_dt"), 1
+    return _positive(path, raw, "simulation_dt"), _integer(path, raw, "control_decimation")
+
+
 def read_config(path: str | Path) -> DeployConfig:
     """Read and check a deploy config (module docstring).
 
@@ -158,18 +202,79 @@ def read_config(path: str | Path) -> DeployConfig:
             f"velocities and last action {n} each, gait phase 2), got {num_obs}"
         )
     cmd_init = raw.get("cmd_init")
+    motor_index = None
+    if "leg_joint2motor_idx" in raw:
+        motor_index = _slots(path, raw, "leg_joint2motor_idx", n)
+    held = None
+    if "arm_waist_joint2motor_idx" in raw:
+        slots = _slots(path, raw, "arm_waist_joint2motor_idx")
+        if set(slots) & set(motor_index or range(n)):
+            raise _bad(path, "arm_waist_joint2motor_idx", "slots no policy joint drives", slots)
+        k = len(slots)
+        held = (
+            slots,
+            _numbers(path, raw, "arm_waist_kps", k, positive=True),
+            _numbers(path, raw, "arm_waist_kds", k),
+            _numbers(path, raw, "arm_waist_target", k),
+        )
+    simulation_dt, decimation = _rate(path, raw)
     return DeployConfig(
         path=path,
         kps=lists["kps"],
         kds=lists["kds"],
         default_angles=lists["default_angles"],
-        **{f: _positive(path, raw, f) for f in _SCALARS},
+        **{f: _positive(path, raw, f) for f in _SCALARS if f != "simulation_dt"},
+        simulation_dt=simulation_dt,
         cmd_scale=_numbers(path, raw, "cmd_scale", 3, positive=True),
         num_actions=n,
         num_obs=num_obs,
-        control_decimation=_integer(path, raw, "control_decimation"),
+        control_decimation=decimation,
         cmd_init=None if cmd_init is None else _numbers(path, raw, "cmd_init", 3),
+        control_dt=simulation_dt if "control_dt" in raw and decimation == 1 else None,
+        motor_index=motor_index,
+        held=held,
     )
+
+
+def _joint_of_slot(config: DeployConfig, robot: Robot, slot: int, field: str) -> int:
+    """The robot joint (index) of motor slot ``slot`` (module docstring)."""
+    unitree = robot.config.unitree
+    if unitree is not None and unitree.motor_index:
+        if slot in unitree.motor_index:
+            return list(unitree.motor_index).index(slot)
+        raise ExportError(
+            f"{config.path}: field '{field}': motor slot {slot} drives no joint of the robot "
+            f"'{robot.name}' (robot.toml [unitree] motor_index {list(unitree.motor_index)})"
+        )
+    if slot >= robot.n_joints:
+        raise ExportError(
+            f"{config.path}: field '{field}': motor slot {slot}, the robot '{robot.name}' has "
+            f"{robot.n_joints} joints (and no robot.toml [unitree] motor_index)"
+        )
+    return slot
+
+
+def policy_joints(config: DeployConfig, robot: Robot) -> list[int]:
+    """The robot joint (index) of each policy joint, in the policy's order."""
+    if config.motor_index is None:
+        return list(range(config.num_actions))
+    return [_joint_of_slot(config, robot, s, "leg_joint2motor_idx") for s in config.motor_index]
+
+
+def robot_drive(config: DeployConfig, robot: Robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(kp, kd, home)`` over every joint of ``robot`` as the config's deploy code drives it:
+    its ``kps``, ``kds``, ``default_angles`` on the policy's joints, ``arm_waist_*`` on the held
+    ones, the robot's own values on any other."""
+    kp = np.array([j.kp for j in robot.config.joints], dtype=np.float64)
+    kd = np.array([j.kd for j in robot.config.joints], dtype=np.float64)
+    home = np.array(robot.home, dtype=np.float64)
+    index = policy_joints(config, robot)
+    kp[index], kd[index], home[index] = config.kps, config.kds, config.default_angles
+    if config.held is not None:
+        slots, kps, kds, targets = config.held
+        held = [_joint_of_slot(config, robot, s, "arm_waist_joint2motor_idx") for s in slots]
+        kp[held], kd[held], home[held] = kps, kds, targets
+    return kp, kd, home
 
 
 def check_robot(config: DeployConfig, robot: Robot) -> None:
@@ -184,18 +289,21 @@ def check_robot(config: DeployConfig, robot: Robot) -> None:
     where = f"the robot '{robot.name}' ({robot.directory})"
     if not robot.floating_base:
         raise ExportError(f"{path}: a legged_gym deploy config, but {where} has a fixed base")
-    if n != robot.n_joints:
+    if config.motor_index is None and n != robot.n_joints:
         raise ExportError(
             f"{path}: field 'num_actions': {n} joints, {where} has {robot.n_joints} "
-            f"({', '.join(robot.joint_names)})"
+            f"({', '.join(robot.joint_names)}); a policy over some of them needs "
+            "'leg_joint2motor_idx' (deploy_real's configs), the motor slot of each"
         )
     lo, hi = robot.position_lower, robot.position_upper
-    for i, (name, a) in enumerate(zip(robot.joint_names, config.default_angles, strict=True)):
+    index = policy_joints(config, robot)
+    for k, (i, a) in enumerate(zip(index, config.default_angles, strict=True)):
         if not lo[i] <= a <= hi[i]:
+            name = robot.joint_names[i]
             raise ExportError(
-                f"{path}: field 'default_angles'[{i}] = {a:g} rad is outside the limits "
+                f"{path}: field 'default_angles'[{k}] = {a:g} rad is outside the limits "
                 f"[{lo[i]:g}, {hi[i]:g}] of {name}, joint {i} of {where}: the config's joints "
-                "are in the robot's joint order"
+                "are in the robot's joint order (or leg_joint2motor_idx's)"
             )
     rate = 1.0 / robot.control_period
     if abs(config.control_rate - rate) > 1e-6 * rate:
@@ -237,7 +345,7 @@ def spec_from_config(config: DeployConfig, robot: Robot) -> PolicySpec:
     )
     spec = PolicySpec(
         robot=robot.name,
-        joint_names=robot.joint_names,
+        joint_names=tuple(robot.joint_names[i] for i in policy_joints(config, robot)),
         robot_hash="",
         observation_blocks=blocks,
         action=ActionSpec(
@@ -292,7 +400,8 @@ def spec_and_robot(
     robot = _load_robot(robot)
     check_robot(config, robot)
     toml = robot.directory / "robot.toml"
-    diffs = gain_differences(robot, config.kps, config.kds, config.default_angles)
+    kp, kd, home = robot_drive(config, robot)
+    diffs = gain_differences(robot, kp, kd, home)
     notes = []
     if diffs and not write_robot:
         more = f" and {len(diffs) - 3} more" if len(diffs) > 3 else ""
@@ -305,9 +414,9 @@ def spec_and_robot(
         try:
             robot = write_gains(
                 robot,
-                config.kps,
-                config.kds,
-                config.default_angles,
+                kp,
+                kd,
+                home,
                 f"{config.path.name} (policy-export --from-config --write-robot)",
             )
         except Exception as exc:  # noqa: BLE001 - RobotSpecError, OSError
@@ -317,7 +426,7 @@ def spec_and_robot(
         notes.append(
             f"wrote {', '.join(fields)} of {joints} joint(s) into {toml} from {config.path.name}"
         )
-    if abs(robot.physics_timestep - config.simulation_dt) > 1e-12:
+    if config.control_dt is None and abs(robot.physics_timestep - config.simulation_dt) > 1e-12:
         notes.append(
             f"note: the robot's physics step is {robot.physics_timestep:g} s, the config's "
             f"simulation_dt {config.simulation_dt:g} s (the PD runs at the physics step)"

@@ -35,6 +35,7 @@ from deploy.export.parity import (
 from deploy.policy.onnx_checks import PolicyLoadError
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.spec.policy_spec import PolicySpec, SpecError
+from deploy.spec.subset import run_spec
 from robots import Robot, load_robot
 from robots.files import atomic_path, atomic_write, sha256_file
 
@@ -127,8 +128,8 @@ def run_export(
     if not out.parent.is_dir():
         raise ExportError(f"{out}: the output folder {out.parent} does not exist")
     the_robot = _resolve_robot(robot, src.spec, str(source))
-    try:
-        src.spec.check_robot(the_robot)
+    try:  # a policy over some of the robot's joints: the rest held (deploy.spec.subset)
+        run_spec(src.spec, the_robot).check_robot(the_robot)
     except SpecError as exc:
         raise ExportError(f"{source}: {exc}") from None
 

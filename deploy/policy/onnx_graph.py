@@ -131,7 +131,7 @@ def check_graph(
         out = named[0]
     for kind, vi, size, what in (
         ("input", inp, spec.obs_dim, "observation"),
-        ("output", out, spec.act_dim, "action"),
+        ("output", out, spec.action.outputs, "action"),
     ):
         _check_float32(path, kind, vi)
         dims = _dims(vi)

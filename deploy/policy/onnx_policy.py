@@ -37,6 +37,7 @@ from deploy.policy.onnx_checks import (
 from deploy.policy.onnx_graph import check_graph
 from deploy.policy.onnx_spec import METADATA_SPEC, resolve_spec
 from deploy.spec.policy_spec import PolicySpec, SpecError
+from deploy.spec.subset import run_spec
 from robots import Robot
 
 
@@ -88,6 +89,9 @@ class OnnxPolicy:
         #: The training stack's own contract the spec was built from (None: ours or --spec).
         self.spec, self.foreign = resolve_spec(path, spec, model, robot, self.metadata)
         try:
+            #: the joints of the policy's own spec (a policy over some of the robot's joints)
+            self.policy_joints = tuple(self.spec.joint_names)
+            self.spec = run_spec(self.spec, robot)  # a policy over part of it: the rest held
             self.spec.check_robot(robot, check_hash=check_hash)
         except SpecError as exc:  # name the spec file the user gave, else the ONNX file
             where = spec if isinstance(spec, str | os.PathLike) else path
@@ -102,8 +106,8 @@ class OnnxPolicy:
         ) = check_graph(model, path, self.spec)
         self.recurrent = bool(self.states)
         joints = self.spec.action.joints
-        #: spec-order action entry i is graph output _to_spec_order[i] (None: the same order)
-        self._to_spec_order = None if not joints else np.argsort(np.asarray(joints))
+        #: graph output i drives spec-order joint _joints[i] (None: the same order)
+        self._joints = None if not joints else np.asarray(joints, dtype=np.intp)
 
         options = ort.SessionOptions()
         options.intra_op_num_threads = 1
@@ -190,7 +194,11 @@ class OnnxPolicy:
         self._obs = np.zeros((batch, self.obs_dim), np.float32)
         self._action = np.zeros((batch, self.act_dim), np.float32)
         # the graph's outputs in its own joint order when it differs (spec action.joints)
-        self._graph_action = self._action if self._to_spec_order is None else self._action.copy()
+        self._graph_action = (
+            self._action
+            if self._joints is None
+            else np.zeros((batch, self.spec.action.outputs), np.float32)
+        )
         self._obs_value = ort.OrtValue.ortvalue_from_numpy(self._obs)
         self._action_value = ort.OrtValue.ortvalue_from_numpy(self._graph_action)
         self._binding.clear_binding_inputs()
@@ -244,12 +252,19 @@ class OnnxPolicy:
             self._bind(obs.shape[0])
         np.copyto(self._obs, obs, casting="same_kind")
         self.session.run_with_iobinding(self._binding)
-        if self._to_spec_order is not None:
-            np.take(self._graph_action, self._to_spec_order, axis=1, out=self._action)
+        if self._joints is not None:  # joints no output drives keep action 0
+            self._action[:, self._joints] = self._graph_action
         if self._state_pairs:
             for state_in, state_out in self._state_pairs:
                 np.copyto(state_in, state_out)
         return self._action
+
+    @property
+    def graph_action(self) -> np.ndarray:
+        """float32 (envs, ``spec.action.outputs``): the last call's action as the graph gave it
+        (its own output order, before the spec's ``action.joints`` scatter it into joint
+        order); the buffer is overwritten by the next call."""
+        return self._graph_action
 
     def reset(self, envs: np.ndarray | None = None) -> None:
         """Set the recurrent state of some envs to its initial value (zeros, or the file's

@@ -119,10 +119,13 @@ class ActionSpec:
         reference: 'absolute' (``offset + scale * a``) or 'current' (position mode only:
             ``q + scale * a``).
         joints: The joint each output of the graph drives, in output order (indices into
-            ``joint_names``, a permutation); empty: output ``i`` drives joint ``i``. The policy
-            (:class:`deploy.policy.onnx_policy.OnnxPolicy`) reorders its output into
+            ``joint_names``, each at most once); empty: output ``i`` drives joint ``i``. The
+            policy (:class:`deploy.policy.onnx_policy.OnnxPolicy`) scatters its output into
             ``joint_names`` order, so ``scale``, ``offset`` and the runtime's ``last_action``
-            are in ``joint_names`` order.
+            are in ``joint_names`` order. Fewer outputs than joints: a policy over part of the
+            robot (:meth:`PolicySpec.on_robot`); a joint no output drives has action 0, its
+            target is its ``offset`` (position mode: held at that pose, as Unitree's deploy
+            code holds the joints its policies do not drive).
     """
 
     mode: str
@@ -132,6 +135,16 @@ class ActionSpec:
     clip: float = 1.0
     reference: str = "absolute"
     joints: tuple[int, ...] = ()
+
+    @property
+    def outputs(self) -> int:
+        """The graph's action outputs: ``len(joints)`` when set, else ``size``."""
+        return len(self.joints) if self.joints else self.size
+
+    @property
+    def driven(self) -> tuple[int, ...]:
+        """The joints some output drives, ascending (every joint when ``joints`` is empty)."""
+        return tuple(sorted(self.joints)) if self.joints else tuple(range(self.size))
 
 
 @dataclass(frozen=True)
@@ -262,8 +275,11 @@ class PolicySpec:
                 raise SpecError(f"{where}: clip must be positive, got {b.clip}")
             if any(j < 0 or j >= n for j in b.joints):
                 raise SpecError(f"{where}: joints {b.joints} out of range for {n} joints")
-            if kind.every_joint and sorted(b.joints) != list(range(n)):
-                raise SpecError(f"{where}: joints must cover every joint once, got {b.joints}")
+            if kind.every_joint and tuple(sorted(b.joints)) != self.action.driven:
+                raise SpecError(
+                    f"{where}: joints must cover every joint the action drives once "
+                    f"({list(self.action.driven)}), got {list(b.joints)}"
+                )
             # per-foot kinds: the robot's feet (check_robot)
             expected = b.size if kind.per_foot else kind.block_size(len(b.joints))
             if b.components:
@@ -285,9 +301,11 @@ class PolicySpec:
             a.reference == "current" and a.mode != "position"
         ):
             raise SpecError(f"action.reference: '{a.reference}' is not valid for mode '{a.mode}'")
-        if a.joints and sorted(a.joints) != list(range(n)):
+        if a.joints and (
+            len(set(a.joints)) != len(a.joints) or not all(0 <= j < n for j in a.joints)
+        ):
             raise SpecError(
-                f"action.joints: {list(a.joints)} must be a permutation of the {n} joint indices"
+                f"action.joints: {list(a.joints)} must be distinct joint indices in 0..{n - 1}"
             )
         if not self.control_rate > 0:
             raise SpecError(f"control_rate: must be positive, got {self.control_rate}")
@@ -297,6 +315,18 @@ class PolicySpec:
         for name, value in self.constant_inputs.items():
             if not np.isfinite(value):
                 raise SpecError(f"constant_inputs['{name}']: must be finite, got {value}")
+
+    def on_robot(self, robot: Robot) -> PolicySpec:
+        """This spec over every joint of ``robot`` (:func:`deploy.spec.subset.widen`): itself
+        when it names the robot's joints; a policy over some of them, widened so that the
+        others are held at home.
+
+        Raises:
+            SpecError: a joint the robot does not have.
+        """
+        from deploy.spec.subset import widen
+
+        return widen(self, robot)
 
     def check_robot(self, robot: Robot, check_hash: bool = True) -> None:
         """Refuse a robot this policy was not made for.
@@ -311,6 +341,12 @@ class PolicySpec:
             raise SpecError(
                 f"joint_names: policy expects {list(self.joint_names)}, "
                 f"the robot has {list(robot.joint_names)}"
+                + (
+                    " (a policy over some of the robot's joints runs through its spec's "
+                    "on_robot(robot), which holds the others)"
+                    if set(self.joint_names) < set(robot.joint_names)
+                    else ""
+                )
             )
         for i, b in enumerate(self.observation_blocks):
             kind = KINDS.get(b.name)

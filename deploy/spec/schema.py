@@ -15,7 +15,8 @@ Shorthands a hand-written spec may use (``PolicySpec.to_json`` always writes the
 - ``size`` left out: derived from the kind (3 for the vector blocks, the joint count for
   ``last_action`` and ``winding_temperature``, ``len(joints)`` for joint blocks, twice that for
   ``joint_position_sincos``; the action: one per joint).
-- ``joints``: indices into ``joint_names`` or joint names; left out: every joint.
+- ``joints``: indices into ``joint_names`` or joint names; left out: every joint (for
+  ``last_action`` and ``winding_temperature``: every joint the action drives).
 - ``robot_hash`` left out or empty: the robot description hash is not checked (a policy trained
   elsewhere never saw our description; robot name, joint order and control rate still are).
 """
@@ -84,7 +85,8 @@ class ObservationBlockDocument(_Doc):
         default=None,
         description=(
             "Joints read, in order (indices into joint_names, or names); default every joint. "
-            "last_action and winding_temperature cover every joint (in any order)."
+            "last_action and winding_temperature cover every joint the action drives (in any "
+            "order)."
         ),
     )
     components: list[int] | None = Field(
@@ -122,8 +124,9 @@ class ActionDocument(_Doc):
         default=None,
         description=(
             "The joint each output of the graph drives, in output order (indices into "
-            "joint_names, or names; a permutation); default: output i drives joint i. scale and "
-            "offset stay in joint_names order."
+            "joint_names, or names; each at most once); default: output i drives joint i. scale "
+            "and offset stay in joint_names order. Fewer outputs than joints: a joint no output "
+            "drives has action 0 (its target is its offset)."
         ),
     )
 
@@ -191,12 +194,16 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
     """
     names = tuple(doc.joint_names)
     n = len(names)
+    driven = tuple(range(n))  # an every-joint block's default: the joints the action drives
+    if doc.action.joints:
+        driven = tuple(sorted(_joint_index(j, names, "action.joints") for j in doc.action.joints))
     blocks = []
     for i, b in enumerate(doc.observation):
         kind = KINDS.get(b.name)  # an unknown kind is refused by PolicySpec.validate
         per_joint = kind.per_joint if kind is not None else 0
         if b.joints is None:
-            joints = tuple(range(n)) if per_joint else ()
+            every = kind is not None and kind.every_joint
+            joints = (driven if every else tuple(range(n))) if per_joint else ()
         else:
             where = f"observation[{i}] ('{b.name}').joints"
             joints = tuple(_joint_index(j, names, where) for j in b.joints)

@@ -6,7 +6,13 @@ Unitree numbers a quadruped's motors by leg, FR, FL, RR, RL, and within a leg hi
 (unitree_sdk2_python ``example/go2/low_level/unitree_legged_const.py``: ``FR_0`` = 0 ... ``RL_2``
 = 11), and its ``foot_force`` by leg in the same order; its descriptions name the joints
 ``<LEG>_<part>_joint`` (go2_description). The slots follow from the names; a joint named
-otherwise is refused (humanoids: write the table by hand).
+otherwise is refused.
+
+A ``unitree_hg`` humanoid (G1, H1-2) numbers its motors in its descriptions' joint order:
+unitree_mujoco's ``unitree_robots/g1/g1_joint_index_dds.md`` lists the G1's 29 motor slots in
+the order of ``g1_29dof.xml``'s joints (legs, waist, arms); its ``LowState`` carries no
+``foot_force``, so no foot slots are written. The slots are then the joint order, and the note
+in the table says where they came from.
 """
 
 from __future__ import annotations
@@ -73,16 +79,28 @@ def unitree_lines(
     ):
         if value is not None and (value < 0 or (positive and value == 0)):
             raise RobotImportError(f"{flag}: expected a gain >= 0 (kp > 0), got {value}")
-    slots = [motor_slot(j) for j in joint_names]
+    if family == "unitree_hg":
+        slots = list(range(len(joint_names)))
+        how = [
+            "# motor slots in the joint order (unitree_hg humanoids: unitree_mujoco's",
+            "# g1_joint_index_dds.md); their LowState has no foot_force.",
+        ]
+        feet_line = []
+    else:
+        slots = [motor_slot(j) for j in joint_names]
+        how = [
+            "# motor slots in Unitree's leg order FR, FL, RR, RL (hip, thigh, calf: unitree_sdk2's",
+            "# unitree_legged_const), foot_force slots in the same leg order.",
+        ]
+        feet_line = ["foot_index = [" + ", ".join(str(foot_slot(f)) for f in feet) + "]"]
     lines = [
         "",
         "# deploy-run --backend unitree (robot-import --unitree; out of the description hash):",
-        "# motor slots in Unitree's leg order FR, FL, RR, RL (hip, thigh, calf: unitree_sdk2's",
-        "# unitree_legged_const), foot_force slots in the same leg order.",
+        *how,
         "[unitree]",
         f'family = "{family}"',
         "motor_index = [" + ", ".join(map(str, slots)) + "]",
-        "foot_index = [" + ", ".join(str(foot_slot(f)) for f in feet) + "]",
+        *feet_line,
         "motor_mode = 1  # 0x01, servo (FOC) on: unitree_sdk2's low-level examples",
         f"damping_kd = {damping_kd:g}  # N m s/rad with kp 0 (--unitree-damping-kd)",
         "ramp_time = 2.0  # s: unitree_rl_gym deploy_real's move to the default pose",

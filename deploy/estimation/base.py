@@ -527,8 +527,12 @@ class BaseStateEstimator:
 
     def _watch_feet(self, frame: SensorFrame) -> None:
         """Latch ``dead_feet``: a foot whose force reading (finite) has not changed for
-        ``DEAD_FOOT_TIME`` s of the frame's time."""
+        ``DEAD_FOOT_TIME`` s of the frame's time, and at once a foot with no force reading in a
+        fresh contact frame (a robot without foot sensors: the G1 and H1-2's ``unitree_hg``
+        LowState carries none)."""
         force = frame.foot_force
+        with np.errstate(invalid="ignore"):
+            self.dead_feet |= np.isnan(force) & np.isfinite(frame.contact_stamp)[:, None]
         with np.errstate(invalid="ignore"):
             changed = np.isfinite(force) & (force != self._force_last)
         now = np.broadcast_to(frame.time[:, None], force.shape)

@@ -407,7 +407,10 @@ class UnitreeBackend(BackendLifecycle):
                 force = m["foot_force"][self.feet] * self.config.foot_force_scale
                 f.foot_force[0] = force
                 f.foot_contact[0] = force > self.contact_threshold
-                f.contact_stamp[0] = now
+            else:  # no foot sensors (unitree_hg): the estimator's contact is the kinematics'
+                f.foot_force[0] = np.nan
+                f.foot_contact[0] = False
+            f.contact_stamp[0] = now
 
     def write(self, command: np.ndarray) -> None:
         """One LowCmd: position targets (rad) with the joints' kp/kd, or torques (N m), or

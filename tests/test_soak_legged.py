@@ -196,6 +196,13 @@ def test_a_short_go2_soak_reports_falls_tracking_and_distance(policy, tmp_path, 
     assert all(e["kind"] != "cable" for e in s["faults"]["events"])
     assert "falls" in s["checks"] and "falls" in report["checks"]
     assert report["totals"]["locomotion"]["falls"] == loco["falls"]
+    # the base estimate against the plant's truth, per session and in the totals
+    est = s["base_estimate"]
+    assert est["ticks"] > 0.9 * loco["running_s"] / 0.02  # every RUNNING tick (50 Hz)
+    assert est["attitude_error_deg"]["mean"] < 2.0 and est["velocity_rms_m_s"] < 0.2, est
+    assert abs(est["vertical_velocity_m_s"]["bias"]) < 0.1, est
+    assert report["totals"]["base_estimate"]["ticks"] == est["ticks"]
+    assert "base estimate vs truth" in text
     assert "locomotion   falls" in text
     assert "Locomotion" in (out / "report.html").read_text()
 

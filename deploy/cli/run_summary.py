@@ -66,7 +66,9 @@ def print_summary(r: dict) -> None:
             f"p95 {att['p95']:.2f}; forward speed {est['forward_speed_m_s']['estimated']:.3f} "
             f"against {est['forward_speed_m_s']['true']:.3f} m/s ("
             + (f"bias {100 * bias:+.1f} %" if bias is not None else "bias n/a")
-            + f"), planar RMS {est['velocity_rms_m_s']:.3f} m/s"
+            + f"), planar RMS {est['velocity_rms_m_s']:.3f} m/s; vertical bias "
+            f"{est['vertical_velocity_m_s']['bias']:+.3f} m/s, RMS "
+            f"{est['vertical_velocity_m_s']['rms']:.3f}"
         )
     v = r["violations"]
     if v is not None:

@@ -21,6 +21,7 @@ import numpy as np
 
 from deploy.estimation.base import BaseState
 from deploy.estimation.fall import FALL_TILT
+from deploy.stateful import check, put, take
 
 #: Fraction of ``[base] standing_height`` under which the true base has fallen (our choice: a
 #: walking humanoid's base stays above 0.9 of it, a Go2's trot at 0.57; lying, below 0.3).
@@ -31,15 +32,20 @@ BINS = 9000
 
 
 class EstimationMonitor:
-    """Estimation error and true falls of ``envs`` floating-base robots in simulation.
+    """Estimation error and true falls of ``envs`` floating-base robots in simulation, per env.
 
     Args:
         robot: A floating-base robot (``standing_height``, ``safety.fall_tilt``).
         envs: Batch size.
 
     Attributes:
-        ticks: int, RUNNING env-ticks measured.
+        ticks: int, RUNNING env-ticks measured (all envs).
         true_falls: (envs,) int64, falls of the true base (module docstring).
+        counts: (envs, BINS + 1) int64, the attitude errors' histogram (``BIN_DEG`` wide bins,
+            the last one everything past 90 deg).
+        sums: (envs, 7) float64, per env: attitude error (deg), estimated and true forward
+            speed (m/s), planar squared error (m^2/s^2), ticks, vertical error (m/s) and its
+            square, each summed over RUNNING ticks.
     """
 
     def __init__(self, robot, envs: int):
@@ -47,12 +53,37 @@ class EstimationMonitor:
         self.fall_height = TRUE_FALL_HEIGHT * float(robot.config.base.standing_height)
         tilt = robot.config.safety.fall_tilt
         self.fall_tilt = float(FALL_TILT if tilt is None else tilt)
-        self.counts = np.zeros(BINS + 1, dtype=np.int64)
-        self.ticks = 0
-        self._sum = np.zeros(5)  # attitude deg, est vx, true vx, planar sq err, n
+        self.counts = np.zeros((envs, BINS + 1), dtype=np.int64)
+        self.sums = np.zeros((envs, 7))
         self.true_falls = np.zeros(envs, dtype=np.int64)
         self._down = np.zeros(envs, dtype=bool)
         self._truth = BaseState.zeros(envs)  # filled from the plant's truth every update
+
+    @property
+    def ticks(self) -> int:
+        return int(self.sums[:, 4].sum())
+
+    def _fields(self) -> dict[str, np.ndarray]:
+        return {
+            "counts": self.counts,
+            "sums": self.sums,
+            "true_falls": self.true_falls,
+            "down": self._down,
+        }
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """``counts``, ``sums``, ``true_falls`` and ``down`` (the true base down since its last
+        RUNNING tick), copies (conventions of :mod:`deploy.stateful`)."""
+        return take(self._fields(), env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict`.
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        check(self._fields(), state, env)
+        put(self._fields(), state, env)
 
     def update(self, runtime, truth: np.ndarray) -> None:
         """After a tick: ``truth`` (envs, 13), the plant's ``true_base_state()``."""
@@ -65,39 +96,52 @@ class EstimationMonitor:
         self._down = down | (self._down & ~running)
         if not running.any():
             return
+        envs = np.flatnonzero(running)
         base = runtime.state.base
-        g_est = base.projected_gravity[running]
+        g_est = base.projected_gravity[envs]
         g_est = g_est / np.linalg.norm(g_est, axis=1, keepdims=True)
-        cos = np.clip((g_est * g_true[running]).sum(axis=1), -1.0, 1.0)
+        cos = np.clip((g_est * g_true[envs]).sum(axis=1), -1.0, 1.0)
         deg = np.degrees(np.arccos(cos))
-        np.add.at(self.counts, np.minimum((deg / BIN_DEG).astype(np.int64), BINS), 1)
-        v_est = base.linear_velocity[running]
-        err = v_est[:, :2] - v_true[running, :2]
-        self._sum += [
-            deg.sum(),
-            v_est[:, 0].sum(),
-            v_true[running, 0].sum(),
-            (err**2).sum(),
-            len(deg),
-        ]
-        self.ticks += int(running.sum())
+        np.add.at(self.counts, (envs, np.minimum((deg / BIN_DEG).astype(np.int64), BINS)), 1)
+        v_est = base.linear_velocity[envs]
+        err = v_est[:, :2] - v_true[envs, :2]
+        vertical = base.linear_velocity_world[envs, 2] - true_base.linear_velocity_world[envs, 2]
+        self.sums[envs] += np.stack(
+            [
+                deg,
+                v_est[:, 0],
+                v_true[envs, 0],
+                (err**2).sum(axis=1),
+                np.ones(len(envs)),
+                vertical,
+                vertical**2,
+            ],
+            axis=1,
+        )
 
-    def summary(self) -> dict | None:
+    def summary(self, env: int | None = None) -> dict | None:
         """``{"ticks", "attitude_error_deg": {"mean", "p95"}, "forward_speed_m_s": {"estimated",
-        "true"}, "velocity_bias_fraction", "velocity_rms_m_s", "true_falls"}``; None before any
-        RUNNING tick (the figures are then unknown, not zero). The bias is None when the true
-        mean forward speed is under 0.05 m/s (a fraction of standing still means nothing)."""
-        if self.ticks == 0:
+        "true"}, "velocity_bias_fraction", "velocity_rms_m_s", "vertical_velocity_m_s": {"bias",
+        "rms"}, "true_falls"}`` over every env, or env ``env``; None before any RUNNING tick (the
+        figures are then unknown, not zero). The bias is None when the true mean forward speed
+        is under 0.05 m/s (a fraction of standing still means nothing)."""
+        sel = slice(None) if env is None else slice(env, env + 1)
+        total = self.sums[sel].sum(axis=0)
+        n = total[4]
+        if n == 0:
             return None
-        n = self._sum[4]
-        cum = np.cumsum(self.counts)
+        cum = np.cumsum(self.counts[sel].sum(axis=0))
         p95 = (np.searchsorted(cum, 0.95 * cum[-1]) + 0.5) * BIN_DEG
-        est, true = self._sum[1] / n, self._sum[2] / n
+        est, true = total[1] / n, total[2] / n
         return {
-            "ticks": self.ticks,
-            "attitude_error_deg": {"mean": self._sum[0] / n, "p95": float(p95)},
+            "ticks": int(n),
+            "attitude_error_deg": {"mean": total[0] / n, "p95": float(p95)},
             "forward_speed_m_s": {"estimated": est, "true": true},
             "velocity_bias_fraction": (est / true - 1.0) if abs(true) >= 0.05 else None,
-            "velocity_rms_m_s": float(np.sqrt(self._sum[3] / n)),
-            "true_falls": int(self.true_falls.sum()),
+            "velocity_rms_m_s": float(np.sqrt(total[3] / n)),
+            "vertical_velocity_m_s": {
+                "bias": total[5] / n,
+                "rms": float(np.sqrt(total[6] / n)),
+            },
+            "true_falls": int(self.true_falls[sel].sum()),
         }

@@ -45,6 +45,14 @@ def summary_text(report: dict) -> str:
         lw = loco["min_window_success_rate"]
         if lw is not None:
             lines.append(f"  windows      lowest tracking success in a window {100 * lw:.1f} %")
+    est = t.get("base_estimate")
+    if est is not None:
+        att, vz = est["attitude_error_deg"], est["vertical_velocity_m_s"]
+        lines.append(
+            f"  base estimate vs truth  attitude error mean {att['mean']:.2f} deg (worst session "
+            f"p95 {att['worst_session_p95']:.2f}); planar RMS {est['velocity_rms_m_s']:.3f} m/s; "
+            f"vertical bias {vz['bias']:+.3f} m/s, RMS {vz['rms']:.3f}"
+        )
     v = ", ".join(f"{k} {n}" for k, n in t["violations"]["total"].items())
     lines.append(f"  violations   (true state, ticks) {v}")
     down = t["violations"].get("while_down", {})

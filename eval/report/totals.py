@@ -141,6 +141,7 @@ def totals(results: list[dict]) -> dict:
             "missed_dropped": sum(r["goals"]["missed_dropped"] for r in arms),
         },
         "locomotion": _locomotion_totals(results),
+        "base_estimate": _base_estimate_totals(results),
         "faults": {
             "injected": sum(r["faults"]["injected"] for r in results),
             "survived": sum(r["faults"]["survived"] for r in results),
@@ -161,6 +162,32 @@ def totals(results: list[dict]) -> dict:
         },
         "diverged": [r["id"] for r in results if r["diverged"]],
         "tick_cost_us": _histogram_summary(list(bins), list(bins.values())),
+    }
+
+
+def _base_estimate_totals(results: list[dict]) -> dict | None:
+    """The sessions' base estimate against the truth (``base_estimate``), RUNNING-tick weighted:
+    the attitude error's mean, the planar RMS, the vertical bias and RMS; the worst session's
+    attitude p95. None without a legged session that ran."""
+    rows = [r["base_estimate"] for r in results if r.get("base_estimate")]
+    if not rows:
+        return None
+    n = sum(x["ticks"] for x in rows)
+
+    def mean(f) -> float:
+        return sum(f(x) * x["ticks"] for x in rows) / n
+
+    return {
+        "ticks": n,
+        "attitude_error_deg": {
+            "mean": mean(lambda x: x["attitude_error_deg"]["mean"]),
+            "worst_session_p95": max(x["attitude_error_deg"]["p95"] for x in rows),
+        },
+        "velocity_rms_m_s": mean(lambda x: x["velocity_rms_m_s"] ** 2) ** 0.5,
+        "vertical_velocity_m_s": {
+            "bias": mean(lambda x: x["vertical_velocity_m_s"]["bias"]),
+            "rms": mean(lambda x: x["vertical_velocity_m_s"]["rms"] ** 2) ** 0.5,
+        },
     }
 
 

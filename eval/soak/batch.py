@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from deploy.monitors.estimation import EstimationMonitor
 from deploy.monitors.interventions import InterventionMonitor
 from deploy.monitors.kernel import temperature_bands
 from deploy.monitors.violations import ViolationMonitor
@@ -209,6 +210,8 @@ class SessionBatch:
         # what the plant really did (true state) and what the guard and smoother changed
         self.violations = ViolationMonitor(robot, k)
         self.interventions = InterventionMonitor(self.rt.guard, self.rt.smoother)
+        #: a legged robot's base estimate against the plant's truth (None for an arm)
+        self.estimation = EstimationMonitor(robot, k) if self.kind.legged else None
         #: goals (an arm) or velocity commands (a legged robot), one stream per session
         self.task = task_for(
             robot,
@@ -311,6 +314,8 @@ class SessionBatch:
             rt.smoother.recalculate()
         self.violations.update(self.backend, down=rt.damping if self.kind.legged else None)
         self.interventions.update()  # before the goals: a goal's last tick counts for it
+        if self.estimation is not None:
+            self.estimation.update(rt, self.backend.true_base_state())
         self.task(rt)
         if self.pushes is not None:
             self.pushes(rt, self.backend)

@@ -52,7 +52,8 @@ FORMAT = "soak-checkpoint"
 #: check's sinking count, the plant's IMU attitude and drive velocity readings; a version 7
 #: checkpoint has the complementary filter's state.
 #: 9: the base filter's accelerometer bias (``base_estimator/accel_bias``, a 12-state
-#: covariance); a version 8 checkpoint has neither.
+#: covariance) and the soak's base-estimate figures (``estimation/...``); a version 8
+#: checkpoint has neither.
 VERSION = 9
 MANIFEST = "checkpoint.json"
 

@@ -203,6 +203,7 @@ def session_result(session: Session) -> dict:
             "final_mode": Mode(int(rt.mode[e])).name,
             "final_cause": FAULT_CAUSES[rt.cause[e]] if rt.cause[e] >= 0 else None,
         },
+        "base_estimate": b.estimation.summary(e) if b.estimation is not None else None,
         "estimator": {
             "missing_readings": int(est.missing_per_joint[e].sum()),
             "stale_readings": int(est.stale_per_joint[e].sum()),

@@ -325,6 +325,8 @@ class Session:
         state.update(prefixed("stats", b.stats.state_dict(e)))
         state.update(prefixed("violations", b.violations.state_dict(e)))
         state.update(prefixed("interventions", b.interventions.state_dict(e)))
+        if b.estimation is not None:
+            state.update(prefixed("estimation", b.estimation.state_dict(e)))
         if self.fault_armed:
             state.update(prefixed("injector", b.faults.armed[e].state_dict()))
         meta = {
@@ -389,6 +391,8 @@ class Session:
         ckpt.load_stage(b.stats, arrays, e, where, "stats")
         ckpt.load_stage(b.violations, arrays, e, where, "violations")
         ckpt.load_stage(b.interventions, arrays, e, where, "interventions")
+        if b.estimation is not None:
+            ckpt.load_stage(b.estimation, arrays, e, where, "estimation")
         s = meta["session"]
         self.fault_index = int(s["fault_index"])
         self.fault_armed = bool(s["fault_armed"])

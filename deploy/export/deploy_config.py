@@ -25,16 +25,8 @@ robot folder's (robot-import keeps the description's): entry ``i`` is ``robot.jo
 robot's PD gains and home pose are compared with ``kps``, ``kds``, ``default_angles``
 (:func:`robots.pd_gains.gain_differences`).
 
-The hardware config of the same stack (``deploy/deploy_real/configs/<robot>.yaml``, read by
-``deploy_real.py``) is read too. It gives the rate as ``control_dt`` (s) instead of
-``simulation_dt`` and ``control_decimation``, and says which motor each policy joint drives:
-``leg_joint2motor_idx`` (entry ``i``: the motor slot of policy joint ``i``). The robot joint of a
-slot is the one whose ``robot.toml`` ``[unitree] motor_index`` is that slot, or, without one,
-``robot.joint_names[slot]``. A robot with more joints than the policy drives (the 29-joint G1
-under unitree_rl_gym's 12-joint policy) runs it with the others held
-(:mod:`deploy.spec.subset`); ``deploy_real.py`` holds them at ``arm_waist_target`` with
-``arm_waist_kps`` / ``arm_waist_kds`` (slots ``arm_waist_joint2motor_idx``), which are compared
-with the robot's home, kp and kd like the policy joints' values.
+The stack's hardware configs (``deploy/deploy_real/configs``) are read too: :func:`policy_joints`
+and :func:`robot_drive`.
 """
 
 from __future__ import annotations
@@ -255,7 +247,16 @@ def _joint_of_slot(config: DeployConfig, robot: Robot, slot: int, field: str) ->
 
 
 def policy_joints(config: DeployConfig, robot: Robot) -> list[int]:
-    """The robot joint (index) of each policy joint, in the policy's order."""
+    """The robot joint (index) of each policy joint, in the policy's order.
+
+    A hardware config (``deploy/deploy_real/configs/<robot>.yaml``, read by ``deploy_real.py``)
+    gives the rate as ``control_dt`` (s) instead of ``simulation_dt`` and
+    ``control_decimation``, and the motor slot of policy joint ``i`` as
+    ``leg_joint2motor_idx[i]``: the robot joint whose ``robot.toml`` ``[unitree] motor_index``
+    is that slot, or, without one, ``robot.joint_names[slot]``. Without it, joint ``i`` is the
+    robot's joint ``i``. A robot with more joints than the policy drives (the 29-joint G1 under
+    unitree_rl_gym's 12-joint policy) runs it with the others held (:mod:`deploy.spec.subset`).
+    """
     if config.motor_index is None:
         return list(range(config.num_actions))
     return [_joint_of_slot(config, robot, s, "leg_joint2motor_idx") for s in config.motor_index]
@@ -263,8 +264,10 @@ def policy_joints(config: DeployConfig, robot: Robot) -> list[int]:
 
 def robot_drive(config: DeployConfig, robot: Robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(kp, kd, home)`` over every joint of ``robot`` as the config's deploy code drives it:
-    its ``kps``, ``kds``, ``default_angles`` on the policy's joints, ``arm_waist_*`` on the held
-    ones, the robot's own values on any other."""
+    its ``kps``, ``kds``, ``default_angles`` on the policy's joints; on the joints it holds,
+    ``deploy_real.py``'s ``arm_waist_kps``, ``arm_waist_kds``, ``arm_waist_target`` (slots
+    ``arm_waist_joint2motor_idx``); the robot's own values on any other. Compared with (or
+    written into) the robot's kp, kd and home by :func:`spec_and_robot`."""
     kp = np.array([j.kp for j in robot.config.joints], dtype=np.float64)
     kd = np.array([j.kd for j in robot.config.joints], dtype=np.float64)
     home = np.array(robot.home, dtype=np.float64)

@@ -61,6 +61,7 @@ class StopReplay:
         self.seen = [len(log) for log in self.tracker.fall_log]
         self.captures: dict[int, tuple[dict, dict]] = {}
         self.copies: dict[int, object] = {}
+        self._folders: dict[int, tempfile.TemporaryDirectory] = {}
         self.replays = 0
 
     def __call__(self, rt) -> None:
@@ -113,9 +114,11 @@ class StopReplay:
         if e not in self.copies:
             from eval.soak.batch import SessionBatch
 
+            # the copy writes nothing there; the folder goes with this object (its finalizer)
+            folder = self._folders.setdefault(e, tempfile.TemporaryDirectory(prefix="stop-replay-"))
             self.copies[e] = SessionBatch(
                 [self.batch.configs[e]],
-                tempfile.mkdtemp(prefix="stop-replay-"),
+                folder.name,
                 progress=False,
                 replay_stops=False,
             )

@@ -19,8 +19,6 @@ from deploy.state import RobotState
 from robots import RobotSpecError, load_robot
 from robots.loading import ROBOTS_DIR
 
-pytest.importorskip("ahrs")
-
 #: Gains that hold go2 standing without a policy: Unitree's unitree_sdk2
 #: example/go2/go2_stand_example.cpp (kp 60, kd 5). The robot's own kp 20 / kd 0.5 (the walking
 #: policy's, unitree_rl_gym) lets it sit down on its rear thighs when nothing corrects it.

@@ -27,7 +27,6 @@ from deploy.cli import deploy_run as cli
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Mode, Runtime
 
-pytest.importorskip("ahrs")
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:FutureWarning")
 
 COMMAND = (0.3, 0.0, 0.0)

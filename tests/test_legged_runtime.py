@@ -18,8 +18,6 @@ from deploy.runtime.reference import ReferenceRuntime
 from deploy.spec.policy_spec import LEGGED_DEFAULT_BLOCKS, PolicySpec, SpecError
 from robots import load_robot
 
-pytest.importorskip("ahrs")
-
 REPO = Path(__file__).resolve().parents[1]
 
 

@@ -7,7 +7,6 @@ import pytest
 import torch
 
 pytest.importorskip("stable_baselines3")
-pytest.importorskip("ahrs")
 
 from deploy.policy.mlp_checkpoint import read_checkpoint  # noqa: E402
 from deploy.policy.onnx_policy import OnnxPolicy  # noqa: E402

@@ -152,7 +152,6 @@ def test_faults_off_draw_no_schedule_and_leave_the_other_draws_alone(arm3):
 # ---------------------------------------------------------------------------- legged
 @pytest.fixture(scope="module")
 def go2_spec():
-    pytest.importorskip("ahrs")
     from policies.gait import make_policy
 
     return make_policy("go2")[1]

@@ -25,7 +25,6 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 pytest.importorskip("cyclonedds", reason="pip install '.[unitree]'")
-pytest.importorskip("ahrs", reason="pip install '.[legged]'")
 
 from deploy.backends.unitree import unitree_go  # noqa: E402
 from deploy.backends.unitree.backend import UnitreeBackend  # noqa: E402

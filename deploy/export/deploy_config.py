@@ -153,12 +153,13 @@ def _slots(path: Path, raw: dict, field: str, size: int | None = None) -> tuple[
     return tuple(value)
 
 
-def _rate(path: Path, raw: dict) -> tuple[float, int]:
-    """``(simulation_dt, control_decimation)``; a deploy_real config's ``control_dt`` is one
-    step of one physics step each."""
+def _rate(path: Path, raw: dict) -> tuple[float, int, float | None]:
+    """``(simulation_dt, control_decimation, control_dt)``; a deploy_real config's
+    ``control_dt`` is one step of one physics step each, else ``control_dt`` is None."""
     if "simulation_dt" not in raw and "control_decimation" not in raw and "control_dt" in raw:
-        return _positive(path, raw, "control_dt"), 1
-    return _positive(path, raw, "simulation_dt"), _integer(path, raw, "control_decimation")
+        dt = _positive(path, raw, "control_dt")
+        return dt, 1, dt
+    return _positive(path, raw, "simulation_dt"), _integer(path, raw, "control_decimation"), None
 
 
 def read_config(path: str | Path) -> DeployConfig:
@@ -209,7 +210,7 @@ def read_config(path: str | Path) -> DeployConfig:
             _numbers(path, raw, "arm_waist_kds", k),
             _numbers(path, raw, "arm_waist_target", k),
         )
-    simulation_dt, decimation = _rate(path, raw)
+    simulation_dt, decimation, control_dt = _rate(path, raw)
     return DeployConfig(
         path=path,
         kps=lists["kps"],
@@ -222,7 +223,7 @@ def read_config(path: str | Path) -> DeployConfig:
         num_obs=num_obs,
         control_decimation=decimation,
         cmd_init=None if cmd_init is None else _numbers(path, raw, "cmd_init", 3),
-        control_dt=simulation_dt if "control_dt" in raw and decimation == 1 else None,
+        control_dt=control_dt,
         motor_index=motor_index,
         held=held,
     )

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from deploy.estimation.attitude import tilt_of
 from deploy.estimation.base import BaseState
 from deploy.estimation.fall import FALL_TILT
 from deploy.stateful import check, put, take
@@ -90,8 +91,7 @@ class EstimationMonitor:
         true_base = self._truth.set_truth(truth)
         g_true, v_true = true_base.projected_gravity, true_base.linear_velocity
         running = runtime.mode == 2  # RUNNING
-        tilt = np.arccos(np.clip(-g_true[:, 2], -1.0, 1.0))
-        down = (truth[:, 2] < self.fall_height) | (tilt > self.fall_tilt)
+        down = (truth[:, 2] < self.fall_height) | (tilt_of(g_true) > self.fall_tilt)
         self.true_falls += down & ~self._down & running
         self._down = down | (self._down & ~running)
         if not running.any():

@@ -194,16 +194,25 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
     """
     names = tuple(doc.joint_names)
     n = len(names)
-    driven = tuple(range(n))  # an every-joint block's default: the joints the action drives
-    if doc.action.joints:
-        driven = tuple(sorted(_joint_index(j, names, "action.joints") for j in doc.action.joints))
+    a = doc.action
+    size = n if a.size is None else a.size
+    action = ActionSpec(
+        mode=a.mode,
+        size=size,
+        scale=_entries(a.scale, size),
+        offset=_entries(a.offset, size),
+        clip=float(a.clip),
+        reference=a.reference,
+        joints=tuple(_joint_index(j, names, "action.joints") for j in a.joints or ()),
+    )
     blocks = []
     for i, b in enumerate(doc.observation):
         kind = KINDS.get(b.name)  # an unknown kind is refused by PolicySpec.validate
         per_joint = kind.per_joint if kind is not None else 0
         if b.joints is None:
             every = kind is not None and kind.every_joint
-            joints = (driven if every else tuple(range(n))) if per_joint else ()
+            # an every-joint block's default: the joints the action drives
+            joints = (action.driven if every else tuple(range(n))) if per_joint else ()
         else:
             where = f"observation[{i}] ('{b.name}').joints"
             joints = tuple(_joint_index(j, names, where) for j in b.joints)
@@ -227,22 +236,12 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
             )
         )
 
-    a = doc.action
-    size = n if a.size is None else a.size
     return PolicySpec(
         robot=doc.robot,
         joint_names=names,
         robot_hash=doc.robot_hash,
         observation_blocks=tuple(blocks),
-        action=ActionSpec(
-            mode=a.mode,
-            size=size,
-            scale=_entries(a.scale, size),
-            offset=_entries(a.offset, size),
-            clip=float(a.clip),
-            reference=a.reference,
-            joints=tuple(_joint_index(j, names, "action.joints") for j in a.joints or ()),
-        ),
+        action=action,
         control_rate=float(doc.control_rate),
         baked=dict(doc.baked),
         parity=dict(doc.parity),

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deploy.estimation.attitude import quaternion_to_matrix, tilt_of
+from deploy.estimation.attitude import tilt_of
 from deploy.estimation.base import BaseState
 from deploy.stateful import (
     StateDictError,
@@ -216,6 +216,7 @@ class CommandTracker:
         self.truth = getattr(backend, "true_base_state", None)
         #: the true base (simulation): a BaseState filled from ``truth`` every tick
         self._true_base = BaseState.zeros(envs) if self.truth is not None else None
+        self._true_state = None  # (envs, 13) the truth of this tick (simulation)
         self.distance = np.zeros(envs)
         self.forward = np.zeros(envs)
         self.running_time = np.zeros(envs)
@@ -360,16 +361,16 @@ class CommandTracker:
         from deploy.runtime import RUNNING, SAFE_STOP
 
         running = runtime.mode == RUNNING
+        velocity = self._planar_velocity(runtime)  # (envs, 2) m/s, base frame; the truth's too
         down = self._up & (runtime.mode >= SAFE_STOP)  # any stop lays it down (FAULTED too)
         if down.any():
             self.falls += down
             for e in np.flatnonzero(down):
                 if runtime.cause[e] >= 0:
                     self.falls_by_cause[e, runtime.cause[e]] += 1
-                self.fall_log[e].append(self._fall(runtime, e, self._truth_now()))
+                self.fall_log[e].append(self._fall(runtime, e))
         self._up &= ~down
         self._up |= running
-        velocity = self._planar_velocity(runtime)  # (envs, 2) m/s, base frame
         step = velocity * self.dt
         self.distance += np.where(running, np.linalg.norm(step, axis=1), 0.0)
         self.forward += np.where(running, step[:, 0], 0.0)
@@ -398,16 +399,12 @@ class CommandTracker:
             self.height_sum += np.where(known, detector.height, 0.0) * self.dt
             self.height_time += known * self.dt
 
-    def _truth_now(self) -> np.ndarray | None:
-        """(envs, 13) the simulator's base state (``backend.true_base_state``), None on hardware."""
-        return None if self.truth is None else self.truth()
-
-    @staticmethod
-    def _fall(runtime, e: int, truth: np.ndarray | None = None) -> dict:
+    def _fall(self, runtime, e: int) -> dict:
         """The record of env ``e``'s fall (``fall_log``): with a fall stop, ``signals`` (which
         of the fall check's signals fired, :data:`deploy.estimation.fall.SIGNALS`); in
-        simulation, the true base at the stop: ``true_height_m`` (the base origin's height
-        above the world's origin) and ``true_tilt_deg``, beside the estimate's ``tilt_deg``."""
+        simulation, the true base at the stop (this tick's, filled by :meth:`_planar_velocity`):
+        ``true_height_m`` (the base origin's height above the world's origin) and
+        ``true_tilt_deg``, beside the estimate's ``tilt_deg``."""
         from deploy.estimation.fall import SIGNALS
         from deploy.runtime.modes import FAULT_CAUSES
 
@@ -416,12 +413,10 @@ class CommandTracker:
         detector = getattr(runtime, "fall_detector", None)
         if out["cause"] == "fall" and detector is not None:
             out["signals"] = [s for s, on in zip(SIGNALS, detector.signals[e], strict=True) if on]
-        base = runtime.state.base
-        out["tilt_deg"] = float(np.degrees(tilt_of(base.projected_gravity[e : e + 1])[0]))
-        if truth is not None:
-            up = quaternion_to_matrix(truth[e : e + 1, 3:7])[0, 2, 2]
-            out["true_height_m"] = float(truth[e, 2])
-            out["true_tilt_deg"] = float(np.degrees(np.arccos(np.clip(up, -1.0, 1.0))))
+        out["tilt_deg"] = float(np.degrees(tilt_of(runtime.state.base.projected_gravity[e])))
+        if self.truth is not None:
+            out["true_height_m"] = float(self._true_state[e, 2])
+            out["true_tilt_deg"] = float(np.degrees(tilt_of(self._true_base.projected_gravity[e])))
         if out["cause"] == "hard_limit":
             robot, q = runtime.robot, runtime.state.q[e]
             past = np.maximum(robot.position_lower - q, q - robot.position_upper)
@@ -439,7 +434,8 @@ class CommandTracker:
     def _planar_velocity(self, runtime) -> np.ndarray:
         if self.truth is None:
             return runtime.state.base.linear_velocity[:, :2].copy()
-        return self._true_base.set_truth(self.truth()).linear_velocity[:, :2].copy()
+        self._true_state = self.truth()  # (envs, 13) this tick's, for a fall's record too
+        return self._true_base.set_truth(self._true_state).linear_velocity[:, :2].copy()
 
     def summary(self, runtime) -> dict:
         """The report's ``locomotion`` entry (sums over the envs; speeds per RUNNING second)."""

@@ -83,3 +83,43 @@ def test_training_tasks_are_episodic_on_the_trainer_clock(arm3, go2):
     rt = _Runtime(2)
     commands.reset(rt, np.array([True, False]))
     assert rt.velocity_command[1].tolist() == [0.0, 0.0, 0.0]
+
+
+def test_a_straight_command_holds_the_heading_it_began_with():
+    """legged_gym's heading command: while RUNNING with a zero yaw rate asked, the policy is
+    given ``gain * wrap(reference - yaw)`` clipped to 1 rad/s, the reference taken when the hold
+    began; a yaw rate asked passes unchanged; a stop lets go, so the next walk holds its own
+    heading. The state round-trips."""
+    from deploy.estimation.base import BaseState
+    from deploy.tasks.heading import HeadingHold
+
+    def turned(yaw):  # base-to-world quaternions of yaw angles
+        return np.stack([np.cos(np.asarray(yaw) / 2), 0 * yaw, 0 * yaw, np.sin(yaw / 2)], 1)
+
+    class Rt:
+        mode = np.array([2, 2, 2])  # RUNNING
+        state = type("S", (), {"base": BaseState.zeros(3)})()
+        velocity_command = np.zeros((3, 3))
+
+    rt, hold = Rt(), HeadingHold(3, gain=0.5)
+    asked = np.array([[0.5, 0, 0], [0.5, 0, 0], [0.5, 0, 0.3]])
+    rt.state.base.orientation[:] = turned(np.array([0.1, 3.0, 0.0]))
+    hold(rt, asked)  # the hold begins at these headings
+    np.testing.assert_allclose(rt.velocity_command[:, 2], [0.0, 0.0, 0.3], atol=1e-12)
+    rt.state.base.orientation[:] = turned(np.array([0.0, -3.0, 0.0]))  # env 1 across +-pi
+    hold(rt, asked)
+    np.testing.assert_allclose(rt.velocity_command[:, 2], [0.05, -0.5 * (2 * np.pi - 6.0), 0.3])
+    rt.state.base.orientation[:] = turned(np.array([-3.0, -3.0, 0.0]))
+    hold(rt, asked)
+    assert rt.velocity_command[0, 2] == 1.0  # clipped
+    again = HeadingHold(3, gain=0.5)
+    again.load_state_dict(hold.state_dict())
+    np.testing.assert_allclose(again.reference, [0.1, 3.0, 0.0])
+    rt.mode = np.array([4, 2, 2])  # env 0 stopped: let go
+    hold(rt, asked)
+    assert not hold.holding[0] and rt.velocity_command[0, 2] == 0.0
+    rt.mode = np.array([2, 2, 2])
+    hold(rt, asked)  # walks again: holds the heading it has now
+    assert hold.reference[0] == pytest.approx(-3.0)
+    with pytest.raises(ValueError, match="gain"):
+        HeadingHold(1, gain=0.0)

@@ -388,3 +388,13 @@ def test_walks_on_a_unitree_mujoco_like_bridge_with_the_command_stream(tmp_path,
     forward = trace[-1, 1] - trace[0, 1]
     assert forward > 1.5, trace[-1]  # walking (0.5 m/s for about 6 s after the bring-up)
     assert abs(walk["distance_m"] / true_path - 1) < 0.15, (walk["distance_m"], true_path)
+    # straight: the heading hold (default for a command without a yaw rate) keeps the policy's
+    # own turn (about -4 deg/s, -25 deg over this walk without it) out of the path
+    assert walk["heading_hold_gain"] > 0
+    running = trace[:, 0] >= trace[-1, 0] - report["locomotion"]["running_s"]
+    yaw = np.unwrap(trace[running, 3])
+    assert abs(np.degrees(yaw[-1] - yaw[0])) < 12.0, np.degrees(yaw[-1] - yaw[0])
+    step = trace[-1, 1:3] - trace[running][0, 1:3]
+    c, s = np.cos(yaw[0]), np.sin(yaw[0])
+    along, across = c * step[0] + s * step[1], -s * step[0] + c * step[1]
+    assert abs(across) < 0.2 * along, (along, across)

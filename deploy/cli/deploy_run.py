@@ -218,6 +218,7 @@ def _run_opened(
         command=args.command,
         interventions=interventions,
         schedule=False,
+        heading_gain=args.heading_hold,
     )
     task.reset(rt, np.ones(args.envs, dtype=bool))
     node = None

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from deploy.backends.registry import add_backend_options
 from deploy.runtime.clock import WAIT_MODES
+from deploy.tasks.heading import HEADING_GAIN
 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
@@ -82,6 +83,16 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         "--command",
         default=None,
         help="legged robots: velocity command VX,VY,WZ (m/s, m/s, rad/s, base frame)",
+    )
+    p.add_argument(
+        "--heading-hold",
+        type=float,
+        default=HEADING_GAIN,
+        metavar="GAIN",
+        help="legged robots, a --command whose yaw rate WZ is 0: hold the heading the robot had "
+        "when it began to walk, giving the policy the yaw rate GAIN * heading error (1/s, "
+        "clipped to 1 rad/s; legged_gym's heading command, default %(default)s); 0: give the "
+        "policy the command as it is",
     )
     p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
     p.add_argument("--goal", default=None, help="fixed goal X,Y,Z (m, base frame)")

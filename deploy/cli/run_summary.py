@@ -43,9 +43,17 @@ def print_summary(r: dict) -> None:
         turn, asked = loco["heading_change_deg"], loco["commanded_turn_deg"]
         height = loco.get("base_height_m")
         flag = abs(turn - asked) > HEADING_DRIFT_DEG
+        hold = loco.get("heading_hold_gain")
+        moved = loco.get("displacement_m")
         print(
             f"  heading           turned {turn:+.1f} deg (the commands asked {asked:+.1f})"
             + (" - A TURN THE COMMAND DID NOT ASK FOR" if flag else "")
+            + (f", held at gain {hold:g}/s" if hold else "")
+            + (
+                f"; displaced {moved[0]:+.2f} m along its first heading, {moved[1]:+.2f} across"
+                if moved is not None
+                else ""
+            )
             + (
                 f"; base height {height:.3f} m by its kinematics "
                 f"(standing {loco['standing_height_m']:.3f})"

@@ -69,6 +69,13 @@ def tilt_of(gravity: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(-g[..., 2], -1.0, 1.0))
 
 
+def yaw_of(q: np.ndarray) -> np.ndarray:
+    """Yaw (rad, (-pi, pi]) of the base's x axis about the world's up, (...,), from base-to-world
+    unit quaternions ``[w, x, y, z]`` (..., 4)."""
+    w, x, y, z = np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)
+    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
 def align_up(up: np.ndarray) -> np.ndarray:
     """Base-to-world quaternion (yaw 0) that turns the unit vector ``up`` (base frame) onto the
     world's +z."""

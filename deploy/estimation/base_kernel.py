@@ -25,6 +25,17 @@ The legs make it observable: the velocity they measure does not drift.
 with ``v_foot``, ``omega_foot`` the foot's velocity in the base frame (the base at the origin,
 turning at ``omega``), ``rho`` its contact sphere's radius and ``u`` the world's down in the base
 frame. Updates are Joseph-form, the error folded into the nominal state and zeroed.
+
+Heading is locked: no correction turns the base about the world's up, nor moves the gyro's bias
+along it. The yaw of a base is unobservable from an IMU and leg kinematics (rotating the world
+about gravity changes no measurement; Bloesch et al., "State Estimation for Legged Robots:
+Consistent Fusion of Leg Kinematics and an IMU", RSS 2012), but a linearized filter's gain still
+reaches it through its cross-covariances, and every unmodelled error then turns the heading: the
+Go2 on Unitree's simulator, whose feet report no force (the legs' contacts then come from their
+kinematics), read -23 deg for a true -107 deg turn in 30 s, its yaw-rate bias learnt at 8 deg/s.
+So the gain's rows of ``dtheta``'s world z and of ``b_g`` along the world's up (``R^T e_z``) are
+zeroed (a consider state, Schmidt's Kalman filter; the Joseph form keeps the covariance right for
+any gain): the heading is the gyro's, integrated.
 """
 
 from __future__ import annotations
@@ -79,10 +90,25 @@ def _turn(rotvec, q, left: bool) -> None:
 
 
 @numba.njit(cache=True, nogil=True)
+def lock_heading(K, q) -> None:
+    """Zero, in place, the rows of the gain ``K`` (12, m) that turn the base about the world's
+    up (``dtheta_z``) or move the gyro's bias along it (``b_g . R^T e_z``), ``q`` the base's
+    attitude ``[w, x, y, z]`` (module docstring)."""
+    R = np.empty((3, 3))
+    _quat_to_mat(q, R)
+    for c in range(K.shape[1]):
+        K[2, c] = 0.0
+        along = K[6, c] * R[2, 0] + K[7, c] * R[2, 1] + K[8, c] * R[2, 2]
+        for i in range(3):
+            K[6 + i, c] -= along * R[2, i]
+
+
+@numba.njit(cache=True, nogil=True)
 def _correct(P, y, H, r_var: float, q, v, b, gate: float) -> bool:
     """The error-state update with innovation ``y`` (3,), ``H`` (3, 12), noise ``r_var I``,
-    folded into the nominal state ``q``, ``v``, ``b`` (6,); False (nothing changed) when the
-    innovation's chi-square exceeds ``gate``."""
+    its gain locked in heading (:func:`lock_heading`), folded into the nominal state ``q``,
+    ``v``, ``b`` (6,); False (nothing changed) when the innovation's chi-square exceeds
+    ``gate``."""
     PHt = P @ H.T
     S = H @ PHt
     for i in range(3):
@@ -91,6 +117,7 @@ def _correct(P, y, H, r_var: float, q, v, b, gate: float) -> bool:
         if y @ np.linalg.solve(S, y) > gate:
             return False
     K = np.linalg.solve(S, PHt.T).T
+    lock_heading(K, q)
     ikh = np.eye(N_ERROR) - K @ H
     P2 = ikh @ P @ ikh.T + r_var * (K @ K.T)
     for i in range(N_ERROR):

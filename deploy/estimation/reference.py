@@ -200,8 +200,18 @@ class ReferenceBaseStateEstimator(BaseStateEstimator):
     def _correct(self, e: int, y: np.ndarray, H: np.ndarray, R: np.ndarray) -> np.ndarray:
         kf = self._kfs[e]
         kf.x = np.zeros((N_ERROR, 1))
+        prior = kf.P.copy()
         # filterpy's residual is z - H x: with x = 0 the innovation is z itself
         kf.update(y.reshape(3, 1), R=R, H=H)
+        # its gain locked in heading (base_kernel's module docstring): the Joseph form again
+        K = kf.K.copy()
+        rot = quaternion_to_matrix(self.orientation[e])
+        up = rot[2]  # the world's up in the base frame
+        K[2] = 0.0
+        K[6:9] -= np.outer(up, up @ K[6:9])
+        ikh = np.eye(N_ERROR) - K @ H
+        kf.P = ikh @ prior @ ikh.T + K @ R @ K.T
+        kf.x = K @ y.reshape(3, 1)
         kf.P = 0.5 * (kf.P + kf.P.T)
         self.covariance[e] = kf.P
         dx = kf.x[:, 0].copy()

@@ -205,10 +205,16 @@ class CommandTracker:
         window_running, window_tracked: per env, s RUNNING and tracked per finished window
             (with ``window``).
         heading_change, commanded_turn: (envs,) rad, the base's heading change while RUNNING
-            (the estimate's yaw rate about the world's up; on hardware nothing else knows it)
-            and the turn the commands asked for (their yaw rate, integrated).
+            (the yaw of its x axis, tick to tick: the truth's in simulation, the estimate's on
+            hardware, where nothing else knows it) and the turn the commands asked for (their
+            yaw rate, integrated). last_yaw: (envs,) rad, the heading at the previous tick
+            (NaN when it was not RUNNING).
         height_sum: (envs,) m s, the fall check's kinematic base height integrated while
             RUNNING (its mean: the height the robot walked at, by its own estimate).
+        displacement: (envs, 2) m, the base's planar displacement while RUNNING (its world
+            velocity integrated: the truth's in simulation, else the estimate's odometry),
+            along and across the heading it had when it first ran (``start_yaw``, rad; NaN
+            before). A straight command that ends with a large ``across`` drifted sideways.
     """
 
     def __init__(self, envs: int, control_period: float, backend, window: float | None = None):
@@ -243,6 +249,9 @@ class CommandTracker:
         self.commanded_turn = np.zeros(envs)
         self.height_sum = np.zeros(envs)
         self.height_time = np.zeros(envs)
+        self.displacement = np.zeros((envs, 2))
+        self.start_yaw = np.full(envs, np.nan)
+        self.last_yaw = np.full(envs, np.nan)
         robot = getattr(backend, "robot", None)
         base_cfg = getattr(getattr(robot, "config", None), "base", None)
         #: m, the robot's standing height (robot.toml ``[base]``), for the summary's comparison
@@ -266,6 +275,9 @@ class CommandTracker:
             "commanded_turn": self.commanded_turn,
             "height_sum": self.height_sum,
             "height_time": self.height_time,
+            "displacement": self.displacement,
+            "start_yaw": self.start_yaw,
+            "last_yaw": self.last_yaw,
         }
 
     def state_dict(self, env: int | None = None) -> dict:
@@ -273,8 +285,9 @@ class CommandTracker:
         ``forward`` (m), ``running_time``, ``tracked_time`` (s), ``filled`` (int64),
         ``ring`` and ``command_ring`` (envs, window, 2) m/s (the averaging window's planar
         velocities and commands), ``window_base``
-        (envs, 2) s, ``falls`` (int64), ``falls_by_cause`` (envs, causes) int64, ``up`` (bool);
-        shared:
+        (envs, 2) s, ``falls`` (int64), ``falls_by_cause`` (envs, causes) int64, ``up`` (bool),
+        ``heading_change``, ``commanded_turn`` (rad), ``height_sum`` (m s), ``height_time``
+        (s), ``displacement`` (envs, 2) m, ``start_yaw``, ``last_yaw`` (rad); shared:
         ``window_index`` (int); JSON lists over the envs: ``window_running``,
         ``window_tracked``."""
         out: dict = take(self._fields(), env)
@@ -356,8 +369,10 @@ class CommandTracker:
             if r > 0
         ]
 
-    def __call__(self, runtime) -> None:
-        """Account one tick of ``runtime`` (a floating-base :class:`~deploy.runtime.Runtime`)."""
+    def __call__(self, runtime, asked: np.ndarray | None = None) -> None:
+        """Account one tick of ``runtime`` (a floating-base :class:`~deploy.runtime.Runtime`);
+        ``asked``: (envs, 3) the operator's command when it differs from the one the policy
+        was given (a heading hold's yaw rate), for ``commanded_turn``."""
         from deploy.runtime import RUNNING, SAFE_STOP
 
         running = runtime.mode == RUNNING
@@ -385,14 +400,29 @@ class CommandTracker:
             self._close_windows(runtime.time - self.dt)  # this tick's time counts in its window
         self.running_time += running * self.dt
         self.tracked_time += (running & full & (error <= TRACKING_TOLERANCE)) * self.dt
+        self.last_yaw[~running] = np.nan
         if not running.any():
             return
+        from deploy.estimation.attitude import yaw_of
+
         # the truth's in simulation (the tracker filled it above), else the estimate's
         base = self._true_base if self.truth is not None else runtime.state.base
-        # the yaw rate about the world's up: the angular velocity along -projected gravity
-        yaw_rate = -(base.angular_velocity * base.projected_gravity).sum(axis=1)
-        self.heading_change += np.where(running, yaw_rate * self.dt, 0.0)
-        self.commanded_turn += np.where(running, runtime.velocity_command[:, 2] * self.dt, 0.0)
+        # the heading's change, tick to tick (a trot's roll and pitch swing makes the integral
+        # of the yaw rate about the world's up differ from it by a fifth)
+        yaw = yaw_of(base.orientation)
+        turn = np.angle(np.exp(1j * (yaw - self.last_yaw)))  # wrapped; NaN at a walk's first tick
+        self.heading_change += np.where(running & np.isfinite(turn), turn, 0.0)
+        self.last_yaw[:] = np.where(running, yaw, np.nan)
+        begin = running & np.isnan(self.start_yaw)
+        if begin.any():
+            self.start_yaw[begin] = yaw[begin]
+        heading = np.where(np.isnan(self.start_yaw), 0.0, self.start_yaw)
+        c, s = np.cos(heading), np.sin(heading)
+        vx, vy = base.linear_velocity_world[:, 0], base.linear_velocity_world[:, 1]
+        along, across = c * vx + s * vy, -s * vx + c * vy
+        self.displacement += np.where(running[:, None], np.stack([along, across], 1), 0.0) * self.dt
+        asked = runtime.velocity_command if asked is None else asked
+        self.commanded_turn += np.where(running, asked[:, 2] * self.dt, 0.0)
         detector = getattr(runtime, "fall_detector", None)
         if detector is not None:
             known = running & np.isfinite(detector.height)
@@ -458,6 +488,7 @@ class CommandTracker:
                 else None
             ),
             "standing_height_m": self.standing_height,
+            "displacement_m": self.displacement.sum(axis=0).tolist(),
         }
 
 
@@ -471,19 +502,39 @@ class VelocityTask:
         period: s between scheduled commands.
         rng: ``envs`` generators: a :class:`CommandSchedule` on them; None: no schedule.
         command: Optional fixed command (3,), written at :meth:`reset` (no schedule then).
+        heading_gain: 1/s: with a fixed command whose yaw rate is zero, hold the heading
+            (:class:`deploy.tasks.heading.HeadingHold`, this gain); 0: the command as given.
 
     Attributes:
+        heading: The :class:`~deploy.tasks.heading.HeadingHold` (checkpoint prefix
+            ``heading``) or None.
         schedule: The :class:`CommandSchedule` (checkpoint prefix ``commands``) or None.
         tracker: The :class:`CommandTracker` (checkpoint prefix ``tracker``).
     """
 
     name = "locomotion"
 
-    def __init__(self, envs, control_period, backend, period, rng, command=None, window=None):
+    def __init__(
+        self,
+        envs,
+        control_period,
+        backend,
+        period,
+        rng,
+        command=None,
+        window=None,
+        heading_gain: float = 0.0,
+    ):
         self.command = command
         self.schedule = None
         if command is None and rng is not None:
             self.schedule = CommandSchedule(envs, period, rng)
+        self.heading = None
+        if command is not None and heading_gain > 0 and command[2] == 0.0:
+            from deploy.tasks.heading import HeadingHold
+
+            self.heading = HeadingHold(envs, heading_gain)
+            self._asked = np.tile(command, (envs, 1))
         self.tracker = CommandTracker(envs, control_period, backend, window=window)
 
     def reset(self, runtime, envs: np.ndarray) -> None:
@@ -494,7 +545,11 @@ class VelocityTask:
     def __call__(self, runtime) -> None:
         if self.schedule is not None:
             self.schedule(runtime)
-        self.tracker(runtime)
+        if self.heading is not None:
+            self.tracker(runtime, self._asked)
+            self.heading(runtime, self._asked)
+        else:
+            self.tracker(runtime)
 
     def success(self, env: int | None = None) -> float | None:
         """Tracking success: RUNNING time within tolerance / RUNNING time; None before any."""
@@ -504,7 +559,11 @@ class VelocityTask:
         return tracked / running if running else None
 
     def report(self, runtime) -> dict:
-        return {"goals": None, "locomotion": self.tracker.summary(runtime), "missed_goals": 0}
+        loco = self.tracker.summary(runtime)
+        if self.heading is not None:
+            loco["command"] = self._asked.tolist()
+            loco["heading_hold_gain"] = self.heading.gain
+        return {"goals": None, "locomotion": loco, "missed_goals": 0}
 
     def curve_start(self) -> dict[str, list]:
         curve = {"commands": [0], "falls": [0], "distance_m": [0.0]}
@@ -522,6 +581,8 @@ class VelocityTask:
     def parts(self) -> dict:
         """The task's stateful parts by checkpoint prefix."""
         parts = {"commands": self.schedule} if self.schedule is not None else {}
+        if self.heading is not None:
+            parts["heading"] = self.heading
         return parts | {"tracker": self.tracker}
 
     def state_dict(self, env: int | None = None) -> dict:

@@ -71,6 +71,7 @@ def task_for(
     clock: np.ndarray | None = None,
     success_radius: float | None = None,
     ranges=None,
+    heading_gain: float = 0.0,
 ) -> Task:
     """The task of ``robot`` (:func:`deploy.robot_kind.robot_kind`): goals for an arm, velocity
     commands for a legged robot.
@@ -99,6 +100,8 @@ def task_for(
             ``task.success_radius``).
         ranges: Training, a legged robot: the
             :class:`~deploy.tasks.locomotion.CommandRanges` (default its defaults).
+        heading_gain: A legged robot with a fixed ``command`` whose yaw rate is zero: hold its
+            heading with this gain, 1/s (:class:`deploy.tasks.heading.HeadingHold`); 0: off.
 
     Raises:
         ValueError: a ``command`` that is not three finite numbers (a legged robot).
@@ -121,7 +124,9 @@ def task_for(
             command = parse_command(command)
         if command is not None or not schedule:
             rng = None  # no schedule
-        return VelocityTask(envs, robot.control_period, backend, period, rng, command, window)
+        return VelocityTask(
+            envs, robot.control_period, backend, period, rng, command, window, heading_gain
+        )
     from deploy.tasks.goals import GoalTask
 
     return GoalTask(robot, envs, period, fixed, success_time, rng, window, interventions)

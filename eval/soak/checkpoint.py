@@ -54,7 +54,9 @@ FORMAT = "soak-checkpoint"
 #: 9: the base filter's accelerometer bias (``base_estimator/accel_bias``, a 12-state
 #: covariance) and the soak's base-estimate figures (``estimation/...``); a version 8
 #: checkpoint has neither.
-VERSION = 9
+#: 10: a legged robot's planar displacement (``tracker/displacement``, ``tracker/start_yaw``) and
+#: its heading from the yaw tick to tick (``tracker/last_yaw``); a version 9 checkpoint has none.
+VERSION = 10
 MANIFEST = "checkpoint.json"
 
 

@@ -238,7 +238,12 @@ def load_robot(name_or_path: str | Path) -> Robot:
             f"{toml_path}: field 'safety.end_effector_site' = '{site}' is not a site of {mjcf.name}"
         )
 
-    pin_model = pin.buildModelFromMJCF(str(mjcf))
+    try:
+        pin_model = pin.buildModelFromMJCF(str(mjcf))
+    except Exception as exc:  # noqa: BLE001 - Pinocchio's parser raises anything (IndexError, ...)
+        raise RobotSpecError(
+            f"{mjcf}: Pinocchio's MJCF parser refuses it: {type(exc).__name__}: {exc}"
+        ) from None
     pin_names = tuple(pin_model.names[1 + j0 :])
     if pin_names != names:
         raise RobotSpecError(

@@ -471,3 +471,73 @@ def run_graph(path: Path, x: np.ndarray) -> np.ndarray:
 
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     return session.run(None, {session.get_inputs()[0].name: x.astype(np.float32)})[0]
+
+
+# ------------------------------------------------------------------- Unitree's deploy.yaml
+def unitree_deploy(slots, default, scale=0.25, stiffness=25.0, damping=0.5, terms=None) -> dict:
+    """A ``params/deploy.yaml`` as unitree_rl_lab / unitree_rl_mjlab write it (their
+    ``deploy/robots/go2/config/policy/velocity/v0/params/deploy.yaml``): per-joint lists in the
+    policy's order, ``joint_ids_map`` the motor slot of each policy joint."""
+    n = len(slots)
+
+    def term(scale=1.0, size=3):
+        return {"params": {}, "clip": None, "scale": [scale] * size, "history_length": 1}
+
+    return {
+        "joint_ids_map": list(slots),
+        "step_dt": 0.02,
+        "stiffness": [stiffness] * n,
+        "damping": [damping] * n,
+        "default_joint_pos": list(default),
+        "commands": {
+            "base_velocity": {
+                "ranges": {
+                    "lin_vel_x": [-0.5, 1.0],
+                    "lin_vel_y": [-0.5, 0.5],
+                    "ang_vel_z": [-1.0, 1.0],
+                    "heading": None,
+                }
+            }
+        },
+        "actions": {
+            "JointPositionAction": {
+                "clip": None,
+                "joint_names": [".*"],
+                "scale": [scale] * n,
+                "offset": list(default),
+                "joint_ids": None,
+            }
+        },
+        "observations": terms
+        or {
+            "base_ang_vel": term(0.25),
+            "projected_gravity": term(),
+            "velocity_commands": {**term(), "params": {"command_name": "base_velocity"}},
+            "joint_pos_rel": term(1.0, n),
+            "joint_vel_rel": term(0.05, n),
+            "last_action": term(1.0, n),
+        },
+    }
+
+
+def write_unitree_policy(folder: Path, cfg: dict, obs_dim: int, gain=1e-3, bias=None) -> Path:
+    """``<folder>/params/deploy.yaml`` and ``<folder>/exported/policy.onnx``, its weights in
+    ``policy.onnx.data`` (ONNX external data, as their published policies ship); returns the
+    ONNX path."""
+    (folder / "params").mkdir(parents=True, exist_ok=True)
+    with open(folder / "params" / "deploy.yaml", "w") as f:
+        yaml.safe_dump(cfg, f, default_flow_style=None, sort_keys=False)
+    act_dim = len(cfg["joint_ids_map"])
+    path = _export(
+        Actor(obs_dim, act_dim, 3, gain, bias),
+        obs_dim,
+        folder / "exported" / "policy.onnx",
+        18,
+        ["obs"],
+        ["actions"],
+    )
+    model = onnx.load(str(path))
+    onnx.save(
+        model, str(path), save_as_external_data=True, location="policy.onnx.data", size_threshold=0
+    )
+    return path

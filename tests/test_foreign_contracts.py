@@ -77,9 +77,9 @@ def inspect(capsys, path, *extra) -> str:
     return capsys.readouterr().out
 
 
-def check_actions(policy, go2, order, scale, default) -> None:
+def check_actions(policy, go2, order, scale, default, obs_dim=OBS_DIM) -> None:
     """Output k of the graph (bias k) drives joint ``order[k]``: target = default + scale * a."""
-    action = policy(np.zeros((1, OBS_DIM), np.float32)).copy()
+    action = policy(np.zeros((1, obs_dim), np.float32)).copy()
     idx = order_index(go2, order)
     expected = np.zeros(12)
     expected[idx] = BIAS
@@ -295,3 +295,47 @@ def test_a_spec_with_drive_components_and_output_order_round_trips_through_json(
     back = PolicySpec.from_json(spec.to_json())
     assert back == spec and back.action.joints and back.drive.kp
     assert [b.components for b in back.observation_blocks if b.components] == [(2,), (0, 1)]
+
+
+# ------------------------------------------------------------------- Unitree's deploy.yaml
+def test_unitree_deploy_yaml_beside_the_policy_is_its_contract(go2, tmp_path, capsys):
+    """unitree_rl_lab / unitree_rl_mjlab ship ``exported/policy.onnx`` (+ ``policy.onnx.data``)
+    and ``params/deploy.yaml``: deploy-run reads the yaml with no --spec. ``joint_ids_map`` gives
+    each policy joint's motor slot (robots/go2 ``[unitree] motor_index``), so the policy's joint
+    order here is Unitree's motor order (FR, FL, RR, RL); the observation is what their C++
+    deployment computes (``joint_pos[i] - default_joint_pos[i]``, clip then scale) and the target
+    ``raw * scale + offset``. A per-joint clip of the targets is refused in one line."""
+    default = [fs.mjlab_pose(n) for n in fs.MJLAB_ORDER]
+    cfg = fs.unitree_deploy(range(12), default, scale=0.3, stiffness=30.0, damping=0.7)
+    path = fs.write_unitree_policy(tmp_path / "v0", cfg, 45, bias=BIAS)
+    assert (path.parent / "policy.onnx.data").is_file()
+    policy = OnnxPolicy(path, go2)
+    assert policy.foreign.format == "unitree_deploy"
+    idx = order_index(go2, fs.MJLAB_ORDER)
+    drive = policy.spec.drive
+    np.testing.assert_allclose(np.array(drive.kp)[idx], 30.0)
+    np.testing.assert_allclose(np.array(drive.default_pose)[idx], default)
+    state = known_state(go2)
+    base = state.base
+    expected = np.concatenate(
+        [
+            0.25 * base.angular_velocity[0],
+            base.projected_gravity[0],
+            state.command[0],
+            state.q[0, idx] - default,
+            0.05 * state.dq[0, idx],
+            state.last_action[0, idx],
+        ]
+    )
+    np.testing.assert_allclose(observe(policy, state), expected, rtol=0, atol=2e-6)
+    check_actions(policy, go2, fs.MJLAB_ORDER, 0.3, default, obs_dim=45)
+    code, out, err = run_deploy(capsys, path)
+    assert code == 0, out + err
+    assert "unitree_deploy policy: spec built from" in err
+    report = inspect(capsys, path)
+    assert "foreign contract: unitree_deploy" in report
+    assert "base_ang_vel [3] -> base_angular_velocity (x 0.25, unclipped)" in report
+    cfg["actions"]["JointPositionAction"]["clip"] = [[-1.0, 1.0]] * 12
+    path = fs.write_unitree_policy(tmp_path / "v1", cfg, 45, bias=BIAS)
+    with pytest.raises(PolicyLoadError, match=r"JointPositionAction.clip: a per-joint clip"):
+        OnnxPolicy(path, go2)

@@ -477,3 +477,37 @@ def test_the_godot_example_spec_is_the_seeds_observation(arm3):
     obs = spec.observation(state, goal)[0]
     expected = np.concatenate([state.q[0] / np.pi, state.ee_position[0] / 0.85, goal[0] / 0.85])
     np.testing.assert_allclose(obs, expected, rtol=1e-6)
+
+
+def test_a_spec_file_that_omits_every_optional_key_changes_nothing_the_policy_does(arm3, tmp_path):
+    """A hand-written spec with only the required keys: no observation block and no action is
+    clipped (before, a block left without ``clip`` was clipped to +-5 and the action to +-1, the
+    schema's defaults, stated nowhere: a humanoid whose targets go past 1 fell), the scales are
+    1 and the offsets 0, so the policy sees the raw quantity and its output reaches the target
+    unchanged."""
+    from deploy.spec.policy_spec import UNCLIPPED
+    from deploy.state import RobotState
+
+    doc = {
+        "format_version": 1,
+        "robot": "arm3",
+        "joint_names": list(arm3.joint_names),
+        "control_rate": 1.0 / arm3.control_period,
+        "observation": [{"name": "joint_position", "scale": 0.01}],
+        "action": {"mode": "position"},
+    }
+    spec_file = tmp_path / "spec.json"
+    spec_file.write_text(json.dumps(doc))
+    nodes = [helper.make_node("Mul", ["obs", "k"], ["action"])]
+    inits = [numpy_helper.from_array(np.array([0.1], np.float32), "k")]
+    policy = OnnxPolicy(_graph_with(tmp_path / "p.onnx", nodes, inits, 3, 3), arm3, spec=spec_file)
+    assert policy.spec.action.clip == UNCLIPPED
+    assert all(b.clip == UNCLIPPED for b in policy.spec.observation_blocks)
+    state = RobotState.zeros(1, 3)
+    state.q[:] = [[0.4, -0.3, 0.2]]
+    obs = policy.spec.observation(state, np.zeros((1, 3)))
+    np.testing.assert_allclose(obs[0], [40.0, -30.0, 20.0], rtol=1e-6)  # past the old 5
+    action = policy(obs)
+    np.testing.assert_allclose(action[0], [4.0, -3.0, 2.0], rtol=1e-6)  # past the old 1
+    target = policy.spec.action_to_target(action, state)
+    np.testing.assert_allclose(target[0], [4.0, -3.0, 2.0], rtol=1e-6)

@@ -388,3 +388,38 @@ def test_pd_targets_may_step_as_far_as_the_full_torque_reaches_and_the_estimator
         estimator.update(plant.read(), state)
     assert estimator.reinitializations.tolist() == [0]
     assert np.abs(state.q - plant.true_position()).max() < 0.05
+
+
+def test_default_classes_with_materials_and_a_root_childclass_import(tmp_path, capsys):
+    """An MJCF as mjlab's asset zoo and MuJoCo Menagerie write their robots: a ``<default>``
+    class whose geoms name a material, and ``childclass`` on the root body. MuJoCo loads it; the
+    importer dropped the materials but not the class's name of one ("material 'silver' not
+    found"), then wrote its free joint ``class="main"`` under the root's childclass, which
+    Pinocchio's MJCF parser cannot read (a raw IndexError). Both import now."""
+    source = write_humanoid(tmp_path)
+    text = source.read_text()
+    text = text.replace(
+        "  <default>\n",
+        '  <default>\n    <default class="robot">\n      <default class="visual">\n'
+        '        <geom material="silver" contype="0" conaffinity="0" group="2"/>\n'
+        "      </default>\n    </default>\n",
+    )
+    text = text.replace(
+        "  <asset>\n", '  <asset>\n    <material name="silver" rgba=".7 .7 .7 1"/>\n'
+    )
+    text = text.replace(
+        '<body name="pelvis" pos="0 0 0.8">',
+        '<body name="pelvis" pos="0 0 0.8" childclass="robot">',
+    )
+    text = text.replace(
+        '<geom type="mesh" contype="0" conaffinity="0" group="1"',
+        '<geom class="visual" type="mesh"',
+    )
+    assert text.count('class="visual"') > 4 and 'childclass="robot"' in text
+    source.write_text(text)
+    mujoco.MjModel.from_xml_path(str(source))  # MuJoCo loads it
+    out = tmp_path / "robots" / "styled"
+    assert main([str(source), "--out", str(out), *FLAGS]) == 0, capsys.readouterr().err
+    robot = load_robot(out)
+    assert robot.floating_base and robot.pin_model.joints[1].shortname() == "JointModelFreeFlyer"
+    assert robot.n_joints == 8

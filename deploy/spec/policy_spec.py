@@ -73,7 +73,13 @@ LEGGED_ACTION_CLIP = 100.0
 #: The gait clock's period, s (unitree_rl_gym legged_gym/envs/go2: the phase period 0.8 s).
 GAIT_PERIOD = 0.8
 #: Default observation clip (in normalized units); generous, since values are already ~[-1, 1].
+#: The default of our own policies' blocks (:class:`ObservationBlock`); a spec file's block
+#: without a clip is not clipped (:data:`UNCLIPPED`).
 DEFAULT_CLIP = 5.0
+#: The clip of a value nothing clips (a spec file's block or action without ``clip``, a foreign
+#: contract's unclipped term): JSON has no infinity, and no observation in SI units (rad, rad/s,
+#: m/s) nor action reaches it, so it never binds.
+UNCLIPPED = 1.0e6
 
 
 class SpecError(Sim2RealError, ValueError):

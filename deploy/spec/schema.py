@@ -36,6 +36,7 @@ from deploy.spec.kinds import KINDS, kind_names
 from deploy.spec.policy_spec import (
     DEFAULT_CLIP,
     FORMAT_VERSION,
+    UNCLIPPED,
     ActionSpec,
     ObservationBlock,
     PolicySpec,
@@ -75,7 +76,14 @@ class ObservationBlockDocument(_Doc):
     offset: float | list[float] = Field(
         default=0.0, description=f"Subtracted from the raw value before scaling, {_NUMBERS}."
     )
-    clip: float = Field(default=DEFAULT_CLIP, gt=0, description="Symmetric clip after scaling.")
+    clip: float | None = Field(
+        default=None,
+        gt=0,
+        description=(
+            "Symmetric clip after scaling; default none (a clip the file does not state would "
+            f"change what the policy sees; our own exports write {DEFAULT_CLIP:g})."
+        ),
+    )
     period: float | None = Field(
         default=None,
         gt=0,
@@ -116,7 +124,14 @@ class ActionDocument(_Doc):
     offset: float | list[float] = Field(
         default=0.0, description=f"Target for a zero action (e.g. a default pose), {_NUMBERS}."
     )
-    clip: float = Field(default=1.0, gt=0, description="The action is clipped to [-clip, clip].")
+    clip: float | None = Field(
+        default=None,
+        gt=0,
+        description=(
+            "The action is clipped to [-clip, clip]; default none (a clip the file does not "
+            "state would change what the policy does: a humanoid's targets past 1 fell)."
+        ),
+    )
     reference: Literal["absolute", "current"] = Field(
         default="absolute", description="'current' (position mode only): relative to q."
     )
@@ -201,7 +216,7 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
         size=size,
         scale=_entries(a.scale, size),
         offset=_entries(a.offset, size),
-        clip=float(a.clip),
+        clip=UNCLIPPED if a.clip is None else float(a.clip),
         reference=a.reference,
         joints=tuple(_joint_index(j, names, "action.joints") for j in a.joints or ()),
     )
@@ -229,7 +244,7 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
                 size=size,
                 scale=_entries(b.scale, size),
                 offset=_entries(b.offset, size),
-                clip=float(b.clip),
+                clip=UNCLIPPED if b.clip is None else float(b.clip),
                 joints=joints,
                 period=float(b.period or 0.0),
                 components=tuple(int(c) for c in b.components or ()),

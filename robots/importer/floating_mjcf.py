@@ -250,7 +250,9 @@ def finish_floating_mjcf(
     root = spec.body(prepared.root_link)
     root.pos = [0.0, 0.0, height]
     root.quat = [1.0, 0.0, 0.0, 0.0]
-    root.add_freejoint(name=FREE_JOINT)
+    free = root.add_freejoint(name=FREE_JOINT)
+    if root.childclass:  # else MuJoCo writes it class="main" there, which Pinocchio cannot read
+        free.classname = spec.find_default(root.childclass)
     spec.worldbody.add_geom(
         name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05], rgba=[0.5] * 3 + [1]
     )

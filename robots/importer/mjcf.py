@@ -171,11 +171,16 @@ def prepare_mjcf(
 
 def _drop_appearance(spec: mujoco.MjSpec) -> None:
     """Delete materials and textures (their image files need not be there: nothing the toolkit
-    reads depends on them)."""
+    reads depends on them), and their names in the default classes (a ``<default>``'s geom
+    naming a material, as mjlab's and MuJoCo Menagerie's robots write them: the reduced file
+    would name a material it no longer has)."""
     for geom in spec.geoms:
         geom.material = ""
     for site in spec.sites:
         site.material = ""
+    for element in [*spec.geoms, *spec.sites]:  # the classes geoms and sites are written with
+        element.classname.geom.material = ""
+        element.classname.site.material = ""
     for element in [*spec.materials, *spec.textures]:
         spec.delete(element)
 

@@ -302,8 +302,14 @@ def choose_collision_pairs(
     import pinocchio as pin
 
     resolved = _resolved_mjcf(mjcf_path)
-    pin_model = pin.buildModelFromMJCF(str(resolved))
-    geom = pin.buildGeomFromMJCF(pin_model, str(resolved), pin.VISUAL)
+    try:
+        pin_model = pin.buildModelFromMJCF(str(resolved))
+        geom = pin.buildGeomFromMJCF(pin_model, str(resolved), pin.VISUAL)
+    except Exception as exc:  # noqa: BLE001 - Pinocchio's parser raises anything (IndexError, ...)
+        raise RobotImportError(
+            f"{mjcf_path}: Pinocchio's MJCF parser refuses the reduced robot file: "
+            f"{type(exc).__name__}: {exc}"
+        ) from None
     index = {g.name: i for i, g in enumerate(geom.geometryObjects)}
     body_geoms: dict[str, list[str]] = {}
     for g in range(model.ngeom):

@@ -43,6 +43,7 @@ class Term:
         relative: ``joint_position`` only: relative to the default pose (else absolute).
         reason: Why ``kind`` is None, in one phrase.
         source: Where the stack computes it (a function path), for the report; may be empty.
+        period: ``gait_phase`` only: the gait clock's period, s.
     """
 
     name: str
@@ -54,6 +55,7 @@ class Term:
     relative: bool = True
     reason: str = ""
     source: str = ""
+    period: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -82,6 +84,8 @@ class ForeignContract:
         joint_order_note: How the joint order is found when it is not recorded.
         joint_order_rule: A rule of :mod:`deploy.spec.foreign.mapping` (``JOINT_ORDER_RULES``)
             that gives the joint order from the robot when ``joint_names`` is None.
+        joint_slots: The motor slot of each policy joint, in the policy's order (rule
+            ``motor_slots``); None: not recorded.
     """
 
     format: str
@@ -103,6 +107,7 @@ class ForeignContract:
     notes: tuple[str, ...] = ()
     joint_order_note: str = ""
     joint_order_rule: str = ""
+    joint_slots: tuple[int, ...] | None = None
 
     @property
     def n_joints(self) -> int | None:

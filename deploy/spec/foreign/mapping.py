@@ -13,12 +13,8 @@ import numpy as np
 
 from deploy.spec.drive import DriveSpec
 from deploy.spec.foreign.contract import JOINT_KINDS, ForeignContract, Term, per_joint
-from deploy.spec.policy_spec import ActionSpec, ObservationBlock, PolicySpec
+from deploy.spec.policy_spec import UNCLIPPED, ActionSpec, ObservationBlock, PolicySpec
 from robots import Robot
-
-#: Our clip of a term or action its stack does not clip: JSON has no infinity, and no observation
-#: in SI units (rad, rad/s, m/s) nor action reaches it, so it never binds.
-UNCLIPPED = 1.0e6
 
 
 def breadth_first_order(robot: Robot) -> tuple[str, ...]:
@@ -34,15 +30,37 @@ def breadth_first_order(robot: Robot) -> tuple[str, ...]:
     return tuple(model.names[j] for j in sorted(ids, key=lambda j: depth[j]))
 
 
-#: Rules giving a policy's joint order from the robot when its stack records none.
-JOINT_ORDER_RULES = {"breadth_first": breadth_first_order}
+def motor_slot_order(robot: Robot, contract: ForeignContract) -> tuple[str, ...]:
+    """The robot's joints in the order of the contract's motor slots (``joint_slots``): the
+    joint whose robot.toml ``[unitree] motor_index`` is each slot, or, for a robot without
+    one, the joint at that index.
+
+    Raises:
+        ForeignFormatError: a slot no joint of the robot has (naming the robot's slots).
+    """
+    unitree = getattr(robot.config, "unitree", None)
+    index = list(unitree.motor_index) if unitree is not None else list(range(robot.n_joints))
+    missing = [s for s in contract.joint_slots if s not in index]
+    if missing:
+        raise contract.error(
+            f"motor slots {missing} of its joint map are no joint's of the robot "
+            f"'{robot.name}' (its slots, in joint order: {index})"
+        )
+    return tuple(robot.joint_names[index.index(s)] for s in contract.joint_slots)
+
+
+#: Rules giving a policy's joint order from the robot when its stack records no joint names.
+JOINT_ORDER_RULES = {
+    "breadth_first": lambda robot, contract: breadth_first_order(robot),
+    "motor_slots": motor_slot_order,
+}
 
 
 def policy_joint_names(contract: ForeignContract, robot: Robot) -> tuple[str, ...]:
     """The policy's joint order: recorded, or the contract's rule applied to ``robot``."""
     if contract.joint_names is not None:
         return contract.joint_names
-    return JOINT_ORDER_RULES[contract.joint_order_rule](robot)
+    return JOINT_ORDER_RULES[contract.joint_order_rule](robot, contract)
 
 
 def joint_permutation(contract: ForeignContract, robot: Robot) -> tuple[int, ...]:
@@ -105,6 +123,7 @@ def _block(
         offset=tuple(float(x) for x in offset),
         clip=UNCLIPPED if term.clip is None else float(term.clip),
         joints=joints,
+        period=term.period,
         components=term.components,
     )
 

@@ -16,11 +16,13 @@ from types import ModuleType
 
 import onnx
 
-from deploy.spec.foreign import holosoma, isaaclab, mjlab
+from deploy.spec.foreign import holosoma, isaaclab, mjlab, unitree_deploy
 from deploy.spec.foreign.contract import ForeignContract, ForeignFormatError
 
-#: The formats, in the order they are tried (metadata formats before the metadata-less one).
-FORMATS: tuple[ModuleType, ...] = (mjlab, holosoma, isaaclab)
+#: The formats, in the order they are tried (metadata formats first; of the two that read a file
+#: beside a bare graph, Unitree's deploy.yaml, which its own deployment reads, before Isaac
+#: Lab's env.yaml).
+FORMATS: tuple[ModuleType, ...] = (mjlab, holosoma, unitree_deploy, isaaclab)
 
 
 def _dims(vi: onnx.ValueInfoProto) -> list[int | str | None]:

@@ -30,6 +30,7 @@ against ``--baseline``, 8 interventions above ``--max-interventions``, 9 falls a
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import sys
@@ -296,7 +297,7 @@ def run(args) -> int:
     from eval.soak.campaign import run_campaign
     from eval.soak.executors import default_workers
     from eval.soak.session import SessionConfig
-    from eval.world.domain import training_domain
+    from eval.world.domain import contract_commands, training_domain
     from eval.world.ranges_file import (
         load_ranges,
         load_ranges_text,
@@ -340,6 +341,16 @@ def run(args) -> int:
                 f"--fault-interval: {args.ranges} sets faults.mean_interval too; give one of them"
             )
         ranges = load_ranges(args.ranges, robot, args.fault_interval)
+    commands_source = None
+    if robot.floating_base and ranges.commands is None and args.spec is None:
+        commands, commands_source = contract_commands(args.policy)
+        if commands is not None:
+            ranges = dataclasses.replace(ranges, commands=commands)
+            print(
+                f"soak-test: commands: the policy's training ranges ({commands_source}): vx "
+                f"{list(commands.vx)} m/s, vy {list(commands.vy)} m/s, yaw rate "
+                f"{list(commands.yaw_rate)} rad/s, zero {commands.zero_fraction:g} of the time"
+            )
     template = SessionConfig(
         robot=args.robot,
         policy=str(args.policy),
@@ -388,6 +399,7 @@ def run(args) -> int:
         "session_options": options,
         "ranges_file": None if args.ranges is None else str(args.ranges),
         "training_domain": domain,
+        "commands_source": commands_source,
         "executor": args.executor,
         "address": args.address,
         "sessions_per_process": args.sessions_per_process,

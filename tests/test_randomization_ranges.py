@@ -109,11 +109,41 @@ def test_a_bad_file_names_the_file_the_key_and_the_value_expected(tmp_path, go2,
     assert message in str(info.value)
 
 
-@pytest.mark.parametrize("text", ["floor_friction = [0.6, 1.0]\n", "[imu]\nbias_scale = [1, 2]\n"])
+@pytest.mark.parametrize(
+    "text",
+    ["floor_friction = [0.6, 1.0]\n", "[imu]\nbias_scale = [1, 2]\n", "[commands]\nvx = [0, 1]\n"],
+)
 def test_an_arm_refuses_the_floating_base_ranges(tmp_path, arm3, text):
     path = write(tmp_path, text)
     with pytest.raises(RangesError, match=f"{path}: .*robot arm3 has a fixed base"):
         load_ranges(path, arm3)
+
+
+def test_the_velocity_commands_come_from_the_file_or_the_policys_contract(tmp_path, go2):
+    """A legged soak draws its commands from a ranges file's ``[commands]``; without one,
+    ``soak-test`` takes a policy's training ranges from the contract its stack wrote (Unitree's
+    deploy.yaml ``commands.base_velocity.ranges``): the published G1 policy stands still below
+    0.35 m/s and was trained on -0.5..1.0, so the default 0..0.5 judged it on commands it never
+    learned. The soak's schedule draws from them."""
+    from deploy.tasks.locomotion import CommandRanges
+    from deploy.tasks.task import task_for
+    from eval.world.domain import contract_commands
+    from tests import foreign_stacks as fs
+
+    path = write(
+        tmp_path, "[commands]\nvx = [-0.5, 1.0]\nyaw_rate = [-1, 1]\nzero_fraction = 0.1\n"
+    )
+    ranges = load_ranges(path, go2)
+    assert ranges.commands == CommandRanges(vx=(-0.5, 1.0), yaw_rate=(-1.0, 1.0), zero_fraction=0.1)
+    assert session_ranges(go2).commands is None  # the soak's default: the contract's, or ours
+    streams = [np.random.default_rng(s) for s in (1, 2)]
+    task = task_for(go2, 2, None, period=4.0, rng=streams, ranges=ranges.commands)
+    assert task.schedule.ranges is ranges.commands
+    default = [fs.mjlab_pose(n) for n in fs.MJLAB_ORDER]
+    policy = fs.write_unitree_policy(tmp_path / "v0", fs.unitree_deploy(range(12), default), 45)
+    commands, where = contract_commands(policy)
+    assert commands == CommandRanges(vx=(-0.5, 1.0), vy=(-0.5, 0.5), yaw_rate=(-1.0, 1.0))
+    assert where.endswith("deploy.yaml")
 
 
 def test_a_missing_file_is_named(tmp_path, arm3):

@@ -537,6 +537,30 @@ def test_interventions_check_fails_above_its_threshold_and_the_html_names_it(bat
     assert [f.get("type") for f in failed] == ["interventions"]
 
 
+def test_a_legged_policys_pd_targets_past_its_range_are_reported_not_judged(batched):
+    """The same result as a legged session's whose soft-limit clamps are the policy's style
+    (``by_design``): the check judges ``safety`` and names the style apart; a velocity clamp
+    still fails it."""
+    result = deepcopy(batched[0])
+    result["runtime"]["latches"], result["runtime"]["latched_faults"] = [], 0
+    iv = result["interventions"]
+    ticks = iv["ticks"]
+    iv["checks"] = {k: {"count": 0, "fraction": 0.0} for k in iv["checks"]}
+    iv["checks"]["soft_limit"] = {"count": ticks // 3, "fraction": (ticks // 3) / ticks}
+    iv["any"] = dict(iv["checks"]["soft_limit"])
+    iv["safety"], iv["by_design"] = {"count": 0, "fraction": 0.0}, ["soft_limit"]
+    at = Thresholds(min_success_rate=0.0, min_window_success_rate=0.0, max_intervention_rate=0.01)
+    check = session_checks(result, at)["interventions"]
+    assert check["passed"], check["message"]
+    assert (
+        "not judged, the policy's PD targets past its joints' ranges: soft_limit"
+        in check["message"]
+    )
+    iv["checks"]["velocity"] = {"count": ticks // 10, "fraction": 0.1}
+    iv["safety"] = {"count": ticks // 10, "fraction": 0.1}
+    assert not session_checks(result, at)["interventions"]["passed"]
+
+
 # ---------------------------------------------------------------- soak-test
 def test_soak_test_cli_end_to_end(policy, tmp_path, capsys):
     """Two local processes, the reports, then the same campaign against baselines (--resume of a

@@ -26,16 +26,8 @@ with ``v_foot``, ``omega_foot`` the foot's velocity in the base frame (the base 
 turning at ``omega``), ``rho`` its contact sphere's radius and ``u`` the world's down in the base
 frame. Updates are Joseph-form, the error folded into the nominal state and zeroed.
 
-Heading is locked: no correction turns the base about the world's up, nor moves the gyro's bias
-along it. The yaw of a base is unobservable from an IMU and leg kinematics (rotating the world
-about gravity changes no measurement; Bloesch et al., "State Estimation for Legged Robots:
-Consistent Fusion of Leg Kinematics and an IMU", RSS 2012), but a linearized filter's gain still
-reaches it through its cross-covariances, and every unmodelled error then turns the heading: the
-Go2 on Unitree's simulator, whose feet report no force (the legs' contacts then come from their
-kinematics), read -23 deg for a true -107 deg turn in 30 s, its yaw-rate bias learnt at 8 deg/s.
-So the gain's rows of ``dtheta``'s world z and of ``b_g`` along the world's up (``R^T e_z``) are
-zeroed (a consider state, Schmidt's Kalman filter; the Joseph form keeps the covariance right for
-any gain): the heading is the gyro's, integrated.
+Heading is locked (:func:`lock_heading`): no correction turns the base about the world's up, nor
+moves the gyro's bias along it; the heading is the gyro's, integrated.
 """
 
 from __future__ import annotations
@@ -93,7 +85,16 @@ def _turn(rotvec, q, left: bool) -> None:
 def lock_heading(K, q) -> None:
     """Zero, in place, the rows of the gain ``K`` (12, m) that turn the base about the world's
     up (``dtheta_z``) or move the gyro's bias along it (``b_g . R^T e_z``), ``q`` the base's
-    attitude ``[w, x, y, z]`` (module docstring)."""
+    attitude ``[w, x, y, z]``.
+
+    The yaw of a base is unobservable from an IMU and leg kinematics (rotating the world about
+    gravity changes no measurement; Bloesch et al., "State Estimation for Legged Robots:
+    Consistent Fusion of Leg Kinematics and an IMU", RSS 2012), but a linearized filter's gain
+    reaches it through its cross-covariances, and every unmodelled error then turns the heading:
+    the Go2 on Unitree's simulator, whose feet report no force (the contacts then come from the
+    kinematics), read -23 deg for a true -107 deg turn in 30 s. Those rows are zeroed (a
+    consider state, Schmidt's Kalman filter; the Joseph form keeps the covariance right for any
+    gain)."""
     R = np.empty((3, 3))
     _quat_to_mat(q, R)
     for c in range(K.shape[1]):

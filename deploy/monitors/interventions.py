@@ -25,9 +25,9 @@ counters of :class:`deploy.smoothing.CommandSmoother`:
 
 Each check counts a tick once per env when it changed the command of at least one joint of the env
 (the guard counts per env and tick already; for the smoother, a tick on which any joint's counter
-rose); ``any`` counts the ticks on which at least one check did. Fractions are of the ticks
-observed, in every mode of the state machine (RAMP_IN and SAFE_STOP included: the smoother does
-not count the joints it is stopping).
+rose); ``any`` counts the ticks on which at least one check did, ``safety`` those on which a
+check did that is not the policy's style (:attr:`InterventionMonitor.by_design`). Fractions are
+of the ticks observed, in every mode of the state machine (RAMP_IN and SAFE_STOP included).
 """
 
 from __future__ import annotations
@@ -63,6 +63,12 @@ class InterventionMonitor(MonitorState):
         counts: dict check (``INTERVENTION_CHECKS``) -> (envs,) int64, ticks on which that check
             changed a command of the env.
         any: (envs,) int64, ticks on which any check did.
+        safety: (envs,) int64, ticks on which a check not in ``by_design`` did.
+        by_design: The checks whose interventions are the policy's style, reported by the
+            soak and not judged: ``("soft_limit",)`` for a floating-base robot in position mode
+            (legged_gym, Isaac Lab and mjlab train PD targets without any bound, and a walking
+            policy's pass its joints' ranges on every stride: the clamp bounds a torque the
+            drive would give anyway), else empty.
         ticks: int, ticks observed (calls of :meth:`update`).
 
     Per tick it compares the counters with their values after the last tick (three comparisons
@@ -86,6 +92,9 @@ class InterventionMonitor(MonitorState):
         )
         self.counts = {c: np.zeros(envs, dtype=np.int64) for c in INTERVENTION_CHECKS}
         self.any = np.zeros(envs, dtype=np.int64)
+        self.safety = np.zeros(envs, dtype=np.int64)
+        legged = bool(getattr(guard.robot, "floating_base", False))
+        self.by_design = ("soft_limit",) if legged and self.mode == "position" else ()
         self.ticks = 0
         n = smoother.n_joints
         # the counters as they stood after the last tick
@@ -95,6 +104,7 @@ class InterventionMonitor(MonitorState):
         self._guard_changed = np.zeros(self._prev_guard.shape, dtype=bool)
         self._smoother_changed = np.zeros((envs, n), dtype=bool)
         self._rose = np.zeros(envs, dtype=bool)
+        self._rose_safety = np.zeros(envs, dtype=bool)
         self._flags = np.zeros(envs, dtype=bool)
         self.resync()
         mk.warm_up()
@@ -128,20 +138,25 @@ class InterventionMonitor(MonitorState):
 
     def _count(self) -> None:
         """Per check: which envs' counters rose this tick (only on ticks where some did)."""
-        flags, rose, counts = self._flags, self._rose, self.counts
+        flags, rose, safety, counts = self._flags, self._rose, self._rose_safety, self.counts
         rose.fill(False)
+        safety.fill(False)
         for i, name in enumerate(self._guard_names):
             np.greater(self._guard_rows[i], self._prev_guard[i], out=flags)
             counts[name] += flags
             rose |= flags
+            if name not in self.by_design:
+                safety |= flags
         np.copyto(self._prev_guard, self._guard_rows)
         for i, (name, counter) in enumerate(self._smoother):
             np.greater(counter, self._prev_smoother[i], out=self._smoother_changed)
             np.any(self._smoother_changed, axis=1, out=flags)
             counts[name] += flags
             rose |= flags
+            safety |= flags
             np.copyto(self._prev_smoother[i], counter)
         self.any += rose
+        self.safety += safety
 
     # ------------------------------------------------------------------ reading
     def warnings(self) -> dict[str, np.ndarray]:
@@ -156,6 +171,7 @@ class InterventionMonitor(MonitorState):
 
         Returns:
             ``{"ticks", "checks": {check: {"count", "fraction"}}, "any": {"count", "fraction"},
+            "safety": {"count", "fraction"}, "by_design": [check, ...],
             "warnings": {name: {"count", "fraction"}}}``; fractions of ``ticks`` (per env:
             ``ticks``; over envs: ``ticks * envs``), 0.0 before the first tick.
         """
@@ -169,6 +185,8 @@ class InterventionMonitor(MonitorState):
             "ticks": ticks,
             "checks": {c: entry(v) for c, v in self.counts.items()},
             "any": entry(self.any),
+            "safety": entry(self.safety),
+            "by_design": list(self.by_design),
             "warnings": {k: entry(v) for k, v in self.warnings().items()},
         }
 
@@ -180,6 +198,7 @@ class InterventionMonitor(MonitorState):
         # smoother's per-joint counters, (envs, n)
         out = {f"counts/{c}": v for c, v in self.counts.items()}
         out["any"] = self.any
+        out["safety"] = self.safety
         out["warning_base"] = self._warning_base
         for i, name in enumerate(self._guard_names):
             out[f"prev/{name}"] = self._prev_guard[i]

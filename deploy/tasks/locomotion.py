@@ -504,6 +504,7 @@ class VelocityTask:
         command: Optional fixed command (3,), written at :meth:`reset` (no schedule then).
         heading_gain: 1/s: with a fixed command whose yaw rate is zero, hold the heading
             (:class:`deploy.tasks.heading.HeadingHold`, this gain); 0: the command as given.
+        ranges: The schedule's :class:`CommandRanges` (default its defaults).
 
     Attributes:
         heading: The :class:`~deploy.tasks.heading.HeadingHold` (checkpoint prefix
@@ -524,11 +525,12 @@ class VelocityTask:
         command=None,
         window=None,
         heading_gain: float = 0.0,
+        ranges: CommandRanges | None = None,
     ):
         self.command = command
         self.schedule = None
         if command is None and rng is not None:
-            self.schedule = CommandSchedule(envs, period, rng)
+            self.schedule = CommandSchedule(envs, period, rng, ranges)
         self.heading = None
         if command is not None and heading_gain > 0 and command[2] == 0.0:
             from deploy.tasks.heading import HeadingHold

@@ -98,8 +98,9 @@ def task_for(
             robot's command period in episode time, ``rng`` the episodes' one generator.
         success_radius: Training, an arm: m, a goal is reached within it (default the robot's
             ``task.success_radius``).
-        ranges: Training, a legged robot: the
-            :class:`~deploy.tasks.locomotion.CommandRanges` (default its defaults).
+        ranges: A legged robot: the :class:`~deploy.tasks.locomotion.CommandRanges` its
+            commands are drawn from, in training and in the soak's schedule (default its
+            defaults).
         heading_gain: A legged robot with a fixed ``command`` whose yaw rate is zero: hold its
             heading with this gain, 1/s (:class:`deploy.tasks.heading.HeadingHold`); 0: off.
 
@@ -125,7 +126,7 @@ def task_for(
         if command is not None or not schedule:
             rng = None  # no schedule
         return VelocityTask(
-            envs, robot.control_period, backend, period, rng, command, window, heading_gain
+            envs, robot.control_period, backend, period, rng, command, window, heading_gain, ranges
         )
     from deploy.tasks.goals import GoalTask
 

@@ -34,10 +34,11 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     ``no_over_temperature`` (a winding above its maximum, or an over-temperature safe stop),
     ``success_rate`` (at least ``min_success_rate`` over the session), ``window_success`` (at
     least ``min_window_success_rate`` in every window of ``window_minutes`` with a goal),
-    ``interventions`` (ticks with any intervention at most ``max_intervention_rate`` of the
-    ticks), ``no_divergence``, ``falls`` (a legged session: at most ``max_falls_per_hour``; an arm
-    passes). For a legged session the success checks judge its
-    tracking success (``locomotion``).
+    ``interventions`` (ticks with an intervention at most ``max_intervention_rate`` of the
+    ticks; a legged robot's position targets clamped into its soft limits are its policy's style:
+    reported in the message, not judged), ``no_divergence``, ``falls`` (a legged session: at
+    most ``max_falls_per_hour``; an arm passes). For a legged session the success checks judge
+    its tracking success (``locomotion``).
     """
     hard = result["violations"]["total"].get("hard_limit", 0)
     hard_down = result["violations"].get("while_down", {}).get("hard_limit", 0)
@@ -86,11 +87,17 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
         )
         falls_ok, falls_message = True, "fixed base: no falls"
     iv = result["interventions"]
-    share = iv["any"]["fraction"]
+    # the policy's style is reported, not judged (deploy.monitors.interventions: by_design)
+    by_design = iv.get("by_design", [])
+    share = iv.get("safety", iv["any"])["fraction"]
     causes = sorted({x["cause"] for x in result["runtime"]["latches"] if x.get("cause")})
     worst = sorted(
-        ((c["fraction"], k) for k, c in iv["checks"].items() if c["count"]), reverse=True
+        ((c["fraction"], k) for k, c in iv["checks"].items() if c["count"] and k not in by_design),
+        reverse=True,
     )[:3]
+    style = ", ".join(
+        f"{k} {100 * iv['checks'][k]['fraction']:.3f} %" for k in by_design if k in iv["checks"]
+    )
     checks = {
         "no_hard_violation": (
             hard == 0 and hard_down == 0 and hard_stops == 0,
@@ -126,7 +133,12 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
             share <= thresholds.max_intervention_rate,
             f"{100 * share:.3f} % of ticks with an intervention (threshold "
             f"{100 * thresholds.max_intervention_rate:.3f} %"
-            + ("; " + ", ".join(f"{k} {100 * f:.3f} %" for f, k in worst) + ")" if worst else ")"),
+            + ("; " + ", ".join(f"{k} {100 * f:.3f} %" for f, k in worst) + ")" if worst else ")")
+            + (
+                f"; not judged, the policy's PD targets past its joints' ranges: {style}"
+                if style
+                else ""
+            ),
         ),
         "no_divergence": (
             not result["diverged"],

@@ -68,9 +68,16 @@ def summary_text(report: dict) -> str:
     used = ", ".join(
         f"{k} {100 * c['fraction']:.3f}" for k, c in iv["checks"].items() if c["count"]
     )
+    by_design = [k for k in iv.get("by_design", []) if iv["checks"].get(k, {}).get("count")]
     lines.append(
         f"  interventions {100 * iv['any']['fraction']:.3f} % of ticks"
         + (f" ({used})" if used else "")
+        + (
+            f"; judged {100 * iv['safety']['fraction']:.3f} % (not {', '.join(by_design)}: "
+            "the policy's PD targets past its joints' ranges, by design)"
+            if by_design
+            else ""
+        )
     )
     f = t["faults"]
     resp = ", ".join(f"{k} {n}" for k, n in f["responses"].items() if n)

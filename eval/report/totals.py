@@ -126,6 +126,13 @@ def totals(results: list[dict]) -> dict:
                 for k in checks
             },
             "any": entry(sum(r["interventions"]["any"]["count"] for r in results)),
+            "safety": entry(
+                sum(
+                    r["interventions"].get("safety", r["interventions"]["any"])["count"]
+                    for r in results
+                )
+            ),
+            "by_design": results[0]["interventions"].get("by_design", []) if results else [],
             "warnings": {
                 k: entry(sum(r["interventions"]["warnings"][k]["count"] for r in results))
                 for k in warnings

@@ -222,6 +222,7 @@ class SessionBatch:
             success_time=first.success_time,
             window=first.window_minutes * 60.0,
             interventions=self.interventions,
+            ranges=first.ranges.commands,
         )
         self.task.reset(self.rt, np.ones(k, dtype=bool))
         self.sessions = [

@@ -55,7 +55,8 @@ FORMAT = "soak-checkpoint"
 #: covariance) and the soak's base-estimate figures (``estimation/...``); a version 8
 #: checkpoint has neither.
 #: 10: a legged robot's planar displacement (``tracker/displacement``, ``tracker/start_yaw``) and
-#: its heading from the yaw tick to tick (``tracker/last_yaw``); a version 9 checkpoint has none.
+#: its heading from the yaw tick to tick (``tracker/last_yaw``), the interventions that are not
+#: the policy's style (``interventions/safety``); a version 9 checkpoint has none.
 VERSION = 10
 MANIFEST = "checkpoint.json"
 

@@ -260,3 +260,35 @@ def training_domain(policy: str | Path) -> str | None:
         if prop.key == METADATA_KEY:
             return prop.value
     return None
+
+
+def contract_commands(policy: str | Path):
+    """The velocity commands a policy trained elsewhere was trained on, from the contract its
+    stack wrote (:mod:`deploy.spec.foreign`: Unitree's deploy.yaml ``commands.base_velocity.
+    ranges``, holosoma's ``command_ranges``): ``(CommandRanges, where)``, or ``(None, None)``
+    for a policy with our own metadata, no recognised contract, or none recorded. The fraction of
+    zero commands stays :class:`~deploy.tasks.locomotion.CommandRanges`' default.
+
+    Raises:
+        DomainError: the file cannot be read as ONNX, or its contract cannot be read (named).
+    """
+    import onnx
+
+    from deploy.spec.foreign.registry import OnnxFacts, read_contract
+    from deploy.spec.policy_spec import SpecError
+    from deploy.tasks.locomotion import CommandRanges
+
+    try:
+        model = onnx.load(str(policy), load_external_data=False)
+    except Exception as exc:  # noqa: BLE001 - onnx raises OSError, DecodeError, ...
+        raise DomainError(f"{policy}: cannot read the ONNX file ({exc})") from None
+    if any(p.key == "policy_spec" for p in model.metadata_props):
+        return None, None
+    try:
+        contract = read_contract(OnnxFacts.of(policy, model))
+    except SpecError as exc:
+        raise DomainError(str(exc)) from None
+    if contract is None or contract.command_ranges is None:
+        return None, None
+    r = contract.command_ranges
+    return CommandRanges(vx=r["vx"], vy=r["vy"], yaw_rate=r["yaw_rate"]), contract.source

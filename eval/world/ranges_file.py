@@ -16,15 +16,15 @@ is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the cl
     [imu]         # floating-base robots only: gyro_noise_sigma (rad/s), accel_noise_sigma
                   # (m/s^2), bias_scale, latency_ticks, force_noise_fraction
     [drift]       # friction_rate (1/h)
-    [faults]      # mean_interval, min_gap, warmup (s), kinds, weights, dropout, stale,
-                  # nan_ticks, latency_ticks, latency_duration, push_force (N), push_duration,
-                  # cable_force, cable_duration
+    [faults]      # mean_interval, min_gap, warmup (s), kinds, weights, dropout, stale, nan_ticks,
+                  # latency_ticks, latency_duration, push_force (N), push_duration, cable_force, ...
     [pushes]      # floating-base robots only: interval (s), max_velocity (m/s)
+    [commands]    # floating-base robots only: vx, vy (m/s), yaw_rate (rad/s), zero_fraction
 
 The tables are :class:`~eval.world.dynamics.DynamicsRanges`,
 :class:`~eval.world.sensors.SensorRanges`, :class:`~eval.world.sensors.ImuRanges`,
-:class:`~eval.world.drift.DriftRanges`, :class:`~eval.world.fault_schedule.FaultRanges` and
-:class:`~eval.world.pushes.PushRanges`; their
+:class:`~eval.world.drift.DriftRanges`, :class:`~eval.world.fault_schedule.FaultRanges`,
+:class:`~eval.world.pushes.PushRanges` and :class:`~deploy.tasks.locomotion.CommandRanges`; their
 docstrings give each key's meaning, unit and default. An unknown table or key, a value of the
 wrong type, an inverted or out-of-bounds range, or an IMU or floor setting for a fixed-base robot
 is a :class:`RangesError` naming the file, the ``table.key`` and the value expected.
@@ -38,6 +38,7 @@ import types
 import typing
 from pathlib import Path
 
+from deploy.tasks.locomotion import CommandRanges
 from eval.world.drift import DriftRanges
 from eval.world.dynamics import DynamicsRanges
 from eval.world.fault_schedule import FaultRanges
@@ -60,11 +61,12 @@ TABLES = {
     "drift": DriftRanges,
     "faults": FaultRanges,
     "pushes": PushRanges,
+    "commands": CommandRanges,
 }
 #: Keys of a ranges file outside any table, with their type.
 TOP_LEVEL = {"floor_friction": tuple[float, float], "added_base_mass": tuple[float, float]}
 #: What only a floating-base robot draws.
-FLOATING_BASE_ONLY = ("imu", "floor_friction", "added_base_mass", "pushes")
+FLOATING_BASE_ONLY = ("imu", "floor_friction", "added_base_mass", "pushes", "commands")
 
 
 class RangesError(Sim2RealError, ValueError):

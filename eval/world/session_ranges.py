@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 
 from deploy.robot_kind import robot_kind
+from deploy.tasks.locomotion import CommandRanges
 from eval.world.drift import DriftRanges
 from eval.world.dynamics import DynamicsRanges
 from eval.world.fault_schedule import FaultRanges, check_range, fault_ranges
@@ -49,6 +50,10 @@ class SessionRanges:
         pushes: A floating-base robot's pushes of its training domain
             (:class:`eval.world.pushes.PushRanges`, legged_gym's ``push_robots``); None: none
             (default; the fault schedule's force pushes are apart).
+        commands: A floating-base robot's velocity commands
+            (:class:`deploy.tasks.locomotion.CommandRanges`); None: the policy's training
+            ranges where its contract records them (``soak-test``), else CommandRanges'
+            defaults.
 
     Raises:
         ValueError: ``floor_friction`` is not a range ``0 <= low <= high`` (named).
@@ -62,6 +67,7 @@ class SessionRanges:
     floor_friction: tuple[float, float] | None = FLOOR_FRICTION
     added_base_mass: tuple[float, float] | None = None
     pushes: PushRanges | None = None
+    commands: CommandRanges | None = None
 
     def __post_init__(self):
         if self.floor_friction is not None:

@@ -86,6 +86,8 @@ class ForeignContract:
             that gives the joint order from the robot when ``joint_names`` is None.
         joint_slots: The motor slot of each policy joint, in the policy's order (rule
             ``motor_slots``); None: not recorded.
+        command_ranges: The velocity command's training ranges, ``{"vx": (low, high), "vy":
+            ..., "yaw_rate": ...}`` (m/s, m/s, rad/s); None: not recorded.
     """
 
     format: str
@@ -108,6 +110,7 @@ class ForeignContract:
     joint_order_note: str = ""
     joint_order_rule: str = ""
     joint_slots: tuple[int, ...] | None = None
+    command_ranges: dict[str, tuple[float, float]] | None = None
 
     @property
     def n_joints(self) -> int | None:
@@ -172,3 +175,32 @@ def per_joint(
     if unmatched:
         raise fail(f"{what}: no expression of {list(value)} matches the joints {unmatched}")
     return tuple(out)
+
+
+#: Our names of a velocity command's ranges and the names training stacks give them
+#: (Isaac Lab / mjlab ``lin_vel_x``, ``lin_vel_y``, ``ang_vel_z``; holosoma ``ang_vel_yaw``).
+COMMAND_RANGE_NAMES = {
+    "vx": ("lin_vel_x",),
+    "vy": ("lin_vel_y",),
+    "yaw_rate": ("ang_vel_z", "ang_vel_yaw"),
+}
+
+
+def command_ranges(table) -> dict[str, tuple[float, float]] | None:
+    """A stack's velocity-command ranges table as :attr:`ForeignContract.command_ranges`; None
+    when ``table`` is not a mapping holding all three as ``[low, high]`` numbers."""
+    if not isinstance(table, dict):
+        return None
+    out = {}
+    for ours, theirs in COMMAND_RANGE_NAMES.items():
+        value = next((table[k] for k in theirs if k in table), None)
+        if not (isinstance(value, list | tuple) and len(value) == 2):
+            return None
+        try:
+            low, high = float(value[0]), float(value[1])
+        except (TypeError, ValueError):
+            return None
+        if not low <= high:
+            return None
+        out[ours] = (low, high)
+    return out

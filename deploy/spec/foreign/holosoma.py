@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import json
 
-from deploy.spec.foreign.contract import ForeignContract, Term
+from deploy.spec.foreign.contract import ForeignContract, Term, command_ranges
 
 NAME = "holosoma"
 
@@ -154,6 +154,7 @@ def read(facts) -> ForeignContract:
         kp=kp,
         kd=kd or None,
         control_rate=rate,
+        command_ranges=command_ranges(md.get("command_ranges")),
         found=tuple(found),
         missing=tuple(missing),
         notes=(

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from deploy.spec.foreign.contract import ForeignContract, Term
+from deploy.spec.foreign.contract import ForeignContract, Term, command_ranges
 
 NAME = "unitree_deploy"
 #: Where the contract is looked for, relative to the ONNX file's folder.
@@ -165,6 +165,7 @@ def read(facts) -> ForeignContract:
         kp=kp,
         kd=kd,
         control_rate=1.0 / float(step_dt),
+        command_ranges=command_ranges(ranges),
         found=tuple(found),
         notes=tuple(notes),
     )

@@ -123,3 +123,20 @@ def test_a_straight_command_holds_the_heading_it_began_with():
     assert hold.reference[0] == pytest.approx(-3.0)
     with pytest.raises(ValueError, match="gain"):
         HeadingHold(1, gain=0.0)
+
+
+def test_a_backwards_command_is_taken_as_the_value_it_is():
+    """``deploy-run --command -0.5,0,0`` was refused by argparse ("expected one argument": a
+    value starting with '-' that is not a plain number looks like an option); now it walks
+    backwards, as ``--command=-0.5,0,0`` always did."""
+    from deploy.cli.run_parser import attach_vectors, build_parser
+
+    argv = attach_vectors(["--policy", "p.onnx", "--command", "-0.5,0,0", "--goal", "-0.1,0.2,0"])
+    args = build_parser(argv).parse_args(argv)
+    assert args.command == "-0.5,0,0" and args.goal == "-0.1,0.2,0"
+    assert attach_vectors(["--command", "0.5,0,0", "--seed", "1"]) == [
+        "--command",
+        "0.5,0,0",
+        "--seed",
+        "1",
+    ]

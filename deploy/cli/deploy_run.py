@@ -41,7 +41,7 @@ import numpy as np
 from deploy.backends.base import SimulatedPlant
 from deploy.backends.registry import make_backend
 from deploy.cli.policy_contract import check_drive_applied, contract_messages
-from deploy.cli.run_parser import build_parser
+from deploy.cli.run_parser import attach_vectors, build_parser
 from deploy.cli.run_summary import print_summary
 from deploy.monitors.kernel import motion_statistics
 from deploy.spec.drive import drive_robot
@@ -387,6 +387,7 @@ def _run_opened(
 
 def deploy_run_main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+    argv = attach_vectors(argv)
     args = build_parser(argv).parse_args(argv)
     if args.viewer:  # a window or nothing: refuse before the run starts
         from deploy.observe.viewer import NoDisplayError, check_display

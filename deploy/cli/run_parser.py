@@ -149,6 +149,27 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     return p
 
 
+#: Options whose value may start with '-' (a vector with a negative first entry).
+VECTOR_OPTIONS = ("--command", "--goal")
+
+
+def attach_vectors(argv: Sequence[str] | None) -> list[str]:
+    """``argv`` with ``--command -0.5,0,0`` written ``--command=-0.5,0,0`` (argparse takes a
+    value starting with '-' that is not a plain negative number for an option, and refused
+    a backwards walk with "expected one argument"); ``argv`` None: ``sys.argv[1:]``."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in VECTOR_OPTIONS and i + 1 < len(argv) and argv[i + 1].startswith("-"):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(argv[i])
+        i += 1
+    return out
+
+
 def split_passthrough(argv: Sequence[str] | None) -> tuple[list[str], list[str]]:
     """``(own, rest)``: the arguments before a ``--`` (this command's) and after it (passed on
     to the command it runs: deploy-run, soak-test); ``argv`` None: ``sys.argv[1:]``."""

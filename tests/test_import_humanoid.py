@@ -423,3 +423,43 @@ def test_default_classes_with_materials_and_a_root_childclass_import(tmp_path, c
     robot = load_robot(out)
     assert robot.floating_base and robot.pin_model.joints[1].shortname() == "JointModelFreeFlyer"
     assert robot.n_joints == 8
+
+
+def test_a_robot_that_collides_only_through_contact_pairs_still_stands(tmp_path, capsys):
+    """A scene whose robot collides only through ``<contact><pair>``s with its floor (every geom
+    ``contype="0" conaffinity="0"``, as some published humanoids are written): the importer drops
+    the pairs and the floor, and wrote a robot with no colliding geometry (exit 0, nothing said)
+    that fell through the floor. The pairs' geoms now collide, it says so, and the robot stands
+    on its feet."""
+    source = write_humanoid(tmp_path)
+    text = source.read_text().replace(
+        '<geom size="0.005"', '<geom contype="0" conaffinity="0" size="0.005"'
+    )
+    text = text.replace(
+        '<geom type="mesh" rgba', '<geom type="mesh" contype="0" conaffinity="0" rgba'
+    )
+    feet = [f"{side}_foot{k}" for side in ("left", "right") for k in range(4)]
+    for name in feet:  # name the spheres, in file order
+        text = text.replace(
+            '<geom contype="0" conaffinity="0" size',
+            f'<geom name="{name}" contype="0" conaffinity="0" size',
+            1,
+        )
+    pairs = "\n".join(f'    <pair geom1="floor" geom2="{g}"/>' for g in feet)
+    text = text.replace(
+        "  <worldbody>\n",
+        '  <worldbody>\n    <geom name="floor" type="plane" size="5 5 0.1"/>\n',
+    ).replace("  <actuator>", f"  <contact>\n{pairs}\n  </contact>\n  <actuator>")
+    source.write_text(text)
+    mujoco.MjModel.from_xml_path(str(source))  # MuJoCo loads the scene
+    out = tmp_path / "robots" / "paired"
+    assert main([str(source), "--out", str(out), *FLAGS]) == 0
+    assert "collided only through <contact><pair>s" in capsys.readouterr().out
+    robot = load_robot(out)
+    model = robot.plant_model("position")
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos(robot, robot.config.base.standing_height)
+    data.ctrl[:] = robot.home
+    for _ in range(int(1.0 / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+    assert abs(data.qpos[2] - robot.config.base.standing_height) < 0.02  # on its feet

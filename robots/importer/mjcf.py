@@ -14,7 +14,8 @@ defaults, includes, degrees or radians) and makes the same
   motor's ``ctrlrange``) times their gear; velocity limits come from the motor or ``--velocity``.
 
 Removed, each with a printed note: actuators, sensors, tendons, equality constraints (a coupled
-joint is frozen), keyframes, explicit contact pairs, textures, materials, skins, flexes, floors
+joint is frozen), keyframes, explicit contact pairs (a geom that touched only through them now
+collides through ``contype``/``conaffinity``), textures, materials, skins, flexes, floors
 and jointless bodies hanging from the world; the world body's other geoms move into a fixed body
 ``base`` (dropped for a floating base). Slide and ball joints are frozen at their reference
 position. ``--floating-base`` removes the root body's free joint (:mod:`robots.importer.legged`
@@ -303,8 +304,30 @@ def _efforts(model: mujoco.MjModel) -> dict[str, tuple[float, str]]:
     return {k: v for k, v in out.items() if v[0] > 0}
 
 
+def _pair_geoms_collide(spec: mujoco.MjSpec, notes: list[str]) -> None:
+    """A robot geom that touches anything only through ``<contact><pair>``s (``contype`` and
+    ``conaffinity`` 0, as robots written for explicit pairs have every geom) gets ``contype =
+    conaffinity = 1``: the pairs are dropped, and the plant's contacts are the floor's and
+    robot.toml's collision pairs (before, such a robot was written with no colliding geometry,
+    exit 0, and fell through the floor). The pairs' own friction is not kept (noted)."""
+    names = {n for p in spec.pairs for n in (p.geomname1, p.geomname2) if n}
+    made = []
+    for geom in spec.geoms:
+        if geom.name in names and geom.parent.name != "world":
+            if geom.contype == 0 and geom.conaffinity == 0:
+                geom.contype, geom.conaffinity = 1, 1
+                made.append(geom.name)
+    if made:
+        notes.append(
+            f"{len(made)} geoms {made[:4]} collided only through <contact><pair>s: they collide "
+            "through contype/conaffinity now (the pairs' friction and solver settings are not "
+            "kept; the floor's and the geoms' own apply)"
+        )
+
+
 def _drop_elements(spec: mujoco.MjSpec, notes: list[str]) -> set[str]:
     """Delete what the toolkit does not simulate; return the joints equalities couple."""
+    _pair_geoms_collide(spec, notes)
     frozen = {e.name1 for e in spec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT and e.name1}
     for what, elements, why in (
         ("actuators", spec.actuators, "Robot.mjspec adds the drives of each control mode"),

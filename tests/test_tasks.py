@@ -140,3 +140,37 @@ def test_a_backwards_command_is_taken_as_the_value_it_is():
         "--seed",
         "1",
     ]
+
+
+def test_a_robot_settling_to_a_new_command_is_tracking_it():
+    """No robot follows a step of its command at once: the SETTLE_TIME after each change of the
+    planar command counts as tracked, and after it the error counts again (a robot that never
+    moves is untracked from then on). The soak's new command every 4 s left a humanoid that
+    takes about 1 s to reach each one 77 % tracked at best."""
+    from deploy.estimation.base import BaseState
+    from deploy.tasks.locomotion import SETTLE_TIME, CommandTracker
+
+    class Rt:
+        def __init__(self):
+            self.mode = np.array([2])  # RUNNING
+            self.state = type("S", (), {"base": BaseState.zeros(1)})()
+            self.velocity_command = np.zeros((1, 3))
+            self.time, self.ticks = 0.0, 0
+            self.cause = np.array([-1])
+
+    rt, dt = Rt(), 0.02
+    tracker = CommandTracker(1, dt, backend=None)
+    tracked = []
+    for k in range(300):  # 6 s: still, then a 1 m/s command at 2 s the robot never follows
+        if k == 100:
+            rt.velocity_command[0, 0] = 1.0
+        rt.ticks, rt.time = k, k * dt
+        tracker(rt)
+        tracked.append(float(tracker.tracked_time[0]))
+    change = 100
+    settle = round(SETTLE_TIME / dt)
+    assert tracked[change + settle - 1] - tracked[change - 1] == pytest.approx(SETTLE_TIME)
+    assert tracked[-1] == pytest.approx(tracked[change + settle])  # untracked after settling
+    again = CommandTracker(1, dt, backend=None)
+    again.load_state_dict(tracker.state_dict())
+    np.testing.assert_array_equal(again.changed_at, [2.0])

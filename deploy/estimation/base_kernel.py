@@ -26,8 +26,8 @@ with ``v_foot``, ``omega_foot`` the foot's velocity in the base frame (the base 
 turning at ``omega``), ``rho`` its contact sphere's radius and ``u`` the world's down in the base
 frame. Updates are Joseph-form, the error folded into the nominal state and zeroed.
 
-Heading is locked (:func:`lock_heading`): no correction turns the base about the world's up, nor
-moves the gyro's bias along it; the heading is the gyro's, integrated.
+Heading is locked (:func:`lock_heading`): the heading is the gyro's, integrated, and the world
+frame's (its error has no variance; left to grow, it fed the velocity's through ``[R f]x``).
 """
 
 from __future__ import annotations
@@ -94,7 +94,9 @@ def lock_heading(K, q) -> None:
     the Go2 on Unitree's simulator, whose feet report no force (the contacts then come from the
     kinematics), read -23 deg for a true -107 deg turn in 30 s. Those rows are zeroed (a
     consider state, Schmidt's Kalman filter; the Joseph form keeps the covariance right for any
-    gain)."""
+    gain), and :func:`imu_step` holds the heading's variance at zero: left to grow (1.8 rad^2 in
+    3 minutes), it fed the velocity's through ``[R f]x`` whenever the base accelerated, and the
+    Go2's planar velocity error in a soak doubled."""
     R = np.empty((3, 3))
     _quat_to_mat(q, R)
     for c in range(K.shape[1]):
@@ -175,6 +177,9 @@ def imu_step(
         P2[6 + i, 6 + i] += walk_var * dt
         P2[9 + i, 9 + i] += accel_walk_var * dt
     P[:, :] = P2
+    for i in range(N_ERROR):  # the heading is the filter's own: no uncertainty (lock_heading)
+        P[2, i] = 0.0
+        P[i, 2] = 0.0
     for i in range(3):
         v[i] += dt * (rf[i] + gravity[i])
     _turn(omega * dt, q, False)

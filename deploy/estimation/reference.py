@@ -195,6 +195,8 @@ class ReferenceBaseStateEstimator(BaseStateEstimator):
         kf = self._kfs[e]
         kf.F, kf.Q = F, Q
         kf.predict()
+        kf.P[2, :] = 0.0  # the heading has no uncertainty (base_kernel.lock_heading)
+        kf.P[:, 2] = 0.0
         self.covariance[e] = kf.P
 
     def _correct(self, e: int, y: np.ndarray, H: np.ndarray, R: np.ndarray) -> np.ndarray:

@@ -54,7 +54,12 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
         success_message = (
             f"tracking success {rate:.3f} (threshold {thresholds.min_success_rate:.3f}, "
             f"{loco['tracked_s']:.0f}/{loco['running_s']:.0f} s RUNNING within "
-            f"{loco['tracking_tolerance_m_s']:g} m/s of the command)"
+            f"{loco['tracking_tolerance_m_s']:g} m/s of the command"
+            + (
+                f", {loco['settle_s']:g} s after each change allowed to settle)"
+                if loco.get("settle_s")
+                else ")"
+            )
             if rate is not None
             else "never RUNNING"
         )

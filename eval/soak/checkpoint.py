@@ -56,7 +56,8 @@ FORMAT = "soak-checkpoint"
 #: checkpoint has neither.
 #: 10: a legged robot's planar displacement (``tracker/displacement``, ``tracker/start_yaw``) and
 #: its heading from the yaw tick to tick (``tracker/last_yaw``), the interventions that are not
-#: the policy's style (``interventions/safety``); a version 9 checkpoint has none.
+#: the policy's style (``interventions/safety``), the command's last change
+#: (``tracker/changed_at``, ``tracker/last_command``); a version 9 checkpoint has none.
 VERSION = 10
 MANIFEST = "checkpoint.json"
 

@@ -39,7 +39,7 @@ def locomotion_result(session: Session) -> dict:
     """The ``locomotion`` section of a legged session's result (see :mod:`eval.report.build`)."""
     from dataclasses import asdict
 
-    from deploy.tasks.locomotion import TRACKING_TOLERANCE, TRACKING_WINDOW
+    from deploy.tasks.locomotion import SETTLE_TIME, TRACKING_TOLERANCE, TRACKING_WINDOW
 
     b, e, rt = session.batch, session.e, session.batch.rt
     tr, cmd = session.task.tracker, session.task.schedule
@@ -76,6 +76,7 @@ def locomotion_result(session: Session) -> dict:
         "tracking_success": float(tr.tracked_time[e]) / running if running else None,
         "tracking_tolerance_m_s": TRACKING_TOLERANCE,
         "tracking_window_s": TRACKING_WINDOW,
+        "settle_s": SETTLE_TIME,
         "judged_on": tr.judged_on,
         "running_s": running,
         "standing_fraction": running / t_end if t_end > 0 else None,

@@ -171,6 +171,13 @@ def test_a_robot_settling_to_a_new_command_is_tracking_it():
     settle = round(SETTLE_TIME / dt)
     assert tracked[change + settle - 1] - tracked[change - 1] == pytest.approx(SETTLE_TIME)
     assert tracked[-1] == pytest.approx(tracked[change + settle])  # untracked after settling
+    # a joystick's gradual change (0.01 m/s a tick) is no step: nothing is given for settling
+    before = float(tracker.tracked_time[0])
+    for k in range(300, 400):
+        rt.velocity_command[0, 0] = 1.0 + 0.01 * (k - 299)
+        rt.ticks, rt.time = k, k * dt
+        tracker(rt)
+    assert float(tracker.tracked_time[0]) == before
     again = CommandTracker(1, dt, backend=None)
     again.load_state_dict(tracker.state_dict())
     np.testing.assert_array_equal(again.changed_at, [2.0])

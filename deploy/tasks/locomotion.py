@@ -7,7 +7,7 @@ the runtime is RUNNING. Tracking success is the fraction of RUNNING time whose p
 error ``|mean v_xy - mean command_xy|`` is within ``TRACKING_TOLERANCE`` (0.2 m/s), both averaged
 over the same ``TRACKING_WINDOW`` (a trot's body sways within a stride: the command is a mean
 speed; averaging the command too keeps the window's own lag out of the error, so a robot that
-follows a step of the command at once tracks it at once); the ``SETTLE_TIME`` after each change
+follows a step of the command at once tracks it at once); the ``SETTLE_TIME`` after each step
 of the planar command counts as tracked (no robot follows a step at once). Falls are the
 runtime's safe stops.
 
@@ -46,7 +46,8 @@ from deploy.stateful import (
 TRACKING_TOLERANCE = 0.2
 #: Averaging window of the tracked velocity, s (our choice: two strides of a 0.4 s trot).
 TRACKING_WINDOW = 0.8
-#: s after a change of the planar command that count as tracked while the robot settles to it
+#: s after a step of the planar command (more than ``TRACKING_TOLERANCE`` from one tick to the
+#: next: a joystick's gradual change is no step) that count as tracked while the robot settles
 #: (our choice: a base accelerating at 1 m/s^2 reaches a 1 m/s step in 1 s; unitree_rl_mjlab's
 #: G1 policy took about that, and the soak's new command every 4 s left it 77 % tracked at best).
 SETTLE_TIME = 1.0
@@ -197,8 +198,8 @@ class CommandTracker:
         distance: (envs,) m, planar path length of the base while RUNNING.
         forward: (envs,) m, displacement along the base's heading while RUNNING.
         running_time: (envs,) s RUNNING. tracked_time: (envs,) s of it within tolerance, or
-            within ``SETTLE_TIME`` of a change of the planar command (``changed_at``, s;
-            ``last_command``, (envs, 2) m/s, NaN before the first).
+            within ``SETTLE_TIME`` of a step of the planar command (``changed_at``, s;
+            ``last_command``, (envs, 2) m/s, the previous tick's, NaN before the first).
         falls: (envs,) int64, falls: stops (SAFE_STOP or FAULTED, of any cause) of a robot that
             has been RUNNING since its previous stop. The runtime lays a legged robot down at
             every stop, so a hard-limit or stale-sensor stop leaves the base on the ground as a
@@ -412,10 +413,8 @@ class CommandTracker:
         if self.success_window is not None:
             self._close_windows(runtime.time - self.dt)  # this tick's time counts in its window
         command = runtime.velocity_command[:, :2]
-        with np.errstate(invalid="ignore"):
-            changed = (command != self.last_command).any(axis=1) & np.isfinite(
-                self.last_command[:, 0]
-            )
+        with np.errstate(invalid="ignore"):  # a step of the command, not a joystick's drift
+            changed = np.linalg.norm(command - self.last_command, axis=1) > TRACKING_TOLERANCE
         self.changed_at[changed] = runtime.time
         self.last_command[:] = command
         settling = runtime.time - self.changed_at < SETTLE_TIME

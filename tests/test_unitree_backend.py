@@ -31,6 +31,7 @@ from deploy.backends.unitree.backend import UnitreeBackend  # noqa: E402
 from deploy.backends.unitree.bringup import BLEND_TIME, BringupError  # noqa: E402
 from deploy.backends.unitree.dds import DdsLink  # noqa: E402
 from deploy.backends.unitree.emulator import EmulatorFaults, UnitreeEmulator  # noqa: E402
+from deploy.backends.unitree.emulator.robot import TRACE_EVERY  # noqa: E402
 from deploy.backends.unitree.emulator.truth import walk_truth  # noqa: E402
 from deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT  # noqa: E402
 from deploy.spec.policy_spec import PolicySpec  # noqa: E402
@@ -380,21 +381,27 @@ def test_walks_on_a_unitree_mujoco_like_bridge_with_the_command_stream(tmp_path,
         trace = np.array(emu.trace)
         true_path = emu.true_distance
         resent = emu.stats["lowcmd_received"]
+        start = _policy_started(emu, go2)
+        started_at = emu.commands[start][0] if start is not None else np.inf
+        ended_at = emu.commands[-1][0]  # the stream's last command: the run's close
     assert code == EXIT_CLEAN, out
     walk, bus = report["locomotion"], report["bus"]
     assert walk["falls"] == 0 and report["final_state"] == ["RUNNING"], out
     assert bus["lowstate_unchecked"] > 1000 and bus["dropouts"]["bad_crc"] == 0, bus
     assert bus["lowcmd_resent"] > 5 * bus["lowcmd_sent"] / 10 and resent > 2000, bus
     forward = trace[-1, 1] - trace[0, 1]
-    assert forward > 1.5, trace[-1]  # walking (0.5 m/s for about 6 s after the bring-up)
+    # walking, judged on the plant's own time since the policy started: on a machine too busy
+    # for the emulator's physics to keep up with the clock it simulates less of the walk
+    walking = (trace[:, 0] >= started_at) & (trace[:, 0] <= ended_at)
+    walked_s = walking.sum() * TRACE_EVERY * go2.physics_timestep
+    assert walked_s > 1.0 and forward > 0.25 * walked_s, (forward, walked_s, trace[-1])
     assert abs(walk["distance_m"] / true_path - 1) < 0.15, (walk["distance_m"], true_path)
     # straight: the heading hold (default for a command without a yaw rate) keeps the policy's
-    # own turn (about -4 deg/s, -25 deg over this walk without it) out of the path
+    # own turn (about -4 deg/s, -20 deg over this walk without it) out of the path
     assert walk["heading_hold_gain"] > 0
-    running = trace[:, 0] >= trace[-1, 0] - report["locomotion"]["running_s"]
-    yaw = np.unwrap(trace[running, 3])
+    yaw = np.unwrap(trace[walking, 3])
     assert abs(np.degrees(yaw[-1] - yaw[0])) < 12.0, np.degrees(yaw[-1] - yaw[0])
-    step = trace[-1, 1:3] - trace[running][0, 1:3]
+    step = trace[walking][-1, 1:3] - trace[walking][0, 1:3]
     c, s = np.cos(yaw[0]), np.sin(yaw[0])
     along, across = c * step[0] + s * step[1], -s * step[0] + c * step[1]
     assert abs(across) < 0.2 * along, (along, across)

@@ -473,19 +473,22 @@ def test_a_drifted_accelerometer_bias_is_learned_and_not_read_as_sinking(go2, sh
     assert abs(rt.base_estimator.accel_bias[0, 2] - bias[2]) < 0.2
 
 
+class NoFootSensors(SimBackend):
+    """The plant as a unitree_hg LowState reads: no foot force (NaN) under a fresh stamp."""
+
+    def read(self):
+        frame = super().read()
+        frame.foot_force[:] = np.nan
+        frame.foot_contact[:] = False
+        return frame
+
+
 def test_a_robot_without_foot_sensors_walks_on_kinematic_contacts(go2, shipped_go2):
     """unitree_hg robots (G1, H1-2) send no foot force: the backend fills the frame's force with
     NaN under a fresh contact stamp. The estimator takes those feet as sensorless at once and
     finds contacts by kinematics; the shipped Go2 walks 20 s so, the base estimate close to the
     truth. Before, the leg odometry never ran: the IMU alone read the base sinking at 5 m/s and
     the fall check stopped the robot within seconds."""
-
-    class NoFootSensors(SimBackend):
-        def read(self):
-            frame = super().read()
-            frame.foot_force[:] = np.nan
-            frame.foot_contact[:] = False
-            return frame
 
     plant = NoFootSensors(go2, "position", envs=1, seed=0)
     rt = Runtime(go2, shipped_go2, plant)
@@ -513,13 +516,6 @@ def test_kinematic_contacts_do_not_turn_the_heading(go2, shipped_go2):
     estimate's yaw is the gyro's, within 10 % + 5 deg of the truth's (the plant's gyro bias of
     seed 0 about the up axis, unobservable, turns it 6 deg)."""
     from deploy.estimation.attitude import yaw_of
-
-    class NoFootSensors(SimBackend):
-        def read(self):
-            frame = super().read()
-            frame.foot_force[:] = np.nan
-            frame.foot_contact[:] = False
-            return frame
 
     plant = NoFootSensors(go2, "position", envs=1, seed=0)
     rt = Runtime(go2, shipped_go2, plant)

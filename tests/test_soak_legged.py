@@ -247,3 +247,24 @@ def test_robot_import_writes_go2s_soak_table(tmp_path):
     written = (out / "robot.toml").read_text()
     assert "[soak]\n" in written and "push_force = [6.4, 32.0]  # N" in written
     assert written.replace(str(out), "robots/go2") == shipped
+
+
+def test_a_legged_sessions_tracking_is_judged_only_when_the_user_asks(uninterrupted):
+    """How closely a policy follows every command is its own quality: reported, not judged,
+    unless a threshold is given (soak-test --min-success); falls and violations are judged."""
+    import copy
+
+    from eval.report.build import session_checks
+    from eval.report.schema import Thresholds
+
+    result = copy.deepcopy(uninterrupted)
+    loco = result["locomotion"]
+    loco["tracking_success"] = loco["min_window_success_rate"] = 0.5
+    reported = session_checks(result, Thresholds())
+    assert reported["success_rate"]["passed"] and reported["window_success"]["passed"]
+    assert "0.500 (not judged" in reported["success_rate"]["message"]
+    judged = session_checks(result, Thresholds(judge_tracking=True))
+    assert not judged["success_rate"]["passed"] and not judged["window_success"]["passed"]
+    assert "threshold 0.950" in judged["success_rate"]["message"]
+    loco["falls"], loco["falls_per_hour"] = 1, 50.0
+    assert not session_checks(result, Thresholds())["falls"]["passed"]

@@ -37,8 +37,9 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     ``interventions`` (ticks with an intervention at most ``max_intervention_rate`` of the
     ticks; a legged robot's position targets clamped into its soft limits are its policy's style:
     reported in the message, not judged), ``no_divergence``, ``falls`` (a legged session: at
-    most ``max_falls_per_hour``; an arm passes). For a legged session the success checks judge
-    its tracking success (``locomotion``).
+    most ``max_falls_per_hour``; an arm passes). For a legged session the success checks are its
+    tracking success (``locomotion``), judged only with ``thresholds.judge_tracking`` (else they
+    pass and say "not judged").
     """
     hard = result["violations"]["total"].get("hard_limit", 0)
     hard_down = result["violations"].get("while_down", {}).get("hard_limit", 0)
@@ -49,10 +50,13 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     thermal_stops = result["runtime"]["by_cause"].get("over_temperature", 0)
     loco = result.get("locomotion")
     goals = result["goals"]
+    judged = True
     if loco is not None:  # a legged session: its success is the tracking success
         rate, window = loco["tracking_success"], loco["min_window_success_rate"]
+        judged = thresholds.judge_tracking
+        threshold = f"threshold {thresholds.min_success_rate:.3f}" if judged else "not judged"
         success_message = (
-            f"tracking success {rate:.3f} (threshold {thresholds.min_success_rate:.3f}, "
+            f"tracking success {rate:.3f} ({threshold}, "
             f"{loco['tracked_s']:.0f}/{loco['running_s']:.0f} s RUNNING within "
             f"{loco['tracking_tolerance_m_s']:g} m/s of the command"
             + (
@@ -65,8 +69,12 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
         )
         window_message = (
             f"lowest tracking success in a {loco['window_s'] / 60:g}-minute window {window:.3f} "
-            f"(threshold {thresholds.min_window_success_rate:.3f}, "
-            f"{len(loco['windows'])} windows)"
+            + (
+                f"(threshold {thresholds.min_window_success_rate:.3f}, "
+                if judged
+                else "(not judged, "
+            )
+            + f"{len(loco['windows'])} windows)"
             if window is not None
             else "never RUNNING"
         )
@@ -126,11 +134,11 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
             else f"peak winding {max(th['peak_c'].values()):.1f} degC",
         ),
         "success_rate": (
-            rate is not None and rate >= thresholds.min_success_rate,
+            not judged or (rate is not None and rate >= thresholds.min_success_rate),
             success_message,
         ),
         "window_success": (
-            window is not None and window >= thresholds.min_window_success_rate,
+            not judged or (window is not None and window >= thresholds.min_window_success_rate),
             window_message,
         ),
         "falls": (falls_ok, falls_message),

@@ -419,10 +419,11 @@ def test_a_kind_without_a_kernel_branch_is_refused_at_registration(changes, mess
     assert KINDS == before  # nothing registered
 
 
-def test_the_reference_gives_the_kernels_numbers_and_components_run_it_explicitly(go2):
-    """``observation_reference`` equals ``observation`` bit for bit; a block reading some
-    components of its vector (holosoma's split command) runs the numpy writers, and the plan
-    says why."""
+def test_the_reference_gives_the_kernels_numbers_with_components_in_any_order(go2):
+    """``observation_reference`` equals ``observation`` bit for bit, and the kernel runs blocks
+    that read some components of their raw vector: holosoma's split command, and two-foot gait
+    clocks read as ``[cos p0, cos p1, sin p0, sin p1]`` or with their cos and sin terms apart
+    (p1 = p0 + pi), one of them sign-flipped by a negative scale."""
     from deploy.spec.policy_spec import ObservationBlock
     from deploy.spec.reference import observation_reference
 
@@ -430,9 +431,15 @@ def test_the_reference_gives_the_kernels_numbers_and_components_run_it_explicitl
     assert base._plan.compiled and base._plan.numpy_reason is None
     yaw = ObservationBlock("velocity_command", 1, (0.25,), (0.0,), components=(2,))
     split = dataclasses.replace(base, observation_blocks=(yaw,) + base.observation_blocks)
+    clock = ObservationBlock("gait_phase", 4, (1.0,) * 4, (0.0,) * 4, period=0.8,
+                             components=(1, 3, 0, 2))
+    cos_apart = ObservationBlock("gait_phase", 2, (1.0, -1.0), (0.0,) * 2, period=0.8,
+                                 components=(1, 3))
+    split = dataclasses.replace(
+        base, observation_blocks=(yaw, clock) + base.observation_blocks + (cos_apart,)
+    )
     split.validate()
-    assert not split._plan.compiled
-    assert split._plan.numpy_reason == "block 'velocity_command' reads components [2] of its vector"
+    assert split._plan.compiled and split._plan.numpy_reason is None
     rng = np.random.default_rng(2)
     state = RobotState.legged(3, go2.n_joints, go2.n_feet)
     state.q[:] = rng.uniform(go2.position_lower, go2.position_upper, (3, go2.n_joints))
@@ -445,3 +452,19 @@ def test_the_reference_gives_the_kernels_numbers_and_components_run_it_explicitl
         )
     obs = split.observation(state, goal)
     np.testing.assert_array_equal(obs[:, 0], (state.command[:, 2] / 0.25).astype(np.float32))
+    p = 2 * np.pi * state.clock / 0.8
+    two_feet = np.stack([np.cos(p), np.cos(p + np.pi), np.sin(p), np.sin(p + np.pi)], axis=1)
+    np.testing.assert_allclose(obs[:, 1:5], two_feet, atol=1e-6)
+    np.testing.assert_allclose(obs[:, -2:], np.stack([np.cos(p), np.cos(p)], axis=1), atol=1e-6)
+    for bad, message in (((1, 4), "must be in 0..3"), ((0,), None)):
+        block = dataclasses.replace(cos_apart, size=len(bad), scale=(1.0,) * len(bad),
+                                    offset=(0.0,) * len(bad), components=bad)
+        spec = dataclasses.replace(base, observation_blocks=base.observation_blocks + (block,))
+        if message is None:
+            spec.validate()
+        else:
+            with pytest.raises(SpecError, match=message):
+                spec.validate()
+    zero = dataclasses.replace(cos_apart, scale=(1.0, 0.0))
+    with pytest.raises(SpecError, match="finite and nonzero"):
+        dataclasses.replace(base, observation_blocks=(zero,)).validate()

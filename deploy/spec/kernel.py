@@ -6,7 +6,9 @@ Each block is coded by its kind's branch code (``ObservationKind.kernel_code`` i
 joint indices (a (blocks, max_joints) int64 array, padded). The arithmetic is the reference's
 (:mod:`deploy.spec.reference`): ``(raw - offset) / scale``, then the upper clip, then the lower
 clip, then the cast to float32; ``goal_in_ee`` is ``(goal - ee) @ R`` summed in the order of
-numpy's matmul loop; ``gait_phase`` is ``sin, cos`` of ``(2 pi / period) * clock`` and
+numpy's matmul loop; ``gait_phase`` is ``sin p, cos p, sin(p + pi), cos(p + pi)`` of
+``p = (2 pi / period) * clock`` (the second foot half a period later), of which a block reads its
+``components`` (default the first two); a vector block reads its ``components`` of its 3-vector; and
 ``heading_sincos`` of the yaw ``atan2(2 (w z + x y), 1 - 2 (y^2 + z^2))``. A new kind adds its
 branch here (a new code in ``BRANCHES``, and its input array when the state has a new field).
 """
@@ -64,6 +66,7 @@ def observation(
     starts: np.ndarray,
     joints: np.ndarray,
     periods: np.ndarray,
+    components: np.ndarray,
     q: np.ndarray,
     dq: np.ndarray,
     ee_position: np.ndarray,
@@ -88,6 +91,8 @@ def observation(
         kinds, starts: (blocks,) int64, block codes (``BRANCHES``) and first columns.
         joints: (blocks, k) int64 joint indices, -1 padded (a block's size is its column span).
         periods: (blocks,) float64, the gait clock's period of a ``gait_phase`` block, s.
+        components: (blocks, 4) int64, the entries of its raw vector a vector or ``gait_phase``
+            block reads, in order, -1 padded; a row starting with -1: the kind's own entries.
         q, dq, last_action, temperature: (envs, n); ee_position, goal (envs, 3); ee_rotation
             (envs, 3, 3): the inputs of the reference, same units.
         linear_velocity, angular_velocity, gravity, command: (envs, 3) base linear velocity
@@ -141,20 +146,26 @@ def observation(
                     raw[e, s0 + i] = temperature[e, joints[b, i]]
             elif kind == BASE_LINEAR_VELOCITY:
                 for i in range(size):
-                    raw[e, s0 + i] = linear_velocity[e, i]
+                    c = components[b, i] if components[b, 0] >= 0 else i
+                    raw[e, s0 + i] = linear_velocity[e, c]
             elif kind == BASE_ANGULAR_VELOCITY:
                 for i in range(size):
-                    raw[e, s0 + i] = angular_velocity[e, i]
+                    c = components[b, i] if components[b, 0] >= 0 else i
+                    raw[e, s0 + i] = angular_velocity[e, c]
             elif kind == PROJECTED_GRAVITY:
                 for i in range(size):
-                    raw[e, s0 + i] = gravity[e, i]
+                    c = components[b, i] if components[b, 0] >= 0 else i
+                    raw[e, s0 + i] = gravity[e, c]
             elif kind == VELOCITY_COMMAND:
                 for i in range(size):
-                    raw[e, s0 + i] = command[e, i]
+                    c = components[b, i] if components[b, 0] >= 0 else i
+                    raw[e, s0 + i] = command[e, c]
             elif kind == GAIT_PHASE:
                 phase = (2.0 * math.pi / periods[b]) * clock[e]
-                raw[e, s0] = math.sin(phase)
-                raw[e, s0 + 1] = math.cos(phase)
+                sp, cp = math.sin(phase), math.cos(phase)
+                for i in range(size):
+                    c = components[b, i] if components[b, 0] >= 0 else i
+                    raw[e, s0 + i] = (sp, cp, -sp, -cp)[c]
             elif kind == FOOT_CONTACT:
                 for i in range(size):
                     raw[e, s0 + i] = contact[e, i]

@@ -8,10 +8,12 @@ raw quantity with units and the physical scale it is divided by, its numpy write
 (:mod:`deploy.spec.defaults`) and the observation plan (:mod:`deploy.spec.observation_plan`) read
 it. :func:`register_kind` refuses a kind without a kernel branch: no kind falls back to numpy.
 
-The one path to numpy in production: a block that reads some ``components`` of a vector kind
-(holosoma's velocity command split into its linear and yaw entries) runs the numpy writers of the
-whole plan, because the kernel copies whole vectors (:func:`numpy_reason` says so; the plan keeps
-it in ``ObservationPlan.numpy_reason``). The numbers are the same either way.
+A block may read some ``components`` of its kind's raw vector, in any order: a vector kind's
+3-vector (holosoma's velocity command split into its linear and yaw entries), or ``gait_phase``'s
+``sin p, cos p, sin(p + pi), cos(p + pi)`` (two feet half a period apart, in the order a policy
+reads them). The kernel runs them; only a spec that was never validated (a joint block whose size
+does not follow from its joints) runs the numpy writers (:func:`numpy_reason`, kept in
+``ObservationPlan.numpy_reason``). The numbers are the same either way.
 """
 
 from __future__ import annotations
@@ -46,6 +48,8 @@ class ObservationKind:
         floating_base: Needs a floating-base robot's state (the base estimate, command, clock).
         vector: A 3-vector (x, y, z; a command's vx, vy, yaw rate) whose blocks may read some of
             its entries (``ObservationBlock.components``).
+        raw_entries: Entries of the raw vector a block may pick ``components`` from (3 for a
+            vector kind, 4 for ``gait_phase``); 0: none.
         periodic: Needs the block's ``period`` (s, > 0).
     """
 
@@ -60,6 +64,7 @@ class ObservationKind:
     floating_base: bool = False
     vector: bool = False
     periodic: bool = False
+    raw_entries: int = 0
 
     def block_size(self, joints: int) -> int:
         """Entries of a block of this kind reading ``joints`` joints (all its components)."""
@@ -87,8 +92,8 @@ def register_kind(kind: ObservationKind) -> ObservationKind:
         raise KindError(f"{where}: give either a fixed size or entries per joint, not both")
     if kind.every_joint and not kind.per_joint:
         raise KindError(f"{where}: every_joint is for joint kinds")
-    if kind.vector and kind.size != 3:
-        raise KindError(f"{where}: a vector kind has 3 entries")
+    if kind.vector and (kind.size != 3 or kind.raw_entries != 3):
+        raise KindError(f"{where}: a vector kind has 3 entries (size and raw_entries)")
     if kind.kernel_code is None:
         raise KindError(
             f"{where}: no kernel_code: every kind runs in the compiled kernel; add its branch to "
@@ -115,17 +120,14 @@ def kind_names(floating_base: bool | None = None) -> tuple[str, ...]:
 
 
 def vector_kind_names() -> tuple[str, ...]:
-    """The vector kinds, whose blocks may read some ``components``."""
-    return tuple(k.name for k in KINDS.values() if k.vector)
+    """The kinds whose blocks may read some ``components`` (the vector kinds, ``gait_phase``)."""
+    return tuple(k.name for k in KINDS.values() if k.raw_entries)
 
 
 def numpy_reason(block) -> str | None:
     """Why a block (:class:`deploy.spec.policy_spec.ObservationBlock` of a registered kind) cannot
-    run in the kernel, or None: it reads some components of its vector (the kernel copies whole
-    vectors), or its size does not follow from its joints (a spec not validated)."""
+    run in the kernel, or None: its size does not follow from its joints (a spec not validated)."""
     kind = KINDS[block.name]
-    if block.components:
-        return f"block '{block.name}' reads components {list(block.components)} of its vector"
     if kind.per_joint and block.size != kind.per_joint * len(block.joints):
         return f"block '{block.name}' has {block.size} entries for {len(block.joints)} joints"
     return None
@@ -189,6 +191,7 @@ _fixed(
     "base linear velocity (3), m/s, estimated; scale = 1 / legged_gym's lin_vel 2.0",
     kernel.BASE_LINEAR_VELOCITY,
     vector=True,
+    raw_entries=3,
     **_legged,
 )
 _fixed(
@@ -196,6 +199,7 @@ _fixed(
     "base angular velocity (3), rad/s; scale = 1 / legged_gym's ang_vel 0.25",
     kernel.BASE_ANGULAR_VELOCITY,
     vector=True,
+    raw_entries=3,
     **_legged,
 )
 _fixed(
@@ -203,6 +207,7 @@ _fixed(
     "gravity's direction in the base frame (3), unit vector; unscaled",
     kernel.PROJECTED_GRAVITY,
     vector=True,
+    raw_entries=3,
     **_legged,
 )
 _fixed(
@@ -210,14 +215,17 @@ _fixed(
     "velocity command (3): vx, vy m/s, yaw rate rad/s; scaled like the velocities it commands",
     kernel.VELOCITY_COMMAND,
     vector=True,
+    raw_entries=3,
     **_legged,
 )
 _fixed(
     "gait_phase",
-    "sin, cos (2) of 2 pi t / period, t the runtime's clock, s; unscaled",
+    "sin p, cos p (2) of p = 2 pi t / period, t the runtime's clock, s; unscaled; components "
+    "pick from sin p, cos p, sin(p + pi), cos(p + pi) (a second foot half a period later)",
     kernel.GAIT_PHASE,
     size=2,
     periodic=True,
+    raw_entries=4,
     **_legged,
 )
 _fixed(

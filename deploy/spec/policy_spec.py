@@ -93,13 +93,16 @@ class ObservationBlock:
     Attributes:
         name: The block kind (a kind registered in :mod:`deploy.spec.kinds`).
         size: Number of entries it contributes.
-        scale: Per-entry divisor (physical maximum), length ``size``.
+        scale: Per-entry divisor (physical maximum), length ``size``; finite and nonzero (a
+            negative scale flips the entry's sign, as some policies read their gait clock).
         offset: Per-entry offset, length ``size``.
         clip: Symmetric clip after normalization.
         joints: Joint indices it reads (joint blocks only), in order.
         period: ``gait_phase`` only: the gait clock's period, s (> 0); 0 for other blocks.
-        components: The vector kinds' blocks only: the entries of the raw 3-vector
-            it reads, in order (``(2,)``: the yaw rate of ``velocity_command``); empty: all three.
+        components: The vector kinds' and ``gait_phase``'s blocks only: the entries of the raw
+            vector it reads, in order (``(2,)``: the yaw rate of ``velocity_command``;
+            ``(1, 3, 0, 2)``: a two-foot clock ``cos p, cos(p + pi), sin p, sin(p + pi)``);
+            empty: the kind's own (a vector's three; ``gait_phase``: ``sin p, cos p``).
     """
 
     name: str
@@ -275,8 +278,8 @@ class PolicySpec:
                 raise SpecError(f"{where}: period must be a positive number of s, got {b.period}")
             if len(b.scale) != b.size or len(b.offset) != b.size:
                 raise SpecError(f"{where}: scale and offset need {b.size} entries")
-            if not all(np.isfinite(s) and s > 0 for s in b.scale):
-                raise SpecError(f"{where}: scale must be finite and positive, got {b.scale}")
+            if not all(np.isfinite(s) and s != 0 for s in b.scale):
+                raise SpecError(f"{where}: scale must be finite and nonzero, got {b.scale}")
             if not b.clip > 0:
                 raise SpecError(f"{where}: clip must be positive, got {b.clip}")
             if any(j < 0 or j >= n for j in b.joints):
@@ -289,12 +292,15 @@ class PolicySpec:
             # per-foot kinds: the robot's feet (check_robot)
             expected = b.size if kind.per_foot else kind.block_size(len(b.joints))
             if b.components:
-                if not kind.vector:
+                if not kind.raw_entries:
                     raise SpecError(
-                        f"{where}: components is for the vector blocks {vector_kind_names()} only"
+                        f"{where}: components is for the blocks {vector_kind_names()} only"
                     )
-                if any(c not in (0, 1, 2) for c in b.components):
-                    raise SpecError(f"{where}: components {b.components} must be in 0, 1, 2")
+                if any(c not in range(kind.raw_entries) for c in b.components):
+                    raise SpecError(
+                        f"{where}: components {list(b.components)} must be in "
+                        f"0..{kind.raw_entries - 1}"
+                    )
                 expected = len(b.components)
             if b.size != expected:
                 raise SpecError(f"{where}: size {b.size}, expected {expected}")

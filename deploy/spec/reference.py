@@ -129,8 +129,12 @@ def velocity_command(state, goal, raw, block: PlanBlock, vec, rot) -> None:
 
 def gait_phase(state, goal, raw, block: PlanBlock, vec, rot) -> None:
     phase = (2.0 * np.pi / block.period) * state.clock
-    raw[:, 0] = np.sin(phase)
-    raw[:, 1] = np.cos(phase)
+    sp, cp = np.sin(phase), np.cos(phase)
+    if block.components.size:  # of sin p, cos p and the second foot's, half a period later
+        np.take(np.stack([sp, cp, -sp, -cp], axis=1), block.components, axis=1, out=raw)
+    else:
+        raw[:, 0] = sp
+        raw[:, 1] = cp
 
 
 def foot_contact(state, goal, raw, block: PlanBlock, vec, rot) -> None:

@@ -69,7 +69,8 @@ class ObservationBlockDocument(_Doc):
     scale: float | list[float] = Field(
         default=1.0,
         description=(
-            f"Divisor of (raw - offset), {_NUMBERS}; finite and > 0. A training library's "
+            f"Divisor of (raw - offset), {_NUMBERS}; finite and nonzero (negative flips the "
+            "sign). A training library's "
             "multiplier s (legged_gym obs_scales) is scale = 1 / s."
         ),
     )
@@ -87,7 +88,7 @@ class ObservationBlockDocument(_Doc):
     period: float | None = Field(
         default=None,
         gt=0,
-        description="gait_phase only: the gait clock's period, s (sin, cos of 2 pi t / period).",
+        description="gait_phase only: the gait clock's period, s (p = 2 pi t / period).",
     )
     joints: list[int | str] | None = Field(
         default=None,
@@ -101,8 +102,10 @@ class ObservationBlockDocument(_Doc):
         default=None,
         description=(
             "Vector blocks (base_linear_velocity, base_angular_velocity, projected_gravity, "
-            "velocity_command) only: the entries of the 3-vector read, in order (0 x, 1 y, 2 z; "
-            "a velocity command's vx, vy, yaw rate); default all three."
+            "velocity_command) and gait_phase only: the entries of the raw vector read, in order. "
+            "A vector: 0 x, 1 y, 2 z (a velocity command's vx, vy, yaw rate); default all three. "
+            "gait_phase: 0 sin p, 1 cos p, 2 sin(p + pi), 3 cos(p + pi) (a second foot half a "
+            "period later), p = 2 pi t / period; default [0, 1]."
         ),
     )
 

@@ -47,8 +47,8 @@ TERMS = {
 }
 _PHASE = (
     "holosoma's gait phase is two phases (left and right foot, half a period apart) in separate "
-    "sin and cos terms, held at pi while standing; this toolkit's gait_phase block is the sin and "
-    "cos of one clock"
+    "sin and cos terms, held at pi while standing; this toolkit's gait_phase blocks give both "
+    "feet's sin and cos in any order (components) but their clock never stops"
 )
 #: Terms that cannot be mapped: (size, why).
 UNMAPPED = {"sin_phase": (2, _PHASE), "cos_phase": (2, _PHASE)}

@@ -339,3 +339,67 @@ def test_unitree_deploy_yaml_beside_the_policy_is_its_contract(go2, tmp_path, ca
     path = fs.write_unitree_policy(tmp_path / "v1", cfg, 45, bias=BIAS)
     with pytest.raises(PolicyLoadError, match=r"JointPositionAction.clip: a per-joint clip"):
         OnnxPolicy(path, go2)
+
+
+def test_robot_import_takes_the_drive_from_the_policys_contract(tmp_path, capsys):
+    """``robot-import --drive-from POLICY``: kp, kd, home and the control rate come from the
+    policy's deploy.yaml, joint by joint through its motor slots (a ``unitree_hg`` humanoid's
+    slots are its description's joint order), so the PD-target limits are the policy's; a
+    ``--kp`` after it wins; a different --control-rate or a policy for other joints is refused in
+    one line."""
+    from robots import load_robot
+    from robots.importer.cli import EXIT_REFUSED, main
+    from tests.test_import_humanoid import MOTORS, write_humanoid
+
+    source = write_humanoid(tmp_path)
+    joints = [m.joint(i).name for m in [load_mj(source)] for i in range(1, m.njnt)]
+    n = len(joints)
+    default = [0.0, -0.1, 0.3, -0.2] * 2
+    slots = list(range(n))[::-1]  # the policy lists the joints from the last motor slot down
+    cfg = fs.unitree_deploy(slots, [default[s] for s in slots])
+    cfg["stiffness"] = [10.0 + s for s in slots]
+    cfg["damping"] = [0.5 + 0.1 * s for s in slots]
+    policy = fs.write_unitree_policy(tmp_path / "v0", cfg, 9 + 3 * n)
+    out = tmp_path / "robots" / "tiny"
+    common = [
+        str(source),
+        "--floating-base",
+        "--unitree",
+        "unitree_hg",
+        "--unitree-damping-kd",
+        "2",
+        *[a for m in MOTORS for a in ("--motor", m)],
+        "--drive-from",
+        str(policy),
+    ]
+    assert main([*common, "--out", str(out), "--kp", "left_knee_joint=77"]) == 0
+    robot = load_robot(out)
+    assert robot.joint_names == tuple(joints) and robot.control_period == pytest.approx(0.02)
+    kp = [j.kp for j in robot.config.joints]
+    assert kp == [77.0 if name == "left_knee_joint" else 10.0 + i for i, name in enumerate(joints)]
+    np.testing.assert_allclose([j.kd for j in robot.config.joints], 0.5 + 0.1 * np.arange(n))
+    np.testing.assert_allclose(robot.home, default)
+    ankle = robot.config.joints[joints.index("left_ankle_joint")]
+    # --target-limits pd: the target's speed when the full torque moves it (effort / kp)
+    assert ankle.command_velocity_limit == pytest.approx(2 * 40.0 / 13.0 / 0.02, rel=0.01)
+    assert "kp, kd and home from unitree_deploy contract" in capsys.readouterr().out
+
+    code = main([*common, "--out", str(tmp_path / "b"), "--control-rate", "100"])
+    err = capsys.readouterr().err.strip()
+    assert code == EXIT_REFUSED and "\n" not in err and "runs at 50 Hz" in err
+    cfg["joint_ids_map"] = list(range(n + 1))
+    for key in ("stiffness", "damping", "default_joint_pos"):
+        cfg[key] = cfg[key] + [1.0]
+    action = cfg["actions"]["JointPositionAction"]
+    action["scale"], action["offset"] = action["scale"] + [0.25], action["offset"] + [0.0]
+    policy = fs.write_unitree_policy(tmp_path / "v1", cfg, 12 + 3 * n)
+    common[-1] = str(policy)
+    assert main([*common, "--out", str(tmp_path / "c")]) == EXIT_REFUSED
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--drive-from" in err and "motor slots [8]" in err
+
+
+def load_mj(path):
+    import mujoco
+
+    return mujoco.MjModel.from_xml_path(str(path))

@@ -431,10 +431,12 @@ def test_the_reference_gives_the_kernels_numbers_with_components_in_any_order(go
     assert base._plan.compiled and base._plan.numpy_reason is None
     yaw = ObservationBlock("velocity_command", 1, (0.25,), (0.0,), components=(2,))
     split = dataclasses.replace(base, observation_blocks=(yaw,) + base.observation_blocks)
-    clock = ObservationBlock("gait_phase", 4, (1.0,) * 4, (0.0,) * 4, period=0.8,
-                             components=(1, 3, 0, 2))
-    cos_apart = ObservationBlock("gait_phase", 2, (1.0, -1.0), (0.0,) * 2, period=0.8,
-                                 components=(1, 3))
+    clock = ObservationBlock(
+        "gait_phase", 4, (1.0,) * 4, (0.0,) * 4, period=0.8, components=(1, 3, 0, 2)
+    )
+    cos_apart = ObservationBlock(
+        "gait_phase", 2, (1.0, -1.0), (0.0,) * 2, period=0.8, components=(1, 3)
+    )
     split = dataclasses.replace(
         base, observation_blocks=(yaw, clock) + base.observation_blocks + (cos_apart,)
     )
@@ -457,8 +459,13 @@ def test_the_reference_gives_the_kernels_numbers_with_components_in_any_order(go
     np.testing.assert_allclose(obs[:, 1:5], two_feet, atol=1e-6)
     np.testing.assert_allclose(obs[:, -2:], np.stack([np.cos(p), np.cos(p)], axis=1), atol=1e-6)
     for bad, message in (((1, 4), "must be in 0..3"), ((0,), None)):
-        block = dataclasses.replace(cos_apart, size=len(bad), scale=(1.0,) * len(bad),
-                                    offset=(0.0,) * len(bad), components=bad)
+        block = dataclasses.replace(
+            cos_apart,
+            size=len(bad),
+            scale=(1.0,) * len(bad),
+            offset=(0.0,) * len(bad),
+            components=bad,
+        )
         spec = dataclasses.replace(base, observation_blocks=base.observation_blocks + (block,))
         if message is None:
             spec.validate()

@@ -107,7 +107,7 @@ def import_robot(
     ee_site: str | None = None,
     limits: list[str] | tuple[str, ...] = (),
     velocities: list[str] | tuple[str, ...] = (),
-    control_rate: float = DEFAULT_CONTROL_RATE,
+    control_rate: float | None = DEFAULT_CONTROL_RATE,
     physics_timestep: float = DEFAULT_PHYSICS_TIMESTEP,
     force: bool = False,
     log=print,
@@ -124,6 +124,7 @@ def import_robot(
     command: list[str] | None = None,
     unitree: dict | None = None,
     mesh_boxes: bool = False,
+    drive=None,
 ) -> ImportReport:
     """Import ``source`` (URDF or MJCF path, or ``PACKAGE:path``) into the robot folder ``out``.
 
@@ -161,6 +162,14 @@ def import_robot(
             kp, kd, home, notes and unitree need ``floating_base``. mesh_boxes: an MJCF's
             collision meshes become their bounding boxes, not their convex hulls
             (:data:`robots.importer.mjcf_geoms.MESH_COLLISION`).
+            drive: A policy's drive (``robot-import --drive-from POLICY``):
+            ``drive(joints, depth, motor_slot)`` with the description's joints, their depths in
+            the kinematic tree and the Unitree motor slot of a joint name (or None) returns an
+            object with ``kp``, ``kd``, ``home`` (one value per joint, or None), ``control_rate``
+            (Hz or None) and ``source`` (:func:`deploy.spec.foreign.drive.policy_drive`); its
+            values come before the ``kp``/``kd``/``home`` flags (which win), and its control rate
+            is used when ``control_rate`` is None. Needs ``floating_base``.
+            control_rate: Hz; None: the drive's, else :data:`DEFAULT_CONTROL_RATE`.
 
     The parent folders of ``out`` are created when missing (as ``mkdir -p``; removed again when
     the import fails).
@@ -183,7 +192,7 @@ def import_robot(
             return _import(
                 source, out, srdf, motors, ee_site, limits, velocities, control_rate,
                 physics_timestep, force, log, drop_missing_meshes, link_boxes, floating_base,
-                feet, imu, kp, kd, home, notes, command, target_limits, unitree,
+                feet, imu, kp, kd, home, notes, command, target_limits, unitree, drive,
             )  # fmt: skip
     except BaseException:
         for folder in created:  # deepest first
@@ -235,10 +244,12 @@ def _import(
     command,
     target_limits="pd",
     unitree=None,
+    drive=None,
 ) -> ImportReport:
     """:func:`import_robot` once the parents of ``out`` exist (its arguments)."""
     start = time.perf_counter()
     legged_flags = {"--foot": feet, "--imu": imu, "--kp": kp, "--kd": kd, "--home": home}
+    legged_flags["--drive-from"] = drive
     legged_flags["--note"] = notes
     legged_flags["--unitree"] = unitree
     used = [k for k, v in legged_flags.items() if v]
@@ -262,6 +273,11 @@ def _import(
     report = ImportReport(out=out, joints=list(urdf.movable), notes=list(urdf.notes))
     spec, model = build_spec(urdf, chosen, motor_cfg, physics_timestep)
     joint_names = [model.joint(i).name for i in range(model.njnt)]
+    if drive is not None:
+        kp, kd, home, control_rate = _policy_drive(
+            drive, model, joint_names, unitree, kp, kd, home, control_rate, log
+        )
+    control_rate = DEFAULT_CONTROL_RATE if control_rate is None else control_rate
     if floating_base:
         from robots.importer.legged import import_floating_base
 
@@ -287,6 +303,46 @@ def _import(
     report.seconds = time.perf_counter() - start
     log(f"wrote {out} ({len(joint_names)} joints) in {report.seconds:.1f} s")
     return report
+
+
+def _policy_drive(drive, model, joints, unitree, kp, kd, home, control_rate, log):
+    """``(kp, kd, home, control_rate)`` with a policy's drive first (the flags after it win).
+
+    Raises:
+        RobotImportError: the drive cannot be read (its one-line message), or ``control_rate``
+            differs from the policy's.
+    """
+    from robots.importer.unitree import motor_slot
+
+    depth = []
+    for j in range(model.njnt):
+        body, d = int(model.jnt_bodyid[j]), 0
+        while body:
+            body, d = int(model.body_parentid[body]), d + 1
+        depth.append(d)
+    slot = motor_slot if unitree is not None and unitree["family"] == "unitree_go" else None
+    try:
+        d = drive(joints, depth, slot)
+    except ValueError as exc:  # ForeignFormatError: one line naming the file and the key
+        raise RobotImportError(f"--drive-from: {exc}") from None
+    rate = d.control_rate
+    if control_rate is not None and rate is not None and abs(control_rate - rate) > 1e-9:
+        raise RobotImportError(
+            f"--control-rate {control_rate:g} Hz: the policy ({d.source}) runs at {rate:g} Hz"
+        )
+    values = {"kp": d.kp, "kd": d.kd, "home": d.home}
+    got = [k for k, v in values.items() if v is not None]
+    log(f"note: kp, kd and home from {d.source}: {', '.join(got) or 'none recorded'}")
+    flags_of = {
+        k: [f"{n}={v!r}" for n, v in zip(joints, values[k], strict=True)] if values[k] else []
+        for k in values
+    }
+    return (
+        flags_of["kp"] + list(kp),
+        flags_of["kd"] + list(kd),
+        flags_of["home"] + list(home),
+        control_rate if control_rate is not None else rate,
+    )
 
 
 def _prepare(
@@ -383,7 +439,12 @@ def main(argv: list[str] | None = None) -> int:
         help="velocity limit (rad/s) where the description has none (MJCF) or to replace it; "
         "shell pattern; the motor's no-load speed still caps it; repeatable",
     )
-    p.add_argument("--control-rate", type=float, default=DEFAULT_CONTROL_RATE, help="Hz")
+    p.add_argument(
+        "--control-rate",
+        type=float,
+        default=None,
+        help=f"Hz (default: the --drive-from policy's, else {DEFAULT_CONTROL_RATE:g})",
+    )
     p.add_argument("--physics-timestep", type=float, default=DEFAULT_PHYSICS_TIMESTEP, help="s")
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
     p.add_argument(
@@ -422,6 +483,14 @@ def main(argv: list[str] | None = None) -> int:
             help=f"{flag[2:]} ({unit}) of joints (shell pattern); repeatable",
         )
     legged.add_argument(
+        "--drive-from",
+        default=None,
+        metavar="POLICY",
+        help="kp, kd, home and control rate from a policy's own contract (an ONNX file with "
+        "mjlab or holosoma metadata, Unitree's params/deploy.yaml or Isaac Lab's params/env.yaml "
+        "beside it); --kp, --kd, --home after it win",
+    )
+    legged.add_argument(
         "--note", action="append", default=[], help="a comment line for robot.toml's header"
     )
     legged.add_argument(
@@ -456,6 +525,14 @@ def main(argv: list[str] | None = None) -> int:
             "ramp_kp": args.unitree_ramp_kp,
             "ramp_kd": args.unitree_ramp_kd,
         }
+    drive = None
+    if args.drive_from is not None:
+        import functools
+
+        # the entry point reads the policy's contract as deploy-run does (deploy floor)
+        from deploy.spec.foreign.drive import policy_drive
+
+        drive = functools.partial(policy_drive, args.drive_from)
     try:
         import_robot(
             args.source,
@@ -481,6 +558,7 @@ def main(argv: list[str] | None = None) -> int:
             notes=args.note,
             command=["robot-import", *(sys.argv[1:] if argv is None else argv)],
             unitree=unitree,
+            drive=drive,
         )
     except RobotImportError as exc:
         print(f"robot-import: error: {exc}", file=sys.stderr)

@@ -231,7 +231,7 @@ def write_legged_toml(
         "",
         "[control]",
         'mode = "position"            # joint position targets, PD at the physics rate',
-        f"control_rate = {_f(control_rate)}          # Hz (robot-import --control-rate)",
+        f"control_rate = {_f(control_rate)}          # Hz (--control-rate or --drive-from)",
         f"physics_timestep = {_f(physics_timestep)}     # s (robot-import --physics-timestep)",
         f"# rad: {home_from}",
         f"home = {_vec(motion.home)}",
@@ -461,7 +461,9 @@ def import_floating_base(
 
     motion = motion_now()
     gains_from = {
-        j: "--kp/--kd" if j in kp_set or j in kd_set else "the importer's rule (see above)"
+        j: "--kp/--kd or --drive-from"
+        if j in kp_set or j in kd_set
+        else "the importer's rule (see above)"
         for j in joint_names
     }
     home_from = (

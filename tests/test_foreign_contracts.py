@@ -20,7 +20,7 @@ from deploy.export.cli import main as policy_export_main
 from deploy.policy.onnx_checks import PolicyLoadError
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.spec.drive import drive_robot
-from deploy.spec.policy_spec import PolicySpec
+from deploy.spec.policy_spec import UNCLIPPED, PolicySpec
 from deploy.state import RobotState
 from tests import foreign_stacks as fs
 
@@ -403,3 +403,68 @@ def load_mj(path):
     import mujoco
 
     return mujoco.MjModel.from_xml_path(str(path))
+
+
+def test_a_spec_that_leaves_out_every_optional_key_runs_the_policy_as_the_explicit_one(
+    go2, tmp_path, capsys
+):
+    """Every optional key of a spec file has a documented default, and leaving it out is the same
+    as writing that default: the two specs are equal and the same policy walks the same run
+    through the runtime (no silent clip, scale or joint order)."""
+    import json
+
+    n = go2.n_joints
+    path = fs._export(
+        fs.Actor(45, n, 4, 1e-2, list(go2.home)),
+        45,
+        tmp_path / "policy.onnx",
+        18,
+        ["obs"],
+        ["actions"],
+    )
+    kinds = {"base_angular_velocity": 3, "projected_gravity": 3, "velocity_command": 3}
+    minimal = {
+        "format_version": 1,
+        "robot": "go2",
+        "joint_names": list(go2.joint_names),
+        "control_rate": 50.0,
+        "observation": [{"name": k} for k in kinds]
+        + [{"name": k} for k in ("joint_position", "joint_velocity", "last_action")],
+        "action": {"mode": "position"},
+    }
+    every = list(range(n))
+    explicit = json.loads(json.dumps(minimal))
+    explicit["robot_hash"] = ""
+    for block in explicit["observation"]:
+        size = kinds.get(block["name"], n)
+        block.update(size=size, scale=[1.0] * size, offset=[0.0] * size, clip=UNCLIPPED)
+        if block["name"] in kinds:
+            block["components"] = [0, 1, 2]
+        else:
+            block["joints"] = every
+    explicit["action"].update(
+        size=n, scale=[1.0] * n, offset=[0.0] * n, clip=UNCLIPPED, reference="absolute",
+        joints=every,
+    )  # fmt: skip
+    specs = {}
+    for name, doc in (("minimal", minimal), ("explicit", explicit)):
+        specs[name] = tmp_path / f"{name}.json"
+        specs[name].write_text(json.dumps(doc))
+    a, b = (PolicySpec.from_json(p.read_text()) for p in specs.values())
+    import dataclasses
+
+    # output i drives joint i: left out (empty) or written as every joint in order
+    assert a.action == dataclasses.replace(b.action, joints=()) and a.obs_dim == b.obs_dim == 45
+    assert a.action.driven == b.action.driven == tuple(range(n))
+    for x, y in zip(a.observation_blocks, b.observation_blocks, strict=True):
+        assert (x.name, x.size, x.scale, x.offset, x.clip, x.joints) == (
+            y.name, y.size, y.scale, y.offset, y.clip, y.joints,
+        )  # fmt: skip
+    runs = []
+    for spec in specs.values():
+        argv = ["--robot", "go2", "--policy", str(path), "--spec", str(spec)]
+        code = deploy_run_main([*argv, "--command", "0.3,0,0", "--duration", "2"])
+        out = capsys.readouterr().out
+        lines = out.splitlines()
+        runs.append((code, [ln for ln in lines if ln.split()[:1] in (["walked"], ["violations"])]))
+    assert runs[0] == runs[1] and runs[0][0] == 0 and len(runs[0][1]) == 2, runs

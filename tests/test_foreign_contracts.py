@@ -468,3 +468,33 @@ def test_a_spec_that_leaves_out_every_optional_key_runs_the_policy_as_the_explic
         lines = out.splitlines()
         runs.append((code, [ln for ln in lines if ln.split()[:1] in (["walked"], ["violations"])]))
     assert runs[0] == runs[1] and runs[0][0] == 0 and len(runs[0][1]) == 2, runs
+
+
+def test_policy_export_writes_a_foreign_onnx_with_our_spec_in_one_file(go2, tmp_path, capsys):
+    """``policy-export policy.onnx --robot go2``: the published graph (weights in
+    ``policy.onnx.data``, contract in ``params/deploy.yaml``) becomes one file that carries our
+    spec, runs with neither sidecar, and gives the source's actions to the bit; without --robot,
+    or with --spec, it is refused in one line."""
+    import shutil
+
+    import onnx
+
+    default = [fs.mjlab_pose(n) for n in fs.MJLAB_ORDER]
+    cfg = fs.unitree_deploy(range(12), default, scale=0.3, stiffness=30.0, damping=0.7)
+    path = fs.write_unitree_policy(tmp_path / "v0", cfg, 45, bias=BIAS)
+    for argv, message in (([], "needs --robot"), (["--robot", "go2", "--spec", "x.json"], "--spec")):
+        assert policy_export_main([str(path), *argv]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and message in err
+    assert policy_export_main([str(path), "--robot", "go2"]) == 0
+    out = path.with_name("policy.go2.onnx")
+    assert str(out) in capsys.readouterr().out
+    alone = tmp_path / "alone" / "policy.onnx"
+    alone.parent.mkdir()
+    shutil.copy(out, alone)  # no policy.onnx.data, no params/deploy.yaml beside it
+    meta = {p.key: p.value for p in onnx.load(str(alone)).metadata_props}
+    assert "policy_spec" in meta and json.loads(meta["parity"])["max_abs_error"] == 0.0
+    source, written = OnnxPolicy(path, go2), OnnxPolicy(alone, go2)
+    assert written.foreign is None and written.spec.drive == source.spec.drive
+    for row in np.random.default_rng(0).uniform(-1, 1, (8, 1, 45)).astype(np.float32):
+        np.testing.assert_array_equal(written(row).copy(), source(row).copy())

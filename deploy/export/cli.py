@@ -117,6 +117,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"policy-export: error: {exc}", file=sys.stderr)
             return EXIT_BAD_INPUT
         return EXIT_OK
+    if source.suffix.lower() == ".onnx":
+        return _export_onnx(source, args)
     spec, robot, notes = args.spec, args.robot, []
     try:
         if args.from_config is not None or args.write_robot:
@@ -180,6 +182,64 @@ def main(argv: Sequence[str] | None = None) -> int:
             + (f" --command {command}" if command else "")
         )
     return EXIT_OK
+
+
+def _export_onnx(source: Path, args) -> int:
+    """A foreign ONNX policy written for ``--robot`` with our spec (``onnx_source``)."""
+    from deploy.export.onnx_source import export_onnx_policy
+    from robots import load_robot
+
+    other = [f for f, v in (("--spec", args.spec), ("--from-config", args.from_config)) if v]
+    try:
+        if other:
+            raise ExportError(
+                f"{source}: an ONNX policy takes its spec from its own contract; "
+                f"{', '.join(other)} is for a torch checkpoint"
+            )
+        if "policy_spec" in _onnx_metadata(source):
+            raise ExportError(
+                f"{source}: already an ONNX file with its policy_spec (our own export); nothing "
+                "to add (export takes a torch checkpoint, or another stack's ONNX)"
+            )
+        if args.robot is None:
+            raise ExportError(
+                f"{source}: an ONNX policy needs --robot DIR (the robot its contract maps onto)"
+            )
+        result = export_onnx_policy(source, load_robot(args.robot), args.out, args.seed)
+    except ParityError as exc:
+        print(f"policy-export: parity check FAILED: {exc}", file=sys.stderr)
+        return EXIT_PARITY
+    except (ExportError, ValueError) as exc:  # RobotSpecError is a ValueError
+        print(f"policy-export: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    s, f = result.spec, result.parity
+    print(f"exported {source} ({result.source_format}) -> {result.path}")
+    print(
+        f"  robot {s.robot}, {s.action.mode} mode at {s.control_rate:g} Hz; obs {s.obs_dim} -> "
+        f"action {s.act_dim}; the source graph unchanged, weights inlined, our spec in its metadata"
+    )
+    print(
+        f"  parity: max |written - source| {f['max_abs_error']:.1e} over {f['samples']} "
+        "observations (ONNX Runtime on both files; exact)"
+    )
+    print(f"  run: deploy-run --robot {args.robot} --policy {result.path}")
+    return EXIT_OK
+
+
+def _onnx_metadata(path: Path) -> dict[str, str]:
+    """The ONNX file's metadata (its weights not read).
+
+    Raises:
+        ExportError: not a readable ONNX model (the first line of the parser's message).
+    """
+    import onnx
+
+    try:
+        model = onnx.load(str(path), load_external_data=False)
+    except Exception as exc:  # noqa: BLE001 - a missing file, protobuf's DecodeError and friends
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise ExportError(f"{path}: not a readable ONNX model: {first}") from None
+    return {p.key: p.value for p in model.metadata_props}
 
 
 def _domain(args, robot) -> dict[str, str]:

@@ -8,6 +8,7 @@ import json
 import math
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -75,7 +76,7 @@ def test_bad_domain_sources_name_the_file_and_the_key(tmp_path, arm3):
         load_ranges(arm, arm3)
     inverted = tmp_path / "inv.toml"
     inverted.write_text("[pushes]\ninterval = 0.0\n")
-    with pytest.raises(RangesError, match=r"inv.toml: pushes.interval: expected > 0 s"):
+    with pytest.raises(RangesError, match=r"inv.toml: pushes.interval: expected a number > 0 s"):
         load_ranges(inverted, load_robot("go2"))
 
 
@@ -193,3 +194,116 @@ def test_soak_runs_the_training_domain_the_policy_carries(tmp_path):
     report = json.loads((tmp_path / "without" / "report.json").read_text())
     assert report["campaign"]["training_domain"] is None
     assert report["sessions"][0]["locomotion"]["domain_pushes"] == 0
+
+
+MJLAB_RANGES = Path(__file__).parents[1] / "eval" / "world" / "mjlab_velocity_ranges.toml"
+
+
+def test_mjlab_pushes_add_a_twist_after_random_intervals_and_resume_exactly(go2):
+    """mjlab's push_robot: after U(1, 3) s, U(range) is ADDED to the root's world velocity, linear
+    and angular; each interval and twist is a pure function of the seed and the push's index,
+    and a push schedule restored from its state continues as the uninterrupted one."""
+    from deploy.backends.sim.plant import SimBackend
+    from eval.world.pushes import AXES, push_twist
+
+    from eval.world.ranges_file import read_overrides
+
+    overrides = read_overrides(MJLAB_RANGES)  # the shipped file: every key parses
+    assert overrides["com_offset"]["body"] == "torso_link"  # the G1's: a go2 refuses it
+    with pytest.raises(RangesError, match="'torso_link' is no body of robot go2"):
+        load_ranges(MJLAB_RANGES, go2)
+    ranges = PushRanges(**overrides["pushes"])
+    assert ranges.mode == "add" and ranges.interval == (1.0, 3.0) and not ranges.legacy
+    dt = go2.control_period
+
+    class Rt:
+        ticks, mode = 0, np.array([2], dtype=np.int8)
+
+    def run(pushes, plant, start, stop):
+        for t in range(start, stop):
+            Rt.ticks = t
+            pushes(Rt, plant)
+
+    plant = SimBackend(go2, envs=1)
+    d = plant.datas[0]
+    d.qpos[3:7] = [np.cos(0.3), 0.0, 0.0, np.sin(0.3)]  # the base turned 0.6 rad about z
+    d.qvel[:] = 0.0
+    d.qvel[:3] = [0.2, 0.1, 0.0]
+    pushes = DomainPushes([5], ranges, dt)
+    run(pushes, plant, 0, int(60 / dt))
+    gaps = np.diff([0.0, *pushes.times[0]])
+    assert len(gaps) > 20 and np.all(gaps >= 1.0 - dt) and np.all(gaps <= 3.0 + dt)
+    twists = np.array([push_twist(5, k, ranges.ranges()) for k in range(1, len(gaps) + 1)])
+    for a, name in enumerate(AXES):  # every axis moves within its range
+        lo, hi = getattr(ranges, name)
+        assert np.all((twists[:, a] >= lo) & (twists[:, a] <= hi)) and np.ptp(twists[:, a]) > 0
+    np.testing.assert_allclose(d.qvel[:3], [0.2, 0.1, 0.0] + twists[:, :3].sum(0), atol=1e-12)
+    rot = np.empty(9)
+    mujoco.mju_quat2Mat(rot, d.qpos[3:7])
+    np.testing.assert_allclose(rot.reshape(3, 3) @ d.qvel[3:6], twists[:, 3:].sum(0), atol=1e-12)
+
+    whole = DomainPushes([5], ranges, dt)
+    run(whole, plant, 0, int(40 / dt))
+    resumed = DomainPushes([5], ranges, dt)
+    run(resumed, plant, 0, int(17 / dt))
+    state = resumed.state_dict(0)
+    resumed = DomainPushes([5], ranges, dt)
+    resumed.load_state_dict(state, 0)
+    run(resumed, plant, int(17 / dt), int(40 / dt))
+    assert resumed.times == whole.times
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("[pushes]\nmax_velocity = 1.0\nx = [-1, 1]", "not both"),
+        ("[pushes]\nz = [-0.2, 0.2]", 'need mode = \\\\"add\\\\"|need mode'),
+        ("[pushes]\ninterval = [3.0, 1.0]", "pushes.interval: expected a number > 0"),
+        ("[pushes]\nmode = \"shove\"", "pushes.mode: expected one of"),
+        ("[sensors]\nencoder_bias = [0.02, -0.02]", "sensors.encoder_bias"),
+        ("[com_offset]\nbody = \"no_such_body\"\nx = [0, 0.01]", "'no_such_body' is no body"),
+        ("[pushes]\ninterval = \"often\"", "a number or a range"),
+    ],
+)
+def test_bad_mjlab_domain_keys_are_refused_naming_the_key(go2, text, message):
+    with pytest.raises(RangesError, match=message):
+        load_ranges_text(text, "domain.toml", go2)
+
+
+def test_encoder_bias_and_com_offset_are_drawn_per_session_and_applied(go2):
+    """An encoder bias offsets what each encoder reads (never the true state), drawn per joint
+    from its own stream; a centre-of-mass offset moves the body's ``body_ipos``; ranges without
+    them draw exactly what they drew before (the other streams untouched)."""
+    from deploy.backends.sim.plant import SimBackend
+    from eval.world.dynamics import shift_com
+    from eval.world.session_draw import sample_session
+    from eval.world.session_ranges import session_ranges
+
+    base = session_ranges(go2)
+    plain = sample_session(go2, 3, 60.0, base)
+    text = '[sensors]\nencoder_bias = [-0.015, 0.015]\n[com_offset]\nx = [-0.05, 0.05]\n'
+    ranges = load_ranges_text(text, "domain.toml", go2)
+    drawn = sample_session(go2, 3, 60.0, ranges)
+    assert "encoder_bias" not in plain.to_dict() and plain.encoder_bias is None
+    same = {k: v for k, v in drawn.to_dict().items() if k not in ("encoder_bias", "com_offset")}
+    assert same == plain.to_dict()
+    bias = np.array(drawn.encoder_bias)
+    assert bias.shape == (go2.n_joints,) and np.all(np.abs(bias) <= 0.015) and np.ptp(bias) > 0
+    body, offset = drawn.com_offset
+    assert body == go2.base_body and abs(offset[0]) <= 0.05 and offset[1:] == (0.0, 0.0)
+    back = type(drawn).from_dict(json.loads(json.dumps(drawn.to_dict())))
+    assert back == drawn
+
+    plant = SimBackend(go2, envs=2)
+    plant.encoder_bias[1] = bias
+    plant.reset()
+    for _ in range(10):
+        plant.advance()
+    frame = plant.read()
+    q = plant.true_position()
+    np.testing.assert_allclose(frame.position[1] - q[1], bias, atol=5e-3)  # noise, quantum
+    np.testing.assert_allclose(frame.position[0] - q[0], 0.0, atol=5e-3)
+    model = go2.plant_model()
+    before = model.body_ipos[model.body(body).id].copy()
+    shift_com(model, body, offset)
+    np.testing.assert_allclose(model.body_ipos[model.body(body).id] - before, offset)

@@ -49,7 +49,7 @@ from eval.soak.faults import SessionFaults
 from eval.soak.result import session_result
 from eval.soak.session import SESSIONS_DIR, Session, SessionConfig, SessionError, session_dir
 from eval.world.drift import apply_drift, joint_dofs
-from eval.world.dynamics import add_base_mass, randomized_model
+from eval.world.dynamics import add_base_mass, randomized_model, shift_com
 from eval.world.floor import apply_floor_friction
 from eval.world.pushes import DomainPushes
 from eval.world.sensors import apply_imu, apply_sensors
@@ -165,10 +165,14 @@ class SessionBatch:
                 apply_floor_friction(m, d.floor_friction)
             if d.added_base_mass is not None:  # a payload of its training domain
                 add_base_mass(m, robot, d.added_base_mass)
+            if d.com_offset is not None:  # a centre of mass off its nominal place
+                shift_com(m, *d.com_offset)
         backend = self.backend = make_plant(first.engine, robot, mode=mode, envs=k, models=models)
         backend.set_sensor_streams([session_rng(c.seed, "sensor_noise") for c in configs])
         for e, d in enumerate(draws):
             apply_sensors(backend, e, d.sensors)
+            if d.encoder_bias is not None:  # each encoder's calibration error
+                backend.encoder_bias[e] = d.encoder_bias
             if d.imu is not None:  # a legged robot's IMU
                 apply_imu(backend, e, d.imu)
         backend.reset()  # the first readings from the sessions' own streams and settings

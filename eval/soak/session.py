@@ -348,6 +348,11 @@ class Session:
                 "friction": self.friction,
                 "wall_s": self.wall_s + b.wall_elapsed(),
                 "push_times": b.pushes.times[e] if b.pushes is not None else None,
+                "push_next": (
+                    [int(b.pushes.index[e]), int(b.pushes.next_tick[e])]
+                    if b.pushes is not None
+                    else None
+                ),
             },
             "next": dict(b.next_ticks),
             "config": self.config.batch_key(),
@@ -414,3 +419,5 @@ class Session:
         self.wall_s = float(s["wall_s"])
         if b.pushes is not None:
             b.pushes.times[e] = [float(t) for t in s.get("push_times") or []]
+            if s.get("push_next") is not None:  # the next push of a random interval
+                b.pushes.index[e], b.pushes.next_tick[e] = s["push_next"]

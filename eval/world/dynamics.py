@@ -156,6 +156,59 @@ def randomized_model(robot: Robot, mode: str, dynamics: Dynamics) -> mujoco.MjMo
     return spec.compile()
 
 
+@dataclass(frozen=True)
+class ComOffsetRanges:
+    """A shift of one body's centre of mass, drawn once per session (mjlab's ``base_com`` event:
+    ``body_ipos`` plus U(-0.05, 0.05) m per axis on its G1's ``torso_link``).
+
+    Attributes:
+        body: The body (a name of the robot's MJCF); empty: the robot's base body.
+        x, y, z: The offset's range ``(low, high)`` per axis, m, in the body's frame; None: 0.
+
+    Raises:
+        ValueError: an inverted or non-finite range.
+    """
+
+    body: str = ""
+    x: tuple[float, float] | None = None
+    y: tuple[float, float] | None = None
+    z: tuple[float, float] | None = None
+
+    def __post_init__(self):
+        for axis in ("x", "y", "z"):
+            r = getattr(self, axis)
+            if r is not None and not (np.isfinite(r).all() and r[0] <= r[1]):
+                raise ValueError(f"ComOffsetRanges.{axis}: expected a range low <= high, got {r}")
+
+    def body_of(self, robot: Robot) -> str:
+        """The body the offset moves (``body``, else the robot's base body).
+
+        Raises:
+            ValueError: a body the robot's MJCF does not have (naming its bodies).
+        """
+        name = self.body or robot.base_body
+        bodies = [robot.mj_model.body(i).name for i in range(1, robot.mj_model.nbody)]
+        if name not in bodies:
+            raise ValueError(
+                f"ComOffsetRanges.body: '{name}' is no body of robot {robot.name} (its bodies: "
+                f"{bodies})"
+            )
+        return name
+
+    def sample(self, rng: np.random.Generator) -> tuple[float, float, float]:
+        """One offset, m (x, y, z), uniform per axis."""
+        return tuple(
+            float(rng.uniform(*r)) if r is not None else 0.0 for r in (self.x, self.y, self.z)
+        )
+
+
+def shift_com(model: mujoco.MjModel, body: str, offset) -> None:
+    """Move ``body``'s centre of mass by ``offset`` (3,) m in its frame (``body_ipos``) in the
+    compiled ``model``, in place, and recompute the derived constants (``mj_setConst``)."""
+    model.body_ipos[model.body(body).id] += np.asarray(offset, dtype=float)
+    mujoco.mj_setConst(model, mujoco.MjData(model))
+
+
 def add_base_mass(model: mujoco.MjModel, robot: Robot, kg: float) -> None:
     """Add ``kg`` to the mass of ``robot``'s base body in the compiled ``model``, in place, its
     inertia unchanged (legged_gym's ``randomize_base_mass``: a payload at the base's centre of

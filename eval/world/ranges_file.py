@@ -13,18 +13,18 @@ is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the cl
     [sensors]     # encoder: noise_sigma (rad), latency_ticks (control ticks), dropout
     noise_sigma = [0.005, 0.02]
 
-    [imu]         # floating-base robots only: gyro_noise_sigma (rad/s), accel_noise_sigma
-                  # (m/s^2), bias_scale, latency_ticks, force_noise_fraction
+    [imu]         # floating base only: gyro_noise_sigma, accel_noise_sigma, bias_scale, ...
     [drift]       # friction_rate (1/h)
-    [faults]      # mean_interval, min_gap, warmup (s), kinds, weights, dropout, stale, nan_ticks,
-                  # latency_ticks, latency_duration, push_force (N), push_duration, cable_force, ...
-    [pushes]      # floating-base robots only: interval (s), max_velocity (m/s)
-    [commands]    # floating-base robots only: vx, vy (m/s), yaw_rate (rad/s), zero_fraction
+    [faults]      # mean_interval, min_gap, warmup (s), kinds, weights, dropout, stale, ...
+    [pushes]      # floating base only: interval, max_velocity or x, y, z, roll, pitch, yaw; mode
+    [commands]    # floating base only: vx, vy (m/s), yaw_rate (rad/s), zero_fraction
+    [com_offset]  # body (default the base), x, y, z (m): its centre of mass shifted per session
 
 The tables are :class:`~eval.world.dynamics.DynamicsRanges`,
 :class:`~eval.world.sensors.SensorRanges`, :class:`~eval.world.sensors.ImuRanges`,
 :class:`~eval.world.drift.DriftRanges`, :class:`~eval.world.fault_schedule.FaultRanges`,
-:class:`~eval.world.pushes.PushRanges` and :class:`~deploy.tasks.locomotion.CommandRanges`; their
+:class:`~eval.world.pushes.PushRanges`, :class:`~deploy.tasks.locomotion.CommandRanges` and
+:class:`~eval.world.dynamics.ComOffsetRanges`; their
 docstrings give each key's meaning, unit and default. An unknown table or key, a value of the
 wrong type, an inverted or out-of-bounds range, or an IMU or floor setting for a fixed-base robot
 is a :class:`RangesError` naming the file, the ``table.key`` and the value expected.
@@ -40,7 +40,7 @@ from pathlib import Path
 
 from deploy.tasks.locomotion import CommandRanges
 from eval.world.drift import DriftRanges
-from eval.world.dynamics import DynamicsRanges
+from eval.world.dynamics import ComOffsetRanges, DynamicsRanges
 from eval.world.fault_schedule import FaultRanges
 from eval.world.pushes import PushRanges
 from eval.world.sensors import ImuRanges, SensorRanges
@@ -62,6 +62,7 @@ TABLES = {
     "faults": FaultRanges,
     "pushes": PushRanges,
     "commands": CommandRanges,
+    "com_offset": ComOffsetRanges,
 }
 #: Keys of a ranges file outside any table, with their type.
 TOP_LEVEL = {"floor_friction": tuple[float, float], "added_base_mass": tuple[float, float]}
@@ -76,7 +77,7 @@ class RangesError(Sim2RealError, ValueError):
 def _expected(hint) -> str:
     """What a value of type ``hint`` looks like in TOML, for messages."""
     if typing.get_origin(hint) in (typing.Union, types.UnionType):
-        return _expected(next(a for a in typing.get_args(hint) if a is not type(None)))
+        return " or ".join(_expected(a) for a in typing.get_args(hint) if a is not type(None))
     if typing.get_origin(hint) is tuple:
         args = typing.get_args(hint)
         item = {float: "numbers", int: "integers", str: "strings"}[args[0]]
@@ -89,7 +90,13 @@ def _expected(hint) -> str:
 def _convert(value, hint):
     """``value`` (parsed TOML) as type ``hint``; raises ``TypeError`` when it is not one."""
     if typing.get_origin(hint) in (typing.Union, types.UnionType):
-        return _convert(value, next(a for a in typing.get_args(hint) if a is not type(None)))
+        for arg in typing.get_args(hint):  # the first type the value is
+            if arg is not type(None):
+                try:
+                    return _convert(value, arg)
+                except TypeError:
+                    pass
+        raise TypeError
     if typing.get_origin(hint) is tuple:
         args = typing.get_args(hint)
         if not isinstance(value, list):
@@ -213,6 +220,12 @@ def apply_overrides(
                     f"{source}: {table}.{field.name}: {_reason(exc, cls.__name__, field.name)}"
                 ) from None
         changes[table] = current
+    if "com_offset" in changes:  # the body must be the robot's
+        try:
+            changes["com_offset"].body_of(robot)
+        except ValueError as exc:
+            reason = _reason(exc, "ComOffsetRanges", "body")
+            raise RangesError(f"{source}: com_offset.body: {reason}") from None
     for key in TOP_LEVEL:
         if key in overrides:
             try:

@@ -24,11 +24,16 @@ class SensorRanges:
             encoder noise (:func:`eval.world.session_ranges.sensor_ranges`).
         latency_ticks: Encoder latency, control ticks (our choice: 0-2, i.e. 0-10 ms at 200 Hz).
         dropout: Probability that a reading is lost (per reading and joint; our choice).
+        encoder_bias: Each joint's constant encoder offset, rad, ``(low, high)``, drawn once
+            per session (a calibration error; mjlab's ``encoder_bias`` event, -0.015..0.015 rad
+            for its G1); None: none (default). Drawn from its own stream
+            (:func:`eval.world.session_draw.sample_session`).
     """
 
     noise_sigma: tuple[float, float] = (0.002 * np.pi, 0.010 * np.pi)
     latency_ticks: tuple[int, int] = (0, 2)
     dropout: tuple[float, float] = (0.0, 0.001)
+    encoder_bias: tuple[float, float] | None = None
 
     def __post_init__(self):
         check_range("SensorRanges", "noise_sigma", *self.noise_sigma)
@@ -38,6 +43,8 @@ class SensorRanges:
             raise ValueError(
                 f"SensorRanges.dropout: expected probabilities <= 1, got {self.dropout}"
             )
+        if self.encoder_bias is not None:
+            check_range("SensorRanges", "encoder_bias", *self.encoder_bias, -np.inf)
 
 
 @dataclass(frozen=True)

@@ -45,6 +45,8 @@ STREAMS = {
     "imu": 6,  # floating-base robots: IMU and foot-force noise scales (ImuRanges)
     "floor": 7,  # floating-base robots: the floor's sliding friction (floor_friction)
     "base_mass": 8,  # floating-base robots: mass added to the base (added_base_mass)
+    "encoder_bias": 9,  # each joint's encoder offset (SensorRanges.encoder_bias)
+    "com_offset": 10,  # a body's centre-of-mass shift (ComOffsetRanges)
 }
 
 
@@ -78,6 +80,10 @@ class SessionRandomization:
             :attr:`SessionRanges.floor_friction`; None for an arm).
         added_base_mass: kg added to a floating-base robot's base (drawn from
             :attr:`SessionRanges.added_base_mass`; None where the ranges add none).
+        encoder_bias: Each joint's encoder offset, rad (drawn from
+            :attr:`SensorRanges.encoder_bias`; None where the ranges have none).
+        com_offset: ``(body, (x, y, z) m)``, a body's centre-of-mass shift (drawn from
+            :attr:`SessionRanges.com_offset`; None where the ranges have none).
     """
 
     seed: int
@@ -88,6 +94,8 @@ class SessionRandomization:
     imu: ImuDraw | None = None
     floor_friction: float | None = None
     added_base_mass: float | None = None
+    encoder_bias: tuple[float, ...] | None = None
+    com_offset: tuple[str, tuple[float, float, float]] | None = None
 
     def to_dict(self) -> dict:
         out = {
@@ -103,6 +111,10 @@ class SessionRandomization:
             out["floor_friction"] = self.floor_friction
         if self.added_base_mass is not None:
             out["added_base_mass"] = self.added_base_mass
+        if self.encoder_bias is not None:
+            out["encoder_bias"] = list(self.encoder_bias)
+        if self.com_offset is not None:
+            out["com_offset"] = {"body": self.com_offset[0], "offset_m": list(self.com_offset[1])}
         return out
 
     @classmethod
@@ -116,6 +128,16 @@ class SessionRandomization:
             ImuDraw.from_dict(data["imu"]) if data.get("imu") is not None else None,
             float(data["floor_friction"]) if data.get("floor_friction") is not None else None,
             float(data["added_base_mass"]) if data.get("added_base_mass") is not None else None,
+            (
+                tuple(map(float, data["encoder_bias"]))
+                if data.get("encoder_bias") is not None
+                else None
+            ),
+            (
+                (str(data["com_offset"]["body"]), tuple(map(float, data["com_offset"]["offset_m"])))
+                if data.get("com_offset") is not None
+                else None
+            ),
         )
 
 
@@ -181,6 +203,13 @@ def sample_session(
         floor = float(session_rng(seed, "floor").uniform(*ranges.floor_friction))
         if ranges.added_base_mass is not None:
             added = float(session_rng(seed, "base_mass").uniform(*ranges.added_base_mass))
+    bias = com = None
+    if ranges.sensors.encoder_bias is not None:
+        rng = session_rng(seed, "encoder_bias")
+        bias = tuple(float(b) for b in rng.uniform(*ranges.sensors.encoder_bias, robot.n_joints))
+    if ranges.com_offset is not None:
+        body = ranges.com_offset.body_of(robot)
+        com = (body, ranges.com_offset.sample(session_rng(seed, "com_offset")))
     return SessionRandomization(
         seed=int(seed),
         dynamics=dynamics,
@@ -190,4 +219,6 @@ def sample_session(
         imu=imu,
         floor_friction=floor,
         added_base_mass=added,
+        encoder_bias=bias,
+        com_offset=com,
     )

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from deploy.robot_kind import robot_kind
 from deploy.tasks.locomotion import CommandRanges
 from eval.world.drift import DriftRanges
-from eval.world.dynamics import DynamicsRanges
+from eval.world.dynamics import ComOffsetRanges, DynamicsRanges
 from eval.world.fault_schedule import FaultRanges, check_range, fault_ranges
 from eval.world.floor import FLOOR_FRICTION
 from eval.world.pushes import PushRanges
@@ -50,6 +50,8 @@ class SessionRanges:
         pushes: A floating-base robot's pushes of its training domain
             (:class:`eval.world.pushes.PushRanges`, legged_gym's ``push_robots``); None: none
             (default; the fault schedule's force pushes are apart).
+        com_offset: A shift of a body's centre of mass per session
+            (:class:`eval.world.dynamics.ComOffsetRanges`); None: none (default).
         commands: A floating-base robot's velocity commands
             (:class:`deploy.tasks.locomotion.CommandRanges`); None: the policy's training
             ranges where its contract records them (``soak-test``), else CommandRanges'
@@ -68,6 +70,7 @@ class SessionRanges:
     added_base_mass: tuple[float, float] | None = None
     pushes: PushRanges | None = None
     commands: CommandRanges | None = None
+    com_offset: ComOffsetRanges | None = None
 
     def __post_init__(self):
         if self.floor_friction is not None:

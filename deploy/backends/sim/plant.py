@@ -241,6 +241,12 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
         return self._joint_sensors.noise_sigma
 
     @property
+    def encoder_bias(self) -> np.ndarray:
+        """(envs, n) rad, each encoder's constant offset (the sensor model's array: write in
+        place); the true state the soak judges stays unbiased."""
+        return self._joint_sensors.encoder_bias
+
+    @property
     def dropout_probability(self) -> np.ndarray:
         """(envs,) probability that an encoder reading is lost (the sensor model's array)."""
         return self._joint_sensors.dropout_probability
@@ -370,6 +376,31 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
         if not self.robot.floating_base:
             raise ValueError(f"robot {self.robot.name} has no floating base to push")
         self.datas[env].qvel[:2] = velocity_xy
+
+    def push_base(self, env: int, twist: np.ndarray, add: bool = False) -> None:
+        """Change the floating base's velocity of ``env`` at once: ``twist`` (6,) is linear
+        x, y, z (m/s, world frame) and angular roll, pitch, yaw (rad/s about the world axes);
+        ``add``: added to the base's present velocity (mjlab's ``push_by_setting_velocity``),
+        else the horizontal velocity is set to ``twist[:2]`` (legged_gym's push; the other
+        entries must be 0). The free joint's angular velocity is in the body frame: the world
+        twist is turned into it.
+
+        Raises:
+            ValueError: a fixed-base robot, or ``add`` False with a vertical or angular entry.
+        """
+        if not self.robot.floating_base:
+            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        twist = np.asarray(twist, dtype=float)
+        d = self.datas[env]
+        if not add:
+            if np.any(twist[2:]):
+                raise ValueError("push_base: setting the velocity sets x and y only; use add")
+            d.qvel[:2] = twist[:2]
+            return
+        rot = np.empty(9)
+        mujoco.mju_quat2Mat(rot, d.qpos[3:7])
+        d.qvel[:3] += twist[:3]
+        d.qvel[3:6] += rot.reshape(3, 3).T @ twist[3:6]
 
     def set_external_force(self, env: int, force: np.ndarray, body: str | None = None) -> None:
         """Apply a constant force (N, world frame, shape (3,)) to ``env`` until changed.

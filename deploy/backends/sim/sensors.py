@@ -126,6 +126,10 @@ class JointSensorModel:
         self._env_index = np.arange(envs)
         self._uniform = np.zeros((envs, n))
         self.frame = frame
+        #: (envs, n) rad, each encoder's constant offset (a calibration error: mjlab's
+        #: ``randomize_encoder_bias``), added to the angle it reads; write in place
+        self.encoder_bias = np.zeros((envs, n))
+        self._biased = np.zeros((envs, n))
 
     @property
     def encoder_every(self) -> int:
@@ -158,7 +162,8 @@ class JointSensorModel:
         """The envs ``which`` (bool (envs,)) restart at rest at ``q`` (rad, (restarting envs, n))
         at ``time`` (s): their sensor history reads the pose, quantized, and their drives report
         the ambient temperature ``ambient`` (degC, (envs, n))."""
-        quantized = np.round(q / self.encoder_quantum) * self.encoder_quantum
+        quantized = np.round((q + self.encoder_bias[which]) / self.encoder_quantum)
+        quantized *= self.encoder_quantum
         self._buf_position[:, which] = quantized
         self._buf_velocity[:, which] = 0.0 if self.has_velocity else np.nan
         self._buf_stamp[:, which] = time
@@ -187,6 +192,8 @@ class JointSensorModel:
             sample = self._buf_position[slot]
             self.rng.standard_normal(out=sample)
             self.rng.random(out=self._uniform)
+            if self.encoder_bias.any():  # a calibration error: the encoder reads q + bias
+                q = np.add(q, self.encoder_bias, out=self._biased)
             self._encode(sample, q)
             self._buf_stamp[slot] = time
             if self.has_velocity and dq is not None:

@@ -348,6 +348,11 @@ class BulletBackend(SimBackend):
         super().set_base_velocity(env, velocity_xy)
         self._push_base(env)
 
+    def push_base(self, env: int, twist: np.ndarray, add: bool = False) -> None:
+        """As :meth:`SimBackend.push_base`, in pybullet too."""
+        super().push_base(env, twist, add)
+        self._push_base(env)
+
     def set_external_force(self, env: int, force: np.ndarray, body: str | None = None) -> None:
         """As :meth:`SimBackend.set_external_force`: applied at the body's centre of mass at
         every pybullet step until changed."""

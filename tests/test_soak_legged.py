@@ -268,3 +268,25 @@ def test_a_legged_sessions_tracking_is_judged_only_when_the_user_asks(uninterrup
     assert "threshold 0.950" in judged["success_rate"]["message"]
     loco["falls"], loco["falls_per_hour"] = 1, 50.0
     assert not session_checks(result, Thresholds())["falls"]["passed"]
+
+
+def test_a_stand_up_anchors_the_estimate_where_the_encoders_read(config, tmp_path):
+    """The operator's stand-up restarts the runtime at rest where the encoders read the joints
+    (the only pose an operator's restart on hardware knows): with an encoder bias, the joint
+    estimate starts at home + bias, not at the nominal home (anchored there, a biased G1 fell
+    3.3 s after every stand-up)."""
+    import dataclasses
+
+    from eval.world.sensors import SensorRanges
+
+    ranges = dataclasses.replace(
+        config.ranges, sensors=dataclasses.replace(config.ranges.sensors, encoder_bias=(0.01, 0.02))
+    )
+    biased = replace(config, ranges=ranges, hours=0.002)
+    batch = SessionBatch([biased], tmp_path / "soak", progress=False)
+    bias = batch.backend.encoder_bias[0].copy()
+    assert isinstance(ranges.sensors, SensorRanges) and np.all((bias >= 0.01) & (bias <= 0.02))
+    for _ in range(50):
+        batch.rt.tick()
+    batch.stand_up(np.array([True]))
+    np.testing.assert_allclose(batch.rt.state.q[0], batch.robot.home + bias, atol=2e-3)

@@ -264,9 +264,11 @@ def load_robot(name_or_path: str | Path) -> Robot:
         pin_model.lowerEffortLimit = -pin_model.upperEffortLimit
     ee_frame_id = -1
     if site is not None:
-        if not pin_model.existFrame(site):
+        # an MJCF site is an OP_FRAME (a body of the same name is a BODY frame: asked without
+        # the type, Pinocchio raises "Several frames match the filter")
+        if not pin_model.existFrame(site, pin.FrameType.OP_FRAME):
             raise RobotSpecError(f"{mjcf}: Pinocchio has no frame for site '{site}'")
-        ee_frame_id = pin_model.getFrameId(site)
+        ee_frame_id = pin_model.getFrameId(site, pin.FrameType.OP_FRAME)
     legged = _base_frames(toml_path, mjcf, mj_model, pin_model, cfg) if floating else {}
     sites = [ee_site_id] if ee_site_id >= 0 else []
     frames = [ee_frame_id] if ee_frame_id >= 0 else []

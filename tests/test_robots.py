@@ -299,3 +299,24 @@ def test_so101_goals_are_reachable_inside_its_task_box():
             for start in (so101.home, rng.uniform(so101.soft_lower, so101.soft_upper))
         )
         assert best < 0.2 * task.success_radius, goal
+
+
+def test_an_end_effector_site_named_like_its_body_loads(tmp_path):
+    """A site named like the body it sits on (published MJCFs do this: ``pelvis`` on ``pelvis``)
+    is Pinocchio's OP_FRAME beside the body's BODY frame: the site's frame is found by type, not
+    refused with Pinocchio's "Several frames match the filter"."""
+    import pinocchio as pin
+
+    from robots.loading import load_robot
+
+    shutil.copytree(ROBOTS_DIR / "arm3", tmp_path / "arm3")
+    for name in ("arm3.xml", "robot.toml"):
+        path = tmp_path / "arm3" / name
+        text = path.read_text()
+        text = text.replace('<site name="ee"', '<site name="link3"')
+        text = text.replace('end_effector_site = "ee"', 'end_effector_site = "link3"')
+        path.write_text(text)
+    robot = load_robot(tmp_path / "arm3")
+    frame = robot.pin_model.frames[robot.ee_frame_id]
+    assert frame.name == "link3" and frame.type == pin.FrameType.OP_FRAME
+    np.testing.assert_allclose(robot.forward_kinematics(np.zeros(3)), [0.9, 0.0, 0.0], atol=0.05)

@@ -125,6 +125,7 @@ def import_robot(
     unitree: dict | None = None,
     mesh_boxes: bool = False,
     drive=None,
+    options: list[str] | tuple[str, ...] = (),
 ) -> ImportReport:
     """Import ``source`` (URDF or MJCF path, or ``PACKAGE:path``) into the robot folder ``out``.
 
@@ -170,6 +171,8 @@ def import_robot(
             values come before the ``kp``/``kd``/``home`` flags (which win), and its control rate
             is used when ``control_rate`` is None. Needs ``floating_base``.
             control_rate: Hz; None: the drive's, else :data:`DEFAULT_CONTROL_RATE`.
+            options: ``KEY=VALUE`` MuJoCo ``<option>`` settings (integrator, iterations,
+            ls_iterations, ...) over the MJCF's own (:mod:`robots.importer.physics_option`).
 
     The parent folders of ``out`` are created when missing (as ``mkdir -p``; removed again when
     the import fails).
@@ -192,7 +195,7 @@ def import_robot(
             return _import(
                 source, out, srdf, motors, ee_site, limits, velocities, control_rate,
                 physics_timestep, force, log, drop_missing_meshes, link_boxes, floating_base,
-                feet, imu, kp, kd, home, notes, command, target_limits, unitree, drive,
+                feet, imu, kp, kd, home, notes, command, target_limits, unitree, drive, options,
             )  # fmt: skip
     except BaseException:
         for folder in created:  # deepest first
@@ -245,6 +248,7 @@ def _import(
     target_limits="pd",
     unitree=None,
     drive=None,
+    options=(),
 ) -> ImportReport:
     """:func:`import_robot` once the parents of ``out`` exist (its arguments)."""
     start = time.perf_counter()
@@ -271,7 +275,8 @@ def _import(
     chosen, motor_cfg, motor_tables = flags.assign_motors(path, urdf.movable, list(motors))
 
     report = ImportReport(out=out, joints=list(urdf.movable), notes=list(urdf.notes))
-    spec, model = build_spec(urdf, chosen, motor_cfg, physics_timestep)
+    spec, model = build_spec(urdf, chosen, motor_cfg, physics_timestep, options)
+    log(f"note: {urdf.physics}")
     joint_names = [model.joint(i).name for i in range(model.njnt)]
     if drive is not None:
         kp, kd, home, control_rate = _policy_drive(
@@ -464,6 +469,15 @@ def main(argv: list[str] | None = None) -> int:
         help="an MJCF's collision meshes become their bounding boxes (what robot-import wrote "
         "before) instead of their convex hulls",
     )
+    p.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a MuJoCo <option> setting of the robot's MJCF (integrator, iterations, "
+        "ls_iterations, cone, solver, impratio, ...) over the description's own, e.g. a training "
+        "stack's iterations=10; repeatable",
+    )
     legged = p.add_argument_group("floating-base (legged) robots")
     legged.add_argument(
         "--floating-base",
@@ -559,6 +573,7 @@ def main(argv: list[str] | None = None) -> int:
             command=["robot-import", *(sys.argv[1:] if argv is None else argv)],
             unitree=unitree,
             drive=drive,
+            options=args.option,
         )
     except RobotImportError as exc:
         print(f"robot-import: error: {exc}", file=sys.stderr)

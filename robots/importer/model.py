@@ -16,6 +16,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from robots.importer.physics_option import apply_options, source_options
 from robots.importer.source import PreparedSource, RobotImportError, SrdfInfo
 from robots.packages import _resolved_mjcf
 from robots.schema import MotorConfig
@@ -84,14 +85,17 @@ def build_spec(
     chosen: dict[str, str],
     motor_cfg: dict[str, MotorConfig],
     physics_timestep: float,
+    options: list[str] | tuple[str, ...] = (),
 ) -> tuple[mujoco.MjSpec, mujoco.MjModel]:
     """MjSpec from the prepared URDF or MJCF: named geoms (``urdf.fitted_geoms`` gets the names
     of the boxes fitted to meshes), armature ``rotor_inertia * gear_ratio**2`` from each joint's
-    motor, no actuator force range (``Robot.mjspec`` sets it), the physics timestep and the
-    implicit-fast integrator.
+    motor, no actuator force range (``Robot.mjspec`` sets it), the physics timestep, and the
+    integrator and solver settings of :func:`robots.importer.physics_option.apply_options`
+    (``options``: ``--option KEY=VALUE`` texts; ``urdf.physics`` says what was chosen).
 
     Raises:
-        RobotImportError: MuJoCo's URDF (or MJCF) compiler refuses the description.
+        RobotImportError: MuJoCo's URDF (or MJCF) compiler refuses the description, or a bad
+            ``--option``.
     """
     try:
         spec = mujoco.MjSpec.from_string(urdf.text)
@@ -103,7 +107,7 @@ def build_spec(
         ) from None
     spec.compiler.degree = False  # URDF: radians; MJCF: canonical text, radians already
     spec.option.timestep = physics_timestep
-    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    urdf.physics = apply_options(spec, source_options(urdf.path), list(options))
     for joint in spec.joints:
         m = motor_cfg[chosen[joint.name]]
         joint.armature = m.rotor_inertia * m.gear_ratio**2

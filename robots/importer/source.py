@@ -64,7 +64,8 @@ class PreparedSource:
     tuples; ``sites``: site name -> its body (MJCF); ``fitted``: ``(link, k)`` of the ``k``-th
     geom of a link that is a box fitted to a collision mesh (the importer's approximation, not
     the author's shape); ``fitted_geoms``: their geom names once named
-    (:func:`robots.importer.model.build_spec`).
+    (:func:`robots.importer.model.build_spec`); ``physics``: the line saying which integrator and
+    solver settings the robot's MJCF carries (:mod:`robots.importer.physics_option`).
     """
 
     path: Path
@@ -83,6 +84,7 @@ class PreparedSource:
     sites: dict[str, str] = field(default_factory=dict)
     fitted: set[tuple[str, int]] = field(default_factory=set)
     fitted_geoms: set[str] = field(default_factory=set)
+    physics: str = ""
 
 
 @dataclass

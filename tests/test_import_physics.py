@@ -1,0 +1,52 @@
+"""robot-import keeps the integrator and solver settings of the description's ``<option>`` and
+takes a training stack's with ``--option KEY=VALUE``; the plant runs what the robot file says."""
+
+from __future__ import annotations
+
+import mujoco
+import pytest
+
+from deploy.backends.sim.plant import SimBackend
+from robots import load_robot
+from robots.importer.cli import EXIT_REFUSED, main
+from tests.test_import_humanoid import FLAGS, write_humanoid
+
+
+def test_the_mjcfs_integrator_and_solver_settings_are_kept_and_flags_win(tmp_path, capsys):
+    source = write_humanoid(tmp_path)
+    text = source.read_text()
+    source.write_text(
+        text.replace("<worldbody>", '<option integrator="Euler" iterations="12"/>\n<worldbody>', 1)
+    )
+    out = tmp_path / "robots" / "tiny"
+    assert main([str(source), "--out", str(out), *FLAGS, "--option", "ls_iterations=20"]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "physics:" in ln)
+    assert "integrator Euler (the MJCF)" in line and "iterations 12 (the MJCF)" in line
+    assert "ls_iterations 20 (--option)" in line
+    model = SimBackend(load_robot(out), envs=1).models[0]
+    assert model.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
+    assert (model.opt.iterations, model.opt.ls_iterations) == (12, 20)
+    # without an <option>: the toolkit's implicit-fast integrator, MuJoCo's iterations
+    plain = tmp_path / "robots" / "plain"
+    assert main([str(write_humanoid(tmp_path / "p")), "--out", str(plain), *FLAGS]) == 0
+    assert "integrator implicitfast (the toolkit's default)" in capsys.readouterr().out
+    model = SimBackend(load_robot(plain), envs=1).models[0]
+    assert model.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    assert model.opt.iterations == 100
+
+
+@pytest.mark.parametrize(
+    "flag, message",
+    [
+        ("substeps=4", "unknown key 'substeps'"),
+        ("integrator=RK5", "expected one of ['Euler', 'RK4', 'implicit', 'implicitfast']"),
+        ("iterations=ten", "expected an integer"),
+        ("iterations", "expected KEY=VALUE"),
+    ],
+)
+def test_a_bad_option_is_refused_in_one_line(tmp_path, capsys, flag, message):
+    source = write_humanoid(tmp_path)
+    out = tmp_path / "robots" / "tiny"
+    assert main([str(source), "--out", str(out), *FLAGS, "--option", flag]) == EXIT_REFUSED
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and message in err and not out.exists()

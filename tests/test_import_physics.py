@@ -50,3 +50,30 @@ def test_a_bad_option_is_refused_in_one_line(tmp_path, capsys, flag, message):
     assert main([str(source), "--out", str(out), *FLAGS, "--option", flag]) == EXIT_REFUSED
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and message in err and not out.exists()
+
+
+def test_a_robot_file_whose_pairs_name_the_scenes_floor_imports(tmp_path, capsys):
+    """Published robot files meant to be included in a scene name its floor in their contact
+    pairs (MuJoCo refuses the file alone); a legged import stands the importer's floor in for
+    it (the robot stands on it), a fixed-base import says to import the scene, in one line."""
+    import numpy as np
+
+    source = write_humanoid(tmp_path)
+    text = source.read_text().replace(
+        '<geom size="0.005"', '<geom name="left_sole" size="0.005"', 1
+    )
+    pairs = '<contact><pair geom1="left_sole" geom2="floor" friction="0.6 0.6"/></contact>'
+    source.write_text(text.replace("</mujoco>", pairs + "\n</mujoco>"))
+    out = tmp_path / "robots" / "tiny"
+    assert main([str(source), "--out", str(out), *FLAGS]) == 0
+    assert "pair>s name ['floor'], geoms of the scene" in capsys.readouterr().out
+    robot = load_robot(out)
+    plant = SimBackend(robot, envs=1)
+    plant.reset()
+    for _ in range(50):
+        plant.advance()
+    assert np.all(np.isfinite(plant.true_position())) and plant.datas[0].qpos[2] > 0.5
+    fixed = [str(source), "--out", str(tmp_path / "arm"), "--motor", "*=h1_hip"]
+    assert main(fixed) == EXIT_REFUSED
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "import the scene file" in err and "['floor']" in err

@@ -87,6 +87,7 @@ def prepare_mjcf(
     """
     notes: list[str] = []
     spec = _from_file(path)
+    _stand_in_for_the_scene(spec, path, floating_base, notes)
     _drop_appearance(spec)
     missing_meshes(spec, path, drop_missing_meshes, notes)
     _name_unnamed(spec.bodies[1:], "body")
@@ -167,6 +168,36 @@ def prepare_mjcf(
         disabled={p for p in disabled if p[0] in links and p[1] in links},
         sites={k: v for k, v in sites.items() if k},
         fitted=fitted,
+    )
+
+
+def _stand_in_for_the_scene(
+    spec: mujoco.MjSpec, path: Path, floating_base: bool, notes: list[str]
+) -> None:
+    """A legged robot's file whose ``<contact><pair>``s name a geom of the scene it is meant to
+    be included in (``geom2="floor"``; MuJoCo refuses the file alone: ``geom 'floor' not found
+    in collision 0``) gets a plane of that name to compile, dropped with the file's other floors:
+    the importer writes its own floor.
+
+    Raises:
+        RobotImportError: such pairs in a fixed-base robot's file (naming them).
+    """
+    geoms = {g.name for g in spec.geoms}
+    missing = sorted(
+        {n for p in spec.pairs for n in (p.geomname1, p.geomname2) if n and n not in geoms}
+    )
+    if not missing:
+        return
+    if not floating_base:
+        raise RobotImportError(
+            f"{path}: <contact><pair>s name geoms {missing} the file does not have (its "
+            "scene's?): import the scene file that includes it"
+        )
+    for name in missing:
+        spec.worldbody.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1])
+    notes.append(
+        f"<contact><pair>s name {missing}, geoms of the scene this file is included in: the "
+        "importer's floor stands in for them"
     )
 
 

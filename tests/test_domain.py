@@ -205,7 +205,6 @@ def test_mjlab_pushes_add_a_twist_after_random_intervals_and_resume_exactly(go2)
     and a push schedule restored from its state continues as the uninterrupted one."""
     from deploy.backends.sim.plant import SimBackend
     from eval.world.pushes import AXES, push_twist
-
     from eval.world.ranges_file import read_overrides
 
     overrides = read_overrides(MJLAB_RANGES)  # the shipped file: every key parses
@@ -256,13 +255,13 @@ def test_mjlab_pushes_add_a_twist_after_random_intervals_and_resume_exactly(go2)
 @pytest.mark.parametrize(
     "text, message",
     [
-        ("[pushes]\nmax_velocity = 1.0\nx = [-1, 1]", "not both"),
-        ("[pushes]\nz = [-0.2, 0.2]", 'need mode = \\\\"add\\\\"|need mode'),
+        ("[pushes]\nmax_velocity = 1.0\nvelocity = {x = [-1, 1]}", "pushes.velocity: .*not both"),
+        ("[pushes]\nvelocity = {z = [-0.2, 0.2]}", 'pushes.velocity.z: .*expect mode = "add"'),
         ("[pushes]\ninterval = [3.0, 1.0]", "pushes.interval: expected a number > 0"),
-        ("[pushes]\nmode = \"shove\"", "pushes.mode: expected one of"),
+        ('[pushes]\nmode = "shove"', "pushes.mode: expected one of"),
         ("[sensors]\nencoder_bias = [0.02, -0.02]", "sensors.encoder_bias"),
-        ("[com_offset]\nbody = \"no_such_body\"\nx = [0, 0.01]", "'no_such_body' is no body"),
-        ("[pushes]\ninterval = \"often\"", "a number or a range"),
+        ('[dynamics]\ncom_offset = {body = "no_such_body"}', "'no_such_body' is no body"),
+        ('[pushes]\ninterval = "often"', "a number or a range"),
     ],
 )
 def test_bad_mjlab_domain_keys_are_refused_naming_the_key(go2, text, message):
@@ -281,7 +280,9 @@ def test_encoder_bias_and_com_offset_are_drawn_per_session_and_applied(go2):
 
     base = session_ranges(go2)
     plain = sample_session(go2, 3, 60.0, base)
-    text = '[sensors]\nencoder_bias = [-0.015, 0.015]\n[com_offset]\nx = [-0.05, 0.05]\n'
+    text = (
+        "[sensors]\nencoder_bias = [-0.015, 0.015]\n[dynamics]\ncom_offset = {x = [-0.05, 0.05]}\n"
+    )
     ranges = load_ranges_text(text, "domain.toml", go2)
     drawn = sample_session(go2, 3, 60.0, ranges)
     assert "encoder_bias" not in plain.to_dict() and plain.encoder_bias is None

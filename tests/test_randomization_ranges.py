@@ -152,10 +152,16 @@ def test_a_missing_file_is_named(tmp_path, arm3):
 
 
 def test_every_range_class_field_can_be_set_from_a_file():
-    """The file's schema is the classes': every field of every table is a key of it."""
-    from eval.world.ranges_file import TABLES, TOP_LEVEL
+    """The file's schema is the classes': every field of every table is a key of it, directly or
+    through an inline table (``[dynamics] com_offset``, ``[pushes] velocity``)."""
+    from eval.world.ranges_file import FIELDS, SUBTABLES, TABLES, TOP_LEVEL
 
-    assert set(TABLES) | set(TOP_LEVEL) == {f.name for f in fields(SessionRanges)}
+    assert set(FIELDS) | set(TOP_LEVEL) == {f.name for f in fields(SessionRanges)}
+    assert set(FIELDS) - set(TABLES) == {field for field, _ in SUBTABLES.values()} - set(TABLES)
+    for field, cls in FIELDS.items():
+        inner = {k for f, keys in SUBTABLES.values() if f == field for k in keys.values()}
+        if field not in TABLES:  # an inline table only: it sets every field of its class
+            assert inner == {f.name for f in fields(cls)}
 
 
 # ====================================================================== training

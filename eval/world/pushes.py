@@ -46,8 +46,12 @@ class PushRanges:
             humanoids 1.5). Not with the per-axis ranges.
         mode: ``"set"``: the drawn velocity replaces the base's on the axes drawn (legged_gym);
             ``"add"``: it is added to the base's present velocity (mjlab).
-        x, y, z: Linear velocity ranges ``(low, high)``, m/s, world frame; None: 0.
-        roll, pitch, yaw: Angular velocity ranges about the world axes, rad/s; None: 0.
+        x, y, z: Linear velocity ranges ``(low, high)``, m/s, world frame; None: 0 (a ranges
+            file's ``[pushes] velocity = {x = [low, high], ...}``; mjlab's G1: x, y +-0.5,
+            z +-0.25).
+        roll, pitch, yaw: Angular velocity ranges about the world axes, rad/s; None: 0 (a ranges
+            file's ``[pushes] angular_velocity = {roll = [low, high], ...}``; mjlab's G1: roll,
+            pitch +-0.52, yaw +-0.78).
 
     Raises:
         ValueError: a non-positive or inverted interval, a negative ``max_velocity``, an
@@ -82,7 +86,7 @@ class PushRanges:
         given = [a for a in AXES if getattr(self, a) is not None]
         if given and self.max_velocity is not None:
             raise ValueError(
-                f"PushRanges.max_velocity: give it (legged_gym) or the axis ranges {given} "
+                f"PushRanges.max_velocity: expected it (legged_gym) or the axis ranges {given} "
                 "(mjlab), not both"
             )
         for a in given:
@@ -92,7 +96,7 @@ class PushRanges:
         if self.mode == "set" and any(a in given for a in AXES[2:]):
             raise ValueError(
                 f"PushRanges.mode: 'set' replaces the horizontal velocity only; the ranges "
-                f'{[a for a in given if a in AXES[2:]]} need mode = "add"'
+                f'{[a for a in given if a in AXES[2:]]} expect mode = "add"'
             )
 
     @property

@@ -9,25 +9,30 @@ is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the cl
 
     [dynamics]    # relative half-ranges in [0, 1): a factor is drawn from U(1 - r, 1 + r)
     mass = 0.3    # also link_length, friction, damping, actuator_strength
+    com_offset = {body = "torso_link", x = [-0.05, 0.05]}  # m added to body_ipos per session
 
-    [sensors]     # encoder: noise_sigma (rad), latency_ticks (control ticks), dropout
+    [sensors]     # encoder: noise_sigma (rad), latency_ticks (ticks), dropout, encoder_bias
     noise_sigma = [0.005, 0.02]
+    encoder_bias = [-0.015, 0.015]  # rad, each joint's offset, drawn once per session
 
     [imu]         # floating base only: gyro_noise_sigma, accel_noise_sigma, bias_scale, ...
     [drift]       # friction_rate (1/h)
     [faults]      # mean_interval, min_gap, warmup (s), kinds, weights, dropout, stale, ...
-    [pushes]      # floating base only: interval, max_velocity or x, y, z, roll, pitch, yaw; mode
+    [pushes]      # floating base only: interval (s, or [low, high]), mode ("set" or "add"),
+                  # max_velocity (m/s) or velocity = {x, y, z} (m/s) and
+                  # angular_velocity = {roll, pitch, yaw} (rad/s)
     [commands]    # floating base only: vx, vy (m/s), yaw_rate (rad/s), zero_fraction
-    [com_offset]  # body (default the base), x, y, z (m): its centre of mass shifted per session
 
 The tables are :class:`~eval.world.dynamics.DynamicsRanges`,
 :class:`~eval.world.sensors.SensorRanges`, :class:`~eval.world.sensors.ImuRanges`,
 :class:`~eval.world.drift.DriftRanges`, :class:`~eval.world.fault_schedule.FaultRanges`,
-:class:`~eval.world.pushes.PushRanges`, :class:`~deploy.tasks.locomotion.CommandRanges` and
-:class:`~eval.world.dynamics.ComOffsetRanges`; their
-docstrings give each key's meaning, unit and default. An unknown table or key, a value of the
-wrong type, an inverted or out-of-bounds range, or an IMU or floor setting for a fixed-base robot
-is a :class:`RangesError` naming the file, the ``table.key`` and the value expected.
+:class:`~eval.world.pushes.PushRanges` and :class:`~deploy.tasks.locomotion.CommandRanges`; the
+inline tables ``dynamics.com_offset`` (:class:`~eval.world.dynamics.ComOffsetRanges`) and
+``pushes.velocity``, ``pushes.angular_velocity`` (:class:`~eval.world.pushes.PushRanges`' axes)
+are :data:`SUBTABLES`. Their docstrings give each key's meaning, unit and default. An unknown
+table or key, a value of the wrong type, an inverted or out-of-bounds range, or an IMU or floor
+setting for a fixed-base robot is a one-line :class:`RangesError` naming the file, the
+``table.key`` (``pushes.velocity.x``) and the value expected.
 """
 
 from __future__ import annotations
@@ -62,7 +67,22 @@ TABLES = {
     "faults": FaultRanges,
     "pushes": PushRanges,
     "commands": CommandRanges,
-    "com_offset": ComOffsetRanges,
+}
+#: The inline tables of a table: ``(table, key)`` -> (the field of :class:`SessionRanges` they
+#: set, ``{key of the inline table: field of its class}``). mjlab's velocity task writes a push's
+#: ranges per axis, ``velocity_range = {"x": ..., "roll": ...}``; a file splits them in two.
+SUBTABLES = {
+    ("dynamics", "com_offset"): ("com_offset", {k: k for k in ("body", "x", "y", "z")}),
+    ("pushes", "velocity"): ("pushes", {k: k for k in ("x", "y", "z")}),
+    ("pushes", "angular_velocity"): ("pushes", {k: k for k in ("roll", "pitch", "yaw")}),
+}
+#: The class of each field of :class:`SessionRanges` a file sets: a table's or an inline table's.
+FIELDS = {**TABLES, "com_offset": ComOffsetRanges}
+#: ``(field, key)`` -> the key as the file writes it (``pushes.velocity.x``), for messages.
+FILE_KEYS = {
+    (field, key): f"{table}.{sub}.{name}"
+    for (table, sub), (field, keys) in SUBTABLES.items()
+    for name, key in keys.items()
 }
 #: Keys of a ranges file outside any table, with their type.
 TOP_LEVEL = {"floor_friction": tuple[float, float], "added_base_mass": tuple[float, float]}
@@ -127,12 +147,14 @@ def read_overrides(path: str | Path) -> dict:
     checked when they are applied, :func:`apply_overrides`).
 
     Returns:
-        ``{table: {key: value}}`` for the tables of ``TABLES``, and ``floor_friction: (low, high)``
-        when set; ranges as tuples, numbers as float (int where the field is an integer).
+        ``{field: {key: value}}`` for the tables of ``TABLES`` and ``com_offset`` (the fields of
+        :class:`SessionRanges`; an inline table's keys are its class's fields, :data:`SUBTABLES`),
+        and ``floor_friction: (low, high)`` when set; ranges as tuples, numbers as float (int
+        where the field is an integer).
 
     Raises:
-        RangesError: an unreadable file, invalid TOML, an unknown table or key, or a value of the
-            wrong type (named).
+        RangesError: an unreadable file, invalid TOML, an unknown table or key, a value of the
+            wrong type, or ``[pushes]`` with both ``max_velocity`` and per-axis ranges (named).
     """
     path = Path(path)
     try:
@@ -166,14 +188,46 @@ def parse_overrides(text: str, path: str | Path) -> dict:
         if not isinstance(value, dict):
             raise RangesError(f"{path}: {key}: expected a table [{key}], got {value!r}")
         hints = typing.get_type_hints(TABLES[key])
-        table = {}
+        inner = {
+            k for (t, _), (f, keys) in SUBTABLES.items() if t == key and f == key for k in keys
+        }
+        names = [n for n in hints if n not in inner] + [s for t, s in SUBTABLES if t == key]
+        table = out.setdefault(key, {})
         for name, item in value.items():
-            if name not in hints:
+            if (key, name) in SUBTABLES:
+                field, keys = SUBTABLES[key, name]
+                out.setdefault(field, {}).update(_subtable(path, key, name, item, field, keys))
+                continue
+            if name not in names:
                 raise RangesError(
-                    f"{path}: {key}.{name}: unknown key; expected one of {', '.join(hints)}"
+                    f"{path}: {key}.{name}: unknown key; expected one of {', '.join(names)}"
                 )
             table[name] = _typed(path, f"{key}.{name}", item, hints[name])
-        out[key] = table
+        if key == "pushes" and "max_velocity" in value:
+            both = [s for s in ("velocity", "angular_velocity") if s in value]
+            if both:
+                raise RangesError(
+                    f"{path}: pushes.{both[0]}: expected max_velocity (legged_gym: x and y in "
+                    "[-max, max]) or velocity and angular_velocity (mjlab's per-axis ranges), "
+                    "not both"
+                )
+    return out
+
+
+def _subtable(path, table: str, name: str, value, field: str, keys: dict) -> dict:
+    """The inline table ``table.name`` of file ``path`` as ``{field of its class: value}``."""
+    if not isinstance(value, dict):
+        raise RangesError(
+            f"{path}: {table}.{name}: expected an inline table {{{', '.join(keys)}}}, got {value!r}"
+        )
+    hints = typing.get_type_hints(FIELDS[field])
+    out = {}
+    for sub, item in value.items():
+        if sub not in keys:
+            raise RangesError(
+                f"{path}: {table}.{name}.{sub}: unknown key; expected one of {', '.join(keys)}"
+            )
+        out[keys[sub]] = _typed(path, f"{table}.{name}.{sub}", item, hints[keys[sub]])
     return out
 
 
@@ -204,11 +258,11 @@ def apply_overrides(
                     f"drawn); {key} applies to floating-base robots only"
                 )
     changes = {}
-    for table, cls in TABLES.items():
-        if table not in overrides:
+    for table, cls in FIELDS.items():
+        if not overrides.get(table):
             continue
         current = getattr(ranges, table)
-        if current is None:  # a floating-base robot's ranges without IMU: start from defaults
+        if current is None:  # e.g. a floating-base robot's ranges without IMU: from defaults
             current = cls()
         for field in dataclasses.fields(cls):
             if field.name not in overrides[table]:
@@ -216,16 +270,16 @@ def apply_overrides(
             try:
                 current = dataclasses.replace(current, **{field.name: overrides[table][field.name]})
             except ValueError as exc:
-                raise RangesError(
-                    f"{source}: {table}.{field.name}: {_reason(exc, cls.__name__, field.name)}"
-                ) from None
+                key = FILE_KEYS.get((table, field.name), f"{table}.{field.name}")
+                reason = _reason(exc, cls.__name__, field.name)
+                raise RangesError(f"{source}: {key}: {reason}") from None
         changes[table] = current
     if "com_offset" in changes:  # the body must be the robot's
         try:
             changes["com_offset"].body_of(robot)
         except ValueError as exc:
             reason = _reason(exc, "ComOffsetRanges", "body")
-            raise RangesError(f"{source}: com_offset.body: {reason}") from None
+            raise RangesError(f"{source}: dynamics.com_offset.body: {reason}") from None
     for key in TOP_LEVEL:
         if key in overrides:
             try:

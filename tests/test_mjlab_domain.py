@@ -238,3 +238,50 @@ def test_an_added_push_is_the_world_twist_at_the_base_frame_whatever_its_attitud
     np.testing.assert_allclose(d.qvel[:2], [0.1, 0.2])
     with pytest.raises(ValueError, match="use add"):
         plant.push_base(0, twist, add=False)
+
+
+def test_a_go2_soak_in_mjlabs_domain_reports_its_draws_and_resumes_exactly(tmp_path):
+    """A soak session with mjlab's domain (pushes adding a twist after 1-3 s, an encoder bias, a
+    centre-of-mass offset on the base): the report lists the bias and the offset with the other
+    drawn values, and a kill -9 after the first checkpoint + resume equals the whole run (the
+    next push of the random interval is in the checkpoint)."""
+    import shutil
+    from dataclasses import replace
+
+    from deploy.export import export_policy
+    from eval.soak.batch import SessionBatch
+    from eval.soak.campaign import run_campaign
+    from eval.soak.session import SessionConfig, session_dir
+    from tests.soak_fixtures import kill_after_first_checkpoint
+
+    go2 = load_robot("go2")
+    policy = tmp_path / "go2.onnx"
+    export_policy(Path(__file__).resolve().parents[1] / "policies" / "go2.pt", out=policy)
+    text = MJLAB_RANGES.read_text().replace('body = "torso_link"', 'body = "base"')
+    config = SessionConfig(
+        robot="go2",
+        policy=str(policy),
+        seed=0,
+        hours=0.006,
+        goal_period=4.0,
+        checkpoint_minutes=0.15,
+        curve_seconds=6.0,
+        window_minutes=0.25,
+        faults=False,
+        ranges=load_ranges_text(text, "mjlab.toml", go2),
+    )
+    whole = SessionBatch([config], tmp_path / "whole", progress=False).run()[0]
+    drawn = whole["randomization"]
+    assert len(drawn["encoder_bias"]) == go2.n_joints and drawn["com_offset"]["body"] == "base"
+    assert 0.3 <= drawn["floor_friction"] <= 1.2
+    assert whole["locomotion"]["domain_pushes"] >= 5
+
+    out = tmp_path / "campaign"
+    kill_after_first_checkpoint(config, out)
+    assert not (session_dir(out, 0) / "result.json").exists()
+    resumed = run_campaign(replace(config, seed=0), 1, out, resume=True, progress=False)[0]
+    strip = {"wall"}
+    assert {k: v for k, v in resumed.items() if k not in strip} == {
+        k: v for k, v in whole.items() if k not in strip
+    }
+    shutil.rmtree(out)

@@ -285,3 +285,23 @@ def test_a_go2_soak_in_mjlabs_domain_reports_its_draws_and_resumes_exactly(tmp_p
         k: v for k, v in whole.items() if k not in strip
     }
     shutil.rmtree(out)
+
+
+def test_pybullet_takes_the_added_twist_too():
+    """The pybullet plant's base gets the same twist: its own base velocity read back (linear at
+    the base frame, angular body frame) is the MuJoCo mirror's after ``push_base(add=True)``."""
+    from deploy.backends.sim.bullet.plant import BulletBackend
+
+    go2 = load_robot("go2")
+    plant = BulletBackend(go2)
+    plant.reset()
+    d = plant.datas[0]
+    quat = np.empty(4)
+    mujoco.mju_euler2Quat(quat, np.array([0.2, 0.3, -0.9]), "xyz")
+    d.qpos[3:7] = quat
+    plant.push_base(0, np.zeros(6), add=True)  # the pose to pybullet
+    plant.push_base(0, np.array([0.4, -0.5, 0.2, 0.52, -0.3, 0.78]), add=True)
+    state = np.empty(13)
+    plant._base_state(plant._worlds[0], state)
+    np.testing.assert_allclose(state[7:13], d.qvel[:6], atol=1e-9)
+    np.testing.assert_allclose(np.abs(state[3:7] @ d.qpos[3:7]), 1.0, atol=1e-9)

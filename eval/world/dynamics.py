@@ -158,15 +158,18 @@ def randomized_model(robot: Robot, mode: str, dynamics: Dynamics) -> mujoco.MjMo
 
 @dataclass(frozen=True)
 class ComOffsetRanges:
-    """A shift of one body's centre of mass, drawn once per session (mjlab's ``base_com`` event:
-    ``body_ipos`` plus U(-0.05, 0.05) m per axis on its G1's ``torso_link``).
+    """A shift of one body's centre of mass, drawn once per session: a ranges file's
+    ``[dynamics] com_offset = {body = "torso_link", x = [-0.05, 0.05], ...}`` (mjlab's
+    ``base_com`` event, unitree_rl_mjlab ``mjlab/tasks/velocity/velocity_env_cfg.py``:
+    ``body_ipos`` plus U(-0.05, 0.05) m per axis, the body set per robot, the G1's
+    ``torso_link``). Floating- and fixed-base robots alike; :func:`shift_com` applies a draw.
 
     Attributes:
         body: The body (a name of the robot's MJCF); empty: the robot's base body.
         x, y, z: The offset's range ``(low, high)`` per axis, m, in the body's frame; None: 0.
 
     Raises:
-        ValueError: an inverted or non-finite range.
+        ValueError: an inverted or non-finite range (a body the robot lacks: :meth:`body_of`).
     """
 
     body: str = ""

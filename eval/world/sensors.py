@@ -25,9 +25,10 @@ class SensorRanges:
         latency_ticks: Encoder latency, control ticks (our choice: 0-2, i.e. 0-10 ms at 200 Hz).
         dropout: Probability that a reading is lost (per reading and joint; our choice).
         encoder_bias: Each joint's constant encoder offset, rad, ``(low, high)``, drawn once
-            per session (a calibration error; mjlab's ``encoder_bias`` event, -0.015..0.015 rad
-            for its G1); None: none (default). Drawn from its own stream
-            (:func:`eval.world.session_draw.sample_session`).
+            per session (a calibration error; mjlab's ``encoder_bias`` event, unitree_rl_mjlab
+            ``mjlab/tasks/velocity/velocity_env_cfg.py``: -0.015..0.015 rad); None: none
+            (default). Drawn from its own stream (:func:`eval.world.session_draw.sample_session`);
+            the encoders read q + bias, the true state the soak judges does not.
     """
 
     noise_sigma: tuple[float, float] = (0.002 * np.pi, 0.010 * np.pi)

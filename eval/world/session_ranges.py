@@ -51,7 +51,8 @@ class SessionRanges:
             (:class:`eval.world.pushes.PushRanges`, legged_gym's ``push_robots``); None: none
             (default; the fault schedule's force pushes are apart).
         com_offset: A shift of a body's centre of mass per session
-            (:class:`eval.world.dynamics.ComOffsetRanges`); None: none (default).
+            (:class:`eval.world.dynamics.ComOffsetRanges`; a ranges file's ``[dynamics]
+            com_offset``); None: none (default).
         commands: A floating-base robot's velocity commands
             (:class:`deploy.tasks.locomotion.CommandRanges`); None: the policy's training
             ranges where its contract records them (``soak-test``), else CommandRanges'

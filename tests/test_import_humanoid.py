@@ -429,8 +429,8 @@ def test_a_robot_that_collides_only_through_contact_pairs_still_stands(tmp_path,
     """A scene whose robot collides only through ``<contact><pair>``s with its floor (every geom
     ``contype="0" conaffinity="0"``, as some published humanoids are written): the importer drops
     the pairs and the floor, and wrote a robot with no colliding geometry (exit 0, nothing said)
-    that fell through the floor. The pairs' geoms now collide, it says so, and the robot stands
-    on its feet."""
+    that fell through the floor. The pairs are kept, on the importer's floor (named as the
+    scene's), it says so, and the robot stands on its feet."""
     source = write_humanoid(tmp_path)
     text = source.read_text().replace(
         '<geom size="0.005"', '<geom contype="0" conaffinity="0" size="0.005"'
@@ -454,7 +454,7 @@ def test_a_robot_that_collides_only_through_contact_pairs_still_stands(tmp_path,
     mujoco.MjModel.from_xml_path(str(source))  # MuJoCo loads the scene
     out = tmp_path / "robots" / "paired"
     assert main([str(source), "--out", str(out), *FLAGS]) == 0
-    assert "collided only through <contact><pair>s" in capsys.readouterr().out
+    assert "8 <contact><pair>s kept" in capsys.readouterr().out
     robot = load_robot(out)
     model = robot.plant_model("position")
     data = mujoco.MjData(model)

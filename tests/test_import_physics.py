@@ -66,7 +66,7 @@ def test_a_robot_file_whose_pairs_name_the_scenes_floor_imports(tmp_path, capsys
     source.write_text(text.replace("</mujoco>", pairs + "\n</mujoco>"))
     out = tmp_path / "robots" / "tiny"
     assert main([str(source), "--out", str(out), *FLAGS]) == 0
-    assert "pair>s name ['floor'], geoms of the scene" in capsys.readouterr().out
+    assert "pair>s name ['floor'], a geom of the scene" in capsys.readouterr().out
     robot = load_robot(out)
     plant = SimBackend(robot, envs=1)
     plant.reset()

@@ -12,6 +12,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from robots.importer.contact_pairs import write_pairs
 from robots.importer.model import (
     cap_limits,
     choose_collision_pairs,
@@ -68,6 +69,7 @@ def import_fixed_base(
         work.mkdir()
         mjcf_path = work / f"{name}.xml"
         finish_arm_mjcf(spec, ee_body, ee_frame, urdf, mjcf_path)
+        write_pairs(mjcf_path, urdf, log)  # the MJCF's <contact><pair>s
         # the MJCF writes ranges to 6 significant digits: robot.toml must say the same
         written = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
         for i, j in enumerate(joint_names):

@@ -405,6 +405,7 @@ def import_floating_base(
     import tempfile
 
     from robots.importer import flags
+    from robots.importer.contact_pairs import write_pairs
     from robots.importer.fixed_base import add_contact_excludes, disabled_by
     from robots.importer.model import (
         LEGGED_MAX_ACCELERATION,
@@ -476,6 +477,7 @@ def import_floating_base(
         legged = finish_floating_mjcf(
             spec, urdf, foot_links, (imu_link, imu_site), joint_names, motion.home, mjcf_path
         )
+        write_pairs(mjcf_path, urdf, log)  # the MJCF's <contact><pair>s, the floor named
         for foot, shape in legged["foot_shapes"].items():
             log(f"note: foot {foot}: {shape}")
         written = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))

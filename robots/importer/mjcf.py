@@ -9,21 +9,26 @@ defaults, includes, degrees or radians) and makes the same
 - geometry (:mod:`robots.importer.mjcf_geoms`: visual-only geoms, ``contype = conaffinity = 0``,
   dropped beside collision geoms; each mesh geom becomes its bounding box, ``COLLISION_BOXES``)
   and inertials, written for every body (Pinocchio's MJCF parser does not derive them);
-- ``<contact><exclude>`` pairs, as an SRDF's ``disable_collisions``;
+- ``<contact><exclude>`` pairs, as an SRDF's ``disable_collisions`` and written back;
+- ``<contact><pair>``s with their own condim, friction, solref, solimp, margin and gap, following
+  their geoms' new names (:mod:`robots.importer.contact_pairs`; a pair whose geom the import
+  drops is dropped with a note); a floating-base robot's pairs naming the scene's floor
+  (``geom2="floor"``, not in the file) name the importer's floor, which takes that name;
+- the ``<option>`` integrator and solver settings (:mod:`robots.importer.physics_option`);
 - effort limits: ``actuatorfrcrange``, else the removed actuators' ``forcerange`` (or a direct
   motor's ``ctrlrange``) times their gear; velocity limits come from the motor or ``--velocity``.
 
 Removed, each with a printed note: actuators, sensors, tendons, equality constraints (a coupled
-joint is frozen), keyframes, explicit contact pairs (a geom that touched only through them now
-collides through ``contype``/``conaffinity``), textures, materials, skins, flexes, floors
-and jointless bodies hanging from the world; the world body's other geoms move into a fixed body
-``base`` (dropped for a floating base). Slide and ball joints are frozen at their reference
+joint is frozen), keyframes, textures, materials, skins, flexes, floors and jointless bodies
+hanging from the world; the world body's other geoms move into a fixed body ``base`` (dropped
+for a floating base). Slide and ball joints are frozen at their reference
 position. ``--floating-base`` removes the root body's free joint (:mod:`robots.importer.legged`
 adds its own); ``--drop-missing-meshes`` drops the geoms of missing mesh files.
 Refused (:class:`RobotImportError`): a free joint without ``--floating-base`` or off the root
-body; a missing mesh file; an unnamed hinge, a hinge without limits (unless ``--limit``), a body
-with several hinges, several jointed bodies hanging from the world, a moving body without mass
-or inertia, and what MuJoCo itself refuses.
+body; contact pairs naming several geoms the file does not have, or any for a fixed base
+(import the scene file instead); a missing mesh file; an unnamed hinge, a hinge without limits
+(unless ``--limit``), a body with several hinges, several jointed bodies hanging from the
+world, a moving body without mass or inertia, and what MuJoCo itself refuses.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from robots.importer.contact_pairs import take_pairs
 from robots.importer.mjcf_geoms import missing_meshes, simplify_geoms
 from robots.importer.source import (
     FLOATING_BASE,
@@ -87,7 +93,7 @@ def prepare_mjcf(
     """
     notes: list[str] = []
     spec = _from_file(path)
-    _stand_in_for_the_scene(spec, path, floating_base, notes)
+    pairs, scene_geom = take_pairs(spec, path, floating_base, notes)
     _drop_appearance(spec)
     missing_meshes(spec, path, drop_missing_meshes, notes)
     _name_unnamed(spec.bodies[1:], "body")
@@ -139,7 +145,8 @@ def prepare_mjcf(
         spec.joint(name).limited = mujoco.mjtLimited.mjLIMITED_TRUE
     model = _compile(spec, path)
     joints = _hinge_limits(model, path, efforts)
-    meshdir_abs, fitted = simplify_geoms(spec, model, notes, link_boxes)
+    keep = {n for p in pairs for n in (p["geom1"], p["geom2"])}
+    meshdir_abs, fitted = simplify_geoms(spec, model, notes, link_boxes, keep)
     text = _to_xml(spec, path)
     model = _compile(_from_string(text, path), path)
 
@@ -168,36 +175,8 @@ def prepare_mjcf(
         disabled={p for p in disabled if p[0] in links and p[1] in links},
         sites={k: v for k, v in sites.items() if k},
         fitted=fitted,
-    )
-
-
-def _stand_in_for_the_scene(
-    spec: mujoco.MjSpec, path: Path, floating_base: bool, notes: list[str]
-) -> None:
-    """A legged robot's file whose ``<contact><pair>``s name a geom of the scene it is meant to
-    be included in (``geom2="floor"``; MuJoCo refuses the file alone: ``geom 'floor' not found
-    in collision 0``) gets a plane of that name to compile, dropped with the file's other floors:
-    the importer writes its own floor.
-
-    Raises:
-        RobotImportError: such pairs in a fixed-base robot's file (naming them).
-    """
-    geoms = {g.name for g in spec.geoms}
-    missing = sorted(
-        {n for p in spec.pairs for n in (p.geomname1, p.geomname2) if n and n not in geoms}
-    )
-    if not missing:
-        return
-    if not floating_base:
-        raise RobotImportError(
-            f"{path}: <contact><pair>s name geoms {missing} the file does not have (its "
-            "scene's?): import the scene file that includes it"
-        )
-    for name in missing:
-        spec.worldbody.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1])
-    notes.append(
-        f"<contact><pair>s name {missing}, geoms of the scene this file is included in: the "
-        "importer's floor stands in for them"
+        pairs=pairs,
+        scene_geom=scene_geom,
     )
 
 
@@ -335,30 +314,8 @@ def _efforts(model: mujoco.MjModel) -> dict[str, tuple[float, str]]:
     return {k: v for k, v in out.items() if v[0] > 0}
 
 
-def _pair_geoms_collide(spec: mujoco.MjSpec, notes: list[str]) -> None:
-    """A robot geom that touches anything only through ``<contact><pair>``s (``contype`` and
-    ``conaffinity`` 0, as robots written for explicit pairs have every geom) gets ``contype =
-    conaffinity = 1``: the pairs are dropped, and the plant's contacts are the floor's and
-    robot.toml's collision pairs (before, such a robot was written with no colliding geometry,
-    exit 0, and fell through the floor). The pairs' own friction is not kept (noted)."""
-    names = {n for p in spec.pairs for n in (p.geomname1, p.geomname2) if n}
-    made = []
-    for geom in spec.geoms:
-        if geom.name in names and geom.parent.name != "world":
-            if geom.contype == 0 and geom.conaffinity == 0:
-                geom.contype, geom.conaffinity = 1, 1
-                made.append(geom.name)
-    if made:
-        notes.append(
-            f"{len(made)} geoms {made[:4]} collided only through <contact><pair>s: they collide "
-            "through contype/conaffinity now (the pairs' friction and solver settings are not "
-            "kept; the floor's and the geoms' own apply)"
-        )
-
-
 def _drop_elements(spec: mujoco.MjSpec, notes: list[str]) -> set[str]:
     """Delete what the toolkit does not simulate; return the joints equalities couple."""
-    _pair_geoms_collide(spec, notes)
     frozen = {e.name1 for e in spec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT and e.name1}
     for what, elements, why in (
         ("actuators", spec.actuators, "Robot.mjspec adds the drives of each control mode"),
@@ -366,7 +323,6 @@ def _drop_elements(spec: mujoco.MjSpec, notes: list[str]) -> set[str]:
         ("tendons", spec.tendons, "the runtime drives joints"),
         ("equality constraints", spec.equalities, "the runtime simulates open chains"),
         ("keyframes", spec.keys, "robot.toml sets the home pose"),
-        ("contact pairs", spec.pairs, "the plant checks robot.toml's collision pairs"),
         ("skins", spec.skins, "not simulated"),
         ("flexes", spec.flexes, "not simulated"),
         ("contact excludes", spec.excludes, ""),  # kept as the importer's disabled pairs

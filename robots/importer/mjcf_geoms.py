@@ -80,13 +80,18 @@ def missing_meshes(spec: mujoco.MjSpec, path: Path, drop: bool, notes: list[str]
 
 
 def simplify_geoms(
-    spec: mujoco.MjSpec, model: mujoco.MjModel, notes, link_boxes: bool = False
+    spec: mujoco.MjSpec,
+    model: mujoco.MjModel,
+    notes,
+    link_boxes: bool = False,
+    keep: set[str] = frozenset(),
 ) -> tuple[str | None, set[tuple[str, int]]]:
     """Drop visual-only geoms beside collision geoms; each mesh geom becomes its convex hull
     (``MESH_COLLISION`` ``"hull"``: an inline mesh ``<body>_<k>_hull``) or its bounding box
     (``"box"``) in the mesh's own frame (``COLLISION_BOXES``; ``link_boxes``: one box per body,
     in the body frame, around its mesh geoms, added after its other geoms); other geoms stay as
-    they are; every geom in group 0.
+    they are; every geom in group 0. ``keep``: names of geoms explicit ``<contact><pair>``s
+    name, never dropped as visual-only.
 
     Returns ``(meshdir, fitted)``: the absolute mesh folder when mesh files are kept
     (``COLLISION_BOXES`` False), else None; the ``(body, k)`` of the hulls or boxes fitted
@@ -98,10 +103,10 @@ def simplify_geoms(
         geoms = list(body.geoms)
         if any(g.contype or g.conaffinity for g in geoms):
             for g in geoms:
-                if not (g.contype or g.conaffinity):
+                if not (g.contype or g.conaffinity) and g.name not in keep:
                     spec.delete(g)
                     visual += 1
-            geoms = [g for g in geoms if g.contype or g.conaffinity]
+            geoms = [g for g in geoms if g.contype or g.conaffinity or g.name in keep]
         if not COLLISION_BOXES:
             continue
         if link_boxes:

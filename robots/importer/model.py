@@ -16,6 +16,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from robots.importer.contact_pairs import rename_pair_geoms
 from robots.importer.physics_option import apply_options, source_options
 from robots.importer.source import PreparedSource, RobotImportError, SrdfInfo
 from robots.packages import _resolved_mjcf
@@ -113,12 +114,16 @@ def build_spec(
         joint.armature = m.rotor_inertia * m.gear_ratio**2
         joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE
         joint.actfrcrange = [0.0, 0.0]
+    renamed: dict[str, str] = {}
     for body in spec.bodies:
         geoms = list(body.geoms)
         for k, geom in enumerate(geoms):
+            old = geom.name
             geom.name = body.name if len(geoms) == 1 else f"{body.name}_{k}"
+            renamed[old] = geom.name
             if (body.name, k) in urdf.fitted:
                 urdf.fitted_geoms.add(geom.name)
+    rename_pair_geoms(urdf, renamed)  # the MJCF's <contact><pair>s follow their geoms
     model = spec.compile()
     return spec, model
 

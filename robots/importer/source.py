@@ -65,7 +65,9 @@ class PreparedSource:
     geom of a link that is a box fitted to a collision mesh (the importer's approximation, not
     the author's shape); ``fitted_geoms``: their geom names once named
     (:func:`robots.importer.model.build_spec`); ``physics``: the line saying which integrator and
-    solver settings the robot's MJCF carries (:mod:`robots.importer.physics_option`).
+    solver settings the robot's MJCF carries (:mod:`robots.importer.physics_option`);
+    ``pairs``: the MJCF's ``<contact><pair>``s as attribute dicts and ``scene_geom`` the scene
+    geom they name (the importer's floor takes its name), :mod:`robots.importer.contact_pairs`.
     """
 
     path: Path
@@ -85,6 +87,8 @@ class PreparedSource:
     fitted: set[tuple[str, int]] = field(default_factory=set)
     fitted_geoms: set[str] = field(default_factory=set)
     physics: str = ""
+    pairs: list[dict[str, str]] = field(default_factory=list)
+    scene_geom: str | None = None
 
 
 @dataclass

@@ -77,3 +77,29 @@ def test_a_robot_file_whose_pairs_name_the_scenes_floor_imports(tmp_path, capsys
     assert main(fixed) == EXIT_REFUSED
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "import the scene file" in err and "['floor']" in err
+
+
+def test_the_mjcfs_timestep_and_flags_are_kept_and_the_flag_wins(tmp_path, capsys):
+    """A training stack's MJCF that states its timestep and turns eulerdamp off: the plant steps
+    at that timestep with that flag; --physics-timestep still wins; a timestep that does not
+    divide the control period is refused in one line."""
+    source = write_humanoid(tmp_path)
+    option = '<option timestep="0.005" integrator="Euler"><flag eulerdamp="disable"/></option>'
+    source.write_text(source.read_text().replace("<worldbody>", option + "\n<worldbody>", 1))
+    out = tmp_path / "robots" / "tiny"
+    assert main([str(source), "--out", str(out), *FLAGS]) == 0
+    assert "timestep 0.005 s (the MJCF)" in capsys.readouterr().out
+    robot = load_robot(out)
+    assert robot.physics_timestep == 0.005
+    model = SimBackend(robot, envs=1).models[0]
+    assert model.opt.timestep == 0.005
+    assert model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_EULERDAMP
+    flagged = tmp_path / "robots" / "flagged"
+    assert main([str(source), "--out", str(flagged), *FLAGS, "--physics-timestep", "0.001"]) == 0
+    assert "timestep 0.001 s (--physics-timestep)" in capsys.readouterr().out
+    assert load_robot(flagged).physics_timestep == 0.001
+    odd = source.read_text().replace('timestep="0.005"', 'timestep="0.003"')
+    source.write_text(odd)
+    assert main([str(source), "--out", str(tmp_path / "odd"), *FLAGS]) == EXIT_REFUSED
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "timestep='0.003'" in err and "--physics-timestep" in err

@@ -42,6 +42,7 @@ from robots.importer import flags, mjcf_geoms
 from robots.importer.fixed_base import import_fixed_base
 from robots.importer.mjcf import prepare_mjcf
 from robots.importer.model import build_spec
+from robots.importer.physics_option import choose_timestep
 from robots.importer.source import PreparedSource, RobotImportError, SrdfInfo, read_srdf
 from robots.importer.urdf import prepare_urdf
 from robots.loading import motor_catalog
@@ -108,7 +109,7 @@ def import_robot(
     limits: list[str] | tuple[str, ...] = (),
     velocities: list[str] | tuple[str, ...] = (),
     control_rate: float | None = DEFAULT_CONTROL_RATE,
-    physics_timestep: float = DEFAULT_PHYSICS_TIMESTEP,
+    physics_timestep: float | None = None,
     force: bool = False,
     log=print,
     drop_missing_meshes: bool = False,
@@ -143,9 +144,10 @@ def import_robot(
             velocities: ``JOINT=RAD_S`` (shell patterns): velocity limits where the description
             has none (MJCF never has one) or to replace its value; the motor's no-load speed
             still caps them. control_rate: Hz. physics_timestep: s (an integer fraction of the
-            control period). force: replace an existing ``out``. log: where decisions are
-            printed. drop_missing_meshes: drop the geoms (URDF: the elements) whose mesh file
-            is missing, each printed, instead of refusing. link_boxes: one bounding box per link
+            control period; None: the MJCF's ``<option timestep>``, else 0.002). force:
+            replace an existing ``out``. log: where decisions are printed.
+            drop_missing_meshes: drop the geoms (URDF: the elements) whose mesh file is
+            missing, each printed, instead of refusing. link_boxes: one bounding box per link
             around all its collision meshes (what robot-import wrote before one box per mesh;
             coarser, fewer collision pairs) instead of one box per mesh.
         floating_base: A legged robot (:mod:`robots.importer.legged`): free joint (an MJCF's own
@@ -275,14 +277,23 @@ def _import(
     chosen, motor_cfg, motor_tables = flags.assign_motors(path, urdf.movable, list(motors))
 
     report = ImportReport(out=out, joints=list(urdf.movable), notes=list(urdf.notes))
+    physics_timestep, timestep_from = choose_timestep(
+        path, physics_timestep, DEFAULT_PHYSICS_TIMESTEP
+    )
     spec, model = build_spec(urdf, chosen, motor_cfg, physics_timestep, options)
-    log(f"note: {urdf.physics}")
+    log(f"note: {urdf.physics}; timestep {physics_timestep:g} s ({timestep_from})")
     joint_names = [model.joint(i).name for i in range(model.njnt)]
     if drive is not None:
         kp, kd, home, control_rate = _policy_drive(
             drive, model, joint_names, unitree, kp, kd, home, control_rate, log
         )
     control_rate = DEFAULT_CONTROL_RATE if control_rate is None else control_rate
+    steps = 1.0 / (control_rate * physics_timestep)
+    if timestep_from == "the MJCF" and abs(steps - round(steps)) > 1e-6 * steps:
+        raise RobotImportError(
+            f"{path}: <option timestep='{physics_timestep:g}'>: not a divisor of the control "
+            f"period 1/{control_rate:g} s; expected --physics-timestep S (s) that divides it"
+        )
     if floating_base:
         from robots.importer.legged import import_floating_base
 
@@ -450,7 +461,12 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help=f"Hz (default: the --drive-from policy's, else {DEFAULT_CONTROL_RATE:g})",
     )
-    p.add_argument("--physics-timestep", type=float, default=DEFAULT_PHYSICS_TIMESTEP, help="s")
+    p.add_argument(
+        "--physics-timestep",
+        type=float,
+        default=None,
+        help=f"s (default: the MJCF's <option timestep>, else {DEFAULT_PHYSICS_TIMESTEP:g})",
+    )
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
     p.add_argument(
         "--drop-missing-meshes",

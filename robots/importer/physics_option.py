@@ -8,8 +8,10 @@ and 50; a published MJCF may ask for Euler). :func:`apply_options` writes, per k
 value, else the one the MJCF states (``<option>`` in the file or a file it includes), else the
 default: the toolkit's implicit-fast integrator (stable with stiff PD servos at the physics
 timestep), MuJoCo's for the rest. It returns one line saying what the robot uses and where each
-value came from. The plant (:meth:`robots.Robot.mjspec`) keeps them; only the timestep is the
-toolkit's (``--physics-timestep``, a divisor of the control period).
+value came from. The plant (:meth:`robots.Robot.mjspec`) keeps them, and the ``<flag>``s the
+MJCF sets (``eulerdamp``, ...: MuJoCo writes them into the reduced file). The timestep
+(:func:`choose_timestep`) is ``--physics-timestep``, else the MJCF's, else the toolkit's
+default; it must divide the control period.
 """
 
 from __future__ import annotations
@@ -55,10 +57,10 @@ OPTIONS: dict[str, tuple[type, dict[str, int] | None]] = {
 TOOLKIT_DEFAULTS = {"integrator": "implicitfast"}
 
 
-def source_options(path: Path) -> dict[str, str]:
-    """The ``<option>`` attributes of :data:`OPTIONS` an MJCF states, in the file or a file it
-    includes (a later one wins, as in MuJoCo); empty for a URDF or an unreadable file (the
-    importer's own parse reports those)."""
+def source_options(path: Path, keys=OPTIONS) -> dict[str, str]:
+    """The ``<option>`` attributes of :data:`OPTIONS` (or ``keys``) an MJCF states, in the file
+    or a file it includes (a later one wins, as in MuJoCo); empty for a URDF or an unreadable
+    file (the importer's own parse reports those)."""
     out: dict[str, str] = {}
 
     def visit(file: Path, depth: int) -> None:
@@ -68,13 +70,38 @@ def source_options(path: Path) -> dict[str, str]:
             return
         for element in root.iter():
             if element.tag == "option":
-                out.update({k: v for k, v in element.attrib.items() if k in OPTIONS})
+                out.update({k: v for k, v in element.attrib.items() if k in keys})
             elif element.tag == "include" and depth < 8 and element.get("file"):
                 visit(file.parent / element.get("file"), depth + 1)
 
     if path.suffix.lower() != ".urdf":
         visit(path, 0)
     return out
+
+
+def choose_timestep(path: Path, flag: float | None, default: float) -> tuple[float, str]:
+    """The physics timestep (s) of the imported robot and where it came from: ``flag``
+    (``--physics-timestep``) when given, else the MJCF's ``<option timestep>`` when it states
+    one, else ``default``.
+
+    Raises:
+        RobotImportError: the MJCF's timestep is not a positive number.
+    """
+    if flag is not None:
+        return flag, "--physics-timestep"
+    stated = source_options(path, ("timestep",)).get("timestep")
+    if stated is None:
+        return default, "the toolkit's default"
+    try:
+        value = float(stated)
+    except ValueError:
+        value = -1.0
+    if not value > 0:
+        raise RobotImportError(
+            f"{path}: <option timestep='{stated}'>: expected a positive number of seconds "
+            "(or --physics-timestep S)"
+        )
+    return value, "the MJCF"
 
 
 def _value(key: str, text: str, where: str):

@@ -242,7 +242,8 @@ def load_robot(name_or_path: str | Path) -> Robot:
         pin_model = pin.buildModelFromMJCF(str(mjcf))
     except Exception as exc:  # noqa: BLE001 - Pinocchio's parser raises anything (IndexError, ...)
         raise RobotSpecError(
-            f"{mjcf}: Pinocchio's MJCF parser refuses it: {type(exc).__name__}: {exc}"
+            f"{mjcf}: Pinocchio's MJCF parser refuses it: {type(exc).__name__}: "
+            + "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
         ) from None
     pin_names = tuple(pin_model.names[1 + j0 :])
     if pin_names != names:

@@ -122,6 +122,7 @@ def choose_imu(prepared: PreparedSource, flag: str | None, log) -> tuple[str, st
             relative to the base.
     """
     if flag is not None:
+        flag = prepared.renamed_sites.get(flag, flag)  # a site named like its body, renamed
         if flag in prepared.sites:
             link, site = prepared.sites[flag], flag
         elif flag in prepared.links:
@@ -140,11 +141,12 @@ def choose_imu(prepared: PreparedSource, flag: str | None, log) -> tuple[str, st
                 "estimates the base from the IMU)"
             )
         return link, site
-    if IMU_SITE in prepared.sites:
-        link = prepared.sites[IMU_SITE]
+    imu_site = prepared.renamed_sites.get(IMU_SITE, IMU_SITE)
+    if imu_site in prepared.sites:
+        link = prepared.sites[imu_site]
         joint = _joint_to_base(prepared, link)
         if joint is None:
-            return link, IMU_SITE
+            return link, imu_site
         log(
             f"note: site '{IMU_SITE}' is on link {link}, which joint '{joint}' moves: the IMU "
             f"site is at the root link {prepared.root_link} (--imu names another)"

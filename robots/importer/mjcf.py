@@ -15,6 +15,8 @@ defaults, includes, degrees or radians) and makes the same
   drops is dropped with a note); a floating-base robot's pairs naming the scene's floor
   (``geom2="floor"``, not in the file) name the importer's floor, which takes that name;
 - the ``<option>`` integrator and solver settings (:mod:`robots.importer.physics_option`);
+- sites; one named like a body is renamed ``<name>_site`` (Pinocchio's frames must have
+  distinct names), and ``--imu``/``--ee-site`` naming it follow;
 - effort limits: ``actuatorfrcrange``, else the removed actuators' ``forcerange`` (or a direct
   motor's ``ctrlrange``) times their gear; velocity limits come from the motor or ``--velocity``.
 
@@ -147,6 +149,7 @@ def prepare_mjcf(
     joints = _hinge_limits(model, path, efforts)
     keep = {n for p in pairs for n in (p["geom1"], p["geom2"])}
     meshdir_abs, fitted = simplify_geoms(spec, model, notes, link_boxes, keep)
+    renamed_sites = _rename_sites_like_bodies(spec, notes)
     text = _to_xml(spec, path)
     model = _compile(_from_string(text, path), path)
 
@@ -177,6 +180,7 @@ def prepare_mjcf(
         fitted=fitted,
         pairs=pairs,
         scene_geom=scene_geom,
+        renamed_sites=renamed_sites,
     )
 
 
@@ -224,6 +228,31 @@ def _floating_root(spec: mujoco.MjSpec, path: Path, notes: list[str]) -> str:
     root.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
     root.quat = [1.0, 0.0, 0.0, 0.0]
     return root.name
+
+
+def _rename_sites_like_bodies(spec: mujoco.MjSpec, notes: list[str]) -> dict[str, str]:
+    """Rename each site named like a body (``<body name="pelvis"><site name="pelvis"/>``) to
+    ``<name>_site`` (Pinocchio makes a BODY and an OP_FRAME frame of one name, and
+    ``getFrameId(name)`` raises "Several frames match the filter"); return old -> new name
+    (``--imu`` and ``--ee-site`` naming the old name follow it)."""
+    bodies = {b.name for b in spec.bodies}
+    taken = bodies | {s.name for s in spec.sites}
+    renamed: dict[str, str] = {}
+    for site in spec.sites:
+        if site.name and site.name in bodies:
+            new, k = f"{site.name}_site", 1
+            while new in taken:
+                k += 1
+                new = f"{site.name}_site{k}"
+            renamed[site.name] = new
+            site.name = new
+            taken.add(new)
+    if renamed:
+        notes.append(
+            f"{len(renamed)} sites named like a body renamed {renamed} (Pinocchio's frame names "
+            "must differ); --imu and --ee-site naming the old name follow"
+        )
+    return renamed
 
 
 def _name_unnamed(elements, prefix: str) -> None:

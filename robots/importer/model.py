@@ -142,6 +142,8 @@ def choose_ee_body(
     Raises:
         RobotImportError: ``ee`` is neither a link nor a site of the description.
     """
+    if ee is not None and ee in urdf.renamed_sites:  # a site named like its body, renamed
+        return urdf.sites[urdf.renamed_sites[ee]], urdf.renamed_sites[ee]
     if ee is not None:
         if ee in urdf.links:
             return ee, None
@@ -152,8 +154,9 @@ def choose_ee_body(
             f"--ee-site {ee}: not a link{' or site' if sites else ''} of {path} "
             f"(links: {urdf.links}{sites})"
         )
-    if "ee" in urdf.sites:
-        return urdf.sites["ee"], "ee"
+    ee_site = urdf.renamed_sites.get("ee", "ee")
+    if ee_site in urdf.sites:
+        return urdf.sites[ee_site], ee_site
     children = {par for par, _, _ in urdf.parent.values()}
     best, best_key = urdf.root_link, (-1, -1, -(10**9))
     for link in urdf.links:
@@ -317,7 +320,8 @@ def choose_collision_pairs(
     except Exception as exc:  # noqa: BLE001 - Pinocchio's parser raises anything (IndexError, ...)
         raise RobotImportError(
             f"{mjcf_path}: Pinocchio's MJCF parser refuses the reduced robot file: "
-            f"{type(exc).__name__}: {exc}"
+            f"{type(exc).__name__}: "
+            + "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
         ) from None
     index = {g.name: i for i, g in enumerate(geom.geometryObjects)}
     body_geoms: dict[str, list[str]] = {}

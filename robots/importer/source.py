@@ -67,7 +67,8 @@ class PreparedSource:
     (:func:`robots.importer.model.build_spec`); ``physics``: the line saying which integrator and
     solver settings the robot's MJCF carries (:mod:`robots.importer.physics_option`);
     ``pairs``: the MJCF's ``<contact><pair>``s as attribute dicts and ``scene_geom`` the scene
-    geom they name (the importer's floor takes its name), :mod:`robots.importer.contact_pairs`.
+    geom they name (the importer's floor takes its name), :mod:`robots.importer.contact_pairs`;
+    ``renamed_sites``: old -> new name of the MJCF's sites named like a body.
     """
 
     path: Path
@@ -89,6 +90,7 @@ class PreparedSource:
     physics: str = ""
     pairs: list[dict[str, str]] = field(default_factory=list)
     scene_geom: str | None = None
+    renamed_sites: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass

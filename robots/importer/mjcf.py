@@ -18,10 +18,12 @@ defaults, includes, degrees or radians) and makes the same
 - sites; one named like a body is renamed ``<name>_site`` (Pinocchio's frames must have
   distinct names), and ``--imu``/``--ee-site`` naming it follow;
 - effort limits: ``actuatorfrcrange``, else the removed actuators' ``forcerange`` (or a direct
-  motor's ``ctrlrange``) times their gear; velocity limits come from the motor or ``--velocity``.
+  motor's ``ctrlrange``) times their gear; velocity limits come from the motor or ``--velocity``;
+- fixed tendons with limits (``<tendon><fixed limited="true">``, a linkage's limits) whose
+  joints all stay hinges (:mod:`robots.importer.mjcf_tendons`).
 
-Removed, each with a printed note: actuators, sensors, tendons, equality constraints (a coupled
-joint is frozen), keyframes, textures, materials, skins, flexes, floors and jointless bodies
+Removed, each with a printed note: actuators, sensors, other tendons, equality constraints (a
+coupled joint is frozen), keyframes, textures, materials, skins, flexes, floors and jointless bodies
 hanging from the world; the world body's other geoms move into a fixed body ``base`` (dropped
 for a floating base). Slide and ball joints are frozen at their reference
 position. ``--floating-base`` removes the root body's free joint (:mod:`robots.importer.legged`
@@ -45,6 +47,7 @@ import numpy as np
 
 from robots.importer.contact_pairs import take_pairs
 from robots.importer.mjcf_geoms import missing_meshes, simplify_geoms
+from robots.importer.mjcf_tendons import drop_tendons_off_hinges, limited_fixed_tendons
 from robots.importer.source import (
     FLOATING_BASE,
     MIN_INERTIA,
@@ -113,12 +116,14 @@ def prepare_mjcf(
             )
     efforts = _efforts(model)
     disabled = {tuple(sorted((e.bodyname1, e.bodyname2))) for e in spec.excludes}
-    frozen = _drop_elements(spec, notes)
+    tendons = limited_fixed_tendons(spec, model)
+    frozen = _drop_elements(spec, notes, set(tendons))
     _drop_scenery(spec, model, path, notes)
     root_body = None
     if floating_base:
         root_body = _floating_root(spec, path, notes)
     _freeze_joints(spec, path, frozen, notes)
+    drop_tendons_off_hinges(spec, tendons, notes)
 
     # Canonical form: radians, quaternions, explicit inertials computed from the full geometry.
     spec.compiler.saveinertial = True
@@ -343,13 +348,17 @@ def _efforts(model: mujoco.MjModel) -> dict[str, tuple[float, str]]:
     return {k: v for k, v in out.items() if v[0] > 0}
 
 
-def _drop_elements(spec: mujoco.MjSpec, notes: list[str]) -> set[str]:
-    """Delete what the toolkit does not simulate; return the joints equalities couple."""
+def _drop_elements(
+    spec: mujoco.MjSpec, notes: list[str], keep_tendons: set[str] = frozenset()
+) -> set[str]:
+    """Delete what the toolkit does not simulate (but the tendons named in ``keep_tendons``);
+    return the joints equalities couple."""
     frozen = {e.name1 for e in spec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT and e.name1}
+    tendons = [t for t in spec.tendons if t.name not in keep_tendons]
     for what, elements, why in (
         ("actuators", spec.actuators, "Robot.mjspec adds the drives of each control mode"),
         ("sensors", spec.sensors, "the sim backend models robot.toml's sensors"),
-        ("tendons", spec.tendons, "the runtime drives joints"),
+        ("tendons", tendons, "spatial or unlimited: the runtime drives joints"),
         ("equality constraints", spec.equalities, "the runtime simulates open chains"),
         ("keyframes", spec.keys, "robot.toml sets the home pose"),
         ("skins", spec.skins, "not simulated"),

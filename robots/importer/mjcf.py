@@ -14,7 +14,9 @@ defaults, includes, degrees or radians) and makes the same
   their geoms' new names (:mod:`robots.importer.contact_pairs`; a pair whose geom the import
   drops is dropped with a note); a floating-base robot's pairs naming the scene's floor
   (``geom2="floor"``, not in the file) name the importer's floor, which takes that name;
-- the ``<option>`` integrator and solver settings (:mod:`robots.importer.physics_option`);
+- the ``<option>`` integrator and solver settings, its ``<flag>``s and (unless
+  ``--physics-timestep``) its timestep (:mod:`robots.importer.physics_option`; ``--option``
+  overrides a setting);
 - sites; one named like a body is renamed ``<name>_site`` (Pinocchio's frames must have
   distinct names), and ``--imu``/``--ee-site`` naming it follow;
 - effort limits: ``actuatorfrcrange``, else the removed actuators' ``forcerange`` (or a direct

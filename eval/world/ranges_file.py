@@ -15,13 +15,9 @@ is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the cl
     noise_sigma = [0.005, 0.02]
     encoder_bias = [-0.015, 0.015]  # rad, each joint's offset, drawn once per session
 
-    [imu]         # floating base only: gyro_noise_sigma, accel_noise_sigma, bias_scale, ...
-    [drift]       # friction_rate (1/h)
-    [faults]      # mean_interval, min_gap, warmup (s), kinds, weights, dropout, stale, ...
-    [pushes]      # floating base only: interval (s, or [low, high]), mode ("set" or "add"),
-                  # max_velocity (m/s) or velocity = {x, y, z} (m/s) and
-                  # angular_velocity = {roll, pitch, yaw} (rad/s)
-    [commands]    # floating base only: vx, vy (m/s), yaw_rate (rad/s), zero_fraction
+    [imu]  [drift]  [faults]  [commands]   # see their classes
+    [pushes]      # floating base only: interval (s or [low, high]), mode ("set" or "add"),
+                  # max_velocity (m/s) or velocity = {x, y, z}, angular_velocity = {roll, ...}
 
 The tables are :class:`~eval.world.dynamics.DynamicsRanges`,
 :class:`~eval.world.sensors.SensorRanges`, :class:`~eval.world.sensors.ImuRanges`,
@@ -29,10 +25,8 @@ The tables are :class:`~eval.world.dynamics.DynamicsRanges`,
 :class:`~eval.world.pushes.PushRanges` and :class:`~deploy.tasks.locomotion.CommandRanges`; the
 inline tables ``dynamics.com_offset`` (:class:`~eval.world.dynamics.ComOffsetRanges`) and
 ``pushes.velocity``, ``pushes.angular_velocity`` (:class:`~eval.world.pushes.PushRanges`' axes)
-are :data:`SUBTABLES`. Their docstrings give each key's meaning, unit and default. An unknown
-table or key, a value of the wrong type, an inverted or out-of-bounds range, or an IMU or floor
-setting for a fixed-base robot is a one-line :class:`RangesError` naming the file, the
-``table.key`` (``pushes.velocity.x``) and the value expected.
+are :data:`SUBTABLES`; their docstrings give each key's meaning, unit and default. Bad input is
+a one-line :class:`RangesError` naming the file, ``table.key`` and the value expected.
 """
 
 from __future__ import annotations

@@ -4,11 +4,8 @@
 defaults, includes, degrees or radians) and makes the same
 :class:`robots.importer.source.PreparedSource` a URDF makes; the rest of the import is shared. Kept:
 
-- hinge joints, their ranges (in MuJoCo's canonical form: radians, quaternions), damping and
-  friction loss (the armature becomes the motor's, as for URDF);
-- geometry (:mod:`robots.importer.mjcf_geoms`: visual-only geoms, ``contype = conaffinity = 0``,
-  dropped beside collision geoms; each mesh geom becomes its bounding box, ``COLLISION_BOXES``)
-  and inertials, written for every body (Pinocchio's MJCF parser does not derive them);
+- hinge joints, their ranges (radians), damping and friction loss (the armature is the motor's);
+- geometry (:mod:`robots.importer.mjcf_geoms`) and inertials, written for every body;
 - ``<contact><exclude>`` pairs, as an SRDF's ``disable_collisions`` and written back;
 - ``<contact><pair>``s with their own condim, friction, solref, solimp, margin and gap, following
   their geoms' new names (:mod:`robots.importer.contact_pairs`; a pair whose geom the import
@@ -17,19 +14,15 @@ defaults, includes, degrees or radians) and makes the same
 - the ``<option>`` integrator and solver settings, its ``<flag>``s and (unless
   ``--physics-timestep``) its timestep (:mod:`robots.importer.physics_option`; ``--option``
   overrides a setting);
-- sites; one named like a body is renamed ``<name>_site`` (Pinocchio's frames must have
-  distinct names), and ``--imu``/``--ee-site`` naming it follow;
-- effort limits: ``actuatorfrcrange``, else the removed actuators' ``forcerange`` (or a direct
-  motor's ``ctrlrange``) times their gear; velocity limits come from the motor or ``--velocity``;
+- sites (one named like a body renamed ``<name>_site``; ``--imu``/``--ee-site`` follow);
+- effort limits: ``actuatorfrcrange``, else the removed actuators' ``forcerange`` times gear;
 - fixed tendons with limits (``<tendon><fixed limited="true">``, a linkage's limits) whose
   joints all stay hinges (:mod:`robots.importer.mjcf_tendons`).
 
-Removed, each with a printed note: actuators, sensors, other tendons, equality constraints (a
-coupled joint is frozen), keyframes, textures, materials, skins, flexes, floors and jointless bodies
-hanging from the world; the world body's other geoms move into a fixed body ``base`` (dropped
-for a floating base). Slide and ball joints are frozen at their reference
-position. ``--floating-base`` removes the root body's free joint (:mod:`robots.importer.legged`
-adds its own); ``--drop-missing-meshes`` drops the geoms of missing mesh files.
+Removed, each with a printed note: actuators, sensors, other tendons, equalities (a coupled joint
+is frozen), keyframes, textures, materials, skins, flexes, floors, jointless bodies hanging from
+the world (other world geoms move into a fixed body ``base``); slide and ball joints frozen; a
+floating base's own free joint (:mod:`robots.importer.legged` adds its own).
 Refused (:class:`RobotImportError`): a free joint without ``--floating-base`` or off the root
 body; contact pairs naming several geoms the file does not have, or any for a fixed base
 (import the scene file instead); a missing mesh file; an unnamed hinge, a hinge without limits

@@ -5,6 +5,7 @@ push adds, and files without the new keys drawing exactly what they drew before 
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from pathlib import Path
@@ -13,6 +14,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from eval.world.dynamics import DynamicsRanges
 from eval.world.pushes import DomainPushes
 from eval.world.ranges_file import RangesError, load_ranges, load_ranges_text, read_overrides
 from eval.world.session_draw import sample_session
@@ -131,7 +133,9 @@ def test_the_mjlab_velocity_file_parses_and_loads_for_a_robot_with_its_body():
     default = session_ranges(h1)
     assert ranges.sensors.encoder_bias == (-0.015, 0.015)
     assert ranges.sensors.noise_sigma == default.sensors.noise_sigma
-    assert ranges.dynamics == default.dynamics and ranges.imu == default.imu
+    # mjlab randomizes no mass, friction, damping or gains, and its IMU has no latency
+    assert ranges.dynamics == DynamicsRanges.none()
+    assert ranges.imu == dataclasses.replace(default.imu, latency_ticks=(0, 0))
     assert ranges.floor_friction == (0.3, 1.2)
     draw = sample_session(h1, 4, 60.0, ranges)
     assert len(draw.encoder_bias) == h1.n_joints

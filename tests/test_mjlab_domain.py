@@ -279,6 +279,12 @@ def test_a_go2_soak_in_mjlabs_domain_reports_its_draws_and_resumes_exactly(tmp_p
     assert len(drawn["encoder_bias"]) == go2.n_joints and drawn["com_offset"]["body"] == "base"
     assert 0.3 <= drawn["floor_friction"] <= 1.2
     assert whole["locomotion"]["domain_pushes"] >= 5
+    from eval.report.html import randomization_table
+
+    table = randomization_table([whole])  # report.html's table
+    row = dict(zip(table["header"], table["rows"][0], strict=True))
+    assert row["centre of mass offset (m)"].startswith("base: ")
+    assert row["encoder bias, largest |b| (rad)"] == max(map(abs, drawn["encoder_bias"]))
 
     out = tmp_path / "campaign"
     kill_after_first_checkpoint(config, out)

@@ -321,7 +321,34 @@ def _tables(report: dict) -> dict[str, dict]:
                 for row in sweep["quantities"]
             ],
         )
-    tables["randomization"] = _table(
+    tables["randomization"] = randomization_table(report["sessions"])
+    return tables
+
+
+def randomization_table(sessions: list[dict]) -> dict:
+    """The sessions' drawn randomization as a table: dynamics factors, encoder settings, friction
+    rise, and a training domain's draws (added base mass, largest encoder bias, centre-of-mass
+    offset) as columns only where a session drew them."""
+    # a training domain's draws, as columns only where a session drew them
+    extra = [
+        (header, key, cell)
+        for header, key, cell in (
+            ("added base mass (kg)", "added_base_mass", lambda v: v),
+            ("encoder bias, largest |b| (rad)", "encoder_bias", lambda v: max(map(abs, v))),
+            (
+                "centre of mass offset (m)",
+                "com_offset",
+                lambda v: f"{v['body']}: {_fmt(v['offset_m'])}",
+            ),
+        )
+        if any(s["randomization"].get(key) is not None for s in sessions)
+    ]
+
+    def drawn(s: dict) -> list:
+        r = s["randomization"]
+        return [None if r.get(key) is None else cell(r[key]) for _, key, cell in extra]
+
+    return _table(
         [
             "session",
             "link length",
@@ -333,6 +360,7 @@ def _tables(report: dict) -> dict[str, dict]:
             "latency (ticks)",
             "dropout",
             "friction rise (1/h)",
+            *[header for header, _, _ in extra],
         ],
         [
             [
@@ -346,11 +374,11 @@ def _tables(report: dict) -> dict[str, dict]:
                 s["randomization"]["sensors"]["latency_ticks"],
                 s["randomization"]["sensors"]["dropout_probability"],
                 s["randomization"]["drift"]["friction_rate"],
+                *drawn(s),
             ]
-            for s in report["sessions"]
+            for s in sessions
         ],
     )
-    return tables
 
 
 def report_html(report: dict, base: str | os.PathLike | None = None) -> str:

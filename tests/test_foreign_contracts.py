@@ -482,7 +482,10 @@ def test_policy_export_writes_a_foreign_onnx_with_our_spec_in_one_file(go2, tmp_
     default = [fs.mjlab_pose(n) for n in fs.MJLAB_ORDER]
     cfg = fs.unitree_deploy(range(12), default, scale=0.3, stiffness=30.0, damping=0.7)
     path = fs.write_unitree_policy(tmp_path / "v0", cfg, 45, bias=BIAS)
-    for argv, message in (([], "needs --robot"), (["--robot", "go2", "--spec", "x.json"], "--spec")):
+    for argv, message in (
+        ([], "needs --robot"),
+        (["--robot", "go2", "--spec", "x.json"], "--spec"),
+    ):
         assert policy_export_main([str(path), *argv]) == 2
         err = capsys.readouterr().err.strip()
         assert "\n" not in err and message in err

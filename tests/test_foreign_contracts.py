@@ -383,6 +383,10 @@ def test_robot_import_takes_the_drive_from_the_policys_contract(tmp_path, capsys
     # --target-limits pd: the target's speed when the full torque moves it (effort / kp)
     assert ankle.command_velocity_limit == pytest.approx(2 * 40.0 / 13.0 / 0.02, rel=0.01)
     assert "kp, kd and home from unitree_deploy contract" in capsys.readouterr().out
+    assert (
+        "# kp, kd, home and control rate: the policy's (--drive-from)"
+        in (out / "robot.toml").read_text()
+    )
 
     code = main([*common, "--out", str(tmp_path / "b"), "--control-rate", "100"])
     err = capsys.readouterr().err.strip()

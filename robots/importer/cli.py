@@ -283,10 +283,11 @@ def _import(
     spec, model = build_spec(urdf, chosen, motor_cfg, physics_timestep, options)
     log(f"note: {urdf.physics}; timestep {physics_timestep:g} s ({timestep_from})")
     joint_names = [model.joint(i).name for i in range(model.njnt)]
-    if drive is not None:
+    if drive is not None:  # robot.toml's header says where the gains came from
         kp, kd, home, control_rate = _policy_drive(
             drive, model, joint_names, unitree, kp, kd, home, control_rate, log
         )
+        notes = [*notes, "kp, kd, home and control rate: the policy's (--drive-from)"]
     control_rate = DEFAULT_CONTROL_RATE if control_rate is None else control_rate
     steps = 1.0 / (control_rate * physics_timestep)
     if timestep_from == "the MJCF" and abs(steps - round(steps)) > 1e-6 * steps:

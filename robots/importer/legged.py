@@ -233,7 +233,7 @@ def write_legged_toml(
         "",
         "[control]",
         'mode = "position"            # joint position targets, PD at the physics rate',
-        f"control_rate = {_f(control_rate)}          # Hz (--control-rate or --drive-from)",
+        f"control_rate = {_f(control_rate)}          # Hz (robot-import --control-rate)",
         f"physics_timestep = {_f(physics_timestep)}     # s (robot-import --physics-timestep)",
         f"# rad: {home_from}",
         f"home = {_vec(motion.home)}",
@@ -464,9 +464,7 @@ def import_floating_base(
 
     motion = motion_now()
     gains_from = {
-        j: "--kp/--kd or --drive-from"
-        if j in kp_set or j in kd_set
-        else "the importer's rule (see above)"
+        j: "--kp/--kd" if j in kp_set or j in kd_set else "the importer's rule (see above)"
         for j in joint_names
     }
     home_from = (

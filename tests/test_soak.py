@@ -708,3 +708,34 @@ def test_soak_test_spec_soaks_an_onnx_without_our_metadata(policy, tmp_path, cap
     argv = [*base, "--policy", str(bare), "--out", str(tmp_path / "c")]
     assert cli.main(argv) == cli.EXIT_BAD_INPUT
     assert "bare.onnx" in capsys.readouterr().err
+
+
+def test_a_shorter_run_is_compared_with_the_baselines_same_hours(batched):
+    """Like with like: a 1-hour campaign against an 8-hour baseline judges its violation rate
+    against the baseline's first hour (per-hour rows over its sessions), not the 8-hour mean; a
+    fraction of an hour cannot be matched and is compared with the mean, saying so."""
+    from copy import deepcopy
+
+    from eval.report.baseline import violation_basis
+
+    report = build_report({"robot": "arm3", "hours": 1.0, "sessions": 1}, batched, LENIENT)
+    baseline = deepcopy(report)
+    baseline["campaign"].update(hours=8.0, sessions=2)
+    v = baseline["totals"]["violations"]
+    v["per_hour"] = [
+        {"hour": h, "counts": {"velocity": 100 + 10 * h}, "any": 100 + 10 * h} for h in range(8)
+    ]
+    v["rate_per_hour"] = {k: 0.0 for k in v["rate_per_hour"]} | {"velocity": 67.5}
+    rates, basis = violation_basis(report, baseline)
+    assert rates["velocity"] == 50.0 and basis == "the baseline's first 1 h"  # 100 / 2 sessions
+    report["totals"]["violations"]["rate_per_hour"]["velocity"] = 60.0  # above 50 x 1.1 + 1
+    result = compare_with_baseline(report, baseline, LENIENT, "old.json")
+    assert result["violation_basis"] == basis
+    assert "rose from 50.00 (the baseline's first 1 h) to 60.00" in " ".join(
+        r["message"] for r in result["regressions"]
+    )
+    report["campaign"]["hours"] = 0.5
+    rates, basis = violation_basis(report, baseline)
+    assert rates["velocity"] == 67.5 and "cannot be matched hour for hour" in basis
+    report["campaign"]["hours"] = 8.0
+    assert violation_basis(report, baseline) == (v["rate_per_hour"], "the baseline's 8 h")

@@ -1,7 +1,8 @@
 """The comparison of a soak report with a baseline report (an earlier campaign's report.json).
 
 Baseline comparison (:func:`compare_with_baseline`, campaign totals; the baseline must be of schema
-2): a regression is a true-state violation rate per hour (any type) above ``baseline * (1 +
+2): a regression is a true-state violation rate per hour (any type; over the baseline's same
+first hours for a shorter run: :func:`violation_basis`) above ``baseline * (1 +
 violation_tolerance) + violation_slack``, an intervention fraction of ticks (any check, or all
 together) above ``baseline * (1 + violation_tolerance) + intervention_slack``, a success rate or a
 minimum window success rate below ``baseline - success_tolerance``, a peak winding temperature
@@ -21,7 +22,8 @@ def compare_with_baseline(
     """Compare a report's totals with a baseline report's (see the module docstring).
 
     Returns:
-        ``{"path", "passed", "regressions": [...], "compared": {...}}``.
+        ``{"path", "passed", "regressions": [...], "compared": {...}, "violation_basis"}``
+        (what the violation rates were compared with, :func:`violation_basis`).
 
     Raises:
         ReportError: the baseline is not of schema ``SCHEMA_VERSION`` (schema 1 is refused),
@@ -52,8 +54,9 @@ def compare_with_baseline(
                 }
             )
 
+    base_rates, basis = violation_basis(report, baseline)
     for kind, rate in new["violations"]["rate_per_hour"].items():
-        base = old["violations"]["rate_per_hour"].get(kind, 0.0)
+        base = base_rates.get(kind, 0.0)
         allowed = base * (1 + thresholds.violation_tolerance) + thresholds.violation_slack
         add(
             f"violations.{kind}.per_hour",
@@ -61,8 +64,8 @@ def compare_with_baseline(
             rate,
             allowed,
             rate > allowed,
-            f"{kind} violations (true state) per hour rose from {base:.2f} to {rate:.2f} "
-            f"(allowed {allowed:.2f})",
+            f"{kind} violations (true state) per hour rose from {base:.2f} ({basis}) to "
+            f"{rate:.2f} (allowed {allowed:.2f})",
         )
     fractions = {k: c["fraction"] for k, c in new["interventions"]["checks"].items()}
     fractions["any"] = new["interventions"]["any"]["fraction"]
@@ -143,8 +146,39 @@ def compare_with_baseline(
         "passed": not regressions,
         "regressions": regressions,
         "compared": compared,
+        "violation_basis": basis,
         "known_failures": known_failures(report, baseline),
     }
+
+
+def violation_basis(report: dict, baseline: dict) -> tuple[dict[str, float], str]:
+    """The baseline's true violation rates per hour to compare ``report``'s with, and what they
+    are: like with like. A campaign of whole hours shorter than its baseline is compared with the
+    baseline's same first hours (its ``totals.violations.per_hour`` rows over its sessions): a
+    1-hour run against an 8-hour baseline's mean judged the first hour, whose rate differs from
+    the mean (the go2 baseline's first hour 1,193 velocity ticks against a mean of 1,126). A run
+    of a fraction of an hour cannot be matched hour for hour: it is compared with the mean, and
+    the basis says so.
+
+    Returns:
+        ``({violation type: rate per hour}, basis)``, the basis a phrase for the messages.
+    """
+    old = baseline["totals"]["violations"]
+    hours = float(report["campaign"].get("hours") or 0.0)
+    base_hours = float(baseline["campaign"].get("hours") or 0.0)
+    mean = dict(old["rate_per_hour"])
+    if not hours or not base_hours or hours >= base_hours - 1e-9:
+        return mean, f"the baseline's {base_hours:g} h"
+    whole = round(hours)
+    rows = sorted(old.get("per_hour") or [], key=lambda r: r["hour"])[:whole]
+    sessions = int(baseline["campaign"].get("sessions") or 1)
+    if whole < 1 or abs(hours - whole) > 1e-6 or len(rows) < whole:
+        return mean, (
+            f"the baseline's mean over {base_hours:g} h: a {hours:g}-h run cannot be matched "
+            "hour for hour"
+        )
+    rates = {k: sum(r["counts"].get(k, 0) for r in rows) / (whole * sessions) for k in mean}
+    return rates, f"the baseline's first {whole} h"
 
 
 def known_failures(report: dict, baseline: dict) -> list[dict]:

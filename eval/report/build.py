@@ -266,7 +266,7 @@ def build_report(
                         {peak_c, derating_band_s, over_temperature_s}, diverged [ids], tick_cost_us
         checks          {name: {passed, failed_sessions}}
         baseline        null, or {path, passed, regressions [{metric, baseline, current, allowed,
-                        message}], compared {metric: {baseline, current, allowed}},
+                        message}], compared {metric: {baseline, current, allowed}}, violation_basis,
                         known_failures [{check, sessions, message}]: checks failed in the same
                         sessions of the baseline too (:func:`eval.report.baseline.known_failures`)}
         passed          every check and the baseline comparison passed

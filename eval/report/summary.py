@@ -99,6 +99,8 @@ def summary_text(report: dict) -> str:
     if b is not None:
         if b["passed"]:
             lines.append(f"  baseline     no regression against {b['path']}")
+        if b.get("violation_basis"):
+            lines.append(f"  baseline     violation rates compared with {b['violation_basis']}")
         for r in b["regressions"]:
             lines.append(f"  REGRESSION   {r['message']}")
     return "\n".join(lines)

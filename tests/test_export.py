@@ -484,7 +484,7 @@ def _write_bad_inputs(tmp_path, spec):
             r"good.pt: the checkpoint's spec differs from the --spec given in \['robot_hash'\]",
         ),
         "not a policy": (["spec.json"], r"spec.json: not a torch file: it starts with bytes 7b"),
-        "onnx source": (["exported.onnx"], r"exported.onnx: not a readable ONNX model"),
+        "onnx source": (["exported.onnx"], r"exported.onnx: not a valid ONNX file"),
         "no out folder": (
             ["good.pt", "--out", str(tmp_path / "nodir" / "x.onnx")],
             r"nodir/x.onnx: the output folder .*nodir does not exist",

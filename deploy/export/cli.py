@@ -230,15 +230,15 @@ def _onnx_metadata(path: Path) -> dict[str, str]:
     """The ONNX file's metadata (its weights not read).
 
     Raises:
-        ExportError: not a readable ONNX model (the first line of the parser's message).
+        ExportError: not a readable ONNX model (the message of
+            :func:`deploy.policy.onnx_checks.read_model`).
     """
-    import onnx
+    from deploy.policy.onnx_checks import PolicyLoadError, read_model
 
     try:
-        model = onnx.load(str(path), load_external_data=False)
-    except Exception as exc:  # noqa: BLE001 - a missing file, protobuf's DecodeError and friends
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise ExportError(f"{path}: not a readable ONNX model: {first}") from None
+        model = read_model(path)
+    except PolicyLoadError as exc:
+        raise ExportError(str(exc)) from None
     return {p.key: p.value for p in model.metadata_props}
 
 

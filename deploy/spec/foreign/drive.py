@@ -48,17 +48,17 @@ def read_policy_contract(path: str | Path) -> ForeignContract:
     """The foreign contract of the ONNX file at ``path`` (external weights are not read).
 
     Raises:
-        ForeignFormatError: the file is missing or not an ONNX model, no format recognises it
+        ForeignFormatError: the file is missing or not an ONNX model (the message of
+            :func:`deploy.policy.onnx_checks.read_model`), no format recognises it
             (naming the formats), or its contract cannot be read (naming the file, format, key).
     """
-    import onnx
+    from deploy.policy.onnx_checks import PolicyLoadError, read_model
 
     path = Path(path)
     try:
-        model = onnx.load(str(path), load_external_data=False)
-    except Exception as exc:  # noqa: BLE001 - a missing file, protobuf's DecodeError and friends
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise ForeignFormatError(f"{path}: not a readable ONNX model: {first}") from None
+        model = read_model(path)
+    except PolicyLoadError as exc:  # missing, empty, a torch file, not ONNX
+        raise ForeignFormatError(str(exc)) from None
     contract = read_contract(OnnxFacts.of(path, model))
     if contract is None:
         raise ForeignFormatError(

@@ -8,8 +8,9 @@ self-contained file for a robot: the same graph with its weights inlined and our
 ``policy_spec`` metadata (joint order, observation layout and scales, action mapping, the
 policy's PD gains and default pose, the control rate), so the deployment needs neither the
 sidecar files nor the training stack's contract. The graph is not rebuilt, so its parity with
-the source is exact: both files run through ONNX Runtime on the parity observations
-(:func:`deploy.export.parity.parity_observations`) and must give the same actions to the bit.
+the source is exact: both files run in the runtime's :class:`OnnxPolicy` on the parity
+observations (:func:`deploy.export.parity.parity_observations`) and must give the same actions
+to the bit.
 The source's own metadata is kept under ``source_metadata`` (JSON).
 """
 
@@ -21,7 +22,6 @@ from pathlib import Path
 
 import numpy as np
 import onnx
-import onnxruntime as ort
 
 from deploy.export.errors import ExportError, ParityError
 from deploy.export.graph import set_metadata, tool_versions
@@ -33,14 +33,10 @@ from robots import Robot
 from robots.files import atomic_path, sha256_file
 
 
-def _actions(path: Path, obs: np.ndarray) -> np.ndarray:
-    """The graph's first output for each row of ``obs`` (batch 1 at a time: exported graphs
-    often fix the batch to 1), float32 (rows, act_dim)."""
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = 1
-    session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-    name = session.get_inputs()[0].name
-    return np.concatenate([session.run(None, {name: row[None]})[0] for row in obs])
+def _actions(policy: OnnxPolicy, obs: np.ndarray) -> np.ndarray:
+    """The policy's actions for each row of ``obs`` in turn (batch 1: exported graphs often fix
+    the batch to 1), float32 (rows, act_dim)."""
+    return np.concatenate([policy(row[None]).copy() for row in obs])
 
 
 def export_onnx_policy(
@@ -83,7 +79,7 @@ def export_onnx_policy(
     model = onnx.load(str(source))  # external data inlined
     original = {p.key: p.value for p in model.metadata_props}
     obs = parity_observations(spec, PARITY_SAMPLES, np.random.default_rng(seed))
-    reference = _actions(source, obs)
+    reference = _actions(policy, obs)
     meta = {
         "source_sha256": sha256_file(source),
         "source_format": f"onnx ({policy.foreign.format} contract)",
@@ -99,13 +95,13 @@ def export_onnx_policy(
             )
             model.doc_string = f"{robot.name} policy: {source.name} with its PolicySpec"
             onnx.save(model, str(tmp))
-            error = float(np.max(np.abs(_actions(tmp, obs) - reference), initial=0.0))
+            written = OnnxPolicy(tmp, robot)  # it loads in the runtime with our spec
+            error = float(np.max(np.abs(_actions(written, obs) - reference), initial=0.0))
             if error != 0.0:
                 figures.update(max_abs_error=error, passed=False)
                 raise ParityError(
                     f"{source}: the written graph's actions differ by {error:.3g}", figures
                 )
-            OnnxPolicy(tmp, robot)  # it loads in the runtime with our spec
     except OSError as exc:
         raise ExportError(f"{out}: cannot write in {out.parent}: {exc.strerror or exc}") from None
     return ExportResult(

@@ -159,7 +159,7 @@ def test_every_range_class_field_can_be_set_from_a_file():
     assert set(FIELDS) | set(TOP_LEVEL) == {f.name for f in fields(SessionRanges)}
     assert set(FIELDS) - set(TABLES) == {field for field, _ in SUBTABLES.values()} - set(TABLES)
     for field, cls in FIELDS.items():
-        inner = {k for f, keys in SUBTABLES.values() if f == field for k in keys.values()}
+        inner = {k for f, keys in SUBTABLES.values() if f == field for k in keys}
         if field not in TABLES:  # an inline table only: it sets every field of its class
             assert inner == {f.name for f in fields(cls)}
 

@@ -114,7 +114,7 @@ class PushRanges:
 
     def ranges(self) -> np.ndarray:
         """(6, 2) the ``(low, high)`` of each axis of :data:`AXES` (unset: 0)."""
-        if self.legacy or all(getattr(self, a) is None for a in AXES):
+        if all(getattr(self, a) is None for a in AXES):  # legged_gym's: x and y
             v = 1.0 if self.max_velocity is None else self.max_velocity
             out = np.zeros((6, 2))
             out[:2] = (-v, v)

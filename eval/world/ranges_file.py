@@ -63,20 +63,21 @@ TABLES = {
     "commands": CommandRanges,
 }
 #: The inline tables of a table: ``(table, key)`` -> (the field of :class:`SessionRanges` they
-#: set, ``{key of the inline table: field of its class}``). mjlab's velocity task writes a push's
-#: ranges per axis, ``velocity_range = {"x": ..., "roll": ...}``; a file splits them in two.
+#: set, the keys of the inline table: fields of that field's class). mjlab's velocity task
+#: writes a push's ranges per axis, ``velocity_range = {"x": ..., "roll": ...}``; a file splits
+#: them in two.
 SUBTABLES = {
-    ("dynamics", "com_offset"): ("com_offset", {k: k for k in ("body", "x", "y", "z")}),
-    ("pushes", "velocity"): ("pushes", {k: k for k in ("x", "y", "z")}),
-    ("pushes", "angular_velocity"): ("pushes", {k: k for k in ("roll", "pitch", "yaw")}),
+    ("dynamics", "com_offset"): ("com_offset", ("body", "x", "y", "z")),
+    ("pushes", "velocity"): ("pushes", ("x", "y", "z")),
+    ("pushes", "angular_velocity"): ("pushes", ("roll", "pitch", "yaw")),
 }
 #: The class of each field of :class:`SessionRanges` a file sets: a table's or an inline table's.
 FIELDS = {**TABLES, "com_offset": ComOffsetRanges}
 #: ``(field, key)`` -> the key as the file writes it (``pushes.velocity.x``), for messages.
 FILE_KEYS = {
-    (field, key): f"{table}.{sub}.{name}"
+    (field, key): f"{table}.{sub}.{key}"
     for (table, sub), (field, keys) in SUBTABLES.items()
-    for name, key in keys.items()
+    for key in keys
 }
 #: Keys of a ranges file outside any table, with their type.
 TOP_LEVEL = {"floor_friction": tuple[float, float], "added_base_mass": tuple[float, float]}
@@ -208,7 +209,7 @@ def parse_overrides(text: str, path: str | Path) -> dict:
     return out
 
 
-def _subtable(path, table: str, name: str, value, field: str, keys: dict) -> dict:
+def _subtable(path, table: str, name: str, value, field: str, keys: tuple[str, ...]) -> dict:
     """The inline table ``table.name`` of file ``path`` as ``{field of its class: value}``."""
     if not isinstance(value, dict):
         raise RangesError(
@@ -221,7 +222,7 @@ def _subtable(path, table: str, name: str, value, field: str, keys: dict) -> dic
             raise RangesError(
                 f"{path}: {table}.{name}.{sub}: unknown key; expected one of {', '.join(keys)}"
             )
-        out[keys[sub]] = _typed(path, f"{table}.{name}.{sub}", item, hints[keys[sub]])
+        out[sub] = _typed(path, f"{table}.{name}.{sub}", item, hints[sub])
     return out
 
 

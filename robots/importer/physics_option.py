@@ -21,6 +21,7 @@ from pathlib import Path
 
 import mujoco
 
+from robots.importer.flags import split
 from robots.importer.source import RobotImportError
 
 #: ``<option>`` attributes kept or set, with their MjSpec enum (None: a number of that type).
@@ -130,9 +131,7 @@ def apply_options(spec: mujoco.MjSpec, stated: dict[str, str], flags: list[str])
     """
     given: dict[str, str] = {}
     for text in flags:
-        key, sep, value = text.partition("=")
-        if not sep or not value:
-            raise RobotImportError(f"--option '{text}': expected KEY=VALUE, e.g. iterations=10")
+        key, value = split("--option", text, "KEY=VALUE, e.g. iterations=10")
         if key not in OPTIONS:
             raise RobotImportError(f"--option '{text}': unknown key '{key}'; expected one of "
                                    f"{list(OPTIONS)}")  # fmt: skip

@@ -92,7 +92,7 @@ def observation(
         joints: (blocks, k) int64 joint indices, -1 padded (a block's size is its column span).
         periods: (blocks,) float64, the gait clock's period of a ``gait_phase`` block, s.
         components: (blocks, 4) int64, the entries of its raw vector a vector or ``gait_phase``
-            block reads, in order, -1 padded; a row starting with -1: the kind's own entries.
+            block reads, in order (its kind's own, 0, 1, ..., where it names none), -1 padded.
         q, dq, last_action, temperature: (envs, n); ee_position, goal (envs, 3); ee_rotation
             (envs, 3, 3): the inputs of the reference, same units.
         linear_velocity, angular_velocity, gravity, command: (envs, 3) base linear velocity
@@ -146,26 +146,21 @@ def observation(
                     raw[e, s0 + i] = temperature[e, joints[b, i]]
             elif kind == BASE_LINEAR_VELOCITY:
                 for i in range(size):
-                    c = components[b, i] if components[b, 0] >= 0 else i
-                    raw[e, s0 + i] = linear_velocity[e, c]
+                    raw[e, s0 + i] = linear_velocity[e, components[b, i]]
             elif kind == BASE_ANGULAR_VELOCITY:
                 for i in range(size):
-                    c = components[b, i] if components[b, 0] >= 0 else i
-                    raw[e, s0 + i] = angular_velocity[e, c]
+                    raw[e, s0 + i] = angular_velocity[e, components[b, i]]
             elif kind == PROJECTED_GRAVITY:
                 for i in range(size):
-                    c = components[b, i] if components[b, 0] >= 0 else i
-                    raw[e, s0 + i] = gravity[e, c]
+                    raw[e, s0 + i] = gravity[e, components[b, i]]
             elif kind == VELOCITY_COMMAND:
                 for i in range(size):
-                    c = components[b, i] if components[b, 0] >= 0 else i
-                    raw[e, s0 + i] = command[e, c]
+                    raw[e, s0 + i] = command[e, components[b, i]]
             elif kind == GAIT_PHASE:
                 phase = (2.0 * math.pi / periods[b]) * clock[e]
                 sp, cp = math.sin(phase), math.cos(phase)
                 for i in range(size):
-                    c = components[b, i] if components[b, 0] >= 0 else i
-                    raw[e, s0 + i] = (sp, cp, -sp, -cp)[c]
+                    raw[e, s0 + i] = (sp, cp, -sp, -cp)[components[b, i]]
             elif kind == FOOT_CONTACT:
                 for i in range(size):
                     raw[e, s0 + i] = contact[e, i]

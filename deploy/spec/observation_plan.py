@@ -80,8 +80,9 @@ class ObservationPlan:
             self.kinds = np.array([KINDS[b.name].kernel_code for b in bl], dtype=np.int64)
             self.block_periods = np.array([float(b.period) for b in bl], dtype=np.float64)
             self.components = np.full((len(bl), 4), -1, dtype=np.int64)
-            for i, b in enumerate(bl):
-                self.components[i, : len(b.components)] = b.components
+            for i, b in enumerate(bl):  # a block naming none reads its kind's own in order
+                picked = b.components or range(min(b.size, 4))
+                self.components[i, : len(picked)] = picked
             self.starts = np.array([p.columns.start for p in self.blocks], dtype=np.int64)
             width = max(1, max(len(b.joints) for b in bl))
             self.joints = np.full((len(bl), width), -1, dtype=np.int64)

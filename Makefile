@@ -84,7 +84,7 @@ train: install
 	$(if $(TRAIN_$(ROBOT)),,$(error make train: no recipe for ROBOT=$(ROBOT); shipped: arm3, so101, go2))
 	$(PY) -m $(TRAINER) $(TRAIN_$(ROBOT))
 
-# The position-mode variant of the same recipe (README, "Velocity vs position control").
+# The position-mode variant of the same recipe (docs/training.md, "Velocity vs position control").
 train-position: install
 	$(PY) -m policies.train --mode position --start-poses policies/arm3_missed_poses.json \
 		--out policies/arm_position.pt

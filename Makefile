@@ -9,7 +9,7 @@ ONNX   := $(POLICY:.pt=.onnx)
 export ORT_DISABLE_TELEMETRY := 1
 export MPLBACKEND := Agg
 
-.PHONY: install run test lint format export train train-position hil soak nightly sim2sim bench clean
+.PHONY: install run test docs lint format export train train-position hil soak nightly sim2sim bench clean
 
 install: $(STAMP)
 
@@ -33,11 +33,19 @@ run: install
 # xdist_group mark on one worker; TEST_WORKERS=0: one process). Each worker runs one thread and
 # the numba kernels are compiled once before the workers start (tests/conftest.py). The tests on
 # the wall clock against an emulator (mark wallclock) run after it in one process, so the suite's
-# own workers do not starve them.
+# own workers do not starve them. The last line is the tests' wall time, "make test: N s" (the
+# figure README.md quotes).
 TEST_WORKERS ?= 2
 test: install lint
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not wallclock"
-	$(PY) -m pytest -q -m wallclock
+	@start=$$(date +%s); \
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not wallclock" \
+		&& $(PY) -m pytest -q -m wallclock; status=$$?; \
+	echo "make test: $$(( $$(date +%s) - start )) s"; exit $$status
+
+# The documentation site (mkdocs.yml: docs/ and the API reference from the source) into site/;
+# --strict: a broken link or anchor, or a docstring griffe cannot read, fails it.
+docs: install
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir site
 
 lint: install
 	$(VENV)/bin/ruff check .
@@ -167,5 +175,5 @@ bench: install
 	$(PY) -m bench
 
 clean:
-	rm -rf $(VENV) build dist *.egg-info .pytest_cache .ruff_cache runs
+	rm -rf $(VENV) build dist site *.egg-info .pytest_cache .ruff_cache runs
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +

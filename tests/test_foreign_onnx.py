@@ -466,7 +466,7 @@ def test_a_model_judged_by_its_answers_over_the_specs_range(arm3, tmp_path):
 
 
 def test_the_godot_example_spec_is_the_seeds_observation(arm3):
-    """angles / pi, end effector / 0.85 m, goal / 0.85 m (seed section 3, ARM_REACH)."""
+    """angles / pi, end effector / 0.85 m, goal / 0.85 m (the Godot arm's ARM_REACH)."""
     from deploy.state import Kinematics, RobotState
 
     spec = PolicySpec.from_json(GODOT_SPEC.read_text())

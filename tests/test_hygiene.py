@@ -434,7 +434,7 @@ def test_no_measured_figures_in_docstrings_in_any_unit():
 
 
 #: Documents a reader of the repository does not have: the design notes and pitfalls of the
-#: project's planning, its issue tracker (``issue 18``; an upstream issue is cited as
+#: project's planning, its issue tracker (an issue's number; an upstream issue is cited as
 #: ``owner/repo#N`` or a URL) and the sections of its seed specification.
 UNAVAILABLE_REFERENCE = re.compile(
     r"\b(?:DESIGN|PITFALLS)\.md\b|\bissues?\s+#?\d+|\bseed(?:'s)?\s+sections?\s+\d+",
@@ -456,6 +456,44 @@ def test_no_docstring_or_comment_cites_a_document_the_reader_does_not_have():
                 f"{name}:{line}: comment: {m.group(0)!r}"
                 for m in UNAVAILABLE_REFERENCE.finditer(comment)
             ]
+    assert not hits, "say what the reference says, or cite what a reader can open:\n" + "\n".join(
+        hits
+    )
+
+
+#: Files a reader opens beside the code, besides its docstrings and comments: the user
+#: documentation, the robots' and motors' descriptions, the soak's worlds, the policies' ranges
+#: files and recipes, the package metadata, the JSON of the documentation and the benchmarks, and
+#: the tests. tests/data is other people's artifacts, kept as published, and is left out.
+REFERENCE_FILES = (
+    "README.md",
+    "docs/*.md",
+    "robots/*/robot.toml",
+    "robots/motors/*.toml",
+    "eval/world/*.toml",
+    "policies/*.toml",
+    "pyproject.toml",
+    "docs/**/*.json",
+    "bench/**/*.json",
+    "policies/*.json",
+    "tests/*.py",
+)
+#: A citation of the project's issue tracker by number, or of a section of the seed specification,
+#: with or without its number: say what the rule or the figure is, not where it was decided. An
+#: upstream issue names its repository and a ``#`` ("the SO-ARM100 issue #134"): a reader can open it.
+UNAVAILABLE_IN_FILES = re.compile(r"\bissues?\s+\d+|\bseed(?:'s)?\s+sections?\b", re.IGNORECASE)
+
+
+def test_no_document_description_or_test_cites_a_document_the_reader_does_not_have():
+    paths = sorted({p for pattern in REFERENCE_FILES for p in ROOT.glob(pattern)})
+    assert ROOT / "README.md" in paths and ROOT / "robots" / "go2" / "robot.toml" in paths
+    hits = []
+    for path in paths:
+        text = path.read_text()
+        hits += [
+            f"{path.relative_to(ROOT)}:{text.count(chr(10), 0, m.start()) + 1}: {m.group(0)!r}"
+            for m in UNAVAILABLE_IN_FILES.finditer(text)
+        ]
     assert not hits, "say what the reference says, or cite what a reader can open:\n" + "\n".join(
         hits
     )

@@ -9,6 +9,7 @@ missing mesh files are refused or dropped on request."""
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import mujoco
@@ -186,6 +187,15 @@ def test_mjcf_with_a_free_joint_imports_as_a_floating_base(humanoid):
     # effort limits from the MJCF's actuatorfrcrange; velocity limits from the motors
     np.testing.assert_array_equal(robot.effort_limit, [200, 200, 300, 40] * 2)
     np.testing.assert_array_equal(robot.velocity_limit, [23, 23, 14, 9] * 2)
+
+
+def test_the_imported_robot_toml_cites_no_document_the_reader_does_not_have(humanoid):
+    """Every constant the importer writes names its source; none is a course document the
+    reader of robot.toml does not have (the specification's sections)."""
+    _, _, out = humanoid
+    text = (out / "robot.toml").read_text().lower()
+    assert "[sensors.imu]" in text
+    assert not re.search(r"\bseed\s+sections?\b", text)
 
 
 def test_feet_keep_their_four_contact_spheres_and_touch_the_floor_at_home(humanoid):

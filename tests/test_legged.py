@@ -1,4 +1,4 @@
-"""Floating-base robots (issue 17, parts 1-3): go2 loads with its free joint, the plant's IMU
+"""Floating-base robots: go2 loads with its free joint, the plant's IMU
 and foot contacts behave as configured, and the base estimator follows the true base."""
 
 from __future__ import annotations

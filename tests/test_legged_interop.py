@@ -1,4 +1,4 @@
-"""Issue 17 acceptance: a legged_gym-style policy exported from TorchScript with a user spec runs
+"""Acceptance for legged robots: a legged_gym-style policy exported from TorchScript with a user spec runs
 on a floating-base robot with the IMU blocks.
 
 The actor is a small seeded MLP (48 -> 128 -> 64 -> 12, ELU) whose observation is legged_gym's

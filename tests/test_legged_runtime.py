@@ -1,4 +1,4 @@
-"""Legged robots in the runtime (issue 17, parts 4-5): the floating-base observation blocks, the
+"""Legged robots in the runtime: the floating-base observation blocks, the
 velocity command and gait clock, fall detection with a damped safe stop, and the base
 estimator's state in the runtime's state_dict."""
 

@@ -232,10 +232,10 @@ def test_description_hash_ignores_the_task_region_and_comments(arm3_copy):
     assert load_robot(arm3_copy).description_hash == before
 
 
-# ---------------------------------------------------------------- motor catalog (issue 14)
+# ---------------------------------------------------------------- motor catalog
 #: Description hashes shipped policies record; moving the motors into robots/motors/ keeps them.
 SHIPPED_HASHES = {
-    # issue 42: the box's far faces moved from 0.92 to 1.0 m, past every arm within the link-length
+    # the box's far faces moved from 0.92 to 1.0 m, past every arm within the link-length
     # tolerance (the shipped arm3 checkpoints were re-saved with this hash)
     "arm3": "a3b83fc44000adcd8a665ff63c585c97d2b0e390326e81bcb2d547de5245b4d1",
     "arm6": "a43fa5b5d3c5bf8666ef549744f7cf8ef0706d6d14d484d78c73015254c1384d",

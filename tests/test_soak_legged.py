@@ -1,4 +1,4 @@
-"""The soak's legged mode (issue 17): go2 follows seeded velocity commands
+"""The soak's legged mode: go2 follows seeded velocity commands
 (:class:`deploy.tasks.locomotion.CommandSchedule`), its tracking, falls and distance are measured
 (:class:`deploy.tasks.locomotion.CommandTracker`) and reported, and a kill -9 + resume equals an
 uninterrupted run."""

@@ -268,7 +268,7 @@ def write_legged_toml(
         "",
         "# IMU at site 'imu' (link " + imu_link + "): Kalibr's noise model (robots/schema.py).",
         "[sensors.imu]",
-        "# seed section 5: angular rate sigma 0.01-0.03 over 4 rad/s (legged_gym ang_vel scale",
+        "# specified noise: angular rate sigma 0.01-0.03 over 4 rad/s (legged_gym ang_vel scale",
         "# 0.25), linear acceleration 0.03-0.08 over g; the middle of each range",
         f"gyro_noise_sigma = {_f(_sig(GYRO_NOISE_SIGMA, 3))}  # rad/s",
         f"accel_noise_sigma = {_f(_sig(ACCEL_NOISE_SIGMA, 3))}  # m/s^2",
@@ -292,7 +292,7 @@ def write_legged_toml(
         "",
         "# Foot contact: the touch sensor's normal force (N) + noise, thresholded.",
         "[sensors.contact]",
-        f"# noise: seed section 5 (force 0.05-0.10 normalized) x the standing load of a foot, "
+        f"# noise: the specified force noise (0.05-0.10 normalized) x the standing load of a foot, "
         f"{load:.1f} N",
         f"force_noise_sigma = {_f(force_sigma)}  # N",
         f"threshold = {_f(threshold)}  # N, {CONTACT_THRESHOLD_SIGMAS:g} noise sigmas, >= 5 N",

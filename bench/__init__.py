@@ -4,7 +4,7 @@
 runtime against a bare sim2sim loop (unitree_rl_gym's ``deploy_mujoco.py``: torch eager, PD
 torques at the physics rate) on the same robot and policy in the same run, writes
 ``bench/results.json`` atomically (schema ``sim2real-deploy/bench/1``; its layout and the targets
-in README.md, "Speed") and prints a plain-text table ending with the targets, PASS or FAIL.
+in docs/speed.md) and prints a plain-text table ending with the targets, PASS or FAIL.
 
 The policy of every item but ``inference`` (:mod:`bench.common`): a deterministic
 :class:`deploy.policy.mlp_checkpoint.MLPActor` (hidden 64, 64, ELU, weights from

@@ -6,7 +6,7 @@ Usage::
                     [--wallclock-seconds S] [--wallclock-modes sleep,hybrid,spin,...]
 
 Items (default: all but ``profile``, in this order; see bench/__init__.py for what each
-measures, README.md, "Speed", for the JSON layout): plant, inference, tick, session, campaign,
+measures, docs/speed.md for the JSON layout): plant, inference, tick, session, campaign,
 wallclock, busy, ros2, bus, profile.
 ``--quick`` shortens every item to a few seconds (a smoke test; its percentiles are rough).
 With ``--only``, sections of an existing results file that were not run are kept (each section

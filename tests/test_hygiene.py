@@ -500,7 +500,7 @@ def test_no_document_description_or_test_cites_a_document_the_reader_does_not_ha
 
 
 #: The longest module docstring: what the module is, shapes, units, errors, sources of
-#: constants. User documentation goes to README.md, the design to docs/architecture.md.
+#: constants. User documentation goes to README.md and docs/, the design to docs/architecture.md.
 MODULE_DOCSTRING_LINES = 30
 
 

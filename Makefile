@@ -50,6 +50,7 @@ docs: install
 lint: install
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/lint-imports
 
 format: install
 	$(VENV)/bin/ruff format .
@@ -110,9 +111,9 @@ $(ONNX): $(POLICY) $(STAMP)
 #                        (rt/lowstate at 500 Hz, the MuJoCo plant behind it); then the walk as
 #                        the emulator saw it (true distance, speed, tracking)
 HIL_ROBOT := $(if $(filter go2,$(ROBOT)),go2,so101)
-HIL_so101 := $(PY) -m deploy.backends.emulator.hil --robot so101 --protocol feetech -- \
+HIL_so101 := $(PY) -m deploy.harness.servo_hil --robot so101 --protocol feetech -- \
 	--policy policies/so101.onnx --duration 60
-HIL_go2   := $(PY) -m deploy.backends.unitree.emulator.hil --robot go2 -- \
+HIL_go2   := $(PY) -m deploy.harness.unitree_hil --robot go2 -- \
 	--policy policies/go2.onnx --command 0.5,0,0 --duration 60
 #   make hil BACKEND=ros2 [ROBOT=so101]
 #                        the shipped arm3 (or SO-101) policy for 60 s through deploy-run --backend
@@ -124,7 +125,7 @@ HIL_ROS2_POLICY := $(if $(filter so101,$(ROBOT)),policies/so101.onnx,$(ONNX))
 ifeq ($(BACKEND),ros2)
 hil: install $(HIL_ROS2_POLICY)
 	$(if $(filter arm3 so101,$(ROBOT)),,$(error make hil BACKEND=ros2: ROBOT=$(ROBOT) has no shipped policy; use ROBOT=arm3 or ROBOT=so101))
-	$(PY) -m deploy.ros2.hil --robot $(HIL_ROS2_ROBOT) -- --policy $(HIL_ROS2_POLICY) --duration 60
+	$(PY) -m deploy.harness.ros2_hil --robot $(HIL_ROS2_ROBOT) -- --policy $(HIL_ROS2_POLICY) --duration 60
 else
 hil: install policies/$(HIL_ROBOT).onnx
 	$(HIL_$(HIL_ROBOT))

@@ -11,7 +11,7 @@ The policy of every item but ``inference`` (:mod:`bench.common`): a deterministi
 ``torch.manual_seed(0)``) over the robot's default PolicySpec, its weights tamed so that it holds
 the arm near home and moves it a little with every goal (:func:`bench.common.tame_actor`), exported
 with the parity gate; goals from :class:`deploy.tasks.goals.GoalScheduler` as in ``deploy-run``.
-Every latency goes through :class:`deploy.observe.telemetry.LatencyHistogram`.
+Every latency goes through :class:`deploy.core.latency.LatencyHistogram`.
 
 Items, one module each (its docstring says how it measures):
 

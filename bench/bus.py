@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from bench.common import histogram, summary
-from deploy.backends.emulator.hil import start_emulator, stop_emulator
+from deploy.harness.servo_hil import start_emulator, stop_emulator
 
 CASES = (("so101", "feetech"), ("arm3_xm430", "dynamixel"))
 BAUDRATE = 1_000_000

@@ -7,7 +7,7 @@ beside it, started before and always stopped after. Reported per robot: ticks, o
 periods, their rate, the final state, go2's falls, and the report's longest control periods
 (``deadline.long_ticks``, :mod:`deploy.observe.long_ticks`) with their causes counted: what a
 busy computer does to the loop, and whether it stopped it (a stall is not a fault:
-:mod:`deploy.runtime.modes`).
+:mod:`deploy.core.modes`).
 """
 
 from __future__ import annotations

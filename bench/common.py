@@ -1,6 +1,6 @@
 """Shared pieces of the benchmark suite: the benchmark policy, histograms, machine facts, JSON.
 
-Every latency here goes through :class:`deploy.observe.telemetry.LatencyHistogram` (1 us bins up to
+Every latency here goes through :class:`deploy.core.latency.LatencyHistogram` (1 us bins up to
 20 ms, percentiles exact to the bin width, reported at the bin centre), the same histogram the
 runtime keeps of its own stages, so that figures of the full runtime and of the bare loop are
 comparable.
@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from deploy.observe.telemetry import BIN_NS, BINS, LatencyHistogram
+from deploy.core.latency import BIN_NS, BINS, LatencyHistogram
 from robots.files import atomic_write
 
 #: Hidden layers and seed of the benchmark policy (a deterministic MLPActor, ELU).

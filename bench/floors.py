@@ -19,7 +19,7 @@ Per tick (``FLOOR_STAGES``):
   target moves each tick, so Ruckig computes a new trajectory each tick, as in the runtime), the
   new position read back (a position drive needs it).
 - ``fk``: ``pinocchio.forwardKinematics`` and ``updateFramePlacement`` of the end-effector frame
-  (what ``deploy.state.Kinematics`` calls; a legged robot has no end effector: its joint
+  (what ``deploy.core.state.Kinematics`` calls; a legged robot has no end effector: its joint
   placements only).
 - ``mj_step``: ``mujoco.mj_step(m, d, nstep=decimation)`` on a copy of the plant's first env,
   set before each call (untimed) to the plant's state and controls of the moment.

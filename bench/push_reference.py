@@ -36,7 +36,7 @@ import mujoco
 import numpy as np
 import yaml
 
-from deploy.estimation.attitude import projected_gravity
+from deploy.core.attitude import projected_gravity
 from eval.world.pushes import push_velocity
 
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "unitree_rl_gym"

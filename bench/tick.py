@@ -15,7 +15,7 @@ of each round has no predecessor, so this one has ``ticks - rounds`` samples).
 **Bare loop** (:class:`BareLoop`): the loop of unitree_rl_gym's sim2sim script
 (``deploy/deploy_mujoco/deploy_mujoco.py``), written for our robots: ``robot.plant_model("torque")``
 (direct motors, ``ctrlrange`` = effort limit), PD gains ``kp``/``kd`` of robot.toml. Per control
-tick: read ``qpos``/``qvel`` from ``MjData`` into a :class:`~deploy.state.RobotState`; the same
+tick: read ``qpos``/``qvel`` from ``MjData`` into a :class:`~deploy.core.state.RobotState`; the same
 observation as the runtime (``Kinematics.update`` for the end effector, ``spec.observation`` with
 the same PolicySpec and goals); the same MLPActor weights in torch eager
 (``torch.set_num_threads(1)``, the loop inside ``torch.no_grad()``); ``target = action * 0.25 +
@@ -66,7 +66,7 @@ class BareLoop:
     """
 
     def __init__(self, bp: BenchPolicy, seed: int = 1):
-        from deploy.state import Kinematics, RobotState
+        from deploy.core.state import Kinematics, RobotState
 
         robot = bp.robot
         self.robot, self.spec, self.actor = robot, bp.spec, bp.actor

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from deploy.state import RobotState
+from deploy.core.state import RobotState
 
 
 @dataclass(frozen=True)

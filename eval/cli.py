@@ -377,6 +377,8 @@ def run(args) -> int:
         spec=None if args.spec is None else str(args.spec),
         engine=args.engine,
     )
+    from eval.film.strip import FilmRecorder
+
     wall = time.perf_counter()
     results = run_campaign(
         template,
@@ -388,7 +390,7 @@ def run(args) -> int:
         sessions_per_process=args.sessions_per_process,
         workers=args.workers,
         progress=not args.no_progress,
-        film=not args.no_film,
+        recorders=() if args.no_film else (FilmRecorder,),
     )
     if not args.no_film:  # replayed from the kept checkpoints and rendered (eval.film.render)
         from eval.film.render import film_campaign

@@ -35,13 +35,13 @@ import gymnasium as gym
 import numpy as np
 
 from deploy.backends.sim.plant import SimBackend
+from deploy.core.state import Kinematics, RobotState
 from deploy.estimation.joints import JointStateEstimator
 from deploy.monitors.interventions import InterventionMonitor
 from deploy.runtime import reanchor
 from deploy.safety.guard import SafetyGuard
 from deploy.smoothing import CommandSmoother
 from deploy.spec.policy_spec import PolicySpec
-from deploy.state import Kinematics, RobotState
 from deploy.tasks.task import task_for
 from eval.world.dynamics import Dynamics, DynamicsRanges, randomized_model, sample_dynamics
 from eval.world.fault_schedule import FaultRanges

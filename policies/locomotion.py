@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from deploy.backends.sim.plant import SimBackend
-from deploy.estimation.base import BaseState
+from deploy.core.state import BaseState
 from deploy.monitors.interventions import InterventionMonitor
 from deploy.robot_kind import robot_kind
 from deploy.runtime import Mode, Runtime

@@ -126,7 +126,7 @@ def _base_frames(toml_path, mjcf, mj_model, pin_model, cfg) -> dict:
     }
 
 
-def _check_agreement(
+def check_agreement(
     mjcf, mj_model, pin_model, site_ids, frame_ids, lower, upper, floating=False
 ) -> None:
     """MuJoCo and Pinocchio must agree on the sites' positions (end effector, feet; world frame)

@@ -22,11 +22,11 @@ from pydantic import ValidationError
 
 from robots.crosscheck import (
     _base_frames,
-    _check_agreement,
     _check_free_joint,
     _check_mjcf_radians,
+    check_agreement,
 )
-from robots.packages import _resolved_mjcf
+from robots.packages import resolved_mjcf
 from robots.robot import Robot, RobotSpecError
 from robots.schema import MotorConfig, RobotConfig
 
@@ -183,7 +183,7 @@ def load_robot(name_or_path: str | Path) -> Robot:
     if not described_mjcf.is_file():
         raise RobotSpecError(f"{toml_path}: field 'mjcf': file {described_mjcf} does not exist")
     _check_mjcf_radians(described_mjcf)
-    mjcf = _resolved_mjcf(described_mjcf)
+    mjcf = resolved_mjcf(described_mjcf)
 
     try:
         mj_model = mujoco.MjModel.from_xml_path(str(mjcf))
@@ -275,7 +275,7 @@ def load_robot(name_or_path: str | Path) -> Robot:
     frames = [ee_frame_id] if ee_frame_id >= 0 else []
     sites += list(legged.get("foot_site_ids", ()))
     frames += list(legged.get("foot_frame_ids", ()))
-    _check_agreement(mjcf, mj_model, pin_model, sites, frames, lower, upper, floating)
+    check_agreement(mjcf, mj_model, pin_model, sites, frames, lower, upper, floating)
 
     frac = np.array([j.soft_limit_fraction for j in cfg.joints])
     velocity = np.array([j.velocity_limit for j in cfg.joints])

@@ -1,7 +1,7 @@
 """Installed description packages: ``package://PACKAGE/...`` URIs and the MJCF that names one.
 
 :func:`package_root` finds an installed package (``SIM2REAL_PACKAGE_PATH``, then the Python
-distributions of ``PACKAGE_LOCATIONS``); :func:`_resolved_mjcf` gives MuJoCo and Pinocchio an MJCF
+distributions of ``PACKAGE_LOCATIONS``); :func:`resolved_mjcf` gives MuJoCo and Pinocchio an MJCF
 whose ``package://`` meshdir is resolved. Both raise :class:`robots.robot.RobotSpecError`.
 """
 
@@ -62,7 +62,7 @@ def resolve_package_uri(uri: str) -> Path:
     return package_root(package) / rest
 
 
-def _resolved_mjcf(mjcf: Path) -> Path:
+def resolved_mjcf(mjcf: Path) -> Path:
     """The MJCF MuJoCo and Pinocchio read: ``mjcf`` itself, or, when its ``<compiler meshdir>``
     names an installed package (``package://...``), a copy in the temporary folder with the
     meshdir resolved to an absolute path (the robot folder holds no third-party meshes)."""

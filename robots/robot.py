@@ -36,7 +36,7 @@ class Robot:
         directory: Folder holding robot.toml and the MJCF.
         mjcf_path: Path of the MJCF file MuJoCo and Pinocchio read: the robot folder's, or a
             copy with its ``package://`` meshdir resolved (see
-            ``robots.packages._resolved_mjcf``).
+            ``robots.packages.resolved_mjcf``).
         config: The validated robot.toml (``robots.schema.RobotConfig``).
         joint_names: Joint names in kinematic (and action/observation) order.
         position_lower, position_upper: Hard joint limits, rad.

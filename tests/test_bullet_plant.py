@@ -12,10 +12,10 @@ import pytest
 
 pytest.importorskip("pybullet")
 
-from deploy.backends.base import Backend, SimulatedPlant  # noqa: E402
 from deploy.backends.sim.bullet.plant import BulletBackend  # noqa: E402
 from deploy.backends.sim.engines import ENGINES, make_plant, plant_class  # noqa: E402
 from deploy.backends.sim.plant import SimBackend  # noqa: E402
+from deploy.core.backend import Backend, SimulatedPlant  # noqa: E402
 from robots import load_robot  # noqa: E402
 
 

@@ -24,7 +24,8 @@ import pytest
 
 from deploy.backends.sim.faults import Fault, FaultInjector
 from deploy.backends.sim.plant import SimBackend
-from deploy.observe.telemetry import LatencyHistogram
+from deploy.core.latency import LatencyHistogram
+from deploy.core.state import Kinematics, RobotState
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import FAULT_CAUSES, Mode, Runtime
 from deploy.runtime.reference import ReferenceRuntime
@@ -33,7 +34,6 @@ from deploy.safety.reference import ReferenceGuard
 from deploy.smoothing.reference import ReferenceSmoother
 from deploy.spec.policy_spec import ObservationBlock, PolicySpec, SpecError
 from deploy.spec.reference import observation_reference
-from deploy.state import Kinematics, RobotState
 from tests.runtime_fixtures import adversarial_onnx
 
 TICKS = 1667  # per case; 6 cases: 10,002 ticks through each path

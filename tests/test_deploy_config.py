@@ -23,13 +23,13 @@ import yaml
 from helpers_policies import folder
 from torch import nn
 
-from deploy.estimation.attitude import projected_gravity
-from deploy.export import main
+from deploy.cli.policy_export import main
+from deploy.core.attitude import projected_gravity
+from deploy.core.state import RobotState
 from deploy.export.deploy_config import GAIT_PERIOD, spec_and_robot
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.policy.onnx_spec import spec_differences
 from deploy.spec.reference import observation_reference
-from deploy.state import RobotState
 from robots import load_robot
 
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:FutureWarning")

@@ -5,11 +5,11 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from deploy.backends.base import SensorFrame
 from deploy.backends.sim.plant import SimBackend
+from deploy.core.backend import SensorFrame
+from deploy.core.state import RobotState
 from deploy.estimation.joints import JointStateEstimator
 from deploy.estimation.reference import ReferenceJointStateEstimator
-from deploy.state import RobotState
 from robots import load_robot
 
 #: the compiled estimator and its filterpy reference

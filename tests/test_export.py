@@ -26,8 +26,9 @@ from helpers_policies import (
 from torch import nn
 
 from deploy import export as export_module
-from deploy.export import ExportError, ParityError, export_policy, main, run_export
-from deploy.export import cli as export_cli
+from deploy.cli import policy_export as export_cli
+from deploy.cli.policy_export import main
+from deploy.export import ExportError, ParityError, export_policy, run_export
 from deploy.policy.mlp_checkpoint import (
     FORMAT,
     MLPActor,
@@ -510,9 +511,9 @@ def test_bad_input_exits_2_naming_the_file_and_writes_nothing(tmp_path, spec, ca
 def test_command_line_as_make_export_runs_it(tmp_path, spec, normalizer):
     src = save_checkpoint(tmp_path / "arm.pt", make_actor(), spec, normalizer)
     env = {**os.environ, "ORT_DISABLE_TELEMETRY": "1"}
-    # `make export POLICY=...` runs `policy-export $(POLICY)`, i.e. deploy.export.main
+    # `make export POLICY=...` runs `policy-export $(POLICY)`, i.e. deploy.cli.policy_export.main
     proc = subprocess.run(
-        [sys.executable, "-m", "deploy.export", str(src)],
+        [sys.executable, "-m", "deploy.cli.policy_export", str(src)],
         cwd=REPO,
         env=env,
         capture_output=True,

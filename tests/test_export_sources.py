@@ -21,8 +21,8 @@ import pytest
 import torch
 from torch import nn
 
+from deploy.cli.policy_export import main as export_main
 from deploy.export import ExportError, run_export
-from deploy.export import main as export_main
 from deploy.export.errors import InspectError
 from deploy.export.inspect_policy import inspect_file
 from deploy.policy.onnx_policy import OnnxPolicy

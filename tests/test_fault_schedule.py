@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from deploy.backends.sim.plant import SimBackend
-from deploy.runtime import NAN_ACTION_LIMIT
+from deploy.core.modes import NAN_ACTION_LIMIT
 from eval.world.dynamics import randomized_model
 from eval.world.fault_schedule import FaultRanges, cable_budget, sample_fault_schedule, stale_budget
 from eval.world.sensors import SensorDraw

@@ -12,7 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.film.strip import longest_missed_run, plan_clips, retain_dir, select_moments
+from eval.film.strip import (
+    FilmRecorder,
+    longest_missed_run,
+    plan_clips,
+    retain_dir,
+    select_moments,
+)
 from eval.report.build import build_report, write_reports
 from eval.report.schema import Thresholds
 from eval.soak.campaign import run_campaign
@@ -105,7 +111,7 @@ def filmed(tmp_path_factory, arm3):
         ranges=SessionRanges(faults=HARD_PUSHES),
     )
     out = tmp / "soak"
-    results = run_campaign(config, 1, out, progress=False, film=True)
+    results = run_campaign(config, 1, out, progress=False, recorders=(FilmRecorder,))
     kept = sorted(p.name for p in retain_dir(out, 0).iterdir())
     results = film_campaign(config, results, out, **LOOK)
     report = build_report({"robot": "arm3"}, results, Thresholds(min_success_rate=0.0))
@@ -197,7 +203,7 @@ def test_a_deterministic_policy_replays_exactly_from_a_kept_checkpoint(tmp_path,
         curve_seconds=10.0,
         ranges=SessionRanges(faults=faults),
     )
-    results = run_campaign(config, 1, tmp_path / "soak", progress=False, film=True)
+    results = run_campaign(config, 1, tmp_path / "soak", progress=False, recorders=(FilmRecorder,))
     (result,) = film_campaign(config, results, tmp_path / "soak", fps=10.0, size=(240, 180))
     late = [c for c in result["film"]["clips"] if c["from_tick"] > 0]
     assert late and all(c["start_s"] >= c["from_tick"] * arm3.control_period for c in late)

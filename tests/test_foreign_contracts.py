@@ -16,12 +16,12 @@ import pytest
 
 from deploy.cli.deploy_run import deploy_run_main
 from deploy.cli.policy_contract import check_drive_applied
-from deploy.export.cli import main as policy_export_main
-from deploy.policy.onnx_checks import PolicyLoadError
+from deploy.cli.policy_export import main as policy_export_main
+from deploy.core.state import RobotState
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.spec.drive import drive_robot
+from deploy.spec.onnx_checks import PolicyLoadError
 from deploy.spec.policy_spec import UNCLIPPED, PolicySpec
-from deploy.state import RobotState
 from tests import foreign_stacks as fs
 
 OBS_DIM = 48
@@ -347,8 +347,9 @@ def test_robot_import_takes_the_drive_from_the_policys_contract(tmp_path, capsys
     slots are its description's joint order), so the PD-target limits are the policy's; a
     ``--kp`` after it wins; a different --control-rate or a policy for other joints is refused in
     one line."""
+    from deploy.cli.robot_import import main
     from robots import load_robot
-    from robots.importer.cli import EXIT_REFUSED, main
+    from robots.importer.pipeline import EXIT_REFUSED
     from tests.test_import_humanoid import MOTORS, write_humanoid
 
     source = write_humanoid(tmp_path)

@@ -49,9 +49,9 @@ def test_a_humanoids_legs_predicted_to_touch_are_not_held(reference):
     arm's is held: tests/test_safety.py); the violation monitor counts true contacts."""
     import numpy as np
 
+    from deploy.core.state import RobotState
     from deploy.safety.guard import SafetyGuard
     from deploy.safety.reference import ReferenceGuard
-    from deploy.state import RobotState
     from robots import load_robot
 
     h1 = load_robot("h1")

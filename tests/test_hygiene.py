@@ -180,7 +180,7 @@ def test_a_damaged_torch_file_is_refused_in_our_words(tmp_path, capsys):
     our message, never torch's advice to load with weights_only=False."""
     import torch
 
-    from deploy.export import EXIT_BAD_INPUT, main
+    from deploy.cli.policy_export import EXIT_BAD_INPUT, main
 
     rng = np.random.default_rng(0)
     (tmp_path / "random.pt").write_bytes(b"\x80\x02" + rng.bytes(4094))
@@ -197,7 +197,7 @@ def test_a_damaged_torch_file_is_refused_in_our_words(tmp_path, capsys):
 def test_a_pickled_object_still_points_to_trust_pickle(tmp_path, capsys):
     import torch
 
-    from deploy.export import EXIT_BAD_INPUT, main
+    from deploy.cli.policy_export import EXIT_BAD_INPUT, main
 
     torch.save({"net": torch.nn.Linear(2, 2)}, tmp_path / "module.pt")
     assert main([str(tmp_path / "module.pt")]) == EXIT_BAD_INPUT

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 from deploy.cli.deploy_run import deploy_run_main
+from deploy.cli.robot_import import main
 from deploy.tasks.goals import sample_goal
 from robots import load_robot
-from robots.importer.cli import EXIT_REFUSED, import_robot, main, resolve_source
+from robots.importer.pipeline import EXIT_REFUSED, import_robot, resolve_source
 from tests.runtime_fixtures import adversarial_onnx
 
 pytest.importorskip("coal")

@@ -12,8 +12,9 @@ import mujoco
 import numpy as np
 import pytest
 
+from deploy.cli.robot_import import main
 from robots import load_robot
-from robots.importer.cli import EXIT_REFUSED, import_robot, main
+from robots.importer.pipeline import EXIT_REFUSED, import_robot
 from robots.loading import MOTORS_DIR
 
 if sys.version_info >= (3, 11):

@@ -12,7 +12,7 @@ import pytest
 
 from robots import load_robot
 from robots.importer import mjcf_geoms
-from robots.importer.cli import import_robot
+from robots.importer.pipeline import import_robot
 
 pytest.importorskip("coal")
 

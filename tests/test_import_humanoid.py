@@ -16,9 +16,10 @@ import mujoco
 import numpy as np
 import pytest
 
+from deploy.cli.robot_import import main
 from deploy.smoothing import CommandSmoother
 from robots import load_robot
-from robots.importer.cli import EXIT_REFUSED, import_robot, main
+from robots.importer.pipeline import EXIT_REFUSED, import_robot
 
 pytest.importorskip("coal")
 
@@ -364,8 +365,8 @@ def test_pd_targets_may_step_as_far_as_the_full_torque_reaches_and_the_estimator
     joint estimator stays consistent at those limits (no re-initialization) on a standing run
     with encoder noise."""
     from deploy.backends.sim.plant import SimBackend
+    from deploy.core.state import RobotState
     from deploy.estimation.joints import JointStateEstimator, motion_acceleration
-    from deploy.state import RobotState
 
     robot, _, _ = humanoid
     period = robot.control_period

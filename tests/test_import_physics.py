@@ -7,8 +7,9 @@ import mujoco
 import pytest
 
 from deploy.backends.sim.plant import SimBackend
+from deploy.cli.robot_import import main
 from robots import load_robot
-from robots.importer.cli import EXIT_REFUSED, main
+from robots.importer.pipeline import EXIT_REFUSED
 from tests.test_import_humanoid import FLAGS, write_humanoid
 
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from deploy.backends.sim.plant import SimBackend
+from deploy.cli.robot_import import main
 from robots import load_robot
-from robots.importer.cli import main
 from tests.test_import_humanoid import FLAGS, write_humanoid
 
 pytest.importorskip("coal")

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 from deploy.cli.acceptance import check_adversarial
+from deploy.cli.robot_import import main
 from robots import load_robot
-from robots.importer.cli import EXIT_REFUSED, import_robot, main, resolve_source
+from robots.importer.pipeline import EXIT_REFUSED, import_robot, resolve_source
 from robots.loading import ROBOTS_DIR
 from robots.packages import package_root
 

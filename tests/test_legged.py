@@ -11,11 +11,11 @@ import pinocchio as pin
 import pytest
 
 from deploy.backends.sim.plant import SimBackend
-from deploy.estimation.attitude import projected_gravity, quaternion_to_matrix, tilt_of
+from deploy.core.attitude import projected_gravity, quaternion_to_matrix, tilt_of
+from deploy.core.state import RobotState
 from deploy.estimation.base import BaseStateEstimator
 from deploy.estimation.joints import JointStateEstimator
 from deploy.estimation.reference import ReferenceBaseStateEstimator
-from deploy.state import RobotState
 from robots import RobotSpecError, load_robot
 from robots.loading import ROBOTS_DIR
 
@@ -96,15 +96,15 @@ def test_go2_loads_with_a_free_flyer_base_and_feet_that_agree_with_mujoco(go2):
 def test_the_agreement_check_covers_the_feet_and_the_base(go2, edit, what):
     """A MuJoCo model that differs from Pinocchio's in one leg (a calf's mass, a foot site) is
     caught at random base poses: the check the loader runs on every floating-base robot."""
-    from robots.crosscheck import _check_agreement
+    from robots.crosscheck import check_agreement
 
     spec = mujoco.MjSpec.from_file(str(go2.mjcf_path))
     edit(spec)
     sites, frames = list(go2.foot_site_ids), list(go2.foot_frame_ids)
     args = (go2.pin_model, sites, frames, go2.position_lower, go2.position_upper, True)
-    _check_agreement(go2.mjcf_path, go2.mj_model, *args)  # the shipped model agrees
+    check_agreement(go2.mjcf_path, go2.mj_model, *args)  # the shipped model agrees
     with pytest.raises(RobotSpecError, match=r"disagree \(end-effector and foot .*" + what):
-        _check_agreement(go2.mjcf_path, spec.compile(), *args)
+        check_agreement(go2.mjcf_path, spec.compile(), *args)
 
 
 def test_free_joint_without_base_table_is_refused(tmp_path):
@@ -156,7 +156,7 @@ def test_the_imus_own_attitude_and_the_drives_velocity_have_their_configured_err
     attitude by roll and pitch errors of that spread and correlation time (a Gauss-Markov
     process: its 1 s autocorrelation exp(-1 / tau)), never in yaw; the drives' joint velocity
     reading errs by white noise of ``velocity_noise_sigma``. An arm's frame has neither."""
-    from deploy.estimation.attitude import quat_multiply
+    from deploy.core.attitude import quat_multiply
 
     envs = 4
     plant = stand_plant(go2, envs=envs, seed=12)
@@ -348,7 +348,7 @@ def test_a_steady_turn_at_speed_is_not_taken_for_a_tilt(go2, estimator):
     specific force ``omega x v`` of 0.5 m/s^2. Taken for gravity it puts the roll estimate
     0.05 rad off, and the gyro bias estimate with it (a turning walk threw a G1's policy); the
     estimator takes the term off and stays upright. Readings exact, no foot contact."""
-    from deploy.backends.base import SensorFrame
+    from deploy.core.backend import SensorFrame
 
     base = estimator(go2, 1)
     imu_to_base = quaternion_to_matrix(go2.mj_model.site_quat[go2.imu_site_id])

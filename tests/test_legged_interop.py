@@ -24,6 +24,7 @@ from torch import nn
 from deploy import export as export_mod
 from deploy.backends.sim.plant import SimBackend
 from deploy.cli import deploy_run as cli
+from deploy.cli import policy_export
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Mode, Runtime
 
@@ -104,13 +105,13 @@ def export_run(exported):
     source, spec_path, out = exported
     stdout, stderr = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-        code = export_mod.main([str(source), "--spec", str(spec_path), "--robot", "go2"])
+        code = policy_export.main([str(source), "--spec", str(spec_path), "--robot", "go2"])
     return code, (stdout.getvalue(), stderr.getvalue()), out
 
 
 def test_torchscript_policy_with_a_user_spec_exports_with_parity(go2, export_run):
     code, (stdout, stderr), out = export_run
-    assert code == export_mod.EXIT_OK, stderr
+    assert code == policy_export.EXIT_OK, stderr
     assert out.is_file()
     assert "parity: max |onnx - torch|" in stdout and "closed-loop replay" in stdout
     assert "(torchscript)" in stdout
@@ -133,7 +134,7 @@ def test_torchscript_policy_with_a_user_spec_exports_with_parity(go2, export_run
 
 def test_exported_policy_runs_on_go2_with_the_imu_blocks(go2, export_run, tmp_path):
     code, _, out = export_run
-    assert code == export_mod.EXIT_OK
+    assert code == policy_export.EXIT_OK
     policy = OnnxPolicy(out, go2)
 
     # the observation the policy sees on the floating base: a runtime as deploy-run builds it
@@ -199,11 +200,11 @@ def test_legged_gym_block_name_is_refused_naming_ours(go2, exported, tmp_path, c
     spec_path = tmp_path / "legged_gym_names.spec.json"
     spec_path.write_text(json.dumps(user_spec(go2, first_block="base_lin_vel"), indent=2))
     out = tmp_path / "refused.onnx"
-    code = export_mod.main(
+    code = policy_export.main(
         [str(source), "--spec", str(spec_path), "--robot", "go2", "--out", str(out)]
     )
     err = capsys.readouterr().err
-    assert code == export_mod.EXIT_BAD_INPUT
+    assert code == policy_export.EXIT_BAD_INPUT
     assert str(spec_path) in err
     assert "'base_lin_vel'" in err
     assert "this toolkit calls it 'base_linear_velocity'" in err

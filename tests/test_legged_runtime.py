@@ -245,7 +245,7 @@ def test_a_true_fall_the_runtime_did_not_see_is_counted_once_until_the_robot_is_
     an estimate equal to the truth has no attitude error and no velocity bias."""
     from types import SimpleNamespace
 
-    from deploy.estimation.base import BaseState
+    from deploy.core.state import BaseState
     from deploy.monitors.estimation import EstimationMonitor
 
     monitor = EstimationMonitor(go2, 1)
@@ -278,6 +278,7 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_and_an_estimate_stops_only
     long it was past by less before. Held past it longer than ``LEGGED_HARD_LIMIT_DURATION``
     (1 s), or more than the tolerance past it for longer than ``LEGGED_HARD_LIMIT_BOUNCE``
     (0.1 s), is."""
+    from deploy.core.state import RobotState
     from deploy.safety.guard import SafetyGuard
     from deploy.safety.limits import (
         LEGGED_HARD_LIMIT_BOUNCE,
@@ -285,7 +286,6 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_and_an_estimate_stops_only
         LEGGED_HARD_LIMIT_TOLERANCE,
     )
     from deploy.safety.reference import ReferenceGuard
-    from deploy.state import RobotState
 
     envs = 3
     guard = (ReferenceGuard if reference else SafetyGuard)(go2, envs, "position")
@@ -515,7 +515,7 @@ def test_kinematic_contacts_do_not_turn_the_heading(go2, shipped_go2):
     -107). The heading is locked against the corrections (deploy.estimation.base_kernel): the
     estimate's yaw is the gyro's, within 10 % + 5 deg of the truth's (the plant's gyro bias of
     seed 0 about the up axis, unobservable, turns it 6 deg)."""
-    from deploy.estimation.attitude import yaw_of
+    from deploy.core.attitude import yaw_of
 
     plant = NoFootSensors(go2, "position", envs=1, seed=0)
     rt = Runtime(go2, shipped_go2, plant)
@@ -539,7 +539,7 @@ def test_the_locked_heading_leaves_the_velocity_estimate_as_good_over_minutes(go
     base, and the Go2's planar velocity error in a soak doubled (0.09 -> 0.21 m/s RMS in half an
     hour, 0.46 over 8 hours). The heading's variance is held at zero: 3 minutes of changing
     commands keep the planar error under 0.1 m/s RMS (0.126 before)."""
-    from deploy.estimation.base import BaseState
+    from deploy.core.state import BaseState
 
     plant = SimBackend(go2, "position", envs=1, seed=0)
     rt = Runtime(go2, shipped_go2, plant)

@@ -104,7 +104,7 @@ def test_the_shipped_so101_policy_is_braked_on_under_one_percent_of_its_ticks(tm
     the base and shoulder, which the global chain bound braked on a few per cent of the ticks
     (the soak asks under 1 %), are certified; no contact, every goal reached."""
     from deploy.cli.deploy_run import deploy_run_main
-    from deploy.export import main as export_main
+    from deploy.cli.policy_export import main as export_main
 
     onnx = tmp_path / "so101.onnx"
     assert export_main(["policies/so101.pt", "--out", str(onnx)]) == 0

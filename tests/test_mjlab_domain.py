@@ -67,7 +67,7 @@ def test_files_without_the_new_keys_draw_exactly_what_they_drew_before():
     """The sessions (dynamics, sensors, drift, faults, IMU, floor, base mass) and legged_gym's
     pushes of files without the new keys equal those of the code before them (commit b4b6e62:
     the digests were computed by it, floats to 10 significant digits)."""
-    from deploy.runtime import RUNNING
+    from deploy.core.modes import RUNNING
 
     drawn = {}
     for label, name, text in [

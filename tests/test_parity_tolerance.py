@@ -17,7 +17,7 @@ from helpers_policies import folder, make_spec, write_spec
 from onnx import numpy_helper
 from torch import nn
 
-from deploy.export import main
+from deploy.cli.policy_export import main
 from deploy.export import pipeline as export_pipeline
 from deploy.export.noise_floor import NOISE_MULTIPLIER, TOLERANCE, float64_twin
 from deploy.policy.onnx_policy import OnnxPolicy

@@ -14,8 +14,8 @@ from helpers_policies import externalize, linear_onnx, make_spec, torch_out, wri
 from deploy.export import export_policy
 from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
 from deploy.policy.obs_normalizer import ObservationNormalizer
-from deploy.policy.onnx_checks import PolicyLoadError
 from deploy.policy.onnx_policy import OnnxPolicy
+from deploy.spec.onnx_checks import PolicyLoadError
 from robots import load_robot
 
 RNG = np.random.default_rng(11)
@@ -262,7 +262,7 @@ def test_shipped_arm_policy_loads_and_gives_the_actions_of_its_stored_spec(robot
     for entry, and OnnxPolicy's actions are plain ONNX Runtime's, bit for bit."""
     import onnxruntime as ort
 
-    from deploy.state import Kinematics, RobotState
+    from deploy.core.state import Kinematics, RobotState
 
     root = Path(__file__).resolve().parent.parent / "policies"
     path = root / "arm.onnx"

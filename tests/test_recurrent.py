@@ -18,9 +18,9 @@ from onnx import TensorProto, helper, numpy_helper
 from torch import nn
 
 from deploy.export import run_export
-from deploy.policy.onnx_checks import PolicyLoadError
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Mode, Runtime
+from deploy.spec.onnx_checks import PolicyLoadError
 from tests.helpers_policies import make_spec, write_spec
 from tests.soak_fixtures import kill_after_first_checkpoint
 

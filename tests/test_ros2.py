@@ -248,7 +248,7 @@ def test_operator_services_stop_and_resume_the_arm(ros_domain, tmp_path, shipped
 # ---------------------------------------------------------------------- the ros2 backend
 def _hil(domain: int, *args: str, timeout: float = 240) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "deploy.ros2.hil", "--robot", "arm3", "--domain-id", str(domain),
+        [sys.executable, "-m", "deploy.harness.ros2_hil", "--robot", "arm3", "--domain-id", str(domain),
          *args],
         cwd=ROOT, capture_output=True, text=True, timeout=timeout,
     )  # fmt: skip

@@ -234,7 +234,7 @@ def test_push_is_survived(tmp_path, arm3):
 
 
 def test_mismatched_policy_is_refused(tmp_path, arm3, arm6):
-    from deploy.policy.onnx_checks import PolicyLoadError
+    from deploy.spec.onnx_checks import PolicyLoadError
 
     with pytest.raises(PolicyLoadError, match="policy is for 'arm3', the robot is 'arm6'"):
         OnnxPolicy(adversarial_onnx(tmp_path, arm3, "position"), arm6)
@@ -420,7 +420,7 @@ def test_a_safe_stop_that_cannot_come_to_rest_latches_after_the_timeout(so101, r
     """The soak's so101 stop that never ended: the arm is at rest, but the noisy encoders keep the
     estimated velocities above REST_SPEED. SAFE_STOP_TIMEOUT after it began the stop ends FAULTED
     (latched: an operator resets it), counted in safe_stop_timeouts; its cause is kept."""
-    from deploy.runtime import REST_SPEED, SAFE_STOP_TIMEOUT
+    from deploy.core.modes import REST_SPEED, SAFE_STOP_TIMEOUT
 
     rt = calm_runtime(so101, runtime=runtime)
     began = stop_by_nan(rt)
@@ -451,7 +451,7 @@ def test_a_safe_stop_that_comes_to_rest_latches_without_a_timeout(arm3):
     """arm3, whose filter assumes its encoders' noise: the stop rests within the timeout. (On
     so101, whose filter assumes one encoder count, the six estimated velocities are seldom below
     REST_SPEED together even at its nominal noise: its stops mostly end by the timeout.)"""
-    from deploy.runtime import SAFE_STOP_TIMEOUT
+    from deploy.core.modes import SAFE_STOP_TIMEOUT
 
     rt = calm_runtime(arm3, mode="velocity")
     began = stop_by_nan(rt)
@@ -465,7 +465,7 @@ def test_a_safe_stop_that_comes_to_rest_latches_without_a_timeout(arm3):
 def test_an_over_temperature_stop_that_cannot_rest_resumes_once_cool(so101):
     """An over-temperature stop holds until cool. One still moving at the timeout is counted and
     does not latch: it resumes (RAMP_IN) as soon as the windings have cooled, at rest or not."""
-    from deploy.runtime import SAFE_STOP_TIMEOUT
+    from deploy.core.modes import SAFE_STOP_TIMEOUT
 
     rt = calm_runtime(so101)
     stop_by_nan(rt, envs=[False])  # RUNNING
@@ -511,7 +511,7 @@ def test_safe_stop_timeout_compiled_equals_reference_and_resumes_exactly(so101):
     assert a.mode_names() == ["FAULTED", "FAULTED"]
     assert a.counters.safe_stop_timeouts.tolist() == [1, 0]
     del state["stop_ticks"]
-    from deploy.stateful import StateDictError
+    from deploy.core.stateful import StateDictError
 
     with pytest.raises(StateDictError, match="field 'stop_ticks' is missing"):
         calm_runtime(so101, envs=2).load_state_dict(state)
@@ -520,7 +520,7 @@ def test_safe_stop_timeout_compiled_equals_reference_and_resumes_exactly(so101):
 def test_safe_stop_timeout_leaves_room_for_the_slowest_brake(arm3, arm6, so101):
     """The rationale of SAFE_STOP_TIMEOUT: three times the longest brake from the velocity limit
     (acceleration ramp, then full deceleration) of the robots."""
-    from deploy.runtime import SAFE_STOP_TIMEOUT
+    from deploy.core.modes import SAFE_STOP_TIMEOUT
 
     for robot in (arm3, arm6, so101):
         v, a, j = robot.velocity_limit, robot.acceleration_limit, robot.jerk_limit

@@ -4,12 +4,12 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from deploy.core.state import RobotState
 from deploy.safety.checks import CHECKS
 from deploy.safety.collision import collision_model
 from deploy.safety.guard import SafetyGuard
 from deploy.safety.reference import ReferenceGuard
 from deploy.smoothing import stopping_distance
-from deploy.state import RobotState
 from robots import load_robot
 from robots.chain_bounds import collision_pair_weights, end_effector_lever, motion_bounds
 

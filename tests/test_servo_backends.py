@@ -18,12 +18,12 @@ import time
 import numpy as np
 import pytest
 
-from deploy.backends.base import Backend, SimulatedPlant
 from deploy.backends.emulator import ServoBusEmulator, WireFaults
 from deploy.backends.servo.calibration import CalibrationError, load_lerobot_calibration
 from deploy.backends.servo.servo_bus import ServoBusError
 from deploy.backends.servo.torque_watch import TORQUE_CHECK_PERIOD, TORQUE_OFF
 from deploy.cli.deploy_run import EXIT_CLEAN, EXIT_FAULT
+from deploy.core.backend import Backend, SimulatedPlant
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.runtime import Runtime, WallClock
 from robots import load_robot

@@ -197,9 +197,9 @@ def test_a_sustained_pull_cannot_overheat_a_derating_drive(arm3):
 def test_compiled_sensor_model_equals_its_numpy_reference(arm6, per_env_streams):
     """The encoder kernels give the numpy reference's readings and stamps bit for bit, and draw
     the same numbers from the streams, through changes of noise, dropout and latency."""
-    from deploy.backends.base import SensorFrame
     from deploy.backends.sim.reference import ReferenceJointSensorModel
     from deploy.backends.sim.sensors import JointSensorModel
+    from deploy.core.backend import SensorFrame
 
     envs, n = 3, arm6.n_joints
     models = []

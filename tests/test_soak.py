@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from deploy.core.modes import NAN_ACTION_LIMIT
 from deploy.monitors.interventions import INTERVENTION_CHECKS
 from deploy.monitors.violations import VIOLATION_TYPES
-from deploy.runtime import NAN_ACTION_LIMIT
 from deploy.spec.policy_spec import PolicySpec
 from deploy.tasks.goals import success_windows
 from eval import cli
@@ -233,7 +233,7 @@ def test_kill_and_resume_equals_an_uninterrupted_run(killed, config, batched, tm
     # the new accumulators are in the checkpoint, and the result carries non-zero values of them
     assert arrays["interventions/any"].shape == (1,) and "violations/counts/soft_limit" in arrays
     assert "goals/best_distance" in arrays and "goals/missed" in arrays
-    # the composition of the stages' state dicts (deploy.stateful), one env's slice of each
+    # the composition of the stages' state dicts (deploy.core.stateful), one env's slice of each
     assert arrays["estimator/covariance"].shape == (1, 3, 2, 2) and arrays["mode"].shape == (1,)
     assert isinstance(arrays["ticks"], int) and isinstance(arrays["backend/sensor_rng"], str)
     resumed = run_campaign(replace(config, seed=0), 1, out, resume=True, progress=False)[0]

@@ -237,7 +237,7 @@ def test_robot_import_writes_go2s_soak_table(tmp_path):
     ``[soak]`` pushes included (the table is the importer's, not a hand edit it would drop)."""
     import shlex
 
-    from robots.importer.cli import main
+    from deploy.cli.robot_import import main
 
     shipped = (REPO / "robots" / "go2" / "robot.toml").read_text()
     command = shlex.split(shipped.splitlines()[2].removeprefix("#   "))

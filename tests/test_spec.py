@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from helpers_policies import ARM3_BLOCKS as ALL_BLOCKS
 
+from deploy.core.state import Kinematics, RobotState
 from deploy.spec.policy_spec import PolicySpec, SpecError
-from deploy.state import Kinematics, RobotState
 
 
 @pytest.fixture(scope="module")
@@ -309,8 +309,8 @@ def test_legged_gym_conventions_are_expressed_exactly(arm6):
     ],
 )
 def test_a_block_the_robot_cannot_provide_is_refused_at_load_naming_it(arm3, block, why, tmp_path):
-    from deploy.policy.onnx_checks import PolicyLoadError
     from deploy.policy.onnx_policy import OnnxPolicy
+    from deploy.spec.onnx_checks import PolicyLoadError
 
     doc = _arm3_doc(arm3)
     doc["observation"].insert(0, {"name": block, "scale": 4.0})

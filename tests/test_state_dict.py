@@ -1,4 +1,4 @@
-"""Explicit state: every stateful stage's ``state_dict`` / ``load_state_dict`` (deploy.stateful).
+"""Explicit state: every stateful stage's ``state_dict`` / ``load_state_dict`` (deploy.core.stateful).
 
 For each stage: run N ticks, take its state, run M more ticks recording its outputs, load the
 state into a freshly built instance and replay the same M ticks: every output is equal bit for
@@ -18,9 +18,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from deploy.backends.base import SensorFrame
 from deploy.backends.sim.faults import Fault, FaultInjector
 from deploy.backends.sim.plant import SimBackend
+from deploy.core.backend import SensorFrame
+from deploy.core.state import RobotState
+from deploy.core.stateful import StateDictError, load_part, prefixed, put, take
 from deploy.estimation.joints import JointStateEstimator
 from deploy.estimation.reference import ReferenceJointStateEstimator
 from deploy.policy.onnx_policy import OnnxPolicy
@@ -28,8 +30,6 @@ from deploy.runtime import Runtime
 from deploy.safety.guard import SafetyGuard
 from deploy.smoothing import CommandSmoother
 from deploy.spec.policy_spec import PolicySpec
-from deploy.state import RobotState
-from deploy.stateful import StateDictError, load_part, prefixed, put, take
 from deploy.tasks.goals import GoalScheduler
 from tests.runtime_fixtures import feedback_mlp_onnx
 

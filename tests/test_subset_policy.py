@@ -71,7 +71,7 @@ def test_the_policy_drives_its_joints_and_the_others_get_action_zero(go2, subset
 
 
 def test_held_joints_target_home_and_driven_joints_their_own_mapping(go2, subset_policy):
-    from deploy.state import RobotState
+    from deploy.core.state import RobotState
 
     policy, _, _ = subset_policy
     spec = policy.spec
@@ -86,7 +86,7 @@ def test_held_joints_target_home_and_driven_joints_their_own_mapping(go2, subset
 
 
 def test_the_observation_reads_the_policys_joints_in_its_order(go2, subset_policy):
-    from deploy.state import RobotState
+    from deploy.core.state import RobotState
 
     policy, _, _ = subset_policy
     state = RobotState.legged(1, go2.n_joints, go2.n_feet)

@@ -90,7 +90,7 @@ def test_a_straight_command_holds_the_heading_it_began_with():
     given ``gain * wrap(reference - yaw)`` clipped to 1 rad/s, the reference taken when the hold
     began; a yaw rate asked passes unchanged; a stop lets go, so the next walk holds its own
     heading. The state round-trips."""
-    from deploy.estimation.base import BaseState
+    from deploy.core.state import BaseState
     from deploy.tasks.heading import HeadingHold
 
     def turned(yaw):  # base-to-world quaternions of yaw angles
@@ -147,7 +147,7 @@ def test_a_robot_settling_to_a_new_command_is_tracking_it():
     planar command counts as tracked, and after it the error counts again (a robot that never
     moves is untracked from then on). The soak's new command every 4 s left a humanoid that
     takes about 1 s to reach each one 77 % tracked at best."""
-    from deploy.estimation.base import BaseState
+    from deploy.core.state import BaseState
     from deploy.tasks.locomotion import SETTLE_TIME, CommandTracker
 
     class Rt:

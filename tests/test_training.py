@@ -257,7 +257,7 @@ def test_the_shipped_so101_policy_reaches_its_goals_through_the_runtime(tmp_path
     import json
 
     from deploy.cli.deploy_run import deploy_run_main
-    from deploy.export import main as export_main
+    from deploy.cli.policy_export import main as export_main
 
     onnx = tmp_path / "so101.onnx"
     assert export_main(["policies/so101.pt", "--out", str(onnx)]) == 0

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from deploy.backends.sim.plant import SimBackend
+from deploy.core.state import RobotState
 from deploy.monitors.interventions import INTERVENTION_CHECKS, InterventionMonitor
 from deploy.monitors.violations import VIOLATION_TYPES, ViolationMonitor
 from deploy.safety.guard import SafetyGuard
 from deploy.smoothing import CommandSmoother
-from deploy.state import RobotState
 from deploy.tasks.goals import GoalScheduler, success_windows
 
 

@@ -10,7 +10,7 @@ in the modules of :data:`BUILTIN`; a new backend is one more module there (or a 
 
 A factory is called as ``factory(args, robot, mode)`` (the parsed options, the
 :class:`~robots.Robot`, the policy's control mode) and returns an unopened
-:class:`~deploy.backends.base.Backend`; it raises ``ValueError`` for options it cannot honour.
+:class:`~deploy.core.backend.Backend`; it raises ``ValueError`` for options it cannot honour.
 """
 
 from __future__ import annotations

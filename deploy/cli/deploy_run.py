@@ -38,24 +38,17 @@ from pathlib import Path
 
 import numpy as np
 
-from deploy.backends.base import SimulatedPlant
 from deploy.backends.registry import make_backend
 from deploy.cli.policy_contract import check_drive_applied, contract_messages
 from deploy.cli.run_parser import attach_vectors, build_parser
 from deploy.cli.run_summary import print_summary
+from deploy.core.backend import SimulatedPlant
 from deploy.monitors.kernel import motion_statistics
 from deploy.spec.drive import drive_robot
 from deploy.tasks.task import task_for
 from robots.files import atomic_write
 
 EXIT_CLEAN, EXIT_HARD_VIOLATION, EXIT_FAULT, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 1, 2, 3, 4
-
-
-def policy_export_main(argv: list[str] | None = None) -> int:
-    """``policy-export``: see :func:`deploy.export.cli.main`."""
-    from deploy.export import main
-
-    return main(argv)
 
 
 def run(args) -> int:
@@ -146,10 +139,11 @@ def _run_opened(
     args, robot, policy, backend, simulated, realtime, injector, clock, fixed, rt_request=None
 ) -> int:
     from deploy.backends.sim.plant import SimulationDivergedError
+    from deploy.core.latency import LatencyHistogram
     from deploy.estimation.joints import reinit_warning
     from deploy.monitors.interventions import InterventionMonitor
     from deploy.monitors.violations import HARD_VIOLATION_TYPES, ViolationMonitor
-    from deploy.observe.telemetry import LatencyHistogram, Telemetry
+    from deploy.observe.telemetry import Telemetry
     from deploy.runtime import FAULTED, RUNNING, STAGES, Runtime
     from deploy.runtime.realtime import RealtimeRequest, RealtimeSettings
 

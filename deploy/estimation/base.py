@@ -1,6 +1,6 @@
 """Base state estimation of a floating-base (legged) robot: attitude, angular and linear velocity.
 One error-state extended Kalman filter per env, fed by a
-:class:`~deploy.backends.base.SensorFrame`'s IMU and foot-contact fields and by the joint
+:class:`~deploy.core.backend.SensorFrame`'s IMU and foot-contact fields and by the joint
 estimate ``q``, ``dq`` (rad, rad/s): the kinematic- inertial filter of legged robots with leg
 odometry as a velocity measurement (M. Bloesch et al., "State estimation for legged robots", RSS
 2012; M. Camurri et al., "Pronto", Frontiers in Robotics and AI 2020), reduced to the states a
@@ -26,21 +26,19 @@ NaN, not newer than the last one absorbed or stamped after ``frame.time`` is not
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import pinocchio as pin
 
-from deploy.backends.base import SensorFrame
-from deploy.estimation.attitude import (
+from deploy.core.attitude import (
     align_up,
     quat_multiply,
     quaternion_to_matrix,
     rotation_quaternions,
-    tilt_of,
 )
+from deploy.core.backend import SensorFrame
+from deploy.core.state import BaseState
+from deploy.core.stateful import check, env_index, put, take
 from deploy.estimation.base_kernel import attitude_step, imu_step, leg_step
-from deploy.stateful import check, env_index, put, take
 from robots import Robot
 
 #: Leg odometry noise, m/s per foot (our choice): foot roll and micro-slip, and the joint velocity
@@ -108,52 +106,6 @@ def foot_radii(robot: Robot) -> np.ndarray:
             ):
                 out[i] = float(m.geom_size[g, 0])
     return out
-
-
-@dataclass
-class BaseState:
-    """The base estimate of ``envs`` robots at ``frame.time``.
-
-    Attributes:
-        orientation: (envs, 4) base-to-world unit quaternion ``[w, x, y, z]`` (yaw unobserved).
-        projected_gravity: (envs, 3) unit vector, gravity's direction in the base frame.
-        angular_velocity: (envs, 3) rad/s, base frame, gyroscope bias removed.
-        linear_velocity: (envs, 3) m/s, base frame.
-        linear_velocity_world: (envs, 3) m/s, in the (yaw-drifting) world frame of the filter.
-    """
-
-    orientation: np.ndarray
-    projected_gravity: np.ndarray
-    angular_velocity: np.ndarray
-    linear_velocity: np.ndarray
-    linear_velocity_world: np.ndarray
-
-    @classmethod
-    def zeros(cls, envs: int) -> BaseState:
-        q = np.zeros((envs, 4))
-        q[:, 0] = 1.0
-        g = np.zeros((envs, 3))
-        g[:, 2] = -1.0
-        return cls(q, g, np.zeros((envs, 3)), np.zeros((envs, 3)), np.zeros((envs, 3)))
-
-    def set_truth(self, truth: np.ndarray) -> BaseState:
-        """Fill every field from a simulated base's true state (evaluation, parity replays and
-        training rewards): ``truth`` (envs, 13) as :meth:`deploy.backends.sim.plant.SimBackend.
-        true_base_state` gives it (position m, quaternion ``[w, x, y, z]``, linear velocity m/s
-        world, angular velocity rad/s base frame). Returns self."""
-        rot = quaternion_to_matrix(truth[:, 3:7])
-        velocity = truth[:, 7:10]
-        self.orientation[:] = truth[:, 3:7]
-        self.projected_gravity[:] = -rot[:, 2]
-        self.angular_velocity[:] = truth[:, 10:13]
-        self.linear_velocity_world[:] = velocity
-        self.linear_velocity[:] = np.matmul(rot.transpose(0, 2, 1), velocity[:, :, None])[:, :, 0]
-        return self
-
-    @property
-    def tilt(self) -> np.ndarray:
-        """(envs,) rad, angle between the base's z axis and the world's up (:func:`tilt_of`)."""
-        return tilt_of(self.projected_gravity)
 
 
 class BaseStateEstimator:
@@ -372,7 +324,7 @@ class BaseStateEstimator:
         }
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
-        """The filter's state (copies; conventions of :mod:`deploy.stateful`): the attributes
+        """The filter's state (copies; conventions of :mod:`deploy.core.stateful`): the attributes
         of the class docstring, ``rejected_run`` (envs,) int (readings in a row without an
         absorbed foot) and ``initialized`` (envs,) bool; the env axis has length 1 for one env
         ``env``."""

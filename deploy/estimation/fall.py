@@ -23,9 +23,9 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from deploy.estimation.attitude import quaternion_to_matrix, tilt_of
-from deploy.state import RobotState
-from deploy.stateful import check, put, take
+from deploy.core.attitude import quaternion_to_matrix, tilt_of
+from deploy.core.state import RobotState
+from deploy.core.stateful import check, put, take
 from robots import Robot
 
 #: Default tilt limit, rad (our choice): a walking quadruped's base stays within ~0.3 rad of
@@ -88,7 +88,8 @@ class FallDetector:
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
         """``height`` (envs,) m, ``low_ticks`` and ``sinking_ticks`` (envs,) int64 (copies;
-        conventions of :mod:`deploy.stateful`; the env axis has length 1 for one env ``env``)."""
+        conventions of :mod:`deploy.core.stateful`; the env axis has length 1 for one env
+        ``env``)."""
         return take(self._fields(), env)
 
     def _fields(self) -> dict[str, np.ndarray]:

@@ -34,10 +34,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from deploy.backends.base import SensorFrame
+from deploy.core.backend import SensorFrame
+from deploy.core.state import RobotState
+from deploy.core.stateful import put, take
 from deploy.estimation.kernel import kalman_tick
-from deploy.state import RobotState
-from deploy.stateful import put, take
 from robots import Robot
 
 #: Default process noise standard deviation as a fraction of the joint's acceleration limit.
@@ -308,7 +308,7 @@ class JointStateEstimator:
         }
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
-        """The filters' state (copies; conventions of :mod:`deploy.stateful`): ``position``,
+        """The filters' state (copies; conventions of :mod:`deploy.core.stateful`): ``position``,
         ``velocity`` (envs, n) rad, rad/s and ``covariance`` (envs, n, 2, 2) at
         ``filter_time`` (envs, n) s, ``time_since_fresh`` (envs, n) s, the per-joint counters
         (envs, n) int64 and ``initialized`` (envs,) bool (:meth:`reset` was called); the env

@@ -17,15 +17,15 @@ import numpy as np
 from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
-from deploy.backends.base import SensorFrame
-from deploy.estimation.attitude import quat_multiply, quaternion_to_matrix, rotation_quaternions
+from deploy.core.attitude import quat_multiply, quaternion_to_matrix, rotation_quaternions
+from deploy.core.backend import SensorFrame
+from deploy.core.state import RobotState
 from deploy.estimation.base import (
     REST_ACCELERATION_TOLERANCE,
     BaseStateEstimator,
 )
 from deploy.estimation.base_kernel import N_ERROR
 from deploy.estimation.joints import JointStateEstimator
-from deploy.state import RobotState
 from robots import Robot
 
 

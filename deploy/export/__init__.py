@@ -27,15 +27,6 @@ kept as ``<stem>.parity-failed.onnx``. :mod:`~.network` holds the checks every l
 MLPs rebuilt from state dicts. Formats and options in use: README.md, "Export a policy".
 """
 
-from deploy.export.cli import (
-    EXIT_BAD_INPUT,
-    EXIT_INTERNAL,
-    EXIT_OK,
-    EXIT_PARITY,
-    POLICIES_DIR,
-    main,
-    resolve_policy_path,
-)
 from deploy.export.errors import ExportError, ParityError
 from deploy.export.graph import (
     EXPORTERS,
@@ -61,7 +52,7 @@ from deploy.export.parity import (
     static_parity,
 )
 from deploy.export.pipeline import ExportResult, export_policy, failed_path, run_export
-from deploy.export.rsl_rl import RSL_RL_EPS, rsl_rl_normalizer
+from deploy.export.rsl_rl_normalizer import RSL_RL_EPS, rsl_rl_normalizer
 from deploy.export.sb3 import sb3_actor
 from deploy.export.source import (
     ActionClip,
@@ -74,17 +65,12 @@ from deploy.export.torchscript import load_torchscript
 from deploy.export.vecnormalize import load_vecnormalize
 
 __all__ = [
-    "EXIT_BAD_INPUT",
-    "EXIT_INTERNAL",
-    "EXIT_OK",
-    "EXIT_PARITY",
     "EXPORTERS",
     "GOAL_PERIOD",
     "NOISE_MULTIPLIER",
     "OPSET",
     "PARITY_BATCH1",
     "PARITY_SAMPLES",
-    "POLICIES_DIR",
     "REPLAY_ENVS",
     "REPLAY_TICKS",
     "RSL_RL_EPS",
@@ -104,11 +90,9 @@ __all__ = [
     "load_source",
     "load_torchscript",
     "load_vecnormalize",
-    "main",
     "normalizer_module",
     "package_version",
     "parity_observations",
-    "resolve_policy_path",
     "rsl_rl_normalizer",
     "run_export",
     "sample_goals",

@@ -27,8 +27,8 @@ from deploy.export.errors import ExportError, ParityError
 from deploy.export.graph import set_metadata, tool_versions
 from deploy.export.parity import PARITY_SAMPLES, parity_observations
 from deploy.export.pipeline import ExportResult
-from deploy.policy.onnx_checks import PolicyLoadError
 from deploy.policy.onnx_policy import OnnxPolicy
+from deploy.spec.onnx_checks import PolicyLoadError
 from robots import Robot
 from robots.files import atomic_path, sha256_file
 

@@ -28,12 +28,12 @@ import torch
 from torch import nn
 
 from deploy.backends.sim.plant import NonFiniteCommandError, SimBackend, SimulationDivergedError
+from deploy.core.state import Kinematics, RobotState
 from deploy.export.noise_floor import TOLERANCE, NoiseFloor, _max_abs  # noqa: F401 - TOLERANCE
 from deploy.export.recurrent import RecurrentPolicyModule
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.robot_kind import robot_kind
 from deploy.spec.policy_spec import PolicySpec
-from deploy.state import Kinematics, RobotState
 from robots import Robot
 
 PARITY_SAMPLES = 1000

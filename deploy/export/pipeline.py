@@ -32,8 +32,8 @@ from deploy.export.parity import (
     source_sequence_parity,
     static_parity,
 )
-from deploy.policy.onnx_checks import PolicyLoadError
 from deploy.policy.onnx_policy import OnnxPolicy
+from deploy.spec.onnx_checks import PolicyLoadError
 from deploy.spec.policy_spec import PolicySpec, SpecError
 from deploy.spec.subset import run_spec
 from robots import Robot, load_robot

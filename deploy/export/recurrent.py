@@ -4,7 +4,8 @@ rebuilt from.
 A recurrent source (an rsl_rl ``ActorCriticRecurrent``, :mod:`deploy.export.rsl_rl_recurrent`; a
 RecurrentPPO zip, :mod:`deploy.export.sb3_recurrent`; legged_gym's LSTM TorchScript,
 :mod:`deploy.export.torchscript_lstm`) loads into a :class:`RecurrentCore` (an ``nn.LSTM`` or
-``nn.GRU`` followed by the actor MLP; :func:`rnn_from_state_dict`, :func:`recurrent_source`).
+``nn.GRU`` followed by the actor MLP; :func:`rnn_from_state_dict`;
+:func:`deploy.export.source.recurrent_source` makes them a source policy).
 Around it, :class:`RecurrentPolicyModule` adds the observation normalizer (if any) and the action
 clip, and :func:`recurrent_signature` names the graph :class:`deploy.policy.onnx_policy.OnnxPolicy`
 runs::
@@ -24,10 +25,6 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
-
-from deploy.export.errors import ExportError
-from deploy.export.source import SourcePolicy
-from deploy.spec.policy_spec import PolicySpec
 
 
 @dataclass(frozen=True)
@@ -101,37 +98,6 @@ def recurrent_signature(
     axes = {"obs": {0: "batch"}, "action": {0: "batch"}}
     axes.update({name: {1: "batch"} for name in ins[1:] + outs[1:]})
     return example, ins, outs, axes
-
-
-def recurrent_source(
-    rnn, mlp, normalizer, spec: PolicySpec, path, label: str, normalizer_kind=None
-):
-    """An RNN and its actor MLP as the export's ``deploy.export.SourcePolicy``
-    (:class:`RecurrentCore`), once its action for the zero observation is finite.
-
-    Args:
-        rnn: ``nn.LSTM`` or ``nn.GRU`` (batch_first False). mlp: The actor after it.
-        normalizer: Observation normalizer module or None. spec: The PolicySpec.
-        path: The source file (for messages). label: The source's name in ``source_format``,
-            e.g. ``'rsl_rl recurrent'``. normalizer_kind: The normalizer's description.
-
-    Raises:
-        deploy.export.ExportError: the action for the zero observation is not finite.
-    """
-    core = RecurrentCore(rnn, mlp).eval()
-    probe = RecurrentPolicyModule(core, normalizer, spec.action.clip).eval()
-    with torch.no_grad():
-        action, *_ = probe(torch.zeros(2, spec.obs_dim), *core.layout.zeros(2))
-    if not torch.isfinite(action).all():
-        raise ExportError(f"{path}: the action for the zero observation is not finite")
-    layout = core.layout
-    return SourcePolicy(
-        net=core,
-        spec=spec,
-        source_format=f"{label} ({layout.kind}, {layout.layers} layer(s), hidden {layout.hidden})",
-        normalizer=normalizer,
-        normalizer_kind=normalizer_kind,
-    )
 
 
 def rnn_from_state_dict(

@@ -23,8 +23,9 @@ import torch
 
 from deploy.export.errors import ExportError
 from deploy.export.network import _build_mlp, _linear_stack, check_finite_tensors
-from deploy.export.recurrent import recurrent_source, rnn_from_state_dict
-from deploy.export.rsl_rl import RSL_RL_EPS, rsl_rl_normalizer
+from deploy.export.recurrent import rnn_from_state_dict
+from deploy.export.rsl_rl_normalizer import RSL_RL_EPS, rsl_rl_normalizer
+from deploy.export.source import recurrent_source
 from deploy.spec.policy_spec import PolicySpec
 
 RNN_PREFIX = "memory_a.rnn."

@@ -19,26 +19,11 @@ import torch
 
 from deploy.export.errors import ExportError
 from deploy.export.network import _build_mlp, _linear_stack, _probe, _require_spec
+from deploy.export.sb3_activation import sb3_activation
 from deploy.export.source import SourcePolicy
 from deploy.policy.mlp_checkpoint import MLPActor
 from deploy.policy.torch_file import load_failure_cause, load_weights_only, unsafe_globals_in
 from deploy.spec.policy_spec import PolicySpec
-
-
-def _sb3_activation(data: Mapping, default: str, path: Path) -> str:
-    kwargs = data.get("policy_kwargs") or {}
-    text = kwargs.get("activation_fn") if isinstance(kwargs, Mapping) else None
-    if not text:
-        return default
-    m = re.search(r"\.(\w+)'>", str(text))
-    name = m.group(1) if m else str(text)
-    mapping = {"Tanh": "tanh", "ReLU": "relu", "ELU": "elu"}
-    if name not in mapping:
-        raise ExportError(
-            f"{path}: policy_kwargs.activation_fn = {name} is not supported (Tanh, ReLU, ELU); "
-            "pass --activation to override"
-        )
-    return mapping[name]
 
 
 def _parse_bounds(text: Any) -> np.ndarray | None:
@@ -118,7 +103,7 @@ def _load_sb3(path: Path, spec: PolicySpec | None, activation: str | None) -> So
     sac = "actor.mu.weight" in sd
     if sac and data.get("use_sde"):
         raise ExportError(f"{path}: SAC with use_sde=True is not supported")
-    act = activation or _sb3_activation(data, "relu" if sac else "tanh", path)
+    act = activation or sb3_activation(data, "relu" if sac else "tanh", path)
     net, fmt = sb3_actor(sd, act, bool(kwargs.get("squash_output")), path)
     _probe(net, spec, path)
     return SourcePolicy(net=net, spec=spec, source_format=fmt)

@@ -27,8 +27,9 @@ import torch
 
 from deploy.export.errors import ExportError
 from deploy.export.network import _build_mlp, _linear_stack, check_finite_tensors
-from deploy.export.recurrent import recurrent_source, rnn_from_state_dict
-from deploy.export.sb3 import _sb3_activation
+from deploy.export.recurrent import rnn_from_state_dict
+from deploy.export.sb3_activation import sb3_activation
+from deploy.export.source import recurrent_source
 from deploy.spec.policy_spec import PolicySpec
 
 PREFIX = "lstm_actor."
@@ -88,6 +89,6 @@ def load_recurrent_ppo(
             f"{path}: wrong output size: action_net returns {layers[-1][0].shape[0]} values, "
             f"the spec's action has {spec.act_dim}"
         )
-    act = activation or _sb3_activation(data, "tanh", path)
+    act = activation or sb3_activation(data, "tanh", path)
     mlp = _build_mlp(layers, act, None, path, "RecurrentPPO actor")
     return recurrent_source(rnn, mlp, None, spec, path, "sb3-contrib RecurrentPPO")

@@ -14,6 +14,8 @@ from typing import Any
 import torch
 from torch import nn
 
+from deploy.export.errors import ExportError
+from deploy.export.recurrent import RecurrentCore, RecurrentPolicyModule
 from deploy.policy.obs_normalizer import ObservationNormalizer
 from deploy.spec.policy_spec import PolicySpec
 
@@ -85,16 +87,12 @@ class SourcePolicy:
     @property
     def recurrent(self) -> bool:
         """The net is a :class:`deploy.export.recurrent.RecurrentCore` (explicit state I/O)."""
-        from deploy.export.recurrent import RecurrentCore
-
         return isinstance(self.net, RecurrentCore)
 
     def module(self) -> nn.Module:
         """normalizer -> net -> action clip, eval mode; scripted when the net is TorchScript.
         A recurrent net gives a :class:`deploy.export.recurrent.RecurrentPolicyModule`."""
         if self.recurrent:
-            from deploy.export.recurrent import RecurrentPolicyModule
-
             return RecurrentPolicyModule(self.net, self.normalizer, self.spec.action.clip).eval()
         parts = [] if self.normalizer is None else [self.normalizer]
         seq = nn.Sequential(*parts, self.net, ActionClip(self.spec.action.clip)).eval()
@@ -103,3 +101,35 @@ class SourcePolicy:
                 warnings.simplefilter("ignore")
                 seq = torch.jit.script(seq)
         return seq
+
+
+def recurrent_source(
+    rnn, mlp, normalizer, spec: PolicySpec, path, label: str, normalizer_kind=None
+):
+    """An RNN and its actor MLP as the export's :class:`SourcePolicy`
+    (:class:`~deploy.export.recurrent.RecurrentCore`), once its action for the zero observation
+    is finite.
+
+    Args:
+        rnn: ``nn.LSTM`` or ``nn.GRU`` (batch_first False). mlp: The actor after it.
+        normalizer: Observation normalizer module or None. spec: The PolicySpec.
+        path: The source file (for messages). label: The source's name in ``source_format``,
+            e.g. ``'rsl_rl recurrent'``. normalizer_kind: The normalizer's description.
+
+    Raises:
+        deploy.export.ExportError: the action for the zero observation is not finite.
+    """
+    core = RecurrentCore(rnn, mlp).eval()
+    probe = RecurrentPolicyModule(core, normalizer, spec.action.clip).eval()
+    with torch.no_grad():
+        action, *_ = probe(torch.zeros(2, spec.obs_dim), *core.layout.zeros(2))
+    if not torch.isfinite(action).all():
+        raise ExportError(f"{path}: the action for the zero observation is not finite")
+    layout = core.layout
+    return SourcePolicy(
+        net=core,
+        spec=spec,
+        source_format=f"{label} ({layout.kind}, {layout.layers} layer(s), hidden {layout.hidden})",
+        normalizer=normalizer,
+        normalizer_kind=normalizer_kind,
+    )

@@ -11,7 +11,7 @@ The kernels live beside their stages: :mod:`deploy.spec.kernel`,
 :mod:`deploy.safety.envelope_kernel`, :mod:`deploy.smoothing.kernel`,
 :mod:`robots.thermal_kernel`, :mod:`deploy.backends.sim.drives_kernel`,
 :mod:`deploy.backends.sim.sensors_kernel`, :mod:`deploy.monitors.kernel` and
-:mod:`deploy.observe.latency_kernel`.
+:mod:`deploy.core.latency_kernel`.
 
 A kernel stops where Python must act (Ruckig, Pinocchio, a policy reset) and returns a code that
 says what; the arithmetic and its order are those of the numpy reference, so both give the same

@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from deploy.estimation.attitude import tilt_of
-from deploy.estimation.base import BaseState
+from deploy.core.attitude import tilt_of
+from deploy.core.state import BaseState
+from deploy.core.stateful import check, put, take
 from deploy.estimation.fall import FALL_TILT
-from deploy.stateful import check, put, take
 
 #: Fraction of ``[base] standing_height`` under which the true base has fallen (our choice: a
 #: walking humanoid's base stays above 0.9 of it, a Go2's trot at 0.57; lying, below 0.3).
@@ -74,7 +74,7 @@ class EstimationMonitor:
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
         """``counts``, ``sums``, ``true_falls`` and ``down`` (the true base down since its last
-        RUNNING tick), copies (conventions of :mod:`deploy.stateful`)."""
+        RUNNING tick), copies (conventions of :mod:`deploy.core.stateful`)."""
         return take(self._fields(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:

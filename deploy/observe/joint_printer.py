@@ -68,7 +68,7 @@ class JointPrinter:
 
     def format(self, rt, e: int = 0) -> str:
         """One line for env ``e`` of runtime ``rt`` (module docstring)."""
-        from deploy.runtime import Mode
+        from deploy.core.modes import Mode
 
         q, dq = rt.state.q[e], rt.state.dq[e]
         cmd, temp = rt.command[e], rt.state.winding_temperature[e]

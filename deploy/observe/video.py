@@ -166,7 +166,7 @@ class VideoRecorder:
     def guard_joints(self, rt) -> np.ndarray:
         """(n,) bool: env 0's joints whose target the guard changed on the last tick (RUNNING
         only; in the other modes the runtime overrides the target itself)."""
-        from deploy.runtime import RUNNING
+        from deploy.core.modes import RUNNING
 
         if rt.mode[0] != RUNNING:
             return np.zeros(rt.n, dtype=bool)
@@ -280,7 +280,7 @@ def open_video(args, robot, backend) -> VideoRecorder | None:
     Raises:
         ValueError: a bad ``--size``, ``--fps`` or ``--camera`` (bad input, exit 3).
     """
-    from deploy.backends.base import SimulatedPlant
+    from deploy.core.backend import SimulatedPlant
 
     size = parse_size(args.size)
     true_state = backend.true_position if isinstance(backend, SimulatedPlant) else None

@@ -60,7 +60,7 @@ class PassiveViewer:
         import mujoco
         import mujoco.viewer
 
-        from deploy.backends.base import SimulatedPlant
+        from deploy.core.backend import SimulatedPlant
 
         check_display()
         self.mj = mujoco

@@ -6,7 +6,7 @@ The observation input is the only data input, else the one named ``obs``; every 
 an initializer of the input's name is its declared initial state). Godot RL Agents' dummy
 ``state_ins`` -> ``state_outs`` (:data:`GODOT_STATE`) and the spec's ``constant_inputs`` are fed
 constants. The action output is the only other output, else the one named ``action`` or
-``actions``. Anything else raises :class:`~deploy.policy.onnx_checks.PolicyLoadError` naming the
+``actions``. Anything else raises :class:`~deploy.spec.onnx_checks.PolicyLoadError` naming the
 file, the tensor and what would make it load.
 """
 
@@ -19,7 +19,7 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
-from deploy.policy.onnx_checks import PolicyLoadError
+from deploy.spec.onnx_checks import PolicyLoadError
 from deploy.spec.policy_spec import PolicySpec
 
 #: Godot RL Agents' dummy state: input and output names (fed zeros; the output is ignored).

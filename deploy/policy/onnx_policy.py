@@ -1,9 +1,9 @@
 """OnnxPolicy: load an exported policy, verify it against the robot, run it batch-first.
 
 The runtime's only view of a policy: an ONNX file and the robot description are enough (no
-torch, no training code). Loading refuses, with :class:`~deploy.policy.onnx_checks.PolicyLoadError`
+torch, no training code). Loading refuses, with :class:`~deploy.spec.onnx_checks.PolicyLoadError`
 naming the file and the problem: a missing, corrupt or unsafe file and non-finite weights
-(:mod:`deploy.policy.onnx_checks`); no spec, or one that contradicts the file's or does not match
+(:mod:`deploy.spec.onnx_checks`); no spec, or one that contradicts the file's or does not match
 the robot (:mod:`deploy.policy.onnx_spec`, ``PolicySpec.check_robot``); a graph whose inputs,
 outputs or recurrent state the spec does not describe (:mod:`deploy.policy.onnx_graph`); and an
 action that is not finite for the zero observation or, for a foreign file (an export's parity gate
@@ -28,14 +28,14 @@ import numpy as np
 import onnx
 import onnxruntime as ort
 
-from deploy.policy.onnx_checks import (
+from deploy.policy.onnx_graph import check_graph
+from deploy.policy.onnx_spec import METADATA_SPEC, resolve_spec
+from deploy.spec.onnx_checks import (
     PolicyLoadError,
     check_external_data,
     check_finite_weights,
     read_model,
 )
-from deploy.policy.onnx_graph import check_graph
-from deploy.policy.onnx_spec import METADATA_SPEC, resolve_spec
 from deploy.spec.policy_spec import PolicySpec, SpecError
 from deploy.spec.subset import run_spec
 from robots import Robot

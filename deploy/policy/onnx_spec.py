@@ -5,7 +5,7 @@
 ``parity`` aside: :func:`spec_differences`); a file without one needs a given spec, or carries its
 training stack's own contract (mjlab, holosoma, an Isaac Lab run folder:
 :mod:`deploy.spec.foreign`) from which the spec is built. Errors raise
-:class:`~deploy.policy.onnx_checks.PolicyLoadError` naming the file.
+:class:`~deploy.spec.onnx_checks.PolicyLoadError` naming the file.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import onnx
 
-from deploy.policy.onnx_checks import PolicyLoadError
+from deploy.spec.onnx_checks import PolicyLoadError
 from deploy.spec.policy_spec import PolicySpec, SpecError
 from robots import Robot
 

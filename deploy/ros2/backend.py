@@ -1,4 +1,4 @@
-"""A ros2_control robot as a :class:`~deploy.backends.base.Backend` (one robot, wall clock):
+"""A ros2_control robot as a :class:`~deploy.core.backend.Backend` (one robot, wall clock):
 ``deploy-run --backend ros2``.
 
 The runtime reads ``joint_states`` (``sensor_msgs/JointState``, as ros2_control's
@@ -32,8 +32,8 @@ import time
 
 import numpy as np
 
-from deploy.backends.base import BackendLifecycle, SensorFrame, checked_command
-from deploy.observe.telemetry import LatencyHistogram
+from deploy.core.backend import BackendLifecycle, SensorFrame, checked_command
+from deploy.core.latency import LatencyHistogram
 from deploy.ros2.context import NodeThread
 from deploy.ros2.controllers import FORWARD_CONTROLLERS, command_order, command_topic
 from robots.errors import Sim2RealError

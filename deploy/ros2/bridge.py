@@ -33,7 +33,7 @@ import time
 
 import numpy as np
 
-from deploy.observe.telemetry import LatencyHistogram
+from deploy.core.latency import LatencyHistogram
 from deploy.ros2.context import NodeThread
 from deploy.ros2.messages import (
     ERROR,
@@ -85,7 +85,7 @@ class RuntimeNode:
         published: Messages published by topic. received: Messages received by topic.
         cmd_vel_timeouts: Times the command went to zero for want of a ``cmd_vel``.
         services: Service calls answered, by name.
-        after_tick_cost: :class:`~deploy.observe.telemetry.LatencyHistogram` of
+        after_tick_cost: :class:`~deploy.core.latency.LatencyHistogram` of
             :meth:`after_tick`'s duration on the control thread (ns), the node's whole cost to
             the loop outside the tick.
 
@@ -211,7 +211,7 @@ class RuntimeNode:
 
     def _serve(self, rt, kind: str) -> tuple[bool, str]:
         """An operator's request: ``stop``, ``resume`` or ``reset_faults``; (success, message)."""
-        from deploy.runtime import FAULT_CAUSES, FAULTED, SAFE_STOP, Mode
+        from deploy.core.modes import FAULT_CAUSES, FAULTED, SAFE_STOP, Mode
 
         mode, cause = int(rt.mode[0]), int(rt.cause[0])
         cause_name = FAULT_CAUSES[cause] if cause >= 0 else None
@@ -234,7 +234,7 @@ class RuntimeNode:
 
     def _diagnose(self, rt) -> list[Status]:
         """The ``/diagnostics`` statuses of the runtime now (the control thread's values)."""
-        from deploy.runtime import FAULT_CAUSES, FAULTED, SAFE_STOP, Mode
+        from deploy.core.modes import FAULT_CAUSES, FAULTED, SAFE_STOP, Mode
 
         mode, cause = int(rt.mode[0]), int(rt.cause[0])
         cause_name = FAULT_CAUSES[cause] if cause >= 0 else "none"

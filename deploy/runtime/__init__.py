@@ -3,7 +3,7 @@
 The tick (:meth:`Runtime.tick`, read top to bottom in one function), the state machine
 (``IDLE -> RAMP_IN -> RUNNING -> SAFE_STOP -> FAULTED``, one per env) and the faults it answers
 are described in docs/architecture.md ("The tick"). The backend is any
-:class:`deploy.backends.base.Backend`; the garbage collector is off while :meth:`Runtime.run`
+:class:`deploy.core.backend.Backend`; the garbage collector is off while :meth:`Runtime.run`
 loops. One module per concept:
 
 ========================  ====================================================================
@@ -14,8 +14,6 @@ module                    what it holds
 :mod:`~.state`            :class:`~.state.RuntimeState`: the runtime's state dict
 :mod:`~.reference`        :class:`ReferenceRuntime`: the tick's numpy references (guard,
                           smoother, observation, supervision, screen, latency histograms)
-:mod:`~.modes`            the state machine's vocabulary: :class:`Mode`, ``FAULT_CAUSES``, the
-                          constants of its transitions, :class:`RuntimeCounters`
 :mod:`~.supervision`      the state machine (:class:`Supervision`): its arrays, its transitions
                           in numpy (the reference of the compiled supervision and screen)
 :mod:`~.compiled`         the compiled supervision and action screen (the kernels of
@@ -26,8 +24,10 @@ module                    what it holds
                           memory
 ========================  ====================================================================
 
-The clocks, real-time settings and modes import without MuJoCo; :class:`Runtime` and the rest
-are imported when first used (``_LAZY``).
+The state machine's vocabulary (:class:`Mode`, ``FAULT_CAUSES``, the constants of its
+transitions, :class:`RuntimeCounters`) lives on the ground floor, :mod:`deploy.core.modes`, and is
+re-exported here. The clocks, real-time settings and modes import without MuJoCo;
+:class:`Runtime` and the rest are imported when first used (``_LAZY``).
 """
 
 from __future__ import annotations
@@ -35,8 +35,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING
 
-from deploy.runtime.clock import SPIN_MARGIN_NS, WAIT_MODES, SimClock, WallClock
-from deploy.runtime.modes import (
+from deploy.core.modes import (
     FAULT_CAUSES,
     FAULTED,
     HOME_TOLERANCE,
@@ -55,6 +54,7 @@ from deploy.runtime.modes import (
     Mode,
     RuntimeCounters,
 )
+from deploy.runtime.clock import SPIN_MARGIN_NS, WAIT_MODES, SimClock, WallClock
 from deploy.runtime.realtime import (
     RealtimeError,
     RealtimeRequest,

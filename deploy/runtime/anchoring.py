@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from deploy.runtime.modes import FAULTED, SAFE_STOP
+from deploy.core.modes import FAULTED, SAFE_STOP
+from deploy.core.state import RobotState
 from deploy.smoothing import CommandSmoother
-from deploy.state import RobotState
 from robots import Robot
 
 #: Position mode: a command this far (rad) from the measured pose (the arm was pushed or blocked)

@@ -23,7 +23,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-from deploy.observe.telemetry import LatencyHistogram
+from deploy.core.latency import LatencyHistogram
 
 #: Wait strategies of :class:`WallClock` (module docstring).
 WAIT_MODES = ("sleep", "hybrid", "spin")

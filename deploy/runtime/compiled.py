@@ -15,8 +15,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from deploy.runtime import supervision_kernel as sv
-from deploy.runtime.modes import (
+from deploy.core.modes import (
     FAULT_CAUSES,
     HOME_TOLERANCE,
     NAN_ACTION_LIMIT,
@@ -24,9 +23,10 @@ from deploy.runtime.modes import (
     REST_SPEED,
     Mode,
 )
+from deploy.core.state import RobotState
+from deploy.runtime import supervision_kernel as sv
 from deploy.runtime.supervision import Supervision
 from deploy.spec.policy_spec import PolicySpec
-from deploy.state import RobotState
 
 # the kernels (deploy.runtime.supervision_kernel) know the causes and modes by number
 _CAUSE_CODES = {

@@ -12,15 +12,9 @@ import time
 
 import numpy as np
 
-from deploy.estimation.joints import JointStateEstimator
-from deploy.observe import latency_kernel as lk
-from deploy.observe import long_ticks as lt
-from deploy.observe.telemetry import BIN_NS, BINS, LatencyHistogram
-from deploy.robot_kind import robot_kind
-from deploy.runtime.anchoring import reanchor, tracking_tolerance
-from deploy.runtime.clock import SimClock
-from deploy.runtime.compiled import CompiledSupervision
-from deploy.runtime.modes import (
+from deploy.core import latency_kernel as lk
+from deploy.core.latency import BIN_NS, BINS, LatencyHistogram
+from deploy.core.modes import (
     FAULT_CAUSES,
     FAULTED,
     OVERRUN_RATE_LIMIT,
@@ -30,12 +24,18 @@ from deploy.runtime.modes import (
     START_TIMEOUT,
     Mode,
 )
+from deploy.core.state import Kinematics, RobotState
+from deploy.estimation.joints import JointStateEstimator
+from deploy.observe import long_ticks as lt
+from deploy.robot_kind import robot_kind
+from deploy.runtime.anchoring import reanchor, tracking_tolerance
+from deploy.runtime.clock import SimClock
+from deploy.runtime.compiled import CompiledSupervision
 from deploy.runtime.state import RuntimeState
 from deploy.runtime.supervision import Supervision
 from deploy.safety.guard import SafetyGuard
 from deploy.smoothing import CommandSmoother
 from deploy.spec.policy_spec import PolicySpec
-from deploy.state import Kinematics, RobotState
 from robots import Robot
 
 #: The tick's stages, as its latency histogram counts them (``Runtime.latency``).
@@ -55,7 +55,7 @@ class Runtime(RuntimeState):
             attribute (:class:`~deploy.policy.onnx_policy.OnnxPolicy`); its ``reset(envs)``
             (boolean mask (envs,)), if it has one, is called where the policy's state must start
             afresh.
-        backend: A :class:`~deploy.backends.base.Backend` (``read``, ``write``, ``advance``,
+        backend: A :class:`~deploy.core.backend.Backend` (``read``, ``write``, ``advance``,
             ``drive_errors``), opened: :class:`~deploy.backends.sim.plant.SimBackend` or a servo
             bus.
         clock: :class:`SimClock` (default) or :class:`WallClock`.
@@ -64,7 +64,7 @@ class Runtime(RuntimeState):
         overrun_rate_limit: Fraction of the control periods of the last ``OVERRUN_WINDOW_S``
             seconds the loop may miss on the wall clock before a safe stop (cause ``overrun``);
             default ``OVERRUN_RATE_LIMIT`` of the control mode (0.5 position, 0.25 velocity and
-            torque; our choice, :mod:`deploy.runtime.modes`). A transient stall is ridden
+            torque; our choice, :mod:`deploy.core.modes`). A transient stall is ridden
             through, the drives holding the last command.
 
     The tick's numeric logic (supervision, action screen, observation, guard, smoother, latency
@@ -384,7 +384,7 @@ class Runtime(RuntimeState):
     def _record_latency(self, stamps: np.ndarray) -> None:
         """Add the tick's stage durations (``stamps``, ns, one per stage boundary) to
         :attr:`latency` and its cost without physics to :attr:`tick_cost` (the kernel
-        :func:`deploy.observe.latency_kernel.add_stages`)."""
+        :func:`deploy.core.latency_kernel.add_stages`)."""
         lat, cost = self.latency, self.tick_cost
         lk.add_stages(stamps, self._bins, lat.counts, lat.max_ns, cost.counts, cost.max_ns)
 

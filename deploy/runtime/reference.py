@@ -6,7 +6,7 @@ the guard (:class:`~deploy.safety.reference.ReferenceGuard`), the smoother
 (:class:`ReferenceSupervision`, a :class:`~deploy.runtime.supervision.Supervision` with
 :meth:`~ReferenceSupervision.supervise` and :meth:`~ReferenceSupervision.screen`) and the latency
 histograms
-(:meth:`~deploy.observe.telemetry.LatencyHistogram.add_stages`). Both give the same numbers bit
+(:meth:`~deploy.core.latency.LatencyHistogram.add_stages`). Both give the same numbers bit
 for bit (``tests/test_compiled_tick.py``); the estimator is the compiled one in both.
 """
 
@@ -14,8 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from deploy.runtime.loop import Runtime
-from deploy.runtime.modes import (
+from deploy.core.modes import (
     FAULT_CAUSES,
     FAULTED,
     HOME_TOLERANCE,
@@ -25,11 +24,12 @@ from deploy.runtime.modes import (
     RUNNING,
     SAFE_STOP,
 )
+from deploy.core.state import RobotState
+from deploy.runtime.loop import Runtime
 from deploy.runtime.supervision import Supervision
 from deploy.safety.reference import ReferenceGuard
 from deploy.smoothing.reference import ReferenceSmoother
 from deploy.spec.reference import observation_reference
-from deploy.state import RobotState
 
 
 class ReferenceSupervision(Supervision):

@@ -4,7 +4,7 @@ taken and loaded.
 A runtime's state is its own per-env arrays (modes, causes, goals, the screened actions, the last
 targets and commands, the counters, the estimated robot state), the arrays its envs share (the
 overrun window, the wall-clock histograms), the tick, the time and the clock's counters, then each
-stage's own state dict under its name; the conventions are :mod:`deploy.stateful`'s.
+stage's own state dict under its name; the conventions are :mod:`deploy.core.stateful`'s.
 
 :class:`RuntimeState` is a base class of :class:`~deploy.runtime.loop.Runtime`; its methods work
 on the runtime's attributes (set in ``Runtime.__init__``).
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from deploy.stateful import check, load_part, prefixed, put, scalar, take
+from deploy.core.stateful import check, load_part, prefixed, put, scalar, take
 
 
 class RuntimeState:
@@ -84,14 +84,14 @@ class RuntimeState:
 
     def state_dict(self, env: int | None = None) -> dict:
         """The state of the loop and of its stages (copies; conventions of
-        :mod:`deploy.stateful`).
+        :mod:`deploy.core.stateful`).
 
         The runtime's own fields, (envs, ...) (length 1 for one env ``env``): ``mode``,
         ``cause`` (int8), ``goal`` (envs, 3) m, ``drive_errors``, the screened ``action`` and
         ``last_valid_action`` (float32), ``nan_streak``, ``stop_ticks`` (int64, ticks since the
         safe stop began), the last ``target`` and ``command`` (the
         units of the mode), ``counters/<name>`` and ``counters/faults/<cause>`` (int64) and the
-        estimated ``state/<field>`` (:class:`~deploy.state.RobotState`). Shared by the batch:
+        estimated ``state/<field>`` (:class:`~deploy.core.state.RobotState`). Shared by the batch:
         ``ticks`` (int), ``time`` (float, s), ``overrun_ring`` (window,) int64 missed periods, the
         wall-clock histograms ``latency/*``, ``tick_cost/*`` and ``clock/*`` (measurements, not
         seeded; a wall clock's next deadline is not state: a resumed loop starts its own).

@@ -16,8 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from deploy.kernels import any_true
-from deploy.runtime.modes import (
+from deploy.core.modes import (
     FAULT_CAUSES,
     FAULTED,
     IDLE,
@@ -31,7 +30,8 @@ from deploy.runtime.modes import (
     Mode,
     RuntimeCounters,
 )
-from deploy.state import RobotState
+from deploy.core.state import RobotState
+from deploy.kernels import any_true
 from robots import Robot
 
 

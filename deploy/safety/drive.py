@@ -31,8 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from deploy.core.stateful import put, take
 from deploy.safety import drive_kernel as dk
-from deploy.stateful import put, take
 from robots import Robot
 from robots.chain_bounds import inertia_bound
 

@@ -30,6 +30,8 @@ import numpy as np
 import pinocchio as pin
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
+from deploy.core.state import RobotState
+from deploy.core.stateful import put, take
 from deploy.robot_kind import robot_kind
 from deploy.safety import kernel as gk
 from deploy.safety.check import (
@@ -49,8 +51,6 @@ from deploy.safety.collision import collision_model, collision_query
 from deploy.safety.drive import VelocityDrive
 from deploy.safety.envelope import MotionEnvelope
 from deploy.safety.torque_drive import TorqueDrive
-from deploy.state import RobotState
-from deploy.stateful import put, take
 from robots import Robot
 from robots.chain_bounds import (
     collision_pair_weights,
@@ -267,9 +267,9 @@ class SafetyGuard:
         return fields
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
-        """The guard's state (copies; conventions of :mod:`deploy.stateful`): ``counts/<check>``
-        (envs,) int64, ``hard_violation`` (envs,) bool, ``beyond_ticks`` and ``far_ticks`` (envs,)
-        int64 (:mod:`deploy.safety.limits`),
+        """The guard's state (copies; conventions of :mod:`deploy.core.stateful`):
+        ``counts/<check>`` (envs,) int64, ``hard_violation`` (envs,) bool, ``beyond_ticks`` and
+        ``far_ticks`` (envs,) int64 (:mod:`deploy.safety.limits`),
         ``effort_scale`` (envs, n), ``last_valid`` (envs, n) the hold target (rad in position mode),
         and the screens' caches (``workspace_q``, ``collision_q`` (envs, n) rad;
         ``workspace_margin`` (envs,) m; ``pair_clearance`` (envs, pairs) m, each collision pair's

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from ruckig import ControlInterface, Result, RuckigError
 
-from deploy.stateful import env_index, put, scalar, take
+from deploy.core.stateful import env_index, put, scalar, take
 from robots.errors import Sim2RealError
 
 #: Ruckig's per-DoF input fields a smoother's state holds (``InputParameter`` attributes).
@@ -80,7 +80,7 @@ class RuckigState:
             self._ruckig.reset()
 
     def state_dict(self, env: int | None = None) -> dict:
-        """The smoother's state (copies; conventions of :mod:`deploy.stateful`).
+        """The smoother's state (copies; conventions of :mod:`deploy.core.stateful`).
 
         Fields, (envs, n) unless stated (length 1 for one env ``env``): ``command`` (the units of
         the mode), Ruckig's state ``position``, ``velocity``, ``acceleration`` (rad, rad/s,

@@ -15,6 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from deploy.core.state import Kinematics
 from deploy.spec.kinds import KINDS, kind_names
 from deploy.spec.policy_spec import (
     GAIT_PERIOD,
@@ -27,7 +28,6 @@ from deploy.spec.policy_spec import (
     PolicySpec,
     SpecError,
 )
-from deploy.state import Kinematics
 from robots import CONTROL_MODES, Robot
 
 #: What a full absolute position action reaches: ``soft`` (the default) the soft joint limits,

@@ -17,11 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from deploy.core.state import RobotState
 from deploy.spec.kernel import observation as observation_kernel
 from deploy.spec.kinds import KINDS, ObservationKind, numpy_reason
 from deploy.spec.policy_spec import PolicySpec, SpecError
 from deploy.spec.reference import assemble
-from deploy.state import RobotState
 
 
 def _no_base(kind: str) -> SpecError:

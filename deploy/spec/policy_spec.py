@@ -35,9 +35,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from deploy.core.state import RobotState
 from deploy.spec.drive import DriveSpec
 from deploy.spec.kinds import KINDS, UNPROVIDED_KINDS, kind_names, vector_kind_names
-from deploy.state import RobotState
 from robots import CONTROL_MODES, Robot
 from robots.errors import Sim2RealError
 

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from deploy.state import RobotState
+from deploy.core.state import RobotState
 
 if TYPE_CHECKING:
     from deploy.spec.observation_plan import ObservationPlan, PlanBlock

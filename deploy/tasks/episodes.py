@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from deploy.stateful import load_part, prefixed, put, take
+from deploy.core.stateful import load_part, prefixed, put, take
 from deploy.tasks.goals import sample_goal
 from deploy.tasks.locomotion import TRACKING_TOLERANCE, CommandRanges
 
 
 class _Arrays:
-    """A task's arrays as one stateful part (:mod:`deploy.stateful`): ``fields()`` names them."""
+    """A task's arrays as one stateful part (:mod:`deploy.core.stateful`): ``fields()`` names
+    them."""
 
     def __init__(self, fields):
         self.fields = fields

@@ -10,9 +10,8 @@ import math
 
 import numpy as np
 
-from deploy.backends.base import SimulatedPlant
-from deploy.monitors import kernel as mk
-from deploy.stateful import (
+from deploy.core.backend import SimulatedPlant
+from deploy.core.stateful import (
     StateDictError,
     check,
     from_json,
@@ -23,6 +22,7 @@ from deploy.stateful import (
     take,
     to_json,
 )
+from deploy.monitors import kernel as mk
 
 #: Joint poses drawn per goal before :func:`sample_goal` gives up on a ``joint_fraction`` box.
 GOAL_TRIES = 1000
@@ -136,7 +136,7 @@ class GoalScheduler:
         missed: per env, the missed goals (:meth:`missed_record`), at most ``max_missed``;
             missed_dropped: (envs,) int64, those not recorded.
 
-    With a simulated backend (:class:`~deploy.backends.base.SimulatedPlant`) whether a goal was
+    With a simulated backend (:class:`~deploy.core.backend.SimulatedPlant`) whether a goal was
     reached is judged on the true end effector, and missed goals record the true joint state; with
     any other backend (a servo bus: no ground truth) on the runtime's estimate (forward kinematics
     of the estimated joint angles, ``rt.state``).
@@ -213,7 +213,7 @@ class GoalScheduler:
         }
 
     def state_dict(self, env: int | None = None) -> dict:
-        """The scheduler's state (copies; conventions of :mod:`deploy.stateful`).
+        """The scheduler's state (copies; conventions of :mod:`deploy.core.stateful`).
 
         Arrays, (envs,) (length 1 for one env ``env``): ``t_goal``, ``issued_at`` (s),
         ``reached`` (bool), ``best_distance`` (m), ``issued``, ``hit_count``, ``missed_dropped``

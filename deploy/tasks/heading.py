@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from deploy.stateful import put, take
+from deploy.core.stateful import put, take
 
 #: Proportional gain, 1/s: legged_gym's ``0.5 * wrap_to_pi(heading - yaw)``
 #: (legged_gym/envs/base/legged_robot.py, ``commands.heading_command``).
@@ -61,8 +61,8 @@ class HeadingHold:
             runtime: A floating-base :class:`~deploy.runtime.Runtime` after its tick.
             asked: (envs, 3) the command the operator gave (m/s, m/s, rad/s).
         """
-        from deploy.estimation.attitude import yaw_of  # numba's module: not at the CLI's parse
-        from deploy.runtime import RUNNING
+        from deploy.core.attitude import yaw_of  # numba's module: not at the CLI's parse
+        from deploy.core.modes import RUNNING
 
         yaw = yaw_of(runtime.state.base.orientation)
         hold = (runtime.mode == RUNNING) & (asked[:, 2] == 0.0)

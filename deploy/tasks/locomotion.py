@@ -15,7 +15,7 @@ runtime's safe stops.
 the
 soak (:mod:`eval.soak.batch`): a new velocity command every ``period`` s of RUNNING time, drawn
 from a seeded stream per env, written into ``runtime.velocity_command``. Both keep their state
-(:mod:`deploy.stateful`) for the soak's checkpoints. :class:`VelocityTask` is the task
+(:mod:`deploy.core.stateful`) for the soak's checkpoints. :class:`VelocityTask` is the task
 (:func:`deploy.tasks.task.task_for`) they make together, a fixed command or a schedule.
 """
 
@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deploy.estimation.attitude import tilt_of
-from deploy.estimation.base import BaseState
-from deploy.stateful import (
+from deploy.core.attitude import tilt_of
+from deploy.core.state import BaseState
+from deploy.core.stateful import (
     StateDictError,
     check,
     from_json,
@@ -207,7 +207,7 @@ class CommandTracker:
             another stop, has not fallen again; the runtime's ``counters.faults`` counts those
             stops too.
         falls_by_cause: (envs, len(FAULT_CAUSES)) int64, ``falls`` by the stop's cause
-            (:data:`deploy.runtime.modes.FAULT_CAUSES` order).
+            (:data:`deploy.core.modes.FAULT_CAUSES` order).
         fall_log: Per env, one dict per fall: ``t_s`` (session time), ``cause`` (the stop's,
             ``FAULT_CAUSES``) and, for a ``hard_limit`` stop, the estimate that began it:
             ``joint`` (the joint farthest past its hard limit) and ``past_rad`` (how far).
@@ -250,7 +250,7 @@ class CommandTracker:
         self._window_base = np.zeros((envs, 2))  # running, tracked s at its start
         self.window_running: list[list[float]] = [[] for _ in range(envs)]
         self.window_tracked: list[list[float]] = [[] for _ in range(envs)]
-        from deploy.runtime.modes import FAULT_CAUSES
+        from deploy.core.modes import FAULT_CAUSES
 
         self.falls = np.zeros(envs, dtype=np.int64)
         self.falls_by_cause = np.zeros((envs, len(FAULT_CAUSES)), dtype=np.int64)
@@ -294,7 +294,7 @@ class CommandTracker:
         }
 
     def state_dict(self, env: int | None = None) -> dict:
-        """The tracker's state (copies; conventions of :mod:`deploy.stateful`): ``distance``,
+        """The tracker's state (copies; conventions of :mod:`deploy.core.stateful`): ``distance``,
         ``forward`` (m), ``running_time``, ``tracked_time``, ``changed_at`` (s),
         ``last_command`` (envs, 2) m/s, ``filled`` (int64),
         ``ring`` and ``command_ring`` (envs, window, 2) m/s (the averaging window's planar
@@ -387,7 +387,7 @@ class CommandTracker:
         """Account one tick of ``runtime`` (a floating-base :class:`~deploy.runtime.Runtime`);
         ``asked``: (envs, 3) the operator's command when it differs from the one the policy
         was given (a heading hold's yaw rate), for ``commanded_turn``."""
-        from deploy.runtime import RUNNING, SAFE_STOP
+        from deploy.core.modes import RUNNING, SAFE_STOP
 
         running = runtime.mode == RUNNING
         velocity = self._planar_velocity(runtime)  # (envs, 2) m/s, base frame; the truth's too
@@ -424,7 +424,7 @@ class CommandTracker:
         self.last_yaw[~running] = np.nan
         if not running.any():
             return
-        from deploy.estimation.attitude import yaw_of
+        from deploy.core.attitude import yaw_of
 
         # the truth's in simulation (the tracker filled it above), else the estimate's
         base = self._true_base if self.truth is not None else runtime.state.base
@@ -456,8 +456,8 @@ class CommandTracker:
         simulation, the true base at the stop (this tick's, filled by :meth:`_planar_velocity`):
         ``true_height_m`` (the base origin's height above the world's origin) and
         ``true_tilt_deg``, beside the estimate's ``tilt_deg``."""
+        from deploy.core.modes import FAULT_CAUSES
         from deploy.estimation.fall import SIGNALS
-        from deploy.runtime.modes import FAULT_CAUSES
 
         cause = int(runtime.cause[e])
         out = {"t_s": float(runtime.time), "cause": FAULT_CAUSES[cause] if cause >= 0 else None}
@@ -477,7 +477,7 @@ class CommandTracker:
 
     def causes(self, env: int | None = None) -> dict[str, int]:
         """``{cause: falls}`` of env ``env`` (all envs summed by default), causes that occurred."""
-        from deploy.runtime.modes import FAULT_CAUSES
+        from deploy.core.modes import FAULT_CAUSES
 
         counts = self.falls_by_cause.sum(axis=0) if env is None else self.falls_by_cause[env]
         return {c: int(n) for c, n in zip(FAULT_CAUSES, counts, strict=True) if n}

@@ -49,7 +49,7 @@ class Task(Protocol):
         """The task's stateful parts by checkpoint prefix (``goals``; ``commands``, ``tracker``)."""
 
     def state_dict(self, env: int | None = None) -> dict:
-        """The task's state, each part's fields under its prefix (:mod:`deploy.stateful`)."""
+        """The task's state, each part's fields under its prefix (:mod:`deploy.core.stateful`)."""
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
         """Inverse of :meth:`state_dict`; raises ``StateDictError`` (a field under its prefix)."""

@@ -3,7 +3,7 @@ clips planned around them.
 
 A soak session is a function of its seed and options, and resumes from any of its checkpoints
 to the same result bit for bit (:mod:`eval.soak`). The film strip uses that: while a session
-runs, :class:`FilmRecorder` (the ``film=True`` hook of :class:`eval.soak.batch.SessionBatch`) keeps
+runs, :class:`FilmRecorder` (a recorder of :class:`eval.soak.batch.SessionBatch`) keeps
 a copy of every checkpoint (``OUT/sessions/<id>/film/<tick>/``: the checkpoint's files, hard links
 where the file system allows, and the recorder's own state) and notes, at the harness's
 supervision steps (every ``eval.soak.batch.SUPERVISE_PERIOD`` s), when a hard-limit violation of the
@@ -89,10 +89,10 @@ def write_json(path: Path, doc) -> None:
 class FilmRecorder:
     """The soak's film hook: keeps every checkpoint and notes the moments worth filming.
 
-    :class:`eval.soak.batch.SessionBatch` (``film=True``) calls :meth:`supervise` at each
-    supervision step, :meth:`checkpointed` after writing its checkpoints and :meth:`finish` at the
-    end. It
-    only reads the batch: the session's results are the same with or without it.
+    :class:`eval.soak.batch.SessionBatch` (``recorders=(FilmRecorder,)``) calls :meth:`supervise`
+    at each supervision step, :meth:`checkpointed` after writing its checkpoints and
+    :meth:`finish` at the end. It only reads the batch: the session's results are the same with
+    or without it.
 
     A moment is ``{"t_s": s, "tick": control tick, "q": true joint positions then, rad}`` plus
     ``count`` (hard violations: the ``hard_limit`` tick counter), ``cause`` (latched faults) or

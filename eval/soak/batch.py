@@ -36,13 +36,13 @@ from pathlib import Path
 
 import numpy as np
 
+from deploy.core.modes import Mode
+from deploy.core.stateful import put, take
 from deploy.monitors.estimation import EstimationMonitor
 from deploy.monitors.interventions import InterventionMonitor
 from deploy.monitors.kernel import temperature_bands
 from deploy.monitors.violations import ViolationMonitor
 from deploy.robot_kind import robot_kind
-from deploy.runtime import Mode
-from deploy.stateful import put, take
 from deploy.tasks.task import task_for
 from eval.soak import checkpoint as ckpt
 from eval.soak.faults import SessionFaults
@@ -72,7 +72,7 @@ STATS = ("peak", "window_peak", "band_ticks", "over_ticks")
 class _Stats:
     """The batch's thermal accumulators (``STATS``: winding peak, window peak, ticks in the
     derating band, ticks over the maximum; (envs, n)) as a stage of a checkpoint
-    (:mod:`deploy.stateful`)."""
+    (:mod:`deploy.core.stateful`)."""
 
     def __init__(self, batch):
         self.batch = batch
@@ -108,8 +108,11 @@ class SessionBatch:
         resume: Continue from the sessions' checkpoints (they must be at the same tick).
         progress: Write ``progress.json`` per session every ``PROGRESS_PERIOD`` simulated s.
         on_progress: Optional callable, called after each progress write.
-        film: Keep every checkpoint and note the worst moments for the film strip
-            (:class:`eval.film.strip.FilmRecorder`; it only reads the batch).
+        recorders: Recorders that watch the batch, each built as ``recorder(batch)``: a class
+            with ``supervise(runtime)`` (after every control tick), ``checkpointed()`` (after
+            every checkpoint) and ``finish()`` (e.g. :class:`eval.film.strip.FilmRecorder`, which
+            keeps every checkpoint and notes the worst moments for the film strip). A class, not
+            an instance, so that a campaign's worker processes receive it by name.
         replay_stops: A floating-base robot's hard-limit stops are replayed without the stop
             (:class:`eval.soak.counterfactual.StopReplay`), so each fall says whether the robot
             was falling anyway. False in the replay's own copy of the batch.
@@ -127,7 +130,7 @@ class SessionBatch:
         resume: bool = False,
         progress: bool = True,
         on_progress=None,
-        film: bool = False,
+        recorders: tuple = (),
         replay_stops: bool = True,
     ):
         from deploy.backends.sim.engines import make_plant
@@ -242,11 +245,7 @@ class SessionBatch:
         self._wall0 = time.perf_counter()
         if resume:
             self._resume()
-        self.film = None
-        if film:
-            from eval.film.strip import FilmRecorder
-
-            self.film = FilmRecorder(self)
+        self.recorders = [recorder(self) for recorder in recorders]
 
     # ------------------------------------------------------------------ lifecycle
     def wall_elapsed(self) -> float:
@@ -401,8 +400,8 @@ class SessionBatch:
         if ticks >= nt["progress"]:
             nt["progress"] += self.periods["progress"]
             self._progress()
-        if self.film is not None:
-            self.film.supervise(rt)
+        for recorder in self.recorders:
+            recorder.supervise(rt)
 
     def stand_up(self, envs: np.ndarray) -> None:
         """A legged operator's reset, first part: put the robots of ``envs`` (bool mask) back on
@@ -478,10 +477,10 @@ class SessionBatch:
                 self._diverged(exc)
             if every and rt.ticks % every == 0 and rt.ticks < self.total_ticks:
                 self.checkpoint()
-                if self.film is not None:
-                    self.film.checkpointed()
-        if self.film is not None:
-            self.film.finish()
+                for recorder in self.recorders:
+                    recorder.checkpointed()
+        for recorder in self.recorders:
+            recorder.finish()
         results = [session_result(s) for s in self.sessions]
         for s, r in zip(self.sessions, results, strict=True):
             d = session_dir(self.out, s.config.seed)

@@ -118,7 +118,7 @@ def run_campaign(
     sessions_per_process: int = 1,
     workers: int | None = None,
     progress: bool = True,
-    film: bool = False,
+    recorders: tuple = (),
 ) -> list[dict]:
     """Run ``sessions`` seeded sessions (seeds ``template.seed + i``) and return their results.
 
@@ -135,8 +135,9 @@ def run_campaign(
         sessions_per_process: Sessions batched in one runtime.
         workers: Local processes (default: one per core).
         progress: Show a progress bar (simulated hours and speed).
-        film: Record for the film strip (:class:`eval.soak.batch.SessionBatch`;
-            :func:`eval.film.render.film_campaign` renders it afterwards).
+        recorders: Recorders each batch builds (:class:`eval.soak.batch.SessionBatch`), e.g.
+            ``(eval.film.strip.FilmRecorder,)`` for the film strip
+            (:func:`eval.film.render.film_campaign` renders it afterwards).
 
     Raises:
         SessionError: bad options (named).
@@ -167,11 +168,11 @@ def run_campaign(
     bar = _Progress(configs, out, progress)
     try:
         if executor == "local" and len(batches) == 1:  # one batch: no process to spawn
-            results = [run_sessions(batches[0], str(out), resume, bar.update, film)]
+            results = [run_sessions(batches[0], str(out), resume, bar.update, recorders)]
         elif executor == "local":
-            results = run_local(batches, out, resume, workers or default_workers(), bar, film)
+            results = run_local(batches, out, resume, workers or default_workers(), bar, recorders)
         else:
-            results = run_ray(batches, out, resume, address, workers, bar, film)
+            results = run_ray(batches, out, resume, address, workers, bar, recorders)
     finally:
         bar.close()
     by_seed = {r["seed"]: r for rs in results for r in rs}

@@ -4,7 +4,7 @@ A soak session (:mod:`eval.soak`) is one env of a :class:`~deploy.runtime.Runtim
 :class:`~deploy.backends.sim.plant.SimBackend`. So that an interrupted session resumes with
 nothing lost, to the same report as an uninterrupted run, a checkpoint holds everything a later
 tick reads: the composition of the stages' state dicts (``state_dict(env)``,
-:mod:`deploy.stateful`; each stage's documents its fields), each the env's slice, keyed
+:mod:`deploy.core.stateful`; each stage's documents its fields), each the env's slice, keyed
 ``<prefix>/<field>``. Prefixes: none for the :class:`~deploy.runtime.Runtime`; ``estimator/``,
 ``guard/``, ``smoother/``, ``policy/`` (a recurrent policy's state; nothing for a feed-forward
 one), ``backend/`` (MuJoCo's integration state, friction, sensor buffers and random stream,
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deploy.stateful import StateDictError, section
+from deploy.core.stateful import StateDictError, section
 from robots.errors import Sim2RealError
 from robots.files import atomic_write, sha256_file
 
@@ -75,7 +75,7 @@ def load_stage(stage, state: Mapping, env: int | None, where, prefix: str | None
     the fields under ``prefix`` (the whole state without one).
 
     Args:
-        stage: Any object with ``load_state_dict(state, env)`` (:mod:`deploy.stateful`).
+        stage: Any object with ``load_state_dict(state, env)`` (:mod:`deploy.core.stateful`).
         state: The checkpoint's state (:func:`read_checkpoint`).
         env: The env to load (None: every env of the stage).
         where: The checkpoint's file, for messages.

@@ -67,7 +67,7 @@ class StopReplay:
     def __call__(self, rt) -> None:
         """Replay the stops of this tick's new falls, then capture the envs that went past a
         hard limit this tick."""
-        from deploy.runtime import RUNNING
+        from deploy.core.modes import RUNNING
 
         logs = self.tracker.fall_log
         for e, log in enumerate(logs):
@@ -112,11 +112,9 @@ class StopReplay:
     def _copy(self, e: int):
         """The one-session batch of env ``e``'s session (built on first use)."""
         if e not in self.copies:
-            from eval.soak.batch import SessionBatch
-
             # the copy writes nothing there; the folder goes with this object (its finalizer)
             folder = self._folders.setdefault(e, tempfile.TemporaryDirectory(prefix="stop-replay-"))
-            self.copies[e] = SessionBatch(
+            self.copies[e] = type(self.batch)(  # the batch's own class (eval.soak.batch)
                 [self.batch.configs[e]],
                 folder.name,
                 progress=False,

@@ -25,10 +25,10 @@ def run_sessions(
     out: str,
     resume: bool = False,
     on_progress=None,
-    film: bool = False,
+    recorders: tuple = (),
 ) -> list[dict]:
-    """Run sessions as one batch in this process (the work of one executor task); ``film``: see
-    :class:`eval.soak.batch.SessionBatch`.
+    """Run sessions as one batch in this process (the work of one executor task); ``recorders``:
+    see :class:`eval.soak.batch.SessionBatch`.
 
     Finished sessions (``result.json``) are skipped when resuming. If MuJoCo diverges in one
     session, it ends there (``diverged`` set) and the others continue from their last
@@ -49,7 +49,9 @@ def run_sessions(
         pending = [c for c in configs if c.seed not in results]
     while pending:
         try:
-            batch = SessionBatch(pending, out, resume=resume, on_progress=on_progress, film=film)
+            batch = SessionBatch(
+                pending, out, resume=resume, on_progress=on_progress, recorders=recorders
+            )
             for r in batch.run():
                 results[r["seed"]] = r
             pending = []
@@ -70,7 +72,7 @@ def default_workers() -> int:
 
 
 def run_local(
-    batches: list[list[SessionConfig]], out: Path, resume: bool, workers: int, bar, film=False
+    batches: list[list[SessionConfig]], out: Path, resume: bool, workers: int, bar, recorders=()
 ) -> list[list[dict]]:
     """Run each batch as a :func:`run_sessions` task in a pool of ``workers`` local processes
     (at most one per batch; ``spawn``: the parent holds ONNX Runtime threads); ``bar.update()``
@@ -84,7 +86,7 @@ def run_local(
     ctx = multiprocessing.get_context("spawn")  # the parent holds ONNX Runtime threads: no fork
     workers = min(workers, len(batches))
     with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        futures = [pool.submit(run_sessions, b, str(out), resume, None, film) for b in batches]
+        futures = [pool.submit(run_sessions, b, str(out), resume, None, recorders) for b in batches]
         pending = set(futures)
         while pending:
             _, pending = concurrent.futures.wait(
@@ -101,7 +103,7 @@ def run_ray(
     address: str | None,
     workers: int | None,
     bar,
-    film=False,
+    recorders=(),
 ) -> list[list[dict]]:
     """Run each batch as a :func:`run_sessions` Ray task (one CPU each); ``bar.update()`` is
     called while waiting.
@@ -126,7 +128,7 @@ def run_ray(
         started = True
     try:
         task = ray.remote(num_cpus=1)(run_sessions)
-        refs = [task.remote(b, str(out), resume, None, film) for b in batches]
+        refs = [task.remote(b, str(out), resume, None, recorders) for b in batches]
         pending = list(refs)
         while pending:
             _, pending = ray.wait(pending, num_returns=len(pending), timeout=0.5)

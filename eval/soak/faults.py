@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from deploy.backends.base import SensorFrame
+from deploy.core.backend import SensorFrame
 
 
 class _BackendSlice:

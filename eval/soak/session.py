@@ -31,17 +31,13 @@ import math
 import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from deploy.runtime import FAULT_CAUSES, Mode
-from deploy.stateful import prefixed
+from deploy.core.modes import FAULT_CAUSES, Mode
+from deploy.core.stateful import prefixed
 from eval.soak import checkpoint as ckpt
 from eval.world.fault_schedule import FAULT_SETTLE
 from eval.world.session_ranges import SessionRanges
 from robots.errors import Sim2RealError
-
-if TYPE_CHECKING:
-    from eval.soak.batch import SessionBatch
 
 #: s before a fault's onset its injector is armed.
 ARM_LEAD = 0.5
@@ -129,7 +125,7 @@ class SessionConfig:
         ``policy`` with the contract of ``spec`` when given, else its own metadata.
 
         Raises:
-            deploy.policy.onnx_checks.PolicyLoadError, deploy.spec.policy_spec.SpecError: an
+            deploy.spec.onnx_checks.PolicyLoadError, deploy.spec.policy_spec.SpecError: an
                 unreadable policy or spec (the message names the file).
         """
         from deploy.policy.onnx_policy import OnnxPolicy
@@ -189,7 +185,7 @@ class Session:
         draw: Its randomization (:func:`eval.world.session_draw.sample_session`).
     """
 
-    def __init__(self, batch: SessionBatch, e: int, config: SessionConfig, draw):
+    def __init__(self, batch, e: int, config: SessionConfig, draw):
         self.batch, self.e, self.config, self.draw = batch, e, config, draw
         rt, robot = batch.rt, batch.robot
         #: env e of the batch's task (goals or velocity commands), on this session's own stream

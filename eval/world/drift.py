@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from eval.world.fault_schedule import check_range
+from eval.world.checks import check_range
 from robots import Robot
 
 

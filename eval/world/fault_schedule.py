@@ -21,19 +21,11 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
+from eval.world.checks import check_range
 from robots import Robot
 
 if TYPE_CHECKING:
     from eval.world.sensors import SensorDraw
-
-
-def check_range(owner: str, name: str, lo: float, hi: float, minimum: float = 0.0) -> None:
-    """Raise ``ValueError`` naming ``owner.name`` unless ``minimum <= lo <= hi``, both finite."""
-    if not (np.isfinite(lo) and np.isfinite(hi) and minimum <= lo <= hi):
-        raise ValueError(
-            f"{owner}.{name}: expected a range (low, high) with {minimum} <= low <= high, "
-            f"got ({lo}, {hi})"
-        )
 
 
 @dataclass(frozen=True)

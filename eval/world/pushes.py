@@ -177,7 +177,7 @@ class DomainPushes:
 
     def __call__(self, rt, backend) -> None:
         """Push every env whose robot is RUNNING when its push is due."""
-        from deploy.runtime import RUNNING
+        from deploy.core.modes import RUNNING
 
         if self.ranges.legacy:  # legged_gym: tick k * every, the same for every env
             if rt.ticks % self.every:

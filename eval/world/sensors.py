@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from eval.world.fault_schedule import check_range
+from eval.world.checks import check_range
 from robots import Robot
 
 

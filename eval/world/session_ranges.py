@@ -11,9 +11,10 @@ from dataclasses import dataclass
 
 from deploy.robot_kind import robot_kind
 from deploy.tasks.locomotion import CommandRanges
+from eval.world.checks import check_range
 from eval.world.drift import DriftRanges
 from eval.world.dynamics import ComOffsetRanges, DynamicsRanges
-from eval.world.fault_schedule import FaultRanges, check_range, fault_ranges
+from eval.world.fault_schedule import FaultRanges, fault_ranges
 from eval.world.floor import FLOOR_FRICTION
 from eval.world.pushes import PushRanges
 from eval.world.sensors import ImuRanges, SensorRanges

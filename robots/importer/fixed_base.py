@@ -23,7 +23,7 @@ from robots.importer.model import (
 from robots.importer.source import PreparedSource, RobotImportError
 from robots.importer.toml_text import write_robot_toml
 from robots.loading import load_robot
-from robots.packages import PACKAGE_SCHEME, _resolved_mjcf
+from robots.packages import PACKAGE_SCHEME, resolved_mjcf
 from robots.robot import RobotSpecError
 
 
@@ -47,7 +47,7 @@ def import_fixed_base(
     physics_timestep: float,
     log,
 ) -> None:
-    """The fixed-base half of :func:`robots.importer.cli.import_robot` (its arguments).
+    """The fixed-base half of :func:`robots.importer.pipeline.import_robot` (its arguments).
 
     Raises:
         RobotImportError: see :func:`robots.importer.model.choose_ee_body`, or a result that does
@@ -71,7 +71,7 @@ def import_fixed_base(
         finish_arm_mjcf(spec, ee_body, ee_frame, urdf, mjcf_path)
         write_pairs(mjcf_path, urdf, log)  # the MJCF's <contact><pair>s
         # the MJCF writes ranges to 6 significant digits: robot.toml must say the same
-        written = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
+        written = mujoco.MjModel.from_xml_path(str(resolved_mjcf(mjcf_path)))
         for i, j in enumerate(joint_names):
             lo, hi = (float(x) for x in written.jnt_range[i])
             limits_out[j] = (lo, hi, *limits_out[j][2:])

@@ -30,7 +30,7 @@ from robots.importer.toml_text import (
     motor_table_lines,
     sensor_lines,
 )
-from robots.packages import _resolved_mjcf
+from robots.packages import resolved_mjcf
 
 #: Link pairs closer than this at the home pose (m) are not checked and never collide in the
 #: plant: the importer's bounding boxes of neighbouring legs' links (the rear hips of go2 are
@@ -171,7 +171,7 @@ def _joint_to_base(prepared: PreparedSource, link: str) -> str | None:
 
 def robot_mass(mjcf_path: Path) -> float:
     """Total mass (kg) of the robot in ``mjcf_path`` (MuJoCo, resolved meshdir)."""
-    model = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
+    model = mujoco.MjModel.from_xml_path(str(resolved_mjcf(mjcf_path)))
     return float(model.body_subtreemass[0])
 
 
@@ -396,7 +396,7 @@ def import_floating_base(
     target_limits: str = "pd",
     unitree: dict | None = None,
 ) -> None:
-    """The floating-base half of :func:`robots.importer.cli.import_robot` (its arguments).
+    """The floating-base half of :func:`robots.importer.pipeline.import_robot` (its arguments).
 
     Raises:
         RobotImportError: see :func:`choose_feet`, :func:`choose_imu`,
@@ -480,7 +480,7 @@ def import_floating_base(
         write_pairs(mjcf_path, urdf, log)  # the MJCF's <contact><pair>s, the floor named
         for foot, shape in legged["foot_shapes"].items():
             log(f"note: foot {foot}: {shape}")
-        written = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
+        written = mujoco.MjModel.from_xml_path(str(resolved_mjcf(mjcf_path)))
         for i, j in enumerate(joint_names):  # the MJCF writes 6 significant digits
             lo, hi = (float(x) for x in written.jnt_range[i + 1])
             limits_out[j] = (lo, hi, *limits_out[j][2:])

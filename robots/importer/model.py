@@ -19,7 +19,7 @@ import numpy as np
 from robots.importer.contact_pairs import rename_pair_geoms
 from robots.importer.physics_option import apply_options, source_options
 from robots.importer.source import PreparedSource, RobotImportError, SrdfInfo
-from robots.packages import _resolved_mjcf
+from robots.packages import resolved_mjcf
 from robots.schema import MotorConfig
 
 #: Soft-limit fraction written for every joint (as arm3/arm6).
@@ -313,7 +313,7 @@ def choose_collision_pairs(
     """
     import pinocchio as pin
 
-    resolved = _resolved_mjcf(mjcf_path)
+    resolved = resolved_mjcf(mjcf_path)
     try:
         pin_model = pin.buildModelFromMJCF(str(resolved))
         geom = pin.buildGeomFromMJCF(pin_model, str(resolved), pin.VISUAL)
@@ -384,7 +384,7 @@ def sample_workspace(mjcf_path: Path, joint_names, limits, home) -> dict:
     them when fewer than ``TASK_MIN_HITS`` fall inside. Success radius 6 % of the largest reach
     (at least 1 cm).
     """
-    model = mujoco.MjModel.from_xml_path(str(_resolved_mjcf(mjcf_path)))
+    model = mujoco.MjModel.from_xml_path(str(resolved_mjcf(mjcf_path)))
     data = mujoco.MjData(model)
     site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "ee")
     lo = np.array([limits[j][0] for j in joint_names])

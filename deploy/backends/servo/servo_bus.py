@@ -1,4 +1,4 @@
-"""A serial-bus servo arm as a :class:`~deploy.backends.base.Backend` (one robot, wall clock).
+"""A serial-bus servo arm as a :class:`~deploy.core.backend.Backend` (one robot, wall clock).
 
 What Feetech STS and Dynamixel X buses share; :mod:`deploy.backends.servo.feetech` and
 :mod:`deploy.backends.servo.dynamixel` bind it to their vendor's SDK (``scservo_sdk``,
@@ -36,7 +36,6 @@ from pathlib import Path
 
 import numpy as np
 
-from deploy.backends.base import BackendLifecycle, SensorFrame, checked_command
 from deploy.backends.servo.calibration import (
     JointCalibration,
     calibration_arrays,
@@ -45,7 +44,8 @@ from deploy.backends.servo.calibration import (
 )
 from deploy.backends.servo.control_tables import ServoModel, model_for_motor
 from deploy.backends.servo.torque_watch import TORQUE_OFF, TorqueWatch
-from deploy.observe.telemetry import LatencyHistogram
+from deploy.core.backend import BackendLifecycle, SensorFrame, checked_command
+from deploy.core.latency import LatencyHistogram
 from robots import Robot
 from robots.errors import Sim2RealError
 

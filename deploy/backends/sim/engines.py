@@ -8,7 +8,7 @@
   ``pybullet``).
 
 Both take the same arguments and keep the same interfaces
-(:class:`~deploy.backends.base.Backend`, :class:`~deploy.backends.base.SimulatedPlant`, the state
+(:class:`~deploy.core.backend.Backend`, :class:`~deploy.core.backend.SimulatedPlant`, the state
 dict), so the runtime, monitors and reports do not know which one runs.
 """
 

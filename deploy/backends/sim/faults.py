@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deploy.backends.base import SensorFrame
-from deploy.stateful import (
+from deploy.core.backend import SensorFrame
+from deploy.core.stateful import (
     StateDictError,
     check,
     from_json,
@@ -112,10 +112,10 @@ class FaultInjector:
 
     # ------------------------------------------------------------------ state
     def state_dict(self, env: int | None = None) -> dict:
-        """The injector's state (copies; conventions of :mod:`deploy.stateful`): the backend's
+        """The injector's state (copies; conventions of :mod:`deploy.core.stateful`): the backend's
         settings without faults ``base_dropout`` (envs,) and ``base_latency`` (envs,) int64;
         ``frozen`` (bool) and, while a ``stale`` fault holds one, the frozen frame's fields
-        ``frozen/<field>`` (:class:`~deploy.backends.base.SensorFrame`, env axis first); shared:
+        ``frozen/<field>`` (:class:`~deploy.core.backend.SensorFrame`, env axis first); shared:
         ``active`` (int64, indices into the sorted schedule) and ``log`` (JSON text). The
         schedule itself is configuration: load into an injector built with the same faults.
         """

@@ -30,7 +30,7 @@ import mujoco
 import numpy as np
 
 from deploy.backends.sim.sensors import draw
-from deploy.estimation.attitude import align_up, quat_multiply, rotation_quaternions
+from deploy.core.attitude import align_up, quat_multiply, rotation_quaternions
 from robots import Robot
 
 

@@ -10,8 +10,8 @@ floating base's IMU and foot contact (:mod:`deploy.backends.sim.legged_sensors`)
 (:mod:`deploy.backends.sim.drives`: the mode's servo loop of :meth:`robots.Robot.mjspec`, derated
 torque limits, anti-windup) and the state dict (:mod:`deploy.backends.sim.state`). The true state
 (:meth:`SimBackend.true_position`, :meth:`SimBackend.true_base_state`, ...) is for evaluation only.
-Interfaces: :class:`~deploy.backends.base.Backend` (lifecycle calls are no-ops) and
-:class:`~deploy.backends.base.SimulatedPlant` (ground truth, fault hooks, external forces).
+Interfaces: :class:`~deploy.core.backend.Backend` (lifecycle calls are no-ops) and
+:class:`~deploy.core.backend.SimulatedPlant` (ground truth, fault hooks, external forces).
 
 Errors: MuJoCo's autoreset is disabled and its warning counters are read after every ``advance``:
 a divergence raises :class:`SimulationDivergedError`. A non-finite command raises
@@ -25,12 +25,12 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
-from deploy.backends.base import BackendLifecycle, SensorFrame
 from deploy.backends.sim.drives import SimDrives
 from deploy.backends.sim.drives_kernel import derating_due, windup_exceeded
 from deploy.backends.sim.legged_sensors import BaseSensorModel
 from deploy.backends.sim.sensors import JointSensorModel
 from deploy.backends.sim.state import SimState
+from deploy.core.backend import BackendLifecycle, SensorFrame
 from deploy.kernels import all_finite
 from robots import CONTROL_MODES, Robot
 from robots.chain_bounds import motion_bounds
@@ -491,9 +491,3 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
         self._joint_sensors.sample(self.tick, self.time, q, self.thermal.winding_temperature, dq)
         if self._base_sensors is not None:
             self._base_sensors.sample(self.tick, self.time)
-
-
-if __name__ == "__main__":  # the demo's former home: python -m deploy.backends.sim.demo
-    from deploy.backends.sim.demo import main
-
-    raise SystemExit(main())

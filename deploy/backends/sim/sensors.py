@@ -2,7 +2,7 @@
 
 :class:`JointSensorModel` belongs to a :class:`deploy.backends.sim.plant.SimBackend`; it turns the
 plant's true joint angles and winding temperatures into what a drive reports, into the backend's
-:class:`~deploy.backends.base.SensorFrame`.
+:class:`~deploy.core.backend.SensorFrame`.
 
 Sensor model (defaults from the robot's ``[sensors]`` table), applied in this order:
     1. a sample of the true joint angle at the encoder's own rate,
@@ -25,9 +25,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from deploy.backends.base import SensorFrame
 from deploy.backends.sim.sensors_kernel import encoder_read, encoder_sample
-from deploy.stateful import StateDictError, rng_state, set_rng_state, to_json
+from deploy.core.backend import SensorFrame
+from deploy.core.stateful import StateDictError, rng_state, set_rng_state, to_json
 from robots import Robot
 
 

@@ -6,7 +6,7 @@ A plant's state is its per-env arrays (the drive command and torque, the derated
 the joint sensors' settings and latency buffers, the last sensor frame, the thermal nodes, and a
 floating base's IMU and contact state), MuJoCo's own state of each env (``mjSTATE_INTEGRATION``,
 the warning counters and the friction that drift edits), the tick and the sensor streams; the
-conventions are :mod:`deploy.stateful`'s.
+conventions are :mod:`deploy.core.stateful`'s.
 
 :class:`SimState` is a base class of :class:`~deploy.backends.sim.plant.SimBackend`; its methods
 work on the backend's attributes (set in ``SimBackend.__init__``).
@@ -17,7 +17,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from deploy.stateful import check, env_index, from_json, put, scalar, take
+from deploy.core.stateful import check, env_index, from_json, put, scalar, take
 
 #: MuJoCo's state a plant's ``state_dict`` keeps: everything a step reads (time, qpos, qvel, act,
 #: warm start, ctrl, applied forces, mocap, equality flags, user data, plugin state).
@@ -68,7 +68,7 @@ class SimState:
         }
 
     def state_dict(self, env: int | None = None) -> dict:
-        """The plant's state (copies; conventions of :mod:`deploy.stateful`).
+        """The plant's state (copies; conventions of :mod:`deploy.core.stateful`).
 
         Per env, env axis first (length 1 for one env ``env``): ``mujoco/state`` (MuJoCo's
         ``mjSTATE_INTEGRATION``), ``mujoco/warnings``, ``mujoco/dof_frictionloss``; the drive

@@ -5,7 +5,7 @@ The messages are Unitree's, written from its public IDL: :mod:`.unitree_go` (Go2
 their C and XCDR1 layouts, :mod:`.crc` the CRC-32 the robot checks, :mod:`.codec` encodes and
 decodes them through numpy records, :mod:`.family` holds what differs between the families,
 :mod:`.dds` the domain, writers and readers of encoded samples, :mod:`.motion_switcher` the
-sport-mode check. :mod:`.backend` is the :class:`~deploy.backends.base.Backend`,
+sport-mode check. :mod:`.backend` is the :class:`~deploy.core.backend.Backend`,
 :mod:`.bringup` its ``open()``, :mod:`.options` its registration; :mod:`.emulator` stands in for
 the robot with the MuJoCo plant.
 

@@ -1,4 +1,4 @@
-"""A Unitree robot's low-level DDS interface as a :class:`~deploy.backends.base.Backend` (one
+"""A Unitree robot's low-level DDS interface as a :class:`~deploy.core.backend.Backend` (one
 robot, wall clock): ``deploy-run --backend unitree``.
 
 The robot's PD runs on each motor's driver, ``tau = tau_ff + kp (q_des - q) + kd (dq_des - dq)``:
@@ -38,13 +38,13 @@ from collections import Counter
 
 import numpy as np
 
-from deploy.backends.base import BackendLifecycle, SensorFrame, checked_command
 from deploy.backends.unitree import bringup
 from deploy.backends.unitree import family as families
 from deploy.backends.unitree.codec import MessageCodec
 from deploy.backends.unitree.dds import DdsLink
 from deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
-from deploy.observe.telemetry import LatencyHistogram
+from deploy.core.backend import BackendLifecycle, SensorFrame, checked_command
+from deploy.core.latency import LatencyHistogram
 from robots import Robot
 
 DROPOUT_KINDS = ("lost", "stale", "bad_crc", "malformed")

@@ -49,10 +49,10 @@ def read_policy_contract(path: str | Path) -> ForeignContract:
 
     Raises:
         ForeignFormatError: the file is missing or not an ONNX model (the message of
-            :func:`deploy.policy.onnx_checks.read_model`), no format recognises it
+            :func:`deploy.spec.onnx_checks.read_model`), no format recognises it
             (naming the formats), or its contract cannot be read (naming the file, format, key).
     """
-    from deploy.policy.onnx_checks import PolicyLoadError, read_model
+    from deploy.spec.onnx_checks import PolicyLoadError, read_model
 
     path = Path(path)
     try:

@@ -41,7 +41,7 @@ from deploy.backends.unitree.emulator.faults import EmulatorFaults
 from deploy.backends.unitree.emulator.lowstate import LowStateBuilder
 from deploy.backends.unitree.emulator.services import MotionSwitcherService
 from deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
-from deploy.observe.telemetry import LatencyHistogram
+from deploy.core.latency import LatencyHistogram
 from robots import Robot, load_robot
 
 #: s the plant may fall behind the wall clock before its time origin moves up.

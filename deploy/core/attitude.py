@@ -1,6 +1,6 @@
 """Attitude math of the base estimator: quaternions ``[w, x, y, z]`` (base-to-world), rotation
 vectors, projected gravity and tilt. Angles in rad, arrays batch-first. These numpy functions are
-the references of the compiled rows of :mod:`deploy.estimation.attitude_kernel` (the same numbers);
+the references of the compiled rows of :mod:`deploy.core.attitude_kernel` (the same numbers);
 :func:`quaternion_to_matrix` itself goes through its kernel for rows and single quaternions.
 """
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from deploy.estimation.attitude_kernel import quat_to_mat_rows
+from deploy.core.attitude_kernel import quat_to_mat_rows
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:

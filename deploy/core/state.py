@@ -1,4 +1,5 @@
-"""RobotState: what the estimator and the kinematics stage know of a batch of robots."""
+"""RobotState: what the estimator and the kinematics stage know of a batch of robots, and
+BaseState: a floating base's estimate within it."""
 
 from __future__ import annotations
 
@@ -7,7 +8,54 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from deploy.core.attitude import quaternion_to_matrix, tilt_of
 from robots import Robot
+
+
+@dataclass
+class BaseState:
+    """The base estimate of ``envs`` robots at ``frame.time``.
+
+    Attributes:
+        orientation: (envs, 4) base-to-world unit quaternion ``[w, x, y, z]`` (yaw unobserved).
+        projected_gravity: (envs, 3) unit vector, gravity's direction in the base frame.
+        angular_velocity: (envs, 3) rad/s, base frame, gyroscope bias removed.
+        linear_velocity: (envs, 3) m/s, base frame.
+        linear_velocity_world: (envs, 3) m/s, in the (yaw-drifting) world frame of the filter.
+    """
+
+    orientation: np.ndarray
+    projected_gravity: np.ndarray
+    angular_velocity: np.ndarray
+    linear_velocity: np.ndarray
+    linear_velocity_world: np.ndarray
+
+    @classmethod
+    def zeros(cls, envs: int) -> BaseState:
+        q = np.zeros((envs, 4))
+        q[:, 0] = 1.0
+        g = np.zeros((envs, 3))
+        g[:, 2] = -1.0
+        return cls(q, g, np.zeros((envs, 3)), np.zeros((envs, 3)), np.zeros((envs, 3)))
+
+    def set_truth(self, truth: np.ndarray) -> BaseState:
+        """Fill every field from a simulated base's true state (evaluation, parity replays and
+        training rewards): ``truth`` (envs, 13) as :meth:`deploy.backends.sim.plant.SimBackend.
+        true_base_state` gives it (position m, quaternion ``[w, x, y, z]``, linear velocity m/s
+        world, angular velocity rad/s base frame). Returns self."""
+        rot = quaternion_to_matrix(truth[:, 3:7])
+        velocity = truth[:, 7:10]
+        self.orientation[:] = truth[:, 3:7]
+        self.projected_gravity[:] = -rot[:, 2]
+        self.angular_velocity[:] = truth[:, 10:13]
+        self.linear_velocity_world[:] = velocity
+        self.linear_velocity[:] = np.matmul(rot.transpose(0, 2, 1), velocity[:, :, None])[:, :, 0]
+        return self
+
+    @property
+    def tilt(self) -> np.ndarray:
+        """(envs,) rad, angle between the base's z axis and the world's up (:func:`tilt_of`)."""
+        return tilt_of(self.projected_gravity)
 
 
 @dataclass
@@ -22,7 +70,7 @@ class RobotState:
         winding_temperature: (envs, n) degC, as last reported by the drives.
         last_action: (envs, n), the policy's previous action in [-1, 1] (0 before the first).
         base: Floating-base robots: the base estimate
-            (:class:`deploy.estimation.base.BaseState`); None for a fixed-base arm.
+            (:class:`deploy.core.state.BaseState`); None for a fixed-base arm.
         foot_contact: Floating-base robots: (envs, n_feet) 1.0 where a foot touches, else 0.0.
         command: Floating-base robots: (envs, 3) the velocity command (vx, vy m/s, yaw rate
             rad/s, base frame).
@@ -55,7 +103,7 @@ class RobotState:
     def legged(cls, envs: int, n_joints: int, n_feet: int, ambient: float = 25.0) -> RobotState:
         """A floating-base robot's state: :meth:`zeros` with the base estimate upright at rest,
         no foot contact, a zero command and the clock at 0."""
-        from deploy.estimation.base import BaseState
+        from deploy.core.state import BaseState
 
         state = cls.zeros(envs, n_joints, ambient)
         state.base = BaseState.zeros(envs)

@@ -1,4 +1,4 @@
-"""``python -m deploy.backends.emulator.hil``: deploy-run on a servo bus, against the emulator.
+"""``python -m deploy.harness.servo_hil``: deploy-run on a servo bus, against the emulator.
 
 Hardware-in-the-loop without the hardware: starts the wire-protocol emulator
 (``python -m deploy.backends.emulator``) in its own process, reads the pseudo-terminal it
@@ -7,7 +7,7 @@ second process (two processes, as a real bus has: the emulator's plant and the S
 receive loop would otherwise share one interpreter lock), then stops the emulator and prints
 its bus counters. ``make hil`` runs the shipped SO-101 policy through it for 60 s::
 
-    python -m deploy.backends.emulator.hil --robot so101 --protocol feetech \\
+    python -m deploy.harness.servo_hil --robot so101 --protocol feetech \\
         [--fault corrupt:0.01 ...] -- --policy policies/so101.onnx --duration 60
 
 The exit code is deploy-run's (0 clean, 2 fault, 3 bad input); 3 also when the emulator does
@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the emulator and deploy-run against it; see the module docstring."""
     argv, rest = split_passthrough(argv)
     p = argparse.ArgumentParser(
-        prog="python -m deploy.backends.emulator.hil",
+        prog="python -m deploy.harness.servo_hil",
         description="deploy-run on a servo bus served by the wire-protocol emulator; arguments "
         "after '--' go to deploy-run.",
     )

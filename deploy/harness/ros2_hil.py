@@ -1,5 +1,5 @@
-"""``python -m deploy.ros2.hil``: deploy-run through the ros2 backend against the ros2_control
-emulator, then the same run on the simulated plant, side by side.
+"""``python -m deploy.harness.ros2_hil``: deploy-run through the ros2 backend against the
+ros2_control emulator, then the same run on the simulated plant, side by side.
 
 Starts the emulator (``python -m deploy.ros2.emulator``, its own process, as a robot's
 controller manager is) on a ROS 2 domain of its own on this computer
@@ -10,7 +10,7 @@ really did: its true violations), then runs ``deploy-run --backend sim`` with th
 ``AGREEMENT`` (goals) / the larger of ``AGREEMENT`` and one tick (violations). ``make hil
 ROBOT=arm3 BACKEND=ros2`` runs the shipped arm3 policy through it for 60 s::
 
-    python -m deploy.ros2.hil --robot arm3 -- --policy policies/arm.onnx --duration 60
+    python -m deploy.harness.ros2_hil --robot arm3 -- --policy policies/arm.onnx --duration 60
 
 The exit code is the ros2 run's deploy-run's (0 clean, 1 hard violation, 2 fault, 3 bad input;
 3 also when the emulator does not start), or 5 when the two runs disagree.
@@ -27,8 +27,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from deploy.backends.unitree.emulator.hil import stop_emulator
 from deploy.cli.run_parser import split_passthrough
+from deploy.harness.unitree_hil import stop_emulator
 
 #: s to wait for the emulator's ready line (loading the robot and its plant, joining ROS 2).
 START_TIMEOUT = 60.0
@@ -48,7 +48,7 @@ def ros_environment(domain_id: int) -> dict[str, str]:
 
 def start_emulator(robot: str, mode: str, env: dict, extra=()) -> tuple[subprocess.Popen, str]:
     """The emulator in its own process and its ready line ('' if it exits or stays silent for
-    ``START_TIMEOUT`` s). Stop it with :func:`deploy.backends.unitree.emulator.hil.stop_emulator`
+    ``START_TIMEOUT`` s). Stop it with :func:`deploy.harness.unitree_hil.stop_emulator`
     (SIGTERM; it prints its counters on stderr)."""
     cmd = [sys.executable, "-m", "deploy.ros2.emulator", "--robot", robot, "--mode", mode]
     proc = subprocess.Popen(
@@ -80,7 +80,7 @@ def policy_mode(policy: str, robot: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     argv, rest = split_passthrough(argv)
     p = argparse.ArgumentParser(
-        prog="python -m deploy.ros2.hil",
+        prog="python -m deploy.harness.ros2_hil",
         description="deploy-run --backend ros2 against the ros2_control emulator, then "
         "--backend sim; arguments after '--' go to both deploy-runs.",
     )

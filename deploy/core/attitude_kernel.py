@@ -1,4 +1,4 @@
-"""Compiled rows of the attitude math (:mod:`deploy.estimation.attitude`): rotation matrices and
+"""Compiled rows of the attitude math (:mod:`deploy.core.attitude`): rotation matrices and
 Hamilton products of k quaternions ``[w, x, y, z]``, the same expressions in the same order, so
 both give the same numbers bit for bit. For one robot the numpy versions cost most of the legged
 estimate stage (each ``np.stack`` of small arrays is a few microseconds); these cost one call.
@@ -47,7 +47,7 @@ def _norm(v0: float, v1: float, v2: float, v3: float) -> float:
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
 def rotation_rows(rotvec, out) -> None:
-    """``out[e]`` (4,) = :func:`deploy.estimation.attitude.rotation_quaternions` of ``rotvec[e]``
+    """``out[e]`` (4,) = :func:`deploy.core.attitude.rotation_quaternions` of ``rotvec[e]``
     (k, 3) rad (below 1e-12 rad the first-order ``[1, rotvec / 2]``)."""
     for e in range(rotvec.shape[0]):
         r0, r1, r2 = rotvec[e, 0], rotvec[e, 1], rotvec[e, 2]

@@ -231,9 +231,9 @@ def _onnx_metadata(path: Path) -> dict[str, str]:
 
     Raises:
         ExportError: not a readable ONNX model (the message of
-            :func:`deploy.policy.onnx_checks.read_model`).
+            :func:`deploy.spec.onnx_checks.read_model`).
     """
-    from deploy.policy.onnx_checks import PolicyLoadError, read_model
+    from deploy.spec.onnx_checks import PolicyLoadError, read_model
 
     try:
         model = read_model(path)
@@ -287,3 +287,7 @@ def _command_init(path: Path) -> str:
 
     cmd = read_config(path).cmd_init
     return "" if cmd is None else ",".join(f"{c:g}" for c in cmd)
+
+
+if __name__ == "__main__":  # python -m deploy.cli.policy_export, as policy-export
+    raise SystemExit(main())

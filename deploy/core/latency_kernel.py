@@ -1,5 +1,5 @@
 """Kernel of the runtime's per-tick latency bookkeeping
-(``deploy.observe.telemetry.LatencyHistogram``).
+(``deploy.core.latency.LatencyHistogram``).
 
 One call does what ``latency.add_stages(stamps)`` and ``tick_cost.add(0, cost)`` do: the stage
 durations between consecutive stamps into the stage histograms, and the runtime's cost without

@@ -1,4 +1,4 @@
-"""``python -m deploy.backends.unitree.emulator.hil``: deploy-run over DDS against the emulator.
+"""``python -m deploy.harness.unitree_hil``: deploy-run over DDS against the emulator.
 
 Hardware-in-the-loop without the robot: starts the Unitree emulator
 (``python -m deploy.backends.unitree.emulator``) in its own process on the loopback interface,
@@ -9,7 +9,7 @@ lock), then stops the emulator, which prints its counters (LowState rate, comman
 latency, drivers cut off, the base's true path length). ``make hil ROBOT=go2`` runs the shipped
 Go2 policy through it for 60 s::
 
-    python -m deploy.backends.unitree.emulator.hil --robot go2 [--fault lose:0.01 ...] -- \\
+    python -m deploy.harness.unitree_hil --robot go2 [--fault lose:0.01 ...] -- \\
         --policy policies/go2.onnx --command 0.5,0,0 --duration 60
 
 The exit code is deploy-run's (0 clean, 2 fault, 3 bad input); 3 also when the emulator does
@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the emulator and deploy-run against it; see the module docstring."""
     argv, rest = split_passthrough(argv)
     p = argparse.ArgumentParser(
-        prog="python -m deploy.backends.unitree.emulator.hil",
+        prog="python -m deploy.harness.unitree_hil",
         description="deploy-run --backend unitree against the Unitree emulator on the loopback "
         "interface; arguments after '--' go to deploy-run.",
     )

@@ -1,0 +1,10 @@
+"""The top floor of ``deploy``: hardware-in-the-loop harnesses, each an emulator of a real
+interface started beside ``deploy-run`` with its own command line.
+
+- :mod:`deploy.harness.servo_hil`: the serial-bus servos (Feetech, Dynamixel) on a pseudo-terminal;
+- :mod:`deploy.harness.unitree_hil`: a Unitree robot's low-level DDS topics;
+- :mod:`deploy.harness.ros2_hil`: a robot behind ROS 2 topics.
+
+A harness may import every room below it (the command line's parser, the runtime, the emulators);
+nothing imports a harness.
+"""

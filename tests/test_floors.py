@@ -1,0 +1,109 @@
+"""The floors the code keeps: every room is placed on a floor of the import contract (a room left
+out would be held to nothing), the contract holds (``lint-imports``, as ``make lint`` runs it), and
+no private name (``_x``) is imported from another room."""
+
+import ast
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("deploy", "eval", "robots", "policies")
+
+
+def _contracts() -> dict[str, dict]:
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]
+    return {c["id"]: c for c in config["contracts"]}
+
+
+def _floor_rooms() -> set[str]:
+    return {room.strip() for layer in _contracts()["floors"]["layers"] for room in layer.split("|")}
+
+
+def room_of(module: str) -> str:
+    """The room of a dotted module name: ``deploy.<room>`` and ``eval.<room>`` (a subpackage or
+    a top-level module), ``robots`` and ``policies`` whole (their floor is one room each)."""
+    parts = module.split(".")
+    if parts[0] in ("robots", "policies") or len(parts) == 1:
+        return parts[0]
+    return ".".join(parts[:2])
+
+
+def _modules(folder: str) -> list[tuple[str, Path]]:
+    out = []
+    for path in sorted((ROOT / folder).rglob("*.py")):
+        rel = path.relative_to(ROOT).with_suffix("")
+        parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+        out.append((".".join(parts), path))
+    return out
+
+
+def test_every_room_of_deploy_and_eval_stands_on_a_floor():
+    floors = _floor_rooms()
+    rooms = {
+        room_of(name)
+        for pkg in ("deploy", "eval")
+        for name, _ in _modules(pkg)
+        if "." in name and not name.endswith("__main__")
+    }
+    assert rooms - floors == set(), "rooms missing from [tool.importlinter] floors in pyproject"
+    assert {"robots", "policies"} <= floors
+    assert floors - rooms - {"robots", "policies"} == set(), "floors naming no room"
+
+
+def test_room_of_names_the_room():
+    assert room_of("deploy.safety.guard") == "deploy.safety"
+    assert room_of("deploy.robot_kind") == "deploy.robot_kind"
+    assert room_of("eval.world.pushes") == "eval.world"
+    assert room_of("robots.importer.mjcf") == "robots"
+
+
+def test_no_private_name_is_imported_from_another_room():
+    crossing = []
+    for folder in (*PACKAGES, "tests", "bench"):
+        for name, path in _modules(folder):
+            if "tests/data" in path.as_posix():
+                continue
+            here = room_of(name) if folder in PACKAGES else folder
+            for node in ast.walk(ast.parse(path.read_text())):
+                if not (isinstance(node, ast.ImportFrom) and node.module and node.level == 0):
+                    continue
+                if node.module.split(".")[0] not in PACKAGES or room_of(node.module) == here:
+                    continue
+                crossing += [
+                    f"{path.relative_to(ROOT)}: {node.module}.{a.name}"
+                    for a in node.names
+                    if a.name.startswith("_") and not a.name.startswith("__")
+                ]
+    assert crossing == []
+
+
+@pytest.mark.skipif(
+    shutil.which("lint-imports") is None
+    and not (Path(sys.executable).parent / "lint-imports").exists(),
+    reason="import-linter is not installed (the dev extra)",
+)
+def test_the_floors_hold_and_a_room_importing_upwards_breaks_them(tmp_path):
+    """``lint-imports`` passes on the repository, and fails on a copy where the ground floor
+    imports the runtime: the contract is not vacuous."""
+    exe = shutil.which("lint-imports") or str(Path(sys.executable).parent / "lint-imports")
+    ok = subprocess.run([exe], cwd=ROOT, capture_output=True, text=True)
+    assert ok.returncode == 0, ok.stdout[-2000:]
+    for pkg in PACKAGES:
+        shutil.copytree(ROOT / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path)
+    core = tmp_path / "deploy" / "core" / "modes.py"
+    core.write_text(
+        core.read_text() + "\n\ndef _up():\n    from deploy.runtime import loop  # noqa\n"
+    )
+    broken = subprocess.run([exe], cwd=tmp_path, capture_output=True, text=True)
+    assert broken.returncode != 0
+    assert "deploy.core.modes -> deploy.runtime.loop" in broken.stdout

@@ -39,7 +39,7 @@ import sys
 import time
 from pathlib import Path
 
-from deploy.backends.sim.engines import ENGINES
+from deploy.backends.sim.engines import add_engine_option
 from robots.errors import Sim2RealError
 
 EXIT_PASSED = 0
@@ -105,13 +105,7 @@ def _parser() -> argparse.ArgumentParser:
         "--sessions-per-process", type=int, default=1, help="sessions batched in one runtime"
     )
     p.add_argument("--workers", type=int, default=None, help="processes (default: one per core)")
-    p.add_argument(
-        "--engine",
-        choices=ENGINES,
-        default=ENGINES[0],
-        help="physics engine of the plant (default mujoco; pybullet: the same sessions on a "
-        "second engine, see sim2sim)",
-    )
+    add_engine_option(p, "; the same sessions on a second engine: sim2sim")
     p.add_argument(
         "--checkpoint-minutes", type=float, default=5.0, help="simulated minutes (0: none)"
     )

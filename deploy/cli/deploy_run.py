@@ -43,9 +43,7 @@ from deploy.cli.policy_contract import check_drive_applied, contract_messages
 from deploy.cli.run_parser import attach_vectors, build_parser
 from deploy.cli.run_summary import print_summary
 from deploy.core.backend import SimulatedPlant
-from deploy.monitors.kernel import motion_statistics
 from deploy.spec.drive import drive_robot
-from deploy.tasks.task import task_for
 from robots.files import atomic_write
 
 EXIT_CLEAN, EXIT_HARD_VIOLATION, EXIT_FAULT, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 1, 2, 3, 4
@@ -71,13 +69,7 @@ def run(args) -> int:
         print(line, file=sys.stderr)
     robot, drive = drive_robot(robot, policy.spec)  # the policy's PD gains and default pose
     faults = [Fault.parse(s) for s in args.inject]
-    fixed = None
-    if args.goal:
-        try:
-            fixed = np.array([float(x) for x in args.goal.split(",")])
-            assert fixed.shape == (3,)
-        except (ValueError, AssertionError):
-            raise ValueError(f"--goal {args.goal!r}: expected X,Y,Z in metres") from None
+    fixed = _fixed_goal(args.goal)
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
     check_drive_applied(drive, simulated, args.backend)
@@ -94,9 +86,25 @@ def run(args) -> int:
     else:
         clock = SimClock(robot.control_period)
     with backend:
-        return _run_opened(
-            args, robot, policy, backend, simulated, realtime, injector, clock, fixed, rt_request
-        )
+        rig = _build_rig(args, robot, policy, backend, injector, clock, fixed)
+        return _run_rig(args, rig, realtime, injector, clock, rt_request)
+
+
+def _fixed_goal(text: str | None) -> np.ndarray | None:
+    """``--goal X,Y,Z`` (m, base frame) as a (3,) array, or None.
+
+    Raises:
+        ValueError: not three numbers.
+    """
+    if not text:
+        return None
+    try:
+        fixed = np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        fixed = None
+    if fixed is None or fixed.shape != (3,):
+        raise ValueError(f"--goal {text!r}: expected X,Y,Z in metres")
+    return fixed
 
 
 def realtime_options(args, realtime: bool):
@@ -135,216 +143,107 @@ def realtime_options(args, realtime: bool):
     return wait, request
 
 
-def _run_opened(
-    args, robot, policy, backend, simulated, realtime, injector, clock, fixed, rt_request=None
-) -> int:
-    from deploy.backends.sim.plant import SimulationDivergedError
-    from deploy.core.latency import LatencyHistogram
-    from deploy.estimation.joints import reinit_warning
-    from deploy.monitors.interventions import InterventionMonitor
-    from deploy.monitors.violations import HARD_VIOLATION_TYPES, ViolationMonitor
+def _build_rig(args, robot, policy, backend, injector, clock, fixed):
+    """The run's :class:`~deploy.rig.rig.Rig`: the runtime (telemetry, overrun limit), the
+    task of the options, the motion figures, the hooks the options switch on and, on
+    hardware, the end of the run once every env is latched."""
+    from deploy.rig.hooks import build_hooks
+    from deploy.rig.rig import LatchedStopHook, MotionHook, Rig
+
+    runtime = {"clock": clock, "injector": injector, "telemetry": _telemetry(args, robot, policy)}
+    if args.overrun_limit is not None:
+        runtime["overrun_rate_limit"] = args.overrun_limit
+    task = {
+        "period": args.goal_period,
+        "rng": np.random.default_rng(args.seed + 1),
+        "success_time": args.success_time,
+        "fixed": fixed,
+        "command": args.command,
+        "schedule": False,
+        "heading_gain": args.heading_hold,
+    }
+    rig = Rig(robot, policy, backend, envs=args.envs, task=task, runtime=runtime)
+    rig.add(MotionHook(rig))
+    for hook in build_hooks(args, rig):  # --ros2, --print-joints, --video, --viewer, ...
+        rig.add(hook)
+    if not rig.simulated:
+        rig.add(LatchedStopHook())
+    return rig
+
+
+def _telemetry(args, robot, policy):
+    """``--telemetry PATH``: the MCAP recorder (Foxglove's schemas with the foxglove extra)."""
+    if not args.telemetry:
+        return None
+    from deploy.observe import foxglove
     from deploy.observe.telemetry import Telemetry
-    from deploy.runtime import FAULTED, RUNNING, STAGES, Runtime
+
+    fox = {"robot": robot, "control_mode": policy.spec.action.mode}
+    if not foxglove.available():
+        fox = {}
+        print(
+            "deploy-run: note: foxglove-schemas-protobuf not installed (extra 'foxglove'): "
+            "the telemetry has no Foxglove topics",
+            file=sys.stderr,
+        )
+    return Telemetry(args.telemetry, args.envs, robot.n_joints, **fox)
+
+
+def _run_rig(args, rig, realtime, injector, clock, rt_request) -> int:
+    """Run the rig for ``--duration`` at the requested real-time settings, print the summary,
+    write ``--report``; the exit code."""
+    from deploy.backends.sim.plant import SimulationDivergedError
     from deploy.runtime.realtime import RealtimeRequest, RealtimeSettings
 
-    telemetry = None
-    if args.telemetry:
-        from deploy.observe import foxglove
-
-        fox = {"robot": robot, "control_mode": policy.spec.action.mode}
-        if not foxglove.available():
-            fox = {}
-            print(
-                "deploy-run: note: foxglove-schemas-protobuf not installed (extra 'foxglove'): "
-                "the telemetry has no Foxglove topics",
-                file=sys.stderr,
-            )
-        telemetry = Telemetry(args.telemetry, args.envs, robot.n_joints, **fox)
-    viewers = []  # called after every tick; they only read the runtime
-    if args.print_joints is not None:
-        from deploy.observe.joint_printer import JointPrinter
-
-        viewers.append(JointPrinter(robot.joint_names, args.print_joints, policy.spec.action.mode))
-    video = None
-    if args.video is not None:
-        from deploy.observe.video import open_video
-
-        video = open_video(args, robot, backend)  # None (and a one-line error) without GL
-        if video is not None:
-            viewers.append(video)
-    window = None
-    if args.viewer:
-        from deploy.observe.viewer import PassiveViewer
-
-        window = PassiveViewer(robot, backend)  # synced after every tick; closing it ends the run
-        viewers.append(window)
-    limit = {} if args.overrun_limit is None else {"overrun_rate_limit": args.overrun_limit}
-    rt = Runtime(
-        robot, policy, backend, clock=clock, injector=injector, telemetry=telemetry, **limit
-    )
-    ticks = int(round(args.duration / robot.control_period))
-    peak = np.full((args.envs, robot.n_joints), -np.inf)
-    max_speed = np.zeros(robot.n_joints)
-    # smoothness of the motion: jerk by second differences of the joint velocities at the
-    # control rate (rad/s^3), summed while RUNNING; true velocities in simulation, else estimated
-    dt = robot.control_period
-    motion = {k: np.zeros((args.envs, robot.n_joints)) for k in ("dq", "acc", "jerk_sum")}
-    motion_ticks = np.zeros(args.envs, dtype=np.int64)
-    running = np.zeros(args.envs, dtype=bool)
-    monitor_cost = LatencyHistogram()
-    clock_ns = time.perf_counter_ns
-
-    violations = ViolationMonitor(robot, args.envs) if simulated else None
-    estimation = None  # the base estimate against the truth, and true falls (sim, legged)
-    if simulated and robot.floating_base:
-        from deploy.monitors.estimation import EstimationMonitor
-
-        estimation = EstimationMonitor(robot, args.envs)
-    interventions = InterventionMonitor(rt.guard, rt.smoother)
-    task = task_for(
-        robot,
-        args.envs,
-        backend,
-        period=args.goal_period,
-        rng=np.random.default_rng(args.seed + 1),
-        success_time=args.success_time,
-        fixed=fixed,
-        command=args.command,
-        interventions=interventions,
-        schedule=False,
-        heading_gain=args.heading_hold,
-    )
-    task.reset(rt, np.ones(args.envs, dtype=bool))
-    node = None
-    if args.ros2:
-        from deploy.ros2.bridge import RuntimeNode
-
-        node = RuntimeNode(
-            rt, namespace=args.ros2_namespace, task=task, interventions=interventions
-        )  # off the control thread; after_tick hands it each tick
-
-    def on_tick(r):
-        t0 = clock_ns()
-        if violations is not None:
-            # a legged robot lying damped after a stop: its ticks are counted apart
-            violations.update(backend, down=r.damping if robot.floating_base else None)
-        interventions.update()
-        if estimation is not None:
-            estimation.update(r, backend.true_base_state())
-        monitor_cost.add(0, clock_ns() - t0)
-        task(r)
-        if node is not None:
-            node.after_tick(r)
-        temperature = (
-            backend.thermal.winding_temperature if simulated else r.state.winding_temperature
-        )
-        np.fmax(peak, temperature, out=peak)
-        dq = backend.true_velocity() if simulated else r.state.dq
-        np.equal(r.mode, RUNNING, out=running)
-        motion_statistics(
-            dq, motion["dq"], motion["acc"], dt, running, r.ticks > 2, motion["jerk_sum"],
-            motion_ticks, max_speed,
-        )  # fmt: skip
-        closed = False
-        for viewer in viewers:
-            closed |= bool(viewer(r))  # the viewer's window was closed: end the run
-        return closed or (not simulated and bool((r.mode == FAULTED).all()))  # hardware: latched
-
+    rt = rig.runtime
+    ticks = int(round(args.duration / rig.robot.control_period))
     # priority, affinity and memory lock for the loop only (not the loading), restored after it
     settings = RealtimeSettings(rt_request or RealtimeRequest())
     with settings:  # RealtimeError (a ValueError: exit 3) if --require-rt and refused
         wall = time.perf_counter()
         diverged = None
-        rt.start()
-        interventions.resync()  # start zeroes the smoother's counters
+        rig.start()
         try:
-            rt.run(ticks, on_tick=on_tick)
+            rig.run(ticks)
         except SimulationDivergedError as exc:
             diverged = str(exc)
         finally:
-            if node is not None:
-                node.close()
+            rig.close()
         wall = time.perf_counter() - wall
-    if telemetry is not None:
-        telemetry.close(rt.long_ticks.rows(rt.dt), rt.dt)
-    if video is not None:
-        video.close()
-    if window is not None:
-        window.close()
+    if rt.telemetry is not None:
+        rt.telemetry.close(rt.long_ticks.rows(rt.dt), rt.dt)
+    report = run_report(args, rig, wall, realtime, injector, clock)
+    report["realtime_settings"] = settings.summary()
+    report["diverged"] = diverged
+    report["exit_code"] = exit_code(report, rig)
+    print_summary(report)
+    if args.report:
+        atomic_write(args.report, json.dumps(report, indent=2))
+    return report["exit_code"]
 
-    hard_stops = int(rt.counters.faults["hard_limit"].sum())
-    if violations is not None:
-        true, down = violations.totals(), violations.totals(down=True)
-        violation_report = {
-            "source": "true state (simulation ground truth)",
-            "ticks": violations.ticks * args.envs,
-            "by_type": {k: v for k, v in true.items() if k != "any"},
-            "any": true["any"],
-            "while_down": down,  # lying damped after a stop: apart, and still a hard violation
-        }
-    else:
-        true, down = {"hard_limit": 0}, {}
-        violation_report = None  # no ground truth on hardware: the guard's counts stand in
-    sections = task.report(rt)  # goals or locomotion, and the missed goals
-    est_summary = estimation.summary() if estimation is not None else None
-    true_falls = int(estimation.true_falls.sum()) if estimation is not None else 0
-    loco = sections["locomotion"]
-    if loco is not None and estimation is not None:
-        # in simulation a fall is the truth's: one the runtime did not see counts too
-        loco["runtime_falls"] = loco["falls"]
-        loco["true_falls"] = true_falls
-        loco["falls"] = max(loco["falls"], true_falls)
+
+def run_report(args, rig, wall: float, realtime: bool, injector, clock) -> dict:
+    """The run's report (the JSON of ``--report``): what ran, the rig's monitors, task and
+    hooks (:meth:`~deploy.rig.rig.Rig.report`), the faults, the costs and the deadlines."""
+    from deploy.runtime import STAGES
+
+    rt, robot, backend = rig.runtime, rig.robot, rig.backend
     report = {
         "robot": robot.name,
         "backend": args.backend,
         "policy": str(args.policy),
-        "control_mode": policy.spec.action.mode,
+        "control_mode": rig.policy.spec.action.mode,
         "control_rate_hz": 1.0 / robot.control_period,
         "duration_s": rt.time,
         "wall_s": wall,
         "realtime": realtime,
         "envs": args.envs,
         "seed": args.seed,
-        "goals": sections["goals"],
-        "locomotion": sections["locomotion"],
-        "violations": violation_report,
-        "estimation": est_summary,
-        "interventions": interventions.summary(),
-        "missed_goals": sections["missed_goals"],
-        "faults": {
-            "non_finite_actions": int(rt.counters.non_finite_actions.sum()),
-            "safe_stops": int(rt.counters.safe_stops.sum()),
-            "safe_stop_timeouts": int(rt.counters.safe_stop_timeouts.sum()),
-            "by_cause": {k: int(v.sum()) for k, v in rt.counters.faults.items()},
-            "estimator": {
-                "stale_readings": int(rt.estimator.stale_readings.sum()),
-                "missing_readings": int(rt.estimator.missing_readings.sum()),
-                "reinitializations": int(rt.estimator.reinitializations.sum()),
-                "warning": reinit_warning(
-                    robot.joint_names, rt.estimator.reinitializations_per_joint, rt.time
-                ),
-            },
-            "injected": injector.log if injector else [],
-            "drive_errors": [
-                backend.describe_drive_error(int(j), int(rt.drive_errors[e, j]))
-                for e, j in np.argwhere(rt.drive_errors)
-            ],
-        },
+        **rig.report(),
+        "faults": fault_report(rig, injector),
         "final_state": rt.mode_names(),
         "final_cause": rt.cause_names(),
-        "peak_winding_temperature_c": dict(
-            zip(robot.joint_names, peak.max(axis=0).tolist(), strict=True)
-        ),
-        "max_joint_speed_rad_s": dict(zip(robot.joint_names, max_speed.tolist(), strict=True)),
-        "mean_abs_jerk_rad_s3": dict(
-            zip(
-                robot.joint_names,
-                (motion["jerk_sum"].sum(axis=0) / max(int(motion_ticks.sum()), 1)).tolist(),
-                strict=True,
-            )
-        ),
         "tick_cost_us": rt.tick_cost.summary(),
-        "monitor_cost_us": monitor_cost.summary(),
         "stage_cost_us": {s: rt.latency.summary(i) for i, s in enumerate(STAGES)},
         "deadline": {
             "overruns": clock.overruns,
@@ -353,30 +252,60 @@ def _run_opened(
             "wait": clock.wait_mode,
             "long_ticks": rt.long_ticks.rows(rt.dt),
         },
-        "realtime_settings": settings.summary(),
         "bus": backend.bus_summary() if hasattr(backend, "bus_summary") else None,
-        "ros2": node.summary() if node is not None else None,
-        "diverged": diverged,
     }
+    report.setdefault("ros2", None)
+    return report
+
+
+def fault_report(rig, injector) -> dict:
+    """The report's ``faults``: non-finite actions, safe stops and their causes, the joint
+    estimator's stale and missing readings, the faults injected and the drives' errors."""
+    from deploy.estimation.joints import reinit_warning
+
+    rt, backend = rig.runtime, rig.backend
+    return {
+        "non_finite_actions": int(rt.counters.non_finite_actions.sum()),
+        "safe_stops": int(rt.counters.safe_stops.sum()),
+        "safe_stop_timeouts": int(rt.counters.safe_stop_timeouts.sum()),
+        "by_cause": {k: int(v.sum()) for k, v in rt.counters.faults.items()},
+        "estimator": {
+            "stale_readings": int(rt.estimator.stale_readings.sum()),
+            "missing_readings": int(rt.estimator.missing_readings.sum()),
+            "reinitializations": int(rt.estimator.reinitializations.sum()),
+            "warning": reinit_warning(
+                rig.robot.joint_names, rt.estimator.reinitializations_per_joint, rt.time
+            ),
+        },
+        "injected": injector.log if injector else [],
+        "drive_errors": [
+            backend.describe_drive_error(int(j), int(rt.drive_errors[e, j]))
+            for e, j in np.argwhere(rt.drive_errors)
+        ],
+    }
+
+
+def exit_code(report: dict, rig) -> int:
+    """The exit code of a run's ``report`` (module docstring); sets ``report["hard_violations"]``
+    (true-state ticks by type, lying down included)."""
+    from deploy.monitors.violations import HARD_VIOLATION_TYPES
+
+    v = report["violations"]
+    true = {"hard_limit": 0} if v is None else {**v["by_type"], "any": v["any"]}
+    down = {} if v is None else v["while_down"]
     hard = {
-        k: int(true[k]) + int(down.get(k, 0))
+        k: int(true.get(k, 0)) + int(down.get(k, 0))
         for k in HARD_VIOLATION_TYPES
         if true.get(k, 0) + down.get(k, 0)
     }
     report["hard_violations"] = hard
-    if hard or hard_stops > 0:
-        code = EXIT_HARD_VIOLATION
-    elif any(m in ("FAULTED", "SAFE_STOP") for m in report["final_state"]) or true_falls:
-        code = EXIT_FAULT
-    else:
-        code = EXIT_CLEAN
-    if diverged:
-        code = EXIT_DIVERGED
-    report["exit_code"] = code
-    print_summary(report)
-    if args.report:
-        atomic_write(args.report, json.dumps(report, indent=2))
-    return code
+    if report["diverged"]:
+        return EXIT_DIVERGED
+    if hard or report["faults"]["by_cause"]["hard_limit"] > 0:
+        return EXIT_HARD_VIOLATION
+    if any(m in ("FAULTED", "SAFE_STOP") for m in report["final_state"]) or rig.true_falls():
+        return EXIT_FAULT
+    return EXIT_CLEAN
 
 
 def deploy_run_main(argv: list[str] | None = None) -> int:

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from deploy.backends.registry import add_backend_options
+from deploy.rig.hooks import add_hook_options
 from deploy.runtime.clock import WAIT_MODES
 from deploy.tasks.heading import HEADING_GAIN
 
@@ -110,16 +111,6 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         help="fault injection (sim): dropout, stale, nan-action, latency, push, cable; "
         "MAGNITUDE: latency ticks (default 10), push / cable force N (default 20 / 10)",
     )
-    p.add_argument(
-        "--ros2",
-        action="store_true",
-        help="run as a ROS 2 node (extra 'ros2'): publish joint_states, imu, odom (legged), "
-        "/diagnostics; take cmd_vel (legged) or goal_point (arm); services ~/stop, ~/resume, "
-        "~/reset_faults",
-    )
-    p.add_argument(
-        "--ros2-namespace", default="", metavar="NS", help="--ros2: the node's namespace"
-    )
     p.add_argument("--report", type=Path, default=None, help="write the summary as JSON")
     p.add_argument(
         "--telemetry",
@@ -128,24 +119,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         help="write downsampled MCAP (with the foxglove extra: link poses, joint states, "
         "commands and guard events in Foxglove's schemas)",
     )
-    p.add_argument(
-        "--print-joints",
-        type=float,
-        default=None,
-        metavar="HZ",
-        help="print q, dq, command and winding temperature per joint HZ times per second",
-    )
-    p.add_argument(
-        "--video", type=Path, default=None, help="render the run offscreen to an H.264 MP4"
-    )
-    p.add_argument("--camera", default=None, help="--video: MJCF camera name (default: free)")
-    p.add_argument("--fps", type=float, default=30.0, help="--video: frames per second")
-    p.add_argument("--size", default="640x480", help="--video: WIDTHxHEIGHT pixels")
-    p.add_argument(
-        "--viewer",
-        action="store_true",
-        help="MuJoCo's interactive passive viewer (needs a display); lockstep, or --realtime",
-    )
+    add_hook_options(p)  # --ros2, --print-joints, --video, --viewer (deploy.rig.hooks)
     return p
 
 

@@ -38,12 +38,8 @@ import numpy as np
 
 from deploy.core.modes import Mode
 from deploy.core.stateful import put, take
-from deploy.monitors.estimation import EstimationMonitor
-from deploy.monitors.interventions import InterventionMonitor
 from deploy.monitors.kernel import temperature_bands
-from deploy.monitors.violations import ViolationMonitor
 from deploy.robot_kind import robot_kind
-from deploy.tasks.task import task_for
 from eval.soak import checkpoint as ckpt
 from eval.soak.faults import SessionFaults
 from eval.soak.result import session_result
@@ -134,7 +130,7 @@ class SessionBatch:
         replay_stops: bool = True,
     ):
         from deploy.backends.sim.engines import make_plant
-        from deploy.runtime import Runtime
+        from deploy.rig.rig import Rig
         from robots import load_robot
 
         if not configs:
@@ -189,8 +185,26 @@ class SessionBatch:
         #: the pushes of the policy's training domain (legged_gym's push_robots), or None
         pushes = first.ranges.pushes if self.kind.legged else None
         self.pushes = None if pushes is None else DomainPushes(seeds, pushes, dt)
-        self.rt = Runtime(robot, self.policy, backend, injector=self.faults)
-        self.rt.start()
+        # the runtime, started before its monitors and task are built (the soak's order): what
+        # the plant really did (true state), what the guard and smoother changed, a legged
+        # robot's base estimate against the truth, and the goals (an arm) or velocity commands
+        # (a legged robot), one stream per session
+        task = {
+            "period": first.goal_period,
+            "rng": [session_rng(c.seed, "goals") for c in configs],
+            "success_time": first.success_time,
+            "window": first.window_minutes * 60.0,
+            "ranges": first.ranges.commands,
+        }
+        self.rig = Rig(
+            robot, self.policy, backend, envs=k, task=task, runtime={"injector": self.faults},
+            start=True,
+        )  # fmt: skip
+        self.rt = self.rig.runtime
+        self.violations, self.interventions = self.rig.violations, self.rig.interventions
+        #: a legged robot's base estimate against the plant's truth (None for an arm)
+        self.estimation = self.rig.estimation
+        self.task = self.rig.task
 
         n = robot.n_joints
         self.peak = backend.thermal.winding_temperature.copy()
@@ -214,24 +228,6 @@ class SessionBatch:
         self.checkpoint_ticks = (
             _ticks(first.checkpoint_minutes * 60.0, dt) if first.checkpoint_minutes > 0 else 0
         )
-        # what the plant really did (true state) and what the guard and smoother changed
-        self.violations = ViolationMonitor(robot, k)
-        self.interventions = InterventionMonitor(self.rt.guard, self.rt.smoother)
-        #: a legged robot's base estimate against the plant's truth (None for an arm)
-        self.estimation = EstimationMonitor(robot, k) if self.kind.legged else None
-        #: goals (an arm) or velocity commands (a legged robot), one stream per session
-        self.task = task_for(
-            robot,
-            k,
-            backend,
-            period=first.goal_period,
-            rng=[session_rng(c.seed, "goals") for c in configs],
-            success_time=first.success_time,
-            window=first.window_minutes * 60.0,
-            interventions=self.interventions,
-            ranges=first.ranges.commands,
-        )
-        self.task.reset(self.rt, np.ones(k, dtype=bool))
         self.sessions = [
             Session(self, e, c, d) for e, (c, d) in enumerate(zip(configs, draws, strict=True))
         ]
@@ -316,11 +312,7 @@ class SessionBatch:
             # the next step recalculates every trajectory from its input, in every env: the same
             # numbers whatever the neighbours (see the module docstring) and across a restore
             rt.smoother.recalculate()
-        self.violations.update(self.backend, down=rt.damping if self.kind.legged else None)
-        self.interventions.update()  # before the goals: a goal's last tick counts for it
-        if self.estimation is not None:
-            self.estimation.update(rt, self.backend.true_base_state())
-        self.task(rt)
+        self.rig.monitor(rt)  # violations, interventions, the base estimate, then the task
         if self.pushes is not None:
             self.pushes(rt, self.backend)
         temperature_bands(

@@ -69,7 +69,7 @@ class SessionConfig:
         ranges: What the randomization draws from.
         window_minutes: Simulated minutes per window of the windowed goal success rate.
         spec: PolicySpec JSON for an ONNX without our metadata (``deploy-run --spec``), or None.
-        engine: Physics engine of the plant (:data:`deploy.backends.sim.engines.ENGINES`).
+        engine: Physics engine of the plant (:func:`deploy.backends.sim.engines.engines`).
     """
 
     robot: str = "arm3"
@@ -97,10 +97,10 @@ class SessionConfig:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise bad(name, "a finite number > 0")
-        from deploy.backends.sim.engines import ENGINES
+        from deploy.backends.sim.engines import engines
 
-        if self.engine not in ENGINES:
-            raise bad("engine", f"one of {ENGINES}")
+        if self.engine not in engines():
+            raise bad("engine", f"one of {engines()}")
         for name in ("checkpoint_minutes", "operator_reset"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):

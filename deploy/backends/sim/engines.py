@@ -1,5 +1,5 @@
-"""The physics engines the simulated plant runs on, by name: one switch for ``deploy-run``,
-``soak-test`` and sim-to-sim (``--engine``).
+"""The physics engines the simulated plant runs on, by name: one registry and one ``--engine``
+option for ``deploy-run``, ``soak-test`` and sim-to-sim.
 
 - ``mujoco``: :class:`deploy.backends.sim.plant.SimBackend`, the engine the shipped policies are
   trained in (soft convex contacts, implicit drives, joint armature).
@@ -7,37 +7,101 @@
   dynamics with rigid sequential-impulse contacts, built from the same compiled model (extra
   ``pybullet``).
 
-Both take the same arguments and keep the same interfaces
+An engine is a plant class that keeps the plant's interfaces
 (:class:`~deploy.core.backend.Backend`, :class:`~deploy.core.backend.SimulatedPlant`, the state
-dict), so the runtime, monitors and reports do not know which one runs.
+dict) and takes :class:`~deploy.backends.sim.plant.SimBackend`'s arguments, so the runtime,
+monitors and reports do not know which one runs. A new engine is one module with its plant class
+and one line in :data:`BUILTIN_ENGINES` (or a call of :func:`register_engine` before the command
+line is parsed); the class is imported only when a plant is built.
 """
 
 from __future__ import annotations
 
-#: The engine names, the default first.
-ENGINES = ("mujoco", "pybullet")
+import importlib
+from dataclasses import dataclass
 
 
-def plant_class(engine: str):
+@dataclass(frozen=True)
+class Engine:
+    """One registered engine: ``name``, its plant class as ``"module:Class"`` and the
+    ``pip`` extra that installs it (None: the core install)."""
+
+    name: str
+    plant: str
+    extra: str | None = None
+
+    def plant_class(self) -> type:
+        """The plant class (imported now).
+
+        Raises:
+            ValueError: the engine's package is not installed (naming the extra).
+        """
+        module, _, name = self.plant.partition(":")
+        try:
+            return getattr(importlib.import_module(module), name)
+        except ImportError as exc:
+            if self.extra is None:
+                raise
+            raise ValueError(
+                f"engine '{self.name}' needs the extra '{self.extra}': "
+                f"pip install 'sim2real-deploy[{self.extra}]' ({exc})"
+            ) from exc
+
+
+#: The built-in engines, the default first: name -> (plant class, extra).
+BUILTIN_ENGINES = {
+    "mujoco": ("deploy.backends.sim.plant:SimBackend", None),
+    "pybullet": ("deploy.backends.sim.bullet.plant:BulletBackend", "pybullet"),
+}
+
+_REGISTRY: dict[str, Engine] = {
+    name: Engine(name, plant, extra) for name, (plant, extra) in BUILTIN_ENGINES.items()
+}
+
+#: The engine names at import, the default first (see :func:`engines` for those added since).
+ENGINES = tuple(_REGISTRY)
+
+
+def register_engine(name: str, plant: str, extra: str | None = None) -> Engine:
+    """Register an engine under ``name``: ``plant`` is its plant class as ``"module:Class"``.
+
+    Raises:
+        ValueError: ``name`` is registered already, or ``plant`` is not ``module:Class``.
+    """
+    if name in _REGISTRY:
+        raise ValueError(f"engine '{name}' is registered already ({_REGISTRY[name].plant})")
+    if ":" not in plant:
+        raise ValueError(f"engine '{name}': plant {plant!r} is not 'module:Class'")
+    _REGISTRY[name] = Engine(name, plant, extra)
+    return _REGISTRY[name]
+
+
+def engines() -> tuple[str, ...]:
+    """The registered engine names, the default (``mujoco``) first."""
+    return tuple(_REGISTRY)
+
+
+def add_engine_option(parser, help_tail: str = "") -> None:
+    """Add the one ``--engine`` option (choices: the registered engines; default mujoco) to
+    ``parser`` (an ``ArgumentParser`` or an argument group)."""
+    parser.add_argument(
+        "--engine",
+        choices=engines(),
+        default=engines()[0],
+        help="physics engine of the simulated plant (default mujoco; pybullet: a second "
+        "opinion with rigid contacts, sim-to-sim)" + help_tail,
+    )
+
+
+def plant_class(engine: str) -> type:
     """The plant class of ``engine``.
 
     Raises:
-        ValueError: an unknown engine, or pybullet not installed (naming the extra).
+        ValueError: an unknown engine, or its package not installed (naming the extra).
     """
-    if engine == "mujoco":
-        from deploy.backends.sim.plant import SimBackend
-
-        return SimBackend
-    if engine == "pybullet":
-        try:
-            from deploy.backends.sim.bullet.plant import BulletBackend
-        except ImportError as exc:  # pragma: no cover - the extra is part of .[all]
-            raise ValueError(
-                "engine 'pybullet' needs the pybullet package: "
-                "pip install 'sim2real-deploy[pybullet]'"
-            ) from exc
-        return BulletBackend
-    raise ValueError(f"engine '{engine}' is unknown; expected one of {ENGINES}")
+    if engine not in _REGISTRY:
+        raise ValueError(f"engine '{engine}' is unknown; expected one of {engines()}")
+    return _REGISTRY[engine].plant_class()
 
 
 def make_plant(engine: str, robot, **kwargs):
@@ -48,3 +112,14 @@ def make_plant(engine: str, robot, **kwargs):
         ValueError: an unknown engine (see :func:`plant_class`) or bad plant arguments.
     """
     return plant_class(engine)(robot, **kwargs)
+
+
+__all__ = [
+    "ENGINES",
+    "Engine",
+    "add_engine_option",
+    "engines",
+    "make_plant",
+    "plant_class",
+    "register_engine",
+]

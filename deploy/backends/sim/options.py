@@ -4,18 +4,12 @@
 from __future__ import annotations
 
 from deploy.backends.registry import register_backend
-from deploy.backends.sim.engines import ENGINES
+from deploy.backends.sim.engines import add_engine_option, engines
 
 
 def add_options(group) -> None:
     """``--engine``: the physics engine of the plant."""
-    group.add_argument(
-        "--engine",
-        choices=ENGINES,
-        default=ENGINES[0],
-        help="physics engine of the simulated plant (default mujoco; pybullet: a second "
-        "opinion with rigid contacts, sim-to-sim)",
-    )
+    add_engine_option(group)
 
 
 def make(args, robot, mode: str):
@@ -23,7 +17,7 @@ def make(args, robot, mode: str):
     ``args.seed``."""
     from deploy.backends.sim.engines import make_plant
 
-    engine = getattr(args, "engine", ENGINES[0])
+    engine = getattr(args, "engine", engines()[0])
     return make_plant(engine, robot, mode=mode, envs=args.envs, seed=args.seed)
 
 

@@ -25,24 +25,13 @@ from cyclonedds.idl.annotations import autoid, final
 #: ``types.sequence[...]``, ``bool``, ``str`` or an IdlStruct class).
 Members = Iterable[tuple[str, typing.Any]]
 
+#: What a low-level motor command and a motor state both start with: ``mode``, rad, rad/s.
+_MOTOR = (("mode", types.uint8), ("q", types.float32), ("dq", types.float32))
 #: What every low-level motor command starts with: ``mode``, the PD targets and gains
 #: (``tau = tau + kp (q - q_m) + kd (dq - dq_m)`` on the motor's driver; rad, rad/s, N m).
-MOTOR_CMD: tuple = (
-    ("mode", types.uint8),
-    ("q", types.float32),
-    ("dq", types.float32),
-    ("tau", types.float32),
-    ("kp", types.float32),
-    ("kd", types.float32),
-)
+MOTOR_CMD: tuple = (*_MOTOR, ("tau", types.float32), ("kp", types.float32), ("kd", types.float32))
 #: What every low-level motor state starts with: rad, rad/s, rad/s^2, N m.
-MOTOR_STATE: tuple = (
-    ("mode", types.uint8),
-    ("q", types.float32),
-    ("dq", types.float32),
-    ("ddq", types.float32),
-    ("tau_est", types.float32),
-)
+MOTOR_STATE: tuple = (*_MOTOR, ("ddq", types.float32), ("tau_est", types.float32))
 #: An IMU state's vectors: (w, x, y, z), rad/s, m/s^2, rad (its temperature's type differs).
 IMU: tuple = (
     ("quaternion", types.array[types.float32, 4]),

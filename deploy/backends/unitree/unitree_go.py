@@ -4,152 +4,108 @@ Written from Unitree's public IDL (``unitree_go/msg/LowCmd_.idl`` and its member
 unitree_sdk2 and unitree_sdk2_python packages ship them): the same type names
 (``unitree_go::msg::dds_::LowCmd_``), the same members in the same order and of the same types,
 so that Unitree's tools and robots read our messages and we read theirs. ``@final`` structs,
-serialised as XCDR1 (plain CDR, little endian), as Unitree's own types.
+serialised as XCDR1 (plain CDR, little endian), as Unitree's own types; built from the member
+tables below by :class:`deploy.backends.unitree.idl.Package`.
 
 Units as the robot reports them: rad, rad/s, N m, degC; ``foot_force`` in the sensor's raw
 counts. Every field defaults to zero (arrays to zeros of their length).
 """
 
 # no ``from __future__ import annotations``: Cyclone DDS reads the member types at run time
-from dataclasses import dataclass, field
-
 import cyclonedds.idl.types as types
-from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.annotations import autoid, final
+
+from deploy.backends.unitree.idl import IMU, IMU_DOC, MOTOR_CMD, MOTOR_STATE, Package
 
 #: Motor slots in a ``unitree_go`` LowCmd_ / LowState_ (the robot uses the first 12 on a Go2).
 MOTORS = 20
 
+_go = Package("unitree_go", __name__)
+u8, u16, u32, f32 = types.uint8, types.uint16, types.uint32, types.float32
+arr = types.array
 
-def _zeros(n: int):
-    return field(default_factory=lambda: [0] * n)
+#: The members a LowCmd_ and a LowState_ start with.
+_HEADER = (
+    ("head", arr[u8, 2]),
+    ("level_flag", u8),
+    ("frame_reserve", u8),
+    ("sn", arr[u32, 2]),
+    ("version", arr[u32, 2]),
+    ("bandwidth", u16),
+)
 
-
-@dataclass
-@final
-@autoid("sequential")
-class MotorCmd_(IdlStruct, typename="unitree_go.msg.dds_.MotorCmd_"):
+MotorCmd_ = _go.struct(
+    "MotorCmd_",
+    [*MOTOR_CMD, ("reserve", arr[u32, 3])],
     """One motor's command: ``tau = tau + kp (q - q_m) + kd (dq - dq_m)`` on its driver.
-    ``mode``: 0x01 servo (FOC) on, 0x00 off."""
-
-    mode: types.uint8 = 0
-    q: types.float32 = 0.0
-    dq: types.float32 = 0.0
-    tau: types.float32 = 0.0
-    kp: types.float32 = 0.0
-    kd: types.float32 = 0.0
-    reserve: types.array[types.uint32, 3] = _zeros(3)
-
-
-@dataclass
-@final
-@autoid("sequential")
-class BmsCmd_(IdlStruct, typename="unitree_go.msg.dds_.BmsCmd_"):
-    off: types.uint8 = 0
-    reserve: types.array[types.uint8, 3] = _zeros(3)
-
-
-@dataclass
-@final
-@autoid("sequential")
-class LowCmd_(IdlStruct, typename="unitree_go.msg.dds_.LowCmd_"):
+    ``mode``: 0x01 servo (FOC) on, 0x00 off.""",
+)
+BmsCmd_ = _go.struct("BmsCmd_", [("off", u8), ("reserve", arr[u8, 3])])
+LowCmd_ = _go.struct(
+    "LowCmd_",
+    [
+        *_HEADER,
+        ("motor_cmd", arr[MotorCmd_, MOTORS]),
+        ("bms_cmd", BmsCmd_),
+        ("wireless_remote", arr[u8, 40]),
+        ("led", arr[u8, 12]),
+        ("fan", arr[u8, 2]),
+        ("gpio", u8),
+        ("reserve", u32),
+        ("crc", u32),
+    ],
     """The low-level command on ``rt/lowcmd``: ``head`` 0xFE 0xEF, ``level_flag`` 0xFF (low
-    level), one :class:`MotorCmd_` per motor slot, ``crc`` over the rest (:mod:`.crc`)."""
-
-    head: types.array[types.uint8, 2] = _zeros(2)
-    level_flag: types.uint8 = 0
-    frame_reserve: types.uint8 = 0
-    sn: types.array[types.uint32, 2] = _zeros(2)
-    version: types.array[types.uint32, 2] = _zeros(2)
-    bandwidth: types.uint16 = 0
-    motor_cmd: types.array[MotorCmd_, MOTORS] = field(
-        default_factory=lambda: [MotorCmd_() for _ in range(MOTORS)]
-    )
-    bms_cmd: BmsCmd_ = field(default_factory=BmsCmd_)
-    wireless_remote: types.array[types.uint8, 40] = _zeros(40)
-    led: types.array[types.uint8, 12] = _zeros(12)
-    fan: types.array[types.uint8, 2] = _zeros(2)
-    gpio: types.uint8 = 0
-    reserve: types.uint32 = 0
-    crc: types.uint32 = 0
-
-
-@dataclass
-@final
-@autoid("sequential")
-class MotorState_(IdlStruct, typename="unitree_go.msg.dds_.MotorState_"):
+    level), one :class:`MotorCmd_` per motor slot, ``crc`` over the rest (:mod:`.crc`).""",
+)
+MotorState_ = _go.struct(
+    "MotorState_",
+    [
+        *MOTOR_STATE,
+        ("q_raw", f32),
+        ("dq_raw", f32),
+        ("ddq_raw", f32),
+        ("temperature", u8),
+        ("lost", u32),
+        ("reserve", arr[u32, 2]),
+    ],
     """One motor's state: ``q`` rad, ``dq`` rad/s, ``tau_est`` N m, ``temperature`` degC,
-    ``lost`` the packets lost between the board and the motor (a running count)."""
-
-    mode: types.uint8 = 0
-    q: types.float32 = 0.0
-    dq: types.float32 = 0.0
-    ddq: types.float32 = 0.0
-    tau_est: types.float32 = 0.0
-    q_raw: types.float32 = 0.0
-    dq_raw: types.float32 = 0.0
-    ddq_raw: types.float32 = 0.0
-    temperature: types.uint8 = 0
-    lost: types.uint32 = 0
-    reserve: types.array[types.uint32, 2] = _zeros(2)
-
-
-@dataclass
-@final
-@autoid("sequential")
-class IMUState_(IdlStruct, typename="unitree_go.msg.dds_.IMUState_"):
-    """``quaternion`` (w, x, y, z), ``gyroscope`` rad/s, ``accelerometer`` m/s^2, ``rpy`` rad."""
-
-    quaternion: types.array[types.float32, 4] = _zeros(4)
-    gyroscope: types.array[types.float32, 3] = _zeros(3)
-    accelerometer: types.array[types.float32, 3] = _zeros(3)
-    rpy: types.array[types.float32, 3] = _zeros(3)
-    temperature: types.uint8 = 0
-
-
-@dataclass
-@final
-@autoid("sequential")
-class BmsState_(IdlStruct, typename="unitree_go.msg.dds_.BmsState_"):
-    version_high: types.uint8 = 0
-    version_low: types.uint8 = 0
-    status: types.uint8 = 0
-    soc: types.uint8 = 0
-    current: types.int32 = 0
-    cycle: types.uint16 = 0
-    bq_ntc: types.array[types.uint8, 2] = _zeros(2)
-    mcu_ntc: types.array[types.uint8, 2] = _zeros(2)
-    cell_vol: types.array[types.uint16, 15] = _zeros(15)
-
-
-@dataclass
-@final
-@autoid("sequential")
-class LowState_(IdlStruct, typename="unitree_go.msg.dds_.LowState_"):
+    ``lost`` the packets lost between the board and the motor (a running count).""",
+)
+IMUState_ = _go.struct("IMUState_", [*IMU, ("temperature", u8)], IMU_DOC)
+BmsState_ = _go.struct(
+    "BmsState_",
+    [
+        ("version_high", u8),
+        ("version_low", u8),
+        ("status", u8),
+        ("soc", u8),
+        ("current", types.int32),
+        ("cycle", u16),
+        ("bq_ntc", arr[u8, 2]),
+        ("mcu_ntc", arr[u8, 2]),
+        ("cell_vol", arr[u16, 15]),
+    ],
+)
+LowState_ = _go.struct(
+    "LowState_",
+    [
+        *_HEADER,
+        ("imu_state", IMUState_),
+        ("motor_state", arr[MotorState_, MOTORS]),
+        ("bms_state", BmsState_),
+        ("foot_force", arr[types.int16, 4]),
+        ("foot_force_est", arr[types.int16, 4]),
+        ("tick", u32),
+        ("wireless_remote", arr[u8, 40]),
+        ("bit_flag", u8),
+        ("adc_reel", f32),
+        ("temperature_ntc1", u8),
+        ("temperature_ntc2", u8),
+        ("power_v", f32),
+        ("power_a", f32),
+        ("fan_frequency", arr[u16, 4]),
+        ("reserve", u32),
+        ("crc", u32),
+    ],
     """The low-level state on ``rt/lowstate``: IMU, one :class:`MotorState_` per motor slot,
-    ``foot_force`` (raw counts), ``tick`` (ms, the board's clock), ``crc`` over the rest."""
-
-    head: types.array[types.uint8, 2] = _zeros(2)
-    level_flag: types.uint8 = 0
-    frame_reserve: types.uint8 = 0
-    sn: types.array[types.uint32, 2] = _zeros(2)
-    version: types.array[types.uint32, 2] = _zeros(2)
-    bandwidth: types.uint16 = 0
-    imu_state: IMUState_ = field(default_factory=IMUState_)
-    motor_state: types.array[MotorState_, MOTORS] = field(
-        default_factory=lambda: [MotorState_() for _ in range(MOTORS)]
-    )
-    bms_state: BmsState_ = field(default_factory=BmsState_)
-    foot_force: types.array[types.int16, 4] = _zeros(4)
-    foot_force_est: types.array[types.int16, 4] = _zeros(4)
-    tick: types.uint32 = 0
-    wireless_remote: types.array[types.uint8, 40] = _zeros(40)
-    bit_flag: types.uint8 = 0
-    adc_reel: types.float32 = 0.0
-    temperature_ntc1: types.uint8 = 0
-    temperature_ntc2: types.uint8 = 0
-    power_v: types.float32 = 0.0
-    power_a: types.float32 = 0.0
-    fan_frequency: types.array[types.uint16, 4] = _zeros(4)
-    reserve: types.uint32 = 0
-    crc: types.uint32 = 0
+    ``foot_force`` (raw counts), ``tick`` (ms, the board's clock), ``crc`` over the rest.""",
+)

@@ -71,8 +71,45 @@ LEGGED = RobotKind(
     name="legged", legged=True, task="locomotion", joint_input=False, stand_up_on_reset=True
 )
 
+_KINDS: dict[str, RobotKind] = {ARM.name: ARM, LEGGED.name: LEGGED}
+
+
+def register_kind(kind: RobotKind) -> RobotKind:
+    """Register ``kind`` under its name: robot.toml's ``kind = "<name>"`` chooses it.
+
+    Raises:
+        ValueError: the name is registered already, or the kind's task is not one
+            :func:`deploy.tasks.task.task_for` builds (``goals``, ``locomotion``).
+    """
+    if kind.name in _KINDS:
+        raise ValueError(f"robot kind '{kind.name}' is registered already")
+    if kind.task not in ("goals", "locomotion"):
+        raise ValueError(f"robot kind '{kind.name}': task '{kind.task}' is not goals or locomotion")
+    _KINDS[kind.name] = kind
+    return kind
+
+
+def kinds() -> dict[str, RobotKind]:
+    """The registered robot kinds by name."""
+    return dict(_KINDS)
+
 
 def robot_kind(robot) -> RobotKind:
-    """The kind of ``robot``: :data:`LEGGED` for a floating base (``robot.floating_base``, a free
-    joint in its MJCF), else :data:`ARM`."""
-    return LEGGED if robot.floating_base else ARM
+    """The kind of ``robot``: robot.toml's ``kind``, else :data:`LEGGED` for a floating base
+    (``[base]``, a free joint in its MJCF) and :data:`ARM` otherwise.
+
+    Raises:
+        ValueError: robot.toml names a kind nobody registered, or a legged kind for a robot
+            without a floating base (its state has no base), or the reverse.
+    """
+    name = getattr(robot.config, "kind", None)
+    if name is None:
+        return LEGGED if robot.floating_base else ARM
+    kind = _KINDS.get(name)
+    where = f"{robot.directory / 'robot.toml'}: kind"
+    if kind is None:
+        raise ValueError(f"{where} = '{name}': expected one of {sorted(_KINDS)}")
+    if kind.legged != robot.floating_base:
+        need = "a [base] table (a floating base)" if kind.legged else "no [base] table"
+        raise ValueError(f"{where} = '{name}' needs {need}")
+    return kind

@@ -340,6 +340,9 @@ class RobotConfig(_Strict):
 
     name: str
     mjcf: str  # path relative to robot.toml
+    #: the robot's kind (deploy.robot_kind: "arm", "legged" or a registered one); None: "legged"
+    #: with a [base] table, else "arm"
+    kind: str | None = None
     control: ControlConfig
     joints: Annotated[list[JointConfig], Field(min_length=1)]
     motors: dict[str, MotorConfig]

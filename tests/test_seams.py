@@ -1,0 +1,183 @@
+"""The seams a contributor extends in one module plus one registration line: an after-tick hook
+of deploy-run (with its own option and report entry), a physics engine of the plant (chosen by
+``--engine`` in deploy-run and the soak), and a robot kind."""
+
+import json
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from deploy.backends.sim import engines
+from deploy.cli.deploy_run import deploy_run_main
+from deploy.rig import hooks
+
+HOOK_MODULE = '''
+"""Counts the ticks the robot spent RUNNING, as a contributor's hook would."""
+
+import numpy as np
+
+from deploy.core.modes import RUNNING
+from deploy.rig.hooks import RunHook, register_hook
+
+
+class RunningTicks(RunHook):
+    name = "running_ticks"
+
+    def __init__(self):
+        self.ticks = 0
+
+    def after_tick(self, runtime):
+        self.ticks += int(np.count_nonzero(runtime.mode == RUNNING))
+
+    def contribute(self, report):
+        report["running_ticks"] = self.ticks
+
+
+def add_options(parser):
+    parser.add_argument("--count-running", action="store_true", help="count RUNNING ticks")
+
+
+def factory(args, rig):
+    return RunningTicks() if args.count_running else None
+
+
+register_hook("running_ticks", "{module}:factory", add_options)
+'''
+
+ENGINE_MODULE = '''
+"""The MuJoCo plant stepped with the 4th-order Runge-Kutta integrator: an engine a contributor
+adds."""
+
+import mujoco
+
+from deploy.backends.sim.plant import SimBackend
+
+
+class RK4Plant(SimBackend):
+    def __init__(self, robot, **kwargs):
+        super().__init__(robot, **kwargs)
+        for m in self.models:
+            m.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
+'''
+
+
+@pytest.fixture(scope="module")
+def arm_onnx(tmp_path_factory):
+    """The shipped arm policy exported (as ``make run`` does)."""
+    from deploy.export import export_policy
+
+    folder = tmp_path_factory.mktemp("policy")
+    pt = folder / "arm.pt"
+    pt.write_bytes((Path(__file__).resolve().parent.parent / "policies" / "arm.pt").read_bytes())
+    return str(export_policy(pt))
+
+
+@pytest.fixture
+def plugin(tmp_path, monkeypatch):
+    """Writes a module into a folder on sys.path; returns its name."""
+    monkeypatch.syspath_prepend(str(tmp_path))
+
+    def write(name: str, text: str) -> str:
+        (tmp_path / f"{name}.py").write_text(textwrap.dedent(text).format(module=name))
+        return name
+
+    yield write
+    for name in [m for m in sys.modules if m.startswith("seam_")]:
+        del sys.modules[name]
+
+
+def test_a_new_hook_is_one_module_and_one_registration_line(
+    plugin, monkeypatch, tmp_path, arm_onnx
+):
+    monkeypatch.setattr(hooks, "_REGISTRY", dict(hooks.registered_hooks()))
+    module = plugin("seam_running_ticks", HOOK_MODULE)
+    monkeypatch.setattr(hooks, "BUILTIN", (*hooks.BUILTIN, module))  # the registration line
+    report = tmp_path / "run.json"
+    argv = ["--policy", arm_onnx, "--duration", "2", "--report", str(report)]
+    assert deploy_run_main([*argv, "--count-running"]) == 0
+    run = json.loads(report.read_text())
+    # every tick after the ramp-in (the arm starts at home: at once) is a RUNNING one
+    ticks = round(run["duration_s"] * run["control_rate_hz"])
+    assert 0.9 * ticks < run["running_ticks"] <= ticks
+    assert "running_ticks" in run["hook_cost_us"]
+    assert deploy_run_main(argv) == 0  # off unless its option is given
+    assert "running_ticks" not in json.loads(report.read_text())
+
+
+def test_a_new_engine_is_one_module_and_one_registration_line(
+    plugin, monkeypatch, tmp_path, arm_onnx
+):
+    monkeypatch.setattr(engines, "_REGISTRY", dict(engines._REGISTRY))
+    module = plugin("seam_rk4", ENGINE_MODULE)
+    engines.register_engine("mujoco-rk4", f"{module}:RK4Plant")  # the registration line
+    report = tmp_path / "run.json"
+    argv = ["--policy", arm_onnx, "--duration", "2", "--report", str(report)]
+    assert deploy_run_main([*argv, "--engine", "mujoco-rk4"]) == 0
+    rk4 = json.loads(report.read_text())
+    assert deploy_run_main(argv) == 0
+    euler = json.loads(report.read_text())
+    assert rk4["goals"]["issued"] == euler["goals"]["issued"]
+    # another integrator: the same run, not the same numbers
+    assert rk4["max_joint_speed_rad_s"] != euler["max_joint_speed_rad_s"]
+    with pytest.raises(ValueError, match="engine 'ode' is unknown"):
+        engines.plant_class("ode")
+    with pytest.raises(ValueError, match="registered already"):
+        engines.register_engine("mujoco-rk4", f"{module}:RK4Plant")
+
+
+KIND_MODULE = '''
+"""An arm whose joint filters run the constant-velocity model (drives that do not follow their
+command closely, e.g. a compliant arm): a kind a contributor adds."""
+
+from deploy.robot_kind import RobotKind, register_kind
+
+COMPLIANT_ARM = register_kind(
+    RobotKind(
+        name="compliant_arm", legged=False, task="goals", joint_input=False,
+        stand_up_on_reset=False,
+    )
+)
+'''
+
+
+def _arm3_with_kind(tmp_path, kind: str):
+    import shutil
+
+    from robots import load_robot
+
+    src = Path(__file__).resolve().parent.parent / "robots" / "arm3"
+    folder = tmp_path / "arm3_kind"
+    shutil.copytree(src, folder)
+    toml = folder / "robot.toml"
+    text = toml.read_text()
+    toml.write_text(text.replace("\n[control]", f'\nkind = "{kind}"\n\n[control]', 1))
+    return load_robot(str(toml))
+
+
+def test_a_new_robot_kind_is_one_module_and_robot_toml_names_it(plugin, monkeypatch, tmp_path):
+    from deploy import robot_kind as kinds
+
+    monkeypatch.setattr(kinds, "_KINDS", kinds.kinds())
+    robot = _arm3_with_kind(tmp_path, "compliant_arm")
+    with pytest.raises(ValueError, match=r"robot.toml: kind = 'compliant_arm': expected one of"):
+        kinds.robot_kind(robot)
+    module = plugin("seam_compliant_arm", KIND_MODULE)
+    __import__(module)  # the registration line
+    assert kinds.robot_kind(robot).name == "compliant_arm"
+    from deploy.safety.guard import SafetyGuard
+    from deploy.smoothing.smoother import CommandSmoother
+
+    smoother = CommandSmoother(robot, 1, "velocity")
+    # the kind's choice reaches the runtime: no commanded acceleration into the joint filters
+    assert SafetyGuard(robot, 1, "velocity").estimator_input(smoother) is None
+    arm = _arm3_with_kind(tmp_path / "plain", "arm")
+    assert SafetyGuard(arm, 1, "velocity").estimator_input(smoother) is not None
+
+
+def test_robot_toml_kind_must_fit_the_robot(tmp_path):
+    from deploy.robot_kind import robot_kind
+
+    with pytest.raises(ValueError, match=r"kind = 'legged' needs a \[base\] table"):
+        robot_kind(_arm3_with_kind(tmp_path, "legged"))

@@ -36,6 +36,12 @@ class RobotKind:
             the joints', so its filter runs the constant-velocity model instead.
         stand_up_on_reset: An operator stands the robot up before clearing a latched fault (the
             runtime lays a legged robot down, damped, at every stop).
+        holds_self_collision: The guard holds a target predicted to bring two links into
+            contact (:mod:`deploy.safety.predicted`). Not for a legged robot: its legs held
+            mid-stride lay it down (unitree_rl_gym's H1 walked through pushes in its own loop
+            and fell in ours while the guard held them).
+        cable_faults: The soak injects cable pulls (a fixed base's tether); a legged robot gets
+            pushes instead.
     """
 
     name: str
@@ -43,6 +49,8 @@ class RobotKind:
     task: str
     joint_input: bool
     stand_up_on_reset: bool
+    holds_self_collision: bool = True
+    cable_faults: bool = True
 
     def state(self, robot, envs: int) -> RobotState:
         """The runtime's state layout for ``envs`` robots at the robot's ambient temperature:
@@ -68,7 +76,13 @@ class RobotKind:
 ARM = RobotKind(name="arm", legged=False, task="goals", joint_input=True, stand_up_on_reset=False)
 #: A floating-base (legged) robot: follow velocity commands.
 LEGGED = RobotKind(
-    name="legged", legged=True, task="locomotion", joint_input=False, stand_up_on_reset=True
+    name="legged",
+    legged=True,
+    task="locomotion",
+    joint_input=False,
+    stand_up_on_reset=True,
+    holds_self_collision=False,
+    cable_faults=False,
 )
 
 _KINDS: dict[str, RobotKind] = {ARM.name: ARM, LEGGED.name: LEGGED}

@@ -40,6 +40,7 @@ import time
 from pathlib import Path
 
 from deploy.backends.sim.engines import add_engine_option
+from deploy.robot_kind import robot_kind
 from robots.errors import Sim2RealError
 
 EXIT_PASSED = 0
@@ -346,7 +347,7 @@ def run(args) -> int:
             )
         ranges = load_ranges(args.ranges, robot, args.fault_interval)
     commands_source = None
-    if robot.floating_base and ranges.commands is None and args.spec is None:
+    if robot_kind(robot).task == "locomotion" and ranges.commands is None and args.spec is None:
         commands, commands_source = contract_commands(args.policy)
         if commands is not None:
             ranges = dataclasses.replace(ranges, commands=commands)

@@ -36,6 +36,7 @@ import numpy as np
 
 from deploy.monitors import kernel as mk
 from deploy.monitors.violations import MonitorState
+from deploy.robot_kind import robot_kind
 from deploy.safety.checks import CHECKS as GUARD_CHECKS
 
 #: The smoother's checks (its counters of :meth:`InterventionMonitor.__init__`).
@@ -93,7 +94,7 @@ class InterventionMonitor(MonitorState):
         self.counts = {c: np.zeros(envs, dtype=np.int64) for c in INTERVENTION_CHECKS}
         self.any = np.zeros(envs, dtype=np.int64)
         self.safety = np.zeros(envs, dtype=np.int64)
-        legged = bool(getattr(guard.robot, "floating_base", False))
+        legged = robot_kind(guard.robot).legged
         self.by_design = ("soft_limit",) if legged and self.mode == "position" else ()
         self.ticks = 0
         n = smoother.n_joints

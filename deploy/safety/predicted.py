@@ -14,6 +14,7 @@ import numpy as np
 import pinocchio as pin
 
 from deploy.kernels import np_max, np_min, pairs_may_touch, row_sum
+from deploy.robot_kind import robot_kind
 from deploy.safety.check import EFFORT, FINAL, FIRED, NEEDS_PYTHON, PREDICTED, TORQUE, GuardCheck
 
 #: Rows of ``g.scalars``: dt (s), the screens' margin (m), whether there are collision pairs.
@@ -82,13 +83,13 @@ class SelfCollision(GuardCheck):
     kernel = self_collision_kernel
 
     def constants(self, guard) -> np.ndarray:
-        """Row ``HOLDS``: 1.0 where the check holds a target in self-collision (a fixed base),
-        0.0 where it does not act (a floating base)."""
-        holds = 0.0 if guard.robot.floating_base else 1.0
+        """Row ``HOLDS``: 1.0 where the check holds a target in self-collision, 0.0 where it does
+        not act (:attr:`deploy.robot_kind.RobotKind.holds_self_collision`)."""
+        holds = 1.0 if robot_kind(guard.robot).holds_self_collision else 0.0
         return np.full((1, guard.robot.n_joints), holds)
 
     def reference(self, stage, g, out, q, dq, commanded):
-        if stage != PREDICTED or not g._has_pairs or g.robot.floating_base:
+        if stage != PREDICTED or not g._has_pairs or not robot_kind(g.robot).holds_self_collision:
             return None, None
         check = np.zeros(g.envs, dtype=bool)
         moved = np.abs(g._pred - g._col_q)  # rad per joint since the last check

@@ -32,6 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from deploy.robot_kind import robot_kind
 from eval.world.pushes import PushRanges
 from eval.world.session_ranges import SessionRanges
 
@@ -164,7 +165,7 @@ def _run_one(config, out: str) -> dict:
 
 
 def _applies(q: Quantity, robot) -> bool:
-    if q.legged_only and not robot.floating_base:
+    if q.legged_only and not robot_kind(robot).legged:
         return False
     if q.model_field is not None:
         model = robot.mj_model
@@ -206,7 +207,7 @@ def run_sweep(
         ranges=replace(template.ranges, pushes=None),
     )
     jobs = {("reference", 0.0): base}
-    quantities = [q for q in QUANTITIES if not (q.legged_only and not robot.floating_base)]
+    quantities = [q for q in QUANTITIES if not (q.legged_only and not robot_kind(robot).legged)]
     for q in quantities:
         if _applies(q, robot):
             for level in q.levels:

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
+from deploy.robot_kind import robot_kind
 from eval.world.checks import check_range
 from robots import Robot
 
@@ -256,7 +257,7 @@ def sample_fault_schedule(
     max_spike = max(stale_ticks - sensors.latency_ticks - 2, 1)
     kinds = ranges.kinds
     weights = np.ones(len(kinds)) if ranges.weights is None else np.array(ranges.weights)
-    if robot.floating_base and "cable" in kinds:
+    if not robot_kind(robot).cable_faults and "cable" in kinds:
         keep = [i for i, k in enumerate(kinds) if k != "cable"]
         kinds, weights = tuple(kinds[i] for i in keep), weights[keep]
         if not kinds or weights.sum() <= 0:

@@ -3,7 +3,8 @@ interface started beside ``deploy-run`` with its own command line.
 
 - :mod:`deploy.harness.servo_hil`: the serial-bus servos (Feetech, Dynamixel) on a pseudo-terminal;
 - :mod:`deploy.harness.unitree_hil`: a Unitree robot's low-level DDS topics;
-- :mod:`deploy.harness.ros2_hil`: a robot behind ROS 2 topics.
+- :mod:`deploy.harness.ros2_hil`: a robot behind ROS 2 topics;
+- :mod:`deploy.harness.common`: what they share (command line, emulator process, deploy-run).
 
 A harness may import every room below it (the command line's parser, the runtime, the emulators);
 nothing imports a harness.

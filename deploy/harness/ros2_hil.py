@@ -18,24 +18,24 @@ The exit code is the ros2 run's deploy-run's (0 clean, 1 hard violation, 2 fault
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
-import selectors
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 from deploy.cli.run_parser import split_passthrough
-from deploy.harness.unitree_hil import stop_emulator
+from deploy.harness.common import (
+    deploy_run_command,
+    hil_parser,
+    run_beside,
+    spawn_emulator,
+)
 
-#: s to wait for the emulator's ready line (loading the robot and its plant, joining ROS 2).
-START_TIMEOUT = 60.0
 #: Relative difference of goal success and violations within which the two runs agree (the
 #: issue's acceptance: 10 %).
 AGREEMENT = 0.10
-EXIT_BAD_INPUT, EXIT_DISAGREE = 3, 5
+EXIT_DISAGREE = 5
 
 
 def ros_environment(domain_id: int) -> dict[str, str]:
@@ -48,17 +48,11 @@ def ros_environment(domain_id: int) -> dict[str, str]:
 
 def start_emulator(robot: str, mode: str, env: dict, extra=()) -> tuple[subprocess.Popen, str]:
     """The emulator in its own process and its ready line ('' if it exits or stays silent for
-    ``START_TIMEOUT`` s). Stop it with :func:`deploy.harness.unitree_hil.stop_emulator`
-    (SIGTERM; it prints its counters on stderr)."""
-    cmd = [sys.executable, "-m", "deploy.ros2.emulator", "--robot", robot, "--mode", mode]
-    proc = subprocess.Popen(
-        [*cmd, *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
-    )
-    sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)
-    if not sel.select(timeout=START_TIMEOUT):
-        return proc, ""
-    return proc, proc.stdout.readline().strip()
+    :data:`deploy.harness.common.START_TIMEOUT` s). Stop it with
+    :func:`deploy.harness.common.stop_emulator` (SIGTERM; it prints its counters on stderr)."""
+    args = ["--robot", robot, "--mode", mode, *extra]
+    proc, ready = spawn_emulator("deploy.ros2.emulator", args, stderr=subprocess.PIPE, env=env)
+    return proc, ready or ""
 
 
 def emulator_counters(stderr: str) -> dict | None:
@@ -78,15 +72,14 @@ def policy_mode(policy: str, robot: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the emulator, deploy-run against it, then on the plant; see the module docstring."""
     argv, rest = split_passthrough(argv)
-    p = argparse.ArgumentParser(
-        prog="python -m deploy.harness.ros2_hil",
-        description="deploy-run --backend ros2 against the ros2_control emulator, then "
-        "--backend sim; arguments after '--' go to both deploy-runs.",
+    p = hil_parser(
+        "ros2_hil",
+        "deploy-run --backend ros2 against the ros2_control emulator, then --backend sim; "
+        "arguments after '--' go to both deploy-runs.",
+        domain=(42, "ROS 2 domain"),
     )
-    p.add_argument("--robot", required=True, help="shipped robot name or robot.toml path")
-    p.add_argument("--domain-id", type=int, default=42, help="ROS 2 domain (default 42)")
-    p.add_argument("--seed", type=int, default=0, help="the emulator plant's seed")
     p.add_argument(
         "--silence",
         default=None,
@@ -109,25 +102,17 @@ def _run(args, rest: list[str], tmp: Path) -> int:
         extra += ["--silence", args.silence]
     emulator, ready = start_emulator(args.robot, mode, env, extra)
     report = tmp / "ros2.json"
-    code = EXIT_BAD_INPUT
-    try:
-        if not ready:
-            print(f"hil: the emulator did not start (exit code {emulator.poll()})", file=sys.stderr)
-            return EXIT_BAD_INPUT
-        run = [sys.executable, "-m", "deploy.cli.deploy_run", "--backend", "ros2"]
-        run += ["--robot", args.robot, *rest, "--report", str(report)]
-        print(f"hil: ros2_control emulator {ready}; deploy-run {' '.join(run[3:])}", flush=True)
-        code = subprocess.call(run, env=env)
-    finally:
-        stop_emulator(emulator)
-        err = emulator.stderr.read() if emulator.stderr else ""
+    run = deploy_run_command("ros2", "--robot", args.robot, *rest, "--report", str(report))
+    code = run_beside(emulator, ready, f"ros2_control emulator {ready}", run, env=env)
+    err = emulator.stderr.read() if emulator.stderr else ""
+    if not ready:
+        return code
     counters = emulator_counters(err)
     print(f"hil: emulator counters {json.dumps(counters)}", flush=True)
     if args.no_sim or not report.is_file() or counters is None:
         return code
     sim_report = tmp / "sim.json"
-    sim = [sys.executable, "-m", "deploy.cli.deploy_run", "--backend", "sim"]
-    sim += ["--robot", args.robot, *rest, "--report", str(sim_report)]
+    sim = deploy_run_command("sim", "--robot", args.robot, *rest, "--report", str(sim_report))
     print(f"hil: the same run on the simulated plant: deploy-run {' '.join(sim[3:])}", flush=True)
     subprocess.call(sim, stdout=subprocess.DEVNULL)
     if not sim_report.is_file():

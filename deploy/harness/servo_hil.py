@@ -16,66 +16,42 @@ not start.
 
 from __future__ import annotations
 
-import argparse
-import selectors
-import signal
 import subprocess
-import sys
 from collections.abc import Sequence
 
 from deploy.backends.emulator.bus import PROTOCOLS
 from deploy.backends.emulator.faults import FAULT_HELP
 from deploy.cli.run_parser import split_passthrough
+from deploy.harness.common import (
+    deploy_run_command,
+    hil_parser,
+    run_beside,
+    spawn_emulator,
+    stop_emulator,
+)
 
-#: s to wait for the emulator's first line (its pty path): loading the robot and its plant.
-START_TIMEOUT = 60.0
-EXIT_BAD_INPUT = 3
+__all__ = ["main", "start_emulator", "stop_emulator"]
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the emulator and deploy-run against it; see the module docstring."""
     argv, rest = split_passthrough(argv)
-    p = argparse.ArgumentParser(
-        prog="python -m deploy.harness.servo_hil",
-        description="deploy-run on a servo bus served by the wire-protocol emulator; arguments "
-        "after '--' go to deploy-run.",
+    p = hil_parser(
+        "servo_hil",
+        "deploy-run on a servo bus served by the wire-protocol emulator; arguments after '--' go "
+        "to deploy-run.",
+        fault_help=FAULT_HELP,
     )
-    p.add_argument("--robot", required=True, help="shipped robot name or robot.toml path")
     p.add_argument("--protocol", choices=PROTOCOLS, required=True)
     p.add_argument("--baudrate", type=int, default=1_000_000, help="bit/s, both sides")
-    p.add_argument("--seed", type=int, default=0, help="the emulator plant's seed")
-    p.add_argument("--fault", action="append", default=[], metavar="FAULT", help=FAULT_HELP)
     args = p.parse_args(argv)
     emulator, port = start_emulator(
         args.robot, args.protocol, args.baudrate, args.seed, args.fault, stderr=None
     )
-    try:
-        if port is None:
-            print(
-                f"hil: the emulator did not start (exit code {emulator.poll()}); its error is "
-                "above",
-                file=sys.stderr,
-            )
-            return EXIT_BAD_INPUT
-        run = [
-            sys.executable,
-            "-m",
-            "deploy.cli.deploy_run",
-            "--backend",
-            args.protocol,
-            "--port",
-            port,
-            "--baudrate",
-            str(args.baudrate),
-            "--robot",
-            args.robot,
-            *rest,
-        ]
-        print(f"hil: {args.protocol} emulator on {port}; deploy-run {' '.join(run[3:])}")
-        sys.stdout.flush()
-        return subprocess.call(run)
-    finally:
-        stop_emulator(emulator)
+    run = deploy_run_command(
+        args.protocol, "--port", str(port), "--baudrate", str(args.baudrate), "--robot", args.robot
+    )
+    return run_beside(emulator, port, f"{args.protocol} emulator on {port}", [*run, *rest])
 
 
 def start_emulator(
@@ -87,41 +63,13 @@ def start_emulator(
     stderr=subprocess.DEVNULL,
 ) -> tuple[subprocess.Popen, str | None]:
     """``python -m deploy.backends.emulator`` in its own process, and the pty it serves on (its
-    first line of stdout; None when it exits or says nothing within ``START_TIMEOUT`` s).
-    ``faults``: ``--fault`` texts. ``stderr``: where its messages go (None: inherited). Stop it
-    with :func:`stop_emulator`."""
-    cmd = [
-        sys.executable,
-        "-m",
-        "deploy.backends.emulator",
-        "--robot",
-        robot,
-        "--protocol",
-        protocol,
-        "--baudrate",
-        str(baudrate),
-        "--seed",
-        str(seed),
-    ]
-    for fault in faults:
-        cmd += ["--fault", fault]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, text=True)
-    sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)
-    if not sel.select(timeout=START_TIMEOUT):
-        return proc, None
-    return proc, proc.stdout.readline().strip() or None
-
-
-def stop_emulator(proc: subprocess.Popen) -> None:
-    """SIGTERM (the emulator prints its bus counters and exits), then kill after 10 s."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+    first line of stdout; None when it exits or says nothing within
+    :data:`deploy.harness.common.START_TIMEOUT` s). ``faults``: ``--fault`` texts. ``stderr``:
+    where its messages go (None: inherited). Stop it with :func:`stop_emulator`."""
+    args = ["--robot", robot, "--protocol", protocol, "--baudrate", str(baudrate)]
+    return spawn_emulator(
+        "deploy.backends.emulator", [*args, "--seed", str(seed)], faults, stderr=stderr
+    )
 
 
 if __name__ == "__main__":

@@ -18,12 +18,8 @@ not start.
 
 from __future__ import annotations
 
-import argparse
 import json
-import selectors
-import signal
 import subprocess
-import sys
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -33,23 +29,24 @@ import numpy as np
 from deploy.backends.unitree.emulator.faults import FAULT_HELP
 from deploy.backends.unitree.emulator.truth import walk_truth
 from deploy.cli.run_parser import split_passthrough
-
-#: s to wait for the emulator's first line: loading the robot, its plant, joining DDS.
-START_TIMEOUT = 60.0
-EXIT_BAD_INPUT = 3
+from deploy.harness.common import (
+    deploy_run_command,
+    hil_parser,
+    run_beside,
+    spawn_emulator,
+)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the emulator and deploy-run against it; see the module docstring."""
     argv, rest = split_passthrough(argv)
-    p = argparse.ArgumentParser(
-        prog="python -m deploy.harness.unitree_hil",
-        description="deploy-run --backend unitree against the Unitree emulator on the loopback "
-        "interface; arguments after '--' go to deploy-run.",
+    p = hil_parser(
+        "unitree_hil",
+        "deploy-run --backend unitree against the Unitree emulator on the loopback interface; "
+        "arguments after '--' go to deploy-run.",
+        fault_help=FAULT_HELP,
+        domain=(1, "DDS domain"),
     )
-    p.add_argument("--robot", required=True, help="shipped robot name or robot.toml path")
-    p.add_argument("--domain-id", type=int, default=1, help="DDS domain (default 1)")
-    p.add_argument("--seed", type=int, default=0, help="the emulator plant's seed")
     p.add_argument(
         "--start",
         choices=("lying", "standing"),
@@ -63,7 +60,6 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="message family of both ends (default: robot.toml's)",
     )
-    p.add_argument("--fault", action="append", default=[], metavar="FAULT", help=FAULT_HELP)
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="hil-") as tmp:
         return _run(args, rest, Path(tmp))
@@ -81,34 +77,12 @@ def _run(args, rest: list[str], tmp: Path) -> int:
     emulator, ready = start_emulator(
         args.robot, args.domain_id, args.seed, args.fault, extra, stderr=None
     )
-    code = EXIT_BAD_INPUT
-    try:
-        if not ready:
-            print(
-                f"hil: the emulator did not start (exit code {emulator.poll()}); its error is "
-                "above",
-                file=sys.stderr,
-            )
-            return EXIT_BAD_INPUT
-        run = [
-            sys.executable,
-            "-m",
-            "deploy.cli.deploy_run",
-            "--backend",
-            "unitree",
-            "--network-interface",
-            "lo",
-            "--domain-id",
-            str(args.domain_id),
-            "--robot",
-            args.robot,
-            *rest,
-        ]
-        print(f"hil: Unitree emulator: {ready}; deploy-run {' '.join(run[3:])}", flush=True)
-        code = subprocess.call(run)
-    finally:
-        stop_emulator(emulator)
-    if report.is_file() and trace.is_file():
+    run = deploy_run_command(
+        "unitree", "--network-interface", "lo", "--domain-id", str(args.domain_id)
+    )
+    run += ["--robot", args.robot, *rest]
+    code = run_beside(emulator, ready, f"Unitree emulator: {ready}", run)
+    if ready and report.is_file() and trace.is_file():
         print_truth(json.loads(report.read_text()), np.load(trace))
     return code
 
@@ -141,41 +115,12 @@ def start_emulator(
 ) -> tuple[subprocess.Popen, str | None]:
     """``python -m deploy.backends.unitree.emulator`` on the loopback interface in its own
     process, and its first line of stdout (None when it exits or says nothing within
-    ``START_TIMEOUT`` s). ``faults``: ``--fault`` texts; ``extra``: more of its arguments.
-    ``stderr``: where its messages go (None: inherited). Stop it with :func:`stop_emulator`."""
-    cmd = [
-        sys.executable,
-        "-m",
-        "deploy.backends.unitree.emulator",
-        "--robot",
-        robot,
-        "--network-interface",
-        "lo",
-        "--domain-id",
-        str(domain_id),
-        "--seed",
-        str(seed),
-        *extra,
-    ]
-    for fault in faults:
-        cmd += ["--fault", fault]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, text=True)
-    sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)
-    if not sel.select(timeout=START_TIMEOUT):
-        return proc, None
-    return proc, proc.stdout.readline().strip() or None
-
-
-def stop_emulator(proc: subprocess.Popen) -> None:
-    """SIGTERM (the emulator prints its counters and exits), then kill after 10 s."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+    :data:`deploy.harness.common.START_TIMEOUT` s). ``faults``: ``--fault`` texts; ``extra``:
+    more of its arguments. ``stderr``: where its messages go (None: inherited). Stop it with
+    :func:`deploy.harness.common.stop_emulator`."""
+    args = ["--robot", robot, "--network-interface", "lo", "--domain-id", str(domain_id)]
+    args += ["--seed", str(seed), *extra]
+    return spawn_emulator("deploy.backends.unitree.emulator", args, faults, stderr=stderr)
 
 
 if __name__ == "__main__":

@@ -34,12 +34,11 @@ import numpy as np
 
 from deploy.backends.sim.plant import SimBackend
 from deploy.core.state import BaseState
-from deploy.monitors.interventions import InterventionMonitor
+from deploy.rig.rig import Rig
 from deploy.robot_kind import robot_kind
-from deploy.runtime import Mode, Runtime
+from deploy.runtime import Mode
 from deploy.spec.policy_spec import PolicySpec
 from deploy.tasks.locomotion import CommandRanges
-from deploy.tasks.task import task_for
 from eval.world.dynamics import randomized_model
 from eval.world.floor import apply_floor_friction
 from eval.world.sensors import SensorDraw, apply_imu, apply_sensors
@@ -177,23 +176,31 @@ class LocomotionTask:
         self.push_force = np.zeros((envs, 3))  # N, each env's push of _disturb
         #: the episodes' fault schedules (None: faults off)
         self.faults = EpisodeFaults(self.backend, self.push_force) if config.faults else None
-        self.runtime = Runtime(robot, self.policy, self.backend, injector=self.faults)
-        self.monitor = InterventionMonitor(self.runtime.guard, self.runtime.smoother)
+        self.t_episode = np.zeros(envs)
+        #: the run (deploy.rig): the runtime, the intervention monitor, the velocity commands
+        #: (deploy.tasks.episodes.EpisodeCommands) and their tracking; episodes judge the truth
+        #: their own way (the reward), so no truth monitors
+        self.rig = Rig(
+            robot,
+            self.policy,
+            self.backend,
+            envs=envs,
+            runtime={"injector": self.faults},
+            task={
+                "period": config.command_period,
+                "rng": self.rng,
+                "clock": self.t_episode,
+                "ranges": config.commands,
+            },
+            truth=False,
+            reset_task=False,
+        )
+        self.runtime, self.task = self.rig.runtime, self.rig.task
+        self.monitor = self.rig.interventions
         self._continuous = np.array([m.continuous_torque for m in robot.motors])
         self._previous_action = np.zeros((envs, robot.n_joints))
         self._before = np.zeros(envs, dtype=np.int64)
         self._true_base = BaseState.zeros(envs)  # the plant's base in the estimate's terms
-        self.t_episode = np.zeros(envs)
-        #: the velocity commands (deploy.tasks.episodes.EpisodeCommands) and their tracking
-        self.task = task_for(
-            robot,
-            envs,
-            self.backend,
-            period=config.command_period,
-            rng=self.rng,
-            clock=self.t_episode,
-            ranges=config.commands,
-        )
         self._one = np.eye(envs, dtype=bool)  # env e's mask, row e
         self.push_until = np.zeros(envs)
         self.episode_return = np.zeros(envs)

@@ -37,6 +37,9 @@ class Rig:
         start: Start the runtime before the monitors and the task are built (the soak's order);
             False: :meth:`start` starts it (``deploy-run``'s).
         hooks: After-tick hooks, called in order after the monitors and the task.
+        truth: Judge a simulated plant on its true state (violations, the base estimate); False:
+            no truth monitors (training, which rewards its own way).
+        reset_task: Reset the task's every env once built (False: the caller's episodes do).
 
     Attributes:
         runtime: The :class:`deploy.runtime.Runtime`.
@@ -65,6 +68,8 @@ class Rig:
         runtime: dict | None = None,
         start: bool = False,
         hooks=(),
+        truth: bool = True,
+        reset_task: bool = True,
     ):
         from deploy.monitors.interventions import InterventionMonitor
         from deploy.monitors.violations import ViolationMonitor
@@ -78,15 +83,17 @@ class Rig:
         self._started = start
         if start:
             self.runtime.start()
-        self.violations = ViolationMonitor(robot, envs) if self.simulated else None
+        judged = self.simulated and truth
+        self.violations = ViolationMonitor(robot, envs) if judged else None
         self.interventions = InterventionMonitor(self.runtime.guard, self.runtime.smoother)
         self.estimation = None
-        if self.simulated and self.kind.legged:
+        if judged and self.kind.legged:
             from deploy.monitors.estimation import EstimationMonitor
 
             self.estimation = EstimationMonitor(robot, envs)
         self.task = task_for(robot, envs, backend, interventions=self.interventions, **task)
-        self.task.reset(self.runtime, np.ones(envs, dtype=bool))
+        if reset_task:
+            self.task.reset(self.runtime, np.ones(envs, dtype=bool))
         self.hooks: list[RunHook] = []
         self.monitor_cost = LatencyHistogram()
         self.hook_cost = LatencyHistogram(0)

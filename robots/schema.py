@@ -79,9 +79,10 @@ class MotorConfig(_Strict):
 
     One TOML file a model in ``robots/motors/`` (the catalog), or a ``[motors.NAME]`` table in
     robot.toml (which takes precedence). The optional fields (``None`` when absent, left out of a
-    robot's description hash) are for the importer: ``max_velocity`` (rad/s at the output, the
-    no-load speed at the rated voltage), ``encoder_resolution`` (counts per output revolution)
-    and ``protection`` (a smart servo's own protection registers).
+    robot's description hash): ``max_velocity`` (rad/s at the output, the no-load speed at the
+    rated voltage: the importer's velocity limit, and the plant's torque-speed line,
+    :mod:`robots.torque_speed`), ``encoder_resolution`` (counts per output revolution) and
+    ``protection`` (a smart servo's own protection registers).
     """
 
     source: Annotated[str, Field(min_length=10)]  # the datasheet the numbers come from

@@ -45,3 +45,30 @@ def windup_exceeded(setpoint: np.ndarray, q: np.ndarray, bound: np.ndarray) -> b
             if abs(lag) > bound[e, j]:
                 wound = True
     return wound
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def torque_speed_range(
+    velocity: np.ndarray,
+    limit: np.ndarray,
+    stall: np.ndarray,
+    no_load: np.ndarray,
+    active: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """One env's actuator torque range from its motors' torque-speed lines
+    (:class:`robots.torque_speed.TorqueSpeedEnvelope`, its ``limits`` the numpy reference):
+    ``out`` (n, 2) N m, MuJoCo's ``jnt_actfrcrange`` rows of the joints, from the joint
+    ``velocity`` (n,) rad/s, the current ``limit`` (n,) N m, the ``stall`` torque (n,) N m at
+    the windings' temperature and the ``no_load`` speed (n,) rad/s; the limit alone where
+    ``active`` (n,) is False."""
+    for j in range(velocity.shape[0]):
+        if not active[j]:
+            out[j, 0] = -limit[j]
+            out[j, 1] = limit[j]
+            continue
+        w = velocity[j] / no_load[j]
+        upper = min(limit[j], stall[j] * (1.0 - w))
+        lower = max(-limit[j], -stall[j] * (1.0 + w))
+        out[j, 0] = lower
+        out[j, 1] = max(upper, lower)

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from deploy.backends.unitree.emulator.faults import FAULT_HELP
+from deploy.backends.unitree.emulator.robot import START_HELP, STARTS
 from deploy.backends.unitree.emulator.truth import walk_truth
 from deploy.cli.run_parser import split_passthrough
 from deploy.harness.common import (
@@ -47,13 +48,7 @@ def main(argv: list[str] | None = None) -> int:
         fault_help=FAULT_HELP,
         domain=(1, "DDS domain"),
     )
-    p.add_argument(
-        "--start",
-        choices=("lying", "standing"),
-        default="lying",
-        help="lying: folded on the floor, drivers off (as after the robot's stand-down); "
-        "standing: holding the home pose until the first LowCmd",
-    )
+    p.add_argument("--start", choices=STARTS, default=STARTS[0], help=START_HELP)
     p.add_argument(
         "--family",
         choices=("unitree_go", "unitree_hg"),

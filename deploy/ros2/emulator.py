@@ -29,13 +29,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 import threading
 import time
 
 import numpy as np
 
+from deploy.backends.emulator_main import emulator_parser, open_emulator, serve
 from deploy.ros2.context import NodeThread
 from deploy.ros2.controllers import FORWARD_CONTROLLERS, command_topic
 
@@ -178,15 +178,15 @@ def _pair(text: str) -> tuple[float, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
-        prog="python -m deploy.ros2.emulator",
-        description="A ros2_control controller manager (joint_state_broadcaster and a forward "
-        "command controller) over the MuJoCo plant.",
+    """Serve until SIGTERM or Ctrl-C (module docstring); the counters go to stderr at the end as
+    JSON. Exit code 0, or 2 on a bad argument or robot."""
+    p = emulator_parser(
+        "deploy.ros2.emulator",
+        "A ros2_control controller manager (joint_state_broadcaster and a forward command "
+        "controller) over the MuJoCo plant.",
     )
-    p.add_argument("--robot", required=True, help="shipped robot name or robot.toml path")
     p.add_argument("--mode", choices=sorted(FORWARD_CONTROLLERS), default=None)
     p.add_argument("--namespace", default="", help="the topics' namespace")
-    p.add_argument("--seed", type=int, default=0, help="the plant's seed")
     p.add_argument(
         "--silence",
         type=_pair,
@@ -195,26 +195,15 @@ def main(argv: list[str] | None = None) -> int:
         help="no joint_states for DURATION s, START s after the first command",
     )
     args = p.parse_args(argv)
-    try:
-        emulator = ControllerManagerEmulator(
-            args.robot, args.mode, namespace=args.namespace, seed=args.seed, silence=args.silence
-        )
-    except (ValueError, OSError) as err:
-        print(f"ros2 emulator: error: {err}", file=sys.stderr)
+    emulator = open_emulator("ros2", ControllerManagerEmulator, args)
+    if emulator is None:
         return 2
     print(
         f"ready: {emulator.robot.name}, joint_states at {1 / emulator.period:.0f} Hz, "
         f"{command_topic(emulator.controller)}",
         flush=True,
     )
-    signal.signal(signal.SIGTERM, lambda *_: emulator.request_stop())
-    try:
-        emulator.serve()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        counters = emulator.counters()
-        emulator.close()
+    counters = serve(emulator, emulator.close, emulator.counters)
     print(f"emulator counters: {json.dumps(counters)}", file=sys.stderr, flush=True)
     return 0
 

@@ -2,24 +2,22 @@
 
 from __future__ import annotations
 
-import argparse
-import signal
 import sys
 
 from deploy.backends.emulator.bus import PROTOCOLS, ServoBusEmulator
 from deploy.backends.emulator.faults import FAULT_HELP, WireFaults, parse_fault
+from deploy.backends.emulator_main import emulator_parser, open_emulator, parse_faults, serve
 
 
 def main(argv: list[str] | None = None) -> int:
     """Open a pty, print its path (first line of stdout), answer as the robot's servos until
     interrupted (Ctrl-C or SIGTERM); print the bus counters at the end. Exit code 0, or 2 on a
-    bad argument."""
-    p = argparse.ArgumentParser(
-        prog="python -m deploy.backends.emulator",
-        description="Emulate a robot's serial servo bus (Feetech STS or Dynamixel Protocol 2.0) "
-        "on a pseudo-terminal, with the MuJoCo plant behind the registers.",
+    bad argument or robot."""
+    p = emulator_parser(
+        "deploy.backends.emulator",
+        "Emulate a robot's serial servo bus (Feetech STS or Dynamixel Protocol 2.0) on a "
+        "pseudo-terminal, with the MuJoCo plant behind the registers.",
     )
-    p.add_argument("--robot", required=True, help="shipped robot name or robot.toml path")
     p.add_argument("--protocol", choices=PROTOCOLS, default=None, help="default: the motors'")
     p.add_argument("--baudrate", type=int, default=1_000_000, help="bit/s (timing model)")
     p.add_argument(
@@ -29,24 +27,12 @@ def main(argv: list[str] | None = None) -> int:
         help="reply latency in us (default: each servo's Return_Delay_Time, 500 us)",
     )
     p.add_argument("--mode", choices=("position", "velocity"), default=None)
-    p.add_argument("--seed", type=int, default=0)
     p.add_argument("--fault", action="append", default=[], metavar="FAULT", help=FAULT_HELP)
     args = p.parse_args(argv)
-    faults = WireFaults()
-    try:
-        for text in args.fault:
-            parse_fault(text, faults)
-    except ValueError as err:
-        p.error(str(err))
-    emulator = ServoBusEmulator(
-        args.robot,
-        args.protocol,
-        baudrate=args.baudrate,
-        latency_us=args.latency_us,
-        mode=args.mode,
-        faults=faults,
-        seed=args.seed,
-    )
+    faults = parse_faults(p, args.fault, WireFaults(), parse_fault)
+    emulator = open_emulator("servo", ServoBusEmulator, args, faults=faults)
+    if emulator is None:
+        return 2
     print(emulator.port, flush=True)
     ids = ", ".join(f"{s.servo_id} ({s.model.name})" for s in emulator.servos)
     print(
@@ -55,16 +41,10 @@ def main(argv: list[str] | None = None) -> int:
         file=sys.stderr,
         flush=True,
     )
-    signal.signal(signal.SIGTERM, lambda *_: emulator.request_stop())
     # the plant steps on a second thread of this process: a short interpreter-lock slice lets
     # the answering thread take it within ~0.2 ms of a packet (the default slice is 5 ms)
     sys.setswitchinterval(2e-4)
-    try:
-        emulator.serve()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        emulator.stop()
+    serve(emulator, emulator.stop)
     print(f"bus counters: {dict(emulator.stats)}", file=sys.stderr)
     return 0
 

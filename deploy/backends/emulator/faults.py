@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from deploy.backends.fault_text import Probabilities, heat, parse_fault_text, probability, timed
+
 
 @dataclass
-class WireFaults:
+class WireFaults(Probabilities):
     """What goes wrong on the emulated bus. Change the fields at any time (the bus reads them
     for every reply).
 
@@ -33,11 +35,7 @@ class WireFaults:
     temperature_limit: dict[int, int] = field(default_factory=dict)
     heat: dict[int, tuple[float, float]] = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
-        for name in ("drop", "corrupt"):
-            p = getattr(self, name)
-            if not 0.0 <= p <= 1.0:
-                raise ValueError(f"{name}: a probability in [0, 1] is expected, got {p}")
+    PROBABILITIES = ("drop", "corrupt")
 
 
 FAULT_HELP = (
@@ -49,33 +47,26 @@ FAULT_HELP = (
 )
 
 
+def _temperature_limit(faults: WireFaults, value: str) -> None:
+    servo, _, degc = value.partition("=")
+    faults.temperature_limit[int(servo)] = int(degc)
+
+
+#: ``--fault`` kind -> how its value is read (``FAULT_HELP``).
+KINDS = {
+    "drop": probability("drop"),
+    "corrupt": probability("corrupt"),
+    "unplug": timed("unplug"),
+    "overload": timed("overload"),
+    "heat": heat,
+    "temperature-limit": _temperature_limit,
+}
+
+
 def parse_fault(text: str, faults: WireFaults) -> None:
     """Add one ``--fault`` argument (``FAULT_HELP``) to ``faults``.
 
     Raises:
         ValueError: the text names no known fault or its values do not parse.
     """
-    kind, _, value = text.partition(":")
-    try:
-        if kind in ("drop", "corrupt"):
-            setattr(faults, kind, float(value))
-            faults.__post_init__()
-        elif kind == "unplug":
-            servo, _, at = value.partition("@")
-            faults.unplug[int(servo)] = float(at or 0.0)
-        elif kind == "overload":
-            servo, _, at = value.partition("@")
-            faults.overload[int(servo)] = float(at or 0.0)
-        elif kind == "heat":
-            servo, _, rest = value.partition("=")
-            watts, _, at = rest.partition("@")
-            if float(watts) < 0:
-                raise ValueError(f"heat: watts must be >= 0, got {watts}")
-            faults.heat[int(servo)] = (float(watts), float(at or 0.0))
-        elif kind == "temperature-limit":
-            servo, _, degc = value.partition("=")
-            faults.temperature_limit[int(servo)] = int(degc)
-        else:
-            raise ValueError(f"unknown fault kind '{kind}'")
-    except ValueError as err:
-        raise ValueError(f"--fault {text!r}: {err}; expected one of: {FAULT_HELP}") from None
+    parse_fault_text(text, faults, KINDS, FAULT_HELP)

@@ -4,23 +4,23 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 
+from deploy.backends.emulator_main import emulator_parser, open_emulator, parse_faults, serve
 from deploy.backends.unitree.emulator.faults import FAULT_HELP, EmulatorFaults, parse_fault
+from deploy.backends.unitree.emulator.robot import START_HELP, STARTS, UnitreeEmulator
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m deploy.backends.unitree.emulator",
-        description="Emulate a Unitree robot's low-level DDS interface (rt/lowstate, rt/lowcmd, "
-        "the motion switcher) with the MuJoCo plant behind it.",
+    """The emulator's command line (``--help`` lists it)."""
+    p = emulator_parser(
+        "deploy.backends.unitree.emulator",
+        "Emulate a Unitree robot's low-level DDS interface (rt/lowstate, rt/lowcmd, the motion "
+        "switcher) with the MuJoCo plant behind it.",
     )
-    p.add_argument("--robot", required=True, help="shipped robot name or robot.toml path")
     p.add_argument("--family", choices=("unitree_go", "unitree_hg"), default=None)
     p.add_argument("--network-interface", default="lo", metavar="IF", help="default: lo")
     p.add_argument("--domain-id", type=int, default=1, help="DDS domain (default 1)")
-    p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--sport-mode",
         default="",
@@ -34,13 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="degC at which a driver cuts off (default: the motor's maximum winding + 10 K)",
     )
-    p.add_argument(
-        "--start",
-        choices=("lying", "standing"),
-        default="lying",
-        help="lying: folded on the floor, drivers off (as after the robot's stand-down); "
-        "standing: holding the home pose until the first LowCmd",
-    )
+    p.add_argument("--start", choices=STARTS, default=STARTS[0], help=START_HELP)
     p.add_argument(
         "--bridge",
         choices=("unitree_mujoco",),
@@ -64,30 +58,11 @@ def main(argv: list[str] | None = None) -> int:
     counters go to stderr at the end as JSON. Exit code 0, or 2 on a bad argument."""
     p = build_parser()
     args = p.parse_args(argv)
-    faults = EmulatorFaults()
-    try:
-        for text in args.fault:
-            parse_fault(text, faults)
-    except ValueError as err:
-        p.error(str(err))
-    from deploy.backends.unitree.emulator.robot import UnitreeEmulator
-
-    try:
-        emulator = UnitreeEmulator(
-            args.robot,
-            family=args.family,
-            domain_id=args.domain_id,
-            interface=args.network_interface,
-            faults=faults,
-            seed=args.seed,
-            sport_mode=args.sport_mode,
-            mode_machine=args.mode_machine,
-            cutoff_temperature=args.cutoff_temperature,
-            start=args.start,
-            bridge=args.bridge,
-        )
-    except (ValueError, OSError) as err:
-        print(f"unitree emulator: error: {err}", file=sys.stderr)
+    faults = parse_faults(p, args.fault, EmulatorFaults(), parse_fault)
+    emulator = open_emulator(
+        "unitree", UnitreeEmulator, args, interface=args.network_interface, faults=faults
+    )
+    if emulator is None:
         return 2
     print(
         f"{emulator.robot.name} on interface {args.network_interface}, domain {args.domain_id}",
@@ -99,16 +74,13 @@ def main(argv: list[str] | None = None) -> int:
         file=sys.stderr,
         flush=True,
     )
-    signal.signal(signal.SIGTERM, lambda *_: emulator.request_stop())
-    try:
-        emulator.serve()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        counters = emulator.counters()
+
+    def close() -> None:
         emulator.stop()
         if args.trace:
             emulator.save_trace(args.trace)
+
+    counters = serve(emulator, close, emulator.counters)
     print(f"emulator counters: {json.dumps(counters)}", file=sys.stderr, flush=True)
     return 0
 

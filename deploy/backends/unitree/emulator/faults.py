@@ -8,9 +8,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from deploy.backends.fault_text import Probabilities, heat, parse_fault_text, probability, timed
+
 
 @dataclass
-class EmulatorFaults:
+class EmulatorFaults(Probabilities):
     """What goes wrong between the emulated robot and its controller. Change the fields at any
     time (the emulator reads them every physics step).
 
@@ -38,11 +40,7 @@ class EmulatorFaults:
     silent: dict[int, float] = field(default_factory=dict)
     heat: dict[int, tuple[float, float]] = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
-        for name in ("lose", "corrupt_state", "corrupt_command"):
-            p = getattr(self, name)
-            if not 0.0 <= p <= 1.0:
-                raise ValueError(f"{name}: a probability in [0, 1] is expected, got {p}")
+    PROBABILITIES = ("lose", "corrupt_state", "corrupt_command")
 
     def in_burst(self, t: float) -> bool:
         """Whether ``t`` (s) falls in a burst without LowState."""
@@ -68,33 +66,28 @@ def _window(text: str) -> tuple[float, float]:
     return float(start), float(length) if length else math.inf
 
 
+def _delay(faults: EmulatorFaults, value: str) -> None:
+    ms, _, window = value.partition("@")
+    start, length = _window(window or "0")
+    faults.delays.append((start, length, float(ms) / 1000.0))
+
+
+#: ``--fault`` kind -> how its value is read (``FAULT_HELP``).
+KINDS = {
+    "lose": probability("lose"),
+    "corrupt-state": probability("corrupt_state"),
+    "corrupt-command": probability("corrupt_command"),
+    "burst": lambda faults, value: faults.bursts.append(_window(value)),
+    "delay": _delay,
+    "silent": timed("silent"),
+    "heat": heat,
+}
+
+
 def parse_fault(text: str, faults: EmulatorFaults) -> None:
     """Add one ``--fault`` argument (``FAULT_HELP``) to ``faults``.
 
     Raises:
         ValueError: the text names no known fault or its values do not parse.
     """
-    kind, _, value = text.partition(":")
-    try:
-        if kind in ("lose", "corrupt-state", "corrupt-command"):
-            setattr(faults, kind.replace("-", "_"), float(value))
-            faults.__post_init__()
-        elif kind == "burst":
-            faults.bursts.append(_window(value))
-        elif kind == "delay":
-            ms, _, window = value.partition("@")
-            start, length = _window(window or "0")
-            faults.delays.append((start, length, float(ms) / 1000.0))
-        elif kind == "silent":
-            slot, _, at = value.partition("@")
-            faults.silent[int(slot)] = float(at or 0.0)
-        elif kind == "heat":
-            slot, _, rest = value.partition("=")
-            watts, _, at = rest.partition("@")
-            if float(watts) < 0:
-                raise ValueError(f"heat: watts must be >= 0, got {watts}")
-            faults.heat[int(slot)] = (float(watts), float(at or 0.0))
-        else:
-            raise ValueError(f"unknown fault kind '{kind}'")
-    except ValueError as err:
-        raise ValueError(f"--fault {text!r}: {err}; expected one of: {FAULT_HELP}") from None
+    parse_fault_text(text, faults, KINDS, FAULT_HELP)

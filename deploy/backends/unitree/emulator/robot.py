@@ -60,6 +60,12 @@ SETTLE_TIME = 1.0
 COMMAND_LOG = 60_000
 #: Physics steps between two samples of the base's true trajectory (:attr:`UnitreeEmulator.trace`).
 TRACE_EVERY = 10
+#: How the robot starts (``start``): the first is the default.
+STARTS = ("lying", "standing")
+START_HELP = (
+    "lying: folded on the floor, drivers off (as after the robot's stand-down); "
+    "standing: holding the home pose until the first LowCmd"
+)
 #: K above the motor's maximum winding temperature (robot.toml's motor) at which the emulated
 #: driver cuts off, by default (our choice: Unitree publishes no cut-off temperature).
 CUTOFF_MARGIN = 10.0
@@ -153,7 +159,7 @@ class UnitreeEmulator:
         cfg = self.robot.config.unitree
         if cfg is None:
             raise ValueError(f"{self.robot.directory / 'robot.toml'}: no [unitree] table")
-        if start not in ("standing", "lying"):
+        if start not in STARTS:
             raise ValueError(f"start '{start}': expected 'standing' or 'lying'")
         self.family = families.family(family or cfg.family)
         self.slots = np.array(cfg.motor_index)

@@ -15,6 +15,7 @@ from deploy.backends.emulator.servo import EmulatedServo, WriteResult
 from deploy.backends.servo import dynamixel_protocol as dxl
 from deploy.backends.servo import feetech_protocol as ft
 from deploy.backends.servo.control_tables import DYNAMIXEL_ERRNUM
+from deploy.backends.servo.framing import Packet, PacketParser
 
 #: Called after a host's write reached a servo (the bus reacts to mode and torque changes).
 OnWrite = Callable[[EmulatedServo, WriteResult], None]
@@ -49,15 +50,14 @@ def _sync_chunks(params: bytes, head: int, length: int) -> list[tuple[int, bytes
     return [(body[i], body[i + 1 : i + step]) for i in range(0, len(body) - length, step)]
 
 
-class FeetechDispatcher:
-    """Feetech SCS/STS protocol: PING, READ, WRITE, REG WRITE, ACTION, SYNC READ, SYNC WRITE.
+class Dispatcher:
+    """A protocol's dispatcher: its ``PARSER`` decodes the stream, its ``_handle`` answers each
+    packet; ``on_write`` is called after every write that reaches a servo."""
 
-    A packet with a bad checksum is ignored (no reply). Broadcast (ID 254) WRITE and SYNC WRITE
-    get no reply; a broadcast PING is answered by every servo in ID order.
-    """
+    PARSER: type[PacketParser] = PacketParser
 
     def __init__(self, on_write: OnWrite):
-        self._parser = ft.PacketParser()
+        self._parser = self.PARSER()
         self._on_write = on_write
 
     def feed(self, data: bytes, servos: Mapping[int, EmulatedServo]) -> list[Exchange]:
@@ -65,13 +65,26 @@ class FeetechDispatcher:
         servo)."""
         return [self._handle(p, servos) for p in self._parser.feed(data)]
 
+    def _handle(self, p: Packet, servos: Mapping[int, EmulatedServo]) -> Exchange:
+        raise NotImplementedError
+
+
+class FeetechDispatcher(Dispatcher):
+    """Feetech SCS/STS protocol: PING, READ, WRITE, REG WRITE, ACTION, SYNC READ, SYNC WRITE.
+
+    A packet with a bad checksum is ignored (no reply). Broadcast (ID 254) WRITE and SYNC WRITE
+    get no reply; a broadcast PING is answered by every servo in ID order.
+    """
+
+    PARSER = ft.PacketParser
+
     def _status(self, servo: EmulatedServo, params: bytes = b"") -> Reply:
         return Reply(servo, ft.encode_status(servo.servo_id, servo.error_byte(), params))
 
     def _write(self, servo: EmulatedServo, address: int, data: bytes) -> None:
         self._on_write(servo, servo.write(address, data))
 
-    def _handle(self, p: ft.Packet, servos: Mapping[int, EmulatedServo]) -> Exchange:
+    def _handle(self, p: Packet, servos: Mapping[int, EmulatedServo]) -> Exchange:
         size = len(p.params) + 6
         if not p.valid:
             return Exchange(size, [], valid=False)
@@ -107,7 +120,7 @@ class FeetechDispatcher:
         return Exchange(size, replies)
 
 
-class DynamixelDispatcher:
+class DynamixelDispatcher(Dispatcher):
     """Dynamixel Protocol 2.0: PING, READ, WRITE, REG WRITE, ACTION, REBOOT, SYNC READ,
     SYNC WRITE.
 
@@ -116,14 +129,7 @@ class DynamixelDispatcher:
     no reply; a broadcast PING is answered by every servo in ID order.
     """
 
-    def __init__(self, on_write: OnWrite):
-        self._parser = dxl.PacketParser()
-        self._on_write = on_write
-
-    def feed(self, data: bytes, servos: Mapping[int, EmulatedServo]) -> list[Exchange]:
-        """Decode ``data`` and apply every completed packet to ``servos`` (ID -> answering
-        servo)."""
-        return [self._handle(p, servos) for p in self._parser.feed(data)]
+    PARSER = dxl.PacketParser
 
     @staticmethod
     def _status(servo: EmulatedServo, params: bytes = b"", errnum: int = 0) -> Reply:
@@ -134,14 +140,14 @@ class DynamixelDispatcher:
         self._on_write(servo, result)
         return DYNAMIXEL_ERRNUM[result.error] if result.error else 0
 
-    def _handle(self, p: dxl.Packet, servos: Mapping[int, EmulatedServo]) -> Exchange:
+    def _handle(self, p: Packet, servos: Mapping[int, EmulatedServo]) -> Exchange:
         size = len(p.params) + 10
         unicast = p.servo_id != dxl.BROADCAST_ID
         target = servos.get(p.servo_id)
         if not p.valid:
             replies = [self._status(target, errnum=DYNAMIXEL_ERRNUM["crc"])] if target else []
             return Exchange(size, replies, valid=False)
-        inst, params = p.instruction, p.params
+        inst, params = p.code, p.params
         targets = [servos[i] for i in sorted(servos)] if not unicast else [target] if target else []
         replies: list[Reply] = []
         word = (lambda i: params[i] | (params[i + 1] << 8)) if len(params) >= 4 else None

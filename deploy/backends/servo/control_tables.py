@@ -220,6 +220,29 @@ DYNAMIXEL_ERRNUM = {
     "access": 7,
 }
 
+
+def _baud_codes(*rates: int) -> dict[int, int]:
+    """bit/s -> Baud_Rate code, the rates given in code order (0, 1, 2, ...)."""
+    return {rate: code for code, rate in enumerate(rates)}
+
+
+#: Our register names -> the control table's, where Feetech's and the e-Manual's spellings agree.
+_COMMON_NAMES = {
+    "id": "ID",
+    "baud_rate": "Baud_Rate",
+    "return_delay": "Return_Delay_Time",
+    "min_position": "Min_Position_Limit",
+    "max_position": "Max_Position_Limit",
+    "operating_mode": "Operating_Mode",
+    "torque_enable": "Torque_Enable",
+    "goal_position": "Goal_Position",
+    "goal_velocity": "Goal_Velocity",
+    "present_position": "Present_Position",
+    "present_velocity": "Present_Velocity",
+    "present_temperature": "Present_Temperature",
+    "moving": "Moving",
+}
+
 _R = Register
 _STS_SM15 = "sign_magnitude:15"
 STS3215 = ServoModel(
@@ -285,40 +308,19 @@ STS3215 = ServoModel(
     voltage_unit=0.1,
     return_delay_unit=2e-6,
     # Feetech STS memory table, address 6 (LeRobot's table has 57600 at 5 and 38400 at 6).
-    baud_codes={
-        1_000_000: 0,
-        500_000: 1,
-        250_000: 2,
-        128_000: 3,
-        115_200: 4,
-        76_800: 5,
-        57_600: 6,
-        38_400: 7,
-    },
+    baud_codes=_baud_codes(1_000_000, 500_000, 250_000, 128_000, 115_200, 76_800, 57_600, 38_400),
     error_bits=_FEETECH_ERRORS,
     operating_modes={"position": 0, "velocity": 1},
     # Unloading_Condition (19): which error bits cut the torque. We assume overheat and overload
     # (the real default is not verified here; read it back from your servo).
     torque_off_on=("overheat", "overload"),
     names={
-        "id": "ID",
-        "baud_rate": "Baud_Rate",
-        "return_delay": "Return_Delay_Time",
+        **_COMMON_NAMES,
         "status_return": "Response_Status_Level",
-        "min_position": "Min_Position_Limit",
-        "max_position": "Max_Position_Limit",
         "temperature_limit": "Max_Temperature_Limit",
-        "operating_mode": "Operating_Mode",
-        "torque_enable": "Torque_Enable",
-        "goal_position": "Goal_Position",
-        "goal_velocity": "Goal_Velocity",
-        "present_position": "Present_Position",
-        "present_velocity": "Present_Velocity",
         "present_load": "Present_Load",
         "present_voltage": "Present_Voltage",
-        "present_temperature": "Present_Temperature",
         "present_current": "Present_Current",
-        "moving": "Moving",
     },
 )
 
@@ -406,22 +408,10 @@ def _dynamixel_x(
             _R("Present_Load", 126, 2, 0, writable=False, encoding=TWOS_COMPLEMENT, unit="0.1 %")
         )
     names = {
-        "id": "ID",
-        "baud_rate": "Baud_Rate",
-        "return_delay": "Return_Delay_Time",
+        **_COMMON_NAMES,
         "status_return": "Status_Return_Level",
-        "min_position": "Min_Position_Limit",
-        "max_position": "Max_Position_Limit",
         "temperature_limit": "Temperature_Limit",
-        "operating_mode": "Operating_Mode",
-        "torque_enable": "Torque_Enable",
-        "goal_position": "Goal_Position",
-        "goal_velocity": "Goal_Velocity",
-        "present_position": "Present_Position",
-        "present_velocity": "Present_Velocity",
         "present_voltage": "Present_Input_Voltage",
-        "present_temperature": "Present_Temperature",
-        "moving": "Moving",
         "hardware_error": "Hardware_Error_Status",
         "velocity_limit": "Velocity_Limit",
     }
@@ -441,16 +431,9 @@ def _dynamixel_x(
         voltage_unit=0.1,
         return_delay_unit=2e-6,
         # e-Manual "Baud Rate(8)"
-        baud_codes={
-            9_600: 0,
-            57_600: 1,
-            115_200: 2,
-            1_000_000: 3,
-            2_000_000: 4,
-            3_000_000: 5,
-            4_000_000: 6,
-            4_500_000: 7,
-        },
+        baud_codes=_baud_codes(
+            9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000
+        ),
         error_bits=_DYNAMIXEL_ERRORS,
         operating_modes={"velocity": 1, "position": 3},
         torque_off_on=("overheat", "electrical_shock", "overload"),  # Shutdown (63) default 52

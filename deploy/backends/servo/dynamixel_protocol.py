@@ -16,12 +16,14 @@ Instructions: PING 0x01 (status parameters: model number L, H, firmware version)
 (address L, H, length L, H), WRITE 0x03 (address L, H, data...), SYNC READ 0x82 (address, length,
 id...), SYNC WRITE 0x83 (address, length, then per servo: id, data...). Status error byte: bit 7
 "Alert" (see Hardware Error Status), bits 0-6 an error number
-(:data:`deploy.backends.servo.control_tables.DYNAMIXEL_ERRNUM`).
+(:data:`deploy.backends.servo.control_tables.DYNAMIXEL_ERRNUM`). Decoded as a
+:class:`deploy.backends.servo.framing.Packet` (``code``: INST).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from deploy.backends.servo import framing
+from deploy.backends.servo.framing import Packet
 
 HEADER = b"\xff\xff\xfd"
 BROADCAST_ID = 0xFE
@@ -113,58 +115,26 @@ def encode_status(servo_id: int, error: int, params: bytes = b"") -> bytes:
     return _encode(servo_id, bytes((STATUS, error)) + bytes(params))
 
 
-@dataclass(frozen=True)
-class Packet:
-    """A decoded packet.
+class PacketParser(framing.PacketParser):
+    """Splits a byte stream into Protocol 2.0 packets (:class:`deploy.backends.servo.framing.
+    PacketParser`); a packet's ``code`` is its INST (0x55: status), its parameters unstuffed."""
 
-    Attributes:
-        servo_id: Packet ID (0xFE: broadcast).
-        instruction: INST (0x55 for a status packet).
-        params: Parameters, unstuffed (a status packet's start with the error byte).
-        valid: False when the CRC did not match (a servo ignores such a packet).
-    """
+    HEADER = HEADER
 
-    servo_id: int
-    instruction: int
-    params: bytes
-    valid: bool = True
+    def frame(self, buf: bytearray) -> int | None:
+        """``7 + LEN`` bytes (module docstring); 0 for stuffing (FF FF FD FD) or a LEN out of
+        range."""
+        if len(buf) < 7:
+            return None
+        if buf[3] != 0x00:  # FF FF FD FD is stuffing, not a header
+            return 0
+        length = buf[5] | (buf[6] << 8)
+        if length < 3 or 7 + length > MAX_PACKET:
+            return 0
+        return 7 + length if len(buf) >= 7 + length else None
 
-
-class PacketParser:
-    """Splits a byte stream into packets, resynchronising on the header after noise.
-
-    ``feed(data)`` returns the packets completed by ``data``; incomplete bytes wait for more.
-    Bytes before a header are dropped; a packet whose CRC fails is returned with ``valid=False``.
-    """
-
-    def __init__(self) -> None:
-        self._buf = bytearray()
-
-    def feed(self, data: bytes) -> list[Packet]:
-        """Append ``data`` and return the packets completed (possibly none)."""
-        buf = self._buf
-        buf += data
-        out: list[Packet] = []
-        while True:
-            start = buf.find(HEADER)
-            if start < 0:
-                del buf[: max(0, len(buf) - 2)]  # keep a possible partial header
-                return out
-            del buf[:start]
-            if len(buf) < 7:
-                return out
-            if buf[3] != 0x00:  # FF FF FD FD is stuffing, not a header
-                del buf[0]
-                continue
-            length = buf[5] | (buf[6] << 8)
-            if length < 3 or 7 + length > MAX_PACKET:
-                del buf[0]
-                continue
-            end = 7 + length
-            if len(buf) < end:
-                return out
-            packet = bytes(buf[:end])
-            del buf[:end]
-            valid = crc16(packet[:-2]) == (packet[-2] | (packet[-1] << 8))
-            payload = unstuff(packet[7:-2], packet[5:7])
-            out.append(Packet(packet[4], payload[0], payload[1:], valid))
+    def decode(self, packet: bytes) -> Packet:
+        """The packet, unstuffed, ``valid`` when its CRC matches."""
+        valid = crc16(packet[:-2]) == (packet[-2] | (packet[-1] << 8))
+        payload = unstuff(packet[7:-2], packet[5:7])
+        return Packet(packet[4], payload[0], payload[1:], valid)

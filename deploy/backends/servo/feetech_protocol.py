@@ -12,12 +12,14 @@ with its own status packet. Multi-byte values are little endian on STS servos.
 
 Instructions (parameters): PING (none); READ (address, length); WRITE (address, data...);
 SYNC READ 0x82 (address, length, id...); SYNC WRITE 0x83 (address, length, then per servo: id,
-data...). A status packet's parameters are the data read (READ, SYNC READ) or none.
+data...). A status packet's parameters are the data read (READ, SYNC READ) or none. Decoded as a
+:class:`deploy.backends.servo.framing.Packet`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from deploy.backends.servo import framing
+from deploy.backends.servo.framing import Packet
 
 HEADER = b"\xff\xff"
 BROADCAST_ID = 0xFE
@@ -59,54 +61,22 @@ def _encode(servo_id: int, code: int, params: bytes) -> bytes:
     return HEADER + body + bytes((checksum(body),))
 
 
-@dataclass(frozen=True)
-class Packet:
-    """A decoded packet.
+class PacketParser(framing.PacketParser):
+    """Splits a byte stream into Feetech packets (:class:`deploy.backends.servo.framing.
+    PacketParser`); a packet's ``code`` is its instruction, or a status packet's error byte."""
 
-    Attributes:
-        servo_id: Packet ID (0xFE: broadcast).
-        code: The instruction (instruction packet) or the error byte (status packet).
-        params: The parameters.
-        valid: False when the checksum did not match (a servo ignores such a packet).
-    """
+    HEADER = HEADER
 
-    servo_id: int
-    code: int
-    params: bytes
-    valid: bool = True
+    def frame(self, buf: bytearray) -> int | None:
+        """``4 + LENGTH`` bytes (module docstring); 0 for ID 0xFF or LENGTH < 2."""
+        if len(buf) < 4:
+            return None
+        servo_id, length = buf[2], buf[3]
+        if servo_id == 0xFF or length < 2:  # 0xFF 0xFF 0xFF ... or nonsense
+            return 0
+        return 4 + length if len(buf) >= 4 + length else None
 
-
-class PacketParser:
-    """Splits a byte stream into packets, resynchronising on the header after noise.
-
-    ``feed(data)`` returns the packets completed by ``data``; incomplete bytes wait for more.
-    Bytes before a header are dropped; a packet whose checksum fails is returned with
-    ``valid=False``.
-    """
-
-    def __init__(self) -> None:
-        self._buf = bytearray()
-
-    def feed(self, data: bytes) -> list[Packet]:
-        """Append ``data`` and return the packets completed (possibly none)."""
-        buf = self._buf
-        buf += data
-        out: list[Packet] = []
-        while True:
-            start = buf.find(HEADER)
-            if start < 0:
-                del buf[: max(0, len(buf) - 1)]  # keep a trailing 0xFF
-                return out
-            del buf[:start]
-            if len(buf) < 4:
-                return out
-            servo_id, length = buf[2], buf[3]
-            if servo_id == 0xFF or length < 2:  # 0xFF 0xFF 0xFF ... or nonsense: slide by one
-                del buf[0]
-                continue
-            end = 4 + length
-            if len(buf) < end:
-                return out
-            body = bytes(buf[2 : end - 1])
-            out.append(Packet(servo_id, body[2], body[3:], valid=checksum(body) == buf[end - 1]))
-            del buf[:end]
+    def decode(self, packet: bytes) -> Packet:
+        """The packet, ``valid`` when its checksum matches."""
+        body = packet[2:-1]
+        return Packet(body[0], body[2], body[3:], valid=checksum(body) == packet[-1])

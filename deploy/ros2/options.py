@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from deploy.backends.real_robot import refuse_simulation_options
 from deploy.backends.registry import register_backend
 
 
@@ -34,13 +35,7 @@ def add_options(group) -> None:
 
 def make(args, robot, mode: str):
     """A ros2_control robot in ``args.ros2_robot_namespace``."""
-    if args.envs != 1:
-        raise ValueError("--backend ros2 drives one robot: --envs must be 1")
-    if args.inject:
-        raise ValueError(
-            "--inject is simulation-only; with --backend ros2 use the emulator's faults "
-            "(python -m deploy.ros2.emulator --help)"
-        )
+    refuse_simulation_options(args, "ros2", "python -m deploy.ros2.emulator --help")
     from deploy.ros2.backend import Ros2ControlBackend
     from deploy.ros2.context import require_ros2
     from deploy.ros2.controllers import FORWARD_CONTROLLERS, controller_joints

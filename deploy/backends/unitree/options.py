@@ -3,6 +3,7 @@ and options (:mod:`deploy.backends.registry`)."""
 
 from __future__ import annotations
 
+from deploy.backends.real_robot import refuse_simulation_options
 from deploy.backends.registry import register_backend
 
 
@@ -57,13 +58,9 @@ def add_options(group) -> None:
 
 def make(args, robot, mode: str):
     """A Unitree robot over DDS on ``args.network_interface``, domain ``args.domain_id``."""
-    if args.envs != 1:
-        raise ValueError("--backend unitree drives one robot: --envs must be 1")
-    if args.inject:
-        raise ValueError(
-            "--inject is simulation-only; with --backend unitree use the emulator's faults "
-            "(python -m deploy.backends.unitree.emulator --fault ...)"
-        )
+    refuse_simulation_options(
+        args, "unitree", "python -m deploy.backends.unitree.emulator --fault ..."
+    )
     from deploy.backends.unitree.backend import UnitreeBackend
 
     return UnitreeBackend(

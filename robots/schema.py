@@ -102,6 +102,9 @@ class MotorConfig(_Strict):
     peak_torque: Positive  # N m at the output
     rotor_inertia: Positive  # kg m^2
     max_velocity: Positive | None = None  # rad/s at the output (no-load speed)
+    #: s, the drive's command delay (its bus and control loop): the simulated plant holds each
+    #: command back by it (deploy.backends.sim.actuators); not part of the description hash
+    command_delay: Annotated[float, Field(ge=0.0, le=1.0)] | None = None
     encoder_resolution: Annotated[int, Field(gt=0)] | None = None  # counts per output revolution
     protection: ServoProtection | None = None
 

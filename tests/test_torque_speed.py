@@ -2,6 +2,8 @@
 away does not outrun its no-load speed, a hot winding lowers the line, the compiled range equals
 its numpy reference in both quadrants, and pybullet's plant applies the same line."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -73,3 +75,79 @@ def test_pybullet_applies_the_same_line(so101):
 
     fastest = _fastest(BulletBackend(so101, mode="position"), so101)
     assert fastest.max() < 1.15 * so101.motors[0].max_velocity
+
+
+def _so101_with_delay(tmp_path, delay: float):
+    """The SO-101 with its STS3215 motor table in robot.toml, ``command_delay`` added."""
+    import shutil
+
+    from robots import load_robot
+    from robots.loading import motor_catalog
+
+    root = Path(__file__).resolve().parent.parent
+    folder = tmp_path / f"so101_delay_{delay:g}"
+    shutil.copytree(root / "robots" / "so101", folder)
+    # the catalog file as robot.toml's table (its sub-tables under it), the delay added
+    motor = motor_catalog()["sts3215"].read_text().replace("\n[", "\n[motors.sts3215.")
+    toml = folder / "robot.toml"
+    toml.write_text(toml.read_text() + f"\n[motors.sts3215]\ncommand_delay = {delay}\n{motor}")
+    return load_robot(str(toml))
+
+
+def _first_moving_step(plant, robot, steps: int) -> int:
+    """Physics steps after a 0.3 rad step of joint 0's position target before its actuator
+    torque leaves the value that held the old target."""
+    hold = np.asarray(robot.home, float)
+    for _ in range(3):
+        plant.write(hold[None])
+        plant.advance()
+    before = plant.joint_torque()[0, 0]
+    target = hold.copy()
+    target[0] += 0.3
+    plant.write(target[None])
+    for k in range(steps):
+        plant.advance()
+        if abs(plant.joint_torque()[0, 0] - before) > 0.05:
+            return round(k * robot.decimation)
+    return -1
+
+
+def test_a_motor_file_command_delay_holds_the_command_back(so101, tmp_path):
+    """A motor table's ``command_delay`` (s) delays the plant's response by that many control
+    periods (here 3 periods of the SO-101's 10 ms), and leaves the description hash alone."""
+    delayed = _so101_with_delay(tmp_path, 0.03)
+    assert delayed.description_hash == so101.description_hash
+    plant = SimBackend(delayed, mode="position")
+    assert plant.actuators.delay_steps[0] == 3 * so101.decimation
+    assert _first_moving_step(plant, delayed, 10) == 3 * so101.decimation
+    assert _first_moving_step(SimBackend(so101, mode="position"), so101, 10) == 0
+    state = plant.state_dict()
+    assert state["actuators/history"].shape == (1, 4, so101.n_joints)
+
+
+def test_a_session_draws_the_supply_voltage_only_when_its_range_is_set(so101, tmp_path):
+    """``[dynamics] supply_voltage`` scales every motor's line by one draw per session; without
+    it the draws are those of before (the supply is drawn last, and not at all when off)."""
+    from dataclasses import replace
+
+    from eval.soak.batch import SessionBatch
+    from eval.soak.session import SessionConfig
+    from eval.world.dynamics import DynamicsRanges, sample_dynamics
+    from eval.world.session_ranges import session_ranges
+
+    plain = sample_dynamics(so101, np.random.default_rng(3))
+    drawn = sample_dynamics(so101, np.random.default_rng(3), DynamicsRanges(supply_voltage=0.2))
+    assert replace(drawn, supply_voltage=plain.supply_voltage) == plain
+    assert plain.supply == 1.0 and 0.8 <= drawn.supply <= 1.2 and drawn.supply != 1.0
+    ranges = session_ranges(so101)
+    ranges = replace(ranges, dynamics=replace(ranges.dynamics, supply_voltage=0.2))
+    from deploy.export import export_policy
+
+    pt = tmp_path / "so101.pt"
+    pt.write_bytes((Path(__file__).resolve().parent.parent / "policies" / "so101.pt").read_bytes())
+    config = SessionConfig(robot="so101", policy=str(export_policy(pt)), seed=4, hours=0.01)
+    batch = SessionBatch([replace(config, ranges=ranges)], tmp_path / "soak", progress=False)
+    supply = batch.backend.actuators.supply[0]
+    assert 0.8 <= supply <= 1.2 and supply != 1.0
+    assert batch.sessions[0].draw.dynamics.supply == supply  # what the session reports
+    assert "supply_voltage" not in plain.to_dict()  # results and checkpoints as before

@@ -170,6 +170,7 @@ class SessionBatch:
         backend.set_sensor_streams([session_rng(c.seed, "sensor_noise") for c in configs])
         for e, d in enumerate(draws):
             apply_sensors(backend, e, d.sensors)
+            backend.actuators.supply[e] = d.dynamics.supply  # the battery's charge
             if d.encoder_bias is not None:  # each encoder's calibration error
                 backend.encoder_bias[e] = d.encoder_bias
             if d.imu is not None:  # a legged robot's IMU

@@ -40,6 +40,10 @@ class DynamicsRanges:
         friction: Joint dry friction (default +-50 %).
         damping: Joint viscous damping.
         actuator_strength: Servo gains or motor gear.
+        supply_voltage: The motors' supply voltage (a battery's charge), one draw per robot: a
+            motor's torque-speed line (its stall torque and no-load speed) scales with it
+            (:mod:`robots.torque_speed`; motors without a no-load speed are unaffected). Default
+            0: drawn only when set, so that sessions drawn before it are drawn the same.
     """
 
     link_length: float = 0.10
@@ -47,6 +51,7 @@ class DynamicsRanges:
     friction: float = 0.50
     damping: float = 0.50
     actuator_strength: float = 0.10
+    supply_voltage: float = 0.0
 
     def __post_init__(self):
         for name, value in asdict(self).items():
@@ -56,7 +61,7 @@ class DynamicsRanges:
     @classmethod
     def none(cls) -> DynamicsRanges:
         """No randomization: the nominal robot."""
-        return cls(0.0, 0.0, 0.0, 0.0, 0.0)
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -71,18 +76,32 @@ class Dynamics:
     friction: tuple[float, ...]
     damping: tuple[float, ...]
     actuator_strength: tuple[float, ...]
+    supply_voltage: tuple[float, ...] = ()  # one value for every motor; () is nominal (1.0)
 
     @classmethod
     def nominal(cls, n_joints: int) -> Dynamics:
         ones = (1.0,) * n_joints
-        return cls(ones, ones, ones, ones, ones)
+        return cls(ones, ones, ones, ones, ones, ones)
+
+    @property
+    def supply(self) -> float:
+        """The supply voltage over its nominal value (1.0 when not drawn)."""
+        return self.supply_voltage[0] if self.supply_voltage else 1.0
 
     def to_dict(self) -> dict[str, list[float]]:
-        return {k: list(v) for k, v in asdict(self).items()}
+        """Lists by field; a nominal supply voltage is left out (as results and checkpoints
+        written before it have it)."""
+        out = {k: list(v) for k, v in asdict(self).items()}
+        if self.supply == 1.0:
+            out.pop("supply_voltage")
+        return out
 
     @classmethod
     def from_dict(cls, data: dict) -> Dynamics:
-        return cls(**{k: tuple(float(x) for x in data[k]) for k in cls.__dataclass_fields__})
+        n = len(data["mass"])  # results written before supply_voltage have none: nominal
+        return cls(
+            **{k: tuple(float(x) for x in data.get(k, [1.0] * n)) for k in cls.__dataclass_fields__}
+        )
 
 
 def sample_dynamics(
@@ -101,6 +120,10 @@ def sample_dynamics(
         friction=draw(ranges.friction),
         damping=draw(ranges.damping),
         actuator_strength=draw(ranges.actuator_strength),
+        # one battery for every motor; no draw when not randomized (earlier sessions' streams)
+        supply_voltage=(float(rng.uniform(1.0 - r, 1.0 + r)),) * n
+        if (r := ranges.supply_voltage) > 0.0
+        else (1.0,) * n,
     )
 
 

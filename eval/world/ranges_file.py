@@ -8,7 +8,7 @@ is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the cl
     floor_friction = [0.6, 1.0]   # floating-base robots only, as added_base_mass (kg)
 
     [dynamics]    # relative half-ranges in [0, 1): a factor is drawn from U(1 - r, 1 + r)
-    mass = 0.3    # also link_length, friction, damping, actuator_strength
+    mass = 0.3    # also link_length, friction, damping, actuator_strength, supply_voltage
     com_offset = {body = "torso_link", x = [-0.05, 0.05]}  # m added to body_ipos per session
 
     [sensors]     # encoder: noise_sigma (rad), latency_ticks (ticks), dropout, encoder_bias

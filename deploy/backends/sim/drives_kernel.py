@@ -72,3 +72,33 @@ def torque_speed_range(
         lower = max(-limit[j], -stall[j] * (1.0 + w))
         out[j, 0] = lower
         out[j, 1] = max(upper, lower)
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def actuator_step(
+    history: np.ndarray,
+    tick: int,
+    sub: int,
+    nstep: int,
+    delay: np.ndarray,
+    ctrl: np.ndarray,
+    velocity: np.ndarray,
+    limit: np.ndarray,
+    stall: np.ndarray,
+    no_load: np.ndarray,
+    active: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """One env's actuators before physics step ``sub`` (of ``nstep``) of control tick ``tick``
+    (:class:`deploy.backends.sim.actuators.ActuatorModel`): each joint's command ``delay`` (n,)
+    physics steps old, from ``history`` (depth, n) (row ``t % depth`` the command of tick
+    ``t``), into every row of ``ctrl`` (actuators per joint, n); and its torque range
+    (:func:`torque_speed_range`) into ``out`` (n, 2)."""
+    depth, n = history.shape
+    for j in range(n):
+        age = delay[j] - sub
+        back = 0 if age <= 0 else (age + nstep - 1) // nstep
+        u = history[(tick - back) % depth, j]
+        for r in range(ctrl.shape[0]):
+            ctrl[r, j] = u
+    torque_speed_range(velocity, limit, stall, no_load, active, out)

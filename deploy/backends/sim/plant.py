@@ -25,8 +25,9 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
+from deploy.backends.sim.actuators import ActuatorModel
 from deploy.backends.sim.drives import SimDrives
-from deploy.backends.sim.drives_kernel import derating_due, torque_speed_range, windup_exceeded
+from deploy.backends.sim.drives_kernel import derating_due, windup_exceeded
 from deploy.backends.sim.legged_sensors import BaseSensorModel
 from deploy.backends.sim.sensors import JointSensorModel
 from deploy.backends.sim.state import SimState
@@ -36,7 +37,6 @@ from robots import CONTROL_MODES, Robot
 from robots.chain_bounds import motion_bounds
 from robots.errors import Sim2RealError
 from robots.thermal import EffortDerating, TwoNodeThermalModel
-from robots.torque_speed import TorqueSpeedEnvelope
 
 _DIVERGENCE_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQACC,
@@ -120,16 +120,15 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
         self._hot = np.zeros(envs, dtype=bool)  # envs with a winding above its derating start
         all_finite(self._hot[:, None] * 0.0)  # compiled (or loaded from cache) before a tick
         self._lag = np.zeros((envs, n))
-        #: the motors' torque-speed lines (robots.torque_speed), applied every physics step
-        self.envelope = TorqueSpeedEnvelope(robot.motors)
-        self._stall = np.tile(self.envelope.stall_coefficient, (envs, 1))  # N m, per tick
+        #: the motors' torque-speed lines and command delays, applied every physics step
+        self.actuators = ActuatorModel(
+            robot, envs, robot.control_period / robot.decimation, robot.decimation
+        )
         self._actfrc: list[np.ndarray] = [np.zeros((n, 2))] * envs  # jnt_actfrcrange rows
         # the drive kernels too (deploy.backends.sim.drives_kernel), on arrays of their types
         z = np.zeros((envs, n))
         derating_due(z, np.zeros(n), np.zeros(envs, dtype=bool), np.zeros(envs, dtype=bool))
         windup_exceeded(z.copy(), z, z)
-        e = self.envelope
-        torque_speed_range(z[0], z[0], z[0], e.no_load_speed, e.active, np.zeros((n, 2)))
         for e in range(envs):
             self._bind(e)
         self.decimation = robot.decimation
@@ -181,6 +180,7 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
             else:
                 self._command[e] = d.qfrc_bias[self._qvel_offset :]
             self._views[e][2][:] = self._command[e]
+        self.actuators.reset(which, self._command)
         if self.robot.floating_base:
             self._base_sensors.reset(which, envs is None)
         if envs is None:
@@ -357,16 +357,17 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
         command, torque, qpos = self._command, self._torque, self._qpos
         self._derate_drives()
         step, nstep, count = mujoco.mj_step, self.decimation, np.count_nonzero
-        stall = self._stall_torques()
-        no_load, active = self.envelope.no_load_speed, self.envelope.active
+        actuators = self.actuators if self.actuators.active else None
+        if actuators is not None:
+            actuators.start_period(self.tick, command, self.thermal.winding_temperature)
         for e, (m, d, ctrl, q, force, warnings) in enumerate(self._views):
-            ctrl[:] = command[e]
-            if stall is None:
+            if actuators is None:
+                ctrl[:] = command[e]
                 step(m, d, nstep=nstep)
-            else:  # the torque range follows the joint speed at every physics step
+            else:  # delayed commands, and a torque range that follows the joint speed
                 qvel, limit, out = self._qvel_views[e], self.effort_limit[e], self._actfrc[e]
-                for _ in range(nstep):
-                    torque_speed_range(qvel, limit, stall[e], no_load, active, out)
+                for sub in range(nstep):
+                    actuators.before_step(e, sub, ctrl, qvel, limit, out)
                     step(m, d)
             if count(warnings):  # MuJoCo found a bad state (and reset the data)
                 self._check_divergence(e, d)
@@ -380,19 +381,6 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
         self.tick += 1
         self.thermal.step(self._torque, self.control_period)
         self._sample_sensors()
-
-    def _stall_torques(self) -> np.ndarray | None:
-        """(envs, n) N m, each motor's stall torque at its winding's present temperature (the
-        torque-speed line's intercept, :class:`robots.torque_speed.TorqueSpeedEnvelope`); None
-        when no motor has a torque-speed line."""
-        e = self.envelope
-        if not e.any:
-            return None
-        np.subtract(self.thermal.winding_temperature, e.t_ref, out=self._stall)
-        np.multiply(self._stall, e.alpha, out=self._stall)
-        np.add(self._stall, 1.0, out=self._stall)
-        np.divide(e.stall_coefficient, self._stall, out=self._stall)
-        return self._stall
 
     def set_base_velocity(self, env: int, velocity_xy: np.ndarray) -> None:
         """Set the floating base's horizontal velocity of ``env`` to ``velocity_xy`` (2,) m/s,

@@ -48,6 +48,7 @@ class SimState:
             "thermal/power": th.power,
             "thermal/ambient": th.ambient,
             **(self._base_sensors.state_fields() if self._base_sensors is not None else {}),
+            **self.actuators.state_fields(),
         }
 
     def _mujoco_fields(self) -> dict[str, np.ndarray]:

@@ -41,7 +41,6 @@ from deploy.backends.sim.bullet.build import (
     xyzw,
 )
 from deploy.backends.sim.bullet.drive_law import DriveLaw
-from deploy.backends.sim.drives_kernel import torque_speed_range
 from deploy.backends.sim.legged_sensors import sensor_address
 from deploy.backends.sim.plant import SimBackend, SimulationDivergedError
 from robots import Robot
@@ -201,6 +200,8 @@ class BulletBackend(SimBackend):
         """
         command, torque, qpos = self._command, self._torque, self._qpos
         self._derate_drives()
+        if self.actuators.active:
+            self.actuators.start_period(self.tick, command, self.thermal.winding_temperature)
         reps = self._nu // self.n_joints
         for e, (m, d, _ctrl, q, force, _warnings) in enumerate(self._views):
             ctrl = self._ctrl
@@ -238,16 +239,14 @@ class BulletBackend(SimBackend):
         dt, nstep = float(m.opt.timestep), self.decimation
         act, tau = d.act, d.qfrc_actuator[dofs]
         state = self._base
-        stall = self._stall_torques()  # the motors' torque-speed lines, as the MuJoCo plant's
-        no_load, active = self.envelope.no_load_speed, self.envelope.active
+        actuators = self.actuators if self.actuators.active else None  # as the MuJoCo plant's
+        grid = ctrl.reshape(-1, self.n_joints)  # (actuators per joint, n) view of ctrl
         for s in range(nstep):
             states = pb.getJointStates(body, idx, physicsClientId=c)
             q = np.fromiter((x[0] for x in states), float, len(idx))
             dq = np.fromiter((x[1] for x in states), float, len(idx))
-            if stall is not None:  # the drive law clips to jnt_actfrcrange (drive_law.py)
-                torque_speed_range(
-                    dq, self.effort_limit[e], stall[e], no_load, active, self._actfrc[e]
-                )
+            if actuators is not None:  # delayed commands; the law clips to jnt_actfrcrange
+                actuators.before_step(e, s, grid, dq, self.effort_limit[e], self._actfrc[e])
             tau[:] = law.torque(ctrl, act, q, dq, dt)
             applied = tau + law.passive(dq)
             if armature:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from deploy.core.registry import Registry
 from deploy.core.state import RobotState
 
 
@@ -85,7 +86,8 @@ LEGGED = RobotKind(
     cable_faults=False,
 )
 
-_KINDS: dict[str, RobotKind] = {ARM.name: ARM, LEGGED.name: LEGGED}
+#: The registered robot kinds (:class:`deploy.core.registry.Registry`).
+KIND_REGISTRY: Registry[RobotKind] = Registry("robot kind")
 
 
 def register_kind(kind: RobotKind) -> RobotKind:
@@ -95,17 +97,18 @@ def register_kind(kind: RobotKind) -> RobotKind:
         ValueError: the name is registered already, or the kind's task is not one
             :func:`deploy.tasks.task.task_for` builds (``goals``, ``locomotion``).
     """
-    if kind.name in _KINDS:
-        raise ValueError(f"robot kind '{kind.name}' is registered already")
     if kind.task not in ("goals", "locomotion"):
         raise ValueError(f"robot kind '{kind.name}': task '{kind.task}' is not goals or locomotion")
-    _KINDS[kind.name] = kind
-    return kind
+    return KIND_REGISTRY.register(kind.name, kind)
+
+
+register_kind(ARM)
+register_kind(LEGGED)
 
 
 def kinds() -> dict[str, RobotKind]:
     """The registered robot kinds by name."""
-    return dict(_KINDS)
+    return KIND_REGISTRY.entries()
 
 
 def robot_kind(robot) -> RobotKind:
@@ -119,10 +122,10 @@ def robot_kind(robot) -> RobotKind:
     name = getattr(robot.config, "kind", None)
     if name is None:
         return LEGGED if robot.floating_base else ARM
-    kind = _KINDS.get(name)
+    kind = kinds().get(name)
     where = f"{robot.directory / 'robot.toml'}: kind"
     if kind is None:
-        raise ValueError(f"{where} = '{name}': expected one of {sorted(_KINDS)}")
+        raise ValueError(f"{where} = '{name}': expected one of {sorted(kinds())}")
     if kind.legged != robot.floating_base:
         need = "a [base] table (a floating base)" if kind.legged else "no [base] table"
         raise ValueError(f"{where} = '{name}' needs {need}")

@@ -76,14 +76,23 @@ def arm_onnx(tmp_path_factory):
 
 @pytest.fixture
 def plugin(tmp_path, monkeypatch):
-    """Writes a module into a folder on sys.path; returns its name."""
+    """Writes a module into a folder on sys.path; returns its name. What a test registers is
+    forgotten after it (each registry's ``scoped``)."""
+    from contextlib import ExitStack
+
+    from deploy.robot_kind import KIND_REGISTRY
+
     monkeypatch.syspath_prepend(str(tmp_path))
+    stack = ExitStack()
+    for registry in (hooks.HOOK_REGISTRY, engines.ENGINE_REGISTRY, KIND_REGISTRY):
+        stack.enter_context(registry.scoped())
 
     def write(name: str, text: str) -> str:
         (tmp_path / f"{name}.py").write_text(textwrap.dedent(text).format(module=name))
         return name
 
     yield write
+    stack.close()
     for name in [m for m in sys.modules if m.startswith("seam_")]:
         del sys.modules[name]
 
@@ -91,9 +100,9 @@ def plugin(tmp_path, monkeypatch):
 def test_a_new_hook_is_one_module_and_one_registration_line(
     plugin, monkeypatch, tmp_path, arm_onnx
 ):
-    monkeypatch.setattr(hooks, "_REGISTRY", dict(hooks.registered_hooks()))
     module = plugin("seam_running_ticks", HOOK_MODULE)
-    monkeypatch.setattr(hooks, "BUILTIN", (*hooks.BUILTIN, module))  # the registration line
+    registry = hooks.HOOK_REGISTRY
+    monkeypatch.setattr(registry, "builtin", (*registry.builtin, module))  # the registration line
     report = tmp_path / "run.json"
     argv = ["--policy", arm_onnx, "--duration", "2", "--report", str(report)]
     assert deploy_run_main([*argv, "--count-running"]) == 0
@@ -109,7 +118,6 @@ def test_a_new_hook_is_one_module_and_one_registration_line(
 def test_a_new_engine_is_one_module_and_one_registration_line(
     plugin, monkeypatch, tmp_path, arm_onnx
 ):
-    monkeypatch.setattr(engines, "_REGISTRY", dict(engines._REGISTRY))
     module = plugin("seam_rk4", ENGINE_MODULE)
     engines.register_engine("mujoco-rk4", f"{module}:RK4Plant")  # the registration line
     report = tmp_path / "run.json"
@@ -159,7 +167,6 @@ def _arm3_with_kind(tmp_path, kind: str):
 def test_a_new_robot_kind_is_one_module_and_robot_toml_names_it(plugin, monkeypatch, tmp_path):
     from deploy import robot_kind as kinds
 
-    monkeypatch.setattr(kinds, "_KINDS", kinds.kinds())
     robot = _arm3_with_kind(tmp_path, "compliant_arm")
     with pytest.raises(ValueError, match=r"robot.toml: kind = 'compliant_arm': expected one of"):
         kinds.robot_kind(robot)

@@ -16,9 +16,10 @@ A factory is called as ``factory(args, robot, mode)`` (the parsed options, the
 from __future__ import annotations
 
 import argparse
-import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
+
+from deploy.core.registry import Registry, check_target, load_target
 
 #: Modules whose import registers the built-in backends (light: no MuJoCo, no SDK).
 BUILTIN = (
@@ -41,11 +42,11 @@ class BackendEntry:
 
     def build(self, args, robot, mode: str):
         """The backend, not yet opened (the factory's errors propagate)."""
-        module, _, function = self.factory.partition(":")
-        return getattr(importlib.import_module(module), function)(args, robot, mode)
+        return load_target(self.factory)(args, robot, mode)
 
 
-_REGISTRY: dict[str, BackendEntry] = {}
+#: The registered backends (:class:`deploy.core.registry.Registry`).
+BACKEND_REGISTRY: Registry[BackendEntry] = Registry("backend", BUILTIN)
 
 
 def register_backend(
@@ -59,20 +60,13 @@ def register_backend(
     Raises:
         ValueError: ``name`` is registered already, or ``factory`` is not ``module:function``.
     """
-    if name in _REGISTRY:
-        raise ValueError(f"backend '{name}' is registered already ({_REGISTRY[name].factory})")
-    if ":" not in factory:
-        raise ValueError(f"backend '{name}': factory {factory!r} is not 'module:function'")
-    entry = BackendEntry(name, help, factory, add_options)
-    _REGISTRY[name] = entry
-    return entry
+    check_target("backend", name, factory)
+    return BACKEND_REGISTRY.register(name, BackendEntry(name, help, factory, add_options))
 
 
 def backends() -> dict[str, BackendEntry]:
     """The registered backends by name (the built-in ones registered first)."""
-    for module in BUILTIN:
-        importlib.import_module(module)
-    return dict(_REGISTRY)
+    return BACKEND_REGISTRY.entries()
 
 
 def add_backend_options(parser: argparse.ArgumentParser, argv: list[str] | None) -> None:

@@ -15,9 +15,10 @@ register in the modules of :data:`BUILTIN`; a new hook is one module that calls
 from __future__ import annotations
 
 import argparse
-import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
+
+from deploy.core.registry import Registry, check_target, load_target
 
 #: Modules whose import registers the built-in command-line hooks (light: nothing heavy imported).
 BUILTIN = ("deploy.rig.builtin_hooks",)
@@ -57,11 +58,11 @@ class HookEntry:
 
     def build(self, args, rig) -> RunHook | None:
         """The hook for the parsed ``args`` (None: its options leave it off)."""
-        module, _, function = self.factory.partition(":")
-        return getattr(importlib.import_module(module), function)(args, rig)
+        return load_target(self.factory)(args, rig)
 
 
-_REGISTRY: dict[str, HookEntry] = {}
+#: The registered command-line hooks (:class:`deploy.core.registry.Registry`).
+HOOK_REGISTRY: Registry[HookEntry] = Registry("hook", BUILTIN)
 
 
 def register_hook(
@@ -74,19 +75,13 @@ def register_hook(
     Raises:
         ValueError: ``name`` is registered already, or ``factory`` is not ``module:function``.
     """
-    if name in _REGISTRY:
-        raise ValueError(f"hook '{name}' is registered already ({_REGISTRY[name].factory})")
-    if ":" not in factory:
-        raise ValueError(f"hook '{name}': factory {factory!r} is not 'module:function'")
-    _REGISTRY[name] = HookEntry(name, factory, add_options)
-    return _REGISTRY[name]
+    check_target("hook", name, factory)
+    return HOOK_REGISTRY.register(name, HookEntry(name, factory, add_options))
 
 
 def registered_hooks() -> dict[str, HookEntry]:
     """The registered command-line hooks by name (the built-in ones first)."""
-    for module in BUILTIN:
-        importlib.import_module(module)
-    return dict(_REGISTRY)
+    return HOOK_REGISTRY.entries()
 
 
 def add_hook_options(parser: argparse.ArgumentParser) -> None:

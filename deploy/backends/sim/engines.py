@@ -17,8 +17,9 @@ line is parsed); the class is imported only when a plant is built.
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
+
+from deploy.core.registry import Registry, check_target, load_target
 
 
 @dataclass(frozen=True)
@@ -36,9 +37,8 @@ class Engine:
         Raises:
             ValueError: the engine's package is not installed (naming the extra).
         """
-        module, _, name = self.plant.partition(":")
         try:
-            return getattr(importlib.import_module(module), name)
+            return load_target(self.plant)
         except ImportError as exc:
             if self.extra is None:
                 raise
@@ -54,12 +54,8 @@ BUILTIN_ENGINES = {
     "pybullet": ("deploy.backends.sim.bullet.plant:BulletBackend", "pybullet"),
 }
 
-_REGISTRY: dict[str, Engine] = {
-    name: Engine(name, plant, extra) for name, (plant, extra) in BUILTIN_ENGINES.items()
-}
-
-#: The engine names at import, the default first (see :func:`engines` for those added since).
-ENGINES = tuple(_REGISTRY)
+#: The registered engines (:class:`deploy.core.registry.Registry`).
+ENGINE_REGISTRY: Registry[Engine] = Registry("engine")
 
 
 def register_engine(name: str, plant: str, extra: str | None = None) -> Engine:
@@ -68,17 +64,20 @@ def register_engine(name: str, plant: str, extra: str | None = None) -> Engine:
     Raises:
         ValueError: ``name`` is registered already, or ``plant`` is not ``module:Class``.
     """
-    if name in _REGISTRY:
-        raise ValueError(f"engine '{name}' is registered already ({_REGISTRY[name].plant})")
-    if ":" not in plant:
-        raise ValueError(f"engine '{name}': plant {plant!r} is not 'module:Class'")
-    _REGISTRY[name] = Engine(name, plant, extra)
-    return _REGISTRY[name]
+    check_target("engine", name, plant)
+    return ENGINE_REGISTRY.register(name, Engine(name, plant, extra))
+
+
+for _name, (_plant, _extra) in BUILTIN_ENGINES.items():
+    register_engine(_name, _plant, _extra)
+
+#: The engine names at import, the default first (see :func:`engines` for those added since).
+ENGINES = ENGINE_REGISTRY.names()
 
 
 def engines() -> tuple[str, ...]:
     """The registered engine names, the default (``mujoco``) first."""
-    return tuple(_REGISTRY)
+    return ENGINE_REGISTRY.names()
 
 
 def add_engine_option(parser, help_tail: str = "") -> None:
@@ -99,9 +98,7 @@ def plant_class(engine: str) -> type:
     Raises:
         ValueError: an unknown engine, or its package not installed (naming the extra).
     """
-    if engine not in _REGISTRY:
-        raise ValueError(f"engine '{engine}' is unknown; expected one of {engines()}")
-    return _REGISTRY[engine].plant_class()
+    return ENGINE_REGISTRY.get(engine).plant_class()
 
 
 def make_plant(engine: str, robot, **kwargs):
@@ -112,14 +109,3 @@ def make_plant(engine: str, robot, **kwargs):
         ValueError: an unknown engine (see :func:`plant_class`) or bad plant arguments.
     """
     return plant_class(engine)(robot, **kwargs)
-
-
-__all__ = [
-    "ENGINES",
-    "Engine",
-    "add_engine_option",
-    "engines",
-    "make_plant",
-    "plant_class",
-    "register_engine",
-]

@@ -47,13 +47,14 @@ from deploy.backends.emulator.faults import WireFaults
 from deploy.backends.emulator.servo import EmulatedServo, WriteResult
 from deploy.backends.servo.control_tables import model_for_motor
 from deploy.backends.sim.plant import SimBackend
+from deploy.backends.worker import ServesOnThread
 from robots import Robot, load_robot
 
 PROTOCOLS = ("feetech", "dynamixel")
 _MAX_LAG = 0.25  # s the plant may fall behind the wall clock before the origin moves
 
 
-class ServoBusEmulator:
+class ServoBusEmulator(ServesOnThread):
     """Servos of ``robot`` on a pseudo-terminal, backed by the MuJoCo plant.
 
     Use as a context manager (``with ServoBusEmulator(robot, 'feetech') as emu: emu.port``) or
@@ -150,29 +151,14 @@ class ServoBusEmulator:
                 servo.set("goal_position", servo.get("present_position"))
 
     # ------------------------------------------------------------------ lifecycle
-    def __enter__(self) -> ServoBusEmulator:
-        self.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
-
-    def start(self) -> None:
-        """Serve on a daemon thread (idempotent)."""
-        if self._thread is None:
-            self._thread = threading.Thread(target=self.serve, name="servo-bus-emulator")
-            self._thread.daemon = True
-            self._thread.start()
+    # (the context manager, start() and request_stop(): ServesOnThread)
+    THREAD_NAME = "servo-bus-emulator"
 
     def _start_plant(self) -> None:
         if self._plant_thread is None:
             self._plant_thread = threading.Thread(target=self._run_plant, name="emulated-plant")
             self._plant_thread.daemon = True
             self._plant_thread.start()
-
-    def request_stop(self) -> None:
-        """Ask :meth:`serve` to return (safe from a signal handler); :meth:`stop` also closes."""
-        self._stop.set()
 
     def stop(self) -> None:
         """Stop serving and close the pty (idempotent)."""

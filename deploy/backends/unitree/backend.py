@@ -43,6 +43,7 @@ from deploy.backends.unitree import family as families
 from deploy.backends.unitree.codec import MessageCodec
 from deploy.backends.unitree.dds import DdsLink
 from deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
+from deploy.backends.worker import Worker
 from deploy.core.backend import BackendLifecycle, SensorFrame, checked_command
 from deploy.core.latency import LatencyHistogram
 from robots import Robot
@@ -140,8 +141,7 @@ class UnitreeBackend(BackendLifecycle):
         self.resent = 0  # LowCmd re-sent by the stream thread
         self._last_send: tuple | None = None
         self._last_send_at = 0.0
-        self._stream_stop = threading.Event()
-        self._stream: threading.Thread | None = None
+        self._stream = Worker("unitree-lowcmd", self._stream_loop)
         #: samples refused for their CRC whose ``crc`` field was 0 (a bridge that fills none)
         self.zero_crc = 0
         #: samples taken unchecked (``lowstate_unchecked``: no CRC, no tick)
@@ -189,8 +189,7 @@ class UnitreeBackend(BackendLifecycle):
         self._read_lock = threading.Lock()
         self._hold_reads = False
         self._handover: float | None = None
-        self._hold_stop = threading.Event()
-        self._hold: threading.Thread | None = None
+        self._hold = Worker("unitree-hold", self._hold_loop)
         self._hold_target = np.asarray(robot.home, dtype=np.float64).copy()
         self._t0 = time.monotonic()
         self._opened_at = None
@@ -210,19 +209,21 @@ class UnitreeBackend(BackendLifecycle):
         self._reader = self._link.reader(TOPIC_LOWSTATE, self.family.low_state, STATE_DEPTH)
         self._writer = self._link.writer(TOPIC_LOWCMD, self.family.low_cmd)
         self._opened_at = time.monotonic()
-        self._start_stream()
+        if self.resend_period is not None:  # re-send the last command when nothing else was
+            self._stream.start()
         try:
             bringup.bring_up(self)
         except BaseException:
             self._close_link(damp=self.sent > 0)
             raise
         self._enabled = True
-        self._start_hold()
+        self._hold_reads = True
+        self._hold.start()
 
     def close(self) -> None:
         """Damping for ``CLOSE_DAMPING_TIME`` (the last command the robot keeps), then leave the
         domain; idempotent."""
-        self._stop_hold()
+        self._hold.stop()
         self._close_link(damp=True)
 
     def _close_link(self, damp: bool) -> None:
@@ -236,7 +237,7 @@ class UnitreeBackend(BackendLifecycle):
                     self._send(self._hold_target)
                     time.sleep(self.period)
         finally:
-            self._stop_stream()
+            self._stream.stop()
             self._reader = self._writer = None
             self._link.close()
             self._link = None
@@ -257,43 +258,22 @@ class UnitreeBackend(BackendLifecycle):
         self._damping = bool(envs[0]) or not self._enabled
 
     # ------------------------------------------------------------------ the command stream
-    def _start_stream(self) -> None:
+    def _stream_loop(self, stop: threading.Event) -> None:
         """Re-send the last command every ``resend_period`` s when nothing else was sent."""
-        if self.resend_period is None or self._stream is not None:
-            return
-        self._stream_stop.clear()
-        self._stream = threading.Thread(
-            target=self._stream_loop, name="unitree-lowcmd", daemon=True
-        )
-        self._stream.start()
-
-    def _stream_loop(self) -> None:
         period = self.resend_period
-        while not self._stream_stop.wait(period):
+        while not stop.wait(period):
             last = self._last_send
             if last is not None and time.monotonic() - self._last_send_at >= 0.9 * period:
                 self._send(*last)
                 self.resent += 1
 
-    def _stop_stream(self) -> None:
-        if self._stream is not None:
-            self._stream_stop.set()
-            self._stream.join(timeout=2.0)
-            self._stream = None
-
     # ------------------------------------------------------------------ hold until the runtime
-    def _start_hold(self) -> None:
-        self._hold_stop.clear()
-        self._hold_reads = True
-        self._hold = threading.Thread(target=self._hold_loop, name="unitree-hold", daemon=True)
-        self._hold.start()
-
-    def _hold_loop(self) -> None:
+    def _hold_loop(self, stop: threading.Event) -> None:
         """Until the runtime's first command, every control period: send the home pose, and
         until the runtime's first read, take the states (their counters stay whole; none for
         ``bringup.BRINGUP_STALE``, as in the bring-up: damping from then on)."""
         next_t = time.monotonic()
-        while not self._hold_stop.is_set():
+        while not stop.is_set():
             with self._read_lock:
                 if self._hold_reads:
                     self._read()
@@ -301,13 +281,7 @@ class UnitreeBackend(BackendLifecycle):
                         self._damping = True
             self._send(self._hold_target, self.ramp_kp, self.ramp_kd)
             next_t += self.period
-            self._hold_stop.wait(max(0.0, next_t - time.monotonic()))
-
-    def _stop_hold(self) -> None:
-        if self._hold is not None:
-            self._hold_stop.set()
-            self._hold.join(timeout=2.0)
-            self._hold = None
+            stop.wait(max(0.0, next_t - time.monotonic()))
 
     # ------------------------------------------------------------------ the three calls
     def read(self) -> SensorFrame:
@@ -438,8 +412,8 @@ class UnitreeBackend(BackendLifecycle):
             ValueError: wrong shape or a non-finite value (nothing is written).
         """
         command = checked_command(command, self.n)
-        if self._hold is not None:
-            self._stop_hold()
+        if self._hold.running:
+            self._hold.stop()
             self._handover = time.monotonic()
         t0 = time.perf_counter_ns()
         self._send(command[0])

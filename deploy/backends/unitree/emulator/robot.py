@@ -41,6 +41,7 @@ from deploy.backends.unitree.emulator.faults import EmulatorFaults
 from deploy.backends.unitree.emulator.lowstate import LowStateBuilder
 from deploy.backends.unitree.emulator.services import MotionSwitcherService
 from deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
+from deploy.backends.worker import ServesOnThread
 from deploy.core.latency import LatencyHistogram
 from robots import Robot, load_robot
 
@@ -92,7 +93,7 @@ def board_rate_robot(robot: Robot) -> Robot:
     )
 
 
-class UnitreeEmulator:
+class UnitreeEmulator(ServesOnThread):
     """A Unitree robot's low-level DDS interface backed by the MuJoCo plant (module docstring).
 
     Use as a context manager (``with UnitreeEmulator('go2', domain_id=7) as emu:``) or call
@@ -248,22 +249,8 @@ class UnitreeEmulator:
         d.kp[:] = d.kd[:] = 0.0
 
     # ------------------------------------------------------------------ lifecycle
-    def __enter__(self) -> UnitreeEmulator:
-        self.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
-
-    def start(self) -> None:
-        """Serve on a daemon thread (idempotent)."""
-        if self._thread is None:
-            self._thread = threading.Thread(target=self.serve, name="unitree-emulator", daemon=True)
-            self._thread.start()
-
-    def request_stop(self) -> None:
-        """Ask :meth:`serve` to return (safe from a signal handler)."""
-        self._stop.set()
+    # (the context manager, start() and request_stop(): ServesOnThread)
+    THREAD_NAME = "unitree-emulator"
 
     def stop(self) -> None:
         """Stop serving and leave the DDS domain (idempotent)."""

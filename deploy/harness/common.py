@@ -1,10 +1,10 @@
 """The skeleton the hardware-in-the-loop harnesses share.
 
 Each harness (:mod:`.servo_hil`, :mod:`.unitree_hil`, :mod:`.ros2_hil`) parses its command line
-(:func:`hil_parser`: ``--robot``, ``--seed`` and its own options; what follows ``--`` goes to
-deploy-run), starts its emulator in a process of its own and waits for its first line
-(:func:`spawn_emulator`), runs deploy-run against it in a second process and stops the emulator
-(:func:`run_beside`, :func:`stop_emulator`); the harness adds only its emulator's and
+(:func:`hil_parser`: ``--robot``, ``--seed`` and its own options; :func:`parse_hil`: what follows
+``--`` goes to deploy-run), starts its emulator in a process of its own and waits for its first
+line (:func:`spawn_emulator`), runs deploy-run against it in a second process and stops the
+emulator (:func:`run_beside`, :func:`stop_emulator`); the harness adds only its emulator's and
 deploy-run's arguments and what it prints afterwards.
 """
 
@@ -16,6 +16,9 @@ import signal
 import subprocess
 import sys
 from collections.abc import Sequence
+from typing import Any
+
+from deploy.cli.run_parser import split_passthrough
 
 #: s to wait for an emulator's first line: loading the robot and its plant, joining the bus.
 START_TIMEOUT = 60.0
@@ -41,6 +44,14 @@ def hil_parser(
     if fault_help is not None:
         p.add_argument("--fault", action="append", default=[], metavar="FAULT", help=fault_help)
     return p
+
+
+def parse_hil(p: argparse.ArgumentParser, argv: Sequence[str] | None) -> tuple[Any, list[str]]:
+    """``(args, rest)``: the harness's own arguments (before ``--``) parsed by ``p``, and those
+    after ``--`` for deploy-run; ``argv`` None: ``sys.argv[1:]``. Exits (code 2) on a bad
+    argument, as argparse does."""
+    own, rest = split_passthrough(argv)
+    return p.parse_args(own), rest
 
 
 def spawn_emulator(

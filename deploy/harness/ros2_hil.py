@@ -24,10 +24,10 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from deploy.cli.run_parser import split_passthrough
 from deploy.harness.common import (
     deploy_run_command,
     hil_parser,
+    parse_hil,
     run_beside,
     spawn_emulator,
 )
@@ -73,7 +73,6 @@ def policy_mode(policy: str, robot: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the emulator, deploy-run against it, then on the plant; see the module docstring."""
-    argv, rest = split_passthrough(argv)
     p = hil_parser(
         "ros2_hil",
         "deploy-run --backend ros2 against the ros2_control emulator, then --backend sim; "
@@ -87,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
         help="the emulator's joint_states silent for a while (a stall)",
     )
     p.add_argument("--no-sim", action="store_true", help="skip the --backend sim comparison")
-    args = p.parse_args(argv)
+    args, rest = parse_hil(p, argv)
     if "--policy" not in rest:
         p.error("give deploy-run's --policy after '--'")
     with tempfile.TemporaryDirectory(prefix="hil-ros2-") as tmp:

@@ -21,10 +21,10 @@ from collections.abc import Sequence
 
 from deploy.backends.emulator.bus import PROTOCOLS
 from deploy.backends.emulator.faults import FAULT_HELP
-from deploy.cli.run_parser import split_passthrough
 from deploy.harness.common import (
     deploy_run_command,
     hil_parser,
+    parse_hil,
     run_beside,
     spawn_emulator,
     stop_emulator,
@@ -35,7 +35,6 @@ __all__ = ["main", "start_emulator", "stop_emulator"]
 
 def main(argv: list[str] | None = None) -> int:
     """Run the emulator and deploy-run against it; see the module docstring."""
-    argv, rest = split_passthrough(argv)
     p = hil_parser(
         "servo_hil",
         "deploy-run on a servo bus served by the wire-protocol emulator; arguments after '--' go "
@@ -44,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--protocol", choices=PROTOCOLS, required=True)
     p.add_argument("--baudrate", type=int, default=1_000_000, help="bit/s, both sides")
-    args = p.parse_args(argv)
+    args, rest = parse_hil(p, argv)
     emulator, port = start_emulator(
         args.robot, args.protocol, args.baudrate, args.seed, args.fault, stderr=None
     )

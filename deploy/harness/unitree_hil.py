@@ -29,10 +29,10 @@ import numpy as np
 from deploy.backends.unitree.emulator.faults import FAULT_HELP
 from deploy.backends.unitree.emulator.robot import START_HELP, STARTS
 from deploy.backends.unitree.emulator.truth import walk_truth
-from deploy.cli.run_parser import split_passthrough
 from deploy.harness.common import (
     deploy_run_command,
     hil_parser,
+    parse_hil,
     run_beside,
     spawn_emulator,
 )
@@ -40,7 +40,6 @@ from deploy.harness.common import (
 
 def main(argv: list[str] | None = None) -> int:
     """Run the emulator and deploy-run against it; see the module docstring."""
-    argv, rest = split_passthrough(argv)
     p = hil_parser(
         "unitree_hil",
         "deploy-run --backend unitree against the Unitree emulator on the loopback interface; "
@@ -55,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="message family of both ends (default: robot.toml's)",
     )
-    args = p.parse_args(argv)
+    args, rest = parse_hil(p, argv)
     with tempfile.TemporaryDirectory(prefix="hil-") as tmp:
         return _run(args, rest, Path(tmp))
 

@@ -40,6 +40,7 @@ import time
 from pathlib import Path
 
 from deploy.backends.sim.engines import add_engine_option
+from deploy.backends.sim.options import add_plant_motors_option
 from deploy.robot_kind import robot_kind
 from robots.errors import Sim2RealError
 
@@ -107,6 +108,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--workers", type=int, default=None, help="processes (default: one per core)")
     add_engine_option(p, "; the same sessions on a second engine: sim2sim")
+    add_plant_motors_option(p)
     p.add_argument(
         "--checkpoint-minutes", type=float, default=5.0, help="simulated minutes (0: none)"
     )
@@ -371,6 +373,7 @@ def run(args) -> int:
         window_minutes=args.window_minutes,
         spec=None if args.spec is None else str(args.spec),
         engine=args.engine,
+        plant_motors=args.plant_motors,
     )
     from eval.film.strip import FilmRecorder
 

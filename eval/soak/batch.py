@@ -132,6 +132,7 @@ class SessionBatch:
         from deploy.backends.sim.engines import make_plant
         from deploy.rig.rig import Rig
         from robots import load_robot
+        from robots.plant_motors import load_plant_motors
 
         if not configs:
             raise SessionError("a batch needs at least one session")
@@ -157,7 +158,12 @@ class SessionBatch:
         self.dt = dt = robot.control_period
         k = len(configs)
         draws = [sample_session(robot, c.seed, c.duration, c.ranges, c.faults) for c in configs]
-        models = [randomized_model(robot, mode, d.dynamics) for d in draws]
+        # the motors as the plant simulates them (robots.plant_motors), when they differ
+        plant = None if first.plant_motors is None else load_plant_motors(first.plant_motors, robot)
+        plant_robot = robot if plant is None else plant.robot
+        models = [randomized_model(plant_robot, mode, d.dynamics) for d in draws]
+        if plant is not None:
+            models = [plant.apply(m) for m in models]
         self.kind = robot_kind(robot)
         for m, d in zip(models, draws, strict=True):
             if d.floor_friction is not None:  # a legged robot's floor
@@ -166,7 +172,9 @@ class SessionBatch:
                 add_base_mass(m, robot, d.added_base_mass)
             if d.com_offset is not None:  # a centre of mass off its nominal place
                 shift_com(m, *d.com_offset)
-        backend = self.backend = make_plant(first.engine, robot, mode=mode, envs=k, models=models)
+        backend = self.backend = make_plant(
+            first.engine, plant_robot, mode=mode, envs=k, models=models
+        )
         backend.set_sensor_streams([session_rng(c.seed, "sensor_noise") for c in configs])
         for e, d in enumerate(draws):
             apply_sensors(backend, e, d.sensors)

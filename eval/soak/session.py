@@ -70,6 +70,8 @@ class SessionConfig:
         window_minutes: Simulated minutes per window of the windowed goal success rate.
         spec: PolicySpec JSON for an ONNX without our metadata (``deploy-run --spec``), or None.
         engine: Physics engine of the plant (:func:`deploy.backends.sim.engines.engines`).
+        plant_motors: A plant motors file (:mod:`robots.plant_motors`): the motors as the plant
+            simulates them, when they differ from the robot's description; None: as described.
     """
 
     robot: str = "arm3"
@@ -86,6 +88,7 @@ class SessionConfig:
     window_minutes: float = 10.0
     spec: str | None = None
     engine: str = "mujoco"
+    plant_motors: str | None = None
 
     def __post_init__(self):
         def bad(name: str, expected: str) -> SessionError:

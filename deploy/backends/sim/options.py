@@ -8,8 +8,33 @@ from deploy.backends.sim.engines import add_engine_option, engines
 
 
 def add_options(group) -> None:
-    """``--engine``: the physics engine of the plant."""
+    """``--engine``: the physics engine of the plant; ``--plant-motors``: its motors."""
     add_engine_option(group)
+    add_plant_motors_option(group)
+
+
+def add_plant_motors_option(group) -> None:
+    """``--plant-motors FILE``: the motors as the plant simulates them (one option for
+    deploy-run's sim backend, soak-test and the emulators)."""
+    group.add_argument(
+        "--plant-motors",
+        default=None,
+        metavar="FILE",
+        help="the motors as the plant simulates them, when they differ from the robot's "
+        "description (friction, armature, damping factors; motor fields such as command_delay "
+        "and max_velocity): robots/plant_motors.py",
+    )
+
+
+def plant_for(robot, mode: str, path: str | None, envs: int):
+    """``(plant_robot, models)``: ``robot`` and None, or with a plant motors file ``path`` the
+    robot with its motors replaced and ``envs`` plant models with its joint factors."""
+    if path is None:
+        return robot, None
+    from robots.plant_motors import load_plant_motors
+
+    plant = load_plant_motors(path, robot)
+    return plant.robot, [plant.apply(plant.robot.plant_model(mode)) for _ in range(envs)]
 
 
 def make(args, robot, mode: str):
@@ -18,7 +43,8 @@ def make(args, robot, mode: str):
     from deploy.backends.sim.engines import make_plant
 
     engine = getattr(args, "engine", engines()[0])
-    return make_plant(engine, robot, mode=mode, envs=args.envs, seed=args.seed)
+    robot, models = plant_for(robot, mode, getattr(args, "plant_motors", None), args.envs)
+    return make_plant(engine, robot, mode=mode, envs=args.envs, seed=args.seed, models=models)
 
 
 register_backend(

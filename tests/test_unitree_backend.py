@@ -35,7 +35,12 @@ from deploy.backends.unitree.emulator.robot import TRACE_EVERY  # noqa: E402
 from deploy.backends.unitree.emulator.truth import walk_truth  # noqa: E402
 from deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT  # noqa: E402
 from deploy.spec.policy_spec import PolicySpec  # noqa: E402
-from tests.unitree_reference import crc_bitwise, go_lowcmd_c_struct, le_words  # noqa: E402
+from tests.unitree_reference import (  # noqa: E402
+    crc_bitwise,
+    go_lowcmd_c_struct,
+    go_lowcmd_object,
+    le_words,
+)
 
 # On the wall clock against an emulator: run apart from the parallel suite (Makefile), so the
 # suite's own workers do not starve it; it must still hold beside other jobs.
@@ -178,16 +183,7 @@ def test_bringup_then_lowcmd_on_the_wire_is_byte_identical_to_the_idl(go2):
         q = float(np.float32(target[j]))
         motors[slot] = (1, q, 0.0, 0.0, float(np.float32(joint.kp)), float(np.float32(joint.kd)))
     crc = crc_bitwise(le_words(go_lowcmd_c_struct((0xFE, 0xEF), 0xFF, motors, 0, 0, 0)[:-4]))
-    built = unitree_go.LowCmd_(
-        head=[0xFE, 0xEF],
-        level_flag=0xFF,
-        motor_cmd=[
-            unitree_go.MotorCmd_(mode=m, q=q, dq=dq, tau=tau, kp=kp, kd=kd)
-            for m, q, dq, tau, kp, kd in motors
-        ],
-        crc=crc,
-    )
-    assert ours == built.serialize()
+    assert ours == go_lowcmd_object(motors, crc).serialize()
     # the close left the robot damped (kp 0, kd robot.toml's damping_kd), not stiff
     _, _, kp, kd = emu.commands[-1]
     assert (kp == 0).all() and np.allclose(kd, go2.config.unitree.damping_kd)

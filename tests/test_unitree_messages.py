@@ -25,6 +25,7 @@ from deploy.backends.unitree.layout import c_dtype  # noqa: E402
 from tests.unitree_reference import (  # noqa: E402
     crc_bitwise,
     go_lowcmd_c_struct,
+    go_lowcmd_object,
     le_words,
     mpeg2_bytes,
 )
@@ -67,17 +68,7 @@ def test_lowcmd_is_byte_identical_to_cyclone_dds_and_its_crc_covers_the_c_struct
     assert codec.buffer.tobytes() == c_struct[:-4] + struct.pack("<I", expected_crc)
 
     # on the wire: Cyclone DDS's own serializer of the message built field by field
-    built = unitree_go.LowCmd_(
-        head=[0xFE, 0xEF],
-        level_flag=0xFF,
-        motor_cmd=[
-            unitree_go.MotorCmd_(mode=mode, q=q, dq=dq, tau=tau, kp=kp, kd=kd)
-            for mode, q, dq, tau, kp, kd in motors
-        ],
-        gpio=5,
-        reserve=77,
-        crc=expected_crc,
-    )
+    built = go_lowcmd_object(motors, expected_crc, gpio=5, reserve=77)
     assert wire == built.serialize()
     assert wire[:4] == b"\x00\x01\x00\x00"  # XCDR1, little endian, as Unitree's types
     # and back: our decode of Cyclone DDS's bytes checks the CRC; one flipped byte fails it

@@ -1,6 +1,6 @@
 """References the Unitree tests build independently of the code under test: a bitwise CRC
-written from its definition and the C struct of a ``unitree_go`` LowCmd_ packed with
-:mod:`struct` from the IDL's member list."""
+written from its definition, the C struct of a ``unitree_go`` LowCmd_ packed with
+:mod:`struct` from the IDL's member list, and the LowCmd_ built field by field."""
 
 from __future__ import annotations
 
@@ -9,30 +9,29 @@ import struct
 POLY = 0x04C11DB7
 
 
-def crc_bitwise(words: list[int]) -> int:
-    """CRC-32 of 32-bit words, each fed most significant bit first: polynomial 0x04C11DB7,
-    initial 0xFFFFFFFF, no reflection, no final XOR (the STM32 CRC unit Unitree's boards use)."""
+def _msb_first(values, bits: int) -> int:
+    """CRC-32 (polynomial 0x04C11DB7, initial 0xFFFFFFFF, no reflection, no final XOR) of
+    ``bits``-bit values, each fed most significant bit first, bit by bit."""
     crc = 0xFFFFFFFF
-    for word in words:
-        for bit in range(31, -1, -1):
-            feedback = ((crc >> 31) ^ (word >> bit)) & 1
+    for value in values:
+        for bit in range(bits - 1, -1, -1):
+            feedback = ((crc >> 31) ^ (value >> bit)) & 1
             crc = (crc << 1) & 0xFFFFFFFF
             if feedback:
                 crc ^= POLY
     return crc
+
+
+def crc_bitwise(words: list[int]) -> int:
+    """CRC-32 of 32-bit words, each fed most significant bit first: polynomial 0x04C11DB7,
+    initial 0xFFFFFFFF, no reflection, no final XOR (the STM32 CRC unit Unitree's boards use)."""
+    return _msb_first(words, 32)
 
 
 def mpeg2_bytes(data: bytes) -> int:
     """CRC-32/MPEG-2 of a byte string, bit by bit (its catalogue check: '123456789' ->
     0x0376E6E7)."""
-    crc = 0xFFFFFFFF
-    for byte in data:
-        for bit in range(7, -1, -1):
-            feedback = ((crc >> 31) ^ (byte >> bit)) & 1
-            crc = (crc << 1) & 0xFFFFFFFF
-            if feedback:
-                crc ^= POLY
-    return crc
+    return _msb_first(data, 8)
 
 
 def le_words(data: bytes) -> list[int]:
@@ -50,3 +49,21 @@ def go_lowcmd_c_struct(head, level, motors, gpio, reserve, crc) -> bytes:
         out += struct.pack("<B3x5f3I", mode, q, dq, tau, kp, kd, 0, 0, 0)
     out += struct.pack("<4B", 0, 0, 0, 0) + bytes(40 + 12 + 2)
     return out + struct.pack("<Bx2I", gpio, reserve, crc)
+
+
+def go_lowcmd_object(motors, crc: int, gpio: int = 0, reserve: int = 0):
+    """unitree_go LowCmd_ built field by field as a Cyclone DDS object: the Go2's head 0xFE 0xEF
+    and level flag 0xFF, one MotorCmd_ per ``(mode, q, dq, tau, kp, kd)`` of ``motors``."""
+    from deploy.backends.unitree import unitree_go
+
+    return unitree_go.LowCmd_(
+        head=[0xFE, 0xEF],
+        level_flag=0xFF,
+        motor_cmd=[
+            unitree_go.MotorCmd_(mode=mode, q=q, dq=dq, tau=tau, kp=kp, kd=kd)
+            for mode, q, dq, tau, kp, kd in motors
+        ],
+        gpio=gpio,
+        reserve=reserve,
+        crc=crc,
+    )

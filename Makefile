@@ -9,7 +9,7 @@ ONNX   := $(POLICY:.pt=.onnx)
 export ORT_DISABLE_TELEMETRY := 1
 export MPLBACKEND := Agg
 
-.PHONY: install run test docs lint format export train train-position hil soak nightly sim2sim bench clean
+.PHONY: install run test docs lint format export train train-position hil soak nightly sim2sim sysid bench clean
 
 install: $(STAMP)
 
@@ -171,6 +171,20 @@ SIM2SIM_POLICY := $(if $(filter arm3,$(ROBOT)),$(ONNX),policies/$(ROBOT).onnx)
 sim2sim: install $(SIM2SIM_POLICY)
 	$(VENV)/bin/sim2sim --robot $(ROBOT) --policy $(SIM2SIM_POLICY) --hours $(HOURS) \
 		--seed $(SEED) --out runs/sim2sim/$(ROBOT) --no-progress --no-film
+
+# Motor identification: ROBOT's shipped policy run for SYSID_SECONDS on an emulated robot whose
+# motors differ from its description (PLANT_MOTORS; `make sysid ROBOT=so101` ships one), its
+# commands and readings recorded (deploy-run --record-commands), then the motors fitted (sysid)
+# into runs/sysid/ROBOT: plant_motors.toml and the gap report gap.md/.json/.png. On the real
+# robot: record with deploy-run --backend feetech ... --record-commands, then run the sysid line.
+SYSID_SECONDS ?= 10
+PLANT_MOTORS  ?= eval/sysid/examples/$(ROBOT)_worn.toml
+sysid: install $(SIM2SIM_POLICY)
+	mkdir -p runs/sysid/$(ROBOT)
+	$(VENV)/bin/deploy-run --robot $(ROBOT) --policy $(SIM2SIM_POLICY) --duration $(SYSID_SECONDS) \
+		--plant-motors $(PLANT_MOTORS) --record-commands runs/sysid/$(ROBOT)/run.npz
+	$(VENV)/bin/sysid --robot $(ROBOT) --log runs/sysid/$(ROBOT)/run.npz --out runs/sysid/$(ROBOT) \
+		--truth $(PLANT_MOTORS)
 
 bench: install
 	$(PY) -m bench

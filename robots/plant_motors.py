@@ -9,12 +9,15 @@ emulators behind them), never the robot's contract (its description hash stays):
     [motors.sts3215]            # MotorConfig fields replacing the motor's own
     command_delay = 0.008       # s
     max_velocity = 3.77         # rad/s: the torque-speed line's no-load speed
-    [joints."*"]                # shell pattern of joint names: factors on the MJCF's values
-    friction = 3.0              # dry friction (dof_frictionloss)
-    armature = 2.0              # reflected rotor inertia (dof_armature)
-    damping = 1.0               # viscous damping (dof_damping)
+    [joints."*"]                # shell pattern of joint names
+    friction_scale = 3.0        # factors on the MJCF's dry friction (dof_frictionloss),
+    armature_scale = 2.0        # reflected rotor inertia (dof_armature)
+    damping_scale = 1.0         # and viscous damping (dof_damping)
+    [joints.gripper]
+    friction = 0.05             # or values: N m, kg m^2 (armature), N m s/rad (damping)
 
-Joint tables apply in file order, a later pattern's factors multiplying an earlier one's.
+Joint tables apply in file order: a value replaces the joint's, a factor multiplies what an
+earlier table left.
 """
 
 from __future__ import annotations
@@ -36,12 +39,23 @@ except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
 
-class JointFactors(_Strict):
-    """Factors on a joint's MJCF values (1.0: as described)."""
+#: The joint properties a file sets, and MuJoCo's model fields they are.
+JOINT_FIELDS = {
+    "friction": "dof_frictionloss",
+    "armature": "dof_armature",
+    "damping": "dof_damping",
+}
 
-    friction: NonNegative = 1.0
-    armature: NonNegative = 1.0
-    damping: NonNegative = 1.0
+
+class JointFactors(_Strict):
+    """A joint table: values replacing the MJCF's (None: kept) and factors on them (1.0)."""
+
+    friction: NonNegative | None = None  # N m, dry (Coulomb) friction
+    armature: NonNegative | None = None  # kg m^2, reflected rotor inertia
+    damping: NonNegative | None = None  # N m s/rad, viscous damping
+    friction_scale: NonNegative = 1.0
+    armature_scale: NonNegative = 1.0
+    damping_scale: NonNegative = 1.0
 
 
 class PlantMotorsFile(_Strict):
@@ -59,21 +73,26 @@ class PlantMotors:
     Attributes:
         path: The file.
         robot: The robot with its motors replaced (its description and hash unchanged).
-        factors: (n, 3) friction, armature and damping factors per joint.
+        values: (n, 3) friction (N m), armature (kg m^2) and damping (N m s/rad) per joint,
+            NaN where the file keeps the model's.
+        factors: (n, 3) factors on them.
     """
 
     path: Path
     robot: Robot
+    values: np.ndarray
     factors: np.ndarray
 
     def apply(self, model: mujoco.MjModel) -> mujoco.MjModel:
-        """Scale ``model``'s (a plant model of the robot) joint friction, armature and damping
-        by the file's factors, in place; returns it."""
+        """Set ``model``'s (a plant model of the robot) joint friction, armature and damping to
+        the file's values and factors, in place; returns it."""
         for i, name in enumerate(self.robot.joint_names):
             dof = model.jnt_dofadr[model.joint(name).id]
-            model.dof_frictionloss[dof] *= self.factors[i, 0]
-            model.dof_armature[dof] *= self.factors[i, 1]
-            model.dof_damping[dof] *= self.factors[i, 2]
+            for k, field in enumerate(JOINT_FIELDS.values()):
+                column = getattr(model, field)
+                if np.isfinite(self.values[i, k]):
+                    column[dof] = self.values[i, k]
+                column[dof] *= self.factors[i, k]
         return model
 
 
@@ -115,7 +134,7 @@ def load_plant_motors(path: str | Path, robot: Robot) -> PlantMotors:
         replaced.get(joint.motor, motor)
         for joint, motor in zip(robot.config.joints, robot.motors, strict=True)
     )
-    factors = np.ones((robot.n_joints, 3))
+    values, factors = np.full((robot.n_joints, 3), np.nan), np.ones((robot.n_joints, 3))
     for pattern, f in doc.joints.items():
         hit = [i for i, n in enumerate(robot.joint_names) if fnmatch.fnmatchcase(n, pattern)]
         if not hit:
@@ -123,5 +142,9 @@ def load_plant_motors(path: str | Path, robot: Robot) -> PlantMotors:
                 f"{path}: field 'joints.{pattern}': matches no joint of {robot.name} "
                 f"({', '.join(robot.joint_names)})"
             )
-        factors[hit] *= (f.friction, f.armature, f.damping)
-    return PlantMotors(path, dataclasses.replace(robot, motors=motors), factors)
+        for k, name in enumerate(JOINT_FIELDS):
+            if getattr(f, name) is not None:
+                values[hit, k] = getattr(f, name)
+                factors[hit, k] = 1.0
+            factors[hit, k] *= getattr(f, f"{name}_scale")
+    return PlantMotors(path, dataclasses.replace(robot, motors=motors), values, factors)

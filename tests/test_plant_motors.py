@@ -11,15 +11,15 @@ from robots.plant_motors import load_plant_motors
 from robots.robot import RobotSpecError
 
 WORN = """
-source = "a worn SO-101: friction x3, armature x2, a 20 % weaker line, 8 ms delay"
+source = "a worn SO-101: 0.02 N m of friction, armature x2, a 20 % weaker line, 8 ms delay"
 [motors.sts3215]
 command_delay = 0.008
 max_velocity = 3.77
 [joints."*"]
-friction = 3.0
-armature = 2.0
+friction = 0.02
+armature_scale = 2.0
 [joints.gripper]
-friction = 0.5
+friction_scale = 0.5
 """
 
 
@@ -31,11 +31,9 @@ def test_the_file_changes_the_plant_and_not_the_contract(so101, tmp_path):
     assert plant.robot.motors[0].max_velocity == 3.77 and so101.motors[0].max_velocity == 4.71
     nominal, worn = so101.plant_model("position"), plant.apply(so101.plant_model("position"))
     dofs = [nominal.jnt_dofadr[nominal.joint(n).id] for n in so101.joint_names]
-    expected = np.full(so101.n_joints, 3.0)
-    expected[so101.joint_names.index("gripper")] = 1.5  # a later pattern multiplies
-    np.testing.assert_allclose(
-        worn.dof_frictionloss[dofs], expected * nominal.dof_frictionloss[dofs]
-    )
+    expected = np.full(so101.n_joints, 0.02)  # a value: the nominal SO-101 has none
+    expected[so101.joint_names.index("gripper")] = 0.01  # a later table's factor multiplies
+    np.testing.assert_allclose(worn.dof_frictionloss[dofs], expected)
     np.testing.assert_allclose(worn.dof_armature[dofs], 2.0 * nominal.dof_armature[dofs])
     backend = SimBackend(plant.robot, mode="position", models=[worn])
     assert (backend.actuators.delay_steps == round(0.008 / so101.physics_timestep)).all()

@@ -140,7 +140,46 @@ def ros2_node(args, rig) -> RunHook | None:
     return Ros2Hook(node)
 
 
+# ---------------------------------------------------------------------- --record-commands
+class RecorderHook(RunHook):
+    """Records env 0's commands and encoder readings every tick
+    (:class:`deploy.observe.command_log.CommandLog`), written when the run ends."""
+
+    name = "record_commands"
+
+    def __init__(self, log):
+        self.log = log
+
+    def after_tick(self, runtime) -> None:
+        self.log.record(runtime)
+
+    def close(self) -> None:
+        path = self.log.close()
+        print(f"deploy-run: {self.log.rows} ticks of commands and readings in {path}")
+
+
+def _record_options(parser) -> None:
+    parser.add_argument(
+        "--record-commands",
+        type=Path,
+        default=None,
+        metavar="FILE.npz",
+        help="record every tick's command and encoder readings (env 0) for sysid",
+    )
+
+
+def recorder(args, rig) -> RunHook | None:
+    """``--record-commands FILE``: :class:`RecorderHook`."""
+    if args.record_commands is None:
+        return None
+    from deploy.observe.command_log import CommandLog
+
+    mode = rig.policy.spec.action.mode
+    return RecorderHook(CommandLog(args.record_commands, rig.robot, mode, args.backend))
+
+
 register_hook("ros2", "deploy.rig.builtin_hooks:ros2_node", _ros2_options)
 register_hook("print_joints", "deploy.rig.builtin_hooks:joint_printer", _joint_options)
 register_hook("video", "deploy.rig.builtin_hooks:video", _video_options)
 register_hook("viewer", "deploy.rig.builtin_hooks:viewer", _viewer_options)
+register_hook("record_commands", "deploy.rig.builtin_hooks:recorder", _record_options)

@@ -1,0 +1,80 @@
+"""sysid: a robot's motors fitted from its own log. The "robot" is the plant running a plant
+motors file the fit does not read (friction, twice the armature, a 20 % weaker torque-speed
+line, 8 ms of command delay); the fit recovers them from deploy-run's command log and the gap
+report shows the fitted plant reading as close as the truth."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from deploy.cli.deploy_run import deploy_run_main
+from deploy.observe.command_log import CommandLogError, read_command_log
+from eval.sysid import cli
+
+TRUTH = """
+source = "the test's worn SO-101: friction, armature x2, a 20 % weaker line, 8 ms delay"
+[motors.sts3215]
+command_delay = 0.008
+max_velocity = 3.77
+[joints."*"]
+friction = 0.02
+armature_scale = 2.0
+"""
+
+
+@pytest.fixture(scope="module")
+def worn_log(tmp_path_factory):
+    """4 s of the shipped SO-101 policy on the worn robot, recorded."""
+    from deploy.export import export_policy
+
+    folder = tmp_path_factory.mktemp("sysid")
+    pt = folder / "so101.pt"
+    pt.write_bytes((Path(__file__).resolve().parent.parent / "policies" / "so101.pt").read_bytes())
+    truth = folder / "truth.toml"
+    truth.write_text(TRUTH)
+    log = folder / "run.npz"
+    argv = ["--robot", "so101", "--policy", str(export_policy(pt)), "--duration", "4"]
+    argv += ["--plant-motors", str(truth), "--record-commands", str(log)]
+    assert deploy_run_main(argv) == 0
+    return folder, log, truth
+
+
+def test_the_log_holds_every_tick(worn_log, so101):
+    _, log, _ = worn_log
+    meta, arrays = read_command_log(log)
+    assert meta["robot"] == "so101" and meta["control_mode"] == "position"
+    ticks = round(4.0 / so101.control_period)
+    assert arrays["command"].shape == (ticks, so101.n_joints)
+    np.testing.assert_allclose(np.diff(arrays["t"]), so101.control_period)
+
+
+def test_sysid_recovers_the_worn_motors(worn_log, so101):
+    folder, log, truth = worn_log
+    out = folder / "fit"
+    argv = ["--robot", "so101", "--log", str(log), "--out", str(out), "--max-delay", "0.016"]
+    assert cli.main([*argv, "--truth", str(truth)]) == cli.EXIT_OK
+    fitted = (out / "plant_motors.toml").read_text()
+    assert "command_delay = 0.008" in fitted
+    from robots.plant_motors import load_plant_motors
+
+    plant = load_plant_motors(out / "plant_motors.toml", so101)
+    assert plant.robot.motors[0].max_velocity == pytest.approx(3.77, rel=0.05)
+    armature = plant.values[:, 1]
+    assert armature == pytest.approx(2 * 0.0119025, rel=0.10)
+    gap = json.loads((out / "gap.json").read_text())["plants"]
+    rms = {name: max(p["rms_rad"].values()) for name, p in gap.items()}
+    assert rms["fitted"] < 0.25 * rms["described"]
+    assert rms["fitted"] < 1.5 * rms["truth"]  # as close as the truth reads
+    assert (out / "gap.md").exists() and (out / "gap.png").stat().st_size > 0
+
+
+def test_a_bad_log_is_refused_naming_the_file(tmp_path, capsys):
+    bad = tmp_path / "run.npz"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(CommandLogError, match=rf"{bad}: not a command log"):
+        read_command_log(bad)
+    argv = ["--robot", "so101", "--log", str(bad), "--out", str(tmp_path / "o")]
+    assert cli.main(argv) == cli.EXIT_BAD_INPUT
+    assert f"sysid: error: {bad}" in capsys.readouterr().err

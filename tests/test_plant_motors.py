@@ -94,3 +94,27 @@ def test_deploy_run_and_the_soak_run_on_the_plant_motors(so101, tmp_path):
     config = SessionConfig(robot="so101", policy=onnx, seed=0, hours=0.005, plant_motors=str(worn))
     (result,) = run_campaign(config, 1, tmp_path / "soak", progress=False)
     assert result["options"]["plant_motors"] == str(worn)
+
+
+def test_the_emulated_robots_run_on_a_plant_motors_file(tmp_path):
+    """The servo-bus and Unitree emulators take ``plant_motors`` (``--plant-motors``): the motors
+    behind the wire protocol are the file's, which the host's description does not know."""
+    from deploy.backends.emulator.bus import ServoBusEmulator
+
+    worn = tmp_path / "worn.toml"
+    worn.write_text(WORN)
+    bus = ServoBusEmulator("so101", "feetech", plant_motors=str(worn))
+    assert (bus.plant.actuators.delay_steps == 4).all()
+    np.testing.assert_allclose(bus.plant.models[0].dof_frictionloss[:3], 0.02)
+    pytest.importorskip("cyclonedds")
+    from deploy.backends.unitree.emulator.robot import UnitreeEmulator
+
+    legs = tmp_path / "legs.toml"
+    legs.write_text(
+        'source = "a Go2 with 5 ms of delay"\n[motors.go_m8010_6]\ncommand_delay = 0.005\n'
+    )
+    robot = UnitreeEmulator("go2", plant_motors=str(legs))
+    try:
+        assert robot.plant.actuators.delay_steps.max() > 0
+    finally:
+        robot.stop()

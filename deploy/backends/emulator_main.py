@@ -18,6 +18,8 @@ import sys
 from collections.abc import Callable, Iterable
 from typing import Any, TypeVar
 
+from deploy.backends.sim.options import add_plant_motors_option
+
 T = TypeVar("T")
 
 
@@ -27,6 +29,7 @@ def emulator_parser(module: str, description: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=f"python -m {module}", description=description)
     p.add_argument("--robot", required=True, help="shipped robot name or robot.toml path")
     p.add_argument("--seed", type=int, default=0, help="the plant's seed")
+    add_plant_motors_option(p)  # the motors as they really are: what sysid must find
     return p
 
 

@@ -62,10 +62,12 @@ class ControllerManagerEmulator:
     """
 
     def __init__(self, robot, mode: str | None = None, *, namespace: str = "", seed: int = 0,
-                 silence: tuple[float, float] | None = None):  # fmt: skip
+                 silence: tuple[float, float] | None = None,
+                 plant_motors: str | None = None):  # fmt: skip
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64MultiArray
 
+        from deploy.backends.sim.options import plant_for
         from deploy.backends.sim.plant import SimBackend
         from deploy.monitors.violations import ViolationMonitor
         from robots import Robot, load_robot
@@ -74,7 +76,8 @@ class ControllerManagerEmulator:
         self.mode = mode or self.robot.control_mode
         self.controller = FORWARD_CONTROLLERS[self.mode]
         self.period = self.robot.control_period
-        self.plant = SimBackend(self.robot, mode=self.mode, seed=seed)
+        plant_robot, models = plant_for(self.robot, self.mode, plant_motors, 1)
+        self.plant = SimBackend(plant_robot, mode=self.mode, seed=seed, models=models)
         self.violations = ViolationMonitor(self.robot, 1)
         self.silence = silence
         self.stats = dict.fromkeys(

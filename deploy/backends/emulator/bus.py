@@ -46,6 +46,7 @@ from deploy.backends.emulator.dispatch import DynamixelDispatcher, FeetechDispat
 from deploy.backends.emulator.faults import WireFaults
 from deploy.backends.emulator.servo import EmulatedServo, WriteResult
 from deploy.backends.servo.control_tables import model_for_motor
+from deploy.backends.sim.options import plant_for
 from deploy.backends.sim.plant import SimBackend
 from deploy.backends.worker import ServesOnThread
 from robots import Robot, load_robot
@@ -71,6 +72,8 @@ class ServoBusEmulator(ServesOnThread):
         ids: Bus ID of each joint (default 1..n in joint order, LeRobot's SO-101 numbering).
         faults: Wire faults to inject (default none); ``emu.faults`` may be changed while running.
         seed: Seed of the fault draws and the plant's sensor noise.
+        plant_motors: A plant motors file (:mod:`robots.plant_motors`): the servos as they
+            really are, which the host's description does not know (None: as described).
 
     Attributes:
         port: Path of the pty's follower end (e.g. ``/dev/pts/5``) for the host's serial port.
@@ -95,8 +98,10 @@ class ServoBusEmulator(ServesOnThread):
         ids: Sequence[int] | None = None,
         faults: WireFaults | None = None,
         seed: int = 0,
+        plant_motors: str | None = None,
     ):
         self.robot = robot if isinstance(robot, Robot) else load_robot(robot)
+        self._plant_motors = plant_motors
         motors = [j.motor for j in self.robot.config.joints]
         models = [model_for_motor(m) for m in motors]
         found = {m.protocol for m in models}
@@ -126,7 +131,7 @@ class ServoBusEmulator(ServesOnThread):
             self._servo(sid).set("temperature_limit", degc)
         self._seed = seed
         self._rng = random.Random(seed)
-        self.plant = SimBackend(self.robot, mode=mode, seed=seed)
+        self.plant = self._new_plant(mode)
         self._command = np.zeros((1, self.robot.n_joints))
         self._hold_present()
         dispatcher = FeetechDispatcher if protocol == "feetech" else DynamixelDispatcher
@@ -300,6 +305,11 @@ class ServoBusEmulator(ServesOnThread):
             if mode is not None and mode != self.plant.mode:
                 self._pending_mode = mode  # the plant thread rebuilds it at its next step
 
+    def _new_plant(self, mode: str) -> SimBackend:
+        """The plant in ``mode``, on the plant motors file's motors when one was given."""
+        robot, models = plant_for(self.robot, mode, self._plant_motors, 1)
+        return SimBackend(robot, mode=mode, seed=self._seed, models=models)
+
     def _switch_mode(self, mode: str) -> None:
         """Rebuild the plant in ``mode`` at the present pose, keeping the motor temperatures (one
         mode for the whole bus: a bus mixing modes is not modelled)."""
@@ -307,7 +317,7 @@ class ServoBusEmulator(ServesOnThread):
         q = old.true_position()[0].copy()
         winding = old.thermal.winding_temperature.copy()
         housing = old.thermal.housing_temperature.copy()
-        self.plant = SimBackend(self.robot, mode=mode, seed=self._seed)
+        self.plant = self._new_plant(mode)
         self.plant.reset(q)
         self.plant.thermal.winding_temperature[:] = winding
         self.plant.thermal.housing_temperature[:] = housing

@@ -44,6 +44,7 @@ from deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
 from deploy.backends.worker import ServesOnThread
 from deploy.core.latency import LatencyHistogram
 from robots import Robot, load_robot
+from robots.plant_motors import load_plant_motors
 
 #: s the plant may fall behind the wall clock before its time origin moves up.
 MAX_LAG = 0.25
@@ -152,6 +153,7 @@ class UnitreeEmulator(ServesOnThread):
         cutoff_temperature: float | None = None,
         start: str = "lying",
         bridge: str | None = None,
+        plant_motors: str | None = None,
     ):
         if bridge not in (None, "unitree_mujoco"):
             raise ValueError(f"bridge '{bridge}': expected None or 'unitree_mujoco'")
@@ -174,7 +176,11 @@ class UnitreeEmulator(ServesOnThread):
         self.fast = board_rate_robot(self.robot)
         self.period = self.fast.control_period
         self.model = pd_model(self.fast)
-        self.plant = SimBackend(self.fast, mode="position", seed=seed, models=[self.model])
+        plant_robot = self.fast
+        if plant_motors is not None:  # the motors as they really are (robots.plant_motors)
+            plant = load_plant_motors(plant_motors, self.fast)
+            plant_robot, self.model = plant.robot, plant.apply(self.model)
+        self.plant = SimBackend(plant_robot, mode="position", seed=seed, models=[self.model])
         if cutoff_temperature is None:
             cutoff = [m.max_winding_temperature + CUTOFF_MARGIN for m in self.robot.motors]
         else:

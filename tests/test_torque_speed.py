@@ -151,3 +151,28 @@ def test_a_session_draws_the_supply_voltage_only_when_its_range_is_set(so101, tm
     assert 0.8 <= supply <= 1.2 and supply != 1.0
     assert batch.sessions[0].draw.dynamics.supply == supply  # what the session reports
     assert "supply_voltage" not in plain.to_dict()  # results and checkpoints as before
+
+
+@pytest.mark.parametrize("name", ["so101", "go2", "h1", "h1_2"])
+def test_full_torque_cannot_drive_a_joint_far_past_its_no_load_speed(name):
+    """Every joint of a shipped robot commanded its peak torque (each sign) for 1 s: away from
+    its stops, no joint runs faster than 1.8x its no-load speed (the other links' swing and
+    gravity push past it; the motor only brakes there). Without the line they ran at
+    2.6-7.3x."""
+    from robots import load_robot
+
+    robot = load_robot(name)
+    lo, hi = np.asarray(robot.position_lower) + 0.1, np.asarray(robot.position_upper) - 0.1
+    peak = np.array([m.peak_torque for m in robot.motors])
+    no_load = np.array([m.max_velocity for m in robot.motors])
+    for sign in (1.0, -1.0):
+        plant = SimBackend(robot, mode="torque")
+        worst = 0.0
+        for _ in range(int(round(1.0 / robot.control_period))):
+            plant.write(sign * peak[None])
+            plant.advance()
+            q, dq = plant.true_position()[0], np.abs(plant.true_velocity()[0])
+            free = (q > lo) & (q < hi)
+            if free.any():
+                worst = max(worst, float(np.max(dq[free] / no_load[free])))
+        assert worst < 1.8, (name, sign, worst)

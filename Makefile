@@ -173,16 +173,22 @@ sim2sim: install $(SIM2SIM_POLICY)
 		--seed $(SEED) --out runs/sim2sim/$(ROBOT) --no-progress --no-film
 
 # Motor identification: ROBOT's shipped policy run for SYSID_SECONDS on an emulated robot whose
-# motors differ from its description (PLANT_MOTORS; `make sysid ROBOT=so101` ships one), its
-# commands and readings recorded (deploy-run --record-commands), then the motors fitted (sysid)
-# into runs/sysid/ROBOT: plant_motors.toml and the gap report gap.md/.json/.png. On the real
-# robot: record with deploy-run --backend feetech ... --record-commands, then run the sysid line.
+# motors differ from its description (PLANT_MOTORS; `make sysid ROBOT=so101` ships one), through
+# the servo-bus emulator's wire protocol (SYSID_VIA=servo, on the wall clock) or on the plant
+# (SYSID_VIA=sim, lockstep); its commands and readings recorded (deploy-run --record-commands),
+# then the motors fitted (sysid) into runs/sysid/ROBOT: plant_motors.toml and the gap report
+# gap.md/.json/.png. On the real robot: record with deploy-run --backend feetech ...
+# --record-commands, then run the sysid line.
 SYSID_SECONDS ?= 10
+SYSID_VIA     ?= servo
 PLANT_MOTORS  ?= eval/sysid/examples/$(ROBOT)_worn.toml
+SYSID_RUN := --policy $(SIM2SIM_POLICY) --duration $(SYSID_SECONDS) \
+	--record-commands runs/sysid/$(ROBOT)/run.npz
 sysid: install $(SIM2SIM_POLICY)
 	mkdir -p runs/sysid/$(ROBOT)
-	$(VENV)/bin/deploy-run --robot $(ROBOT) --policy $(SIM2SIM_POLICY) --duration $(SYSID_SECONDS) \
-		--plant-motors $(PLANT_MOTORS) --record-commands runs/sysid/$(ROBOT)/run.npz
+	$(if $(filter servo,$(SYSID_VIA)),$(PY) -m deploy.harness.servo_hil --robot $(ROBOT) \
+		--protocol feetech --plant-motors $(PLANT_MOTORS) -- $(SYSID_RUN),$(VENV)/bin/deploy-run \
+		--robot $(ROBOT) --plant-motors $(PLANT_MOTORS) $(SYSID_RUN))
 	$(VENV)/bin/sysid --robot $(ROBOT) --log runs/sysid/$(ROBOT)/run.npz --out runs/sysid/$(ROBOT) \
 		--truth $(PLANT_MOTORS)
 

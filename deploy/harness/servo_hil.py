@@ -21,6 +21,7 @@ from collections.abc import Sequence
 
 from deploy.backends.emulator.bus import PROTOCOLS
 from deploy.backends.emulator.faults import FAULT_HELP
+from deploy.backends.sim.options import add_plant_motors_option
 from deploy.harness.common import (
     deploy_run_command,
     hil_parser,
@@ -43,10 +44,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--protocol", choices=PROTOCOLS, required=True)
     p.add_argument("--baudrate", type=int, default=1_000_000, help="bit/s, both sides")
+    add_plant_motors_option(p)  # the servos as they really are, unknown to deploy-run
     args, rest = parse_hil(p, argv)
     emulator, port = start_emulator(
-        args.robot, args.protocol, args.baudrate, args.seed, args.fault, stderr=None
-    )
+        args.robot, args.protocol, args.baudrate, args.seed, args.fault, stderr=None,
+        plant_motors=args.plant_motors,
+    )  # fmt: skip
     run = deploy_run_command(
         args.protocol, "--port", str(port), "--baudrate", str(args.baudrate), "--robot", args.robot
     )
@@ -60,12 +63,16 @@ def start_emulator(
     seed: int = 0,
     faults: Sequence[str] = (),
     stderr=subprocess.DEVNULL,
+    plant_motors: str | None = None,
 ) -> tuple[subprocess.Popen, str | None]:
     """``python -m deploy.backends.emulator`` in its own process, and the pty it serves on (its
     first line of stdout; None when it exits or says nothing within
     :data:`deploy.harness.common.START_TIMEOUT` s). ``faults``: ``--fault`` texts. ``stderr``:
-    where its messages go (None: inherited). Stop it with :func:`stop_emulator`."""
+    where its messages go (None: inherited). ``plant_motors``: the emulator's plant motors file
+    (:mod:`robots.plant_motors`). Stop it with :func:`stop_emulator`."""
     args = ["--robot", robot, "--protocol", protocol, "--baudrate", str(baudrate)]
+    if plant_motors is not None:
+        args += ["--plant-motors", str(plant_motors)]
     return spawn_emulator(
         "deploy.backends.emulator", [*args, "--seed", str(seed)], faults, stderr=stderr
     )

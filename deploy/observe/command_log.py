@@ -7,7 +7,9 @@ the runtime wrote (units of the control mode) and the encoder readings the backe
 MuJoCo plant, an emulator, the real robot. Rows are kept in preallocated blocks (nothing is
 allocated per tick but one block every ``BLOCK`` ticks) and written once, atomically, when the
 run ends: ``t`` (ticks,) s, ``command``, ``position`` and ``position_stamp`` (ticks, n) and
-``meta`` (JSON: robot, its description hash, control mode and period, backend, joint names).
+``read_time`` (ticks,) s, the backend's clock of the frame each tick read (the clock of the
+stamps: the plant's time, or a real backend's monotonic clock) and ``meta`` (JSON: robot, its
+description hash, control mode and period, backend, joint names).
 """
 
 from __future__ import annotations
@@ -60,6 +62,7 @@ class CommandLog:
             self._blocks.append(
                 {
                     "t": np.zeros(BLOCK),
+                    "read_time": np.zeros(BLOCK),
                     "command": np.zeros((BLOCK, self.n)),
                     "position": np.zeros((BLOCK, self.n)),
                     "position_stamp": np.zeros((BLOCK, self.n)),
@@ -72,6 +75,7 @@ class CommandLog:
         block, i = self._block(), self.rows % BLOCK
         frame = runtime.backend.frame
         block["t"][i] = runtime.time
+        block["read_time"][i] = runtime.read_time[0]
         block["command"][i] = runtime.command[0]
         block["position"][i] = frame.position[0]
         block["position_stamp"][i] = frame.position_stamp[0]
@@ -80,7 +84,7 @@ class CommandLog:
     def arrays(self) -> dict[str, np.ndarray]:
         """The recorded rows as one array per field (copies)."""
         out = {}
-        for key in ("t", "command", "position", "position_stamp"):
+        for key in ("t", "read_time", "command", "position", "position_stamp"):
             parts = [b[key] for b in self._blocks]
             out[key] = np.concatenate(parts)[: self.rows] if parts else np.zeros((0,))
         return out

@@ -164,6 +164,9 @@ class Runtime(RuntimeState):
         self._obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
         self._target = np.zeros((envs, n))
         self._cmd = np.zeros((envs, n))
+        #: (envs,) s, the backend's clock of the frame the last tick read (a recorded log maps
+        #: its readings' stamps to the ticks with it: deploy.observe.command_log)
+        self.read_time = np.zeros(envs)
         self._stamps = np.zeros(len(STAGES) + 1, dtype=np.int64)
         self._tracking = np.zeros(envs)
         self._anchored = np.zeros(envs, dtype=np.int64)
@@ -310,6 +313,7 @@ class Runtime(RuntimeState):
         frame = self.backend.read()
         if self.injector is not None:
             frame = self.injector.filter_frame(self.time, frame)
+        self.read_time[:] = frame.time
         drive_errors = self.backend.drive_errors()  # None: drives without error reports
         st[1] = clock_ns()
         state = self.estimator.update(frame, self.state, self._input)

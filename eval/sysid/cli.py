@@ -33,6 +33,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-delay", type=float, default=MAX_DELAY, help="s, the longest command delay searched"
     )
     p.add_argument(
+        "--with-damping",
+        action="store_true",
+        help="fit the viscous damping too (it trades against the dry friction unless the log "
+        "spans a wide range of joint speeds)",
+    )
+    p.add_argument(
         "--truth", type=Path, default=None, help="a plant motors file the log ran on (an "
         "emulated robot): reported beside the fit"
     )  # fmt: skip
@@ -52,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
         robot = load_robot(args.robot)
         meta, arrays = read_command_log(args.log)
         truth = None if args.truth is None else load_plant_motors(args.truth, robot)
-        result = fit_motors(robot, meta, arrays, args.max_delay)
+        result = fit_motors(robot, meta, arrays, args.max_delay, args.with_damping)
     except (ValueError, OSError) as exc:
         print(f"sysid: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -56,10 +56,18 @@ def replay(robot, meta: dict, arrays: dict, plant: PlantMotors | None = None) ->
 
 def reading_errors(arrays: dict, simulated: np.ndarray, dt: float) -> np.ndarray:
     """(ticks, n) rad: each logged reading minus the replay's position at the tick it was
-    sampled (NaN where the reading dropped out or was sampled outside the replay)."""
+    sampled (NaN where the reading dropped out or was sampled outside the replay).
+
+    The replay's row ``k`` is the robot when tick ``k`` read (before its command); a reading's
+    stamp is placed among the ticks by the backend's clock of each tick's read (``read_time``):
+    on a wall clock the periods are the loop's, not exactly ``dt``."""
     stamps = arrays["position_stamp"]
-    t0 = arrays["t"][0] - dt  # the replay's row 0 is the time before the first logged tick
-    index = np.rint((stamps - t0) / dt)
+    reads = arrays["read_time"]
+    ticks = np.arange(len(reads), dtype=float)
+    inside = (stamps >= reads[0]) & (stamps <= reads[-1] + dt)
+    index = np.interp(stamps, reads, ticks, right=np.nan)  # past the last read: one dt on
+    index = np.where(stamps > reads[-1], len(reads) - 1 + (stamps - reads[-1]) / dt, index)
+    index = np.where(inside, np.rint(index), np.nan)
     valid = np.isfinite(index) & (index >= 0) & (index < len(simulated))
     index = np.where(valid, index, 0).astype(np.int64)
     columns = np.arange(simulated.shape[1])[None, :]

@@ -68,6 +68,8 @@ def test_sysid_recovers_the_worn_motors(worn_log, so101):
     assert rms["fitted"] < 0.25 * rms["described"]
     assert rms["fitted"] < 1.5 * rms["truth"]  # as close as the truth reads
     assert (out / "gap.md").exists() and (out / "gap.png").stat().st_size > 0
+    page = (out / "gap.html").read_text()
+    assert "shoulder_pan" in page and "data:image/png;base64," in page
 
 
 def test_a_bad_log_is_refused_naming_the_file(tmp_path, capsys):

@@ -8,8 +8,8 @@
 It writes ``sysid/plant_motors.toml`` (the fitted motors, a plant motors file:
 ``deploy-run --plant-motors``, ``soak-test --plant-motors``; its ``source`` names the log, the date,
 the residual and the uncertainties) and the gap between the log and the plant with the described
-motors and with the fitted ones (``gap.json``, ``gap.md``, ``gap.png``). Exit codes: 0 the fit
-reads closer than the described motors, 1 it does not, 3 bad input.
+motors and with the fitted ones (``gap.json``, ``gap.md``, ``gap.png``, ``gap.html``). Exit
+codes: 0 the fit reads closer than the described motors, 1 it does not, 3 bad input.
 """
 
 from __future__ import annotations

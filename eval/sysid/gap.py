@@ -1,10 +1,13 @@
 """The reality gap of a log: how far the robot's readings were from the plant replaying its
 commands, with the described motors and with a plant motors file (the fitted ones), per joint
-(RMS and largest error, rad), written as ``gap.json``, ``gap.md`` and ``gap.png``.
+(RMS and largest error, rad), written as ``gap.json``, ``gap.md``, ``gap.png`` and ``gap.html``
+(the table and the plot in one page).
 """
 
 from __future__ import annotations
 
+import base64
+import html
 import io
 import json
 from pathlib import Path
@@ -64,10 +67,44 @@ def write_gap(report: dict, out: Path, t: np.ndarray) -> list[Path]:
         ]
         lines.append(f"| {j} | " + " | ".join(cells) + " |")
     written.append(atomic_write(out / "gap.md", "\n".join(lines) + "\n"))
+    png = _plot(errors, names, joints, t)
+    if png is not None:
+        written.append(atomic_write(out / "gap.png", png))
+    written.append(atomic_write(out / "gap.html", _html(report, names, joints, png)))
+    return written
+
+
+def _html(report: dict, names: list[str], joints: list[str], png: bytes | None) -> str:
+    """The gap's table (mrad, RMS / max) and its plot (inline) as one HTML page."""
+    head = "".join(f"<th>{html.escape(n)}</th>" for n in names)
+    rows = "".join(
+        f"<tr><td>{html.escape(j)}</td>"
+        + "".join(
+            f"<td>{1e3 * report['plants'][n]['rms_rad'][j]:.2f} / "
+            f"{1e3 * report['plants'][n]['max_rad'][j]:.1f}</td>"
+            for n in names
+        )
+        + "</tr>"
+        for j in joints
+    )
+    img = "" if png is None else (
+        f'<img alt="errors" src="data:image/png;base64,{base64.b64encode(png).decode()}">'
+    )  # fmt: skip
+    title = f"Reality gap: {html.escape(report['robot'])}, {report['ticks']} ticks"
+    return (
+        f"<!doctype html><html><head><meta charset='utf-8'><title>{title}</title></head><body>"
+        f"<h1>{title}</h1><p>Readings minus the plant replaying the log's commands, mrad "
+        f"(RMS / max).</p><table border='1'><tr><th>joint</th>{head}</tr>{rows}</table>"
+        f"{img}</body></html>\n"
+    )
+
+
+def _plot(errors: dict, names: list[str], joints: list[str], t: np.ndarray) -> bytes | None:
+    """The errors per joint over time as PNG bytes (None without matplotlib)."""
     try:
         import matplotlib.pyplot as plt
-    except ImportError:  # the report extra: JSON and markdown only
-        return written
+    except ImportError:  # the report extra
+        return None
     fig, axes = plt.subplots(len(joints), 1, figsize=(8, 1.6 * len(joints)), sharex=True)
     for j, ax in enumerate(np.atleast_1d(axes)):
         for n in names:
@@ -79,5 +116,4 @@ def write_gap(report: dict, out: Path, t: np.ndarray) -> list[Path]:
     png = io.BytesIO()
     fig.savefig(png, format="png", dpi=90)
     plt.close(fig)
-    written.append(atomic_write(out / "gap.png", png.getvalue()))
-    return written
+    return png.getvalue()

@@ -27,27 +27,31 @@ def pytest_configure(config):
     subprocess.run([sys.executable, str(REPO / "tests" / "warm_kernels.py")], cwd=REPO, env=env)
 
 
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """One torch thread for a module's tests: two spin-wait on a loaded 2-core machine
+    (PITFALLS.md). Modules ask for it with ``pytest.mark.usefixtures``."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 # A Robot is frozen with read-only arrays: one load per session serves every test.
-@pytest.fixture(scope="session")
-def arm3():
-    return load_robot("arm3")
+def _robot_fixture(name: str):
+    """A session fixture ``name``: the shipped robot of that name, loaded once."""
+
+    @pytest.fixture(scope="session", name=name)
+    def robot():
+        return load_robot(name)
+
+    return robot
 
 
-@pytest.fixture(scope="session")
-def arm6():
-    return load_robot("arm6")
-
-
-@pytest.fixture(scope="session")
-def go2():
-    return load_robot("go2")
-
-
-@pytest.fixture(scope="session")
-def so101():
-    return load_robot("so101")
-
-
-@pytest.fixture(scope="session")
-def arm3_xm430():
-    return load_robot("arm3_xm430")
+arm3 = _robot_fixture("arm3")
+arm6 = _robot_fixture("arm6")
+go2 = _robot_fixture("go2")
+so101 = _robot_fixture("so101")
+arm3_xm430 = _robot_fixture("arm3_xm430")

@@ -1,4 +1,5 @@
-"""Shared helpers of the policy tests: tiny networks, specs, hand-made ONNX graphs.
+"""Shared helpers of the policy tests: tiny networks, specs, hand-made ONNX graphs, observation
+walks and a short ``deploy-run`` on arm3.
 
 Module-level classes can be pickled by ``torch.save`` (the pickled-module tests import them from
 here).
@@ -6,10 +7,13 @@ here).
 
 from __future__ import annotations
 
+import copy
+import warnings
 from pathlib import Path
 
 import numpy as np
 import onnx
+import pytest
 import torch
 from onnx import TensorProto, helper, numpy_helper
 from torch import nn
@@ -42,6 +46,99 @@ def target_policy(robot, target_at):
 
     policy.spec, policy.calls = spec, 0
     return policy
+
+
+def random_walk(steps: int, d: int, seed: int, envs: int = 1, scale: float = 1.0) -> np.ndarray:
+    """(steps, envs, d) float32 observations: a random walk (steps of sigma 0.15) clipped to
+    [-1, 1], then times ``scale`` (sequential, like a run)."""
+    rng = np.random.default_rng(seed)
+    walk = np.clip(np.cumsum(rng.normal(0, 0.15, (steps, envs, d)), axis=0), -1.0, 1.0)
+    return (scale * walk).astype(np.float32)
+
+
+def deploy_run(
+    capsys, policy: Path, spec: Path | None = None, seconds: float = 3.0, report: Path | None = None
+) -> tuple[int, str, str]:
+    """(exit code, stdout, stderr) of ``deploy-run`` on arm3 with ``policy`` for ``seconds``
+    simulated seconds, with ``--spec`` / ``--report`` when given."""
+    from deploy.cli.deploy_run import deploy_run_main
+
+    args = ["--robot", "arm3", "--policy", str(policy), "--duration", str(seconds)]
+    for flag, value in (("--spec", spec), ("--report", report)):
+        if value is not None:
+            args += [flag, str(value)]
+    code = deploy_run_main(args)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_ran(code: int, out: str, err: str) -> None:
+    """A ``deploy_run`` result of an untrained policy: it loaded, ran and hit no hard limit."""
+    # an untrained policy may latch a fault (2), or drive arm3 out of its workspace box (1: velocity
+    # mode has no motion envelope yet, and deploy-run fails a run with a true violation); it must
+    # load, run and not hit a hard limit
+    assert code in (0, 1, 2), out + err
+    assert code != 1 or "hard_limit 0," in out, out
+    assert "tick cost" in out and "error" not in err
+
+
+def rsl_rl_recurrent(obs_dim: int, act_dim: int, kind: str = "lstm", seed: int = 0, **kwargs):
+    """A small rsl_rl ``ActorCriticRecurrent`` (one ``kind`` "lstm"/"gru" layer of 16 units,
+    16-unit actor and critic layers), ``torch.manual_seed(seed)`` first; ``kwargs`` go to its
+    constructor. Skips the test when rsl_rl or tensordict is missing."""
+    rsl_rl = pytest.importorskip("rsl_rl.modules")
+    tensordict = pytest.importorskip("tensordict")
+    torch.manual_seed(seed)
+    obs = tensordict.TensorDict({"policy": torch.zeros(1, obs_dim)}, batch_size=[1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return rsl_rl.ActorCriticRecurrent(
+            obs,
+            {"policy": ["policy"], "critic": ["policy"]},
+            act_dim,
+            actor_hidden_dims=[16],
+            critic_hidden_dims=[16],
+            rnn_type=kind,
+            rnn_hidden_dim=16,
+            rnn_num_layers=1,
+            **kwargs,
+        )
+
+
+class LeggedGymLstm(nn.Module):
+    """legged_gym's ``PolicyExporterLSTM`` layout (``export_policy_as_jit``): an LSTM ``memory``
+    whose state lives in the buffers ``hidden_state`` / ``cell_state`` (layers, 1, hidden),
+    updated in place by ``forward``, then an ``actor``; ``reset_memory`` exported."""
+
+    def __init__(self, memory: nn.LSTM, actor: nn.Module):
+        super().__init__()
+        self.actor = actor
+        self.memory = memory
+        shape = (memory.num_layers, 1, memory.hidden_size)
+        self.register_buffer("hidden_state", torch.zeros(shape))
+        self.register_buffer("cell_state", torch.zeros(shape))
+
+    def forward(self, x):
+        out, (h, c) = self.memory(x.unsqueeze(0), (self.hidden_state, self.cell_state))
+        self.hidden_state[:] = h
+        self.cell_state[:] = c
+        return self.actor(out.squeeze(0))
+
+    @torch.jit.export
+    def reset_memory(self):
+        self.hidden_state[:] = 0.0
+        self.cell_state[:] = 0.0
+
+
+class PolicyExporterLSTM(LeggedGymLstm):
+    """The module legged_gym's ``export_policy_as_jit`` scripts for an rsl_rl recurrent actor:
+    deep copies of ``actor`` and ``memory_a.rnn``."""
+
+    def __init__(self, actor_critic):
+        memory = copy.deepcopy(actor_critic.memory_a.rnn)
+        memory.cpu()
+        super().__init__(memory, copy.deepcopy(actor_critic.actor))
+        self.is_recurrent = actor_critic.is_recurrent
 
 
 def make_spec(robot, blocks=ARM3_BLOCKS, **kwargs) -> PolicySpec:

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from helpers_policies import folder
+from helpers_policies import LeggedGymLstm, folder
 from torch import nn
 
 from deploy.cli.policy_export import main
@@ -154,28 +154,15 @@ def mlp_policy(obs_dim: int, act_dim: int) -> nn.Module:
     return net.eval()
 
 
-class LstmPolicy(nn.Module):
+class LstmPolicy(LeggedGymLstm):
     """legged_gym's PolicyExporterLSTM layout (``export_policy_as_jit``): an LSTM ``memory``
     whose state lives in the ``hidden_state``/``cell_state`` buffers, then an ``actor`` MLP."""
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: int = 16):
-        super().__init__()
         torch.manual_seed(6)
-        self.memory = nn.LSTM(obs_dim, hidden)
-        self.actor = nn.Sequential(nn.Linear(hidden, 32), nn.ELU(), nn.Linear(32, act_dim))
-        self.register_buffer("hidden_state", torch.zeros(1, 1, hidden))
-        self.register_buffer("cell_state", torch.zeros(1, 1, hidden))
-
-    def forward(self, x):
-        out, (h, c) = self.memory(x.unsqueeze(0), (self.hidden_state, self.cell_state))
-        self.hidden_state[:] = h
-        self.cell_state[:] = c
-        return self.actor(out.squeeze(0))
-
-    @torch.jit.export
-    def reset_memory(self):
-        self.hidden_state[:] = 0.0
-        self.cell_state[:] = 0.0
+        memory = nn.LSTM(obs_dim, hidden)
+        actor = nn.Sequential(nn.Linear(hidden, 32), nn.ELU(), nn.Linear(32, act_dim))
+        super().__init__(memory, actor)
 
 
 @pytest.mark.parametrize("kind", ["mlp", "lstm"])

@@ -13,7 +13,6 @@ Networks are small (LSTM of 16 units); each export is then run through ``deploy-
 
 from __future__ import annotations
 
-import copy
 import warnings
 
 import numpy as np
@@ -26,96 +25,32 @@ from deploy.export import ExportError, run_export
 from deploy.export.errors import InspectError
 from deploy.export.inspect_policy import inspect_file
 from deploy.policy.onnx_policy import OnnxPolicy
-from tests.helpers_policies import PlainNet, make_spec, write_spec
+from tests import helpers_policies as helpers
+from tests.helpers_policies import (
+    PlainNet,
+    PolicyExporterLSTM,
+    assert_ran,
+    make_spec,
+    random_walk,
+    write_spec,
+)
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 STEPS = 500
 HIDDEN = 16
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_torch_thread():
-    """Two torch threads spin-wait on a loaded 2-core machine (PITFALLS.md)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
-def random_walk(steps: int, envs: int, d: int, seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    walk = np.cumsum(rng.normal(0, 0.15, (steps, envs, d)), axis=0)
-    return np.clip(walk, -1.0, 1.0).astype(np.float32)
+def rsl_rl_recurrent(obs_dim: int, act_dim: int, seed: int = 0):
+    """A small rsl_rl ActorCriticRecurrent (LSTM) as legged_gym trains it (no normalizer)."""
+    return helpers.rsl_rl_recurrent(obs_dim, act_dim, seed=seed).eval()
 
 
 def deploy_run(policy_path, tmp_path, capsys) -> None:
     """A few simulated seconds of ``deploy-run`` on arm3 with the exported policy."""
-    from deploy.cli.deploy_run import deploy_run_main
-
     report = tmp_path / "run.json"
-    code = deploy_run_main(
-        [
-            "--robot",
-            "arm3",
-            "--policy",
-            str(policy_path),
-            "--duration",
-            "3",
-            "--report",
-            str(report),
-        ]
-    )
-    out = capsys.readouterr().out
-    # an untrained policy may fault (2) or leave arm3's workspace box (1, a true violation: velocity
-    # mode has no motion envelope yet); it must run, and never past a hard limit
-    assert code in (0, 1, 2), out
-    assert code != 1 or "hard_limit 0," in out, out
-    assert report.is_file() and "tick cost" in out
-
-
-# ---------------------------------------------------------------- legged_gym PolicyExporterLSTM
-class PolicyExporterLSTM(nn.Module):
-    """The module layout legged_gym's ``export_policy_as_jit`` scripts for a recurrent actor."""
-
-    def __init__(self, actor_critic):
-        super().__init__()
-        self.actor = copy.deepcopy(actor_critic.actor)
-        self.is_recurrent = actor_critic.is_recurrent
-        self.memory = copy.deepcopy(actor_critic.memory_a.rnn)
-        self.memory.cpu()
-        shape = (self.memory.num_layers, 1, self.memory.hidden_size)
-        self.register_buffer("hidden_state", torch.zeros(shape))
-        self.register_buffer("cell_state", torch.zeros(shape))
-
-    def forward(self, x):
-        out, (h, c) = self.memory(x.unsqueeze(0), (self.hidden_state, self.cell_state))
-        self.hidden_state[:] = h
-        self.cell_state[:] = c
-        return self.actor(out.squeeze(0))
-
-    @torch.jit.export
-    def reset_memory(self):
-        self.hidden_state[:] = 0.0
-        self.cell_state[:] = 0.0
-
-
-def rsl_rl_recurrent(obs_dim: int, act_dim: int, seed: int = 0):
-    """A small rsl_rl ActorCriticRecurrent (LSTM) as legged_gym trains it (no normalizer)."""
-    rsl_rl = pytest.importorskip("rsl_rl.modules")
-    tensordict = pytest.importorskip("tensordict")
-    torch.manual_seed(seed)
-    obs = tensordict.TensorDict({"policy": torch.zeros(1, obs_dim)}, batch_size=[1])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return rsl_rl.ActorCriticRecurrent(
-            obs,
-            {"policy": ["policy"], "critic": ["policy"]},
-            act_dim,
-            actor_hidden_dims=[HIDDEN],
-            critic_hidden_dims=[HIDDEN],
-            rnn_type="lstm",
-            rnn_hidden_dim=HIDDEN,
-            rnn_num_layers=1,
-        ).eval()
+    assert_ran(*helpers.deploy_run(capsys, policy_path, report=report))
+    assert report.is_file()
 
 
 def script_save(module: nn.Module, path):
@@ -166,7 +101,7 @@ def test_legged_gym_onnx_matches_the_stateful_file_over_500_steps(
         warnings.simplefilter("ignore")
         source = torch.jit.load(str(src))
     policy = OnnxPolicy(legged_gym_onnx, arm3)
-    walk = random_walk(STEPS + 100, 1, policy.obs_dim, seed=5)
+    walk = random_walk(STEPS + 100, policy.obs_dim, seed=5)
     policy.reset(np.ones(1, dtype=bool))
     got, ref = [], []
     with torch.no_grad():
@@ -329,7 +264,7 @@ def test_recurrent_ppo_onnx_matches_sb3_contrib_predict_over_500_steps(
     model, _, _ = recurrent_ppo
     policy = OnnxPolicy(recurrent_ppo_onnx.path, arm3)
     envs = 3
-    walk = random_walk(STEPS, envs, policy.obs_dim, seed=9)
+    walk = random_walk(STEPS, policy.obs_dim, seed=9, envs=envs)
     starts = np.zeros((STEPS, envs), dtype=bool)
     starts[0] = True
     starts[200, [0, 2]] = True

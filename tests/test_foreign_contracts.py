@@ -29,15 +29,7 @@ OBS_DIM = 48
 BIAS = [0.01 * (k + 1) for k in range(12)]
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_torch_thread():
-    """Two torch threads spin-wait on a loaded 2-core machine."""
-    import torch
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def known_state(go2, seed: int = 0) -> RobotState:

@@ -34,58 +34,16 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 from torch import nn
 
-from deploy.cli.deploy_run import deploy_run_main
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.spec.onnx_checks import PolicyLoadError
 from deploy.spec.policy_spec import PolicySpec
-from tests.helpers_policies import make_spec, write_spec
+from tests.helpers_policies import assert_ran, deploy_run, make_spec, random_walk, write_spec
 
 REPO = Path(__file__).resolve().parent.parent
 GODOT_FILE = REPO / "tests" / "data" / "godot_rl_0.8.2_ppo_arm3.onnx"
 GODOT_SPEC = REPO / "docs" / "examples" / "godot_arm3.spec.json"
 STEPS = 500
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_torch_thread():
-    """Two torch threads spin-wait on a loaded 2-core machine (PITFALLS.md)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
-def random_walk(steps: int, d: int, seed: int, scale: float = 1.0) -> np.ndarray:
-    """(steps, 1, d) float32 observations, a clipped random walk (sequential, like a run)."""
-    rng = np.random.default_rng(seed)
-    walk = np.clip(np.cumsum(rng.normal(0, 0.15, (steps, 1, d)), axis=0), -1.0, 1.0)
-    return (scale * walk).astype(np.float32)
-
-
-def deploy_run(capsys, policy: Path, spec: Path, seconds: float = 3.0) -> tuple[int, str, str]:
-    code = deploy_run_main(
-        [
-            "--robot",
-            "arm3",
-            "--policy",
-            str(policy),
-            "--spec",
-            str(spec),
-            "--duration",
-            str(seconds),
-        ]
-    )
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def assert_ran(code: int, out: str, err: str) -> None:
-    # an untrained policy may latch a fault (2), or drive arm3 out of its workspace box (1: velocity
-    # mode has no motion envelope yet, and deploy-run fails a run with a true violation); it must
-    # load, run and not hit a hard limit
-    assert code in (0, 1, 2), out + err
-    assert code != 1 or "hard_limit 0," in out, out
-    assert "tick cost" in out and "error" not in err
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 # ---------------------------------------------------------------- Godot RL Agents

@@ -82,27 +82,34 @@ def assert_ran(code: int, out: str, err: str) -> None:
     assert "tick cost" in out and "error" not in err
 
 
-def rsl_rl_recurrent(obs_dim: int, act_dim: int, kind: str = "lstm", seed: int = 0, **kwargs):
-    """A small rsl_rl ``ActorCriticRecurrent`` (one ``kind`` "lstm"/"gru" layer of 16 units,
-    16-unit actor and critic layers), ``torch.manual_seed(seed)`` first; ``kwargs`` go to its
-    constructor. Skips the test when rsl_rl or tensordict is missing."""
+def rsl_rl_actor_critic(
+    obs_dim: int, act_dim: int, rnn: str | None = "lstm", seed: int = 0, normalizer: bool = False
+):
+    """A small rsl_rl actor-critic in eval mode, ``torch.manual_seed(seed)`` first: an
+    ``ActorCritic`` (``rnn`` None) or an ``ActorCriticRecurrent`` with one ``rnn`` ("lstm"/"gru")
+    layer of 16 units; 16-unit actor and critic layers. ``normalizer``: the actor's observation
+    normalizer on, with non-trivial mean and std. Skips the test without rsl_rl or tensordict."""
     rsl_rl = pytest.importorskip("rsl_rl.modules")
     tensordict = pytest.importorskip("tensordict")
     torch.manual_seed(seed)
     obs = tensordict.TensorDict({"policy": torch.zeros(1, obs_dim)}, batch_size=[1])
+    kwargs = {"actor_hidden_dims": [16], "critic_hidden_dims": [16]}
+    if normalizer:
+        kwargs["actor_obs_normalization"] = True
+    if rnn is not None:
+        kwargs.update(rnn_type=rnn, rnn_hidden_dim=16, rnn_num_layers=1)
+    groups = {"policy": ["policy"], "critic": ["policy"]}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return rsl_rl.ActorCriticRecurrent(
-            obs,
-            {"policy": ["policy"], "critic": ["policy"]},
-            act_dim,
-            actor_hidden_dims=[16],
-            critic_hidden_dims=[16],
-            rnn_type=kind,
-            rnn_hidden_dim=16,
-            rnn_num_layers=1,
-            **kwargs,
-        )
+        kind = rsl_rl.ActorCritic if rnn is None else rsl_rl.ActorCriticRecurrent
+        ac = kind(obs, groups, act_dim, **kwargs)
+    if normalizer:
+        norm = ac.actor_obs_normalizer
+        g = torch.Generator().manual_seed(seed + 1)
+        norm._mean.copy_(0.1 * torch.randn(norm._mean.shape, generator=g))
+        norm._std.copy_(0.5 + torch.rand(norm._std.shape, generator=g))
+        norm._var.copy_(norm._std**2)
+    return ac.eval()
 
 
 class LeggedGymLstm(nn.Module):

@@ -43,7 +43,7 @@ HIDDEN = 16
 
 def rsl_rl_recurrent(obs_dim: int, act_dim: int, seed: int = 0):
     """A small rsl_rl ActorCriticRecurrent (LSTM) as legged_gym trains it (no normalizer)."""
-    return helpers.rsl_rl_recurrent(obs_dim, act_dim, seed=seed).eval()
+    return helpers.rsl_rl_actor_critic(obs_dim, act_dim, seed=seed)
 
 
 def deploy_run(policy_path, tmp_path, capsys) -> None:

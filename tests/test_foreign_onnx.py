@@ -37,7 +37,14 @@ from torch import nn
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.spec.onnx_checks import PolicyLoadError
 from deploy.spec.policy_spec import PolicySpec
-from tests.helpers_policies import assert_ran, deploy_run, make_spec, random_walk, write_spec
+from tests.helpers_policies import (
+    assert_ran,
+    deploy_run,
+    make_spec,
+    random_walk,
+    rsl_rl_actor_critic,
+    write_spec,
+)
 
 REPO = Path(__file__).resolve().parent.parent
 GODOT_FILE = REPO / "tests" / "data" / "godot_rl_0.8.2_ppo_arm3.onnx"
@@ -171,38 +178,6 @@ def test_godot_state_input_is_fed_zeros_and_its_output_ignored(godot_ppo, arm3):
 
 
 # ---------------------------------------------------------------- Isaac Lab / rsl_rl
-def _rsl_rl_policy(obs_dim: int, act_dim: int, rnn: str | None, seed: int = 0):
-    """A small rsl_rl ActorCritic (``rnn`` None) or ActorCriticRecurrent, normalizer non-trivial."""
-    rsl_rl = pytest.importorskip("rsl_rl.modules")
-    tensordict = pytest.importorskip("tensordict")
-    torch.manual_seed(seed)
-    obs = tensordict.TensorDict({"policy": torch.zeros(1, obs_dim)}, batch_size=[1])
-    kwargs = {"actor_obs_normalization": True, "actor_hidden_dims": [16]}
-    kwargs["critic_hidden_dims"] = [16]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        if rnn is None:
-            ac = rsl_rl.ActorCritic(
-                obs, {"policy": ["policy"], "critic": ["policy"]}, act_dim, **kwargs
-            )
-        else:
-            ac = rsl_rl.ActorCriticRecurrent(
-                obs,
-                {"policy": ["policy"], "critic": ["policy"]},
-                act_dim,
-                rnn_type=rnn,
-                rnn_hidden_dim=16,
-                rnn_num_layers=1,
-                **kwargs,
-            )
-    norm = ac.actor_obs_normalizer
-    g = torch.Generator().manual_seed(seed + 1)
-    norm._mean.copy_(0.1 * torch.randn(norm._mean.shape, generator=g))
-    norm._std.copy_(0.5 + torch.rand(norm._std.shape, generator=g))
-    norm._var.copy_(norm._std**2)
-    return ac.eval()
-
-
 class _IsaacLabOnnxPolicy(nn.Module):
     """Isaac Lab's ``_OnnxPolicyExporter``: the actor behind the empirical normalizer; for a
     recurrent policy the memory's RNN first, its state as explicit inputs and outputs."""
@@ -254,7 +229,7 @@ def test_isaac_lab_and_rsl_rl_onnx_match_rsl_rl_and_run_through_deploy_run(
 ):
     spec = make_spec(arm3)
     spec_file = write_spec(spec, tmp_path / "spec.json")
-    ac = _rsl_rl_policy(spec.obs_dim, spec.act_dim, rnn)
+    ac = rsl_rl_actor_critic(spec.obs_dim, spec.act_dim, rnn, normalizer=True)
     path = _isaac_export(ac, spec.obs_dim, tmp_path / "policy.onnx")
     assert onnx.load(str(path)).opset_import[0].version == 11
     policy = OnnxPolicy(path, arm3, spec=spec_file)
@@ -275,6 +250,22 @@ def test_isaac_lab_and_rsl_rl_onnx_match_rsl_rl_and_run_through_deploy_run(
 
 
 # ---------------------------------------------------------------- extra inputs
+def _graph_with(path: Path, nodes, inits, obs_dim: int = 21, act_dim: int = 3, extra=()) -> Path:
+    """Save a graph of ``nodes``: input ``obs`` [batch, obs_dim] (then the value infos
+    ``extra``), output ``action`` [batch, act_dim], opset 18."""
+    graph = helper.make_graph(
+        nodes,
+        "g",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", obs_dim]), *extra],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", act_dim])],
+        initializer=inits,
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    model.ir_version = 9
+    onnx.save(model, str(path))
+    return path
+
+
 def _masked_graph(path: Path, obs_dim: int, act_dim: int, extra: str | None = "mask") -> Path:
     """action = tanh(obs W) + sum(mask) * 0.01: an extra [batch, 4] input besides ``obs``."""
     w = numpy_helper.from_array(np.full((obs_dim, act_dim), 0.05, np.float32), "W")
@@ -282,8 +273,7 @@ def _masked_graph(path: Path, obs_dim: int, act_dim: int, extra: str | None = "m
         helper.make_node("MatMul", ["obs", "W"], ["h"]),
         helper.make_node("Tanh", ["h"], ["t"]),
     ]
-    inputs = [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", obs_dim])]
-    inits = [w]
+    inputs, inits = [], [w]
     if extra:
         inputs.append(helper.make_tensor_value_info(extra, TensorProto.FLOAT, ["batch", 4]))
         inits.append(numpy_helper.from_array(np.array([1], np.int64), "axes"))
@@ -295,17 +285,7 @@ def _masked_graph(path: Path, obs_dim: int, act_dim: int, extra: str | None = "m
         ]
     else:
         nodes.append(helper.make_node("Identity", ["t"], ["action"]))
-    graph = helper.make_graph(
-        nodes,
-        "g",
-        inputs,
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", act_dim])],
-        initializer=inits,
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
-    model.ir_version = 9
-    onnx.save(model, str(path))
-    return path
+    return _graph_with(path, nodes, inits, obs_dim, act_dim, extra=inputs)
 
 
 def test_unknown_extra_input_is_refused_naming_it_and_what_would_load_it(arm3, tmp_path, capsys):
@@ -353,20 +333,6 @@ def test_spec_whose_blocks_sum_to_another_size_exits_3_naming_the_blocks(tmp_pat
 
 
 # ---------------------------------------------------------------- non-finite constants
-def _graph_with(path: Path, nodes, inits, obs_dim: int = 21, act_dim: int = 3) -> Path:
-    graph = helper.make_graph(
-        nodes,
-        "g",
-        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", obs_dim])],
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", act_dim])],
-        initializer=inits,
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
-    model.ir_version = 9
-    onnx.save(model, str(path))
-    return path
-
-
 def test_non_finite_constants_by_design_load_and_the_model_runs(arm3, tmp_path):
     """A masked max as attention does it: -inf where the mask is off, a NaN fill never
     selected, and the weights finite."""

@@ -26,7 +26,7 @@ from tests.helpers_policies import (
     deploy_run,
     make_spec,
     random_walk,
-    rsl_rl_recurrent,
+    rsl_rl_actor_critic,
     write_spec,
 )
 from tests.soak_fixtures import kill_after_first_checkpoint
@@ -37,17 +37,6 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 STEPS = 500
 HIDDEN = 16
-
-
-def actor_critic(obs_dim: int, act_dim: int, kind: str, seed: int = 0):
-    """A small rsl_rl ActorCriticRecurrent with a non-trivial observation normalizer."""
-    ac = rsl_rl_recurrent(obs_dim, act_dim, kind, seed, actor_obs_normalization=True)
-    norm = ac.actor_obs_normalizer
-    g = torch.Generator().manual_seed(seed + 1)
-    norm._mean.copy_(0.1 * torch.randn(norm._mean.shape, generator=g))
-    norm._std.copy_(0.5 + torch.rand(norm._std.shape, generator=g))
-    norm._var.copy_(norm._std**2)
-    return ac.eval()
 
 
 def rsl_rl_actions(ac, walk: np.ndarray, resets: dict[int, np.ndarray]) -> np.ndarray:
@@ -69,7 +58,7 @@ def exported(request, arm3, tmp_path_factory):
     """(kind, actor-critic, ExportResult) of an rsl_rl recurrent checkpoint for arm3."""
     tmp = tmp_path_factory.mktemp(f"rsl_rl_{request.param}")
     spec = make_spec(arm3)
-    ac = actor_critic(spec.obs_dim, spec.act_dim, request.param)
+    ac = rsl_rl_actor_critic(spec.obs_dim, spec.act_dim, request.param, normalizer=True)
     src = tmp / "model_100.pt"
     torch.save({"model_state_dict": ac.state_dict(), "iter": 100}, src)
     result = run_export(src, tmp / "policy.onnx", spec=write_spec(spec, tmp / "spec.json"))

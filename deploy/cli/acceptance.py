@@ -149,6 +149,41 @@ def check_adversarial(
     Returns:
         An :class:`AcceptanceResult`; ``result.failures`` names every check that failed.
     """
+    rt, backend, wall = _run_adversarial(robot, mode, seconds, nan_probability, seed, workdir)
+    cmds, true_q = backend.commands[:, 0], backend.true_q[:, 0]
+    overshoot = np.maximum(true_q - robot.position_upper, 0) + np.maximum(
+        robot.position_lower - true_q, 0
+    )
+    allowed = TORQUE_OVERSHOOT if mode == "torque" else 0.0
+    failures: list[str] = []
+    if overshoot.max() > allowed:
+        failures.append(f"joints beyond the hard limits by up to {overshoot.max():.4f} rad")
+    worst = _check_commands(robot, mode, cmds, rt.dt, failures)
+    modes, causes = rt.mode_names(), rt.cause_names()
+    failures += _check_runtime(rt, backend, nan_probability, modes, causes)
+    return AcceptanceResult(
+        robot=robot.name,
+        mode=mode,
+        seconds=rt.time,
+        wall_seconds=wall,
+        non_finite_actions=int(rt.counters.non_finite_actions.sum()),
+        final_state=modes,
+        final_cause=causes,
+        max_overshoot=float(overshoot.max()),
+        worst_ratio=worst,
+        failures=failures,
+    )
+
+
+def _run_adversarial(
+    robot: Robot,
+    mode: str,
+    seconds: float,
+    nan_probability: float,
+    seed: int,
+    workdir: Path | None,
+) -> tuple[Runtime, RecordingBackend, float]:
+    """Return the runtime, its recording backend and the wall time of the adversarial run."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(workdir or tmp) / f"adversarial_{robot.name}_{mode}.onnx"
         spec = PolicySpec.for_robot(robot, mode=mode, position_range="hard")  # past soft limits
@@ -161,10 +196,14 @@ def check_adversarial(
     wall = time.perf_counter()
     rt.run(ticks)
     wall = time.perf_counter() - wall
+    return rt, backend, wall
 
-    cmds, true_q = backend.commands[:, 0], backend.true_q[:, 0]
-    dt, tol = rt.dt, TOLERANCE
-    failures: list[str] = []
+
+def _check_commands(
+    robot: Robot, mode: str, cmds: np.ndarray, dt: float, failures: list[str]
+) -> dict[str, float]:
+    """Return the worst ratio to its limit of each command check; add the failed ones."""
+    tol = TOLERANCE
     worst: dict[str, float] = {}
 
     def within(name: str, values: np.ndarray, limit: np.ndarray) -> None:
@@ -173,12 +212,6 @@ def check_adversarial(
         if np.any(np.abs(values) > limit * (1 + tol) + tol):
             failures.append(f"{name}: up to {ratio:.4f} x the limit")
 
-    overshoot = np.maximum(true_q - robot.position_upper, 0) + np.maximum(
-        robot.position_lower - true_q, 0
-    )
-    allowed = TORQUE_OVERSHOOT if mode == "torque" else 0.0
-    if overshoot.max() > allowed:
-        failures.append(f"joints beyond the hard limits by up to {overshoot.max():.4f} rad")
     if mode == "position":
         centre = (robot.position_upper + robot.position_lower) / 2
         half = (robot.position_upper - robot.position_lower) / 2
@@ -195,11 +228,22 @@ def check_adversarial(
     else:
         within("torque command", cmds, robot.effort_limit)
         within("torque rate", np.diff(cmds, axis=0) / dt, robot.effort_limit / TORQUE_RISE_TIME)
+    return worst
+
+
+def _check_runtime(
+    rt: Runtime,
+    backend: RecordingBackend,
+    nan_probability: float,
+    modes: list[str],
+    causes: list[str | None],
+) -> list[str]:
+    """Return the failures of the runtime's counters and of its final state and cause."""
+    failures: list[str] = []
     if rt.counters.resyncs.sum():
         failures.append(f"the command stream was re-anchored {rt.counters.resyncs.sum()} times")
     if rt.counters.non_finite_actions.sum() == 0 and nan_probability > 0:
         failures.append("the policy never produced NaN: the NaN path was not exercised")
-    modes, causes = rt.mode_names(), rt.cause_names()
     hot = bool((backend.thermal.winding_temperature > rt.supervision.temp_start).any())
     if causes == ["over_temperature"]:
         # the random torques heated a winding past its maximum: a safe stop that resumes once
@@ -211,18 +255,7 @@ def check_adversarial(
             failures.append(f"ended in {modes} ({causes}) without a hard-limit violation")
     elif causes != ["hard_limit"] or modes[0] not in ("SAFE_STOP", "FAULTED"):
         failures.append(f"a hard-limit violation, but ended in {modes} ({causes})")
-    return AcceptanceResult(
-        robot=robot.name,
-        mode=mode,
-        seconds=rt.time,
-        wall_seconds=wall,
-        non_finite_actions=int(rt.counters.non_finite_actions.sum()),
-        final_state=modes,
-        final_cause=causes,
-        max_overshoot=float(overshoot.max()),
-        worst_ratio=worst,
-        failures=failures,
-    )
+    return failures
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -31,9 +31,8 @@ def resolve_policy_path(name: str | os.PathLike) -> Path:
     return candidate if candidate.exists() else path
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """The ``policy-export`` command; returns the exit status (0 ok, 1 parity failure, 2 bad
-    input, 3 internal error)."""
+def build_parser() -> argparse.ArgumentParser:
+    """Return the parser of ``policy-export``'s options."""
     p = argparse.ArgumentParser(
         prog="policy-export",
         description="Export a trained policy to ONNX with its PolicySpec, after a parity check "
@@ -93,7 +92,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         "metadata, spec; a training stack's own contract, mapped onto --robot when given) and "
         "exit without exporting",
     )
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """The ``policy-export`` command; returns the exit status (0 ok, 1 parity failure, 2 bad
+    input, 3 internal error)."""
+    args = build_parser().parse_args(argv)
     source = resolve_policy_path(args.source)
     if not source.exists() and not source.is_absolute():
         print(
@@ -102,23 +107,33 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         return EXIT_BAD_INPUT
     if args.inspect:
-        from deploy.export.errors import InspectError
-        from deploy.export.inspect_policy import inspect_file
-        from deploy.export.inspect_report import format_report
-
-        try:
-            robot = None
-            if args.robot:
-                from robots import load_robot
-
-                robot = load_robot(args.robot)
-            print(format_report(inspect_file(source, robot)))
-        except (InspectError, ValueError) as exc:  # RobotSpecError is a ValueError
-            print(f"policy-export: error: {exc}", file=sys.stderr)
-            return EXIT_BAD_INPUT
-        return EXIT_OK
+        return _inspect(source, args)
     if source.suffix.lower() == ".onnx":
         return _export_onnx(source, args)
+    return _export_checkpoint(source, args)
+
+
+def _inspect(source: Path, args) -> int:
+    """Print what ``source`` is (``--inspect``); return the exit status."""
+    from deploy.export.errors import InspectError
+    from deploy.export.inspect_policy import inspect_file
+    from deploy.export.inspect_report import format_report
+
+    try:
+        robot = None
+        if args.robot:
+            from robots import load_robot
+
+            robot = load_robot(args.robot)
+        print(format_report(inspect_file(source, robot)))
+    except (InspectError, ValueError) as exc:  # RobotSpecError is a ValueError
+        print(f"policy-export: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    return EXIT_OK
+
+
+def _export_checkpoint(source: Path, args) -> int:
+    """Export a torch checkpoint and print what was written; return the exit status."""
     spec, robot, notes = args.spec, args.robot, []
     try:
         if args.from_config is not None or args.write_robot:
@@ -147,6 +162,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         traceback.print_exc()
         print("policy-export: internal error (see the traceback above)", file=sys.stderr)
         return EXIT_INTERNAL
+    _print_export(source, args, result, notes, metadata)
+    return EXIT_OK
+
+
+def _print_export(
+    source: Path, args, result, notes: list[str], metadata: dict[str, str] | None
+) -> None:
+    """Print the notes, the file written, its spec, parity, export time and how to run it."""
     s, f = result.spec, result.parity
     baked = [k.replace("_", " ") for k, v in s.baked.items() if v]
     for line in notes:
@@ -181,7 +204,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"  run: deploy-run --robot {args.robot} --policy {result.path}"
             + (f" --command {command}" if command else "")
         )
-    return EXIT_OK
 
 
 def _export_onnx(source: Path, args) -> int:

@@ -31,7 +31,8 @@ from robots.importer.source import RobotImportError
 from robots.loading import motor_catalog
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """Return the parser of ``robot-import``'s options."""
     p = argparse.ArgumentParser(
         prog="robot-import",
         description=__doc__.split("::")[0].strip(),
@@ -40,6 +41,26 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("source", help="URDF or MJCF file, or PACKAGE:path (example-robot-data:...)")
     p.add_argument("--out", required=True, help="robot folder to write (its name = robot name)")
     p.add_argument("--srdf", default=None, help="SRDF with disable_collisions pairs")
+    _add_joint_options(p)
+    p.add_argument(
+        "--control-rate",
+        type=float,
+        default=None,
+        help=f"Hz (default: the --drive-from policy's, else {DEFAULT_CONTROL_RATE:g})",
+    )
+    p.add_argument(
+        "--physics-timestep",
+        type=float,
+        default=None,
+        help=f"s (default: the MJCF's <option timestep>, else {DEFAULT_PHYSICS_TIMESTEP:g})",
+    )
+    _add_model_options(p)
+    _add_legged_options(p)
+    return p
+
+
+def _add_joint_options(p: argparse.ArgumentParser) -> None:
+    """Add the per-joint options: motors, end effector, position and velocity limits."""
     p.add_argument(
         "--motor",
         action="append",
@@ -70,18 +91,10 @@ def main(argv: list[str] | None = None) -> int:
         help="velocity limit (rad/s) where the description has none (MJCF) or to replace it; "
         "shell pattern; the motor's no-load speed still caps it; repeatable",
     )
-    p.add_argument(
-        "--control-rate",
-        type=float,
-        default=None,
-        help=f"Hz (default: the --drive-from policy's, else {DEFAULT_CONTROL_RATE:g})",
-    )
-    p.add_argument(
-        "--physics-timestep",
-        type=float,
-        default=None,
-        help=f"s (default: the MJCF's <option timestep>, else {DEFAULT_PHYSICS_TIMESTEP:g})",
-    )
+
+
+def _add_model_options(p: argparse.ArgumentParser) -> None:
+    """Add the options of the model written: replace, meshes, collision boxes, MuJoCo options."""
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
     p.add_argument(
         "--drop-missing-meshes",
@@ -109,6 +122,10 @@ def main(argv: list[str] | None = None) -> int:
         "ls_iterations, cone, solver, impratio, ...) over the description's own, e.g. a training "
         "stack's iterations=10; repeatable",
     )
+
+
+def _add_legged_options(p: argparse.ArgumentParser) -> None:
+    """Add the floating-base (legged) robot options: feet, IMU, drive, Unitree table."""
     legged = p.add_argument_group("floating-base (legged) robots")
     legged.add_argument(
         "--floating-base",
@@ -158,21 +175,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     legged.add_argument("--unitree-ramp-kp", type=float, default=None, help="bring-up N m/rad")
     legged.add_argument("--unitree-ramp-kd", type=float, default=None, help="bring-up N m s/rad")
-    args = p.parse_args(argv)
-    unitree = None
-    if args.unitree is not None:
-        if args.unitree_damping_kd is None:
-            print("robot-import: error: --unitree needs --unitree-damping-kd", file=sys.stderr)
-            return EXIT_REFUSED
-        unitree = {
-            "family": args.unitree,
-            "damping_kd": args.unitree_damping_kd,
-            "ramp_kp": args.unitree_ramp_kp,
-            "ramp_kd": args.unitree_ramp_kd,
-        }
-    drive = None
-    if args.drive_from is not None:
-        drive = functools.partial(policy_drive, args.drive_from)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The ``robot-import`` command: parse ``argv``, import the robot; return the exit status."""
+    args = build_parser().parse_args(argv)
+    if args.unitree is not None and args.unitree_damping_kd is None:
+        print("robot-import: error: --unitree needs --unitree-damping-kd", file=sys.stderr)
+        return EXIT_REFUSED
     try:
         import_robot(
             args.source,
@@ -197,14 +207,33 @@ def main(argv: list[str] | None = None) -> int:
             target_limits=args.target_limits,
             notes=args.note,
             command=["robot-import", *(sys.argv[1:] if argv is None else argv)],
-            unitree=unitree,
-            drive=drive,
+            unitree=_unitree_table(args),
+            drive=_drive(args),
             options=args.option,
         )
     except RobotImportError as exc:
         print(f"robot-import: error: {exc}", file=sys.stderr)
         return EXIT_REFUSED
     return 0
+
+
+def _unitree_table(args) -> dict | None:
+    """Return the ``[unitree]`` table of ``--unitree`` and its gains (None without it)."""
+    if args.unitree is None:
+        return None
+    return {
+        "family": args.unitree,
+        "damping_kd": args.unitree_damping_kd,
+        "ramp_kp": args.unitree_ramp_kp,
+        "ramp_kd": args.unitree_ramp_kd,
+    }
+
+
+def _drive(args):
+    """Return the ``--drive-from`` policy's drive reader (None without it)."""
+    if args.drive_from is None:
+        return None
+    return functools.partial(policy_drive, args.drive_from)
 
 
 if __name__ == "__main__":

@@ -37,6 +37,30 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--envs", type=int, default=1, help="robots simulated in lockstep")
     p.add_argument("--realtime", action="store_true", help="wall clock with absolute deadlines")
+    _add_realtime_options(p)
+    _add_task_options(p)
+    p.add_argument(
+        "--inject",
+        action="append",
+        default=[],
+        metavar="KIND[=MAGNITUDE]@SECONDS[:DURATION]",
+        help="fault injection (sim): dropout, stale, nan-action, latency, push, cable; "
+        "MAGNITUDE: latency ticks (default 10), push / cable force N (default 20 / 10)",
+    )
+    p.add_argument("--report", type=Path, default=None, help="write the summary as JSON")
+    p.add_argument(
+        "--telemetry",
+        type=Path,
+        default=None,
+        help="write downsampled MCAP (with the foxglove extra: link poses, joint states, "
+        "commands and guard events in Foxglove's schemas)",
+    )
+    add_hook_options(p)  # --ros2, --print-joints, --video, --viewer (deploy.rig.hooks)
+    return p
+
+
+def _add_realtime_options(p: argparse.ArgumentParser) -> None:
+    """Add the real-time options: overrun limit, wait mode, priority, CPUs, memory lock."""
     p.add_argument(
         "--overrun-limit",
         type=float,
@@ -80,6 +104,10 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         action="store_true",
         help="a refused --rt-priority or memory lock is an error (exit 3), not a notice",
     )
+
+
+def _add_task_options(p: argparse.ArgumentParser) -> None:
+    """Add the task options: the legged velocity command and heading hold, the reach goals."""
     p.add_argument(
         "--command",
         default=None,
@@ -103,24 +131,6 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         default=3.0,
         help="a goal counts as reached within this many seconds",
     )
-    p.add_argument(
-        "--inject",
-        action="append",
-        default=[],
-        metavar="KIND[=MAGNITUDE]@SECONDS[:DURATION]",
-        help="fault injection (sim): dropout, stale, nan-action, latency, push, cable; "
-        "MAGNITUDE: latency ticks (default 10), push / cable force N (default 20 / 10)",
-    )
-    p.add_argument("--report", type=Path, default=None, help="write the summary as JSON")
-    p.add_argument(
-        "--telemetry",
-        type=Path,
-        default=None,
-        help="write downsampled MCAP (with the foxglove extra: link poses, joint states, "
-        "commands and guard events in Foxglove's schemas)",
-    )
-    add_hook_options(p)  # --ros2, --print-joints, --video, --viewer (deploy.rig.hooks)
-    return p
 
 
 #: Options whose value may start with '-' (a vector with a negative first entry).

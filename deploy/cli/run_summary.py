@@ -22,6 +22,20 @@ def print_summary(r: dict) -> None:
         f"{r['duration_s']:.1f} s {'wall-clock' if r['realtime'] else 'simulated'} "
         f"in {r['wall_s']:.2f} s"
     )
+    _print_task(r)
+    _print_estimation(r)
+    _print_violations(r)
+    _print_interventions(r)
+    _print_faults(r)
+    _print_bus(r)
+    _print_ros2(r)
+    _print_temperatures_and_motion(r)
+    _print_costs_and_deadlines(r)
+    _print_final_state(r)
+
+
+def _print_task(r: dict) -> None:
+    """Print the task lines: goals reached, or the walk, its heading and its true falls."""
     g, loco = r["goals"], r.get("locomotion")
     if g is not None:
         rate = f"{100 * g['success_rate']:.1f} %" if g["success_rate"] is not None else "n/a"
@@ -30,42 +44,56 @@ def print_summary(r: dict) -> None:
             f"({rate})"
         )
     if loco is not None:
-        speed, track = loco["mean_forward_speed_m_s"], loco["tracking_success"]
-        print(
-            f"  walked            {loco['distance_m']:.2f} m, mean forward speed "
-            + (f"{speed:.3f} m/s" if speed is not None else "n/a")
-            + f" (command {', '.join(f'{c:g}' for c in loco['command'][0])}); tracking "
-            + (f"{100 * track:.1f} %" if track is not None else "n/a")
-            + f" of RUNNING time within {loco['tracking_tolerance_m_s']} m/s; falls {loco['falls']}"
-            + (f" ({_causes(loco['falls_by_cause'])})" if loco.get("falls_by_cause") else "")
-        )
+        _print_walk(loco)
     if loco is not None and loco.get("heading_change_deg") is not None:
-        turn, asked = loco["heading_change_deg"], loco["commanded_turn_deg"]
-        height = loco.get("base_height_m")
-        flag = abs(turn - asked) > HEADING_DRIFT_DEG
-        hold = loco.get("heading_hold_gain")
-        moved = loco.get("displacement_m")
-        print(
-            f"  heading           turned {turn:+.1f} deg (the commands asked {asked:+.1f})"
-            + (" - A TURN THE COMMAND DID NOT ASK FOR" if flag else "")
-            + (f", held at gain {hold:g}/s" if hold else "")
-            + (
-                f"; displaced {moved[0]:+.2f} m along its first heading, {moved[1]:+.2f} across"
-                if moved is not None
-                else ""
-            )
-            + (
-                f"; base height {height:.3f} m by its kinematics "
-                f"(standing {loco['standing_height_m']:.3f})"
-                if height is not None and loco.get("standing_height_m")
-                else ""
-            )
-        )
+        _print_heading(loco)
     if loco is not None and loco.get("true_falls", 0) > loco.get("runtime_falls", 0):
         print(
             f"  TRUE FALLS        {loco['true_falls']} of the true base (sim), of which the "
             f"runtime detected {loco['runtime_falls']}: the run fails (exit code 2)"
         )
+
+
+def _print_walk(loco: dict) -> None:
+    """Print the walk line: distance, mean forward speed, tracking and falls."""
+    speed, track = loco["mean_forward_speed_m_s"], loco["tracking_success"]
+    print(
+        f"  walked            {loco['distance_m']:.2f} m, mean forward speed "
+        + (f"{speed:.3f} m/s" if speed is not None else "n/a")
+        + f" (command {', '.join(f'{c:g}' for c in loco['command'][0])}); tracking "
+        + (f"{100 * track:.1f} %" if track is not None else "n/a")
+        + f" of RUNNING time within {loco['tracking_tolerance_m_s']} m/s; falls {loco['falls']}"
+        + (f" ({_causes(loco['falls_by_cause'])})" if loco.get("falls_by_cause") else "")
+    )
+
+
+def _print_heading(loco: dict) -> None:
+    """Print the heading line: the turn against the commanded one, displacement, base height."""
+    turn, asked = loco["heading_change_deg"], loco["commanded_turn_deg"]
+    height = loco.get("base_height_m")
+    flag = abs(turn - asked) > HEADING_DRIFT_DEG
+    hold = loco.get("heading_hold_gain")
+    moved = loco.get("displacement_m")
+    print(
+        f"  heading           turned {turn:+.1f} deg (the commands asked {asked:+.1f})"
+        + (" - A TURN THE COMMAND DID NOT ASK FOR" if flag else "")
+        + (f", held at gain {hold:g}/s" if hold else "")
+        + (
+            f"; displaced {moved[0]:+.2f} m along its first heading, {moved[1]:+.2f} across"
+            if moved is not None
+            else ""
+        )
+        + (
+            f"; base height {height:.3f} m by its kinematics "
+            f"(standing {loco['standing_height_m']:.3f})"
+            if height is not None and loco.get("standing_height_m")
+            else ""
+        )
+    )
+
+
+def _print_estimation(r: dict) -> None:
+    """Print the base estimate against the true base (simulation only)."""
     est = r.get("estimation")
     if est is not None:
         att, bias = est["attitude_error_deg"], est["velocity_bias_fraction"]
@@ -78,6 +106,10 @@ def print_summary(r: dict) -> None:
             f"{est['vertical_velocity_m_s']['bias']:+.3f} m/s, RMS "
             f"{est['vertical_velocity_m_s']['rms']:.3f}"
         )
+
+
+def _print_violations(r: dict) -> None:
+    """Print the violation lines (true state), or the guard's hard-limit stops on hardware."""
     v = r["violations"]
     if v is not None:
         text = ", ".join(f"{k} {n}" for k, n in v["by_type"].items())
@@ -95,6 +127,10 @@ def print_summary(r: dict) -> None:
             "  violations        n/a (no ground truth on hardware; the guard's hard-limit "
             f"stops: {r['faults']['by_cause']['hard_limit']})"
         )
+
+
+def _print_interventions(r: dict) -> None:
+    """Print the interventions line: % of ticks per check and the soft-band warning."""
     iv = r["interventions"]
     text = ", ".join(
         f"{k} {100 * c['fraction']:.2f}" for k, c in iv["checks"].items() if c["count"]
@@ -105,6 +141,10 @@ def print_summary(r: dict) -> None:
         + (f" ({text})" if text else "")
         + f"; warning: estimate in soft band {100 * warn['fraction']:.2f}"
     )
+
+
+def _print_faults(r: dict) -> None:
+    """Print the faults line, the estimator's warning and the servo errors."""
     f = r["faults"]
     causes = ", ".join(f"{k} {n}" for k, n in f["by_cause"].items() if n) or "none"
     print(
@@ -123,6 +163,10 @@ def print_summary(r: dict) -> None:
         print(f"  WARNING           {f['estimator']['warning']}")
     for text in f.get("drive_errors", []):
         print(f"  servo error       {text}")
+
+
+def _print_bus(r: dict) -> None:
+    """Print the bus line: DDS, ros2_control or a servo bus, if the backend has one."""
     b = r.get("bus")
     if b and b.get("transport") == "dds":
         _print_dds(b)
@@ -145,6 +189,10 @@ def print_summary(r: dict) -> None:
             f"({100 * b['dropout_fraction']:.2f} % of replies); read p50 {rd['p50_us']:.0f} "
             f"p99 {rd['p99_us']:.0f} us, write p50 {wr['p50_us']:.0f} us"
         )
+
+
+def _print_ros2(r: dict) -> None:
+    """Print the ROS 2 node line (--ros2): topics published and received, skips, time-outs."""
     n = r.get("ros2")
     if n:
         pub = ", ".join(f"{k} {v}" for k, v in n["published"].items() if v)
@@ -153,12 +201,20 @@ def print_summary(r: dict) -> None:
             f"  ros2 node         {n['node']}: published {pub}; received {got}; ticks skipped "
             f"{n['ticks_skipped']}, cmd_vel time-outs {n['cmd_vel_timeouts']}"
         )
+
+
+def _print_temperatures_and_motion(r: dict) -> None:
+    """Print the peak winding temperatures, the max joint speed and the mean |jerk|."""
     temps = ", ".join(f"{k} {t:.1f}" for k, t in r["peak_winding_temperature_c"].items())
     print(f"  peak winding degC {temps}")
     speed = max(r["max_joint_speed_rad_s"].values())
     jerk = ", ".join(f"{k} {v:.0f}" for k, v in r["mean_abs_jerk_rad_s3"].items())
     source = "true" if r["violations"] is not None else "estimated"
     print(f"  max joint speed   {speed:.2f} rad/s; mean |jerk| rad/s^3 ({source}, RUNNING) {jerk}")
+
+
+def _print_costs_and_deadlines(r: dict) -> None:
+    """Print the tick, monitor and stage costs, the deadlines and the real-time settings."""
     t = r["tick_cost_us"]
     print(
         f"  tick cost (us)    p50 {t['p50_us']:.1f}  p99 {t['p99_us']:.1f}  "
@@ -184,7 +240,12 @@ def print_summary(r: dict) -> None:
             + "; ".join(f"{t['period_us'] / 1e3:.1f} ms {t['cause']}" for t in long)
             + " (report.json deadline.long_ticks)"
         )
-    rts = r.get("realtime_settings")
+    _print_realtime_settings(r)
+
+
+def _print_realtime_settings(r: dict) -> None:
+    """Print the real-time line: wait mode, scheduler, CPUs, memory lock (when asked for)."""
+    rts, d = r.get("realtime_settings"), r["deadline"]
     if rts and (r["realtime"] or rts["requested"]["cpus"] is not None):
         sched = rts["scheduler"] or "scheduler unknown"
         if rts["scheduler"] == "SCHED_FIFO":
@@ -194,6 +255,10 @@ def print_summary(r: dict) -> None:
             f"{','.join(map(str, rts['cpus']))}, memory "
             f"{'locked' if rts['memory_locked'] else 'not locked'}"
         )
+
+
+def _print_final_state(r: dict) -> None:
+    """Print the final state and its causes, a divergence and the exit code."""
     print(
         f"  final state       {', '.join(r['final_state'])}"
         + (f" ({', '.join(c for c in r['final_cause'] if c)})" if any(r["final_cause"]) else "")

@@ -4,27 +4,17 @@ temporary folder, checked with :func:`robots.load_robot` and moved into place.""
 
 from __future__ import annotations
 
-import shutil
-import tempfile
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from robots.importer.contact_pairs import write_pairs
-from robots.importer.model import (
-    cap_limits,
-    choose_collision_pairs,
-    choose_ee_body,
-    derive_motion_limits,
-    sample_workspace,
-)
+from robots.importer.model import choose_ee_body, derive_motion_limits, sample_workspace
 from robots.importer.source import PreparedSource, RobotImportError
+from robots.importer.staging import capped_limits, collision_pairs, staged, written_ranges
 from robots.importer.toml_text import write_robot_toml
-from robots.loading import load_robot
-from robots.packages import PACKAGE_SCHEME, resolved_mjcf
-from robots.robot import RobotSpecError
+from robots.packages import PACKAGE_SCHEME
 
 
 def import_fixed_base(
@@ -60,30 +50,14 @@ def import_fixed_base(
             f"note: end-effector site 'ee' {where} link '{ee_body}' (choose another with --ee-site)"
         )
 
-    limits_out, lowered, notes = cap_limits(urdf, chosen, motor_cfg, log)
-    report.lowered += lowered
-    report.notes += notes
-
-    with tempfile.TemporaryDirectory(prefix=f".{name}-", dir=out.parent) as tmp:
-        work = Path(tmp) / name
-        work.mkdir()
-        mjcf_path = work / f"{name}.xml"
+    limits_out = capped_limits(urdf, chosen, motor_cfg, report, log)
+    with staged(out, name, path) as (work, mjcf_path):
         finish_arm_mjcf(spec, ee_body, ee_frame, urdf, mjcf_path)
         write_pairs(mjcf_path, urdf, log)  # the MJCF's <contact><pair>s
-        # the MJCF writes ranges to 6 significant digits: robot.toml must say the same
-        written = mujoco.MjModel.from_xml_path(str(resolved_mjcf(mjcf_path)))
-        for i, j in enumerate(joint_names):
-            lo, hi = (float(x) for x in written.jnt_range[i])
-            limits_out[j] = (lo, hi, *limits_out[j][2:])
+        written_ranges(mjcf_path, joint_names, limits_out)
         motion = derive_motion_limits(spec, model, joint_names, limits_out, motor_cfg, chosen)
         home = motion.home
-        pairs, excluded, dropped = choose_collision_pairs(
-            mjcf_path, model, urdf, srdf_info, home, path
-        )
-        for a, b, d in dropped:
-            log(f"note: links {a} and {b} are {d * 1000:.1f} mm apart at home: pair not checked")
-        if excluded:
-            add_contact_excludes(mjcf_path, excluded)
+        pairs = collision_pairs(mjcf_path, model, urdf, srdf_info, home, path, log)
         ws = sample_workspace(mjcf_path, joint_names, limits_out, home)
         write_robot_toml(
             work / "robot.toml",
@@ -103,13 +77,6 @@ def import_fixed_base(
             lowered=report.lowered,
             motor_tables=motor_tables,
         )
-        try:
-            load_robot(work)
-        except RobotSpecError as exc:
-            raise RobotImportError(f"{path}: the imported robot does not load: {exc}") from None
-        if out.exists():
-            shutil.rmtree(out)
-        work.rename(out)
 
 
 def disabled_by(source: PreparedSource, srdf_path: Path | None) -> str | None:
@@ -164,17 +131,3 @@ def finish_arm_mjcf(spec, ee_body: str, ee_frame: str | None, urdf, mjcf_path: P
         "control mode). Meshes are read from the installed package named by meshdir. -->\n"
     )
     mjcf_path.write_text(header + xml, encoding="utf-8")
-
-
-def add_contact_excludes(mjcf_path: Path, excluded: list[tuple[str, str]]) -> None:
-    tree = ET.parse(mjcf_path)
-    root = tree.getroot()
-    contact = root.find("contact")
-    if contact is None:
-        contact = ET.SubElement(root, "contact")
-    for a, b in excluded:
-        ET.SubElement(contact, "exclude", body1=a, body2=b)
-    ET.indent(tree, "  ")
-    text = ET.tostring(root, encoding="unicode")
-    head = mjcf_path.read_text(encoding="utf-8").split("\n", 1)[0]
-    mjcf_path.write_text(head + "\n" + text + "\n", encoding="utf-8")

@@ -403,20 +403,11 @@ def import_floating_base(
             :func:`finish_floating_mjcf`, a bad ``--kp``/``--kd``/``--home`` flag or a home
             pose outside the limits, or a result that does not load.
     """
-    import shutil
-    import tempfile
-
     from robots.importer import flags
     from robots.importer.contact_pairs import write_pairs
-    from robots.importer.fixed_base import add_contact_excludes, disabled_by
-    from robots.importer.model import (
-        LEGGED_MAX_ACCELERATION,
-        cap_limits,
-        choose_collision_pairs,
-        derive_motion_limits,
-    )
-    from robots.loading import load_robot
-    from robots.robot import RobotSpecError
+    from robots.importer.fixed_base import disabled_by
+    from robots.importer.model import LEGGED_MAX_ACCELERATION, derive_motion_limits
+    from robots.importer.staging import capped_limits, collision_pairs, staged, written_ranges
 
     foot_links = choose_feet(urdf, feet)
     imu_link, imu_site = choose_imu(urdf, imu, log)
@@ -427,9 +418,7 @@ def import_floating_base(
 
         tables = unitree_lines(joint_names=joint_names, feet=foot_links, **unitree)
     log(f"note: feet {foot_links}, IMU at {at}")
-    limits_out, lowered, lnotes = cap_limits(urdf, chosen, motor_cfg, log)
-    report.lowered += lowered
-    report.notes += lnotes
+    limits_out = capped_limits(urdf, chosen, motor_cfg, report, log)
     expected = "JOINT=VALUE with a finite number (JOINT may be a pattern, e.g. '*_knee_joint=0.3')"
     home_set, kp_set, kd_set = (
         flags.per_joint(values, joint_names, flag, flags.finite, expected, urdf.path.name)
@@ -470,28 +459,20 @@ def import_floating_base(
     home_from = (
         "--home flags (see the notes above)" if home_set else "0 clipped into the soft limits"
     )
-    with tempfile.TemporaryDirectory(prefix=f".{name}-", dir=out.parent) as tmp:
-        work = Path(tmp) / name
-        work.mkdir()
-        mjcf_path = work / f"{name}.xml"
+    with staged(out, name, path) as (work, mjcf_path):
         legged = finish_floating_mjcf(
             spec, urdf, foot_links, (imu_link, imu_site), joint_names, motion.home, mjcf_path
         )
         write_pairs(mjcf_path, urdf, log)  # the MJCF's <contact><pair>s, the floor named
         for foot, shape in legged["foot_shapes"].items():
             log(f"note: foot {foot}: {shape}")
-        written = mujoco.MjModel.from_xml_path(str(resolved_mjcf(mjcf_path)))
-        for i, j in enumerate(joint_names):  # the MJCF writes 6 significant digits
-            lo, hi = (float(x) for x in written.jnt_range[i + 1])
-            limits_out[j] = (lo, hi, *limits_out[j][2:])
+        written = written_ranges(
+            mjcf_path, joint_names, limits_out, first=1
+        )  # after the free joint
         motion = motion_now()
-        pairs, excluded, dropped = choose_collision_pairs(
-            mjcf_path, written, urdf, srdf_info, motion.home, path, LEG_CLEARANCE
+        pairs = collision_pairs(
+            mjcf_path, written, urdf, srdf_info, motion.home, path, log, LEG_CLEARANCE
         )
-        for a, b, d in dropped:
-            log(f"note: links {a} and {b} are {d * 1000:.1f} mm apart at home: pair not checked")
-        if excluded:
-            add_contact_excludes(mjcf_path, excluded)
         write_legged_toml(
             work / "robot.toml",
             name=name,
@@ -518,10 +499,3 @@ def import_floating_base(
             target_limits=target_limits,
             tables=tables,
         )
-        try:
-            load_robot(work)
-        except RobotSpecError as exc:
-            raise RobotImportError(f"{path}: the imported robot does not load: {exc}") from None
-        if out.exists():
-            shutil.rmtree(out)
-        work.rename(out)

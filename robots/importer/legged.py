@@ -24,11 +24,12 @@ from robots.importer.model import SOFT_LIMIT_FRACTION, Motion, _sig
 from robots.importer.source import PreparedSource, RobotImportError
 from robots.importer.toml_text import (
     _f,
-    _vec,
-    joint_lines,
-    limit_notes,
+    all_joint_lines,
+    control_lines,
     motor_table_lines,
+    pairs_lines,
     sensor_lines,
+    sources_lines,
 )
 from robots.packages import resolved_mjcf
 
@@ -214,7 +215,6 @@ def write_legged_toml(
     motor_tables = motor_tables or {}
     resolution = min(motor_cfg[m].encoder_resolution or 16384 for m in set(chosen.values()))
     quantum = 2 * math.pi / resolution
-    low = {(j, q): (a, b) for j, q, a, b, _ in lowered}
     feet = legged["feet"]
     load = mass * ACCELERATION_SCALE / len(feet)
     push = mass * PUSH_VELOCITY / PUSH_TIME  # N, the soak's largest push
@@ -224,20 +224,16 @@ def write_legged_toml(
         f"# {name}: imported by robot-import --floating-base from {prepared.display}.",
         "# Regenerate with (from the repository root):",
         "#   " + " ".join(shlex.quote(a) for a in command),
-        f"# Joint order and position limits from the {kind}; velocity and effort limits are the "
-        "lower",
-        f"# of the {kind}'s and the motor's (robots/motors/<model>.toml); SI units, radians.",
+        *sources_lines(kind),
         *[f"# {line}" for note in notes for line in note.splitlines()],
-        f'name = "{name}"',
-        f'mjcf = "{mjcf}"',
-        "",
-        "[control]",
-        'mode = "position"            # joint position targets, PD at the physics rate',
-        f"control_rate = {_f(control_rate)}          # Hz (robot-import --control-rate)",
-        f"physics_timestep = {_f(physics_timestep)}     # s (robot-import --physics-timestep)",
-        f"# rad: {home_from}",
-        f"home = {_vec(motion.home)}",
-        "",
+        *control_lines(
+            name,
+            mjcf,
+            "joint position targets, PD at the physics rate",
+            (control_rate, physics_timestep),
+            home_from,
+            motion.home,
+        ),
         "# acceleration_limit: 0.5 x (effort - worst gravity torque) / worst joint inertia with",
         "# armature (rotor inertia x ratio^2), base held, 400 seeded poses; jerk_limit: 20 x",
         "# acceleration. kp, kd: see the comment of each joint.",
@@ -251,13 +247,7 @@ def write_legged_toml(
             "# without a smoother steps it; command_velocity_limit, the target's speed in that",
             "# move, 2 x (effort / kp) / control_period (the joint's own stays velocity_limit).",
         ]
-    for i, j in enumerate(joint_names):
-        lo, hi, vel, eff = limits[j]
-        src = prepared.joints[j]
-        vnote, enote = limit_notes(j, src, low)
-        lines += joint_lines(
-            j, i, (lo, hi, vel, eff), kind, (vnote, enote), motion, chosen[j], gains_from[j]
-        )
+    lines += all_joint_lines(joint_names, limits, prepared, lowered, motion, chosen, gains_from)
     lines += [
         "",
         *sensor_lines(chosen, resolution, quantum, control_rate, "degC", motor_tables),
@@ -301,16 +291,7 @@ def write_legged_toml(
         "",
         "[safety]",
         "# No end effector and no workspace box: a legged robot walks anywhere.",
-        (
-            f"# Geom pairs of links {disabled_by} does not disable, "
-            if disabled_by
-            else "# Geom pairs of non-adjacent links, "
-        )
-        + "apart at home; the plant checks contact only between these (and the floor).",
-        "collision_pairs = [",
-        *[f'  ["{a}", "{b}"],' for a, b in pairs],
-        "]",
-        "stale_limit = 0.05",
+        *pairs_lines(disabled_by, pairs, "these (and the floor)"),
         "",
         "[base]",
         f'body = "{prepared.root_link}"  # carries the free joint "{FREE_JOINT}"',

@@ -129,6 +129,70 @@ def sensor_lines(
     ]
 
 
+def sources_lines(kind: str) -> list[str]:
+    """robot.toml's header comment on where the joint limits come from (``kind``: "URDF"...)."""
+    return [
+        f"# Joint order and position limits from the {kind}; velocity and effort limits are the "
+        "lower",
+        f"# of the {kind}'s and the motor's (robots/motors/<model>.toml); SI units, radians.",
+    ]
+
+
+def control_lines(
+    name: str, mjcf: str, mode_note: str, rates: tuple[float, float], home_note: str, home
+) -> list[str]:
+    """robot.toml's ``name``, ``mjcf`` and ``[control]`` table up to ``home`` (rad), position
+    mode: ``mode_note`` comments the mode, ``rates`` are (control rate Hz, physics timestep s),
+    ``home_note`` says where the home pose came from."""
+    control_rate, physics_timestep = rates
+    return [
+        f'name = "{name}"',
+        f'mjcf = "{mjcf}"',
+        "",
+        "[control]",
+        f'mode = "position"            # {mode_note}',
+        f"control_rate = {_f(control_rate)}          # Hz (robot-import --control-rate)",
+        f"physics_timestep = {_f(physics_timestep)}     # s (robot-import --physics-timestep)",
+        f"# rad: {home_note}",
+        f"home = {_vec(home)}",
+        "",
+    ]
+
+
+def all_joint_lines(
+    joint_names, limits: dict, prepared: PreparedSource, lowered, motion: Motion, chosen, gains=None
+) -> list[str]:
+    """The ``[[joints]]`` tables (:func:`joint_lines`) of every joint in order: ``limits`` joint
+    -> (lower, upper rad, velocity rad/s, effort N m), ``lowered`` the motor caps
+    (``ImportReport.lowered``), ``chosen`` joint -> motor, ``gains`` joint -> the source note of
+    its gains (None: no note)."""
+    low = {(j, q): (a, b) for j, q, a, b, _ in lowered}
+    lines = []
+    for i, j in enumerate(joint_names):
+        notes = limit_notes(j, prepared.joints[j], low)
+        note = None if gains is None else gains[j]
+        lines += joint_lines(j, i, limits[j], prepared.kind, notes, motion, chosen[j], note)
+    return lines
+
+
+def pairs_lines(disabled_by: str | None, pairs, checked: str = "these") -> list[str]:
+    """robot.toml's ``collision_pairs`` (geom name pairs) with the comment on what left pairs
+    unchecked (``disabled_by``: "the SRDF (x.srdf)", None: only adjacency), and its
+    ``stale_limit``; ``checked`` ends the comment."""
+    return [
+        (
+            f"# Geom pairs of links {disabled_by} does not disable, "
+            if disabled_by
+            else "# Geom pairs of non-adjacent links, "
+        )
+        + f"apart at home; the plant checks contact only between {checked}.",
+        "collision_pairs = [",
+        *[f'  ["{a}", "{b}"],' for a, b in pairs],
+        "]",
+        "stale_limit = 0.05",
+    ]
+
+
 def write_robot_toml(
     path: Path,
     *,
@@ -164,35 +228,25 @@ def write_robot_toml(
     ]
     resolution = min(resolutions) if resolutions else 16384
     quantum = 2 * math.pi / resolution
-    low = {(j, q): (a, b) for j, q, a, b, _ in lowered}
+    home_note = (
+        f"0 clipped into the soft limits. End effector there at {_vec(workspace['home_ee'])} m."
+    )
     lines = [
         f"# {name}: imported by robot-import from {prepared.display}.",
-        f"# Joint order and position limits from the {kind}; velocity and effort limits are the "
-        "lower",
-        f"# of the {kind}'s and the motor's (robots/motors/<model>.toml); SI units, radians.",
-        f'name = "{name}"',
-        f'mjcf = "{mjcf}"',
-        "",
-        "[control]",
-        'mode = "position"            # joint position targets (a servo\'s native mode)',
-        f"control_rate = {_f(control_rate)}          # Hz (robot-import --control-rate)",
-        f"physics_timestep = {_f(physics_timestep)}     # s (robot-import --physics-timestep)",
-        "# rad: 0 clipped into the soft limits. End effector there at "
-        f"{_vec(workspace['home_ee'])} m.",
-        f"home = {_vec(motion.home)}",
-        "",
+        *sources_lines(kind),
+        *control_lines(
+            name,
+            mjcf,
+            "joint position targets (a servo's native mode)",
+            (control_rate, physics_timestep),
+            home_note,
+            motion.home,
+        ),
         "# acceleration_limit: 0.5 x (effort - worst gravity torque) / worst joint inertia with",
         "# armature (rotor inertia x ratio^2), 400 seeded poses; jerk_limit: 20 x acceleration.",
         "# kp: full effort at 0.05 rad error (capped for stability at the physics step);",
         "# kd: critical damping for the worst inertia. Plant servo gains, not datasheet values.",
-    ]
-    for i, j in enumerate(joint_names):
-        lo, hi, vel, eff = limits[j]
-        m = chosen[j]
-        src = prepared.joints[j]
-        vnote, enote = limit_notes(j, src, low)
-        lines += joint_lines(j, i, (lo, hi, vel, eff), kind, (vnote, enote), motion, m)
-    lines += [
+        *all_joint_lines(joint_names, limits, prepared, lowered, motion, chosen),
         "",
         *sensor_lines(
             chosen, resolution, quantum, control_rate, "degC, as servos report it", motor_tables
@@ -203,16 +257,7 @@ def write_robot_toml(
         "# Box of every reachable end-effector position + 5 cm, cut 5 cm below the base (table).",
         f"workspace_min = {_vec(workspace['workspace_min'])}",
         f"workspace_max = {_vec(workspace['workspace_max'])}",
-        (
-            f"# Geom pairs of links {disabled_by} does not disable, "
-            if disabled_by
-            else "# Geom pairs of non-adjacent links, "
-        )
-        + "apart at home; the plant checks contact only between these.",
-        "collision_pairs = [",
-        *[f'  ["{a}", "{b}"],' for a, b in pairs],
-        "]",
-        "stale_limit = 0.05",
+        *pairs_lines(disabled_by, pairs),
         "",
         "[task]",
         "# 10th-90th percentile box of positions reached within 70 % of each range about home;",

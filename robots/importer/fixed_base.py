@@ -11,82 +11,40 @@ import numpy as np
 
 from robots.importer.contact_pairs import write_pairs
 from robots.importer.model import choose_ee_body, derive_motion_limits, sample_workspace
-from robots.importer.source import PreparedSource, RobotImportError
-from robots.importer.staging import capped_limits, collision_pairs, staged, written_ranges
+from robots.importer.source import RobotImportError
+from robots.importer.staging import ImportJob, written_ranges
 from robots.importer.toml_text import write_robot_toml
 from robots.packages import PACKAGE_SCHEME
 
 
-def import_fixed_base(
-    *,
-    path: Path,
-    out: Path,
-    name: str,
-    urdf: PreparedSource,
-    srdf_info,
-    srdf_path,
-    spec: mujoco.MjSpec,
-    model: mujoco.MjModel,
-    joint_names: list[str],
-    chosen: dict,
-    motor_cfg: dict,
-    motor_tables: dict,
-    report,
-    ee_site: str | None,
-    control_rate: float,
-    physics_timestep: float,
-    log,
-) -> None:
-    """The fixed-base half of :func:`robots.importer.pipeline.import_robot` (its arguments).
+def import_fixed_base(job: ImportJob, *, ee_site: str | None) -> None:
+    """The fixed-base half of :func:`robots.importer.pipeline.import_robot`: ``ee_site`` is its
+    ``--ee-site`` (None: the importer chooses).
 
     Raises:
         RobotImportError: see :func:`robots.importer.model.choose_ee_body`, or a result that does
             not load.
     """
-    ee_body, ee_frame = choose_ee_body(model, urdf, ee_site, path)
+    urdf, model, joint_names, log = job.urdf, job.model, job.joint_names, job.log
+    ee_body, ee_frame = choose_ee_body(model, urdf, ee_site, job.path)
     if ee_site is None:
         where = f"at site '{ee_frame}' of" if ee_frame else "on"
         log(
             f"note: end-effector site 'ee' {where} link '{ee_body}' (choose another with --ee-site)"
         )
 
-    limits_out = capped_limits(urdf, chosen, motor_cfg, report, log)
-    with staged(out, name, path) as (work, mjcf_path):
-        finish_arm_mjcf(spec, ee_body, ee_frame, urdf, mjcf_path)
+    limits_out = job.capped_limits()
+    with job.staged() as (work, mjcf_path):
+        finish_arm_mjcf(job.spec, ee_body, ee_frame, urdf, mjcf_path)
         write_pairs(mjcf_path, urdf, log)  # the MJCF's <contact><pair>s
         written_ranges(mjcf_path, joint_names, limits_out)
-        motion = derive_motion_limits(spec, model, joint_names, limits_out, motor_cfg, chosen)
-        home = motion.home
-        pairs = collision_pairs(mjcf_path, model, urdf, srdf_info, home, path, log)
-        ws = sample_workspace(mjcf_path, joint_names, limits_out, home)
-        write_robot_toml(
-            work / "robot.toml",
-            name=name,
-            prepared=urdf,
-            mjcf=mjcf_path.name,
-            joint_names=joint_names,
-            limits=limits_out,
-            motion=motion,
-            chosen=chosen,
-            motor_cfg=motor_cfg,
-            pairs=pairs,
-            workspace=ws,
-            control_rate=control_rate,
-            physics_timestep=physics_timestep,
-            disabled_by=disabled_by(urdf, srdf_path),
-            lowered=report.lowered,
-            motor_tables=motor_tables,
+        motion = derive_motion_limits(
+            job.spec, model, joint_names, limits_out, job.motor_cfg, job.chosen
         )
-
-
-def disabled_by(source: PreparedSource, srdf_path: Path | None) -> str | None:
-    """What named the unchecked link pairs, for robot.toml's comment (None: nothing did)."""
-    named = []
-    if srdf_path is not None:
-        named.append(f"the SRDF ({Path(srdf_path).name})")
-    if source.disabled:
-        named.append(f"the MJCF's <contact><exclude> ({source.path.name})")
-    return " or ".join(named) or None
+        pairs = job.collision_pairs(mjcf_path, model, motion.home)
+        ws = sample_workspace(mjcf_path, joint_names, limits_out, motion.home)
+        args = job.toml_args(mjcf_path, limits_out, motion, pairs)
+        write_robot_toml(work / "robot.toml", workspace=ws, **args)
 
 
 def finish_arm_mjcf(spec, ee_body: str, ee_frame: str | None, urdf, mjcf_path: Path) -> None:

@@ -350,34 +350,20 @@ def pd_target_limits(
 
 
 def import_floating_base(
+    job,
     *,
-    path,
-    out: Path,
-    name: str,
-    urdf: PreparedSource,
-    srdf_info,
-    srdf_path,
-    spec: mujoco.MjSpec,
-    model: mujoco.MjModel,
-    joint_names: list[str],
-    chosen: dict,
-    motor_cfg: dict,
-    motor_tables: dict,
-    report,
     feet: list[str],
     imu: str | None,
     kp: list[str],
     kd: list[str],
     home: list[str],
     notes: list[str],
-    control_rate: float,
-    physics_timestep: float,
     command: list[str],
-    log,
     target_limits: str = "pd",
     unitree: dict | None = None,
 ) -> None:
-    """The floating-base half of :func:`robots.importer.pipeline.import_robot` (its arguments).
+    """The floating-base half of :func:`robots.importer.pipeline.import_robot`: ``job`` is a
+    :class:`robots.importer.staging.ImportJob`, the rest its floating-base arguments.
 
     Raises:
         RobotImportError: see :func:`choose_feet`, :func:`choose_imu`,
@@ -386,10 +372,11 @@ def import_floating_base(
     """
     from robots.importer import flags
     from robots.importer.contact_pairs import write_pairs
-    from robots.importer.fixed_base import disabled_by
     from robots.importer.model import LEGGED_MAX_ACCELERATION, derive_motion_limits
-    from robots.importer.staging import capped_limits, collision_pairs, staged, written_ranges
+    from robots.importer.staging import written_ranges
 
+    urdf, spec, joint_names, log = job.urdf, job.spec, job.joint_names, job.log
+    chosen, motor_cfg, control_rate = job.chosen, job.motor_cfg, job.control_rate
     foot_links = choose_feet(urdf, feet)
     imu_link, imu_site = choose_imu(urdf, imu, log)
     at = f"site {imu_site} of link {imu_link}" if imu_site else f"link {imu_link}"
@@ -399,7 +386,7 @@ def import_floating_base(
 
         tables = unitree_lines(joint_names=joint_names, feet=foot_links, **unitree)
     log(f"note: feet {foot_links}, IMU at {at}")
-    limits_out = capped_limits(urdf, chosen, motor_cfg, report, log)
+    limits_out = job.capped_limits()
     expected = "JOINT=VALUE with a finite number (JOINT may be a pattern, e.g. '*_knee_joint=0.3')"
     home_set, kp_set, kd_set = (
         flags.per_joint(values, joint_names, flag, flags.finite, expected, urdf.path.name)
@@ -412,7 +399,7 @@ def import_floating_base(
 
     def motion_now():
         motion = derive_motion_limits(
-            spec, model, joint_names, limits_out, motor_cfg, chosen, LEGGED_MAX_ACCELERATION
+            spec, job.model, joint_names, limits_out, motor_cfg, chosen, LEGGED_MAX_ACCELERATION
         )
         for i, j in enumerate(joint_names):
             motion.home[i] = home_set.get(j, motion.home[i])
@@ -440,43 +427,27 @@ def import_floating_base(
     home_from = (
         "--home flags (see the notes above)" if home_set else "0 clipped into the soft limits"
     )
-    with staged(out, name, path) as (work, mjcf_path):
+    with job.staged() as (work, mjcf_path):
         legged = finish_floating_mjcf(
             spec, urdf, foot_links, (imu_link, imu_site), joint_names, motion.home, mjcf_path
         )
         write_pairs(mjcf_path, urdf, log)  # the MJCF's <contact><pair>s, the floor named
         for foot, shape in legged["foot_shapes"].items():
             log(f"note: foot {foot}: {shape}")
-        written = written_ranges(
-            mjcf_path, joint_names, limits_out, first=1
-        )  # after the free joint
+        # the model's joint 0 is the free joint
+        written = written_ranges(mjcf_path, joint_names, limits_out, first=1)
         motion = motion_now()
-        pairs = collision_pairs(
-            mjcf_path, written, urdf, srdf_info, motion.home, path, log, LEG_CLEARANCE
-        )
+        pairs = job.collision_pairs(mjcf_path, written, motion.home, LEG_CLEARANCE)
         write_legged_toml(
             work / "robot.toml",
-            name=name,
-            prepared=urdf,
-            mjcf=mjcf_path.name,
-            joint_names=joint_names,
-            limits=limits_out,
-            motion=motion,
             gains_from=gains_from,
-            chosen=chosen,
-            motor_cfg=motor_cfg,
-            pairs=pairs,
             legged=legged,
             imu_link=imu_link,
             mass=robot_mass(mjcf_path),
-            control_rate=control_rate,
-            physics_timestep=physics_timestep,
             home_from=home_from,
-            disabled_by=disabled_by(urdf, srdf_path),
-            lowered=report.lowered,
             notes=notes,
             command=command,
-            motor_tables=motor_tables,
             target_limits=target_limits,
             tables=tables,
+            **job.toml_args(mjcf_path, limits_out, motion, pairs),
         )

@@ -35,6 +35,7 @@ from robots.importer.mjcf import prepare_mjcf
 from robots.importer.model import build_spec
 from robots.importer.physics_option import choose_timestep
 from robots.importer.source import PreparedSource, RobotImportError, SrdfInfo, read_srdf
+from robots.importer.staging import ImportJob
 from robots.importer.urdf import prepare_urdf
 from robots.packages import package_root
 from robots.robot import RobotSpecError
@@ -285,28 +286,25 @@ def _import(
             f"{path}: <option timestep='{physics_timestep:g}'>: not a divisor of the control "
             f"period 1/{control_rate:g} s; expected --physics-timestep S (s) that divides it"
         )
+    job = ImportJob(
+        path=path, out=out, name=name, urdf=urdf, srdf_info=srdf_info, srdf_path=srdf_path,
+        spec=spec, model=model, joint_names=joint_names, chosen=chosen, motor_cfg=motor_cfg,
+        motor_tables=motor_tables, report=report, control_rate=control_rate,
+        physics_timestep=physics_timestep, log=log,
+    )  # fmt: skip
     if floating_base:
         from robots.importer.legged import import_floating_base
 
         import_floating_base(
-            path=path, out=out, name=name, urdf=urdf, srdf_info=srdf_info, srdf_path=srdf_path,
-            spec=spec, model=model, joint_names=joint_names, chosen=chosen, motor_cfg=motor_cfg,
-            motor_tables=motor_tables, report=report, feet=list(feet), imu=imu, kp=list(kp),
-            kd=list(kd), home=list(home), notes=list(notes), control_rate=control_rate,
-            physics_timestep=physics_timestep, target_limits=target_limits,
-            command=command or ["robot-import", str(source), "--out", str(out)], log=log,
-            unitree=unitree,
+            job, feet=list(feet), imu=imu, kp=list(kp), kd=list(kd), home=list(home),
+            notes=list(notes), target_limits=target_limits,
+            command=command or ["robot-import", str(source), "--out", str(out)], unitree=unitree,
         )  # fmt: skip
         report.seconds = time.perf_counter() - start
         log(f"wrote {out} ({len(joint_names)} joints, floating base) in {report.seconds:.1f} s")
         return report
 
-    import_fixed_base(
-        path=path, out=out, name=name, urdf=urdf, srdf_info=srdf_info, srdf_path=srdf_path,
-        spec=spec, model=model, joint_names=joint_names, chosen=chosen, motor_cfg=motor_cfg,
-        motor_tables=motor_tables, report=report, ee_site=ee_site, control_rate=control_rate,
-        physics_timestep=physics_timestep, log=log,
-    )  # fmt: skip
+    import_fixed_base(job, ee_site=ee_site)
     report.seconds = time.perf_counter() - start
     log(f"wrote {out} ({len(joint_names)} joints) in {report.seconds:.1f} s")
     return report

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from deploy.export.errors import InspectError
+from deploy.export.file_kind import check_file, zip_kind
 from deploy.export.inspect_report import spec_summary, tensor_entry
 from deploy.export.inspect_torch import inspect_sb3, inspect_torch, inspect_torchscript
 
@@ -146,31 +147,18 @@ def inspect_file(path: str | Path, robot=None) -> dict[str, Any]:
         InspectError: missing, empty, unreadable or unrecognized file (naming it and why).
     """
     path = Path(path)
-    if not path.exists():
-        raise InspectError(f"{path}: no such file")
-    if not path.is_file():
-        raise InspectError(f"{path}: not a file")
-    if path.stat().st_size == 0:
-        raise InspectError(f"{path}: the file is empty")
+    check_file(path, InspectError)
     with open(path, "rb") as f:
         head = f.read(4)
     if zipfile.is_zipfile(path):
-        try:
-            with zipfile.ZipFile(path) as zf:
-                names = zf.namelist()
-        except (zipfile.BadZipFile, OSError) as exc:
-            raise InspectError(f"{path}: damaged zip archive: {exc}") from None
-        if "policy.pth" in names and "data" in names:
-            result = inspect_sb3(path)
-        elif any(n.endswith("constants.pkl") or "/code/" in n for n in names):
-            result = inspect_torchscript(path)
-        elif any(n.endswith("data.pkl") for n in names):
-            result = inspect_torch(path)
-        else:
+        kind, names = zip_kind(path, InspectError)
+        readers = {"sb3": inspect_sb3, "torchscript": inspect_torchscript, "torch": inspect_torch}
+        if kind is None:
             raise InspectError(
                 f"{path}: a zip archive that is no torch checkpoint, TorchScript module nor "
                 f"Stable-Baselines3 model (entries: {names[:6]})"
             )
+        result = readers[kind](path)
     elif head[:1] == b"\x80" or head.startswith(b"PK\x03\x04"):  # a pickle, or a cut zip
         result = inspect_torch(path)
     else:

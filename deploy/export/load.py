@@ -22,6 +22,7 @@ from torch import nn
 
 from deploy.export.checkpoint import _load_checkpoint
 from deploy.export.errors import ExportError, _first_line
+from deploy.export.file_kind import check_file, zip_kind
 from deploy.export.network import _probe, _require_spec, check_finite_tensors
 from deploy.export.rsl_rl import _load_rsl_rl
 from deploy.export.sb3 import _load_sb3
@@ -41,12 +42,7 @@ from robots.files import sha256_file
 
 
 def _detect(path: Path) -> str:
-    if not path.exists():
-        raise ExportError(f"{path}: no such file")
-    if not path.is_file():
-        raise ExportError(f"{path}: not a file")
-    if path.stat().st_size == 0:
-        raise ExportError(f"{path}: the file is empty")
+    check_file(path, ExportError)
     if path.suffix.lower() == ".onnx":
         raise ExportError(f"{path}: already an ONNX file; export takes a torch checkpoint")
     if not zipfile.is_zipfile(path):
@@ -54,21 +50,13 @@ def _detect(path: Path) -> str:
         if problem is not None:
             raise ExportError(f"{path}: {problem}")
         return "torch"  # legacy torch.save format (a pickle), or damaged: torch.load decides
-    try:
-        with zipfile.ZipFile(path) as zf:
-            names = zf.namelist()
-    except (zipfile.BadZipFile, OSError) as exc:
-        raise ExportError(f"{path}: damaged zip archive: {exc}") from None
-    if "policy.pth" in names and "data" in names:
-        return "sb3"
-    if any(n.endswith("constants.pkl") or "/code/" in n for n in names):
-        return "torchscript"
-    if any(n.endswith("data.pkl") for n in names):
-        return "torch"
-    raise ExportError(
-        f"{path}: a zip archive that is neither a torch checkpoint, a TorchScript module nor a "
-        f"Stable-Baselines3 model (entries: {names[:6]})"
-    )
+    kind, names = zip_kind(path, ExportError)
+    if kind is None:
+        raise ExportError(
+            f"{path}: a zip archive that is neither a torch checkpoint, a TorchScript module nor "
+            f"a Stable-Baselines3 model (entries: {names[:6]})"
+        )
+    return kind
 
 
 def _torch_load(path: Path, trust_pickle: bool) -> Any:

@@ -118,3 +118,47 @@ def _build_mlp(
         return MLPActor.from_linear_layers(layers, activation, output).eval()
     except ValueError as exc:
         raise ExportError(f"{path}: {where}: {exc}") from None
+
+
+def rsl_rl_actor_layers(
+    msd: Mapping[str, torch.Tensor], path: Path, missing: str
+) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """The (weight, bias) pairs of an rsl_rl actor, the ``actor.<i>`` Linear layers of the
+    checkpoint's ``model_state_dict`` ``msd`` (its other keys ignored), in order.
+
+    Raises:
+        ExportError: no such layer (``missing`` begins the message: "... has no"), or a layer
+            that is not Linear with bias.
+    """
+    actor = {k: v for k, v in msd.items() if re.fullmatch(r"actor\.\d+\.(weight|bias)", k)}
+    if not actor:
+        raise ExportError(f"{path}: {missing} 'actor.<i>.weight' layers (keys: {sorted(msd)[:8]})")
+    return _linear_stack(actor, "actor.", path)
+
+
+def check_head(
+    layers: list[tuple[torch.Tensor, torch.Tensor]],
+    inputs: int,
+    outputs: int,
+    path: Path,
+    names: tuple[str, str, str],
+    note: str = "",
+) -> None:
+    """Check that the Linear stack ``layers`` (weight (out, in), bias) after a recurrent memory
+    takes the memory's ``inputs`` values and returns the spec's ``outputs`` (its action size).
+    ``names``: (the stack, the memory, the stack's last layer) as the messages name them;
+    ``note`` ends the output-size message.
+
+    Raises:
+        ExportError: either size differs.
+    """
+    net, memory, last = names
+    if layers[0][0].shape[1] != inputs:
+        raise ExportError(
+            f"{path}: {net} takes {layers[0][0].shape[1]} inputs, {memory} gives {inputs}"
+        )
+    if layers[-1][0].shape[0] != outputs:
+        raise ExportError(
+            f"{path}: wrong output size: {last} returns {layers[-1][0].shape[0]} values, the "
+            f"spec's action has {outputs}{note}"
+        )

@@ -34,6 +34,7 @@ import torch
 from torch import nn
 
 from deploy.export.errors import _first_line
+from deploy.export.recurrent import RecurrentStepper
 
 #: The least tolerance, absolute (max abs error over all action entries).
 TOLERANCE = 1e-5
@@ -99,31 +100,6 @@ class _Floor:
             self.scale = max(self.scale, float(np.max(np.abs(value64), initial=0.0)))
 
 
-class _Stepper:
-    """A recurrent module stepped with its state carried per env, in ``dtype`` (a new batch size
-    starts from zeros; ``reset(mask)`` zeroes envs), as
-    :class:`deploy.export.parity.TorchRecurrentReference` steps the float32 source."""
-
-    def __init__(self, module: nn.Module, layout, dtype: torch.dtype):
-        self.module, self.layout, self.dtype = module, layout, dtype
-        self.state: tuple[torch.Tensor, ...] = ()
-        self.batch = -1
-
-    def reset(self, envs: np.ndarray | None = None) -> None:
-        index = slice(None) if envs is None else torch.from_numpy(np.asarray(envs, dtype=bool))
-        for t in self.state:
-            t[:, index, :] = 0.0
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        if obs.shape[0] != self.batch:
-            self.batch = obs.shape[0]
-            self.state = tuple(s.to(self.dtype) for s in self.layout.zeros(self.batch))
-        with torch.no_grad():
-            action, *state = self.module(torch.from_numpy(obs).to(self.dtype), *self.state)
-        self.state = tuple(state)
-        return action.numpy()
-
-
 class FloorStepper:
     """The float32 source and its float64 twin stepped side by side on the observations of a
     recurrent parity run: ``stepper(obs)`` adds ``|action32 - action64|`` to the floor,
@@ -131,8 +107,8 @@ class FloorStepper:
 
     def __init__(self, floor: NoiseFloor, phase: str):
         self.floor, self.phase = floor, phase
-        self.f32 = _Stepper(floor.module, floor.layout, torch.float32)
-        self.f64 = _Stepper(floor.twin, floor.layout, torch.float64)
+        self.f32 = RecurrentStepper(floor.module, floor.layout, torch.float32)
+        self.f64 = RecurrentStepper(floor.twin, floor.layout, torch.float64)
 
     def reset(self, envs: np.ndarray | None = None) -> None:
         self.f32.reset(envs)

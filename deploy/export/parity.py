@@ -14,7 +14,7 @@ observations by a float64 copy of the source when it has one, at least ``TOLERAN
 Recurrent policies are compared over sequences with the state carried on both sides: step 1 is
 replaced by :func:`sequence_parity` (``SEQUENCE_STEPS`` sequential steps of a bounded random walk
 through the normalized observation space, several envs, some of them reset half way, then a
-batch-1 run), and the replay of step 2 uses a :class:`TorchRecurrentReference`. A source that runs
+batch-1 run), and the replay of step 2 uses a :class:`RecurrentStepper`. A source that runs
 as it is (legged_gym's stateful TorchScript) is also stepped against the ONNX at batch 1
 (:func:`source_sequence_parity`).
 """
@@ -30,7 +30,7 @@ from torch import nn
 from deploy.backends.sim.plant import NonFiniteCommandError, SimBackend, SimulationDivergedError
 from deploy.core.state import Kinematics, RobotState
 from deploy.export.noise_floor import TOLERANCE, NoiseFloor, _max_abs  # noqa: F401 - TOLERANCE
-from deploy.export.recurrent import RecurrentPolicyModule
+from deploy.export.recurrent import RecurrentPolicyModule, RecurrentStepper
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.robot_kind import robot_kind
 from deploy.spec.policy_spec import PolicySpec
@@ -111,7 +111,7 @@ def closed_loop_parity(
     and ONNX actions at every tick.
 
     ``reference(obs) -> action`` (numpy, (envs, act_dim)) replaces ``module`` as the torch side
-    when given (a recurrent policy's :class:`TorchRecurrentReference`,
+    when given (a recurrent policy's :class:`RecurrentStepper`,
     which carries the state as the ONNX policy does). ``floor`` (if given) runs the float64 twin
     on the same observations (:mod:`deploy.export.noise_floor`).
 
@@ -185,31 +185,6 @@ def _true_base(plant: SimBackend, state: RobotState, t: float) -> None:
     state.clock[:] = t
 
 
-class TorchRecurrentReference:
-    """The torch side of a parity run: ``ref(obs)`` -> action (numpy), the state carried per env
-    like :class:`deploy.policy.onnx_policy.OnnxPolicy` carries it (a new batch size starts from
-    zeros)."""
-
-    def __init__(self, module: RecurrentPolicyModule):
-        self.module = module
-        self.state: tuple[torch.Tensor, ...] = ()
-        self.batch = -1
-
-    def reset(self, envs: np.ndarray | None = None) -> None:
-        """Zero the state of the envs in the boolean mask ``envs`` (default all)."""
-        index = slice(None) if envs is None else torch.from_numpy(np.asarray(envs, dtype=bool))
-        for t in self.state:
-            t[:, index, :] = 0.0
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        if obs.shape[0] != self.batch:
-            self.batch, self.state = obs.shape[0], self.module.layout.zeros(obs.shape[0])
-        with torch.no_grad():
-            action, *state = self.module(torch.from_numpy(obs), *self.state)
-        self.state = tuple(state)
-        return action.numpy()
-
-
 def sequence_parity(
     policy,
     module: RecurrentPolicyModule,
@@ -236,7 +211,7 @@ def sequence_parity(
     envs, d = SEQUENCE_ENVS, spec.obs_dim
     steps = rng.normal(0.0, WALK_SIGMA, (SEQUENCE_STEPS, envs, d))
     walk = np.clip(np.cumsum(steps, axis=0), -1.2, 1.2).astype(np.float32)
-    ref = TorchRecurrentReference(module)
+    ref = RecurrentStepper(module)
     twin = floor.stepper() if floor is not None else None
     worst, compared = 0.0, 0
     mask = np.zeros(envs, dtype=bool)

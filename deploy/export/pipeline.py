@@ -25,13 +25,13 @@ from deploy.export.load import load_source
 from deploy.export.noise_floor import PHASES, NoiseFloor, _max_abs, _num, describe_tolerance
 from deploy.export.parity import (
     PARITY_SAMPLES,
-    TorchRecurrentReference,
     closed_loop_parity,
     parity_observations,
     sequence_parity,
     source_sequence_parity,
     static_parity,
 )
+from deploy.export.recurrent import RecurrentStepper
 from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.spec.onnx_checks import PolicyLoadError
 from deploy.spec.policy_spec import PolicySpec, SpecError
@@ -116,8 +116,36 @@ def run_export(
     tolerance: float | None = None,
     metadata: dict[str, str] | None = None,
 ) -> ExportResult:
-    """:func:`export_policy`, returning the parity figures and timing as well; ``metadata``:
-    more entries of the file's metadata (e.g. ``training_domain``, :mod:`eval.world.domain`)."""
+    """Export a trained policy to ONNX with its PolicySpec, after the parity gate.
+
+    Args:
+        source: Policy file: our checkpoint, TorchScript, SB3 PPO/SAC zip, rsl_rl checkpoint, or a
+            pickled nn.Module (see :mod:`deploy.export`).
+        out: Destination; default ``source`` with the suffix ``.onnx``. Its folder must exist.
+        spec: PolicySpec or spec JSON file; required unless the source is our checkpoint.
+        trust_pickle: Allow unpickling (pickled modules, VecNormalize pickles). Never needed for
+            the other formats.
+        vecnormalize: SB3 VecNormalize statistics (``.npz``, ``.json``, or pickle if trusted).
+        activation: Override the hidden activation of rebuilt SB3 / rsl_rl networks.
+        robot: Robot (or name / path) to check against and replay on; default the spec's robot.
+        exporter: 'torchscript' (default) or 'dynamo'.
+        seed: Seed of the parity observations, goals and plant noise.
+        tolerance: The parity tolerance (max abs error, action units and recurrent state);
+            default ``max(TOLERANCE, NOISE_MULTIPLIER x`` the source's float32 noise floor``)``
+            (:mod:`deploy.export.noise_floor`).
+        metadata: More entries of the file's metadata (e.g. ``training_domain``,
+            :mod:`eval.world.domain`).
+
+    Returns:
+        The :class:`ExportResult`: the ONNX file written, its parity figures and the timing.
+
+    Raises:
+        ExportError: bad input (missing, truncated or corrupt file; unknown format; missing spec;
+            wrong input or output size; non-finite weights; spec/robot mismatch; untrusted
+            pickle). Nothing is written.
+        ParityError: ONNX Runtime and torch disagree by more than the tolerance. Nothing is
+            written under ``out``; the candidate is kept under :func:`failed_path`.
+    """
     t0 = time.perf_counter()
     source = Path(source)
     _check_tolerance(tolerance)
@@ -214,7 +242,7 @@ def _parity_gate(
     reference, state_err = None, None
     if src.recurrent:
         static_err, state_err, n_samples = sequence_parity(policy, module, spec, seed, floor)
-        reference = TorchRecurrentReference(module)
+        reference = RecurrentStepper(module)
     else:
         static_err, n_samples = static_parity(policy, module, spec, PARITY_SAMPLES, seed, floor)
     loop = closed_loop_parity(policy, module, robot, seed=seed, reference=reference, floor=floor)
@@ -259,45 +287,16 @@ def _keep_failed(
 
 
 def export_policy(
-    source: str | os.PathLike,
-    out: str | os.PathLike | None = None,
-    spec: PolicySpec | str | os.PathLike | None = None,
-    trust_pickle: bool = False,
-    vecnormalize: str | os.PathLike | None = None,
-    activation: str | None = None,
-    robot: Robot | str | os.PathLike | None = None,
-    exporter: str = "torchscript",
-    seed: int = 0,
-    tolerance: float | None = None,
+    source: str | os.PathLike, out: str | os.PathLike | None = None, **options
 ) -> Path:
-    """Export a trained policy to ONNX with its PolicySpec, after the parity gate.
-
-    Args:
-        source: Policy file: our checkpoint, TorchScript, SB3 PPO/SAC zip, rsl_rl checkpoint, or a
-            pickled nn.Module (see :mod:`deploy.export`).
-        out: Destination; default ``source`` with the suffix ``.onnx``. Its folder must exist.
-        spec: PolicySpec or spec JSON file; required unless the source is our checkpoint.
-        trust_pickle: Allow unpickling (pickled modules, VecNormalize pickles). Never needed for
-            the other formats.
-        vecnormalize: SB3 VecNormalize statistics (``.npz``, ``.json``, or pickle if trusted).
-        activation: Override the hidden activation of rebuilt SB3 / rsl_rl networks.
-        robot: Robot (or name / path) to check against and replay on; default the spec's robot.
-        exporter: 'torchscript' (default) or 'dynamo'.
-        seed: Seed of the parity observations, goals and plant noise.
-        tolerance: The parity tolerance (max abs error, action units and recurrent state);
-            default ``max(TOLERANCE, NOISE_MULTIPLIER x`` the source's float32 noise floor``)``
-            (:mod:`deploy.export.noise_floor`).
+    """Export a trained policy to ONNX with its PolicySpec, after the parity gate: what
+    :func:`run_export` does with the same arguments (``options``: its keyword arguments), without
+    its figures.
 
     Returns:
         The ONNX file written.
 
     Raises:
-        ExportError: bad input (missing, truncated or corrupt file; unknown format; missing spec;
-            wrong input or output size; non-finite weights; spec/robot mismatch; untrusted
-            pickle). Nothing is written.
-        ParityError: ONNX Runtime and torch disagree by more than the tolerance. Nothing is
-            written under ``out``; the candidate is kept under :func:`failed_path`.
+        ExportError, ParityError: as :func:`run_export`.
     """
-    return run_export(
-        source, out, spec, trust_pickle, vecnormalize, activation, robot, exporter, seed, tolerance
-    ).path
+    return run_export(source, out, **options).path

@@ -16,13 +16,14 @@ runs::
 
 (torch's RNN state layout, batch on axis 1; the initial state is zeros.) The parity gate runs
 over sequences with the state carried on both sides: :func:`deploy.export.parity.sequence_parity`
-and the closed-loop replay with a :class:`deploy.export.parity.TorchRecurrentReference`.
+and the closed-loop replay with a :class:`RecurrentStepper`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -43,6 +44,45 @@ class StateLayout:
     def zeros(self, batch: int) -> tuple[torch.Tensor, ...]:
         """Zero state tensors (layers, batch, hidden) float32."""
         return tuple(torch.zeros(self.layers, batch, self.hidden) for _ in self.names)
+
+
+class RecurrentStepper:
+    """A recurrent module stepped with its state carried per env, as
+    :class:`deploy.policy.onnx_policy.OnnxPolicy` carries it: ``stepper(obs)`` (batch, obs_dim)
+    -> action (batch, act_dim) numpy; a new batch size starts from zeros; ``reset(mask)`` zeroes
+    envs. The torch side of a recurrent parity run, and the float32 / float64 pair of
+    :mod:`deploy.export.noise_floor`.
+
+    Args:
+        module: Called as ``module(obs, *state)`` -> ``(action, *state)``.
+        layout: The state's :class:`StateLayout`; default ``module.layout``.
+        dtype: Observations and state cast to it; default as they come (float32).
+    """
+
+    def __init__(
+        self, module: nn.Module, layout: StateLayout | None = None, dtype: torch.dtype | None = None
+    ):
+        self.module, self.dtype = module, dtype
+        self.layout = module.layout if layout is None else layout
+        self.state: tuple[torch.Tensor, ...] = ()
+        self.batch = -1
+
+    def reset(self, envs: np.ndarray | None = None) -> None:
+        """Zero the state of the envs in the boolean mask ``envs`` (default all)."""
+        index = slice(None) if envs is None else torch.from_numpy(np.asarray(envs, dtype=bool))
+        for t in self.state:
+            t[:, index, :] = 0.0
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        if obs.shape[0] != self.batch:
+            self.batch, self.state = obs.shape[0], self._cast(self.layout.zeros(obs.shape[0]))
+        with torch.no_grad():
+            action, *state = self.module(*self._cast((torch.from_numpy(obs),)), *self.state)
+        self.state = tuple(state)
+        return action.numpy()
+
+    def _cast(self, tensors: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
+        return tensors if self.dtype is None else tuple(t.to(self.dtype) for t in tensors)
 
 
 class RecurrentCore(nn.Module):

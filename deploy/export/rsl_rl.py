@@ -6,7 +6,6 @@ MLP (ELU by default) and the actor's ``EmpiricalNormalization`` (:func:`rsl_rl_n
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -15,9 +14,9 @@ import torch
 from deploy.export.errors import ExportError
 from deploy.export.network import (
     _build_mlp,
-    _linear_stack,
     _probe,
     _require_spec,
+    rsl_rl_actor_layers,
 )
 from deploy.export.rsl_rl_normalizer import RSL_RL_EPS, rsl_rl_normalizer
 from deploy.export.source import SourcePolicy
@@ -41,13 +40,7 @@ def _load_rsl_rl(
             f"{path}: recurrent rsl_rl policy ({recurrent[0]}, ...) of an unsupported layout; "
             "an ActorCriticRecurrent actor (memory_a.rnn LSTM or GRU + actor MLP) is expected"
         )
-    actor_keys = {k: v for k, v in msd.items() if re.fullmatch(r"actor\.\d+\.(weight|bias)", k)}
-    if not actor_keys:
-        raise ExportError(
-            f"{path}: field 'model_state_dict' has no 'actor.<i>.weight' layers "
-            f"(keys: {sorted(msd)[:8]})"
-        )
-    layers = _linear_stack(actor_keys, "actor.", path)
+    layers = rsl_rl_actor_layers(msd, path, "field 'model_state_dict' has no")
     net = _build_mlp(layers, activation or "elu", None, path, "rsl_rl actor")
     norm = rsl_rl_normalizer(path, obj, msd, spec)
     _probe(net, spec, path)

@@ -15,14 +15,18 @@ returns mean and std) is refused: the spec's action size must be the actor's out
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping
 from pathlib import Path
 
 import torch
 
 from deploy.export.errors import ExportError
-from deploy.export.network import _build_mlp, _linear_stack, check_finite_tensors
+from deploy.export.network import (
+    _build_mlp,
+    check_finite_tensors,
+    check_head,
+    rsl_rl_actor_layers,
+)
 from deploy.export.recurrent import rnn_from_state_dict
 from deploy.export.rsl_rl_normalizer import RSL_RL_EPS, rsl_rl_normalizer
 from deploy.export.source import recurrent_source
@@ -53,23 +57,10 @@ def load_rsl_rl_recurrent(
     )
     weights = {k[len(RNN_PREFIX) :]: v for k, v in msd.items() if k.startswith(RNN_PREFIX)}
     rnn = rnn_from_state_dict(weights, spec.obs_dim, f"{path}: {RNN_PREFIX}", ExportError)
-    actor_keys = {k: v for k, v in msd.items() if re.fullmatch(r"actor\.\d+\.(weight|bias)", k)}
-    if not actor_keys:
-        raise ExportError(
-            f"{path}: recurrent rsl_rl checkpoint without 'actor.<i>.weight' layers "
-            f"(keys: {sorted(msd)[:8]})"
-        )
-    layers = _linear_stack(actor_keys, "actor.", path)
-    if layers[0][0].shape[1] != rnn.hidden_size:
-        raise ExportError(
-            f"{path}: the actor MLP takes {layers[0][0].shape[1]} inputs, the recurrent memory "
-            f"gives {rnn.hidden_size}"
-        )
-    if layers[-1][0].shape[0] != spec.act_dim:
-        raise ExportError(
-            f"{path}: wrong output size: the actor returns {layers[-1][0].shape[0]} values, the "
-            f"spec's action has {spec.act_dim} (a state-dependent std is not supported)"
-        )
+    layers = rsl_rl_actor_layers(msd, path, "recurrent rsl_rl checkpoint without")
+    names = ("the actor MLP", "the recurrent memory", "the actor")
+    note = " (a state-dependent std is not supported)"
+    check_head(layers, rnn.hidden_size, spec.act_dim, path, names, note)
     mlp = _build_mlp(layers, activation or "elu", None, path, "rsl_rl actor")
     norm = rsl_rl_normalizer(path, obj, msd, spec)
     kind = None if norm is None else f"rsl_rl EmpiricalNormalization (eps {RSL_RL_EPS})"

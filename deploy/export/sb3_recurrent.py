@@ -26,7 +26,7 @@ from pathlib import Path
 import torch
 
 from deploy.export.errors import ExportError
-from deploy.export.network import _build_mlp, _linear_stack, check_finite_tensors
+from deploy.export.network import _build_mlp, _linear_stack, check_finite_tensors, check_head
 from deploy.export.recurrent import rnn_from_state_dict
 from deploy.export.sb3_activation import sb3_activation
 from deploy.export.source import recurrent_source
@@ -79,16 +79,8 @@ def load_recurrent_ppo(
         )
     layers = _linear_stack(sd, "mlp_extractor.policy_net.", path)
     layers.append((sd["action_net.weight"], sd["action_net.bias"]))
-    if layers[0][0].shape[1] != rnn.hidden_size:
-        raise ExportError(
-            f"{path}: the policy net takes {layers[0][0].shape[1]} inputs, the LSTM gives "
-            f"{rnn.hidden_size}"
-        )
-    if layers[-1][0].shape[0] != spec.act_dim:
-        raise ExportError(
-            f"{path}: wrong output size: action_net returns {layers[-1][0].shape[0]} values, "
-            f"the spec's action has {spec.act_dim}"
-        )
+    names = ("the policy net", "the LSTM", "action_net")
+    check_head(layers, rnn.hidden_size, spec.act_dim, path, names)
     act = activation or sb3_activation(data, "tanh", path)
     mlp = _build_mlp(layers, act, None, path, "RecurrentPPO actor")
     return recurrent_source(rnn, mlp, None, spec, path, "sb3-contrib RecurrentPPO")

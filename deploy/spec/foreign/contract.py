@@ -204,3 +204,28 @@ def command_ranges(table) -> dict[str, tuple[float, float]] | None:
             return None
         out[ours] = (low, high)
     return out
+
+
+#: Isaac Lab's observation functions (``isaaclab.envs.mdp.observations``) that Unitree's C++
+#: deployment also registers, under the same names -> (our kind, size (-1: one per joint),
+#: relative to the default pose). ``joint_pos`` reads absolute positions.
+ISAACLAB_TERMS = {
+    "base_lin_vel": ("base_linear_velocity", 3, True),
+    "base_ang_vel": ("base_angular_velocity", 3, True),
+    "projected_gravity": ("projected_gravity", 3, True),
+    "joint_pos_rel": ("joint_position", -1, True),
+    "joint_pos": ("joint_position", -1, False),
+    "joint_vel_rel": ("joint_velocity", -1, True),
+    "last_action": ("last_action", -1, True),
+}
+
+
+def clip_before_scaling(lo: float, hi: float, scale: float | tuple[float, ...]):
+    """Our clip of a term that its stack clips to ``[lo, hi]`` before scaling by ``scale``:
+    ``(hi * |scale|, "")``, or ``(None, why)`` when one symmetric clip of the scaled value cannot
+    say it (an asymmetric clip, or per-entry scales)."""
+    if lo != -hi or not hi > 0:
+        return None, f"an asymmetric clip [{lo:g}, {hi:g}] (blocks clip symmetrically)"
+    if not isinstance(scale, float):
+        return None, "a clip with per-entry scales (a block's clip is one number)"
+    return hi * abs(scale), ""

@@ -140,14 +140,11 @@ def read(facts) -> ForeignContract:
         ("command_ranges", json.dumps(md.get("command_ranges"))),
         ("experiment_config", f"{len(json.dumps(ec))} characters of training configuration"),
     ]
-    return ForeignContract(
-        format=NAME,
-        source="ONNX metadata (holosoma attach_onnx_metadata)",
-        path=str(facts.path),
-        obs_dim=facts.obs_dim,
-        act_dim=facts.act_dim,
+    return facts.contract(
+        NAME,
+        "ONNX metadata (holosoma attach_onnx_metadata)",
         joint_names=names,
-        terms=tuple(terms),
+        terms=terms,
         default_pose=tuple(float(default[n]) for n in names),
         action_scale=action_scale,
         action_clip=float(control["action_clip_value"]) if control.get("clip_actions") else None,
@@ -155,8 +152,8 @@ def read(facts) -> ForeignContract:
         kd=kd or None,
         control_rate=rate,
         command_ranges=command_ranges(md.get("command_ranges")),
-        found=tuple(found),
-        missing=tuple(missing),
+        found=found,
+        missing=missing,
         notes=(
             f"observation groups {list(groups)}, each group's terms in alphabetical order "
             "(holosoma's observation manager sorts them)",

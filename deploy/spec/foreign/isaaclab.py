@@ -28,7 +28,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from deploy.spec.foreign.contract import ForeignContract, Term
+from deploy.spec.foreign.contract import (
+    ISAACLAB_TERMS,
+    ForeignContract,
+    Term,
+    clip_before_scaling,
+)
 
 NAME = "isaaclab"
 #: Where the run's configuration is looked for, relative to the ONNX file's folder.
@@ -37,15 +42,9 @@ ENV_YAML = (Path("..") / "params" / "env.yaml", Path("params") / "env.yaml", Pat
 #: Isaac Lab's observation functions (``isaaclab.envs.mdp.observations``) -> (our kind, size,
 #: relative to the default pose).
 TERMS = {
-    "base_lin_vel": ("base_linear_velocity", 3, True),
-    "base_ang_vel": ("base_angular_velocity", 3, True),
-    "projected_gravity": ("projected_gravity", 3, True),
+    **ISAACLAB_TERMS,
     "generated_commands": ("velocity_command", 3, True),
-    "joint_pos_rel": ("joint_position", -1, True),
-    "joint_pos": ("joint_position", -1, False),
-    "joint_vel_rel": ("joint_velocity", -1, True),
     "joint_vel": ("joint_velocity", -1, True),
-    "last_action": ("last_action", -1, True),
 }
 UNMAPPED = {
     "height_scan": "a terrain height map (no robot here measures one)",
@@ -144,16 +143,13 @@ def read(facts) -> ForeignContract:
         ("scene.robot.init_state.joint_pos", str(robot.get("init_state", {}).get("joint_pos"))),
         ("control rate", f"1 / ({dt} s x {decimation})"),
     ]
-    return ForeignContract(
-        format=NAME,
-        source=where,
-        path=str(facts.path),
-        obs_dim=facts.obs_dim,
-        act_dim=facts.act_dim,
+    return facts.contract(
+        NAME,
+        where,
         joint_names=None,
         joint_order_rule="breadth_first",
         joint_order_note=ORDER_NOTE,
-        terms=tuple(terms),
+        terms=terms,
         default_pose=_patterns(robot.get("init_state", {}).get("joint_pos"), default=0.0),
         action_scale=_patterns(action.get("scale", 1.0)),
         action_offset=None
@@ -163,9 +159,9 @@ def read(facts) -> ForeignContract:
         kp=gains[0],
         kd=gains[1],
         control_rate=1.0 / (float(dt) * int(decimation)),
-        found=tuple(found),
-        missing=tuple(missing),
-        notes=tuple(notes),
+        found=found,
+        missing=missing,
+        notes=notes,
     )
 
 
@@ -199,12 +195,9 @@ def _term(key: str, cfg: dict, group_history: int, commands: dict) -> Term:
     clip = None
     if cfg.get("clip") is not None:
         lo, hi = (float(x) for x in cfg["clip"])
-        if lo != -hi or not hi > 0:
-            kind, reason = None, f"an asymmetric clip [{lo:g}, {hi:g}] (blocks clip symmetrically)"
-        elif not isinstance(scale, float):
-            kind, reason = None, "a clip with per-entry scales (a block's clip is one number)"
-        else:
-            clip = hi * abs(scale)  # Isaac Lab clips before scaling
+        clip, problem = clip_before_scaling(lo, hi, scale)  # as Isaac Lab clips
+        if problem:
+            kind, reason = None, problem
     if history > 0:
         kind, reason = None, f"a history of {history} steps (no history block here)"
     return Term(key, kind, size, scale, clip, relative=relative, reason=reason, source=func)

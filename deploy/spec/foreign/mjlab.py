@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import re
 
-from deploy.spec.foreign.contract import ForeignContract, Term
+from deploy.spec.foreign.contract import ForeignContract, Term, clip_before_scaling
 
 NAME = "mjlab"
 #: Keys that identify mjlab's metadata.
@@ -133,22 +133,19 @@ def read(facts) -> ForeignContract:
     if kp is None or kd is None:
         missing.append("PD gains: not recorded; the robot's robot.toml gains are used")
     found = [(k, _short(md[k])) for k in md if k != "run_path"]
-    return ForeignContract(
-        format=NAME,
-        source="ONNX metadata (mjlab attach_metadata_to_onnx)",
-        path=str(facts.path),
-        obs_dim=facts.obs_dim,
-        act_dim=facts.act_dim,
+    return facts.contract(
+        NAME,
+        "ONNX metadata (mjlab attach_metadata_to_onnx)",
         joint_names=names,
-        terms=tuple(terms),
+        terms=terms,
         default_pose=default,
         action_scale=action_scale,
         action_clip=None,
         kp=kp,
         kd=kd,
         control_rate=None,
-        found=tuple(found),
-        missing=tuple(missing),
+        found=found,
+        missing=missing,
         notes=(
             "terms mapped by their names in mjlab's velocity task (the metadata names no "
             "functions)",
@@ -190,11 +187,7 @@ def _clip(per_term: dict, i: int, scale, fail) -> tuple[float | None, str]:
         raise fail(f"metadata 'observation_terms_clip' entry {i} = {text!r}: not min;max") from None
     if math.isinf(lo) and math.isinf(hi) and lo < 0 < hi:
         return None, ""
-    if lo != -hi or not hi > 0:
-        return None, f"an asymmetric clip [{lo:g}, {hi:g}] (blocks clip symmetrically)"
-    if not isinstance(scale, float):
-        return None, "a clip with per-entry scales (a block's clip is one number)"
-    return hi * abs(scale), ""  # mjlab clips before scaling
+    return clip_before_scaling(lo, hi, scale)  # mjlab clips before scaling
 
 
 def _short(text: str) -> str:

@@ -79,6 +79,22 @@ class OnnxFacts:
             act_dim=last(action) if action is not None else None,
         )
 
+    def contract(self, fmt: str, source: str, **fields) -> ForeignContract:
+        """The :class:`ForeignContract` of this file read as format ``fmt`` from ``source``:
+        its path and the graph's sizes from these facts, the other ``fields`` as given (the
+        sequences ``terms``, ``found``, ``missing`` and ``notes`` made tuples)."""
+        for key in ("terms", "found", "missing", "notes"):
+            if key in fields:
+                fields[key] = tuple(fields[key])
+        return ForeignContract(
+            format=fmt,
+            source=source,
+            path=str(self.path),
+            obs_dim=self.obs_dim,
+            act_dim=self.act_dim,
+            **fields,
+        )
+
     def failure(self, fmt: str):
         """``fail(message)``: a :class:`ForeignFormatError` ``"<path>: <fmt> policy: ..."``."""
 

@@ -29,7 +29,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from deploy.spec.foreign.contract import ForeignContract, Term, command_ranges
+from deploy.spec.foreign.contract import (
+    ISAACLAB_TERMS,
+    ForeignContract,
+    Term,
+    clip_before_scaling,
+    command_ranges,
+)
 
 NAME = "unitree_deploy"
 #: Where the contract is looked for, relative to the ONNX file's folder.
@@ -39,16 +45,10 @@ DEPLOY_YAML = (
     Path("deploy.yaml"),
 )
 #: The C++ deployment's observation terms (``REGISTER_OBSERVATION``) -> (our kind, size,
-#: relative to the default pose). ``joint_pos`` reads absolute positions.
+#: relative to the default pose): Isaac Lab's that it shares, and its own.
 TERMS = {
-    "base_lin_vel": ("base_linear_velocity", 3, True),
-    "base_ang_vel": ("base_angular_velocity", 3, True),
-    "projected_gravity": ("projected_gravity", 3, True),
+    **ISAACLAB_TERMS,
     "velocity_commands": ("velocity_command", 3, True),
-    "joint_pos": ("joint_position", -1, False),
-    "joint_pos_rel": ("joint_position", -1, True),
-    "joint_vel_rel": ("joint_velocity", -1, True),
-    "last_action": ("last_action", -1, True),
     "gait_phase": ("gait_phase", 2, True),
 }
 ORDER_NOTE = "deploy.yaml joint_ids_map: the motor slot of each policy joint"
@@ -147,12 +147,9 @@ def read(facts) -> ForeignContract:
         ("actions.JointPositionAction", f"scale {raw_scale}, offset {raw_offset}"),
         ("control rate", f"1 / {step_dt} s"),
     ]
-    return ForeignContract(
-        format=NAME,
-        source=where,
-        path=str(facts.path),
-        obs_dim=facts.obs_dim,
-        act_dim=facts.act_dim,
+    return facts.contract(
+        NAME,
+        where,
         joint_names=None,
         joint_order_rule="motor_slots",
         joint_order_note=ORDER_NOTE,
@@ -166,8 +163,8 @@ def read(facts) -> ForeignContract:
         kd=kd,
         control_rate=1.0 / float(step_dt),
         command_ranges=command_ranges(ranges),
-        found=tuple(found),
-        notes=tuple(notes),
+        found=found,
+        notes=notes,
     )
 
 
@@ -186,12 +183,9 @@ def _term(name: str, cfg: dict, where: str, fail) -> Term:
     clip = None
     if cfg.get("clip") is not None:
         lo, hi = (float(x) for x in cfg["clip"])
-        if lo != -hi or not hi > 0:
-            kind, reason = None, f"an asymmetric clip [{lo:g}, {hi:g}] (blocks clip symmetrically)"
-        elif not isinstance(scale, float):
-            kind, reason = None, "a clip with per-entry scales (a block's clip is one number)"
-        else:
-            clip = hi * abs(scale)
+        clip, problem = clip_before_scaling(lo, hi, scale)
+        if problem:
+            kind, reason = None, problem
     history = int(cfg.get("history_length") or 1)
     if history > 1:
         kind, reason = None, f"a history of {history} steps (no history block here)"

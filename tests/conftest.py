@@ -39,6 +39,15 @@ def one_torch_thread():
     torch.set_num_threads(threads)
 
 
+@pytest.fixture(scope="session")
+def go2_onnx(tmp_path_factory):
+    """The shipped go2 policy (policies/go2.pt) exported to ONNX, once per session."""
+    from deploy.export import export_policy
+
+    out = tmp_path_factory.mktemp("go2policy") / "go2.onnx"
+    return export_policy(REPO / "policies" / "go2.pt", out=out)
+
+
 # A Robot is frozen with read-only arrays: one load per session serves every test.
 def _robot_fixture(name: str):
     """A session fixture ``name``: the shipped robot of that name, loaded once."""

@@ -1,5 +1,6 @@
-"""A soak session killed with SIGKILL right after its first checkpoint (the kill-and-resume tests
-of arms, recurrent policies and legged robots share it)."""
+"""Short soak sessions of the tests (:func:`short_session`), and a session killed with SIGKILL
+right after its first checkpoint (the kill-and-resume tests of arms, recurrent policies and
+legged robots share it)."""
 
 from __future__ import annotations
 
@@ -12,9 +13,28 @@ import time
 from pathlib import Path
 
 from eval.soak import checkpoint as ckpt
-from eval.soak.session import session_dir
+from eval.soak.session import SessionConfig, session_dir
 
 REPO = Path(__file__).resolve().parent.parent
+#: The options of each robot's short test session: arm3 reaches for a goal every 2 s and is
+#: checkpointed every 3 simulated seconds; go2 follows a command for 4 s at a time.
+SHORT_SESSION = {
+    "arm3": {
+        "goal_period": 2.0,
+        "checkpoint_minutes": 0.05,
+        "curve_seconds": 2.0,
+        "operator_reset": 1.0,
+    },
+    "go2": {"goal_period": 4.0, "curve_seconds": 6.0, "window_minutes": 0.25},
+}
+
+
+def short_session(robot: str, policy, hours: float, **options) -> SessionConfig:
+    """The :class:`SessionConfig` of ``robot``'s short test session (:data:`SHORT_SESSION`)
+    with ``policy`` (a path) for ``hours`` h; ``options`` add to or override the table's."""
+    return SessionConfig(
+        robot=robot, policy=str(policy), hours=hours, **{**SHORT_SESSION[robot], **options}
+    )
 
 
 def kill_after_first_checkpoint(config, out: Path, timeout: float = 120.0) -> None:

@@ -244,7 +244,7 @@ def test_an_added_push_is_the_world_twist_at_the_base_frame_whatever_its_attitud
         plant.push_base(0, twist, add=False)
 
 
-def test_a_go2_soak_in_mjlabs_domain_reports_its_draws_and_resumes_exactly(tmp_path):
+def test_a_go2_soak_in_mjlabs_domain_reports_its_draws_and_resumes_exactly(go2_onnx, tmp_path):
     """A soak session with mjlab's domain (pushes adding a twist after 1-3 s, an encoder bias, a
     centre-of-mass offset on the base): the report lists the bias and the offset with the other
     drawn values, and a kill -9 after the first checkpoint + resume equals the whole run (the
@@ -252,27 +252,16 @@ def test_a_go2_soak_in_mjlabs_domain_reports_its_draws_and_resumes_exactly(tmp_p
     import shutil
     from dataclasses import replace
 
-    from deploy.export import export_policy
     from eval.soak.batch import SessionBatch
     from eval.soak.campaign import run_campaign
-    from eval.soak.session import SessionConfig, session_dir
-    from tests.soak_fixtures import kill_after_first_checkpoint
+    from eval.soak.session import session_dir
+    from tests.soak_fixtures import kill_after_first_checkpoint, short_session
 
     go2 = load_robot("go2")
-    policy = tmp_path / "go2.onnx"
-    export_policy(Path(__file__).resolve().parents[1] / "policies" / "go2.pt", out=policy)
     text = MJLAB_RANGES.read_text().replace('body = "torso_link"', 'body = "base"')
-    config = SessionConfig(
-        robot="go2",
-        policy=str(policy),
-        seed=0,
-        hours=0.006,
-        goal_period=4.0,
-        checkpoint_minutes=0.15,
-        curve_seconds=6.0,
-        window_minutes=0.25,
-        faults=False,
-        ranges=load_ranges_text(text, "mjlab.toml", go2),
+    ranges = load_ranges_text(text, "mjlab.toml", go2)
+    config = short_session(
+        "go2", go2_onnx, 0.006, checkpoint_minutes=0.15, faults=False, ranges=ranges
     )
     whole = SessionBatch([config], tmp_path / "whole", progress=False).run()[0]
     drawn = whole["randomization"]

@@ -29,7 +29,7 @@ from tests.helpers_policies import (
     rsl_rl_actor_critic,
     write_spec,
 )
-from tests.soak_fixtures import kill_after_first_checkpoint
+from tests.soak_fixtures import kill_after_first_checkpoint, short_session
 
 pytest.importorskip("rsl_rl.modules")
 tensordict = pytest.importorskip("tensordict")
@@ -321,7 +321,7 @@ def test_soak_with_a_recurrent_policy_resumes_exactly_after_kill(exported, tmp_p
     from eval.soak import checkpoint as ckpt
     from eval.soak.batch import SessionBatch
     from eval.soak.campaign import run_campaign
-    from eval.soak.session import SessionConfig, session_dir
+    from eval.soak.session import session_dir
     from robots import load_robot
 
     kind, ac, _ = exported
@@ -337,15 +337,7 @@ def test_soak_with_a_recurrent_policy_resumes_exactly_after_kill(exported, tmp_p
     torch.save({"model_state_dict": gentle}, src)
     spec_file = write_spec(make_spec(load_robot("arm3")), tmp_path / "spec.json")
     policy_file = run_export(src, tmp_path / "gentle.onnx", spec=spec_file).path
-    config = SessionConfig(
-        robot="arm3",
-        policy=str(policy_file),
-        hours=8.0 / 3600.0,
-        goal_period=2.0,
-        checkpoint_minutes=0.05,  # every 3 simulated seconds
-        curve_seconds=2.0,
-        operator_reset=1.0,
-    )
+    config = short_session("arm3", policy_file, 8.0 / 3600.0)
     (whole,) = SessionBatch([config], tmp_path / "whole").run()
     out = tmp_path / "campaign"
     kill_after_first_checkpoint(config, out)

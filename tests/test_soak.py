@@ -35,11 +35,11 @@ from eval.report.schema import CHECKS, SCHEMA_VERSION, ReportError, Thresholds, 
 from eval.soak import checkpoint as ckpt
 from eval.soak.batch import SessionBatch
 from eval.soak.campaign import run_campaign
-from eval.soak.session import SessionConfig, session_dir
+from eval.soak.session import session_dir
 from eval.world.fault_schedule import FaultRanges, stale_budget
 from eval.world.session_ranges import SessionRanges
 from tests.runtime_fixtures import feedback_mlp_onnx
-from tests.soak_fixtures import kill_after_first_checkpoint
+from tests.soak_fixtures import kill_after_first_checkpoint, short_session
 
 REPO = Path(__file__).resolve().parent.parent
 # One pytest-xdist worker (make test's --dist loadgroup) runs this module: most of its tests share
@@ -80,16 +80,7 @@ def policy(tmp_path_factory, arm3):
 
 @pytest.fixture(scope="module")
 def config(policy):
-    return SessionConfig(
-        robot="arm3",
-        policy=str(policy),
-        hours=12.0 / 3600.0,
-        goal_period=2.0,
-        checkpoint_minutes=0.05,  # every 3 simulated seconds
-        curve_seconds=2.0,
-        operator_reset=1.0,
-        ranges=SessionRanges(faults=FAULTS),
-    )
+    return short_session("arm3", policy, 12.0 / 3600.0, ranges=SessionRanges(faults=FAULTS))
 
 
 @pytest.fixture(scope="module")

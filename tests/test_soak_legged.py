@@ -18,38 +18,21 @@ from eval.report.build import build_report
 from eval.soak import checkpoint as ckpt
 from eval.soak.batch import SessionBatch
 from eval.soak.campaign import run_campaign
-from eval.soak.session import SessionConfig, session_dir
+from eval.soak.session import session_dir
 from eval.world.fault_schedule import fault_ranges
 from eval.world.session_draw import sample_session
 from eval.world.session_ranges import SessionRanges, session_ranges
-from tests.soak_fixtures import kill_after_first_checkpoint
+from tests.soak_fixtures import kill_after_first_checkpoint, short_session
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def policy(tmp_path_factory):
-    from deploy.export import export_policy
-
-    out = tmp_path_factory.mktemp("go2policy") / "go2.onnx"
-    export_policy(REPO / "policies" / "go2.pt", out=out)
-    return out
-
-
-@pytest.fixture(scope="module")
-def config(policy, go2):
+def config(go2_onnx, go2):
     """36 s of go2 with faults every ~10 s (pushes on the base among them), checkpoints every
     12 s."""
-    return SessionConfig(
-        robot="go2",
-        policy=str(policy),
-        seed=0,
-        hours=0.01,
-        goal_period=4.0,
-        checkpoint_minutes=0.2,
-        curve_seconds=6.0,
-        window_minutes=0.25,
-        ranges=session_ranges(go2, 10.0),
+    return short_session(
+        "go2", go2_onnx, 0.01, checkpoint_minutes=0.2, ranges=session_ranges(go2, 10.0)
     )
 
 
@@ -156,7 +139,7 @@ def test_a_robot_that_follows_each_command_step_at_once_tracks_all_of_its_runnin
     np.testing.assert_allclose(tracker.tracked_time, settled, atol=1e-9)
 
 
-def test_a_short_go2_soak_reports_falls_tracking_and_distance(policy, tmp_path, capsys):
+def test_a_short_go2_soak_reports_falls_tracking_and_distance(go2_onnx, tmp_path, capsys):
     from eval.cli import main
 
     out = tmp_path / "soak"
@@ -165,7 +148,7 @@ def test_a_short_go2_soak_reports_falls_tracking_and_distance(policy, tmp_path, 
             "--robot",
             "go2",
             "--policy",
-            str(policy),
+            str(go2_onnx),
             "--hours",
             "0.02",
             "--sessions",

@@ -41,7 +41,6 @@ from deploy.policy.onnx_policy import OnnxPolicy
 from deploy.policy.onnx_spec import spec_differences
 from deploy.policy.torch_file import CheckpointError
 from deploy.spec.policy_spec import PolicySpec
-from robots import load_robot
 
 REPO = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:FutureWarning")
@@ -49,13 +48,8 @@ RNG = np.random.default_rng(7)
 
 
 @pytest.fixture(scope="module")
-def robot():
-    return load_robot("arm3")
-
-
-@pytest.fixture(scope="module")
-def spec(robot):
-    return make_spec(robot)  # obs 21, act 3
+def spec(arm3):
+    return make_spec(arm3)  # obs 21, act 3
 
 
 @pytest.fixture(scope="module")

@@ -14,16 +14,12 @@ from deploy.cli.deploy_run import deploy_run_main
 from deploy.cli.robot_import import main
 from deploy.tasks.goals import sample_goal
 from robots import load_robot
-from robots.importer.pipeline import EXIT_REFUSED, import_robot, resolve_source
+from robots.importer.pipeline import EXIT_REFUSED, import_robot
+from tests.import_fixtures import ERD, require_example_robot_data
 from tests.runtime_fixtures import adversarial_onnx
 
-pytest.importorskip("coal")
-try:
-    resolve_source("example-robot-data:double_pendulum_description/urdf/double_pendulum.urdf")
-except Exception:  # pragma: no cover
-    pytest.skip("example-robot-data is not installed", allow_module_level=True)
+require_example_robot_data("double_pendulum_description/urdf/double_pendulum.urdf")
 
-ERD = "example-robot-data:"
 UR = ["*=ec90flat_hd101", "wrist_*=ec45flat_hd101"]
 PANDA = ["*=ec90flat_hd101", "panda_joint[5-7]=ec45flat_hd101"]
 DP = "double_pendulum_description/urdf/"

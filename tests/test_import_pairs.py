@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 
 from deploy.backends.sim.plant import SimBackend
-from deploy.cli.robot_import import main
 from robots import load_robot
 from robots.importer.pipeline import EXIT_REFUSED
-from tests.test_import_humanoid import FLAGS, write_humanoid
+from tests.import_fixtures import humanoid_with, import_tiny
 
 pytest.importorskip("coal")
 
@@ -21,29 +20,25 @@ pytest.importorskip("coal")
 def pair_only_humanoid(folder, ground: str = "ground", extra: str = ""):
     """The test humanoid written as mjlab/Menagerie write G1: the foot spheres named and touching
     only through explicit pairs with the scene's floor (``ground``, not in the file)."""
-    source = write_humanoid(folder)
-    text = source.read_text()
-    count = iter(range(100))
-
-    def named(match: re.Match) -> str:
-        return f'<geom name="sole{next(count)}" contype="0" conaffinity="0" size="0.005"'
-
-    text = re.sub(r'<geom size="0\.005"', named, text)
     pairs = "".join(
         f'<pair geom1="sole{k}" geom2="{ground}" condim="3" friction="0.7 0.7 0.005 0.0001 '
         f'0.0001" solref="0.008 1" margin="0.001"/>'
         for k in range(8)
     )
     exclude = '<exclude body1="left_hip_roll_link" body2="right_hip_roll_link"/>'
-    contact = f"<contact>{pairs}{extra}{exclude}</contact>"
-    source.write_text(text.replace("</mujoco>", contact + "\n</mujoco>"))
+    source = humanoid_with(folder, f"<contact>{pairs}{extra}{exclude}</contact>")
+    count = iter(range(100))
+
+    def named(match: re.Match) -> str:
+        return f'<geom name="sole{next(count)}" contype="0" conaffinity="0" size="0.005"'
+
+    source.write_text(re.sub(r'<geom size="0\.005"', named, source.read_text()))
     return source
 
 
 def test_explicit_pairs_are_kept_with_their_settings_on_the_named_floor(tmp_path, capsys):
-    source = pair_only_humanoid(tmp_path)
-    out = tmp_path / "robots" / "tiny"
-    assert main([str(source), "--out", str(out), *FLAGS]) == 0
+    code, out = import_tiny(pair_only_humanoid(tmp_path), tmp_path)
+    assert code == 0
     printed = capsys.readouterr().out
     assert "name ['ground'], a geom of the scene" in printed
     assert "8 <contact><pair>s kept" in printed
@@ -77,9 +72,8 @@ def test_explicit_pairs_are_kept_with_their_settings_on_the_named_floor(tmp_path
 
 def test_pairs_naming_several_scene_geoms_are_refused_in_one_line(tmp_path, capsys):
     extra = '<pair geom1="sole0" geom2="stairs"/>'
-    source = pair_only_humanoid(tmp_path, extra=extra)
-    out = tmp_path / "robots" / "tiny"
-    assert main([str(source), "--out", str(out), *FLAGS]) == EXIT_REFUSED
+    code, out = import_tiny(pair_only_humanoid(tmp_path, extra=extra), tmp_path)
+    assert code == EXIT_REFUSED
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "['ground', 'stairs']" in err and "import the scene file" in err
     assert not out.exists()

@@ -10,17 +10,15 @@ from deploy.backends.sim.plant import SimBackend
 from deploy.cli.robot_import import main
 from robots import load_robot
 from robots.importer.pipeline import EXIT_REFUSED
+from tests.import_fixtures import humanoid_with, import_tiny
 from tests.test_import_humanoid import FLAGS, write_humanoid
 
 
 def test_the_mjcfs_integrator_and_solver_settings_are_kept_and_flags_win(tmp_path, capsys):
-    source = write_humanoid(tmp_path)
-    text = source.read_text()
-    source.write_text(
-        text.replace("<worldbody>", '<option integrator="Euler" iterations="12"/>\n<worldbody>', 1)
-    )
-    out = tmp_path / "robots" / "tiny"
-    assert main([str(source), "--out", str(out), *FLAGS, "--option", "ls_iterations=20"]) == 0
+    option = '<option integrator="Euler" iterations="12"/>'
+    source = humanoid_with(tmp_path, option, before="<worldbody>")
+    code, out = import_tiny(source, tmp_path, "--option", "ls_iterations=20")
+    assert code == 0
     line = next(ln for ln in capsys.readouterr().out.splitlines() if "physics:" in ln)
     assert "integrator Euler (the MJCF)" in line and "iterations 12 (the MJCF)" in line
     assert "ls_iterations 20 (--option)" in line
@@ -46,9 +44,8 @@ def test_the_mjcfs_integrator_and_solver_settings_are_kept_and_flags_win(tmp_pat
     ],
 )
 def test_a_bad_option_is_refused_in_one_line(tmp_path, capsys, flag, message):
-    source = write_humanoid(tmp_path)
-    out = tmp_path / "robots" / "tiny"
-    assert main([str(source), "--out", str(out), *FLAGS, "--option", flag]) == EXIT_REFUSED
+    code, out = import_tiny(write_humanoid(tmp_path), tmp_path, "--option", flag)
+    assert code == EXIT_REFUSED
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and message in err and not out.exists()
 
@@ -59,14 +56,14 @@ def test_a_robot_file_whose_pairs_name_the_scenes_floor_imports(tmp_path, capsys
     it (the robot stands on it), a fixed-base import says to import the scene, in one line."""
     import numpy as np
 
-    source = write_humanoid(tmp_path)
+    pairs = '<contact><pair geom1="left_sole" geom2="floor" friction="0.6 0.6"/></contact>'
+    source = humanoid_with(tmp_path, pairs)
     text = source.read_text().replace(
         '<geom size="0.005"', '<geom name="left_sole" size="0.005"', 1
     )
-    pairs = '<contact><pair geom1="left_sole" geom2="floor" friction="0.6 0.6"/></contact>'
-    source.write_text(text.replace("</mujoco>", pairs + "\n</mujoco>"))
-    out = tmp_path / "robots" / "tiny"
-    assert main([str(source), "--out", str(out), *FLAGS]) == 0
+    source.write_text(text)
+    code, out = import_tiny(source, tmp_path)
+    assert code == 0
     assert "pair>s name ['floor'], a geom of the scene" in capsys.readouterr().out
     robot = load_robot(out)
     plant = SimBackend(robot, envs=1)
@@ -84,11 +81,10 @@ def test_the_mjcfs_timestep_and_flags_are_kept_and_the_flag_wins(tmp_path, capsy
     """A training stack's MJCF that states its timestep and turns eulerdamp off: the plant steps
     at that timestep with that flag; --physics-timestep still wins; a timestep that does not
     divide the control period is refused in one line."""
-    source = write_humanoid(tmp_path)
     option = '<option timestep="0.005" integrator="Euler"><flag eulerdamp="disable"/></option>'
-    source.write_text(source.read_text().replace("<worldbody>", option + "\n<worldbody>", 1))
-    out = tmp_path / "robots" / "tiny"
-    assert main([str(source), "--out", str(out), *FLAGS]) == 0
+    source = humanoid_with(tmp_path, option, before="<worldbody>")
+    code, out = import_tiny(source, tmp_path)
+    assert code == 0
     assert "timestep 0.005 s (the MJCF)" in capsys.readouterr().out
     robot = load_robot(out)
     assert robot.physics_timestep == 0.005

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from deploy.backends.sim.plant import SimBackend
-from deploy.cli.robot_import import main
 from robots import load_robot
-from tests.test_import_humanoid import FLAGS, write_humanoid
+from tests.import_fixtures import humanoid_with, import_tiny
 
 pytest.importorskip("coal")
 
@@ -25,10 +24,8 @@ TENDONS = """<tendon>
 
 
 def test_a_limited_fixed_tendon_is_kept_and_the_plant_enforces_it(tmp_path, capsys):
-    source = write_humanoid(tmp_path)
-    source.write_text(source.read_text().replace("</mujoco>", TENDONS + "\n</mujoco>"))
-    out = tmp_path / "robots" / "tiny"
-    assert main([str(source), "--out", str(out), *FLAGS]) == 0
+    code, out = import_tiny(humanoid_with(tmp_path, TENDONS), tmp_path)
+    assert code == 0
     printed = capsys.readouterr().out
     assert "1 limited fixed tendons ['left_ankle_limit'] kept" in printed
     assert "1 tendons ['right_free'] dropped" in printed

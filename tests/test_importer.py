@@ -18,14 +18,10 @@ from robots import load_robot
 from robots.importer.pipeline import EXIT_REFUSED, import_robot, resolve_source
 from robots.loading import ROBOTS_DIR
 from robots.packages import package_root
+from tests.import_fixtures import ERD, require_example_robot_data
 
-pytest.importorskip("coal")
-try:
-    resolve_source("example-robot-data:so_arm_description/urdf/so101.urdf")
-except Exception:  # pragma: no cover
-    pytest.skip("example-robot-data is not installed", allow_module_level=True)
+require_example_robot_data("so_arm_description/urdf/so101.urdf")
 
-ERD = "example-robot-data:"
 #: Every fixed-base arm of example-robot-data: (name, URDF, SRDF or None, --motor flags).
 ARMS = [
     ("so100", "so_arm_description/urdf/so100.urdf", None, ["*=sts3215"]),

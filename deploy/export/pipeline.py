@@ -116,35 +116,9 @@ def run_export(
     tolerance: float | None = None,
     metadata: dict[str, str] | None = None,
 ) -> ExportResult:
-    """Export a trained policy to ONNX with its PolicySpec, after the parity gate.
-
-    Args:
-        source: Policy file: our checkpoint, TorchScript, SB3 PPO/SAC zip, rsl_rl checkpoint, or a
-            pickled nn.Module (see :mod:`deploy.export`).
-        out: Destination; default ``source`` with the suffix ``.onnx``. Its folder must exist.
-        spec: PolicySpec or spec JSON file; required unless the source is our checkpoint.
-        trust_pickle: Allow unpickling (pickled modules, VecNormalize pickles). Never needed for
-            the other formats.
-        vecnormalize: SB3 VecNormalize statistics (``.npz``, ``.json``, or pickle if trusted).
-        activation: Override the hidden activation of rebuilt SB3 / rsl_rl networks.
-        robot: Robot (or name / path) to check against and replay on; default the spec's robot.
-        exporter: 'torchscript' (default) or 'dynamo'.
-        seed: Seed of the parity observations, goals and plant noise.
-        tolerance: The parity tolerance (max abs error, action units and recurrent state);
-            default ``max(TOLERANCE, NOISE_MULTIPLIER x`` the source's float32 noise floor``)``
-            (:mod:`deploy.export.noise_floor`).
-        metadata: More entries of the file's metadata (e.g. ``training_domain``,
-            :mod:`eval.world.domain`).
-
-    Returns:
-        The :class:`ExportResult`: the ONNX file written, its parity figures and the timing.
-
-    Raises:
-        ExportError: bad input (missing, truncated or corrupt file; unknown format; missing spec;
-            wrong input or output size; non-finite weights; spec/robot mismatch; untrusted
-            pickle). Nothing is written.
-        ParityError: ONNX Runtime and torch disagree by more than the tolerance. Nothing is
-            written under ``out``; the candidate is kept under :func:`failed_path`.
+    """:func:`export_policy` (the arguments are documented there), returning the parity figures
+    and the timing as well: the :class:`ExportResult`. ``metadata``: more entries of the file's
+    metadata (e.g. ``training_domain``, :mod:`eval.world.domain`).
     """
     t0 = time.perf_counter()
     source = Path(source)
@@ -289,14 +263,35 @@ def _keep_failed(
 def export_policy(
     source: str | os.PathLike, out: str | os.PathLike | None = None, **options
 ) -> Path:
-    """Export a trained policy to ONNX with its PolicySpec, after the parity gate: what
-    :func:`run_export` does with the same arguments (``options``: its keyword arguments), without
-    its figures.
+    """Export a trained policy to ONNX with its PolicySpec, after the parity gate.
+
+    ``options`` are the keyword arguments below after ``out`` (:func:`run_export` takes the
+    same, and ``metadata``).
+
+    Args:
+        source: Policy file: our checkpoint, TorchScript, SB3 PPO/SAC zip, rsl_rl checkpoint, or a
+            pickled nn.Module (see :mod:`deploy.export`).
+        out: Destination; default ``source`` with the suffix ``.onnx``. Its folder must exist.
+        spec: PolicySpec or spec JSON file; required unless the source is our checkpoint.
+        trust_pickle: Allow unpickling (pickled modules, VecNormalize pickles). Never needed for
+            the other formats.
+        vecnormalize: SB3 VecNormalize statistics (``.npz``, ``.json``, or pickle if trusted).
+        activation: Override the hidden activation of rebuilt SB3 / rsl_rl networks.
+        robot: Robot (or name / path) to check against and replay on; default the spec's robot.
+        exporter: 'torchscript' (default) or 'dynamo'.
+        seed: Seed of the parity observations, goals and plant noise.
+        tolerance: The parity tolerance (max abs error, action units and recurrent state);
+            default ``max(TOLERANCE, NOISE_MULTIPLIER x`` the source's float32 noise floor``)``
+            (:mod:`deploy.export.noise_floor`).
 
     Returns:
         The ONNX file written.
 
     Raises:
-        ExportError, ParityError: as :func:`run_export`.
+        ExportError: bad input (missing, truncated or corrupt file; unknown format; missing spec;
+            wrong input or output size; non-finite weights; spec/robot mismatch; untrusted
+            pickle). Nothing is written.
+        ParityError: ONNX Runtime and torch disagree by more than the tolerance. Nothing is
+            written under ``out``; the candidate is kept under :func:`failed_path`.
     """
     return run_export(source, out, **options).path

@@ -261,12 +261,19 @@ def _keep_failed(
 
 
 def export_policy(
-    source: str | os.PathLike, out: str | os.PathLike | None = None, **options
+    source: str | os.PathLike,
+    out: str | os.PathLike | None = None,
+    spec: PolicySpec | str | os.PathLike | None = None,
+    trust_pickle: bool = False,
+    vecnormalize: str | os.PathLike | None = None,
+    activation: str | None = None,
+    robot: Robot | str | os.PathLike | None = None,
+    exporter: str = "torchscript",
+    seed: int = 0,
+    tolerance: float | None = None,
+    metadata: dict[str, str] | None = None,
 ) -> Path:
     """Export a trained policy to ONNX with its PolicySpec, after the parity gate.
-
-    ``options`` are the keyword arguments below after ``out`` (:func:`run_export` takes the
-    same, and ``metadata``).
 
     Args:
         source: Policy file: our checkpoint, TorchScript, SB3 PPO/SAC zip, rsl_rl checkpoint, or a
@@ -283,6 +290,8 @@ def export_policy(
         tolerance: The parity tolerance (max abs error, action units and recurrent state);
             default ``max(TOLERANCE, NOISE_MULTIPLIER x`` the source's float32 noise floor``)``
             (:mod:`deploy.export.noise_floor`).
+        metadata: More entries of the file's metadata (e.g. ``training_domain``,
+            :mod:`eval.world.domain`).
 
     Returns:
         The ONNX file written.
@@ -294,4 +303,7 @@ def export_policy(
         ParityError: ONNX Runtime and torch disagree by more than the tolerance. Nothing is
             written under ``out``; the candidate is kept under :func:`failed_path`.
     """
-    return run_export(source, out, **options).path
+    return run_export(
+        source, out, spec, trust_pickle, vecnormalize, activation, robot, exporter, seed,
+        tolerance, metadata,
+    ).path  # fmt: skip

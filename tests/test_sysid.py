@@ -13,15 +13,9 @@ from deploy.cli.deploy_run import deploy_run_main
 from deploy.observe.command_log import CommandLogError, read_command_log
 from eval.sysid import cli
 
-TRUTH = """
-source = "the test's worn SO-101: friction, armature x2, a 20 % weaker line, 8 ms delay"
-[motors.sts3215]
-command_delay = 0.008
-max_velocity = 3.77
-[joints."*"]
-friction = 0.02
-armature_scale = 2.0
-"""
+#: the worn SO-101 `make sysid` runs on: 0.02 N m of friction, twice the armature, a line
+#: 20 % weaker (no-load 3.77 rad/s), 8 ms of command delay
+TRUTH = Path(__file__).resolve().parent.parent / "eval" / "sysid" / "examples" / "so101_worn.toml"
 
 
 @pytest.fixture(scope="module")
@@ -32,13 +26,12 @@ def worn_log(tmp_path_factory):
     folder = tmp_path_factory.mktemp("sysid")
     pt = folder / "so101.pt"
     pt.write_bytes((Path(__file__).resolve().parent.parent / "policies" / "so101.pt").read_bytes())
-    truth = folder / "truth.toml"
-    truth.write_text(TRUTH)
+
     log = folder / "run.npz"
     argv = ["--robot", "so101", "--policy", str(export_policy(pt)), "--duration", "4"]
-    argv += ["--plant-motors", str(truth), "--record-commands", str(log)]
+    argv += ["--plant-motors", str(TRUTH), "--record-commands", str(log)]
     assert deploy_run_main(argv) == 0
-    return folder, log, truth
+    return folder, log, TRUTH
 
 
 def test_the_log_holds_every_tick(worn_log, so101):

@@ -15,7 +15,7 @@ import numpy as np
 
 from deploy.core.backend import SimulatedPlant
 from deploy.core.latency import LatencyHistogram
-from deploy.core.modes import RUNNING
+from deploy.core.modes import FAULTED, RUNNING
 from deploy.monitors.kernel import motion_statistics
 from deploy.rig.hooks import RunHook
 from deploy.robot_kind import robot_kind
@@ -240,6 +240,4 @@ class LatchedStopHook(RunHook):
     name = "latched_stop"
 
     def after_tick(self, r) -> bool:
-        from deploy.core.modes import FAULTED
-
         return bool((r.mode == FAULTED).all())

@@ -47,7 +47,7 @@ class ActuatorModel:
         n = robot.n_joints
         self.envelope = TorqueSpeedEnvelope(robot.motors)
         self.supply = np.ones(envs)
-        delays = [float(getattr(m, "command_delay", None) or 0.0) for m in robot.motors]
+        delays = [m.command_delay or 0.0 for m in robot.motors]
         self.delay_steps = np.array([round(d / timestep) for d in delays], dtype=np.int64)
         self.decimation = decimation
         depth = 1 + math.ceil(int(self.delay_steps.max(initial=0)) / decimation)
@@ -74,6 +74,8 @@ class ActuatorModel:
         self._tick = tick
         self.history[:, tick % self.history.shape[1]] = command
         e = self.envelope
+        if not e.any:  # delays only: no line to follow
+            return
         np.subtract(winding_temperature, e.t_ref, out=self._stall)
         np.multiply(self._stall, e.alpha, out=self._stall)
         np.add(self._stall, 1.0, out=self._stall)

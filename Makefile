@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
-POLICY ?= policies/arm.pt
+POLICY ?= sim2real/policies/arm.pt
 ROBOT  ?= arm3
 ONNX   := $(POLICY:.pt=.onnx)
 export ORT_DISABLE_TELEMETRY := 1
@@ -62,41 +62,41 @@ export: install
 # The recipe of the shipped policy of ROBOT (seed 1): trains against the deployed stack (guard
 # included), then ships it only if a 1-hour randomized soak passes; TensorBoard logs in runs/train/.
 # Episodes now meet the soak's faults; the shipped policies were trained without (--no-faults).
-#   make train               policies/arm.pt   (arm3, velocity mode; the shipped arm.pt is that
-#                            run (without faults) fine-tuned with them, policies/arm.curve.json:
-#                            python -m policies.train --init-from policies/arm.pt
+#   make train               sim2real/policies/arm.pt   (arm3, velocity mode; the shipped arm.pt is that
+#                            run (without faults) fine-tuned with them, sim2real/policies/arm.curve.json:
+#                            python -m sim2real.policies.train --init-from sim2real/policies/arm.pt
 #                            --critic-warmup 300000 --steps 3000000 --log-std-init -3
 #                            --anneal-steps 1500000 --final-log-std -4 --learning-rate 1e-4
-#                            --start-poses policies/arm3_missed_poses.json; then twice more with
+#                            --start-poses sim2real/policies/arm3_missed_poses.json; then twice more with
 #                            the motion envelope, the second from the first's result with
 #                            --steps 4000000 --log-std-init -3.5 --anneal-steps 2000000)
-#   make train ROBOT=so101   policies/so101.pt (SO-101, position mode, the same recipe; trained
+#   make train ROBOT=so101   sim2real/policies/so101.pt (SO-101, position mode, the same recipe; trained
 #                            before it drew its soak's encoder noise: not bit for bit); the
 #                            shipped so101.pt is that run fine-tuned under the soft position
 #                            range (a full action is the soft limit) at twice the intervention
-#                            penalty, policies/so101.curve.json:
-#                            python -m policies.train --robot so101 --mode position
-#                            --init-from policies/so101.pt --critic-warmup 300000
+#                            penalty, sim2real/policies/so101.curve.json:
+#                            python -m sim2real.policies.train --robot so101 --mode position
+#                            --init-from sim2real/policies/so101.pt --critic-warmup 300000
 #                            --steps 3000000 --log-std-init -3 --anneal-steps 1500000
 #                            --final-log-std -4 --learning-rate 1e-4 --reward intervention=-0.4
-#   make train ROBOT=go2     policies/go2.pt   (Go2: PPO residual on the trot generator, through
-#                            the runtime; policies/train_legged.py, logs in runs/train_legged/)
+#   make train ROBOT=go2     sim2real/policies/go2.pt   (Go2: PPO residual on the trot generator, through
+#                            the runtime; sim2real/policies/train_legged.py, logs in runs/train_legged/)
 #                            the shipped go2.pt is that run fine-tuned on slippery floors:
-#                            python -m policies.train_legged --init-from policies/go2.pt
+#                            python -m sim2real.policies.train_legged --init-from sim2real/policies/go2.pt
 #                            --critic-warmup 200000 --steps 2000000 --initial-std 0.2
-#                            --learning-rate 1e-4 --ranges policies/go2_slippery.toml
-TRAIN_arm3  := --start-poses policies/arm3_missed_poses.json
-TRAIN_so101 := --robot so101 --mode position --steps 8000000 --out policies/so101.pt
-TRAIN_go2   := --steps 5500000 --out policies/go2.pt
-TRAINER     := $(if $(filter go2,$(ROBOT)),policies.train_legged,policies.train)
+#                            --learning-rate 1e-4 --ranges sim2real/policies/go2_slippery.toml
+TRAIN_arm3  := --start-poses sim2real/policies/arm3_missed_poses.json
+TRAIN_so101 := --robot so101 --mode position --steps 8000000 --out sim2real/policies/so101.pt
+TRAIN_go2   := --steps 5500000 --out sim2real/policies/go2.pt
+TRAINER     := $(if $(filter go2,$(ROBOT)),sim2real.policies.train_legged,sim2real.policies.train)
 train: install
 	$(if $(TRAIN_$(ROBOT)),,$(error make train: no recipe for ROBOT=$(ROBOT); shipped: arm3, so101, go2))
 	$(PY) -m $(TRAINER) $(TRAIN_$(ROBOT))
 
 # The position-mode variant of the same recipe (docs/training.md, "Velocity vs position control").
 train-position: install
-	$(PY) -m policies.train --mode position --start-poses policies/arm3_missed_poses.json \
-		--out policies/arm_position.pt
+	$(PY) -m sim2real.policies.train --mode position --start-poses sim2real/policies/arm3_missed_poses.json \
+		--out sim2real/policies/arm_position.pt
 
 # The ONNX file the soak targets run, re-exported whenever the checkpoint changes.
 $(ONNX): $(POLICY) $(STAMP)
@@ -111,31 +111,31 @@ $(ONNX): $(POLICY) $(STAMP)
 #                        (rt/lowstate at 500 Hz, the MuJoCo plant behind it); then the walk as
 #                        the emulator saw it (true distance, speed, tracking)
 HIL_ROBOT := $(if $(filter go2,$(ROBOT)),go2,so101)
-HIL_so101 := $(PY) -m deploy.harness.servo_hil --robot so101 --protocol feetech -- \
-	--policy policies/so101.onnx --duration 60
-HIL_go2   := $(PY) -m deploy.harness.unitree_hil --robot go2 -- \
-	--policy policies/go2.onnx --command 0.5,0,0 --duration 60
+HIL_so101 := $(PY) -m sim2real.deploy.harness.servo_hil --robot so101 --protocol feetech -- \
+	--policy sim2real/policies/so101.onnx --duration 60
+HIL_go2   := $(PY) -m sim2real.deploy.harness.unitree_hil --robot go2 -- \
+	--policy sim2real/policies/go2.onnx --command 0.5,0,0 --duration 60
 #   make hil BACKEND=ros2 [ROBOT=so101]
 #                        the shipped arm3 (or SO-101) policy for 60 s through deploy-run --backend
 #                        ros2 against the ros2_control emulator (joint_states and a forward
 #                        command controller over the MuJoCo plant, its own process, ROS 2 domain
 #                        42 on this computer), then the same run on --backend sim, side by side
 HIL_ROS2_ROBOT  := $(if $(filter so101,$(ROBOT)),so101,arm3)
-HIL_ROS2_POLICY := $(if $(filter so101,$(ROBOT)),policies/so101.onnx,$(ONNX))
+HIL_ROS2_POLICY := $(if $(filter so101,$(ROBOT)),sim2real/policies/so101.onnx,$(ONNX))
 ifeq ($(BACKEND),ros2)
 hil: install $(HIL_ROS2_POLICY)
 	$(if $(filter arm3 so101,$(ROBOT)),,$(error make hil BACKEND=ros2: ROBOT=$(ROBOT) has no shipped policy; use ROBOT=arm3 or ROBOT=so101))
-	$(PY) -m deploy.harness.ros2_hil --robot $(HIL_ROS2_ROBOT) -- --policy $(HIL_ROS2_POLICY) --duration 60
+	$(PY) -m sim2real.deploy.harness.ros2_hil --robot $(HIL_ROS2_ROBOT) -- --policy $(HIL_ROS2_POLICY) --duration 60
 else
-hil: install policies/$(HIL_ROBOT).onnx
+hil: install sim2real/policies/$(HIL_ROBOT).onnx
 	$(HIL_$(HIL_ROBOT))
 endif
 
-policies/so101.onnx: policies/so101.pt $(STAMP)
-	$(VENV)/bin/policy-export policies/so101.pt
+sim2real/policies/so101.onnx: sim2real/policies/so101.pt $(STAMP)
+	$(VENV)/bin/policy-export sim2real/policies/so101.pt
 
-policies/go2.onnx: policies/go2.pt $(STAMP)
-	$(VENV)/bin/policy-export policies/go2.pt
+sim2real/policies/go2.onnx: sim2real/policies/go2.pt $(STAMP)
+	$(VENV)/bin/policy-export sim2real/policies/go2.pt
 
 soak: install $(ONNX)
 	$(VENV)/bin/soak-test --robot $(ROBOT) --policy $(ONNX) --hours 8 --sessions 1 --seed 0 --out runs/soak
@@ -147,9 +147,9 @@ soak: install $(ONNX)
 # Our own policies are held to the tracking criterion too (--min-success 0.95: 95 % of RUNNING time
 # within 0.2 m/s of the command), which a user's soak reports without judging.
 NIGHTLY_ROBOTS := arm3 so101 go2
-nightly: install $(ONNX) policies/so101.onnx policies/go2.onnx
+nightly: install $(ONNX) sim2real/policies/so101.onnx sim2real/policies/go2.onnx
 	@mkdir -p runs/nightly; pids=""; for r in $(NIGHTLY_ROBOTS); do \
-		policy=policies/$$r.onnx; [ $$r = arm3 ] && policy=$(ONNX); \
+		policy=sim2real/policies/$$r.onnx; [ $$r = arm3 ] && policy=$(ONNX); \
 		base=bench/baseline/$$r.json; [ -f $$base ] && base="--baseline $$base" || base=""; \
 		echo "make nightly: $$r running, output in runs/nightly/$$r.log"; \
 		$(VENV)/bin/soak-test --robot $$r --policy $$policy --hours 8 --sessions 1 --seed 0 --min-success 0.95 \
@@ -167,7 +167,7 @@ nightly: install $(ONNX) policies/so101.onnx policies/go2.onnx
 # fails (exit 3) when the policy's result depends on the engine.
 HOURS ?= 1
 SEED  ?= 0
-SIM2SIM_POLICY := $(if $(filter arm3,$(ROBOT)),$(ONNX),policies/$(ROBOT).onnx)
+SIM2SIM_POLICY := $(if $(filter arm3,$(ROBOT)),$(ONNX),sim2real/policies/$(ROBOT).onnx)
 sim2sim: install $(SIM2SIM_POLICY)
 	$(VENV)/bin/sim2sim --robot $(ROBOT) --policy $(SIM2SIM_POLICY) --hours $(HOURS) \
 		--seed $(SEED) --out runs/sim2sim/$(ROBOT) --no-progress --no-film
@@ -181,12 +181,12 @@ sim2sim: install $(SIM2SIM_POLICY)
 # --record-commands, then run the sysid line.
 SYSID_SECONDS ?= 10
 SYSID_VIA     ?= servo
-PLANT_MOTORS  ?= eval/sysid/examples/$(ROBOT)_worn.toml
+PLANT_MOTORS  ?= sim2real/eval/sysid/examples/$(ROBOT)_worn.toml
 SYSID_RUN := --policy $(SIM2SIM_POLICY) --duration $(SYSID_SECONDS) \
 	--record-commands runs/sysid/$(ROBOT)/run.npz
 sysid: install $(SIM2SIM_POLICY)
 	mkdir -p runs/sysid/$(ROBOT)
-	$(if $(filter servo,$(SYSID_VIA)),$(PY) -m deploy.harness.servo_hil --robot $(ROBOT) \
+	$(if $(filter servo,$(SYSID_VIA)),$(PY) -m sim2real.deploy.harness.servo_hil --robot $(ROBOT) \
 		--protocol feetech --plant-motors $(PLANT_MOTORS) -- $(SYSID_RUN),$(VENV)/bin/deploy-run \
 		--robot $(ROBOT) --plant-motors $(PLANT_MOTORS) $(SYSID_RUN))
 	$(VENV)/bin/sysid --robot $(ROBOT) --log runs/sysid/$(ROBOT)/run.npz --out runs/sysid/$(ROBOT) \

@@ -7,11 +7,11 @@ torques at the physics rate) on the same robot and policy in the same run, write
 in docs/speed.md) and prints a plain-text table ending with the targets, PASS or FAIL.
 
 The policy of every item but ``inference`` (:mod:`bench.common`): a deterministic
-:class:`deploy.policy.mlp_checkpoint.MLPActor` (hidden 64, 64, ELU, weights from
+:class:`sim2real.deploy.policy.mlp_checkpoint.MLPActor` (hidden 64, 64, ELU, weights from
 ``torch.manual_seed(0)``) over the robot's default PolicySpec, its weights tamed so that it holds
 the arm near home and moves it a little with every goal (:func:`bench.common.tame_actor`), exported
-with the parity gate; goals from :class:`deploy.tasks.goals.GoalScheduler` as in ``deploy-run``.
-Every latency goes through :class:`deploy.core.latency.LatencyHistogram`.
+with the parity gate; goals from :class:`sim2real.deploy.tasks.goals.GoalScheduler` as in ``deploy-run``.
+Every latency goes through :class:`sim2real.deploy.core.latency.LatencyHistogram`.
 
 Items, one module each (its docstring says how it measures):
 

@@ -573,7 +573,7 @@ def main(argv: list[str] | None = None) -> int:
         results["sections"].update(old.get("sections", {}))
         results["policies"].update(old.get("policies", {}))
 
-    from robots import load_robot
+    from sim2real.robots import load_robot
 
     robots: dict = {}
     policies: dict = {}

@@ -1,5 +1,5 @@
 """The servo bus: one SYNC READ + one SYNC WRITE per tick through the vendor SDK, against the
-wire-protocol emulator in its own process (``python -m deploy.backends.emulator``).
+wire-protocol emulator in its own process (``python -m sim2real.deploy.backends.emulator``).
 
 Per robot (so101: 6 Feetech STS3215 on ``scservo_sdk``; arm3_xm430: 3 Dynamixel XM430 on
 ``dynamixel_sdk``, Protocol 2.0), at 1 Mbaud, back to back with no sleep: the cost of a bus tick
@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from bench.common import histogram, summary
-from deploy.harness.servo_hil import start_emulator, stop_emulator
+from sim2real.deploy.harness.servo_hil import start_emulator, stop_emulator
 
 CASES = (("so101", "feetech"), ("arm3_xm430", "dynamixel"))
 BAUDRATE = 1_000_000
@@ -42,12 +42,12 @@ def wire_model_us(protocol: str, n: int, block: int, goal: int, baudrate: int) -
 def bench_bus(robot_name: str, protocol: str, ticks: int) -> dict:
     """Per-tick bus cost (read + write) of ``ticks`` back-to-back ticks; see the module
     docstring. Raises ImportError without the servo extra (``pip install '.[servo]'``)."""
-    from robots import load_robot
+    from sim2real.robots import load_robot
 
     if protocol == "feetech":
-        from deploy.backends.servo.feetech import FeetechBackend as Backend
+        from sim2real.deploy.backends.servo.feetech import FeetechBackend as Backend
     else:
-        from deploy.backends.servo.dynamixel import DynamixelBackend as Backend
+        from sim2real.deploy.backends.servo.dynamixel import DynamixelBackend as Backend
     robot = load_robot(robot_name)
     proc, port = start_emulator(robot_name, protocol, BAUDRATE)
     if port is None:

@@ -1,13 +1,13 @@
 """The ``busy`` item: the loop on the wall clock while every core is busy with other work.
 
 ``deploy-run --realtime`` (in this process, :func:`bench.session._deploy_run`) runs go2 (its
-shipped policy, exported from ``policies/go2.pt``, commanded 0.5 m/s forward) and arm6 (the bench
+shipped policy, exported from ``sim2real/policies/go2.pt``, commanded 0.5 m/s forward) and arm6 (the bench
 policy) for ``duration`` s each, while one CPU-bound process per CPU (``while True: pass``) runs
 beside it, started before and always stopped after. Reported per robot: ticks, overruns, missed
 periods, their rate, the final state, go2's falls, and the report's longest control periods
-(``deadline.long_ticks``, :mod:`deploy.observe.long_ticks`) with their causes counted: what a
+(``deadline.long_ticks``, :mod:`sim2real.deploy.observe.long_ticks`) with their causes counted: what a
 busy computer does to the loop, and whether it stopped it (a stall is not a fault:
-:mod:`deploy.core.modes`).
+:mod:`sim2real.deploy.core.modes`).
 """
 
 from __future__ import annotations
@@ -52,10 +52,10 @@ def shipped_go2(folder: Path):
     """The shipped Go2 policy exported to ``folder/go2.onnx``, as what
     :func:`bench.session._deploy_run` reads of a :class:`~bench.common.BenchPolicy` (``robot.name``,
     ``path``)."""
-    from deploy.export import export_policy
+    from sim2real.deploy.export import export_policy
 
     repo = Path(__file__).resolve().parents[1]
-    path = export_policy(repo / "policies" / "go2.pt", out=folder / "go2.onnx")
+    path = export_policy(repo / "sim2real" / "policies" / "go2.pt", out=folder / "go2.onnx")
     return SimpleNamespace(robot=SimpleNamespace(name="go2"), path=path)
 
 

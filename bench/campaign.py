@@ -2,7 +2,7 @@
 
 ``workers`` processes (default: one per CPU; started with the ``spawn`` method, with
 ``OMP_NUM_THREADS=OPENBLAS_NUM_THREADS=MKL_NUM_THREADS=1``) each run one batched
-:class:`deploy.runtime.Runtime` over ``SimBackend(envs=k)`` (k sessions in lockstep, one ONNX
+:class:`sim2real.deploy.runtime.Runtime` over ``SimBackend(envs=k)`` (k sessions in lockstep, one ONNX
 Runtime call for all of them, ``SimClock``, ``GoalScheduler`` goals), for each k of ``envs``
 in turn. Per k, every worker builds its runtime, runs it through RAMP_IN (not timed: a start-up
 cost paid once per 8-hour session), waits at a barrier with the others, then runs ``duration``
@@ -39,7 +39,7 @@ def _worker(index, robot_name, policy_path, envs_list, duration, barrier, result
     try:
         from bench.common import BenchPolicy, summary
         from bench.tick import make_runtime, warm_up
-        from robots import load_robot
+        from sim2real.robots import load_robot
 
         robot = load_robot(robot_name)
         bp = BenchPolicy(robot, None, None, Path(policy_path), 0.0)

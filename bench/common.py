@@ -1,6 +1,6 @@
 """Shared pieces of the benchmark suite: the benchmark policy, histograms, machine facts, JSON.
 
-Every latency here goes through :class:`deploy.core.latency.LatencyHistogram` (1 us bins up to
+Every latency here goes through :class:`sim2real.deploy.core.latency.LatencyHistogram` (1 us bins up to
 20 ms, percentiles exact to the bin width, reported at the bin centre), the same histogram the
 runtime keeps of its own stages, so that figures of the full runtime and of the bare loop are
 comparable.
@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from deploy.core.latency import BIN_NS, BINS, LatencyHistogram
-from robots.files import atomic_write
+from sim2real.deploy.core.latency import BIN_NS, BINS, LatencyHistogram
+from sim2real.robots.files import atomic_write
 
 #: Hidden layers and seed of the benchmark policy (a deterministic MLPActor, ELU).
 POLICY_HIDDEN = (64, 64)
@@ -34,9 +34,9 @@ class BenchPolicy:
         robot: The :class:`robots.Robot`.
         spec: Its PolicySpec (``PolicySpec.for_robot(robot)``: default blocks, default control
             mode: arm3 velocity, arm6 position).
-        actor: The torch :class:`~deploy.policy.mlp_checkpoint.MLPActor` (eval mode), for the bare
+        actor: The torch :class:`~sim2real.deploy.policy.mlp_checkpoint.MLPActor` (eval mode), for the bare
         loop.
-        path: The ONNX file exported from it by ``deploy.export.run_export`` (parity gate passed).
+        path: The ONNX file exported from it by ``sim2real.deploy.export.run_export`` (parity gate passed).
         export_seconds: Wall time of the export, s.
     """
 
@@ -119,20 +119,20 @@ def tame_actor(actor, spec, robot, seed: int = POLICY_SEED) -> None:
 def make_policy(robot, folder: Path, seed: int = POLICY_SEED) -> BenchPolicy:
     """Build the deterministic benchmark policy of ``robot`` and export it to ONNX in ``folder``.
 
-    An :class:`~deploy.policy.mlp_checkpoint.MLPActor` (obs_dim of the default PolicySpec -> 64 ->
+    An :class:`~sim2real.deploy.policy.mlp_checkpoint.MLPActor` (obs_dim of the default PolicySpec -> 64 ->
     64 -> n_joints, ELU, no normalizer) with weights from ``torch.manual_seed(seed)``, tamed by
     :func:`tame_actor` (small actions around holding the home pose), saved with
     ``save_checkpoint`` and exported with ``run_export`` (the ``policy-export`` code path: parity
     gate, metadata), exactly as a trained policy would be.
 
     Raises:
-        deploy.export.ExportError, deploy.export.ParityError: the export failed.
+        sim2real.deploy.export.ExportError, sim2real.deploy.export.ParityError: the export failed.
     """
     import torch
 
-    from deploy.export import run_export
-    from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
-    from deploy.spec.policy_spec import PolicySpec
+    from sim2real.deploy.export import run_export
+    from sim2real.deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
+    from sim2real.deploy.spec.policy_spec import PolicySpec
 
     spec = PolicySpec.for_robot(robot)
     torch.manual_seed(seed)

@@ -2,10 +2,10 @@
 
 ``python -m bench.estimation [--robots go2,h1,h1_2] [--seconds 20] [--command 0.5] [--json out]``
 
-Each robot's shipped policy (``policies/go2.onnx``, unitree_rl_gym's published H1 and H1-2
+Each robot's shipped policy (``sim2real/policies/go2.onnx``, unitree_rl_gym's published H1 and H1-2
 policies in ``tests/data/unitree_rl_gym``) walks at ``--command`` m/s through
-:class:`deploy.runtime.Runtime` over :class:`~deploy.backends.sim.plant.SimBackend` with the IMU
-noise model its ``robot.toml`` ships; :class:`deploy.monitors.estimation.EstimationMonitor`
+:class:`sim2real.deploy.runtime.Runtime` over :class:`~sim2real.deploy.backends.sim.plant.SimBackend` with the
+IMU noise model its ``robot.toml`` ships; :class:`sim2real.deploy.monitors.estimation.EstimationMonitor`
 compares the base estimate with the truth on every RUNNING tick after ``--settle`` s: attitude
 error (mean, p95, deg), forward speed estimated and true, the bias (target within 5 %) and the
 planar RMS error (target 0.1 m/s); attitude targets: mean 1 deg, p95 2 deg. For the published
@@ -25,7 +25,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 POLICIES = {
-    "go2": ROOT / "policies" / "go2.onnx",
+    "go2": ROOT / "sim2real" / "policies" / "go2.onnx",
     "h1": ROOT / "tests" / "data" / "unitree_rl_gym" / "h1" / "h1.onnx",
     "h1_2": ROOT / "tests" / "data" / "unitree_rl_gym" / "h1_2" / "h1_2.onnx",
 }
@@ -47,15 +47,15 @@ def measure(
     ``settle`` s, with ``"final_state"``. ``user``: a user's robot (``{"robot": folder,
     "policy": ONNX}`` and, for its own loop, ``"config"``: unitree_rl_gym's deploy_mujoco yaml,
     ``"torchscript"``: its ``motion.pt``) in place of a shipped one."""
-    from deploy.backends.sim.plant import SimBackend
-    from deploy.monitors.estimation import EstimationMonitor
-    from deploy.policy.onnx_policy import OnnxPolicy
-    from deploy.runtime import Runtime
-    from robots import load_robot
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.monitors.estimation import EstimationMonitor
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.runtime import Runtime
+    from sim2real.robots import load_robot
 
     path = Path(user["policy"]) if user else POLICIES[robot_name]
     if not path.exists() and path.with_suffix(".pt").exists():
-        from deploy.export import run_export
+        from sim2real.deploy.export import run_export
 
         run_export(path.with_suffix(".pt"))
     robot = load_robot(user["robot"] if user else robot_name)

@@ -1,6 +1,6 @@
 """The floors of the tick: what the libraries the runtime calls cost on their own.
 
-A stage of the tick (``deploy.runtime.STAGES``) is a library call wrapped in the runtime's own
+A stage of the tick (``sim2real.deploy.runtime.STAGES``) is a library call wrapped in the runtime's own
 work: ``infer`` is one ONNX Runtime call, ``smooth`` one Ruckig step, ``estimate`` one Pinocchio
 forward kinematics (besides the Kalman filter, ours), ``physics`` ``decimation`` MuJoCo steps.
 :class:`FloorLoop` times those calls alone, per tick, on objects of its own built from the same
@@ -19,7 +19,7 @@ Per tick (``FLOOR_STAGES``):
   target moves each tick, so Ruckig computes a new trajectory each tick, as in the runtime), the
   new position read back (a position drive needs it).
 - ``fk``: ``pinocchio.forwardKinematics`` and ``updateFramePlacement`` of the end-effector frame
-  (what ``deploy.core.state.Kinematics`` calls; a legged robot has no end effector: its joint
+  (what ``sim2real.deploy.core.state.Kinematics`` calls; a legged robot has no end effector: its joint
   placements only).
 - ``mj_step``: ``mujoco.mj_step(m, d, nstep=decimation)`` on a copy of the plant's first env,
   set before each call (untimed) to the plant's state and controls of the moment.

@@ -45,7 +45,7 @@ def bench_mj_step(robot, mode: str, ticks: int) -> np.ndarray:
 
 def bench_plant(robot, mode: str, ticks: int) -> np.ndarray:
     """ns per control tick of ``SimBackend`` read + write + advance, shape (ticks,)."""
-    from deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.backends.sim.plant import SimBackend
 
     plant = SimBackend(robot, mode=mode)
     # the command that holds the home pose (what SimBackend.reset starts with)

@@ -31,13 +31,13 @@ os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from deploy.export import load_source, run_export  # noqa: E402
-from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint  # noqa: E402
-from deploy.policy.obs_normalizer import ObservationNormalizer  # noqa: E402
-from deploy.policy.onnx_policy import OnnxPolicy  # noqa: E402
-from deploy.spec.kinds import kind_names  # noqa: E402
-from deploy.spec.policy_spec import PolicySpec  # noqa: E402
-from robots import load_robot  # noqa: E402
+from sim2real.deploy.export import load_source, run_export  # noqa: E402
+from sim2real.deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint  # noqa: E402
+from sim2real.deploy.policy.obs_normalizer import ObservationNormalizer  # noqa: E402
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy  # noqa: E402
+from sim2real.deploy.spec.kinds import kind_names  # noqa: E402
+from sim2real.deploy.spec.policy_spec import PolicySpec  # noqa: E402
+from sim2real.robots import load_robot  # noqa: E402
 
 #: Every observation block a fixed-base robot without wrapping joints has (arm3, arm6).
 BLOCKS = tuple(k for k in kind_names(floating_base=False) if k != "joint_position_sincos")

@@ -5,7 +5,7 @@
 legged_gym's push (``LeggedRobot._push_robots``, unitree_rl_gym's humanoid configs:
 ``push_interval_s = 5``, ``max_push_vel_xy = 1.5``) sets the floating base's horizontal velocity
 to a random value every 5 s. Does a policy fall under it because of our runtime, or would it fall
-in its own stack's loop too? Each seed's push sequence (:func:`eval.world.pushes.push_velocity`,
+in its own stack's loop too? Each seed's push sequence (:func:`sim2real.eval.world.pushes.push_velocity`,
 the soak's ``[pushes]``) runs, walking at the config's ``cmd_init``, for ``seconds``, in:
 
 - **unitree's loop** (:func:`unitree_loop`): the loop of unitree_rl_gym's
@@ -15,8 +15,8 @@ the soak's ``[pushes]``) runs, walking at the config's ``cmd_init``, for ``secon
   0.8-s gait phase's sine and cosine, scaled as the deploy config says), the TorchScript policy
   the repository publishes (``motion.pt``), ``tau = kp (target - q) - kd dq`` at every physics
   step; no estimator, guard or sensor noise.
-- **our runtime** (:func:`runtime_loop`): :class:`deploy.runtime.Runtime` over
-  :class:`~deploy.backends.sim.plant.SimBackend` (position mode, its default sensor noise) with
+- **our runtime** (:func:`runtime_loop`): :class:`sim2real.deploy.runtime.Runtime` over
+  :class:`~sim2real.deploy.backends.sim.plant.SimBackend` (position mode, its default sensor noise) with
   the policy exported to ONNX, as ``deploy-run`` runs it.
 
 A run ends at its first fall: the base below ``FALL_HEIGHT``, or (ours) the runtime leaving
@@ -36,8 +36,8 @@ import mujoco
 import numpy as np
 import yaml
 
-from deploy.core.attitude import projected_gravity
-from eval.world.pushes import push_velocity
+from sim2real.deploy.core.attitude import projected_gravity
+from sim2real.eval.world.pushes import push_velocity
 
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "unitree_rl_gym"
 #: m, base height below which the robot has fallen (the H1 stands at 1.0 m, walks at 0.98)
@@ -113,9 +113,9 @@ def unitree_loop(robot, cfg: dict, net, seed: int, seconds: float, vmax: float, 
 
 def runtime_loop(robot, cfg: dict, onnx: Path, seed: int, seconds: float, vmax: float):
     """One run of our runtime (module docstring); returns (fall time s or None, cause)."""
-    from deploy.backends.sim.plant import SimBackend
-    from deploy.policy.onnx_policy import OnnxPolicy
-    from deploy.runtime import RUNNING, Runtime
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.runtime import RUNNING, Runtime
 
     plant = SimBackend(robot, "position", envs=1, seed=0)
     rt = Runtime(robot, OnnxPolicy(onnx, robot), plant)
@@ -150,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--max-velocity", type=float, default=1.5, help="m/s per axis")
     a = ap.parse_args(argv)
-    from robots import load_robot
+    from sim2real.robots import load_robot
 
     robot = load_robot(a.robot)
     folder = DATA / a.robot

@@ -1,11 +1,11 @@
 """The ``ros2`` item: what ``deploy-run --ros2`` costs the control loop.
 
-The shipped Go2 policy (exported from ``policies/go2.pt``, commanded 0.5 m/s forward) runs with
+The shipped Go2 policy (exported from ``sim2real/policies/go2.pt``, commanded 0.5 m/s forward) runs with
 ``deploy-run --realtime`` in this process for ``duration`` s, three times in one bench run:
 
 - ``off``: no ROS 2;
 - ``on``: ``--ros2`` (the node publishes ``joint_states``, ``imu`` and ``odom`` every tick and
-  ``/diagnostics`` every second, :mod:`deploy.ros2.bridge`), nobody listening;
+  ``/diagnostics`` every second, :mod:`sim2real.deploy.ros2.bridge`), nobody listening;
 - ``on+slow``: ``--ros2`` with a second process (:func:`_slow_operator`) that subscribes to every
   topic with callbacks that take ``SLOW_CALLBACK_S`` each and publishes ``cmd_vel`` at 10 Hz: a
   slow subscriber and a busy peer.
@@ -95,7 +95,7 @@ def measure(folder: Path, duration: float) -> dict:
         RuntimeError: deploy-run refused its input or diverged (:func:`bench.session.
             _deploy_run`).
     """
-    from deploy.ros2 import available
+    from sim2real.deploy.ros2 import available
 
     why = available()
     if why is not None:

@@ -1,6 +1,6 @@
 """Sessions through ``deploy-run`` itself: the 8-hour-equivalent estimate and wall-clock mode.
 
-Both call :func:`deploy.cli.deploy_run.deploy_run_main` in this process (the shipped code path:
+Both call :func:`sim2real.deploy.cli.deploy_run.deploy_run_main` in this process (the shipped code path:
 robot and policy loading, ``SimBackend``, ``Runtime`` with ``GoalScheduler`` goals every 4 s and
 deploy-run's own per-tick bookkeeping) with ``--report`` to a temporary file, its printed summary
 captured.
@@ -12,7 +12,7 @@ policy, building the runtime; imports excluded, they are done once per process).
 linearly: ``estimate_8h_s = setup_s + wall_s * 28800 / duration_s``.
 
 **Wall-clock mode** (:func:`wallclock`): ``deploy-run --realtime``, a
-:class:`deploy.runtime.clock.WallClock` with the robot's control period (arm6: 1/500 s), for
+:class:`sim2real.deploy.runtime.clock.WallClock` with the robot's control period (arm6: 1/500 s), for
 ``duration`` seconds of real time, once per configuration of ``WALLCLOCK_MODES``: each wait
 strategy (sleep, hybrid, spin) at normal priority, hybrid and spin at SCHED_FIFO priority
 ``RT_PRIORITY`` with the memory locked
@@ -69,7 +69,7 @@ def _deploy_run(
     Raises:
         RuntimeError: deploy-run refused its input (exit 3) or the simulation diverged (exit 4).
     """
-    from deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_DIVERGED, deploy_run_main
+    from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_DIVERGED, deploy_run_main
 
     with tempfile.TemporaryDirectory() as tmp:
         report_path = Path(tmp) / "report.json"

@@ -1,11 +1,11 @@
 """Tick cost: the full runtime against a bare sim2sim loop, same robot, same policy, same process.
 
-**Full runtime** (:class:`deploy.runtime.Runtime`, ``SimClock``, ``SimBackend(envs=1)``, the
-benchmark policy through :class:`~deploy.policy.onnx_policy.OnnxPolicy`, goals from
-:class:`deploy.tasks.goals.GoalScheduler` every 4 s as in ``deploy-run``), driven by
+**Full runtime** (:class:`sim2real.deploy.runtime.Runtime`, ``SimClock``, ``SimBackend(envs=1)``, the
+benchmark policy through :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy`, goals from
+:class:`sim2real.deploy.tasks.goals.GoalScheduler` every 4 s as in ``deploy-run``), driven by
 ``Runtime.run`` (the
 garbage collector frozen and disabled). Per stage: the runtime's own stamps (``rt.latency``; the
-stages of ``deploy.runtime.STAGES``: read, estimate, observe, infer, guard, smooth, write,
+stages of ``sim2real.deploy.runtime.STAGES``: read, estimate, observe, infer, guard, smooth, write,
 physics). ``overhead`` is ``rt.tick_cost``: one tick without the physics stage
 (``backend.advance``: MuJoCo steps, the plant's thermal and sensor models). ``tick`` is one tick
 as the loop sees it, physics and the runtime's own bookkeeping included: the time between two
@@ -15,7 +15,7 @@ of each round has no predecessor, so this one has ``ticks - rounds`` samples).
 **Bare loop** (:class:`BareLoop`): the loop of unitree_rl_gym's sim2sim script
 (``deploy/deploy_mujoco/deploy_mujoco.py``), written for our robots: ``robot.plant_model("torque")``
 (direct motors, ``ctrlrange`` = effort limit), PD gains ``kp``/``kd`` of robot.toml. Per control
-tick: read ``qpos``/``qvel`` from ``MjData`` into a :class:`~deploy.core.state.RobotState`; the same
+tick: read ``qpos``/``qvel`` from ``MjData`` into a :class:`~sim2real.deploy.core.state.RobotState`; the same
 observation as the runtime (``Kinematics.update`` for the end effector, ``spec.observation`` with
 the same PolicySpec and goals); the same MLPActor weights in torch eager
 (``torch.set_num_threads(1)``, the loop inside ``torch.no_grad()``); ``target = action * 0.25 +
@@ -59,14 +59,14 @@ class BareLoop:
 
     Args:
         bp: The benchmark policy (its torch ``actor`` and ``spec`` are used).
-        seed: Seed of the goal sequence (goals from ``deploy.tasks.goals.sample_goal``).
+        seed: Seed of the goal sequence (goals from ``sim2real.deploy.tasks.goals.sample_goal``).
 
     Attributes:
         samples: (ticks, 7) int64 ns per tick: the stages of ``BARE_STAGES`` and the whole tick.
     """
 
     def __init__(self, bp: BenchPolicy, seed: int = 1):
-        from deploy.core.state import Kinematics, RobotState
+        from sim2real.deploy.core.state import Kinematics, RobotState
 
         robot = bp.robot
         self.robot, self.spec, self.actor = robot, bp.spec, bp.actor
@@ -93,7 +93,7 @@ class BareLoop:
         ``Runtime.run``); returns and appends to :attr:`samples` the (ticks, 7) ns stamps."""
         import torch
 
-        from deploy.tasks.goals import sample_goal
+        from sim2real.deploy.tasks.goals import sample_goal
 
         m, d, st, kin, spec = self.m, self.d, self.state, self.kinematics, self.spec
         actor, goal, obs = self.actor, self.goal, self.obs
@@ -179,10 +179,10 @@ class _TickTimer:
 def make_runtime(bp: BenchPolicy, envs: int = 1, seed: int = 0, clock=None):
     """A Runtime as ``deploy-run`` builds it (SimBackend in the policy's mode, SimClock by
     default) and its GoalScheduler (4 s period, 3 s success time, goals seeded ``seed + 1``)."""
-    from deploy.backends.sim.plant import SimBackend
-    from deploy.policy.onnx_policy import OnnxPolicy
-    from deploy.runtime import Runtime
-    from deploy.tasks.goals import GoalScheduler
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.runtime import Runtime
+    from sim2real.deploy.tasks.goals import GoalScheduler
 
     robot = bp.robot
     policy = OnnxPolicy(bp.path, robot)
@@ -212,7 +212,7 @@ def measure(bp: BenchPolicy, ticks: int, rounds: int) -> dict:
     alternating blocks. Returns the ``tick.<robot>`` entry of results.json (see bench/__init__)."""
     import torch
 
-    from deploy.runtime import STAGES
+    from sim2real.deploy.runtime import STAGES
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)

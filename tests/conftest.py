@@ -11,7 +11,7 @@ if "PYTEST_XDIST_WORKER" in os.environ:  # the workers share the cores: one thre
 
 import pytest  # noqa: E402
 
-from robots import load_robot  # noqa: E402
+from sim2real.robots import load_robot  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -41,11 +41,11 @@ def one_torch_thread():
 
 @pytest.fixture(scope="session")
 def go2_onnx(tmp_path_factory):
-    """The shipped go2 policy (policies/go2.pt) exported to ONNX, once per session."""
-    from deploy.export import export_policy
+    """The shipped go2 policy (sim2real/policies/go2.pt) exported to ONNX, once per session."""
+    from sim2real.deploy.export import export_policy
 
     out = tmp_path_factory.mktemp("go2policy") / "go2.onnx"
-    return export_policy(REPO / "policies" / "go2.pt", out=out)
+    return export_policy(REPO / "sim2real" / "policies" / "go2.pt", out=out)
 
 
 # A Robot is frozen with read-only arrays: one load per session serves every test.

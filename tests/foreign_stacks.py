@@ -20,7 +20,7 @@ generators, built from reading their exporters; none of their code is used or co
 
 The go2 quantities come from the stacks' own Go1/Go2 configurations where they have one (mjlab's
 ``go1_constants.py`` gains and pose, Isaac Lab's ``UNITREE_GO2_CFG``), the joint names from
-``robots/go2``.
+``sim2real/robots/go2``.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ import torch
 import yaml
 from torch import nn
 
-#: robots/go2's joints (its order: FL, FR, RL, RR legs).
+#: sim2real/robots/go2's joints (its order: FL, FR, RL, RR legs).
 GO2 = tuple(
     f"{leg}_{part}_joint" for leg in ("FL", "FR", "RL", "RR") for part in ("hip", "thigh", "calf")
 )

@@ -18,7 +18,7 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 from torch import nn
 
-from deploy.spec.policy_spec import PolicySpec
+from sim2real.deploy.spec.policy_spec import PolicySpec
 
 #: arm3 with every block the seed's arm uses: obs 21, act 3.
 ARM3_BLOCKS = (
@@ -61,7 +61,7 @@ def deploy_run(
 ) -> tuple[int, str, str]:
     """(exit code, stdout, stderr) of ``deploy-run`` on arm3 with ``policy`` for ``seconds``
     simulated seconds, with ``--spec`` / ``--report`` when given."""
-    from deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
 
     args = ["--robot", "arm3", "--policy", str(policy), "--duration", str(seconds)]
     for flag, value in (("--spec", spec), ("--report", report)):

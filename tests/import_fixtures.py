@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from deploy.cli.robot_import import main
-from robots.importer.pipeline import resolve_source
+from sim2real.deploy.cli.robot_import import main
+from sim2real.robots.importer.pipeline import resolve_source
 from tests.test_import_humanoid import FLAGS, write_humanoid
 
 #: The prefix of example-robot-data's descriptions.

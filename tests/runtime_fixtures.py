@@ -8,8 +8,8 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
-from deploy.policy.adversarial import adversarial_model
-from deploy.spec.policy_spec import PolicySpec
+from sim2real.deploy.policy.adversarial import adversarial_model
+from sim2real.deploy.spec.policy_spec import PolicySpec
 
 
 def adversarial_onnx(tmp_path, robot, mode, nan_probability=0.0, name="adv.onnx"):

@@ -12,8 +12,8 @@ import sys
 import time
 from pathlib import Path
 
-from eval.soak import checkpoint as ckpt
-from eval.soak.session import SessionConfig, session_dir
+from sim2real.eval.soak import checkpoint as ckpt
+from sim2real.eval.soak.session import SessionConfig, session_dir
 
 REPO = Path(__file__).resolve().parent.parent
 #: The options of each robot's short test session: arm3 reaches for a goal every 2 s and is
@@ -52,7 +52,7 @@ def kill_after_first_checkpoint(config, out: Path, timeout: float = 120.0) -> No
         "import pickle, sys\n"
         "import torch\n"
         "torch.set_num_threads(1)\n"
-        "from eval.soak.campaign import run_campaign\n"
+        "from sim2real.eval.soak.campaign import run_campaign\n"
         "run_campaign(pickle.load(open(sys.argv[1], 'rb')), 1, sys.argv[2], progress=False)\n"
     )
     proc = subprocess.Popen(

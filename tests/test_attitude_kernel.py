@@ -1,13 +1,13 @@
-"""The compiled attitude rows (deploy.core.attitude_kernel) give the numpy functions'
-numbers (deploy.core.attitude) bit for bit: rotation matrices, Hamilton products, rotation
+"""The compiled attitude rows (sim2real.deploy.core.attitude_kernel) give the numpy functions'
+numbers (sim2real.deploy.core.attitude) bit for bit: rotation matrices, Hamilton products, rotation
 quaternions."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from deploy.core import attitude
-from deploy.core.attitude_kernel import (
+from sim2real.deploy.core import attitude
+from sim2real.deploy.core.attitude_kernel import (
     quat_mul_rows,
     quat_to_mat_rows,
     rotation_rows,

@@ -1,4 +1,4 @@
-"""The plant on pybullet (deploy.backends.sim.bullet) against the MuJoCo plant: every shipped robot
+"""The plant on pybullet (sim2real.deploy.backends.sim.bullet) against the MuJoCo plant: every shipped robot
 builds and stands, the drives respond alike, limits and dry friction hold, motors heat alike,
 sensors keep their statistics, hooks reach pybullet, and the runtime cannot tell the engines
 apart."""
@@ -12,11 +12,11 @@ import pytest
 
 pytest.importorskip("pybullet")
 
-from deploy.backends.sim.bullet.plant import BulletBackend  # noqa: E402
-from deploy.backends.sim.engines import ENGINES, make_plant, plant_class  # noqa: E402
-from deploy.backends.sim.plant import SimBackend  # noqa: E402
-from deploy.core.backend import Backend, SimulatedPlant  # noqa: E402
-from robots import load_robot  # noqa: E402
+from sim2real.deploy.backends.sim.bullet.plant import BulletBackend  # noqa: E402
+from sim2real.deploy.backends.sim.engines import ENGINES, make_plant, plant_class  # noqa: E402
+from sim2real.deploy.backends.sim.plant import SimBackend  # noqa: E402
+from sim2real.deploy.core.backend import Backend, SimulatedPlant  # noqa: E402
+from sim2real.robots import load_robot  # noqa: E402
 
 
 def run(backend, ticks: int, command: np.ndarray | None = None) -> None:
@@ -210,12 +210,14 @@ class _Recorder:
 def test_the_runtime_takes_the_same_code_path_on_both_engines(arm3, tmp_path):
     """The runtime touches the same backend attributes in the same order on both plants over
     50 ticks (it cannot tell them apart) and ends in the same state."""
-    from deploy.export import export_policy
-    from deploy.policy.onnx_policy import OnnxPolicy
-    from deploy.runtime import Runtime
+    from sim2real.deploy.export import export_policy
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.runtime import Runtime
 
     pt = tmp_path / "arm.pt"
-    pt.write_bytes((Path(__file__).resolve().parent.parent / "policies" / "arm.pt").read_bytes())
+    pt.write_bytes(
+        (Path(__file__).resolve().parent.parent / "sim2real" / "policies" / "arm.pt").read_bytes()
+    )
     policy = OnnxPolicy(export_policy(pt), arm3)
     logs, modes = {}, {}
     for engine in ENGINES:
@@ -260,12 +262,14 @@ def test_soak_test_runs_on_pybullet_and_sim2sim_compares_it_with_mujoco(tmp_path
     and finds the shipped policy's goals the same on both."""
     import json
 
-    from deploy.export import export_policy
-    from eval import cli as soak_cli
-    from eval.sim2sim import cli as sim2sim_cli
+    from sim2real.deploy.export import export_policy
+    from sim2real.eval import cli as soak_cli
+    from sim2real.eval.sim2sim import cli as sim2sim_cli
 
     pt = tmp_path / "arm.pt"
-    pt.write_bytes((Path(__file__).resolve().parent.parent / "policies" / "arm.pt").read_bytes())
+    pt.write_bytes(
+        (Path(__file__).resolve().parent.parent / "sim2real" / "policies" / "arm.pt").read_bytes()
+    )
     policy = export_policy(pt)
     for engine in ENGINES:
         argv = ["--robot", "arm3", "--policy", str(policy), "--hours", "0.005", "--seed", "3"]

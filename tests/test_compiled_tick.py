@@ -1,6 +1,6 @@
 """The compiled tick gives the reference's results: every command, counter and state, bit for bit.
 
-Two runtimes, one with the compiled kernels of ``deploy.kernels`` (:class:`Runtime`) and one with
+Two runtimes, one with the compiled kernels of ``sim2real.deploy.kernels`` (:class:`Runtime`) and one with
 the numpy references of the supervision, action screen, observation, guard and smoother
 (:class:`ReferenceRuntime`; the estimator is the compiled one in both), run the same ticks against identical
 seeded plants: arm3 and arm6 in position, velocity and torque mode, 2 envs each, ``TICKS`` ticks
@@ -22,18 +22,18 @@ from functools import partial
 import numpy as np
 import pytest
 
-from deploy.backends.sim.faults import Fault, FaultInjector
-from deploy.backends.sim.plant import SimBackend
-from deploy.core.latency import LatencyHistogram
-from deploy.core.state import Kinematics, RobotState
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.runtime import FAULT_CAUSES, Mode, Runtime
-from deploy.runtime.reference import ReferenceRuntime
-from deploy.safety.checks import CHECKS
-from deploy.safety.reference import ReferenceGuard
-from deploy.smoothing.reference import ReferenceSmoother
-from deploy.spec.policy_spec import ObservationBlock, PolicySpec, SpecError
-from deploy.spec.reference import observation_reference
+from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.core.latency import LatencyHistogram
+from sim2real.deploy.core.state import Kinematics, RobotState
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import FAULT_CAUSES, Mode, Runtime
+from sim2real.deploy.runtime.reference import ReferenceRuntime
+from sim2real.deploy.safety.checks import CHECKS
+from sim2real.deploy.safety.reference import ReferenceGuard
+from sim2real.deploy.smoothing.reference import ReferenceSmoother
+from sim2real.deploy.spec.policy_spec import ObservationBlock, PolicySpec, SpecError
+from sim2real.deploy.spec.reference import observation_reference
 from tests.runtime_fixtures import adversarial_onnx
 
 TICKS = 1667  # per case; 6 cases: 10,002 ticks through each path

@@ -23,18 +23,18 @@ import yaml
 from helpers_policies import LeggedGymLstm, folder
 from torch import nn
 
-from deploy.cli.policy_export import main
-from deploy.core.attitude import projected_gravity
-from deploy.core.state import RobotState
-from deploy.export.deploy_config import GAIT_PERIOD, spec_and_robot
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.policy.onnx_spec import spec_differences
-from deploy.spec.reference import observation_reference
-from robots import load_robot
+from sim2real.deploy.cli.policy_export import main
+from sim2real.deploy.core.attitude import projected_gravity
+from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.export.deploy_config import GAIT_PERIOD, spec_and_robot
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.policy.onnx_spec import spec_differences
+from sim2real.deploy.spec.reference import observation_reference
+from sim2real.robots import load_robot
 
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:FutureWarning")
 REPO = Path(__file__).resolve().parent.parent
-GO2 = REPO / "robots" / "go2"
+GO2 = REPO / "sim2real" / "robots" / "go2"
 
 
 def go2_config(go2, **changes) -> dict:

@@ -12,11 +12,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from eval.soak.falls import ORIGINS, attribute_falls, falls_by_origin, stops_while_falling
-from eval.soak.sweep import FALL_ALLOWANCE, QUANTITIES, TOLERANCE, margin_text, margins
-from eval.world.domain import DomainError, legged_gym_domain, training_domain
-from eval.world.pushes import DomainPushes, PushRanges, push_velocity
-from eval.world.ranges_file import RangesError, load_ranges, load_ranges_text
+from sim2real.eval.soak.falls import ORIGINS, attribute_falls, falls_by_origin, stops_while_falling
+from sim2real.eval.soak.sweep import FALL_ALLOWANCE, QUANTITIES, TOLERANCE, margin_text, margins
+from sim2real.eval.world.domain import DomainError, legged_gym_domain, training_domain
+from sim2real.eval.world.pushes import DomainPushes, PushRanges, push_velocity
+from sim2real.eval.world.ranges_file import RangesError, load_ranges, load_ranges_text
 
 DATA = Path(__file__).parent / "data" / "unitree_rl_gym"
 
@@ -26,7 +26,7 @@ def test_legged_gym_h1_config_becomes_its_training_domain():
     the terrain's 1.0 (PhysX), base mass -1..+3 kg, pushes of 1.5 m/s every 5 s, its
     observation noise as sensor sigmas (uniform +-s: s / sqrt(3)), no latency, no bias, no
     link or joint randomization; the text loads as the H1's ranges."""
-    from robots import load_robot
+    from sim2real.robots import load_robot
 
     text = legged_gym_domain(DATA / "h1" / "h1_config.py")
     ranges = load_ranges_text(text, "h1_config.py", load_robot("h1"))
@@ -58,7 +58,7 @@ def test_a_config_without_domain_rand_keeps_legged_gyms_defaults(tmp_path):
 
 
 def test_bad_domain_sources_name_the_file_and_the_key(tmp_path, arm3):
-    from robots import load_robot
+    from sim2real.robots import load_robot
 
     bad = tmp_path / "cfg.py"
     bad.write_text(
@@ -83,7 +83,7 @@ def test_bad_domain_sources_name_the_file_and_the_key(tmp_path, arm3):
 def test_pushes_set_the_base_velocity_from_the_seed_alone(go2):
     """A push sets the base's horizontal velocity (legged_gym's push), drawn from the session
     seed and the push's index only: a resumed session pushes as an uninterrupted one."""
-    from deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.backends.sim.plant import SimBackend
 
     a, b = push_velocity(7, 3, 1.5), push_velocity(7, 3, 1.5)
     assert np.array_equal(a, b) and np.all(np.abs(a) <= 1.5)
@@ -164,18 +164,20 @@ def test_soak_runs_the_training_domain_the_policy_carries(tmp_path):
     and the report says so."""
     import onnx
 
-    from eval.cli import main as soak_main
+    from sim2real.eval.cli import main as soak_main
 
     domain = (
         "floor_friction = [0.9, 1.0]\nadded_base_mass = [0.5, 1.0]\n"
         "[pushes]\ninterval = 2.0\nmax_velocity = 0.3\n"
     )
-    from deploy.export import export_policy
+    from sim2real.deploy.export import export_policy
 
     shipped = DATA / "h1" / "h1.onnx"  # the shipped H1 carries its own (policy-export --domain)
     assert training_domain(shipped) == legged_gym_domain(DATA / "h1" / "h1_config.py")
     source = tmp_path / "go2.onnx"
-    export_policy(Path(__file__).resolve().parents[1] / "policies" / "go2.pt", out=source)
+    export_policy(
+        Path(__file__).resolve().parents[1] / "sim2real" / "policies" / "go2.pt", out=source
+    )
     model = onnx.load(str(source))
     prop = model.metadata_props.add()
     prop.key, prop.value = "training_domain", domain
@@ -196,16 +198,18 @@ def test_soak_runs_the_training_domain_the_policy_carries(tmp_path):
     assert report["sessions"][0]["locomotion"]["domain_pushes"] == 0
 
 
-MJLAB_RANGES = Path(__file__).parents[1] / "eval" / "world" / "mjlab_velocity_ranges.toml"
+MJLAB_RANGES = (
+    Path(__file__).parents[1] / "sim2real" / "eval" / "world" / "mjlab_velocity_ranges.toml"
+)
 
 
 def test_mjlab_pushes_add_a_twist_after_random_intervals_and_resume_exactly(go2):
     """mjlab's push_robot: after U(1, 3) s, U(range) is ADDED to the root's world velocity, linear
     and angular; each interval and twist is a pure function of the seed and the push's index,
     and a push schedule restored from its state continues as the uninterrupted one."""
-    from deploy.backends.sim.plant import SimBackend
-    from eval.world.pushes import AXES, push_twist
-    from eval.world.ranges_file import read_overrides
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.eval.world.pushes import AXES, push_twist
+    from sim2real.eval.world.ranges_file import read_overrides
 
     overrides = read_overrides(MJLAB_RANGES)  # the shipped file: every key parses
     assert overrides["com_offset"]["body"] == "torso_link"  # the G1's: a go2 refuses it
@@ -273,10 +277,10 @@ def test_encoder_bias_and_com_offset_are_drawn_per_session_and_applied(go2):
     """An encoder bias offsets what each encoder reads (never the true state), drawn per joint
     from its own stream; a centre-of-mass offset moves the body's ``body_ipos``; ranges without
     them draw exactly what they drew before (the other streams untouched)."""
-    from deploy.backends.sim.plant import SimBackend
-    from eval.world.dynamics import shift_com
-    from eval.world.session_draw import sample_session
-    from eval.world.session_ranges import session_ranges
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.eval.world.dynamics import shift_com
+    from sim2real.eval.world.session_draw import sample_session
+    from sim2real.eval.world.session_ranges import session_ranges
 
     base = session_ranges(go2)
     plain = sample_session(go2, 3, 60.0, base)

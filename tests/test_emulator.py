@@ -1,7 +1,7 @@
 """The servo-bus emulator against the vendors' real SDKs over a pty, and its packet codecs.
 
-Feetech: ``scservo_sdk`` (feetech-servo-sdk) on robots/so101 (six STS3215). Dynamixel:
-``dynamixel_sdk`` Protocol 2.0 on robots/arm3_xm430 (three XM430-W350). No SDK is mocked.
+Feetech: ``scservo_sdk`` (feetech-servo-sdk) on sim2real/robots/so101 (six STS3215). Dynamixel:
+``dynamixel_sdk`` Protocol 2.0 on sim2real/robots/arm3_xm430 (three XM430-W350). No SDK is mocked.
 """
 
 from __future__ import annotations
@@ -11,11 +11,11 @@ import time
 
 import pytest
 
-from deploy.backends.emulator import ServoBusEmulator, WireFaults, parse_fault
-from deploy.backends.servo import dynamixel_protocol as dxl_codec
-from deploy.backends.servo import feetech_protocol as ft_codec
-from deploy.backends.servo.control_tables import STS3215, XM430_W350
-from robots import load_robot
+from sim2real.deploy.backends.emulator import ServoBusEmulator, WireFaults, parse_fault
+from sim2real.deploy.backends.servo import dynamixel_protocol as dxl_codec
+from sim2real.deploy.backends.servo import feetech_protocol as ft_codec
+from sim2real.deploy.backends.servo.control_tables import STS3215, XM430_W350
+from sim2real.robots import load_robot
 
 # On the wall clock against an emulator: run apart from the parallel suite (Makefile), so the
 # suite's own workers do not starve it; it must still hold beside other jobs.
@@ -265,7 +265,7 @@ def test_dynamixel_ping_and_sync_write_read_move_the_plant(arm3_xm430):
             assert reader.addParam(sid)
         assert reader.txRxPacket() == dxl.COMM_SUCCESS
         before = [reader.getData(sid, 132, 4) for sid in ARM3_IDS]
-        # Elbow and wrist (the XM430 shoulder cannot hold arm3 up: robots/arm3_xm430/robot.toml).
+        # Elbow and wrist (the XM430 shoulder cannot hold arm3 up: sim2real/robots/arm3_xm430/robot.toml).
         goal = XM430_W350.rad_to_ticks(0.0, 4096)
         writer = dxl.GroupSyncWrite(port, ph, 116, 4)
         for sid in ARM3_IDS:

@@ -9,17 +9,17 @@ import onnx
 import pytest
 from helpers_policies import target_policy
 
-from deploy.backends.sim.plant import SimBackend
-from deploy.monitors.violations import ViolationMonitor
-from deploy.policy.adversarial import adversarial_model
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.runtime import Runtime
-from deploy.safety.envelope import MotionEnvelope
-from deploy.safety.envelope_kernel import brake_reach
-from deploy.safety.guard import SafetyGuard
-from deploy.smoothing import CommandSmoother
-from deploy.spec.policy_spec import PolicySpec
-from robots import load_robot
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.monitors.violations import ViolationMonitor
+from sim2real.deploy.policy.adversarial import adversarial_model
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import Runtime
+from sim2real.deploy.safety.envelope import MotionEnvelope
+from sim2real.deploy.safety.envelope_kernel import brake_reach
+from sim2real.deploy.safety.guard import SafetyGuard
+from sim2real.deploy.smoothing import CommandSmoother
+from sim2real.deploy.spec.policy_spec import PolicySpec
+from sim2real.robots import load_robot
 
 #: Every shipped arm in every control mode, under both adversarial kinds (with NaN actions,
 #: probability 0.02 per call): before the envelope covered velocity and torque mode, these runs
@@ -146,9 +146,9 @@ def test_pairs_the_joints_between_them_cannot_bring_into_contact_are_proved_apar
     base. A random sample of poses confirms each pair proved apart never touches."""
     import pinocchio as pin
 
-    from deploy.safety.collision import collision_model
-    from deploy.safety.pair_grid import pairs_kept_apart
-    from robots.chain_bounds import collision_pair_weights
+    from sim2real.deploy.safety.collision import collision_model
+    from sim2real.deploy.safety.pair_grid import pairs_kept_apart
+    from sim2real.robots.chain_bounds import collision_pair_weights
 
     geometry = collision_model(so101)
     apart = pairs_kept_apart(so101, geometry, collision_pair_weights(so101))
@@ -197,11 +197,11 @@ def test_a_gripper_opening_and_closing_next_to_its_wrist_is_not_braked(so101):
 def test_workspace_margin_holds_for_every_arm_within_the_link_length_tolerance():
     """arm3 declares its links +-10 % (the soak's range): the envelope's workspace margin at a pose
     is never above the true margin of an arm whose links are drawn within that tolerance (the
-    soak's own scaling, eval.world.dynamics). Before, a 9 % longer arm whipping through the
+    soak's own scaling, sim2real.eval.world.dynamics). Before, a 9 % longer arm whipping through the
     stretched pose left the box on 225 ticks of a 0.1-h soak (seed 101)."""
     import mujoco
 
-    from eval.world.dynamics import Dynamics, randomized_model
+    from sim2real.eval.world.dynamics import Dynamics, randomized_model
 
     arm3 = load_robot("arm3")
     assert arm3.config.safety.link_length_tolerance == pytest.approx(0.10)

@@ -1,4 +1,4 @@
-"""The motion envelope's pair tables (deploy.safety.pair_grid): a lower bound of a pair's distance
+"""The motion envelope's pair tables (sim2real.deploy.safety.pair_grid): a lower bound of a pair's distance
 over any box of the joints that move it, never above the true least distance there, looked up the
 same by the compiled screen and the numpy reference; SO-101's pan sweeping past its base is no
 longer braked, and a command that drives its upper arm into the base's margin still is."""
@@ -12,14 +12,14 @@ import pinocchio as pin
 import pytest
 from helpers_policies import target_policy
 
-from deploy.backends.sim.plant import SimBackend
-from deploy.runtime import Runtime
-from deploy.safety import envelope_kernel as ek
-from deploy.safety.collision import collision_model
-from deploy.safety.guard import SafetyGuard
-from deploy.safety.pair_grid import PairTables, pair_grids, table_bound
-from robots import load_robot
-from robots.chain_bounds import collision_pair_weights
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.runtime import Runtime
+from sim2real.deploy.safety import envelope_kernel as ek
+from sim2real.deploy.safety.collision import collision_model
+from sim2real.deploy.safety.guard import SafetyGuard
+from sim2real.deploy.safety.pair_grid import PairTables, pair_grids, table_bound
+from sim2real.robots import load_robot
+from sim2real.robots.chain_bounds import collision_pair_weights
 
 
 def _tabled(robot):

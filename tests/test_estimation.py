@@ -5,12 +5,12 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from deploy.backends.sim.plant import SimBackend
-from deploy.core.backend import SensorFrame
-from deploy.core.state import RobotState
-from deploy.estimation.joints import JointStateEstimator
-from deploy.estimation.reference import ReferenceJointStateEstimator
-from robots import load_robot
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.core.backend import SensorFrame
+from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.estimation.joints import JointStateEstimator
+from sim2real.deploy.estimation.reference import ReferenceJointStateEstimator
+from sim2real.robots import load_robot
 
 #: the compiled estimator and its filterpy reference
 ESTIMATORS = pytest.mark.parametrize(
@@ -389,7 +389,7 @@ def test_a_fine_encoder_at_a_slow_rate_gives_a_velocity_that_does_not_oscillate(
 
 
 def test_a_run_warns_about_joints_the_filter_keeps_reinitializing():
-    from deploy.estimation.joints import REINIT_WARNING_RATE, reinit_warning
+    from sim2real.deploy.estimation.joints import REINIT_WARNING_RATE, reinit_warning
 
     names = ("hip", "knee")
     seconds = 20.0

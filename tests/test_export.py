@@ -25,22 +25,22 @@ from helpers_policies import (
 )
 from torch import nn
 
-from deploy import export as export_module
-from deploy.cli import policy_export as export_cli
-from deploy.cli.policy_export import main
-from deploy.export import ExportError, ParityError, export_policy, run_export
-from deploy.policy.mlp_checkpoint import (
+from sim2real.deploy import export as export_module
+from sim2real.deploy.cli import policy_export as export_cli
+from sim2real.deploy.cli.policy_export import main
+from sim2real.deploy.export import ExportError, ParityError, export_policy, run_export
+from sim2real.deploy.policy.mlp_checkpoint import (
     FORMAT,
     MLPActor,
     load_checkpoint,
     read_checkpoint,
     save_checkpoint,
 )
-from deploy.policy.obs_normalizer import ObservationNormalizer
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.policy.onnx_spec import spec_differences
-from deploy.policy.torch_file import CheckpointError
-from deploy.spec.policy_spec import PolicySpec
+from sim2real.deploy.policy.obs_normalizer import ObservationNormalizer
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.policy.onnx_spec import spec_differences
+from sim2real.deploy.policy.torch_file import CheckpointError
+from sim2real.deploy.spec.policy_spec import PolicySpec
 
 REPO = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:FutureWarning")
@@ -505,9 +505,9 @@ def test_bad_input_exits_2_naming_the_file_and_writes_nothing(tmp_path, spec, ca
 def test_command_line_as_make_export_runs_it(tmp_path, spec, normalizer):
     src = save_checkpoint(tmp_path / "arm.pt", make_actor(), spec, normalizer)
     env = {**os.environ, "ORT_DISABLE_TELEMETRY": "1"}
-    # `make export POLICY=...` runs `policy-export $(POLICY)`, i.e. deploy.cli.policy_export.main
+    # `make export POLICY=...` runs `policy-export $(POLICY)`, i.e. sim2real.deploy.cli.policy_export.main
     proc = subprocess.run(
-        [sys.executable, "-m", "deploy.cli.policy_export", str(src)],
+        [sys.executable, "-m", "sim2real.deploy.cli.policy_export", str(src)],
         cwd=REPO,
         env=env,
         capture_output=True,

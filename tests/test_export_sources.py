@@ -20,11 +20,11 @@ import pytest
 import torch
 from torch import nn
 
-from deploy.cli.policy_export import main as export_main
-from deploy.export import ExportError, run_export
-from deploy.export.errors import InspectError
-from deploy.export.inspect_policy import inspect_file
-from deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.cli.policy_export import main as export_main
+from sim2real.deploy.export import ExportError, run_export
+from sim2real.deploy.export.errors import InspectError
+from sim2real.deploy.export.inspect_policy import inspect_file
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from tests import helpers_policies as helpers
 from tests.helpers_policies import (
     PlainNet,
@@ -354,7 +354,7 @@ def test_state_output_that_ignores_the_batch_axis_exits_3(arm3, tmp_path, capsys
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 
-    from deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
 
     spec = make_spec(arm3)
     consts = [

@@ -3,13 +3,18 @@
 import numpy as np
 import pytest
 
-from deploy.backends.sim.plant import SimBackend
-from deploy.core.modes import NAN_ACTION_LIMIT
-from eval.world.dynamics import randomized_model
-from eval.world.fault_schedule import FaultRanges, cable_budget, sample_fault_schedule, stale_budget
-from eval.world.sensors import SensorDraw
-from eval.world.session_draw import sample_session, session_rng
-from robots.chain_bounds import end_effector_lever, motion_bounds
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.core.modes import NAN_ACTION_LIMIT
+from sim2real.eval.world.dynamics import randomized_model
+from sim2real.eval.world.fault_schedule import (
+    FaultRanges,
+    cable_budget,
+    sample_fault_schedule,
+    stale_budget,
+)
+from sim2real.eval.world.sensors import SensorDraw
+from sim2real.eval.world.session_draw import sample_session, session_rng
+from sim2real.robots.chain_bounds import end_effector_lever, motion_bounds
 
 HOURS8 = 8 * 3600.0
 
@@ -128,7 +133,7 @@ def test_bad_ranges_name_the_field(make, field):
 
 
 def cable_budget_of_negative_duration():
-    from robots import load_robot
+    from sim2real.robots import load_robot
 
     return cable_budget(load_robot("arm3"), np.array([-1.0]))
 
@@ -136,8 +141,8 @@ def cable_budget_of_negative_duration():
 def test_soak_pushes_are_sized_by_the_robots_soak_table():
     """so101's [soak] push_force (its drives' instant reserve at the tip) replaces the default
     range made for arm3; arm3 keeps the default."""
-    from eval.world.fault_schedule import cable_budget, fault_ranges
-    from robots import load_robot
+    from sim2real.eval.world.fault_schedule import cable_budget, fault_ranges
+    from sim2real.robots import load_robot
 
     so101, arm3 = load_robot("so101"), load_robot("arm3")
     assert fault_ranges(arm3) == FaultRanges()

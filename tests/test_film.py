@@ -1,4 +1,4 @@
-"""The soak's film strip (eval.film.strip, eval.film.render): moments, replay from checkpoints, clips in
+"""The soak's film strip (sim2real.eval.film.strip, sim2real.eval.film.render): moments, replay from checkpoints, clips in
 report.html, and the clip playing in a real headless browser (Chromium through Selenium)."""
 
 import json
@@ -12,19 +12,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.film.strip import (
+from sim2real.eval.film.strip import (
     FilmRecorder,
     longest_missed_run,
     plan_clips,
     retain_dir,
     select_moments,
 )
-from eval.report.build import build_report, write_reports
-from eval.report.schema import Thresholds
-from eval.soak.campaign import run_campaign
-from eval.soak.session import SessionConfig
-from eval.world.fault_schedule import FaultRanges
-from eval.world.session_ranges import SessionRanges
+from sim2real.eval.report.build import build_report, write_reports
+from sim2real.eval.report.schema import Thresholds
+from sim2real.eval.soak.campaign import run_campaign
+from sim2real.eval.soak.session import SessionConfig
+from sim2real.eval.world.fault_schedule import FaultRanges
+from sim2real.eval.world.session_ranges import SessionRanges
 from tests.runtime_fixtures import adversarial_onnx
 
 #: Pushes far beyond what the drives hold: the adversarial policy's arm is thrown past a hard
@@ -98,7 +98,7 @@ def filmed(tmp_path_factory, arm3):
     checkpointed every 15 s; its film rendered small (240x180, 10 fps, 2 clips)."""
     if not egl_works():
         pytest.skip("no EGL OpenGL context here (MUJOCO_GL=egl): the film cannot be rendered")
-    from eval.film.render import film_campaign
+    from sim2real.eval.film.render import film_campaign
 
     tmp = tmp_path_factory.mktemp("film")
     policy = adversarial_onnx(tmp, arm3, "velocity")
@@ -183,7 +183,7 @@ def test_a_deterministic_policy_replays_exactly_from_a_kept_checkpoint(tmp_path,
     first kept checkpoint start from it, and reproduce the run bit for bit."""
     if not egl_works():
         pytest.skip("no EGL OpenGL context here (MUJOCO_GL=egl): the film cannot be rendered")
-    from eval.film.render import film_campaign
+    from sim2real.eval.film.render import film_campaign
     from tests.test_soak import tiny_policy
 
     faults = FaultRanges(
@@ -266,7 +266,7 @@ def test_the_clip_loads_and_plays_in_headless_chromium(filmed):
 
 
 def test_no_film_keeps_no_checkpoints_and_renders_nothing(tmp_path, arm3):
-    from eval import cli
+    from sim2real.eval import cli
 
     policy = adversarial_onnx(tmp_path, arm3, "velocity")
     out = tmp_path / "soak"

@@ -29,15 +29,19 @@ def _floor_rooms() -> set[str]:
 
 
 def room_of(module: str) -> str:
-    """The room of a dotted module name: ``deploy.<room>`` and ``eval.<room>`` (a subpackage or
-    a top-level module), ``robots`` and ``policies`` whole (their floor is one room each)."""
+    """The room of a dotted module name, named as the floors name it (inside ``sim2real``):
+    ``deploy.<room>`` and ``eval.<room>`` (a subpackage or a top-level module), ``robots`` and
+    ``policies`` whole (their floor is one room each)."""
     parts = module.split(".")
+    if parts[0] == "sim2real":
+        parts = parts[1:] or ["sim2real"]
     if parts[0] in ("robots", "policies") or len(parts) == 1:
         return parts[0]
     return ".".join(parts[:2])
 
 
 def _modules(folder: str) -> list[tuple[str, Path]]:
+    """(dotted name, path) of every module under ``folder`` (relative to the repository root)."""
     out = []
     for path in sorted((ROOT / folder).rglob("*.py")):
         rel = path.relative_to(ROOT).with_suffix("")
@@ -51,8 +55,8 @@ def test_every_room_of_deploy_and_eval_stands_on_a_floor():
     rooms = {
         room_of(name)
         for pkg in ("deploy", "eval")
-        for name, _ in _modules(pkg)
-        if "." in name and not name.endswith("__main__")
+        for name, _ in _modules(f"sim2real/{pkg}")
+        if name.count(".") > 1 and not name.endswith("__main__")
     }
     assert rooms - floors == set(), "rooms missing from [tool.importlinter] floors in pyproject"
     assert {"robots", "policies"} <= floors
@@ -60,23 +64,23 @@ def test_every_room_of_deploy_and_eval_stands_on_a_floor():
 
 
 def test_room_of_names_the_room():
-    assert room_of("deploy.safety.guard") == "deploy.safety"
-    assert room_of("deploy.robot_kind") == "deploy.robot_kind"
-    assert room_of("eval.world.pushes") == "eval.world"
-    assert room_of("robots.importer.mjcf") == "robots"
+    assert room_of("sim2real.deploy.safety.guard") == "deploy.safety"
+    assert room_of("sim2real.deploy.robot_kind") == "deploy.robot_kind"
+    assert room_of("sim2real.eval.world.pushes") == "eval.world"
+    assert room_of("sim2real.robots.importer.mjcf") == "robots"
 
 
 def test_no_private_name_is_imported_from_another_room():
     crossing = []
-    for folder in (*PACKAGES, "tests", "bench"):
+    for folder in (*(f"sim2real/{pkg}" for pkg in PACKAGES), "tests", "bench"):
         for name, path in _modules(folder):
             if "tests/data" in path.as_posix():
                 continue
-            here = room_of(name) if folder in PACKAGES else folder
+            here = room_of(name) if folder.startswith("sim2real/") else folder
             for node in ast.walk(ast.parse(path.read_text())):
                 if not (isinstance(node, ast.ImportFrom) and node.module and node.level == 0):
                     continue
-                if node.module.split(".")[0] not in PACKAGES or room_of(node.module) == here:
+                if node.module.split(".")[0] != "sim2real" or room_of(node.module) == here:
                     continue
                 crossing += [
                     f"{path.relative_to(ROOT)}: {node.module}.{a.name}"
@@ -97,13 +101,14 @@ def test_the_floors_hold_and_a_room_importing_upwards_breaks_them(tmp_path):
     exe = shutil.which("lint-imports") or str(Path(sys.executable).parent / "lint-imports")
     ok = subprocess.run([exe], cwd=ROOT, capture_output=True, text=True)
     assert ok.returncode == 0, ok.stdout[-2000:]
-    for pkg in PACKAGES:
-        shutil.copytree(ROOT / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(
+        ROOT / "sim2real", tmp_path / "sim2real", ignore=shutil.ignore_patterns("__pycache__")
+    )
     shutil.copy(ROOT / "pyproject.toml", tmp_path)
-    core = tmp_path / "deploy" / "core" / "modes.py"
+    core = tmp_path / "sim2real" / "deploy" / "core" / "modes.py"
     core.write_text(
-        core.read_text() + "\n\ndef _up():\n    from deploy.runtime import loop  # noqa\n"
+        core.read_text() + "\n\ndef _up():\n    from sim2real.deploy.runtime import loop  # noqa\n"
     )
     broken = subprocess.run([exe], cwd=tmp_path, capture_output=True, text=True)
     assert broken.returncode != 0
-    assert "deploy.core.modes -> deploy.runtime.loop" in broken.stdout
+    assert "sim2real.deploy.core.modes -> sim2real.deploy.runtime.loop" in broken.stdout

@@ -14,14 +14,14 @@ import json
 import numpy as np
 import pytest
 
-from deploy.cli.deploy_run import deploy_run_main
-from deploy.cli.policy_contract import check_drive_applied
-from deploy.cli.policy_export import main as policy_export_main
-from deploy.core.state import RobotState
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.spec.drive import drive_robot
-from deploy.spec.onnx_checks import PolicyLoadError
-from deploy.spec.policy_spec import UNCLIPPED, PolicySpec
+from sim2real.deploy.cli.deploy_run import deploy_run_main
+from sim2real.deploy.cli.policy_contract import check_drive_applied
+from sim2real.deploy.cli.policy_export import main as policy_export_main
+from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.spec.drive import drive_robot
+from sim2real.deploy.spec.onnx_checks import PolicyLoadError
+from sim2real.deploy.spec.policy_spec import UNCLIPPED, PolicySpec
 from tests import foreign_stacks as fs
 
 OBS_DIM = 48
@@ -293,7 +293,7 @@ def test_a_spec_with_drive_components_and_output_order_round_trips_through_json(
 def test_unitree_deploy_yaml_beside_the_policy_is_its_contract(go2, tmp_path, capsys):
     """unitree_rl_lab / unitree_rl_mjlab ship ``exported/policy.onnx`` (+ ``policy.onnx.data``)
     and ``params/deploy.yaml``: deploy-run reads the yaml with no --spec. ``joint_ids_map`` gives
-    each policy joint's motor slot (robots/go2 ``[unitree] motor_index``), so the policy's joint
+    each policy joint's motor slot (sim2real/robots/go2 ``[unitree] motor_index``), so the policy's joint
     order here is Unitree's motor order (FR, FL, RR, RL); the observation is what their C++
     deployment computes (``joint_pos[i] - default_joint_pos[i]``, clip then scale) and the target
     ``raw * scale + offset``. A per-joint clip of the targets is refused in one line."""
@@ -339,9 +339,9 @@ def test_robot_import_takes_the_drive_from_the_policys_contract(tmp_path, capsys
     slots are its description's joint order), so the PD-target limits are the policy's; a
     ``--kp`` after it wins; a different --control-rate or a policy for other joints is refused in
     one line."""
-    from deploy.cli.robot_import import main
-    from robots import load_robot
-    from robots.importer.pipeline import EXIT_REFUSED
+    from sim2real.deploy.cli.robot_import import main
+    from sim2real.robots import load_robot
+    from sim2real.robots.importer.pipeline import EXIT_REFUSED
     from tests.test_import_humanoid import MOTORS, write_humanoid
 
     source = write_humanoid(tmp_path)

@@ -34,9 +34,9 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 from torch import nn
 
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.spec.onnx_checks import PolicyLoadError
-from deploy.spec.policy_spec import PolicySpec
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.spec.onnx_checks import PolicyLoadError
+from sim2real.deploy.spec.policy_spec import PolicySpec
 from tests.helpers_policies import (
     assert_ran,
     deploy_run,
@@ -157,7 +157,7 @@ def test_godot_layout_matches_sb3_over_500_steps_and_the_spec_clips_the_mean(god
     np.testing.assert_allclose(got, mean, rtol=0, atol=1e-5)  # the unclipped mean
     assert np.abs(got).max() > 1.5  # ... really beyond the action space
     # the runtime's mapping clips per the spec: SB3's own (clipped) action times 3.14 rad/s
-    from deploy.core.state import RobotState
+    from sim2real.deploy.core.state import RobotState
 
     state = RobotState.zeros(1, 3, 25.0)
     target = np.stack([spec.action_to_target(a, state) for a in got])
@@ -391,7 +391,7 @@ def test_a_model_judged_by_its_answers_over_the_specs_range(arm3, tmp_path):
 
 def test_the_godot_example_spec_is_the_seeds_observation(arm3):
     """angles / pi, end effector / 0.85 m, goal / 0.85 m (the Godot arm's ARM_REACH)."""
-    from deploy.core.state import Kinematics, RobotState
+    from sim2real.deploy.core.state import Kinematics, RobotState
 
     spec = PolicySpec.from_json(GODOT_SPEC.read_text())
     state = RobotState.zeros(1, 3, 25.0)
@@ -409,8 +409,8 @@ def test_a_spec_file_that_omits_every_optional_key_changes_nothing_the_policy_do
     schema's defaults, stated nowhere: a humanoid whose targets go past 1 fell), the scales are
     1 and the offsets 0, so the policy sees the raw quantity and its output reaches the target
     unchanged."""
-    from deploy.core.state import RobotState
-    from deploy.spec.policy_spec import UNCLIPPED
+    from sim2real.deploy.core.state import RobotState
+    from sim2real.deploy.spec.policy_spec import UNCLIPPED
 
     doc = {
         "format_version": 1,

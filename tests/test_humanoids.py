@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from deploy.cli.deploy_run import deploy_run_main
+from sim2real.deploy.cli.deploy_run import deploy_run_main
 
 DATA = Path(__file__).parent / "data" / "unitree_rl_gym"
 
@@ -24,7 +24,7 @@ def test_published_humanoid_walks_without_a_fall_or_a_safe_stop(robot, tmp_path)
     report = tmp_path / "run.json"
     deploy_run_main(
         [
-            "--robot", f"robots/{robot}",
+            "--robot", f"sim2real/robots/{robot}",
             "--policy", str(DATA / robot / f"{robot}.onnx"),
             "--command", "0.5,0,0",
             "--duration", "8",
@@ -49,10 +49,10 @@ def test_a_humanoids_legs_predicted_to_touch_are_not_held(reference):
     arm's is held: tests/test_safety.py); the violation monitor counts true contacts."""
     import numpy as np
 
-    from deploy.core.state import RobotState
-    from deploy.safety.guard import SafetyGuard
-    from deploy.safety.reference import ReferenceGuard
-    from robots import load_robot
+    from sim2real.deploy.core.state import RobotState
+    from sim2real.deploy.safety.guard import SafetyGuard
+    from sim2real.deploy.safety.reference import ReferenceGuard
+    from sim2real.robots import load_robot
 
     h1 = load_robot("h1")
     guard = (ReferenceGuard if reference else SafetyGuard)(h1, 1, "position")
@@ -75,11 +75,11 @@ def test_the_published_h1_walks_through_half_metre_per_second_pushes(push_seed):
     40 s without a fall, as in unitree_rl_gym's own loop (deploy_mujoco.py, no guard). With the
     guard holding every joint where the legs were predicted to touch, seed 4 fell at 21.7 s."""
 
-    from deploy.backends.sim.plant import SimBackend
-    from deploy.policy.onnx_policy import OnnxPolicy
-    from deploy.runtime import RUNNING, Runtime
-    from eval.world.pushes import push_velocity
-    from robots import load_robot
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.runtime import RUNNING, Runtime
+    from sim2real.eval.world.pushes import push_velocity
+    from sim2real.robots import load_robot
 
     h1 = load_robot("h1")
     policy = OnnxPolicy(DATA / "h1" / "h1.onnx", h1)
@@ -107,13 +107,13 @@ def test_the_soak_tells_a_stop_on_a_falling_robot_from_a_stop_that_felled_it(tmp
     the session: with the stop left on it stops on the same tick, the estimate as far past.
     (Seed 3 was the second case until the plant's motors followed their torque-speed line; its
     robot now falls in the replay too.)"""
-    import deploy.safety.limits as limits
-    from eval.soak.batch import SessionBatch
-    from eval.soak.falls import attribute_falls
-    from eval.soak.session import SessionConfig
-    from eval.world.domain import training_domain
-    from eval.world.ranges_file import load_ranges_text
-    from robots import load_robot
+    import sim2real.deploy.safety.limits as limits
+    from sim2real.eval.soak.batch import SessionBatch
+    from sim2real.eval.soak.falls import attribute_falls
+    from sim2real.eval.soak.session import SessionConfig
+    from sim2real.eval.world.domain import training_domain
+    from sim2real.eval.world.ranges_file import load_ranges_text
+    from sim2real.robots import load_robot
 
     monkeypatch.setattr(limits, "LEGGED_HARD_LIMIT_TOLERANCE", 0.0)  # read when a guard is built
     policy = "tests/data/unitree_rl_gym/h1_2/h1_2.onnx"
@@ -151,11 +151,11 @@ def test_a_humanoid_session_is_the_same_alone_and_batched_with_one_that_stands_u
     drew the IMU's turn-on bias and a forced reading from every env's noise stream before."""
     import numpy as np
 
-    from eval.soak.batch import SessionBatch
-    from eval.soak.session import SessionConfig
-    from eval.world.domain import training_domain
-    from eval.world.ranges_file import load_ranges_text
-    from robots import load_robot
+    from sim2real.eval.soak.batch import SessionBatch
+    from sim2real.eval.soak.session import SessionConfig
+    from sim2real.eval.world.domain import training_domain
+    from sim2real.eval.world.ranges_file import load_ranges_text
+    from sim2real.robots import load_robot
 
     policy = "tests/data/unitree_rl_gym/h1_2/h1_2.onnx"
     ranges = load_ranges_text(training_domain(policy), policy, load_robot("h1_2"), None)

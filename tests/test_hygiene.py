@@ -25,11 +25,12 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
-from robots.errors import Sim2RealError
-from robots.files import atomic_path, atomic_write, sha256_file
+from sim2real.robots.errors import Sim2RealError
+from sim2real.robots.files import atomic_path, atomic_write, sha256_file
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("deploy", "eval", "robots", "policies")
+#: the rooms, as folders of the one package
+PACKAGES = ("sim2real/deploy", "sim2real/eval", "sim2real/robots", "sim2real/policies")
 
 
 def _sources(*folders: str) -> list[Path]:
@@ -93,8 +94,8 @@ def test_sha256_file_is_the_digest_of_the_whole_file(tmp_path):
 
 
 def test_one_atomic_write_and_one_sha256_file_in_the_codebase():
-    """Durable writes and file digests live in robots/files.py only (no copies to drift)."""
-    home = ROOT / "robots" / "files.py"
+    """Durable writes and file digests live in sim2real/robots/files.py only (no copies to drift)."""
+    home = ROOT / "sim2real" / "robots" / "files.py"
     copies = []
     for path in _sources(*PACKAGES, "bench"):
         if path == home:
@@ -108,13 +109,13 @@ def test_one_atomic_write_and_one_sha256_file_in_the_codebase():
             copies += [
                 f"{path.relative_to(ROOT)}: {m.group(0)}" for m in re.finditer(pattern, text)
             ]
-    assert not copies, "use robots.files instead:\n" + "\n".join(copies)
+    assert not copies, "use sim2real.robots.files instead:\n" + "\n".join(copies)
 
 
 # ====================================================================== exceptions
 def _toolkit_exceptions() -> list[type[BaseException]]:
     found = []
-    for pkg in PACKAGES:
+    for pkg in (f.replace("/", ".") for f in PACKAGES):
         module = importlib.import_module(pkg)
         names = [pkg] + [m.name for m in pkgutil.walk_packages(module.__path__, pkg + ".")]
         for name in names:
@@ -136,7 +137,7 @@ def test_every_toolkit_exception_derives_from_the_base_and_keeps_its_builtin_bas
     names = {c.__name__ for c in found}
     assert {"SpecError", "PolicyLoadError", "RobotSpecError", "ServoBusError", "FilmError"} <= names
     wrong = [f"{c.__module__}.{c.__name__}" for c in found if not issubclass(c, Sim2RealError)]
-    assert not wrong, f"derive these from robots.errors.Sim2RealError: {wrong}"
+    assert not wrong, f"derive these from sim2real.robots.errors.Sim2RealError: {wrong}"
     builtin = [
         f"{c.__module__}.{c.__name__}"
         for c in found
@@ -150,21 +151,21 @@ def test_every_toolkit_exception_derives_from_the_base_and_keeps_its_builtin_bas
 
 @pytest.fixture(scope="module")
 def arm_onnx(tmp_path_factory) -> Path:
-    """policies/arm.onnx as ``make export`` writes it; exported here from policies/arm.pt in a
+    """policies/arm.onnx as ``make export`` writes it; exported here from sim2real/policies/arm.pt in a
     fresh clone (ONNX files are built, not committed)."""
-    path = ROOT / "policies" / "arm.onnx"
+    path = ROOT / "sim2real" / "policies" / "arm.onnx"
     if path.is_file():
         return path
-    from deploy.export import export_policy
+    from sim2real.deploy.export import export_policy
 
     pt = tmp_path_factory.mktemp("arm") / "arm.pt"
-    pt.write_bytes((ROOT / "policies" / "arm.pt").read_bytes())
+    pt.write_bytes((ROOT / "sim2real" / "policies" / "arm.pt").read_bytes())
     return export_policy(pt)
 
 
 # ====================================================================== error messages
 def test_soak_test_out_below_a_file_names_it_and_exits_3(tmp_path, capsys, arm_onnx):
-    from eval import cli
+    from sim2real.eval import cli
 
     (tmp_path / "notes.txt").write_text("a file")
     out = tmp_path / "notes.txt" / "campaign"
@@ -180,7 +181,7 @@ def test_a_damaged_torch_file_is_refused_in_our_words(tmp_path, capsys):
     our message, never torch's advice to load with weights_only=False."""
     import torch
 
-    from deploy.cli.policy_export import EXIT_BAD_INPUT, main
+    from sim2real.deploy.cli.policy_export import EXIT_BAD_INPUT, main
 
     rng = np.random.default_rng(0)
     (tmp_path / "random.pt").write_bytes(b"\x80\x02" + rng.bytes(4094))
@@ -197,7 +198,7 @@ def test_a_damaged_torch_file_is_refused_in_our_words(tmp_path, capsys):
 def test_a_pickled_object_still_points_to_trust_pickle(tmp_path, capsys):
     import torch
 
-    from deploy.cli.policy_export import EXIT_BAD_INPUT, main
+    from sim2real.deploy.cli.policy_export import EXIT_BAD_INPUT, main
 
     torch.save({"net": torch.nn.Linear(2, 2)}, tmp_path / "module.pt")
     assert main([str(tmp_path / "module.pt")]) == EXIT_BAD_INPUT
@@ -207,9 +208,9 @@ def test_a_pickled_object_still_points_to_trust_pickle(tmp_path, capsys):
 
 
 def test_deploy_run_given_a_torch_file_says_to_export_it(capsys):
-    from deploy.cli.deploy_run import EXIT_BAD_INPUT, deploy_run_main
+    from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, deploy_run_main
 
-    pt = ROOT / "policies" / "arm.pt"
+    pt = ROOT / "sim2real" / "policies" / "arm.pt"
     assert deploy_run_main(["--robot", "arm3", "--policy", str(pt), "--duration", "1"]) == (
         EXIT_BAD_INPUT
     )
@@ -250,7 +251,7 @@ def test_deploy_run_runs_without_torch(tmp_path, arm_onnx):
     argv += ["--report", str(report)]
     code = NO_TRAINING_STACK + textwrap.dedent(
         f"""
-        from deploy.cli.deploy_run import deploy_run_main
+        from sim2real.deploy.cli.deploy_run import deploy_run_main
 
         code = deploy_run_main({argv!r})
         loaded = sorted(m for m in sys.modules if m.partition(".")[0] in BLOCKED)
@@ -298,7 +299,7 @@ def test_no_measured_figures_in_docstrings():
 
 
 #: Every package whose docstrings and comments a reader meets.
-DOC_PACKAGES = (*PACKAGES, "sim2real", "bench")
+DOC_PACKAGES = ("sim2real", "bench")
 
 
 def _docstrings(path: Path) -> list[tuple[str, str]]:
@@ -468,14 +469,14 @@ def test_no_docstring_or_comment_cites_a_document_the_reader_does_not_have():
 REFERENCE_FILES = (
     "README.md",
     "docs/*.md",
-    "robots/*/robot.toml",
-    "robots/motors/*.toml",
-    "eval/world/*.toml",
-    "policies/*.toml",
+    "sim2real/robots/*/robot.toml",
+    "sim2real/robots/motors/*.toml",
+    "sim2real/eval/world/*.toml",
+    "sim2real/policies/*.toml",
     "pyproject.toml",
     "docs/**/*.json",
     "bench/**/*.json",
-    "policies/*.json",
+    "sim2real/policies/*.json",
     "tests/*.py",
 )
 #: A citation of the project's issue tracker by number, or of a section of the seed specification,
@@ -486,7 +487,9 @@ UNAVAILABLE_IN_FILES = re.compile(r"\bissues?\s+\d+|\bseed(?:'s)?\s+sections?\b"
 
 def test_no_document_description_or_test_cites_a_document_the_reader_does_not_have():
     paths = sorted({p for pattern in REFERENCE_FILES for p in ROOT.glob(pattern)})
-    assert ROOT / "README.md" in paths and ROOT / "robots" / "go2" / "robot.toml" in paths
+    assert (
+        ROOT / "README.md" in paths and ROOT / "sim2real" / "robots" / "go2" / "robot.toml" in paths
+    )
     hits = []
     for path in paths:
         text = path.read_text()

@@ -10,11 +10,11 @@ import json
 import numpy as np
 import pytest
 
-from deploy.cli.deploy_run import deploy_run_main
-from deploy.cli.robot_import import main
-from deploy.tasks.goals import sample_goal
-from robots import load_robot
-from robots.importer.pipeline import EXIT_REFUSED, import_robot
+from sim2real.deploy.cli.deploy_run import deploy_run_main
+from sim2real.deploy.cli.robot_import import main
+from sim2real.deploy.tasks.goals import sample_goal
+from sim2real.robots import load_robot
+from sim2real.robots.importer.pipeline import EXIT_REFUSED, import_robot
 from tests.import_fixtures import ERD, require_example_robot_data
 from tests.runtime_fixtures import adversarial_onnx
 

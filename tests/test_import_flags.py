@@ -12,10 +12,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from deploy.cli.robot_import import main
-from robots import load_robot
-from robots.importer.pipeline import EXIT_REFUSED, import_robot
-from robots.loading import MOTORS_DIR
+from sim2real.deploy.cli.robot_import import main
+from sim2real.robots import load_robot
+from sim2real.robots.importer.pipeline import EXIT_REFUSED, import_robot
+from sim2real.robots.loading import MOTORS_DIR
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -10,9 +10,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from robots import load_robot
-from robots.importer import mjcf_geoms
-from robots.importer.pipeline import import_robot
+from sim2real.robots import load_robot
+from sim2real.robots.importer import mjcf_geoms
+from sim2real.robots.importer.pipeline import import_robot
 
 pytest.importorskip("coal")
 
@@ -81,7 +81,7 @@ def _import(source: Path, out: Path, **kwargs):
 def test_collision_meshes_become_their_hulls_and_close_links_stay_checked_and_apart(
     wedges, tmp_path
 ):
-    from deploy.safety.collision import collision_model, collision_query
+    from sim2real.deploy.safety.collision import collision_model, collision_query
 
     robot = _import(wedges, tmp_path / "hull")
     model = robot.mj_model
@@ -128,7 +128,7 @@ def test_hull_links_collide_as_hulls_on_either_engine(wedges, tmp_path, engine):
     wedge b runs into wedge a and stops short of its command; turned the other way it reaches
     it (pybullet builds each hull from the compiled mesh)."""
     pytest.importorskip("pybullet")
-    from deploy.backends.sim.engines import make_plant
+    from sim2real.deploy.backends.sim.engines import make_plant
 
     robot = _import(wedges, tmp_path / "hull")
     reached = {}

@@ -16,10 +16,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from deploy.cli.robot_import import main
-from deploy.smoothing import CommandSmoother
-from robots import load_robot
-from robots.importer.pipeline import EXIT_REFUSED, import_robot
+from sim2real.deploy.cli.robot_import import main
+from sim2real.deploy.smoothing import CommandSmoother
+from sim2real.robots import load_robot
+from sim2real.robots.importer.pipeline import EXIT_REFUSED, import_robot
 
 pytest.importorskip("coal")
 
@@ -243,7 +243,7 @@ def test_each_collision_mesh_is_its_own_hull_in_mujoco_and_the_guard(humanoid):
     apart in a forward stride too."""
     import coal
 
-    from deploy.safety.collision import collision_model, collision_query
+    from sim2real.deploy.safety.collision import collision_model, collision_query
 
     robot, _, _ = humanoid
     model = robot.mj_model
@@ -364,9 +364,9 @@ def test_pd_targets_may_step_as_far_as_the_full_torque_reaches_and_the_estimator
     drive's full torque reaches (effort / kp), as policies trained without a smoother step it; the
     joint estimator stays consistent at those limits (no re-initialization) on a standing run
     with encoder noise."""
-    from deploy.backends.sim.plant import SimBackend
-    from deploy.core.state import RobotState
-    from deploy.estimation.joints import JointStateEstimator, motion_acceleration
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.core.state import RobotState
+    from sim2real.deploy.estimation.joints import JointStateEstimator, motion_acceleration
 
     robot, _, _ = humanoid
     period = robot.control_period

@@ -9,9 +9,9 @@ import re
 import numpy as np
 import pytest
 
-from deploy.backends.sim.plant import SimBackend
-from robots import load_robot
-from robots.importer.pipeline import EXIT_REFUSED
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.robots import load_robot
+from sim2real.robots.importer.pipeline import EXIT_REFUSED
 from tests.import_fixtures import humanoid_with, import_tiny
 
 pytest.importorskip("coal")

@@ -6,10 +6,10 @@ from __future__ import annotations
 import mujoco
 import pytest
 
-from deploy.backends.sim.plant import SimBackend
-from deploy.cli.robot_import import main
-from robots import load_robot
-from robots.importer.pipeline import EXIT_REFUSED
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.cli.robot_import import main
+from sim2real.robots import load_robot
+from sim2real.robots.importer.pipeline import EXIT_REFUSED
 from tests.import_fixtures import humanoid_with, import_tiny
 from tests.test_import_humanoid import FLAGS, write_humanoid
 

@@ -8,8 +8,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from deploy.cli.robot_import import main
-from robots import load_robot
+from sim2real.deploy.cli.robot_import import main
+from sim2real.robots import load_robot
 from tests.test_import_humanoid import FLAGS, write_humanoid
 
 pytest.importorskip("coal")

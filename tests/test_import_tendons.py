@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from deploy.backends.sim.plant import SimBackend
-from robots import load_robot
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.robots import load_robot
 from tests.import_fixtures import humanoid_with, import_tiny
 
 pytest.importorskip("coal")

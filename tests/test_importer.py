@@ -12,12 +12,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from deploy.cli.acceptance import check_adversarial
-from deploy.cli.robot_import import main
-from robots import load_robot
-from robots.importer.pipeline import EXIT_REFUSED, import_robot, resolve_source
-from robots.loading import ROBOTS_DIR
-from robots.packages import package_root
+from sim2real.deploy.cli.acceptance import check_adversarial
+from sim2real.deploy.cli.robot_import import main
+from sim2real.robots import load_robot
+from sim2real.robots.importer.pipeline import EXIT_REFUSED, import_robot, resolve_source
+from sim2real.robots.loading import ROBOTS_DIR
+from sim2real.robots.packages import package_root
 from tests.import_fixtures import ERD, require_example_robot_data
 
 require_example_robot_data("so_arm_description/urdf/so101.urdf")

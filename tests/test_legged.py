@@ -10,14 +10,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from deploy.backends.sim.plant import SimBackend
-from deploy.core.attitude import projected_gravity, quaternion_to_matrix, tilt_of
-from deploy.core.state import RobotState
-from deploy.estimation.base import BaseStateEstimator
-from deploy.estimation.joints import JointStateEstimator
-from deploy.estimation.reference import ReferenceBaseStateEstimator
-from robots import RobotSpecError, load_robot
-from robots.loading import ROBOTS_DIR
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.core.attitude import projected_gravity, quaternion_to_matrix, tilt_of
+from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.estimation.base import BaseStateEstimator
+from sim2real.deploy.estimation.joints import JointStateEstimator
+from sim2real.deploy.estimation.reference import ReferenceBaseStateEstimator
+from sim2real.robots import RobotSpecError, load_robot
+from sim2real.robots.loading import ROBOTS_DIR
 
 #: Gains that hold go2 standing without a policy: Unitree's unitree_sdk2
 #: example/go2/go2_stand_example.cpp (kp 60, kd 5). The robot's own kp 20 / kd 0.5 (the walking
@@ -96,7 +96,7 @@ def test_go2_loads_with_a_free_flyer_base_and_feet_that_agree_with_mujoco(go2):
 def test_the_agreement_check_covers_the_feet_and_the_base(go2, edit, what):
     """A MuJoCo model that differs from Pinocchio's in one leg (a calf's mass, a foot site) is
     caught at random base poses: the check the loader runs on every floating-base robot."""
-    from robots.crosscheck import check_agreement
+    from sim2real.robots.crosscheck import check_agreement
 
     spec = mujoco.MjSpec.from_file(str(go2.mjcf_path))
     edit(spec)
@@ -156,7 +156,7 @@ def test_the_imus_own_attitude_and_the_drives_velocity_have_their_configured_err
     attitude by roll and pitch errors of that spread and correlation time (a Gauss-Markov
     process: its 1 s autocorrelation exp(-1 / tau)), never in yaw; the drives' joint velocity
     reading errs by white noise of ``velocity_noise_sigma``. An arm's frame has neither."""
-    from deploy.core.attitude import quat_multiply
+    from sim2real.deploy.core.attitude import quat_multiply
 
     envs = 4
     plant = stand_plant(go2, envs=envs, seed=12)
@@ -209,8 +209,8 @@ def test_foot_contacts_on_the_floor_and_in_the_air(go2):
 
 
 def test_imu_settings_are_randomized_per_session(go2):
-    from eval.world.sensors import ImuRanges, apply_imu, sample_imu
-    from eval.world.session_draw import session_rng
+    from sim2real.eval.world.sensors import ImuRanges, apply_imu, sample_imu
+    from sim2real.eval.world.session_draw import session_rng
 
     plant = stand_plant(go2, envs=2)
     draws = [sample_imu(go2, session_rng(s, "imu")) for s in (1, 2)]
@@ -348,7 +348,7 @@ def test_a_steady_turn_at_speed_is_not_taken_for_a_tilt(go2, estimator):
     specific force ``omega x v`` of 0.5 m/s^2. Taken for gravity it puts the roll estimate
     0.05 rad off, and the gyro bias estimate with it (a turning walk threw a G1's policy); the
     estimator takes the term off and stays upright. Readings exact, no foot contact."""
-    from deploy.core.backend import SensorFrame
+    from sim2real.deploy.core.backend import SensorFrame
 
     base = estimator(go2, 1)
     imu_to_base = quaternion_to_matrix(go2.mj_model.site_quat[go2.imu_site_id])

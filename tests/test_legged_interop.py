@@ -21,12 +21,12 @@ import pytest
 import torch
 from torch import nn
 
-from deploy import export as export_mod
-from deploy.backends.sim.plant import SimBackend
-from deploy.cli import deploy_run as cli
-from deploy.cli import policy_export
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.runtime import Mode, Runtime
+from sim2real.deploy import export as export_mod
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.cli import deploy_run as cli
+from sim2real.deploy.cli import policy_export
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import Mode, Runtime
 
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:FutureWarning")
 

@@ -11,12 +11,12 @@ import onnx
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
-from deploy.backends.sim.plant import SimBackend
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.runtime import FAULT_CAUSES, Mode, Runtime
-from deploy.runtime.reference import ReferenceRuntime
-from deploy.spec.policy_spec import LEGGED_DEFAULT_BLOCKS, PolicySpec, SpecError
-from robots import load_robot
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import FAULT_CAUSES, Mode, Runtime
+from sim2real.deploy.runtime.reference import ReferenceRuntime
+from sim2real.deploy.spec.policy_spec import LEGGED_DEFAULT_BLOCKS, PolicySpec, SpecError
+from sim2real.robots import load_robot
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -129,7 +129,7 @@ def test_a_low_base_trips_the_fall_check_only_when_it_stays_low(go2, stand_polic
     shipped Go2 was stopped as fallen, walking, by one such tick); the count is state."""
     from copy import deepcopy
 
-    from deploy.estimation.fall import FALL_HEIGHT_TIME
+    from sim2real.deploy.estimation.fall import FALL_HEIGHT_TIME
 
     rt, _ = runtime(go2, stand_policy)
     rt.run(50)  # standing: every foot in contact
@@ -164,7 +164,7 @@ def test_a_base_sinking_upright_trips_the_fall_check_with_its_feet_still_under_i
     five ticks in a row trip the check, four do not; a walking base's bob never does."""
     from copy import deepcopy
 
-    from deploy.estimation.fall import FALL_SPEED
+    from sim2real.deploy.estimation.fall import FALL_SPEED
 
     rt, _ = runtime(go2, stand_policy)
     rt.run(50)
@@ -201,23 +201,23 @@ def test_base_estimate_and_gait_clock_survive_state_dict(go2, stand_policy):
 
 
 def test_shipped_go2_walks_at_the_commanded_speed_through_the_runtime(tmp_path):
-    """policies/go2.pt (PPO residual on the trot generator, policies.train_legged) through
+    """sim2real/policies/go2.pt (PPO residual on the trot generator, sim2real.policies.train_legged) through
     deploy-run with sensor noise: forward at >= 0.35 m/s for a 0.5 m/s command, no fall, no hard
     violation; the committed checkpoint has the recipe's spec and architecture, and its curve
     names the command that trained it."""
     import json
 
-    from deploy.cli.deploy_run import deploy_run_main
-    from deploy.export import export_policy
-    from deploy.policy.mlp_checkpoint import read_checkpoint
-    from policies.gait import make_policy
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.export import export_policy
+    from sim2real.deploy.policy.mlp_checkpoint import read_checkpoint
+    from sim2real.policies.gait import make_policy
 
-    shipped = read_checkpoint(REPO / "policies" / "go2.pt")
+    shipped = read_checkpoint(REPO / "sim2real" / "policies" / "go2.pt")
     actor, spec = make_policy()
     assert shipped.spec == spec and shipped.actor.architecture == actor.architecture
-    curve = json.loads((REPO / "policies" / "go2.curve.json").read_text())
-    assert curve["command"].startswith("python -m policies.train_legged")
-    onnx_path = export_policy(REPO / "policies" / "go2.pt", out=tmp_path / "go2.onnx")
+    curve = json.loads((REPO / "sim2real" / "policies" / "go2.curve.json").read_text())
+    assert curve["command"].startswith("python -m sim2real.policies.train_legged")
+    onnx_path = export_policy(REPO / "sim2real" / "policies" / "go2.pt", out=tmp_path / "go2.onnx")
     report = tmp_path / "run.json"
     code = deploy_run_main(
         ["--robot", "go2", "--policy", str(onnx_path), "--command", "0.5,0,0"]
@@ -245,8 +245,8 @@ def test_a_true_fall_the_runtime_did_not_see_is_counted_once_until_the_robot_is_
     an estimate equal to the truth has no attitude error and no velocity bias."""
     from types import SimpleNamespace
 
-    from deploy.core.state import BaseState
-    from deploy.monitors.estimation import EstimationMonitor
+    from sim2real.deploy.core.state import BaseState
+    from sim2real.deploy.monitors.estimation import EstimationMonitor
 
     monitor = EstimationMonitor(go2, 1)
     stand = go2.config.base.standing_height
@@ -278,14 +278,14 @@ def test_a_legged_target_past_a_hard_limit_is_clamped_and_an_estimate_stops_only
     long it was past by less before. Held past it longer than ``LEGGED_HARD_LIMIT_DURATION``
     (1 s), or more than the tolerance past it for longer than ``LEGGED_HARD_LIMIT_BOUNCE``
     (0.1 s), is."""
-    from deploy.core.state import RobotState
-    from deploy.safety.guard import SafetyGuard
-    from deploy.safety.limits import (
+    from sim2real.deploy.core.state import RobotState
+    from sim2real.deploy.safety.guard import SafetyGuard
+    from sim2real.deploy.safety.limits import (
         LEGGED_HARD_LIMIT_BOUNCE,
         LEGGED_HARD_LIMIT_DURATION,
         LEGGED_HARD_LIMIT_TOLERANCE,
     )
-    from deploy.safety.reference import ReferenceGuard
+    from sim2real.deploy.safety.reference import ReferenceGuard
 
     envs = 3
     guard = (ReferenceGuard if reference else SafetyGuard)(go2, envs, "position")
@@ -386,7 +386,7 @@ def test_every_stop_of_a_walking_robot_counts_as_a_fall_with_its_cause(go2, stan
     """The runtime lays a legged robot down at every stop: a stale-sensor stop leaves the base on
     the ground as a tilt stop does, so both are falls (by cause); a stop during the RAMP_IN of a
     robot still lying is not another fall."""
-    from deploy.tasks.locomotion import CommandTracker
+    from sim2real.deploy.tasks.locomotion import CommandTracker
 
     rt, plant = runtime(go2, stand_policy)
     tracker = CommandTracker(2, go2.control_period, plant)
@@ -411,10 +411,10 @@ def test_every_stop_of_a_walking_robot_counts_as_a_fall_with_its_cause(go2, stan
 
 @pytest.fixture(scope="module")
 def shipped_go2(go2, tmp_path_factory):
-    from deploy.export import export_policy
+    from sim2real.deploy.export import export_policy
 
     out = tmp_path_factory.mktemp("shipped") / "go2.onnx"
-    return OnnxPolicy(export_policy(REPO / "policies" / "go2.pt", out=out), go2)
+    return OnnxPolicy(export_policy(REPO / "sim2real" / "policies" / "go2.pt", out=out), go2)
 
 
 def test_one_tick_latency_bursts_do_not_make_the_shipped_go2_fall(go2, shipped_go2):
@@ -422,8 +422,8 @@ def test_one_tick_latency_bursts_do_not_make_the_shipped_go2_fall(go2, shipped_g
     2 s, every 3 s) while the command changes every 4 s must not make the walking Go2 fall. The
     estimate bridges the late reading at constant velocity: extrapolated with the smoother's
     acceleration (a PD target's, not the joint's), the same policy fell in three of the four."""
-    from deploy.backends.sim.faults import Fault, FaultInjector
-    from deploy.tasks.locomotion import CommandTracker
+    from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
+    from sim2real.deploy.tasks.locomotion import CommandTracker
 
     envs, seconds = 4, 40.0
     rng = np.random.default_rng(0)
@@ -512,10 +512,10 @@ def test_kinematic_contacts_do_not_turn_the_heading(go2, shipped_go2):
     on kinematic contacts, whose errors the filter's gain carried into the heading through its
     cross-covariances, learning a gyro bias about the up axis that was not there: 30 s of a
     straight command read a 121 deg true turn as 88 deg (and unitree_mujoco's Go2 -23 deg for
-    -107). The heading is locked against the corrections (deploy.estimation.base_kernel): the
+    -107). The heading is locked against the corrections (sim2real.deploy.estimation.base_kernel): the
     estimate's yaw is the gyro's, within 10 % + 5 deg of the truth's (the plant's gyro bias of
     seed 0 about the up axis, unobservable, turns it 6 deg)."""
-    from deploy.core.attitude import yaw_of
+    from sim2real.deploy.core.attitude import yaw_of
 
     plant = NoFootSensors(go2, "position", envs=1, seed=0)
     rt = Runtime(go2, shipped_go2, plant)
@@ -539,7 +539,7 @@ def test_the_locked_heading_leaves_the_velocity_estimate_as_good_over_minutes(go
     base, and the Go2's planar velocity error in a soak doubled (0.09 -> 0.21 m/s RMS in half an
     hour, 0.46 over 8 hours). The heading's variance is held at zero: 3 minutes of changing
     commands keep the planar error under 0.1 m/s RMS (0.126 before)."""
-    from deploy.core.state import BaseState
+    from sim2real.deploy.core.state import BaseState
 
     plant = SimBackend(go2, "position", envs=1, seed=0)
     rt = Runtime(go2, shipped_go2, plant)

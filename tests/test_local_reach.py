@@ -1,4 +1,4 @@
-"""The motion envelope's local approach bounds (deploy.safety.local_reach): how far a pair's distance
+"""The motion envelope's local approach bounds (sim2real.deploy.safety.local_reach): how far a pair's distance
 can shrink over a box, from the speeds of its points at one configuration, never more than the
 true distance shrinks there, computed the same by the compiled screen and the numpy reference;
 the shipped SO-101 policy, braked on a few per cent of its ticks by the global chain bound, is
@@ -15,13 +15,13 @@ import pinocchio as pin
 import pytest
 from helpers_policies import target_policy
 
-from deploy.backends.sim.plant import SimBackend
-from deploy.runtime import Runtime
-from deploy.safety import envelope_kernel as ek
-from deploy.safety.collision import collision_model
-from deploy.safety.local_reach import LocalReach, local_reach
-from robots import load_robot
-from robots.chain_bounds import collision_pair_weights
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.runtime import Runtime
+from sim2real.deploy.safety import envelope_kernel as ek
+from sim2real.deploy.safety.collision import collision_model
+from sim2real.deploy.safety.local_reach import LocalReach, local_reach
+from sim2real.robots import load_robot
+from sim2real.robots.chain_bounds import collision_pair_weights
 
 
 def _distances(robot, geometry, q):
@@ -100,14 +100,14 @@ def test_the_compiled_local_reach_equals_the_reference(name):
 
 
 def test_the_shipped_so101_policy_is_braked_on_under_one_percent_of_its_ticks(tmp_path):
-    """policies/so101.pt, exported, through the runtime for a minute: its folded reaches near
+    """sim2real/policies/so101.pt, exported, through the runtime for a minute: its folded reaches near
     the base and shoulder, which the global chain bound braked on a few per cent of the ticks
     (the soak asks under 1 %), are certified; no contact, every goal reached."""
-    from deploy.cli.deploy_run import deploy_run_main
-    from deploy.cli.policy_export import main as export_main
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.cli.policy_export import main as export_main
 
     onnx = tmp_path / "so101.onnx"
-    assert export_main(["policies/so101.pt", "--out", str(onnx)]) == 0
+    assert export_main(["sim2real/policies/so101.pt", "--out", str(onnx)]) == 0
     report = tmp_path / "run.json"
     args = ["--robot", "so101", "--policy", str(onnx), "--duration", "60", "--report", str(report)]
     assert deploy_run_main(args) == 0

@@ -1,4 +1,4 @@
-"""mjlab's velocity-task domain as a ranges file (eval/world/mjlab_velocity_ranges.toml): its
+"""mjlab's velocity-task domain as a ranges file (sim2real/eval/world/mjlab_velocity_ranges.toml): its
 inline tables ``[pushes] velocity``, ``angular_velocity`` and ``[dynamics] com_offset``, their
 one-line errors, a fixed-base robot's encoder bias and centre-of-mass offset, the world twist a
 push adds, and files without the new keys drawing exactly what they drew before them."""
@@ -14,14 +14,21 @@ import mujoco
 import numpy as np
 import pytest
 
-from eval.world.dynamics import DynamicsRanges
-from eval.world.pushes import DomainPushes
-from eval.world.ranges_file import RangesError, load_ranges, load_ranges_text, read_overrides
-from eval.world.session_draw import sample_session
-from eval.world.session_ranges import session_ranges
-from robots import load_robot
+from sim2real.eval.world.dynamics import DynamicsRanges
+from sim2real.eval.world.pushes import DomainPushes
+from sim2real.eval.world.ranges_file import (
+    RangesError,
+    load_ranges,
+    load_ranges_text,
+    read_overrides,
+)
+from sim2real.eval.world.session_draw import sample_session
+from sim2real.eval.world.session_ranges import session_ranges
+from sim2real.robots import load_robot
 
-MJLAB_RANGES = Path(__file__).parents[1] / "eval" / "world" / "mjlab_velocity_ranges.toml"
+MJLAB_RANGES = (
+    Path(__file__).parents[1] / "sim2real" / "eval" / "world" / "mjlab_velocity_ranges.toml"
+)
 
 
 def _rounded(x):
@@ -39,7 +46,7 @@ def _digest(obj) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-#: The active lines of eval/world/example_ranges.toml when the new keys came (an arm's file).
+#: The active lines of sim2real/eval/world/example_ranges.toml when the new keys came (an arm's file).
 EXAMPLE = """
 [dynamics]
 mass = 0.3
@@ -67,7 +74,7 @@ def test_files_without_the_new_keys_draw_exactly_what_they_drew_before():
     """The sessions (dynamics, sensors, drift, faults, IMU, floor, base mass) and legged_gym's
     pushes of files without the new keys equal those of the code before them (commit b4b6e62:
     the digests were computed by it, floats to 10 significant digits)."""
-    from deploy.core.modes import RUNNING
+    from sim2real.deploy.core.modes import RUNNING
 
     drawn = {}
     for label, name, text in [
@@ -105,7 +112,7 @@ def test_files_without_the_new_keys_draw_exactly_what_they_drew_before():
 
 def test_the_mjlab_velocity_file_parses_and_loads_for_a_robot_with_its_body():
     """The shipped file: every key parses; the go2 (no torso_link) refuses it naming the file,
-    the key and its bodies; with a body the robot has (the H1's pelvis here: robots/ ships no
+    the key and its bodies; with a body the robot has (the H1's pelvis here: sim2real/robots/ ships no
     G1) it loads as mjlab's G1 domain, the other ranges the robot kind's defaults."""
     overrides = read_overrides(MJLAB_RANGES)
     assert overrides["com_offset"] == {
@@ -191,7 +198,7 @@ def test_a_bad_value_is_one_line_naming_the_file_key_and_expected_value(text, ke
 def test_a_fixed_base_arm_draws_an_encoder_bias_and_a_com_offset():
     """Neither needs a floating base: the arm's named link's ``body_ipos`` moves by the drawn
     offset (its default body is its base), its encoders read q + bias; pushes stay refused."""
-    from eval.world.dynamics import shift_com
+    from sim2real.eval.world.dynamics import shift_com
 
     arm = load_robot("arm3")
     link = arm.mj_model.body(arm.mj_model.nbody - 1).name
@@ -217,7 +224,7 @@ def test_an_added_push_is_the_world_twist_at_the_base_frame_whatever_its_attitud
     """``push_base(add=True)``: MuJoCo's own velocity of the base frame (mj_objectVelocity, world
     orientation) changes by the twist, linear and angular, at a rolled, pitched, yawed base;
     ``add=False`` sets the horizontal velocity only and refuses the other axes."""
-    from deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.backends.sim.plant import SimBackend
 
     go2 = load_robot("go2")
     plant = SimBackend(go2, envs=1)
@@ -252,9 +259,9 @@ def test_a_go2_soak_in_mjlabs_domain_reports_its_draws_and_resumes_exactly(go2_o
     import shutil
     from dataclasses import replace
 
-    from eval.soak.batch import SessionBatch
-    from eval.soak.campaign import run_campaign
-    from eval.soak.session import session_dir
+    from sim2real.eval.soak.batch import SessionBatch
+    from sim2real.eval.soak.campaign import run_campaign
+    from sim2real.eval.soak.session import session_dir
     from tests.soak_fixtures import kill_after_first_checkpoint, short_session
 
     go2 = load_robot("go2")
@@ -268,7 +275,7 @@ def test_a_go2_soak_in_mjlabs_domain_reports_its_draws_and_resumes_exactly(go2_o
     assert len(drawn["encoder_bias"]) == go2.n_joints and drawn["com_offset"]["body"] == "base"
     assert 0.3 <= drawn["floor_friction"] <= 1.2
     assert whole["locomotion"]["domain_pushes"] >= 5
-    from eval.report.html import randomization_table
+    from sim2real.eval.report.html import randomization_table
 
     table = randomization_table([whole])  # report.html's table
     row = dict(zip(table["header"], table["rows"][0], strict=True))
@@ -289,7 +296,7 @@ def test_a_go2_soak_in_mjlabs_domain_reports_its_draws_and_resumes_exactly(go2_o
 def test_pybullet_takes_the_added_twist_too():
     """The pybullet plant's base gets the same twist: its own base velocity read back (linear at
     the base frame, angular body frame) is the MuJoCo mirror's after ``push_base(add=True)``."""
-    from deploy.backends.sim.bullet.plant import BulletBackend
+    from sim2real.deploy.backends.sim.bullet.plant import BulletBackend
 
     go2 = load_robot("go2")
     plant = BulletBackend(go2)

@@ -1,4 +1,4 @@
-"""The compiled monitors (deploy/monitors/kernel.py) count what their numpy references count.
+"""The compiled monitors (sim2real/deploy/monitors/kernel.py) count what their numpy references count.
 
 Goals, violations, interventions and motor heat are what a soak report is made of: the kernels
 only decide faster whether anything happened on a tick, so every count, record and state must
@@ -13,16 +13,19 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from deploy.backends.sim.faults import Fault, FaultInjector
-from deploy.backends.sim.plant import SimBackend
-from deploy.monitors.interventions import InterventionMonitor
-from deploy.monitors.kernel import temperature_bands
-from deploy.monitors.reference import ReferenceInterventionMonitor, ReferenceViolationMonitor
-from deploy.monitors.violations import ViolationMonitor
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.runtime import Mode, Runtime
-from deploy.tasks.goals import GoalScheduler
-from deploy.tasks.reference import ReferenceGoalScheduler
+from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.monitors.interventions import InterventionMonitor
+from sim2real.deploy.monitors.kernel import temperature_bands
+from sim2real.deploy.monitors.reference import (
+    ReferenceInterventionMonitor,
+    ReferenceViolationMonitor,
+)
+from sim2real.deploy.monitors.violations import ViolationMonitor
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import Mode, Runtime
+from sim2real.deploy.tasks.goals import GoalScheduler
+from sim2real.deploy.tasks.reference import ReferenceGoalScheduler
 from tests.runtime_fixtures import adversarial_onnx
 from tests.test_compiled_tick import SweepingPolicy
 
@@ -187,7 +190,7 @@ def test_self_collision_ticks_are_counted_by_the_pair_that_touched(arm6):
     """Drawn poses anywhere within the hard limits (a fifth of them fold arm6 into itself): every
     self-collision tick is put on the pairs coal finds touching, so the pairs' ticks name what
     collided and add up to at least the self-collision ticks; the reference counts the same."""
-    from deploy.safety.collision import collision_model
+    from sim2real.deploy.safety.collision import collision_model
 
     truth = ScriptedTruth(arm6, envs=2, seed=7)
     monitors = [monitor(arm6, 2) for monitor in (ViolationMonitor, ReferenceViolationMonitor)]

@@ -17,10 +17,10 @@ from helpers_policies import folder, make_spec, write_spec
 from onnx import numpy_helper
 from torch import nn
 
-from deploy.cli.policy_export import main
-from deploy.export import pipeline as export_pipeline
-from deploy.export.noise_floor import NOISE_MULTIPLIER, TOLERANCE, float64_twin
-from deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.cli.policy_export import main
+from sim2real.deploy.export import pipeline as export_pipeline
+from sim2real.deploy.export.noise_floor import NOISE_MULTIPLIER, TOLERANCE, float64_twin
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:FutureWarning")
 

@@ -1,4 +1,4 @@
-"""A plant motors file (robots.plant_motors): the motors as the plant simulates them, for an
+"""A plant motors file (sim2real.robots.plant_motors): the motors as the plant simulates them, for an
 emulated robot whose motors differ from its description; the robot's contract stays."""
 
 from pathlib import Path
@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from deploy.backends.sim.plant import SimBackend
-from robots.plant_motors import load_plant_motors
-from robots.robot import RobotSpecError
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.robots.plant_motors import load_plant_motors
+from sim2real.robots.robot import RobotSpecError
 
 WORN = """
 source = "a worn SO-101: 0.02 N m of friction, armature x2, a 20 % weaker line, 8 ms delay"
@@ -72,13 +72,15 @@ def test_a_bad_file_names_the_file_and_the_field(so101, tmp_path, text, message)
 def test_deploy_run_and_the_soak_run_on_the_plant_motors(so101, tmp_path):
     import json
 
-    from deploy.cli.deploy_run import deploy_run_main
-    from deploy.export import export_policy
-    from eval.soak.campaign import run_campaign
-    from eval.soak.session import SessionConfig
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.export import export_policy
+    from sim2real.eval.soak.campaign import run_campaign
+    from sim2real.eval.soak.session import SessionConfig
 
     pt = tmp_path / "so101.pt"
-    pt.write_bytes((Path(__file__).resolve().parent.parent / "policies" / "so101.pt").read_bytes())
+    pt.write_bytes(
+        (Path(__file__).resolve().parent.parent / "sim2real" / "policies" / "so101.pt").read_bytes()
+    )
     onnx = str(export_policy(pt))
     worn = tmp_path / "worn.toml"
     worn.write_text(WORN)
@@ -99,7 +101,7 @@ def test_deploy_run_and_the_soak_run_on_the_plant_motors(so101, tmp_path):
 def test_the_emulated_robots_run_on_a_plant_motors_file(tmp_path):
     """The servo-bus and Unitree emulators take ``plant_motors`` (``--plant-motors``): the motors
     behind the wire protocol are the file's, which the host's description does not know."""
-    from deploy.backends.emulator.bus import ServoBusEmulator
+    from sim2real.deploy.backends.emulator.bus import ServoBusEmulator
 
     worn = tmp_path / "worn.toml"
     worn.write_text(WORN)
@@ -107,7 +109,7 @@ def test_the_emulated_robots_run_on_a_plant_motors_file(tmp_path):
     assert (bus.plant.actuators.delay_steps == 4).all()
     np.testing.assert_allclose(bus.plant.models[0].dof_frictionloss[:3], 0.02)
     pytest.importorskip("cyclonedds")
-    from deploy.backends.unitree.emulator.robot import UnitreeEmulator
+    from sim2real.deploy.backends.unitree.emulator.robot import UnitreeEmulator
 
     legs = tmp_path / "legs.toml"
     legs.write_text(

@@ -11,12 +11,12 @@ import pytest
 import torch
 from helpers_policies import externalize, linear_onnx, make_spec, torch_out, write_spec
 
-from deploy.export import export_policy
-from deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
-from deploy.policy.obs_normalizer import ObservationNormalizer
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.spec.onnx_checks import PolicyLoadError
-from robots import load_robot
+from sim2real.deploy.export import export_policy
+from sim2real.deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
+from sim2real.deploy.policy.obs_normalizer import ObservationNormalizer
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.spec.onnx_checks import PolicyLoadError
+from sim2real.robots import load_robot
 
 RNG = np.random.default_rng(11)
 
@@ -256,15 +256,15 @@ def test_errors_are_value_errors():
 
 # ---------------------------------------------------------------------- files already exported
 def test_shipped_arm_policy_loads_and_gives_the_actions_of_its_stored_spec(robot, tmp_path):
-    """policies/arm.onnx as ``make export`` writes it (exported here from policies/arm.pt when
+    """policies/arm.onnx as ``make export`` writes it (exported here from sim2real/policies/arm.pt when
     absent, as in a fresh clone): its stored spec (explicit scale/offset lists, written before
     the JSON shorthands existed) gives the observation ``(raw - offset) / scale`` clipped, entry
     for entry, and OnnxPolicy's actions are plain ONNX Runtime's, bit for bit."""
     import onnxruntime as ort
 
-    from deploy.core.state import Kinematics, RobotState
+    from sim2real.deploy.core.state import Kinematics, RobotState
 
-    root = Path(__file__).resolve().parent.parent / "policies"
+    root = Path(__file__).resolve().parent.parent / "sim2real" / "policies"
     path = root / "arm.onnx"
     if not path.is_file():
         (tmp_path / "arm.pt").write_bytes((root / "arm.pt").read_bytes())

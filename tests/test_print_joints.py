@@ -10,9 +10,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from deploy.observe.joint_printer import JointPrinter
-from deploy.runtime import SimClock
-from robots import load_robot
+from sim2real.deploy.observe.joint_printer import JointPrinter
+from sim2real.deploy.runtime import SimClock
+from sim2real.robots import load_robot
 from tests.runtime_fixtures import adversarial_onnx
 
 
@@ -65,7 +65,7 @@ def deploy_run(tmp_path, *extra, env=None, duration="2"):
     cmd = [
         sys.executable,
         "-m",
-        "deploy.cli.deploy_run",
+        "sim2real.deploy.cli.deploy_run",
         "--policy",
         str(policy),
         "--duration",

@@ -1,12 +1,24 @@
-"""The public API package: ``sim2real`` exposes the toolkit's entry points and cannot be shadowed
-by a user's own ``robots/`` folder (the layout the README suggests for robot descriptions)."""
+"""The one package: ``sim2real`` holds every room of the toolkit, exposes its entry points, and
+cannot be shadowed by a user's own ``robots/`` folder (the layout the README suggests for robot
+descriptions)."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
+from pathlib import Path
+
+from setuptools import find_packages
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
 
 import sim2real
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_every_public_name_resolves():
@@ -30,7 +42,7 @@ def test_a_users_robots_folder_does_not_shadow_the_toolkit(tmp_path):
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "ok"
-    # the bare top-level name is shadowed there: the reason the public package exists
+    # the toolkit installs no top-level ``robots``: the name is the user's
     bare = subprocess.run(
         [sys.executable, "-c", "from robots import load_robot"],
         cwd=tmp_path, capture_output=True, text=True, timeout=300,
@@ -44,3 +56,30 @@ def test_importing_the_package_loads_no_simulator(tmp_path):
         [sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300
     )
     assert done.stdout.strip() == "False False", done.stderr
+
+
+def test_pip_install_puts_one_top_level_package():
+    """What ``pip install .`` installs, from pyproject.toml's own package list."""
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    include = pyproject["tool"]["setuptools"]["packages"]["find"]["include"]
+    packages = find_packages(where=str(ROOT), include=include)
+    assert {p.partition(".")[0] for p in packages} == {"sim2real"}
+    for room in ("deploy", "eval", "robots", "policies"):
+        assert f"sim2real.{room}" in packages
+
+
+def test_no_module_imports_a_room_by_a_bare_name():
+    """Every import names the one package (``sim2real.deploy...``): a bare ``deploy`` would work
+    from a checkout and fail when installed."""
+    bare = re.compile(r"^\s*(from|import) (deploy|eval|robots|policies)\b", re.M)
+    found = []
+    for path in [
+        *ROOT.glob("sim2real/**/*.py"),
+        *ROOT.glob("tests/*.py"),
+        *ROOT.glob("bench/*.py"),
+    ]:
+        found += [
+            f"{path.relative_to(ROOT)}: {m.group(0).strip()}"
+            for m in bare.finditer(path.read_text())
+        ]
+    assert not found, found

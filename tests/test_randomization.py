@@ -7,14 +7,14 @@ import json
 import numpy as np
 import pytest
 
-from deploy.backends.sim.faults import CABLE_FORCE, Fault, FaultInjector
-from deploy.backends.sim.plant import SimBackend
-from eval.world.drift import Drift, DriftRanges, apply_drift, joint_dofs, sample_drift
-from eval.world.dynamics import randomized_model
-from eval.world.fault_schedule import FaultRanges
-from eval.world.sensors import SensorDraw, SensorRanges, apply_sensors, sample_sensors
-from eval.world.session_draw import SessionRandomization, sample_session, session_rng
-from eval.world.session_ranges import SessionRanges
+from sim2real.deploy.backends.sim.faults import CABLE_FORCE, Fault, FaultInjector
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.eval.world.drift import Drift, DriftRanges, apply_drift, joint_dofs, sample_drift
+from sim2real.eval.world.dynamics import randomized_model
+from sim2real.eval.world.fault_schedule import FaultRanges
+from sim2real.eval.world.sensors import SensorDraw, SensorRanges, apply_sensors, sample_sensors
+from sim2real.eval.world.session_draw import SessionRandomization, sample_session, session_rng
+from sim2real.eval.world.session_ranges import SessionRanges
 
 HOURS8 = 8 * 3600.0
 
@@ -130,9 +130,9 @@ def test_cable_pull_loads_the_motors(arm3):
 def test_encoder_noise_is_drawn_about_each_robots_own_noise():
     """arm3 keeps the seed's range exactly (its results do not move); an SO-101 with one-count
     (0.00153 rad) encoders gets 0.4-2 counts, not the 4-20 counts of the absolute range."""
-    from eval.world.sensors import SensorRanges
-    from eval.world.session_ranges import sensor_ranges, session_ranges
-    from robots import load_robot
+    from sim2real.eval.world.sensors import SensorRanges
+    from sim2real.eval.world.session_ranges import sensor_ranges, session_ranges
+    from sim2real.robots import load_robot
 
     assert sensor_ranges(load_robot("arm3")).noise_sigma == SensorRanges().noise_sigma
     so101 = load_robot("so101")

@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.world.dynamics import DynamicsRanges
-from eval.world.fault_schedule import fault_ranges
-from eval.world.floor import FLOOR_FRICTION
-from eval.world.ranges_file import RangesError, load_ranges
-from eval.world.sensors import ImuRanges
-from eval.world.session_draw import sample_session
-from eval.world.session_ranges import (
+from sim2real.eval.world.dynamics import DynamicsRanges
+from sim2real.eval.world.fault_schedule import fault_ranges
+from sim2real.eval.world.floor import FLOOR_FRICTION
+from sim2real.eval.world.ranges_file import RangesError, load_ranges
+from sim2real.eval.world.sensors import ImuRanges
+from sim2real.eval.world.session_draw import sample_session
+from sim2real.eval.world.session_ranges import (
     LEGGED_DYNAMICS,
     LEGGED_SENSORS,
     SessionRanges,
@@ -23,7 +23,9 @@ from eval.world.session_ranges import (
     session_ranges,
 )
 
-EXAMPLE = Path(__file__).resolve().parent.parent / "eval" / "world" / "example_ranges.toml"
+EXAMPLE = (
+    Path(__file__).resolve().parent.parent / "sim2real" / "eval" / "world" / "example_ranges.toml"
+)
 
 
 def write(tmp_path: Path, text: str) -> Path:
@@ -125,9 +127,9 @@ def test_the_velocity_commands_come_from_the_file_or_the_policys_contract(tmp_pa
     deploy.yaml ``commands.base_velocity.ranges``): the published G1 policy stands still below
     0.35 m/s and was trained on -0.5..1.0, so the default 0..0.5 judged it on commands it never
     learned. The soak's schedule draws from them."""
-    from deploy.tasks.locomotion import CommandRanges
-    from deploy.tasks.task import task_for
-    from eval.world.domain import contract_commands
+    from sim2real.deploy.tasks.locomotion import CommandRanges
+    from sim2real.deploy.tasks.task import task_for
+    from sim2real.eval.world.domain import contract_commands
     from tests import foreign_stacks as fs
 
     path = write(
@@ -154,7 +156,7 @@ def test_a_missing_file_is_named(tmp_path, arm3):
 def test_every_range_class_field_can_be_set_from_a_file():
     """The file's schema is the classes': every field of every table is a key of it, directly or
     through an inline table (``[dynamics] com_offset``, ``[pushes] velocity``)."""
-    from eval.world.ranges_file import FIELDS, SUBTABLES, TABLES, TOP_LEVEL
+    from sim2real.eval.world.ranges_file import FIELDS, SUBTABLES, TABLES, TOP_LEVEL
 
     assert set(FIELDS) | set(TOP_LEVEL) == {f.name for f in fields(SessionRanges)}
     assert set(FIELDS) - set(TABLES) == {field for field, _ in SUBTABLES.values()} - set(TABLES)
@@ -168,7 +170,7 @@ def test_every_range_class_field_can_be_set_from_a_file():
 def test_so101_training_draws_the_encoder_noise_of_its_soak(so101):
     """The SO-101's reach task draws its encoder noise from the range its soak draws from (0.4-2
     counts of its encoders), not from the seed's absolute range (4-20 counts)."""
-    from policies.envs import ReachConfig, ReachTask
+    from sim2real.policies.envs import ReachConfig, ReachTask
 
     soak = session_ranges(so101).sensors
     task = ReachTask(so101, 8, ReachConfig(dynamics=DynamicsRanges.none(), mode="position"))
@@ -179,19 +181,19 @@ def test_so101_training_draws_the_encoder_noise_of_its_soak(so101):
 
 def test_arm3_training_draws_what_it_drew_before(arm3):
     """arm3's soak ranges are the seed's absolute ones: its training world is unchanged."""
-    from eval.world.sensors import SensorRanges
-    from policies.envs import ReachConfig, ReachTask
+    from sim2real.eval.world.sensors import SensorRanges
+    from sim2real.policies.envs import ReachConfig, ReachTask
 
     task = ReachTask(arm3, 2, ReachConfig())
     assert task.config.sensors == SensorRanges() and task.config.dynamics == DynamicsRanges()
 
 
 def test_the_training_recipe_draws_from_the_ranges_file(tmp_path, so101, monkeypatch):
-    """``python -m policies.train --ranges FILE``: the task draws from the file's ranges (over
+    """``python -m sim2real.policies.train --ranges FILE``: the task draws from the file's ranges (over
     the robot's defaults), and the checkpoint records the file."""
     pytest.importorskip("stable_baselines3")
-    import policies.train as train
-    from deploy.policy.mlp_checkpoint import read_checkpoint
+    import sim2real.policies.train as train
+    from sim2real.deploy.policy.mlp_checkpoint import read_checkpoint
 
     seen = []
 

@@ -16,8 +16,8 @@ import time
 
 import pytest
 
-from deploy.cli.deploy_run import EXIT_BAD_INPUT, deploy_run_main
-from deploy.runtime.clock import SPIN_MARGIN_NS, WallClock
+from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, deploy_run_main
+from sim2real.deploy.runtime.clock import SPIN_MARGIN_NS, WallClock
 from tests.runtime_fixtures import adversarial_onnx
 
 PERIOD = 0.002  # s: arm6's control period
@@ -112,19 +112,19 @@ def test_an_overrun_skips_the_missed_periods_in_every_wait_mode(wait):
 
 
 def test_wall_clock_refuses_an_unknown_wait_mode_and_runtime_still_exports_it():
-    import deploy.runtime
-    import deploy.runtime.clock
+    import sim2real.deploy.runtime
+    import sim2real.deploy.runtime.clock
 
-    assert deploy.runtime.WallClock is deploy.runtime.clock.WallClock
+    assert sim2real.deploy.runtime.WallClock is sim2real.deploy.runtime.clock.WallClock
     with pytest.raises(ValueError, match="expected one of sleep, hybrid, spin, got 'busy'"):
         WallClock(PERIOD, wait="busy")
 
 
 @pytest.mark.parametrize("wait", ["spin", "sleep"])
 def test_the_safe_stop_on_overruns_stays_in_every_wait_mode(tmp_path, arm3, wait):
-    from deploy.backends.sim.plant import SimBackend
-    from deploy.policy.onnx_policy import OnnxPolicy
-    from deploy.runtime import Runtime
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.runtime import Runtime
 
     policy = OnnxPolicy(adversarial_onnx(tmp_path, arm3, "velocity"), arm3)
     rt = Runtime(
@@ -246,7 +246,7 @@ def test_a_refused_priority_and_memory_lock_say_so_and_the_run_continues(
     policy = adversarial_onnx(tmp_path, arm3, "velocity")
     report = tmp_path / "run.json"
     done = run_unprivileged(
-        *("-m", "deploy.cli.deploy_run", "--policy", str(policy), "--duration", "0.1"),
+        *("-m", "sim2real.deploy.cli.deploy_run", "--policy", str(policy), "--duration", "0.1"),
         *("--realtime", "--rt-priority", "10", "--report", str(report)),
     )
     assert done.returncode in (0, 2), done.stderr  # ran (2: a loaded machine overran it)
@@ -266,7 +266,7 @@ def test_a_refused_priority_and_memory_lock_say_so_and_the_run_continues(
 def test_require_rt_makes_a_refused_priority_exit_3(refused_here, tmp_path, arm3):
     policy = adversarial_onnx(tmp_path, arm3, "velocity")
     done = run_unprivileged(
-        *("-m", "deploy.cli.deploy_run", "--policy", str(policy), "--duration", "0.1"),
+        *("-m", "sim2real.deploy.cli.deploy_run", "--policy", str(policy), "--duration", "0.1"),
         *("--realtime", "--rt-priority", "10", "--no-lock-memory", "--require-rt"),
     )
     assert done.returncode == EXIT_BAD_INPUT
@@ -278,10 +278,10 @@ def test_require_rt_makes_a_refused_priority_exit_3(refused_here, tmp_path, arm3
 NO_COMPILE_IN_TICKS = r"""
 import pathlib, sys, tempfile
 from numba.core import dispatcher
-from robots import load_robot
-from deploy.backends.sim.plant import SimBackend
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.runtime import Runtime
+from sim2real.robots import load_robot
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import Runtime
 from tests.runtime_fixtures import adversarial_onnx
 
 compiled = []

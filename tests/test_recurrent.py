@@ -17,10 +17,10 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 from torch import nn
 
-from deploy.export import run_export
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.runtime import Mode, Runtime
-from deploy.spec.onnx_checks import PolicyLoadError
+from sim2real.deploy.export import run_export
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import Mode, Runtime
+from sim2real.deploy.spec.onnx_checks import PolicyLoadError
 from tests.helpers_policies import (
     assert_ran,
     deploy_run,
@@ -121,7 +121,7 @@ def test_action_after_reset_equals_a_fresh_policys(exported, arm3):
 
 
 def test_runtime_resets_the_state_on_ramp_in_take_over_and_fault_reset(exported, arm3):
-    from deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.backends.sim.plant import SimBackend
 
     _, _, result = exported
     policy = OnnxPolicy(result.path, arm3)
@@ -303,7 +303,7 @@ def test_state_output_shape_that_differs_only_when_run_is_refused(arm3, tmp_path
 
 
 def test_deploy_run_exits_3_on_a_state_input_without_batch_axis(arm3, tmp_path, capsys):
-    from deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
 
     spec = make_spec(arm3)
     path = _gru_like_onnx(tmp_path / "bad.onnx", spec.obs_dim, spec.act_dim, [1, 8], [1, 8])
@@ -318,11 +318,11 @@ def test_deploy_run_exits_3_on_a_state_input_without_batch_axis(arm3, tmp_path, 
 # ---------------------------------------------------------------- soak: kill and resume
 def test_soak_with_a_recurrent_policy_resumes_exactly_after_kill(exported, tmp_path):
 
-    from eval.soak import checkpoint as ckpt
-    from eval.soak.batch import SessionBatch
-    from eval.soak.campaign import run_campaign
-    from eval.soak.session import session_dir
-    from robots import load_robot
+    from sim2real.eval.soak import checkpoint as ckpt
+    from sim2real.eval.soak.batch import SessionBatch
+    from sim2real.eval.soak.campaign import run_campaign
+    from sim2real.eval.soak.session import session_dir
+    from sim2real.robots import load_robot
 
     kind, ac, _ = exported
     if kind != "lstm":

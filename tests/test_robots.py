@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robots import RobotSpecError, load_robot
-from robots.loading import ROBOTS_DIR
+from sim2real.robots import RobotSpecError, load_robot
+from sim2real.robots.loading import ROBOTS_DIR
 
 
 @pytest.fixture
@@ -233,7 +233,7 @@ def test_description_hash_ignores_the_task_region_and_comments(arm3_copy):
 
 
 # ---------------------------------------------------------------- motor catalog
-#: Description hashes shipped policies record; moving the motors into robots/motors/ keeps them.
+#: Description hashes shipped policies record; moving the motors into sim2real/robots/motors/ keeps them.
 SHIPPED_HASHES = {
     # the box's far faces moved from 0.92 to 1.0 m, past every arm within the link-length
     # tolerance (the shipped arm3 checkpoints were re-saved with this hash)
@@ -248,7 +248,7 @@ def test_description_hash_unchanged_by_the_motor_catalog(name):
 
 
 def test_every_catalog_motor_validates():
-    from robots.loading import load_motor, motor_catalog
+    from sim2real.robots.loading import load_motor, motor_catalog
 
     names = set(motor_catalog())
     assert {"sts3215", "xm430_w350", "xl430_w250", "go_m8010_6", "ec45flat70_gp42c"} <= names
@@ -280,7 +280,7 @@ def test_so101_goals_are_reachable_inside_its_task_box():
     the time: a miss that says nothing about a policy)."""
     from scipy.optimize import least_squares
 
-    from deploy.tasks.goals import sample_goal
+    from sim2real.deploy.tasks.goals import sample_goal
 
     so101 = load_robot("so101")
     task = so101.config.task
@@ -307,7 +307,7 @@ def test_an_end_effector_site_named_like_its_body_loads(tmp_path):
     refused with Pinocchio's "Several frames match the filter"."""
     import pinocchio as pin
 
-    from robots.loading import load_robot
+    from sim2real.robots.loading import load_robot
 
     shutil.copytree(ROBOTS_DIR / "arm3", tmp_path / "arm3")
     for name in ("arm3.xml", "robot.toml"):

@@ -14,8 +14,8 @@ import time
 import numpy as np
 import pytest
 
-from deploy.ros2.controllers import command_order, controller_joints
-from robots import load_robot
+from sim2real.deploy.ros2.controllers import command_order, controller_joints
+from sim2real.robots import load_robot
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -45,8 +45,8 @@ def ros_domain(monkeypatch):
 @pytest.fixture(scope="module")
 def shipped(tmp_path_factory):
     """The shipped policies exported fresh (ONNX files are built, not committed): a function
-    ``name -> path`` of ``policies/<name>.pt`` exported to a folder of this module's."""
-    from deploy.export import export_policy
+    ``name -> path`` of ``sim2real/policies/<name>.pt`` exported to a folder of this module's."""
+    from sim2real.deploy.export import export_policy
 
     folder = tmp_path_factory.mktemp("shipped")
     cache: dict[str, str] = {}
@@ -94,12 +94,12 @@ def test_a_second_process_steers_the_go2_with_cmd_vel_and_sees_its_state(
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import JointState
 
-    from deploy.ros2.context import NodeThread
+    from sim2real.deploy.ros2.context import NodeThread
 
     robot = load_robot("go2")
     report = tmp_path / "go2.json"
     run = subprocess.Popen(
-        [sys.executable, "-m", "deploy.cli.deploy_run", "--robot", "go2",
+        [sys.executable, "-m", "sim2real.deploy.cli.deploy_run", "--robot", "go2",
          "--policy", shipped("go2"), "--ros2", "--realtime",
          "--duration", "18", "--inject", "nan-action@13:0.1", "--report", str(report)],
         env=_ros_env(ros_domain), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
@@ -182,11 +182,11 @@ def test_operator_services_stop_and_resume_the_arm(ros_domain, tmp_path, shipped
     from geometry_msgs.msg import PointStamped
     from std_srvs.srv import Trigger
 
-    from deploy.ros2.context import NodeThread
+    from sim2real.deploy.ros2.context import NodeThread
 
     report = tmp_path / "arm.json"
     run = subprocess.Popen(
-        [sys.executable, "-m", "deploy.cli.deploy_run", "--robot", "arm3",
+        [sys.executable, "-m", "sim2real.deploy.cli.deploy_run", "--robot", "arm3",
          "--policy", shipped("arm"), "--ros2", "--realtime",
          "--duration", "14", "--report", str(report)],
         env=_ros_env(ros_domain), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
@@ -248,7 +248,7 @@ def test_operator_services_stop_and_resume_the_arm(ros_domain, tmp_path, shipped
 # ---------------------------------------------------------------------- the ros2 backend
 def _hil(domain: int, *args: str, timeout: float = 240) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "deploy.harness.ros2_hil", "--robot", "arm3", "--domain-id", str(domain),
+        [sys.executable, "-m", "sim2real.deploy.harness.ros2_hil", "--robot", "arm3", "--domain-id", str(domain),
          *args],
         cwd=ROOT, capture_output=True, text=True, timeout=timeout,
     )  # fmt: skip
@@ -276,11 +276,11 @@ def test_the_runtime_starts_from_a_current_joint_state_only(ros_domain, shipped)
     anchoring at the old pose (which stops the arm as a stale sensor in its first tick)."""
     import threading
 
-    from deploy.policy.onnx_policy import OnnxPolicy
-    from deploy.ros2.backend import Ros2ControlBackend
-    from deploy.ros2.emulator import ControllerManagerEmulator
-    from deploy.runtime import WallClock
-    from deploy.runtime.loop import Runtime
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.ros2.backend import Ros2ControlBackend
+    from sim2real.deploy.ros2.emulator import ControllerManagerEmulator
+    from sim2real.deploy.runtime import WallClock
+    from sim2real.deploy.runtime.loop import Runtime
 
     arm3 = load_robot("arm3")
     emulator = ControllerManagerEmulator(arm3)

@@ -8,15 +8,15 @@ import time
 import numpy as np
 import pytest
 
-from deploy.backends.sim.faults import Fault, FaultInjector
-from deploy.backends.sim.plant import SimBackend
-from deploy.cli.acceptance import RecordingBackend, check_adversarial
-from deploy.monitors.interventions import INTERVENTION_CHECKS
-from deploy.monitors.violations import VIOLATION_TYPES
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.runtime import NAN_ACTION_LIMIT, Mode, Runtime, WallClock
-from deploy.runtime.reference import ReferenceRuntime
-from robots import load_robot
+from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.cli.acceptance import RecordingBackend, check_adversarial
+from sim2real.deploy.monitors.interventions import INTERVENTION_CHECKS
+from sim2real.deploy.monitors.violations import VIOLATION_TYPES
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import NAN_ACTION_LIMIT, Mode, Runtime, WallClock
+from sim2real.deploy.runtime.reference import ReferenceRuntime
+from sim2real.robots import load_robot
 from tests.runtime_fixtures import adversarial_onnx
 
 
@@ -38,7 +38,7 @@ def seconds(rt, s):
 @pytest.mark.parametrize("mode", ["position", "velocity", "torque"])
 def test_adversarial_policy_never_drives_the_robot_beyond_its_limits(tmp_path, robot_name, mode):
     """Uniform random actions with NaN for 30 simulated seconds (the 10-minute runs of the issue
-    are `python -m deploy.cli.acceptance --seconds 600`): every command is finite, within the hard
+    are `python -m sim2real.deploy.cli.acceptance --seconds 600`): every command is finite, within the hard
     position limits and the velocity, acceleration and jerk limits (position and velocity mode) or
     the effort and torque-rate limits (torque mode), the joints stay within their hard limits, and
     the runtime ends RUNNING or in the latched safe stop of a predicted hard-limit crossing."""
@@ -234,7 +234,7 @@ def test_push_is_survived(tmp_path, arm3):
 
 
 def test_mismatched_policy_is_refused(tmp_path, arm3, arm6):
-    from deploy.spec.onnx_checks import PolicyLoadError
+    from sim2real.deploy.spec.onnx_checks import PolicyLoadError
 
     with pytest.raises(PolicyLoadError, match="policy is for 'arm3', the robot is 'arm6'"):
         OnnxPolicy(adversarial_onnx(tmp_path, arm3, "position"), arm6)
@@ -249,7 +249,7 @@ def test_deploy_run_prints_a_summary_and_writes_the_report(tmp_path, arm3):
     cmd = [
         sys.executable,
         "-m",
-        "deploy.cli.deploy_run",
+        "sim2real.deploy.cli.deploy_run",
         "--robot",
         "arm3",
         "--policy",
@@ -290,7 +290,15 @@ def test_deploy_run_bad_input_exit_code(tmp_path):
     bad = tmp_path / "bad.onnx"
     bad.write_bytes(b"not an onnx file")
     done = subprocess.run(
-        [sys.executable, "-m", "deploy.cli.deploy_run", "--policy", str(bad), "--duration", "1"],
+        [
+            sys.executable,
+            "-m",
+            "sim2real.deploy.cli.deploy_run",
+            "--policy",
+            str(bad),
+            "--duration",
+            "1",
+        ],
         capture_output=True,
         text=True,
         timeout=120,
@@ -346,9 +354,9 @@ def test_velocity_mode_keeps_the_commanded_position_on_a_saturated_drive(arm3):
     integral, so Ruckig's integrated position would run away from the joint for good (it did, by
     2 rad in 6 minutes, and the guard then braked the joint far from any limit). The runtime keeps
     it within VELOCITY_TRACKING_TOLERANCE of the measured pose, and counts each re-anchor (anchors, not resyncs: the command stays continuous)."""
-    from deploy.runtime import VELOCITY_TRACKING_TOLERANCE
-    from deploy.spec.policy_spec import PolicySpec
-    from eval.world.dynamics import Dynamics, randomized_model
+    from sim2real.deploy.runtime import VELOCITY_TRACKING_TOLERANCE
+    from sim2real.deploy.spec.policy_spec import PolicySpec
+    from sim2real.eval.world.dynamics import Dynamics, randomized_model
 
     heavy = Dynamics((1.1,) * 3, (1.2,) * 3, (1.0,) * 3, (1.0,) * 3, (0.9,) * 3)
     backend = SimBackend(arm3, mode="velocity", models=[randomized_model(arm3, "velocity", heavy)])
@@ -386,7 +394,7 @@ class _CalmPolicy:
 
 
 def calm_runtime(robot, mode="position", envs=1, runtime=Runtime, seed=0):
-    from deploy.spec.policy_spec import PolicySpec
+    from sim2real.deploy.spec.policy_spec import PolicySpec
 
     policy = _CalmPolicy(PolicySpec.for_robot(robot, mode=mode))
     policy.nan = np.zeros(envs, dtype=bool)
@@ -420,7 +428,7 @@ def test_a_safe_stop_that_cannot_come_to_rest_latches_after_the_timeout(so101, r
     """The soak's so101 stop that never ended: the arm is at rest, but the noisy encoders keep the
     estimated velocities above REST_SPEED. SAFE_STOP_TIMEOUT after it began the stop ends FAULTED
     (latched: an operator resets it), counted in safe_stop_timeouts; its cause is kept."""
-    from deploy.core.modes import REST_SPEED, SAFE_STOP_TIMEOUT
+    from sim2real.deploy.core.modes import REST_SPEED, SAFE_STOP_TIMEOUT
 
     rt = calm_runtime(so101, runtime=runtime)
     began = stop_by_nan(rt)
@@ -451,7 +459,7 @@ def test_a_safe_stop_that_comes_to_rest_latches_without_a_timeout(arm3):
     """arm3, whose filter assumes its encoders' noise: the stop rests within the timeout. (On
     so101, whose filter assumes one encoder count, the six estimated velocities are seldom below
     REST_SPEED together even at its nominal noise: its stops mostly end by the timeout.)"""
-    from deploy.core.modes import SAFE_STOP_TIMEOUT
+    from sim2real.deploy.core.modes import SAFE_STOP_TIMEOUT
 
     rt = calm_runtime(arm3, mode="velocity")
     began = stop_by_nan(rt)
@@ -465,7 +473,7 @@ def test_a_safe_stop_that_comes_to_rest_latches_without_a_timeout(arm3):
 def test_an_over_temperature_stop_that_cannot_rest_resumes_once_cool(so101):
     """An over-temperature stop holds until cool. One still moving at the timeout is counted and
     does not latch: it resumes (RAMP_IN) as soon as the windings have cooled, at rest or not."""
-    from deploy.core.modes import SAFE_STOP_TIMEOUT
+    from sim2real.deploy.core.modes import SAFE_STOP_TIMEOUT
 
     rt = calm_runtime(so101)
     stop_by_nan(rt, envs=[False])  # RUNNING
@@ -511,7 +519,7 @@ def test_safe_stop_timeout_compiled_equals_reference_and_resumes_exactly(so101):
     assert a.mode_names() == ["FAULTED", "FAULTED"]
     assert a.counters.safe_stop_timeouts.tolist() == [1, 0]
     del state["stop_ticks"]
-    from deploy.core.stateful import StateDictError
+    from sim2real.deploy.core.stateful import StateDictError
 
     with pytest.raises(StateDictError, match="field 'stop_ticks' is missing"):
         calm_runtime(so101, envs=2).load_state_dict(state)
@@ -520,7 +528,7 @@ def test_safe_stop_timeout_compiled_equals_reference_and_resumes_exactly(so101):
 def test_safe_stop_timeout_leaves_room_for_the_slowest_brake(arm3, arm6, so101):
     """The rationale of SAFE_STOP_TIMEOUT: three times the longest brake from the velocity limit
     (acceleration ramp, then full deceleration) of the robots."""
-    from deploy.core.modes import SAFE_STOP_TIMEOUT
+    from sim2real.deploy.core.modes import SAFE_STOP_TIMEOUT
 
     for robot in (arm3, arm6, so101):
         v, a, j = robot.velocity_limit, robot.acceleration_limit, robot.jerk_limit

@@ -4,14 +4,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from deploy.core.state import RobotState
-from deploy.safety.checks import CHECKS
-from deploy.safety.collision import collision_model
-from deploy.safety.guard import SafetyGuard
-from deploy.safety.reference import ReferenceGuard
-from deploy.smoothing import stopping_distance
-from robots import load_robot
-from robots.chain_bounds import collision_pair_weights, end_effector_lever, motion_bounds
+from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.safety.checks import CHECKS
+from sim2real.deploy.safety.collision import collision_model
+from sim2real.deploy.safety.guard import SafetyGuard
+from sim2real.deploy.safety.reference import ReferenceGuard
+from sim2real.deploy.smoothing import stopping_distance
+from sim2real.robots import load_robot
+from sim2real.robots.chain_bounds import collision_pair_weights, end_effector_lever, motion_bounds
 
 
 def random_walk(robot, envs, ticks, seed):
@@ -156,8 +156,8 @@ def test_a_full_absolute_action_is_at_the_limit_not_past_it():
     outputs it often) maps to ``offset +- scale``; float rounding puts it an ulp past so101's
     wrist_roll and gripper limits. That is the limit itself: clamped, not a hard violation.
     A target really past the limit still is one."""
-    from deploy.spec.policy_spec import PolicySpec
-    from robots import load_robot
+    from sim2real.deploy.spec.policy_spec import PolicySpec
+    from sim2real.robots import load_robot
 
     so101 = load_robot("so101")
     spec = PolicySpec.for_robot(so101, mode="position", position_range="hard")

@@ -9,17 +9,17 @@ from pathlib import Path
 
 import pytest
 
-from deploy.backends.sim import engines
-from deploy.cli.deploy_run import deploy_run_main
-from deploy.rig import hooks
+from sim2real.deploy.backends.sim import engines
+from sim2real.deploy.cli.deploy_run import deploy_run_main
+from sim2real.deploy.rig import hooks
 
 HOOK_MODULE = '''
 """Counts the ticks the robot spent RUNNING, as a contributor's hook would."""
 
 import numpy as np
 
-from deploy.core.modes import RUNNING
-from deploy.rig.hooks import RunHook, register_hook
+from sim2real.deploy.core.modes import RUNNING
+from sim2real.deploy.rig.hooks import RunHook, register_hook
 
 
 class RunningTicks(RunHook):
@@ -52,7 +52,7 @@ adds."""
 
 import mujoco
 
-from deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.backends.sim.plant import SimBackend
 
 
 class RK4Plant(SimBackend):
@@ -66,11 +66,13 @@ class RK4Plant(SimBackend):
 @pytest.fixture(scope="module")
 def arm_onnx(tmp_path_factory):
     """The shipped arm policy exported (as ``make run`` does)."""
-    from deploy.export import export_policy
+    from sim2real.deploy.export import export_policy
 
     folder = tmp_path_factory.mktemp("policy")
     pt = folder / "arm.pt"
-    pt.write_bytes((Path(__file__).resolve().parent.parent / "policies" / "arm.pt").read_bytes())
+    pt.write_bytes(
+        (Path(__file__).resolve().parent.parent / "sim2real" / "policies" / "arm.pt").read_bytes()
+    )
     return str(export_policy(pt))
 
 
@@ -80,7 +82,7 @@ def plugin(tmp_path, monkeypatch):
     forgotten after it (each registry's ``scoped``)."""
     from contextlib import ExitStack
 
-    from deploy.robot_kind import KIND_REGISTRY
+    from sim2real.deploy.robot_kind import KIND_REGISTRY
 
     monkeypatch.syspath_prepend(str(tmp_path))
     stack = ExitStack()
@@ -139,7 +141,7 @@ KIND_MODULE = '''
 """An arm whose joint filters run the constant-velocity model (drives that do not follow their
 command closely, e.g. a compliant arm): a kind a contributor adds."""
 
-from deploy.robot_kind import RobotKind, register_kind
+from sim2real.deploy.robot_kind import RobotKind, register_kind
 
 COMPLIANT_ARM = register_kind(
     RobotKind(
@@ -153,9 +155,9 @@ COMPLIANT_ARM = register_kind(
 def _arm3_with_kind(tmp_path, kind: str):
     import shutil
 
-    from robots import load_robot
+    from sim2real.robots import load_robot
 
-    src = Path(__file__).resolve().parent.parent / "robots" / "arm3"
+    src = Path(__file__).resolve().parent.parent / "sim2real" / "robots" / "arm3"
     folder = tmp_path / "arm3_kind"
     shutil.copytree(src, folder)
     toml = folder / "robot.toml"
@@ -165,7 +167,7 @@ def _arm3_with_kind(tmp_path, kind: str):
 
 
 def test_a_new_robot_kind_is_one_module_and_robot_toml_names_it(plugin, monkeypatch, tmp_path):
-    from deploy import robot_kind as kinds
+    from sim2real.deploy import robot_kind as kinds
 
     robot = _arm3_with_kind(tmp_path, "compliant_arm")
     with pytest.raises(ValueError, match=r"robot.toml: kind = 'compliant_arm': expected one of"):
@@ -173,8 +175,8 @@ def test_a_new_robot_kind_is_one_module_and_robot_toml_names_it(plugin, monkeypa
     module = plugin("seam_compliant_arm", KIND_MODULE)
     __import__(module)  # the registration line
     assert kinds.robot_kind(robot).name == "compliant_arm"
-    from deploy.safety.guard import SafetyGuard
-    from deploy.smoothing.smoother import CommandSmoother
+    from sim2real.deploy.safety.guard import SafetyGuard
+    from sim2real.deploy.smoothing.smoother import CommandSmoother
 
     smoother = CommandSmoother(robot, 1, "velocity")
     # the kind's choice reaches the runtime: no commanded acceleration into the joint filters
@@ -184,7 +186,7 @@ def test_a_new_robot_kind_is_one_module_and_robot_toml_names_it(plugin, monkeypa
 
 
 def test_robot_toml_kind_must_fit_the_robot(tmp_path):
-    from deploy.robot_kind import robot_kind
+    from sim2real.deploy.robot_kind import robot_kind
 
     with pytest.raises(ValueError, match=r"kind = 'legged' needs a \[base\] table"):
         robot_kind(_arm3_with_kind(tmp_path, "legged"))

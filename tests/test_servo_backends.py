@@ -1,7 +1,7 @@
 """The servo-bus backends through the vendors' real SDKs against the wire-protocol emulator.
 
-Feetech (``scservo_sdk``) on robots/so101, Dynamixel Protocol 2.0 (``dynamixel_sdk``) on
-robots/arm3_xm430; the emulator (:class:`deploy.backends.emulator.ServoBusEmulator`) answers on a
+Feetech (``scservo_sdk``) on sim2real/robots/so101, Dynamixel Protocol 2.0 (``dynamixel_sdk``) on
+sim2real/robots/arm3_xm430; the emulator (:class:`sim2real.deploy.backends.emulator.ServoBusEmulator`) answers on a
 pty with the MuJoCo plant behind its registers. No SDK is mocked. Runs are a few seconds of wall
 clock each.
 """
@@ -18,22 +18,22 @@ import time
 import numpy as np
 import pytest
 
-from deploy.backends.emulator import ServoBusEmulator, WireFaults
-from deploy.backends.servo.calibration import CalibrationError, load_lerobot_calibration
-from deploy.backends.servo.servo_bus import ServoBusError
-from deploy.backends.servo.torque_watch import TORQUE_CHECK_PERIOD, TORQUE_OFF
-from deploy.cli.deploy_run import EXIT_CLEAN, EXIT_FAULT
-from deploy.core.backend import Backend, SimulatedPlant
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.runtime import Runtime, WallClock
-from robots import load_robot
+from sim2real.deploy.backends.emulator import ServoBusEmulator, WireFaults
+from sim2real.deploy.backends.servo.calibration import CalibrationError, load_lerobot_calibration
+from sim2real.deploy.backends.servo.servo_bus import ServoBusError
+from sim2real.deploy.backends.servo.torque_watch import TORQUE_CHECK_PERIOD, TORQUE_OFF
+from sim2real.deploy.cli.deploy_run import EXIT_CLEAN, EXIT_FAULT
+from sim2real.deploy.core.backend import Backend, SimulatedPlant
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import Runtime, WallClock
+from sim2real.robots import load_robot
 from tests.runtime_fixtures import adversarial_onnx
 
 pytest.importorskip("scservo_sdk", reason="pip install '.[servo]'")
 pytest.importorskip("dynamixel_sdk", reason="pip install '.[servo]'")
 
-from deploy.backends.servo.dynamixel import DynamixelBackend  # noqa: E402
-from deploy.backends.servo.feetech import FeetechBackend  # noqa: E402
+from sim2real.deploy.backends.servo.dynamixel import DynamixelBackend  # noqa: E402
+from sim2real.deploy.backends.servo.feetech import FeetechBackend  # noqa: E402
 
 # On the wall clock against an emulator: run apart from the parallel suite (Makefile), so the
 # suite's own workers do not starve it; it must still hold beside other jobs.
@@ -56,7 +56,7 @@ def _short_gil_slices():
 
 
 def _policy(tmp_path, robot):
-    # the adversarial policy: uniform random actions, 2 % NaN (deploy.policy.adversarial)
+    # the adversarial policy: uniform random actions, 2 % NaN (sim2real.deploy.policy.adversarial)
     return adversarial_onnx(tmp_path, robot, robot.control_mode)
 
 
@@ -86,7 +86,7 @@ def _deploy_run(tmp_path, protocol, emu, seconds, *extra):
     # deploy-run in its own process: the emulator's thread and the SDK's busy receive loop
     # would otherwise share one GIL (a timing coupling a real bus does not have)
     done = subprocess.run(
-        [sys.executable, "-m", "deploy.cli.deploy_run", *argv],
+        [sys.executable, "-m", "sim2real.deploy.cli.deploy_run", *argv],
         capture_output=True,
         text=True,
         timeout=120,
@@ -105,7 +105,7 @@ def _full_read(backend, tries=10):
 
 # ---------------------------------------------------------------- contract and open()
 def test_backends_keep_the_contract_and_only_the_sim_is_a_plant(so101):
-    from deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.backends.sim.plant import SimBackend
 
     sim = SimBackend(so101)
     bus = FeetechBackend(so101, "/dev/null")
@@ -125,7 +125,7 @@ def test_open_configures_each_servo_before_torque_and_close_turns_it_off(so101):
                 assert s.get("torque_enable") == 1
                 assert s.get("return_delay") == 0
                 assert s.get("operating_mode") == 0  # position
-                assert s.get("temperature_limit") == 70  # robots/motors/sts3215.toml
+                assert s.get("temperature_limit") == 70  # sim2real/robots/motors/sts3215.toml
                 assert s.get("Overload_Torque") == 80
                 # torque came on with the goal at the pose: nothing jumps
                 assert abs(s.get("goal_position") - s.get("present_position")) <= 3
@@ -192,7 +192,7 @@ def test_lerobot_calibration_round_trip(tmp_path, so101):
 @contextlib.contextmanager
 def _emulator(robot, protocol, **kwargs):
     """The emulator; arm3_xm430 lies flat on a table (no gravity on its joints): its XM430
-    shoulder cannot hold arm3's links up (robots/arm3_xm430/robot.toml), and the Dynamixel tests
+    shoulder cannot hold arm3's links up (sim2real/robots/arm3_xm430/robot.toml), and the Dynamixel tests
     are about the bus, not a sagging arm."""
     with ServoBusEmulator(robot, protocol, **kwargs) as emu:
         saved = [m.opt.gravity.copy() for m in emu.plant.models]

@@ -1,4 +1,4 @@
-"""Sim-to-sim reports (eval/sim2sim): compare, the files written, the sim2sim command.
+"""Sim-to-sim reports (sim2real/eval/sim2sim): compare, the files written, the sim2sim command.
 
 The soak outputs compared here are real short MuJoCo soaks (arm3 with the shipped arm policy, go2
 with the shipped go2 policy) run twice with the same seeds under two engine names: identical
@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from eval import cli as soak_cli
-from eval.sim2sim import cli
-from eval.sim2sim.compare import (
+from sim2real.eval import cli as soak_cli
+from sim2real.eval.sim2sim import cli
+from sim2real.eval.sim2sim.compare import (
     COUNT_MAX_RATIO,
     INTERVENTIONS_MAX_GAP_PP,
     PEAK_WINDING_MAX_GAP_C,
@@ -25,7 +25,7 @@ from eval.sim2sim.compare import (
     Sim2SimError,
     compare,
 )
-from eval.sim2sim.write import markdown, write_sim2sim
+from sim2real.eval.sim2sim.write import markdown, write_sim2sim
 
 REPO = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.xdist_group("sim2sim")
@@ -49,13 +49,13 @@ ARM_FIGURES = [
 def shipped_onnx(name: str, tmp_path_factory) -> Path:
     """policies/NAME.onnx as ``make export`` writes it; exported here from policies/NAME.pt in a
     fresh clone (ONNX files are built, not committed)."""
-    path = REPO / "policies" / f"{name}.onnx"
+    path = REPO / "sim2real" / "policies" / f"{name}.onnx"
     if path.is_file():
         return path
-    from deploy.export import export_policy
+    from sim2real.deploy.export import export_policy
 
     pt = tmp_path_factory.mktemp(name) / f"{name}.pt"
-    pt.write_bytes((REPO / "policies" / f"{name}.pt").read_bytes())
+    pt.write_bytes((REPO / "sim2real" / "policies" / f"{name}.pt").read_bytes())
     return export_policy(pt)
 
 
@@ -440,7 +440,7 @@ def test_cli_bad_input_exits_2_naming_it(tmp_path, capsys, argv, message):
 
 
 def test_cli_refuses_its_own_options_after_the_separator(tmp_path, capsys):
-    policy = REPO / "policies" / "arm.pt"  # any file: refused before anything runs
+    policy = REPO / "sim2real" / "policies" / "arm.pt"  # any file: refused before anything runs
     argv = ["--robot", "arm3", "--policy", str(policy), "--hours", "1", "--seed", "0"]
     argv += ["--out", str(tmp_path), "--", "--engine=mujoco"]
     assert cli.main(argv) == cli.EXIT_BAD_INPUT
@@ -452,7 +452,7 @@ def test_soak_command_passes_the_options_through(tmp_path):
     args = cli._parser().parse_args([*options, "--out", str(tmp_path), "--no-film"])
     cmd = cli.soak_command(args, "pybullet", ["--fault-interval", "30"])
     assert cmd == [
-        *(sys.executable, "-m", "eval.cli", *options),
+        *(sys.executable, "-m", "sim2real.eval.cli", *options),
         *("--engine", "pybullet", "--out", str(tmp_path / "pybullet")),
         *("--no-film", "--fault-interval", "30"),
     ]
@@ -463,7 +463,7 @@ def test_soak_command_passes_the_options_through(tmp_path):
 ALL_MUJOCO = (
     sys.executable,
     "-c",
-    "import sys\nfrom eval.cli import main\nargv = sys.argv[1:]\n"
+    "import sys\nfrom sim2real.eval.cli import main\nargv = sys.argv[1:]\n"
     "argv[argv.index('--engine') + 1] = 'mujoco'\nraise SystemExit(main(argv))",
 )
 

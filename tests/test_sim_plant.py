@@ -4,7 +4,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from deploy.backends.sim.plant import NonFiniteCommandError, SimBackend, SimulationDivergedError
+from sim2real.deploy.backends.sim.plant import (
+    NonFiniteCommandError,
+    SimBackend,
+    SimulationDivergedError,
+)
 
 
 def run(plant, command, ticks):
@@ -138,7 +142,7 @@ def test_batch_envs_are_independent_and_seeded(arm3):
 
 
 def test_arm3_held_horizontal_for_one_hour_reaches_the_thermal_steady_state(arm3):
-    """maxon EC 45 flat 70 W + GP 42 C 113:1 (robots/arm3/robot.toml): holding the arm stretched
+    """maxon EC 45 flat 70 W + GP 42 C 113:1 (sim2real/robots/arm3/robot.toml): holding the arm stretched
     out horizontally for 1 simulated hour, the winding temperature must be within 1 % (of its rise
     over ambient) of the analytic steady state of the two-node model for the holding torque."""
     plant = SimBackend(arm3, mode="position")
@@ -157,7 +161,7 @@ def test_arm3_held_horizontal_for_one_hour_reaches_the_thermal_steady_state(arm3
 
 
 def test_a_hot_drive_limits_its_torque_to_the_derated_effort(arm3):
-    """Above the derating start the drive's torque limit follows robots.thermal.EffortDerating
+    """Above the derating start the drive's torque limit follows sim2real.robots.thermal.EffortDerating
     (down to the continuous torque at the maximum winding temperature): under a pull it cannot
     resist, the joint yields instead of the motor pushing past its derated limit."""
     plant = SimBackend(arm3, mode="velocity")
@@ -197,9 +201,9 @@ def test_a_sustained_pull_cannot_overheat_a_derating_drive(arm3):
 def test_compiled_sensor_model_equals_its_numpy_reference(arm6, per_env_streams):
     """The encoder kernels give the numpy reference's readings and stamps bit for bit, and draw
     the same numbers from the streams, through changes of noise, dropout and latency."""
-    from deploy.backends.sim.reference import ReferenceJointSensorModel
-    from deploy.backends.sim.sensors import JointSensorModel
-    from deploy.core.backend import SensorFrame
+    from sim2real.deploy.backends.sim.reference import ReferenceJointSensorModel
+    from sim2real.deploy.backends.sim.sensors import JointSensorModel
+    from sim2real.deploy.core.backend import SensorFrame
 
     envs, n = 3, arm6.n_joints
     models = []

@@ -5,14 +5,14 @@ import math
 import numpy as np
 import pytest
 
-from deploy.smoothing import (
+from sim2real.deploy.smoothing import (
     TORQUE_RISE_TIME,
     CommandSmoother,
     SmoothingError,
     stopping_distance,
     stopping_speed,
 )
-from robots import load_robot
+from sim2real.robots import load_robot
 
 RTOL = 1e-6  # finite differences of Ruckig's samples meet the limits to rounding
 

@@ -16,28 +16,28 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from deploy.core.modes import NAN_ACTION_LIMIT
-from deploy.monitors.interventions import INTERVENTION_CHECKS
-from deploy.monitors.violations import VIOLATION_TYPES
-from deploy.spec.policy_spec import PolicySpec
-from deploy.tasks.goals import success_windows
-from eval import cli
-from eval.report.baseline import compare_with_baseline
-from eval.report.build import (
+from sim2real.deploy.core.modes import NAN_ACTION_LIMIT
+from sim2real.deploy.monitors.interventions import INTERVENTION_CHECKS
+from sim2real.deploy.monitors.violations import VIOLATION_TYPES
+from sim2real.deploy.spec.policy_spec import PolicySpec
+from sim2real.deploy.tasks.goals import success_windows
+from sim2real.eval import cli
+from sim2real.eval.report.baseline import compare_with_baseline
+from sim2real.eval.report.build import (
     build_report,
     failures,
     missed_states,
     session_checks,
     write_reports,
 )
-from eval.report.html import report_html
-from eval.report.schema import CHECKS, SCHEMA_VERSION, ReportError, Thresholds, load_report
-from eval.soak import checkpoint as ckpt
-from eval.soak.batch import SessionBatch
-from eval.soak.campaign import run_campaign
-from eval.soak.session import session_dir
-from eval.world.fault_schedule import FaultRanges, stale_budget
-from eval.world.session_ranges import SessionRanges
+from sim2real.eval.report.html import report_html
+from sim2real.eval.report.schema import CHECKS, SCHEMA_VERSION, ReportError, Thresholds, load_report
+from sim2real.eval.soak import checkpoint as ckpt
+from sim2real.eval.soak.batch import SessionBatch
+from sim2real.eval.soak.campaign import run_campaign
+from sim2real.eval.soak.session import session_dir
+from sim2real.eval.world.fault_schedule import FaultRanges, stale_budget
+from sim2real.eval.world.session_ranges import SessionRanges
 from tests.runtime_fixtures import feedback_mlp_onnx
 from tests.soak_fixtures import kill_after_first_checkpoint, short_session
 
@@ -224,7 +224,7 @@ def test_kill_and_resume_equals_an_uninterrupted_run(killed, config, batched, tm
     # the new accumulators are in the checkpoint, and the result carries non-zero values of them
     assert arrays["interventions/any"].shape == (1,) and "violations/counts/soft_limit" in arrays
     assert "goals/best_distance" in arrays and "goals/missed" in arrays
-    # the composition of the stages' state dicts (deploy.core.stateful), one env's slice of each
+    # the composition of the stages' state dicts (sim2real.deploy.core.stateful), one env's slice of each
     assert arrays["estimator/covariance"].shape == (1, 3, 2, 2) and arrays["mode"].shape == (1,)
     assert isinstance(arrays["ticks"], int) and isinstance(arrays["backend/sensor_rng"], str)
     resumed = run_campaign(replace(config, seed=0), 1, out, resume=True, progress=False)[0]
@@ -707,7 +707,7 @@ def test_a_shorter_run_is_compared_with_the_baselines_same_hours(batched):
     fraction of an hour cannot be matched and is compared with the mean, saying so."""
     from copy import deepcopy
 
-    from eval.report.baseline import violation_basis
+    from sim2real.eval.report.baseline import violation_basis
 
     report = build_report({"robot": "arm3", "hours": 1.0, "sessions": 1}, batched, LENIENT)
     baseline = deepcopy(report)

@@ -1,6 +1,6 @@
 """The soak's legged mode: go2 follows seeded velocity commands
-(:class:`deploy.tasks.locomotion.CommandSchedule`), its tracking, falls and distance are measured
-(:class:`deploy.tasks.locomotion.CommandTracker`) and reported, and a kill -9 + resume equals an
+(:class:`sim2real.deploy.tasks.locomotion.CommandSchedule`), its tracking, falls and distance are measured
+(:class:`sim2real.deploy.tasks.locomotion.CommandTracker`) and reported, and a kill -9 + resume equals an
 uninterrupted run."""
 
 from __future__ import annotations
@@ -13,15 +13,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from deploy.tasks.locomotion import CommandSchedule, CommandTracker
-from eval.report.build import build_report
-from eval.soak import checkpoint as ckpt
-from eval.soak.batch import SessionBatch
-from eval.soak.campaign import run_campaign
-from eval.soak.session import session_dir
-from eval.world.fault_schedule import fault_ranges
-from eval.world.session_draw import sample_session
-from eval.world.session_ranges import SessionRanges, session_ranges
+from sim2real.deploy.tasks.locomotion import CommandSchedule, CommandTracker
+from sim2real.eval.report.build import build_report
+from sim2real.eval.soak import checkpoint as ckpt
+from sim2real.eval.soak.batch import SessionBatch
+from sim2real.eval.soak.campaign import run_campaign
+from sim2real.eval.soak.session import session_dir
+from sim2real.eval.world.fault_schedule import fault_ranges
+from sim2real.eval.world.session_draw import sample_session
+from sim2real.eval.world.session_ranges import SessionRanges, session_ranges
 from tests.soak_fixtures import kill_after_first_checkpoint, short_session
 
 REPO = Path(__file__).resolve().parents[1]
@@ -140,7 +140,7 @@ def test_a_robot_that_follows_each_command_step_at_once_tracks_all_of_its_runnin
 
 
 def test_a_short_go2_soak_reports_falls_tracking_and_distance(go2_onnx, tmp_path, capsys):
-    from eval.cli import main
+    from sim2real.eval.cli import main
 
     out = tmp_path / "soak"
     code = main(
@@ -220,16 +220,16 @@ def test_robot_import_writes_go2s_soak_table(tmp_path):
     ``[soak]`` pushes included (the table is the importer's, not a hand edit it would drop)."""
     import shlex
 
-    from deploy.cli.robot_import import main
+    from sim2real.deploy.cli.robot_import import main
 
-    shipped = (REPO / "robots" / "go2" / "robot.toml").read_text()
+    shipped = (REPO / "sim2real" / "robots" / "go2" / "robot.toml").read_text()
     command = shlex.split(shipped.splitlines()[2].removeprefix("#   "))
     out = tmp_path / "go2"
     command[command.index("--out") + 1] = str(out)
     assert main(command[1:]) == 0
     written = (out / "robot.toml").read_text()
     assert "[soak]\n" in written and "push_force = [6.4, 32.0]  # N" in written
-    assert written.replace(str(out), "robots/go2") == shipped
+    assert written.replace(str(out), "sim2real/robots/go2") == shipped
 
 
 def test_a_legged_sessions_tracking_is_judged_only_when_the_user_asks(uninterrupted):
@@ -237,8 +237,8 @@ def test_a_legged_sessions_tracking_is_judged_only_when_the_user_asks(uninterrup
     unless a threshold is given (soak-test --min-success); falls and violations are judged."""
     import copy
 
-    from eval.report.build import session_checks
-    from eval.report.schema import Thresholds
+    from sim2real.eval.report.build import session_checks
+    from sim2real.eval.report.schema import Thresholds
 
     result = copy.deepcopy(uninterrupted)
     loco = result["locomotion"]
@@ -260,7 +260,7 @@ def test_a_stand_up_anchors_the_estimate_where_the_encoders_read(config, tmp_pat
     3.3 s after every stand-up)."""
     import dataclasses
 
-    from eval.world.sensors import SensorRanges
+    from sim2real.eval.world.sensors import SensorRanges
 
     ranges = dataclasses.replace(
         config.ranges, sensors=dataclasses.replace(config.ranges.sensors, encoder_bias=(0.01, 0.02))

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from helpers_policies import ARM3_BLOCKS as ALL_BLOCKS
 
-from deploy.core.state import Kinematics, RobotState
-from deploy.spec.policy_spec import PolicySpec, SpecError
+from sim2real.deploy.core.state import Kinematics, RobotState
+from sim2real.deploy.spec.policy_spec import PolicySpec, SpecError
 
 
 @pytest.fixture(scope="module")
@@ -165,8 +165,8 @@ def test_a_full_absolute_position_action_is_never_clamped_by_the_guard(name):
     """The default spec maps +-1 to the soft limits, inside them in float64 (a saturated joint,
     such as a gripper held closed, is not a soft-limit intervention on every tick); the
     adversary's hard range is clamped."""
-    from deploy.safety.guard import SafetyGuard
-    from robots import load_robot
+    from sim2real.deploy.safety.guard import SafetyGuard
+    from sim2real.robots import load_robot
 
     robot = load_robot(name)
     n = robot.n_joints
@@ -272,7 +272,7 @@ def test_stored_specs_read_back_byte_for_byte(arm3):
     """The explicit format written by earlier versions (the shipped checkpoint's spec) reads
     back to the same JSON: files already exported keep their meaning."""
     torch = pytest.importorskip("torch")
-    stored = torch.load(REPO / "policies" / "arm.pt", weights_only=True)["spec"]
+    stored = torch.load(REPO / "sim2real" / "policies" / "arm.pt", weights_only=True)["spec"]
     assert PolicySpec.from_json(stored).to_json() == stored
     made = PolicySpec.for_robot(arm3, blocks=ALL_BLOCKS).to_json()
     assert PolicySpec.from_json(made).to_json() == made
@@ -309,8 +309,8 @@ def test_legged_gym_conventions_are_expressed_exactly(arm6):
     ],
 )
 def test_a_block_the_robot_cannot_provide_is_refused_at_load_naming_it(arm3, block, why, tmp_path):
-    from deploy.policy.onnx_policy import OnnxPolicy
-    from deploy.spec.onnx_checks import PolicyLoadError
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.spec.onnx_checks import PolicyLoadError
 
     doc = _arm3_doc(arm3)
     doc["observation"].insert(0, {"name": block, "scale": 4.0})
@@ -355,23 +355,25 @@ def test_bad_shorthand_is_refused_naming_the_field(arm3, edit, message):
 
 # ---------------------------------------------------------------------- the JSON Schema
 def test_committed_schema_is_the_generated_one():
-    from deploy.spec.schema import SCHEMA_PATH, schema_text
+    from sim2real.deploy.spec.schema import SCHEMA_PATH, schema_text
 
     assert SCHEMA_PATH.read_text() == schema_text(), (
-        "docs/policy_spec.schema.json is stale: run python -m deploy.spec.schema"
+        "docs/policy_spec.schema.json is stale: run python -m sim2real.deploy.spec.schema"
     )
 
 
 def test_shipped_and_example_specs_validate_against_the_schema(arm3, arm6):
     jsonschema = pytest.importorskip("jsonschema")
     torch = pytest.importorskip("torch")
-    from deploy.spec.schema import SCHEMA_PATH
+    from sim2real.deploy.spec.schema import SCHEMA_PATH
 
     schema = json.loads(SCHEMA_PATH.read_text())
     validator = jsonschema.Draft202012Validator(schema)
     docs = [json.loads(p.read_text()) for p in sorted(EXAMPLES.glob("*.json"))]
     for name in ("arm.pt", "arm_position.pt"):
-        docs.append(json.loads(torch.load(REPO / "policies" / name, weights_only=True)["spec"]))
+        docs.append(
+            json.loads(torch.load(REPO / "sim2real" / "policies" / name, weights_only=True)["spec"])
+        )
     docs.append(json.loads(PolicySpec.for_robot(arm6).to_json()))
     assert len(docs) == 5
     for doc in docs:
@@ -389,8 +391,8 @@ def test_the_docs_show_the_example_specs_as_they_are_tested():
 
 # ---------------------------------------------------------------------- the kind registry
 def test_every_registered_kind_has_a_kernel_branch_and_a_numpy_writer():
-    from deploy.spec import kernel
-    from deploy.spec.kinds import KINDS
+    from sim2real.deploy.spec import kernel
+    from sim2real.deploy.spec.kinds import KINDS
 
     codes = [k.kernel_code for k in KINDS.values()]
     assert sorted(codes) == sorted(kernel.BRANCHES)  # one kind per branch, no branch unused
@@ -409,7 +411,7 @@ def test_every_registered_kind_has_a_kernel_branch_and_a_numpy_writer():
     ],
 )
 def test_a_kind_without_a_kernel_branch_is_refused_at_registration(changes, message):
-    from deploy.spec.kinds import KINDS, KindError, ObservationKind, register_kind
+    from sim2real.deploy.spec.kinds import KINDS, KindError, ObservationKind, register_kind
 
     before = dict(KINDS)
     kind = ObservationKind("joint_torque", "N m", lambda *a: None, None, per_joint=1)
@@ -424,8 +426,8 @@ def test_the_reference_gives_the_kernels_numbers_with_components_in_any_order(go
     that read some components of their raw vector: holosoma's split command, and two-foot gait
     clocks read as ``[cos p0, cos p1, sin p0, sin p1]`` or with their cos and sin terms apart
     (p1 = p0 + pi), one of them sign-flipped by a negative scale."""
-    from deploy.spec.policy_spec import ObservationBlock
-    from deploy.spec.reference import observation_reference
+    from sim2real.deploy.spec.policy_spec import ObservationBlock
+    from sim2real.deploy.spec.reference import observation_reference
 
     base = PolicySpec.for_robot(go2)
     assert base._plan.compiled and base._plan.numpy_reason is None

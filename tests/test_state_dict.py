@@ -1,9 +1,9 @@
-"""Explicit state: every stateful stage's ``state_dict`` / ``load_state_dict`` (deploy.core.stateful).
+"""Explicit state: every stateful stage's ``state_dict`` / ``load_state_dict`` (sim2real.deploy.core.stateful).
 
 For each stage: run N ticks, take its state, run M more ticks recording its outputs, load the
 state into a freshly built instance and replay the same M ticks: every output is equal bit for
 bit. A fresh instance without the state gives other outputs (the state is what matters). And
-eval/ reads or writes no private attribute of another object (the soak's checkpoint goes
+sim2real/eval/ reads or writes no private attribute of another object (the soak's checkpoint goes
 through the state dicts only).
 """
 
@@ -18,19 +18,19 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from deploy.backends.sim.faults import Fault, FaultInjector
-from deploy.backends.sim.plant import SimBackend
-from deploy.core.backend import SensorFrame
-from deploy.core.state import RobotState
-from deploy.core.stateful import StateDictError, load_part, prefixed, put, take
-from deploy.estimation.joints import JointStateEstimator
-from deploy.estimation.reference import ReferenceJointStateEstimator
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.runtime import Runtime
-from deploy.safety.guard import SafetyGuard
-from deploy.smoothing import CommandSmoother
-from deploy.spec.policy_spec import PolicySpec
-from deploy.tasks.goals import GoalScheduler
+from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.core.backend import SensorFrame
+from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.core.stateful import StateDictError, load_part, prefixed, put, take
+from sim2real.deploy.estimation.joints import JointStateEstimator
+from sim2real.deploy.estimation.reference import ReferenceJointStateEstimator
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import Runtime
+from sim2real.deploy.safety.guard import SafetyGuard
+from sim2real.deploy.smoothing import CommandSmoother
+from sim2real.deploy.spec.policy_spec import PolicySpec
+from sim2real.deploy.tasks.goals import GoalScheduler
 from tests.runtime_fixtures import feedback_mlp_onnx
 
 REPO = Path(__file__).resolve().parent.parent
@@ -413,7 +413,7 @@ def test_a_state_that_does_not_fit_is_refused_with_the_field_named(arm3, tmp_pat
         fresh.load_state_dict(bad)
 
 
-# ---------------------------------------------------------------- no private access in eval/
+# ---------------------------------------------------------------- no private access in sim2real/eval/
 def private_accesses(source: str) -> list[tuple[int, str]]:
     """``(line, expression)`` of every attribute access ``<x>._<name>`` in Python code (strings
     and comments excluded) whose object is not ``self`` itself."""
@@ -444,7 +444,9 @@ def test_the_private_access_check_finds_what_it_must():
 def test_eval_touches_no_private_attribute_of_another_object():
     offenders = [
         f"{path.relative_to(REPO)}:{line}: {expr}"
-        for path in sorted((REPO / "eval").glob("*.py"))
+        for path in sorted((REPO / "sim2real" / "eval").glob("*.py"))
         for line, expr in private_accesses(path.read_text())
     ]
-    assert not offenders, "private attributes accessed from eval/:\n" + "\n".join(offenders)
+    assert not offenders, "private attributes accessed from sim2real/eval/:\n" + "\n".join(
+        offenders
+    )

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from helpers_policies import linear_onnx
 
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.spec.policy_spec import PolicySpec, SpecError
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.spec.policy_spec import PolicySpec, SpecError
 
 #: The six joints the test's policy drives, in its own (not the robot's) order.
 DRIVEN = (
@@ -71,7 +71,7 @@ def test_the_policy_drives_its_joints_and_the_others_get_action_zero(go2, subset
 
 
 def test_held_joints_target_home_and_driven_joints_their_own_mapping(go2, subset_policy):
-    from deploy.core.state import RobotState
+    from sim2real.deploy.core.state import RobotState
 
     policy, _, _ = subset_policy
     spec = policy.spec
@@ -86,7 +86,7 @@ def test_held_joints_target_home_and_driven_joints_their_own_mapping(go2, subset
 
 
 def test_the_observation_reads_the_policys_joints_in_its_order(go2, subset_policy):
-    from deploy.core.state import RobotState
+    from sim2real.deploy.core.state import RobotState
 
     policy, _, _ = subset_policy
     state = RobotState.legged(1, go2.n_joints, go2.n_feet)
@@ -113,8 +113,8 @@ def test_a_joint_the_robot_lacks_is_refused_by_name(go2):
 def test_the_runtime_holds_the_undriven_joints_at_home_under_the_guard(go2, subset_policy):
     """The whole runtime on the simulated Go2: after the bring-up the held joints' guarded
     targets stay at home while the policy moves the others."""
-    from deploy.backends.sim.plant import SimBackend
-    from deploy.runtime import RUNNING, Runtime
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.runtime import RUNNING, Runtime
 
     policy, _, _ = subset_policy
     plant = SimBackend(go2, "position", envs=1, seed=0)

@@ -9,23 +9,32 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from deploy.cli.deploy_run import deploy_run_main
-from deploy.observe.command_log import CommandLogError, read_command_log
-from eval.sysid import cli
+from sim2real.deploy.cli.deploy_run import deploy_run_main
+from sim2real.deploy.observe.command_log import CommandLogError, read_command_log
+from sim2real.eval.sysid import cli
 
 #: the worn SO-101 `make sysid` runs on: 0.02 N m of friction, twice the armature, a line
 #: 20 % weaker (no-load 3.77 rad/s), 8 ms of command delay
-TRUTH = Path(__file__).resolve().parent.parent / "eval" / "sysid" / "examples" / "so101_worn.toml"
+TRUTH = (
+    Path(__file__).resolve().parent.parent
+    / "sim2real"
+    / "eval"
+    / "sysid"
+    / "examples"
+    / "so101_worn.toml"
+)
 
 
 @pytest.fixture(scope="module")
 def worn_log(tmp_path_factory):
     """4 s of the shipped SO-101 policy on the worn robot, recorded."""
-    from deploy.export import export_policy
+    from sim2real.deploy.export import export_policy
 
     folder = tmp_path_factory.mktemp("sysid")
     pt = folder / "so101.pt"
-    pt.write_bytes((Path(__file__).resolve().parent.parent / "policies" / "so101.pt").read_bytes())
+    pt.write_bytes(
+        (Path(__file__).resolve().parent.parent / "sim2real" / "policies" / "so101.pt").read_bytes()
+    )
 
     log = folder / "run.npz"
     argv = ["--robot", "so101", "--policy", str(export_policy(pt)), "--duration", "4"]
@@ -50,7 +59,7 @@ def test_sysid_recovers_the_worn_motors(worn_log, so101):
     assert cli.main([*argv, "--truth", str(truth)]) == cli.EXIT_OK
     fitted = (out / "plant_motors.toml").read_text()
     assert "command_delay = 0.008" in fitted
-    from robots.plant_motors import load_plant_motors
+    from sim2real.robots.plant_motors import load_plant_motors
 
     plant = load_plant_motors(out / "plant_motors.toml", so101)
     assert plant.robot.motors[0].max_velocity == pytest.approx(3.77, rel=0.05)

@@ -1,15 +1,15 @@
-"""One task protocol and one choice of it (deploy.tasks.task.task_for), one robot kind
-(deploy.robot_kind): an arm reaches goals, a legged robot follows velocity commands, in deploy-run,
+"""One task protocol and one choice of it (sim2real.deploy.tasks.task.task_for), one robot kind
+(sim2real.deploy.robot_kind): an arm reaches goals, a legged robot follows velocity commands, in deploy-run,
 the soak and training alike."""
 
 import numpy as np
 import pytest
 
-from deploy.robot_kind import ARM, LEGGED, robot_kind
-from deploy.tasks.episodes import EpisodeCommands, EpisodeGoals
-from deploy.tasks.goals import GoalTask
-from deploy.tasks.locomotion import VelocityTask
-from deploy.tasks.task import task_for
+from sim2real.deploy.robot_kind import ARM, LEGGED, robot_kind
+from sim2real.deploy.tasks.episodes import EpisodeCommands, EpisodeGoals
+from sim2real.deploy.tasks.goals import GoalTask
+from sim2real.deploy.tasks.locomotion import VelocityTask
+from sim2real.deploy.tasks.task import task_for
 
 
 class _Runtime:
@@ -90,8 +90,8 @@ def test_a_straight_command_holds_the_heading_it_began_with():
     given ``gain * wrap(reference - yaw)`` clipped to 1 rad/s, the reference taken when the hold
     began; a yaw rate asked passes unchanged; a stop lets go, so the next walk holds its own
     heading. The state round-trips."""
-    from deploy.core.state import BaseState
-    from deploy.tasks.heading import HeadingHold
+    from sim2real.deploy.core.state import BaseState
+    from sim2real.deploy.tasks.heading import HeadingHold
 
     def turned(yaw):  # base-to-world quaternions of yaw angles
         return np.stack([np.cos(np.asarray(yaw) / 2), 0 * yaw, 0 * yaw, np.sin(yaw / 2)], 1)
@@ -129,7 +129,7 @@ def test_a_backwards_command_is_taken_as_the_value_it_is():
     """``deploy-run --command -0.5,0,0`` was refused by argparse ("expected one argument": a
     value starting with '-' that is not a plain number looks like an option); now it walks
     backwards, as ``--command=-0.5,0,0`` always did."""
-    from deploy.cli.run_parser import attach_vectors, build_parser
+    from sim2real.deploy.cli.run_parser import attach_vectors, build_parser
 
     argv = attach_vectors(["--policy", "p.onnx", "--command", "-0.5,0,0", "--goal", "-0.1,0.2,0"])
     args = build_parser(argv).parse_args(argv)
@@ -147,8 +147,8 @@ def test_a_robot_settling_to_a_new_command_is_tracking_it():
     planar command counts as tracked, and after it the error counts again (a robot that never
     moves is untracked from then on). The soak's new command every 4 s left a humanoid that
     takes about 1 s to reach each one 77 % tracked at best."""
-    from deploy.core.state import BaseState
-    from deploy.tasks.locomotion import SETTLE_TIME, CommandTracker
+    from sim2real.deploy.core.state import BaseState
+    from sim2real.deploy.tasks.locomotion import SETTLE_TIME, CommandTracker
 
     class Rt:
         def __init__(self):

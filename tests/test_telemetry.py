@@ -8,10 +8,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from deploy.backends.sim.plant import SimBackend
-from deploy.observe.telemetry import Telemetry
-from deploy.policy.onnx_policy import OnnxPolicy
-from deploy.runtime import Runtime
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.observe.telemetry import Telemetry
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import Runtime
 from tests.runtime_fixtures import adversarial_onnx
 
 pytest.importorskip("foxglove_schemas_protobuf", reason="the foxglove extra is not installed")
@@ -156,7 +156,7 @@ def test_telemetry_leaves_the_run_bit_for_bit_identical(tmp_path, arm3):
 def test_deploy_run_telemetry_on_a_floating_base_robot(tmp_path, go2):
     """``deploy-run --telemetry`` on the Go2: a complete MCAP whose ``/tf`` poses are forward
     kinematics of the logged joints with the logged estimate of the base's orientation."""
-    from deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
 
     policy = adversarial_onnx(tmp_path, go2, "position")
     path = tmp_path / "go2.mcap"
@@ -188,10 +188,10 @@ def test_a_legged_runs_telemetry_carries_the_base_estimate_beside_the_truth(tmp_
     """``/estimate`` has the base's projected gravity, linear and angular velocity; ``/truth``
     (simulation) the simulator's, stamped alike: a user plots one against the other. The
     shipped Go2 walking: the logged estimate follows the logged truth."""
-    from deploy.cli.deploy_run import deploy_run_main
-    from deploy.export import export_policy
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.export import export_policy
 
-    policy = export_policy(REPO / "policies" / "go2.pt", out=tmp_path / "go2.onnx")
+    policy = export_policy(REPO / "sim2real" / "policies" / "go2.pt", out=tmp_path / "go2.onnx")
     path = tmp_path / "go2.mcap"
     code = deploy_run_main(
         ["--robot", "go2", "--policy", str(policy), "--command", "0.5,0,0"]

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from robots.chain_bounds import motion_bounds
-from robots.loading import load_motor, motor_catalog
-from robots.thermal import EffortDerating, TwoNodeThermalModel, derating_factor
+from sim2real.robots.chain_bounds import motion_bounds
+from sim2real.robots.loading import load_motor, motor_catalog
+from sim2real.robots.thermal import EffortDerating, TwoNodeThermalModel, derating_factor
 
 
 def test_capacities_follow_the_datasheet_time_constants(arm3):
@@ -79,7 +79,7 @@ def test_every_catalog_motor_sustains_its_continuous_torque(name):
 
 def test_compiled_step_equals_the_numpy_reference_bit_for_bit():
     """go2's two motor models, 3 envs, 2,000 steps of random torques up to the peak."""
-    from robots import load_robot
+    from sim2real.robots import load_robot
 
     go2 = load_robot("go2")
     models = [TwoNodeThermalModel(go2.motors, envs=3, ambient_temperature=25.0) for _ in range(2)]

@@ -1,4 +1,4 @@
-"""The plant's motors follow their torque-speed line (robots.torque_speed): a servo commanded far
+"""The plant's motors follow their torque-speed line (sim2real.robots.torque_speed): a servo commanded far
 away does not outrun its no-load speed, a hot winding lowers the line, the compiled range equals
 its numpy reference in both quadrants, and pybullet's plant applies the same line."""
 
@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from deploy.backends.sim.drives_kernel import torque_speed_range
-from deploy.backends.sim.plant import SimBackend
-from robots.torque_speed import TorqueSpeedEnvelope
+from sim2real.deploy.backends.sim.drives_kernel import torque_speed_range
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.robots.torque_speed import TorqueSpeedEnvelope
 
 
 def _fastest(plant, robot, seconds=0.5):
@@ -71,7 +71,7 @@ def test_a_motor_without_a_no_load_speed_keeps_its_effort_limit(arm3):
 
 def test_pybullet_applies_the_same_line(so101):
     pytest.importorskip("pybullet")
-    from deploy.backends.sim.bullet.plant import BulletBackend
+    from sim2real.deploy.backends.sim.bullet.plant import BulletBackend
 
     fastest = _fastest(BulletBackend(so101, mode="position"), so101)
     assert fastest.max() < 1.15 * so101.motors[0].max_velocity
@@ -81,8 +81,8 @@ def _so101_with_delay(tmp_path, delay: float):
     """The SO-101 with its STS3215 motor table in robot.toml, ``command_delay`` added."""
     import shutil
 
-    from robots import load_robot
-    from robots.loading import motor_catalog
+    from sim2real.robots import load_robot
+    from sim2real.robots.loading import motor_catalog
 
     root = Path(__file__).resolve().parent.parent
     folder = tmp_path / f"so101_delay_{delay:g}"
@@ -130,10 +130,10 @@ def test_a_session_draws_the_supply_voltage_only_when_its_range_is_set(so101, tm
     it the draws are those of before (the supply is drawn last, and not at all when off)."""
     from dataclasses import replace
 
-    from eval.soak.batch import SessionBatch
-    from eval.soak.session import SessionConfig
-    from eval.world.dynamics import DynamicsRanges, sample_dynamics
-    from eval.world.session_ranges import session_ranges
+    from sim2real.eval.soak.batch import SessionBatch
+    from sim2real.eval.soak.session import SessionConfig
+    from sim2real.eval.world.dynamics import DynamicsRanges, sample_dynamics
+    from sim2real.eval.world.session_ranges import session_ranges
 
     plain = sample_dynamics(so101, np.random.default_rng(3))
     drawn = sample_dynamics(so101, np.random.default_rng(3), DynamicsRanges(supply_voltage=0.2))
@@ -141,10 +141,12 @@ def test_a_session_draws_the_supply_voltage_only_when_its_range_is_set(so101, tm
     assert plain.supply == 1.0 and 0.8 <= drawn.supply <= 1.2 and drawn.supply != 1.0
     ranges = session_ranges(so101)
     ranges = replace(ranges, dynamics=replace(ranges.dynamics, supply_voltage=0.2))
-    from deploy.export import export_policy
+    from sim2real.deploy.export import export_policy
 
     pt = tmp_path / "so101.pt"
-    pt.write_bytes((Path(__file__).resolve().parent.parent / "policies" / "so101.pt").read_bytes())
+    pt.write_bytes(
+        (Path(__file__).resolve().parent.parent / "sim2real" / "policies" / "so101.pt").read_bytes()
+    )
     config = SessionConfig(robot="so101", policy=str(export_policy(pt)), seed=4, hours=0.01)
     batch = SessionBatch([replace(config, ranges=ranges)], tmp_path / "soak", progress=False)
     supply = batch.backend.actuators.supply[0]
@@ -159,7 +161,7 @@ def test_full_torque_cannot_drive_a_joint_far_past_its_no_load_speed(name):
     its stops, no joint runs faster than 1.8x its no-load speed (the other links' swing and
     gravity push past it; the motor only brakes there). Without the line they ran at
     2.6-7.3x."""
-    from robots import load_robot
+    from sim2real.robots import load_robot
 
     robot = load_robot(name)
     lo, hi = np.asarray(robot.position_lower) + 0.1, np.asarray(robot.position_upper) - 0.1

@@ -1,4 +1,4 @@
-"""The Go2 training recipe (policies.train_legged): the learner acts inside the runtime's tick."""
+"""The Go2 training recipe (sim2real.policies.train_legged): the learner acts inside the runtime's tick."""
 
 from __future__ import annotations
 
@@ -8,17 +8,17 @@ import torch
 
 pytest.importorskip("stable_baselines3")
 
-from deploy.policy.mlp_checkpoint import read_checkpoint  # noqa: E402
-from deploy.policy.onnx_policy import OnnxPolicy  # noqa: E402
-from policies.train_legged import main  # noqa: E402
-from robots import load_robot  # noqa: E402
+from sim2real.deploy.policy.mlp_checkpoint import read_checkpoint  # noqa: E402
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy  # noqa: E402
+from sim2real.policies.train_legged import main  # noqa: E402
+from sim2real.robots import load_robot  # noqa: E402
 
 
 def test_training_acts_through_the_runtime_and_ships_generator_plus_residual(tmp_path, monkeypatch):
     """Two robots, two rollouts: the rollout buffer holds the observations the runtime built and
     the runtime received prior + residual; the candidate checkpoint is the trot generator plus
     the Gaussian mean, and its ONNX export computes the same action."""
-    import policies.train_legged as tl
+    import sim2real.policies.train_legged as tl
 
     seen = {}
     collect = tl.RuntimePPO.collect_rollouts
@@ -70,14 +70,14 @@ def test_a_candidate_ships_only_through_its_soak_gate(tmp_path):
 
 
 def test_fine_tuning_starts_from_the_shipped_actor_and_warms_the_critic_first(tmp_path):
-    """--init-from policies/go2.pt starts the Gaussian mean at the shipped actor: while the critic
+    """--init-from sim2real/policies/go2.pt starts the Gaussian mean at the shipped actor: while the critic
     warms up (--critic-warmup) the actor does not move, so a run that is all warm-up writes a
     candidate equal to the shipped policy; after the warm-up it learns."""
     from pathlib import Path
 
-    shipped = read_checkpoint(Path("policies/go2.pt")).actor.state_dict()
+    shipped = read_checkpoint(Path("sim2real/policies/go2.pt")).actor.state_dict()
     common = ["--envs", "2", "--n-steps", "16", "--batch-size", "16", "--epochs", "1"]
-    common += ["--save-every", "0", "--gate-hours", "0", "--init-from", "policies/go2.pt"]
+    common += ["--save-every", "0", "--gate-hours", "0", "--init-from", "sim2real/policies/go2.pt"]
     common += ["--initial-std", "0.2"]
     main(common + ["--steps", "32", "--critic-warmup", "32", "--logdir", str(tmp_path / "w")])
     warmed = read_checkpoint(tmp_path / "w" / "go2_seed1.pt").actor.state_dict()
@@ -95,5 +95,12 @@ def test_fine_tuning_from_another_recipes_checkpoint_names_the_file(tmp_path):
     with pytest.raises(ValueError, match=r"so101\.pt.*spec"):
         main(
             ["--envs", "2", "--steps", "16", "--n-steps", "8", "--batch-size", "16"]
-            + ["--init-from", "policies/so101.pt", "--logdir", str(tmp_path), "--gate-hours", "0"]
+            + [
+                "--init-from",
+                "sim2real/policies/so101.pt",
+                "--logdir",
+                str(tmp_path),
+                "--gate-hours",
+                "0",
+            ]
         )

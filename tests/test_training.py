@@ -1,4 +1,4 @@
-"""The training env (policies/envs.py) and the PPO-to-checkpoint conversion (policies/train.py)."""
+"""The training env (sim2real/policies/envs.py) and the PPO-to-checkpoint conversion (sim2real/policies/train.py)."""
 
 from dataclasses import replace
 
@@ -7,9 +7,9 @@ import pytest
 import torch
 from gymnasium.utils.env_checker import check_env
 
-from deploy.policy.mlp_checkpoint import load_checkpoint, save_checkpoint
-from eval.world.dynamics import DynamicsRanges
-from policies.envs import ArmReachEnv, ReachConfig, ReachTask, RewardConfig
+from sim2real.deploy.policy.mlp_checkpoint import load_checkpoint, save_checkpoint
+from sim2real.eval.world.dynamics import DynamicsRanges
+from sim2real.policies.envs import ArmReachEnv, ReachConfig, ReachTask, RewardConfig
 
 NOMINAL = ReachConfig(dynamics=DynamicsRanges.none())
 
@@ -101,7 +101,7 @@ def test_the_shipped_checkpoint_holds_the_ppo_mean_action(arm3, tmp_path):
     pytest.importorskip("stable_baselines3")
     from stable_baselines3 import PPO
 
-    from policies.train import HIDDEN, ReachVecEnv, actor_from_model
+    from sim2real.policies.train import HIDDEN, ReachVecEnv, actor_from_model
 
     task = ReachTask(arm3, 2, NOMINAL, seed=5)
     model = PPO(
@@ -127,7 +127,7 @@ def test_the_shipped_checkpoint_holds_the_ppo_mean_action(arm3, tmp_path):
 
 def test_a_vec_env_reset_keeps_the_terminal_observation(arm3):
     pytest.importorskip("stable_baselines3")
-    from policies.train import ReachVecEnv
+    from sim2real.policies.train import ReachVecEnv
 
     cfg = ReachConfig(dynamics=DynamicsRanges.none(), episode_seconds=0.05)  # 10 ticks
     venv = ReachVecEnv(ReachTask(arm3, 2, cfg, seed=6))
@@ -161,7 +161,7 @@ def test_training_ships_only_a_policy_that_passes_the_soak(tmp_path):
     """An untrained policy fails the shipping soak: the candidate and the soak's report stay in
     the log folder and --out is not written."""
     pytest.importorskip("stable_baselines3")
-    from policies.train import main
+    from sim2real.policies.train import main
 
     out = tmp_path / "ship" / "arm.pt"
     args = ["--steps", "256", "--envs", "2", "--n-steps", "64", "--batch-size", "64"]
@@ -176,16 +176,21 @@ def test_training_ships_only_a_policy_that_passes_the_soak(tmp_path):
 
 
 def test_fine_tuning_the_shipped_arm_starts_from_its_actor_and_warms_the_critic_first(tmp_path):
-    """--init-from policies/arm.pt starts PPO's mean at the shipped actor: a run that is all critic
+    """--init-from sim2real/policies/arm.pt starts PPO's mean at the shipped actor: a run that is all critic
     warm-up writes a candidate equal to arm.pt; after the warm-up the actor learns; another
     robot's checkpoint is refused with the file named."""
     pytest.importorskip("stable_baselines3")
-    from policies.train import main
+    from sim2real.policies.train import main
 
-    shipped = load_checkpoint("policies/arm.pt")[0].state_dict()
+    shipped = load_checkpoint("sim2real/policies/arm.pt")[0].state_dict()
     common = ["--envs", "2", "--n-steps", "16", "--batch-size", "16", "--epochs", "1"]
     common += ["--anneal-steps", "0", "--no-progress", "--gate-hours", "0"]
-    common += ["--init-from", "policies/arm.pt", "--out", str(tmp_path / "ship" / "arm.pt")]
+    common += [
+        "--init-from",
+        "sim2real/policies/arm.pt",
+        "--out",
+        str(tmp_path / "ship" / "arm.pt"),
+    ]
     main(common + ["--steps", "32", "--critic-warmup", "32", "--logdir", str(tmp_path / "w")])
     warmed = load_checkpoint(tmp_path / "w" / "arm3_velocity_seed1.pt")[0].state_dict()
     assert shipped.keys() == warmed.keys()
@@ -197,7 +202,7 @@ def test_fine_tuning_the_shipped_arm_starts_from_its_actor_and_warms_the_critic_
     assert any(not torch.equal(tuned[k], shipped[k]) for k in shipped)
 
     with pytest.raises(ValueError, match=r"so101\.pt.*spec"):
-        main(common[:-4] + ["--init-from", "policies/so101.pt", "--steps", "16"])
+        main(common[:-4] + ["--init-from", "sim2real/policies/so101.pt", "--steps", "16"])
 
 
 def test_fine_tuning_a_hard_range_checkpoint_keeps_its_targets_inside_the_soft_limits(tmp_path):
@@ -207,12 +212,12 @@ def test_fine_tuning_a_hard_range_checkpoint_keeps_its_targets_inside_the_soft_l
     limits (where the old policy saturated, as so101's gripper did, the new one rests on the
     soft limit, which the guard does not clamp)."""
     pytest.importorskip("stable_baselines3")
-    from deploy.spec.policy_spec import PolicySpec
-    from policies.train import main
-    from robots import load_robot
+    from sim2real.deploy.spec.policy_spec import PolicySpec
+    from sim2real.policies.train import main
+    from sim2real.robots import load_robot
 
     so101 = load_robot("so101")
-    actor = load_checkpoint("policies/so101.pt")[0]
+    actor = load_checkpoint("sim2real/policies/so101.pt")[0]
     hard = PolicySpec.for_robot(so101, mode="position", position_range="hard")
     save_checkpoint(tmp_path / "hard.pt", actor, hard)
     args = ["--robot", "so101", "--mode", "position", "--envs", "2", "--n-steps", "16"]
@@ -251,16 +256,16 @@ def test_holding_the_arm_against_gravity_costs_its_joule_heat(arm3):
 
 
 def test_the_shipped_so101_policy_reaches_its_goals_through_the_runtime(tmp_path):
-    """policies/so101.pt (make train ROBOT=so101), exported with its parity gate, through the
+    """sim2real/policies/so101.pt (make train ROBOT=so101), exported with its parity gate, through the
     full runtime on the sim backend: the goals of a minute reached (the issue asks >= 90 % over
     longer runs; 60 s has 15 goals), no hard violation, a clean exit."""
     import json
 
-    from deploy.cli.deploy_run import deploy_run_main
-    from deploy.cli.policy_export import main as export_main
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.cli.policy_export import main as export_main
 
     onnx = tmp_path / "so101.onnx"
-    assert export_main(["policies/so101.pt", "--out", str(onnx)]) == 0
+    assert export_main(["sim2real/policies/so101.pt", "--out", str(onnx)]) == 0
     report = tmp_path / "run.json"
     code = deploy_run_main(
         ["--robot", "so101", "--policy", str(onnx), "--duration", "60", "--report", str(report)]

@@ -8,14 +8,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from deploy.backends.sim.faults import Fault
-from eval.world.dynamics import DynamicsRanges
-from eval.world.sensors import SensorRanges
-from eval.world.session_draw import sample_session
-from eval.world.session_ranges import session_ranges
-from policies import envs as reach_envs
-from policies.envs import ReachConfig, ReachTask
-from policies.episode_faults import FAULT_WARMUP
+from sim2real.deploy.backends.sim.faults import Fault
+from sim2real.eval.world.dynamics import DynamicsRanges
+from sim2real.eval.world.sensors import SensorRanges
+from sim2real.eval.world.session_draw import sample_session
+from sim2real.eval.world.session_ranges import session_ranges
+from sim2real.policies import envs as reach_envs
+from sim2real.policies.envs import ReachConfig, ReachTask
+from sim2real.policies.episode_faults import FAULT_WARMUP
 
 #: fixed encoder settings: every episode draws the same (latency 1 tick, dropout 0.001)
 SENSORS = SensorRanges(noise_sigma=(0.001, 0.001), latency_ticks=(1, 1), dropout=(0.001, 0.001))
@@ -152,15 +152,15 @@ def test_faults_off_draw_no_schedule_and_leave_the_other_draws_alone(arm3):
 # ---------------------------------------------------------------------------- legged
 @pytest.fixture(scope="module")
 def go2_spec():
-    from policies.gait import make_policy
+    from sim2real.policies.gait import make_policy
 
     return make_policy("go2")[1]
 
 
 def spy_sessions(monkeypatch, replace_faults: dict | None = None) -> list:
-    """Record ``policies.locomotion.sample_session``'s calls (seed, draw); with
+    """Record ``sim2real.policies.locomotion.sample_session``'s calls (seed, draw); with
     ``replace_faults`` {call index: schedule}, that call's draw gets the schedule instead."""
-    import policies.locomotion as loco
+    import sim2real.policies.locomotion as loco
 
     real, calls = loco.sample_session, []
 
@@ -179,7 +179,7 @@ def test_a_legged_episode_meets_its_latency_fault_through_the_runtime(go2, go2_s
     """Env 0 of two Go2s meets one latency burst at 1 s for 0.3 s: the runtime's injector raises
     its latency on exactly those ticks; env 1's stays; a reset mid-burst leaves the new
     episode's latency in force. A nan-action fault never makes the reward non-finite."""
-    from policies.locomotion import LocomotionConfig, LocomotionTask
+    from sim2real.policies.locomotion import LocomotionConfig, LocomotionTask
 
     burst = Fault("latency", 1.0, 0.3, magnitude=1.0)
     nan = Fault("nan-action", 0.6, 0.1)
@@ -209,7 +209,7 @@ def test_a_legged_episode_draws_sample_sessions_schedule_at_the_training_interva
     """Each episode's schedule is ``sample_session``'s for its seed, its length and the soak's
     ranges with the training interval; with faults off every draw has an empty schedule and the
     runtime has no injector."""
-    from policies.locomotion import LocomotionConfig, LocomotionTask
+    from sim2real.policies.locomotion import LocomotionConfig, LocomotionTask
 
     calls = spy_sessions(monkeypatch)
     cfg = LocomotionConfig(episode_seconds=20.0, fault_interval=4.0)
@@ -230,8 +230,8 @@ def test_a_legged_episode_draws_sample_sessions_schedule_at_the_training_interva
 def test_the_training_commands_set_and_record_the_fault_settings(monkeypatch):
     """``--no-faults`` and ``--fault-interval`` reach the task's config (train.py and
     train_legged.py)."""
-    import policies.train as train
-    import policies.train_legged as train_legged
+    import sim2real.policies.train as train
+    import sim2real.policies.train_legged as train_legged
 
     seen = []
 

@@ -1,5 +1,5 @@
 """``deploy-run --backend unitree`` over real DDS (Cyclone DDS on the loopback) against the
-Unitree emulator (:class:`deploy.backends.unitree.emulator.UnitreeEmulator`, the MuJoCo plant
+Unitree emulator (:class:`sim2real.deploy.backends.unitree.emulator.UnitreeEmulator`, the MuJoCo plant
 behind the robot's own topics): the bring-up, the bytes on the wire, a walk with LowState lost,
 and the faults: LowState stopped, bad CRCs, a hot motor. Each test has its own DDS domain.
 
@@ -26,15 +26,15 @@ from onnx import TensorProto, helper, numpy_helper
 
 pytest.importorskip("cyclonedds", reason="pip install '.[unitree]'")
 
-from deploy.backends.unitree import unitree_go  # noqa: E402
-from deploy.backends.unitree.backend import UnitreeBackend  # noqa: E402
-from deploy.backends.unitree.bringup import BLEND_TIME, BringupError  # noqa: E402
-from deploy.backends.unitree.dds import DdsLink  # noqa: E402
-from deploy.backends.unitree.emulator import EmulatorFaults, UnitreeEmulator  # noqa: E402
-from deploy.backends.unitree.emulator.robot import TRACE_EVERY  # noqa: E402
-from deploy.backends.unitree.emulator.truth import walk_truth  # noqa: E402
-from deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT  # noqa: E402
-from deploy.spec.policy_spec import PolicySpec  # noqa: E402
+from sim2real.deploy.backends.unitree import unitree_go  # noqa: E402
+from sim2real.deploy.backends.unitree.backend import UnitreeBackend  # noqa: E402
+from sim2real.deploy.backends.unitree.bringup import BLEND_TIME, BringupError  # noqa: E402
+from sim2real.deploy.backends.unitree.dds import DdsLink  # noqa: E402
+from sim2real.deploy.backends.unitree.emulator import EmulatorFaults, UnitreeEmulator  # noqa: E402
+from sim2real.deploy.backends.unitree.emulator.robot import TRACE_EVERY  # noqa: E402
+from sim2real.deploy.backends.unitree.emulator.truth import walk_truth  # noqa: E402
+from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT  # noqa: E402
+from sim2real.deploy.spec.policy_spec import PolicySpec  # noqa: E402
 from tests.unitree_reference import (  # noqa: E402
     crc_bitwise,
     go_lowcmd_c_struct,
@@ -85,12 +85,12 @@ def stand_onnx(go2, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def go2_onnx(tmp_path_factory):
-    """The shipped Go2 policy (policies/go2.pt), exported."""
+    """The shipped Go2 policy (sim2real/policies/go2.pt), exported."""
     pytest.importorskip("torch")
-    from deploy.export import export_policy
+    from sim2real.deploy.export import export_policy
 
     return export_policy(
-        REPO / "policies" / "go2.pt", out=tmp_path_factory.mktemp("go2") / "go2.onnx"
+        REPO / "sim2real" / "policies" / "go2.pt", out=tmp_path_factory.mktemp("go2") / "go2.onnx"
     )
 
 
@@ -106,7 +106,7 @@ def _deploy_run(tmp_path, domain, policy, seconds, *extra):
         *extra,
     ]  # fmt: skip
     done = subprocess.run(
-        [sys.executable, "-m", "deploy.cli.deploy_run", *argv],
+        [sys.executable, "-m", "sim2real.deploy.cli.deploy_run", *argv],
         capture_output=True,
         text=True,
         timeout=240,
@@ -190,7 +190,7 @@ def test_bringup_then_lowcmd_on_the_wire_is_byte_identical_to_the_idl(go2):
 
 
 def test_bringup_without_lowstate_names_the_interface_and_domain(go2, stand_onnx, capsys):
-    from deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
 
     domain = _domain()  # nobody publishes there
     code = deploy_run_main(

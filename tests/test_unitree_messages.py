@@ -17,11 +17,11 @@ import pytest
 
 pytest.importorskip("cyclonedds", reason="pip install '.[unitree]'")
 
-from deploy.backends.unitree import unitree_go, unitree_hg  # noqa: E402
-from deploy.backends.unitree.codec import MessageCodec  # noqa: E402
-from deploy.backends.unitree.crc import crc32_words, message_crc  # noqa: E402
-from deploy.backends.unitree.emulator.faults import EmulatorFaults, parse_fault  # noqa: E402
-from deploy.backends.unitree.layout import c_dtype  # noqa: E402
+from sim2real.deploy.backends.unitree import unitree_go, unitree_hg  # noqa: E402
+from sim2real.deploy.backends.unitree.codec import MessageCodec  # noqa: E402
+from sim2real.deploy.backends.unitree.crc import crc32_words, message_crc  # noqa: E402
+from sim2real.deploy.backends.unitree.emulator.faults import EmulatorFaults, parse_fault  # noqa: E402
+from sim2real.deploy.backends.unitree.layout import c_dtype  # noqa: E402
 from tests.unitree_reference import (  # noqa: E402
     crc_bitwise,
     go_lowcmd_c_struct,
@@ -163,8 +163,8 @@ def test_emulator_faults_parse_and_refuse_nonsense():
 
 
 def test_importer_derives_unitree_slots_from_the_joint_names_and_refuses_others():
-    from robots.importer.source import RobotImportError
-    from robots.importer.unitree import foot_slot, motor_slot
+    from sim2real.robots.importer.source import RobotImportError
+    from sim2real.robots.importer.unitree import foot_slot, motor_slot
 
     assert [motor_slot(j) for j in ("FR_hip_joint", "FL_calf_joint", "RL_thigh_joint")] == [
         0,

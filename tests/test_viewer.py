@@ -5,8 +5,8 @@ import sys
 
 import pytest
 
-from deploy.cli.deploy_run import EXIT_BAD_INPUT, deploy_run_main
-from deploy.observe.viewer import NoDisplayError, check_display
+from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, deploy_run_main
+from sim2real.deploy.observe.viewer import NoDisplayError, check_display
 
 
 @pytest.mark.parametrize(
@@ -41,7 +41,7 @@ def test_deploy_run_viewer_without_display_exits_3_before_the_run(monkeypatch, c
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the EGL default is Linux's")
 def test_video_chooses_egl_only_headless_and_unchosen():
-    from deploy.observe.video import headless_gl_default
+    from sim2real.deploy.observe.video import headless_gl_default
 
     headless = {}
     assert headless_gl_default(headless) == "egl" and headless == {"MUJOCO_GL": "egl"}

@@ -7,13 +7,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from deploy.backends.sim.plant import SimBackend
-from deploy.core.state import RobotState
-from deploy.monitors.interventions import INTERVENTION_CHECKS, InterventionMonitor
-from deploy.monitors.violations import VIOLATION_TYPES, ViolationMonitor
-from deploy.safety.guard import SafetyGuard
-from deploy.smoothing import CommandSmoother
-from deploy.tasks.goals import GoalScheduler, success_windows
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.monitors.interventions import INTERVENTION_CHECKS, InterventionMonitor
+from sim2real.deploy.monitors.violations import VIOLATION_TYPES, ViolationMonitor
+from sim2real.deploy.safety.guard import SafetyGuard
+from sim2real.deploy.smoothing import CommandSmoother
+from sim2real.deploy.tasks.goals import GoalScheduler, success_windows
 
 
 def place(backend, e, q, dq=None):

@@ -54,7 +54,7 @@ def go_lowcmd_c_struct(head, level, motors, gpio, reserve, crc) -> bytes:
 def go_lowcmd_object(motors, crc: int, gpio: int = 0, reserve: int = 0):
     """unitree_go LowCmd_ built field by field as a Cyclone DDS object: the Go2's head 0xFE 0xEF
     and level flag 0xFF, one MotorCmd_ per ``(mode, q, dq, tau, kp, kd)`` of ``motors``."""
-    from deploy.backends.unitree import unitree_go
+    from sim2real.deploy.backends.unitree import unitree_go
 
     return unitree_go.LowCmd_(
         head=[0xFE, 0xEF],

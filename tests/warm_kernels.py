@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from deploy.backends.sim.plant import SimBackend
-from deploy.monitors.interventions import InterventionMonitor
-from deploy.monitors.violations import ViolationMonitor
-from deploy.runtime import Runtime
-from deploy.spec.policy_spec import PolicySpec
-from deploy.tasks.task import task_for
-from robots import load_robot
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.monitors.interventions import InterventionMonitor
+from sim2real.deploy.monitors.violations import ViolationMonitor
+from sim2real.deploy.runtime import Runtime
+from sim2real.deploy.spec.policy_spec import PolicySpec
+from sim2real.deploy.tasks.task import task_for
+from sim2real.robots import load_robot
 
 #: (robot, control modes) whose stages are built and ticked.
 ROBOTS = (

@@ -1,3 +1,0 @@
-"""deploy-run and policy-export: the parser, the run, its summary; the adversarial acceptance
-run (``python -m deploy.cli.deploy_run.acceptance``).
-"""

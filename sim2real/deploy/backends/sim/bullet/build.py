@@ -1,0 +1,572 @@
+"""A robot's compiled MuJoCo model rebuilt as a pybullet world: the bodies, joints, inertias,
+collision geometry, contact filter, floor friction and joint limits of that one model.
+
+The plant builds its pybullet world from the very ``MjModel`` the MuJoCo plant would step (one per
+env, randomized by the soak), so link masses and lengths, joint friction and damping, floor
+friction and added payloads reach both engines alike. What pybullet cannot hold is mapped:
+
+- **Armature** (a drive's reflected rotor inertia, ``dof_armature``): pybullet's multibodies have
+  none. A fixed-base arm gets it exactly, in joint space, from the plant's torques
+  (``BulletBackend._armature_torque``). A floating base (whose contacts make that inexact) gets a
+  rotor link per drive, geared to its joint (:data:`ROTOR_GEAR_RATIO`).
+- **Friction pairs**: bullet multiplies the two surfaces' friction coefficients where MuJoCo takes
+  the larger (or the floor's, with its priority). Robot links get 1 and the floor the coefficient
+  MuJoCo's rule gives a foot on it.
+- **Contact filter**: MuJoCo's ``contype`` / ``conaffinity`` rule, its parent-child filter and
+  ``<exclude>`` pairs, as pybullet pair filters.
+- Joint dry friction (``dof_frictionloss``) is pybullet's zero-velocity motor with that maximum
+  torque; damping and the drives are the plant's explicit torques (:mod:`.world`).
+
+Geoms: planes, spheres, capsules, cylinders, boxes and meshes (as their convex hulls, like
+MuJoCo's; robot-import writes hulls). Each body holds at most one hinge or slide joint (or none:
+a fixed link).
+
+Errors: :class:`UnsupportedModelError` names the body, joint or geom pybullet cannot build.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pybullet as pb
+
+from sim2real.robots.errors import Sim2RealError
+
+#: A legged robot's drives: each armature is a rotor link of ``armature / ROTOR_GEAR_RATIO^2``
+#: geared ``ROTOR_GEAR_RATIO`` to its joint (a bullet gear constraint). MuJoCo's armature is the
+#: limit of an infinite ratio; at 30 the cross terms a rotor adds to the joints upstream are 3 %
+#: of its armature, and bullet's solver still resolves the gear within a step.
+ROTOR_GEAR_RATIO = 30.0
+#: kg, a rotor link's mass (it must have one; small against any link's).
+ROTOR_MASS = 1e-4
+
+
+#: createMultiBody's per-link arguments, in the order of ``_build``'s ``link_args``.
+_LINK_FIELDS = (
+    "linkMasses",
+    "linkCollisionShapeIndices",
+    "linkPositions",
+    "linkOrientations",
+    "linkInertialFramePositions",
+    "linkInertialFrameOrientations",
+    "linkParentIndices",
+    "linkJointTypes",
+    "linkJointAxis",
+)
+
+
+class UnsupportedModelError(Sim2RealError, ValueError):
+    """The MuJoCo model holds something the pybullet world cannot represent."""
+
+
+_GEOM = mujoco.mjtGeom
+_JOINT = {
+    int(mujoco.mjtJoint.mjJNT_HINGE): pb.JOINT_REVOLUTE,
+    int(mujoco.mjtJoint.mjJNT_SLIDE): pb.JOINT_PRISMATIC,
+}
+
+
+def xyzw(q_wxyz: np.ndarray) -> list[float]:
+    """MuJoCo's (w, x, y, z) quaternion as pybullet's (x, y, z, w)."""
+    return [float(q_wxyz[1]), float(q_wxyz[2]), float(q_wxyz[3]), float(q_wxyz[0])]
+
+
+def wxyz(q_xyzw) -> np.ndarray:
+    """pybullet's (x, y, z, w) quaternion as MuJoCo's (w, x, y, z), shape (4,)."""
+    return np.array([q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]], dtype=np.float64)
+
+
+def quat_to_mat(q_wxyz: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3, 3) of a unit quaternion (w, x, y, z)."""
+    mat = np.empty(9)
+    mujoco.mju_quat2Mat(mat, np.asarray(q_wxyz, dtype=np.float64))
+    return mat.reshape(3, 3)
+
+
+@dataclass
+class BulletWorld:
+    """One env's pybullet world, as :func:`build_world` made it.
+
+    Attributes:
+        client: pybullet physics client id (a DIRECT connection of its own).
+        body: Multibody id of the robot.
+        link_of_body: (nbody,) int, MuJoCo body id -> pybullet link index (-1 the base, -2 a
+            body outside the robot: the world).
+        joint_index: (n_joints,) pybullet joint indices of the robot's joints, in MuJoCo order.
+        com_offset: (3,) m, the base's centre of mass in its MuJoCo body frame (pybullet reports
+            the base's pose at its inertial frame); zeros for a fixed base.
+        com_quat: (4,) (w, x, y, z) the base's inertial frame in its body frame.
+        floating: The robot's base is a free joint.
+        rotor_index: (n_joints,) pybullet joint index of each joint's rotor link (-1: none),
+            geared ``ROTOR_GEAR_RATIO`` to it.
+    """
+
+    client: int
+    body: int
+    link_of_body: np.ndarray
+    joint_index: list[int]
+    com_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    com_quat: np.ndarray = field(default_factory=lambda: np.array([1.0, 0, 0, 0]))
+    floating: bool = False
+    rotor_index: list[int] = field(default_factory=list)
+
+
+def _shape(m: mujoco.MjModel, g: int, anchor: np.ndarray, meshdir: Path) -> dict | None:
+    """pybullet's collision-shape arguments of geom ``g`` in its body's link frame (the body frame
+    moved to the joint ``anchor``), or None for a visual geom. A mesh is written to ``meshdir``
+    as an OBJ of the compiled mesh's vertices and faces (MuJoCo collides its convex hull, and so
+    does pybullet with a mesh file)."""
+    if m.geom_contype[g] == 0 and m.geom_conaffinity[g] == 0:
+        return None
+    t, size = int(m.geom_type[g]), m.geom_size[g]
+    pos = (m.geom_pos[g] - anchor).tolist()
+    quat = xyzw(m.geom_quat[g])
+    if t == _GEOM.mjGEOM_SPHERE:
+        args = dict(shapeType=pb.GEOM_SPHERE, radius=float(size[0]))
+    elif t == _GEOM.mjGEOM_CAPSULE:
+        args = dict(shapeType=pb.GEOM_CAPSULE, radius=float(size[0]), height=2 * float(size[1]))
+    elif t == _GEOM.mjGEOM_CYLINDER:
+        args = dict(shapeType=pb.GEOM_CYLINDER, radius=float(size[0]), height=2 * float(size[1]))
+    elif t == _GEOM.mjGEOM_BOX:
+        args = dict(shapeType=pb.GEOM_BOX, halfExtents=size.tolist())
+    elif t == _GEOM.mjGEOM_PLANE:
+        args = dict(shapeType=pb.GEOM_PLANE, planeNormal=[0.0, 0.0, 1.0])
+    elif t == _GEOM.mjGEOM_MESH:
+        args = dict(shapeType=pb.GEOM_MESH, fileName=_mesh_obj(m, int(m.geom_dataid[g]), meshdir))
+    else:
+        raise UnsupportedModelError(
+            f"geom '{m.geom(g).name or g}' of body '{m.body(m.geom_bodyid[g]).name}': type "
+            f"{_GEOM(t).name} has no pybullet shape here (expected plane, sphere, capsule, "
+            "cylinder, box or mesh)"
+        )
+    return dict(args, pos=pos, quat=quat)
+
+
+def _mesh_obj(m: mujoco.MjModel, mesh: int, meshdir: Path) -> str:
+    """Mesh ``mesh`` of the compiled model (its frame: MuJoCo's recentred vertices) as an OBJ file
+    in ``meshdir``; its path."""
+    path = meshdir / f"mesh{mesh}.obj"
+    if not path.exists():
+        start, count = int(m.mesh_vertadr[mesh]), int(m.mesh_vertnum[mesh])
+        faces = m.mesh_face[m.mesh_faceadr[mesh] : m.mesh_faceadr[mesh] + m.mesh_facenum[mesh]]
+        verts = m.mesh_vert[start : start + count].astype(np.float64)
+        lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in verts.tolist()]
+        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
+        path.write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+def _collision_shape(client: int, shapes: list[dict]) -> int:
+    """One pybullet collision shape (compound when several) of ``shapes``; -1 for none."""
+    if not shapes:
+        return -1
+    if len(shapes) == 1:
+        s = dict(shapes[0])
+        pos, quat = s.pop("pos"), s.pop("quat")
+        return pb.createCollisionShape(
+            **s, collisionFramePosition=pos, collisionFrameOrientation=quat, physicsClientId=client
+        )
+    kinds = [s["shapeType"] for s in shapes]
+    return pb.createCollisionShapeArray(
+        shapeTypes=kinds,
+        radii=[s.get("radius", 0.0) for s in shapes],
+        halfExtents=[s.get("halfExtents", [0.0, 0.0, 0.0]) for s in shapes],
+        lengths=[s.get("height", 0.0) for s in shapes],
+        fileNames=[s.get("fileName", "") for s in shapes],
+        planeNormals=[s.get("planeNormal", [0.0, 0.0, 1.0]) for s in shapes],
+        collisionFramePositions=[s["pos"] for s in shapes],
+        collisionFrameOrientations=[s["quat"] for s in shapes],
+        physicsClientId=client,
+    )
+
+
+def _inertia(m: mujoco.MjModel, b: int, anchor: np.ndarray) -> tuple[list, list, list]:
+    """Body ``b``'s inertial frame position (link frame), orientation (x, y, z, w) and principal
+    moments (kg m^2)."""
+    return (
+        (m.body_ipos[b] - anchor).tolist(),
+        xyzw(m.body_iquat[b]),
+        np.maximum(m.body_inertia[b], 1e-9).tolist(),
+    )
+
+
+def change_dynamics(client: int, body: int, link: int, **fields) -> None:
+    """``pybullet.changeDynamics`` one field a call: given several fields at once, pybullet 3.2
+    silently keeps only some (a link's inertia given with its damping is dropped, joint limits
+    given with the maximum joint velocity too). ``jointLimits``: (lower, upper), set together."""
+    for name, value in fields.items():
+        if name == "jointLimits":
+            pb.changeDynamics(
+                body,
+                link,
+                jointLowerLimit=value[0],
+                jointUpperLimit=value[1],
+                physicsClientId=client,
+            )
+        else:
+            pb.changeDynamics(body, link, **{name: value}, physicsClientId=client)
+
+
+def _weld_pair_filtered(m: mujoco.MjModel, b1: int, b2: int) -> bool:
+    """MuJoCo's body filter: same weld group, or parent and child with the parent not the
+    world (``filterparent``), or an ``<exclude>`` pair."""
+    w1, w2 = int(m.body_weldid[b1]), int(m.body_weldid[b2])
+    if w1 == w2:
+        return True
+    if not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT:
+        p1, p2 = int(m.body_weldid[m.body_parentid[w1]]), int(m.body_weldid[m.body_parentid[w2]])
+        if (p1 == w2 and w2 != 0) or (p2 == w1 and w1 != 0):
+            return True
+    signature = (min(b1, b2) << 16) + max(b1, b2)
+    return bool(np.any(m.exclude_signature == signature))
+
+
+def _geoms_collide(m: mujoco.MjModel, g1: int, g2: int) -> bool:
+    """MuJoCo's contype / conaffinity rule for geoms ``g1`` and ``g2``."""
+    return bool(
+        (m.geom_contype[g1] & m.geom_conaffinity[g2])
+        or (m.geom_contype[g2] & m.geom_conaffinity[g1])
+    )
+
+
+def _bodies_collide(m: mujoco.MjModel, b1: int, b2: int) -> bool:
+    if _weld_pair_filtered(m, b1, b2):
+        return False
+    g1 = range(m.body_geomadr[b1], m.body_geomadr[b1] + m.body_geomnum[b1])
+    g2 = range(m.body_geomadr[b2], m.body_geomadr[b2] + m.body_geomnum[b2])
+    return any(_geoms_collide(m, a, b) for a in g1 for b in g2)
+
+
+def floor_friction(m: mujoco.MjModel) -> float:
+    """The sliding friction a robot link meets on the world's geoms under MuJoCo's rule (the
+    geom of higher priority wins, else the larger coefficient), for the links' highest."""
+    world = [g for g in range(m.ngeom) if m.geom_bodyid[g] == 0]
+    robot = [g for g in range(m.ngeom) if m.geom_bodyid[g] != 0]
+    if not world:
+        return 1.0
+    w = max(world, key=lambda g: (int(m.geom_priority[g]), float(m.geom_friction[g, 0])))
+    if not robot:
+        return float(m.geom_friction[w, 0])
+    r = max(robot, key=lambda g: float(m.geom_friction[g, 0]))
+    if m.geom_priority[w] > m.geom_priority[r]:
+        return float(m.geom_friction[w, 0])
+    return float(max(m.geom_friction[w, 0], m.geom_friction[r, 0]))
+
+
+def build_world(m: mujoco.MjModel, root: int, n_joints: int, floating: bool) -> BulletWorld:
+    """Build ``m``'s robot in a new pybullet DIRECT client (module docstring).
+
+    Args:
+        m: The compiled model (with the plant's timestep and gravity).
+        root: MuJoCo body id of the robot's root (the floating base, or the fixed base).
+        n_joints: The robot's actuated joints (MuJoCo's joints after a free joint).
+        floating: The root has a free joint.
+
+    Returns:
+        The world, its robot at the model's reference pose (``qpos0``), at rest.
+
+    Raises:
+        UnsupportedModelError: a geom type, a body with several joints or a ball joint.
+    """
+    client = pb.connect(pb.DIRECT)
+    try:
+        with tempfile.TemporaryDirectory(prefix="bullet-meshes-") as meshdir:  # read at creation
+            return _build(client, m, root, n_joints, floating, Path(meshdir))
+    except Exception:
+        pb.disconnect(client)
+        raise
+
+
+def _anchor(m: mujoco.MjModel, b: int) -> np.ndarray:
+    """The link frame's origin in body ``b``'s frame: its joint's anchor (zeros for none)."""
+    if m.body_jntnum[b] == 0:
+        return np.zeros(3)
+    j = int(m.body_jntadr[b])
+    if int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_FREE):
+        return np.zeros(3)
+    return m.jnt_pos[j].copy()
+
+
+def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: bool, meshdir: Path):
+    pb.setGravity(*m.opt.gravity.tolist(), physicsClientId=client)
+    pb.setPhysicsEngineParameter(
+        fixedTimeStep=float(m.opt.timestep), numSubSteps=0, physicsClientId=client
+    )
+    # the bodies of the robot: the root's subtree, in MuJoCo's (parents first) order
+    robot = [b for b in range(m.nbody) if b == root or _descends(m, b, root)]
+    links = robot[1:]
+    anchors = {b: _anchor(m, b) for b in robot}
+    shapes = {
+        b: [s for g in _body_geoms(m, b) if (s := _shape(m, g, anchors[b], meshdir))] for b in robot
+    }
+
+    kinds, axes = {}, {}  # per body of ``links``
+    for b in links:
+        if m.body_jntnum[b] > 1:
+            raise UnsupportedModelError(
+                f"body '{m.body(b).name}' has {m.body_jntnum[b]} joints; pybullet links take one"
+            )
+        if m.body_jntnum[b] == 0:
+            kinds[b], axes[b] = pb.JOINT_FIXED, [0.0, 0.0, 1.0]
+            continue
+        j = int(m.body_jntadr[b])
+        if int(m.jnt_type[j]) not in _JOINT:
+            raise UnsupportedModelError(
+                f"joint '{m.joint(j).name}': type {mujoco.mjtJoint(m.jnt_type[j]).name} has no "
+                "pybullet link joint here (expected hinge or slide)"
+            )
+        kinds[b] = _JOINT[int(m.jnt_type[j])]
+        axes[b] = (m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j])).tolist()
+
+    def placement(b: int) -> tuple[list, list]:
+        """Link frame of ``b`` in its parent's link frame."""
+        parent = int(m.body_parentid[b])
+        rot = quat_to_mat(m.body_quat[b])
+        pos = m.body_pos[b] + rot @ anchors[b] - anchors[parent]
+        return pos.tolist(), xyzw(m.body_quat[b])
+
+    inertials = {b: _inertia(m, b, anchors[b]) for b in robot}
+    rotors = {r.body: r for r in _rotors(m, links, axes, placement)} if floating else {}
+    # pybullet orders the links depth first, each link's children in the order given: a rotor
+    # goes just before the link it drives (its sibling), so that this order is pybullet's
+    order: list = []
+    for b in links:
+        if b in rotors:
+            order.append(rotors[b])
+        order.append(b)
+    link_of_body = np.full(m.nbody, -2, dtype=np.int64)
+    link_of_body[root] = -1
+    rotor_link = {}
+    for i, entry in enumerate(order):
+        if isinstance(entry, _Rotor):
+            rotor_link[entry.body] = i
+        else:
+            link_of_body[entry] = i
+
+    def parent_of(entry) -> int:
+        b = entry.body if isinstance(entry, _Rotor) else entry
+        return int(link_of_body[m.body_parentid[b]]) + 1
+
+    def link_args(entry) -> tuple:
+        """createMultiBody's per-link arguments of a body or a rotor, in ``_LINK_FIELDS`` order."""
+        if isinstance(entry, _Rotor):
+            return (
+                ROTOR_MASS, -1, entry.position, entry.orientation, [0.0, 0.0, 0.0],
+                entry.inertial_orientation, parent_of(entry), pb.JOINT_REVOLUTE, entry.axis,
+            )  # fmt: skip
+        position, orientation = placement(entry)
+        return (
+            float(m.body_mass[entry]), _collision_shape(client, shapes[entry]), position,
+            orientation, inertials[entry][0], inertials[entry][1], parent_of(entry),
+            kinds[entry], axes[entry],
+        )  # fmt: skip
+
+    args = [link_args(entry) for entry in order]
+    per_link = {name: [a[k] for a in args] for k, name in enumerate(_LINK_FIELDS)}
+    root_pos, root_quat = m.body_pos[root] + anchors[root], m.body_quat[root]
+    if floating:  # the free joint's reference pose
+        j = int(m.body_jntadr[root])
+        root_pos, root_quat = (
+            m.qpos0[m.jnt_qposadr[j] : m.jnt_qposadr[j] + 3],
+            m.qpos0[m.jnt_qposadr[j] + 3 : m.jnt_qposadr[j] + 7],
+        )
+    self_collision = any(
+        _bodies_collide(m, a, b) for i, a in enumerate(robot) for b in robot[i + 1 :]
+    )
+    body = pb.createMultiBody(
+        baseMass=float(m.body_mass[root]) if floating else 0.0,
+        baseCollisionShapeIndex=_collision_shape(client, shapes[root]),
+        basePosition=np.asarray(root_pos).tolist(),
+        baseOrientation=xyzw(np.asarray(root_quat)),
+        baseInertialFramePosition=inertials[root][0],
+        baseInertialFrameOrientation=inertials[root][1],
+        linkVisualShapeIndices=[-1] * len(order),
+        **per_link,
+        flags=pb.URDF_USE_SELF_COLLISION if self_collision else 0,
+        physicsClientId=client,
+    )
+    for i, entry in enumerate(order):
+        got = pb.getJointInfo(body, i, physicsClientId=client)[16]
+        if got != parent_of(entry) - 1:
+            raise UnsupportedModelError(
+                f"pybullet reordered the links of body '{m.body(root).name}' (link {i}: parent "
+                f"{got}, expected {parent_of(entry) - 1}); expected MuJoCo's depth-first order"
+            )
+    # exact inertias (createMultiBody derives them from the shapes), no extra damping
+    for b in robot:
+        link = int(link_of_body[b])
+        change_dynamics(
+            client,
+            body,
+            link,
+            localInertiaDiagonal=inertials[b][2],
+            linearDamping=0.0,
+            angularDamping=0.0,
+            lateralFriction=1.0,
+            restitution=0.0,
+        )
+    joint_index = []
+    for j in range(m.njnt):
+        if int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_FREE):
+            continue
+        b = int(m.jnt_bodyid[j])
+        link = int(link_of_body[b])
+        if link < 0:
+            raise UnsupportedModelError(f"joint '{m.joint(j).name}' is outside the robot's tree")
+        joint_index.append(link)
+        change_dynamics(client, body, link, maxJointVelocity=1e3, jointDamping=0.0)
+        if m.jnt_limited[j]:
+            lo, hi = m.jnt_range[j]
+            change_dynamics(client, body, link, jointLimits=(float(lo), float(hi)))
+    if len(joint_index) != n_joints:
+        raise UnsupportedModelError(
+            f"the model has {len(joint_index)} hinge or slide joints; the robot has {n_joints}"
+        )
+    if self_collision:
+        for i, a in enumerate(robot):
+            for b in robot[i + 1 :]:
+                if not _bodies_collide(m, a, b):
+                    pb.setCollisionFilterPair(
+                        body,
+                        body,
+                        int(link_of_body[a]),
+                        int(link_of_body[b]),
+                        0,
+                        physicsClientId=client,
+                    )
+    _build_world_geoms(client, m, body, robot, link_of_body, meshdir)
+    rotor_index = [-1] * len(joint_index)
+    for b, r in rotors.items():
+        link, drives = rotor_link[b], int(link_of_body[b])
+        rotor_index[joint_index.index(drives)] = link
+        change_dynamics(
+            client,
+            body,
+            link,
+            localInertiaDiagonal=r.inertia,
+            linearDamping=0.0,
+            angularDamping=0.0,
+            maxJointVelocity=1e6,
+            jointDamping=0.0,
+        )
+        gear = pb.createConstraint(
+            body,
+            drives,
+            body,
+            link,
+            jointType=pb.JOINT_GEAR,
+            jointAxis=r.axis,
+            parentFramePosition=[0.0, 0.0, 0.0],
+            childFramePosition=[0.0, 0.0, 0.0],
+            physicsClientId=client,
+        )
+        # velocities only (erp 0): the rotor's angle is free, only its speed is geared
+        pb.changeConstraint(
+            gear, gearRatio=1.0 / ROTOR_GEAR_RATIO, maxForce=1e9, erp=0.0, physicsClientId=client
+        )
+    if rotors:  # no motor of their own
+        spinning = sorted(rotor_link.values())
+        pb.setJointMotorControlArray(
+            body,
+            spinning,
+            pb.VELOCITY_CONTROL,
+            forces=[0.0] * len(spinning),
+            physicsClientId=client,
+        )
+    com = np.asarray(inertials[root][0]) if floating else np.zeros(3)
+    com_quat = wxyz(inertials[root][1]) if floating else np.array([1.0, 0, 0, 0])
+    return BulletWorld(
+        client, body, link_of_body, joint_index, com, com_quat, floating, rotor_index
+    )
+
+
+@dataclass
+class _Rotor:
+    """A drive's rotor link: on the joint's parent, at the joint, spinning about its axis."""
+
+    body: int  # MuJoCo body whose joint it is geared to
+    position: list
+    orientation: list
+    axis: list
+    inertial_orientation: list
+    inertia: list
+
+
+def _rotors(m: mujoco.MjModel, links: list[int], axes: dict, placement) -> list[_Rotor]:
+    """One rotor link per hinge with armature: ``armature / ROTOR_GEAR_RATIO^2`` about the axis,
+    geared ``ROTOR_GEAR_RATIO`` to its joint, so that the joint feels the armature."""
+    out = []
+    for b in links:
+        if m.body_jntnum[b] != 1:
+            continue
+        j = int(m.body_jntadr[b])
+        armature = float(m.dof_armature[m.jnt_dofadr[j]])
+        if int(m.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_HINGE) or armature <= 0.0:
+            continue
+        spin = armature / ROTOR_GEAR_RATIO**2
+        z_to_axis = np.empty(4)
+        mujoco.mju_quatZ2Vec(z_to_axis, np.asarray(axes[b], dtype=np.float64))
+        position, orientation = placement(b)
+        out.append(
+            _Rotor(
+                body=b,
+                position=position,
+                orientation=orientation,
+                axis=axes[b],
+                inertial_orientation=xyzw(z_to_axis),
+                inertia=[spin / 2, spin / 2, spin],
+            )
+        )
+    return out
+
+
+def _descends(m: mujoco.MjModel, b: int, root: int) -> bool:
+    while b > 0:
+        b = int(m.body_parentid[b])
+        if b == root:
+            return True
+    return False
+
+
+def _body_geoms(m: mujoco.MjModel, b: int) -> range:
+    """Body ``b``'s geom ids (empty for none: its ``geomadr`` is then -1)."""
+    return range(m.body_geomadr[b], m.body_geomadr[b] + m.body_geomnum[b])
+
+
+def _build_world_geoms(client, m, body, robot, link_of_body, meshdir: Path) -> None:
+    """The geoms outside the robot (the floor, a table) as static bodies, each filtered against
+    the robot's links by MuJoCo's rule, with the floor friction MuJoCo's rule gives."""
+    mu = floor_friction(m)
+    robot_set = set(robot)
+    for b in range(m.nbody):
+        if b in robot_set or (b != 0 and any(_descends(m, b, r) for r in robot)):
+            continue
+        if b != 0 and m.body_jntnum[b]:
+            continue  # another moving body: not part of this plant
+        for g in _body_geoms(m, b):
+            shape = _shape(m, g, np.zeros(3), meshdir)
+            if shape is None:
+                continue
+            pos, quat = shape.pop("pos"), shape.pop("quat")
+            col = pb.createCollisionShape(**shape, physicsClientId=client)
+            world_pos = m.body_pos[b] + quat_to_mat(m.body_quat[b]) @ np.asarray(pos)
+            world_quat = np.empty(4)
+            mujoco.mju_mulQuat(world_quat, m.body_quat[b], wxyz(quat))
+            static = pb.createMultiBody(
+                baseMass=0.0,
+                baseCollisionShapeIndex=col,
+                basePosition=world_pos.tolist(),
+                baseOrientation=xyzw(world_quat),
+                physicsClientId=client,
+            )
+            change_dynamics(client, static, -1, lateralFriction=mu, restitution=0.0)
+            for rb in robot:
+                geoms = _body_geoms(m, rb)
+                if not any(_geoms_collide(m, g, h) for h in geoms):
+                    pb.setCollisionFilterPair(
+                        static, body, -1, int(link_of_body[rb]), 0, physicsClientId=client
+                    )

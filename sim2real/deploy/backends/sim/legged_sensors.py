@@ -1,0 +1,292 @@
+"""IMU and foot-contact sensing of a floating-base robot in the MuJoCo plant.
+
+:class:`BaseSensorModel` belongs to a :class:`sim2real.deploy.backends.sim.plant.SimBackend` of a robot with
+a
+``[base]`` table; it reads MuJoCo's sensors of the robot's MJCF (``gyro`` and ``accelerometer``
+at the IMU site, a ``touch`` per foot site: the normal force of the contacts inside the site)
+and turns them into what a real robot's drivers deliver, at each sensor's own rate and latency:
+
+IMU (``[sensors.imu]``, Kalibr's IMU noise model, per axis, sample period ``dt``)::
+
+    b_k = b_(k-1) + walk sqrt(dt) N(0, 1)       (b_0 ~ N(0, bias_sigma^2), the turn-on bias)
+    y_k = true_k + b_k + sigma N(0, 1)
+
+for the gyroscope (rad/s) and the accelerometer (specific force, m/s^2), both in the IMU site's
+frame; a reading is lost with probability ``dropout``. An IMU with ``orientation_sigma`` also
+sends its own attitude (:meth:`BaseSensorModel._onboard_attitude`). Foot contact
+(``[sensors.contact]``): each foot's normal force plus Gaussian noise (N),
+``foot_contact = force > threshold``.
+
+The noise settings are per env (``(envs,)`` arrays, change them between ticks: per-session
+randomization, :func:`sim2real.eval.world.sensors.apply_imu`). The draws come from the backend's sensor
+stream(s), after the encoder's, so an arm's readings are unchanged. MuJoCo computes the sensors at
+the start of each physics step: a reading is the state one physics timestep before the end of the
+control period.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from sim2real.deploy.backends.sim.sensors import draw
+from sim2real.deploy.core.attitude import align_up, quat_multiply, rotation_quaternions
+from sim2real.robots import Robot
+
+
+def sensor_address(model: mujoco.MjModel, kind, site: int) -> int:
+    """``sensordata`` address of the ``kind`` (``mjtSensor``) sensor at site ``site``.
+
+    Raises:
+        ValueError: the model has no such sensor there.
+    """
+    for k in range(model.nsensor):
+        if (
+            model.sensor_type[k] == kind
+            and model.sensor_objtype[k] == mujoco.mjtObj.mjOBJ_SITE
+            and model.sensor_objid[k] == site
+        ):
+            return int(model.sensor_adr[k])
+    raise ValueError(f"the model has no {kind} sensor at site {model.site(site).name}")
+
+
+class BaseSensorModel:
+    """IMU and contact sensors of ``backend`` (a :class:`~sim2real.deploy.backends.sim.plant.SimBackend` of a
+    floating-base robot).
+
+    Attributes (per env, ``(envs,)``; change between ticks):
+        gyro_noise_sigma (rad/s), accel_noise_sigma (m/s^2), gyro_bias_sigma (rad/s),
+        accel_bias_sigma (m/s^2), gyro_bias_walk (rad/s/sqrt(s)), accel_bias_walk
+        (m/s^2/sqrt(s)), imu_dropout, imu_latency_ticks (int), force_noise_sigma (N),
+        contact_threshold (N), contact_latency_ticks (int).
+        gyro_bias, accel_bias: (envs, 3) the present biases (ground truth).
+
+    Raises:
+        ValueError: a latency above the backend's ``max_latency_ticks``, a sensor rate above the
+            control rate, or a model without the sensors.
+    """
+
+    def __init__(self, backend, robot: Robot):
+        imu, contact = robot.config.sensors.imu, robot.config.sensors.contact
+        self.backend, self.robot = backend, robot
+        envs, nf = backend.envs, robot.n_feet
+        self.envs, self.n_feet = envs, nf
+        rate = 1.0 / robot.control_period
+        for name, value in (("sensors.imu.rate", imu.rate), ("sensors.contact.rate", contact.rate)):
+            if value > rate * (1 + 1e-9):
+                raise ValueError(
+                    f"{robot.directory / 'robot.toml'}: field '{name}' = {value} Hz is above the "
+                    f"control rate {rate:g} Hz (one reading a tick at most)"
+                )
+        for name, value in (
+            ("sensors.imu.latency_ticks", imu.latency_ticks),
+            ("sensors.contact.latency_ticks", contact.latency_ticks),
+        ):
+            if value > backend.max_latency_ticks:
+                raise ValueError(
+                    f"{name} = {value} exceeds max_latency_ticks = {backend.max_latency_ticks}"
+                )
+        self.imu_every = max(1, int(round(rate / imu.rate)))
+        self.contact_every = max(1, int(round(rate / contact.rate)))
+
+        def full(value, dtype=np.float64):
+            return np.full(envs, value, dtype=dtype)
+
+        self.gyro_noise_sigma = full(imu.gyro_noise_sigma)
+        self.accel_noise_sigma = full(imu.accel_noise_sigma)
+        self.gyro_bias_sigma = full(imu.gyro_bias_sigma)
+        self.accel_bias_sigma = full(imu.accel_bias_sigma)
+        self.gyro_bias_walk = full(imu.gyro_bias_walk)
+        self.accel_bias_walk = full(imu.accel_bias_walk)
+        self.imu_dropout = full(imu.dropout)
+        self.imu_latency_ticks = full(imu.latency_ticks, np.int64)
+        self.force_noise_sigma = full(contact.force_noise_sigma)
+        self.contact_threshold = full(contact.threshold)
+        self.contact_latency_ticks = full(contact.latency_ticks, np.int64)
+        self.gyro_bias = np.zeros((envs, 3))
+        self.accel_bias = np.zeros((envs, 3))
+        #: the IMU sends its own attitude (``[sensors.imu] orientation_sigma`` set)
+        self.has_orientation = imu.orientation_sigma is not None
+        self.orientation_sigma = full(imu.orientation_sigma or 0.0)
+        self.orientation_tau = full(imu.orientation_tau)
+        #: (envs, 2) rad, the onboard attitude's present roll and pitch errors (ground truth;
+        #: world-frame rotation about x and y)
+        self.orientation_error = np.zeros((envs, 2))
+        self._noise2 = np.empty((envs, 2))
+        self._site_quat = np.array(backend.models[0].site_quat[robot.imu_site_id], dtype=float)
+        # an AHRS's attitude is relative to gravity: the world turned so that gravity is -z
+        g = np.array(backend.models[0].opt.gravity, dtype=float)
+        self._gravity_frame = align_up(-g / np.linalg.norm(g))
+
+        m = backend.models[0]
+        gyro = sensor_address(m, mujoco.mjtSensor.mjSENS_GYRO, robot.imu_site_id)
+        acc = sensor_address(m, mujoco.mjtSensor.mjSENS_ACCELEROMETER, robot.imu_site_id)
+        touch = [sensor_address(m, mujoco.mjtSensor.mjSENS_TOUCH, s) for s in robot.foot_site_ids]
+        self._gyro, self._acc, self._touch = slice(gyro, gyro + 3), slice(acc, acc + 3), touch
+        size = backend.max_latency_ticks + 1
+        self._buf_imu = np.full((size, envs, 10), np.nan)  # gyro, accel, attitude
+        self._buf_imu_stamp = np.full((size, envs), np.nan)
+        self._buf_force = np.full((size, envs, nf), np.nan)
+        self._buf_contact_stamp = np.full((size, envs), np.nan)
+        self._noise3 = np.empty((envs, 3))
+        self._noise6 = np.empty((envs, 6))
+        self._noise_f = np.empty((envs, nf))
+        self._true_imu = np.empty((envs, 6))
+        self._true_force = np.empty((envs, nf))
+        self._env_index = np.arange(envs)
+
+    # ------------------------------------------------------------------ ground truth
+    def true_imu(self) -> np.ndarray:
+        """(envs, 6) the noiseless gyroscope (rad/s) and accelerometer (m/s^2) of the last
+        physics step, IMU site frame (evaluation only)."""
+        for e, d in enumerate(self.backend.datas):
+            self._true_imu[e, :3] = d.sensordata[self._gyro]
+            self._true_imu[e, 3:] = d.sensordata[self._acc]
+        return self._true_imu
+
+    def true_foot_force(self) -> np.ndarray:
+        """(envs, n_feet) N, the noiseless normal contact force of each foot (evaluation only)."""
+        for e, d in enumerate(self.backend.datas):
+            self._true_force[e] = d.sensordata[self._touch]
+        return self._true_force
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self, which: np.ndarray, full: bool) -> None:
+        """Draw the turn-on biases of the envs ``which`` (bool (envs,)); ``full``: clear every
+        buffer (the backend's clock restarts); else clear those envs' readings and take one now
+        (MuJoCo's sensors were computed by ``mj_forward`` at the reset pose)."""
+        draw(self.backend.joint_sensors.rng, "standard_normal", self._noise6, which)
+        self.gyro_bias[which] = (self._noise6[:, :3] * self.gyro_bias_sigma[:, None])[which]
+        self.accel_bias[which] = (self._noise6[:, 3:] * self.accel_bias_sigma[:, None])[which]
+        if self.has_orientation:  # the onboard filter's error starts in its stationary spread
+            draw(self.backend.joint_sensors.rng, "standard_normal", self._noise2, which)
+            start = self._noise2 * self.orientation_sigma[:, None]
+            self.orientation_error[which] = start[which]
+        if full:
+            for buf in (self._buf_imu, self._buf_imu_stamp, self._buf_force):
+                buf.fill(np.nan)
+            self._buf_contact_stamp.fill(np.nan)
+            return
+        for buf in (self._buf_imu, self._buf_imu_stamp, self._buf_force, self._buf_contact_stamp):
+            buf[:, which] = np.nan
+        self.sample(self.backend.tick, self.backend.time, force=True, envs=which)
+
+    # ------------------------------------------------------------------ per tick
+    def sample(
+        self, tick: int, time: float, force: bool = False, envs: np.ndarray | None = None
+    ) -> None:
+        """Take the readings due at control tick ``tick`` (s ``time``) into the latency buffers:
+        the IMU every ``imu_every`` ticks, the foot forces every ``contact_every`` ticks
+        (``force``: both now, for the envs ``envs`` only when given)."""
+        size = self._buf_imu_stamp.shape[0]
+        slot = tick % size
+        rng = self.backend.joint_sensors.rng
+        sel = slice(None) if envs is None else envs
+        if force or tick % self.imu_every == 0:
+            dt = self.imu_every * self.robot.control_period
+            root = np.sqrt(dt)
+            draw(rng, "standard_normal", self._noise6, envs)
+            self.gyro_bias[sel] += (self._noise6[:, :3] * (self.gyro_bias_walk * root)[:, None])[
+                sel
+            ]
+            self.accel_bias[sel] += (self._noise6[:, 3:] * (self.accel_bias_walk * root)[:, None])[
+                sel
+            ]
+            draw(rng, "standard_normal", self._noise6, envs)
+            reading = np.full((self.envs, 10), np.nan)
+            reading[:, :6] = self.true_imu()
+            reading[:, :3] += self.gyro_bias + self._noise6[:, :3] * self.gyro_noise_sigma[:, None]
+            reading[:, 3:6] += (
+                self.accel_bias + self._noise6[:, 3:] * self.accel_noise_sigma[:, None]
+            )
+            if self.has_orientation:
+                reading[:, 6:] = self._onboard_attitude(dt, envs)
+            stamp = np.full(self.envs, time)
+            lost = draw(rng, "random", np.ones((self.envs, 1)), envs) < self.imu_dropout[:, None]
+            reading[lost[:, 0]] = np.nan
+            stamp[lost[:, 0]] = np.nan
+            self._buf_imu[slot, sel] = reading[sel]
+            self._buf_imu_stamp[slot, sel] = stamp[sel]
+        elif envs is None:
+            self._buf_imu[slot] = np.nan
+            self._buf_imu_stamp[slot] = np.nan
+        if force or tick % self.contact_every == 0:
+            draw(rng, "standard_normal", self._noise_f, envs)
+            reading = self.true_foot_force() + self._noise_f * self.force_noise_sigma[:, None]
+            self._buf_force[slot, sel] = reading[sel]
+            self._buf_contact_stamp[slot, sel] = time
+        elif envs is None:
+            self._buf_force[slot] = np.nan
+            self._buf_contact_stamp[slot] = np.nan
+
+    def _onboard_attitude(self, dt: float, envs) -> np.ndarray:
+        """(envs, 4) the IMU's own attitude after ``dt`` s: each roll and pitch error steps its
+        Gauss-Markov process (``e' = a e + sqrt(1 - a^2) sigma N(0, 1)``, ``a = exp(-dt / tau)``;
+        only the envs ``envs`` when given) and turns the IMU site's true attitude (relative to
+        gravity) about the world's x and y axes."""
+        draw(self.backend.joint_sensors.rng, "standard_normal", self._noise2, envs)
+        a = np.exp(-dt / self.orientation_tau)[:, None]
+        step = a * self.orientation_error + np.sqrt(1 - a * a) * (
+            self._noise2 * self.orientation_sigma[:, None]
+        )
+        sel = slice(None) if envs is None else envs
+        self.orientation_error[sel] = step[sel]
+        site = quat_multiply(self.backend.true_base_state()[:, 3:7], self._site_quat[None])
+        site = quat_multiply(np.broadcast_to(self._gravity_frame, site.shape), site)
+        error = np.zeros((self.envs, 3))
+        error[:, :2] = self.orientation_error
+        return quat_multiply(rotation_quaternions(error), site)
+
+    def read(self, frame, tick: int) -> None:
+        """Fill the frame's IMU and contact fields with the readings arriving at ``tick``."""
+        size = self._buf_imu_stamp.shape[0]
+        idx = self._env_index
+        origin = tick - self.imu_latency_ticks
+        slot = origin % size
+        imu = self._buf_imu[slot, idx]
+        frame.imu_angular_velocity[:] = imu[:, :3]
+        frame.imu_acceleration[:] = imu[:, 3:6]
+        frame.imu_orientation[:] = imu[:, 6:]
+        frame.imu_stamp[:] = self._buf_imu_stamp[slot, idx]
+        early = origin < 0
+        if early.any():
+            frame.imu_angular_velocity[early] = np.nan
+            frame.imu_acceleration[early] = np.nan
+            frame.imu_orientation[early] = np.nan
+            frame.imu_stamp[early] = np.nan
+        origin = tick - self.contact_latency_ticks
+        slot = origin % size
+        frame.foot_force[:] = self._buf_force[slot, idx]
+        frame.contact_stamp[:] = self._buf_contact_stamp[slot, idx]
+        early = origin < 0
+        if early.any():
+            frame.foot_force[early] = np.nan
+            frame.contact_stamp[early] = np.nan
+        with np.errstate(invalid="ignore"):
+            np.greater(frame.foot_force, self.contact_threshold[:, None], out=frame.foot_contact)
+
+    def state_fields(self) -> dict[str, np.ndarray]:
+        """Per-env arrays of the sensor state, env axis first (for the backend's
+        ``state_dict``): settings, biases and latency buffers."""
+        return {
+            "imu/gyro_noise_sigma": self.gyro_noise_sigma,
+            "imu/accel_noise_sigma": self.accel_noise_sigma,
+            "imu/gyro_bias_sigma": self.gyro_bias_sigma,
+            "imu/accel_bias_sigma": self.accel_bias_sigma,
+            "imu/gyro_bias_walk": self.gyro_bias_walk,
+            "imu/accel_bias_walk": self.accel_bias_walk,
+            "imu/dropout": self.imu_dropout,
+            "imu/latency_ticks": self.imu_latency_ticks,
+            "imu/gyro_bias": self.gyro_bias,
+            "imu/accel_bias": self.accel_bias,
+            "imu/orientation_sigma": self.orientation_sigma,
+            "imu/orientation_tau": self.orientation_tau,
+            "imu/orientation_error": self.orientation_error,
+            "imu/buffer": np.moveaxis(self._buf_imu, 1, 0),
+            "imu/buffer_stamp": np.moveaxis(self._buf_imu_stamp, 1, 0),
+            "contact/force_noise_sigma": self.force_noise_sigma,
+            "contact/threshold": self.contact_threshold,
+            "contact/latency_ticks": self.contact_latency_ticks,
+            "contact/buffer": np.moveaxis(self._buf_force, 1, 0),
+            "contact/buffer_stamp": np.moveaxis(self._buf_contact_stamp, 1, 0),
+        }

@@ -1,0 +1,510 @@
+"""The simulated robot ("plant"): MuJoCo physics, the drives, motor heat; its sensors composed in.
+
+One :class:`SimBackend` drives ``envs`` copies of a robot in lockstep (the runtime's batch axis),
+each with its own ``MjData`` and, where the soak harness randomizes dynamics, its own ``MjModel``.
+Per control tick: ``read()``, ``write(command)`` and ``advance()``, which runs ``decimation``
+physics steps and integrates the two-node motor thermal model.
+
+Composed of: the encoders and temperature reports (:mod:`sim2real.deploy.backends.sim.sensors`), a
+floating base's IMU and foot contact (:mod:`sim2real.deploy.backends.sim.legged_sensors`), the drives
+(:mod:`sim2real.deploy.backends.sim.drives`: the mode's servo loop of :meth:`robots.Robot.mjspec`, derated
+torque limits, anti-windup) and the state dict (:mod:`sim2real.deploy.backends.sim.state`). The true state
+(:meth:`SimBackend.true_position`, :meth:`SimBackend.true_base_state`, ...) is for evaluation only.
+Interfaces: :class:`~sim2real.deploy.core.backend.Backend` (lifecycle calls are no-ops) and
+:class:`~sim2real.deploy.core.backend.SimulatedPlant` (ground truth, fault hooks, external forces).
+
+Errors: MuJoCo's autoreset is disabled and its warning counters are read after every ``advance``:
+a divergence raises :class:`SimulationDivergedError`. A non-finite command raises
+:class:`NonFiniteCommandError` and never reaches MuJoCo.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+
+from sim2real.deploy.backends.sim.actuators import ActuatorModel
+from sim2real.deploy.backends.sim.drives import SimDrives
+from sim2real.deploy.backends.sim.drives_kernel import derating_due, windup_exceeded
+from sim2real.deploy.backends.sim.legged_sensors import BaseSensorModel
+from sim2real.deploy.backends.sim.sensors import JointSensorModel
+from sim2real.deploy.backends.sim.state import SimState
+from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame
+from sim2real.deploy.kernels import all_finite
+from sim2real.robots import CONTROL_MODES, Robot
+from sim2real.robots.chain_bounds import motion_bounds
+from sim2real.robots.errors import Sim2RealError
+from sim2real.robots.thermal import EffortDerating, TwoNodeThermalModel
+
+_DIVERGENCE_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+    mujoco.mjtWarning.mjWARN_BADCTRL,
+)
+# The divergence warnings are consecutive in mjtWarning (BADQPOS..BADCTRL): the hot path checks
+# them through one slice view of ``MjData.warning.number`` per env.
+_WARNING_SLICE = slice(
+    min(int(w) for w in _DIVERGENCE_WARNINGS), max(int(w) for w in _DIVERGENCE_WARNINGS) + 1
+)
+assert _WARNING_SLICE.stop - _WARNING_SLICE.start == len(_DIVERGENCE_WARNINGS)
+
+
+class SimulationDivergedError(Sim2RealError, RuntimeError):
+    """MuJoCo reported a divergence (non-finite or huge state); the session must fail loudly."""
+
+
+class NonFiniteCommandError(Sim2RealError, ValueError):
+    """A command with NaN or inf was written; it was rejected and never reached MuJoCo."""
+
+
+class SimBackend(SimState, SimDrives, BackendLifecycle):
+    """MuJoCo plant with sensor and motor-thermal models, batched over ``envs``.
+
+    Args:
+        robot: The robot description.
+        mode: Control mode, 'position' (rad), 'velocity' (rad/s, a drive's PI velocity loop with
+            anti-windup, which holds the joint at zero command; see ``Robot.mjspec``) or 'torque'
+            (N m); default from robot.toml.
+        envs: Number of robots simulated in lockstep.
+        seed: Seed of the sensor noise and dropout streams (``numpy.random.PCG64``).
+        models: Optional compiled models, one per env (randomized dynamics). They must come from
+            ``robot.mjspec(mode)``. Default: one model shared by all envs.
+        max_latency_ticks: Capacity of the latency buffer; ``latency_ticks`` may be raised up to it
+            at run time (fault injection).
+
+    Attributes (per-env sensor settings; change them between ticks to inject faults):
+        noise_sigma: (envs,) rad. dropout_probability: (envs,). latency_ticks: (envs,) int.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        mode: str | None = None,
+        envs: int = 1,
+        seed: int = 0,
+        models: Sequence[mujoco.MjModel] | None = None,
+        max_latency_ticks: int = 32,
+    ):
+        mode = robot.control_mode if mode is None else mode
+        if mode not in CONTROL_MODES:
+            raise ValueError(f"control mode '{mode}' is unknown; expected one of {CONTROL_MODES}")
+        if envs < 1:
+            raise ValueError(f"envs must be >= 1, got {envs}")
+        self.robot, self.mode, self.envs = robot, mode, envs
+        n = self.n_joints = robot.n_joints
+        if models is None:
+            shared = robot.plant_model(mode)
+            models = [shared] * envs
+        if len(models) != envs:
+            raise ValueError(f"models: expected {envs} models (one per env), got {len(models)}")
+        self._nu = n * robot.actuators_per_joint(mode)
+        # a floating base: MuJoCo's free joint comes first (qpos 7, qvel 6, one joint)
+        self._qpos_offset, self._qvel_offset = robot.qpos_offset, robot.qvel_offset
+        self._jnt_offset = 1 if robot.floating_base else 0
+        for m in models:
+            self._check_model(m, "models")
+        self.models = list(models)
+        self.datas = [mujoco.MjData(m) for m in self.models]
+        self._views: list[tuple] = [()] * envs
+        self._qvel_views: list[np.ndarray] = [np.zeros(0)] * envs  # the joints' qvel (see _bind)
+        self._acts: list[np.ndarray] = [np.empty(0)] * envs  # velocity mode: drive setpoints
+        self._windup_bound = np.zeros((envs, n))
+        self.derating = EffortDerating(robot, hold=motion_bounds(robot)[1])
+        #: (envs, n) N m, each drive's present torque limit (derated from its winding temperature)
+        self.effort_limit = np.tile(self.derating.peak, (envs, 1))
+        self._derate = np.ones((envs, n))
+        self._derated = np.zeros(envs, dtype=bool)  # envs whose model may hold a derated limit
+        self._hot = np.zeros(envs, dtype=bool)  # envs with a winding above its derating start
+        all_finite(self._hot[:, None] * 0.0)  # compiled (or loaded from cache) before a tick
+        self._lag = np.zeros((envs, n))
+        #: the motors' torque-speed lines and command delays, applied every physics step
+        self.actuators = ActuatorModel(
+            robot, envs, robot.control_period / robot.decimation, robot.decimation
+        )
+        self._actfrc: list[np.ndarray] = [np.zeros((n, 2))] * envs  # jnt_actfrcrange rows
+        # the drive kernels too (sim2real.deploy.backends.sim.drives_kernel), on arrays of their types
+        z = np.zeros((envs, n))
+        derating_due(z, np.zeros(n), np.zeros(envs, dtype=bool), np.zeros(envs, dtype=bool))
+        windup_exceeded(z.copy(), z, z)
+        for e in range(envs):
+            self._bind(e)
+        self.decimation = robot.decimation
+        self.control_period = robot.control_period
+
+        self.frame = SensorFrame.empty(envs, n, robot.n_feet if robot.floating_base else None)
+        #: encoders and temperature reports (settings, latency buffers, the sensor streams)
+        self._joint_sensors = JointSensorModel(robot, envs, self.frame, seed, max_latency_ticks)
+
+        self.thermal = TwoNodeThermalModel(
+            robot.motors, envs, robot.config.sensors.ambient_temperature
+        )
+        self._command = np.zeros((envs, n))
+        self._qpos = np.zeros((envs, n))
+        self._qvel = np.zeros((envs, n))
+        self._torque = np.zeros((envs, n))
+        self.tick = 0
+        #: IMU and foot contact of a floating-base robot (None for an arm)
+        self._base_sensors = BaseSensorModel(self, robot) if robot.floating_base else None
+        self.reset()
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self, q: np.ndarray | None = None, envs: np.ndarray | None = None) -> None:
+        """Put envs at rest at ``q`` (rad, (n,) or (envs, n); default the home pose).
+
+        With ``envs`` None every env is reset: the clock returns to 0, the motors cool to ambient
+        and the sensor buffers are cleared. With a boolean mask ``envs`` (shape (envs,)) only those
+        envs restart (a training episode): the shared clock runs on, their motors cool to ambient
+        and their sensor history reads the new pose, as if the robot had rested there.
+
+        The initial command holds the pose: q in position mode, 0 rad/s in velocity mode, the
+        gravity torque in torque mode.
+        """
+        q0 = np.broadcast_to(
+            self.robot.home if q is None else np.asarray(q, float), (self.envs, self.n_joints)
+        )
+        which = np.ones(self.envs, dtype=bool) if envs is None else np.asarray(envs, dtype=bool)
+        for e in np.nonzero(which)[0]:
+            m, d = self.models[e], self.datas[e]
+            mujoco.mj_resetData(m, d)  # a floating base: at its MJCF pose (standing)
+            d.qpos[self._qpos_offset :] = q0[e]
+            if m.na:  # integrating velocity servos start their setpoint at the pose
+                d.act[:] = q0[e]
+            mujoco.mj_forward(m, d)
+            if self.mode == "position":
+                self._command[e] = q0[e]
+            elif self.mode == "velocity":
+                self._command[e] = 0.0
+            else:
+                self._command[e] = d.qfrc_bias[self._qvel_offset :]
+            self._views[e][2][:] = self._command[e]
+        self.actuators.reset(which, self._command)
+        if self.robot.floating_base:
+            self._base_sensors.reset(which, envs is None)
+        if envs is None:
+            self.thermal.reset()
+            self._joint_sensors.clear()
+            self.tick = 0
+            self.true_position()  # _sample_sensors reads the gathered joint angles
+            self._sample_sensors()
+            return
+        self.thermal.winding_temperature[which] = self.thermal.ambient[which]
+        self.thermal.housing_temperature[which] = self.thermal.ambient[which]
+        self._joint_sensors.restart(which, q0[which], self.time, self.thermal.ambient)
+
+    def set_model(self, env: int, model: mujoco.MjModel) -> None:
+        """Give ``env`` a new compiled model (randomized dynamics; from ``robot.mjspec(mode)``)
+        and fresh ``MjData``; call :meth:`reset` for that env afterwards.
+
+        Raises:
+            ValueError: the model's joint or actuator count differs from the robot's.
+        """
+        self._check_model(model, "model")
+        self.models[env] = model
+        self.datas[env] = mujoco.MjData(model)
+        self._bind(env)
+
+    def _check_model(self, m: mujoco.MjModel, what: str) -> None:
+        nq = self.n_joints + self.robot.qpos_offset
+        if m.nq != nq or m.nu != self._nu:
+            raise ValueError(
+                f"{what}: expected nq = {nq} and nu = {self._nu} ({self.mode} mode), "
+                f"got nq={m.nq}, nu={m.nu}"
+            )
+
+    def _bind(self, e: int) -> None:
+        """Cache env ``e``'s model, data and the views the hot path touches (ctrl as
+        (actuators per joint, n): every actuator of a joint takes its command; qpos; the joint
+        actuator torque ``qfrc_actuator``, clamped to the effort limit; divergence warning
+        counters), so that the hot path does not look them up on MjData each tick."""
+        m, d = self.models[e], self.datas[e]
+        self._derated[e] = True  # a new model has the peak limits: re-derate at the next advance
+        ctrl = d.ctrl.reshape(-1, self.n_joints)
+        qpos, force = d.qpos[self._qpos_offset :], d.qfrc_actuator[self._qvel_offset :]
+        self._views[e] = (m, d, ctrl, qpos, force, d.warning.number[_WARNING_SLICE])
+        self._qvel_views[e] = d.qvel[self._qvel_offset :]
+        self._actfrc[e] = m.jnt_actfrcrange[self._jnt_offset : self._jnt_offset + self.n_joints]
+        if self.mode == "velocity":  # the setpoints and their anti-windup bound
+            self._acts[e] = d.act
+            kp = m.actuator_gainprm[: self.n_joints, 0]
+            self._windup_bound[e] = self.robot.effort_limit / kp
+
+    @property
+    def time(self) -> float:
+        """Plant clock, s (identical for every env)."""
+        return self.tick * self.control_period
+
+    # ------------------------------------------------------------------ the joint sensors
+    @property
+    def joint_sensors(self) -> JointSensorModel:
+        """The encoder and temperature-report model (per-env settings, latency buffers, the
+        sensor streams)."""
+        return self._joint_sensors
+
+    @property
+    def noise_sigma(self) -> np.ndarray:
+        """(envs,) rad, encoder noise sigma per env (the sensor model's array: write in place)."""
+        return self._joint_sensors.noise_sigma
+
+    @property
+    def encoder_bias(self) -> np.ndarray:
+        """(envs, n) rad, each encoder's constant offset (the sensor model's array: write in
+        place); the true state the soak judges stays unbiased."""
+        return self._joint_sensors.encoder_bias
+
+    @property
+    def dropout_probability(self) -> np.ndarray:
+        """(envs,) probability that an encoder reading is lost (the sensor model's array)."""
+        return self._joint_sensors.dropout_probability
+
+    @property
+    def latency_ticks(self) -> np.ndarray:
+        """(envs,) int, control ticks from an encoder sample to its arrival (the sensor
+        model's array)."""
+        return self._joint_sensors.latency_ticks
+
+    @property
+    def max_latency_ticks(self) -> int:
+        """Capacity of the latency buffers: the largest ``latency_ticks`` allowed."""
+        return self._joint_sensors.max_latency_ticks
+
+    @property
+    def encoder_quantum(self) -> float:
+        """Rad, the encoder resolution (``2 pi / encoder_resolution``)."""
+        return self._joint_sensors.encoder_quantum
+
+    @property
+    def temperature_resolution(self) -> float:
+        """DegC, the resolution of the drives' temperature reports."""
+        return self._joint_sensors.temperature_resolution
+
+    @property
+    def encoder_every(self) -> int:
+        """Control ticks between two encoder samples (``control rate / encoder_rate``)."""
+        return self._joint_sensors.encoder_every
+
+    def set_sensor_streams(self, generators: Sequence[np.random.Generator]) -> None:
+        """Draw each env's encoder noise and dropout from its own generator (one per env, in env
+        order) instead of one stream for the batch: an env's readings then do not depend on its
+        neighbours (batched soak sessions). Call before the first reading that should use them
+        (:meth:`reset`).
+
+        Raises:
+            ValueError: not one generator per env.
+        """
+        self._joint_sensors.set_streams(generators)
+
+    # ------------------------------------------------------------------ the Backend lifecycle
+    def open(self) -> None:
+        """Nothing to connect: the plant is ready from construction (``Backend`` contract)."""
+
+    def close(self) -> None:
+        """Nothing to release (``Backend`` contract)."""
+
+    def enable(self) -> None:
+        """The simulated drives are always on (``Backend`` contract)."""
+
+    def disable(self) -> None:
+        """The simulated drives have no torque-off state (``Backend`` contract)."""
+
+    def drive_errors(self) -> None:
+        """The simulated drives report no hardware errors: None (``Backend`` contract)."""
+        return None
+
+    def describe_drive_error(self, joint: int, bits: int) -> str:
+        """``Backend`` contract; the simulated drives report none."""
+        return f"joint {self.robot.joint_names[joint]}: error bits {bits:#04x}"
+
+    # ------------------------------------------------------------------ the three calls
+    def read(self) -> SensorFrame:
+        """The sensor frame of the current tick (see :class:`SensorFrame`).
+
+        The frame is overwritten by the next read: copy what you keep.
+        """
+        f = self.frame
+        f.time.fill(self.time)
+        self._joint_sensors.read(self.tick)
+        if self._base_sensors is not None:
+            self._base_sensors.read(f, self.tick)
+        return f
+
+    def write(self, command: np.ndarray) -> None:
+        """Set the command of every env: (envs, n_joints) in the units of the control mode.
+
+        Raises:
+            ValueError: wrong shape.
+            NonFiniteCommandError: any NaN or inf; the previous command stays in force.
+        """
+        command = np.asarray(command, dtype=np.float64)
+        if command.shape != self._command.shape:
+            raise ValueError(f"command: expected shape {self._command.shape}, got {command.shape}")
+        if not all_finite(command):
+            raise NonFiniteCommandError(
+                f"command rejected at t={self.time:.4f} s: non-finite values in envs "
+                f"{np.unique(np.nonzero(~np.isfinite(command))[0]).tolist()}"
+            )
+        self._command[:] = command
+
+    def advance(self) -> None:
+        """Run one control period: ``decimation`` physics steps per env, then the thermal model
+        and the sensors.
+
+        Raises:
+            SimulationDivergedError: MuJoCo flagged a bad state in any env.
+        """
+        command, torque, qpos = self._command, self._torque, self._qpos
+        self._derate_drives()
+        step, nstep, count = mujoco.mj_step, self.decimation, np.count_nonzero
+        actuators = self.actuators if self.actuators.active else None
+        if actuators is not None:
+            actuators.start_period(self.tick, command, self.thermal.winding_temperature)
+        for e, (m, d, ctrl, q, force, warnings) in enumerate(self._views):
+            if actuators is None:
+                ctrl[:] = command[e]
+                step(m, d, nstep=nstep)
+            else:  # delayed commands, and a torque range that follows the joint speed
+                qvel, limit, out = self._qvel_views[e], self.effort_limit[e], self._actfrc[e]
+                for sub in range(nstep):
+                    actuators.before_step(e, sub, ctrl, qvel, limit, out)
+                    step(m, d)
+            if count(warnings):  # MuJoCo found a bad state (and reset the data)
+                self._check_divergence(e, d)
+            torque[e] = force
+            qpos[e] = q
+        if not all_finite(qpos):  # bad values after the last substep
+            for e, d in enumerate(self.datas):
+                self._check_divergence(e, d)
+        if self.mode == "velocity":
+            self._anti_windup()
+        self.tick += 1
+        self.thermal.step(self._torque, self.control_period)
+        self._sample_sensors()
+
+    def set_base_velocity(self, env: int, velocity_xy: np.ndarray) -> None:
+        """Set the floating base's horizontal velocity of ``env`` to ``velocity_xy`` (2,) m/s,
+        world frame, at once: legged_gym's push (``LeggedRobot._push_robots`` sets the root's x
+        and y velocity to a random value), a shove the robot must recover from.
+
+        Raises:
+            ValueError: a fixed-base robot.
+        """
+        if not self.robot.floating_base:
+            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        self.datas[env].qvel[:2] = velocity_xy
+
+    def push_base(self, env: int, twist: np.ndarray, add: bool = False) -> None:
+        """Change the floating base's velocity of ``env`` at once: ``twist`` (6,) is linear
+        x, y, z (m/s, world frame) and angular roll, pitch, yaw (rad/s about the world axes);
+        ``add``: added to the base's present velocity (mjlab's ``push_by_setting_velocity``),
+        else the horizontal velocity is set to ``twist[:2]`` (legged_gym's push; the other
+        entries must be 0). The free joint's angular velocity is in the body frame: the world
+        twist is turned into it.
+
+        Raises:
+            ValueError: a fixed-base robot, or ``add`` False with a vertical or angular entry.
+        """
+        if not self.robot.floating_base:
+            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        twist = np.asarray(twist, dtype=float)
+        d = self.datas[env]
+        if not add:
+            if np.any(twist[2:]):
+                raise ValueError("push_base: setting the velocity sets x and y only; use add")
+            d.qvel[:2] = twist[:2]
+            return
+        rot = np.empty(9)
+        mujoco.mju_quat2Mat(rot, d.qpos[3:7])
+        d.qvel[:3] += twist[:3]
+        d.qvel[3:6] += rot.reshape(3, 3).T @ twist[3:6]
+
+    def set_external_force(self, env: int, force: np.ndarray, body: str | None = None) -> None:
+        """Apply a constant force (N, world frame, shape (3,)) to ``env`` until changed.
+
+        It acts at the centre of mass of ``body`` (default: the body of the end-effector site);
+        zeros remove it. A push, or a cable pulling on the end effector.
+        """
+        m, d = self.models[env], self.datas[env]
+        if body is None and self.robot.floating_base:
+            body = self.robot.base_body
+        bid = m.site_bodyid[self.robot.ee_site_id] if body is None else m.body(body).id
+        d.xfrc_applied[bid, :3] = force
+
+    # ------------------------------------------------------------------ evaluation only
+    def true_position(self) -> np.ndarray:
+        """(envs, n_joints) rad, the simulator's joint angles (evaluation only)."""
+        for e, (_m, _d, _ctrl, qpos, _force, _warnings) in enumerate(self._views):
+            self._qpos[e] = qpos
+        return self._qpos
+
+    def true_velocity(self) -> np.ndarray:
+        """(envs, n_joints) rad/s, the simulator's joint velocities (evaluation only)."""
+        for e, qvel in enumerate(self._qvel_views):
+            self._qvel[e] = qvel
+        return self._qvel
+
+    def joint_torque(self) -> np.ndarray:
+        """(envs, n_joints) N m, actuator torque at the end of the last control period."""
+        return self._torque
+
+    @property
+    def base_sensors(self) -> BaseSensorModel | None:
+        """The IMU and foot-contact model of a floating-base robot (per-env noise settings,
+        biases, ground truth); None for an arm."""
+        return self._base_sensors
+
+    def true_base_state(self, out: np.ndarray | None = None) -> np.ndarray:
+        """(envs, 13) the floating base's true state (evaluation only): position (m, world),
+        orientation (unit quaternion w, x, y, z: base to world), linear velocity (m/s, world)
+        and angular velocity (rad/s, base frame), MuJoCo's free-joint ``qpos[:7]`` and
+        ``qvel[:6]``.
+
+        Raises:
+            ValueError: a fixed-base robot.
+        """
+        if not self.robot.floating_base:
+            raise ValueError(f"robot {self.robot.name} has no floating base")
+        out = np.empty((self.envs, 13)) if out is None else out
+        for e, d in enumerate(self.datas):
+            out[e, :7] = d.qpos[:7]
+            out[e, 7:] = d.qvel[:6]
+        return out
+
+    def end_effector_position(self, out: np.ndarray | None = None) -> np.ndarray:
+        """(envs, 3) m, the end-effector site in the world frame (evaluation only).
+
+        MuJoCo computes it at the start of the last physics step: it is one physics timestep
+        behind :meth:`true_position`. ``out``: optional (envs, 3) float64 array to fill (no
+        allocation); returned.
+        """
+        sid = self.robot.ee_site_id
+        if out is None:
+            return np.stack([d.site_xpos[sid] for d in self.datas])
+        for e, d in enumerate(self.datas):
+            out[e] = d.site_xpos[sid]
+        return out
+
+    # ------------------------------------------------------------------ internals
+    def check_divergence(self, env: int) -> None:
+        """Raise :class:`SimulationDivergedError` if MuJoCo flagged env ``env``'s state as
+        diverged (warning counters) or its ``qpos``/``qvel`` are not finite; else nothing."""
+        self._check_divergence(env, self.datas[env])
+
+    def _check_divergence(self, env: int, d: mujoco.MjData) -> None:
+        bad = [w.name for w in _DIVERGENCE_WARNINGS if d.warning[w].number > 0]
+        if bad or not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):
+            raise SimulationDivergedError(
+                f"env {env}: MuJoCo diverged at t={d.time:.4f} s "
+                f"(warnings: {', '.join(bad) or 'none'}; "
+                f"qpos={np.array2string(d.qpos, precision=3)})"
+            )
+
+    def _sample_sensors(self) -> None:
+        """Take the readings due at this tick: the encoders and temperature reports, then the IMU
+        and foot contact (in this order from the sensor streams)."""
+        q = self._qpos  # gathered by advance (or reset)
+        dq = self.true_velocity() if self._joint_sensors.has_velocity else None
+        self._joint_sensors.sample(self.tick, self.time, q, self.thermal.winding_temperature, dq)
+        if self._base_sensors is not None:
+            self._base_sensors.sample(self.tick, self.time)

@@ -1,0 +1,290 @@
+"""Joint sensing of the MuJoCo plant: encoders and drive temperature reports.
+
+:class:`JointSensorModel` belongs to a :class:`sim2real.deploy.backends.sim.plant.SimBackend`; it turns the
+plant's true joint angles and winding temperatures into what a drive reports, into the backend's
+:class:`~sim2real.deploy.core.backend.SensorFrame`.
+
+Sensor model (defaults from the robot's ``[sensors]`` table), applied in this order:
+    1. a sample of the true joint angle at the encoder's own rate,
+    2. Gaussian noise (sigma ``encoder_noise_sigma``, rad),
+    3. quantization to the encoder resolution (``2 pi / encoder_resolution``),
+    4. dropout: each reading lost with probability ``encoder_dropout`` (per joint and reading),
+    5. latency: a reading arrives ``encoder_latency_ticks`` control ticks after it was sampled.
+Winding temperatures are reported as a drive reports them: the model's winding temperature rounded
+to ``temperature_resolution`` and refreshed at ``temperature_rate``.
+
+The noise and dropout draws come from the sensor stream(s) :attr:`JointSensorModel.rng`: one
+``numpy.random.PCG64`` for the batch, or one generator per env (:class:`PerEnvGenerators`,
+:meth:`JointSensorModel.set_streams`); a floating-base robot's IMU and contact model
+(:mod:`sim2real.deploy.backends.sim.legged_sensors`) draws from the same stream(s), after the encoder.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from sim2real.deploy.backends.sim.sensors_kernel import encoder_read, encoder_sample
+from sim2real.deploy.core.backend import SensorFrame
+from sim2real.deploy.core.stateful import StateDictError, rng_state, set_rng_state, to_json
+from sim2real.robots import Robot
+
+
+class PerEnvGenerators:
+    """One numpy ``Generator`` per env in place of the batch's one sensor stream
+    (:meth:`~sim2real.deploy.backends.sim.plant.SimBackend.set_sensor_streams`).
+
+    It answers the two calls the sensor model makes (``standard_normal(out=...)`` and
+    ``random(shape)``, arrays shaped (envs, n)) row by row from each env's own generator, so that
+    env ``e`` sees the same numbers alone or batched.
+    """
+
+    def __init__(self, generators: Sequence[np.random.Generator]):
+        self.generators = list(generators)
+
+    def standard_normal(self, size=None, dtype=np.float64, out=None, envs=None):
+        """Normal draws, row ``e`` from env ``e``'s generator; with ``envs`` (bool (envs,)) only
+        those rows are drawn (the others' streams do not move)."""
+        out = np.empty(size, dtype=dtype) if out is None else out
+        for e, g in enumerate(self.generators):
+            if envs is None or envs[e]:
+                g.standard_normal(dtype=dtype, out=out[e])
+        return out
+
+    def random(self, size=None, dtype=np.float64, out=None, envs=None):
+        """Uniform draws in [0, 1), as :meth:`standard_normal`."""
+        out = np.empty(size, dtype=dtype) if out is None else out
+        for e, g in enumerate(self.generators):
+            if envs is None or envs[e]:
+                g.random(dtype=dtype, out=out[e])
+        return out
+
+
+def draw(rng, kind: str, out: np.ndarray, envs: np.ndarray | None) -> np.ndarray:
+    """``rng.<kind>(out=out)`` (``kind``: ``"standard_normal"`` or ``"random"``; ``out`` (envs,
+    ...)), drawing only the rows of the envs ``envs`` (bool (envs,)) when ``rng`` is a
+    :class:`PerEnvGenerators`: a reset of some envs leaves the other envs' streams where they
+    were, so a session draws the same numbers alone or batched. A single stream draws every
+    row."""
+    if isinstance(rng, PerEnvGenerators):
+        return getattr(rng, kind)(out=out, envs=envs)
+    return getattr(rng, kind)(out=out)
+
+
+class JointSensorModel:
+    """Encoders and winding temperature reports of ``envs`` robots (module docstring).
+
+    Args:
+        robot: The robot description (its ``[sensors]`` table, control period).
+        envs: Number of robots simulated in lockstep.
+        frame: The backend's sensor frame, whose joint position and temperature fields this model
+            fills.
+        seed: Seed of the sensor noise and dropout streams (``numpy.random.PCG64``).
+        max_latency_ticks: Capacity of the latency buffer; ``latency_ticks`` may be raised up to it
+            at run time (fault injection).
+
+    Attributes (per-env sensor settings; change them between ticks to inject faults):
+        noise_sigma: (envs,) rad. dropout_probability: (envs,). latency_ticks: (envs,) int.
+        encoder_quantum: rad, the encoder resolution. temperature_resolution: degC.
+        rng: the sensor stream(s), a ``numpy.random.Generator`` or :class:`PerEnvGenerators`.
+
+    Raises:
+        ValueError: the robot's ``encoder_latency_ticks`` above ``max_latency_ticks``.
+
+    The encoder arithmetic runs in the kernels of :mod:`sim2real.deploy.backends.sim.sensors_kernel`; their
+    numpy reference is :class:`sim2real.deploy.backends.sim.reference.ReferenceJointSensorModel`.
+    """
+
+    def __init__(
+        self, robot: Robot, envs: int, frame: SensorFrame, seed: int, max_latency_ticks: int
+    ):
+        self.envs, n = envs, robot.n_joints
+        s = robot.config.sensors
+        self.noise_sigma = np.full(envs, s.encoder_noise_sigma)
+        self.dropout_probability = np.full(envs, s.encoder_dropout)
+        self.latency_ticks = np.full(envs, s.encoder_latency_ticks, dtype=np.int64)
+        if s.encoder_latency_ticks > max_latency_ticks:
+            raise ValueError(
+                f"encoder_latency_ticks = {s.encoder_latency_ticks} exceeds max_latency_ticks = "
+                f"{max_latency_ticks}"
+            )
+        self.max_latency_ticks = max_latency_ticks
+        self.encoder_quantum = 2.0 * np.pi / s.encoder_resolution
+        rate = 1.0 / robot.control_period
+        self._encoder_every = max(1, int(round(rate / s.encoder_rate)))
+        self._temperature_every = max(1, int(round(rate / s.temperature_rate)))
+        self.temperature_resolution = s.temperature_resolution
+        self.rng = np.random.Generator(np.random.PCG64(seed))
+        size = max_latency_ticks + 1
+        self._buf_position = np.full((size, envs, n), np.nan)
+        #: the drives report a joint velocity (``[sensors] velocity_noise_sigma`` set)
+        self.has_velocity = s.velocity_noise_sigma is not None
+        self.velocity_noise_sigma = np.full(envs, s.velocity_noise_sigma or 0.0)
+        self._buf_velocity = np.full((size, envs, n), np.nan)
+        self._buf_stamp = np.full((size, envs), np.nan)
+        self._env_index = np.arange(envs)
+        self._uniform = np.zeros((envs, n))
+        self.frame = frame
+        #: (envs, n) rad, each encoder's constant offset (a calibration error: mjlab's
+        #: ``randomize_encoder_bias``), added to the angle it reads; write in place
+        self.encoder_bias = np.zeros((envs, n))
+        self._biased = np.zeros((envs, n))
+
+    @property
+    def encoder_every(self) -> int:
+        """Control ticks between two encoder samples (``control rate / encoder_rate``)."""
+        return self._encoder_every
+
+    def set_streams(self, generators: Sequence[np.random.Generator]) -> None:
+        """One generator per env in place of the batch's one stream
+        (:meth:`sim2real.deploy.backends.sim.plant.SimBackend.set_sensor_streams`).
+
+        Raises:
+            ValueError: not one generator per env.
+        """
+        if len(generators) != self.envs:
+            raise ValueError(
+                f"generators: expected {self.envs} (one per env), got {len(generators)}"
+            )
+        self.rng = PerEnvGenerators(generators)
+
+    # ------------------------------------------------------------------ lifecycle
+    def clear(self) -> None:
+        """Forget every reading (the backend's clock restarts): the latency buffers and the
+        temperature stamps."""
+        self._buf_position.fill(np.nan)
+        self._buf_velocity.fill(np.nan)
+        self._buf_stamp.fill(np.nan)
+        self.frame.temperature_stamp.fill(np.nan)
+
+    def restart(self, which: np.ndarray, q: np.ndarray, time: float, ambient: np.ndarray) -> None:
+        """The envs ``which`` (bool (envs,)) restart at rest at ``q`` (rad, (restarting envs, n))
+        at ``time`` (s): their sensor history reads the pose, quantized, and their drives report
+        the ambient temperature ``ambient`` (degC, (envs, n))."""
+        quantized = np.round((q + self.encoder_bias[which]) / self.encoder_quantum)
+        quantized *= self.encoder_quantum
+        self._buf_position[:, which] = quantized
+        self._buf_velocity[:, which] = 0.0 if self.has_velocity else np.nan
+        self._buf_stamp[:, which] = time
+        res = self.temperature_resolution
+        self.frame.winding_temperature[which] = np.round(ambient[which] / res) * res
+
+    # ------------------------------------------------------------------ per tick
+    def sample(
+        self,
+        tick: int,
+        time: float,
+        q: np.ndarray,
+        winding_temperature: np.ndarray,
+        dq: np.ndarray | None = None,
+    ) -> None:
+        """Take the readings due at control tick ``tick`` (s ``time``): the joint angles ``q``
+        (envs, n) rad into the latency buffer every ``encoder_every`` ticks (and, where the drives
+        report one, the joint velocity ``dq`` (envs, n) rad/s with white noise, NaN where the
+        angle dropped out), the winding temperatures (envs, n) degC into the frame at the
+        temperature rate.
+
+        The draws come from :attr:`rng` (the velocity's after the angle's); the angle's
+        arithmetic is :meth:`_encode`."""
+        slot = tick % self._buf_stamp.shape[0]
+        if tick % self._encoder_every == 0:
+            sample = self._buf_position[slot]
+            self.rng.standard_normal(out=sample)
+            self.rng.random(out=self._uniform)
+            if self.encoder_bias.any():  # a calibration error: the encoder reads q + bias
+                q = np.add(q, self.encoder_bias, out=self._biased)
+            self._encode(sample, q)
+            self._buf_stamp[slot] = time
+            if self.has_velocity and dq is not None:
+                velocity = self._buf_velocity[slot]
+                self.rng.standard_normal(out=velocity)
+                velocity *= self.velocity_noise_sigma[:, None]
+                velocity += dq
+                velocity[np.isnan(sample)] = np.nan
+        else:
+            self._buf_position[slot] = np.nan
+            self._buf_velocity[slot] = np.nan
+            self._buf_stamp[slot] = np.nan
+        if tick % self._temperature_every == 0:
+            self._sample_temperature(time, winding_temperature)
+
+    def _encode(self, sample: np.ndarray, q: np.ndarray) -> None:
+        """In place: the standard normal draws ``sample`` (envs, n) become the readings of ``q``
+        (envs, n) rad (noise, quantization, dropout by the uniform draws ``_uniform``): the kernel
+        :func:`sim2real.deploy.backends.sim.sensors_kernel.encoder_sample`."""
+        encoder_sample(
+            sample,
+            self._uniform,
+            q,
+            self.noise_sigma,
+            self.encoder_quantum,
+            self.dropout_probability,
+        )
+
+    def _sample_temperature(self, time: float, winding_temperature: np.ndarray) -> None:
+        f = self.frame
+        res = self.temperature_resolution
+        np.round(winding_temperature / res, out=f.winding_temperature)
+        f.winding_temperature *= res
+        f.temperature_stamp.fill(time)
+
+    def read(self, tick: int) -> None:
+        """Fill the frame's joint position fields with the readings arriving at ``tick``
+        (the kernel :func:`sim2real.deploy.backends.sim.sensors_kernel.encoder_read`)."""
+        f = self.frame
+        encoder_read(
+            tick, self.latency_ticks, self._buf_position, self._buf_stamp, f.position,
+            f.position_stamp,
+        )  # fmt: skip
+        if self.has_velocity:  # the velocity reported with each angle read
+            origin = tick - self.latency_ticks
+            f.velocity[:] = self._buf_velocity[origin % self._buf_stamp.shape[0], self._env_index]
+            f.velocity[origin < 0] = np.nan
+
+    # ------------------------------------------------------------------ state
+    def state_fields(self) -> dict[str, np.ndarray]:
+        """Per-env arrays of the sensor state, env axis first (for the backend's
+        ``state_dict``): settings and latency buffers (the buffers are (slots, envs, ...) inside:
+        views with the env axis moved to the front)."""
+        return {
+            "noise_sigma": self.noise_sigma,
+            "dropout_probability": self.dropout_probability,
+            "latency_ticks": self.latency_ticks,
+            "buffer/position": np.moveaxis(self._buf_position, 1, 0),
+            "buffer/velocity": np.moveaxis(self._buf_velocity, 1, 0),
+            "velocity_noise_sigma": self.velocity_noise_sigma,
+            "buffer/stamp": np.moveaxis(self._buf_stamp, 1, 0),
+        }
+
+    def stream_state(self, env: int | None = None) -> str:
+        """JSON of the sensor streams' ``bit_generator.state``: a list over the envs (all, or env
+        ``env``) with per-env streams, the batch's one stream otherwise."""
+        if isinstance(self.rng, PerEnvGenerators):
+            envs = range(self.envs) if env is None else [env]
+            return to_json([rng_state(self.rng.generators[e]) for e in envs])
+        return to_json(rng_state(self.rng))
+
+    def check_stream_state(self, rng, envs: list[int]) -> None:
+        """Check that ``rng`` (the parsed JSON of :meth:`stream_state`) is of this model's kind of
+        streams for the envs ``envs``.
+
+        Raises:
+            StateDictError: per-env stream states for one stream, or the reverse.
+        """
+        per_env = isinstance(self.rng, PerEnvGenerators)
+        if per_env != (isinstance(rng, list) and len(rng) == len(envs)):
+            kind = f"{len(envs)} per-env stream state(s)" if per_env else "one stream's state"
+            raise StateDictError("sensor_rng", f": expected {kind}")
+
+    def load_stream_state(self, rng, envs: list[int]) -> None:
+        """Inverse of :meth:`stream_state` (parsed), checked by :meth:`check_stream_state`.
+
+        Raises:
+            StateDictError: a state of another bit generator.
+        """
+        if isinstance(self.rng, PerEnvGenerators):
+            for e, value in zip(envs, rng, strict=True):
+                set_rng_state(self.rng.generators[e], value, "sensor_rng")
+        else:
+            set_rng_state(self.rng, rng, "sensor_rng")

@@ -1,0 +1,76 @@
+"""Kernels of the plant's joint sensor model (``JointSensorModel``).
+
+:func:`encoder_sample` turns the noise and dropout draws of one encoder sample into readings, and
+:func:`encoder_read` delivers the readings due at a tick, each with the arithmetic of the numpy
+references (:class:`sim2real.deploy.backends.sim.reference.ReferenceJointSensorModel`) in their order, so
+both give the same readings bit for bit (``tests/test_sim_plant.py``). The random draws stay in
+numpy's ``Generator`` (the soak's seeded streams), made before the kernel is called.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def encoder_sample(
+    sample: np.ndarray,
+    uniform: np.ndarray,
+    q: np.ndarray,
+    noise_sigma: np.ndarray,
+    quantum: float,
+    dropout_probability: np.ndarray,
+) -> None:
+    """One encoder sample of every (env, joint), in place.
+
+    Args:
+        sample: (envs, n) standard normal draws on entry; the readings (rad, quantized to
+            ``quantum``, NaN where lost) on return.
+        uniform: (envs, n) uniform draws in [0, 1): a reading is lost where below
+            ``dropout_probability``.
+        q: (envs, n) true joint angles, rad.
+        noise_sigma: (envs,) rad. dropout_probability: (envs,).
+        quantum: rad, the encoder resolution.
+    """
+    envs, n = sample.shape
+    for e in range(envs):
+        sigma, p = noise_sigma[e], dropout_probability[e]
+        for j in range(n):
+            s = sample[e, j] * sigma
+            s += q[e, j]
+            s = np.rint(s / quantum)
+            s *= quantum
+            if uniform[e, j] < p:
+                s = np.nan
+            sample[e, j] = s
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def encoder_read(
+    tick: int,
+    latency_ticks: np.ndarray,
+    buffer_position: np.ndarray,
+    buffer_stamp: np.ndarray,
+    position: np.ndarray,
+    position_stamp: np.ndarray,
+) -> None:
+    """The readings arriving at control tick ``tick`` into ``position`` (rad) and
+    ``position_stamp`` (s), (envs, n) each: env ``e``'s reading sampled ``latency_ticks[e]`` ticks
+    earlier, from the ring buffers ``buffer_position`` (slots, envs, n) and ``buffer_stamp``
+    (slots, envs); NaN (both) where no reading arrives."""
+    slots = buffer_stamp.shape[0]
+    envs, n = position.shape
+    for e in range(envs):
+        origin = tick - latency_ticks[e]
+        if origin < 0:  # sampled before the clock started
+            for j in range(n):
+                position[e, j] = np.nan
+                position_stamp[e, j] = np.nan
+            continue
+        slot = origin % slots
+        stamp = buffer_stamp[slot, e]
+        for j in range(n):
+            p = buffer_position[slot, e, j]
+            position[e, j] = p
+            position_stamp[e, j] = np.nan if np.isnan(p) else stamp

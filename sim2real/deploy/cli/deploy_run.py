@@ -1,0 +1,351 @@
+"""Command-line entry points: ``deploy-run`` and ``policy-export``.
+
+``deploy-run``'s options are parsed by :mod:`sim2real.deploy.cli.run_parser`; the summary it prints at the
+end is :mod:`sim2real.deploy.cli.run_summary`'s.
+
+``deploy-run`` exit codes:
+
+====  =====================================================================================
+0     clean: no hard violation, no latched fault
+1     a hard-limit violation: the true joint position (simulation) crossed a hard limit, or the
+      guard found the estimate beyond one (a safe stop)
+2     a latched fault: some env ended FAULTED (or in a safe stop) after a fault of the table
+3     bad input: unreadable robot, policy or spec, mismatching contract, bad option; a servo bus
+      that does not come up (port, missing servo, wrong model number, calibration); a Unitree
+      robot that does not come up (no LowState, a high-level mode active, a ramp not followed)
+4     the simulation diverged (MuJoCo reported a bad state)
+====  =====================================================================================
+
+Backends (``--backend``): ``sim`` (the MuJoCo plant, simulated or wall clock, many envs, fault
+injection, true-state violation counting), ``feetech`` and ``dynamixel`` (a real servo bus through
+the vendor's SDK, or the emulator's pty), ``unitree`` (a Unitree robot's low-level DDS interface,
+or its emulator): one robot, wall clock only; goals and motion figures are judged on the
+estimated state, as there is no ground truth. On hardware the run ends early once the fault is
+latched (FAULTED); at the end a servo bus's torque goes off unless ``--hold-on-close``, a Unitree
+robot is left damped.
+
+Real time (``--wait``, ``--rt-priority``, ``--cpu``, ``--lock-memory``, ``--require-rt``):
+:mod:`sim2real.deploy.runtime.clock` and :mod:`sim2real.deploy.runtime.realtime`, applied around the loop
+only.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sim2real.deploy.backends.registry import make_backend
+from sim2real.deploy.cli.policy_contract import check_drive_applied, contract_messages
+from sim2real.deploy.cli.run_parser import attach_vectors, build_parser
+from sim2real.deploy.cli.run_summary import print_summary
+from sim2real.deploy.core.backend import SimulatedPlant
+from sim2real.deploy.spec.drive import drive_robot
+from sim2real.robots.files import atomic_write
+
+EXIT_CLEAN, EXIT_HARD_VIOLATION, EXIT_FAULT, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 1, 2, 3, 4
+
+
+def run(args) -> int:
+    """``deploy-run`` with parsed ``args``: build and open the backend, run, report; the exit
+    code (module docstring). The backend is closed (servo bus: torque off) however it ends."""
+    from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.runtime import SimClock, WallClock
+    from sim2real.deploy.spec.policy_spec import PolicySpec
+    from sim2real.robots import load_robot
+
+    # hardware runs on the wall clock only; the real-time options are checked before loading
+    wait, rt_request = realtime_options(args, bool(args.realtime) or args.backend != "sim")
+    robot = load_robot(args.robot)
+    spec = None
+    if args.spec:
+        spec = PolicySpec.from_json(Path(args.spec).read_text(), source=args.spec)
+    policy = OnnxPolicy(args.policy, robot, spec=spec)
+    for line in contract_messages(policy):
+        print(line, file=sys.stderr)
+    robot, drive = drive_robot(robot, policy.spec)  # the policy's PD gains and default pose
+    faults = [Fault.parse(s) for s in args.inject]
+    fixed = _fixed_goal(args.goal)
+    backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
+    simulated = isinstance(backend, SimulatedPlant)
+    check_drive_applied(drive, simulated, args.backend)
+    for line in drive.values():
+        print(
+            f"deploy-run: warning: robot.toml differs from the policy's drive, which the "
+            f"run uses: {line}",
+            file=sys.stderr,
+        )
+    realtime = bool(args.realtime) or not simulated  # hardware: the wall clock only
+    injector = FaultInjector(faults, backend) if faults else None
+    if realtime:
+        clock = WallClock(robot.control_period, wait=wait)
+    else:
+        clock = SimClock(robot.control_period)
+    with backend:
+        rig = _build_rig(args, robot, policy, backend, injector, clock, fixed)
+        return _run_rig(args, rig, realtime, injector, clock, rt_request)
+
+
+def _fixed_goal(text: str | None) -> np.ndarray | None:
+    """``--goal X,Y,Z`` (m, base frame) as a (3,) array, or None.
+
+    Raises:
+        ValueError: not three numbers.
+    """
+    if not text:
+        return None
+    try:
+        fixed = np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        fixed = None
+    if fixed is None or fixed.shape != (3,):
+        raise ValueError(f"--goal {text!r}: expected X,Y,Z in metres")
+    return fixed
+
+
+def realtime_options(args, realtime: bool):
+    """The wall clock's wait mode and the :class:`~sim2real.deploy.runtime.realtime.RealtimeRequest` of
+    ``--wait``/``--spin``, ``--rt-priority``, ``--cpu``, ``--lock-memory`` and ``--require-rt``
+    (validated against this machine: the CPUs exist for this process, the priority is in range).
+
+    ``--lock-memory`` defaults to on with ``--rt-priority`` and off otherwise.
+
+    Raises:
+        ValueError: ``--spin`` with another ``--wait``; a wait mode or ``--rt-priority`` without
+            the wall clock (a lockstep run never waits, and a lockstep run at real-time priority
+            would take a core from everything else);
+            :class:`~sim2real.deploy.runtime.realtime.RealtimeError` for a bad ``--cpu`` or
+            ``--rt-priority``.
+    """
+    from sim2real.deploy.runtime.realtime import RealtimeRequest, parse_cpus
+
+    if args.spin and args.wait not in (None, "spin"):
+        raise ValueError(f"--spin and --wait {args.wait} disagree: give one of them")
+    wait = "spin" if args.spin else (args.wait or "hybrid")
+    if not realtime and (args.spin or args.wait or args.rt_priority is not None):
+        given = "--spin" if args.spin else "--wait" if args.wait else "--rt-priority"
+        raise ValueError(
+            f"{given} needs the wall clock: add --realtime (a lockstep run never waits)"
+        )
+    lock = args.lock_memory if args.lock_memory is not None else args.rt_priority is not None
+    request = RealtimeRequest(
+        priority=args.rt_priority,
+        cpus=parse_cpus(args.cpu) if args.cpu is not None else None,
+        lock_memory=bool(lock),
+        require=bool(args.require_rt),
+        spin=wait == "spin",
+    )
+    request.validate()
+    return wait, request
+
+
+def _build_rig(args, robot, policy, backend, injector, clock, fixed):
+    """The run's :class:`~sim2real.deploy.rig.rig.Rig`: the runtime (telemetry, overrun limit), the
+    task of the options, the motion figures, the hooks the options switch on and, on
+    hardware, the end of the run once every env is latched."""
+    from sim2real.deploy.rig.hooks import build_hooks
+    from sim2real.deploy.rig.rig import LatchedStopHook, MotionHook, Rig
+
+    runtime = {"clock": clock, "injector": injector, "telemetry": _telemetry(args, robot, policy)}
+    if args.overrun_limit is not None:
+        runtime["overrun_rate_limit"] = args.overrun_limit
+    task = {
+        "period": args.goal_period,
+        "rng": np.random.default_rng(args.seed + 1),
+        "success_time": args.success_time,
+        "fixed": fixed,
+        "command": args.command,
+        "schedule": False,
+        "heading_gain": args.heading_hold,
+    }
+    rig = Rig(robot, policy, backend, envs=args.envs, task=task, runtime=runtime)
+    rig.add(MotionHook(rig))
+    for hook in build_hooks(args, rig):  # --ros2, --print-joints, --video, --viewer, ...
+        rig.add(hook)
+    if not rig.simulated:
+        rig.add(LatchedStopHook())
+    return rig
+
+
+def _telemetry(args, robot, policy):
+    """``--telemetry PATH``: the MCAP recorder (Foxglove's schemas with the foxglove extra)."""
+    if not args.telemetry:
+        return None
+    from sim2real.deploy.observe import foxglove
+    from sim2real.deploy.observe.telemetry import Telemetry
+
+    fox = {"robot": robot, "control_mode": policy.spec.action.mode}
+    if not foxglove.available():
+        fox = {}
+        print(
+            "deploy-run: note: foxglove-schemas-protobuf not installed (extra 'foxglove'): "
+            "the telemetry has no Foxglove topics",
+            file=sys.stderr,
+        )
+    return Telemetry(args.telemetry, args.envs, robot.n_joints, **fox)
+
+
+def _run_rig(args, rig, realtime, injector, clock, rt_request) -> int:
+    """Run the rig for ``--duration`` at the requested real-time settings, print the summary,
+    write ``--report``; the exit code."""
+    from sim2real.deploy.backends.sim.plant import SimulationDivergedError
+    from sim2real.deploy.runtime.realtime import RealtimeRequest, RealtimeSettings
+
+    rt = rig.runtime
+    ticks = int(round(args.duration / rig.robot.control_period))
+    # priority, affinity and memory lock for the loop only (not the loading), restored after it
+    settings = RealtimeSettings(rt_request or RealtimeRequest())
+    with settings:  # RealtimeError (a ValueError: exit 3) if --require-rt and refused
+        wall = time.perf_counter()
+        diverged = None
+        rig.start()
+        try:
+            rig.run(ticks)
+        except SimulationDivergedError as exc:
+            diverged = str(exc)
+        finally:
+            rig.close()
+        wall = time.perf_counter() - wall
+    if rt.telemetry is not None:
+        rt.telemetry.close(rt.long_ticks.rows(rt.dt), rt.dt)
+    report = run_report(args, rig, wall, realtime, injector, clock)
+    report["realtime_settings"] = settings.summary()
+    report["diverged"] = diverged
+    report["exit_code"] = exit_code(report, rig)
+    print_summary(report)
+    if args.report:
+        atomic_write(args.report, json.dumps(report, indent=2))
+    return report["exit_code"]
+
+
+def run_report(args, rig, wall: float, realtime: bool, injector, clock) -> dict:
+    """The run's report (the JSON of ``--report``): what ran, the rig's monitors, task and
+    hooks (:meth:`~sim2real.deploy.rig.rig.Rig.report`), the faults, the costs and the deadlines."""
+    from sim2real.deploy.runtime import STAGES
+
+    rt, robot, backend = rig.runtime, rig.robot, rig.backend
+    report = {
+        "robot": robot.name,
+        "backend": args.backend,
+        "policy": str(args.policy),
+        "control_mode": rig.policy.spec.action.mode,
+        "control_rate_hz": 1.0 / robot.control_period,
+        "duration_s": rt.time,
+        "wall_s": wall,
+        "realtime": realtime,
+        "envs": args.envs,
+        "seed": args.seed,
+        **rig.report(),
+        "faults": fault_report(rig, injector),
+        "final_state": rt.mode_names(),
+        "final_cause": rt.cause_names(),
+        "tick_cost_us": rt.tick_cost.summary(),
+        "stage_cost_us": {s: rt.latency.summary(i) for i, s in enumerate(STAGES)},
+        "deadline": {
+            "overruns": clock.overruns,
+            "missed_periods": clock.missed_periods,
+            "jitter_us": clock.jitter.summary() if realtime else None,
+            "wait": clock.wait_mode,
+            "long_ticks": rt.long_ticks.rows(rt.dt),
+        },
+        "bus": backend.bus_summary() if hasattr(backend, "bus_summary") else None,
+    }
+    report.setdefault("ros2", None)
+    return report
+
+
+def fault_report(rig, injector) -> dict:
+    """The report's ``faults``: non-finite actions, safe stops and their causes, the joint
+    estimator's stale and missing readings, the faults injected and the drives' errors."""
+    from sim2real.deploy.estimation.joints import reinit_warning
+
+    rt, backend = rig.runtime, rig.backend
+    return {
+        "non_finite_actions": int(rt.counters.non_finite_actions.sum()),
+        "safe_stops": int(rt.counters.safe_stops.sum()),
+        "safe_stop_timeouts": int(rt.counters.safe_stop_timeouts.sum()),
+        "by_cause": {k: int(v.sum()) for k, v in rt.counters.faults.items()},
+        "estimator": {
+            "stale_readings": int(rt.estimator.stale_readings.sum()),
+            "missing_readings": int(rt.estimator.missing_readings.sum()),
+            "reinitializations": int(rt.estimator.reinitializations.sum()),
+            "warning": reinit_warning(
+                rig.robot.joint_names, rt.estimator.reinitializations_per_joint, rt.time
+            ),
+        },
+        "injected": injector.log if injector else [],
+        "drive_errors": [
+            backend.describe_drive_error(int(j), int(rt.drive_errors[e, j]))
+            for e, j in np.argwhere(rt.drive_errors)
+        ],
+    }
+
+
+def exit_code(report: dict, rig) -> int:
+    """The exit code of a run's ``report`` (module docstring); sets ``report["hard_violations"]``
+    (true-state ticks by type, lying down included)."""
+    from sim2real.deploy.monitors.violations import HARD_VIOLATION_TYPES
+
+    v = report["violations"]
+    true = {"hard_limit": 0} if v is None else {**v["by_type"], "any": v["any"]}
+    down = {} if v is None else v["while_down"]
+    hard = {
+        k: int(true.get(k, 0)) + int(down.get(k, 0))
+        for k in HARD_VIOLATION_TYPES
+        if true.get(k, 0) + down.get(k, 0)
+    }
+    report["hard_violations"] = hard
+    if report["diverged"]:
+        return EXIT_DIVERGED
+    if hard or report["faults"]["by_cause"]["hard_limit"] > 0:
+        return EXIT_HARD_VIOLATION
+    if any(m in ("FAULTED", "SAFE_STOP") for m in report["final_state"]) or rig.true_falls():
+        return EXIT_FAULT
+    return EXIT_CLEAN
+
+
+def deploy_run_main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+    argv = attach_vectors(argv)
+    args = build_parser(argv).parse_args(argv)
+    if args.viewer:  # a window or nothing: refuse before the run starts
+        from sim2real.deploy.observe.viewer import NoDisplayError, check_display
+
+        try:
+            check_display()
+        except NoDisplayError as exc:
+            print(f"deploy-run: error: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    if args.video is not None:
+        from sim2real.deploy.observe.video import headless_gl_default
+
+        headless_gl_default()  # MUJOCO_GL=egl on a machine without a display, unless chosen
+    if os.environ.get("MUJOCO_GL"):  # mujoco loads that GL backend when imported
+        from sim2real.deploy.observe.video import import_mujoco
+
+        gl_error = import_mujoco()
+        if gl_error is not None:
+            print(f"deploy-run: error: {gl_error}", file=sys.stderr)
+            args.video = None  # the run goes on without video
+    try:
+        code = run(args)
+    except (
+        ValueError,
+        OSError,
+    ) as exc:  # RobotSpecError, SpecError, PolicyLoadError are ValueErrors
+        print(f"deploy-run: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if args.viewer:  # the run is reported: leave before MuJoCo's viewer tears down its GL
+        from sim2real.deploy.observe.viewer import exit_now
+
+        exit_now(code)
+    return code
+
+
+if __name__ == "__main__":
+    raise SystemExit(deploy_run_main())

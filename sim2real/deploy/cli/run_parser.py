@@ -1,0 +1,164 @@
+"""The command line of ``deploy-run``: its argument parser (:func:`build_parser`); the backends
+``--backend`` chooses from, and their options, come from :mod:`sim2real.deploy.backends.registry`.
+
+The options are read before anything heavy is imported: this module imports neither MuJoCo nor
+numba (:mod:`sim2real.deploy.runtime.clock` is MuJoCo-free), since ``deploy-run`` chooses MuJoCo's OpenGL
+backend after parsing. What the options do, and the exit codes: :mod:`sim2real.deploy.cli.deploy_run`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from sim2real.deploy.backends.registry import add_backend_options
+from sim2real.deploy.rig.hooks import add_hook_options
+from sim2real.deploy.runtime.clock import WAIT_MODES
+from sim2real.deploy.tasks.heading import HEADING_GAIN
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The parser of ``deploy-run``'s options (:func:`sim2real.deploy.cli.deploy_run.deploy_run_main`),
+    with the options of the backend ``argv`` chooses (:mod:`sim2real.deploy.backends.registry`; default
+    ``sys.argv``)."""
+    p = argparse.ArgumentParser(
+        prog="deploy-run",
+        description="Run an exported ONNX policy through the safety runtime.",
+        epilog="Exit codes: 0 clean, 1 hard violation, 2 latched fault, 3 bad input, "
+        "4 simulation diverged.",
+    )
+    add_backend_options(p, argv)
+    p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
+    p.add_argument("--policy", required=True, help="ONNX policy (made by policy-export)")
+    p.add_argument("--spec", default=None, help="PolicySpec JSON for an ONNX without our metadata")
+    p.add_argument("--duration", type=float, default=60.0, help="seconds of (simulated) time")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--envs", type=int, default=1, help="robots simulated in lockstep")
+    p.add_argument("--realtime", action="store_true", help="wall clock with absolute deadlines")
+    _add_realtime_options(p)
+    _add_task_options(p)
+    p.add_argument(
+        "--inject",
+        action="append",
+        default=[],
+        metavar="KIND[=MAGNITUDE]@SECONDS[:DURATION]",
+        help="fault injection (sim): dropout, stale, nan-action, latency, push, cable; "
+        "MAGNITUDE: latency ticks (default 10), push / cable force N (default 20 / 10)",
+    )
+    p.add_argument("--report", type=Path, default=None, help="write the summary as JSON")
+    p.add_argument(
+        "--telemetry",
+        type=Path,
+        default=None,
+        help="write downsampled MCAP (with the foxglove extra: link poses, joint states, "
+        "commands and guard events in Foxglove's schemas)",
+    )
+    add_hook_options(p)  # --ros2, --print-joints, --video, --viewer (sim2real.deploy.rig.hooks)
+    return p
+
+
+def _add_realtime_options(p: argparse.ArgumentParser) -> None:
+    """Add the real-time options: overrun limit, wait mode, priority, CPUs, memory lock."""
+    p.add_argument(
+        "--overrun-limit",
+        type=float,
+        default=None,
+        help="wall clock: fraction of the control periods of the last second the loop may miss "
+        "before a safe stop (default: position mode 0.5, velocity and torque 0.25); a shorter "
+        "stall is ridden through, the drives holding the last command",
+    )
+    p.add_argument(
+        "--wait",
+        choices=WAIT_MODES,
+        default=None,
+        help="wall clock: how to wait for each deadline: sleep, hybrid (sleep, then busy-wait "
+        "the last 150 us; default) or spin (busy-wait the whole period: one core kept hot)",
+    )
+    p.add_argument("--spin", action="store_true", help="wall clock: the same as --wait spin")
+    p.add_argument(
+        "--rt-priority",
+        type=int,
+        default=None,
+        metavar="N",
+        help="wall clock: run the loop at SCHED_FIFO priority N (1..99) where permitted "
+        "(CAP_SYS_NICE or an rtprio limit); otherwise a one-line notice and normal priority",
+    )
+    p.add_argument(
+        "--cpu",
+        default=None,
+        metavar="N[,M]",
+        help="run the loop on these CPUs (sched_setaffinity); a CPU the process may not use "
+        "is an error (exit 3)",
+    )
+    p.add_argument(
+        "--lock-memory",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="lock the process's memory (mlockall) where permitted (CAP_IPC_LOCK or a memlock "
+        "limit); default: on with --rt-priority",
+    )
+    p.add_argument(
+        "--require-rt",
+        action="store_true",
+        help="a refused --rt-priority or memory lock is an error (exit 3), not a notice",
+    )
+
+
+def _add_task_options(p: argparse.ArgumentParser) -> None:
+    """Add the task options: the legged velocity command and heading hold, the reach goals."""
+    p.add_argument(
+        "--command",
+        default=None,
+        help="legged robots: velocity command VX,VY,WZ (m/s, m/s, rad/s, base frame)",
+    )
+    p.add_argument(
+        "--heading-hold",
+        type=float,
+        default=HEADING_GAIN,
+        metavar="GAIN",
+        help="legged robots, a --command whose yaw rate WZ is 0: hold the heading the robot had "
+        "when it began to walk, giving the policy the yaw rate GAIN * heading error (1/s, "
+        "clipped to 1 rad/s; legged_gym's heading command, default %(default)s); 0: give the "
+        "policy the command as it is",
+    )
+    p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
+    p.add_argument("--goal", default=None, help="fixed goal X,Y,Z (m, base frame)")
+    p.add_argument(
+        "--success-time",
+        type=float,
+        default=3.0,
+        help="a goal counts as reached within this many seconds",
+    )
+
+
+#: Options whose value may start with '-' (a vector with a negative first entry).
+VECTOR_OPTIONS = ("--command", "--goal")
+
+
+def attach_vectors(argv: Sequence[str] | None) -> list[str]:
+    """``argv`` with ``--command -0.5,0,0`` written ``--command=-0.5,0,0`` (argparse takes a
+    value starting with '-' that is not a plain negative number for an option, and refused
+    a backwards walk with "expected one argument"); ``argv`` None: ``sys.argv[1:]``."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in VECTOR_OPTIONS and i + 1 < len(argv) and argv[i + 1].startswith("-"):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(argv[i])
+        i += 1
+    return out
+
+
+def split_passthrough(argv: Sequence[str] | None) -> tuple[list[str], list[str]]:
+    """``(own, rest)``: the arguments before a ``--`` (this command's) and after it (passed on
+    to the command it runs: deploy-run, soak-test); ``argv`` None: ``sys.argv[1:]``."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if "--" not in argv:
+        return argv, []
+    cut = argv.index("--")
+    return argv[:cut], argv[cut + 1 :]

@@ -1,0 +1,174 @@
+"""State dicts: the explicit state of the runtime's stages, for checkpoints and exact resumes.
+
+Every stage that keeps state from one tick to the next (estimator, guard, smoother, runtime, goal
+scheduler, fault injector, policy, simulated plant, monitors) has::
+
+    state_dict(env=None) -> dict[str, np.ndarray | int | float | bool | str]
+    load_state_dict(state, env=None)
+
+and loading a state into a fresh instance built with the same arguments continues exactly where
+the source stood: the same outputs, bit for bit.
+
+Conventions (those of :class:`sim2real.deploy.monitors.violations.ViolationMonitor`):
+
+- Batched stages keep their env axis (leading, unless a field says otherwise): all envs for
+  ``env=None``, or length 1 for one env ``env`` (``slice(env, env + 1)``), so that the state of
+  one env of a batch also loads into a one-env instance with ``env=None``. Values the batch shares
+  (a tick count, a clock, a shared random stream) are in the dict either way and are loaded
+  either way. (:class:`sim2real.deploy.policy.onnx_policy.OnnxPolicy` drops the env axis for one env; the
+  runtime passes ``env`` through to it unchanged.)
+- Arrays are copies; scalars are Python ``int``, ``float``, ``bool`` or ``str``. A random
+  generator's state (``bit_generator.state``) and ragged records (lists per env) are JSON text.
+- Composite stages prefix their parts' keys with ``<part>/`` (:func:`prefixed`, :func:`section`).
+- A state that does not fit raises :class:`StateDictError` (a ``ValueError``) naming the field.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+
+import numpy as np
+
+from sim2real.robots.errors import Sim2RealError
+
+Scalar = int | float | bool | str
+
+
+class StateDictError(Sim2RealError, ValueError):
+    """A state dict that does not fit the stage: a missing field, a shape or kind that differs.
+
+    Attributes:
+        key: The field, with the prefixes of the stages it is nested in (:meth:`under`).
+        problem: What is wrong with it (``" is missing"``, ``": expected shape ..."``).
+    """
+
+    def __init__(self, key: str, problem: str):
+        self.key, self.problem = key, problem
+        super().__init__(f"field '{key}'{problem}")
+
+    def under(self, prefix: str) -> StateDictError:
+        """The same error, its key nested under ``prefix`` (a composite stage's part)."""
+        return StateDictError(f"{prefix}/{self.key}", self.problem)
+
+
+def env_index(env: int | None) -> slice:
+    """The index of the convention: every env (None) or env ``env`` keeping its axis."""
+    return slice(None) if env is None else slice(env, env + 1)
+
+
+def take(fields: Mapping[str, np.ndarray], env: int | None) -> dict[str, np.ndarray]:
+    """Copies of ``fields[k][env_index(env)]`` (arrays with a leading env axis)."""
+    index = env_index(env)
+    return {k: np.array(v[index], copy=True) for k, v in fields.items()}
+
+
+def check(fields: Mapping[str, np.ndarray], state: Mapping, env: int | None) -> None:
+    """Check that ``state`` has every key of ``fields``, shaped as ``fields[k][env_index(env)]``.
+
+    Raises:
+        StateDictError: a missing field, or a shape that differs from the target's.
+    """
+    index = env_index(env)
+    for key, target in fields.items():
+        if key not in state:
+            raise StateDictError(key, " is missing")
+        expected, got = np.shape(target[index]), np.shape(state[key])
+        if got != expected:
+            raise StateDictError(key, f": expected shape {expected}, got {got}")
+
+
+def put(fields: Mapping[str, np.ndarray], state: Mapping, env: int | None) -> None:
+    """Write ``state[k]`` into ``fields[k][env_index(env)]`` for every key of ``fields``.
+
+    Every field is checked (:func:`check`) before anything is written: a state that does not fit
+    changes nothing.
+
+    Raises:
+        StateDictError: a missing field, or a shape that differs from the target's.
+    """
+    check(fields, state, env)
+    index = env_index(env)
+    for key, target in fields.items():
+        target[index] = state[key]
+
+
+def scalar(state: Mapping, key: str, kind: type[Scalar]) -> Scalar:
+    """``state[key]`` as a Python ``kind`` (int, float, bool or str; a 0-d array is accepted).
+
+    Raises:
+        StateDictError: the field is missing or is not a single value.
+    """
+    if key not in state:
+        raise StateDictError(key, " is missing")
+    value = state[key]
+    if np.ndim(value) != 0:
+        raise StateDictError(
+            key, f": expected a single {kind.__name__}, got shape {np.shape(value)}"
+        )
+    value = value.item() if isinstance(value, np.ndarray | np.generic) else value
+    if kind is str and not isinstance(value, str):
+        raise StateDictError(key, f": expected text, got {type(value).__name__}")
+    return kind(value)
+
+
+def to_json(value) -> str:
+    """JSON text of ``value`` (lists, dicts, numbers; floats round-trip exactly)."""
+    return json.dumps(value)
+
+
+def from_json(state: Mapping, key: str):
+    """The value of the JSON text ``state[key]``.
+
+    Raises:
+        StateDictError: the field is missing or not valid JSON.
+    """
+    text = scalar(state, key, str)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise StateDictError(key, f": not valid JSON ({exc})") from None
+
+
+def rng_state(gen: np.random.Generator):
+    """A numpy ``Generator``'s ``bit_generator.state`` (a JSON-ready dict)."""
+    return gen.bit_generator.state
+
+
+def set_rng_state(gen: np.random.Generator, state, key: str) -> None:
+    """Restore a :func:`rng_state` into ``gen`` (the same kind of bit generator).
+
+    Raises:
+        StateDictError: a state of another kind of bit generator, or not a state at all.
+    """
+    try:
+        gen.bit_generator.state = state
+    except (TypeError, ValueError) as exc:
+        kind = type(gen.bit_generator).__name__
+        raise StateDictError(key, f": not a state of {kind} ({exc})") from None
+
+
+def prefixed(prefix: str, state: Mapping) -> dict:
+    """``state`` with every key nested under ``prefix`` (``<prefix>/<key>``)."""
+    return {f"{prefix}/{k}": v for k, v in state.items()}
+
+
+def section(state: Mapping, prefix: str) -> dict:
+    """The part of ``state`` under ``prefix``, the prefix stripped (inverse of :func:`prefixed`)."""
+    start = len(prefix) + 1
+    return {k[start:]: v for k, v in state.items() if k.startswith(prefix + "/")}
+
+
+def load_part(prefix: str, part, state: Mapping, env: int | None) -> None:
+    """``part.load_state_dict(section(state, prefix), env)``, errors naming the nested field.
+
+    Raises:
+        StateDictError: from the part (its key nested under ``prefix``), or any ``ValueError``
+            of a part outside this convention, reported under ``prefix``.
+    """
+    try:
+        part.load_state_dict(section(state, prefix), env)
+    except StateDictError as exc:
+        raise exc.under(prefix) from None
+    except ValueError as exc:
+        raise StateDictError(prefix, f": {exc}") from None

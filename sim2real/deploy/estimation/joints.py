@@ -1,0 +1,429 @@
+"""Joint state estimation: a position + velocity Kalman filter per joint, batched over ``envs``.
+
+Model (per joint, state ``x = [q, dq]``, rad and rad/s): the acceleration the drive was commanded
+(control input ``u``, rad/s^2), plus white-noise acceleration that is piecewise constant over each
+prediction interval ("discrete white noise acceleration", Bar-Shalom, Li, Kirubarajan, *Estimation
+with Applications to Tracking and Navigation*, Wiley 2001, sec. 6.3.2;
+``filterpy.common.Q_discrete_white_noise(2, dt, var)``)::
+
+    x' = F(dt) x + B(dt) u
+    F(dt) = [[1, dt], [0, 1]]          Q(dt) = var * [[dt^4 / 4, dt^3 / 2], [dt^3 / 2, dt^2]]
+    B(dt) = [[dt^2 / 2], [dt]]         H = [[1, 0]],  R = measurement_sigma^2
+
+Without an input (``u = 0``) this is the constant-velocity model, which lags an accelerating joint
+by about ``a / omega^2`` (``omega ~ (var / R)^(1/4)``). For an arm the runtime passes the
+smoother's commanded acceleration (:attr:`sim2real.deploy.smoothing.CommandSmoother.mean_acceleration`) in
+position and velocity mode; the noise then only has to cover the drive's tracking error. The
+output's extrapolation past the newest reading (latency) uses the input only with
+``input_extrapolates``. A floating-base robot's filter gets no input
+(:meth:`sim2real.deploy.safety.guard.SafetyGuard.estimator_input`): its low-gain PD targets may jump from
+tick to tick, and their acceleration is not the joints'.
+
+Time stamps: a joint's filter lives at ``filter_time``, the sample time of the last reading it
+absorbed; a later reading is absorbed (predict by ``stamp - filter_time``, update), an older,
+repeated or future one is counted in ``stale_readings``, a missing (non-finite) one in
+``missing_readings`` and never fed to the filter. The *output* is the prediction from
+``filter_time`` to ``frame.time``, not stored: latency is bridged by extrapolation, a dropout is a
+predict-only step.
+
+The tick is one numba kernel (:mod:`sim2real.deploy.estimation.kernel`); its reference runs one
+``filterpy.kalman.KalmanFilter(dim_x=2, dim_z=1)`` per (env, joint) (:mod:`~.reference`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim2real.deploy.core.backend import SensorFrame
+from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.core.stateful import put, take
+from sim2real.deploy.estimation.kernel import kalman_tick
+from sim2real.robots import Robot
+
+#: Default process noise standard deviation as a fraction of the joint's acceleration limit.
+#: Bar-Shalom, Li, Kirubarajan (2001), sec. 6.3.2, give 0.5 a_M <= sigma <= a_M as the practical
+#: range for the discrete white noise acceleration model, a_M the largest acceleration; we take the
+#: lower end (the smoother keeps commanded accelerations within the limit). On the arm3 plant
+#: (sinusoidal motion, default noise) 0.25, 0.5 and 1.0 give position RMS errors of 11, 7.6 and
+#: 7.3 mrad against 15.6 mrad raw; 0.1 lags (25 mrad).
+PROCESS_NOISE_FRACTION = 0.5
+
+
+def motion_acceleration(robot: Robot) -> np.ndarray:
+    """(n,) rad/s^2, the largest acceleration the filter's motion model expects of each joint:
+    the smoother's acceleration limit, but no more than the whole velocity range (from
+    ``-velocity_limit`` to ``+velocity_limit``) crossed in one control period. A legged robot's
+    PD targets may step far faster than its joints move (``robot-import --target-limits pd``):
+    process noise from such a limit would make the filter trust no reading (its measurement
+    noise is raised with it by ``MAX_TRACKING_INDEX``), wider than the joint's travel,
+    re-initialized every tick."""
+    return np.minimum(robot.acceleration_limit, 2.0 * robot.velocity_limit / robot.control_period)
+
+
+#: Largest tracking index ``sigma_a dt^2 / sigma_r`` the default measurement noise allows (``dt``
+#: the control period; P. R. Kalata, "The tracking index: a generalized parameter for alpha-beta
+#: and alpha-beta-gamma target trackers", IEEE TAES 20(2), 1984). The filter's steady-state
+#: velocity gain beta grows with the index: past beta = 1 the velocity error alternates in sign
+#: from one reading to the next, and beta tends to 2, where it no longer decays. At 3, beta is
+#: 0.94. A fine encoder read at a slow rate for a joint allowed large accelerations exceeds it:
+#: go2 (one count, 3e-5 rad; 500 rad/s^2 of process noise; 50 Hz) had an index of 6,600: its
+#: estimate of a calf turning at 2 rad/s alternated between +-40 rad/s, and one dropped reading
+#: then extrapolated the calf 0.8 rad past its hard limit (a safe stop).
+MAX_TRACKING_INDEX = 3.0
+
+#: Degeneracy bound of the velocity standard deviation, in velocity limits (our choice): an
+#: uncertainty of several times the fastest possible speed means the filter has lost track.
+VELOCITY_SIGMA_BOUND = 10.0
+
+#: Re-initializations per joint per second above which a run warns (our choice): a filter that
+#: fits the joint never degenerates; injected faults (a stale or non-finite reading) make a few in
+#: a run; one that re-initializes every few ticks has process noise, measurement noise or a
+#: covariance bound that does not fit the motion (its velocity estimate is then noise).
+REINIT_WARNING_RATE = 0.1
+
+
+def reinit_warning(joint_names, reinitializations: np.ndarray, seconds: float) -> str | None:
+    """A one-line warning naming the joints re-initialized more often than
+    :data:`REINIT_WARNING_RATE` per second over ``seconds`` s of ``envs`` robots
+    (``reinitializations`` (envs, n) counts), or None."""
+    if seconds <= 0:
+        return None
+    counts = np.asarray(reinitializations).sum(axis=0)
+    rate = counts / (seconds * np.asarray(reinitializations).shape[0])
+    bad = [
+        (name, int(c))
+        for name, c, r in zip(joint_names, counts, rate, strict=True)
+        if r > REINIT_WARNING_RATE
+    ]
+    if not bad:
+        return None
+    listed = ", ".join(f"{name} {c}" for name, c in bad)
+    return (
+        f"the joint estimator re-initialized {listed} times in {seconds:.1f} s (more than "
+        f"{REINIT_WARNING_RATE:g} per s): its velocity estimate is unreliable; check the joint's "
+        "acceleration_limit (its process noise) and the encoder noise in robot.toml"
+    )
+
+
+class JointStateEstimator:
+    """Kalman filter of joint position and velocity for ``envs`` robots of ``n`` joints.
+
+    Args:
+        robot: The robot description (limits, sensor settings).
+        envs: Batch size.
+        process_noise: Variance ``var`` of the white-noise acceleration, (rad/s^2)^2, as
+            ``Q_discrete_white_noise(2, dt, var)`` takes it; scalar or (n,). Default
+            ``(PROCESS_NOISE_FRACTION * motion_acceleration(robot))^2`` (Bar-Shalom et al. 2001,
+            sec. 6.3.2: standard deviation 0.5 to 1 times the largest acceleration).
+        measurement_sigma: Encoder noise standard deviation, rad; scalar or (n,). Default
+            ``robot.config.sensors.encoder_noise_sigma``, floored at the quantization noise
+            ``(2 pi / encoder_resolution) / sqrt(12)`` (uniform rounding error) so that ``R > 0``,
+            and at ``sqrt(process_noise) dt^2 / MAX_TRACKING_INDEX`` (a velocity estimate that
+            does not oscillate; ``dt`` the control period).
+        input_extrapolates: Whether the output's extrapolation from the newest reading to the
+            frame's time uses the control input (default) or constant velocity (module
+            docstring; the runtime gives a floating-base robot's filter no input at all).
+
+    Attributes:
+        covariance: (envs, n, 2, 2) covariance of ``[q, dq]`` at ``filter_time`` (rad^2,
+            rad^2/s, rad^2/s^2), symmetric. A writable view: a value written into it (fault
+            injection) is checked by the next :meth:`update`.
+        position, velocity: (envs, n) rad, rad/s, the filter state at ``filter_time`` (views).
+        filter_time: (envs, n) s, sample time of the last absorbed reading (or of the reset).
+        time_since_fresh: (envs, n) s, ``frame.time - filter_time`` at the last update: the age of
+            the newest absorbed reading, latency included. The runtime safe-stops when it exceeds
+            ``robot.config.safety.stale_limit``.
+        stale_readings, missing_readings, reinitializations: (envs,) int counters since the last
+            :meth:`reset` (sums over the joints of ``*_per_joint``, (envs, n)).
+        initial_covariance: (n, 2, 2), ``diag(R, velocity_limit^2)``: the pose is known to the
+            encoder's accuracy, the velocity only to within the joint's velocity limit.
+        covariance_bound: (n, 2), largest accepted variances of position and velocity:
+            ``(upper - lower)^2`` (a standard deviation wider than the joint's whole travel) and
+            ``(VELOCITY_SIGMA_BOUND * velocity_limit)^2``.
+
+    Raises:
+        ValueError: ``envs < 1``, or noise values that are not finite and positive.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        envs: int,
+        process_noise: float | np.ndarray | None = None,
+        measurement_sigma: float | np.ndarray | None = None,
+        input_extrapolates: bool = True,
+    ):
+        if envs < 1:
+            raise ValueError(f"envs must be >= 1, got {envs}")
+        n = robot.n_joints
+        self.robot, self.envs, self.n_joints = robot, envs, n
+        self.input_extrapolates = bool(input_extrapolates)
+        sensors = robot.config.sensors
+        if process_noise is None:
+            process_noise = (PROCESS_NOISE_FRACTION * motion_acceleration(robot)) ** 2
+        self.process_noise = self._per_joint("process_noise", process_noise)
+        if measurement_sigma is None:
+            floor = 2.0 * np.pi / sensors.encoder_resolution / np.sqrt(12.0)
+            stable = np.sqrt(self.process_noise) * robot.control_period**2 / MAX_TRACKING_INDEX
+            measurement_sigma = np.maximum(max(sensors.encoder_noise_sigma, floor), stable)
+        self.measurement_variance = self._per_joint("measurement_sigma", measurement_sigma) ** 2
+        self.initial_covariance = np.zeros((n, 2, 2))
+        self.initial_covariance[:, 0, 0] = self.measurement_variance
+        self.initial_covariance[:, 1, 1] = robot.velocity_limit**2
+        self.covariance_bound = np.stack(
+            [
+                (robot.position_upper - robot.position_lower) ** 2,
+                (VELOCITY_SIGMA_BOUND * robot.velocity_limit) ** 2,
+            ],
+            axis=-1,
+        )
+
+        shape = (envs, n)
+        # Filter state. x[0] = position, x[1] = velocity; p[k] = P[k // 2, k % 2] (contiguous
+        # rows for the closed-form algebra; ``covariance`` is a (envs, n, 2, 2) view of them).
+        self._x = np.zeros((2, envs, n))
+        self._x[0] = np.nan
+        self._p = np.zeros((4, envs, n))
+        self.filter_time = np.full(shape, np.nan)
+        self.time_since_fresh = np.full(shape, np.inf)
+        self.stale_per_joint = np.zeros(shape, dtype=np.int64)
+        self.missing_per_joint = np.zeros(shape, dtype=np.int64)
+        self.reinitializations_per_joint = np.zeros(shape, dtype=np.int64)
+        self.covariance[:] = self.initial_covariance
+        self._initialized = np.zeros(envs, dtype=bool)
+        self._all_initialized = False
+
+        # work arrays, (envs, n): the tick allocates nothing
+        self._u = np.zeros(shape)
+        # row views, made once (unpacking a (2, envs, n) array every tick would create them anew)
+        self._xv = tuple(self._x)
+        self._fresh = np.empty(shape, dtype=bool)
+        self._good = np.empty(shape, dtype=bool)
+
+        # the compiled kernel's per-joint constants (contiguous (n,) arrays)
+        self._b0 = np.ascontiguousarray(self.covariance_bound[:, 0])
+        self._b1 = np.ascontiguousarray(self.covariance_bound[:, 1])
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Compile :func:`~sim2real.deploy.estimation.kernel.kalman_tick` (or load numba's cache) now, not
+        in a tick, on copies: the call writes its outputs (time_since_fresh among them)."""
+        envs, n = self.envs, self.n_joints
+        args = self._kernel_args(SensorFrame.empty(envs, n), RobotState.zeros(envs, n))
+        kalman_tick(2, *(np.copy(a) if isinstance(a, np.ndarray) else a for a in args))
+
+    def _per_joint(self, name: str, value) -> np.ndarray:
+        arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (self.n_joints,)).copy()
+        if not (np.isfinite(arr).all() and (arr > 0).all()):
+            raise ValueError(f"{name} must be finite and > 0 for every joint, got {arr}")
+        return arr
+
+    # ------------------------------------------------------------------ views and counters
+    @property
+    def position(self) -> np.ndarray:
+        """(envs, n) rad, filter position at ``filter_time`` (a view)."""
+        return self._x[0]
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """(envs, n) rad/s, filter velocity at ``filter_time`` (a view)."""
+        return self._x[1]
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """(envs, n, 2, 2) covariance of ``[q, dq]`` at ``filter_time`` (a writable view)."""
+        return self._p.reshape(2, 2, self.envs, self.n_joints).transpose(2, 3, 0, 1)
+
+    @property
+    def stale_readings(self) -> np.ndarray:
+        """(envs,) readings discarded as stale, repeated, reordered or future-stamped."""
+        return self.stale_per_joint.sum(axis=1)
+
+    @property
+    def missing_readings(self) -> np.ndarray:
+        """(envs,) readings that did not arrive or were not finite (predict only)."""
+        return self.missing_per_joint.sum(axis=1)
+
+    @property
+    def reinitializations(self) -> np.ndarray:
+        """(envs,) joints re-initialized after their filter degenerated."""
+        return self.reinitializations_per_joint.sum(axis=1)
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self, q: np.ndarray, t, envs: np.ndarray | None = None) -> None:
+        """Initialize the filters at a measured pose, at rest.
+
+        Sets ``position = q``, ``velocity = 0``, ``covariance = initial_covariance``,
+        ``filter_time = t``, ``time_since_fresh = 0`` and zeroes the counters of the reset envs.
+        A reading stamped ``t`` that arrives later is a repeat of ``q`` and counts as stale.
+
+        Args:
+            q: (envs, n) or (n,) rad, measured joint angles (finite).
+            t: s, sample time of ``q``: a float, (envs,) or (envs, n) (finite).
+            envs: Optional boolean mask (envs,) or indices of the envs to reset; default all.
+
+        Raises:
+            ValueError: ``q`` or ``t`` of the wrong shape, or not finite in a reset env.
+        """
+        shape = (self.envs, self.n_joints)
+        sel = np.arange(self.envs) if envs is None else np.arange(self.envs)[envs]
+        q = np.asarray(q, dtype=np.float64)
+        t = np.asarray(t, dtype=np.float64)
+        try:
+            q = np.broadcast_to(q, shape)
+            t = np.broadcast_to(t[:, None] if t.ndim == 1 else t, shape)
+        except ValueError as exc:
+            raise ValueError(
+                f"reset: q must be (n,) or {shape}, t a float, ({self.envs},) or {shape}; "
+                f"got q {q.shape}, t {t.shape}"
+            ) from exc
+        if not (np.isfinite(q[sel]).all() and np.isfinite(t[sel]).all()):
+            raise ValueError("reset: q and t must be finite (a pose that was actually measured)")
+        self._x[0, sel] = q[sel]
+        self._x[1, sel] = 0.0
+        self.covariance[sel] = self.initial_covariance
+        self.filter_time[sel] = t[sel]
+        self.time_since_fresh[sel] = 0.0
+        for counter in (
+            self.stale_per_joint,
+            self.missing_per_joint,
+            self.reinitializations_per_joint,
+        ):
+            counter[sel] = 0
+        self._initialized[sel] = True
+        self._all_initialized = bool(self._initialized.all())
+
+    # ------------------------------------------------------------------ state
+    def _state_fields(self) -> dict[str, np.ndarray]:
+        return {
+            "position": self._x[0],
+            "velocity": self._x[1],
+            "covariance": self.covariance,
+            "filter_time": self.filter_time,
+            "time_since_fresh": self.time_since_fresh,
+            "stale_per_joint": self.stale_per_joint,
+            "missing_per_joint": self.missing_per_joint,
+            "reinitializations_per_joint": self.reinitializations_per_joint,
+            "initialized": self._initialized,
+        }
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """The filters' state (copies; conventions of :mod:`sim2real.deploy.core.stateful`): ``position``,
+        ``velocity`` (envs, n) rad, rad/s and ``covariance`` (envs, n, 2, 2) at
+        ``filter_time`` (envs, n) s, ``time_since_fresh`` (envs, n) s, the per-joint counters
+        (envs, n) int64 and ``initialized`` (envs,) bool (:meth:`reset` was called); the env
+        axis has length 1 for one env ``env``."""
+        return take(self._state_fields(), env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``).
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        put(self._state_fields(), state, env)
+        self._all_initialized = bool(self._initialized.all())
+
+    # ------------------------------------------------------------------ the tick
+    def update(
+        self, frame: SensorFrame, state: RobotState, acceleration: np.ndarray | None = None
+    ) -> RobotState:
+        """Absorb the fresh readings of ``frame`` and write the estimates at ``frame.time``.
+
+        ``acceleration`` is the control input ``u``, (envs, n) rad/s^2: the acceleration the
+        drives were commanded since the previous frame (None: 0, the constant-velocity model).
+        It drives every prediction of this call, readings' and output's.
+
+        Fills ``state.q`` (rad) and ``state.dq`` (rad/s), both (envs, n), predicted from
+        ``filter_time`` to ``frame.time``, and copies ``frame.winding_temperature`` (degC) into
+        ``state.winding_temperature`` where it is finite. Updates the counters,
+        ``time_since_fresh`` and ``covariance`` (see the module docstring for the rules).
+
+        After the step the covariance is symmetrized and every joint checked: a joint whose state
+        is not finite, or whose covariance is not positive definite or exceeds
+        ``covariance_bound``, is re-initialized and counted in ``reinitializations``: from this
+        frame's reading if it had a fresh one (``filter_time`` = its stamp), otherwise from its
+        last estimate (``filter_time`` unchanged); velocity clipped to the velocity limit (0 if not
+        finite), ``covariance = initial_covariance``. A joint whose position itself is lost and
+        has no reading keeps a NaN estimate and ``time_since_fresh = inf`` (the runtime
+        safe-stops) until a reading arrives; it is counted once.
+
+        Returns:
+            ``state``, updated in place.
+
+        Raises:
+            RuntimeError: :meth:`reset` was not called for every env.
+            ValueError: a frame of the wrong shape.
+        """
+        if not self._all_initialized:
+            raise RuntimeError("JointStateEstimator.update before reset(q, t) of every env")
+        z, ts = frame.position, frame.position_stamp
+        x0 = self._xv[0]
+        if z.shape != x0.shape or ts.shape != x0.shape:
+            raise ValueError(
+                f"frame: expected position and position_stamp shaped {x0.shape}, "
+                f"got {z.shape} and {ts.shape}"
+            )
+        if acceleration is None:
+            self._u.fill(0.0)
+        else:
+            np.copyto(self._u, acceleration)
+        return self._tick(frame, state)
+
+    def _tick(self, frame: SensorFrame, state: RobotState) -> RobotState:
+        """:meth:`update` after its checks, with ``_u`` set: the kernel
+        :func:`~sim2real.deploy.estimation.kernel.kalman_tick`."""
+        z, ts = frame.position, frame.position_stamp
+        args = self._kernel_args(frame, state)
+        status = kalman_tick(0, *args)
+        while status:  # a degenerate joint: re-initialize it, go on from the next phase
+            with np.errstate(invalid="ignore", over="ignore"):
+                self._reinitialize(z, ts)
+            status = kalman_tick(status, *args)
+        return state
+
+    # ------------------------------------------------------------------ internals
+    def _kernel_args(self, frame: SensorFrame, state: RobotState) -> tuple:
+        """Arguments of :func:`sim2real.deploy.estimation.kernel.kalman_tick` after ``phase``."""
+        return (
+            frame.position,
+            frame.position_stamp,
+            frame.time,
+            self._x,
+            self._p,
+            self.filter_time,
+            self.process_noise,
+            self.measurement_variance,
+            self._b0,
+            self._b1,
+            self.missing_per_joint,
+            self.stale_per_joint,
+            self._fresh,
+            self._good,
+            self.time_since_fresh,
+            state.q,
+            state.dq,
+            frame.winding_temperature,
+            state.winding_temperature,
+            self._u,
+            self.input_extrapolates,
+        )
+
+    def _reinitialize(self, z: np.ndarray, ts: np.ndarray) -> None:
+        """Re-initialize the joints that are not good (the rare path: it may allocate)."""
+        bad = ~self._good
+        fresh = self._fresh
+        x0, x1 = self._x[0], self._x[1]
+        already_lost = np.isneginf(self.filter_time) & ~fresh
+        self.reinitializations_per_joint += bad & ~already_lost
+        measured = bad & fresh
+        x0[measured] = z[measured]
+        self.filter_time[measured] = ts[measured]
+        fresh[measured] = False  # absorbed by the re-initialization
+        lost = bad & ~measured & ~np.isfinite(x0)
+        x0[lost] = np.nan
+        self.filter_time[lost] = -np.inf
+        vlim = np.broadcast_to(self.robot.velocity_limit, x1.shape)
+        velocity = np.clip(np.where(np.isfinite(x1), x1, 0.0), -vlim, vlim)
+        x1[bad] = velocity[bad]
+        self.covariance[bad] = np.broadcast_to(self.initial_covariance, self.covariance.shape)[bad]

@@ -1,0 +1,155 @@
+"""The compiled tick of :class:`~sim2real.deploy.estimation.joints.JointStateEstimator` (numba).
+
+One call does, per (env, joint): classify the reading (missing, stale, fresh), check the
+filter, absorb a fresh reading (the same closed-form predict + update as
+``filterpy.kalman.KalmanFilter``, ``predict()`` then ``update(z)`` with the Joseph form), check
+again and write the prediction to the frame's time, in one compiled call per tick (its cost:
+``make bench``). It equals the ``"filterpy"`` reference to rounding (~1e-15).
+
+The kernel stops where the estimator must re-initialize a degenerate joint (the rare path, left to
+Python) and is called again from the phase after it:
+
+====== ===============================================================================
+phase  what runs
+====== ===============================================================================
+0      classify the readings, update the counters, check (symmetrize P first)
+1      absorb the fresh readings, check again (only if any reading was fresh)
+2      write the outputs: ``q``, ``dq``, ``time_since_fresh``, winding temperatures
+====== ===============================================================================
+
+Returns 0 when the outputs are written, 1 when the check of phase 0 failed (nothing absorbed yet),
+2 when the check of phase 1 failed (``good`` marks the joints to re-initialize).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def _check(x, p, b0, b1, good) -> bool:
+    envs, n = good.shape
+    ok = True
+    for e in range(envs):
+        for j in range(n):
+            s = (p[1, e, j] + p[2, e, j]) * 0.5
+            p[1, e, j] = s
+            p[2, e, j] = s
+            p00, p11 = p[0, e, j], p[3, e, j]
+            g = (
+                p00 > 0.0
+                and p00 <= b0[j]
+                and p11 <= b1[j]
+                and p00 * p11 - s * s > 0.0
+                and math.isfinite(x[0, e, j] + x[1, e, j])
+            )
+            good[e, j] = g
+            ok = ok and g
+    return ok
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def kalman_tick(
+    phase: int,
+    z: np.ndarray,
+    ts: np.ndarray,
+    now: np.ndarray,
+    x: np.ndarray,
+    p: np.ndarray,
+    tf: np.ndarray,
+    var: np.ndarray,
+    r: np.ndarray,
+    b0: np.ndarray,
+    b1: np.ndarray,
+    missing: np.ndarray,
+    stale: np.ndarray,
+    fresh: np.ndarray,
+    good: np.ndarray,
+    time_since_fresh: np.ndarray,
+    q_out: np.ndarray,
+    dq_out: np.ndarray,
+    temperature_in: np.ndarray,
+    temperature_out: np.ndarray,
+    u: np.ndarray,
+    input_extrapolates: bool,
+) -> int:
+    """One estimator tick from ``phase`` on (see the module docstring).
+
+    Shapes: ``z``, ``ts``, ``tf``, ``missing``, ``stale``, ``fresh``, ``good``,
+    ``time_since_fresh``, ``q_out``, ``dq_out``, temperatures (envs, n); ``now`` (envs,);
+    ``x`` (2, envs, n); ``p`` (4, envs, n), ``p[k] = P[k // 2, k % 2]``; ``var``, ``r``, ``b0``,
+    ``b1`` (n,); ``u`` (envs, n), the control input (commanded acceleration, rad/s^2);
+    ``input_extrapolates``: whether the output's extrapolation past the newest reading uses ``u``
+    too (else constant velocity). Units as in
+    :class:`~sim2real.deploy.estimation.joints.JointStateEstimator`.
+    """
+    envs, n = z.shape
+    if phase == 0:
+        for e in range(envs):
+            t = now[e]
+            for j in range(n):
+                valid = math.isfinite(z[e, j]) and math.isfinite(ts[e, j])
+                if not valid:
+                    missing[e, j] += 1
+                f = valid and ts[e, j] > tf[e, j] and ts[e, j] <= t
+                if valid and not f:
+                    stale[e, j] += 1
+                fresh[e, j] = f
+        if not _check(x, p, b0, b1, good):
+            return 1
+        phase = 1
+    if phase == 1:
+        any_fresh = False
+        for e in range(envs):
+            for j in range(n):
+                if not fresh[e, j]:
+                    continue
+                any_fresh = True
+                # F = [[1, dt], [0, 1]], Q = var [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]
+                dt = ts[e, j] - tf[e, j]
+                hdt = dt * 0.5
+                q11 = var[j] * (dt * dt)
+                q01 = q11 * hdt
+                q00 = q01 * hdt
+                x0, x1 = x[0, e, j], x[1, e, j]
+                p00, p01, p10, p11 = p[0, e, j], p[1, e, j], p[2, e, j], p[3, e, j]
+                # prior: x = F x + B u, P = F P F' + Q
+                xp0 = x0 + dt * x1 + (hdt * dt) * u[e, j]
+                x1 = x1 + dt * u[e, j]
+                a01 = p01 + dt * p11
+                a00 = p00 + dt * p10
+                a00 = a00 + dt * a01
+                a00 = a00 + q00
+                a01 = a01 + q01
+                a11 = p11 + q11
+                # posterior, closed form of filterpy's Joseph update for the optimal gain
+                s = a00 + r[j]
+                k0 = a00 / s
+                k1 = a01 / s
+                y = z[e, j] - xp0
+                x[0, e, j] = xp0 + k0 * y
+                x[1, e, j] = x1 + k1 * y
+                c = 1.0 - k0
+                p[0, e, j] = c * a00
+                p[1, e, j] = c * a01
+                p[2, e, j] = c * a01
+                p[3, e, j] = a11 - k1 * a01
+                tf[e, j] = ts[e, j]
+        if any_fresh and not _check(x, p, b0, b1, good):
+            return 2
+    for e in range(envs):
+        t = now[e]
+        for j in range(n):
+            age = t - tf[e, j]
+            time_since_fresh[e, j] = age
+            du = age * u[e, j] if input_extrapolates else 0.0  # B(age) u; 0 for a lost joint
+            if not math.isfinite(du):
+                du = 0.0
+            q_out[e, j] = age * x[1, e, j] + x[0, e, j] + 0.5 * age * du
+            dq_out[e, j] = x[1, e, j] + du
+            if math.isfinite(temperature_in[e, j]):
+                temperature_out[e, j] = temperature_in[e, j]
+    return 0

@@ -1,0 +1,99 @@
+"""The report of ``policy-export --inspect``: its entries and its text.
+
+:func:`tensor_entry` is an input, output or state entry (``{"name", "shape", "dtype"}``; shapes
+are lists, ``"batch"`` a torch source's dynamic batch axis), :func:`spec_summary` an embedded
+PolicySpec (its JSON, whether :class:`~sim2real.deploy.spec.policy_spec.PolicySpec` accepts it, a
+summary), and :func:`format_report` an :func:`~sim2real.deploy.export.inspect_policy.inspect_file` result as
+text for a terminal.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from typing import Any
+
+
+def tensor_entry(name: str, shape, dtype: str) -> dict[str, Any]:
+    return {"name": name, "shape": list(shape), "dtype": dtype}
+
+
+def spec_summary(text: str, where: str) -> dict[str, Any]:
+    """The embedded PolicySpec: its JSON, whether :class:`PolicySpec` accepts it, a summary."""
+    from sim2real.deploy.spec.policy_spec import PolicySpec
+
+    try:
+        raw = json.loads(text)
+    except json.JSONDecodeError as exc:
+        return {"valid": False, "error": f"{where}: not JSON: {exc}"}
+    out: dict[str, Any] = {"json": raw, "valid": True}
+    try:
+        PolicySpec.from_json(text, source=where)
+    except Exception as exc:  # noqa: BLE001 - SpecError and friends: reported, not raised
+        out.update(valid=False, error=str(exc))
+    if isinstance(raw, Mapping):
+        blocks = raw.get("observation") or raw.get("observation_blocks") or []
+        action = raw.get("action") if isinstance(raw.get("action"), Mapping) else {}
+        out["summary"] = {
+            "robot": raw.get("robot"),
+            "control_rate": raw.get("control_rate"),
+            "observation": [
+                f"{b.get('name')}[{b.get('size')}]" for b in blocks if isinstance(b, Mapping)
+            ],
+            "action": f"{action.get('mode')} [{action.get('size')}], clip {action.get('clip')}",
+        }
+    return out
+
+
+def _shape(shape: list) -> str:
+    return "[" + ", ".join(str(d) for d in shape) + "]"
+
+
+def format_report(info: Mapping[str, Any]) -> str:
+    """:func:`inspect_file`'s result as text for a terminal."""
+    lines = [f"{info['file']}: {info['format']}"]
+    for key in ("inputs", "outputs"):
+        if info.get(key):
+            lines.append(f"  {key}:")
+            lines += [
+                f"    {t['name']:<12} {t['dtype']:<8} {_shape(t['shape'])}" for t in info[key]
+            ]
+    if info.get("state"):
+        lines.append("  recurrent state:")
+        for s in info["state"]:
+            extra = ""
+            if "output_shape" in s:
+                extra += f"  (output shape {_shape(s['output_shape'])} differs!)"
+            if s.get("declared_initial_state"):
+                extra += "  (declared initial state)"
+            if "lifted_from" in s:
+                extra += f"  (from {s['lifted_from']})"
+            lines.append(
+                f"    {s['input']} -> {s['output']}  {s['dtype']} {_shape(s['shape'])}{extra}"
+            )
+    else:
+        lines.append("  recurrent state: none")
+    meta = {k: v for k, v in (info.get("metadata") or {}).items() if k != "policy_spec"}
+    if meta:
+        lines.append("  metadata:")
+        for k, v in meta.items():
+            text = v if isinstance(v, str) else json.dumps(v, default=str)
+            lines.append(f"    {k}: {text if len(text) <= 160 else text[:157] + '...'}")
+    for k, v in (info.get("details") or {}).items():
+        text = v if isinstance(v, str) else json.dumps(v, default=str)
+        lines.append(f"  {k}: {text}")
+    spec = info.get("spec")
+    if spec:
+        state = "valid" if spec.get("valid") else f"INVALID: {spec.get('error')}"
+        lines.append(f"  policy spec ({state}):")
+        for k, v in (spec.get("summary") or {}).items():
+            lines.append(f"    {k}: {', '.join(v) if isinstance(v, list) else v}")
+        if spec.get("json") is not None:
+            lines.append("    json: " + json.dumps(spec["json"], sort_keys=True))
+    elif info.get("foreign"):
+        from sim2real.deploy.spec.foreign.report import format_lines
+
+        lines += format_lines(info["foreign"])
+    else:
+        lines.append("  policy spec: none (give one with --spec FILE.json)")
+    return "\n".join(lines)

@@ -1,0 +1,114 @@
+"""A policy another stack already exported to ONNX, given our contract: ``policy-export
+POLICY.onnx --robot ROBOT``.
+
+A published policy arrives as an ONNX graph with its contract beside it or in its metadata
+(mjlab, holosoma, Unitree's deploy.yaml, Isaac Lab's env.yaml: :mod:`sim2real.deploy.spec.foreign`), its
+weights sometimes in a ``policy.onnx.data`` file. :func:`export_onnx_policy` writes one
+self-contained file for a robot: the same graph with its weights inlined and our
+``policy_spec`` metadata (joint order, observation layout and scales, action mapping, the
+policy's PD gains and default pose, the control rate), so the deployment needs neither the
+sidecar files nor the training stack's contract. The graph is not rebuilt, so its parity with
+the source is exact: both files run in the runtime's :class:`OnnxPolicy` on the parity
+observations (:func:`sim2real.deploy.export.parity.parity_observations`) and must give the same actions
+to the bit.
+The source's own metadata is kept under ``source_metadata`` (JSON).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import onnx
+
+from sim2real.deploy.export.errors import ExportError, ParityError
+from sim2real.deploy.export.graph import set_metadata, tool_versions
+from sim2real.deploy.export.parity import PARITY_SAMPLES, parity_observations
+from sim2real.deploy.export.pipeline import ExportResult
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.spec.onnx_checks import PolicyLoadError
+from sim2real.robots import Robot
+from sim2real.robots.files import atomic_path, sha256_file
+
+
+def _actions(policy: OnnxPolicy, obs: np.ndarray) -> np.ndarray:
+    """The policy's actions for each row of ``obs`` in turn (batch 1: exported graphs often fix
+    the batch to 1), float32 (rows, act_dim)."""
+    return np.concatenate([policy(row[None]).copy() for row in obs])
+
+
+def export_onnx_policy(
+    source: str | Path, robot: Robot, out: str | Path | None = None, seed: int = 0
+) -> ExportResult:
+    """Write ``source`` (an ONNX policy with a foreign contract) for ``robot`` with our spec.
+
+    Args:
+        source: The ONNX file; its external data (``<name>.data``) beside it is read.
+        robot: The robot the contract is mapped onto.
+        out: The file to write (default ``<stem>.<robot>.onnx`` beside the source).
+        seed: Seed of the parity observations.
+
+    Returns:
+        An :class:`~sim2real.deploy.export.pipeline.ExportResult`; ``parity`` has ``samples`` and
+        ``max_abs_error`` (0.0: the same actions to the bit).
+
+    Raises:
+        ExportError: the file does not load for the robot (its contract cannot be read or
+            mapped, naming the file and the key), it already carries our spec, or ``out`` is the
+            source or cannot be written.
+        ParityError: the written file's actions differ from the source's.
+    """
+    t0 = time.perf_counter()
+    source = Path(source)
+    out = source.with_name(f"{source.stem}.{robot.name}.onnx") if out is None else Path(out)
+    if out.resolve() == source.resolve():
+        raise ExportError(f"{out}: the output would overwrite the source")
+    if not out.parent.is_dir():
+        raise ExportError(f"{out}: the output folder {out.parent} does not exist")
+    try:
+        policy = OnnxPolicy(source, robot)
+    except PolicyLoadError as exc:
+        raise ExportError(str(exc)) from None
+    if policy.foreign is None:
+        raise ExportError(
+            f"{source}: already carries its policy_spec (our own export); nothing to add"
+        )
+    spec = policy.spec
+    model = onnx.load(str(source))  # external data inlined
+    original = {p.key: p.value for p in model.metadata_props}
+    obs = parity_observations(spec, PARITY_SAMPLES, np.random.default_rng(seed))
+    reference = _actions(policy, obs)
+    meta = {
+        "source_sha256": sha256_file(source),
+        "source_format": f"onnx ({policy.foreign.format} contract)",
+        "tool_versions": json.dumps(tool_versions(), sort_keys=True),
+        "exporter": "the source graph, unchanged (weights inlined)",
+        "source_metadata": json.dumps(original, sort_keys=True),
+    }
+    try:
+        with atomic_path(out) as tmp:
+            figures = {"samples": int(len(obs)), "max_abs_error": 0.0, "passed": True}
+            set_metadata(
+                model, {"policy_spec": spec.to_json(), **meta, "parity": json.dumps(figures)}
+            )
+            model.doc_string = f"{robot.name} policy: {source.name} with its PolicySpec"
+            onnx.save(model, str(tmp))
+            written = OnnxPolicy(tmp, robot)  # it loads in the runtime with our spec
+            error = float(np.max(np.abs(_actions(written, obs) - reference), initial=0.0))
+            if error != 0.0:
+                figures.update(max_abs_error=error, passed=False)
+                raise ParityError(
+                    f"{source}: the written graph's actions differ by {error:.3g}", figures
+                )
+    except OSError as exc:
+        raise ExportError(f"{out}: cannot write in {out.parent}: {exc.strerror or exc}") from None
+    return ExportResult(
+        path=out,
+        source_format=meta["source_format"],
+        parity=figures,
+        seconds=time.perf_counter() - t0,
+        spec=spec,
+        exporter=meta["exporter"],
+    )

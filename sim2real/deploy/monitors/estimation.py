@@ -1,0 +1,147 @@
+"""The base estimate against the simulator's truth, and the falls the truth saw (simulation only).
+
+A policy trained in simulation observed the simulator's base state; through the runtime it gets
+the base estimator's (:mod:`sim2real.deploy.estimation.base`). :class:`EstimationMonitor` measures the
+difference on every RUNNING tick of a floating-base robot in simulation:
+
+- attitude error: the angle (deg) between the estimated and the true projected gravity (roll and
+  pitch; yaw is unobserved and not a policy input), mean and 95th percentile;
+- base velocity: the mean estimated and true forward speed (base frame x, m/s), the bias of the
+  estimate as a fraction of the true mean speed, and the RMS of the planar (x, y) error.
+
+It also watches the true base for a fall the runtime may not have seen (a robot whose feet fell
+through the floor with it keeps its kinematic height): the base below ``TRUE_FALL_HEIGHT`` of its
+standing height, or tilted past the robot's ``safety.fall_tilt`` (default ``FALL_TILT``), while
+RUNNING, counts a true fall once until the robot is up again.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim2real.deploy.core.attitude import tilt_of
+from sim2real.deploy.core.state import BaseState
+from sim2real.deploy.core.stateful import check, put, take
+from sim2real.deploy.estimation.fall import FALL_TILT
+
+#: Fraction of ``[base] standing_height`` under which the true base has fallen (our choice: a
+#: walking humanoid's base stays above 0.9 of it, a Go2's trot at 0.57; lying, below 0.3).
+TRUE_FALL_HEIGHT = 0.4
+#: Histogram of attitude errors: bin width and count (deg; 0.01 deg up to 90 deg).
+BIN_DEG = 0.01
+BINS = 9000
+
+
+class EstimationMonitor:
+    """Estimation error and true falls of ``envs`` floating-base robots in simulation, per env.
+
+    Args:
+        robot: A floating-base robot (``standing_height``, ``safety.fall_tilt``).
+        envs: Batch size.
+
+    Attributes:
+        ticks: int, RUNNING env-ticks measured (all envs).
+        true_falls: (envs,) int64, falls of the true base (module docstring).
+        counts: (envs, BINS + 1) int64, the attitude errors' histogram (``BIN_DEG`` wide bins,
+            the last one everything past 90 deg).
+        sums: (envs, 7) float64, per env: attitude error (deg), estimated and true forward
+            speed (m/s), planar squared error (m^2/s^2), ticks, vertical error (m/s) and its
+            square, each summed over RUNNING ticks.
+    """
+
+    def __init__(self, robot, envs: int):
+        self.envs = envs
+        self.fall_height = TRUE_FALL_HEIGHT * float(robot.config.base.standing_height)
+        tilt = robot.config.safety.fall_tilt
+        self.fall_tilt = float(FALL_TILT if tilt is None else tilt)
+        self.counts = np.zeros((envs, BINS + 1), dtype=np.int64)
+        self.sums = np.zeros((envs, 7))
+        self.true_falls = np.zeros(envs, dtype=np.int64)
+        self._down = np.zeros(envs, dtype=bool)
+        self._truth = BaseState.zeros(envs)  # filled from the plant's truth every update
+
+    @property
+    def ticks(self) -> int:
+        return int(self.sums[:, 4].sum())
+
+    def _fields(self) -> dict[str, np.ndarray]:
+        return {
+            "counts": self.counts,
+            "sums": self.sums,
+            "true_falls": self.true_falls,
+            "down": self._down,
+        }
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """``counts``, ``sums``, ``true_falls`` and ``down`` (the true base down since its last
+        RUNNING tick), copies (conventions of :mod:`sim2real.deploy.core.stateful`)."""
+        return take(self._fields(), env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict`.
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        check(self._fields(), state, env)
+        put(self._fields(), state, env)
+
+    def update(self, runtime, truth: np.ndarray) -> None:
+        """After a tick: ``truth`` (envs, 13), the plant's ``true_base_state()``."""
+        true_base = self._truth.set_truth(truth)
+        g_true, v_true = true_base.projected_gravity, true_base.linear_velocity
+        running = runtime.mode == 2  # RUNNING
+        down = (truth[:, 2] < self.fall_height) | (tilt_of(g_true) > self.fall_tilt)
+        self.true_falls += down & ~self._down & running
+        self._down = down | (self._down & ~running)
+        if not running.any():
+            return
+        envs = np.flatnonzero(running)
+        base = runtime.state.base
+        g_est = base.projected_gravity[envs]
+        g_est = g_est / np.linalg.norm(g_est, axis=1, keepdims=True)
+        cos = np.clip((g_est * g_true[envs]).sum(axis=1), -1.0, 1.0)
+        deg = np.degrees(np.arccos(cos))
+        np.add.at(self.counts, (envs, np.minimum((deg / BIN_DEG).astype(np.int64), BINS)), 1)
+        v_est = base.linear_velocity[envs]
+        err = v_est[:, :2] - v_true[envs, :2]
+        vertical = base.linear_velocity_world[envs, 2] - true_base.linear_velocity_world[envs, 2]
+        self.sums[envs] += np.stack(
+            [
+                deg,
+                v_est[:, 0],
+                v_true[envs, 0],
+                (err**2).sum(axis=1),
+                np.ones(len(envs)),
+                vertical,
+                vertical**2,
+            ],
+            axis=1,
+        )
+
+    def summary(self, env: int | None = None) -> dict | None:
+        """``{"ticks", "attitude_error_deg": {"mean", "p95"}, "forward_speed_m_s": {"estimated",
+        "true"}, "velocity_bias_fraction", "velocity_rms_m_s", "vertical_velocity_m_s": {"bias",
+        "rms"}, "true_falls"}`` over every env, or env ``env``; None before any RUNNING tick (the
+        figures are then unknown, not zero). The bias is None when the true mean forward speed
+        is under 0.05 m/s (a fraction of standing still means nothing)."""
+        sel = slice(None) if env is None else slice(env, env + 1)
+        total = self.sums[sel].sum(axis=0)
+        n = total[4]
+        if n == 0:
+            return None
+        cum = np.cumsum(self.counts[sel].sum(axis=0))
+        p95 = (np.searchsorted(cum, 0.95 * cum[-1]) + 0.5) * BIN_DEG
+        est, true = total[1] / n, total[2] / n
+        return {
+            "ticks": int(n),
+            "attitude_error_deg": {"mean": total[0] / n, "p95": float(p95)},
+            "forward_speed_m_s": {"estimated": est, "true": true},
+            "velocity_bias_fraction": (est / true - 1.0) if abs(true) >= 0.05 else None,
+            "velocity_rms_m_s": float(np.sqrt(total[3] / n)),
+            "vertical_velocity_m_s": {
+                "bias": total[5] / n,
+                "rms": float(np.sqrt(total[6] / n)),
+            },
+            "true_falls": int(self.true_falls[sel].sum()),
+        }

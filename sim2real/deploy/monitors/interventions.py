@@ -1,0 +1,208 @@
+"""Interventions: commands the safety guard or the command smoother changed, per check and tick.
+
+An **intervention** is a command the guard or the smoother changed (docs/architecture.md, "Words");
+a **violation** is the robot's true state past a limit (:mod:`sim2real.deploy.monitors.violations`). A policy
+that leans on the guard has many interventions and may still have no violation; on a robot whose
+guard is tuned differently it would have them.
+
+Checks (``INTERVENTION_CHECKS``), from :attr:`sim2real.deploy.safety.guard.SafetyGuard.counts` and the
+counters of :class:`sim2real.deploy.smoothing.CommandSmoother`:
+
+- ``hard_limit``: the guard found the estimate (or the target, or the predicted position) beyond
+  a hard limit; the runtime makes a safe stop.
+- ``soft_limit``: position mode only: a target position clamped to the soft limit. (In velocity
+  and torque mode the guard's ``soft_limit`` counter means "the estimate is in the soft band", a
+  warning that changes no command: it is reported as the warning ``soft_band_estimate``.)
+- ``velocity``: a target clamped to the speed from which the joint still stops before its soft
+  limit (torque mode: the torque governor replaced a torque).
+- ``workspace``, ``self_collision``: a target rejected and the robot held.
+- ``effort``: a target rejected because gravity exceeds the derated effort limit; in torque mode
+  also a torque clamped to it.
+- ``stopping_distance``: velocity mode: the smoother cut a target velocity so that the joint brakes
+  before its soft limit (``stopping_distance_clamps_per_joint``).
+- ``target_clamp``: the smoother clamped a target to the hard position limits, the soft velocity
+  limit or the effort limit (``target_clamps_per_joint``).
+
+Each check counts a tick once per env when it changed the command of at least one joint of the env
+(the guard counts per env and tick already; for the smoother, a tick on which any joint's counter
+rose); ``any`` counts the ticks on which at least one check did, ``safety`` those on which a
+check did that is not the policy's style (:attr:`InterventionMonitor.by_design`). Fractions are
+of the ticks observed, in every mode of the state machine (RAMP_IN and SAFE_STOP included).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim2real.deploy.monitors import kernel as mk
+from sim2real.deploy.monitors.violations import MonitorState
+from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.safety.checks import CHECKS as GUARD_CHECKS
+
+#: The smoother's checks (its counters of :meth:`InterventionMonitor.__init__`).
+SMOOTHER_CHECKS = ("stopping_distance", "target_clamp")
+#: The guard's checks (``hard_limit`` first, then the guard's count-row order), the smoother's.
+INTERVENTION_CHECKS = (
+    "hard_limit",
+    *(c for c in GUARD_CHECKS if c != "hard_limit"),
+    *SMOOTHER_CHECKS,
+)
+WARNINGS = ("soft_band_estimate",)
+
+
+class InterventionMonitor(MonitorState):
+    """Count the ticks on which the guard or the smoother changed a command, per env and check.
+
+    Build it after :meth:`sim2real.deploy.runtime.Runtime.start` (which zeroes the smoother's counters) and
+    call :meth:`update` once after every tick (the runtime's ``on_tick`` hook).
+
+    Args:
+        guard: The runtime's :class:`~sim2real.deploy.safety.guard.SafetyGuard`.
+        smoother: The runtime's :class:`~sim2real.deploy.smoothing.CommandSmoother`.
+
+    Attributes:
+        counts: dict check (``INTERVENTION_CHECKS``) -> (envs,) int64, ticks on which that check
+            changed a command of the env.
+        any: (envs,) int64, ticks on which any check did.
+        safety: (envs,) int64, ticks on which a check not in ``by_design`` did.
+        by_design: The checks whose interventions are the policy's style, reported by the
+            soak and not judged: ``("soft_limit",)`` for a floating-base robot in position mode
+            (legged_gym, Isaac Lab and mjlab train PD targets without any bound, and a walking
+            policy's pass its joints' ranges on every stride: the clamp bounds a torque the
+            drive would give anyway), else empty.
+        ticks: int, ticks observed (calls of :meth:`update`).
+
+    Per tick it compares the counters with their values after the last tick (three comparisons
+    without allocation); which check rose in which env is worked out only on ticks where some
+    counter moved (the kernel :func:`sim2real.deploy.monitors.kernel.counters_moved`; its numpy reference
+    is :class:`sim2real.deploy.monitors.reference.ReferenceInterventionMonitor`).
+    """
+
+    def __init__(self, guard, smoother):
+        if GUARD_CHECKS[0] != "soft_limit":  # the rows below rely on the guard's order
+            raise RuntimeError("sim2real.deploy.safety.checks.CHECKS must start with 'soft_limit'")
+        self.mode = guard.mode
+        self.envs = envs = guard.envs
+        first = 0 if self.mode == "position" else 1  # the soft-limit row is a clamp only there
+        self._guard = guard
+        self._guard_names = GUARD_CHECKS[first:]
+        self._guard_rows = guard.count_matrix[first:]  # a view: the live counters
+        self._smoother = (
+            ("stopping_distance", smoother.stopping_distance_clamps_per_joint),
+            ("target_clamp", smoother.target_clamps_per_joint),
+        )
+        self.counts = {c: np.zeros(envs, dtype=np.int64) for c in INTERVENTION_CHECKS}
+        self.any = np.zeros(envs, dtype=np.int64)
+        self.safety = np.zeros(envs, dtype=np.int64)
+        legged = robot_kind(guard.robot).legged
+        self.by_design = ("soft_limit",) if legged and self.mode == "position" else ()
+        self.ticks = 0
+        n = smoother.n_joints
+        # the counters as they stood after the last tick
+        self._prev_guard = np.zeros((len(self._guard_names), envs), dtype=np.int64)
+        self._prev_smoother = np.zeros((len(self._smoother), envs, n), dtype=np.int64)
+        self._warning_base = np.zeros(envs, dtype=np.int64)
+        self._guard_changed = np.zeros(self._prev_guard.shape, dtype=bool)
+        self._smoother_changed = np.zeros((envs, n), dtype=bool)
+        self._rose = np.zeros(envs, dtype=bool)
+        self._rose_safety = np.zeros(envs, dtype=bool)
+        self._flags = np.zeros(envs, dtype=bool)
+        self.resync()
+        mk.warm_up()
+
+    def resync(self) -> None:
+        """Take the guard's and smoother's counters as they stand as the reference (after
+        something reset them); nothing is counted for the difference."""
+        np.copyto(self._prev_guard, self._guard_rows)
+        for i, (_, counter) in enumerate(self._smoother):
+            np.copyto(self._prev_smoother[i], counter)
+        if self.mode != "position":
+            np.copyto(self._warning_base, self._guard.counts["soft_limit"])
+
+    # ------------------------------------------------------------------ per tick
+    def update(self) -> None:
+        """Count this tick's interventions (call once after each tick)."""
+        self.ticks += 1
+        if self._moved():  # some counter moved: which checks, which envs
+            self._count()
+
+    def _moved(self) -> bool:
+        """Whether a guard or smoother counter moved since the last tick (the kernel
+        :func:`sim2real.deploy.monitors.kernel.counters_moved`)."""
+        (_, a), (_, b) = self._smoother
+        prev = self._prev_smoother
+        return (
+            mk.counters_moved(self._guard_rows, self._prev_guard)
+            or mk.counters_moved(a, prev[0])
+            or mk.counters_moved(b, prev[1])
+        )
+
+    def _count(self) -> None:
+        """Per check: which envs' counters rose this tick (only on ticks where some did)."""
+        flags, rose, safety, counts = self._flags, self._rose, self._rose_safety, self.counts
+        rose.fill(False)
+        safety.fill(False)
+        for i, name in enumerate(self._guard_names):
+            np.greater(self._guard_rows[i], self._prev_guard[i], out=flags)
+            counts[name] += flags
+            rose |= flags
+            if name not in self.by_design:
+                safety |= flags
+        np.copyto(self._prev_guard, self._guard_rows)
+        for i, (name, counter) in enumerate(self._smoother):
+            np.greater(counter, self._prev_smoother[i], out=self._smoother_changed)
+            np.any(self._smoother_changed, axis=1, out=flags)
+            counts[name] += flags
+            rose |= flags
+            safety |= flags
+            np.copyto(self._prev_smoother[i], counter)
+        self.any += rose
+        self.safety += safety
+
+    # ------------------------------------------------------------------ reading
+    def warnings(self) -> dict[str, np.ndarray]:
+        """Warnings that changed no command, (envs,) int64 ticks each: ``soft_band_estimate``
+        (velocity and torque mode: the estimate in the soft band; always 0 in position mode)."""
+        if self.mode == "position":
+            return {"soft_band_estimate": np.zeros(self.envs, dtype=np.int64)}
+        return {"soft_band_estimate": self._guard.counts["soft_limit"] - self._warning_base}
+
+    def summary(self, env: int | None = None) -> dict:
+        """Counts and fractions of ticks, of env ``env`` or summed over every env.
+
+        Returns:
+            ``{"ticks", "checks": {check: {"count", "fraction"}}, "any": {"count", "fraction"},
+            "safety": {"count", "fraction"}, "by_design": [check, ...],
+            "warnings": {name: {"count", "fraction"}}}``; fractions of ``ticks`` (per env:
+            ``ticks``; over envs: ``ticks * envs``), 0.0 before the first tick.
+        """
+        ticks = self.ticks if env is not None else self.ticks * self.envs
+
+        def entry(values: np.ndarray) -> dict:
+            n = int(values[env]) if env is not None else int(values.sum())
+            return {"count": n, "fraction": n / ticks if ticks else 0.0}
+
+        return {
+            "ticks": ticks,
+            "checks": {c: entry(v) for c, v in self.counts.items()},
+            "any": entry(self.any),
+            "safety": entry(self.safety),
+            "by_design": list(self.by_design),
+            "warnings": {k: entry(v) for k, v in self.warnings().items()},
+        }
+
+    # ------------------------------------------------------------------ checkpoints
+    _state_name = "interventions"
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        # counts/<check>, any, warning_base (envs,); prev/<counter> (envs,) or, for the
+        # smoother's per-joint counters, (envs, n)
+        out = {f"counts/{c}": v for c, v in self.counts.items()}
+        out["any"] = self.any
+        out["safety"] = self.safety
+        out["warning_base"] = self._warning_base
+        for i, name in enumerate(self._guard_names):
+            out[f"prev/{name}"] = self._prev_guard[i]
+        for i, (name, _) in enumerate(self._smoother):
+            out[f"prev/{name}"] = self._prev_smoother[i]
+        return out

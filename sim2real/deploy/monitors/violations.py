@@ -1,0 +1,322 @@
+"""Violations: the robot's *true* state past a limit, counted from the simulator's ground truth.
+
+A **violation** is what the robot really did (docs/architecture.md, "Words"); an
+**intervention** is a command the guard or the smoother changed
+(:mod:`sim2real.deploy.monitors.interventions`). A clamp is an intervention, never a violation; a violation
+can happen without any clamp (a push, a drive overshooting its command, a lagging estimate).
+
+Types (``VIOLATION_TYPES``), each counted per env in control ticks (a tick counts once per type,
+however many joints are past the limit), apart for the ticks a legged robot lies damped after a
+stop (``down``: what the fallen robot's joints do on the floor is not what its policy did):
+
+- ``hard_limit``: a true joint position outside ``[position_lower, position_upper]``.
+- ``soft_limit``: a true joint position in the soft band: outside ``[soft_lower, soft_upper]`` but
+  not beyond the hard limit (a joint beyond it counts as ``hard_limit``).
+- ``velocity``: a true joint speed above ``velocity_limit`` (the hard velocity limit).
+- ``effort``: a joint's actuator torque above ``effort_limit`` by more than the relative tolerance
+  ``EFFORT_TOLERANCE``: the plant clamps each joint's actuator torque to the effort limit itself,
+  so torque *at* the limit (saturation) is not a violation.
+- ``workspace``: the true end effector (MuJoCo's site, the randomized geometry) outside the box
+  ``safety.workspace_min/max``.
+- ``self_collision``: a pair of ``safety.collision_pairs`` in contact at the true joint positions
+  (coal, the guard's collision model of the *nominal* geometry:
+  :func:`sim2real.deploy.safety.collision.collision_model`).
+
+Ground truth exists only in simulation (:class:`~sim2real.deploy.backends.sim.plant.SimBackend`'s true
+state), sampled once per control tick after its physics; on hardware only interventions and the
+guard's hard-limit detections on the estimate can be reported.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from sim2real.deploy.monitors import kernel as mk
+from sim2real.deploy.safety.collision import collision_model, collision_query
+from sim2real.deploy.safety.guard import SCREEN_MARGIN
+from sim2real.robots import Robot
+from sim2real.robots.chain_bounds import collision_pair_weights
+
+VIOLATION_TYPES = ("hard_limit", "soft_limit", "velocity", "effort", "workspace", "self_collision")
+#: The violations of the hard kind: every type but ``soft_limit`` (a warning band). deploy-run
+#: exits 1 after any of them (README, exit codes).
+HARD_VIOLATION_TYPES = tuple(t for t in VIOLATION_TYPES if t != "soft_limit")
+#: Relative tolerance on the effort limit: the plant saturates each joint at exactly its limit.
+EFFORT_TOLERANCE = 1e-9
+#: Relative shrink of the screen's bounds (round-off of ``|x - centre| > half``): a tick within it
+#: is checked exactly.
+_SCREEN_SHRINK = 1e-12
+
+
+class MonitorState:
+    """``state_dict`` / ``load_state_dict`` of a per-env tick counter (the soak's checkpoints).
+
+    A monitor gives ``_arrays()`` (name -> live array with a leading env axis), ``ticks`` and
+    ``_state_name`` (for error messages); its state is those arrays (copies) and ``ticks``.
+    """
+
+    _state_name = "monitor"
+    ticks: int
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        raise NotImplementedError
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        """The monitor's arrays (copies, see the class docstring), each with its leading env
+        axis of length envs, or 1 for one env ``env`` (a soak session's checkpoint), and
+        ``ticks`` (1,) int64."""
+        index = slice(None) if env is None else slice(env, env + 1)
+        out = {k: v[index].copy() for k, v in self._arrays().items()}
+        out["ticks"] = np.array([self.ticks], dtype=np.int64)
+        return out
+
+    def load_state_dict(self, state: dict[str, np.ndarray], env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of all envs, or of env ``env``).
+
+        Raises:
+            ValueError: a missing field, or one whose shape differs (named, with the expected
+                shape).
+        """
+        index = slice(None) if env is None else slice(env, env + 1)
+        self.ticks = load_fields(self._arrays(), state, index, self._state_name)
+
+
+class ViolationMonitor(MonitorState):
+    """Count true-state violations of ``envs`` simulated robots, per env and tick.
+
+    Args:
+        robot: The robot description (limits, workspace box, collision pairs).
+        envs: Batch size (the backend's ``envs``).
+
+    Attributes:
+        counts: dict type (``VIOLATION_TYPES``) -> (envs,) int64, ticks on which that type
+            occurred while the env was up.
+        pair_ticks: (envs, pairs) int64, ticks on which each collision pair of the guard's
+            model (``pair_names``) touched while the env was up: which links make the
+            ``self_collision`` ticks of ``counts``.
+        pair_names: (pairs,) ``"geom_a|geom_b"``, the guard's collision pairs in its order.
+        any: (envs,) int64, ticks with at least one violation of any type.
+        down_counts, down_any: the same, of the ticks on which the env was *down*: a legged
+            robot lying damped after a stop (``down`` of :meth:`update`). What a fallen robot's
+            joints do while it lies on the floor is counted there, apart from what the robot
+            did while it stood and walked (``counts``); nothing is dropped.
+        ticks: int, ticks observed (calls of :meth:`update`).
+
+    Per tick (:meth:`update`) it allocates nothing unless some env is near a limit: one
+    compiled screen (``|x - centre| > half range`` over joint positions, speeds, torques and the
+    end effector) decides whether the exact per-type tests run, and coal checks the collision
+    pairs of the envs the guard's exact per-pair screen flags. Its numpy reference is
+    :class:`sim2real.deploy.monitors.reference.ReferenceViolationMonitor`.
+    """
+
+    _state_name = "violations"
+
+    def __init__(self, robot: Robot, envs: int):
+        if envs < 1:
+            raise ValueError(f"envs: expected an integer >= 1, got {envs}")
+        self.robot, self.envs = robot, envs
+        n = self.n = robot.n_joints
+        self.counts = {t: np.zeros(envs, dtype=np.int64) for t in VIOLATION_TYPES}
+        self.any = np.zeros(envs, dtype=np.int64)
+        self.down_counts = {t: np.zeros(envs, dtype=np.int64) for t in VIOLATION_TYPES}
+        self.down_any = np.zeros(envs, dtype=np.int64)
+        self._down = np.zeros(envs, dtype=bool)  # this tick's ``down`` of :meth:`update`
+        self.ticks = 0
+        s = robot.config.safety
+        self._lower, self._upper = robot.position_lower, robot.position_upper
+        self._soft_lower, self._soft_upper = robot.soft_lower, robot.soft_upper
+        #: a robot without a workspace box (a legged one): no workspace violations
+        self._has_workspace = s.workspace_min is not None
+        if self._has_workspace:
+            self._ws_min = np.array(s.workspace_min, dtype=np.float64)
+            self._ws_max = np.array(s.workspace_max, dtype=np.float64)
+        else:
+            self._ws_min, self._ws_max = np.full(3, -np.inf), np.full(3, np.inf)
+        self._velocity = robot.velocity_limit
+        self._effort = robot.effort_limit * (1.0 + EFFORT_TOLERANCE)
+        # the screen: one row per env, [q - soft centre, dq, tau, ee - box centre]
+        width = 3 * n + 3
+        self._offset_q = 0.5 * (self._soft_lower + self._soft_upper)
+        self._offset_ee = np.zeros(3)
+        if self._has_workspace:
+            self._offset_ee = 0.5 * (self._ws_min + self._ws_max)
+        bound = np.concatenate(
+            [
+                0.5 * (self._soft_upper - self._soft_lower),
+                self._velocity,
+                self._effort,
+                0.5 * (self._ws_max - self._ws_min),
+            ]
+        )
+        self._bound = bound * (1.0 - _SCREEN_SHRINK)
+        self._buf = np.zeros((envs, width))
+        self._q_part = self._buf[:, :n]
+        self._dq_part = self._buf[:, n : 2 * n]
+        self._tau_part = self._buf[:, 2 * n : 3 * n]
+        self._ee_part = self._buf[:, 3 * n :]
+        self._mask = np.zeros((envs, width), dtype=bool)
+        self._ee = np.zeros((envs, 3))
+        self._collided = np.zeros(envs, dtype=bool)
+        self._hit = np.zeros(envs, dtype=bool)
+        self._model = robot.fixed_base_model
+        self._data = self._model.createData()
+        self._geom_model, self._geom_data = collision_model(robot)
+        self._has_pairs = bool(self._geom_model.collisionPairs)
+        objects = self._geom_model.geometryObjects
+        self.pair_names = [
+            f"{objects[p.first].name}|{objects[p.second].name}"
+            for p in self._geom_model.collisionPairs
+        ]
+        self.pair_ticks = np.zeros((envs, len(self.pair_names)), dtype=np.int64)
+        # the collision screen (compiled path): no pair can touch while its distance computed at
+        # checked_q exceeds its own bound on how far the joints moved since
+        # (sim2real.robots.chain_bounds.collision_pair_weights; an exact screen, as the guard's)
+        self._pair_weights = collision_pair_weights(robot)
+        self._margin = SCREEN_MARGIN
+        self._checked_q = np.zeros((envs, n))
+        self._clearance = np.full((envs, len(self._pair_weights)), -np.inf)  # none yet: check
+        self._need = np.zeros(envs, dtype=bool)
+        self._tmp = np.zeros((envs, n))
+        mk.warm_up()
+
+    # ------------------------------------------------------------------ per tick
+    def update(self, backend, down: np.ndarray | None = None) -> None:
+        """Count this tick's violations from ``backend``'s ground truth.
+
+        Args:
+            backend: A :class:`~sim2real.deploy.backends.sim.plant.SimBackend` with ``envs`` envs (its
+                ``true_position()`` rad, ``true_velocity()`` rad/s, ``joint_torque()`` N m, all
+                (envs, n), and ``end_effector_position(out)`` m, (envs, 3)).
+            down: (envs,) bool, the envs lying damped after a stop this tick
+                (:attr:`sim2real.deploy.runtime.Runtime.damping`); their ticks go to
+                :attr:`down_counts`. None: every env is up (an arm).
+        """
+        if down is None:
+            self._down.fill(False)
+        else:
+            np.copyto(self._down, down)
+        q, dq, tau = backend.true_position(), backend.true_velocity(), backend.joint_torque()
+        if self._has_workspace:
+            backend.end_effector_position(out=self._ee)
+        self.ticks += 1
+        collided = False
+        if self._has_pairs and self._collision_screen(q):
+            for e in np.flatnonzero(self._need):
+                if self._in_collision(q, e):
+                    if not collided:
+                        self._collided.fill(False)
+                        collided = True
+                    self._collided[e] = True
+                    if not self._down[e]:  # which pairs touched while the robot was up
+                        self._count_pairs(e)
+        flagged = self._screen(q, dq, tau)
+        if collided or flagged:
+            self._count(q, dq, tau, collided)
+
+    def _screen(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> bool:
+        """Whether some env may be past a limit (the kernel
+        :func:`sim2real.deploy.monitors.kernel.violation_screen`)."""
+        return mk.violation_screen(
+            q, dq, tau, self._ee, self._offset_q, self._offset_ee, self._bound,
+            self._has_workspace,
+        )  # fmt: skip
+
+    def _collision_screen(self, q: np.ndarray) -> bool:
+        """Mark in ``_need`` the envs whose pairs coal must check at ``q``; returns whether any:
+        the guard's exact screen (:func:`sim2real.deploy.monitors.kernel.collision_screen`)."""
+        args = (self._checked_q, self._clearance, self._pair_weights, self._margin, self._tmp)
+        return mk.collision_screen(q, *args, self._need)
+
+    def _in_collision(self, q: np.ndarray, e: int) -> bool:
+        """Whether a collision pair of env ``e`` touches at ``q[e]`` (coal); also remembers each
+        pair's distance there for :meth:`_collision_screen`."""
+        args = (self._model, self._data, self._geom_model, self._geom_data, q[e])
+        self._checked_q[e] = q[e]
+        return collision_query(*args, distances=self._clearance[e])
+
+    def _count_pairs(self, e: int) -> None:
+        """Add a tick to each pair of env ``e`` that touches (after a hit of
+        :meth:`_in_collision`, whose placements the geometry data still holds)."""
+        pin.computeCollisions(self._geom_model, self._geom_data, False)
+        for k, result in enumerate(self._geom_data.collisionResults):
+            if result.isCollision():
+                self.pair_ticks[e, k] += 1
+
+    def pair_counts(self, env: int) -> dict[str, int]:
+        """Env ``env``'s ticks per collision pair that ever touched (``"geom_a|geom_b"``),
+        most first."""
+        ticks = self.pair_ticks[env]
+        order = np.argsort(-ticks, kind="stable")
+        return {self.pair_names[k]: int(ticks[k]) for k in order if ticks[k] > 0}
+
+    def _count(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray, collided: bool) -> None:
+        """The exact per-type tests (only on ticks the screen or coal flagged)."""
+        hit, counts = self._hit, self.counts
+        hit.fill(False)
+        beyond = (q < self._lower) | (q > self._upper)
+        band = ((q < self._soft_lower) | (q > self._soft_upper)) & ~beyond
+        ee = self._ee
+        tests = (
+            ("hard_limit", beyond.any(axis=1)),
+            ("soft_limit", band.any(axis=1)),
+            ("velocity", (np.abs(dq) > self._velocity).any(axis=1)),
+            ("effort", (np.abs(tau) > self._effort).any(axis=1)),
+            ("workspace", ((ee < self._ws_min) | (ee > self._ws_max)).any(axis=1)),
+        )
+        if collided:
+            tests += (("self_collision", self._collided),)
+        down = self._down
+        up = ~down  # only on a tick something was flagged
+        for name, flags in tests:
+            counts[name] += flags & up
+            self.down_counts[name] += flags & down
+            hit |= flags
+        self.any += hit & up
+        self.down_any += hit & down
+
+    # ------------------------------------------------------------------ reading
+    def totals(self, down: bool = False) -> dict[str, int]:
+        """Ticks per type, summed over envs (and ``any``: ticks with any violation); of the
+        ticks the envs were up, or with ``down`` of those they lay damped after a stop."""
+        counts, any_ = (self.down_counts, self.down_any) if down else (self.counts, self.any)
+        out = {t: int(v.sum()) for t, v in counts.items()}
+        out["any"] = int(any_.sum())
+        return out
+
+    def env_counts(self, env: int, down: bool = False) -> dict[str, int]:
+        """Ticks per type of env ``env`` (and ``any``); with ``down``, of its ticks down."""
+        counts, any_ = (self.down_counts, self.down_any) if down else (self.counts, self.any)
+        out = {t: int(v[env]) for t, v in counts.items()}
+        out["any"] = int(any_[env])
+        return out
+
+    # ------------------------------------------------------------------ checkpoints
+    def _arrays(self) -> dict[str, np.ndarray]:
+        out = {f"counts/{t}": v for t, v in self.counts.items()}
+        out["any"] = self.any
+        out.update({f"down/{t}": v for t, v in self.down_counts.items()})
+        out["down_any"] = self.down_any
+        out["pair_ticks"] = self.pair_ticks
+        return out
+
+
+def load_fields(targets: dict[str, np.ndarray], state: dict, index: slice, what: str) -> int:
+    """Write ``state`` (a monitor's ``state_dict``) into ``targets[index]`` after checking every
+    field (present, same shape) and ``state["ticks"]`` (shape (1,)); returns the ticks.
+
+    Raises:
+        ValueError: a missing field or a shape that differs (named, with the expected shape).
+    """
+    expected = {k: v[index].shape for k, v in targets.items()}
+    expected["ticks"] = (1,)
+    for key, shape in expected.items():
+        if key not in state:
+            raise ValueError(f"{what} state: field '{key}' is missing")
+        if np.shape(state[key]) != shape:
+            raise ValueError(
+                f"{what} state: field '{key}': expected shape {shape}, got {np.shape(state[key])}"
+            )
+    for key, target in targets.items():
+        target[index] = state[key]
+    return int(state["ticks"][0])

@@ -1,0 +1,243 @@
+"""The one assembly of a run (:class:`Rig`): the runtime of a robot, a policy and a backend, the
+monitors and the task every run has, and the after-tick hooks a run adds.
+
+``deploy-run``, the soak's batch and the training environments build their runs here, so a run is
+judged the same way wherever it runs: violations of the true state (a simulated plant only),
+interventions of the guard and the smoother, a legged robot's base estimate against the truth
+(simulation), and the task (goals or velocity commands, :func:`sim2real.deploy.tasks.task.task_for`).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from sim2real.deploy.core.backend import SimulatedPlant
+from sim2real.deploy.core.latency import LatencyHistogram
+from sim2real.deploy.core.modes import FAULTED, RUNNING
+from sim2real.deploy.monitors.kernel import motion_statistics
+from sim2real.deploy.rig.hooks import RunHook
+from sim2real.deploy.robot_kind import robot_kind
+
+
+class Rig:
+    """A run of ``envs`` robots: the runtime, its monitors, its task and its hooks.
+
+    Args:
+        robot: The robot (with the policy's drive applied, :func:`sim2real.deploy.spec.drive.drive_robot`).
+        policy: The :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy`.
+        backend: The backend (a :class:`~sim2real.deploy.core.backend.SimulatedPlant` is judged on its
+            true state).
+        envs: Robots in the batch (the backend's).
+        task: Keyword arguments of :func:`sim2real.deploy.tasks.task.task_for` (``period`` and ``rng``
+            at least); ``interventions`` is the rig's own monitor.
+        runtime: Keyword arguments of :class:`sim2real.deploy.runtime.Runtime` (``clock``, ``injector``,
+            ``telemetry``, ``overrun_rate_limit``, ...).
+        start: Start the runtime before the monitors and the task are built (the soak's order);
+            False: :meth:`start` starts it (``deploy-run``'s).
+        hooks: After-tick hooks, called in order after the monitors and the task.
+        truth: Judge a simulated plant on its true state (violations, the base estimate); False:
+            no truth monitors (training, which rewards its own way).
+        reset_task: Reset the task's every env once built (False: the caller's episodes do).
+
+    Attributes:
+        runtime: The :class:`sim2real.deploy.runtime.Runtime`.
+        violations: :class:`~sim2real.deploy.monitors.violations.ViolationMonitor` (a simulated plant;
+            else None).
+        interventions: :class:`~sim2real.deploy.monitors.interventions.InterventionMonitor`.
+        estimation: :class:`~sim2real.deploy.monitors.estimation.EstimationMonitor` (a simulated legged
+            robot; else None).
+        task: The :class:`~sim2real.deploy.tasks.task.Task`.
+        monitor_cost: :class:`~sim2real.deploy.core.latency.LatencyHistogram` of the monitors' time per
+            tick (ns, outside the runtime's tick).
+        hook_cost: One histogram stage per hook, in :attr:`hooks` order.
+
+    Raises:
+        ValueError: as the runtime and the task refuse their arguments.
+    """
+
+    def __init__(
+        self,
+        robot,
+        policy,
+        backend,
+        *,
+        envs: int,
+        task: dict,
+        runtime: dict | None = None,
+        start: bool = False,
+        hooks=(),
+        truth: bool = True,
+        reset_task: bool = True,
+    ):
+        from sim2real.deploy.monitors.interventions import InterventionMonitor
+        from sim2real.deploy.monitors.violations import ViolationMonitor
+        from sim2real.deploy.runtime import Runtime
+        from sim2real.deploy.tasks.task import task_for
+
+        self.robot, self.policy, self.backend, self.envs = robot, policy, backend, envs
+        self.kind = robot_kind(robot)
+        self.simulated = isinstance(backend, SimulatedPlant)
+        self.runtime = Runtime(robot, policy, backend, **(runtime or {}))
+        self._started = start
+        if start:
+            self.runtime.start()
+        judged = self.simulated and truth
+        self.violations = ViolationMonitor(robot, envs) if judged else None
+        self.interventions = InterventionMonitor(self.runtime.guard, self.runtime.smoother)
+        self.estimation = None
+        if judged and self.kind.legged:
+            from sim2real.deploy.monitors.estimation import EstimationMonitor
+
+            self.estimation = EstimationMonitor(robot, envs)
+        self.task = task_for(robot, envs, backend, interventions=self.interventions, **task)
+        if reset_task:
+            self.task.reset(self.runtime, np.ones(envs, dtype=bool))
+        self.hooks: list[RunHook] = []
+        self.monitor_cost = LatencyHistogram()
+        self.hook_cost = LatencyHistogram(0)
+        for hook in hooks:
+            self.add(hook)
+
+    def add(self, hook: RunHook) -> RunHook:
+        """Append ``hook`` (called after the monitors, the task and the hooks before it)."""
+        self.hooks.append(hook)
+        self.hook_cost = LatencyHistogram(len(self.hooks))
+        return hook
+
+    # ------------------------------------------------------------------ the run
+    def start(self) -> None:
+        """Start the runtime (unless built with ``start=True``) and every hook."""
+        if not self._started:
+            self.runtime.start()
+            self.interventions.resync()  # start zeroes the smoother's counters
+            self._started = True
+        for hook in self.hooks:
+            hook.start(self)
+
+    def monitor(self, runtime) -> None:
+        """The monitors and the task after a tick (timed into :attr:`monitor_cost`); what
+        every run does first after each tick."""
+        t0 = time.perf_counter_ns()
+        if self.violations is not None:
+            # a legged robot lying damped after a stop: its ticks are counted apart
+            self.violations.update(self.backend, down=runtime.damping if self.kind.legged else None)
+        self.interventions.update()  # before the goals: a goal's last tick counts for it
+        if self.estimation is not None:
+            self.estimation.update(runtime, self.backend.true_base_state())
+        self.monitor_cost.add(0, time.perf_counter_ns() - t0)
+        self.task(runtime)
+
+    def after_tick(self, runtime) -> bool:
+        """:meth:`monitor`, then every hook in order (each timed); True when a hook ends the
+        run. What :meth:`run` passes to ``Runtime.run(on_tick=...)``."""
+        self.monitor(runtime)
+        stop = False
+        clock = time.perf_counter_ns
+        for i, hook in enumerate(self.hooks):
+            t0 = clock()
+            stop |= bool(hook.after_tick(runtime))
+            self.hook_cost.add(i, clock() - t0)
+        return stop
+
+    def run(self, ticks: int) -> None:
+        """Run ``ticks`` control ticks (fewer when a hook ends the run)."""
+        self.runtime.run(ticks, on_tick=self.after_tick)
+
+    def close(self) -> None:
+        """Close every hook, the last added first."""
+        for hook in reversed(self.hooks):
+            hook.close()
+
+    # ------------------------------------------------------------------ the report
+    def report(self) -> dict:
+        """The monitors', the task's and the hooks' report entries: ``goals``, ``locomotion``,
+        ``missed_goals``, ``violations`` (None without ground truth), ``estimation``,
+        ``interventions``, ``monitor_cost_us``, ``hook_cost_us`` and each hook's own
+        (:meth:`RunHook.contribute`). A fall of the true base the runtime did not see counts
+        in ``locomotion.falls`` (``runtime_falls`` and ``true_falls`` apart)."""
+        report = dict(self.task.report(self.runtime))
+        report["violations"] = self.violation_report()
+        report["estimation"] = None if self.estimation is None else self.estimation.summary()
+        loco = report.get("locomotion")
+        if loco is not None and self.estimation is not None:
+            # in simulation a fall is the truth's: one the runtime did not see counts too
+            loco["runtime_falls"] = loco["falls"]
+            loco["true_falls"] = self.true_falls()
+            loco["falls"] = max(loco["falls"], loco["true_falls"])
+        report["interventions"] = self.interventions.summary()
+        report["monitor_cost_us"] = self.monitor_cost.summary()
+        report["hook_cost_us"] = {
+            hook.name: self.hook_cost.summary(i) for i, hook in enumerate(self.hooks)
+        }
+        for hook in self.hooks:
+            hook.contribute(report)
+        return report
+
+    def true_falls(self) -> int:
+        """Falls of the true base (a simulated legged robot; else 0)."""
+        return 0 if self.estimation is None else int(self.estimation.true_falls.sum())
+
+    def violation_report(self) -> dict | None:
+        """The true state's violations (ticks by type, ``any``, ``while_down``: lying damped
+        after a stop); None without ground truth (hardware)."""
+        if self.violations is None:
+            return None
+        true, down = self.violations.totals(), self.violations.totals(down=True)
+        return {
+            "source": "true state (simulation ground truth)",
+            "ticks": self.violations.ticks * self.envs,
+            "by_type": {k: v for k, v in true.items() if k != "any"},
+            "any": true["any"],
+            "while_down": down,  # lying damped after a stop: apart, and still a hard violation
+        }
+
+
+class MotionHook(RunHook):
+    """``deploy-run``'s motion figures: peak winding temperatures (degC), the largest joint
+    speed (rad/s) and the mean absolute jerk while RUNNING (rad/s^3, second differences of the
+    joint velocities at the control rate); true velocities and temperatures in simulation, else
+    the estimate's and the drives' reports."""
+
+    name = "motion"
+
+    def __init__(self, rig: Rig):
+        n, envs = rig.robot.n_joints, rig.envs
+        self.rig = rig
+        self.peak = np.full((envs, n), -np.inf)
+        self.max_speed = np.zeros(n)
+        self.dq, self.acc, self.jerk_sum = (np.zeros((envs, n)) for _ in range(3))
+        self.jerk_ticks = np.zeros(envs, dtype=np.int64)
+        self.running = np.zeros(envs, dtype=bool)
+
+    def after_tick(self, r) -> None:
+        rig = self.rig
+        sim = rig.backend if rig.simulated else None
+        temperature = sim.thermal.winding_temperature if sim else r.state.winding_temperature
+        np.fmax(self.peak, temperature, out=self.peak)
+        dq = sim.true_velocity() if sim else r.state.dq
+        np.equal(r.mode, RUNNING, out=self.running)
+        motion_statistics(
+            dq, self.dq, self.acc, rig.robot.control_period, self.running, r.ticks > 2,
+            self.jerk_sum, self.jerk_ticks, self.max_speed,
+        )  # fmt: skip
+
+    def contribute(self, report: dict) -> None:
+        names = self.rig.robot.joint_names
+        jerk = self.jerk_sum.sum(axis=0) / max(int(self.jerk_ticks.sum()), 1)
+        report["peak_winding_temperature_c"] = dict(
+            zip(names, self.peak.max(axis=0).tolist(), strict=True)
+        )
+        report["max_joint_speed_rad_s"] = dict(zip(names, self.max_speed.tolist(), strict=True))
+        report["mean_abs_jerk_rad_s3"] = dict(zip(names, jerk.tolist(), strict=True))
+
+
+class LatchedStopHook(RunHook):
+    """On hardware, the run ends once every env is FAULTED (the fault is latched: nothing more
+    will happen until an operator resets it)."""
+
+    name = "latched_stop"
+
+    def after_tick(self, r) -> bool:
+        return bool((r.mode == FAULTED).all())

@@ -1,0 +1,249 @@
+"""The compiled supervision and action screen of the runtime (:class:`CompiledSupervision`): the
+constants and work arrays of the kernels of :mod:`sim2real.deploy.runtime.supervision_kernel`, their
+arguments over the runtime's arrays, and what Python does where a kernel says (the smoother's safe
+stops and re-syncs, policy resets, re-anchoring, the torque-mode overrides).
+
+Each kernel is called once on copies when :class:`CompiledSupervision` is built: compiled (or
+loaded from numba's cache) then, not in the first tick. The numpy reference is
+:class:`sim2real.deploy.runtime.supervision.Supervision`; both give the same numbers bit for bit
+(``tests/test_compiled_tick.py``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from sim2real.deploy.core.modes import (
+    FAULT_CAUSES,
+    HOME_TOLERANCE,
+    NAN_ACTION_LIMIT,
+    RAMP_GAIN,
+    REST_SPEED,
+    Mode,
+)
+from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.runtime import supervision_kernel as sv
+from sim2real.deploy.runtime.supervision import Supervision
+from sim2real.deploy.spec.policy_spec import PolicySpec
+
+# the kernels (sim2real.deploy.runtime.supervision_kernel) know the causes and modes by number
+_CAUSE_CODES = {
+    "hard_limit": sv.HARD_LIMIT,
+    "non_finite_action": sv.NON_FINITE_ACTION,
+    "stale_sensor": sv.STALE_SENSOR,
+    "overrun": sv.OVERRUN,
+    "over_temperature": sv.OVER_TEMPERATURE,
+    "servo_error": sv.SERVO_ERROR,
+    "fall": sv.FALL,
+    "operator": sv.OPERATOR,
+}
+if [_CAUSE_CODES[c] for c in FAULT_CAUSES] != list(range(len(FAULT_CAUSES))) or [
+    sv.IDLE,
+    sv.RAMP_IN,
+    sv.RUNNING,
+    sv.SAFE_STOP,
+    sv.FAULTED,
+] != [int(m) for m in Mode]:
+    raise RuntimeError(
+        "sim2real.deploy.runtime.supervision_kernel: causes or modes differ from sim2real.deploy.runtime"
+    )
+
+
+def _same(a: np.ndarray) -> np.ndarray:
+    return a
+
+
+class CompiledSupervision:
+    """The compiled path of a :class:`~sim2real.deploy.runtime.Runtime`'s supervision and action screen,
+    over the arrays of its state machine (:class:`~sim2real.deploy.runtime.supervision.Supervision`),
+    which the kernels update in place.
+
+    Args:
+        supervision: The runtime's state machine (its arrays, stages and ``override``).
+        spec: The policy's spec (its action rows; bound again when the runtime's is replaced).
+        state: The runtime's estimated state (the kernels' arguments for it are made once).
+        target: (envs, n), the target the screen writes (units of the control mode).
+        tracking_tolerance: The re-anchoring's tolerance, rad.
+        reanchor: The runtime's re-anchoring, ``reanchor(state)``.
+    """
+
+    def __init__(
+        self,
+        supervision: Supervision,
+        spec: PolicySpec,
+        state: RobotState,
+        target: np.ndarray,
+        tracking_tolerance: float,
+        reanchor: Callable[[RobotState], None],
+    ):
+        s = supervision
+        self.robot, self.mode_name = s.robot, s.mode_name
+        self.envs, self.n = s.envs, s.robot.n_joints
+        self.estimator, self.guard, self.smoother = s.estimator, s.guard, s.smoother
+        self.clock, self.overrun_rate_limit = s.clock, s.overrun_rate_limit
+        self.mode, self.cause, self.counters, self._faults = s.mode, s.cause, s.counters, s.faults
+        self.drive_errors, self.stop_ticks = s.drive_errors, s.stop_ticks
+        self._action, self._last_valid_action = s.action, s.last_valid_action
+        self._nan_streak, self._overrun_ring = s.nan_streak, s.overrun_ring
+        self._home, self._at_rest, self._stop_timeout = s.home, s.at_rest, s.stop_timeout
+        # Python's part: policy resets, the torque-mode overrides (Pinocchio), re-anchoring
+        self._reset_policy, self._override, self._reanchor = s.reset_policy, s.override, reanchor
+        self.state, self._target, self.tracking_tolerance = state, target, tracking_tolerance
+
+        robot, envs, n, d = self.robot, self.envs, self.n, self.guard.derating
+        self._control = {"position": sv.POSITION, "velocity": sv.VELOCITY}.get(
+            self.mode_name, sv.TORQUE
+        )
+        self._derating = np.ascontiguousarray(
+            np.stack([d.start, d.maximum, np.broadcast_to(d.floor, (n,))]), dtype=np.float64
+        )
+        tolerance = self.tracking_tolerance
+        self._params = np.array(
+            [
+                robot.config.safety.stale_limit,
+                self.overrun_rate_limit,
+                REST_SPEED,
+                HOME_TOLERANCE,
+                tolerance,
+                self._stop_timeout,
+                float(s.home_from_command),
+            ]
+        )
+        self._bind_action(spec)
+        self._limit_rows = np.ascontiguousarray(
+            np.stack([robot.acceleration_limit, robot.soft_lower, robot.soft_upper]),
+            dtype=np.float64,
+        )
+        # the smoother's commanded position, which the re-anchoring screen compares with q
+        sm = self.smoother
+        self._screen_commanded = sm.position if self.mode_name == "velocity" else sm.commanded
+        self.flags = np.zeros((4, envs), dtype=bool)
+        self.drive_any = np.zeros(envs, dtype=bool)
+        # the kernels' arguments for the runtime's state, made once (the arrays are updated in
+        # place), and one call of each kernel on copies
+        self._supervise_cached = self._supervise_args(self.state)
+        self._screen_cached = self._screen_args(None, self.state)[2:]
+        sv.supervise(*self._supervise_args(self.state, copy=True))
+        sv.screen_action(*self._screen_args(self._action, self.state, copy=True))
+
+    def _bind_action(self, spec: PolicySpec) -> None:
+        """The kernel's rows of ``spec.action`` (clip, scale, offset) and its reference; again
+        whenever the runtime's ``spec`` is replaced."""
+        a, n = spec.action, self.n
+        self._act_spec = spec
+        self._act_rows = np.ascontiguousarray(
+            np.stack(
+                [
+                    np.full(n, float(a.clip)),
+                    np.broadcast_to(np.asarray(a.scale, dtype=np.float64), (n,)),
+                    np.broadcast_to(np.asarray(a.offset, dtype=np.float64), (n,)),
+                ]
+            )
+        )
+        self._current = a.reference == "current"
+
+    def _supervise_args(self, state: RobotState, copy: bool = False) -> tuple:
+        """Arguments of :func:`sim2real.deploy.runtime.supervision_kernel.supervise` (the written arrays
+        copied
+        with ``copy``, for the warm-up call)."""
+        w = np.copy if copy else _same
+        return (
+            self._control,
+            state.winding_temperature,
+            self._derating,
+            w(self.guard.effort_scale),
+            self.estimator.time_since_fresh,
+            self.drive_any,
+            self.drive_errors,
+            self._overrun_ring,
+            bool(self.clock.realtime),
+            self._params,
+            state.q,
+            state.dq,
+            self._home,
+            self._screen_commanded,
+            w(self.mode),
+            w(self.cause),
+            w(self.counters.safe_stops),
+            w(self._faults),
+            w(self.stop_ticks),
+            w(self.counters.safe_stop_timeouts),
+            w(self.flags),
+        )
+
+    def _screen_args(self, action: np.ndarray, state: RobotState, copy: bool = False) -> tuple:
+        """Arguments of :func:`sim2real.deploy.runtime.supervision_kernel.screen_action` (see
+        :meth:`_supervise_args`)."""
+        w = np.copy if copy else _same
+        return (
+            self._control,
+            action,
+            w(self._action),
+            w(self._last_valid_action),
+            w(self._nan_streak),
+            w(self.counters.non_finite_actions),
+            NAN_ACTION_LIMIT,
+            w(self.mode),
+            w(self.cause),
+            w(self.counters.safe_stops),
+            w(self._faults),
+            w(self.flags),
+            self._act_rows,
+            self._current,
+            state.q,
+            state.dq,
+            self._home,
+            self._limit_rows,
+            RAMP_GAIN,
+            w(self._target),
+        )
+
+    def supervise(self, state: RobotState, drive_errors: np.ndarray | None) -> None:
+        """The thermal derating of the guard's effort limits; stale sensors, over-temperature,
+        drive errors, overruns; end of RAMP_IN and of safe stops: one kernel
+        (:func:`sim2real.deploy.runtime.supervision_kernel.supervise`); Python acts where it says (the
+        smoother's safe stops and re-syncs, policy resets, re-anchoring)."""
+        if drive_errors is not None:
+            if drive_errors.any():
+                self.drive_errors |= drive_errors
+                np.any(drive_errors, axis=1, out=self.drive_any)
+            else:
+                self.drive_any.fill(False)
+        if state is self.state:
+            code = sv.supervise(*self._supervise_cached)
+        else:
+            code = sv.supervise(*self._supervise_args(state))
+        if code:
+            flags = self.flags
+            if code & sv.SUPERVISE_STOP:
+                self.smoother.safe_stop(flags[sv.NEW_STOP].copy())
+            if code & sv.SUPERVISE_TOOK_OVER:
+                self._reset_policy(flags[sv.TOOK_OVER].copy())
+            if code & sv.SUPERVISE_RESUME:
+                resume = flags[sv.RESUMED].copy()
+                self.smoother.sync(state.q, self._at_rest, envs=resume)
+                self._reset_policy(resume)
+            if code & (sv.SUPERVISE_RESUME | sv.SUPERVISE_ANCHOR):
+                self._reanchor(state)
+
+    def screen(self, action: np.ndarray, state: RobotState, spec: PolicySpec) -> None:
+        """The screen of the policy's output (non-finite: hold the last valid action and count;
+        too many in a row: safe stop), ``spec.action_to_target`` and the overrides of the envs
+        not RUNNING, into the runtime's screened action and target: one kernel
+        (:func:`sim2real.deploy.runtime.supervision_kernel.screen_action`); Python starts the smoother's safe
+        stop of a new non-finite-action stop and, in torque mode, the overrides (Pinocchio's
+        gravity)."""
+        if spec is not self._act_spec:
+            self._bind_action(spec)
+            self._screen_cached = self._screen_args(None, self.state)[2:]
+        if state is self.state:
+            code = sv.screen_action(self._control, action, *self._screen_cached)
+        else:
+            code = sv.screen_action(*self._screen_args(action, state))
+        if code:
+            if code & sv.SCREEN_STOP:
+                self.smoother.safe_stop(self.flags[sv.NEW_STOP].copy())
+            if code & sv.SCREEN_OVERRIDE:
+                self._override(self._target, state)

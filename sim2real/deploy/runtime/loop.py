@@ -1,0 +1,488 @@
+"""The control loop (:class:`Runtime`): its stages built over one backend, its lifecycle (start,
+restart after the robot was moved, an operator's reset of latched faults), the tick (read top to
+bottom in :meth:`Runtime.tick`) and the run with the garbage collector frozen; its state dict
+comes from :class:`~sim2real.deploy.runtime.state.RuntimeState`. The package's docstring
+(:mod:`sim2real.deploy.runtime`) describes the tick and the state machine.
+"""
+
+from __future__ import annotations
+
+import gc
+import time
+
+import numpy as np
+
+from sim2real.deploy.core import latency_kernel as lk
+from sim2real.deploy.core.latency import BIN_NS, BINS, LatencyHistogram
+from sim2real.deploy.core.modes import (
+    FAULT_CAUSES,
+    FAULTED,
+    OVERRUN_RATE_LIMIT,
+    RAMP_IN,
+    RUNNING,
+    SAFE_STOP,
+    START_TIMEOUT,
+    Mode,
+)
+from sim2real.deploy.core.state import Kinematics, RobotState
+from sim2real.deploy.estimation.joints import JointStateEstimator
+from sim2real.deploy.observe import long_ticks as lt
+from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
+from sim2real.deploy.runtime.clock import SimClock
+from sim2real.deploy.runtime.compiled import CompiledSupervision
+from sim2real.deploy.runtime.state import RuntimeState
+from sim2real.deploy.runtime.supervision import Supervision
+from sim2real.deploy.safety.guard import SafetyGuard
+from sim2real.deploy.smoothing import CommandSmoother
+from sim2real.deploy.spec.policy_spec import PolicySpec
+from sim2real.robots import Robot
+
+#: The tick's stages, as its latency histogram counts them (``Runtime.latency``).
+STAGES = ("read", "estimate", "observe", "infer", "guard", "smooth", "write", "physics")
+
+
+def _no_reset(envs: np.ndarray) -> None:
+    """The reset of a policy without state."""
+
+
+class Runtime(RuntimeState):
+    """The control loop for ``envs`` robots behind one backend.
+
+    Args:
+        robot: Robot description.
+        policy: Callable ``(envs, obs_dim) float32 -> (envs, act_dim) float32`` with a ``spec``
+            attribute (:class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy`); its ``reset(envs)``
+            (boolean mask (envs,)), if it has one, is called where the policy's state must start
+            afresh.
+        backend: A :class:`~sim2real.deploy.core.backend.Backend` (``read``, ``write``, ``advance``,
+            ``drive_errors``), opened: :class:`~sim2real.deploy.backends.sim.plant.SimBackend` or a servo
+            bus.
+        clock: :class:`SimClock` (default) or :class:`WallClock`.
+        injector: Optional :class:`~sim2real.deploy.backends.sim.faults.FaultInjector` (simulation only).
+        telemetry: Optional :class:`~sim2real.deploy.observe.telemetry.Telemetry` recorder.
+        overrun_rate_limit: Fraction of the control periods of the last ``OVERRUN_WINDOW_S``
+            seconds the loop may miss on the wall clock before a safe stop (cause ``overrun``);
+            default ``OVERRUN_RATE_LIMIT`` of the control mode (0.5 position, 0.25 velocity and
+            torque; our choice, :mod:`sim2real.deploy.core.modes`). A transient stall is ridden
+            through, the drives holding the last command.
+
+    The tick's numeric logic (supervision, action screen, observation, guard, smoother, latency
+    histograms) runs in the compiled kernels of :mod:`sim2real.deploy.kernels`; its numpy reference is
+    :class:`sim2real.deploy.runtime.reference.ReferenceRuntime`, whose stages and small methods
+    (:meth:`_build_stages`, :meth:`_compile`, :meth:`_supervise`, :meth:`_observe`,
+    :meth:`_act`, :meth:`_record_latency`) replace these.
+
+    Raises:
+        ValueError: a policy of another control mode than the backend's, or an
+            ``overrun_rate_limit`` outside (0, 1].
+    """
+
+    #: The state machine's class (:class:`~sim2real.deploy.runtime.reference.ReferenceRuntime` takes its
+    #: numpy reference).
+    supervision_type = Supervision
+
+    def __init__(
+        self,
+        robot: Robot,
+        policy,
+        backend,
+        clock=None,
+        injector=None,
+        telemetry=None,
+        overrun_rate_limit: float | None = None,
+    ):
+        if overrun_rate_limit is None:
+            overrun_rate_limit = OVERRUN_RATE_LIMIT[backend.mode]
+        if not 0.0 < overrun_rate_limit <= 1.0:
+            raise ValueError(f"overrun_rate_limit: expected in (0, 1], got {overrun_rate_limit}")
+        self.overrun_rate_limit = overrun_rate_limit
+        self.robot, self.policy, self.backend = robot, policy, backend
+        self._reset_policy = getattr(policy, "reset", None) or _no_reset
+        self.spec: PolicySpec = policy.spec
+        self.spec.check_robot(robot)
+        if self.spec.action.mode != backend.mode:
+            raise ValueError(
+                f"policy action mode '{self.spec.action.mode}' differs from the backend's control "
+                f"mode '{backend.mode}'"
+            )
+        envs, n = backend.envs, robot.n_joints
+        self.envs, self.n = envs, n
+        self.mode_name = backend.mode
+        self.dt = robot.control_period
+        self.clock = clock or SimClock(self.dt)
+        self.injector = injector
+        self.telemetry = telemetry
+        kind = robot_kind(robot)  # the stages and state layout of an arm or a legged robot
+        # its control input, none for a floating base: SafetyGuard.estimator_input
+        self.estimator = JointStateEstimator(robot, envs)
+        self.kinematics = Kinematics(robot)
+        self.guard, self.smoother = self._build_stages()
+        self.state: RobotState = kind.state(robot, envs)
+        self.goal = np.zeros((envs, 3))
+        #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check
+        self.base_estimator, self.fall_detector = kind.base_stages(robot, envs)
+        #: (envs, 3) the velocity command of a legged robot (vx, vy m/s, yaw rate rad/s, base
+        #: frame): the operator's (deploy-run --command) or the soak's schedule; write into it
+        self.velocity_command = (
+            self.state.command if self.state.command is not None else np.zeros((envs, 3))
+        )
+        #: rad: the re-anchoring's tolerance (:func:`reanchor`; inf for a legged robot)
+        self.tracking_tolerance = tracking_tolerance(robot, self.mode_name)
+        #: the state machine, one per env (:class:`~sim2real.deploy.runtime.supervision.Supervision`):
+        #: its arrays below are the runtime's, its transitions in numpy
+        self.supervision = sup = self.supervision_type(
+            robot,
+            envs,
+            self.mode_name,
+            self.estimator,
+            self.guard,
+            self.smoother,
+            self.clock,
+            overrun_rate_limit,
+            self._reset_policy,
+        )
+        #: (envs,) int8 modes (:class:`Mode`), and causes (index into FAULT_CAUSES, -1: none)
+        self.mode, self.cause = sup.mode, sup.cause
+        #: (envs, n) int64, OR of the hardware error bits each drive reported (cause servo_error)
+        self.drive_errors = sup.drive_errors
+        self.counters = sup.counters
+        #: (envs,) int64, supervised ticks since each env's safe stop began (0 outside SAFE_STOP)
+        self.stop_ticks = sup.stop_ticks
+        self.latency = LatencyHistogram(len(STAGES))
+        self.tick_cost = LatencyHistogram()
+        #: the longest control periods and their parts (:class:`~sim2real.deploy.observe.long_ticks.
+        #: LongTicks`): the wake-up's lateness, each stage, the work outside the stages, the
+        #: loop thread's CPU time (wall clock)
+        self.long_ticks = lt.LongTicks(STAGES)
+        # the period's stamps (long_ticks.PREV_WAKE ... END_CPU) and the CPU clock (wall clock)
+        self._period = np.array([0, 0, -1, 0, 0], dtype=np.int64)
+        self._cpu_ns = time.thread_time_ns if self.clock.realtime else None
+        self.ticks = 0
+        self._first_run = True  # run() collects every generation once
+        self.time = 0.0
+        self._obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
+        self._target = np.zeros((envs, n))
+        self._cmd = np.zeros((envs, n))
+        #: (envs,) s, the backend's clock of the frame the last tick read (a recorded log maps
+        #: its readings' stamps to the ticks with it: sim2real.deploy.observe.command_log)
+        self.read_time = np.zeros(envs)
+        self._stamps = np.zeros(len(STAGES) + 1, dtype=np.int64)
+        self._tracking = np.zeros(envs)
+        self._anchored = np.zeros(envs, dtype=np.int64)
+        # velocity mode: the position the commands integrate to (Ruckig's state), else None
+        self._commanded = self.smoother.position if self.mode_name == "velocity" else None
+        #: the estimator's control input (:meth:`SafetyGuard.estimator_input`)
+        self._input = self.guard.estimator_input(self.smoother)
+        self.guard.trust_estimate(self.estimator.covariance)
+        # latency histograms' bins (sim2real.deploy.observe.telemetry)
+        self._bins = np.array([BIN_NS, BINS], dtype=np.int64)
+        #: the backend's ``damp(envs)`` (drivers with their own damping mode, e.g. a Unitree
+        #: robot's: kp 0, a damping kd), told every tick of a legged robot which envs damp
+        self._backend_damp = getattr(backend, "damp", None)
+        #: the compiled action screen and supervision (sim2real.deploy.kernels); None in the reference
+        self._compiled = self._compile()
+
+    def _build_stages(self) -> tuple[SafetyGuard, CommandSmoother]:
+        """The guard and the smoother (compiled)."""
+        envs, mode = self.envs, self.mode_name
+        return SafetyGuard(self.robot, envs, mode), CommandSmoother(self.robot, envs, mode)
+
+    def _compile(self) -> CompiledSupervision | None:
+        """The compiled path: :class:`CompiledSupervision` over the runtime's arrays, and one call
+        of the observation's and the latency histograms' kernels: compiled (or loaded from
+        numba's cache) now, not in the first tick."""
+        compiled = CompiledSupervision(
+            self.supervision,
+            self.spec,
+            self.state,
+            self._target,
+            self.tracking_tolerance,
+            self._reanchor,
+        )
+        self.spec.observation(self.state, self.goal, out=self._obs)  # builds and warms its plan
+        lat, cost, c = self.latency, self.tick_cost, np.copy
+        lk.add_stages(
+            self._stamps, self._bins, c(lat.counts), c(lat.max_ns), c(cost.counts), c(cost.max_ns)
+        )
+        lt.record(c(self.long_ticks.table), self._stamps, c(self._period), 0)
+        return compiled
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Anchor every stage at the measured state and enter RAMP_IN.
+
+        Waits (``backend.advance()``, the drives holding their initial command) up to
+        ``START_TIMEOUT`` s for a reading of every joint: with encoder latency the first readings
+        arrive a few ticks late. On a wall clock (hardware) the set-up comes first (the policy's
+        first call, a garbage collection) and the anchor must be current: each reading younger
+        than half of ``safety.stale_limit``, so that set-up done after the anchor (a collection
+        holds the GIL a backend's reader thread needs) is not taken for a silent sensor.
+
+        Raises:
+            RuntimeError: some joint sent no (current) reading within ``START_TIMEOUT``.
+        """
+        realtime = self.clock.realtime
+        if realtime:
+            self.policy(self._obs)
+            gc.collect()  # holds the GIL a backend's reader thread needs: before the anchor
+        max_age = 0.5 * self.robot.config.safety.stale_limit if realtime else np.inf
+        frame = self.backend.read()
+        for _ in range(int(np.ceil(START_TIMEOUT / self.dt))):
+            if self._current(frame, max_age).all():
+                break
+            self.backend.advance()
+            if realtime:  # hardware: advance returns at once, the clock paces
+                time.sleep(self.dt)
+            frame = self.backend.read()
+        missing = ~self._current(frame, max_age)
+        if missing.any():
+            raise RuntimeError(
+                f"Runtime.start: no encoder reading for joints {np.argwhere(missing).tolist()} "
+                f"(env, joint) within {START_TIMEOUT} s"
+                + (f" younger than {max_age:g} s" if realtime else "")
+                + "; cannot anchor the estimator at a measured pose"
+            )
+        q = frame.position.copy()
+        self.estimator.reset(q, frame.position_stamp)
+        self.state.q[:] = q
+        self.state.dq[:] = 0.0
+        self.guard.reset(q)
+        self.smoother.reset(q, self.state.dq)
+        if self.base_estimator is not None:  # as the IMU's attitude or accelerometer says, yaw 0
+            acc = frame.imu_acceleration
+            finite = np.isfinite(acc).all() and (np.linalg.norm(acc, axis=1) > 0).all()
+            self.base_estimator.reset(
+                frame.time, acceleration=acc if finite else None, orientation=frame.imu_orientation
+            )
+        self.mode[:] = RAMP_IN
+        self._reset_policy(np.ones(self.envs, dtype=bool))
+        self.clock.start()
+
+    @staticmethod
+    def _current(frame, max_age: float) -> np.ndarray:
+        """(envs, n) bool: the frame's readings that are finite and at most ``max_age`` s old."""
+        age = frame.time[:, None] - frame.position_stamp
+        return np.isfinite(frame.position) & ~(age > max_age)
+
+    def reset_faults(self, envs: np.ndarray | None = None) -> None:
+        """Clear latched faults (an operator's reset): FAULTED envs start again with RAMP_IN.
+
+        Args:
+            envs: Optional boolean mask (envs,) of the envs to reset; default all. Other envs are
+                untouched (sessions batched in one runtime stay independent).
+        """
+        faulted = self.mode == Mode.FAULTED
+        if envs is not None:
+            faulted &= np.asarray(envs, dtype=bool)
+        self.supervision.ramp_in_at_rest(faulted, self.state.q)
+
+    def restart(self, envs: np.ndarray, q: np.ndarray, t) -> None:
+        """An operator's restart of the envs of ``envs`` (bool mask (envs,)) after the robot was
+        moved by hand (stood back up, carried): the joint estimate re-anchored at the pose ``q``
+        ((n,) or (envs, n) rad) at rest at time ``t`` (s; float or (envs,)), and the base
+        estimator upright, as :meth:`start` anchors them (the estimators' counters of those envs
+        are kept: a session's tallies survive its restarts); the guard and smoother at ``q``;
+        latched faults cleared; RAMP_IN. Other envs are untouched.
+
+        A filter that tracked the jump instead would hand the smoother a joint speed of tens of
+        rad/s."""
+        envs = np.asarray(envs, dtype=bool)
+        if not envs.any():
+            return
+        est = self.estimator
+        counters = (est.stale_per_joint, est.missing_per_joint, est.reinitializations_per_joint)
+        kept = [c[envs].copy() for c in counters]
+        q = np.broadcast_to(np.asarray(q, dtype=np.float64), self.state.q.shape)
+        est.reset(q, t, envs=envs)
+        for counter, value in zip(counters, kept, strict=True):
+            counter[envs] = value
+        if self.base_estimator is not None:
+            self.base_estimator.reset(t, envs=envs)
+        self.state.q[envs] = q[envs]
+        self.state.dq[envs] = 0.0
+        self.supervision.ramp_in_at_rest(envs, self.state.q)
+
+    # ------------------------------------------------------------------ the tick
+    def tick(self) -> None:
+        """One control period for every env (see :mod:`sim2real.deploy.runtime`)."""
+        st, clock_ns = self._stamps, time.perf_counter_ns
+        st[0] = clock_ns()
+        if self.injector is not None:
+            self.injector.before_read(self.time)
+        frame = self.backend.read()
+        if self.injector is not None:
+            frame = self.injector.filter_frame(self.time, frame)
+        self.read_time[:] = frame.time
+        drive_errors = self.backend.drive_errors()  # None: drives without error reports
+        st[1] = clock_ns()
+        state = self.estimator.update(frame, self.state, self._input)
+        self.kinematics.update(state)
+        if self.base_estimator is not None:
+            self._update_base(frame, state)  # IMU, contacts, the gait clock; falls
+        self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
+        st[2] = clock_ns()
+        obs = self._observe(state)
+        st[3] = clock_ns()
+        policy_output = self.policy(obs)
+        st[4] = clock_ns()
+        action, target = self._act(policy_output, state)  # screen, action_to_target, override
+        target = self.guard.filter(target, state, out=target, commanded_position=self._commanded)
+        self._on_violation()
+        st[5] = clock_ns()
+        cmd = self.smoother.step(target, out=self._cmd)
+        cmd = self.guard.check_motion(self.smoother, state, cmd)  # brake an unsafe path
+        if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
+            damp = self.damping
+            if damp.any():
+                self.supervision.damp(cmd, state, damp)
+            if self._backend_damp is not None:  # drivers with a damping mode of their own
+                self._backend_damp(damp)
+        st[6] = clock_ns()
+        self.backend.write(cmd)
+        st[7] = clock_ns()
+        self.backend.advance()
+        st[8] = clock_ns()
+        state.last_action[:] = action
+        self.ticks += 1
+        self.time += self.dt
+        self._record_latency(st)
+        if self.telemetry is not None:
+            self.telemetry.record(self)
+        period, cpu_ns = self._period, self._cpu_ns
+        period[lt.END] = clock_ns()
+        if cpu_ns is not None:
+            period[lt.END_CPU] = cpu_ns()
+        lt.record(self.long_ticks.table, st, period, self.ticks)
+        self.supervision.note_periods(self.clock.wait())  # the periods missed: 0 on time
+        self._woke(clock_ns())
+
+    def _woke(self, now_ns: int) -> None:
+        """The period's stamps at a wake-up (:mod:`sim2real.deploy.observe.long_ticks`)."""
+        period = self._period
+        period[lt.PREV_WAKE] = now_ns
+        period[lt.PREV_LATE] = self.clock.late_ns
+        period[lt.PREV_CPU] = self._cpu_ns() if self._cpu_ns is not None else -1
+
+    # ------------------------------------------------------------------ stages' helpers
+    def _supervise(self, state: RobotState, drive_errors: np.ndarray | None) -> None:
+        """The thermal derating of the guard's effort limits; stale sensors, over-temperature,
+        drive errors, overruns; end of RAMP_IN and of safe stops; re-anchoring
+        (:meth:`CompiledSupervision.supervise`)."""
+        self._compiled.supervise(state, drive_errors)
+
+    def _observe(self, state: RobotState) -> np.ndarray:
+        """(envs, obs_dim) float32: the policy's observation (``spec.observation``, compiled)."""
+        return self.spec.observation(state, self.goal, out=self._obs)
+
+    def _act(self, action: np.ndarray, state: RobotState) -> tuple[np.ndarray, np.ndarray]:
+        """The policy's output to a target: the fault injector's filter, the screen of
+        non-finite actions, ``spec.action_to_target``, the overrides of the envs not RUNNING
+        (:meth:`CompiledSupervision.screen`); returns ``(action, target)``, the screened action
+        (float32) and the target (units of the mode), (envs, n) each."""
+        if self.injector is not None:
+            action = self.injector.filter_action(self.time, action)
+        self._compiled.screen(action, state, self.spec)
+        return self.supervision.action, self._target
+
+    def _record_latency(self, stamps: np.ndarray) -> None:
+        """Add the tick's stage durations (``stamps``, ns, one per stage boundary) to
+        :attr:`latency` and its cost without physics to :attr:`tick_cost` (the kernel
+        :func:`sim2real.deploy.core.latency_kernel.add_stages`)."""
+        lat, cost = self.latency, self.tick_cost
+        lk.add_stages(stamps, self._bins, lat.counts, lat.max_ns, cost.counts, cost.max_ns)
+
+    def _update_base(self, frame, state: RobotState) -> None:
+        """A floating-base robot's tick: the base estimate from the IMU and leg kinematics, the
+        feet's contact, the gait clock; an IMU silent past ``safety.stale_limit`` makes a safe
+        stop (stale_sensor), a fall (:class:`sim2real.deploy.estimation.fall.FallDetector`) a damped one
+        (fall)."""
+        self.base_estimator.update(frame, state.q, state.dq, out=state.base)
+        state.foot_contact[:] = self.base_estimator.contact  # the sensor's, or the kinematics'
+        state.clock[:] = self.time
+        stale = self.base_estimator.time_since_fresh > self.robot.config.safety.stale_limit
+        self.supervision.safe_stop(stale, "stale_sensor")
+        fallen = self.fall_detector.check(state) & ((self.mode == RUNNING) | (self.mode == RAMP_IN))
+        self.supervision.safe_stop(fallen, "fall")
+
+    @property
+    def damping(self) -> np.ndarray:
+        """(envs,) bool: the envs whose command damps the joints instead of holding a pose: a
+        legged robot's envs in SAFE_STOP or FAULTED (holding its stance against gravity with a
+        low-gain PD heated the thighs past 200 degC in simulation: it lies down instead); all
+        False for an arm."""
+        if self.base_estimator is None:
+            return np.zeros(self.envs, dtype=bool)
+        return (self.mode == SAFE_STOP) | (self.mode == FAULTED)
+
+    def _reanchor(self, state: RobotState) -> None:
+        """:func:`reanchor` the smoother and count it (anchors or resyncs)."""
+        moved = reanchor(
+            self.smoother, state, self._tracking, self._anchored, self.mode, self.tracking_tolerance
+        )
+        if moved is not None:
+            counter = (
+                self.counters.anchors if self.mode_name == "velocity" else self.counters.resyncs
+            )
+            counter += moved
+
+    def _on_violation(self) -> None:
+        self.supervision.safe_stop(self.guard.hard_violation, "hard_limit")
+
+    # ------------------------------------------------------------------ running
+    def run(self, ticks: int, on_tick=None) -> None:
+        """Run ``ticks`` control periods with the garbage collector frozen and disabled.
+
+        Before the loop the collector runs over every generation on the runtime's first run
+        (the set-up's garbage), and over the young ones (0 and 1) on later runs: a full
+        collection of a process with torch loaded takes 0.1-0.5 s, which a caller running the
+        loop in short pieces (a film's replay to each frame, single ticks) paid on every call,
+        and on a wall clock as missed periods between the pieces. The old generation is
+        collected by Python itself while the collector is enabled between runs.
+
+        ``on_tick(runtime)``, if given, runs after each tick (goal scheduling, evaluation); when
+        it returns True the run ends early (e.g. a latched fault on real hardware).
+        """
+        fresh = getattr(self.clock, "fresh", False)  # a wall clock's first run: start() collected
+        if not fresh:
+            gc.collect(2 if self._first_run else 1)
+        self._first_run = False
+        gc.freeze()
+        was_enabled = gc.isenabled()
+        gc.disable()
+        if fresh:  # a wall clock not yet waited on: the set-up since start() is not the first
+            self.clock.start()  # tick's overrun
+        self._woke(time.perf_counter_ns())
+        try:
+            for _ in range(ticks):
+                self.tick()
+                if on_tick is not None and on_tick(self):
+                    break
+        finally:
+            if was_enabled:
+                gc.enable()
+            gc.unfreeze()
+
+    def mode_names(self) -> list[str]:
+        return [Mode(int(m)).name for m in self.mode]
+
+    def cause_names(self) -> list[str | None]:
+        return [FAULT_CAUSES[c] if c >= 0 else None for c in self.cause]
+
+    # ------------------------------------------------------------------ read-only views
+    @property
+    def action(self) -> np.ndarray:
+        """(envs, n) float32: the last tick's screened policy action in [-1, 1] (a view)."""
+        return self.supervision.action
+
+    @property
+    def target(self) -> np.ndarray:
+        """(envs, n): the last tick's guarded target, in the units of the control mode (position
+        rad, velocity rad/s, torque N m; a view)."""
+        return self._target
+
+    @property
+    def command(self) -> np.ndarray:
+        """(envs, n): the command the last tick wrote to the backend, in the units of the
+        control mode (position rad, velocity rad/s, torque N m; a view)."""
+        return self._cmd

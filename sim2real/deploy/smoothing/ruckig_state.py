@@ -1,0 +1,218 @@
+"""Ruckig inside the :class:`~sim2real.deploy.smoothing.CommandSmoother`: the call and its errors, the
+per-DoF control interfaces, the extrema of its trajectories, and the smoother's state dict.
+
+Ruckig keeps the trajectory it calculated inside the ``Ruckig`` object, which its Python binding
+can neither read nor set: the state dict holds Ruckig's input (``RUCKIG_INPUT_FIELDS``) beside the
+smoother's arrays, and taking or loading it makes the next step recalculate from that input
+(:meth:`RuckigState.recalculate`), so that a smoother loaded from a state continues bit for bit
+as the one it was taken from.
+
+:class:`RuckigState` is a base class of :class:`~sim2real.deploy.smoothing.CommandSmoother`; its methods
+work on the smoother's attributes (set in ``CommandSmoother.__init__``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from ruckig import ControlInterface, Result, RuckigError
+
+from sim2real.deploy.core.stateful import env_index, put, scalar, take
+from sim2real.robots.errors import Sim2RealError
+
+#: Ruckig's per-DoF input fields a smoother's state holds (``InputParameter`` attributes).
+RUCKIG_INPUT_FIELDS = (
+    "current_position",
+    "current_velocity",
+    "current_acceleration",
+    "target_position",
+    "target_velocity",
+    "target_acceleration",
+)
+
+#: Rad. Ruckig's extrema of a trajectory that ends exactly at a limit come out up to ~1e-13 rad
+#: beyond it (rounding); the check ignores excursions below this (the finest encoder of our robots
+#: resolves 2 pi / 2^20 = 6e-6 rad).
+EXTREMA_TOLERANCE = 1e-9
+
+
+class SmoothingError(Sim2RealError, RuntimeError):
+    """Ruckig could not compute a trajectory; the message has Ruckig's result and the input."""
+
+
+class RuckigState:
+    """Ruckig's call, control interfaces and trajectory extrema, and the state dict, of a
+    :class:`~sim2real.deploy.smoothing.CommandSmoother` (module docstring)."""
+
+    # ------------------------------------------------------------------ state
+    def _state_fields(self) -> dict[str, np.ndarray]:
+        shape = (self.envs, self.n_joints)
+        return {
+            "command": self.command,
+            "position": self.position,
+            "velocity": self.velocity,
+            "acceleration": self.acceleration,
+            "mean_acceleration": self.mean_acceleration,
+            "commanded_position": self._cmd_position2d,
+            "held": self._held.reshape(shape),
+            "stopping": self.stopping,
+            "non_finite_per_joint": self.non_finite_per_joint,
+            "target_clamps_per_joint": self.target_clamps_per_joint,
+            "extrema_violations_per_joint": self.extrema_violations_per_joint,
+            "stopping_distance_clamps_per_joint": self.stopping_distance_clamps_per_joint,
+        }
+
+    def _ruckig_input(self) -> dict[str, np.ndarray]:
+        """Copies of Ruckig's per-DoF input, (envs, n) (the binding returns lists)."""
+        if self.mode == "torque":
+            return {}
+        shape = (self.envs, self.n_joints)
+        return {
+            f"ruckig/{name}": np.asarray(getattr(self._inp, name), dtype=np.float64).reshape(shape)
+            for name in RUCKIG_INPUT_FIELDS
+        }
+
+    def recalculate(self) -> None:
+        """Make the next :meth:`step` calculate every trajectory afresh from Ruckig's input
+        (``Ruckig.reset()``) instead of sampling the one it keeps. The two agree to ~1e-16, not
+        bit for bit (:mod:`sim2real.deploy.smoothing`); a recalculation depends on the input alone: the
+        same numbers whatever the other envs of the batch, and after :meth:`load_state_dict`."""
+        if self.mode != "torque":
+            self._ruckig.reset()
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The smoother's state (copies; conventions of :mod:`sim2real.deploy.core.stateful`).
+
+        Fields, (envs, n) unless stated (length 1 for one env ``env``): ``command`` (the units of
+        the mode), Ruckig's state ``position``, ``velocity``, ``acceleration`` (rad, rad/s,
+        rad/s^2) and ``mean_acceleration``, ``commanded_position`` (rad), ``held`` (the last
+        finite target), ``stopping`` (envs,) bool, the per-joint counters (int64); Ruckig's input
+        ``ruckig/<field>`` (``RUCKIG_INPUT_FIELDS``; not in torque mode) and ``synced`` (bool,
+        shared).
+
+        Ruckig keeps the trajectory it calculated inside the ``Ruckig`` object, which its Python
+        binding can neither read nor set. Taking the state therefore calls :meth:`recalculate`:
+        this smoother's next step calculates from the input, as a smoother loaded from this
+        state does, and both continue bit for bit alike.
+        """
+        out: dict = take(self._state_fields(), env)
+        index = env_index(env)
+        out.update({k: v[index].copy() for k, v in self._ruckig_input().items()})
+        out["synced"] = bool(self._synced)
+        self.recalculate()
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``): Ruckig's input is
+        re-seeded (current and target position, velocity, acceleration), the per-DoF control
+        interfaces follow the ``stopping`` flags, and the next step recalculates
+        (:meth:`recalculate`).
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        synced = scalar(state, "synced", bool)
+        ruckig = self._ruckig_input()
+        put({**self._state_fields(), **ruckig}, state, env)
+        for key, values in ruckig.items():
+            setattr(self._inp, key.split("/", 1)[1], values.reshape(-1))
+        self._stop_dof[:] = np.repeat(self.stopping, self.n_joints)
+        self._synced = synced
+        if self.mode != "torque":
+            self._set_interfaces()
+        self.recalculate()
+
+    # ------------------------------------------------------------------ the brake
+    def brake(self, envs: np.ndarray, joints: np.ndarray | None = None) -> None:
+        """Replace the last step of the selected envs by a brake: one control period of Ruckig's
+        jerk-limited stop (velocity interface, target velocity and acceleration 0, the smoother's
+        limits) from the state before that step. The command, Ruckig's state and input, the
+        commanded position and the mean acceleration of those envs follow; the envs stay in
+        normal operation (the next step plans toward their target again). The guard's motion
+        envelope (:mod:`sim2real.deploy.safety.envelope`) calls it and counts it.
+
+        Args:
+            envs: (envs,) bool, the envs to brake.
+            joints: Optional (envs, n) bool, only these joints of those envs (default all).
+
+        Raises:
+            ValueError: torque mode (no trajectory to brake).
+            SmoothingError: Ruckig rejected the brake's input.
+        """
+        if self.mode == "torque":
+            raise ValueError("CommandSmoother.brake: torque mode has no trajectory to brake")
+        dof = np.repeat(np.asarray(envs, dtype=bool), self.n_joints)
+        if joints is not None:
+            dof &= np.asarray(joints, dtype=bool).reshape(-1)
+        b, inp, out = self._before, self._brake_inp, self._brake_out
+        inp.current_position = np.where(dof, b[0], 0.0)
+        inp.current_velocity = np.where(dof, b[1], 0.0)
+        inp.current_acceleration = np.where(dof, b[2], 0.0)
+        # calculate afresh from this input: Ruckig would otherwise go on sampling the trajectory
+        # of its last call whenever the whole batch's input repeats, so that an env's brake would
+        # depend on what the other envs did (RuckigState.recalculate)
+        self._braker.reset()
+        try:
+            result = self._braker.update(inp, out)
+        except RuckigError as exc:
+            raise SmoothingError(f"Ruckig rejected the brake's input: {exc}") from exc
+        if result != Result.Working and result != Result.Finished:
+            raise SmoothingError(f"Ruckig returned {result!r} for the brake")
+        pos = np.asarray(out.new_position)
+        vel = np.asarray(out.new_velocity)
+        acc = np.asarray(out.new_acceleration)
+        self._pos[dof], self._vel[dof], self._acc[dof] = pos[dof], vel[dof], acc[dof]
+        self._mean_acc[dof] = (vel[dof] - b[1][dof]) * self._inv_dt
+        if self.mode == "position":
+            self._cmd_position[dof] = np.clip(pos[dof], self._lo[dof], self._hi[dof])
+            self._cmd[dof] = self._cmd_position[dof]
+        else:
+            self._cmd_position[dof] = pos[dof]
+            self._cmd[dof] = vel[dof]
+        main = self._inp
+        for name, values in (
+            ("current_position", self._pos),
+            ("current_velocity", self._vel),
+            ("current_acceleration", self._acc),
+        ):
+            current = np.array(getattr(main, name))
+            current[dof] = values[dof]
+            setattr(main, name, current)
+
+    # ------------------------------------------------------------------ Ruckig
+    def _set_interfaces(self) -> None:
+        """Per-DoF control interface: velocity (target 0) for stopping envs."""
+        inp = self._inp
+        if not self.stopping.any():
+            inp.per_dof_control_interface = None
+            inp.control_interface = self._interface
+        elif self.stopping.all():
+            inp.per_dof_control_interface = None
+            inp.control_interface = ControlInterface.Velocity
+        else:
+            inp.per_dof_control_interface = [
+                ControlInterface.Velocity if s else self._interface for s in self._stop_dof
+            ]
+
+    def _update(self) -> None:
+        try:
+            result = self._ruckig.update(self._inp, self._out)
+        except RuckigError as exc:
+            raise SmoothingError(f"Ruckig rejected the input: {exc}") from exc
+        if result != Result.Working and result != Result.Finished:
+            raise SmoothingError(
+                f"Ruckig returned {result!r}: current position {self._pos.tolist()}, velocity "
+                f"{self._vel.tolist()}, acceleration {self._acc.tolist()}, targets "
+                f"{self._goal.tolist()}"
+            )
+
+    def _count_extrema(self) -> None:
+        """Count the DoFs marked in ``_mask`` whose new trajectory leaves the hard limits."""
+        near = self._mask
+        extrema = self._out.trajectory.position_extrema
+        for i in np.flatnonzero(near):
+            bound = extrema[i]
+            if (
+                bound.min < self._lo[i] - EXTREMA_TOLERANCE
+                or bound.max > self._hi[i] + EXTREMA_TOLERANCE
+            ):
+                self.extrema_violations_per_joint.reshape(-1)[i] += 1

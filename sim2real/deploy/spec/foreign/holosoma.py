@@ -1,0 +1,186 @@
+"""holosoma's ONNX metadata (``holosoma.utils.inference_helpers.attach_onnx_metadata``, called by
+its PPO and FastSAC agents' ``export``; amazon-far/holosoma).
+
+holosoma exports the actor as ``actor_obs`` -> ``action`` (opset 13, batch fixed at 1) and appends
+``model.metadata_props`` whose every value is ``json.dumps`` of:
+
+========================  ===============================================================
+key                       value
+========================  ===============================================================
+``dof_names``             the robot's joints, in the policy's order (``robot.dof_names``)
+``kp``, ``kd``            PD gains per joint, N m/rad and N m s/rad
+``command_ranges``        the velocity command's sampling ranges (or null)
+``robot_urdf``, ``_path`` the robot's URDF text and path (not used)
+``experiment_config``     the whole training configuration (``ExperimentConfig``)
+``wandb_run_path``, ...   provenance (not used)
+========================  ===============================================================
+
+From ``experiment_config``: the actor's observation groups (``algo.config.module_dict.actor.
+input_dim``), each group's terms **in alphabetical order** (holosoma's observation manager sorts
+them before concatenating), each term's function, ``scale`` (a multiplier) and ``clip`` (after
+scaling) and the global ``observation.clip_observations``; the default pose
+(``robot.init_state.default_joint_angles``), the action scale and clip
+(``robot.control.action_scale``, ``clip_actions``, ``action_clip_value``; a scale per joint of
+``action_scale * effort_limit / kp`` with ``action_scales_by_effort_limit_over_p_gain``) and the
+control rate (``simulator.config.sim.fps / control_decimation``).
+"""
+
+from __future__ import annotations
+
+import json
+
+from sim2real.deploy.spec.foreign.contract import ForeignContract, Term, command_ranges
+
+NAME = "holosoma"
+
+#: holosoma's locomotion terms (``holosoma.managers.observation.terms.locomotion``) -> (our kind,
+#: size (-1: one per joint), components of the 3-vector).
+TERMS = {
+    "base_lin_vel": ("base_linear_velocity", 3, ()),
+    "base_ang_vel": ("base_angular_velocity", 3, ()),
+    "projected_gravity": ("projected_gravity", 3, ()),
+    "command_lin_vel": ("velocity_command", 2, (0, 1)),
+    "command_ang_vel": ("velocity_command", 1, (2,)),
+    "dof_pos": ("joint_position", -1, ()),
+    "dof_vel": ("joint_velocity", -1, ()),
+    "actions": ("last_action", -1, ()),
+}
+_PHASE = (
+    "holosoma's gait phase is two phases (left and right foot, half a period apart) in separate "
+    "sin and cos terms, held at pi while standing; this toolkit's gait_phase blocks give both "
+    "feet's sin and cos in any order (components) but their clock never stops"
+)
+#: Terms that cannot be mapped: (size, why).
+UNMAPPED = {"sin_phase": (2, _PHASE), "cos_phase": (2, _PHASE)}
+
+
+def detect(facts) -> bool:
+    """holosoma's metadata: ``dof_names`` and ``kp`` as JSON lists."""
+    md = facts.metadata
+    if "dof_names" not in md or "kp" not in md:
+        return False
+    try:
+        return isinstance(json.loads(md["dof_names"]), list)
+    except json.JSONDecodeError:
+        return False
+
+
+def read(facts) -> ForeignContract:
+    """The contract of a holosoma export (module docstring).
+
+    Raises:
+        ForeignFormatError: a missing ``experiment_config`` or a field of it that is not what
+            holosoma writes, a non-position control type, an action term other than joint
+            position (each named).
+    """
+    fail = facts.failure(NAME)
+    md = {}
+    for key, text in facts.metadata.items():
+        try:
+            md[key] = json.loads(text)
+        except json.JSONDecodeError:
+            md[key] = text
+    names = tuple(str(n) for n in md["dof_names"])
+    if "experiment_config" not in md or not isinstance(md["experiment_config"], dict):
+        raise fail(
+            "metadata 'experiment_config' is missing: the observation terms, default pose, "
+            f"action scale and control rate are not in the file (found: {sorted(md)})"
+        )
+    ec = md["experiment_config"]
+
+    def get(*keys, default=KeyError):
+        node = ec
+        for k in keys:
+            if not isinstance(node, dict) or k not in node:
+                if default is KeyError:
+                    raise fail(f"metadata 'experiment_config' has no '{'.'.join(keys)}'")
+                return default
+            node = node[k]
+        return node
+
+    control = get("robot", "control")
+    if control.get("control_type") != "P":
+        raise fail(
+            f"experiment_config.robot.control.control_type is {control.get('control_type')!r}: "
+            "only 'P' (joint position targets) maps onto this toolkit's position mode"
+        )
+    action_terms = get("action", "terms", default={}) or {}
+    for key, term in action_terms.items():
+        if not str(term.get("func", "")).endswith(":JointPositionActionTerm"):
+            raise fail(f"action term '{key}' is {term.get('func')!r}, not JointPositionActionTerm")
+    kp, kd = tuple(md["kp"]), tuple(md.get("kd") or ())
+    scale = float(control["action_scale"])
+    action_scale: float | tuple[float, ...] = scale
+    if control.get("action_scales_by_effort_limit_over_p_gain"):
+        effort = get("robot", "dof_effort_limit_list")
+        action_scale = tuple(scale * e / k if k else 0.0 for e, k in zip(effort, kp, strict=True))
+    default = get("robot", "init_state", "default_joint_angles")
+    unposed = [n for n in names if n not in default]
+    if unposed:
+        raise fail(
+            f"experiment_config.robot.init_state.default_joint_angles has no angle for {unposed}"
+        )
+    groups = get("algo", "config", "module_dict", "actor", "input_dim", default=["actor_obs"])
+    global_clip = get("observation", "clip_observations", default=None)
+    terms = []
+    for group in groups:
+        cfg = get("observation", "groups", group)
+        history = int(cfg.get("history_length", 1) or 1)
+        for name in sorted(cfg.get("terms", {})):  # holosoma concatenates sorted terms
+            terms.append(_term(name, cfg["terms"][name], history, global_clip, fail))
+    sim = get("simulator", "config", "sim", default={})
+    rate = sim["fps"] / sim["control_decimation"] if "fps" in sim else None
+    missing = [] if kd else ["kd: not recorded; the robot's robot.toml damping is used"]
+    if rate is None:
+        missing.append("control rate: not recorded (the robot's is used)")
+    found = [
+        ("dof_names", f"{len(names)} joints"),
+        ("kp", json.dumps(md["kp"])),
+        ("kd", json.dumps(md.get("kd"))),
+        ("command_ranges", json.dumps(md.get("command_ranges"))),
+        ("experiment_config", f"{len(json.dumps(ec))} characters of training configuration"),
+    ]
+    return facts.contract(
+        NAME,
+        "ONNX metadata (holosoma attach_onnx_metadata)",
+        joint_names=names,
+        terms=terms,
+        default_pose=tuple(float(default[n]) for n in names),
+        action_scale=action_scale,
+        action_clip=float(control["action_clip_value"]) if control.get("clip_actions") else None,
+        kp=kp,
+        kd=kd or None,
+        control_rate=rate,
+        command_ranges=command_ranges(md.get("command_ranges")),
+        found=found,
+        missing=missing,
+        notes=(
+            f"observation groups {list(groups)}, each group's terms in alphabetical order "
+            "(holosoma's observation manager sorts them)",
+        ),
+    )
+
+
+def _term(name: str, cfg: dict, history: int, global_clip, fail) -> Term:
+    func = str(cfg.get("func", ""))
+    key = func.rpartition(":")[2] or name
+    raw_scale = cfg.get("scale", 1.0)
+    scale = tuple(float(s) for s in raw_scale) if isinstance(raw_scale, list) else float(raw_scale)
+    clips = [float(global_clip)] if global_clip is not None else []
+    reason = ""
+    if cfg.get("clip") is not None:
+        lo, hi = (float(x) for x in cfg["clip"])
+        if lo != -hi or not hi > 0:
+            reason = f"an asymmetric clip [{lo:g}, {hi:g}] (blocks clip symmetrically)"
+        clips.append(hi)  # holosoma clips after scaling
+    clip = min(clips) if clips else None
+    if key in TERMS:
+        kind, size, components = TERMS[key]
+    else:
+        kind, components = None, ()
+        size, reason = UNMAPPED.get(key, (0, f"the function {func!r} is not one this toolkit maps"))
+    if history > 1:
+        kind, reason = None, f"a history of {history} steps (no history block here)"
+    elif reason:
+        kind = None
+    return Term(name, kind, size, scale, clip, components, reason=reason, source=func)

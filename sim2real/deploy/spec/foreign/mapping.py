@@ -1,0 +1,198 @@
+"""A :class:`~sim2real.deploy.spec.foreign.contract.ForeignContract` onto a robot: the PolicySpec.
+
+:func:`to_spec` maps the policy's joints onto the robot's by name, its observation terms onto our
+blocks, its scales (multipliers) onto our divisors, its action scale and default pose onto the
+action mapping, and its PD gains and default pose onto the spec's
+:class:`~sim2real.deploy.spec.drive.DriveSpec`, all in the robot's joint order. The graph's outputs stay in
+the policy's order: the spec's ``action.joints`` says which joint each drives.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim2real.deploy.spec.drive import DriveSpec
+from sim2real.deploy.spec.foreign.contract import JOINT_KINDS, ForeignContract, Term, per_joint
+from sim2real.deploy.spec.policy_spec import UNCLIPPED, ActionSpec, ObservationBlock, PolicySpec
+from sim2real.robots import Robot
+
+
+def breadth_first_order(robot: Robot) -> tuple[str, ...]:
+    """The robot's joints breadth first over its kinematic tree, siblings in description order:
+    the order of a PhysX articulation (Isaac Sim, Isaac Lab), e.g. a quadruped's four hips, then
+    its four thighs, then its four calves."""
+    model = robot.pin_model
+    depth = [0] * model.njoints
+    for j in range(1, model.njoints):
+        depth[j] = depth[model.parents[j]] + 1
+    first = 1 + model.njoints - 1 - robot.n_joints  # after the universe and a free flyer
+    ids = range(first, model.njoints)
+    return tuple(model.names[j] for j in sorted(ids, key=lambda j: depth[j]))
+
+
+def motor_slot_order(robot: Robot, contract: ForeignContract) -> tuple[str, ...]:
+    """The robot's joints in the order of the contract's motor slots (``joint_slots``): the
+    joint whose robot.toml ``[unitree] motor_index`` is each slot, or, for a robot without
+    one, the joint at that index.
+
+    Raises:
+        ForeignFormatError: a slot no joint of the robot has (naming the robot's slots).
+    """
+    unitree = getattr(robot.config, "unitree", None)
+    index = list(unitree.motor_index) if unitree is not None else list(range(robot.n_joints))
+    missing = [s for s in contract.joint_slots if s not in index]
+    if missing:
+        raise contract.error(
+            f"motor slots {missing} of its joint map are no joint's of the robot "
+            f"'{robot.name}' (its slots, in joint order: {index})"
+        )
+    return tuple(robot.joint_names[index.index(s)] for s in contract.joint_slots)
+
+
+#: Rules giving a policy's joint order from the robot when its stack records no joint names.
+JOINT_ORDER_RULES = {
+    "breadth_first": lambda robot, contract: breadth_first_order(robot),
+    "motor_slots": motor_slot_order,
+}
+
+
+def policy_joint_names(contract: ForeignContract, robot: Robot) -> tuple[str, ...]:
+    """The policy's joint order: recorded, or the contract's rule applied to ``robot``."""
+    if contract.joint_names is not None:
+        return contract.joint_names
+    return JOINT_ORDER_RULES[contract.joint_order_rule](robot, contract)
+
+
+def joint_permutation(contract: ForeignContract, robot: Robot) -> tuple[int, ...]:
+    """For each policy joint, in the policy's order, the index of the robot joint of that name.
+
+    Raises:
+        ForeignFormatError: policy joints the robot does not have, or robot joints the policy
+            does not drive (both named).
+    """
+    names = policy_joint_names(contract, robot)
+    robot_names = robot.joint_names
+    missing = [n for n in names if n not in robot_names]
+    undriven = [n for n in robot_names if n not in names]
+    if missing or len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise contract.error(
+            f"joints {missing or dup} {'are not joints of' if missing else 'repeat in'} the "
+            f"robot '{robot.name}' (its joints: {list(robot_names)})"
+        )
+    if undriven:
+        raise contract.error(
+            f"the robot '{robot.name}' has joints the policy does not drive: {undriven}"
+        )
+    return tuple(robot_names.index(n) for n in names)
+
+
+def _entries(term: Term, value, size: int, contract: ForeignContract) -> np.ndarray:
+    """A term's multiplier, one per entry (one number: the same for every entry)."""
+    v = np.asarray(value, dtype=float)
+    if v.ndim == 0:
+        return np.full(size, float(v))
+    if v.shape != (size,):
+        raise contract.error(
+            f"observation term '{term.name}': {v.size} scale entries, the term has {size}"
+        )
+    return v
+
+
+def _block(
+    term: Term, contract: ForeignContract, perm: tuple[int, ...], default: tuple[float, ...]
+) -> ObservationBlock:
+    """Our block for one mappable term (``obs = (raw - offset) * s`` is ``scale = 1 / s``)."""
+    size = contract.term_size(term)
+    s = _entries(term, term.scale, size, contract)
+    if not (np.all(np.isfinite(s)) and np.all(s > 0)):
+        raise contract.error(
+            f"observation term '{term.name}': scale {s.tolist()} cannot be mapped (a block's "
+            "divisor must be finite and positive)"
+        )
+    offset = np.zeros(size)
+    joints: tuple[int, ...] = ()
+    if term.kind in JOINT_KINDS:
+        joints = perm
+        if term.kind == "joint_position" and term.relative:
+            offset = np.asarray(default, dtype=float)
+    return ObservationBlock(
+        name=term.kind,
+        size=size,
+        scale=tuple(float(x) for x in 1.0 / s),
+        offset=tuple(float(x) for x in offset),
+        clip=UNCLIPPED if term.clip is None else float(term.clip),
+        joints=joints,
+        period=term.period,
+        components=term.components,
+    )
+
+
+def to_spec(contract: ForeignContract, robot: Robot) -> PolicySpec:
+    """The PolicySpec of a foreign policy on ``robot``: blocks in the graph's order, the action
+    mapping (position, absolute: ``target = offset + scale * action``) and the drive in the
+    robot's joint order, ``action.joints`` the robot joint of each graph output. Not recorded:
+    the default pose is the robot's home, the gains the robot's, the control rate the robot's
+    (each listed in ``contract.missing``).
+
+    Raises:
+        ForeignFormatError: a term that cannot be mapped (naming it and the format), joints that
+            do not match the robot, terms whose sizes do not add up to the graph's input, an
+            invalid scale.
+    """
+    perm = joint_permutation(contract, robot)
+    names = policy_joint_names(contract, robot)
+    n = len(names)
+    home = tuple(float(robot.home[i]) for i in perm)
+    fail = contract.error
+    default = per_joint(contract.default_pose, names, "default joint pose", fail) or home
+    for term in contract.terms:
+        if term.kind is None:
+            raise fail(
+                f"observation term '{term.name}' cannot be mapped onto an observation block of "
+                f"this toolkit: {term.reason}"
+            )
+    blocks = tuple(_block(t, contract, perm, default) for t in contract.terms)
+    total = sum(b.size for b in blocks)
+    if contract.obs_dim is not None and total != contract.obs_dim:
+        sizes = zip(contract.terms, blocks, strict=True)
+        parts = " + ".join(f"{t.name} {b.size}" for t, b in sizes)
+        raise fail(
+            f"the observation terms add up to {total} entries ({parts}), the graph's input has "
+            f"{contract.obs_dim}"
+        )
+    if contract.act_dim is not None and contract.act_dim != n:
+        raise fail(f"the graph has {contract.act_dim} actions, the policy {n} joints")
+    scale = per_joint(contract.action_scale, names, "action scale", fail)
+    if scale is None:
+        raise fail("the action scale is not recorded")
+    offset = per_joint(contract.action_offset, names, "action offset", fail) or default
+    kp = per_joint(contract.kp, names, "kp", fail)
+    kd = per_joint(contract.kd, names, "kd", fail)
+    to_robot = np.argsort(perm)  # robot joint i is policy joint to_robot[i]
+
+    def robot_order(values):
+        return () if values is None else tuple(float(values[k]) for k in to_robot)
+
+    spec = PolicySpec(
+        robot=robot.name,
+        joint_names=robot.joint_names,
+        robot_hash="",
+        observation_blocks=blocks,
+        action=ActionSpec(
+            mode="position",
+            size=n,
+            scale=robot_order(scale),
+            offset=robot_order(offset),
+            clip=UNCLIPPED if contract.action_clip is None else float(contract.action_clip),
+            reference="absolute",
+            joints=() if perm == tuple(range(n)) else perm,
+        ),
+        control_rate=contract.control_rate or 1.0 / robot.control_period,
+        drive=DriveSpec(kp=robot_order(kp), kd=robot_order(kd), default_pose=robot_order(default)),
+    )
+    try:
+        spec.validate()
+    except Exception as exc:  # noqa: BLE001 - SpecError: named for the format
+        raise fail(f"the spec built from its contract is invalid: {exc}") from None
+    return spec

@@ -1,0 +1,178 @@
+"""Kernel of :meth:`sim2real.deploy.spec.policy_spec.PolicySpec.observation`: assemble, normalize, clip,
+cast.
+
+Each block is coded by its kind's branch code (``ObservationKind.kernel_code`` in the registry
+:mod:`sim2real.deploy.spec.kinds`, one of ``BRANCHES`` below); each block has its start column, size and
+joint indices (a (blocks, max_joints) int64 array, padded). The arithmetic is the reference's
+(:mod:`sim2real.deploy.spec.reference`): ``(raw - offset) / scale``, then the upper clip, then the lower
+clip, then the cast to float32; ``goal_in_ee`` is ``(goal - ee) @ R`` summed in the order of
+numpy's matmul loop; ``gait_phase`` is ``sin p, cos p, sin(p + pi), cos(p + pi)`` of
+``p = (2 pi / period) * clock`` (the second foot half a period later), of which a block reads its
+``components`` (default the first two); a vector block reads its ``components`` of its 3-vector; and
+``heading_sincos`` of the yaw ``atan2(2 (w z + x y), 1 - 2 (y^2 + z^2))``. A new kind adds its
+branch here (a new code in ``BRANCHES``, and its input array when the state has a new field).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from sim2real.deploy.kernels import np_max, np_min
+
+#: The kernel's branch codes, one per block kind it assembles.
+JOINT_POSITION = 0
+JOINT_VELOCITY = 1
+JOINT_POSITION_SINCOS = 2
+EE_POSITION = 3
+GOAL_POSITION = 4
+GOAL_IN_EE = 5
+LAST_ACTION = 6
+WINDING_TEMPERATURE = 7
+BASE_LINEAR_VELOCITY = 8
+BASE_ANGULAR_VELOCITY = 9
+PROJECTED_GRAVITY = 10
+VELOCITY_COMMAND = 11
+GAIT_PHASE = 12
+FOOT_CONTACT = 13
+HEADING_SINCOS = 14
+#: Every code the kernel has a branch for (``sim2real.deploy.spec.kinds.register_kind`` refuses others).
+BRANCHES = frozenset(
+    (
+        JOINT_POSITION,
+        JOINT_VELOCITY,
+        JOINT_POSITION_SINCOS,
+        EE_POSITION,
+        GOAL_POSITION,
+        GOAL_IN_EE,
+        LAST_ACTION,
+        WINDING_TEMPERATURE,
+        BASE_LINEAR_VELOCITY,
+        BASE_ANGULAR_VELOCITY,
+        PROJECTED_GRAVITY,
+        VELOCITY_COMMAND,
+        GAIT_PHASE,
+        FOOT_CONTACT,
+        HEADING_SINCOS,
+    )
+)
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def observation(
+    kinds: np.ndarray,
+    starts: np.ndarray,
+    joints: np.ndarray,
+    periods: np.ndarray,
+    components: np.ndarray,
+    q: np.ndarray,
+    dq: np.ndarray,
+    ee_position: np.ndarray,
+    ee_rotation: np.ndarray,
+    goal: np.ndarray,
+    last_action: np.ndarray,
+    temperature: np.ndarray,
+    linear_velocity: np.ndarray,
+    angular_velocity: np.ndarray,
+    gravity: np.ndarray,
+    command: np.ndarray,
+    orientation: np.ndarray,
+    clock: np.ndarray,
+    contact: np.ndarray,
+    norm: np.ndarray,
+    raw: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Write the observation of every env into ``out`` (float32 (envs, dim)).
+
+    Args:
+        kinds, starts: (blocks,) int64, block codes (``BRANCHES``) and first columns.
+        joints: (blocks, k) int64 joint indices, -1 padded (a block's size is its column span).
+        periods: (blocks,) float64, the gait clock's period of a ``gait_phase`` block, s.
+        components: (blocks, 4) int64, the entries of its raw vector a vector or ``gait_phase``
+            block reads, in order (its kind's own, 0, 1, ..., where it names none), -1 padded.
+        q, dq, last_action, temperature: (envs, n); ee_position, goal (envs, 3); ee_rotation
+            (envs, 3, 3): the inputs of the reference, same units.
+        linear_velocity, angular_velocity, gravity, command: (envs, 3) base linear velocity
+            (m/s), angular velocity (rad/s), projected gravity, velocity command (vx, vy m/s,
+            yaw rate rad/s), base frame; orientation (envs, 4) ``[w, x, y, z]``; clock (envs,)
+            s; contact (envs, feet). Read by the floating-base blocks only.
+        norm: (3, dim) float64 rows offset, scale, clip.
+        raw: (>= envs, dim) float64 work array.
+    """
+    envs = q.shape[0]
+    dim = out.shape[1]
+    blocks = kinds.shape[0]
+    for e in range(envs):
+        for b in range(blocks):
+            kind, s0 = kinds[b], starts[b]
+            s1 = starts[b + 1] if b + 1 < blocks else dim
+            size = s1 - s0
+            if kind == JOINT_POSITION:
+                for i in range(size):
+                    raw[e, s0 + i] = q[e, joints[b, i]]
+            elif kind == JOINT_VELOCITY:
+                for i in range(size):
+                    raw[e, s0 + i] = dq[e, joints[b, i]]
+            elif kind == JOINT_POSITION_SINCOS:
+                k = size // 2
+                for i in range(k):
+                    raw[e, s0 + i] = math.sin(q[e, joints[b, i]])
+                for i in range(k):
+                    raw[e, s0 + k + i] = math.cos(q[e, joints[b, i]])
+            elif kind == EE_POSITION:
+                for i in range(size):
+                    raw[e, s0 + i] = ee_position[e, i]
+            elif kind == GOAL_POSITION:
+                for i in range(size):
+                    raw[e, s0 + i] = goal[e, i]
+            elif kind == GOAL_IN_EE:
+                v0 = goal[e, 0] - ee_position[e, 0]
+                v1 = goal[e, 1] - ee_position[e, 1]
+                v2 = goal[e, 2] - ee_position[e, 2]
+                for i in range(3):
+                    acc = 0.0
+                    acc += v0 * ee_rotation[e, 0, i]
+                    acc += v1 * ee_rotation[e, 1, i]
+                    acc += v2 * ee_rotation[e, 2, i]
+                    raw[e, s0 + i] = acc
+            elif kind == LAST_ACTION:
+                for i in range(size):
+                    raw[e, s0 + i] = last_action[e, joints[b, i]]
+            elif kind == WINDING_TEMPERATURE:
+                for i in range(size):
+                    raw[e, s0 + i] = temperature[e, joints[b, i]]
+            elif kind == BASE_LINEAR_VELOCITY:
+                for i in range(size):
+                    raw[e, s0 + i] = linear_velocity[e, components[b, i]]
+            elif kind == BASE_ANGULAR_VELOCITY:
+                for i in range(size):
+                    raw[e, s0 + i] = angular_velocity[e, components[b, i]]
+            elif kind == PROJECTED_GRAVITY:
+                for i in range(size):
+                    raw[e, s0 + i] = gravity[e, components[b, i]]
+            elif kind == VELOCITY_COMMAND:
+                for i in range(size):
+                    raw[e, s0 + i] = command[e, components[b, i]]
+            elif kind == GAIT_PHASE:
+                phase = (2.0 * math.pi / periods[b]) * clock[e]
+                sp, cp = math.sin(phase), math.cos(phase)
+                for i in range(size):
+                    raw[e, s0 + i] = (sp, cp, -sp, -cp)[components[b, i]]
+            elif kind == FOOT_CONTACT:
+                for i in range(size):
+                    raw[e, s0 + i] = contact[e, i]
+            elif kind == HEADING_SINCOS:
+                w, x = orientation[e, 0], orientation[e, 1]
+                y, z = orientation[e, 2], orientation[e, 3]
+                yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+                raw[e, s0] = math.sin(yaw)
+                raw[e, s0 + 1] = math.cos(yaw)
+        for i in range(dim):
+            v = raw[e, i] - norm[0, i]
+            v = v / norm[1, i]
+            v = np_min(v, norm[2, i])
+            v = np_max(v, -norm[2, i])
+            out[e, i] = np.float32(v)

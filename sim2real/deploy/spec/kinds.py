@@ -1,0 +1,245 @@
+"""The registry of observation block kinds: one :class:`ObservationKind` entry per kind.
+
+An entry holds everything about a kind: its name, its size (fixed, per joint read, per foot), its
+raw quantity with units and the physical scale it is divided by, its numpy writer
+(:mod:`sim2real.deploy.spec.reference`) and its branch code in the compiled kernel
+(:mod:`sim2real.deploy.spec.kernel`). The spec's validation and JSON shorthands
+(:mod:`sim2real.deploy.spec.policy_spec`, :mod:`sim2real.deploy.spec.schema`), the standard spec of a robot
+(:mod:`sim2real.deploy.spec.defaults`) and the observation plan (:mod:`sim2real.deploy.spec.observation_plan`)
+read it. :func:`register_kind` refuses a kind without a kernel branch: no kind falls back to numpy.
+
+A block may read some ``components`` of its kind's raw vector, in any order: a vector kind's
+3-vector (holosoma's velocity command split into its linear and yaw entries), or ``gait_phase``'s
+``sin p, cos p, sin(p + pi), cos(p + pi)`` (two feet half a period apart, in the order a policy
+reads them). The kernel runs them; only a spec that was never validated (a joint block whose size
+does not follow from its joints) runs the numpy writers (:func:`numpy_reason`, kept in
+``ObservationPlan.numpy_reason``). The numbers are the same either way.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from sim2real.deploy.spec import kernel, reference
+from sim2real.robots.errors import Sim2RealError
+
+
+class KindError(Sim2RealError, ValueError):
+    """An observation kind cannot be registered; the message names the kind and the field."""
+
+
+@dataclass(frozen=True)
+class ObservationKind:
+    """One block kind of the observation vector.
+
+    Attributes:
+        name: The kind's name in a spec (``ObservationBlock.name``).
+        units: The raw quantity, its SI unit and frame, and the physical scale a standard spec
+            divides it by (documentation).
+        numpy: The reference writer ``(state, goal, raw, block, vec, rot) -> None``
+            (:mod:`sim2real.deploy.spec.reference`).
+        kernel_code: The kernel's branch code for it (one of ``sim2real.deploy.spec.kernel.BRANCHES``).
+        size: Entries of a kind that reads no joints (a per-foot kind: the default count, a
+            quadruped's four); 0 for joint kinds.
+        per_joint: Entries per joint read (1; 2 for sin and cos); 0: reads no joints.
+        every_joint: Reads every joint once (``joints`` a permutation of all joints).
+        per_foot: One entry per foot (checked against the robot's feet).
+        floating_base: Needs a floating-base robot's state (the base estimate, command, clock).
+        vector: A 3-vector (x, y, z; a command's vx, vy, yaw rate) whose blocks may read some of
+            its entries (``ObservationBlock.components``).
+        raw_entries: Entries of the raw vector a block may pick ``components`` from (3 for a
+            vector kind, 4 for ``gait_phase``); 0: none.
+        periodic: Needs the block's ``period`` (s, > 0).
+    """
+
+    name: str
+    units: str
+    numpy: Callable[..., None] | None
+    kernel_code: int | None
+    size: int = 0
+    per_joint: int = 0
+    every_joint: bool = False
+    per_foot: bool = False
+    floating_base: bool = False
+    vector: bool = False
+    periodic: bool = False
+    raw_entries: int = 0
+
+    def block_size(self, joints: int) -> int:
+        """Entries of a block of this kind reading ``joints`` joints (all its components)."""
+        return self.per_joint * joints if self.per_joint else self.size
+
+
+#: The registered kinds by name, in registration order.
+KINDS: dict[str, ObservationKind] = {}
+
+
+def register_kind(kind: ObservationKind) -> ObservationKind:
+    """Add ``kind`` to the registry; returns it.
+
+    Raises:
+        KindError: a name already registered, no numpy writer, inconsistent sizes, no kernel
+            code (every kind runs in the compiled kernel), or a code the kernel has no branch for
+            or another kind's.
+    """
+    where = f"observation kind '{kind.name}'"
+    if not kind.name or kind.name in KINDS:
+        raise KindError(f"{where}: the name is empty or already registered")
+    if kind.numpy is None:
+        raise KindError(f"{where}: no numpy writer (the reference the kernel is tested against)")
+    if (kind.per_joint > 0) == (kind.size > 0):
+        raise KindError(f"{where}: give either a fixed size or entries per joint, not both")
+    if kind.every_joint and not kind.per_joint:
+        raise KindError(f"{where}: every_joint is for joint kinds")
+    if kind.vector and (kind.size != 3 or kind.raw_entries != 3):
+        raise KindError(f"{where}: a vector kind has 3 entries (size and raw_entries)")
+    if kind.kernel_code is None:
+        raise KindError(
+            f"{where}: no kernel_code: every kind runs in the compiled kernel; add its branch to "
+            "sim2real/deploy/spec/kernel.py and register its code (a kind never falls back to numpy)"
+        )
+    if kind.kernel_code not in kernel.BRANCHES:
+        raise KindError(
+            f"{where}: kernel_code {kind.kernel_code} has no branch in sim2real/deploy/spec/kernel.py "
+            f"(its codes: {sorted(kernel.BRANCHES)})"
+        )
+    taken = [k.name for k in KINDS.values() if k.kernel_code == kind.kernel_code]
+    if taken:
+        raise KindError(f"{where}: kernel_code {kind.kernel_code} is the code of '{taken[0]}'")
+    KINDS[kind.name] = kind
+    return kind
+
+
+def kind_names(floating_base: bool | None = None) -> tuple[str, ...]:
+    """The registered kinds' names in registration order (``floating_base`` given: only the
+    kinds that need, or only those that do not need, a floating-base robot)."""
+    return tuple(
+        k.name for k in KINDS.values() if floating_base is None or k.floating_base == floating_base
+    )
+
+
+def vector_kind_names() -> tuple[str, ...]:
+    """The kinds whose blocks may read some ``components`` (the vector kinds, ``gait_phase``)."""
+    return tuple(k.name for k in KINDS.values() if k.raw_entries)
+
+
+def numpy_reason(block) -> str | None:
+    """Why a block (:class:`sim2real.deploy.spec.policy_spec.ObservationBlock` of a registered kind) cannot
+    run in the kernel, or None: its size does not follow from its joints (a spec not validated)."""
+    kind = KINDS[block.name]
+    if kind.per_joint and block.size != kind.per_joint * len(block.joints):
+        return f"block '{block.name}' has {block.size} entries for {len(block.joints)} joints"
+    return None
+
+
+#: Blocks published policies read that no robot here provides, by the names legged_gym and Isaac
+#: Lab use; where this toolkit has the quantity, the name it has here.
+UNPROVIDED_KINDS = {
+    "base_lin_vel": "base_linear_velocity",
+    "base_ang_vel": "base_angular_velocity",
+    "commands": "velocity_command",
+    "velocity_commands": "velocity_command",
+    "base_height": None,
+    "height_scan": None,
+}
+
+
+# The built-in kinds' numpy writers are the functions of the same name in sim2real.deploy.spec.reference.
+def _joint(name: str, units: str, code: int, per_joint: int = 1, every: bool = False) -> None:
+    register_kind(ObservationKind(name, units, getattr(reference, name), code, 0, per_joint, every))
+
+
+def _fixed(name: str, units: str, code: int, size: int = 3, **flags: bool) -> None:
+    register_kind(ObservationKind(name, units, getattr(reference, name), code, size, **flags))
+
+
+# ---------------------------------------------------------------------- the built-in kinds
+# An arm's (n = joints, k = joints read; base frame unless stated).
+_joint(
+    "joint_position",
+    "q (k), rad; offset = centre of the limits, scale = half range",
+    kernel.JOINT_POSITION,
+)
+_joint("joint_velocity", "dq (k), rad/s; scale = velocity limit", kernel.JOINT_VELOCITY)
+_joint(
+    "joint_position_sincos",
+    "sin q, cos q (2k) of wrapping joints; unscaled",
+    kernel.JOINT_POSITION_SINCOS,
+    per_joint=2,
+)
+_fixed("ee_position", "end-effector position (3), m; scale = reach", kernel.EE_POSITION)
+_fixed("goal_position", "goal position (3), m; scale = reach", kernel.GOAL_POSITION)
+_fixed(
+    "goal_in_ee",
+    "goal - end effector (3) in the end-effector frame, m; scale = reach",
+    kernel.GOAL_IN_EE,
+)
+_joint("last_action", "the previous action (n), in [-1, 1]", kernel.LAST_ACTION, every=True)
+_joint(
+    "winding_temperature",
+    "winding temperature (n), degC; offset = ambient, scale = max winding - ambient",
+    kernel.WINDING_TEMPERATURE,
+    every=True,
+)
+# A floating-base (legged) robot's: the base's own motion and the command, never its absolute
+# world position or yaw. Joint positions about the default pose are a joint_position block with
+# offset = the home pose.
+_legged = {"floating_base": True}
+_fixed(
+    "base_linear_velocity",
+    "base linear velocity (3), m/s, estimated; scale = 1 / legged_gym's lin_vel 2.0",
+    kernel.BASE_LINEAR_VELOCITY,
+    vector=True,
+    raw_entries=3,
+    **_legged,
+)
+_fixed(
+    "base_angular_velocity",
+    "base angular velocity (3), rad/s; scale = 1 / legged_gym's ang_vel 0.25",
+    kernel.BASE_ANGULAR_VELOCITY,
+    vector=True,
+    raw_entries=3,
+    **_legged,
+)
+_fixed(
+    "projected_gravity",
+    "gravity's direction in the base frame (3), unit vector; unscaled",
+    kernel.PROJECTED_GRAVITY,
+    vector=True,
+    raw_entries=3,
+    **_legged,
+)
+_fixed(
+    "velocity_command",
+    "velocity command (3): vx, vy m/s, yaw rate rad/s; scaled like the velocities it commands",
+    kernel.VELOCITY_COMMAND,
+    vector=True,
+    raw_entries=3,
+    **_legged,
+)
+_fixed(
+    "gait_phase",
+    "sin p, cos p (2) of p = 2 pi t / period, t the runtime's clock, s; unscaled; components "
+    "pick from sin p, cos p, sin(p + pi), cos(p + pi) (a second foot half a period later)",
+    kernel.GAIT_PHASE,
+    size=2,
+    periodic=True,
+    raw_entries=4,
+    **_legged,
+)
+_fixed(
+    "foot_contact",
+    "foot contact (one per foot), 0 or 1; unscaled",
+    kernel.FOOT_CONTACT,
+    size=4,
+    per_foot=True,
+    **_legged,
+)
+_fixed(
+    "heading_sincos",
+    "sin, cos (2) of the yaw the attitude filter has turned since the start; unscaled",
+    kernel.HEADING_SINCOS,
+    size=2,
+    **_legged,
+)

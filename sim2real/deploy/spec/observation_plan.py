@@ -1,0 +1,171 @@
+"""The compiled form of :meth:`sim2real.deploy.spec.policy_spec.PolicySpec.observation`
+(:class:`ObservationPlan`).
+
+A spec builds its plan once, when first asked for an observation: the blocks with their
+registered kinds (:mod:`sim2real.deploy.spec.kinds`), flattened to per-entry offset, scale and clip
+arrays, joint index arrays and the kinds' kernel codes (:mod:`sim2real.deploy.spec.kernel`), and work
+buffers grown to the largest batch seen. The plan assembles the observation with that kernel;
+the numpy reference (:mod:`sim2real.deploy.spec.reference`) gives the same numbers bit for bit, and runs
+in the plan's place only for a block that reads some components of a vector
+(:func:`sim2real.deploy.spec.kinds.numpy_reason`, kept in ``numpy_reason``). The layout itself (block
+kinds, sizes, scales) is the spec's (:mod:`sim2real.deploy.spec.policy_spec`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.spec.kernel import observation as observation_kernel
+from sim2real.deploy.spec.kinds import KINDS, ObservationKind, numpy_reason
+from sim2real.deploy.spec.policy_spec import PolicySpec, SpecError
+from sim2real.deploy.spec.reference import assemble
+
+
+def _no_base(kind: str) -> SpecError:
+    return SpecError(f"observation: block '{kind}' needs a floating-base robot's state")
+
+
+@dataclass(frozen=True)
+class PlanBlock:
+    """One block as the plan runs it.
+
+    Attributes:
+        kind: Its registered kind. columns: Its columns in the observation.
+        joints: (k,) intp, the joints it reads. components: (c,) intp, the entries of its
+            3-vector it reads (empty: all). period: The gait clock's period, s (0: none).
+    """
+
+    kind: ObservationKind
+    columns: slice
+    joints: np.ndarray
+    components: np.ndarray
+    period: float
+
+
+class ObservationPlan:
+    """:meth:`PolicySpec.observation` precompiled: per-entry offset, scale and clip arrays, joint
+    index arrays, and work buffers grown to the largest batch seen (no allocation per tick)."""
+
+    def __init__(self, spec: PolicySpec):
+        self.spec_blocks = bl = spec.observation_blocks
+        unknown = [b.name for b in bl if b.name not in KINDS]
+        if unknown:
+            raise SpecError(f"observation: block '{unknown[0]}' is not a registered kind")
+        self.blocks: list[PlanBlock] = []
+        start = 0
+        for b in bl:
+            joints = np.array(b.joints, dtype=np.intp)
+            components = np.array(b.components, dtype=np.intp)
+            columns = slice(start, start + b.size)
+            self.blocks.append(PlanBlock(KINDS[b.name], columns, joints, components, b.period))
+            start += b.size
+        self.offset = np.concatenate([np.asarray(b.offset, float) for b in bl]) if bl else []
+        self.scale = np.concatenate([np.asarray(b.scale, float) for b in bl]) if bl else []
+        self.clip = np.concatenate([np.full(b.size, float(b.clip)) for b in bl]) if bl else []
+        self.dim = start
+        self._raw = np.zeros((0, start))
+        self.vec = np.zeros((0, 3))
+        self.rot = np.zeros((0, 3))
+        #: the first floating-base block (a state without a base is refused), or None
+        self.legged = next((b.name for b in bl if KINDS[b.name].floating_base), None)
+        self._no_base: tuple[np.ndarray, ...] = ()
+        #: why the plan runs the numpy reference, not the kernel (None: it runs the kernel;
+        #: ``sim2real.deploy.spec.kinds.numpy_reason``); an empty spec has nothing to compile
+        self.numpy_reason = next(filter(None, map(numpy_reason, bl)), None)
+        self.compiled = bool(bl) and self.numpy_reason is None
+        if self.compiled:
+            self.kinds = np.array([KINDS[b.name].kernel_code for b in bl], dtype=np.int64)
+            self.block_periods = np.array([float(b.period) for b in bl], dtype=np.float64)
+            self.components = np.full((len(bl), 4), -1, dtype=np.int64)
+            for i, b in enumerate(bl):  # a block naming none reads its kind's own in order
+                picked = b.components or range(min(b.size, 4))
+                self.components[i, : len(picked)] = picked
+            self.starts = np.array([p.columns.start for p in self.blocks], dtype=np.int64)
+            width = max(1, max(len(b.joints) for b in bl))
+            self.joints = np.full((len(bl), width), -1, dtype=np.int64)
+            for i, b in enumerate(bl):
+                self.joints[i, : len(b.joints)] = b.joints
+            self.norm = np.ascontiguousarray(np.stack([self.offset, self.scale, self.clip]))
+            self._warm()
+
+    def _warm(self) -> None:
+        """Compile the kernel (or load numba's cache) now, not in the first tick."""
+        n = max(int(self.joints.max()) + 1, 1)
+        feet = max((b.size for b in self.spec_blocks if KINDS[b.name].per_foot), default=0)
+        state = RobotState.legged(1, n, feet) if self.legged else RobotState.zeros(1, n)
+        out = np.zeros((1, self.dim), dtype=np.float32)
+        self._run_kernel(state, np.zeros((1, 3)), out)
+
+    def _base_inputs(self, state: RobotState, envs: int) -> tuple[np.ndarray, ...]:
+        """The kernel's floating-base inputs: the state's, or zeros for a fixed-base state
+        (never read: the plan has no floating-base block then).
+
+        Raises:
+            SpecError: a floating-base block and a state without a base.
+        """
+        base = state.base
+        if base is not None:
+            return (
+                base.linear_velocity,
+                base.angular_velocity,
+                base.projected_gravity,
+                state.command,
+                base.orientation,
+                state.clock,
+                state.foot_contact,
+            )
+        if self.legged is not None:
+            raise _no_base(self.legged)
+        if not self._no_base or self._no_base[0].shape[0] < envs:
+            v = np.zeros((envs, 3))
+            self._no_base = (v, v, v, v, np.zeros((envs, 4)), np.zeros(envs), np.zeros((envs, 0)))
+        return self._no_base
+
+    def _run_kernel(self, state: RobotState, goal: np.ndarray, out: np.ndarray) -> None:
+        envs = state.q.shape[0]
+        self.raw(envs)
+        observation_kernel(
+            self.kinds,
+            self.starts,
+            self.joints,
+            self.block_periods,
+            self.components,
+            state.q,
+            state.dq,
+            state.ee_position,
+            state.ee_rotation,
+            goal,
+            state.last_action,
+            state.winding_temperature,
+            *self._base_inputs(state, envs),
+            self.norm,
+            self._raw,
+            out,
+        )
+
+    def raw(self, envs: int) -> np.ndarray:
+        if self._raw.shape[0] < envs:
+            self._raw = np.zeros((envs, self.dim))
+            self.vec = np.zeros((envs, 3))
+            self.rot = np.zeros((envs, 3))
+        return self._raw[:envs]
+
+    def require_base(self, state: RobotState) -> None:
+        """Raises SpecError: the plan has a floating-base block and ``state`` no base."""
+        if self.legged is not None and state.base is None:
+            raise _no_base(self.legged)
+
+    def observation(
+        self, state: RobotState, goal: np.ndarray, out: np.ndarray | None = None
+    ) -> np.ndarray:
+        """:meth:`PolicySpec.observation` (see there) with this plan: the kernel, or the numpy
+        reference for a plan with a ``numpy_reason``."""
+        if not self.compiled:
+            return assemble(self, state, goal, out)
+        if out is None:
+            out = np.empty((state.q.shape[0], self.dim), dtype=np.float32)
+        self._run_kernel(state, goal, out)
+        return out

@@ -1,0 +1,149 @@
+"""The numpy reference of :meth:`sim2real.deploy.spec.policy_spec.PolicySpec.observation`.
+
+:func:`observation_reference` assembles the observation in numpy, block by block, with each
+kind's writer (``ObservationKind.numpy`` in :mod:`sim2real.deploy.spec.kinds`, the writers below), then
+normalizes: ``(raw - offset) / scale``, the upper clip, the lower clip, the cast to float32. The
+compiled kernel (:mod:`sim2real.deploy.spec.kernel`) gives the same numbers bit for bit; tests compare the
+two. A writer fills ``raw`` (envs, size), float64, with the block's raw quantity in SI units from
+the state, the goal (envs, 3) m, the plan's block (joints, components, period) and two (envs, 3)
+work arrays.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from sim2real.deploy.core.state import RobotState
+
+if TYPE_CHECKING:
+    from sim2real.deploy.spec.observation_plan import ObservationPlan, PlanBlock
+    from sim2real.deploy.spec.policy_spec import PolicySpec
+
+
+def observation_reference(
+    spec: PolicySpec, state: RobotState, goal: np.ndarray, out: np.ndarray | None = None
+) -> np.ndarray:
+    """``spec.observation(state, goal, out=out)`` computed in numpy (same numbers bit for bit).
+
+    Args:
+        spec: The policy spec (its plan is built on the first call).
+        state: Estimated state with end-effector pose filled (``Kinematics.update``).
+        goal: (envs, 3) m, goal position in the base frame.
+        out: Optional float32 (envs, obs_dim) array to write into.
+
+    Returns:
+        float32 (envs, obs_dim), ``out`` when given.
+
+    Raises:
+        SpecError: a floating-base block and a state without a base.
+    """
+    return assemble(spec._plan, state, goal, out)
+
+
+def assemble(
+    plan: ObservationPlan, state: RobotState, goal: np.ndarray, out: np.ndarray | None = None
+) -> np.ndarray:
+    """:func:`observation_reference` with the spec's plan (see there)."""
+    envs = state.q.shape[0]
+    if out is None:
+        out = np.empty((envs, plan.dim), dtype=np.float32)
+    raw = plan.raw(envs)
+    plan.require_base(state)
+    vec, rot = plan.vec[:envs], plan.rot[:envs]
+    for block in plan.blocks:
+        block.kind.numpy(state, goal, raw[:, block.columns], block, vec, rot)
+    raw -= plan.offset
+    raw /= plan.scale
+    np.minimum(raw, plan.clip, out=raw)
+    np.maximum(raw, -plan.clip, out=raw)
+    out[:] = raw
+    return out
+
+
+# ---------------------------------------------------------------------- the kinds' writers
+# Signature: (state, goal, raw, block, vec, rot) -> None, ``raw`` the block's (envs, size) columns.
+
+
+def joint_position(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    np.take(state.q, block.joints, axis=1, out=raw)
+
+
+def joint_velocity(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    np.take(state.dq, block.joints, axis=1, out=raw)
+
+
+def joint_position_sincos(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    q = state.q[:, block.joints]
+    k = len(block.joints)
+    np.sin(q, out=raw[:, :k])
+    np.cos(q, out=raw[:, k:])
+
+
+def ee_position(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    raw[:] = state.ee_position
+
+
+def goal_position(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    raw[:] = goal
+
+
+def goal_in_ee(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    np.subtract(goal, state.ee_position, out=vec)
+    np.matmul(vec[:, None, :], state.ee_rotation, out=rot[:, None, :])
+    raw[:] = rot
+
+
+def last_action(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    np.take(state.last_action, block.joints, axis=1, out=raw)
+
+
+def winding_temperature(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    np.take(state.winding_temperature, block.joints, axis=1, out=raw)
+
+
+def _vector(raw: np.ndarray, vector: np.ndarray, components: np.ndarray) -> None:
+    """A vector block: the whole 3-vector, or its ``components`` (non-empty) in order."""
+    if components.size:
+        np.take(vector, components, axis=1, out=raw)
+    else:
+        raw[:] = vector
+
+
+def base_linear_velocity(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    _vector(raw, state.base.linear_velocity, block.components)
+
+
+def base_angular_velocity(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    _vector(raw, state.base.angular_velocity, block.components)
+
+
+def projected_gravity(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    _vector(raw, state.base.projected_gravity, block.components)
+
+
+def velocity_command(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    _vector(raw, state.command, block.components)
+
+
+def gait_phase(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    phase = (2.0 * np.pi / block.period) * state.clock
+    sp, cp = np.sin(phase), np.cos(phase)
+    if block.components.size:  # of sin p, cos p and the second foot's, half a period later
+        np.take(np.stack([sp, cp, -sp, -cp], axis=1), block.components, axis=1, out=raw)
+    else:
+        raw[:, 0] = sp
+        raw[:, 1] = cp
+
+
+def foot_contact(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    raw[:] = state.foot_contact
+
+
+def heading_sincos(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    """The yaw of the base's x axis in the attitude filter's world frame, as sin, cos."""
+    w, x, y, z = state.base.orientation.T
+    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    raw[:, 0] = np.sin(yaw)
+    raw[:, 1] = np.cos(yaw)

@@ -1,0 +1,335 @@
+"""The JSON format of a PolicySpec: a pydantic model of the document, and its JSON Schema.
+
+:meth:`sim2real.deploy.spec.policy_spec.PolicySpec.from_json` parses a spec file with
+:class:`PolicySpecDocument`
+(types, required fields, unknown fields refused), then expands the shorthands below and checks the
+meaning with :meth:`sim2real.deploy.spec.policy_spec.PolicySpec.validate`. ``docs/policy_spec.schema.json``
+is
+:func:`json_schema` written out (``python -m sim2real.deploy.spec.schema docs/policy_spec.schema.json``);
+a test checks the committed file equals the generated one.
+
+Shorthands a hand-written spec may use (``PolicySpec.to_json`` always writes the explicit form):
+
+- ``scale`` and ``offset`` of a block or of the action: a number (the same for every entry) or a
+  list of ``size`` numbers; left out: ``scale`` 1, ``offset`` 0 (raw SI units).
+- ``size`` left out: derived from the kind (3 for the vector blocks, the joint count for
+  ``last_action`` and ``winding_temperature``, ``len(joints)`` for joint blocks, twice that for
+  ``joint_position_sincos``; the action: one per joint).
+- ``joints``: indices into ``joint_names`` or joint names; left out: every joint (for
+  ``last_action`` and ``winding_temperature``: every joint the action drives).
+- ``robot_hash`` left out or empty: the robot description hash is not checked (a policy trained
+  elsewhere never saw our description; robot name, joint order and control rate still are).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from sim2real.deploy.spec.drive import DriveSpec
+from sim2real.deploy.spec.kinds import KINDS, kind_names
+from sim2real.deploy.spec.policy_spec import (
+    DEFAULT_CLIP,
+    FORMAT_VERSION,
+    UNCLIPPED,
+    ActionSpec,
+    ObservationBlock,
+    PolicySpec,
+    SpecError,
+)
+from sim2real.robots.schema import CONTROL_MODES
+
+#: Where the committed schema lives, relative to the repository root.
+SCHEMA_PATH = Path(__file__).resolve().parents[3] / "docs" / "policy_spec.schema.json"
+
+_NUMBERS = "a number (every entry) or a list of one number per entry"
+
+
+class _Doc(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ObservationBlockDocument(_Doc):
+    """One observation block: ``obs = clip((raw - offset) / scale, -clip, clip)`` per entry."""
+
+    model_config = ConfigDict(title="ObservationBlock")
+
+    name: str = Field(
+        description="Block kind: the raw quantity, in SI units and radians, base frame.",
+        json_schema_extra={"enum": list(kind_names())},
+    )
+    size: int | None = Field(
+        default=None, ge=0, description="Entries contributed; derived from the kind when left out."
+    )
+    scale: float | list[float] = Field(
+        default=1.0,
+        description=(
+            f"Divisor of (raw - offset), {_NUMBERS}; finite and nonzero (negative flips the "
+            "sign). A training library's "
+            "multiplier s (legged_gym obs_scales) is scale = 1 / s."
+        ),
+    )
+    offset: float | list[float] = Field(
+        default=0.0, description=f"Subtracted from the raw value before scaling, {_NUMBERS}."
+    )
+    clip: float | None = Field(
+        default=None,
+        gt=0,
+        description=(
+            "Symmetric clip after scaling; default none (a clip the file does not state would "
+            f"change what the policy sees; our own exports write {DEFAULT_CLIP:g})."
+        ),
+    )
+    period: float | None = Field(
+        default=None,
+        gt=0,
+        description="gait_phase only: the gait clock's period, s (p = 2 pi t / period).",
+    )
+    joints: list[int | str] | None = Field(
+        default=None,
+        description=(
+            "Joints read, in order (indices into joint_names, or names); default every joint. "
+            "last_action and winding_temperature cover every joint the action drives (in any "
+            "order)."
+        ),
+    )
+    components: list[int] | None = Field(
+        default=None,
+        description=(
+            "Vector blocks (base_linear_velocity, base_angular_velocity, projected_gravity, "
+            "velocity_command) and gait_phase only: the entries of the raw vector read, in order. "
+            "A vector: 0 x, 1 y, 2 z (a velocity command's vx, vy, yaw rate); default all three. "
+            "gait_phase: 0 sin p, 1 cos p, 2 sin(p + pi), 3 cos(p + pi) (a second foot half a "
+            "period later), p = 2 pi t / period; default [0, 1]."
+        ),
+    )
+
+
+class ActionDocument(_Doc):
+    """The action mapping: ``a' = clip(a, -clip, clip)``; ``target = offset + scale * a'``
+    (reference 'absolute') or ``q + scale * a'`` (position mode, reference 'current')."""
+
+    model_config = ConfigDict(title="Action")
+
+    mode: str = Field(
+        description="Control mode of the target: position (rad), velocity (rad/s), torque (N m).",
+        json_schema_extra={"enum": list(CONTROL_MODES)},
+    )
+    size: int | None = Field(default=None, ge=1, description="Actions (= joints); default all.")
+    scale: float | list[float] = Field(
+        default=1.0, description=f"Units of the mode per unit action, {_NUMBERS}."
+    )
+    offset: float | list[float] = Field(
+        default=0.0, description=f"Target for a zero action (e.g. a default pose), {_NUMBERS}."
+    )
+    clip: float | None = Field(
+        default=None,
+        gt=0,
+        description=(
+            "The action is clipped to [-clip, clip]; default none (a clip the file does not "
+            "state would change what the policy does: a humanoid's targets past 1 fell)."
+        ),
+    )
+    reference: Literal["absolute", "current"] = Field(
+        default="absolute", description="'current' (position mode only): relative to q."
+    )
+    joints: list[int | str] | None = Field(
+        default=None,
+        description=(
+            "The joint each output of the graph drives, in output order (indices into "
+            "joint_names, or names; each at most once); default: output i drives joint i. scale "
+            "and offset stay in joint_names order. Fewer outputs than joints: a joint no output "
+            "drives has action 0 (its target is its offset)."
+        ),
+    )
+
+
+class DriveDocument(_Doc):
+    """The PD gains and default pose the policy was trained with, one entry per joint in
+    joint_names order; a list left out was not recorded (the robot's robot.toml holds)."""
+
+    model_config = ConfigDict(title="Drive")
+
+    kp: list[float] | None = Field(default=None, description="Position gains, N m/rad (> 0).")
+    kd: list[float] | None = Field(default=None, description="Damping gains, N m s/rad (>= 0).")
+    default_pose: list[float] | None = Field(
+        default=None, description="The pose actions and joint observations are relative to, rad."
+    )
+
+
+class PolicySpecDocument(_Doc):
+    """A PolicySpec as stored in an ONNX file's ``policy_spec`` metadata or a ``--spec`` file."""
+
+    model_config = ConfigDict(title="PolicySpec")
+
+    format_version: Literal[FORMAT_VERSION] = Field(description="Version of this format.")  # type: ignore[valid-type]
+    robot: str = Field(description="Robot name (sim2real/robots/<name>/robot.toml 'name').")
+    joint_names: list[str] = Field(
+        min_length=1, description="Joint order of observations and actions."
+    )
+    robot_hash: str = Field(
+        default="",
+        description="Robot.description_hash trained on; empty or left out: not checked.",
+    )
+    observation: list[ObservationBlockDocument] = Field(
+        description="Ordered observation blocks; their sizes sum to the model's input size."
+    )
+    action: ActionDocument
+    control_rate: float = Field(gt=0, description="Hz, the rate the policy was trained at.")
+    baked: dict[str, bool] = Field(
+        default_factory=dict,
+        description="What the graph contains already (observation_normalizer, action_clip).",
+    )
+    parity: dict[str, Any] = Field(
+        default_factory=dict, description="Parity figures of the export (written by export)."
+    )
+    constant_inputs: dict[str, float] = Field(
+        default_factory=dict,
+        description=(
+            "Graph inputs besides the observation and recurrent state, fed this constant every "
+            "tick (shape from the graph; a symbolic axis 0 is the batch)."
+        ),
+    )
+    drive: DriveDocument | None = Field(
+        default=None,
+        description=(
+            "PD gains and default pose of training (deploy-run runs the simulated plant with "
+            "them; a backend that cannot set gains refuses differing ones)."
+        ),
+    )
+
+
+def to_spec(doc: PolicySpecDocument) -> PolicySpec:
+    """The :class:`PolicySpec` of a parsed document, shorthands expanded (not yet validated).
+
+    Raises:
+        SpecError: a joint named in ``joints`` that is not in ``joint_names``.
+    """
+    names = tuple(doc.joint_names)
+    n = len(names)
+    a = doc.action
+    size = n if a.size is None else a.size
+    action = ActionSpec(
+        mode=a.mode,
+        size=size,
+        scale=_entries(a.scale, size),
+        offset=_entries(a.offset, size),
+        clip=UNCLIPPED if a.clip is None else float(a.clip),
+        reference=a.reference,
+        joints=tuple(_joint_index(j, names, "action.joints") for j in a.joints or ()),
+    )
+    blocks = []
+    for i, b in enumerate(doc.observation):
+        kind = KINDS.get(b.name)  # an unknown kind is refused by PolicySpec.validate
+        per_joint = kind.per_joint if kind is not None else 0
+        if b.joints is None:
+            every = kind is not None and kind.every_joint
+            # an every-joint block's default: the joints the action drives
+            joints = (action.driven if every else tuple(range(n))) if per_joint else ()
+        else:
+            where = f"observation[{i}] ('{b.name}').joints"
+            joints = tuple(_joint_index(j, names, where) for j in b.joints)
+        size = b.size
+        if size is None and per_joint:
+            size = per_joint * len(joints)
+        elif size is None and b.components is not None:
+            size = len(b.components)
+        elif size is None:
+            size = kind.size if kind is not None else 3
+        blocks.append(
+            ObservationBlock(
+                name=b.name,
+                size=size,
+                scale=_entries(b.scale, size),
+                offset=_entries(b.offset, size),
+                clip=UNCLIPPED if b.clip is None else float(b.clip),
+                joints=joints,
+                period=float(b.period or 0.0),
+                components=tuple(int(c) for c in b.components or ()),
+            )
+        )
+
+    return PolicySpec(
+        robot=doc.robot,
+        joint_names=names,
+        robot_hash=doc.robot_hash,
+        observation_blocks=tuple(blocks),
+        action=action,
+        control_rate=float(doc.control_rate),
+        baked=dict(doc.baked),
+        parity=dict(doc.parity),
+        format_version=doc.format_version,
+        constant_inputs={k: float(v) for k, v in doc.constant_inputs.items()},
+        drive=None
+        if doc.drive is None
+        else DriveSpec(
+            kp=tuple(doc.drive.kp or ()),
+            kd=tuple(doc.drive.kd or ()),
+            default_pose=tuple(doc.drive.default_pose or ()),
+        ),
+    )
+
+
+def _entries(value: float | list[float], size: int) -> tuple[float, ...]:
+    """A JSON ``scale``/``offset``: one number for every entry, or the list as is (its length is
+    checked by ``PolicySpec.validate``)."""
+    if isinstance(value, (int, float)):
+        return (float(value),) * size
+    return tuple(float(x) for x in value)
+
+
+def _joint_index(joint: int | str, names: tuple[str, ...], where: str) -> int:
+    if isinstance(joint, str):
+        if joint not in names:
+            raise SpecError(f"{where}: joint '{joint}' is not in joint_names {list(names)}")
+        return names.index(joint)
+    return int(joint)
+
+
+_UNION_MEMBER = re.compile(r"^(float|int|str|bool|none|(list|dict|tuple)\[.*\])$")
+
+
+def describe_error(exc: ValidationError) -> str:
+    """The first error of a pydantic ``ValidationError`` as ``field 'a.b[0].c': problem``."""
+    err = exc.errors()[0]
+    loc = ""
+    for part in err["loc"]:
+        if isinstance(part, str) and _UNION_MEMBER.match(part):
+            continue  # pydantic names the member of a union it tried ('float', 'list[float]')
+        loc += f"[{part}]" if isinstance(part, int) else (f".{part}" if loc else str(part))
+    if err["type"] == "missing":
+        return f"field '{loc}' is missing"
+    if err["type"] == "extra_forbidden":
+        return f"field '{loc}' is not a PolicySpec field (see docs/policy_spec.schema.json)"
+    return f"field '{loc}': {err['msg']} (got {err.get('input')!r})"
+
+
+def json_schema() -> dict[str, Any]:
+    """The JSON Schema (draft 2020-12, as pydantic writes it) of a PolicySpec document."""
+    schema = PolicySpecDocument.model_json_schema()
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    return schema
+
+
+def schema_text() -> str:
+    """:func:`json_schema` as the committed file holds it (sorted keys, 2-space indent)."""
+    return json.dumps(json_schema(), indent=2, sort_keys=True) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Write the schema to the path given (default ``docs/policy_spec.schema.json``)."""
+    argv = sys.argv[1:] if argv is None else argv
+    path = Path(argv[0]) if argv else SCHEMA_PATH
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(schema_text())
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

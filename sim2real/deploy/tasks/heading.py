@@ -1,0 +1,89 @@
+"""Heading hold: a zero yaw-rate command holds the heading the robot had when it was given.
+
+A velocity policy turns a little on a straight command: its yaw-rate tracking has an offset (the
+shipped Go2 policy turns about -4 deg/s at ``--command 0.5,0,0``), and nothing in a fixed
+command corrects it. legged_gym (and unitree_rl_gym, which trains on it) closes this loop in the
+command itself: with ``commands.heading_command = True`` (its default) the policy's yaw-rate
+command is ``clip(0.5 * wrap(heading - yaw), -1, 1)`` (``legged_robot.py``,
+``_post_physics_step_callback``), so the policies trained there were trained with it.
+:class:`HeadingHold` does the same at deployment: while an env is RUNNING with a command whose
+yaw rate is zero, its ``runtime.velocity_command[:, 2]`` becomes ``gain * wrap(reference - yaw)``
+clipped to ``max_rate``, where ``yaw`` is the base estimate's (on hardware nothing else knows
+it: the yaw of the filter's world frame, which drifts with the gyro's unobservable yaw bias)
+and ``reference`` is the yaw when the hold began. A command with a yaw rate is passed through
+unchanged, and the hold lets go at every stop.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sim2real.deploy.core.stateful import put, take
+
+#: Proportional gain, 1/s: legged_gym's ``0.5 * wrap_to_pi(heading - yaw)``
+#: (legged_gym/envs/base/legged_robot.py, ``commands.heading_command``).
+HEADING_GAIN = 0.5
+#: rad/s, the largest yaw-rate command the hold gives (legged_gym clips the same expression to
+#: [-1, 1]).
+HEADING_MAX_RATE = 1.0
+
+
+class HeadingHold:
+    """The heading hold of ``envs`` legged robots (module docstring).
+
+    Args:
+        envs: Batch size.
+        gain: 1/s, yaw-rate command per rad of heading error (> 0; ``HEADING_GAIN``).
+        max_rate: rad/s, the clip of the yaw-rate command (> 0; ``HEADING_MAX_RATE``).
+
+    Attributes:
+        reference: (envs,) rad, the held heading (the base estimate's yaw when the hold began).
+        holding: (envs,) bool, the hold is on (RUNNING with a zero yaw-rate command).
+
+    Raises:
+        ValueError: ``gain`` or ``max_rate`` not a finite number > 0.
+    """
+
+    def __init__(self, envs: int, gain: float = HEADING_GAIN, max_rate: float = HEADING_MAX_RATE):
+        for name, value in (("gain", gain), ("max_rate", max_rate)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"heading hold {name}: expected a number > 0, got {value}")
+        self.gain, self.max_rate = float(gain), float(max_rate)
+        self.reference = np.zeros(envs)
+        self.holding = np.zeros(envs, dtype=bool)
+
+    def __call__(self, runtime, asked: np.ndarray) -> None:
+        """Write the yaw-rate command of the next tick into ``runtime.velocity_command``.
+
+        Args:
+            runtime: A floating-base :class:`~sim2real.deploy.runtime.Runtime` after its tick.
+            asked: (envs, 3) the command the operator gave (m/s, m/s, rad/s).
+        """
+        from sim2real.deploy.core.attitude import yaw_of  # numba's module: not at the CLI's parse
+        from sim2real.deploy.core.modes import RUNNING
+
+        yaw = yaw_of(runtime.state.base.orientation)
+        hold = (runtime.mode == RUNNING) & (asked[:, 2] == 0.0)
+        begin = hold & ~self.holding
+        self.reference[begin] = yaw[begin]
+        self.holding[:] = hold
+        error = np.angle(np.exp(1j * (self.reference - yaw)))  # wrapped to (-pi, pi]
+        rate = np.clip(self.gain * error, -self.max_rate, self.max_rate)
+        runtime.velocity_command[:, 2] = np.where(hold, rate, asked[:, 2])
+
+    def _fields(self) -> dict[str, np.ndarray]:
+        return {"reference": self.reference, "holding": self.holding}
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """``reference`` (envs,) rad and ``holding`` (envs,) bool."""
+        return take(self._fields(), env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict`.
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        put(self._fields(), state, env)

@@ -1,0 +1,621 @@
+"""How well a legged robot follows its velocity command: distance, speed, tracking, falls.
+
+:class:`CommandTracker` is the legged counterpart of :class:`sim2real.deploy.tasks.goals.GoalScheduler` for
+``deploy-run`` and the soak: called after every tick, it measures the base's planar velocity
+(the plant's truth in simulation, the base estimator's on hardware) against the command while
+the runtime is RUNNING. Tracking success is the fraction of RUNNING time whose planar velocity
+error ``|mean v_xy - mean command_xy|`` is within ``TRACKING_TOLERANCE`` (0.2 m/s), both averaged
+over the same ``TRACKING_WINDOW`` (a trot's body sways within a stride: the command is a mean
+speed; averaging the command too keeps the window's own lag out of the error, so a robot that
+follows a step of the command at once tracks it at once); the ``SETTLE_TIME`` after each step
+of the planar command counts as tracked (no robot follows a step at once). Falls are the
+runtime's safe stops.
+
+:class:`CommandSchedule` is the legged counterpart of :class:`sim2real.deploy.tasks.goals.GoalScheduler` for
+the
+soak (:mod:`sim2real.eval.soak.batch`): a new velocity command every ``period`` s of RUNNING time, drawn
+from a seeded stream per env, written into ``runtime.velocity_command``. Both keep their state
+(:mod:`sim2real.deploy.core.stateful`) for the soak's checkpoints. :class:`VelocityTask` is the task
+(:func:`sim2real.deploy.tasks.task.task_for`) they make together, a fixed command or a schedule.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim2real.deploy.core.attitude import tilt_of
+from sim2real.deploy.core.state import BaseState
+from sim2real.deploy.core.stateful import (
+    StateDictError,
+    check,
+    from_json,
+    load_part,
+    put,
+    rng_state,
+    scalar,
+    set_rng_state,
+    take,
+    to_json,
+)
+
+#: Planar velocity error within which the robot tracks its command, m/s (our acceptance
+#: criterion for walking policies; README: soak).
+TRACKING_TOLERANCE = 0.2
+#: Averaging window of the tracked velocity, s (our choice: two strides of a 0.4 s trot).
+TRACKING_WINDOW = 0.8
+#: s after a step of the planar command (more than ``TRACKING_TOLERANCE`` from one tick to the
+#: next: a joystick's gradual change is no step) that count as tracked while the robot settles
+#: (our choice: a base accelerating at 1 m/s^2 reaches a 1 m/s step in 1 s; unitree_rl_mjlab's
+#: G1 policy took about that, and the soak's new command every 4 s left it 77 % tracked at best).
+SETTLE_TIME = 1.0
+
+
+def parse_command(text: str) -> np.ndarray:
+    """``"VX,VY,WZ"`` (m/s, m/s, rad/s, base frame) -> (3,) float array.
+
+    Raises:
+        ValueError: not three finite numbers (the message quotes ``text``).
+    """
+    try:
+        command = np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        command = np.array([])
+    if command.shape != (3,) or not np.isfinite(command).all():
+        raise ValueError(f"--command {text!r}: expected VX,VY,WZ (m/s, m/s, rad/s)")
+    return command
+
+
+@dataclass(frozen=True)
+class CommandRanges:
+    """What :class:`CommandSchedule` draws a command from (our choice unless noted).
+
+    Attributes:
+        vx: Forward speed, m/s, uniform. Our choice: 0-0.5 m/s, the walking range the shipped
+            trot generator was tuned for (``sim2real/policies/gait.py``: ``deploy-run --command
+            0.5,0,0``); legged_gym's go2 task samples [-1, 1] m/s (unitree_rl_gym
+            go2_config.py ``commands.ranges.lin_vel_x``), beyond what it was tuned for.
+        vy: Lateral speed, m/s, uniform. Our choice: 0 (the trot generator does not side-step).
+        yaw_rate: rad/s, uniform. Our choice: +-0.5 rad/s (legged_gym: +-1 rad/s).
+        zero_fraction: Probability that a period's command is zero (standing still; our
+            choice: 0.2, as legged_gym zeroes small commands so the policy learns to stand).
+    """
+
+    vx: tuple[float, float] = (0.0, 0.5)
+    vy: tuple[float, float] = (0.0, 0.0)
+    yaw_rate: tuple[float, float] = (-0.5, 0.5)
+    zero_fraction: float = 0.2
+
+    def __post_init__(self):
+        for name in ("vx", "vy", "yaw_rate"):
+            lo, hi = getattr(self, name)
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+                raise ValueError(f"CommandRanges.{name}: expected (low, high), got {(lo, hi)}")
+        if not 0.0 <= self.zero_fraction <= 1.0:
+            raise ValueError(
+                f"CommandRanges.zero_fraction: expected a probability, got {self.zero_fraction}"
+            )
+
+    def sample(self, rng: np.random.Generator) -> np.ndarray:
+        """One command (3,): (vx, vy m/s, yaw rate rad/s); four draws from ``rng`` always."""
+        zero = rng.random() < self.zero_fraction
+        command = np.array(
+            [rng.uniform(*self.vx), rng.uniform(*self.vy), rng.uniform(*self.yaw_rate)]
+        )
+        return np.zeros(3) if zero else command
+
+
+class CommandSchedule:
+    """A new velocity command every ``period`` s for each of ``envs`` legged robots, written into
+    ``runtime.velocity_command[e]`` (the legged counterpart of :class:`sim2real.deploy.tasks.goals.
+    GoalScheduler`).
+
+    Only RUNNING time counts, as for goals: an env that is not running has its command clock
+    held, and gets its first command when it first runs. Each env draws from its own generator
+    (``rng``: one per env), so that a session's commands do not depend on its neighbours.
+
+    Args:
+        envs: Batch size.
+        period: s of RUNNING time between new commands (> 0).
+        rng: ``envs`` numpy generators, one command stream per env.
+        ranges: What the commands are drawn from (:class:`CommandRanges`).
+
+    Attributes:
+        t_command: (envs,) s, when each env's command was issued, moved on while it was not
+            running. issued: (envs,) int64, commands issued. command: (envs, 3), the current
+            command (zeros before the first).
+    """
+
+    def __init__(self, envs: int, period: float, rng, ranges: CommandRanges | None = None):
+        self.streams = list(rng)
+        if len(self.streams) != envs:
+            raise ValueError(f"rng: expected {envs} generators (one per env), got {len(rng)}")
+        if not (math.isfinite(period) and period > 0):
+            raise ValueError(f"period: expected a number of seconds > 0, got {period}")
+        self.envs, self.period = envs, float(period)
+        self.ranges = CommandRanges() if ranges is None else ranges
+        self.t_command = np.zeros(envs)
+        self.issued = np.zeros(envs, dtype=np.int64)
+        self.command = np.zeros((envs, 3))
+
+    def _fields(self) -> dict[str, np.ndarray]:
+        return {"t_command": self.t_command, "issued": self.issued, "command": self.command}
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """``t_command`` (s), ``issued`` (int64), ``command`` (envs, 3); ``rng``: JSON of the
+        streams' ``bit_generator.state`` (a list over the envs)."""
+        out: dict = take(self._fields(), env)
+        envs = range(self.envs) if env is None else [env]
+        out["rng"] = to_json([rng_state(self.streams[e]) for e in envs])
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``).
+
+        Raises:
+            StateDictError: a missing field, a shape or a stream count that differs; nothing is
+                changed.
+        """
+        check(self._fields(), state, env)
+        envs = list(range(self.envs)) if env is None else [env]
+        rng = from_json(state, "rng")
+        if not (isinstance(rng, list) and len(rng) == len(envs)):
+            raise StateDictError("rng", f": expected {len(envs)} stream state(s), one per env")
+        put(self._fields(), state, env)
+        for e, value in zip(envs, rng, strict=True):
+            set_rng_state(self.streams[e], value, "rng")
+
+    def __call__(self, runtime) -> None:
+        """After a tick of ``runtime``: hold the clocks of stopped envs, issue due commands."""
+        running = runtime.mode == 2  # RUNNING
+        t = runtime.time
+        if not running.all():
+            self.t_command[~running] = t
+            if not running.any():
+                return
+        due = running & ((self.issued == 0) | (t - self.t_command >= self.period))
+        for e in np.flatnonzero(due):
+            self.command[e] = self.ranges.sample(self.streams[e])
+            runtime.velocity_command[e] = self.command[e]
+            self.t_command[e] = t
+            self.issued[e] += 1
+
+
+class CommandTracker:
+    """Command tracking of ``envs`` legged robots (module docstring).
+
+    Args:
+        envs: Batch size.
+        control_period: s.
+        backend: The runtime's backend; its ``true_base_state`` (simulation) is used when it
+            has one, else the runtime's base estimate.
+        window: Optional s: also account the tracking per window of ``window`` s of session
+            time (:meth:`windows`; the soak's windowed success).
+
+    Attributes:
+        distance: (envs,) m, planar path length of the base while RUNNING.
+        forward: (envs,) m, displacement along the base's heading while RUNNING.
+        running_time: (envs,) s RUNNING. tracked_time: (envs,) s of it within tolerance, or
+            within ``SETTLE_TIME`` of a step of the planar command (``changed_at``, s;
+            ``last_command``, (envs, 2) m/s, the previous tick's, NaN before the first).
+        falls: (envs,) int64, falls: stops (SAFE_STOP or FAULTED, of any cause) of a robot that
+            has been RUNNING since its previous stop. The runtime lays a legged robot down at
+            every stop, so a hard-limit or stale-sensor stop leaves the base on the ground as a
+            tilt (``fall``) stop does. A robot still lying after a stop, whose RAMP_IN ends in
+            another stop, has not fallen again; the runtime's ``counters.faults`` counts those
+            stops too.
+        falls_by_cause: (envs, len(FAULT_CAUSES)) int64, ``falls`` by the stop's cause
+            (:data:`sim2real.deploy.core.modes.FAULT_CAUSES` order).
+        fall_log: Per env, one dict per fall: ``t_s`` (session time), ``cause`` (the stop's,
+            ``FAULT_CAUSES``) and, for a ``hard_limit`` stop, the estimate that began it:
+            ``joint`` (the joint farthest past its hard limit) and ``past_rad`` (how far).
+        window_running, window_tracked: per env, s RUNNING and tracked per finished window
+            (with ``window``).
+        heading_change, commanded_turn: (envs,) rad, the base's heading change while RUNNING
+            (the yaw of its x axis, tick to tick: the truth's in simulation, the estimate's on
+            hardware, where nothing else knows it) and the turn the commands asked for (their
+            yaw rate, integrated). last_yaw: (envs,) rad, the heading at the previous tick
+            (NaN when it was not RUNNING).
+        height_sum: (envs,) m s, the fall check's kinematic base height integrated while
+            RUNNING (its mean: the height the robot walked at, by its own estimate).
+        displacement: (envs, 2) m, the base's planar displacement while RUNNING (its world
+            velocity integrated: the truth's in simulation, else the estimate's odometry),
+            along and across the heading it had when it first ran (``start_yaw``, rad; NaN
+            before). A straight command that ends with a large ``across`` drifted sideways.
+    """
+
+    def __init__(self, envs: int, control_period: float, backend, window: float | None = None):
+        self.envs, self.dt = envs, float(control_period)
+        self.truth = getattr(backend, "true_base_state", None)
+        #: the true base (simulation): a BaseState filled from ``truth`` every tick
+        self._true_base = BaseState.zeros(envs) if self.truth is not None else None
+        self._true_state = None  # (envs, 13) the truth of this tick (simulation)
+        self.distance = np.zeros(envs)
+        self.forward = np.zeros(envs)
+        self.running_time = np.zeros(envs)
+        self.tracked_time = np.zeros(envs)
+        self.changed_at = np.full(envs, -np.inf)
+        self.last_command = np.full((envs, 2), np.nan)
+        self.window = max(1, int(round(TRACKING_WINDOW / self.dt)))
+        self._ring = np.zeros((self.window, envs, 2))
+        self._command_ring = np.zeros((self.window, envs, 2))
+        self._filled = np.zeros(envs, dtype=np.int64)
+        self.judged_on = "true base velocity" if self.truth is not None else "estimated base"
+        if window is not None and not (math.isfinite(window) and window > 0):
+            raise ValueError(f"window: expected a number of seconds > 0, got {window}")
+        self.success_window = None if window is None else float(window)
+        self.window_index = 0  # the window being accounted (shared: session time)
+        self._window_base = np.zeros((envs, 2))  # running, tracked s at its start
+        self.window_running: list[list[float]] = [[] for _ in range(envs)]
+        self.window_tracked: list[list[float]] = [[] for _ in range(envs)]
+        from sim2real.deploy.core.modes import FAULT_CAUSES
+
+        self.falls = np.zeros(envs, dtype=np.int64)
+        self.falls_by_cause = np.zeros((envs, len(FAULT_CAUSES)), dtype=np.int64)
+        self.fall_log: list[list[dict]] = [[] for _ in range(envs)]
+        self._up = np.zeros(envs, dtype=bool)  # RUNNING since the last stop
+        self.heading_change = np.zeros(envs)
+        self.commanded_turn = np.zeros(envs)
+        self.height_sum = np.zeros(envs)
+        self.height_time = np.zeros(envs)
+        self.displacement = np.zeros((envs, 2))
+        self.start_yaw = np.full(envs, np.nan)
+        self.last_yaw = np.full(envs, np.nan)
+        robot = getattr(backend, "robot", None)
+        base_cfg = getattr(getattr(robot, "config", None), "base", None)
+        #: m, the robot's standing height (robot.toml ``[base]``), for the summary's comparison
+        self.standing_height = None if base_cfg is None else float(base_cfg.standing_height)
+
+    # ------------------------------------------------------------------ state
+    def _fields(self) -> dict[str, np.ndarray]:
+        return {
+            "distance": self.distance,
+            "forward": self.forward,
+            "running_time": self.running_time,
+            "tracked_time": self.tracked_time,
+            "changed_at": self.changed_at,
+            "last_command": self.last_command,
+            "filled": self._filled,
+            "ring": self._ring.swapaxes(0, 1),  # (envs, window, 2), a view
+            "command_ring": self._command_ring.swapaxes(0, 1),
+            "window_base": self._window_base,
+            "falls": self.falls,
+            "falls_by_cause": self.falls_by_cause,
+            "up": self._up,
+            "heading_change": self.heading_change,
+            "commanded_turn": self.commanded_turn,
+            "height_sum": self.height_sum,
+            "height_time": self.height_time,
+            "displacement": self.displacement,
+            "start_yaw": self.start_yaw,
+            "last_yaw": self.last_yaw,
+        }
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The tracker's state (copies; conventions of :mod:`sim2real.deploy.core.stateful`): ``distance``,
+        ``forward`` (m), ``running_time``, ``tracked_time``, ``changed_at`` (s),
+        ``last_command`` (envs, 2) m/s, ``filled`` (int64),
+        ``ring`` and ``command_ring`` (envs, window, 2) m/s (the averaging window's planar
+        velocities and commands), ``window_base``
+        (envs, 2) s, ``falls`` (int64), ``falls_by_cause`` (envs, causes) int64, ``up`` (bool),
+        ``heading_change``, ``commanded_turn`` (rad), ``height_sum`` (m s), ``height_time``
+        (s), ``displacement`` (envs, 2) m, ``start_yaw``, ``last_yaw`` (rad); shared:
+        ``window_index`` (int); JSON lists over the envs: ``window_running``,
+        ``window_tracked``."""
+        out: dict = take(self._fields(), env)
+        envs = range(self.envs) if env is None else [env]
+        out["window_index"] = int(self.window_index)
+        out["window_running"] = to_json([self.window_running[e] for e in envs])
+        out["window_tracked"] = to_json([self.window_tracked[e] for e in envs])
+        out["fall_log"] = to_json([self.fall_log[e] for e in envs])
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``; the shared window
+        index either way).
+
+        Raises:
+            StateDictError: a missing field or a shape that differs; nothing is changed.
+        """
+        check(self._fields(), state, env)
+        index = scalar(state, "window_index", int)
+        envs = list(range(self.envs)) if env is None else [env]
+        lists = {k: from_json(state, k) for k in ("window_running", "window_tracked")}
+        for key, value in lists.items():
+            if not isinstance(value, list) or len(value) != len(envs):
+                raise StateDictError(key, f": expected a list of {len(envs)} env(s)")
+        put(self._fields(), state, env)
+        self.window_index = index
+        for e, run, tracked in zip(
+            envs, lists["window_running"], lists["window_tracked"], strict=True
+        ):
+            self.window_running[e] = [float(x) for x in run]
+            self.window_tracked[e] = [float(x) for x in tracked]
+        logs = from_json(state, "fall_log") if "fall_log" in state else [[] for _ in envs]
+        for e, log in zip(envs, logs, strict=True):
+            self.fall_log[e] = [dict(x) for x in log]
+
+    # ------------------------------------------------------------------ windows
+    def _close_windows(self, t: float) -> None:
+        """Close every window that ended by session time ``t`` (s)."""
+        index = int(t // self.success_window + 1e-9)
+        while self.window_index < index:
+            now = np.stack([self.running_time, self.tracked_time], axis=1)
+            delta = now - self._window_base
+            for e in range(self.envs):
+                self.window_running[e].append(float(delta[e, 0]))
+                self.window_tracked[e].append(float(delta[e, 1]))
+            self._window_base[:] = now
+            self.window_index += 1
+
+    def windows(self, e: int, end: float) -> list[dict]:
+        """Env ``e``'s tracking success per window of ``window`` s over ``[0, end]`` s, the open
+        window included (merged into the previous one when shorter than half a window); windows
+        without RUNNING time are left out: ``[{"start_s", "end_s", "running_s", "tracked_s",
+        "success_rate"}]``."""
+        if self.success_window is None:
+            return []
+        w = self.success_window
+        rows = [
+            [k * w, (k + 1) * w, r, x]
+            for k, (r, x) in enumerate(
+                zip(self.window_running[e], self.window_tracked[e], strict=True)
+            )
+        ]
+        start = self.window_index * w
+        last = [
+            start,
+            max(end, start),
+            float(self.running_time[e] - self._window_base[e, 0]),
+            float(self.tracked_time[e] - self._window_base[e, 1]),
+        ]
+        if rows and last[1] - start < 0.5 * w:
+            rows[-1][1] = last[1]
+            rows[-1][2] += last[2]
+            rows[-1][3] += last[3]
+        else:
+            rows.append(last)
+        return [
+            {"start_s": a, "end_s": b, "running_s": r, "tracked_s": x, "success_rate": x / r}
+            for a, b, r, x in rows
+            if r > 0
+        ]
+
+    def __call__(self, runtime, asked: np.ndarray | None = None) -> None:
+        """Account one tick of ``runtime`` (a floating-base :class:`~sim2real.deploy.runtime.Runtime`);
+        ``asked``: (envs, 3) the operator's command when it differs from the one the policy
+        was given (a heading hold's yaw rate), for ``commanded_turn``."""
+        from sim2real.deploy.core.modes import RUNNING, SAFE_STOP
+
+        running = runtime.mode == RUNNING
+        velocity = self._planar_velocity(runtime)  # (envs, 2) m/s, base frame; the truth's too
+        down = self._up & (runtime.mode >= SAFE_STOP)  # any stop lays it down (FAULTED too)
+        if down.any():
+            self.falls += down
+            for e in np.flatnonzero(down):
+                if runtime.cause[e] >= 0:
+                    self.falls_by_cause[e, runtime.cause[e]] += 1
+                self.fall_log[e].append(self._fall(runtime, e))
+        self._up &= ~down
+        self._up |= running
+        step = velocity * self.dt
+        self.distance += np.where(running, np.linalg.norm(step, axis=1), 0.0)
+        self.forward += np.where(running, step[:, 0], 0.0)
+        slot = runtime.ticks % self.window
+        self._ring[slot] = velocity
+        self._command_ring[slot] = runtime.velocity_command[:, :2]
+        self._filled = np.where(running, np.minimum(self._filled + 1, self.window), 0)
+        full = self._filled >= self.window
+        mean = self._ring.mean(axis=0)
+        error = np.linalg.norm(mean - self._command_ring.mean(axis=0), axis=1)
+        if self.success_window is not None:
+            self._close_windows(runtime.time - self.dt)  # this tick's time counts in its window
+        command = runtime.velocity_command[:, :2]
+        with np.errstate(invalid="ignore"):  # a step of the command, not a joystick's drift
+            changed = np.linalg.norm(command - self.last_command, axis=1) > TRACKING_TOLERANCE
+        self.changed_at[changed] = runtime.time
+        self.last_command[:] = command
+        settling = runtime.time - self.changed_at < SETTLE_TIME
+        self.running_time += running * self.dt
+        ok = (full & (error <= TRACKING_TOLERANCE)) | settling
+        self.tracked_time += (running & ok) * self.dt
+        self.last_yaw[~running] = np.nan
+        if not running.any():
+            return
+        from sim2real.deploy.core.attitude import yaw_of
+
+        # the truth's in simulation (the tracker filled it above), else the estimate's
+        base = self._true_base if self.truth is not None else runtime.state.base
+        # the heading's change, tick to tick (a trot's roll and pitch swing makes the integral
+        # of the yaw rate about the world's up differ from it by a fifth)
+        yaw = yaw_of(base.orientation)
+        turn = np.angle(np.exp(1j * (yaw - self.last_yaw)))  # wrapped; NaN at a walk's first tick
+        self.heading_change += np.where(running & np.isfinite(turn), turn, 0.0)
+        self.last_yaw[:] = np.where(running, yaw, np.nan)
+        begin = running & np.isnan(self.start_yaw)
+        if begin.any():
+            self.start_yaw[begin] = yaw[begin]
+        heading = np.where(np.isnan(self.start_yaw), 0.0, self.start_yaw)
+        c, s = np.cos(heading), np.sin(heading)
+        vx, vy = base.linear_velocity_world[:, 0], base.linear_velocity_world[:, 1]
+        along, across = c * vx + s * vy, -s * vx + c * vy
+        self.displacement += np.where(running[:, None], np.stack([along, across], 1), 0.0) * self.dt
+        asked = runtime.velocity_command if asked is None else asked
+        self.commanded_turn += np.where(running, asked[:, 2] * self.dt, 0.0)
+        detector = getattr(runtime, "fall_detector", None)
+        if detector is not None:
+            known = running & np.isfinite(detector.height)
+            self.height_sum += np.where(known, detector.height, 0.0) * self.dt
+            self.height_time += known * self.dt
+
+    def _fall(self, runtime, e: int) -> dict:
+        """The record of env ``e``'s fall (``fall_log``): with a fall stop, ``signals`` (which
+        of the fall check's signals fired, :data:`sim2real.deploy.estimation.fall.SIGNALS`); in
+        simulation, the true base at the stop (this tick's, filled by :meth:`_planar_velocity`):
+        ``true_height_m`` (the base origin's height above the world's origin) and
+        ``true_tilt_deg``, beside the estimate's ``tilt_deg``."""
+        from sim2real.deploy.core.modes import FAULT_CAUSES
+        from sim2real.deploy.estimation.fall import SIGNALS
+
+        cause = int(runtime.cause[e])
+        out = {"t_s": float(runtime.time), "cause": FAULT_CAUSES[cause] if cause >= 0 else None}
+        detector = getattr(runtime, "fall_detector", None)
+        if out["cause"] == "fall" and detector is not None:
+            out["signals"] = [s for s, on in zip(SIGNALS, detector.signals[e], strict=True) if on]
+        out["tilt_deg"] = float(np.degrees(tilt_of(runtime.state.base.projected_gravity[e])))
+        if self.truth is not None:
+            out["true_height_m"] = float(self._true_state[e, 2])
+            out["true_tilt_deg"] = float(np.degrees(tilt_of(self._true_base.projected_gravity[e])))
+        if out["cause"] == "hard_limit":
+            robot, q = runtime.robot, runtime.state.q[e]
+            past = np.maximum(robot.position_lower - q, q - robot.position_upper)
+            j = int(np.argmax(past))
+            out.update(joint=robot.joint_names[j], past_rad=float(past[j]))
+        return out
+
+    def causes(self, env: int | None = None) -> dict[str, int]:
+        """``{cause: falls}`` of env ``env`` (all envs summed by default), causes that occurred."""
+        from sim2real.deploy.core.modes import FAULT_CAUSES
+
+        counts = self.falls_by_cause.sum(axis=0) if env is None else self.falls_by_cause[env]
+        return {c: int(n) for c, n in zip(FAULT_CAUSES, counts, strict=True) if n}
+
+    def _planar_velocity(self, runtime) -> np.ndarray:
+        if self.truth is None:
+            return runtime.state.base.linear_velocity[:, :2].copy()
+        self._true_state = self.truth()  # (envs, 13) this tick's, for a fall's record too
+        return self._true_base.set_truth(self._true_state).linear_velocity[:, :2].copy()
+
+    def summary(self, runtime) -> dict:
+        """The report's ``locomotion`` entry (sums over the envs; speeds per RUNNING second)."""
+        running = float(self.running_time.sum())
+        return {
+            "command": runtime.velocity_command.tolist(),
+            "distance_m": float(self.distance.sum()),
+            "mean_forward_speed_m_s": float(self.forward.sum() / running) if running else None,
+            "tracking_success": float(self.tracked_time.sum() / running) if running else None,
+            "tracking_tolerance_m_s": TRACKING_TOLERANCE,
+            "settle_s": SETTLE_TIME,
+            "running_s": running,
+            "falls": int(self.falls.sum()),
+            "falls_by_cause": self.causes(),
+            "judged_on": self.judged_on,
+            "heading_change_deg": float(np.degrees(self.heading_change.sum())),
+            "commanded_turn_deg": float(np.degrees(self.commanded_turn.sum())),
+            "base_height_m": (
+                float(self.height_sum.sum() / self.height_time.sum())
+                if self.height_time.sum() > 0
+                else None
+            ),
+            "standing_height_m": self.standing_height,
+            "displacement_m": self.displacement.sum(axis=0).tolist(),
+        }
+
+
+class VelocityTask:
+    """The velocity-command task (:class:`sim2real.deploy.tasks.task.Task`) of a legged robot: a fixed
+    command, a :class:`CommandSchedule` or neither (the command the runtime holds), and a
+    :class:`CommandTracker` judging it.
+
+    Args:
+        envs, control_period, backend, window: The tracker's (:class:`CommandTracker`).
+        period: s between scheduled commands.
+        rng: ``envs`` generators: a :class:`CommandSchedule` on them; None: no schedule.
+        command: Optional fixed command (3,), written at :meth:`reset` (no schedule then).
+        heading_gain: 1/s: with a fixed command whose yaw rate is zero, hold the heading
+            (:class:`sim2real.deploy.tasks.heading.HeadingHold`, this gain); 0: the command as given.
+        ranges: The schedule's :class:`CommandRanges` (default its defaults).
+
+    Attributes:
+        heading: The :class:`~sim2real.deploy.tasks.heading.HeadingHold` (checkpoint prefix
+            ``heading``) or None.
+        schedule: The :class:`CommandSchedule` (checkpoint prefix ``commands``) or None.
+        tracker: The :class:`CommandTracker` (checkpoint prefix ``tracker``).
+    """
+
+    name = "locomotion"
+
+    def __init__(
+        self,
+        envs,
+        control_period,
+        backend,
+        period,
+        rng,
+        command=None,
+        window=None,
+        heading_gain: float = 0.0,
+        ranges: CommandRanges | None = None,
+    ):
+        self.command = command
+        self.schedule = None
+        if command is None and rng is not None:
+            self.schedule = CommandSchedule(envs, period, rng, ranges)
+        self.heading = None
+        if command is not None and heading_gain > 0 and command[2] == 0.0:
+            from sim2real.deploy.tasks.heading import HeadingHold
+
+            self.heading = HeadingHold(envs, heading_gain)
+            self._asked = np.tile(command, (envs, 1))
+        self.tracker = CommandTracker(envs, control_period, backend, window=window)
+
+    def reset(self, runtime, envs: np.ndarray) -> None:
+        """Write the fixed command, if any, for the envs of ``envs``."""
+        if self.command is not None:
+            runtime.velocity_command[envs] = self.command
+
+    def __call__(self, runtime) -> None:
+        if self.schedule is not None:
+            self.schedule(runtime)
+        if self.heading is not None:
+            self.tracker(runtime, self._asked)
+            self.heading(runtime, self._asked)
+        else:
+            self.tracker(runtime)
+
+    def success(self, env: int | None = None) -> float | None:
+        """Tracking success: RUNNING time within tolerance / RUNNING time; None before any."""
+        tr = self.tracker
+        running = float(tr.running_time.sum() if env is None else tr.running_time[env])
+        tracked = float(tr.tracked_time.sum() if env is None else tr.tracked_time[env])
+        return tracked / running if running else None
+
+    def report(self, runtime) -> dict:
+        loco = self.tracker.summary(runtime)
+        if self.heading is not None:
+            loco["command"] = self._asked.tolist()
+            loco["heading_hold_gain"] = self.heading.gain
+        return {"goals": None, "locomotion": loco, "missed_goals": 0}
+
+    def curve_start(self) -> dict[str, list]:
+        curve = {"commands": [0], "falls": [0], "distance_m": [0.0]}
+        return curve | {"running_s": [0.0], "tracked_s": [0.0]}
+
+    def curve_point(self, curve: dict[str, list], e: int) -> None:
+        tr = self.tracker
+        issued = self.schedule.issued[e] if self.schedule is not None else 0
+        curve["commands"].append(int(issued))
+        curve["falls"].append(int(tr.falls[e]))
+        curve["distance_m"].append(float(tr.distance[e]))
+        curve["running_s"].append(float(tr.running_time[e]))
+        curve["tracked_s"].append(float(tr.tracked_time[e]))
+
+    def parts(self) -> dict:
+        """The task's stateful parts by checkpoint prefix."""
+        parts = {"commands": self.schedule} if self.schedule is not None else {}
+        if self.heading is not None:
+            parts["heading"] = self.heading
+        return parts | {"tracker": self.tracker}
+
+    def state_dict(self, env: int | None = None) -> dict:
+        return {
+            f"{prefix}/{k}": v
+            for prefix, part in self.parts().items()
+            for k, v in part.state_dict(env).items()
+        }
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        for prefix, part in self.parts().items():
+            load_part(prefix, part, state, env)

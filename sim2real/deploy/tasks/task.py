@@ -1,0 +1,133 @@
+"""What a robot is asked to do, as one protocol (:class:`Task`), and the one place that chooses it
+for a robot (:func:`task_for`): reach goals (a fixed-base arm, :class:`sim2real.deploy.tasks.goals.GoalTask`)
+or follow velocity commands (a floating-base robot,
+:class:`sim2real.deploy.tasks.locomotion.VelocityTask`). ``deploy-run``, the soak and training build their
+task here; a new kind of task implements :class:`Task` and is chosen in :func:`task_for`.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from sim2real.deploy.robot_kind import robot_kind
+
+
+class Task(Protocol):
+    """A task of ``envs`` robots behind one runtime.
+
+    Attributes:
+        name: The task's section of a report: ``"goals"`` or ``"locomotion"``.
+    """
+
+    name: str
+
+    def reset(self, runtime, envs: np.ndarray) -> None:
+        """Episode start for the envs of the boolean mask ``envs``: what is drawn or written
+        then (a fixed velocity command); a goal or scheduled command is issued by the ticks."""
+
+    def __call__(self, runtime) -> None:
+        """After every tick of ``runtime``: write goals into ``runtime.goal`` or velocity
+        commands into ``runtime.velocity_command``, and account the success."""
+
+    def success(self, env: int | None = None) -> float | None:
+        """The task's success measure (of env ``env``, or of all envs): the share of goals
+        reached, or of RUNNING time tracking the command; None before there is any."""
+
+    def report(self, runtime) -> dict:
+        """``deploy-run``'s report entries: ``goals``, ``locomotion`` (one of them None) and
+        ``missed_goals``."""
+
+    def curve_start(self) -> dict[str, list]:
+        """The task's cumulative curves of a soak session, at their first point."""
+
+    def curve_point(self, curve: dict[str, list], e: int) -> None:
+        """Append env ``e``'s counts now to its ``curve`` (of :meth:`curve_start`)."""
+
+    def parts(self) -> dict:
+        """The task's stateful parts by checkpoint prefix (``goals``; ``commands``, ``tracker``)."""
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The task's state, each part's fields under its prefix (:mod:`sim2real.deploy.core.stateful`)."""
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict`; raises ``StateDictError`` (a field under its prefix)."""
+
+
+def task_for(
+    robot,
+    envs: int,
+    backend,
+    *,
+    period: float,
+    rng,
+    success_time: float = 3.0,
+    fixed: np.ndarray | None = None,
+    command: str | None = None,
+    window: float | None = None,
+    interventions=None,
+    schedule: bool = True,
+    clock: np.ndarray | None = None,
+    success_radius: float | None = None,
+    ranges=None,
+    heading_gain: float = 0.0,
+) -> Task:
+    """The task of ``robot`` (:func:`sim2real.deploy.robot_kind.robot_kind`): goals for an arm, velocity
+    commands for a legged robot.
+
+    Args:
+        robot: The robot.
+        envs: Batch size.
+        backend: The runtime's backend (a simulated plant's truth judges the task).
+        period: s of RUNNING time between new goals or scheduled commands.
+        rng: One numpy generator for the batch, or ``envs`` of them (one stream per env). A
+            legged robot's schedule needs one per env.
+        success_time: s within which a goal counts as reached (an arm).
+        fixed: Optional fixed goal (3,) m, base frame (an arm).
+        command: Optional fixed velocity command ``"VX,VY,WZ"`` (a legged robot; m/s, m/s,
+            rad/s, :func:`sim2real.deploy.tasks.locomotion.parse_command`): written at
+            :meth:`Task.reset`, none scheduled. An arm ignores it.
+        window: Optional s: account the success per window of session time too.
+        interventions: Optional :class:`sim2real.deploy.monitors.interventions.InterventionMonitor` (an
+            arm: a missed goal records the interventions during its period).
+        schedule: A legged robot without ``command``: draw a new command every ``period`` s
+            (the soak); False: the command stays as the runtime holds it (``deploy-run``).
+        clock: Training: the episodes' clock, (envs,) s; the task is episodic
+            (:mod:`sim2real.deploy.tasks.episodes`): ``period`` is an arm's goal timeout or a legged
+            robot's command period in episode time, ``rng`` the episodes' one generator.
+        success_radius: Training, an arm: m, a goal is reached within it (default the robot's
+            ``task.success_radius``).
+        ranges: A legged robot: the :class:`~sim2real.deploy.tasks.locomotion.CommandRanges` its
+            commands are drawn from, in training and in the soak's schedule (default its
+            defaults).
+        heading_gain: A legged robot with a fixed ``command`` whose yaw rate is zero: hold its
+            heading with this gain, 1/s (:class:`sim2real.deploy.tasks.heading.HeadingHold`); 0: off.
+
+    Raises:
+        ValueError: a ``command`` that is not three finite numbers (a legged robot).
+    """
+    legged = robot_kind(robot).task == "locomotion"
+    if clock is not None:
+        from sim2real.deploy.tasks.episodes import EpisodeCommands, EpisodeGoals
+        from sim2real.deploy.tasks.locomotion import CommandRanges
+
+        if legged:
+            ranges = CommandRanges() if ranges is None else ranges
+            return EpisodeCommands(envs, period, ranges, rng, clock)
+        if success_radius is None:
+            success_radius = robot.config.task.success_radius
+        return EpisodeGoals(robot, envs, period, rng, clock, success_radius)
+    if legged:
+        from sim2real.deploy.tasks.locomotion import VelocityTask, parse_command
+
+        if command is not None:
+            command = parse_command(command)
+        if command is not None or not schedule:
+            rng = None  # no schedule
+        return VelocityTask(
+            envs, robot.control_period, backend, period, rng, command, window, heading_gain, ranges
+        )
+    from sim2real.deploy.tasks.goals import GoalTask
+
+    return GoalTask(robot, envs, period, fixed, success_time, rng, window, interventions)

@@ -1,0 +1,516 @@
+"""The batched runner: several soak sessions stepped together in one plant and one runtime.
+
+Batching: one :class:`~sim2real.deploy.backends.sim.plant.SimBackend` with ``envs = k`` (one randomized
+``MjModel`` per env) and one :class:`~sim2real.deploy.runtime.Runtime` over all of them. A session's seeded
+quantities (randomization, encoder noise and dropout, goals or commands, faults, operator resets)
+depend on its own seed only, one stream per env. Every stage computes each env on its own except
+Ruckig, which serves the batch and, when it resamples an unchanged trajectory instead of
+recalculating it, differs at ~1e-16; the harness calls
+:meth:`~sim2real.deploy.smoothing.CommandSmoother.recalculate` after every tick, so a session's result is
+the same bit for bit alone or batched with any others.
+
+Checkpoints: every ``checkpoint_minutes`` of simulated time each session writes its complete state
+(:mod:`sim2real.eval.soak.checkpoint`) to ``OUT/sessions/<id>/``; ``resume=True`` continues from there and
+the finished session equals an uninterrupted run bit for bit. Before the runtime starts the plant
+streams its sensors for the largest latency the ranges allow plus one encoder period.
+
+After every tick a :class:`~sim2real.deploy.monitors.violations.ViolationMonitor` counts the true-state
+violations and an :class:`~sim2real.deploy.monitors.interventions.InterventionMonitor` the changed
+commands (before the task, so a goal's last tick counts for it); both are reported apart, per hour
+and on the curves. The task is :func:`sim2real.deploy.tasks.task.task_for`'s: reach goals, or for a legged
+robot (:func:`sim2real.deploy.robot_kind.robot_kind`) velocity commands every ``goal_period`` s with their
+tracking, distance and falls; a legged session also draws its IMU noise and floor friction, gets
+no cable pulls, and its operator resets stand the robot up first (:meth:`SessionBatch.stand_up`).
+
+Divergence: MuJoCo's (:class:`~sim2real.deploy.backends.sim.plant.SimulationDivergedError`) ends the
+session that diverged (:exc:`BatchDiverged`); the others continue from their last checkpoints
+(:func:`sim2real.eval.soak.executors.run_sessions`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sim2real.deploy.core.modes import Mode
+from sim2real.deploy.core.stateful import put, take
+from sim2real.deploy.monitors.kernel import temperature_bands
+from sim2real.deploy.robot_kind import robot_kind
+from sim2real.eval.soak import checkpoint as ckpt
+from sim2real.eval.soak.faults import SessionFaults
+from sim2real.eval.soak.result import session_result
+from sim2real.eval.soak.session import (
+    SESSIONS_DIR,
+    Session,
+    SessionConfig,
+    SessionError,
+    session_dir,
+)
+from sim2real.eval.world.drift import apply_drift, joint_dofs
+from sim2real.eval.world.dynamics import add_base_mass, randomized_model, shift_com
+from sim2real.eval.world.floor import apply_floor_friction
+from sim2real.eval.world.pushes import DomainPushes
+from sim2real.eval.world.sensors import apply_imu, apply_sensors
+from sim2real.eval.world.session_draw import sample_session, session_rng
+from sim2real.robots.errors import Sim2RealError
+from sim2real.robots.files import atomic_write, sha256_file
+
+os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+
+#: s between the harness's supervision steps (latches, operator resets, fault arming, curves).
+SUPERVISE_PERIOD = 0.1
+#: s between updates of the drifting friction.
+DRIFT_PERIOD = 10.0
+#: s of simulated time between progress reports.
+PROGRESS_PERIOD = 10.0
+#: The batch's per-env thermal accumulators a checkpoint keeps (``stats/<name>``).
+STATS = ("peak", "window_peak", "band_ticks", "over_ticks")
+
+
+class _Stats:
+    """The batch's thermal accumulators (``STATS``: winding peak, window peak, ticks in the
+    derating band, ticks over the maximum; (envs, n)) as a stage of a checkpoint
+    (:mod:`sim2real.deploy.core.stateful`)."""
+
+    def __init__(self, batch):
+        self.batch = batch
+
+    def _fields(self) -> dict[str, np.ndarray]:
+        return {name: getattr(self.batch, name) for name in STATS}
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        return take(self._fields(), env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        put(self._fields(), state, env)
+
+
+def _ticks(seconds: float, dt: float) -> int:
+    return max(int(round(seconds / dt)), 1)
+
+
+class BatchDiverged(Sim2RealError, RuntimeError):
+    """MuJoCo diverged in some envs of a batch; ``seeds`` names their sessions."""
+
+    def __init__(self, seeds: list[int], message: str):
+        super().__init__(message)
+        self.seeds = seeds
+
+
+class SessionBatch:
+    """Sessions run together through the runtime's batch axis, in this process.
+
+    Args:
+        configs: The sessions (same options but the seed).
+        out: Campaign folder; each session keeps ``sessions/<id>/`` there.
+        resume: Continue from the sessions' checkpoints (they must be at the same tick).
+        progress: Write ``progress.json`` per session every ``PROGRESS_PERIOD`` simulated s.
+        on_progress: Optional callable, called after each progress write.
+        recorders: Recorders that watch the batch, each built as ``recorder(batch)``: a class
+            with ``supervise(runtime)`` (after every control tick), ``checkpointed()`` (after
+            every checkpoint) and ``finish()`` (e.g. :class:`sim2real.eval.film.strip.FilmRecorder`, which
+            keeps every checkpoint and notes the worst moments for the film strip). A class, not
+            an instance, so that a campaign's worker processes receive it by name.
+        replay_stops: A floating-base robot's hard-limit stops are replayed without the stop
+            (:class:`sim2real.eval.soak.counterfactual.StopReplay`), so each fall says whether the robot
+            was falling anyway. False in the replay's own copy of the batch.
+
+    Raises:
+        SessionError: sessions with different options, or duplicate seeds.
+        ValueError: unreadable robot or policy (``RobotSpecError``, ``PolicyLoadError``).
+        sim2real.eval.soak.checkpoint.CheckpointError: a checkpoint that cannot be read or does not fit.
+    """
+
+    def __init__(
+        self,
+        configs: list[SessionConfig],
+        out: str | os.PathLike,
+        resume: bool = False,
+        progress: bool = True,
+        on_progress=None,
+        recorders: tuple = (),
+        replay_stops: bool = True,
+    ):
+        from sim2real.deploy.backends.sim.engines import make_plant
+        from sim2real.deploy.rig.rig import Rig
+        from sim2real.robots import load_robot
+        from sim2real.robots.plant_motors import load_plant_motors
+
+        if not configs:
+            raise SessionError("a batch needs at least one session")
+        first = configs[0]
+        for c in configs[1:]:
+            if c.batch_key() != first.batch_key():
+                raise SessionError("the sessions of a batch must share every option but the seed")
+        seeds = [c.seed for c in configs]
+        if len(set(seeds)) != len(seeds):
+            raise SessionError(f"seeds: duplicate session seeds in {seeds}")
+        self.configs = list(configs)
+        self.out = Path(out)
+        self.write_progress = progress
+        self.on_progress = on_progress
+        from sim2real.deploy.spec.drive import drive_robot
+
+        robot = load_robot(first.robot)
+        self.policy = first.load_policy(robot)
+        # the plant runs the policy's PD gains and default pose (a policy trained elsewhere)
+        robot = self.robot = drive_robot(robot, self.policy.spec)[0]
+        self.policy_sha256 = sha256_file(first.policy)
+        self.mode = mode = self.policy.spec.action.mode
+        self.dt = dt = robot.control_period
+        k = len(configs)
+        draws = [sample_session(robot, c.seed, c.duration, c.ranges, c.faults) for c in configs]
+        # the motors as the plant simulates them (sim2real.robots.plant_motors), when they differ
+        plant = None if first.plant_motors is None else load_plant_motors(first.plant_motors, robot)
+        plant_robot = robot if plant is None else plant.robot
+        models = [randomized_model(plant_robot, mode, d.dynamics) for d in draws]
+        if plant is not None:
+            models = [plant.apply(m) for m in models]
+        self.kind = robot_kind(robot)
+        for m, d in zip(models, draws, strict=True):
+            if d.floor_friction is not None:  # a legged robot's floor
+                apply_floor_friction(m, d.floor_friction)
+            if d.added_base_mass is not None:  # a payload of its training domain
+                add_base_mass(m, robot, d.added_base_mass)
+            if d.com_offset is not None:  # a centre of mass off its nominal place
+                shift_com(m, *d.com_offset)
+        backend = self.backend = make_plant(
+            first.engine, plant_robot, mode=mode, envs=k, models=models
+        )
+        backend.set_sensor_streams([session_rng(c.seed, "sensor_noise") for c in configs])
+        for e, d in enumerate(draws):
+            apply_sensors(backend, e, d.sensors)
+            backend.actuators.supply[e] = d.dynamics.supply  # the battery's charge
+            if d.encoder_bias is not None:  # each encoder's calibration error
+                backend.encoder_bias[e] = d.encoder_bias
+            if d.imu is not None:  # a legged robot's IMU
+                apply_imu(backend, e, d.imu)
+        backend.reset()  # the first readings from the sessions' own streams and settings
+        # the drives stream for a while before the runtime starts, so that a reading has arrived
+        # despite the latency (the same number of ticks for every session, alone or batched)
+        for _ in range(first.ranges.sensors.latency_ticks[1] + backend.encoder_every):
+            backend.advance()
+        dofs = joint_dofs(models[0], robot)
+        self.initial_friction = np.stack([m.dof_frictionloss[dofs].copy() for m in models])
+        self.faults = SessionFaults(backend)
+        #: the pushes of the policy's training domain (legged_gym's push_robots), or None
+        pushes = first.ranges.pushes if self.kind.legged else None
+        self.pushes = None if pushes is None else DomainPushes(seeds, pushes, dt)
+        # the runtime, started before its monitors and task are built (the soak's order): what
+        # the plant really did (true state), what the guard and smoother changed, a legged
+        # robot's base estimate against the truth, and the goals (an arm) or velocity commands
+        # (a legged robot), one stream per session
+        task = {
+            "period": first.goal_period,
+            "rng": [session_rng(c.seed, "goals") for c in configs],
+            "success_time": first.success_time,
+            "window": first.window_minutes * 60.0,
+            "ranges": first.ranges.commands,
+        }
+        self.rig = Rig(
+            robot, self.policy, backend, envs=k, task=task, runtime={"injector": self.faults},
+            start=True,
+        )  # fmt: skip
+        self.rt = self.rig.runtime
+        self.violations, self.interventions = self.rig.violations, self.rig.interventions
+        #: a legged robot's base estimate against the plant's truth (None for an arm)
+        self.estimation = self.rig.estimation
+        self.task = self.rig.task
+
+        n = robot.n_joints
+        self.peak = backend.thermal.winding_temperature.copy()
+        self.window_peak = self.peak.copy()
+        self.band_ticks = np.zeros((k, n), dtype=np.int64)
+        self.over_ticks = np.zeros((k, n), dtype=np.int64)
+        self._t_start = np.array([m.derating_start_temperature for m in robot.motors])
+        self._t_max = np.array([m.max_winding_temperature for m in robot.motors])
+        self.faulted = np.zeros(k, dtype=bool)
+        self.stats = _Stats(self)  # the accumulators above as a stage of the checkpoints
+
+        self.total_ticks = int(round(first.duration / dt))
+        self.every = _ticks(SUPERVISE_PERIOD, dt)
+        self.periods = {
+            "drift": _ticks(DRIFT_PERIOD, dt),
+            "curve": _ticks(first.curve_seconds, dt),
+            "hour": _ticks(3600.0, dt),
+            "progress": _ticks(PROGRESS_PERIOD, dt),
+        }
+        self.next_ticks = dict(self.periods)
+        self.checkpoint_ticks = (
+            _ticks(first.checkpoint_minutes * 60.0, dt) if first.checkpoint_minutes > 0 else 0
+        )
+        self.sessions = [
+            Session(self, e, c, d) for e, (c, d) in enumerate(zip(configs, draws, strict=True))
+        ]
+        self._next_event = self.every
+        self._ruckig = mode != "torque"
+        self.stop_replay = None
+        if replay_stops and self.kind.legged:
+            from sim2real.eval.soak.counterfactual import StopReplay
+
+            self.stop_replay = StopReplay(self)
+        self._wall0 = time.perf_counter()
+        if resume:
+            self._resume()
+        self.recorders = [recorder(self) for recorder in recorders]
+
+    # ------------------------------------------------------------------ lifecycle
+    def wall_elapsed(self) -> float:
+        """Wall-clock seconds this process has run the batch since it was built or resumed."""
+        return time.perf_counter() - self._wall0
+
+    def _resume(self) -> None:
+        loaded = []
+        for s in self.sessions:
+            d = session_dir(self.out, s.config.seed)
+            got = ckpt.read_checkpoint(d)
+            loaded.append((s, d, got))
+        have = [x for x in loaded if x[2] is not None]
+        if not have:
+            return
+        if len(have) != len(loaded):
+            missing = [s.config.id for s, _, got in loaded if got is None]
+            raise ckpt.CheckpointError(
+                f"sessions {missing} have no checkpoint in {self.out / SESSIONS_DIR} while others "
+                "of their batch do; resume them separately"
+            )
+        ticks = {int(got[1]["tick"]) for _, _, got in have}
+        if len(ticks) != 1:
+            raise ckpt.CheckpointError(
+                f"the checkpoints of a batch are at different ticks {sorted(ticks)} in "
+                f"{self.out / SESSIONS_DIR}"
+            )
+        _, _, (_, m0) = have[0]
+        for s, d, (arrays, meta) in have:
+            s.restore(arrays, meta, d / ckpt.MANIFEST)
+        self._align_events(m0)
+
+    def _align_events(self, meta: dict) -> None:
+        """The supervision's next ticks from a capture's ``meta``, after its restore."""
+        self.next_ticks = {k: int(v) for k, v in meta["next"].items()}
+        self._next_event = (self.rt.ticks // self.every + 1) * self.every
+        self._wall0 = time.perf_counter()
+
+    def restore(self, arrays: dict, meta: dict, where) -> None:
+        """Continue a one-session batch from its session's :meth:`Session.capture
+        <sim2real.eval.soak.session.Session.capture>` (a checkpoint's content, in memory; ``where`` names
+        it in messages). The batch then repeats the captured session tick for tick.
+
+        Raises:
+            sim2real.eval.soak.checkpoint.CheckpointError: the capture does not fit (see
+                :meth:`Session.restore <sim2real.eval.soak.session.Session.restore>`).
+            SessionError: the batch has more than one session.
+        """
+        if len(self.sessions) != 1:
+            raise SessionError(
+                f"restore: expected a batch of one session, got {len(self.sessions)}"
+            )
+        self.sessions[0].restore(arrays, meta, where)
+        self._align_events(meta)
+
+    def checkpoint(self) -> None:
+        """Write every session's checkpoint (atomically, see :mod:`sim2real.eval.soak.checkpoint`)."""
+        for s in self.sessions:
+            arrays, meta = s.capture()
+            ckpt.write_checkpoint(session_dir(self.out, s.config.seed), arrays, meta)
+
+    # ------------------------------------------------------------------ per tick
+    def on_tick(self, rt) -> None:
+        """The batch's per-tick bookkeeping after each runtime tick (monitors, goals, peaks,
+        supervision); what :meth:`run` passes to ``Runtime.run(on_tick=...)``, and a replay of
+        the session must pass too."""
+        if self._ruckig:
+            # the next step recalculates every trajectory from its input, in every env: the same
+            # numbers whatever the neighbours (see the module docstring) and across a restore
+            rt.smoother.recalculate()
+        self.rig.monitor(rt)  # violations, interventions, the base estimate, then the task
+        if self.pushes is not None:
+            self.pushes(rt, self.backend)
+        temperature_bands(
+            self.backend.thermal.winding_temperature,
+            self._t_start,
+            self._t_max,
+            self.peak,
+            self.window_peak,
+            self.band_ticks,
+            self.over_ticks,
+        )
+        if rt.ticks >= self._next_event:
+            self._supervise(rt)
+        if self.stop_replay is not None:  # last: a capture must hold this whole tick
+            self.stop_replay(rt)
+
+    def _supervise(self, rt) -> None:
+        ticks, t = rt.ticks, rt.time
+        self._next_event = ticks + self.every
+        faulted = rt.mode == Mode.FAULTED
+        if faulted.any() or self.faulted.any():
+            for e in np.flatnonzero(faulted & ~self.faulted):
+                s = self.sessions[e]
+                s.latches.append({"t_s": t, "cause": rt.cause_names()[e], "reset_s": None})
+                s.latched_since = t
+            self.faulted[:] = faulted
+            reset_after = self.configs[0].operator_reset
+            if reset_after > 0:
+                due = np.zeros_like(faulted)
+                for e in np.flatnonzero(faulted):
+                    if t - self.sessions[e].latched_since >= reset_after - 1e-9:
+                        due[e] = True
+                if self.kind.stand_up_on_reset and due.any():  # the operator stands it up first
+                    self.stand_up(due)
+                    for e in np.flatnonzero(due):
+                        self.sessions[e].stood_up += 1
+                if due.any():
+                    rt.reset_faults(due)
+                    for e in np.flatnonzero(due):
+                        s = self.sessions[e]
+                        s.operator_resets += 1
+                        s.latches[-1]["reset_s"] = t
+                    self.faulted[due] = False
+        for s in self.sessions:
+            if ticks >= s.next_fault_tick:
+                s.fault_step(ticks)
+        nt = self.next_ticks
+        if ticks >= nt["drift"]:
+            nt["drift"] += self.periods["drift"]
+            for s in self.sessions:
+                value = apply_drift(
+                    self.backend.models[s.e],
+                    self.robot,
+                    self.initial_friction[s.e],
+                    s.draw.drift,
+                    t,
+                )
+                s.friction = [float(x) for x in value]
+        if ticks >= nt["curve"]:
+            nt["curve"] += self.periods["curve"]
+            for s in self.sessions:
+                c, e = s.curve, s.e
+                c["t_s"].append(t)
+                c["winding_c"].append([float(x) for x in self.window_peak[e]])
+                self.task.curve_point(c, e)
+                now = s.counters()
+                c["violations"].append(now["violations"])
+                c["interventions"].append(now["interventions"])
+                c["mode"].append(int(rt.mode[e]))
+            self.window_peak[:] = self.backend.thermal.winding_temperature
+        if ticks >= nt["hour"]:
+            nt["hour"] += self.periods["hour"]
+            for s in self.sessions:
+                start = s.hours[-1]["end_s"] if s.hours else 0.0
+                s.hours.append(s.hour_row(start, t))
+                s.hour_base = s.counters()
+        if ticks >= nt["progress"]:
+            nt["progress"] += self.periods["progress"]
+            self._progress()
+        for recorder in self.recorders:
+            recorder.supervise(rt)
+
+    def stand_up(self, envs: np.ndarray) -> None:
+        """A legged operator's reset, first part: put the robots of ``envs`` (bool mask) back on
+        their feet, at rest at home at the start of the floor (``SimBackend.reset`` of those
+        envs: the MJCF's standing pose), their motors as warm as they were, and restart them
+        there (``Runtime.restart``: the estimators anchored at rest where the encoders read the
+        joints, as an operator's restart on hardware can only be, the session's estimator counts
+        kept, RAMP_IN). Anchored at the nominal home instead, a robot whose encoders read it with
+        an offset (``[sensors] encoder_bias``) fell 3.3 s after every stand-up."""
+        b = self.backend
+        th = b.thermal
+        winding = th.winding_temperature[envs].copy()
+        housing = th.housing_temperature[envs].copy()
+        reading = b.frame.winding_temperature[envs].copy()
+        b.reset(envs=envs)
+        th.winding_temperature[envs] = winding
+        th.housing_temperature[envs] = housing
+        b.frame.winding_temperature[envs] = reading
+        # the runtime restarts them there (estimators anchored at rest where the encoders read
+        # the joints, a lost reading at home; counts kept; RAMP_IN)
+        read = b.read().position
+        anchor = np.broadcast_to(self.robot.home, read.shape).copy()
+        anchor[envs] = np.where(np.isfinite(read[envs]), read[envs], anchor[envs])
+        self.rt.restart(envs, anchor, b.frame.time)
+
+    def _progress(self, done: bool = False) -> None:
+        if not self.write_progress:
+            return
+        try:
+            self._write_progress(done)
+        finally:
+            if self.on_progress is not None:
+                self.on_progress()
+
+    def _write_progress(self, done: bool) -> None:
+        for s in self.sessions:
+            d = session_dir(self.out, s.config.seed)
+            d.mkdir(parents=True, exist_ok=True)
+            atomic_write(
+                d / "progress.json",
+                json.dumps(
+                    {
+                        "simulated_s": self.rt.time,
+                        "total_s": self.total_ticks * self.dt,
+                        "wall_s": s.wall_s + self.wall_elapsed(),
+                        "done": done,
+                    }
+                ),
+            )
+
+    # ------------------------------------------------------------------ the run
+    def run(self) -> list[dict]:
+        """Run every session to its end (from where it stands) and return their results.
+
+        Checkpoints are written every ``checkpoint_minutes``; each finished session writes
+        ``result.json`` (atomically).
+
+        Raises:
+            BatchDiverged: MuJoCo diverged in some envs; their results are written (``diverged``
+                set), the other sessions must continue from their checkpoints.
+        """
+        from sim2real.deploy.backends.sim.plant import SimulationDivergedError
+
+        rt = self.rt
+        every = self.checkpoint_ticks
+        while rt.ticks < self.total_ticks:
+            stop = self.total_ticks
+            if every:
+                stop = min(stop, (rt.ticks // every + 1) * every)
+            try:
+                rt.run(stop - rt.ticks, on_tick=self.on_tick)
+            except SimulationDivergedError as exc:
+                self._diverged(exc)
+            if every and rt.ticks % every == 0 and rt.ticks < self.total_ticks:
+                self.checkpoint()
+                for recorder in self.recorders:
+                    recorder.checkpointed()
+        for recorder in self.recorders:
+            recorder.finish()
+        results = [session_result(s) for s in self.sessions]
+        for s, r in zip(self.sessions, results, strict=True):
+            d = session_dir(self.out, s.config.seed)
+            d.mkdir(parents=True, exist_ok=True)  # a session shorter than PROGRESS_PERIOD
+            atomic_write(d / "result.json", json.dumps(r))
+        self._progress(done=True)
+        return results
+
+    def _diverged(self, exc: Exception) -> None:
+        bad = []
+        for e in range(self.backend.envs):
+            try:
+                self.backend.check_divergence(e)
+            except Exception as err:  # noqa: BLE001 - the backend's own check, re-run per env
+                bad.append((e, str(err)))
+        if not bad:
+            bad = [(e, str(exc)) for e in range(len(self.sessions))]
+        seeds = []
+        for e, message in bad:
+            s = self.sessions[e]
+            s.diverged = message
+            d = session_dir(self.out, s.config.seed)
+            d.mkdir(parents=True, exist_ok=True)
+            atomic_write(d / "result.json", json.dumps(session_result(s)))
+            seeds.append(s.config.seed)
+        raise BatchDiverged(seeds, str(exc)) from exc

@@ -1,0 +1,80 @@
+"""What began each fall of a legged robot's soak session (:func:`attribute_falls`).
+
+A fall is counted by :class:`sim2real.deploy.tasks.locomotion.LocomotionTracker` at the stop that lays
+the robot down (its ``fall_log``: time, the stop's cause and, for a hard-limit stop, the joint
+whose estimate was past its limit and by how much). Its origin:
+
+- ``runtime_stop``: the runtime stopped a robot that had not fallen (any cause but ``fall``: a
+  hard limit, a stale sensor, non-finite actions, an overrun, an over-temperature, a drive
+  error). The runtime's response laid it down; the fault it answered, if one was active, is
+  named (``during``).
+- ``push``: the fall detector's stop (``fall``) within ``ATTRIBUTION_WINDOW`` s of a push (one
+  of the training domain's, :mod:`sim2real.eval.world.pushes`, or a ``push`` or ``cable`` fault).
+- ``fault``: the fall detector's stop within ``ATTRIBUTION_WINDOW`` s of another injected fault
+  (dropout, stale frames, latency, non-finite actions), named (``during``).
+- ``policy``: the fall detector's stop with no stop, push or fault before it: the policy lost
+  its balance in the session's world (its dynamics, floor, sensors).
+
+A hard-limit stop that the soak replayed without the stop (:mod:`sim2real.eval.soak.counterfactual`)
+carries ``would_fall``. True: the replay fell all the same (its fall detector fired within
+``HORIZON`` s), so the stop came on a robot already falling and the fall goes to what began it,
+as the fall detector's stop would (push, fault, policy), with ``stopped_while_falling`` True.
+False, or not replayed: ``runtime_stop``.
+"""
+
+from __future__ import annotations
+
+#: A fall within this long of a push or a fault's end is attributed to it, s. Our choice: 2 s,
+#: longer than a walking robot's recovery steps after a shove (a few strides of 0.3-0.4 s).
+ATTRIBUTION_WINDOW = 2.0
+#: The origins, in the order the report lists them.
+ORIGINS = ("runtime_stop", "push", "fault", "policy")
+PUSH_KINDS = ("push", "cable")
+
+
+def attribute_falls(
+    fall_log: list[dict], faults: list[dict], push_times: list[float] | None = None
+) -> list[dict]:
+    """Each fall of ``fall_log`` with its ``origin`` (module docstring) and ``during`` (the
+    fault or push it followed, or None).
+
+    Args:
+        fall_log: The tracker's records (``t_s`` s, ``cause``, optional ``joint``, ``past_rad``,
+            ``would_fall``).
+        faults: The session's faults, dicts with ``kind``, ``start_s``, ``duration_s`` (s).
+        push_times: The session times of the training domain's pushes, s.
+    """
+    pushes = sorted(push_times or [])
+    out = []
+    for fall in fall_log:
+        t = float(fall["t_s"])
+        recent = [
+            f
+            for f in faults
+            if f["start_s"] <= t <= f["start_s"] + f["duration_s"] + ATTRIBUTION_WINDOW
+        ]
+        during = recent[-1]["kind"] if recent else None
+        falling = fall.get("would_fall") is True
+        if fall.get("cause") not in (None, "fall") and not falling:
+            origin = "runtime_stop"
+        elif any(p <= t <= p + ATTRIBUTION_WINDOW for p in pushes):
+            origin, during = "push", "domain push"
+        elif any(f["kind"] in PUSH_KINDS for f in recent):
+            origin, during = "push", next(f["kind"] for f in recent if f["kind"] in PUSH_KINDS)
+        elif recent:
+            origin = "fault"
+        else:
+            origin = "policy"
+        out.append({**fall, "origin": origin, "during": during, "stopped_while_falling": falling})
+    return out
+
+
+def falls_by_origin(falls: list[dict]) -> dict[str, int]:
+    """``{origin: falls}`` over ``ORIGINS`` (every origin, zeros included)."""
+    return {o: sum(1 for f in falls if f["origin"] == o) for o in ORIGINS}
+
+
+def stops_while_falling(falls: list[dict]) -> int:
+    """How many of ``falls`` (:func:`attribute_falls`'s) began with a runtime stop on a robot
+    that its replay showed falling anyway."""
+    return sum(1 for f in falls if f.get("stopped_while_falling"))

@@ -1,0 +1,37 @@
+"""The floor of a floating-base robot's session: its sliding friction, drawn per session
+(:class:`sim2real.eval.world.session_ranges.SessionRanges` ``floor_friction``) and applied to the compiled
+plant model.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+#: Sliding friction coefficient of the floor of a floating-base robot's session, uniform. Our
+#: choice: 0.5-1.25, legged_gym's ``domain_rand.friction_range`` (LeggedRobotCfg / GO2RoughCfg in
+#: unitree_rl_gym). There it is the robot's shapes' coefficient, which PhysX averages with the
+#: terrain's 1.0 (an effective 0.75-1.125); here it is the contact's own (the floor has contact
+#: priority, :func:`apply_floor_friction`): the low end is a more slippery floor than legged_gym's.
+FLOOR_FRICTION = (0.5, 1.25)
+
+
+def floor_geoms(model: mujoco.MjModel) -> np.ndarray:
+    """Indices of the plane geoms of ``model`` (the floor)."""
+    return np.flatnonzero(model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE)
+
+
+def apply_floor_friction(model: mujoco.MjModel, friction: float) -> None:
+    """Set the sliding friction of ``model``'s floor (its plane geoms) to ``friction``, in place,
+    and give the floor contact priority: MuJoCo then takes its friction for every contact with
+    it (without priority a contact takes the larger of the two geoms' coefficients, and the feet's
+    default 1 would hide a slippery floor).
+
+    Raises:
+        ValueError: the model has no plane geom.
+    """
+    floor = floor_geoms(model)
+    if not len(floor):
+        raise ValueError("apply_floor_friction: the model has no floor (plane geom)")
+    model.geom_friction[floor, 0] = friction
+    model.geom_priority[floor] = max(int(model.geom_priority.max()), 0) + 1

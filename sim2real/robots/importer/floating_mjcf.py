@@ -1,0 +1,305 @@
+"""The MJCF of a floating-base (legged) robot: :func:`finish_floating_mjcf`.
+
+A floating-base robot gets, in its MJCF:
+
+- a MuJoCo free joint ``root`` on the root link (Pinocchio's MJCF parser reads it as its
+  free-flyer root joint, ``pin.JointModelFreeFlyer``), the base placed so that the feet touch
+  the floor at the home pose;
+- a flat floor (a plane ``floor`` in the world body) and a light;
+- a site ``imu`` at the IMU (``--imu LINK`` or an MJCF site, else a site or link named
+  ``imu``, else the root link) with MuJoCo ``gyro`` and ``accelerometer`` sensors;
+- per foot (leaf links at the end of the longest chains of movable joints, or ``--foot LINK``):
+  the foot's collision geometry kept as the description has it (a sole's box, capsules, several
+  contact spheres, a foot mesh's convex hull); only a hull the importer fitted to a compact foot
+  mesh becomes the sphere of its bounding box's mean half-size (a point foot, as legged
+  simulators model a quadruped's, ``POINT_FOOT_ASPECT``). A site ``<foot>`` encloses the foot's
+  geoms (a sphere around one sphere, else a box, ``TOUCH_MARGIN`` larger) with a MuJoCo
+  ``touch`` sensor on it (the normal force of the contacts inside the site: foot contact).
+  Geoms and site go on the nearest body a joint moves (the calf): Pinocchio's MJCF parser
+  misplaces sites of joint-less child bodies, and a touch sensor counts the contacts of its
+  own body;
+- on the other bodies a hinge moves, each hull fitted to a mesh becomes the capsule along its
+  bounding box's long axis (:func:`_box_to_capsule`); the description's own primitives stay.
+
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from sim2real.robots.importer.mjcf_geoms import drop_unused_meshes, hull_points, hull_to_box
+from sim2real.robots.importer.model import _sig
+from sim2real.robots.importer.source import PreparedSource, RobotImportError
+
+#: Name of the MuJoCo free joint of the base (Pinocchio names its free-flyer joint the same).
+FREE_JOINT = "root"
+#: Site of the IMU (its gyro and accelerometer sensors are ``imu_gyro``, ``imu_accelerometer``).
+IMU_SITE = "imu"
+#: The foot site's (its touch sensor's) margin over the foot's geoms, m: the contact point of a
+#: geom on a plane lies inside the geom by half the penetration (a few mm at most).
+TOUCH_MARGIN = 0.005
+#: A foot's box fitted to a mesh whose shortest side is at least this fraction of its longest
+#: is a point foot (a quadruped's rubber ball, go2's foot_convex.stl) and becomes the sphere of
+#: its mean half-size; a flat sole (a humanoid's) is far thinner than long and stays a box.
+POINT_FOOT_ASPECT = 0.5
+
+
+def _moving_ancestor(model: mujoco.MjModel, body: int) -> int:
+    while body > 0 and model.body_jntnum[body] == 0 and model.body_parentid[body] > 0:
+        body = model.body_parentid[body]
+    return body
+
+
+def _relative(data: mujoco.MjData, anc: int, pos: np.ndarray) -> np.ndarray:
+    return data.xmat[anc].reshape(3, 3).T @ (pos - data.xpos[anc])
+
+
+def _box_to_capsule(geom) -> None:
+    """Replace a leg link's box fitted to a mesh by the capsule along its long axis (radius: the
+    mean of the two other half-sizes; legged_gym turns its legs' cylinders into capsules too):
+    the corners of a calf's box reach below the foot once the calf leans (go2's front calves
+    touched the floor standing), a thigh's below the knee."""
+    size = np.asarray(geom.size, dtype=np.float64)
+    axis = int(np.argmax(size))
+    radius = float(np.mean(np.delete(size, axis)))
+    half = max(float(size[axis]) - radius, 1e-4)
+    # the capsule's axis is its local z: turn the box's long axis onto it
+    to_z = {0: [0.5**0.5, 0.0, 0.5**0.5, 0.0], 1: [0.5**0.5, -(0.5**0.5), 0.0, 0.0]}
+    quat = np.asarray(geom.quat, dtype=np.float64)
+    if axis in to_z:
+        out = np.zeros(4)
+        mujoco.mju_mulQuat(out, quat, np.array(to_z[axis]))
+        quat = out
+    geom.type = mujoco.mjtGeom.mjGEOM_CAPSULE
+    geom.quat = quat
+    geom.size = [radius, half, 0.0]
+
+
+#: Geom attributes copied when a foot geom moves to the body a joint moves.
+_GEOM_FIELDS = (
+    "type", "size", "contype", "conaffinity", "condim", "priority", "friction", "solmix",
+    "solref", "solimp", "margin", "gap", "rgba", "group", "meshname", "fromto",
+)  # fmt: skip
+
+
+def _move_geom(spec: mujoco.MjSpec, geom, host, pos: np.ndarray, quat: np.ndarray):
+    """A copy of ``geom`` on body ``host`` at ``pos``, ``quat`` (host frame); ``geom`` deleted."""
+    name = geom.name
+    copy = host.add_geom()
+    for attr in _GEOM_FIELDS:
+        setattr(copy, attr, getattr(geom, attr))
+    copy.pos, copy.quat = pos, quat
+    spec.delete(geom)
+    copy.name = name
+    return copy
+
+
+def _geom_points(model: mujoco.MjModel, g: int, pos, rot) -> np.ndarray:
+    """Points whose bounding box in the frame of ``pos``/``rot`` (the geom's pose there, m)
+    bounds geom ``g``: exact for spheres, capsules, boxes and meshes (their vertices); the
+    bounding box's corners for cylinders and ellipsoids."""
+    kind, size = model.geom_type[g], model.geom_size[g]
+    axes = np.vstack([np.eye(3), -np.eye(3)])
+    if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+        return pos + size[0] * axes
+    if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        ends = [pos + rot[:, 2] * size[1], pos - rot[:, 2] * size[1]]
+        return np.vstack([end + size[0] * axes for end in ends])
+    if kind == mujoco.mjtGeom.mjGEOM_MESH:
+        mesh = model.geom_dataid[g]
+        start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+        return pos + model.mesh_vert[start : start + count] @ rot.T
+    half = {
+        mujoco.mjtGeom.mjGEOM_CYLINDER: [size[0], size[0], size[1]],
+        mujoco.mjtGeom.mjGEOM_ELLIPSOID: size,
+    }.get(kind, size)
+    signs = np.array(np.meshgrid(*[[-1, 1]] * 3)).reshape(3, -1).T
+    return pos + (signs * np.asarray(half)) @ rot.T
+
+
+def _point_foot(spec: mujoco.MjSpec, geom, fitted: set[str]) -> bool:
+    """Whether a foot geom is a hull or box the importer fitted to a compact mesh (the sides of
+    its bounding box within ``POINT_FOOT_ASPECT`` of each other): it becomes a sphere."""
+    if geom.name not in fitted:
+        return False
+    if geom.type == mujoco.mjtGeom.mjGEOM_MESH:
+        pts = hull_points(spec, geom)
+        size = (pts.max(axis=0) - pts.min(axis=0)) / 2
+    elif geom.type == mujoco.mjtGeom.mjGEOM_BOX:
+        size = np.asarray(geom.size, dtype=np.float64)
+    else:
+        return False
+    return float(size.min() / size.max()) >= POINT_FOOT_ASPECT
+
+
+def finish_floating_mjcf(
+    spec: mujoco.MjSpec,
+    prepared: PreparedSource,
+    feet: list[str],
+    imu: tuple[str, str | None],
+    joint_names: list[str],
+    home: np.ndarray,
+    mjcf_path: Path,
+) -> dict:
+    """Add the free joint, floor, IMU and foot sites and sensors (module docstring) to ``spec``
+    and write the MJCF to ``mjcf_path``. ``imu``: (link, MJCF site or None).
+
+    Returns:
+        ``{"feet": foot site names, "foot_shapes": foot -> description, "standing_height": m}``.
+
+    Raises:
+        RobotImportError: a foot link without a collision geometry.
+    """
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)  # base at the origin, joints at 0
+    shapes, foot_geoms = {}, {}
+    for foot in feet:
+        body = spec.body(foot)
+        b = model.body(foot).id
+        if not list(body.geoms):
+            raise RobotImportError(
+                f"{prepared.path}: <link name='{foot}'> (a foot): no collision geometry; "
+                "expected one (its contact geometry)"
+            )
+        anc = _moving_ancestor(model, b)
+        host = spec.body(model.body(anc).name)
+        rot_anc = data.xmat[anc].reshape(3, 3)
+        points, kept, fitted_sphere = [], [], False
+        for geom in list(body.geoms):
+            g = model.geom(geom.name).id
+            pos = _relative(data, anc, data.geom_xpos[g])
+            rot = rot_anc.T @ data.geom_xmat[g].reshape(3, 3)
+            if _point_foot(spec, geom, prepared.fitted_geoms):  # a point foot, as legged sims
+                if geom.type == mujoco.mjtGeom.mjGEOM_MESH:
+                    hull_to_box(spec, geom)
+                geom.type = mujoco.mjtGeom.mjGEOM_SPHERE
+                geom.size = [_sig(float(np.mean(geom.size)), 3), 0.0, 0.0]
+                fitted_sphere = True
+                model = spec.compile()  # the sphere's size for the points below
+                data = mujoco.MjData(model)
+                mujoco.mj_kinematics(model, data)
+                g = model.geom(geom.name).id
+            points.append(_geom_points(model, g, pos, rot))
+            if anc != b:  # the touch sensor counts the contacts of its site's body
+                spec_pos = np.asarray(geom.pos, dtype=np.float64)
+                spec_quat = np.asarray(geom.quat, dtype=np.float64)
+                spec_quat = spec_quat / np.linalg.norm(spec_quat)
+                rel = _relative(data, anc, data.xpos[b] + data.xmat[b].reshape(3, 3) @ spec_pos)
+                q, inv = np.zeros(4), np.zeros(4)
+                mujoco.mju_negQuat(inv, data.xquat[anc])
+                mujoco.mju_mulQuat(q, inv, data.xquat[b])
+                mujoco.mju_mulQuat(q, q.copy(), spec_quat)
+                geom = _move_geom(spec, geom, host, rel, q)
+            kept.append(geom)
+        foot_geoms[foot] = [g.name for g in kept]
+        pts = np.vstack(points)
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        one = kept[0] if len(kept) == 1 else None
+        if one is not None and one.type == mujoco.mjtGeom.mjGEOM_SPHERE:
+            r = float(one.size[0])
+            host.add_site(name=foot, size=[r + TOUCH_MARGIN, 0, 0], pos=(lo + hi) / 2)
+            made = " (the mean half-size of its compact mesh's box)" if fitted_sphere else ""
+            shapes[foot] = f"a sphere of radius {r:g} m{made}"
+        else:
+            host.add_site(
+                name=foot,
+                type=mujoco.mjtGeom.mjGEOM_BOX,
+                size=(hi - lo) / 2 + TOUCH_MARGIN,
+                pos=(lo + hi) / 2,
+            )
+            kinds = sorted({mujoco.mjtGeom(int(g.type)).name[7:].lower() for g in kept})
+            size = " x ".join(f"{x * 100:.1f}" for x in hi - lo)
+            count = f"{len(kept)} geoms" if len(kept) > 1 else "1 geom"
+            shapes[foot] = f"{count} ({', '.join(kinds)}) in a {size} cm box"
+        spec.add_sensor(
+            name=f"{foot}_touch",
+            type=mujoco.mjtSensor.mjSENS_TOUCH,
+            objtype=mujoco.mjtObj.mjOBJ_SITE,
+            objname=foot,
+        )
+    on_feet = {name for names in foot_geoms.values() for name in names}
+    for body in spec.bodies:  # leg links (bodies a hinge moves): capsules, as legged_gym's
+        if any(j.type == mujoco.mjtJoint.mjJNT_HINGE for j in body.joints):
+            for geom in list(body.geoms):
+                if geom.name in prepared.fitted_geoms and geom.name not in on_feet:
+                    if geom.type == mujoco.mjtGeom.mjGEOM_MESH:
+                        hull_to_box(spec, geom)
+                    if geom.type == mujoco.mjtGeom.mjGEOM_BOX:
+                        _box_to_capsule(geom)
+    drop_unused_meshes(spec)
+    _add_imu(spec, model, data, imu)
+
+    # standing height: the lowest point of the feet touches the floor at the home pose
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    data.qpos[:] = home
+    mujoco.mj_kinematics(model, data)
+    bottom = min(
+        float(
+            _geom_points(model, g, data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3))[:, 2].min()
+        )
+        for names in foot_geoms.values()
+        for g in (model.geom(n).id for n in names)
+    )
+    root_z = float(data.xpos[model.body(prepared.root_link).id][2])  # an MJCF places its root
+    height = _sig(root_z - bottom, 4)
+    root = spec.body(prepared.root_link)
+    root.pos = [0.0, 0.0, height]
+    root.quat = [1.0, 0.0, 0.0, 0.0]
+    free = root.add_freejoint(name=FREE_JOINT)
+    if root.childclass:  # else MuJoCo writes it class="main" there, which Pinocchio cannot read
+        free.classname = spec.find_default(root.childclass)
+    spec.worldbody.add_geom(
+        name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05], rgba=[0.5] * 3 + [1]
+    )
+    spec.worldbody.add_light(
+        name="sun", pos=[0, 0, 3], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
+    )
+    spec.compile()
+    xml = spec.to_xml()
+    if prepared.meshdir_abs is not None:
+        xml = xml.replace(
+            f'meshdir="{prepared.meshdir_abs}"', f'meshdir="{prepared.meshdir_uri}"', 1
+        )
+    spheres = all(shape.startswith("a sphere") for shape in shapes.values())
+    feet_words = "foot spheres" if spheres else "foot sites around the foot geoms"
+    header = (
+        f"<!-- Generated by robot-import (floating base) from {prepared.display} with MuJoCo's "
+        f"{prepared.kind} compiler (mujoco.MjSpec). Radians, explicit inertials, no actuators "
+        "(Robot.mjspec adds them per control mode). A free joint 'root' on the base, a flat "
+        f"floor, an IMU site with gyro and accelerometer, {feet_words} with touch sensors. -->\n"
+    )
+    mjcf_path.write_text(header + xml, encoding="utf-8")
+    return {"feet": list(feet), "foot_shapes": shapes, "standing_height": height}
+
+
+def _add_imu(spec, model, data, imu: tuple[str, str | None]) -> None:
+    """The ``imu`` site (at the IMU link's frame, or at the MJCF's IMU site) on the nearest body
+    a joint moves, and its gyro and accelerometer."""
+    link, site = imu
+    b = model.body(link).id
+    anc = _moving_ancestor(model, b)
+    if site is None:
+        pos, xmat = data.xpos[b], data.xmat[b]
+    else:
+        s = model.site(site).id
+        pos, xmat = data.site_xpos[s], data.site_xmat[s]
+    quat, inv, imu_quat = np.zeros(4), np.zeros(4), np.zeros(4)
+    mujoco.mju_mat2Quat(quat, xmat)
+    mujoco.mju_negQuat(inv, data.xquat[anc])
+    mujoco.mju_mulQuat(imu_quat, inv, quat)
+    old = spec.site(IMU_SITE)
+    if old is not None:  # the MJCF's own 'imu' site: replaced by the one placed here
+        spec.delete(old)
+    spec.body(model.body(anc).name).add_site(
+        name=IMU_SITE, size=[0.01, 0.01, 0.01], pos=_relative(data, anc, pos), quat=imu_quat
+    )
+    for kind, name in (
+        (mujoco.mjtSensor.mjSENS_GYRO, "imu_gyro"),
+        (mujoco.mjtSensor.mjSENS_ACCELEROMETER, "imu_accelerometer"),
+    ):
+        spec.add_sensor(name=name, type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=IMU_SITE)

@@ -1,0 +1,277 @@
+"""The Robot: one description (MJCF + robot.toml) from which MuJoCo and Pinocchio are both built.
+
+Holds :class:`Robot` and :class:`RobotSpecError`; :mod:`sim2real.robots.loading` reads and validates a
+description into a Robot (:func:`sim2real.robots.loading.load_robot`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+
+from sim2real.robots.errors import Sim2RealError
+from sim2real.robots.schema import CONTROL_MODES, MotorConfig, RobotConfig
+
+
+class RobotSpecError(Sim2RealError, ValueError):
+    """A robot description is invalid.
+
+    The message names the file, the field and what was expected.
+    """
+
+
+@dataclass(frozen=True, eq=False)
+class Robot:
+    """A validated robot: spec, MuJoCo model and Pinocchio model built from the same MJCF.
+
+    Arrays are read-only, shaped ``(n_joints,)``, in the joint order of ``joint_names``.
+
+    Attributes:
+        name: Robot name from robot.toml.
+        directory: Folder holding robot.toml and the MJCF.
+        mjcf_path: Path of the MJCF file MuJoCo and Pinocchio read: the robot folder's, or a
+            copy with its ``package://`` meshdir resolved (see
+            ``sim2real.robots.packages.resolved_mjcf``).
+        config: The validated robot.toml (``sim2real.robots.schema.RobotConfig``).
+        joint_names: Joint names in kinematic (and action/observation) order.
+        position_lower, position_upper: Hard joint limits, rad.
+        soft_lower, soft_upper: Soft limits (``soft_limit_fraction`` of the range about its
+            centre), rad. Crossing one is a warning, not a violation.
+        velocity_limit: Hard velocity limit, rad/s: the joint itself must stay within it.
+        soft_velocity_limit: ``soft_limit_fraction`` of ``velocity_limit``, rad/s. The margin
+            is for the drive's servo, which tracks a velocity command with overshoot (figures:
+            docs/measurements.md).
+        command_velocity_limit: rad/s, the fastest command the smoother issues: robot.toml's
+            ``command_velocity_limit`` of the joint, else ``soft_velocity_limit``. A legged
+            robot's PD position targets have their own (``robot-import --target-limits pd``,
+            :func:`sim2real.robots.importer.legged.pd_target_limits`): its drive, not its target's
+            speed, bounds how fast the joint moves.
+        acceleration_limit: rad/s^2. jerk_limit: rad/s^3.
+        effort_limit: N m at the joint.
+        motors: The motor of each joint, per joint.
+        home: Home pose, rad.
+        control_period: 1 / control_rate, s. physics_timestep: s.
+        decimation: Physics steps per control tick (an integer; checked).
+        mj_model: MuJoCo model without actuators (kinematics and dynamics reference).
+        pin_model: Pinocchio model; velocity and effort limits set from robot.toml, gravity from
+            the MJCF ``<option gravity>``.
+        ee_frame_id: Pinocchio frame id of the end-effector site.
+        ee_site_id: MuJoCo site id of the end-effector site.
+        description_hash: sha256 (hex) of the robot.toml fields except ``[task]``, ``[soak]``
+            and ``[unitree]`` (canonical JSON) and the MJCF bytes; a policy records it.
+        floating_base: True for a robot whose base moves freely (``[base]`` in robot.toml):
+            MuJoCo's ``<freejoint>`` (qpos ``[x y z, qw qx qy qz, joints]``, qvel ``[v world,
+            omega body, dq]``) and Pinocchio's free-flyer root joint (q ``[x y z, qx qy qz qw,
+            joints]``, v ``[v body, omega body, dq]``). False for a fixed-base arm (the fields
+            below are then empty or -1).
+        base_body: MuJoCo body (and Pinocchio frame) of the base; None for an arm.
+        base_frame_id: Pinocchio frame id of ``base_body``.
+        imu_site: Site of the gyroscope and accelerometer; imu_site_id (MuJoCo),
+            imu_frame_id (Pinocchio).
+        foot_sites: One site a foot (centre of its contact sphere); foot_site_ids (MuJoCo),
+            foot_frame_ids (Pinocchio), in the order of ``[base] feet``.
+    """
+
+    name: str
+    directory: Path
+    mjcf_path: Path
+    config: RobotConfig
+    joint_names: tuple[str, ...]
+    position_lower: np.ndarray
+    position_upper: np.ndarray
+    soft_lower: np.ndarray
+    soft_upper: np.ndarray
+    velocity_limit: np.ndarray
+    soft_velocity_limit: np.ndarray
+    command_velocity_limit: np.ndarray
+    acceleration_limit: np.ndarray
+    jerk_limit: np.ndarray
+    effort_limit: np.ndarray
+    motors: tuple[MotorConfig, ...]
+    home: np.ndarray
+    control_period: float
+    physics_timestep: float
+    decimation: int
+    mj_model: mujoco.MjModel = field(repr=False)
+    pin_model: pin.Model = field(repr=False)
+    ee_frame_id: int
+    ee_site_id: int
+    description_hash: str
+    floating_base: bool = False
+    base_body: str | None = None
+    base_frame_id: int = -1
+    imu_site: str | None = None
+    imu_site_id: int = -1
+    imu_frame_id: int = -1
+    foot_sites: tuple[str, ...] = ()
+    foot_site_ids: tuple[int, ...] = ()
+    foot_frame_ids: tuple[int, ...] = ()
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def n_feet(self) -> int:
+        """Number of feet (0 for a fixed-base arm)."""
+        return len(self.foot_sites)
+
+    @property
+    def qpos_offset(self) -> int:
+        """Index of the first joint angle in MuJoCo's ``qpos`` (7 with a free joint, else 0)."""
+        return 7 if self.floating_base else 0
+
+    @property
+    def qvel_offset(self) -> int:
+        """Index of the first joint velocity in MuJoCo's ``qvel`` (6 with a free joint, else 0)."""
+        return 6 if self.floating_base else 0
+
+    def pin_configuration(
+        self,
+        q: np.ndarray,
+        base_position: np.ndarray | None = None,
+        base_quaternion: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Pinocchio configuration from joint angles ``q`` (rad, (n,)) and, for a floating base,
+        its position (m, world, (3,), default 0) and orientation (unit quaternion ``[w, x, y,
+        z]`` as MuJoCo orders it, default identity); Pinocchio orders it ``[x, y, z, w]``."""
+        q = np.asarray(q, dtype=np.float64)
+        if not self.floating_base:
+            return q
+        pos = np.zeros(3) if base_position is None else np.asarray(base_position, np.float64)
+        wxyz = np.array([1.0, 0, 0, 0]) if base_quaternion is None else base_quaternion
+        wxyz = np.asarray(wxyz, dtype=np.float64)
+        return np.concatenate([pos, wxyz[1:], wxyz[:1], q])
+
+    @cached_property
+    def fixed_base_model(self) -> pin.Model:
+        """Pinocchio model of the joints alone, ``nq = n_joints``: ``pin_model`` for a fixed-base
+        arm; for a floating base, ``pin_model`` with its free-flyer locked at the origin, upright
+        (``pin.buildReducedModel``): the base frame is the world frame. The guard's kinematics,
+        gravity torques (the legs in the air) and self-collisions run on it."""
+        if not self.floating_base:
+            return self.pin_model
+        return pin.buildReducedModel(self.pin_model, [1], pin.neutral(self.pin_model))
+
+    def fixed_base_geometry(self, geom: pin.GeometryModel) -> pin.GeometryModel:
+        """A geometry model built on ``pin_model``, attached to :attr:`fixed_base_model` instead
+        (the same object for a fixed-base arm)."""
+        if not self.floating_base:
+            return geom
+        return pin.buildReducedModel(self.pin_model, geom, [1], pin.neutral(self.pin_model))[1]
+
+    def foot_positions(
+        self,
+        q: np.ndarray,
+        base_position: np.ndarray | None = None,
+        base_quaternion: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Foot site positions (m, world frame), shape (n_feet, 3), for joint angles ``q`` (rad)
+        and the base pose (see :meth:`pin_configuration`; default: base frame)."""
+        data = self.pin_model.createData()
+        pin.framesForwardKinematics(
+            self.pin_model, data, self.pin_configuration(q, base_position, base_quaternion)
+        )
+        return np.array([data.oMf[f].translation for f in self.foot_frame_ids]).reshape(-1, 3)
+
+    @property
+    def control_mode(self) -> str:
+        """Default control mode from robot.toml: 'position', 'velocity' or 'torque'."""
+        return self.config.control.mode
+
+    def mjspec(self, mode: str | None = None) -> mujoco.MjSpec:
+        """A fresh ``mujoco.MjSpec`` of the robot with its drives for ``mode``.
+
+        Position mode: a PD servo per joint (``kp``, ``kd``). Velocity mode: a drive's PI velocity
+        loop, ``tau = kd (v_cmd - dq) + kp (s - q)`` with the setpoint ``s`` the integral of the
+        command (bounded to the joint range), as two actuators per joint that take the same
+        command: ``<joint>_velocity`` (MuJoCo ``intvelocity`` with ``kp``: the integral term) and
+        ``<joint>_velocity_p`` (MuJoCo ``velocity`` with ``kd``: the proportional term). The
+        proportional term on the command matters: a servo that damps ``dq`` instead of
+        ``v_cmd - dq`` lags ``a kd / kp`` behind an accelerating command (1.5 rad/s at 20 rad/s^2
+        on arm3) and overshoots when it catches up. Torque mode: a direct motor. The total
+        actuator torque on each joint is limited to ``effort_limit`` (MuJoCo
+        ``actuatorfrcrange``). Edit the returned spec (for example to randomize link lengths)
+        and ``compile()`` it; :meth:`actuators_per_joint` gives ``nu / n_joints``.
+
+        Raises:
+            RobotSpecError: unknown control mode.
+        """
+        mode = self.control_mode if mode is None else mode
+        if mode not in CONTROL_MODES:
+            raise RobotSpecError(
+                f"{self.directory / 'robot.toml'}: control mode '{mode}' is unknown; "
+                f"expected one of {CONTROL_MODES}"
+            )
+        spec = mujoco.MjSpec.from_file(str(self.mjcf_path))
+        spec.option.timestep = self.physics_timestep
+        spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
+
+        def add(name: str, joint: str, lo: float, hi: float) -> mujoco.MjsActuator:
+            act = spec.add_actuator()
+            act.name, act.target, act.trntype = name, joint, mujoco.mjtTrn.mjTRN_JOINT
+            act.ctrlrange = [lo, hi]
+            act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            return act
+
+        for i, joint in enumerate(self.config.joints):
+            mj_joint = spec.joint(joint.name)
+            mj_joint.actfrcrange = [-self.effort_limit[i], self.effort_limit[i]]
+            mj_joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            lo, hi = self.position_lower[i], self.position_upper[i]
+            if mode == "position":
+                add(f"{joint.name}_position", joint.name, lo, hi).set_to_position(
+                    kp=joint.kp, kv=joint.kd
+                )
+            elif mode == "torque":
+                effort = self.effort_limit[i]
+                add(f"{joint.name}_torque", joint.name, -effort, effort).set_to_motor()
+        if mode == "velocity":  # all integral terms first, then all proportional terms
+            for i, joint in enumerate(self.config.joints):
+                vmax = self.velocity_limit[i]
+                act = add(f"{joint.name}_velocity", joint.name, -vmax, vmax)
+                act.set_to_intvelocity(kp=joint.kp, kv=0.0)
+                act.actrange = [self.position_lower[i], self.position_upper[i]]
+                act.actlimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            for i, joint in enumerate(self.config.joints):
+                vmax = self.velocity_limit[i]
+                add(f"{joint.name}_velocity_p", joint.name, -vmax, vmax).set_to_velocity(
+                    kv=joint.kd
+                )
+        return spec
+
+    def actuators_per_joint(self, mode: str | None = None) -> int:
+        """Actuators per joint of :meth:`mjspec` in ``mode`` (2 in velocity mode, else 1); each
+        takes the joint's command, ordered ``[all joints' first, all joints' second]``."""
+        mode = self.control_mode if mode is None else mode
+        return 2 if mode == "velocity" else 1
+
+    def plant_model(self, mode: str | None = None) -> mujoco.MjModel:
+        """Compiled MuJoCo model with actuators for ``mode`` (see :meth:`mjspec`)."""
+        return self.mjspec(mode).compile()
+
+    def forward_kinematics(self, q: np.ndarray) -> np.ndarray:
+        """End-effector position (m, base frame), shape (3,), for one configuration ``q`` (rad).
+
+        Raises:
+            RobotSpecError: the robot names no end-effector site (a floating-base robot).
+        """
+        if self.ee_frame_id < 0:
+            raise RobotSpecError(
+                f"{self.directory / 'robot.toml'}: field 'safety.end_effector_site' is not set"
+            )
+        data = self.pin_model.createData()
+        pin.framesForwardKinematics(self.pin_model, data, self.pin_configuration(q))
+        return data.oMf[self.ee_frame_id].translation.copy()
+
+    def gravity_torque(self, q: np.ndarray) -> np.ndarray:
+        """Joint torques (N m), shape (n_joints,), that hold configuration ``q`` against gravity
+        (a floating base: held upright at the origin, the legs in the air)."""
+        data = self.pin_model.createData()
+        g = pin.computeGeneralizedGravity(self.pin_model, data, self.pin_configuration(q))
+        return g[self.qvel_offset :].copy()

@@ -10,7 +10,9 @@ its actions pass through the runtime's :class:`~sim2real.deploy.safety.guard.Saf
 before they reach the drives. What the guard and the smoother changed is an *intervention* and is
 penalized: a policy that leans on the guard fails on a robot whose guard is tuned differently.
 
-:class:`ReachTask` is the batched core (arrays shaped (envs, ...)); :class:`ArmReachEnv` is the
+:class:`ReachTask` is the batched core (arrays shaped (envs, ...)), built through the one assembly of a
+run (:class:`~sim2real.deploy.rig.rig.Rig`: the runtime's stages and state, the intervention monitor, the
+goals) and stepping those stages itself, without the runtime's supervision; :class:`ArmReachEnv` is the
 Gymnasium env of one robot, :class:`ReachVecEnv` the Stable-Baselines3 ``VecEnv`` of many robots
 stepped in lockstep by one ``SimBackend``.
 
@@ -35,20 +37,16 @@ import gymnasium as gym
 import numpy as np
 
 from sim2real.deploy.backends.sim.plant import SimBackend
-from sim2real.deploy.core.state import Kinematics, RobotState
-from sim2real.deploy.estimation.joints import JointStateEstimator
-from sim2real.deploy.monitors.interventions import InterventionMonitor
+from sim2real.deploy.rig.rig import Rig
 from sim2real.deploy.runtime import reanchor
-from sim2real.deploy.safety.guard import SafetyGuard
-from sim2real.deploy.smoothing import CommandSmoother
 from sim2real.deploy.spec.policy_spec import PolicySpec
-from sim2real.deploy.tasks.task import task_for
 from sim2real.eval.world.dynamics import Dynamics, DynamicsRanges, randomized_model, sample_dynamics
 from sim2real.eval.world.fault_schedule import FaultRanges
 from sim2real.eval.world.sensors import SensorRanges, sample_sensors
 from sim2real.eval.world.session_draw import sample_faults
 from sim2real.eval.world.session_ranges import session_ranges
 from sim2real.policies.episode_faults import EpisodeFaults, training_fault_ranges
+from sim2real.policies.locomotion import LearnerPolicy
 from sim2real.robots import Robot
 
 #: The stream of the episodes' fault seeds (``numpy.random.default_rng([seed, FAULT_SEEDS])``):
@@ -224,12 +222,35 @@ class ReachTask:
         self.fault_ranges = training_fault_ranges(config.fault_ranges, config.fault_interval)
         self._fault_seeds = np.random.default_rng([seed, FAULT_SEEDS])
         self.fault_seed = np.zeros(envs, dtype=np.int64)  # each env's episode fault seed
-        self.estimator = JointStateEstimator(robot, envs)
-        self.kinematics = Kinematics(robot)
-        self.smoother = CommandSmoother(robot, envs, config.mode)
-        self.guard = SafetyGuard(robot, envs, config.mode)
-        self.guard.trust_estimate(self.estimator.covariance)  # as the runtime does
-        # the estimator's control input, as in the runtime (sim2real.deploy.runtime.Runtime)
+        self.success_radius = (
+            robot.config.task.success_radius
+            if config.success_radius is None
+            else float(config.success_radius)
+        )
+        self.t_episode = np.zeros(envs)
+        #: the run (sim2real.deploy.rig): the runtime's stages, state and estimator input, the
+        #: intervention monitor, the chained goals (sim2real.deploy.tasks.episodes.EpisodeGoals:
+        #: issued, reached, missed). :meth:`step` runs the stages itself, in the tick's order but
+        #: without the runtime's supervision (no RAMP_IN, no safe stops: an episode ends instead),
+        #: the learner's action given to it, so the runtime's policy slot is never called.
+        self.rig = Rig(
+            robot,
+            LearnerPolicy(self.spec, envs),
+            self.backend,
+            envs=envs,
+            task={
+                "period": config.goal_timeout,
+                "rng": self.rng,
+                "clock": self.t_episode,
+                "success_radius": self.success_radius,
+            },
+            truth=False,
+            reset_task=False,
+        )
+        rt = self.rig.runtime
+        self.estimator, self.kinematics, self.state = rt.estimator, rt.kinematics, rt.state
+        self.guard, self.smoother = rt.guard, rt.smoother
+        # the estimator's control input, the runtime's (SafetyGuard.estimator_input)
         self._input = self.guard.estimator_input(self.smoother)
         # velocity mode: the guard's stopping bounds read Ruckig's integrated position too
         self._commanded = self.smoother.position if config.mode == "velocity" else None
@@ -237,12 +258,6 @@ class ReachTask:
         self._tracking = np.zeros(envs)
         self._continuous = np.array([m.continuous_torque for m in robot.motors])
         self._start_poses = np.asarray(config.start_poses, dtype=np.float64).reshape(-1, self.n)
-        self.success_radius = (
-            robot.config.task.success_radius
-            if config.success_radius is None
-            else float(config.success_radius)
-        )
-        self.state = RobotState.zeros(envs, self.n, robot.config.sensors.ambient_temperature)
         self.randomize = config.dynamics != DynamicsRanges.none()
         self.dynamics = [Dynamics.nominal(self.n)] * envs
         self._ws_min = np.asarray(robot.config.safety.workspace_min)
@@ -252,17 +267,7 @@ class ReachTask:
         self._cmd = np.zeros((envs, self.n))
         self._distance = np.zeros(envs)
         self._prev_dq = np.zeros((envs, self.n))
-        self.t_episode = np.zeros(envs)
-        #: the goals, chained (sim2real.deploy.tasks.episodes.EpisodeGoals: goals issued, reached, missed)
-        self.task = task_for(
-            robot,
-            envs,
-            self.backend,
-            period=config.goal_timeout,
-            rng=self.rng,
-            clock=self.t_episode,
-            success_radius=self.success_radius,
-        )
+        self.task = self.rig.task
         self.goal = self.task.goal  # (envs, 3) m
         # per-episode statistics
         self.limit_violations = np.zeros(envs, dtype=np.int64)
@@ -270,8 +275,10 @@ class ReachTask:
         self.ticks = np.zeros(envs, dtype=np.int64)
         self.episode_return = np.zeros(envs)
         self.reset(np.ones(envs, dtype=bool))
-        # the soak's definition of an intervention (sim2real.deploy.monitors.interventions), counted per tick
-        self.monitor = InterventionMonitor(self.guard, self.smoother)
+        # the soak's definition of an intervention (sim2real.deploy.monitors.interventions), counted
+        # per tick from the counters as the first episodes start
+        self.monitor = self.rig.interventions
+        self.monitor.resync()
         self._any_before = np.zeros(envs, dtype=np.int64)
 
     # ------------------------------------------------------------------ resets

@@ -53,7 +53,7 @@ def shipped(tmp_path_factory):
 
     def path(name: str) -> str:
         if name not in cache:
-            src = os.path.join(ROOT, "policies", f"{name}.pt")
+            src = os.path.join(ROOT, "sim2real", "policies", f"{name}.pt")
             cache[name] = str(export_policy(src, out=folder / f"{name}.onnx"))
         return cache[name]
 

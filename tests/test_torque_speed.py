@@ -86,7 +86,7 @@ def _so101_with_delay(tmp_path, delay: float):
 
     root = Path(__file__).resolve().parent.parent
     folder = tmp_path / f"so101_delay_{delay:g}"
-    shutil.copytree(root / "robots" / "so101", folder)
+    shutil.copytree(root / "sim2real" / "robots" / "so101", folder)
     # the catalog file as robot.toml's table (its sub-tables under it), the delay added
     motor = motor_catalog()["sts3215"].read_text().replace("\n[", "\n[motors.sts3215.")
     toml = folder / "robot.toml"

@@ -61,7 +61,7 @@ def _environment() -> jinja2.Environment:
     """The templates' environment: the package's ``templates`` folder (found in an installed
     package too), autoescaped, undefined names an error."""
     env = jinja2.Environment(
-        loader=jinja2.PackageLoader("eval", "templates"),
+        loader=jinja2.PackageLoader("sim2real.eval", "templates"),
         autoescape=True,
         trim_blocks=True,
         lstrip_blocks=True,

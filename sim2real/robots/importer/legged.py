@@ -256,9 +256,7 @@ def write_legged_toml(
         "# line if the drives report none.",
         f"velocity_noise_sigma = {_f(VELOCITY_NOISE_SIGMA)}  # rad/s",
         "",
-        "# IMU at site 'imu' (link "
-        + imu_link
-        + "): Kalibr's noise model (sim2real/robots/schema.py).",
+        "# IMU at site 'imu' (link " + imu_link + "): Kalibr's noise model (robots/schema.py).",
         "[sensors.imu]",
         "# specified noise: angular rate sigma 0.01-0.03 over 4 rad/s (legged_gym ang_vel scale",
         "# 0.25), linear acceleration 0.03-0.08 over g; the middle of each range",
@@ -276,7 +274,7 @@ def write_legged_toml(
         "dropout = 0.0",
         "# The IMU's own attitude, as a legged robot's AHRS sends it (Unitree's LowState",
         "# imu_state.quaternion, the attitude unitree_rl_gym's deploy_real feeds its policies):",
-        "# roll and pitch errors as first-order Gauss-Markov processes (sim2real/robots/schema.py); the",
+        "# roll and pitch errors as first-order Gauss-Markov processes (robots/schema.py); the",
         "# static roll/pitch accuracy MEMS AHRS modules specify (Xsens MTi-3 datasheet: 0.5 deg;",
         "# dynamic 1.0 deg), 1 s correlation. Delete both lines if the IMU sends no attitude.",
         f"orientation_sigma = {_f(ORIENTATION_SIGMA)}  # rad",

@@ -68,7 +68,7 @@ class ImportReport:
 def resolve_source(source: str) -> Path:
     """Path of a description named ``PACKAGE:relative/path`` (e.g.
     ``example-robot-data:so_arm_description/urdf/so101.urdf``, looked up under the installed
-    package's folder and its ``sim2real/robots/`` folder) or a plain path.
+    package's folder and its ``robots/`` folder) or a plain path.
 
     Raises:
         RobotImportError: no such file.

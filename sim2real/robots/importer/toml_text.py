@@ -111,7 +111,7 @@ def sensor_lines(
     catalog = sorted(set(chosen.values()) - set(files))
     where = []
     if catalog:
-        where.append("Motors " + ", ".join(catalog) + ": the catalog, sim2real/robots/motors/.")
+        where.append("Motors " + ", ".join(catalog) + ": the catalog, robots/motors/.")
     if files:
         where.append("Motors " + ", ".join(sorted(files)) + ": [motors.*] tables at the end.")
     return [
@@ -134,7 +134,7 @@ def sources_lines(kind: str) -> list[str]:
     return [
         f"# Joint order and position limits from the {kind}; velocity and effort limits are the "
         "lower",
-        f"# of the {kind}'s and the motor's (sim2real/robots/motors/<model>.toml); SI units, radians.",
+        f"# of the {kind}'s and the motor's (robots/motors/<model>.toml); SI units, radians.",
     ]
 
 

@@ -26,9 +26,9 @@ def _burn() -> None:  # pragma: no cover - runs in a child process until termina
 
 
 def _row(name: str, report: dict) -> dict:
-    d = report["deadline"]
-    ticks = int(round(float(report["duration_s"]) * report["control_rate_hz"]))
-    long = d.get("long_ticks", [])
+    from bench.session import deadline_figures
+
+    long = report["deadline"].get("long_ticks", [])
     causes: dict[str, int] = {}
     for t in long:
         if t["overran"]:
@@ -36,10 +36,7 @@ def _row(name: str, report: dict) -> dict:
     loco = report.get("locomotion") or {}
     return {
         "robot": name,
-        "ticks": ticks,
-        "overruns": int(d["overruns"]),
-        "missed_periods": int(d["missed_periods"]),
-        "overrun_rate": d["overruns"] / ticks if ticks else float("nan"),
+        **deadline_figures(report),
         "final_state": report["final_state"],
         "final_cause": report["final_cause"],
         "falls": loco.get("falls"),

@@ -98,12 +98,12 @@ def measure(
     Raises:
         RuntimeError: a worker failed (its traceback is in the message) or timed out.
     """
+    from bench.common import environment
+
     ctx = mp.get_context("spawn")
     barrier = ctx.Barrier(workers)
     results = ctx.Queue()
-    saved = {v: os.environ.get(v) for v in _THREAD_VARS}
-    os.environ.update({v: "1" for v in _THREAD_VARS})
-    try:
+    with environment(**{v: "1" for v in _THREAD_VARS}):
         procs = [
             ctx.Process(
                 target=_worker,
@@ -115,12 +115,6 @@ def measure(
         t0 = time.monotonic()
         for p in procs:
             p.start()
-    finally:
-        for v, old in saved.items():
-            if old is None:
-                os.environ.pop(v, None)
-            else:
-                os.environ[v] = old
     rows: list[dict] = []
     try:
         while len(rows) < workers * len(envs):

@@ -8,10 +8,12 @@ comparable.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -196,6 +198,23 @@ def clear(h: LatencyHistogram) -> None:
 def ratio(a: float, b: float) -> float:
     """``a / b``, NaN when ``b`` is not a positive finite number."""
     return float(a / b) if np.isfinite(b) and b > 0 else float("nan")
+
+
+@contextlib.contextmanager
+def environment(**values: str) -> Iterator[None]:
+    """Set these environment variables of this process (name=value) for the ``with`` block, for
+    it and the child processes it starts there; restore each (or remove one that was not set)
+    however the block ends."""
+    saved = {name: os.environ.get(name) for name in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for name, old in saved.items():
+            if old is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = old
 
 
 # ---------------------------------------------------------------------- machine, JSON

@@ -69,15 +69,14 @@ def _slow_operator(domain: int, ready) -> None:  # pragma: no cover - runs in a 
 
 
 def _row(name: str, report: dict) -> dict:
-    d, node = report["deadline"], report.get("ros2") or {}
-    ticks = int(round(float(report["duration_s"]) * report["control_rate_hz"]))
+    from bench.session import deadline_figures
+
+    node = report.get("ros2") or {}
     return {
         "config": name,
-        "ticks": ticks,
+        **deadline_figures(report),
         "tick_cost_us": report["tick_cost_us"],
-        "jitter_us": d["jitter_us"],
-        "overruns": int(d["overruns"]),
-        "missed_periods": int(d["missed_periods"]),
+        "jitter_us": report["deadline"]["jitter_us"],
         "after_tick_us": node.get("after_tick_us"),
         "published": node.get("published"),
         "received": node.get("received"),
@@ -101,14 +100,12 @@ def measure(folder: Path, duration: float) -> dict:
     if why is not None:
         return {"skipped": why, "rows": []}
     from bench.busy import shipped_go2
+    from bench.common import environment
     from bench.session import _deploy_run
 
     go2 = shipped_go2(folder)
-    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
-    os.environ["ROS_DOMAIN_ID"] = str(DOMAIN_ID)
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     rows = []
-    try:
+    with environment(ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST"):
         cmd = ("--command", "0.5,0,0")
         report, _, _ = _deploy_run(go2, duration, True, cmd)
         rows.append(_row("off", report))
@@ -125,10 +122,4 @@ def measure(folder: Path, duration: float) -> dict:
         finally:
             peer.terminate()
             peer.join()
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
     return {"robot": "go2", "duration_s": float(duration), "domain_id": DOMAIN_ID, "rows": rows}

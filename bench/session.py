@@ -97,6 +97,20 @@ def _deploy_run(
     return report, outer, out.getvalue()
 
 
+def deadline_figures(report: dict) -> dict:
+    """A deploy-run report's deadline counts, the columns every row of a wall-clock run has:
+    ``ticks`` (duration x control rate), ``overruns``, ``missed_periods`` and ``overrun_rate``
+    (overruns per tick; NaN for no ticks)."""
+    d = report["deadline"]
+    ticks = int(round(float(report["duration_s"]) * report["control_rate_hz"]))
+    return {
+        "ticks": ticks,
+        "overruns": int(d["overruns"]),
+        "missed_periods": int(d["missed_periods"]),
+        "overrun_rate": d["overruns"] / ticks if ticks else float("nan"),
+    }
+
+
 def session(bp: BenchPolicy, duration: float) -> dict:
     """The ``session.<robot>`` entry of results.json (see the module docstring)."""
     report, outer, _ = _deploy_run(bp, duration, realtime=False)
@@ -137,7 +151,6 @@ def wallclock(bp: BenchPolicy, duration: float, modes: list[str] | None = None) 
         report, _, _ = _deploy_run(bp, duration, realtime=True, extra=WALLCLOCK_MODES[name])
         d = report["deadline"]
         rts = report["realtime_settings"]
-        ticks = int(round(float(report["duration_s"]) * report["control_rate_hz"]))
         rows.append(
             {
                 "mode": name,
@@ -150,10 +163,7 @@ def wallclock(bp: BenchPolicy, duration: float, modes: list[str] | None = None) 
                 "notes": rts["notes"],
                 "duration_s": float(report["duration_s"]),
                 "wall_s": float(report["wall_s"]),
-                "ticks": ticks,
-                "overruns": int(d["overruns"]),
-                "missed_periods": int(d["missed_periods"]),
-                "overrun_rate": d["overruns"] / ticks if ticks else float("nan"),
+                **deadline_figures(report),
                 "jitter_us": d["jitter_us"],
                 "tick_cost_us": report["tick_cost_us"],
                 "final_state": report["final_state"],

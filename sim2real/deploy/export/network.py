@@ -17,18 +17,17 @@ from torch import nn
 
 from sim2real.deploy.export.errors import ExportError, _first_line
 from sim2real.deploy.policy.mlp_checkpoint import MLPActor
+from sim2real.deploy.policy.torch_file import first_non_finite
 from sim2real.deploy.spec.policy_spec import PolicySpec
 
 
 def check_finite_tensors(tensors: Mapping[str, Any], where: str) -> None:
-    """Raise ExportError if a floating tensor holds NaN or inf."""
-    for name, t in tensors.items():
-        if isinstance(t, torch.Tensor) and t.is_floating_point():
-            bad = int((~torch.isfinite(t)).sum())
-            if bad:
-                raise ExportError(
-                    f"{where}: tensor '{name}' holds {bad} non-finite value(s) (NaN or inf)"
-                )
+    """Raise ExportError if a floating tensor of ``tensors`` (name -> value) holds NaN or inf
+    (:func:`~sim2real.deploy.policy.torch_file.first_non_finite`); ``where`` names the source."""
+    found = first_non_finite(tensors)
+    if found is not None:
+        name, bad, _ = found
+        raise ExportError(f"{where}: tensor '{name}' holds {bad} non-finite value(s) (NaN or inf)")
 
 
 def _first_in_features(net: nn.Module) -> int | None:

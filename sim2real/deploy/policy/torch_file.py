@@ -5,7 +5,7 @@ the error of a checkpoint that cannot be used.
 :class:`CheckpointError` naming the file (missing, empty, truncated, corrupt, or holding pickled
 Python objects); :func:`unreadable_torch_file` and :func:`load_failure_cause` phrase a load
 failure without torch's advice to pass ``weights_only=False``; :func:`finite_check` refuses NaN or
-inf in a checkpoint's tensors.
+inf in a checkpoint's tensors (:func:`first_non_finite` finds them, for the exporters too).
 """
 
 from __future__ import annotations
@@ -28,16 +28,27 @@ class CheckpointError(Sim2RealError, ValueError):
     """A checkpoint is missing, unreadable or invalid; the message names the file and the field."""
 
 
-def finite_check(tensors: Mapping[str, Any], where: str) -> None:
-    """Raise CheckpointError if a floating tensor in ``tensors`` holds NaN or inf."""
+def first_non_finite(tensors: Mapping[str, Any]) -> tuple[str, int, tuple[int, ...]] | None:
+    """The first floating tensor of ``tensors`` (name -> value; values that are not floating
+    tensors are passed over) that holds NaN or inf: ``(name, count of non-finite values, its
+    shape)``; None when every one is finite. Raises nothing."""
     for name, t in tensors.items():
         if isinstance(t, torch.Tensor) and t.is_floating_point():
             bad = int((~torch.isfinite(t)).sum())
             if bad:
-                raise CheckpointError(
-                    f"{where}['{name}']: {bad} non-finite value(s) (NaN or inf) in a tensor of "
-                    f"shape {tuple(t.shape)}"
-                )
+                return str(name), bad, tuple(t.shape)
+    return None
+
+
+def finite_check(tensors: Mapping[str, Any], where: str) -> None:
+    """Raise CheckpointError if a floating tensor in ``tensors`` holds NaN or inf
+    (:func:`first_non_finite`); ``where`` names the file and field in the message."""
+    found = first_non_finite(tensors)
+    if found is not None:
+        name, bad, shape = found
+        raise CheckpointError(
+            f"{where}['{name}']: {bad} non-finite value(s) (NaN or inf) in a tensor of shape {shape}"
+        )
 
 
 def unsafe_globals_in(exc: BaseException) -> str | None:

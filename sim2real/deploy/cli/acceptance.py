@@ -38,6 +38,7 @@ import onnx
 from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.policy.adversarial import adversarial_model
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.rig.rig import Rig
 from sim2real.deploy.runtime import Runtime
 from sim2real.deploy.smoothing import TORQUE_RISE_TIME
 from sim2real.deploy.spec.policy_spec import PolicySpec
@@ -191,12 +192,12 @@ def _run_adversarial(
         policy = OnnxPolicy(path, robot)
     ticks = int(round(seconds / robot.control_period))
     backend = RecordingBackend(SimBackend(robot, mode=mode, seed=seed), ticks)
-    rt = Runtime(robot, policy, backend)
-    rt.start()
+    rig = Rig(robot, policy, backend, envs=1)  # no task: the adversarial policy ignores goals
+    rig.start()
     wall = time.perf_counter()
-    rt.run(ticks)
+    rig.run(ticks)
     wall = time.perf_counter() - wall
-    return rt, backend, wall
+    return rig.runtime, backend, wall
 
 
 def _check_commands(

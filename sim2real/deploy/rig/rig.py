@@ -1,10 +1,11 @@
 """The one assembly of a run (:class:`Rig`): the runtime of a robot, a policy and a backend, the
 monitors and the task every run has, and the after-tick hooks a run adds.
 
-``deploy-run``, the soak's batch and the training environments build their runs here, so a run is
-judged the same way wherever it runs: violations of the true state (a simulated plant only),
-interventions of the guard and the smoother, a legged robot's base estimate against the truth
-(simulation), and the task (goals or velocity commands, :func:`sim2real.deploy.tasks.task.task_for`).
+``deploy-run``, the soak's batch, the training environments (the reach env steps the runtime's stages
+itself) and the runtime's acceptance run build their runs here, so a run is judged the same way
+wherever it runs: violations of the true state (a simulated plant only), interventions of the guard
+and the smoother, a legged robot's base estimate against the truth (simulation), and the task (goals
+or velocity commands, :func:`sim2real.deploy.tasks.task.task_for`).
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ class Rig:
             true state).
         envs: Robots in the batch (the backend's).
         task: Keyword arguments of :func:`sim2real.deploy.tasks.task.task_for` (``period`` and ``rng``
-            at least); ``interventions`` is the rig's own monitor.
+            at least); ``interventions`` is the rig's own monitor. None: no task, the runtime's goal
+            and velocity command stay as they are (an acceptance run, whose policy ignores them).
         runtime: Keyword arguments of :class:`sim2real.deploy.runtime.Runtime` (``clock``, ``injector``,
             ``telemetry``, ``overrun_rate_limit``, ...).
         start: Start the runtime before the monitors and the task are built (the soak's order);
@@ -48,7 +50,7 @@ class Rig:
         interventions: :class:`~sim2real.deploy.monitors.interventions.InterventionMonitor`.
         estimation: :class:`~sim2real.deploy.monitors.estimation.EstimationMonitor` (a simulated legged
             robot; else None).
-        task: The :class:`~sim2real.deploy.tasks.task.Task`.
+        task: The :class:`~sim2real.deploy.tasks.task.Task` (None without one).
         monitor_cost: :class:`~sim2real.deploy.core.latency.LatencyHistogram` of the monitors' time per
             tick (ns, outside the runtime's tick).
         hook_cost: One histogram stage per hook, in :attr:`hooks` order.
@@ -64,7 +66,7 @@ class Rig:
         backend,
         *,
         envs: int,
-        task: dict,
+        task: dict | None = None,
         runtime: dict | None = None,
         start: bool = False,
         hooks=(),
@@ -91,8 +93,10 @@ class Rig:
             from sim2real.deploy.monitors.estimation import EstimationMonitor
 
             self.estimation = EstimationMonitor(robot, envs)
-        self.task = task_for(robot, envs, backend, interventions=self.interventions, **task)
-        if reset_task:
+        self.task = None
+        if task is not None:
+            self.task = task_for(robot, envs, backend, interventions=self.interventions, **task)
+        if reset_task and self.task is not None:
             self.task.reset(self.runtime, np.ones(envs, dtype=bool))
         self.hooks: list[RunHook] = []
         self.monitor_cost = LatencyHistogram()
@@ -127,7 +131,8 @@ class Rig:
         if self.estimation is not None:
             self.estimation.update(runtime, self.backend.true_base_state())
         self.monitor_cost.add(0, time.perf_counter_ns() - t0)
-        self.task(runtime)
+        if self.task is not None:
+            self.task(runtime)
 
     def after_tick(self, runtime) -> bool:
         """:meth:`monitor`, then every hook in order (each timed); True when a hook ends the
@@ -153,11 +158,11 @@ class Rig:
     # ------------------------------------------------------------------ the report
     def report(self) -> dict:
         """The monitors', the task's and the hooks' report entries: ``goals``, ``locomotion``,
-        ``missed_goals``, ``violations`` (None without ground truth), ``estimation``,
-        ``interventions``, ``monitor_cost_us``, ``hook_cost_us`` and each hook's own
+        ``missed_goals`` (absent without a task), ``violations`` (None without ground truth),
+        ``estimation``, ``interventions``, ``monitor_cost_us``, ``hook_cost_us`` and each hook's own
         (:meth:`RunHook.contribute`). A fall of the true base the runtime did not see counts
         in ``locomotion.falls`` (``runtime_falls`` and ``true_falls`` apart)."""
-        report = dict(self.task.report(self.runtime))
+        report = {} if self.task is None else dict(self.task.report(self.runtime))
         report["violations"] = self.violation_report()
         report["estimation"] = None if self.estimation is None else self.estimation.summary()
         loco = report.get("locomotion")

@@ -1,0 +1,57 @@
+"""Every run in the package is put together by the one assembly, :class:`sim2real.deploy.rig.rig.Rig`:
+no ``Runtime(...)`` is built outside the rig and the runtime package, and none of the parts the rig
+builds (the runtime's stages, the intervention monitor, the task) is put together by hand elsewhere,
+so that the count cannot creep back."""
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGE = ROOT / "sim2real"
+RIG = PACKAGE / "deploy" / "rig"
+#: where a runtime may be built: the runtime package itself (its reference subclass) and the rig
+HOMES = (PACKAGE / "deploy" / "runtime", RIG)
+RUNTIMES = {"Runtime", "ReferenceRuntime"}
+#: what the rig (through the runtime) builds for every run
+PARTS = {"SafetyGuard", "CommandSmoother", "JointStateEstimator", "InterventionMonitor", "task_for"}
+
+
+def _constructions(names: set[str], skip=HOMES) -> list[str]:
+    """``path:line: name(...)`` of every call of a class or function in ``names`` (by its name,
+    an attribute of that name, or an alias it was imported under) in ``sim2real/``, outside the
+    folders ``skip``."""
+    found = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if any(path.is_relative_to(home) for home in skip):
+            continue
+        tree = ast.parse(path.read_text(), filename=str(path))
+        called = set(names)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                called |= {a.asname for a in node.names if a.name in names and a.asname}
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.Call):
+                continue
+            func = node.func
+            name = getattr(func, "id", None) or getattr(func, "attr", None)
+            if name in called:
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno}: {name}(...)")
+    return found
+
+
+def test_no_runtime_is_built_outside_the_rig():
+    built = _constructions(RUNTIMES)
+    assert not built, "build the run through sim2real.deploy.rig.rig.Rig:\n" + "\n".join(built)
+
+
+def test_no_part_of_a_run_is_put_together_by_hand():
+    built = _constructions(PARTS)
+    assert not built, (
+        "take it from a Rig (rig.runtime, rig.interventions, rig.task):\n" + "\n".join(built)
+    )
+
+
+def test_the_scan_finds_the_rigs_own_runtime():
+    """The scan sees a construction where there is one: the rig's."""
+    inside = [p for p in _constructions(RUNTIMES, skip=()) if p.startswith("sim2real/deploy/rig/")]
+    assert len(inside) == 1 and inside[0].endswith("Runtime(...)"), inside

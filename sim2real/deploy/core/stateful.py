@@ -18,7 +18,8 @@ Conventions (those of :class:`sim2real.deploy.monitors.violations.ViolationMonit
   either way. (:class:`sim2real.deploy.policy.onnx_policy.OnnxPolicy` drops the env axis for one env; the
   runtime passes ``env`` through to it unchanged.)
 - Arrays are copies; scalars are Python ``int``, ``float``, ``bool`` or ``str``. A random
-  generator's state (``bit_generator.state``) and ragged records (lists per env) are JSON text.
+  generator's state (``bit_generator.state``) and ragged records (lists per env) are JSON text
+  (:func:`streams_json`, :func:`records_json` and their inverses).
 - Composite stages prefix their parts' keys with ``<part>/`` (:func:`prefixed`, :func:`section`).
 - A state that does not fit raises :class:`StateDictError` (a ``ValueError``) naming the field.
 """
@@ -26,7 +27,7 @@ Conventions (those of :class:`sim2real.deploy.monitors.violations.ViolationMonit
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -55,6 +56,11 @@ class StateDictError(Sim2RealError, ValueError):
 def env_index(env: int | None) -> slice:
     """The index of the convention: every env (None) or env ``env`` keeping its axis."""
     return slice(None) if env is None else slice(env, env + 1)
+
+
+def env_list(envs: int, env: int | None) -> list[int]:
+    """The envs a state dict of a batch of ``envs`` covers: every one (``env`` None) or ``[env]``."""
+    return list(range(envs)) if env is None else [env]
 
 
 def take(fields: Mapping[str, np.ndarray], env: int | None) -> dict[str, np.ndarray]:
@@ -128,6 +134,57 @@ def from_json(state: Mapping, key: str):
         return json.loads(text)
     except json.JSONDecodeError as exc:
         raise StateDictError(key, f": not valid JSON ({exc})") from None
+
+
+def records_json(records: Mapping[str, Sequence], envs: Iterable[int]) -> dict[str, str]:
+    """Ragged per-env records (key -> a list over all envs) as JSON text of the envs ``envs``
+    (:func:`env_list`): ``{key: to_json([records[key][e] for e in envs])}``."""
+    envs = list(envs)
+    return {key: to_json([lists[e] for e in envs]) for key, lists in records.items()}
+
+
+def read_records(state: Mapping, keys: Iterable[str], count: int) -> dict[str, list]:
+    """Inverse of :func:`records_json`: ``{key: the list of ``count`` envs' records}``.
+
+    Raises:
+        StateDictError: a field missing, not JSON, or not a list of ``count`` entries.
+    """
+    out = {}
+    for key in keys:
+        value = from_json(state, key)
+        if not isinstance(value, list) or len(value) != count:
+            raise StateDictError(key, f": expected a list of {count} env(s)")
+        out[key] = value
+    return out
+
+
+def streams_json(streams: Sequence[np.random.Generator], envs: Iterable[int]) -> str:
+    """JSON text of per-env random streams' states (:func:`rng_state`), a list over ``envs``."""
+    return to_json([rng_state(streams[e]) for e in envs])
+
+
+def read_streams(state: Mapping, key: str, count: int) -> list:
+    """The parsed :func:`streams_json` ``state[key]``, checked to hold ``count`` states.
+
+    Raises:
+        StateDictError: the field is missing, not JSON, or not a list of ``count`` states.
+    """
+    states = from_json(state, key)
+    if not (isinstance(states, list) and len(states) == count):
+        raise StateDictError(key, f": expected {count} stream state(s), one per env")
+    return states
+
+
+def set_streams(
+    streams: Sequence[np.random.Generator], envs: Iterable[int], states: Sequence, key: str
+) -> None:
+    """Restore the states of :func:`read_streams` into ``streams[e]`` for the envs ``envs``.
+
+    Raises:
+        StateDictError: a state of another kind of bit generator (:func:`set_rng_state`).
+    """
+    for e, value in zip(envs, states, strict=True):
+        set_rng_state(streams[e], value, key)
 
 
 def rng_state(gen: np.random.Generator):

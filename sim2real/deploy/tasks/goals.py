@@ -12,13 +12,18 @@ import numpy as np
 
 from sim2real.deploy.core.backend import SimulatedPlant
 from sim2real.deploy.core.stateful import (
-    StateDictError,
     check,
+    env_list,
     from_json,
     load_part,
     put,
+    read_records,
+    read_streams,
+    records_json,
     rng_state,
     set_rng_state,
+    set_streams,
+    streams_json,
     take,
     to_json,
 )
@@ -222,12 +227,10 @@ class GoalScheduler:
         the goal streams' ``bit_generator.state`` (a list over the envs with one stream per
         env; the batch's one stream, shared, otherwise; absent without a generator).
         """
-        out: dict = take(self._state_fields(), env)
-        envs = range(self.envs) if env is None else [env]
-        for key, lists in self._records().items():
-            out[key] = to_json([lists[e] for e in envs])
+        envs = env_list(self.envs, env)
+        out: dict = take(self._state_fields(), env) | records_json(self._records(), envs)
         if self.streams is not None:
-            out["rng"] = to_json([rng_state(self.streams[e]) for e in envs])
+            out["rng"] = streams_json(self.streams, envs)
         elif self.rng is not None:
             out["rng"] = to_json(rng_state(self.rng))
         return out
@@ -242,23 +245,19 @@ class GoalScheduler:
         """
         fields = self._state_fields()
         check(fields, state, env)
-        envs = list(range(self.envs)) if env is None else [env]
-        records = {key: from_json(state, key) for key in self._records()}
-        for key, value in records.items():
-            if not isinstance(value, list) or len(value) != len(envs):
-                raise StateDictError(key, f": expected a list of {len(envs)} env(s)")
+        envs = env_list(self.envs, env)
+        records = read_records(state, self._records(), len(envs))
         rng = None
-        if self.streams is not None or self.rng is not None:
+        if self.streams is not None:
+            rng = read_streams(state, "rng", len(envs))
+        elif self.rng is not None:
             rng = from_json(state, "rng")
-            if self.streams is not None and not (isinstance(rng, list) and len(rng) == len(envs)):
-                raise StateDictError("rng", f": expected {len(envs)} stream state(s), one per env")
         put(fields, state, env)
         for key, lists in self._records().items():
             for e, value in zip(envs, records[key], strict=True):
                 lists[e] = list(value)
         if self.streams is not None:
-            for e, value in zip(envs, rng, strict=True):
-                set_rng_state(self.streams[e], value, "rng")
+            set_streams(self.streams, envs, rng, "rng")
         elif self.rng is not None:
             set_rng_state(self.rng, rng, "rng")
 

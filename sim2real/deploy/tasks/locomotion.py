@@ -29,16 +29,18 @@ import numpy as np
 from sim2real.deploy.core.attitude import tilt_of
 from sim2real.deploy.core.state import BaseState
 from sim2real.deploy.core.stateful import (
-    StateDictError,
     check,
+    env_list,
     from_json,
     load_part,
     put,
-    rng_state,
+    read_records,
+    read_streams,
+    records_json,
     scalar,
-    set_rng_state,
+    set_streams,
+    streams_json,
     take,
-    to_json,
 )
 
 #: Planar velocity error within which the robot tracks its command, m/s (our acceptance
@@ -147,8 +149,7 @@ class CommandSchedule:
         """``t_command`` (s), ``issued`` (int64), ``command`` (envs, 3); ``rng``: JSON of the
         streams' ``bit_generator.state`` (a list over the envs)."""
         out: dict = take(self._fields(), env)
-        envs = range(self.envs) if env is None else [env]
-        out["rng"] = to_json([rng_state(self.streams[e]) for e in envs])
+        out["rng"] = streams_json(self.streams, env_list(self.envs, env))
         return out
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
@@ -159,13 +160,10 @@ class CommandSchedule:
                 changed.
         """
         check(self._fields(), state, env)
-        envs = list(range(self.envs)) if env is None else [env]
-        rng = from_json(state, "rng")
-        if not (isinstance(rng, list) and len(rng) == len(envs)):
-            raise StateDictError("rng", f": expected {len(envs)} stream state(s), one per env")
+        envs = env_list(self.envs, env)
+        rng = read_streams(state, "rng", len(envs))
         put(self._fields(), state, env)
-        for e, value in zip(envs, rng, strict=True):
-            set_rng_state(self.streams[e], value, "rng")
+        set_streams(self.streams, envs, rng, "rng")
 
     def __call__(self, runtime) -> None:
         """After a tick of ``runtime``: hold the clocks of stopped envs, issue due commands."""
@@ -293,6 +291,13 @@ class CommandTracker:
             "last_yaw": self.last_yaw,
         }
 
+    def _records(self) -> dict[str, list]:
+        return {
+            "window_running": self.window_running,
+            "window_tracked": self.window_tracked,
+            "fall_log": self.fall_log,
+        }
+
     def state_dict(self, env: int | None = None) -> dict:
         """The tracker's state (copies; conventions of :mod:`sim2real.deploy.core.stateful`): ``distance``,
         ``forward`` (m), ``running_time``, ``tracked_time``, ``changed_at`` (s),
@@ -305,12 +310,8 @@ class CommandTracker:
         ``window_index`` (int); JSON lists over the envs: ``window_running``,
         ``window_tracked``."""
         out: dict = take(self._fields(), env)
-        envs = range(self.envs) if env is None else [env]
         out["window_index"] = int(self.window_index)
-        out["window_running"] = to_json([self.window_running[e] for e in envs])
-        out["window_tracked"] = to_json([self.window_tracked[e] for e in envs])
-        out["fall_log"] = to_json([self.fall_log[e] for e in envs])
-        return out
+        return out | records_json(self._records(), env_list(self.envs, env))
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
         """Inverse of :meth:`state_dict` (of every env, or of env ``env``; the shared window
@@ -321,11 +322,8 @@ class CommandTracker:
         """
         check(self._fields(), state, env)
         index = scalar(state, "window_index", int)
-        envs = list(range(self.envs)) if env is None else [env]
-        lists = {k: from_json(state, k) for k in ("window_running", "window_tracked")}
-        for key, value in lists.items():
-            if not isinstance(value, list) or len(value) != len(envs):
-                raise StateDictError(key, f": expected a list of {len(envs)} env(s)")
+        envs = env_list(self.envs, env)
+        lists = read_records(state, ("window_running", "window_tracked"), len(envs))
         put(self._fields(), state, env)
         self.window_index = index
         for e, run, tracked in zip(

@@ -27,7 +27,15 @@ import numpy as np
 
 from sim2real.deploy.backends.sim.sensors_kernel import encoder_read, encoder_sample
 from sim2real.deploy.core.backend import SensorFrame
-from sim2real.deploy.core.stateful import StateDictError, rng_state, set_rng_state, to_json
+from sim2real.deploy.core.stateful import (
+    StateDictError,
+    env_list,
+    rng_state,
+    set_rng_state,
+    set_streams,
+    streams_json,
+    to_json,
+)
 from sim2real.robots import Robot
 
 
@@ -261,8 +269,7 @@ class JointSensorModel:
         """JSON of the sensor streams' ``bit_generator.state``: a list over the envs (all, or env
         ``env``) with per-env streams, the batch's one stream otherwise."""
         if isinstance(self.rng, PerEnvGenerators):
-            envs = range(self.envs) if env is None else [env]
-            return to_json([rng_state(self.rng.generators[e]) for e in envs])
+            return streams_json(self.rng.generators, env_list(self.envs, env))
         return to_json(rng_state(self.rng))
 
     def check_stream_state(self, rng, envs: list[int]) -> None:
@@ -284,7 +291,6 @@ class JointSensorModel:
             StateDictError: a state of another bit generator.
         """
         if isinstance(self.rng, PerEnvGenerators):
-            for e, value in zip(envs, rng, strict=True):
-                set_rng_state(self.rng.generators[e], value, "sensor_rng")
+            set_streams(self.rng.generators, envs, rng, "sensor_rng")
         else:
             set_rng_state(self.rng, rng, "sensor_rng")

@@ -17,7 +17,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from sim2real.deploy.core.stateful import check, env_index, from_json, put, scalar, take
+from sim2real.deploy.core.stateful import check, env_index, env_list, from_json, put, scalar, take
 
 #: MuJoCo's state a plant's ``state_dict`` keeps: everything a step reads (time, qpos, qvel, act,
 #: warm start, ctrl, applied forces, mocap, equality flags, user data, plugin state).
@@ -104,7 +104,7 @@ class SimState:
         mj = self._mujoco_fields()
         check({**fields, **mj}, state, env)
         tick = scalar(state, "tick", int)
-        envs = list(range(self.envs)) if env is None else [env]
+        envs = env_list(self.envs, env)
         rng = from_json(state, "sensor_rng")
         self._joint_sensors.check_stream_state(rng, envs)
         put(fields, state, env)

@@ -54,18 +54,36 @@ def compare_with_baseline(
                 }
             )
 
-    base_rates, basis = violation_basis(report, baseline)
-    for kind, rate in new["violations"]["rate_per_hour"].items():
-        base = base_rates.get(kind, 0.0)
-        allowed = base * (1 + thresholds.violation_tolerance) + thresholds.violation_slack
+    def rose(metric, base, current, slack, message):
+        """A rate above ``base * (1 + violation_tolerance) + slack``; ``message`` a template of
+        ``allowed`` (the bound) and ``allowed_percent`` (100 x the bound)."""
+        allowed = base * (1 + thresholds.violation_tolerance) + slack
+        words = message.format(allowed=allowed, allowed_percent=100 * allowed)
+        add(metric, base, current, allowed, current > allowed, words)
+
+    def fell(metric, label, base, rate):
+        """A success rate (None: none, 0) below ``base - success_tolerance``."""
+        allowed = base - thresholds.success_tolerance
+        current = 0.0 if rate is None else rate
         add(
-            f"violations.{kind}.per_hour",
+            metric,
             base,
             rate,
             allowed,
-            rate > allowed,
+            current < allowed,
+            f"{label} fell from {base:.3f} to {current:.3f} (allowed {allowed:.3f})",
+        )
+
+    base_rates, basis = violation_basis(report, baseline)
+    for kind, rate in new["violations"]["rate_per_hour"].items():
+        base = base_rates.get(kind, 0.0)
+        rose(
+            f"violations.{kind}.per_hour",
+            base,
+            rate,
+            thresholds.violation_slack,
             f"{kind} violations (true state) per hour rose from {base:.2f} ({basis}) to "
-            f"{rate:.2f} (allowed {allowed:.2f})",
+            f"{rate:.2f} (allowed {{allowed:.2f}})",
         )
     fractions = {k: c["fraction"] for k, c in new["interventions"]["checks"].items()}
     fractions["any"] = new["interventions"]["any"]["fraction"]
@@ -73,51 +91,27 @@ def compare_with_baseline(
     base_fractions["any"] = old["interventions"]["any"]["fraction"]
     for check, share in fractions.items():
         base = base_fractions.get(check, 0.0)
-        allowed = base * (1 + thresholds.violation_tolerance) + thresholds.intervention_slack
-        add(
+        rose(
             f"interventions.{check}.fraction",
             base,
             share,
-            allowed,
-            share > allowed,
+            thresholds.intervention_slack,
             f"{check} interventions rose from {100 * base:.3f} % to {100 * share:.3f} % of ticks "
-            f"(allowed {100 * allowed:.3f} %)",
+            "(allowed {allowed_percent:.3f} %)",
         )
     for key, label in (
         ("success_rate", "goal success rate"),
         ("min_window_success_rate", "lowest windowed goal success rate"),
     ):
-        rate, base = new["goals"][key], old["goals"][key]
-        if base is None:
-            continue
-        allowed = base - thresholds.success_tolerance
-        current = 0.0 if rate is None else rate
-        add(
-            f"goals.{key}",
-            base,
-            rate,
-            allowed,
-            current < allowed,
-            f"{label} fell from {base:.3f} to {current:.3f} (allowed {allowed:.3f})",
-        )
+        if old["goals"][key] is not None:
+            fell(f"goals.{key}", label, old["goals"][key], new["goals"][key])
     new_loco, old_loco = new.get("locomotion"), old.get("locomotion")
     for key, label in (
         ("tracking_success", "tracking success (legged)"),
         ("min_window_success_rate", "lowest windowed tracking success (legged)"),
     ):
-        if not new_loco or not old_loco or old_loco.get(key) is None:
-            continue
-        rate, base = new_loco[key], old_loco[key]
-        allowed = base - thresholds.success_tolerance
-        current = 0.0 if rate is None else rate
-        add(
-            f"locomotion.{key}",
-            base,
-            rate,
-            allowed,
-            current < allowed,
-            f"{label} fell from {base:.3f} to {current:.3f} (allowed {allowed:.3f})",
-        )
+        if new_loco and old_loco and old_loco.get(key) is not None:
+            fell(f"locomotion.{key}", label, old_loco[key], new_loco[key])
     for joint, peak in new["thermal"]["peak_c"].items():
         base = old["thermal"]["peak_c"].get(joint)
         if base is None:

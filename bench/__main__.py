@@ -318,6 +318,19 @@ def _pct(s: dict) -> str:
     return f"{_f(s['p50_us']):>8} {_f(s['p99_us']):>8} {_f(s['p99.9_us']):>9} {_f(s['mean_us']):>8}"
 
 
+def _ran(sections: dict, name: str, add) -> bool:
+    """Whether item ``name`` has figures to render: False when it is not in ``sections``, or
+    when it was skipped (its section then one line, ``== name: skipped: why``); a section that
+    is there starts with a blank line."""
+    if name not in sections:
+        return False
+    add("")
+    why = sections[name].get("skipped")
+    if why:
+        add(f"== {name}: skipped: {why}")
+    return not why
+
+
 def render(results: dict) -> str:
     """The results as a plain-text report (what ``python -m bench`` prints)."""
     lines: list[str] = []
@@ -330,16 +343,14 @@ def render(results: dict) -> str:
     sec = results["sections"]
     pct_head = f"{'p50 us':>8} {'p99 us':>8} {'p99.9 us':>9} {'mean us':>8}"
 
-    if "plant" in sec:
-        add("")
+    if _ran(sec, "plant", add):
         add(f"== plant: MuJoCo alone, per control tick ({sec['plant']['ticks']} ticks)")
         add(f"{'robot':6} {'mode':9} {'what':8} {'dec':>3} {pct_head}")
         for r in sec["plant"]["rows"]:
             add(f"{r['robot']:6} {r['mode']:9} {r['what']:8} {r['decimation']:>3} {_pct(r)}")
 
-    if "inference" in sec:
+    if _ran(sec, "inference", add):
         r = sec["inference"]
-        add("")
         add(f"== inference: batch-1 policy calls ({r['policy']}; {r['calls']} calls)")
         for e in r["exports"]:
             add(f"   export ({e['name']}) {e['seconds']:.2f} s")
@@ -393,9 +404,8 @@ def render(results: dict) -> str:
             f"(extrapolated: {s['extrapolation']})"
         )
 
-    if "campaign" in sec:
+    if _ran(sec, "campaign", add):
         c = sec["campaign"]
-        add("")
         add(
             f"== campaign: {c['robot']}, {c['workers']} worker processes x k envs "
             f"(batched Runtime); {c['method']}"
@@ -418,9 +428,8 @@ def render(results: dict) -> str:
             f"{b.get('physics_fraction', float('nan')):.2f} of physics-only stepping"
         )
 
-    if "wallclock" in sec:
+    if _ran(sec, "wallclock", add):
         w = sec["wallclock"]
-        add("")
         target = w.get("target", {})
         add(
             f"== wallclock: {w['robot']}, WallClock period {1e3 * w['period_s']:.1f} ms, "
@@ -451,9 +460,8 @@ def render(results: dict) -> str:
             for note in r.get("notes", []):
                 add(f"     {note}")
 
-    if "busy" in sec:
+    if _ran(sec, "busy", add):
         b = sec["busy"]
-        add("")
         add(
             f"== busy: deploy-run --realtime beside {b['burners']} CPU-bound processes, "
             f"{b['duration_s']:.0f} s each"
@@ -469,44 +477,36 @@ def render(results: dict) -> str:
                 f"{causes}"
             )
 
-    if "ros2" in sec:
+    if _ran(sec, "ros2", add):
         r2 = sec["ros2"]
-        add("")
-        if r2.get("skipped"):
-            add(f"== ros2: skipped: {r2['skipped']}")
-        else:
+        add(
+            f"== ros2: deploy-run --realtime on {r2['robot']}, {r2['duration_s']:.0f} s per "
+            "row; us p50/p99 (tick without physics, wake-up jitter, the node's after_tick)"
+        )
+        for r in r2["rows"]:
+            tc, jit, at = r["tick_cost_us"], r["jitter_us"], r["after_tick_us"] or {}
+            sent = sum((r["published"] or {}).values())
             add(
-                f"== ros2: deploy-run --realtime on {r2['robot']}, {r2['duration_s']:.0f} s per "
-                "row; us p50/p99 (tick without physics, wake-up jitter, the node's after_tick)"
+                f"   {r['config']:8} tick {_f(tc['p50_us'], '.0f')}/{_f(tc['p99_us'], '.0f')}"
+                f"  jitter {_f(jit['p50_us'], '.0f')}/{_f(jit['p99_us'], '.0f')}"
+                f"  after_tick {_f(at.get('p50_us'), '.0f')}/{_f(at.get('p99_us'), '.0f')}"
+                f"  overruns {r['overruns']}  published {sent}"
+                f"  skipped {r['ticks_skipped'] if r['ticks_skipped'] is not None else '-'}"
+                f"  final {','.join(r['final_state'])}"
             )
-            for r in r2["rows"]:
-                tc, jit, at = r["tick_cost_us"], r["jitter_us"], r["after_tick_us"] or {}
-                sent = sum((r["published"] or {}).values())
-                add(
-                    f"   {r['config']:8} tick {_f(tc['p50_us'], '.0f')}/{_f(tc['p99_us'], '.0f')}"
-                    f"  jitter {_f(jit['p50_us'], '.0f')}/{_f(jit['p99_us'], '.0f')}"
-                    f"  after_tick {_f(at.get('p50_us'), '.0f')}/{_f(at.get('p99_us'), '.0f')}"
-                    f"  overruns {r['overruns']}  published {sent}"
-                    f"  skipped {r['ticks_skipped'] if r['ticks_skipped'] is not None else '-'}"
-                    f"  final {','.join(r['final_state'])}"
-                )
 
-    if "bus" in sec:
+    if _ran(sec, "bus", add):
         b = sec["bus"]
-        add("")
-        if b.get("skipped"):
-            add(f"== bus: skipped: {b['skipped']}")
-        else:
+        add(
+            f"== bus: one SYNC READ + one SYNC WRITE per tick, vendor SDK against the emulator "
+            f"(own process), {b['ticks']} ticks back to back"
+        )
+        add(f"{'robot':10} {'protocol':9} {'servos':>6} {pct_head} {'Hz':>7} {'wire us':>8}")
+        for r in b["rows"]:
             add(
-                f"== bus: one SYNC READ + one SYNC WRITE per tick, vendor SDK against the emulator "
-                f"(own process), {b['ticks']} ticks back to back"
+                f"{r['robot']:10} {r['protocol']:9} {r['servos']:>6} {_pct(r)} "
+                f"{r['sustained_hz']:>7.0f} {r['wire_model_us']:>8.0f}"
             )
-            add(f"{'robot':10} {'protocol':9} {'servos':>6} {pct_head} {'Hz':>7} {'wire us':>8}")
-            for r in b["rows"]:
-                add(
-                    f"{r['robot']:10} {r['protocol']:9} {r['servos']:>6} {_pct(r)} "
-                    f"{r['sustained_hz']:>7.0f} {r['wire_model_us']:>8.0f}"
-                )
 
     for robot, pr in sec.get("profile", {}).get("robots", {}).items():
         add("")

@@ -4,11 +4,14 @@
 The kind chooses which stages the runtime builds (a legged robot's base estimator and fall check,
 and its state layout: :meth:`RobotKind.state`, :meth:`RobotKind.base_stages`), whether the joint
 estimator takes the commanded acceleration as its control input, the task
-(:func:`sim2real.deploy.tasks.task.task_for`: goals or velocity commands), and what an operator does
+(:func:`sim2real.deploy.tasks.task.task_for`: goals or velocity commands), what an operator does
 before clearing a latched fault (a legged robot lies damped after every stop: it is stood up
-first). Branches that are a physics difference of a floating base (the plant's free joint, the
-guard's unbounded PD targets, the re-anchoring's tolerance) ask ``robot.floating_base`` where
-they are.
+first), how the guard and the runtime treat position targets that act as torques through a
+low-gain PD (:attr:`RobotKind.pd_targets`) and whether the guard lets an estimate bounce off a hard
+limit (:attr:`RobotKind.hard_limit_bounce`). Code outside the physics asks the kind. The boolean
+``robot.floating_base`` itself is asked by :func:`robot_kind`, by the Robot's kinematics
+and, beneath this module, by the estimation's and the spec's checks of their robot
+(``tests/test_seams.py`` counts the places).
 """
 
 from __future__ import annotations
@@ -43,6 +46,19 @@ class RobotKind:
             and fell in ours while the guard held them).
         cable_faults: The soak injects cable pulls (a fixed base's tether); a legged robot gets
             pushes instead.
+        pd_targets: Its position targets drive low-gain PD loops and act as torques (``kp
+            (target - q)``): they lead the joints by design, and legged policies command past the
+            joint range (legged_gym trains without bounds on them). The guard has no hard bound on
+            a target (it clamps one to the soft limit instead of stopping,
+            :mod:`sim2real.deploy.safety.limits`) and no motion envelope
+            (:mod:`sim2real.deploy.safety.envelope`); the runtime re-anchors no command at the
+            measured pose (no tracking tolerance,
+            :func:`sim2real.deploy.runtime.anchoring.tracking_tolerance`) and ends RAMP_IN in
+            position mode on the commanded pose (the PD holds the robot's weight short of home).
+            None (the default): as ``legged``.
+        hard_limit_bounce: The guard stops for an estimate past a hard limit only when it stays
+            past (``LEGGED_HARD_LIMIT_*`` of :mod:`sim2real.deploy.safety.limits`): every stop of a
+            walking robot is a fall. None (the default): as ``legged``.
     """
 
     name: str
@@ -52,6 +68,13 @@ class RobotKind:
     stand_up_on_reset: bool
     holds_self_collision: bool = True
     cable_faults: bool = True
+    pd_targets: bool | None = None
+    hard_limit_bounce: bool | None = None
+
+    def __post_init__(self):
+        for name in ("pd_targets", "hard_limit_bounce"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, self.legged)
 
     def state(self, robot, envs: int) -> RobotState:
         """The runtime's state layout for ``envs`` robots at the robot's ambient temperature:
@@ -84,6 +107,8 @@ LEGGED = RobotKind(
     stand_up_on_reset=True,
     holds_self_collision=False,
     cable_faults=False,
+    pd_targets=True,
+    hard_limit_bounce=True,
 )
 
 #: The registered robot kinds (:class:`sim2real.deploy.core.registry.Registry`).
@@ -119,14 +144,15 @@ def robot_kind(robot) -> RobotKind:
         ValueError: robot.toml names a kind nobody registered, or a legged kind for a robot
             without a floating base (its state has no base), or the reverse.
     """
+    shape = LEGGED if robot.floating_base else ARM  # what the robot's description makes it
     name = getattr(robot.config, "kind", None)
     if name is None:
-        return LEGGED if robot.floating_base else ARM
+        return shape
     kind = kinds().get(name)
     where = f"{robot.directory / 'robot.toml'}: kind"
     if kind is None:
         raise ValueError(f"{where} = '{name}': expected one of {sorted(kinds())}")
-    if kind.legged != robot.floating_base:
+    if kind.legged != shape.legged:
         need = "a [base] table (a floating base)" if kind.legged else "no [base] table"
         raise ValueError(f"{where} = '{name}' needs {need}")
     return kind

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.deploy.export.errors import ExportError
+from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.spec.policy_spec import (
     LEGGED_ACTION_CLIP,
     ActionSpec,
@@ -291,7 +292,7 @@ def check_robot(config: DeployConfig, robot: Robot) -> None:
     """
     path, n = config.path, config.num_actions
     where = f"the robot '{robot.name}' ({robot.directory})"
-    if not robot.floating_base:
+    if not robot_kind(robot).legged:
         raise ExportError(f"{path}: a legged_gym deploy config, but {where} has a fixed base")
     if config.motor_index is None and n != robot.n_joints:
         raise ExportError(

@@ -34,6 +34,7 @@ import numpy as np
 
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame, checked_command
 from sim2real.deploy.core.latency import LatencyHistogram
+from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.ros2.context import NodeThread
 from sim2real.deploy.ros2.controllers import FORWARD_CONTROLLERS, command_order, command_topic
 from sim2real.robots.errors import Sim2RealError
@@ -94,7 +95,7 @@ class Ros2ControlBackend(BackendLifecycle):
     ):
         if mode not in FORWARD_CONTROLLERS:
             raise ValueError(f"mode '{mode}': expected one of {sorted(FORWARD_CONTROLLERS)}")
-        if robot.floating_base:
+        if robot_kind(robot).legged:
             raise ValueError(
                 f"--backend ros2 reads joint_states only: {robot.name} is a floating-base robot "
                 "whose IMU and foot contacts it does not read (use --backend unitree, or "

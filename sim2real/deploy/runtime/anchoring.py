@@ -8,6 +8,7 @@ import numpy as np
 
 from sim2real.deploy.core.modes import FAULTED, SAFE_STOP
 from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.smoothing import CommandSmoother
 from sim2real.robots import Robot
 
@@ -25,10 +26,11 @@ VELOCITY_TRACKING_TOLERANCE = 0.1
 def tracking_tolerance(robot: Robot, mode: str) -> float:
     """The runtime's re-anchoring tolerance for ``robot`` in control mode ``mode``, rad:
     ``VELOCITY_TRACKING_TOLERANCE`` or ``TRACKING_TOLERANCE``. A legged robot's low-gain PD lags
-    its targets by design (they act as torques through kp), so it has none (inf)."""
+    its targets by design (they act as torques through kp: its kind's
+    :attr:`~sim2real.deploy.robot_kind.RobotKind.pd_targets`), so it has none (inf)."""
     return (
         np.inf
-        if robot.floating_base
+        if robot_kind(robot).pd_targets
         else VELOCITY_TRACKING_TOLERANCE
         if mode == "velocity"
         else TRACKING_TOLERANCE

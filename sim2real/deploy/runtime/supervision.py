@@ -32,6 +32,7 @@ from sim2real.deploy.core.modes import (
 )
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.kernels import any_true
+from sim2real.deploy.robot_kind import robot_kind
 from sim2real.robots import Robot
 
 
@@ -103,9 +104,10 @@ class Supervision:
         self._ring_at = 0
         self.home = np.asarray(robot.home)
         #: RAMP_IN ends on the smoother's commanded position at home (not the estimate's): a
-        #: legged robot in position mode, whose drives' soft PD (the gains it was trained with)
+        #: robot with PD targets (:attr:`~sim2real.deploy.robot_kind.RobotKind.pd_targets`, a
+        #: legged one) in position mode, whose drives' soft PD (the gains it was trained with)
         #: holds its weight short of the home pose, which its estimate would never reach
-        self.home_from_command = robot.floating_base and mode_name == "position"
+        self.home_from_command = robot_kind(robot).pd_targets and mode_name == "position"
         self.stop_damping = STOP_DAMPING * robot.effort_limit
         # the thermal band of the derating law the guard and the drives share
         self.temp_start = self.guard.derating.start

@@ -95,7 +95,8 @@ class SafetyGuard:
         self.lower, self.upper = robot.position_lower, robot.position_upper
         self._target_lower = self.lower - TARGET_TOLERANCE
         self._target_upper = self.upper + TARGET_TOLERANCE
-        if robot.floating_base:  # targets are torques through a low-gain PD: clamp, not stop
+        kind = robot_kind(robot)
+        if kind.pd_targets:  # targets are torques through a low-gain PD: clamp, not stop
             self._target_lower = np.full(robot.n_joints, -np.inf)
             self._target_upper = np.full(robot.n_joints, np.inf)
         self.soft_lower, self.soft_upper = robot.soft_lower, robot.soft_upper
@@ -147,9 +148,9 @@ class SafetyGuard:
             self._ws_margin[:] = np.inf
         #: the motion envelope (:mod:`sim2real.deploy.safety.envelope`): checks the smoother's step after it
         #: (:meth:`check_motion`); position and velocity mode (the drives' model,
-        #: :mod:`sim2real.deploy.safety.drive`), a fixed base only
+        #: :mod:`sim2real.deploy.safety.drive`), a fixed base only (not for PD targets)
         self.envelope = None
-        if not robot.floating_base:
+        if not kind.pd_targets:
             reach = end_effector_reach(robot) if s.workspace_min is not None else np.inf
             self.envelope = MotionEnvelope(
                 robot,

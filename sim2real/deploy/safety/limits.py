@@ -30,6 +30,7 @@ import numba
 import numpy as np
 
 from sim2real.deploy.kernels import np_max, np_min
+from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.safety.check import (
     CLAMP,
     FIRED,
@@ -169,10 +170,10 @@ class HardLimit(GuardCheck):
 
     def constants(self, guard) -> np.ndarray:
         n = guard.robot.n_joints
-        legged = guard.robot.floating_base
-        tolerance = LEGGED_HARD_LIMIT_TOLERANCE if legged else 0.0
-        ticks = round(LEGGED_HARD_LIMIT_DURATION / guard.dt) if legged else 0
-        bounce = round(LEGGED_HARD_LIMIT_BOUNCE / guard.dt) if legged else 0
+        bounces = robot_kind(guard.robot).hard_limit_bounce
+        tolerance = LEGGED_HARD_LIMIT_TOLERANCE if bounces else 0.0
+        ticks = round(LEGGED_HARD_LIMIT_DURATION / guard.dt) if bounces else 0
+        bounce = round(LEGGED_HARD_LIMIT_BOUNCE / guard.dt) if bounces else 0
         return np.array(
             [
                 guard._target_lower,

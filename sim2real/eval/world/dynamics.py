@@ -27,6 +27,7 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
+from sim2real.deploy.robot_kind import robot_kind
 from sim2real.robots import Robot
 
 
@@ -243,7 +244,7 @@ def add_base_mass(model: mujoco.MjModel, robot: Robot, kg: float) -> None:
     Raises:
         ValueError: a fixed-base robot, or a base whose mass would not stay positive.
     """
-    if not robot.floating_base:
+    if not robot_kind(robot).legged:
         raise ValueError(f"add_base_mass: robot {robot.name} has no floating base")
     body = model.body(robot.base_body).id
     if not model.body_mass[body] + kg > 0:

@@ -46,6 +46,7 @@ from sim2real.deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
 from sim2real.deploy.backends.worker import Worker
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame, checked_command
 from sim2real.deploy.core.latency import LatencyHistogram
+from sim2real.deploy.robot_kind import robot_kind
 from sim2real.robots import Robot
 
 DROPOUT_KINDS = ("lost", "stale", "bad_crc", "malformed")
@@ -156,12 +157,13 @@ class UnitreeBackend(BackendLifecycle):
         self.ramp_kd = self.kd if cfg.ramp_kd is None else np.broadcast_to(cfg.ramp_kd, self.n)
         self.period = robot.control_period
         self.feet = None
-        if self.family.has_feet and robot.floating_base and cfg.foot_index:
+        legged = robot_kind(robot).legged  # an IMU and feet in the state
+        if self.family.has_feet and legged and cfg.foot_index:
             self.feet = np.array(cfg.foot_index, dtype=np.int64)
         self.contact_threshold = (
             robot.config.sensors.contact.threshold if robot.config.sensors.contact else 0.0
         )
-        self.frame = SensorFrame.empty(1, self.n, robot.n_feet if robot.floating_base else None)
+        self.frame = SensorFrame.empty(1, self.n, robot.n_feet if legged else None)
         self._state = MessageCodec(self.family.low_state)
         self._cmd = MessageCodec(self.family.low_cmd)
         self.dropouts: Counter[str] = Counter({k: 0 for k in DROPOUT_KINDS})

@@ -45,7 +45,9 @@ class ObservationKind:
         per_joint: Entries per joint read (1; 2 for sin and cos); 0: reads no joints.
         every_joint: Reads every joint once (``joints`` a permutation of all joints).
         per_foot: One entry per foot (checked against the robot's feet).
-        floating_base: Needs a floating-base robot's state (the base estimate, command, clock).
+        legged: Needs a legged (floating-base) robot's state (the base estimate, command,
+            clock), which a ``legged`` robot kind provides
+            (:attr:`sim2real.deploy.robot_kind.RobotKind.legged`).
         vector: A 3-vector (x, y, z; a command's vx, vy, yaw rate) whose blocks may read some of
             its entries (``ObservationBlock.components``).
         raw_entries: Entries of the raw vector a block may pick ``components`` from (3 for a
@@ -61,7 +63,7 @@ class ObservationKind:
     per_joint: int = 0
     every_joint: bool = False
     per_foot: bool = False
-    floating_base: bool = False
+    legged: bool = False
     vector: bool = False
     periodic: bool = False
     raw_entries: int = 0
@@ -111,12 +113,10 @@ def register_kind(kind: ObservationKind) -> ObservationKind:
     return kind
 
 
-def kind_names(floating_base: bool | None = None) -> tuple[str, ...]:
-    """The registered kinds' names in registration order (``floating_base`` given: only the
-    kinds that need, or only those that do not need, a floating-base robot)."""
-    return tuple(
-        k.name for k in KINDS.values() if floating_base is None or k.floating_base == floating_base
-    )
+def kind_names(legged: bool | None = None) -> tuple[str, ...]:
+    """The registered kinds' names in registration order (``legged`` given: only the kinds that
+    need, or only those that do not need, a legged (floating-base) robot's state)."""
+    return tuple(k.name for k in KINDS.values() if legged is None or k.legged == legged)
 
 
 def vector_kind_names() -> tuple[str, ...]:
@@ -185,7 +185,7 @@ _joint(
 # A floating-base (legged) robot's: the base's own motion and the command, never its absolute
 # world position or yaw. Joint positions about the default pose are a joint_position block with
 # offset = the home pose.
-_legged = {"floating_base": True}
+_legged = {"legged": True}
 _fixed(
     "base_linear_velocity",
     "base linear velocity (3), m/s, estimated; scale = 1 / legged_gym's lin_vel 2.0",

@@ -70,7 +70,7 @@ class ObservationPlan:
         self.vec = np.zeros((0, 3))
         self.rot = np.zeros((0, 3))
         #: the first floating-base block (a state without a base is refused), or None
-        self.legged = next((b.name for b in bl if KINDS[b.name].floating_base), None)
+        self.legged = next((b.name for b in bl if KINDS[b.name].legged), None)
         self._no_base: tuple[np.ndarray, ...] = ()
         #: why the plan runs the numpy reference, not the kernel (None: it runs the kernel;
         #: ``sim2real.deploy.spec.kinds.numpy_reason``); an empty spec has nothing to compile

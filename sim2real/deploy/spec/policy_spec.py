@@ -362,11 +362,11 @@ class PolicySpec:
             )
         for i, b in enumerate(self.observation_blocks):
             kind = KINDS.get(b.name)
-            if kind is not None and kind.floating_base and not robot.floating_base:
+            if kind is not None and kind.legged and not robot.floating_base:
                 raise SpecError(
                     f"observation[{i}] ('{b.name}'): block '{b.name}' cannot be provided: the "
                     f"robot '{robot.name}' is a fixed-base arm (no IMU, no feet); blocks it "
-                    f"provides: {', '.join(kind_names(floating_base=False))}"
+                    f"provides: {', '.join(kind_names(legged=False))}"
                 )
             if kind is not None and kind.per_foot and b.size != robot.n_feet:
                 raise SpecError(

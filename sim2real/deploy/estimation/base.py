@@ -108,6 +108,19 @@ def foot_radii(robot: Robot) -> np.ndarray:
     return out
 
 
+def require_floating_base(robot: Robot, stage: str) -> None:
+    """Refuse a fixed-base ``robot`` for a base stage (the runtime builds them for a legged robot
+    kind only, :meth:`sim2real.deploy.robot_kind.RobotKind.base_stages`); ``stage`` names what the
+    stage does, for the message.
+
+    Raises:
+        ValueError: ``robot`` has no floating base (``robot <name>: <stage> needs a floating
+            base``).
+    """
+    if not robot.floating_base:
+        raise ValueError(f"robot {robot.name}: {stage} needs a floating base")
+
+
 class BaseStateEstimator:
     """The kinematic-inertial error-state filter of ``envs`` floating-base robots (module
     docstring).
@@ -146,8 +159,7 @@ class BaseStateEstimator:
         accel_sigma: float = ACCEL_MEASUREMENT_SIGMA,
         slip_gate: float = SLIP_GATE,
     ):
-        if not robot.floating_base:
-            raise ValueError(f"robot {robot.name}: base estimation needs a floating base")
+        require_floating_base(robot, "base estimation")
         if envs < 1:
             raise ValueError(f"envs must be >= 1, got {envs}")
         self.robot, self.envs = robot, envs

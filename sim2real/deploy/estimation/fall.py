@@ -26,6 +26,7 @@ import pinocchio as pin
 from sim2real.deploy.core.attitude import quaternion_to_matrix, tilt_of
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import check, put, take
+from sim2real.deploy.estimation.base import require_floating_base
 from sim2real.robots import Robot
 
 #: Default tilt limit, rad (our choice): a walking quadruped's base stays within ~0.3 rad of
@@ -69,8 +70,7 @@ class FallDetector:
     """
 
     def __init__(self, robot: Robot, envs: int):
-        if not robot.floating_base:
-            raise ValueError(f"robot {robot.name}: fall detection needs a floating base")
+        require_floating_base(robot, "fall detection")
         s = robot.config.safety
         self.tilt_limit = float(FALL_TILT if s.fall_tilt is None else s.fall_tilt)
         self.height_limit = float(FALL_HEIGHT if s.fall_height is None else s.fall_height)

@@ -1,8 +1,10 @@
 """The seams a contributor extends in one module plus one registration line: an after-tick hook
 of deploy-run (with its own option and report entry), a physics engine of the plant (chosen by
-``--engine`` in deploy-run and the soak), and a robot kind."""
+``--engine`` in deploy-run and the soak), and a robot kind, which makes the decisions of a floating
+base outside the physics (the places left testing ``robot.floating_base`` are counted)."""
 
 import json
+import re
 import sys
 import textwrap
 from pathlib import Path
@@ -190,3 +192,80 @@ def test_robot_toml_kind_must_fit_the_robot(tmp_path):
 
     with pytest.raises(ValueError, match=r"kind = 'legged' needs a \[base\] table"):
         robot_kind(_arm3_with_kind(tmp_path, "legged"))
+
+
+def test_a_kind_s_target_and_limit_choices_follow_legged_unless_given():
+    from sim2real.deploy.robot_kind import ARM, LEGGED, RobotKind
+
+    assert not ARM.pd_targets and not ARM.hard_limit_bounce
+    assert LEGGED.pd_targets and LEGGED.hard_limit_bounce
+    common = {"task": "locomotion", "joint_input": False, "stand_up_on_reset": True}
+    quadruped = RobotKind(name="quadruped", legged=True, **common)
+    assert quadruped.pd_targets and quadruped.hard_limit_bounce
+    stiff = RobotKind(name="stiff", legged=True, pd_targets=False, **common)
+    assert not stiff.pd_targets and stiff.hard_limit_bounce
+
+
+def test_a_kind_with_pd_targets_takes_the_guard_s_envelope_and_the_tracking_tolerance(tmp_path):
+    from sim2real.deploy.robot_kind import KIND_REGISTRY, RobotKind, register_kind
+    from sim2real.deploy.runtime.anchoring import TRACKING_TOLERANCE, tracking_tolerance
+    from sim2real.deploy.safety.guard import SafetyGuard
+
+    arm = _arm3_with_kind(tmp_path / "plain", "arm")
+    assert SafetyGuard(arm, 1, "position").envelope is not None
+    assert tracking_tolerance(arm, "position") == TRACKING_TOLERANCE
+    with KIND_REGISTRY.scoped():
+        register_kind(
+            RobotKind(
+                name="pd_arm",
+                legged=False,
+                task="goals",
+                joint_input=True,
+                stand_up_on_reset=False,
+                pd_targets=True,
+            )
+        )
+        robot = _arm3_with_kind(tmp_path, "pd_arm")
+        assert SafetyGuard(robot, 1, "position").envelope is None
+        assert tracking_tolerance(robot, "position") == float("inf")
+
+
+#: At most this many places outside the physics test ``floating_base`` (the team's issue: the
+#: robot kind decides the rest, :mod:`sim2real.deploy.robot_kind`).
+FLOATING_BASE_PLACES = 5
+#: The physics, where a floating base is a free joint: the plant and the importer.
+PHYSICS = ("sim2real/deploy/backends/sim", "sim2real/robots/importer")
+#: The Robot's definition of ``floating_base``: one place, however many lines.
+DEFINITION = "sim2real/robots/robot.py"
+
+
+def floating_base_places() -> list[str]:
+    """Lines of ``sim2real`` outside :data:`PHYSICS` naming ``floating_base`` in a test (``if``,
+    ``and``, ``or``, ``not``, ``else``, ``?``), as ``path:line: text``; the lines of
+    :data:`DEFINITION` count as one place (its first). The issue's grep, in Python::
+
+        grep -rn "floating_base" --include=*.py sim2real | grep -v "<PHYSICS>" \\
+            | grep -E "if |and |or |not |\\? | else "
+    """
+    root = Path(__file__).resolve().parent.parent
+    test = re.compile(r"if |and |or |not |\? | else ")
+    places, definition = [], []
+    for path in sorted((root / "sim2real").rglob("*.py")):
+        rel = path.relative_to(root).as_posix()
+        if any(p in rel for p in PHYSICS):
+            continue
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if "floating_base" in line and test.search(line):
+                out = definition if rel == DEFINITION else places
+                out.append(f"{rel}:{number}: {line.strip()}")
+    return places + definition[:1]
+
+
+def test_floating_base_is_tested_outside_the_physics_in_few_places():
+    places = floating_base_places()
+    assert any(p.startswith(DEFINITION) for p in places)  # the count sees the definition
+    assert len(places) <= FLOATING_BASE_PLACES, (
+        f"{len(places)} places test floating_base outside the physics (at most "
+        f"{FLOATING_BASE_PLACES}): ask the robot kind (sim2real.deploy.robot_kind) instead:\n"
+        + "\n".join(places)
+    )

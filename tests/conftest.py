@@ -42,10 +42,9 @@ def one_torch_thread():
 @pytest.fixture(scope="session")
 def go2_onnx(tmp_path_factory):
     """The shipped go2 policy (sim2real/policies/go2.pt) exported to ONNX, once per session."""
-    from sim2real.deploy.export import export_policy
+    from tests.runtime_fixtures import shipped_onnx
 
-    out = tmp_path_factory.mktemp("go2policy") / "go2.onnx"
-    return export_policy(REPO / "sim2real" / "policies" / "go2.pt", out=out)
+    return shipped_onnx("go2", tmp_path_factory.mktemp("go2policy"))
 
 
 # A Robot is frozen with read-only arrays: one load per session serves every test.

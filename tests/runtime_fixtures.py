@@ -1,4 +1,4 @@
-"""Small ONNX policies for the runtime tests."""
+"""Small ONNX policies for the runtime tests, and the shipped policies exported."""
 
 from __future__ import annotations
 
@@ -10,6 +10,16 @@ from onnx import TensorProto, helper, numpy_helper
 
 from sim2real.deploy.policy.adversarial import adversarial_model
 from sim2real.deploy.spec.policy_spec import PolicySpec
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def shipped_onnx(name: str, folder: Path) -> Path:
+    """The shipped policy ``sim2real/policies/<name>.pt`` exported (parity gate included) to
+    ``folder/<name>.onnx``; returns that path. Imports torch (the export) only when called."""
+    from sim2real.deploy.export import export_policy
+
+    return export_policy(REPO / "sim2real" / "policies" / f"{name}.pt", out=folder / f"{name}.onnx")
 
 
 def adversarial_onnx(tmp_path, robot, mode, nan_probability=0.0, name="adv.onnx"):

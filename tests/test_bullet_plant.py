@@ -5,8 +5,6 @@ apart."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -17,6 +15,7 @@ from sim2real.deploy.backends.sim.engines import ENGINES, make_plant, plant_clas
 from sim2real.deploy.backends.sim.plant import SimBackend  # noqa: E402
 from sim2real.deploy.core.backend import Backend, SimulatedPlant  # noqa: E402
 from sim2real.robots import load_robot  # noqa: E402
+from tests.runtime_fixtures import shipped_onnx  # noqa: E402
 
 
 def run(backend, ticks: int, command: np.ndarray | None = None) -> None:
@@ -210,15 +209,10 @@ class _Recorder:
 def test_the_runtime_takes_the_same_code_path_on_both_engines(arm3, tmp_path):
     """The runtime touches the same backend attributes in the same order on both plants over
     50 ticks (it cannot tell them apart) and ends in the same state."""
-    from sim2real.deploy.export import export_policy
     from sim2real.deploy.policy.onnx_policy import OnnxPolicy
     from sim2real.deploy.runtime import Runtime
 
-    pt = tmp_path / "arm.pt"
-    pt.write_bytes(
-        (Path(__file__).resolve().parent.parent / "sim2real" / "policies" / "arm.pt").read_bytes()
-    )
-    policy = OnnxPolicy(export_policy(pt), arm3)
+    policy = OnnxPolicy(shipped_onnx("arm", tmp_path), arm3)
     logs, modes = {}, {}
     for engine in ENGINES:
         log: list[str] = []
@@ -262,15 +256,10 @@ def test_soak_test_runs_on_pybullet_and_sim2sim_compares_it_with_mujoco(tmp_path
     and finds the shipped policy's goals the same on both."""
     import json
 
-    from sim2real.deploy.export import export_policy
     from sim2real.eval import cli as soak_cli
     from sim2real.eval.sim2sim import cli as sim2sim_cli
 
-    pt = tmp_path / "arm.pt"
-    pt.write_bytes(
-        (Path(__file__).resolve().parent.parent / "sim2real" / "policies" / "arm.pt").read_bytes()
-    )
-    policy = export_policy(pt)
+    policy = shipped_onnx("arm", tmp_path)
     for engine in ENGINES:
         argv = ["--robot", "arm3", "--policy", str(policy), "--hours", "0.005", "--seed", "3"]
         argv += ["--fault-interval", "4", "--no-progress", "--no-film", "--engine", engine]

@@ -17,6 +17,7 @@ from sim2real.deploy.runtime import FAULT_CAUSES, Mode, Runtime
 from sim2real.deploy.runtime.reference import ReferenceRuntime
 from sim2real.deploy.spec.policy_spec import LEGGED_DEFAULT_BLOCKS, PolicySpec, SpecError
 from sim2real.robots import load_robot
+from tests.runtime_fixtures import shipped_onnx
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -208,7 +209,6 @@ def test_shipped_go2_walks_at_the_commanded_speed_through_the_runtime(tmp_path):
     import json
 
     from sim2real.deploy.cli.deploy_run import deploy_run_main
-    from sim2real.deploy.export import export_policy
     from sim2real.deploy.policy.mlp_checkpoint import read_checkpoint
     from sim2real.policies.gait import make_policy
 
@@ -217,7 +217,7 @@ def test_shipped_go2_walks_at_the_commanded_speed_through_the_runtime(tmp_path):
     assert shipped.spec == spec and shipped.actor.architecture == actor.architecture
     curve = json.loads((REPO / "sim2real" / "policies" / "go2.curve.json").read_text())
     assert curve["command"].startswith("python -m sim2real.policies.train_legged")
-    onnx_path = export_policy(REPO / "sim2real" / "policies" / "go2.pt", out=tmp_path / "go2.onnx")
+    onnx_path = shipped_onnx("go2", tmp_path)
     report = tmp_path / "run.json"
     code = deploy_run_main(
         ["--robot", "go2", "--policy", str(onnx_path), "--command", "0.5,0,0"]
@@ -411,10 +411,7 @@ def test_every_stop_of_a_walking_robot_counts_as_a_fall_with_its_cause(go2, stan
 
 @pytest.fixture(scope="module")
 def shipped_go2(go2, tmp_path_factory):
-    from sim2real.deploy.export import export_policy
-
-    out = tmp_path_factory.mktemp("shipped") / "go2.onnx"
-    return OnnxPolicy(export_policy(REPO / "sim2real" / "policies" / "go2.pt", out=out), go2)
+    return OnnxPolicy(shipped_onnx("go2", tmp_path_factory.mktemp("shipped")), go2)
 
 
 def test_one_tick_latency_bursts_do_not_make_the_shipped_go2_fall(go2, shipped_go2):

@@ -1,14 +1,13 @@
 """A plant motors file (sim2real.robots.plant_motors): the motors as the plant simulates them, for an
 emulated robot whose motors differ from its description; the robot's contract stays."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.robots.plant_motors import load_plant_motors
 from sim2real.robots.robot import RobotSpecError
+from tests.runtime_fixtures import shipped_onnx
 
 WORN = """
 source = "a worn SO-101: 0.02 N m of friction, armature x2, a 20 % weaker line, 8 ms delay"
@@ -73,15 +72,10 @@ def test_deploy_run_and_the_soak_run_on_the_plant_motors(so101, tmp_path):
     import json
 
     from sim2real.deploy.cli.deploy_run import deploy_run_main
-    from sim2real.deploy.export import export_policy
     from sim2real.eval.soak.campaign import run_campaign
     from sim2real.eval.soak.session import SessionConfig
 
-    pt = tmp_path / "so101.pt"
-    pt.write_bytes(
-        (Path(__file__).resolve().parent.parent / "sim2real" / "policies" / "so101.pt").read_bytes()
-    )
-    onnx = str(export_policy(pt))
+    onnx = str(shipped_onnx("so101", tmp_path))
     worn = tmp_path / "worn.toml"
     worn.write_text(WORN)
     report = tmp_path / "run.json"

@@ -12,6 +12,7 @@ import pytest
 from sim2real.deploy.cli.deploy_run import deploy_run_main
 from sim2real.deploy.observe.command_log import CommandLogError, read_command_log
 from sim2real.eval.sysid import cli
+from tests.runtime_fixtures import shipped_onnx
 
 #: the worn SO-101 `make sysid` runs on: 0.02 N m of friction, twice the armature, a line
 #: 20 % weaker (no-load 3.77 rad/s), 8 ms of command delay
@@ -28,16 +29,9 @@ TRUTH = (
 @pytest.fixture(scope="module")
 def worn_log(tmp_path_factory):
     """4 s of the shipped SO-101 policy on the worn robot, recorded."""
-    from sim2real.deploy.export import export_policy
-
     folder = tmp_path_factory.mktemp("sysid")
-    pt = folder / "so101.pt"
-    pt.write_bytes(
-        (Path(__file__).resolve().parent.parent / "sim2real" / "policies" / "so101.pt").read_bytes()
-    )
-
     log = folder / "run.npz"
-    argv = ["--robot", "so101", "--policy", str(export_policy(pt)), "--duration", "4"]
+    argv = ["--robot", "so101", "--policy", str(shipped_onnx("so101", folder)), "--duration", "4"]
     argv += ["--plant-motors", str(TRUTH), "--record-commands", str(log)]
     assert deploy_run_main(argv) == 0
     return folder, log, TRUTH

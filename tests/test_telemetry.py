@@ -1,7 +1,6 @@
 """MCAP telemetry: the raw per-stage topics and Foxglove's well-known schemas read back."""
 
 import json
-from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -12,7 +11,7 @@ from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.observe.telemetry import Telemetry
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.runtime import Runtime
-from tests.runtime_fixtures import adversarial_onnx
+from tests.runtime_fixtures import adversarial_onnx, shipped_onnx
 
 pytest.importorskip("foxglove_schemas_protobuf", reason="the foxglove extra is not installed")
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms  # noqa: E402
@@ -21,7 +20,6 @@ from foxglove_schemas_protobuf.Log_pb2 import Log  # noqa: E402
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate  # noqa: E402
 from mcap.reader import make_reader  # noqa: E402
 
-REPO = Path(__file__).resolve().parent.parent
 RAW_TOPICS = {"/read", "/estimate", "/infer", "/guard", "/smooth", "/thermal", "/state"}
 
 
@@ -189,9 +187,8 @@ def test_a_legged_runs_telemetry_carries_the_base_estimate_beside_the_truth(tmp_
     (simulation) the simulator's, stamped alike: a user plots one against the other. The
     shipped Go2 walking: the logged estimate follows the logged truth."""
     from sim2real.deploy.cli.deploy_run import deploy_run_main
-    from sim2real.deploy.export import export_policy
 
-    policy = export_policy(REPO / "sim2real" / "policies" / "go2.pt", out=tmp_path / "go2.onnx")
+    policy = shipped_onnx("go2", tmp_path)
     path = tmp_path / "go2.mcap"
     code = deploy_run_main(
         ["--robot", "go2", "--policy", str(policy), "--command", "0.5,0,0"]

@@ -10,6 +10,7 @@ import pytest
 from sim2real.deploy.backends.sim.drives_kernel import torque_speed_range
 from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.robots.torque_speed import TorqueSpeedEnvelope
+from tests.runtime_fixtures import shipped_onnx
 
 
 def _fastest(plant, robot, seconds=0.5):
@@ -141,13 +142,9 @@ def test_a_session_draws_the_supply_voltage_only_when_its_range_is_set(so101, tm
     assert plain.supply == 1.0 and 0.8 <= drawn.supply <= 1.2 and drawn.supply != 1.0
     ranges = session_ranges(so101)
     ranges = replace(ranges, dynamics=replace(ranges.dynamics, supply_voltage=0.2))
-    from sim2real.deploy.export import export_policy
-
-    pt = tmp_path / "so101.pt"
-    pt.write_bytes(
-        (Path(__file__).resolve().parent.parent / "sim2real" / "policies" / "so101.pt").read_bytes()
+    config = SessionConfig(
+        robot="so101", policy=str(shipped_onnx("so101", tmp_path)), seed=4, hours=0.01
     )
-    config = SessionConfig(robot="so101", policy=str(export_policy(pt)), seed=4, hours=0.01)
     batch = SessionBatch([replace(config, ranges=ranges)], tmp_path / "soak", progress=False)
     supply = batch.backend.actuators.supply[0]
     assert 0.8 <= supply <= 1.2 and supply != 1.0

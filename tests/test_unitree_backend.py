@@ -17,7 +17,6 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import onnx
@@ -35,6 +34,7 @@ from sim2real.deploy.backends.unitree.emulator.robot import TRACE_EVERY  # noqa:
 from sim2real.deploy.backends.unitree.emulator.truth import walk_truth  # noqa: E402
 from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT  # noqa: E402
 from sim2real.deploy.spec.policy_spec import PolicySpec  # noqa: E402
+from tests.runtime_fixtures import shipped_onnx  # noqa: E402
 from tests.unitree_reference import (  # noqa: E402
     crc_bitwise,
     go_lowcmd_c_struct,
@@ -46,7 +46,6 @@ from tests.unitree_reference import (  # noqa: E402
 # suite's own workers do not starve it; it must still hold beside other jobs.
 pytestmark = pytest.mark.wallclock
 
-REPO = Path(__file__).resolve().parents[1]
 _DOMAINS = itertools.count()
 #: s: the go2's gait from standing to its walking speed, left out of the walk's mean speed
 GAIT_START_S = 1.0
@@ -87,11 +86,7 @@ def stand_onnx(go2, tmp_path_factory):
 def go2_onnx(tmp_path_factory):
     """The shipped Go2 policy (sim2real/policies/go2.pt), exported."""
     pytest.importorskip("torch")
-    from sim2real.deploy.export import export_policy
-
-    return export_policy(
-        REPO / "sim2real" / "policies" / "go2.pt", out=tmp_path_factory.mktemp("go2") / "go2.onnx"
-    )
+    return shipped_onnx("go2", tmp_path_factory.mktemp("go2"))
 
 
 def _deploy_run(tmp_path, domain, policy, seconds, *extra):

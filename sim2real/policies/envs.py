@@ -42,7 +42,7 @@ from sim2real.deploy.runtime import reanchor
 from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.eval.world.dynamics import Dynamics, DynamicsRanges, randomized_model, sample_dynamics
 from sim2real.eval.world.fault_schedule import FaultRanges
-from sim2real.eval.world.sensors import SensorRanges, sample_sensors
+from sim2real.eval.world.sensors import SensorRanges, apply_sensors, sample_sensors
 from sim2real.eval.world.session_draw import sample_faults
 from sim2real.eval.world.session_ranges import session_ranges
 from sim2real.policies.episode_faults import EpisodeFaults, training_fault_ranges
@@ -304,9 +304,7 @@ class ReachTask:
         self.backend.reset(q0, envs=which)
         for e in idx:
             draw = sample_sensors(self.rng, cfg.sensors)
-            self.backend.noise_sigma[e] = draw.noise_sigma
-            self.backend.latency_ticks[e] = draw.latency_ticks
-            self.backend.dropout_probability[e] = draw.dropout_probability
+            apply_sensors(self.backend, e, draw)
             if self.faults is not None:  # sized against this episode's sensors and plant
                 self.fault_seed[e] = self._fault_seeds.integers(2**31)
                 schedule = sample_faults(

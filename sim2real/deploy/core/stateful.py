@@ -20,7 +20,8 @@ Conventions (those of :class:`sim2real.deploy.monitors.violations.ViolationMonit
 - Arrays are copies; scalars are Python ``int``, ``float``, ``bool`` or ``str``. A random
   generator's state (``bit_generator.state``) and ragged records (lists per env) are JSON text
   (:func:`streams_json`, :func:`records_json` and their inverses).
-- Composite stages prefix their parts' keys with ``<part>/`` (:func:`prefixed`, :func:`section`).
+- Composite stages prefix their parts' keys with ``<part>/`` (:func:`prefixed`, :func:`section`;
+  :func:`parts_state_dict` and :func:`load_parts` for a stage that is only its parts).
 - A state that does not fit raises :class:`StateDictError` (a ``ValueError``) naming the field.
 """
 
@@ -229,3 +230,23 @@ def load_part(prefix: str, part, state: Mapping, env: int | None) -> None:
         raise exc.under(prefix) from None
     except ValueError as exc:
         raise StateDictError(prefix, f": {exc}") from None
+
+
+def parts_state_dict(parts: Mapping, env: int | None) -> dict:
+    """The state of a composite stage: every part's ``state_dict(env)`` (``parts``: prefix ->
+    part), its keys under its prefix (:func:`prefixed`)."""
+    out: dict = {}
+    for prefix, part in parts.items():
+        out.update(prefixed(prefix, part.state_dict(env)))
+    return out
+
+
+def load_parts(parts: Mapping, state: Mapping, env: int | None) -> None:
+    """Inverse of :func:`parts_state_dict`: :func:`load_part` for every part, in order.
+
+    Raises:
+        StateDictError: from a part, its key nested under the part's prefix (the parts before it
+            are loaded).
+    """
+    for prefix, part in parts.items():
+        load_part(prefix, part, state, env)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim2real.deploy.core.stateful import check, load_part, prefixed, put, scalar, take
+from sim2real.deploy.core.stateful import check, load_parts, parts_state_dict, put, scalar, take
 
 
 class RuntimeState:
@@ -106,9 +106,7 @@ class RuntimeState:
         clock = self.clock
         out["clock/overruns"] = int(clock.overruns)
         out["clock/missed_periods"] = int(clock.missed_periods)
-        for name, part in self._parts().items():
-            out.update(prefixed(name, part.state_dict(env)))
-        return out
+        return out | parts_state_dict(self._parts(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
         """Inverse of :meth:`state_dict` (of every env, or of env ``env``; the shared fields
@@ -130,6 +128,5 @@ class RuntimeState:
         put(shared, state, None)
         self.ticks, self.time = ticks, now
         self.clock.overruns, self.clock.missed_periods = overruns, missed
-        for name, part in self._parts().items():
-            load_part(name, part, state, env)
+        load_parts(self._parts(), state, env)
         self.clock.start()

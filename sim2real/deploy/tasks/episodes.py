@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim2real.deploy.core.stateful import load_part, prefixed, put, take
+from sim2real.deploy.core.stateful import load_parts, parts_state_dict, put, take
 from sim2real.deploy.tasks.goals import sample_goal
 from sim2real.deploy.tasks.locomotion import TRACKING_TOLERANCE, CommandRanges
 
@@ -30,18 +30,6 @@ class _Arrays:
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
         put(self.fields(), state, env)
-
-
-def _state_dict(task, env: int | None) -> dict:
-    out: dict = {}
-    for prefix, part in task.parts().items():
-        out.update(prefixed(prefix, part.state_dict(env)))
-    return out
-
-
-def _load_state_dict(task, state: dict, env: int | None) -> None:
-    for prefix, part in task.parts().items():
-        load_part(prefix, part, state, env)
 
 
 class EpisodeGoals:
@@ -122,10 +110,10 @@ class EpisodeGoals:
         return {"goals": _Arrays(lambda: {k: getattr(self, k) for k in names})}
 
     def state_dict(self, env: int | None = None) -> dict:
-        return _state_dict(self, env)
+        return parts_state_dict(self.parts(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
-        _load_state_dict(self, state, env)
+        load_parts(self.parts(), state, env)
 
 
 class EpisodeCommands:
@@ -188,7 +176,7 @@ class EpisodeCommands:
         return {"commands": _Arrays(lambda: {k: getattr(self, k) for k in names})}
 
     def state_dict(self, env: int | None = None) -> dict:
-        return _state_dict(self, env)
+        return parts_state_dict(self.parts(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
-        _load_state_dict(self, state, env)
+        load_parts(self.parts(), state, env)

@@ -15,7 +15,8 @@ from sim2real.deploy.core.stateful import (
     check,
     env_list,
     from_json,
-    load_part,
+    load_parts,
+    parts_state_dict,
     put,
     read_records,
     read_streams,
@@ -455,7 +456,7 @@ class GoalTask:
         return {"goals": self.scheduler}
 
     def state_dict(self, env: int | None = None) -> dict:
-        return {f"goals/{k}": v for k, v in self.scheduler.state_dict(env).items()}
+        return parts_state_dict(self.parts(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
-        load_part("goals", self.scheduler, state, env)
+        load_parts(self.parts(), state, env)

@@ -32,7 +32,8 @@ from sim2real.deploy.core.stateful import (
     check,
     env_list,
     from_json,
-    load_part,
+    load_parts,
+    parts_state_dict,
     put,
     read_records,
     read_streams,
@@ -608,12 +609,7 @@ class VelocityTask:
         return parts | {"tracker": self.tracker}
 
     def state_dict(self, env: int | None = None) -> dict:
-        return {
-            f"{prefix}/{k}": v
-            for prefix, part in self.parts().items()
-            for k, v in part.state_dict(env).items()
-        }
+        return parts_state_dict(self.parts(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
-        for prefix, part in self.parts().items():
-            load_part(prefix, part, state, env)
+        load_parts(self.parts(), state, env)

@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from sim2real.deploy.core.modes import FAULT_CAUSES, Mode
-from sim2real.deploy.core.stateful import prefixed
+from sim2real.deploy.core.stateful import parts_state_dict, prefixed
 from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.world.fault_schedule import FAULT_SETTLE
 from sim2real.eval.world.session_ranges import SessionRanges
@@ -319,13 +319,14 @@ class Session:
         ``e``; the book-keeping, options, policy digest and randomization as JSON metadata)."""
         rt, e, b = self.batch.rt, self.e, self.batch
         state = rt.state_dict(e)  # the runtime and its stages, the plant and policy included
-        for prefix, part in self.task.parts().items():
-            state.update(prefixed(prefix, part.state_dict(e)))
-        state.update(prefixed("stats", b.stats.state_dict(e)))
-        state.update(prefixed("violations", b.violations.state_dict(e)))
-        state.update(prefixed("interventions", b.interventions.state_dict(e)))
+        parts = self.task.parts() | {
+            "stats": b.stats,
+            "violations": b.violations,
+            "interventions": b.interventions,
+        }
         if b.estimation is not None:
-            state.update(prefixed("estimation", b.estimation.state_dict(e)))
+            parts["estimation"] = b.estimation
+        state.update(parts_state_dict(parts, e))
         if self.fault_armed:
             state.update(prefixed("injector", b.faults.armed[e].state_dict()))
         meta = {

@@ -41,6 +41,7 @@ import numpy as np
 
 from sim2real.deploy.backends.registry import make_backend
 from sim2real.deploy.cli.policy_contract import check_drive_applied, contract_messages
+from sim2real.deploy.cli.run_operator import load_policies, operator_hook, parse_policies
 from sim2real.deploy.cli.run_parser import attach_vectors, build_parser
 from sim2real.deploy.cli.run_summary import print_summary
 from sim2real.deploy.core.backend import SimulatedPlant
@@ -54,7 +55,6 @@ def run(args) -> int:
     """``deploy-run`` with parsed ``args``: build and open the backend, run, report; the exit
     code (module docstring). The backend is closed (servo bus: torque off) however it ends."""
     from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
-    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
     from sim2real.deploy.runtime import SimClock, WallClock
     from sim2real.deploy.spec.policy_spec import PolicySpec
     from sim2real.robots import load_robot
@@ -65,7 +65,8 @@ def run(args) -> int:
     spec = None
     if args.spec:
         spec = PolicySpec.from_json(Path(args.spec).read_text(), source=args.spec)
-    policy = OnnxPolicy(args.policy, robot, spec=spec)
+    policies = load_policies(args.policies, robot, spec)  # --policy [NAME=]FILE, repeated
+    policy = next(iter(policies.values()))
     for line in contract_messages(policy):
         print(line, file=sys.stderr)
     robot, drive = drive_robot(robot, policy.spec)  # the policy's PD gains and default pose
@@ -87,7 +88,7 @@ def run(args) -> int:
     else:
         clock = SimClock(robot.control_period)
     with backend:
-        rig = _build_rig(args, robot, policy, backend, injector, clock, fixed)
+        rig = _build_rig(args, robot, policies, backend, injector, clock, fixed)
         return _run_rig(args, rig, realtime, injector, clock, rt_request)
 
 
@@ -144,13 +145,15 @@ def realtime_options(args, realtime: bool):
     return wait, request
 
 
-def _build_rig(args, robot, policy, backend, injector, clock, fixed):
-    """The run's :class:`~sim2real.deploy.rig.rig.Rig`: the runtime (telemetry, overrun limit), the
-    task of the options, the motion figures, the hooks the options switch on and, on
-    hardware, the end of the run once every env is latched."""
+def _build_rig(args, robot, policies, backend, injector, clock, fixed):
+    """The run's :class:`~sim2real.deploy.rig.rig.Rig` on the first of ``policies``: the runtime
+    (telemetry, overrun limit), the task of the options, the motion figures, the hooks the
+    options switch on, the operator (``--operator``, after them) and, on hardware without an
+    operator, the end of the run once every env is latched."""
     from sim2real.deploy.rig.hooks import build_hooks
     from sim2real.deploy.rig.rig import LatchedStopHook, MotionHook, Rig
 
+    policy = next(iter(policies.values()))
     runtime = {"clock": clock, "injector": injector, "telemetry": _telemetry(args, robot, policy)}
     if args.overrun_limit is not None:
         runtime["overrun_rate_limit"] = args.overrun_limit
@@ -167,7 +170,10 @@ def _build_rig(args, robot, policy, backend, injector, clock, fixed):
     rig.add(MotionHook(rig))
     for hook in build_hooks(args, rig):  # --ros2, --print-joints, --video, --viewer, ...
         rig.add(hook)
-    if not rig.simulated:
+    operator = operator_hook(args, rig, policies)  # after --ros2: its command is the last word
+    if operator is not None:
+        rig.add(operator)
+    elif not rig.simulated:  # an operator stands a latched robot up again
         rig.add(LatchedStopHook())
     return rig
 
@@ -232,7 +238,8 @@ def run_report(args, rig, wall: float, realtime: bool, injector, clock) -> dict:
     report = {
         "robot": robot.name,
         "backend": args.backend,
-        "policy": str(args.policy),
+        "policy": str(next(iter(args.policies.values()))),
+        "policies": dict(args.policies),
         "control_mode": rig.policy.spec.action.mode,
         "control_rate_hz": 1.0 / robot.control_period,
         "duration_s": rt.time,
@@ -313,6 +320,11 @@ def deploy_run_main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
     argv = attach_vectors(argv)
     args = build_parser(argv).parse_args(argv)
+    try:
+        args.policies = parse_policies(args.policy)
+    except ValueError as exc:
+        print(f"deploy-run: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     if args.viewer:  # a window or nothing: refuse before the run starts
         from sim2real.deploy.observe.viewer import NoDisplayError, check_display
 

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from sim2real.deploy.backends.registry import add_backend_options
+from sim2real.deploy.cli.run_operator import add_operator_options
 from sim2real.deploy.rig.hooks import add_hook_options
 from sim2real.deploy.runtime.clock import WAIT_MODES
 from sim2real.deploy.tasks.heading import HEADING_GAIN
@@ -31,7 +32,14 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     )
     add_backend_options(p, argv)
     p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
-    p.add_argument("--policy", required=True, help="ONNX policy (made by policy-export)")
+    p.add_argument(
+        "--policy",
+        required=True,
+        action="append",
+        metavar="[NAME=]FILE",
+        help="ONNX policy (made by policy-export); repeat with names for an operator's switching "
+        "(--policy walk=go2.onnx --policy stand=go2_stand.onnx); the first starts",
+    )
     p.add_argument("--spec", default=None, help="PolicySpec JSON for an ONNX without our metadata")
     p.add_argument("--duration", type=float, default=60.0, help="seconds of (simulated) time")
     p.add_argument("--seed", type=int, default=0)
@@ -55,6 +63,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         help="write downsampled MCAP (with the foxglove extra: link poses, joint states, "
         "commands and guard events in Foxglove's schemas)",
     )
+    add_operator_options(p)
     add_hook_options(p)  # --ros2, --print-joints, --video, --viewer (sim2real.deploy.rig.hooks)
     return p
 

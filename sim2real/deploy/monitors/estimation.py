@@ -12,7 +12,8 @@ difference on every RUNNING tick of a floating-base robot in simulation:
 It also watches the true base for a fall the runtime may not have seen (a robot whose feet fell
 through the floor with it keeps its kinematic height): the base below ``TRUE_FALL_HEIGHT`` of its
 standing height, or tilted past the robot's ``safety.fall_tilt`` (default ``FALL_TILT``), while
-RUNNING, counts a true fall once until the robot is up again.
+RUNNING, counts a true fall once until the robot is up again; a low base an operator asked for
+(``Runtime.lying_expected``: lying down, standing up from the floor) is no fall, a tilt is.
 """
 
 from __future__ import annotations
@@ -91,7 +92,11 @@ class EstimationMonitor:
         true_base = self._truth.set_truth(truth)
         g_true, v_true = true_base.projected_gravity, true_base.linear_velocity
         running = runtime.mode == 2  # RUNNING
-        down = (truth[:, 2] < self.fall_height) | (tilt_of(g_true) > self.fall_tilt)
+        low = truth[:, 2] < self.fall_height
+        asked = getattr(runtime, "lying_expected", None)  # an operator laying the robot down
+        if asked is not None:
+            low &= ~asked
+        down = low | (tilt_of(g_true) > self.fall_tilt)
         self.true_falls += down & ~self._down & running
         self._down = down | (self._down & ~running)
         if not running.any():

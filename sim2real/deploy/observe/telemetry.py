@@ -285,6 +285,26 @@ class Telemetry:
             )
             self.messages += 1
 
+    def event(self, topic: str, t: float, data: dict) -> None:
+        """One JSON message ``data`` on ``topic`` (its channel registered at the first message)
+        stamped at the run's time ``t`` s: an event that is not a tick's sample (the operator's
+        transitions on ``/operator``)."""
+        if topic not in self._channels:
+            schema = self._writer.register_schema(
+                name=topic.strip("/"), encoding="jsonschema", data=b'{"type": "object"}'
+            )
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=schema
+            )
+        t_ns = int(round(t * 1e9))
+        self._writer.add_message(
+            channel_id=self._channels[topic],
+            log_time=t_ns,
+            publish_time=t_ns,
+            data=json.dumps(data).encode(),
+        )
+        self.messages += 1
+
     def close(self, long_ticks: list[dict] | None = None, period: float | None = None) -> Path:
         """Flush, finish the MCAP file and move it to its final name; returns the path.
 

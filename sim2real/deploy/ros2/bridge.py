@@ -123,6 +123,11 @@ class RuntimeNode:
         self.published = {"joint_states": 0, "imu": 0, "odom": 0, "diagnostics": 0}
         self.received = {"cmd_vel": 0, "goal_point": 0}
         self.services = {"stop": 0, "resume": 0, "reset_faults": 0}
+        #: who may resume and reset (an operator's authority table, deploy-run --operator):
+        #: ``authorize(kind)`` -> None (allowed) or why not, called on the control thread for
+        #: ``resume`` and ``reset_faults`` (``stop`` is open to all); None: every caller may
+        self.authorize = None
+        self.refused = 0
         self.cmd_vel_timeouts = 0
         self._joint_state = JointState()
         self._joint_state.name = list(runtime.robot.joint_names)
@@ -220,6 +225,11 @@ class RuntimeNode:
                 return True, f"already stopped ({Mode(mode).name}, cause {cause_name})"
             rt.supervision.safe_stop(np.ones(1, dtype=bool), "operator")
             return True, "safe stop begun (cause operator)"
+        if self.authorize is not None:
+            why = self.authorize(kind)
+            if why is not None:
+                self.refused += 1
+                return False, f"refused: {why}"
         if mode == SAFE_STOP:
             return False, f"still stopping (cause {cause_name}): call again once at rest"
         if mode != FAULTED:
@@ -349,6 +359,7 @@ class RuntimeNode:
             "ticks_skipped": self.buffer.skipped,
             "cmd_vel_timeouts": self.cmd_vel_timeouts,
             "services": dict(self.services),
+            "services_refused": self.refused,
             "after_tick_us": self.after_tick_cost.summary(),
         }
 

@@ -31,6 +31,7 @@ from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
 from sim2real.deploy.runtime.clock import SimClock
 from sim2real.deploy.runtime.compiled import CompiledSupervision
+from sim2real.deploy.runtime.handover import HandOver, check_policy, switch_policy
 from sim2real.deploy.runtime.state import RuntimeState
 from sim2real.deploy.runtime.supervision import Supervision
 from sim2real.deploy.safety.guard import SafetyGuard
@@ -98,14 +99,12 @@ class Runtime(RuntimeState):
             raise ValueError(f"overrun_rate_limit: expected in (0, 1], got {overrun_rate_limit}")
         self.overrun_rate_limit = overrun_rate_limit
         self.robot, self.policy, self.backend = robot, policy, backend
-        self._reset_policy = getattr(policy, "reset", None) or _no_reset
+        check_policy(policy.spec, robot, backend.mode)
         self.spec: PolicySpec = policy.spec
-        self.spec.check_robot(robot)
-        if self.spec.action.mode != backend.mode:
-            raise ValueError(
-                f"policy action mode '{self.spec.action.mode}' differs from the backend's control "
-                f"mode '{backend.mode}'"
-            )
+        #: the outgoing policy of a hand-over in progress (:meth:`switch_policy`), else None
+        self.handover: HandOver | None = None
+        #: the last hand-over that ran to its end (its ``max_target_step``), else None
+        self.last_handover: HandOver | None = None
         envs, n = backend.envs, robot.n_joints
         self.envs, self.n = envs, n
         self.mode_name = backend.mode
@@ -122,6 +121,9 @@ class Runtime(RuntimeState):
         self.goal = np.zeros((envs, 3))
         #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check
         self.base_estimator, self.fall_detector = kind.base_stages(robot, envs)
+        #: (envs,) bool, an operator laying a legged robot down or standing it up from the
+        #: floor: only a tilt is a fall there (a low or sinking base was asked for)
+        self.lying_expected = np.zeros(envs, dtype=bool)
         #: (envs, 3) the velocity command of a legged robot (vx, vy m/s, yaw rate rad/s, base
         #: frame): the operator's (deploy-run --command) or the soak's schedule; write into it
         self.velocity_command = (
@@ -140,7 +142,7 @@ class Runtime(RuntimeState):
             self.smoother,
             self.clock,
             overrun_rate_limit,
-            self._reset_policy,
+            self._reset_policy,  # the policy of the moment's (switch_policy)
         )
         #: (envs,) int8 modes (:class:`Mode`), and causes (index into FAULT_CAUSES, -1: none)
         self.mode, self.cause = sup.mode, sup.cause
@@ -182,6 +184,21 @@ class Runtime(RuntimeState):
         self._backend_damp = getattr(backend, "damp", None)
         #: the compiled action screen and supervision (sim2real.deploy.kernels); None in the reference
         self._compiled = self._compile()
+
+    def _reset_policy(self, envs: np.ndarray) -> None:
+        """The current policy's ``reset(envs)`` (bool mask (envs,)), if it has one."""
+        (getattr(self.policy, "reset", None) or _no_reset)(envs)
+
+    def switch_policy(self, policy, blend_time: float = 0.0) -> None:
+        """Hand control to ``policy`` (same robot and control mode), its state reset for every
+        env, the RUNNING envs' targets blended from the outgoing policy's over ``blend_time`` s
+        (:func:`~sim2real.deploy.runtime.handover.switch_policy`, which says how). Call between
+        ticks.
+
+        Raises:
+            ValueError: a spec for another robot or control mode, a negative ``blend_time``.
+        """
+        switch_policy(self, policy, blend_time)
 
     def _build_stages(self) -> tuple[SafetyGuard, CommandSmoother]:
         """The guard and the smoother (compiled)."""
@@ -327,6 +344,10 @@ class Runtime(RuntimeState):
         policy_output = self.policy(obs)
         st[4] = clock_ns()
         action, target = self._act(policy_output, state)  # screen, action_to_target, override
+        if self.handover is not None:  # switch_policy: the outgoing policy's targets blend in
+            self.handover.blend(target, state, self.goal, self.mode)
+            if self.handover.finished:
+                self.last_handover, self.handover = self.handover, None
         target = self.guard.filter(target, state, out=target, commanded_position=self._commanded)
         self._on_violation()
         st[5] = clock_ns()
@@ -403,6 +424,8 @@ class Runtime(RuntimeState):
         stale = self.base_estimator.time_since_fresh > self.robot.config.safety.stale_limit
         self.supervision.safe_stop(stale, "stale_sensor")
         fallen = self.fall_detector.check(state) & ((self.mode == RUNNING) | (self.mode == RAMP_IN))
+        # an operator laying the robot down or standing it up: a low base is no fall, a tilt is
+        fallen &= ~self.lying_expected | self.fall_detector.signals[:, 0]
         self.supervision.safe_stop(fallen, "fall")
 
     @property

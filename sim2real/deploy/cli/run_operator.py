@@ -1,0 +1,141 @@
+"""deploy-run's several policies and its operator: ``--policy [NAME=]FILE`` (repeated; a file
+without a name is named by its stem), ``--operator MAPPING`` and ``--operator-source SOURCE``
+(:mod:`sim2real.deploy.operator`).
+
+Every policy of a run must fit the robot (its contract, :meth:`PolicySpec.check_robot`) and drive
+it the same way: the same control mode, and where a policy records its drive (PD gains, default
+pose), the same as the first's, since the robot's drives are set once for the run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def add_operator_options(p: argparse.ArgumentParser) -> None:
+    """Add ``--operator``, ``--operator-source``, ``--lie-policy`` and ``--stand-policy``."""
+    g = p.add_argument_group("operator (docs/operator.md)")
+    g.add_argument(
+        "--operator",
+        default=None,
+        metavar="MAPPING",
+        help="drive the run from an operator's input: a mapping file (TOML) or a shipped one "
+        "(unitree, xbox_evdev, xbox_joy, keyboard)",
+    )
+    g.add_argument(
+        "--operator-source",
+        default=None,
+        metavar="SOURCE",
+        help="unitree (the wireless remote in LowState), joy[:TOPIC] (sensor_msgs/Joy), "
+        "evdev:/dev/input/eventN or evdev:FILE.jsonl (a recorded stream), keyboard; default: "
+        "the mapping's source",
+    )
+    g.add_argument(
+        "--lie-policy",
+        default="lie",
+        metavar="NAME",
+        help="the policy (by its --policy NAME) whose pose the robot lies down in before its "
+        "drives damp (default %(default)s; absent: lie_down damps at once)",
+    )
+    g.add_argument(
+        "--stand-policy",
+        default="stand",
+        metavar="NAME",
+        help="the policy (by its --policy NAME) that holds the robot standing (default "
+        "%(default)s; absent: STAND runs the walking policy at a zero command)",
+    )
+
+
+def parse_policies(values: list[str]) -> dict[str, str]:
+    """``--policy`` values -> {name: file}, in order.
+
+    Raises:
+        ValueError: an empty name or file, a name given twice.
+    """
+    out: dict[str, str] = {}
+    for v in values:
+        name, sep, path = v.partition("=")
+        if not sep:
+            name, path = Path(v).stem, v
+        if not name or not path:
+            raise ValueError(f"--policy {v!r}: expected FILE or NAME=FILE")
+        if name in out:
+            raise ValueError(f"--policy {v!r}: the name '{name}' is given twice")
+        out[name] = path
+    return out
+
+
+def load_policies(files: dict[str, str], robot, spec=None) -> dict:
+    """{name: OnnxPolicy} of ``files`` for ``robot`` (``spec``: --spec, for every file).
+
+    Raises:
+        ValueError: a policy that does not load or fit the robot, or that drives it another way
+            than the first (control mode, kp, kd or default pose; naming both files).
+    """
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.spec.drive import drive_robot
+
+    policies, first = {}, None
+    for name, path in files.items():
+        policy = OnnxPolicy(path, robot, spec=spec)
+        driven, _ = drive_robot(robot, policy.spec)
+        drive = (
+            policy.spec.action.mode,
+            np.array([j.kp for j in driven.config.joints]),
+            np.array([j.kd for j in driven.config.joints]),
+            np.asarray(driven.home),
+        )
+        if first is None:
+            first = (path, drive)
+        else:
+            for label, a, b in zip(
+                ("control mode", "kp", "kd", "home pose"), first[1], drive, strict=True
+            ):
+                if not np.array_equal(np.asarray(a), np.asarray(b)):
+                    raise ValueError(
+                        f"--policy {name}={path}: its {label} differs from {first[0]}'s; the "
+                        f"policies of one run drive the robot alike ({b} vs {a})"
+                    )
+        policies[name] = policy
+    return policies
+
+
+def operator_hook(args, rig, policies: dict):
+    """The :class:`~sim2real.deploy.operator.hook.OperatorHook` of ``--operator`` (None
+    without it).
+
+    Raises:
+        ValueError: a bad mapping, a source that does not open, a mapping for another source.
+    """
+    if not args.operator:
+        if args.operator_source:
+            raise ValueError("--operator-source needs --operator MAPPING")
+        return None
+    from sim2real.deploy.operator.hook import OperatorHook
+    from sim2real.deploy.operator.machine import OperatorMachine
+    from sim2real.deploy.operator.mapping import load_mapping
+    from sim2real.deploy.operator.sources import open_source
+
+    mapping = load_mapping(args.operator)
+    text = args.operator_source or mapping.source
+    source = open_source(text, backend_args=args, robot=rig.robot)
+    if source.source != mapping.source:
+        source.close()
+        raise ValueError(
+            f"--operator {args.operator}: a mapping for '{mapping.source}', the source "
+            f"'{text}' gives {source.source} names"
+        )
+    machine = OperatorMachine(
+        rig.runtime, policies, mapping, [source], args.stand_policy, args.lie_policy
+    )
+    for name in machine.unknown_policies:
+        print(
+            f"deploy-run: note: the mapping names policy '{name}', not in this run (its "
+            f"button does nothing); the run's: {list(policies)}",
+            file=sys.stderr,
+        )
+    return OperatorHook(rig, machine, args.operator)

@@ -1,0 +1,116 @@
+"""A hand-over between two policies (:class:`HandOver`): :meth:`Runtime.switch_policy
+<sim2real.deploy.runtime.loop.Runtime.switch_policy>` swaps the runtime's policy at once and, while
+any env is RUNNING, blends the outgoing policy's targets into the receiving one's over a set time.
+
+For ``ticks`` control periods after the switch the outgoing policy still runs, on its own
+observation (its spec's blocks over the same estimate), and each RUNNING env's target is
+``a * received + (1 - a) * outgoing`` with ``a`` rising linearly from ``1 / (ticks + 1)`` to 1:
+no step in the PD targets beyond what either policy moves in a tick plus ``1 / (ticks + 1)`` of
+the gap between them. The guard and the smoother run after the blend, as on every tick; the
+smoother's limits bound the command whatever the blend does. The largest tick-to-tick target
+step of the hand-over is kept (:attr:`HandOver.max_target_step`) for the operator's report.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim2real.deploy.core.modes import RUNNING
+
+
+class HandOver:
+    """The outgoing side of a hand-over.
+
+    Args:
+        policy: The outgoing policy (callable ``(envs, obs_dim) float32 -> (envs, n)``).
+        spec: Its :class:`~sim2real.deploy.spec.policy_spec.PolicySpec`.
+        envs, n: The runtime's envs and joints.
+        ticks: Control periods of the blend (>= 1).
+        target: (envs, n) the runtime's target at the switch (units of the control mode), the
+            reference of the first step.
+
+    Raises:
+        ValueError: ``ticks`` < 1.
+    """
+
+    def __init__(self, policy, spec, envs: int, n: int, ticks: int, target: np.ndarray):
+        if ticks < 1:
+            raise ValueError(f"HandOver: ticks must be >= 1, got {ticks}")
+        self.policy, self.spec, self.ticks = policy, spec, int(ticks)
+        self.done = 0
+        self._obs = np.zeros((envs, spec.obs_dim), dtype=np.float32)
+        self._outgoing = np.zeros((envs, n))
+        self._previous = np.array(target, dtype=np.float64)
+        #: the largest tick-to-tick change of a RUNNING env's blended target, units of the mode
+        #: (rad in position mode), over the blend
+        self.max_target_step = 0.0
+
+    @property
+    def finished(self) -> bool:
+        """True once the blend's last tick ran."""
+        return self.done >= self.ticks
+
+    def blend(self, target: np.ndarray, state, goal: np.ndarray, mode: np.ndarray) -> None:
+        """Blend ``target`` ((envs, n), the receiving policy's after the screen) in place for the
+        RUNNING envs of ``mode`` with the outgoing policy's target at ``state`` and ``goal``; a
+        non-finite outgoing action leaves the receiving target as it is."""
+        running = mode == RUNNING
+        self.done += 1
+        if running.any():
+            obs = self.spec.observation(state, goal, out=self._obs)
+            action = np.asarray(self.policy(obs))
+            out = self.spec.action_to_target(action, state, out=self._outgoing)
+            a = self.done / (self.ticks + 1)
+            mixed = a * target + (1.0 - a) * out
+            ok = running[:, None] & np.isfinite(mixed)
+            np.copyto(target, mixed, where=ok)
+            step = np.abs(target[running] - self._previous[running])
+            if step.size:
+                self.max_target_step = max(self.max_target_step, float(step.max()))
+        self._previous[:] = target
+
+
+def check_policy(spec, robot, mode: str) -> None:
+    """Refuse a policy's ``spec`` made for another robot than ``robot`` or another control mode
+    than ``mode`` (the backend's).
+
+    Raises:
+        ValueError: naming the mismatch (:meth:`PolicySpec.check_robot
+            <sim2real.deploy.spec.policy_spec.PolicySpec.check_robot>`'s, or the mode's).
+    """
+    spec.check_robot(robot)
+    if spec.action.mode != mode:
+        raise ValueError(
+            f"policy action mode '{spec.action.mode}' differs from the backend's control "
+            f"mode '{mode}'"
+        )
+
+
+def switch_policy(runtime, policy, blend_time: float) -> None:
+    """:meth:`Runtime.switch_policy <sim2real.deploy.runtime.loop.Runtime.switch_policy>`: hand
+    ``runtime``'s control to ``policy``. Its spec is checked against the robot and the control
+    mode; its state is reset for every env (a recurrent policy's memory; its observation is
+    built afresh from its own spec's blocks, its plan built now, not in a tick); for
+    ``blend_time`` s (rounded to control periods) the targets of the RUNNING envs blend from the
+    outgoing policy's into its own (:class:`HandOver`); 0 s, or no env RUNNING: at once (RAMP_IN
+    hands over from the home pose anyway). A hand-over still in progress is cut short: the
+    policy it was leaving is dropped, the blend starts again from the current target.
+
+    Raises:
+        ValueError: a spec for another robot or control mode, a negative ``blend_time``.
+    """
+    if not blend_time >= 0:
+        raise ValueError(f"switch_policy: blend_time must be >= 0 s, got {blend_time}")
+    check_policy(policy.spec, runtime.robot, runtime.mode_name)
+    ticks = int(round(blend_time / runtime.dt))
+    outgoing, spec = runtime.policy, runtime.spec
+    runtime.handover = None
+    if ticks > 0 and (runtime.mode == RUNNING).any():
+        n = runtime.robot.n_joints
+        runtime.handover = HandOver(outgoing, spec, runtime.envs, n, ticks, runtime.target)
+    runtime.policy, runtime.spec = policy, policy.spec
+    obs = runtime._obs  # noqa: SLF001 - the runtime's own room
+    if obs.shape[1] != runtime.spec.obs_dim:
+        runtime._obs = obs = np.zeros((runtime.envs, runtime.spec.obs_dim), dtype=np.float32)
+    runtime.spec.observation(runtime.state, runtime.goal, out=obs)
+    runtime._reset_policy(np.ones(runtime.envs, dtype=bool))  # noqa: SLF001

@@ -1,0 +1,202 @@
+"""The operator (sim2real.deploy.operator): the Unitree remote's bytes, the mapping file, the
+sources without hardware (a recorded evdev stream, the keyboard through a pipe), the state
+machine and its authority, and a scripted session through deploy-run on the MuJoCo plant with
+three policies (walk, stand, lie) switched by the operator with blended hand-overs."""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sim2real.deploy.backends.unitree.remote import (
+    BUTTONS,
+    REMOTE_BYTES,
+    RemoteScript,
+    decode_remote,
+    encode_remote,
+)
+from sim2real.deploy.operator.mapping import load_mapping
+from sim2real.deploy.operator.sources import EvdevReplay, KeyboardSource
+
+ROOT = Path(__file__).resolve().parents[1]
+SESSION = ROOT / "tests" / "data" / "operator" / "xbox_session.jsonl"
+
+
+@pytest.fixture(scope="module")
+def go2_policies(tmp_path_factory):
+    """The Go2's walking, standing and lying policies exported fresh: {name: path}."""
+    from sim2real.deploy.export import export_policy
+
+    folder = tmp_path_factory.mktemp("operator_policies")
+    out = {}
+    for name, stem in (("walk", "go2"), ("stand", "go2_stand"), ("lie", "go2_lie")):
+        src = ROOT / "sim2real" / "policies" / f"{stem}.pt"
+        out[name] = str(export_policy(str(src), out=folder / f"{stem}.onnx"))
+    return out
+
+
+# ---------------------------------------------------------------------- the remote's bytes
+def test_the_remote_bytes_follow_unitree_rl_gyms_layout():
+    """Buttons are bits of the uint16 at byte 2 (bit 8 A, bit 2 start, bit 3 select), the sticks
+    float32 at 4 (lx), 8 (rx), 12 (ry), 20 (ly): built here field by field with struct."""
+    raw = bytearray(REMOTE_BYTES)
+    struct.pack_into("<H", raw, 2, (1 << 8) | (1 << 2))
+    struct.pack_into("<f", raw, 4, -0.25)
+    struct.pack_into("<f", raw, 8, 0.5)
+    struct.pack_into("<f", raw, 20, 0.75)
+    buttons, axes = decode_remote(bytes(raw))
+    assert buttons == {"A", "start"}
+    assert axes["lx"] == -0.25 and axes["rx"] == 0.5 and axes["ly"] == 0.75 and axes["ry"] == 0
+    assert encode_remote(["A", "start"], lx=-0.25, rx=0.5, ly=0.75) == bytes(raw)
+    assert BUTTONS[3] == "select" and BUTTONS[15] == "left"
+    with pytest.raises(ValueError, match="40 bytes"):
+        decode_remote(b"\0" * 39)
+    assert decode_remote(np.frombuffer(bytes(raw), dtype=np.uint8))[0] == {"A", "start"}
+
+
+def test_a_remote_script_holds_each_state_until_the_next(tmp_path):
+    p = tmp_path / "remote.toml"
+    p.write_text('[[step]]\nat = 1.0\nbuttons = ["start"]\n\n[[step]]\nat = 1.2\nly = 0.5\n')
+    script = RemoteScript(p)
+    assert decode_remote(script.at(0.5)) == (
+        frozenset(),
+        {k: 0.0 for k in decode_remote(script.at(0.5))[1]},
+    )
+    assert decode_remote(script.at(1.1))[0] == {"start"}
+    b, a = decode_remote(script.at(5.0))
+    assert not b and a["ly"] == 0.5
+    p.write_text('[[step]]\nat = 1.0\nbuttons = ["Z"]\n')
+    with pytest.raises(ValueError, match="step 1: Unitree remote: unknown button 'Z'"):
+        RemoteScript(p)
+
+
+# ---------------------------------------------------------------------- the mapping file
+def test_the_shipped_mappings_load_and_a_bad_one_names_its_field(tmp_path):
+    for name in ("unitree", "xbox_evdev", "xbox_joy", "keyboard"):
+        m = load_mapping(name)
+        assert "damp" in m.actions and m.allowed("start") == [m.source]
+    bad = tmp_path / "bad.toml"
+    bad.write_text('source = "unitree"\n[actions]\ndamp = "select"\nstand = "BTN_START"\n')
+    with pytest.raises(
+        ValueError, match=r"bad.toml:\n  actions.stand: 'BTN_START' is not a unitree button"
+    ):
+        load_mapping(bad)
+    bad.write_text('source = "unitree"\n[actions]\nstand = "start"\n')
+    with pytest.raises(ValueError, match="'damp' must have a button"):
+        load_mapping(bad)
+    bad.write_text('source = "joy"\n[actions]\ndamp = "button1"\n[authority]\nstart = ["anyone"]\n')
+    with pytest.raises(ValueError, match=r"authority.start.*unknown requester 'anyone'"):
+        load_mapping(bad)
+    bad.write_text('source = "joy"\n[actions]\ndamp = "button1"\n[deadman]\ntimeout = -1\n')
+    with pytest.raises(ValueError, match=r"deadman.timeout: Input should be greater than 0"):
+        load_mapping(bad)
+
+
+# ---------------------------------------------------------------------- sources
+def test_a_recorded_evdev_stream_plays_on_the_runs_clock_then_falls_silent():
+    src = EvdevReplay(SESSION)
+    assert src.poll(0.0) is None  # nothing recorded yet
+    f = src.poll(2.05)
+    assert "BTN_SOUTH" in f.buttons and f.axes["ABS_Y"] == 0.0 and f.stamp == 2.05
+    f = src.poll(3.0)
+    assert not f.buttons and f.axes["ABS_Y"] == pytest.approx(-1.0, abs=1e-4)
+    last = src.events[-1][0]
+    f = src.poll(last + 10.0)
+    assert f.stamp == last  # the pad said nothing after its last event: the dead-man's cue
+
+
+def test_the_keyboard_source_reads_keys_from_its_descriptor():
+    r, w = os.pipe()
+    try:
+        src = KeyboardSource(r)
+        f = src.poll(1.0)
+        assert not f.presses and f.stamp == 1.0
+        os.write(w, b"w \n")
+        f = src.poll(2.0)
+        assert f.presses == {"w", "space", "enter"} and f.stamp == 2.0
+        assert src.poll(3.0).stamp == 2.0
+    finally:
+        os.close(r)
+        os.close(w)
+
+
+# ---------------------------------------------------------------------- the session
+def test_a_scripted_gamepad_session_walks_switches_lies_down_and_stands_up(
+    tmp_path, go2_policies, capsys
+):
+    """The recorded Xbox stream on the MuJoCo plant: walk on the stick, hand over to the
+    standing policy and back, lie down (the lying policy's ramp, then damped), a walk refused
+    while lying, stand up from the floor, walk again; then the pad falls silent and the dead-man
+    stands the robot. No true violation, no fall but the operator's own lie-down, and every
+    hand-over's command step within the smoother's limit."""
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+
+    report = tmp_path / "run.json"
+    p = go2_policies
+    code = deploy_run_main(
+        ["--robot", "go2", "--duration", "31",
+         "--policy", f"walk={p['walk']}", "--policy", f"stand={p['stand']}",
+         "--policy", f"lie={p['lie']}", "--operator", "xbox_evdev",
+         "--operator-source", f"evdev:{SESSION}", "--report", str(report)]
+    )  # fmt: skip
+    r = json.loads(report.read_text())
+    op = r["operator"]
+    path = [(t["state"], t["to"]) for t in op["transitions"]]
+    assert path == [
+        ("STAND", "STAND"), ("STAND", "POLICY"), ("POLICY", "STAND"), ("STAND", "POLICY"),
+        ("POLICY", "LIE"), ("LIE", "DAMP"), ("DAMP", "PASSIVE"), ("PASSIVE", "STAND"),
+        ("STAND", "POLICY"), ("POLICY", "STAND"),
+    ], path  # fmt: skip
+    assert op["transitions"][-1]["requester"] == "deadman"
+    assert [t["refused"] for t in op["refused"]] == ["in LIE: stand first"]
+    assert op["switches"] == 6 and op["deadman_events"] == 1
+    assert code == 0, capsys.readouterr().err
+    assert r["violations"]["any"] == 0 and not r["hard_violations"]
+    assert r["locomotion"]["true_falls"] == 0
+    assert r["faults"]["by_cause"]["fall"] == 0
+    assert 0 < op["handover_max_command_step_share_of_limit"] <= 1.0 + 1e-9
+    assert r["locomotion"]["distance_m"] > 3.0
+
+
+# ---------------------------------------------------------------------- Runtime.switch_policy
+def test_switch_policy_blends_the_targets_and_refuses_what_does_not_fit(go2_policies):
+    """The hand-over blends for ``ticks`` ticks; after them the receiving policy alone commands
+    (the lying policy's constant target); a policy for another robot, or a negative blend, is
+    refused and the policy in control stays."""
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.core.modes import RUNNING
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.runtime import Runtime
+    from sim2real.deploy.spec.policy_spec import PolicySpec
+    from sim2real.policies.stand import LIE_POSE
+    from sim2real.robots import load_robot
+
+    robot = load_robot("go2")
+    walk = OnnxPolicy(go2_policies["walk"], robot)
+    lie = OnnxPolicy(go2_policies["lie"], robot)
+    with SimBackend(robot, mode="position", seed=0) as backend:
+        rt = Runtime(robot, walk, backend)
+        rt.start()
+        rt.run(40)
+        assert rt.mode[0] == RUNNING
+        rt.switch_policy(lie, blend_time=0.2)  # 10 ticks
+        assert rt.policy is lie and rt.spec is lie.spec and rt.handover.ticks == 10
+        rt.run(10)
+        assert rt.handover is None and rt.last_handover.done == 10
+        rt.run(1)
+        assert np.allclose(rt.target[0], LIE_POSE["go2"], atol=1e-5)
+        assert 0 < rt.last_handover.max_target_step < 1.0
+
+        class ArmPolicy:  # a contract for another robot
+            spec = PolicySpec.for_robot(load_robot("arm3"))
+
+        with pytest.raises(ValueError, match="arm3"):
+            rt.switch_policy(ArmPolicy())
+        with pytest.raises(ValueError, match="blend_time must be >= 0"):
+            rt.switch_policy(walk, -1.0)
+        assert rt.policy is lie

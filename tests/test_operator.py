@@ -70,6 +70,12 @@ def test_a_remote_script_holds_each_state_until_the_next(tmp_path):
     assert decode_remote(script.at(1.1))[0] == {"start"}
     b, a = decode_remote(script.at(5.0))
     assert not b and a["ly"] == 0.5
+    from sim2real.deploy.operator.sources import ScriptedRemote
+
+    p.write_text('runtime_starts = 1.0\n[[step]]\nat = 1.0\nbuttons = ["start"]\n')
+    played = ScriptedRemote(p)
+    assert not played.poll(-0.5).buttons and played.poll(0.1).buttons == {"start"}
+    assert played.poll(0.1).stamp == 0.1 and played.source == "unitree"
     p.write_text('[[step]]\nat = 1.0\nbuttons = ["Z"]\n')
     with pytest.raises(ValueError, match="step 1: Unitree remote: unknown button 'Z'"):
         RemoteScript(p)

@@ -311,7 +311,13 @@ def exit_code(report: dict, rig) -> int:
         return EXIT_DIVERGED
     if hard or report["faults"]["by_cause"]["hard_limit"] > 0:
         return EXIT_HARD_VIOLATION
-    if any(m in ("FAULTED", "SAFE_STOP") for m in report["final_state"]) or rig.true_falls():
+    # an operator's own stop (damp, lie down) is where an operated run may end: not a fault
+    operated = report.get("operator") is not None
+    stopped = [
+        m in ("FAULTED", "SAFE_STOP") and not (operated and c == "operator")
+        for m, c in zip(report["final_state"], report["final_cause"], strict=True)
+    ]
+    if any(stopped) or rig.true_falls():
         return EXIT_FAULT
     return EXIT_CLEAN
 

@@ -54,6 +54,13 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="message family of both ends (default: robot.toml's)",
     )
+    p.add_argument(
+        "--remote",
+        default=None,
+        metavar="TOML",
+        help="the emulator plays this scripted wireless remote (an operator session: give "
+        "deploy-run --operator unitree after '--')",
+    )
     args, rest = parse_hil(p, argv)
     with tempfile.TemporaryDirectory(prefix="hil-") as tmp:
         return _run(args, rest, Path(tmp))
@@ -65,6 +72,8 @@ def _run(args, rest: list[str], tmp: Path) -> int:
         rest = [*rest, "--report", str(tmp / "report.json")]
     report = Path(rest[rest.index("--report") + 1])
     extra = ["--start", args.start, "--trace", str(trace)]
+    if args.remote:
+        extra += ["--remote", args.remote]
     if args.family:
         extra += ["--family", args.family]
         rest = [*rest, "--family", args.family]

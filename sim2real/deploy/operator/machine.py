@@ -35,6 +35,7 @@ import numpy as np
 
 from sim2real.deploy.core.modes import FAULTED, RAMP_IN, RUNNING, SAFE_STOP
 from sim2real.deploy.operator.mapping import COMPONENTS, Mapping, split_combo
+from sim2real.deploy.tasks.heading import HeadingHold
 
 PASSIVE, STAND, POLICY, LIE, DAMP = "PASSIVE", "STAND", "POLICY", "LIE", "DAMP"
 STATES = (PASSIVE, STAND, POLICY, LIE, DAMP)
@@ -111,6 +112,9 @@ class OperatorMachine:
         self._print = log or (lambda line: print(line, file=sys.stderr, flush=True))
         self.command = np.zeros(3)
         self._keys = np.zeros(3)
+        self._hold = None
+        if mapping.command.heading_hold > 0 and runtime.base_estimator is not None:
+            self._hold = HeadingHold(1, gain=mapping.command.heading_hold)
         self._held: dict[int, frozenset[str] | None] = {i: None for i in range(len(self.sources))}
         self._heard = -np.inf
         self.switches = 0
@@ -352,3 +356,8 @@ class OperatorMachine:
             self._stand("deadman", f"dead-man: no input for {silent:.1f} s")
         self.command += np.clip(target - self.command, -rate * dt, rate * dt)
         self.rt.velocity_command[:] = self.command
+        if self._hold is not None:
+            if self.state == POLICY:  # a centred yaw stick holds the heading
+                self._hold(self.rt, self.command[None, :])
+            else:
+                self._hold.holding[:] = False

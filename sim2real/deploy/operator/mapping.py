@@ -48,7 +48,10 @@ class Axis(_Strict):
 
 class Command(_Strict):
     """How the sticks (or keys) become the command; ``keys``: keyboard steps, a key adding
-    ``[component, step]`` to the command (clamped to ``limit``)."""
+    ``[component, step]`` to the command (clamped to ``limit``; a step 0 zeroes the command);
+    ``heading_hold``: while walking with the yaw stick centred, the yaw rate holds the heading
+    the robot had (:class:`sim2real.deploy.tasks.heading.HeadingHold`, legged_gym's heading
+    command; gain 1/s, default its 0.5)."""
 
     vx: Axis | None = None
     vy: Axis | None = None
@@ -56,6 +59,9 @@ class Command(_Strict):
     keys: dict[str, tuple[Literal["vx", "vy", "yaw"], float]] = {}
     limit: dict[Literal["vx", "vy", "yaw"], float] = {"vx": 1.0, "vy": 0.5, "yaw": 1.0}
     rate_limit: float = Field(2.0, gt=0.0, description="keys: units/s")
+    heading_hold: float = Field(
+        0.5, ge=0.0, description="1/s; a zero yaw rate holds the heading (0: off)"
+    )
 
 
 class Deadman(_Strict):

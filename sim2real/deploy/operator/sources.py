@@ -1,9 +1,10 @@
 """The operator's input sources, each an :class:`~sim2real.deploy.operator.frame.OperatorInput`:
 the Unitree wireless remote (:class:`UnitreeRemote`, LowState's ``wireless_remote`` on
 ``rt/lowstate``), ROS 2 ``sensor_msgs/Joy`` (:class:`JoySource`), a Linux evdev gamepad
-(:class:`EvdevSource`, PyPI ``evdev``) or its recorded event stream (:class:`EvdevReplay`), and the
-terminal keyboard (:class:`KeyboardSource`). :func:`open_source` opens one by its command-line
-name (``unitree``, ``joy``, ``evdev:/dev/input/eventN``, ``evdev:FILE.jsonl``, ``keyboard``).
+(:class:`EvdevSource`, PyPI ``evdev``) or its recorded event stream (:class:`EvdevReplay`), the
+terminal keyboard (:class:`KeyboardSource`) and a scripted remote (:class:`ScriptedRemote`).
+:func:`open_source` opens one by its command-line name (``unitree``, ``unitree-script:FILE``,
+``joy``, ``evdev:/dev/input/eventN``, ``evdev:FILE.jsonl``, ``keyboard``).
 
 Times are the run's (``Runtime.time``, s): a frame's stamp is when the source last heard from
 its device. A recorded evdev stream is JSON lines: a header ``{"absinfo": {"ABS_X": [min, max,
@@ -69,6 +70,29 @@ class UnitreeRemote:
         if self._link is not None:
             self._link.close()
             self._link = None
+
+
+class ScriptedRemote:
+    """A scripted Unitree remote (:class:`~sim2real.deploy.backends.unitree.remote.RemoteScript`)
+    played on the run's clock, the script's time ``now + runtime_starts``: the emulator's session
+    on any backend (``--operator-source unitree-script:FILE``); heard from at every poll.
+
+    Raises:
+        ValueError: a bad script (naming the file and step).
+    """
+
+    source = "unitree"
+
+    def __init__(self, path: str | Path):
+        from sim2real.deploy.backends.unitree.remote import RemoteScript
+
+        self.script = RemoteScript(path)
+
+    def poll(self, now: float) -> OperatorFrame | None:
+        return decode_unitree_remote(self.script.at(now + self.script.runtime_starts), now)
+
+    def close(self) -> None:
+        """Nothing to release."""
 
 
 class JoySource:
@@ -338,8 +362,9 @@ class KeyboardSource:
 
 
 def open_source(text: str, *, backend_args=None, robot=None):
-    """The source named ``text`` (``unitree``, ``joy``, ``evdev:/dev/input/eventN``,
-    ``evdev:FILE`` (a recorded stream), ``keyboard``); ``backend_args``: deploy-run's parsed
+    """The source named ``text`` (``unitree``, ``unitree-script:FILE`` (a scripted remote on the
+    run's clock), ``joy[:TOPIC]``, ``evdev:/dev/input/eventN``, ``evdev:FILE`` (a recorded
+    stream), ``keyboard``); ``backend_args``: deploy-run's parsed
     options (the Unitree backend's ``network_interface``, ``domain_id``, ``family``); ``robot``:
     its ``[unitree] family`` where ``family`` is not given.
 
@@ -354,6 +379,8 @@ def open_source(text: str, *, backend_args=None, robot=None):
         return UnitreeRemote(
             family, getattr(a, "domain_id", 0), getattr(a, "network_interface", None)
         )
+    if kind == "unitree-script":
+        return ScriptedRemote(arg)
     if kind == "joy":
         return JoySource(arg or "joy")
     if kind == "evdev":
@@ -363,5 +390,6 @@ def open_source(text: str, *, backend_args=None, robot=None):
     if kind == "keyboard":
         return KeyboardSource()
     raise ValueError(
-        f"--operator-source {text!r}: expected unitree, joy[:TOPIC], evdev:PATH or keyboard"
+        f"--operator-source {text!r}: expected unitree, unitree-script:FILE, joy[:TOPIC], "
+        "evdev:PATH or keyboard"
     )

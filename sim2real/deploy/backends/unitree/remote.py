@@ -7,7 +7,9 @@ header, 2-3 a little-endian uint16 of 16 button bits (bit 0 R1, 1 L1, 2 start, 3
 at 4, ``rx`` at 8, ``ry`` at 12, the L2 trigger at 16, ``ly`` at 20 (sticks in [-1, 1], up and
 right positive), the rest idle.
 
-A remote script (TOML) is a list of states, each held from its time until the next::
+A remote script (TOML) is a list of states, each held from its time until the next (and
+optionally ``runtime_starts``, s: where a run's clock starts on the script's, for playing it
+without the emulator: ``deploy-run --operator-source unitree-script:FILE``)::
 
     [[step]]
     at = 2.0             # s after the first LowCmd (the emulator's fault clock)
@@ -98,7 +100,10 @@ class RemoteScript:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         try:
-            steps = tomllib.loads(self.path.read_text()).get("step", [])
+            data = tomllib.loads(self.path.read_text())
+            steps = data.get("step", [])
+            #: s, the run's time 0 on the script's clock (``runtime_starts``; default 0)
+            self.runtime_starts = float(data.get("runtime_starts", 0.0))
         except (OSError, tomllib.TOMLDecodeError) as exc:
             raise ValueError(f"remote script {self.path}: {exc}") from None
         self.times: list[float] = []

@@ -49,6 +49,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--fault", action="append", default=[], metavar="FAULT", help=FAULT_HELP)
     p.add_argument(
+        "--remote",
+        default=None,
+        metavar="TOML",
+        help="play a scripted wireless remote in LowState's wireless_remote (times after the "
+        "first LowCmd; sim2real.deploy.backends.unitree.remote)",
+    )
+    p.add_argument(
         "--trace",
         default=None,
         metavar="NPZ",

@@ -41,6 +41,7 @@ from sim2real.deploy.backends.unitree.emulator.faults import EmulatorFaults
 from sim2real.deploy.backends.unitree.emulator.lowstate import LowStateBuilder
 from sim2real.deploy.backends.unitree.emulator.services import MotionSwitcherService
 from sim2real.deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
+from sim2real.deploy.backends.unitree.remote import RemoteScript
 from sim2real.deploy.backends.worker import ServesOnThread
 from sim2real.deploy.core.latency import LatencyHistogram
 from sim2real.robots import Robot, load_robot
@@ -112,6 +113,9 @@ class UnitreeEmulator(ServesOnThread):
             winding temperature + ``CUTOFF_MARGIN``).
         start: 'lying' (folded on the floor, the drivers off) or 'standing' (the drivers hold
             the home pose until the first LowCmd); see the module docstring.
+        remote: A scripted wireless remote (:class:`~sim2real.deploy.backends.unitree.remote.
+            RemoteScript`, a TOML file) played in every LowState's ``wireless_remote`` on the
+            faults' clock; None: the remote's bytes stay zero (nothing held).
         bridge: None (a robot: CRC and tick filled, foot forces, each driver's PD at every
             physics step) or ``'unitree_mujoco'``: what Unitree's simulation bridge does
             (LowState without CRC, tick or foot forces; the PD torque computed on a LowCmd's
@@ -154,10 +158,12 @@ class UnitreeEmulator(ServesOnThread):
         start: str = "lying",
         bridge: str | None = None,
         plant_motors: str | None = None,
+        remote: str | None = None,
     ):
         if bridge not in (None, "unitree_mujoco"):
             raise ValueError(f"bridge '{bridge}': expected None or 'unitree_mujoco'")
         self.bridge = bridge
+        self.remote = RemoteScript(remote) if remote else None
         self.robot = robot if isinstance(robot, Robot) else load_robot(robot)
         cfg = self.robot.config.unitree
         if cfg is None:
@@ -376,6 +382,8 @@ class UnitreeEmulator(ServesOnThread):
             self.stats["lowstate_lost"] += 1
             return
         self.builder.fill(self.plant, self.drivers)
+        if self.remote is not None:
+            self.builder.message["wireless_remote"][:] = np.frombuffer(self.remote.at(t), np.uint8)
         corrupt = bool(f.corrupt_state) and self._rng.random() < f.corrupt_state
         self.stats["lowstate_corrupted"] += corrupt
         sample = self.builder.encode(corrupt=corrupt)

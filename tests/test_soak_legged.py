@@ -229,7 +229,7 @@ def test_robot_import_writes_go2s_soak_table(tmp_path):
     assert main(command[1:]) == 0
     written = (out / "robot.toml").read_text()
     assert "[soak]\n" in written and "push_force = [6.4, 32.0]  # N" in written
-    assert written.replace(str(out), "sim2real/robots/go2") == shipped
+    assert written.replace(str(out), "robots/go2") == shipped
 
 
 def test_a_legged_sessions_tracking_is_judged_only_when_the_user_asks(uninterrupted):

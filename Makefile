@@ -115,6 +115,15 @@ HIL_so101 := $(PY) -m sim2real.deploy.harness.servo_hil --robot so101 --protocol
 	--policy sim2real/policies/so101.onnx --duration 60
 HIL_go2   := $(PY) -m sim2real.deploy.harness.unitree_hil --robot go2 -- \
 	--policy sim2real/policies/go2.onnx --command 0.5,0,0 --duration 60
+#   make hil ROBOT=go2 OPERATOR=1
+#                        the operator's session on the remote (docs/operator.md): the emulator
+#                        plays sim2real/deploy/operator/sessions/go2_remote.toml in LowState's
+#                        wireless_remote; walk, ten policy switches, lie down, stand up, walk,
+#                        stand, damp; the walking, standing and lying policies
+HIL_go2_operator := $(PY) -m sim2real.deploy.harness.unitree_hil --robot go2 \
+	--remote sim2real/deploy/operator/sessions/go2_remote.toml -- \
+	--policy walk=sim2real/policies/go2.onnx --policy stand=sim2real/policies/go2_stand.onnx \
+	--policy lie=sim2real/policies/go2_lie.onnx --operator unitree --duration 75
 #   make hil BACKEND=ros2 [ROBOT=so101]
 #                        the shipped arm3 (or SO-101) policy for 60 s through deploy-run --backend
 #                        ros2 against the ros2_control emulator (joint_states and a forward
@@ -126,6 +135,9 @@ ifeq ($(BACKEND),ros2)
 hil: install $(HIL_ROS2_POLICY)
 	$(if $(filter arm3 so101,$(ROBOT)),,$(error make hil BACKEND=ros2: ROBOT=$(ROBOT) has no shipped policy; use ROBOT=arm3 or ROBOT=so101))
 	$(PY) -m sim2real.deploy.harness.ros2_hil --robot $(HIL_ROS2_ROBOT) -- --policy $(HIL_ROS2_POLICY) --duration 60
+else ifeq ($(OPERATOR)$(HIL_ROBOT),1go2)
+hil: install sim2real/policies/go2.onnx sim2real/policies/go2_stand.onnx sim2real/policies/go2_lie.onnx
+	$(HIL_go2_operator)
 else
 hil: install sim2real/policies/$(HIL_ROBOT).onnx
 	$(HIL_$(HIL_ROBOT))
@@ -136,6 +148,12 @@ sim2real/policies/so101.onnx: sim2real/policies/so101.pt $(STAMP)
 
 sim2real/policies/go2.onnx: sim2real/policies/go2.pt $(STAMP)
 	$(VENV)/bin/policy-export sim2real/policies/go2.pt
+
+sim2real/policies/go2_stand.onnx: sim2real/policies/go2_stand.pt $(STAMP)
+	$(VENV)/bin/policy-export sim2real/policies/go2_stand.pt
+
+sim2real/policies/go2_lie.onnx: sim2real/policies/go2_lie.pt $(STAMP)
+	$(VENV)/bin/policy-export sim2real/policies/go2_lie.pt
 
 soak: install $(ONNX)
 	$(VENV)/bin/soak-test --robot $(ROBOT) --policy $(ONNX) --hours 8 --sessions 1 --seed 0 --out runs/soak

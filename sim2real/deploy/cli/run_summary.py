@@ -29,6 +29,7 @@ def print_summary(r: dict) -> None:
     _print_faults(r)
     _print_bus(r)
     _print_ros2(r)
+    _print_operator(r)
     _print_temperatures_and_motion(r)
     _print_costs_and_deadlines(r)
     _print_final_state(r)
@@ -200,6 +201,26 @@ def _print_ros2(r: dict) -> None:
         print(
             f"  ros2 node         {n['node']}: published {pub}; received {got}; ticks skipped "
             f"{n['ticks_skipped']}, cmd_vel time-outs {n['cmd_vel_timeouts']}"
+        )
+
+
+def _print_operator(r: dict) -> None:
+    """Print the operator's line (--operator): its transitions, refusals and policy switches,
+    and the hand-overs' largest steps against the policies' own."""
+    o = r.get("operator")
+    if o:
+        print(
+            f"  operator          {o['mapping']} from {', '.join(o['sources'])}: "
+            f"{len(o['transitions'])} transitions, {len(o['refused'])} refused, "
+            f"{o['switches']} policy switches, dead-man {o['deadman_events']}; now "
+            f"{o['final_state']} ({o['policy']})"
+        )
+        print(
+            f"  hand-overs        largest target step {o['handover_max_target_step']:.3f}, "
+            f"command step {o['handover_max_command_step']:.3f} "
+            f"({o['handover_max_command_step_share_of_limit']:.2f} of the smoother's limit a "
+            f"period); the policies' own: {o['steady_max_target_step']:.3f}, "
+            f"{o['steady_max_command_step']:.3f} ({o['units']})"
         )
 
 

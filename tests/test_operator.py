@@ -131,6 +131,24 @@ def test_the_keyboard_source_reads_keys_from_its_descriptor():
         os.close(w)
 
 
+def test_a_remote_script_plays_as_a_gamepad_stream_with_the_same_actions(tmp_path):
+    """The shipped session translated for the Xbox pad: each remote button becomes the pad's
+    button for the same action, the stick the pad's axis for the same command (evdev: up is
+    negative), on the run's clock."""
+    from sim2real.deploy.operator.play import translate, write_evdev
+
+    script = RemoteScript(ROOT / "sim2real/deploy/operator/sessions/go2_remote.toml")
+    states = translate(script, load_mapping("unitree"), load_mapping("xbox_evdev"))
+    t0 = script.runtime_starts
+    first_walk = next(s for s in states if "BTN_SOUTH" in s[1])
+    assert first_walk[0] == pytest.approx(6.0 - t0)
+    assert any("BTN_NORTH" in s[1] for s in states)  # B (lie down) -> Y
+    assert any("BTN_EAST" in s[1] for s in states)  # select (damp) -> B
+    assert min(s[2]["ABS_Y"] for s in states) == pytest.approx(-1.0)
+    src = EvdevReplay(write_evdev(states, tmp_path / "pad.jsonl"))
+    assert src.poll(6.6 - t0).axes["ABS_Y"] == pytest.approx(-1.0, abs=1e-4)
+
+
 # ---------------------------------------------------------------------- the session
 def test_a_scripted_gamepad_session_walks_switches_lies_down_and_stands_up(
     tmp_path, go2_policies, capsys

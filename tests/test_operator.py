@@ -187,6 +187,111 @@ def test_a_scripted_gamepad_session_walks_switches_lies_down_and_stands_up(
     assert r["locomotion"]["distance_m"] > 3.0
 
 
+def _operated_rig(robot, policies: dict, mapping, source):
+    """A rig on the MuJoCo plant with the operator's hook (the first policy in control)."""
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.operator.hook import OperatorHook
+    from sim2real.deploy.operator.machine import OperatorMachine
+    from sim2real.deploy.rig.rig import Rig
+
+    backend = SimBackend(robot, mode=next(iter(policies.values())).spec.action.mode, seed=0)
+    backend.open()
+    rig = Rig(robot, next(iter(policies.values())), backend, envs=1)
+    machine = OperatorMachine(rig.runtime, policies, mapping, [source], log=lambda line: None)
+    rig.add(OperatorHook(rig, machine))
+    rig.start()
+    return rig, machine
+
+
+def test_buttons_act_on_rising_edges_and_a_requester_needs_its_right(tmp_path, go2_policies):
+    """A button held when the pad's first frame arrives does nothing; a combination fires once
+    when its last button goes down (its buttons do not fire the shorter ones); a source
+    without the right ``start`` cannot start a policy, and its refusal is logged."""
+    from sim2real.deploy.operator.mapping import Mapping
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.robots import load_robot
+
+    robot = load_robot("go2")
+    policies = {n: OnnxPolicy(go2_policies[n], robot) for n in ("walk", "stand")}
+    stream = tmp_path / "pad.jsonl"
+    events = [(0.0, "BTN_SOUTH", 1), (0.5, "BTN_SOUTH", 0), (1.0, "BTN_TL", 1),
+              (1.2, "BTN_SOUTH", 1), (1.6, "BTN_SOUTH", 0), (1.8, "BTN_TL", 0),
+              (2.0, "BTN_START", 1), (2.2, "BTN_START", 0), (3.0, "BTN_TL", 1),
+              (3.2, "BTN_SOUTH", 1), (3.4, "BTN_SOUTH", 0), (3.6, "BTN_TL", 0)]  # fmt: skip
+    stream.write_text(
+        "\n".join(
+            json.dumps({"t": t, "type": "EV_KEY", "code": c, "value": v}) for t, c, v in events
+        )
+    )
+    base = {
+        "source": "evdev",
+        "actions": {"damp": "BTN_EAST", "stand": "BTN_START", "next_policy": "BTN_SOUTH"},
+        "policies": {"walk": "BTN_TL+BTN_SOUTH"},
+    }
+    rig, m = _operated_rig(robot, policies, Mapping.model_validate(base), EvdevReplay(stream))
+    rig.run(int(4.0 / robot.control_period))
+    done = [(t.state, t.to, t.cause) for t in m.log if t.refused is None]
+    assert done == [
+        ("STAND", "STAND", "runtime started (RAMP_IN to home)"),
+        ("STAND", "POLICY", "policy walk"),
+        ("POLICY", "STAND", "stand"),
+        ("STAND", "POLICY", "policy walk"),
+    ], m.log
+    assert m.switches == 2 and not [t for t in m.log if t.refused]  # next_policy never fired
+    rig.close()
+    strict = Mapping.model_validate({**base, "authority": {"start": ["joy"]}})
+    rig, m = _operated_rig(robot, policies, strict, EvdevReplay(stream))
+    rig.run(int(1.5 / robot.control_period))
+    assert m.state == "STAND" and [t.refused for t in m.log if t.refused] == [
+        "'evdev' lacks the right 'start'"
+    ]
+
+
+def test_an_arm_is_damped_and_started_again_from_the_keyboard_without_a_restart(tmp_path):
+    """On arm3 (position mode, MuJoCo): space damps (a safe stop, held at rest: PASSIVE),
+    enter stands it again (RAMP_IN to home, then RUNNING), in one run."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    from sim2real.deploy.core.modes import RUNNING
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.spec.policy_spec import PolicySpec
+    from sim2real.robots import load_robot
+
+    robot = load_robot("arm3")
+    spec = PolicySpec.for_robot(robot)
+    d, n = spec.obs_dim, spec.act_dim
+    graph = helper.make_graph(
+        [helper.make_node("MatMul", ["obs", "w"], ["action"])],
+        "still",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
+        initializer=[numpy_helper.from_array(np.zeros((d, n), np.float32), "w")],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    helper.set_model_props(model, {"policy_spec": spec.to_json()})
+    onnx.save(model, tmp_path / "still.onnx")
+    policy = OnnxPolicy(tmp_path / "still.onnx", robot)
+    r, w = os.pipe()
+    try:
+        rig, m = _operated_rig(
+            robot, {"still": policy}, load_mapping("keyboard"), KeyboardSource(r)
+        )
+        ticks = int(1.0 / robot.control_period)
+        rig.run(ticks)
+        os.write(w, b" ")
+        rig.run(3 * ticks)
+        assert m.state == "PASSIVE"
+        os.write(w, b"\n")
+        rig.run(3 * ticks)
+        assert m.state == "STAND" and rig.runtime.mode[0] == RUNNING
+        assert [t.to for t in m.log] == ["STAND", "DAMP", "PASSIVE", "STAND"]
+    finally:
+        os.close(r)
+        os.close(w)
+
+
 # ---------------------------------------------------------------------- Runtime.switch_policy
 def test_switch_policy_blends_the_targets_and_refuses_what_does_not_fit(go2_policies):
     """The hand-over blends for ``ticks`` ticks; after them the receiving policy alone commands

@@ -178,9 +178,8 @@ class OperatorMachine:
         prev = self._held[i]
         down = frame.buttons | frame.presses
         self._held[i] = frame.buttons
-        if prev is None and not frame.presses:
-            return []
-        prev = prev or frozenset()
+        if prev is None:  # held when first heard: not pressed (a key tapped since still is)
+            prev = frame.buttons
         fired, used = [], set()
         for combo, action in self._combos:
             if all(b in down for b in combo) and not all(b in prev for b in combo):

@@ -166,7 +166,8 @@ def test_a_scripted_gamepad_session_walks_switches_lies_down_and_stands_up(
         ["--robot", "go2", "--duration", "31",
          "--policy", f"walk={p['walk']}", "--policy", f"stand={p['stand']}",
          "--policy", f"lie={p['lie']}", "--operator", "xbox_evdev",
-         "--operator-source", f"evdev:{SESSION}", "--report", str(report)]
+         "--operator-source", f"evdev:{SESSION}", "--report", str(report),
+         "--telemetry", str(tmp_path / "run.mcap")]
     )  # fmt: skip
     r = json.loads(report.read_text())
     op = r["operator"]
@@ -185,6 +186,15 @@ def test_a_scripted_gamepad_session_walks_switches_lies_down_and_stands_up(
     assert r["faults"]["by_cause"]["fall"] == 0
     assert 0 < op["handover_max_command_step_share_of_limit"] <= 1.0 + 1e-9
     assert r["locomotion"]["distance_m"] > 3.0
+    from mcap.reader import make_reader
+
+    with open(tmp_path / "run.mcap", "rb") as f:
+        logged = [
+            json.loads(m.data)
+            for _, channel, m in make_reader(f).iter_messages()
+            if channel.topic == "/operator"
+        ]
+    assert [(t["state"], t["to"]) for t in logged if t["refused"] is None] == path
 
 
 def _operated_rig(robot, policies: dict, mapping, source):

@@ -194,11 +194,11 @@ class OperatorMachine:
         if self.state == LIE and self.rt.time - self._lie_at >= self.mapping.lie_time + LIE_SETTLE:
             self.rt.supervision.safe_stop(np.ones(1, dtype=bool), "operator")
             self._note(DAMP, "lain down", "runtime")
-        m, cause = int(self.rt.mode[0]), self.rt.cause_names()[0]
+        m = int(self.rt.mode[0])
         if m in (SAFE_STOP, FAULTED) and self.state in _UP:
-            self._note(DAMP, f"runtime safe stop: {cause}", "runtime")
+            self._note(DAMP, f"runtime safe stop: {self.rt.cause_names()[0]}", "runtime")
         if self.state == DAMP and m == FAULTED:
-            self._note(PASSIVE, f"at rest, damped (cause {cause})", "runtime")
+            self._note(PASSIVE, f"at rest, damped (cause {self.rt.cause_names()[0]})", "runtime")
         if self.state in (PASSIVE, DAMP) and m in (RAMP_IN, RUNNING):
             self._note(STAND, "runtime resumed", "runtime")
             self._from_floor = True

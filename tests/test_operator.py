@@ -249,12 +249,20 @@ def test_buttons_act_on_rising_edges_and_a_requester_needs_its_right(tmp_path, g
     ], m.log
     assert m.switches == 2 and not [t for t in m.log if t.refused]  # next_policy never fired
     rig.close()
-    strict = Mapping.model_validate({**base, "authority": {"start": ["joy"]}})
+    strict = Mapping.model_validate({**base, "authority": {"start": ["joy"], "reset": ["joy"]}})
     rig, m = _operated_rig(robot, policies, strict, EvdevReplay(stream))
     rig.run(int(1.5 / robot.control_period))
     assert m.state == "STAND" and [t.refused for t in m.log if t.refused] == [
         "'evdev' lacks the right 'start'"
     ]
+    # the guard's stop overrides the operator; leaving it needs the right reset, not start
+    rig.runtime.supervision.safe_stop(np.ones(1, dtype=bool), "stale_sensor")
+    rig.run(int(3.0 / robot.control_period))
+    done = [t for t in m.log if t.refused is None]
+    assert [t.to for t in done][-2:] == ["DAMP", "PASSIVE"]
+    assert done[-2].cause == "runtime safe stop: stale_sensor"
+    assert m.request("stand", "evdev") == (False, "'evdev' lacks the right 'reset'")
+    assert m.request("stand", "joy") == (True, "standing up (RAMP_IN)")
 
 
 def test_an_arm_is_damped_and_started_again_from_the_keyboard_without_a_restart(tmp_path):

@@ -484,3 +484,33 @@ def test_a_second_ros2_process_drives_the_run_through_joy_and_may_not_resume_it(
     refused = r["operator"]["refused"]
     assert any(t["requester"] == "ros2" and "resume" in t["cause"] for t in refused), refused
     assert r["final_cause"] == ["operator"] and run.returncode == 0, "".join(lines)
+
+
+@pytest.mark.wallclock
+def test_the_emulator_publishes_the_scripted_remote_on_rt_wirelesscontroller_too(tmp_path):
+    """The scripted remote's state also goes out as unitree_sdk2's WirelessController_ on
+    rt/wirelesscontroller; the operator's controller source reads the same buttons and sticks
+    as LowState's bytes carry."""
+    import time
+
+    from sim2real.deploy.backends.unitree.emulator.robot import UnitreeEmulator
+    from sim2real.deploy.backends.unitree.remote import controller_message, decode_controller
+    from sim2real.deploy.operator.sources import UnitreeController
+
+    raw = encode_remote(["A", "R1"], lx=-0.5, ly=0.25, rx=1.0)
+    assert decode_controller(controller_message(raw)) == (
+        {"A", "R1"}, {"lx": -0.5, "ly": 0.25, "rx": 1.0, "ry": 0.0}
+    )  # fmt: skip
+    script = tmp_path / "remote.toml"
+    script.write_text('[[step]]\nat = 0.0\nbuttons = ["A", "R1"]\nly = 0.25\n')
+    domain = 230 + os.getpid() % 3
+    with UnitreeEmulator("go2", domain_id=domain, remote=str(script)):
+        src = UnitreeController(domain, "lo")
+        try:
+            frame, end = None, time.monotonic() + 30
+            while (frame is None or not frame.buttons) and time.monotonic() < end:
+                frame = src.poll(time.monotonic())
+                time.sleep(0.05)
+        finally:
+            src.close()
+    assert frame.buttons == {"A", "R1"} and frame.axes["ly"] == 0.25

@@ -1,10 +1,10 @@
 """The operator's input sources, each an :class:`~sim2real.deploy.operator.frame.OperatorInput`:
 the Unitree wireless remote (:class:`UnitreeRemote`, LowState's ``wireless_remote`` on
-``rt/lowstate``), ROS 2 ``sensor_msgs/Joy`` (:class:`JoySource`), a Linux evdev gamepad
-(:class:`EvdevSource`, PyPI ``evdev``) or its recorded event stream (:class:`EvdevReplay`), the
-terminal keyboard (:class:`KeyboardSource`) and a scripted remote (:class:`ScriptedRemote`).
-:func:`open_source` opens one by its command-line name (``unitree``, ``unitree-script:FILE``,
-``joy``, ``evdev:/dev/input/eventN``, ``evdev:FILE.jsonl``, ``keyboard``).
+``rt/lowstate``; :class:`UnitreeController`, its own ``rt/wirelesscontroller``), ROS 2
+``sensor_msgs/Joy`` (:class:`JoySource`), a Linux evdev gamepad (:class:`EvdevSource`, PyPI
+``evdev``) or its recorded event stream (:class:`EvdevReplay`), the terminal keyboard
+(:class:`KeyboardSource`) and a scripted remote (:class:`ScriptedRemote`). :func:`open_source`
+opens one by its command-line name.
 
 Times are the run's (``Runtime.time``, s): a frame's stamp is when the source last heard from
 its device. A recorded evdev stream is JSON lines: a header ``{"absinfo": {"ABS_X": [min, max,
@@ -64,6 +64,45 @@ class UnitreeRemote:
         if newest is not None:
             self.samples += 1
             self._frame = decode_unitree_remote(newest, now)
+        return self._frame
+
+    def close(self) -> None:
+        if self._link is not None:
+            self._link.close()
+            self._link = None
+
+
+class UnitreeController:
+    """The Unitree wireless remote on its own topic, ``rt/wirelesscontroller``
+    (``WirelessController_``: the sticks and the button bits, no L2 analog value); heard from
+    with every sample.
+
+    Raises:
+        sim2real.deploy.backends.unitree.dds.DdsError: the domain cannot be joined.
+    """
+
+    source = "unitree"
+
+    def __init__(self, domain_id: int, interface: str | None):
+        from sim2real.deploy.backends.unitree.dds import DdsLink
+        from sim2real.deploy.backends.unitree.remote import TOPIC_CONTROLLER
+        from sim2real.deploy.backends.unitree.unitree_go import WirelessController_
+
+        self._link = DdsLink(domain_id, interface)
+        self._reader = self._link.generic_reader(TOPIC_CONTROLLER, WirelessController_, 16)
+        self._frame: OperatorFrame | None = None
+        self.samples = 0
+
+    def poll(self, now: float) -> OperatorFrame | None:
+        from sim2real.deploy.backends.unitree.remote import decode_controller
+
+        newest = None
+        for msg in self._reader.take(16):
+            newest = msg
+        if newest is not None:
+            self.samples += 1
+            buttons, axes = decode_controller(newest)
+            self._frame = OperatorFrame(buttons, axes, now)
         return self._frame
 
     def close(self) -> None:
@@ -362,11 +401,12 @@ class KeyboardSource:
 
 
 def open_source(text: str, *, backend_args=None, robot=None):
-    """The source named ``text`` (``unitree``, ``unitree-script:FILE`` (a scripted remote on the
-    run's clock), ``joy[:TOPIC]``, ``evdev:/dev/input/eventN``, ``evdev:FILE`` (a recorded
-    stream), ``keyboard``); ``backend_args``: deploy-run's parsed
-    options (the Unitree backend's ``network_interface``, ``domain_id``, ``family``); ``robot``:
-    its ``[unitree] family`` where ``family`` is not given.
+    """The source named ``text``: ``unitree`` (LowState's bytes), ``unitree-controller``
+    (``rt/wirelesscontroller``), ``unitree-script:FILE`` (a scripted remote on the run's clock),
+    ``joy[:TOPIC]``, ``evdev:/dev/input/eventN``, ``evdev:FILE`` (a recorded stream),
+    ``keyboard``. ``backend_args``: deploy-run's parsed options (the Unitree backend's
+    ``network_interface``, ``domain_id``, ``family``); ``robot``: its ``[unitree] family`` where
+    ``family`` is not given.
 
     Raises:
         ValueError: an unknown name, or a source that cannot be opened.
@@ -379,6 +419,9 @@ def open_source(text: str, *, backend_args=None, robot=None):
         return UnitreeRemote(
             family, getattr(a, "domain_id", 0), getattr(a, "network_interface", None)
         )
+    if kind == "unitree-controller":
+        a = backend_args
+        return UnitreeController(getattr(a, "domain_id", 0), getattr(a, "network_interface", None))
     if kind == "unitree-script":
         return ScriptedRemote(arg)
     if kind == "joy":
@@ -390,6 +433,7 @@ def open_source(text: str, *, backend_args=None, robot=None):
     if kind == "keyboard":
         return KeyboardSource()
     raise ValueError(
-        f"--operator-source {text!r}: expected unitree, unitree-script:FILE, joy[:TOPIC], "
+        f"--operator-source {text!r}: expected unitree, unitree-controller, unitree-script:FILE, "
+        "joy[:TOPIC], "
         "evdev:PATH or keyboard"
     )

@@ -39,6 +39,31 @@ BUTTONS = (
 AXES = {"lx": 4, "rx": 8, "ry": 12, "L2": 16, "ly": 20}
 #: Size of the ``wireless_remote`` field, bytes (unitree_go / unitree_hg LowState IDL).
 REMOTE_BYTES = 40
+#: The remote's own topic (``unitree_go`` ``WirelessController_``: lx, ly, rx, ry, keys).
+TOPIC_CONTROLLER = "rt/wirelesscontroller"
+
+
+def controller_message(data):
+    """The ``WirelessController_`` sample of the remote's 40 bytes ``data`` (the same button bits
+    and sticks; ``L2``'s analog value has no field there)."""
+    from sim2real.deploy.backends.unitree.unitree_go import WirelessController_
+
+    buttons, axes = decode_remote(data)
+    keys = sum(1 << BUTTONS.index(b) for b in buttons)
+    return WirelessController_(
+        lx=axes["lx"], ly=axes["ly"], rx=axes["rx"], ry=axes["ry"], keys=keys
+    )
+
+
+def decode_controller(msg) -> tuple[frozenset[str], dict[str, float]]:
+    """``(buttons held, {axis: value})`` of a ``WirelessController_`` sample."""
+    keys = int(msg.keys)
+    buttons = frozenset(name for i, name in enumerate(BUTTONS) if keys >> i & 1)
+    axes = {}
+    for name in ("lx", "ly", "rx", "ry"):
+        v = float(getattr(msg, name))
+        axes[name] = float(np.clip(v, -1.0, 1.0)) if np.isfinite(v) else 0.0
+    return buttons, axes
 
 
 def encode_remote(buttons=(), **axes: float) -> bytes:

@@ -109,3 +109,10 @@ LowState_ = _go.struct(
     """The low-level state on ``rt/lowstate``: IMU, one :class:`MotorState_` per motor slot,
     ``foot_force`` (raw counts), ``tick`` (ms, the board's clock), ``crc`` over the rest.""",
 )
+WirelessController_ = _go.struct(
+    "WirelessController_",
+    [("lx", f32), ("ly", f32), ("rx", f32), ("ry", f32), ("keys", u16)],
+    """The wireless remote's state on ``rt/wirelesscontroller`` (unitree_sdk2's
+    ``WirelessController_.idl``): the sticks in [-1, 1] (up and right positive) and the 16 button
+    bits of LowState's ``wireless_remote`` (:mod:`sim2real.deploy.backends.unitree.remote`).""",
+)

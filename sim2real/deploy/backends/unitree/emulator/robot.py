@@ -41,7 +41,11 @@ from sim2real.deploy.backends.unitree.emulator.faults import EmulatorFaults
 from sim2real.deploy.backends.unitree.emulator.lowstate import LowStateBuilder
 from sim2real.deploy.backends.unitree.emulator.services import MotionSwitcherService
 from sim2real.deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
-from sim2real.deploy.backends.unitree.remote import RemoteScript
+from sim2real.deploy.backends.unitree.remote import (
+    TOPIC_CONTROLLER,
+    RemoteScript,
+    controller_message,
+)
 from sim2real.deploy.backends.worker import ServesOnThread
 from sim2real.deploy.core.latency import LatencyHistogram
 from sim2real.robots import Robot, load_robot
@@ -61,6 +65,9 @@ SETTLE_TIME = 1.0
 #: Commands kept in :attr:`UnitreeEmulator.commands` (two minutes at the backend's 500 Hz stream,
 #: ten at one a 50 Hz tick; about 700 bytes each).
 COMMAND_LOG = 60_000
+#: Physics steps between two ``rt/wirelesscontroller`` samples of a scripted remote (50 Hz at the
+#: board's 500 Hz; our choice, a remote's own report rate is not published).
+CONTROLLER_EVERY = 10
 #: Physics steps between two samples of the base's true trajectory (:attr:`UnitreeEmulator.trace`).
 TRACE_EVERY = 10
 #: How the robot starts (``start``): the first is the default.
@@ -217,6 +224,12 @@ class UnitreeEmulator(ServesOnThread):
         self._states = self.link.writer(TOPIC_LOWSTATE, self.family.low_state)
         self._commands = self.link.reader(TOPIC_LOWCMD, self.family.low_cmd, depth=16)
         self.service = MotionSwitcherService(self.link, sport_mode)
+        #: the scripted remote's own topic too (rt/wirelesscontroller), every CONTROLLER_EVERY steps
+        self._controller = None
+        if self.remote is not None:
+            from sim2real.deploy.backends.unitree.unitree_go import WirelessController_
+
+            self._controller = self.link.generic_writer(TOPIC_CONTROLLER, WirelessController_)
         self._cmd = MessageCodec(self.family.low_cmd)
         self._rng = random.Random(seed)
         self.stats: Counter[str] = Counter()
@@ -383,7 +396,10 @@ class UnitreeEmulator(ServesOnThread):
             return
         self.builder.fill(self.plant, self.drivers)
         if self.remote is not None:
-            self.builder.message["wireless_remote"][:] = np.frombuffer(self.remote.at(t), np.uint8)
+            remote = self.remote.at(t)
+            self.builder.message["wireless_remote"][:] = np.frombuffer(remote, np.uint8)
+            if self._steps % CONTROLLER_EVERY == 0:
+                self._controller.write(controller_message(remote))
         corrupt = bool(f.corrupt_state) and self._rng.random() < f.corrupt_state
         self.stats["lowstate_corrupted"] += corrupt
         sample = self.builder.encode(corrupt=corrupt)

@@ -310,6 +310,20 @@ def test_an_arm_is_damped_and_started_again_from_the_keyboard_without_a_restart(
         os.close(w)
 
 
+def test_a_slow_ramp_in_moves_the_target_along_a_line_to_home_then_lets_go():
+    from sim2real.deploy.core.modes import RAMP_IN, RUNNING
+    from sim2real.deploy.runtime.handover import RampIn
+
+    start, home = np.array([[0.0, 1.0], [2.0, 2.0]]), np.array([1.0, -1.0])
+    ramp = RampIn(start, home, np.array([True, True]), ticks=4)
+    target, mode = np.zeros((2, 2)), np.array([RAMP_IN, RUNNING], dtype=np.int8)
+    assert not ramp.shape(target, mode)
+    assert np.allclose(target[0], [0.25, 0.5]) and np.allclose(target[1], 0.0)  # RUNNING: its own
+    for _ in range(2):
+        ramp.shape(target, mode)
+    assert ramp.shape(target, mode) and np.allclose(target[0], home)
+
+
 # ---------------------------------------------------------------------- Runtime.switch_policy
 def test_switch_policy_blends_the_targets_and_refuses_what_does_not_fit(go2_policies):
     """The hand-over blends for ``ticks`` ticks; after them the receiving policy alone commands

@@ -266,6 +266,7 @@ class OperatorMachine:
                 return self.refuse(cause, requester, f"'{requester}' lacks the right '{right}'")
             self._select(self.stand_name or self.active, blend=False)
             self.rt.reset_faults()
+            self.rt.ramp_in(self.mapping.stand_time)  # slowly, as the bring-up's ramp
             self._from_floor = True
             self._note(STAND, cause, requester)
             return True, "standing up (RAMP_IN)"

@@ -94,7 +94,9 @@ class Mapping(_Strict):
     """A mapping file (module docstring). ``actions``: ``stand``, ``damp``, ``lie_down``,
     ``next_policy`` (button combinations); ``policies``: a policy's name in the run -> its
     combination; ``blend_time``: s of a hand-over's blend; ``lie_time``: s of the blend to the
-    lying policy's pose before damping; ``start``: the state after the runtime starts."""
+    lying policy's pose before damping; ``stand_time``: s of the ramp to home when standing up
+    from PASSIVE (position mode; 0: at once; default 2 s, unitree_rl_gym deploy_real's move to
+    the default pose); ``start``: the state after the runtime starts."""
 
     source: Literal["unitree", "joy", "evdev", "keyboard"]
     actions: dict[Literal["stand", "damp", "lie_down", "next_policy"], str]
@@ -104,6 +106,7 @@ class Mapping(_Strict):
     authority: Authority | None = None
     blend_time: float = Field(0.5, ge=0.0)
     lie_time: float = Field(2.0, gt=0.0, description="s of the blend to the lying pose")
+    stand_time: float = Field(2.0, ge=0.0, description="s of the stand-up's ramp from the floor")
     start: Literal["stand", "passive"] = "stand"
 
     @model_validator(mode="after")

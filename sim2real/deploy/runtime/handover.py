@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim2real.deploy.core.modes import RUNNING
+from sim2real.deploy.core.modes import RAMP_IN, RUNNING
 
 
 class HandOver:
@@ -114,3 +114,31 @@ def switch_policy(runtime, policy, blend_time: float) -> None:
         runtime._obs = obs = np.zeros((runtime.envs, runtime.spec.obs_dim), dtype=np.float32)
     runtime.spec.observation(runtime.state, runtime.goal, out=obs)
     runtime._reset_policy(np.ones(runtime.envs, dtype=bool))  # noqa: SLF001
+
+
+class RampIn:
+    """A slow RAMP_IN (:meth:`Runtime.ramp_in <sim2real.deploy.runtime.loop.Runtime.ramp_in>`):
+    for ``ticks`` control periods the position target of the envs of ``envs`` still in RAMP_IN
+    moves along a straight line from ``start`` to ``home`` (the Unitree bring-up's ramp, and
+    unitree_rl_gym's move to the default pose), instead of stepping to home at once; the
+    smoother and the guard run after it as on every tick.
+
+    Args:
+        start: (envs, n) rad, where each env's ramp begins (its pose at the reset).
+        home: (n,) rad. envs: (envs,) bool. ticks: control periods of the ramp (>= 1).
+    """
+
+    def __init__(self, start: np.ndarray, home: np.ndarray, envs: np.ndarray, ticks: int):
+        self.start = np.array(start, dtype=np.float64)
+        self.home = np.asarray(home, dtype=np.float64)
+        self.envs, self.ticks, self.done = np.asarray(envs, dtype=bool).copy(), max(1, ticks), 0
+
+    def shape(self, target: np.ndarray, mode: np.ndarray) -> bool:
+        """Write the ramp's target of this tick into ``target`` ((envs, n), rad) for the envs
+        still in RAMP_IN; True once the ramp has ended (its last tick, or no env left in it)."""
+        self.done += 1
+        a = min(1.0, self.done / self.ticks)
+        ramp = self.envs & (mode == RAMP_IN)
+        if ramp.any():
+            target[ramp] = self.start[ramp] + a * (self.home - self.start[ramp])
+        return a >= 1.0 or not ramp.any()

@@ -31,7 +31,7 @@ from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
 from sim2real.deploy.runtime.clock import SimClock
 from sim2real.deploy.runtime.compiled import CompiledSupervision
-from sim2real.deploy.runtime.handover import HandOver, check_policy, switch_policy
+from sim2real.deploy.runtime.handover import RampIn, check_policy, switch_policy
 from sim2real.deploy.runtime.state import RuntimeState
 from sim2real.deploy.runtime.supervision import Supervision
 from sim2real.deploy.safety.guard import SafetyGuard
@@ -101,10 +101,8 @@ class Runtime(RuntimeState):
         self.robot, self.policy, self.backend = robot, policy, backend
         check_policy(policy.spec, robot, backend.mode)
         self.spec: PolicySpec = policy.spec
-        #: the outgoing policy of a hand-over in progress (:meth:`switch_policy`), else None
-        self.handover: HandOver | None = None
-        #: the last hand-over that ran to its end (its ``max_target_step``), else None
-        self.last_handover: HandOver | None = None
+        #: a hand-over in progress (:meth:`switch_policy`), the last that ended, a slow RAMP_IN
+        self.handover = self.last_handover = self.ramp = None
         envs, n = backend.envs, robot.n_joints
         self.envs, self.n = envs, n
         self.mode_name = backend.mode
@@ -189,11 +187,17 @@ class Runtime(RuntimeState):
         """The current policy's ``reset(envs)`` (bool mask (envs,)), if it has one."""
         (getattr(self.policy, "reset", None) or _no_reset)(envs)
 
+    def ramp_in(self, duration: float, envs: np.ndarray | None = None) -> None:
+        """After :meth:`reset_faults` or :meth:`restart`: the envs of ``envs`` (bool (envs,);
+        default all) approach home in ``duration`` s along a line from their estimated pose
+        (:class:`~sim2real.deploy.runtime.handover.RampIn`; position mode only)."""
+        if self.mode_name == "position" and duration > 0:
+            mask = np.ones(self.envs, bool) if envs is None else np.asarray(envs, dtype=bool)
+            self.ramp = RampIn(self.state.q, self.supervision.home, mask, round(duration / self.dt))
+
     def switch_policy(self, policy, blend_time: float = 0.0) -> None:
-        """Hand control to ``policy`` (same robot and control mode), its state reset for every
-        env, the RUNNING envs' targets blended from the outgoing policy's over ``blend_time`` s
-        (:func:`~sim2real.deploy.runtime.handover.switch_policy`, which says how). Call between
-        ticks.
+        """Hand control to ``policy`` between ticks, its targets blended in over ``blend_time``
+        s (:func:`~sim2real.deploy.runtime.handover.switch_policy`, which says how).
 
         Raises:
             ValueError: a spec for another robot or control mode, a negative ``blend_time``.
@@ -344,6 +348,8 @@ class Runtime(RuntimeState):
         policy_output = self.policy(obs)
         st[4] = clock_ns()
         action, target = self._act(policy_output, state)  # screen, action_to_target, override
+        if self.ramp is not None and self.ramp.shape(target, self.mode):  # ramp_in: slowly home
+            self.ramp = None
         if self.handover is not None:  # switch_policy: the outgoing policy's targets blend in
             self.handover.blend(target, state, self.goal, self.mode)
             if self.handover.finished:

@@ -95,7 +95,47 @@ TARGETS = (
     ("wallclock_stops", "wall-clock configurations that ended stopped", "arm6", 0.0, "<=", ""),
     ("busy_stops", "runs beside a CPU-bound job per core that stopped", "go2+arm6", 0.0, "<=", ""),
     ("ros2_overruns", "overruns with --ros2 and a slow ROS 2 peer", "go2", 0.0, "<=", ""),
+    # issue 56: our own code against the library calls it makes (bench.floors), same run
+    ("tick_ours_over_floor", "(overhead - its floor) / floor, p50", "arm6", 1.0, "<=", "x"),
+    ("tick_ours_over_floor", "(overhead - its floor) / floor, p50", "arm3", 1.0, "<=", "x"),
+    (
+        "plant_extras_over_mj_step",
+        "(physics stage - mj_step) / mj_step, p50",
+        "arm6",
+        0.5,
+        "<=",
+        "x",
+    ),
+    (
+        "session_over_floor",
+        "8-h session / (ticks x floor tick incl. mj_step)",
+        "arm3",
+        2.0,
+        "<=",
+        "x",
+    ),
+    (
+        "session_over_floor",
+        "8-h session / (ticks x floor tick incl. mj_step)",
+        "arm6",
+        None,
+        "",
+        "x",
+    ),
+    ("busy_overrun_rate", "overruns beside a CPU-bound job per core", "arm6", 0.1, "<=", "%"),
 )
+#: The keys of the issue-56 ratios, the ones bench/history.jsonl keeps.
+FLOOR_TARGETS = (
+    "tick_ours_over_floor",
+    "plant_extras_over_mj_step",
+    "session_over_floor",
+    "campaign_physics",
+    "busy_overrun_rate",
+)
+#: Seconds in the 8-hour session of ``session_over_floor``.
+EIGHT_HOURS_S = 8 * 3600.0
+#: The trend file beside the results file: one JSON line per full run (``history_line``).
+HISTORY_FILE = "history.jsonl"
 #: Entries of results.json's history kept (oldest dropped first).
 HISTORY = 200
 #: A target that moved this much the wrong way since the last full run is a regression.
@@ -203,6 +243,25 @@ def _target_value(key: str, robot: str, sections: dict):
         floor = _get(tick, "floors", "overhead", "p50_us")
         step = _get(tick, "full", "stages", "physics", "p50_us")
         return floor / step if floor is not None and step else None
+    if key == "tick_ours_over_floor":
+        over = _get(tick, "full", "overhead", "p50_us")
+        floor = _get(tick, "floors", "overhead", "p50_us")
+        return (over - floor) / floor if over is not None and floor else None
+    if key == "plant_extras_over_mj_step":
+        physics = _get(tick, "full", "stages", "physics", "p50_us")
+        step = _get(tick, "floors", "stages", "mj_step", "p50_us")
+        return (physics - step) / step if physics is not None and step else None
+    if key == "session_over_floor":
+        s = _get(sections, "session", "robots", robot)
+        floor = _get(tick, "floors", "overhead", "p50_us")
+        step = _get(tick, "floors", "stages", "mj_step", "p50_us")
+        if s is None or floor is None or step is None:
+            return None
+        floor_s = EIGHT_HOURS_S * s["control_rate_hz"] * (floor + step) * 1e-6
+        return s["estimate_8h_s"] / floor_s if floor_s > 0 else None
+    if key == "busy_overrun_rate":
+        rows = {r["robot"]: r for r in _get(sections, "busy", "rows") or []}
+        return 100.0 * rows[robot]["overrun_rate"] if robot in rows else None
     if key == "session_8h":
         return _get(sections, "session", "robots", robot, "estimate_8h_s")
     if key == "busy_stops":
@@ -278,6 +337,44 @@ def history_entry(results: dict) -> dict:
         "items": results["items"],
         "targets": {f"{t['key']}/{t['robot']}": t["value"] for t in results["targets"]},
     }
+
+
+def history_line(results: dict, measured: dict) -> dict:
+    """One line of bench/history.jsonl: the commit, the date, the machine's facts and the
+    ratios of ``FLOOR_TARGETS`` (``key/robot``), each from sections ``measured`` in this run
+    only (a ratio whose figures were not all measured in it is None), with its limit and
+    verdict."""
+    m = results["machine"]
+    ratios = {}
+    for t in evaluate_targets(measured):
+        if t["key"] in FLOOR_TARGETS:
+            ratios[f"{t['key']}/{t['robot']}"] = {
+                "value": t["value"],
+                "limit": t["limit"],
+                "pass": t["pass"],
+            }
+    return {
+        "generated": results["generated"],
+        "commit": results.get("commit"),
+        "items": results["items"],
+        "machine": {
+            "platform": m["platform"],
+            "processor": m["processor"],
+            "cpu_count": m["cpu_count"],
+            "python": m["python"],
+            "load_average_at_start": m["load_average_at_start"],
+            "versions": m["versions"],
+        },
+        "ratios": ratios,
+    }
+
+
+def append_history(path: Path, line: dict) -> None:
+    """Append ``line`` to the JSON-lines file ``path`` (NaN written as null)."""
+    from bench.common import _clean
+
+    with path.open("a") as f:
+        f.write(json.dumps(_clean(line), sort_keys=True) + "\n")
 
 
 def compare_history(results: dict) -> list[dict]:
@@ -525,7 +622,7 @@ def render(results: dict) -> str:
         verdict = {True: "PASS", False: "FAIL", None: "n/a"}[t["pass"]]
         if t["limit"] is None:
             verdict = "stated"
-        v = _f(t["value"], ".2f" if t["unit"] in ("x", "") else ".1f")
+        v = _f(t["value"], {"x": ".2f", "": ".2f", "%": ".3f"}.get(t["unit"], ".1f"))
         lim = "" if t["limit"] is None else f"{t['comparison']} {t['limit']:g}"
         add(
             f"   {t['label']:50} {t['robot']:6} {v:>7} {t['unit']:<2} {lim:>7} {t['unit']:<2} "
@@ -672,6 +769,11 @@ def main(argv: list[str] | None = None) -> int:
     write_json_atomic(args.out, results)
     print(render(results))
     print(f"\nwritten {args.out} in {results['wall_s']:.0f} s")
+    if not args.quick:  # a quick run's figures are rough: not part of the trend
+        line = history_line(results, {i: results["sections"][i] for i in args.items})
+        hist = args.out.parent / HISTORY_FILE
+        append_history(hist, line)
+        print(f"appended the issue-56 ratios to {hist}")
     return 0
 
 

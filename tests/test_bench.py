@@ -187,3 +187,62 @@ def test_quick_ros2_measures_the_tick_with_the_node_off_on_and_beside_a_slow_pee
     assert rows["on+slow"]["received"]["cmd_vel"] > 0  # the peer was there and talking
     target = next(t for t in r["targets"] if t["key"] == "ros2_overruns")
     assert target["value"] == rows["on+slow"]["overruns"]
+
+
+def test_the_floor_ratios_of_issue_56_and_their_history_line(tmp_path):
+    """The ratios against the floors come from figures of one run (tick: the overhead and the
+    physics stage beside their floors; session: the 8-hour wall time beside ticks x the floor
+    tick incl. mj_step; busy: arm6's overrun rate in %); history.jsonl gets one line per call."""
+    from bench.__main__ import EIGHT_HOURS_S, append_history, evaluate_targets, history_line
+
+    def summ(p50):
+        return {"p50_us": p50}
+
+    tick = {
+        "full": {"overhead": summ(40.0), "stages": {"physics": summ(30.0)}},
+        "floors": {"overhead": summ(20.0), "stages": {"mj_step": summ(20.0)}},
+    }
+    # 8 hours at 200 Hz of a 40 us floor tick is 230.4 s; the session took 3x that
+    session = {"control_rate_hz": 200.0, "estimate_8h_s": 3 * EIGHT_HOURS_S * 200 * 40e-6}
+    sections = {
+        "tick": {"robots": {"arm3": tick, "arm6": tick}},
+        "session": {"robots": {"arm3": session}},
+        "busy": {
+            "rows": [
+                {"robot": "go2", "overrun_rate": 0.5, "final_state": ["RUNNING"]},
+                {"robot": "arm6", "overrun_rate": 0.0005, "final_state": ["RUNNING"]},
+            ]
+        },
+    }
+    got = {(t["key"], t["robot"]): t for t in evaluate_targets(sections)}
+    assert got["tick_ours_over_floor", "arm6"]["value"] == pytest.approx(1.0)
+    assert got["tick_ours_over_floor", "arm3"]["pass"] is True
+    assert got["plant_extras_over_mj_step", "arm6"]["value"] == pytest.approx(0.5)
+    assert got["session_over_floor", "arm3"]["value"] == pytest.approx(3.0)
+    assert got["session_over_floor", "arm3"]["pass"] is False
+    assert got["session_over_floor", "arm6"]["value"] is None  # no arm6 session measured
+    assert got["busy_overrun_rate", "arm6"]["value"] == pytest.approx(0.05)
+    assert got["busy_overrun_rate", "arm6"]["pass"] is True
+
+    results = {
+        "generated": "t",
+        "commit": "c0",
+        "items": ["tick"],
+        "machine": {
+            "platform": "p",
+            "processor": "x",
+            "cpu_count": 2,
+            "python": "3",
+            "load_average_at_start": None,
+            "versions": {},
+        },
+    }
+    line = history_line(results, {"tick": sections["tick"]})  # the session was not measured
+    assert line["ratios"]["tick_ours_over_floor/arm6"]["value"] == pytest.approx(1.0)
+    assert line["ratios"]["session_over_floor/arm3"]["value"] is None
+    assert "tick_ratio/arm6" not in line["ratios"]
+    path = tmp_path / "history.jsonl"
+    append_history(path, line)
+    append_history(path, line)
+    lines = path.read_text().splitlines()
+    assert len(lines) == 2 and json.loads(lines[1])["commit"] == "c0"

@@ -13,8 +13,9 @@ Observations are float32 ``(envs, obs_dim)``, actions float32 ``(envs, act_dim)`
 ``joint_names`` order (a spec's ``action.joints`` reorders the graph's outputs). A recurrent
 policy keeps each env's state (``[layers, envs, hidden]`` float32), feeds ``<name>_out`` back as
 ``<name>_in`` on the next call, and :meth:`OnnxPolicy.reset` sets it to its initial value (zeros,
-or the file's declared initial state). Inference runs single-threaded, sequential, through an
-IOBinding bound to preallocated numpy buffers, rebound only when the batch size changes.
+or the file's declared initial state). Inference runs single-threaded, sequential, spinning off,
+through an IOBinding bound to preallocated numpy buffers, rebound only when the batch size
+changes.
 """
 
 from __future__ import annotations
@@ -114,6 +115,10 @@ class OnnxPolicy:
         options.inter_op_num_threads = 1
         options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        # No busy-waiting thread beside the control loop, should a thread pool ever be made
+        # (holosoma and openpilot set it too); with one intra-op thread the call is unchanged.
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        options.add_session_config_entry("session.inter_op.allow_spinning", "0")
         try:
             # From the validated bytes: ONNX Runtime never reads the path again.
             self.session = ort.InferenceSession(

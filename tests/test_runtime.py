@@ -533,3 +533,15 @@ def test_safe_stop_timeout_leaves_room_for_the_slowest_brake(arm3, arm6, so101):
     for robot in (arm3, arm6, so101):
         v, a, j = robot.velocity_limit, robot.acceleration_limit, robot.jerk_limit
         assert 3.0 * np.max(v / a + a / j) <= SAFE_STOP_TIMEOUT, robot.name
+
+
+def test_collections_inside_the_loop_are_counted(tmp_path, arm3):
+    """run() keeps the garbage collector out of its loop; a collection that happens there all
+    the same (here an explicit gc.collect in on_tick) is counted in rt.gc_collections."""
+    import gc
+
+    rt = make_runtime(tmp_path, arm3, "velocity")
+    rt.run(20)
+    assert rt.gc_collections == 0
+    rt.run(3, on_tick=lambda r: gc.collect() and False)
+    assert rt.gc_collections == 3

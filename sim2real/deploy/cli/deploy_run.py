@@ -65,7 +65,18 @@ def run(args) -> int:
     spec = None
     if args.spec:
         spec = PolicySpec.from_json(Path(args.spec).read_text(), source=args.spec)
-    policies = load_policies(args.policies, robot, spec)  # --policy [NAME=]FILE, repeated
+    if args.excitation is not None:  # a scripted trajectory in the policy's place
+        from sim2real.deploy.policy.excitation import Excitation, ExcitationPolicy
+
+        excitation = ExcitationPolicy(robot, Excitation.load(args.excitation))
+        policies = {"excitation": excitation}
+        print(
+            f"deploy-run: excitation {args.excitation}: {excitation.duration:.1f} s "
+            f"(--duration {args.duration:g} s)",
+            file=sys.stderr,
+        )
+    else:
+        policies = load_policies(args.policies, robot, spec)  # --policy [NAME=]FILE, repeated
     policy = next(iter(policies.values()))
     for line in contract_messages(policy):
         print(line, file=sys.stderr)
@@ -259,6 +270,7 @@ def run_report(args, rig, wall: float, realtime: bool, injector, clock) -> dict:
             "jitter_us": clock.jitter.summary() if realtime else None,
             "wait": clock.wait_mode,
             "long_ticks": rt.long_ticks.rows(rt.dt),
+            "gc_collections": rt.gc_collections,
         },
         "bus": backend.bus_summary() if hasattr(backend, "bus_summary") else None,
     }
@@ -327,7 +339,11 @@ def deploy_run_main(argv: list[str] | None = None) -> int:
     argv = attach_vectors(argv)
     args = build_parser(argv).parse_args(argv)
     try:
-        args.policies = parse_policies(args.policy)
+        args.policies = (
+            {"excitation": f"excitation:{args.excitation}"}
+            if args.excitation is not None
+            else parse_policies(args.policy)
+        )
     except ValueError as exc:
         print(f"deploy-run: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -47,6 +47,11 @@ def _no_reset(envs: np.ndarray) -> None:
     """The reset of a policy without state."""
 
 
+def _gc_collections() -> int:
+    """Collections of the garbage collector so far in this process, every generation."""
+    return sum(g["collections"] for g in gc.get_stats())
+
+
 class Runtime(RuntimeState):
     """The control loop for ``envs`` robots behind one backend.
 
@@ -160,6 +165,9 @@ class Runtime(RuntimeState):
         self._cpu_ns = time.thread_time_ns if self.clock.realtime else None
         self.ticks = 0
         self._first_run = True  # run() collects every generation once
+        #: collections of the garbage collector inside :meth:`run`'s loop, where it is disabled
+        #: (an explicit ``gc.collect`` or a re-enabled collector in a callback); 0 in a clean run
+        self.gc_collections = 0
         self.time = 0.0
         self._obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
         self._target = np.zeros((envs, n))
@@ -482,12 +490,14 @@ class Runtime(RuntimeState):
         if fresh:  # a wall clock not yet waited on: the set-up since start() is not the first
             self.clock.start()  # tick's overrun
         self._woke(time.perf_counter_ns())
+        collections = _gc_collections()
         try:
             for _ in range(ticks):
                 self.tick()
                 if on_tick is not None and on_tick(self):
                     break
         finally:
+            self.gc_collections += _gc_collections() - collections
             if was_enabled:
                 gc.enable()
             gc.unfreeze()

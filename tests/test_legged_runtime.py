@@ -409,6 +409,22 @@ def test_every_stop_of_a_walking_robot_counts_as_a_fall_with_its_cause(go2, stan
     assert tracker.falls.tolist() == [1, 1]
 
 
+def test_a_stop_the_operator_asked_for_is_not_a_fall(go2, stand_policy):
+    """A lie-down, a damp or a ROS 2 ``~/stop`` (cause ``operator``) of a walking robot is the
+    operator's: counted as an operator stop, never as a fall of the policy."""
+    from sim2real.deploy.tasks.locomotion import CommandTracker
+
+    rt, plant = runtime(go2, stand_policy)
+    tracker = CommandTracker(2, go2.control_period, plant)
+    rt.run(150, on_tick=tracker)
+    rt.supervision.safe_stop(np.array([True, False]), "operator")
+    rt.run(50, on_tick=tracker)
+    summary = tracker.summary(rt)
+    assert tracker.falls.tolist() == [0, 0] and summary["falls"] == 0
+    assert tracker.operator_stops.tolist() == [1, 0] and summary["operator_stops"] == 1
+    assert summary["falls_by_cause"] == {}
+
+
 @pytest.fixture(scope="module")
 def shipped_go2(go2, tmp_path_factory):
     return OnnxPolicy(shipped_onnx("go2", tmp_path_factory.mktemp("shipped")), go2)

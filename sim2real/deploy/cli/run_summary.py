@@ -65,6 +65,7 @@ def _print_walk(loco: dict) -> None:
         + (f"{100 * track:.1f} %" if track is not None else "n/a")
         + f" of RUNNING time within {loco['tracking_tolerance_m_s']} m/s; falls {loco['falls']}"
         + (f" ({_causes(loco['falls_by_cause'])})" if loco.get("falls_by_cause") else "")
+        + (f"; operator stops {loco['operator_stops']}" if loco.get("operator_stops") else "")
     )
 
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim2real.deploy.core.attitude import tilt_of
+from sim2real.deploy.core.modes import FAULT_CAUSES
 from sim2real.deploy.core.state import BaseState
 from sim2real.deploy.core.stateful import (
     check,
@@ -54,6 +55,10 @@ TRACKING_WINDOW = 0.8
 #: (our choice: a base accelerating at 1 m/s^2 reaches a 1 m/s step in 1 s; unitree_rl_mjlab's
 #: G1 policy took about that, and the soak's new command every 4 s left it 77 % tracked at best).
 SETTLE_TIME = 1.0
+
+#: Index of the ``operator`` cause in :data:`~sim2real.deploy.core.modes.FAULT_CAUSES`: a stop the
+#: operator asked for (not a fall).
+OPERATOR_CAUSE = FAULT_CAUSES.index("operator")
 
 
 def parse_command(text: str) -> np.ndarray:
@@ -207,6 +212,9 @@ class CommandTracker:
             stops too.
         falls_by_cause: (envs, len(FAULT_CAUSES)) int64, ``falls`` by the stop's cause
             (:data:`sim2real.deploy.core.modes.FAULT_CAUSES` order).
+        operator_stops: (envs,) int64, stops the operator asked for (cause ``operator``: a
+            lie-down, a damp, a ROS 2 ``~/stop``) of a robot that was RUNNING: not falls, the
+            policy did not lose the robot.
         fall_log: Per env, one dict per fall: ``t_s`` (session time), ``cause`` (the stop's,
             ``FAULT_CAUSES``) and, for a ``hard_limit`` stop, the estimate that began it:
             ``joint`` (the joint farthest past its hard limit) and ``past_rad`` (how far).
@@ -249,10 +257,9 @@ class CommandTracker:
         self._window_base = np.zeros((envs, 2))  # running, tracked s at its start
         self.window_running: list[list[float]] = [[] for _ in range(envs)]
         self.window_tracked: list[list[float]] = [[] for _ in range(envs)]
-        from sim2real.deploy.core.modes import FAULT_CAUSES
-
         self.falls = np.zeros(envs, dtype=np.int64)
         self.falls_by_cause = np.zeros((envs, len(FAULT_CAUSES)), dtype=np.int64)
+        self.operator_stops = np.zeros(envs, dtype=np.int64)
         self.fall_log: list[list[dict]] = [[] for _ in range(envs)]
         self._up = np.zeros(envs, dtype=bool)  # RUNNING since the last stop
         self.heading_change = np.zeros(envs)
@@ -282,6 +289,7 @@ class CommandTracker:
             "window_base": self._window_base,
             "falls": self.falls,
             "falls_by_cause": self.falls_by_cause,
+            "operator_stops": self.operator_stops,
             "up": self._up,
             "heading_change": self.heading_change,
             "commanded_turn": self.commanded_turn,
@@ -392,8 +400,11 @@ class CommandTracker:
         velocity = self._planar_velocity(runtime)  # (envs, 2) m/s, base frame; the truth's too
         down = self._up & (runtime.mode >= SAFE_STOP)  # any stop lays it down (FAULTED too)
         if down.any():
-            self.falls += down
-            for e in np.flatnonzero(down):
+            laid = down & (runtime.cause == OPERATOR_CAUSE)  # the operator laid it down
+            self.operator_stops += laid
+            fell = down & ~laid
+            self.falls += fell
+            for e in np.flatnonzero(fell):
                 if runtime.cause[e] >= 0:
                     self.falls_by_cause[e, runtime.cause[e]] += 1
                 self.fall_log[e].append(self._fall(runtime, e))
@@ -455,7 +466,6 @@ class CommandTracker:
         simulation, the true base at the stop (this tick's, filled by :meth:`_planar_velocity`):
         ``true_height_m`` (the base origin's height above the world's origin) and
         ``true_tilt_deg``, beside the estimate's ``tilt_deg``."""
-        from sim2real.deploy.core.modes import FAULT_CAUSES
         from sim2real.deploy.estimation.fall import SIGNALS
 
         cause = int(runtime.cause[e])
@@ -476,8 +486,6 @@ class CommandTracker:
 
     def causes(self, env: int | None = None) -> dict[str, int]:
         """``{cause: falls}`` of env ``env`` (all envs summed by default), causes that occurred."""
-        from sim2real.deploy.core.modes import FAULT_CAUSES
-
         counts = self.falls_by_cause.sum(axis=0) if env is None else self.falls_by_cause[env]
         return {c: int(n) for c, n in zip(FAULT_CAUSES, counts, strict=True) if n}
 
@@ -500,6 +508,7 @@ class CommandTracker:
             "running_s": running,
             "falls": int(self.falls.sum()),
             "falls_by_cause": self.causes(),
+            "operator_stops": int(self.operator_stops.sum()),
             "judged_on": self.judged_on,
             "heading_change_deg": float(np.degrees(self.heading_change.sum())),
             "commanded_turn_deg": float(np.degrees(self.commanded_turn.sum())),

@@ -16,6 +16,7 @@ from sim2real.deploy.policy.mlp_checkpoint import MLPActor, save_checkpoint
 from sim2real.deploy.policy.obs_normalizer import ObservationNormalizer
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.spec.onnx_checks import PolicyLoadError
+from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.robots import load_robot
 
 RNG = np.random.default_rng(11)
@@ -304,3 +305,28 @@ def test_shipped_arm_policy_loads_and_gives_the_actions_of_its_stored_spec(robot
     np.testing.assert_allclose(obs, expected, rtol=1e-6, atol=1e-7)
     plain = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     np.testing.assert_array_equal(policy(obs), plain.run(None, {policy.input_name: obs})[0])
+
+
+def test_adversarial_nan_seed_probe_finds_the_seed_of_the_one_by_one_search(monkeypatch):
+    """``adversarial_model`` probes many NaN-stream seeds per ONNX Runtime session: it finds the
+    seed that building and probing the whole model for every candidate finds (here with a NaN
+    probability that puts it about 20 candidates on, and 8 candidates a session so the search
+    crosses sessions)."""
+    import onnxruntime as ort
+
+    from sim2real.deploy.policy import adversarial
+
+    spec = PolicySpec.for_robot(load_robot("arm3"), mode="position", position_range="hard")
+    p, obs = 4.5e-4, {"obs": np.zeros((1, spec.obs_dim), np.float32)}
+    one_by_one = 1.0
+    while True:
+        model = adversarial._build(spec, p, 0.0, one_by_one, "uniform")
+        if np.isfinite(ort.InferenceSession(model.SerializeToString()).run(None, obs)[0]).all():
+            break
+        one_by_one += 1.0
+    assert one_by_one > 8.0  # the search crossed at least one session
+    monkeypatch.setattr(adversarial, "PROBE_SEEDS", 8)
+    assert adversarial._first_finite_nan_seed(spec.act_dim, p, 1.0) == one_by_one
+    model = adversarial.adversarial_model(spec, p, 0.0)
+    expected = adversarial._build(spec, p, 0.0, one_by_one, "uniform")
+    assert model.SerializeToString() == expected.SerializeToString()

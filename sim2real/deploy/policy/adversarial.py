@@ -58,14 +58,61 @@ def adversarial_model(
     if kind not in KINDS:
         raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
 
-    nan_seed = seed + 1.0
+    nan_seed = _first_finite_nan_seed(spec.act_dim, nan_probability, seed + 1.0)
+    model = _build(spec, nan_probability, seed, nan_seed, kind)
+    session = ort.InferenceSession(model.SerializeToString())
+    first = session.run(None, {"obs": np.zeros((1, spec.obs_dim), np.float32)})[0]
+    if not np.isfinite(first).all():  # the probe below and the model disagree: never expected
+        raise RuntimeError(f"the adversarial policy's first answer is not finite ({nan_seed=})")
+    return model
+
+
+#: NaN-stream seeds tried per probe session in :func:`_first_finite_nan_seed`.
+PROBE_SEEDS = 256
+
+
+def _first_finite_nan_seed(n: int, nan_probability: float, start: float) -> float:
+    """The first seed from ``start`` (in steps of 1) whose NaN stream answers finite on the first
+    call of ``n`` actions: the same seed as building the whole model for every candidate and
+    probing it, but :data:`PROBE_SEEDS` candidates per ONNX Runtime session (each
+    ``RandomUniformLike`` node draws from a generator of its own seed). ORT's generator makes the
+    first draws of small seeds tiny (about ``seed * 7.8e-6``), so the search runs to a seed of
+    about ``1 - (1 - p)**(1/n)`` over 7.8e-6: hundreds to thousands of candidates."""
+    import onnxruntime as ort
+
+    threshold = 1.0 - (1.0 - nan_probability) ** (1.0 / n)
+    inits = [
+        helper.make_tensor("ax1", TensorProto.INT64, [1], [1]),
+        helper.make_tensor("nan_p", TensorProto.FLOAT, [], [threshold]),
+    ]
+    like = {"like": np.zeros((1, n), np.float32)}
     while True:
-        model = _build(spec, nan_probability, seed, nan_seed, kind)
-        session = ort.InferenceSession(model.SerializeToString())
-        first = session.run(None, {"obs": np.zeros((1, spec.obs_dim), np.float32)})[0]
-        if np.isfinite(first).all():
-            return model
-        nan_seed += 1.0
+        nodes = []
+        for k in range(PROBE_SEEDS):  # the nodes of _build's NaN stream, once per candidate
+            nodes += [
+                helper.make_node(
+                    "RandomUniformLike", ["like"], [f"p{k}"], low=0.0, high=1.0, seed=start + k
+                ),
+                helper.make_node("ReduceMin", [f"p{k}", "ax1"], [f"pmin{k}"], keepdims=1),
+                helper.make_node("Less", [f"pmin{k}", "nan_p"], [f"bad{k}"]),
+            ]
+        nodes.append(
+            helper.make_node("Concat", [f"bad{k}" for k in range(PROBE_SEEDS)], ["bad"], axis=1)
+        )
+        graph = helper.make_graph(
+            nodes,
+            "nan_seed_probe",
+            [helper.make_tensor_value_info("like", TensorProto.FLOAT, [1, n])],
+            [helper.make_tensor_value_info("bad", TensorProto.BOOL, [1, PROBE_SEEDS])],
+            initializer=inits,
+        )
+        model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)])
+        model.ir_version = 8
+        bad = ort.InferenceSession(model.SerializeToString()).run(None, like)[0][0]
+        finite = np.flatnonzero(~bad)
+        if len(finite):
+            return start + float(finite[0])
+        start += PROBE_SEEDS
 
 
 def _build(spec: PolicySpec, nan_probability: float, seed: float, nan_seed: float, kind: str):

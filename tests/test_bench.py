@@ -92,8 +92,16 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
         ("wallclock_stops", "arm6"),
         ("busy_stops", "go2+arm6"),
         ("ros2_overruns", "go2"),
+        ("tick_ours_over_floor", "arm6"),
+        ("tick_ours_over_floor", "arm3"),
+        ("plant_extras_over_mj_step", "arm6"),
+        ("session_over_floor", "arm3"),
+        ("session_over_floor", "arm6"),
+        ("busy_overrun_rate", "arm6"),
     }
     assert targets["session_8h", "arm3"]["pass"] in (True, False)
+    assert positive_finite(targets["session_over_floor", "arm3"]["value"])  # tick and session
+    assert targets["tick_ours_over_floor", "arm6"]["value"] is None  # arm6 was not measured
     assert targets["session_8h", "arm3"]["value"] == session["estimate_8h_s"]
     assert targets["tick_ratio", "arm6"]["pass"] is None  # arm6 was not measured
     assert targets["campaign", "arm3"]["pass"] is None

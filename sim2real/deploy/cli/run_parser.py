@@ -32,13 +32,21 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     )
     add_backend_options(p, argv)
     p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
-    p.add_argument(
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument(
         "--policy",
-        required=True,
         action="append",
         metavar="[NAME=]FILE",
         help="ONNX policy (made by policy-export); repeat with names for an operator's switching "
         "(--policy walk=go2.onnx --policy stand=go2_stand.onnx); the first starts",
+    )
+    source.add_argument(
+        "--excitation",
+        default=None,
+        metavar="default|FILE",
+        help="instead of a policy, a scripted excitation for identification (chirps and steps "
+        "per joint alone, then together; an excitation TOML's keys: "
+        "sim2real.deploy.policy.excitation.Excitation); with --record-commands: docs/sysid.md",
     )
     p.add_argument("--spec", default=None, help="PolicySpec JSON for an ONNX without our metadata")
     p.add_argument("--duration", type=float, default=60.0, help="seconds of (simulated) time")

@@ -36,11 +36,6 @@ from sim2real.deploy.safety import drive_kernel as dk
 from sim2real.robots import Robot
 from sim2real.robots.chain_bounds import inertia_bound
 
-try:  # the ufunc np.clip ends in, without np.clip's Python wrapper (3 us of 4 per call)
-    from numpy._core.umath import clip as _clip
-except ImportError:  # numpy < 2
-    _clip = np.clip
-
 #: Share of each joint's gravity torque the guard does not trust (our choice): the soak
 #: randomizes link masses +-20 % and actuator strength +-10 % (``sim2real.eval.world.dynamics``).
 GRAVITY_UNCERTAINTY = 0.3
@@ -128,6 +123,10 @@ class VelocityDrive:
         ], dtype=float)  # fmt: skip
         self._uncertainty = np.array([GRAVITY_UNCERTAINTY, INERTIA_UNCERTAINTY, ESTIMATE_SIGMAS])
         self.covariance = None  # compiles the kernel for it (the setter)
+        # the integrators' kernel for the limits' own arrays (read-only ones type differently)
+        dk.integrate(
+            self.setpoint.copy(), np.zeros_like(self.setpoint), self.dt, self.lower, self.upper
+        )
 
     @property
     def covariance(self) -> np.ndarray | None:
@@ -234,6 +233,4 @@ class VelocityDrive:
     def integrate(self, command: np.ndarray) -> None:
         """One control period of the integrators under ``command`` (envs, n) rad/s, within the
         joints' range."""
-        s = self.setpoint
-        s += command * self.dt
-        _clip(s, self.lower, self.upper, out=s)
+        dk.integrate(self.setpoint, command, self.dt, self.lower, self.upper)

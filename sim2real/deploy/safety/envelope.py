@@ -370,8 +370,10 @@ class MotionEnvelope:
         )  # fmt: skip
         if self.torque is not None:
             self.torque.beyond_limits(box, self.beyond)
-        self.beyond &= ~stopping
-        beyond = bool(self.beyond.any())
+        beyond = False  # a position servo has no drive model: beyond stays all False
+        if self.torque is not None or self.drive is not None:
+            self.beyond &= ~stopping
+            beyond = bool(self.beyond.any())
         if beyond:
             self.joints[self.beyond] = True  # every joint of those envs brakes
         self._dirty = beyond

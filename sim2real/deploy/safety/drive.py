@@ -173,7 +173,8 @@ class VelocityDrive:
         slack: np.ndarray,
         lead: np.ndarray,
         beyond: np.ndarray,
-    ) -> None:
+        stopping: np.ndarray,
+    ) -> bool:
         """The drives' part of the step's motion, into the arrays given (one compiled call,
         :func:`sim2real.deploy.safety.drive_kernel.velocity_drive_motion`, after Pinocchio's gravity
         torque and mass matrix (CRBA) at the estimate, nominal masses).
@@ -217,6 +218,10 @@ class VelocityDrive:
             limits: (4, n) the envelope's limits: rows 2 and 3 the worst gravity load's share of
                 the effort limit and the brake's headroom floor
                 (:func:`sim2real.deploy.safety.envelope_kernel.brake_headroom`).
+            stopping: (envs,) bool, the envs braking to a stop already: ``beyond`` False.
+
+        Returns:
+            Whether ``beyond`` has an env set.
         """
         import pinocchio as pin
 
@@ -224,10 +229,10 @@ class VelocityDrive:
         for e in range(self.envs):
             self._gravity[e] = pin.computeGeneralizedGravity(model, data, q[e])
             self._mass[e] = pin.crba(model, data, q[e])  # the upper triangle is read
-        dk.velocity_drive_motion(
+        return dk.velocity_drive_motion(
             self.setpoint, q, dq, after[1], after[2], self._gravity, self._mass, effort_scale,
             self._joint, limits, self._variance, self._uncertainty, self.dt, start, end, slack,
-            lead, beyond,
+            lead, beyond, stopping,
         )  # fmt: skip
 
     def integrate(self, command: np.ndarray) -> None:

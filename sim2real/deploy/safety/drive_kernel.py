@@ -40,7 +40,8 @@ def velocity_drive_motion(
     slack: np.ndarray,
     lead: np.ndarray,
     beyond: np.ndarray,
-) -> None:
+    stopping: np.ndarray,
+) -> bool:
     """One tick of the velocity drives' model, for ``envs`` envs of ``n`` joints.
 
     Args:
@@ -65,9 +66,15 @@ def velocity_drive_motion(
         start, end: (envs, n) rad, out: the equilibrium now and after the step's command.
         slack, lead: (envs, n) rad, out: how far a joint may stray either way from that path, and
             (signed, along the motion) how far past the brake's rest it runs ahead.
-        beyond: (envs,) bool, out: a joint may run past its hard velocity limit, or runs past it.
+        beyond: (envs,) bool, out: a joint may run past its hard velocity limit, or runs past it;
+            False for the envs ``stopping``.
+        stopping: (envs,) bool, the envs braking to a stop already (not checked).
+
+    Returns:
+        Whether ``beyond`` has an env set.
     """
     envs, n = q.shape
+    anyone = False
     g_unc, i_unc, sigmas = uncertainty[0], uncertainty[1], uncertainty[2]
     for e in range(envs):
         over = False
@@ -108,7 +115,9 @@ def velocity_drive_motion(
             sigma = math.sqrt(max(variance[e, i], 0.0))
             if abs(dq[e, i]) - sigmas * sigma > joint[9, i]:
                 over = True
-        beyond[e] = over
+        beyond[e] = over and not stopping[e]
+        anyone |= beyond[e]
+    return anyone
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
@@ -141,5 +150,5 @@ def warm_up(variance: np.ndarray | None = None) -> None:
     velocity_drive_motion(
         z.copy(), z, z, z, z, z, np.zeros((envs, n, n)), np.ones((envs, n)), np.ones((10, n)),
         np.ones((4, n)), v, np.zeros(3), 0.01, z.copy(), z.copy(),
-        z.copy(), z.copy(), np.zeros(envs, dtype=bool),
+        z.copy(), z.copy(), np.zeros(envs, dtype=bool), np.zeros(envs, dtype=bool),
     )  # fmt: skip

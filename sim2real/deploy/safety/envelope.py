@@ -166,6 +166,7 @@ class MotionEnvelope:
         #: speed would pass the soft velocity limit; velocity mode, those whose drive would run
         #: past its velocity limit (:meth:`sim2real.deploy.safety.drive.VelocityDrive.motion`)
         self.beyond = np.zeros(envs, dtype=bool)
+        self._drive_beyond = False  # whether the drive's kernel set beyond this tick
         #: m, what a robot within the margin must gain back per step (:data:`TORQUE_ESCAPE` in
         #: torque mode, else 0)
         self._escape = TORQUE_ESCAPE if torque is not None else 0.0
@@ -360,7 +361,7 @@ class MotionEnvelope:
             before, after, slack = self.torque.motion(q, dq, command)
             np.copyto(self._slack, slack)
         elif self.drive is not None:
-            before, after = self._drive_motion(q, dq, before, after, effort_scale)
+            before, after = self._drive_motion(q, dq, before, after, effort_scale, stopping)
         box, need = self._box, self._need
         uncertain = ek.envelope_screen(
             q, before, after, stopping, self.limits, effort_scale, self._cached_q,
@@ -371,9 +372,11 @@ class MotionEnvelope:
         if self.torque is not None:
             self.torque.beyond_limits(box, self.beyond)
         beyond = False  # a position servo has no drive model: beyond stays all False
-        if self.torque is not None or self.drive is not None:
+        if self.torque is not None:
             self.beyond &= ~stopping
             beyond = bool(self.beyond.any())
+        elif self.drive is not None:  # the drive's kernel left the stopping envs out
+            beyond = self._drive_beyond
         if beyond:
             self.joints[self.beyond] = True  # every joint of those envs brakes
         self._dirty = beyond
@@ -404,18 +407,19 @@ class MotionEnvelope:
                     self.unsafe[ek.WORKSPACE, e] = True
                     self._mark_joints(ek.WORKSPACE, e, c[e], h[e], inside)
 
-    def _drive_motion(self, q, dq, before, after, effort_scale):
+    def _drive_motion(self, q, dq, before, after, effort_scale, stopping):
         """A velocity drive's motion (:mod:`sim2real.deploy.safety.drive`): the smoother's state before and
         after its step with the drives' equilibrium in place of the smoother's position (before:
         where the joints rest if the commands stop now; after: once the step's command has been
-        integrated), and the drives' slack (:attr:`_slack`). Returns ``(before, after)``
+        integrated), and the drives' slack (:attr:`_slack`); :attr:`beyond` of the envs not
+        ``stopping`` and whether any is set (``_drive_beyond``). Returns ``(before, after)``
         (3, envs, n) each."""
         path = self._drive_path
         np.copyto(path[0], before)
         np.copyto(path[1], after)
-        self.drive.motion(
+        self._drive_beyond = self.drive.motion(
             q, dq, after, effort_scale, self.limits, path[0, 0], path[1, 0], self._slack,
-            self._lead, self.beyond,
+            self._lead, self.beyond, stopping,
         )  # fmt: skip
         return path[0], path[1]
 

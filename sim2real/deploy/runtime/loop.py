@@ -15,7 +15,6 @@ import numpy as np
 from sim2real.deploy.core import latency_kernel as lk
 from sim2real.deploy.core.latency import BIN_NS, BINS, LatencyHistogram
 from sim2real.deploy.core.modes import (
-    FAULT_CAUSES,
     FAULTED,
     OVERRUN_RATE_LIMIT,
     RAMP_IN,
@@ -501,27 +500,3 @@ class Runtime(RuntimeState):
             if was_enabled:
                 gc.enable()
             gc.unfreeze()
-
-    def mode_names(self) -> list[str]:
-        return [Mode(int(m)).name for m in self.mode]
-
-    def cause_names(self) -> list[str | None]:
-        return [FAULT_CAUSES[c] if c >= 0 else None for c in self.cause]
-
-    # ------------------------------------------------------------------ read-only views
-    @property
-    def action(self) -> np.ndarray:
-        """(envs, n) float32: the last tick's screened policy action in [-1, 1] (a view)."""
-        return self.supervision.action
-
-    @property
-    def target(self) -> np.ndarray:
-        """(envs, n): the last tick's guarded target, in the units of the control mode (position
-        rad, velocity rad/s, torque N m; a view)."""
-        return self._target
-
-    @property
-    def command(self) -> np.ndarray:
-        """(envs, n): the command the last tick wrote to the backend, in the units of the
-        control mode (position rad, velocity rad/s, torque N m; a view)."""
-        return self._cmd

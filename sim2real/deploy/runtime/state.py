@@ -7,13 +7,15 @@ overrun window, the wall-clock histograms), the tick, the time and the clock's c
 stage's own state dict under its name; the conventions are :mod:`sim2real.deploy.core.stateful`'s.
 
 :class:`RuntimeState` is a base class of :class:`~sim2real.deploy.runtime.loop.Runtime`; its methods work
-on the runtime's attributes (set in ``Runtime.__init__``).
+on the runtime's attributes (set in ``Runtime.__init__``). It also gives the state's names (modes,
+causes) and read-only views (the last action, target and command).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from sim2real.deploy.core.modes import FAULT_CAUSES, Mode
 from sim2real.deploy.core.stateful import check, load_parts, parts_state_dict, put, scalar, take
 
 
@@ -130,3 +132,28 @@ class RuntimeState:
         self.clock.overruns, self.clock.missed_periods = overruns, missed
         load_parts(self._parts(), state, env)
         self.clock.start()
+
+    # ------------------------------------------------------------------ names and read-only views
+    def mode_names(self) -> list[str]:
+        return [Mode(int(m)).name for m in self.mode]
+
+    def cause_names(self) -> list[str | None]:
+        return [FAULT_CAUSES[c] if c >= 0 else None for c in self.cause]
+
+    # ------------------------------------------------------------------ read-only views
+    @property
+    def action(self) -> np.ndarray:
+        """(envs, n) float32: the last tick's screened policy action in [-1, 1] (a view)."""
+        return self.supervision.action
+
+    @property
+    def target(self) -> np.ndarray:
+        """(envs, n): the last tick's guarded target, in the units of the control mode (position
+        rad, velocity rad/s, torque N m; a view)."""
+        return self._target
+
+    @property
+    def command(self) -> np.ndarray:
+        """(envs, n): the command the last tick wrote to the backend, in the units of the
+        control mode (position rad, velocity rad/s, torque N m; a view)."""
+        return self._cmd

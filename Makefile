@@ -190,19 +190,22 @@ sim2sim: install $(SIM2SIM_POLICY)
 	$(VENV)/bin/sim2sim --robot $(ROBOT) --policy $(SIM2SIM_POLICY) --hours $(HOURS) \
 		--seed $(SEED) --out runs/sim2sim/$(ROBOT) --no-progress --no-film
 
-# Motor identification: ROBOT's shipped policy run for SYSID_SECONDS on an emulated robot whose
-# motors differ from its description (PLANT_MOTORS; `make sysid ROBOT=so101` ships one), through
-# the servo-bus emulator's wire protocol (SYSID_VIA=servo, on the wall clock) or on the plant
-# (SYSID_VIA=sim, lockstep); its commands and readings recorded (deploy-run --record-commands),
-# then the motors fitted (sysid) into runs/sysid/ROBOT: plant_motors.toml and the gap report
-# gap.md/.json/.png. On the real robot: record with deploy-run --backend feetech ...
-# --record-commands, then run the sysid line.
-SYSID_SECONDS ?= 10
+# Motor identification: an excitation run (deploy-run --excitation EXCITATION: chirps and steps per
+# joint alone, then together, through the guard and the smoother; `default` is 66 s) for
+# SYSID_SECONDS on an emulated robot whose motors differ from its description (PLANT_MOTORS;
+# `make sysid ROBOT=so101` ships one), through the servo-bus emulator's wire protocol
+# (SYSID_VIA=servo, on the wall clock) or on the plant (SYSID_VIA=sim, lockstep); its commands and
+# readings recorded (deploy-run --record-commands), then the motors fitted (sysid, a few minutes)
+# into runs/sysid/ROBOT: plant_motors.toml and the gap report gap.md/.json/.png/.html. On the real
+# robot: deploy-run --backend feetech ... --excitation default --duration 66 --record-commands
+# FILE, then the sysid line (docs/sysid.md).
+SYSID_SECONDS ?= 66
 SYSID_VIA     ?= servo
+EXCITATION    ?= default
 PLANT_MOTORS  ?= sim2real/eval/sysid/examples/$(ROBOT)_worn.toml
-SYSID_RUN := --policy $(SIM2SIM_POLICY) --duration $(SYSID_SECONDS) \
+SYSID_RUN := --excitation $(EXCITATION) --duration $(SYSID_SECONDS) \
 	--record-commands runs/sysid/$(ROBOT)/run.npz
-sysid: install $(SIM2SIM_POLICY)
+sysid: install
 	mkdir -p runs/sysid/$(ROBOT)
 	$(if $(filter servo,$(SYSID_VIA)),$(PY) -m sim2real.deploy.harness.servo_hil --robot $(ROBOT) \
 		--protocol feetech --plant-motors $(PLANT_MOTORS) -- $(SYSID_RUN),$(VENV)/bin/deploy-run \

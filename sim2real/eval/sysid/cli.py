@@ -2,8 +2,9 @@
 
 ::
 
-    deploy-run --robot so101 --policy so101.onnx --record-commands run.npz   # on the robot
-    sysid --robot so101 --log run.npz --out sysid/                         # here
+    deploy-run --robot so101 --excitation default --duration 66 \
+        --record-commands run.npz                          # on the robot (docs/sysid.md)
+    sysid --robot so101 --log run.npz --out sysid/         # here
 
 It writes ``sysid/plant_motors.toml`` (the fitted motors, a plant motors file:
 ``deploy-run --plant-motors``, ``soak-test --plant-motors``; its ``source`` names the log, the date,

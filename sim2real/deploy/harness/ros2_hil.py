@@ -88,17 +88,28 @@ def main(argv: list[str] | None = None) -> int:
         help="the emulator's joint_states silent for a while (a stall)",
     )
     p.add_argument("--no-sim", action="store_true", help="skip the --backend sim comparison")
+    p.add_argument(
+        "--plant-motors",
+        default=None,
+        metavar="FILE",
+        help="the emulator's plant motors file (the motors as they are, unknown to deploy-run)",
+    )
     args, rest = parse_hil(p, argv)
-    if "--policy" not in rest:
-        p.error("give deploy-run's --policy after '--'")
+    if "--policy" not in rest and "--excitation" not in rest:
+        p.error("give deploy-run's --policy (or --excitation) after '--'")
     with tempfile.TemporaryDirectory(prefix="hil-ros2-") as tmp:
         return _run(args, rest, Path(tmp))
 
 
 def _run(args, rest: list[str], tmp: Path) -> int:
-    mode = policy_mode(rest[rest.index("--policy") + 1], args.robot)
+    if "--policy" in rest:
+        mode = policy_mode(rest[rest.index("--policy") + 1], args.robot)
+    else:  # an excitation drives position targets
+        mode = "position"
     env = ros_environment(args.domain_id)
     extra = ["--seed", str(args.seed)]
+    if args.plant_motors:
+        extra += ["--plant-motors", args.plant_motors]
     if args.silence:
         extra += ["--silence", args.silence]
     emulator, ready = start_emulator(args.robot, mode, env, extra)

@@ -205,11 +205,12 @@ EXCITATION    ?= default
 PLANT_MOTORS  ?= sim2real/eval/sysid/examples/$(ROBOT)_worn.toml
 SYSID_RUN := --excitation $(EXCITATION) --duration $(SYSID_SECONDS) \
 	--record-commands runs/sysid/$(ROBOT)/run.npz
+SYSID_RECORD_servo = $(PY) -m sim2real.deploy.harness.servo_hil --robot $(ROBOT) --protocol feetech \
+	--plant-motors $(PLANT_MOTORS) -- $(SYSID_RUN)
+SYSID_RECORD_sim = $(VENV)/bin/deploy-run --robot $(ROBOT) --plant-motors $(PLANT_MOTORS) $(SYSID_RUN)
 sysid: install
 	mkdir -p runs/sysid/$(ROBOT)
-	$(if $(filter servo,$(SYSID_VIA)),$(PY) -m sim2real.deploy.harness.servo_hil --robot $(ROBOT) \
-		--protocol feetech --plant-motors $(PLANT_MOTORS) -- $(SYSID_RUN),$(VENV)/bin/deploy-run \
-		--robot $(ROBOT) --plant-motors $(PLANT_MOTORS) $(SYSID_RUN))
+	$(SYSID_RECORD_$(SYSID_VIA))
 	$(VENV)/bin/sysid --robot $(ROBOT) --log runs/sysid/$(ROBOT)/run.npz --out runs/sysid/$(ROBOT) \
 		--truth $(PLANT_MOTORS)
 

@@ -112,3 +112,16 @@ def test_the_floors_hold_and_a_room_importing_upwards_breaks_them(tmp_path):
     broken = subprocess.run([exe], cwd=tmp_path, capture_output=True, text=True)
     assert broken.returncode != 0
     assert "sim2real.deploy.core.modes -> sim2real.deploy.runtime.loop" in broken.stdout
+
+
+def test_no_function_of_the_command_lines_is_over_80_lines():
+    """The entry points stay thin callers of the rooms below (deploy-run, policy-export,
+    robot-import): a command-line function past 80 lines is doing a room's work."""
+    long = []
+    for path in sorted((ROOT / "sim2real" / "deploy" / "cli").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                size = node.end_lineno - node.lineno + 1
+                if size > 80:
+                    long.append(f"{path.relative_to(ROOT)}: {node.name} {size} lines")
+    assert long == []

@@ -95,7 +95,7 @@ TARGETS = (
     ("wallclock_stops", "wall-clock configurations that ended stopped", "arm6", 0.0, "<=", ""),
     ("busy_stops", "runs beside a CPU-bound job per core that stopped", "go2+arm6", 0.0, "<=", ""),
     ("ros2_overruns", "overruns with --ros2 and a slow ROS 2 peer", "go2", 0.0, "<=", ""),
-    # issue 56: our own code against the library calls it makes (bench.floors), same run
+    # the floor targets: our own code against the library calls it makes (bench.floors), same run
     ("tick_ours_over_floor", "(overhead - its floor) / floor, p50", "arm6", 1.0, "<=", "x"),
     ("tick_ours_over_floor", "(overhead - its floor) / floor, p50", "arm3", 1.0, "<=", "x"),
     (
@@ -124,7 +124,7 @@ TARGETS = (
     ),
     ("busy_overrun_rate", "overruns beside a CPU-bound job per core", "arm6", 0.1, "<=", "%"),
 )
-#: The keys of the issue-56 ratios, the ones bench/history.jsonl keeps.
+#: The keys of the floor ratios, the ones bench/history.jsonl keeps.
 FLOOR_TARGETS = (
     "tick_ours_over_floor",
     "plant_extras_over_mj_step",
@@ -175,7 +175,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         type=float,
         default=None,
         help="wall-clock seconds of each wallclock configuration (default 60, --quick 2; "
-        "the issue's target is stated for 600)",
+        "the target is stated for 600)",
     )
     p.add_argument(
         "--wallclock-modes",
@@ -773,7 +773,7 @@ def main(argv: list[str] | None = None) -> int:
         line = history_line(results, {i: results["sections"][i] for i in args.items})
         hist = args.out.parent / HISTORY_FILE
         append_history(hist, line)
-        print(f"appended the issue-56 ratios to {hist}")
+        print(f"appended the floor ratios to {hist}")
     return 0
 
 

@@ -64,3 +64,31 @@ def feedback_mlp_onnx(path: Path, spec: PolicySpec, name: str = "tiny") -> Path:
     helper.set_model_props(model, {"policy_spec": spec.to_json()})
     onnx.save(model, path)
     return path
+
+
+def linear_onnx(spec, path: Path, nodes, weights: dict, name: str = "linear") -> Path:
+    """An ONNX policy of ``spec`` at ``path``: ``nodes`` from input ``obs`` (batch, obs_dim) to
+    output ``action`` (batch, act_dim) with the initializers ``weights`` (name -> float32 array),
+    the spec in its metadata; returns ``path``."""
+    d, n = spec.obs_dim, spec.act_dim
+    graph = helper.make_graph(
+        nodes,
+        name,
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
+        initializer=[numpy_helper.from_array(v, k) for k, v in weights.items()],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    helper.set_model_props(model, {"policy_spec": spec.to_json()})
+    onnx.save(model, path)
+    return path
+
+
+def zero_action_onnx(robot, path: Path) -> Path:
+    """An ONNX policy of ``robot``'s default spec whose action is 0 (the home pose in position
+    mode), whatever it observes, at ``path``; returns ``path``."""
+    spec = PolicySpec.for_robot(robot)
+    nodes = [helper.make_node("MatMul", ["obs", "w"], ["action"])]
+    weights = {"w": np.zeros((spec.obs_dim, spec.act_dim), np.float32)}
+    return linear_onnx(spec, path, nodes, weights, name=path.stem)

@@ -7,9 +7,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import onnx
 import pytest
-from onnx import TensorProto, helper, numpy_helper
+from onnx import helper
 
 from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
@@ -17,7 +16,7 @@ from sim2real.deploy.runtime import FAULT_CAUSES, Mode, Runtime
 from sim2real.deploy.runtime.reference import ReferenceRuntime
 from sim2real.deploy.spec.policy_spec import LEGGED_DEFAULT_BLOCKS, PolicySpec, SpecError
 from sim2real.robots import load_robot
-from tests.runtime_fixtures import shipped_onnx
+from tests.runtime_fixtures import linear_onnx, shipped_onnx
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -36,20 +35,8 @@ def stand_policy(go2, tmp_path_factory):
 def _linear_policy(go2, spec, name, nodes, weights, tmp_path_factory) -> OnnxPolicy:
     """An ONNX policy of ``spec`` on ``go2``: ``nodes`` from input ``obs`` to output ``action``
     with the initializers ``weights`` (name -> float32 array), saved in a temporary folder."""
-    d, n = spec.obs_dim, spec.act_dim
-    graph = helper.make_graph(
-        nodes,
-        name,
-        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
-        initializer=[numpy_helper.from_array(v, k) for k, v in weights.items()],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    helper.set_model_props(model, {"policy_spec": spec.to_json()})
     path = tmp_path_factory.mktemp("go2") / f"{name}.onnx"
-    onnx.save(model, path)
-    return OnnxPolicy(path, go2)
+    return OnnxPolicy(linear_onnx(spec, path, nodes, weights, name), go2)
 
 
 def runtime(go2, policy, envs=2, seed=0, reference=False) -> tuple[Runtime, SimBackend]:

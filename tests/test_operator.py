@@ -23,7 +23,7 @@ from sim2real.deploy.backends.unitree.remote import (
 )
 from sim2real.deploy.operator.mapping import load_mapping
 from sim2real.deploy.operator.sources import EvdevReplay, KeyboardSource
-from tests.runtime_fixtures import shipped_onnx
+from tests.runtime_fixtures import shipped_onnx, zero_action_onnx
 
 ROOT = Path(__file__).resolve().parents[1]
 SESSION = ROOT / "tests" / "data" / "operator" / "xbox_session.jsonl"
@@ -268,28 +268,13 @@ def test_buttons_act_on_rising_edges_and_a_requester_needs_its_right(tmp_path, g
 def test_an_arm_is_damped_and_started_again_from_the_keyboard_without_a_restart(tmp_path):
     """On arm3 (position mode, MuJoCo): space damps (a safe stop, held at rest: PASSIVE),
     enter stands it again (RAMP_IN to home, then RUNNING), in one run."""
-    import onnx
-    from onnx import TensorProto, helper, numpy_helper
 
     from sim2real.deploy.core.modes import RUNNING
     from sim2real.deploy.policy.onnx_policy import OnnxPolicy
-    from sim2real.deploy.spec.policy_spec import PolicySpec
     from sim2real.robots import load_robot
 
     robot = load_robot("arm3")
-    spec = PolicySpec.for_robot(robot)
-    d, n = spec.obs_dim, spec.act_dim
-    graph = helper.make_graph(
-        [helper.make_node("MatMul", ["obs", "w"], ["action"])],
-        "still",
-        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
-        initializer=[numpy_helper.from_array(np.zeros((d, n), np.float32), "w")],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    helper.set_model_props(model, {"policy_spec": spec.to_json()})
-    onnx.save(model, tmp_path / "still.onnx")
+    zero_action_onnx(robot, tmp_path / "still.onnx")
     policy = OnnxPolicy(tmp_path / "still.onnx", robot)
     r, w = os.pipe()
     try:

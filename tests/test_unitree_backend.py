@@ -19,9 +19,7 @@ import threading
 import time
 
 import numpy as np
-import onnx
 import pytest
-from onnx import TensorProto, helper, numpy_helper
 
 pytest.importorskip("cyclonedds", reason="pip install '.[unitree]'")
 
@@ -33,8 +31,7 @@ from sim2real.deploy.backends.unitree.emulator import EmulatorFaults, UnitreeEmu
 from sim2real.deploy.backends.unitree.emulator.robot import TRACE_EVERY  # noqa: E402
 from sim2real.deploy.backends.unitree.emulator.truth import walk_truth  # noqa: E402
 from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT  # noqa: E402
-from sim2real.deploy.spec.policy_spec import PolicySpec  # noqa: E402
-from tests.runtime_fixtures import shipped_onnx  # noqa: E402
+from tests.runtime_fixtures import shipped_onnx, zero_action_onnx  # noqa: E402
 from tests.unitree_reference import (  # noqa: E402
     crc_bitwise,
     go_lowcmd_c_struct,
@@ -65,21 +62,7 @@ def _domain() -> int:
 def stand_onnx(go2, tmp_path_factory):
     """An ONNX policy of go2's default spec whose action is 0: the home pose, whatever it
     observes."""
-    spec = PolicySpec.for_robot(go2)
-    d, n = spec.obs_dim, spec.act_dim
-    graph = helper.make_graph(
-        [helper.make_node("MatMul", ["obs", "w"], ["action"])],
-        "stand",
-        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])],
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
-        initializer=[numpy_helper.from_array(np.zeros((d, n), np.float32), "w")],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    helper.set_model_props(model, {"policy_spec": spec.to_json()})
-    path = tmp_path_factory.mktemp("unitree") / "stand.onnx"
-    onnx.save(model, path)
-    return path
+    return zero_action_onnx(go2, tmp_path_factory.mktemp("unitree") / "stand.onnx")
 
 
 @pytest.fixture(scope="module")

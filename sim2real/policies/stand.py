@@ -57,13 +57,10 @@ def make_stand(walk: Path = HERE / "go2.pt", out: Path = HERE / "go2_stand.pt") 
     """
     ck = read_checkpoint(walk)
     spec = ck.spec
-    start = 0
-    for block in spec.observation_blocks:
-        if block.name == "joint_velocity":
-            break
-        start += block.size
-    else:
+    where = spec.block_slices().get("joint_velocity")
+    if where is None:
         raise ValueError(f"{walk}: spec: no joint_velocity block to damp")
+    start = where.start
     actor = MLPActor(spec.obs_dim, spec.act_dim, hidden=(), activation="elu")
     with torch.no_grad():
         layer = actor.net[0]

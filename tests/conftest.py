@@ -47,6 +47,20 @@ def go2_onnx(tmp_path_factory):
     return shipped_onnx("go2", tmp_path_factory.mktemp("go2policy"))
 
 
+@pytest.fixture(scope="session")
+def go2_policies(go2_onnx, tmp_path_factory):
+    """The Go2's walking (:func:`go2_onnx`), standing and lying policies
+    (sim2real/policies/go2_stand.pt, go2_lie.pt) exported to ONNX, once per session: {name: path}."""
+    from tests.runtime_fixtures import shipped_onnx
+
+    folder = tmp_path_factory.mktemp("operator_policies")
+    out = {
+        name: str(shipped_onnx(stem, folder))
+        for name, stem in (("stand", "go2_stand"), ("lie", "go2_lie"))
+    }
+    return {"walk": str(go2_onnx), **out}
+
+
 # A Robot is frozen with read-only arrays: one load per session serves every test.
 def _robot_fixture(name: str):
     """A session fixture ``name``: the shipped robot of that name, loaded once."""

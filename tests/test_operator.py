@@ -23,21 +23,10 @@ from sim2real.deploy.backends.unitree.remote import (
 )
 from sim2real.deploy.operator.mapping import load_mapping
 from sim2real.deploy.operator.sources import EvdevReplay, KeyboardSource
-from tests.runtime_fixtures import shipped_onnx, zero_action_onnx
+from tests.runtime_fixtures import zero_action_onnx
 
 ROOT = Path(__file__).resolve().parents[1]
 SESSION = ROOT / "tests" / "data" / "operator" / "xbox_session.jsonl"
-
-
-@pytest.fixture(scope="module")
-def go2_policies(go2_onnx, tmp_path_factory):
-    """The Go2's walking (conftest's), standing and lying policies exported: {name: path}."""
-    folder = tmp_path_factory.mktemp("operator_policies")
-    out = {
-        name: str(shipped_onnx(stem, folder))
-        for name, stem in (("stand", "go2_stand"), ("lie", "go2_lie"))
-    }
-    return {"walk": str(go2_onnx), **out}
 
 
 # ---------------------------------------------------------------------- the remote's bytes

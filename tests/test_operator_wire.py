@@ -12,20 +12,8 @@ from pathlib import Path
 import pytest
 
 from sim2real.deploy.backends.unitree.remote import encode_remote
-from tests.runtime_fixtures import shipped_onnx
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(scope="module")
-def go2_policies(go2_onnx, tmp_path_factory):
-    """The Go2's walking (conftest's), standing and lying policies exported: {name: path}."""
-    folder = tmp_path_factory.mktemp("operator_policies")
-    out = {
-        name: str(shipped_onnx(stem, folder))
-        for name, stem in (("stand", "go2_stand"), ("lie", "go2_lie"))
-    }
-    return {"walk": str(go2_onnx), **out}
 
 
 # ---------------------------------------------------------------------- over DDS and ROS 2

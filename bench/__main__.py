@@ -371,10 +371,10 @@ def history_line(results: dict, measured: dict) -> dict:
 
 def append_history(path: Path, line: dict) -> None:
     """Append ``line`` to the JSON-lines file ``path`` (NaN written as null)."""
-    from bench.common import _clean
+    from bench.common import json_safe
 
     with path.open("a") as f:
-        f.write(json.dumps(_clean(line), sort_keys=True) + "\n")
+        f.write(json.dumps(json_safe(line), sort_keys=True) + "\n")
 
 
 def compare_history(results: dict) -> list[dict]:

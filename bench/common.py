@@ -243,12 +243,12 @@ def machine_info() -> dict[str, Any]:
     }
 
 
-def _clean(obj: Any) -> Any:
+def json_safe(obj: Any) -> Any:
     """JSON-safe copy: NaN and inf become None, numpy scalars become Python numbers."""
     if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
+        return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
-        return [_clean(v) for v in obj]
+        return [json_safe(v) for v in obj]
     if isinstance(obj, np.generic):
         obj = obj.item()
     if isinstance(obj, float) and not np.isfinite(obj):
@@ -265,4 +265,4 @@ def write_json_atomic(path: Path, data: dict[str, Any]) -> Path:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    return atomic_write(path, json.dumps(_clean(data), indent=2, allow_nan=False) + "\n")
+    return atomic_write(path, json.dumps(json_safe(data), indent=2, allow_nan=False) + "\n")

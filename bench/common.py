@@ -37,7 +37,7 @@ class BenchPolicy:
         spec: Its PolicySpec (``PolicySpec.for_robot(robot)``: default blocks, default control
             mode: arm3 velocity, arm6 position).
         actor: The torch :class:`~sim2real.deploy.policy.mlp_checkpoint.MLPActor` (eval mode), for the bare
-        loop.
+        loop; None for a shipped policy (a legged robot: no bare loop).
         path: The ONNX file exported from it by ``sim2real.deploy.export.run_export`` (parity gate passed).
         export_seconds: Wall time of the export, s.
     """
@@ -118,7 +118,42 @@ def tame_actor(actor, spec, robot, seed: int = POLICY_SEED) -> None:
         l3.bias.copy_(torch.as_tensor(bias, dtype=torch.float32))
 
 
+#: A legged robot's benchmark command (``--command``: vx, vy, wz in m/s, m/s, rad/s): a random
+#: policy cannot walk, so a legged robot runs its shipped policy walking forward.
+LEGGED_COMMAND = "0.5,0,0"
+
+
+def is_legged(robot) -> bool:
+    """Whether ``robot`` is a legged kind (:func:`sim2real.deploy.robot_kind.robot_kind`)."""
+    from sim2real.deploy.robot_kind import robot_kind
+
+    return robot_kind(robot).legged
+
+
 def make_policy(robot, folder: Path, seed: int = POLICY_SEED) -> BenchPolicy:
+    """The benchmark policy of ``robot``: :func:`make_random_policy` for an arm, the shipped
+    policy (``sim2real/policies/ROBOT.pt`` exported to ``folder``, ``actor`` None: no bare loop)
+    for a legged robot, which a random policy would lay down.
+
+    Raises:
+        FileNotFoundError: a legged robot without a shipped policy.
+        sim2real.deploy.export.ExportError, sim2real.deploy.export.ParityError: the export failed.
+    """
+    if not is_legged(robot):
+        return make_random_policy(robot, folder, seed)
+    from sim2real.deploy.export import export_policy
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+
+    src = Path(__file__).resolve().parents[1] / "sim2real" / "policies" / f"{robot.name}.pt"
+    if not src.is_file():
+        raise FileNotFoundError(f"bench: legged robot {robot.name} has no shipped policy {src}")
+    t = time.perf_counter()
+    path = export_policy(src, out=folder / f"{robot.name}.onnx")
+    seconds = time.perf_counter() - t
+    return BenchPolicy(robot, OnnxPolicy(path, robot).spec, None, path, seconds)
+
+
+def make_random_policy(robot, folder: Path, seed: int = POLICY_SEED) -> BenchPolicy:
     """Build the deterministic benchmark policy of ``robot`` and export it to ONNX in ``folder``.
 
     An :class:`~sim2real.deploy.policy.mlp_checkpoint.MLPActor` (obs_dim of the default PolicySpec -> 64 ->
@@ -148,6 +183,16 @@ def make_policy(robot, folder: Path, seed: int = POLICY_SEED) -> BenchPolicy:
 
 def policy_info(p: BenchPolicy) -> dict[str, Any]:
     """JSON description of a benchmark policy."""
+    if p.actor is None:
+        return {
+            "kind": f"the shipped policy sim2real/policies/{p.robot.name}.pt, command {LEGGED_COMMAND}",
+            "obs_dim": p.spec.obs_dim,
+            "act_dim": p.spec.act_dim,
+            "observation_blocks": [b.name for b in p.spec.observation_blocks],
+            "control_mode": p.spec.action.mode,
+            "control_rate_hz": p.spec.control_rate,
+            "export_s": p.export_seconds,
+        }
     return {
         "kind": "MLPActor, seeded random weights tamed to hold near home (bench.common.tame_actor)",
         "hidden": list(POLICY_HIDDEN),

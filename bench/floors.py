@@ -19,8 +19,9 @@ Per tick (``FLOOR_STAGES``):
   target moves each tick, so Ruckig computes a new trajectory each tick, as in the runtime), the
   new position read back (a position drive needs it).
 - ``fk``: ``pinocchio.forwardKinematics`` and ``updateFramePlacement`` of the end-effector frame
-  (what ``sim2real.deploy.core.state.Kinematics`` calls; a legged robot has no end effector: its joint
-  placements only).
+  (what ``sim2real.deploy.core.state.Kinematics`` calls); a legged robot: the base estimator's
+  calls, ``forwardKinematics`` of the floating-base configuration and velocity, each foot's
+  ``updateFramePlacement`` and ``getFrameVelocity``.
 - ``mj_step``: ``mujoco.mj_step(m, d, nstep=decimation)`` on a copy of the plant's first env,
   set before each call (untimed) to the plant's state and controls of the moment.
 """
@@ -80,6 +81,11 @@ class FloorLoop:
         self._data = self._model.createData()
         self._frame = robot.ee_frame_id
         self._q = np.asarray(rt.state.q[0])  # the runtime's estimate, read at each call
+        self._feet = list(getattr(robot, "foot_frame_ids", ()) or ()) if self._frame < 0 else []
+        self._q_full = self._v_full = None
+        if self._model.nq != n:  # a floating base: the base estimator's call (base at the origin)
+            self._q_full = pin.neutral(self._model)
+            self._v_full = np.zeros(self._model.nv)
         self._m = backend.models[0]
         self._live = backend.datas[0]
         self._d = mujoco.MjData(self._m)
@@ -95,6 +101,7 @@ class FloorLoop:
         session, binding = self._session, self._binding
         ruckig, inp, out = self._ruckig, self._inp, self._out
         model, data, frame, q = self._model, self._data, self._frame, self._q
+        q_full, v_full, feet = self._q_full, self._v_full, self._feet
         m, d, live, nstep, step = self._m, self._d, self._live, self._nstep, mujoco.mj_step
         rec = np.zeros((ticks, len(FLOOR_STAGES)), dtype=np.int64)
         for i in range(ticks):
@@ -112,9 +119,17 @@ class FloorLoop:
             _ = out.new_position
             out.pass_to_input(inp)
             t2 = clock()
-            pin.forwardKinematics(model, data, q)
+            if q_full is None:
+                pin.forwardKinematics(model, data, q)
+            else:
+                q_full[7:] = q
+                v_full[6:] = 0.0
+                pin.forwardKinematics(model, data, q_full, v_full)
             if frame >= 0:
                 pin.updateFramePlacement(model, data, frame)
+            for f in feet:
+                pin.updateFramePlacement(model, data, f)
+                pin.getFrameVelocity(model, data, f, pin.LOCAL_WORLD_ALIGNED)
             t3 = clock()
             step(m, d, nstep=nstep)
             t4 = clock()

@@ -34,7 +34,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench.common import BenchPolicy
+from bench.common import LEGGED_COMMAND, BenchPolicy
 
 EIGHT_HOURS_S = 8 * 3600.0
 #: SCHED_FIFO priority of the ``+fifo`` configurations. Our choice: 50, the default thread
@@ -113,7 +113,8 @@ def deadline_figures(report: dict) -> dict:
 
 def session(bp: BenchPolicy, duration: float) -> dict:
     """The ``session.<robot>`` entry of results.json (see the module docstring)."""
-    report, outer, _ = _deploy_run(bp, duration, realtime=False)
+    extra = () if bp.actor is not None else ("--command", LEGGED_COMMAND)  # a shipped legged policy
+    report, outer, _ = _deploy_run(bp, duration, realtime=False, extra=extra)
     sim_s, wall_s = float(report["duration_s"]), float(report["wall_s"])
     setup_s = max(outer - wall_s, 0.0)
     per_sim_s = wall_s / sim_s

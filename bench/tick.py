@@ -38,7 +38,7 @@ import time
 import mujoco
 import numpy as np
 
-from bench.common import BenchPolicy, clear, histogram, ratio, summary
+from bench.common import LEGGED_COMMAND, BenchPolicy, clear, histogram, is_legged, ratio, summary
 from bench.floors import FLOOR_STAGES, FloorLoop
 
 #: Bare loop: unitree_rl_gym's ``action_scale`` (rad per unit action) around the home pose.
@@ -178,18 +178,27 @@ class _TickTimer:
 
 def make_runtime(bp: BenchPolicy, envs: int = 1, seed: int = 0, clock=None):
     """A Runtime as ``deploy-run`` builds it (SimBackend in the policy's mode, SimClock by
-    default) and its GoalScheduler (4 s period, 3 s success time, goals seeded ``seed + 1``)."""
+    default) and its task (:func:`sim2real.deploy.tasks.task.task_for`): an arm's goals every 4 s
+    (3 s success time, seeded ``seed + 1``), a legged robot's fixed command ``LEGGED_COMMAND``."""
     from sim2real.deploy.backends.sim.plant import SimBackend
     from sim2real.deploy.policy.onnx_policy import OnnxPolicy
     from sim2real.deploy.runtime import Runtime
     from sim2real.deploy.tasks.goals import GoalScheduler
+    from sim2real.deploy.tasks.task import task_for
 
     robot = bp.robot
     policy = OnnxPolicy(bp.path, robot)
     backend = SimBackend(robot, mode=policy.spec.action.mode, envs=envs, seed=seed)
     rt = Runtime(robot, policy, backend, clock=clock)
-    goals = GoalScheduler(robot, envs, GOAL_PERIOD, None, 3.0, np.random.default_rng(seed + 1))
-    return rt, goals
+    if not is_legged(robot):
+        rng = np.random.default_rng(seed + 1)
+        return rt, GoalScheduler(robot, envs, GOAL_PERIOD, None, 3.0, rng)
+    rngs = [np.random.default_rng([seed + 1, e]) for e in range(envs)]
+    task = task_for(
+        robot, envs, backend, period=GOAL_PERIOD, rng=rngs, command=LEGGED_COMMAND, schedule=False
+    )
+    task.reset(rt, np.ones(envs, dtype=bool))
+    return rt, task
 
 
 def warm_up(rt, goals, max_seconds: float = 20.0) -> int:
@@ -220,9 +229,10 @@ def measure(bp: BenchPolicy, ticks: int, rounds: int) -> dict:
         rt, goals = make_runtime(bp)
         warm = warm_up(rt, goals)
         timer = _TickTimer(goals, ticks)
-        bare = BareLoop(bp)
-        bare.run(WARMUP_TICKS)
-        bare.samples = bare.samples[:0]
+        bare = BareLoop(bp) if bp.actor is not None else None  # a shipped policy: no bare loop
+        if bare is not None:
+            bare.run(WARMUP_TICKS)
+            bare.samples = bare.samples[:0]
         floors = FloorLoop(rt)
         floors.run(WARMUP_TICKS)
         floors.samples = floors.samples[:0]
@@ -230,7 +240,8 @@ def measure(bp: BenchPolicy, ticks: int, rounds: int) -> dict:
         for n in per_round:
             timer.new_round()
             rt.run(n, on_tick=timer)
-            bare.run(n)
+            if bare is not None:
+                bare.run(n)
             floors.run(n)
     finally:
         torch.set_num_threads(threads)
@@ -238,7 +249,7 @@ def measure(bp: BenchPolicy, ticks: int, rounds: int) -> dict:
     full_stages = {s: summary(rt.latency, i) for i, s in enumerate(STAGES)}
     full_overhead = summary(rt.tick_cost)
     full_tick = summary(histogram(timer.samples[: timer.n]))
-    b = bare.samples
+    b = bare.samples if bare is not None else np.zeros((0, 7), dtype=np.int64)
     bare_stages = {s: summary(histogram(b[:, i])) for i, s in enumerate(BARE_STAGES)}
     bare_overhead = summary(histogram(b[:, 6] - b[:, 5]))
     bare_tick = summary(histogram(b[:, 6]))
@@ -259,7 +270,7 @@ def measure(bp: BenchPolicy, ticks: int, rounds: int) -> dict:
             "ticks_not_running": int(timer.not_running),
             "final_state": rt.mode_names(),
             "safe_stops": int(rt.counters.safe_stops.sum()),
-            "goals_issued": int(goals.goals),
+            "goals_issued": int(getattr(goals, "goals", 0)),
         },
         "bare": {
             "stages": bare_stages,

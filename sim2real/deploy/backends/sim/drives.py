@@ -24,11 +24,16 @@ class SimDrives:
         """Each drive's torque limit from its winding temperature (module docstring): MuJoCo's
         ``jnt_actfrcrange`` and, in velocity mode, the anti-windup bound follow it. Only envs with a
         winding above its derating start, or derated before, are touched."""
-        hot = self._hot
-        if not derating_due(
-            self.thermal.winding_temperature, self.derating.start, self._derated, hot
+        if derating_due(
+            self.thermal.winding_temperature, self.derating.start, self._derated, self._hot
         ):
-            return
+            self._set_derated_limits()
+
+    def _set_derated_limits(self) -> None:
+        """The action of :meth:`_derate_drives` once its screen (``_hot`` (envs,) bool: a winding
+        above its derating start) found work: the limits of the hot envs and of those derated
+        before follow their windings' temperature."""
+        hot = self._hot
         for e in np.flatnonzero(hot | self._derated):
             limit = self.effort_limit[e]
             np.multiply(

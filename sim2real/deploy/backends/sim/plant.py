@@ -10,6 +10,9 @@ floating base's IMU and foot contact (:mod:`sim2real.deploy.backends.sim.legged_
 (:mod:`sim2real.deploy.backends.sim.drives`: the mode's servo loop of :meth:`robots.Robot.mjspec`, derated
 torque limits, anti-windup) and the state dict (:mod:`sim2real.deploy.backends.sim.state`). The true state
 (:meth:`SimBackend.true_position`, :meth:`SimBackend.true_base_state`, ...) is for evaluation only.
+``advance`` runs these models in two compiled calls around ``mj_step``
+(:mod:`sim2real.deploy.backends.sim.plant_kernel`; their table:
+:mod:`~sim2real.deploy.backends.sim.compiled_step`).
 Interfaces: :class:`~sim2real.deploy.core.backend.Backend` (lifecycle calls are no-ops) and
 :class:`~sim2real.deploy.core.backend.SimulatedPlant` (ground truth, fault hooks, external forces).
 
@@ -26,10 +29,16 @@ import mujoco
 import numpy as np
 
 from sim2real.deploy.backends.sim.actuators import ActuatorModel
+from sim2real.deploy.backends.sim.compiled_step import CompiledStep
 from sim2real.deploy.backends.sim.drives import SimDrives
 from sim2real.deploy.backends.sim.drives_kernel import derating_due, windup_exceeded
 from sim2real.deploy.backends.sim.legged_sensors import BaseSensorModel
-from sim2real.deploy.backends.sim.sensors import JointSensorModel
+from sim2real.deploy.backends.sim.plant_kernel import (
+    actuator_substep,
+    after_physics,
+    before_physics,
+)
+from sim2real.deploy.backends.sim.sensors import JointSensorModel, JointSensorSettings
 from sim2real.deploy.backends.sim.state import SimState
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame
 from sim2real.deploy.kernels import all_finite
@@ -60,7 +69,7 @@ class NonFiniteCommandError(Sim2RealError, ValueError):
     """A command with NaN or inf was written; it was rejected and never reached MuJoCo."""
 
 
-class SimBackend(SimState, SimDrives, BackendLifecycle):
+class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
     """MuJoCo plant with sensor and motor-thermal models, batched over ``envs``.
 
     Args:
@@ -118,6 +127,8 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
         self._derate = np.ones((envs, n))
         self._derated = np.zeros(envs, dtype=bool)  # envs whose model may hold a derated limit
         self._hot = np.zeros(envs, dtype=bool)  # envs with a winding above its derating start
+        self._warning_count = len(_DIVERGENCE_WARNINGS)
+        self._compiled: CompiledStep | None = None  # built below, once every array exists
         all_finite(self._hot[:, None] * 0.0)  # compiled (or loaded from cache) before a tick
         self._lag = np.zeros((envs, n))
         #: the motors' torque-speed lines and command delays, applied every physics step
@@ -148,6 +159,8 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
         self.tick = 0
         #: IMU and foot contact of a floating-base robot (None for an arm)
         self._base_sensors = BaseSensorModel(self, robot) if robot.floating_base else None
+        #: the table of the compiled step (sim2real.deploy.backends.sim.plant_kernel)
+        self._compiled = CompiledStep(self)
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
@@ -230,71 +243,13 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
             self._acts[e] = d.act
             kp = m.actuator_gainprm[: self.n_joints, 0]
             self._windup_bound[e] = self.robot.effort_limit / kp
+        if self._compiled is not None:  # the kernels' addresses of the new views
+            self._compiled.bind(e)
 
     @property
     def time(self) -> float:
         """Plant clock, s (identical for every env)."""
         return self.tick * self.control_period
-
-    # ------------------------------------------------------------------ the joint sensors
-    @property
-    def joint_sensors(self) -> JointSensorModel:
-        """The encoder and temperature-report model (per-env settings, latency buffers, the
-        sensor streams)."""
-        return self._joint_sensors
-
-    @property
-    def noise_sigma(self) -> np.ndarray:
-        """(envs,) rad, encoder noise sigma per env (the sensor model's array: write in place)."""
-        return self._joint_sensors.noise_sigma
-
-    @property
-    def encoder_bias(self) -> np.ndarray:
-        """(envs, n) rad, each encoder's constant offset (the sensor model's array: write in
-        place); the true state the soak judges stays unbiased."""
-        return self._joint_sensors.encoder_bias
-
-    @property
-    def dropout_probability(self) -> np.ndarray:
-        """(envs,) probability that an encoder reading is lost (the sensor model's array)."""
-        return self._joint_sensors.dropout_probability
-
-    @property
-    def latency_ticks(self) -> np.ndarray:
-        """(envs,) int, control ticks from an encoder sample to its arrival (the sensor
-        model's array)."""
-        return self._joint_sensors.latency_ticks
-
-    @property
-    def max_latency_ticks(self) -> int:
-        """Capacity of the latency buffers: the largest ``latency_ticks`` allowed."""
-        return self._joint_sensors.max_latency_ticks
-
-    @property
-    def encoder_quantum(self) -> float:
-        """Rad, the encoder resolution (``2 pi / encoder_resolution``)."""
-        return self._joint_sensors.encoder_quantum
-
-    @property
-    def temperature_resolution(self) -> float:
-        """DegC, the resolution of the drives' temperature reports."""
-        return self._joint_sensors.temperature_resolution
-
-    @property
-    def encoder_every(self) -> int:
-        """Control ticks between two encoder samples (``control rate / encoder_rate``)."""
-        return self._joint_sensors.encoder_every
-
-    def set_sensor_streams(self, generators: Sequence[np.random.Generator]) -> None:
-        """Draw each env's encoder noise and dropout from its own generator (one per env, in env
-        order) instead of one stream for the batch: an env's readings then do not depend on its
-        neighbours (batched soak sessions). Call before the first reading that should use them
-        (:meth:`reset`).
-
-        Raises:
-            ValueError: not one generator per env.
-        """
-        self._joint_sensors.set_streams(generators)
 
     # ------------------------------------------------------------------ the Backend lifecycle
     def open(self) -> None:
@@ -351,36 +306,44 @@ class SimBackend(SimState, SimDrives, BackendLifecycle):
         """Run one control period: ``decimation`` physics steps per env, then the thermal model
         and the sensors.
 
+        The plant's own models run in two compiled calls around MuJoCo's steps
+        (:mod:`sim2real.deploy.backends.sim.plant_kernel`): the commands and the derating screen
+        before, the joint state, divergence screen, anti-windup, thermal step and encoder sample
+        after; only the random draws (numpy's seeded streams), a derating that is due, the
+        temperature reports and a floating base's IMU and contact stay in Python. With motors
+        that delay their command or follow a torque-speed line the physics runs one step at a
+        time, each after one compiled call for the env's actuators.
+
         Raises:
-            SimulationDivergedError: MuJoCo flagged a bad state in any env.
+            SimulationDivergedError: MuJoCo flagged a bad state in any env (every env has
+                stepped; the sensor stream has made the tick's draws).
         """
-        command, torque, qpos = self._command, self._torque, self._qpos
-        self._derate_drives()
-        step, nstep, count = mujoco.mj_step, self.decimation, np.count_nonzero
-        actuators = self.actuators if self.actuators.active else None
-        if actuators is not None:
-            actuators.start_period(self.tick, command, self.thermal.winding_temperature)
-        for e, (m, d, ctrl, q, force, warnings) in enumerate(self._views):
-            if actuators is None:
-                ctrl[:] = command[e]
+        table, nstep, step = self._compiled.table, self.decimation, mujoco.mj_step
+        if before_physics(table):
+            self._set_derated_limits()
+        tick, actuators = self.tick, self.actuators
+        if not actuators.active:
+            for m, d, _ctrl, _q, _force, _warnings in self._views:
                 step(m, d, nstep=nstep)
-            else:  # delayed commands, and a torque range that follows the joint speed
-                qvel, limit, out = self._qvel_views[e], self.effort_limit[e], self._actfrc[e]
+        else:  # delayed commands, and a torque range that follows the joint speed
+            actuators.start_period(tick, self._command, self.thermal.winding_temperature)
+            for e, (m, d, _ctrl, _q, _force, _warnings) in enumerate(self._views):
                 for sub in range(nstep):
-                    actuators.before_step(e, sub, ctrl, qvel, limit, out)
+                    actuator_substep(table, e, tick, sub)
                     step(m, d)
-            if count(warnings):  # MuJoCo found a bad state (and reset the data)
-                self._check_divergence(e, d)
-            torque[e] = force
-            qpos[e] = q
-        if not all_finite(qpos):  # bad values after the last substep
+        tick += 1
+        sensors = self._joint_sensors
+        sample = tick % sensors.encoder_every == 0
+        if sample:
+            sensors.draw(tick)
+        if not after_physics(table, tick, sample):  # MuJoCo found a bad state (and reset the data)
             for e, d in enumerate(self.datas):
                 self._check_divergence(e, d)
-        if self.mode == "velocity":
-            self._anti_windup()
-        self.tick += 1
-        self.thermal.step(self._torque, self.control_period)
-        self._sample_sensors()
+        self.tick = tick
+        if tick % sensors.temperature_every == 0:
+            sensors.report_temperature(self.time, self.thermal.winding_temperature)
+        if self._base_sensors is not None:
+            self._base_sensors.sample(tick, self.time)
 
     def set_base_velocity(self, env: int, velocity_xy: np.ndarray) -> None:
         """Set the floating base's horizontal velocity of ``env`` to ``velocity_xy`` (2,) m/s,

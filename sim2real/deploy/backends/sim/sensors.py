@@ -80,6 +80,71 @@ def draw(rng, kind: str, out: np.ndarray, envs: np.ndarray | None) -> np.ndarray
     return getattr(rng, kind)(out=out)
 
 
+class JointSensorSettings:
+    """The joint sensors' settings and streams as attributes of the plant: a base class of
+    :class:`~sim2real.deploy.backends.sim.plant.SimBackend`, whose ``_joint_sensors`` is the
+    :class:`JointSensorModel`."""
+
+    @property
+    def joint_sensors(self) -> JointSensorModel:
+        """The encoder and temperature-report model (per-env settings, latency buffers, the
+        sensor streams)."""
+        return self._joint_sensors
+
+    @property
+    def noise_sigma(self) -> np.ndarray:
+        """(envs,) rad, encoder noise sigma per env (the sensor model's array: write in place)."""
+        return self._joint_sensors.noise_sigma
+
+    @property
+    def encoder_bias(self) -> np.ndarray:
+        """(envs, n) rad, each encoder's constant offset (the sensor model's array: write in
+        place); the true state the soak judges stays unbiased."""
+        return self._joint_sensors.encoder_bias
+
+    @property
+    def dropout_probability(self) -> np.ndarray:
+        """(envs,) probability that an encoder reading is lost (the sensor model's array)."""
+        return self._joint_sensors.dropout_probability
+
+    @property
+    def latency_ticks(self) -> np.ndarray:
+        """(envs,) int, control ticks from an encoder sample to its arrival (the sensor
+        model's array)."""
+        return self._joint_sensors.latency_ticks
+
+    @property
+    def max_latency_ticks(self) -> int:
+        """Capacity of the latency buffers: the largest ``latency_ticks`` allowed."""
+        return self._joint_sensors.max_latency_ticks
+
+    @property
+    def encoder_quantum(self) -> float:
+        """Rad, the encoder resolution (``2 pi / encoder_resolution``)."""
+        return self._joint_sensors.encoder_quantum
+
+    @property
+    def temperature_resolution(self) -> float:
+        """DegC, the resolution of the drives' temperature reports."""
+        return self._joint_sensors.temperature_resolution
+
+    @property
+    def encoder_every(self) -> int:
+        """Control ticks between two encoder samples (``control rate / encoder_rate``)."""
+        return self._joint_sensors.encoder_every
+
+    def set_sensor_streams(self, generators: Sequence[np.random.Generator]) -> None:
+        """Draw each env's encoder noise and dropout from its own generator (one per env, in env
+        order) instead of one stream for the batch: an env's readings then do not depend on its
+        neighbours (batched soak sessions). Call before the first reading that should use them
+        (:meth:`reset`).
+
+        Raises:
+            ValueError: not one generator per env.
+        """
+        self._joint_sensors.set_streams(generators)
+
+
 class JointSensorModel:
     """Encoders and winding temperature reports of ``envs`` robots (module docstring).
 
@@ -138,6 +203,8 @@ class JointSensorModel:
         #: ``randomize_encoder_bias``), added to the angle it reads; write in place
         self.encoder_bias = np.zeros((envs, n))
         self._biased = np.zeros((envs, n))
+        # each slot's rows, built once (the compiled step's draws go straight into them)
+        self._slots = [(self._buf_position[i], self._buf_velocity[i]) for i in range(size)]
 
     @property
     def encoder_every(self) -> int:
@@ -216,6 +283,29 @@ class JointSensorModel:
             self._buf_stamp[slot] = np.nan
         if tick % self._temperature_every == 0:
             self._sample_temperature(time, winding_temperature)
+
+    def draw(self, tick: int) -> None:
+        """The random draws of the encoder sample at control tick ``tick`` (an encoder tick), in
+        :meth:`sample`'s order from :attr:`rng`: standard normal into the position slot, uniform
+        into ``_uniform``, standard normal into the velocity slot where the drives report one.
+        The compiled step (:func:`sim2real.deploy.backends.sim.plant_kernel.after_physics`) turns
+        them into the readings."""
+        position, velocity = self._slots[tick % len(self._slots)]
+        rng = self.rng
+        rng.standard_normal(out=position)
+        rng.random(out=self._uniform)
+        if self.has_velocity:
+            rng.standard_normal(out=velocity)
+
+    @property
+    def temperature_every(self) -> int:
+        """Control ticks between two temperature reports (``control rate / temperature_rate``)."""
+        return self._temperature_every
+
+    def report_temperature(self, time: float, winding_temperature: np.ndarray) -> None:
+        """The drives' temperature report at ``time`` (s): ``winding_temperature`` (envs, n)
+        degC rounded to :attr:`temperature_resolution` into the frame, stamped ``time``."""
+        self._sample_temperature(time, winding_temperature)
 
     def _encode(self, sample: np.ndarray, q: np.ndarray) -> None:
         """In place: the standard normal draws ``sample`` (envs, n) become the readings of ``q``

@@ -1,0 +1,258 @@
+"""The MuJoCo plant's compiled step: its own models around ``mj_step`` in two calls per tick.
+
+Numba's dispatch of each array argument costs more than the arithmetic of an arm's drives,
+thermal nodes and encoders. So the kernels take one int64 *table* (built and kept by
+:class:`sim2real.deploy.backends.sim.compiled_step.CompiledStep`): a header of sizes and flags,
+then the addresses of every array the step touches (the plant's own arrays and each env's
+``MjData`` fields), which they view with ``numba.carray``. The arrays must live, keep their shape
+and stay C-contiguous while the table is in use (the plant never rebinds them; ``set_model``
+rewrites an env's row).
+
+- :func:`before_physics`: the drive commands into each env's ``ctrl`` and the derating screen.
+- :func:`after_physics`: the joint state gathered from ``MjData``, the divergence screen, the
+  velocity loop's anti-windup, the thermal step and the encoder sample of the tick.
+- :func:`actuator_substep`: one env's motors before one physics step (delay, torque-speed line).
+
+Each runs the arithmetic of the kernels it replaces, in their order (the numpy references of
+:mod:`sim2real.deploy.backends.sim.reference`, :meth:`TwoNodeThermalModel.step_reference`), so a
+seeded plant gives the same states bit for bit.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba.core import cgutils, types
+from numba.extending import intrinsic
+
+from sim2real.deploy.backends.sim.drives_kernel import actuator_step
+from sim2real.deploy.backends.sim.sensors_kernel import encoder_sample
+from sim2real.robots.thermal_kernel import thermal_step
+
+# the header: sizes and flags (ROWS: actuators per joint, the rows of ctrl; NSTEP: physics steps
+# per control period)
+ENVS, N, ROWS, SLOTS, FLAGS, WARNINGS, DEPTH, NSTEP = range(8)
+#: FLAGS bits: velocity mode (anti-windup), the drives report a velocity, the command goes
+#: straight into ctrl (no actuator model between)
+VELOCITY_MODE, HAS_VELOCITY, WRITE_CTRL = 1, 2, 4
+# the plant's arrays (addresses)
+(
+    COMMAND, QPOS, QVEL, TORQUE, START, DERATED, HOT, LAG, BOUND, CONSTANTS, AMBIENT, WINDING,
+    HOUSING, CURRENT, POWER, FLOW, BUF_POSITION, BUF_VELOCITY, BUF_STAMP, UNIFORM, NOISE, DROPOUT,
+    VELOCITY_NOISE, BIAS, BIASED, SCALARS, HISTORY, DELAY, STALL, NO_LOAD, ACTIVE, LIMIT,
+) = range(8, 40)  # fmt: skip
+#: SCALARS (float64, 2): the encoder quantum (rad), the control period (s)
+QUANTUM, PERIOD = 0, 1
+#: first per-env row; each env has ``PER_ENV`` addresses
+ENV_ROWS = 40
+# per env: MjData's ctrl, the joints' qpos, qvel, qfrc_actuator, the divergence warnings' counters,
+# act (velocity mode), and the model's jnt_actfrcrange rows of the joints
+CTRL, JQPOS, JQVEL, FORCE, WARN, ACT, ACTFRC = range(7)
+PER_ENV = 7
+#: The kernels' signatures (:func:`compile_kernels`).
+SIGNATURES = {
+    "before_physics": "boolean(int64[::1])",
+    "after_physics": "boolean(int64[::1], int64, boolean)",
+    "actuator_substep": "void(int64[::1], int64, int64, int64)",
+}
+
+
+@intrinsic
+def _pointer(typingctx, address):
+    """The integer ``address`` as a ``void *`` (for ``numba.carray``)."""
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], cgutils.voidptr_t)
+
+    return types.voidptr(address), codegen
+
+
+@numba.njit(inline="always", cache=True, nogil=True)
+def _f64(table, i, shape):
+    return numba.carray(_pointer(table[i]), shape, np.float64)
+
+
+@numba.njit(inline="always", cache=True, nogil=True)
+def _bool(table, i, shape):
+    return numba.carray(_pointer(table[i]), shape, np.bool_)
+
+
+@numba.njit(inline="always", cache=True, nogil=True)
+def _env(table, e, field):
+    return table[ENV_ROWS + e * PER_ENV + field]
+
+
+@numba.njit(cache=True, nogil=True)
+def before_physics(table: np.ndarray) -> bool:
+    """Before a control period's physics steps: each env's command ``COMMAND`` (envs, n) into
+    every row of its ``ctrl`` (``ROWS`` rows of n; only with ``WRITE_CTRL``, else the actuators
+    write it before each step), and the derating screen
+    (:func:`sim2real.deploy.backends.sim.drives_kernel.derating_due`: ``HOT`` (envs,) bool
+    written); returns whether some env's torque limits must be set."""
+    envs, n, rows = table[ENVS], table[N], table[ROWS]
+    if table[FLAGS] & WRITE_CTRL:
+        command = _f64(table, COMMAND, (envs, n))
+        for e in range(envs):
+            ctrl = numba.carray(_pointer(_env(table, e, CTRL)), (rows, n), np.float64)
+            for r in range(rows):
+                for j in range(n):
+                    ctrl[r, j] = command[e, j]
+    winding = _f64(table, WINDING, (envs, n))
+    start = _f64(table, START, (n,))
+    derated, hot = _bool(table, DERATED, (envs,)), _bool(table, HOT, (envs,))
+    due = False
+    for e in range(envs):
+        h = False
+        for j in range(n):
+            if winding[e, j] > start[j]:
+                h = True
+                break
+        hot[e] = h
+        due = due or h or derated[e]
+    return due
+
+
+@numba.njit(cache=True, nogil=True)
+def actuator_substep(table: np.ndarray, e: int, tick: int, sub: int) -> None:
+    """Env ``e``'s motors before physics step ``sub`` of control tick ``tick``:
+    :func:`sim2real.deploy.backends.sim.drives_kernel.actuator_step` on the table's arrays (the
+    command ``HISTORY`` (envs, depth, n), ``DELAY`` (n,) int64 steps, ``STALL`` and ``NO_LOAD``
+    (envs, n), ``ACTIVE`` (n,) bool, the limit ``LIMIT`` (envs, n) N m) into the env's ``ctrl``
+    and ``jnt_actfrcrange`` rows."""
+    envs, n, depth, rows = table[ENVS], table[N], table[DEPTH], table[ROWS]
+    actuator_step(
+        _f64(table, HISTORY, (envs, depth, n))[e], tick, sub, table[NSTEP],
+        numba.carray(_pointer(table[DELAY]), (n,), np.int64),
+        numba.carray(_pointer(_env(table, e, CTRL)), (rows, n), np.float64),
+        numba.carray(_pointer(_env(table, e, JQVEL)), (n,), np.float64),
+        _f64(table, LIMIT, (envs, n))[e], _f64(table, STALL, (envs, n))[e],
+        _f64(table, NO_LOAD, (envs, n))[e], _bool(table, ACTIVE, (n,)),
+        numba.carray(_pointer(_env(table, e, ACTFRC)), (n, 2), np.float64),
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def after_physics(table: np.ndarray, tick: int, sample: bool) -> bool:
+    """After a control period's physics steps, the plant's clock now at control tick ``tick``
+    (``sample``: an encoder tick, whose draws are made).
+
+    Gathers each env's joint ``QPOS``, ``QVEL`` (rad, rad/s) and actuator ``TORQUE`` (N m),
+    (envs, n) each, from its ``MjData``; returns False at once, before anything else changes,
+    when a divergence warning counter of some env is set or some joint angle is not finite (the
+    caller raises). Else, in this order: the velocity loop's anti-windup (``VELOCITY_MODE``:
+    each env's setpoints ``act`` within ``BOUND`` of its joints where any of them lags further,
+    as :meth:`SimDrives._anti_windup`), the thermal step over the control period
+    (:func:`sim2real.robots.thermal_kernel.thermal_step`), and, at an encoder tick, the sample
+    into slot ``tick % SLOTS`` of the latency buffers, whose position (and velocity) rows hold
+    the standard normal draws and ``UNIFORM`` the uniform ones (as
+    :meth:`JointSensorModel.sample`: bias, :func:`encoder_sample`, the stamp ``tick * period``,
+    the velocity's noise; NaN where the angle dropped out; at other ticks the slot is NaN).
+    Returns True.
+    """
+    envs, n, slots, flags = table[ENVS], table[N], table[SLOTS], table[FLAGS]
+    qpos, qvel = _f64(table, QPOS, (envs, n)), _f64(table, QVEL, (envs, n))
+    torque = _f64(table, TORQUE, (envs, n))
+    warnings = table[WARNINGS]
+    ok = True
+    for e in range(envs):
+        q = numba.carray(_pointer(_env(table, e, JQPOS)), (n,), np.float64)
+        dq = numba.carray(_pointer(_env(table, e, JQVEL)), (n,), np.float64)
+        force = numba.carray(_pointer(_env(table, e, FORCE)), (n,), np.float64)
+        counters = numba.carray(_pointer(_env(table, e, WARN)), (2 * warnings,), np.int32)
+        for k in range(warnings):  # the counters of mjWarningStat {lastinfo, number}
+            if counters[2 * k] != 0:
+                ok = False
+        for j in range(n):
+            torque[e, j] = force[j]
+            qpos[e, j] = q[j]
+            qvel[e, j] = dq[j]
+            if not np.isfinite(q[j]):
+                ok = False
+    if not ok:
+        return False
+    if flags & VELOCITY_MODE:
+        _anti_windup(table, envs, n, qpos)
+    scalars = _f64(table, SCALARS, (2,))
+    thermal_step(
+        torque, scalars[PERIOD], _f64(table, CONSTANTS, (8, n)), _f64(table, AMBIENT, (envs, n)),
+        _f64(table, WINDING, (envs, n)), _f64(table, HOUSING, (envs, n)),
+        _f64(table, CURRENT, (envs, n)), _f64(table, POWER, (envs, n)),
+        _f64(table, FLOW, (envs, n)),
+    )  # fmt: skip
+    if sample:
+        _encoder_tick(table, tick, envs, n, slots, flags, qpos, qvel, scalars)
+    else:  # no sample: the slot reads as no reading
+        slot = tick % slots
+        _f64(table, BUF_POSITION, (slots, envs, n))[slot] = np.nan
+        _f64(table, BUF_VELOCITY, (slots, envs, n))[slot] = np.nan
+        _f64(table, BUF_STAMP, (slots, envs))[slot] = np.nan
+    return True
+
+
+@numba.njit(inline="always", cache=True, nogil=True)
+def _anti_windup(table, envs, n, qpos):
+    lag, bound = _f64(table, LAG, (envs, n)), _f64(table, BOUND, (envs, n))
+    wound = False
+    for e in range(envs):
+        act = numba.carray(_pointer(_env(table, e, ACT)), (n,), np.float64)
+        for j in range(n):
+            lag[e, j] = act[j] - qpos[e, j]
+            if abs(lag[e, j]) > bound[e, j]:
+                wound = True
+    if not wound:
+        return
+    for e in range(envs):
+        clip = False
+        for j in range(n):
+            if abs(lag[e, j]) > bound[e, j]:
+                clip = True
+        if not clip:
+            continue
+        act = numba.carray(_pointer(_env(table, e, ACT)), (n,), np.float64)
+        for j in range(n):  # np.clip: min(max(a, lo), hi), NaN kept
+            lo, hi = qpos[e, j] - bound[e, j], qpos[e, j] + bound[e, j]
+            a = act[j]
+            a = a if (np.isnan(a) or a > lo) else lo
+            a = a if (np.isnan(a) or a < hi) else hi
+            act[j] = a
+
+
+@numba.njit(inline="always", cache=True, nogil=True)
+def _encoder_tick(table, tick, envs, n, slots, flags, qpos, qvel, scalars):
+    slot = tick % slots
+    sample = _f64(table, BUF_POSITION, (slots, envs, n))[slot]
+    bias = _f64(table, BIAS, (envs, n))
+    q = qpos
+    biased = False
+    for e in range(envs):
+        for j in range(n):
+            if bias[e, j] != 0.0:
+                biased = True
+    if biased:  # a calibration error: the encoder reads q + bias
+        q = _f64(table, BIASED, (envs, n))
+        for e in range(envs):
+            for j in range(n):
+                q[e, j] = qpos[e, j] + bias[e, j]
+    encoder_sample(
+        sample, _f64(table, UNIFORM, (envs, n)), q, _f64(table, NOISE, (envs,)),
+        scalars[QUANTUM], _f64(table, DROPOUT, (envs,)),
+    )  # fmt: skip
+    stamp = _f64(table, BUF_STAMP, (slots, envs))
+    time = tick * scalars[PERIOD]
+    for e in range(envs):
+        stamp[slot, e] = time
+    if flags & HAS_VELOCITY:
+        velocity = _f64(table, BUF_VELOCITY, (slots, envs, n))[slot]
+        sigma = _f64(table, VELOCITY_NOISE, (envs,))
+        for e in range(envs):
+            for j in range(n):
+                v = velocity[e, j] * sigma[e]
+                v += qvel[e, j]
+                velocity[e, j] = np.nan if np.isnan(sample[e, j]) else v
+
+
+def compile_kernels() -> None:
+    """Compile the kernels for their :data:`SIGNATURES` (or load them from numba's cache), so
+    that a plant's first tick does not pay for it."""
+    for name, signature in SIGNATURES.items():
+        globals()[name].compile(signature)

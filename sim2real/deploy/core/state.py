@@ -5,9 +5,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import pinocchio as pin
 
+from sim2real.deploy.core import kinematics_kernel as kk
 from sim2real.deploy.core.attitude import quaternion_to_matrix, tilt_of
 from sim2real.robots import Robot
 
@@ -113,26 +115,109 @@ class RobotState:
         return state
 
 
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def _put_pose(h: np.ndarray, e: int, position: np.ndarray, rotation: np.ndarray) -> None:
+    """Copy the homogeneous transform ``h`` (4, 4) into ``position[e]`` (3,) and
+    ``rotation[e]`` (3, 3)."""
+    for r in range(3):
+        position[e, r] = h[r, 3]
+        for k in range(3):
+            rotation[e, r, k] = h[r, k]
+
+
+#: Seeded random poses (uniform in [-pi, pi]) on which :class:`Kinematics` checks its compiled
+#: chain against Pinocchio, besides the zero pose.
+CHECK_POSES = 64
+
+
 class Kinematics:
-    """End-effector forward kinematics with Pinocchio for a batch (one ``pin.Data``, reused)."""
+    """End-effector forward kinematics of a batch: Pinocchio's, or the same numbers compiled.
+
+    For a serial chain of revolute joints about their frames' x, y or z axes (every arm robot
+    we ship) the placement is computed by one compiled call
+    (:func:`sim2real.deploy.core.kinematics_kernel.chain_fk`), used only if it equals Pinocchio's
+    ``forwardKinematics`` + ``updateFramePlacement`` bit for bit on the zero pose and
+    ``CHECK_POSES`` random ones here (``compiled`` says which); otherwise, and for other joint
+    models, Pinocchio's two calls per env (one ``pin.Data``, reused).
+    """
 
     def __init__(self, robot: Robot):
         self.model = robot.pin_model
         self.data = self.model.createData()
         self.frame_id = robot.ee_frame_id
+        self._state: RobotState | None = None  # the state whose rows _rows holds
+        self._q: np.ndarray | None = None
+        self._rows: tuple[np.ndarray, ...] = ()
+        _put_pose(np.eye(4), 0, np.zeros((1, 3)), np.zeros((1, 3, 3)))
+        #: the compiled chain's arguments (chain, placements, work), or None: Pinocchio's calls
+        self.chain: tuple[np.ndarray, ...] | None = None
+        if self.frame_id >= 0:
+            self.chain = self._compile_chain()
+
+    @property
+    def compiled(self) -> bool:
+        """Whether :meth:`update` runs the compiled chain (else Pinocchio)."""
+        return self.chain is not None
+
+    def _compile_chain(self) -> tuple[np.ndarray, ...] | None:
+        """The compiled chain's arguments, if the model is such a chain and the kernel equals
+        Pinocchio bit for bit on the check poses; else None."""
+        model = self.model
+        joints = model.njoints - 1
+        kinds = [model.joints[i].shortname() for i in range(1, model.njoints)]
+        if joints < 1 or any(k not in kk.AXES for k in kinds) or model.nq != joints:
+            return None
+        frame = model.frames[self.frame_id]
+        chain = np.array(
+            [
+                [kk.AXES[kinds[i - 1]], model.parents[i] - 1, model.joints[i].idx_q]
+                for i in range(1, model.njoints)
+            ]
+            + [[-1, frame.parentJoint - 1, -1]],
+            dtype=np.int64,
+        )
+        placements = np.array(
+            [
+                np.hstack([m.rotation, m.translation[:, None]])
+                for m in [*list(model.jointPlacements)[1:], frame.placement]
+            ],
+            dtype=np.float64,
+        )
+        args = (chain, placements, np.zeros((joints + 1, 3, 4)))
+        poses = np.random.default_rng(0).uniform(-np.pi, np.pi, (CHECK_POSES + 1, joints))
+        poses[0] = 0.0
+        state = RobotState.zeros(len(poses), joints)
+        state.q[:] = poses
+        kk.chain_fk(state.q, *args, state.ee_position, state.ee_rotation)
+        position, rotation = state.ee_position.copy(), state.ee_rotation.copy()
+        self._pinocchio(state)
+        same = np.array_equal(position.view(np.int64), state.ee_position.view(np.int64))
+        same &= np.array_equal(rotation.view(np.int64), state.ee_rotation.view(np.int64))
+        return args if same else None
 
     def update(self, state: RobotState) -> RobotState:
-        """Fill ``state.ee_position`` and ``state.ee_rotation`` from ``state.q``; returns state."""
-        model, data, frame, q = self.model, self.data, self.frame_id, state.q
-        if frame < 0:  # no end effector (a legged robot): nothing to compute
+        """Fill ``state.ee_position`` ((envs, 3) m) and ``state.ee_rotation`` ((envs, 3, 3)),
+        base frame, from ``state.q`` ((envs, n) rad); returns state (nothing to do without an
+        end effector, a legged robot)."""
+        if self.chain is not None:
+            kk.chain_fk(state.q, *self.chain, state.ee_position, state.ee_rotation)
             return state
+        if self.frame_id < 0:  # no end effector (a legged robot): nothing to compute
+            return state
+        return self._pinocchio(state)
+
+    def _pinocchio(self, state: RobotState) -> RobotState:
+        """:meth:`update` with Pinocchio's calls: the rows of ``state.q`` are views made once per
+        state, the placement copied by one compiled call (:func:`_put_pose`)."""
+        q = state.q
+        if state is not self._state or q is not self._q:
+            self._state, self._q, self._rows = state, q, tuple(q)
+        model, data, frame = self.model, self.data, self.frame_id
+        fk, place = pin.forwardKinematics, pin.updateFramePlacement
         position, rotation = state.ee_position, state.ee_rotation
-        for e in range(q.shape[0]):
-            pin.forwardKinematics(model, data, q[e])
-            placement = pin.updateFramePlacement(model, data, frame)  # this frame only
-            h = placement.homogeneous
-            position[e] = h[:3, 3]
-            rotation[e] = h[:3, :3]
+        for e, row in enumerate(self._rows):
+            fk(model, data, row)
+            _put_pose(place(model, data, frame).homogeneous, e, position, rotation)
         return state
 
     def reach(self) -> float:

@@ -179,37 +179,45 @@ class JointStateEstimator:
         )
 
         shape = (envs, n)
-        # Filter state. x[0] = position, x[1] = velocity; p[k] = P[k // 2, k % 2] (contiguous
-        # rows for the closed-form algebra; ``covariance`` is a (envs, n, 2, 2) view of them).
-        self._x = np.zeros((2, envs, n))
+        # Filter state, one (8, envs, n) array (the kernel's one argument): x[0] = position,
+        # x[1] = velocity; p[k] = P[k // 2, k % 2] (contiguous rows for the closed-form algebra;
+        # ``covariance`` is a (envs, n, 2, 2) view of them); filter_time; time_since_fresh.
+        self._filt = np.zeros((8, envs, n))
+        self._x, self._p = self._filt[0:2], self._filt[2:6]
+        self.filter_time, self.time_since_fresh = self._filt[6], self._filt[7]
         self._x[0] = np.nan
-        self._p = np.zeros((4, envs, n))
-        self.filter_time = np.full(shape, np.nan)
-        self.time_since_fresh = np.full(shape, np.inf)
-        self.stale_per_joint = np.zeros(shape, dtype=np.int64)
-        self.missing_per_joint = np.zeros(shape, dtype=np.int64)
-        self.reinitializations_per_joint = np.zeros(shape, dtype=np.int64)
+        self.filter_time.fill(np.nan)
+        self.time_since_fresh.fill(np.inf)
+        # rows missing, stale, re-initializations (the public counters are views)
+        self._counts = np.zeros((3, *shape), dtype=np.int64)
+        self.missing_per_joint, self.stale_per_joint = self._counts[0], self._counts[1]
+        self.reinitializations_per_joint = self._counts[2]
         self.covariance[:] = self.initial_covariance
         self._initialized = np.zeros(envs, dtype=bool)
         self._all_initialized = False
 
         # work arrays, (envs, n): the tick allocates nothing
-        self._u = np.zeros(shape)
+        self._u = np.zeros(shape)  # the control input when the caller's cannot be read as is
         # row views, made once (unpacking a (2, envs, n) array every tick would create them anew)
         self._xv = tuple(self._x)
-        self._fresh = np.empty(shape, dtype=bool)
-        self._good = np.empty(shape, dtype=bool)
+        self._flags = np.zeros((2, *shape), dtype=bool)  # rows fresh, good
+        self._fresh, self._good = self._flags[0], self._flags[1]
 
-        # the compiled kernel's per-joint constants (contiguous (n,) arrays)
-        self._b0 = np.ascontiguousarray(self.covariance_bound[:, 0])
-        self._b1 = np.ascontiguousarray(self.covariance_bound[:, 1])
+        # the compiled kernel's per-joint constants: rows var, r and the covariance bounds
+        self._consts = np.ascontiguousarray(
+            np.stack([self.process_noise, self.measurement_variance, *self.covariance_bound.T])
+        )
+        #: the kernel's arguments for the last frame's, state's and input's arrays
+        #: (:meth:`_bind`), and those arrays, compared by identity at each update
+        self._args: tuple = ()
+        self._bound: tuple = ()
         self._warm_up()
 
     def _warm_up(self) -> None:
         """Compile :func:`~sim2real.deploy.estimation.kernel.kalman_tick` (or load numba's cache) now, not
         in a tick, on copies: the call writes its outputs (time_since_fresh among them)."""
         envs, n = self.envs, self.n_joints
-        args = self._kernel_args(SensorFrame.empty(envs, n), RobotState.zeros(envs, n))
+        args = self._kernel_args(SensorFrame.empty(envs, n), RobotState.zeros(envs, n), self._u)
         kalman_tick(2, *(np.copy(a) if isinstance(a, np.ndarray) else a for a in args))
 
     def _per_joint(self, name: str, value) -> np.ndarray:
@@ -357,6 +365,27 @@ class JointStateEstimator:
         """
         if not self._all_initialized:
             raise RuntimeError("JointStateEstimator.update before reset(q, t) of every env")
+        b = self._bound
+        if not (
+            b
+            and frame.position is b[0]
+            and frame.position_stamp is b[1]
+            and frame.time is b[2]
+            and frame.winding_temperature is b[3]
+            and state is b[4]
+            and state.q is b[5]
+            and acceleration is b[6]
+        ):
+            self._bind(frame, state, acceleration)
+        elif self._copy_input:
+            np.copyto(self._u, acceleration)
+        status = kalman_tick(0, *self._args)
+        if status:
+            self._recover(status, frame)
+        return state
+
+    def _check_frame(self, frame: SensorFrame) -> None:
+        """Raises ValueError: ``frame.position`` or ``position_stamp`` not shaped (envs, n)."""
         z, ts = frame.position, frame.position_stamp
         x0 = self._xv[0]
         if z.shape != x0.shape or ts.shape != x0.shape:
@@ -364,48 +393,64 @@ class JointStateEstimator:
                 f"frame: expected position and position_stamp shaped {x0.shape}, "
                 f"got {z.shape} and {ts.shape}"
             )
-        if acceleration is None:
-            self._u.fill(0.0)
-        else:
-            np.copyto(self._u, acceleration)
-        return self._tick(frame, state)
 
-    def _tick(self, frame: SensorFrame, state: RobotState) -> RobotState:
-        """:meth:`update` after its checks, with ``_u`` set: the kernel
-        :func:`~sim2real.deploy.estimation.kernel.kalman_tick`."""
+    def _bind(self, frame: SensorFrame, state: RobotState, acceleration) -> None:
+        """Check a frame, state or input whose arrays differ from the last update's and make
+        the kernel's arguments for them. The input is read in place when it is a float64
+        C-contiguous (envs, n) array (the smoother's), else copied into ``_u`` at each update
+        (zeros for None)."""
+        self._check_frame(frame)
+        u = acceleration
+        self._copy_input = not (
+            isinstance(u, np.ndarray)
+            and u.dtype == np.float64
+            and u.shape == self._u.shape
+            and u.flags.c_contiguous
+        )
+        if self._copy_input:
+            if u is None:
+                self._u.fill(0.0)
+                self._copy_input = False
+            else:
+                np.copyto(self._u, u)
+            u = self._u
+        self._args = self._kernel_args(frame, state, u)
+        f = frame
+        self._bound = (
+            f.position,
+            f.position_stamp,
+            f.time,
+            f.winding_temperature,
+            state,
+            state.q,
+            acceleration,
+        )
+
+    def _recover(self, status: int, frame: SensorFrame) -> None:
+        """A degenerate joint (the kernel's ``status``, its phase): re-initialize it, go on from
+        the next phase, until the outputs are written (the rare path)."""
         z, ts = frame.position, frame.position_stamp
-        args = self._kernel_args(frame, state)
-        status = kalman_tick(0, *args)
-        while status:  # a degenerate joint: re-initialize it, go on from the next phase
+        while status:
             with np.errstate(invalid="ignore", over="ignore"):
                 self._reinitialize(z, ts)
-            status = kalman_tick(status, *args)
-        return state
+            status = kalman_tick(status, *self._args)
 
     # ------------------------------------------------------------------ internals
-    def _kernel_args(self, frame: SensorFrame, state: RobotState) -> tuple:
+    def _kernel_args(self, frame: SensorFrame, state: RobotState, u: np.ndarray) -> tuple:
         """Arguments of :func:`sim2real.deploy.estimation.kernel.kalman_tick` after ``phase``."""
         return (
             frame.position,
             frame.position_stamp,
             frame.time,
-            self._x,
-            self._p,
-            self.filter_time,
-            self.process_noise,
-            self.measurement_variance,
-            self._b0,
-            self._b1,
-            self.missing_per_joint,
-            self.stale_per_joint,
-            self._fresh,
-            self._good,
-            self.time_since_fresh,
+            frame.winding_temperature,
+            u,
+            self._filt,
+            self._consts,
+            self._counts,
+            self._flags,
             state.q,
             state.dq,
-            frame.winding_temperature,
             state.winding_temperature,
-            self._u,
             self.input_extrapolates,
         )
 

@@ -57,35 +57,32 @@ def kalman_tick(
     z: np.ndarray,
     ts: np.ndarray,
     now: np.ndarray,
-    x: np.ndarray,
-    p: np.ndarray,
-    tf: np.ndarray,
-    var: np.ndarray,
-    r: np.ndarray,
-    b0: np.ndarray,
-    b1: np.ndarray,
-    missing: np.ndarray,
-    stale: np.ndarray,
-    fresh: np.ndarray,
-    good: np.ndarray,
-    time_since_fresh: np.ndarray,
+    temperature_in: np.ndarray,
+    u: np.ndarray,
+    filt: np.ndarray,
+    consts: np.ndarray,
+    counts: np.ndarray,
+    flags: np.ndarray,
     q_out: np.ndarray,
     dq_out: np.ndarray,
-    temperature_in: np.ndarray,
     temperature_out: np.ndarray,
-    u: np.ndarray,
     input_extrapolates: bool,
 ) -> int:
     """One estimator tick from ``phase`` on (see the module docstring).
 
-    Shapes: ``z``, ``ts``, ``tf``, ``missing``, ``stale``, ``fresh``, ``good``,
-    ``time_since_fresh``, ``q_out``, ``dq_out``, temperatures (envs, n); ``now`` (envs,);
-    ``x`` (2, envs, n); ``p`` (4, envs, n), ``p[k] = P[k // 2, k % 2]``; ``var``, ``r``, ``b0``,
-    ``b1`` (n,); ``u`` (envs, n), the control input (commanded acceleration, rad/s^2);
-    ``input_extrapolates``: whether the output's extrapolation past the newest reading uses ``u``
-    too (else constant velocity). Units as in
+    Shapes: ``z``, ``ts``, temperatures, ``q_out``, ``dq_out`` (envs, n); ``now`` (envs,);
+    ``u`` (envs, n), the control input (commanded acceleration, rad/s^2); ``filt`` (8, envs, n),
+    the filter's state, rows ``x`` (2: position, velocity), ``p`` (4, ``p[k] = P[k // 2,
+    k % 2]``), ``filter_time``, ``time_since_fresh``; ``consts`` (4, n) rows process noise
+    ``var``, measurement variance ``r``, covariance bounds ``b0``, ``b1``; ``counts`` (3, envs,
+    n) int64 rows missing, stale (and re-initializations, not written here); ``flags`` (2, envs,
+    n) bool rows fresh, good (written); ``input_extrapolates``: whether the output's
+    extrapolation past the newest reading uses ``u`` too (else constant velocity). Units as in
     :class:`~sim2real.deploy.estimation.joints.JointStateEstimator`.
     """
+    x, p, tf, time_since_fresh = filt[0:2], filt[2:6], filt[6], filt[7]
+    var, r, b0, b1 = consts[0], consts[1], consts[2], consts[3]
+    missing, stale, fresh, good = counts[0], counts[1], flags[0], flags[1]
     envs, n = z.shape
     if phase == 0:
         for e in range(envs):

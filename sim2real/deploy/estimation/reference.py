@@ -76,6 +76,21 @@ class ReferenceJointStateEstimator(JointStateEstimator):
     def _warm_up(self) -> None:
         """Nothing to compile."""
 
+    def update(
+        self, frame: SensorFrame, state: RobotState, acceleration: np.ndarray | None = None
+    ) -> RobotState:
+        """:meth:`JointStateEstimator.update <sim2real.deploy.estimation.joints.
+        JointStateEstimator.update>` (the same arguments, outputs and errors), in numpy and
+        filterpy."""
+        if not self._all_initialized:
+            raise RuntimeError("JointStateEstimator.update before reset(q, t) of every env")
+        self._check_frame(frame)
+        if acceleration is None:
+            self._u.fill(0.0)
+        else:
+            np.copyto(self._u, acceleration)
+        return self._tick(frame, state)
+
     def _tick(self, frame: SensorFrame, state: RobotState) -> RobotState:
         """:meth:`update` after its checks, with ``_u`` set, in numpy and filterpy."""
         z, ts = frame.position, frame.position_stamp

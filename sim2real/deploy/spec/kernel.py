@@ -62,11 +62,8 @@ BRANCHES = frozenset(
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
 def observation(
-    kinds: np.ndarray,
-    starts: np.ndarray,
-    joints: np.ndarray,
+    layout: np.ndarray,
     periods: np.ndarray,
-    components: np.ndarray,
     q: np.ndarray,
     dq: np.ndarray,
     ee_position: np.ndarray,
@@ -88,11 +85,11 @@ def observation(
     """Write the observation of every env into ``out`` (float32 (envs, dim)).
 
     Args:
-        kinds, starts: (blocks,) int64, block codes (``BRANCHES``) and first columns.
-        joints: (blocks, k) int64 joint indices, -1 padded (a block's size is its column span).
+        layout: (blocks, 6 + k) int64, per block: its code (``BRANCHES``), its first column,
+            the 4 entries of its raw vector a vector or ``gait_phase`` block reads, in order
+            (its kind's own, 0, 1, ..., where it names none; -1 padded), and its k joint indices
+            (-1 padded; a block's size is its column span).
         periods: (blocks,) float64, the gait clock's period of a ``gait_phase`` block, s.
-        components: (blocks, 4) int64, the entries of its raw vector a vector or ``gait_phase``
-            block reads, in order (its kind's own, 0, 1, ..., where it names none), -1 padded.
         q, dq, last_action, temperature: (envs, n); ee_position, goal (envs, 3); ee_rotation
             (envs, 3, 3): the inputs of the reference, same units.
         linear_velocity, angular_velocity, gravity, command: (envs, 3) base linear velocity
@@ -102,6 +99,7 @@ def observation(
         norm: (3, dim) float64 rows offset, scale, clip.
         raw: (>= envs, dim) float64 work array.
     """
+    kinds, starts, components, joints = layout[:, 0], layout[:, 1], layout[:, 2:6], layout[:, 6:]
     envs = q.shape[0]
     dim = out.shape[1]
     blocks = kinds.shape[0]

@@ -20,13 +20,16 @@ against gravity is what overheats its motors.
 
 from __future__ import annotations
 
+import math
+
+import numba
 import numpy as np
 import pinocchio as pin
 
-from sim2real.deploy.core.attitude import quaternion_to_matrix, tilt_of
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import check, put, take
-from sim2real.deploy.estimation.base import require_floating_base
+from sim2real.deploy.estimation.base_kernel import _quat_to_mat
+from sim2real.deploy.estimation.base_params import require_floating_base
 from sim2real.robots import Robot
 
 #: Default tilt limit, rad (our choice): a walking quadruped's base stays within ~0.3 rad of
@@ -81,10 +84,16 @@ class FallDetector:
         self.feet = [self.model.getFrameId(f.name, f.type) for f in frames]
         self.height = np.full(envs, np.nan)
         self.height_ticks = max(1, int(np.ceil(FALL_HEIGHT_TIME / robot.control_period - 1e-9)))
-        self.low_ticks = np.zeros(envs, dtype=np.int64)
         self.speed_ticks = max(1, int(np.ceil(FALL_SPEED_TIME / robot.control_period - 1e-9)))
-        self.sinking_ticks = np.zeros(envs, dtype=np.int64)
+        self._ticks = np.zeros((2, envs), dtype=np.int64)
+        self.low_ticks, self.sinking_ticks = self._ticks  # views: written in place
         self.signals = np.zeros((envs, len(SIGNALS)), dtype=bool)
+        # the compiled check's constants and work arrays
+        self._limits = np.array(
+            [self.tilt_limit, self.height_limit, self.height_ticks, self.speed_ticks], dtype=float
+        )
+        self._foot_position = np.zeros((envs, len(self.feet), 3))
+        self._fallen = np.zeros(envs, dtype=bool)
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
         """``height`` (envs,) m, ``low_ticks`` and ``sinking_ticks`` (envs,) int64 (copies;
@@ -116,25 +125,46 @@ class FallDetector:
             state: A floating-base robot's estimate (``RobotState.legged``: ``base``,
                 ``foot_contact``, ``q``).
         """
-        signals = self.signals
-        signals[:] = False
-        signals[:, 0] = tilt_of(state.base.projected_gravity) > self.tilt_limit
-        sinking = state.base.linear_velocity_world[:, 2] < -FALL_SPEED
-        self.sinking_ticks[:] = np.where(sinking, self.sinking_ticks + 1, 0)
-        signals[:, 2] = self.sinking_ticks >= self.speed_ticks
-        if self.height_limit > 0.0:
-            contact = state.foot_contact > 0.5
-            self.height[:] = np.nan
-            for e in np.flatnonzero(contact.any(axis=1)):
-                pin.forwardKinematics(self.model, self.data, state.q[e])
-                rot = quaternion_to_matrix(state.base.orientation[e])
-                below = [
-                    -(rot @ pin.updateFramePlacement(self.model, self.data, f).translation)[2]
-                    for f, touching in zip(self.feet, contact[e], strict=True)
-                    if touching
-                ]
-                self.height[e] = max(below)
-            low = self.height < self.height_limit  # NaN (no contact) compares False
-            self.low_ticks[:] = np.where(low, self.low_ticks + 1, 0)
-            signals[:, 1] = self.low_ticks >= self.height_ticks
-        return signals.any(axis=1)
+        model, data, position = self.model, self.data, self._foot_position
+        if self.height_limit > 0.0:  # every foot's position in the base frame (Pinocchio)
+            for e in range(len(self.height)):
+                pin.forwardKinematics(model, data, state.q[e])
+                row = position[e]
+                for i, f in enumerate(self.feet):
+                    row[i] = pin.updateFramePlacement(model, data, f).translation
+        base = state.base
+        _check(
+            self._limits, base.projected_gravity, base.linear_velocity_world, base.orientation,
+            state.foot_contact, position, self.height, self._ticks, self.signals, self._fallen,
+        )  # fmt: skip
+        return self._fallen.copy()
+
+
+@numba.njit(cache=True, nogil=True)
+def _check(limits, gravity, velocity, orientation, contact, position, height, ticks, signals, out):
+    """:meth:`FallDetector.check` after Pinocchio's placements ``position`` (envs, n_feet, 3) m,
+    every env: ``limits`` (tilt rad, height m, height ticks, speed ticks); ``ticks`` (2, envs)
+    the low and the sinking runs; ``height``, ``signals``, ``out`` written."""
+    rot = np.empty((3, 3))
+    for e in range(gravity.shape[0]):
+        g0, g1, g2 = gravity[e, 0], gravity[e, 1], gravity[e, 2]  # tilt_of, one row
+        up = -(g2 / math.sqrt(g0 * g0 + g1 * g1 + g2 * g2))
+        up = 1.0 if up > 1.0 else (-1.0 if up < -1.0 else up)
+        signals[e, 0] = math.acos(up) > limits[0]  # NaN compares False
+        ticks[1, e] = ticks[1, e] + 1 if velocity[e, 2] < -FALL_SPEED else 0
+        signals[e, 2] = ticks[1, e] >= limits[3]
+        signals[e, 1] = False
+        if limits[1] > 0.0:
+            height[e] = np.nan
+            _quat_to_mat(orientation[e], rot)
+            first = True
+            for i in range(contact.shape[1]):  # max() of the feet in contact, in their order
+                if contact[e, i] > 0.5:
+                    p = position[e, i]
+                    below = -(rot[2, 0] * p[0] + rot[2, 1] * p[1] + rot[2, 2] * p[2])
+                    if first or below > height[e]:
+                        height[e] = below
+                    first = False
+            ticks[0, e] = ticks[0, e] + 1 if height[e] < limits[1] else 0
+            signals[e, 1] = ticks[0, e] >= limits[2]
+        out[e] = signals[e, 0] or signals[e, 1] or signals[e, 2]

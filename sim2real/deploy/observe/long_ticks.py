@@ -13,13 +13,16 @@ A latency histogram says how long ticks took, not why the longest did. :class:`L
   process or thread ran, the GIL was held elsewhere, a call waited on I/O); one mostly *on* the
   CPU did work (a collection, a compile, a slow call).
 
-Recording is one compiled call per tick (:func:`record`), nothing allocated.
+Recording is one compiled call per tick, nothing allocated: :func:`record`, or :func:`record_tick`
+(the runtime's), which adds the tick to the latency histograms first.
 """
 
 from __future__ import annotations
 
 import numba
 import numpy as np
+
+from sim2real.deploy.core.latency_kernel import add_stages
 
 #: Columns of the table before the stages: tick index, period (ns: wake-up lateness + work),
 #: wake-up lateness (ns), work from the wake-up to the next wait (ns), the thread's CPU time over
@@ -63,6 +66,27 @@ def record(table: np.ndarray, stamps: np.ndarray, period: np.ndarray, tick: int)
     for i in range(stages):
         row[HEAD + i] = stamps[i + 1] - stamps[i]
     row[HEAD + stages] = span - work
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def record_tick(
+    stamps: np.ndarray,
+    period: np.ndarray,
+    bins: np.ndarray,
+    counts: np.ndarray,
+    max_ns: np.ndarray,
+    cost_counts: np.ndarray,
+    cost_max_ns: np.ndarray,
+    table: np.ndarray,
+    tick: int,
+) -> None:
+    """The runtime's bookkeeping of one tick in one call: the stage durations and the cost
+    without physics into the latency histograms
+    (:func:`sim2real.deploy.core.latency_kernel.add_stages`: ``stamps``, ``bins``, ``counts``,
+    ``max_ns``, ``cost_counts``, ``cost_max_ns``), then :func:`record` (``table``, ``stamps``,
+    ``period``, ``tick``); the arguments' shapes and units are theirs."""
+    add_stages(stamps, bins, counts, max_ns, cost_counts, cost_max_ns)
+    record(table, stamps, period, tick)
 
 
 class LongTicks:

@@ -7,15 +7,14 @@ comes from :class:`~sim2real.deploy.runtime.state.RuntimeState`. The package's d
 
 from __future__ import annotations
 
+import functools
 import gc
 import time
 
 import numpy as np
 
-from sim2real.deploy.core import latency_kernel as lk
 from sim2real.deploy.core.latency import BIN_NS, BINS, LatencyHistogram
 from sim2real.deploy.core.modes import (
-    FAULTED,
     OVERRUN_RATE_LIMIT,
     RAMP_IN,
     RUNNING,
@@ -76,7 +75,7 @@ class Runtime(RuntimeState):
     histograms) runs in the compiled kernels of :mod:`sim2real.deploy.kernels`; its numpy reference is
     :class:`sim2real.deploy.runtime.reference.ReferenceRuntime`, whose stages and small methods
     (:meth:`_build_stages`, :meth:`_compile`, :meth:`_supervise`, :meth:`_observe`,
-    :meth:`_act`, :meth:`_record_latency`) replace these.
+    :meth:`_act`, :meth:`_bind_books`) replace these.
 
     Raises:
         ValueError: a policy of another control mode than the backend's, or an
@@ -189,6 +188,10 @@ class Runtime(RuntimeState):
         self._backend_damp = getattr(backend, "damp", None)
         #: the compiled action screen and supervision (sim2real.deploy.kernels); None in the reference
         self._compiled = self._compile()
+        #: (envs,) bool: a legged robot's envs whose command damps (``damping``), this tick's
+        self._damp = np.zeros(envs, dtype=bool)
+        #: ``(tick) -> None``: the tick's latency histograms and long periods (:meth:`_bind_books`)
+        self._books = self._bind_books()
 
     def _reset_policy(self, envs: np.ndarray) -> None:
         """The current policy's ``reset(envs)`` (bool mask (envs,)), if it has one."""
@@ -218,23 +221,26 @@ class Runtime(RuntimeState):
 
     def _compile(self) -> CompiledSupervision | None:
         """The compiled path: :class:`CompiledSupervision` over the runtime's arrays, and one call
-        of the observation's and the latency histograms' kernels: compiled (or loaded from
-        numba's cache) now, not in the first tick."""
-        compiled = CompiledSupervision(
-            self.supervision,
-            self.spec,
-            self.state,
-            self._target,
-            self.tracking_tolerance,
-            self._reanchor,
-        )
+        of the observation's kernel: compiled (or loaded from numba's cache) now, not in the
+        first tick."""
+        args = (self.supervision, self.spec, self.state, self._target, self.tracking_tolerance)
+        compiled = CompiledSupervision(*args, self._reanchor)
         self.spec.observation(self.state, self.goal, out=self._obs)  # builds and warms its plan
-        lat, cost, c = self.latency, self.tick_cost, np.copy
-        lk.add_stages(
-            self._stamps, self._bins, c(lat.counts), c(lat.max_ns), c(cost.counts), c(cost.max_ns)
-        )
-        lt.record(c(self.long_ticks.table), self._stamps, c(self._period), 0)
         return compiled
+
+    def _bind_books(self):
+        """``(tick) -> None``, the tick's bookkeeping in one compiled call: stage durations into
+        :attr:`latency`, the cost without physics into :attr:`tick_cost`, the period into
+        :attr:`long_ticks` (:func:`~sim2real.deploy.observe.long_ticks.record_tick`'s entry point
+        for these arrays, bound to them: no dispatch per call; they are never replaced)."""
+        lat, cost = self.latency, self.tick_cost
+        arrays = (self._stamps, self._period, self._bins, lat.counts, lat.max_ns)
+        arrays += (cost.counts, cost.max_ns, self.long_ticks.table)
+        kernel = lt.record_tick
+        types = tuple(kernel.typeof_pyval(a) for a in (*arrays, 0))  # 0: an int tick index
+        if types not in kernel.overloads:
+            kernel.compile(types)  # or loaded from numba's cache
+        return functools.partial(kernel.overloads[types].entry_point, *arrays)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -362,12 +368,12 @@ class Runtime(RuntimeState):
             if self.handover.finished:
                 self.last_handover, self.handover = self.handover, None
         target = self.guard.filter(target, state, out=target, commanded_position=self._commanded)
-        self._on_violation()
+        self.supervision.safe_stop(self.guard.hard_violation, "hard_limit")
         st[5] = clock_ns()
         cmd = self.smoother.step(target, out=self._cmd)
         cmd = self.guard.check_motion(self.smoother, state, cmd)  # brake an unsafe path
         if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
-            damp = self.damping
+            damp = np.greater_equal(self.mode, SAFE_STOP, out=self._damp)  # SAFE_STOP, FAULTED
             if damp.any():
                 self.supervision.damp(cmd, state, damp)
             if self._backend_damp is not None:  # drivers with a damping mode of their own
@@ -380,14 +386,13 @@ class Runtime(RuntimeState):
         state.last_action[:] = action
         self.ticks += 1
         self.time += self.dt
-        self._record_latency(st)
         if self.telemetry is not None:
             self.telemetry.record(self)
         period, cpu_ns = self._period, self._cpu_ns
         period[lt.END] = clock_ns()
         if cpu_ns is not None:
             period[lt.END_CPU] = cpu_ns()
-        lt.record(self.long_ticks.table, st, period, self.ticks)
+        self._books(self.ticks)  # stage histograms, tick cost, long periods: one compiled call
         self.supervision.note_periods(self.clock.wait())  # the periods missed: 0 on time
         self._woke(clock_ns())
 
@@ -419,13 +424,6 @@ class Runtime(RuntimeState):
         self._compiled.screen(action, state, self.spec)
         return self.supervision.action, self._target
 
-    def _record_latency(self, stamps: np.ndarray) -> None:
-        """Add the tick's stage durations (``stamps``, ns, one per stage boundary) to
-        :attr:`latency` and its cost without physics to :attr:`tick_cost` (the kernel
-        :func:`sim2real.deploy.core.latency_kernel.add_stages`)."""
-        lat, cost = self.latency, self.tick_cost
-        lk.add_stages(stamps, self._bins, lat.counts, lat.max_ns, cost.counts, cost.max_ns)
-
     def _update_base(self, frame, state: RobotState) -> None:
         """A floating-base robot's tick: the base estimate from the IMU and leg kinematics, the
         feet's contact, the gait clock; an IMU silent past ``safety.stale_limit`` makes a safe
@@ -449,7 +447,7 @@ class Runtime(RuntimeState):
         False for an arm."""
         if self.base_estimator is None:
             return np.zeros(self.envs, dtype=bool)
-        return (self.mode == SAFE_STOP) | (self.mode == FAULTED)
+        return self.mode >= SAFE_STOP  # SAFE_STOP or FAULTED, the last modes
 
     def _reanchor(self, state: RobotState) -> None:
         """:func:`reanchor` the smoother and count it (anchors or resyncs)."""
@@ -461,9 +459,6 @@ class Runtime(RuntimeState):
                 self.counters.anchors if self.mode_name == "velocity" else self.counters.resyncs
             )
             counter += moved
-
-    def _on_violation(self) -> None:
-        self.supervision.safe_stop(self.guard.hard_violation, "hard_limit")
 
     # ------------------------------------------------------------------ running
     def run(self, ticks: int, on_tick=None) -> None:
@@ -490,9 +485,10 @@ class Runtime(RuntimeState):
             self.clock.start()  # tick's overrun
         self._woke(time.perf_counter_ns())
         collections = _gc_collections()
+        tick = self.tick
         try:
             for _ in range(ticks):
-                self.tick()
+                tick()
                 if on_tick is not None and on_tick(self):
                     break
         finally:

@@ -25,6 +25,7 @@ from sim2real.deploy.core.modes import (
     SAFE_STOP,
 )
 from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.observe.long_ticks import record
 from sim2real.deploy.runtime.loop import Runtime
 from sim2real.deploy.runtime.supervision import Supervision
 from sim2real.deploy.safety.reference import ReferenceGuard
@@ -135,8 +136,14 @@ class ReferenceRuntime(Runtime):
         target = self.spec.action_to_target(action, state, out=self._target)
         return action, self.supervision.override(target, state)
 
-    def _record_latency(self, stamps: np.ndarray) -> None:
-        """:meth:`LatencyHistogram.add_stages` and ``add`` in numpy."""
-        st = stamps
-        self.latency.add_stages(st)
-        self.tick_cost.add(0, st[8] - st[0] - (st[8] - st[7]))  # runtime cost w/o physics
+    def _bind_books(self):
+        """:meth:`LatencyHistogram.add_stages` and ``add`` in numpy, then
+        :func:`~sim2real.deploy.observe.long_ticks.record` (compiled): ``(tick) -> None``."""
+        st, table, period = self._stamps, self.long_ticks.table, self._period
+
+        def books(tick: int) -> None:
+            self.latency.add_stages(st)
+            self.tick_cost.add(0, st[8] - st[0] - (st[8] - st[7]))  # runtime cost w/o physics
+            record(table, st, period, tick)
+
+        return books

@@ -9,9 +9,12 @@ models exist and rewrites an env's row when the env gets a new model (``SimBacke
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 
 from sim2real.deploy.backends.sim import plant_kernel as k
+from sim2real.deploy.backends.sim.sensors import PerEnvGenerators
 
 
 def _address(a: np.ndarray, dtype) -> int:
@@ -30,9 +33,13 @@ class CompiledStep:
     whose models, drives, thermal model, joint sensors and actuators are built).
 
     Attributes:
-        table: (40 + 7 envs,) int64, the header and addresses of
+        table: (41 + 7 envs,) int64, the header and addresses of
             :mod:`~sim2real.deploy.backends.sim.plant_kernel`.
         scalars: (2,) float64, the encoder quantum (rad) and the control period (s).
+        streams: (envs, 3) int64, each env's sensor stream (``plant_kernel.STREAMS``).
+        rng: The joint sensors' ``rng`` the streams were taken from (:meth:`bind_streams`).
+        draws: Whether the kernel draws from the streams itself (numpy ``Generator`` streams);
+            else the joint sensor model draws in numpy before it.
 
     Raises:
         ValueError: an array that is not C-contiguous of the expected type.
@@ -44,6 +51,8 @@ class CompiledStep:
         self.plant = plant
         self.scalars = np.array([js.encoder_quantum, p.control_period])
         self.table = np.zeros(k.ENV_ROWS + k.PER_ENV * p.envs, dtype=np.int64)
+        self.streams = np.zeros((p.envs, 3), dtype=np.int64)
+        self.rng, self.draws, self._bit_generators = None, False, []
         t = self.table
         t[k.ENVS], t[k.N], t[k.ROWS] = p.envs, p.n_joints, p._nu // p.n_joints
         t[k.SLOTS] = js._buf_stamp.shape[0]
@@ -70,6 +79,7 @@ class CompiledStep:
             k.HISTORY: (act.history, f8), k.DELAY: (act.delay_steps, np.int64),
             k.STALL: (act._stall, f8), k.NO_LOAD: (act._no_load, f8),
             k.ACTIVE: (act.envelope.active, b1), k.LIMIT: (p.effort_limit, f8),
+            k.STREAMS: (self.streams, np.int64),
         }  # fmt: skip
         self._arrays = [a for a, _ in arrays.values()]  # alive while the table names them
         for slot, (a, dtype) in arrays.items():
@@ -77,6 +87,29 @@ class CompiledStep:
         self._env_arrays: list[list[np.ndarray]] = [[] for _ in range(p.envs)]
         for e in range(p.envs):
             self.bind(e)
+        self.bind_streams()
+
+    def bind_streams(self) -> None:
+        """Take the joint sensors' present ``rng`` (one ``numpy.random.Generator`` for the
+        batch, or :class:`PerEnvGenerators`): each env's bit generator state and functions
+        (``BitGenerator.ctypes``) into :attr:`streams`; :attr:`draws` False (numpy draws) for a
+        stream of another kind."""
+        rng = self.plant.joint_sensors.rng
+        envs = self.plant.envs
+        generators = rng.generators if isinstance(rng, PerEnvGenerators) else [rng] * envs
+        self.rng, self.draws = rng, all(isinstance(g, np.random.Generator) for g in generators)
+        self._bit_generators = []
+        if not self.draws:
+            self.streams[:] = 0
+            return
+        for e, g in enumerate(generators):
+            c = g.bit_generator.ctypes  # kept: its functions and state live with it
+            self._bit_generators.append(c)
+            self.streams[e] = (
+                c.state_address,
+                ctypes.cast(c.next_uint64, ctypes.c_void_p).value,
+                ctypes.cast(c.next_double, ctypes.c_void_p).value,
+            )
 
     def bind(self, e: int) -> None:
         """Write env ``e``'s row from the plant's present views of its ``MjData`` and model

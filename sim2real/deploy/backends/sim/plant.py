@@ -34,6 +34,9 @@ from sim2real.deploy.backends.sim.drives import SimDrives
 from sim2real.deploy.backends.sim.drives_kernel import derating_due, windup_exceeded
 from sim2real.deploy.backends.sim.legged_sensors import BaseSensorModel
 from sim2real.deploy.backends.sim.plant_kernel import (
+    DRAW,
+    DRAWN,
+    NO_SAMPLE,
     actuator_substep,
     after_physics,
     before_physics,
@@ -333,9 +336,16 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
                     step(m, d)
         tick += 1
         sensors = self._joint_sensors
-        sample = tick % sensors.encoder_every == 0
-        if sample:
-            sensors.draw(tick)
+        sample = NO_SAMPLE
+        if tick % sensors.encoder_every == 0:
+            compiled = self._compiled
+            if sensors.rng is not compiled.rng:  # new streams (set_sensor_streams)
+                compiled.bind_streams()
+            if compiled.draws:
+                sample = DRAW
+            else:
+                sensors.draw(tick)
+                sample = DRAWN
         if not after_physics(table, tick, sample):  # MuJoCo found a bad state (and reset the data)
             for e, d in enumerate(self.datas):
                 self._check_divergence(e, d)

@@ -22,8 +22,16 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir
 from numba.core import cgutils, types
 from numba.extending import intrinsic
+from numba.np.random._constants import (
+    fi_double,
+    ki_double,
+    wi_double,
+    ziggurat_nor_inv_r,
+    ziggurat_nor_r,
+)
 
 from sim2real.deploy.backends.sim.drives_kernel import actuator_step
 from sim2real.deploy.backends.sim.sensors_kernel import encoder_sample
@@ -39,20 +47,26 @@ VELOCITY_MODE, HAS_VELOCITY, WRITE_CTRL = 1, 2, 4
 (
     COMMAND, QPOS, QVEL, TORQUE, START, DERATED, HOT, LAG, BOUND, CONSTANTS, AMBIENT, WINDING,
     HOUSING, CURRENT, POWER, FLOW, BUF_POSITION, BUF_VELOCITY, BUF_STAMP, UNIFORM, NOISE, DROPOUT,
-    VELOCITY_NOISE, BIAS, BIASED, SCALARS, HISTORY, DELAY, STALL, NO_LOAD, ACTIVE, LIMIT,
-) = range(8, 40)  # fmt: skip
+    VELOCITY_NOISE, BIAS, BIASED, SCALARS, HISTORY, DELAY, STALL, NO_LOAD, ACTIVE, LIMIT, STREAMS,
+) = range(8, 41)  # fmt: skip
 #: SCALARS (float64, 2): the encoder quantum (rad), the control period (s)
 QUANTUM, PERIOD = 0, 1
 #: first per-env row; each env has ``PER_ENV`` addresses
-ENV_ROWS = 40
+ENV_ROWS = 41
 # per env: MjData's ctrl, the joints' qpos, qvel, qfrc_actuator, the divergence warnings' counters,
 # act (velocity mode), and the model's jnt_actfrcrange rows of the joints
 CTRL, JQPOS, JQVEL, FORCE, WARN, ACT, ACTFRC = range(7)
 PER_ENV = 7
+#: STREAMS (envs, 3) int64, each env's sensor stream: the address of its bit generator's state
+#: and of its ``next_uint64`` and ``next_double`` (numpy's ``BitGenerator.ctypes``)
+STATE, NEXT_UINT64, NEXT_DOUBLE = range(3)
+#: ``after_physics``'s ``sample``: no encoder sample; a sample of the draws made before
+#: (:meth:`JointSensorModel.draw`); a sample that draws from STREAMS itself
+NO_SAMPLE, DRAWN, DRAW = 0, 1, 2
 #: The kernels' signatures (:func:`compile_kernels`).
 SIGNATURES = {
     "before_physics": "boolean(int64[::1])",
-    "after_physics": "boolean(int64[::1], int64, boolean)",
+    "after_physics": "boolean(int64[::1], int64, int64)",
     "actuator_substep": "void(int64[::1], int64, int64, int64)",
 }
 
@@ -65,6 +79,87 @@ def _pointer(typingctx, address):
         return builder.inttoptr(args[0], cgutils.voidptr_t)
 
     return types.voidptr(address), codegen
+
+
+@intrinsic
+def _next_uint64(typingctx, function, state):
+    """``function(state)``: a bit generator's ``uint64_t next_uint64(void *)`` at the address
+    ``function``, on the state at the address ``state``."""
+
+    def codegen(context, builder, signature, args):
+        voidp = ir.IntType(8).as_pointer()
+        fnty = ir.FunctionType(ir.IntType(64), [voidp])
+        fn = builder.inttoptr(args[0], fnty.as_pointer())
+        return builder.call(fn, [builder.inttoptr(args[1], voidp)])
+
+    return types.uint64(function, state), codegen
+
+
+@intrinsic
+def _next_double(typingctx, function, state):
+    """``function(state)``: a bit generator's ``double next_double(void *)`` at the address
+    ``function``, on the state at the address ``state``."""
+
+    def codegen(context, builder, signature, args):
+        voidp = ir.IntType(8).as_pointer()
+        fnty = ir.FunctionType(ir.DoubleType(), [voidp])
+        fn = builder.inttoptr(args[0], fnty.as_pointer())
+        return builder.call(fn, [builder.inttoptr(args[1], voidp)])
+
+    return types.float64(function, state), codegen
+
+
+@numba.njit(inline="always", cache=True, nogil=True)
+def _standard_normal(stream):
+    """One draw of numpy's ``Generator.standard_normal`` (float64) from ``stream`` (3,): the
+    ziggurat of numpy's ``random_standard_normal`` (numpy/random/src/distributions/
+    distributions.c) as numba's ``numba.np.random.distributions`` ports it, its tables."""
+    state, u64, dbl = stream[STATE], stream[NEXT_UINT64], stream[NEXT_DOUBLE]
+    while True:
+        r = _next_uint64(u64, state)
+        idx = r & 0xFF
+        r >>= 8
+        sign = r & 0x1
+        rabs = (r >> 1) & 0x000FFFFFFFFFFFFF
+        x = rabs * wi_double[idx]
+        if sign & 0x1:
+            x = -x
+        if rabs < ki_double[idx]:
+            return x
+        if idx == 0:
+            while True:
+                xx = -ziggurat_nor_inv_r * np.log1p(-_next_double(dbl, state))
+                yy = -np.log1p(-_next_double(dbl, state))
+                if yy + yy > xx * xx:
+                    if (rabs >> 8) & 0x1:
+                        return -(ziggurat_nor_r + xx)
+                    return ziggurat_nor_r + xx
+        elif (fi_double[idx - 1] - fi_double[idx]) * _next_double(dbl, state) + fi_double[
+            idx
+        ] < np.exp(-0.5 * x * x):
+            return x
+
+
+@numba.njit(inline="always", cache=True, nogil=True)
+def _draw(table, envs, n, slots, slot, flags):
+    """The draws of :meth:`JointSensorModel.draw` from the STREAMS, in its order: standard
+    normal into the position slot, uniform (``next_double``, numpy's ``Generator.random``) into
+    UNIFORM, standard normal into the velocity slot where the drives report one; row ``e`` from
+    env ``e``'s stream."""
+    streams = numba.carray(_pointer(table[STREAMS]), (envs, 3), np.int64)
+    position = _f64(table, BUF_POSITION, (slots, envs, n))[slot]
+    for e in range(envs):
+        for j in range(n):
+            position[e, j] = _standard_normal(streams[e])
+    uniform = _f64(table, UNIFORM, (envs, n))
+    for e in range(envs):
+        for j in range(n):
+            uniform[e, j] = _next_double(streams[e, NEXT_DOUBLE], streams[e, STATE])
+    if flags & HAS_VELOCITY:
+        velocity = _f64(table, BUF_VELOCITY, (slots, envs, n))[slot]
+        for e in range(envs):
+            for j in range(n):
+                velocity[e, j] = _standard_normal(streams[e])
 
 
 @numba.njit(inline="always", cache=True, nogil=True)
@@ -132,9 +227,10 @@ def actuator_substep(table: np.ndarray, e: int, tick: int, sub: int) -> None:
 
 
 @numba.njit(cache=True, nogil=True)
-def after_physics(table: np.ndarray, tick: int, sample: bool) -> bool:
+def after_physics(table: np.ndarray, tick: int, sample: int) -> bool:
     """After a control period's physics steps, the plant's clock now at control tick ``tick``
-    (``sample``: an encoder tick, whose draws are made).
+    (``sample``: ``NO_SAMPLE``, or an encoder tick whose draws are made, ``DRAWN``, or to make,
+    ``DRAW``).
 
     Gathers each env's joint ``QPOS``, ``QVEL`` (rad, rad/s) and actuator ``TORQUE`` (N m),
     (envs, n) each, from its ``MjData``; returns False at once, before anything else changes,
@@ -179,7 +275,9 @@ def after_physics(table: np.ndarray, tick: int, sample: bool) -> bool:
         _f64(table, CURRENT, (envs, n)), _f64(table, POWER, (envs, n)),
         _f64(table, FLOW, (envs, n)),
     )  # fmt: skip
-    if sample:
+    if sample != NO_SAMPLE:
+        if sample == DRAW:
+            _draw(table, envs, n, slots, tick % slots, flags)
         _encoder_tick(table, tick, envs, n, slots, flags, qpos, qvel, scalars)
     else:  # no sample: the slot reads as no reading
         slot = tick % slots

@@ -1,11 +1,14 @@
 """The fused estimate and observe stages (:meth:`CompiledSupervision.estimate_observe`, one
-compiled call over a table of addresses) give the separate stages' results bit for bit.
+compiled call over a table of addresses) give the separate stages' results bit for bit, and so
+does the action screen over its table (:meth:`CompiledSupervision.screen`).
 
 Two runtimes run the same scripted ticks of ``tests/test_compiled_tick.py`` (seeded plants with
 dropouts, the fault injector's faults, a hot winding, a drive error, overruns, NaN actions, the
 operator's resets): one the tick as it is, one whose estimate stage is the fused call
 (:class:`FusedRuntime`). A covariance written NaN in the middle makes the estimator re-initialize
-a joint (the call's ``RECOVER`` path). Tolerance: none.
+a joint (the call's ``RECOVER`` path). The screen's table is built over the policy's output
+buffer, when the policy returns the same array twice in a row: a policy that does (its
+:class:`SameBuffer`) is compared with one whose runtime never builds the table. Tolerance: none.
 """
 
 from __future__ import annotations
@@ -103,3 +106,36 @@ def test_the_fused_call_equals_the_separate_stages(tmp_path, request, robot_name
             np.testing.assert_array_equal(sa[key], sb[key], err_msg=key)
     assert fused.estimator.reinitializations[0] > 0  # the RECOVER path ran
     assert (a["mode"] == 3).any()  # safe stops: the supervision's Python part ran
+
+
+class SameBuffer:
+    """A policy that returns its output in one buffer (as ``OnnxPolicy`` does)."""
+
+    def __init__(self, policy):
+        self.policy, self.spec = policy, policy.spec
+        self.out = np.zeros((2, policy.spec.act_dim), dtype=np.float32)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        self.out[:] = self.policy(obs)
+        return self.out
+
+
+@pytest.mark.parametrize("robot_name", ["arm3", "arm6"])
+@pytest.mark.parametrize("mode", ["position", "velocity", "torque"])
+def test_the_screen_over_its_table_equals_the_kernel_call(tmp_path, request, robot_name, mode):
+    robot = request.getfixturevalue(robot_name)
+    path = adversarial_onnx(tmp_path, robot, mode, nan_probability=0.02)
+    tabled, plain = build(robot, mode, path, Runtime), build(robot, mode, path, Runtime)
+    for rt in (tabled, plain):
+        rt.policy = SameBuffer(rt.policy)
+    plain._compiled._bind_screen = lambda action: None
+    a, b = run(tabled, TICKS), run(plain, TICKS)
+    assert tabled._compiled._screen_action is tabled.policy.out
+    assert plain._compiled._screen_action is None
+    for key in a:
+        for k in range(TICKS):
+            if not np.array_equal(a[key][k], b[key][k], equal_nan=True):
+                np.testing.assert_array_equal(a[key][k], b[key][k], err_msg=f"{key}, tick {k}")
+    np.testing.assert_array_equal(tabled.action, plain.action)
+    np.testing.assert_array_equal(tabled.target, plain.target)
+    assert int(tabled.counters.non_finite_actions.sum()) > 0

@@ -142,7 +142,8 @@ class CompiledSupervision:
         #: :meth:`estimate_observe` runs the separate stages (no fused call for this robot,
         #: policy or estimator input), or the fused call after checking its arrays
         self._fused = False
-        if state.base is None:  # a fixed base: compiled (or loaded from numba's cache) now
+        fk.screen.compile(fk.SCREEN_SIGNATURE)  # compiled (or loaded from numba's cache) now
+        if state.base is None:  # a fixed base: the fused call too
             fk.estimate_observe.compile(fk.SIGNATURE)
 
     def _bind_action(self, spec: PolicySpec) -> None:
@@ -160,6 +161,12 @@ class CompiledSupervision:
             )
         )
         self._current = a.reference == "current"
+        #: the action array the screen's table was built over (:meth:`_bind_screen`; None: no
+        #: table, the kernel is called with its arguments), the table, the arrays it points to
+        #: (kept alive with it) and the last action array seen
+        self._screen_action = self._screen_seen = None
+        self._screen_table = np.zeros(fk.SCREEN_SIZE, dtype=np.int64)
+        self._screen_arrays: list[np.ndarray] = []
 
     def _supervise_args(self, state: RobotState, copy: bool = False) -> tuple:
         """Arguments of :func:`sim2real.deploy.runtime.supervision_kernel.supervise` (the written arrays
@@ -264,15 +271,56 @@ class CompiledSupervision:
         if spec is not self._act_spec:
             self._bind_action(spec)
             self._screen_cached = self._screen_args(None, self.state)[2:]
-        if state is self.state:
-            code = sv.screen_action(self._control, action, *self._screen_cached)
-        else:
+        if state is not self.state:
             code = sv.screen_action(*self._screen_args(action, state))
+        elif action is self._screen_action:  # its table is built
+            code = fk.screen(self._screen_table)
+        else:
+            code = sv.screen_action(self._control, action, *self._screen_cached)
+            if action is self._screen_seen:  # the second call in a row with this array
+                self._bind_screen(action)
+            self._screen_seen = action
         if code:
             if code & sv.SCREEN_STOP:
                 self.smoother.safe_stop(self.flags[sv.NEW_STOP].copy())
             if code & sv.SCREEN_OVERRIDE:
                 self._override(self._target, state)
+
+    def _bind_screen(self, action: np.ndarray) -> None:
+        """Build the screen's table over ``action`` (the policy's output buffer) and the
+        runtime's arrays, if every one has the kernel's dtype, shape and layout."""
+        table, arrays = np.zeros(fk.SCREEN_SIZE, dtype=np.int64), []
+        c, state, envs, n = self._screen_cached, self.state, self.envs, self.n
+        f4, f8, i8, e = np.float32, np.float64, np.int64, (self.envs, self.n)
+        checks = [
+            fk.put(table, arrays, fk.S_ACTION, action, f4, e),
+            *(
+                fk.put(table, arrays, index, array, dtype, shape)
+                for index, array, dtype, shape in (
+                    (fk.S_SCREENED, c[0], f4, e),
+                    (fk.S_LAST_VALID, c[1], f4, e),
+                    (fk.S_NAN_STREAK, c[2], i8, (envs,)),
+                    (fk.S_NON_FINITE, c[3], i8, (envs,)),
+                    (fk.S_MODE, c[5], np.int8, (envs,)),
+                    (fk.S_CAUSE, c[6], np.int8, (envs,)),
+                    (fk.S_SAFE_STOPS, c[7], i8, (envs,)),
+                    (fk.S_FAULTS, c[8], i8, (len(c[8]), envs)),
+                    (fk.S_FLAGS, c[9], np.bool_, (4, envs)),
+                    (fk.S_ACT, c[10], f8, (3, n)),
+                    (fk.S_Q, state.q, f8, e),
+                    (fk.S_DQ, state.dq, f8, e),
+                    (fk.S_HOME, c[14], f8, (n,)),
+                    (fk.S_LIMITS, c[15], f8, (3, n)),
+                    (fk.S_RAMP_GAIN, np.array([c[16]], dtype=f8), f8, (1,)),
+                    (fk.S_TARGET, c[17], f8, e),
+                )
+            ),
+            c[12] is state.q and c[13] is state.dq,
+        ]
+        if all(checks):
+            table[: fk.S_CAUSES + 1] = (envs, n, self._control, c[4], bool(c[11]), len(c[8]))
+            self._screen_table, self._screen_arrays = table, arrays
+            self._screen_action = action
 
     # ------------------------------------------------------------------ the fused call
     def estimate_observe(
@@ -373,21 +421,8 @@ class CompiledSupervision:
         table, arrays = np.zeros(fk.SIZE, dtype=np.int64), []
         f8, i8, b1 = np.float64, np.int64, np.bool_
 
-        def put(index: int, array: np.ndarray, dtype, shape: tuple, rows: bool = False) -> bool:
-            """The address of ``array`` at ``index``, if it has the dtype and shape (at least
-            ``shape[0]`` rows with ``rows``) and is C-contiguous."""
-            ok = (
-                isinstance(array, np.ndarray)
-                and array.dtype == dtype
-                and array.flags.c_contiguous
-                and array.ndim == len(shape)
-                and (array.shape[0] >= shape[0] if rows else array.shape[0] == shape[0])
-                and array.shape[1:] == shape[1:]
-            )
-            if ok:
-                table[index] = array.ctypes.data
-                arrays.append(array)
-            return ok
+        def put(index: int, array, dtype, shape: tuple, rows: bool = False) -> bool:
+            return fk.put(table, arrays, index, array, dtype, shape, rows)
 
         sup = self._supervise_cached
         layout, periods, raw, blocks = (

@@ -1,6 +1,6 @@
 """The estimate and observe stages of a fixed-base robot in one compiled call
 (:func:`estimate_observe`): the joint estimator's Kalman tick, the end effector's kinematics,
-the supervision and the observation.
+the supervision and the observation; and the action screen over a table (:func:`screen`).
 
 Numba's dispatch of each array argument costs more than the arithmetic of an arm's filters and
 observation, and the four kernels took 60 arguments. So the call takes one int64 *table*, built
@@ -8,7 +8,7 @@ and kept by :class:`sim2real.deploy.runtime.compiled.CompiledSupervision`: a hea
 flags, then the address of every array the stages touch, which the kernel views with
 ``numba.carray``. The arrays must live, keep their shape and dtype and stay C-contiguous while
 the table is in use (the table's owner keeps a reference to each, checks them when it builds the
-table and builds it again when the runtime hands it other arrays).
+table with :func:`put` and builds it again when the runtime hands it other arrays).
 
 The kernel calls the stages' own kernels in the tick's order:
 :func:`sim2real.deploy.estimation.kernel.kalman_tick`,
@@ -28,7 +28,7 @@ from numba.extending import intrinsic
 
 from sim2real.deploy.core.kinematics_kernel import chain_fk
 from sim2real.deploy.estimation.kernel import kalman_tick
-from sim2real.deploy.runtime.supervision_kernel import supervise
+from sim2real.deploy.runtime.supervision_kernel import screen_action, supervise
 from sim2real.deploy.spec.kernel import observation
 
 # the header: sizes and flags
@@ -53,6 +53,24 @@ SIZE = 56
 RECOVER, STATUS_SHIFT = 16, 5
 #: The kernel's signature (compiled, or loaded from numba's cache, by the table's owner).
 SIGNATURE = "int64(int64[::1], int64)"
+
+
+def put(table, arrays, index, array, dtype, shape: tuple, rows: bool = False) -> bool:
+    """Write the address of ``array`` into ``table[index]`` and keep the array in ``arrays``
+    (alive as long as the table), if it is a C-contiguous array of ``dtype`` and ``shape`` (at
+    least ``shape[0]`` rows with ``rows``); whether it is."""
+    ok = (
+        isinstance(array, np.ndarray)
+        and array.dtype == dtype
+        and array.flags.c_contiguous
+        and array.ndim == len(shape)
+        and (array.shape[0] >= shape[0] if rows else array.shape[0] == shape[0])
+        and array.shape[1:] == shape[1:]
+    )
+    if ok:
+        table[index] = array.ctypes.data
+        arrays.append(array)
+    return ok
 
 
 @intrinsic
@@ -153,3 +171,44 @@ def estimate_observe(table: np.ndarray, start: int) -> int:
         numba.carray(_pointer(table[OUT]), (envs, dim), np.float32),
     )
     return code
+
+
+# the action screen's table (:func:`screen`): its header, then its addresses
+S_ENVS, S_N, S_CONTROL, S_NAN_LIMIT, S_CURRENT, S_CAUSES = range(6)
+S_ACTION, S_SCREENED, S_LAST_VALID, S_NAN_STREAK, S_NON_FINITE = range(6, 11)
+S_MODE, S_CAUSE, S_SAFE_STOPS, S_FAULTS, S_FLAGS = range(11, 16)
+S_ACT, S_Q, S_DQ, S_HOME, S_LIMITS, S_RAMP_GAIN, S_TARGET = range(16, 23)
+#: Length of the screen's table.
+SCREEN_SIZE = 23
+#: :func:`screen`'s signature.
+SCREEN_SIGNATURE = "int64(int64[::1])"
+
+
+@numba.njit(cache=True, nogil=True)
+def screen(table: np.ndarray) -> int:
+    """:func:`sim2real.deploy.runtime.supervision_kernel.screen_action` on the arrays of
+    ``table`` (the ``S_*`` rows); returns its code."""
+    envs, n = table[S_ENVS], table[S_N]
+    f8, i8, b1 = np.float64, np.int64, np.bool_
+    return screen_action(
+        table[S_CONTROL],
+        numba.carray(_pointer(table[S_ACTION]), (envs, n), np.float32),
+        numba.carray(_pointer(table[S_SCREENED]), (envs, n), np.float32),
+        numba.carray(_pointer(table[S_LAST_VALID]), (envs, n), np.float32),
+        numba.carray(_pointer(table[S_NAN_STREAK]), (envs,), i8),
+        numba.carray(_pointer(table[S_NON_FINITE]), (envs,), i8),
+        table[S_NAN_LIMIT],
+        numba.carray(_pointer(table[S_MODE]), (envs,), np.int8),
+        numba.carray(_pointer(table[S_CAUSE]), (envs,), np.int8),
+        numba.carray(_pointer(table[S_SAFE_STOPS]), (envs,), i8),
+        numba.carray(_pointer(table[S_FAULTS]), (table[S_CAUSES], envs), i8),
+        numba.carray(_pointer(table[S_FLAGS]), (4, envs), b1),
+        numba.carray(_pointer(table[S_ACT]), (3, n), f8),
+        table[S_CURRENT] != 0,
+        numba.carray(_pointer(table[S_Q]), (envs, n), f8),
+        numba.carray(_pointer(table[S_DQ]), (envs, n), f8),
+        numba.carray(_pointer(table[S_HOME]), (n,), f8),
+        numba.carray(_pointer(table[S_LIMITS]), (3, n), f8),
+        numba.carray(_pointer(table[S_RAMP_GAIN]), (1,), f8)[0],
+        numba.carray(_pointer(table[S_TARGET]), (envs, n), f8),
+    )

@@ -6,10 +6,10 @@ stops and re-syncs, policy resets, re-anchoring, the torque-mode overrides).
 Each kernel is called once on copies when :class:`CompiledSupervision` is built: compiled (or
 loaded from numba's cache) then, not in the first tick. The numpy reference is
 :class:`sim2real.deploy.runtime.supervision.Supervision`; both give the same numbers bit for bit
-(``tests/test_compiled_tick.py``). :meth:`CompiledSupervision.estimate_observe` runs a fixed-base
-robot's estimate and observe stages (estimator, kinematics, supervision, observation) in one
-call (:mod:`sim2real.deploy.runtime.fused_kernel`) over a table of addresses
-(``tests/test_fused_estimate.py``).
+(``tests/test_compiled_tick.py``). The supervision, the screen (once the policy's output buffer
+repeats) and :meth:`CompiledSupervision.estimate_observe` (a fixed-base robot's estimate and
+observe stages: estimator, kinematics, supervision, observation) run over tables of addresses
+(:mod:`sim2real.deploy.runtime.fused`, ``tests/test_fused_estimate.py``).
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-from sim2real.deploy.core.backend import SensorFrame
 from sim2real.deploy.core.modes import (
     FAULT_CAUSES,
     HOME_TOLERANCE,
@@ -30,6 +29,7 @@ from sim2real.deploy.core.modes import (
 from sim2real.deploy.core.state import Kinematics, RobotState
 from sim2real.deploy.runtime import fused_kernel as fk
 from sim2real.deploy.runtime import supervision_kernel as sv
+from sim2real.deploy.runtime.fused import TableCalls
 from sim2real.deploy.runtime.supervision import Supervision
 from sim2real.deploy.spec.policy_spec import PolicySpec
 
@@ -60,7 +60,7 @@ def _same(a: np.ndarray) -> np.ndarray:
     return a
 
 
-class CompiledSupervision:
+class CompiledSupervision(TableCalls):
     """The compiled path of a :class:`~sim2real.deploy.runtime.Runtime`'s supervision and action screen,
     over the arrays of its state machine (:class:`~sim2real.deploy.runtime.supervision.Supervision`),
     which the kernels update in place.
@@ -129,6 +129,12 @@ class CompiledSupervision:
         # the kernels' arguments for the runtime's state, made once (the arrays are updated in
         # place), and one call of each kernel on copies
         self._supervise_cached = self._supervise_args(self.state)
+        #: :meth:`supervise`'s table of addresses (one argument for the kernel's 21), or None
+        #: where some array does not fit (then the kernel is called with its arguments)
+        self._supervise_table: np.ndarray | None = np.zeros(fk.SIZE, dtype=np.int64)
+        self._supervise_arrays: list[np.ndarray] = []
+        if not self._put_supervision(self._supervise_table, self._supervise_arrays):
+            self._supervise_table = None
         self._screen_cached = self._screen_args(None, self.state)[2:]
         sv.supervise(*self._supervise_args(self.state, copy=True))
         sv.screen_action(*self._screen_args(self._action, self.state, copy=True))
@@ -143,6 +149,7 @@ class CompiledSupervision:
         #: policy or estimator input), or the fused call after checking its arrays
         self._fused = False
         fk.screen.compile(fk.SCREEN_SIGNATURE)  # compiled (or loaded from numba's cache) now
+        fk.supervise_only.compile(fk.SUPERVISE_SIGNATURE)
         if state.base is None:  # a fixed base: the fused call too
             fk.estimate_observe.compile(fk.SIGNATURE)
 
@@ -231,7 +238,9 @@ class CompiledSupervision:
         smoother's safe stops and re-syncs, policy resets, re-anchoring)."""
         if drive_errors is not None:
             self._note_drive_errors(drive_errors)
-        if state is self.state:
+        if state is self.state and self._supervise_table is not None:
+            code = fk.supervise_only(self._supervise_table)
+        elif state is self.state:
             code = sv.supervise(*self._supervise_cached)
         else:
             code = sv.supervise(*self._supervise_args(state))
@@ -285,212 +294,3 @@ class CompiledSupervision:
                 self.smoother.safe_stop(self.flags[sv.NEW_STOP].copy())
             if code & sv.SCREEN_OVERRIDE:
                 self._override(self._target, state)
-
-    def _bind_screen(self, action: np.ndarray) -> None:
-        """Build the screen's table over ``action`` (the policy's output buffer) and the
-        runtime's arrays, if every one has the kernel's dtype, shape and layout."""
-        table, arrays = np.zeros(fk.SCREEN_SIZE, dtype=np.int64), []
-        c, state, envs, n = self._screen_cached, self.state, self.envs, self.n
-        f4, f8, i8, e = np.float32, np.float64, np.int64, (self.envs, self.n)
-        checks = [
-            fk.put(table, arrays, fk.S_ACTION, action, f4, e),
-            *(
-                fk.put(table, arrays, index, array, dtype, shape)
-                for index, array, dtype, shape in (
-                    (fk.S_SCREENED, c[0], f4, e),
-                    (fk.S_LAST_VALID, c[1], f4, e),
-                    (fk.S_NAN_STREAK, c[2], i8, (envs,)),
-                    (fk.S_NON_FINITE, c[3], i8, (envs,)),
-                    (fk.S_MODE, c[5], np.int8, (envs,)),
-                    (fk.S_CAUSE, c[6], np.int8, (envs,)),
-                    (fk.S_SAFE_STOPS, c[7], i8, (envs,)),
-                    (fk.S_FAULTS, c[8], i8, (len(c[8]), envs)),
-                    (fk.S_FLAGS, c[9], np.bool_, (4, envs)),
-                    (fk.S_ACT, c[10], f8, (3, n)),
-                    (fk.S_Q, state.q, f8, e),
-                    (fk.S_DQ, state.dq, f8, e),
-                    (fk.S_HOME, c[14], f8, (n,)),
-                    (fk.S_LIMITS, c[15], f8, (3, n)),
-                    (fk.S_RAMP_GAIN, np.array([c[16]], dtype=f8), f8, (1,)),
-                    (fk.S_TARGET, c[17], f8, e),
-                )
-            ),
-            c[12] is state.q and c[13] is state.dq,
-        ]
-        if all(checks):
-            table[: fk.S_CAUSES + 1] = (envs, n, self._control, c[4], bool(c[11]), len(c[8]))
-            self._screen_table, self._screen_arrays = table, arrays
-            self._screen_action = action
-
-    # ------------------------------------------------------------------ the fused call
-    def estimate_observe(
-        self,
-        frame: SensorFrame,
-        drive_errors: np.ndarray | None,
-        acceleration: np.ndarray | None,
-        spec: PolicySpec,
-        goal: np.ndarray,
-        out: np.ndarray,
-    ) -> np.ndarray:
-        """A fixed-base robot's estimate and observe stages in one compiled call
-        (:func:`sim2real.deploy.runtime.fused_kernel.estimate_observe`), the same numbers as
-        ``estimator.update(frame, state, acceleration)``, ``Kinematics.update(state)``,
-        :meth:`supervise` and ``spec.observation(state, goal, out=out)`` in that order, on the
-        runtime's state; Python then acts where the supervision says, as :meth:`supervise`.
-
-        Args:
-            frame: The backend's sensor frame (position, stamps, time, winding temperatures).
-            drive_errors: (envs, n) int64 error bits the drives reported, or None.
-            acceleration: (envs, n) rad/s^2, the estimator's control input, or None.
-            spec: The policy's spec. goal: (envs, 3) m. out: float32 (envs, obs_dim).
-
-        Returns:
-            ``out``, the observation.
-
-        The call's table is built again when one of these arrays (or the state's ``q``) is
-        another than at the last call. A floating-base state, a plan that runs the numpy
-        reference, an end effector the compiled chain cannot compute, or arrays of other dtypes
-        or layouts run the four stages one by one instead.
-
-        Raises:
-            RuntimeError: the estimator was not reset. ValueError: a frame of the wrong shape.
-            SpecError: a floating-base observation block and a state without a base.
-        """
-        est = self.estimator
-        if not est._all_initialized:
-            raise RuntimeError("JointStateEstimator.update before reset(q, t) of every env")
-        k = self._table_key
-        if not (
-            k
-            and frame.position is k[0]
-            and frame.position_stamp is k[1]
-            and frame.time is k[2]
-            and frame.winding_temperature is k[3]
-            and acceleration is k[4]
-            and spec is k[5]
-            and goal is k[6]
-            and out is k[7]
-            and self.state.q is k[8]
-        ):
-            self._bind_table(frame, acceleration, spec, goal, out)
-        if not self._fused:
-            return self._separate(frame, drive_errors, acceleration, spec, goal, out)
-        if est._copy_input:
-            np.copyto(est._u, acceleration)
-        if drive_errors is not None:
-            self._note_drive_errors(drive_errors)
-        code = fk.estimate_observe(self._table, 0)
-        if code & fk.RECOVER:  # a degenerate joint filter: re-initialized, then the rest
-            est._recover(code >> fk.STATUS_SHIFT, frame)
-            code = fk.estimate_observe(self._table, 1)
-        if code:
-            self._act_on(code, self.state)
-        return out
-
-    def _separate(self, frame, drive_errors, acceleration, spec, goal, out) -> np.ndarray:
-        """:meth:`estimate_observe` as four calls (its fallback)."""
-        state = self.estimator.update(frame, self.state, acceleration)
-        self._kinematics.update(state)
-        self.supervise(state, drive_errors)
-        return spec.observation(state, goal, out=out)
-
-    def _bind_table(self, frame, acceleration, spec, goal, out) -> None:
-        """Check the arrays of :meth:`estimate_observe`'s call and build its table (or decide
-        for the separate stages)."""
-        state, est = self.state, self.estimator
-        est._bind(frame, state, acceleration)  # checks the frame; the estimator's own arguments
-        self._table_key = (
-            frame.position,
-            frame.position_stamp,
-            frame.time,
-            frame.winding_temperature,
-            acceleration,
-            spec,
-            goal,
-            out,
-            state.q,
-        )
-        if self._kinematics is None:
-            self._kinematics = Kinematics(self.robot)
-        kin, plan = self._kinematics, spec._plan
-        self._fused = False
-        if state.base is not None or not plan.compiled or not (kin.compiled or kin.frame_id < 0):
-            return
-        envs, n = self.envs, self.n
-        observe = plan._kernel_args(state, goal, out, envs)  # grows the plan's buffers first
-        table, arrays = np.zeros(fk.SIZE, dtype=np.int64), []
-        f8, i8, b1 = np.float64, np.int64, np.bool_
-
-        def put(index: int, array, dtype, shape: tuple, rows: bool = False) -> bool:
-            return fk.put(table, arrays, index, array, dtype, shape, rows)
-
-        sup = self._supervise_cached
-        layout, periods, raw, blocks = (
-            plan.layout,
-            plan.block_periods,
-            observe[-2],
-            len(plan.layout),
-        )
-        e, ea = (envs, n), est._args
-        checks = [
-            put(fk.Z, frame.position, f8, e),
-            put(fk.TS, frame.position_stamp, f8, e),
-            put(fk.NOW, frame.time, f8, (envs,)),
-            put(fk.TEMP_IN, frame.winding_temperature, f8, e),
-            put(fk.U, ea[4], f8, e),
-            put(fk.FILT, est._filt, f8, (8, envs, n)),
-            put(fk.CONSTS, est._consts, f8, (4, n)),
-            put(fk.COUNTS, est._counts, i8, (3, envs, n)),
-            put(fk.EST_FLAGS, est._flags, b1, (2, envs, n)),
-            est.time_since_fresh is sup[4] and np.shares_memory(sup[4], est._filt[7]),
-            put(fk.Q, state.q, f8, e),
-            put(fk.DQ, state.dq, f8, e),
-            put(fk.TEMP, state.winding_temperature, f8, e),
-            sup[1] is state.winding_temperature and sup[10] is state.q and sup[11] is state.dq,
-            put(fk.EE_POSITION, state.ee_position, f8, (envs, 3)),
-            put(fk.EE_ROTATION, state.ee_rotation, f8, (envs, 3, 3)),
-            put(fk.LAST_ACTION, state.last_action, f8, e),
-            put(fk.DERATING, sup[2], f8, (3, n)),
-            put(fk.EFFORT_SCALE, sup[3], f8, e),
-            put(fk.DRIVE_ANY, sup[5], b1, (envs,)),
-            put(fk.DRIVE_ERRORS, sup[6], i8, e),
-            put(fk.OVERRUN_RING, sup[7], i8, sup[7].shape),
-            put(fk.PARAMS, sup[9], f8, (7,)),
-            put(fk.HOME, sup[12], f8, (n,)),
-            put(fk.COMMANDED, sup[13], f8, e),
-            put(fk.MODE, sup[14], np.int8, (envs,)),
-            put(fk.CAUSE, sup[15], np.int8, (envs,)),
-            put(fk.SAFE_STOPS, sup[16], i8, (envs,)),
-            put(fk.FAULTS, sup[17], i8, sup[17].shape),
-            put(fk.STOP_TICKS, sup[18], i8, (envs,)),
-            put(fk.STOP_TIMEOUTS, sup[19], i8, (envs,)),
-            put(fk.FLAGS, sup[20], b1, (4, envs)),
-            put(fk.LAYOUT, layout, i8, layout.shape),
-            put(fk.PERIODS, periods, f8, (blocks,)),
-            put(fk.GOAL, goal, f8, (envs, 3)),
-            observe[9] is observe[10] is observe[11] is observe[12],
-            put(fk.VECTOR, observe[9], f8, (envs, 3), rows=True),
-            put(fk.ORIENTATION, observe[13], f8, (envs, 4), rows=True),
-            put(fk.CLOCK, observe[14], f8, (envs,), rows=True),
-            put(fk.CONTACT, observe[15], f8, (envs, 0), rows=True),
-            put(fk.NORM, plan.norm, f8, (3, plan.dim)),
-            put(fk.RAW, raw, f8, (envs, plan.dim), rows=True),
-            put(fk.OUT, out, np.float32, (envs, plan.dim)),
-        ]
-        if kin.compiled:
-            chain, placements, work = kin.chain
-            joints = len(chain) - 1
-            checks += [
-                put(fk.CHAIN, chain, i8, (joints + 1, 3)),
-                put(fk.PLACEMENTS, placements, f8, (joints + 1, 3, 4)),
-                put(fk.WORK, work, f8, (joints + 1, 3, 4)),
-            ]
-        else:
-            joints = 0
-        if not all(checks):
-            return
-        table[: fk.EXTRAPOLATES + 1] = (
-            envs, n, joints, blocks, layout.shape[1], plan.dim, raw.shape[0], len(sup[7]),
-            len(sup[17]), 0, sup[0], bool(sup[8]), bool(ea[-1]),
-        )  # fmt: skip
-        self._table, self._table_arrays, self._fused = table, arrays, True

@@ -212,3 +212,39 @@ def screen(table: np.ndarray) -> int:
         numba.carray(_pointer(table[S_RAMP_GAIN]), (1,), f8)[0],
         numba.carray(_pointer(table[S_TARGET]), (envs, n), f8),
     )
+
+
+#: :func:`supervise_only`'s signature: the table of :func:`estimate_observe` (its supervision's
+#: rows, ``Q``, ``DQ``, ``TEMP`` and ``FILT`` for ``time_since_fresh``).
+SUPERVISE_SIGNATURE = "int64(int64[::1])"
+
+
+@numba.njit(cache=True, nogil=True)
+def supervise_only(table: np.ndarray) -> int:
+    """:func:`sim2real.deploy.runtime.supervision_kernel.supervise` alone on the arrays of an
+    :func:`estimate_observe` table (the rows it reads; the others may be 0); returns its code."""
+    envs, n = table[ENVS], table[N]
+    f8, i8, b1 = np.float64, np.int64, np.bool_
+    return supervise(
+        table[CONTROL],
+        numba.carray(_pointer(table[TEMP]), (envs, n), f8),
+        numba.carray(_pointer(table[DERATING]), (3, n), f8),
+        numba.carray(_pointer(table[EFFORT_SCALE]), (envs, n), f8),
+        numba.carray(_pointer(table[FILT]), (8, envs, n), f8)[7],
+        numba.carray(_pointer(table[DRIVE_ANY]), (envs,), b1),
+        numba.carray(_pointer(table[DRIVE_ERRORS]), (envs, n), i8),
+        numba.carray(_pointer(table[OVERRUN_RING]), (table[WINDOW],), i8),
+        table[REALTIME] != 0,
+        numba.carray(_pointer(table[PARAMS]), (7,), f8),
+        numba.carray(_pointer(table[Q]), (envs, n), f8),
+        numba.carray(_pointer(table[DQ]), (envs, n), f8),
+        numba.carray(_pointer(table[HOME]), (n,), f8),
+        numba.carray(_pointer(table[COMMANDED]), (envs, n), f8),
+        numba.carray(_pointer(table[MODE]), (envs,), np.int8),
+        numba.carray(_pointer(table[CAUSE]), (envs,), np.int8),
+        numba.carray(_pointer(table[SAFE_STOPS]), (envs,), i8),
+        numba.carray(_pointer(table[FAULTS]), (table[CAUSES], envs), i8),
+        numba.carray(_pointer(table[STOP_TICKS]), (envs,), i8),
+        numba.carray(_pointer(table[STOP_TIMEOUTS]), (envs,), i8),
+        numba.carray(_pointer(table[FLAGS]), (4, envs), b1),
+    )

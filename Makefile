@@ -194,7 +194,8 @@ sim2sim: install $(SIM2SIM_POLICY)
 # joint alone, then together, through the guard and the smoother; `default` is 66 s) for
 # SYSID_SECONDS on an emulated robot whose motors differ from its description (PLANT_MOTORS;
 # `make sysid ROBOT=so101` ships one), through the servo-bus emulator's wire protocol
-# (SYSID_VIA=servo, on the wall clock) or on the plant (SYSID_VIA=sim, lockstep); its commands and
+# (SYSID_VIA=servo, on the wall clock), over ROS 2 to the ros2_control emulator (SYSID_VIA=ros2,
+# deploy-run --backend ros2, wall clock) or on the plant (SYSID_VIA=sim, lockstep); its commands and
 # readings recorded (deploy-run --record-commands), then the motors fitted (sysid, a few minutes)
 # into runs/sysid/ROBOT: plant_motors.toml and the gap report gap.md/.json/.png/.html. On the real
 # robot: deploy-run --backend feetech ... --excitation default --duration 66 --record-commands
@@ -206,6 +207,8 @@ PLANT_MOTORS  ?= sim2real/eval/sysid/examples/$(ROBOT)_worn.toml
 SYSID_RUN := --excitation $(EXCITATION) --duration $(SYSID_SECONDS) \
 	--record-commands runs/sysid/$(ROBOT)/run.npz
 SYSID_RECORD_servo = $(PY) -m sim2real.deploy.harness.servo_hil --robot $(ROBOT) --protocol feetech \
+	--plant-motors $(PLANT_MOTORS) -- $(SYSID_RUN)
+SYSID_RECORD_ros2 = $(PY) -m sim2real.deploy.harness.ros2_hil --robot $(ROBOT) --no-sim \
 	--plant-motors $(PLANT_MOTORS) -- $(SYSID_RUN)
 SYSID_RECORD_sim = $(VENV)/bin/deploy-run --robot $(ROBOT) --plant-motors $(PLANT_MOTORS) $(SYSID_RUN)
 sysid: install

@@ -133,3 +133,46 @@ def test_the_excitation_stays_inside_the_soft_limits(so101, tmp_path):
     bad.write_text("chirps = 3\n")
     with pytest.raises(ValueError, match="unknown keys"):
         Excitation.load(str(bad))
+
+
+def test_a_robot_loop_log_replays_on_the_loops_updates(so101):
+    """A robot with its own fixed-rate update loop (ros2_control): each update samples the state
+    (its stamp) and then applies the newest command that arrived; the host reads 3.7 ms after
+    an update and sends 0.4 ms after its read, so tick k's command acts from update k + 1. The
+    replay on the loop's updates reads exactly the positions the loop sampled; on the host's
+    ticks (the log without the loop's times) it does not."""
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.eval.sysid.replay import reading_errors, replay, timeline
+    from sim2real.robots.plant_motors import load_plant_motors
+
+    truth = load_plant_motors(TRUTH, so101)
+    model = truth.apply(truth.robot.plant_model("position"))
+    robot_plant = SimBackend(truth.robot, mode="position", models=[model])
+    dt, ticks, after_update, send = so101.control_period, 300, 0.0037, 0.0004
+    home = np.asarray(so101.home)
+    robot_plant.reset(home)
+    k = np.arange(ticks)
+    swing = 0.25 * np.sin(2 * np.pi * 1.5 * k * dt)[:, None] * np.ones(so101.n_joints)
+    command = home + np.where(k[:, None] > 0, swing, 0.0)
+    reads = 100.0 + k * dt
+    updates = reads - after_update
+    position = np.empty((ticks, so101.n_joints))
+    for j in range(ticks):  # update j: sample, then the newest command sent by then (j - 1)
+        position[j] = robot_plant.true_position()[0]
+        if j > 0:
+            robot_plant.write(command[j - 1][None])
+        robot_plant.advance()
+    meta = {"joint_names": list(so101.joint_names), "control_period": dt,
+            "control_mode": "position", "robot_loop": True}  # fmt: skip
+    arrays = {"t": k * dt, "read_time": reads, "command": command, "position": position,
+              "position_stamp": np.repeat(updates[:, None] + 2e-4, so101.n_joints, axis=1),
+              "loop_stamp": updates, "write_time": reads + send}  # fmt: skip
+    times, rows, first = timeline(arrays, dt)
+    np.testing.assert_allclose(times, updates, atol=1e-9)
+    assert first == 0 and rows[0] == 0 and list(rows[1:4]) == [0, 1, 2]
+    errors = reading_errors(arrays, replay(so101, meta, arrays, truth), dt)
+    assert np.isfinite(errors).sum() == ticks * so101.n_joints
+    assert np.nanmax(np.abs(errors)) < 1e-9
+    ticked = {key: v for key, v in arrays.items() if key not in ("loop_stamp", "write_time")}
+    off = reading_errors(ticked, replay(so101, meta, ticked, truth), dt)
+    assert np.nanmax(np.abs(off)) > 0.01  # a period off on a 1.5 Hz swing

@@ -9,7 +9,11 @@ allocated per tick but one block every ``BLOCK`` ticks) and written once, atomic
 run ends: ``t`` (ticks,) s, ``command``, ``position`` and ``position_stamp`` (ticks, n) and
 ``read_time`` (ticks,) s, the backend's clock of the frame each tick read (the clock of the
 stamps: the plant's time, or a real backend's monotonic clock) and ``meta`` (JSON: robot, its
-description hash, control mode and period, backend, joint names).
+description hash, control mode and period, backend, joint names). A backend whose robot runs its
+own fixed-rate update loop (``--backend ros2``: its ``loop_times``) adds ``loop_stamp``
+(ticks,) s, when that loop sampled the state the tick read (NaN: no new state), and
+``write_time`` (ticks,) s, when the tick's command was sent, on the same clock; ``meta`` then
+has ``"robot_loop": true`` (the replay steps on the robot's updates).
 """
 
 from __future__ import annotations
@@ -66,6 +70,8 @@ class CommandLog:
                     "command": np.zeros((BLOCK, self.n)),
                     "position": np.zeros((BLOCK, self.n)),
                     "position_stamp": np.zeros((BLOCK, self.n)),
+                    "loop_stamp": np.zeros(BLOCK),
+                    "write_time": np.zeros(BLOCK),
                 }
             )
         return self._blocks[-1]
@@ -79,12 +85,18 @@ class CommandLog:
         block["command"][i] = runtime.command[0]
         block["position"][i] = frame.position[0]
         block["position_stamp"][i] = frame.position_stamp[0]
+        loop = getattr(runtime.backend, "loop_times", None)
+        if loop is not None:
+            self.meta["robot_loop"] = True
+            block["loop_stamp"][i], block["write_time"][i] = loop
         self.rows += 1
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The recorded rows as one array per field (copies)."""
         out = {}
-        for key in ("t", "read_time", "command", "position", "position_stamp"):
+        keys = ["t", "read_time", "command", "position", "position_stamp"]
+        keys += ["loop_stamp", "write_time"] if self.meta.get("robot_loop") else []
+        for key in keys:
             parts = [b[key] for b in self._blocks]
             out[key] = np.concatenate(parts)[: self.rows] if parts else np.zeros((0,))
         return out

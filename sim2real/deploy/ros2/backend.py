@@ -76,6 +76,11 @@ class Ros2ControlBackend(BackendLifecycle):
         read_cost, write_cost: :class:`LatencyHistogram` (ns) of a read and a write.
         state_age: :class:`LatencyHistogram` (ns) of the newest state's age at a read, from its
             header stamp (meaningful when the robot's clock is this computer's).
+        loop_times: (2,) s on the frames' clock, for the command log (``sysid``): when the
+            state the last read took was sampled (its header stamp moved onto this computer's
+            clock by the smallest receive-minus-stamp difference seen so far, so that any
+            clock offset between the robot and this computer cancels; NaN when the read took
+            no new state or the state had no stamp), and when the last command was published.
 
     Raises:
         ValueError: an unknown mode, a floating-base robot, a joint order that does not match
@@ -118,6 +123,9 @@ class Ros2ControlBackend(BackendLifecycle):
         self._newest = np.full(self.n, np.nan)
         self._newest_at = 0.0
         self._newest_stamp_ns = 0
+        self._newest_sampled = np.nan
+        self._stamp_offset = np.inf  # s, the smallest receive time minus header stamp
+        self.loop_times = np.full(2, np.nan)
         self._seq = self._read_seq = 0
         self._lock = threading.Lock()
         self._node: NodeThread | None = None
@@ -216,6 +224,11 @@ class Ros2ControlBackend(BackendLifecycle):
                 self._newest[dst] = position[src]
             self._newest_at = time.monotonic() - self._t0
             self._newest_stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+            self._newest_sampled = np.nan
+            if self._newest_stamp_ns > 0:
+                sampled = self._newest_stamp_ns * 1e-9
+                self._stamp_offset = min(self._stamp_offset, self._newest_at - sampled)
+                self._newest_sampled = sampled + self._stamp_offset
             self._seq += 1
             self.received += 1
 
@@ -233,6 +246,7 @@ class Ros2ControlBackend(BackendLifecycle):
                 f.position[0] = self._newest
                 f.position_stamp[0] = self._newest_at
                 stamp_ns = self._newest_stamp_ns
+                self.loop_times[0] = self._newest_sampled
         if fresh:
             missing = np.isnan(f.position[0])
             if missing.any():
@@ -241,7 +255,7 @@ class Ros2ControlBackend(BackendLifecycle):
             if stamp_ns > 0:
                 self.state_age.add(0, max(0, time.time_ns() - stamp_ns))
         else:
-            f.position[0] = f.position_stamp[0] = np.nan
+            f.position[0] = f.position_stamp[0] = self.loop_times[0] = np.nan
             self.stale_reads += 1
         self.reads += 1
         self.read_cost.add(0, time.perf_counter_ns() - t0)
@@ -256,6 +270,7 @@ class Ros2ControlBackend(BackendLifecycle):
         """
         command = checked_command(command, self.n)
         t0 = time.perf_counter_ns()
+        self.loop_times[1] = time.monotonic() - self._t0
         self._publish(command[0])
         self.write_cost.add(0, time.perf_counter_ns() - t0)
 

@@ -7,10 +7,12 @@ controller (``forward_position_controller`` / ``forward_velocity_controller`` /
 ``forward_effort_controller``, :mod:`sim2real.deploy.ros2.controllers`) taking
 ``std_msgs/Float64MultiArray`` on ``<controller>/commands``. Behind them: a
 :class:`~sim2real.deploy.backends.sim.plant.SimBackend` of the robot in that control mode (its drives,
-sensor noise and thermal model), stepped once per update on a thread paced by the wall clock,
-the newest command applied at each update as the controller manager's ``write`` does (a
-forward controller holds the last command; before the first, the plant's initial command holds
-the robot at home).
+sensor noise and thermal model) on a thread paced by the wall clock. Each update is a hardware
+loop's at a fixed rate, ``read`` / ``update`` / ``write``: the plant's state at the update's time
+(``t0 + k * period``, which stamps ``joint_states``), then the newest command that arrived before
+that time (a forward controller holds the last; before the first, the plant's initial command
+holds the robot at home), then the plant steps one period under it (its motion until the next
+update). An update the thread runs late takes no command that arrived after its time.
 Nothing in the runtime knows it talks to an emulator.
 
 The emulator counts what the robot really did (:class:`~sim2real.deploy.monitors.violations.
@@ -28,6 +30,7 @@ It prints one line when it serves (``ready: ...``), then serves until SIGTERM or
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import sys
 import threading
@@ -85,7 +88,8 @@ class ControllerManagerEmulator:
              "updates_without_command", "plant_lag_resets", "silenced_updates"), 0,
         )  # fmt: skip
         self._command: np.ndarray | None = None
-        self._fresh = False
+        #: (arrival s on time.monotonic, command) not yet applied, oldest first
+        self._inbox: collections.deque = collections.deque(maxlen=64)
         self._first_command: float | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -107,9 +111,10 @@ class ControllerManagerEmulator:
             if data.shape != (self.robot.n_joints,) or not np.isfinite(data).all():
                 self.stats["commands_refused"] += 1  # as the forward controller refuses it
                 return
-            self._command, self._fresh = data, True
+            now = time.monotonic()
+            self._inbox.append((now, data))
             if self._first_command is None:
-                self._first_command = time.monotonic()
+                self._first_command = now
 
     # ------------------------------------------------------------------ serving
     def request_stop(self) -> None:
@@ -119,43 +124,47 @@ class ControllerManagerEmulator:
     def serve(self) -> None:
         """Update at the control rate, paced by the wall clock, until :meth:`request_stop`."""
         t0, steps, period = time.monotonic(), 0, self.period
+        wall_ns = time.time_ns() - time.monotonic_ns()  # time.time_ns() at monotonic 0
         while not self._stop.is_set():
-            due = int((time.monotonic() - t0) / period)
+            due = int((time.monotonic() - t0) / period) + 1  # the updates whose time has come
             if due - steps > MAX_LAG / period:
-                t0 += (due - steps) * period
+                t0 += (due - 1 - steps) * period
                 self.stats["plant_lag_resets"] += 1
-                due = steps
+                due = steps + 1
             while steps < due and not self._stop.is_set():
-                self._update()
+                at = t0 + steps * period
+                self._update(at, wall_ns + round(at * 1e9))
                 steps += 1
-            self._stop.wait(max(0.0, t0 + (steps + 1) * period - time.monotonic()))
+            self._stop.wait(max(0.0, t0 + steps * period - time.monotonic()))
 
-    def _update(self) -> None:
-        """One update of the controller manager: read the hardware, publish its state, write
-        the newest command."""
+    def _update(self, at: float, stamp_ns: int) -> None:
+        """One update of the controller manager at ``at`` (s, time.monotonic; ``stamp_ns`` the
+        same on time.time_ns): read the hardware, publish its state stamped ``stamp_ns``, write
+        the newest command that arrived by ``at``, step the plant one period."""
         plant = self.plant
         with self._lock:
-            command, fresh, self._fresh = self._command, self._fresh, False
-            first = self._first_command
-        if first is not None and not fresh:
+            fresh = False
+            while self._inbox and self._inbox[0][0] <= at:
+                self._command, fresh = self._inbox.popleft()[1], True
+            command, first = self._command, self._first_command
+        frame = plant.read()
+        if self._silenced(first):
+            self.stats["silenced_updates"] += 1
+        else:
+            msg = self._msg
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+            msg.position = frame.position[0]
+            msg.velocity = plant.true_velocity()[0]
+            msg.effort = plant.joint_torque()[0]
+            self._pub.publish(msg)
+            self.stats["joint_states_published"] += 1
+        if first is not None and first <= at and not fresh:
             self.stats["updates_without_command"] += 1
         if command is not None:  # before the first, the plant holds its initial command
             plant.write(command[None, :])
         plant.advance()
-        frame = plant.read()
         self.violations.update(plant)
         self.stats["updates"] += 1
-        if self._silenced(first):
-            self.stats["silenced_updates"] += 1
-            return
-        msg = self._msg
-        ns = time.time_ns()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
-        msg.position = frame.position[0]
-        msg.velocity = plant.true_velocity()[0]
-        msg.effort = plant.joint_torque()[0]
-        self._pub.publish(msg)
-        self.stats["joint_states_published"] += 1
 
     def _silenced(self, first: float | None) -> bool:
         if self.silence is None or first is None:

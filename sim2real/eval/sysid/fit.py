@@ -6,8 +6,10 @@ damping (N m s/rad, on request), the reflected rotor inertia (armature, kg m^2) 
 motor with a torque-speed line, its no-load speed (rad/s); and one command delay for the robot
 (s, whole physics steps). The continuous values are fitted by SciPy's bounded least squares
 (``scipy.optimize.least_squares``, trust-region reflective, finite-difference Jacobian,
-``soft_l1`` loss past ``ROBUST_SCALE``) on the readings' errors, once for every delay up to
-``max_delay`` (the delay trades off against the inertia), and the best fit is kept; the
+``soft_l1`` loss past ``ROBUST_SCALE``) on the readings' errors. The delay trades off against
+the inertia, so each delay gets its own fit: a short one (``COARSE_EVALUATIONS``) at every delay
+up to ``max_delay``, then a full one (``MAX_EVALUATIONS``, from the short one's values) for the
+``REFINE`` delays either side of the best short fit; the best full fit is kept. The
 uncertainty of each value is the standard deviation from the Jacobian at the solution
 (``inv(J^T J)`` times the residual variance). The result is a plant motors file
 (:mod:`sim2real.robots.plant_motors`) whose ``source`` names the log, the date, the residual and the
@@ -31,6 +33,12 @@ from sim2real.robots.plant_motors import PlantMotors
 MAX_DELAY = 0.03
 #: Replays per delay's fit (each a few tens of ms for 1,000 ticks of a 6-joint arm).
 MAX_EVALUATIONS = 30
+#: Evaluations (SciPy's ``max_nfev``; each Jacobian replays once more per parameter) of a
+#: delay's short fit, the pass over every delay that picks where to fit in full: on a 7 s
+#: SO-101 log three already put the least cost at the true delay, rising either side.
+COARSE_EVALUATIONS = 3
+#: Delays (physics steps) either side of the best short fit that get a full fit.
+REFINE = 2
 #: rad, the readings' error past which the fit's loss grows linearly, not quadratically (SciPy's
 #: ``soft_l1``): two counts of a 4096-count encoder (1.53 mrad each, the SO-101's). On a wire a
 #: reading sampled a period off its stamp, or a command landing a period late, errs by tens of
@@ -192,24 +200,31 @@ def fit_motors(
     rms_described = float(
         np.sqrt(np.nansum(reading_errors(arrays, described, problem.dt) ** 2) / valid)
     )
-    steps = range(int(round(max_delay / problem.timestep)) + 1)
+    steps = int(round(max_delay / problem.timestep))
     x0, lower, upper = problem.start()
-    x, best = np.clip(x0, lower, upper), None
-    # the delay trades off against the inertia: each delay gets its own fit, the best is kept
-    for d in steps:
+    x0 = np.clip(x0, lower, upper)
+
+    def solve(d: int, x: np.ndarray, evaluations: int):
         delay = d * problem.timestep
-        sol = least_squares(
-            lambda v, delay=delay: problem.errors(v, delay),
+        return least_squares(
+            lambda v: problem.errors(v, delay),
             x,
             bounds=(lower, upper),
             x_scale=np.maximum(upper - lower, 1e-6) * 0.1,
             diff_step=1e-3,
-            max_nfev=MAX_EVALUATIONS,
+            max_nfev=evaluations,
             loss="soft_l1",
             f_scale=ROBUST_SCALE,
         )
+
+    # the delay trades off against the inertia: a short fit per delay, the best refined
+    coarse = [solve(d, x0, COARSE_EVALUATIONS) for d in range(steps + 1)]
+    centre = int(np.argmin([c.cost for c in coarse]))
+    best = None
+    for d in range(max(centre - REFINE, 0), min(centre + REFINE, steps) + 1):
+        sol = solve(d, coarse[d].x, MAX_EVALUATIONS)
         if best is None or sol.cost < best[0].cost:
-            best = (sol, delay)
+            best = (sol, d * problem.timestep)
     sol, delay = best
     m = max(int(valid) - len(sol.x), 1)
     squares = float(np.sum(sol.fun**2))  # the readings' errors, not the robust cost

@@ -229,3 +229,52 @@ def test_workspace_margin_holds_for_every_arm_within_the_link_length_tolerance()
             assert np.all(envelope.workspace_margin(q)[:2] <= true_margin + 1e-9)
             assert np.all(ee[:2] < hi[:2])  # the faces left out are never reached
             assert np.all(ee[:2] > lo[:2]) or envelope.workspace_margin(q).min() < 0.0
+
+
+@pytest.mark.parametrize(
+    ("name", "mode"), [("arm3", "velocity"), ("arm6", "position"), ("arm3", "torque")]
+)
+def test_certify_is_check_then_commit(request, name, mode):
+    """:meth:`MotionEnvelope.certify` (one bound kernel call where the screen certifies every
+    env) decides and commits as :meth:`MotionEnvelope.check` followed by :meth:`commit` of a
+    certified command does, bit for bit, on the same arrays every call as a runtime passes them
+    and on fresh ones."""
+    robot = request.getfixturevalue(name)
+    envs, n = 3, robot.n_joints
+    fast, slow = (SafetyGuard(robot, envs, mode).envelope for _ in range(2))
+    rng = np.random.default_rng(7)
+    home = np.asarray(robot.home, dtype=float)
+    q, dq, command = np.zeros((envs, n)), np.zeros((envs, n)), np.zeros((envs, n))
+    before, after = np.zeros((3, envs, n)), np.zeros((3, envs, n))
+    stopping, scale = np.zeros(envs, dtype=bool), np.ones((envs, n))
+    for tick in range(300):
+        spread = 0.05 if tick % 3 else 0.8  # now and then far out: queries, brakes
+        q[:] = home + spread * rng.standard_normal((envs, n))
+        dq[:] = rng.standard_normal((envs, n))
+        before[:] = q + 0.01 * rng.standard_normal((3, envs, n))
+        after[:] = before + 0.01 * rng.standard_normal((3, envs, n))
+        command[:] = rng.standard_normal((envs, n))
+        stopping[:] = rng.random(envs) < 0.1
+        scale[:] = rng.uniform(0.5, 1.0, (envs, n))
+        args = (q, dq, before, after, stopping, scale, command)
+        if tick % 50 == 49:  # fresh arrays: the binding follows them
+            args = tuple(np.copy(a) for a in args)
+        dirty = fast.certify(*args)
+        q_, dq_, before_, after_, stopping_, scale_, command_ = (np.copy(a) for a in args)
+        expected = slow.check(q_, before_, after_, stopping_, scale_, dq=dq_, command=command_)
+        if not expected:
+            slow.commit(command_)
+        assert dirty == expected
+        for a, b in ((fast.unsafe, slow.unsafe), (fast.joints, slow.joints),
+                     (fast.beyond, slow.beyond), (fast._box, slow._box),
+                     (fast._clearance, slow._clearance)):  # fmt: skip
+            np.testing.assert_array_equal(a, b)
+        if fast.drive is not None:  # the integrators
+            np.testing.assert_array_equal(fast.drive.setpoint, slow.drive.setpoint)
+        if fast.torque is not None:  # the committed torque and its acceleration
+            np.testing.assert_array_equal(fast.torque.command, slow.torque.command)
+            np.testing.assert_array_equal(fast.torque.acceleration, slow.torque.acceleration)
+        if dirty:  # the caller's commit of the braked command
+            fast.commit(args[-1])
+            slow.commit(command_)
+    assert fast.queries == slow.queries > 0

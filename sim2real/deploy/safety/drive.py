@@ -235,6 +235,34 @@ class VelocityDrive:
             lead, beyond, stopping,
         )  # fmt: skip
 
+    def dynamics_at(self, q: np.ndarray):
+        """For the estimate ``q`` (envs, n) rad an envelope passes every tick (the same array,
+        updated in place): ``(update, gravity, mass)``, a call that evaluates Pinocchio's gravity
+        torque and mass matrix (CRBA) at ``q`` as :meth:`motion` does, and the (envs, n) N m and
+        (envs, n, n) kg m^2 arrays it leaves them in (one env: Pinocchio's own, read in place;
+        else copies per env)."""
+        import pinocchio as pin
+
+        model, data = self._model, self._data
+        gravity_at, crba = pin.computeGeneralizedGravity, pin.crba
+        if self.envs == 1:
+            row = q[0]
+
+            def update() -> None:
+                gravity_at(model, data, row)
+                crba(model, data, row)
+
+            return update, data.g.reshape(1, -1), data.M[None]
+        rows = [q[e] for e in range(self.envs)]
+        gravity, mass = self._gravity, self._mass
+
+        def update_each() -> None:
+            for e, row in enumerate(rows):
+                gravity[e] = gravity_at(model, data, row)
+                mass[e] = crba(model, data, row)
+
+        return update_each, gravity, mass
+
     def integrate(self, command: np.ndarray) -> None:
         """One control period of the integrators under ``command`` (envs, n) rad/s, within the
         joints' range."""

@@ -26,20 +26,19 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
-import pinocchio as pin
 from ruckig import (
     ControlInterface,
     InputParameter,
-    Result,
     Ruckig,
-    RuckigError,
     Synchronization,
     Trajectory,
 )
 
 from sim2real.deploy.safety import envelope_kernel as ek
+from sim2real.deploy.safety.bound import bind
+from sim2real.deploy.safety.envelope_query import EnvelopeQueries
 from sim2real.deploy.safety.local_reach import LocalReach
-from sim2real.deploy.safety.pair_grid import PairTables, pair_grids, table_bound
+from sim2real.deploy.safety.pair_grid import PairTables, pair_grids
 from sim2real.robots.chain_bounds import descends
 
 #: m, default clearance kept between listed collision geometries and from the workspace box's
@@ -50,12 +49,6 @@ DEFAULT_MARGIN = 0.01
 #: Smallest share of the full deceleration the envelope assumes of a derated drive (our choice: a
 #: drive derated to its floor still holds the arm; its brake is taken as 20 times longer).
 MIN_HEADROOM = 0.05
-#: m, distances within this of each other are equal (coal's round-off between configurations
-#: that leave a pair's relative pose unchanged).
-DISTANCE_TOLERANCE = 1e-9
-#: Segments of the brake the path certification cuts by time (our choice: a few Pinocchio
-#: calls, only where the whole box is uncertain).
-PATH_SEGMENTS = 4
 #: m, how much a robot within the margin must gain back per step in torque mode (our choice,
 #: about the estimate's noise times a lever of a metre): the start of a torque step is the noisy
 #: estimate, and "no closer than now" then let a ur5 pressed down by its policy random-walk
@@ -86,7 +79,7 @@ def axis_levers(robot, ee_lever: np.ndarray) -> np.ndarray:
     return out
 
 
-class MotionEnvelope:
+class MotionEnvelope(EnvelopeQueries):
     """Certify each env's committed motion against self-collision and the workspace box.
 
     The committed motion lies, joint by joint, in a box: from the estimated position (a position
@@ -110,9 +103,10 @@ class MotionEnvelope:
     higher of the two bounds counts. The same bounds screen each box against the last query, so far
     from contact no query runs (the decision is the same with or without that cache). A box one
     query cannot certify over-covers the motion (its corners combine one joint's start with
-    another's end): the step and Ruckig's own brake are then cut into :data:`PATH_SEGMENTS` by
-    time, each joint monotonic within one, and each segment is certified. Workspace faces beyond
-    the end effector's reach are never crossed and not checked.
+    another's end): the step and Ruckig's own brake are then cut into
+    :data:`~sim2real.deploy.safety.envelope_query.PATH_SEGMENTS` by time, each joint monotonic
+    within one, and each segment is certified (:mod:`~sim2real.deploy.safety.envelope_query`).
+    Workspace faces beyond the end effector's reach are never crossed and not checked.
 
     By induction the brake is always safe to take: the previous tick certified the motion that holds
     it. A robot already within the margin (pushed there, or started there) may only move so that no
@@ -266,72 +260,34 @@ class MotionEnvelope:
         self._lead = np.zeros((envs, n))
         # a velocity drive's path: the smoother's state with its equilibrium as the position
         self._drive_path = np.zeros((2, 3, envs, n))
+        # envelope_screen's arrays after effort_scale (the tables' and the margin as of the
+        # last certify's binding: a test may replace them after construction)
+        self._screen = ek.ScreenArrays(
+            self.limits, self._cached_q, self._clearance, self.weights, self.margin, self._box,
+            self._need, *self.tables.arrays(), self._speeds, self.local.order, self.local.nest,
+            self._slack, self._lead,
+        )  # fmt: skip
+        self._certify_key = (None,) * 10  # certify's kernel bound to these arrays
+        self._certify = self._dynamics = None
         ek.warm_up()
+        self._warm_certify()
 
-    # ------------------------------------------------------------------ exact queries
-    def _sweep_clearance(self, home: np.ndarray, pair_weights: np.ndarray) -> list[float]:
-        """m, the smallest distance of each pair, at home and with each joint that moves it
-        swept alone across its position range from home (65 poses): what the robot's own
-        geometry allows (a gripper's jaw passes within millimetres of its wrist)."""
-        at_home = self.distances(home)
-        swept = np.full((self.robot.n_joints, self.pairs), np.inf)  # per joint, each pair's min
-        for j in np.flatnonzero(np.asarray(pair_weights).any(axis=0)):
-            for x in np.linspace(self.robot.position_lower[j], self.robot.position_upper[j], 65):
-                pose = home.copy()
-                pose[j] = x
-                np.minimum(swept[j], self.distances(pose), out=swept[j])
-        return [
-            float(min(at_home[p], swept[np.flatnonzero(w), p].min(initial=np.inf)))
-            for p, w in enumerate(pair_weights)
-        ]
-
-    def distances(self, q: np.ndarray) -> np.ndarray:
-        """(pairs,) m, each listed pair's distance at ``q`` (n,) rad (coal; <= 0 in contact;
-        ``inf`` for a pair kept apart, :attr:`apart`)."""
-        self.queries += 1
-        pin.computeDistances(self.model, self.data, self.geom_model, self.geom_data, q)
-        d = np.array([r.min_distance for r in self.geom_data.distanceResults])
-        d[self.apart] = np.inf
-        return d
-
-    def workspace_margin(self, q: np.ndarray) -> np.ndarray:
-        """(3,) m, how far the end effector at ``q`` (n,) rad lies inside the workspace box along
-        x, y, z (negative outside), for every chain within the link-length tolerance: the
-        nominal margin less :meth:`kinematic_error`."""
-        self.queries += 1
-        pin.forwardKinematics(self.model, self.data, q)
-        ee = pin.updateFramePlacement(self.model, self.data, self.robot.ee_frame_id).translation
-        margin = np.minimum(ee - self.ws_min, self.ws_max - ee)
-        if self.link_length_tolerance > 0.0:
-            margin -= self.kinematic_error(ee)
-        return margin
-
-    def kinematic_error(self, ee: np.ndarray) -> np.ndarray:
-        """(3,) m, bound of how far along x, y, z the true end effector lies from ``ee`` (3,) m,
-        the model's at the configuration of the last forward kinematics, when each link is
-        longer or shorter by up to :attr:`link_length_tolerance` of its length: that share of
-        the sum of the absolute components of the chain's segments (joint to joint, the last
-        to the end effector). A link scaled by ``s`` scales its segment (as the soak's link
-        lengths do, :func:`sim2real.eval.world.dynamics.apply_dynamics`); the base's offset is exact."""
-        return self.link_length_tolerance * np.abs(self._segments(ee)).sum(axis=0)
-
-    def _segments(self, ee: np.ndarray) -> np.ndarray:
-        """(k, 3) m, the end effector's chain at the last forward kinematics, joint to joint and
-        the last to ``ee`` (3,) m."""
-        points = [self.data.oMi[j].translation for j in self._ee_chain] + [ee]
-        return np.diff(points, axis=0)
-
-    def _chain_beyond(self, q: np.ndarray) -> np.ndarray:
-        """(n,) m, for each joint of the end effector's chain the summed length of the chain's
-        segments beyond it (0 for the other joints): a segment's length does not change with
-        the pose, and a joint turns every segment beyond it."""
-        pin.forwardKinematics(self.model, self.data, q)
-        ee = pin.updateFramePlacement(self.model, self.data, self.robot.ee_frame_id).translation
-        lengths = np.linalg.norm(self._segments(ee), axis=1)
-        out = np.zeros(self.robot.n_joints)
-        for k, j in enumerate(self._ee_chain):
-            out[self.model.joints[j].idx_q] = lengths[k:].sum()
-        return out
+    def _warm_certify(self) -> None:
+        """Compile (or load numba's cache of) :meth:`certify`'s kernel now, not in a tick, for
+        the runtime's arrays' types, on copies."""
+        envs, n = self.envs, self.robot.n_joints
+        z, z3 = np.zeros((envs, n)), np.zeros((3, envs, n))
+        state = (z, z.copy(), z3, z3.copy(), np.zeros(envs, dtype=bool), np.ones((envs, n)))
+        s = self._screen  # copies of what the kernel writes; the rest as it is (its types)
+        screen = s._replace(box=s.box.copy(), need=s.need.copy(), slack=s.slack.copy(),
+                            lead=s.lead.copy())  # fmt: skip
+        drive, arrays = self.drive, None
+        if drive is not None:
+            arrays = self._drive_arrays(z)._replace(
+                setpoint=drive.setpoint.copy(), path=self._drive_path.copy(),
+                beyond=self.beyond.copy(),
+            )  # fmt: skip
+        ek.certify(*state, z.copy(), screen, arrays)
 
     # ------------------------------------------------------------------ the check
     def check(self, q, before, after, stopping, effort_scale, dq=None, command=None) -> bool:
@@ -353,22 +309,29 @@ class MotionEnvelope:
             workspace, is written only then; it is all False otherwise).
         """
         if self._dirty:
-            self.unsafe.fill(False)
-            self.joints.fill(False)
-            self.beyond.fill(False)
-            self._dirty = False
+            self._clear()
         if self.torque is not None:
             before, after, slack = self.torque.motion(q, dq, command)
             np.copyto(self._slack, slack)
         elif self.drive is not None:
             before, after = self._drive_motion(q, dq, before, after, effort_scale, stopping)
-        box, need = self._box, self._need
+        screen = self._screen._replace(margin=self.margin, **self._tables_dict())
         uncertain = ek.envelope_screen(
-            q, before, after, stopping, self.limits, effort_scale, self._cached_q,
-            self._clearance, self.weights, self.margin, box, need, *self.tables.arrays(),
-            self._speeds, self.local.order, self.local.nest, self._slack,
-            self._lead,
-        )  # fmt: skip
+            q, before, after, stopping, screen.limits, effort_scale, *screen[1:]
+        )
+        return self._decide(q, before, after, stopping, uncertain)
+
+    def _clear(self) -> None:
+        """Forget the last unsafe check's :attr:`unsafe`, :attr:`joints` and :attr:`beyond`."""
+        self.unsafe.fill(False)
+        self.joints.fill(False)
+        self.beyond.fill(False)
+        self._dirty = False
+
+    def _decide(self, q, before, after, stopping, uncertain: bool) -> bool:
+        """:meth:`check` after the screen (``uncertain``: some env needs an exact query):
+        :attr:`beyond`'s joints, the exact queries; returns whether any env is unsafe."""
+        box, need = self._box, self._need
         if self.torque is not None:
             self.torque.beyond_limits(box, self.beyond)
         beyond = False  # a position servo has no drive model: beyond stays all False
@@ -385,27 +348,71 @@ class MotionEnvelope:
             self._dirty |= bool(self.unsafe.any())
         return self._dirty
 
-    def _query(self, q, before, after, box, need) -> None:
-        """Certify with Pinocchio the envs the screen marked in ``need``; mark the others in
-        :attr:`unsafe` and their joints in :attr:`joints`."""
-        c, h = box[0], box[1]
-        for e in np.flatnonzero(need[ek.COLLISION]):
-            d = self._clearance[e, : self.pairs]
-            d[:] = self.distances(c[e])
-            self._speeds[e] = self.local.speeds(c[e])
-            self._cached_q[ek.COLLISION, e] = c[e]
-            if not self._certified(ek.COLLISION, c[e], h[e], d, self._speeds[e]):
-                if not self._passes(ek.COLLISION, e, q, before, after):
-                    self.unsafe[ek.COLLISION, e] = True
-                    self._mark_joints(ek.COLLISION, e, c[e], h[e], d)
-        for e in np.flatnonzero(need[ek.WORKSPACE]):
-            inside = self._clearance[e, self.pairs :]
-            inside[:] = self.workspace_margin(c[e])
-            self._cached_q[ek.WORKSPACE, e] = c[e]
-            if not self._certified(ek.WORKSPACE, c[e], h[e], inside):
-                if not self._passes(ek.WORKSPACE, e, q, before, after):
-                    self.unsafe[ek.WORKSPACE, e] = True
-                    self._mark_joints(ek.WORKSPACE, e, c[e], h[e], inside)
+    def certify(self, q, dq, before, after, stopping, effort_scale, command) -> bool:
+        """:meth:`check` of the smoother's step and, unless some env is unsafe, :meth:`commit`
+        of ``command`` (envs, n): one compiled call (:func:`sim2real.deploy.safety.envelope_kernel.
+        certify`, bound to the arrays of the last call, :mod:`sim2real.deploy.safety.bound`) where
+        the screen certifies every env, besides a velocity drive's Pinocchio calls. Arguments as
+        :meth:`check`'s (``dq`` and ``command`` required).
+
+        Returns:
+            Whether any env is unsafe (:attr:`unsafe`, :attr:`joints`, :attr:`beyond` as after
+            :meth:`check`): the caller brakes those envs and commits the command itself.
+        """
+        if self.torque is None:
+            key, drive = self._certify_key, self.drive
+            if (
+                q is not key[0] or dq is not key[1] or before is not key[2]
+                or after is not key[3] or stopping is not key[4] or effort_scale is not key[5]
+                or command is not key[6] or self.tables is not key[7]
+                or self.margin is not key[8]
+                or (drive is not None and drive._variance is not key[9])
+            ):  # fmt: skip
+                self._bind_certify(q, dq, before, after, stopping, effort_scale, command)
+            if self._dirty:
+                self._clear()
+            if drive is not None:
+                self._dynamics()
+            code = self._certify()
+            if not code:
+                return False  # certified and committed
+            if drive is not None:
+                before, after = self._drive_path[0], self._drive_path[1]
+                self._drive_beyond = bool(code & ek.BEYOND)
+            dirty = self._decide(q, before, after, stopping, bool(code & ek.UNCERTAIN))
+        else:
+            dirty = self.check(q, before, after, stopping, effort_scale, dq=dq, command=command)
+        if not dirty:
+            self.commit(command)
+        return dirty
+
+    def _bind_certify(self, q, dq, before, after, stopping, effort_scale, command) -> None:
+        """Bind :meth:`certify`'s kernel to these arrays (and the velocity drive's Pinocchio
+        calls to ``q``)."""
+        drive = self.drive
+        self._screen = self._screen._replace(margin=self.margin, **self._tables_dict())
+        arrays = self._drive_arrays(q) if drive is not None else None
+        args = (q, dq, before, after, stopping, effort_scale, command)
+        self._certify = bind(ek.certify, *args, self._screen, arrays)
+        variance = drive._variance if drive is not None else None
+        self._certify_key = (*args, self.tables, self.margin, variance)
+
+    def _drive_arrays(self, q) -> ek.DriveArrays:
+        """The velocity drive's :class:`~sim2real.deploy.safety.envelope_kernel.DriveArrays`
+        for the estimate ``q`` (its Pinocchio calls bound to it: ``_dynamics``)."""
+        drive = self.drive
+        self._dynamics, gravity, mass = drive.dynamics_at(q)
+        return ek.DriveArrays(
+            drive.setpoint, gravity, mass, drive._joint, drive._variance, drive._uncertainty,
+            drive.dt, drive.lower, drive.upper, self._drive_path, self.beyond,
+        )  # fmt: skip
+
+    def _tables_dict(self) -> dict:
+        """The pair tables' arrays (:class:`sim2real.deploy.safety.pair_grid.PairTables`) by their
+        names in :class:`~sim2real.deploy.safety.envelope_kernel.ScreenArrays`."""
+        return dict(
+            zip(("joint", "grid", "cells", "offset", "values"), self.tables.arrays(), strict=True)
+        )
 
     def _drive_motion(self, q, dq, before, after, effort_scale, stopping):
         """A velocity drive's motion (:mod:`sim2real.deploy.safety.drive`): the smoother's state before and
@@ -432,133 +439,3 @@ class MotionEnvelope:
             self.drive.integrate(command)
         elif self.torque is not None:
             self.torque.commit(command)
-
-    def _mark_joints(self, kind: int, e: int, centre, half, value) -> None:
-        """Mark in :attr:`joints` the joints of env ``e`` that move a quantity of ``kind`` the
-        box could not certify (a pair's weight, or the end effector's lever, above zero): only
-        they are braked; the others leave that quantity as it is."""
-        rows = slice(None, self.pairs) if kind == ek.COLLISION else slice(self.pairs, None)
-        uncertain = self._lower_bounds(kind, centre, half, value) <= self.margin
-        self.joints[e] |= (self.weights[rows][uncertain] > 0.0).any(axis=0)
-
-    def _passes(self, kind: int, e: int, q, before, after) -> bool:
-        """Env ``e``'s motion, which its whole box could not certify: certified segment by
-        segment (:meth:`_path_certified`), or a robot already within the margin moving back out
-        (:meth:`_escapes_contact`, :meth:`_escapes_box`)."""
-        start, end, box = before[0, e], after[0, e], self._box[:, e]
-        rest, share, reversal = box[2], box[3], box[4]
-        if self._path_certified(
-            kind, q[e], start, end, after[1, e], after[2, e], share, reversal, self._slack[e]
-        ):
-            return True
-        if kind == ek.COLLISION:
-            return self._escapes_contact(start, end, rest)
-        return self._escapes_box(start, end, rest)
-
-    def _reach(self, kind: int, centre, half, speeds=None) -> np.ndarray:
-        """How far each quantity of ``kind`` can shrink in the box ``centre +- half`` (n,) rad:
-        for the pairs the local bound (:func:`sim2real.deploy.safety.envelope_kernel.pairs_reach`; ``speeds``
-        (pairs, n) m/rad :meth:`sim2real.deploy.safety.local_reach.LocalReach.speeds` at the centre,
-        computed when not given), never above the chain bound ``weights @ half``; for the
-        workspace margins the chain bound or the local bound
-        ``|J(c)| @ half + half @ L @ half / 2`` (``J`` the end effector's translation Jacobian
-        at the centre, ``L_ij = min(lever_i, lever_j)`` a bound of the second derivatives of
-        its position along a chain of revolute joints), whichever is smaller."""
-        if kind == ek.COLLISION:
-            if speeds is None:
-                speeds = self.local.speeds(centre)
-            local, out = self.local, np.empty(self.pairs)
-            return ek.pairs_reach(self.weights, speeds, half, local.order, local.nest, out)
-        reach = self.weights[self.pairs :] @ half
-        jacobian = pin.computeFrameJacobian(
-            self.model, self.data, centre, self.robot.ee_frame_id, pin.LOCAL_WORLD_ALIGNED
-        )[:3]
-        local = np.abs(jacobian) @ half + 0.5 * half @ self._curvature @ half
-        local += self._error_weight @ half  # the error bound's change over the box
-        return np.minimum(reach, local)
-
-    def _lower_bounds(self, kind: int, centre, half, value, speeds=None) -> np.ndarray:
-        """m, a lower bound of each quantity of ``kind`` (the pairs' distances, or the workspace
-        margins; ``value`` at the centre) over the box ``centre +- half`` (n,) rad: ``value``
-        less :meth:`_reach` (``speeds`` as there); for a pair with a table, its bound over the box
-        (:func:`sim2real.deploy.safety.pair_grid.table_bound`) where that is higher."""
-        bound = value - self._reach(kind, centre, half, speeds)
-        if kind == ek.COLLISION:
-            for p in np.flatnonzero(self.tables.offset[:, 0] >= 0):
-                table = table_bound(self.tables, p, centre, half, self.weights[p])
-                bound[p] = np.fmax(bound[p], table)
-        return bound
-
-    def _certified(self, kind: int, centre, half, value, speeds=None) -> bool:
-        """Whether the box ``centre +- half`` (n,) rad keeps every quantity of ``kind`` (the
-        pairs' distances, or the workspace margins; ``value`` at the centre) above the margin
-        (:meth:`_lower_bounds`, ``speeds`` as there). Without ``speeds``, the chain bound is
-        tried first (the local bound is never lower: the same answer, without the speeds'
-        Pinocchio call where the chain bound suffices)."""
-        if kind == ek.COLLISION and speeds is None:
-            chain = self._lower_bounds(kind, centre, half, value, self.weights[: self.pairs])
-            if np.all(chain > self.margin):
-                return True
-        bound = self._lower_bounds(kind, centre, half, value, speeds)
-        return bool(np.all(bound > self.margin))
-
-    def _path_certified(
-        self, kind: int, q, start, end, velocity, acceleration, share, reversal, widen
-    ) -> bool:
-        """Whether the motion is safe segment by segment: the step (``start`` to ``end``, with
-        the estimate ``q``), then the brake from ``end`` at ``velocity``, ``acceleration`` (n,)
-        cut into :data:`PATH_SEGMENTS` by time; each joint moves monotonically within a brake
-        segment (up to ``reversal`` (n,) rad, the ``back`` of
-        :func:`sim2real.deploy.safety.envelope_kernel.brake_reach`), so the boxes of the segments cover the
-        path that the whole box over-covers. The brake is Ruckig's own (velocity interface to
-        rest; deceleration times ``share`` (n,), the derated drives' headroom, as the kernel
-        computed both)."""
-        query = self.distances if kind == ek.COLLISION else self.workspace_margin
-        inp = self._path_inp
-        inp.current_position = end
-        inp.current_velocity = velocity
-        inp.current_acceleration = acceleration
-        inp.max_acceleration = self.limits[0] * share
-        try:
-            result = self._path_ruckig.calculate(inp, self._path)
-        except RuckigError:
-            return False
-        if result not in (Result.Working, Result.Finished):
-            return False
-        times = np.linspace(0.0, self._path.duration, PATH_SEGMENTS + 1)
-        points = [np.asarray(self._path.at_time(t)[0]) for t in times]
-        # the joints lag their command (a position servo): each segment also holds the points
-        # up to the present lag behind it
-        slack = reversal + np.abs(q - start)
-        segments = [
-            (
-                np.minimum(np.minimum(q, start), end) - widen,
-                np.maximum(np.maximum(q, start), end) + widen,
-            )
-        ]
-        for a, b in zip(points[:-1], points[1:], strict=True):
-            segments.append((np.minimum(a, b) - slack, np.maximum(a, b) + slack))
-        for lo, hi in segments:
-            c, h = 0.5 * (lo + hi), 0.5 * (hi - lo)
-            if not self._certified(kind, c, h, query(c)):
-                return False
-        return True
-
-    def _escapes_contact(self, start, end, rest) -> bool:
-        """Whether a robot already within the margin at ``start`` moves back out: no pair's
-        distance at the step's ``end`` or the brake's ``rest`` below its distance at ``start``,
-        and no pair brought within the margin. False when ``start`` is clear of the margin (the
-        motion, not the pose, is what fails)."""
-        d0 = self.distances(start)
-        if d0.min() > self.margin:
-            return False
-        floor = np.where(d0 > self.margin, self.margin, d0 + self._escape) - DISTANCE_TOLERANCE
-        return bool(np.all(self.distances(end) >= floor) and np.all(self.distances(rest) >= floor))
-
-    def _escapes_box(self, start, end, rest) -> bool:
-        """:meth:`_escapes_contact` for the workspace box: the margin inside it may not shrink."""
-        m0 = self.workspace_margin(start).min()
-        if m0 > self.margin:
-            return False
-        m0 += self._escape - DISTANCE_TOLERANCE
-        return self.workspace_margin(end).min() >= m0 and self.workspace_margin(rest).min() >= m0

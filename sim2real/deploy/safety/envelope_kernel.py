@@ -12,12 +12,18 @@ new state (:func:`brake_reach`, with a derated drive's deceleration, :func:`brak
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
 
+from sim2real.deploy.safety import drive_kernel as dk
+
 #: Rows of ``need``.
 COLLISION, WORKSPACE = 0, 1
+#: Bits of :func:`certify`'s code: some env needs an exact query; a velocity drive may run past
+#: its limit (``beyond``).
+UNCERTAIN, BEYOND = 1, 2
 #: Most cells per joint a pair table's lookup reads (our choice): a wider box reads a coarser
 #: level (:mod:`sim2real.deploy.safety.pair_grid`). Here, not there: numba's cache of this module's kernels
 #: is keyed on this file.
@@ -265,6 +271,90 @@ def envelope_screen(
                 need[row, e] = True
                 any_need = True
     return any_need
+
+
+class ScreenArrays(NamedTuple):
+    """The motion envelope's arrays of :func:`envelope_screen`, its arguments from ``limits`` on
+    (shapes and units there), made once and updated in place."""
+
+    limits: np.ndarray
+    cached_q: np.ndarray
+    clearance: np.ndarray
+    weights: np.ndarray
+    margin: float
+    box: np.ndarray
+    need: np.ndarray
+    joint: np.ndarray
+    grid: np.ndarray
+    cells: np.ndarray
+    offset: np.ndarray
+    values: np.ndarray
+    speeds: np.ndarray
+    order: np.ndarray
+    nest: np.ndarray
+    slack: np.ndarray
+    lead: np.ndarray
+
+
+class DriveArrays(NamedTuple):
+    """A velocity drive's arrays of :func:`sim2real.deploy.safety.drive_kernel.velocity_drive_motion`
+    and :func:`~sim2real.deploy.safety.drive_kernel.integrate` (shapes and units there), and
+    ``path`` (2, 3, envs, n): the smoother's state before and after its step with the drives'
+    equilibrium as the position (:meth:`sim2real.deploy.safety.envelope.MotionEnvelope.check`)."""
+
+    setpoint: np.ndarray
+    gravity: np.ndarray
+    mass: np.ndarray
+    joint: np.ndarray
+    variance: np.ndarray
+    uncertainty: np.ndarray
+    dt: float
+    lower: np.ndarray
+    upper: np.ndarray
+    path: np.ndarray
+    beyond: np.ndarray
+
+
+@numba.njit(cache=True, nogil=True)
+def certify(q, dq, before, after, stopping, effort_scale, command, s, d) -> int:
+    """One tick of :meth:`sim2real.deploy.safety.envelope.MotionEnvelope.certify` in one call: with
+    a velocity drive (``d`` its :class:`DriveArrays`, gravity and mass matrix at ``q`` already
+    computed; None for a position servo, a specialization without the drive's code) the drive's
+    motion (``d.path``, ``s.slack``, ``s.lead``, ``d.beyond``), then :func:`envelope_screen`
+    (``s`` its :class:`ScreenArrays`) of that motion or, without a drive, of the smoother's
+    ``before`` and ``after`` (3, envs, n). Returns
+    the bits :data:`UNCERTAIN` and :data:`BEYOND`; when neither is set the motion is certified
+    and the drive's integrators take ``command`` (envs, n) rad/s (the envelope's commit).
+    ``q``, ``dq`` (envs, n) the estimate; ``stopping`` (envs,) bool; ``effort_scale`` (envs, n).
+
+    It calls the kernels of :mod:`sim2real.deploy.safety.drive_kernel`: numba's cache of this
+    function is keyed on this file, so after editing those delete
+    ``sim2real/deploy/safety/__pycache__``."""
+    code = 0
+    start, end = before, after
+    if d is not None:  # numba prunes the branch for d None
+        path = d.path
+        for r in range(3):
+            for e in range(q.shape[0]):
+                for i in range(q.shape[1]):
+                    path[0, r, e, i] = before[r, e, i]
+                    path[1, r, e, i] = after[r, e, i]
+        if dk.velocity_drive_motion(
+            d.setpoint, q, dq, after[1], after[2], d.gravity, d.mass, effort_scale, d.joint,
+            s.limits, d.variance, d.uncertainty, d.dt, path[0, 0], path[1, 0], s.slack, s.lead,
+            d.beyond, stopping,
+        ):  # fmt: skip
+            code |= BEYOND
+        start, end = path[0], path[1]
+    if envelope_screen(
+        q, start, end, stopping, s.limits, effort_scale, s.cached_q, s.clearance, s.weights,
+        s.margin, s.box, s.need, s.joint, s.grid, s.cells, s.offset, s.values, s.speeds,
+        s.order, s.nest, s.slack, s.lead,
+    ):  # fmt: skip
+        code |= UNCERTAIN
+    if d is not None and code == 0:
+        dk.integrate(d.setpoint, command, d.dt, d.lower, d.upper)
+    return code
 
 
 def warm_up() -> None:

@@ -34,6 +34,7 @@ from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import put, take
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.safety import kernel as gk
+from sim2real.deploy.safety.bound import bind
 from sim2real.deploy.safety.check import (
     ACC,
     EFFORT,
@@ -176,6 +177,9 @@ class SafetyGuard:
         self._over = np.zeros((envs, n))  # torque mode: rad/s above each joint's band
         self._under = np.zeros((envs, n))  # and below it (sim2real.deploy.safety.velocity)
         self._arrays = self._kernel_arrays()
+        # the kernel's phases bound to the arrays of the last filter (_filter)
+        self._bound_key = (None, None, None, None)
+        self._phase0 = self._phase1 = None
         self._warm_up()
 
     def _kernel_arrays(self) -> gk.GuardArrays:
@@ -208,6 +212,8 @@ class SafetyGuard:
             fired=np.zeros((len(CHECKS), envs), dtype=bool),
             needs=self._needs,
             stops=np.array([c.stops for c in GUARD_CHECKS]),
+            geometric=np.array(self._geometric_rows, dtype=np.int64),
+            counted=self._counted,
             own=tuple(np.ascontiguousarray(c.constants(self)) for c in GUARD_CHECKS),
         )
 
@@ -389,18 +395,27 @@ class SafetyGuard:
             out = target.copy()
         elif out is not target:
             np.copyto(out, target)
-        for k, r in enumerate(self._geometric_rows):
-            self._counted[k] = self.count_matrix[r]
         return self._filter(state.q, state.dq, commanded_position, out)
 
     def _filter(self, q: np.ndarray, dq: np.ndarray, commanded: np.ndarray | None, out):
-        """:meth:`filter` with the kernel: phase 0, the checks' Python parts, phase 1."""
-        has = commanded is not None
-        args = (out, q, dq, commanded if has else q, has, self._arrays)
-        if gk.guard_filter(0, *args):
+        """:meth:`filter` with the kernel: phase 0 (which first notes the count rows
+        :meth:`check_motion` shares in ``_counted``), the checks' Python parts, phase 1. The
+        kernel's calls are bound (:mod:`sim2real.deploy.safety.bound`) to the arrays of the last
+        call: a runtime passes the same ones every tick."""
+        key = self._bound_key
+        if out is not key[0] or q is not key[1] or dq is not key[2] or commanded is not key[3]:
+            self._bind_filter(out, q, dq, commanded)
+        if self._phase0():
             self._resolve(self._needs, q, dq, out)
-            gk.guard_filter(1, *args)
+            self._phase1()
         return out
+
+    def _bind_filter(self, out, q, dq, commanded) -> None:
+        """Bind the kernel's phases to these arrays (:meth:`_filter`)."""
+        args = (out, q, dq, q if commanded is None else commanded, commanded is not None)
+        self._phase0 = bind(gk.guard_filter, 0, *args, self._arrays)
+        self._phase1 = bind(gk.guard_filter, 1, *args, self._arrays)
+        self._bound_key = (out, q, dq, commanded)
 
     def _resolve(self, needs: np.ndarray, q: np.ndarray, dq: np.ndarray, out) -> None:
         """The Python (Pinocchio) parts of the checks, in count-row order, for the envs each
@@ -435,15 +450,15 @@ class SafetyGuard:
         envelope = self.envelope
         if envelope is None:
             return command
-        if envelope.check(
+        if envelope.certify(
             state.q,
+            state.dq,
             smoother.before,
             smoother.trajectory,
             smoother.stopping,
             self.effort_scale,
-            dq=state.dq,
-            command=command,
-        ):
+            command,
+        ):  # some env unsafe: brake it, then commit the command (certify committed otherwise)
             unsafe = envelope.unsafe
             braked = unsafe[0] | unsafe[1] | envelope.beyond
             for k, (r, fired) in enumerate(
@@ -457,7 +472,7 @@ class SafetyGuard:
             else:
                 smoother.brake(braked, envelope.joints)
                 command[braked] = smoother.command[braked]
-        envelope.commit(command)
+            envelope.commit(command)
         return command
 
     def _hold(self, e: int, q: np.ndarray, dq: np.ndarray, out: np.ndarray) -> None:

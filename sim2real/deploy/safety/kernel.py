@@ -1,8 +1,9 @@
 """Kernel of :meth:`sim2real.deploy.safety.guard.SafetyGuard.filter`: everything but the Pinocchio calls.
 
-Phase 0 runs, env by env, the stages of :mod:`sim2real.deploy.safety.check` through every registered check
-(:data:`sim2real.deploy.safety.checks.KERNELS`, unrolled in count-row order) and the prediction of the
-next state between them, then counts each check that fired. It returns :data:`NEEDS_PYTHON` when
+Phase 0 notes the count rows the motion envelope shares (``g.counted``), then runs, env by env,
+the stages of :mod:`sim2real.deploy.safety.check` through every registered check
+(:data:`sim2real.deploy.safety.checks.KERNELS`, unrolled in count-row order) and the prediction of
+the next state between them, then counts each check that fired. It returns :data:`NEEDS_PYTHON` when
 some check asked for its Pinocchio part (``g.needs``); otherwise it goes on with phase 1, which
 keeps the last accepted target (position mode) and runs the :data:`FINAL` stage.
 
@@ -58,6 +59,8 @@ class GuardArrays(NamedTuple):
     fired: np.ndarray  # (K, envs) bool: work
     needs: np.ndarray  # (K, envs) bool: which checks' Python part must run for which env
     stops: np.ndarray  # (K,) bool: the check's firing is a hard violation
+    geometric: np.ndarray  # (3,) int64: the count rows the motion envelope also counts in
+    counted: np.ndarray  # (3, envs) int64: those rows when phase 0 began
     own: tuple  # K arrays (rows, n) float64: each check's constants
 
 
@@ -92,6 +95,10 @@ def guard_filter(phase, out, q, dq, commanded, has_commanded, g) -> int:
     if phase == 0:
         dt = g.scalars[DT]
         python = False
+        for k in range(g.geometric.shape[0]):
+            r = g.geometric[k]
+            for e in range(envs):
+                g.counted[k, e] = g.counts[r, e]
         for e in range(envs):
             g.hard_violation[e] = False
             g.held[e] = False

@@ -35,6 +35,8 @@ class ReferenceGuard(SafetyGuard):
 
     def _filter(self, q: np.ndarray, dq: np.ndarray, commanded: np.ndarray | None, out):
         """:meth:`SafetyGuard.filter` in numpy: the stages of :mod:`sim2real.deploy.safety.check`."""
+        for k, r in enumerate(self._geometric_rows):  # the rows check_motion shares
+            self._counted[k] = self.count_matrix[r]
         fired = np.zeros((len(GUARD_CHECKS), self.envs), dtype=bool)
         needs = np.zeros_like(fired)
         self._held[:] = False

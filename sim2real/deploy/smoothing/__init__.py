@@ -16,13 +16,13 @@ The package, one module per concept (each module's docstring says what it holds)
 ========================  ====================================================================
 module                    what it holds
 ========================  ====================================================================
-:mod:`~.smoother`         :class:`CommandSmoother`: its limits and work arrays, sync, safe stop,
-                          the step (the compiled kernels around Ruckig), tracking error and
-                          anchor; ``TORQUE_RISE_TIME``, ``EXTREMA_SCREEN_FACTOR``
+:mod:`~.smoother`         :class:`CommandSmoother`: limits, work arrays, sync, safe stop, the step
+                          (the compiled kernels around Ruckig), tracking error;
+                          ``TORQUE_RISE_TIME``, ``EXTREMA_SCREEN_FACTOR``
 :mod:`~.ruckig_state`     Ruckig inside the smoother: the call and its errors
                           (:class:`SmoothingError`), the control interfaces, the extrema of its
-                          trajectories, and the state dict that restores Ruckig's input
-                          (``RUCKIG_INPUT_FIELDS``, ``EXTREMA_TOLERANCE``)
+                          trajectories, the anchor, the brake, and the state dict that restores
+                          Ruckig's input (``RUCKIG_INPUT_FIELDS``, ``EXTREMA_TOLERANCE``)
 :mod:`~.reference`        :class:`~.reference.ReferenceSmoother`, the numpy reference of the step:
                           the clamps, counters and velocity-mode stopping guards
 :mod:`~.braking`          the stopping math of a jerk-limited joint: :func:`stopping_distance`,

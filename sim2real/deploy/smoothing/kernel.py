@@ -23,9 +23,9 @@ import numpy as np
 
 from sim2real.deploy.kernels import np_max, np_min
 
-#: Rows of ``w``.
-RAW, HELD, GOAL, CMD, POS, VEL, ACC, MEAN_ACC, CMD_POSITION = range(9)
-W_ROWS = 9
+#: Rows of ``w``; ``BEFORE`` and the two after it: ``POS``, ``VEL``, ``ACC`` before the step.
+RAW, HELD, GOAL, CMD, POS, VEL, ACC, MEAN_ACC, CMD_POSITION, BEFORE = range(10)
+W_ROWS = 12
 #: Rows of ``c``.
 LO, HI, VMAX, AMAX, EMAX, RATE, SCREEN_LO, SCREEN_HI, C, C2, EIGHT_A = range(11)
 JDT, JDT2_2, JDT3_6, INV_J, INV_2J, INV_2A, A_2J = range(11, 18)
@@ -94,11 +94,17 @@ def before_ruckig(
     counts: np.ndarray,
     stop_dof: np.ndarray,
     dt: float,
+    out: np.ndarray,
 ) -> None:
-    """Targets in, Ruckig's next target in ``w[GOAL]`` out (torque mode: the command in
-    ``w[CMD]``). ``target`` (envs, n) in the units of the mode, read when ``has_target``;
-    ``stop_dof`` (dofs,) bool, the DoFs in safe stop; ``dt`` the control period, s."""
+    """Ruckig's state (``w[POS:ACC + 1]``) noted in ``w[BEFORE:BEFORE + 3]``; targets in,
+    Ruckig's next target in ``w[GOAL]`` out (torque mode: the command in ``w[CMD]`` and in
+    ``out`` (envs, n)). ``target`` (envs, n) in the units of the mode, read when
+    ``has_target``; ``stop_dof`` (dofs,) bool, the DoFs in safe stop; ``dt`` the control
+    period, s."""
     dofs = w.shape[1]
+    for r in range(3):
+        for i in range(dofs):
+            w[BEFORE + r, i] = w[POS + r, i]
     if has_target:
         n = target.shape[1]
         for i in range(dofs):
@@ -122,6 +128,7 @@ def before_ruckig(
                 counts[TARGET_CLAMPS, i] += 1
             d = np_min(np_max(g - w[CMD, i], -c[RATE, i]), c[RATE, i])
             w[CMD, i] = w[CMD, i] + d
+        _command_out(w, out)
         return
     for i in range(dofs):
         w[MEAN_ACC, i] = w[VEL, i]  # Ruckig's velocity before the step
@@ -161,8 +168,22 @@ def before_ruckig(
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
+def _command_out(w: np.ndarray, out: np.ndarray) -> None:
+    """``w[CMD]`` into ``out`` (envs, n)."""
+    n = out.shape[1]
+    for i in range(w.shape[1]):
+        out[i // n, i % n] = w[CMD, i]
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def after_ruckig(
-    mode: int, new_calculation: bool, w: np.ndarray, c: np.ndarray, inv_dt: float, near: np.ndarray
+    mode: int,
+    new_calculation: bool,
+    w: np.ndarray,
+    c: np.ndarray,
+    inv_dt: float,
+    near: np.ndarray,
+    out: np.ndarray,
 ) -> bool:
     """After Ruckig's update.
 
@@ -171,7 +192,7 @@ def after_ruckig(
     ``w[POS]`` (velocity mode) and ``w[ACC]``. Position mode: ``near`` (dofs,) bool marks the DoFs
     whose trajectory extrema Python must check (only on a ``new_calculation``); returns whether
     any. Then the command is clipped (position mode), the commanded position and the mean
-    acceleration over the step (rad/s^2) written."""
+    acceleration over the step (rad/s^2) written, and the command copied to ``out`` (envs, n)."""
     dofs = w.shape[1]
     any_near = False
     if mode == POSITION:
@@ -192,4 +213,5 @@ def after_ruckig(
             w[CMD_POSITION, i] = w[POS, i]
     for i in range(dofs):
         w[MEAN_ACC, i] = (w[VEL, i] - w[MEAN_ACC, i]) * inv_dt
+    _command_out(w, out)
     return any_near

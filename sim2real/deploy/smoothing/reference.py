@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim2real.deploy.smoothing import kernel as sk
 from sim2real.deploy.smoothing.smoother import CommandSmoother
 
 
@@ -27,6 +28,7 @@ class ReferenceSmoother(CommandSmoother):
 
     def _step(self, target: np.ndarray | None, out: np.ndarray | None) -> np.ndarray:
         """:meth:`step` after its checks, in numpy."""
+        np.copyto(self._before, self._w[sk.POS : sk.ACC + 1])
         raw, mask = self._raw, self._mask
         if target is not None:
             np.copyto(self._raw2d, target)

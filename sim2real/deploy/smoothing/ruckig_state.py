@@ -1,5 +1,6 @@
 """Ruckig inside the :class:`~sim2real.deploy.smoothing.CommandSmoother`: the call and its errors, the
-per-DoF control interfaces, the extrema of its trajectories, and the smoother's state dict.
+per-DoF control interfaces, the extrema of its trajectories, the anchor of its integrated
+position (velocity mode), the brake, and the smoother's state dict.
 
 Ruckig keeps the trajectory it calculated inside the ``Ruckig`` object, which its Python binding
 can neither read nor set: the state dict holds Ruckig's input (``RUCKIG_INPUT_FIELDS``) beside the
@@ -33,6 +34,8 @@ RUCKIG_INPUT_FIELDS = (
 #: beyond it (rounding); the check ignores excursions below this (the finest encoder of our robots
 #: resolves 2 pi / 2^20 = 6e-6 rad).
 EXTREMA_TOLERANCE = 1e-9
+# Ruckig's results of a good update (module constants: an enum member's lookup costs per tick)
+_WORKING, _FINISHED = Result.Working, Result.Finished
 
 
 class SmoothingError(Sim2RealError, RuntimeError):
@@ -121,6 +124,45 @@ class RuckigState:
             self._set_interfaces()
         self.recalculate()
 
+    # ------------------------------------------------------------------ the anchor
+    def anchor(self, q: np.ndarray, tolerance: float, out: np.ndarray | None = None) -> np.ndarray:
+        """Velocity mode: keep Ruckig's integrated position within ``tolerance`` of ``q``.
+
+        Ruckig integrates its own velocity commands. A drive that cannot follow them (its torque
+        saturates, an obstacle or a push holds the joint; its anti-windup then holds its own
+        integrator back) leaves the joint behind that integral for good, and without an anchor
+        the gap only grows over hours of operation: the soft-limit brake and the guard's
+        stopping bounds, which read this position, then stop the joint in parts of its range
+        it is nowhere near. Each joint's position is clamped into ``[q - tolerance,
+        q + tolerance]``; velocity and acceleration are untouched, so the velocity command stays
+        continuous. A no-op in position and torque mode (position mode re-syncs through
+        :meth:`tracking_error`).
+
+        Args:
+            q: (envs, n) measured (estimated) joint positions, rad.
+            tolerance: rad, the largest lag of the drive behind its command accepted as
+                tracking (:data:`sim2real.deploy.runtime.VELOCITY_TRACKING_TOLERANCE` in the runtime).
+            out: Optional (envs,) int64 array; 1 where an env's position was moved, else 0.
+
+        Returns:
+            (envs,) int64, 1 for the envs whose position was moved.
+        """
+        out = np.zeros(self.envs, dtype=np.int64) if out is None else out
+        out.fill(0)
+        if self.mode != "velocity":
+            return out
+        pos, tmp = self.position, self._tmp2d
+        np.subtract(pos, q, out=tmp)
+        np.abs(tmp, out=tmp)
+        if tmp.max() <= tolerance:  # the common case
+            return out
+        np.greater(tmp, tolerance, out=self._mask.reshape(pos.shape))
+        out += self._mask.reshape(pos.shape).any(axis=1)
+        np.minimum(np.maximum(pos, q - tolerance, out=pos), q + tolerance, out=pos)
+        self._inp.current_position = self._pos
+        np.copyto(self._cmd_position, self._pos)
+        return out
+
     # ------------------------------------------------------------------ the brake
     def brake(self, envs: np.ndarray, joints: np.ndarray | None = None) -> None:
         """Replace the last step of the selected envs by a brake: one control period of Ruckig's
@@ -198,7 +240,7 @@ class RuckigState:
             result = self._ruckig.update(self._inp, self._out)
         except RuckigError as exc:
             raise SmoothingError(f"Ruckig rejected the input: {exc}") from exc
-        if result != Result.Working and result != Result.Finished:
+        if result is not _WORKING and result is not _FINISHED:  # enum members: singletons
             raise SmoothingError(
                 f"Ruckig returned {result!r}: current position {self._pos.tolist()}, velocity "
                 f"{self._vel.tolist()}, acceleration {self._acc.tolist()}, targets "

@@ -17,6 +17,7 @@ from ruckig import (
     Trajectory,
 )
 
+from sim2real.deploy.safety.bound import bind
 from sim2real.deploy.smoothing import kernel as sk
 from sim2real.deploy.smoothing.braking import stopping_distance
 from sim2real.deploy.smoothing.ruckig_state import RuckigState, SmoothingError
@@ -162,7 +163,7 @@ class CommandSmoother(RuckigState):
         self._goal = w[sk.GOAL]
         # Ruckig's state (position, velocity, acceleration) before the last step: the start of
         # the brake that may replace it (brake) and of the guard's motion envelope
-        self._before = np.zeros((3, dofs))
+        self._before = w[sk.BEFORE : sk.BEFORE + 3]
         self.before = self._before.reshape(3, envs, n)
         self._tmp = np.zeros(dofs)
         self._tmp2d = self._tmp.reshape(shape)
@@ -190,6 +191,8 @@ class CommandSmoother(RuckigState):
         c[sk.INV_J], c[sk.INV_2J] = self._inv_j, self._inv_2j
         c[sk.INV_2A], c[sk.A_2J] = self._inv_2a, self._a_2j
         self._c_rows = c
+        # the kernels bound to the target and out of the last step (_step); unbound yet
+        self._bound_target = self._bound_out = self
         self._warm_up()
 
         if mode != "torque":
@@ -236,8 +239,11 @@ class CommandSmoother(RuckigState):
                 self._counts.copy(),
                 self._stop_dof.copy(),
                 self.control_period,
+                np.zeros(shape),
             )
-        sk.after_ruckig(self._kernel_mode, True, w.copy(), c, self._inv_dt, self._mask.copy())
+        sk.after_ruckig(
+            self._kernel_mode, True, w.copy(), c, self._inv_dt, self._mask.copy(), np.zeros(shape)
+        )
 
     @property
     def commanded(self) -> np.ndarray:
@@ -409,45 +415,52 @@ class CommandSmoother(RuckigState):
             raise RuntimeError("CommandSmoother.step before reset(q, dq)")
         if target is not None and target.shape != self.command.shape:
             raise ValueError(f"target: expected shape {self.command.shape}, got {target.shape}")
-        np.copyto(self._before, self._w[sk.POS : sk.ACC + 1])
         return self._step(target, out)
 
     def _step(self, target: np.ndarray | None, out: np.ndarray | None) -> np.ndarray:
         """:meth:`step` after its checks: the kernels of :mod:`sim2real.deploy.smoothing.kernel` around
-        Ruckig."""
-        mode, w = self._kernel_mode, self._w
-        has = target is not None
-        sk.before_ruckig(
-            mode,
-            target if has else self.command,
-            has,
-            w,
-            self._c_rows,
-            self._counts,
-            self._stop_dof,
-            self.control_period,
-        )
+        Ruckig (which also note Ruckig's state before the step in :attr:`before` and write the
+        command to ``out``), bound (:mod:`sim2real.deploy.safety.bound`) to the arrays of the last
+        call: a runtime passes the same ones every tick."""
+        if target is not self._bound_target or out is not self._bound_out:
+            self._bind_step(target, out)
+        self._before_ruckig()
+        mode = self._kernel_mode
         if mode != sk.TORQUE:
-            result = self._out
+            inp, result, w = self._inp, self._out, self._w
             if mode == sk.POSITION:
-                self._inp.target_position = self._goal.tolist()  # pybind converts a list faster
+                inp.target_position = self._goal.tolist()  # pybind converts a list faster
                 self._update()
-                self._cmd[:] = result.new_position
-                self._vel[:] = result.new_velocity
+                w[sk.CMD] = result.new_position
+                w[sk.VEL] = result.new_velocity
+                w[sk.ACC] = result.new_acceleration
+                near = self._after_new() if result.new_calculation else self._after_ruckig()
+                if near:
+                    self._count_extrema()
             else:
-                self._inp.target_velocity = self._goal.tolist()  # pybind converts a list faster
+                inp.target_velocity = self._goal.tolist()  # pybind converts a list faster
                 self._update()
-                self._cmd[:] = result.new_velocity
-                self._pos[:] = result.new_position
-            self._acc[:] = result.new_acceleration
-            new = mode == sk.POSITION and result.new_calculation
-            if sk.after_ruckig(mode, new, w, self._c_rows, self._inv_dt, self._mask):
-                self._count_extrema()
-            result.pass_to_input(self._inp)
-        if out is None:
-            return self.command
-        np.copyto(out, self.command)
-        return out
+                w[sk.CMD] = result.new_velocity
+                w[sk.POS] = result.new_position
+                w[sk.ACC] = result.new_acceleration
+                self._after_ruckig()
+            result.pass_to_input(inp)
+        return self.command if out is None else out
+
+    def _bind_step(self, target: np.ndarray | None, out: np.ndarray | None) -> None:
+        """Bind the kernels of :meth:`_step` to ``target`` and ``out`` (either may be None)."""
+        has = target is not None
+        dest = self.command if out is None else out
+        mode, w, c, mask = self._kernel_mode, self._w, self._c_rows, self._mask
+        inv_dt = self._inv_dt
+        self._before_ruckig = bind(
+            sk.before_ruckig, mode, target if has else self.command, has, w, c, self._counts,
+            self._stop_dof, self.control_period, dest,
+        )  # fmt: skip
+        # after Ruckig's step, without and with a new calculation (the extrema's screen)
+        self._after_ruckig = bind(sk.after_ruckig, mode, False, w, c, inv_dt, mask, dest)
+        self._after_new = bind(sk.after_ruckig, mode, True, w, c, inv_dt, mask, dest)
+        self._bound_target, self._bound_out = target, out
 
     def tracking_error(self, q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(envs,) rad, ``max_j |commanded position - q|``: how far the command has drifted from
@@ -461,41 +474,3 @@ class CommandSmoother(RuckigState):
         np.subtract(self._cmd_position2d, q, out=self._tmp2d)
         np.abs(self._tmp2d, out=self._tmp2d)
         return np.max(self._tmp2d, axis=1, out=out)
-
-    def anchor(self, q: np.ndarray, tolerance: float, out: np.ndarray | None = None) -> np.ndarray:
-        """Velocity mode: keep Ruckig's integrated position within ``tolerance`` of ``q``.
-
-        Ruckig integrates its own velocity commands. A drive that cannot follow them (its torque
-        saturates, an obstacle or a push holds the joint; its anti-windup then holds its own
-        integrator back) leaves the joint behind that integral for good, and without an anchor
-        the gap only grows over hours of operation: the soft-limit brake and the guard's
-        stopping bounds, which read this position, then stop the joint in parts of its range
-        it is nowhere near. Each joint's position is clamped into ``[q - tolerance,
-        q + tolerance]``; velocity and acceleration are untouched, so the velocity command stays
-        continuous. A no-op in position and torque mode (position mode re-syncs through
-        :meth:`tracking_error`).
-
-        Args:
-            q: (envs, n) measured (estimated) joint positions, rad.
-            tolerance: rad, the largest lag of the drive behind its command accepted as
-                tracking (:data:`sim2real.deploy.runtime.VELOCITY_TRACKING_TOLERANCE` in the runtime).
-            out: Optional (envs,) int64 array; 1 where an env's position was moved, else 0.
-
-        Returns:
-            (envs,) int64, 1 for the envs whose position was moved.
-        """
-        out = np.zeros(self.envs, dtype=np.int64) if out is None else out
-        out.fill(0)
-        if self.mode != "velocity":
-            return out
-        pos, tmp = self.position, self._tmp2d
-        np.subtract(pos, q, out=tmp)
-        np.abs(tmp, out=tmp)
-        if tmp.max() <= tolerance:  # the common case
-            return out
-        np.greater(tmp, tolerance, out=self._mask.reshape(pos.shape))
-        out += self._mask.reshape(pos.shape).any(axis=1)
-        np.minimum(np.maximum(pos, q - tolerance, out=pos), q + tolerance, out=pos)
-        self._inp.current_position = self._pos
-        np.copyto(self._cmd_position, self._pos)
-        return out

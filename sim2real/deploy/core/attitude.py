@@ -1,18 +1,39 @@
 """Attitude math of the base estimator: quaternions ``[w, x, y, z]`` (base-to-world), rotation
 vectors, projected gravity and tilt. Angles in rad, arrays batch-first. These numpy functions are
 the references of the compiled rows of :mod:`sim2real.deploy.core.attitude_kernel` (the same numbers);
-:func:`quaternion_to_matrix` itself goes through its kernel for rows and single quaternions.
+:func:`quaternion_to_matrix`, :func:`quat_multiply` and :func:`rotation_quaternions` themselves go
+through those kernels for float64 rows and single quaternions (numpy's ``np.stack`` of small
+arrays costs a few microseconds a call; the simulated IMU calls them every tick).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from sim2real.deploy.core.attitude_kernel import quat_to_mat_rows
+from sim2real.deploy.core.attitude_kernel import quat_mul_rows, quat_to_mat_rows, rotation_rows
+
+
+def _rows(a, width: int) -> bool:
+    """Whether ``a`` is a float64 array of one or a row of ``width``-vectors (a kernel's input)."""
+    return isinstance(a, np.ndarray) and a.dtype == np.float64 and a.shape[-1:] == (width,)
+
+
+def _stretch(rows: np.ndarray, k: int) -> np.ndarray:
+    """(k, 4) contiguous rows: ``rows`` (1 or k, 4) broadcast."""
+    return np.ascontiguousarray(rows if len(rows) == k else np.broadcast_to(rows, (k, 4)))
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of quaternions ``[w, x, y, z]`` (..., 4)."""
+    """Hamilton product of quaternions ``[w, x, y, z]`` (..., 4), broadcast; a (4,) or (k, 4)
+    result of float64 inputs is computed by
+    :func:`~sim2real.deploy.core.attitude_kernel.quat_mul_rows` (the same numbers)."""
+    if _rows(a, 4) and _rows(b, 4) and a.ndim <= 2 and b.ndim <= 2:
+        rows_a, rows_b = a.reshape(-1, 4), b.reshape(-1, 4)
+        k = max(len(rows_a), len(rows_b))
+        if len(rows_a) in (1, k) and len(rows_b) in (1, k):  # else numpy's broadcast error
+            out = np.empty((k, 4))
+            quat_mul_rows(_stretch(rows_a, k), _stretch(rows_b, k), out)
+            return out if max(a.ndim, b.ndim) == 2 else out[0]
     aw, ax, ay, az = np.moveaxis(a, -1, 0)
     bw, bx, by, bz = np.moveaxis(b, -1, 0)
     return np.stack(
@@ -28,7 +49,12 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def rotation_quaternions(rotvec: np.ndarray) -> np.ndarray:
     """Quaternions ``[w, x, y, z]`` (k, 4) of rotation vectors (k, 3) rad (below 1e-12 rad the
-    first-order ``[1, rotvec / 2]``)."""
+    first-order ``[1, rotvec / 2]``); float64 rows through
+    :func:`~sim2real.deploy.core.attitude_kernel.rotation_rows` (the same numbers)."""
+    if _rows(rotvec, 3) and rotvec.ndim == 2:
+        out = np.empty((rotvec.shape[0], 4))
+        rotation_rows(np.ascontiguousarray(rotvec), out)
+        return out
     angle = np.linalg.norm(rotvec, axis=1)
     small = angle < 1e-12
     half = np.where(small, 0.5, np.sin(angle / 2) / np.where(small, 1.0, angle))

@@ -87,6 +87,11 @@ class BaseStateEstimator(BaseSteps):
         velocity_updates: (envs,) int feet readings absorbed; rejected_contacts: (envs,) int
             feet in contact whose reading was gated out as a slip.
 
+    The state arrays are views into the packed arrays of the compiled tick
+    (:mod:`sim2real.deploy.estimation.base_tick`): written in place, never rebound. The tick
+    runs compiled unless a subclass replaces a step of :class:`~.base_steps.BaseSteps` (the
+    filterpy reference): then one env at a time, in Python.
+
     Raises:
         ValueError: a fixed-base robot, an IMU site off the base body or ``envs < 1``.
     """

@@ -18,16 +18,15 @@ the gyro ``omega = w - b_g`` and the specific force at the base origin
     attitude: z = -R_imu[2] (the IMU's own attitude, where it sends one),  h = -R[2],
               H = [R^T [(0, 0, -1)]x, 0, 0, 0]
 
-The accelerometer's bias drifts (a MEMS part's bias random walk, hours of a soak): unmodelled, a
-vertical bias of 1 m/s^2 reads a trotting Go2 sinking at 1 m/s between the feet's corrections.
-The legs make it observable: the velocity they measure does not drift.
-
 with ``v_foot``, ``omega_foot`` the foot's velocity in the base frame (the base at the origin,
 turning at ``omega``), ``rho`` its contact sphere's radius and ``u`` the world's down in the base
-frame. Updates are Joseph-form, the error folded into the nominal state and zeroed.
+frame. Updates are Joseph-form, the error folded into the nominal state and zeroed. The
+accelerometer's bias drifts (a MEMS part's random walk): unmodelled, 1 m/s^2 of vertical bias
+reads a trotting Go2 sinking at 1 m/s; the legs, whose velocity does not drift, observe it. The
+heading is locked (:func:`lock_heading`).
 
-Heading is locked (:func:`lock_heading`): the heading is the gyro's, integrated, and the world
-frame's (its error has no variance; left to grow, it fed the velocity's through ``[R f]x``).
+Products are loops into a :func:`workspace`, fused multiply-adds in ``k``'s order: the rounding
+of numpy's BLAS (OpenBLAS, x86-64 with FMA; ``tests/test_base_tick.py``, ``test_legged.py``).
 """
 
 from __future__ import annotations
@@ -36,8 +35,84 @@ import math
 
 import numba
 import numpy as np
+from numba import types
+from numba.extending import intrinsic
 
 N_ERROR = 12
+#: (12, 12) slots of a workspace (:func:`workspace`).
+WORK_SLOTS = 8
+
+
+@intrinsic
+def fma(typingctx, a, b, c):
+    """``a * b + c`` rounded once (LLVM's ``llvm.fma``; float64)."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        return builder.fma(*args)
+
+    return sig, codegen
+
+
+@numba.njit(cache=True, nogil=True)
+def workspace() -> np.ndarray:
+    """A step's scratch: (``WORK_SLOTS``, 12, 12) float64."""
+    return np.empty((WORK_SLOTS, N_ERROR, N_ERROR))
+
+
+@numba.njit(cache=True, nogil=True)
+def _mm(A, B, out, at: bool, bt: bool) -> None:
+    """``out`` (m, n) = ``op(A) op(B)``, ``op`` the transpose where ``at`` / ``bt``: each entry
+    ``fma`` over ``k`` from 0 (BLAS's gemm)."""
+    m, n = out.shape[0], out.shape[1]
+    kk = A.shape[0] if at else A.shape[1]
+    for i in range(m):
+        for j in range(n):
+            out[i, j] = 0.0
+        for k in range(kk):
+            a = A[k, i] if at else A[i, k]
+            for j in range(n):
+                out[i, j] = fma(a, B[j, k] if bt else B[k, j], out[i, j])
+
+
+@numba.njit(cache=True, nogil=True)
+def _mm12(A, B, out, BT) -> None:
+    """``out`` = ``A op(B)`` of (12, 12) row-major matrices, ``op(B) = B^T`` when ``BT`` (the
+    transpose's scratch, (12, 12)) is given, else ``B``: :func:`_mm`'s numbers, its inner loop
+    over contiguous rows (vectorized)."""
+    if BT is not None:
+        for i in range(N_ERROR):
+            for j in range(N_ERROR):
+                BT[i, j] = B[j, i]
+        B = BT
+    for i in range(N_ERROR):
+        row = out[i]
+        for j in range(N_ERROR):
+            row[j] = 0.0
+        for k in range(N_ERROR):
+            a, b = A[i, k], B[k]
+            for j in range(N_ERROR):
+                row[j] = fma(a, b[j], row[j])
+
+
+@numba.njit(cache=True, nogil=True)
+def _mv(A, x, out, at: bool) -> None:
+    """``out`` (m,) = ``op(A) x`` for 3 columns, as BLAS's gemv rounds it: a row-major ``A``
+    (``at`` False) ``fma(a2 x2, fma(a0 x0, a1 x1))``, a transposed one ``fma(a2 x2, fma(a1 x1,
+    a0 x0))``."""
+    for i in range(out.shape[0]):
+        if at:
+            out[i] = fma(A[2, i], x[2], fma(A[1, i], x[1], A[0, i] * x[0]))
+        else:
+            out[i] = fma(A[i, 2], x[2], fma(A[i, 0], x[0], A[i, 1] * x[1]))
+
+
+@numba.njit(cache=True, nogil=True)
+def _cross(a, b, out) -> None:
+    """``out`` = ``a x b`` (np.cross's expressions)."""
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -97,23 +172,26 @@ def lock_heading(K, q) -> None:
     gain), and :func:`imu_step` holds the heading's variance at zero: left to grow (1.8 rad^2 in
     3 minutes), it fed the velocity's through ``[R f]x`` whenever the base accelerated, and the
     Go2's planar velocity error in a soak doubled."""
-    R = np.empty((3, 3))
-    _quat_to_mat(q, R)
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    r0, r1, r2 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)  # R[2]
     for c in range(K.shape[1]):
         K[2, c] = 0.0
-        along = K[6, c] * R[2, 0] + K[7, c] * R[2, 1] + K[8, c] * R[2, 2]
-        for i in range(3):
-            K[6 + i, c] -= along * R[2, i]
+        along = K[6, c] * r0 + K[7, c] * r1 + K[8, c] * r2
+        K[6, c] -= along * r0
+        K[7, c] -= along * r1
+        K[8, c] -= along * r2
 
 
 @numba.njit(cache=True, nogil=True)
-def _correct(P, y, H, r_var: float, q, v, b, gate: float) -> bool:
+def _correct(P, y, H, r_var: float, q, v, b, gate: float, work) -> bool:
     """The error-state update with innovation ``y`` (3,), ``H`` (3, 12), noise ``r_var I``,
     its gain locked in heading (:func:`lock_heading`), folded into the nominal state ``q``,
     ``v``, ``b`` (6,); False (nothing changed) when the innovation's chi-square exceeds
-    ``gate``."""
-    PHt = P @ H.T
-    S = H @ PHt
+    ``gate``. ``work``: a :func:`workspace` (its slots 2 to 7; ``H``, ``y`` not in them)."""
+    PHt = work[2, :, 0:3]
+    S = work[2, 0:3, 3:6]
+    _mm(P, H, PHt, False, True)
+    _mm(H, PHt, S, False, False)
     for i in range(3):
         S[i, i] += r_var
     if gate < np.inf:
@@ -121,12 +199,22 @@ def _correct(P, y, H, r_var: float, q, v, b, gate: float) -> bool:
             return False
     K = np.linalg.solve(S, PHt.T).T
     lock_heading(K, q)
-    ikh = np.eye(N_ERROR) - K @ H
-    P2 = ikh @ P @ ikh.T + r_var * (K @ K.T)
+    ikh, left, P2, kk = work[3], work[4], work[5], work[6]
+    _mm(K, H, ikh, False, False)
+    for i in range(N_ERROR):
+        for j in range(N_ERROR):
+            ikh[i, j] = (1.0 if i == j else 0.0) - ikh[i, j]
+    _mm12(ikh, P, left, None)
+    _mm12(left, ikh, P2, work[7])
+    _mm(K, K, kk, False, True)
+    for i in range(N_ERROR):
+        for j in range(N_ERROR):
+            P2[i, j] += r_var * kk[i, j]
     for i in range(N_ERROR):
         for j in range(N_ERROR):
             P[i, j] = 0.5 * (P2[i, j] + P2[j, i])
-    dx = K @ y
+    dx = work[2, 3]
+    _mv(K, y, dx, False)
     _turn(dx[0:3], q, True)  # R = Exp(dtheta) R: a world-frame error
     for i in range(3):
         v[i] += dx[3 + i]
@@ -157,20 +245,56 @@ def imu_step(
     """One env's prediction over ``dt`` (s) from a reading already in the base frame and the
     accelerometer's gravity correction (:mod:`sim2real.deploy.estimation.base`); ``q``, ``v``, ``b``,
     ``P`` in place, the bias-free angular velocity in ``omega_out`` (3,)."""
-    omega = gyro_b - b[0:3]
-    f = acc_b - b[3:6] - np.cross(omega, np.cross(omega, lever))
-    R = np.empty((3, 3))
+    imu_step_in(
+        q, v, b, P, gyro_b, acc_b, dt, lever, gravity, gyro_var, accel_var, walk_var,
+        accel_walk_var, accel_meas_var, rest_band, omega_out, workspace(),
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def imu_step_in(
+    q, v, b, P, gyro_b, acc_b, dt, lever, gravity, gyro_var, accel_var, walk_var,
+    accel_walk_var, accel_meas_var, rest_band, omega_out, work,
+) -> None:  # fmt: skip
+    """:func:`imu_step` in the :func:`workspace` ``work``."""
+    small = work[1]
+    omega, f, c1, c2, rf = (
+        small[0, 0:3],
+        small[0, 3:6],
+        small[0, 6:9],
+        small[0, 9:12],
+        small[1, 0:3],
+    )
+    up, tv, y = small[1, 3:6], small[1, 6:9], small[1, 9:12]
+    R, sk, turn, sk_up, sk_v = (
+        small[2:5, 0:3],
+        small[2:5, 3:6],
+        small[2:5, 6:9],
+        small[5:8, 0:3],
+        small[5:8, 3:6],
+    )
+    tmp, tmp2 = small[5:8, 6:9], small[8:11, 0:3]
+    for i in range(3):
+        omega[i] = gyro_b[i] - b[i]
+    _cross(omega, lever, c1)
+    _cross(omega, c1, c2)
+    for i in range(3):
+        f[i] = acc_b[i] - b[3 + i] - c2[i]
     _quat_to_mat(q, R)
-    rf = R @ f
-    F = np.eye(N_ERROR)
-    sk = np.empty((3, 3))
+    _mv(R, f, rf, False)
+    F, P2 = work[0], work[2]
     _skew(rf, sk)
+    for i in range(N_ERROR):
+        for j in range(N_ERROR):
+            F[i, j] = 1.0 if i == j else 0.0
     for i in range(3):
         for j in range(3):
             F[i, 6 + j] = -R[i, j] * dt
             F[3 + i, j] = -dt * sk[i, j]
             F[3 + i, 9 + j] = -R[i, j] * dt
-    P2 = F @ P @ F.T
+    FP = work[3]
+    _mm12(F, P, FP, None)
+    _mm12(FP, F, P2, work[4])
     for i in range(3):
         P2[i, i] += gyro_var * dt * dt
         P2[3 + i, 3 + i] += accel_var * dt * dt
@@ -182,26 +306,32 @@ def imu_step(
         P[i, 2] = 0.0
     for i in range(3):
         v[i] += dt * (rf[i] + gravity[i])
-    _turn(omega * dt, q, False)
+        c1[i] = omega[i] * dt
+    _turn(c1, q, False)
     g = math.sqrt(gravity[0] ** 2 + gravity[1] ** 2 + gravity[2] ** 2)
     fn = math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2)
     if abs(fn - g) < rest_band * g:
-        up = -gravity
-        _quat_to_mat(q, R)
-        turn = np.empty((3, 3))
-        _skew(omega, sk)
-        turn[:, :] = sk @ R.T
-        sk_up = np.empty((3, 3))
-        _skew(up, sk_up)
-        sk_v = np.empty((3, 3))
-        _skew(v, sk_v)
-        H = np.zeros((3, N_ERROR))
-        H[:, 0:3] = R.T @ sk_up + turn @ sk_v
-        H[:, 3:6] = turn
         for i in range(3):
+            up[i] = -gravity[i]
+        _quat_to_mat(q, R)
+        _skew(omega, sk)
+        _mm(sk, R, turn, False, True)
+        _skew(up, sk_up)
+        _skew(v, sk_v)
+        H = work[0, 0:3, :]
+        H[:, :] = 0.0
+        _mm(R, sk_up, tmp, True, False)
+        _mm(turn, sk_v, tmp2, False, False)
+        for i in range(3):
+            for j in range(3):
+                H[i, j] = tmp[i, j] + tmp2[i, j]
+                H[i, 3 + j] = turn[i, j]
             H[i, 9 + i] = 1.0
-        y = f - (R.T @ up + turn @ v)
-        _correct(P, y, H, accel_meas_var, q, v, b, np.inf)
+        _mv(R, up, c1, True)
+        _mv(turn, v, tv, False)
+        for i in range(3):
+            y[i] = f[i] - (c1[i] + tv[i])
+        _correct(P, y, H, accel_meas_var, q, v, b, np.inf, work)
     for i in range(3):
         omega_out[i] = gyro_b[i] - b[i]
 
@@ -211,17 +341,33 @@ def leg_step(q, v, b, P, foot_linear, foot_angular, radius: float, leg_var: floa
     """One foot's velocity correction of one env: the foot's velocity (linear, angular; m/s,
     rad/s, base frame at the base's pose) taken as the base's (a rolling sphere of ``radius``);
     True when absorbed, False when gated out as a slip."""
-    R = np.empty((3, 3))
+    return leg_step_in(q, v, b, P, foot_linear, foot_angular, radius, leg_var, gate, workspace())
+
+
+@numba.njit(cache=True, nogil=True)
+def leg_step_in(q, v, b, P, foot_linear, foot_angular, radius, leg_var, gate, work) -> bool:
+    """:func:`leg_step` in the :func:`workspace` ``work``."""
+    small = work[1]
+    down, c1, z, rv, y = small[0, 0:3], small[0, 3:6], small[0, 6:9], small[0, 9:12], small[1, 0:3]
+    R, sk_v, tmp = small[2:5, 0:3], small[2:5, 3:6], small[2:5, 6:9]
     _quat_to_mat(q, R)
-    down = -R[2]  # the world's down in the base frame
-    z = -(foot_linear + np.cross(foot_angular, radius * down))
-    sk_v = np.empty((3, 3))
+    for i in range(3):
+        down[i] = radius * -R[2, i]  # the world's down in the base frame, times the radius
+    _cross(foot_angular, down, c1)
+    for i in range(3):
+        z[i] = -(foot_linear[i] + c1[i])
     _skew(v, sk_v)
-    H = np.zeros((3, N_ERROR))
-    H[:, 0:3] = R.T @ sk_v
-    H[:, 3:6] = R.T
-    y = z - R.T @ v
-    return _correct(P, y, H, leg_var, q, v, b, gate)
+    H = work[0, 0:3, :]
+    H[:, :] = 0.0
+    _mm(R, sk_v, tmp, True, False)
+    for i in range(3):
+        for j in range(3):
+            H[i, j] = tmp[i, j]
+            H[i, 3 + j] = R[j, i]
+    _mv(R, v, rv, True)
+    for i in range(3):
+        y[i] = z[i] - rv[i]
+    return _correct(P, y, H, leg_var, q, v, b, gate, work)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -229,12 +375,22 @@ def attitude_step(q, v, b, P, measured, var: float) -> None:
     """One env's correction by the IMU's own attitude ``measured`` (3, 3), the base-to-world
     rotation it implies: its projected gravity ``z = -measured[2]`` against ``h = R^T (0, 0, -1)``,
     ``H = [R^T [(0, 0, -1)]x, 0, 0]``, noise ``var I``."""
-    R = np.empty((3, 3))
+    attitude_step_in(q, v, b, P, measured, var, workspace())
+
+
+@numba.njit(cache=True, nogil=True)
+def attitude_step_in(q, v, b, P, measured, var, work) -> None:
+    """:func:`attitude_step` in the :func:`workspace` ``work``."""
+    small = work[1]
+    down, y = small[0, 0:3], small[0, 3:6]
+    R, sk, tmp = small[2:5, 0:3], small[2:5, 3:6], small[2:5, 6:9]
     _quat_to_mat(q, R)
-    down = np.array([0.0, 0.0, -1.0])
-    sk = np.empty((3, 3))
+    down[0], down[1], down[2] = 0.0, 0.0, -1.0
     _skew(down, sk)
-    H = np.zeros((3, N_ERROR))
-    H[:, 0:3] = R.T @ sk
-    y = -measured[2] - (-R[2])
-    _correct(P, y, H, var, q, v, b, np.inf)
+    H = work[0, 0:3, :]
+    H[:, :] = 0.0
+    _mm(R, sk, tmp, True, False)
+    H[:, 0:3] = tmp
+    for i in range(3):
+        y[i] = -measured[2, i] - (-R[2, i])
+    _correct(P, y, H, var, q, v, b, np.inf, work)

@@ -25,9 +25,11 @@ import numpy as np
 
 from sim2real.deploy.estimation.base_kernel import (
     _quat_to_mat,
-    attitude_step,
-    imu_step,
-    leg_step,
+    attitude_step_in,
+    fma,
+    imu_step_in,
+    leg_step_in,
+    workspace,
 )
 
 #: Columns of the packed float state ``x``: quaternion (4), velocity (3), biases (6), angular
@@ -57,9 +59,11 @@ def _all_finite(a) -> bool:
 
 @numba.njit(cache=True, nogil=True)
 def _rotate(p, at: int, a, out) -> None:
-    """``out`` (3,) = ``M a``, ``M`` the (3, 3) row-major rotation at ``p[at:at + 9]``."""
+    """``out`` (3,) = ``M a``, ``M`` the (3, 3) row-major rotation at ``p[at:at + 9]`` (rounded
+    as numpy's ``M @ a``: BLAS's gemv, :func:`~sim2real.deploy.estimation.base_kernel._mv`)."""
     for i in range(3):
-        out[i] = p[at + 3 * i] * a[0] + p[at + 3 * i + 1] * a[1] + p[at + 3 * i + 2] * a[2]
+        r = p[at + 3 * i : at + 3 * i + 3]
+        out[i] = fma(r[2], a[2], fma(r[0], a[0], r[1] * a[1]))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -79,6 +83,7 @@ def absorb_imu(
     envs, n_feet, n_joints = x.shape[0], feet.shape[2], q.shape[1]
     gyro_b, acc_b = np.empty(3), np.empty(3)
     rot, measured = np.empty((3, 3)), np.empty((3, 3))
+    work = workspace()
     for e in range(envs):
         now, stamp = time[e], imu_stamp[e]
         finite = math.isfinite(stamp) and _all_finite(gyro[e]) and _all_finite(acc[e])
@@ -121,26 +126,23 @@ def absorb_imu(
         # the prediction and the accelerometer's correction (BaseSteps._imu_step)
         _rotate(p, P_IMU, gyro[e], gyro_b)
         _rotate(p, P_IMU, acc[e], acc_b)
-        imu_step(
+        imu_step_in(
             x[e, ORIENTATION:VELOCITY], x[e, VELOCITY:BIAS], x[e, BIAS:OMEGA], P[e],
             gyro_b, acc_b, stamp - x[e, TIME], p[P_LEVER:P_GRAVITY], p[P_GRAVITY:P_IMU],
             p[P_GYRO], p[P_ACCEL], p[P_WALK], p[P_ACCEL_WALK], p[P_ACCEL_MEAS], p[P_REST],
-            x[e, OMEGA:TIME],
+            x[e, OMEGA:TIME], work,
         )  # fmt: skip
         x[e, TIME] = stamp
         if not math.isnan(p[P_ATTITUDE]) and _all_finite(onboard[e]):
-            # BaseSteps._attitude_step: measured = R(quaternion) imu_to_base^T
+            # BaseSteps._attitude_step: measured = R(quaternion) imu_to_base^T (BLAS's gemm)
             _quat_to_mat(onboard[e], rot)
             for i in range(3):
                 for j in range(3):
-                    measured[i, j] = (
-                        rot[i, 0] * p[P_IMU + 3 * j]
-                        + rot[i, 1] * p[P_IMU + 3 * j + 1]
-                        + rot[i, 2] * p[P_IMU + 3 * j + 2]
-                    )
-            attitude_step(
+                    b = p[P_IMU + 3 * j : P_IMU + 3 * j + 3]
+                    measured[i, j] = fma(rot[i, 2], b[2], fma(rot[i, 1], b[1], rot[i, 0] * b[0]))
+            attitude_step_in(
                 x[e, ORIENTATION:VELOCITY], x[e, VELOCITY:BIAS], x[e, BIAS:OMEGA], P[e],
-                measured, p[P_ATTITUDE],
+                measured, p[P_ATTITUDE], work,
             )  # fmt: skip
         if legs_ok:
             legs[e] = LEGS | (DEAD if any_dead else 0)
@@ -164,6 +166,7 @@ def absorb_legs(
     envs, n_feet = x.shape[0], feet.shape[2]
     rot = np.empty((3, 3))
     height = np.empty(n_feet)
+    work = workspace()
     for e in range(envs):
         if legs[e] == 0:
             continue
@@ -177,7 +180,7 @@ def absorb_legs(
             lowest = np.inf
             for i in range(n_feet):
                 r = foot_position[e, i]
-                height[i] = rot[2, 0] * r[0] + rot[2, 1] * r[1] + rot[2, 2] * r[2]
+                height[i] = fma(rot[2, 2], r[2], fma(rot[2, 0], r[0], rot[2, 1] * r[1]))
                 height[i] -= p[P_RADII + i]
                 lowest = min(lowest, height[i])
             for i in range(n_feet):
@@ -208,9 +211,10 @@ def absorb_legs(
         for i in range(n_feet):
             if not feet[0, e, i]:
                 continue
-            ok = leg_step(
+            ok = leg_step_in(
                 x[e, ORIENTATION:VELOCITY], x[e, VELOCITY:BIAS], x[e, BIAS:OMEGA], Pe,
                 foot_motion[e, i, 0:3], foot_motion[e, i, 3:6], p[P_RADII + i], p[P_LEG], gate,
+                work,
             )  # fmt: skip
             n[e, UPDATES] += ok
             n[e, REJECTED] += not ok
@@ -239,6 +243,6 @@ def absorb_legs(
         v0, v1, v2 = x[e, VELOCITY], x[e, VELOCITY + 1], x[e, VELOCITY + 2]
         for i in range(3):
             out_g[e, i] = -rot[2, i]
-            out_v[e, i] = rot[0, i] * v0 + rot[1, i] * v1 + rot[2, i] * v2
+            out_v[e, i] = fma(rot[2, i], v2, fma(rot[1, i], v1, rot[0, i] * v0))  # gemm's
             out_w[e, i] = x[e, OMEGA + i]
             out_vw[e, i] = x[e, VELOCITY + i]

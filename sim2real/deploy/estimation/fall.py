@@ -28,7 +28,7 @@ import pinocchio as pin
 
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import check, put, take
-from sim2real.deploy.estimation.base_kernel import _quat_to_mat
+from sim2real.deploy.estimation.base_kernel import _quat_to_mat, fma
 from sim2real.deploy.estimation.base_params import require_floating_base
 from sim2real.robots import Robot
 
@@ -161,7 +161,7 @@ def _check(limits, gravity, velocity, orientation, contact, position, height, ti
             for i in range(contact.shape[1]):  # max() of the feet in contact, in their order
                 if contact[e, i] > 0.5:
                     p = position[e, i]
-                    below = -(rot[2, 0] * p[0] + rot[2, 1] * p[1] + rot[2, 2] * p[2])
+                    below = -fma(rot[2, 2], p[2], fma(rot[2, 0], p[0], rot[2, 1] * p[1]))
                     if first or below > height[e]:
                         height[e] = below
                     first = False

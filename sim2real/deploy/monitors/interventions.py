@@ -128,14 +128,9 @@ class InterventionMonitor(MonitorState):
 
     def _moved(self) -> bool:
         """Whether a guard or smoother counter moved since the last tick (the kernel
-        :func:`sim2real.deploy.monitors.kernel.counters_moved`)."""
+        :func:`sim2real.deploy.monitors.kernel.interventions_moved`)."""
         (_, a), (_, b) = self._smoother
-        prev = self._prev_smoother
-        return (
-            mk.counters_moved(self._guard_rows, self._prev_guard)
-            or mk.counters_moved(a, prev[0])
-            or mk.counters_moved(b, prev[1])
-        )
+        return mk.interventions_moved(self._guard_rows, self._prev_guard, a, b, self._prev_smoother)
 
     def _count(self) -> None:
         """Per check: which envs' counters rose this tick (only on ticks where some did)."""

@@ -169,6 +169,24 @@ def counters_moved(current: np.ndarray, previous: np.ndarray) -> bool:
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
+def interventions_moved(
+    guard: np.ndarray,
+    previous_guard: np.ndarray,
+    stopping: np.ndarray,
+    clamps: np.ndarray,
+    previous_smoother: np.ndarray,
+) -> bool:
+    """:func:`counters_moved` of an intervention monitor's three counters in one call: the
+    guard's rows (checks, envs) against ``previous_guard``, the smoother's ``stopping`` and
+    ``clamps`` (envs, n) against ``previous_smoother[0]`` and ``[1]`` ((2, envs, n)); int64."""
+    return (
+        counters_moved(guard, previous_guard)
+        or counters_moved(stopping, previous_smoother[0])
+        or counters_moved(clamps, previous_smoother[1])
+    )
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def temperature_bands(
     temperature: np.ndarray,
     derating_start: np.ndarray,
@@ -198,33 +216,43 @@ def temperature_bands(
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
 def motion_statistics(
+    temperature: np.ndarray,
+    peak: np.ndarray,
     dq: np.ndarray,
     previous_dq: np.ndarray,
     previous_acc: np.ndarray,
     dt: float,
-    running: np.ndarray,
+    mode: np.ndarray,
+    running_mode: int,
     count_jerk: bool,
     jerk_sum: np.ndarray,
     jerk_ticks: np.ndarray,
     max_speed: np.ndarray,
 ) -> None:
-    """One tick of ``deploy-run``'s motion summary from the joint velocities ``dq`` (envs, n)
-    rad/s: the acceleration ``(dq - previous_dq) / dt`` (rad/s^2), with ``count_jerk`` the jerk
-    ``|acc - previous_acc| / dt`` (rad/s^3) added to ``jerk_sum`` (envs, n) and 1 to
-    ``jerk_ticks`` (envs,) int64 for the envs ``running`` (envs,) bool; ``previous_dq`` and
-    ``previous_acc`` become this tick's; ``max_speed`` (n,) rad/s rises to ``max_e |dq|``. The
-    arithmetic is the numpy expressions' of ``sim2real.deploy.cli.deploy_run`` (``* running`` as 1.0 or
-    0.0)."""
+    """One tick of ``deploy-run``'s motion summary: ``peak`` (envs, n) degC rises to the winding
+    ``temperature`` (``np.fmax``: a NaN reading leaves it); from the joint velocities ``dq``
+    (envs, n) rad/s the acceleration ``(dq - previous_dq) / dt`` (rad/s^2), with ``count_jerk``
+    the jerk ``|acc - previous_acc| / dt`` (rad/s^3) added to ``jerk_sum`` (envs, n) and 1 to
+    ``jerk_ticks`` (envs,) int64 for the envs running (``mode`` (envs,) int8 equal to
+    ``running_mode``); ``previous_dq`` and ``previous_acc`` become this tick's; ``max_speed``
+    (n,) rad/s rises to ``max_e |dq|``. The arithmetic is the numpy expressions' of
+    ``sim2real.deploy.cli.deploy_run`` (``* running`` as 1.0 or 0.0)."""
     envs, n = dq.shape
     for e in range(envs):
-        r = 1.0 if running[e] else 0.0
+        for j in range(n):
+            t = temperature[e, j]
+            if t > peak[e, j] or peak[e, j] != peak[e, j]:  # np.fmax(peak, t)
+                peak[e, j] = t
+    for e in range(envs):
+        running = mode[e] == running_mode
+        r = 1.0 if running else 0.0
         for j in range(n):
             acc = (dq[e, j] - previous_dq[e, j]) / dt
             if count_jerk:
                 jerk_sum[e, j] = jerk_sum[e, j] + abs(acc - previous_acc[e, j]) / dt * r
             previous_dq[e, j] = dq[e, j]
             previous_acc[e, j] = acc
-        if count_jerk and running[e]:
+        if count_jerk and running:
             jerk_ticks[e] += 1
     for j in range(n):
         m = abs(dq[0, j])
@@ -243,7 +271,11 @@ def warm_up() -> None:
     q = np.zeros((2, 3))
     violation_screen(q, q, q, q, np.zeros(3), np.zeros(3), np.ones(12), True)
     counters_moved(np.zeros((2, 3), dtype=np.int64), np.zeros((2, 3), dtype=np.int64))
+    c = np.zeros((2, 3), dtype=np.int64)
+    interventions_moved(c, c.copy(), c.copy(), c.copy(), np.zeros((2, 2, 3), dtype=np.int64))
     collision_screen(q, q, np.zeros((2, 1)), np.ones((1, 3)), 0.0, q.copy(), b.copy())
     temperature_bands(q, np.zeros(3), np.zeros(3), q.copy(), q.copy(), q.astype(np.int64),
                       q.astype(np.int64))  # fmt: skip
-    motion_statistics(q, q.copy(), q.copy(), 0.01, b, True, q.copy(), i8.copy(), np.zeros(3))
+    motion_statistics(
+        q, q.copy(), q, q.copy(), q.copy(), 0.01, mode, 2, True, q.copy(), i8.copy(), np.zeros(3)
+    )

@@ -214,17 +214,14 @@ class MotionHook(RunHook):
         self.max_speed = np.zeros(n)
         self.dq, self.acc, self.jerk_sum = (np.zeros((envs, n)) for _ in range(3))
         self.jerk_ticks = np.zeros(envs, dtype=np.int64)
-        self.running = np.zeros(envs, dtype=bool)
+        self.dt = rig.robot.control_period
 
     def after_tick(self, r) -> None:
-        rig = self.rig
-        sim = rig.backend if rig.simulated else None
+        sim = self.rig.backend if self.rig.simulated else None
         temperature = sim.thermal.winding_temperature if sim else r.state.winding_temperature
-        np.fmax(self.peak, temperature, out=self.peak)
         dq = sim.true_velocity() if sim else r.state.dq
-        np.equal(r.mode, RUNNING, out=self.running)
         motion_statistics(
-            dq, self.dq, self.acc, rig.robot.control_period, self.running, r.ticks > 2,
+            temperature, self.peak, dq, self.dq, self.acc, self.dt, r.mode, RUNNING, r.ticks > 2,
             self.jerk_sum, self.jerk_ticks, self.max_speed,
         )  # fmt: skip
 

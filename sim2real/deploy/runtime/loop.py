@@ -162,7 +162,6 @@ class Runtime(RuntimeState):
         self._period = np.array([0, 0, -1, 0, 0], dtype=np.int64)
         self._cpu_ns = time.thread_time_ns if self.clock.realtime else None
         self.ticks = 0
-        self._first_run = True  # run() collects every generation once
         #: collections of the garbage collector inside :meth:`run`'s loop, where it is disabled
         #: (an explicit ``gc.collect`` or a re-enabled collector in a callback); 0 in a clean run
         self.gc_collections = 0
@@ -192,6 +191,7 @@ class Runtime(RuntimeState):
         self._damp = np.zeros(envs, dtype=bool)
         #: ``(tick) -> None``: the tick's latency histograms and long periods (:meth:`_bind_books`)
         self._books = self._bind_books()
+        gc.collect()  # the set-up's garbage, every generation, once: here, not in run() (below)
 
     def _reset_policy(self, envs: np.ndarray) -> None:
         """The current policy's ``reset(envs)`` (bool mask (envs,)), if it has one."""
@@ -464,20 +464,19 @@ class Runtime(RuntimeState):
     def run(self, ticks: int, on_tick=None) -> None:
         """Run ``ticks`` control periods with the garbage collector frozen and disabled.
 
-        Before the loop the collector runs over every generation on the runtime's first run
-        (the set-up's garbage), and over the young ones (0 and 1) on later runs: a full
+        Before the loop the collector runs over the young generations (0 and 1). The set-up's
+        garbage was collected over every generation once, when the runtime was built: a full
         collection of a process with torch loaded takes 0.1-0.5 s, which a caller running the
         loop in short pieces (a film's replay to each frame, single ticks) paid on every call,
-        and on a wall clock as missed periods between the pieces. The old generation is
-        collected by Python itself while the collector is enabled between runs.
+        on a wall clock as missed periods between the pieces, and a session at its start. The
+        old generation is collected by Python itself while the collector is enabled between runs.
 
         ``on_tick(runtime)``, if given, runs after each tick (goal scheduling, evaluation); when
         it returns True the run ends early (e.g. a latched fault on real hardware).
         """
         fresh = getattr(self.clock, "fresh", False)  # a wall clock's first run: start() collected
         if not fresh:
-            gc.collect(2 if self._first_run else 1)
-        self._first_run = False
+            gc.collect(1)
         gc.freeze()
         was_enabled = gc.isenabled()
         gc.disable()

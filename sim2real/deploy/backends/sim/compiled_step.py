@@ -33,7 +33,7 @@ class CompiledStep:
     whose models, drives, thermal model, joint sensors and actuators are built).
 
     Attributes:
-        table: (41 + 7 envs,) int64, the header and addresses of
+        table: (46 + 7 envs,) int64, the header and addresses of
             :mod:`~sim2real.deploy.backends.sim.plant_kernel`.
         scalars: (2,) float64, the encoder quantum (rad) and the control period (s).
         streams: (envs, 3) int64, each env's sensor stream (``plant_kernel.STREAMS``).
@@ -60,6 +60,7 @@ class CompiledStep:
             (k.VELOCITY_MODE if p.mode == "velocity" else 0)
             | (k.HAS_VELOCITY if js.has_velocity else 0)
             | (0 if act.active else k.WRITE_CTRL)
+            | (k.ENVELOPE if act.envelope.any else 0)
         )
         t[k.WARNINGS], t[k.DEPTH], t[k.NSTEP] = p._warning_count, act.history.shape[1], p.decimation
         f8, b1 = np.float64, np.bool_
@@ -79,7 +80,10 @@ class CompiledStep:
             k.HISTORY: (act.history, f8), k.DELAY: (act.delay_steps, np.int64),
             k.STALL: (act._stall, f8), k.NO_LOAD: (act._no_load, f8),
             k.ACTIVE: (act.envelope.active, b1), k.LIMIT: (p.effort_limit, f8),
-            k.STREAMS: (self.streams, np.int64),
+            k.STREAMS: (self.streams, np.int64), k.T_REF: (act.envelope.t_ref, f8),
+            k.ALPHA: (act.envelope.alpha, f8),
+            k.STALL_COEFFICIENT: (act.envelope.stall_coefficient, f8),
+            k.NO_LOAD_SPEED: (act.envelope.no_load_speed, f8), k.SUPPLY: (act.supply, f8),
         }  # fmt: skip
         self._arrays = [a for a, _ in arrays.values()]  # alive while the table names them
         for slot, (a, dtype) in arrays.items():

@@ -322,14 +322,13 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
                 stepped; the sensor stream has made the tick's draws).
         """
         table, nstep, step = self._compiled.table, self.decimation, mujoco.mj_step
-        if before_physics(table):
+        tick = self.tick
+        if before_physics(table, tick):
             self._set_derated_limits()
-        tick, actuators = self.tick, self.actuators
-        if not actuators.active:
+        if not self.actuators.active:
             for m, d, _ctrl, _q, _force, _warnings in self._views:
                 step(m, d, nstep=nstep)
         else:  # delayed commands, and a torque range that follows the joint speed
-            actuators.start_period(tick, self._command, self.thermal.winding_temperature)
             for e, (m, d, _ctrl, _q, _force, _warnings) in enumerate(self._views):
                 for sub in range(nstep):
                     actuator_substep(table, e, tick, sub)

@@ -41,18 +41,19 @@ from sim2real.robots.thermal_kernel import thermal_step
 # per control period)
 ENVS, N, ROWS, SLOTS, FLAGS, WARNINGS, DEPTH, NSTEP = range(8)
 #: FLAGS bits: velocity mode (anti-windup), the drives report a velocity, the command goes
-#: straight into ctrl (no actuator model between)
-VELOCITY_MODE, HAS_VELOCITY, WRITE_CTRL = 1, 2, 4
+#: straight into ctrl (no actuator model between), the motors have torque-speed lines
+VELOCITY_MODE, HAS_VELOCITY, WRITE_CTRL, ENVELOPE = 1, 2, 4, 8
 # the plant's arrays (addresses)
 (
     COMMAND, QPOS, QVEL, TORQUE, START, DERATED, HOT, LAG, BOUND, CONSTANTS, AMBIENT, WINDING,
     HOUSING, CURRENT, POWER, FLOW, BUF_POSITION, BUF_VELOCITY, BUF_STAMP, UNIFORM, NOISE, DROPOUT,
     VELOCITY_NOISE, BIAS, BIASED, SCALARS, HISTORY, DELAY, STALL, NO_LOAD, ACTIVE, LIMIT, STREAMS,
-) = range(8, 41)  # fmt: skip
+    T_REF, ALPHA, STALL_COEFFICIENT, NO_LOAD_SPEED, SUPPLY,
+) = range(8, 46)  # fmt: skip
 #: SCALARS (float64, 2): the encoder quantum (rad), the control period (s)
 QUANTUM, PERIOD = 0, 1
 #: first per-env row; each env has ``PER_ENV`` addresses
-ENV_ROWS = 41
+ENV_ROWS = 46
 # per env: MjData's ctrl, the joints' qpos, qvel, qfrc_actuator, the divergence warnings' counters,
 # act (velocity mode), and the model's jnt_actfrcrange rows of the joints
 CTRL, JQPOS, JQVEL, FORCE, WARN, ACT, ACTFRC = range(7)
@@ -65,7 +66,7 @@ STATE, NEXT_UINT64, NEXT_DOUBLE = range(3)
 NO_SAMPLE, DRAWN, DRAW = 0, 1, 2
 #: The kernels' signatures (:func:`compile_kernels`).
 SIGNATURES = {
-    "before_physics": "boolean(int64[::1])",
+    "before_physics": "boolean(int64[::1], int64)",
     "after_physics": "boolean(int64[::1], int64, int64)",
     "actuator_substep": "void(int64[::1], int64, int64, int64)",
 }
@@ -178,21 +179,25 @@ def _env(table, e, field):
 
 
 @numba.njit(cache=True, nogil=True)
-def before_physics(table: np.ndarray) -> bool:
-    """Before a control period's physics steps: each env's command ``COMMAND`` (envs, n) into
-    every row of its ``ctrl`` (``ROWS`` rows of n; only with ``WRITE_CTRL``, else the actuators
-    write it before each step), and the derating screen
+def before_physics(table: np.ndarray, tick: int) -> bool:
+    """Before control tick ``tick``'s physics steps: each env's command ``COMMAND`` (envs, n)
+    into every row of its ``ctrl`` (``ROWS`` rows of n) with ``WRITE_CTRL``; else the actuators'
+    start of the period (:meth:`ActuatorModel.start_period`: the command into row
+    ``tick % DEPTH`` of ``HISTORY``, and with ``ENVELOPE`` each motor's ``STALL`` torque at its
+    winding temperature and ``NO_LOAD`` speed, scaled by the ``SUPPLY``); then the derating screen
     (:func:`sim2real.deploy.backends.sim.drives_kernel.derating_due`: ``HOT`` (envs,) bool
     written); returns whether some env's torque limits must be set."""
-    envs, n, rows = table[ENVS], table[N], table[ROWS]
-    if table[FLAGS] & WRITE_CTRL:
-        command = _f64(table, COMMAND, (envs, n))
+    envs, n, rows, flags = table[ENVS], table[N], table[ROWS], table[FLAGS]
+    command = _f64(table, COMMAND, (envs, n))
+    winding = _f64(table, WINDING, (envs, n))
+    if flags & WRITE_CTRL:
         for e in range(envs):
             ctrl = numba.carray(_pointer(_env(table, e, CTRL)), (rows, n), np.float64)
             for r in range(rows):
                 for j in range(n):
                     ctrl[r, j] = command[e, j]
-    winding = _f64(table, WINDING, (envs, n))
+    else:
+        _start_period(table, tick, envs, n, flags, command, winding)
     start = _f64(table, START, (n,))
     derated, hot = _bool(table, DERATED, (envs,)), _bool(table, HOT, (envs,))
     due = False
@@ -205,6 +210,29 @@ def before_physics(table: np.ndarray) -> bool:
         hot[e] = h
         due = due or h or derated[e]
     return due
+
+
+@numba.njit(inline="always", cache=True, nogil=True)
+def _start_period(table, tick, envs, n, flags, command, winding):
+    depth = table[DEPTH]
+    history = _f64(table, HISTORY, (envs, depth, n))
+    for e in range(envs):
+        for j in range(n):
+            history[e, tick % depth, j] = command[e, j]
+    if not flags & ENVELOPE:  # delays only: no line to follow
+        return
+    stall, no_load = _f64(table, STALL, (envs, n)), _f64(table, NO_LOAD, (envs, n))
+    t_ref, alpha = _f64(table, T_REF, (n,)), _f64(table, ALPHA, (n,))
+    coefficient, speed = _f64(table, STALL_COEFFICIENT, (n,)), _f64(table, NO_LOAD_SPEED, (n,))
+    supply = _f64(table, SUPPLY, (envs,))
+    for e in range(envs):
+        for j in range(n):
+            s = winding[e, j] - t_ref[j]
+            s *= alpha[j]
+            s += 1.0
+            s = coefficient[j] / s
+            stall[e, j] = s * supply[e]
+            no_load[e, j] = speed[j] * supply[e]
 
 
 @numba.njit(cache=True, nogil=True)

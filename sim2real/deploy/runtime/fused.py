@@ -2,13 +2,14 @@
 (:class:`TableCalls`, its base): the fused estimate and observe stages of a fixed-base robot
 (:meth:`TableCalls.estimate_observe`), and the building of the tables of addresses the kernels of
 :mod:`sim2real.deploy.runtime.fused_kernel` take (the fused call's, the supervision's, the action
-screen's), each array checked by :func:`~sim2real.deploy.runtime.fused_kernel.put`.
+screen's), each array checked by :func:`~sim2real.deploy.core.addresses.put`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from sim2real.deploy.core.addresses import put
 from sim2real.deploy.core.backend import SensorFrame
 from sim2real.deploy.core.state import Kinematics
 from sim2real.deploy.runtime import fused_kernel as fk
@@ -27,9 +28,9 @@ class TableCalls:
         c, state, envs, n = self._screen_cached, self.state, self.envs, self.n
         f4, f8, i8, e = np.float32, np.float64, np.int64, (self.envs, self.n)
         checks = [
-            fk.put(table, arrays, fk.S_ACTION, action, f4, e),
+            put(table, arrays, fk.S_ACTION, action, f4, e),
             *(
-                fk.put(table, arrays, index, array, dtype, shape)
+                put(table, arrays, index, array, dtype, shape)
                 for index, array, dtype, shape in (
                     (fk.S_SCREENED, c[0], f4, e),
                     (fk.S_LAST_VALID, c[1], f4, e),
@@ -155,8 +156,8 @@ class TableCalls:
         table, arrays = np.zeros(fk.SIZE, dtype=np.int64), []
         f8, i8, b1 = np.float64, np.int64, np.bool_
 
-        def put(index: int, array, dtype, shape: tuple, rows: bool = False) -> bool:
-            return fk.put(table, arrays, index, array, dtype, shape, rows)
+        def at(index: int, array, dtype, shape: tuple, rows: bool = False) -> bool:
+            return put(table, arrays, index, array, dtype, shape, rows)
 
         layout, periods, raw, blocks = (
             plan.layout,
@@ -166,37 +167,37 @@ class TableCalls:
         )
         e, ea = (envs, n), est._args
         checks = [
-            put(fk.Z, frame.position, f8, e),
-            put(fk.TS, frame.position_stamp, f8, e),
-            put(fk.NOW, frame.time, f8, (envs,)),
-            put(fk.TEMP_IN, frame.winding_temperature, f8, e),
-            put(fk.U, ea[4], f8, e),
-            put(fk.CONSTS, est._consts, f8, (4, n)),
-            put(fk.COUNTS, est._counts, i8, (3, envs, n)),
-            put(fk.EST_FLAGS, est._flags, b1, (2, envs, n)),
+            at(fk.Z, frame.position, f8, e),
+            at(fk.TS, frame.position_stamp, f8, e),
+            at(fk.NOW, frame.time, f8, (envs,)),
+            at(fk.TEMP_IN, frame.winding_temperature, f8, e),
+            at(fk.U, ea[4], f8, e),
+            at(fk.CONSTS, est._consts, f8, (4, n)),
+            at(fk.COUNTS, est._counts, i8, (3, envs, n)),
+            at(fk.EST_FLAGS, est._flags, b1, (2, envs, n)),
             self._put_supervision(table, arrays),
-            put(fk.EE_POSITION, state.ee_position, f8, (envs, 3)),
-            put(fk.EE_ROTATION, state.ee_rotation, f8, (envs, 3, 3)),
-            put(fk.LAST_ACTION, state.last_action, f8, e),
-            put(fk.LAYOUT, layout, i8, layout.shape),
-            put(fk.PERIODS, periods, f8, (blocks,)),
-            put(fk.GOAL, goal, f8, (envs, 3)),
+            at(fk.EE_POSITION, state.ee_position, f8, (envs, 3)),
+            at(fk.EE_ROTATION, state.ee_rotation, f8, (envs, 3, 3)),
+            at(fk.LAST_ACTION, state.last_action, f8, e),
+            at(fk.LAYOUT, layout, i8, layout.shape),
+            at(fk.PERIODS, periods, f8, (blocks,)),
+            at(fk.GOAL, goal, f8, (envs, 3)),
             observe[9] is observe[10] is observe[11] is observe[12],
-            put(fk.VECTOR, observe[9], f8, (envs, 3), rows=True),
-            put(fk.ORIENTATION, observe[13], f8, (envs, 4), rows=True),
-            put(fk.CLOCK, observe[14], f8, (envs,), rows=True),
-            put(fk.CONTACT, observe[15], f8, (envs, 0), rows=True),
-            put(fk.NORM, plan.norm, f8, (3, plan.dim)),
-            put(fk.RAW, raw, f8, (envs, plan.dim), rows=True),
-            put(fk.OUT, out, np.float32, (envs, plan.dim)),
+            at(fk.VECTOR, observe[9], f8, (envs, 3), rows=True),
+            at(fk.ORIENTATION, observe[13], f8, (envs, 4), rows=True),
+            at(fk.CLOCK, observe[14], f8, (envs,), rows=True),
+            at(fk.CONTACT, observe[15], f8, (envs, 0), rows=True),
+            at(fk.NORM, plan.norm, f8, (3, plan.dim)),
+            at(fk.RAW, raw, f8, (envs, plan.dim), rows=True),
+            at(fk.OUT, out, np.float32, (envs, plan.dim)),
         ]
         if kin.compiled:
             chain, placements, work = kin.chain
             joints = len(chain) - 1
             checks += [
-                put(fk.CHAIN, chain, i8, (joints + 1, 3)),
-                put(fk.PLACEMENTS, placements, f8, (joints + 1, 3, 4)),
-                put(fk.WORK, work, f8, (joints + 1, 3, 4)),
+                at(fk.CHAIN, chain, i8, (joints + 1, 3)),
+                at(fk.PLACEMENTS, placements, f8, (joints + 1, 3, 4)),
+                at(fk.WORK, work, f8, (joints + 1, 3, 4)),
             ]
         else:
             joints = 0
@@ -210,7 +211,7 @@ class TableCalls:
     def _put_supervision(self, table: np.ndarray, arrays: list) -> bool:
         """Put the supervision's arrays (and the state's and estimator's it reads) into an
         :func:`~sim2real.deploy.runtime.fused_kernel.estimate_observe` table, with their sizes and
-        flags; whether every one fits (:func:`~sim2real.deploy.runtime.fused_kernel.put`)."""
+        flags; whether every one fits (:func:`~sim2real.deploy.core.addresses.put`)."""
         sup, state, est, envs, n = (
             self._supervise_cached,
             self.state,
@@ -221,7 +222,7 @@ class TableCalls:
         f8, i8, b1, e = np.float64, np.int64, np.bool_, (envs, n)
         filt = getattr(est, "_filt", None)
         checks = [
-            fk.put(table, arrays, fk.FILT, filt, f8, (8, envs, n)),
+            put(table, arrays, fk.FILT, filt, f8, (8, envs, n)),
             filt is not None
             and sup[4] is est.time_since_fresh
             and np.shares_memory(sup[4], filt[7]),
@@ -247,7 +248,7 @@ class TableCalls:
             (fk.STOP_TIMEOUTS, sup[19], i8, (envs,)),
             (fk.FLAGS, sup[20], b1, (4, envs)),
         ):
-            checks.append(fk.put(table, arrays, index, array, dtype, shape))
+            checks.append(put(table, arrays, index, array, dtype, shape))
         table[[fk.ENVS, fk.N, fk.WINDOW, fk.CAUSES, fk.CONTROL, fk.REALTIME]] = (
             envs, n, len(sup[7]), len(sup[17]), sup[0], bool(sup[8])
         )  # fmt: skip

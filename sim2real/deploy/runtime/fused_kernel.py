@@ -6,9 +6,9 @@ Numba's dispatch of each array argument costs more than the arithmetic of an arm
 observation, and the four kernels took 60 arguments. So the call takes one int64 *table*, built
 and kept by :class:`sim2real.deploy.runtime.compiled.CompiledSupervision`: a header of sizes and
 flags, then the address of every array the stages touch, which the kernel views with
-``numba.carray``. The arrays must live, keep their shape and dtype and stay C-contiguous while
-the table is in use (the table's owner keeps a reference to each, checks them when it builds the
-table with :func:`put` and builds it again when the runtime hands it other arrays).
+``numba.carray`` (:mod:`sim2real.deploy.core.addresses`). The arrays must live, keep their shape
+and dtype and stay C-contiguous while the table is in use (its owner keeps a reference to each,
+checks them when it builds the table and builds it again when handed other arrays).
 
 The kernel calls the stages' own kernels in the tick's order:
 :func:`sim2real.deploy.estimation.kernel.kalman_tick`,
@@ -23,9 +23,8 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from numba.core import cgutils, types
-from numba.extending import intrinsic
 
+from sim2real.deploy.core.addresses import pointer as _pointer
 from sim2real.deploy.core.kinematics_kernel import chain_fk
 from sim2real.deploy.estimation.kernel import kalman_tick
 from sim2real.deploy.runtime.supervision_kernel import screen_action, supervise
@@ -53,34 +52,6 @@ SIZE = 56
 RECOVER, STATUS_SHIFT = 16, 5
 #: The kernel's signature (compiled, or loaded from numba's cache, by the table's owner).
 SIGNATURE = "int64(int64[::1], int64)"
-
-
-def put(table, arrays, index, array, dtype, shape: tuple, rows: bool = False) -> bool:
-    """Write the address of ``array`` into ``table[index]`` and keep the array in ``arrays``
-    (alive as long as the table), if it is a C-contiguous array of ``dtype`` and ``shape`` (at
-    least ``shape[0]`` rows with ``rows``); whether it is."""
-    ok = (
-        isinstance(array, np.ndarray)
-        and array.dtype == dtype
-        and array.flags.c_contiguous
-        and array.ndim == len(shape)
-        and (array.shape[0] >= shape[0] if rows else array.shape[0] == shape[0])
-        and array.shape[1:] == shape[1:]
-    )
-    if ok:
-        table[index] = array.ctypes.data
-        arrays.append(array)
-    return ok
-
-
-@intrinsic
-def _pointer(typingctx, address):
-    """The integer ``address`` as a ``void *`` (for ``numba.carray``)."""
-
-    def codegen(context, builder, signature, args):
-        return builder.inttoptr(args[0], cgutils.voidptr_t)
-
-    return types.voidptr(address), codegen
 
 
 @numba.njit(cache=True, nogil=True)

@@ -20,6 +20,7 @@ import math
 import numba
 import numpy as np
 
+from sim2real.deploy.core.addresses import pointer
 from sim2real.deploy.kernels import np_max, np_min
 
 #: The kernel's branch codes, one per block kind it assembles.
@@ -174,3 +175,43 @@ def observation(
             v = np_min(v, norm[2, i])
             v = np_max(v, -norm[2, i])
             out[e, i] = np.float32(v)
+
+
+# :func:`observation_over`'s table (:mod:`sim2real.deploy.core.addresses`): its header (sizes),
+# then the addresses of :func:`observation`'s arrays in its order
+T_ENVS, T_N, T_BLOCKS, T_WIDTH, T_DIM, T_RAW_ROWS, T_FEET = range(7)
+T_LAYOUT, T_PERIODS, T_Q, T_DQ, T_EE_POSITION, T_EE_ROTATION, T_GOAL, T_LAST_ACTION = range(7, 15)
+T_TEMPERATURE, T_LINEAR, T_ANGULAR, T_GRAVITY, T_COMMAND, T_ORIENTATION = range(15, 21)
+T_CLOCK, T_CONTACT, T_NORM, T_RAW, T_OUT = range(21, 26)
+#: Length of the table.
+TABLE_SIZE = 26
+#: :func:`observation_over`'s signature.
+TABLE_SIGNATURE = "void(int64[::1])"
+
+
+@numba.njit(cache=True, nogil=True)
+def observation_over(table: np.ndarray) -> None:
+    """:func:`observation` on the arrays of ``table`` (the ``T_*`` rows; shapes as there, the
+    floating-base inputs with at least ``envs`` rows)."""
+    envs, n, dim, f8 = table[T_ENVS], table[T_N], table[T_DIM], np.float64
+    observation(
+        numba.carray(pointer(table[T_LAYOUT]), (table[T_BLOCKS], table[T_WIDTH]), np.int64),
+        numba.carray(pointer(table[T_PERIODS]), (table[T_BLOCKS],), f8),
+        numba.carray(pointer(table[T_Q]), (envs, n), f8),
+        numba.carray(pointer(table[T_DQ]), (envs, n), f8),
+        numba.carray(pointer(table[T_EE_POSITION]), (envs, 3), f8),
+        numba.carray(pointer(table[T_EE_ROTATION]), (envs, 3, 3), f8),
+        numba.carray(pointer(table[T_GOAL]), (envs, 3), f8),
+        numba.carray(pointer(table[T_LAST_ACTION]), (envs, n), f8),
+        numba.carray(pointer(table[T_TEMPERATURE]), (envs, n), f8),
+        numba.carray(pointer(table[T_LINEAR]), (envs, 3), f8),
+        numba.carray(pointer(table[T_ANGULAR]), (envs, 3), f8),
+        numba.carray(pointer(table[T_GRAVITY]), (envs, 3), f8),
+        numba.carray(pointer(table[T_COMMAND]), (envs, 3), f8),
+        numba.carray(pointer(table[T_ORIENTATION]), (envs, 4), f8),
+        numba.carray(pointer(table[T_CLOCK]), (envs,), f8),
+        numba.carray(pointer(table[T_CONTACT]), (envs, table[T_FEET]), f8),
+        numba.carray(pointer(table[T_NORM]), (3, dim), f8),
+        numba.carray(pointer(table[T_RAW]), (table[T_RAW_ROWS], dim), f8),
+        numba.carray(pointer(table[T_OUT]), (envs, dim), np.float32),
+    )

@@ -17,8 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim2real.deploy.core.addresses import put
 from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.spec import kernel as ok
 from sim2real.deploy.spec.kernel import observation as observation_kernel
+from sim2real.deploy.spec.kernel import observation_over
 from sim2real.deploy.spec.kinds import KINDS, ObservationKind, numpy_reason
 from sim2real.deploy.spec.policy_spec import PolicySpec, SpecError
 from sim2real.deploy.spec.reference import assemble
@@ -76,6 +79,10 @@ class ObservationPlan:
         #: state.q, state.base), compared by identity (:meth:`observation`)
         self._args: tuple[np.ndarray, ...] = ()
         self._bound: tuple = ()
+        #: those arguments' table of addresses (:mod:`sim2real.deploy.core.addresses`; one
+        #: argument for the kernel's 19), or None: the kernel is called with its arguments
+        self._table: np.ndarray | None = None
+        self._table_arrays: list[np.ndarray] = []
         #: why the plan runs the numpy reference, not the kernel (None: it runs the kernel;
         #: ``sim2real.deploy.spec.kinds.numpy_reason``); an empty spec has nothing to compile
         self.numpy_reason = next(filter(None, map(numpy_reason, bl)), None)
@@ -109,6 +116,7 @@ class ObservationPlan:
         state = RobotState.legged(1, n, feet) if self.legged else RobotState.zeros(1, n)
         out = np.zeros((1, self.dim), dtype=np.float32)
         self._run_kernel(state, np.zeros((1, 3)), out)
+        ok.observation_over.compile(ok.TABLE_SIGNATURE)
 
     def _base_inputs(self, state: RobotState, envs: int) -> tuple[np.ndarray, ...]:
         """The kernel's floating-base inputs: the state's, or zeros for a fixed-base state
@@ -188,7 +196,10 @@ class ObservationPlan:
             and state.q is b[3]
             and state.base is b[4]
         ):
-            observation_kernel(*self._args)
+            if self._table is not None:
+                observation_over(self._table)
+            else:
+                observation_kernel(*self._args)
             return out
         if not self.compiled:
             return assemble(self, state, goal, out)
@@ -199,5 +210,29 @@ class ObservationPlan:
         envs = state.q.shape[0]
         self.raw(envs)
         self._args = self._kernel_args(state, goal, out, envs)
+        self._table = self._address_table(self._args)
         observation_kernel(*self._args)
         return out
+
+    def _address_table(self, args: tuple[np.ndarray, ...]) -> np.ndarray | None:
+        """:func:`~sim2real.deploy.spec.kernel.observation_over`'s table of the kernel's arguments
+        ``args``, or None if one has another dtype, shape or layout than the table's."""
+        q, contact, raw = args[2], args[15], args[17]
+        envs, n = q.shape if q.ndim == 2 else (0, 0)
+        feet = contact.shape[1] if contact.ndim == 2 else 0
+        table, arrays = np.zeros(ok.TABLE_SIZE, dtype=np.int64), []
+        f8, e, v = np.float64, (envs, n), (envs, 3)
+        shapes = (
+            (self.layout.shape, np.int64), ((len(self.layout),), f8), (e, f8), (e, f8), (v, f8),
+            ((envs, 3, 3), f8), (v, f8), (e, f8), (e, f8), (v, f8), (v, f8), (v, f8), (v, f8),
+            ((envs, 4), f8), ((envs,), f8), ((envs, feet), f8), ((3, self.dim), f8),
+            ((envs, self.dim), f8), ((envs, self.dim), np.float32),
+        )  # fmt: skip
+        for i, (array, (shape, dtype)) in enumerate(zip(args, shapes, strict=True)):
+            rows = ok.T_LINEAR <= ok.T_LAYOUT + i <= ok.T_CONTACT or ok.T_LAYOUT + i == ok.T_RAW
+            if not put(table, arrays, ok.T_LAYOUT + i, array, dtype, shape, rows):
+                return None
+        table[: ok.T_FEET + 1] = (envs, n, len(self.layout), self.layout.shape[1], self.dim,
+                                  raw.shape[0], feet)  # fmt: skip
+        self._table_arrays = arrays  # alive with the table
+        return table

@@ -86,6 +86,7 @@ class CompiledStep:
             k.NO_LOAD_SPEED: (act.envelope.no_load_speed, f8), k.SUPPLY: (act.supply, f8),
         }  # fmt: skip
         self._arrays = [a for a, _ in arrays.values()]  # alive while the table names them
+        t[k.SELF] = t.ctypes.data  # a copied table holds another array's address: stale
         for slot, (a, dtype) in arrays.items():
             t[slot] = _address(a, dtype)
         self._env_arrays: list[list[np.ndarray]] = [[] for _ in range(p.envs)]
@@ -115,6 +116,12 @@ class CompiledStep:
                 ctypes.cast(c.next_double, ctypes.c_void_p).value,
             )
 
+    def __reduce__(self):
+        """A copy (``copy.deepcopy``, pickle) is a stale table that names no memory:
+        :func:`~sim2real.deploy.backends.sim.plant_kernel.before_physics` finds it stale and
+        the copied plant builds its own at its first ``advance``."""
+        return (_stale_step, ())
+
     def bind(self, e: int) -> None:
         """Write env ``e``'s row from the plant's present views of its ``MjData`` and model
         (``ctrl``, the joints' qpos, qvel and ``qfrc_actuator``, the warning counters, ``act``,
@@ -138,3 +145,12 @@ class CompiledStep:
             self.table[row + field] = _address(a, np.float64)
         self.table[row + k.WARN] = warnings.ctypes.data
         self._env_arrays[e] = [m, d, *views.values(), warnings]
+
+
+def _stale_step():
+    """A table that :func:`~sim2real.deploy.backends.sim.plant_kernel.before_physics` finds
+    stale (its ``SELF`` entry is not its own address): what a copied plant holds."""
+    step = CompiledStep.__new__(CompiledStep)
+    step.table = np.zeros(k.ENV_ROWS, dtype=np.int64)
+    step.rng, step.draws = None, False
+    return step

@@ -34,9 +34,11 @@ from sim2real.deploy.backends.sim.drives import SimDrives
 from sim2real.deploy.backends.sim.drives_kernel import derating_due, windup_exceeded
 from sim2real.deploy.backends.sim.legged_sensors import BaseSensorModel
 from sim2real.deploy.backends.sim.plant_kernel import (
+    DERATE,
     DRAW,
     DRAWN,
     NO_SAMPLE,
+    STALE,
     actuator_substep,
     after_physics,
     before_physics,
@@ -247,7 +249,7 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
             kp = m.actuator_gainprm[: self.n_joints, 0]
             self._windup_bound[e] = self.robot.effort_limit / kp
         if self._compiled is not None:  # the kernels' addresses of the new views
-            self._compiled.bind(e)
+            self._compiled = CompiledStep(self)
 
     @property
     def time(self) -> float:
@@ -323,7 +325,15 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
         """
         table, nstep, step = self._compiled.table, self.decimation, mujoco.mj_step
         tick = self.tick
-        if before_physics(table, tick):
+        status = before_physics(table, tick)
+        if status & STALE:  # a copied plant: views of its own MjData, its own table
+            self._compiled = None
+            for e in range(self.envs):
+                self._bind(e)
+            self._compiled = CompiledStep(self)
+            table = self._compiled.table
+            status = before_physics(table, tick)
+        if status & DERATE:
             self._set_derated_limits()
         if not self.actuators.active:
             for m, d, _ctrl, _q, _force, _warnings in self._views:

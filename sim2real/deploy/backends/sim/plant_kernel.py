@@ -48,12 +48,12 @@ VELOCITY_MODE, HAS_VELOCITY, WRITE_CTRL, ENVELOPE = 1, 2, 4, 8
     COMMAND, QPOS, QVEL, TORQUE, START, DERATED, HOT, LAG, BOUND, CONSTANTS, AMBIENT, WINDING,
     HOUSING, CURRENT, POWER, FLOW, BUF_POSITION, BUF_VELOCITY, BUF_STAMP, UNIFORM, NOISE, DROPOUT,
     VELOCITY_NOISE, BIAS, BIASED, SCALARS, HISTORY, DELAY, STALL, NO_LOAD, ACTIVE, LIMIT, STREAMS,
-    T_REF, ALPHA, STALL_COEFFICIENT, NO_LOAD_SPEED, SUPPLY,
-) = range(8, 46)  # fmt: skip
+    T_REF, ALPHA, STALL_COEFFICIENT, NO_LOAD_SPEED, SUPPLY, SELF,
+) = range(8, 47)  # fmt: skip
 #: SCALARS (float64, 2): the encoder quantum (rad), the control period (s)
 QUANTUM, PERIOD = 0, 1
 #: first per-env row; each env has ``PER_ENV`` addresses
-ENV_ROWS = 46
+ENV_ROWS = 47
 # per env: MjData's ctrl, the joints' qpos, qvel, qfrc_actuator, the divergence warnings' counters,
 # act (velocity mode), and the model's jnt_actfrcrange rows of the joints
 CTRL, JQPOS, JQVEL, FORCE, WARN, ACT, ACTFRC = range(7)
@@ -64,9 +64,12 @@ STATE, NEXT_UINT64, NEXT_DOUBLE = range(3)
 #: ``after_physics``'s ``sample``: no encoder sample; a sample of the draws made before
 #: (:meth:`JointSensorModel.draw`); a sample that draws from STREAMS itself
 NO_SAMPLE, DRAWN, DRAW = 0, 1, 2
+#: ``before_physics``'s answer, bits: some env's torque limits must be set; the table is a
+#: copy's (``SELF`` is not its address): nothing was done, build the plant's own
+DERATE, STALE = 1, 2
 #: The kernels' signatures (:func:`compile_kernels`).
 SIGNATURES = {
-    "before_physics": "boolean(int64[::1], int64)",
+    "before_physics": "int64(int64[::1], int64)",
     "after_physics": "boolean(int64[::1], int64, int64)",
     "actuator_substep": "void(int64[::1], int64, int64, int64)",
 }
@@ -179,14 +182,17 @@ def _env(table, e, field):
 
 
 @numba.njit(cache=True, nogil=True)
-def before_physics(table: np.ndarray, tick: int) -> bool:
+def before_physics(table: np.ndarray, tick: int) -> int:
     """Before control tick ``tick``'s physics steps: each env's command ``COMMAND`` (envs, n)
     into every row of its ``ctrl`` (``ROWS`` rows of n) with ``WRITE_CTRL``; else the actuators'
     start of the period (:meth:`ActuatorModel.start_period`: the command into row
     ``tick % DEPTH`` of ``HISTORY``, and with ``ENVELOPE`` each motor's ``STALL`` torque at its
     winding temperature and ``NO_LOAD`` speed, scaled by the ``SUPPLY``); then the derating screen
     (:func:`sim2real.deploy.backends.sim.drives_kernel.derating_due`: ``HOT`` (envs,) bool
-    written); returns whether some env's torque limits must be set."""
+    written); returns ``DERATE`` where some env's torque limits must be set, ``STALE`` (having
+    done nothing) for a copied table, else 0."""
+    if table[SELF] != table.ctypes.data:
+        return STALE
     envs, n, rows, flags = table[ENVS], table[N], table[ROWS], table[FLAGS]
     command = _f64(table, COMMAND, (envs, n))
     winding = _f64(table, WINDING, (envs, n))
@@ -209,7 +215,7 @@ def before_physics(table: np.ndarray, tick: int) -> bool:
                 break
         hot[e] = h
         due = due or h or derated[e]
-    return due
+    return DERATE if due else 0
 
 
 @numba.njit(inline="always", cache=True, nogil=True)

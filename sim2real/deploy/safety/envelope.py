@@ -265,7 +265,7 @@ class MotionEnvelope(EnvelopeQueries):
         self._screen = ek.ScreenArrays(
             self.limits, self._cached_q, self._clearance, self.weights, self.margin, self._box,
             self._need, *self.tables.arrays(), self._speeds, self.local.order, self.local.nest,
-            self._slack, self._lead,
+            self._slack, self._lead, np.zeros((2, n)),
         )  # fmt: skip
         self._certify_key = (None,) * 10  # certify's kernel bound to these arrays
         self._certify = self._dynamics = None
@@ -280,7 +280,7 @@ class MotionEnvelope(EnvelopeQueries):
         state = (z, z.copy(), z3, z3.copy(), np.zeros(envs, dtype=bool), np.ones((envs, n)))
         s = self._screen  # copies of what the kernel writes; the rest as it is (its types)
         screen = s._replace(box=s.box.copy(), need=s.need.copy(), slack=s.slack.copy(),
-                            lead=s.lead.copy())  # fmt: skip
+                            lead=s.lead.copy(), scratch=s.scratch.copy())  # fmt: skip
         drive, arrays = self.drive, None
         if drive is not None:
             arrays = self._drive_arrays(z)._replace(

@@ -166,7 +166,7 @@ def pairs_reach(
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def envelope_screen(
     q: np.ndarray,
     before: np.ndarray,
@@ -190,8 +190,10 @@ def envelope_screen(
     nest: np.ndarray,
     slack: np.ndarray,
     lead: np.ndarray,
+    scratch: np.ndarray,
 ) -> bool:
-    """The box of every env not ``stopping`` ((envs,) bool), and whether the cache certifies it.
+    """The box of every env not ``stopping`` ((envs,) bool), and whether the cache certifies it
+    (``scratch`` (2, n): work; the kernel allocates nothing).
 
     The box (module docstring): ``q`` (envs, n) estimated positions (rad); ``before`` and
     ``after`` (3, envs, n) the smoother's position, velocity and acceleration before and after
@@ -224,8 +226,7 @@ def envelope_screen(
     rows = weights.shape[0]
     pairs = rows - 3
     any_need = False
-    spread = np.empty(n)
-    bound = np.empty(n)
+    spread, bound = scratch[0], scratch[1]
     for e in range(envs):
         need[COLLISION, e] = False
         need[WORKSPACE, e] = False
@@ -294,6 +295,7 @@ class ScreenArrays(NamedTuple):
     nest: np.ndarray
     slack: np.ndarray
     lead: np.ndarray
+    scratch: np.ndarray
 
 
 class DriveArrays(NamedTuple):
@@ -315,7 +317,7 @@ class DriveArrays(NamedTuple):
     beyond: np.ndarray
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def certify(q, dq, before, after, stopping, effort_scale, command, s, d) -> int:
     """One tick of :meth:`sim2real.deploy.safety.envelope.MotionEnvelope.certify` in one call: with
     a velocity drive (``d`` its :class:`DriveArrays`, gravity and mass matrix at ``q`` already
@@ -349,7 +351,7 @@ def certify(q, dq, before, after, stopping, effort_scale, command, s, d) -> int:
     if envelope_screen(
         q, start, end, stopping, s.limits, effort_scale, s.cached_q, s.clearance, s.weights,
         s.margin, s.box, s.need, s.joint, s.grid, s.cells, s.offset, s.values, s.speeds,
-        s.order, s.nest, s.slack, s.lead,
+        s.order, s.nest, s.slack, s.lead, s.scratch,
     ):  # fmt: skip
         code |= UNCERTAIN
     if d is not None and code == 0:
@@ -372,7 +374,7 @@ def warm_up() -> None:
         np.zeros((2, 1, 2)), np.full((1, 4), math.inf), np.zeros((4, 2)), 0.0,
         np.zeros((5, 1, 2)), np.zeros((2, 1), dtype=bool), *tables,
         np.zeros((1, 1, 2)), np.arange(2), np.zeros((1, 2, 2), dtype=np.int8), np.zeros((1, 2)),
-        np.zeros((1, 2)),
+        np.zeros((1, 2)), np.zeros((2, 2)),
     )  # fmt: skip
     pairs_reach(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros(2), np.arange(2),
                 np.zeros((1, 2, 2), dtype=np.int8), np.zeros(1))  # fmt: skip

@@ -7,7 +7,8 @@ IMU attitude's corrections (:mod:`sim2real.deploy.estimation.base_kernel`). It m
 whose legs are to be read. Pinocchio then gives those envs' foot velocities (and placements, with
 a dead foot); :func:`absorb_legs` runs the contacts, the slip gate and the feet's corrections,
 then predicts every env's output to ``frame.time``. Same expressions, same order as the Python
-steps: the same numbers (``tests/test_legged.py`` holds them to the reference).
+steps: the same numbers (``tests/test_base_tick.py``). A foot's placement is not needed for its
+velocity (Pinocchio's ``getFrameVelocity`` reads the joint's): it is updated with a dead foot only.
 
 The filter's state is packed so that a call takes few arrays (numba's dispatch costs about 0.1 us
 per array argument): ``x`` (envs, ``NX``) floats (columns ``ORIENTATION`` ... ``AGE``), ``n``

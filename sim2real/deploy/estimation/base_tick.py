@@ -10,8 +10,8 @@ then predicts every env's output to ``frame.time``. Same expressions, same order
 steps: the same numbers (``tests/test_base_tick.py``). A foot's placement is not needed for its
 velocity (Pinocchio's ``getFrameVelocity`` reads the joint's): it is updated with a dead foot only.
 
-The filter's state is packed so that a call takes few arrays (numba's dispatch costs about 0.1 us
-per array argument): ``x`` (envs, ``NX``) floats (columns ``ORIENTATION`` ... ``AGE``), ``n``
+The filter's state is packed so that a call takes few arrays (numba's dispatch unboxes each
+array argument): ``x`` (envs, ``NX``) floats (columns ``ORIENTATION`` ... ``AGE``), ``n``
 (envs, 5) int64 counters (``MISSING`` ... ``RUN``), ``feet`` (2, envs, n_feet) bool (contact, dead),
 ``force`` (2, envs, n_feet) (last force, its stamp), ``encoder`` (2, envs, n_joints) (last
 position, its stamp), and ``p`` the constants (``P_*`` indices, the feet's radii from ``P_RADII``).

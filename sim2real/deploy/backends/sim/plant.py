@@ -140,6 +140,7 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
         self.actuators = ActuatorModel(
             robot, envs, robot.control_period / robot.decimation, robot.decimation
         )
+        self._stepwise = self.actuators.active  # physics one step at a time
         self._actfrc: list[np.ndarray] = [np.zeros((n, 2))] * envs  # jnt_actfrcrange rows
         # the drive kernels too (sim2real.deploy.backends.sim.drives_kernel), on arrays of their types
         z = np.zeros((envs, n))
@@ -312,16 +313,17 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
         and the sensors.
 
         The plant's own models run in two compiled calls around MuJoCo's steps
-        (:mod:`sim2real.deploy.backends.sim.plant_kernel`): the commands and the derating screen
-        before, the joint state, divergence screen, anti-windup, thermal step and encoder sample
-        after; only the random draws (numpy's seeded streams), a derating that is due, the
-        temperature reports and a floating base's IMU and contact stay in Python. With motors
-        that delay their command or follow a torque-speed line the physics runs one step at a
-        time, each after one compiled call for the env's actuators.
+        (:mod:`sim2real.deploy.backends.sim.plant_kernel`): the commands (or the actuators'
+        start of the period) and the derating screen before; the joint state, divergence
+        screen, anti-windup, thermal step and encoder sample with its draws after. A derating
+        that is due, the temperature reports and a floating base's IMU and contact stay in
+        Python. With motors that delay their command or follow a torque-speed line the physics
+        runs one step at a time, each after one compiled call for the env's actuators.
 
         Raises:
             SimulationDivergedError: MuJoCo flagged a bad state in any env (every env has
-                stepped; the sensor stream has made the tick's draws).
+                stepped; the thermal and sensor models have not, the streams have not drawn
+                unless they are not numpy Generators).
         """
         table, nstep, step = self._compiled.table, self.decimation, mujoco.mj_step
         tick = self.tick
@@ -335,7 +337,7 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
             status = before_physics(table, tick)
         if status & DERATE:
             self._set_derated_limits()
-        if not self.actuators.active:
+        if not self._stepwise:
             for m, d, _ctrl, _q, _force, _warnings in self._views:
                 step(m, d, nstep=nstep)
         else:  # delayed commands, and a torque range that follows the joint speed
@@ -346,7 +348,7 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
         tick += 1
         sensors = self._joint_sensors
         sample = NO_SAMPLE
-        if tick % sensors.encoder_every == 0:
+        if tick % sensors._encoder_every == 0:
             compiled = self._compiled
             if sensors.rng is not compiled.rng:  # new streams (set_sensor_streams)
                 compiled.bind_streams()
@@ -359,7 +361,7 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
             for e, d in enumerate(self.datas):
                 self._check_divergence(e, d)
         self.tick = tick
-        if tick % sensors.temperature_every == 0:
+        if tick % sensors._temperature_every == 0:
             sensors.report_temperature(self.time, self.thermal.winding_temperature)
         if self._base_sensors is not None:
             self._base_sensors.sample(tick, self.time)

@@ -297,11 +297,6 @@ class JointSensorModel:
         if self.has_velocity:
             rng.standard_normal(out=velocity)
 
-    @property
-    def temperature_every(self) -> int:
-        """Control ticks between two temperature reports (``control rate / temperature_rate``)."""
-        return self._temperature_every
-
     def report_temperature(self, time: float, winding_temperature: np.ndarray) -> None:
         """The drives' temperature report at ``time`` (s): ``winding_temperature`` (envs, n)
         degC rounded to :attr:`temperature_resolution` into the frame, stamped ``time``."""

@@ -138,9 +138,9 @@ class CompiledSupervision(TableCalls):
         self._screen_cached = self._screen_args(None, self.state)[2:]
         sv.supervise(*self._supervise_args(self.state, copy=True))
         sv.screen_action(*self._screen_args(self._action, self.state, copy=True))
-        #: :meth:`estimate_observe`'s end-effector kinematics (built on its first call), its
-        #: table of addresses, the arrays it was built over (compared by identity each call)
-        #: and every array it points to (kept alive with it)
+        #: :meth:`estimate_observe`'s end-effector kinematics (a fixed base's; None: built on
+        #: its first call), its table of addresses, the arrays it was built over (compared by
+        #: identity each call) and every array it points to (kept alive with it)
         self._kinematics: Kinematics | None = None
         self._table = np.zeros(fk.SIZE, dtype=np.int64)
         self._table_key: tuple = ()
@@ -150,8 +150,9 @@ class CompiledSupervision(TableCalls):
         self._fused = False
         fk.screen.compile(fk.SCREEN_SIGNATURE)  # compiled (or loaded from numba's cache) now
         fk.supervise_only.compile(fk.SUPERVISE_SIGNATURE)
-        if state.base is None:  # a fixed base: the fused call too
+        if state.base is None:  # a fixed base: the fused call too, and its kinematics
             fk.estimate_observe.compile(fk.SIGNATURE)
+            self._kinematics = Kinematics(self.robot)
 
     def _bind_action(self, spec: PolicySpec) -> None:
         """The kernel's rows of ``spec.action`` (clip, scale, offset) and its reference; again

@@ -147,7 +147,7 @@ class CompiledSupervision(TableCalls):
         self._table_arrays: list[np.ndarray] = []
         #: :meth:`estimate_observe` runs the separate stages (no fused call for this robot,
         #: policy or estimator input), or the fused call after checking its arrays
-        self._fused = False
+        self._fused = self._copy_input = False
         fk.screen.compile(fk.SCREEN_SIGNATURE)  # compiled (or loaded from numba's cache) now
         fk.supervise_only.compile(fk.SUPERVISE_SIGNATURE)
         if state.base is None:  # a fixed base: the fused call too, and its kinematics

@@ -110,12 +110,13 @@ class TableCalls:
             self._bind_table(frame, acceleration, spec, goal, out)
         if not self._fused:
             return self._separate(frame, drive_errors, acceleration, spec, goal, out)
-        if est._copy_input:
+        if self._copy_input:  # an input the kernel cannot read in place: copied into _u
             np.copyto(est._u, acceleration)
         if drive_errors is not None:
             self._note_drive_errors(drive_errors)
         code = fk.estimate_observe(self._table, 0)
         if code & fk.RECOVER:  # a degenerate joint filter: re-initialized, then the rest
+            est._bind(frame, self.state, acceleration)  # its arguments: this call's arrays
             est._recover(code >> fk.STATUS_SHIFT, frame)
             code = fk.estimate_observe(self._table, 1)
         if code:
@@ -134,6 +135,7 @@ class TableCalls:
         for the separate stages)."""
         state, est = self.state, self.estimator
         est._bind(frame, state, acceleration)  # checks the frame; the estimator's own arguments
+        self._copy_input = est._copy_input
         self._table_key = (
             frame.position,
             frame.position_stamp,

@@ -80,7 +80,8 @@ class Ros2ControlBackend(BackendLifecycle):
             state the last read took was sampled (its header stamp moved onto this computer's
             clock by the smallest receive-minus-stamp difference seen so far, so that any
             clock offset between the robot and this computer cancels; NaN when the read took
-            no new state or the state had no stamp), and when the last command was published.
+            no new state or the state had no stamp), and when the last command's publish
+            returned (the middleware sends it at the end of the call).
 
     Raises:
         ValueError: an unknown mode, a floating-base robot, a joint order that does not match
@@ -270,8 +271,8 @@ class Ros2ControlBackend(BackendLifecycle):
         """
         command = checked_command(command, self.n)
         t0 = time.perf_counter_ns()
-        self.loop_times[1] = time.monotonic() - self._t0
         self._publish(command[0])
+        self.loop_times[1] = time.monotonic() - self._t0  # sent: DDS writes at publish's end
         self.write_cost.add(0, time.perf_counter_ns() - t0)
 
     def _publish(self, command: np.ndarray) -> None:

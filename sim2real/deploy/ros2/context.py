@@ -65,6 +65,11 @@ class NodeThread:
             self._thread = threading.Thread(target=self._spin, name="ros2-node", daemon=True)
             self._thread.start()
 
+    def spin_once(self, timeout: float) -> None:
+        """Run at most one ready callback, waiting up to ``timeout`` s for one, on the calling
+        thread: for a node whose owner spins it itself (never with :meth:`start`)."""
+        self._executor.spin_once(timeout_sec=timeout)
+
     def _spin(self) -> None:
         while not self._stop.is_set() and self.context.ok():
             self._executor.spin_once(timeout_sec=SPIN_TIMEOUT)

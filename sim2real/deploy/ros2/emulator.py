@@ -12,7 +12,10 @@ loop's at a fixed rate, ``read`` / ``update`` / ``write``: the plant's state at 
 (``t0 + k * period``, which stamps ``joint_states``), then the newest command that arrived before
 that time (a forward controller holds the last; before the first, the plant's initial command
 holds the robot at home), then the plant steps one period under it (its motion until the next
-update). An update the thread runs late takes no command that arrived after its time.
+update). A command's arrival is when the middleware received it (its message info), and the
+thread that updates also takes the commands, all that are waiting before each update: an update
+the thread runs late (a loaded computer) still takes every command that arrived before its
+time, and none that arrived after.
 Nothing in the runtime knows it talks to an emulator.
 
 The emulator counts what the robot really did (:class:`~sim2real.deploy.monitors.violations.
@@ -101,20 +104,24 @@ class ControllerManagerEmulator:
         node.create_subscription(
             Float64MultiArray, command_topic(self.controller), self._on_command, 10
         )
-        self.node.start()
+        self._wall_ns = time.time_ns() - time.monotonic_ns()  # time.time_ns() at monotonic 0
         self.plant.read()
 
-    def _on_command(self, msg) -> None:
+    def _on_command(self, msg, info) -> None:
+        now = time.monotonic()
+        received = info.get("received_timestamp") or 0
+        arrival = (received - self._wall_ns) * 1e-9
+        if not now - 1.0 < arrival <= now:  # a middleware without the stamp, or another clock
+            arrival = now
         data = np.asarray(msg.data, dtype=np.float64)
         with self._lock:
             self.stats["commands_received"] += 1
             if data.shape != (self.robot.n_joints,) or not np.isfinite(data).all():
                 self.stats["commands_refused"] += 1  # as the forward controller refuses it
                 return
-            now = time.monotonic()
-            self._inbox.append((now, data))
+            self._inbox.append((arrival, data))
             if self._first_command is None:
-                self._first_command = now
+                self._first_command = arrival
 
     # ------------------------------------------------------------------ serving
     def request_stop(self) -> None:
@@ -124,8 +131,9 @@ class ControllerManagerEmulator:
     def serve(self) -> None:
         """Update at the control rate, paced by the wall clock, until :meth:`request_stop`."""
         t0, steps, period = time.monotonic(), 0, self.period
-        wall_ns = time.time_ns() - time.monotonic_ns()  # time.time_ns() at monotonic 0
+        wall_ns = self._wall_ns
         while not self._stop.is_set():
+            self._take_commands()
             due = int((time.monotonic() - t0) / period) + 1  # the updates whose time has come
             if due - steps > MAX_LAG / period:
                 t0 += (due - 1 - steps) * period
@@ -135,7 +143,15 @@ class ControllerManagerEmulator:
                 at = t0 + steps * period
                 self._update(at, wall_ns + round(at * 1e9))
                 steps += 1
-            self._stop.wait(max(0.0, t0 + steps * period - time.monotonic()))
+            self.node.spin_once(max(0.0, t0 + steps * period - time.monotonic()))
+
+    def _take_commands(self) -> None:
+        """Run the node's callbacks until none is waiting (at most 64)."""
+        for _ in range(64):
+            before = self.stats["commands_received"]
+            self.node.spin_once(0.0)
+            if self.stats["commands_received"] == before:
+                return
 
     def _update(self, at: float, stamp_ns: int) -> None:
         """One update of the controller manager at ``at`` (s, time.monotonic; ``stamp_ns`` the

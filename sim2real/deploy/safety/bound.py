@@ -1,8 +1,8 @@
 """A compiled kernel bound to the types of its arguments: its call without numba's dispatch.
 
-Calling a numba dispatcher types every argument first (``typeof``: about 0.1 us an array, 1-2
-us a named tuple of twenty arrays) to pick the specialization, then calls that specialization's
-entry point, which unboxes the arguments and runs the machine code. A stage that calls its
+Calling a numba dispatcher types every argument first (``typeof``; a named tuple of arrays
+field by field) to pick the specialization, then calls that specialization's entry point, which
+unboxes the arguments and runs the machine code. A stage that calls its
 kernel on the same arrays every tick knows the specialization already: :func:`bind` looks it up
 once and returns the entry point with the arguments that do not change bound to it.
 

@@ -1,4 +1,5 @@
-"""A compiled kernel bound to the types of its arguments: its call without numba's dispatch.
+"""A compiled kernel bound to the types of its arguments: its call without numba's dispatch
+(the smoother's kernels and, a floor above, the guard's and the motion envelope's).
 
 Calling a numba dispatcher types every argument first (``typeof``; a named tuple of arrays
 field by field) to pick the specialization, then calls that specialization's entry point, which

@@ -8,8 +8,7 @@ the envs. The result equals one instance per env to rounding, not bit for bit: R
 recalculates only when its input changed, otherwise it samples the trajectory it has, and a
 batch's input changes whenever any env's target does.
 
-How the smoother starts from the measured state, its modes and its safe stop: the docstring of
-:class:`~sim2real.deploy.smoothing.smoother.CommandSmoother`.
+Its start from the measured state, modes, safe stop: :class:`~.smoother.CommandSmoother`.
 
 The package, one module per concept (each module's docstring says what it holds):
 
@@ -27,6 +26,7 @@ module                    what it holds
                           the clamps, counters and velocity-mode stopping guards
 :mod:`~.braking`          the stopping math of a jerk-limited joint: :func:`stopping_distance`,
                           :func:`stopping_speed`
+:mod:`~.bound`            :func:`~.bound.bind`: a kernel's call without numba's dispatch
 ========================  ====================================================================
 """
 

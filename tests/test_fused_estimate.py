@@ -4,8 +4,8 @@ does the action screen over its table (:meth:`CompiledSupervision.screen`).
 
 Two runtimes run the same scripted ticks of ``tests/test_compiled_tick.py`` (seeded plants with
 dropouts, the fault injector's faults, a hot winding, a drive error, overruns, NaN actions, the
-operator's resets): one the tick as it is, one whose estimate stage is the fused call
-(:class:`FusedRuntime`). A covariance written NaN in the middle makes the estimator re-initialize
+operator's resets): one the tick as it is (a fixed base: the fused call), one whose estimate and observe stages are
+the separate calls (:class:`SeparateRuntime`). A covariance written NaN in the middle makes the estimator re-initialize
 a joint (the call's ``RECOVER`` path). The screen's table is built over the policy's output
 buffer, when the policy returns the same array twice in a row: a policy that does (its
 :class:`SameBuffer`) is compared with one whose runtime never builds the table. Tolerance: none.
@@ -25,31 +25,13 @@ TICKS = 900
 CORRUPT = 240
 
 
-class FusedRuntime(Runtime):
-    """The tick with its estimate and observe stages in one call: the estimator's update and
-    the kinematics only note the frame, the supervision runs the fused call, the observation
-    returns its result."""
+class SeparateRuntime(Runtime):
+    """The tick with its estimate and observe stages as separate calls (the estimator, the
+    kinematics, the supervision, the observation), as a floating base runs them."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self._frame = None
-        self.fused_calls = 0
-
-        def note(frame, state, acceleration=None):
-            self._frame = frame
-            return state
-
-        self.estimator.update = note
-        self.kinematics.update = lambda state: state
-
-    def _supervise(self, state, drive_errors):
-        self._compiled.estimate_observe(
-            self._frame, drive_errors, self._input, self.spec, self.goal, self._obs
-        )
-        self.fused_calls += 1
-
-    def _observe(self, state):
-        return self._obs
+        self._fused = False
 
 
 def run(rt: Runtime, ticks: int) -> dict[str, np.ndarray]:
@@ -91,10 +73,10 @@ def run(rt: Runtime, ticks: int) -> dict[str, np.ndarray]:
 def test_the_fused_call_equals_the_separate_stages(tmp_path, request, robot_name, mode):
     robot = request.getfixturevalue(robot_name)
     path = adversarial_onnx(tmp_path, robot, mode, nan_probability=0.02)
-    separate = build(robot, mode, path, Runtime)
-    fused = build(robot, mode, path, FusedRuntime)
+    separate = build(robot, mode, path, SeparateRuntime)
+    fused = build(robot, mode, path, Runtime)
     a, b = run(separate, TICKS), run(fused, TICKS)
-    assert fused._compiled._fused and fused.fused_calls == TICKS
+    assert fused._fused and fused._compiled._fused  # the tick ran the one call over its table
     for key in a:
         for k in range(TICKS):  # the first tick that differs, named
             if not np.array_equal(a[key][k], b[key][k], equal_nan=True):

@@ -94,6 +94,12 @@ class FallDetector:
         )
         self._foot_position = np.zeros((envs, len(self.feet), 3))
         self._fallen = np.zeros(envs, dtype=bool)
+        # the compiled check compiled (or loaded from numba's cache) now, not in the first tick,
+        # on a state of the runtime's layout; its counts then cleared
+        self.check(RobotState.legged(envs, robot.n_joints, len(self.feet)))
+        self.height[:] = np.nan
+        self._ticks[:] = 0
+        self.signals[:] = False
 
     def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
         """``height`` (envs,) m, ``low_ticks`` and ``sinking_ticks`` (envs,) int64 (copies;

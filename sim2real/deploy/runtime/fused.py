@@ -2,16 +2,16 @@
 (:class:`TableCalls`, its base): the fused estimate and observe stages of a fixed-base robot
 (:meth:`TableCalls.estimate_observe`), and the building of the tables of addresses the kernels of
 :mod:`sim2real.deploy.runtime.fused_kernel` take (the fused call's, the supervision's, the action
-screen's), each array checked by :func:`~sim2real.deploy.core.addresses.put`.
+screen's), each array checked by :func:`~sim2real.deploy.kernels.calls.put`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from sim2real.deploy.core.addresses import put
 from sim2real.deploy.core.backend import SensorFrame
 from sim2real.deploy.core.state import Kinematics
+from sim2real.deploy.kernels.calls import put
 from sim2real.deploy.runtime import fused_kernel as fk
 from sim2real.deploy.spec.policy_spec import PolicySpec
 
@@ -213,7 +213,7 @@ class TableCalls:
     def _put_supervision(self, table: np.ndarray, arrays: list) -> bool:
         """Put the supervision's arrays (and the state's and estimator's it reads) into an
         :func:`~sim2real.deploy.runtime.fused_kernel.estimate_observe` table, with their sizes and
-        flags; whether every one fits (:func:`~sim2real.deploy.core.addresses.put`)."""
+        flags; whether every one fits (:func:`~sim2real.deploy.kernels.calls.put`)."""
         sup, state, est, envs, n = (
             self._supervise_cached,
             self.state,

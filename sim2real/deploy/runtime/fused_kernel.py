@@ -6,7 +6,7 @@ Numba's dispatch of each array argument costs more than the arithmetic of an arm
 observation, and the four kernels took 60 arguments. So the call takes one int64 *table*, built
 and kept by :class:`sim2real.deploy.runtime.compiled.CompiledSupervision`: a header of sizes and
 flags, then the address of every array the stages touch, which the kernel views with
-``numba.carray`` (:mod:`sim2real.deploy.core.addresses`). The arrays must live, keep their shape
+``numba.carray`` (:mod:`sim2real.deploy.kernels.calls`). The arrays must live, keep their shape
 and dtype and stay C-contiguous while the table is in use (its owner keeps a reference to each,
 checks them when it builds the table and builds it again when handed other arrays).
 
@@ -24,9 +24,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from sim2real.deploy.core.addresses import pointer as _pointer
 from sim2real.deploy.core.kinematics_kernel import chain_fk
 from sim2real.deploy.estimation.kernel import kalman_tick
+from sim2real.deploy.kernels.calls import pointer as _pointer
 from sim2real.deploy.runtime.supervision_kernel import screen_action, supervise
 from sim2real.deploy.spec.kernel import observation
 

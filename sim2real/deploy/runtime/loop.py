@@ -7,7 +7,6 @@ comes from :class:`~sim2real.deploy.runtime.state.RuntimeState`. The package's d
 
 from __future__ import annotations
 
-import functools
 import gc
 import time
 
@@ -24,6 +23,7 @@ from sim2real.deploy.core.modes import (
 )
 from sim2real.deploy.core.state import Kinematics, RobotState
 from sim2real.deploy.estimation.joints import JointStateEstimator
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.observe import long_ticks as lt
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
@@ -187,6 +187,9 @@ class Runtime(RuntimeState):
         self._backend_damp = getattr(backend, "damp", None)
         #: the compiled action screen and supervision (sim2real.deploy.kernels); None in the reference
         self._compiled = self._compile()
+        #: the estimate and observe stages in one compiled call (:meth:`_estimate_observe`): a
+        #: fixed base on the compiled path
+        self._fused = self._compiled is not None and self.base_estimator is None
         #: (envs,) bool: a legged robot's envs whose command damps (``damping``), this tick's
         self._damp = np.zeros(envs, dtype=bool)
         #: ``(tick) -> None``: the tick's latency histograms and long periods (:meth:`_bind_books`)
@@ -236,11 +239,7 @@ class Runtime(RuntimeState):
         lat, cost = self.latency, self.tick_cost
         arrays = (self._stamps, self._period, self._bins, lat.counts, lat.max_ns)
         arrays += (cost.counts, cost.max_ns, self.long_ticks.table)
-        kernel = lt.record_tick
-        types = tuple(kernel.typeof_pyval(a) for a in (*arrays, 0))  # 0: an int tick index
-        if types not in kernel.overloads:
-            kernel.compile(types)  # or loaded from numba's cache
-        return functools.partial(kernel.overloads[types].entry_point, *arrays)
+        return bind(lt.record_tick, *arrays, rest=(0,))  # the tick index, an int, at each call
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -350,14 +349,20 @@ class Runtime(RuntimeState):
         self.read_time[:] = frame.time
         drive_errors = self.backend.drive_errors()  # None: drives without error reports
         st[1] = clock_ns()
-        state = self.estimator.update(frame, self.state, self._input)
-        self.kinematics.update(state)
-        if self.base_estimator is not None:
-            self._update_base(frame, state)  # IMU, contacts, the gait clock; falls
-        self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
-        st[2] = clock_ns()
-        obs = self._observe(state)
-        st[3] = clock_ns()
+        if (
+            self._fused
+        ):  # a fixed base: the four calls below as one (the stamps: observe in estimate)
+            state, obs = self.state, self._estimate_observe(frame, drive_errors)
+            st[2] = st[3] = clock_ns()
+        else:
+            state = self.estimator.update(frame, self.state, self._input)
+            self.kinematics.update(state)
+            if self.base_estimator is not None:
+                self._update_base(frame, state)  # IMU, contacts, the gait clock; falls
+            self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
+            st[2] = clock_ns()
+            obs = self._observe(state)
+            st[3] = clock_ns()
         policy_output = self.policy(obs)
         st[4] = clock_ns()
         action, target = self._act(policy_output, state)  # screen, action_to_target, override
@@ -410,6 +415,13 @@ class Runtime(RuntimeState):
         (:meth:`CompiledSupervision.supervise`)."""
         self._compiled.supervise(state, drive_errors)
 
+    def _estimate_observe(self, frame, drive_errors: np.ndarray | None) -> np.ndarray:
+        """A fixed base's estimator, kinematics, :meth:`_supervise` and :meth:`_observe` in one
+        compiled call, the same numbers
+        (:meth:`~sim2real.deploy.runtime.fused.TableCalls.estimate_observe`)."""
+        args = (frame, drive_errors, self._input, self.spec, self.goal, self._obs)
+        return self._compiled.estimate_observe(*args)
+
     def _observe(self, state: RobotState) -> np.ndarray:
         """(envs, obs_dim) float32: the policy's observation (``spec.observation``, compiled)."""
         return self.spec.observation(state, self.goal, out=self._obs)
@@ -438,16 +450,6 @@ class Runtime(RuntimeState):
         # an operator laying the robot down or standing it up: a low base is no fall, a tilt is
         fallen &= ~self.lying_expected | self.fall_detector.signals[:, 0]
         self.supervision.safe_stop(fallen, "fall")
-
-    @property
-    def damping(self) -> np.ndarray:
-        """(envs,) bool: the envs whose command damps the joints instead of holding a pose: a
-        legged robot's envs in SAFE_STOP or FAULTED (holding its stance against gravity with a
-        low-gain PD heated the thighs past 200 degC in simulation: it lies down instead); all
-        False for an arm."""
-        if self.base_estimator is None:
-            return np.zeros(self.envs, dtype=bool)
-        return self.mode >= SAFE_STOP  # SAFE_STOP or FAULTED, the last modes
 
     def _reanchor(self, state: RobotState) -> None:
         """:func:`reanchor` the smoother and count it (anchors or resyncs)."""

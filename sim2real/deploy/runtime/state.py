@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim2real.deploy.core.modes import FAULT_CAUSES, Mode
+from sim2real.deploy.core.modes import FAULT_CAUSES, SAFE_STOP, Mode
 from sim2real.deploy.core.stateful import check, load_parts, parts_state_dict, put, scalar, take
 
 
@@ -157,3 +157,13 @@ class RuntimeState:
         """(envs, n): the command the last tick wrote to the backend, in the units of the
         control mode (position rad, velocity rad/s, torque N m; a view)."""
         return self._cmd
+
+    @property
+    def damping(self) -> np.ndarray:
+        """(envs,) bool: the envs whose command damps the joints instead of holding a pose: a
+        legged robot's envs in SAFE_STOP or FAULTED (holding its stance against gravity with a
+        low-gain PD heated the thighs past 200 degC in simulation: it lies down instead); all
+        False for an arm."""
+        if self.base_estimator is None:
+            return np.zeros(self.envs, dtype=bool)
+        return self.mode >= SAFE_STOP  # SAFE_STOP or FAULTED, the last modes

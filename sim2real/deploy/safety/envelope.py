@@ -34,11 +34,11 @@ from ruckig import (
     Trajectory,
 )
 
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.safety import envelope_kernel as ek
 from sim2real.deploy.safety.envelope_query import EnvelopeQueries
 from sim2real.deploy.safety.local_reach import LocalReach
 from sim2real.deploy.safety.pair_grid import PairTables, pair_grids
-from sim2real.deploy.smoothing.bound import bind
 from sim2real.robots.chain_bounds import descends
 
 #: m, default clearance kept between listed collision geometries and from the workspace box's
@@ -351,7 +351,7 @@ class MotionEnvelope(EnvelopeQueries):
     def certify(self, q, dq, before, after, stopping, effort_scale, command) -> bool:
         """:meth:`check` of the smoother's step and, unless some env is unsafe, :meth:`commit`
         of ``command`` (envs, n): one compiled call (:func:`sim2real.deploy.safety.envelope_kernel.
-        certify`, bound to the arrays of the last call, :mod:`sim2real.deploy.smoothing.bound`) where
+        certify`, bound to the arrays of the last call, :mod:`sim2real.deploy.kernels.calls`) where
         the screen certifies every env, besides a velocity drive's Pinocchio calls. Arguments as
         :meth:`check`'s (``dq`` and ``command`` required).
 

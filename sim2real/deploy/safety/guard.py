@@ -32,6 +32,7 @@ from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import put, take
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.safety import kernel as gk
 from sim2real.deploy.safety.check import (
@@ -51,7 +52,6 @@ from sim2real.deploy.safety.collision import collision_model, collision_query
 from sim2real.deploy.safety.drive import VelocityDrive
 from sim2real.deploy.safety.envelope import MotionEnvelope
 from sim2real.deploy.safety.torque_drive import TorqueDrive
-from sim2real.deploy.smoothing.bound import bind
 from sim2real.robots import Robot
 from sim2real.robots.chain_bounds import (
     collision_pair_weights,
@@ -400,7 +400,7 @@ class SafetyGuard:
     def _filter(self, q: np.ndarray, dq: np.ndarray, commanded: np.ndarray | None, out):
         """:meth:`filter` with the kernel: phase 0 (which first notes the count rows
         :meth:`check_motion` shares in ``_counted``), the checks' Python parts, phase 1. The
-        kernel's calls are bound (:mod:`sim2real.deploy.smoothing.bound`) to the arrays of the last
+        kernel's calls are bound (:mod:`sim2real.deploy.kernels.calls`) to the arrays of the last
         call: a runtime passes the same ones every tick."""
         key = self._bound_key
         if out is not key[0] or q is not key[1] or dq is not key[2] or commanded is not key[3]:

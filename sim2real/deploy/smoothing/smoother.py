@@ -17,8 +17,8 @@ from ruckig import (
     Trajectory,
 )
 
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.smoothing import kernel as sk
-from sim2real.deploy.smoothing.bound import bind
 from sim2real.deploy.smoothing.braking import stopping_distance
 from sim2real.deploy.smoothing.ruckig_state import RuckigState, SmoothingError
 from sim2real.robots import CONTROL_MODES, Robot
@@ -420,7 +420,7 @@ class CommandSmoother(RuckigState):
     def _step(self, target: np.ndarray | None, out: np.ndarray | None) -> np.ndarray:
         """:meth:`step` after its checks: the kernels of :mod:`sim2real.deploy.smoothing.kernel` around
         Ruckig (which also note Ruckig's state before the step in :attr:`before` and write the
-        command to ``out``), bound (:mod:`sim2real.deploy.smoothing.bound`) to the arrays of the last
+        command to ``out``), bound (:mod:`sim2real.deploy.kernels.calls`) to the arrays of the last
         call: a runtime passes the same ones every tick."""
         if target is not self._bound_target or out is not self._bound_out:
             self._bind_step(target, out)

@@ -20,8 +20,8 @@ import math
 import numba
 import numpy as np
 
-from sim2real.deploy.core.addresses import pointer
 from sim2real.deploy.kernels import np_max, np_min
+from sim2real.deploy.kernels.calls import pointer
 
 #: The kernel's branch codes, one per block kind it assembles.
 JOINT_POSITION = 0
@@ -177,7 +177,7 @@ def observation(
             out[e, i] = np.float32(v)
 
 
-# :func:`observation_over`'s table (:mod:`sim2real.deploy.core.addresses`): its header (sizes),
+# :func:`observation_over`'s table (:mod:`sim2real.deploy.kernels.calls`): its header (sizes),
 # then the addresses of :func:`observation`'s arrays in its order
 T_ENVS, T_N, T_BLOCKS, T_WIDTH, T_DIM, T_RAW_ROWS, T_FEET = range(7)
 T_LAYOUT, T_PERIODS, T_Q, T_DQ, T_EE_POSITION, T_EE_ROTATION, T_GOAL, T_LAST_ACTION = range(7, 15)

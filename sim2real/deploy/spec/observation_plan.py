@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim2real.deploy.core.addresses import put
 from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.kernels.calls import put
 from sim2real.deploy.spec import kernel as ok
 from sim2real.deploy.spec.kernel import observation as observation_kernel
 from sim2real.deploy.spec.kernel import observation_over
@@ -79,7 +79,7 @@ class ObservationPlan:
         #: state.q, state.base), compared by identity (:meth:`observation`)
         self._args: tuple[np.ndarray, ...] = ()
         self._bound: tuple = ()
-        #: those arguments' table of addresses (:mod:`sim2real.deploy.core.addresses`; one
+        #: those arguments' table of addresses (:mod:`sim2real.deploy.kernels.calls`; one
         #: argument for the kernel's 19), or None: the kernel is called with its arguments
         self._table: np.ndarray | None = None
         self._table_arrays: list[np.ndarray] = []

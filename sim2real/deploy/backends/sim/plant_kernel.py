@@ -23,7 +23,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 from llvmlite import ir
-from numba.core import cgutils, types
+from numba.core import types
 from numba.extending import intrinsic
 from numba.np.random._constants import (
     fi_double,
@@ -35,6 +35,7 @@ from numba.np.random._constants import (
 
 from sim2real.deploy.backends.sim.drives_kernel import actuator_step
 from sim2real.deploy.backends.sim.sensors_kernel import encoder_sample
+from sim2real.deploy.kernels.calls import pointer as _pointer
 from sim2real.robots.thermal_kernel import thermal_step
 
 # the header: sizes and flags (ROWS: actuators per joint, the rows of ctrl; NSTEP: physics steps
@@ -73,16 +74,6 @@ SIGNATURES = {
     "after_physics": "boolean(int64[::1], int64, int64)",
     "actuator_substep": "void(int64[::1], int64, int64, int64)",
 }
-
-
-@intrinsic
-def _pointer(typingctx, address):
-    """The integer ``address`` as a ``void *`` (for ``numba.carray``)."""
-
-    def codegen(context, builder, signature, args):
-        return builder.inttoptr(args[0], cgutils.voidptr_t)
-
-    return types.voidptr(address), codegen
 
 
 @intrinsic

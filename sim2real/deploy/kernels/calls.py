@@ -1,0 +1,70 @@
+"""Calling a compiled kernel without numba's dispatch, the two ways the tick does it.
+
+Calling a numba dispatcher types every argument first (``typeof``; a named tuple of arrays field
+by field) to pick the specialization, then calls that specialization's entry point, which unboxes
+the arguments and runs the machine code; for a small robot the typing costs more than the
+arithmetic.
+
+- :func:`bind`: a stage that calls its kernel on the same arrays every tick knows the
+  specialization already: the entry point, looked up once, with the arguments that do not change
+  bound to it. The entry point does not check its arguments' types: it is only called with the
+  very objects it was bound with (the caller compares them by identity), or with Python scalars
+  of the bound scalar types; anything else goes through the dispatcher.
+- A table of addresses (:func:`put`, :func:`pointer`): a kernel takes one int64 table instead of
+  its arrays and views each with ``numba.carray(pointer(table[i]), shape, dtype)``. The arrays
+  must live, keep their shape and dtype and stay C-contiguous while the table is in use:
+  :func:`put` keeps them alive in a list the table's owner holds, and the owner builds the table
+  again when it is handed other arrays (compared by identity).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+from numba.core import cgutils, types
+from numba.extending import intrinsic
+
+
+def bind(kernel, *args, rest: tuple = ()):
+    """The entry point of the numba dispatcher ``kernel`` specialized to the types of ``args``
+    and ``rest`` (compiled, or loaded from numba's cache, now), with ``args`` bound: a callable
+    taking the remaining arguments, of the types of the examples ``rest`` (e.g. ``(0,)``: an int
+    given at each call). Each array's dtype, dimensions, layout and writeability and each
+    scalar's type select the specialization.
+
+    Raises:
+        numba.core.errors.TypingError: the kernel does not compile for these types.
+    """
+    types = tuple(kernel.typeof_pyval(a) for a in (*args, *rest))
+    if types not in kernel.overloads:
+        kernel.compile(types)
+    return functools.partial(kernel.overloads[types].entry_point, *args)
+
+
+@intrinsic
+def pointer(typingctx, address):
+    """The integer ``address`` as a ``void *`` (for ``numba.carray``), in a compiled kernel."""
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], cgutils.voidptr_t)
+
+    return types.voidptr(address), codegen
+
+
+def put(table, arrays, index, array, dtype, shape: tuple, rows: bool = False) -> bool:
+    """Write the address of ``array`` into ``table[index]`` and keep the array in ``arrays``
+    (alive as long as the table), if it is a C-contiguous array of ``dtype`` and ``shape`` (at
+    least ``shape[0]`` rows with ``rows``); returns whether it is (nothing written if not)."""
+    ok = (
+        isinstance(array, np.ndarray)
+        and array.dtype == dtype
+        and array.flags.c_contiguous
+        and array.ndim == len(shape)
+        and (array.shape[0] >= shape[0] if rows else array.shape[0] == shape[0])
+        and array.shape[1:] == shape[1:]
+    )
+    if ok:
+        table[index] = array.ctypes.data
+        arrays.append(array)
+    return ok

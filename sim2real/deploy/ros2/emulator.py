@@ -12,10 +12,10 @@ loop's at a fixed rate, ``read`` / ``update`` / ``write``: the plant's state at 
 (``t0 + k * period``, which stamps ``joint_states``), then the newest command that arrived before
 that time (a forward controller holds the last; before the first, the plant's initial command
 holds the robot at home), then the plant steps one period under it (its motion until the next
-update). A command's arrival is when the middleware received it (its message info), and the
-thread that updates also takes the commands, all that are waiting before each update: an update
-the thread runs late (a loaded computer) still takes every command that arrived before its
-time, and none that arrived after.
+update). The link is instantaneous: a command counts from when it was sent (its message info's
+source timestamp), and the thread that updates also takes the commands, all that are waiting
+before each update: an update the thread runs late (a loaded computer) still takes every command
+sent before its time, and none sent after.
 Nothing in the runtime knows it talks to an emulator.
 
 The emulator counts what the robot really did (:class:`~sim2real.deploy.monitors.violations.
@@ -109,8 +109,8 @@ class ControllerManagerEmulator:
 
     def _on_command(self, msg, info) -> None:
         now = time.monotonic()
-        received = info.get("received_timestamp") or 0
-        arrival = (received - self._wall_ns) * 1e-9
+        sent = info.get("source_timestamp") or 0  # the link is instantaneous
+        arrival = (sent - self._wall_ns) * 1e-9
         if not now - 1.0 < arrival <= now:  # a middleware without the stamp, or another clock
             arrival = now
         data = np.asarray(msg.data, dtype=np.float64)

@@ -271,7 +271,7 @@ def test_compiled_observation_equals_the_reference_for_the_floating_base_blocks(
     )
     base = PolicySpec.for_robot(go2)
     spec = replace(base, observation_blocks=legged + base.observation_blocks)
-    assert spec._plan.compiled  # the kernel runs these blocks
+    assert spec.plan.compiled  # the kernel runs these blocks
     envs = 4
     rng = np.random.default_rng(5)
     state = RobotState.legged(envs, n, feet)

@@ -136,7 +136,7 @@ def test_the_spec_from_a_config_computes_deploy_mujocos_observation(go2, tmp_pat
     a = spec.action
     assert (a.mode, a.scale, a.offset) == ("position", (0.25,) * n, tuple(cfg["default_angles"]))
     assert spec.control_rate == 50.0 and spec.robot_hash == ""
-    assert spec._plan.compiled  # every block runs in the compiled kernel
+    assert spec.plan.compiled  # every block runs in the compiled kernel
     rng = np.random.default_rng(11)
     for state, inputs in random_states(go2, rng, 200):
         theirs = deploy_mujoco_observation(cfg, *inputs)

@@ -400,3 +400,23 @@ def test_a_run_warns_about_joints_the_filter_keeps_reinitializing():
     assert "knee 2000 times in 20.0 s" in text and "hip" not in text
     edge = int(REINIT_WARNING_RATE * seconds) * 2  # exactly the rate over two envs: no warning
     assert reinit_warning(names, np.array([[edge // 2, 0], [edge // 2, 0]]), seconds) is None
+
+
+def test_kernel_arrays_are_the_live_arrays_and_the_input_is_copied_only_when_it_must_be(arm3):
+    """:meth:`JointStateEstimator.kernel_arrays`: the estimator's, frame's and state's own arrays
+    (a fused caller keeps their addresses); an input the kernel cannot read in place (Fortran
+    order) is the estimator's copy of it, None its zeros."""
+    envs, n = 2, arm3.n_joints
+    est, state = JointStateEstimator(arm3, envs), RobotState.zeros(envs, n)
+    f = frame(0.01, arm3.home, 0.01, envs=envs, n=n)
+    est.reset(np.broadcast_to(arm3.home, (envs, n)), 0.0)
+    assert est.initialized
+    acc = np.arange(envs * n, dtype=np.float64).reshape(envs, n)
+    args = est.kernel_arrays(f, state, acc)
+    assert args.u is acc and args.filt is est.filter_state and args.q_out is state.q
+    assert args.z is f.position and args.now is f.time and args.dq_out is state.dq
+    assert np.shares_memory(est.filter_state[7], est.time_since_fresh)
+    fortran = np.asfortranarray(acc)
+    args = est.kernel_arrays(f, state, fortran)
+    assert args.u is not fortran and np.array_equal(args.u, acc)
+    assert not est.kernel_arrays(f, state, None).u.any()

@@ -430,7 +430,7 @@ def test_the_reference_gives_the_kernels_numbers_with_components_in_any_order(go
     from sim2real.deploy.spec.reference import observation_reference
 
     base = PolicySpec.for_robot(go2)
-    assert base._plan.compiled and base._plan.numpy_reason is None
+    assert base.plan.compiled and base.plan.numpy_reason is None
     yaw = ObservationBlock("velocity_command", 1, (0.25,), (0.0,), components=(2,))
     split = dataclasses.replace(base, observation_blocks=(yaw,) + base.observation_blocks)
     clock = ObservationBlock(
@@ -443,7 +443,7 @@ def test_the_reference_gives_the_kernels_numbers_with_components_in_any_order(go
         base, observation_blocks=(yaw, clock) + base.observation_blocks + (cos_apart,)
     )
     split.validate()
-    assert split._plan.compiled and split._plan.numpy_reason is None
+    assert split.plan.compiled and split.plan.numpy_reason is None
     rng = np.random.default_rng(2)
     state = RobotState.legged(3, go2.n_joints, go2.n_feet)
     state.q[:] = rng.uniform(go2.position_lower, go2.position_upper, (3, go2.n_joints))

@@ -233,6 +233,12 @@ class BaseStateEstimator(BaseSteps):
         )
 
     @property
+    def imu_to_base(self) -> np.ndarray:
+        """(3, 3) float64, the rotation of the IMU's frame into the base's (from the MJCF's IMU
+        site): a vector the IMU measures is ``imu_to_base @ v`` in the base frame."""
+        return self._imu_to_base
+
+    @property
     def velocity_variance(self) -> np.ndarray:
         """(envs,) m^2/s^2, the mean of the covariance's velocity block's diagonal."""
         return np.trace(self.covariance[:, 3:6, 3:6], axis1=1, axis2=2) / 3

@@ -96,10 +96,10 @@ def _mm12(A, B, out, BT) -> None:
 
 
 @numba.njit(cache=True, nogil=True)
-def _mv(A, x, out, at: bool) -> None:
-    """``out`` (m,) = ``op(A) x`` for 3 columns, as BLAS's gemv rounds it: a row-major ``A``
-    (``at`` False) ``fma(a2 x2, fma(a0 x0, a1 x1))``, a transposed one ``fma(a2 x2, fma(a1 x1,
-    a0 x0))``."""
+def mv(A, x, out, at: bool) -> None:
+    """``out`` (m,) float64 = ``op(A) x``, ``A`` (m, 3) (``at`` False) or (3, m) (``at`` True:
+    ``A.T x``), ``x`` (3,), as BLAS's gemv (numpy's ``A @ x``) rounds it: a row-major ``A``
+    ``fma(a2 x2, fma(a0 x0, a1 x1))``, a transposed one ``fma(a2 x2, fma(a1 x1, a0 x0))``."""
     for i in range(out.shape[0]):
         if at:
             out[i] = fma(A[2, i], x[2], fma(A[1, i], x[1], A[0, i] * x[0]))
@@ -214,7 +214,7 @@ def _correct(P, y, H, r_var: float, q, v, b, gate: float, work) -> bool:
         for j in range(N_ERROR):
             P[i, j] = 0.5 * (P2[i, j] + P2[j, i])
     dx = work[2, 3]
-    _mv(K, y, dx, False)
+    mv(K, y, dx, False)
     _turn(dx[0:3], q, True)  # R = Exp(dtheta) R: a world-frame error
     for i in range(3):
         v[i] += dx[3 + i]
@@ -281,7 +281,7 @@ def imu_step_in(
     for i in range(3):
         f[i] = acc_b[i] - b[3 + i] - c2[i]
     _quat_to_mat(q, R)
-    _mv(R, f, rf, False)
+    mv(R, f, rf, False)
     F, P2 = work[0], work[2]
     _skew(rf, sk)
     for i in range(N_ERROR):
@@ -327,8 +327,8 @@ def imu_step_in(
                 H[i, j] = tmp[i, j] + tmp2[i, j]
                 H[i, 3 + j] = turn[i, j]
             H[i, 9 + i] = 1.0
-        _mv(R, up, c1, True)
-        _mv(turn, v, tv, False)
+        mv(R, up, c1, True)
+        mv(turn, v, tv, False)
         for i in range(3):
             y[i] = f[i] - (c1[i] + tv[i])
         _correct(P, y, H, accel_meas_var, q, v, b, np.inf, work)
@@ -364,7 +364,7 @@ def leg_step_in(q, v, b, P, foot_linear, foot_angular, radius, leg_var, gate, wo
         for j in range(3):
             H[i, j] = tmp[i, j]
             H[i, 3 + j] = R[j, i]
-    _mv(R, v, rv, True)
+    mv(R, v, rv, True)
     for i in range(3):
         y[i] = z[i] - rv[i]
     return _correct(P, y, H, leg_var, q, v, b, gate, work)

@@ -108,6 +108,6 @@ def packed_constants(est) -> np.ndarray:
     p[bt.P_RESTART], p[bt.P_MAX_RUN] = INITIAL_VELOCITY_SIGMA**2, MAX_REJECTED_READINGS
     p[bt.P_LEVER : bt.P_GRAVITY] = est.lever_arm
     p[bt.P_GRAVITY : bt.P_IMU] = est.gravity
-    p[bt.P_IMU : bt.P_RADII] = est._imu_to_base.ravel()
+    p[bt.P_IMU : bt.P_RADII] = est.imu_to_base.ravel()
     p[bt.P_RADII :] = est.radii
     return p

@@ -61,7 +61,7 @@ def _all_finite(a) -> bool:
 @numba.njit(cache=True, nogil=True)
 def _rotate(p, at: int, a, out) -> None:
     """``out`` (3,) = ``M a``, ``M`` the (3, 3) row-major rotation at ``p[at:at + 9]`` (rounded
-    as numpy's ``M @ a``: BLAS's gemv, :func:`~sim2real.deploy.estimation.base_kernel._mv`)."""
+    as numpy's ``M @ a``: BLAS's gemv, :func:`~sim2real.deploy.estimation.base_kernel.mv`)."""
     for i in range(3):
         r = p[at + 3 * i : at + 3 * i + 3]
         out[i] = fma(r[2], a[2], fma(r[0], a[0], r[1] * a[1]))

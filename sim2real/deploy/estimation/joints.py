@@ -37,7 +37,7 @@ import numpy as np
 from sim2real.deploy.core.backend import SensorFrame
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import put, take
-from sim2real.deploy.estimation.kernel import kalman_tick
+from sim2real.deploy.estimation.kernel import KalmanArgs, kalman_tick
 from sim2real.robots import Robot
 
 #: Default process noise standard deviation as a fraction of the joint's acceleration limit.
@@ -209,7 +209,7 @@ class JointStateEstimator:
         )
         #: the kernel's arguments for the last frame's, state's and input's arrays
         #: (:meth:`_bind`), and those arrays, compared by identity at each update
-        self._args: tuple = ()
+        self._args: KalmanArgs | tuple = ()
         self._bound: tuple = ()
         self._warm_up()
 
@@ -227,6 +227,18 @@ class JointStateEstimator:
         return arr
 
     # ------------------------------------------------------------------ views and counters
+    @property
+    def initialized(self) -> bool:
+        """Whether :meth:`reset` was called for every env (else :meth:`update` raises)."""
+        return self._all_initialized
+
+    @property
+    def filter_state(self) -> np.ndarray:
+        """(8, envs, n) float64, the kernel's ``filt`` (the live array; rows in
+        :func:`~sim2real.deploy.estimation.kernel.kalman_tick`'s docstring): ``position``,
+        ``velocity``, ``covariance``, ``filter_time`` and ``time_since_fresh`` are its views."""
+        return self._filt
+
     @property
     def position(self) -> np.ndarray:
         """(envs, n) rad, filter position at ``filter_time`` (a view)."""
@@ -384,6 +396,26 @@ class JointStateEstimator:
             self._recover(status, frame)
         return state
 
+    def kernel_arrays(self, frame: SensorFrame, state: RobotState, acceleration) -> KalmanArgs:
+        """The kernel's arguments over these arrays, the live ones for a caller's table of
+        addresses (bound as by :meth:`update`: ``acceleration`` (envs, n) rad/s^2 or None is read
+        in place if float64 C-contiguous, else ``u`` is the estimator's own array, which needs
+        ``acceleration`` copied in before each call unless it is None).
+
+        Raises:
+            ValueError: ``frame.position`` or ``position_stamp`` not shaped (envs, n).
+        """
+        self._bind(frame, state, acceleration)
+        return self._args
+
+    def recover(self, status: int, frame: SensorFrame, state: RobotState, acceleration) -> None:
+        """The rare path of a caller's compiled call of the kernel (arrays of
+        :meth:`kernel_arrays`) that returned ``status`` (the phase whose check failed, 1 or 2):
+        re-initialize the degenerate joints as :meth:`update` does and run the kernel on to the
+        outputs. Raises ValueError: a frame of the wrong shape."""
+        self._bind(frame, state, acceleration)
+        self._recover(status, frame)
+
     def _check_frame(self, frame: SensorFrame) -> None:
         """Raises ValueError: ``frame.position`` or ``position_stamp`` not shaped (envs, n)."""
         z, ts = frame.position, frame.position_stamp
@@ -400,31 +432,17 @@ class JointStateEstimator:
         C-contiguous (envs, n) array (the smoother's), else copied into ``_u`` at each update
         (zeros for None)."""
         self._check_frame(frame)
-        u = acceleration
-        self._copy_input = not (
-            isinstance(u, np.ndarray)
-            and u.dtype == np.float64
-            and u.shape == self._u.shape
-            and u.flags.c_contiguous
-        )
-        if self._copy_input:
-            if u is None:
-                self._u.fill(0.0)
-                self._copy_input = False
-            else:
-                np.copyto(self._u, u)
-            u = self._u
-        self._args = self._kernel_args(frame, state, u)
-        f = frame
-        self._bound = (
-            f.position,
-            f.position_stamp,
-            f.time,
-            f.winding_temperature,
-            state,
-            state.q,
-            acceleration,
-        )
+        u, f = acceleration, frame
+        in_place = isinstance(u, np.ndarray) and u.dtype == np.float64
+        in_place = in_place and u.shape == self._u.shape and u.flags.c_contiguous
+        self._copy_input = not in_place and u is not None
+        if u is None:
+            self._u.fill(0.0)
+        elif self._copy_input:
+            np.copyto(self._u, u)
+        self._args = self._kernel_args(frame, state, u if in_place else self._u)
+        self._bound = (f.position, f.position_stamp, f.time, f.winding_temperature, state,
+                       state.q, acceleration)  # fmt: skip
 
     def _recover(self, status: int, frame: SensorFrame) -> None:
         """A degenerate joint (the kernel's ``status``, its phase): re-initialize it, go on from
@@ -436,9 +454,9 @@ class JointStateEstimator:
             status = kalman_tick(status, *self._args)
 
     # ------------------------------------------------------------------ internals
-    def _kernel_args(self, frame: SensorFrame, state: RobotState, u: np.ndarray) -> tuple:
+    def _kernel_args(self, frame: SensorFrame, state: RobotState, u: np.ndarray) -> KalmanArgs:
         """Arguments of :func:`sim2real.deploy.estimation.kernel.kalman_tick` after ``phase``."""
-        return (
+        return KalmanArgs(
             frame.position,
             frame.position_stamp,
             frame.time,

@@ -24,9 +24,32 @@ Returns 0 when the outputs are written, 1 when the check of phase 0 failed (noth
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
+
+
+class KalmanArgs(NamedTuple):
+    """The arguments of :func:`kalman_tick` after ``phase``, in its order (shapes, dtypes and
+    units there): the frame's ``z``, ``ts``, ``now``, ``temperature_in``; the control input
+    ``u``; the estimator's own ``filt``, ``consts``, ``counts``, ``flags``; the state's
+    ``q_out``, ``dq_out``, ``temperature_out``; ``input_extrapolates``. The live arrays (never
+    copies): a table of their addresses stays valid while they are the bound ones."""
+
+    z: np.ndarray
+    ts: np.ndarray
+    now: np.ndarray
+    temperature_in: np.ndarray
+    u: np.ndarray
+    filt: np.ndarray
+    consts: np.ndarray
+    counts: np.ndarray
+    flags: np.ndarray
+    q_out: np.ndarray
+    dq_out: np.ndarray
+    temperature_out: np.ndarray
+    input_extrapolates: bool
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)

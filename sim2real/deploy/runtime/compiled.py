@@ -148,6 +148,8 @@ class CompiledSupervision(TableCalls):
         #: :meth:`estimate_observe` runs the separate stages (no fused call for this robot,
         #: policy or estimator input), or the fused call after checking its arrays
         self._fused = self._copy_input = False
+        #: the estimator's control input array the fused call reads, where it copies the input
+        self._estimator_input: np.ndarray | None = None
         fk.screen.compile(fk.SCREEN_SIGNATURE)  # compiled (or loaded from numba's cache) now
         fk.supervise_only.compile(fk.SUPERVISE_SIGNATURE)
         if state.base is None:  # a fixed base: the fused call too, and its kinematics

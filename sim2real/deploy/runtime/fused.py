@@ -92,7 +92,7 @@ class TableCalls:
             SpecError: a floating-base observation block and a state without a base.
         """
         est = self.estimator
-        if not est._all_initialized:
+        if not est.initialized:
             raise RuntimeError("JointStateEstimator.update before reset(q, t) of every env")
         k = self._table_key
         if not (
@@ -110,14 +110,13 @@ class TableCalls:
             self._bind_table(frame, acceleration, spec, goal, out)
         if not self._fused:
             return self._separate(frame, drive_errors, acceleration, spec, goal, out)
-        if self._copy_input:  # an input the kernel cannot read in place: copied into _u
-            np.copyto(est._u, acceleration)
+        if self._copy_input:  # an input the kernel cannot read in place: into the estimator's
+            np.copyto(self._estimator_input, acceleration)
         if drive_errors is not None:
             self._note_drive_errors(drive_errors)
         code = fk.estimate_observe(self._table, 0)
         if code & fk.RECOVER:  # a degenerate joint filter: re-initialized, then the rest
-            est._bind(frame, self.state, acceleration)  # its arguments: this call's arrays
-            est._recover(code >> fk.STATUS_SHIFT, frame)
+            est.recover(code >> fk.STATUS_SHIFT, frame, self.state, acceleration)
             code = fk.estimate_observe(self._table, 1)
         if code:
             self._act_on(code, self.state)
@@ -134,8 +133,9 @@ class TableCalls:
         """Check the arrays of :meth:`estimate_observe`'s call and build its table (or decide
         for the separate stages)."""
         state, est = self.state, self.estimator
-        est._bind(frame, state, acceleration)  # checks the frame; the estimator's own arguments
-        self._copy_input = est._copy_input
+        ea = est.kernel_arrays(frame, state, acceleration)  # checks the frame; binds the estimator
+        self._copy_input = acceleration is not None and ea.u is not acceleration
+        self._estimator_input = ea.u
         self._table_key = (
             frame.position,
             frame.position_stamp,
@@ -149,12 +149,12 @@ class TableCalls:
         )
         if self._kinematics is None:
             self._kinematics = Kinematics(self.robot)
-        kin, plan = self._kinematics, spec._plan
+        kin, plan = self._kinematics, spec.plan
         self._fused = False
         if state.base is not None or not plan.compiled or not (kin.compiled or kin.frame_id < 0):
             return
         envs, n = self.envs, self.n
-        observe = plan._kernel_args(state, goal, out, envs)  # grows the plan's buffers first
+        observe = plan.kernel_args(state, goal, out, envs)  # grows the plan's buffers first
         table, arrays = np.zeros(fk.SIZE, dtype=np.int64), []
         f8, i8, b1 = np.float64, np.int64, np.bool_
 
@@ -167,16 +167,16 @@ class TableCalls:
             observe[-2],
             len(plan.layout),
         )
-        e, ea = (envs, n), est._args
+        e = (envs, n)
         checks = [
             at(fk.Z, frame.position, f8, e),
             at(fk.TS, frame.position_stamp, f8, e),
             at(fk.NOW, frame.time, f8, (envs,)),
             at(fk.TEMP_IN, frame.winding_temperature, f8, e),
-            at(fk.U, ea[4], f8, e),
-            at(fk.CONSTS, est._consts, f8, (4, n)),
-            at(fk.COUNTS, est._counts, i8, (3, envs, n)),
-            at(fk.EST_FLAGS, est._flags, b1, (2, envs, n)),
+            at(fk.U, ea.u, f8, e),
+            at(fk.CONSTS, ea.consts, f8, (4, n)),
+            at(fk.COUNTS, ea.counts, i8, (3, envs, n)),
+            at(fk.EST_FLAGS, ea.flags, b1, (2, envs, n)),
             self._put_supervision(table, arrays),
             at(fk.EE_POSITION, state.ee_position, f8, (envs, 3)),
             at(fk.EE_ROTATION, state.ee_rotation, f8, (envs, 3, 3)),
@@ -206,7 +206,7 @@ class TableCalls:
         if not all(checks):
             return
         table[[fk.JOINTS, fk.BLOCKS, fk.WIDTH, fk.DIM, fk.RAW_ROWS, fk.FEET, fk.EXTRAPOLATES]] = (
-            joints, blocks, layout.shape[1], plan.dim, raw.shape[0], 0, bool(ea[-1])
+            joints, blocks, layout.shape[1], plan.dim, raw.shape[0], 0, bool(ea.input_extrapolates)
         )  # fmt: skip
         self._table, self._table_arrays, self._fused = table, arrays, True
 
@@ -222,7 +222,7 @@ class TableCalls:
             self.n,
         )
         f8, i8, b1, e = np.float64, np.int64, np.bool_, (envs, n)
-        filt = getattr(est, "_filt", None)
+        filt = getattr(est, "filter_state", None)  # a JointStateEstimator's
         checks = [
             put(table, arrays, fk.FILT, filt, f8, (8, envs, n)),
             filt is not None

@@ -143,6 +143,26 @@ class VelocityDrive:
         self._variance = source[..., 1, 1]
         dk.warm_up(self._variance)  # its layout's specialization, before any tick
 
+    @property
+    def joint_figures(self) -> np.ndarray:
+        """(10, n) float64, the kernel's per-joint rows (the live array): ``kp`` N m/rad, ``kd``
+        N m s/rad, ``unwind`` 1/s, ``friction`` N m, effort limit N m, ``lower``, ``upper`` rad,
+        jerk rad/s^3, acceleration rad/s^2 and velocity limits rad/s
+        (:func:`sim2real.deploy.safety.drive_kernel.velocity_drive_motion`'s ``joint``)."""
+        return self._joint
+
+    @property
+    def speed_variance(self) -> np.ndarray:
+        """(envs, n) float64 rad^2/s^2, the estimated speed's variance: a strided view of
+        :attr:`covariance` (zeros without one), a new array each time the covariance is set."""
+        return self._variance
+
+    @property
+    def uncertainty(self) -> np.ndarray:
+        """(3,) float64, the model's margins: ``GRAVITY_UNCERTAINTY``, ``INERTIA_UNCERTAINTY``
+        (fractions) and ``ESTIMATE_SIGMAS`` (standard deviations of the speed estimate)."""
+        return self._uncertainty
+
     def reset(self, q: np.ndarray, envs: np.ndarray | None = None) -> None:
         """The drives of ``envs`` (bool mask (envs,), default all) enabled at the estimated pose
         ``q`` (envs, n) rad: the integrator starts there."""

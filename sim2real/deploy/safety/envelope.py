@@ -96,7 +96,7 @@ class MotionEnvelope(EnvelopeQueries):
     effector's margin along each axis by at most ``lever @ |dq|``
     (:func:`sim2real.robots.chain_bounds.end_effector_lever`; zero along an axis a joint's rotation never
     moves, :func:`axis_levers`) or by the local bound of the end effector's Jacobian at the centre
-    (:meth:`MotionEnvelope._reach`). A pair moved by at most two joints also has a table of lower
+    (its queries' ``_reach``). A pair moved by at most two joints also has a table of lower
     bounds over a grid of those joints (:mod:`sim2real.deploy.safety.pair_grid`): its distance stays above
     the least bound of the cells the box covers, which certifies boxes the chain bound does not
     where the distance hardly changes with a joint (the SO-101's base about its pan axis); the
@@ -366,7 +366,7 @@ class MotionEnvelope(EnvelopeQueries):
                 or after is not key[3] or stopping is not key[4] or effort_scale is not key[5]
                 or command is not key[6] or self.tables is not key[7]
                 or self.margin is not key[8]
-                or (drive is not None and drive._variance is not key[9])
+                or (drive is not None and drive.speed_variance is not key[9])
             ):  # fmt: skip
                 self._bind_certify(q, dq, before, after, stopping, effort_scale, command)
             if self._dirty:
@@ -394,7 +394,7 @@ class MotionEnvelope(EnvelopeQueries):
         arrays = self._drive_arrays(q) if drive is not None else None
         args = (q, dq, before, after, stopping, effort_scale, command)
         self._certify = bind(ek.certify, *args, self._screen, arrays)
-        variance = drive._variance if drive is not None else None
+        variance = drive.speed_variance if drive is not None else None
         self._certify_key = (*args, self.tables, self.margin, variance)
 
     def _drive_arrays(self, q) -> ek.DriveArrays:
@@ -403,7 +403,7 @@ class MotionEnvelope(EnvelopeQueries):
         drive = self.drive
         self._dynamics, gravity, mass = drive.dynamics_at(q)
         return ek.DriveArrays(
-            drive.setpoint, gravity, mass, drive._joint, drive._variance, drive._uncertainty,
+            drive.setpoint, gravity, mass, drive.joint_figures, drive.speed_variance, drive.uncertainty,
             drive.dt, drive.lower, drive.upper, self._drive_path, self.beyond,
         )  # fmt: skip
 

@@ -158,7 +158,8 @@ def pairs_reach(
     out: np.ndarray,
 ) -> np.ndarray:
     """:func:`pair_reach` of every pair (arguments as there), written to ``out`` (pairs,) m and
-    returned: the numpy path's local bound (:meth:`sim2real.deploy.safety.envelope.MotionEnvelope._reach`),
+    returned: the numpy path's local bound (the envelope's ``_reach``,
+    :mod:`sim2real.deploy.safety.envelope_query`),
     the compiled :func:`sim2real.deploy.safety.local_reach.local_reach`."""
     bound = np.empty(spread.shape[0])
     for p in range(out.shape[0]):

@@ -146,12 +146,25 @@ class ObservationPlan:
     def _run_kernel(self, state: RobotState, goal: np.ndarray, out: np.ndarray) -> None:
         envs = state.q.shape[0]
         self.raw(envs)
-        observation_kernel(*self._kernel_args(state, goal, out, envs))
+        observation_kernel(*self.kernel_args(state, goal, out, envs))
 
-    def _kernel_args(
+    def kernel_args(
         self, state: RobotState, goal: np.ndarray, out: np.ndarray, envs: int
     ) -> tuple[np.ndarray, ...]:
-        """The kernel's arguments for these arrays (``raw`` grown to ``envs`` first)."""
+        """The arguments of :func:`sim2real.deploy.spec.kernel.observation` for these
+        arrays, the live ones (no copies; a caller may keep their addresses while they are the
+        same objects), in its order: ``layout`` (blocks, width) int64, ``block_periods``
+        (blocks,) s, the state's ``q``, ``dq`` (envs, n), ``ee_position`` (envs, 3),
+        ``ee_rotation`` (envs, 3, 3), ``goal`` (envs, 3), ``last_action``,
+        ``winding_temperature`` (envs, n); the 7 base inputs (linear and angular velocity,
+        projected gravity, command (envs, 3), orientation (envs, 4), clock (envs,), foot
+        contact (envs, feet); without a base, zeros of at least ``envs`` rows, one (envs, 3)
+        array for the first four); ``norm`` (3, dim), the plan's ``raw`` buffer (rows >= envs once
+        :meth:`raw` grew it) and ``out`` float32 (envs, dim); float64 where not said.
+
+        Raises:
+            SpecError: a floating-base block and a state without a base.
+        """
         return (
             self.layout,
             self.block_periods,
@@ -209,7 +222,7 @@ class ObservationPlan:
             self._bound = (out, state, goal, state.q, state.base)
         envs = state.q.shape[0]
         self.raw(envs)
-        self._args = self._kernel_args(state, goal, out, envs)
+        self._args = self.kernel_args(state, goal, out, envs)
         self._table = self._address_table(self._args)
         observation_kernel(*self._args)
         return out

@@ -402,10 +402,13 @@ class PolicySpec:
         Raises:
             SpecError: a floating-base block and a state without a base.
         """
-        return self._plan.observation(state, goal, out)
+        return self.plan.observation(state, goal, out)
 
     @cached_property
-    def _plan(self) -> ObservationPlan:
+    def plan(self) -> ObservationPlan:
+        """The spec's observation plan (:class:`~sim2real.deploy.spec.observation_plan.ObservationPlan`),
+        built on first use and the same object after: its layout, norm and kernel arguments
+        (:meth:`~sim2real.deploy.spec.observation_plan.ObservationPlan.kernel_args`)."""
         from sim2real.deploy.spec.observation_plan import ObservationPlan
 
         return ObservationPlan(self)

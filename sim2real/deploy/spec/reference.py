@@ -39,7 +39,7 @@ def observation_reference(
     Raises:
         SpecError: a floating-base block and a state without a base.
     """
-    return assemble(spec._plan, state, goal, out)
+    return assemble(spec.plan, state, goal, out)
 
 
 def assemble(

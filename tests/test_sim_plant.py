@@ -1,5 +1,7 @@
 """The MuJoCo plant: control modes, sensor model, motor heat, and refusal of bad states."""
 
+import dataclasses
+
 import mujoco
 import numpy as np
 import pytest
@@ -97,8 +99,10 @@ def test_dropout_frequency_matches_configuration(arm3):
 
 
 def test_sensors_run_at_their_own_rates(arm3):
-    plant = SimBackend(arm3)
-    plant.joint_sensors._encoder_every = 2  # a 100 Hz encoder under a 200 Hz control loop
+    sensors = arm3.config.sensors.model_copy(update={"encoder_rate": 100.0})
+    robot = dataclasses.replace(arm3, config=arm3.config.model_copy(update={"sensors": sensors}))
+    plant = SimBackend(robot)
+    assert plant.joint_sensors.encoder_every == 2  # a 100 Hz encoder under a 200 Hz control loop
     stamps, fresh = set(), []
     for _ in range(100):
         frame = plant.read()
@@ -291,3 +295,18 @@ def test_a_copied_plant_steps_its_own_data_as_the_original_does(arm6):
     for key in a:
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)
     assert twin.datas[0] is not plant.datas[0]
+
+
+def test_kernel_arrays_are_the_live_arrays_of_their_models(arm3):
+    """The compiled step keeps addresses: each model hands over its arrays, not copies."""
+    plant = SimBackend(arm3)
+    for model in (plant, plant.joint_sensors, plant.thermal, plant.actuators):
+        a, b = model.kernel_arrays(), model.kernel_arrays()
+        assert all(a[k] is b[k] and a[k].flags.c_contiguous for k in a)
+    th = plant.thermal
+    assert th.kernel_arrays()["winding_temperature"] is th.winding_temperature
+    assert plant.kernel_arrays()["torque"] is plant.joint_torque()
+    plant.write(np.full((1, arm3.n_joints), 0.1))
+    np.testing.assert_array_equal(plant.kernel_arrays()["command"], 0.1)
+    views = plant.env_views(0)
+    assert views["data"] is plant.datas[0] and views["model"] is plant.models[0]

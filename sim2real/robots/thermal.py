@@ -85,6 +85,28 @@ class TwoNodeThermalModel:
         # compile (or load numba's cache of) the kernel before any tick: dt 0 changes nothing
         self.step(np.zeros(shape), 0.0)
 
+    def kernel_arrays(self) -> dict[str, np.ndarray]:
+        """The model's live arrays, by name, for a compiled step that keeps their addresses
+        (:class:`sim2real.deploy.backends.sim.compiled_step.CompiledStep`): the arrays themselves,
+        not copies, float64 and C-contiguous, never rebound.
+
+        ``constants`` (8, n_joints), the per-joint constants in the row order of
+        :func:`sim2real.robots.thermal_kernel.thermal_step` (torque per amp N m/A, ``t_ref``
+        degC, ``alpha`` 1/K, ``r_ref`` ohm, ``r_wh`` and ``r_ha`` K/W, ``c_w`` and ``c_h`` J/K);
+        (envs, n_joints) each: ``ambient``, ``winding_temperature``, ``housing_temperature``
+        (degC), ``current`` (A), ``power`` (W) and ``flow`` (W, the kernel's scratch for the
+        heat flows). Raises nothing.
+        """
+        return {
+            "constants": self._constants,
+            "ambient": self.ambient,
+            "winding_temperature": self.winding_temperature,
+            "housing_temperature": self.housing_temperature,
+            "current": self.current,
+            "power": self.power,
+            "flow": self._flow,
+        }
+
     def reset(self) -> None:
         """Both nodes at ambient temperature (a cold motor)."""
         self.winding_temperature[:] = self.ambient

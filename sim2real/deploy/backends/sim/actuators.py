@@ -62,6 +62,25 @@ class ActuatorModel:
             self._no_load[0], self.envelope.active, np.zeros((n, 2)),
         )  # fmt: skip
 
+    def kernel_arrays(self) -> dict[str, np.ndarray]:
+        """The model's live arrays, by name, for a compiled step that keeps their addresses
+        (:class:`sim2real.deploy.backends.sim.compiled_step.CompiledStep`): the arrays themselves,
+        not copies, C-contiguous, never rebound.
+
+        ``history`` (envs, depth, n) float64 (units of the control mode), ``delay_steps`` (n,)
+        int64, ``supply`` (envs,) float64 (over nominal), and the torque-speed line of the present
+        period, (envs, n) float64 each, written by :meth:`start_period`: ``stall`` (N m, the
+        stall torque at the winding temperature and supply) and ``no_load`` (rad/s, the no-load
+        speed at the supply). Raises nothing.
+        """
+        return {
+            "history": self.history,
+            "delay_steps": self.delay_steps,
+            "supply": self.supply,
+            "stall": self._stall,
+            "no_load": self._no_load,
+        }
+
     def reset(self, which: np.ndarray, command: np.ndarray) -> None:
         """The envs of the boolean mask ``which`` restart holding ``command`` (envs, n): their
         history is that command."""

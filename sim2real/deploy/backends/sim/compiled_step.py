@@ -3,8 +3,10 @@
 :class:`CompiledStep` writes the addresses of a :class:`~sim2real.deploy.backends.sim.plant.SimBackend`'s
 arrays (the drives', the thermal model's, the joint sensors', the actuators') and of each env's
 ``MjData`` fields into one int64 array, and keeps a reference to every array it names, so the
-kernels can take that one array in place of some thirty arguments. It is built once the plant's
-models exist and rewrites an env's row when the env gets a new model (``SimBackend._bind``).
+kernels can take that one array in place of some thirty arguments. Each object hands over its
+live arrays through its public ``kernel_arrays()`` (the plant's ``env_views(e)`` for an env's
+``MjData``). It is built once the plant's models exist; the plant builds it afresh when an env
+gets a new model (``SimBackend.set_model``).
 """
 
 from __future__ import annotations
@@ -54,36 +56,45 @@ class CompiledStep:
         self.streams = np.zeros((p.envs, 3), dtype=np.int64)
         self.rng, self.draws, self._bit_generators = None, False, []
         t = self.table
-        t[k.ENVS], t[k.N], t[k.ROWS] = p.envs, p.n_joints, p._nu // p.n_joints
-        t[k.SLOTS] = js._buf_stamp.shape[0]
+        pa, ja, ta, aa = (
+            p.kernel_arrays(),
+            js.kernel_arrays(),
+            th.kernel_arrays(),
+            act.kernel_arrays(),
+        )
+        views = p.env_views(0)
+        t[k.ENVS], t[k.N], t[k.ROWS] = p.envs, p.n_joints, views["ctrl"].shape[0]
+        t[k.SLOTS] = ja["buffer_stamp"].shape[0]
         t[k.FLAGS] = (
             (k.VELOCITY_MODE if p.mode == "velocity" else 0)
             | (k.HAS_VELOCITY if js.has_velocity else 0)
             | (0 if act.active else k.WRITE_CTRL)
             | (k.ENVELOPE if act.envelope.any else 0)
         )
-        t[k.WARNINGS], t[k.DEPTH], t[k.NSTEP] = p._warning_count, act.history.shape[1], p.decimation
+        t[k.WARNINGS], t[k.DEPTH] = views["warnings"].shape[0], aa["history"].shape[1]
+        t[k.NSTEP] = p.decimation
         f8, b1 = np.float64, np.bool_
         arrays = {
-            k.COMMAND: (p._command, f8), k.QPOS: (p._qpos, f8), k.QVEL: (p._qvel, f8),
-            k.TORQUE: (p._torque, f8), k.START: (p.derating.start, f8),
-            k.DERATED: (p._derated, b1), k.HOT: (p._hot, b1), k.LAG: (p._lag, f8),
-            k.BOUND: (p._windup_bound, f8), k.CONSTANTS: (th._constants, f8),
-            k.AMBIENT: (th.ambient, f8), k.WINDING: (th.winding_temperature, f8),
-            k.HOUSING: (th.housing_temperature, f8), k.CURRENT: (th.current, f8),
-            k.POWER: (th.power, f8), k.FLOW: (th._flow, f8),
-            k.BUF_POSITION: (js._buf_position, f8), k.BUF_VELOCITY: (js._buf_velocity, f8),
-            k.BUF_STAMP: (js._buf_stamp, f8), k.UNIFORM: (js._uniform, f8),
-            k.NOISE: (js.noise_sigma, f8), k.DROPOUT: (js.dropout_probability, f8),
-            k.VELOCITY_NOISE: (js.velocity_noise_sigma, f8), k.BIAS: (js.encoder_bias, f8),
-            k.BIASED: (js._biased, f8), k.SCALARS: (self.scalars, f8),
-            k.HISTORY: (act.history, f8), k.DELAY: (act.delay_steps, np.int64),
-            k.STALL: (act._stall, f8), k.NO_LOAD: (act._no_load, f8),
+            k.COMMAND: (pa["command"], f8), k.QPOS: (pa["qpos"], f8), k.QVEL: (pa["qvel"], f8),
+            k.TORQUE: (pa["torque"], f8), k.START: (p.derating.start, f8),
+            k.DERATED: (pa["derated"], b1), k.HOT: (pa["hot"], b1), k.LAG: (pa["lag"], f8),
+            k.BOUND: (pa["windup_bound"], f8), k.CONSTANTS: (ta["constants"], f8),
+            k.AMBIENT: (ta["ambient"], f8), k.WINDING: (ta["winding_temperature"], f8),
+            k.HOUSING: (ta["housing_temperature"], f8), k.CURRENT: (ta["current"], f8),
+            k.POWER: (ta["power"], f8), k.FLOW: (ta["flow"], f8),
+            k.BUF_POSITION: (ja["buffer_position"], f8),
+            k.BUF_VELOCITY: (ja["buffer_velocity"], f8), k.BUF_STAMP: (ja["buffer_stamp"], f8),
+            k.UNIFORM: (ja["uniform"], f8), k.NOISE: (ja["noise_sigma"], f8),
+            k.DROPOUT: (ja["dropout_probability"], f8),
+            k.VELOCITY_NOISE: (ja["velocity_noise_sigma"], f8), k.BIAS: (ja["encoder_bias"], f8),
+            k.BIASED: (ja["biased"], f8), k.SCALARS: (self.scalars, f8),
+            k.HISTORY: (aa["history"], f8), k.DELAY: (aa["delay_steps"], np.int64),
+            k.STALL: (aa["stall"], f8), k.NO_LOAD: (aa["no_load"], f8),
             k.ACTIVE: (act.envelope.active, b1), k.LIMIT: (p.effort_limit, f8),
             k.STREAMS: (self.streams, np.int64), k.T_REF: (act.envelope.t_ref, f8),
             k.ALPHA: (act.envelope.alpha, f8),
             k.STALL_COEFFICIENT: (act.envelope.stall_coefficient, f8),
-            k.NO_LOAD_SPEED: (act.envelope.no_load_speed, f8), k.SUPPLY: (act.supply, f8),
+            k.NO_LOAD_SPEED: (act.envelope.no_load_speed, f8), k.SUPPLY: (aa["supply"], f8),
         }  # fmt: skip
         self._arrays = [a for a, _ in arrays.values()]  # alive while the table names them
         t[k.SELF] = t.ctypes.data  # a copied table holds another array's address: stale
@@ -124,27 +135,26 @@ class CompiledStep:
 
     def bind(self, e: int) -> None:
         """Write env ``e``'s row from the plant's present views of its ``MjData`` and model
-        (``ctrl``, the joints' qpos, qvel and ``qfrc_actuator``, the warning counters, ``act``,
-        the joints' ``jnt_actfrcrange`` rows).
+        (``SimBackend.env_views``: ``ctrl``, the joints' qpos, qvel and ``qfrc_actuator``, the
+        warning counters, ``act``, the joints' ``jnt_actfrcrange`` rows).
 
         Raises:
             ValueError: a view that is not C-contiguous float64 (the counters: int32, 8 bytes
                 apart, the layout of ``mjWarningStat``).
         """
-        p = self.plant
-        m, d, ctrl, qpos, force, warnings = p._views[e]
+        v = self.plant.env_views(e)
+        warnings = v["warnings"]
         if warnings.dtype != np.int32 or warnings.strides[0] != 8:
             raise ValueError("compiled step: MuJoCo's warning counters changed their layout")
         row = k.ENV_ROWS + k.PER_ENV * e
-        act = d.act if p.mode == "velocity" else np.zeros(0)
         views = {
-            k.CTRL: ctrl, k.JQPOS: qpos, k.JQVEL: p._qvel_views[e], k.FORCE: force,
-            k.ACT: act, k.ACTFRC: p._actfrc[e],
+            k.CTRL: v["ctrl"], k.JQPOS: v["qpos"], k.JQVEL: v["qvel"], k.FORCE: v["force"],
+            k.ACT: v["act"], k.ACTFRC: v["actfrc"],
         }  # fmt: skip
         for field, a in views.items():
             self.table[row + field] = _address(a, np.float64)
         self.table[row + k.WARN] = warnings.ctypes.data
-        self._env_arrays[e] = [m, d, *views.values(), warnings]
+        self._env_arrays[e] = [v["model"], v["data"], *views.values(), warnings]
 
 
 def _stale_step():

@@ -20,17 +20,20 @@ from sim2real.deploy.backends.sim.drives_kernel import derating_due, windup_exce
 class SimDrives:
     """The drive model of a :class:`~sim2real.deploy.backends.sim.plant.SimBackend` (module docstring)."""
 
-    def _derate_drives(self) -> None:
-        """Each drive's torque limit from its winding temperature (module docstring): MuJoCo's
-        ``jnt_actfrcrange`` and, in velocity mode, the anti-windup bound follow it. Only envs with a
-        winding above its derating start, or derated before, are touched."""
+    def derate_drives(self) -> None:
+        """Each drive's torque limit from its winding temperature (module docstring): the
+        plant's ``effort_limit`` (envs, n) N m, MuJoCo's ``jnt_actfrcrange`` and, in velocity mode,
+        the anti-windup bound (rad) follow it. Only envs with a winding above its derating start,
+        or derated before, are touched. The step of the Python path before the plant's compiled
+        one (:func:`sim2real.deploy.backends.sim.reference.reference_advance`, the pybullet
+        plant). Raises nothing."""
         if derating_due(
             self.thermal.winding_temperature, self.derating.start, self._derated, self._hot
         ):
             self._set_derated_limits()
 
     def _set_derated_limits(self) -> None:
-        """The action of :meth:`_derate_drives` once its screen (``_hot`` (envs,) bool: a winding
+        """The action of :meth:`derate_drives` once its screen (``_hot`` (envs,) bool: a winding
         above its derating start) found work: the limits of the hot envs and of those derated
         before follow their windings' temperature."""
         hot = self._hot
@@ -49,9 +52,11 @@ class SimDrives:
                 np.divide(limit, m.actuator_gainprm[: self.n_joints, 0], out=self._windup_bound[e])
         self._derated[:] = hot
 
-    def _anti_windup(self) -> None:
-        """Velocity mode: keep each drive's setpoint within ``effort_limit / kp`` of its joint
-        (the drive's present, derated, limit).
+    def anti_windup(self) -> None:
+        """Velocity mode: keep each drive's setpoint (``MjData.act``, rad) within
+        ``effort_limit / kp`` of its joint angle gathered at the end of the period (the drive's
+        present, derated, limit). A step of the Python path, as :meth:`derate_drives`; raises
+        nothing.
 
         The integral term of the PI velocity loop, ``kp (s - q)``, then never asks for more than
         the drive's peak torque: when the torque saturates (a command accelerating faster than the

@@ -13,7 +13,7 @@ IMU (``[sensors.imu]``, Kalibr's IMU noise model, per axis, sample period ``dt``
 
 for the gyroscope (rad/s) and the accelerometer (specific force, m/s^2), both in the IMU site's
 frame; a reading is lost with probability ``dropout``. An IMU with ``orientation_sigma`` also
-sends its own attitude (:meth:`BaseSensorModel._onboard_attitude`). Foot contact
+sends its own attitude (its onboard filter, ``_onboard_attitude`` below). Foot contact
 (``[sensors.contact]``): each foot's normal force plus Gaussian noise (N),
 ``foot_contact = force > threshold``.
 

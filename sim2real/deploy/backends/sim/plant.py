@@ -8,7 +8,8 @@ physics steps and integrates the two-node motor thermal model.
 Composed of: the encoders and temperature reports (:mod:`sim2real.deploy.backends.sim.sensors`), a
 floating base's IMU and foot contact (:mod:`sim2real.deploy.backends.sim.legged_sensors`), the drives
 (:mod:`sim2real.deploy.backends.sim.drives`: the mode's servo loop of :meth:`robots.Robot.mjspec`, derated
-torque limits, anti-windup) and the state dict (:mod:`sim2real.deploy.backends.sim.state`). The true state
+torque limits, anti-windup), the state dict (:mod:`sim2real.deploy.backends.sim.state`) and the
+pushes and forces (:mod:`sim2real.deploy.backends.sim.disturbances`). The true state
 (:meth:`SimBackend.true_position`, :meth:`SimBackend.true_base_state`, ...) is for evaluation only.
 ``advance`` runs these models in two compiled calls around ``mj_step``
 (:mod:`sim2real.deploy.backends.sim.plant_kernel`; their table:
@@ -30,6 +31,7 @@ import numpy as np
 
 from sim2real.deploy.backends.sim.actuators import ActuatorModel
 from sim2real.deploy.backends.sim.compiled_step import CompiledStep
+from sim2real.deploy.backends.sim.disturbances import SimDisturbances
 from sim2real.deploy.backends.sim.drives import SimDrives
 from sim2real.deploy.backends.sim.drives_kernel import derating_due, windup_exceeded
 from sim2real.deploy.backends.sim.legged_sensors import BaseSensorModel
@@ -74,7 +76,7 @@ class NonFiniteCommandError(Sim2RealError, ValueError):
     """A command with NaN or inf was written; it was rejected and never reached MuJoCo."""
 
 
-class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
+class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, BackendLifecycle):
     """MuJoCo plant with sensor and motor-thermal models, batched over ``envs``.
 
     Args:
@@ -132,7 +134,6 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
         self._derate = np.ones((envs, n))
         self._derated = np.zeros(envs, dtype=bool)  # envs whose model may hold a derated limit
         self._hot = np.zeros(envs, dtype=bool)  # envs with a winding above its derating start
-        self._warning_count = len(_DIVERGENCE_WARNINGS)
         self._compiled: CompiledStep | None = None  # built below, once every array exists
         all_finite(self._hot[:, None] * 0.0)  # compiled (or loaded from cache) before a tick
         self._lag = np.zeros((envs, n))
@@ -206,8 +207,8 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
             self.thermal.reset()
             self._joint_sensors.clear()
             self.tick = 0
-            self.true_position()  # _sample_sensors reads the gathered joint angles
-            self._sample_sensors()
+            self.true_position()  # sample_sensors reads the gathered joint angles
+            self.sample_sensors()
             return
         self.thermal.winding_temperature[which] = self.thermal.ambient[which]
         self.thermal.housing_temperature[which] = self.thermal.ambient[which]
@@ -251,6 +252,41 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
             self._windup_bound[e] = self.robot.effort_limit / kp
         if self._compiled is not None:  # the kernels' addresses of the new views
             self._compiled = CompiledStep(self)
+
+    def kernel_arrays(self) -> dict[str, np.ndarray]:
+        """The plant's live arrays, by name, for its compiled step, which keeps their addresses
+        (:class:`~sim2real.deploy.backends.sim.compiled_step.CompiledStep`): the arrays
+        themselves, not copies, C-contiguous, never rebound.
+
+        (envs, n) float64: ``command`` (units of the mode), ``qpos`` (rad), ``qvel`` (rad/s) and
+        ``torque`` (N m), the joint state gathered at the end of a period; ``lag`` (rad, the
+        velocity loop's setpoints' scratch) and ``windup_bound`` (rad, ``effort_limit / kp``).
+        (envs,) bool: ``derated`` (an env whose model may hold a derated limit) and ``hot`` (an
+        env with a winding above its derating start). Raises nothing.
+        """
+        return {
+            "command": self._command, "qpos": self._qpos, "qvel": self._qvel,
+            "torque": self._torque, "lag": self._lag, "windup_bound": self._windup_bound,
+            "derated": self._derated, "hot": self._hot,
+        }  # fmt: skip
+
+    def env_views(self, env: int) -> dict:
+        """Env ``env``'s ``model`` and ``data`` and the live views of them the step touches
+        (valid until :meth:`set_model` gives the env another model): ``ctrl`` (actuators per
+        joint, n), the joints' ``qpos`` (n,) rad, ``qvel`` (n,) rad/s and ``force``
+        (``qfrc_actuator``, (n,) N m), ``warnings`` (the divergence warnings' counters,
+        MuJoCo's ``mjWarningStat`` rows), ``act`` (velocity mode: the drives' setpoints, rad;
+        else empty) and ``actfrc`` (the joints' ``jnt_actfrcrange`` rows, (n, 2) N m).
+
+        Raises:
+            IndexError: ``env`` outside the batch.
+        """
+        m, d, ctrl, qpos, force, warnings = self._views[env]
+        return {
+            "model": m, "data": d, "ctrl": ctrl, "qpos": qpos, "qvel": self._qvel_views[env],
+            "force": force, "warnings": warnings, "act": self._acts[env],
+            "actfrc": self._actfrc[env],
+        }  # fmt: skip
 
     @property
     def time(self) -> float:
@@ -348,7 +384,7 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
         tick += 1
         sensors = self._joint_sensors
         sample = NO_SAMPLE
-        if tick % sensors._encoder_every == 0:
+        if tick % sensors.encoder_every == 0:
             compiled = self._compiled
             if sensors.rng is not compiled.rng:  # new streams (set_sensor_streams)
                 compiled.bind_streams()
@@ -361,59 +397,10 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
             for e, d in enumerate(self.datas):
                 self._check_divergence(e, d)
         self.tick = tick
-        if tick % sensors._temperature_every == 0:
+        if tick % sensors.temperature_every == 0:
             sensors.report_temperature(self.time, self.thermal.winding_temperature)
         if self._base_sensors is not None:
             self._base_sensors.sample(tick, self.time)
-
-    def set_base_velocity(self, env: int, velocity_xy: np.ndarray) -> None:
-        """Set the floating base's horizontal velocity of ``env`` to ``velocity_xy`` (2,) m/s,
-        world frame, at once: legged_gym's push (``LeggedRobot._push_robots`` sets the root's x
-        and y velocity to a random value), a shove the robot must recover from.
-
-        Raises:
-            ValueError: a fixed-base robot.
-        """
-        if not self.robot.floating_base:
-            raise ValueError(f"robot {self.robot.name} has no floating base to push")
-        self.datas[env].qvel[:2] = velocity_xy
-
-    def push_base(self, env: int, twist: np.ndarray, add: bool = False) -> None:
-        """Change the floating base's velocity of ``env`` at once: ``twist`` (6,) is linear
-        x, y, z (m/s, world frame) and angular roll, pitch, yaw (rad/s about the world axes);
-        ``add``: added to the base's present velocity (mjlab's ``push_by_setting_velocity``),
-        else the horizontal velocity is set to ``twist[:2]`` (legged_gym's push; the other
-        entries must be 0). The free joint's angular velocity is in the body frame: the world
-        twist is turned into it.
-
-        Raises:
-            ValueError: a fixed-base robot, or ``add`` False with a vertical or angular entry.
-        """
-        if not self.robot.floating_base:
-            raise ValueError(f"robot {self.robot.name} has no floating base to push")
-        twist = np.asarray(twist, dtype=float)
-        d = self.datas[env]
-        if not add:
-            if np.any(twist[2:]):
-                raise ValueError("push_base: setting the velocity sets x and y only; use add")
-            d.qvel[:2] = twist[:2]
-            return
-        rot = np.empty(9)
-        mujoco.mju_quat2Mat(rot, d.qpos[3:7])
-        d.qvel[:3] += twist[:3]
-        d.qvel[3:6] += rot.reshape(3, 3).T @ twist[3:6]
-
-    def set_external_force(self, env: int, force: np.ndarray, body: str | None = None) -> None:
-        """Apply a constant force (N, world frame, shape (3,)) to ``env`` until changed.
-
-        It acts at the centre of mass of ``body`` (default: the body of the end-effector site);
-        zeros remove it. A push, or a cable pulling on the end effector.
-        """
-        m, d = self.models[env], self.datas[env]
-        if body is None and self.robot.floating_base:
-            body = self.robot.base_body
-        bid = m.site_bodyid[self.robot.ee_site_id] if body is None else m.body(body).id
-        d.xfrc_applied[bid, :3] = force
 
     # ------------------------------------------------------------------ evaluation only
     def true_position(self) -> np.ndarray:
@@ -484,9 +471,12 @@ class SimBackend(SimState, SimDrives, JointSensorSettings, BackendLifecycle):
                 f"qpos={np.array2string(d.qpos, precision=3)})"
             )
 
-    def _sample_sensors(self) -> None:
-        """Take the readings due at this tick: the encoders and temperature reports, then the IMU
-        and foot contact (in this order from the sensor streams)."""
+    def sample_sensors(self) -> None:
+        """Take the readings due at this tick from the joint angles gathered by the last period
+        (or :meth:`true_position`): the encoders and temperature reports, then the IMU and foot
+        contact (in this order from the sensor streams). The step of the Python path before the
+        compiled one (:func:`sim2real.deploy.backends.sim.reference.reference_advance`, the
+        pybullet plant); :meth:`advance` samples by itself. Raises nothing."""
         q = self._qpos  # gathered by advance (or reset)
         dq = self.true_velocity() if self._joint_sensors.has_velocity else None
         self._joint_sensors.sample(self.tick, self.time, q, self.thermal.winding_temperature, dq)

@@ -262,7 +262,7 @@ def after_physics(table: np.ndarray, tick: int, sample: int) -> bool:
     when a divergence warning counter of some env is set or some joint angle is not finite (the
     caller raises). Else, in this order: the velocity loop's anti-windup (``VELOCITY_MODE``:
     each env's setpoints ``act`` within ``BOUND`` of its joints where any of them lags further,
-    as :meth:`SimDrives._anti_windup`), the thermal step over the control period
+    as :meth:`SimDrives.anti_windup`), the thermal step over the control period
     (:func:`sim2real.robots.thermal_kernel.thermal_step`), and, at an encoder tick, the sample
     into slot ``tick % SLOTS`` of the latency buffers, whose position (and velocity) rows hold
     the standard normal draws and ``UNIFORM`` the uniform ones (as

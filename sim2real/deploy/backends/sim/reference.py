@@ -43,37 +43,41 @@ class ReferenceJointSensorModel(JointSensorModel):
 def reference_advance(plant) -> None:
     """:meth:`SimBackend.advance <sim2real.deploy.backends.sim.plant.SimBackend.advance>` as
     Python calls per env and per model (the path before its compiled step, whose tested
-    reference it is): the derating, the commands or the actuators per physics step, the joint
-    state, the divergence check, the anti-windup, the thermal step, the sensors.
+    reference it is), through the plant's public interface (``kernel_arrays``, ``env_views``
+    and its step methods): the derating, the commands or the actuators per physics step, the
+    joint state, the divergence check, the anti-windup, the thermal step, the sensors.
 
     Raises:
         SimulationDivergedError: MuJoCo flagged a bad state in some env.
     """
     import mujoco
 
-    command, torque, qpos = plant._command, plant._torque, plant._qpos
-    plant._derate_drives()
+    arrays = plant.kernel_arrays()
+    command, torque, qpos = arrays["command"], arrays["torque"], arrays["qpos"]
+    plant.derate_drives()
     actuators = plant.actuators if plant.actuators.active else None
     if actuators is not None:
         actuators.start_period(plant.tick, command, plant.thermal.winding_temperature)
-    for e, (m, d, ctrl, q, force, warnings) in enumerate(plant._views):
+    for e in range(plant.envs):
+        v = plant.env_views(e)
+        m, d, ctrl = v["model"], v["data"], v["ctrl"]
         if actuators is None:
             ctrl[:] = command[e]
             mujoco.mj_step(m, d, nstep=plant.decimation)
         else:
-            qvel, limit, out = plant._qvel_views[e], plant.effort_limit[e], plant._actfrc[e]
+            qvel, limit, out = v["qvel"], plant.effort_limit[e], v["actfrc"]
             for sub in range(plant.decimation):
                 actuators.before_step(e, sub, ctrl, qvel, limit, out)
                 mujoco.mj_step(m, d)
-        if np.count_nonzero(warnings):
-            plant._check_divergence(e, d)
-        torque[e] = force
-        qpos[e] = q
+        if np.count_nonzero(v["warnings"]):
+            plant.check_divergence(e)
+        torque[e] = v["force"]
+        qpos[e] = v["qpos"]
     if not np.isfinite(qpos).all():
-        for e, d in enumerate(plant.datas):
-            plant._check_divergence(e, d)
+        for e in range(plant.envs):
+            plant.check_divergence(e)
     if plant.mode == "velocity":
-        plant._anti_windup()
+        plant.anti_windup()
     plant.tick += 1
-    plant.thermal.step(plant._torque, plant.control_period)
-    plant._sample_sensors()
+    plant.thermal.step(torque, plant.control_period)
+    plant.sample_sensors()

@@ -211,6 +211,35 @@ class JointSensorModel:
         """Control ticks between two encoder samples (``control rate / encoder_rate``)."""
         return self._encoder_every
 
+    @property
+    def temperature_every(self) -> int:
+        """Control ticks between two temperature reports (``control rate / temperature_rate``)."""
+        return self._temperature_every
+
+    def kernel_arrays(self) -> dict[str, np.ndarray]:
+        """The model's live arrays, by name, for a compiled step that keeps their addresses
+        (:class:`sim2real.deploy.backends.sim.compiled_step.CompiledStep`): the arrays themselves,
+        not copies, float64 and C-contiguous, never rebound.
+
+        The latency buffers, by slot (``tick % slots``, slots = ``max_latency_ticks + 1``):
+        ``buffer_position`` (slots, envs, n) rad, ``buffer_velocity`` (slots, envs, n) rad/s and
+        ``buffer_stamp`` (slots, envs) s; ``uniform`` (envs, n), the dropout draws of the last
+        sample; ``biased`` (envs, n) rad, scratch for the biased angles; the settings
+        ``noise_sigma`` (envs,) rad, ``dropout_probability`` (envs,), ``velocity_noise_sigma``
+        (envs,) rad/s and ``encoder_bias`` (envs, n) rad. Raises nothing.
+        """
+        return {
+            "buffer_position": self._buf_position,
+            "buffer_velocity": self._buf_velocity,
+            "buffer_stamp": self._buf_stamp,
+            "uniform": self._uniform,
+            "biased": self._biased,
+            "noise_sigma": self.noise_sigma,
+            "dropout_probability": self.dropout_probability,
+            "velocity_noise_sigma": self.velocity_noise_sigma,
+            "encoder_bias": self.encoder_bias,
+        }
+
     def set_streams(self, generators: Sequence[np.random.Generator]) -> None:
         """One generator per env in place of the batch's one stream
         (:meth:`sim2real.deploy.backends.sim.plant.SimBackend.set_sensor_streams`).

@@ -199,7 +199,7 @@ class BulletBackend(SimBackend):
             SimulationDivergedError: pybullet's state of an env turned non-finite or huge.
         """
         command, torque, qpos = self._command, self._torque, self._qpos
-        self._derate_drives()
+        self.derate_drives()
         if self.actuators.active:
             self.actuators.start_period(self.tick, command, self.thermal.winding_temperature)
         reps = self._nu // self.n_joints
@@ -212,10 +212,10 @@ class BulletBackend(SimBackend):
             torque[e] = force
             qpos[e] = q
         if self.mode == "velocity":
-            self._anti_windup()
+            self.anti_windup()
         self.tick += 1
         self.thermal.step(self._torque, self.control_period)
-        self._sample_sensors()
+        self.sample_sensors()
 
     def _step_env(self, e: int, m: mujoco.MjModel, d: mujoco.MjData, ctrl: np.ndarray) -> None:
         w, law = self._worlds[e], self._laws[e]

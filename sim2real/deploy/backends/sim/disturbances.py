@@ -1,0 +1,70 @@
+"""External disturbances of the MuJoCo plant: pushes of a floating base and constant forces.
+
+:class:`SimDisturbances` is a base class of :class:`~sim2real.deploy.backends.sim.plant.SimBackend`
+(the fault hooks of :class:`~sim2real.deploy.core.backend.SimulatedPlant`); its methods work on
+the backend's public ``robot``, ``models`` and ``datas``. A push changes a base's velocity at
+once (legged_gym's and mjlab's pushes); a force acts on a body until it is changed.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+
+class SimDisturbances:
+    """The external disturbances of a :class:`~sim2real.deploy.backends.sim.plant.SimBackend`
+    (module docstring)."""
+
+    def set_base_velocity(self, env: int, velocity_xy: np.ndarray) -> None:
+        """Set the floating base's horizontal velocity of ``env`` to ``velocity_xy`` (2,) m/s,
+        world frame, at once: legged_gym's push (its ``LeggedRobot`` push sets the root's x
+        and y velocity to a random value), a shove the robot must recover from.
+
+        Raises:
+            ValueError: a fixed-base robot.
+        """
+        if not self.robot.floating_base:
+            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        self.datas[env].qvel[:2] = velocity_xy
+
+    def push_base(self, env: int, twist: np.ndarray, add: bool = False) -> None:
+        """Change the floating base's velocity of ``env`` at once: ``twist`` (6,) is linear
+        x, y, z (m/s, world frame) and angular roll, pitch, yaw (rad/s about the world axes);
+        ``add``: added to the base's present velocity (mjlab's ``push_by_setting_velocity``),
+        else the horizontal velocity is set to ``twist[:2]`` (legged_gym's push; the other
+        entries must be 0). The free joint's angular velocity is in the body frame: the world
+        twist is turned into it.
+
+        Raises:
+            ValueError: a fixed-base robot, or ``add`` False with a vertical or angular entry.
+        """
+        if not self.robot.floating_base:
+            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        twist = np.asarray(twist, dtype=float)
+        d = self.datas[env]
+        if not add:
+            if np.any(twist[2:]):
+                raise ValueError("push_base: setting the velocity sets x and y only; use add")
+            d.qvel[:2] = twist[:2]
+            return
+        rot = np.empty(9)
+        mujoco.mju_quat2Mat(rot, d.qpos[3:7])
+        d.qvel[:3] += twist[:3]
+        d.qvel[3:6] += rot.reshape(3, 3).T @ twist[3:6]
+
+    def set_external_force(self, env: int, force: np.ndarray, body: str | None = None) -> None:
+        """Apply a constant force (N, world frame, shape (3,)) to ``env`` until changed.
+
+        It acts at the centre of mass of ``body`` (default: the body of the end-effector site;
+        a floating base's base body); zeros remove it. A push, or a cable pulling on the end
+        effector.
+
+        Raises:
+            KeyError: ``body`` names no body of the model (MuJoCo's lookup).
+        """
+        m, d = self.models[env], self.datas[env]
+        if body is None and self.robot.floating_base:
+            body = self.robot.base_body
+        bid = m.site_bodyid[self.robot.ee_site_id] if body is None else m.body(body).id
+        d.xfrc_applied[bid, :3] = force

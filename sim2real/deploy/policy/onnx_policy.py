@@ -242,9 +242,8 @@ class OnnxPolicy:
             self.reset()
 
     def _runner(self):
-        """The session's public ``run_with_iobinding`` of :attr:`_binding`, bound once. Its C++
-        method behind the wrapper (``InferenceSession._sess``) would save about 0.3 us a call
-        (docs/speed.md) on private attributes of ONNX Runtime: not taken."""
+        """The session's public ``run_with_iobinding`` of :attr:`_binding`, bound once (not its
+        C++ method behind the wrapper, a private attribute of ONNX Runtime: docs/speed.md)."""
         return partial(self.session.run_with_iobinding, self._binding)
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:

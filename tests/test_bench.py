@@ -97,6 +97,7 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
         ("plant_extras_over_mj_step", "arm6"),
         ("session_over_floor", "arm3"),
         ("session_over_floor", "arm6"),
+        ("session_over_floor", "go2"),
         ("busy_overrun_rate", "arm6"),
     }
     assert targets["session_8h", "arm3"]["pass"] in (True, False)
@@ -107,6 +108,25 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
     assert targets["campaign", "arm3"]["pass"] is None
     assert r["history"][-1]["targets"]["session_8h/arm3"] == session["estimate_8h_s"]
     assert r["history"][-1]["quick"] is True
+
+
+def test_quick_tick_and_session_on_go2_walk_its_shipped_policy_against_its_floors(tmp_path):
+    """A legged robot is benchmarked with its shipped policy walking (a random policy would lay
+    it down): the runtime stays RUNNING, its floors include the base estimator's Pinocchio
+    calls, there is no bare loop, and the session's ratio to the floors is stated."""
+    out = tmp_path / "results.json"
+    proc = run_bench(out, "--only", "tick,session", "--robots", "go2")
+    assert "bare loop: none" in proc.stdout
+    r = json.loads(out.read_text())
+    assert "shipped policy" in r["policies"]["go2"]["kind"]
+    tick = r["sections"]["tick"]["robots"]["go2"]
+    assert tick["full"]["final_state"] == ["RUNNING"] and tick["full"]["safe_stops"] == 0
+    assert tick["bare"]["tick"]["samples"] == 0
+    assert positive_finite(tick["floors"]["stages"]["fk"]["p50_us"])
+    session = r["sections"]["session"]["robots"]["go2"]
+    assert session["final_state"] == ["RUNNING"] and session["control_rate_hz"] == 50.0
+    targets = {(t["key"], t["robot"]): t for t in r["targets"]}
+    assert positive_finite(targets["session_over_floor", "go2"]["value"])
 
 
 def test_history_is_kept_and_a_regression_against_the_last_full_run_is_flagged():

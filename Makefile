@@ -34,12 +34,12 @@ run: install
 # the numba kernels are compiled once before the workers start (tests/conftest.py). The tests on
 # the wall clock against an emulator (mark wallclock) run after it in one process, so the suite's
 # own workers do not starve them. The last line is the tests' wall time, "make test: N s" (the
-# figure README.md quotes).
+# figure README.md quotes). The end-to-end tests too long for it (mark nightly) run in make nightly.
 TEST_WORKERS ?= 2
 test: install lint
 	@start=$$(date +%s); \
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not wallclock" \
-		&& $(PY) -m pytest -q -m wallclock; status=$$?; \
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not wallclock and not nightly" \
+		&& $(PY) -m pytest -q -m "wallclock and not nightly"; status=$$?; \
 	echo "make test: $$(( $$(date +%s) - start )) s"; exit $$status
 
 # The documentation site (mkdocs.yml: docs/ and the API reference from the source) into site/;
@@ -158,7 +158,8 @@ sim2real/policies/go2_lie.onnx: sim2real/policies/go2_lie.pt $(STAMP)
 soak: install $(ONNX)
 	$(VENV)/bin/soak-test --robot $(ROBOT) --policy $(ONNX) --hours 8 --sessions 1 --seed 0 --out runs/soak
 
-# The nightly: one 8-hour session (seed 0) of each shipped robot's policy, each compared with its
+# The nightly: the end-to-end tests too long for make test (mark nightly: an excitation recorded
+# over ROS 2 and fitted), then one 8-hour session (seed 0) of each shipped robot's policy, each compared with its
 # committed baseline where there is one (bench/baseline/ROBOT.json). The robots run side by side
 # (the machine's cores share them); each writes runs/nightly/ROBOT/ and its output to
 # runs/nightly/ROBOT.log. Every robot runs to its end, then the target fails if any of them did.
@@ -166,6 +167,7 @@ soak: install $(ONNX)
 # within 0.2 m/s of the command), which a user's soak reports without judging.
 NIGHTLY_ROBOTS := arm3 so101 go2
 nightly: install $(ONNX) sim2real/policies/so101.onnx sim2real/policies/go2.onnx
+	$(PY) -m pytest -q -m nightly
 	@mkdir -p runs/nightly; pids=""; for r in $(NIGHTLY_ROBOTS); do \
 		policy=sim2real/policies/$$r.onnx; [ $$r = arm3 ] && policy=$(ONNX); \
 		base=bench/baseline/$$r.json; [ -f $$base ] && base="--baseline $$base" || base=""; \

@@ -327,6 +327,7 @@ step_time = 0.4
 """
 
 
+@pytest.mark.nightly
 @pytest.mark.wallclock
 def test_an_excitation_over_ros2_records_the_robots_loop(ros_domain, tmp_path):
     """An excitation through the ros2 backend against the ros2_control emulator running a worn

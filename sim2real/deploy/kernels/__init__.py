@@ -1,5 +1,6 @@
 """The compiled tick: numba helpers shared by the kernels of the runtime's stages (``np_max``,
-``np_min``, ``row_sum``, ``pairs_may_touch``).
+``np_min``, ``row_sum``, ``pairs_may_touch``), and their calls without numba's dispatch
+(:mod:`sim2real.deploy.kernels.calls`).
 
 Each stage runs its kernel per tick, over the stage's preallocated arrays, and keeps its numpy
 implementation as the tested reference in ``reference.py`` beside it: a subclass

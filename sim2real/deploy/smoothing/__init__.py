@@ -26,7 +26,6 @@ module                    what it holds
                           the clamps, counters and velocity-mode stopping guards
 :mod:`~.braking`          the stopping math of a jerk-limited joint: :func:`stopping_distance`,
                           :func:`stopping_speed`
-:mod:`~.bound`            :func:`~.bound.bind`: a kernel's call without numba's dispatch
 ========================  ====================================================================
 """
 

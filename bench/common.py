@@ -183,27 +183,23 @@ def make_random_policy(robot, folder: Path, seed: int = POLICY_SEED) -> BenchPol
 
 def policy_info(p: BenchPolicy) -> dict[str, Any]:
     """JSON description of a benchmark policy."""
-    if p.actor is None:
-        return {
-            "kind": f"the shipped policy sim2real/policies/{p.robot.name}.pt, command {LEGGED_COMMAND}",
-            "obs_dim": p.spec.obs_dim,
-            "act_dim": p.spec.act_dim,
-            "observation_blocks": [b.name for b in p.spec.observation_blocks],
-            "control_mode": p.spec.action.mode,
-            "control_rate_hz": p.spec.control_rate,
-            "export_s": p.export_seconds,
-        }
-    return {
-        "kind": "MLPActor, seeded random weights tamed to hold near home (bench.common.tame_actor)",
-        "hidden": list(POLICY_HIDDEN),
-        "activation": "elu",
-        "seed": POLICY_SEED,
+    common = {
         "obs_dim": p.spec.obs_dim,
         "act_dim": p.spec.act_dim,
         "observation_blocks": [b.name for b in p.spec.observation_blocks],
         "control_mode": p.spec.action.mode,
         "control_rate_hz": p.spec.control_rate,
         "export_s": p.export_seconds,
+    }
+    if p.actor is None:
+        kind = f"the shipped policy sim2real/policies/{p.robot.name}.pt, command {LEGGED_COMMAND}"
+        return {"kind": kind, **common}
+    return {
+        "kind": "MLPActor, seeded random weights tamed to hold near home (bench.common.tame_actor)",
+        "hidden": list(POLICY_HIDDEN),
+        "activation": "elu",
+        "seed": POLICY_SEED,
+        **common,
     }
 
 

@@ -33,7 +33,7 @@ from numba.np.random._constants import (
     ziggurat_nor_r,
 )
 
-from sim2real.deploy.backends.sim.drives_kernel import actuator_step
+from sim2real.deploy.backends.sim.drives_kernel import actuator_step, derating_due
 from sim2real.deploy.backends.sim.sensors_kernel import encoder_sample
 from sim2real.deploy.kernels.calls import pointer as _pointer
 from sim2real.robots.thermal_kernel import thermal_step
@@ -197,16 +197,7 @@ def before_physics(table: np.ndarray, tick: int) -> int:
         _start_period(table, tick, envs, n, flags, command, winding)
     start = _f64(table, START, (n,))
     derated, hot = _bool(table, DERATED, (envs,)), _bool(table, HOT, (envs,))
-    due = False
-    for e in range(envs):
-        h = False
-        for j in range(n):
-            if winding[e, j] > start[j]:
-                h = True
-                break
-        hot[e] = h
-        due = due or h or derated[e]
-    return DERATE if due else 0
+    return DERATE if derating_due(winding, start, derated, hot) else 0
 
 
 @numba.njit(inline="always", cache=True, nogil=True)

@@ -158,8 +158,8 @@ sim2real/policies/go2_lie.onnx: sim2real/policies/go2_lie.pt $(STAMP)
 soak: install $(ONNX)
 	$(VENV)/bin/soak-test --robot $(ROBOT) --policy $(ONNX) --hours 8 --sessions 1 --seed 0 --out runs/soak
 
-# The nightly: the end-to-end tests too long for make test (mark nightly: an excitation recorded
-# over ROS 2 and fitted), then one 8-hour session (seed 0) of each shipped robot's policy, each compared with its
+# The nightly: the end-to-end tests over ROS 2 too long for make test (mark nightly: an excitation
+# recorded and fitted, the bench's ROS 2 item, /joy from a second process), then one 8-hour session (seed 0) of each shipped robot's policy, each compared with its
 # committed baseline where there is one (bench/baseline/ROBOT.json). The robots run side by side
 # (the machine's cores share them); each writes runs/nightly/ROBOT/ and its output to
 # runs/nightly/ROBOT.log. Every robot runs to its end, then the target fails if any of them did.

@@ -195,6 +195,7 @@ def test_quick_busy_runs_go2_and_arm6_beside_a_burner_per_core_and_names_long_ti
     assert target["value"] == stopped
 
 
+@pytest.mark.nightly
 @pytest.mark.wallclock
 def test_quick_ros2_measures_the_tick_with_the_node_off_on_and_beside_a_slow_peer(tmp_path):
     """The ros2 item runs go2 without ROS 2, with --ros2, and with --ros2 beside a second ROS 2

@@ -66,6 +66,7 @@ def test_the_unitree_emulator_plays_a_remote_that_walks_stands_and_damps(tmp_pat
     assert r["faults"]["by_cause"]["fall"] == 0 and r["final_cause"] == ["operator"]
 
 
+@pytest.mark.nightly
 @pytest.mark.wallclock
 def test_a_second_ros2_process_drives_the_run_through_joy_and_may_not_resume_it(
     tmp_path, go2_policies, monkeypatch

@@ -17,7 +17,14 @@ The best k is the one with the highest throughput.
 the runtime's own plant models (``rt.backend.models`` / ``datas``, still at the state the run
 left them) stepped with ``mujoco.mj_step(nstep=decimation)`` per control tick and nothing else,
 for as many ticks. ``physics_fraction = throughput / physics-only throughput`` is the share of
-bare MuJoCo stepping the whole toolkit keeps (the bench's machine-independent target: >= 0.6).
+bare MuJoCo stepping the whole toolkit keeps.
+
+**Floor**: the library calls every tick must make besides physics cannot be batched away: Ruckig
+steps all ``k * n`` DoFs, Pinocchio runs per env. After physics only, every worker times those
+calls alone over its k envs (:class:`bench.floors.FloorLoop`, after a barrier, for as many ticks);
+``floor_only_x = workers * k * duration / (physics-only wall + the slowest worker's library
+calls)`` is the most any runtime on these libraries can reach, and ``floor_fraction =
+throughput / floor_only_x`` the share of it ours keeps (the bench's target: >= 0.8).
 """
 
 from __future__ import annotations
@@ -54,6 +61,7 @@ def _worker(index, robot_name, policy_path, envs_list, duration, barrier, result
             rt.run(ticks, on_tick=goals)
             end = time.monotonic()
             physics = _physics_only(rt.backend, ticks, barrier)
+            calls_s = _library_calls(rt, ticks, barrier)
             results.put(
                 {
                     "worker": index,
@@ -68,6 +76,7 @@ def _worker(index, robot_name, policy_path, envs_list, duration, barrier, result
                     "running": int((rt.mode == 2).sum()),
                     "physics_start": physics[0],
                     "physics_end": physics[1],
+                    "library_calls_s": calls_s,
                 }
             )
     except BaseException:  # noqa: BLE001 - reported to the parent, which raises
@@ -88,6 +97,21 @@ def _physics_only(backend, ticks: int, barrier) -> tuple[float, float]:
         for m, d in pairs:
             step(m, d, nstep=nstep)
     return start, time.monotonic()
+
+
+def _library_calls(rt, ticks: int, barrier) -> float:
+    """The seconds ``ticks`` control ticks of ``rt``'s library calls alone take outside physics
+    (:class:`bench.floors.FloorLoop` over its k envs, after the barrier): the ONNX Runtime call
+    of the batch, Ruckig's step of its ``k * n`` DoFs, Pinocchio's FK and the drive model's
+    dynamics per env."""
+    from bench.floors import FLOOR_OUTSIDE_PHYSICS, FLOOR_STAGES, FloorLoop
+
+    floors = FloorLoop(rt, physics=False)
+    floors.run(min(ticks, 50))  # first calls: allocations
+    barrier.wait(BARRIER_TIMEOUT_S)
+    rec = floors.run(ticks)
+    outside = [FLOOR_STAGES.index(s) for s in FLOOR_OUTSIDE_PHYSICS]
+    return float(rec[:, outside].sum()) * 1e-9
 
 
 def measure(
@@ -138,6 +162,7 @@ def measure(
         wall = max(r["end"] for r in mine) - min(r["start"] for r in mine)
         physics_wall = max(r["physics_end"] for r in mine) - min(r["physics_start"] for r in mine)
         simulated = sum(r["simulated_s"] * k for r in mine)
+        floor_wall = physics_wall + max(r["library_calls_s"] for r in mine)
         configs.append(
             {
                 "envs_per_worker": k,
@@ -148,6 +173,9 @@ def measure(
                 "throughput_x": simulated / wall,
                 "physics_only_x": simulated / physics_wall,
                 "physics_fraction": physics_wall / wall,
+                "floor_only_x": simulated / floor_wall,
+                "floor_fraction": floor_wall / wall,
+                "library_calls_s": max(r["library_calls_s"] for r in mine),
                 "per_worker_loop_s": [r["end"] - r["start"] for r in mine],
                 "setup_s": max(r["setup_s"] for r in mine),
                 "tick_cost_p50_us": max(r["tick_cost_us"]["p50_us"] for r in mine),
@@ -164,7 +192,7 @@ def measure(
         "best": {
             k: best[k]
             for k in ("envs_per_worker", "workers", "throughput_x", "physics_only_x")
-            + ("physics_fraction",)
+            + ("physics_fraction", "floor_only_x", "floor_fraction")
         },
         "section_wall_s": total_wall,
         "method": "workers * envs * simulated_s / (last end - first start); start-up, model "

@@ -65,9 +65,10 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
     assert set(tick["ratio"]) == {"tick_p50", "tick_mean", "overhead_p50", "overhead_mean"}
     assert all(positive_finite(v) for v in tick["ratio"].values())
     assert full["final_state"] == ["RUNNING"]
-    # the library calls alone, beside the stages that wrap them: a floor below its stage
+    # the library calls alone, beside the stages that wrap them: a floor below its stage; arm3's
+    # velocity drive model calls Pinocchio's gravity and mass matrix every tick, in its floor
     floors = tick["floors"]
-    assert set(floors["stages"]) == {"infer", "ruckig", "fk", "mj_step"}
+    assert set(floors["stages"]) == {"infer", "ruckig", "fk", "dynamics", "mj_step"}
     for s in (*floors["stages"].values(), floors["overhead"]):
         assert all(positive_finite(s[k]) for k in ("p50_us", "p99_us", "p99.9_us", "mean_us"))
     assert set(floors["glue_p50_us"]) == {"infer", "smooth", "estimate", "physics"}
@@ -89,6 +90,8 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
         ("session_8h", "arm6"),
         ("campaign", "arm3"),
         ("campaign_physics", "arm3"),
+        ("campaign_physics_ceiling", "arm3"),
+        ("campaign_over_floor", "arm3"),
         ("wallclock_stops", "arm6"),
         ("busy_stops", "go2+arm6"),
         ("ros2_overruns", "go2"),
@@ -138,7 +141,7 @@ def test_history_is_kept_and_a_regression_against_the_last_full_run_is_flagged()
     def run(ratio, fraction, quick, history):
         sections = {
             "tick": {"robots": {"arm6": {"ratio": {"tick_p50": ratio}}}},
-            "campaign": {"robot": "arm3", "best": {"physics_fraction": fraction}},
+            "campaign": {"robot": "arm3", "best": {"floor_fraction": fraction}},
         }
         r = {"generated": "t", "commit": f"c{len(history)}", "quick": quick, "items": []}
         r["targets"] = evaluate_targets(sections)
@@ -153,14 +156,16 @@ def test_history_is_kept_and_a_regression_against_the_last_full_run_is_flagged()
     assert trend["tick_ratio", "arm6"]["previous"] == 1.0  # the full run, not the quick one
     assert trend["tick_ratio", "arm6"]["commit"] == "c0"
     assert trend["tick_ratio", "arm6"]["regression"]  # up is worse for a ceiling
-    assert trend["campaign_physics", "arm3"]["regression"]  # down is worse for a floor
+    assert trend["campaign_over_floor", "arm3"]["regression"]  # down is worse for a floor
     steady = run(1.0, 0.5, False, first["history"])
     assert not any(c["regression"] for c in compare_history(steady))
 
 
 def test_quick_inference_and_campaign_with_its_physics_only_baseline(tmp_path):
     """The export/inference item runs, and the campaign reports the physics-only stepping of the
-    same models beside its throughput (the fraction is their ratio)."""
+    same models beside its throughput (the fraction is their ratio), and its floor: physics plus
+    the library calls alone (Ruckig over every env's DoFs, the batch's ONNX Runtime call,
+    Pinocchio per env), which no runtime on these libraries can beat."""
     out = tmp_path / "results.json"
     run_bench(out, "--only", "inference,campaign", "--campaign-envs", "1,2")
     r = json.loads(out.read_text())
@@ -172,8 +177,16 @@ def test_quick_inference_and_campaign_with_its_physics_only_baseline(tmp_path):
     for c in campaign["configs"]:
         assert positive_finite(c["throughput_x"]) and positive_finite(c["physics_only_x"])
         assert math.isclose(c["physics_fraction"], c["throughput_x"] / c["physics_only_x"])
+        assert positive_finite(c["library_calls_s"])
+        assert c["floor_only_x"] < c["physics_only_x"]
+        assert math.isclose(c["floor_fraction"], c["throughput_x"] / c["floor_only_x"])
     targets = {t["key"]: t for t in r["targets"]}
-    assert targets["campaign_physics"]["value"] == campaign["best"]["physics_fraction"]
+    best = campaign["best"]
+    assert targets["campaign_physics"]["value"] == best["physics_fraction"]
+    assert targets["campaign_over_floor"]["value"] == best["floor_fraction"]
+    assert targets["campaign_over_floor"]["pass"] in (True, False)
+    ceiling = targets["campaign_physics_ceiling"]["value"]
+    assert math.isclose(ceiling, best["floor_only_x"] / best["physics_only_x"])
 
 
 def test_quick_busy_runs_go2_and_arm6_beside_a_burner_per_core_and_names_long_ticks(tmp_path):

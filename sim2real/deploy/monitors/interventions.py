@@ -96,7 +96,7 @@ class InterventionMonitor(MonitorState):
         self.safety = np.zeros(envs, dtype=np.int64)
         legged = robot_kind(guard.robot).legged
         self.by_design = ("soft_limit",) if legged and self.mode == "position" else ()
-        self.ticks = 0
+        self._tick_count = np.zeros(1, dtype=np.int64)
         n = smoother.n_joints
         # the counters as they stood after the last tick
         self._prev_guard = np.zeros((len(self._guard_names), envs), dtype=np.int64)
@@ -122,9 +122,23 @@ class InterventionMonitor(MonitorState):
     # ------------------------------------------------------------------ per tick
     def update(self) -> None:
         """Count this tick's interventions (call once after each tick)."""
-        self.ticks += 1
+        self._tick_count[0] += 1
         if self._moved():  # some counter moved: which checks, which envs
-            self._count()
+            self.count_moved()
+
+    def kernel_arrays(self) -> dict[str, np.ndarray]:
+        """The live arrays of :meth:`update`'s comparison, by name, for a compiled call that runs
+        it (:func:`sim2real.deploy.monitors.kernel.interventions_moved`; the arrays themselves,
+        C-contiguous, never rebound), int64: ``guard`` (checks, envs), the guard's counters;
+        ``previous_guard``, their values after the last tick; ``stopping`` and ``clamps`` (envs,
+        n), the smoother's counters; ``previous_smoother`` (2, envs, n), theirs; ``ticks`` (1,),
+        what :attr:`ticks` reads. Raises nothing."""
+        (_, stopping), (_, clamps) = self._smoother
+        return {
+            "guard": self._guard_rows, "previous_guard": self._prev_guard,
+            "stopping": stopping, "clamps": clamps, "previous_smoother": self._prev_smoother,
+            "ticks": self._tick_count,
+        }  # fmt: skip
 
     def _moved(self) -> bool:
         """Whether a guard or smoother counter moved since the last tick (the kernel
@@ -132,8 +146,9 @@ class InterventionMonitor(MonitorState):
         (_, a), (_, b) = self._smoother
         return mk.interventions_moved(self._guard_rows, self._prev_guard, a, b, self._prev_smoother)
 
-    def _count(self) -> None:
-        """Per check: which envs' counters rose this tick (only on ticks where some did)."""
+    def count_moved(self) -> None:
+        """Per check: which envs' counters rose this tick, after :meth:`update`'s comparison (or
+        a compiled call's over :meth:`kernel_arrays`) found that some did."""
         flags, rose, safety, counts = self._flags, self._rose, self._rose_safety, self.counts
         rose.fill(False)
         safety.fill(False)

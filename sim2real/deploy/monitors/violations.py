@@ -52,12 +52,22 @@ _SCREEN_SHRINK = 1e-12
 class MonitorState:
     """``state_dict`` / ``load_state_dict`` of a per-env tick counter (the soak's checkpoints).
 
-    A monitor gives ``_arrays()`` (name -> live array with a leading env axis), ``ticks`` and
-    ``_state_name`` (for error messages); its state is those arrays (copies) and ``ticks``.
+    A monitor gives ``_arrays()`` (name -> live array with a leading env axis), ``_tick_count``
+    ((1,) int64, what :attr:`ticks` reads) and ``_state_name`` (for error messages); its state
+    is those arrays (copies) and ``ticks``.
     """
 
     _state_name = "monitor"
-    ticks: int
+    _tick_count: np.ndarray
+
+    @property
+    def ticks(self) -> int:
+        """Ticks observed (calls of ``update``, or of a compiled tick that counts for it)."""
+        return int(self._tick_count[0])
+
+    @ticks.setter
+    def ticks(self, value: int) -> None:
+        self._tick_count[0] = value
 
     def _arrays(self) -> dict[str, np.ndarray]:
         raise NotImplementedError
@@ -122,7 +132,7 @@ class ViolationMonitor(MonitorState):
         self.down_counts = {t: np.zeros(envs, dtype=np.int64) for t in VIOLATION_TYPES}
         self.down_any = np.zeros(envs, dtype=np.int64)
         self._down = np.zeros(envs, dtype=bool)  # this tick's ``down`` of :meth:`update`
-        self.ticks = 0
+        self._tick_count = np.zeros(1, dtype=np.int64)
         s = robot.config.safety
         self._lower, self._upper = robot.position_lower, robot.position_upper
         self._soft_lower, self._soft_upper = robot.soft_lower, robot.soft_upper
@@ -199,9 +209,25 @@ class ViolationMonitor(MonitorState):
         q, dq, tau = backend.true_position(), backend.true_velocity(), backend.joint_torque()
         if self._has_workspace:
             backend.end_effector_position(out=self._ee)
-        self.ticks += 1
+        self._tick_count[0] += 1
+        need = self._has_pairs and self._collision_screen(q)
+        self.count_flagged(q, dq, tau, need, self._screen(q, dq, tau))
+
+    def count_flagged(
+        self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray, need: bool, flagged: bool
+    ) -> None:
+        """What :meth:`update` does after its screens, given their answers (also for a compiled
+        call that ran them over :meth:`kernel_arrays`): coal checks the collision pairs of the
+        envs marked in ``need`` of :meth:`kernel_arrays` (when ``need``), then the exact
+        per-type tests run if a pair touched or ``flagged``.
+
+        Args:
+            q, dq, tau: This tick's true joint positions (rad), speeds (rad/s) and torques
+                (N m), (envs, n); the end effector is this tick's in ``kernel_arrays()["ee"]``.
+            need: Some env's pairs need coal. flagged: Some env may be past a limit.
+        """
         collided = False
-        if self._has_pairs and self._collision_screen(q):
+        if need:
             for e in np.flatnonzero(self._need):
                 if self._in_collision(q, e):
                     if not collided:
@@ -210,9 +236,40 @@ class ViolationMonitor(MonitorState):
                     self._collided[e] = True
                     if not self._down[e]:  # which pairs touched while the robot was up
                         self._count_pairs(e)
-        flagged = self._screen(q, dq, tau)
         if collided or flagged:
             self._count(q, dq, tau, collided)
+
+    def kernel_arrays(self) -> dict[str, np.ndarray]:
+        """The monitor's live arrays, by name, for a compiled call that runs :meth:`update`'s
+        screens (the arrays themselves, C-contiguous, never rebound): ``ee`` (envs, 3) m, this
+        tick's end effector; the screen's ``offset_q`` (n,) rad, ``offset_ee`` (3,) m and
+        ``bound`` (3 n + 3,) (:func:`sim2real.deploy.monitors.kernel.violation_screen`); the
+        collision screen's ``checked_q`` (envs, n) rad, ``clearance`` (envs, pairs) m,
+        ``pair_weights`` (pairs, n) m/rad, ``tmp`` (envs, n) and ``need`` (envs,) bool
+        (:func:`~sim2real.deploy.monitors.kernel.collision_screen`; its margin
+        :attr:`screen_margin`); ``down`` (envs,) bool, this tick's envs down; ``ticks`` (1,)
+        int64, what :attr:`ticks` reads. Raises nothing."""
+        return {
+            "ee": self._ee, "offset_q": self._offset_q, "offset_ee": self._offset_ee,
+            "bound": self._bound, "checked_q": self._checked_q, "clearance": self._clearance,
+            "pair_weights": self._pair_weights, "tmp": self._tmp, "need": self._need,
+            "down": self._down, "ticks": self._tick_count,
+        }  # fmt: skip
+
+    @property
+    def screen_margin(self) -> float:
+        """m, the collision screen's margin (the guard's)."""
+        return self._margin
+
+    @property
+    def has_workspace(self) -> bool:
+        """Whether the robot has a workspace box (its end effector is screened)."""
+        return self._has_workspace
+
+    @property
+    def has_pairs(self) -> bool:
+        """Whether the guard's collision model has pairs (screened, then checked by coal)."""
+        return self._has_pairs
 
     def _screen(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> bool:
         """Whether some env may be past a limit (the kernel

@@ -18,8 +18,11 @@ from sim2real.deploy.core.backend import SimulatedPlant
 from sim2real.deploy.core.latency import LatencyHistogram
 from sim2real.deploy.core.modes import FAULTED, RUNNING
 from sim2real.deploy.monitors.kernel import motion_statistics
+from sim2real.deploy.rig.after_tick import FusedAfterTick
 from sim2real.deploy.rig.hooks import RunHook
 from sim2real.deploy.robot_kind import robot_kind
+
+_UNBUILT = object()  # a rig's fused call not built yet (or its hooks changed since)
 
 
 class Rig:
@@ -101,6 +104,7 @@ class Rig:
         self.hooks: list[RunHook] = []
         self.monitor_cost = LatencyHistogram()
         self.hook_cost = LatencyHistogram(0)
+        self._fused = _UNBUILT  # the one compiled call of the after-tick work (see _fused_call)
         for hook in hooks:
             self.add(hook)
 
@@ -108,6 +112,7 @@ class Rig:
         """Append ``hook`` (called after the monitors, the task and the hooks before it)."""
         self.hooks.append(hook)
         self.hook_cost = LatencyHistogram(len(self.hooks))
+        self._fused = _UNBUILT  # its table holds the histograms and the first hook
         return hook
 
     # ------------------------------------------------------------------ the run
@@ -120,9 +125,33 @@ class Rig:
         for hook in self.hooks:
             hook.start(self)
 
+    def _fused_call(self, runtime) -> FusedAfterTick | None:
+        """The one compiled call of the monitors, the task and the motion figures
+        (:class:`~sim2real.deploy.rig.after_tick.FusedAfterTick`) when it fits this run and
+        holds ``runtime``'s arrays (built again when they changed); None: the separate calls."""
+        fused = self._fused
+        if fused is None:
+            return None
+        if fused is not _UNBUILT and fused.ready(runtime):
+            return fused
+        if runtime is not self.runtime:
+            return None
+        first = self.hooks[0] if self.hooks else None
+        motion = first if type(first) is MotionHook and first.rig is self else None
+        fused = self._fused = FusedAfterTick.build(self, motion)
+        return fused if fused is not None and fused.ready(runtime) else None
+
     def monitor(self, runtime) -> None:
         """The monitors and the task after a tick (timed into :attr:`monitor_cost`); what
         every run does first after each tick."""
+        fused = self._fused_call(runtime)
+        if fused is not None:
+            fused(runtime, False)
+            return
+        self._monitor(runtime)
+
+    def _monitor(self, runtime) -> None:
+        """:meth:`monitor` as separate calls of the monitors and the task."""
         t0 = time.perf_counter_ns()
         if self.violations is not None:
             # a legged robot lying damped after a stop: its ticks are counted apart
@@ -137,12 +166,18 @@ class Rig:
     def after_tick(self, runtime) -> bool:
         """:meth:`monitor`, then every hook in order (each timed); True when a hook ends the
         run. What :meth:`run` passes to ``Runtime.run(on_tick=...)``."""
-        self.monitor(runtime)
+        fused = self._fused_call(runtime)
+        first = 0
+        if fused is None:
+            self._monitor(runtime)
+        else:  # the first hook's motion figures in the same call (timed there)
+            fused(runtime, fused.motion)
+            first = 1 if fused.motion else 0
         stop = False
         clock = time.perf_counter_ns
-        for i, hook in enumerate(self.hooks):
+        for i in range(first, len(self.hooks)):
             t0 = clock()
-            stop |= bool(hook.after_tick(runtime))
+            stop |= bool(self.hooks[i].after_tick(runtime))
             self.hook_cost.add(i, clock() - t0)
         return stop
 

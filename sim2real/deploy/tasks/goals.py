@@ -369,15 +369,39 @@ class GoalScheduler:
             self.fixed is None, self.success_time, self._age, due, check,
         )  # fmt: skip
         if bits & mk.ANY_DUE:
-            for e in np.flatnonzero(due):  # in env order (one stream for a batch)
-                self.new_goal(rt, e)
+            self.issue_due(rt)
         if bits & mk.ANY_CHECK:
             ee = self.end_effector(rt)
             any_hit = mk.goal_hits(
                 ee, rt.goal, check, self.best_distance, self.success_radius, self._distance, hit
             )
             if any_hit:
-                self._record_hits(np.flatnonzero(hit), self._age)
+                self.record_hits()
+
+    def issue_due(self, rt) -> None:
+        """Issue a new goal to each env marked due by this tick's screen (``due`` of
+        :meth:`kernel_arrays`), in env order (one stream for a batch)."""
+        for e in np.flatnonzero(self._due):
+            self.new_goal(rt, e)
+
+    def record_hits(self) -> None:
+        """Record the goals this tick's hit test found reached (``hit`` of :meth:`kernel_arrays`,
+        at the ages of ``age``)."""
+        self._record_hits(np.flatnonzero(self._hit), self._age)
+
+    def kernel_arrays(self) -> dict[str, np.ndarray]:
+        """The live arrays of a tick (:meth:`__call__`), by name, for a compiled call that runs
+        its screen and hit test (:func:`sim2real.deploy.monitors.kernel.goal_screen`,
+        ``goal_hits``; the arrays themselves, C-contiguous, never rebound), (envs,) each:
+        ``issued`` int64, ``t_goal`` s, ``reached`` bool, ``best_distance`` m, this tick's
+        ``age`` s, ``due``, ``check`` and ``hit`` bool and ``distance`` m; ``ee`` (envs, 3) m, the
+        end effector judged. Python then calls :meth:`issue_due` and :meth:`record_hits` as the
+        screen says. Raises nothing."""
+        return {
+            "issued": self.issued, "t_goal": self.t_goal, "reached": self.reached,
+            "best_distance": self.best_distance, "age": self._age, "due": self._due,
+            "check": self._check, "hit": self._hit, "distance": self._distance, "ee": self._ee,
+        }  # fmt: skip
 
     def _record_hits(self, envs: np.ndarray, age: np.ndarray) -> None:
         """The envs ``envs`` reached their goal at ``age[e]`` s after it was issued."""

@@ -1,0 +1,99 @@
+"""The rig's after-tick work as one compiled call (:class:`sim2real.deploy.rig.after_tick.
+FusedAfterTick`) counts, issues, records and measures what the separate calls of the monitors,
+the goal scheduler and the motion hook do, bit for bit.
+
+Two rigs run the same ticks against identical seeded plants: one as it is (a simulated fixed
+base: the fused call), one whose after-tick work is the separate calls (:class:`SeparateRig`).
+The policy is the adversarial one on a sweep into the joints' limits, with a push and a cable
+pull (violations, interventions, the collision screen's coal checks), goals every second with a
+wide success radius (goals issued, reached and missed), and, half-way, one env given its model
+again (a new MjData: the call's table is built again). Tolerance: none.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.rig.after_tick import FusedAfterTick
+from sim2real.deploy.rig.rig import MotionHook, Rig
+from tests.runtime_fixtures import adversarial_onnx
+from tests.test_compiled_tick import SweepingPolicy
+
+TICKS = 1500
+#: The tick at which env 0 is given its model again (a new MjData).
+NEW_MODEL = 700
+#: Fields of a report that are measurements of wall time, not results.
+TIMING = ("wall_s", "monitor_cost_us", "hook_cost_us")
+
+
+class SeparateRig(Rig):
+    """A rig whose monitors, task and motion hook run as separate calls."""
+
+    def _fused_call(self, runtime):
+        return None
+
+
+def build(robot, mode: str, onnx, rig_type: type[Rig], envs: int) -> Rig:
+    dt = robot.control_period
+    plant = SimBackend(robot, mode=mode, envs=envs, seed=3)
+    faults = [
+        Fault("push", 100 * dt, 40 * dt, envs=(0,), magnitude=400.0),
+        Fault("cable", 300 * dt, 200 * dt, envs=(envs - 1,), magnitude=30.0),
+    ]
+    policy = SweepingPolicy(OnnxPolicy(onnx, robot), dt)
+    task = {"period": 1.0, "rng": np.random.default_rng(5), "success_time": 0.8}
+    runtime = {"injector": FaultInjector(faults, plant)}
+    rig = rig_type(robot, policy, plant, envs=envs, task=task, runtime=runtime)
+    rig.add(MotionHook(rig))
+    rig.task.scheduler.success_radius = 0.15  # goals reached now and then
+    rig.start()
+    return rig
+
+
+def run(rig: Rig) -> Rig:
+    rig.run(NEW_MODEL)
+    rig.backend.set_model(0, rig.backend.models[0])
+    rig.run(TICKS - NEW_MODEL)
+    return rig
+
+
+def results(rig: Rig) -> dict:
+    out = {f"violations/{k}": v for k, v in rig.violations.state_dict().items()}
+    out |= {f"interventions/{k}": v for k, v in rig.interventions.state_dict().items()}
+    out |= {f"goals/{k}": v for k, v in rig.task.scheduler.state_dict().items()}
+    hook = rig.hooks[0]
+    for name in ("peak", "max_speed", "dq", "acc", "jerk_sum", "jerk_ticks"):
+        out[f"motion/{name}"] = getattr(hook, name)
+    out["samples"] = np.array(
+        [rig.monitor_cost.counts.sum(), *rig.hook_cost.counts.sum(axis=1)], dtype=np.int64
+    )
+    out["true_q"] = rig.backend.true_position()
+    return out
+
+
+@pytest.mark.parametrize("robot_name,envs", [("arm3", 1), ("arm6", 2)])
+@pytest.mark.parametrize("mode", ["position", "velocity"])
+def test_the_fused_call_equals_the_separate_calls(tmp_path, request, robot_name, envs, mode):
+    robot = request.getfixturevalue(robot_name)
+    onnx = adversarial_onnx(tmp_path, robot, mode)
+    fused, separate = (run(build(robot, mode, onnx, t, envs)) for t in (Rig, SeparateRig))
+    assert isinstance(fused._fused, FusedAfterTick) and fused._fused.motion
+    assert fused._fused.ready(fused.runtime)  # built again over env 0's new data
+    a, b = results(fused), results(separate)
+    assert a.keys() == b.keys()
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    ra, rb = fused.report(), separate.report()
+    for key in TIMING:
+        ra.pop(key, None), rb.pop(key, None)
+    assert ra == rb
+    assert fused.monitor_cost.counts.sum() == fused.interventions.ticks == TICKS
+    # the run exercised what it is meant to
+    s = fused.task.scheduler
+    assert s.hits > 0 and s.goals - s.hits > 0, (s.hits, s.goals)
+    assert fused.violations.totals()["any"] > 0
+    assert fused.interventions.any.sum() > 0, fused.interventions.summary()

@@ -12,6 +12,8 @@ again (a new MjData: the call's table is built again). Tolerance: none.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -19,6 +21,7 @@ from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
 from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.rig.after_tick import FusedAfterTick
+from sim2real.deploy.rig.after_tick_kernel import monotonic_ns
 from sim2real.deploy.rig.rig import MotionHook, Rig
 from tests.runtime_fixtures import adversarial_onnx
 from tests.test_compiled_tick import SweepingPolicy
@@ -97,3 +100,14 @@ def test_the_fused_call_equals_the_separate_calls(tmp_path, request, robot_name,
     assert s.hits > 0 and s.goals - s.hits > 0, (s.hits, s.goals)
     assert fused.violations.totals()["any"] > 0
     assert fused.interventions.any.sum() > 0, fused.interventions.summary()
+
+
+def test_the_kernels_clock_is_perf_counter_ns():
+    """The call times the monitors from a stamp of ``time.perf_counter_ns`` to its own clock's:
+    both must be the same clock."""
+    scratch = np.zeros(2, dtype=np.int64)
+    for _ in range(100):
+        before = time.perf_counter_ns()
+        now = monotonic_ns(scratch)
+        after = time.perf_counter_ns()
+        assert before <= now <= after

@@ -58,6 +58,12 @@ class Rig:
             tick (ns, outside the runtime's tick).
         hook_cost: One histogram stage per hook, in :attr:`hooks` order.
 
+    A simulated fixed-base robot's monitors, goal task and first hook's motion figures
+    (:class:`MotionHook`) run as one compiled call per tick
+    (:class:`~sim2real.deploy.rig.after_tick.FusedAfterTick`, built when the run starts and again
+    when the plant's envs change), with the same results and timings as the separate calls
+    every other run makes.
+
     Raises:
         ValueError: as the runtime and the task refuse their arguments.
     """
@@ -124,6 +130,7 @@ class Rig:
             self._started = True
         for hook in self.hooks:
             hook.start(self)
+        self._fused_call(self.runtime)  # built (its kernel loaded) before the first tick
 
     def _fused_call(self, runtime) -> FusedAfterTick | None:
         """The one compiled call of the monitors, the task and the motion figures

@@ -113,3 +113,18 @@ def all_finite(a) -> bool:
         if not math.isfinite(x):
             return False
     return True
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def copy_finite(source, dest) -> bool:
+    """Copy ``source`` into ``dest`` (float arrays of one 2-D shape, any layout) if every value
+    of ``source`` is finite, and return True; else return False, ``dest`` untouched."""
+    rows, cols = source.shape
+    for i in range(rows):
+        for j in range(cols):
+            if not math.isfinite(source[i, j]):
+                return False
+    for i in range(rows):
+        for j in range(cols):
+            dest[i, j] = source[i, j]
+    return True

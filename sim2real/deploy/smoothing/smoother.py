@@ -5,6 +5,8 @@
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 from ruckig import (
     ControlInterface,
@@ -32,6 +34,14 @@ TORQUE_RISE_TIME = 0.05
 #: Safety factor on the worst-case stopping distance below which the position extrema of a
 #: position-mode trajectory are checked exactly (farther from the limits they cannot reach them).
 EXTREMA_SCREEN_FACTOR = 1.5
+
+
+def _doubles(w: np.ndarray, row: int):
+    """Row ``row`` of the C-contiguous float64 block ``w`` as a ctypes array of doubles over
+    the same memory (which it keeps alive through ``w``)."""
+    view = (ctypes.c_double * w.shape[1]).from_address(w[row].ctypes.data)
+    view._keep = w  # the block must outlive the view
+    return view
 
 
 class CommandSmoother(RuckigState):
@@ -150,6 +160,12 @@ class CommandSmoother(RuckigState):
         self.command = w[sk.CMD].reshape(shape)
         self._cmd = w[sk.CMD]
         self._pos, self._vel, self._acc = w[sk.POS], w[sk.VEL], w[sk.ACC]
+        # the rows Ruckig's new state lands in, as ctypes arrays over their memory: a list of
+        # floats (what the binding returns) is copied into one faster than into a numpy row,
+        # the same doubles; they keep ``w`` alive
+        self._cmd_in, self._pos_in, self._vel_in, self._acc_in = (
+            _doubles(w, row) for row in (sk.CMD, sk.POS, sk.VEL, sk.ACC)
+        )
         self._mean_acc = w[sk.MEAN_ACC]
         self.mean_acceleration = self._mean_acc.reshape(shape)
         self.position = self._pos.reshape(shape)
@@ -426,24 +442,25 @@ class CommandSmoother(RuckigState):
             self._bind_step(target, out)
         self._before_ruckig()
         mode = self._kernel_mode
-        if mode != sk.TORQUE:
-            inp, result, w = self._inp, self._out, self._w
-            if mode == sk.POSITION:
-                inp.target_position = self._goal.tolist()  # pybind converts a list faster
-                self._update()
-                w[sk.CMD] = result.new_position
-                w[sk.VEL] = result.new_velocity
-                w[sk.ACC] = result.new_acceleration
-                near = self._after_new() if result.new_calculation else self._after_ruckig()
-                if near:
-                    self._count_extrema()
-            else:
-                inp.target_velocity = self._goal.tolist()  # pybind converts a list faster
-                self._update()
-                w[sk.CMD] = result.new_velocity
-                w[sk.POS] = result.new_position
-                w[sk.ACC] = result.new_acceleration
-                self._after_ruckig()
+        if mode == sk.VELOCITY:
+            inp, result = self._inp, self._out
+            inp.target_velocity = self._goal.tolist()  # pybind converts a list faster
+            self._update()
+            self._cmd_in[:] = result.new_velocity
+            self._pos_in[:] = result.new_position
+            self._acc_in[:] = result.new_acceleration
+            self._after_ruckig()
+            result.pass_to_input(inp)
+        elif mode == sk.POSITION:
+            inp, result = self._inp, self._out
+            inp.target_position = self._goal.tolist()  # pybind converts a list faster
+            self._update()
+            self._cmd_in[:] = result.new_position
+            self._vel_in[:] = result.new_velocity
+            self._acc_in[:] = result.new_acceleration
+            near = self._after_new() if result.new_calculation else self._after_ruckig()
+            if near:
+                self._count_extrema()
             result.pass_to_input(inp)
         return self.command if out is None else out
 

@@ -25,7 +25,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sim2real.deploy.backends.sim.sensors_kernel import encoder_read, encoder_sample
+from sim2real.deploy.backends.sim.sensors_kernel import (
+    encoder_read,
+    encoder_sample,
+    temperature_report,
+)
 from sim2real.deploy.core.backend import SensorFrame
 from sim2real.deploy.core.stateful import (
     StateDictError,
@@ -36,6 +40,7 @@ from sim2real.deploy.core.stateful import (
     streams_json,
     to_json,
 )
+from sim2real.deploy.kernels.calls import bind
 from sim2real.robots import Robot
 
 
@@ -205,6 +210,10 @@ class JointSensorModel:
         self._biased = np.zeros((envs, n))
         # each slot's rows, built once (the compiled step's draws go straight into them)
         self._slots = [(self._buf_position[i], self._buf_velocity[i]) for i in range(size)]
+        # the temperature report's kernel, bound to the winding temperatures of the last report
+        self._reported = self._report = None
+        # its kernel compiled (or loaded from numba's cache) now, not in a tick
+        temperature_report(np.zeros((envs, n)), np.zeros((envs, n)), np.zeros(envs), 1.0, 0.0)
 
     @property
     def encoder_every(self) -> int:
@@ -345,11 +354,15 @@ class JointSensorModel:
         )
 
     def _sample_temperature(self, time: float, winding_temperature: np.ndarray) -> None:
-        f = self.frame
-        res = self.temperature_resolution
-        np.round(winding_temperature / res, out=f.winding_temperature)
-        f.winding_temperature *= res
-        f.temperature_stamp.fill(time)
+        """The report's kernel (:func:`~sim2real.deploy.backends.sim.sensors_kernel.
+        temperature_report`), bound to ``winding_temperature`` and the frame's arrays
+        (:func:`~sim2real.deploy.kernels.calls.bind`): the plant passes the same array each tick."""
+        if winding_temperature is not self._reported:
+            f = self.frame
+            args = (winding_temperature, f.winding_temperature, f.temperature_stamp)
+            self._report = bind(temperature_report, *args, rest=(0.0, 0.0))
+            self._reported = winding_temperature
+        self._report(self.temperature_resolution, time)
 
     def read(self, tick: int) -> None:
         """Fill the frame's joint position fields with the readings arriving at ``tick``

@@ -74,3 +74,21 @@ def encoder_read(
             p = buffer_position[slot, e, j]
             position[e, j] = p
             position_stamp[e, j] = np.nan if np.isnan(p) else stamp
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def temperature_report(
+    winding_temperature: np.ndarray,
+    out: np.ndarray,
+    stamp: np.ndarray,
+    resolution: float,
+    time: float,
+) -> None:
+    """The drives' temperature report: ``winding_temperature`` (envs, n) degC rounded to
+    ``resolution`` degC (half to even) into ``out`` (envs, n), ``stamp`` (envs,) set to
+    ``time`` s; the arithmetic of ``np.round(winding_temperature / resolution) * resolution``."""
+    envs, n = out.shape
+    for e in range(envs):
+        for j in range(n):
+            out[e, j] = np.rint(winding_temperature[e, j] / resolution) * resolution
+        stamp[e] = time

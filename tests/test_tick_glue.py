@@ -1,0 +1,57 @@
+"""The tick's small compiled calls equal the numpy they replace, bit for bit: the plant's
+temperature report (:func:`~sim2real.deploy.backends.sim.sensors_kernel.temperature_report`
+against ``np.round(x / res) * res``, halves included), the command copy
+(:func:`~sim2real.deploy.kernels.copy_finite`) and ``SimBackend.write`` bound to a buffer
+written twice (a NaN still raises and leaves the command in force), and the smoother's rows
+written through their ctypes views (its command against the numpy reference's)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim2real.deploy.backends.sim.plant import NonFiniteCommandError, SimBackend
+from sim2real.deploy.backends.sim.sensors_kernel import temperature_report
+from sim2real.deploy.kernels import copy_finite
+
+
+@pytest.mark.parametrize("resolution", [1.0, 0.5, 0.1, 0.25])
+def test_temperature_report_equals_numpy_round(resolution):
+    rng = np.random.default_rng(3)
+    x = rng.uniform(-40.0, 160.0, size=(7, 5))
+    x[0] = (np.arange(5) + 0.5) * resolution  # exact halves: half to even
+    x[1] = -(np.arange(5) + 0.5) * resolution
+    out, stamp = np.zeros_like(x), np.zeros(7)
+    temperature_report(x, out, stamp, resolution, 12.5)
+    expected = np.round(x / resolution)
+    expected *= resolution
+    assert out.tobytes() == expected.tobytes()
+    assert (stamp == 12.5).all()
+
+
+def test_copy_finite_copies_or_refuses():
+    src, dest = np.arange(6.0).reshape(2, 3), np.full((2, 3), 7.0)
+    assert copy_finite(src, dest) and (dest == src).all()
+    bad = src.copy()
+    bad[1, 2] = np.nan
+    assert not copy_finite(bad, dest) and (dest == src).all()
+
+
+def test_write_of_one_buffer_is_the_plain_write(arm3):
+    plain = SimBackend(arm3, mode="velocity", envs=2, seed=0)
+    bound = SimBackend(arm3, mode="velocity", envs=2, seed=0)
+    buffer = np.zeros((2, arm3.n_joints))
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        buffer[:] = rng.normal(size=buffer.shape)
+        plain.write(buffer.copy())  # a new array each tick: never bound
+        bound.write(buffer)
+        plain.advance()
+        bound.advance()
+    assert bound._write_source is buffer and plain._write_source is None
+    assert plain.true_position().tobytes() == bound.true_position().tobytes()
+    before = bound.state_dict()["command"].copy()
+    buffer[1, 0] = np.inf
+    with pytest.raises(NonFiniteCommandError):
+        bound.write(buffer)
+    assert bound.state_dict()["command"].tobytes() == before.tobytes()

@@ -369,19 +369,52 @@ class MotionEnvelope(EnvelopeQueries):
                 or (drive is not None and drive.speed_variance is not key[9])
             ):  # fmt: skip
                 self._bind_certify(q, dq, before, after, stopping, effort_scale, command)
-            if self._dirty:
-                self._clear()
-            if drive is not None:
-                self._dynamics()
-            code = self._certify()
-            if not code:
-                return False  # certified and committed
-            if drive is not None:
-                before, after = self._drive_path[0], self._drive_path[1]
-                self._drive_beyond = bool(code & ek.BEYOND)
-            dirty = self._decide(q, before, after, stopping, bool(code & ek.UNCERTAIN))
-        else:
-            dirty = self.check(q, before, after, stopping, effort_scale, dq=dq, command=command)
+            return self._run_certify(q, before, after, stopping, command)
+        dirty = self.check(q, before, after, stopping, effort_scale, dq=dq, command=command)
+        if not dirty:
+            self.commit(command)
+        return dirty
+
+    def certifier(self, q, dq, before, after, stopping, effort_scale, command):
+        """``() -> bool``, :meth:`certify` of these arrays (the same arguments) bound to them for
+        a caller that passes the same ones every tick: the identity checks of :meth:`certify`
+        are left out but for the arrays a test or :meth:`sim2real.deploy.safety.guard.SafetyGuard.
+        trust_estimate` may replace (the pair tables, the margin, the speed's variance); any
+        other call of :meth:`certify` in between makes it call :meth:`certify` itself."""
+        args = (q, dq, before, after, stopping, effort_scale, command)
+        if self.torque is not None:
+            return lambda: self.certify(*args)
+        self._bind_certify(*args)
+        key, drive = self._certify_key, self.drive
+        q, before, after, stopping, command = args[0], args[2], args[3], args[4], args[6]
+
+        def certify() -> bool:
+            if (
+                self._certify_key is not key or self.tables is not key[7]
+                or self.margin is not key[8]
+                or (drive is not None and drive.speed_variance is not key[9])
+            ):  # fmt: skip
+                return self.certify(*args)
+            return self._run_certify(q, before, after, stopping, command)
+
+        return certify
+
+    def _run_certify(self, q, before, after, stopping, command) -> bool:
+        """:meth:`certify` once its kernel is bound to these arrays: the velocity drive's
+        Pinocchio calls, the kernel, and where it does not certify every env, :meth:`_decide`
+        (and the commit when that finds none unsafe)."""
+        if self._dirty:
+            self._clear()
+        drive = self.drive
+        if drive is not None:
+            self._dynamics()
+        code = self._certify()
+        if not code:
+            return False  # certified and committed
+        if drive is not None:
+            before, after = self._drive_path[0], self._drive_path[1]
+            self._drive_beyond = bool(code & ek.BEYOND)
+        dirty = self._decide(q, before, after, stopping, bool(code & ek.UNCERTAIN))
         if not dirty:
             self.commit(command)
         return dirty

@@ -165,8 +165,7 @@ class SafetyGuard:
                 VelocityDrive(robot, envs) if mode == "velocity" else None,
                 TorqueDrive(robot, envs) if mode == "torque" else None,
             )
-        # the rows the motion envelope counts in: its collision and workspace rows, then torque
-        # mode's joint limits (the velocity governor's row)
+        # the rows the motion envelope counts in: collision, workspace, torque mode's joint limits
         self._geometric_rows = [row("self_collision"), row("workspace"), row("velocity")]
         self._counted = np.zeros((3, envs), dtype=np.int64)  # those rows when filter began
         self._move = np.zeros(envs)
@@ -180,6 +179,7 @@ class SafetyGuard:
         # the kernel's phases bound to the arrays of the last filter (_filter)
         self._bound_key = (None, None, None, None)
         self._phase0 = self._phase1 = None
+        self._motion_key, self._certify_motion = (None,) * 5, None  # check_motion's binding
         self._warm_up()
 
     def _kernel_arrays(self) -> gk.GuardArrays:
@@ -450,15 +450,12 @@ class SafetyGuard:
         envelope = self.envelope
         if envelope is None:
             return command
-        if envelope.certify(
-            state.q,
-            state.dq,
-            smoother.before,
-            smoother.trajectory,
-            smoother.stopping,
-            self.effort_scale,
-            command,
-        ):  # some env unsafe: brake it, then commit the command (certify committed otherwise)
+        k = self._motion_key  # the envelope's certify bound to the arrays of the last call
+        if smoother is not k[0] or state is not k[1] or command is not k[2] or state.q is not k[3]:
+            self._bind_motion(smoother, state, command)
+        elif envelope is not k[4]:  # replaced (a test)
+            self._bind_motion(smoother, state, command)
+        if self._certify_motion():  # some env unsafe: brake, commit (else certify committed)
             unsafe = envelope.unsafe
             braked = unsafe[0] | unsafe[1] | envelope.beyond
             for k, (r, fired) in enumerate(
@@ -474,6 +471,12 @@ class SafetyGuard:
                 command[braked] = smoother.command[braked]
             envelope.commit(command)
         return command
+
+    def _bind_motion(self, smoother, state: RobotState, command: np.ndarray) -> None:
+        """Bind the envelope's certify to these arrays (``MotionEnvelope.certifier``)."""
+        args = (state.q, state.dq, smoother.before, smoother.trajectory, smoother.stopping)
+        self._certify_motion = self.envelope.certifier(*args, self.effort_scale, command)
+        self._motion_key = (smoother, state, command, state.q, self.envelope)
 
     def _hold(self, e: int, q: np.ndarray, dq: np.ndarray, out: np.ndarray) -> None:
         """Replace env ``e``'s target by a hold: the last accepted target (position mode), zero

@@ -17,6 +17,7 @@ import numpy as np
 
 from sim2real.deploy.backends.sim import plant_kernel as k
 from sim2real.deploy.backends.sim.sensors import PerEnvGenerators
+from sim2real.deploy.kernels.calls import bind
 
 
 def _address(a: np.ndarray, dtype) -> int:
@@ -104,6 +105,15 @@ class CompiledStep:
         for e in range(p.envs):
             self.bind(e)
         self.bind_streams()
+        self._bind_kernels()
+
+    def _bind_kernels(self) -> None:
+        """:attr:`before` and :attr:`after`: the plant kernel's two calls bound to :attr:`table`
+        (:func:`~sim2real.deploy.kernels.calls.bind`), ``before(tick)`` and
+        ``after(tick, sample)`` as ``before_physics(table, tick)`` and
+        ``after_physics(table, tick, sample)``."""
+        self.before = bind(k.before_physics, self.table, rest=(0,))
+        self.after = bind(k.after_physics, self.table, rest=(0, 0))
 
     def bind_streams(self) -> None:
         """Take the joint sensors' present ``rng`` (one ``numpy.random.Generator`` for the
@@ -163,4 +173,5 @@ def _stale_step():
     step = CompiledStep.__new__(CompiledStep)
     step.table = np.zeros(k.ENV_ROWS, dtype=np.int64)
     step.rng, step.draws = None, False
+    step._bind_kernels()
     return step

@@ -42,8 +42,6 @@ from sim2real.deploy.backends.sim.plant_kernel import (
     NO_SAMPLE,
     STALE,
     actuator_substep,
-    after_physics,
-    before_physics,
 )
 from sim2real.deploy.backends.sim.sensors import JointSensorModel, JointSensorSettings
 from sim2real.deploy.backends.sim.state import SimState
@@ -375,16 +373,16 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
                 stepped; the thermal and sensor models have not, the streams have not drawn
                 unless they are not numpy Generators).
         """
-        table, nstep, step = self._compiled.table, self.decimation, mujoco.mj_step
+        compiled, nstep, step = self._compiled, self.decimation, mujoco.mj_step
         tick = self.tick
-        status = before_physics(table, tick)
+        status = compiled.before(tick)  # before_physics(table, tick)
         if status & STALE:  # a copied plant: views of its own MjData, its own table
             self._compiled = None
             for e in range(self.envs):
                 self._bind(e)
-            self._compiled = CompiledStep(self)
-            table = self._compiled.table
-            status = before_physics(table, tick)
+            self._compiled = compiled = CompiledStep(self)
+            status = compiled.before(tick)
+        table = compiled.table
         if status & DERATE:
             self._set_derated_limits()
         if not self._stepwise:
@@ -399,7 +397,6 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         sensors = self._joint_sensors
         sample = NO_SAMPLE
         if tick % sensors.encoder_every == 0:
-            compiled = self._compiled
             if sensors.rng is not compiled.rng:  # new streams (set_sensor_streams)
                 compiled.bind_streams()
             if compiled.draws:
@@ -407,7 +404,7 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
             else:
                 sensors.draw(tick)
                 sample = DRAWN
-        if not after_physics(table, tick, sample):  # MuJoCo found a bad state (and reset the data)
+        if not compiled.after(tick, sample):  # MuJoCo found a bad state (and reset the data)
             for e, d in enumerate(self.datas):
                 self._check_divergence(e, d)
         self.tick = tick

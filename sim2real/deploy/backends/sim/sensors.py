@@ -26,7 +26,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from sim2real.deploy.backends.sim.sensors_kernel import (
-    encoder_read,
+    encoder_read_at,
     encoder_sample,
     temperature_report,
 )
@@ -214,6 +214,7 @@ class JointSensorModel:
         self._reported = self._report = None
         # its kernel compiled (or loaded from numba's cache) now, not in a tick
         temperature_report(np.zeros((envs, n)), np.zeros((envs, n)), np.zeros(envs), 1.0, 0.0)
+        self._bind_read()  # read's kernel, bound to latency_ticks (compiled now)
 
     @property
     def encoder_every(self) -> int:
@@ -364,15 +365,21 @@ class JointSensorModel:
             self._reported = winding_temperature
         self._report(self.temperature_resolution, time)
 
+    def _bind_read(self) -> None:
+        """:meth:`read`'s kernel bound to the latencies, the buffers and the frame's arrays."""
+        f = self.frame
+        args = (self.latency_ticks, self._buf_position, self._buf_stamp, f.position)
+        self._encoder_read = bind(encoder_read_at, *args, f.position_stamp, rest=(0,))
+        self._read_key = self.latency_ticks
+
     def read(self, tick: int) -> None:
         """Fill the frame's joint position fields with the readings arriving at ``tick``
         (the kernel :func:`sim2real.deploy.backends.sim.sensors_kernel.encoder_read`)."""
-        f = self.frame
-        encoder_read(
-            tick, self.latency_ticks, self._buf_position, self._buf_stamp, f.position,
-            f.position_stamp,
-        )  # fmt: skip
+        if self.latency_ticks is not self._read_key:  # bound to the present latencies
+            self._bind_read()
+        self._encoder_read(tick)
         if self.has_velocity:  # the velocity reported with each angle read
+            f = self.frame
             origin = tick - self.latency_ticks
             f.velocity[:] = self._buf_velocity[origin % self._buf_stamp.shape[0], self._env_index]
             f.velocity[origin < 0] = np.nan

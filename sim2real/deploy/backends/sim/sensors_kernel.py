@@ -92,3 +92,17 @@ def temperature_report(
         for j in range(n):
             out[e, j] = np.rint(winding_temperature[e, j] / resolution) * resolution
         stamp[e] = time
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def encoder_read_at(
+    latency_ticks: np.ndarray,
+    buffer_position: np.ndarray,
+    buffer_stamp: np.ndarray,
+    position: np.ndarray,
+    position_stamp: np.ndarray,
+    tick: int,
+) -> None:
+    """:func:`encoder_read` with the tick last (arguments as there): the arrays bound once
+    (:func:`sim2real.deploy.kernels.calls.bind`), the tick given at each call."""
+    encoder_read(tick, latency_ticks, buffer_position, buffer_stamp, position, position_stamp)

@@ -8,7 +8,8 @@ Each kernel replaces the handful of small numpy calls a monitor made every tick 
 that answers "did anything happen?"; the monitor's exact bookkeeping (new goals, hit records,
 per-type counts) still runs in Python on the ticks where something did. The arithmetic that
 reaches a result (the goal distance) keeps numpy's operation order, so the results are the same
-bit for bit (``tests/test_monitors.py``).
+bit for bit (``tests/test_monitors.py``). A simulated fixed base's rig calls them all in one
+compiled call (:mod:`sim2real.deploy.rig.after_tick_kernel`, ``tests/test_fused_after_tick.py``).
 """
 
 from __future__ import annotations

@@ -79,6 +79,9 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
         assert positive_finite(session[key]), key
     assert session["estimate_8h_s"] >= session["wall_s"]
     assert "28800" in session["extrapolation"]
+    # the run's start is paid once per session: set-up, not extrapolated with the loop
+    assert 0.0 < session["start_s"] < session["wall_s"]
+    assert math.isclose(session["loop_s"], session["wall_s"] - session["start_s"])
 
     targets = {(t["key"], t["robot"]): t for t in r["targets"]}
     assert set(targets) == {

@@ -7,7 +7,8 @@ base: the fused call), one whose after-tick work is the separate calls (:class:`
 The policy is the adversarial one on a sweep into the joints' limits, with a push and a cable
 pull (violations, interventions, the collision screen's coal checks), goals every second with a
 wide success radius (goals issued, reached and missed), and, half-way, one env given its model
-again (a new MjData: the call's table is built again). Tolerance: none.
+again (a new MjData: the call's table is built again); the soak's call (:meth:`Rig.monitor`
+alone) too. Tolerance: none.
 """
 
 from __future__ import annotations
@@ -57,10 +58,13 @@ def build(robot, mode: str, onnx, rig_type: type[Rig], envs: int) -> Rig:
     return rig
 
 
-def run(rig: Rig) -> Rig:
-    rig.run(NEW_MODEL)
+def run(rig: Rig, monitor_only: bool = False) -> Rig:
+    """``TICKS`` ticks, each followed by the rig's after-tick work (or, ``monitor_only``, by
+    :meth:`Rig.monitor` alone: the soak's call)."""
+    on_tick = rig.monitor if monitor_only else rig.after_tick
+    rig.runtime.run(NEW_MODEL, on_tick=on_tick)
     rig.backend.set_model(0, rig.backend.models[0])
-    rig.run(TICKS - NEW_MODEL)
+    rig.runtime.run(TICKS - NEW_MODEL, on_tick=on_tick)
     return rig
 
 
@@ -78,12 +82,18 @@ def results(rig: Rig) -> dict:
     return out
 
 
-@pytest.mark.parametrize("robot_name,envs", [("arm3", 1), ("arm6", 2)])
+@pytest.mark.parametrize(
+    "robot_name,envs,monitor_only", [("arm3", 1, False), ("arm6", 2, False), ("arm6", 2, True)]
+)
 @pytest.mark.parametrize("mode", ["position", "velocity"])
-def test_the_fused_call_equals_the_separate_calls(tmp_path, request, robot_name, envs, mode):
+def test_the_fused_call_equals_the_separate_calls(
+    tmp_path, request, robot_name, envs, monitor_only, mode
+):
     robot = request.getfixturevalue(robot_name)
     onnx = adversarial_onnx(tmp_path, robot, mode)
-    fused, separate = (run(build(robot, mode, onnx, t, envs)) for t in (Rig, SeparateRig))
+    fused, separate = (
+        run(build(robot, mode, onnx, t, envs), monitor_only) for t in (Rig, SeparateRig)
+    )
     assert isinstance(fused._fused, FusedAfterTick) and fused._fused.motion
     assert fused._fused.ready(fused.runtime)  # built again over env 0's new data
     a, b = results(fused), results(separate)

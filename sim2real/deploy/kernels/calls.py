@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 
+import numba
 import numpy as np
 from numba.core import cgutils, types
 from numba.extending import intrinsic
@@ -68,3 +69,51 @@ def put(table, arrays, index, array, dtype, shape: tuple, rows: bool = False) ->
         table[index] = array.ctypes.data
         arrays.append(array)
     return ok
+
+
+#: Ints per array in a table of shaped slots (:func:`put_slot`): its address, four dimensions.
+SLOT = 5
+
+
+def put_slot(table, arrays, index, array, dtype, ndim: int, shape: tuple | None = None) -> bool:
+    """:func:`put` of a C-contiguous ``ndim``-dimensional ``array`` of ``dtype`` at
+    ``table[index]``, its dimensions (``shape``, default its own) in the :data:`SLOT` - 1 ints
+    after it, for the views :func:`view1` ... :func:`view4`; returns whether it fit."""
+    if not isinstance(array, np.ndarray) or array.ndim != ndim:
+        return False
+    if not put(table, arrays, index, array, np.dtype(dtype), array.shape):
+        return False
+    table[index + 1 : index + 1 + ndim] = array.shape if shape is None else shape
+    return True
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _dim(table, index, i):
+    return table[index + 1 + i]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def view1(table, index, dtype):
+    """The 1-D array of the slot at ``table[index]`` (:func:`put_slot`), in a compiled kernel."""
+    return numba.carray(pointer(table[index]), (_dim(table, index, 0),), dtype)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def view2(table, index, dtype):
+    """The 2-D array of the slot at ``table[index]`` (:func:`put_slot`)."""
+    shape = (_dim(table, index, 0), _dim(table, index, 1))
+    return numba.carray(pointer(table[index]), shape, dtype)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def view3(table, index, dtype):
+    """The 3-D array of the slot at ``table[index]`` (:func:`put_slot`)."""
+    shape = (_dim(table, index, 0), _dim(table, index, 1), _dim(table, index, 2))
+    return numba.carray(pointer(table[index]), shape, dtype)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def view4(table, index, dtype):
+    """The 4-D array of the slot at ``table[index]`` (:func:`put_slot`)."""
+    shape = (_dim(table, index, 0), _dim(table, index, 1), _dim(table, index, 2))
+    return numba.carray(pointer(table[index]), (*shape, _dim(table, index, 3)), dtype)

@@ -35,6 +35,7 @@ from ruckig import (
 )
 
 from sim2real.deploy.kernels.calls import bind
+from sim2real.deploy.safety import certify_table
 from sim2real.deploy.safety import envelope_kernel as ek
 from sim2real.deploy.safety.envelope_query import EnvelopeQueries
 from sim2real.deploy.safety.local_reach import LocalReach
@@ -288,6 +289,11 @@ class MotionEnvelope(EnvelopeQueries):
                 beyond=self.beyond.copy(),
             )  # fmt: skip
         ek.certify(*state, z.copy(), screen, arrays)
+        if arrays is not None:  # the table's kernel, for the speed's variance of any layout
+            arrays = arrays._replace(variance=np.ascontiguousarray(arrays.variance))
+        table = certify_table.build((*state, z.copy()), screen, arrays)
+        if table is not None:
+            certify_table.certify_table(table[0])
 
     # ------------------------------------------------------------------ the check
     def check(self, q, before, after, stopping, effort_scale, dq=None, command=None) -> bool:
@@ -427,6 +433,10 @@ class MotionEnvelope(EnvelopeQueries):
         arrays = self._drive_arrays(q) if drive is not None else None
         args = (q, dq, before, after, stopping, effort_scale, command)
         self._certify = bind(ek.certify, *args, self._screen, arrays)
+        table = certify_table.build(args, self._screen, arrays)  # one array, not thirty
+        if table is not None:
+            self._certify_arrays = table[1]  # alive while the table names them
+            self._certify = bind(certify_table.certify_table, table[0])
         variance = drive.speed_variance if drive is not None else None
         self._certify_key = (*args, self.tables, self.margin, variance)
 

@@ -179,7 +179,7 @@ class SafetyGuard:
         # the kernel's phases bound to the arrays of the last filter (_filter)
         self._bound_key = (None, None, None, None)
         self._phase0 = self._phase1 = None
-        self._motion_key, self._certify_motion = (None,) * 5, None  # check_motion's binding
+        self._motion_key, self._certify_motion = (None,) * 4, None  # check_motion's binding
         self._warm_up()
 
     def _kernel_arrays(self) -> gk.GuardArrays:
@@ -451,9 +451,7 @@ class SafetyGuard:
         if envelope is None:
             return command
         k = self._motion_key  # the envelope's certify bound to the arrays of the last call
-        if smoother is not k[0] or state is not k[1] or command is not k[2] or state.q is not k[3]:
-            self._bind_motion(smoother, state, command)
-        elif envelope is not k[4]:  # replaced (a test)
+        if smoother is not k[0] or state is not k[1] or command is not k[2] or envelope is not k[3]:
             self._bind_motion(smoother, state, command)
         if self._certify_motion():  # some env unsafe: brake, commit (else certify committed)
             unsafe = envelope.unsafe
@@ -476,7 +474,7 @@ class SafetyGuard:
         """Bind the envelope's certify to these arrays (``MotionEnvelope.certifier``)."""
         args = (state.q, state.dq, smoother.before, smoother.trajectory, smoother.stopping)
         self._certify_motion = self.envelope.certifier(*args, self.effort_scale, command)
-        self._motion_key = (smoother, state, command, state.q, self.envelope)
+        self._motion_key = (smoother, state, command, self.envelope)
 
     def _hold(self, e: int, q: np.ndarray, dq: np.ndarray, out: np.ndarray) -> None:
         """Replace env ``e``'s target by a hold: the last accepted target (position mode), zero

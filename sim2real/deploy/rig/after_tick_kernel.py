@@ -258,3 +258,26 @@ def after_tick(
             top,
         )
     return code
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def motion_tick(
+    temperature: np.ndarray,
+    peak: np.ndarray,
+    dq: np.ndarray,
+    previous_dq: np.ndarray,
+    previous_acc: np.ndarray,
+    dt: float,
+    mode: np.ndarray,
+    running_mode: int,
+    jerk_sum: np.ndarray,
+    jerk_ticks: np.ndarray,
+    max_speed: np.ndarray,
+    count_jerk: bool,
+) -> None:
+    """:func:`sim2real.deploy.monitors.kernel.motion_statistics` (its arguments, units and
+    shapes) with ``count_jerk`` last: the one argument of a call bound to the others."""
+    mk.motion_statistics(
+        temperature, peak, dq, previous_dq, previous_acc, dt, mode, running_mode, count_jerk,
+        jerk_sum, jerk_ticks, max_speed,
+    )  # fmt: skip

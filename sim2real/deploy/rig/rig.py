@@ -17,8 +17,9 @@ import numpy as np
 from sim2real.deploy.core.backend import SimulatedPlant
 from sim2real.deploy.core.latency import LatencyHistogram
 from sim2real.deploy.core.modes import FAULTED, RUNNING
-from sim2real.deploy.monitors.kernel import motion_statistics
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.rig.after_tick import FusedAfterTick
+from sim2real.deploy.rig.after_tick_kernel import motion_tick
 from sim2real.deploy.rig.hooks import RunHook
 from sim2real.deploy.robot_kind import robot_kind
 
@@ -257,14 +258,29 @@ class MotionHook(RunHook):
         self.dq, self.acc, self.jerk_sum = (np.zeros((envs, n)) for _ in range(3))
         self.jerk_ticks = np.zeros(envs, dtype=np.int64)
         self.dt = rig.robot.control_period
+        self._bound: tuple | None = None  # the arrays the kernel's call is bound to
 
     def after_tick(self, r) -> None:
         sim = self.rig.backend if self.rig.simulated else None
         temperature = sim.thermal.winding_temperature if sim else r.state.winding_temperature
         dq = sim.true_velocity() if sim else r.state.dq
-        motion_statistics(
-            temperature, self.peak, dq, self.dq, self.acc, self.dt, r.mode, RUNNING, r.ticks > 2,
-            self.jerk_sum, self.jerk_ticks, self.max_speed,
+        b = self._bound
+        if b is None or temperature is not b[0] or dq is not b[1] or r.mode is not b[2]:
+            self._bind(temperature, dq, r.mode)
+        self._call(r.ticks > 2)  # the kernel motion_statistics, bound to the arrays above
+
+    def start(self, rig: Rig) -> None:
+        # the call compiled (or loaded from numba's cache) before the first tick, for arrays of
+        # the types of the run's (float64 (envs, n), like the hook's own); bound at that tick
+        self._bind(self.peak, self.peak.copy(), rig.runtime.mode)
+        self._bound = None
+
+    def _bind(self, temperature: np.ndarray, dq: np.ndarray, mode: np.ndarray) -> None:
+        """Bind the kernel's call to these arrays and the hook's own."""
+        self._bound = (temperature, dq, mode)
+        self._call = bind(
+            motion_tick, temperature, self.peak, dq, self.dq, self.acc, float(self.dt), mode,
+            RUNNING, self.jerk_sum, self.jerk_ticks, self.max_speed, rest=(True,),
         )  # fmt: skip
 
     def contribute(self, report: dict) -> None:

@@ -27,6 +27,7 @@ from sim2real.deploy.core.modes import (
     Mode,
 )
 from sim2real.deploy.core.state import Kinematics, RobotState
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.runtime import fused_kernel as fk
 from sim2real.deploy.runtime import supervision_kernel as sv
 from sim2real.deploy.runtime.fused import TableCalls
@@ -135,6 +136,8 @@ class CompiledSupervision(TableCalls):
         self._supervise_arrays: list[np.ndarray] = []
         if not self._put_supervision(self._supervise_table, self._supervise_arrays):
             self._supervise_table = None
+        else:  # its kernel bound to it (compiled, or loaded from numba's cache, now)
+            self._supervise_call = bind(fk.supervise_only, self._supervise_table)
         self._screen_cached = self._screen_args(None, self.state)[2:]
         sv.supervise(*self._supervise_args(self.state, copy=True))
         sv.screen_action(*self._screen_args(self._action, self.state, copy=True))
@@ -242,7 +245,7 @@ class CompiledSupervision(TableCalls):
         if drive_errors is not None:
             self._note_drive_errors(drive_errors)
         if state is self.state and self._supervise_table is not None:
-            code = fk.supervise_only(self._supervise_table)
+            code = self._supervise_call()  # fk.supervise_only(self._supervise_table)
         elif state is self.state:
             code = sv.supervise(*self._supervise_cached)
         else:
@@ -286,7 +289,7 @@ class CompiledSupervision(TableCalls):
         if state is not self.state:
             code = sv.screen_action(*self._screen_args(action, state))
         elif action is self._screen_action:  # its table is built
-            code = fk.screen(self._screen_table)
+            code = self._screen_call()  # fk.screen(self._screen_table)
         else:
             code = sv.screen_action(self._control, action, *self._screen_cached)
             if action is self._screen_seen:  # the second call in a row with this array

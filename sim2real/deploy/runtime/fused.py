@@ -11,7 +11,7 @@ import numpy as np
 
 from sim2real.deploy.core.backend import SensorFrame
 from sim2real.deploy.core.state import Kinematics
-from sim2real.deploy.kernels.calls import put
+from sim2real.deploy.kernels.calls import bind, put
 from sim2real.deploy.runtime import fused_kernel as fk
 from sim2real.deploy.spec.policy_spec import PolicySpec
 
@@ -55,6 +55,7 @@ class TableCalls:
         if all(checks):
             table[: fk.S_CAUSES + 1] = (envs, n, self._control, c[4], bool(c[11]), len(c[8]))
             self._screen_table, self._screen_arrays = table, arrays
+            self._screen_call = bind(fk.screen, table)  # no dispatch per call
             self._screen_action = action
 
     # ------------------------------------------------------------------ the fused call
@@ -114,10 +115,10 @@ class TableCalls:
             np.copyto(self._estimator_input, acceleration)
         if drive_errors is not None:
             self._note_drive_errors(drive_errors)
-        code = fk.estimate_observe(self._table, 0)
+        code = self._estimate_call(0)  # estimate_observe(table, 0), bound to the table
         if code & fk.RECOVER:  # a degenerate joint filter: re-initialized, then the rest
             est.recover(code >> fk.STATUS_SHIFT, frame, self.state, acceleration)
-            code = fk.estimate_observe(self._table, 1)
+            code = self._estimate_call(1)
         if code:
             self._act_on(code, self.state)
         return out
@@ -209,6 +210,7 @@ class TableCalls:
             joints, blocks, layout.shape[1], plan.dim, raw.shape[0], 0, bool(ea.input_extrapolates)
         )  # fmt: skip
         self._table, self._table_arrays, self._fused = table, arrays, True
+        self._estimate_call = bind(fk.estimate_observe, table, rest=(0,))
 
     def _put_supervision(self, table: np.ndarray, arrays: list) -> bool:
         """Put the supervision's arrays (and the state's and estimator's it reads) into an

@@ -32,6 +32,7 @@ from sim2real.deploy.core.modes import (
 )
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.kernels import any_true
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.robots import Robot
 
@@ -75,6 +76,8 @@ class Supervision:
         self.at_rest = np.zeros((envs, n))
         self.mode = np.full(envs, Mode.IDLE, dtype=np.int8)
         any_true(self.mode == RUNNING)  # compiled (or loaded from its cache) before the first tick
+        # any_true of the guard's hard violations (the tick's safe_stop), bound to that array
+        self._hard, self._any_hard = guard.hard_violation, bind(any_true, guard.hard_violation)
         self.cause = np.full(envs, -1, dtype=np.int8)  # index into FAULT_CAUSES
         #: (envs, n) int64, OR of the hardware error bits each drive reported (cause servo_error)
         self.drive_errors = np.zeros((envs, n), dtype=np.int64)
@@ -140,7 +143,7 @@ class Supervision:
     def safe_stop(self, which: np.ndarray, cause: str) -> None:
         """SAFE_STOP, for ``cause`` (one of ``FAULT_CAUSES``), of the envs of ``which`` (bool
         mask) not already in SAFE_STOP or FAULTED: counted, and the smoother brakes them."""
-        if not any_true(which):
+        if not (self._any_hard() if which is self._hard else any_true(which)):
             return
         new = which & (self.mode != SAFE_STOP) & (self.mode != FAULTED)
         if new.any():

@@ -1,13 +1,10 @@
 """The floors of the tick: what the libraries the runtime calls cost on their own.
 
-A stage of the tick (``sim2real.deploy.runtime.STAGES``) is a library call wrapped in the runtime's own
-work: ``infer`` is one ONNX Runtime call, ``smooth`` one Ruckig step, ``estimate`` one Pinocchio
-forward kinematics (besides the Kalman filter, ours), ``physics`` ``decimation`` MuJoCo steps.
-:class:`FloorLoop` times those calls alone, per tick, on objects of its own built from the same
-robot and policy, so the tick benchmark can set each stage beside its floor in the same run: the
-stage minus its floor is the runtime's own work (checks, estimation, models, bookkeeping), the
-part a faster runtime can remove. The sum of the floors outside physics is the least a tick can
-cost with these libraries, whatever the runtime does around them.
+:class:`FloorLoop` times the library calls of a tick (``sim2real.deploy.runtime.STAGES`` wrap
+them in the runtime's own work) alone, per tick, on objects of its own built from the same robot
+and policy, so the tick benchmark sets each stage beside its floors in the same run: the
+difference is the runtime's own work, the part a faster runtime can remove. The floors outside
+physics add up to the least a tick can cost with these libraries.
 
 Per tick (``FLOOR_STAGES``), for the runtime's ``envs`` envs:
 
@@ -15,11 +12,9 @@ Per tick (``FLOOR_STAGES``), for the runtime's ``envs`` envs:
   options: one thread, sequential, all graph optimizations) through a second binding of its
   own, observation and action ((envs, dim), one call for the batch) bound once (``OnnxPolicy``
   binds them the same way).
-- ``ruckig``: ``Ruckig.update`` and ``OutputParameter.pass_to_input`` of one ``Ruckig(envs * n,
-  dt)`` (the smoother's one instance for the batch) with the robot's velocity, acceleration and
-  jerk limits, its target moved each tick (a policy's target moves each tick, so Ruckig computes
-  a new trajectory each tick, as in the runtime), the new position read back (a position drive
-  needs it).
+- ``ruckig``: ``Ruckig.update`` and ``pass_to_input`` of one ``Ruckig(envs * n, dt)`` (the
+  smoother's one instance) with the robot's limits, its target moved each tick as a policy's is
+  (a new trajectory each tick), the new position read back.
 - ``fk``: per env, ``pinocchio.forwardKinematics`` and ``updateFramePlacement`` of the
   end-effector frame (what ``sim2real.deploy.core.state.Kinematics`` calls); a legged robot: the
   base estimator's calls, ``forwardKinematics`` of the floating-base configuration and velocity,

@@ -420,8 +420,9 @@ class SafetyGuard:
     def _resolve(self, needs: np.ndarray, q: np.ndarray, dq: np.ndarray, out) -> None:
         """The Python (Pinocchio) parts of the checks, in count-row order, for the envs each
         asked for (``needs`` (checks, envs) bool)."""
+        asked = needs.any(axis=1).tolist()  # one reduction, not one per check
         for k, check in enumerate(GUARD_CHECKS):
-            if needs[k].any():
+            if asked[k]:
                 check.resolve(self, k, needs[k], q, dq, out)
 
     def reject(self, k: int, e: int, q: np.ndarray, dq: np.ndarray, out: np.ndarray) -> None:

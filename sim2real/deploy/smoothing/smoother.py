@@ -429,7 +429,11 @@ class CommandSmoother(RuckigState):
         """
         if not self._synced:
             raise RuntimeError("CommandSmoother.step before reset(q, dq)")
-        if target is not None and target.shape != self.command.shape:
+        if (
+            target is not self._bound_target
+            and target is not None
+            and (target.shape != self.command.shape)
+        ):  # the bound target's shape was checked when it was bound
             raise ValueError(f"target: expected shape {self.command.shape}, got {target.shape}")
         return self._step(target, out)
 

@@ -323,7 +323,7 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         The frame is overwritten by the next read: copy what you keep.
         """
         f = self.frame
-        f.time.fill(self.time)
+        f.time.fill(self.tick * self.control_period)  # self.time
         self._joint_sensors.read(self.tick)
         if self._base_sensors is not None:
             self._base_sensors.read(f, self.tick)

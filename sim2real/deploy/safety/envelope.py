@@ -392,6 +392,7 @@ class MotionEnvelope(EnvelopeQueries):
             return lambda: self.certify(*args)
         self._bind_certify(*args)
         key, drive = self._certify_key, self.drive
+        dynamics, kernel = self._dynamics, self._certify  # as bound with key (checked below)
         q, before, after, stopping, command = args[0], args[2], args[3], args[4], args[6]
 
         def certify() -> bool:
@@ -401,7 +402,12 @@ class MotionEnvelope(EnvelopeQueries):
                 or (drive is not None and drive.speed_variance is not key[9])
             ):  # fmt: skip
                 return self.certify(*args)
-            return self._run_certify(q, before, after, stopping, command)
+            if self._dirty:  # _run_certify, inline
+                self._clear()
+            if drive is not None:
+                dynamics()
+            code = kernel()
+            return self._coded(code, q, before, after, stopping, command) if code else False
 
         return certify
 
@@ -417,6 +423,11 @@ class MotionEnvelope(EnvelopeQueries):
         code = self._certify()
         if not code:
             return False  # certified and committed
+        return self._coded(code, q, before, after, stopping, command)
+
+    def _coded(self, code: int, q, before, after, stopping, command) -> bool:
+        """:meth:`_run_certify` after a kernel's ``code`` that did not certify every env."""
+        drive = self.drive
         if drive is not None:
             before, after = self._drive_path[0], self._drive_path[1]
             self._drive_beyond = bool(code & ek.BEYOND)

@@ -14,7 +14,8 @@ arithmetic.
   its arrays and views each with ``numba.carray(pointer(table[i]), shape, dtype)``. The arrays
   must live, keep their shape and dtype and stay C-contiguous while the table is in use:
   :func:`put` keeps them alive in a list the table's owner holds, and the owner builds the table
-  again when it is handed other arrays (compared by identity).
+  again when it is handed other arrays (compared by identity). With each array's dimensions
+  beside its address (:func:`put_slot`), a kernel views it with :func:`view1` ... :func:`view4`.
 """
 
 from __future__ import annotations

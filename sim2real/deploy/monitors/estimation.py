@@ -18,6 +18,8 @@ RUNNING, counts a true fall once until the robot is up again; a low base an oper
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from sim2real.deploy.core.attitude import tilt_of
@@ -31,6 +33,16 @@ TRUE_FALL_HEIGHT = 0.4
 #: Histogram of attitude errors: bin width and count (deg; 0.01 deg up to 90 deg).
 BIN_DEG = 0.01
 BINS = 9000
+
+
+def _fits(array, dtype, shape: tuple) -> bool:
+    """Whether ``array`` is a C-contiguous numpy array of ``dtype`` and ``shape``."""
+    return (
+        type(array) is np.ndarray
+        and array.dtype == dtype
+        and array.shape == shape
+        and array.flags.c_contiguous
+    )
 
 
 class EstimationMonitor:
@@ -60,6 +72,8 @@ class EstimationMonitor:
         self.true_falls = np.zeros(envs, dtype=np.int64)
         self._down = np.zeros(envs, dtype=bool)
         self._truth = BaseState.zeros(envs)  # filled from the plant's truth every update
+        self.compiled = True  # False: numpy's path only (the reference of the kernels)
+        self._calls = None  # the kernels bound to the arrays of one runtime (see _bound)
 
     @property
     def ticks(self) -> int:
@@ -88,9 +102,77 @@ class EstimationMonitor:
         put(self._fields(), state, env)
 
     def update(self, runtime, truth: np.ndarray) -> None:
-        """After a tick: ``truth`` (envs, 13), the plant's ``true_base_state()``."""
+        """After a tick: ``truth`` (envs, 13), the plant's ``true_base_state()``. The compiled
+        kernels (:mod:`sim2real.deploy.monitors.estimation_kernel`) do it when they fit (a
+        float64 C-contiguous ``truth``, the runtime's arrays the bound ones, ``compiled``),
+        numpy otherwise; the same numbers either way."""
+        calls = self._bound(runtime, truth)
+        if calls is not None:
+            fill, acos, accumulate = calls
+            fill(truth)
+            acos()
+            done = accumulate(truth)
+            if done >= 0:
+                return
+            base, true_base = runtime.state.base, self._truth
+            running = runtime.mode == 2
+            self._errors(base, true_base, np.flatnonzero(running))  # raises as numpy does
+            return
+        self.reference_update(runtime, truth)
+
+    def _bound(self, runtime, truth):
+        """The three calls of the compiled update for ``runtime``, or None (numpy's path)."""
+        if not self.compiled or type(truth) is not np.ndarray:
+            return None
+        if truth.dtype != np.float64 or not truth.flags.c_contiguous:
+            return None
+        if truth.shape != (self.envs, 13):
+            return None
+        base = runtime.state.base
+        lying = getattr(runtime, "lying_expected", None)
+        key = (runtime.mode, base.projected_gravity, base.linear_velocity)
+        key += (base.linear_velocity_world, lying)
+        calls = self._calls
+        if calls is not None and all(a is b for a, b in zip(calls[0], key, strict=True)):
+            return calls[1]
+        self._calls = None
+        from sim2real.deploy.monitors.estimation_kernel import gemv_matches
+
+        arrays = (base.projected_gravity, base.linear_velocity, base.linear_velocity_world)
+        if not gemv_matches() or runtime.mode.shape != (self.envs,):
+            return None
+        if not all(_fits(a, np.float64, (self.envs, 3)) for a in arrays):
+            return None
+        if lying is not None and not _fits(lying, np.bool_, (self.envs,)):
+            return None
+        self._calls = (key, self._bind(runtime, lying))
+        return self._calls[1]
+
+    def _bind(self, runtime, lying):
+        from sim2real.deploy.kernels.calls import bind
+        from sim2real.deploy.monitors import estimation_kernel as ek
+
+        base, t = runtime.state.base, self._truth
+        arg, angle, example = np.zeros((2, self.envs)), np.zeros((2, self.envs)), np.zeros((1, 13))
+        fields = (t.orientation, t.projected_gravity, t.angular_velocity)
+        fields += (t.linear_velocity_world, t.linear_velocity)
+        fill = bind(ek.truth_angles, *fields, base.projected_gravity, arg, rest=(example,))
+        has_lying = lying is not None
+        lying = lying if has_lying else np.zeros(self.envs, dtype=bool)
+        accumulate = bind(
+            ek.accumulate,
+            *(runtime.mode, lying, has_lying, angle, self.fall_height, self.fall_tilt),
+            *(self.true_falls, self._down, self.counts, self.sums, base.linear_velocity),
+            *(t.linear_velocity, base.linear_velocity_world, t.linear_velocity_world),
+            *(BIN_DEG, BINS),
+            rest=(example,),
+        )
+        return fill, functools.partial(np.arccos, arg, out=angle), accumulate
+
+    def reference_update(self, runtime, truth: np.ndarray) -> None:
+        """:meth:`update` by numpy (the kernels' reference)."""
         true_base = self._truth.set_truth(truth)
-        g_true, v_true = true_base.projected_gravity, true_base.linear_velocity
+        g_true = true_base.projected_gravity
         running = runtime.mode == 2  # RUNNING
         low = truth[:, 2] < self.fall_height
         asked = getattr(runtime, "lying_expected", None)  # an operator laying the robot down
@@ -98,11 +180,14 @@ class EstimationMonitor:
             low &= ~asked
         down = low | (tilt_of(g_true) > self.fall_tilt)
         self.true_falls += down & ~self._down & running
-        self._down = down | (self._down & ~running)
+        self._down[:] = down | (self._down & ~running)
         if not running.any():
             return
-        envs = np.flatnonzero(running)
-        base = runtime.state.base
+        self._errors(runtime.state.base, true_base, np.flatnonzero(running))
+
+    def _errors(self, base, true_base, envs: np.ndarray) -> None:
+        """Add the errors of the RUNNING envs ``envs`` (numpy)."""
+        g_true, v_true = true_base.projected_gravity, true_base.linear_velocity
         g_est = base.projected_gravity[envs]
         g_est = g_est / np.linalg.norm(g_est, axis=1, keepdims=True)
         cos = np.clip((g_est * g_true[envs]).sum(axis=1), -1.0, 1.0)

@@ -273,6 +273,22 @@ class CommandTracker:
         base_cfg = getattr(getattr(robot, "config", None), "base", None)
         #: m, the robot's standing height (robot.toml ``[base]``), for the summary's comparison
         self.standing_height = None if base_cfg is None else float(base_cfg.standing_height)
+        self.compiled = True  # False: numpy's path only (the reference of the kernels)
+        self._call = None  # the kernels' call, bound to one runtime's arrays
+
+    def kernel_arrays(self) -> dict[str, object]:
+        """The arrays the kernels (:mod:`sim2real.deploy.tasks.locomotion_kernel`) update in
+        place: the attributes of those names, ``ring`` and ``command_ring`` (window, envs, 2)
+        m/s, the planar velocity and command of the last ``window`` ticks, ``filled`` (envs,)
+        int64 ticks in them, ``up`` (envs,) bool RUNNING since the last stop, and ``true_base``
+        (the :class:`~sim2real.deploy.core.state.BaseState` filled from the truth; None without
+        one)."""
+        names = ("distance", "forward", "running_time", "tracked_time", "changed_at")
+        names += ("last_command", "heading_change", "commanded_turn", "height_sum")
+        names += ("height_time", "displacement", "start_yaw", "last_yaw")
+        out: dict[str, object] = {k: getattr(self, k) for k in names}
+        out |= {"ring": self._ring, "command_ring": self._command_ring, "filled": self._filled}
+        return out | {"up": self._up, "true_base": self._true_base}
 
     # ------------------------------------------------------------------ state
     def _fields(self) -> dict[str, np.ndarray]:
@@ -393,21 +409,56 @@ class CommandTracker:
     def __call__(self, runtime, asked: np.ndarray | None = None) -> None:
         """Account one tick of ``runtime`` (a floating-base :class:`~sim2real.deploy.runtime.Runtime`);
         ``asked``: (envs, 3) the operator's command when it differs from the one the policy
-        was given (a heading hold's yaw rate), for ``commanded_turn``."""
+        was given (a heading hold's yaw rate), for ``commanded_turn``. Judged on the truth
+        without success windows, the compiled kernels do it (``compiled``; the same numbers as
+        :meth:`reference_call`)."""
+        if self.compiled and self.truth is not None and self.success_window is None:
+            asked = runtime.velocity_command if asked is None else asked
+            call = self._call
+            if call is None or not call.ready(runtime, asked):
+                from sim2real.deploy.tasks.locomotion_kernel import TrackerCall
+
+                limits = (TRACKING_TOLERANCE, SETTLE_TIME)
+                call = self._call = TrackerCall.build(self, runtime, asked, limits)
+            truth = self.truth()
+            if call.fits and type(truth) is np.ndarray and truth.dtype == np.float64:
+                if truth.shape == (self.envs, 13) and truth.flags.c_contiguous:
+                    call(runtime, truth)
+                    return
+            self._true_state = truth
+            self._true_base.set_truth(truth)
+            self.reference_call(runtime, asked, truth_read=True)
+            return
+        self.reference_call(runtime, asked)
+
+    def account_falls(self, runtime, down: np.ndarray, truth: np.ndarray | None = None) -> None:
+        """Count the stops of the envs ``down`` ((envs,) bool: RUNNING since their previous stop,
+        stopped now) as falls or operator stops (``truth``: this tick's (envs, 13), the true
+        base already filled from it, for the fall records)."""
+        if truth is not None:
+            self._true_state = truth
+        laid = down & (runtime.cause == OPERATOR_CAUSE)  # the operator laid it down
+        self.operator_stops += laid
+        fell = down & ~laid
+        self.falls += fell
+        for e in np.flatnonzero(fell):
+            if runtime.cause[e] >= 0:
+                self.falls_by_cause[e, runtime.cause[e]] += 1
+            self.fall_log[e].append(self._fall(runtime, e))
+
+    def reference_call(self, runtime, asked=None, truth_read: bool = False) -> None:
+        """:meth:`__call__` by numpy (the kernels' reference); ``truth_read``: the true base
+        is this tick's already."""
         from sim2real.deploy.core.modes import RUNNING, SAFE_STOP
 
         running = runtime.mode == RUNNING
-        velocity = self._planar_velocity(runtime)  # (envs, 2) m/s, base frame; the truth's too
+        if truth_read:
+            velocity = self._true_base.linear_velocity[:, :2].copy()
+        else:
+            velocity = self._planar_velocity(runtime)  # (envs, 2) m/s, base frame; the truth's
         down = self._up & (runtime.mode >= SAFE_STOP)  # any stop lays it down (FAULTED too)
         if down.any():
-            laid = down & (runtime.cause == OPERATOR_CAUSE)  # the operator laid it down
-            self.operator_stops += laid
-            fell = down & ~laid
-            self.falls += fell
-            for e in np.flatnonzero(fell):
-                if runtime.cause[e] >= 0:
-                    self.falls_by_cause[e, runtime.cause[e]] += 1
-                self.fall_log[e].append(self._fall(runtime, e))
+            self.account_falls(runtime, down)
         self._up &= ~down
         self._up |= running
         step = velocity * self.dt
@@ -416,7 +467,7 @@ class CommandTracker:
         slot = runtime.ticks % self.window
         self._ring[slot] = velocity
         self._command_ring[slot] = runtime.velocity_command[:, :2]
-        self._filled = np.where(running, np.minimum(self._filled + 1, self.window), 0)
+        self._filled[:] = np.where(running, np.minimum(self._filled + 1, self.window), 0)
         full = self._filled >= self.window
         mean = self._ring.mean(axis=0)
         error = np.linalg.norm(mean - self._command_ring.mean(axis=0), axis=1)

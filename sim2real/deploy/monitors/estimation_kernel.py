@@ -1,0 +1,162 @@
+"""The compiled arithmetic of :meth:`sim2real.deploy.monitors.estimation.EstimationMonitor.update`.
+
+Two kernels around one ``np.arccos`` call (numpy's arccos is not the C library's, so it stays
+numpy's): :func:`truth_angles` fills the true base from the plant's truth and writes the
+arguments of the two arc cosines (the true tilt's, the attitude error's), :func:`accumulate`
+counts the true falls and adds the errors. Each expression is numpy's in numpy's order: sums of
+three terms left to right, as numpy reduces three elements; the true base-frame velocity
+``R^T v`` as numpy's ``matmul`` computes it (BLAS ``gemv``: fused multiply-adds over the rows of
+``R`` in order), which :func:`gemv_matches` checks on the machine before the kernels are used.
+:func:`true_base` is also the velocity tracker's
+(:mod:`sim2real.deploy.tasks.locomotion_kernel`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numba.core import types
+from numba.extending import intrinsic
+
+#: deg per rad as ``np.degrees`` multiplies.
+DEG = 180.0 / math.pi
+
+
+@intrinsic
+def fma(typingctx, a, b, c):
+    """``a * b + c`` rounded once (float64), in a compiled kernel."""
+
+    def codegen(context, builder, signature, args):
+        return builder.fma(*args)
+
+    return types.float64(types.float64, types.float64, types.float64), codegen
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def true_base(truth, e, orientation, gravity, angular, velocity_world, velocity):
+    """Env ``e``'s row of ``BaseState.set_truth(truth)`` (the same fields, the same numbers)."""
+    w, x, y, z = truth[e, 3], truth[e, 4], truth[e, 5], truth[e, 6]
+    r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    r10, r11, r12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    v0, v1, v2 = truth[e, 7], truth[e, 8], truth[e, 9]
+    for j in range(4):
+        orientation[e, j] = truth[e, 3 + j]
+    gravity[e, 0], gravity[e, 1], gravity[e, 2] = -r20, -r21, -r22
+    for j in range(3):
+        angular[e, j] = truth[e, 10 + j]
+        velocity_world[e, j] = truth[e, 7 + j]
+    velocity[e, 0] = fma(r20, v2, fma(r10, v1, r00 * v0))
+    velocity[e, 1] = fma(r21, v2, fma(r11, v1, r01 * v0))
+    velocity[e, 2] = fma(r22, v2, fma(r12, v1, r02 * v0))
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill(truth, orientation, gravity, angular, velocity_world, velocity):
+    for e in range(truth.shape[0]):
+        true_base(truth, e, orientation, gravity, angular, velocity_world, velocity)
+
+
+_GEMV: list = []
+
+
+def gemv_matches(samples: int = 256) -> bool:
+    """Whether :func:`true_base` equals ``BaseState.set_truth`` bit for bit on this machine
+    (numpy's BLAS computes ``R^T v`` with fused multiply-adds, in this order), over ``samples``
+    seeded random base states; checked once per process."""
+    if not _GEMV:
+        from sim2real.deploy.core.state import BaseState
+
+        rng = np.random.default_rng(0)
+        truth = rng.normal(size=(samples, 13))
+        truth[:, 3:7] /= np.linalg.norm(truth[:, 3:7], axis=1, keepdims=True)
+        ref, mine = BaseState.zeros(samples).set_truth(truth), BaseState.zeros(samples)
+        _fill(truth, *fields(mine))
+        _GEMV.append(
+            all(np.array_equal(a, b) for a, b in zip(fields(ref), fields(mine), strict=True))
+        )
+    return _GEMV[0]
+
+
+def fields(base) -> tuple:
+    """A ``BaseState``'s arrays in :func:`true_base`'s order: orientation (envs, 4), projected
+    gravity, angular velocity, world and base-frame linear velocity (envs, 3)."""
+    return (
+        base.orientation,
+        base.projected_gravity,
+        base.angular_velocity,
+        base.linear_velocity_world,
+        base.linear_velocity,
+    )
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _clip(x):
+    if x < -1.0:
+        return -1.0
+    if x > 1.0:
+        return 1.0
+    return x
+
+
+@numba.njit(cache=True, nogil=True)
+def truth_angles(orientation, gravity, angular, velocity_world, velocity, g_est, arg, truth):
+    """Fill the true base (``orientation`` (envs, 4), ``gravity`` (envs, 3) projected,
+    ``angular``, ``velocity_world``, ``velocity`` (envs, 3)) from ``truth`` (envs, 13), as
+    ``BaseState.set_truth``; ``arg`` (2, envs): the clipped cosines of the true tilt and of the
+    angle between ``g_est`` (envs, 3, the estimate's projected gravity) and the true one."""
+    for e in range(truth.shape[0]):
+        true_base(truth, e, orientation, gravity, angular, velocity_world, velocity)
+        g0, g1, g2 = gravity[e, 0], gravity[e, 1], gravity[e, 2]
+        n = math.sqrt((g0 * g0 + g1 * g1) + g2 * g2)
+        arg[0, e] = _clip(-(g2 / n))
+        a0, a1, a2 = g_est[e, 0], g_est[e, 1], g_est[e, 2]
+        m = math.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
+        arg[1, e] = _clip(((a0 / m) * g0 + (a1 / m) * g1) + (a2 / m) * g2)
+
+
+@numba.njit(cache=True, nogil=True)
+def accumulate(
+    mode, lying, has_lying, angle, fall_height, fall_tilt, true_falls, down, counts, sums,
+    v_est, v_true, vw_est, vw_true, bin_deg, bins, height,
+):  # fmt: skip
+    """The falls and errors of one tick: ``angle`` (2, envs) rad, the arc cosines of
+    :func:`truth_angles`' ``arg``; ``height`` (envs, 13) the truth (its column 2). Returns 1:
+    done; 0: no env RUNNING (errors untouched); -1: a RUNNING env's attitude error is not a
+    number (errors untouched, the caller's numpy path raises as it would)."""
+    envs = mode.shape[0]
+    any_running = False
+    for e in range(envs):
+        running = mode[e] == 2
+        low = height[e, 2] < fall_height
+        if has_lying:
+            low = low and not lying[e]
+        d = low or (angle[0, e] > fall_tilt)
+        if d and not down[e] and running:
+            true_falls[e] += 1
+        down[e] = d or (down[e] and not running)
+        any_running = any_running or running
+    if not any_running:
+        return 0
+    for e in range(envs):
+        if mode[e] == 2 and math.isnan(angle[1, e] * DEG):
+            return -1
+    for e in range(envs):
+        if mode[e] != 2:
+            continue
+        deg = angle[1, e] * DEG
+        k = min(int(deg / bin_deg), bins)
+        counts[e, k] += 1
+        err0 = v_est[e, 0] - v_true[e, 0]
+        err1 = v_est[e, 1] - v_true[e, 1]
+        vertical = vw_est[e, 2] - vw_true[e, 2]
+        sums[e, 0] += deg
+        sums[e, 1] += v_est[e, 0]
+        sums[e, 2] += v_true[e, 0]
+        sums[e, 3] += err0**2 + err1**2
+        sums[e, 4] += 1.0
+        sums[e, 5] += vertical
+        sums[e, 6] += vertical**2
+    return 1

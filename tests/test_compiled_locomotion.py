@@ -1,0 +1,99 @@
+"""The compiled ticks of the estimation monitor and the velocity-command tracker
+(:mod:`sim2real.deploy.monitors.estimation_kernel`, :mod:`sim2real.deploy.tasks.locomotion_kernel`)
+count and sum what their numpy references do, bit for bit.
+
+Two rigs run the same Go2 ticks against identical seeded plants: one as it is (the kernels), one
+with the monitor and the tracker forced onto numpy (``compiled = False``). Two envs, a push that
+lays env 0 down (a runtime fall and a true fall), a NaN action and a stale sensor on env 1 (a
+stop of another cause), scheduled commands, or a fixed one under the heading hold. Tolerance:
+none.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.monitors import estimation_kernel
+from sim2real.deploy.monitors.estimation import EstimationMonitor
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.rig.rig import Rig
+from sim2real.deploy.tasks.locomotion import CommandTracker
+
+TICKS = 900
+ENVS = 2
+TASKS = {
+    "schedule": lambda: {"period": 2.0, "rng": [np.random.default_rng(5 + e) for e in range(ENVS)]},
+    "heading": lambda: {"period": 2.0, "rng": None, "command": "0.5,0,0", "heading_gain": 0.5},
+}
+
+
+def build(robot, onnx, task: dict, compiled: bool) -> Rig:
+    dt = robot.control_period
+    plant = SimBackend(robot, envs=ENVS, seed=3)
+    faults = [
+        Fault("push", 150 * dt, 15 * dt, envs=(0,), magnitude=400.0),
+        Fault("nan-action", 400 * dt, 5 * dt, envs=(1,)),
+        Fault("stale", 600 * dt, 30 * dt, envs=(1,)),
+    ]
+    runtime = {"injector": FaultInjector(faults, plant)}
+    rig = Rig(robot, OnnxPolicy(onnx, robot), plant, envs=ENVS, task=task, runtime=runtime)
+    rig.estimation.compiled = compiled
+    rig.task.tracker.compiled = compiled
+    rig.start()
+    return rig
+
+
+def results(rig: Rig) -> dict:
+    out = {f"estimation/{k}": v for k, v in rig.estimation.state_dict().items()}
+    tracker = rig.task.tracker
+    out |= {f"tracker/{k}": v for k, v in tracker.state_dict().items()}
+    base = tracker.kernel_arrays()["true_base"]
+    for name in ("orientation", "projected_gravity", "linear_velocity", "linear_velocity_world"):
+        out[f"true_base/{name}"] = getattr(base, name)
+    out["command"] = rig.runtime.velocity_command
+    return out
+
+
+@pytest.mark.parametrize("task", sorted(TASKS))
+def test_compiled_equals_numpy(go2, go2_onnx, monkeypatch, task):
+    numpy_ticks = {"estimation": 0, "tracker": 0}
+
+    def counted(cls, name, key):
+        original = getattr(cls, name)
+
+        def wrapper(self, *args, **kwargs):
+            numpy_ticks[key] += 1
+            return original(self, *args, **kwargs)
+
+        monkeypatch.setattr(cls, name, wrapper)
+
+    counted(EstimationMonitor, "reference_update", "estimation")
+    counted(CommandTracker, "reference_call", "tracker")
+    fast = build(go2, go2_onnx, TASKS[task](), compiled=True)
+    fast.runtime.run(TICKS, on_tick=fast.monitor)
+    assert numpy_ticks == {"estimation": 0, "tracker": 0}  # the kernels did every tick
+    slow = build(go2, go2_onnx, TASKS[task](), compiled=False)
+    slow.runtime.run(TICKS, on_tick=slow.monitor)
+    assert numpy_ticks == {"estimation": TICKS, "tracker": TICKS}
+    a, b = results(fast), results(slow)
+    assert a.keys() == b.keys()
+    for key in a:
+        x, y = np.asarray(a[key]), np.asarray(b[key])
+        nan = x.dtype.kind == "f"  # NaN where no yaw or command was seen yet
+        assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=nan), key
+    assert fast.report()["locomotion"] == slow.report()["locomotion"]
+    assert fast.report()["estimation"] == slow.report()["estimation"]
+    tracker = fast.task.tracker
+    assert tracker.falls[0] >= 1 and tracker.fall_log[0]  # the push laid env 0 down
+    assert tracker.falls[1] >= 1  # a stop of another cause
+    assert fast.estimation.true_falls[0] >= 1
+    assert fast.estimation.ticks > 0 and tracker.heading_change.any()
+
+
+def test_true_base_is_set_truth():
+    """:func:`~sim2real.deploy.monitors.estimation_kernel.true_base` equals ``BaseState.set_truth``
+    on this machine (else the kernels are not used: numpy's matmul through another BLAS)."""
+    assert estimation_kernel.gemv_matches(4096)

@@ -536,7 +536,7 @@ def render(results: dict) -> str:
         add(
             f"== session: {robot} deploy-run, {s['control_rate_hz']:.0f} Hz control, "
             f"{s['physics_rate_hz']:.0f} Hz physics: {s['simulated_s']:.0f} s simulated in "
-            f"{s['loop_s']:.2f} s ({s['real_time_factor']:.0f}x real time), set-up "
+            f"{s.get('loop_s', s['wall_s']):.2f} s ({s['real_time_factor']:.0f}x real time), set-up "
             f"{s['setup_s']:.2f} s"
         )
         add(

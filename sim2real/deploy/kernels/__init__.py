@@ -11,8 +11,8 @@ The kernels live beside their stages: :mod:`sim2real.deploy.spec.kernel`,
 :mod:`sim2real.deploy.runtime.supervision_kernel`, :mod:`sim2real.deploy.safety.kernel`,
 :mod:`sim2real.deploy.safety.envelope_kernel`, :mod:`sim2real.deploy.smoothing.kernel`,
 :mod:`sim2real.robots.thermal_kernel`, :mod:`sim2real.deploy.backends.sim.drives_kernel`,
-:mod:`sim2real.deploy.backends.sim.sensors_kernel`, :mod:`sim2real.deploy.monitors.kernel` and
-:mod:`sim2real.deploy.core.latency_kernel`.
+:mod:`sim2real.deploy.backends.sim.sensors_kernel`, :mod:`sim2real.deploy.monitors.kernel`,
+:mod:`sim2real.deploy.rig.after_tick_kernel` and :mod:`sim2real.deploy.core.latency_kernel`.
 
 A kernel stops where Python must act (Ruckig, Pinocchio, a policy reset) and returns a code that
 says what; the arithmetic and its order are those of the numpy reference, so both give the same

@@ -1,7 +1,7 @@
 """Benchmarks (`make bench`): speed is measured here, never by timed unit tests.
 
-``python -m bench`` (:mod:`bench.__main__`: usage, options, the targets ``TARGETS``) measures the
-runtime against a bare sim2sim loop (unitree_rl_gym's ``deploy_mujoco.py``: torch eager, PD
+``python -m bench`` (:mod:`bench.__main__`: usage, options; the targets :mod:`bench.targets`) measures
+the runtime against a bare sim2sim loop (unitree_rl_gym's ``deploy_mujoco.py``: torch eager, PD
 torques at the physics rate) on the same robot and policy in the same run, writes
 ``bench/results.json`` atomically (schema ``sim2real-deploy/bench/1``; its layout and the targets
 in docs/speed.md) and prints a plain-text table ending with the targets, PASS or FAIL.

@@ -139,7 +139,7 @@ def test_history_is_kept_and_a_regression_against_the_last_full_run_is_flagged()
     """Each run appends its targets to results.json's history; the table compares a target with
     the last full run (quick runs are recorded, never the comparison point) and flags a move of
     more than REGRESSION the wrong way."""
-    from bench.__main__ import REGRESSION, compare_history, evaluate_targets, history_entry
+    from bench.targets import REGRESSION, compare_history, evaluate_targets, history_entry
 
     def run(ratio, fraction, quick, history):
         sections = {
@@ -238,7 +238,7 @@ def test_the_floor_ratios_of_issue_56_and_their_history_line(tmp_path):
     """The ratios against the floors come from figures of one run (tick: the overhead and the
     physics stage beside their floors; session: the 8-hour wall time beside ticks x the floor
     tick incl. mj_step; busy: arm6's overrun rate in %); history.jsonl gets one line per call."""
-    from bench.__main__ import EIGHT_HOURS_S, append_history, evaluate_targets, history_line
+    from bench.targets import EIGHT_HOURS_S, append_history, evaluate_targets, history_line
 
     def summ(p50):
         return {"p50_us": p50}

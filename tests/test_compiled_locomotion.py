@@ -11,11 +11,14 @@ none.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
 from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.core.state import BaseState
 from sim2real.deploy.monitors import estimation_kernel
 from sim2real.deploy.monitors.estimation import EstimationMonitor
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
@@ -97,3 +100,48 @@ def test_true_base_is_set_truth():
     """:func:`~sim2real.deploy.monitors.estimation_kernel.true_base` equals ``BaseState.set_truth``
     on this machine (else the kernels are not used: numpy's matmul through another BLAS)."""
     assert estimation_kernel.gemv_matches(4096)
+
+
+def random_quaternions(rng, n: int) -> np.ndarray:
+    q = rng.normal(size=(n, 4))
+    q[: n // 2, 0] += 4.0 * rng.random(n // 2)  # about half of them near upright
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def test_estimation_kernels_equal_numpy_on_random_states(go2):
+    """The monitor's kernels against numpy over random truths, estimates, modes and lie-downs:
+    any attitude (upside down too), heights about the fall height, estimates that differ."""
+    from sim2real.deploy.core.attitude import projected_gravity
+
+    envs, rng = 4, np.random.default_rng(11)
+    fast, slow = EstimationMonitor(go2, envs), EstimationMonitor(go2, envs)
+    slow.compiled = False
+    base = BaseState.zeros(envs)
+    runtime = SimpleNamespace(
+        mode=np.zeros(envs, dtype=np.int8),
+        state=SimpleNamespace(base=base),
+        lying_expected=np.zeros(envs, dtype=bool),
+    )
+    for _ in range(3000):
+        truth = np.concatenate(
+            [
+                rng.normal(size=(envs, 2)),
+                fast.fall_height * 2.0 * rng.random((envs, 1)),
+                random_quaternions(rng, envs),
+                rng.normal(size=(envs, 6)),
+            ],
+            axis=1,
+        )
+        runtime.mode[:] = rng.choice([0, 1, 2, 2, 2, 3, 4], size=envs)
+        runtime.lying_expected[:] = rng.random(envs) < 0.2
+        base.projected_gravity[:] = projected_gravity(random_quaternions(rng, envs))
+        base.projected_gravity *= rng.uniform(0.5, 2.0, size=(envs, 1))  # not unit
+        base.linear_velocity[:] = rng.normal(size=(envs, 3))
+        base.linear_velocity_world[:] = rng.normal(size=(envs, 3))
+        fast.update(runtime, truth)
+        slow.update(runtime, truth.copy())
+    a, b = fast.state_dict(), slow.state_dict()
+    for key in a:
+        assert np.array_equal(a[key], b[key]), key
+    assert fast.summary() == slow.summary()
+    assert fast.true_falls.sum() > 10 and fast.ticks > 1000

@@ -62,22 +62,26 @@ def _fill(truth, orientation, gravity, angular, velocity_world, velocity):
 _GEMV: list = []
 
 
-def gemv_matches(samples: int = 256) -> bool:
+def gemv_matches(samples: int | None = None) -> bool:
     """Whether :func:`true_base` equals ``BaseState.set_truth`` bit for bit on this machine
-    (numpy's BLAS computes ``R^T v`` with fused multiply-adds, in this order), over ``samples``
-    seeded random base states; checked once per process."""
+    (numpy's BLAS computes ``R^T v`` with fused multiply-adds, in this order), over seeded
+    random base states: 256 checked once per process (None), or ``samples`` checked now."""
+    if samples is not None:
+        return _matches(samples)
     if not _GEMV:
-        from sim2real.deploy.core.state import BaseState
-
-        rng = np.random.default_rng(0)
-        truth = rng.normal(size=(samples, 13))
-        truth[:, 3:7] /= np.linalg.norm(truth[:, 3:7], axis=1, keepdims=True)
-        ref, mine = BaseState.zeros(samples).set_truth(truth), BaseState.zeros(samples)
-        _fill(truth, *fields(mine))
-        _GEMV.append(
-            all(np.array_equal(a, b) for a, b in zip(fields(ref), fields(mine), strict=True))
-        )
+        _GEMV.append(_matches(256))
     return _GEMV[0]
+
+
+def _matches(samples: int) -> bool:
+    from sim2real.deploy.core.state import BaseState
+
+    rng = np.random.default_rng(0)
+    truth = rng.normal(size=(samples, 13))
+    truth[:, 3:7] /= np.linalg.norm(truth[:, 3:7], axis=1, keepdims=True)
+    ref, mine = BaseState.zeros(samples).set_truth(truth), BaseState.zeros(samples)
+    _fill(truth, *fields(mine))
+    return all(np.array_equal(a, b) for a, b in zip(fields(ref), fields(mine), strict=True))
 
 
 def fields(base) -> tuple:

@@ -145,3 +145,54 @@ def test_estimation_kernels_equal_numpy_on_random_states(go2):
         assert np.array_equal(a[key], b[key]), key
     assert fast.summary() == slow.summary()
     assert fast.true_falls.sum() > 10 and fast.ticks > 1000
+
+
+def test_tracker_kernels_equal_numpy_on_random_states():
+    """The tracker's kernels against numpy over random truths, modes, stops of every cause but
+    a hard limit, command steps and drifts, and fall-check heights (NaN at times)."""
+    from sim2real.deploy.core.modes import FAULT_CAUSES
+
+    envs, dt, rng = 3, 0.02, np.random.default_rng(12)
+    causes = [i for i, c in enumerate(FAULT_CAUSES) if c != "hard_limit"] + [-1]
+    now = {"truth": np.zeros((envs, 13))}
+    backend = SimpleNamespace(true_base_state=lambda: now["truth"].copy())
+    fast, slow = CommandTracker(envs, dt, backend), CommandTracker(envs, dt, backend)
+    slow.compiled = False
+    runtime = SimpleNamespace(
+        mode=np.zeros(envs, dtype=np.int8),
+        cause=np.full(envs, -1, dtype=np.int8),
+        time=0.0,
+        ticks=0,
+        velocity_command=np.zeros((envs, 3)),
+        fall_detector=SimpleNamespace(height=np.zeros(envs), signals=np.zeros((envs, 3), bool)),
+        state=SimpleNamespace(base=BaseState.zeros(envs)),
+    )
+    for _ in range(4000):
+        runtime.ticks += 1
+        runtime.time += dt
+        change = rng.random(envs) < 0.02
+        runtime.mode[change] = rng.choice([0, 1, 2, 3, 4], size=int(change.sum()))
+        runtime.mode[rng.random(envs) < 0.05] = 2
+        runtime.cause[:] = rng.choice(causes, size=envs)
+        step = rng.random(envs) < 0.01
+        runtime.velocity_command[step] = rng.uniform(-1.0, 1.0, size=(int(step.sum()), 3))
+        runtime.velocity_command += rng.normal(scale=0.01, size=(envs, 3))  # a joystick's drift
+        heights = rng.uniform(0.1, 0.4, size=envs)
+        heights[rng.random(envs) < 0.1] = np.nan
+        runtime.fall_detector.height[:] = heights
+        runtime.fall_detector.signals[:] = rng.random((envs, 3)) < 0.5
+        runtime.state.base.projected_gravity[:] = rng.normal(size=(envs, 3))
+        now["truth"] = np.concatenate(
+            [rng.normal(size=(envs, 3)), random_quaternions(rng, envs), rng.normal(size=(envs, 6))],
+            axis=1,
+        )
+        fast(runtime)
+        slow(runtime)
+    a, b = fast.state_dict(), slow.state_dict()
+    for key in a:
+        x, y = np.asarray(a[key]), np.asarray(b[key])
+        nan = x.dtype.kind == "f"
+        assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=nan), key
+    assert fast.summary(runtime) == slow.summary(runtime)
+    assert fast.falls.sum() > 10 and fast.operator_stops.sum() > 0
+    assert fast.tracked_time.sum() > 0 and fast.heading_change.any()

@@ -74,6 +74,9 @@ class EstimationMonitor:
         self._truth = BaseState.zeros(envs)  # filled from the plant's truth every update
         self.compiled = True  # False: numpy's path only (the reference of the kernels)
         self._calls = None  # the kernels bound to the arrays of one runtime (see _bound)
+        from sim2real.deploy.monitors.estimation_kernel import load
+
+        load()  # the kernels ready before the first tick
 
     @property
     def ticks(self) -> int:

@@ -164,3 +164,21 @@ def accumulate(
         sums[e, 5] += vertical
         sums[e, 6] += vertical**2
     return 1
+
+
+def load() -> None:
+    """Compile (or load from numba's cache) the kernels' specializations for the runtime's
+    arrays' types (float64, an int8 mode, bool flags) and check :func:`gemv_matches`: done
+    when a monitor is built, so that the first tick does not wait for it."""
+    from sim2real.deploy.kernels.calls import bind
+
+    gemv_matches()
+    f, b = np.zeros((1, 3)), np.zeros(1, dtype=np.bool_)
+    bind(truth_angles, np.zeros((1, 4)), f, f, f, f, f, np.zeros((2, 1)), rest=(np.zeros((1, 13)),))
+    mode, i = np.zeros(1, dtype=np.int8), np.zeros(1, dtype=np.int64)
+    angle, counts, sums = np.zeros((2, 1)), np.zeros((1, 2), dtype=np.int64), np.zeros((1, 7))
+    bind(
+        accumulate,
+        *(mode, b, True, angle, 1.0, 1.0, i, b, counts, sums, f, f, f, f, 1.0, 1),
+        rest=(np.zeros((1, 13)),),
+    )

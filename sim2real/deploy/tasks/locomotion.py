@@ -275,6 +275,10 @@ class CommandTracker:
         self.standing_height = None if base_cfg is None else float(base_cfg.standing_height)
         self.compiled = True  # False: numpy's path only (the reference of the kernels)
         self._call = None  # the kernels' call, bound to one runtime's arrays
+        if self.truth is not None:
+            from sim2real.deploy.tasks.locomotion_kernel import load
+
+            load()  # the kernels ready before the first tick
 
     def kernel_arrays(self) -> dict[str, object]:
         """The arrays the kernels (:mod:`sim2real.deploy.tasks.locomotion_kernel`) update in

@@ -211,3 +211,19 @@ class TrackerCall:
         self._turn_args()
         np.arctan2(self._sin_cos[0], self._sin_cos[1], out=self._turn)
         self._integrate()
+
+
+def load() -> None:
+    """Compile (or load from numba's cache) the kernels' specializations for the runtime's
+    arrays' types (float64, an int8 mode, bool flags, int64 counts): done when a tracker judged
+    on the truth is built, so that the first tick does not wait for it."""
+    from sim2real.deploy.kernels.calls import bind
+
+    f3, f1, b = np.zeros((1, 3)), np.zeros(1), np.zeros(1, dtype=np.bool_)
+    mode, i = np.zeros(1, dtype=np.int8), np.zeros(1, dtype=np.int64)
+    q, f2, two, ring = np.zeros((1, 4)), np.zeros((1, 2)), np.zeros((2, 1)), np.zeros((1, 1, 2))
+    bind(truth_down, q, f3, f3, f3, f3, mode, b, b, rest=(np.zeros((1, 13)),))
+    track_arrays = (f1, f1, ring, ring, i, f2, f1, f1, f1, f1, two)
+    bind(track, mode, f3, f3, q, 1.0, 1.0, 1.0, *track_arrays, rest=(0, 0.0))
+    bind(turn_args, f1, f1, two)
+    bind(integrate, mode, f1, f1, f3, f3, 1.0, f1, True, f1, f1, f1, f2, f1, f1, f1)

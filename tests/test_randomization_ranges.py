@@ -127,7 +127,7 @@ def test_the_velocity_commands_come_from_the_file_or_the_policys_contract(tmp_pa
     deploy.yaml ``commands.base_velocity.ranges``): the published G1 policy stands still below
     0.35 m/s and was trained on -0.5..1.0, so the default 0..0.5 judged it on commands it never
     learned. The soak's schedule draws from them."""
-    from sim2real.deploy.tasks.locomotion import CommandRanges
+    from sim2real.deploy.tasks.commands import CommandRanges
     from sim2real.deploy.tasks.task import task_for
     from sim2real.eval.world.domain import contract_commands
     from tests import foreign_stacks as fs

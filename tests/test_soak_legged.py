@@ -1,5 +1,5 @@
 """The soak's legged mode: go2 follows seeded velocity commands
-(:class:`sim2real.deploy.tasks.locomotion.CommandSchedule`), its tracking, falls and distance are measured
+(:class:`sim2real.deploy.tasks.commands.CommandSchedule`), its tracking, falls and distance are measured
 (:class:`sim2real.deploy.tasks.locomotion.CommandTracker`) and reported, and a kill -9 + resume equals an
 uninterrupted run."""
 
@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim2real.deploy.tasks.locomotion import CommandSchedule, CommandTracker
+from sim2real.deploy.tasks.commands import CommandSchedule
+from sim2real.deploy.tasks.locomotion import CommandTracker
 from sim2real.eval.report.build import build_report
 from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.soak.batch import SessionBatch

@@ -18,7 +18,7 @@ to home. Each episode draws a soak session's randomization (:func:`sim2real.eval
 sample_session` of the legged ranges: dynamics, encoder noise and latency, IMU noise and bias,
 floor friction, and a fault schedule at the training interval, :mod:`sim2real.policies.episode_faults`,
 which the runtime's injector applies), a velocity command every ``command_period`` s
-(:class:`sim2real.deploy.tasks.locomotion.CommandRanges`, the soak's ranges) and pushes on the base (a
+(:class:`sim2real.deploy.tasks.commands.CommandRanges`, the soak's ranges) and pushes on the base (a
 scheduled push adds to them). It ends (terminated) when the runtime leaves RUNNING for a safe stop
 (a fall, a hard limit, a stale sensor...) and is truncated at its length.
 
@@ -38,7 +38,7 @@ from sim2real.deploy.rig.rig import Rig
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime import Mode
 from sim2real.deploy.spec.policy_spec import PolicySpec
-from sim2real.deploy.tasks.locomotion import CommandRanges
+from sim2real.deploy.tasks.commands import CommandRanges
 from sim2real.eval.world.dynamics import randomized_model
 from sim2real.eval.world.floor import apply_floor_friction
 from sim2real.eval.world.sensors import SensorDraw, apply_imu, apply_sensors
@@ -93,7 +93,7 @@ class LocomotionConfig:
         episode_seconds: Episode length, s (legged_gym: 20 s).
         command_period: A new velocity command every this many s (the soak's default
             ``--goal-period``, 4 s).
-        commands: The command ranges (the soak's :class:`~sim2real.deploy.tasks.locomotion.CommandRanges`).
+        commands: The command ranges (the soak's :class:`~sim2real.deploy.tasks.commands.CommandRanges`).
         push_interval: Mean time between pushes on the base, s (exponential).
         push_force: Horizontal push force range, N (the soak pushes 5-25 N; ours up to 40).
         push_duration: Push duration range, s (the soak's).

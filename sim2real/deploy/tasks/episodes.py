@@ -14,8 +14,9 @@ from __future__ import annotations
 import numpy as np
 
 from sim2real.deploy.core.stateful import load_parts, parts_state_dict, put, take
+from sim2real.deploy.tasks.commands import CommandRanges
 from sim2real.deploy.tasks.goals import sample_goal
-from sim2real.deploy.tasks.locomotion import TRACKING_TOLERANCE, CommandRanges
+from sim2real.deploy.tasks.locomotion import TRACKING_TOLERANCE
 
 
 class _Arrays:

@@ -86,7 +86,7 @@ def task_for(
         success_time: s within which a goal counts as reached (an arm).
         fixed: Optional fixed goal (3,) m, base frame (an arm).
         command: Optional fixed velocity command ``"VX,VY,WZ"`` (a legged robot; m/s, m/s,
-            rad/s, :func:`sim2real.deploy.tasks.locomotion.parse_command`): written at
+            rad/s, :func:`sim2real.deploy.tasks.commands.parse_command`): written at
             :meth:`Task.reset`, none scheduled. An arm ignores it.
         window: Optional s: account the success per window of session time too.
         interventions: Optional :class:`sim2real.deploy.monitors.interventions.InterventionMonitor` (an
@@ -98,7 +98,7 @@ def task_for(
             robot's command period in episode time, ``rng`` the episodes' one generator.
         success_radius: Training, an arm: m, a goal is reached within it (default the robot's
             ``task.success_radius``).
-        ranges: A legged robot: the :class:`~sim2real.deploy.tasks.locomotion.CommandRanges` its
+        ranges: A legged robot: the :class:`~sim2real.deploy.tasks.commands.CommandRanges` its
             commands are drawn from, in training and in the soak's schedule (default its
             defaults).
         heading_gain: A legged robot with a fixed ``command`` whose yaw rate is zero: hold its
@@ -109,8 +109,8 @@ def task_for(
     """
     legged = robot_kind(robot).task == "locomotion"
     if clock is not None:
+        from sim2real.deploy.tasks.commands import CommandRanges
         from sim2real.deploy.tasks.episodes import EpisodeCommands, EpisodeGoals
-        from sim2real.deploy.tasks.locomotion import CommandRanges
 
         if legged:
             ranges = CommandRanges() if ranges is None else ranges
@@ -119,7 +119,8 @@ def task_for(
             success_radius = robot.config.task.success_radius
         return EpisodeGoals(robot, envs, period, rng, clock, success_radius)
     if legged:
-        from sim2real.deploy.tasks.locomotion import VelocityTask, parse_command
+        from sim2real.deploy.tasks.commands import parse_command
+        from sim2real.deploy.tasks.locomotion import VelocityTask
 
         if command is not None:
             command = parse_command(command)

@@ -267,7 +267,7 @@ def contract_commands(policy: str | Path):
     stack wrote (:mod:`sim2real.deploy.spec.foreign`: Unitree's deploy.yaml ``commands.base_velocity.
     ranges``, holosoma's ``command_ranges``): ``(CommandRanges, where)``, or ``(None, None)``
     for a policy with our own metadata, no recognised contract, or none recorded. The fraction of
-    zero commands stays :class:`~sim2real.deploy.tasks.locomotion.CommandRanges`' default.
+    zero commands stays :class:`~sim2real.deploy.tasks.commands.CommandRanges`' default.
 
     Raises:
         DomainError: the file cannot be read as ONNX, or its contract cannot be read (named).
@@ -276,7 +276,7 @@ def contract_commands(policy: str | Path):
 
     from sim2real.deploy.spec.foreign.registry import OnnxFacts, read_contract
     from sim2real.deploy.spec.policy_spec import SpecError
-    from sim2real.deploy.tasks.locomotion import CommandRanges
+    from sim2real.deploy.tasks.commands import CommandRanges
 
     try:
         model = onnx.load(str(policy), load_external_data=False)

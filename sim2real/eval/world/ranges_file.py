@@ -22,7 +22,7 @@ is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the cl
 The tables are :class:`~sim2real.eval.world.dynamics.DynamicsRanges`,
 :class:`~sim2real.eval.world.sensors.SensorRanges`, :class:`~sim2real.eval.world.sensors.ImuRanges`,
 :class:`~sim2real.eval.world.drift.DriftRanges`, :class:`~sim2real.eval.world.fault_schedule.FaultRanges`,
-:class:`~sim2real.eval.world.pushes.PushRanges` and :class:`~sim2real.deploy.tasks.locomotion.CommandRanges`;
+:class:`~sim2real.eval.world.pushes.PushRanges` and :class:`~sim2real.deploy.tasks.commands.CommandRanges`;
 the inline tables ``dynamics.com_offset`` (:class:`~sim2real.eval.world.dynamics.ComOffsetRanges`) and
 ``pushes.velocity``, ``pushes.angular_velocity`` (:class:`~sim2real.eval.world.pushes.PushRanges`' axes)
 are :data:`SUBTABLES`; their docstrings give each key's meaning, unit and default. Bad input is
@@ -38,7 +38,7 @@ import typing
 from pathlib import Path
 
 from sim2real.deploy.robot_kind import robot_kind
-from sim2real.deploy.tasks.locomotion import CommandRanges
+from sim2real.deploy.tasks.commands import CommandRanges
 from sim2real.eval.world.drift import DriftRanges
 from sim2real.eval.world.dynamics import ComOffsetRanges, DynamicsRanges
 from sim2real.eval.world.fault_schedule import FaultRanges

@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 
 from sim2real.deploy.robot_kind import robot_kind
-from sim2real.deploy.tasks.locomotion import CommandRanges
+from sim2real.deploy.tasks.commands import CommandRanges
 from sim2real.eval.world.checks import check_range
 from sim2real.eval.world.drift import DriftRanges
 from sim2real.eval.world.dynamics import ComOffsetRanges, DynamicsRanges
@@ -55,7 +55,7 @@ class SessionRanges:
             (:class:`sim2real.eval.world.dynamics.ComOffsetRanges`; a ranges file's ``[dynamics]
             com_offset``); None: none (default).
         commands: A floating-base robot's velocity commands
-            (:class:`sim2real.deploy.tasks.locomotion.CommandRanges`); None: the policy's training
+            (:class:`sim2real.deploy.tasks.commands.CommandRanges`); None: the policy's training
             ranges where its contract records them (``soak-test``), else CommandRanges'
             defaults.
 

@@ -54,6 +54,17 @@ def pointer(typingctx, address):
     return types.voidptr(address), codegen
 
 
+def fits(array, dtype, shape: tuple) -> bool:
+    """Whether ``array`` is a C-contiguous numpy array of ``dtype`` and exactly ``shape``: what a
+    kernel bound to it (:func:`bind`) may be called with again."""
+    return (
+        isinstance(array, np.ndarray)
+        and array.dtype == dtype
+        and array.shape == shape
+        and array.flags.c_contiguous
+    )
+
+
 def put(table, arrays, index, array, dtype, shape: tuple, rows: bool = False) -> bool:
     """Write the address of ``array`` into ``table[index]`` and keep the array in ``arrays``
     (alive as long as the table), if it is a C-contiguous array of ``dtype`` and ``shape`` (at

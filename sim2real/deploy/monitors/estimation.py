@@ -26,6 +26,7 @@ from sim2real.deploy.core.attitude import tilt_of
 from sim2real.deploy.core.state import BaseState
 from sim2real.deploy.core.stateful import check, put, take
 from sim2real.deploy.estimation.fall import FALL_TILT
+from sim2real.deploy.kernels.calls import fits
 
 #: Fraction of ``[base] standing_height`` under which the true base has fallen (our choice: a
 #: walking humanoid's base stays above 0.9 of it, a Go2's trot at 0.57; lying, below 0.3).
@@ -33,16 +34,6 @@ TRUE_FALL_HEIGHT = 0.4
 #: Histogram of attitude errors: bin width and count (deg; 0.01 deg up to 90 deg).
 BIN_DEG = 0.01
 BINS = 9000
-
-
-def _fits(array, dtype, shape: tuple) -> bool:
-    """Whether ``array`` is a C-contiguous numpy array of ``dtype`` and ``shape``."""
-    return (
-        type(array) is np.ndarray
-        and array.dtype == dtype
-        and array.shape == shape
-        and array.flags.c_contiguous
-    )
 
 
 class EstimationMonitor:
@@ -144,9 +135,9 @@ class EstimationMonitor:
         arrays = (base.projected_gravity, base.linear_velocity, base.linear_velocity_world)
         if not gemv_matches() or runtime.mode.shape != (self.envs,):
             return None
-        if not all(_fits(a, np.float64, (self.envs, 3)) for a in arrays):
+        if not all(fits(a, np.float64, (self.envs, 3)) for a in arrays):
             return None
-        if lying is not None and not _fits(lying, np.bool_, (self.envs,)):
+        if lying is not None and not fits(lying, np.bool_, (self.envs,)):
             return None
         self._calls = (key, self._bind(runtime, lying))
         return self._calls[1]

@@ -16,6 +16,7 @@ import math
 import numba
 import numpy as np
 
+from sim2real.deploy.kernels.calls import fits
 from sim2real.deploy.monitors.estimation_kernel import fields, gemv_matches, true_base
 
 
@@ -116,15 +117,6 @@ def integrate(
             height_time[e] += (1.0 if known else 0.0) * dt
 
 
-def _fits(array, dtype, shape: tuple) -> bool:
-    return (
-        type(array) is np.ndarray
-        and array.dtype == dtype
-        and array.shape == shape
-        and array.flags.c_contiguous
-    )
-
-
 class TrackerCall:
     """A :class:`~sim2real.deploy.tasks.locomotion.CommandTracker`'s tick as the kernels of this
     module, bound to the arrays of one runtime (:meth:`build`; :meth:`ready` before each call)."""
@@ -181,10 +173,10 @@ class TrackerCall:
         heights = None if detector is None else detector.height
         ok = (
             gemv_matches()
-            and _fits(runtime.mode, np.int8, (envs,))
-            and _fits(runtime.velocity_command, np.float64, (envs, 3))
-            and _fits(asked, np.float64, (envs, 3))
-            and (heights is None or _fits(heights, np.float64, (envs,)))
+            and fits(runtime.mode, np.int8, (envs,))
+            and fits(runtime.velocity_command, np.float64, (envs, 3))
+            and fits(asked, np.float64, (envs, 3))
+            and (heights is None or fits(heights, np.float64, (envs,)))
         )
         return cls(tracker, runtime, asked, heights, limits, fits=bool(ok))
 

@@ -192,6 +192,7 @@ def test_quick_inference_and_campaign_with_its_physics_only_baseline(tmp_path):
     assert math.isclose(ceiling, best["floor_only_x"] / best["physics_only_x"])
 
 
+@pytest.mark.nightly  # starts a CPU burner per core: in make test it slows the other worker
 def test_quick_busy_runs_go2_and_arm6_beside_a_burner_per_core_and_names_long_ticks(tmp_path):
     """The busy item runs both robots on the wall clock beside CPU-bound processes, reports their
     overruns with the long-tick record's causes and judges whether any run stopped."""

@@ -82,6 +82,7 @@ def test_controller_joint_order_is_checked_against_the_robot(tmp_path):
 
 
 # ---------------------------------------------------------------------- the runtime as a node
+@pytest.mark.nightly  # ~20 s: ROS 2 from a second process; make test keeps the in-process ones
 @pytest.mark.wallclock
 def test_a_second_process_steers_the_go2_with_cmd_vel_and_sees_its_state(
     ros_domain, tmp_path, shipped

@@ -222,9 +222,12 @@ class ViolationMonitor(MonitorState):
         per-type tests run if a pair touched or ``flagged``.
 
         Args:
-            q, dq, tau: This tick's true joint positions (rad), speeds (rad/s) and torques
-                (N m), (envs, n); the end effector is this tick's in ``kernel_arrays()["ee"]``.
-            need: Some env's pairs need coal. flagged: Some env may be past a limit.
+            q: This tick's true joint positions, (envs, n) rad (the end effector is this
+                tick's in ``kernel_arrays()["ee"]``).
+            dq: This tick's true joint speeds, (envs, n) rad/s.
+            tau: This tick's true joint torques, (envs, n) N m.
+            need: Some env's pairs need coal.
+            flagged: Some env may be past a limit.
         """
         collided = False
         if need:

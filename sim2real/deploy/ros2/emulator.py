@@ -42,6 +42,7 @@ import time
 import numpy as np
 
 from sim2real.deploy.backends.emulator_main import emulator_parser, open_emulator, serve
+from sim2real.deploy.core.collector import collector_paused
 from sim2real.deploy.ros2.context import NodeThread
 from sim2real.deploy.ros2.controllers import FORWARD_CONTROLLERS, command_topic
 
@@ -129,7 +130,13 @@ class ControllerManagerEmulator:
         self._stop.set()
 
     def serve(self) -> None:
-        """Update at the control rate, paced by the wall clock, until :meth:`request_stop`."""
+        """Update at the control rate, paced by the wall clock, until :meth:`request_stop`, with
+        the garbage collector paused (:func:`~sim2real.deploy.core.collector.collector_paused`:
+        a full collection is a gap in ``joint_states``)."""
+        with collector_paused():
+            self._serve()
+
+    def _serve(self) -> None:
         t0, steps, period = time.monotonic(), 0, self.period
         wall_ns = self._wall_ns
         while not self._stop.is_set():

@@ -49,6 +49,7 @@ from sim2real.deploy.backends.servo.control_tables import model_for_motor
 from sim2real.deploy.backends.sim.options import plant_for
 from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.backends.worker import ServesOnThread
+from sim2real.deploy.core.collector import collector_paused
 from sim2real.robots import Robot, load_robot
 
 PROTOCOLS = ("feetech", "dynamixel")
@@ -186,7 +187,14 @@ class ServoBusEmulator(ServesOnThread):
         return time.monotonic() - self._t0
 
     def serve(self) -> None:
-        """Answer packets until :meth:`stop` (blocking); the plant steps on a second thread."""
+        """Answer packets until :meth:`stop` (blocking); the plant steps on a second thread. The
+        garbage collector is paused while it serves
+        (:func:`~sim2real.deploy.core.collector.collector_paused`): a full collection holds both
+        threads for tens of milliseconds, a silent bus to the host."""
+        with collector_paused():
+            self._serve()
+
+    def _serve(self) -> None:
         self._start_plant()
         period = self.robot.control_period
         while not self._stop.is_set():

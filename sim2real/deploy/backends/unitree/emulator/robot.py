@@ -47,6 +47,7 @@ from sim2real.deploy.backends.unitree.remote import (
     controller_message,
 )
 from sim2real.deploy.backends.worker import ServesOnThread
+from sim2real.deploy.core.collector import collector_paused
 from sim2real.deploy.core.latency import LatencyHistogram
 from sim2real.robots import Robot, load_robot
 from sim2real.robots.plant_motors import load_plant_motors
@@ -293,7 +294,13 @@ class UnitreeEmulator(ServesOnThread):
         return 0.0 if self._first_command is None else time.monotonic() - self._first_command
 
     def serve(self) -> None:
-        """Step, take commands and publish states until :meth:`stop` (blocking)."""
+        """Step, take commands and publish states until :meth:`stop` (blocking), with the
+        garbage collector paused (:func:`~sim2real.deploy.core.collector.collector_paused`: a
+        full collection here took 65 ms, a gap in ``rt/lowstate`` the runtime stops on)."""
+        with collector_paused():
+            self._serve()
+
+    def _serve(self) -> None:
         self._t0 = self._started = time.monotonic()
         self._steps = 0
         period = self.period

@@ -1,0 +1,53 @@
+"""Python's garbage collector around a wall-clock loop that must not pause.
+
+CPython's cyclic collector runs when enough container objects were allocated since the last
+collection; a collection of the oldest generation walks every tracked object of the process. In a
+process that imported MuJoCo, Cyclone DDS, numba and Pinocchio that is 60-80 ms (measured on the
+Unitree emulator: one 65 ms full collection about 8 s after its start, every run, which stopped
+publishing ``rt/lowstate`` for 65 ms and made the Go2's runtime stop on ``stale_sensor``; issue
+71). The runtime's own loop pauses the collector (:meth:`sim2real.deploy.runtime.loop.Runtime.run`);
+an emulator's loop, the robot's stand-in, must do the same or it makes the robot look dead.
+
+:func:`collector_paused` is that pause for any loop: one full collection of the set-up's garbage
+first (before the first deadline, where it costs nothing), every surviving object moved to the
+permanent generation (:func:`gc.freeze`), the collector disabled while the loop runs, then the
+process's previous state restored.
+
+A loop under the pause must not make reference cycles per step: nothing would reclaim them until
+it ends. :func:`cycles_made` counts what a loop left to the collector (a test of every emulator
+asserts it stays bounded).
+"""
+
+from __future__ import annotations
+
+import gc
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+
+@contextmanager
+def collector_paused() -> Iterator[None]:
+    """Run the body with the garbage collector frozen and disabled (module docstring).
+
+    On entry: ``gc.collect()`` (every generation), ``gc.freeze()``, ``gc.disable()``. On exit,
+    however the body ends: the collector enabled again if it was, and ``gc.unfreeze()``. Nested
+    or concurrent uses (an emulator's thread beside a runtime in one test process) leave the
+    collector enabled once the last of them whose entry found it enabled exits.
+    """
+    gc.collect()
+    gc.freeze()
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was_enabled:
+            gc.enable()
+        gc.unfreeze()
+
+
+def cycles_made() -> int:
+    """Objects the collector finds unreachable now (a full ``gc.collect()``): the reference
+    cycles made since the last collection. Costs a full collection; for tests and reports, never
+    inside a loop."""
+    return gc.collect()

@@ -230,7 +230,7 @@ def _run_rig(args, rig, realtime, injector, clock, rt_request) -> int:
             rig.close()
         wall = time.perf_counter() - wall
     if rt.telemetry is not None:
-        rt.telemetry.close(rt.long_ticks.rows(rt.dt), rt.dt)
+        rt.telemetry.close(rt.long_ticks.rows(rt.dt, realtime), rt.dt)
     report = run_report(args, rig, wall, realtime, injector, clock)
     report["start_s"] = start_s  # of wall_s: paid once, not per tick
     report["realtime_settings"] = settings.summary()
@@ -271,7 +271,7 @@ def run_report(args, rig, wall: float, realtime: bool, injector, clock) -> dict:
             "missed_periods": clock.missed_periods,
             "jitter_us": clock.jitter.summary() if realtime else None,
             "wait": clock.wait_mode,
-            "long_ticks": rt.long_ticks.rows(rt.dt),
+            "long_ticks": rt.long_ticks.rows(rt.dt, realtime),
             "gc_collections": rt.gc_collections,
         },
         "bus": backend.bus_summary() if hasattr(backend, "bus_summary") else None,

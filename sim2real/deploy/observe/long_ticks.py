@@ -106,11 +106,14 @@ class LongTicks:
         """Forget every period (e.g. after a warm-up)."""
         self.table[:] = 0
 
-    def rows(self, period_s: float) -> list[dict]:
+    def rows(self, period_s: float, deadline: bool = True) -> list[dict]:
         """The kept periods, longest first, with their cause.
 
         Args:
             period_s: The control period, s (a period longer than it overran).
+            deadline: Whether the run kept deadlines (a wall clock). False (lockstep, simulated
+                time): nothing overran, whatever a period took (a long one only made the run
+                slower than real time), as the clock counts no overrun either.
 
         Returns:
             One dict per kept period: ``tick``, ``period_us`` (wake-up lateness + work),
@@ -141,7 +144,7 @@ class LongTicks:
                 {
                     "tick": int(row[TICK]),
                     "period_us": row[TOTAL] / 1e3,
-                    "overran": bool(row[TOTAL] > period_s * 1e9),
+                    "overran": deadline and bool(row[TOTAL] > period_s * 1e9),
                     "wake_late_us": row[WAKE_LATE] / 1e3,
                     "stages_us": {s: row[HEAD + i] / 1e3 for i, s in enumerate(self.stages)},
                     "outside_stages_us": row[HEAD + len(self.stages)] / 1e3,

@@ -194,6 +194,7 @@ class Runtime(RuntimeState):
         self._damp = np.zeros(envs, dtype=bool)
         #: ``(tick) -> None``: the tick's latency histograms and long periods (:meth:`_bind_books`)
         self._books = self._bind_books()
+        self.guard.bind_motion(self.smoother, self.state, self._cmd)  # the tick's arrays
         gc.collect()  # the set-up's garbage, every generation, once: here, not in run() (below)
 
     def _reset_policy(self, envs: np.ndarray) -> None:

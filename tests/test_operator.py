@@ -78,7 +78,7 @@ def test_the_shipped_mappings_load_and_a_bad_one_names_its_field(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text('source = "unitree"\n[actions]\ndamp = "select"\nstand = "BTN_START"\n')
     with pytest.raises(
-        ValueError, match=r"bad.toml:\n  actions.stand: 'BTN_START' is not a unitree button"
+        ValueError, match=r"bad.toml: actions.stand: 'BTN_START' is not a unitree button"
     ):
         load_mapping(bad)
     bad.write_text('source = "unitree"\n[actions]\nstand = "start"\n')

@@ -41,7 +41,14 @@ import numpy as np
 
 from sim2real.deploy.backends.registry import make_backend
 from sim2real.deploy.cli.policy_contract import check_drive_applied, contract_messages
-from sim2real.deploy.cli.run_operator import load_policies, operator_hook, parse_policies
+from sim2real.deploy.cli.run_checks import check_options, check_outputs, discard
+from sim2real.deploy.cli.run_operator import (
+    load_policies,
+    open_operator_source,
+    operator_hook,
+    operator_mapping,
+    parse_policies,
+)
 from sim2real.deploy.cli.run_parser import attach_vectors, build_parser
 from sim2real.deploy.cli.run_summary import print_summary
 from sim2real.deploy.core.backend import SimulatedPlant
@@ -53,36 +60,33 @@ EXIT_CLEAN, EXIT_HARD_VIOLATION, EXIT_FAULT, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 
 
 def run(args) -> int:
     """``deploy-run`` with parsed ``args``: build and open the backend, run, report; the exit
-    code (module docstring). The backend is closed (servo bus: torque off) however it ends."""
+    code (module docstring). The backend is closed (servo bus: torque off) however it ends.
+    Every input is read and checked before any output opens (telemetry, video, recorded
+    commands, report); a run refused or ended by an error leaves none of them behind
+    (:mod:`sim2real.deploy.cli.run_checks`).
+
+    Raises:
+        ValueError: bad input (exit 3): a robot, spec or policy that does not load or fit, a
+            bad option, mapping or operator source, an output in no folder.
+        OSError: a file, device or network interface that cannot be opened (exit 3).
+    """
     from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
     from sim2real.deploy.runtime import SimClock, WallClock
-    from sim2real.deploy.spec.policy_spec import PolicySpec
     from sim2real.robots import load_robot
 
     # hardware runs on the wall clock only; the real-time options are checked before loading
     wait, rt_request = realtime_options(args, bool(args.realtime) or args.backend != "sim")
+    check_outputs(args)
     robot = load_robot(args.robot)
-    spec = None
-    if args.spec:
-        spec = PolicySpec.from_json(Path(args.spec).read_text(), source=args.spec)
-    if args.excitation is not None:  # a scripted trajectory in the policy's place
-        from sim2real.deploy.policy.excitation import Excitation, ExcitationPolicy
-
-        excitation = ExcitationPolicy(robot, Excitation.load(args.excitation))
-        policies = {"excitation": excitation}
-        print(
-            f"deploy-run: excitation {args.excitation}: {excitation.duration:.1f} s "
-            f"(--duration {args.duration:g} s)",
-            file=sys.stderr,
-        )
-    else:
-        policies = load_policies(args.policies, robot, spec)  # --policy [NAME=]FILE, repeated
+    policies = _load_policies(args, robot)
     policy = next(iter(policies.values()))
     for line in contract_messages(policy):
         print(line, file=sys.stderr)
     robot, drive = drive_robot(robot, policy.spec)  # the policy's PD gains and default pose
     faults = [Fault.parse(s) for s in args.inject]
     fixed = _fixed_goal(args.goal)
+    check_options(args, robot)  # --command, --size, --fps: read once the rig is built
+    mapping = operator_mapping(args)  # the mapping and its source's file, not its device
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
     check_drive_applied(drive, simulated, args.backend)
@@ -99,8 +103,33 @@ def run(args) -> int:
     else:
         clock = SimClock(robot.control_period)
     with backend:
-        rig = _build_rig(args, robot, policies, backend, injector, clock, fixed)
+        rig = _build_rig(args, robot, policies, backend, injector, clock, fixed, mapping)
         return _run_rig(args, rig, realtime, injector, clock, rt_request)
+
+
+def _load_policies(args, robot) -> dict:
+    """{name: policy} of ``--policy`` (with ``--spec``), or ``--excitation``'s scripted
+    trajectory in the policy's place.
+
+    Raises:
+        ValueError: a spec, policy or excitation that does not load or fit the robot.
+    """
+    from sim2real.deploy.spec.policy_spec import PolicySpec
+
+    spec = None
+    if args.spec:
+        spec = PolicySpec.from_json(Path(args.spec).read_text(), source=args.spec)
+    if args.excitation is None:
+        return load_policies(args.policies, robot, spec)  # --policy [NAME=]FILE, repeated
+    from sim2real.deploy.policy.excitation import Excitation, ExcitationPolicy
+
+    excitation = ExcitationPolicy(robot, Excitation.load(args.excitation))
+    print(
+        f"deploy-run: excitation {args.excitation}: {excitation.duration:.1f} s "
+        f"(--duration {args.duration:g} s)",
+        file=sys.stderr,
+    )
+    return {"excitation": excitation}
 
 
 def _fixed_goal(text: str | None) -> np.ndarray | None:
@@ -156,36 +185,53 @@ def realtime_options(args, realtime: bool):
     return wait, request
 
 
-def _build_rig(args, robot, policies, backend, injector, clock, fixed):
+def _build_rig(args, robot, policies, backend, injector, clock, fixed, mapping):
     """The run's :class:`~sim2real.deploy.rig.rig.Rig` on the first of ``policies``: the runtime
     (telemetry, overrun limit), the task of the options, the motion figures, the hooks the
-    options switch on, the operator (``--operator``, after them) and, on hardware without an
-    operator, the end of the run once every env is latched."""
-    from sim2real.deploy.rig.hooks import build_hooks
+    options switch on, the operator (``--operator``'s ``mapping``, after them) and, on hardware
+    without an operator, the end of the run once every env is latched. The operator's source
+    opens first, before any output; an error discards what was opened
+    (:func:`~sim2real.deploy.cli.run_checks.discard`).
+
+    Raises:
+        ValueError, OSError: the operator's source does not open, an output does not open, a
+            hook refuses its options.
+    """
+    from sim2real.deploy.rig.hooks import registered_hooks
     from sim2real.deploy.rig.rig import LatchedStopHook, MotionHook, Rig
 
     policy = next(iter(policies.values()))
-    runtime = {"clock": clock, "injector": injector, "telemetry": _telemetry(args, robot, policy)}
-    if args.overrun_limit is not None:
-        runtime["overrun_rate_limit"] = args.overrun_limit
-    task = {
-        "period": args.goal_period,
-        "rng": np.random.default_rng(args.seed + 1),
-        "success_time": args.success_time,
-        "fixed": fixed,
-        "command": args.command,
-        "schedule": False,
-        "heading_gain": args.heading_hold,
-    }
-    rig = Rig(robot, policy, backend, envs=args.envs, task=task, runtime=runtime)
-    rig.add(MotionHook(rig))
-    for hook in build_hooks(args, rig):  # --ros2, --print-joints, --video, --viewer, ...
-        rig.add(hook)
-    operator = operator_hook(args, rig, policies)  # after --ros2: its command is the last word
-    if operator is not None:
-        rig.add(operator)
-    elif not rig.simulated:  # an operator stands a latched robot up again
-        rig.add(LatchedStopHook())
+    source = open_operator_source(args, mapping, robot)  # an input: before any output
+    telemetry = rig = None
+    try:
+        telemetry = _telemetry(args, robot, policy)
+        runtime = {"clock": clock, "injector": injector, "telemetry": telemetry}
+        if args.overrun_limit is not None:
+            runtime["overrun_rate_limit"] = args.overrun_limit
+        task = {
+            "period": args.goal_period,
+            "rng": np.random.default_rng(args.seed + 1),
+            "success_time": args.success_time,
+            "fixed": fixed,
+            "command": args.command,
+            "schedule": False,
+            "heading_gain": args.heading_hold,
+        }
+        rig = Rig(robot, policy, backend, envs=args.envs, task=task, runtime=runtime)
+        rig.add(MotionHook(rig))
+        for entry in registered_hooks().values():  # --ros2, --print-joints, --video, ...
+            hook = entry.build(args, rig)
+            if hook is not None:
+                rig.add(hook)  # added at once: discarded with the rig on an error
+        # after --ros2: its command is the last word
+        operator = operator_hook(args, rig, policies, mapping, source)
+        if operator is not None:
+            rig.add(operator)
+        elif not rig.simulated:  # an operator stands a latched robot up again
+            rig.add(LatchedStopHook())
+    except BaseException:
+        discard(rig, telemetry, source)
+        raise
     return rig
 
 
@@ -217,20 +263,26 @@ def _run_rig(args, rig, realtime, injector, clock, rt_request) -> int:
     ticks = int(round(args.duration / rig.robot.control_period))
     # priority, affinity and memory lock for the loop only (not the loading), restored after it
     settings = RealtimeSettings(rt_request or RealtimeRequest())
-    with settings:  # RealtimeError (a ValueError: exit 3) if --require-rt and refused
-        wall = time.perf_counter()
-        diverged = None
-        rig.start()  # once per run: the runtime's start, the hooks' set-up (timed apart)
-        start_s = time.perf_counter() - wall
-        try:
-            rig.run(ticks)
-        except SimulationDivergedError as exc:
-            diverged = str(exc)
-        finally:
+    try:
+        with settings:  # RealtimeError (a ValueError: exit 3) if --require-rt and refused
+            wall = time.perf_counter()
+            diverged = None
+            rig.start()  # once per run: the runtime's start, the hooks' set-up (timed apart)
+            start_s = time.perf_counter() - wall
+            try:
+                rig.run(ticks)
+            except SimulationDivergedError as exc:
+                diverged = str(exc)
+            except KeyboardInterrupt:  # stopped by hand: the hooks keep what they recorded
+                rig.close()
+                raise
             rig.close()
-        wall = time.perf_counter() - wall
-    if rt.telemetry is not None:
-        rt.telemetry.close(rt.long_ticks.rows(rt.dt, realtime), rt.dt)
+            wall = time.perf_counter() - wall
+        if rt.telemetry is not None:
+            rt.telemetry.close(rt.long_ticks.rows(rt.dt, realtime), rt.dt)
+    except Exception:  # refused (--require-rt, a hook's start) or failed: nothing left behind
+        discard(rig, rt.telemetry)
+        raise
     report = run_report(args, rig, wall, realtime, injector, clock)
     report["start_s"] = start_s  # of wall_s: paid once, not per tick
     report["realtime_settings"] = settings.summary()

@@ -104,31 +104,63 @@ def load_policies(files: dict[str, str], robot, spec=None) -> dict:
     return policies
 
 
-def operator_hook(args, rig, policies: dict):
-    """The :class:`~sim2real.deploy.operator.hook.OperatorHook` of ``--operator`` (None
-    without it).
+def operator_mapping(args):
+    """The :class:`~sim2real.deploy.operator.mapping.Mapping` of ``--operator`` (None without
+    it), its ``--operator-source`` checked but not opened
+    (:func:`~sim2real.deploy.operator.sources.check_source`): read before anything opens.
 
     Raises:
-        ValueError: a bad mapping, a source that does not open, a mapping for another source.
+        ValueError: ``--operator-source`` without ``--operator``; ``--envs`` other than 1; no
+            walking policy (``args.policies`` all ``--stand-policy`` or ``--lie-policy``); a bad
+            mapping; a bad source or one whose file does not read; a mapping for another source.
     """
     if not args.operator:
         if args.operator_source:
             raise ValueError("--operator-source needs --operator MAPPING")
         return None
-    from sim2real.deploy.operator.hook import OperatorHook
-    from sim2real.deploy.operator.machine import OperatorMachine
     from sim2real.deploy.operator.mapping import load_mapping
-    from sim2real.deploy.operator.sources import open_source
+    from sim2real.deploy.operator.sources import check_source
 
+    if args.envs != 1:  # the machine's own checks, made before anything opens
+        raise ValueError(f"--operator drives one robot: --envs must be 1, got {args.envs}")
+    if all(n in (args.stand_policy, args.lie_policy) for n in args.policies):
+        raise ValueError(
+            f"--operator: the run has no walking policy besides '{args.stand_policy}', "
+            f"'{args.lie_policy}' (--policy NAME=FILE)"
+        )
     mapping = load_mapping(args.operator)
     text = args.operator_source or mapping.source
-    source = open_source(text, backend_args=args, robot=rig.robot)
-    if source.source != mapping.source:
-        source.close()
+    kind = check_source(text)
+    if kind != mapping.source:
         raise ValueError(
             f"--operator {args.operator}: a mapping for '{mapping.source}', the source "
-            f"'{text}' gives {source.source} names"
+            f"'{text}' gives {kind} names"
         )
+    return mapping
+
+
+def open_operator_source(args, mapping, robot):
+    """Open ``mapping``'s source (``--operator-source``, default the mapping's own); None
+    without a mapping.
+
+    Raises:
+        ValueError: a source that does not open (a device, ROS 2, the DDS domain).
+    """
+    if mapping is None:
+        return None
+    from sim2real.deploy.operator.sources import open_source
+
+    return open_source(args.operator_source or mapping.source, backend_args=args, robot=robot)
+
+
+def operator_hook(args, rig, policies: dict, mapping, source):
+    """The :class:`~sim2real.deploy.operator.hook.OperatorHook` of ``--operator`` on the opened
+    ``source`` (:func:`operator_mapping`, :func:`open_operator_source`); None without them."""
+    if mapping is None or source is None:
+        return None
+    from sim2real.deploy.operator.hook import OperatorHook
+    from sim2real.deploy.operator.machine import OperatorMachine
+
     machine = OperatorMachine(
         rig.runtime, policies, mapping, [source], args.stand_policy, args.lie_policy
     )

@@ -327,3 +327,10 @@ class Telemetry:
         self._file.close()
         os.replace(self._tmp, self.path)
         return self.path
+
+    def discard(self) -> None:
+        """Close the file unfinished and remove it, so that a run that ended in an error leaves
+        no partial ``.part`` behind; after :meth:`close`, nothing is touched."""
+        if not self._file.closed:
+            self._file.close()
+            self._tmp.unlink(missing_ok=True)

@@ -154,6 +154,7 @@ class VideoRecorder:
             output_params=["-crf", str(int(crf)), "-movflags", "+faststart"],
         )
         self._writer.send(None)
+        self._done = False  # closed or discarded
         self._trail = np.zeros((max(2, int(TRAIL_SECONDS * self.fps)), 3))
         self._trail_len = 0
         self._next = float(start)
@@ -253,6 +254,7 @@ class VideoRecorder:
     def close(self) -> Path:
         """Finish the MP4, move it to its final name and print one line (frames, frames per
         second rendered); returns the path."""
+        self._done = True
         self._writer.close()
         self.renderer.close()
         os.replace(self._tmp, self.path)
@@ -264,6 +266,24 @@ class VideoRecorder:
             f"{self.width}x{self.height}, rendered and encoded at {rate:.0f} frames/s"
         )
         return self.path
+
+    def discard(self) -> None:
+        """Stop the encoder and remove the unfinished ``.part.mp4``, so that a run that ended in
+        an error leaves no partial video; after :meth:`close`, the MP4 is not touched."""
+        if self._done:
+            return
+        self._done = True
+        import logging
+
+        quiet = logging.getLogger("imageio_ffmpeg")  # "no frames written": not worth a line
+        level = quiet.level
+        quiet.setLevel(logging.ERROR)
+        try:
+            self._writer.close()
+        finally:
+            quiet.setLevel(level)
+            self.renderer.close()
+            self._tmp.unlink(missing_ok=True)
 
 
 class _Env0:

@@ -50,6 +50,21 @@ def known_name(source: str, name: str) -> bool:
     return name in VOCABULARY.get(source, ())
 
 
+def expected_names(source: str, kind: str) -> str:
+    """What a mapping of ``source`` may name as a ``kind`` (``button``, ``axis`` or ``key``),
+    for an error message: ``"an evdev button (BTN_*, KEY_* or ABS_*, ...)"``."""
+    if source == "evdev":
+        what = "BTN_*, KEY_* or ABS_* names of the kernel's input-event-codes.h"
+    elif source == "keyboard":
+        what = "one printable character or " + ", ".join(KEYBOARD_NAMED)
+    elif source == "joy":
+        what = f"{'axis' if kind == 'axis' else 'button'}0..{JOY_MAX - 1}"
+    else:  # the Unitree remote
+        what = ", ".join(AXES if kind == "axis" else BUTTONS)
+    article = "an" if source == "evdev" else "a"
+    return f"{article} {source} {kind} ({what})"
+
+
 @dataclass(frozen=True)
 class OperatorFrame:
     """What an operator's device says at one moment.

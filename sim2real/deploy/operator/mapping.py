@@ -21,7 +21,7 @@ except ModuleNotFoundError:  # Python 3.10
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from sim2real.deploy.operator.frame import SOURCES, known_name
+from sim2real.deploy.operator.frame import SOURCES, expected_names, known_name
 
 #: The folder of the shipped mappings (``deploy-run --operator unitree`` names one by its stem).
 SHIPPED = Path(__file__).parent / "shipped"
@@ -120,14 +120,17 @@ class Mapping(_Strict):
         for where, combo in combos.items():
             for name in split_combo(combo):
                 if not known_name(self.source, name):
-                    raise ValueError(f"{where}: '{name}' is not a {self.source} button")
+                    expected = expected_names(self.source, "button")
+                    raise ValueError(f"{where}: '{name}' is not {expected}")
         for c in COMPONENTS:
             a = getattr(self.command, c)
             if a is not None and not known_name(self.source, a.axis):
-                raise ValueError(f"command.{c}.axis: '{a.axis}' is not a {self.source} axis")
+                expected = expected_names(self.source, "axis")
+                raise ValueError(f"command.{c}.axis: '{a.axis}' is not {expected}")
         for key in self.command.keys:
             if not known_name(self.source, key):
-                raise ValueError(f"command.keys: '{key}' is not a {self.source} key")
+                expected = expected_names(self.source, "key")
+                raise ValueError(f"command.keys: '{key}' is not {expected}")
         return self
 
     def allowed(self, right: str) -> list[str]:
@@ -150,8 +153,8 @@ def load_mapping(path: str | Path) -> Mapping:
     (``unitree``, ``xbox_evdev``, ``xbox_joy``, ``keyboard``).
 
     Raises:
-        ValueError: an unreadable file, or a field that does not validate (named with its path
-            in the file and what was expected).
+        ValueError: an unreadable file, or fields that do not validate: one line naming the
+            file, each field's path in it and what was expected (``; `` between fields).
     """
     p = Path(path)
     if not p.exists() and (SHIPPED / f"{path}.toml").exists():
@@ -165,12 +168,12 @@ def load_mapping(path: str | Path) -> Mapping:
     try:
         return Mapping.model_validate(data)
     except ValidationError as exc:
-        lines = []
+        fields = []
         for e in exc.errors():
             msg = e["msg"].removeprefix("Value error, ")
             if e["loc"]:
                 where = ".".join(str(x) for x in e["loc"])
-                lines.append(f"  {where}: {msg} (got {e.get('input')!r})")
+                fields.append(f"{where}: {msg} (got {e.get('input')!r})")
             else:  # a check across fields names its own
-                lines.append(f"  {msg}")
-        raise ValueError(f"operator mapping {p}:\n" + "\n".join(lines)) from None
+                fields.append(msg)
+        raise ValueError(f"operator mapping {p}: " + "; ".join(fields)) from None

@@ -230,7 +230,10 @@ class EvdevReplay:
         try:
             lines = self.path.read_text().splitlines()
         except OSError as exc:
-            raise ValueError(f"evdev stream {self.path}: {exc}") from None
+            raise ValueError(
+                f"evdev stream {self.path}: cannot read it ({exc.strerror or exc}); expected a "
+                "recorded stream (JSON lines) or a device /dev/input/eventN"
+            ) from None
         self.events: list[tuple[float, str, str, float]] = []
         absinfo = {}
         for i, line in enumerate(lines, 1):
@@ -398,6 +401,45 @@ class KeyboardSource:
 
             termios.tcsetattr(self.fd, termios.TCSADRAIN, self._saved)
             self._saved = None
+
+
+#: The vocabulary (:data:`~sim2real.deploy.operator.frame.VOCABULARY`) of each source by its
+#: command-line kind (the part of ``--operator-source`` before a ``:``).
+KINDS = {
+    "unitree": "unitree",
+    "unitree-controller": "unitree",
+    "unitree-script": "unitree",
+    "joy": "joy",
+    "evdev": "evdev",
+    "keyboard": "keyboard",
+}
+
+
+def check_source(text: str) -> str:
+    """Check the source named ``text`` (:func:`open_source`'s names) without opening a device:
+    the name, and a file it plays (a recorded evdev stream, a scripted remote) read and parsed.
+    Returns its vocabulary's name (``unitree``, ``joy``, ``evdev``, ``keyboard``).
+
+    Raises:
+        ValueError: an unknown name, a missing argument, or a file that does not read or parse
+            (one line naming the option and the file).
+    """
+    kind, _, arg = text.partition(":")
+    if kind not in KINDS:
+        raise ValueError(
+            f"--operator-source {text!r}: expected unitree, unitree-controller, "
+            "unitree-script:FILE, joy[:TOPIC], evdev:PATH or keyboard"
+        )
+    if kind == "evdev" and not arg:
+        raise ValueError("--operator-source evdev:PATH: name a device or a recorded stream")
+    try:
+        if kind == "evdev" and not arg.startswith("/dev/"):
+            EvdevReplay(arg)
+        elif kind == "unitree-script":
+            ScriptedRemote(arg)
+    except (ValueError, OSError) as exc:
+        raise ValueError(f"--operator-source: {exc}") from None
+    return KINDS[kind]
 
 
 def open_source(text: str, *, backend_args=None, robot=None):

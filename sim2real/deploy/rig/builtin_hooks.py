@@ -27,6 +27,14 @@ class ViewerHook(RunHook):
         if close is not None:
             close()
 
+    def discard(self) -> None:
+        """The viewer's ``discard()`` (the video recorder: no partial MP4), else its close."""
+        discard = getattr(self.viewer, "discard", None)
+        if discard is not None:
+            discard()
+        else:
+            self.close()
+
 
 class Ros2Hook(RunHook):
     """The run as a ROS 2 node (:class:`sim2real.deploy.ros2.bridge.RuntimeNode`): it spins off the
@@ -156,6 +164,9 @@ class RecorderHook(RunHook):
     def close(self) -> None:
         path = self.log.close()
         print(f"deploy-run: {self.log.rows} ticks of commands and readings in {path}")
+
+    def discard(self) -> None:
+        """Nothing written: the log is written only by :meth:`close`."""
 
 
 def _record_options(parser) -> None:

@@ -41,7 +41,12 @@ class RunHook:
         return None
 
     def close(self) -> None:
-        """Called once after the run (also when it ended with an error)."""
+        """Called once after the run."""
+
+    def discard(self) -> None:
+        """Called instead of :meth:`close` when the run is refused or ends in an error: release
+        what the hook holds and leave no partial output (default: :meth:`close`)."""
+        self.close()
 
     def contribute(self, report: dict) -> None:
         """Write this hook's entries into the run's ``report`` (a JSON-ready dict)."""

@@ -198,6 +198,23 @@ class Rig:
         for hook in reversed(self.hooks):
             hook.close()
 
+    def discard(self) -> None:
+        """A refused or failed run: every hook's :meth:`~sim2real.deploy.rig.hooks.RunHook.discard`
+        (released, no partial output), the last added first; each is tried even if one
+        before it raised.
+
+        Raises:
+            Exception: the first error a hook's discard raised, after every hook was tried.
+        """
+        error = None
+        for hook in reversed(self.hooks):
+            try:
+                hook.discard()
+            except Exception as exc:  # noqa: BLE001 - the others still release theirs
+                error = error or exc
+        if error is not None:
+            raise error
+
     # ------------------------------------------------------------------ the report
     def report(self) -> dict:
         """The monitors', the task's and the hooks' report entries: ``goals``, ``locomotion``,

@@ -18,6 +18,8 @@ one process on the same domain share it, and must agree on the interface.
 
 from __future__ import annotations
 
+import ipaddress
+import socket
 import threading
 import time
 
@@ -53,6 +55,29 @@ def cyclone_config(interface: str | None) -> str:
     )
 
 
+def check_interface(interface: str | None) -> None:
+    """Refuse a network interface this machine does not have, before Cyclone DDS is asked (it
+    would print a line of its own to stderr, then fail); None (Cyclone chooses) and an IP
+    address pass.
+
+    Raises:
+        DdsError: no interface of that name (the message lists the ones there are).
+    """
+    if not interface:
+        return
+    try:
+        ipaddress.ip_address(interface)
+        return
+    except ValueError:
+        pass
+    names = [name for _, name in socket.if_nameindex()]
+    if interface not in names:
+        raise DdsError(
+            f"--network-interface {interface!r}: no such network interface on this machine; "
+            f"expected one of {', '.join(names)}"
+        )
+
+
 def _domain(domain_id: int, interface: str | None) -> Domain:
     with _LOCK:
         if domain_id in _DOMAINS:
@@ -63,6 +88,7 @@ def _domain(domain_id: int, interface: str | None) -> Domain:
                     f"cannot join it on {interface!r}"
                 )
             return domain
+        check_interface(interface)
         try:
             domain = Domain(domain_id, cyclone_config(interface))
         except DDSException as exc:

@@ -57,11 +57,19 @@ def add_options(group) -> None:
 
 
 def make(args, robot, mode: str):
-    """A Unitree robot over DDS on ``args.network_interface``, domain ``args.domain_id``."""
+    """A Unitree robot over DDS on ``args.network_interface``, domain ``args.domain_id``.
+
+    Raises:
+        ValueError: a simulation option given (:func:`refuse_simulation_options`).
+        sim2real.deploy.backends.unitree.dds.DdsError: no network interface of that name.
+    """
     refuse_simulation_options(
         args, "unitree", "python -m sim2real.deploy.backends.unitree.emulator --fault ..."
     )
     from sim2real.deploy.backends.unitree.backend import UnitreeBackend
+    from sim2real.deploy.backends.unitree.dds import check_interface
+
+    check_interface(args.network_interface)  # before Cyclone DDS prints a line of its own
 
     return UnitreeBackend(
         robot,

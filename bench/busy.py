@@ -2,8 +2,12 @@
 
 ``deploy-run --realtime`` (in this process, :func:`bench.session._deploy_run`) runs go2 (its
 shipped policy, exported from ``sim2real/policies/go2.pt``, commanded 0.5 m/s forward) and arm6 (the bench
-policy) for ``duration`` s each, while one CPU-bound process per CPU (``while True: pass``) runs
-beside it, started before and always stopped after. Reported per robot: ticks, overruns, missed
+policy) for ``duration`` s each; then the two hardware-in-the-loop runs of ``make hil``, each
+against its emulator in a process of its own: go2 over DDS (``sim2real.deploy.harness.unitree_hil``,
+rows ``go2 dds``) and the SO-101 over the Feetech servo bus on a pty
+(``sim2real.deploy.harness.servo_hil``, row ``so101 bus``), their shipped policies, ``duration`` s of
+policy each. One CPU-bound process per CPU (``while True: pass``) runs beside all of them,
+started before and always stopped after. Reported per robot: ticks, overruns, missed
 periods, their rate, the final state, go2's falls, and the report's longest control periods
 (``deadline.long_ticks``, :mod:`sim2real.deploy.observe.long_ticks`) with their causes counted: what a
 busy computer does to the loop, and whether it stopped it (a stall is not a fault:
@@ -12,12 +16,19 @@ busy computer does to the loop, and whether it stopped it (a stall is not a faul
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import os
+import subprocess
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 from bench.common import BenchPolicy
+
+REPO = Path(__file__).resolve().parents[1]
+#: go2's command in every busy run: 0.5 m/s forward, as ``make hil ROBOT=go2``
+WALK = ("--command", "0.5,0,0")
 
 
 def _burn() -> None:  # pragma: no cover - runs in a child process until terminated
@@ -51,9 +62,27 @@ def shipped_go2(folder: Path):
     ``path``)."""
     from sim2real.deploy.export import export_policy
 
-    repo = Path(__file__).resolve().parents[1]
-    path = export_policy(repo / "sim2real" / "policies" / "go2.pt", out=folder / "go2.onnx")
+    path = export_policy(REPO / "sim2real" / "policies" / "go2.pt", out=folder / "go2.onnx")
     return SimpleNamespace(robot=SimpleNamespace(name="go2"), path=path)
+
+
+def _hil(name: str, harness: list[str], policy: Path, duration: float, folder: Path, extra=()):
+    """The row of one hardware-in-the-loop run (``python -m sim2real.deploy.harness.<harness>
+    ... -- --policy POLICY --duration DURATION``), named ``name``.
+
+    Raises:
+        RuntimeError: the run wrote no report (its emulator did not start, bad input); its
+            output's last lines say why.
+    """
+    report = folder / f"{name.replace(' ', '_')}.json"
+    report.unlink(missing_ok=True)
+    cmd = [sys.executable, "-m", f"sim2real.deploy.harness.{harness[0]}", *harness[1:], "--"]
+    cmd += ["--policy", str(policy), "--duration", str(duration), "--report", str(report), *extra]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=duration + 240)
+    if not report.is_file():
+        tail = (done.stdout + done.stderr).strip().splitlines()[-12:]
+        raise RuntimeError(f"busy: {name} wrote no report (exit {done.returncode}): {tail}")
+    return _row(name, json.loads(report.read_text()))
 
 
 def measure(arm6: BenchPolicy, folder: Path, duration: float) -> dict:
@@ -65,18 +94,24 @@ def measure(arm6: BenchPolicy, folder: Path, duration: float) -> dict:
             _deploy_run`).
     """
     from bench.session import _deploy_run
+    from sim2real.deploy.export import export_policy
 
     go2 = shipped_go2(folder)
+    so101 = export_policy(REPO / "sim2real" / "policies" / "so101.pt", out=folder / "so101.onnx")
     burners = os.cpu_count() or 1
     procs = [multiprocessing.get_context("spawn").Process(target=_burn) for _ in range(burners)]
     rows = []
     try:
         for p in procs:
             p.start()
-        report, _, _ = _deploy_run(go2, duration, True, ("--command", "0.5,0,0"))
+        report, _, _ = _deploy_run(go2, duration, True, WALK)
         rows.append(_row("go2", report))
         report, _, _ = _deploy_run(arm6, duration, True)
         rows.append(_row(arm6.robot.name, report))
+        unitree = ["unitree_hil", "--robot", "go2", "--domain-id", "3"]
+        rows.append(_hil("go2 dds", unitree, go2.path, duration, folder, WALK))
+        servo = ["servo_hil", "--robot", "so101", "--protocol", "feetech"]
+        rows.append(_hil("so101 bus", servo, so101, duration, folder))
     finally:
         for p in procs:
             p.terminate()

@@ -178,7 +178,7 @@ def render(results: dict) -> str:
             causes = ", ".join(f"{c} {n}" for c, n in r["overrun_causes"].items()) or "none"
             longest = ", ".join(f"{t['period_us'] / 1e3:.1f} ms" for t in r["longest"])
             add(
-                f"   {r['robot']:6} ticks {r['ticks']}, overruns {r['overruns']} "
+                f"   {r['robot']:9} ticks {r['ticks']}, overruns {r['overruns']} "
                 f"({100 * r['overrun_rate']:.3f} %), missed {r['missed_periods']}; final "
                 f"{','.join(r['final_state'])}{falls}; longest {longest}; overruns by cause: "
                 f"{causes}"

@@ -96,7 +96,7 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
         ("campaign_physics_ceiling", "arm3"),
         ("campaign_over_floor", "arm3"),
         ("wallclock_stops", "arm6"),
-        ("busy_stops", "go2+arm6"),
+        ("busy_stops", "go2+arm6+hil"),
         ("ros2_overruns", "go2"),
         ("tick_ours_over_floor", "arm6"),
         ("tick_ours_over_floor", "arm3"),

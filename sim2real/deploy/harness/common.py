@@ -11,6 +11,7 @@ deploy-run's arguments and what it prints afterwards.
 from __future__ import annotations
 
 import argparse
+import os
 import selectors
 import signal
 import subprocess
@@ -24,6 +25,19 @@ from sim2real.deploy.cli.run_parser import split_passthrough
 START_TIMEOUT = 60.0
 #: The exit code when the emulator does not start (deploy-run's for bad input).
 EXIT_BAD_INPUT = 3
+#: SCHED_FIFO priority of an emulator's process (our choice: above every normal task, below the
+#: kernel's interrupt threads at 50). An emulator stands in for a robot's own processors (a
+#: Unitree board, a servo's microcontroller), which no job on the host computer delays; at normal
+#: priority, a CPU-bound process per core starved the servo-bus emulator's replies past the
+#: SO-101's stale limit within 2 s (issue 71). deploy-run keeps the priority its user gives it.
+EMULATOR_PRIORITY = 40
+#: deploy-run's ``--rt-priority`` in a harness, unless given after ``--``: the loop of a robot's
+#: controller at SCHED_FIFO, below its emulated robot (:data:`EMULATOR_PRIORITY`), as on a robot's
+#: computer (docs/realtime.md). At normal priority a CPU-bound process per core timed out 114
+#: SO-101 replies in 30 s and stopped the run on ``stale_sensor``; at SCHED_FIFO 30 none (issue
+#: 71). Refused (no CAP_SYS_NICE, no rtprio limit), deploy-run says so in one line and runs at
+#: normal priority.
+LOOP_PRIORITY = 30
 
 
 def hil_parser(
@@ -70,12 +84,49 @@ def spawn_emulator(
     cmd = [sys.executable, "-m", module, *args]
     for fault in faults:
         cmd += ["--fault", fault]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, text=True, env=env)
+    refused = fifo_refused(EMULATOR_PRIORITY)
+    if refused:
+        print(
+            f"hil: the emulator runs at normal priority ({refused}); beside CPU-bound work it "
+            "answers late, as no robot would",
+            file=sys.stderr,
+        )
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=stderr,
+        text=True,
+        env=env,
+        preexec_fn=None if refused else _emulator_priority,
+    )
     sel = selectors.DefaultSelector()
     sel.register(proc.stdout, selectors.EVENT_READ)
     if not sel.select(timeout=START_TIMEOUT):
         return proc, None
     return proc, proc.stdout.readline().strip() or None
+
+
+def fifo_refused(priority: int) -> str | None:
+    """None when this process may start a child at SCHED_FIFO ``priority`` (tried on this
+    thread and undone at once), else why not, in a few words."""
+    if not hasattr(os, "sched_setscheduler") or not hasattr(os, "SCHED_FIFO"):
+        return "SCHED_FIFO is not available on this platform"
+    old = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError:
+        return (
+            f"SCHED_FIFO {priority} refused: needs CAP_SYS_NICE or an rtprio limit of at least "
+            f"{priority}, ulimit -r"
+        )
+    os.sched_setscheduler(0, old[0], os.sched_param(old[1]))
+    return None
+
+
+def _emulator_priority() -> None:  # pragma: no cover - runs in the child between fork and exec
+    """The emulator's process at SCHED_FIFO ``EMULATOR_PRIORITY``, every thread it starts with
+    it (in the child, before exec; :func:`fifo_refused` checked it is permitted)."""
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(EMULATOR_PRIORITY))
 
 
 def stop_emulator(proc: subprocess.Popen) -> None:
@@ -102,7 +153,8 @@ def run_beside(
     env: dict[str, str] | None = None,
 ) -> int:
     """Run deploy-run ``run`` (:func:`deploy_run_command`) beside the started ``emulator``,
-    announced as ``hil: <what>; deploy-run ...``, and stop the emulator however it ends.
+    announced as ``hil: <what>; deploy-run ...``, and stop the emulator however it ends. The
+    loop runs at ``--rt-priority`` :data:`LOOP_PRIORITY` unless ``run`` gives one.
 
     Returns:
         deploy-run's exit code, or ``EXIT_BAD_INPUT`` when the emulator did not start
@@ -116,6 +168,8 @@ def run_beside(
                 file=sys.stderr,
             )
             return EXIT_BAD_INPUT
+        if "--rt-priority" not in run:
+            run = [*run, "--rt-priority", str(LOOP_PRIORITY)]
         print(f"hil: {what}; deploy-run {' '.join(run[3:])}", flush=True)
         return subprocess.call(run, env=env)
     finally:

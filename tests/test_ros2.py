@@ -312,6 +312,11 @@ def test_silent_joint_states_stop_the_arm_as_a_stale_sensor(ros_domain, shipped)
     out = done.stdout + done.stderr
     assert done.returncode == 2, out[-3000:]
     assert "stale_sensor" in out, out[-3000:]
+    # the summary says what went stale: joint_states, nothing arrived, and the arm's joints
+    line = next(x for x in out.splitlines() if x.startswith("  stale sensor      t "))
+    assert ": joint_states: no fresh reading for " in line, line
+    assert "publisher silent" in line or "this computer, not the robot" in line, line
+    assert "; joints shoulder, elbow, wrist" in line, line
 
 
 #: a short excitation for sysid over ROS 2: every joint together, an 8 s chirp from 0.2 to 2 Hz,

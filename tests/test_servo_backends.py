@@ -283,6 +283,15 @@ def test_unplugged_servo_stops_safely_torque_off_exit_2(tmp_path, protocol):
     # the safe stop came within the stale limit of the last reading: latched, run ended early
     assert report["final_state"] in (["FAULTED"], ["SAFE_STOP"])
     assert report["duration_s"] < 3.0 or report["final_state"] == ["SAFE_STOP"]
+    # the report says what went stale: servo ID 2's joint on the SYNC READ, past the limit,
+    # that servo named silent (reads without a reply)
+    (stop,) = report["faults"]["stale_stops"]
+    joint, limit = robot.joint_names[1], robot.config.safety.stale_limit
+    assert stop["stream"] == "SYNC READ" and f"{protocol} bus " in stop["reader"], stop
+    assert joint in stop["joints"] and stop["joints"][joint] >= limit
+    assert stop["other_side"]["joints"][joint].startswith("servo ID 2: "), stop["other_side"]
+    assert stop["verdict"].startswith("SYNC READ: no fresh reading for ")
+    assert "servo ID" in stop["verdict"] and " silent" in stop["verdict"], stop["verdict"]
 
 
 def _deploy_run_with_fault(tmp_path, protocol, robot, seconds, fault, *args):

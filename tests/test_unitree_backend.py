@@ -277,6 +277,50 @@ def test_lowstate_stopped_damps_within_the_stale_limit_and_exits_2(tmp_path, go2
     delay = after[first_damping][0] - silent_since
     assert delay <= ticks * go2.control_period, (delay, after[: first_damping + 3])
     assert all(damped for _, damped in after[first_damping:])
+    # the report says what went stale: rt/lowstate, every joint and the IMU, past the limit,
+    # nothing arrived; and whose fault: the robot's, unless our loop was that late itself
+    (stop,) = report["faults"]["stale_stops"]
+    _check_stale_stop(stop, go2, domain)
+    assert stop["other_side"]["arrived"] == 0 and stop["other_side"]["other_side"] == "robot silent"
+    assert stop["other_side"]["newest_sample_age_s"] >= go2.config.safety.stale_limit
+    if stop["our_side"]["late_s"] < 0.5 * stop["without_reading_s"]:
+        assert "(robot silent, newest sample " in stop["verdict"], stop["verdict"]
+        assert stop["verdict"].endswith(" old; our ticks on time)"), stop["verdict"]
+    assert "stale sensor      t " in out and stop["verdict"] in out
+
+
+def _check_stale_stop(stop: dict, go2, domain: int) -> None:
+    """A stale stop's record names rt/lowstate on this domain, every joint and the IMU, each
+    without a fresh reading for at least the stale limit, and a verdict that blames this
+    computer exactly where our loop's delay was half that time or more."""
+    limit = go2.config.safety.stale_limit
+    assert stop["stream"] == "rt/lowstate", stop
+    assert stop["reader"] == f"rt/lowstate over DDS (unitree_go, lo, domain {domain})"
+    assert set(stop["joints"]) == set(go2.joint_names) and stop["imu_s"] >= limit
+    assert all(s >= limit for s in stop["joints"].values())
+    assert stop["verdict"].startswith("rt/lowstate: no fresh reading for ")
+    ours = stop["our_side"]
+    blamed = "this computer, not the robot" in stop["verdict"]
+    assert ours["realtime"] and blamed == (ours["late_s"] >= 0.5 * stop["without_reading_s"])
+
+
+def test_lowstate_all_bad_crc_is_named_as_refused_states(tmp_path, go2, stand_onnx):
+    """Every LowState's CRC wrong from 1 s into the policy: the states keep arriving but are
+    refused, and the stale stop's record and verdict say so (counted by kind), not silence."""
+    domain = _domain()
+    faults = EmulatorFaults()
+    with UnitreeEmulator(go2, domain_id=domain, faults=faults) as emu:
+        _when_running(emu, go2, lambda: setattr(faults, "corrupt_state", 1.0), 1.0)
+        code, report, out = _deploy_run(tmp_path, domain, stand_onnx, 6.0)
+    assert code == EXIT_FAULT, out
+    (stop,) = report["faults"]["stale_stops"]
+    _check_stale_stop(stop, go2, domain)
+    other = stop["other_side"]
+    assert other["arrived"] > 0 and other["refused"]["bad_crc"] == other["arrived"], other
+    assert (
+        f"{other['arrived']} samples arrived, all refused: bad_crc {other['arrived']}"
+        in (stop["verdict"])
+    )
 
 
 def test_bad_crcs_are_counted_by_the_robot_and_reported_by_the_runtime(tmp_path, go2, stand_onnx):

@@ -334,7 +334,10 @@ def run_report(args, rig, wall: float, realtime: bool, injector, clock) -> dict:
 
 def fault_report(rig, injector) -> dict:
     """The report's ``faults``: non-finite actions, safe stops and their causes, the joint
-    estimator's stale and missing readings, the faults injected and the drives' errors."""
+    estimator's stale and missing readings, the faults injected, the reader's context at the end
+    (``reader``) and what went stale at each ``stale_sensor`` stop (``stale_stops``:
+    :class:`sim2real.deploy.runtime.stale.StaleStops`), and the drives' errors."""
+    from sim2real.deploy.core.stale import stale_context
     from sim2real.deploy.estimation.joints import reinit_warning
 
     rt, backend = rig.runtime, rig.backend
@@ -352,6 +355,10 @@ def fault_report(rig, injector) -> dict:
             ),
         },
         "injected": injector.log if injector else [],
+        # the reader (stream, arrivals, refusals; sim2real.deploy.core.stale) and each stale stop
+        "reader": stale_context(backend),
+        "stale_stops": rt.stale_stops.records,
+        "stale_stops_dropped": rt.stale_stops.dropped,
         "drive_errors": [
             backend.describe_drive_error(int(j), int(rt.drive_errors[e, j]))
             for e, j in np.argwhere(rt.drive_errors)

@@ -12,6 +12,8 @@ from __future__ import annotations
 #: deg of heading change the commands did not ask for past which the summary flags a drift (our
 #: choice: a straight 20 s walk that turns 30 deg ends 5 m off a 10 m line).
 HEADING_DRIFT_DEG = 30.0
+#: Stale-sensor stops the summary prints a line for (the report has them all).
+STALE_LINES = 3
 
 
 def print_summary(r: dict) -> None:
@@ -163,8 +165,29 @@ def _print_faults(r: dict) -> None:
     )
     if f["estimator"].get("warning"):
         print(f"  WARNING           {f['estimator']['warning']}")
+    _print_stale_stops(f)
     for text in f.get("drive_errors", []):
         print(f"  servo error       {text}")
+
+
+def _print_stale_stops(f: dict) -> None:
+    """One line per ``stale_sensor`` stop (the first ``STALE_LINES``): when, the verdict (what
+    went stale, the other side, our side) and the stale joints (and the IMU)."""
+    stops = f.get("stale_stops") or []
+    for s in stops[:STALE_LINES]:
+        joints = list(s["joints"])
+        shown = ", ".join(joints[:4]) + (f" (+{len(joints) - 4} more)" if len(joints) > 4 else "")
+        stale = ([f"joints {shown}"] if joints else []) + (
+            ["the IMU"] if s.get("imu_s") is not None else []
+        )
+        print(
+            f"  stale sensor      t {s['t_s']:.2f} s"
+            + (f" env {s['env']}" if s["env"] else "")
+            + f": {s['verdict']}; {'; '.join(stale)}"
+        )
+    more = len(stops) - STALE_LINES + f.get("stale_stops_dropped", 0)
+    if more > 0:
+        print(f"  stale sensor      {more} more (report.json faults.stale_stops)")
 
 
 def _print_bus(r: dict) -> None:

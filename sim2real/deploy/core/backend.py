@@ -26,6 +26,8 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
+from sim2real.deploy.core.stale import default_context
+
 if TYPE_CHECKING:
     import mujoco
 
@@ -127,6 +129,12 @@ class Backend(Protocol):
     Optional: ``damp(envs)`` ((envs,) bool), for drives with a damping mode of their own (a
     Unitree robot's drivers: kp 0, a damping kd). The runtime calls it on every tick of a legged
     robot with the envs it lays down (SAFE_STOP, FAULTED); their commands are then damping.
+
+    Optional: ``stale_context(env) -> dict``, what the backend's reader saw of env ``env``'s
+    stream (:mod:`sim2real.deploy.core.stale`: the stream, samples arrived and refused since the
+    last one taken, the newest one's age); the runtime asks at each ``stale_sensor`` stop and the
+    report once at the end. :class:`BackendLifecycle` gives every backend a default (nothing
+    counted); a backend without it gets :func:`sim2real.deploy.core.stale.default_context`.
     """
 
     envs: int
@@ -203,7 +211,13 @@ class SimulatedPlant(Protocol):
 
 
 class BackendLifecycle:
-    """Mixin: ``with backend:`` opens and closes a backend (``open`` / ``close`` of the class)."""
+    """Mixin: ``with backend:`` opens and closes a backend (``open`` / ``close`` of the class);
+    the default ``stale_context`` of a backend whose reader counts nothing."""
+
+    def stale_context(self, env: int = 0) -> dict:
+        """What the reader saw of env ``env``'s stream (:mod:`sim2real.deploy.core.stale`); this
+        default names the class and counts nothing. Allocates: call it at a stop, not per tick."""
+        return default_context(self, env)
 
     def __enter__(self):
         self.open()

@@ -34,6 +34,7 @@ import numpy as np
 
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame, checked_command
 from sim2real.deploy.core.latency import LatencyHistogram
+from sim2real.deploy.core.stale import arrivals_phrase, context
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.ros2.context import NodeThread
 from sim2real.deploy.ros2.controllers import FORWARD_CONTROLLERS, command_order, command_topic
@@ -128,6 +129,9 @@ class Ros2ControlBackend(BackendLifecycle):
         self._stamp_offset = np.inf  # s, the smallest receive time minus header stamp
         self.loop_times = np.full(2, np.nan)
         self._seq = self._read_seq = 0
+        #: (stale_context) states lacking a robot's joint since the last whole one (the node's
+        #: thread), the count of states and when the last whole state a read took arrived
+        self._incomplete, self._taken_seq, self._taken_at = 0, 0, -np.inf
         self._lock = threading.Lock()
         self._node: NodeThread | None = None
         self._pub = self._msg = None
@@ -219,10 +223,12 @@ class Ros2ControlBackend(BackendLifecycle):
         src, dst = index
         position = np.asarray(msg.position, dtype=np.float64)
         stamp = msg.header.stamp
+        whole = len(position) == len(names) and len(dst) == self.n  # every joint of the robot
         with self._lock:
             self._newest.fill(np.nan)
             if len(position) == len(names):
                 self._newest[dst] = position[src]
+            self._incomplete = 0 if whole else self._incomplete + 1
             self._newest_at = time.monotonic() - self._t0
             self._newest_stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
             self._newest_sampled = np.nan
@@ -253,6 +259,8 @@ class Ros2ControlBackend(BackendLifecycle):
             if missing.any():
                 f.position_stamp[0, missing] = np.nan
                 self.missing_joint_readings += int(missing.sum())
+            else:  # a whole state taken (stale_context's window starts again)
+                self._taken_seq, self._taken_at = self._read_seq, f.position_stamp[0, 0]
             if stamp_ns > 0:
                 self.state_age.add(0, max(0, time.time_ns() - stamp_ns))
         else:
@@ -290,6 +298,38 @@ class Ros2ControlBackend(BackendLifecycle):
 
     def describe_drive_error(self, joint: int, bits: int) -> str:
         return f"joint {self.names[joint]}: error {bits:#x}"
+
+    def stale_context(self, env: int = 0) -> dict:
+        """What the ``joint_states`` subscription saw since the last whole state a read took
+        (:mod:`sim2real.deploy.core.stale`; ``env`` is 0): states arrived since, those lacking
+        a robot's joint (``refused``, ``without_joints``), the newest one's age by its header
+        stamp, s since that whole state arrived, the joints absent from the newest state;
+        ``other_side``: ``publisher silent`` when nothing arrived."""
+        now_ns, now = time.time_ns(), time.monotonic() - self._t0
+        with self._lock:
+            arrived, incomplete = self._seq - self._taken_seq, self._incomplete
+            stamp_ns, absent = self._newest_stamp_ns, np.isnan(self._newest)
+        refused = {"without_joints": min(incomplete, arrived)}
+        other = arrivals_phrase(arrived, refused, "publisher silent")
+        if arrived and not incomplete:  # whole states that came after this tick's read
+            other = f"{arrived} state{'s' if arrived > 1 else ''} arrived after the read"
+        topic = self._node.node.resolve_topic_name("joint_states") if self._node else "joint_states"
+        return context(
+            "ros2",
+            "joint_states",
+            f"{topic} (sensor_msgs/JointState) over ROS 2",
+            arrived=arrived,
+            refused=refused,
+            newest_sample_age_s=(now_ns - stamp_ns) / 1e9 if stamp_ns > 0 else None,
+            last_accepted_s=now - self._taken_at,
+            joints={
+                n: "absent from the newest state"
+                for n, a in zip(self.names, absent, strict=True)
+                if a
+            },
+            other_side=other,
+            stale_reads=self.stale_reads,
+        )
 
     def bus_summary(self) -> dict:
         """Figures for the run's report: topics, states taken and their rate, stale reads,

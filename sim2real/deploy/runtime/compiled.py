@@ -84,7 +84,7 @@ class CompiledSupervision(TableCalls):
         tracking_tolerance: float,
         reanchor: Callable[[RobotState], None],
     ):
-        s = supervision
+        s = self._supervision = supervision
         self.robot, self.mode_name = s.robot, s.mode_name
         self.envs, self.n = s.envs, s.robot.n_joints
         self.estimator, self.guard, self.smoother = s.estimator, s.guard, s.smoother
@@ -266,7 +266,11 @@ class CompiledSupervision(TableCalls):
         returned ``code``: the smoother's safe stops and re-syncs, policy resets, re-anchoring."""
         flags = self.flags
         if code & sv.SUPERVISE_STOP:
-            self.smoother.safe_stop(flags[sv.NEW_STOP].copy())
+            new = flags[sv.NEW_STOP].copy()
+            self.smoother.safe_stop(new)
+            stale = new & (self.cause == sv.STALE_SENSOR)
+            if stale.any() and self._supervision.on_stale_stop is not None:
+                self._supervision.on_stale_stop(stale)  # what went stale (runtime.stale)
         if code & sv.SUPERVISE_TOOK_OVER:
             self._reset_policy(flags[sv.TOOK_OVER].copy())
         if code & sv.SUPERVISE_RESUME:

@@ -30,6 +30,7 @@ from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
 from sim2real.deploy.runtime.clock import SimClock
 from sim2real.deploy.runtime.compiled import CompiledSupervision
 from sim2real.deploy.runtime.handover import RampIn, check_policy, switch_policy
+from sim2real.deploy.runtime.stale import StaleStops
 from sim2real.deploy.runtime.state import RuntimeState
 from sim2real.deploy.runtime.supervision import Supervision
 from sim2real.deploy.safety.guard import SafetyGuard
@@ -152,6 +153,8 @@ class Runtime(RuntimeState):
         self.counters = sup.counters
         #: (envs,) int64, supervised ticks since each env's safe stop began (0 outside SAFE_STOP)
         self.stop_ticks = sup.stop_ticks
+        #: what went stale at each stale_sensor stop, and why (:class:`StaleStops`)
+        self.stale_stops = StaleStops(self, sup)
         self.latency = LatencyHistogram(len(STAGES))
         self.tick_cost = LatencyHistogram()
         #: the longest control periods and their parts (:class:`~sim2real.deploy.observe.long_ticks.
@@ -187,8 +190,7 @@ class Runtime(RuntimeState):
         self._backend_damp = getattr(backend, "damp", None)
         #: the compiled action screen and supervision (sim2real.deploy.kernels); None in the reference
         self._compiled = self._compile()
-        #: the estimate and observe stages in one compiled call (:meth:`_estimate_observe`): a
-        #: fixed base on the compiled path
+        #: a fixed base on the compiled path: estimate and observe in one call (_estimate_observe)
         self._fused = self._compiled is not None and self.base_estimator is None
         #: (envs,) bool: a legged robot's envs whose command damps (``damping``), this tick's
         self._damp = np.zeros(envs, dtype=bool)
@@ -350,9 +352,7 @@ class Runtime(RuntimeState):
         self.read_time[:] = frame.time
         drive_errors = self.backend.drive_errors()  # None: drives without error reports
         st[1] = clock_ns()
-        if (
-            self._fused
-        ):  # a fixed base: the four calls below as one (the stamps: observe in estimate)
+        if self._fused:  # a fixed base: the four calls below as one (observe in estimate's stamp)
             state, obs = self.state, self._estimate_observe(frame, drive_errors)
             st[2] = st[3] = clock_ns()
         else:

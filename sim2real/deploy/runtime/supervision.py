@@ -115,6 +115,16 @@ class Supervision:
         # the thermal band of the derating law the guard and the drives share
         self.temp_start = self.guard.derating.start
         self.temp_max = self.guard.derating.maximum
+        #: ``(envs) -> None``, told the envs ((envs,) bool) of each new ``stale_sensor`` stop
+        #: (the runtime's :class:`~sim2real.deploy.runtime.stale.StaleStops`); None: nobody
+        self.on_stale_stop: Callable[[np.ndarray], None] | None = None
+
+    def missed_in_last(self, periods: int) -> int:
+        """Control periods the loop missed among the last ``periods`` of :attr:`overrun_ring`
+        (at most its window; 0 in lockstep)."""
+        ring, w = self.overrun_ring, self.overrun_ring.shape[0]
+        k = min(max(int(periods), 0), w)
+        return int(sum(int(ring[(self._ring_at - 1 - i) % w]) for i in range(k)))
 
     def note_periods(self, missed: int) -> None:
         """Write the last tick's periods into :attr:`overrun_ring`: one 0 for a tick on time,
@@ -152,6 +162,8 @@ class Supervision:
             self.counters.safe_stops += new
             self.counters.faults[cause] += new
             self.smoother.safe_stop(new)
+            if cause == "stale_sensor" and self.on_stale_stop is not None:
+                self.on_stale_stop(new)
 
     def override(self, target: np.ndarray, state: RobotState) -> np.ndarray:
         """Targets of the envs not RUNNING: ramp to home, or stop and hold."""

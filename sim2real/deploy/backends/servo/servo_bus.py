@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim2real.deploy.backends.servo import summary
 from sim2real.deploy.backends.servo.calibration import (
     JointCalibration,
     calibration_arrays,
@@ -141,6 +142,11 @@ class ServoBusBackend(BackendLifecycle):
         self.torque_checks, self.check_cost = 0, LatencyHistogram()
         self._watch = TorqueWatch(robot)
         self._errors = np.zeros((1, self.n), dtype=np.int64)
+        #: per joint: reads in a row without its reply, and when it last replied (s, ``_t0``);
+        #: corrupt replies since a read all servos answered; the last read's duration (ns)
+        self._unanswered = np.zeros(self.n, dtype=np.int64)
+        self._replied_at = np.full(self.n, -np.inf)
+        self._corrupt_run = self._read_ns = 0
         self._ticks = np.zeros(self.n)
         self._goal = np.zeros(self.n)
         self._is_open = self._enabled = False
@@ -334,7 +340,9 @@ class ServoBusBackend(BackendLifecycle):
             reply = replies.get(sid)
             if reply is None:
                 f.position[0, j] = f.position_stamp[0, j] = np.nan
+                self._unanswered[j] += 1
                 continue
+            self._unanswered[j], self._replied_at[j] = 0, now
             data, error = reply
             self._decode(j, data)
             f.position[0, j] = self._to_rad(j, self._ticks[j])
@@ -351,7 +359,8 @@ class ServoBusBackend(BackendLifecycle):
         corrupt = min(corrupt, missing)
         self.dropouts["corrupt"] += corrupt
         self.dropouts["timeout"] += missing - corrupt
-        cost = time.perf_counter_ns() - t0
+        self._corrupt_run = self._corrupt_run + corrupt if missing else 0
+        self._read_ns = cost = time.perf_counter_ns() - t0
         self.read_cost.add(0, cost)
         slow = cost > 0.5e9 * self.read_timeout
         if self._enabled and self._watch.due(self.temperature[0], slow):
@@ -408,27 +417,15 @@ class ServoBusBackend(BackendLifecycle):
             parts.insert(0, f"error bits {hardware:#04x} ({', '.join(names)})")
         return f"servo ID {self.ids[joint]} ({self.names[joint]}): " + "; ".join(parts)
 
+    def stale_context(self, env: int = 0) -> dict:
+        """What the SYNC READ saw of each servo
+        (:func:`~sim2real.deploy.backends.servo.summary.stale_context`); ``env`` is 0."""
+        return summary.stale_context(self)
+
     def bus_summary(self) -> dict:
-        """Bus figures for the run's report: port, baud rate, SYNC READs sent, dropouts by kind
-        and per read slot, the cost of a read and a write (us percentiles), latched errors."""
-        slots = self.reads * self.n
-        return {
-            "protocol": self.protocol,
-            "port": self.port_name,
-            "baudrate": self.baudrate,
-            "servo_ids": list(self.ids),
-            "sync_reads": self.reads,
-            "dropouts": dict(self.dropouts),
-            "dropout_fraction": sum(self.dropouts.values()) / slots if slots else 0.0,
-            "read_us": self.read_cost.summary(),
-            "write_us": self.write_cost.summary(),
-            "torque_checks": self.torque_checks,
-            "torque_check_us": self.check_cost.summary(),
-            "servo_errors": [
-                self.describe_drive_error(self.ids.index(sid), bits)
-                for sid, bits in sorted(self.latched_errors.items())
-            ],
-        }
+        """Bus figures for the run's report
+        (:func:`~sim2real.deploy.backends.servo.summary.bus_summary`)."""
+        return summary.bus_summary(self)
 
     # ------------------------------------------------------------------ conversions
     def _to_rad(self, j: int, ticks: float) -> float:

@@ -31,6 +31,7 @@ from sim2real.deploy.backends.sim.sensors_kernel import (
     temperature_report,
 )
 from sim2real.deploy.core.backend import SensorFrame
+from sim2real.deploy.core.stale import context
 from sim2real.deploy.core.stateful import (
     StateDictError,
     env_list,
@@ -137,6 +138,23 @@ class JointSensorSettings:
     def encoder_every(self) -> int:
         """Control ticks between two encoder samples (``control rate / encoder_rate``)."""
         return self._joint_sensors.encoder_every
+
+    def stale_context(self, env: int = 0) -> dict:
+        """What the plant's encoders of env ``env`` do now (:mod:`sim2real.deploy.core.stale`):
+        the engine, their rate, dropout probability and latency (ticks); ``other_side`` says
+        ``every encoder reading lost`` at a dropout probability of 1, else None (the runtime's
+        frame tells). Arrivals are not counted (the plant's read counts nothing)."""
+        p, k = float(self.dropout_probability[env]), int(self.latency_ticks[env])
+        engine = getattr(self, "engine", "mujoco")
+        rate = 1.0 / (self.robot.control_period * self.encoder_every)
+        return context(
+            "sim",
+            "encoders",
+            f"the sim plant's encoders ({engine}, simulated time, {rate:g} Hz)",
+            other_side=f"every encoder reading lost: dropout probability {p:g}" if p >= 1 else None,
+            dropout_probability=p,
+            latency_ticks=k,
+        )
 
     def set_sensor_streams(self, generators: Sequence[np.random.Generator]) -> None:
         """Draw each env's encoder noise and dropout from its own generator (one per env, in env

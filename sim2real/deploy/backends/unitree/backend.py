@@ -25,8 +25,9 @@ every safe stop.
 failed CRC (``bad_crc``), a sample that does not decode (``malformed``), a ``tick`` not newer than
 the last (``stale``: late, repeated or reordered), ``tick`` gaps (``lost``), and each motor's
 ``lost`` packets (``unitree_go``; a joint whose count rose in the newest sample is a missing
-reading, NaN). The drivers' error codes (:meth:`~sim2real.deploy.backends.unitree.family.Family.errors`)
-are :meth:`UnitreeBackend.drive_errors`; the runtime stops on them (cause ``servo_error``).
+reading, NaN); :meth:`UnitreeBackend.stale_context` what the reader saw since it last took a
+state (a stale stop's record). The drivers' error codes (``Family.errors``) are
+:meth:`UnitreeBackend.drive_errors`; the runtime stops on them (cause ``servo_error``).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from collections import Counter
 
 import numpy as np
 
-from sim2real.deploy.backends.unitree import bringup
+from sim2real.deploy.backends.unitree import bringup, summary
 from sim2real.deploy.backends.unitree import family as families
 from sim2real.deploy.backends.unitree.codec import MessageCodec
 from sim2real.deploy.backends.unitree.dds import DdsLink
@@ -176,6 +177,10 @@ class UnitreeBackend(BackendLifecycle):
         self._errors = np.zeros((1, self.n), dtype=np.int64)
         self._last_tick: int | None = None
         self._refused = 0  # states refused (bad CRC, malformed) since the last accepted one
+        #: ``received`` and ``dropouts`` when the last state was taken, and the source stamps
+        #: (ns, time.time_ns) of the newest state received and taken (summary.stale_context)
+        self.at_taken = {"received": 0, **self.dropouts}
+        self.newest_stamp_ns = self.taken_stamp_ns = 0
         self._tick_step: int | None = None
         self._prev_lost: np.ndarray | None = None
         #: gyro (rad/s) and accelerometer (m/s^2) readings summed over the valid states since
@@ -303,6 +308,7 @@ class UnitreeBackend(BackendLifecycle):
         decoded = None
         for data, stamp in self._reader.take_raw(STATE_DEPTH):
             self.received += 1
+            self.newest_stamp_ns = stamp
             decoded = data
             try:
                 valid = self._state.decode(data)
@@ -339,7 +345,11 @@ class UnitreeBackend(BackendLifecycle):
             if decoded is not newest:  # the newest valid sample is not the one in the record
                 self._state.decode(newest)
             self._fill(f, now, newest_lost)
-            self._last_fresh = now
+            self._last_fresh, self.taken_stamp_ns = now, newest_stamp
+            at = self.at_taken  # the counts now (no new dict: a few ints per read)
+            at["received"] = self.received
+            for kind in DROPOUT_KINDS:
+                at[kind] = self.dropouts[kind]
             self.state_age.add(0, max(0, time.time_ns() - newest_stamp))
         self.reads += 1
         self.read_cost.add(0, time.perf_counter_ns() - t0)
@@ -474,36 +484,11 @@ class UnitreeBackend(BackendLifecycle):
         )
 
     def bus_summary(self) -> dict:
-        """Figures for the run's report: family, interface, domain, ``mode_machine``, states
-        taken and their rate, dropouts by kind and their fraction of the states the robot sent,
-        packets each motor lost, commands sent, the cost of a read and a write, the newest
-        state's age at a read (us percentiles), latched driver errors."""
-        elapsed = time.monotonic() - (self._opened_at or self._t0)
-        expected = self.received + self.dropouts["lost"]
-        return {
-            "transport": "dds",
-            "family": self.family.name,
-            "interface": self.interface,
-            "domain_id": self.domain_id,
-            "mode_machine": self.mode_machine,
-            "reads": self.reads,
-            "lowstate_received": self.received,
-            "lowstate_rate_hz": self.received / elapsed if elapsed > 0 else 0.0,
-            "lowcmd_sent": self.sent,
-            "lowcmd_resent": self.resent,
-            "lowcmd_rate_hz": None if self.resend_period is None else 1.0 / self.resend_period,
-            "dropouts": dict(self.dropouts),
-            "lowstate_unchecked": self.unchecked if self.lowstate_unchecked else None,
-            "dropout_fraction": sum(self.dropouts.values()) / expected if expected else 0.0,
-            "motor_lost": {
-                f"{int(self.slots[j])} ({self.names[j]})": int(n)
-                for j, n in enumerate(self.motor_lost)
-                if n
-            },
-            "read_us": self.read_cost.summary(),
-            "write_us": self.write_cost.summary(),
-            "state_age_us": self.state_age.summary(),
-            "driver_errors": [
-                self.describe_drive_error(j, int(b)) for j, b in enumerate(self.latched_errors) if b
-            ],
-        }
+        """Figures for the run's report (:func:`~sim2real.deploy.backends.unitree.summary.
+        bus_summary`: states, dropouts, costs, ages, driver errors)."""
+        return summary.bus_summary(self)
+
+    def stale_context(self, env: int = 0) -> dict:
+        """What ``rt/lowstate``'s reader saw since the last state it took
+        (:func:`~sim2real.deploy.backends.unitree.summary.stale_context`); ``env`` is 0."""
+        return summary.stale_context(self)

@@ -2,7 +2,7 @@
 (:mod:`sim2real.deploy.harness.unitree_hil`), deploy-run in another, on the wall clock, the
 shipped Go2 policy walking for 20 s of policy.
 
-Issue 71: every such run stopped on ``stale_sensor`` 4.1 s into the policy. The emulator's
+Before the emulators paused their garbage collector, every such run stopped on ``stale_sensor`` 4.1 s into the policy. The emulator's
 process paused 65-70 ms once, about 8 s after its start, in a full collection of Python's garbage
 collector: no ``rt/lowstate`` for three control periods, past the Go2's ``stale_limit`` of
 50 ms. The shorter runs of ``tests/test_unitree_backend.py`` (5 s, the emulator on a thread of the

@@ -1,4 +1,4 @@
-"""A run pays its compilations before its first deadline, never in a tick (issue 71).
+"""A run pays its compilations before its first deadline, never in a tick.
 
 Each case runs deploy-run in a fresh interpreter (numba's in-memory specializations empty, its
 disk cache as a user's) with numba's ``Dispatcher.compile`` wrapped to note every

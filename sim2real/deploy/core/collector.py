@@ -2,11 +2,12 @@
 
 CPython's cyclic collector runs when enough container objects were allocated since the last
 collection; a collection of the oldest generation walks every tracked object of the process. In a
-process that imported MuJoCo, Cyclone DDS, numba and Pinocchio that is 60-80 ms (measured on the
-Unitree emulator: one 65 ms full collection about 8 s after its start, every run, which stopped
-publishing ``rt/lowstate`` for 65 ms and made the Go2's runtime stop on ``stale_sensor``; issue
-71). The runtime's own loop pauses the collector (:meth:`sim2real.deploy.runtime.loop.Runtime.run`);
-an emulator's loop, the robot's stand-in, must do the same or it makes the robot look dead.
+process that imported MuJoCo, Cyclone DDS, numba and Pinocchio that takes tens of milliseconds
+(docs/measurements.md: the Unitree emulator's one full collection a few seconds after its start
+stopped ``rt/lowstate`` for longer than the Go2's stale limit, every run, and the Go2's runtime
+stopped on ``stale_sensor``). The runtime's own loop pauses the collector
+(:meth:`sim2real.deploy.runtime.loop.Runtime.run`); an emulator's loop, the robot's stand-in, must
+do the same or it makes the robot look dead.
 
 :func:`collector_paused` is that pause for any loop: one full collection of the set-up's garbage
 first (before the first deadline, where it costs nothing), every surviving object moved to the

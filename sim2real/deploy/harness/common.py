@@ -28,15 +28,14 @@ EXIT_BAD_INPUT = 3
 #: SCHED_FIFO priority of an emulator's process (our choice: above every normal task, below the
 #: kernel's interrupt threads at 50). An emulator stands in for a robot's own processors (a
 #: Unitree board, a servo's microcontroller), which no job on the host computer delays; at normal
-#: priority, a CPU-bound process per core starved the servo-bus emulator's replies past the
-#: SO-101's stale limit within 2 s (issue 71). deploy-run keeps the priority its user gives it.
+#: priority a CPU-bound process per core delays its states and replies as no robot would.
 EMULATOR_PRIORITY = 40
 #: deploy-run's ``--rt-priority`` in a harness, unless given after ``--``: the loop of a robot's
 #: controller at SCHED_FIFO, below its emulated robot (:data:`EMULATOR_PRIORITY`), as on a robot's
-#: computer (docs/realtime.md). At normal priority a CPU-bound process per core timed out 114
-#: SO-101 replies in 30 s and stopped the run on ``stale_sensor``; at SCHED_FIFO 30 none (issue
-#: 71). Refused (no CAP_SYS_NICE, no rtprio limit), deploy-run says so in one line and runs at
-#: normal priority.
+#: computer (docs/deploy-run.md). At normal priority, beside a CPU-bound process per core, the
+#: SO-101's replies timed out and the run stopped on ``stale_sensor``; at SCHED_FIFO none did
+#: (docs/measurements.md). Refused (no CAP_SYS_NICE, no rtprio limit), deploy-run says so in one
+#: line and runs at normal priority.
 LOOP_PRIORITY = 30
 
 

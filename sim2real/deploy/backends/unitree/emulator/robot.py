@@ -296,7 +296,7 @@ class UnitreeEmulator(ServesOnThread):
     def serve(self) -> None:
         """Step, take commands and publish states until :meth:`stop` (blocking), with the
         garbage collector paused (:func:`~sim2real.deploy.core.collector.collector_paused`: a
-        full collection here took 65 ms, a gap in ``rt/lowstate`` the runtime stops on)."""
+        full collection here is a gap in ``rt/lowstate`` longer than a robot's stale limit)."""
         with collector_paused():
             self._serve()
 

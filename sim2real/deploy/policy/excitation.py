@@ -190,6 +190,7 @@ class ExcitationPolicy:
         #: s, the trajectory's length
         self.duration = len(self.actions) * robot.control_period
         self.tick = 0
+        self._out = np.zeros((1, robot.n_joints), dtype=np.float32)
 
     def reset(self, envs: np.ndarray) -> None:
         """Start the trajectory again where any env of ``envs`` starts afresh."""
@@ -197,6 +198,14 @@ class ExcitationPolicy:
             self.tick = 0
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """(envs, n) float32, C-contiguous: the trajectory's next row for every env, in a buffer
+        overwritten by the next call (as :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy`
+        returns its actions: the runtime's compiled screen is bound to that one array before the
+        first tick; a broadcast view, read-only with zero strides, was compiled for in the
+        first tick of a wall-clock run and overran it)."""
         row = self.actions[min(self.tick, len(self.actions) - 1)]
         self.tick += 1
-        return np.broadcast_to(row, (obs.shape[0], row.shape[0]))
+        if self._out.shape[0] != obs.shape[0]:
+            self._out = np.zeros((obs.shape[0], row.shape[0]), dtype=np.float32)
+        self._out[:] = row
+        return self._out

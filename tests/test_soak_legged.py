@@ -274,3 +274,37 @@ def test_a_stand_up_anchors_the_estimate_where_the_encoders_read(config, tmp_pat
         batch.rt.tick()
     batch.stand_up(np.array([True]))
     np.testing.assert_allclose(batch.rt.state.q[0], batch.robot.home + bias, atol=2e-3)
+
+
+def test_a_stop_holds_the_command_clock_and_does_not_restart_it():
+    """The schedule's clock counts RUNNING time only and is held, not restarted, by a stop
+    (issue 72): a robot that runs 0.8 s between 3-s stops gets a new command every 1.0 s of
+    running, not its first draw forever (the clock set to the stop's end made every period
+    start again after each stop)."""
+
+    class Rt:
+        def __init__(self):
+            self.mode = np.array([2])
+            self.time, self.ticks = 0.0, 0
+            self.velocity_command = np.zeros((1, 3))
+
+    rt = Rt()
+    schedule = CommandSchedule(1, 1.0, [np.random.default_rng(3)])
+    running = 0.0
+    for _ in range(10):  # 0.8 s RUNNING, then 3 s stopped (a fall, a stand-up)
+        for mode, seconds in ((2, 0.8), (4, 3.0)):
+            for _ in range(round(seconds / 0.02)):
+                rt.ticks += 1
+                rt.time = rt.ticks * 0.02
+                rt.mode[0] = mode
+                schedule(rt)
+                running += 0.02 * (mode == 2)
+    # the first draw at the first RUNNING tick, then one per 1.0 s of RUNNING time (8 s)
+    assert schedule.issued[0] == 8, (schedule.issued, running)
+    state = schedule.state_dict(0)
+    again = CommandSchedule(1, 1.0, [np.random.default_rng(3)])
+    again.load_state_dict(state, 0)
+    np.testing.assert_array_equal(again.t_seen, schedule.t_seen)
+    del state["t_seen"]  # a checkpoint of the code before: loads, nothing moved on at first
+    again.load_state_dict(state, 0)
+    assert np.isnan(again.t_seen).all()

@@ -93,9 +93,12 @@ class CommandSchedule:
         ranges: What the commands are drawn from (:class:`CommandRanges`).
 
     Attributes:
-        t_command: (envs,) s, when each env's command was issued, moved on while it was not
-            running. issued: (envs,) int64, commands issued. command: (envs, 3), the current
-            command (zeros before the first).
+        t_command: (envs,) s, when each env's command was issued, moved on by the time it was
+            not running (its clock held: ``t - t_command`` is the RUNNING time since the draw).
+            issued: (envs,) int64, commands issued (draws from the env's stream). command:
+            (envs, 3), the current command (zeros before the first).
+        t_seen: (envs,) s, the runtime's time at the previous call (NaN before the first): a
+            stopped env's ``t_command`` moves on by the time since.
     """
 
     def __init__(self, envs: int, period: float, rng, ranges: CommandRanges | None = None):
@@ -109,19 +112,24 @@ class CommandSchedule:
         self.t_command = np.zeros(envs)
         self.issued = np.zeros(envs, dtype=np.int64)
         self.command = np.zeros((envs, 3))
+        self.t_seen = np.full(envs, np.nan)
 
     def _fields(self) -> dict[str, np.ndarray]:
         return {"t_command": self.t_command, "issued": self.issued, "command": self.command}
 
     def state_dict(self, env: int | None = None) -> dict:
-        """``t_command`` (s), ``issued`` (int64), ``command`` (envs, 3); ``rng``: JSON of the
-        streams' ``bit_generator.state`` (a list over the envs)."""
+        """``t_command`` (s), ``issued`` (int64), ``command`` (envs, 3), ``t_seen`` (s); ``rng``:
+        JSON of the streams' ``bit_generator.state`` (a list over the envs)."""
         out: dict = take(self._fields(), env)
+        out["t_seen"] = take({"t_seen": self.t_seen}, env)["t_seen"]
         out["rng"] = streams_json(self.streams, env_list(self.envs, env))
         return out
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
         """Inverse of :meth:`state_dict` (of every env, or of env ``env``).
+
+        A state without ``t_seen`` (a checkpoint written before it) leaves it NaN: the first
+        call after it moves no stopped clock on.
 
         Raises:
             StateDictError: a missing field, a shape or a stream count that differs; nothing is
@@ -130,17 +138,30 @@ class CommandSchedule:
         check(self._fields(), state, env)
         envs = env_list(self.envs, env)
         rng = read_streams(state, "rng", len(envs))
+        seen = {"t_seen": self.t_seen}
+        if "t_seen" in state:
+            check(seen, {"t_seen": state["t_seen"]}, env)
         put(self._fields(), state, env)
+        if "t_seen" in state:
+            put(seen, {"t_seen": state["t_seen"]}, env)
+        else:
+            self.t_seen[envs] = np.nan
         set_streams(self.streams, envs, rng, "rng")
 
     def __call__(self, runtime) -> None:
-        """After a tick of ``runtime``: hold the clocks of stopped envs, issue due commands."""
+        """After a tick of ``runtime``: hold the clocks of stopped envs (their draw time moves on
+        by the time since the previous call, so a stop neither advances nor restarts the
+        period), issue due commands."""
         running = runtime.mode == 2  # RUNNING
         t = runtime.time
         if not running.all():
-            self.t_command[~running] = t
+            stopped = ~running & np.isfinite(self.t_seen)
+            self.t_command[stopped] += t - self.t_seen[stopped]
+            self.t_seen[:] = t
             if not running.any():
                 return
+        else:
+            self.t_seen[:] = t
         due = running & ((self.issued == 0) | (t - self.t_command >= self.period))
         for e in np.flatnonzero(due):
             self.command[e] = self.ranges.sample(self.streams[e])

@@ -26,7 +26,8 @@ def summary_text(report: dict) -> str:
             f"  locomotion   falls {loco['falls']} ({loco['falls_per_hour']:.2f} per hour); "
             f"tracking success {'n/a' if ts is None else f'{100 * ts:.1f} %'} (within 0.2 m/s); "
             f"distance {loco['distance_m']:.0f} m; mean forward speed "
-            f"{'n/a' if speed is None else f'{speed:.3f} m/s'}"
+            f"{'n/a' if speed is None else f'{speed:.3f} m/s'}; commands issued "
+            f"{loco.get('commands_issued', 'n/a')}"
         )
         origins = loco.get("falls_by_origin")
         if loco["falls"] and origins:

@@ -224,6 +224,7 @@ def _locomotion_totals(results: list[dict]) -> dict | None:
         "falls_by_origin": origins,
         "stops_while_falling": sum(x.get("stops_while_falling", 0) for x in legs),
         "falls_by_cause": causes,
+        "commands_issued": sum(x.get("commands_issued", 0) for x in legs),
         "tracking_success": sum(x["tracked_s"] for x in legs) / running if running else None,
         "min_window_success_rate": min(windows) if windows else None,
         "distance_m": sum(x["distance_m"] for x in legs),

@@ -96,7 +96,8 @@ def test_pushes_set_the_base_velocity_from_the_seed_alone(go2):
     class Rt:  # the runtime's fields DomainPushes reads
         ticks, mode = 0, np.array([2, 0], dtype=np.int8)  # env 0 RUNNING, env 1 IDLE
 
-    pushes = DomainPushes([7, 8], PushRanges(interval=1.0, max_velocity=1.5), go2.control_period)
+    hidden = PushRanges(interval=1.0, max_velocity=1.5, apply="velocity_hidden_from_imu")
+    pushes = DomainPushes([7, 8], hidden, go2.control_period)
     pushes(Rt, plant)
     assert plant.datas[0].qvel[:2] == pytest.approx(push_velocity(7, 0, 1.5))
     assert plant.datas[1].qvel[:2].tolist() == [0.7, -0.2]  # not running: not pushed
@@ -223,7 +224,9 @@ def test_mjlab_pushes_add_a_twist_after_random_intervals_and_resume_exactly(go2)
     assert overrides["com_offset"]["body"] == "torso_link"  # the G1's: a go2 refuses it
     with pytest.raises(RangesError, match="'torso_link' is no body of robot go2"):
         load_ranges(MJLAB_RANGES, go2)
-    ranges = PushRanges(**overrides["pushes"])
+    # the velocity added at once (the training stack's way, hidden from the IMU)
+    assert overrides["pushes"]["apply"] == "force" and overrides["pushes"]["window"] == 0.1
+    ranges = PushRanges(**{**overrides["pushes"], "apply": "velocity_hidden_from_imu"})
     assert ranges.mode == "add" and ranges.interval == (1.0, 3.0) and not ranges.legacy
     dt = go2.control_period
 
@@ -320,3 +323,109 @@ def test_encoder_bias_and_com_offset_are_drawn_per_session_and_applied(go2):
     before = model.body_ipos[model.body(body).id].copy()
     shift_com(model, body, offset)
     np.testing.assert_allclose(model.body_ipos[model.body(body).id] - before, offset)
+
+
+@pytest.mark.parametrize("apply", ["force", "velocity_hidden_from_imu"])
+def test_a_push_is_a_force_the_imu_feels_unless_asked_to_hide_it(apply):
+    """A domain push (issue 72): by default the wrench that gives the robot legged_gym's
+    velocity change over ``window`` s (F = m dv / window), so the plant's accelerometer reads
+    it (about dv / window along the push, world frame) and the base gains about dv; the force
+    is gone after the window. Setting the velocity instead (``apply =
+    "velocity_hidden_from_imu"``) moves the base at once and the accelerometer never sees it
+    (it reads the floor's friction slowing the robot down, against the push)."""
+    from sim2real.deploy.backends.sim.legged_sensors import sensor_address
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.robots import load_robot
+
+    go2 = load_robot("go2")
+    plant = SimBackend(go2, envs=1)
+    plant.reset()
+    for _ in range(25):  # settle on its feet
+        plant.advance()
+    m, d = plant.models[0], plant.datas[0]
+    accel = sensor_address(m, mujoco.mjtSensor.mjSENS_ACCELEROMETER, go2.imu_site_id)
+    ranges = PushRanges(interval=1.0, max_velocity=1.0, apply=apply, window=0.1)
+    pushes = DomainPushes([7], ranges, go2.control_period)
+    dv = push_velocity(7, 0, 1.0)
+
+    class Rt:
+        ticks, mode = 0, np.array([2], dtype=np.int8)
+
+    v0 = d.qvel[:2].copy()
+    pushes(Rt, plant)  # tick 0: the push
+    assert pushes.times == [[0.0]] and pushes.last_tick.tolist() == [0]
+    felt = []
+    for t in range(1, 6):  # the window: 0.1 s, five ticks at 50 Hz
+        plant.advance()
+        world = d.site_xmat[go2.imu_site_id].reshape(3, 3) @ d.sensordata[accel : accel + 3]
+        felt.append(world[:2] @ dv / np.linalg.norm(dv))  # m/s^2 along the push
+        Rt.ticks = t
+        pushes(Rt, plant)
+    gained = (d.qvel[:2] - v0) @ dv / np.linalg.norm(dv)
+    base = m.body(go2.base_body).id
+    if apply == "force":
+        expected = np.linalg.norm(dv) / 0.1  # m/s^2 over the window
+        assert 0.5 * expected < np.mean(felt) < 1.5 * expected, (felt, expected)
+        assert 0.6 * np.linalg.norm(dv) < gained < 1.1 * np.linalg.norm(dv)
+        assert not d.xfrc_applied[base].any() and pushes.until.tolist() == [0]
+    else:
+        assert np.mean(felt) < 0.0, felt
+
+
+def test_false_fall_stops_are_fall_check_stops_of_a_robot_the_truth_has_upright():
+    """``false_fall_stops`` (issue 72): the holosoma G1's stop (0.4 deg, base 0.67 m of its
+    0.757 m) counts; a tilted or low base, another cause, a record without the truth or one
+    whose replay fell anyway does not."""
+    from sim2real.eval.soak.falls import false_fall_stops
+
+    falls = [
+        {"cause": "fall", "true_tilt_deg": 0.4, "true_height_m": 0.67},  # upright: false
+        {"cause": "fall", "true_tilt_deg": 70.0, "true_height_m": 0.5},  # tilted past half
+        {"cause": "fall", "true_tilt_deg": 3.0, "true_height_m": 0.2},  # the base down
+        {"cause": "hard_limit", "true_tilt_deg": 1.0, "true_height_m": 0.7},  # not the check's
+        {"cause": "fall", "tilt_deg": 1.0},  # hardware: no truth
+        {"cause": "fall", "true_tilt_deg": 1.0, "true_height_m": 0.7, "would_fall": True},
+    ]
+    assert false_fall_stops(falls, 0.757, 1.0) == 1
+
+
+def test_the_estimate_is_judged_in_the_second_after_each_push():
+    """PushResponse: the planar velocity error of the RUNNING ticks 1..50 after a push (50 Hz),
+    its mean, RMS, worst tick and worst push; a new push closes the previous one's second."""
+    from sim2real.eval.soak.push_response import PushResponse
+
+    class Pushes:
+        seeds = [1, 2]
+        last_tick = np.array([-1, -1], dtype=np.int64)
+
+    class Base:
+        linear_velocity = np.zeros((2, 3))
+
+    class Rt:
+        ticks, mode = 0, np.array([2, 2])
+        state = type("S", (), {"base": Base})
+
+    class Plant:
+        def true_base_state(self):
+            s = np.zeros((2, 13))
+            s[:, 3] = 1.0  # upright, base frame = world frame
+            s[:, 7] = [0.3, 0.1]  # the estimate says 0: errors 0.3 and 0.1 m/s
+            return s
+
+    response = PushResponse(Pushes, 0.02)
+    for t in range(200):
+        Rt.ticks = t
+        if t in (10, 100, 130):  # env 0 pushed at 10 and 100, env 1 at 130 (not 1 s on)
+            Pushes.last_tick[0 if t < 130 else 1] = t
+        if t == 110:
+            Pushes.last_tick[0] = t  # a push 0.2 s after the last: its second ends there
+        response(Rt, Plant())
+    zero, one = response.summary(0), response.summary(1)
+    assert zero["pushes"] == 3 and zero["ticks"] == 50 + 9 + 50  # 101..109: 110 is a push
+    assert zero["mean_m_s"] == pytest.approx(0.3) and zero["worst_m_s"] == pytest.approx(0.3)
+    assert one["pushes"] == 1 and one["ticks"] == 50 and one["rms_m_s"] == pytest.approx(0.1)
+    assert response.summary()["worst_push_mean_m_s"] == pytest.approx(0.3)
+    state = response.state_dict(0)
+    again = PushResponse(Pushes, 0.02)
+    again.load_state_dict(state, 0)
+    assert again.summary(0) == zero

@@ -103,6 +103,7 @@ def test_files_without_the_new_keys_draw_exactly_what_they_drew_before():
             calls.append((Rt.ticks, e, [float(a) for a in v]))
 
     ranges = load_ranges_text(LEGGED_GYM, "nightly.toml", go2).pushes
+    ranges = dataclasses.replace(ranges, apply="velocity_hidden_from_imu")  # the velocity set
     pushes = DomainPushes([0, 7, 123], ranges, go2.control_period)
     for t in range(int(30 / go2.control_period)):
         Rt.ticks = t

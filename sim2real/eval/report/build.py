@@ -37,9 +37,9 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     ``interventions`` (ticks with an intervention at most ``max_intervention_rate`` of the
     ticks; a legged robot's position targets clamped into its soft limits are its policy's style:
     reported in the message, not judged), ``no_divergence``, ``falls`` (a legged session: at
-    most ``max_falls_per_hour``; an arm passes). For a legged session the success checks are its
-    tracking success (``locomotion``), judged only with ``thresholds.judge_tracking`` (else they
-    pass and say "not judged").
+    most ``max_falls_per_hour`` and no ``false_fall_stops``; an arm passes). For a legged
+    session the success checks are its tracking success (``locomotion``), judged only with
+    ``thresholds.judge_tracking`` (else they pass and say "not judged").
     """
     hard = result["violations"]["total"].get("hard_limit", 0)
     hard_down = result["violations"].get("while_down", {}).get("hard_limit", 0)
@@ -78,10 +78,12 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
             if window is not None
             else "never RUNNING"
         )
-        falls_ok = loco["falls_per_hour"] <= thresholds.max_falls_per_hour
+        false_stops = loco.get("false_fall_stops", 0)
+        falls_ok = loco["falls_per_hour"] <= thresholds.max_falls_per_hour and not false_stops
         falls_message = (
             f"{loco['falls']} falls, {loco['falls_per_hour']:.2f} per hour (threshold "
-            f"{thresholds.max_falls_per_hour:g})"
+            f"{thresholds.max_falls_per_hour:g}); {false_stops} false fall stops (an upright "
+            "robot stopped by the fall check; must be 0)"
         )
     else:
         rate, window = goals["success_rate"], goals["min_window_success_rate"]
@@ -225,7 +227,9 @@ def build_report(
                    distance_m, best_distance_m, interventions {check: ticks, any}}],
                    missed_dropped}
             locomotion (null for an arm) {commands_issued, command_period_s, command_ranges,
-                   final_command, falls, falls_per_hour, tracking_success (the session's success
+                   final_command, falls, falls_per_hour, fall_stops, false_fall_stops (fall-check
+                   stops of a robot the truth had upright, :func:`sim2real.eval.soak.falls.
+                   false_fall_stops`; must be 0), tracking_success (the session's success
                    rate: share of RUNNING time within tracking_tolerance_m_s of the command, the
                    velocity and the command both averaged over tracking_window_s),
                    tracking_tolerance_m_s, tracking_window_s, judged_on, running_s,

@@ -40,6 +40,11 @@ def summary_text(report: dict) -> str:
                     f"  stops        {falling} runtime stop(s) on a robot already falling (its "
                     "replay without the stop fell too; counted above by what began the fall)"
                 )
+        if loco.get("false_fall_stops") is not None:
+            lines.append(
+                f"  fall check   false_fall_stops {loco['false_fall_stops']} (stops for a fall of "
+                "a robot the truth had upright; must be 0)"
+            )
         up = loco.get("standing_fraction")
         if up is not None:
             lines.append(f"  standing     {100 * up:.2f} % of the session RUNNING (on its feet)")
@@ -54,6 +59,14 @@ def summary_text(report: dict) -> str:
             f"p95 {att['worst_session_p95']:.2f}); planar RMS {est['velocity_rms_m_s']:.3f} m/s; "
             f"vertical bias {vz['bias']:+.3f} m/s, RMS {vz['rms']:.3f}"
         )
+        after = est.get("after_push")
+        if after is not None:
+            lines.append(
+                f"  after pushes planar velocity error in the {after['window_s']:g} s after "
+                f"{after['pushes']} pushes: mean {after['mean_m_s']:.3f} m/s, RMS "
+                f"{after['rms_m_s']:.3f}, worst tick {after['worst_m_s']:.3f}, worst push's mean "
+                f"{after['worst_push_mean_m_s']:.3f} (steady: the planar RMS above)"
+            )
     v = ", ".join(f"{k} {n}" for k, n in t["violations"]["total"].items())
     lines.append(f"  violations   (true state, ticks) {v}")
     down = t["violations"].get("while_down", {})

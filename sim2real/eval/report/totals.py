@@ -195,6 +195,26 @@ def _base_estimate_totals(results: list[dict]) -> dict | None:
             "bias": mean(lambda x: x["vertical_velocity_m_s"]["bias"]),
             "rms": mean(lambda x: x["vertical_velocity_m_s"]["rms"] ** 2) ** 0.5,
         },
+        "after_push": _after_push_totals([x.get("after_push") for x in rows]),
+    }
+
+
+def _after_push_totals(rows: list[dict | None]) -> dict | None:
+    """The sessions' planar velocity error in the second after each push (``after_push``):
+    pushes and ticks summed, the mean and RMS tick weighted, the worst tick's and the worst
+    push's; None without any."""
+    rows = [x for x in rows if x]
+    if not rows:
+        return None
+    n = sum(x["ticks"] for x in rows)
+    return {
+        "pushes": sum(x["pushes"] for x in rows),
+        "ticks": n,
+        "mean_m_s": sum(x["mean_m_s"] * x["ticks"] for x in rows) / n,
+        "rms_m_s": (sum(x["rms_m_s"] ** 2 * x["ticks"] for x in rows) / n) ** 0.5,
+        "worst_m_s": max(x["worst_m_s"] for x in rows),
+        "worst_push_mean_m_s": max(x["worst_push_mean_m_s"] for x in rows),
+        "window_s": rows[0]["window_s"],
     }
 
 
@@ -223,6 +243,7 @@ def _locomotion_totals(results: list[dict]) -> dict | None:
         "falls_per_hour": falls / hours if hours > 0 else 0.0,
         "falls_by_origin": origins,
         "stops_while_falling": sum(x.get("stops_while_falling", 0) for x in legs),
+        "false_fall_stops": sum(x.get("false_fall_stops", 0) for x in legs),
         "falls_by_cause": causes,
         "commands_issued": sum(x.get("commands_issued", 0) for x in legs),
         "tracking_success": sum(x["tracked_s"] for x in legs) / running if running else None,

@@ -42,6 +42,7 @@ from sim2real.deploy.monitors.kernel import temperature_bands
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.soak.faults import SessionFaults
+from sim2real.eval.soak.push_response import PushResponse
 from sim2real.eval.soak.result import session_result
 from sim2real.eval.soak.session import (
     SESSIONS_DIR,
@@ -196,10 +197,14 @@ class SessionBatch:
             backend.advance()
         dofs = joint_dofs(models[0], robot)
         self.initial_friction = np.stack([m.dof_frictionloss[dofs].copy() for m in models])
-        self.faults = SessionFaults(backend)
         #: the pushes of the policy's training domain (legged_gym's push_robots), or None
         pushes = first.ranges.pushes if self.kind.legged else None
         self.pushes = None if pushes is None else DomainPushes(seeds, pushes, dt)
+        #: the base estimate in the second after each push, against the truth (None: no pushes)
+        self.push_response = None if pushes is None else PushResponse(self.pushes, dt)
+        # a fault's push or cable pull adds to a domain push's force in force (not replaces it)
+        forces = self.pushes.wrench[:, :3] if self.pushes is not None else None
+        self.faults = SessionFaults(backend, base_forces=forces)
         # the runtime, started before its monitors and task are built (the soak's order): what
         # the plant really did (true state), what the guard and smoother changed, a legged
         # robot's base estimate against the truth, and the goals (an arm) or velocity commands
@@ -330,6 +335,7 @@ class SessionBatch:
         self.rig.monitor(rt)  # violations, interventions, the base estimate, then the task
         if self.pushes is not None:
             self.pushes(rt, self.backend)
+            self.push_response(rt, self.backend)
         temperature_bands(
             self.backend.thermal.winding_temperature,
             self._t_start,

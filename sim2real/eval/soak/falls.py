@@ -30,6 +30,14 @@ ATTRIBUTION_WINDOW = 2.0
 #: The origins, in the order the report lists them.
 ORIGINS = ("runtime_stop", "push", "fault", "policy")
 PUSH_KINDS = ("push", "cable")
+#: A fall stop is false when the truth at the stop says upright (:func:`false_fall_stops`): its
+#: base tilted less than this share of the fall check's tilt limit (our choice: a half, 29 deg of
+#: the default 57) and ...
+UPRIGHT_TILT_SHARE = 0.5
+#: ... its base at least this share of ``[base] standing_height`` above the floor (the line
+#: under which :class:`sim2real.deploy.monitors.estimation.EstimationMonitor` calls the true
+#: base fallen, ``TRUE_FALL_HEIGHT``).
+UPRIGHT_HEIGHT_SHARE = 0.4
 
 
 def attribute_falls(
@@ -78,3 +86,25 @@ def stops_while_falling(falls: list[dict]) -> int:
     """How many of ``falls`` (:func:`attribute_falls`'s) began with a runtime stop on a robot
     that its replay showed falling anyway."""
     return sum(1 for f in falls if f.get("stopped_while_falling"))
+
+
+def false_fall_stops(falls: list[dict], standing_height: float, tilt_limit: float) -> int:
+    """How many of ``falls`` (the tracker's records) are fall-check stops (cause ``fall``) of
+    a robot that was not falling: the simulator's truth at the stop has the base tilted under
+    ``UPRIGHT_TILT_SHARE`` of ``tilt_limit`` (rad, the fall check's) and at least
+    ``UPRIGHT_HEIGHT_SHARE`` of ``standing_height`` (m) high (``true_tilt_deg``,
+    ``true_height_m``), unless a replay without the stop fell anyway (``would_fall``). A
+    record without the truth (hardware) is not counted."""
+    import math
+
+    tilt_deg = math.degrees(UPRIGHT_TILT_SHARE * tilt_limit)
+    height = UPRIGHT_HEIGHT_SHARE * standing_height
+    return sum(
+        1
+        for f in falls
+        if f.get("cause") == "fall"
+        and "true_tilt_deg" in f
+        and f["true_tilt_deg"] < tilt_deg
+        and f["true_height_m"] >= height
+        and not f.get("would_fall", False)
+    )

@@ -24,7 +24,12 @@ from sim2real.deploy.monitors.interventions import INTERVENTION_CHECKS
 from sim2real.deploy.monitors.violations import VIOLATION_TYPES
 from sim2real.deploy.runtime import FAULT_CAUSES, STAGES, Mode
 from sim2real.eval.soak import checkpoint as ckpt
-from sim2real.eval.soak.falls import attribute_falls, falls_by_origin, stops_while_falling
+from sim2real.eval.soak.falls import (
+    attribute_falls,
+    falls_by_origin,
+    false_fall_stops,
+    stops_while_falling,
+)
 from sim2real.eval.soak.session import (
     RESPONSES,
     Session,
@@ -78,6 +83,9 @@ def locomotion_result(session: Session) -> dict:
         "fall_records": fall_records,
         "domain_pushes": len(pushes),
         "fall_stops": int(rt.counters.faults["fall"][e]),
+        "false_fall_stops": false_fall_stops(
+            fall_records, float(b.robot.config.base.standing_height), _tilt_limit(b.robot)
+        ),
         "stood_up": session.stood_up,
         "tracking_success": float(tr.tracked_time[e]) / running if running else None,
         "tracking_tolerance_m_s": TRACKING_TOLERANCE,
@@ -95,6 +103,14 @@ def locomotion_result(session: Session) -> dict:
         "min_window_success_rate": (min(w["success_rate"] for w in windows) if windows else None),
         "peak_winding_c": peaks,
     }
+
+
+def _tilt_limit(robot) -> float:
+    """rad, the fall check's tilt limit of ``robot`` (``safety.fall_tilt`` or its default)."""
+    from sim2real.deploy.estimation.fall import FALL_TILT
+
+    tilt = robot.config.safety.fall_tilt
+    return float(FALL_TILT if tilt is None else tilt)
 
 
 def goals_result(session: Session) -> dict:
@@ -210,7 +226,7 @@ def session_result(session: Session) -> dict:
             "final_mode": Mode(int(rt.mode[e])).name,
             "final_cause": FAULT_CAUSES[rt.cause[e]] if rt.cause[e] >= 0 else None,
         },
-        "base_estimate": b.estimation.summary(e) if b.estimation is not None else None,
+        "base_estimate": base_estimate(b, e),
         "estimator": {
             "missing_readings": int(est.missing_per_joint[e].sum()),
             "stale_readings": int(est.stale_per_joint[e].sum()),
@@ -270,6 +286,21 @@ def session_result(session: Session) -> dict:
             "stage_cost_us": {s: rt.latency.summary(i) for i, s in enumerate(STAGES)},
         },
     }
+
+
+def base_estimate(batch, e: int) -> dict | None:
+    """The ``base_estimate`` section of env ``e``'s result: the estimate against the truth
+    (:meth:`sim2real.deploy.monitors.estimation.EstimationMonitor.summary`) with ``after_push``,
+    its planar velocity error in the second after each push
+    (:meth:`sim2real.eval.soak.push_response.PushResponse.summary`; None without pushes); None
+    for an arm or before any RUNNING tick."""
+    if batch.estimation is None:
+        return None
+    out = batch.estimation.summary(e)
+    if out is not None:
+        response = batch.push_response
+        out["after_push"] = response.summary(e) if response is not None else None
+    return out
 
 
 def read_result(out: str | os.PathLike, seed: int) -> dict | None:

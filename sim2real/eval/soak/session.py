@@ -353,6 +353,16 @@ class Session:
                     if b.pushes is not None
                     else None
                 ),
+                "push_force": (
+                    {
+                        "wrench": b.pushes.wrench[e].tolist(),
+                        "until": int(b.pushes.until[e]),
+                        "last_tick": int(b.pushes.last_tick[e]),
+                        "response": b.push_response.state_dict(e),
+                    }
+                    if b.pushes is not None
+                    else None
+                ),
             },
             "next": dict(b.next_ticks),
             "config": self.config.batch_key(),
@@ -421,3 +431,9 @@ class Session:
             b.pushes.times[e] = [float(t) for t in s.get("push_times") or []]
             if s.get("push_next") is not None:  # the next push of a random interval
                 b.pushes.index[e], b.pushes.next_tick[e] = s["push_next"]
+            force = s.get("push_force")
+            if force is not None:  # a push's force in force, the second after a push judged
+                b.pushes.wrench[e] = force["wrench"]
+                b.pushes.until[e] = force["until"]
+                b.pushes.last_tick[e] = force["last_tick"]
+                b.push_response.load_state_dict(force["response"], e)

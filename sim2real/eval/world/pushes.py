@@ -9,6 +9,13 @@ forces). Two conventions, both as their stacks write them:
   from ``interval_range_s`` (1-3 s), U(range) is ADDED to the root's world velocity per axis:
   ``x``, ``y``, ``z`` (m/s) and ``roll``, ``pitch``, ``yaw`` (rad/s, world frame).
 
+How a push acts (``apply``): as a force (the default, ``"force"``): the wrench on the base that
+gives the robot the training push's velocity change over ``window`` s (default
+:data:`PUSH_WINDOW`; :meth:`~sim2real.deploy.backends.sim.disturbances.SimDisturbances.push_wrench`),
+which the plant's accelerometer and gyro feel as they feel a real shove. Or, as the training stacks
+do, by setting the base's velocity between two physics steps (``"velocity_hidden_from_imu"``):
+the estimator, which integrates the accelerometer, never sees that push.
+
 :class:`PushRanges` is what a ranges file's ``[pushes]`` table sets; :class:`DomainPushes` applies
 them to a batch of sessions. Each push's velocity, and each random interval, is a pure function
 of the session seed and the push's index, so a resumed session pushes exactly as an uninterrupted
@@ -31,6 +38,11 @@ INTERVAL_STREAM = 1
 #: angular roll, pitch, yaw (rad/s, world).
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 MODES = ("set", "add")
+#: How a push acts (module docstring): a force over ``window`` s, or the velocity set at once.
+APPLY = ("force", "velocity_hidden_from_imu")
+#: s, the default window of a push's force (our choice): a real shove is a force over tens of
+#: milliseconds (a hand's push lasts about 0.1 s); five control ticks at 50 Hz.
+PUSH_WINDOW = 0.1
 
 
 @dataclass(frozen=True)
@@ -52,12 +64,18 @@ class PushRanges:
         roll, pitch, yaw: Angular velocity ranges about the world axes, rad/s; None: 0 (a ranges
             file's ``[pushes] angular_velocity = {roll = [low, high], ...}``; mjlab's G1: roll,
             pitch +-0.52, yaw +-0.78).
+        apply: How a push acts, one of :data:`APPLY` (module docstring): ``"force"`` (default)
+            or ``"velocity_hidden_from_imu"`` (the training stacks' way, which the IMU never
+            feels).
+        window: s, how long a push's force acts (``apply = "force"``; default
+            :data:`PUSH_WINDOW`), rounded to whole control ticks (at least one); the force is
+            the velocity change times the robot's mass over the rounded window.
 
     Raises:
         ValueError: a non-positive or inverted interval, a negative ``max_velocity``, an
-            inverted axis range, an unknown mode, ``max_velocity`` with axis ranges, or angular
-            or vertical ranges with ``mode = "set"`` (legged_gym sets the horizontal velocity
-            only).
+            inverted axis range, an unknown mode or ``apply``, a window that is not a number
+            > 0 s, ``max_velocity`` with axis ranges, or angular or vertical ranges with
+            ``mode = "set"`` (legged_gym sets the horizontal velocity only).
     """
 
     interval: float | tuple[float, float] = 15.0
@@ -69,6 +87,8 @@ class PushRanges:
     roll: tuple[float, float] | None = None
     pitch: tuple[float, float] | None = None
     yaw: tuple[float, float] | None = None
+    apply: str = "force"
+    window: float = PUSH_WINDOW
 
     def __post_init__(self):
         low, high = self.interval_range
@@ -83,6 +103,10 @@ class PushRanges:
             raise ValueError(f"PushRanges.max_velocity: expected >= 0 m/s, got {self.max_velocity}")
         if self.mode not in MODES:
             raise ValueError(f"PushRanges.mode: expected one of {list(MODES)}, got {self.mode!r}")
+        if self.apply not in APPLY:
+            raise ValueError(f"PushRanges.apply: expected one of {list(APPLY)}, got {self.apply!r}")
+        if not (math.isfinite(self.window) and self.window > 0):
+            raise ValueError(f"PushRanges.window: expected a number > 0 s, got {self.window}")
         given = [a for a in AXES if getattr(self, a) is not None]
         if given and self.max_velocity is not None:
             raise ValueError(
@@ -157,6 +181,12 @@ class DomainPushes:
             the attribution of falls.
         index: (envs,) int64, the index of each env's next push (random intervals only).
         next_tick: (envs,) int64, the tick of each env's next push (random intervals only).
+        force_ticks: control ticks a push's force acts (``ranges.window`` rounded, >= 1).
+        wrench: (envs, 6) the force (N) and torque (N m, world frame) of each env's push in
+            force now (zeros: none); its rows' force is what a fault's forces add to
+            (:class:`sim2real.eval.soak.faults.SessionFaults`' ``base_forces``).
+        until: (envs,) int64, the tick at which each env's push force ends (0: none).
+        last_tick: (envs,) int64, the tick of each env's last push (-1: none yet).
     """
 
     def __init__(self, seeds: list[int], ranges: PushRanges, control_period: float):
@@ -168,6 +198,34 @@ class DomainPushes:
         self._axes = ranges.ranges()
         self.index = np.ones(len(self.seeds), dtype=np.int64)
         self.next_tick = np.array([self._due(s, 1, 0) for s in self.seeds], dtype=np.int64)
+        self.force_ticks = max(1, round(ranges.window / control_period))
+        envs = len(self.seeds)
+        self.wrench = np.zeros((envs, 6))
+        self.until = np.zeros(envs, dtype=np.int64)
+        self.last_tick = np.full(envs, -1, dtype=np.int64)
+
+    def _push(self, rt, backend, e: int, twist: np.ndarray, add: bool) -> None:
+        """Push env ``e`` by ``twist`` (:meth:`SimDisturbances.push_base
+        <sim2real.deploy.backends.sim.disturbances.SimDisturbances.push_base>`'s meaning) as
+        ``ranges.apply`` says, and note it."""
+        if self.ranges.apply == "force":
+            duration = self.force_ticks * self.dt
+            self.wrench[e] = backend.push_wrench(e, twist, add, duration)
+            backend.set_base_wrench(e, self.wrench[e])
+            self.until[e] = rt.ticks + self.force_ticks
+        elif add:
+            backend.push_base(e, twist, add=True)
+        else:
+            backend.set_base_velocity(e, twist[:2])
+        self.times[e].append(rt.ticks * self.dt)
+        self.last_tick[e] = rt.ticks
+
+    def _end_forces(self, rt, backend) -> None:
+        """Remove the push forces whose window has ended."""
+        for e in np.flatnonzero((self.until > 0) & (self.until <= rt.ticks)):
+            self.wrench[e] = 0.0
+            backend.set_base_wrench(e, self.wrench[e])
+            self.until[e] = 0
 
     def _due(self, seed: int, index: int, after: int) -> int:
         """The tick of push ``index`` of session ``seed``, the previous one at tick ``after``."""
@@ -176,9 +234,12 @@ class DomainPushes:
         )
 
     def __call__(self, rt, backend) -> None:
-        """Push every env whose robot is RUNNING when its push is due."""
+        """Push every env whose robot is RUNNING when its push is due; end the push forces
+        whose window is over."""
         from sim2real.deploy.core.modes import RUNNING
 
+        if self.until.any():
+            self._end_forces(rt, backend)
         if self.ranges.legacy:  # legged_gym: tick k * every, the same for every env
             if rt.ticks % self.every:
                 return
@@ -186,31 +247,34 @@ class DomainPushes:
             for e, seed in enumerate(self.seeds):
                 if rt.mode[e] == RUNNING:
                     v = push_velocity(seed, index, self._axes[0, 1])
-                    backend.set_base_velocity(e, v)
-                    self.times[e].append(rt.ticks * self.dt)
+                    self._push(rt, backend, e, np.array([*v, 0.0, 0.0, 0.0, 0.0]), False)
             return
         for e in np.flatnonzero(self.next_tick <= rt.ticks):
             seed, k = self.seeds[e], int(self.index[e])
             if rt.mode[e] == RUNNING:
                 twist = push_twist(seed, k, self._axes)
-                backend.push_base(e, twist, add=self.ranges.mode == "add")
-                self.times[e].append(rt.ticks * self.dt)
+                self._push(rt, backend, e, twist, self.ranges.mode == "add")
             self.index[e] = k + 1
             self.next_tick[e] = self._due(seed, k + 1, rt.ticks)
 
     def state_dict(self, env: int | None = None) -> dict:
-        """``times`` (JSON lists), ``index`` and ``next_tick`` (int64) of env ``env`` (every
-        env's without ``env``)."""
-        rows = range(len(self.seeds)) if env is None else [env]
+        """``times`` (JSON lists), ``index`` and ``next_tick`` (int64), ``wrench`` (N, N m),
+        ``until`` and ``last_tick`` (int64) of env ``env`` (every env's without ``env``; the
+        force itself is in the plant's state, MuJoCo's ``xfrc_applied``)."""
+        rows = list(range(len(self.seeds))) if env is None else [env]
         return {
             "times": [list(self.times[e]) for e in rows],
-            "index": self.index[list(rows)].copy(),
-            "next_tick": self.next_tick[list(rows)].copy(),
+            "index": self.index[rows].copy(),
+            "next_tick": self.next_tick[rows].copy(),
+            "wrench": self.wrench[rows].copy(),
+            "until": self.until[rows].copy(),
+            "last_tick": self.last_tick[rows].copy(),
         }
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
         """Inverse of :meth:`state_dict` (a state without ``index``, from a checkpoint of
-        legged_gym's pushes, keeps the schedule: it is the tick's)."""
+        legged_gym's pushes, keeps the schedule: it is the tick's; one without ``wrench`` has
+        no push in force)."""
         rows = list(range(len(self.seeds))) if env is None else [env]
         times = [list(map(float, t)) for t in state["times"]]
         for r, e in enumerate(rows):
@@ -218,3 +282,7 @@ class DomainPushes:
         if "index" in state:
             self.index[rows] = np.asarray(state["index"], dtype=np.int64)
             self.next_tick[rows] = np.asarray(state["next_tick"], dtype=np.int64)
+        if "wrench" in state:  # a push in force (a checkpoint before pushes were forces: none)
+            self.wrench[rows] = np.asarray(state["wrench"], dtype=float)
+            self.until[rows] = np.asarray(state["until"], dtype=np.int64)
+            self.last_tick[rows] = np.asarray(state["last_tick"], dtype=np.int64)

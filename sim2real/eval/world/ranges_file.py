@@ -17,7 +17,8 @@ is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the cl
 
     [imu]  [drift]  [faults]  [commands]   # see their classes
     [pushes]      # floating base only: interval (s or [low, high]), mode ("set" or "add"),
-                  # max_velocity (m/s) or velocity = {x, y, z}, angular_velocity = {roll, ...}
+                  # max_velocity (m/s) or velocity = {x, y, z}, angular_velocity = {roll, ...},
+                  # apply ("force", default, or "velocity_hidden_from_imu"), window (s, 0.1)
 
 The tables are :class:`~sim2real.eval.world.dynamics.DynamicsRanges`,
 :class:`~sim2real.eval.world.sensors.SensorRanges`, :class:`~sim2real.eval.world.sensors.ImuRanges`,

@@ -2,8 +2,12 @@
 
 :class:`SimDisturbances` is a base class of :class:`~sim2real.deploy.backends.sim.plant.SimBackend`
 (the fault hooks of :class:`~sim2real.deploy.core.backend.SimulatedPlant`); its methods work on
-the backend's public ``robot``, ``models`` and ``datas``. A push changes a base's velocity at
-once (legged_gym's and mjlab's pushes); a force acts on a body until it is changed.
+the backend's public ``robot``, ``models`` and ``datas``. A push is a wrench on the base over a
+short window (:meth:`SimDisturbances.push_wrench`, :meth:`SimDisturbances.set_base_wrench`), which
+the IMU (MuJoCo's accelerometer and gyro) feels as a real shove; changing the base's velocity at
+once (legged_gym's and mjlab's pushes: :meth:`SimDisturbances.set_base_velocity`,
+:meth:`SimDisturbances.push_base`) happens between physics steps and hides the push from the IMU.
+A force acts on a body until it is changed.
 """
 
 from __future__ import annotations
@@ -52,6 +56,54 @@ class SimDisturbances:
         mujoco.mju_quat2Mat(rot, d.qpos[3:7])
         d.qvel[:3] += twist[:3]
         d.qvel[3:6] += rot.reshape(3, 3).T @ twist[3:6]
+
+    def push_wrench(self, env: int, twist: np.ndarray, add: bool, duration: float) -> np.ndarray:
+        """(6,) the wrench on the floating base of ``env`` (force N, torque N m, world frame, at
+        the base's centre of mass: ``xfrc_applied``) that changes the robot's velocity as
+        :meth:`push_base` does at once, applied for ``duration`` s: ``F = m dv / duration``
+        with ``m`` the robot's whole mass (the free joint's linear block of MuJoCo's mass
+        matrix: a training push moves the whole robot, its joints' speeds unchanged) and ``dv``
+        the change :meth:`push_base` would make (``add``: ``twist[:3]``; else ``twist[:2]``
+        less the base's present horizontal velocity), and ``tau = R I R^T dw / duration``
+        with ``I`` the free joint's angular block (the robot's rotational inertia about the
+        base, base frame) and ``dw = twist[3:]`` (world axes; ``add`` only). Friction with the
+        floor acts over the window too, as on a real robot.
+
+        Raises:
+            ValueError: a fixed-base robot, ``duration <= 0``, or ``add`` False with a vertical
+                or angular entry.
+        """
+        if not self.robot.floating_base:
+            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        if not duration > 0:
+            raise ValueError(f"push_wrench: expected a duration > 0 s, got {duration}")
+        twist = np.asarray(twist, dtype=float)
+        if not add and np.any(twist[2:]):
+            raise ValueError("push_wrench: setting the velocity sets x and y only; use add")
+        m, d = self.models[env], self.datas[env]
+        full = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, full)  # as of the last step (its mass matrix, mj_crb)
+        dv = twist[:3].copy() if add else np.array([*(twist[:2] - d.qvel[:2]), 0.0])
+        rot = np.empty(9)
+        mujoco.mju_quat2Mat(rot, d.qpos[3:7])
+        rot = rot.reshape(3, 3)
+        wrench = np.zeros(6)
+        wrench[:3] = full[:3, :3] @ dv / duration
+        wrench[3:] = rot @ (full[3:6, 3:6] @ (rot.T @ twist[3:6])) / duration
+        return wrench
+
+    def set_base_wrench(self, env: int, wrench: np.ndarray) -> None:
+        """Apply ``wrench`` (6,): force (N) and torque (N m), world frame, at the floating
+        base's centre of mass of ``env`` until changed (zeros remove it); the base's
+        ``xfrc_applied`` row, which a fault's force (:meth:`set_external_force`) also writes.
+
+        Raises:
+            ValueError: a fixed-base robot.
+        """
+        if not self.robot.floating_base:
+            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        m, d = self.models[env], self.datas[env]
+        d.xfrc_applied[m.body(self.robot.base_body).id] = wrench
 
     def set_external_force(self, env: int, force: np.ndarray, body: str | None = None) -> None:
         """Apply a constant force (N, world frame, shape (3,)) to ``env`` until changed.

@@ -359,6 +359,13 @@ class BulletBackend(SimBackend):
         super().push_base(env, twist, add)
         self._push_base(env)
 
+    def set_base_wrench(self, env: int, wrench: np.ndarray) -> None:
+        """As :meth:`SimBackend.set_base_wrench`: its force applied at the base's centre of mass
+        at every pybullet step until changed (its torque is the MuJoCo plant's only: pybullet's
+        robots take forces, :meth:`_sync_forces`)."""
+        super().set_base_wrench(env, wrench)
+        self._sync_forces(env)
+
     def set_external_force(self, env: int, force: np.ndarray, body: str | None = None) -> None:
         """As :meth:`SimBackend.set_external_force`: applied at the body's centre of mass at
         every pybullet step until changed."""

@@ -1,0 +1,121 @@
+"""The base estimate through a push: its planar velocity error in the second after each of the
+training domain's pushes (:class:`sim2real.eval.world.pushes.DomainPushes`), against the plant's
+truth, beside the steady figures of :class:`sim2real.deploy.monitors.estimation.EstimationMonitor`.
+
+A policy reads its base velocity from the estimator, which integrates the accelerometer: a push
+it does not measure well is a push the policy answers late. Per env, over the RUNNING ticks of
+the ``AFTER_PUSH`` s that follow each push (the push's own tick excluded: its force acts from the
+next physics step), the error ``|v_est - v_true|`` of the base-frame planar velocity (m/s, x
+and y, as ``velocity_rms_m_s`` measures it) is summed; a push's second ends at its last tick or
+at the next push. Simulation only (the truth).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim2real.deploy.core.state import BaseState
+
+#: s after a push whose estimate is judged (issue 72: "the second after a push").
+AFTER_PUSH = 1.0
+#: Columns of :attr:`PushResponse.sums`.
+TICKS, SUM, SQUARES, WORST, PUSHES, WORST_PUSH, OPEN_SUM, OPEN_TICKS = range(8)
+
+
+class PushResponse:
+    """The planar base-velocity error after each push of ``pushes``, per env (module docstring).
+
+    Args:
+        pushes: The batch's :class:`~sim2real.eval.world.pushes.DomainPushes` (its
+            ``last_tick``: each env's last push).
+        control_period: s per tick.
+
+    Attributes:
+        window: ticks judged after a push (``AFTER_PUSH`` rounded, at least one).
+        sums: (envs, 8) float64: ticks judged, the error's sum (m/s) and squares' sum
+            (m^2/s^2), the worst tick's error (m/s), pushes judged, the worst push's mean error
+            (m/s), and the open push's error sum and ticks (columns ``TICKS`` ... ``OPEN_TICKS``).
+        measured: (envs,) int64, the tick of the last push seen (-1: none).
+        open: (envs,) bool, whether that push's second is still being judged.
+    """
+
+    def __init__(self, pushes, control_period: float):
+        self.pushes = pushes
+        envs = len(pushes.seeds)
+        self.window = max(1, round(AFTER_PUSH / control_period))
+        self.sums = np.zeros((envs, 8))
+        self.measured = np.full(envs, -1, dtype=np.int64)
+        self.open = np.zeros(envs, dtype=bool)
+        self._truth = BaseState.zeros(envs)
+
+    def __call__(self, rt, backend) -> None:
+        """After the pushes of a tick of ``rt`` (a runtime over the simulated ``backend``)."""
+        last = self.pushes.last_tick
+        if not (last >= 0).any():
+            return
+        age = rt.ticks - last
+        new = (last >= 0) & (last != self.measured)
+        if new.any():  # a new push: the previous one's second ends here
+            for e in np.flatnonzero(new & self.open):
+                self._close(e)
+            self.measured[new] = last[new]
+            self.open[new] = True
+        if not self.open.any():
+            return
+        judged = self.open & (age >= 1) & (age <= self.window) & (rt.mode == 2)
+        if judged.any():
+            base = self._truth.set_truth(backend.true_base_state())
+            error = rt.state.base.linear_velocity[:, :2] - base.linear_velocity[:, :2]
+            norm = np.sqrt((error**2).sum(axis=1))
+            s = self.sums
+            for e in np.flatnonzero(judged):
+                s[e, TICKS] += 1
+                s[e, SUM] += norm[e]
+                s[e, SQUARES] += norm[e] ** 2
+                s[e, WORST] = max(s[e, WORST], norm[e])
+                s[e, OPEN_SUM] += norm[e]
+                s[e, OPEN_TICKS] += 1
+        for e in np.flatnonzero(self.open & (age >= self.window)):
+            self._close(e)
+
+    def _close(self, e: int) -> None:
+        """End the judged push of env ``e`` (its mean into the worst push's)."""
+        s = self.sums[e]
+        if s[OPEN_TICKS] > 0:
+            s[PUSHES] += 1
+            s[WORST_PUSH] = max(s[WORST_PUSH], s[OPEN_SUM] / s[OPEN_TICKS])
+        s[OPEN_SUM] = s[OPEN_TICKS] = 0.0
+        self.open[e] = False
+
+    def summary(self, env: int | None = None) -> dict | None:
+        """``{"pushes", "ticks", "mean_m_s", "rms_m_s", "worst_m_s", "worst_push_mean_m_s",
+        "window_s"}`` over every env, or env ``env``: the pushes judged (those whose second has
+        ended), the RUNNING ticks judged, the error's mean, RMS and worst tick, the worst push's
+        mean (m/s); None before any judged tick."""
+        rows = self.sums if env is None else self.sums[env : env + 1]
+        n = rows[:, TICKS].sum()
+        if n == 0:
+            return None
+        return {
+            "pushes": int(rows[:, PUSHES].sum()),
+            "ticks": int(n),
+            "mean_m_s": float(rows[:, SUM].sum() / n),
+            "rms_m_s": float(np.sqrt(rows[:, SQUARES].sum() / n)),
+            "worst_m_s": float(rows[:, WORST].max()),
+            "worst_push_mean_m_s": float(rows[:, WORST_PUSH].max()),
+            "window_s": AFTER_PUSH,
+        }
+
+    def state_dict(self, env: int) -> dict:
+        """Env ``env``'s ``sums``, ``measured`` and ``open`` as JSON (a list, an int, a bool)."""
+        return {
+            "sums": self.sums[env].tolist(),
+            "measured": int(self.measured[env]),
+            "open": bool(self.open[env]),
+        }
+
+    def load_state_dict(self, state: dict, env: int) -> None:
+        """Inverse of :meth:`state_dict`."""
+        self.sums[env] = np.asarray(state["sums"], dtype=float)
+        self.measured[env] = int(state["measured"])
+        self.open[env] = bool(state["open"])

@@ -101,10 +101,10 @@ def numpy_fall_check(fall: FallDetector, state: RobotState) -> tuple[np.ndarray,
     """The fall check's signals and height in numpy (its form before it was compiled), on the
     state before ``fall.check``: (envs, 3) bool, (envs,) m."""
     signals = np.zeros_like(fall.signals)
-    signals[:, 0] = attitude.tilt_of(state.base.projected_gravity) > fall.tilt_limit
+    tilt = attitude.tilt_of(state.base.projected_gravity)
+    signals[:, 0] = tilt > fall.tilt_limit
     sinking = state.base.linear_velocity_world[:, 2] < -1.0
     ticks = np.where(sinking, fall.sinking_ticks + 1, 0)
-    signals[:, 2] = ticks >= fall.speed_ticks
     contact = state.foot_contact > 0.5
     height = np.full(len(contact), np.nan)
     for e in np.flatnonzero(contact.any(axis=1)):
@@ -117,6 +117,8 @@ def numpy_fall_check(fall: FallDetector, state: RobotState) -> tuple[np.ndarray,
         )
     low = np.where(height < fall.height_limit, fall.low_ticks + 1, 0)
     signals[:, 1] = low >= fall.height_ticks
+    upright = (tilt <= fall.sink_tilt) & (height >= fall.sink_height)  # NaN: not upright
+    signals[:, 2] = ticks >= np.where(upright, fall.upright_ticks, fall.speed_ticks)
     return signals, height
 
 

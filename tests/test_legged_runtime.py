@@ -149,7 +149,8 @@ def test_a_base_sinking_upright_trips_the_fall_check_with_its_feet_still_under_i
 ):
     """The feet fall with the base (through a floor, a robot dropped on a slack support): the
     kinematic height and the tilt stay normal, the estimated base sinks faster than FALL_SPEED;
-    five ticks in a row trip the check, four do not; a walking base's bob never does."""
+    upright on its feet, UPRIGHT_SINK_TIME in a row (15 ticks) trip the check, 14 do not (a
+    robot crouching to catch a push, issue 72); a walking base's bob never does."""
     from copy import deepcopy
 
     from sim2real.deploy.estimation.fall import FALL_SPEED
@@ -163,13 +164,47 @@ def test_a_base_sinking_upright_trips_the_fall_check_with_its_feet_still_under_i
     for k in range(40):  # +-0.3 m/s, the walk's vertical velocity
         bobbing.base.linear_velocity_world[:, 2] = 0.3 * (-1) ** k
         assert not detector.check(bobbing).any()
-    for _ in range(detector.speed_ticks - 1):
+    for _ in range(detector.upright_ticks - 1):
         assert not detector.check(sinking).any()
     assert not detector.check(standing).any()  # the count starts again
-    for _ in range(detector.speed_ticks - 1):
+    for _ in range(detector.upright_ticks - 1):
         assert not detector.check(sinking).any()
-    assert detector.check(sinking).all() and detector.speed_ticks == 5
+    assert detector.check(sinking).all() and detector.upright_ticks == 15
     assert (detector.height > detector.height_limit).all()  # the feet did not say so
+
+
+def test_a_sinking_base_trips_the_fall_check_in_a_tenth_of_a_second_only_when_it_is_not_upright(
+    go2, stand_policy
+):
+    """Issue 72: the sinking signal stopped an upright robot catching a push (a holosoma G1:
+    0.4 deg, base 0.67 of 0.757 m). Sinking past FALL_SPEED for five ticks (0.1 s) trips the
+    check when the base is tilted past SINK_TILT_SHARE of the tilt limit, its kinematic height
+    under SINK_HEIGHT_SHARE of the standing height, or no foot is in contact; upright on its
+    feet it does not."""
+    from copy import deepcopy
+
+    from sim2real.deploy.core.attitude import projected_gravity
+    from sim2real.deploy.estimation.fall import FALL_SPEED
+
+    rt, _ = runtime(go2, stand_policy)
+    rt.run(50)
+    detector = rt.fall_detector
+    assert detector.sink_tilt == pytest.approx(0.4) and detector.sink_height == pytest.approx(
+        0.5 * 0.3257
+    )
+    upright = deepcopy(rt.state)
+    upright.base.linear_velocity_world[:, 2] = -1.5 * FALL_SPEED
+    tilted, flying = deepcopy(upright), deepcopy(upright)
+    angle = 0.5  # rad about x: past the 0.4 rad gate, under the 1 rad tilt limit
+    quat = np.array([np.cos(angle / 2), np.sin(angle / 2), 0.0, 0.0])
+    tilted.base.orientation[:] = quat
+    tilted.base.projected_gravity[:] = projected_gravity(quat[None])[0]
+    flying.foot_contact[:] = 0.0
+    for state in (upright, tilted, flying):
+        detector.load_state_dict({k: 0 * v for k, v in detector.state_dict().items()})
+        fired = [bool(detector.check(state).all()) for _ in range(detector.speed_ticks)]
+        assert fired == [False] * 4 + [state is not upright], fired
+        assert detector.signals[:, 0].sum() == 0  # not the tilt signal
 
 
 def test_base_estimate_and_gait_clock_survive_state_dict(go2, stand_policy):

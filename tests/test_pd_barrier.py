@@ -74,7 +74,7 @@ def test_a_pd_target_that_would_reach_the_hard_limit_is_changed_minimally(go2, g
     c = pb.pd_barrier_constants(guard)
     effort = go2.effort_limit * guard.effort_scale
     hi = np.maximum(c[pb.BOUND_UP], q)
-    brake = np.maximum((effort - c[pb.GRAVITY]) * 0.5, 0.0) * c[pb.INV_INERTIA]
+    brake = np.maximum((effort - c[pb.GRAVITY]) * c[pb.BRAKE], 0.0) * c[pb.INV_INERTIA]
 
     def unsafe(t):
         full = np.tile(go2.home, (1, 1))

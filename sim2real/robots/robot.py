@@ -198,7 +198,8 @@ class Robot:
         dq`` lags ``a kd / kp`` behind an accelerating command (1.5 rad/s at 20 rad/s^2 on arm3) and
         overshoots when it catches up. Torque mode: a direct motor. The total actuator torque on
         each joint is limited to ``effort_limit`` (MuJoCo ``actuatorfrcrange``). Edit the returned
-        spec (for example to randomize link lengths) and ``compile()`` it; :meth:`actuators_per_joint` gives ``nu / n_joints``.
+        spec (for example to randomize link lengths) and ``compile()`` it;
+        :meth:`actuators_per_joint` gives ``nu / n_joints``.
 
         Raises:
             RobotSpecError: unknown control mode.

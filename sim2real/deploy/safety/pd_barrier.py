@@ -57,7 +57,9 @@ from sim2real.robots.torque_speed import TorqueSpeedEnvelope
 KP, KD, INV_INERTIA, GRAVITY, STALL, NO_LOAD, BOUND_UP, BOUND_DOWN, STEP, SUBSTEPS, ACTIVE = range(
     11
 )
-ROWS = 11
+#: Row of ``BRAKE_SHARE``, per joint.
+BRAKE = 11
+ROWS = 12
 #: Share of the soft band (between the soft and the hard limit) kept clear of the hard limit by
 #: the predicted motion. Our choice: a quarter (0.026 rad on the Go2's hips, 0.011 rad on the
 #: H1's hip yaw): above the estimate's noise, well inside the band.
@@ -106,7 +108,7 @@ def _barrier(t, q, v, bound, effort, j, own) -> float:
     stall, no_load, h = own[STALL, j], own[NO_LOAD, j], own[STEP, j]
     steps = int(own[SUBSTEPS, j])
     brake = effort - d
-    brake = brake * 0.5
+    brake = brake * own[BRAKE, j]
     brake = np_max(brake, 0.0) * inv_i
     if not _unsafe(t, q, v, hi, d, kp, kd, inv_i, effort, stall, no_load, h, steps, brake):
         return t
@@ -185,6 +187,7 @@ def pd_barrier_constants(guard) -> np.ndarray:
         c[STEP] = robot.physics_timestep
         c[SUBSTEPS] = robot.decimation
         c[ACTIVE] = 1.0
+        c[BRAKE] = BRAKE_SHARE
     guard.__dict__["_pd_barrier_constants"] = c
     return c
 
@@ -213,7 +216,7 @@ def _barrier_np(t, q, v, bound, effort, c) -> np.ndarray:
     """:func:`_barrier` for every env and joint at once."""
     hi = np.maximum(bound, q)
     d, kd, kp = c[GRAVITY], c[KD], c[KP]
-    brake = np.maximum((effort - d) * 0.5, 0.0) * c[INV_INERTIA]
+    brake = np.maximum((effort - d) * c[BRAKE], 0.0) * c[INV_INERTIA]
     unsafe = _unsafe_np(t, q, v, hi, d, c, effort, brake)
     far = effort + effort
     far = far + kd * np.abs(v)

@@ -179,24 +179,30 @@ def test_position_mode_soft_limit_clamps_are_interventions(arm3):
     assert monitor.safety.tolist() == [1] and monitor.by_design == ()  # an arm's: judged
 
 
-def test_a_legged_robots_pd_targets_past_its_range_are_by_design_not_judged(go2):
+def test_a_legged_robots_pd_targets_past_its_range_pass_and_a_barrier_change_is_judged(go2):
     """A walking policy's PD targets pass its joints' ranges on every stride (legged_gym,
-    Isaac Lab and mjlab train them unbounded): the guard still clamps them into the soft limits
-    and counts them, but they are the policy's style, not a command the guard made safe, so
-    ``safety`` (what the soak judges) leaves them out; any other check still counts there."""
+    Isaac Lab and mjlab train them unbounded): a target whose predicted motion is safe passes
+    unchanged and nothing is counted; one the guard changes (``pd_barrier``: the joint would
+    reach its hard limit) is an intervention like any other, judged (``safety``)."""
     guard, smoother, state, monitor = guarded(go2, 1, "position")
-    assert monitor.by_design == ("soft_limit",)
+    assert monitor.by_design == ()
     target = go2.home[None, :].copy()
     target[0, 2] = go2.soft_upper[2] + 0.3
     guard.filter(target, state, out=target)
     monitor.update()
-    assert monitor.counts["soft_limit"].tolist() == [1] and monitor.any.tolist() == [1]
-    assert monitor.safety.tolist() == [0]
+    assert monitor.any.tolist() == [0] and target[0, 2] == go2.soft_upper[2] + 0.3
+    state.q[0, 2] = go2.position_upper[2] - 0.05
+    state.dq[0, 2] = 8.0
+    target[0, 2] = go2.position_upper[2] + 0.3
+    guard.filter(target, state, out=target)
+    monitor.update()
+    assert monitor.counts["pd_barrier"].tolist() == [1] and monitor.any.tolist() == [1]
+    assert monitor.safety.tolist() == [1]
     summary = monitor.summary()
-    assert summary["safety"]["count"] == 0 and summary["by_design"] == ["soft_limit"]
+    assert summary["safety"]["count"] == 1 and summary["by_design"] == []
     other = InterventionMonitor(guard, smoother)
     other.load_state_dict(monitor.state_dict())
-    assert other.safety.tolist() == [0] and other.any.tolist() == [1]
+    assert other.safety.tolist() == [1] and other.any.tolist() == [1]
 
 
 def test_intervention_monitor_state_round_trip(arm3):

@@ -326,7 +326,8 @@ HASH_EXCLUDED = {
     "soak": True,
     "unitree": True,
     "safety": {"link_length_tolerance"},
-    "motors": {"__all__": {"command_delay"}},  # the plant's motor, not the policy's contract
+    # the plant's motor, not the policy's contract
+    "motors": {"__all__": {"command_delay", "position_target"}},
     "sensors": {"velocity_noise_sigma": True, "imu": {"orientation_sigma", "orientation_tau"}},
 }
 

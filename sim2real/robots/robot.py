@@ -187,17 +187,19 @@ class Robot:
     def mjspec(self, mode: str | None = None) -> mujoco.MjSpec:
         """A fresh ``mujoco.MjSpec`` of the robot with its drives for ``mode``.
 
-        Position mode: a PD servo per joint (``kp``, ``kd``). Velocity mode: a drive's PI velocity
-        loop, ``tau = kd (v_cmd - dq) + kp (s - q)`` with the setpoint ``s`` the integral of the
-        command (bounded to the joint range), as two actuators per joint that take the same
-        command: ``<joint>_velocity`` (MuJoCo ``intvelocity`` with ``kp``: the integral term) and
-        ``<joint>_velocity_p`` (MuJoCo ``velocity`` with ``kd``: the proportional term). The
-        proportional term on the command matters: a servo that damps ``dq`` instead of
-        ``v_cmd - dq`` lags ``a kd / kp`` behind an accelerating command (1.5 rad/s at 20 rad/s^2
-        on arm3) and overshoots when it catches up. Torque mode: a direct motor. The total
-        actuator torque on each joint is limited to ``effort_limit`` (MuJoCo
-        ``actuatorfrcrange``). Edit the returned spec (for example to randomize link lengths)
-        and ``compile()`` it; :meth:`actuators_per_joint` gives ``nu / n_joints``.
+        Position mode: a PD servo per joint (``kp``, ``kd``), its target clamped to the joint's
+        range where the real drive clamps it (:attr:`clamps_position_target`; a Unitree motor runs
+        its PD law on any target: the range is the joint's stop, a contact). Velocity mode: a
+        drive's PI velocity loop, ``tau = kd (v_cmd - dq) + kp (s - q)`` with the setpoint ``s`` the
+        integral of the command (bounded to the joint range), as two actuators per joint that take
+        the same command: ``<joint>_velocity`` (MuJoCo ``intvelocity`` with ``kp``: the integral
+        term) and ``<joint>_velocity_p`` (MuJoCo ``velocity`` with ``kd``: the proportional term).
+        The proportional term on the command matters: a servo that damps ``dq`` instead of ``v_cmd -
+        dq`` lags ``a kd / kp`` behind an accelerating command (1.5 rad/s at 20 rad/s^2 on arm3) and
+        overshoots when it catches up. Torque mode: a direct motor. The total actuator torque on
+        each joint is limited to ``effort_limit`` (MuJoCo ``actuatorfrcrange``). Edit the returned
+        spec (for example to randomize link lengths) and ``compile()`` it;
+        :meth:`actuators_per_joint` gives ``nu / n_joints``.
 
         Raises:
             RobotSpecError: unknown control mode.
@@ -212,12 +214,19 @@ class Robot:
         spec.option.timestep = self.physics_timestep
         spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
 
-        def add(name: str, joint: str, lo: float, hi: float) -> mujoco.MjsActuator:
+        def add(
+            name: str, joint: str, lo: float, hi: float, limited: bool = True
+        ) -> mujoco.MjsActuator:
             act = spec.add_actuator()
             act.name, act.target, act.trntype = name, joint, mujoco.mjtTrn.mjTRN_JOINT
-            act.ctrlrange = [lo, hi]
-            act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            if limited:
+                act.ctrlrange = [lo, hi]
+                act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            else:
+                act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
             return act
+
+        clamps = self.clamps_position_target
 
         for i, joint in enumerate(self.config.joints):
             mj_joint = spec.joint(joint.name)
@@ -225,7 +234,7 @@ class Robot:
             mj_joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
             lo, hi = self.position_lower[i], self.position_upper[i]
             if mode == "position":
-                add(f"{joint.name}_position", joint.name, lo, hi).set_to_position(
+                add(f"{joint.name}_position", joint.name, lo, hi, clamps[i]).set_to_position(
                     kp=joint.kp, kv=joint.kd
                 )
             elif mode == "torque":
@@ -244,6 +253,17 @@ class Robot:
                     kv=joint.kd
                 )
         return spec
+
+    @property
+    def clamps_position_target(self) -> tuple[bool, ...]:
+        """Per joint: whether its drive clamps a position target to the joint's range (its
+        motor's ``position_target.clamped``; True where the motor table says nothing, as a
+        servo's firmware angle limits do). The plant's position actuators follow it."""
+        motors = self.config.motors
+        return tuple(
+            motors[j.motor].position_target is None or motors[j.motor].position_target.clamped
+            for j in self.config.joints
+        )
 
     def actuators_per_joint(self, mode: str | None = None) -> int:
         """Actuators per joint of :meth:`mjspec` in ``mode`` (2 in velocity mode, else 1); each

@@ -74,6 +74,22 @@ class ServoProtection(_Strict):
     registers: dict[str, ServoRegister] = {}
 
 
+class PositionTargetConfig(_Strict):
+    """Whether a drive clamps its position target to the joint's range, and where that is said
+    (``[motors.NAME.position_target]``).
+
+    ``clamped = true``: the drive's firmware limits the target to the joint's range (a smart
+    servo's angle-limit registers), as the plant's position actuator then does
+    (``Robot.mjspec``). ``clamped = false``: the drive runs its PD law on any target (a Unitree
+    motor's ``tau = kp (q_des - q) + kd (dq_des - dq) + tau_ff``); the joint's range is a
+    mechanical stop (a contact in the physics), not a bound on the target, and the torque-speed
+    envelope bounds the torque. ``source``: the document that says so.
+    """
+
+    clamped: bool
+    source: Annotated[str, Field(min_length=10)]
+
+
 class MotorConfig(_Strict):
     """A motor plus gearhead, with its datasheet constants (motor side unless stated).
 
@@ -81,8 +97,9 @@ class MotorConfig(_Strict):
     robot.toml (which takes precedence). The optional fields (``None`` when absent, left out of a
     robot's description hash): ``max_velocity`` (rad/s at the output, the no-load speed at the
     rated voltage: the importer's velocity limit, and the plant's torque-speed line,
-    :mod:`sim2real.robots.torque_speed`), ``encoder_resolution`` (counts per output revolution) and
-    ``protection`` (a smart servo's own protection registers).
+    :mod:`sim2real.robots.torque_speed`), ``encoder_resolution`` (counts per output revolution),
+    ``protection`` (a smart servo's own protection registers) and ``position_target`` (whether
+    the drive clamps a position target to the joint's range, :class:`PositionTargetConfig`).
     """
 
     source: Annotated[str, Field(min_length=10)]  # the datasheet the numbers come from
@@ -107,6 +124,10 @@ class MotorConfig(_Strict):
     command_delay: Annotated[float, Field(ge=0.0, le=1.0)] | None = None
     encoder_resolution: Annotated[int, Field(gt=0)] | None = None  # counts per output revolution
     protection: ServoProtection | None = None
+    #: whether the drive clamps a position target to the joint's range (PositionTargetConfig);
+    #: None: it does (the plant's position actuator clamps). The plant's drive, not the policy's
+    #: contract: not part of the description hash
+    position_target: PositionTargetConfig | None = None
 
     @model_validator(mode="after")
     def _ordered_temperatures(self) -> MotorConfig:

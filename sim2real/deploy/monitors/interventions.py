@@ -10,9 +10,13 @@ counters of :class:`sim2real.deploy.smoothing.CommandSmoother`:
 
 - ``hard_limit``: the guard found the estimate (or the target, or the predicted position) beyond
   a hard limit; the runtime makes a safe stop.
-- ``soft_limit``: position mode only: a target position clamped to the soft limit. (In velocity
+- ``soft_limit``: position mode only: a target position clamped to the soft limit (an arm's;
+  a PD-target robot's targets are not clamped). (In velocity
   and torque mode the guard's ``soft_limit`` counter means "the estimate is in the soft band", a
   warning that changes no command: it is reported as the warning ``soft_band_estimate``.)
+- ``pd_barrier``: a PD-target robot's position target changed because the joint's predicted
+  motion under it would reach the hard limit or the soft band too fast to stop
+  (:mod:`sim2real.deploy.safety.pd_barrier`).
 - ``velocity``: a target clamped to the speed from which the joint still stops before its soft
   limit (torque mode: the torque governor replaced a torque).
 - ``workspace``, ``self_collision``: a target rejected and the robot held.
@@ -36,7 +40,6 @@ import numpy as np
 
 from sim2real.deploy.monitors import kernel as mk
 from sim2real.deploy.monitors.violations import MonitorState
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.safety.checks import CHECKS as GUARD_CHECKS
 
 #: The smoother's checks (its counters of :meth:`InterventionMonitor.__init__`).
@@ -66,10 +69,9 @@ class InterventionMonitor(MonitorState):
         any: (envs,) int64, ticks on which any check did.
         safety: (envs,) int64, ticks on which a check not in ``by_design`` did.
         by_design: The checks whose interventions are the policy's style, reported by the
-            soak and not judged: ``("soft_limit",)`` for a floating-base robot in position mode
-            (legged_gym, Isaac Lab and mjlab train PD targets without any bound, and a walking
-            policy's pass its joints' ranges on every stride: the clamp bounds a torque the
-            drive would give anyway), else empty.
+            soak and not judged: none now. (A floating-base robot's PD targets past its joints'
+            ranges were clamped by ``soft_limit`` and not judged; they pass now unless their
+            predicted motion is unsafe, ``pd_barrier``, an intervention like any other.)
         ticks: int, ticks observed (calls of :meth:`update`).
 
     Per tick it compares the counters with their values after the last tick (three comparisons
@@ -94,8 +96,7 @@ class InterventionMonitor(MonitorState):
         self.counts = {c: np.zeros(envs, dtype=np.int64) for c in INTERVENTION_CHECKS}
         self.any = np.zeros(envs, dtype=np.int64)
         self.safety = np.zeros(envs, dtype=np.int64)
-        legged = robot_kind(guard.robot).legged
-        self.by_design = ("soft_limit",) if legged and self.mode == "position" else ()
+        self.by_design = ()
         self._tick_count = np.zeros(1, dtype=np.int64)
         n = smoother.n_joints
         # the counters as they stood after the last tick

@@ -223,7 +223,9 @@ class Runtime(RuntimeState):
     def _build_stages(self) -> tuple[SafetyGuard, CommandSmoother]:
         """The guard and the smoother (compiled)."""
         envs, mode = self.envs, self.mode_name
-        return SafetyGuard(self.robot, envs, mode), CommandSmoother(self.robot, envs, mode)
+        bounded = not robot_kind(self.robot).pd_targets  # PD targets: torque requests
+        smoother = CommandSmoother(self.robot, envs, mode, bounded=bounded)
+        return SafetyGuard(self.robot, envs, mode), smoother
 
     def _compile(self) -> CompiledSupervision | None:
         """The compiled path: :class:`CompiledSupervision` over the runtime's arrays, and one call

@@ -9,18 +9,21 @@ the numpy reference (:mod:`sim2real.deploy.safety.reference`) run the checks in 
 check is its class (numpy reference and compiled function) and one entry here; the guard's tests
 compare the two paths check by check. The order of a stage matters where two checks act in the
 same stage and mode (e.g. a clamp after another): soft_limit comes first (the intervention
-monitor relies on it).
+monitor relies on it); pd_barrier, the clamp of PD targets (where soft_limit clamps none),
+next.
 """
 
 from __future__ import annotations
 
 from sim2real.deploy.safety.check import GuardCheck
 from sim2real.deploy.safety.limits import HardLimit, SoftLimit
+from sim2real.deploy.safety.pd_barrier import PdBarrier
 from sim2real.deploy.safety.predicted import Effort, SelfCollision, Workspace
 from sim2real.deploy.safety.velocity import Velocity
 
 GUARD_CHECKS: tuple[GuardCheck, ...] = (
     SoftLimit(),
+    PdBarrier(),
     HardLimit(),
     Velocity(),
     Workspace(),

@@ -97,7 +97,7 @@ class SafetyGuard:
         self._target_lower = self.lower - TARGET_TOLERANCE
         self._target_upper = self.upper + TARGET_TOLERANCE
         kind = robot_kind(robot)
-        if kind.pd_targets:  # targets are torques through a low-gain PD: clamp, not stop
+        if kind.pd_targets:  # targets are torque requests to a PD loop: judged, not stopped
             self._target_lower = np.full(robot.n_joints, -np.inf)
             self._target_upper = np.full(robot.n_joints, np.inf)
         self.soft_lower, self.soft_upper = robot.soft_lower, robot.soft_upper

@@ -2,12 +2,14 @@
 
 ``soft_limit``: a target position beyond the soft limit (``soft_limit_fraction`` of the range,
 90 % by default) is clamped to it; in velocity and torque mode the estimate inside the soft band
-is counted (a warning). ``hard_limit``: the target, the estimate or (velocity mode) the predicted
-position beyond the hard limit: :attr:`SafetyGuard.hard_violation
-<sim2real.deploy.safety.guard.SafetyGuard.hard_violation>` is set and the runtime makes a safe stop. A
-floating-base robot's *target* past a hard limit is clamped to the soft limit instead: its
-low-gain PD's targets act as torques (``kp (target - q)``), and legged policies command past the
-joint range by design (legged_gym trains without any bound on the targets).
+is counted (a warning). A position target of a robot whose drives run a PD law on it
+(``pd_targets``: a floating base) is not clamped: it is a torque request (``kp (target - q)``;
+legged policies command past the joint range by design, legged_gym trains without any bound on
+the targets), judged by its predicted consequence instead (``pd_barrier``,
+:mod:`sim2real.deploy.safety.pd_barrier`). ``hard_limit``: the target, the estimate or (velocity
+mode) the predicted position beyond the hard limit: :attr:`SafetyGuard.hard_violation
+<sim2real.deploy.safety.guard.SafetyGuard.hard_violation>` is set and the runtime makes a safe stop
+(a PD-target robot's *target* has no hard bound).
 
 A floating-base robot's *estimate* past a hard limit stops it when it has been more than
 ``LEGGED_HARD_LIMIT_TOLERANCE`` past for longer than ``LEGGED_HARD_LIMIT_BOUNCE``, or past at all
@@ -73,12 +75,19 @@ LEGGED_HARD_LIMIT_DURATION = 1.0
 LEGGED_HARD_LIMIT_BOUNCE = 0.1
 
 
+#: Row of the soft-limit check's constants: 1.0 where it clamps position targets, 0.0 where a
+#: position target is a PD loop's torque request (:mod:`sim2real.deploy.safety.pd_barrier`).
+CLAMPS = 0
+
+
 @numba.njit(cache=True, nogil=True, _nrt=False)
 def soft_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int:
     """:class:`SoftLimit`'s compiled share (signature of :class:`GuardCheck`)."""
     n = out.shape[1]
     lim = g.lim
     soft = False
+    if g.mode == POSITION and own[CLAMPS, 0] == 0.0:
+        return 0
     if stage == INSPECT:
         if g.mode == POSITION:
             for j in range(n):
@@ -96,15 +105,24 @@ def soft_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
 
 
 class SoftLimit(GuardCheck):
-    """Position mode: a target past the soft limit is clamped to it. Velocity and torque mode:
-    the estimate inside the soft band (a warning; nothing changed)."""
+    """Position mode: a target past the soft limit is clamped to it (not a PD-target robot's:
+    :mod:`sim2real.deploy.safety.pd_barrier` judges those by their consequence). Velocity and
+    torque mode: the estimate inside the soft band (a warning; nothing changed)."""
 
     name = "soft_limit"
     what = "a position target clamped into the soft joint limits"
     kernel = soft_limit_kernel
 
+    def constants(self, guard) -> np.ndarray:
+        """Row ``CLAMPS``: 0.0 for a robot whose position targets drive PD loops
+        (:attr:`sim2real.deploy.robot_kind.RobotKind.pd_targets`), else 1.0."""
+        clamps = 0.0 if robot_kind(guard.robot).pd_targets else 1.0
+        return np.full((1, guard.robot.n_joints), clamps)
+
     def reference(self, stage, g, out, q, dq, commanded):
         mask = g._mask
+        if g.mode == "position" and robot_kind(g.robot).pd_targets:
+            return None, None
         if stage == INSPECT:
             if g.mode == "position":
                 np.logical_or(out < g.soft_lower, out > g.soft_upper, out=mask)

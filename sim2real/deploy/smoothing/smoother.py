@@ -79,6 +79,11 @@ class CommandSmoother(RuckigState):
         envs: Batch size.
         mode: ``'position'`` (rad), ``'velocity'`` (rad/s) or ``'torque'`` (N m); default the
             robot's control mode.
+        bounded: Position mode: the targets and the command are clamped to the hard position
+            limits (default). False for a robot whose drives run a PD law on its targets
+            (:attr:`sim2real.deploy.robot_kind.RobotKind.pd_targets`): a target past the range
+            is a torque request, which the guard judges
+            (:mod:`sim2real.deploy.safety.pd_barrier`), and the drive takes.
 
     Attributes:
         command: (envs, n) the last command, in the units of the mode (overwritten by each step).
@@ -101,7 +106,7 @@ class CommandSmoother(RuckigState):
         ValueError: ``envs < 1`` or an unknown mode.
     """
 
-    def __init__(self, robot: Robot, envs: int, mode: str | None = None):
+    def __init__(self, robot: Robot, envs: int, mode: str | None = None, bounded: bool = True):
         mode = robot.control_mode if mode is None else mode
         if mode not in CONTROL_MODES:
             raise ValueError(f"control mode '{mode}' is unknown; expected one of {CONTROL_MODES}")
@@ -123,8 +128,12 @@ class CommandSmoother(RuckigState):
         # acceleration, and a joint accelerating toward a limit needs a / j more time to brake
         # than any velocity-only rule allows for; the margin to the hard limits is then left to
         # the drive's tracking error and the estimator's noise.
+        # Position mode without ``bounded`` (a PD-target robot): none; its targets are torque
+        # requests, and the guard judges them by their predicted motion (safety/pd_barrier.py).
         if mode == "velocity":
             self._lo, self._hi = tiled(robot.soft_lower), tiled(robot.soft_upper)
+        elif mode == "position" and not bounded:
+            self._lo, self._hi = tiled(np.full(n, -np.inf)), tiled(np.full(n, np.inf))
         else:
             self._lo, self._hi = tiled(robot.position_lower), tiled(robot.position_upper)
         # commands stay within the command velocity limit: the soft velocity limit, whose margin

@@ -1,0 +1,257 @@
+"""The guard's ``pd_barrier`` check: a PD target judged by its consequence, not by its value.
+
+A robot whose drives run a PD law on a position target (a :attr:`pd_targets
+<sim2real.deploy.robot_kind.RobotKind.pd_targets>` kind: the legged robots) asks for torque with
+its targets: ``tau = kp (target - q) - kd dq``, saturated by the drive. A target past the
+joint's range is such a request (legged_gym, Isaac Lab and mjlab train without any bound on
+them), and the drive takes it (a Unitree motor clamps no target: ``[position_target]`` of its
+motor table). So the target passes unchanged unless its consequence is unsafe: the joint's
+motion over the next control period, predicted per joint (a control-barrier-function-style
+safety filter, one dimension a joint):
+
+- the drive's PD law on the target at every physics substep, its torque saturated by the
+  effort limit (derated when hot) and the motor's torque-speed line
+  (:class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope` at its reference temperature);
+- the joint's inertia: the smallest diagonal entry of Pinocchio's mass matrix of the legs in
+  the air (:attr:`sim2real.robots.robot.Robot.fixed_base_model`, armature included) over the
+  home pose and ``INERTIA_POSES`` seeded poses within the range (the least inertia moves
+  farthest);
+- gravity: the joint's gravity bound (the masses beyond it at their longest lever,
+  :func:`sim2real.robots.chain_bounds.motion_bounds`) pushing toward the limit tested;
+- semi-implicit Euler over the period's physics substeps from the estimate ``(q, dq)``.
+
+The prediction is unsafe when the joint passes the hard limit less a margin (``MARGIN_SHARE``
+of the soft band; or, already past it, goes farther), or ends the period too fast to stop
+before it with ``BRAKE_SHARE`` of its drive's braking (the effort limit less the gravity
+bound): ``dq > sqrt(2 a_brake room)``, which bounds the speed at which it enters the soft band.
+Then the target is changed as little as makes the prediction safe: the predicted motion rises
+with the target, so the safe targets on each side are a half-line, and bisection
+(``BISECTIONS`` halvings of the bracket from the target to one that brakes with the whole
+effort) finds its end. Each changed env and tick counts once (``pd_barrier``).
+
+The lower limit is the upper one mirrored (``q -> -q``, ``target -> -target``, ``dq -> -dq``;
+the torque-speed envelope is symmetric under it). Arms and servos whose firmware clamps their
+targets keep the soft-limit clamp (:mod:`sim2real.deploy.safety.limits`); this check does
+nothing for them. Its numpy reference and its compiled function do the same operations in the
+same order (tests/test_pd_barrier.py). Units: rad, rad/s, N m, kg m^2, s.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import pinocchio as pin
+
+from sim2real.deploy.kernels import np_max, np_min
+from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.safety.check import CLAMP, EFFORT, FIRED, POSITION, GuardCheck
+from sim2real.robots.torque_speed import TorqueSpeedEnvelope
+
+#: Rows of the check's constants (n,) each: the PD gains (N m/rad, N m s/rad), 1 / inertia
+#: (1/(kg m^2)), the gravity bound (N m), the stall torque (N m; inf without a torque-speed
+#: line), the no-load speed (rad/s; inf without one), the upper bound ``upper - margin`` and the
+#: mirrored lower bound ``-(lower + margin)`` (rad), the physics substep (s), the substeps per
+#: period, and 1.0 where the check acts (0.0: an arm, or not position mode).
+KP, KD, INV_INERTIA, GRAVITY, STALL, NO_LOAD, BOUND_UP, BOUND_DOWN, STEP, SUBSTEPS, ACTIVE = range(
+    11
+)
+#: Row of ``BRAKE_SHARE``, per joint.
+BRAKE = 11
+ROWS = 12
+#: Share of the soft band (between the soft and the hard limit) kept clear of the hard limit by
+#: the predicted motion. Our choice: a quarter (0.026 rad on the Go2's hips, 0.011 rad on the
+#: H1's hip yaw): above the estimate's noise, well inside the band.
+MARGIN_SHARE = 0.25
+#: Share of the drive's braking (effort limit less the gravity bound) a joint may need to stop
+#: before the hard limit less the margin at the end of the predicted period. Our choice: half,
+#: leaving the rest to what the 1-D prediction leaves out (the other joints' coupling, contacts).
+BRAKE_SHARE = 0.5
+#: Halvings of the bisection's bracket (its width, a few rad, to below 1e-9 rad).
+BISECTIONS = 32
+#: Seeded poses, uniform within the joints' ranges, over which the least inertia is taken.
+INERTIA_POSES = 63
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _unsafe(t, q, v, hi, d, kp, kd, inv_i, effort, stall, no_load, h, steps, brake) -> bool:
+    """Whether the PD target ``t`` carries the joint (``q`` rad, ``v`` rad/s; the upper side,
+    bound ``hi``) past ``hi`` within the period or leaves it too fast to stop before it
+    (module docstring); ``d`` the gravity torque toward the bound (N m), ``effort`` the
+    (derated) effort limit, ``brake`` the braking deceleration (rad/s^2)."""
+    top = q
+    for _ in range(steps):
+        tau = t - q
+        tau = tau * kp
+        damp = kd * v
+        tau = tau - damp
+        w = v / no_load
+        up = np_min(effort, stall * (1.0 - w))
+        lo = np_max(-effort, -(stall * (1.0 + w)))
+        up = np_max(up, lo)
+        tau = np_min(np_max(tau, lo), up)
+        a = (tau + d) * inv_i
+        v = v + a * h
+        q = q + v * h
+        top = np_max(top, q)
+    room = np_max(hi - q, 0.0)
+    return top > hi or v > math.sqrt(2.0 * brake * room)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _barrier(t, q, v, bound, effort, j, own) -> float:
+    """The least change of target ``t`` that makes the upper side's prediction safe (``t``
+    itself when it is); ``bound`` the upper bound, ``effort`` the derated effort limit."""
+    hi = np_max(bound, q)  # past the bound already: no farther
+    kp, kd, inv_i, d = own[KP, j], own[KD, j], own[INV_INERTIA, j], own[GRAVITY, j]
+    stall, no_load, h = own[STALL, j], own[NO_LOAD, j], own[STEP, j]
+    steps = int(own[SUBSTEPS, j])
+    brake = effort - d
+    brake = brake * own[BRAKE, j]
+    brake = np_max(brake, 0.0) * inv_i
+    if not _unsafe(t, q, v, hi, d, kp, kd, inv_i, effort, stall, no_load, h, steps, brake):
+        return t
+    far = effort + effort
+    far = far + kd * abs(v)
+    far = far / kp
+    far = q - far  # a target that brakes with the whole effort
+    if t <= far or _unsafe(
+        far, q, v, hi, d, kp, kd, inv_i, effort, stall, no_load, h, steps, brake
+    ):
+        return np_min(far, t)
+    lo, up = far, t
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (lo + up)
+        if _unsafe(mid, q, v, hi, d, kp, kd, inv_i, effort, stall, no_load, h, steps, brake):
+            up = mid
+        else:
+            lo = mid
+    return lo
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def pd_barrier_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int:
+    """:class:`PdBarrier`'s compiled share (signature of :class:`GuardCheck`)."""
+    if stage != CLAMP or g.mode != POSITION or own[ACTIVE, 0] == 0.0:
+        return 0
+    changed = False
+    for j in range(out.shape[1]):
+        t = out[e, j]
+        effort = g.lim[EFFORT, j] * g.effort_scale[e, j]
+        r = _barrier(t, q[e, j], dq[e, j], own[BOUND_UP, j], effort, j, own)
+        if r == t:
+            r = -_barrier(-t, -q[e, j], -dq[e, j], own[BOUND_DOWN, j], effort, j, own)
+        if r != t:
+            changed = True
+            out[e, j] = r
+    return FIRED if changed else 0
+
+
+def least_inertia(robot, poses: int = INERTIA_POSES, seed: int = 0) -> np.ndarray:
+    """(n,) kg m^2: each joint's smallest mass-matrix diagonal entry (armature included) of the
+    robot's fixed-base model over its home pose and ``poses`` seeded poses uniform within the
+    joints' ranges."""
+    model = robot.fixed_base_model
+    data = model.createData()
+    rng = np.random.default_rng(seed)
+    lo, hi = robot.position_lower, robot.position_upper
+    least = np.full(robot.n_joints, np.inf)
+    for q in [robot.home, *(rng.uniform(lo, hi) for _ in range(poses))]:
+        m = pin.crba(model, data, np.asarray(q, dtype=np.float64))
+        least = np.minimum(least, np.diag(m))
+    return least
+
+
+def pd_barrier_constants(guard) -> np.ndarray:
+    """(ROWS, n) float64: the check's constants for ``guard`` (module docstring), cached on it."""
+    cached = guard.__dict__.get("_pd_barrier_constants")
+    if cached is not None:
+        return cached
+    robot = guard.robot
+    n = robot.n_joints
+    c = np.zeros((ROWS, n))
+    if robot_kind(robot).pd_targets and guard.mode == "position":
+        joints = robot.config.joints
+        c[KP] = [j.kp for j in joints]
+        c[KD] = [j.kd for j in joints]
+        c[INV_INERTIA] = 1.0 / least_inertia(robot)
+        c[GRAVITY] = guard.gravity_bound
+        envelope = TorqueSpeedEnvelope(robot.motors)
+        c[STALL] = np.where(envelope.active, envelope.stall_coefficient, np.inf)
+        c[NO_LOAD] = envelope.no_load_speed
+        margin = MARGIN_SHARE * (robot.position_upper - robot.soft_upper)
+        c[BOUND_UP] = robot.position_upper - margin
+        margin = MARGIN_SHARE * (robot.soft_lower - robot.position_lower)
+        c[BOUND_DOWN] = -(robot.position_lower + margin)
+        c[STEP] = robot.physics_timestep
+        c[SUBSTEPS] = robot.decimation
+        c[ACTIVE] = 1.0
+        c[BRAKE] = BRAKE_SHARE
+    guard.__dict__["_pd_barrier_constants"] = c
+    return c
+
+
+def _unsafe_np(t, q, v, hi, d, c, effort, brake) -> np.ndarray:
+    """:func:`_unsafe` for every env and joint at once ((envs, n) arrays; ``c`` the constants)."""
+    kp, kd, inv_i, stall, no_load, h = (c[r] for r in (KP, KD, INV_INERTIA, STALL, NO_LOAD, STEP))
+    top = q
+    for _ in range(int(c[SUBSTEPS, 0])):
+        tau = (t - q) * kp
+        tau = tau - kd * v
+        w = v / no_load
+        up = np.minimum(effort, stall * (1.0 - w))
+        lo = np.maximum(-effort, -(stall * (1.0 + w)))
+        up = np.maximum(up, lo)
+        tau = np.minimum(np.maximum(tau, lo), up)
+        a = (tau + d) * inv_i
+        v = v + a * h
+        q = q + v * h
+        top = np.maximum(top, q)
+    room = np.maximum(hi - q, 0.0)
+    return (top > hi) | (v > np.sqrt(2.0 * brake * room))
+
+
+def _barrier_np(t, q, v, bound, effort, c) -> np.ndarray:
+    """:func:`_barrier` for every env and joint at once."""
+    hi = np.maximum(bound, q)
+    d, kd, kp = c[GRAVITY], c[KD], c[KP]
+    brake = np.maximum((effort - d) * c[BRAKE], 0.0) * c[INV_INERTIA]
+    unsafe = _unsafe_np(t, q, v, hi, d, c, effort, brake)
+    far = effort + effort
+    far = far + kd * np.abs(v)
+    far = q - far / kp
+    stuck = (t <= far) | _unsafe_np(far, q, v, hi, d, c, effort, brake)
+    lo, up = far, t
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (lo + up)
+        over = _unsafe_np(mid, q, v, hi, d, c, effort, brake)
+        up = np.where(over, mid, up)
+        lo = np.where(over, lo, mid)
+    return np.where(unsafe, np.where(stuck, np.minimum(far, t), lo), t)
+
+
+class PdBarrier(GuardCheck):
+    """A PD target whose predicted motion would reach the hard limit, or the soft band too fast
+    to stop: changed as little as keeps the prediction safe (module docstring). Only for robots
+    whose targets drive PD loops (``pd_targets``), in position mode."""
+
+    name = "pd_barrier"
+    what = "a PD target changed as little as keeps the joint's predicted motion off its hard limit"
+    kernel = pd_barrier_kernel
+
+    def constants(self, guard) -> np.ndarray:
+        return pd_barrier_constants(guard)
+
+    def reference(self, stage, g, out, q, dq, commanded):
+        c = pd_barrier_constants(g)
+        if stage != CLAMP or g.mode != "position" or c[ACTIVE, 0] == 0.0:
+            return None, None
+        effort = g.robot.effort_limit * g.effort_scale
+        t = out.copy()
+        r = _barrier_np(t, q, dq, c[BOUND_UP], effort, c)
+        down = -_barrier_np(-t, -q, -dq, c[BOUND_DOWN], effort, c)
+        r = np.where(r == t, down, r)
+        changed = (r != t).any(axis=1)
+        out[:] = r
+        return changed, None

@@ -98,8 +98,43 @@ def test_compiled_equals_numpy(go2, go2_onnx, monkeypatch, task):
 
 def test_true_base_is_set_truth():
     """:func:`~sim2real.deploy.monitors.estimation_kernel.true_base` equals ``BaseState.set_truth``
-    on this machine (else the kernels are not used: numpy's matmul through another BLAS)."""
-    assert estimation_kernel.gemv_matches(4096)
+    on this machine in one of its variants (else the kernels are not used: numpy's matmul
+    through another BLAS), the one found once per process."""
+    variant = estimation_kernel.gemv_variant(4096)
+    assert variant in estimation_kernel.VARIANTS
+    assert estimation_kernel.gemv_variant() == variant and estimation_kernel.gemv_matches()
+    assert estimation_kernel.gemv_fused() == (variant == "fma")
+
+
+@pytest.mark.parametrize("fused", [True, False])
+def test_true_base_variants_round_as_stated(fused):
+    """Each variant of ``R^T v``, whatever this machine's BLAS does: ``fused``, one rounding per
+    fused multiply-add in the rows' order (exact rational arithmetic rounded once); else the
+    three products summed left to right, each rounded."""
+    from fractions import Fraction
+
+    from sim2real.deploy.core.attitude import quaternion_to_matrix
+
+    rng = np.random.default_rng(2)
+    truth = rng.normal(size=(200, 13))
+    truth[:, 3:7] = random_quaternions(rng, 200)
+    base = BaseState.zeros(200)
+    estimation_kernel._fill(truth, *estimation_kernel.fields(base), fused)
+    rot, v = quaternion_to_matrix(truth[:, 3:7]), truth[:, 7:10]
+
+    def fma(a, b, c):
+        return float(Fraction(float(a)) * Fraction(float(b)) + Fraction(float(c)))
+
+    for e in range(200):
+        r = rot[e]
+        for i in range(3):
+            if fused:
+                want = fma(r[2, i], v[e, 2], fma(r[1, i], v[e, 1], r[0, i] * v[e, 0]))
+            else:
+                want = (r[0, i] * v[e, 0] + r[1, i] * v[e, 1]) + r[2, i] * v[e, 2]
+            assert base.linear_velocity[e, i] == want
+    assert np.array_equal(base.orientation, truth[:, 3:7])
+    assert np.array_equal(base.projected_gravity, -rot[:, 2])
 
 
 def random_quaternions(rng, n: int) -> np.ndarray:

@@ -431,6 +431,12 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         return self._torque
 
     @property
+    def compiled_step(self) -> CompiledStep | None:
+        """The table and bound calls of the plant's compiled step (built anew for a new model
+        of an env and in a copy of the plant; None while the plant is being built)."""
+        return self._compiled
+
+    @property
     def base_sensors(self) -> BaseSensorModel | None:
         """The IMU and foot-contact model of a floating-base robot (per-env noise settings,
         biases, ground truth); None for an arm."""
@@ -492,4 +498,4 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         dq = self.true_velocity() if self._joint_sensors.has_velocity else None
         self._joint_sensors.sample(self.tick, self.time, q, self.thermal.winding_temperature, dq)
         if self._base_sensors is not None:
-            self._base_sensors.sample(self.tick, self.time)
+            self._base_sensors.reference_sample(self.tick, self.time)

@@ -23,6 +23,7 @@ from sim2real.deploy.monitors import estimation_kernel
 from sim2real.deploy.monitors.estimation import EstimationMonitor
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.rig.rig import Rig
+from sim2real.deploy.tasks.heading import HeadingHold
 from sim2real.deploy.tasks.locomotion import CommandTracker
 
 TICKS = 900
@@ -45,6 +46,8 @@ def build(robot, onnx, task: dict, compiled: bool) -> Rig:
     rig = Rig(robot, OnnxPolicy(onnx, robot), plant, envs=ENVS, task=task, runtime=runtime)
     rig.estimation.compiled = compiled
     rig.task.tracker.compiled = compiled
+    if rig.task.heading is not None:
+        rig.task.heading.compiled = compiled
     rig.start()
     return rig
 
@@ -57,12 +60,14 @@ def results(rig: Rig) -> dict:
     for name in ("orientation", "projected_gravity", "linear_velocity", "linear_velocity_world"):
         out[f"true_base/{name}"] = getattr(base, name)
     out["command"] = rig.runtime.velocity_command
+    if rig.task.heading is not None:
+        out |= {f"heading/{k}": v for k, v in rig.task.heading.state_dict().items()}
     return out
 
 
 @pytest.mark.parametrize("task", sorted(TASKS))
 def test_compiled_equals_numpy(go2, go2_onnx, monkeypatch, task):
-    numpy_ticks = {"estimation": 0, "tracker": 0}
+    numpy_ticks = {"estimation": 0, "tracker": 0, "heading": 0}
 
     def counted(cls, name, key):
         original = getattr(cls, name)
@@ -75,12 +80,14 @@ def test_compiled_equals_numpy(go2, go2_onnx, monkeypatch, task):
 
     counted(EstimationMonitor, "reference_update", "estimation")
     counted(CommandTracker, "reference_call", "tracker")
+    counted(HeadingHold, "reference_call", "heading")
     fast = build(go2, go2_onnx, TASKS[task](), compiled=True)
     fast.runtime.run(TICKS, on_tick=fast.monitor)
-    assert numpy_ticks == {"estimation": 0, "tracker": 0}  # the kernels did every tick
+    assert numpy_ticks == {"estimation": 0, "tracker": 0, "heading": 0}  # the kernels did all
     slow = build(go2, go2_onnx, TASKS[task](), compiled=False)
     slow.runtime.run(TICKS, on_tick=slow.monitor)
-    assert numpy_ticks == {"estimation": TICKS, "tracker": TICKS}
+    held = TICKS if task == "heading" else 0
+    assert numpy_ticks == {"estimation": TICKS, "tracker": TICKS, "heading": held}
     a, b = results(fast), results(slow)
     assert a.keys() == b.keys()
     for key in a:
@@ -231,3 +238,39 @@ def test_tracker_kernels_equal_numpy_on_random_states():
     assert fast.summary(runtime) == slow.summary(runtime)
     assert fast.falls.sum() > 10 and fast.operator_stops.sum() > 0
     assert fast.tracked_time.sum() > 0 and fast.heading_change.any()
+
+
+def test_heading_kernels_equal_numpy_on_random_states():
+    """The heading hold's kernels against numpy over random estimates (any attitude, NaN at
+    times), modes and commands with and without a yaw rate: the same commands, references and
+    holds, bit for bit."""
+    envs, rng = 4, np.random.default_rng(13)
+    fast, slow = HeadingHold(envs, gain=0.7, max_rate=0.4), HeadingHold(envs, 0.7, 0.4)
+    slow.compiled = False
+
+    def runtime():
+        return SimpleNamespace(
+            mode=np.zeros(envs, dtype=np.int8),
+            velocity_command=np.zeros((envs, 3)),
+            state=SimpleNamespace(base=BaseState.zeros(envs)),
+        )
+
+    a, b = runtime(), runtime()
+    asked = np.zeros((envs, 3))
+    held = 0
+    for _ in range(3000):
+        orientation = random_quaternions(rng, envs)
+        orientation[rng.random(envs) < 0.02] = np.nan
+        mode = rng.choice([0, 1, 2, 2, 2, 2, 3], size=envs).astype(np.int8)
+        asked[:] = rng.normal(size=(envs, 3))
+        asked[rng.random(envs) < 0.7, 2] = 0.0
+        for r in (a, b):
+            r.state.base.orientation[:] = orientation
+            r.mode[:] = mode
+        fast(a, asked)
+        slow(b, asked.copy())
+        assert np.array_equal(a.velocity_command, b.velocity_command, equal_nan=True)
+        held += int(fast.holding.sum())
+    for key, value in fast.state_dict().items():
+        assert np.array_equal(value, slow.state_dict()[key], equal_nan=True), key
+    assert fast._calls is not None and held > 1000  # the kernels ran, holds taken

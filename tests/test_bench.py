@@ -135,6 +135,27 @@ def test_quick_tick_and_session_on_go2_walk_its_shipped_policy_against_its_floor
     assert positive_finite(targets["session_over_floor", "go2"]["value"])
 
 
+def test_quick_session_of_an_imported_legged_robot_and_its_given_policy(tmp_path, go2_onnx):
+    """A legged robot given by its folder (an imported one, here a copy of go2's) runs the ONNX
+    policy ``--legged-policy NAME=FILE`` gives it; its sections and policy are keyed by its name
+    in robot.toml, and its session's ratio to the floors is stated (the G1's is, as "g1")."""
+    import shutil
+
+    from bench.targets import TARGETS
+    from sim2real.robots.loading import ROBOTS_DIR
+
+    folder = tmp_path / "imported"
+    shutil.copytree(ROBOTS_DIR / "go2", folder)
+    out = tmp_path / "results.json"
+    argv = ("--only", "session", "--robots", str(folder), "--legged-policy", f"go2={go2_onnx}")
+    run_bench(out, *argv)
+    r = json.loads(out.read_text())
+    assert "--legged-policy" in r["policies"]["go2"]["kind"]
+    session = r["sections"]["session"]["robots"]["go2"]
+    assert session["final_state"] == ["RUNNING"] and positive_finite(session["loop_s"])
+    assert ("session_over_floor", "g1") in {(t[0], t[2]) for t in TARGETS}
+
+
 def test_history_is_kept_and_a_regression_against_the_last_full_run_is_flagged():
     """Each run appends its targets to results.json's history; the table compares a target with
     the last full run (quick runs are recorded, never the comparison point) and flags a move of

@@ -41,7 +41,6 @@ from sim2real.deploy.backends.sim.plant_kernel import (
     DRAWN,
     NO_SAMPLE,
     STALE,
-    actuator_substep,
 )
 from sim2real.deploy.backends.sim.sensors import JointSensorModel, JointSensorSettings
 from sim2real.deploy.backends.sim.state import SimState
@@ -382,16 +381,16 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
                 self._bind(e)
             self._compiled = compiled = CompiledStep(self)
             status = compiled.before(tick)
-        table = compiled.table
         if status & DERATE:
             self._set_derated_limits()
         if not self._stepwise:
             for m, d, _ctrl, _q, _force, _warnings in self._views:
                 step(m, d, nstep=nstep)
         else:  # delayed commands, and a torque range that follows the joint speed
+            substep = compiled.substep  # actuator_substep(table, e, tick, sub), bound
             for e, (m, d, _ctrl, _q, _force, _warnings) in enumerate(self._views):
                 for sub in range(nstep):
-                    actuator_substep(table, e, tick, sub)
+                    substep(e, tick, sub)
                     step(m, d)
         tick += 1
         sensors = self._joint_sensors

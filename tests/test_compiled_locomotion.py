@@ -48,6 +48,7 @@ def build(robot, onnx, task: dict, compiled: bool) -> Rig:
     rig.task.tracker.compiled = compiled
     if rig.task.heading is not None:
         rig.task.heading.compiled = compiled
+    rig.runtime.compiled_base_screens = compiled
     rig.start()
     return rig
 
@@ -60,6 +61,11 @@ def results(rig: Rig) -> dict:
     for name in ("orientation", "projected_gravity", "linear_velocity", "linear_velocity_world"):
         out[f"true_base/{name}"] = getattr(base, name)
     out["command"] = rig.runtime.velocity_command
+    rt = rig.runtime
+    out |= {"mode": rt.mode, "cause": rt.cause, "foot_contact": rt.state.foot_contact}
+    out |= {"clock": rt.state.clock, "signals": rt.fall_detector.signals}
+    out |= {f"fall/{k}": v for k, v in rt.fall_detector.state_dict().items()}
+    out |= {f"faults/{k}": np.asarray(v) for k, v in rt.counters.faults.items()}
     if rig.task.heading is not None:
         out |= {f"heading/{k}": v for k, v in rig.task.heading.state_dict().items()}
     return out
@@ -101,6 +107,9 @@ def test_compiled_equals_numpy(go2, go2_onnx, monkeypatch, task):
     assert tracker.falls[1] >= 1  # a stop of another cause
     assert fast.estimation.true_falls[0] >= 1
     assert fast.estimation.ticks > 0 and tracker.heading_change.any()
+    faults = fast.runtime.counters.faults  # both compiled screens stopped an env
+    assert faults["fall"][0] >= 1 and faults["stale_sensor"][1] >= 1
+    assert fast.runtime._base_screens_bound is not None
 
 
 def test_true_base_is_set_truth():

@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.monitors import kernel as mk
 from sim2real.deploy.safety.collision import collision_model, collision_query
 from sim2real.deploy.safety.guard import SCREEN_MARGIN
@@ -188,6 +189,7 @@ class ViolationMonitor(MonitorState):
         self._clearance = np.full((envs, len(self._pair_weights)), -np.inf)  # none yet: check
         self._need = np.zeros(envs, dtype=bool)
         self._tmp = np.zeros((envs, n))
+        self._screen_bound = self._collision_bound = None  # the screens' calls (see _screen)
         mk.warm_up()
 
     # ------------------------------------------------------------------ per tick
@@ -276,17 +278,26 @@ class ViolationMonitor(MonitorState):
 
     def _screen(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> bool:
         """Whether some env may be past a limit (the kernel
-        :func:`sim2real.deploy.monitors.kernel.violation_screen`)."""
-        return mk.violation_screen(
-            q, dq, tau, self._ee, self._offset_q, self._offset_ee, self._bound,
-            self._has_workspace,
-        )  # fmt: skip
+        :func:`sim2real.deploy.monitors.kernel.violation_screen`, bound to ``q``, ``dq`` and
+        ``tau``: the plant hands the same arrays every tick)."""
+        bound = self._screen_bound
+        if bound is None or bound[0] is not q or bound[1] is not dq or bound[2] is not tau:
+            call = bind(
+                mk.violation_screen, q, dq, tau, self._ee, self._offset_q, self._offset_ee,
+                self._bound, self._has_workspace,
+            )  # fmt: skip
+            self._screen_bound = bound = (q, dq, tau, call)
+        return bound[3]()
 
     def _collision_screen(self, q: np.ndarray) -> bool:
         """Mark in ``_need`` the envs whose pairs coal must check at ``q``; returns whether any:
-        the guard's exact screen (:func:`sim2real.deploy.monitors.kernel.collision_screen`)."""
-        args = (self._checked_q, self._clearance, self._pair_weights, self._margin, self._tmp)
-        return mk.collision_screen(q, *args, self._need)
+        the guard's exact screen (:func:`sim2real.deploy.monitors.kernel.collision_screen`,
+        bound to ``q``)."""
+        bound = self._collision_bound
+        if bound is None or bound[0] is not q:
+            args = (self._checked_q, self._clearance, self._pair_weights, self._margin, self._tmp)
+            self._collision_bound = bound = (q, bind(mk.collision_screen, q, *args, self._need))
+        return bound[1]()
 
     def _in_collision(self, q: np.ndarray, e: int) -> bool:
         """Whether a collision pair of env ``e`` touches at ``q[e]`` (coal); also remembers each

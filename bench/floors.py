@@ -24,11 +24,8 @@ Per tick (``FLOOR_STAGES``), for the runtime's ``envs`` envs:
   and ``crba`` at the estimate; ``MotionEnvelope.torque``, torque control mode: ``aba``); 0 for a
   runtime without a drive model (position control mode).
 - ``mj_step``: ``mujoco.mj_step(m, d, nstep=decimation)`` on a copy of the plant's first env,
-  set before each call (untimed, ``mj_copyData``) to the plant's data of the moment: its state,
-  controls and the constraint solver's warm start, so the step does the plant's work (with the
-  state and controls alone the solver started cold: a G1 stepped 2.4x its plant's physics
-  stage); 0 when built with ``physics=False`` (the campaign times its physics apart, on the
-  plant's own models).
+  set before each call (untimed) to the plant's state and controls of the moment; 0 when built
+  with ``physics=False`` (the campaign times its physics apart, on the plant's own models).
 """
 
 from __future__ import annotations
@@ -125,7 +122,6 @@ class FloorLoop:
         dyn, dyn_model, dyn_data = self._dynamics, self._dyn_model, self._dyn_data
         speeds, tau = self._speeds, self._zero_torque
         m, d, live, nstep, step = self._m, self._d, self._live, self._nstep, mujoco.mj_step
-        copy = mujoco.mj_copyData
         physics = self._physics
         rec = np.zeros((ticks, len(FLOOR_STAGES)), dtype=np.int64)
         for i in range(ticks):
@@ -133,8 +129,9 @@ class FloorLoop:
             s = np.sin(2 * np.pi * self._k / TARGET_PERIOD + self._phase)
             target = (self._home + TARGET_AMPLITUDE * s).tolist()
             self._obs[:, :] = 0.1 * s[0]
-            if physics:  # the plant's data of the moment, the solver's warm start too
-                copy(d, m, live)
+            if physics:
+                d.qpos[:], d.qvel[:], d.ctrl[:] = live.qpos, live.qvel, live.ctrl
+                d.act[:] = live.act
             t0 = clock()
             session.run_with_iobinding(binding)
             t1 = clock()

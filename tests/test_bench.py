@@ -104,6 +104,7 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
         ("session_over_floor", "arm3"),
         ("session_over_floor", "arm6"),
         ("session_over_floor", "go2"),
+        ("session_over_floor", "g1"),
         ("busy_overrun_rate", "arm6"),
     }
     assert targets["session_8h", "arm3"]["pass"] in (True, False)

@@ -4,6 +4,7 @@ Usage::
 
     python -m bench [--quick] [--only ITEM[,ITEM...]] [--robots arm3,arm6] [--out FILE]
                     [--wallclock-seconds S] [--wallclock-modes sleep,hybrid,spin,...]
+                    [--legged-policy NAME=FILE.onnx]
 
 Items (default: all but ``profile``, in this order; see bench/__init__.py for what each
 measures, docs/speed.md for the JSON layout): plant, inference, tick, session, campaign,
@@ -116,7 +117,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument(
         "--robots",
         default="arm3,arm6,go2",
-        help="robots of plant, tick and session (comma list; a legged robot runs its shipped policy)",
+        help="robots of plant, tick and session (comma list of names or robot folders; a legged "
+        "robot runs its shipped policy, or its --legged-policy)",
+    )
+    p.add_argument(
+        "--legged-policy",
+        action="append",
+        default=[],
+        metavar="NAME=FILE",
+        help="the ONNX policy a legged robot of --robots runs (by its name in robot.toml) in place "
+        "of a shipped sim2real/policies/NAME.pt: an imported robot's (repeatable)",
     )
     p.add_argument("--campaign-robot", default="arm3", help="robot of the campaign item")
     p.add_argument(
@@ -150,6 +160,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args.robot_names = _csv(args.robots)
     if not args.robot_names:
         p.error("--robots: at least one robot")
+    args.legged_policies = {}
+    for item in args.legged_policy:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            p.error(f"--legged-policy {item!r}: expected NAME=FILE")
+        args.legged_policies[name.strip()] = Path(path.strip())
     if args.workers < 1:
         p.error("--workers: must be >= 1")
     args.settings = dict(QUICK if args.quick else FULL)
@@ -217,9 +233,15 @@ def main(argv: list[str] | None = None) -> int:
 
         def policy(name: str):
             if name not in policies:
-                policies[name] = make_policy(robot(name), Path(tmp))
-                results["policies"][name] = policy_info(policies[name])
+                r = robot(name)
+                onnx = args.legged_policies.get(r.name)
+                policies[name] = make_policy(r, Path(tmp), onnx=onnx)
+                results["policies"][r.name] = policy_info(policies[name])
             return policies[name]
+
+        def key(name: str) -> str:
+            """A robot's key in the sections: its name (``--robots`` may give its folder)."""
+            return robot(name).name
 
         sections = results["sections"]
         for item in args.items:
@@ -239,7 +261,7 @@ def main(argv: list[str] | None = None) -> int:
 
                 sec = {
                     "robots": {
-                        n: tick.measure(policy(n), cfg["tick_ticks"], cfg["tick_rounds"])
+                        key(n): tick.measure(policy(n), cfg["tick_ticks"], cfg["tick_rounds"])
                         for n in args.robot_names
                     }
                 }
@@ -248,7 +270,8 @@ def main(argv: list[str] | None = None) -> int:
 
                 sec = {
                     "robots": {
-                        n: session.session(policy(n), cfg["session_s"]) for n in args.robot_names
+                        key(n): session.session(policy(n), cfg["session_s"])
+                        for n in args.robot_names
                     }
                 }
             elif item == "campaign":
@@ -285,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
 
                 sec = {
                     "robots": {
-                        n: profiling.measure(policy(n), cfg["profile_ticks"])
+                        key(n): profiling.measure(policy(n), cfg["profile_ticks"])
                         for n in args.robot_names
                     }
                 }

@@ -40,6 +40,8 @@ class BenchPolicy:
         loop; None for a shipped policy (a legged robot: no bare loop).
         path: The ONNX file exported from it by ``sim2real.deploy.export.run_export`` (parity gate passed).
         export_seconds: Wall time of the export, s.
+        given: A legged robot's ONNX policy given to the bench (``--legged-policy``), not
+            exported from a shipped one.
     """
 
     robot: Any
@@ -47,6 +49,7 @@ class BenchPolicy:
     actor: Any
     path: Path
     export_seconds: float
+    given: bool = False
 
 
 #: Spread of the random part of the benchmark policy's action, in physical units: rad around the
@@ -130,19 +133,27 @@ def is_legged(robot) -> bool:
     return robot_kind(robot).legged
 
 
-def make_policy(robot, folder: Path, seed: int = POLICY_SEED) -> BenchPolicy:
+def make_policy(
+    robot, folder: Path, seed: int = POLICY_SEED, onnx: Path | None = None
+) -> BenchPolicy:
     """The benchmark policy of ``robot``: :func:`make_random_policy` for an arm, the shipped
     policy (``sim2real/policies/ROBOT.pt`` exported to ``folder``, ``actor`` None: no bare loop)
-    for a legged robot, which a random policy would lay down.
+    for a legged robot, which a random policy would lay down, or the ONNX policy ``onnx`` given
+    for it (an imported robot's, ``policy-export``'s file: ``export_seconds`` 0).
 
     Raises:
-        FileNotFoundError: a legged robot without a shipped policy.
+        FileNotFoundError: a legged robot without a shipped policy nor ``onnx``.
         sim2real.deploy.export.ExportError, sim2real.deploy.export.ParityError: the export failed.
+        sim2real.deploy.policy.onnx_policy.PolicyLoadError: ``onnx`` does not load for ``robot``.
     """
     if not is_legged(robot):
         return make_random_policy(robot, folder, seed)
     from sim2real.deploy.export import export_policy
     from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+
+    if onnx is not None:
+        path = Path(onnx).resolve()
+        return BenchPolicy(robot, OnnxPolicy(path, robot).spec, None, path, 0.0, given=True)
 
     src = Path(__file__).resolve().parents[1] / "sim2real" / "policies" / f"{robot.name}.pt"
     if not src.is_file():
@@ -192,8 +203,10 @@ def policy_info(p: BenchPolicy) -> dict[str, Any]:
         "export_s": p.export_seconds,
     }
     if p.actor is None:
-        kind = f"the shipped policy sim2real/policies/{p.robot.name}.pt, command {LEGGED_COMMAND}"
-        return {"kind": kind, **common}
+        source = f"the shipped policy sim2real/policies/{p.robot.name}.pt"
+        if p.given:
+            source = f"the policy {p.path} (--legged-policy)"
+        return {"kind": f"{source}, command {LEGGED_COMMAND}", **common}
     return {
         "kind": "MLPActor, seeded random weights tamed to hold near home (bench.common.tame_actor)",
         "hidden": list(POLICY_HIDDEN),

@@ -77,7 +77,7 @@ def _deploy_run(
         report_path = Path(tmp) / "report.json"
         argv = [
             "--robot",
-            bp.robot.name,
+            _robot_argument(bp.robot),
             "--policy",
             str(bp.path),
             "--duration",
@@ -97,6 +97,15 @@ def _deploy_run(
             raise RuntimeError(f"deploy-run {' '.join(argv)} exited {code}: {err.getvalue()}")
         report = json.loads(report_path.read_text())
     return report, outer, out.getvalue()
+
+
+def _robot_argument(robot) -> str:
+    """deploy-run's ``--robot`` for ``robot``: its name for a shipped robot, else its folder (an
+    imported robot's)."""
+    from sim2real.robots.loading import ROBOTS_DIR
+
+    shipped = (ROBOTS_DIR / robot.name).resolve() == Path(robot.directory).resolve()
+    return robot.name if shipped else str(robot.directory)
 
 
 def deadline_figures(report: dict) -> dict:

@@ -82,6 +82,14 @@ TARGETS = (
         "",
         "x",
     ),
+    (  # an imported robot: --robots ...,ROBOT_DIR --legged-policy g1=POLICY (docs/speed.md)
+        "session_over_floor",
+        "8-h session / (ticks x floor tick incl. mj_step)",
+        "g1",
+        None,
+        "",
+        "x",
+    ),
     ("busy_overrun_rate", "overruns beside a CPU-bound job per core", "arm6", 0.1, "<=", "%"),
 )
 #: The keys of the floor ratios, the ones bench/history.jsonl keeps.

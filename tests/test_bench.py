@@ -104,6 +104,7 @@ def test_quick_tick_and_session_on_arm3(tmp_path):
         ("session_over_floor", "arm3"),
         ("session_over_floor", "arm6"),
         ("session_over_floor", "go2"),
+        ("session_over_floor", "g1"),
         ("busy_overrun_rate", "arm6"),
     }
     assert targets["session_8h", "arm3"]["pass"] in (True, False)
@@ -133,6 +134,27 @@ def test_quick_tick_and_session_on_go2_walk_its_shipped_policy_against_its_floor
     assert session["final_state"] == ["RUNNING"] and session["control_rate_hz"] == 50.0
     targets = {(t["key"], t["robot"]): t for t in r["targets"]}
     assert positive_finite(targets["session_over_floor", "go2"]["value"])
+
+
+def test_quick_session_of_an_imported_legged_robot_and_its_given_policy(tmp_path, go2_onnx):
+    """A legged robot given by its folder (an imported one, here a copy of go2's) runs the ONNX
+    policy ``--legged-policy NAME=FILE`` gives it; its sections and policy are keyed by its name
+    in robot.toml, and its session's ratio to the floors is stated (the G1's is, as "g1")."""
+    import shutil
+
+    from bench.targets import TARGETS
+    from sim2real.robots.loading import ROBOTS_DIR
+
+    folder = tmp_path / "imported"
+    shutil.copytree(ROBOTS_DIR / "go2", folder)
+    out = tmp_path / "results.json"
+    argv = ("--only", "session", "--robots", str(folder), "--legged-policy", f"go2={go2_onnx}")
+    run_bench(out, *argv)
+    r = json.loads(out.read_text())
+    assert "--legged-policy" in r["policies"]["go2"]["kind"]
+    session = r["sections"]["session"]["robots"]["go2"]
+    assert session["final_state"] == ["RUNNING"] and positive_finite(session["loop_s"])
+    assert ("session_over_floor", "g1") in {(t[0], t[2]) for t in TARGETS}
 
 
 def test_history_is_kept_and_a_regression_against_the_last_full_run_is_flagged():

@@ -23,6 +23,7 @@ from sim2real.deploy.monitors import estimation_kernel
 from sim2real.deploy.monitors.estimation import EstimationMonitor
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.rig.rig import Rig
+from sim2real.deploy.tasks.heading import HeadingHold
 from sim2real.deploy.tasks.locomotion import CommandTracker
 
 TICKS = 900
@@ -45,6 +46,9 @@ def build(robot, onnx, task: dict, compiled: bool) -> Rig:
     rig = Rig(robot, OnnxPolicy(onnx, robot), plant, envs=ENVS, task=task, runtime=runtime)
     rig.estimation.compiled = compiled
     rig.task.tracker.compiled = compiled
+    if rig.task.heading is not None:
+        rig.task.heading.compiled = compiled
+    rig.runtime.compiled_base_screens = compiled
     rig.start()
     return rig
 
@@ -57,12 +61,19 @@ def results(rig: Rig) -> dict:
     for name in ("orientation", "projected_gravity", "linear_velocity", "linear_velocity_world"):
         out[f"true_base/{name}"] = getattr(base, name)
     out["command"] = rig.runtime.velocity_command
+    rt = rig.runtime
+    out |= {"mode": rt.mode, "cause": rt.cause, "foot_contact": rt.state.foot_contact}
+    out |= {"clock": rt.state.clock, "signals": rt.fall_detector.signals}
+    out |= {f"fall/{k}": v for k, v in rt.fall_detector.state_dict().items()}
+    out |= {f"faults/{k}": np.asarray(v) for k, v in rt.counters.faults.items()}
+    if rig.task.heading is not None:
+        out |= {f"heading/{k}": v for k, v in rig.task.heading.state_dict().items()}
     return out
 
 
 @pytest.mark.parametrize("task", sorted(TASKS))
 def test_compiled_equals_numpy(go2, go2_onnx, monkeypatch, task):
-    numpy_ticks = {"estimation": 0, "tracker": 0}
+    numpy_ticks = {"estimation": 0, "tracker": 0, "heading": 0}
 
     def counted(cls, name, key):
         original = getattr(cls, name)
@@ -75,12 +86,14 @@ def test_compiled_equals_numpy(go2, go2_onnx, monkeypatch, task):
 
     counted(EstimationMonitor, "reference_update", "estimation")
     counted(CommandTracker, "reference_call", "tracker")
+    counted(HeadingHold, "reference_call", "heading")
     fast = build(go2, go2_onnx, TASKS[task](), compiled=True)
     fast.runtime.run(TICKS, on_tick=fast.monitor)
-    assert numpy_ticks == {"estimation": 0, "tracker": 0}  # the kernels did every tick
+    assert numpy_ticks == {"estimation": 0, "tracker": 0, "heading": 0}  # the kernels did all
     slow = build(go2, go2_onnx, TASKS[task](), compiled=False)
     slow.runtime.run(TICKS, on_tick=slow.monitor)
-    assert numpy_ticks == {"estimation": TICKS, "tracker": TICKS}
+    held = TICKS if task == "heading" else 0
+    assert numpy_ticks == {"estimation": TICKS, "tracker": TICKS, "heading": held}
     a, b = results(fast), results(slow)
     assert a.keys() == b.keys()
     for key in a:
@@ -94,12 +107,50 @@ def test_compiled_equals_numpy(go2, go2_onnx, monkeypatch, task):
     assert tracker.falls[1] >= 1  # a stop of another cause
     assert fast.estimation.true_falls[0] >= 1
     assert fast.estimation.ticks > 0 and tracker.heading_change.any()
+    faults = fast.runtime.counters.faults  # both compiled screens stopped an env
+    assert faults["fall"][0] >= 1 and faults["stale_sensor"][1] >= 1
+    assert fast.runtime._base_screens_bound is not None
 
 
 def test_true_base_is_set_truth():
     """:func:`~sim2real.deploy.monitors.estimation_kernel.true_base` equals ``BaseState.set_truth``
-    on this machine (else the kernels are not used: numpy's matmul through another BLAS)."""
-    assert estimation_kernel.gemv_matches(4096)
+    on this machine in one of its variants (else the kernels are not used: numpy's matmul
+    through another BLAS), the one found once per process."""
+    variant = estimation_kernel.gemv_variant(4096)
+    assert variant in estimation_kernel.VARIANTS
+    assert estimation_kernel.gemv_variant() == variant and estimation_kernel.gemv_matches()
+    assert estimation_kernel.gemv_fused() == (variant == "fma")
+
+
+@pytest.mark.parametrize("fused", [True, False])
+def test_true_base_variants_round_as_stated(fused):
+    """Each variant of ``R^T v``, whatever this machine's BLAS does: ``fused``, one rounding per
+    fused multiply-add in the rows' order (exact rational arithmetic rounded once); else the
+    three products summed left to right, each rounded."""
+    from fractions import Fraction
+
+    from sim2real.deploy.core.attitude import quaternion_to_matrix
+
+    rng = np.random.default_rng(2)
+    truth = rng.normal(size=(200, 13))
+    truth[:, 3:7] = random_quaternions(rng, 200)
+    base = BaseState.zeros(200)
+    estimation_kernel._fill(truth, *estimation_kernel.fields(base), fused)
+    rot, v = quaternion_to_matrix(truth[:, 3:7]), truth[:, 7:10]
+
+    def fma(a, b, c):
+        return float(Fraction(float(a)) * Fraction(float(b)) + Fraction(float(c)))
+
+    for e in range(200):
+        r = rot[e]
+        for i in range(3):
+            if fused:
+                want = fma(r[2, i], v[e, 2], fma(r[1, i], v[e, 1], r[0, i] * v[e, 0]))
+            else:
+                want = (r[0, i] * v[e, 0] + r[1, i] * v[e, 1]) + r[2, i] * v[e, 2]
+            assert base.linear_velocity[e, i] == want
+    assert np.array_equal(base.orientation, truth[:, 3:7])
+    assert np.array_equal(base.projected_gravity, -rot[:, 2])
 
 
 def random_quaternions(rng, n: int) -> np.ndarray:
@@ -196,3 +247,39 @@ def test_tracker_kernels_equal_numpy_on_random_states():
     assert fast.summary(runtime) == slow.summary(runtime)
     assert fast.falls.sum() > 10 and fast.operator_stops.sum() > 0
     assert fast.tracked_time.sum() > 0 and fast.heading_change.any()
+
+
+def test_heading_kernels_equal_numpy_on_random_states():
+    """The heading hold's kernels against numpy over random estimates (any attitude, NaN at
+    times), modes and commands with and without a yaw rate: the same commands, references and
+    holds, bit for bit."""
+    envs, rng = 4, np.random.default_rng(13)
+    fast, slow = HeadingHold(envs, gain=0.7, max_rate=0.4), HeadingHold(envs, 0.7, 0.4)
+    slow.compiled = False
+
+    def runtime():
+        return SimpleNamespace(
+            mode=np.zeros(envs, dtype=np.int8),
+            velocity_command=np.zeros((envs, 3)),
+            state=SimpleNamespace(base=BaseState.zeros(envs)),
+        )
+
+    a, b = runtime(), runtime()
+    asked = np.zeros((envs, 3))
+    held = 0
+    for _ in range(3000):
+        orientation = random_quaternions(rng, envs)
+        orientation[rng.random(envs) < 0.02] = np.nan
+        mode = rng.choice([0, 1, 2, 2, 2, 2, 3], size=envs).astype(np.int8)
+        asked[:] = rng.normal(size=(envs, 3))
+        asked[rng.random(envs) < 0.7, 2] = 0.0
+        for r in (a, b):
+            r.state.base.orientation[:] = orientation
+            r.mode[:] = mode
+        fast(a, asked)
+        slow(b, asked.copy())
+        assert np.array_equal(a.velocity_command, b.velocity_command, equal_nan=True)
+        held += int(fast.holding.sum())
+    for key, value in fast.state_dict().items():
+        assert np.array_equal(value, slow.state_dict()[key], equal_nan=True), key
+    assert fast._calls is not None and held > 1000  # the kernels ran, holds taken

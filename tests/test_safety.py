@@ -83,6 +83,33 @@ def test_motion_bounds_bound_the_motion_and_gravity(arm6):
         assert np.all(np.abs(arm6.gravity_torque(q)) <= gravity_bound + 1e-9)
 
 
+@pytest.mark.parametrize("robot_name", ["arm6", "so101", "go2"])
+def test_collision_query_answers_as_the_full_queries_at_q(robot_name):
+    """:func:`collision_query` (the distances at the placements ``computeCollisions`` left)
+    answers and measures as Pinocchio's two queries at ``q`` each, bit for bit: whether a pair
+    touches, and each pair's distance where none does (all -inf where one does)."""
+    from sim2real.deploy.safety.collision import collision_query
+
+    robot = load_robot(robot_name)
+    model = robot.fixed_base_model
+    data = model.createData()
+    geom_model, geom_data = collision_model(robot)
+    mine = np.zeros(len(geom_model.collisionPairs))
+    rng = np.random.default_rng(8)
+    hits = 0
+    for _ in range(300):
+        q = rng.uniform(robot.position_lower, robot.position_upper)
+        hit = collision_query(model, data, geom_model, geom_data, q, distances=mine)
+        assert hit == bool(pin.computeCollisions(model, data, geom_model, geom_data, q, True))
+        want = np.full_like(mine, -np.inf)
+        if not hit:
+            pin.computeDistances(model, data, geom_model, geom_data, q)
+            want = np.array([r.min_distance for r in geom_data.distanceResults])
+        assert np.array_equal(mine, want)
+        hits += hit
+    assert 0 < hits < 300
+
+
 @pytest.mark.parametrize("robot_name", ["arm3", "arm6", "so101"])
 def test_collision_pair_weights_bound_how_fast_each_pair_approaches(robot_name):
     """A pair's distance changes by at most ``weights[p] @ |dq|``; a joint upstream of both

@@ -202,17 +202,21 @@ def test_a_sustained_pull_cannot_overheat_a_derating_drive(arm3):
 
 
 @pytest.mark.parametrize("per_env_streams", [False, True])
-def test_compiled_sensor_model_equals_its_numpy_reference(arm6, per_env_streams):
-    """The encoder kernels give the numpy reference's readings and stamps bit for bit, and draw
-    the same numbers from the streams, through changes of noise, dropout and latency."""
+@pytest.mark.parametrize("name", ["arm6", "go2"])
+def test_compiled_sensor_model_equals_its_numpy_reference(name, per_env_streams, request):
+    """The encoder kernels give the numpy reference's readings and stamps bit for bit (the
+    velocity reported with each angle too: go2's drives report one), and draw the same numbers
+    from the streams, through changes of noise, dropout and latency."""
     from sim2real.deploy.backends.sim.reference import ReferenceJointSensorModel
     from sim2real.deploy.backends.sim.sensors import JointSensorModel
     from sim2real.deploy.core.backend import SensorFrame
 
-    envs, n = 3, arm6.n_joints
+    robot = request.getfixturevalue(name)
+    envs, n = 3, robot.n_joints
+    feet = robot.n_feet if robot.floating_base else None
     models = []
     for model in (JointSensorModel, ReferenceJointSensorModel):
-        m = model(arm6, envs, SensorFrame.empty(envs, n, None), 7, max_latency_ticks=4)
+        m = model(robot, envs, SensorFrame.empty(envs, n, feet), 7, max_latency_ticks=4)
         if per_env_streams:
             m.set_streams([np.random.default_rng(100 + e) for e in range(envs)])
         models.append(m)
@@ -230,13 +234,17 @@ def test_compiled_sensor_model_equals_its_numpy_reference(arm6, per_env_streams)
         temperature = 25.0 + walk.uniform(0.0, 60.0, q.shape)
         compiled.read(tick)
         reference.read(tick)
-        for field in ("position", "position_stamp", "winding_temperature", "temperature_stamp"):
+        fields = ("position", "position_stamp", "winding_temperature", "temperature_stamp")
+        fields += ("velocity",) if compiled.has_velocity else ()
+        for field in fields:
             a, b = getattr(compiled.frame, field), getattr(reference.frame, field)
             np.testing.assert_array_equal(a, b, err_msg=f"{field} at tick {tick}")
-        compiled.sample(tick, tick * 0.002, q, temperature)
-        reference.sample(tick, tick * 0.002, q, temperature)
+        dq = walk.normal(0.0, 1.0, q.shape) if compiled.has_velocity else None
+        compiled.sample(tick, tick * 0.002, q, temperature, dq)
+        reference.sample(tick, tick * 0.002, q, temperature, dq)
     assert compiled.stream_state() == reference.stream_state()
     assert np.isnan(compiled.frame.position).any() and np.isfinite(compiled.frame.position).any()
+    assert compiled.has_velocity == (name == "go2")
 
 
 @pytest.mark.parametrize("mode", ["position", "velocity", "torque"])

@@ -273,3 +273,49 @@ def test_goal_scheduler_records_missed_goals_up_to_its_cap(arm3):
     assert first["interventions"]["velocity"] == 10 and first["interventions"]["any"] == 10
     assert set(first["interventions"]) == {*INTERVENTION_CHECKS, "any"}
     assert goals.window_issued[0] == [4, 4, 1] and goals.window_reached[0] == []
+
+
+@pytest.mark.parametrize("name", ["go2", "arm6"])
+def test_distances_measured_less_often_count_the_same_collisions(name, request, monkeypatch):
+    """An env checked by coal on consecutive ticks has its pairs' distances measured only every
+    ``DISTANCE_REFRESH`` checks: the screen stays exact, so the self-collisions, the pairs that
+    touched and every other count equal a monitor measuring them at each check, over trajectories
+    that move fast (every tick checked), rest (screened out) and pass through contacts."""
+    from types import SimpleNamespace
+
+    from sim2real.deploy.monitors import violations
+
+    robot = request.getfixturevalue(name)
+    envs, n, rng = 2, robot.n_joints, np.random.default_rng(4)
+    lo, hi = robot.position_lower, robot.position_upper
+    q, dq, tau = np.tile(robot.home, (envs, 1)), np.zeros((envs, n)), np.zeros((envs, n))
+    backend = SimpleNamespace(
+        true_position=lambda: q, true_velocity=lambda: dq, joint_torque=lambda: tau,
+        end_effector_position=lambda out: out,
+    )  # fmt: skip
+    monitors = {k: ViolationMonitor(robot, envs) for k in (16, 1)}
+    measured = {16: 0, 1: 0}
+    query = violations.collision_query
+
+    def counted(*args, distances=None):
+        if distances is not None:
+            measured[current] += 1
+        return query(*args, distances=distances)
+
+    monkeypatch.setattr(violations, "collision_query", counted)
+    for tick in range(1500):
+        phase = (tick // 100) % 3  # fast, at rest, jumps about (contacts)
+        if phase == 0:
+            q += rng.normal(0.0, 0.08, (envs, n))
+        elif phase == 2 and tick % 5 == 0:
+            q[:] = rng.uniform(lo, hi, (envs, n))
+        np.clip(q, lo, hi, out=q)
+        for refresh, monitor in monitors.items():
+            current = refresh
+            monkeypatch.setattr(violations, "DISTANCE_REFRESH", refresh)
+            monitor.update(backend, down=np.zeros(envs, dtype=bool))
+    a, b = monitors[16].state_dict(), monitors[1].state_dict()
+    for key in a:
+        assert np.array_equal(a[key], b[key]), key
+    assert monitors[16].counts["self_collision"].sum() > 0  # contacts were met
+    assert measured[16] < measured[1] / 2  # and distances measured far less often

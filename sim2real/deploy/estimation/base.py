@@ -26,6 +26,9 @@ NaN, not newer than the last one absorbed or stamped after ``frame.time`` is not
 
 from __future__ import annotations
 
+import functools
+import operator
+
 import numpy as np
 import pinocchio as pin
 
@@ -58,6 +61,7 @@ from sim2real.deploy.estimation.base_params import (  # noqa: F401 (this module'
     require_floating_base,
 )
 from sim2real.deploy.estimation.base_steps import BaseSteps
+from sim2real.deploy.kernels.calls import bind
 from sim2real.robots import Robot
 
 
@@ -176,6 +180,7 @@ class BaseStateEstimator(BaseSteps):
         self._no_velocity = np.full((envs, n_joints), np.nan)
         self._foot_motion = np.zeros((envs, n_feet, 6))
         self._foot_position = np.zeros((envs, n_feet, 3))
+        self._bound_calls = None  # (the arrays, the two calls bound to them): see _bound
         #: the tick runs compiled unless a subclass replaces the algebra's steps (the reference)
         self._compiled = all(
             getattr(type(self), name) is getattr(BaseStateEstimator, name)
@@ -360,24 +365,60 @@ class BaseStateEstimator(BaseSteps):
         out = BaseState.zeros(self.envs) if out is None else out
         if not self._compiled:
             return self._tick_per_env(frame, q, dq, out)
-        legs, rate = self._legs, self._rate
-        bt.absorb_imu(
+        calls = self._bound(frame, q, dq, out)
+        if calls is None:  # an array the bound calls do not take: numba's dispatch
+            calls = self._calls(frame, q, dq, out, bound=False)
+        absorb_imu, absorb_legs = calls
+        absorb_imu()
+        legs = self._legs
+        for e in range(self.envs) if self.envs <= 8 else np.flatnonzero(legs):
+            if legs[e]:
+                self._read_legs(e, q[e], legs[e] & bt.DEAD)
+        absorb_legs()
+        return out
+
+    def _bound(self, frame: SensorFrame, q: np.ndarray, dq: np.ndarray, out: BaseState):
+        """The tick's two kernels bound to these arrays (:func:`~sim2real.deploy.kernels.calls.
+        bind`; made again when one of them is another array), or None where one is not a
+        C-contiguous array (numba's dispatch then)."""
+        key = (
+            frame.time, frame.imu_stamp, frame.imu_angular_velocity, frame.imu_acceleration,
+            frame.imu_orientation, frame.foot_force, frame.foot_contact, frame.contact_stamp,
+            frame.position, frame.position_stamp, frame.velocity, q, dq, out.orientation,
+            out.projected_gravity, out.linear_velocity, out.angular_velocity,
+            out.linear_velocity_world,
+        )  # fmt: skip
+        bound = self._bound_calls
+        if bound is not None and all(map(operator.is_, key, bound[0])):
+            return bound[1]
+        self._bound_calls = None
+        arrays = [a for a in key if a is not None]
+        if not all(isinstance(a, np.ndarray) and a.flags.c_contiguous for a in arrays):
+            return None
+        self._bound_calls = (key, self._calls(frame, q, dq, out, bound=True))
+        return self._bound_calls[1]
+
+    def _calls(self, frame: SensorFrame, q, dq, out: BaseState, bound: bool) -> tuple:
+        """The two kernels' calls on these arrays: bound (``bound``), else through numba's
+        dispatch."""
+        call = bind if bound else functools.partial
+        absorb_imu = call(
+            bt.absorb_imu,
             self._x, self.covariance, self._n, self._feet, self._force, self._encoder, self._p,
             frame.time, frame.imu_stamp, frame.imu_angular_velocity, frame.imu_acceleration,
             frame.imu_orientation, frame.foot_force, frame.foot_contact, frame.contact_stamp,
             frame.position, frame.position_stamp,
-            self._no_velocity if frame.velocity is None else frame.velocity, q, dq, rate, legs,
+            self._no_velocity if frame.velocity is None else frame.velocity, q, dq, self._rate,
+            self._legs,
         )  # fmt: skip
-        for e in range(self.envs) if self.envs <= 8 else np.flatnonzero(legs):
-            if legs[e]:
-                self._read_legs(e, q[e], legs[e] & bt.DEAD)
-        bt.absorb_legs(
+        absorb_legs = call(
+            bt.absorb_legs,
             self._x, self.covariance, self._n, self._feet, self._p, frame.time,
-            frame.contact_stamp, legs, self._foot_motion, self._foot_position, out.orientation,
-            out.projected_gravity, out.linear_velocity, out.angular_velocity,
+            frame.contact_stamp, self._legs, self._foot_motion, self._foot_position,
+            out.orientation, out.projected_gravity, out.linear_velocity, out.angular_velocity,
             out.linear_velocity_world,
         )  # fmt: skip
-        return out
+        return absorb_imu, absorb_legs
 
     def _read_legs(self, e: int, q: np.ndarray, dead: int) -> None:
         """Env ``e``'s feet's velocities into ``_foot_motion[e]`` (n_feet, 6) (linear m/s, angular

@@ -26,6 +26,7 @@ against gravity is what overheats its motors.
 from __future__ import annotations
 
 import math
+import operator
 
 import numba
 import numpy as np
@@ -35,6 +36,7 @@ from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import check, put, take
 from sim2real.deploy.estimation.base_kernel import _quat_to_mat, fma
 from sim2real.deploy.estimation.base_params import require_floating_base
+from sim2real.deploy.kernels.calls import bind
 from sim2real.robots import Robot
 
 #: Default tilt limit, rad (our choice): a walking quadruped's base stays within ~0.3 rad of
@@ -124,6 +126,7 @@ class FallDetector:
         )  # fmt: skip
         self._foot_position = np.zeros((envs, len(self.feet), 3))
         self._fallen = np.zeros(envs, dtype=bool)
+        self._bound = None  # (the state's arrays, _check bound to them): see screen
         # the compiled check compiled (or loaded from numba's cache) now, not in the first tick,
         # on a state of the runtime's layout; its counts then cleared
         self.check(RobotState.legged(envs, robot.n_joints, len(self.feet)))
@@ -161,6 +164,12 @@ class FallDetector:
             state: A floating-base robot's estimate (``RobotState.legged``: ``base``,
                 ``foot_contact``, ``q``).
         """
+        return self.screen(state).copy()
+
+    def screen(self, state: RobotState) -> np.ndarray:
+        """:meth:`check` into the detector's own (envs,) bool array, returned (overwritten by
+        the next check): Pinocchio's placements, then :func:`_check` bound to ``state``'s
+        arrays (made again for other arrays)."""
         model, data, position = self.model, self.data, self._foot_position
         if self.height_limit > 0.0:  # every foot's position in the base frame (Pinocchio)
             for e in range(len(self.height)):
@@ -169,11 +178,14 @@ class FallDetector:
                 for i, f in enumerate(self.feet):
                     row[i] = pin.updateFramePlacement(model, data, f).translation
         base = state.base
-        _check(
-            self._limits, base.projected_gravity, base.linear_velocity_world, base.orientation,
-            state.foot_contact, position, self.height, self._ticks, self.signals, self._fallen,
-        )  # fmt: skip
-        return self._fallen.copy()
+        key = (base.projected_gravity, base.linear_velocity_world, base.orientation)
+        key += (state.foot_contact,)
+        bound = self._bound
+        if bound is None or not all(map(operator.is_, key, bound[0])):
+            args = (self._limits, *key, position, self.height, self._ticks, self.signals)
+            self._bound = bound = (key, bind(_check, *args, self._fallen))
+        bound[1]()
+        return self._fallen
 
 
 @numba.njit(cache=True, nogil=True)
@@ -208,3 +220,34 @@ def _check(limits, gravity, velocity, orientation, contact, position, height, ti
         upright = tilt <= limits[5] and height[e] >= limits[6]  # NaN compares False
         signals[e, 2] = ticks[1, e] >= (limits[4] if upright else limits[3])
         out[e] = signals[e, 0] or signals[e, 1] or signals[e, 2]
+
+
+@numba.njit(cache=True, nogil=True)
+def stale_screen(contact, foot_contact, clock, since_fresh, stale_limit, stale, time) -> bool:
+    """The runtime's legged tick after the base estimate (``Runtime._update_base``): the
+    estimator's ``contact`` (envs, n_feet) bool into the state's ``foot_contact`` (1.0 / 0.0),
+    ``clock`` (envs,) the runtime's ``time`` s; ``stale`` (envs,) bool: an IMU silent for more
+    than ``stale_limit`` s (``since_fresh``, the estimator's). Returns whether any is stale."""
+    any_stale = False
+    for e in range(contact.shape[0]):
+        for i in range(contact.shape[1]):
+            foot_contact[e, i] = 1.0 if contact[e, i] else 0.0
+        clock[e] = time
+        s = since_fresh[e] > stale_limit  # NaN compares False
+        stale[e] = s
+        any_stale = any_stale or s
+    return any_stale
+
+
+@numba.njit(cache=True, nogil=True)
+def fall_screen(fallen, mode, lying, signals, out, running, ramp_in) -> bool:
+    """``out`` (envs,) bool: the envs ``fallen`` (:meth:`FallDetector.screen`) RUNNING or in
+    RAMP_IN (the modes ``running``, ``ramp_in``), where no lie-down was asked (``lying``) or
+    the base tilted (``signals[:, 0]``). Returns whether any."""
+    any_fall = False
+    for e in range(fallen.shape[0]):
+        m = mode[e]
+        f = fallen[e] and (m == running or m == ramp_in) and (not lying[e] or signals[e, 0])
+        out[e] = f
+        any_fall = any_fall or f
+    return any_fall

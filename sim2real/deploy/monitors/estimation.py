@@ -150,7 +150,8 @@ class EstimationMonitor:
         arg, angle, example = np.zeros((2, self.envs)), np.zeros((2, self.envs)), np.zeros((1, 13))
         fields = (t.orientation, t.projected_gravity, t.angular_velocity)
         fields += (t.linear_velocity_world, t.linear_velocity)
-        fill = bind(ek.truth_angles, *fields, base.projected_gravity, arg, rest=(example,))
+        fused = ek.gemv_fused()
+        fill = bind(ek.truth_angles, *fields, base.projected_gravity, arg, fused, rest=(example,))
         has_lying = lying is not None
         lying = lying if has_lying else np.zeros(self.envs, dtype=bool)
         accumulate = bind(

@@ -5,8 +5,10 @@ numpy's): :func:`truth_angles` fills the true base from the plant's truth and wr
 arguments of the two arc cosines (the true tilt's, the attitude error's), :func:`accumulate`
 counts the true falls and adds the errors. Each expression is numpy's in numpy's order: sums of
 three terms left to right, as numpy reduces three elements; the true base-frame velocity
-``R^T v`` as numpy's ``matmul`` computes it (BLAS ``gemv``: fused multiply-adds over the rows of
-``R`` in order), which :func:`gemv_matches` checks on the machine before the kernels are used.
+``R^T v`` as numpy's ``matmul`` computes it on the machine: through BLAS's ``gemv`` with fused
+multiply-adds over the rows of ``R`` in order on some, as three products summed left to right on
+others (an AMD EPYC's OpenBLAS), which :func:`gemv_variant` finds on the machine before the
+kernels are used (neither: numpy's path).
 :func:`true_base` is also the velocity tracker's
 (:mod:`sim2real.deploy.tasks.locomotion_kernel`).
 """
@@ -35,8 +37,9 @@ def fma(typingctx, a, b, c):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def true_base(truth, e, orientation, gravity, angular, velocity_world, velocity):
-    """Env ``e``'s row of ``BaseState.set_truth(truth)`` (the same fields, the same numbers)."""
+def true_base(truth, e, orientation, gravity, angular, velocity_world, velocity, fused):
+    """Env ``e``'s row of ``BaseState.set_truth(truth)`` (the same fields, the same numbers):
+    ``R^T v`` with fused multiply-adds (``fused``) or as a plain sum (:func:`gemv_variant`)."""
     w, x, y, z = truth[e, 3], truth[e, 4], truth[e, 5], truth[e, 6]
     r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
     r10, r11, r12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
@@ -48,40 +51,76 @@ def true_base(truth, e, orientation, gravity, angular, velocity_world, velocity)
     for j in range(3):
         angular[e, j] = truth[e, 10 + j]
         velocity_world[e, j] = truth[e, 7 + j]
-    velocity[e, 0] = fma(r20, v2, fma(r10, v1, r00 * v0))
-    velocity[e, 1] = fma(r21, v2, fma(r11, v1, r01 * v0))
-    velocity[e, 2] = fma(r22, v2, fma(r12, v1, r02 * v0))
+    if fused:
+        velocity[e, 0] = fma(r20, v2, fma(r10, v1, r00 * v0))
+        velocity[e, 1] = fma(r21, v2, fma(r11, v1, r01 * v0))
+        velocity[e, 2] = fma(r22, v2, fma(r12, v1, r02 * v0))
+    else:
+        velocity[e, 0] = (r00 * v0 + r10 * v1) + r20 * v2
+        velocity[e, 1] = (r01 * v0 + r11 * v1) + r21 * v2
+        velocity[e, 2] = (r02 * v0 + r12 * v1) + r22 * v2
 
 
 @numba.njit(cache=True, nogil=True)
-def _fill(truth, orientation, gravity, angular, velocity_world, velocity):
+def _fill(truth, orientation, gravity, angular, velocity_world, velocity, fused):
     for e in range(truth.shape[0]):
-        true_base(truth, e, orientation, gravity, angular, velocity_world, velocity)
+        true_base(truth, e, orientation, gravity, angular, velocity_world, velocity, fused)
 
 
+#: The ways :func:`true_base` can round ``R^T v``, in the order :func:`gemv_variant` tries them.
+VARIANTS = ("fma", "plain")
 _GEMV: list = []
 
 
-def gemv_matches(samples: int | None = None) -> bool:
-    """Whether :func:`true_base` equals ``BaseState.set_truth`` bit for bit on this machine
-    (numpy's BLAS computes ``R^T v`` with fused multiply-adds, in this order), over seeded
-    random base states: 256 checked once per process (None), or ``samples`` checked now."""
+def gemv_variant(samples: int | None = None) -> str | None:
+    """The variant of :data:`VARIANTS` with which :func:`true_base` equals
+    ``BaseState.set_truth`` bit for bit on this machine (``"fma"``: numpy's BLAS computes
+    ``R^T v`` with fused multiply-adds in :func:`true_base`'s order; ``"plain"``: as products
+    summed left to right), or None (neither: the kernels are not used), over seeded random base
+    states in one batch and one env at a time: 256 checked once per process (None), or
+    ``samples`` checked now."""
     if samples is not None:
-        return _matches(samples)
+        return _variant(samples)
     if not _GEMV:
-        _GEMV.append(_matches(256))
+        _GEMV.append(_variant(256))
     return _GEMV[0]
 
 
-def _matches(samples: int) -> bool:
+def gemv_matches(samples: int | None = None) -> bool:
+    """Whether one variant of :func:`true_base` equals ``BaseState.set_truth`` bit for bit on
+    this machine (:func:`gemv_variant`)."""
+    return gemv_variant(samples) is not None
+
+
+def gemv_fused() -> bool:
+    """The ``fused`` argument of :func:`true_base` on this machine (:func:`gemv_variant`)."""
+    return gemv_variant() == "fma"
+
+
+def _variant(samples: int) -> str | None:
+    for variant in VARIANTS:
+        if _matches(samples, variant == "fma"):
+            return variant
+    return None
+
+
+def _matches(samples: int, fused: bool) -> bool:
     from sim2real.deploy.core.state import BaseState
 
     rng = np.random.default_rng(0)
     truth = rng.normal(size=(samples, 13))
     truth[:, 3:7] /= np.linalg.norm(truth[:, 3:7], axis=1, keepdims=True)
     ref, mine = BaseState.zeros(samples).set_truth(truth), BaseState.zeros(samples)
-    _fill(truth, *fields(mine))
-    return all(np.array_equal(a, b) for a, b in zip(fields(ref), fields(mine), strict=True))
+    _fill(truth, *fields(mine), fused)
+    if not all(np.array_equal(a, b) for a, b in zip(fields(ref), fields(mine), strict=True)):
+        return False
+    for k in range(min(samples, 16)):  # one env: numpy may take another path for one matrix
+        one = truth[k : k + 1]
+        ref, mine = BaseState.zeros(1).set_truth(one), BaseState.zeros(1)
+        _fill(one, *fields(mine), fused)
+        if not all(np.array_equal(a, b) for a, b in zip(fields(ref), fields(mine), strict=True)):
+            return False
+    return True
 
 
 def fields(base) -> tuple:
@@ -106,13 +145,16 @@ def _clip(x):
 
 
 @numba.njit(cache=True, nogil=True)
-def truth_angles(orientation, gravity, angular, velocity_world, velocity, g_est, arg, truth):
+def truth_angles(
+    orientation, gravity, angular, velocity_world, velocity, g_est, arg, fused, truth
+):  # fmt: skip
     """Fill the true base (``orientation`` (envs, 4), ``gravity`` (envs, 3) projected,
     ``angular``, ``velocity_world``, ``velocity`` (envs, 3)) from ``truth`` (envs, 13), as
-    ``BaseState.set_truth``; ``arg`` (2, envs): the clipped cosines of the true tilt and of the
-    angle between ``g_est`` (envs, 3, the estimate's projected gravity) and the true one."""
+    ``BaseState.set_truth`` (``fused``: :func:`gemv_fused`); ``arg`` (2, envs): the clipped
+    cosines of the true tilt and of the angle between ``g_est`` (envs, 3, the estimate's
+    projected gravity) and the true one."""
     for e in range(truth.shape[0]):
-        true_base(truth, e, orientation, gravity, angular, velocity_world, velocity)
+        true_base(truth, e, orientation, gravity, angular, velocity_world, velocity, fused)
         g0, g1, g2 = gravity[e, 0], gravity[e, 1], gravity[e, 2]
         n = math.sqrt((g0 * g0 + g1 * g1) + g2 * g2)
         arg[0, e] = _clip(-(g2 / n))
@@ -168,13 +210,14 @@ def accumulate(
 
 def load() -> None:
     """Compile (or load from numba's cache) the kernels' specializations for the runtime's
-    arrays' types (float64, an int8 mode, bool flags) and check :func:`gemv_matches`: done
+    arrays' types (float64, an int8 mode, bool flags) and find :func:`gemv_variant`: done
     when a monitor is built, so that the first tick does not wait for it."""
     from sim2real.deploy.kernels.calls import bind
 
-    gemv_matches()
+    gemv_variant()
     f, b = np.zeros((1, 3)), np.zeros(1, dtype=np.bool_)
-    bind(truth_angles, np.zeros((1, 4)), f, f, f, f, f, np.zeros((2, 1)), rest=(np.zeros((1, 13)),))
+    q, two = np.zeros((1, 4)), np.zeros((2, 1))
+    bind(truth_angles, q, f, f, f, f, f, two, True, rest=(np.zeros((1, 13)),))
     mode, i = np.zeros(1, dtype=np.int8), np.zeros(1, dtype=np.int64)
     angle, counts, sums = np.zeros((2, 1)), np.zeros((1, 2), dtype=np.int64), np.zeros((1, 7))
     bind(

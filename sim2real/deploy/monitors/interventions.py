@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.monitors import kernel as mk
 from sim2real.deploy.monitors.violations import MonitorState
 from sim2real.deploy.safety.checks import CHECKS as GUARD_CHECKS
@@ -110,6 +111,12 @@ class InterventionMonitor(MonitorState):
         self._flags = np.zeros(envs, dtype=bool)
         self.resync()
         mk.warm_up()
+        (_, stopping), (_, clamps) = self._smoother
+        #: interventions_moved bound to the counters (the live arrays, never rebound)
+        self._moved_call = bind(
+            mk.interventions_moved, self._guard_rows, self._prev_guard, stopping, clamps,
+            self._prev_smoother,
+        )  # fmt: skip
 
     def resync(self) -> None:
         """Take the guard's and smoother's counters as they stand as the reference (after
@@ -144,8 +151,7 @@ class InterventionMonitor(MonitorState):
     def _moved(self) -> bool:
         """Whether a guard or smoother counter moved since the last tick (the kernel
         :func:`sim2real.deploy.monitors.kernel.interventions_moved`)."""
-        (_, a), (_, b) = self._smoother
-        return mk.interventions_moved(self._guard_rows, self._prev_guard, a, b, self._prev_smoother)
+        return self._moved_call()
 
     def count_moved(self) -> None:
         """Per check: which envs' counters rose this tick, after :meth:`update`'s comparison (or

@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.monitors import kernel as mk
 from sim2real.deploy.safety.collision import collision_model, collision_query
 from sim2real.deploy.safety.guard import SCREEN_MARGIN
@@ -47,6 +48,10 @@ EFFORT_TOLERANCE = 1e-9
 #: Relative shrink of the screen's bounds (round-off of ``|x - centre| > half``): a tick within it
 #: is checked exactly.
 _SCREEN_SHRINK = 1e-12
+#: Consecutive coal checks of an env between two measurements of its pairs' distances
+#: (:meth:`ViolationMonitor._in_collision`): the distances cost as much as the contact query
+#: and spare no check while the screen's bound trips every tick.
+DISTANCE_REFRESH = 16
 
 
 class MonitorState:
@@ -188,6 +193,10 @@ class ViolationMonitor(MonitorState):
         self._clearance = np.full((envs, len(self._pair_weights)), -np.inf)  # none yet: check
         self._need = np.zeros(envs, dtype=bool)
         self._tmp = np.zeros((envs, n))
+        self._screen_bound = self._collision_bound = None  # the screens' calls (see _screen)
+        # each env's consecutive coal checks and the tick of its last (see _in_collision)
+        self._run = np.zeros(envs, dtype=np.int64)
+        self._last_check = np.full(envs, -2, dtype=np.int64)
         mk.warm_up()
 
     # ------------------------------------------------------------------ per tick
@@ -276,24 +285,46 @@ class ViolationMonitor(MonitorState):
 
     def _screen(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> bool:
         """Whether some env may be past a limit (the kernel
-        :func:`sim2real.deploy.monitors.kernel.violation_screen`)."""
-        return mk.violation_screen(
-            q, dq, tau, self._ee, self._offset_q, self._offset_ee, self._bound,
-            self._has_workspace,
-        )  # fmt: skip
+        :func:`sim2real.deploy.monitors.kernel.violation_screen`, bound to ``q``, ``dq`` and
+        ``tau``: the plant hands the same arrays every tick)."""
+        bound = self._screen_bound
+        if bound is None or bound[0] is not q or bound[1] is not dq or bound[2] is not tau:
+            call = bind(
+                mk.violation_screen, q, dq, tau, self._ee, self._offset_q, self._offset_ee,
+                self._bound, self._has_workspace,
+            )  # fmt: skip
+            self._screen_bound = bound = (q, dq, tau, call)
+        return bound[3]()
 
     def _collision_screen(self, q: np.ndarray) -> bool:
         """Mark in ``_need`` the envs whose pairs coal must check at ``q``; returns whether any:
-        the guard's exact screen (:func:`sim2real.deploy.monitors.kernel.collision_screen`)."""
-        args = (self._checked_q, self._clearance, self._pair_weights, self._margin, self._tmp)
-        return mk.collision_screen(q, *args, self._need)
+        the guard's exact screen (:func:`sim2real.deploy.monitors.kernel.collision_screen`,
+        bound to ``q``)."""
+        bound = self._collision_bound
+        if bound is None or bound[0] is not q:
+            args = (self._checked_q, self._clearance, self._pair_weights, self._margin, self._tmp)
+            self._collision_bound = bound = (q, bind(mk.collision_screen, q, *args, self._need))
+        return bound[1]()
 
     def _in_collision(self, q: np.ndarray, e: int) -> bool:
         """Whether a collision pair of env ``e`` touches at ``q[e]`` (coal); also remembers each
-        pair's distance there for :meth:`_collision_screen`."""
+        pair's distance there for :meth:`_collision_screen`, unless env ``e`` was checked on the
+        tick before too: then the distances measured there did not spare this tick a check, and
+        they are measured again only every ``DISTANCE_REFRESH`` consecutive checks (a walking
+        robot's legs pass the screen's bound every tick). The screen stays exact with the pair
+        of configuration and distances it keeps, however old: the same answers."""
+        tick = int(self._tick_count[0])
+        run = self._run[e] + 1 if self._last_check[e] == tick - 1 else 0
+        self._run[e], self._last_check[e] = run, tick
         args = (self._model, self._data, self._geom_model, self._geom_data, q[e])
-        self._checked_q[e] = q[e]
-        return collision_query(*args, distances=self._clearance[e])
+        if run % DISTANCE_REFRESH == 0:
+            self._checked_q[e] = q[e]
+            return collision_query(*args, distances=self._clearance[e])
+        hit = collision_query(*args)
+        if hit:  # as a query with distances leaves them: all -inf, checked again next tick
+            self._checked_q[e] = q[e]
+            self._clearance[e] = -np.inf
+        return hit
 
     def _count_pairs(self, e: int) -> None:
         """Add a tick to each pair of env ``e`` that touches (after a hit of

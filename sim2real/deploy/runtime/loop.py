@@ -8,6 +8,7 @@ comes from :class:`~sim2real.deploy.runtime.state.RuntimeState`. The package's d
 from __future__ import annotations
 
 import gc
+import operator
 import time
 
 import numpy as np
@@ -23,7 +24,7 @@ from sim2real.deploy.core.modes import (
 )
 from sim2real.deploy.core.state import Kinematics, RobotState
 from sim2real.deploy.estimation.joints import JointStateEstimator
-from sim2real.deploy.kernels.calls import bind
+from sim2real.deploy.kernels.calls import bind, fits
 from sim2real.deploy.observe import long_ticks as lt
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
@@ -171,6 +172,10 @@ class Runtime(RuntimeState):
         self.time = 0.0
         self._obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
         self._target = np.zeros((envs, n))
+        #: a legged tick's work after the base estimate compiled (:meth:`_base_screens`);
+        #: False: numpy's path (the reference)
+        self.compiled_base_screens = True
+        self._base_screens_bound = None
         self._cmd = np.zeros((envs, n))
         #: (envs,) s, the backend's clock of the frame the last tick read (a recorded log maps
         #: its readings' stamps to the ticks with it: sim2real.deploy.observe.command_log)
@@ -194,6 +199,8 @@ class Runtime(RuntimeState):
         self._fused = self._compiled is not None and self.base_estimator is None
         #: (envs,) bool: a legged robot's envs whose command damps (``damping``), this tick's
         self._damp = np.zeros(envs, dtype=bool)
+        if self.fall_detector is not None:  # compiled (or loaded) and bound before a tick
+            self._base_screens(self.state)
         #: ``(tick) -> None``: the tick's latency histograms and long periods (:meth:`_bind_books`)
         self._books = self._bind_books()
         self.guard.bind_motion(self.smoother, self.state, self._cmd)  # the tick's arrays
@@ -445,6 +452,15 @@ class Runtime(RuntimeState):
         stop (stale_sensor), a fall (:class:`sim2real.deploy.estimation.fall.FallDetector`) a damped one
         (fall)."""
         self.base_estimator.update(frame, state.q, state.dq, out=state.base)
+        calls = self._base_screens(state) if self.compiled_base_screens else None
+        if calls is not None:  # the same, compiled (estimation.fall's stale_screen, fall_screen)
+            stale_call, fall_call, stale, fall = calls
+            if stale_call(self.time):
+                self.supervision.safe_stop(stale, "stale_sensor")
+            self.fall_detector.screen(state)
+            if fall_call():
+                self.supervision.safe_stop(fall, "fall")
+            return
         state.foot_contact[:] = self.base_estimator.contact  # the sensor's, or the kinematics'
         state.clock[:] = self.time
         stale = self.base_estimator.time_since_fresh > self.robot.config.safety.stale_limit
@@ -453,6 +469,45 @@ class Runtime(RuntimeState):
         # an operator laying the robot down or standing it up: a low base is no fall, a tilt is
         fallen &= ~self.lying_expected | self.fall_detector.signals[:, 0]
         self.supervision.safe_stop(fallen, "fall")
+
+    def _base_screens(self, state: RobotState):
+        """:meth:`_update_base`'s work after the estimate as two compiled calls bound to the
+        runtime's arrays (made again when one is another array): ``(stale_call(time),
+        fall_call(), stale, fall)``, the calls answering whether any env is stale or fell, into
+        the masks ``stale`` and ``fall``; None where an array does not fit them (numpy's path)."""
+        est, fd = self.base_estimator, self.fall_detector
+        key = (state.foot_contact, state.clock, est.contact, est.time_since_fresh, self.mode)
+        key += (self.lying_expected, fd.signals)
+        bound = self._base_screens_bound
+        if bound is not None and all(map(operator.is_, key, bound[0])):
+            return bound[1]
+        from sim2real.deploy.estimation.fall import fall_screen, stale_screen
+
+        self._base_screens_bound = None
+        envs, feet = self.envs, est.contact.shape[1]
+        ok = (
+            fits(state.foot_contact, np.float64, (envs, feet))
+            and fits(state.clock, np.float64, (envs,))
+            and fits(est.contact, np.bool_, (envs, feet))
+            and isinstance(est.time_since_fresh, np.ndarray)
+            and est.time_since_fresh.dtype == np.float64
+            and fits(self.mode, np.int8, (envs,))
+            and fits(self.lying_expected, np.bool_, (envs,))
+        )
+        if not ok:
+            return None
+        stale, fall = np.zeros(envs, dtype=bool), np.zeros(envs, dtype=bool)
+        limit = float(self.robot.config.safety.stale_limit)
+        stale_call = bind(
+            stale_screen, est.contact, state.foot_contact, state.clock, est.time_since_fresh,
+            limit, stale, rest=(0.0,),
+        )  # fmt: skip
+        fall_call = bind(
+            fall_screen, fd._fallen, self.mode, self.lying_expected, fd.signals, fall,
+            int(RUNNING), int(RAMP_IN),
+        )  # fmt: skip
+        self._base_screens_bound = (key, (stale_call, fall_call, stale, fall))
+        return self._base_screens_bound[1]
 
     def _reanchor(self, state: RobotState) -> None:
         """:func:`reanchor` the smoother and count it (anchors or resyncs)."""

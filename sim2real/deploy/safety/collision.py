@@ -5,6 +5,7 @@ motion envelope and the violation monitor, so that all three agree on what conta
 
 from __future__ import annotations
 
+import operator
 import warnings
 
 import numpy as np
@@ -62,10 +63,13 @@ def collision_query(
     if distances is not None:
         if hit:
             distances.fill(-np.inf)
-        else:
-            pin.computeDistances(model, data, geom_model, geom_data, q)
-            distances[:] = [r.min_distance for r in _distance_results(geom_data)]
+        else:  # the placements at q, which computeCollisions has just updated
+            pin.computeDistances(geom_model, geom_data)
+            distances[:] = list(map(_MIN_DISTANCE, _distance_results(geom_data)))
     return hit
+
+
+_MIN_DISTANCE = operator.attrgetter("min_distance")
 
 
 def _distance_results(geom_data: pin.GeometryData) -> list:

@@ -12,6 +12,10 @@ clipped to ``max_rate``, where ``yaw`` is the base estimate's (on hardware nothi
 it: the yaw of the filter's world frame, which drifts with the gyro's unobservable yaw bias)
 and ``reference`` is the yaw when the hold began. A command with a yaw rate is passed through
 unchanged, and the hold lets go at every stop.
+
+A tick runs as the compiled kernels of :mod:`sim2real.deploy.tasks.heading_kernel` around
+numpy's two arc tangents, bound to the runtime's arrays (the same numbers); the numpy path
+(:meth:`HeadingHold.reference_call`) is their reference.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import math
 import numpy as np
 
 from sim2real.deploy.core.stateful import put, take
+from sim2real.deploy.kernels.calls import bind, fits
 
 #: Proportional gain, 1/s: legged_gym's ``0.5 * wrap_to_pi(heading - yaw)``
 #: (legged_gym/envs/base/legged_robot.py, ``commands.heading_command``).
@@ -53,6 +58,16 @@ class HeadingHold:
         self.gain, self.max_rate = float(gain), float(max_rate)
         self.reference = np.zeros(envs)
         self.holding = np.zeros(envs, dtype=bool)
+        self.envs = envs
+        #: False: numpy's path only (the reference of the kernels)
+        self.compiled = True
+        self._key = self._calls = None  # the arrays the kernels' calls are bound to, the calls
+        self._args, self._yaw = np.zeros((2, envs)), np.zeros(envs)
+        self._sin_cos, self._error = np.zeros((2, envs)), np.zeros(envs)
+        self._hold = np.zeros(envs, dtype=bool)
+        from sim2real.deploy.tasks.heading_kernel import load
+
+        load()  # the kernels ready before the first tick
 
     def __call__(self, runtime, asked: np.ndarray) -> None:
         """Write the yaw-rate command of the next tick into ``runtime.velocity_command``.
@@ -61,6 +76,54 @@ class HeadingHold:
             runtime: A floating-base :class:`~sim2real.deploy.runtime.Runtime` after its tick.
             asked: (envs, 3) the command the operator gave (m/s, m/s, rad/s).
         """
+        calls = self._bound(runtime, asked) if self.compiled else None
+        if calls is None:
+            self.reference_call(runtime, asked)
+            return
+        yaw_args, hold_args, command = calls
+        yaw_args()
+        np.arctan2(self._args[0], self._args[1], out=self._yaw)
+        hold_args()
+        np.arctan2(self._sin_cos[0], self._sin_cos[1], out=self._error)
+        command()
+
+    def _bound(self, runtime, asked: np.ndarray):
+        """The kernels' three calls bound to ``runtime``'s arrays and ``asked`` (made when they
+        change), or None where an array does not fit them (numpy's path)."""
+        key = (runtime.state.base.orientation, runtime.mode, asked, runtime.velocity_command)
+        if self._key is not None and all(a is b for a, b in zip(self._key, key, strict=True)):
+            return self._calls
+        from sim2real.deploy.tasks import heading_kernel as k
+
+        orientation, mode, _, command = key
+        envs = self.envs
+        ok = (
+            fits(orientation, np.float64, (envs, 4))
+            and fits(mode, np.int8, (envs,))
+            and fits(asked, np.float64, (envs, 3))
+            and fits(command, np.float64, (envs, 3))
+        )
+        self._key = key
+        self._calls = None
+        if ok:
+            self._calls = (
+                bind(k.yaw_args, orientation, self._args),
+                bind(
+                    k.hold_args,
+                    mode,
+                    asked,
+                    self._yaw,
+                    self.holding,
+                    self.reference,
+                    self._hold,
+                    self._sin_cos,
+                ),
+                bind(k.command, self._hold, self._error, self.gain, self.max_rate, asked, command),
+            )
+        return self._calls
+
+    def reference_call(self, runtime, asked: np.ndarray) -> None:
+        """:meth:`__call__` by numpy (the kernels' reference)."""
         from sim2real.deploy.core.attitude import yaw_of  # numba's module: not at the CLI's parse
         from sim2real.deploy.core.modes import RUNNING
 

@@ -17,17 +17,20 @@ import numba
 import numpy as np
 
 from sim2real.deploy.kernels.calls import fits
-from sim2real.deploy.monitors.estimation_kernel import fields, gemv_matches, true_base
+from sim2real.deploy.monitors.estimation_kernel import fields, gemv_fused, gemv_matches, true_base
 
 
 @numba.njit(cache=True, nogil=True)
-def truth_down(orientation, gravity, angular, velocity_world, velocity, mode, up, down, truth):
-    """Fill the true base from ``truth`` (envs, 13) as ``BaseState.set_truth``; ``down``
-    (envs,) bool: the envs RUNNING since their last stop that stopped now (mode >= SAFE_STOP);
-    ``up`` updated (not down, or RUNNING). Returns whether any env is down."""
+def truth_down(
+    orientation, gravity, angular, velocity_world, velocity, mode, up, down, fused, truth
+):  # fmt: skip
+    """Fill the true base from ``truth`` (envs, 13) as ``BaseState.set_truth`` (``fused``:
+    :func:`~sim2real.deploy.monitors.estimation_kernel.gemv_fused`); ``down`` (envs,) bool: the
+    envs RUNNING since their last stop that stopped now (mode >= SAFE_STOP); ``up`` updated (not
+    down, or RUNNING). Returns whether any env is down."""
     anydown = False
     for e in range(truth.shape[0]):
-        true_base(truth, e, orientation, gravity, angular, velocity_world, velocity)
+        true_base(truth, e, orientation, gravity, angular, velocity_world, velocity, fused)
         d = up[e] and mode[e] >= 3
         down[e] = d
         anydown = anydown or d
@@ -140,7 +143,7 @@ class TrackerCall:
         self._sin_cos, self._turn = np.zeros((2, envs)), np.zeros(envs)
         example = np.zeros((1, 13))
         self._truth_down = bind(
-            truth_down, *arrays, self.mode, a["up"], self._down, rest=(example,)
+            truth_down, *arrays, self.mode, a["up"], self._down, gemv_fused(), rest=(example,)
         )
         dt = tracker.dt
         names = ("distance", "forward", "ring", "command_ring", "filled", "last_command")
@@ -214,7 +217,7 @@ def load() -> None:
     f3, f1, b = np.zeros((1, 3)), np.zeros(1), np.zeros(1, dtype=np.bool_)
     mode, i = np.zeros(1, dtype=np.int8), np.zeros(1, dtype=np.int64)
     q, f2, two, ring = np.zeros((1, 4)), np.zeros((1, 2)), np.zeros((2, 1)), np.zeros((1, 1, 2))
-    bind(truth_down, q, f3, f3, f3, f3, mode, b, b, rest=(np.zeros((1, 13)),))
+    bind(truth_down, q, f3, f3, f3, f3, mode, b, b, True, rest=(np.zeros((1, 13)),))
     track_arrays = (f1, f1, ring, ring, i, f2, f1, f1, f1, f1, two)
     bind(track, mode, f3, f3, q, 1.0, 1.0, 1.0, *track_arrays, rest=(0, 0.0))
     bind(turn_args, f1, f1, two)

@@ -108,12 +108,14 @@ class CompiledStep:
         self._bind_kernels()
 
     def _bind_kernels(self) -> None:
-        """:attr:`before` and :attr:`after`: the plant kernel's two calls bound to :attr:`table`
-        (:func:`~sim2real.deploy.kernels.calls.bind`), ``before(tick)`` and
-        ``after(tick, sample)`` as ``before_physics(table, tick)`` and
-        ``after_physics(table, tick, sample)``."""
+        """:attr:`before`, :attr:`after` and :attr:`substep`: the plant kernel's calls bound to
+        :attr:`table` (:func:`~sim2real.deploy.kernels.calls.bind`), ``before(tick)``,
+        ``after(tick, sample)`` and ``substep(e, tick, sub)`` as ``before_physics(table,
+        tick)``, ``after_physics(table, tick, sample)`` and ``actuator_substep(table, e, tick,
+        sub)``."""
         self.before = bind(k.before_physics, self.table, rest=(0,))
         self.after = bind(k.after_physics, self.table, rest=(0, 0))
+        self.substep = bind(k.actuator_substep, self.table, rest=(0, 0, 0))
 
     def bind_streams(self) -> None:
         """Take the joint sensors' present ``rng`` (one ``numpy.random.Generator`` for the

@@ -22,6 +22,11 @@ randomization, :func:`sim2real.eval.world.sensors.apply_imu`). The draws come fr
 stream(s), after the encoder's, so an arm's readings are unchanged. MuJoCo computes the sensors at
 the start of each physics step: a reading is the state one physics timestep before the end of the
 control period.
+
+The plant's tick samples and reads through the compiled kernels of
+:mod:`sim2real.deploy.backends.sim.legged_sensors_kernel` (the same numbers), drawing from the
+streams of the plant's compiled step; the numpy path (:attr:`BaseSensorModel.compiled` False, a
+stream that is not a numpy ``Generator``, a sample of some envs) is their reference.
 """
 
 from __future__ import annotations
@@ -29,8 +34,10 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from sim2real.deploy.backends.sim import legged_sensors_kernel as kernel
 from sim2real.deploy.backends.sim.sensors import draw
 from sim2real.deploy.core.attitude import align_up, quat_multiply, rotation_quaternions
+from sim2real.deploy.kernels.calls import bind, fits
 from sim2real.robots import Robot
 
 
@@ -54,7 +61,8 @@ class BaseSensorModel:
     """IMU and contact sensors of ``backend`` (a :class:`~sim2real.deploy.backends.sim.plant.SimBackend` of a
     floating-base robot).
 
-    Attributes (per env, ``(envs,)``; change between ticks):
+    Attributes (per env, ``(envs,)``; change between ticks, in place: the compiled tick is
+    bound to these arrays):
         gyro_noise_sigma (rad/s), accel_noise_sigma (m/s^2), gyro_bias_sigma (rad/s),
         accel_bias_sigma (m/s^2), gyro_bias_walk (rad/s/sqrt(s)), accel_bias_walk
         (m/s^2/sqrt(s)), imu_dropout, imu_latency_ticks (int), force_noise_sigma (N),
@@ -134,6 +142,28 @@ class BaseSensorModel:
         self._true_imu = np.empty((envs, 6))
         self._true_force = np.empty((envs, nf))
         self._env_index = np.arange(envs)
+        #: False: numpy's path only (the reference of the compiled tick)
+        self.compiled = True
+        # the compiled tick: each env's MjData addresses (bound with the plant's compiled step,
+        # which a new model or a copy of the plant builds anew), the correlation of the attitude
+        # error (numpy's exp), the calls and what they were bound to
+        self._data = np.zeros((envs, 2), dtype=np.int64)
+        self._nsensor, self._nq = int(m.nsensordata), int(m.nq)
+        self._touch_index = np.array(touch, dtype=np.int64)
+        self._ratio, self._a = np.zeros(envs), np.zeros(envs)
+        self._sample_call = self._read_call = self._sample_key = self._read_key = None
+        self._bind_sample(None, np.zeros((envs, 3), dtype=np.int64))  # compiled (or loaded) now
+        self._bind_read(backend.frame if hasattr(backend, "frame") else None)
+        self._sample_key = self._read_key = None
+
+    def __getstate__(self) -> dict:
+        """A copy (``copy.deepcopy``, pickle) holds no bound call nor address: it binds its
+        own at its first compiled tick."""
+        state = dict(self.__dict__)
+        state["_sample_call"] = state["_read_call"] = None
+        state["_sample_key"] = state["_read_key"] = None
+        state["_data"] = np.zeros_like(self._data)
+        return state
 
     # ------------------------------------------------------------------ ground truth
     def true_imu(self) -> np.ndarray:
@@ -177,7 +207,63 @@ class BaseSensorModel:
     ) -> None:
         """Take the readings due at control tick ``tick`` (s ``time``) into the latency buffers:
         the IMU every ``imu_every`` ticks, the foot forces every ``contact_every`` ticks
-        (``force``: both now, for the envs ``envs`` only when given)."""
+        (``force``: both now, for the envs ``envs`` only when given). Every env at its ticks:
+        one compiled call (:func:`~sim2real.deploy.backends.sim.legged_sensors_kernel.
+        base_sample`) drawing from the streams of the plant's compiled step, when they are
+        numpy ``Generator`` streams (else numpy's path, the same numbers)."""
+        if self.compiled and not force and envs is None:
+            step = self.backend.compiled_step
+            if step is not None:
+                if step.rng is not self.backend.joint_sensors.rng:  # new streams
+                    step.bind_streams()
+                if step.draws:
+                    self._sample(step, tick, time)
+                    return
+        self.reference_sample(tick, time, force, envs)
+
+    def _sample(self, step, tick: int, time: float) -> None:
+        """:meth:`sample` of every env by the compiled call, bound to ``step`` (the plant's
+        :class:`~sim2real.deploy.backends.sim.compiled_step.CompiledStep`: its streams, and the
+        plant's ``MjData`` of its time)."""
+        if step is not self._sample_key:
+            self._bind_sample(step, step.streams)
+        imu_due = tick % self.imu_every == 0
+        if imu_due and self.has_orientation:  # numpy's exp, as the numpy path computes it
+            dt = self.imu_every * self.robot.control_period
+            np.exp(np.divide(-dt, self.orientation_tau, out=self._ratio), out=self._a)
+        slot = tick % self._buf_imu_stamp.shape[0]
+        self._sample_call(imu_due, tick % self.contact_every == 0, slot, time)
+
+    def _bind_sample(self, step, streams: np.ndarray) -> None:
+        """Bind the compiled sample to ``streams`` ((envs, 3), ``step``'s), the plant's present
+        ``MjData`` (each env's ``sensordata`` and ``qpos`` addresses) and the model's arrays.
+
+        Raises:
+            ValueError: an env whose model's sensors or joints differ in size from the first's.
+        """
+        for e, d in enumerate(self.backend.datas):
+            if d.sensordata.shape != (self._nsensor,) or d.qpos.shape != (self._nq,):
+                raise ValueError(f"env {e}: its model's sensors or joints differ from env 0's")
+            self._data[e, kernel.SENSORDATA] = d.sensordata.ctypes.data
+            self._data[e, kernel.QPOS] = d.qpos.ctypes.data
+        self._sample_key = step
+        self._sample_call = bind(
+            kernel.base_sample,
+            *(streams, self._data, self._nsensor, self._nq, self._gyro.start, self._acc.start),
+            *(self._touch_index, self.imu_every * self.robot.control_period, self._a),
+            *(self.gyro_bias, self.accel_bias, self.gyro_bias_walk, self.accel_bias_walk),
+            *(self.gyro_noise_sigma, self.accel_noise_sigma, self.has_orientation),
+            *(self.orientation_error, self.orientation_sigma, self._site_quat),
+            *(self._gravity_frame, self.imu_dropout, self.force_noise_sigma, self._noise6),
+            *(self._noise2, self._noise_f, self._buf_imu, self._buf_imu_stamp, self._buf_force),
+            self._buf_contact_stamp,
+            rest=(True, True, 0, 0.0),
+        )
+
+    def reference_sample(
+        self, tick: int, time: float, force: bool = False, envs: np.ndarray | None = None
+    ) -> None:
+        """:meth:`sample` by numpy (the compiled call's reference)."""
         size = self._buf_imu_stamp.shape[0]
         slot = tick % size
         rng = self.backend.joint_sensors.rng
@@ -238,7 +324,45 @@ class BaseSensorModel:
         return quat_multiply(rotation_quaternions(error), site)
 
     def read(self, frame, tick: int) -> None:
-        """Fill the frame's IMU and contact fields with the readings arriving at ``tick``."""
+        """Fill the frame's IMU and contact fields with the readings arriving at ``tick``: one
+        compiled call (:func:`~sim2real.deploy.backends.sim.legged_sensors_kernel.base_read`)
+        bound to ``frame`` (numpy's path where the frame's fields do not fit it)."""
+        if self.compiled:
+            if frame is not self._read_key:
+                self._bind_read(frame)
+            if self._read_call is not None:
+                self._read_call(tick)
+                return
+        self.reference_read(frame, tick)
+
+    def _bind_read(self, frame) -> None:
+        """Bind the compiled read to ``frame``'s fields (None: to arrays of their types, to
+        compile it now); no call where a field is not a C-contiguous array of its shape."""
+        envs, nf = self.envs, self.n_feet
+        if frame is None:
+            f8 = (np.zeros((envs, 3)), np.zeros((envs, 3)), np.zeros((envs, 4)), np.zeros(envs))
+            fields = (*f8, np.zeros((envs, nf)), np.zeros((envs, nf), bool), np.zeros(envs))
+        else:
+            fields = (
+                frame.imu_angular_velocity, frame.imu_acceleration, frame.imu_orientation,
+                frame.imu_stamp, frame.foot_force, frame.foot_contact, frame.contact_stamp,
+            )  # fmt: skip
+        shapes = ((envs, 3), (envs, 3), (envs, 4), (envs,), (envs, nf), (envs, nf), (envs,))
+        dtypes = (np.float64,) * 5 + (np.bool_, np.float64)
+        self._read_key = frame
+        self._read_call = None
+        if not all(fits(a, t, s) for a, t, s in zip(fields, dtypes, shapes, strict=True)):
+            return
+        self._read_call = bind(
+            kernel.base_read,
+            *(self._buf_imu, self._buf_imu_stamp, self._buf_force, self._buf_contact_stamp),
+            *(self.imu_latency_ticks, self.contact_latency_ticks, self.contact_threshold),
+            *fields,
+            rest=(0,),
+        )
+
+    def reference_read(self, frame, tick: int) -> None:
+        """:meth:`read` by numpy (the compiled call's reference)."""
         size = self._buf_imu_stamp.shape[0]
         idx = self._env_index
         origin = tick - self.imu_latency_ticks

@@ -41,7 +41,6 @@ from sim2real.deploy.backends.sim.plant_kernel import (
     DRAWN,
     NO_SAMPLE,
     STALE,
-    actuator_substep,
 )
 from sim2real.deploy.backends.sim.sensors import JointSensorModel, JointSensorSettings
 from sim2real.deploy.backends.sim.state import SimState
@@ -382,16 +381,16 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
                 self._bind(e)
             self._compiled = compiled = CompiledStep(self)
             status = compiled.before(tick)
-        table = compiled.table
         if status & DERATE:
             self._set_derated_limits()
         if not self._stepwise:
             for m, d, _ctrl, _q, _force, _warnings in self._views:
                 step(m, d, nstep=nstep)
         else:  # delayed commands, and a torque range that follows the joint speed
+            substep = compiled.substep  # actuator_substep(table, e, tick, sub), bound
             for e, (m, d, _ctrl, _q, _force, _warnings) in enumerate(self._views):
                 for sub in range(nstep):
-                    actuator_substep(table, e, tick, sub)
+                    substep(e, tick, sub)
                     step(m, d)
         tick += 1
         sensors = self._joint_sensors
@@ -429,6 +428,12 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
     def joint_torque(self) -> np.ndarray:
         """(envs, n_joints) N m, actuator torque at the end of the last control period."""
         return self._torque
+
+    @property
+    def compiled_step(self) -> CompiledStep | None:
+        """The table and bound calls of the plant's compiled step (built anew for a new model
+        of an env and in a copy of the plant; None while the plant is being built)."""
+        return self._compiled
 
     @property
     def base_sensors(self) -> BaseSensorModel | None:
@@ -492,4 +497,4 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         dq = self.true_velocity() if self._joint_sensors.has_velocity else None
         self._joint_sensors.sample(self.tick, self.time, q, self.thermal.winding_temperature, dq)
         if self._base_sensors is not None:
-            self._base_sensors.sample(self.tick, self.time)
+            self._base_sensors.reference_sample(self.tick, self.time)

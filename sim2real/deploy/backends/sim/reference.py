@@ -38,6 +38,9 @@ class ReferenceJointSensorModel(JointSensorModel):
             f.position[too_early] = np.nan
             f.position_stamp[too_early] = np.nan
         f.position_stamp[np.isnan(f.position)] = np.nan
+        if self.has_velocity:  # the velocity reported with each angle read
+            f.velocity[:] = self._buf_velocity[slot, self._env_index]
+            f.velocity[too_early] = np.nan
 
 
 def reference_advance(plant) -> None:

@@ -29,6 +29,7 @@ from sim2real.deploy.backends.sim.sensors_kernel import (
     encoder_read_at,
     encoder_sample,
     temperature_report,
+    velocity_read_at,
 )
 from sim2real.deploy.core.backend import SensorFrame
 from sim2real.deploy.core.stale import context
@@ -388,19 +389,22 @@ class JointSensorModel:
         f = self.frame
         args = (self.latency_ticks, self._buf_position, self._buf_stamp, f.position)
         self._encoder_read = bind(encoder_read_at, *args, f.position_stamp, rest=(0,))
+        self._velocity_read = None
+        if self.has_velocity:
+            velocity = (self.latency_ticks, self._buf_velocity, f.velocity)
+            self._velocity_read = bind(velocity_read_at, *velocity, rest=(0,))
         self._read_key = self.latency_ticks
 
     def read(self, tick: int) -> None:
         """Fill the frame's joint position fields with the readings arriving at ``tick``
-        (the kernel :func:`sim2real.deploy.backends.sim.sensors_kernel.encoder_read`)."""
+        (the kernel :func:`sim2real.deploy.backends.sim.sensors_kernel.encoder_read`), and the
+        velocity reported with each angle read (:func:`~sim2real.deploy.backends.sim.
+        sensors_kernel.velocity_read_at`)."""
         if self.latency_ticks is not self._read_key:  # bound to the present latencies
             self._bind_read()
         self._encoder_read(tick)
-        if self.has_velocity:  # the velocity reported with each angle read
-            f = self.frame
-            origin = tick - self.latency_ticks
-            f.velocity[:] = self._buf_velocity[origin % self._buf_stamp.shape[0], self._env_index]
-            f.velocity[origin < 0] = np.nan
+        if self._velocity_read is not None:
+            self._velocity_read(tick)
 
     # ------------------------------------------------------------------ state
     def state_fields(self) -> dict[str, np.ndarray]:

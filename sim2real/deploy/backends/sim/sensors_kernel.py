@@ -77,6 +77,23 @@ def encoder_read(
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
+def velocity_read_at(
+    latency_ticks: np.ndarray, buffer_velocity: np.ndarray, velocity: np.ndarray, tick: int
+) -> None:
+    """The joint velocities the drives reported with the angles arriving at control tick
+    ``tick`` into ``velocity`` (envs, n) rad/s: env ``e``'s row of the ring buffer
+    ``buffer_velocity`` (slots, envs, n) sampled ``latency_ticks[e]`` ticks earlier, NaN where
+    that is before the clock started (the numpy reference's ``origin % slots`` row, then NaN)."""
+    slots = buffer_velocity.shape[0]
+    envs, n = velocity.shape
+    for e in range(envs):
+        origin = tick - latency_ticks[e]
+        slot = origin % slots
+        for j in range(n):
+            velocity[e, j] = np.nan if origin < 0 else buffer_velocity[slot, e, j]
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def temperature_report(
     winding_temperature: np.ndarray,
     out: np.ndarray,

@@ -327,7 +327,7 @@ def test_encoder_bias_and_com_offset_are_drawn_per_session_and_applied(go2):
 
 @pytest.mark.parametrize("apply", ["force", "velocity_hidden_from_imu"])
 def test_a_push_is_a_force_the_imu_feels_unless_asked_to_hide_it(apply):
-    """A domain push (issue 72): by default the wrench that gives the robot legged_gym's
+    """A domain push: by default the wrench that gives the robot legged_gym's
     velocity change over ``window`` s (F = m dv / window), so the plant's accelerometer reads
     it (about dv / window along the push, world frame) and the base gains about dv; the force
     is gone after the window. Setting the velocity instead (``apply =
@@ -373,7 +373,7 @@ def test_a_push_is_a_force_the_imu_feels_unless_asked_to_hide_it(apply):
 
 
 def test_false_fall_stops_are_fall_check_stops_of_a_robot_the_truth_has_upright():
-    """``false_fall_stops`` (issue 72): the holosoma G1's stop (0.4 deg, base 0.67 m of its
+    """``false_fall_stops``: the holosoma G1's stop (0.4 deg, base 0.67 m of its
     0.757 m) counts; a tilted or low base, another cause, a record without the truth or one
     whose replay fell anyway does not."""
     from sim2real.eval.soak.falls import false_fall_stops

@@ -150,7 +150,7 @@ def test_a_base_sinking_upright_trips_the_fall_check_with_its_feet_still_under_i
     """The feet fall with the base (through a floor, a robot dropped on a slack support): the
     kinematic height and the tilt stay normal, the estimated base sinks faster than FALL_SPEED;
     upright on its feet, UPRIGHT_SINK_TIME in a row (15 ticks) trip the check, 14 do not (a
-    robot crouching to catch a push, issue 72); a walking base's bob never does."""
+    robot crouching to catch a push); a walking base's bob never does."""
     from copy import deepcopy
 
     from sim2real.deploy.estimation.fall import FALL_SPEED
@@ -176,7 +176,7 @@ def test_a_base_sinking_upright_trips_the_fall_check_with_its_feet_still_under_i
 def test_a_sinking_base_trips_the_fall_check_in_a_tenth_of_a_second_only_when_it_is_not_upright(
     go2, stand_policy
 ):
-    """Issue 72: the sinking signal stopped an upright robot catching a push (a holosoma G1:
+    """The sinking signal stopped an upright robot catching a push (a holosoma G1:
     0.4 deg, base 0.67 of 0.757 m). Sinking past FALL_SPEED for five ticks (0.1 s) trips the
     check when the base is tilted past SINK_TILT_SHARE of the tilt limit, its kinematic height
     under SINK_HEIGHT_SHARE of the standing height, or no foot is in contact; upright on its

@@ -278,7 +278,7 @@ def test_a_stand_up_anchors_the_estimate_where_the_encoders_read(config, tmp_pat
 
 def test_a_stop_holds_the_command_clock_and_does_not_restart_it():
     """The schedule's clock counts RUNNING time only and is held, not restarted, by a stop
-    (issue 72): a robot that runs 0.8 s between 3-s stops gets a new command every 1.0 s of
+    : a robot that runs 0.8 s between 3-s stops gets a new command every 1.0 s of
     running, not its first draw forever (the clock set to the stop's end made every period
     start again after each stop)."""
 

@@ -12,7 +12,7 @@ signal, ``sinking``, needs neither the feet nor the tilt: the estimated base sin
 or with its kinematic height under ``SINK_HEIGHT_SHARE`` of ``[base] standing_height`` or no
 foot in contact; upright on its feet, for ``UPRIGHT_SINK_TIME`` s (the kinematic height falls
 with the feet, a base can drop upright on a slack support). An upright robot catching a push
-crouches: its base sinks for a moment, a few centimetres (issue 72: a holosoma G1's 0.1-s sink
+crouches: its base sinks for a moment, a few centimetres (a holosoma G1's 0.1-s sink
 stopped it 0.4 deg from upright, its base 0.67 m of its 0.757 m). No ground truth is read: the
 same check runs on hardware.
 
@@ -54,11 +54,11 @@ FALL_SPEED = 1.0
 FALL_SPEED_TIME = 0.1
 #: The sinking of a base that is upright on its feet must last this long, s (our choice): 0.3 m
 #: at FALL_SPEED, more than a walking robot's crouch catching a push (the G1's true 9 cm; the
-#: H1's upright sink of issue 72's soak, 0.91 of its standing height) and under a free fall's
+#: H1's upright sink in a soak with pushes, 0.91 of its standing height) and under a free fall's
 #: 0.45 s to the floor from a humanoid's 1 m.
 UPRIGHT_SINK_TIME = 0.3
 #: Share of the tilt limit past which a sinking base is falling over (our choice, from the H1's
-#: 0.1-h soak with 1 m/s pushes, issue 72: its one sinking stop of an upright robot at an
+#: 0.1-h soak with 1 m/s pushes: its one sinking stop of an upright robot at an
 #: estimated 12.4 deg; its six of robots falling over at 28.7-54.1 deg): 0.4 (23 deg of 57).
 SINK_TILT_SHARE = 0.4
 #: Share of ``[base] standing_height`` under which a sinking base's kinematic height says it is

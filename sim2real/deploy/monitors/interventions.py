@@ -1,27 +1,23 @@
 """Interventions: commands the safety guard or the command smoother changed, per check and tick.
 
-An **intervention** is a command the guard or the smoother changed (docs/architecture.md, "Words");
-a **violation** is the robot's true state past a limit (:mod:`sim2real.deploy.monitors.violations`). A policy
-that leans on the guard has many interventions and may still have no violation; on a robot whose
-guard is tuned differently it would have them.
+An **intervention** is a command the guard or the smoother changed; a **violation** is the
+robot's true state past a limit (:mod:`sim2real.deploy.monitors.violations`; docs/architecture.md).
 
 Checks (``INTERVENTION_CHECKS``), from :attr:`sim2real.deploy.safety.guard.SafetyGuard.counts` and the
 counters of :class:`sim2real.deploy.smoothing.CommandSmoother`:
 
 - ``hard_limit``: the guard found the estimate (or the target, or the predicted position) beyond
   a hard limit; the runtime makes a safe stop.
-- ``soft_limit``: position mode only: a target position clamped to the soft limit (an arm's;
-  a PD-target robot's targets are not clamped). (In velocity
-  and torque mode the guard's ``soft_limit`` counter means "the estimate is in the soft band", a
-  warning that changes no command: it is reported as the warning ``soft_band_estimate``.)
+- ``soft_limit``: position mode: a target clamped to the soft limit (an arm's; not a PD-target
+  robot's). In velocity and torque mode the estimate in the soft band, a warning reported as
+  ``soft_band_estimate`` that changes no command.
 - ``pd_barrier``: a PD-target robot's position target changed because the joint's predicted
   motion under it would reach the hard limit or the soft band too fast to stop
   (:mod:`sim2real.deploy.safety.pd_barrier`).
 - ``velocity``: a target clamped to the speed from which the joint still stops before its soft
   limit (torque mode: the torque governor replaced a torque).
-- ``workspace``, ``self_collision``: a target rejected and the robot held.
-- ``effort``: a target rejected because gravity exceeds the derated effort limit; in torque mode
-  also a torque clamped to it.
+- ``workspace``, ``self_collision``, ``effort``: a target rejected and the robot held (effort:
+  gravity past the derated effort limit; in torque mode also a torque clamped to it).
 - ``stopping_distance``: velocity mode: the smoother cut a target velocity so that the joint brakes
   before its soft limit (``stopping_distance_clamps_per_joint``).
 - ``target_clamp``: the smoother clamped a target to the hard position limits, the soft velocity

@@ -9,31 +9,25 @@ motor table). So the target passes unchanged unless its consequence is unsafe: t
 motion over the next control period, predicted per joint (a control-barrier-function-style
 safety filter, one dimension a joint):
 
-- the drive's PD law on the target at every physics substep, its torque saturated by the
-  effort limit (derated when hot) and the motor's torque-speed line
-  (:class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope` at its reference temperature);
-- the joint's inertia: the smallest diagonal entry of Pinocchio's mass matrix of the legs in
-  the air (:attr:`sim2real.robots.robot.Robot.fixed_base_model`, armature included) over the
-  home pose and ``INERTIA_POSES`` seeded poses within the range (the least inertia moves
-  farthest);
-- gravity: the joint's gravity bound (the masses beyond it at their longest lever,
-  :func:`sim2real.robots.chain_bounds.motion_bounds`) pushing toward the limit tested;
-- semi-implicit Euler over the period's physics substeps from the estimate ``(q, dq)``.
+- the drive's PD law at every physics substep, its torque saturated by the effort limit
+  (derated when hot) and the motor's torque-speed line (:class:`sim2real.robots.torque_speed.
+  TorqueSpeedEnvelope`); the joint's least inertia (Pinocchio's mass-matrix diagonal, legs in the
+  air, over the home pose and ``INERTIA_POSES`` seeded poses); its gravity bound
+  (:func:`sim2real.robots.chain_bounds.motion_bounds`) toward the limit tested; semi-implicit
+  Euler from the estimate ``(q, dq)``.
 
 The prediction is unsafe when the joint passes the hard limit less a margin (``MARGIN_SHARE``
 of the soft band; or, already past it, goes farther), or ends the period too fast to stop
 before it with ``BRAKE_SHARE`` of its drive's braking (the effort limit less the gravity
 bound): ``dq > sqrt(2 a_brake room)``, which bounds the speed at which it enters the soft band.
-Then the target is changed as little as makes the prediction safe: the predicted motion rises
-with the target, so the safe targets on each side are a half-line, and bisection
-(``BISECTIONS`` halvings of the bracket from the target to one that brakes with the whole
-effort) finds its end. Each changed env and tick counts once (``pd_barrier``).
+Then the target is changed as little as makes the prediction safe (the motion rises with the
+target: ``BISECTIONS`` halvings between it and a target braking with the whole effort find the
+end of the safe half-line). Each changed env and tick counts once (``pd_barrier``).
 
-The lower limit is the upper one mirrored (``q -> -q``, ``target -> -target``, ``dq -> -dq``;
-the torque-speed envelope is symmetric under it). Arms and servos whose firmware clamps their
-targets keep the soft-limit clamp (:mod:`sim2real.deploy.safety.limits`); this check does
-nothing for them. Its numpy reference and its compiled function do the same operations in the
-same order (tests/test_pd_barrier.py). Units: rad, rad/s, N m, kg m^2, s.
+The lower limit is the upper one mirrored (``q, target, dq -> -q, -target, -dq``). Arms and
+servos whose firmware clamps targets keep the soft-limit clamp (:mod:`sim2real.deploy.safety.
+limits`). Its numpy reference and compiled function do the same operations in the same order
+(tests/test_pd_barrier.py). Units: rad, rad/s, N m, kg m^2, s.
 """
 
 from __future__ import annotations

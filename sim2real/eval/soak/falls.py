@@ -32,7 +32,7 @@ ORIGINS = ("runtime_stop", "push", "fault", "policy")
 PUSH_KINDS = ("push", "cable")
 #: A fall stop is false when the truth at the stop says upright (:func:`false_fall_stops`): its
 #: base tilted less than this share of the fall check's tilt limit (our choice: 0.3, 17 deg of
-#: the default 57, a walking quadruped's range; the H1s of issue 72's soaks stopped sinking at
+#: the default 57, a walking quadruped's range; the H1s of the push soaks stopped sinking at
 #: 26.6-27 deg true were at 14 deg 0.1 s before, falling over) and ...
 UPRIGHT_TILT_SHARE = 0.3
 #: ... its base at least this share of ``[base] standing_height`` above the floor (the line

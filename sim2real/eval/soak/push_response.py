@@ -16,7 +16,7 @@ import numpy as np
 
 from sim2real.deploy.core.state import BaseState
 
-#: s after a push whose estimate is judged (issue 72: "the second after a push").
+#: s after a push whose estimate is judged ("the second after a push").
 AFTER_PUSH = 1.0
 #: Columns of :attr:`PushResponse.sums`.
 TICKS, SUM, SQUARES, WORST, PUSHES, WORST_PUSH, OPEN_SUM, OPEN_TICKS = range(8)

@@ -63,7 +63,10 @@ def shipped_go2(folder: Path):
     from sim2real.deploy.export import export_policy
 
     path = export_policy(REPO / "sim2real" / "policies" / "go2.pt", out=folder / "go2.onnx")
-    return SimpleNamespace(robot=SimpleNamespace(name="go2"), path=path)
+    from sim2real.robots.loading import ROBOTS_DIR
+
+    robot = SimpleNamespace(name="go2", directory=ROBOTS_DIR / "go2")
+    return SimpleNamespace(robot=robot, path=path)
 
 
 def _hil(name: str, harness: list[str], policy: Path, duration: float, folder: Path, extra=()):

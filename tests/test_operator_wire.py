@@ -23,6 +23,7 @@ def _press(lines: list[str], at: float, buttons: str, hold: float = 0.2, **axes)
     lines.append(f"[[step]]\nat = {at + hold}\n{extra}")
 
 
+@pytest.mark.nightly  # 17 s end to end: make test stays under 10 minutes
 @pytest.mark.wallclock
 def test_the_unitree_emulator_plays_a_remote_that_walks_stands_and_damps(tmp_path, go2_policies):
     """The emulator's LowState carries a scripted remote; deploy-run --backend unitree reads it

@@ -255,6 +255,8 @@ def _hil(domain: int, *args: str, timeout: float = 240) -> subprocess.CompletedP
     )  # fmt: skip
 
 
+@pytest.mark.nightly  # 25 s end to end: make test stays under 10 minutes (the stale and silent
+# joint_states tests keep the ROS 2 backend in it)
 @pytest.mark.wallclock
 def test_ros2_backend_drives_arm3_against_its_emulator_as_the_simulated_plant(ros_domain, shipped):
     """Through the ros2 backend (joint_states in, forward_velocity_controller out, its own

@@ -387,6 +387,7 @@ def test_a_bridge_state_without_crc_is_refused_in_one_line_naming_the_flag(go2, 
     assert "--lowstate-unchecked" not in str(err.value) and backend.unchecked == 0
 
 
+@pytest.mark.nightly  # 14 s end to end: make test stays under 10 minutes
 def test_walks_on_a_unitree_mujoco_like_bridge_with_the_command_stream(tmp_path, go2, go2_onnx):
     """The emulator as Unitree's simulation bridge (no CRC, tick or foot force; the PD torque
     computed when a LowCmd arrives and held): with --lowstate-unchecked and the 500 Hz command

@@ -323,6 +323,7 @@ def test_lowstate_all_bad_crc_is_named_as_refused_states(tmp_path, go2, stand_on
     )
 
 
+@pytest.mark.nightly  # make test stays under 10 minutes
 def test_bad_crcs_are_counted_by_the_robot_and_reported_by_the_runtime(tmp_path, go2, stand_onnx):
     domain = _domain()
     faults = EmulatorFaults(corrupt_state=0.05, corrupt_command=0.05)
@@ -339,6 +340,7 @@ def test_bad_crcs_are_counted_by_the_robot_and_reported_by_the_runtime(tmp_path,
     assert "bad_crc" in out
 
 
+@pytest.mark.nightly  # make test stays under 10 minutes
 def test_hot_motor_meets_the_runtime_thermal_stop_before_its_driver_cuts_off(
     tmp_path, go2, stand_onnx
 ):

@@ -15,8 +15,7 @@ permanent generation (:func:`gc.freeze`), the collector disabled while the loop 
 process's previous state restored.
 
 A loop under the pause must not make reference cycles per step: nothing would reclaim them until
-it ends. :func:`cycles_made` counts what a loop left to the collector (a test of every emulator
-asserts it stays bounded).
+it ends.
 """
 
 from __future__ import annotations
@@ -45,10 +44,3 @@ def collector_paused() -> Iterator[None]:
         if was_enabled:
             gc.enable()
         gc.unfreeze()
-
-
-def cycles_made() -> int:
-    """Objects the collector finds unreachable now (a full ``gc.collect()``): the reference
-    cycles made since the last collection. Costs a full collection; for tests and reports, never
-    inside a loop."""
-    return gc.collect()

@@ -6,7 +6,9 @@ policy) for ``duration`` s each; then the two hardware-in-the-loop runs of ``mak
 against its emulator in a process of its own: go2 over DDS (``sim2real.deploy.harness.unitree_hil``,
 rows ``go2 dds``) and the SO-101 over the Feetech servo bus on a pty
 (``sim2real.deploy.harness.servo_hil``, row ``so101 bus``), their shipped policies, ``duration`` s of
-policy each. One CPU-bound process per CPU (``while True: pass``) runs beside all of them,
+policy each. Every run's loop is at ``--rt-priority`` :data:`~sim2real.deploy.harness.common.LOOP_PRIORITY`
+(SCHED_FIFO, as ``make hil`` runs it and as a robot's computer would) when this machine permits it, and
+at normal priority otherwise; the section's ``loop_priority`` says which. One CPU-bound process per CPU (``while True: pass``) runs beside all of them,
 started before and always stopped after. Reported per robot: ticks, overruns, missed
 periods, their rate, the final state, go2's falls, and the report's longest control periods
 (``deadline.long_ticks``, :mod:`sim2real.deploy.observe.long_ticks`) with their causes counted: what a
@@ -89,7 +91,7 @@ def _hil(name: str, harness: list[str], policy: Path, duration: float, folder: P
 
 
 def measure(arm6: BenchPolicy, folder: Path, duration: float) -> dict:
-    """The ``busy`` entry of results.json: ``{duration_s, burners, rows: [...]}`` (module
+    """The ``busy`` entry of results.json: ``{duration_s, burners, loop_priority, rows: [...]}`` (module
     docstring).
 
     Raises:
@@ -99,6 +101,10 @@ def measure(arm6: BenchPolicy, folder: Path, duration: float) -> dict:
     from bench.session import _deploy_run
     from sim2real.deploy.export import export_policy
 
+    from sim2real.deploy.harness.common import LOOP_PRIORITY, fifo_refused
+
+    refused = fifo_refused(LOOP_PRIORITY)
+    rt = () if refused else ("--rt-priority", str(LOOP_PRIORITY))
     go2 = shipped_go2(folder)
     so101 = export_policy(REPO / "sim2real" / "policies" / "so101.pt", out=folder / "so101.onnx")
     burners = os.cpu_count() or 1
@@ -107,9 +113,9 @@ def measure(arm6: BenchPolicy, folder: Path, duration: float) -> dict:
     try:
         for p in procs:
             p.start()
-        report, _, _ = _deploy_run(go2, duration, True, WALK)
+        report, _, _ = _deploy_run(go2, duration, True, WALK + rt)
         rows.append(_row("go2", report))
-        report, _, _ = _deploy_run(arm6, duration, True)
+        report, _, _ = _deploy_run(arm6, duration, True, rt)
         rows.append(_row(arm6.robot.name, report))
         unitree = ["unitree_hil", "--robot", "go2", "--domain-id", "3"]
         rows.append(_hil("go2 dds", unitree, go2.path, duration, folder, WALK))
@@ -120,4 +126,10 @@ def measure(arm6: BenchPolicy, folder: Path, duration: float) -> dict:
             p.terminate()
         for p in procs:
             p.join()
-    return {"duration_s": float(duration), "burners": burners, "rows": rows}
+    priority = f"SCHED_FIFO {LOOP_PRIORITY}" if refused is None else f"normal ({refused})"
+    return {
+        "duration_s": float(duration),
+        "burners": burners,
+        "loop_priority": priority,
+        "rows": rows,
+    }

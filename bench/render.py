@@ -171,7 +171,7 @@ def render(results: dict) -> str:
         b = sec["busy"]
         add(
             f"== busy: deploy-run --realtime beside {b['burners']} CPU-bound processes, "
-            f"{b['duration_s']:.0f} s each"
+            f"{b['duration_s']:.0f} s each, loop at {b.get('loop_priority', 'normal priority')}"
         )
         for r in b["rows"]:
             falls = "" if r["falls"] is None else f", falls {r['falls']}"

@@ -101,7 +101,6 @@ def measure(arm6: BenchPolicy, folder: Path, duration: float) -> dict:
     """
     from bench.session import _deploy_run
     from sim2real.deploy.export import export_policy
-
     from sim2real.deploy.harness.common import LOOP_PRIORITY, fifo_refused
 
     refused = fifo_refused(LOOP_PRIORITY)

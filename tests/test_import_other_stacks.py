@@ -26,14 +26,17 @@ import pytest
 
 from sim2real.deploy.cli.robot_import import main
 from sim2real.robots import load_robot
+from sim2real.robots.importer.leg_hulls import HULL_TOLERANCE, reduced_vertices, sphere_directions
 from sim2real.robots.importer.pipeline import EXIT_REFUSED
 from sim2real.robots.packages import resolved_mjcf
 from tests.test_import_humanoid import MOTORS, write_humanoid, write_obj
 
 pytest.importorskip("coal")
 
-#: The motors of every import here (the catalog's H1 actuators: velocity limits the files lack).
+#: The motors of the test humanoid's imports (the catalog's H1 actuators: velocity limits the
+#: files lack), and of the Cassie-like biped's.
 MOTOR_FLAGS = [a for m in MOTORS for a in ("--motor", m)]
+CASSIE_MOTORS = ["--motor", "*=h1_hip"]
 
 CASSIE = """<mujoco model="cassie_like">
   <compiler eulerseq="zyx" autolimits="true"/>
@@ -118,7 +121,7 @@ def test_the_floor_touches_feet_whose_contact_bits_are_not_menagerie_defaults(tm
     the robot stands on it; imported from its scene file, the floor keeps the scene's own bits."""
     source = write_cassie(tmp_path)
     out = tmp_path / "robots" / "cassie"
-    assert main([str(source), "--out", str(out), "--floating-base", *MOTOR_FLAGS]) == 0
+    assert main([str(source), "--out", str(out), "--floating-base", *CASSIE_MOTORS]) == 0
     printed = capsys.readouterr().out
     robot = load_robot(out)
     assert robot.foot_sites == ("left-foot", "right-foot")
@@ -129,7 +132,7 @@ def test_the_floor_touches_feet_whose_contact_bits_are_not_menagerie_defaults(tm
 
     scene = tmp_path / "robots" / "cassie_scene"
     assert main([str(tmp_path / "scene.xml"), "--out", str(scene), "--floating-base",
-                 *MOTOR_FLAGS]) == 0  # fmt: skip
+                 *CASSIE_MOTORS]) == 0  # fmt: skip
     robot = load_robot(scene)
     floor = robot.mj_model.geom("floor").id
     assert (robot.mj_model.geom_contype[floor], robot.mj_model.geom_conaffinity[floor]) == (0, 15)
@@ -140,7 +143,7 @@ def test_a_foot_whose_geoms_touch_nothing_is_refused_naming_it(tmp_path, capsys)
     source = write_cassie(tmp_path)
     text = source.read_text().replace('contype="2" conaffinity="4"', 'contype="0" conaffinity="0"')
     source.write_text(text)
-    code = main([str(source), "--out", str(tmp_path / "r"), "--floating-base", *MOTOR_FLAGS])
+    code = main([str(source), "--out", str(tmp_path / "r"), "--floating-base", *CASSIE_MOTORS])
     err = capsys.readouterr().err.strip()
     assert code == EXIT_REFUSED and "\n" not in err
     assert "foot left-foot" in err and "touches nothing" in err
@@ -168,10 +171,7 @@ def write_holosoma_feet(folder: Path) -> Path:
     return source
 
 
-
-def test_a_fixed_body_under_the_foot_neither_breaks_the_frames_nor_takes_the_foot(
-    tmp_path, capsys
-):
+def test_a_fixed_body_under_the_foot_neither_breaks_the_frames_nor_takes_the_foot(tmp_path, capsys):
     """holosoma's ``*_foot_contact_point`` under each ankle link: with the ankle links named as
     feet the robot loads and its base locks (Pinocchio's reduction found two frames named like
     the ankle, its body and the foot site, and refused: "Several frames match the filter"), each
@@ -202,6 +202,7 @@ def test_a_fixed_body_under_the_foot_neither_breaks_the_frames_nor_takes_the_foo
     assert main([str(source), "--out", str(default), *flags]) == 0
     assert load_robot(default).foot_sites == ("left_ankle_link", "right_ankle_link")
     assert "foot left_foot_contact_point has no collision geometry" in capsys.readouterr().out
+
 
 #: Playground's G1 defaults: every joint a ``<position>`` servo of kp 75 critically damped
 #: (``dampratio``), the ankles kp 20, the target range the joint's (``inheritrange``).
@@ -310,8 +311,9 @@ def shank_distance(model: mujoco.MjModel, q: np.ndarray) -> float:
 
 
 def test_leg_links_collide_as_the_files_own_meshes_not_fatter_capsules(tmp_path):
-    """A leg's collision mesh stays the shape MuJoCo collides it as (its convex hull): the
-    shanks of the imported robot are as far apart as the file's own at every pose."""
+    """A leg's collision mesh stays (within the hull tolerance) the shape MuJoCo collides it as,
+    its convex hull: the shanks of the imported robot are as far apart as the file's own at
+    every pose."""
     source = write_slanted_shanks(tmp_path)
     out = tmp_path / "robots" / "h1like"
     assert main([str(source), "--out", str(out), "--floating-base", *MOTOR_FLAGS]) == 0
@@ -321,7 +323,24 @@ def test_leg_links_collide_as_the_files_own_meshes_not_fatter_capsules(tmp_path)
     for roll in (0.0, 0.2, 0.43):
         q = np.array([roll, 0.3, 0.6, -0.3, -roll, 0.3, 0.6, -0.3])
         assert robot.joint_names[0] == "left_hip_roll_joint"
-        assert shank_distance(imported, q) == pytest.approx(shank_distance(own, q), abs=1e-3)
+        expected = shank_distance(own, q)
+        assert expected <= shank_distance(imported, q) <= expected + 2 * HULL_TOLERANCE + 1e-6
+
+
+def test_a_reduced_hull_stays_inside_the_full_one_within_the_tolerance():
+    """A CAD-like hull of 3,000 vertices (an ellipsoid's surface with a thin spike no coarse
+    direction sees) keeps a few dozen: every direction's reach within the tolerance of the full
+    hull's, never beyond it, and the spike's tip kept."""
+    rng = np.random.default_rng(0)
+    unit = rng.normal(size=(3000, 3))
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    points = unit * [0.05, 0.04, 0.2]
+    points[0] = [0.09, 0.0, 0.05]  # a spike 4 cm out of the surface
+    keep = reduced_vertices(points)
+    assert len(keep) < 150 and 0 in keep
+    dirs = sphere_directions(20000)
+    gap = (points @ dirs.T).max(axis=0) - (points[keep] @ dirs.T).max(axis=0)
+    assert gap.min() >= 0.0 and gap.max() <= HULL_TOLERANCE + 5e-4
 
 
 def test_drive_from_a_holosoma_export_without_experiment_config(tmp_path, capsys):

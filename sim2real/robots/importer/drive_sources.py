@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 
 #: The quantities chosen, in the order printed.
 QUANTITIES = ("kp", "kd", "home")
+#: The source texts of the flags' values (robot.toml's words since the flags came first).
+FLAG_SOURCES = {"kp": "--kp/--kd", "kd": "--kp/--kd", "home": "--home flags (see the notes above)"}
 #: The source of a value no flag, policy or file gives.
 RULE = "the importer's rule (see above)"
 
@@ -55,7 +57,7 @@ def choose(
             (None: a URDF).
     """
     layers: list[tuple[dict[str, dict[str, float]], dict[str, str]]] = []
-    layers.append((flags, {q: f"--{q}" for q in QUANTITIES}))
+    layers.append((flags, FLAG_SOURCES))
     if policy is not None:
         values, source = policy
         layers.append((values, {q: f"the policy's (--drive-from: {source})" for q in QUANTITIES}))

@@ -18,10 +18,11 @@ A floating-base robot gets, in its MJCF:
   Geoms and site go on the nearest body a joint moves (the calf): Pinocchio's MJCF parser
   misplaces sites of joint-less child bodies, and a touch sensor counts the contacts of its
   own body;
-- on the other bodies a hinge moves, each box fitted to a mesh (a URDF's, ``--mesh-boxes``)
-  becomes the capsule along its long axis (:func:`_box_to_capsule`); an MJCF mesh's convex hull
-  stays, the shape MuJoCo collides the file's mesh as (a capsule around its box is far fatter
-  than a leaning thigh), and so do the description's own primitives.
+- on the other bodies a hinge moves, an MJCF mesh's convex hull keeps the fewest of its vertices
+  that stay within ``HULL_TOLERANCE`` of it (:mod:`sim2real.robots.importer.leg_hulls`; a capsule
+  around its box, what the importer wrote before, is far fatter than a leaning thigh); a box
+  fitted to a mesh (a URDF's, ``--mesh-boxes``) becomes the capsule along its long axis
+  (:func:`_box_to_capsule`); the description's own primitives stay.
 
 """
 
@@ -32,6 +33,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from sim2real.robots.importer.leg_hulls import reduce_hull
 from sim2real.robots.importer.mjcf_geoms import drop_unused_meshes, hull_points, hull_to_box
 from sim2real.robots.importer.model import _sig
 from sim2real.robots.importer.source import PreparedSource, RobotImportError
@@ -249,11 +251,13 @@ def finish_floating_mjcf(
             objname=foot,
         )
     on_feet = {name for names in foot_geoms.values() for name in names}
-    for body in spec.bodies:  # leg links' fitted boxes: capsules, as legged_gym's; hulls stay
+    for body in spec.bodies:  # leg links (bodies a hinge moves)
         if any(j.type == mujoco.mjtJoint.mjJNT_HINGE for j in body.joints):
             for geom in list(body.geoms):
                 if geom.name in prepared.fitted_geoms and geom.name not in on_feet:
-                    if geom.type == mujoco.mjtGeom.mjGEOM_BOX:
+                    if geom.type == mujoco.mjtGeom.mjGEOM_MESH:
+                        reduce_hull(spec, geom)
+                    elif geom.type == mujoco.mjtGeom.mjGEOM_BOX:  # as legged_gym's
                         _box_to_capsule(geom)
     drop_unused_meshes(spec)
     _add_imu(spec, model, data, imu)

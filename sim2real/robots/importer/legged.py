@@ -413,9 +413,7 @@ def import_floating_base(
         if bad:
             raise RobotImportError(f"{flag}: gains must be positive (kd may be 0), got {bad}")
 
-    drive = choose(
-        joint_names, {"kp": kp_set, "kd": kd_set, "home": home_set}, policy, urdf.drive
-    )
+    drive = choose(joint_names, {"kp": kp_set, "kd": kd_set, "home": home_set}, policy, urdf.drive)
     for line in source_lines(drive, joint_names):
         log(f"note: {line}")
 
@@ -445,7 +443,9 @@ def import_floating_base(
     motion = motion_now()
     gains_from = {j: drive.gains_note(j) for j in joint_names}
     home_from = "; ".join(
-        line.removeprefix("home: ").replace(RULE, "0 clipped into the soft limits")
+        line.removeprefix("home: ")
+        .removesuffix(" (every joint)")
+        .replace(RULE, "0 clipped into the soft limits")
         for line in source_lines(drive, joint_names)
         if line.startswith("home: ")
     )

@@ -17,15 +17,13 @@ defaults, includes, degrees or radians) and makes the same
 - sites (one named like a body renamed ``<name>_site``; ``--imu``/``--ee-site`` follow);
 - effort limits: ``actuatorfrcrange``, else the removed actuators' ``forcerange`` times gear;
 - fixed tendons with limits (``<tendon><fixed limited="true">``, a linkage's limits) whose
-  joints all stay hinges (:mod:`sim2real.robots.importer.mjcf_tendons`);
-- what the file says of its drive (``<position>`` gains, the keyframe's pose) and its floor's
-  contact bits, read before they go (:mod:`sim2real.robots.importer.mjcf_drive`).
+  joints all stay hinges (:mod:`sim2real.robots.importer.mjcf_tendons`).
 
-Removed, each with a printed note: actuators, sensors, other tendons, equalities (a coupled joint
-is frozen), keyframes, textures, materials, skins, flexes, floors, jointless bodies hanging from
-the world (other world geoms move into a fixed body ``base``); slide and ball joints frozen; a
-floating base's own free joint (:mod:`sim2real.robots.importer.legged` adds its own).
-Refused (:class:`RobotImportError`): a free joint without ``--floating-base`` or off the root
+Removed, each with a printed note (:mod:`~sim2real.robots.importer.mjcf_drive` reads the gains,
+home pose and floor bits first): actuators, keyframes, sensors, other tendons, equalities (a
+coupled joint is frozen), textures, materials, skins, flexes, floors, jointless bodies hanging
+from the world (other world geoms move into a fixed body ``base``); slide and ball joints frozen;
+a floating base's own free joint (the importer adds its own). Refused (:class:`RobotImportError`): a free joint without ``--floating-base`` or off the root
 body; contact pairs naming several geoms the file does not have, or any for a fixed base
 (import the scene file instead); a missing mesh file; an unnamed hinge, a hinge without limits
 (unless ``--limit``), a body with several hinges, several jointed bodies hanging from the

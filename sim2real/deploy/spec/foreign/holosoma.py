@@ -203,9 +203,7 @@ def partial(facts, md: dict, names: tuple[str, ...], fail) -> ForeignContract:
     n = len(names)
     kp, kd = _numbers(md, "kp", n, fail), _numbers(md, "kd", n, fail)
     scale = md.get("action_scale")
-    action_scale = (
-        float(scale) if _is_number(scale) else _numbers(md, "action_scale", n, fail)
-    )
+    action_scale = float(scale) if _is_number(scale) else _numbers(md, "action_scale", n, fail)
     lacks = list(FROM_EXPERIMENT_CONFIG) + (["action scale"] if action_scale is None else [])
     lacks += ["kd"] if kd is None else []
     found = [("dof_names", f"{n} joints")]

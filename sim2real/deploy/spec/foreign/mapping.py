@@ -136,10 +136,16 @@ def to_spec(contract: ForeignContract, robot: Robot) -> PolicySpec:
     (each listed in ``contract.missing``).
 
     Raises:
-        ForeignFormatError: a term that cannot be mapped (naming it and the format), joints that
+        ForeignFormatError: no observation terms recorded (naming what the contract lacks), a
+            term that cannot be mapped (naming it and the format), joints that
             do not match the robot, terms whose sizes do not add up to the graph's input, an
             invalid scale.
     """
+    if not contract.terms:
+        raise contract.error(
+            "its observation terms are not recorded, so no spec can be built from it: "
+            + ("; ".join(contract.missing) or "the contract names none")
+        )
     perm = joint_permutation(contract, robot)
     names = policy_joint_names(contract, robot)
     n = len(names)

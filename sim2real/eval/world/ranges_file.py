@@ -6,6 +6,7 @@ Every table and key is optional; what the file leaves out keeps the robot kind's
 is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the class it sets::
 
     floor_friction = [0.6, 1.0]   # floating-base robots only, as added_base_mass (kg)
+    added_mass_body = "torso_link"  # the body added_base_mass goes on (default: the base)
 
     [dynamics]    # relative half-ranges in [0, 1): a factor is drawn from U(1 - r, 1 + r)
     mass = 0.3    # also link_length, friction, damping, actuator_strength, supply_voltage
@@ -82,9 +83,20 @@ FILE_KEYS = {
     for key in keys
 }
 #: Keys of a ranges file outside any table, with their type.
-TOP_LEVEL = {"floor_friction": tuple[float, float], "added_base_mass": tuple[float, float]}
+TOP_LEVEL = {
+    "floor_friction": tuple[float, float],
+    "added_base_mass": tuple[float, float],
+    "added_mass_body": str,
+}
 #: What only a floating-base robot draws.
-FLOATING_BASE_ONLY = ("imu", "floor_friction", "added_base_mass", "pushes", "commands")
+FLOATING_BASE_ONLY = (
+    "imu",
+    "floor_friction",
+    "added_base_mass",
+    "added_mass_body",
+    "pushes",
+    "commands",
+)
 
 
 class RangesError(Sim2RealError, ValueError):
@@ -277,6 +289,13 @@ def apply_overrides(
         except ValueError as exc:
             reason = _reason(exc, "ComOffsetRanges", "body")
             raise RangesError(f"{source}: dynamics.com_offset.body: {reason}") from None
+    body = overrides.get("added_mass_body")
+    bodies = [robot.mj_model.body(i).name for i in range(1, robot.mj_model.nbody)]
+    if body is not None and body not in bodies:
+        raise RangesError(
+            f"{source}: added_mass_body: '{body}' is no body of robot {robot.name} (its bodies: "
+            f"{bodies})"
+        )
     for key in TOP_LEVEL:
         if key in overrides:
             try:

@@ -101,7 +101,7 @@ def test_isaac_lab_events_the_soak_cannot_run_are_refused_by_name(tmp_path):
     with pytest.raises(DomainError) as refused:
         domain_toml(tmp_path / "run" / "params" / "env.yaml")
     message = str(refused.value)
-    assert "events.physics_material.params.restitution_range (0.0, 0.5)" in message
+    assert "events.physics_material.params.restitution_range [0.0, 0.5]" in message
     assert "events.base_external_force_torque: an external force" in message
     assert "events.scale_gravity (randomize_physics_scene_gravity): not an event" in message
 

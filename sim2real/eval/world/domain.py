@@ -81,7 +81,7 @@ def training_domain(policy: str | Path) -> str | None:
     if "policy_spec" in metadata:
         return None
     folder = Path(policy).resolve().parent
-    env = next((folder / p for p in ENV_YAML if (folder / p).is_file()), None)
+    env = next(((folder / p).resolve() for p in ENV_YAML if (folder / p).is_file()), None)
     if env is None:
         return None
     from sim2real.eval.world.env_yaml_domain import env_yaml_domain, load_env_yaml

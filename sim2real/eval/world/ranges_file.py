@@ -5,11 +5,10 @@ the training recipes' ``--ranges FILE`` (:func:`load_ranges`).
 Every table and key is optional; what the file leaves out keeps the robot kind's default. A range
 is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the class it sets::
 
-    floor_friction = [0.6, 1.0]   # floating-base robots only, as added_base_mass (kg)
-    added_mass_body = "torso_link"  # the body added_base_mass goes on (default: the base)
+    floor_friction = [0.6, 1.0]   # floating base only, as added_base_mass (kg), added_mass_body
 
     [dynamics]    # relative half-ranges in [0, 1): a factor is drawn from U(1 - r, 1 + r)
-    mass = 0.3    # also link_length, friction, damping, actuator_strength, supply_voltage
+    mass = 0.3    # also link_length, friction, damping, armature, actuator_strength, kp, kd
     com_offset = {body = "torso_link", x = [-0.05, 0.05]}  # m added to body_ipos per session
 
     [sensors]     # encoder: noise_sigma (rad), latency_ticks (ticks), dropout, encoder_bias

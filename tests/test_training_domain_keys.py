@@ -251,3 +251,70 @@ def test_soak_with_spec_takes_the_command_ranges_the_file_records(tmp_path):
     commands, source = contract_commands(path, strict=False)
     assert (commands.vx, commands.vy, commands.yaw_rate) == ((-0.5, 1.0), (-0.3, 0.3), (-0.8, 0.8))
     assert "command_ranges" in source
+
+
+def holosoma_randomization(delay_enabled: bool) -> dict:
+    """holosoma's G1 locomotion preset (config_values/loco/g1/randomization.py) as
+    ``to_serializable_dict`` writes it."""
+    module = "holosoma.managers.randomization.terms.locomotion"
+
+    def term(func, **params):
+        return {"func": f"{module}:{func}", "params": params}
+
+    return {
+        "setup_terms": {
+            "push_randomizer_state": term("PushRandomizerState", push_interval_s=[5, 10],
+                                          max_push_vel=[1.0, 1.0], enabled=True),
+            "setup_action_delay_buffers": term("setup_action_delay_buffers",
+                                               ctrl_delay_step_range=[0, 1], enabled=delay_enabled),
+            "setup_torque_rfi": term("setup_torque_rfi", enabled=False, rfi_lim=0.1),
+            "setup_dof_pos_bias": term("setup_dof_pos_bias", dof_pos_bias_range=[-0.01, 0.01],
+                                       enabled=False),
+            "actuator_randomizer_state": term("ActuatorRandomizerState", kp_range=[0.9, 1.1],
+                                              kd_range=[0.9, 1.1], rfi_lim_range=[0.5, 1.5],
+                                              enable_pd_gain=True, enable_rfi_lim=False),
+            "mass_randomizer": term("randomize_mass_startup", enable_link_mass=True,
+                                    link_mass_range=[0.9, 1.2], enable_base_mass=True,
+                                    added_mass_range=[-1.0, 3.0]),
+            "randomize_friction_startup": term("randomize_friction_startup",
+                                               friction_range=[0.5, 1.25], enabled=True),
+            "randomize_base_com_startup": term("randomize_base_com_startup", enabled=True,
+                                               base_com_range={"x": [-0.05, 0.05],
+                                                               "y": [-0.05, 0.05],
+                                                               "z": [-0.05, 0.05]}),
+        },
+        "reset_terms": {
+            "push_randomizer_state": {"func": f"{module}:PushRandomizerState", "params": {}},
+            "randomize_push_schedule": {"func": f"{module}:randomize_push_schedule"},
+            "randomize_dof_state": term("randomize_dof_state", joint_pos_scale_range=[0.5, 1.5]),
+        },
+        "step_terms": {"apply_pushes": {"func": f"{module}:apply_pushes", "params": {}}},
+    }  # fmt: skip
+
+
+def test_holosomas_randomization_is_read_term_by_term(tmp_path, go2):
+    """holosoma's G1 preset on a go2-shaped export: its action delay is refused by name; without
+    it, pushes, link and base mass, the feet's friction (averaged with the terrain's 1), the
+    base's centre of mass, kp and kd, the actor's dof_pos noise and the command ranges all
+    reach the soak's ranges (soak-test reads them from the file)."""
+    from sim2real.eval.world.domain import training_domain
+    from tests import foreign_stacks as fs
+
+    experiment = fs.holosoma_experiment(fs.HOLOSOMA_ORDER)
+    experiment["randomization"] = holosoma_randomization(delay_enabled=True)
+    refused = fs.write_holosoma(tmp_path / "delay.onnx", experiment, 45)
+    with pytest.raises(DomainError, match=r"setup_action_delay_buffers.ctrl_delay_step_range "
+                                          r"\[0, 1\]: an action delay"):  # fmt: skip
+        training_domain(refused)
+    experiment["randomization"] = holosoma_randomization(delay_enabled=False)
+    path = fs.write_holosoma(tmp_path / "policy.onnx", experiment, 45)
+    ranges = load_ranges_text(training_domain(path), "holosoma", go2)
+    p = ranges.pushes
+    assert (p.interval, p.mode, p.x, p.y) == ((5.0, 10.0), "set", (-1.0, 1.0), (-1.0, 1.0))
+    d = ranges.dynamics
+    assert (d.mass, d.kp, d.kd) == pytest.approx((0.2, 0.1, 0.1))
+    assert ranges.added_base_mass == (-1.0, 3.0)
+    assert ranges.floor_friction == pytest.approx((0.75, 1.125))
+    assert ranges.com_offset.x == (-0.05, 0.05) and ranges.sensors.encoder_bias is None
+    assert ranges.sensors.noise_sigma[1] == pytest.approx(0.01 / 3**0.5, rel=1e-5)
+    assert ranges.commands is not None

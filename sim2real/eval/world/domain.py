@@ -59,13 +59,16 @@ def domain_toml(path: str | Path) -> str:
 
 def training_domain(policy: str | Path) -> str | None:
     """The training domain of an ONNX policy: the one it carries (metadata ``training_domain``,
-    the text of a ranges file), else, for a file without our spec, its Isaac Lab or mjlab run
-    folder's ``params/env.yaml`` beside it (where :mod:`sim2real.deploy.spec.foreign.isaaclab`
-    looks for it; :func:`domain_toml`) when it has ``events``, else None.
+    the text of a ranges file), else, for a file without our spec, holosoma's
+    ``experiment_config`` (:func:`sim2real.eval.world.holosoma_domain.holosoma_domain`) or its
+    Isaac Lab or mjlab run folder's ``params/env.yaml`` beside it (where
+    :mod:`sim2real.deploy.spec.foreign.isaaclab` looks for it; :func:`domain_toml`) when it has
+    ``events``, else None.
 
     Raises:
-        DomainError: the file cannot be read as ONNX, or its run folder's env.yaml cannot be
-            read or has a randomization the soak cannot run (named).
+        DomainError: the file cannot be read as ONNX, or the domain it records cannot be read
+            or has a randomization the soak cannot run (named; ``soak-test --no-domain`` runs
+            the robot kind's ranges instead).
     """
     import onnx
 
@@ -80,6 +83,8 @@ def training_domain(policy: str | Path) -> str | None:
         return metadata[METADATA_KEY]
     if "policy_spec" in metadata:
         return None
+    if "experiment_config" in metadata:  # holosoma's
+        return _holosoma(policy, metadata)
     folder = Path(policy).resolve().parent
     env = next(((folder / p).resolve() for p in ENV_YAML if (folder / p).is_file()), None)
     if env is None:
@@ -88,6 +93,25 @@ def training_domain(policy: str | Path) -> str | None:
 
     # a run folder's env.yaml without events (none dumped) says nothing of the domain
     return env_yaml_domain(env) if isinstance(load_env_yaml(env).get("events"), dict) else None
+
+
+def _holosoma(policy, metadata: dict) -> str:
+    """:func:`~sim2real.eval.world.holosoma_domain.holosoma_domain` of a holosoma file's
+    metadata.
+
+    Raises:
+        DomainError: its JSON does not parse, or the domain is refused (named).
+    """
+    import json
+
+    from sim2real.eval.world.holosoma_domain import holosoma_domain
+
+    try:
+        config = json.loads(metadata["experiment_config"])
+        ranges = json.loads(metadata.get(COMMAND_RANGES_KEY) or "null")
+    except json.JSONDecodeError as exc:
+        raise DomainError(f"{policy}: metadata is not JSON ({exc})") from None
+    return holosoma_domain(config, ranges if isinstance(ranges, dict) else None, str(policy))
 
 
 #: The metadata key of a velocity command's training ranges: holosoma's (``lin_vel_x``,

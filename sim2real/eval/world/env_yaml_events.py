@@ -62,7 +62,9 @@ def _pair(value) -> tuple[float, float] | None:
     return (lo, hi) if math.isfinite(lo) and math.isfinite(hi) and lo <= hi else None
 
 
-def _range(r: Reading, where: str, value) -> str | None:
+def range_text(r: Reading, where: str, value) -> str | None:
+    """``value`` as a ranges file's ``[low, high]`` (None, and a refusal noted, when it is not
+    one)."""
     pair = _pair(value)
     if pair is None:
         r.refused.append(f"{where}: expected [low, high], got {value!r}")
@@ -70,7 +72,7 @@ def _range(r: Reading, where: str, value) -> str | None:
     return f"[{pair[0]:.6g}, {pair[1]:.6g}]"
 
 
-def _half(r: Reading, where: str, value, what: str) -> str | None:
+def half_range(r: Reading, where: str, value, what: str) -> str | None:
     """A factor range as the half-range about 1 that holds it (noted when widened)."""
     pair = _pair(value)
     if pair is None or pair[0] <= 0:
@@ -128,12 +130,12 @@ def _mass(r: Reading, where: str, params: dict, term: dict, key: str = "mass_dis
     value = params.get(key, params.get("ranges"))
     body = _one_body(params)
     if operation == "add" and body is not None:
-        text = _range(r, f"{where}.params.{key}", value)
+        text = range_text(r, f"{where}.params.{key}", value)
         if text is not None:
             r.top["added_base_mass"] = text
             r.top["added_mass_body"] = f'"{body}"'
     elif operation == "scale" and _every_body(params):
-        half = _half(r, f"{where}.params.{key}", value, "link mass")
+        half = half_range(r, f"{where}.params.{key}", value, "link mass")
         if half is not None:
             r.set("dynamics", "mass", half)
     else:
@@ -151,7 +153,7 @@ def _com(r: Reading, where: str, params: dict, term: dict) -> None:
     for axis, index in axes.items():
         value = (ranges or {}).get(axis, (ranges or {}).get(index))
         if value is not None:
-            text = _range(r, f"{where}.params ({axis})", value)
+            text = range_text(r, f"{where}.params ({axis})", value)
             parts.append(f"{axis} = {text}")
     if body is None or not parts:
         r.refused.append(f"{where}: a centre-of-mass shift needs one body and its ranges")
@@ -169,7 +171,7 @@ def _push(r: Reading, where: str, params: dict, term: dict) -> None:
     angular = {a: velocity[a] for a in ("roll", "pitch", "yaw") if a in velocity}
 
     def table(axes: dict) -> str:
-        return "{" + ", ".join(f"{a} = {_range(r, where, v)}" for a, v in axes.items()) + "}"
+        return "{" + ", ".join(f"{a} = {range_text(r, where, v)}" for a, v in axes.items()) + "}"
 
     r.set("pushes", "interval", f"[{interval[0]:.6g}, {interval[1]:.6g}]")
     r.set("pushes", "mode", '"add"')  # both stacks add the draw to the root's velocity
@@ -198,7 +200,7 @@ def _scaled(keys: dict[str, str]) -> Callable:
             if operation != "scale":
                 r.refused.append(f"{where}.params.{param}: '{operation}' (the soak scales it)")
                 continue
-            half = _half(r, f"{where}.params.{param}", value, field)
+            half = half_range(r, f"{where}.params.{param}", value, field)
             if half is not None:
                 r.set("dynamics", field, half)
         for param in ("lower_limit_distribution_params", "upper_limit_distribution_params"):
@@ -218,7 +220,7 @@ def _field(r: Reading, where: str, params: dict, term: dict) -> None:
     if isinstance(ranges, dict) and field != "body_ipos":
         ranges = ranges.get(0, next(iter(ranges.values()), None))
     if field == "geom_friction" and operation == "abs":
-        text = _range(r, f"{where}.params.ranges", ranges)
+        text = range_text(r, f"{where}.params.ranges", ranges)
         if text is not None:
             r.top["floor_friction"] = text
             r.notes.append(f"{where}: the robot's geoms' friction; here the floor's, which has "
@@ -228,7 +230,7 @@ def _field(r: Reading, where: str, params: dict, term: dict) -> None:
     elif field == "body_mass":
         _mass(r, where, {**params, "mass_distribution_params": ranges}, term)
     elif field in _FIELDS and operation == "scale":
-        half = _half(r, f"{where}.params.ranges", ranges, _FIELDS[field])
+        half = half_range(r, f"{where}.params.ranges", ranges, _FIELDS[field])
         if half is not None:
             r.set("dynamics", _FIELDS[field], half)
     else:
@@ -237,7 +239,7 @@ def _field(r: Reading, where: str, params: dict, term: dict) -> None:
 
 
 def _encoder_bias(r: Reading, where: str, params: dict, term: dict) -> None:
-    text = _range(r, f"{where}.params.bias_range", params.get("bias_range"))
+    text = range_text(r, f"{where}.params.bias_range", params.get("bias_range"))
     if text is not None:
         r.set("sensors", "encoder_bias", text)
 

@@ -20,7 +20,7 @@ import pytest
 
 from sim2real.eval.world.domain import DomainError, contract_commands, legged_gym_domain
 from sim2real.eval.world.dynamics import DynamicsRanges, randomized_model, sample_dynamics
-from sim2real.eval.world.floor import apply_floor_friction, floor_pairs
+from sim2real.eval.world.floor import apply_floor_friction
 from sim2real.eval.world.ranges_file import load_ranges_text
 from sim2real.robots import load_robot
 
@@ -217,6 +217,8 @@ def test_the_floor_friction_draw_reaches_feet_that_touch_through_contact_pairs()
     """A foot whose geom collides with nothing (other contype bits) touches the floor through a
     <pair> with its own friction: the draw sets the pair's sliding friction, and a slippery
     draw slides further."""
+    from sim2real.eval.world.floor import floor_pairs
+
     model = mujoco.MjModel.from_xml_string(PAIRED)
     assert list(floor_pairs(model)) == [0]
     apply_floor_friction(model, 0.2)

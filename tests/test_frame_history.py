@@ -405,3 +405,62 @@ def test_a_humanoid_gym_policy_runs_from_its_spec_and_policy_export_embeds_it(h1
     assert PolicySpec.from_json(stored).history == PolicySpec.from_json(json.dumps(doc)).history
     code, out, err = run("--policy", str(exported))
     assert code in (0, 2) and "error" not in err, out + err
+
+
+class Witness:
+    """A policy that keeps what the runtime feeds it and, beside it, the frame its spec's blocks
+    make of the same state (the history-free twin of its spec), and when the runtime resets it."""
+
+    def __init__(self, spec: PolicySpec, twin: PolicySpec):
+        self.spec, self.twin, self.runtime = spec, twin, None
+        self.fed: list[np.ndarray] = []
+        self.frames: list[list[np.ndarray]] = [[]]  # the frames since each reset
+
+    def reset(self, envs) -> None:
+        self.frames.append([])
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        rt = self.runtime
+        self.frames[-1].append(self.twin.observation(rt.state, rt.goal)[0].copy())
+        self.fed.append((obs[0].copy(), len(self.frames) - 1, len(self.frames[-1])))
+        return np.zeros((1, self.spec.act_dim), dtype=np.float32)
+
+
+def stacked(frames: list[np.ndarray], sizes: list[int], ticks: int) -> np.ndarray:
+    """Per term, the oldest first, the first frame since the reset before it (Isaac Lab's)."""
+    out, start = [], 0
+    for size in sizes:
+        for lag in range(ticks - 1, -1, -1):
+            frame = frames[max(len(frames) - 1 - lag, 0)]
+            out.append(frame[start : start + size])
+        start += size
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("runtime_type", ["Runtime", "ReferenceRuntime"])
+def test_the_runtime_feeds_the_frames_and_starts_them_again_when_the_policy_takes_over(
+    arm3, runtime_type
+):
+    """An arm (the fixed base's fused estimate-observe path runs its four stages apart then) and
+    the numpy reference runtime: every tick the policy gets its blocks' frames of the last 4
+    ticks, and RAMP_IN handing over to it starts the history again."""
+    import dataclasses
+
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.runtime import Runtime
+    from sim2real.deploy.runtime.reference import ReferenceRuntime
+    from sim2real.deploy.spec.history import ObservationHistory
+
+    twin = PolicySpec.for_robot(arm3)
+    history = ObservationHistory(4, layout="per_term", fill="first")
+    witness = Witness(dataclasses.replace(twin, history=history), twin)
+    kind = {"Runtime": Runtime, "ReferenceRuntime": ReferenceRuntime}[runtime_type]
+    rt = kind(arm3, witness, SimBackend(arm3, seed=0))
+    witness.runtime = rt
+    rt.start()
+    rt.run(400)
+    assert rt.mode_names() == ["RUNNING"] and len(witness.frames) >= 3  # start, took over
+    sizes = [b.size for b in twin.observation_blocks]
+    for obs, reset, count in witness.fed:
+        expected = stacked(witness.frames[reset][:count], sizes, 4)
+        np.testing.assert_array_equal(obs, expected)

@@ -464,3 +464,26 @@ def test_the_runtime_feeds_the_frames_and_starts_them_again_when_the_policy_take
     for obs, reset, count in witness.fed:
         expected = stacked(witness.frames[reset][:count], sizes, 4)
         np.testing.assert_array_equal(obs, expected)
+
+
+def test_mjlab_holosoma_and_isaac_lab_histories_map_as_each_stack_lays_them_out(go2, tmp_path):
+    """mjlab's ``observation_terms_history_length`` (per term, first-value fill), holosoma's
+    group ``history_length`` (every term, zeros until full) and an Isaac Lab run's per-term
+    ``history_length`` (refused before) load, each a per-term history, the oldest first."""
+    md = fs.mjlab_metadata()
+    md["observation_terms_history_length"] = [3, 3, 3, 3, 3, 3, 0]  # the command: present only
+    mjlab = OnnxPolicy(fs.write_mjlab(tmp_path / "mjlab.onnx", md, 45 * 3 + 3), go2)
+    h = mjlab.spec.history
+    assert (h.layout, h.order, h.fill, h.lengths) == ("per_term", "oldest_first", "first",
+                                                      (3, 3, 3, 3, 3, 3, 1))  # fmt: skip
+    experiment = fs.holosoma_experiment(fs.HOLOSOMA_ORDER)
+    experiment["observation"]["groups"]["actor_obs"]["history_length"] = 4
+    holosoma = OnnxPolicy(fs.write_holosoma(tmp_path / "h.onnx", experiment, 48 * 4), go2)
+    h = holosoma.spec.history
+    assert (h.length, h.layout, h.fill, h.lengths) == (4, "per_term", "zeros", ())
+    env = fs.isaaclab_env()
+    for term in env["observations"]["policy"].values():
+        if isinstance(term, dict) and "func" in term:
+            term["history_length"] = 2
+    isaac = OnnxPolicy(fs.write_isaaclab_run(tmp_path / "run", env, 48 * 2, 12), go2)
+    assert (isaac.spec.history.length, isaac.spec.obs_dim) == (2, 96)

@@ -80,15 +80,28 @@ def test_an_isaac_lab_env_yaml_is_read_event_by_event(tmp_path):
     assert ranges.floor_friction == (0.3, 1.0)
     assert (ranges.added_base_mass, ranges.added_mass_body) == ((-1.0, 3.0), "left_knee_link")
     p = ranges.pushes
-    assert (p.interval, p.mode, p.x, p.y, p.z) == ((5.0, 5.0), "add", (-0.5, 0.5), (-0.5, 0.5), None)
+    assert (p.interval, p.mode, p.x, p.y, p.z) == (
+        (5.0, 5.0),
+        "add",
+        (-0.5, 0.5),
+        (-0.5, 0.5),
+        None,
+    )
     root12 = math.sqrt(12.0)
     assert ranges.imu.gyro_noise_sigma[1] == pytest.approx(0.4 / root12, rel=1e-5)
     assert ranges.imu.accel_noise_sigma[1] == pytest.approx(9.80665 * 0.1 / root12, rel=1e-5)
     assert ranges.sensors.noise_sigma[1] == pytest.approx(0.02 / root12, rel=1e-5)
     assert ranges.commands.vx == (-0.1, 0.1) and ranges.dynamics.mass == 0.0
     with pytest.raises(RangesError, match="added_mass_body: 'torso_link' is no body of robot h1"):
-        load_ranges_text(domain_toml(isaaclab_env_yaml(tmp_path / "g1", isaaclab_events(
-            "torso_link")).parent.parent / "params" / "env.yaml"), "env.yaml", load_robot("h1"))
+        load_ranges_text(
+            domain_toml(
+                isaaclab_env_yaml(tmp_path / "g1", isaaclab_events("torso_link")).parent.parent
+                / "params"
+                / "env.yaml"
+            ),
+            "env.yaml",
+            load_robot("h1"),
+        )
 
 
 def test_isaac_lab_events_the_soak_cannot_run_are_refused_by_name(tmp_path):

@@ -24,7 +24,7 @@ from sim2real.eval.world.floor import apply_floor_friction
 from sim2real.eval.world.ranges_file import load_ranges_text
 from sim2real.robots import load_robot
 
-HUMANOID_GYM = '''
+HUMANOID_GYM = """
 from humanoid.envs.base.legged_robot_config import LeggedRobotCfg, LeggedRobotCfgPPO
 
 class XBotLCfg(LeggedRobotCfg):
@@ -65,9 +65,9 @@ class XBotLCfg(LeggedRobotCfg):
 
 class XBotLCfgPPO(LeggedRobotCfgPPO):
     seed = 5
-'''
+"""
 
-FORK = '''
+FORK = """
 from legged_gym.envs.base.legged_robot_config import LeggedRobotCfg
 
 class BipedCfg(LeggedRobotCfg):
@@ -109,7 +109,7 @@ class BipedCfg(LeggedRobotCfg):
             lin_vel_x = [-1.5, 1.5]
             lin_vel_y = [-0.5, 0.5]
             ang_vel_yaw = [-1.5, 1.5]
-'''
+"""
 
 
 def write(tmp_path, text: str, name: str = "config.py"):
@@ -152,8 +152,11 @@ def test_a_forks_nested_domain_rands_are_read_key_by_key(tmp_path):
 def test_an_unknown_randomization_is_refused_unless_its_switch_is_off(tmp_path):
     on = FORK.replace("class disturbance:", "class gravity:\n            randomize_gravity = True\n"
                       "            gravity_range = [-1.0, 1.0]\n        class disturbance:")  # fmt: skip
-    with pytest.raises(DomainError, match=r"domain_rands.gravity.randomize_gravity, "
-                                          r"domain_rands.gravity.gravity_range: not a randomiza"):
+    with pytest.raises(
+        DomainError,
+        match=r"domain_rands.gravity.randomize_gravity, "
+        r"domain_rands.gravity.gravity_range: not a randomiza",
+    ):
         legged_gym_domain(write(tmp_path, on))
     off = on.replace("randomize_gravity = True", "randomize_gravity = False")
     assert "[dynamics]" in legged_gym_domain(write(tmp_path, off, "off.py"))
@@ -183,7 +186,9 @@ def test_kp_kd_and_armature_factors_reach_the_plant_and_leave_other_draws_alone(
             nominal.actuator_biasprm[a, 2] * k * draw.kd[j]
         )
         dof = model.jnt_dofadr[model.actuator_trnid[a, 0]]
-        assert model.dof_armature[dof] == pytest.approx(nominal.dof_armature[dof] * draw.armature[j])
+        assert model.dof_armature[dof] == pytest.approx(
+            nominal.dof_armature[dof] * draw.armature[j]
+        )
 
 
 PAIRED = """

@@ -30,8 +30,8 @@ from sim2real.deploy.export.parity import PARITY_SAMPLES, parity_observations
 from sim2real.deploy.export.pipeline import ExportResult
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.policy.onnx_spec import METADATA_SPEC
-from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.deploy.spec.onnx_checks import PolicyLoadError
+from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.robots import Robot
 from sim2real.robots.files import atomic_path, sha256_file
 

@@ -22,9 +22,9 @@ import numpy as np
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.kernels.calls import put
 from sim2real.deploy.spec import kernel as ok
+from sim2real.deploy.spec.history import FrameRing, gather_table, stacked_dim
 from sim2real.deploy.spec.kernel import observation as observation_kernel
 from sim2real.deploy.spec.kernel import observation_over
-from sim2real.deploy.spec.history import FrameRing, gather_table, stacked_dim
 from sim2real.deploy.spec.kinds import KINDS, ObservationKind, numpy_reason
 from sim2real.deploy.spec.policy_spec import PolicySpec, SpecError
 from sim2real.deploy.spec.reference import assemble

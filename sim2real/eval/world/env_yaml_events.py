@@ -41,11 +41,17 @@ class Reading:
         lines.append(f"floor_friction = {self.top.get('floor_friction', '[1.0, 1.0]')}")
         lines += [f"{k} = {v}" for k, v in self.top.items() if k != "floor_friction"]
         defaults = {
-            "dynamics": {k: "0.0" for k in ("link_length", "mass", "friction", "damping",
-                                             "actuator_strength")},  # fmt: skip
+            "dynamics": {
+                k: "0.0"
+                for k in ("link_length", "mass", "friction", "damping", "actuator_strength")
+            },  # fmt: skip
             "sensors": {"noise_sigma": "[0.0, 0.0]", "latency_ticks": "[0, 0]"},
-            "imu": {"gyro_noise_sigma": "[0.0, 0.0]", "accel_noise_sigma": "[0.0, 0.0]",
-                    "bias_scale": "[0.0, 0.0]", "latency_ticks": "[0, 0]"},  # fmt: skip
+            "imu": {
+                "gyro_noise_sigma": "[0.0, 0.0]",
+                "accel_noise_sigma": "[0.0, 0.0]",
+                "bias_scale": "[0.0, 0.0]",
+                "latency_ticks": "[0, 0]",
+            },  # fmt: skip
         }
         for table in ("dynamics", "sensors", "imu", "pushes", "commands"):
             entries = {**defaults.get(table, {}), **self.tables.get(table, {})}

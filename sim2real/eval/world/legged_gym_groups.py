@@ -188,7 +188,9 @@ def _com(c: Context, g: Group) -> None:
         axes = [(-abs(float(v)), abs(float(v))) for v in value]
     else:
         axes = [c.pair(key)] * 3
-    parts = ", ".join(f"{a} = [{lo:.6g}, {hi:.6g}]" for a, (lo, hi) in zip("xyz", axes))
+    parts = ", ".join(
+        f"{a} = [{lo:.6g}, {hi:.6g}]" for a, (lo, hi) in zip("xyz", axes, strict=True)
+    )
     c.dynamics["com_offset"] = "{" + parts + "}"  # the base body
 
 

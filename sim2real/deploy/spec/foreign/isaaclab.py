@@ -14,9 +14,10 @@ and ``env.yaml`` from the ONNX file's folder, and read with a safe YAML loader (
 plain data; nothing is constructed or run). From it: the ``policy`` observation group's terms in
 order (their functions, ``scale`` and ``clip`` (Isaac Lab clips before scaling),
 ``history_length``: the term's last N values, oldest first, its ``CircularBuffer`` filled with
-its first value after a reset; the group's, when set, for every term), the ``joint_pos`` action (``JointPositionAction``: ``scale``, ``offset``,
-``use_default_offset``, ``clip``), the robot's ``init_state.joint_pos`` and its actuators'
-``stiffness`` and ``damping`` (regular expressions over joint names) and the control rate
+its first value after a reset; the group's, when set, for every term), the ``joint_pos`` action
+(``JointPositionAction``: ``scale``, ``offset``, ``use_default_offset``, ``clip``), the robot's
+``init_state.joint_pos`` and its actuators' ``stiffness`` and ``damping`` (regular expressions
+over joint names) and the control rate
 (``1 / (sim.dt * decimation)``); ``params/agent.yaml``'s ``clip_actions`` (rsl_rl's wrapper)
 when present.
 

@@ -32,6 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim2real.deploy.kernels.calls import bind
+from sim2real.deploy.spec.kernel import stack_history
+
 #: The orders of a history's ticks in the graph's input.
 ORDERS = ("oldest_first", "newest_first")
 #: How the ticks are laid out: whole frames in turn, or each block's ticks in turn.
@@ -116,6 +119,20 @@ def gather_table(history: ObservationHistory, sizes: tuple[int, ...]) -> np.ndar
     return np.ascontiguousarray(np.array(entries, dtype=np.int64).reshape(-1, 2).T)
 
 
+def runs_of(table: np.ndarray) -> np.ndarray:
+    """(runs, 4) int64: a :func:`gather_table` as runs of input entries that read consecutive
+    columns of one tick's frame: the tick, the first frame column, the first input entry, the
+    length (what the kernel copies)."""
+    out: list[list[int]] = []
+    for k, (lag, column) in enumerate(table.T.tolist()):
+        last = out[-1] if out else None
+        if last and last[0] == lag and last[1] + last[3] == column:
+            last[3] += 1
+        else:
+            out.append([lag, column, k, 1])
+    return np.ascontiguousarray(np.array(out, dtype=np.int64).reshape(-1, 4))
+
+
 def per_input_entry(spec, per_frame_entry: np.ndarray) -> np.ndarray:
     """A value per frame entry (``spec.frame_dim``) as a value per entry of the graph's input
     (``spec.obs_dim``): each input entry takes its frame column's (a clip, a scale)."""
@@ -132,13 +149,17 @@ class FrameRing:
     (envs,), at most ``length``; grown (and every env reset) when a batch of more envs comes.
 
     Args:
-        history: The spec's history. table: Its :func:`gather_table`. frame: Entries of a frame.
+        history: The spec's history. table: Its :func:`gather_table` (the kernel copies its runs,
+            :func:`runs_of`). frame: Entries of a frame.
     """
 
     def __init__(self, history: ObservationHistory, table: np.ndarray, frame: int):
         self.history, self.table, self.frame_dim = history, table, frame
+        self.runs = runs_of(table)
         self.fill_first = history.fill == "first"
         self.frames = np.zeros((0, frame), dtype=np.float32)
+        #: (frame, out, ring, the kernel bound to them) of the last call (:meth:`stack`)
+        self._bound: tuple = ()
         self._size(0)
 
     def _size(self, envs: int) -> None:
@@ -164,10 +185,17 @@ class FrameRing:
 
     def stack(self, frame: np.ndarray, out: np.ndarray) -> np.ndarray:
         """Push ``frame`` (float32 (envs, frame)) and write the graph's input into ``out``
-        (float32 (envs, input entries)), compiled."""
-        from sim2real.deploy.spec.kernel import stack_history
-
-        stack_history(frame, self.ring, self.head, self.count, self.table, self.fill_first, out)
+        (float32 (envs, input entries)), compiled: the kernel's entry point bound to these
+        arrays while ``frame``, ``out`` and the ring are the same objects (the runtime's every
+        tick: :func:`sim2real.deploy.kernels.calls.bind`, no dispatch per call)."""
+        bound = self._bound
+        if not (bound and frame is bound[0] and out is bound[1] and self.ring is bound[2]):
+            args = (frame, self.ring, self.head, self.count, self.runs, self.fill_first, out)
+            if not (frame.flags.c_contiguous and out.flags.c_contiguous):
+                stack_history(*args)
+                return out
+            self._bound = bound = (frame, out, self.ring, bind(stack_history, *args))
+        bound[3]()
         return out
 
     def stack_reference(self, frame: np.ndarray, out: np.ndarray) -> np.ndarray:

@@ -201,7 +201,7 @@ def stack_history(
     ring: np.ndarray,
     head: np.ndarray,
     count: np.ndarray,
-    table: np.ndarray,
+    runs: np.ndarray,
     fill_first: bool,
     out: np.ndarray,
 ) -> None:
@@ -212,12 +212,13 @@ def stack_history(
         frame: float32 (envs, frame), this tick's frame.
         ring: float32 (envs, length, frame), the past frames; ``head`` (envs,) int64 its newest
             slot, ``count`` (envs,) int64 the frames pushed since the env's reset (<= length).
-        table: (2, entries) int64, per input entry its tick (0 the present) and frame column.
+        runs: (runs, 4) int64, the input's runs of consecutive entries: the tick they read (0
+            the present), their first frame column, their first input entry, their length
+            (:func:`sim2real.deploy.spec.history.runs_of`).
         fill_first: A tick before the reset reads the first frame after it (else 0).
         out: float32 (envs, entries).
     """
     envs, width, length = frame.shape[0], frame.shape[1], ring.shape[1]
-    entries = out.shape[1]
     for e in range(envs):
         h = head[e] + 1
         if h >= length:
@@ -229,17 +230,19 @@ def stack_history(
         if pushed > length:
             pushed = length
         count[e] = pushed
-        for k in range(entries):
-            lag = table[0, k]
+        for r in range(runs.shape[0]):
+            lag, c0, o0, n = runs[r, 0], runs[r, 1], runs[r, 2], runs[r, 3]
             if lag >= pushed:
                 if not fill_first:
-                    out[e, k] = np.float32(0.0)
+                    for i in range(n):
+                        out[e, o0 + i] = np.float32(0.0)
                     continue
                 lag = pushed - 1
             slot = h - lag
             if slot < 0:
                 slot += length
-            out[e, k] = ring[e, slot, table[1, k]]
+            for i in range(n):
+                out[e, o0 + i] = ring[e, slot, c0 + i]
 
 
 # :func:`observation_over`'s table (:mod:`sim2real.deploy.kernels.calls`): its header (sizes),

@@ -475,7 +475,7 @@ def test_policy_export_writes_a_foreign_onnx_with_our_spec_in_one_file(go2, tmp_
     """``policy-export policy.onnx --robot go2``: the published graph (weights in
     ``policy.onnx.data``, contract in ``params/deploy.yaml``) becomes one file that carries our
     spec, runs with neither sidecar, and gives the source's actions to the bit; without --robot,
-    or with --spec, it is refused in one line."""
+    or with a --spec file that is not there, it is refused in one line."""
     import shutil
 
     import onnx
@@ -485,7 +485,7 @@ def test_policy_export_writes_a_foreign_onnx_with_our_spec_in_one_file(go2, tmp_
     path = fs.write_unitree_policy(tmp_path / "v0", cfg, 45, bias=BIAS)
     for argv, message in (
         ([], "needs --robot"),
-        (["--robot", "go2", "--spec", "x.json"], "--spec"),
+        (["--robot", "go2", "--spec", "x.json"], "x.json: cannot read the spec file"),
     ):
         assert policy_export_main([str(path), *argv]) == 2
         err = capsys.readouterr().err.strip()

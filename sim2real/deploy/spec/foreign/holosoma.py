@@ -24,9 +24,11 @@ scaling) and the global ``observation.clip_observations``; the default pose
 (``robot.init_state.default_joint_angles``), the action scale and clip
 (``robot.control.action_scale``, ``clip_actions``, ``action_clip_value``; a scale per joint of
 ``action_scale * effort_limit / kp`` with ``action_scales_by_effort_limit_over_p_gain``) and the
-control rate (``simulator.config.sim.fps / control_decimation``). Without ``experiment_config``
-the contract holds what the metadata gives (joints, gains, command ranges, an action scale) and
-names what is missing (:func:`partial`): enough for ``robot-import --drive-from``, not for a spec.
+control rate (``simulator.config.sim.fps / control_decimation``). A group's ``history_length`` N
+gives each of its terms the last N values, oldest first, zeros before the reset's first. Without
+``experiment_config`` the contract holds what the metadata gives (joints, gains, command ranges,
+an action scale) and names what is missing (:func:`partial`): enough for ``robot-import
+--drive-from``, not for a spec.
 """
 
 from __future__ import annotations
@@ -153,6 +155,7 @@ def read(facts) -> ForeignContract:
         kd=kd or None,
         control_rate=rate,
         command_ranges=command_ranges(md.get("command_ranges")),
+        history_fill="zeros",  # its history deque pads with zeros until full
         found=found,
         missing=missing,
         notes=(
@@ -245,8 +248,8 @@ def _term(name: str, cfg: dict, history: int, global_clip, fail) -> Term:
     else:
         kind, components = None, ()
         size, reason = UNMAPPED.get(key, (0, f"the function {func!r} is not one this toolkit maps"))
-    if history > 1:
-        kind, reason = None, f"a history of {history} steps (no history block here)"
-    elif reason:
+    if reason:
         kind = None
-    return Term(name, kind, size, scale, clip, components, reason=reason, source=func)
+    return Term(
+        name, kind, size, scale, clip, components, reason=reason, source=func, history=history
+    )

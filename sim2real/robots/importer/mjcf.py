@@ -23,11 +23,11 @@ Removed, each with a printed note (:mod:`~sim2real.robots.importer.mjcf_drive` r
 home pose and floor bits first): actuators, keyframes, sensors, other tendons, equalities (a
 coupled joint is frozen), textures, materials, skins, flexes, floors, jointless bodies hanging
 from the world (other world geoms move into a fixed body ``base``); slide and ball joints frozen;
-a floating base's own free joint (the importer adds its own). Refused (:class:`RobotImportError`): a free joint without ``--floating-base`` or off the root
-body; contact pairs naming several geoms the file does not have, or any for a fixed base
-(import the scene file instead); a missing mesh file; an unnamed hinge, a hinge without limits
-(unless ``--limit``), a body with several hinges, several jointed bodies hanging from the
-world, a moving body without mass or inertia, and what MuJoCo itself refuses.
+a floating base's own free joint (the importer adds its own). Refused (:class:`RobotImportError`):
+a free joint without ``--floating-base`` or off the root body; contact pairs naming geoms the file
+lacks, or any for a fixed base (import the scene file instead); a missing mesh file; an unnamed
+hinge, a hinge without limits (unless ``--limit``), a body with several hinges, several jointed
+bodies hanging from the world, a moving body without mass or inertia, what MuJoCo refuses.
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """holosoma's ONNX metadata (``holosoma.utils.inference_helpers.attach_onnx_metadata``, called by
 its PPO and FastSAC agents' ``export``; amazon-far/holosoma).
 
-holosoma exports the actor as ``actor_obs`` -> ``action`` (opset 13, batch fixed at 1) and appends
-``model.metadata_props`` whose every value is ``json.dumps`` of:
+holosoma exports ``actor_obs`` -> ``action`` (opset 13, batch 1); each ``metadata_props`` value is
+``json.dumps`` of:
 
 ========================  ===============================================================
 key                       value
@@ -11,10 +11,9 @@ key                       value
 ``kp``, ``kd``            PD gains per joint, N m/rad and N m s/rad
 ``command_ranges``        the velocity command's sampling ranges (or null)
 ``action_scale``          the action scale, one number or one per joint (newer exports)
-``robot_urdf``, ``_path`` the robot's URDF text and path (not used)
 ``experiment_config``     the whole training configuration (``ExperimentConfig``; the G1
                           policies holosoma_inference ships do not carry it)
-``wandb_run_path``, ...   provenance (not used)
+``robot_urdf``, ...       the URDF, its path, the wandb run (not used)
 ========================  ===============================================================
 
 From ``experiment_config``: the actor's observation groups (``algo.config.module_dict.actor.

@@ -1,8 +1,8 @@
 """MJCF reading for the importer: an MJCF robot checked and reduced to what the toolkit uses.
 
-:func:`prepare_mjcf` loads the file with ``mujoco.MjSpec.from_file`` (MuJoCo's own parser:
-defaults, includes, degrees or radians) and makes the same
-:class:`sim2real.robots.importer.source.PreparedSource` a URDF makes; the rest of the import is shared. Kept:
+:func:`prepare_mjcf` loads the file with ``mujoco.MjSpec.from_file`` (MuJoCo's own parser: defaults,
+includes, degrees or radians) and makes the :class:`~sim2real.robots.importer.source.PreparedSource`
+a URDF makes; the rest of the import is shared. Kept:
 
 - hinge joints, their ranges (radians), damping and friction loss (the armature is the motor's);
 - geometry (:mod:`sim2real.robots.importer.mjcf_geoms`) and inertials, written for every body;
@@ -23,11 +23,11 @@ Removed, each with a printed note (:mod:`~sim2real.robots.importer.mjcf_drive` r
 home pose and floor bits first): actuators, keyframes, sensors, other tendons, equalities (a
 coupled joint is frozen), textures, materials, skins, flexes, floors, jointless bodies hanging
 from the world (other world geoms move into a fixed body ``base``); slide and ball joints frozen;
-a floating base's own free joint (the importer adds its own). Refused (:class:`RobotImportError`): a free joint without ``--floating-base`` or off the root
-body; contact pairs naming several geoms the file does not have, or any for a fixed base
-(import the scene file instead); a missing mesh file; an unnamed hinge, an arm's hinge without
-limits (unless ``--limit``; a floating-base robot's is continuous, a wheel), a body with several
-hinges, several jointed bodies hanging from the world, a massless moving body, what MuJoCo refuses.
+a floating base's own free joint (the importer adds its own). Refused (:class:`RobotImportError`):
+a free joint without ``--floating-base`` or off the root body; contact pairs naming geoms the file
+lacks, or any for a fixed base; a missing mesh; an unnamed hinge, an arm's hinge without limits
+(unless ``--limit``; a floating base's is continuous, a wheel), a body with several hinges,
+several jointed bodies under the world, a massless moving body, what MuJoCo refuses.
 """
 
 from __future__ import annotations

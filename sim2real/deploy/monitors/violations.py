@@ -154,7 +154,9 @@ class ViolationMonitor(MonitorState):
         self._effort = robot.effort_limit * (1.0 + EFFORT_TOLERANCE)
         # the screen: one row per env, [q - soft centre, dq, tau, ee - box centre]
         width = 3 * n + 3
-        self._offset_q = 0.5 * (self._soft_lower + self._soft_upper)
+        # a continuous joint (infinite soft limits, a wheel): centre 0, infinite bound
+        lo, hi = (np.where(np.isfinite(b), b, 0.0) for b in (self._soft_lower, self._soft_upper))
+        self._offset_q = 0.5 * (lo + hi)
         self._offset_ee = np.zeros(3)
         if self._has_workspace:
             self._offset_ee = 0.5 * (self._ws_min + self._ws_max)

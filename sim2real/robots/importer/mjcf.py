@@ -1,8 +1,8 @@
 """MJCF reading for the importer: an MJCF robot checked and reduced to what the toolkit uses.
 
-:func:`prepare_mjcf` loads the file with ``mujoco.MjSpec.from_file`` (MuJoCo's own parser:
-defaults, includes, degrees or radians) and makes the same
-:class:`sim2real.robots.importer.source.PreparedSource` a URDF makes; the rest of the import is shared. Kept:
+:func:`prepare_mjcf` loads the file with ``mujoco.MjSpec.from_file`` (MuJoCo's own parser: defaults,
+includes, degrees or radians) and makes the :class:`~sim2real.robots.importer.source.PreparedSource`
+a URDF makes; the rest of the import is shared. Kept:
 
 - hinge joints, their ranges (radians), damping and friction loss (the armature is the motor's);
 - geometry (:mod:`sim2real.robots.importer.mjcf_geoms`) and inertials, written for every body;
@@ -25,9 +25,9 @@ coupled joint is frozen), textures, materials, skins, flexes, floors, jointless 
 from the world (other world geoms move into a fixed body ``base``); slide and ball joints frozen;
 a floating base's own free joint (the importer adds its own). Refused (:class:`RobotImportError`):
 a free joint without ``--floating-base`` or off the root body; contact pairs naming geoms the file
-lacks, or any for a fixed base (import the scene file instead); a missing mesh file; an unnamed
-hinge, a hinge without limits (unless ``--limit``), a body with several hinges, several jointed
-bodies hanging from the world, a moving body without mass or inertia, what MuJoCo refuses.
+lacks, or any for a fixed base; a missing mesh; an unnamed hinge, an arm's hinge without limits
+(unless ``--limit``; a floating base's is continuous, a wheel), a body with several hinges,
+several jointed bodies under the world, a massless moving body, what MuJoCo refuses.
 """
 
 from __future__ import annotations
@@ -151,7 +151,7 @@ def prepare_mjcf(
         spec.joint(name).range = [lo, hi]
         spec.joint(name).limited = mujoco.mjtLimited.mjLIMITED_TRUE
     model = _compile(spec, path)
-    joints = _hinge_limits(model, path, efforts)
+    joints = _hinge_limits(model, path, efforts, floating_base)
     keep = {n for p in pairs for n in (p["geom1"], p["geom2"])}
     meshdir_abs, fitted = simplify_geoms(spec, model, notes, link_boxes, keep)
     renamed_sites = _rename_sites_like_bodies(spec, notes)
@@ -454,18 +454,25 @@ def _freeze_joints(spec: mujoco.MjSpec, path: Path, frozen: set[str], notes) -> 
         raise RobotImportError(f"{path}: <mujoco>: no hinge joint; expected a robot's hinges")
 
 
-def _hinge_limits(model: mujoco.MjModel, path: Path, efforts) -> dict[str, JointInfo]:
-    """JointInfo of every hinge (rad, N m); refuse unlimited hinges and massless moving bodies."""
+def _hinge_limits(
+    model: mujoco.MjModel, path: Path, efforts, floating_base: bool = False
+) -> dict[str, JointInfo]:
+    """JointInfo of every hinge (rad, N m); an unlimited hinge of a floating-base robot is
+    continuous (a wheel: -inf, inf); refuse an arm's unlimited hinges (its goals are drawn within
+    the joint ranges) and massless moving bodies."""
     joints: dict[str, JointInfo] = {}
     for j in range(model.njnt):
         name = model.joint(j).name
         lo, hi = (float(x) for x in model.jnt_range[j])
-        if not model.jnt_limited[j]:
+        if not model.jnt_limited[j] and floating_base:  # continuous (a wheel): no limit
+            lo, hi = -math.inf, math.inf
+        elif not model.jnt_limited[j]:
             raise RobotImportError(
                 f"{path}: <joint name='{name}'>: no position limits (limited=\"false\" or no "
-                f'range); expected range="LOWER UPPER" or --limit {name}=LOWER:UPPER (rad)'
+                f'range); expected range="LOWER UPPER" or --limit {name}=LOWER:UPPER (rad): '
+                "a continuous joint (a wheel) is taken on a floating-base robot only"
             )
-        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        elif not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
             raise RobotImportError(
                 f"{path}: <joint name='{name}' range>: got {lo:g}, {hi:g} rad; expected lower < "
                 f"upper (or --limit {name}=LOWER:UPPER)"

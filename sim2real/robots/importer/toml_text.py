@@ -58,7 +58,11 @@ def joint_lines(
         "",
         "[[joints]]",
         f'name = "{j}"',
-        f"position_limit = [{_f(lo)}, {_f(hi)}]  # {kind}",
+        (
+            f"continuous = true  # no position limit ({kind}): speed and torque are checked"
+            if math.isinf(lo) or math.isinf(hi)
+            else f"position_limit = [{_f(lo)}, {_f(hi)}]  # {kind}"
+        ),
         f"velocity_limit = {_f(vel)}  # rad/s, {vnote}",
         *command,
         f"acceleration_limit = {_f(motion.acceleration[i])}",

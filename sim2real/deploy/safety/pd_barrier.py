@@ -206,39 +206,45 @@ def pd_barrier_constants(guard) -> np.ndarray:
 def gravity_rows(guard, q: np.ndarray, projected_gravity: np.ndarray | None) -> None:
     """Rewrite the gravity rows of ``guard``'s constants (``TOWARD`` on) for the estimate ``q``
     (envs, n) rad and the base's ``projected_gravity`` (envs, 3; gravity's unit direction in the
-    base frame; None or not finite: upright): each joint's gravity torque toward its upper and
-    its lower limit, ``-G(q)`` and ``G(q)`` (Pinocchio's generalized gravity of the fixed-base
-    model, gravity turned into the base frame), plus ``SLACK_SHARE`` of the all-pose bound, at
-    most that bound. An env whose ``q`` is not finite keeps the bound."""
+    base frame; None: upright): each joint's gravity torque toward its upper and its lower limit,
+    ``-G(q)`` and ``G(q)`` (Pinocchio's generalized gravity of the fixed-base model, gravity
+    turned into the base frame), plus ``SLACK_SHARE`` of the all-pose bound, at most that bound.
+    An env whose ``q`` or base direction is not finite keeps the bound."""
     c = pd_barrier_constants(guard)
-    model, data, magnitude, upright = _gravity_model(guard)
-    bound, slack = c[GRAVITY], c[SLACK]
+    model, data, magnitude, upright, linear = _gravity_model(guard)
     for e in range(q.shape[0]):
-        up, down = c[TOWARD + 2 * e], c[TOWARD + 2 * e + 1]
-        qe = q[e]
         g = upright if projected_gravity is None else projected_gravity[e]
-        if not math.isfinite(float(qe.sum())):
-            up[:] = down[:] = bound
-            continue
-        if not math.isfinite(float(g.sum())):
-            g = upright
-        model.gravity.linear = magnitude * g
-        torque = pin.computeGeneralizedGravity(model, data, qe)
-        np.subtract(slack, torque, out=up)
-        np.minimum(up, bound, out=up)
-        np.add(slack, torque, out=down)
-        np.minimum(down, bound, out=down)
+        np.multiply(g, magnitude, out=linear)
+        model.gravity.linear = linear
+        torque = pin.computeGeneralizedGravity(model, data, q[e])
+        _toward(torque, c[GRAVITY], c[SLACK], c[TOWARD + 2 * e], c[TOWARD + 2 * e + 1])
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def _toward(torque, bound, slack, up, down) -> None:
+    """:func:`gravity_rows` of one env from its generalized gravity ``torque`` (n,) N m (the
+    bound where any entry is not finite)."""
+    finite = True
+    for j in range(torque.shape[0]):
+        finite = finite and math.isfinite(torque[j])
+    for j in range(torque.shape[0]):
+        if finite:
+            up[j] = min(slack[j] - torque[j], bound[j])
+            down[j] = min(slack[j] + torque[j], bound[j])
+        else:
+            up[j] = down[j] = bound[j]
 
 
 def _gravity_model(guard) -> tuple:
     """``guard``'s fixed-base Pinocchio model copied for :func:`gravity_rows` (which turns its
-    gravity), its data, gravity's magnitude (m/s^2) and the upright direction (3,); cached."""
+    gravity), its data, gravity's magnitude (m/s^2), the upright direction and a buffer (3,);
+    cached on the guard."""
     cached = guard.__dict__.get("_pd_barrier_gravity")
     if cached is None:
         model = pin.Model(guard.model)
         linear = np.array(model.gravity.linear)
         magnitude = float(np.linalg.norm(linear))
-        cached = (model, model.createData(), magnitude, linear / magnitude)
+        cached = (model, model.createData(), magnitude, linear / magnitude, np.empty(3))
         guard.__dict__["_pd_barrier_gravity"] = cached
     return cached
 

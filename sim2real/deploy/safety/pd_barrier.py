@@ -66,12 +66,11 @@ MARGIN_SHARE = 0.25
 #: before the hard limit less the margin at the end of the predicted period. Our choice: half,
 #: leaving the rest to what the 1-D prediction leaves out (the other joints' coupling, contacts).
 BRAKE_SHARE = 0.5
-#: Share of a joint's all-pose gravity bound added to its gravity torque at the estimate. Our
-#: choice: a quarter, the torque of the joint's whole bound under a base acceleration of a
-#: quarter of gravity (a walking base's, and a push's first tenth of a second, stay under it) or
-#: a pose 14 deg off the estimate's. The all-pose bound itself (the masses beyond the joint at
-#: their longest lever) is no prediction: a G1's waist holds its upper body, 47.7 N m at that
-#: bound, with 50 N m of effort; judged with it, every target at rest was "too fast to stop".
+#: Share of a joint's all-pose gravity bound added to its gravity torque at the estimate (our
+#: choice): a quarter, what the joint's whole bound gives under a base acceleration of a quarter
+#: of gravity or a pose 14 deg off the estimate's. The all-pose bound itself (the masses beyond
+#: the joint at their longest lever) is no prediction where a joint's effort is barely above it:
+#: judged with it, such a joint can never brake (a G1's waist: docs/measurements.md).
 SLACK_SHARE = 0.25
 #: Halvings of the bisection's bracket (its width, a few rad, to below 1e-9 rad).
 BISECTIONS = 32

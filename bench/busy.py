@@ -6,10 +6,11 @@ policy) for ``duration`` s each; then the two hardware-in-the-loop runs of ``mak
 against its emulator in a process of its own: go2 over DDS (``sim2real.deploy.harness.unitree_hil``,
 rows ``go2 dds``) and the SO-101 over the Feetech servo bus on a pty
 (``sim2real.deploy.harness.servo_hil``, row ``so101 bus``), their shipped policies, ``duration`` s of
-policy each. Every run's loop is at ``--rt-priority`` :data:`~sim2real.deploy.harness.common.LOOP_PRIORITY`
-(SCHED_FIFO, as ``make hil`` runs it and as a robot's computer would) when this machine permits it, and
-at normal priority otherwise; the section's ``loop_priority`` says which. One CPU-bound process per CPU (``while True: pass``) runs beside all of them,
-started before and always stopped after. Reported per robot: ticks, overruns, missed
+policy each. Every run's loop is at ``--rt-priority``
+:data:`~sim2real.deploy.harness.common.LOOP_PRIORITY` (SCHED_FIFO, as ``make hil`` runs it and as
+a robot's computer would) when this machine permits it, and at normal priority otherwise; the
+section's ``loop_priority`` says which. One CPU-bound process per CPU (``while True: pass``) runs
+beside all of them, started before and always stopped after. Reported per robot: ticks, overruns, missed
 periods, their rate, the final state, go2's falls, and the report's longest control periods
 (``deadline.long_ticks``, :mod:`sim2real.deploy.observe.long_ticks`) with their causes counted: what a
 busy computer does to the loop, and whether it stopped it (a stall is not a fault:
@@ -100,7 +101,6 @@ def measure(arm6: BenchPolicy, folder: Path, duration: float) -> dict:
     """
     from bench.session import _deploy_run
     from sim2real.deploy.export import export_policy
-
     from sim2real.deploy.harness.common import LOOP_PRIORITY, fifo_refused
 
     refused = fifo_refused(LOOP_PRIORITY)

@@ -306,6 +306,19 @@ def write_holosoma(
     return path
 
 
+def write_holosoma_inference(path: Path, order, kp, kd, obs_dim: int) -> Path:
+    """A policy as holosoma_inference ships its G1 ones (``models/loco/g1_29dof/*.onnx``):
+    ``actor_obs`` -> ``action``, opset 13, and only ``dof_names``, ``kp``, ``kd`` and
+    ``command_ranges`` (with ``heading``) in the metadata, each ``json.dumps``'d; no
+    ``experiment_config``."""
+    _export(Actor(obs_dim, len(order), 2, 1e-3), obs_dim, path, 13, ["actor_obs"], ["action"])
+    ranges = {"lin_vel_x": [-1.0, 1.0], "lin_vel_y": [-1.0, 1.0], "ang_vel_yaw": [-1.0, 1.0],
+              "heading": [-3.14, 3.14]}  # fmt: skip
+    metadata = {"dof_names": list(order), "kp": list(kp), "kd": list(kd), "command_ranges": ranges}
+    _append_metadata(path, {k: json.dumps(v) for k, v in metadata.items()})
+    return path
+
+
 # ------------------------------------------------------------------------------------ Isaac Lab
 def _isaac_obs(func: str, params=None, noise=None, scale=None, clip=None) -> dict:
     return {

@@ -375,11 +375,15 @@ def test_robot_import_takes_the_drive_from_the_policys_contract(tmp_path, capsys
     ankle = robot.config.joints[joints.index("left_ankle_joint")]
     # --target-limits pd: the target's speed when the full torque moves it (effort / kp)
     assert ankle.command_velocity_limit == pytest.approx(2 * 40.0 / 13.0 / 0.02, rel=0.01)
-    assert "kp, kd and home from unitree_deploy contract" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "--drive-from unitree_deploy contract" in printed and "kp, kd, home read" in printed
     assert (
-        "# kp, kd, home and control rate: the policy's (--drive-from)"
-        in (out / "robot.toml").read_text()
+        "kp: the policy's (--drive-from" in printed
+        and "--kp/--kd for ['left_knee_joint']" in printed
     )
+    toml = (out / "robot.toml").read_text()
+    assert "# control rate: the policy's (--drive-from: unitree_deploy contract" in toml
+    assert "kp = 77.0  # N m/rad, --kp/--kd" in toml
 
     code = main([*common, "--out", str(tmp_path / "b"), "--control-rate", "100"])
     err = capsys.readouterr().err.strip()
@@ -471,7 +475,7 @@ def test_policy_export_writes_a_foreign_onnx_with_our_spec_in_one_file(go2, tmp_
     """``policy-export policy.onnx --robot go2``: the published graph (weights in
     ``policy.onnx.data``, contract in ``params/deploy.yaml``) becomes one file that carries our
     spec, runs with neither sidecar, and gives the source's actions to the bit; without --robot,
-    or with --spec, it is refused in one line."""
+    or with a --spec file that is not there, it is refused in one line."""
     import shutil
 
     import onnx
@@ -481,7 +485,7 @@ def test_policy_export_writes_a_foreign_onnx_with_our_spec_in_one_file(go2, tmp_
     path = fs.write_unitree_policy(tmp_path / "v0", cfg, 45, bias=BIAS)
     for argv, message in (
         ([], "needs --robot"),
-        (["--robot", "go2", "--spec", "x.json"], "--spec"),
+        (["--robot", "go2", "--spec", "x.json"], "x.json: cannot read the spec file"),
     ):
         assert policy_export_main([str(path), *argv]) == 2
         err = capsys.readouterr().err.strip()

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import io
 import json
 import os
 import resource
@@ -317,3 +318,37 @@ def test_no_kernel_compiles_or_loads_in_a_tick():
     )
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.strip() == "", out.stdout
+
+
+def test_the_priority_reaches_the_threads_the_process_already_has():
+    """A robot's I/O threads (a DDS library's receive threads, a command re-send thread) start
+    before the loop; at SCHED_FIFO the loop would wait on them at normal priority. Each is put at
+    the loop's priority for the run and given its old setting back after."""
+    import threading
+
+    from sim2real.deploy.harness.common import fifo_refused
+    from sim2real.deploy.runtime.realtime import RealtimeRequest, RealtimeSettings
+
+    if fifo_refused(10):
+        pytest.skip("SCHED_FIFO is not permitted here")
+    started, done = threading.Event(), threading.Event()
+    tid = []
+
+    def io_thread():
+        tid.append(threading.get_native_id())
+        started.set()
+        done.wait(30)
+
+    t = threading.Thread(target=io_thread, daemon=True)
+    t.start()
+    started.wait(30)
+    try:
+        with RealtimeSettings(RealtimeRequest(priority=10), stream=io.StringIO()) as s:
+            assert os.sched_getscheduler(tid[0]) == os.SCHED_FIFO
+            assert os.sched_getparam(tid[0]).sched_priority == 10
+            assert s.summary()["other_threads_raised"] >= 1
+        assert os.sched_getscheduler(tid[0]) == os.SCHED_OTHER
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER
+    finally:
+        done.set()
+        t.join()

@@ -476,6 +476,31 @@ def test_baseline_of_schema_1_is_refused_naming_file_field_and_value(batched, tm
         compare_with_baseline(report, old, LENIENT, str(path))
 
 
+def test_the_report_names_the_joints_past_their_hard_limits(batched, arm3):
+    """The monitor counts each joint's ticks beyond its hard limit; a session's
+    no_hard_violation message and the campaign summary name those joints, most first."""
+    from sim2real.deploy.monitors.violations import ViolationMonitor
+    from sim2real.eval.report.summary import summary_text
+
+    monitor = ViolationMonitor(arm3, 2)
+    q = np.zeros((2, arm3.n_joints))
+    q[1, 1] = arm3.position_upper[1] + 0.01
+    zeros = np.zeros_like(q)
+    for _ in range(3):
+        monitor.count_flagged(q, zeros, zeros, need=False, flagged=True)
+    assert monitor.hard_limit_joints(0) == {}
+    assert monitor.hard_limit_joints(1) == {arm3.joint_names[1]: 3}
+    result = deepcopy(batched[0])
+    assert result["violations"]["hard_limit_joints"] == {}
+    result["violations"]["total"]["hard_limit"] = 7
+    result["violations"]["hard_limit_joints"] = {"shoulder": 5, "elbow": 2}
+    check = session_checks(result, Thresholds())["no_hard_violation"]
+    assert not check["passed"] and "(ticks per joint: shoulder 5, elbow 2)" in check["message"]
+    report = build_report({"robot": "arm3"}, [result], Thresholds())
+    assert report["totals"]["violations"]["hard_limit_joints"] == {"shoulder": 5, "elbow": 2}
+    assert "hard limits  (joints beyond theirs, ticks) shoulder 5, elbow 2" in summary_text(report)
+
+
 def test_window_success_check_on_a_synthetic_result(batched):
     """A session of 63 minutes 20 s whose fourth window went badly: the session's success rate
     passes, the window check does not; the short last window (200 s) is merged."""

@@ -300,7 +300,7 @@ def run(args) -> int:
     from sim2real.eval.soak.campaign import run_campaign
     from sim2real.eval.soak.executors import default_workers
     from sim2real.eval.soak.session import SessionConfig
-    from sim2real.eval.world.domain import contract_commands, training_domain
+    from sim2real.eval.world.domain import DomainError, contract_commands, training_domain
     from sim2real.eval.world.ranges_file import (
         load_ranges,
         load_ranges_text,
@@ -329,7 +329,12 @@ def run(args) -> int:
     )
     baseline = load_report(args.baseline) if args.baseline else None
     robot = load_robot(args.robot)
-    domain = None if args.ranges is not None or args.no_domain else training_domain(args.policy)
+    domain = None
+    if args.ranges is None and not args.no_domain:
+        try:
+            domain = training_domain(args.policy)
+        except DomainError as exc:
+            raise BadInput(f"{exc}; or run --no-domain (the robot kind's ranges)") from None
     if domain is not None:
         if args.fault_interval is not None and "mean_interval" in parse_overrides(
             domain, "training domain"
@@ -349,8 +354,9 @@ def run(args) -> int:
             )
         ranges = load_ranges(args.ranges, robot, args.fault_interval)
     commands_source = None
-    if robot_kind(robot).task == "locomotion" and ranges.commands is None and args.spec is None:
-        commands, commands_source = contract_commands(args.policy)
+    if robot_kind(robot).task == "locomotion" and ranges.commands is None:
+        # with --spec the file's own contract need not map: only what it records is read
+        commands, commands_source = contract_commands(args.policy, strict=args.spec is None)
         if commands is not None:
             ranges = dataclasses.replace(ranges, commands=commands)
             print(

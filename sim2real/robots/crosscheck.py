@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
+from sim2real.robots.continuous import sampling_bounds
 from sim2real.robots.robot import RobotSpecError
 
 #: Tolerance of the MuJoCo/Pinocchio agreement check (m for positions, N m for torques).
@@ -140,6 +141,7 @@ def check_agreement(
     Raises RobotSpecError beyond ``AGREEMENT_TOLERANCE``.
     """
     rng = np.random.default_rng(0)
+    lower, upper = sampling_bounds(lower, upper)
     mj_data = mujoco.MjData(mj_model)
     pin_data = pin_model.createData()
     worst_fk = worst_g = 0.0

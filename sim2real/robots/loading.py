@@ -20,6 +20,7 @@ import numpy as np
 import pinocchio as pin
 from pydantic import ValidationError
 
+from sim2real.robots.continuous import continuous_mask, sampling_bounds
 from sim2real.robots.crosscheck import (
     _base_frames,
     _check_free_joint,
@@ -204,10 +205,18 @@ def load_robot(name_or_path: str | Path) -> Robot:
             "floating-base robot's [base] body)"
         )
 
-    lower = np.array([j.position_limit[0] for j in cfg.joints])
-    upper = np.array([j.position_limit[1] for j in cfg.joints])
+    lower = np.array([-np.inf if j.continuous else j.position_limit[0] for j in cfg.joints])
+    upper = np.array([np.inf if j.continuous else j.position_limit[1] for j in cfg.joints])
     for i, joint in enumerate(cfg.joints):
         k = i + j0
+        if joint.continuous:
+            if mj_model.jnt_limited[k]:
+                raise RobotSpecError(
+                    f"{toml_path}: field 'joints[{i}].continuous' = true but the MJCF limits "
+                    f"joint '{joint.name}' to {list(mj_model.jnt_range[k])} in {mjcf.name} "
+                    "(expected no range)"
+                )
+            continue
         if not mj_model.jnt_limited[k] or not np.allclose(
             mj_model.jnt_range[k], [lower[i], upper[i]], atol=1e-12, rtol=0
         ):
@@ -280,7 +289,9 @@ def load_robot(name_or_path: str | Path) -> Robot:
     frac = np.array([j.soft_limit_fraction for j in cfg.joints])
     velocity = np.array([j.velocity_limit for j in cfg.joints])
     soft_velocity = frac * velocity
-    centre, half = (upper + lower) / 2.0, (upper - lower) / 2.0
+    finite_lo, finite_hi = sampling_bounds(lower, upper)
+    centre = np.where(continuous_mask(lower, upper), 0.0, (finite_hi + finite_lo) / 2.0)
+    half = (upper - lower) / 2.0  # inf for a continuous joint: its soft limits are infinite too
     digest = description_hash(cfg, described_mjcf.read_bytes())
     return Robot(
         name=cfg.name,

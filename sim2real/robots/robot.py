@@ -25,6 +25,38 @@ class RobotSpecError(Sim2RealError, ValueError):
     """
 
 
+#: What :func:`lock_free_flyer` appends to a site's frame name while Pinocchio reduces the model.
+_SITE_TAG = "\x00site"
+
+
+def lock_free_flyer(model: pin.Model, geom: pin.GeometryModel | None = None):
+    """``pin.buildReducedModel`` of ``model`` with its free flyer (joint 1) locked at the origin,
+    upright: the reduced model, or ``(model, geometry)`` with ``geom``.
+
+    Pinocchio's reduction looks frames up by name alone, which raises "Several frames match the
+    filter" when a site's frame (an MJCF site is an ``OP_FRAME``) shares its name with the body
+    it sits on and that body carries a fixed child body (the importer names foot sites after
+    their link; holosoma's G1 hangs ``*_foot_contact_point`` under each ankle link). Such site
+    frames are renamed for the reduction and named back after it: a lookup by name and type
+    finds the body's ``BODY`` frame and the site's ``OP_FRAME`` as in ``model``.
+    """
+    work = pin.Model(model)
+    names = [f.name for f in work.frames]
+    for i, name in enumerate(names):
+        if work.frames[i].type == pin.FrameType.OP_FRAME and names.count(name) > 1:
+            work.frames[i].name = f"{name}{_SITE_TAG}{i}"
+    q = pin.neutral(work)
+    if geom is None:
+        reduced = out = pin.buildReducedModel(work, [1], q)
+    else:
+        out = pin.buildReducedModel(work, geom, [1], q)
+        reduced = out[0]
+    for i in range(reduced.nframes):
+        if _SITE_TAG in reduced.frames[i].name:
+            reduced.frames[i].name = reduced.frames[i].name.split(_SITE_TAG)[0]
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class Robot:
     """A validated robot: spec, MuJoCo model and Pinocchio model built from the same MJCF.
@@ -156,14 +188,14 @@ class Robot:
         gravity torques (the legs in the air) and self-collisions run on it."""
         if not self.floating_base:
             return self.pin_model
-        return pin.buildReducedModel(self.pin_model, [1], pin.neutral(self.pin_model))
+        return lock_free_flyer(self.pin_model)
 
     def fixed_base_geometry(self, geom: pin.GeometryModel) -> pin.GeometryModel:
         """A geometry model built on ``pin_model``, attached to :attr:`fixed_base_model` instead
         (the same object for a fixed-base arm)."""
         if not self.floating_base:
             return geom
-        return pin.buildReducedModel(self.pin_model, geom, [1], pin.neutral(self.pin_model))[1]
+        return lock_free_flyer(self.pin_model, geom)[1]
 
     def foot_positions(
         self,

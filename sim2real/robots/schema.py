@@ -29,7 +29,12 @@ class JointConfig(_Strict):
     """One joint: hard limits, motion limits, drive and plant servo gains."""
 
     name: str
-    position_limit: tuple[Finite, Finite]  # rad, hard (mechanical) limits
+    # rad, hard (mechanical) limits; None for a continuous joint (a wheel), which says so
+    position_limit: tuple[Finite, Finite] | None = None
+    # a continuous joint (MJCF hinge without range, URDF type="continuous"): no position limit;
+    # the guard checks its speed and torque only, and its angle never counts as a violation;
+    # None (unset, as false) stays out of the description hash: no existing robot's changes
+    continuous: bool | None = None
     velocity_limit: Positive  # rad/s
     acceleration_limit: Positive  # rad/s^2
     jerk_limit: Positive  # rad/s^3
@@ -46,6 +51,13 @@ class JointConfig(_Strict):
 
     @model_validator(mode="after")
     def _ordered_limits(self) -> JointConfig:
+        if bool(self.continuous) == (self.position_limit is not None):
+            raise ValueError(
+                "expected either position_limit = [lower, upper] or continuous = true "
+                f"(got position_limit {self.position_limit}, continuous {self.continuous})"
+            )
+        if self.continuous:
+            return self
         lo, hi = self.position_limit
         if not lo < hi:
             raise ValueError(

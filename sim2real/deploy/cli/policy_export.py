@@ -43,7 +43,12 @@ def build_parser() -> argparse.ArgumentParser:
         "name unless every check passes.",
     )
     p.add_argument("source", help="policy file, or a name in sim2real/policies/")
-    p.add_argument("--spec", type=Path, help="PolicySpec JSON (required unless our checkpoint)")
+    p.add_argument(
+        "--spec",
+        type=Path,
+        help="PolicySpec JSON (required unless our checkpoint, or an ONNX file whose stack wrote "
+        "its contract); with an ONNX file: stored in it instead of its own contract",
+    )
     p.add_argument("--out", type=Path, help="ONNX file to write (default: beside SOURCE)")
     p.add_argument(
         "--trust-pickle", action="store_true", help="allow unpickling (runs code from the file)"
@@ -211,23 +216,23 @@ def _export_onnx(source: Path, args) -> int:
     from sim2real.deploy.export.onnx_source import export_onnx_policy
     from sim2real.robots import load_robot
 
-    other = [f for f, v in (("--spec", args.spec), ("--from-config", args.from_config)) if v]
     try:
-        if other:
+        if args.from_config is not None:
             raise ExportError(
-                f"{source}: an ONNX policy takes its spec from its own contract; "
-                f"{', '.join(other)} is for a torch checkpoint"
+                f"{source}: --from-config is for a torch checkpoint; an ONNX policy takes its "
+                "spec from its own contract or from --spec FILE"
             )
         if "policy_spec" in _onnx_metadata(source):
             raise ExportError(
                 f"{source}: already an ONNX file with its policy_spec (our own export); nothing "
                 "to add (export takes a torch checkpoint, or another stack's ONNX)"
             )
-        if args.robot is None:
+        robot = args.robot or (_spec_robot(args.spec) if args.spec is not None else None)
+        if robot is None:
             raise ExportError(
                 f"{source}: an ONNX policy needs --robot DIR (the robot its contract maps onto)"
             )
-        result = export_onnx_policy(source, load_robot(args.robot), args.out, args.seed)
+        result = export_onnx_policy(source, load_robot(robot), args.out, args.seed, args.spec)
     except ParityError as exc:
         print(f"policy-export: parity check FAILED: {exc}", file=sys.stderr)
         return EXIT_PARITY
@@ -244,8 +249,25 @@ def _export_onnx(source: Path, args) -> int:
         f"  parity: max |written - source| {f['max_abs_error']:.1e} over {f['samples']} "
         "observations (ONNX Runtime on both files; exact)"
     )
-    print(f"  run: deploy-run --robot {args.robot} --policy {result.path}")
+    if args.spec is not None:
+        print(f"  spec from {args.spec} (the file's own contract, if any, not read)")
+    print(f"  run: deploy-run --robot {robot} --policy {result.path}")
     return EXIT_OK
+
+
+def _spec_robot(path: Path) -> str:
+    """The robot a spec file names (``--robot``'s default with ``--spec``).
+
+    Raises:
+        ExportError: the file cannot be read as a spec (naming it and the field).
+    """
+    from sim2real.deploy.policy.onnx_spec import read_spec
+    from sim2real.deploy.spec.policy_spec import SpecError
+
+    try:
+        return read_spec(path).robot
+    except SpecError as exc:
+        raise ExportError(str(exc)) from None
 
 
 def _onnx_metadata(path: Path) -> dict[str, str]:

@@ -153,6 +153,14 @@ def _add_legged_options(p: argparse.ArgumentParser) -> None:
         "beside it); --kp, --kd, --home after it win",
     )
     legged.add_argument(
+        "--keyframe",
+        default=None,
+        metavar="NAME",
+        help="the MJCF <key> whose pose is home where no --home or policy gives it (default: the "
+        "key named 'home', else the first); an MJCF's <position> kp and kv likewise come before "
+        "the importer's rule",
+    )
+    legged.add_argument(
         "--note", action="append", default=[], help="a comment line for robot.toml's header"
     )
     legged.add_argument(
@@ -210,6 +218,7 @@ def main(argv: list[str] | None = None) -> int:
             unitree=_unitree_table(args),
             drive=_drive(args),
             options=args.option,
+            keyframe=args.keyframe,
         )
     except RobotImportError as exc:
         print(f"robot-import: error: {exc}", file=sys.stderr)

@@ -1,5 +1,6 @@
 """A policy another stack already exported to ONNX, given our contract: ``policy-export
-POLICY.onnx --robot ROBOT``.
+POLICY.onnx --robot ROBOT`` (the contract its stack wrote) or ``policy-export POLICY.onnx --spec
+FILE --robot ROBOT`` (a spec written by hand, for a graph whose stack wrote none).
 
 A published policy arrives as an ONNX graph with its contract beside it or in its metadata
 (mjlab, holosoma, Unitree's deploy.yaml, Isaac Lab's env.yaml: :mod:`sim2real.deploy.spec.foreign`), its
@@ -28,7 +29,9 @@ from sim2real.deploy.export.graph import set_metadata, tool_versions
 from sim2real.deploy.export.parity import PARITY_SAMPLES, parity_observations
 from sim2real.deploy.export.pipeline import ExportResult
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.policy.onnx_spec import METADATA_SPEC
 from sim2real.deploy.spec.onnx_checks import PolicyLoadError
+from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.robots import Robot
 from sim2real.robots.files import atomic_path, sha256_file
 
@@ -40,15 +43,22 @@ def _actions(policy: OnnxPolicy, obs: np.ndarray) -> np.ndarray:
 
 
 def export_onnx_policy(
-    source: str | Path, robot: Robot, out: str | Path | None = None, seed: int = 0
+    source: str | Path,
+    robot: Robot,
+    out: str | Path | None = None,
+    seed: int = 0,
+    spec: PolicySpec | str | Path | None = None,
 ) -> ExportResult:
-    """Write ``source`` (an ONNX policy with a foreign contract) for ``robot`` with our spec.
+    """Write ``source`` (an ONNX policy with a foreign contract, or given its spec) for ``robot``
+    with our spec.
 
     Args:
         source: The ONNX file; its external data (``<name>.data``) beside it is read.
         robot: The robot the contract is mapped onto.
         out: The file to write (default ``<stem>.<robot>.onnx`` beside the source).
         seed: Seed of the parity observations.
+        spec: The policy's spec (a PolicySpec or a spec JSON file), stored instead of one built
+            from the file's own contract (which is then not read).
 
     Returns:
         An :class:`~sim2real.deploy.export.pipeline.ExportResult`; ``parity`` has ``samples`` and
@@ -56,8 +66,9 @@ def export_onnx_policy(
 
     Raises:
         ExportError: the file does not load for the robot (its contract cannot be read or
-            mapped, naming the file and the key), it already carries our spec, or ``out`` is the
-            source or cannot be written.
+            mapped, naming the file and the key; the spec given is invalid or does not describe
+            the graph), it already carries our spec, or ``out`` is the source or cannot be
+            written.
         ParityError: the written file's actions differ from the source's.
     """
     t0 = time.perf_counter()
@@ -67,26 +78,35 @@ def export_onnx_policy(
         raise ExportError(f"{out}: the output would overwrite the source")
     if not out.parent.is_dir():
         raise ExportError(f"{out}: the output folder {out.parent} does not exist")
-    try:
-        policy = OnnxPolicy(source, robot)
-    except PolicyLoadError as exc:
-        raise ExportError(str(exc)) from None
-    if policy.foreign is None:
+    model = onnx.load(str(source))  # external data inlined
+    original = {p.key: p.value for p in model.metadata_props}
+    if METADATA_SPEC in original:
         raise ExportError(
             f"{source}: already carries its policy_spec (our own export); nothing to add"
         )
+    try:
+        policy = OnnxPolicy(source, robot, spec=spec)
+    except PolicyLoadError as exc:
+        raise ExportError(str(exc)) from None
+    given = policy.foreign is None
     spec = policy.spec
-    model = onnx.load(str(source))  # external data inlined
-    original = {p.key: p.value for p in model.metadata_props}
     obs = parity_observations(spec, PARITY_SAMPLES, np.random.default_rng(seed))
     reference = _actions(policy, obs)
     meta = {
         "source_sha256": sha256_file(source),
-        "source_format": f"onnx ({policy.foreign.format} contract)",
+        "source_format": "onnx (a spec given)"
+        if given
+        else f"onnx ({policy.foreign.format} contract)",
         "tool_versions": json.dumps(tool_versions(), sort_keys=True),
         "exporter": "the source graph, unchanged (weights inlined)",
         "source_metadata": json.dumps(original, sort_keys=True),
     }
+    ranges = None if given else policy.foreign.command_ranges
+    if ranges is not None:  # the soak's commands (sim2real.eval.world.domain.contract_commands)
+        names = {"vx": "lin_vel_x", "vy": "lin_vel_y", "yaw_rate": "ang_vel_z"}
+        meta["command_ranges"] = json.dumps({names[k]: list(v) for k, v in ranges.items()})
+    elif "command_ranges" in original:  # holosoma's, kept as it wrote it
+        meta["command_ranges"] = original["command_ranges"]
     try:
         with atomic_path(out) as tmp:
             figures = {"samples": int(len(obs)), "max_abs_error": 0.0, "passed": True}

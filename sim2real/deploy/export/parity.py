@@ -37,6 +37,7 @@ from sim2real.deploy.export.noise_floor import TOLERANCE, NoiseFloor, _max_abs  
 from sim2real.deploy.export.recurrent import RecurrentPolicyModule, RecurrentStepper
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.spec.history import per_input_entry
 from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.robots import Robot
 
@@ -63,7 +64,9 @@ def _graph(policy: OnnxPolicy, obs: np.ndarray) -> np.ndarray:
 def parity_observations(spec: PolicySpec, samples: int, rng: np.random.Generator) -> np.ndarray:
     """float32 (samples + 7 + 2 obs_dim, obs_dim): uniform in [-1.2, 1.2], then edge cases."""
     d = spec.obs_dim
-    clips = np.concatenate([np.full(b.size, b.clip) for b in spec.observation_blocks])
+    clips = per_input_entry(
+        spec, np.concatenate([np.full(b.size, b.clip) for b in spec.observation_blocks])
+    )
     ones = np.ones(d)
     edges = [np.zeros(d), ones, -ones, 1.2 * ones, -1.2 * ones, clips, -clips]
     rows = [rng.uniform(-1.2, 1.2, (samples, d)), np.stack(edges), np.eye(d), -np.eye(d)]
@@ -140,6 +143,7 @@ def closed_loop_parity(
     target = np.zeros((envs, n))
     worst, resets = 0.0, 0
     twin = floor.stepper("replay") if floor is not None and reference is not None else None
+    spec.plan.reset_history()  # a frame history starts with the replay
     for tick in range(ticks):
         if tick and tick % goal_every == 0 and not legged:
             goal = sample_goals(robot, rng, envs)

@@ -111,6 +111,8 @@ class ViolationMonitor(MonitorState):
             model (``pair_names``) touched while the env was up: which links make the
             ``self_collision`` ticks of ``counts``.
         pair_names: (pairs,) ``"geom_a|geom_b"``, the guard's collision pairs in its order.
+        hard_joint_ticks: (envs, n) int64, ticks on which each joint was beyond its hard limit
+            while the env was up: which joints make the ``hard_limit`` ticks of ``counts``.
         any: (envs,) int64, ticks with at least one violation of any type.
         down_counts, down_any: the same, of the ticks on which the env was *down*: a legged
             robot lying damped after a stop (``down`` of :meth:`update`). What a fallen robot's
@@ -152,7 +154,9 @@ class ViolationMonitor(MonitorState):
         self._effort = robot.effort_limit * (1.0 + EFFORT_TOLERANCE)
         # the screen: one row per env, [q - soft centre, dq, tau, ee - box centre]
         width = 3 * n + 3
-        self._offset_q = 0.5 * (self._soft_lower + self._soft_upper)
+        # a continuous joint (infinite soft limits, a wheel): centre 0, infinite bound
+        lo, hi = (np.where(np.isfinite(b), b, 0.0) for b in (self._soft_lower, self._soft_upper))
+        self._offset_q = 0.5 * (lo + hi)
         self._offset_ee = np.zeros(3)
         if self._has_workspace:
             self._offset_ee = 0.5 * (self._ws_min + self._ws_max)
@@ -184,6 +188,7 @@ class ViolationMonitor(MonitorState):
             for p in self._geom_model.collisionPairs
         ]
         self.pair_ticks = np.zeros((envs, len(self.pair_names)), dtype=np.int64)
+        self.hard_joint_ticks = np.zeros((envs, n), dtype=np.int64)
         # the collision screen (compiled path): no pair can touch while its distance computed at
         # checked_q exceeds its own bound on how far the joints moved since
         # (sim2real.robots.chain_bounds.collision_pair_weights; an exact screen, as the guard's)
@@ -359,12 +364,21 @@ class ViolationMonitor(MonitorState):
             tests += (("self_collision", self._collided),)
         down = self._down
         up = ~down  # only on a tick something was flagged
+        self.hard_joint_ticks += beyond & up[:, None]
         for name, flags in tests:
             counts[name] += flags & up
             self.down_counts[name] += flags & down
             hit |= flags
         self.any += hit & up
         self.down_any += hit & down
+
+    def hard_limit_joints(self, env: int) -> dict[str, int]:
+        """Env ``env``'s ticks beyond a hard limit per joint that ever was (while up), most
+        first."""
+        ticks = self.hard_joint_ticks[env]
+        order = np.argsort(-ticks, kind="stable")
+        names = self.robot.joint_names
+        return {names[k]: int(ticks[k]) for k in order if ticks[k] > 0}
 
     # ------------------------------------------------------------------ reading
     def totals(self, down: bool = False) -> dict[str, int]:
@@ -389,6 +403,7 @@ class ViolationMonitor(MonitorState):
         out.update({f"down/{t}": v for t, v in self.down_counts.items()})
         out["down_any"] = self.down_any
         out["pair_ticks"] = self.pair_ticks
+        out["hard_joint_ticks"] = self.hard_joint_ticks
         return out
 
 

@@ -145,6 +145,8 @@ def check_graph(
                 if kind == "input"
                 else f"{spec.action.mode} x {spec.action.size} joints"
             )
+            if kind == "input" and spec.history is not None:
+                parts = f"{parts}, over a history of {spec.history.length} ticks"
             raise PolicyLoadError(
                 f"{path}: graph {kind} '{vi.name}' has size {dims[-1]}, the spec's {what} "
                 f"has {size} ({parts}; shape {dims}): the spec must describe the model's "

@@ -13,9 +13,8 @@ goal due or reached. It times the monitors (from the caller's stamp to the end o
 intervention screen) and the motion figures with ``clock_gettime(CLOCK_MONOTONIC)``, the clock of
 ``time.perf_counter_ns``, into the rig's histograms (the bins of
 :class:`sim2real.deploy.core.latency.LatencyHistogram`); when Python has monitor work left, the
-monitors' end stamp is left in the table for Python to finish the sample. numba's cache of the
-call is keyed on this file: after editing a kernel of :mod:`sim2real.deploy.monitors.kernel`,
-delete ``sim2real/deploy/rig/__pycache__`` so that the call is compiled again.
+monitors' end stamp is left in the table for Python to finish the sample. An edit to a kernel of
+:mod:`sim2real.deploy.monitors.kernel` recompiles the call (:mod:`sim2real.numba_cache`).
 """
 
 from __future__ import annotations

@@ -154,6 +154,8 @@ class TableCalls:
         self._fused = False
         if state.base is not None or not plan.compiled or not (kin.compiled or kin.frame_id < 0):
             return
+        if plan.history is not None:  # its frames stack after the observation kernel: separate
+            return
         envs, n = self.envs, self.n
         observe = plan.kernel_args(state, goal, out, envs)  # grows the plan's buffers first
         table, arrays = np.zeros(fk.SIZE, dtype=np.int64), []

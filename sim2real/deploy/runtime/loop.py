@@ -207,8 +207,10 @@ class Runtime(RuntimeState):
         gc.collect()  # the set-up's garbage, every generation, once: here, not in run() (below)
 
     def _reset_policy(self, envs: np.ndarray) -> None:
-        """The current policy's ``reset(envs)`` (bool mask (envs,)), if it has one."""
+        """The current policy's ``reset(envs)`` (bool mask (envs,)), if it has one, and its
+        observation's frame history (the envs' next frame is the first)."""
         (getattr(self.policy, "reset", None) or _no_reset)(envs)
+        self.spec.plan.reset_history(envs)
 
     def ramp_in(self, duration: float, envs: np.ndarray | None = None) -> None:
         """After :meth:`reset_faults` or :meth:`restart`: the envs of ``envs`` (bool (envs,);

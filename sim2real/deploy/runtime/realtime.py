@@ -13,7 +13,11 @@ context manager) and restores the process's previous settings afterwards:
   process is swapped out or faulted in mid-run. Permitted with CAP_IPC_LOCK or a memlock limit
   above the process's size (``ulimit -l unlimited``; ``USER - memlock unlimited``).
 
-The three apply to the calling thread (the loop's) and to the threads it starts afterwards.
+The three apply to the calling thread (the loop's) and to the threads it starts afterwards; the
+priority also to every other thread the process already has (Linux: ``/proc/self/task``), the
+threads a robot's I/O runs on (a DDS library's receive and event threads, a command re-send
+thread), since a loop at SCHED_FIFO whose sensor readings wait on a normal thread is only as
+punctual as that thread.
 A setting the system refuses is reported in one line saying what would permit it, and the loop
 runs without it, unless the request says ``require`` (then :class:`RealtimeError`). An invalid
 request (a CPU this process may not use, a priority out of range) is always an error.
@@ -26,6 +30,7 @@ import ctypes.util
 import errno
 import os
 import sys
+import threading
 from dataclasses import dataclass
 
 from sim2real.robots.errors import Sim2RealError
@@ -161,6 +166,7 @@ class RealtimeSettings:
         self.notes: list[str] = []
         self._old_affinity = None
         self._old_scheduler = None
+        self._old_threads: dict[int, tuple[int, int]] = {}  # tid -> (policy, priority)
         self._locked = False
         self._summary: dict = {}
 
@@ -201,6 +207,12 @@ class RealtimeSettings:
                 os.sched_setscheduler(0, policy, os.sched_param(priority))
             except OSError:
                 pass  # lowering one's own priority is always permitted; nothing to do otherwise
+        threads, self._old_threads = self._old_threads, {}
+        for tid, (policy, priority) in threads.items():
+            try:
+                os.sched_setscheduler(tid, policy, os.sched_param(priority))
+            except OSError:
+                pass  # the thread ended
         if self._locked:
             self._locked = False
             libc = _libc()
@@ -278,7 +290,27 @@ class RealtimeSettings:
             )
             return False
         self._old_scheduler = old
+        self._raise_threads(priority)
         return True
+
+    def _raise_threads(self, priority: int) -> None:
+        """Every other thread of the process at SCHED_FIFO ``priority`` (module docstring),
+        each one's old setting kept for :meth:`restore`; a thread that ended meanwhile is
+        skipped. No-op where ``/proc/self/task`` does not exist."""
+        try:
+            tids = [int(t) for t in os.listdir("/proc/self/task")]
+        except OSError:
+            return
+        me = threading.get_native_id()
+        for tid in tids:
+            if tid == me:
+                continue
+            try:
+                old = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            except OSError:
+                continue  # ended since the listing
+            self._old_threads[tid] = old
 
     # ------------------------------------------------------------------ report
     def _read_back(self) -> dict:
@@ -304,10 +336,12 @@ class RealtimeSettings:
             }
             out["scheduler"] = names.get(policy, str(policy))
             out["priority"] = os.sched_getparam(0).sched_priority
+        out["other_threads_raised"] = len(self._old_threads)
         return out
 
     def summary(self) -> dict:
         """The settings read back while applied: ``requested`` (the request), ``scheduler``
-        (``SCHED_FIFO``, ``SCHED_OTHER``, ...; None where unknown), ``priority``, ``cpus`` (the
+        (``SCHED_FIFO``, ``SCHED_OTHER``, ...; None where unknown), ``priority``,
+        ``other_threads_raised`` (the process's other threads put at the priority), ``cpus`` (the
         affinity, sorted), ``memory_locked`` (bool) and ``notes`` (the notices printed)."""
         return {**self._summary, "notes": list(self.notes)}

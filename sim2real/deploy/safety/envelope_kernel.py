@@ -330,9 +330,8 @@ def certify(q, dq, before, after, stopping, effort_scale, command, s, d) -> int:
     and the drive's integrators take ``command`` (envs, n) rad/s (the envelope's commit).
     ``q``, ``dq`` (envs, n) the estimate; ``stopping`` (envs,) bool; ``effort_scale`` (envs, n).
 
-    It calls the kernels of :mod:`sim2real.deploy.safety.drive_kernel`: numba's cache of this
-    function is keyed on this file, so after editing those delete
-    ``sim2real/deploy/safety/__pycache__``."""
+    It calls the kernels of :mod:`sim2real.deploy.safety.drive_kernel`; an edit to those
+    recompiles it (:mod:`sim2real.numba_cache`)."""
     code = 0
     start, end = before, after
     if d is not None:  # numba prunes the branch for d None

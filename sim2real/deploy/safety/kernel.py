@@ -7,9 +7,9 @@ the next state between them, then counts each check that fired. It returns :data
 some check asked for its Pinocchio part (``g.needs``); otherwise it goes on with phase 1, which
 keeps the last accepted target (position mode) and runs the :data:`FINAL` stage.
 
-numba's cache of :func:`guard_filter` is keyed on this file and on the number of checks (the
-length of ``g.own``): after editing a check's compiled function, delete
-``sim2real/deploy/safety/__pycache__`` so the kernel that inlines it is recompiled.
+numba's cache of :func:`guard_filter` is keyed on all the package's kernel sources
+(:mod:`sim2real.numba_cache`) and on the number of checks (the length of ``g.own``): an edit to a
+check's compiled function recompiles the kernel that inlines it.
 """
 
 from __future__ import annotations

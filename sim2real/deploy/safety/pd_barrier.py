@@ -39,6 +39,7 @@ import pinocchio as pin
 from sim2real.deploy.kernels import np_max, np_min
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.safety.check import CLAMP, EFFORT, FIRED, POSITION, GuardCheck
+from sim2real.robots.continuous import continuous_mask, sampling_bounds
 from sim2real.robots.torque_speed import TorqueSpeedEnvelope
 
 #: Rows of the check's constants (n,) each: the PD gains (N m/rad, N m s/rad), 1 / inertia
@@ -161,7 +162,7 @@ def least_inertia(robot, poses: int = INERTIA_POSES, seed: int = 0) -> np.ndarra
     model = robot.fixed_base_model
     data = model.createData()
     rng = np.random.default_rng(seed)
-    lo, hi = robot.position_lower, robot.position_upper
+    lo, hi = sampling_bounds(robot.position_lower, robot.position_upper)  # a wheel: one turn
     least = np.full(robot.n_joints, np.inf)
     for q in [robot.home, *(rng.uniform(lo, hi) for _ in range(poses))]:
         m = pin.crba(model, data, np.asarray(q, dtype=np.float64))
@@ -188,10 +189,13 @@ def pd_barrier_constants(guard) -> np.ndarray:
         envelope = TorqueSpeedEnvelope(robot.motors)
         c[STALL] = np.where(envelope.active, envelope.stall_coefficient, np.inf)
         c[NO_LOAD] = envelope.no_load_speed
-        margin = MARGIN_SHARE * (robot.position_upper - robot.soft_upper)
-        c[BOUND_UP] = robot.position_upper - margin
-        margin = MARGIN_SHARE * (robot.soft_lower - robot.position_lower)
-        c[BOUND_DOWN] = -(robot.position_lower + margin)
+        # a continuous joint (a wheel): no bound, +inf on both sides
+        free = continuous_mask(robot.position_lower, robot.position_upper)
+        with np.errstate(invalid="ignore"):
+            margin = MARGIN_SHARE * (robot.position_upper - robot.soft_upper)
+            c[BOUND_UP] = np.where(free, np.inf, robot.position_upper - margin)
+            margin = MARGIN_SHARE * (robot.soft_lower - robot.position_lower)
+            c[BOUND_DOWN] = np.where(free, np.inf, -(robot.position_lower + margin))
         c[STEP] = robot.physics_timestep
         c[SUBSTEPS] = robot.decimation
         c[ACTIVE] = 1.0

@@ -9,8 +9,11 @@ clip, then the cast to float32; ``goal_in_ee`` is ``(goal - ee) @ R`` summed in 
 numpy's matmul loop; ``gait_phase`` is ``sin p, cos p, sin(p + pi), cos(p + pi)`` of
 ``p = (2 pi / period) * clock`` (the second foot half a period later), of which a block reads its
 ``components`` (default the first two); a vector block reads its ``components`` of its 3-vector; and
-``heading_sincos`` of the yaw ``atan2(2 (w z + x y), 1 - 2 (y^2 + z^2))``. A new kind adds its
-branch here (a new code in ``BRANCHES``, and its input array when the state has a new field).
+``heading_sincos`` of the yaw ``atan2(2 (w z + x y), 1 - 2 (y^2 + z^2))``; ``base_euler_angles``
+its components of roll ``atan2(2 (w x + y z), 1 - 2 (x^2 + y^2))``, pitch ``asin(2 (w y - z x))``
+(clipped to [-1, 1] first) and that yaw. A new kind adds its branch here (a new code in
+``BRANCHES``, and its input array when the state has a new field). :func:`stack_history` stacks
+the frames of a history (:mod:`sim2real.deploy.spec.history`).
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ VELOCITY_COMMAND = 11
 GAIT_PHASE = 12
 FOOT_CONTACT = 13
 HEADING_SINCOS = 14
+BASE_EULER_ANGLES = 15
 #: Every code the kernel has a branch for (``sim2real.deploy.spec.kinds.register_kind`` refuses others).
 BRANCHES = frozenset(
     (
@@ -57,6 +61,7 @@ BRANCHES = frozenset(
         GAIT_PHASE,
         FOOT_CONTACT,
         HEADING_SINCOS,
+        BASE_EULER_ANGLES,
     )
 )
 
@@ -169,12 +174,75 @@ def observation(
                 yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
                 raw[e, s0] = math.sin(yaw)
                 raw[e, s0 + 1] = math.cos(yaw)
+            elif kind == BASE_EULER_ANGLES:
+                w, x = orientation[e, 0], orientation[e, 1]
+                y, z = orientation[e, 2], orientation[e, 3]
+                for i in range(size):
+                    c = components[b, i]
+                    if c == 0:
+                        angle = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+                    elif c == 1:
+                        sine = np_max(np_min(2.0 * (w * y - z * x), 1.0), -1.0)
+                        angle = math.asin(sine)
+                    else:
+                        angle = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+                    raw[e, s0 + i] = angle
         for i in range(dim):
             v = raw[e, i] - norm[0, i]
             v = v / norm[1, i]
             v = np_min(v, norm[2, i])
             v = np_max(v, -norm[2, i])
             out[e, i] = np.float32(v)
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def stack_history(
+    frame: np.ndarray,
+    ring: np.ndarray,
+    head: np.ndarray,
+    count: np.ndarray,
+    runs: np.ndarray,
+    fill_first: bool,
+    out: np.ndarray,
+) -> None:
+    """Push each env's ``frame`` into its ring and write the graph's input into ``out``
+    (:class:`sim2real.deploy.spec.history.FrameRing`).
+
+    Args:
+        frame: float32 (envs, frame), this tick's frame.
+        ring: float32 (envs, length, frame), the past frames; ``head`` (envs,) int64 its newest
+            slot, ``count`` (envs,) int64 the frames pushed since the env's reset (<= length).
+        runs: (runs, 4) int64, the input's runs of consecutive entries: the tick they read (0
+            the present), their first frame column, their first input entry, their length
+            (:func:`sim2real.deploy.spec.history.runs_of`).
+        fill_first: A tick before the reset reads the first frame after it (else 0).
+        out: float32 (envs, entries).
+    """
+    envs, width, length = frame.shape[0], frame.shape[1], ring.shape[1]
+    for e in range(envs):
+        h = head[e] + 1
+        if h >= length:
+            h = 0
+        head[e] = h
+        for i in range(width):
+            ring[e, h, i] = frame[e, i]
+        pushed = count[e] + 1
+        if pushed > length:
+            pushed = length
+        count[e] = pushed
+        for r in range(runs.shape[0]):
+            lag, c0, o0, n = runs[r, 0], runs[r, 1], runs[r, 2], runs[r, 3]
+            if lag >= pushed:
+                if not fill_first:
+                    for i in range(n):
+                        out[e, o0 + i] = np.float32(0.0)
+                    continue
+                lag = pushed - 1
+            slot = h - lag
+            if slot < 0:
+                slot += length
+            for i in range(n):
+                out[e, o0 + i] = ring[e, slot, c0 + i]
 
 
 # :func:`observation_over`'s table (:mod:`sim2real.deploy.kernels.calls`): its header (sizes),

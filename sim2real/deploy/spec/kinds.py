@@ -140,6 +140,7 @@ UNPROVIDED_KINDS = {
     "base_ang_vel": "base_angular_velocity",
     "commands": "velocity_command",
     "velocity_commands": "velocity_command",
+    "base_euler_xyz": "base_euler_angles",
     "base_height": None,
     "height_scan": None,
 }
@@ -241,5 +242,14 @@ _fixed(
     "sin, cos (2) of the yaw the attitude filter has turned since the start; unscaled",
     kernel.HEADING_SINCOS,
     size=2,
+    **_legged,
+)
+_fixed(
+    "base_euler_angles",
+    "roll, pitch, yaw (3) of the base, rad, yaw the attitude filter's since the start (humanoid-gym's "
+    "base_euler_xyz, each in [-pi, pi]); unscaled",
+    kernel.BASE_EULER_ANGLES,
+    vector=True,
+    raw_entries=3,
     **_legged,
 )

@@ -8,7 +8,9 @@ buffers grown to the largest batch seen. The plan assembles the observation with
 the numpy reference (:mod:`sim2real.deploy.spec.reference`) gives the same numbers bit for bit, and runs
 in the plan's place only for a block that reads some components of a vector
 (:func:`sim2real.deploy.spec.kinds.numpy_reason`, kept in ``numpy_reason``). The layout itself (block
-kinds, sizes, scales) is the spec's (:mod:`sim2real.deploy.spec.policy_spec`).
+kinds, sizes, scales) is the spec's (:mod:`sim2real.deploy.spec.policy_spec`). A spec with a frame
+history (:mod:`sim2real.deploy.spec.history`) has the blocks make one frame per call and the plan's
+ring stack the frames (compiled too); :meth:`ObservationPlan.reset_history` starts it again.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.kernels.calls import put
 from sim2real.deploy.spec import kernel as ok
+from sim2real.deploy.spec.history import FrameRing, gather_table, stacked_dim
 from sim2real.deploy.spec.kernel import observation as observation_kernel
 from sim2real.deploy.spec.kernel import observation_over
 from sim2real.deploy.spec.kinds import KINDS, ObservationKind, numpy_reason
@@ -68,7 +71,16 @@ class ObservationPlan:
         self.offset = np.concatenate([np.asarray(b.offset, float) for b in bl]) if bl else []
         self.scale = np.concatenate([np.asarray(b.scale, float) for b in bl]) if bl else []
         self.clip = np.concatenate([np.full(b.size, float(b.clip)) for b in bl]) if bl else []
+        #: entries of one frame (the blocks'); ``out_dim``: of the observation (the graph's input)
         self.dim = start
+        #: the spec's frame history (None: the observation is one frame) and, with one, the rings
+        #: of past frames of the kernel and of the numpy reference
+        self.history = spec.history
+        self.out_dim = stacked_dim(spec.history, tuple(b.size for b in bl))
+        if spec.history is not None:
+            table = gather_table(spec.history, tuple(b.size for b in bl))
+            self.ring = FrameRing(spec.history, table, start)
+            self.reference_ring = FrameRing(spec.history, table, start)
         self._raw = np.zeros((0, start))
         self.vec = np.zeros((0, 3))
         self.rot = np.zeros((0, 3))
@@ -117,6 +129,9 @@ class ObservationPlan:
         out = np.zeros((1, self.dim), dtype=np.float32)
         self._run_kernel(state, np.zeros((1, 3)), out)
         ok.observation_over.compile(ok.TABLE_SIGNATURE)
+        if self.history is not None:  # the stacking, on a ring of its own
+            ring = FrameRing(self.history, self.ring.table, self.dim)
+            ring.stack(ring.frame_buffer(1), np.zeros((1, self.out_dim), dtype=np.float32))
 
     def _base_inputs(self, state: RobotState, envs: int) -> tuple[np.ndarray, ...]:
         """The kernel's floating-base inputs: the state's, or zeros for a fixed-base state
@@ -193,13 +208,34 @@ class ObservationPlan:
         if self.legged is not None and state.base is None:
             raise _no_base(self.legged)
 
+    def reset_history(self, envs: np.ndarray | None = None) -> None:
+        """Start the frame history of the envs of ``envs`` (bool mask (envs,); default all) again
+        (the policy's reset; no-op without a history): both rings, the kernel's and the
+        reference's."""
+        if self.history is not None:
+            self.ring.reset(envs)
+            self.reference_ring.reset(envs)
+
     def observation(
         self, state: RobotState, goal: np.ndarray, out: np.ndarray | None = None
     ) -> np.ndarray:
         """:meth:`PolicySpec.observation` (see there) with this plan: the kernel, or the numpy
-        reference for a plan with a ``numpy_reason``. The kernel's arguments for a given
-        ``out`` are made once and used again while the call's state, goal and ``out`` (and
-        the state's ``q`` and ``base``) are the same objects (the runtime's, every tick)."""
+        reference for a plan with a ``numpy_reason``; with a frame history, this tick's frame
+        pushed into the ring and the frames stacked into ``out`` (float32 (envs, ``out_dim``))."""
+        if self.history is None:
+            return self._frame(state, goal, out)
+        envs = state.q.shape[0]
+        frame = self._frame(state, goal, self.ring.frame_buffer(envs))
+        if out is None:
+            out = np.empty((envs, self.out_dim), dtype=np.float32)
+        return self.ring.stack(frame, out)
+
+    def _frame(
+        self, state: RobotState, goal: np.ndarray, out: np.ndarray | None = None
+    ) -> np.ndarray:
+        """One frame (float32 (envs, ``dim``)). The kernel's arguments for a given ``out`` are
+        made once and used again while the call's state, goal and ``out`` (and the state's
+        ``q`` and ``base``) are the same objects (the runtime's, every tick)."""
         b = self._bound
         if (
             b

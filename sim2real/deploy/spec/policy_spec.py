@@ -37,6 +37,7 @@ import numpy as np
 
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.spec.drive import DriveSpec
+from sim2real.deploy.spec.history import ObservationHistory, stacked_dim
 from sim2real.deploy.spec.kinds import KINDS, UNPROVIDED_KINDS, kind_names, vector_kind_names
 from sim2real.robots import CONTROL_MODES, Robot
 from sim2real.robots.errors import Sim2RealError
@@ -175,6 +176,8 @@ class PolicySpec:
         drive: The PD gains and default pose the policy was trained with
             (:class:`sim2real.deploy.spec.drive.DriveSpec`, ``joint_names`` order; None: not recorded;
             JSON key ``drive``, left out when None).
+        history: The frame history the graph reads (:class:`sim2real.deploy.spec.history.
+            ObservationHistory`: ticks, order, layout, fill); None: one frame, the present.
 
     ``robot_hash`` may be empty (a spec written by hand for a policy trained elsewhere): the
     description hash is then not checked.
@@ -191,6 +194,7 @@ class PolicySpec:
     format_version: int = FORMAT_VERSION
     constant_inputs: dict[str, float] = field(default_factory=dict)
     drive: DriveSpec | None = None
+    history: ObservationHistory | None = None
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -228,6 +232,12 @@ class PolicySpec:
     # ------------------------------------------------------------------ properties
     @property
     def obs_dim(self) -> int:
+        """Entries of the graph's input: :attr:`frame_dim` times the history's ticks."""
+        return stacked_dim(self.history, tuple(b.size for b in self.observation_blocks))
+
+    @property
+    def frame_dim(self) -> int:
+        """Entries of one tick's frame: the blocks' sizes summed (= ``obs_dim`` without history)."""
         return sum(b.size for b in self.observation_blocks)
 
     @property
@@ -235,8 +245,8 @@ class PolicySpec:
         return self.action.size
 
     def block_slices(self) -> dict[str, slice]:
-        """Where each block sits in the observation vector, by kind (a kind that occurs in two
-        blocks, as a velocity command split into its linear and yaw entries: the last)."""
+        """Where each block sits in a frame (the observation without history), by kind (a kind
+        that occurs in two blocks, as a velocity command split in two: the last)."""
         out, start = {}, 0
         for b in self.observation_blocks:
             out[b.name] = slice(start, start + b.size)
@@ -322,6 +332,8 @@ class PolicySpec:
         if not self.control_rate > 0:
             raise SpecError(f"control_rate: must be positive, got {self.control_rate}")
         problems = self.drive.problems(n) if self.drive is not None else []
+        if self.history is not None:
+            problems += self.history.problems(len(self.observation_blocks))
         if problems:
             raise SpecError(problems[0])
         for name, value in self.constant_inputs.items():
@@ -451,40 +463,22 @@ class PolicySpec:
             del d["drive"]
         else:
             d["drive"] = {k: v for k, v in d["drive"].items() if v}
+        if d["history"] is None:
+            del d["history"]
+        elif not d["history"]["lengths"]:
+            del d["history"]["lengths"]
         return json.dumps(d, sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str, source: str = "spec") -> PolicySpec:
-        """Parse and validate a spec (the format: ``sim2real.deploy.spec.schema``, whose shorthands it
-        expands: ``scale``/``offset`` as one number, ``size``, ``joints``, ``robot_hash`` left
-        out, joints by name).
+        """Parse and validate a spec (:func:`sim2real.deploy.spec.schema.parse_spec`: the format and
+        the shorthands it expands: ``scale``/``offset`` as one number, ``size``, ``joints``,
+        ``robot_hash`` left out, joints by name).
 
         Raises:
             SpecError: invalid JSON, unknown format version, missing, unknown or invalid field (the
                 message starts with ``source`` and names the field).
         """
-        from pydantic import ValidationError
+        from sim2real.deploy.spec.schema import parse_spec
 
-        from sim2real.deploy.spec.schema import PolicySpecDocument, describe_error, to_spec
-
-        try:
-            d = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise SpecError(f"{source}: not valid JSON: {exc}") from exc
-        if not isinstance(d, dict):
-            raise SpecError(f"{source}: expected a JSON object")
-        version = d.get("format_version")
-        if version != FORMAT_VERSION:
-            raise SpecError(
-                f"{source}: format_version {version!r} is not supported; expected {FORMAT_VERSION}"
-            )
-        try:
-            doc = PolicySpecDocument.model_validate(d)
-        except ValidationError as exc:
-            raise SpecError(f"{source}: {describe_error(exc)}") from None
-        try:
-            spec = to_spec(doc)
-            spec.validate()
-        except SpecError as exc:
-            raise SpecError(f"{source}: {exc}") from None
-        return spec
+        return parse_spec(text, source)

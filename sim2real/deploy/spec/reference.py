@@ -6,7 +6,8 @@ normalizes: ``(raw - offset) / scale``, the upper clip, the lower clip, the cast
 compiled kernel (:mod:`sim2real.deploy.spec.kernel`) gives the same numbers bit for bit; tests compare the
 two. A writer fills ``raw`` (envs, size), float64, with the block's raw quantity in SI units from
 the state, the goal (envs, 3) m, the plan's block (joints, components, period) and two (envs, 3)
-work arrays.
+work arrays. A spec with a frame history (:mod:`sim2real.deploy.spec.history`) stacks the frames
+in numpy too, in a ring of its own (``ObservationPlan.reference_ring``).
 """
 
 from __future__ import annotations
@@ -39,13 +40,21 @@ def observation_reference(
     Raises:
         SpecError: a floating-base block and a state without a base.
     """
-    return assemble(spec.plan, state, goal, out)
+    plan = spec.plan
+    if plan.history is None:
+        return assemble(plan, state, goal, out)
+    envs = state.q.shape[0]
+    frame = assemble(plan, state, goal, plan.reference_ring.frame_buffer(envs))
+    if out is None:
+        out = np.empty((envs, plan.out_dim), dtype=np.float32)
+    return plan.reference_ring.stack_reference(frame, out)
 
 
 def assemble(
     plan: ObservationPlan, state: RobotState, goal: np.ndarray, out: np.ndarray | None = None
 ) -> np.ndarray:
-    """:func:`observation_reference` with the spec's plan (see there)."""
+    """One frame of :func:`observation_reference` with the spec's plan: float32 (envs,
+    ``plan.dim``), the observation itself for a spec without a frame history."""
     envs = state.q.shape[0]
     if out is None:
         out = np.empty((envs, plan.dim), dtype=np.float32)
@@ -147,3 +156,16 @@ def heading_sincos(state, goal, raw, block: PlanBlock, vec, rot) -> None:
     yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
     raw[:, 0] = np.sin(yaw)
     raw[:, 1] = np.cos(yaw)
+
+
+def base_euler_angles(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    """Roll, pitch, yaw of the base in the attitude filter's world frame (its components)."""
+    w, x, y, z = state.base.orientation.T
+    picked = block.components if block.components.size else range(3)
+    for i, c in enumerate(picked):
+        if c == 0:
+            raw[:, i] = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+        elif c == 1:
+            raw[:, i] = np.arcsin(np.maximum(np.minimum(2.0 * (w * y - z * x), 1.0), -1.0))
+        else:
+            raw[:, i] = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))

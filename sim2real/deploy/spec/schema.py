@@ -19,6 +19,7 @@ Shorthands a hand-written spec may use (``PolicySpec.to_json`` always writes the
   ``last_action`` and ``winding_temperature``: every joint the action drives).
 - ``robot_hash`` left out or empty: the robot description hash is not checked (a policy trained
   elsewhere never saw our description; robot name, joint order and control rate still are).
+- ``history`` left out: the graph reads one frame; given, only ``length`` is required.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from sim2real.deploy.spec.drive import DriveSpec
+from sim2real.deploy.spec.history import FILLS, LAYOUTS, ORDERS, ObservationHistory
 from sim2real.deploy.spec.kinds import KINDS, kind_names
 from sim2real.deploy.spec.policy_spec import (
     DEFAULT_CLIP,
@@ -102,8 +104,9 @@ class ObservationBlockDocument(_Doc):
         default=None,
         description=(
             "Vector blocks (base_linear_velocity, base_angular_velocity, projected_gravity, "
-            "velocity_command) and gait_phase only: the entries of the raw vector read, in order. "
-            "A vector: 0 x, 1 y, 2 z (a velocity command's vx, vy, yaw rate); default all three. "
+            "velocity_command, base_euler_angles) and gait_phase only: the entries of the raw "
+            "vector read, in order. A vector: 0 x, 1 y, 2 z (a velocity command's vx, vy, yaw "
+            "rate; Euler angles' roll, pitch, yaw); default all three. "
             "gait_phase: 0 sin p, 1 cos p, 2 sin(p + pi), 3 cos(p + pi) (a second foot half a "
             "period later), p = 2 pi t / period; default [0, 1]."
         ),
@@ -162,6 +165,37 @@ class DriveDocument(_Doc):
     )
 
 
+class HistoryDocument(_Doc):
+    """The frame history the graph reads: the blocks' frames of the last ``length`` control ticks
+    (sim2real/deploy/spec/history.py)."""
+
+    model_config = ConfigDict(title="History")
+
+    length: int = Field(ge=1, description="Ticks of history, the present one included.")
+    order: Literal[ORDERS] = Field(  # type: ignore[valid-type]
+        default="oldest_first",
+        description="The ticks' order in the input (legged_gym, Isaac Lab: oldest_first).",
+    )
+    layout: Literal[LAYOUTS] = Field(  # type: ignore[valid-type]
+        default="per_frame",
+        description=(
+            "per_frame: each tick's whole frame in turn (legged_gym frame_stack); per_term: each "
+            "block's ticks in turn, then the next block's (Isaac Lab history_length)."
+        ),
+    )
+    fill: Literal[FILLS] = Field(  # type: ignore[valid-type]
+        default="zeros",
+        description=(
+            "What a tick before the policy's reset reads: zeros (humanoid-gym), or the first "
+            "frame after it (first: Isaac Lab's CircularBuffer)."
+        ),
+    )
+    lengths: list[int] | None = Field(
+        default=None,
+        description="per_term only: the ticks each block reads, one per block (1..length).",
+    )
+
+
 class PolicySpecDocument(_Doc):
     """A PolicySpec as stored in an ONNX file's ``policy_spec`` metadata or a ``--spec`` file."""
 
@@ -202,6 +236,41 @@ class PolicySpecDocument(_Doc):
             "them; a backend that cannot set gains refuses differing ones)."
         ),
     )
+    history: HistoryDocument | None = Field(
+        default=None,
+        description="The frame history the graph reads; left out: the present frame only.",
+    )
+
+
+def parse_spec(text: str, source: str = "spec") -> PolicySpec:
+    """:meth:`PolicySpec.from_json`: parse the JSON ``text``, check it against
+    :class:`PolicySpecDocument`, expand the shorthands (:func:`to_spec`) and validate.
+
+    Raises:
+        SpecError: invalid JSON, unknown format version, missing, unknown or invalid field (the
+            message starts with ``source`` and names the field).
+    """
+    try:
+        d = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise SpecError(f"{source}: not valid JSON: {exc}") from exc
+    if not isinstance(d, dict):
+        raise SpecError(f"{source}: expected a JSON object")
+    version = d.get("format_version")
+    if version != FORMAT_VERSION:
+        raise SpecError(
+            f"{source}: format_version {version!r} is not supported; expected {FORMAT_VERSION}"
+        )
+    try:
+        doc = PolicySpecDocument.model_validate(d)
+    except ValidationError as exc:
+        raise SpecError(f"{source}: {describe_error(exc)}") from None
+    try:
+        spec = to_spec(doc)
+        spec.validate()
+    except SpecError as exc:
+        raise SpecError(f"{source}: {exc}") from None
+    return spec
 
 
 def to_spec(doc: PolicySpecDocument) -> PolicySpec:
@@ -271,6 +340,15 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
             kp=tuple(doc.drive.kp or ()),
             kd=tuple(doc.drive.kd or ()),
             default_pose=tuple(doc.drive.default_pose or ()),
+        ),
+        history=None
+        if doc.history is None
+        else ObservationHistory(
+            length=doc.history.length,
+            order=doc.history.order,
+            layout=doc.history.layout,
+            fill=doc.history.fill,
+            lengths=tuple(doc.history.lengths or ()),
         ),
     )
 

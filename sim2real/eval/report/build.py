@@ -44,6 +44,8 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     hard = result["violations"]["total"].get("hard_limit", 0)
     hard_down = result["violations"].get("while_down", {}).get("hard_limit", 0)
     hard_stops = result["runtime"]["by_cause"].get("hard_limit", 0)
+    hard_joints = result["violations"].get("hard_limit_joints") or {}
+    joints = ", ".join(f"{j} {t}" for j, t in hard_joints.items())
     latched = result["runtime"]["latched_faults"]
     th = result["thermal"]
     hot = [j for j in th["joints"] if th["peak_c"][j] > th["max_winding_c"][j]]
@@ -117,6 +119,7 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
         "no_hard_violation": (
             hard == 0 and hard_down == 0 and hard_stops == 0,
             f"{hard} ticks with a joint beyond a hard limit (true state)"
+            + (f" (ticks per joint: {joints})" if joints else "")
             + (f" and {hard_down} more lying down after a stop" if hard_down else "")
             + f", {hard_stops} hard-limit safe stops"
             if hard or hard_down or hard_stops
@@ -210,6 +213,7 @@ def build_report(
             violations {source, total {type: ticks}, any, per_hour [{hour, start_s, end_s,
                         counts {type: ticks}, any}], rate_per_hour {type: ticks per hour},
                         self_collision_pairs {"geom_a|geom_b": ticks}, most first,
+                        hard_limit_joints {joint: ticks beyond its hard limit}, most first,
                         while_down {type: ticks, any}: a legged robot's ticks lying damped after
                         a stop, counted apart from the others}
                         (types: hard_limit, soft_limit, velocity, effort, workspace, self_collision;
@@ -258,7 +262,7 @@ def build_report(
                   null)}
         totals          over every session: simulated_hours, ticks, violations {total, any,
                         rate_per_hour, per_hour [{hour, counts, any}], self_collision_pairs,
-                        while_down},
+                        hard_limit_joints, while_down},
                         interventions {ticks,
                         checks {check: {count, fraction}}, any {count, fraction}, warnings,
                         per_hour [{hour, ticks, counts, any, fraction}]}, goals {issued, reached,

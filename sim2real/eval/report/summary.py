@@ -73,6 +73,9 @@ def summary_text(report: dict) -> str:
     if down.get("any"):
         d = ", ".join(f"{k} {n}" for k, n in down.items() if k != "any" and n)
         lines.append(f"  while down   (lying damped after a stop, ticks; not counted above) {d}")
+    hard = ", ".join(f"{j} {n}" for j, n in t["violations"].get("hard_limit_joints", {}).items())
+    if hard:
+        lines.append(f"  hard limits  (joints beyond theirs, ticks) {hard}")
     pairs = list(t["violations"].get("self_collision_pairs", {}).items())
     if pairs:
         top = ", ".join(f"{p} {n}" for p, n in pairs[:3])

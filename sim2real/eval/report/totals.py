@@ -48,12 +48,13 @@ def _sum_rows(results: list[dict], section: str, keys: list[str]) -> list[dict]:
     return out
 
 
-def _pair_ticks(results: list[dict]) -> dict[str, int]:
-    """Ticks per collision pair over the sessions (``violations.self_collision_pairs``; absent in
-    a report written before it), most first."""
+def _pair_ticks(results: list[dict], key: str = "self_collision_pairs") -> dict[str, int]:
+    """Ticks per collision pair (or per joint beyond a hard limit: ``key`` =
+    ``hard_limit_joints``) over the sessions (``violations.<key>``; absent in a report written
+    before it), most first."""
     pairs: dict[str, int] = {}
     for r in results:
-        for pair, n in r["violations"].get("self_collision_pairs", {}).items():
+        for pair, n in r["violations"].get(key, {}).items():
             pairs[pair] = pairs.get(pair, 0) + n
     return dict(sorted(pairs.items(), key=lambda kv: -kv[1]))
 
@@ -117,6 +118,7 @@ def totals(results: list[dict]) -> dict:
             "rate_per_hour": {k: (v / hours if hours > 0 else 0.0) for k, v in total.items()},
             "per_hour": _sum_rows(results, "violations", types),
             "self_collision_pairs": _pair_ticks(results),
+            "hard_limit_joints": _pair_ticks(results, "hard_limit_joints"),
             "while_down": _while_down(results),
         },
         "interventions": {

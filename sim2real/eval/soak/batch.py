@@ -172,11 +172,12 @@ class SessionBatch:
         if plant is not None:
             models = [plant.apply(m) for m in models]
         self.kind = robot_kind(robot)
-        for m, d in zip(models, draws, strict=True):
+        for m, d, c in zip(models, draws, configs, strict=True):
             if d.floor_friction is not None:  # a legged robot's floor
                 apply_floor_friction(m, d.floor_friction)
             if d.added_base_mass is not None:  # a payload of its training domain
-                add_base_mass(m, robot, d.added_base_mass)
+                body = getattr(c.ranges, "added_mass_body", "")  # default: the base
+                add_base_mass(m, robot, d.added_base_mass, body)
             if d.com_offset is not None:  # a centre of mass off its nominal place
                 shift_com(m, *d.com_offset)
         backend = self.backend = make_plant(

@@ -188,6 +188,7 @@ def session_result(session: Session) -> dict:
             ],
             "rate_per_hour": {k: (true[k] / sim_h if sim_h > 0 else 0.0) for k in VIOLATION_TYPES},
             "self_collision_pairs": b.violations.pair_counts(e),
+            "hard_limit_joints": b.violations.hard_limit_joints(e),
             "while_down": b.violations.env_counts(e, down=True),
         },
         "interventions": {

@@ -15,9 +15,13 @@ mass                 +-20 %      body mass and inertia (same factor: the shape i
 joint friction       +-50 %      ``frictionloss`` (dry friction, N m)
 joint damping        +-50 %      ``damping`` (viscous, N m s/rad)
 actuator strength    +-10 %      servo gains kp, kd (position, velocity mode); motor gear (torque)
+kp, kd               none        servo gain kp, or kd, alone (position, velocity mode; legged_gym
+                                 forks' ``stiffness_multi_range``, ``damping_multi_range``)
+armature             none        ``armature`` (reflected rotor inertia, kg m^2)
 ===================  ==========  ===================================================================
 
-The runtime keeps the nominal Pinocchio model: randomization is the gap between what the
+The runtime keeps the nominal Pinocchio model: randomization is the gap between what the runtime
+believes the robot is and what the plant is.
 """
 
 from __future__ import annotations
@@ -45,6 +49,10 @@ class DynamicsRanges:
             motor's torque-speed line (its stall torque and no-load speed) scales with it
             (:mod:`sim2real.robots.torque_speed`; motors without a no-load speed are unaffected). Default
             0: drawn only when set, so that sessions drawn before it are drawn the same.
+        kp, kd: A servo's position gain, or its damping gain, alone (the position and velocity
+            modes' actuators; a torque-mode plant has none: refused there by the plant). Default
+            0, drawn only when set, as ``supply_voltage``.
+        armature: Each joint's armature. Default 0, drawn only when set.
     """
 
     link_length: float = 0.10
@@ -53,6 +61,9 @@ class DynamicsRanges:
     damping: float = 0.50
     actuator_strength: float = 0.10
     supply_voltage: float = 0.0
+    kp: float = 0.0
+    kd: float = 0.0
+    armature: float = 0.0
 
     def __post_init__(self):
         for name, value in asdict(self).items():
@@ -62,7 +73,7 @@ class DynamicsRanges:
     @classmethod
     def none(cls) -> DynamicsRanges:
         """No randomization: the nominal robot."""
-        return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -78,11 +89,19 @@ class Dynamics:
     damping: tuple[float, ...]
     actuator_strength: tuple[float, ...]
     supply_voltage: tuple[float, ...] = ()  # one value for every motor; () is nominal (1.0)
+    kp: tuple[float, ...] = ()  # per joint; () is nominal (1.0), as kd and armature
+    kd: tuple[float, ...] = ()
+    armature: tuple[float, ...] = ()
 
     @classmethod
     def nominal(cls, n_joints: int) -> Dynamics:
         ones = (1.0,) * n_joints
         return cls(ones, ones, ones, ones, ones, ones)
+
+    def factor(self, name: str, joint: int) -> float:
+        """Joint ``joint``'s factor of ``kp``, ``kd`` or ``armature`` (1.0 when not drawn)."""
+        values = getattr(self, name)
+        return values[joint] if values else 1.0
 
     @property
     def supply(self) -> float:
@@ -95,13 +114,20 @@ class Dynamics:
         out = {k: list(v) for k, v in asdict(self).items()}
         if self.supply == 1.0:
             out.pop("supply_voltage")
+        for key in ("kp", "kd", "armature"):  # not drawn: left out, as before they were
+            if all(v == 1.0 for v in out[key]):
+                out.pop(key)
         return out
 
     @classmethod
     def from_dict(cls, data: dict) -> Dynamics:
         n = len(data["mass"])  # results written before supply_voltage have none: nominal
+        ones = {"kp": [], "kd": [], "armature": []}  # not drawn: nominal
         return cls(
-            **{k: tuple(float(x) for x in data.get(k, [1.0] * n)) for k in cls.__dataclass_fields__}
+            **{
+                k: tuple(float(x) for x in data.get(k, ones.get(k, [1.0] * n)))
+                for k in cls.__dataclass_fields__
+            }
         )
 
 
@@ -125,6 +151,10 @@ def sample_dynamics(
         supply_voltage=(float(rng.uniform(1.0 - r, 1.0 + r)),) * n
         if (r := ranges.supply_voltage) > 0.0
         else (1.0,) * n,
+        # drawn after the others, only when set: earlier sessions' streams stay as they were
+        kp=draw(ranges.kp) if ranges.kp > 0.0 else (),
+        kd=draw(ranges.kd) if ranges.kd > 0.0 else (),
+        armature=draw(ranges.armature) if ranges.armature > 0.0 else (),
     )
 
 
@@ -159,17 +189,23 @@ def apply_dynamics(spec: mujoco.MjSpec, robot: Robot, dynamics: Dynamics, mode: 
         body.inertia = np.asarray(body.inertia) * (m * s * s)
         joint.frictionloss = joint.frictionloss * dynamics.friction[i]
         joint.damping = joint.damping * dynamics.damping[i]
-    strength = dict(zip(robot.joint_names, dynamics.actuator_strength, strict=True))
+        joint.armature = joint.armature * dynamics.factor("armature", i)
+    index = {name: i for i, name in enumerate(robot.joint_names)}
+    if mode == "torque" and (dynamics.kp or dynamics.kd):
+        raise ValueError("apply_dynamics: kp and kd factors need servo gains; torque mode has none")
     for act in spec.actuators:  # every actuator of a joint (velocity mode: the PI loop's two)
-        k = strength[act.target]
+        i = index[act.target]
+        k = dynamics.actuator_strength[i]
         if mode == "torque":
             gear = np.asarray(act.gear)
             gear[0] *= k
             act.gear = gear
         else:
+            kp, kd = k * dynamics.factor("kp", i), k * dynamics.factor("kd", i)
             gain, bias = np.asarray(act.gainprm), np.asarray(act.biasprm)
-            gain[0] *= k
-            bias[1:3] *= k
+            gain[0] *= kp
+            bias[1] *= kp
+            bias[2] *= kd
             act.gainprm, act.biasprm = gain, bias
 
 
@@ -236,20 +272,21 @@ def shift_com(model: mujoco.MjModel, body: str, offset) -> None:
     mujoco.mj_setConst(model, mujoco.MjData(model))
 
 
-def add_base_mass(model: mujoco.MjModel, robot: Robot, kg: float) -> None:
-    """Add ``kg`` to the mass of ``robot``'s base body in the compiled ``model``, in place, its
-    inertia unchanged (legged_gym's ``randomize_base_mass``: a payload at the base's centre of
-    mass), and recompute the model's derived constants (``mj_setConst``).
+def add_base_mass(model: mujoco.MjModel, robot: Robot, kg: float, body_name: str = "") -> None:
+    """Add ``kg`` to the mass of ``robot``'s base body (or of ``body_name``) in the compiled
+    ``model``, in place, its inertia unchanged (legged_gym's ``randomize_base_mass``: a payload at
+    the body's centre of mass), and recompute the model's derived constants (``mj_setConst``).
 
     Raises:
-        ValueError: a fixed-base robot, or a base whose mass would not stay positive.
+        ValueError: a fixed-base robot, or a body whose mass would not stay positive.
     """
     if not robot_kind(robot).legged:
         raise ValueError(f"add_base_mass: robot {robot.name} has no floating base")
-    body = model.body(robot.base_body).id
+    name = body_name or robot.base_body
+    body = model.body(name).id
     if not model.body_mass[body] + kg > 0:
         raise ValueError(
-            f"add_base_mass: {kg} kg leaves the base '{robot.base_body}' of robot {robot.name} "
+            f"add_base_mass: {kg} kg leaves the body '{name}' of robot {robot.name} "
             f"without mass (it has {model.body_mass[body]:.3f} kg)"
         )
     model.body_mass[body] += kg

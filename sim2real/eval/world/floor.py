@@ -21,11 +21,21 @@ def floor_geoms(model: mujoco.MjModel) -> np.ndarray:
     return np.flatnonzero(model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE)
 
 
+def floor_pairs(model: mujoco.MjModel) -> np.ndarray:
+    """Indices of ``model``'s explicit contact pairs (MJCF ``<contact><pair>``) with a floor geom
+    on either side: feet that touch the floor through a pair (a robot file whose feet collide
+    with nothing else, ``contype=0``)."""
+    floor = floor_geoms(model)
+    return np.flatnonzero(np.isin(model.pair_geom1, floor) | np.isin(model.pair_geom2, floor))
+
+
 def apply_floor_friction(model: mujoco.MjModel, friction: float) -> None:
     """Set the sliding friction of ``model``'s floor (its plane geoms) to ``friction``, in place,
     and give the floor contact priority: MuJoCo then takes its friction for every contact with
     it (without priority a contact takes the larger of the two geoms' coefficients, and the feet's
-    default 1 would hide a slippery floor).
+    default 1 would hide a slippery floor). A contact pair with the floor (:func:`floor_pairs`)
+    carries its own friction, which neither the geoms nor their priority change: its two sliding
+    coefficients are set to ``friction`` too (its torsional and rolling ones are kept).
 
     Raises:
         ValueError: the model has no plane geom.
@@ -35,3 +45,4 @@ def apply_floor_friction(model: mujoco.MjModel, friction: float) -> None:
         raise ValueError("apply_floor_friction: the model has no floor (plane geom)")
     model.geom_friction[floor, 0] = friction
     model.geom_priority[floor] = max(int(model.geom_priority.max()), 0) + 1
+    model.pair_friction[floor_pairs(model), :2] = friction

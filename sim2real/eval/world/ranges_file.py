@@ -5,10 +5,10 @@ the training recipes' ``--ranges FILE`` (:func:`load_ranges`).
 Every table and key is optional; what the file leaves out keeps the robot kind's default. A range
 is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the class it sets::
 
-    floor_friction = [0.6, 1.0]   # floating-base robots only, as added_base_mass (kg)
+    floor_friction = [0.6, 1.0]   # floating base only, as added_base_mass (kg), added_mass_body
 
     [dynamics]    # relative half-ranges in [0, 1): a factor is drawn from U(1 - r, 1 + r)
-    mass = 0.3    # also link_length, friction, damping, actuator_strength, supply_voltage
+    mass = 0.3    # also link_length, friction, damping, armature, actuator_strength, kp, kd
     com_offset = {body = "torso_link", x = [-0.05, 0.05]}  # m added to body_ipos per session
 
     [sensors]     # encoder: noise_sigma (rad), latency_ticks (ticks), dropout, encoder_bias
@@ -82,9 +82,20 @@ FILE_KEYS = {
     for key in keys
 }
 #: Keys of a ranges file outside any table, with their type.
-TOP_LEVEL = {"floor_friction": tuple[float, float], "added_base_mass": tuple[float, float]}
+TOP_LEVEL = {
+    "floor_friction": tuple[float, float],
+    "added_base_mass": tuple[float, float],
+    "added_mass_body": str,
+}
 #: What only a floating-base robot draws.
-FLOATING_BASE_ONLY = ("imu", "floor_friction", "added_base_mass", "pushes", "commands")
+FLOATING_BASE_ONLY = (
+    "imu",
+    "floor_friction",
+    "added_base_mass",
+    "added_mass_body",
+    "pushes",
+    "commands",
+)
 
 
 class RangesError(Sim2RealError, ValueError):
@@ -277,6 +288,13 @@ def apply_overrides(
         except ValueError as exc:
             reason = _reason(exc, "ComOffsetRanges", "body")
             raise RangesError(f"{source}: dynamics.com_offset.body: {reason}") from None
+    body = overrides.get("added_mass_body")
+    bodies = [robot.mj_model.body(i).name for i in range(1, robot.mj_model.nbody)]
+    if body is not None and body not in bodies:
+        raise RangesError(
+            f"{source}: added_mass_body: '{body}' is no body of robot {robot.name} (its bodies: "
+            f"{bodies})"
+        )
     for key in TOP_LEVEL:
         if key in overrides:
             try:

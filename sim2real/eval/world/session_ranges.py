@@ -48,6 +48,8 @@ class SessionRanges:
             high)``, uniform (default ``FLOOR_FRICTION``); None: no floor is drawn (an arm's).
         added_base_mass: A floating-base robot's mass added to its base body, ``(low, high)``
             kg, uniform (legged_gym's ``domain_rand.added_mass_range``); None: none (default).
+        added_mass_body: The body ``added_base_mass`` goes on (a name of the robot's MJCF;
+            empty: its base body, legged_gym's; Isaac Lab's G1 task adds it to ``torso_link``).
         pushes: A floating-base robot's pushes of its training domain
             (:class:`sim2real.eval.world.pushes.PushRanges`, legged_gym's ``push_robots``); None: none
             (default; the fault schedule's force pushes are apart).
@@ -73,6 +75,7 @@ class SessionRanges:
     pushes: PushRanges | None = None
     commands: CommandRanges | None = None
     com_offset: ComOffsetRanges | None = None
+    added_mass_body: str = ""
 
     def __post_init__(self):
         if self.floor_friction is not None:

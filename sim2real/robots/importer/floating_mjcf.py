@@ -18,8 +18,11 @@ A floating-base robot gets, in its MJCF:
   Geoms and site go on the nearest body a joint moves (the calf): Pinocchio's MJCF parser
   misplaces sites of joint-less child bodies, and a touch sensor counts the contacts of its
   own body;
-- on the other bodies a hinge moves, each hull fitted to a mesh becomes the capsule along its
-  bounding box's long axis (:func:`_box_to_capsule`); the description's own primitives stay.
+- on the other bodies a hinge moves, an MJCF mesh's convex hull keeps the fewest of its vertices
+  that stay within ``HULL_TOLERANCE`` of it (:mod:`sim2real.robots.importer.leg_hulls`; a capsule
+  around its box, what the importer wrote before, is far fatter than a leaning thigh); a box
+  fitted to a mesh (a URDF's, ``--mesh-boxes``) becomes the capsule along its long axis
+  (:func:`_box_to_capsule`); the description's own primitives stay.
 
 """
 
@@ -30,6 +33,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from sim2real.robots.importer.leg_hulls import reduce_hull
 from sim2real.robots.importer.mjcf_geoms import drop_unused_meshes, hull_points, hull_to_box
 from sim2real.robots.importer.model import _sig
 from sim2real.robots.importer.source import PreparedSource, RobotImportError
@@ -41,10 +45,33 @@ IMU_SITE = "imu"
 #: The foot site's (its touch sensor's) margin over the foot's geoms, m: the contact point of a
 #: geom on a plane lies inside the geom by half the penetration (a few mm at most).
 TOUCH_MARGIN = 0.005
+#: ``(contype, conaffinity)`` of a plane that sets neither (MuJoCo's defaults): the floor of a
+#: robot file without one, before the feet widen it (:func:`floor_contact_bits`).
+DEFAULT_FLOOR_BITS = (1, 1)
 #: A foot's box fitted to a mesh whose shortest side is at least this fraction of its longest
 #: is a point foot (a quadruped's rubber ball, go2's foot_convex.stl) and becomes the sphere of
 #: its mean half-size; a flat sole (a humanoid's) is far thinner than long and stays a box.
 POINT_FOOT_ASPECT = 0.5
+
+
+def foot_with_geometry(spec: mujoco.MjSpec, prepared: PreparedSource, foot: str):
+    """``(link, note)``: the link carrying foot ``foot``'s collision geometry and a line saying
+    why when it is not ``foot`` (None then). A link without geometry fixed to its parent (holosoma's
+    massless ``*_foot_contact_point`` under each ankle link) hands the foot to the nearest
+    ancestor through fixed joints that has geometry; a link without geometry anywhere up there
+    stays (:func:`finish_floating_mjcf` refuses it)."""
+    link = foot
+    while not list(spec.body(link).geoms) and link in prepared.parent:
+        parent, _, kind = prepared.parent[link]
+        if kind != "fixed" or parent == "world":
+            break
+        link = parent
+    if link == foot or not list(spec.body(link).geoms):
+        return foot, None
+    return link, (
+        f"foot {foot} has no collision geometry and is fixed to {link}: the foot is {link} "
+        "(its geoms and the foot site)"
+    )
 
 
 def _moving_ancestor(model: mujoco.MjModel, body: int) -> int:
@@ -148,10 +175,12 @@ def finish_floating_mjcf(
     and write the MJCF to ``mjcf_path``. ``imu``: (link, MJCF site or None).
 
     Returns:
-        ``{"feet": foot site names, "foot_shapes": foot -> description, "standing_height": m}``.
+        ``{"feet": foot site names, "foot_shapes": foot -> description, "standing_height": m,
+        "notes": lines on the floor's contact bits}``.
 
     Raises:
-        RobotImportError: a foot link without a collision geometry.
+        RobotImportError: a foot link without a collision geometry, or whose geometry touches
+            nothing (:func:`floor_contact_bits`).
     """
     model = spec.compile()
     data = mujoco.MjData(model)
@@ -222,13 +251,13 @@ def finish_floating_mjcf(
             objname=foot,
         )
     on_feet = {name for names in foot_geoms.values() for name in names}
-    for body in spec.bodies:  # leg links (bodies a hinge moves): capsules, as legged_gym's
+    for body in spec.bodies:  # leg links (bodies a hinge moves)
         if any(j.type == mujoco.mjtJoint.mjJNT_HINGE for j in body.joints):
             for geom in list(body.geoms):
                 if geom.name in prepared.fitted_geoms and geom.name not in on_feet:
                     if geom.type == mujoco.mjtGeom.mjGEOM_MESH:
-                        hull_to_box(spec, geom)
-                    if geom.type == mujoco.mjtGeom.mjGEOM_BOX:
+                        reduce_hull(spec, geom)
+                    elif geom.type == mujoco.mjtGeom.mjGEOM_BOX:  # as legged_gym's
                         _box_to_capsule(geom)
     drop_unused_meshes(spec)
     _add_imu(spec, model, data, imu)
@@ -253,9 +282,11 @@ def finish_floating_mjcf(
     free = root.add_freejoint(name=FREE_JOINT)
     if root.childclass:  # else MuJoCo writes it class="main" there, which Pinocchio cannot read
         free.classname = spec.find_default(root.childclass)
+    contype, conaffinity, floor_notes = floor_contact_bits(model, prepared, foot_geoms)
     spec.worldbody.add_geom(
-        name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05], rgba=[0.5] * 3 + [1]
-    )
+        name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05], rgba=[0.5] * 3 + [1],
+        contype=contype, conaffinity=conaffinity,
+    )  # fmt: skip
     spec.worldbody.add_light(
         name="sun", pos=[0, 0, 3], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
     )
@@ -274,7 +305,75 @@ def finish_floating_mjcf(
         f"floor, an IMU site with gyro and accelerometer, {feet_words} with touch sensors. -->\n"
     )
     mjcf_path.write_text(header + xml, encoding="utf-8")
-    return {"feet": list(feet), "foot_shapes": shapes, "standing_height": height}
+    return {
+        "feet": list(feet), "foot_shapes": shapes, "standing_height": height, "notes": floor_notes,
+    }  # fmt: skip
+
+
+def floor_contact_bits(
+    model: mujoco.MjModel, prepared: PreparedSource, foot_geoms: dict[str, list[str]]
+) -> tuple[int, int, list[str]]:
+    """The importer's floor's ``contype`` and ``conaffinity`` and the lines saying why.
+
+    MuJoCo collides geoms ``a`` and ``b`` when ``contype_a & conaffinity_b`` or ``contype_b &
+    conaffinity_a`` (or a ``<contact><pair>`` names both). The floor starts from the bits of the
+    file's own floor (a scene file's plane, ``prepared.floor_bits``), else MuJoCo's default
+    ``(1, 1)``; each foot none of whose geoms would touch it then widens it by its geoms' bits
+    (Menagerie's Cassie: feet ``contype`` 2 and 4, a scene floor ``conaffinity`` 15). The other
+    bodies whose geoms can touch something but not the floor are named.
+
+    Raises:
+        RobotImportError: a foot whose geoms have ``contype = conaffinity = 0`` and no pair with
+            the floor (it touches nothing).
+    """
+    contype, conaffinity = prepared.floor_bits or DEFAULT_FLOOR_BITS
+    origin = "the file's floor" if prepared.floor_bits else "MuJoCo's default floor"
+    paired = {
+        p["geom1"] if p["geom2"] == prepared.scene_geom else p["geom2"]
+        for p in prepared.pairs
+        if prepared.scene_geom in (p["geom1"], p["geom2"])
+    }
+    bits = {
+        model.geom(g).name: (int(model.geom_contype[g]), int(model.geom_conaffinity[g]))
+        for g in range(model.ngeom)
+    }
+
+    def touches(name: str) -> bool:
+        ct, ca = bits[name]
+        return name in paired or bool(ct & conaffinity) or bool(contype & ca)
+
+    notes = []
+    for foot, names in foot_geoms.items():
+        if any(touches(n) for n in names):
+            continue
+        able = [n for n in names if bits[n] != (0, 0)]
+        if not able:
+            raise RobotImportError(
+                f"{prepared.path}: foot {foot}: its geoms {names} have contype = conaffinity = 0 "
+                "and no <contact><pair> with the floor: the foot touches nothing; expected "
+                "collision geoms (contype or conaffinity set) or pairs with the floor"
+            )
+        old = (contype, conaffinity)
+        for n in able:
+            contype, conaffinity = contype | bits[n][1], conaffinity | bits[n][0]
+        notes.append(
+            f"floor contype/conaffinity {old} ({origin}) -> {(contype, conaffinity)}: foot "
+            f"{foot}'s geoms {able} (contype, conaffinity {sorted({bits[n] for n in able})}) did "
+            "not touch it"
+        )
+    bodies = sorted(
+        {
+            model.body(model.geom_bodyid[model.geom(n).id]).name
+            for n, b in bits.items()
+            if b != (0, 0) and model.geom_bodyid[model.geom(n).id] > 0 and not touches(n)
+        }
+    )
+    if bodies:
+        notes.append(
+            f"bodies {bodies} have collision geoms that do not touch the floor (contype/"
+            f"conaffinity {(contype, conaffinity)}): they pass through it, as in the file's bits"
+        )
+    return contype, conaffinity, notes
 
 
 def _add_imu(spec, model, data, imu: tuple[str, str | None]) -> None:

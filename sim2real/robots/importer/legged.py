@@ -19,7 +19,12 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from sim2real.robots.importer.floating_mjcf import FREE_JOINT, IMU_SITE, finish_floating_mjcf
+from sim2real.robots.importer.floating_mjcf import (
+    FREE_JOINT,
+    IMU_SITE,
+    finish_floating_mjcf,
+    foot_with_geometry,
+)
 from sim2real.robots.importer.model import SOFT_LIMIT_FRACTION, Motion, _sig
 from sim2real.robots.importer.source import PreparedSource, RobotImportError
 from sim2real.robots.importer.toml_text import (
@@ -185,7 +190,7 @@ def write_legged_toml(
     joint_names: list[str],
     limits: dict,
     motion: Motion,
-    gains_from: dict[str, str],
+    gains_from: dict[str, tuple[str, str]],
     chosen: dict[str, str],
     motor_cfg: dict,
     pairs: list,
@@ -205,11 +210,12 @@ def write_legged_toml(
 ) -> None:
     """robot.toml of a floating-base robot, a comment giving the reason of every value.
 
-    ``gains_from``: joint -> where its kp and kd came from ('--kp/--kd' or the importer's
-    rule); ``notes``: ``--note`` lines for the header (sources of flag values); ``command``:
-    the command line that regenerates the folder; ``motor_tables``: the motors given as files
-    (:func:`sim2real.robots.importer.model.motor_table_lines`); ``tables``: lines of more tables, at the
-    end (``[unitree]``: :mod:`sim2real.robots.importer.unitree`).
+    ``gains_from``: joint -> where its kp and its kd came from
+    (:meth:`sim2real.robots.importer.drive_sources.DriveChoice.gains_note`); ``notes``:
+    ``--note`` lines for the header (sources of flag values); ``command``: the command line
+    that regenerates the folder; ``motor_tables``: the motors given as files
+    (:func:`sim2real.robots.importer.model.motor_table_lines`); ``tables``: lines of more tables,
+    at the end (``[unitree]``: :mod:`sim2real.robots.importer.unitree`).
     """
     kind = prepared.kind
     motor_tables = motor_tables or {}
@@ -361,9 +367,13 @@ def import_floating_base(
     command: list[str],
     target_limits: str = "pd",
     unitree: dict | None = None,
+    policy: tuple[dict, str] | None = None,
 ) -> None:
     """The floating-base half of :func:`sim2real.robots.importer.pipeline.import_robot`: ``job`` is a
-    :class:`sim2real.robots.importer.staging.ImportJob`, the rest its floating-base arguments.
+    :class:`sim2real.robots.importer.staging.ImportJob`, the rest its floating-base arguments;
+    ``policy``: the ``--drive-from`` policy's (quantity -> joint -> value, source). Each joint's
+    kp, kd and home come from the flags, the policy, the robot file or the importer's rule
+    (:mod:`sim2real.robots.importer.drive_sources`), each source printed.
 
     Raises:
         RobotImportError: see :func:`choose_feet`, :func:`choose_imu`,
@@ -372,12 +382,18 @@ def import_floating_base(
     """
     from sim2real.robots.importer import flags
     from sim2real.robots.importer.contact_pairs import write_pairs
+    from sim2real.robots.importer.drive_sources import RULE, choose, source_lines
     from sim2real.robots.importer.model import LEGGED_MAX_ACCELERATION, derive_motion_limits
     from sim2real.robots.importer.staging import written_ranges
 
     urdf, spec, joint_names, log = job.urdf, job.spec, job.joint_names, job.log
     chosen, motor_cfg, control_rate = job.chosen, job.motor_cfg, job.control_rate
-    foot_links = choose_feet(urdf, feet)
+    foot_links = []
+    for foot in choose_feet(urdf, feet):
+        link, note = foot_with_geometry(spec, urdf, foot)
+        foot_links.append(link)
+        if note:
+            log(f"note: {note}")
     imu_link, imu_site = choose_imu(urdf, imu, log)
     at = f"site {imu_site} of link {imu_link}" if imu_site else f"link {imu_link}"
     tables = []
@@ -397,18 +413,23 @@ def import_floating_base(
         if bad:
             raise RobotImportError(f"{flag}: gains must be positive (kd may be 0), got {bad}")
 
+    drive = choose(joint_names, {"kp": kp_set, "kd": kd_set, "home": home_set}, policy, urdf.drive)
+    for line in source_lines(drive, joint_names):
+        log(f"note: {line}")
+
     def motion_now():
         motion = derive_motion_limits(
             spec, job.model, joint_names, limits_out, motor_cfg, chosen, LEGGED_MAX_ACCELERATION
         )
         for i, j in enumerate(joint_names):
-            motion.home[i] = home_set.get(j, motion.home[i])
-            motion.kp[i] = kp_set.get(j, motion.kp[i])
-            motion.kd[i] = kd_set.get(j, motion.kd[i])
+            motion.home[i] = drive.values["home"].get(j, motion.home[i])
+            motion.kp[i] = drive.values["kp"].get(j, motion.kp[i])
+            motion.kd[i] = drive.values["kd"].get(j, motion.kd[i])
             lo, hi = limits_out[j][:2]
             if not lo <= motion.home[i] <= hi:
                 raise RobotImportError(
-                    f"--home: joint {j} at {motion.home[i]} rad is outside its limits [{lo}, {hi}]"
+                    f"home pose ({drive.sources['home'][j]}): joint {j} at {motion.home[i]} rad "
+                    f"is outside its limits [{lo}, {hi}]"
                 )
         if target_limits == "pd":
             effort = np.array([limits_out[j][3] for j in joint_names])
@@ -420,12 +441,13 @@ def import_floating_base(
         return motion
 
     motion = motion_now()
-    gains_from = {
-        j: "--kp/--kd" if j in kp_set or j in kd_set else "the importer's rule (see above)"
-        for j in joint_names
-    }
-    home_from = (
-        "--home flags (see the notes above)" if home_set else "0 clipped into the soft limits"
+    gains_from = {j: drive.gains_note(j) for j in joint_names}
+    home_from = "; ".join(
+        line.removeprefix("home: ")
+        .removesuffix(" (every joint)")
+        .replace(RULE, "0 clipped into the soft limits")
+        for line in source_lines(drive, joint_names)
+        if line.startswith("home: ")
     )
     with job.staged() as (work, mjcf_path):
         legged = finish_floating_mjcf(
@@ -434,6 +456,8 @@ def import_floating_base(
         write_pairs(mjcf_path, urdf, log)  # the MJCF's <contact><pair>s, the floor named
         for foot, shape in legged["foot_shapes"].items():
             log(f"note: foot {foot}: {shape}")
+        for line in legged["notes"]:
+            log(f"note: {line}")
         # the model's joint 0 is the free joint
         written = written_ranges(mjcf_path, joint_names, limits_out, first=1)
         motion = motion_now()

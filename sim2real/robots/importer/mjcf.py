@@ -1,8 +1,8 @@
 """MJCF reading for the importer: an MJCF robot checked and reduced to what the toolkit uses.
 
-:func:`prepare_mjcf` loads the file with ``mujoco.MjSpec.from_file`` (MuJoCo's own parser:
-defaults, includes, degrees or radians) and makes the same
-:class:`sim2real.robots.importer.source.PreparedSource` a URDF makes; the rest of the import is shared. Kept:
+:func:`prepare_mjcf` loads the file with ``mujoco.MjSpec.from_file`` (MuJoCo's own parser: defaults,
+includes, degrees or radians) and makes the :class:`~sim2real.robots.importer.source.PreparedSource`
+a URDF makes; the rest of the import is shared. Kept:
 
 - hinge joints, their ranges (radians), damping and friction loss (the armature is the motor's);
 - geometry (:mod:`sim2real.robots.importer.mjcf_geoms`) and inertials, written for every body;
@@ -19,15 +19,15 @@ defaults, includes, degrees or radians) and makes the same
 - fixed tendons with limits (``<tendon><fixed limited="true">``, a linkage's limits) whose
   joints all stay hinges (:mod:`sim2real.robots.importer.mjcf_tendons`).
 
-Removed, each with a printed note: actuators, sensors, other tendons, equalities (a coupled joint
-is frozen), keyframes, textures, materials, skins, flexes, floors, jointless bodies hanging from
-the world (other world geoms move into a fixed body ``base``); slide and ball joints frozen; a
-floating base's own free joint (:mod:`sim2real.robots.importer.legged` adds its own).
-Refused (:class:`RobotImportError`): a free joint without ``--floating-base`` or off the root
-body; contact pairs naming several geoms the file does not have, or any for a fixed base
-(import the scene file instead); a missing mesh file; an unnamed hinge, a hinge without limits
-(unless ``--limit``), a body with several hinges, several jointed bodies hanging from the
-world, a moving body without mass or inertia, and what MuJoCo itself refuses.
+Removed, each with a printed note (:mod:`~sim2real.robots.importer.mjcf_drive` reads the gains,
+home pose and floor bits first): actuators, keyframes, sensors, other tendons, equalities (a
+coupled joint is frozen), textures, materials, skins, flexes, floors, jointless bodies hanging
+from the world (other world geoms move into a fixed body ``base``); slide and ball joints frozen;
+a floating base's own free joint (the importer adds its own). Refused (:class:`RobotImportError`):
+a free joint without ``--floating-base`` or off the root body; contact pairs naming geoms the file
+lacks, or any for a fixed base; a missing mesh; an unnamed hinge, an arm's hinge without limits
+(unless ``--limit``; a floating base's is continuous, a wheel), a body with several hinges,
+several jointed bodies under the world, a massless moving body, what MuJoCo refuses.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ import mujoco
 import numpy as np
 
 from sim2real.robots.importer.contact_pairs import take_pairs
+from sim2real.robots.importer.mjcf_drive import floor_bits, read_drive
 from sim2real.robots.importer.mjcf_geoms import missing_meshes, simplify_geoms
 from sim2real.robots.importer.mjcf_tendons import drop_tendons_off_hinges, limited_fixed_tendons
 from sim2real.robots.importer.source import (
@@ -67,6 +68,7 @@ def prepare_mjcf(
     floating_base: bool = False,
     drop_missing_meshes: bool = False,
     link_boxes: bool = False,
+    keyframe: str | None = None,
 ) -> PreparedSource:
     """Check the MJCF at ``path`` and reduce it for the importer (see the module docstring).
 
@@ -78,7 +80,8 @@ def prepare_mjcf(
             world body's other geoms are dropped. drop_missing_meshes: drop the geoms whose mesh
             file does not exist (each printed) instead of refusing. link_boxes: one bounding
             box per body around all its mesh geoms (coarser, fewer pairs) instead of one per
-            mesh geom.
+            mesh geom. keyframe: the ``<key>`` whose pose is the file's home
+            (:func:`sim2real.robots.importer.mjcf_drive.read_drive`).
 
     Returns:
         A :class:`PreparedSource` of kind "MJCF" whose ``text`` is the reduced model in MuJoCo's
@@ -98,6 +101,8 @@ def prepare_mjcf(
     missing_meshes(spec, path, drop_missing_meshes, notes)
     _name_unnamed(spec.bodies[1:], "body")
     model = _compile(spec, path)
+    model_in, drive = model, read_drive(model, path, keyframe)  # before actuators, keys go
+    notes += drive.notes
     free = [j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
     for j in free:
         body = model.body(model.jnt_bodyid[j]).name
@@ -146,7 +151,7 @@ def prepare_mjcf(
         spec.joint(name).range = [lo, hi]
         spec.joint(name).limited = mujoco.mjtLimited.mjLIMITED_TRUE
     model = _compile(spec, path)
-    joints = _hinge_limits(model, path, efforts)
+    joints = _hinge_limits(model, path, efforts, floating_base)
     keep = {n for p in pairs for n in (p["geom1"], p["geom2"])}
     meshdir_abs, fitted = simplify_geoms(spec, model, notes, link_boxes, keep)
     renamed_sites = _rename_sites_like_bodies(spec, notes)
@@ -181,6 +186,8 @@ def prepare_mjcf(
         pairs=pairs,
         scene_geom=scene_geom,
         renamed_sites=renamed_sites,
+        floor_bits=floor_bits(model_in),
+        drive=drive,
     )
 
 
@@ -351,11 +358,11 @@ def _drop_elements(
     frozen = {e.name1 for e in spec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT and e.name1}
     tendons = [t for t in spec.tendons if t.name not in keep_tendons]
     for what, elements, why in (
-        ("actuators", spec.actuators, "Robot.mjspec adds the drives of each control mode"),
+        ("actuators", spec.actuators, "Robot.mjspec adds the drives (<position> gains read)"),
         ("sensors", spec.sensors, "the sim backend models robot.toml's sensors"),
         ("tendons", tendons, "spatial or unlimited: the runtime drives joints"),
         ("equality constraints", spec.equalities, "the runtime simulates open chains"),
-        ("keyframes", spec.keys, "robot.toml sets the home pose"),
+        ("keyframes", spec.keys, "their home pose read first (mjcf_drive)"),
         ("skins", spec.skins, "not simulated"),
         ("flexes", spec.flexes, "not simulated"),
         ("contact excludes", spec.excludes, ""),  # kept as the importer's disabled pairs
@@ -447,18 +454,25 @@ def _freeze_joints(spec: mujoco.MjSpec, path: Path, frozen: set[str], notes) -> 
         raise RobotImportError(f"{path}: <mujoco>: no hinge joint; expected a robot's hinges")
 
 
-def _hinge_limits(model: mujoco.MjModel, path: Path, efforts) -> dict[str, JointInfo]:
-    """JointInfo of every hinge (rad, N m); refuse unlimited hinges and massless moving bodies."""
+def _hinge_limits(
+    model: mujoco.MjModel, path: Path, efforts, floating_base: bool = False
+) -> dict[str, JointInfo]:
+    """JointInfo of every hinge (rad, N m); an unlimited hinge of a floating-base robot is
+    continuous (a wheel: -inf, inf); refuse an arm's unlimited hinges (its goals are drawn within
+    the joint ranges) and massless moving bodies."""
     joints: dict[str, JointInfo] = {}
     for j in range(model.njnt):
         name = model.joint(j).name
         lo, hi = (float(x) for x in model.jnt_range[j])
-        if not model.jnt_limited[j]:
+        if not model.jnt_limited[j] and floating_base:  # continuous (a wheel): no limit
+            lo, hi = -math.inf, math.inf
+        elif not model.jnt_limited[j]:
             raise RobotImportError(
                 f"{path}: <joint name='{name}'>: no position limits (limited=\"false\" or no "
-                f'range); expected range="LOWER UPPER" or --limit {name}=LOWER:UPPER (rad)'
+                f'range); expected range="LOWER UPPER" or --limit {name}=LOWER:UPPER (rad): '
+                "a continuous joint (a wheel) is taken on a floating-base robot only"
             )
-        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        elif not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
             raise RobotImportError(
                 f"{path}: <joint name='{name}' range>: got {lo:g}, {hi:g} rad; expected lower < "
                 f"upper (or --limit {name}=LOWER:UPPER)"

@@ -16,6 +16,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from sim2real.robots.continuous import sampling_bounds
 from sim2real.robots.importer.contact_pairs import rename_pair_geoms
 from sim2real.robots.importer.physics_option import apply_options, source_options
 from sim2real.robots.importer.source import PreparedSource, RobotImportError, SrdfInfo
@@ -250,6 +251,7 @@ def derive_motion_limits(
     lo = np.array([limits[j][0] for j in joint_names])
     hi = np.array([limits[j][1] for j in joint_names])
     effort = np.array([limits[j][3] for j in joint_names])
+    lo, hi = sampling_bounds(lo, hi)  # a continuous joint: one turn
     centre, half = (lo + hi) / 2, (hi - lo) / 2
     soft_lo, soft_hi = centre - SOFT_LIMIT_FRACTION * half, centre + SOFT_LIMIT_FRACTION * half
     home = np.clip(np.zeros(n), soft_lo, soft_hi)
@@ -389,6 +391,7 @@ def sample_workspace(mjcf_path: Path, joint_names, limits, home) -> dict:
     site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "ee")
     lo = np.array([limits[j][0] for j in joint_names])
     hi = np.array([limits[j][1] for j in joint_names])
+    lo, hi = sampling_bounds(lo, hi)
     rng = np.random.default_rng(1)
 
     def ee(q):

@@ -118,6 +118,7 @@ def import_robot(
     mesh_boxes: bool = False,
     drive=None,
     options: list[str] | tuple[str, ...] = (),
+    keyframe: str | None = None,
 ) -> ImportReport:
     """Import ``source`` (URDF or MJCF path, or ``PACKAGE:path``) into the robot folder ``out``.
 
@@ -166,6 +167,10 @@ def import_robot(
             control_rate: Hz; None: the drive's, else :data:`DEFAULT_CONTROL_RATE`.
             options: ``KEY=VALUE`` MuJoCo ``<option>`` settings (integrator, iterations,
             ls_iterations, ...) over the MJCF's own (:mod:`sim2real.robots.importer.physics_option`).
+            keyframe: the MJCF ``<key>`` whose pose is home where no flag or policy gives it
+            (None: ``home``, else the first; :mod:`sim2real.robots.importer.mjcf_drive`); an
+            MJCF's ``<position>`` gains likewise come before the importer's rule. Needs
+            ``floating_base``.
 
     The parent folders of ``out`` are created when missing (as ``mkdir -p``; removed again when
     the import fails).
@@ -189,6 +194,7 @@ def import_robot(
                 source, out, srdf, motors, ee_site, limits, velocities, control_rate,
                 physics_timestep, force, log, drop_missing_meshes, link_boxes, floating_base,
                 feet, imu, kp, kd, home, notes, command, target_limits, unitree, drive, options,
+                keyframe,
             )  # fmt: skip
     except BaseException:
         for folder in created:  # deepest first
@@ -242,6 +248,7 @@ def _import(
     unitree=None,
     drive=None,
     options=(),
+    keyframe=None,
 ) -> ImportReport:
     """:func:`import_robot` once the parents of ``out`` exist (its arguments)."""
     start = time.perf_counter()
@@ -249,6 +256,7 @@ def _import(
     legged_flags["--drive-from"] = drive
     legged_flags["--note"] = notes
     legged_flags["--unitree"] = unitree
+    legged_flags["--keyframe"] = keyframe
     used = [k for k, v in legged_flags.items() if v]
     if used and not floating_base:
         raise RobotImportError(f"{', '.join(used)}: only with --floating-base (a legged robot)")
@@ -259,7 +267,7 @@ def _import(
     srdf_path = resolve_source(str(srdf)) if srdf is not None else None
 
     urdf, srdf_info = _prepare(
-        path, srdf_path, list(limits), floating_base, drop_missing_meshes, link_boxes
+        path, srdf_path, list(limits), floating_base, drop_missing_meshes, link_boxes, keyframe
     )
     for note in urdf.notes:
         log(f"note: {note}")
@@ -274,11 +282,12 @@ def _import(
     spec, model = build_spec(urdf, chosen, motor_cfg, physics_timestep, options)
     log(f"note: {urdf.physics}; timestep {physics_timestep:g} s ({timestep_from})")
     joint_names = [model.joint(i).name for i in range(model.njnt)]
-    if drive is not None:  # robot.toml's header says where the gains came from
-        kp, kd, home, control_rate = _policy_drive(
-            drive, model, joint_names, unitree, kp, kd, home, control_rate, log
-        )
-        notes = [*notes, "kp, kd, home and control rate: the policy's (--drive-from)"]
+    policy = None
+    if drive is not None:  # robot.toml's header says where the control rate came from
+        rate_given = control_rate is not None
+        policy, control_rate = _policy_drive(drive, model, joint_names, unitree, control_rate, log)
+        if control_rate is not None and not rate_given:
+            notes = [*notes, f"control rate: the policy's (--drive-from: {policy[1]})"]
     control_rate = DEFAULT_CONTROL_RATE if control_rate is None else control_rate
     steps = 1.0 / (control_rate * physics_timestep)
     if timestep_from == "the MJCF" and abs(steps - round(steps)) > 1e-6 * steps:
@@ -299,6 +308,7 @@ def _import(
             job, feet=list(feet), imu=imu, kp=list(kp), kd=list(kd), home=list(home),
             notes=list(notes), target_limits=target_limits,
             command=command or ["robot-import", str(source), "--out", str(out)], unitree=unitree,
+            policy=policy,
         )  # fmt: skip
         report.seconds = time.perf_counter() - start
         log(f"wrote {out} ({len(joint_names)} joints, floating base) in {report.seconds:.1f} s")
@@ -310,8 +320,10 @@ def _import(
     return report
 
 
-def _policy_drive(drive, model, joints, unitree, kp, kd, home, control_rate, log):
-    """``(kp, kd, home, control_rate)`` with a policy's drive first (the flags after it win).
+def _policy_drive(drive, model, joints, unitree, control_rate, log):
+    """``(policy, control_rate)``: the policy's drive as ``(quantity -> joint -> value, source)``
+    (:func:`sim2real.robots.importer.drive_sources.choose` puts the flags before it) and the
+    control rate (the policy's when ``control_rate`` is None).
 
     Raises:
         RobotImportError: the drive cannot be read (its one-line message), or ``control_rate``
@@ -337,17 +349,15 @@ def _policy_drive(drive, model, joints, unitree, kp, kd, home, control_rate, log
         )
     values = {"kp": d.kp, "kd": d.kd, "home": d.home}
     got = [k for k, v in values.items() if v is not None]
-    log(f"note: kp, kd and home from {d.source}: {', '.join(got) or 'none recorded'}")
-    flags_of = {
-        k: [f"{n}={v!r}" for n, v in zip(joints, values[k], strict=True)] if values[k] else []
-        for k in values
-    }
-    return (
-        flags_of["kp"] + list(kp),
-        flags_of["kd"] + list(kd),
-        flags_of["home"] + list(home),
-        control_rate if control_rate is not None else rate,
+    lacks = [k for k, v in values.items() if v is None] + (["control rate"] if rate is None else [])
+    log(
+        f"note: --drive-from {d.source}: {', '.join(got) or 'no gain or pose'} read"
+        + (f"; it does not record {', '.join(lacks)}" if lacks else "")
     )
+    for line in getattr(d, "missing", ()):
+        log(f"note: --drive-from: missing {line}")
+    per_joint = {k: dict(zip(joints, v, strict=True)) for k, v in values.items() if v is not None}
+    return (per_joint, d.source), (control_rate if control_rate is not None else rate)
 
 
 def _prepare(
@@ -357,11 +367,20 @@ def _prepare(
     floating_base: bool = False,
     drop_missing_meshes: bool = False,
     link_boxes: bool = False,
+    keyframe: str | None = None,
 ) -> tuple[PreparedSource, SrdfInfo | None]:
-    """The prepared description and the link pairs left unchecked (SRDF, MJCF excludes)."""
+    """The prepared description and the link pairs left unchecked (SRDF, MJCF excludes).
+
+    Raises:
+        RobotImportError: (besides the readers') ``keyframe`` for a URDF, which has none.
+    """
     root = _parse_xml(path)
+    if keyframe is not None and root.tag != "mujoco":
+        raise RobotImportError(f"--keyframe {keyframe}: {path} is not an MJCF (no <keyframe>)")
     if root.tag == "mujoco":
-        source = prepare_mjcf(path, limit_flags, floating_base, drop_missing_meshes, link_boxes)
+        source = prepare_mjcf(
+            path, limit_flags, floating_base, drop_missing_meshes, link_boxes, keyframe
+        )
         srdf_info = None
         if srdf_path is not None:
             srdf_info = read_srdf(srdf_path, set(source.links), "MJCF")

@@ -68,7 +68,10 @@ class PreparedSource:
     solver settings the robot's MJCF carries (:mod:`sim2real.robots.importer.physics_option`);
     ``pairs``: the MJCF's ``<contact><pair>``s as attribute dicts and ``scene_geom`` the scene
     geom they name (the importer's floor takes its name), :mod:`sim2real.robots.importer.contact_pairs`;
-    ``renamed_sites``: old -> new name of the MJCF's sites named like a body.
+    ``renamed_sites``: old -> new name of the MJCF's sites named like a body; ``floor_bits``:
+    the ``(contype, conaffinity)`` of the MJCF's own floor (a scene file's plane), None without
+    one; ``drive``: what an MJCF says of its drive (its ``<position>`` actuators' gains, its
+    keyframe's pose: :class:`sim2real.robots.importer.mjcf_drive.SourceDrive`), None for a URDF.
     """
 
     path: Path
@@ -91,6 +94,8 @@ class PreparedSource:
     pairs: list[dict[str, str]] = field(default_factory=list)
     scene_geom: str | None = None
     renamed_sites: dict[str, str] = field(default_factory=dict)
+    floor_bits: tuple[int, int] | None = None
+    drive: object = None
 
 
 @dataclass

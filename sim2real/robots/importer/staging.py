@@ -133,6 +133,8 @@ def written_ranges(
     ``first + i``) is replaced, in place, by the written one (rad)."""
     written = mujoco.MjModel.from_xml_path(str(resolved_mjcf(mjcf_path)))
     for i, j in enumerate(joint_names):
+        if not written.jnt_limited[first + i]:  # continuous: stays (-inf, inf)
+            continue
         lo, hi = (float(x) for x in written.jnt_range[first + i])
         limits[j] = (lo, hi, *limits[j][2:])
     return written

@@ -42,12 +42,13 @@ def joint_lines(
     """The ``[[joints]]`` table of joint ``j`` (index ``i``) in robot.toml: ``limits`` (lower,
     upper rad, velocity rad/s, effort N m) with the source ``kind`` and the velocity/effort
     ``notes`` (:func:`limit_notes`), the derived motion limits and gains of ``motion``, and an
-    optional source note on the gains."""
+    optional source note on the gains (one for both, or ``(kp's, kd's)``)."""
     lo, hi, vel, eff = limits
     vnote, enote = notes
     kp, kd = f"kp = {_f(motion.kp[i])}", f"kd = {_f(motion.kd[i])}"
     if gains_note:
-        kp, kd = f"{kp}  # N m/rad, {gains_note}", f"{kd}  # N m s/rad, {gains_note}"
+        kp_note, kd_note = (gains_note, gains_note) if isinstance(gains_note, str) else gains_note
+        kp, kd = f"{kp}  # N m/rad, {kp_note}", f"{kd}  # N m s/rad, {kd_note}"
     command = (
         []
         if motion.command_velocity is None
@@ -57,7 +58,11 @@ def joint_lines(
         "",
         "[[joints]]",
         f'name = "{j}"',
-        f"position_limit = [{_f(lo)}, {_f(hi)}]  # {kind}",
+        (
+            f"continuous = true  # no position limit ({kind}): speed and torque are checked"
+            if math.isinf(lo) or math.isinf(hi)
+            else f"position_limit = [{_f(lo)}, {_f(hi)}]  # {kind}"
+        ),
         f"velocity_limit = {_f(vel)}  # rad/s, {vnote}",
         *command,
         f"acceleration_limit = {_f(motion.acceleration[i])}",

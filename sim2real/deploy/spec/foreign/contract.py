@@ -44,6 +44,8 @@ class Term:
         reason: Why ``kind`` is None, in one phrase.
         source: Where the stack computes it (a function path), for the report; may be empty.
         period: ``gait_phase`` only: the gait clock's period, s.
+        history: Ticks of history the graph reads of it, the present one included (0 or 1:
+            the present only), each tick's entries in turn, the oldest first.
     """
 
     name: str
@@ -56,6 +58,7 @@ class Term:
     reason: str = ""
     source: str = ""
     period: float = 0.0
+    history: int = 0
 
 
 @dataclass(frozen=True)
@@ -88,6 +91,9 @@ class ForeignContract:
             ``motor_slots``); None: not recorded.
         command_ranges: The velocity command's training ranges, ``{"vx": (low, high), "vy":
             ..., "yaw_rate": ...}`` (m/s, m/s, rad/s); None: not recorded.
+        history_fill: What a term's history reads before the policy's reset
+            (:data:`sim2real.deploy.spec.history.FILLS`): ``first`` (Isaac Lab's
+            ``CircularBuffer`` fills itself with its first entry) or ``zeros`` (holosoma).
     """
 
     format: str
@@ -111,6 +117,7 @@ class ForeignContract:
     joint_order_rule: str = ""
     joint_slots: tuple[int, ...] | None = None
     command_ranges: dict[str, tuple[float, float]] | None = None
+    history_fill: str = "first"
 
     @property
     def n_joints(self) -> int | None:

@@ -35,6 +35,7 @@ class PolicyDrive:
         control_rate: Hz; None: not recorded.
         source: What was read, for the import's notes (``"unitree_deploy contract .../
             deploy.yaml"``).
+        missing: What the contract lacks, one line each (its ``missing``).
     """
 
     kp: tuple[float, ...] | None
@@ -42,6 +43,7 @@ class PolicyDrive:
     home: tuple[float, ...] | None
     control_rate: float | None
     source: str
+    missing: tuple[str, ...] = ()
 
 
 def read_policy_contract(path: str | Path) -> ForeignContract:
@@ -110,6 +112,7 @@ def policy_drive(
         home=resolve(contract.default_pose, "default joint positions"),
         control_rate=contract.control_rate,
         source=f"{contract.format} contract ({contract.source})",
+        missing=contract.missing,
     )
 
 

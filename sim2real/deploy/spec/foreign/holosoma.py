@@ -1,8 +1,8 @@
 """holosoma's ONNX metadata (``holosoma.utils.inference_helpers.attach_onnx_metadata``, called by
 its PPO and FastSAC agents' ``export``; amazon-far/holosoma).
 
-holosoma exports the actor as ``actor_obs`` -> ``action`` (opset 13, batch fixed at 1) and appends
-``model.metadata_props`` whose every value is ``json.dumps`` of:
+holosoma exports ``actor_obs`` -> ``action`` (opset 13, batch 1); each ``metadata_props`` value is
+``json.dumps`` of:
 
 ========================  ===============================================================
 key                       value
@@ -10,9 +10,10 @@ key                       value
 ``dof_names``             the robot's joints, in the policy's order (``robot.dof_names``)
 ``kp``, ``kd``            PD gains per joint, N m/rad and N m s/rad
 ``command_ranges``        the velocity command's sampling ranges (or null)
-``robot_urdf``, ``_path`` the robot's URDF text and path (not used)
-``experiment_config``     the whole training configuration (``ExperimentConfig``)
-``wandb_run_path``, ...   provenance (not used)
+``action_scale``          the action scale, one number or one per joint (newer exports)
+``experiment_config``     the whole training configuration (``ExperimentConfig``; the G1
+                          policies holosoma_inference ships do not carry it)
+``robot_urdf``, ...       the URDF, its path, the wandb run (not used)
 ========================  ===============================================================
 
 From ``experiment_config``: the actor's observation groups (``algo.config.module_dict.actor.
@@ -22,7 +23,11 @@ scaling) and the global ``observation.clip_observations``; the default pose
 (``robot.init_state.default_joint_angles``), the action scale and clip
 (``robot.control.action_scale``, ``clip_actions``, ``action_clip_value``; a scale per joint of
 ``action_scale * effort_limit / kp`` with ``action_scales_by_effort_limit_over_p_gain``) and the
-control rate (``simulator.config.sim.fps / control_decimation``).
+control rate (``simulator.config.sim.fps / control_decimation``). A group's ``history_length`` N
+gives each of its terms the last N values, oldest first, zeros before the reset's first. Without
+``experiment_config`` the contract holds what the metadata gives (joints, gains, command ranges,
+an action scale) and names what is missing (:func:`partial`): enough for ``robot-import
+--drive-from``, not for a spec.
 """
 
 from __future__ import annotations
@@ -69,9 +74,9 @@ def read(facts) -> ForeignContract:
     """The contract of a holosoma export (module docstring).
 
     Raises:
-        ForeignFormatError: a missing ``experiment_config`` or a field of it that is not what
-            holosoma writes, a non-position control type, an action term other than joint
-            position (each named).
+        ForeignFormatError: a field of ``experiment_config`` that is not what holosoma writes,
+            a non-position control type, an action term other than joint position (each named);
+            without ``experiment_config``, see :func:`partial`.
     """
     fail = facts.failure(NAME)
     md = {}
@@ -82,10 +87,7 @@ def read(facts) -> ForeignContract:
             md[key] = text
     names = tuple(str(n) for n in md["dof_names"])
     if "experiment_config" not in md or not isinstance(md["experiment_config"], dict):
-        raise fail(
-            "metadata 'experiment_config' is missing: the observation terms, default pose, "
-            f"action scale and control rate are not in the file (found: {sorted(md)})"
-        )
+        return partial(facts, md, names, fail)
     ec = md["experiment_config"]
 
     def get(*keys, default=KeyError):
@@ -152,12 +154,78 @@ def read(facts) -> ForeignContract:
         kd=kd or None,
         control_rate=rate,
         command_ranges=command_ranges(md.get("command_ranges")),
+        history_fill="zeros",  # its history deque pads with zeros until full
         found=found,
         missing=missing,
         notes=(
             f"observation groups {list(groups)}, each group's terms in alphabetical order "
             "(holosoma's observation manager sorts them)",
         ),
+    )
+
+
+#: What ``experiment_config`` holds that nothing else in holosoma's metadata does.
+FROM_EXPERIMENT_CONFIG = (
+    "observation terms (their order, scales and clips)",
+    "default pose",
+    "action clip",
+    "control rate",
+)
+
+
+def _numbers(md: dict, key: str, n: int, fail) -> tuple[float, ...] | None:
+    """Metadata ``key`` as ``n`` numbers (None: absent or null).
+
+    Raises:
+        ForeignFormatError (through ``fail``): not a list of ``n`` numbers.
+    """
+    value = md.get(key)
+    if value is None:
+        return None
+    if not (isinstance(value, list) and len(value) == n and all(_is_number(v) for v in value)):
+        raise fail(f"metadata '{key}' is {str(value)[:60]}; expected {n} numbers (one per dof)")
+    return tuple(float(v) for v in value)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def partial(facts, md: dict, names: tuple[str, ...], fail) -> ForeignContract:
+    """The contract of a holosoma export without ``experiment_config`` (the G1 policies
+    holosoma_inference ships): joints, kp, kd, command ranges and (newer exports) the action
+    scale from the metadata; ``missing`` names the rest (:data:`FROM_EXPERIMENT_CONFIG`). It has
+    no observation terms: :func:`sim2real.deploy.spec.foreign.mapping.to_spec` refuses it
+    naming them, ``robot-import --drive-from`` reads its gains.
+
+    Raises:
+        ForeignFormatError: ``kp``, ``kd`` or a per-joint ``action_scale`` that is not one
+            number per dof.
+    """
+    n = len(names)
+    kp, kd = _numbers(md, "kp", n, fail), _numbers(md, "kd", n, fail)
+    scale = md.get("action_scale")
+    action_scale = float(scale) if _is_number(scale) else _numbers(md, "action_scale", n, fail)
+    lacks = list(FROM_EXPERIMENT_CONFIG) + (["action scale"] if action_scale is None else [])
+    lacks += ["kd"] if kd is None else []
+    found = [("dof_names", f"{n} joints")]
+    found += [(k, json.dumps(md[k])) for k in ("kp", "kd", "action_scale", "command_ranges")
+              if md.get(k) is not None]  # fmt: skip
+    return facts.contract(
+        NAME,
+        "ONNX metadata (holosoma attach_onnx_metadata, no experiment_config)",
+        joint_names=names,
+        terms=(),
+        action_scale=action_scale,
+        kp=kp,
+        kd=kd,
+        command_ranges=command_ranges(md.get("command_ranges")),
+        found=found,
+        missing=[
+            "metadata 'experiment_config' (the training configuration): "
+            + ", ".join(lacks)
+            + " are not in the file; deploy-run needs a spec (--spec) for this policy"
+        ],
     )
 
 
@@ -179,8 +247,8 @@ def _term(name: str, cfg: dict, history: int, global_clip, fail) -> Term:
     else:
         kind, components = None, ()
         size, reason = UNMAPPED.get(key, (0, f"the function {func!r} is not one this toolkit maps"))
-    if history > 1:
-        kind, reason = None, f"a history of {history} steps (no history block here)"
-    elif reason:
+    if reason:
         kind = None
-    return Term(name, kind, size, scale, clip, components, reason=reason, source=func)
+    return Term(
+        name, kind, size, scale, clip, components, reason=reason, source=func, history=history
+    )

@@ -13,9 +13,11 @@ classes as ``"module:name"``, tuples as ``!!python/tuple``) and ``play.py`` expo
 and ``env.yaml`` from the ONNX file's folder, and read with a safe YAML loader (Python tags become
 plain data; nothing is constructed or run). From it: the ``policy`` observation group's terms in
 order (their functions, ``scale`` and ``clip`` (Isaac Lab clips before scaling),
-``history_length``), the ``joint_pos`` action (``JointPositionAction``: ``scale``, ``offset``,
-``use_default_offset``, ``clip``), the robot's ``init_state.joint_pos`` and its actuators'
-``stiffness`` and ``damping`` (regular expressions over joint names) and the control rate
+``history_length``: the term's last N values, oldest first, its ``CircularBuffer`` filled with
+its first value after a reset; the group's, when set, for every term), the ``joint_pos`` action
+(``JointPositionAction``: ``scale``, ``offset``, ``use_default_offset``, ``clip``), the robot's
+``init_state.joint_pos`` and its actuators' ``stiffness`` and ``damping`` (regular expressions
+over joint names) and the control rate
 (``1 / (sim.dt * decimation)``); ``params/agent.yaml``'s ``clip_actions`` (rsl_rl's wrapper)
 when present.
 
@@ -111,7 +113,7 @@ def read(facts) -> ForeignContract:
         return node
 
     group = get(env, "observations", "policy")
-    history = group.get("history_length") or 0
+    history = group.get("history_length")
     commands = env.get("commands") or {}
     terms = [
         _term(key, cfg, history, commands)
@@ -175,7 +177,7 @@ def _patterns(value, default: float | None = None):
     return float(value)
 
 
-def _term(key: str, cfg: dict, group_history: int, commands: dict) -> Term:
+def _term(key: str, cfg: dict, group_history: int | None, commands: dict) -> Term:
     func = str(cfg.get("func", ""))
     name = func.rpartition(":")[2]
     raw = cfg.get("scale")
@@ -191,16 +193,20 @@ def _term(key: str, cfg: dict, group_history: int, commands: dict) -> Term:
     asset = params.get("asset_cfg") or {}
     if isinstance(asset, dict) and asset.get("joint_names") not in _ALL_JOINTS:
         kind, reason = None, f"it reads the joints {asset.get('joint_names')} (a subset)"
-    history = max(int(cfg.get("history_length") or 0), int(group_history or 0))
+    # the group's history_length, when set, is every term's (ObservationManager._prepare_terms)
+    history = int(group_history if group_history is not None else cfg.get("history_length") or 0)
     clip = None
     if cfg.get("clip") is not None:
         lo, hi = (float(x) for x in cfg["clip"])
         clip, problem = clip_before_scaling(lo, hi, scale)  # as Isaac Lab clips
         if problem:
             kind, reason = None, problem
-    if history > 0:
-        kind, reason = None, f"a history of {history} steps (no history block here)"
-    return Term(key, kind, size, scale, clip, relative=relative, reason=reason, source=func)
+    if history > 1 and cfg.get("flatten_history_dim") is False:
+        kind, reason = None, f"a history of {history} steps not flattened (flatten_history_dim)"
+    return Term(
+        key, kind, size, scale, clip, relative=relative, reason=reason, source=func,
+        history=history,
+    )  # fmt: skip
 
 
 def _gains(robot: dict):

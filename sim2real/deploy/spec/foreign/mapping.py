@@ -4,7 +4,8 @@
 blocks, its scales (multipliers) onto our divisors, its action scale and default pose onto the
 action mapping, and its PD gains and default pose onto the spec's
 :class:`~sim2real.deploy.spec.drive.DriveSpec`, all in the robot's joint order. The graph's outputs stay in
-the policy's order: the spec's ``action.joints`` says which joint each drives.
+the policy's order: the spec's ``action.joints`` says which joint each drives. Terms that read past
+ticks (a ``history_length``) give the spec its per-term history (:func:`term_history`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import numpy as np
 
 from sim2real.deploy.spec.drive import DriveSpec
 from sim2real.deploy.spec.foreign.contract import JOINT_KINDS, ForeignContract, Term, per_joint
+from sim2real.deploy.spec.history import ObservationHistory, stacked_dim
 from sim2real.deploy.spec.policy_spec import UNCLIPPED, ActionSpec, ObservationBlock, PolicySpec
 from sim2real.robots import Robot
 
@@ -128,6 +130,23 @@ def _block(
     )
 
 
+def term_history(contract: ForeignContract) -> ObservationHistory | None:
+    """The spec's history of a contract whose terms read past ticks: each term's ticks in turn,
+    the oldest first (Isaac Lab's ``CircularBuffer.buffer`` flattened, as mjlab, holosoma and
+    Unitree's deployment lay them out), filled as the contract says; None: no term does."""
+    ticks = tuple(max(1, t.history) for t in contract.terms)
+    if max(ticks, default=1) == 1:
+        return None
+    uniform = len(set(ticks)) == 1
+    return ObservationHistory(
+        length=max(ticks),
+        order="oldest_first",
+        layout="per_term",
+        fill=contract.history_fill,
+        lengths=() if uniform else ticks,
+    )
+
+
 def to_spec(contract: ForeignContract, robot: Robot) -> PolicySpec:
     """The PolicySpec of a foreign policy on ``robot``: blocks in the graph's order, the action
     mapping (position, absolute: ``target = offset + scale * action``) and the drive in the
@@ -136,10 +155,16 @@ def to_spec(contract: ForeignContract, robot: Robot) -> PolicySpec:
     (each listed in ``contract.missing``).
 
     Raises:
-        ForeignFormatError: a term that cannot be mapped (naming it and the format), joints that
+        ForeignFormatError: no observation terms recorded (naming what the contract lacks), a
+            term that cannot be mapped (naming it and the format), joints that
             do not match the robot, terms whose sizes do not add up to the graph's input, an
             invalid scale.
     """
+    if not contract.terms:
+        raise contract.error(
+            "its observation terms are not recorded, so no spec can be built from it: "
+            + ("; ".join(contract.missing) or "the contract names none")
+        )
     perm = joint_permutation(contract, robot)
     names = policy_joint_names(contract, robot)
     n = len(names)
@@ -153,10 +178,13 @@ def to_spec(contract: ForeignContract, robot: Robot) -> PolicySpec:
                 f"this toolkit: {term.reason}"
             )
     blocks = tuple(_block(t, contract, perm, default) for t in contract.terms)
-    total = sum(b.size for b in blocks)
+    history = term_history(contract)
+    total = stacked_dim(history, tuple(b.size for b in blocks))
     if contract.obs_dim is not None and total != contract.obs_dim:
         sizes = zip(contract.terms, blocks, strict=True)
-        parts = " + ".join(f"{t.name} {b.size}" for t, b in sizes)
+        parts = " + ".join(
+            f"{t.name} {b.size}" + (f" x {t.history}" if t.history > 1 else "") for t, b in sizes
+        )
         raise fail(
             f"the observation terms add up to {total} entries ({parts}), the graph's input has "
             f"{contract.obs_dim}"
@@ -190,6 +218,7 @@ def to_spec(contract: ForeignContract, robot: Robot) -> PolicySpec:
         ),
         control_rate=contract.control_rate or 1.0 / robot.control_period,
         drive=DriveSpec(kp=robot_order(kp), kd=robot_order(kd), default_pose=robot_order(default)),
+        history=history,
     )
     try:
         spec.validate()

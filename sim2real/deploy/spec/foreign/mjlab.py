@@ -17,7 +17,8 @@ key                                 value
 ``command_names``                   the command terms (``twist``: vx, vy, yaw rate)
 ``observation_terms_scale``         (newer mjlab) per term: its multiplier (``1.000``: none)
 ``observation_terms_clip``          (newer mjlab) per term: ``min;max`` before scaling
-``observation_terms_history_length`` (newer mjlab) per term: steps of history (0: none)
+``observation_terms_history_length`` (newer mjlab) per term: steps of history (0: none; N: its
+                                    last N values, oldest first, filled with its first value)
 ``run_path``                        the W&B run (not used)
 ==================================  ===========================================================
 
@@ -117,11 +118,9 @@ def read(facts) -> ForeignContract:
         reason = UNMAPPED.get(name, "not a term of mjlab's velocity task (mapped by name)")
         if name == "command" and "twist" not in commands:
             kind, reason = None, f"the command terms are {commands}, not the velocity 'twist'"
-        if history > 0:
-            kind, reason = None, f"a history of {history:g} steps (no history block here)"
-        elif clip_reason:
+        if clip_reason:
             kind, reason = None, clip_reason
-        terms.append(Term(name, kind, size, scale, clip, reason=reason))
+        terms.append(Term(name, kind, size, scale, clip, reason=reason, history=int(history)))
     missing = [
         "control rate: not recorded; the robot's is used (mjlab's velocity task: 0.005 s x "
         "decimation 4)"

@@ -40,6 +40,8 @@ def _term_line(contract: ForeignContract, t) -> str:
     if t.components:
         parts.append(f"entries {list(t.components)} of the vector")
     parts.append("unclipped" if t.clip is None else f"clip +-{t.clip:g}")
+    if t.history > 1:
+        parts.append(f"its last {t.history} ticks, oldest first ({contract.history_fill} before)")
     return f"{head} -> {t.kind} ({', '.join(parts)})"
 
 

@@ -19,7 +19,9 @@ loader. Its keys, as that C++ code uses them:
   an absent ``scale`` is 1), then ``clip``: per joint ``[low, high]`` of the target (not mapped
   here: refused in one line); ``joint_ids`` (a subset of the joints; refused).
 - ``observations``: the terms in the graph's order; each clipped (``[low, high]``) and then
-  scaled (per entry), Isaac Lab's order; ``history_length`` 1 is the present reading only.
+  scaled (per entry), Isaac Lab's order; ``history_length`` N: the term's last N readings, the
+  oldest first, each term's in turn, all N the current reading at the policy's start (its
+  ``ObservationTermCfg::reset``): the spec's per-term history, fill ``first``; 1 the present only.
   ``velocity_commands`` is the command, clamped by the C++ code to ``commands.base_velocity.
   ranges`` (kept in the contract's notes; our runtime gives the policy the command as given);
   ``gait_phase`` (``params.period``, s) is ``[sin, cos]`` of the phase.
@@ -186,9 +188,10 @@ def _term(name: str, cfg: dict, where: str, fail) -> Term:
         clip, problem = clip_before_scaling(lo, hi, scale)
         if problem:
             kind, reason = None, problem
-    history = int(cfg.get("history_length") or 1)
-    if history > 1:
-        kind, reason = None, f"a history of {history} steps (no history block here)"
+    history = 1 if cfg.get("history_length") is None else cfg["history_length"]
+    if not (isinstance(history, int) and not isinstance(history, bool) and history >= 0):
+        kind, reason = None, f"history_length {history!r} (expected a number of steps >= 1)"
+        history = 1
     params = cfg.get("params") or {}
     if (params.get("asset_cfg") or {}).get("joint_ids"):
         kind, reason = None, f"it reads the joints {params['asset_cfg']['joint_ids']} (a subset)"
@@ -197,4 +200,7 @@ def _term(name: str, cfg: dict, where: str, fail) -> Term:
         period = float(params.get("period") or 0.0)
         if not period > 0:
             kind, reason = None, f"gait_phase without a period (params {params})"
-    return Term(name, kind, size, scale, clip, relative=relative, reason=reason, period=period)
+    return Term(
+        name, kind, size, scale, clip, relative=relative, reason=reason, period=period,
+        history=history,
+    )  # fmt: skip

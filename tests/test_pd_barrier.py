@@ -74,12 +74,13 @@ def test_a_pd_target_that_would_reach_the_hard_limit_is_changed_minimally(go2, g
     c = pb.pd_barrier_constants(guard)
     effort = go2.effort_limit * guard.effort_scale
     hi = np.maximum(c[pb.BOUND_UP], q)
-    brake = np.maximum((effort - c[pb.GRAVITY]) * c[pb.BRAKE], 0.0) * c[pb.INV_INERTIA]
+    d = c[pb.TOWARD]  # env 0's gravity torque toward the upper limits
+    brake = np.maximum((effort - d) * c[pb.BRAKE], 0.0) * c[pb.INV_INERTIA]
 
     def unsafe(t):
         full = np.tile(go2.home, (1, 1))
         full[0, hip] = t
-        u = pb._unsafe_np(full, q[None], dq[None], hi, c[pb.GRAVITY], c, effort, brake)
+        u = pb._unsafe_np(full, q[None], dq[None], hi, d, c, effort, brake)
         return bool(u[0, hip])
 
     assert unsafe(target[0, hip]) and not unsafe(out[0, hip])
@@ -115,9 +116,9 @@ def _swing_peak(robot, q, dq, joint, target) -> float:
 
 @pytest.mark.parametrize("name", ["go2", "h1_2"])
 def test_the_compiled_barrier_equals_the_reference(name):
-    """Random states in and around the joints' ranges, fast joints, targets spread about them:
-    the compiled guard and the numpy reference give the same targets and counters bit for bit,
-    and the barrier acts on a share of them (the test exercises both branches)."""
+    """Random states in and around the joints' ranges, fast joints, tilted bases, targets spread
+    about them: the compiled guard and the numpy reference give the same targets and counters
+    bit for bit, and the barrier acts on a share of them (the test exercises both branches)."""
     robot = load_robot(name)
     envs = 16
     compiled, reference = (
@@ -131,6 +132,8 @@ def test_the_compiled_barrier_equals_the_reference(name):
             robot.position_lower - 0.05, robot.position_upper + 0.05, (envs, robot.n_joints)
         )
         state = _state(robot, envs, q, rng.normal(0.0, 8.0, q.shape))
+        tilt = rng.normal(0.0, 0.3, (envs, 3)) + [0.0, 0.0, -1.0]  # bases tilted every way
+        state.base.projected_gravity[:] = tilt / np.linalg.norm(tilt, axis=1, keepdims=True)
         target = q + rng.normal(0.0, 1.0, q.shape)
         a = compiled.filter(target, state, out=np.empty_like(target))
         b = reference.filter(target, state, out=np.empty_like(target))
@@ -178,3 +181,128 @@ def test_the_plant_clamps_a_position_target_only_where_the_drive_does(name):
     assert bool(m.actuator_ctrllimited[j]) == clamps
     # the joint's range stays a contact of the physics
     assert bool(m.jnt_limited[m.actuator_trnid[j, 0]])
+
+
+#: A biped written the way mjlab's asset zoo writes its G1 (no actuators, a ``<default>`` class
+#: tree with ``childclass`` on the root body, capsule feet, an IMU site and sensors), whose waist
+#: carries an upper body with arms on a weak joint as the G1's does: the all-pose gravity bound
+#: of the waist (its masses at their longest lever, the arms held out) is near its motor's 50 N m.
+WAIST_BIPED = """<mujoco model="waist_biped">
+  <compiler angle="radian"/>
+  <default>
+    <default class="robot">
+      <joint damping="0.001" armature="0.01" frictionloss="0.1"/>
+      <site group="5"/>
+      <default class="collision">
+        <geom type="capsule" priority="1" condim="6" group="3"/>
+        <default class="foot_capsule"><geom size="0.01"/></default>
+      </default>
+    </default>
+  </default>
+  <worldbody>
+    <body name="pelvis" pos="0 0 0.68" childclass="robot">
+      <freejoint name="floating_base_joint"/>
+      <inertial pos="0 0 0" mass="4" diaginertia="0.04 0.03 0.03"/>
+      <geom name="pelvis_collision" class="collision" type="sphere" size="0.07"/>
+      <site name="imu_in_pelvis" pos="0.04 0 -0.05"/>
+      <body name="torso_link" pos="0 0 0.05">
+        <inertial pos="0 0 0.15" mass="8" diaginertia="0.1 0.1 0.05"/>
+        <joint name="waist_pitch_joint" axis="0 1 0" range="-0.52 0.52"/>
+        <geom name="torso_collision" class="collision" type="capsule" size="0.09"
+              fromto="0 0 0.08 0 0 0.3"/>
+{arms}
+      </body>
+{legs}
+    </body>
+  </worldbody>
+  <sensor>
+    <gyro name="imu_ang_vel" site="imu_in_pelvis"/>
+    <accelerometer name="imu_lin_acc" site="imu_in_pelvis"/>
+  </sensor>
+</mujoco>
+"""
+WAIST_ARM = """        <body name="{s}_shoulder_pitch_link" pos="0 {y} 0.35">
+          <inertial pos="0 0 -0.2" mass="3.2" diaginertia="0.03 0.03 0.003"/>
+          <joint name="{s}_shoulder_pitch_joint" axis="0 1 0" range="-3.0 2.6"/>
+          <geom name="{s}_arm_collision" class="collision" size="0.03" fromto="0 0 -0.05 0 0 -0.4"/>
+        </body>"""
+WAIST_LEG = """      <body name="{s}_hip_pitch_link" pos="0 {y} -0.06">
+        <inertial pos="0 0 -0.12" mass="2" diaginertia="0.02 0.02 0.003"/>
+        <joint name="{s}_hip_pitch_joint" axis="0 1 0" range="-2.5 2.8"/>
+        <body name="{s}_knee_link" pos="0 0 -0.28">
+          <inertial pos="0 0 -0.12" mass="1.5" diaginertia="0.015 0.015 0.002"/>
+          <joint name="{s}_knee_joint" axis="0 1 0" range="-0.08 2.9"/>
+          <body name="{s}_ankle_pitch_link" pos="0 0 -0.28">
+            <inertial pos="0.02 0 -0.02" mass="0.6" diaginertia="0.002 0.002 0.0005"/>
+            <joint name="{s}_ankle_pitch_joint" axis="0 1 0" range="-0.87 0.52"/>
+            <site name="{s}_foot" pos="0.03 0 -0.04"/>
+            <geom name="{s}_foot1_collision" class="foot_capsule" fromto="-0.05 -0.02 -0.04 0.12 -0.02 -0.04"/>
+            <geom name="{s}_foot2_collision" class="foot_capsule" fromto="-0.05 0.02 -0.04 0.12 0.02 -0.04"/>
+          </body>
+        </body>
+      </body>"""
+
+
+@pytest.fixture(scope="module")
+def waist_biped(tmp_path_factory):
+    """The biped above imported as the G1 is (robot-import, Unitree G1 motors, PD gains)."""
+    from sim2real.deploy.cli.robot_import import main
+
+    folder = tmp_path_factory.mktemp("waist_biped")
+    legs = "\n".join(WAIST_LEG.format(s=s, y=y) for s, y in (("left", 0.1), ("right", -0.1)))
+    source = folder / "waist_biped.xml"
+    arms = "\n".join(WAIST_ARM.format(s=s, y=y) for s, y in (("left", 0.2), ("right", -0.2)))
+    source.write_text(WAIST_BIPED.format(legs=legs, arms=arms))
+    out = folder / "robots" / "waist_biped"
+    flags = ["--floating-base", "--imu", "imu_in_pelvis"]
+    flags += ["--foot", "left_ankle_pitch_link", "--foot", "right_ankle_pitch_link"]
+    flags += ["--motor", "*=g1_7520_22", "--motor", "*_ankle_pitch_joint=g1_5020_x2"]
+    flags += ["--motor", "waist_pitch_joint=g1_5020_x2", "--motor", "*_shoulder_*=g1_5020"]
+    for gain, values in (("--kp", (99, 28.5, 14.3)), ("--kd", (6.3, 1.8, 0.9))):
+        flags += [gain, f"*={values[0]}", gain, f"*_ankle_pitch_joint={values[1]}"]
+        flags += [gain, f"waist_pitch_joint={values[1]}", gain, f"*_shoulder_*={values[2]}"]
+    assert main([str(source), "--out", str(out), *flags]) == 0
+    return load_robot(out)
+
+
+def _tilted(pitch: float) -> np.ndarray:
+    """(3,) gravity's direction in the frame of a base pitched by ``pitch`` rad about its y
+    axis (nose down for pitch > 0)."""
+    return np.array([np.sin(pitch), 0.0, -np.cos(pitch)])
+
+
+@GUARDS
+def test_a_weak_joint_under_a_heavy_chain_is_judged_by_its_gravity_at_the_estimate(
+    waist_biped, guard_type
+):
+    """The waist at home and at rest, asked to hold home: its gravity torque upright is small,
+    so the target passes (judged with the all-pose bound, 0.99 of the motor's torque, the joint
+    could never brake and the target became a swing to the far side: a G1 walking with its
+    waist flung +-4 rad). The same waist near its forward limit, moving toward it at 2 rad/s:
+    its target passes on an upright base and is held back on a base pitched 50 deg forward,
+    gravity then pulling the upper body onto the stop."""
+    robot = waist_biped
+    waist = robot.joint_names.index("waist_pitch_joint")
+    guard = guard_type(robot, 1, "position")
+    bound = guard.gravity_bound[waist]
+    assert 0.95 * robot.effort_limit[waist] < bound < robot.effort_limit[waist]
+    state = _state(robot, 1, robot.home)
+    guard.reset(state.q)
+    target = np.tile(robot.home, (1, 1))
+    out = guard.filter(target.copy(), state, out=np.empty_like(target))
+    np.testing.assert_array_equal(out, target)
+    assert guard.totals()["pd_barrier"] == 0
+
+    q = robot.home.copy()
+    q[waist] = robot.soft_upper[waist] - 0.12
+    dq = np.zeros(robot.n_joints)
+    dq[waist] = 2.0
+    state = _state(robot, 1, q, dq)
+    target = np.tile(q, (1, 1))
+    target[0, waist] = q[waist] + 0.2  # 5.7 N m toward the stop
+    upright = guard.filter(target.copy(), state, out=np.empty_like(target))
+    np.testing.assert_array_equal(upright, target)
+    state.base.projected_gravity[0] = _tilted(np.radians(50.0))
+    leaning = guard.filter(target.copy(), state, out=np.empty_like(target))
+    assert leaning[0, waist] < target[0, waist]
+    assert guard.totals()["pd_barrier"] == 1

@@ -56,6 +56,11 @@ class GuardCheck:
         """(rows, n) float64 per-joint constants of :attr:`kernel` (``own``); none by default."""
         return np.zeros((0, guard.robot.n_joints))
 
+    def prepare(self, guard, state) -> None:
+        """Before each filter, in Python: rewrite in place the rows of :meth:`constants` that
+        follow the estimate (``state``, a :class:`~sim2real.deploy.core.state.RobotState`);
+        nothing by default. Both the compiled guard and the reference read what it wrote."""
+
     def reference(self, stage: int, g, out, q, dq, commanded) -> tuple:
         """The numpy reference of :attr:`kernel` for every env at once: ``(fired, needs)``, each
         (envs,) bool or None (nothing). Arguments as :attr:`kernel`'s; ``commanded`` None when

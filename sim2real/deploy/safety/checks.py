@@ -34,6 +34,10 @@ GUARD_CHECKS: tuple[GuardCheck, ...] = (
 #: The checks' names in count-row order.
 CHECKS: tuple[str, ...] = tuple(c.name for c in GUARD_CHECKS)
 
+#: The checks whose constants follow the estimate (:meth:`GuardCheck.prepare
+#: <sim2real.deploy.safety.check.GuardCheck.prepare>`), which every filter runs first.
+PREPARING = tuple(c for c in GUARD_CHECKS if type(c).prepare is not GuardCheck.prepare)
+
 #: The checks' compiled functions in count-row order (the kernel unrolls over them).
 KERNELS = tuple(c.kernel for c in GUARD_CHECKS)
 

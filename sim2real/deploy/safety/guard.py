@@ -47,7 +47,7 @@ from sim2real.deploy.safety.check import (
     UPPER,
     VEL,
 )
-from sim2real.deploy.safety.checks import CHECKS, GUARD_CHECKS, row
+from sim2real.deploy.safety.checks import CHECKS, GUARD_CHECKS, PREPARING, row
 from sim2real.deploy.safety.collision import collision_model, collision_query
 from sim2real.deploy.safety.drive import VelocityDrive
 from sim2real.deploy.safety.envelope import MotionEnvelope
@@ -395,6 +395,8 @@ class SafetyGuard:
             out = target.copy()
         elif out is not target:
             np.copyto(out, target)
+        for check in PREPARING:  # the constants that follow the estimate
+            check.prepare(self, state)
         return self._filter(state.q, state.dq, commanded_position, out)
 
     def _filter(self, q: np.ndarray, dq: np.ndarray, commanded: np.ndarray | None, out):

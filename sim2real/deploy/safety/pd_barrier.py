@@ -7,23 +7,21 @@ joint's range is such a request (legged_gym, Isaac Lab and mjlab train without a
 them), and the drive takes it (a Unitree motor clamps no target: ``[position_target]`` of its
 motor table). So the target passes unchanged unless its consequence is unsafe: the joint's
 motion over the next control period, predicted per joint (a control-barrier-function-style
-safety filter, one dimension a joint):
-
-- the drive's PD law at every physics substep, its torque saturated by the effort limit
-  (derated when hot) and the motor's torque-speed line (:class:`sim2real.robots.torque_speed.
-  TorqueSpeedEnvelope`); the joint's least inertia (Pinocchio's mass-matrix diagonal, legs in the
-  air, over the home pose and ``INERTIA_POSES`` seeded poses); its gravity bound
-  (:func:`sim2real.robots.chain_bounds.motion_bounds`) toward the limit tested; semi-implicit
-  Euler from the estimate ``(q, dq)``.
+safety filter, one dimension a joint): the drive's PD law at every physics substep, its torque
+saturated by the effort limit (derated when hot) and the motor's torque-speed line
+(:class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope`); the joint's least inertia
+(Pinocchio's mass-matrix diagonal, legs in the air, over the home pose and ``INERTIA_POSES``
+seeded poses); the gravity torque toward the limit tested at the estimate (:func:`gravity_rows`:
+the base's estimated tilt, plus ``SLACK_SHARE`` of the joint's all-pose bound
+:func:`sim2real.robots.chain_bounds.motion_bounds`, at most that bound); semi-implicit Euler
+from the estimate ``(q, dq)``.
 
 The prediction is unsafe when the joint passes the hard limit less a margin (``MARGIN_SHARE``
 of the soft band; or, already past it, goes farther), or ends the period too fast to stop
-before it with ``BRAKE_SHARE`` of its drive's braking (the effort limit less the gravity
-bound): ``dq > sqrt(2 a_brake room)``, which bounds the speed at which it enters the soft band.
-Then the target is changed as little as makes the prediction safe (the motion rises with the
-target: ``BISECTIONS`` halvings between it and a target braking with the whole effort find the
-end of the safe half-line). Each changed env and tick counts once (``pd_barrier``).
-
+before it with ``BRAKE_SHARE`` of its drive's braking (the effort limit less that gravity
+torque): ``dq > sqrt(2 a_brake room)``. Then the target is changed as little as makes the
+prediction safe (``BISECTIONS`` halvings between it and a target braking with the whole effort
+find the end of the safe half-line). Each changed env and tick counts once (``pd_barrier``).
 The lower limit is the upper one mirrored (``q, target, dq -> -q, -target, -dq``). Arms and
 servos whose firmware clamps targets keep the soft-limit clamp (:mod:`sim2real.deploy.safety.
 limits`). Its numpy reference and compiled function do the same operations in the same order
@@ -48,13 +46,19 @@ from sim2real.robots.torque_speed import TorqueSpeedEnvelope
 #: (1/(kg m^2)), the gravity bound (N m), the stall torque (N m; inf without a torque-speed
 #: line), the no-load speed (rad/s; inf without one), the upper bound ``upper - margin`` and the
 #: mirrored lower bound ``-(lower + margin)`` (rad), the physics substep (s), the substeps per
-#: period, and 1.0 where the check acts (0.0: an arm, or not position mode).
+#: period, and 1.0 where the check acts (0.0: an arm, or not position mode). ``GRAVITY`` is the
+#: all-pose bound; the prediction uses the rows from ``TOWARD`` on (:func:`gravity_rows`).
 KP, KD, INV_INERTIA, GRAVITY, STALL, NO_LOAD, BOUND_UP, BOUND_DOWN, STEP, SUBSTEPS, ACTIVE = range(
     11
 )
 #: Row of ``BRAKE_SHARE``, per joint.
 BRAKE = 11
-ROWS = 12
+#: Row of ``SLACK_SHARE`` times ``GRAVITY`` (N m).
+SLACK = 12
+ROWS = 13
+#: Rows ``TOWARD + 2 e`` and ``TOWARD + 2 e + 1``: env ``e``'s gravity torque toward the upper
+#: and toward the lower limit over the next period (N m, :func:`gravity_rows`), after ``ROWS``.
+TOWARD = ROWS
 #: Share of the soft band (between the soft and the hard limit) kept clear of the hard limit by
 #: the predicted motion. Our choice: a quarter (0.026 rad on the Go2's hips, 0.011 rad on the
 #: H1's hip yaw): above the estimate's noise, well inside the band.
@@ -63,6 +67,12 @@ MARGIN_SHARE = 0.25
 #: before the hard limit less the margin at the end of the predicted period. Our choice: half,
 #: leaving the rest to what the 1-D prediction leaves out (the other joints' coupling, contacts).
 BRAKE_SHARE = 0.5
+#: Share of a joint's all-pose gravity bound added to its gravity torque at the estimate (our
+#: choice): a quarter, what the joint's whole bound gives under a base acceleration of a quarter
+#: of gravity or a pose 14 deg off the estimate's. The all-pose bound itself (the masses beyond
+#: the joint at their longest lever) is no prediction where a joint's effort is barely above it:
+#: judged with it, such a joint can never brake (a G1's waist: docs/measurements.md).
+SLACK_SHARE = 0.25
 #: Halvings of the bisection's bracket (its width, a few rad, to below 1e-9 rad).
 BISECTIONS = 32
 #: Seeded poses, uniform within the joints' ranges, over which the least inertia is taken.
@@ -95,11 +105,12 @@ def _unsafe(t, q, v, hi, d, kp, kd, inv_i, effort, stall, no_load, h, steps, bra
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _barrier(t, q, v, bound, effort, j, own) -> float:
+def _barrier(t, q, v, bound, effort, d, j, own) -> float:
     """The least change of target ``t`` that makes the upper side's prediction safe (``t``
-    itself when it is); ``bound`` the upper bound, ``effort`` the derated effort limit."""
+    itself when it is); ``bound`` the upper bound, ``effort`` the derated effort limit, ``d``
+    the gravity torque toward the bound (N m)."""
     hi = np_max(bound, q)  # past the bound already: no farther
-    kp, kd, inv_i, d = own[KP, j], own[KD, j], own[INV_INERTIA, j], own[GRAVITY, j]
+    kp, kd, inv_i = own[KP, j], own[KD, j], own[INV_INERTIA, j]
     stall, no_load, h = own[STALL, j], own[NO_LOAD, j], own[STEP, j]
     steps = int(own[SUBSTEPS, j])
     brake = effort - d
@@ -131,12 +142,13 @@ def pd_barrier_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
     if stage != CLAMP or g.mode != POSITION or own[ACTIVE, 0] == 0.0:
         return 0
     changed = False
+    up, down = own[TOWARD + 2 * e], own[TOWARD + 2 * e + 1]
     for j in range(out.shape[1]):
         t = out[e, j]
         effort = g.lim[EFFORT, j] * g.effort_scale[e, j]
-        r = _barrier(t, q[e, j], dq[e, j], own[BOUND_UP, j], effort, j, own)
+        r = _barrier(t, q[e, j], dq[e, j], own[BOUND_UP, j], effort, up[j], j, own)
         if r == t:
-            r = -_barrier(-t, -q[e, j], -dq[e, j], own[BOUND_DOWN, j], effort, j, own)
+            r = -_barrier(-t, -q[e, j], -dq[e, j], own[BOUND_DOWN, j], effort, down[j], j, own)
         if r != t:
             changed = True
             out[e, j] = r
@@ -159,13 +171,15 @@ def least_inertia(robot, poses: int = INERTIA_POSES, seed: int = 0) -> np.ndarra
 
 
 def pd_barrier_constants(guard) -> np.ndarray:
-    """(ROWS, n) float64: the check's constants for ``guard`` (module docstring), cached on it."""
+    """(ROWS + 2 envs, n) float64: the check's constants for ``guard`` (module docstring), cached
+    on it; the gravity rows from ``TOWARD`` on start at the all-pose bound and are rewritten in
+    place every tick (:func:`gravity_rows`)."""
     cached = guard.__dict__.get("_pd_barrier_constants")
     if cached is not None:
         return cached
     robot = guard.robot
     n = robot.n_joints
-    c = np.zeros((ROWS, n))
+    c = np.zeros((ROWS + 2 * guard.envs, n))
     if robot_kind(robot).pd_targets and guard.mode == "position":
         joints = robot.config.joints
         c[KP] = [j.kp for j in joints]
@@ -186,8 +200,56 @@ def pd_barrier_constants(guard) -> np.ndarray:
         c[SUBSTEPS] = robot.decimation
         c[ACTIVE] = 1.0
         c[BRAKE] = BRAKE_SHARE
+        c[SLACK] = SLACK_SHARE * guard.gravity_bound
+        c[TOWARD:] = guard.gravity_bound
     guard.__dict__["_pd_barrier_constants"] = c
     return c
+
+
+def gravity_rows(guard, q: np.ndarray, projected_gravity: np.ndarray | None) -> None:
+    """Rewrite the gravity rows of ``guard``'s constants (``TOWARD`` on) for the estimate ``q``
+    (envs, n) rad and the base's ``projected_gravity`` (envs, 3; gravity's unit direction in the
+    base frame; None: upright): each joint's gravity torque toward its upper and its lower limit,
+    ``-G(q)`` and ``G(q)`` (Pinocchio's generalized gravity of the fixed-base model, gravity
+    turned into the base frame), plus ``SLACK_SHARE`` of the all-pose bound, at most that bound.
+    An env whose ``q`` or base direction is not finite keeps the bound."""
+    c = pd_barrier_constants(guard)
+    model, data, magnitude, upright, linear = _gravity_model(guard)
+    for e in range(q.shape[0]):
+        g = upright if projected_gravity is None else projected_gravity[e]
+        np.multiply(g, magnitude, out=linear)
+        model.gravity.linear = linear
+        torque = pin.computeGeneralizedGravity(model, data, q[e])
+        _toward(torque, c[GRAVITY], c[SLACK], c[TOWARD + 2 * e], c[TOWARD + 2 * e + 1])
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def _toward(torque, bound, slack, up, down) -> None:
+    """:func:`gravity_rows` of one env from its generalized gravity ``torque`` (n,) N m (the
+    bound where any entry is not finite)."""
+    finite = True
+    for j in range(torque.shape[0]):
+        finite = finite and math.isfinite(torque[j])
+    for j in range(torque.shape[0]):
+        if finite:
+            up[j] = min(slack[j] - torque[j], bound[j])
+            down[j] = min(slack[j] + torque[j], bound[j])
+        else:
+            up[j] = down[j] = bound[j]
+
+
+def _gravity_model(guard) -> tuple:
+    """``guard``'s fixed-base Pinocchio model copied for :func:`gravity_rows` (which turns its
+    gravity), its data, gravity's magnitude (m/s^2), the upright direction and a buffer (3,);
+    cached on the guard."""
+    cached = guard.__dict__.get("_pd_barrier_gravity")
+    if cached is None:
+        model = pin.Model(guard.model)
+        linear = np.array(model.gravity.linear)
+        magnitude = float(np.linalg.norm(linear))
+        cached = (model, model.createData(), magnitude, linear / magnitude, np.empty(3))
+        guard.__dict__["_pd_barrier_gravity"] = cached
+    return cached
 
 
 def _unsafe_np(t, q, v, hi, d, c, effort, brake) -> np.ndarray:
@@ -210,10 +272,10 @@ def _unsafe_np(t, q, v, hi, d, c, effort, brake) -> np.ndarray:
     return (top > hi) | (v > np.sqrt(2.0 * brake * room))
 
 
-def _barrier_np(t, q, v, bound, effort, c) -> np.ndarray:
-    """:func:`_barrier` for every env and joint at once."""
+def _barrier_np(t, q, v, bound, effort, d, c) -> np.ndarray:
+    """:func:`_barrier` for every env and joint at once (``d`` (envs, n) N m)."""
     hi = np.maximum(bound, q)
-    d, kd, kp = c[GRAVITY], c[KD], c[KP]
+    kd, kp = c[KD], c[KP]
     brake = np.maximum((effort - d) * c[BRAKE], 0.0) * c[INV_INERTIA]
     unsafe = _unsafe_np(t, q, v, hi, d, c, effort, brake)
     far = effort + effort
@@ -241,14 +303,21 @@ class PdBarrier(GuardCheck):
     def constants(self, guard) -> np.ndarray:
         return pd_barrier_constants(guard)
 
+    def prepare(self, g, state) -> None:
+        if pd_barrier_constants(g)[ACTIVE, 0] != 0.0:
+            base = state.base
+            gravity_rows(g, state.q, None if base is None else base.projected_gravity)
+
     def reference(self, stage, g, out, q, dq, commanded):
         c = pd_barrier_constants(g)
         if stage != CLAMP or g.mode != "position" or c[ACTIVE, 0] == 0.0:
             return None, None
         effort = g.robot.effort_limit * g.effort_scale
+        envs = out.shape[0]
+        up, down = c[TOWARD : TOWARD + 2 * envs : 2], c[TOWARD + 1 : TOWARD + 2 * envs : 2]
         t = out.copy()
-        r = _barrier_np(t, q, dq, c[BOUND_UP], effort, c)
-        down = -_barrier_np(-t, -q, -dq, c[BOUND_DOWN], effort, c)
+        r = _barrier_np(t, q, dq, c[BOUND_UP], effort, up, c)
+        down = -_barrier_np(-t, -q, -dq, c[BOUND_DOWN], effort, down, c)
         r = np.where(r == t, down, r)
         changed = (r != t).any(axis=1)
         out[:] = r

@@ -10,6 +10,7 @@ Robot.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import sys
@@ -282,7 +283,7 @@ def load_robot(name_or_path: str | Path) -> Robot:
     soft_velocity = frac * velocity
     centre, half = (upper + lower) / 2.0, (upper - lower) / 2.0
     digest = description_hash(cfg, described_mjcf.read_bytes())
-    return Robot(
+    robot = Robot(
         name=cfg.name,
         directory=toml_path.parent,
         mjcf_path=mjcf,
@@ -315,6 +316,13 @@ def load_robot(name_or_path: str | Path) -> Robot:
         description_hash=digest,
         **legged,
     )
+    # commands a fixed base's motors can follow under gravity
+    from sim2real.robots.chain_bounds import holding_command_limit
+
+    limit = holding_command_limit(robot)
+    if np.array_equal(limit, robot.command_velocity_limit):
+        return robot
+    return dataclasses.replace(robot, command_velocity_limit=_readonly(limit))
 
 
 #: What the description hash leaves out: the ``[task]``, ``[soak]`` and ``[unitree]`` tables,

@@ -148,3 +148,32 @@ def test_a_refused_description_is_one_line(tmp_path, capsys, urdf, flags, expect
     err = capsys.readouterr().err.strip()
     assert code == EXIT_REFUSED and "\n" not in err and expected in err, err
     assert not out.exists()
+
+
+def test_a_joint_at_its_servos_no_load_speed_is_not_carried_past_it(tmp_path):
+    """The double pendulum with catalog Dynamixels, its velocity limit the servos' no-load speed
+    (the URDF gives none), under the uniform adversarial policy in position mode for 40 s: the
+    shoulder's commands stay where its motor still holds the arm against gravity
+    (sim2real.robots.chain_bounds.holding_command_limit), so gravity never carries it past its
+    no-load speed behind a command it could not follow (0 true velocity ticks)."""
+    from sim2real.robots.chain_bounds import holding_speed
+
+    out = tmp_path / "double_pendulum"
+    import_robot(
+        ERD + DP + "double_pendulum.urdf",
+        out,
+        motors=["*=xm430_w350"],
+        limits=["*=-3.1:3.1"],
+        log=lambda *a: None,
+    )
+    robot = load_robot(out)
+    assert robot.velocity_limit.tolist() == [4.82, 4.82]
+    assert robot.command_velocity_limit[0] == holding_speed(robot)[0] < 4.0
+    report = tmp_path / "run.json"
+    policy = adversarial_onnx(tmp_path, robot, "position", nan_probability=0.02)
+    deploy_run_main(
+        ["--robot", str(out), "--policy", str(policy), "--duration", "40", "--seed", "0"]
+        + ["--report", str(report)]
+    )
+    run = json.loads(report.read_text())
+    assert run["violations"]["by_type"]["velocity"] == 0, run["violations"]

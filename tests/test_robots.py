@@ -320,3 +320,31 @@ def test_an_end_effector_site_named_like_its_body_loads(tmp_path):
     frame = robot.pin_model.frames[robot.ee_frame_id]
     assert frame.name == "link3" and frame.type == pin.FrameType.OP_FRAME
     np.testing.assert_allclose(robot.forward_kinematics(np.zeros(3)), [0.9, 0.0, 0.0], atol=0.05)
+
+
+def test_a_servo_is_commanded_no_faster_than_its_motor_holds_the_joint_against_gravity():
+    """A servo commanded faster than its motor's torque-speed line still holds the joint up
+    falls behind, then gravity and the full drive carry the joint past its no-load speed: the
+    command velocity limit of a fixed base's joint with a no-load speed is the speed where its
+    line gives the worst gravity torque, and a joint that gravity does not load (so101's pan, a
+    vertical axis) or whose motor has no no-load speed (arm3) keeps the soft velocity limit."""
+    from sim2real.robots.chain_bounds import gravity_bound, holding_speed
+    from sim2real.robots.torque_speed import TorqueSpeedEnvelope
+
+    so101 = load_robot("so101")
+    bound = gravity_bound(so101)
+    rng = np.random.default_rng(0)
+    for q in rng.uniform(so101.position_lower, so101.position_upper, (300, so101.n_joints)):
+        assert np.all(np.abs(so101.gravity_torque(q)) <= bound + 1e-9)
+    assert bound[0] < 1e-5 and np.all(bound[1:3] > 0.1)  # the pan: rounding of its axis
+    held = holding_speed(so101)
+    cold = np.full(so101.n_joints, 25.0)
+    upper = TorqueSpeedEnvelope(so101.motors).limits(held, so101.effort_limit, cold)[1]
+    np.testing.assert_allclose(upper[1:3], bound[1:3], rtol=0.01)  # on the line at that speed
+    np.testing.assert_allclose(
+        so101.command_velocity_limit, np.minimum(so101.soft_velocity_limit, held)
+    )
+    assert np.all(so101.command_velocity_limit[1:3] < so101.soft_velocity_limit[1:3])
+    assert so101.command_velocity_limit[0] == so101.soft_velocity_limit[0]
+    arm3 = load_robot("arm3")
+    np.testing.assert_array_equal(arm3.command_velocity_limit, arm3.soft_velocity_limit)

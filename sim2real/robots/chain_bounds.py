@@ -4,7 +4,9 @@ both the plant and the guard).
 
 :func:`motion_bounds` bounds any point's displacement and each joint's gravity torque,
 :func:`end_effector_lever` and :func:`end_effector_reach` the end effector's displacement per
-joint and its distance from the origin, :func:`collision_pair_weights` how fast each listed
+joint and its distance from the origin, :func:`gravity_bound` each joint's gravity torque (none
+about a fixed vertical axis), :func:`holding_command_limit` the fastest command a fixed base's
+motors can follow under gravity, :func:`collision_pair_weights` how fast each listed
 collision pair approaches per radian of each joint, :func:`collision_pair_nesting` which of those
 joints lie below which. The guard's screens
 (:mod:`sim2real.deploy.safety.guard`), the motion envelope (:mod:`sim2real.deploy.safety.envelope`), the
@@ -202,3 +204,76 @@ def inertia_bound(robot: Robot, model: mujoco.MjModel | None = None) -> np.ndarr
                 lever = chain[b] - chain[jb] + np.linalg.norm(m.body_ipos[b]) + anchor
                 bound[i] += m.body_mass[b] * lever**2 + float(m.body_inertia[b].max())
     return bound
+
+
+#: Share of the velocity limit a joint's command keeps at least (our choice): where the motor
+#: cannot hold its joint against gravity at half its velocity limit, the command keeps half of
+#: it (a joint that may not be commanded at all could not be driven).
+MIN_COMMAND_SHARE = 0.5
+
+
+def fixed_axis(model: mujoco.MjModel, joint: int) -> bool:
+    """Whether joint ``joint``'s axis keeps its direction in the world in every configuration: no
+    joint above it in the tree (none on its body's ancestors, none before it on its body)."""
+    body = model.jnt_bodyid[joint]
+    if any(model.jnt_bodyid[k] == body for k in range(joint)):
+        return False
+    body = model.body_parentid[body]
+    while body > 0:
+        if model.body_jntnum[body]:
+            return False
+        body = model.body_parentid[body]
+    return True
+
+
+def gravity_bound(robot: Robot, model: mujoco.MjModel | None = None) -> np.ndarray:
+    """(n,) N m, bound of each joint's gravity torque over all configurations: the bound of
+    :func:`motion_bounds`, times ``|axis x g| / |g|`` (the sine of the angle between axis and
+    gravity) for a joint whose axis keeps its direction in the world (:func:`fixed_axis`; a
+    fixed base's first joint): the torque ``sum_b m_b (c_b - p) . (g x axis)`` is at most
+    ``|g x axis| sum_b m_b |c_b - p|``, so a vertical axis carries none."""
+    m = robot.mj_model if model is None else model
+    bound = motion_bounds(robot, m)[1]
+    g = np.asarray(m.opt.gravity, dtype=float)
+    if not np.any(g):
+        return bound
+    data = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, data)
+    for i, name in enumerate(robot.joint_names):
+        j = m.joint(name).id
+        if fixed_axis(m, j):
+            axis = data.xaxis[j] / np.linalg.norm(data.xaxis[j])
+            bound[i] *= min(1.0, float(np.linalg.norm(np.cross(axis, g))) / np.linalg.norm(g))
+    return bound
+
+
+def holding_speed(robot: Robot, model: mujoco.MjModel | None = None) -> np.ndarray:
+    """(n,) rad/s, the fastest speed at which each joint's motor still has the torque to hold
+    the joint against gravity: on its torque-speed line (:mod:`sim2real.robots.torque_speed`)
+    ``w0 (1 - G / stall)``, ``w0`` the motor's no-load speed (``max_velocity``), ``stall`` its
+    ``peak_torque``, ``G`` :func:`gravity_bound` (0 where ``G`` exceeds the joint's effort
+    limit); ``inf`` for a motor without a no-load speed. A servo commanded faster falls behind its target under load and, once gravity turns with
+    it, runs after the target with its full drive: gravity and that drive carry the joint past
+    its no-load speed before the line's braking torque stops it."""
+    gravity = gravity_bound(robot, model)
+    out = np.full(robot.n_joints, np.inf)
+    for i, motor in enumerate(robot.motors):
+        w0, stall = motor.max_velocity, motor.peak_torque
+        if w0 is not None and stall:
+            held = gravity[i] <= robot.effort_limit[i]
+            out[i] = float(w0) * max(0.0, 1.0 - gravity[i] / float(stall)) if held else 0.0
+    return out
+
+
+def holding_command_limit(robot: Robot) -> np.ndarray:
+    """(n,) rad/s, the command velocity limit of a fixed-base robot whose motors can follow it
+    under gravity: ``min(command, holding)`` (:func:`holding_speed`), at least
+    :data:`MIN_COMMAND_SHARE` of the velocity limit. A joint with its own
+    ``command_velocity_limit`` in robot.toml, and every joint of a floating-base robot (PD
+    targets: the drive, not the target's speed, bounds the joint), keep theirs."""
+    limit = np.asarray(robot.command_velocity_limit, dtype=float).copy()
+    if robot.floating_base:
+        return limit
+    held = np.maximum(holding_speed(robot), MIN_COMMAND_SHARE * robot.velocity_limit)
+    own = np.array([j.command_velocity_limit is not None for j in robot.config.joints])
+    return np.where(own, limit, np.minimum(limit, held))

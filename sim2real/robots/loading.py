@@ -10,6 +10,7 @@ Robot.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import sys
@@ -293,7 +294,7 @@ def load_robot(name_or_path: str | Path) -> Robot:
     centre = np.where(continuous_mask(lower, upper), 0.0, (finite_hi + finite_lo) / 2.0)
     half = (upper - lower) / 2.0  # inf for a continuous joint: its soft limits are infinite too
     digest = description_hash(cfg, described_mjcf.read_bytes())
-    return Robot(
+    robot = Robot(
         name=cfg.name,
         directory=toml_path.parent,
         mjcf_path=mjcf,
@@ -326,6 +327,13 @@ def load_robot(name_or_path: str | Path) -> Robot:
         description_hash=digest,
         **legged,
     )
+    # commands a fixed base's motors can follow under gravity
+    from sim2real.robots.chain_bounds import holding_command_limit
+
+    limit = holding_command_limit(robot)
+    if np.array_equal(limit, robot.command_velocity_limit):
+        return robot
+    return dataclasses.replace(robot, command_velocity_limit=_readonly(limit))
 
 
 #: What the description hash leaves out: the ``[task]``, ``[soak]`` and ``[unitree]`` tables,

@@ -79,7 +79,9 @@ class Robot:
             is for the drive's servo, which tracks a velocity command with overshoot (figures:
             docs/measurements.md).
         command_velocity_limit: rad/s, the fastest command the smoother issues: robot.toml's
-            ``command_velocity_limit`` of the joint, else ``soft_velocity_limit``. A legged
+            ``command_velocity_limit`` of the joint, else ``soft_velocity_limit``, lowered on a
+            fixed base to the speed at which the joint's motor still holds it against gravity
+            (:func:`sim2real.robots.chain_bounds.holding_command_limit`). A legged
             robot's PD position targets have their own (``robot-import --target-limits pd``,
             :func:`sim2real.robots.importer.legged.pd_target_limits`): its drive, not its target's
             speed, bounds how fast the joint moves.

@@ -263,9 +263,9 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command) -> R
         if true_fall(robot, truth[0, 2], truth[0, 3:7]):
             run.fell_at, run.cause = walk.ticks * rt.dt, "fall"
             break
-        if schedule is not None:
-            schedule(walk, plant)
+        if schedule is not None:  # as the soak: the estimate judged, then the tick's push
             response(walk, plant)
+            schedule(walk, plant)
     run.walked = walk.ticks * rt.dt
     run.checks = {k: int(v[0]) - before[k] for k, v in monitor.counts.items() if v[0] > before[k]}
     run.pushes = list(schedule.times[0]) if schedule else []

@@ -248,6 +248,7 @@ class ReferenceBaseStateEstimator(BaseStateEstimator):
         omega = self._imu_to_base @ gyro - self.gyro_bias[e]
         f = self._imu_to_base @ acc - self.accel_bias[e]
         f -= np.cross(omega, np.cross(omega, self.lever_arm))
+        f -= np.cross((omega - self.angular_velocity[e]) / dt, self.lever_arm)
         rot = quaternion_to_matrix(self.orientation[e])
         rf = rot @ f
         F = np.eye(N_ERROR)

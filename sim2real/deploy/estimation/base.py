@@ -8,8 +8,8 @@ velocity policy observes: the base-to-world rotation, the base velocity (world, 
 origin) and the IMU's biases, the gyro's and the accelerometer's. The IMU predicts (the
 accelerometer's lever arm, a turn's centripetal term and its acceleration taken off); the
 accelerometer is a weak gravity measurement; each foot in contact measures the base velocity
-through the leg kinematics
-(a rolling sphere's centre is not its contact point). A foot whose reading is more than
+through the leg kinematics (a rolling sphere's centre is not its contact point). A foot whose
+reading is more than
 ``SLIP_GATE`` (chi-square, 3 dof) from the prediction is slipping and not absorbed
 (``rejected_contacts``), unless no foot has been absorbed for ``MAX_REJECTED_READINGS`` readings:
 the velocity then restarts from the legs. The equations are in

@@ -18,8 +18,10 @@ constant command under a sequence of pushes, in its own loop on the true state o
   (:class:`~sim2real.eval.soak.push_response.PushResponse`).
 
 Every loop pushes with the soak's own schedule (:class:`~sim2real.eval.world.pushes.DomainPushes`
-on the ticks walked: the same push ``k`` of a seed in every loop), as a force over the push's
-window or by setting the velocity (``PushRanges.apply``), and ends at the first true fall: the
+on the loop's clock, which is the policy's gait clock: the same push ``k`` of a seed at the same
+time and gait phase in every loop; ours walks once its RAMP_IN is over and is pushed only
+RUNNING), as a force over the push's window or by setting the velocity (``PushRanges.apply``),
+and runs ``seconds`` on that clock; it ends at the first true fall: the
 base below ``TRUE_FALL_HEIGHT`` of its standing height or tilted past the fall tilt (the soak's
 :class:`~sim2real.deploy.monitors.estimation.EstimationMonitor`), or, in ours, a safe stop.
 """
@@ -51,9 +53,10 @@ class Run:
     """One run's outcome.
 
     Attributes:
-        fell_at: s walked at the fall (None: no fall). cause: what ended it (``"fall"`` for a
-            true fall in a loop without stops; ours: the stop's cause, or ``"fall"`` seen by
-            the truth first). walked: s walked. pushes: the pushes applied (their times, s).
+        fell_at: s on the loop's clock at the fall (None: no fall). cause: what ended it
+            (``"fall"`` for a true fall in a loop without stops; ours: the stop's cause, or
+            ``"fall"`` seen by the truth first). walked: s walked (ours: RUNNING). pushes: the
+            pushes applied (their times, s).
         ticks, intervened: RUNNING ticks, and those on which the guard or the smoother changed
             a command (ours). checks: ticks per intervention check (ours).
         upright_stop: ours: the run ended by a stop while the truth had the robot upright
@@ -73,11 +76,11 @@ class Run:
 
 
 class _Walk:
-    """The push schedule's view of a loop (``DomainPushes`` reads ``ticks`` and ``mode``; the
-    after-push measure ``state`` too): ticks walked, the mode, the runtime's state."""
+    """The push schedule's view of an own loop (``DomainPushes`` reads ``ticks`` and ``mode``):
+    its ticks, always RUNNING."""
 
-    def __init__(self, mode: np.ndarray, state=None):
-        self.ticks, self.mode, self.state = 0, mode, state
+    def __init__(self):
+        self.ticks, self.mode = 0, np.array([RUNNING])
 
 
 class BareBase(SimDisturbances):
@@ -149,7 +152,7 @@ def _bare_run(robot, seed, seconds, pushes: PushRanges | None, gains, act, path=
     kp, kd, target = gains
     qo, vo = robot.qpos_offset, robot.qvel_offset
     dec = round(robot.control_period / m.opt.timestep)
-    walk, run = _Walk(np.array([RUNNING])), Run()
+    walk, run = _Walk(), Run()
     schedule = DomainPushes([seed], pushes, robot.control_period) if pushes else None
     base = BareBase(robot, m, d)
     for tick in range(1, round(seconds / robot.control_period) + 1):
@@ -238,35 +241,33 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command) -> R
     rt.velocity_command[0] = command
     rt.start()
     monitor = InterventionMonitor(rt.guard, rt.smoother)
-    walk, run = _Walk(rt.mode, rt.state), Run(checks={})
+    run = Run(checks={})
     schedule = DomainPushes([seed], pushes, rt.dt) if pushes else None
     response = PushResponse(schedule, rt.dt) if schedule else None
     counts = monitor.counts
-    before, last_any, ramp = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0]), 0
+    before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
     truth = np.zeros((1, 13))
-    while walk.ticks < round(seconds / rt.dt):
+    while rt.ticks < round(seconds / rt.dt):
         rt.tick()
         monitor.update()
         plant.true_base_state(out=truth)
         if rt.mode[0] != RUNNING:
-            if walk.ticks or ramp * rt.dt > RAMP_TIMEOUT:  # it walked, and stopped
-                run.fell_at, run.cause = walk.ticks * rt.dt, rt.cause_names()[0]
+            if run.ticks or rt.time > RAMP_TIMEOUT:  # it walked, and stopped
+                run.fell_at, run.cause = rt.time, rt.cause_names()[0]
                 run.upright_stop = true_upright(robot, truth[0, 2], truth[0, 3:7])
                 break
-            ramp += 1
             before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
             continue
-        walk.ticks += 1
         run.ticks += 1
         run.intervened += int(monitor.any[0]) - last_any
         last_any = int(monitor.any[0])
         if true_fall(robot, truth[0, 2], truth[0, 3:7]):
-            run.fell_at, run.cause = walk.ticks * rt.dt, "fall"
+            run.fell_at, run.cause = rt.time, "fall"
             break
         if schedule is not None:  # as the soak: the estimate judged, then the tick's push
-            response(walk, plant)
-            schedule(walk, plant)
-    run.walked = walk.ticks * rt.dt
+            response(rt, plant)
+            schedule(rt, plant)
+    run.walked = run.ticks * rt.dt
     run.checks = {k: int(v[0]) - before[k] for k, v in monitor.counts.items() if v[0] > before[k]}
     run.pushes = list(schedule.times[0]) if schedule else []
     run.after_push = response.summary() if response else None

@@ -154,6 +154,8 @@ class TableCalls:
         self._fused = False
         if state.base is not None or not plan.compiled or not (kin.compiled or kin.frame_id < 0):
             return
+        if est.velocity_variance is not None and frame.velocity is not None:
+            return  # the drives' velocity is absorbed after the Kalman tick (the estimator's)
         envs, n = self.envs, self.n
         observe = plan.kernel_args(state, goal, out, envs)  # grows the plan's buffers first
         table, arrays = np.zeros(fk.SIZE, dtype=np.int64), []

@@ -107,8 +107,8 @@ def own_loop_speed(robot, files, seconds: float, command: float, settle: float):
     cfg = yaml.safe_load(Path(files[0]).read_text())
     cfg["cmd_init"] = [command, 0.0, 0.0]
     path: list = []
-    fell = unitree_loop(robot, cfg, load_torchscript(Path(files[1])), 0, seconds, 0.0, path)
-    if fell is not None:
+    run = unitree_loop(robot, cfg, load_torchscript(Path(files[1])), 0, seconds, None, path=path)
+    if run.fell_at is not None:
         return None
     rows = np.array(path)
     k = int(np.searchsorted(rows[:, 0], settle))

@@ -1,185 +1,269 @@
-"""A published humanoid policy under legged_gym's pushes: our runtime beside unitree's own loop.
+"""Legged policies under pushes: our runtime beside each policy's own loop on the true state.
 
-``python -m bench.push_reference [--robot h1] [--seeds 0-49] [--max-velocity 1.5]``
+``python -m bench.push_reference [--robots go2,h1,h1_2] [--user NAME=ROBOT_DIR,POLICY[,DEPLOY_YAML,
+MOTION_PT]] [--domain NAME=RANGES] [--seeds 0-99] [--seconds 60] [--apply force]``
 
-legged_gym's push (``LeggedRobot._push_robots``, unitree_rl_gym's humanoid configs:
-``push_interval_s = 5``, ``max_push_vel_xy = 1.5``) sets the floating base's horizontal velocity
-to a random value every 5 s. Does a policy fall under it because of our runtime, or would it fall
-in its own stack's loop too? Each seed's push sequence (:func:`sim2real.eval.world.pushes.push_velocity`,
-the soak's ``[pushes]``) runs, walking at the config's ``cmd_init``, for ``seconds``, in:
+Does a policy fall under pushes because of our runtime, or would it fall in its own stack's loop
+too? Each seed's push sequence runs, walking at ``--command``, for ``--seconds`` in the policy's
+own loop and in ours (:mod:`bench.push_loops`): the shipped go2 (its loop: its spec fed the true
+state), unitree_rl_gym's H1 and H1-2 (their ``deploy_mujoco.py`` loop with the published
+``motion.pt``), and a user's robot and policy (``--user``: with unitree_rl_gym's deploy yaml and
+``motion.pt``, their loop; without, the truth-fed loop of the ONNX file's spec: an mjlab export).
 
-- **unitree's loop** (:func:`unitree_loop`): the loop of unitree_rl_gym's
-  ``deploy/deploy_mujoco/deploy_mujoco.py``, written here for our robot's MJCF with torque
-  actuators (``robot.plant_model("torque")``): the observation from the true MuJoCo state (base
-  angular velocity, projected gravity, command, joint positions and velocities, last action, the
-  0.8-s gait phase's sine and cosine, scaled as the deploy config says), the TorchScript policy
-  the repository publishes (``motion.pt``), ``tau = kp (target - q) - kd dq`` at every physics
-  step; no estimator, guard or sensor noise.
-- **our runtime** (:func:`runtime_loop`): :class:`sim2real.deploy.runtime.Runtime` over
-  :class:`~sim2real.deploy.backends.sim.plant.SimBackend` (position mode, its default sensor noise) with
-  the policy exported to ONNX, as ``deploy-run`` runs it.
-
-A run ends at its first fall: the base below ``FALL_HEIGHT``, or (ours) the runtime leaving
-RUNNING. Printed per loop: falls, pushes survived before the fatal one, falls per push applied;
-and the paired comparison per seed (same fatal push, ours earlier, ours later) with a two-sided
-sign test.
+The pushes are the policy's training domain's (the ONNX file's ``training_domain``, or
+``--domain NAME=FILE``'s ``[pushes]``), else legged_gym's push at ``--max-velocity`` every 5 s;
+as forces over the push's window (the soak's default) or, ``--apply velocity_hidden_from_imu``,
+the velocity set as the training stacks do. Printed per policy and loop: pushes survived (before
+the fatal one), falls and falls per hour walked, interventions per RUNNING tick (ours; the own
+loops have no guard), the stops of a robot the truth had upright, and the base estimate's planar
+velocity error in the second after a push; then the paired comparison per seed (same fatal push,
+ours earlier, ours later) with a two-sided sign test.
 """
 
 from __future__ import annotations
 
 import argparse
-import warnings
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, replace
 from math import comb
 from pathlib import Path
 
-import mujoco
 import numpy as np
-import yaml
 
-from sim2real.deploy.core.attitude import projected_gravity
-from sim2real.eval.world.pushes import push_velocity
+from bench.push_loops import (  # noqa: F401 (bench.estimation imports them from here)
+    Run,
+    load_torchscript,
+    runtime_loop,
+    truth_loop,
+    unitree_loop,
+)
 
-DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "unitree_rl_gym"
-#: m, base height below which the robot has fallen (the H1 stands at 1.0 m, walks at 0.98)
-FALL_HEIGHT = 0.6
-#: s between pushes (legged_gym's ``push_interval_s`` in unitree_rl_gym's humanoid configs)
+ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT / "tests" / "data" / "unitree_rl_gym"
+#: s between pushes of a policy without a training domain's (unitree_rl_gym's humanoid configs'
+#: ``push_interval_s``)
 PUSH_INTERVAL = 5.0
-#: s, the gait phase's period in unitree's deploy_mujoco.py (H1, H1-2, G1)
-GAIT_PERIOD = 0.8
+#: m/s, legged_gym's ``max_push_vel_xy`` default (``LeggedRobotCfg.domain_rand``)
+MAX_PUSH_VELOCITY = 1.0
 
 
-def unitree_observation(cfg: dict, qpos, qvel, last_action, t: float) -> np.ndarray:
-    """deploy_mujoco.py's observation (3 + 3 + 3 + 3 n + 2,) float32 from the true state."""
-    n = len(last_action)
-    phase = (t % GAIT_PERIOD) / GAIT_PERIOD
-    return np.concatenate(
-        [
-            qvel[3:6] * cfg["ang_vel_scale"],
-            projected_gravity(qpos[3:7]),  # deploy_mujoco.py's get_gravity_orientation
-            np.array(cfg["cmd_init"]) * np.array(cfg["cmd_scale"]),
-            (qpos[7 : 7 + n] - np.array(cfg["default_angles"])) * cfg["dof_pos_scale"],
-            qvel[6 : 6 + n] * cfg["dof_vel_scale"],
-            last_action,
-            [np.sin(2 * np.pi * phase), np.cos(2 * np.pi * phase)],
-        ]
-    ).astype(np.float32)
+@dataclass(frozen=True)
+class Entry:
+    """A policy of the benchmark: its name, robot (name or folder), ONNX file, and, for
+    unitree_rl_gym's loop, its deploy yaml and TorchScript policy (None: the truth-fed loop of
+    the ONNX's spec); ``domain``: a ranges file whose ``[pushes]`` it runs (None: the ONNX's)."""
+
+    name: str
+    robot: str
+    policy: Path
+    config: Path | None = None
+    torchscript: Path | None = None
+    domain: Path | None = None
+
+    @property
+    def own_loop(self) -> str:
+        return "unitree_rl_gym" if self.config else "truth-fed spec"
 
 
-def load_torchscript(path: Path):
-    """unitree's published policy (TorchScript, eval mode, one thread), loaded afresh: an LSTM
-    policy keeps its memory in the module (``hidden_state``), so each run loads its own."""
-    import torch
-
-    torch.set_num_threads(1)
-    with warnings.catch_warnings():  # torch.jit.load is deprecated; unitree publishes TorchScript
-        warnings.simplefilter("ignore", FutureWarning)
-        return torch.jit.load(str(path)).eval()
+SHIPPED = {
+    "go2": Entry("go2", "go2", ROOT / "sim2real" / "policies" / "go2.onnx"),
+    **{
+        r: Entry(r, r, DATA / r / f"{r}.onnx", DATA / r / f"{r}.yaml", DATA / r / "motion.pt")
+        for r in ("h1", "h1_2")
+    },
+}
 
 
-def unitree_loop(robot, cfg: dict, net, seed: int, seconds: float, vmax: float, path=None):
-    """One run of unitree's loop (module docstring) with ``net`` (the TorchScript policy, eval
-    mode); returns the fall time s, or None. ``path``: a list that receives ``(t, x, y)`` (s, m)
-    of the base after each control tick."""
-    import torch
+def push_ranges(entry: Entry, robot, args):
+    """The :class:`~sim2real.eval.world.pushes.PushRanges` of ``entry``'s runs (module
+    docstring), with ``--max-velocity`` (legged_gym's pushes), ``--apply`` and ``--window``."""
+    from sim2real.eval.world.domain import training_domain
+    from sim2real.eval.world.pushes import PushRanges
+    from sim2real.eval.world.ranges_file import load_ranges, load_ranges_text
 
-    m = robot.plant_model("torque")
-    d = mujoco.MjData(m)
-    d.qpos[7:] = robot.home
-    mujoco.mj_forward(m, d)
-    kp, kd = np.array(cfg["kps"], float), np.array(cfg["kds"], float)
-    default = np.array(cfg["default_angles"], float)
-    action = np.zeros(len(default), dtype=np.float32)
-    target, dec = default.copy(), int(cfg["control_decimation"])
-    dt = m.opt.timestep * dec
-    every, steps = round(PUSH_INTERVAL / dt), 0
-    for tick in range(1, round(seconds / dt) + 1):
-        for _ in range(dec):
-            d.ctrl[:] = kp * (target - d.qpos[7:]) - kd * d.qvel[6:]
-            mujoco.mj_step(m, d)
-            steps += 1
-        t = steps * m.opt.timestep
-        with torch.no_grad():
-            obs = unitree_observation(cfg, d.qpos, d.qvel, action, t)
-            action = net(torch.from_numpy(obs)[None]).numpy()[0].astype(np.float32)
-        target = action * cfg["action_scale"] + default
-        if path is not None:
-            path.append((t, float(d.qpos[0]), float(d.qpos[1])))
-        if d.qpos[2] < FALL_HEIGHT or not np.isfinite(d.qpos).all():
-            return t
-        if vmax > 0 and tick % every == 0:  # vmax 0: no push (setting 0 would stop the base)
-            d.qvel[:2] = push_velocity(seed, tick // every, vmax)
-    return None
+    pushes = None
+    if entry.domain is not None:
+        pushes = load_ranges(entry.domain, robot).pushes
+    else:
+        text = training_domain(entry.policy)
+        if text is not None:
+            pushes = load_ranges_text(text, f"{entry.policy} training_domain", robot).pushes
+    if pushes is None:
+        pushes = PushRanges(interval=PUSH_INTERVAL, max_velocity=MAX_PUSH_VELOCITY)
+    if args.max_velocity is not None and pushes.legacy:
+        pushes = replace(pushes, max_velocity=args.max_velocity)
+    if args.apply is not None:
+        pushes = replace(pushes, apply=args.apply)
+    if args.window is not None:
+        pushes = replace(pushes, window=args.window)
+    return pushes
 
 
-def runtime_loop(robot, cfg: dict, onnx: Path, seed: int, seconds: float, vmax: float):
-    """One run of our runtime (module docstring); returns (fall time s or None, cause)."""
-    from sim2real.deploy.backends.sim.plant import SimBackend
+def _load(entry: Entry):
+    """(robot with the policy's drive, fresh OnnxPolicy) of ``entry``."""
     from sim2real.deploy.policy.onnx_policy import OnnxPolicy
-    from sim2real.deploy.runtime import RUNNING, Runtime
+    from sim2real.deploy.spec.drive import drive_robot
+    from sim2real.robots import load_robot
 
-    plant = SimBackend(robot, "position", envs=1, seed=0)
-    rt = Runtime(robot, OnnxPolicy(onnx, robot), plant)
-    rt.velocity_command[0] = cfg["cmd_init"]
-    rt.start()
-    every, running = round(PUSH_INTERVAL / rt.dt), False
-    for k in range(round(seconds / rt.dt)):
-        rt.tick()
-        running |= bool(rt.mode[0] == RUNNING)
-        left = running and rt.mode[0] != RUNNING
-        if plant.datas[0].qpos[2] < FALL_HEIGHT or left:
-            return rt.time, (rt.cause_names()[0] if left else "height")
-        if k > 0 and k % every == 0 and rt.mode[0] == RUNNING:
-            plant.set_base_velocity(0, push_velocity(seed, k // every, vmax))
-    return None, None
+    robot = load_robot(entry.robot)
+    robot, _ = drive_robot(robot, OnnxPolicy(entry.policy, robot).spec)
+    return robot, OnnxPolicy(entry.policy, robot)
 
 
-def _s(t: float | None) -> str:
-    return "-" if t is None else f"{t:.2f} s"
+def run_seed(entry: Entry, seed: int, args) -> tuple[Run, Run]:
+    """(own loop, ours) of ``entry`` on push sequence ``seed``."""
+    import yaml
+
+    robot, policy = _load(entry)
+    pushes = push_ranges(entry, robot, args)
+    command = [float(x) for x in args.command.split(",")]
+    if entry.config is not None:
+        cfg = yaml.safe_load(Path(entry.config).read_text())
+        net = load_torchscript(entry.torchscript)
+        own = unitree_loop(robot, cfg, net, seed, args.seconds, pushes, command)
+    else:
+        own = truth_loop(robot, policy, seed, args.seconds, pushes, command)
+        _, policy = _load(entry)  # fresh: a recurrent policy's memory
+    ours = runtime_loop(robot, policy, seed, args.seconds, pushes, command)
+    return own, ours
 
 
-def survived(fell_at: float | None, seconds: float) -> int:
-    """Pushes survived before the fall (pushes at 5, 10, ... s)."""
-    end = seconds if fell_at is None else fell_at
-    return int(end // PUSH_INTERVAL) - (0 if fell_at is None else 1)
+def survived(run: Run) -> int:
+    """Pushes survived: those applied, less the fatal one (the last before a fall)."""
+    return len(run.pushes) - (1 if run.fell_at is not None and run.pushes else 0)
+
+
+def sign_test(own: list[int], ours: list[int]) -> tuple[int, int, int, float]:
+    """(same, ours fewer, ours more, two-sided sign test p) over paired counts."""
+    a, b = np.array(own), np.array(ours)
+    n, k = int((a != b).sum()), int((b < a).sum())
+    p = min(1.0, 2 * sum(comb(n, i) for i in range(min(k, n - k) + 1)) / 2**n) if n else 1.0
+    return int((a == b).sum()), k, n - k, p
+
+
+def summary(runs: list[Run]) -> dict:
+    """Pushes survived, falls, falls per hour walked, interventions per RUNNING tick, upright
+    stops, and the after-push error's mean (m/s, over the judged ticks) of ``runs``."""
+    walked = sum(r.walked for r in runs)
+    falls = sum(r.fell_at is not None for r in runs)
+    ticks = sum(r.ticks for r in runs)
+    after = [r.after_push for r in runs if r.after_push]
+    n = sum(a["ticks"] for a in after)
+    checks: dict = {}
+    for r in runs:
+        for k, v in r.checks.items():
+            checks[k] = checks.get(k, 0) + v
+    return {
+        "survived": sum(survived(r) for r in runs),
+        "falls": falls,
+        "falls_per_hour": 3600.0 * falls / walked if walked else float("nan"),
+        "interventions": sum(r.intervened for r in runs) / ticks if ticks else None,
+        "checks": checks,
+        "upright_stops": sum(r.upright_stop for r in runs),
+        "after_push": sum(a["mean_m_s"] * a["ticks"] for a in after) / n if n else None,
+        "after_push_worst": max((a["worst_push_mean_m_s"] for a in after), default=None),
+        "causes": sorted({r.cause for r in runs if r.cause}),
+    }
+
+
+def table(results: dict[str, tuple[Entry, list[Run], list[Run]]], args) -> list[str]:
+    """The side-by-side table's lines (markdown)."""
+    lines = [
+        "| policy | loop | pushes survived | falls | falls per hour | interventions per tick "
+        "| upright stops | after-push error mean / worst push (m/s) | paired: same / ours "
+        "earlier / later (p) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for name, (entry, own, ours) in results.items():
+        a, b = summary(own), summary(ours)
+        same, fewer, more, p = sign_test([survived(r) for r in own], [survived(r) for r in ours])
+        share = f" ({b['survived'] / a['survived']:.1%} of its own)" if a["survived"] else ""
+        after = (
+            "-"
+            if b["after_push"] is None
+            else f"{b['after_push']:.3f} / {b['after_push_worst']:.3f}"
+        )
+        checks = ", ".join(f"{k} {v}" for k, v in sorted(b["checks"].items()))
+        lines.append(
+            f"| {name} | own ({entry.own_loop}) | {a['survived']} | {a['falls']}/{len(own)} | "
+            f"{a['falls_per_hour']:.0f} | - | - | - | |"
+        )
+        lines.append(
+            f"| {name} | our runtime | {b['survived']}{share} | {b['falls']}/{len(ours)} | "
+            f"{b['falls_per_hour']:.0f} | {b['interventions']:.4%}"
+            f"{f' ({checks})' if checks else ''} | {b['upright_stops']} | {after} | "
+            f"{same} / {fewer} / {more} (p = {p:.3f}) |"
+        )
+    return lines
+
+
+def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
+    """The policies of ``--robots`` and ``--user``, with ``--domain``'s files."""
+    domains = {}
+    for item in args.domain:
+        name, _, path = item.partition("=")
+        if not path:
+            p.error(f"--domain {item!r}: expected NAME=RANGES_FILE")
+        domains[name] = Path(path)
+    out = []
+    for name in [n for n in args.robots.split(",") if n]:
+        if name not in SHIPPED:
+            p.error(f"--robots: {name!r} is not one of {sorted(SHIPPED)}")
+        out.append(SHIPPED[name])
+    for item in args.user:
+        name, _, rest = item.partition("=")
+        parts = rest.split(",")
+        if not name or len(parts) not in (2, 4):
+            p.error(f"--user {item!r}: expected NAME=ROBOT_DIR,POLICY[,DEPLOY_YAML,MOTION_PT]")
+        files = [Path(x) for x in parts[2:]] + [None, None]
+        out.append(Entry(name, parts[0], Path(parts[1]), files[0], files[1]))
+    unknown = set(domains) - {e.name for e in out}
+    if unknown:
+        p.error(f"--domain: {sorted(unknown)} name no policy of the run")
+    return [replace(e, domain=domains.get(e.name)) for e in out]
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--robot", default="h1", help="h1 or h1_2 (the unitree_rl_gym test data)")
-    ap.add_argument("--seeds", default="0-49", help="first-last push sequences")
-    ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--max-velocity", type=float, default=1.5, help="m/s per axis")
-    a = ap.parse_args(argv)
-    from sim2real.robots import load_robot
-
-    robot = load_robot(a.robot)
-    folder = DATA / a.robot
-    cfg = yaml.safe_load((folder / f"{a.robot}.yaml").read_text())
-    lo, hi = (int(x) for x in a.seeds.split("-"))
-    rows, run = [], (a.seconds, a.max_velocity)
-    for seed in range(lo, hi + 1):
-        ref = unitree_loop(robot, cfg, load_torchscript(folder / "motion.pt"), seed, *run)
-        ours, cause = runtime_loop(robot, cfg, folder / f"{a.robot}.onnx", seed, *run)
-        rows.append((seed, ref, ours, cause))
-        print(
-            f"seed {seed:3d}  fell at: unitree's loop {_s(ref)}, ours {_s(ours)} ({cause})",
-            flush=True,
-        )
-    for name, col in (("unitree's loop", 1), ("our runtime", 2)):
-        falls = sum(r[col] is not None for r in rows)
-        saved = sum(survived(r[col], a.seconds) for r in rows)
-        print(
-            f"{name:15s} falls {falls}/{len(rows)}, pushes survived {saved}, "
-            f"falls per push {falls / max(saved + falls, 1):.3f}"
-        )
-    ref = np.array([survived(r[1], a.seconds) for r in rows])
-    ours = np.array([survived(r[2], a.seconds) for r in rows])
-    n, k = int((ref != ours).sum()), int((ours < ref).sum())
-    p = min(1.0, 2 * sum(comb(n, i) for i in range(min(k, n - k) + 1)) / 2**n) if n else 1.0
-    print(
-        f"paired: same fatal push {int((ref == ours).sum())}, ours earlier {k}, ours later "
-        f"{n - k}; sign test p = {p:.3f}"
-    )
+    p = argparse.ArgumentParser(prog="python -m bench.push_reference", description=__doc__)
+    p.add_argument("--robots", default="go2,h1,h1_2", help="shipped policies (go2, h1, h1_2)")
+    p.add_argument("--user", action="append", default=[], metavar="NAME=ROBOT,POLICY[,YAML,PT]")
+    p.add_argument("--domain", action="append", default=[], metavar="NAME=RANGES_FILE")
+    p.add_argument("--seeds", default="0-99", help="first-last push sequences")
+    p.add_argument("--seconds", type=float, default=60.0, help="s walked per run")
+    p.add_argument("--command", default="0.5,0,0", help="vx,vy,yaw rate (m/s, rad/s)")
+    p.add_argument("--max-velocity", type=float, default=None, help="legged_gym's pushes, m/s")
+    p.add_argument("--apply", choices=("force", "velocity_hidden_from_imu"), default=None)
+    p.add_argument("--window", type=float, default=None, help="s, a force push's duration")
+    p.add_argument("--jobs", type=int, default=1, help="processes")
+    p.add_argument("--verbose", action="store_true", help="a line per seed")
+    a = p.parse_args(argv)
+    entries = _entries(a, p)
+    lo, _, hi = a.seeds.partition("-")
+    seeds = list(range(int(lo), int(hi or lo) + 1))
+    jobs = [(e, s) for e in entries for s in seeds]
+    results = {e.name: (e, [], []) for e in entries}
+    pool = ProcessPoolExecutor(a.jobs) if a.jobs > 1 else None
+    if pool:
+        done = pool.map(run_seed, [e for e, _ in jobs], [s for _, s in jobs], [a] * len(jobs))
+    for e, s in jobs:
+        own, ours = next(done) if pool else run_seed(e, s, a)
+        results[e.name][1].append(own)
+        results[e.name][2].append(ours)
+        if a.verbose:
+            print(
+                f"{e.name} seed {s:3d}: own fell at {own.fell_at}, ours {ours.fell_at} "
+                f"({ours.cause}); pushes {survived(own)} / {survived(ours)}",
+                file=sys.stderr,
+                flush=True,
+            )
+    if pool:
+        pool.shutdown()
+    print(f"seeds {a.seeds}, {a.seconds:g} s each, command {a.command}")
+    for e in entries:
+        robot, _ = _load(e)
+        print(f"{e.name}: pushes {push_ranges(e, robot, a)}")
+    print("\n".join(table(results, a)))
     return 0
 
 

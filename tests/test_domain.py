@@ -389,6 +389,45 @@ def test_false_fall_stops_are_fall_check_stops_of_a_robot_the_truth_has_upright(
     assert false_fall_stops(falls, 0.757, 1.0) == 1
 
 
+def test_the_estimate_after_a_push_is_judged_against_the_truth_its_frame_sampled():
+    """A tick's estimate comes from the frame the plant sampled at the end of the tick before;
+    the tick's own physics then moves the base on. A base accelerating at 10 m/s^2 (a push) is
+    0.2 m/s faster one 50-Hz tick later: an estimate equal to the truth of its frame is judged
+    0 m/s off, not 0.2 m/s (the truth after the tick's physics)."""
+    from sim2real.eval.soak.push_response import PushResponse
+
+    class Pushes:
+        seeds = [1]
+        last_tick = np.array([-1], dtype=np.int64)
+
+    class Base:
+        linear_velocity = np.zeros((1, 3))
+
+    class Rt:
+        ticks, mode = 0, np.array([2])
+        state = type("S", (), {"base": Base})
+
+    class Plant:
+        speed = 0.0
+
+        def true_base_state(self, out=None):
+            s = np.zeros((1, 13))
+            s[0, 3] = 1.0  # upright, base frame = world frame
+            s[0, 7] = self.speed
+            return s
+
+    plant, response = Plant(), PushResponse(Pushes, 0.02)
+    for t in range(60):
+        Rt.ticks = t
+        Base.linear_velocity[0, 0] = plant.speed  # the estimate: the truth its frame sampled
+        plant.speed = 0.2 * t  # the tick's physics: 10 m/s^2
+        response(Rt, plant)  # after the tick, before its push
+        if t == 5:
+            Pushes.last_tick[0] = t
+    summary = response.summary()
+    assert summary["ticks"] == 50 and summary["worst_m_s"] == pytest.approx(0.0)
+
+
 def test_the_estimate_is_judged_in_the_second_after_each_push():
     """PushResponse: the planar velocity error of the RUNNING ticks 1..50 after a push (50 Hz),
     its mean, RMS, worst tick and worst push; a new push closes the previous one's second."""
@@ -406,7 +445,7 @@ def test_the_estimate_is_judged_in_the_second_after_each_push():
         state = type("S", (), {"base": Base})
 
     class Plant:
-        def true_base_state(self):
+        def true_base_state(self, out=None):
             s = np.zeros((2, 13))
             s[:, 3] = 1.0  # upright, base frame = world frame
             s[:, 7] = [0.3, 0.1]  # the estimate says 0: errors 0.3 and 0.1 m/s

@@ -6,9 +6,10 @@ odometry as a velocity measurement (M. Bloesch et al., "State estimation for leg
 2012; M. Camurri et al., "Pronto", Frontiers in Robotics and AI 2020), reduced to the states a
 velocity policy observes: the base-to-world rotation, the base velocity (world, at the base
 origin) and the IMU's biases, the gyro's and the accelerometer's. The IMU predicts (the
-accelerometer's lever arm and a turn's centripetal term taken off); the accelerometer is a weak
-gravity measurement; each foot in contact measures the base velocity through the leg kinematics
-(a rolling sphere's centre is not its contact point). A foot whose reading is more than
+accelerometer's lever arm, a turn's centripetal term and its acceleration taken off); the
+accelerometer is a weak gravity measurement; each foot in contact measures the base velocity
+through the leg kinematics (a rolling sphere's centre is not its contact point). A foot whose
+reading is more than
 ``SLIP_GATE`` (chi-square, 3 dof) from the prediction is slipping and not absorbed
 (``rejected_contacts``), unless no foot has been absorbed for ``MAX_REJECTED_READINGS`` readings:
 the velocity then restarts from the legs. The equations are in

@@ -6,7 +6,9 @@ Nominal state: rotation ``R`` (base to world), velocity ``v`` (m/s, world), the 
 (6,): the gyro's ``b_g`` (rad/s) and the accelerometer's ``b_a`` (m/s^2), base frame. Error state
 (12,): ``dtheta`` (rad, world frame, ``R_true = Exp(dtheta) R``), ``dv``, ``db_g``, ``db_a``. With
 the gyro ``omega = w - b_g`` and the specific force at the base origin
-``f = a - b_a - omega x (omega x r)`` (``r`` the IMU's lever arm)::
+``f = a - b_a - omega x (omega x r) - alpha x r`` (``r`` the IMU's lever arm, ``alpha`` the
+turn's mean acceleration since the last reading, ``(omega - omega_last) / dt``: over the interval
+it integrates to the change of the lever arm's velocity, ``(omega - omega_last) x r``)::
 
     predict:  v' = v + dt (R f + g)     R' = R Exp(omega dt)     b' = b
               F = [[I, 0, -R dt, 0], [-dt [R f]x, I, 0, -R dt], [0, 0, I, 0], [0, 0, 0, I]]
@@ -244,7 +246,8 @@ def imu_step(
 ) -> None:
     """One env's prediction over ``dt`` (s) from a reading already in the base frame and the
     accelerometer's gravity correction (:mod:`sim2real.deploy.estimation.base`); ``q``, ``v``, ``b``,
-    ``P`` in place, the bias-free angular velocity in ``omega_out`` (3,)."""
+    ``P`` in place. ``omega_out`` (3,): in, the last reading's bias-free angular velocity (rad/s;
+    its change over ``dt`` is the turn's acceleration); out, this reading's."""
     imu_step_in(
         q, v, b, P, gyro_b, acc_b, dt, lever, gravity, gyro_var, accel_var, walk_var,
         accel_walk_var, accel_meas_var, rest_band, omega_out, workspace(),
@@ -274,12 +277,15 @@ def imu_step_in(
         small[5:8, 3:6],
     )
     tmp, tmp2 = small[5:8, 6:9], small[8:11, 0:3]
+    alpha, c3 = small[11, 0:3], small[11, 3:6]
     for i in range(3):
         omega[i] = gyro_b[i] - b[i]
+        alpha[i] = (omega[i] - omega_out[i]) / dt  # the turn's mean acceleration since the last
     _cross(omega, lever, c1)
     _cross(omega, c1, c2)
+    _cross(alpha, lever, c3)
     for i in range(3):
-        f[i] = acc_b[i] - b[3 + i] - c2[i]
+        f[i] = acc_b[i] - b[3 + i] - c2[i] - c3[i]
     _quat_to_mat(q, R)
     mv(R, f, rf, False)
     F, P2 = work[0], work[2]

@@ -2,8 +2,10 @@
 
 :func:`absorb_imu` runs, per env, what :class:`~sim2real.deploy.estimation.base_steps.BaseSteps`
 runs in Python before the leg kinematics: the IMU reading's freshness and counters, the encoder
-rate, the dead-foot watch, the sensor's contacts, the prediction and the accelerometer's and the
-IMU attitude's corrections (:mod:`sim2real.deploy.estimation.base_kernel`). It marks the envs
+rate, the dead-foot watch, the sensor's contacts, the prediction (the lever arm's acceleration
+from the change of the angular velocity since the last reading, column ``OMEGA``) and the
+accelerometer's and the IMU attitude's corrections
+(:mod:`sim2real.deploy.estimation.base_kernel`). It marks the envs
 whose legs are to be read. Pinocchio then gives those envs' foot velocities (and placements, with
 a dead foot); :func:`absorb_legs` runs the contacts, the slip gate and the feet's corrections,
 then predicts every env's output to ``frame.time``. Same expressions, same order as the Python

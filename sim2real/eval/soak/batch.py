@@ -334,9 +334,9 @@ class SessionBatch:
             # numbers whatever the neighbours (see the module docstring) and across a restore
             rt.smoother.recalculate()
         self.rig.monitor(rt)  # violations, interventions, the base estimate, then the task
-        if self.pushes is not None:
-            self.pushes(rt, self.backend)
+        if self.pushes is not None:  # the estimate judged against the truth its frame sampled
             self.push_response(rt, self.backend)
+            self.pushes(rt, self.backend)
         temperature_bands(
             self.backend.thermal.winding_temperature,
             self._t_start,

@@ -7,7 +7,12 @@ it does not measure well is a push the policy answers late. Per env, over the RU
 the ``AFTER_PUSH`` s that follow each push (the push's own tick excluded: its force acts from the
 next physics step), the error ``|v_est - v_true|`` of the base-frame planar velocity (m/s, x
 and y, as ``velocity_rms_m_s`` measures it) is summed; a push's second ends at its last tick or
-at the next push. Simulation only (the truth).
+at the next push. The truth is the base's at the time of the frame the estimate was made from
+(the plant's state at the end of the tick before, which its sensors sampled), not after the
+tick's own physics: a push accelerates the base by about 10 m/s^2, and the truth one control
+period later is 0.2 m/s on at 50 Hz, a difference no estimator of that frame can know. Call it
+after each tick, before that tick's pushes are applied (the truth it keeps for the next tick is
+the one the next frame samples). Simulation only (the truth).
 """
 
 from __future__ import annotations
@@ -37,6 +42,8 @@ class PushResponse:
             (m/s), and the open push's error sum and ticks (columns ``TICKS`` ... ``OPEN_TICKS``).
         measured: (envs,) int64, the tick of the last push seen (-1: none).
         open: (envs,) bool, whether that push's second is still being judged.
+        frame_truth: (envs, 13) the true base state (``true_base_state``'s layout) at the end of
+            the last tick, which the next tick's frame samples (NaN before the first call).
     """
 
     def __init__(self, pushes, control_period: float):
@@ -46,10 +53,20 @@ class PushResponse:
         self.sums = np.zeros((envs, 8))
         self.measured = np.full(envs, -1, dtype=np.int64)
         self.open = np.zeros(envs, dtype=bool)
+        self.frame_truth = np.full((envs, 13), np.nan)
+        self._now = np.empty((envs, 13))
         self._truth = BaseState.zeros(envs)
 
     def __call__(self, rt, backend) -> None:
-        """After the pushes of a tick of ``rt`` (a runtime over the simulated ``backend``)."""
+        """After a tick of ``rt`` (a runtime over the simulated ``backend``), before its pushes."""
+        now = backend.true_base_state(out=self._now)
+        try:
+            self._judge(rt)
+        finally:
+            self.frame_truth[:] = now
+
+    def _judge(self, rt) -> None:
+        """Add the judged envs' errors of this tick (against :attr:`frame_truth`)."""
         last = self.pushes.last_tick
         if not (last >= 0).any():
             return
@@ -62,9 +79,11 @@ class PushResponse:
             self.open[new] = True
         if not self.open.any():
             return
-        judged = self.open & (age >= 1) & (age <= self.window) & (rt.mode == 2)
+        known = np.isfinite(self.frame_truth).all(axis=1)
+        judged = self.open & (age >= 1) & (age <= self.window) & (rt.mode == 2) & known
         if judged.any():
-            base = self._truth.set_truth(backend.true_base_state())
+            truth = np.where(known[:, None], self.frame_truth, self._now)  # no NaN into set_truth
+            base = self._truth.set_truth(truth)
             error = rt.state.base.linear_velocity[:, :2] - base.linear_velocity[:, :2]
             norm = np.sqrt((error**2).sum(axis=1))
             s = self.sums
@@ -107,15 +126,21 @@ class PushResponse:
         }
 
     def state_dict(self, env: int) -> dict:
-        """Env ``env``'s ``sums``, ``measured`` and ``open`` as JSON (a list, an int, a bool)."""
+        """Env ``env``'s ``sums``, ``measured``, ``open`` and ``frame_truth`` as JSON (a list, an
+        int, a bool, a list of 13 numbers or None before the first call)."""
+        truth = self.frame_truth[env]
         return {
             "sums": self.sums[env].tolist(),
             "measured": int(self.measured[env]),
             "open": bool(self.open[env]),
+            "frame_truth": truth.tolist() if np.isfinite(truth).all() else None,
         }
 
     def load_state_dict(self, state: dict, env: int) -> None:
-        """Inverse of :meth:`state_dict`."""
+        """Inverse of :meth:`state_dict` (a state without ``frame_truth``, from a checkpoint of
+        an earlier version: the next tick is not judged)."""
         self.sums[env] = np.asarray(state["sums"], dtype=float)
         self.measured[env] = int(state["measured"])
         self.open[env] = bool(state["open"])
+        truth = state.get("frame_truth")
+        self.frame_truth[env] = np.nan if truth is None else np.asarray(truth, dtype=float)

@@ -1,0 +1,274 @@
+"""The loops of the push benchmark (:mod:`bench.push_reference`): one run of a policy, walking at a
+constant command under a sequence of pushes, in its own loop on the true state or in our runtime.
+
+- :func:`unitree_loop`: the loop of unitree_rl_gym's ``deploy/deploy_mujoco/deploy_mujoco.py``,
+  written here for our robot's MJCF with torque actuators (``robot.plant_model("torque")``): the
+  observation from the true MuJoCo state (base angular velocity, projected gravity, command,
+  joint positions and velocities, last action, the 0.8-s gait phase's sine and cosine, scaled as
+  the deploy config says), the TorchScript policy the repository publishes (``motion.pt``),
+  ``tau = kp (target - q) - kd dq`` at every physics step; no estimator, guard or sensor noise.
+- :func:`truth_loop`: the same loop for a policy that has no published loop of its own (the
+  shipped go2, an mjlab export): its exported ONNX file and its spec's observation built from the
+  true state (:meth:`sim2real.deploy.core.state.BaseState.set_truth`), the robot's PD gains.
+- :func:`runtime_loop`: :class:`sim2real.deploy.runtime.Runtime` over
+  :class:`~sim2real.deploy.backends.sim.plant.SimBackend` (position mode, the robot's shipped
+  sensor noise, seeded by the run's seed) with the policy's drive applied, as ``deploy-run`` runs
+  it; its interventions (:class:`~sim2real.deploy.monitors.interventions.InterventionMonitor`)
+  and the base estimate's error in the second after each push
+  (:class:`~sim2real.eval.soak.push_response.PushResponse`).
+
+Every loop pushes with the soak's own schedule (:class:`~sim2real.eval.world.pushes.DomainPushes`
+on the loop's clock, which is the policy's gait clock: the same push ``k`` of a seed at the same
+time and gait phase in every loop; ours walks once its RAMP_IN is over and is pushed only
+RUNNING), as a force over the push's window or by setting the velocity (``PushRanges.apply``),
+and runs ``seconds`` on that clock; it ends at the first true fall: the
+base below ``TRUE_FALL_HEIGHT`` of its standing height or tilted past the fall tilt (the soak's
+:class:`~sim2real.deploy.monitors.estimation.EstimationMonitor`), or, in ours, a safe stop.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from sim2real.deploy.backends.sim.disturbances import SimDisturbances
+from sim2real.deploy.core.attitude import projected_gravity
+from sim2real.deploy.core.modes import RUNNING
+from sim2real.deploy.estimation.fall import FALL_TILT
+from sim2real.deploy.monitors.estimation import TRUE_FALL_HEIGHT
+from sim2real.eval.soak.falls import UPRIGHT_HEIGHT_SHARE, UPRIGHT_TILT_SHARE
+from sim2real.eval.world.pushes import DomainPushes, PushRanges
+
+#: s, the gait phase's period in unitree's deploy_mujoco.py (H1, H1-2, G1)
+GAIT_PERIOD = 0.8
+#: s a run may spend in RAMP_IN before walking (our runtime; a fall if it never walks)
+RAMP_TIMEOUT = 10.0
+
+
+@dataclass
+class Run:
+    """One run's outcome.
+
+    Attributes:
+        fell_at: s on the loop's clock at the fall (None: no fall). cause: what ended it
+            (``"fall"`` for a true fall in a loop without stops; ours: the stop's cause, or
+            ``"fall"`` seen by the truth first). walked: s walked (ours: RUNNING). pushes: the
+            pushes applied (their times, s).
+        ticks, intervened: RUNNING ticks, and those on which the guard or the smoother changed
+            a command (ours). checks: ticks per intervention check (ours).
+        upright_stop: ours: the run ended by a stop while the truth had the robot upright
+            (:func:`true_upright`).
+        after_push: ours: ``PushResponse.summary()`` (None without a judged push).
+    """
+
+    fell_at: float | None = None
+    cause: str | None = None
+    walked: float = 0.0
+    pushes: list = field(default_factory=list)
+    ticks: int = 0
+    intervened: int = 0
+    checks: dict = field(default_factory=dict)
+    upright_stop: bool = False
+    after_push: dict | None = None
+
+
+class _Walk:
+    """The push schedule's view of an own loop (``DomainPushes`` reads ``ticks`` and ``mode``):
+    its ticks, always RUNNING."""
+
+    def __init__(self):
+        self.ticks, self.mode = 0, np.array([RUNNING])
+
+
+class BareBase(SimDisturbances):
+    """The plant's push methods on one bare MuJoCo model and data (the own loops)."""
+
+    def __init__(self, robot, m: mujoco.MjModel, d: mujoco.MjData):
+        self.robot, self.models, self.datas = robot, [m], [d]
+
+
+def _tilt(quaternion: np.ndarray) -> float:
+    """rad, the base's tilt from upright (base-to-world ``quaternion`` w, x, y, z)."""
+    up = -projected_gravity(np.asarray(quaternion, dtype=float))[2]
+    return float(np.arccos(np.clip(up, -1.0, 1.0)))
+
+
+def true_fall(robot, position_z: float, quaternion: np.ndarray) -> bool:
+    """Whether the true base has fallen: below ``TRUE_FALL_HEIGHT`` of the standing height or
+    tilted past the robot's fall tilt (rad; default ``FALL_TILT``), as the soak counts a fall."""
+    low = TRUE_FALL_HEIGHT * robot.config.base.standing_height
+    if not (np.isfinite(position_z) and position_z >= low):
+        return True
+    return _tilt(quaternion) > (robot.config.safety.fall_tilt or FALL_TILT)
+
+
+def true_upright(robot, position_z: float, quaternion: np.ndarray) -> bool:
+    """Whether the true base is upright as the soak's ``false_fall_stops`` judges a stop: tilted
+    under ``UPRIGHT_TILT_SHARE`` of the fall tilt, at least ``UPRIGHT_HEIGHT_SHARE`` of the
+    standing height high."""
+    limit = robot.config.safety.fall_tilt or FALL_TILT
+    high = position_z >= UPRIGHT_HEIGHT_SHARE * robot.config.base.standing_height
+    return bool(high and _tilt(quaternion) < UPRIGHT_TILT_SHARE * limit)
+
+
+def unitree_observation(cfg: dict, qpos, qvel, last_action, t: float, command) -> np.ndarray:
+    """deploy_mujoco.py's observation (3 + 3 + 3 + 3 n + 2,) float32 from the true state."""
+    n = len(last_action)
+    phase = (t % GAIT_PERIOD) / GAIT_PERIOD
+    return np.concatenate(
+        [
+            qvel[3:6] * cfg["ang_vel_scale"],
+            projected_gravity(qpos[3:7]),  # deploy_mujoco.py's get_gravity_orientation
+            np.asarray(command) * np.array(cfg["cmd_scale"]),
+            (qpos[7 : 7 + n] - np.array(cfg["default_angles"])) * cfg["dof_pos_scale"],
+            qvel[6 : 6 + n] * cfg["dof_vel_scale"],
+            last_action,
+            [np.sin(2 * np.pi * phase), np.cos(2 * np.pi * phase)],
+        ]
+    ).astype(np.float32)
+
+
+def load_torchscript(path):
+    """unitree's published policy (TorchScript, eval mode, one thread), loaded afresh: an LSTM
+    policy keeps its memory in the module (``hidden_state``), so each run loads its own."""
+    import torch
+
+    torch.set_num_threads(1)
+    with warnings.catch_warnings():  # torch.jit.load is deprecated; unitree publishes TorchScript
+        warnings.simplefilter("ignore", FutureWarning)
+        return torch.jit.load(str(path)).eval()
+
+
+def _bare_run(robot, seed, seconds, pushes: PushRanges | None, gains, act, path=None) -> Run:
+    """The own loops' common body: ``gains`` (kp, kd, the first target), ``act(t, d)`` the
+    policy's next PD target from the true state after a control period."""
+    m = robot.plant_model("torque")
+    d = mujoco.MjData(m)
+    d.qpos[robot.qpos_offset :] = robot.home
+    mujoco.mj_forward(m, d)
+    kp, kd, target = gains
+    qo, vo = robot.qpos_offset, robot.qvel_offset
+    dec = round(robot.control_period / m.opt.timestep)
+    walk, run = _Walk(), Run()
+    schedule = DomainPushes([seed], pushes, robot.control_period) if pushes else None
+    base = BareBase(robot, m, d)
+    for tick in range(1, round(seconds / robot.control_period) + 1):
+        for _ in range(dec):
+            d.ctrl[:] = kp * (target - d.qpos[qo:]) - kd * d.qvel[vo:]
+            mujoco.mj_step(m, d)
+        t = tick * robot.control_period
+        target = act(t, d)
+        if path is not None:
+            path.append((t, float(d.qpos[0]), float(d.qpos[1])))
+        run.walked = walk.ticks = tick
+        if true_fall(robot, d.qpos[2], d.qpos[3:7]) or not np.isfinite(d.qpos).all():
+            run.fell_at, run.cause = t, "fall"
+            break
+        if schedule is not None:
+            schedule(walk, base)
+    run.walked *= robot.control_period
+    run.pushes = list(schedule.times[0]) if schedule else []
+    return run
+
+
+def unitree_loop(robot, cfg: dict, net, seed: int, seconds: float, pushes, command=None, path=None):
+    """One run of unitree's loop (module docstring) with ``net`` (the TorchScript policy, eval
+    mode) and deploy config ``cfg``, walking at ``command`` (default the config's ``cmd_init``)
+    under ``pushes`` (a :class:`PushRanges`; None: none) for ``seconds``; returns a :class:`Run`.
+    ``path``: a list that receives ``(t, x, y)`` (s, m) of the base after each control tick."""
+    import torch
+
+    command = cfg["cmd_init"] if command is None else command
+    default = np.array(cfg["default_angles"], float)
+    kp, kd = np.array(cfg["kps"], float), np.array(cfg["kds"], float)
+    action = np.zeros(len(default), dtype=np.float32)
+
+    def act(t, d):
+        nonlocal action
+        with torch.no_grad():
+            obs = unitree_observation(cfg, d.qpos, d.qvel, action, t, command)
+            action = net(torch.from_numpy(obs)[None]).numpy()[0].astype(np.float32)
+        return action * cfg["action_scale"] + default
+
+    return _bare_run(robot, seed, seconds, pushes, (kp, kd, default.copy()), act, path)
+
+
+def truth_loop(robot, policy, seed: int, seconds: float, pushes, command, path=None) -> Run:
+    """One run of ``policy`` (an :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy` on
+    ``robot``, fresh: a recurrent policy's memory) on the true state (module docstring), its
+    gait clock the time walked; arguments and result as :func:`unitree_loop`."""
+    from sim2real.deploy.core.state import RobotState
+
+    spec = policy.spec
+    state = RobotState.legged(1, robot.n_joints, robot.n_feet)
+    state.command[0] = command
+    goal = np.zeros((1, 3))
+    truth = np.zeros((1, 13))
+    qo, vo = robot.qpos_offset, robot.qvel_offset
+    obs = np.zeros((1, spec.obs_dim), dtype=np.float32)
+    target = np.empty((1, robot.n_joints))
+
+    def act(t, d):
+        state.q[0], state.dq[0] = d.qpos[qo:], d.qvel[vo:]
+        truth[0, :7], truth[0, 7:] = d.qpos[:7], d.qvel[:6]
+        state.base.set_truth(truth)
+        state.clock[0] = t
+        spec.observation(state, goal, out=obs)
+        action = policy(obs)
+        spec.action_to_target(action, state, out=target)
+        state.last_action[:] = action
+        return target[0]
+
+    kp = np.array([j.kp for j in robot.config.joints], dtype=float)
+    kd = np.array([j.kd for j in robot.config.joints], dtype=float)
+    gains = (kp, kd, np.array(robot.home, dtype=float))
+    return _bare_run(robot, seed, seconds, pushes, gains, act, path)
+
+
+def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command) -> Run:
+    """One run of our runtime (module docstring) with ``policy`` (an ``OnnxPolicy`` on ``robot``,
+    fresh); arguments and result as :func:`truth_loop`."""
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.monitors.interventions import InterventionMonitor
+    from sim2real.deploy.runtime import Runtime
+    from sim2real.eval.soak.push_response import PushResponse
+
+    plant = SimBackend(robot, "position", envs=1, seed=seed)
+    rt = Runtime(robot, policy, plant)
+    rt.velocity_command[0] = command
+    rt.start()
+    monitor = InterventionMonitor(rt.guard, rt.smoother)
+    run = Run(checks={})
+    schedule = DomainPushes([seed], pushes, rt.dt) if pushes else None
+    response = PushResponse(schedule, rt.dt) if schedule else None
+    counts = monitor.counts
+    before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
+    truth = np.zeros((1, 13))
+    while rt.ticks < round(seconds / rt.dt):
+        rt.tick()
+        monitor.update()
+        plant.true_base_state(out=truth)
+        if rt.mode[0] != RUNNING:
+            if run.ticks or rt.time > RAMP_TIMEOUT:  # it walked, and stopped
+                run.fell_at, run.cause = rt.time, rt.cause_names()[0]
+                run.upright_stop = true_upright(robot, truth[0, 2], truth[0, 3:7])
+                break
+            before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
+            continue
+        run.ticks += 1
+        run.intervened += int(monitor.any[0]) - last_any
+        last_any = int(monitor.any[0])
+        if true_fall(robot, truth[0, 2], truth[0, 3:7]):
+            run.fell_at, run.cause = rt.time, "fall"
+            break
+        if schedule is not None:  # as the soak: the estimate judged, then the tick's push
+            response(rt, plant)
+            schedule(rt, plant)
+    run.walked = run.ticks * rt.dt
+    run.checks = {k: int(v[0]) - before[k] for k, v in monitor.counts.items() if v[0] > before[k]}
+    run.pushes = list(schedule.times[0]) if schedule else []
+    run.after_push = response.summary() if response else None
+    return run

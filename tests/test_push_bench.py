@@ -1,0 +1,41 @@
+"""The push benchmark (``python -m bench.push_reference``): a policy's own loop on the true state
+and our runtime take the same push at the same time of the same clock, and the table counts what
+a user reads from it (pushes survived before the fatal one, the paired sign test)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench.push_loops import Run, runtime_loop, truth_loop
+from bench.push_reference import SHIPPED, _load, sign_test, summary, survived
+from sim2real.eval.world.pushes import PushRanges, push_velocity
+
+
+def test_the_own_loop_and_the_runtime_are_pushed_alike():
+    """The shipped go2 walking at 0.5 m/s, one 0.5-m/s push at 1 s as a force over 0.1 s: both
+    loops push at 1.0 s on their clock (the policy's gait clock) and walk on; ours is judged on
+    its estimate in the second after it and counts its interventions per RUNNING tick."""
+    pushes = PushRanges(interval=1.0, max_velocity=0.5)
+    robot, policy = _load(SHIPPED["go2"])
+    own = truth_loop(robot, policy, 3, 1.6, pushes, [0.5, 0.0, 0.0])
+    robot, policy = _load(SHIPPED["go2"])
+    ours = runtime_loop(robot, policy, 3, 1.6, pushes, [0.5, 0.0, 0.0])
+    assert own.pushes == ours.pushes == [pytest.approx(1.0)]
+    assert own.fell_at is None and ours.fell_at is None
+    assert ours.after_push["ticks"] == 30 and ours.after_push["mean_m_s"] < 0.3
+    assert 0 <= ours.intervened <= ours.ticks and ours.ticks >= 75
+    assert np.linalg.norm(push_velocity(3, 1, 0.5)) > 0.2  # a push that moves the robot
+
+
+def test_pushes_survived_leave_out_the_fatal_one_and_the_sign_test_pairs_seeds():
+    """A run that fell counts the pushes before the one that felled it; one that walked on
+    counts them all; falls per hour are over the time walked."""
+    fell = Run(fell_at=12.0, walked=12.0, pushes=[5.0, 10.0])
+    walked = Run(walked=60.0, pushes=[5.0 * k for k in range(1, 12)])
+    assert survived(fell) == 1 and survived(walked) == 11
+    s = summary([fell, walked])
+    assert s["survived"] == 12 and s["falls"] == 1
+    assert s["falls_per_hour"] == pytest.approx(3600.0 / 72.0)
+    same, fewer, more, p = sign_test([3, 2, 5, 1], [3, 1, 4, 1])
+    assert (same, fewer, more) == (2, 2, 0) and p == pytest.approx(0.5)

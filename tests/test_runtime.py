@@ -545,3 +545,35 @@ def test_collections_inside_the_loop_are_counted(tmp_path, arm3):
     assert rt.gc_collections == 0
     rt.run(3, on_tick=lambda r: gc.collect() and False)
     assert rt.gc_collections == 3
+
+
+# ---------------------------------------------------------------- a plan Ruckig cannot compute
+@pytest.mark.parametrize("how", ["beyond_limits", "not_finite"])
+def test_a_plan_ruckig_cannot_compute_stops_that_env_and_the_run_goes_on(arm3, how):
+    """Ruckig refusing an env's state (one far past the smoother's limits, which its step 1
+    cannot solve, or a non-finite one; Ruckig names the DoF) is a safe stop of that env with cause
+    ``smoother`` and the message kept, never an exception out of the tick: the other env runs on,
+    every command stays finite, and the stopped env comes to rest and latches."""
+    rt = calm_runtime(arm3, envs=2)
+    for _ in range(seconds(rt, 5.0)):
+        if (rt.mode == Mode.RUNNING).all():
+            break
+        rt.tick()
+    assert (rt.mode == Mode.RUNNING).all(), rt.mode_names()
+    state = rt.smoother.state_dict()
+    vel, acc = state["ruckig/current_velocity"], state["ruckig/current_acceleration"]
+    if how == "beyond_limits":
+        vel[1, 1], acc[1, 1] = 1e3, 1e5
+    else:
+        vel[1, 1] = np.nan
+    rt.smoother.load_state_dict(state)
+    rt.tick()
+    assert rt.mode_names() == ["RUNNING", "SAFE_STOP"]
+    assert rt.cause_names() == [None, "smoother"]
+    assert rt.counters.faults["smoother"].tolist() == [0, 1]
+    assert len(rt.supervision.smoothing_errors) == 1
+    for _ in range(seconds(rt, 3.0)):
+        rt.tick()
+        assert np.isfinite(rt.smoother.command).all()
+    assert rt.mode_names() == ["RUNNING", "FAULTED"]
+    assert np.all(np.abs(rt.backend.true_velocity()[1]) < 0.05)

@@ -252,9 +252,10 @@ def holding_speed(robot: Robot, model: mujoco.MjModel | None = None) -> np.ndarr
     the joint against gravity: on its torque-speed line (:mod:`sim2real.robots.torque_speed`)
     ``w0 (1 - G / stall)``, ``w0`` the motor's no-load speed (``max_velocity``), ``stall`` its
     ``peak_torque``, ``G`` :func:`gravity_bound` (0 where ``G`` exceeds the joint's effort
-    limit); ``inf`` for a motor without a no-load speed. A servo commanded faster falls behind its target under load and, once gravity turns with
-    it, runs after the target with its full drive: gravity and that drive carry the joint past
-    its no-load speed before the line's braking torque stops it."""
+    limit); ``inf`` for a motor without a no-load speed. A servo commanded faster falls behind
+    its target under load and, once gravity turns with it, runs after the target with its full
+    drive: gravity and that drive carry the joint past its no-load speed before the line's
+    braking torque stops it."""
     gravity = gravity_bound(robot, model)
     out = np.full(robot.n_joints, np.inf)
     for i, motor in enumerate(robot.motors):

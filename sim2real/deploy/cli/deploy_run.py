@@ -359,6 +359,7 @@ def fault_report(rig, injector) -> dict:
         "reader": stale_context(backend),
         "stale_stops": rt.stale_stops.records,
         "stale_stops_dropped": rt.stale_stops.dropped,
+        "smoothing_errors": list(rt.supervision.smoothing_errors),
         "drive_errors": [
             backend.describe_drive_error(int(j), int(rt.drive_errors[e, j]))
             for e, j in np.argwhere(rt.drive_errors)

@@ -168,6 +168,8 @@ def _print_faults(r: dict) -> None:
     _print_stale_stops(f)
     for text in f.get("drive_errors", []):
         print(f"  servo error       {text}")
+    for text in f.get("smoothing_errors", []):
+        print(f"  smoother          {text[:300]}")
 
 
 def _print_stale_stops(f: dict) -> None:

@@ -62,6 +62,8 @@ IDLE, RAMP_IN, RUNNING, SAFE_STOP, FAULTED = (int(m) for m in Mode)
 #: Causes of a safe stop. ``servo_error``: a drive reported a hardware error (overload,
 #: overheating, input voltage, ...; ``Backend.drive_errors``), latched in ``Runtime.drive_errors``.
 #: ``operator``: an operator's stop (``deploy-run --ros2``'s ``~/stop`` service), ended by resume.
+#: ``smoother``: Ruckig could not plan from an env's state (``SmoothingError``); that env is
+#: anchored at its estimate and brakes, the run goes on.
 FAULT_CAUSES = (
     "hard_limit",
     "non_finite_action",
@@ -71,6 +73,7 @@ FAULT_CAUSES = (
     "servo_error",
     "fall",
     "operator",
+    "smoother",
 )
 
 

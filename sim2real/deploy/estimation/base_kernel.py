@@ -23,13 +23,11 @@ it integrates to the change of the lever arm's velocity, ``(omega - omega_last) 
 with ``v_foot``, ``omega_foot`` the foot's velocity in the base frame (the base at the origin,
 turning at ``omega``), ``rho`` its contact sphere's radius and ``u`` the world's down in the base
 frame. Updates are Joseph-form, the error folded into the nominal state and zeroed. The
-accelerometer's bias drifts (a MEMS part's random walk): unmodelled, 1 m/s^2 of vertical bias
-reads a trotting Go2 sinking at 1 m/s; the legs, whose velocity does not drift, observe it. The
-heading is locked (:func:`lock_heading`).
+accelerometer's bias drifts (a MEMS random walk) and is observed by the legs, whose velocity
+does not drift. The heading is locked (:func:`lock_heading`).
 
-Products are loops into a :func:`workspace`, fused multiply-adds in ``k``'s order: the rounding
-of numpy's BLAS (OpenBLAS, x86-64 with FMA; ``tests/test_base_tick.py``, ``test_legged.py``).
-"""
+Products are loops into a :func:`workspace`, fused multiply-adds in ``k``'s order: numpy's BLAS
+rounding (OpenBLAS, x86-64 with FMA; ``tests/test_base_tick.py``, ``test_legged.py``)."""
 
 from __future__ import annotations
 

@@ -44,6 +44,7 @@ _CAUSE_CODES = {
     "servo_error": sv.SERVO_ERROR,
     "fall": sv.FALL,
     "operator": sv.OPERATOR,
+    "smoother": sv.SMOOTHER,
 }
 if [_CAUSE_CODES[c] for c in FAULT_CAUSES] != list(range(len(FAULT_CAUSES))) or [
     sv.IDLE,

@@ -35,7 +35,7 @@ from sim2real.deploy.runtime.stale import StaleStops
 from sim2real.deploy.runtime.state import RuntimeState
 from sim2real.deploy.runtime.supervision import Supervision
 from sim2real.deploy.safety.guard import SafetyGuard
-from sim2real.deploy.smoothing import CommandSmoother
+from sim2real.deploy.smoothing import CommandSmoother, SmoothingError
 from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.robots import Robot
 
@@ -387,8 +387,11 @@ class Runtime(RuntimeState):
         target = self.guard.filter(target, state, out=target, commanded_position=self._commanded)
         self.supervision.safe_stop(self.guard.hard_violation, "hard_limit")
         st[5] = clock_ns()
-        cmd = self.smoother.step(target, out=self._cmd)
-        cmd = self.guard.check_motion(self.smoother, state, cmd)  # brake an unsafe path
+        try:
+            cmd = self.smoother.step(target, out=self._cmd)
+            cmd = self.guard.check_motion(self.smoother, state, cmd)  # brake an unsafe path
+        except SmoothingError as error:  # Ruckig cannot plan: those envs stop, the run goes on
+            cmd = self._replan(error, target, state)
         if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
             damp = np.greater_equal(self.mode, SAFE_STOP, out=self._damp)  # SAFE_STOP, FAULTED
             if damp.any():
@@ -412,6 +415,19 @@ class Runtime(RuntimeState):
         self._books(self.ticks)  # stage histograms, tick cost, long periods: one compiled call
         self.supervision.note_periods(self.clock.wait())  # the periods missed: 0 on time
         self._woke(clock_ns())
+
+    def _replan(self, error: SmoothingError, target: np.ndarray, state: RobotState) -> np.ndarray:
+        """The tick's command after Ruckig failed (``error``): the envs it names stop
+        (``Supervision.smoothing_failed``) and the step runs again; should that fail too, every
+        env stops. Raises the last ``SmoothingError`` if even that cannot be planned."""
+        for every in (False, True):
+            self.supervision.smoothing_failed(error, state, every=every)
+            try:
+                cmd = self.smoother.step(target, out=self._cmd)
+                return self.guard.check_motion(self.smoother, state, cmd)
+            except SmoothingError as again:
+                error = again
+        raise error
 
     def _woke(self, now_ns: int) -> None:
         """The period's stamps at a wake-up (:mod:`sim2real.deploy.observe.long_ticks`)."""

@@ -91,6 +91,8 @@ class Supervision:
         #: (envs,) int64, supervised ticks since each env's safe stop began (0 outside SAFE_STOP)
         self.stop_ticks = np.zeros(envs, dtype=np.int64)
         #: ``SAFE_STOP_TIMEOUT`` in ticks
+        #: Ruckig's messages of the steps it could not plan (the first few; cause ``smoother``)
+        self.smoothing_errors: list[str] = []
         self.stop_timeout = max(1, int(np.ceil(SAFE_STOP_TIMEOUT / robot.control_period - 1e-9)))
         self.faults = np.zeros((len(FAULT_CAUSES), envs), dtype=np.int64)  # rows: views below
         self.counters.faults.update({c: self.faults[i] for i, c in enumerate(FAULT_CAUSES)})
@@ -164,6 +166,18 @@ class Supervision:
             self.smoother.safe_stop(new)
             if cause == "stale_sensor" and self.on_stale_stop is not None:
                 self.on_stale_stop(new)
+
+    def smoothing_failed(self, error: BaseException, state: RobotState, every: bool) -> None:
+        """A step Ruckig could not plan (``error``, a ``SmoothingError``): SAFE_STOP
+        (``smoother``) of the envs it names (:meth:`~sim2real.deploy.smoothing.CommandSmoother.failed_envs`),
+        or of every env with ``every``, each anchored at its estimate and braking
+        (:meth:`~sim2real.deploy.smoothing.CommandSmoother.recover`). The message is kept in
+        ``smoothing_errors`` (the first few)."""
+        which = np.ones(self.envs, dtype=bool) if every else self.smoother.failed_envs(error)
+        if len(self.smoothing_errors) < 8:
+            self.smoothing_errors.append(str(error))
+        self.smoother.recover(state.q, state.dq, which)
+        self.safe_stop(which, "smoother")
 
     def override(self, target: np.ndarray, state: RobotState) -> np.ndarray:
         """Targets of the envs not RUNNING: ramp to home, or stop and hold."""

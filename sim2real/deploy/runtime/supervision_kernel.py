@@ -31,9 +31,9 @@ from sim2real.deploy.kernels import np_max, np_min
 #: Modes of the state machine (sim2real.deploy.runtime.Mode).
 IDLE, RAMP_IN, RUNNING, SAFE_STOP, FAULTED = 0, 1, 2, 3, 4
 #: Indices of sim2real.deploy.runtime.FAULT_CAUSES (FALL: set by the runtime's fall check, OPERATOR by
-#: an operator's stop, not here).
+#: an operator's stop, SMOOTHER by a plan Ruckig could not compute; not here).
 HARD_LIMIT, NON_FINITE_ACTION, STALE_SENSOR, OVERRUN, OVER_TEMPERATURE, SERVO_ERROR = range(6)
-FALL, OPERATOR = 6, 7
+FALL, OPERATOR, SMOOTHER = 6, 7, 8
 #: Rows of ``flags``.
 NEW_STOP, TOOK_OVER, RESUMED, BAD_ACTION = 0, 1, 2, 3
 #: Return bits of :func:`supervise`.

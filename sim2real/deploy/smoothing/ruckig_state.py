@@ -14,6 +14,8 @@ work on the smoother's attributes (set in ``CommandSmoother.__init__``).
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 from ruckig import ControlInterface, Result, RuckigError
 
@@ -34,6 +36,9 @@ RUCKIG_INPUT_FIELDS = (
 #: beyond it (rounding); the check ignores excursions below this (the finest encoder of our robots
 #: resolves 2 pi / 2^20 = 6e-6 rad).
 EXTREMA_TOLERANCE = 1e-9
+#: What Ruckig's binding raises on a bad input or a failed calculation: ``RuckigError``, or a
+#: ``ValueError`` when its C++ result has no member in the Python ``Result`` enum (e.g. -101).
+RUCKIG_ERRORS = (RuckigError, ValueError)
 # Ruckig's results of a good update (module constants: an enum member's lookup costs per tick)
 _WORKING, _FINISHED = Result.Working, Result.Finished
 
@@ -195,7 +200,7 @@ class RuckigState:
         self._braker.reset()
         try:
             result = self._braker.update(inp, out)
-        except RuckigError as exc:
+        except RUCKIG_ERRORS as exc:
             raise SmoothingError(f"Ruckig rejected the brake's input: {exc}") from exc
         if result != Result.Working and result != Result.Finished:
             raise SmoothingError(f"Ruckig returned {result!r} for the brake")
@@ -220,6 +225,65 @@ class RuckigState:
             current[dof] = values[dof]
             setattr(main, name, current)
 
+    # ------------------------------------------------------------------ a failed plan
+    def failed_envs(self, error: BaseException) -> np.ndarray:
+        """The envs whose input made Ruckig fail (a :class:`SmoothingError` from a step, the
+        brake or a safe stop).
+
+        Ruckig names the DoF of an invalid input (``... of DoF 13 ...``): its env. A failed
+        calculation names none: the envs whose current state is not finite or is past the
+        smoother's velocity or acceleration limits (the states Ruckig cannot plan from), else
+        every env.
+
+        Returns:
+            (envs,) bool.
+        """
+        which = np.zeros(self.envs, dtype=bool)
+        named = re.search(r"\bdof:?\s*(\d+)", str(error), flags=re.IGNORECASE)
+        if named is not None and int(named.group(1)) < self.dofs:
+            which[int(named.group(1)) // self.n_joints] = True
+            return which
+        vel, acc = (
+            np.asarray(self._inp.current_velocity),
+            np.asarray(self._inp.current_acceleration),
+        )
+        bad = ~np.isfinite(np.asarray(self._inp.current_position)) | ~np.isfinite(vel)
+        bad |= ~np.isfinite(acc) | (np.abs(vel) > self._vmax * (1.0 + 1e-6))
+        bad |= np.abs(acc) > self._amax * (1.0 + 1e-6)
+        which[:] = bad.reshape(self.envs, -1).any(axis=1)
+        if not which.any():
+            which[:] = True
+        return which
+
+    def recover(self, q: np.ndarray, dq: np.ndarray, envs: np.ndarray) -> None:
+        """After a failed plan: anchor the envs of ``envs`` at the estimate and brake them.
+
+        Ruckig's state of those envs becomes ``q`` (its own position where ``q`` is not finite)
+        and ``dq`` within the velocity limits, acceleration 0, and they stop as in
+        :meth:`~sim2real.deploy.smoothing.CommandSmoother.safe_stop`; should Ruckig refuse that
+        too, they are anchored at rest (speed 0) and stop from there. The other envs keep their
+        trajectories.
+
+        Args:
+            q: (envs, n) rad, the estimated joint positions.
+            dq: (envs, n) rad/s, the estimated joint velocities.
+            envs: (envs,) bool, the envs to recover.
+
+        Raises:
+            SmoothingError: Ruckig refuses even an env at rest (a limit of the robot's that is
+                not finite or is zero).
+        """
+        shape = (self.envs, self.n_joints)
+        q = np.where(np.isfinite(q), q, np.asarray(self._inp.current_position).reshape(shape))
+        vmax = self._vmax.reshape(shape)
+        speed = np.clip(np.nan_to_num(dq), -vmax, vmax)
+        self.sync(q, speed, envs=envs)
+        try:
+            self.safe_stop(envs)
+        except SmoothingError:
+            self.sync(q, np.zeros(shape), envs=envs)
+            self.safe_stop(envs)
+
     # ------------------------------------------------------------------ Ruckig
     def _set_interfaces(self) -> None:
         """Per-DoF control interface: velocity (target 0) for stopping envs."""
@@ -238,7 +302,7 @@ class RuckigState:
     def _update(self) -> None:
         try:
             result = self._ruckig.update(self._inp, self._out)
-        except RuckigError as exc:
+        except RUCKIG_ERRORS as exc:
             raise SmoothingError(f"Ruckig rejected the input: {exc}") from exc
         if result is not _WORKING and result is not _FINISHED:  # enum members: singletons
             raise SmoothingError(

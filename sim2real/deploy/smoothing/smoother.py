@@ -14,7 +14,6 @@ from ruckig import (
     OutputParameter,
     Result,
     Ruckig,
-    RuckigError,
     Synchronization,
     Trajectory,
 )
@@ -22,7 +21,7 @@ from ruckig import (
 from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.smoothing import kernel as sk
 from sim2real.deploy.smoothing.braking import stopping_distance
-from sim2real.deploy.smoothing.ruckig_state import RuckigState, SmoothingError
+from sim2real.deploy.smoothing.ruckig_state import RUCKIG_ERRORS, RuckigState, SmoothingError
 from sim2real.robots import CONTROL_MODES, Robot
 
 #: Torque rise time, s: full effort may be reached from zero in 50 ms at the fastest, i.e. a rate
@@ -409,7 +408,7 @@ class CommandSmoother(RuckigState):
         trajectory = Trajectory(self.dofs)
         try:
             result = self._planner.calculate(self._inp, trajectory)
-        except RuckigError as exc:
+        except RUCKIG_ERRORS as exc:
             raise SmoothingError(f"Ruckig rejected the safe-stop input: {exc}") from exc
         if result not in (Result.Working, Result.Finished):
             raise SmoothingError(f"Ruckig returned {result!r} for the safe stop")

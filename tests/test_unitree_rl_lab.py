@@ -249,3 +249,21 @@ def test_a_python_tag_other_than_the_slice_and_a_subset_of_joints_are_refused(
     with pytest.raises(PolicyLoadError, match=r"deploy.yaml: not readable as YAML"):
         OnnxPolicy(path, robot)
     assert onnx.load(str(path)).opset_import[0].version == 11
+
+
+def test_policy_export_of_the_folder_keeps_its_training_domain(tmp_path, biped_and_policy, capsys):
+    """``policy-export POLICY.onnx --robot R --domain FILE``: one file with our spec and the
+    domain the soak runs (the ``--domain`` of another stack's ONNX was dropped without a word)."""
+    from sim2real.deploy.cli.policy_export import main as policy_export_main
+    from sim2real.eval.world.domain import METADATA_KEY
+
+    robot, path, _, _ = biped_and_policy
+    domain = tmp_path / "domain.toml"
+    domain.write_text("floor_friction = [0.3, 1.0]\n\n[pushes]\ninterval = [5.0, 5.0]\n")
+    out = tmp_path / "policy.biped.onnx"
+    argv = [str(path), "--robot", str(robot.directory), "--domain", str(domain), "--out", str(out)]
+    assert policy_export_main(argv) == 0
+    assert "training domain from" in capsys.readouterr().out
+    metadata = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    assert metadata[METADATA_KEY] == domain.read_text() and "policy_spec" in metadata
+    assert OnnxPolicy(out, robot).foreign is None  # our spec now, no deploy.yaml read

@@ -489,8 +489,9 @@ def run_graph(path: Path, x: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------- Unitree's deploy.yaml
 def unitree_deploy(slots, default, scale=0.25, stiffness=25.0, damping=0.5, terms=None) -> dict:
     """A ``params/deploy.yaml`` as unitree_rl_lab / unitree_rl_mjlab write it (their
-    ``deploy/robots/go2/config/policy/velocity/v0/params/deploy.yaml``): per-joint lists in the
-    policy's order, ``joint_ids_map`` the motor slot of each policy joint."""
+    ``deploy/robots/go2/config/policy/velocity/v0/params/deploy.yaml``): ``joint_ids_map`` the
+    motor slot of each policy joint, ``stiffness`` and ``damping`` in the motor slots' order (one
+    number here), every other per-joint list in the policy's order."""
     n = len(slots)
 
     def term(scale=1.0, size=3):

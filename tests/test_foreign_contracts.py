@@ -350,8 +350,8 @@ def test_robot_import_takes_the_drive_from_the_policys_contract(tmp_path, capsys
     default = [0.0, -0.1, 0.3, -0.2] * 2
     slots = list(range(n))[::-1]  # the policy lists the joints from the last motor slot down
     cfg = fs.unitree_deploy(slots, [default[s] for s in slots])
-    cfg["stiffness"] = [10.0 + s for s in slots]
-    cfg["damping"] = [0.5 + 0.1 * s for s in slots]
+    cfg["stiffness"] = [10.0 + s for s in range(n)]  # the motor slots' order, as their C++ reads it
+    cfg["damping"] = [0.5 + 0.1 * s for s in range(n)]
     policy = fs.write_unitree_policy(tmp_path / "v0", cfg, 9 + 3 * n)
     out = tmp_path / "robots" / "tiny"
     common = [

@@ -232,7 +232,11 @@ def _export_onnx(source: Path, args) -> int:
             raise ExportError(
                 f"{source}: an ONNX policy needs --robot DIR (the robot its contract maps onto)"
             )
-        result = export_onnx_policy(source, load_robot(robot), args.out, args.seed, args.spec)
+        the_robot = load_robot(robot)
+        metadata = _domain(args, the_robot) if args.domain is not None else None
+        result = export_onnx_policy(
+            source, the_robot, args.out, args.seed, args.spec, metadata=metadata
+        )
     except ParityError as exc:
         print(f"policy-export: parity check FAILED: {exc}", file=sys.stderr)
         return EXIT_PARITY
@@ -251,6 +255,8 @@ def _export_onnx(source: Path, args) -> int:
     )
     if args.spec is not None:
         print(f"  spec from {args.spec} (the file's own contract, if any, not read)")
+    if args.domain is not None:
+        print(f"  training domain from {args.domain} (soak-test runs it; metadata training_domain)")
     print(f"  run: deploy-run --robot {robot} --policy {result.path}")
     return EXIT_OK
 

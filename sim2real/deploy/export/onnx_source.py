@@ -48,6 +48,7 @@ def export_onnx_policy(
     out: str | Path | None = None,
     seed: int = 0,
     spec: PolicySpec | str | Path | None = None,
+    metadata: dict[str, str] | None = None,
 ) -> ExportResult:
     """Write ``source`` (an ONNX policy with a foreign contract, or given its spec) for ``robot``
     with our spec.
@@ -59,6 +60,8 @@ def export_onnx_policy(
         seed: Seed of the parity observations.
         spec: The policy's spec (a PolicySpec or a spec JSON file), stored instead of one built
             from the file's own contract (which is then not read).
+        metadata: More metadata entries to write (``policy-export --domain``'s
+            ``training_domain``); they may not replace ``policy_spec`` or ``parity``.
 
     Returns:
         An :class:`~sim2real.deploy.export.pipeline.ExportResult`; ``parity`` has ``samples`` and
@@ -107,6 +110,7 @@ def export_onnx_policy(
         meta["command_ranges"] = json.dumps({names[k]: list(v) for k, v in ranges.items()})
     elif "command_ranges" in original:  # holosoma's, kept as it wrote it
         meta["command_ranges"] = original["command_ranges"]
+    meta.update({k: v for k, v in (metadata or {}).items() if k not in ("policy_spec", "parity")})
     try:
         with atomic_path(out) as tmp:
             figures = {"samples": int(len(obs)), "max_abs_error": 0.0, "passed": True}

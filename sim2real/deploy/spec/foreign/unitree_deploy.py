@@ -6,18 +6,21 @@ external data) and the contract their C++ deployment reads to ``<policy>/params/
 (unitree_rl_mjlab ``deploy/robots/<robot>/config/policy/<task>/<version>/``; read by its
 ``deploy/include/isaaclab``). It is looked for at ``../params/deploy.yaml``,
 ``params/deploy.yaml`` and ``deploy.yaml`` from the ONNX file's folder and read with a safe YAML
-loader. Its keys, as that C++ code uses them:
+loader that builds one Python tag, the ``slice`` unitree_rl_lab's ``yaml.dump`` writes for "every
+joint" (``!!python/object/apply:builtins.slice``). Its keys, as that C++ code uses them:
 
 - ``joint_ids_map``: the motor slot (LowState / LowCmd index) of each policy joint, in the
-  policy's order: ``joint_pos[i] = motor_state[joint_ids_map[i]].q``. Every other per-joint list
-  is in the policy's order. The joint order is therefore the robot's joints ordered by these
-  slots (robot.toml ``[unitree] motor_index``; a robot without it: the slots index its joints).
+  policy's order: ``joint_pos[i] = motor_state[joint_ids_map[i]].q``. The joint order is
+  therefore the robot's joints ordered by these slots (robot.toml ``[unitree] motor_index``; a
+  robot without it: the slots index its joints).
 - ``step_dt``: the control period, s.
-- ``stiffness``, ``damping``: the PD gains; ``default_joint_pos``: the pose ``joint_pos_rel``
-  is relative to.
+- ``stiffness``, ``damping``: the PD gains in the motor slots' order (``motor_cmd[i].kp =
+  stiffness[i]``; the exporter writes ``stiffness[joint_ids_map] = ...``); every other per-joint
+  list is in the policy's order: ``default_joint_pos``, the pose ``joint_pos_rel`` is relative to.
 - ``actions.JointPositionAction``: ``target = raw * scale + offset`` (an absent ``offset`` is 0;
   an absent ``scale`` is 1), then ``clip``: per joint ``[low, high]`` of the target (not mapped
-  here: refused in one line); ``joint_ids`` (a subset of the joints; refused).
+  here: refused in one line); ``joint_ids``: every joint (null, the whole slice, or each index in
+  turn) or a subset (refused).
 - ``observations``: the terms in the graph's order; each clipped (``[low, high]``) and then
   scaled (per entry), Isaac Lab's order; ``history_length`` N: the term's last N readings, the
   oldest first, each term's in turn, all N the current reading at the policy's start (its
@@ -80,7 +83,7 @@ def read(facts) -> ForeignContract:
     path = _find(facts)
     where = str(path)
     try:
-        cfg = yaml.safe_load(path.read_text())
+        cfg = yaml.load(path.read_text(), Loader=_loader())  # noqa: S506 - a SafeLoader subclass
     except (OSError, yaml.YAMLError) as exc:
         raise fail(f"{where}: not readable as YAML: {exc}") from None
     if not isinstance(cfg, dict):
@@ -108,13 +111,14 @@ def read(facts) -> ForeignContract:
     if not (isinstance(step_dt, int | float) and step_dt > 0):
         raise fail(f"{where}: 'step_dt': expected the control period in s (> 0), got {step_dt!r}")
     default = joints("default_joint_pos", cfg.get("default_joint_pos"))
-    kp = joints("stiffness", cfg.get("stiffness"))
-    kd = joints("damping", cfg.get("damping"))
+    kp, kd = (
+        _by_slot(name, cfg.get(name), slots, where, fail) for name in ("stiffness", "damping")
+    )
     actions = key("actions", dict)
     if set(actions) != {"JointPositionAction"}:
         raise fail(f"{where}: actions {sorted(actions)}: only one JointPositionAction maps")
     action = actions["JointPositionAction"] or {}
-    if action.get("joint_ids") is not None:
+    if not _every_joint(action.get("joint_ids"), n):
         raise fail(
             f"{where}: actions.JointPositionAction.joint_ids {action['joint_ids']}: only an "
             "action over every joint of joint_ids_map maps"
@@ -193,7 +197,7 @@ def _term(name: str, cfg: dict, where: str, fail) -> Term:
         kind, reason = None, f"history_length {history!r} (expected a number of steps >= 1)"
         history = 1
     params = cfg.get("params") or {}
-    if (params.get("asset_cfg") or {}).get("joint_ids"):
+    if not _every_joint((params.get("asset_cfg") or {}).get("joint_ids"), None):
         kind, reason = None, f"it reads the joints {params['asset_cfg']['joint_ids']} (a subset)"
     period = 0.0
     if name == "gait_phase":
@@ -204,3 +208,37 @@ def _term(name: str, cfg: dict, where: str, fail) -> Term:
         name, kind, size, scale, clip, relative=relative, reason=reason, period=period,
         history=history,
     )  # fmt: skip
+
+
+def _loader():
+    """A safe YAML loader that also builds ``!!python/object/apply:builtins.slice [a, b, c]``
+    (the only Python tag Unitree's exporter writes); any other Python tag stays refused."""
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        """yaml.SafeLoader and the slice tag."""
+
+    Loader.add_constructor(
+        "tag:yaml.org,2002:python/object/apply:builtins.slice",
+        lambda loader, node: slice(*loader.construct_sequence(node)),
+    )
+    return Loader
+
+
+def _every_joint(ids, n: int | None) -> bool:
+    """Whether ``joint_ids`` selects every joint: absent, the whole ``slice`` (Isaac Lab's
+    ``slice(None)``), or the indices ``0 .. n-1`` in turn (``n`` None: not checked)."""
+    if ids is None or ids == slice(None):
+        return True
+    return n is not None and isinstance(ids, list) and ids == list(range(n))
+
+
+def _by_slot(name: str, value, slots, where: str, fail) -> tuple[float, ...]:
+    """A per-motor list (the motor slots' order, module docstring) as the policy's joints see it:
+    entry ``slots[i]`` for joint ``i``."""
+    if not (isinstance(value, list) and len(value) > max(slots)):
+        raise fail(
+            f"{where}: '{name}': expected one number per motor slot (>= {max(slots) + 1}, in the "
+            f"slots' order), got {value!r}"
+        )
+    return tuple(float(value[s]) for s in slots)

@@ -102,9 +102,13 @@ def run(args) -> int:
         clock = WallClock(robot.control_period, wait=wait)
     else:
         clock = SimClock(robot.control_period)
-    with backend:
-        rig = _build_rig(args, robot, policies, backend, injector, clock, fixed, mapping)
+    # the rig (its compiled stages, warmed) before the bring-up (in _run_rig): a robot brought
+    # up holds at home, and what plays on its clock (a scripted remote) waits on no compile
+    rig = _build_rig(args, robot, policies, backend, injector, clock, fixed, mapping)
+    try:
         return _run_rig(args, rig, realtime, injector, clock, rt_request)
+    finally:
+        backend.close()  # servo bus: torque off; Unitree: damped
 
 
 def _load_policies(args, robot) -> dict:
@@ -254,8 +258,8 @@ def _telemetry(args, robot, policy):
 
 
 def _run_rig(args, rig, realtime, injector, clock, rt_request) -> int:
-    """Run the rig for ``--duration`` at the requested real-time settings, print the summary,
-    write ``--report``; the exit code."""
+    """Bring the backend up (built rig, real-time settings in force), run the rig for
+    ``--duration``, print the summary, write ``--report``; the exit code."""
     from sim2real.deploy.backends.sim.plant import SimulationDivergedError
     from sim2real.deploy.runtime.realtime import RealtimeRequest, RealtimeSettings
 
@@ -265,6 +269,7 @@ def _run_rig(args, rig, realtime, injector, clock, rt_request) -> int:
     settings = RealtimeSettings(rt_request or RealtimeRequest())
     try:
         with settings:  # RealtimeError (a ValueError: exit 3) if --require-rt and refused
+            rig.backend.open()  # the bring-up, at the loop's priority: then straight to start
             wall = time.perf_counter()
             diverged = None
             rig.start()  # once per run: the runtime's start, the hooks' set-up (timed apart)
@@ -280,7 +285,9 @@ def _run_rig(args, rig, realtime, injector, clock, rt_request) -> int:
             wall = time.perf_counter() - wall
         if rt.telemetry is not None:
             rt.telemetry.close(rt.long_ticks.rows(rt.dt, realtime), rt.dt)
-    except Exception:  # refused (--require-rt, a hook's start) or failed: nothing left behind
+    except (
+        Exception
+    ):  # refused (--require-rt, the bring-up, a hook's start) or failed: nothing left
         discard(rig, rt.telemetry)
         raise
     report = run_report(args, rig, wall, realtime, injector, clock)

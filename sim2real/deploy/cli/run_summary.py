@@ -335,6 +335,11 @@ def _print_dds(b: dict) -> None:
     )
     if b.get("mode_machine") is not None:
         print(f"  mode_machine      {b['mode_machine']}")
+    if b.get("held_at_home_s") is not None:
+        print(
+            f"  bring-up          {b['bringup_s']:.2f} s, then held at home "
+            f"{b['held_at_home_s']:.2f} s before the policy's first command"
+        )
     if b["motor_lost"]:
         lost = ", ".join(f"motor {k} {n}" for k, n in b["motor_lost"].items())
         print(f"  motor lost        {lost} packets")

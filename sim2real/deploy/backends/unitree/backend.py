@@ -200,6 +200,10 @@ class UnitreeBackend(BackendLifecycle):
         self._hold_target = np.asarray(robot.home, dtype=np.float64).copy()
         self._t0 = time.monotonic()
         self._opened_at = None
+        #: s: the bring-up (open to at home), and the hold at home before the runtime's first
+        #: command (its rig was built before the bring-up: only its start); None before each
+        self.bringup_s: float | None = None
+        self.held_at_home_s: float | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> None:
@@ -220,6 +224,7 @@ class UnitreeBackend(BackendLifecycle):
             self._stream.start()
         try:
             bringup.bring_up(self)
+            self.bringup_s = time.monotonic() - self._opened_at
         except BaseException:
             self._close_link(damp=self.sent > 0)
             raise
@@ -427,6 +432,7 @@ class UnitreeBackend(BackendLifecycle):
         if self._hold.running:
             self._hold.stop()
             self._handover = time.monotonic()
+            self.held_at_home_s = self._handover - self._opened_at - (self.bringup_s or 0.0)
         t0 = time.perf_counter_ns()
         self._send(command[0])
         self.write_cost.add(0, time.perf_counter_ns() - t0)

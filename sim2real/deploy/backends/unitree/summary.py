@@ -20,7 +20,8 @@ def bus_summary(b) -> dict:
     """Figures for the run's report: family, interface, domain, ``mode_machine``, states taken
     and their rate, dropouts by kind and their fraction of the states the robot sent, packets
     each motor lost, commands sent, the cost of a read and a write, the newest state's age at a
-    read (us percentiles), latched driver errors; ``b`` the backend."""
+    read (us percentiles), latched driver errors, the bring-up's time and the hold at home
+    before the runtime's first command (s); ``b`` the backend."""
     elapsed = time.monotonic() - (b._opened_at or b._t0)
     expected = b.received + b.dropouts["lost"]
     return {
@@ -32,6 +33,8 @@ def bus_summary(b) -> dict:
         "reads": b.reads,
         "lowstate_received": b.received,
         "lowstate_rate_hz": b.received / elapsed if elapsed > 0 else 0.0,
+        "bringup_s": b.bringup_s,
+        "held_at_home_s": b.held_at_home_s,
         "lowcmd_sent": b.sent,
         "lowcmd_resent": b.resent,
         "lowcmd_rate_hz": None if b.resend_period is None else 1.0 / b.resend_period,

@@ -101,7 +101,8 @@ def _csv(text: str) -> list[str]:
     return [t.strip() for t in text.split(",") if t.strip()]
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
+def _parser() -> argparse.ArgumentParser:
+    """The bench's options (module docstring)."""
     p = argparse.ArgumentParser(
         prog="python -m bench",
         description="Benchmark the runtime against a bare sim2sim loop; writes bench/results.json.",
@@ -151,6 +152,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "hybrid+fifo+cpu (these by default), spin+fifo+cpu",
     )
     p.add_argument("--out", type=Path, default=RESULTS, help="results file (JSON)")
+    return p
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """The parsed options, with ``items``, ``robot_names``, ``legged_policies`` and
+    ``settings`` (FULL or QUICK with the options' overrides); a bad option exits (argparse)."""
+    p = _parser()
     args = p.parse_args(argv)
     items = [i for chunk in (args.only or [",".join(DEFAULT_ITEMS)]) for i in _csv(chunk)]
     unknown = sorted(set(items) - set(ITEMS))
@@ -191,11 +199,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
-# ---------------------------------------------------------------------- targets
-def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
-    cfg = args.settings
-    t_start = time.perf_counter()
+def _start_results(args, argv: list[str] | None) -> tuple[dict, list]:
+    """The run's results document before any item, and the history of the existing results file
+    (with ``--only``, its sections and policies not re-measured are kept)."""
     stamp = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     results = {
         "schema": SCHEMA,
@@ -203,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
         "quick": args.quick,
         "argv": sys.argv[1:] if argv is None else list(argv),
         "items": args.items,
-        "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in cfg.items()},
+        "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in args.settings.items()},
         "machine": machine_info(),
         "policies": {},
         "sections": {},
@@ -218,107 +224,109 @@ def main(argv: list[str] | None = None) -> int:
     if args.only and old.get("schema") == SCHEMA:
         results["sections"].update(old.get("sections", {}))
         results["policies"].update(old.get("policies", {}))
+    return results, history
 
-    from sim2real.robots import load_robot
 
-    robots: dict = {}
-    policies: dict = {}
+class _Fixtures:
+    """The run's robots and policies, each loaded or made once (the policies in ``tmp``; each
+    policy's description recorded in ``results["policies"]``)."""
 
-    def robot(name: str):
-        if name not in robots:
-            robots[name] = load_robot(name)
-        return robots[name]
+    def __init__(self, args, results: dict, tmp: Path):
+        self.args, self.results, self.tmp = args, results, tmp
+        self.robots: dict = {}
+        self.policies: dict = {}
 
-    with tempfile.TemporaryDirectory(prefix="bench-") as tmp:
+    def robot(self, name: str):
+        from sim2real.robots import load_robot
 
-        def policy(name: str):
-            if name not in policies:
-                r = robot(name)
-                onnx = args.legged_policies.get(r.name)
-                policies[name] = make_policy(r, Path(tmp), onnx=onnx)
-                results["policies"][r.name] = policy_info(policies[name])
-            return policies[name]
+        if name not in self.robots:
+            self.robots[name] = load_robot(name)
+        return self.robots[name]
 
-        def key(name: str) -> str:
-            """A robot's key in the sections: its name (``--robots`` may give its folder)."""
-            return robot(name).name
+    def policy(self, name: str):
+        if name not in self.policies:
+            r = self.robot(name)
+            onnx = self.args.legged_policies.get(r.name)
+            self.policies[name] = make_policy(r, self.tmp, onnx=onnx)
+            self.results["policies"][r.name] = policy_info(self.policies[name])
+        return self.policies[name]
 
-        sections = results["sections"]
-        for item in args.items:
-            t = time.perf_counter()
-            print(f"[bench] {item} ...", file=sys.stderr, flush=True)
-            if item == "plant":
-                from bench import plant
+    def key(self, name: str) -> str:
+        """A robot's key in the sections: its name (``--robots`` may give its folder)."""
+        return self.robot(name).name
 
-                arms = [robot(n) for n in args.robot_names if not is_legged(robot(n))]
-                sec = plant.measure(arms, cfg["plant_ticks"])  # a fixed base's qpos is its joints
-            elif item == "inference":
-                from bench import policy_inference
 
-                sec = policy_inference.measure(cfg["inference_calls"])
-            elif item == "tick":
-                from bench import tick
+def _measure(item: str, args, fx: _Fixtures) -> dict:
+    """One item's section (bench/__init__.py says what each measures)."""
+    cfg = args.settings
+    if item == "plant":
+        from bench import plant
 
-                sec = {
-                    "robots": {
-                        key(n): tick.measure(policy(n), cfg["tick_ticks"], cfg["tick_rounds"])
-                        for n in args.robot_names
-                    }
-                }
-            elif item == "session":
-                from bench import session
+        arms = [fx.robot(n) for n in args.robot_names if not is_legged(fx.robot(n))]
+        return plant.measure(arms, cfg["plant_ticks"])  # a fixed base's qpos is its joints
+    if item == "inference":
+        from bench import policy_inference
 
-                sec = {
-                    "robots": {
-                        key(n): session.session(policy(n), cfg["session_s"])
-                        for n in args.robot_names
-                    }
-                }
-            elif item == "campaign":
-                from bench import campaign
+        return policy_inference.measure(cfg["inference_calls"])
+    if item == "tick":
+        from bench import tick
 
-                bp = policy(args.campaign_robot)
-                sec = campaign.measure(
-                    args.campaign_robot,
-                    bp.path,
-                    list(cfg["campaign_envs"]),
-                    cfg["campaign_s"],
-                    args.workers,
-                )
-            elif item == "wallclock":
-                from bench import session
+        return {
+            "robots": {
+                fx.key(n): tick.measure(fx.policy(n), cfg["tick_ticks"], cfg["tick_rounds"])
+                for n in args.robot_names
+            }
+        }
+    if item == "session":
+        from bench import session
 
-                sec = session.wallclock(
-                    policy(args.wallclock_robot), cfg["wallclock_s"], args.wallclock_modes
-                )
-            elif item == "busy":
-                from bench import busy
+        return {
+            "robots": {
+                fx.key(n): session.session(fx.policy(n), cfg["session_s"]) for n in args.robot_names
+            }
+        }
+    if item == "campaign":
+        from bench import campaign
 
-                sec = busy.measure(policy("arm6"), Path(tmp), cfg["busy_s"])
-            elif item == "ros2":
-                from bench import ros2
+        bp = fx.policy(args.campaign_robot)
+        return campaign.measure(
+            args.campaign_robot,
+            bp.path,
+            list(cfg["campaign_envs"]),
+            cfg["campaign_s"],
+            args.workers,
+        )
+    if item == "wallclock":
+        from bench import session
 
-                sec = ros2.measure(Path(tmp), cfg["ros2_s"])
-            elif item == "bus":
-                from bench import bus
+        return session.wallclock(
+            fx.policy(args.wallclock_robot), cfg["wallclock_s"], args.wallclock_modes
+        )
+    if item == "busy":
+        from bench import busy
 
-                sec = bus.run(cfg["bus_ticks"])
-            else:
-                from bench import profiling
+        return busy.measure(fx.policy("arm6"), fx.tmp, cfg["busy_s"])
+    if item == "ros2":
+        from bench import ros2
 
-                sec = {
-                    "robots": {
-                        key(n): profiling.measure(policy(n), cfg["profile_ticks"])
-                        for n in args.robot_names
-                    }
-                }
-            sec["measured_at"] = datetime.datetime.now(datetime.timezone.utc).isoformat(
-                timespec="seconds"
-            )
-            sec["quick"] = args.quick
-            sec["section_wall_s"] = time.perf_counter() - t
-            sections[item] = sec
+        return ros2.measure(fx.tmp, cfg["ros2_s"])
+    if item == "bus":
+        from bench import bus
 
+        return bus.run(cfg["bus_ticks"])
+    from bench import profiling
+
+    return {
+        "robots": {
+            fx.key(n): profiling.measure(fx.policy(n), cfg["profile_ticks"])
+            for n in args.robot_names
+        }
+    }
+
+
+def _finish(args, results: dict, history: list, t_start: float) -> None:
+    """Judge the targets, write the results file and print its table; a full run appends its
+    floor ratios to the history file."""
     results["targets"] = evaluate_targets(results["sections"])
     results["commit"] = git_commit()
     results["history"] = (history + [history_entry(results)])[-HISTORY:]
@@ -331,6 +339,28 @@ def main(argv: list[str] | None = None) -> int:
         hist = args.out.parent / HISTORY_FILE
         append_history(hist, line)
         print(f"appended the floor ratios to {hist}")
+
+
+# ---------------------------------------------------------------------- targets
+def main(argv: list[str] | None = None) -> int:
+    """Run the items of the options, write the results file, print its table; 0."""
+    args = parse_args(argv)
+    t_start = time.perf_counter()
+    results, history = _start_results(args, argv)
+    with tempfile.TemporaryDirectory(prefix="bench-") as tmp:
+        fx = _Fixtures(args, results, Path(tmp))
+        sections = results["sections"]
+        for item in args.items:
+            t = time.perf_counter()
+            print(f"[bench] {item} ...", file=sys.stderr, flush=True)
+            sec = _measure(item, args, fx)
+            sec["measured_at"] = datetime.datetime.now(datetime.timezone.utc).isoformat(
+                timespec="seconds"
+            )
+            sec["quick"] = args.quick
+            sec["section_wall_s"] = time.perf_counter() - t
+            sections[item] = sec
+    _finish(args, results, history, t_start)
     return 0
 
 

@@ -389,7 +389,7 @@ def test_a_fine_encoder_at_a_slow_rate_gives_a_velocity_that_does_not_oscillate(
 
 
 def test_a_run_warns_about_joints_the_filter_keeps_reinitializing():
-    from sim2real.deploy.estimation.joints import REINIT_WARNING_RATE, reinit_warning
+    from sim2real.deploy.estimation.joint_tuning import REINIT_WARNING_RATE, reinit_warning
 
     names = ("hip", "knee")
     seconds = 20.0

@@ -116,9 +116,14 @@ def test_the_floors_hold_and_a_room_importing_upwards_breaks_them(tmp_path):
 
 def test_no_function_of_the_command_lines_is_over_80_lines():
     """The entry points stay thin callers of the rooms below (deploy-run, policy-export,
-    robot-import): a command-line function past 80 lines is doing a room's work."""
+    robot-import, soak-test, sim2sim, sysid, the bench): a command-line function past 80 lines
+    is doing a room's work."""
     long = []
-    for path in sorted((ROOT / "sim2real" / "deploy" / "cli").glob("*.py")):
+    paths = {*(ROOT / "sim2real").rglob("cli*.py"), *(ROOT / "sim2real").rglob("cli/*.py")}
+    paths.add(ROOT / "bench" / "__main__.py")
+    assert ROOT / "sim2real" / "eval" / "cli.py" in paths  # soak-test's
+    assert ROOT / "sim2real" / "deploy" / "cli" / "deploy_run.py" in paths
+    for path in sorted(paths):
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
                 size = node.end_lineno - node.lineno + 1

@@ -366,7 +366,8 @@ def test_pd_targets_may_step_as_far_as_the_full_torque_reaches_and_the_estimator
     with encoder noise."""
     from sim2real.deploy.backends.sim.plant import SimBackend
     from sim2real.deploy.core.state import RobotState
-    from sim2real.deploy.estimation.joints import JointStateEstimator, motion_acceleration
+    from sim2real.deploy.estimation.joint_tuning import motion_acceleration
+    from sim2real.deploy.estimation.joints import JointStateEstimator
 
     robot, _, _ = humanoid
     period = robot.control_period

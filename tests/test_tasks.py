@@ -8,8 +8,8 @@ import pytest
 from sim2real.deploy.robot_kind import ARM, LEGGED, robot_kind
 from sim2real.deploy.tasks.episodes import EpisodeCommands, EpisodeGoals
 from sim2real.deploy.tasks.goals import GoalTask
-from sim2real.deploy.tasks.locomotion import VelocityTask
 from sim2real.deploy.tasks.task import task_for
+from sim2real.deploy.tasks.velocity import VelocityTask
 
 
 class _Runtime:

@@ -361,9 +361,17 @@ def parse_reward(overrides: list[str], parser: argparse.ArgumentParser, config=R
     return config(**values)
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
+    """The training command's options: the robot, the learner's, then the episodes' and outputs'."""
     p = argparse.ArgumentParser(prog="python -m sim2real.policies.train", description=__doc__)
     p.add_argument("--robot", default="arm3")
+    _add_learner_options(p)
+    _add_episode_options(p)
+    return p
+
+
+def _add_learner_options(p: argparse.ArgumentParser) -> None:
+    """The algorithm, the action's meaning, the network and its exploration."""
     p.add_argument("--algo", default="ppo", choices=["ppo", "sac"])
     p.add_argument("--gradient-steps", type=int, default=1, help="SAC: updates per batch step")
     p.add_argument("--mode", default="velocity", choices=["velocity", "position"])
@@ -398,6 +406,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--final-log-std", type=float, default=-4.0, help="log_std after annealing")
     p.add_argument("--threads", type=int, default=1, help="torch threads (1: no spin-waits)")
+
+
+def _add_episode_options(p: argparse.ArgumentParser) -> None:
+    """The episodes' dynamics, rewards, goals and faults, the gate, and where the outputs go."""
     p.add_argument(
         "--no-randomize", dest="randomize", action="store_false", help="nominal dynamics only"
     )
@@ -440,6 +452,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.add_argument("--logdir", type=Path, default=Path("runs/train"))
     p.add_argument("--out", type=Path, default=Path("sim2real/policies/arm.pt"))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Train (``python -m sim2real.policies.train``); 0 when the candidate shipped (it passed the
+    gate, or the gate is off), else 1."""
+    p = _parser()
     args = p.parse_args(argv)
     args.reward = parse_reward(args.reward, p)
     if args.fault_interval is not None and not args.fault_interval > 0:

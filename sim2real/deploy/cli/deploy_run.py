@@ -345,7 +345,7 @@ def fault_report(rig, injector) -> dict:
     (``reader``) and what went stale at each ``stale_sensor`` stop (``stale_stops``:
     :class:`sim2real.deploy.runtime.stale.StaleStops`), and the drives' errors."""
     from sim2real.deploy.core.stale import stale_context
-    from sim2real.deploy.estimation.joints import reinit_warning
+    from sim2real.deploy.estimation.joint_tuning import reinit_warning
 
     rt, backend = rig.runtime, rig.backend
     return {

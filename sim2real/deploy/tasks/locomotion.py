@@ -12,7 +12,7 @@ of the planar command counts as tracked (no robot follows a step at once). Falls
 runtime's safe stops.
 
 :class:`~sim2real.deploy.tasks.commands.CommandSchedule` (:mod:`sim2real.deploy.tasks.commands`)
-draws the soak's commands. :class:`VelocityTask` is the task
+draws the soak's commands. :class:`sim2real.deploy.tasks.velocity.VelocityTask` is the task
 (:func:`sim2real.deploy.tasks.task.task_for`) the tracker and a fixed command or a schedule make
 together.
 """
@@ -30,17 +30,11 @@ from sim2real.deploy.core.stateful import (
     check,
     env_list,
     from_json,
-    load_parts,
-    parts_state_dict,
     put,
     read_records,
     records_json,
     scalar,
     take,
-)
-from sim2real.deploy.tasks.commands import (  # the commands this module tracks
-    CommandRanges,
-    CommandSchedule,
 )
 
 #: Planar velocity error within which the robot tracks its command, m/s (our acceptance
@@ -447,105 +441,3 @@ class CommandTracker:
             "standing_height_m": self.standing_height,
             "displacement_m": self.displacement.sum(axis=0).tolist(),
         }
-
-
-class VelocityTask:
-    """The velocity-command task (:class:`sim2real.deploy.tasks.task.Task`) of a legged robot: a fixed
-    command, a :class:`CommandSchedule` or neither (the command the runtime holds), and a
-    :class:`CommandTracker` judging it.
-
-    Args:
-        envs, control_period, backend, window: The tracker's (:class:`CommandTracker`).
-        period: s between scheduled commands.
-        rng: ``envs`` generators: a :class:`CommandSchedule` on them; None: no schedule.
-        command: Optional fixed command (3,), written at :meth:`reset` (no schedule then).
-        heading_gain: 1/s: with a fixed command whose yaw rate is zero, hold the heading
-            (:class:`sim2real.deploy.tasks.heading.HeadingHold`, this gain); 0: the command as given.
-        ranges: The schedule's :class:`CommandRanges` (default its defaults).
-
-    Attributes:
-        heading: The :class:`~sim2real.deploy.tasks.heading.HeadingHold` (checkpoint prefix
-            ``heading``) or None.
-        schedule: The :class:`CommandSchedule` (checkpoint prefix ``commands``) or None.
-        tracker: The :class:`CommandTracker` (checkpoint prefix ``tracker``).
-    """
-
-    name = "locomotion"
-
-    def __init__(
-        self,
-        envs,
-        control_period,
-        backend,
-        period,
-        rng,
-        command=None,
-        window=None,
-        heading_gain: float = 0.0,
-        ranges: CommandRanges | None = None,
-    ):
-        self.command = command
-        self.schedule = None
-        if command is None and rng is not None:
-            self.schedule = CommandSchedule(envs, period, rng, ranges)
-        self.heading = None
-        if command is not None and heading_gain > 0 and command[2] == 0.0:
-            from sim2real.deploy.tasks.heading import HeadingHold
-
-            self.heading = HeadingHold(envs, heading_gain)
-            self._asked = np.tile(command, (envs, 1))
-        self.tracker = CommandTracker(envs, control_period, backend, window=window)
-
-    def reset(self, runtime, envs: np.ndarray) -> None:
-        """Write the fixed command, if any, for the envs of ``envs``."""
-        if self.command is not None:
-            runtime.velocity_command[envs] = self.command
-
-    def __call__(self, runtime) -> None:
-        if self.schedule is not None:
-            self.schedule(runtime)
-        if self.heading is not None:
-            self.tracker(runtime, self._asked)
-            self.heading(runtime, self._asked)
-        else:
-            self.tracker(runtime)
-
-    def success(self, env: int | None = None) -> float | None:
-        """Tracking success: RUNNING time within tolerance / RUNNING time; None before any."""
-        tr = self.tracker
-        running = float(tr.running_time.sum() if env is None else tr.running_time[env])
-        tracked = float(tr.tracked_time.sum() if env is None else tr.tracked_time[env])
-        return tracked / running if running else None
-
-    def report(self, runtime) -> dict:
-        loco = self.tracker.summary(runtime)
-        if self.heading is not None:
-            loco["command"] = self._asked.tolist()
-            loco["heading_hold_gain"] = self.heading.gain
-        return {"goals": None, "locomotion": loco, "missed_goals": 0}
-
-    def curve_start(self) -> dict[str, list]:
-        curve = {"commands": [0], "falls": [0], "distance_m": [0.0]}
-        return curve | {"running_s": [0.0], "tracked_s": [0.0]}
-
-    def curve_point(self, curve: dict[str, list], e: int) -> None:
-        tr = self.tracker
-        issued = self.schedule.issued[e] if self.schedule is not None else 0
-        curve["commands"].append(int(issued))
-        curve["falls"].append(int(tr.falls[e]))
-        curve["distance_m"].append(float(tr.distance[e]))
-        curve["running_s"].append(float(tr.running_time[e]))
-        curve["tracked_s"].append(float(tr.tracked_time[e]))
-
-    def parts(self) -> dict:
-        """The task's stateful parts by checkpoint prefix."""
-        parts = {"commands": self.schedule} if self.schedule is not None else {}
-        if self.heading is not None:
-            parts["heading"] = self.heading
-        return parts | {"tracker": self.tracker}
-
-    def state_dict(self, env: int | None = None) -> dict:
-        return parts_state_dict(self.parts(), env)
-
-    def load_state_dict(self, state: dict, env: int | None = None) -> None:
-        load_parts(self.parts(), state, env)

@@ -1,7 +1,7 @@
 """What a robot is asked to do, as one protocol (:class:`Task`), and the one place that chooses it
 for a robot (:func:`task_for`): reach goals (a fixed-base arm, :class:`sim2real.deploy.tasks.goals.GoalTask`)
 or follow velocity commands (a floating-base robot,
-:class:`sim2real.deploy.tasks.locomotion.VelocityTask`). ``deploy-run``, the soak and training build their
+:class:`sim2real.deploy.tasks.velocity.VelocityTask`). ``deploy-run``, the soak and training build their
 task here; a new kind of task implements :class:`Task` and is chosen in :func:`task_for`.
 """
 
@@ -120,7 +120,7 @@ def task_for(
         return EpisodeGoals(robot, envs, period, rng, clock, success_radius)
     if legged:
         from sim2real.deploy.tasks.commands import parse_command
-        from sim2real.deploy.tasks.locomotion import VelocityTask
+        from sim2real.deploy.tasks.velocity import VelocityTask
 
         if command is not None:
             command = parse_command(command)

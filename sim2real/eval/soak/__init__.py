@@ -10,6 +10,8 @@ The soak harness, by concept:
 - :mod:`sim2real.eval.soak.faults`: the batch's fault injector, one per session on its own env.
 - :mod:`sim2real.eval.soak.batch`: the batched runner, several sessions stepped in one plant and one
   runtime, with its checkpoints and divergence handling.
+- :mod:`sim2real.eval.soak.batch_plant`: the batch's plant, one randomized model and sensor setting per
+  session.
 - :mod:`sim2real.eval.soak.checkpoint`: a session's checkpoint file (the state dicts of every stage).
 - :mod:`sim2real.eval.soak.executors`: how batches are dispatched: in this process, in local processes,
   or on Ray.

@@ -7,12 +7,12 @@ depend on its own seed only, one stream per env. Every stage computes each env o
 Ruckig, which serves the batch and, when it resamples an unchanged trajectory instead of
 recalculating it, differs at ~1e-16; the harness calls
 :meth:`~sim2real.deploy.smoothing.CommandSmoother.recalculate` after every tick, so a session's result is
-the same bit for bit alone or batched with any others.
+the same bit for bit alone or batched with any others. The plant and its randomized models are
+built by :func:`sim2real.eval.soak.batch_plant.build_plant`.
 
 Checkpoints: every ``checkpoint_minutes`` of simulated time each session writes its complete state
 (:mod:`sim2real.eval.soak.checkpoint`) to ``OUT/sessions/<id>/``; ``resume=True`` continues from there and
-the finished session equals an uninterrupted run bit for bit. Before the runtime starts the plant
-streams its sensors for the largest latency the ranges allow plus one encoder period.
+the finished session equals an uninterrupted run bit for bit.
 
 After every tick a :class:`~sim2real.deploy.monitors.violations.ViolationMonitor` counts the true-state
 violations and an :class:`~sim2real.deploy.monitors.interventions.InterventionMonitor` the changed
@@ -41,6 +41,7 @@ from sim2real.deploy.core.stateful import put, take
 from sim2real.deploy.monitors.kernel import temperature_bands
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.eval.soak import checkpoint as ckpt
+from sim2real.eval.soak.batch_plant import build_plant
 from sim2real.eval.soak.faults import SessionFaults
 from sim2real.eval.soak.push_response import PushResponse
 from sim2real.eval.soak.result import session_result
@@ -52,10 +53,7 @@ from sim2real.eval.soak.session import (
     session_dir,
 )
 from sim2real.eval.world.drift import apply_drift, joint_dofs
-from sim2real.eval.world.dynamics import add_base_mass, randomized_model, shift_com
-from sim2real.eval.world.floor import apply_floor_friction
 from sim2real.eval.world.pushes import DomainPushes
-from sim2real.eval.world.sensors import apply_imu, apply_sensors
 from sim2real.eval.world.session_draw import sample_session, session_rng
 from sim2real.robots.errors import Sim2RealError
 from sim2real.robots.files import atomic_write, sha256_file
@@ -136,10 +134,8 @@ class SessionBatch:
         recorders: tuple = (),
         replay_stops: bool = True,
     ):
-        from sim2real.deploy.backends.sim.engines import make_plant
         from sim2real.deploy.rig.rig import Rig
         from sim2real.robots import load_robot
-        from sim2real.robots.plant_motors import load_plant_motors
 
         if not configs:
             raise SessionError("a batch needs at least one session")
@@ -165,37 +161,9 @@ class SessionBatch:
         self.dt = dt = robot.control_period
         k = len(configs)
         draws = [sample_session(robot, c.seed, c.duration, c.ranges, c.faults) for c in configs]
-        # the motors as the plant simulates them (sim2real.robots.plant_motors), when they differ
-        plant = None if first.plant_motors is None else load_plant_motors(first.plant_motors, robot)
-        plant_robot = robot if plant is None else plant.robot
-        models = [randomized_model(plant_robot, mode, d.dynamics) for d in draws]
-        if plant is not None:
-            models = [plant.apply(m) for m in models]
         self.kind = robot_kind(robot)
-        for m, d, c in zip(models, draws, configs, strict=True):
-            if d.floor_friction is not None:  # a legged robot's floor
-                apply_floor_friction(m, d.floor_friction)
-            if d.added_base_mass is not None:  # a payload of its training domain
-                body = getattr(c.ranges, "added_mass_body", "")  # default: the base
-                add_base_mass(m, robot, d.added_base_mass, body)
-            if d.com_offset is not None:  # a centre of mass off its nominal place
-                shift_com(m, *d.com_offset)
-        backend = self.backend = make_plant(
-            first.engine, plant_robot, mode=mode, envs=k, models=models
-        )
-        backend.set_sensor_streams([session_rng(c.seed, "sensor_noise") for c in configs])
-        for e, d in enumerate(draws):
-            apply_sensors(backend, e, d.sensors)
-            backend.actuators.supply[e] = d.dynamics.supply  # the battery's charge
-            if d.encoder_bias is not None:  # each encoder's calibration error
-                backend.encoder_bias[e] = d.encoder_bias
-            if d.imu is not None:  # a legged robot's IMU
-                apply_imu(backend, e, d.imu)
-        backend.reset()  # the first readings from the sessions' own streams and settings
-        # the drives stream for a while before the runtime starts, so that a reading has arrived
-        # despite the latency (the same number of ticks for every session, alone or batched)
-        for _ in range(first.ranges.sensors.latency_ticks[1] + backend.encoder_every):
-            backend.advance()
+        backend, models = build_plant(robot, mode, configs, draws)
+        self.backend = backend
         dofs = joint_dofs(models[0], robot)
         self.initial_friction = np.stack([m.dof_frictionloss[dofs].copy() for m in models])
         #: the pushes of the policy's training domain (legged_gym's push_robots), or None

@@ -1,6 +1,6 @@
 """What began each fall of a legged robot's soak session (:func:`attribute_falls`).
 
-A fall is counted by :class:`sim2real.deploy.tasks.locomotion.LocomotionTracker` at the stop that lays
+A fall is counted by :class:`sim2real.deploy.tasks.locomotion.CommandTracker` at the stop that lays
 the robot down (its ``fall_log``: time, the stop's cause and, for a hard-limit stop, the joint
 whose estimate was past its limit and by how much). Its origin:
 

@@ -7,7 +7,7 @@ instead of running the session again, after checking that it was run with the sa
 (:func:`check_result`). The document's schema is in :mod:`sim2real.eval.report.build`; everything in it but
 ``wall`` (wall-clock time, tick cost) follows from the session's seed and options.
 
-A legged session (its task a :class:`sim2real.deploy.tasks.locomotion.VelocityTask`) has ``goals`` None and
+A legged session (its task a :class:`sim2real.deploy.tasks.velocity.VelocityTask`) has ``goals`` None and
 a ``locomotion`` section instead (:func:`locomotion_result`): falls, falls per hour, tracking
 success (its success rate), distance, forward speed, per window too; its curves have commands,
 falls, distance and tracking instead of goals. An arm's result has ``locomotion`` None.

@@ -9,19 +9,16 @@ friction and added payloads reach both engines alike. What pybullet cannot hold 
   none. A fixed-base arm gets it exactly, in joint space, from the plant's torques
   (``BulletBackend._armature_torque``). A floating base (whose contacts make that inexact) gets a
   rotor link per drive, geared to its joint (:data:`ROTOR_GEAR_RATIO`).
-- **Friction pairs**: bullet multiplies the two surfaces' friction coefficients where MuJoCo takes
-  the larger (or the floor's, with its priority). Robot links get 1 and the floor the coefficient
-  MuJoCo's rule gives a foot on it.
-- **Contact filter**: MuJoCo's ``contype`` / ``conaffinity`` rule, its parent-child filter and
-  ``<exclude>`` pairs, as pybullet pair filters.
+- **Friction pairs** and the **contact filter**: MuJoCo's rules
+  (:mod:`sim2real.deploy.backends.sim.bullet.contacts`) as link frictions and pybullet pair filters.
 - Joint dry friction (``dof_frictionloss``) is pybullet's zero-velocity motor with that maximum
   torque; damping and the drives are the plant's explicit torques (:mod:`.world`).
 
-Geoms: planes, spheres, capsules, cylinders, boxes and meshes (as their convex hulls, like
-MuJoCo's; robot-import writes hulls). Each body holds at most one hinge or slide joint (or none:
-a fixed link).
+Geoms and inertias: :mod:`sim2real.deploy.backends.sim.bullet.convert`. Each body holds at most
+one hinge or slide joint (or none: a fixed link).
 
-Errors: :class:`UnsupportedModelError` names the body, joint or geom pybullet cannot build.
+Errors: :class:`~sim2real.deploy.backends.sim.bullet.convert.UnsupportedModelError` names the
+body, joint or geom pybullet cannot build.
 """
 
 from __future__ import annotations
@@ -34,7 +31,21 @@ import mujoco
 import numpy as np
 import pybullet as pb
 
-from sim2real.robots.errors import Sim2RealError
+from sim2real.deploy.backends.sim.bullet.contacts import (
+    bodies_collide,
+    floor_friction,
+    geoms_collide,
+)
+from sim2real.deploy.backends.sim.bullet.convert import (
+    UnsupportedModelError,
+    body_geoms,
+    collision_shape,
+    geom_shape,
+    inertial_frame,
+    quat_to_mat,
+    wxyz,
+    xyzw,
+)
 
 #: A legged robot's drives: each armature is a rotor link of ``armature / ROTOR_GEAR_RATIO^2``
 #: geared ``ROTOR_GEAR_RATIO`` to its joint (a bullet gear constraint). MuJoCo's armature is the
@@ -59,32 +70,10 @@ _LINK_FIELDS = (
 )
 
 
-class UnsupportedModelError(Sim2RealError, ValueError):
-    """The MuJoCo model holds something the pybullet world cannot represent."""
-
-
-_GEOM = mujoco.mjtGeom
 _JOINT = {
     int(mujoco.mjtJoint.mjJNT_HINGE): pb.JOINT_REVOLUTE,
     int(mujoco.mjtJoint.mjJNT_SLIDE): pb.JOINT_PRISMATIC,
 }
-
-
-def xyzw(q_wxyz: np.ndarray) -> list[float]:
-    """MuJoCo's (w, x, y, z) quaternion as pybullet's (x, y, z, w)."""
-    return [float(q_wxyz[1]), float(q_wxyz[2]), float(q_wxyz[3]), float(q_wxyz[0])]
-
-
-def wxyz(q_xyzw) -> np.ndarray:
-    """pybullet's (x, y, z, w) quaternion as MuJoCo's (w, x, y, z), shape (4,)."""
-    return np.array([q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]], dtype=np.float64)
-
-
-def quat_to_mat(q_wxyz: np.ndarray) -> np.ndarray:
-    """Rotation matrix (3, 3) of a unit quaternion (w, x, y, z)."""
-    mat = np.empty(9)
-    mujoco.mju_quat2Mat(mat, np.asarray(q_wxyz, dtype=np.float64))
-    return mat.reshape(3, 3)
 
 
 @dataclass
@@ -115,85 +104,6 @@ class BulletWorld:
     rotor_index: list[int] = field(default_factory=list)
 
 
-def _shape(m: mujoco.MjModel, g: int, anchor: np.ndarray, meshdir: Path) -> dict | None:
-    """pybullet's collision-shape arguments of geom ``g`` in its body's link frame (the body frame
-    moved to the joint ``anchor``), or None for a visual geom. A mesh is written to ``meshdir``
-    as an OBJ of the compiled mesh's vertices and faces (MuJoCo collides its convex hull, and so
-    does pybullet with a mesh file)."""
-    if m.geom_contype[g] == 0 and m.geom_conaffinity[g] == 0:
-        return None
-    t, size = int(m.geom_type[g]), m.geom_size[g]
-    pos = (m.geom_pos[g] - anchor).tolist()
-    quat = xyzw(m.geom_quat[g])
-    if t == _GEOM.mjGEOM_SPHERE:
-        args = dict(shapeType=pb.GEOM_SPHERE, radius=float(size[0]))
-    elif t == _GEOM.mjGEOM_CAPSULE:
-        args = dict(shapeType=pb.GEOM_CAPSULE, radius=float(size[0]), height=2 * float(size[1]))
-    elif t == _GEOM.mjGEOM_CYLINDER:
-        args = dict(shapeType=pb.GEOM_CYLINDER, radius=float(size[0]), height=2 * float(size[1]))
-    elif t == _GEOM.mjGEOM_BOX:
-        args = dict(shapeType=pb.GEOM_BOX, halfExtents=size.tolist())
-    elif t == _GEOM.mjGEOM_PLANE:
-        args = dict(shapeType=pb.GEOM_PLANE, planeNormal=[0.0, 0.0, 1.0])
-    elif t == _GEOM.mjGEOM_MESH:
-        args = dict(shapeType=pb.GEOM_MESH, fileName=_mesh_obj(m, int(m.geom_dataid[g]), meshdir))
-    else:
-        raise UnsupportedModelError(
-            f"geom '{m.geom(g).name or g}' of body '{m.body(m.geom_bodyid[g]).name}': type "
-            f"{_GEOM(t).name} has no pybullet shape here (expected plane, sphere, capsule, "
-            "cylinder, box or mesh)"
-        )
-    return dict(args, pos=pos, quat=quat)
-
-
-def _mesh_obj(m: mujoco.MjModel, mesh: int, meshdir: Path) -> str:
-    """Mesh ``mesh`` of the compiled model (its frame: MuJoCo's recentred vertices) as an OBJ file
-    in ``meshdir``; its path."""
-    path = meshdir / f"mesh{mesh}.obj"
-    if not path.exists():
-        start, count = int(m.mesh_vertadr[mesh]), int(m.mesh_vertnum[mesh])
-        faces = m.mesh_face[m.mesh_faceadr[mesh] : m.mesh_faceadr[mesh] + m.mesh_facenum[mesh]]
-        verts = m.mesh_vert[start : start + count].astype(np.float64)
-        lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in verts.tolist()]
-        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
-        path.write_text("\n".join(lines) + "\n")
-    return str(path)
-
-
-def _collision_shape(client: int, shapes: list[dict]) -> int:
-    """One pybullet collision shape (compound when several) of ``shapes``; -1 for none."""
-    if not shapes:
-        return -1
-    if len(shapes) == 1:
-        s = dict(shapes[0])
-        pos, quat = s.pop("pos"), s.pop("quat")
-        return pb.createCollisionShape(
-            **s, collisionFramePosition=pos, collisionFrameOrientation=quat, physicsClientId=client
-        )
-    kinds = [s["shapeType"] for s in shapes]
-    return pb.createCollisionShapeArray(
-        shapeTypes=kinds,
-        radii=[s.get("radius", 0.0) for s in shapes],
-        halfExtents=[s.get("halfExtents", [0.0, 0.0, 0.0]) for s in shapes],
-        lengths=[s.get("height", 0.0) for s in shapes],
-        fileNames=[s.get("fileName", "") for s in shapes],
-        planeNormals=[s.get("planeNormal", [0.0, 0.0, 1.0]) for s in shapes],
-        collisionFramePositions=[s["pos"] for s in shapes],
-        collisionFrameOrientations=[s["quat"] for s in shapes],
-        physicsClientId=client,
-    )
-
-
-def _inertia(m: mujoco.MjModel, b: int, anchor: np.ndarray) -> tuple[list, list, list]:
-    """Body ``b``'s inertial frame position (link frame), orientation (x, y, z, w) and principal
-    moments (kg m^2)."""
-    return (
-        (m.body_ipos[b] - anchor).tolist(),
-        xyzw(m.body_iquat[b]),
-        np.maximum(m.body_inertia[b], 1e-9).tolist(),
-    )
-
-
 def change_dynamics(client: int, body: int, link: int, **fields) -> None:
     """``pybullet.changeDynamics`` one field a call: given several fields at once, pybullet 3.2
     silently keeps only some (a link's inertia given with its damping is dropped, joint limits
@@ -209,52 +119,6 @@ def change_dynamics(client: int, body: int, link: int, **fields) -> None:
             )
         else:
             pb.changeDynamics(body, link, **{name: value}, physicsClientId=client)
-
-
-def _weld_pair_filtered(m: mujoco.MjModel, b1: int, b2: int) -> bool:
-    """MuJoCo's body filter: same weld group, or parent and child with the parent not the
-    world (``filterparent``), or an ``<exclude>`` pair."""
-    w1, w2 = int(m.body_weldid[b1]), int(m.body_weldid[b2])
-    if w1 == w2:
-        return True
-    if not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT:
-        p1, p2 = int(m.body_weldid[m.body_parentid[w1]]), int(m.body_weldid[m.body_parentid[w2]])
-        if (p1 == w2 and w2 != 0) or (p2 == w1 and w1 != 0):
-            return True
-    signature = (min(b1, b2) << 16) + max(b1, b2)
-    return bool(np.any(m.exclude_signature == signature))
-
-
-def _geoms_collide(m: mujoco.MjModel, g1: int, g2: int) -> bool:
-    """MuJoCo's contype / conaffinity rule for geoms ``g1`` and ``g2``."""
-    return bool(
-        (m.geom_contype[g1] & m.geom_conaffinity[g2])
-        or (m.geom_contype[g2] & m.geom_conaffinity[g1])
-    )
-
-
-def _bodies_collide(m: mujoco.MjModel, b1: int, b2: int) -> bool:
-    if _weld_pair_filtered(m, b1, b2):
-        return False
-    g1 = range(m.body_geomadr[b1], m.body_geomadr[b1] + m.body_geomnum[b1])
-    g2 = range(m.body_geomadr[b2], m.body_geomadr[b2] + m.body_geomnum[b2])
-    return any(_geoms_collide(m, a, b) for a in g1 for b in g2)
-
-
-def floor_friction(m: mujoco.MjModel) -> float:
-    """The sliding friction a robot link meets on the world's geoms under MuJoCo's rule (the
-    geom of higher priority wins, else the larger coefficient), for the links' highest."""
-    world = [g for g in range(m.ngeom) if m.geom_bodyid[g] == 0]
-    robot = [g for g in range(m.ngeom) if m.geom_bodyid[g] != 0]
-    if not world:
-        return 1.0
-    w = max(world, key=lambda g: (int(m.geom_priority[g]), float(m.geom_friction[g, 0])))
-    if not robot:
-        return float(m.geom_friction[w, 0])
-    r = max(robot, key=lambda g: float(m.geom_friction[g, 0]))
-    if m.geom_priority[w] > m.geom_priority[r]:
-        return float(m.geom_friction[w, 0])
-    return float(max(m.geom_friction[w, 0], m.geom_friction[r, 0]))
 
 
 def build_world(m: mujoco.MjModel, root: int, n_joints: int, floating: bool) -> BulletWorld:
@@ -301,7 +165,8 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
     links = robot[1:]
     anchors = {b: _anchor(m, b) for b in robot}
     shapes = {
-        b: [s for g in _body_geoms(m, b) if (s := _shape(m, g, anchors[b], meshdir))] for b in robot
+        b: [s for g in body_geoms(m, b) if (s := geom_shape(m, g, anchors[b], meshdir))]
+        for b in robot
     }
 
     kinds, axes = {}, {}  # per body of ``links``
@@ -329,7 +194,7 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
         pos = m.body_pos[b] + rot @ anchors[b] - anchors[parent]
         return pos.tolist(), xyzw(m.body_quat[b])
 
-    inertials = {b: _inertia(m, b, anchors[b]) for b in robot}
+    inertials = {b: inertial_frame(m, b, anchors[b]) for b in robot}
     rotors = {r.body: r for r in _rotors(m, links, axes, placement)} if floating else {}
     # pybullet orders the links depth first, each link's children in the order given: a rotor
     # goes just before the link it drives (its sibling), so that this order is pybullet's
@@ -360,7 +225,7 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
             )  # fmt: skip
         position, orientation = placement(entry)
         return (
-            float(m.body_mass[entry]), _collision_shape(client, shapes[entry]), position,
+            float(m.body_mass[entry]), collision_shape(client, shapes[entry]), position,
             orientation, inertials[entry][0], inertials[entry][1], parent_of(entry),
             kinds[entry], axes[entry],
         )  # fmt: skip
@@ -375,11 +240,11 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
             m.qpos0[m.jnt_qposadr[j] + 3 : m.jnt_qposadr[j] + 7],
         )
     self_collision = any(
-        _bodies_collide(m, a, b) for i, a in enumerate(robot) for b in robot[i + 1 :]
+        bodies_collide(m, a, b) for i, a in enumerate(robot) for b in robot[i + 1 :]
     )
     body = pb.createMultiBody(
         baseMass=float(m.body_mass[root]) if floating else 0.0,
-        baseCollisionShapeIndex=_collision_shape(client, shapes[root]),
+        baseCollisionShapeIndex=collision_shape(client, shapes[root]),
         basePosition=np.asarray(root_pos).tolist(),
         baseOrientation=xyzw(np.asarray(root_quat)),
         baseInertialFramePosition=inertials[root][0],
@@ -429,7 +294,7 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
     if self_collision:
         for i, a in enumerate(robot):
             for b in robot[i + 1 :]:
-                if not _bodies_collide(m, a, b):
+                if not bodies_collide(m, a, b):
                     pb.setCollisionFilterPair(
                         body,
                         body,
@@ -532,11 +397,6 @@ def _descends(m: mujoco.MjModel, b: int, root: int) -> bool:
     return False
 
 
-def _body_geoms(m: mujoco.MjModel, b: int) -> range:
-    """Body ``b``'s geom ids (empty for none: its ``geomadr`` is then -1)."""
-    return range(m.body_geomadr[b], m.body_geomadr[b] + m.body_geomnum[b])
-
-
 def _build_world_geoms(client, m, body, robot, link_of_body, meshdir: Path) -> None:
     """The geoms outside the robot (the floor, a table) as static bodies, each filtered against
     the robot's links by MuJoCo's rule, with the floor friction MuJoCo's rule gives."""
@@ -547,8 +407,8 @@ def _build_world_geoms(client, m, body, robot, link_of_body, meshdir: Path) -> N
             continue
         if b != 0 and m.body_jntnum[b]:
             continue  # another moving body: not part of this plant
-        for g in _body_geoms(m, b):
-            shape = _shape(m, g, np.zeros(3), meshdir)
+        for g in body_geoms(m, b):
+            shape = geom_shape(m, g, np.zeros(3), meshdir)
             if shape is None:
                 continue
             pos, quat = shape.pop("pos"), shape.pop("quat")
@@ -565,8 +425,8 @@ def _build_world_geoms(client, m, body, robot, link_of_body, meshdir: Path) -> N
             )
             change_dynamics(client, static, -1, lateralFriction=mu, restitution=0.0)
             for rb in robot:
-                geoms = _body_geoms(m, rb)
-                if not any(_geoms_collide(m, g, h) for h in geoms):
+                geoms = body_geoms(m, rb)
+                if not any(geoms_collide(m, g, h) for h in geoms):
                     pb.setCollisionFilterPair(
                         static, body, -1, int(link_of_body[rb]), 0, physicsClientId=client
                     )

@@ -15,7 +15,7 @@ terms, and direct motors. The model's arrays are read when the law is built, exc
 torque limits (``jnt_actfrcrange``, which the plant derates from the winding temperature at run
 time) and the damping, read at every :meth:`DriveLaw.torque`.
 
-Errors: :class:`~sim2real.deploy.backends.sim.bullet.build.UnsupportedModelError` for an actuator with
+Errors: :class:`~sim2real.deploy.backends.sim.bullet.convert.UnsupportedModelError` for an actuator with
 another transmission, gain or bias type.
 """
 
@@ -24,7 +24,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from sim2real.deploy.backends.sim.bullet.build import UnsupportedModelError
+from sim2real.deploy.backends.sim.bullet.convert import UnsupportedModelError
 
 
 class DriveLaw:

@@ -21,7 +21,7 @@ pybullet's contact warm start is not kept, so a resumed session is close to, not
 with, an uninterrupted one.
 
 Errors: :class:`~sim2real.deploy.backends.sim.plant.SimulationDivergedError` when pybullet's state
-turns non-finite or huge; :class:`.build.UnsupportedModelError` for a model it cannot build.
+turns non-finite or huge; :class:`.convert.UnsupportedModelError` for a model it cannot build.
 """
 
 from __future__ import annotations
@@ -32,14 +32,8 @@ import mujoco
 import numpy as np
 import pybullet as pb
 
-from sim2real.deploy.backends.sim.bullet.build import (
-    ROTOR_GEAR_RATIO,
-    BulletWorld,
-    build_world,
-    quat_to_mat,
-    wxyz,
-    xyzw,
-)
+from sim2real.deploy.backends.sim.bullet.build import ROTOR_GEAR_RATIO, BulletWorld, build_world
+from sim2real.deploy.backends.sim.bullet.convert import quat_to_mat, wxyz, xyzw
 from sim2real.deploy.backends.sim.bullet.drive_law import DriveLaw
 from sim2real.deploy.backends.sim.legged_sensors import sensor_address
 from sim2real.deploy.backends.sim.plant import SimBackend, SimulationDivergedError

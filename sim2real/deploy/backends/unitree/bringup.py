@@ -10,8 +10,8 @@
 4. **damping** for ``DAMPING_TIME`` (kp 0, the damping kd): the robot settles where it lies.
 5. **ramp** from the measured pose to the home pose in ``[unitree] ramp_time`` (linear in time,
    as unitree_rl_gym's ``deploy_real`` moves to its default pose) with ``[unitree] ramp_kp`` /
-   ``ramp_kd`` and ``SETTLE_TIME`` at home. A joint farther than ``RAMP_TOLERANCE`` from home
-   then is a :class:`BringupError` (the robot did not take the commands).
+   ``ramp_kd`` and ``SETTLE_TIME`` at home, then until at rest (``REST_TIMEOUT`` at most). A
+   joint farther than ``RAMP_TOLERANCE`` from home then is a :class:`BringupError`.
 
 A LowState silent for ``BRINGUP_STALE`` during stages 4-5 stops the bring-up (damping, then a
 :class:`BringupError`). The backend then holds the home pose at the ramp's gains until the
@@ -28,6 +28,7 @@ import numpy as np
 
 from sim2real.deploy.backends.unitree.family import TOPIC_LOWSTATE
 from sim2real.deploy.backends.unitree.motion_switcher import RELEASE_HINT, check_mode
+from sim2real.deploy.core.modes import REST_SPEED
 from sim2real.robots.errors import Sim2RealError
 
 #: s ``open()`` waits for the first complete LowState (default of ``--lowstate-timeout``).
@@ -36,6 +37,10 @@ LOWSTATE_TIMEOUT = 5.0
 DAMPING_TIME = 1.0
 #: s at the home pose after the ramp, at the ramp's gains, before the check (our choice).
 SETTLE_TIME = 0.3
+#: s the robot may take after ``SETTLE_TIME`` to come to rest at home (our choice), checked
+#: every ``REST_CHECK`` s against the runtime's ``REST_SPEED`` (rad/s).
+REST_TIMEOUT = 2.0
+REST_CHECK = 0.05
 #: s after the runtime's first command over which the ramp's gains blend into the joints' (our
 #: choice).
 BLEND_TIME = 0.5
@@ -96,6 +101,7 @@ def bring_up(b) -> None:
     b._damping = False
     _run(b, ramp, lambda t: q0 + min(1.0, t / ramp) * (home - q0), (b.ramp_kp, b.ramp_kd))
     _run(b, SETTLE_TIME, lambda t: home, (b.ramp_kp, b.ramp_kd))
+    rest = _settle(b, home)
     q = _pose(b)
     off = np.abs(q - home)
     if off.max() > RAMP_TOLERANCE:
@@ -109,9 +115,25 @@ def bring_up(b) -> None:
         )
 
     b.log(
-        "      at home; holding it until the policy starts, then blending into its gains over "
+        f"      at home, at rest {SETTLE_TIME + rest:.2f} s after the ramp; holding it until the "
+        "policy starts, then blending into its gains over "
         f"{BLEND_TIME:g} s"
     )
+
+
+def _settle(b, home: np.ndarray) -> float:
+    """Hold ``home`` at the ramp's gains until the drives report every joint slower than the
+    runtime's ``REST_SPEED``, at most ``REST_TIMEOUT`` s (then on, printed): the runtime's
+    RAMP_IN ends at rest, and a robot handed over still swinging from the ramp stood for seconds
+    before its policy could start. Returns the s held."""
+    start = time.monotonic()
+    while (held := time.monotonic() - start) < REST_TIMEOUT:
+        frame = _run(b, REST_CHECK, lambda t: home, (b.ramp_kp, b.ramp_kd))
+        v = frame.velocity
+        if v is None or (np.isfinite(v[0]).any() and np.nanmax(np.abs(v[0])) < REST_SPEED):
+            return held
+    b.log(f"      not at rest after {REST_TIMEOUT:g} s at home: handing over anyway")
+    return held
 
 
 def _kd(b) -> str:
@@ -160,11 +182,11 @@ def _pose(b) -> np.ndarray:
         time.sleep(0.005)
 
 
-def _run(b, seconds: float, target, gains=None) -> None:
+def _run(b, seconds: float, target, gains=None):
     """Send ``target(t)`` (rad, (n,)) every control period for ``seconds``, reading the states:
     damping while the backend damps, else a position target with ``gains`` ((kp, kd), or a
     function of ``t`` returning them). A LowState silent for ``BRINGUP_STALE`` stops it
-    (damping, :class:`BringupError`)."""
+    (damping, :class:`BringupError`). Returns the last frame read."""
     start = time.monotonic()
     last = start
     t = 0.0
@@ -184,3 +206,4 @@ def _run(b, seconds: float, target, gains=None) -> None:
         b._send(np.asarray(target(t)), *(kp_kd or ()))
         t += b.period
         time.sleep(max(0.0, start + t - time.monotonic()))
+    return frame

@@ -7,10 +7,13 @@ sim2real/robots/go2w (order FL, FR, RL, RR, wheels ``*_wheel_joint``; the motor 
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import yaml
 
+from sim2real.deploy.cli.deploy_run import deploy_run_main
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.spec.onnx_checks import PolicyLoadError
@@ -67,14 +70,15 @@ def config_yaml(**changes) -> dict:
     return {"go2w/robot_lab": {**cfg, **changes}}
 
 
-def write(tmp_path, obs_dim=57, **changes):
+def write(tmp_path, obs_dim=57, bias=None, **changes):
     folder = tmp_path / "policy" / "go2w"
     (folder / "robot_lab").mkdir(parents=True)
     (folder / "base.yaml").write_text(yaml.safe_dump(base_yaml(), default_flow_style=None))
     cfg = config_yaml(**changes)
     (folder / "robot_lab" / "config.yaml").write_text(yaml.safe_dump(cfg, default_flow_style=None))
     path = folder / "robot_lab" / "policy.onnx"
-    return fs._export(fs.Actor(obs_dim, 16, 1, 1e-3), obs_dim, path, 11, ["obs"], ["actions"])
+    actor = fs.Actor(obs_dim, 16, 1, 1e-3, bias=bias)
+    return fs._export(actor, obs_dim, path, 11, ["obs"], ["actions"])
 
 
 @pytest.fixture(scope="module")
@@ -142,3 +146,24 @@ def test_rl_sar_history_and_clip_are_read_or_refused_in_one_line(go2w, tmp_path)
         OnnxPolicy(write(tmp_path / "b", clip_actions_lower=[-1.0] * 16), go2w)
     with pytest.raises(PolicyLoadError, match="observations_history"):
         OnnxPolicy(write(tmp_path / "c", observations_history=[0, 2]), go2w)
+
+
+def test_deploy_run_rolls_the_go2w_on_its_wheels_speed_targets_from_the_rl_sar_folder(
+    tmp_path, capsys
+):
+    """No --spec: deploy-run reads the rl_sar folder; a policy holding its legs at the default
+    pose and asking every wheel for 1.0 x 5 = 5 rad/s rolls the robot on (a wheel as a position
+    drive would stop 5 rad on: 0.43 m
+    on go2w.xml's 0.086 m wheels), its wheels past any angle without a violation."""
+    bias = [0.0] * 12 + [1.0] * 4  # rl_sar's order: legs, then the wheels FR, FL, RR, RL
+    path = write(tmp_path, bias=bias)
+    report = tmp_path / "run.json"
+    args = ["--robot", "go2w", "--policy", str(path), "--backend", "sim", "--duration", "6"]
+    args += ["--command", "0,0,0", "--heading-hold", "0", "--report", str(report)]
+    code = deploy_run_main(args)
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "rl_sar policy: spec built from" in err
+    run = json.loads(report.read_text())
+    assert run["violations"]["any"] == 0 and run["locomotion"]["falls"] == 0
+    assert run["locomotion"]["distance_m"] > 1.0

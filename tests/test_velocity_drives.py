@@ -84,3 +84,14 @@ def test_a_policys_wheel_drive_builds_the_plant_it_was_trained_with(go2w):
 
     robot, differences = drive_robot(go2w, Spec)
     assert "kinds" in differences and np.array_equal(robot.velocity_driven, wheel)
+
+
+def test_an_excitation_swings_a_wheel_within_a_turn_and_never_asks_for_nan(go2w):
+    from sim2real.deploy.policy.excitation import Excitation, ExcitationPolicy, trajectory
+
+    ex = Excitation(joints=("FL_wheel_joint",), chirp=2.0, chirp_together=0.0)
+    rows = trajectory(go2w, ex)
+    w = go2w.joint_names.index("FL_wheel_joint")
+    assert np.all(np.isfinite(rows))
+    assert 0.1 < np.ptp(rows[:, w]) <= 2 * np.pi  # it moves, within one turn
+    assert np.all(np.isfinite(ExcitationPolicy(go2w, ex).actions))

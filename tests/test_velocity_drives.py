@@ -71,7 +71,7 @@ def test_the_smoother_passes_a_wheels_speed_and_brakes_it_to_zero_in_a_safe_stop
     limit = wheeled.soft_velocity_limit[wheel]
     assert np.allclose(cmd[0, wheel], np.clip([5.0, -5.0, 100.0, -100.0], -limit, limit))
     assert np.allclose(cmd[0, ~wheel], q[0, ~wheel])  # legs: their PD targets
-    assert sm.wheels.clamps[0] == 2
+    assert sm.wheels.clamps[0] == 2 and sm.target_clamps[0] == 2  # counted as interventions
     sm.safe_stop()
     assert np.all(sm.step(target)[0, wheel] == 0.0)
 

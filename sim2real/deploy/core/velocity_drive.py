@@ -47,16 +47,25 @@ class VelocityDrives:
         ((envs, n) rad): they stay at rest, never planned toward a speed."""
         goal[self.dofs] = position.reshape(-1)[self.dofs]
 
-    def command(self, target: np.ndarray | None, out: np.ndarray, stopping: np.ndarray) -> None:
+    def command(
+        self,
+        target: np.ndarray | None,
+        out: np.ndarray,
+        stopping: np.ndarray,
+        counts: np.ndarray | None = None,
+    ) -> None:
         """The wheels' columns of ``out`` (envs, n): ``target``'s speeds (rad/s; None: the last
         ones; non-finite: the last one) clamped to :attr:`limit`, 0 for the envs of ``stopping``
-        ((envs,) bool)."""
+        ((envs,) bool); each clamp counted in :attr:`clamps` and in ``counts`` ((envs, n) int,
+        the smoother's per-joint clamp counter) when given."""
         last = self._last
         if target is not None:
             speeds = target[:, self.columns]
             ok = np.isfinite(speeds)
             over = ok & (np.abs(speeds) > self.limit)
             self.clamps += over.sum(axis=1)
+            if counts is not None:
+                counts[:, self.columns] += over
             np.copyto(last, np.clip(speeds, -self.limit, self.limit), where=ok)
         last[stopping] = 0.0
         out[:, self.columns] = last

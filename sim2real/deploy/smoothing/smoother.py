@@ -480,7 +480,8 @@ class CommandSmoother(RuckigState):
                 self._count_extrema()
             result.pass_to_input(inp)
             if self.wheels is not None:
-                self.wheels.command(target, self.command if out is None else out, self.stopping)
+                dest = self.command if out is None else out
+                self.wheels.command(target, dest, self.stopping, self.target_clamps_per_joint)
         return self.command if out is None else out
 
     def _bind_step(self, target: np.ndarray | None, out: np.ndarray | None) -> None:

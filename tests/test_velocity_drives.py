@@ -95,3 +95,16 @@ def test_an_excitation_swings_a_wheel_within_a_turn_and_never_asks_for_nan(go2w)
     assert np.all(np.isfinite(rows))
     assert 0.1 < np.ptp(rows[:, w]) <= 2 * np.pi  # it moves, within one turn
     assert np.all(np.isfinite(ExcitationPolicy(go2w, ex).actions))
+
+
+def test_a_ramp_to_home_holds_a_wheel_at_speed_0_wherever_its_angle(wheeled):
+    from sim2real.deploy.runtime.handover import RampIn
+    from sim2real.deploy.runtime.supervision import RAMP_IN
+
+    wheel = wheeled.velocity_driven
+    start = np.array(wheeled.home, dtype=float)[None].copy()
+    start[0, wheel] = [40.0, -7.0, 123.0, 3.0]  # rad: wheels turned many times over
+    ramp = RampIn(start, wheeled.home, np.ones(1, bool), 10, speeds=wheel)
+    target = np.zeros((1, wheeled.n_joints))
+    ramp.shape(target, np.array([RAMP_IN]))
+    assert np.all(target[0, wheel] == 0.0)  # rad/s, not the angle

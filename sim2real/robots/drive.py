@@ -24,14 +24,17 @@ def with_drive(
     kp: Sequence[float] | None = None,
     kd: Sequence[float] | None = None,
     home: Sequence[float] | None = None,
+    kinds: Sequence[str] | None = None,
 ) -> Robot:
     """``robot`` with its joints' ``kp`` (N m/rad), ``kd`` (N m s/rad) and its ``control.home``
-    (rad) replaced, one value per joint in ``robot.joint_names`` order (None or empty: kept).
+    (rad) replaced, one value per joint in ``robot.joint_names`` order (None or empty: kept);
+    ``kinds``: each joint's drive, ``"position"`` or ``"velocity"`` (a speed target, kp 0).
 
     The derived robot's ``description_hash`` is that of its changed description.
 
     Raises:
-        RobotSpecError: a length other than one per joint, a ``kp`` that is not positive, a
+        RobotSpecError: a length other than one per joint, a ``kp`` that is not positive (not 0
+            for a velocity drive), a
             ``kd`` that is negative, a home pose outside the joint limits (naming the joint).
     """
     n = robot.n_joints
@@ -44,8 +47,20 @@ def with_drive(
         if arr.shape != (n,) or not np.all(np.isfinite(arr)):
             raise RobotSpecError(f"{where}: {name} needs {n} finite values, got {list(given)}")
         values[name] = arr
-    if "kp" in values and np.any(values["kp"] <= 0):
-        raise RobotSpecError(f"{where}: kp must be positive, got {values['kp'].tolist()}")
+    cfg = robot.config
+    if kinds:
+        if len(kinds) != n or set(kinds) - {"position", "velocity"}:
+            raise RobotSpecError(
+                f"{where}: kinds needs {n} entries of 'position' or 'velocity', got {list(kinds)}"
+            )
+        velocity = np.array([k == "velocity" for k in kinds])
+    else:
+        velocity = np.array([j.drive == "velocity" for j in cfg.joints])
+    kp_now = values.get("kp", np.array([j.kp for j in cfg.joints]))
+    if np.any(np.where(velocity, kp_now != 0, kp_now <= 0)):
+        raise RobotSpecError(
+            f"{where}: kp must be positive (0 for a velocity drive), got {kp_now.tolist()}"
+        )
     if "kd" in values and np.any(values["kd"] < 0):
         raise RobotSpecError(f"{where}: kd must be >= 0, got {values['kd'].tolist()}")
     if "home" in values:
@@ -57,10 +72,10 @@ def with_drive(
                 f"{where}: home {h[i]} rad of joint '{robot.joint_names[i]}' is outside its "
                 f"limits [{robot.position_lower[i]}, {robot.position_upper[i]}]"
             )
-    cfg = robot.config
     joints = [
         j.model_copy(
-            update={k: float(values[k][i]) for k in ("kp", "kd") if k in values},
+            update={k: float(values[k][i]) for k in ("kp", "kd") if k in values}
+            | ({"drive": kinds[i]} if kinds else {}),
         )
         for i, j in enumerate(cfg.joints)
     ]

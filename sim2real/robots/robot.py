@@ -218,6 +218,13 @@ class Robot:
         """Default control mode from robot.toml: 'position', 'velocity' or 'torque'."""
         return self.config.control.mode
 
+    @property
+    def velocity_driven(self) -> np.ndarray:
+        """(n_joints,) bool: joints whose position-mode command is a speed target, rad/s
+        (robot.toml ``drive = "velocity"``: a wheel, ``tau = kd (v_target - dq)``); the others
+        take PD position targets."""
+        return np.array([j.drive == "velocity" for j in self.config.joints], dtype=bool)
+
     def mjspec(self, mode: str | None = None) -> mujoco.MjSpec:
         """A fresh ``mujoco.MjSpec`` of the robot with its drives for ``mode``.
 
@@ -230,7 +237,9 @@ class Robot:
         term) and ``<joint>_velocity_p`` (MuJoCo ``velocity`` with ``kd``: the proportional term).
         The proportional term on the command matters: a servo that damps ``dq`` instead of ``v_cmd -
         dq`` lags ``a kd / kp`` behind an accelerating command (1.5 rad/s at 20 rad/s^2 on arm3) and
-        overshoots when it catches up. Torque mode: a direct motor. The total actuator torque on
+        overshoots when it catches up. A velocity-driven joint (:attr:`velocity_driven`) in
+        position mode: MuJoCo ``velocity`` with ``kd``, its command a speed within
+        ``velocity_limit``. Torque mode: a direct motor. The total actuator torque on
         each joint is limited to ``effort_limit`` (MuJoCo ``actuatorfrcrange``). Edit the returned
         spec (for example to randomize link lengths) and ``compile()`` it;
         :meth:`actuators_per_joint` gives ``nu / n_joints``.
@@ -267,7 +276,10 @@ class Robot:
             mj_joint.actfrcrange = [-self.effort_limit[i], self.effort_limit[i]]
             mj_joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
             lo, hi = self.position_lower[i], self.position_upper[i]
-            if mode == "position":
+            if mode == "position" and joint.drive == "velocity":  # tau = kd (ctrl - dq)
+                vmax = self.velocity_limit[i]
+                add(f"{joint.name}_position", joint.name, -vmax, vmax).set_to_velocity(kv=joint.kd)
+            elif mode == "position":
                 add(f"{joint.name}_position", joint.name, lo, hi, clamps[i]).set_to_position(
                     kp=joint.kp, kv=joint.kd
                 )

@@ -46,8 +46,13 @@ class JointConfig(_Strict):
     # how fast its target moves
     command_velocity_limit: Positive | None = None
     motor: str  # key into [motors]
-    kp: Positive  # N m/rad, plant position servo stiffness
+    # N m/rad, plant position servo stiffness: positive, or 0 for a velocity drive
+    kp: NonNegative
     kd: NonNegative  # N m s/rad, plant position servo damping
+    # what the joint's command is in position mode: "position" (a PD target, tau = kp (target -
+    # q) - kd dq) or "velocity" (a wheel: a speed target, tau = kd (v_target - dq), kp 0);
+    # None (unset, as "position") stays out of the description hash
+    drive: Literal["position", "velocity"] | None = None
 
     @model_validator(mode="after")
     def _ordered_limits(self) -> JointConfig:
@@ -56,6 +61,14 @@ class JointConfig(_Strict):
                 "expected either position_limit = [lower, upper] or continuous = true "
                 f"(got position_limit {self.position_limit}, continuous {self.continuous})"
             )
+        if self.drive == "velocity":
+            if self.kp != 0.0 or not self.kd > 0.0:
+                raise ValueError(
+                    f"drive = 'velocity' needs kp = 0 and kd > 0 (tau = kd (v_target - dq)), "
+                    f"got kp {self.kp}, kd {self.kd}"
+                )
+        elif not self.kp > 0.0:
+            raise ValueError(f"kp must be positive for a position drive, got {self.kp}")
         if self.continuous:
             return self
         lo, hi = self.position_limit

@@ -6,9 +6,9 @@ Each joint alone, the others held: a smooth move from home to the joint's centre
 a logarithmic sine chirp from ``f_start`` to ``f_end`` Hz (slow sign changes of the speed show the
 dry friction; the fast end the inertia and the delay), a few steps (their smoothed ramps run the
 motor at the command speed limit: its torque-speed line), back home; then every joint together
-(each its own phase), then home held. The amplitude is a fraction of each joint's soft half-range,
-shrunk where the chirp's peak speed or acceleration would pass a fraction of the joint's command
-speed or acceleration limit, so that the smoother passes the trajectory through undistorted; the
+(each its own phase), then home held. The amplitude is a fraction of each joint's soft half-range
+(a continuous joint's, a wheel's: of half a turn), shrunk where the chirp's peak speed or
+acceleration would pass a fraction of the joint's command speed or acceleration limit, so that the smoother passes the trajectory through undistorted; the
 guard still checks every command, as for any policy.
 
 :class:`ExcitationPolicy` has a policy's face for :class:`sim2real.deploy.runtime.Runtime`: called
@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.deploy.spec.policy_spec import PolicySpec
+from sim2real.robots.continuous import sampling_bounds
 
 try:
     import tomllib
@@ -127,7 +128,8 @@ def trajectory(robot, ex: Excitation) -> np.ndarray:
     """
     dt, n = robot.control_period, robot.n_joints
     home = np.asarray(robot.home, dtype=float)
-    lo, hi = np.asarray(robot.soft_lower, float), np.asarray(robot.soft_upper, float)
+    # a continuous joint (a wheel) has no range: it swings within one turn about its home
+    lo, hi = sampling_bounds(robot.soft_lower, robot.soft_upper)
     amp = ex.amplitude * (hi - lo) / 2
     centre = np.clip(home, lo + amp, hi - amp)
     vmax = ex.speed * np.asarray(robot.command_velocity_limit, float)

@@ -126,11 +126,22 @@ class RampIn:
     Args:
         start: (envs, n) rad, where each env's ramp begins (its pose at the reset).
         home: (n,) rad. envs: (envs,) bool. ticks: control periods of the ramp (>= 1).
+        speeds: (n,) bool, the velocity-driven joints (a wheel: its target is a speed, its angle
+            no place to ramp from): held at their home entry, 0 rad/s. None: none.
     """
 
-    def __init__(self, start: np.ndarray, home: np.ndarray, envs: np.ndarray, ticks: int):
+    def __init__(
+        self,
+        start: np.ndarray,
+        home: np.ndarray,
+        envs: np.ndarray,
+        ticks: int,
+        speeds: np.ndarray | None = None,
+    ):
         self.start = np.array(start, dtype=np.float64)
         self.home = np.asarray(home, dtype=np.float64)
+        if speeds is not None:
+            self.start[:, speeds] = self.home[speeds]
         self.envs, self.ticks, self.done = np.asarray(envs, dtype=bool).copy(), max(1, ticks), 0
 
     def shape(self, target: np.ndarray, mode: np.ndarray) -> bool:

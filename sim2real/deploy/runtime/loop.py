@@ -218,7 +218,8 @@ class Runtime(RuntimeState):
         (:class:`~sim2real.deploy.runtime.handover.RampIn`; position mode only)."""
         if self.mode_name == "position" and duration > 0:
             mask = np.ones(self.envs, bool) if envs is None else np.asarray(envs, dtype=bool)
-            self.ramp = RampIn(self.state.q, self.supervision.home, mask, round(duration / self.dt))
+            ticks, speeds = round(duration / self.dt), self.robot.velocity_driven  # wheels: 0 rad/s
+            self.ramp = RampIn(self.state.q, self.supervision.home, mask, ticks, speeds)
 
     def switch_policy(self, policy, blend_time: float = 0.0) -> None:
         """Hand control to ``policy`` between ticks, its targets blended in over ``blend_time``

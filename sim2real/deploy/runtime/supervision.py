@@ -113,6 +113,8 @@ class Supervision:
         #: legged one) in position mode, whose drives' soft PD (the gains it was trained with)
         #: holds its weight short of the home pose, which its estimate would never reach
         self.home_from_command = robot_kind(robot).pd_targets and mode_name == "position"
+        #: the velocity-driven joints (wheels) of the smoother's command, or None
+        self.wheels = getattr(smoother, "wheels", None)
         self.stop_damping = STOP_DAMPING * robot.effort_limit
         # the thermal band of the derating law the guard and the drives share
         self.temp_start = self.guard.derating.start
@@ -210,6 +212,8 @@ class Supervision:
         ``-STOP_DAMPING * effort_limit * dq``."""
         if self.mode_name == "position":
             cmd[damp] = state.q[damp]
+            if self.wheels is not None:  # a wheel's damped stop: speed 0, its kd brakes it
+                self.wheels.damp(cmd, damp)
         elif self.mode_name == "velocity":
             cmd[damp] = 0.0
         else:

@@ -18,6 +18,7 @@ from ruckig import (
     Trajectory,
 )
 
+from sim2real.deploy.core.velocity_drive import velocity_drives
 from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.smoothing import kernel as sk
 from sim2real.deploy.smoothing.braking import stopping_distance
@@ -205,6 +206,8 @@ class CommandSmoother(RuckigState):
         self.extrema_violations_per_joint = counts[sk.EXTREMA].reshape(shape)
         self.stopping_distance_clamps_per_joint = counts[sk.STOPPING].reshape(shape)
         self._synced = False
+        # velocity-driven joints (wheels) in position mode: their command is a speed
+        self.wheels = velocity_drives(robot, envs, mode)
         self._kernel_mode = {"position": sk.POSITION, "velocity": sk.VELOCITY}.get(mode, sk.TORQUE)
         c = np.zeros((sk.C_ROWS, dofs))
         c[sk.LO], c[sk.HI], c[sk.VMAX], c[sk.AMAX] = self._lo, self._hi, self._vmax, self._amax
@@ -465,6 +468,8 @@ class CommandSmoother(RuckigState):
             result.pass_to_input(inp)
         elif mode == sk.POSITION:
             inp, result = self._inp, self._out
+            if self.wheels is not None:  # Ruckig holds a wheel at rest; its command is a speed
+                self.wheels.hold_goal(self._goal, self.position)
             inp.target_position = self._goal.tolist()  # pybind converts a list faster
             self._update()
             self._cmd_in[:] = result.new_position
@@ -474,6 +479,9 @@ class CommandSmoother(RuckigState):
             if near:
                 self._count_extrema()
             result.pass_to_input(inp)
+            if self.wheels is not None:
+                dest = self.command if out is None else out
+                self.wheels.command(target, dest, self.stopping, self.target_clamps_per_joint)
         return self.command if out is None else out
 
     def _bind_step(self, target: np.ndarray | None, out: np.ndarray | None) -> None:

@@ -30,19 +30,28 @@ class DriveSpec:
     """PD gains and default pose of a policy's training, per joint in ``joint_names`` order.
 
     Attributes:
-        kp: Position gains, N m/rad (> 0); empty: not recorded (the robot's hold).
+        kp: Position gains, N m/rad (> 0; 0 for a velocity drive); empty: not recorded (the
+            robot's hold).
         kd: Damping gains, N m s/rad (>= 0); empty: not recorded.
         default_pose: The pose actions and joint observations are relative to, rad; empty: not
             recorded.
+        kinds: Each joint's drive, ``"position"`` (a PD target, rad) or ``"velocity"`` (a speed
+            target, rad/s: ``tau = kd (v_target - dq)``, kp 0, a wheel); the action maps to the
+            drive's unit. Empty: every joint a position drive (the robot's own kinds hold).
     """
 
     kp: tuple[float, ...] = ()
     kd: tuple[float, ...] = ()
     default_pose: tuple[float, ...] = ()
+    kinds: tuple[str, ...] = ()
 
     @property
     def empty(self) -> bool:
-        return not (self.kp or self.kd or self.default_pose)
+        return not (self.kp or self.kd or self.default_pose or self.kinds)
+
+    def velocity(self, n: int) -> tuple[bool, ...]:
+        """Per joint of ``n``: a velocity drive."""
+        return tuple(k == "velocity" for k in self.kinds) if self.kinds else (False,) * n
 
     def problems(self, n: int) -> list[str]:
         """What is invalid for ``n`` joints (empty: valid): lengths, finiteness, signs."""
@@ -52,8 +61,17 @@ class DriveSpec:
                 out.append(f"drive.{name}: {len(values)} entries, expected one per joint ({n})")
             elif values and not all(np.isfinite(v) and v >= low for v in values):
                 out.append(f"drive.{name}: must be finite and >= 0, got {list(values)}")
-        if self.kp and not all(v > 0 for v in self.kp):
-            out.append(f"drive.kp: must be positive, got {list(self.kp)}")
+        if self.kinds and (len(self.kinds) != n or set(self.kinds) - {"position", "velocity"}):
+            out.append(
+                f"drive.kinds: expected {n} entries of 'position' or 'velocity', got "
+                f"{list(self.kinds)}"
+            )
+        elif self.kp and len(self.kp) == n:
+            velocity = self.velocity(n)
+            if not all(v == 0 if w else v > 0 for v, w in zip(self.kp, velocity, strict=True)):
+                out.append(
+                    f"drive.kp: must be positive (0 for a velocity drive), got {list(self.kp)}"
+                )
         if self.default_pose and len(self.default_pose) != n:
             out.append(
                 f"drive.default_pose: {len(self.default_pose)} entries, expected one per joint "
@@ -73,12 +91,20 @@ def drive_differences(drive: DriveSpec | None, robot) -> dict[str, str]:
         robot: The :class:`robots.Robot` (``config.joints[i].kp``/``kd``, ``home``).
 
     Returns:
-        ``{"kp" | "kd" | "default_pose": line}`` for the quantities that differ, a line such as
+        ``{"kp" | "kd" | "default_pose" | "kinds": line}`` for the quantities that differ, a line such as
         ``"kp (N m/rad): policy [25.0 x 12], robot.toml [20.0 x 12]"``; values within
         ``DRIVE_TOLERANCE`` agree.
     """
     if drive is None or drive.empty:
         return {}
+    if drive.kinds:
+        theirs = ["velocity" if v else "position" for v in robot.velocity_driven]
+        if list(drive.kinds) != theirs:
+            out_kinds = f"drive kinds: policy {list(drive.kinds)}, robot.toml {theirs}"
+        else:
+            out_kinds = None
+    else:
+        out_kinds = None
     robot_values = {
         "kp": np.array([j.kp for j in robot.config.joints]),
         "kd": np.array([j.kd for j in robot.config.joints]),
@@ -94,6 +120,8 @@ def drive_differences(drive: DriveSpec | None, robot) -> dict[str, str]:
         ours = np.asarray(getattr(drive, key), dtype=float)
         if ours.size and not np.allclose(ours, theirs, rtol=DRIVE_TOLERANCE, atol=DRIVE_TOLERANCE):
             out[key] = f"{labels[key]}: policy {_values(ours)}, robot.toml {_values(theirs)}"
+    if out_kinds:
+        out["kinds"] = out_kinds
     return out
 
 
@@ -120,4 +148,5 @@ def drive_robot(robot, spec):
     from sim2real.robots.drive import with_drive
 
     d = spec.drive
-    return with_drive(robot, kp=d.kp, kd=d.kd, home=d.default_pose), differences
+    kinds = d.kinds if "kinds" in differences else None
+    return with_drive(robot, kp=d.kp, kd=d.kd, home=d.default_pose, kinds=kinds), differences

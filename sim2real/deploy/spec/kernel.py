@@ -43,6 +43,7 @@ GAIT_PHASE = 12
 FOOT_CONTACT = 13
 HEADING_SINCOS = 14
 BASE_EULER_ANGLES = 15
+JOINT_POSITION_ZERO = 16
 #: Every code the kernel has a branch for (``sim2real.deploy.spec.kinds.register_kind`` refuses others).
 BRANCHES = frozenset(
     (
@@ -62,6 +63,7 @@ BRANCHES = frozenset(
         FOOT_CONTACT,
         HEADING_SINCOS,
         BASE_EULER_ANGLES,
+        JOINT_POSITION_ZERO,
     )
 )
 
@@ -120,6 +122,9 @@ def observation(
             elif kind == JOINT_VELOCITY:
                 for i in range(size):
                     raw[e, s0 + i] = dq[e, joints[b, i]]
+            elif kind == JOINT_POSITION_ZERO:
+                for i in range(size):
+                    raw[e, s0 + i] = 0.0
             elif kind == JOINT_POSITION_SINCOS:
                 k = size // 2
                 for i in range(k):

@@ -164,6 +164,12 @@ _joint(
 )
 _joint("joint_velocity", "dq (k), rad/s; scale = velocity limit", kernel.JOINT_VELOCITY)
 _joint(
+    "joint_position_zero",
+    "0 (k) in a joint position's place: a joint whose angle the policy never sees (a wheel's; "
+    "rl_sar's wheel_indices in dof_pos); offset 0",
+    kernel.JOINT_POSITION_ZERO,
+)
+_joint(
     "joint_position_sincos",
     "sin q, cos q (2k) of wrapping joints; unscaled",
     kernel.JOINT_POSITION_SINCOS,

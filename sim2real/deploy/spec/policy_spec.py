@@ -332,6 +332,15 @@ class PolicySpec:
         if not self.control_rate > 0:
             raise SpecError(f"control_rate: must be positive, got {self.control_rate}")
         problems = self.drive.problems(n) if self.drive is not None else []
+        if not problems and self.drive is not None and any(self.drive.velocity(n)):
+            speed = [j for j, v in enumerate(self.drive.velocity(n)) if v]
+            if a.mode != "position" or a.reference != "absolute" or any(a.offset[j] for j in speed):
+                problems.append(
+                    f"action: a velocity drive's target is scale x action (rad/s, about 0): "
+                    f"mode 'position', reference 'absolute' and offset 0 at joints {speed}, got "
+                    f"mode '{a.mode}', reference '{a.reference}', offsets "
+                    f"{[a.offset[j] for j in speed]}"
+                )
         if self.history is not None:
             problems += self.history.problems(len(self.observation_blocks))
         if problems:
@@ -428,7 +437,9 @@ class PolicySpec:
     def action_to_target(
         self, action: np.ndarray, state: RobotState, out: np.ndarray | None = None
     ) -> np.ndarray:
-        """Target in the units of the control mode, float64 (envs, n).
+        """Target in the units of the control mode, float64 (envs, n): ``offset + scale x
+        clip(action)`` (``q + ...`` for reference 'current'); a velocity drive's column
+        (``drive.kinds``, offset 0) is then its speed target, rad/s.
 
         Args:
             action: (envs, n) policy output; clipped to ``[-clip, clip]`` first.

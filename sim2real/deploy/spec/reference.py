@@ -79,6 +79,10 @@ def joint_position(state, goal, raw, block: PlanBlock, vec, rot) -> None:
     np.take(state.q, block.joints, axis=1, out=raw)
 
 
+def joint_position_zero(state, goal, raw, block: PlanBlock, vec, rot) -> None:
+    raw[:] = 0.0
+
+
 def joint_velocity(state, goal, raw, block: PlanBlock, vec, rot) -> None:
     np.take(state.dq, block.joints, axis=1, out=raw)
 

@@ -158,10 +158,17 @@ class DriveDocument(_Doc):
 
     model_config = ConfigDict(title="Drive")
 
-    kp: list[float] | None = Field(default=None, description="Position gains, N m/rad (> 0).")
+    kp: list[float] | None = Field(
+        default=None, description="Position gains, N m/rad (> 0; 0 for a velocity drive)."
+    )
     kd: list[float] | None = Field(default=None, description="Damping gains, N m s/rad (>= 0).")
     default_pose: list[float] | None = Field(
         default=None, description="The pose actions and joint observations are relative to, rad."
+    )
+    kinds: list[Literal["position", "velocity"]] | None = Field(
+        default=None,
+        description="Each joint's drive: 'position' (a PD target, rad) or 'velocity' (a speed "
+        "target, rad/s, tau = kd (v_target - dq), kp 0: a wheel); left out: every joint position.",
     )
 
 
@@ -340,6 +347,7 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
             kp=tuple(doc.drive.kp or ()),
             kd=tuple(doc.drive.kd or ()),
             default_pose=tuple(doc.drive.default_pose or ()),
+            kinds=tuple(doc.drive.kinds or ()),
         ),
         history=None
         if doc.history is None

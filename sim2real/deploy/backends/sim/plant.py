@@ -180,8 +180,8 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         envs restart (a training episode): the shared clock runs on, their motors cool to ambient
         and their sensor history reads the new pose, as if the robot had rested there.
 
-        The initial command holds the pose: q in position mode, 0 rad/s in velocity mode, the
-        gravity torque in torque mode.
+        The initial command holds the pose: q in position mode (0 rad/s for a velocity-driven
+        joint), 0 rad/s in velocity mode, the gravity torque in torque mode.
         """
         q0 = np.broadcast_to(
             self.robot.home if q is None else np.asarray(q, float), (self.envs, self.n_joints)
@@ -194,8 +194,8 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
             if m.na:  # integrating velocity servos start their setpoint at the pose
                 d.act[:] = q0[e]
             mujoco.mj_forward(m, d)
-            if self.mode == "position":
-                self._command[e] = q0[e]
+            if self.mode == "position":  # a velocity drive (a wheel) holds speed 0
+                self._command[e] = np.where(self.robot.velocity_driven, 0.0, q0[e])
             elif self.mode == "velocity":
                 self._command[e] = 0.0
             else:

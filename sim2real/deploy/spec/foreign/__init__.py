@@ -10,7 +10,7 @@ file (or, for Isaac Lab, into the run folder beside it), read into a PolicySpec.
   observation blocks, scales, action scale and offset, PD gains and default pose.
 - One module a format: :mod:`~sim2real.deploy.spec.foreign.mjlab`,
   :mod:`~sim2real.deploy.spec.foreign.holosoma`, :mod:`~sim2real.deploy.spec.foreign.isaaclab` (Isaac Lab and
-  rsl_rl).
+  rsl_rl), :mod:`~sim2real.deploy.spec.foreign.unitree_deploy`, :mod:`~sim2real.deploy.spec.foreign.rl_sar`.
 
 Our own ``policy_spec`` metadata, or a ``--spec`` file, always wins over a foreign contract.
 """

@@ -46,6 +46,8 @@ class Term:
         period: ``gait_phase`` only: the gait clock's period, s.
         history: Ticks of history the graph reads of it, the present one included (0 or 1:
             the present only), each tick's entries in turn, the oldest first.
+        zero_joints: ``joint_position`` only: the policy joints (indices in its order) whose
+            entry reads 0 (rl_sar's ``wheel_indices``: a wheel's angle is never observed).
     """
 
     name: str
@@ -59,6 +61,7 @@ class Term:
     source: str = ""
     period: float = 0.0
     history: int = 0
+    zero_joints: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -94,6 +97,11 @@ class ForeignContract:
         history_fill: What a term's history reads before the policy's reset
             (:data:`sim2real.deploy.spec.history.FILLS`): ``first`` (Isaac Lab's
             ``CircularBuffer`` fills itself with its first entry) or ``zeros`` (holosoma).
+        history_order: ``oldest_first`` or ``newest_first`` (:data:`sim2real.deploy.spec.history.ORDERS`).
+        history_layout: ``per_term`` (each term's ticks in turn) or ``per_frame``.
+        history_length: Ticks of a ``per_frame`` history (0: the terms' ``history`` say).
+        velocity_joints: The policy joints (indices in its order) whose action is a speed target
+            (rad/s, ``scale * action``, kp 0: a wheel); the others take position targets.
     """
 
     format: str
@@ -118,6 +126,10 @@ class ForeignContract:
     joint_slots: tuple[int, ...] | None = None
     command_ranges: dict[str, tuple[float, float]] | None = None
     history_fill: str = "first"
+    history_order: str = "oldest_first"
+    history_layout: str = "per_term"
+    history_length: int = 0
+    velocity_joints: tuple[int, ...] = ()
 
     @property
     def n_joints(self) -> int | None:

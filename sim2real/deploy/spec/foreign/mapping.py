@@ -101,6 +101,34 @@ def _entries(term: Term, value, size: int, contract: ForeignContract) -> np.ndar
     return v
 
 
+def _blocks(
+    term: Term, contract: ForeignContract, perm: tuple[int, ...], default: tuple[float, ...]
+) -> tuple[ObservationBlock, ...]:
+    """Our block for one mappable term, or, for a joint position term with ``zero_joints``, one
+    block per run of read and zeroed entries (``joint_position_zero`` for the zeroed)."""
+    block = _block(term, contract, perm, default)
+    if not term.zero_joints:
+        return (block,)
+    zero = set(term.zero_joints)
+    runs: list[list[int]] = []
+    for i in range(block.size):
+        if runs and (i in zero) == (runs[-1][0] in zero):
+            runs[-1].append(i)
+        else:
+            runs.append([i])
+    return tuple(
+        ObservationBlock(
+            name="joint_position_zero" if run[0] in zero else block.name,
+            size=len(run),
+            scale=tuple(1.0 if run[0] in zero else block.scale[i] for i in run),
+            offset=tuple(0.0 if run[0] in zero else block.offset[i] for i in run),
+            clip=block.clip,
+            joints=tuple(block.joints[i] for i in run),
+        )
+        for run in runs
+    )
+
+
 def _block(
     term: Term, contract: ForeignContract, perm: tuple[int, ...], default: tuple[float, ...]
 ) -> ObservationBlock:
@@ -134,13 +162,27 @@ def term_history(contract: ForeignContract) -> ObservationHistory | None:
     """The spec's history of a contract whose terms read past ticks: each term's ticks in turn,
     the oldest first (Isaac Lab's ``CircularBuffer.buffer`` flattened, as mjlab, holosoma and
     Unitree's deployment lay them out), filled as the contract says; None: no term does."""
+    if contract.history_layout == "per_frame":
+        if contract.history_length <= 1:
+            return None
+        return ObservationHistory(
+            length=contract.history_length,
+            order=contract.history_order,
+            layout="per_frame",
+            fill=contract.history_fill,
+        )
     ticks = tuple(max(1, t.history) for t in contract.terms)
     if max(ticks, default=1) == 1:
         return None
+    if any(t.zero_joints for t in contract.terms):
+        raise contract.error(
+            "a per-term history of a joint position term with zeroed joints is not mapped "
+            "(its term becomes several blocks)"
+        )
     uniform = len(set(ticks)) == 1
     return ObservationHistory(
         length=max(ticks),
-        order="oldest_first",
+        order=contract.history_order,
         layout="per_term",
         fill=contract.history_fill,
         lengths=() if uniform else ticks,
@@ -149,7 +191,8 @@ def term_history(contract: ForeignContract) -> ObservationHistory | None:
 
 def to_spec(contract: ForeignContract, robot: Robot) -> PolicySpec:
     """The PolicySpec of a foreign policy on ``robot``: blocks in the graph's order, the action
-    mapping (position, absolute: ``target = offset + scale * action``) and the drive in the
+    mapping (position, absolute: ``target = offset + scale * action``; a velocity joint's
+    target ``scale * action``, rad/s, its drive kind ``velocity``) and the drive in the
     robot's joint order, ``action.joints`` the robot joint of each graph output. Not recorded:
     the default pose is the robot's home, the gains the robot's, the control rate the robot's
     (each listed in ``contract.missing``).
@@ -177,13 +220,13 @@ def to_spec(contract: ForeignContract, robot: Robot) -> PolicySpec:
                 f"observation term '{term.name}' cannot be mapped onto an observation block of "
                 f"this toolkit: {term.reason}"
             )
-    blocks = tuple(_block(t, contract, perm, default) for t in contract.terms)
+    blocks = tuple(b for t in contract.terms for b in _blocks(t, contract, perm, default))
     history = term_history(contract)
     total = stacked_dim(history, tuple(b.size for b in blocks))
     if contract.obs_dim is not None and total != contract.obs_dim:
-        sizes = zip(contract.terms, blocks, strict=True)
         parts = " + ".join(
-            f"{t.name} {b.size}" + (f" x {t.history}" if t.history > 1 else "") for t, b in sizes
+            f"{t.name} {contract.term_size(t)}" + (f" x {t.history}" if t.history > 1 else "")
+            for t in contract.terms
         )
         raise fail(
             f"the observation terms add up to {total} entries ({parts}), the graph's input has "
@@ -195,6 +238,9 @@ def to_spec(contract: ForeignContract, robot: Robot) -> PolicySpec:
     if scale is None:
         raise fail("the action scale is not recorded")
     offset = per_joint(contract.action_offset, names, "action offset", fail) or default
+    speed = set(contract.velocity_joints)
+    offset = tuple(0.0 if i in speed else v for i, v in enumerate(offset))  # a speed about 0
+    kinds = tuple("velocity" if i in speed else "position" for i in range(n)) if speed else ()
     kp = per_joint(contract.kp, names, "kp", fail)
     kd = per_joint(contract.kd, names, "kd", fail)
     to_robot = np.argsort(perm)  # robot joint i is policy joint to_robot[i]
@@ -217,7 +263,12 @@ def to_spec(contract: ForeignContract, robot: Robot) -> PolicySpec:
             joints=() if perm == tuple(range(n)) else perm,
         ),
         control_rate=contract.control_rate or 1.0 / robot.control_period,
-        drive=DriveSpec(kp=robot_order(kp), kd=robot_order(kd), default_pose=robot_order(default)),
+        drive=DriveSpec(
+            kp=robot_order(kp),
+            kd=robot_order(kd),
+            default_pose=robot_order(default),
+            kinds=tuple(kinds[k] for k in to_robot) if kinds else (),
+        ),
         history=history,
     )
     try:

@@ -16,13 +16,13 @@ from types import ModuleType
 
 import onnx
 
-from sim2real.deploy.spec.foreign import holosoma, isaaclab, mjlab, unitree_deploy
+from sim2real.deploy.spec.foreign import holosoma, isaaclab, mjlab, rl_sar, unitree_deploy
 from sim2real.deploy.spec.foreign.contract import ForeignContract, ForeignFormatError
 
 #: The formats, in the order they are tried (metadata formats first; of the two that read a file
-#: beside a bare graph, Unitree's deploy.yaml, which its own deployment reads, before Isaac
-#: Lab's env.yaml).
-FORMATS: tuple[ModuleType, ...] = (mjlab, holosoma, unitree_deploy, isaaclab)
+#: beside a bare graph, Unitree's deploy.yaml, which its own deployment reads, and rl_sar's
+#: config.yaml before Isaac Lab's env.yaml).
+FORMATS: tuple[ModuleType, ...] = (mjlab, holosoma, unitree_deploy, rl_sar, isaaclab)
 
 
 def _dims(vi: onnx.ValueInfoProto) -> list[int | str | None]:

@@ -1,0 +1,206 @@
+"""rl_sar's policy folder: ``policy/<robot>/<stack>/config.yaml`` beside the policy and
+``policy/<robot>/base.yaml`` above it (fan-ziqi/rl_sar; its ``RL::ReadYamlBase``,
+``RL::ReadYamlRL``, ``RL::ComputeObservation`` and ``RL::ComputeOutput`` read them).
+
+Each file is one mapping under one key (``<robot>/<stack>`` and ``<robot>``), read with a safe
+YAML loader; a key of config.yaml wins over base.yaml's. What it says, as rl_sar's code uses it:
+
+- ``joint_mapping``: the motor slot of each policy joint (``q[i] = motor_state[joint_mapping[i]]``):
+  the joint order is the robot's joints ordered by these slots (robot.toml ``[unitree]
+  motor_index``), so rl_sar's ``joint_names`` (a Go2-W's ``*_foot_joint`` where the MJCF says
+  ``*_wheel_joint``) are only reported; ``dt`` x ``decimation``: the control period, s.
+- ``observations`` in order, each scaled and then clipped to ``clip_obs``: ``ang_vel`` (body
+  frame on a real robot; ``ang_vel_scale``), ``gravity_vec`` (projected gravity), ``commands``
+  (``commands_scale``), ``lin_vel`` (``lin_vel_scale``), ``dof_pos`` (about ``default_dof_pos``,
+  ``dof_pos_scale``; the entries of ``wheel_indices`` set to 0: a wheel's angle is never seen),
+  ``dof_vel`` (``dof_vel_scale``), ``actions`` (the previous raw action).
+  ``observations_history``: the frames read, 0 the newest (``observations_history_priority``
+  ``time``: whole frames; ``term``: each term's frames in turn); empty: the present only.
+- ``action_scale``, ``clip_actions_lower``/``_upper``: ``target = default_dof_pos + scale x
+  action`` for a leg; for ``wheel_indices`` a speed target ``scale x action``, rad/s, the drive
+  ``tau = rl_kd (v_target - dq)`` with ``rl_kp`` 0. ``rl_kp``, ``rl_kd``: the gains.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from sim2real.deploy.spec.foreign.contract import ForeignContract, Term
+
+NAME = "rl_sar"
+CONFIG, BASE = Path("config.yaml"), Path("..") / "base.yaml"
+ORDER_NOTE = "rl_sar joint_mapping: the motor slot of each policy joint"
+#: rl_sar's observation names -> (our kind, size (-1: one per joint), its scale key).
+TERMS = {
+    "ang_vel": ("base_angular_velocity", 3, "ang_vel_scale"),
+    "ang_vel_body": ("base_angular_velocity", 3, "ang_vel_scale"),
+    "gravity_vec": ("projected_gravity", 3, None),
+    "commands": ("velocity_command", 3, "commands_scale"),
+    "lin_vel": ("base_linear_velocity", 3, "lin_vel_scale"),
+    "dof_pos": ("joint_position", -1, "dof_pos_scale"),
+    "dof_vel": ("joint_velocity", -1, "dof_vel_scale"),
+    "actions": ("last_action", -1, None),
+}
+
+
+def _sole(path: Path):
+    """The one value of the one-key mapping in ``path``, and its key; (None, None) otherwise."""
+    import yaml
+
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError):
+        return None, None
+    if isinstance(doc, dict) and len(doc) == 1:
+        key, value = next(iter(doc.items()))
+        if isinstance(value, dict):
+            return value, key
+    return None, None
+
+
+def detect(facts) -> bool:
+    """A graph with an rl_sar ``config.yaml`` beside it and ``../base.yaml`` above it."""
+    folder = facts.path.resolve().parent
+    if not ((folder / CONFIG).is_file() and (folder / BASE).is_file()):
+        return False
+    cfg, _ = _sole(folder / CONFIG)
+    return cfg is not None and "observations" in cfg and "action_scale" in cfg
+
+
+def read(facts) -> ForeignContract:
+    """The contract of a policy in an rl_sar folder (module docstring).
+
+    Raises:
+        ForeignFormatError: a file that is not one mapping under one key, a key missing or of
+            the wrong length or kind (naming the file and the key).
+    """
+    fail = facts.failure(NAME)
+    folder = facts.path.resolve().parent
+    cfg, key = _sole(folder / CONFIG)
+    base, base_key = _sole(folder / BASE)
+    if base is None:
+        raise fail(f"{folder / BASE}: expected one mapping under the robot's name")
+    merged = {**base, **cfg}
+
+    def get(name, kind=(list,)):
+        value = merged.get(name)
+        if not isinstance(value, kind) or isinstance(value, bool):
+            where = folder / (CONFIG if name in cfg else BASE)
+            raise fail(f"{where}: '{name}': expected a {kind[0].__name__}, got {value!r}")
+        return value
+
+    slots = tuple(int(s) for s in get("joint_mapping"))
+    n = len(slots)
+    where = str(folder / CONFIG)
+    if facts.act_dim is not None and facts.act_dim != n:
+        raise fail(f"{where}: 'joint_mapping' has {n} joints, the graph {facts.act_dim} actions")
+
+    def joints(name):
+        value = get(name)
+        if len(value) != n:
+            raise fail(f"{where}: '{name}': expected {n} numbers (one per joint), got {value!r}")
+        return tuple(float(v) for v in value)
+
+    wheels = tuple(int(i) for i in merged.get("wheel_indices") or ())
+    if any(not 0 <= i < n for i in wheels):
+        raise fail(f"{where}: 'wheel_indices' {list(wheels)}: expected joint indices in 0..{n - 1}")
+    lower, upper = merged.get("clip_actions_lower"), merged.get("clip_actions_upper")
+    clip = None
+    if lower is not None or upper is not None:
+        low, high = joints("clip_actions_lower"), joints("clip_actions_upper")
+        if len(set(high)) != 1 or any(lo != -high[0] for lo in low):
+            raise fail(
+                f"{where}: 'clip_actions_lower'/'clip_actions_upper': only one symmetric clip "
+                f"of every action maps, got {list(low)} / {list(high)}"
+            )
+        clip = high[0]
+    clip_obs = float(get("clip_obs", (int, float)))
+    terms = tuple(_term(name, merged, clip_obs, wheels) for name in get("observations"))
+    history, order, layout, length = _history(merged.get("observations_history"), merged, fail)
+    if layout == "per_term":
+        terms = tuple(
+            Term(**{**t.__dict__, "history": length}) for t in terms
+        )  # every term reads the same frames
+    period = float(get("dt", (int, float))) * int(get("decimation", (int,)))
+    names = merged.get("joint_names")
+    notes = [
+        f"joint order: {ORDER_NOTE} {list(slots)}",
+        f"rl_sar's joint names (reported only; the motor slots give the robot's): {names}",
+        f"model_name '{merged.get('model_name')}' of {key}; read here: {facts.path.name}",
+        f"torque_limits {merged.get('torque_limits')}: the robot's effort limits apply",
+    ]
+    if wheels:
+        notes.append(f"wheel_indices {list(wheels)}: speed targets, their dof_pos entries 0")
+    found = [
+        ("config.yaml", where),
+        ("base.yaml", f"{folder / BASE} ({base_key})"),
+        ("joint_mapping", str(list(slots))),
+        ("observations", ", ".join(t.name for t in terms)),
+        ("observations_history", str(history)),
+        ("action_scale", str(merged.get("action_scale"))),
+        ("control period", f"dt x decimation = {period} s"),
+    ]
+    return facts.contract(
+        NAME,
+        where,
+        joint_names=None,
+        joint_order_rule="motor_slots",
+        joint_order_note=ORDER_NOTE,
+        joint_slots=slots,
+        terms=terms,
+        default_pose=joints("default_dof_pos"),
+        action_scale=joints("action_scale"),
+        action_clip=clip,
+        kp=joints("rl_kp"),
+        kd=joints("rl_kd"),
+        control_rate=1.0 / period,
+        found=found,
+        notes=notes,
+        history_fill="zeros",
+        history_order=order,
+        history_layout=layout,
+        history_length=length if layout == "per_frame" else 0,
+        velocity_joints=wheels,
+    )
+
+
+def _term(name: str, cfg: dict, clip_obs: float, wheels: tuple[int, ...]) -> Term:
+    """One observation (module docstring): its kind, multiplier and clip (after scaling)."""
+    if name not in TERMS:
+        reason = (
+            "the angular velocity in the world frame (rl_sar's ROS 1 Gazebo)"
+            if name == "ang_vel_world"
+            else "not an observation this toolkit maps"
+        )
+        return Term(name, None, 0, reason=reason)
+    kind, size, scale_key = TERMS[name]
+    raw = 1.0 if scale_key is None else cfg.get(scale_key, 1.0)
+    scale = tuple(float(x) for x in raw) if isinstance(raw, list) else float(raw)
+    if isinstance(scale, tuple) and len(set(scale)) == 1:
+        scale = scale[0]
+    return Term(
+        name, kind, size, scale, clip_obs, relative=True,
+        zero_joints=wheels if kind == "joint_position" else (),
+    )  # fmt: skip
+
+
+def _history(value, cfg: dict, fail) -> tuple[list, str, str, int]:
+    """``(as read, order, layout, length)`` of ``observations_history`` (0 the newest frame):
+    empty, ``[0, 1, ..]`` (newest first) or ``[.., 1, 0]`` (oldest first)."""
+    frames = list(value or [])
+    if not frames:
+        return frames, "oldest_first", "per_frame", 0
+    length = max(frames) + 1
+    if frames == list(range(length)):
+        order = "newest_first"
+    elif frames == list(range(length))[::-1]:
+        order = "oldest_first"
+    else:
+        raise fail(
+            f"'observations_history' {frames}: only every frame from the newest (0) up, in "
+            "either order, maps"
+        )
+    priority = cfg.get("observations_history_priority", "time")
+    if priority not in ("time", "term"):
+        raise fail(f"'observations_history_priority' {priority!r}: expected 'time' or 'term'")
+    return frames, order, "per_frame" if priority == "time" else "per_term", length

@@ -118,10 +118,11 @@ def reinit_warning(joint_names, reinitializations: np.ndarray, seconds: float) -
     )
 
 
-def _absorb_copy(velocity: np.ndarray, rest: tuple) -> None:
-    """:func:`~sim2real.deploy.estimation.kernel.absorb_velocity` on a float64 C-contiguous copy
-    of ``velocity`` (a frame whose array the bound call does not take)."""
-    absorb_velocity(np.ascontiguousarray(velocity, dtype=np.float64), *rest)
+def _absorb_copy(velocity: np.ndarray, position: np.ndarray, rest: tuple) -> None:
+    """:func:`~sim2real.deploy.estimation.kernel.absorb_velocity` on float64 C-contiguous copies
+    of ``velocity`` and ``position`` (a frame whose arrays the bound call does not take)."""
+    v, q = (np.ascontiguousarray(x, dtype=np.float64) for x in (velocity, position))
+    absorb_velocity(v, rest[0], q, *rest[1:])
 
 
 class JointStateEstimator:
@@ -181,17 +182,29 @@ class JointStateEstimator:
         if process_noise is None:
             process_noise = (PROCESS_NOISE_FRACTION * motion_acceleration(robot)) ** 2
         self.process_noise = self._per_joint("process_noise", process_noise)
+        encoder = None
         if measurement_sigma is None:
             floor = 2.0 * np.pi / sensors.encoder_resolution / np.sqrt(12.0)
             stable = np.sqrt(self.process_noise) * robot.control_period**2 / MAX_TRACKING_INDEX
-            measurement_sigma = np.maximum(max(sensors.encoder_noise_sigma, floor), stable)
+            encoder = np.full(n, max(sensors.encoder_noise_sigma, floor) ** 2)
+            measurement_sigma = np.maximum(np.sqrt(encoder), stable)
         self.measurement_variance = self._per_joint("measurement_sigma", measurement_sigma) ** 2
         #: (n,) (rad/s)^2, the drives' reported velocity as a measurement (``[sensors]
         #: velocity_noise_sigma``, at least ``MIN_VELOCITY_SIGMA``); None: not fused
         self.velocity_variance = None
+        #: (n,) rad^2, the encoder's own noise: with a reported velocity the angle is absorbed
+        #: once more at it, its gain on the position alone (kernel ``absorb_velocity``), for
+        #: ``measurement_variance``'s tracking-index floor, which keeps a velocity estimated
+        #: from angles alone from oscillating, let the position integrate the drives' velocity
+        #: away from the angle read; inf where that floor is not above the encoder's noise or
+        #: ``measurement_sigma`` was given
+        self.paired_position_variance = np.full(n, np.inf)
         if sensors.velocity_noise_sigma is not None:
             sigma = max(sensors.velocity_noise_sigma, MIN_VELOCITY_SIGMA)
             self.velocity_variance = np.full(n, sigma**2)
+            if encoder is not None:
+                finer = encoder < self.measurement_variance
+                self.paired_position_variance[finer] = encoder[finer]
         self.initial_covariance = np.zeros((n, 2, 2))
         self.initial_covariance[:, 0, 0] = self.measurement_variance
         self.initial_covariance[:, 1, 1] = robot.velocity_limit**2
@@ -247,7 +260,8 @@ class JointStateEstimator:
         kalman_tick(2, *(np.copy(a) if isinstance(a, np.ndarray) else a for a in args))
         if self.velocity_variance is not None:
             a = [np.copy(x) for x in (args.filt, args.flags, args.now, args.u, args.q_out)]
-            absorb_velocity(np.zeros((envs, n)), self.velocity_variance, *a, a[-1], True)
+            z, r = np.zeros((envs, n)), (self.velocity_variance, self.paired_position_variance)
+            absorb_velocity(z, r[0], z, r[1], *a, a[-1], True)
 
     def _per_joint(self, name: str, value) -> np.ndarray:
         arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (self.n_joints,)).copy()
@@ -481,13 +495,17 @@ class JointStateEstimator:
                 raise ValueError(
                     f"frame: expected velocity shaped {f.position.shape}, got {f.velocity.shape}"
                 )
-            rest = (self.velocity_variance, a.filt, a.flags, a.now, a.u, a.q_out, a.dq_out,
-                    a.input_extrapolates)  # fmt: skip
-            v = f.velocity
-            if fits(v, np.float64, v.shape) and all(fits(x, x.dtype, x.shape) for x in rest[:-1]):
-                self._velocity_call = bind(absorb_velocity, v, *rest)
+            rest = (self.velocity_variance, self.paired_position_variance, a.filt, a.flags,
+                    a.now, a.u, a.q_out, a.dq_out, a.input_extrapolates)  # fmt: skip
+            v, q = f.velocity, f.position
+            if (
+                fits(v, np.float64, v.shape)
+                and fits(q, np.float64, q.shape)
+                and all(fits(x, x.dtype, x.shape) for x in rest[:-1])
+            ):
+                self._velocity_call = bind(absorb_velocity, v, rest[0], q, *rest[1:])
             else:  # an array the bound call does not take: numba's dispatch, on a copy
-                self._velocity_call = functools.partial(_absorb_copy, v, rest)
+                self._velocity_call = functools.partial(_absorb_copy, v, q, rest)
 
     def _recover(self, status: int, frame: SensorFrame) -> None:
         """A degenerate joint (the kernel's ``status``, its phase): re-initialize it, go on from

@@ -179,6 +179,8 @@ def kalman_tick(
 def absorb_velocity(
     zv: np.ndarray,
     rv: np.ndarray,
+    zq: np.ndarray,
+    rq: np.ndarray,
     filt: np.ndarray,
     flags: np.ndarray,
     now: np.ndarray,
@@ -190,8 +192,11 @@ def absorb_velocity(
     """After :func:`kalman_tick`: the joint velocity the drive reported with a fresh reading,
     ``zv`` (envs, n) rad/s (NaN where none), as a second measurement of that reading's state,
     ``H = [0, 1]``, variance ``rv`` (n,) (rad/s)^2 (filterpy's ``update(zv, R=rv, H=[[0, 1]])``
-    after the position's); then those joints' outputs again (``kalman_tick``'s last phase).
-    ``filt``, ``flags``, ``now``, ``u``, ``q_out``, ``dq_out``, ``input_extrapolates``:
+    after the position's); then that reading's angle ``zq`` (envs, n) rad once more, ``H = [1, 0]``,
+    variance ``rq`` (n,) rad^2 (``inf``: not), a Schmidt "consider" update (S. F. Schmidt,
+    "Application of state-space methods to navigation problems", Advances in Control Systems 3,
+    1966): its gain on the position alone, ``K = [p00 / (p00 + rq), 0]``, ``P' = (I - K H) P (I -
+    K H)^T + K rq K^T``; then those joints' outputs again (``kalman_tick``'s last phase). ``filt``, ``flags``, ``now``, ``u``, ``q_out``, ``dq_out``, ``input_extrapolates``:
     :func:`kalman_tick`'s."""
     x, p, tf = filt[0:2], filt[2:6], filt[6]
     fresh = flags[0]
@@ -213,6 +218,14 @@ def absorb_velocity(
             p[1, e, j] = c * p01
             p[2, e, j] = c * p01
             p[3, e, j] = c * p11
+            if math.isfinite(rq[j]):  # the angle, its gain on the position alone
+                p00, p01 = p[0, e, j], p[1, e, j]
+                k0 = p00 / (p00 + rq[j])
+                x[0, e, j] = x[0, e, j] + k0 * (zq[e, j] - x[0, e, j])
+                c = 1.0 - k0
+                p[0, e, j] = c * p00
+                p[1, e, j] = c * p01
+                p[2, e, j] = c * p01
             age = t - tf[e, j]
             du = age * u[e, j] if input_extrapolates else 0.0
             if not math.isfinite(du):

@@ -123,15 +123,17 @@ class ReferenceJointStateEstimator(JointStateEstimator):
                     self._reinitialize(z, ts)
             self._output(state)
             if self.velocity_variance is not None and frame.velocity is not None:
-                self._absorb_velocity_filterpy(frame.velocity)
+                self._absorb_velocity_filterpy(frame.velocity, z)
                 self._output(state)
         np.isfinite(frame.winding_temperature, out=mask)
         np.copyto(state.winding_temperature, frame.winding_temperature, where=mask)
         return state
 
-    def _absorb_velocity_filterpy(self, velocity: np.ndarray) -> None:
+    def _absorb_velocity_filterpy(self, velocity: np.ndarray, position: np.ndarray) -> None:
         """The drives' reported velocity (envs, n) rad/s of each fresh reading: filterpy's
-        ``update`` with ``H = [[0, 1]]`` and ``R = velocity_variance``."""
+        ``update`` with ``H = [[0, 1]]`` and ``R = velocity_variance``; then that reading's angle
+        ``position`` (envs, n) rad again, ``H = [[1, 0]]``, ``R = paired_position_variance``
+        where finite, with Schmidt's consider gain (the position's alone)."""
         cov = self.covariance
         for e, j in zip(*np.nonzero(self._fresh & np.isfinite(velocity)), strict=True):
             kf = self._kfs[e][j]
@@ -142,6 +144,12 @@ class ReferenceJointStateEstimator(JointStateEstimator):
                 R=np.array([[self.velocity_variance[j]]]),
                 H=np.array([[0.0, 1.0]]),
             )
+            r = self.paired_position_variance[j]
+            if np.isfinite(r):  # Schmidt's consider update: the gain on the position alone
+                gain = np.array([[kf.P[0, 0] / (kf.P[0, 0] + r)], [0.0]])
+                kf.x = kf.x + gain * (float(position[e, j]) - kf.x[0, 0])
+                i_kh = np.eye(2) - gain @ np.array([[1.0, 0.0]])
+                kf.P = i_kh @ kf.P @ i_kh.T + gain * r @ gain.T
             self._x[:, e, j] = kf.x[:, 0]
             cov[e, j] = kf.P
 

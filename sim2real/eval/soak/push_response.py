@@ -9,8 +9,8 @@ next physics step), the error ``|v_est - v_true|`` of the base-frame planar velo
 and y, as ``velocity_rms_m_s`` measures it) is summed; a push's second ends at its last tick or
 at the next push. The truth is the base's at the time of the frame the estimate was made from
 (the plant's state at the end of the tick before, which its sensors sampled), not after the
-tick's own physics: a push accelerates the base by about 10 m/s^2, and the truth one control
-period later is 0.2 m/s on at 50 Hz, a difference no estimator of that frame can know. Call it
+tick's own physics: during a push the truth one control period later has moved on by the push's
+acceleration times the period, a difference no estimator of that frame can know. Call it
 after each tick, before that tick's pushes are applied (the truth it keeps for the next tick is
 the one the next frame samples). Simulation only (the truth).
 """

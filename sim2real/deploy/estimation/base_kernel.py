@@ -1,6 +1,5 @@
-"""Compiled steps of the base estimator's error-state filter (:mod:`sim2real.deploy.estimation.base`) of
-one env; the numpy reference of the same algebra (filterpy's predict and update) is
-:class:`sim2real.deploy.estimation.reference.ReferenceBaseStateEstimator`.
+"""Compiled steps of the base estimator's error-state filter (:mod:`~.base`) of one env; its numpy
+reference (filterpy's predict and update): :class:`~.reference.ReferenceBaseStateEstimator`.
 
 Nominal state: rotation ``R`` (base to world), velocity ``v`` (m/s, world), the biases ``b``
 (6,): the gyro's ``b_g`` (rad/s) and the accelerometer's ``b_a`` (m/s^2), base frame. Error state
@@ -27,8 +26,8 @@ accelerometer's bias drifts (a MEMS part's random walk): unmodelled, 1 m/s^2 of 
 reads a trotting Go2 sinking at 1 m/s; the legs, whose velocity does not drift, observe it. The
 heading is locked (:func:`lock_heading`).
 
-Products are loops into a :func:`workspace`, fused multiply-adds in ``k``'s order: the rounding
-of numpy's BLAS (OpenBLAS, x86-64 with FMA; ``tests/test_base_tick.py``, ``test_legged.py``).
+Products are loops into a :func:`workspace`, fused multiply-adds in ``k``'s order: numpy's BLAS's
+rounding (OpenBLAS, x86-64 with FMA; ``tests/test_base_tick.py``, ``test_legged.py``).
 """
 
 from __future__ import annotations

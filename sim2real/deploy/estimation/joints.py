@@ -1,39 +1,33 @@
 """Joint state estimation: a position + velocity Kalman filter per joint, batched over ``envs``.
 
-Model (per joint, state ``x = [q, dq]``, rad and rad/s): the acceleration the drive was commanded
-(control input ``u``, rad/s^2), plus white-noise acceleration that is piecewise constant over each
-prediction interval ("discrete white noise acceleration", Bar-Shalom, Li, Kirubarajan, *Estimation
-with Applications to Tracking and Navigation*, Wiley 2001, sec. 6.3.2;
-``filterpy.common.Q_discrete_white_noise(2, dt, var)``)::
+Model (per joint, state ``x = [q, dq]``, rad and rad/s): the commanded acceleration (input ``u``,
+rad/s^2) plus white-noise acceleration piecewise constant over each interval (Bar-Shalom et al.,
+*Estimation with Applications to Tracking and Navigation*, 2001, sec. 6.3.2; filterpy's
+``Q_discrete_white_noise(2, dt, var)``)::
 
     x' = F(dt) x + B(dt) u
     F(dt) = [[1, dt], [0, 1]]          Q(dt) = var * [[dt^4 / 4, dt^3 / 2], [dt^3 / 2, dt^2]]
     B(dt) = [[dt^2 / 2], [dt]]         H = [[1, 0]],  R = measurement_sigma^2
 
 Without an input (``u = 0``) this is the constant-velocity model, which lags an accelerating joint
-by about ``a / omega^2`` (``omega ~ (var / R)^(1/4)``). For an arm the runtime passes the
-smoother's commanded acceleration (:attr:`sim2real.deploy.smoothing.CommandSmoother.mean_acceleration`) in
-position and velocity mode; the noise then only has to cover the drive's tracking error. The
-output's extrapolation past the newest reading (latency) uses the input only with
-``input_extrapolates``. A floating-base robot's filter gets no input
-(:meth:`sim2real.deploy.safety.guard.SafetyGuard.estimator_input`): its low-gain PD targets may jump from
+by about ``a / omega^2`` (``omega ~ (var / R)^(1/4)``). An arm's filter gets the smoother's
+commanded acceleration (:attr:`sim2real.deploy.smoothing.CommandSmoother.mean_acceleration`),
+used past the newest reading only with ``input_extrapolates``; a floating base's none
+(:meth:`sim2real.deploy.safety.guard.SafetyGuard.estimator_input`): its PD targets may jump from
 tick to tick, and their acceleration is not the joints'.
 
-Drives that report each joint's velocity with its angle (Unitree's ``motor_state.dq``: robot.toml's
-``[sensors] velocity_noise_sigma``, the frame's ``velocity``) give the filter a second measurement of
-that reading, ``H = [0, 1]`` with that noise (:func:`~sim2real.deploy.estimation.kernel.
-absorb_velocity`): without it, a legged robot's joint velocity estimate lagged a stepping leg by two
-to three control periods, and a policy read its joints' speed from the lag.
+Drives that report each joint's velocity with its angle (Unitree's ``motor_state.dq``; robot.toml's
+``[sensors] velocity_noise_sigma``) give a second measurement of that reading, ``H = [0, 1]``, and
+the angle is then absorbed once more at the encoder's own noise, its gain on the position alone
+(:func:`~sim2real.deploy.estimation.kernel.absorb_velocity`): the joint's speed is the drive's,
+not a lag behind a stepping leg, and its angle the one read.
 
 Time stamps: a joint's filter lives at ``filter_time``, the sample time of the last reading it
 absorbed; a later reading is absorbed (predict by ``stamp - filter_time``, update), an older,
-repeated or future one is counted in ``stale_readings``, a missing (non-finite) one in
-``missing_readings`` and never fed to the filter. The *output* is the prediction from
-``filter_time`` to ``frame.time``, not stored: latency is bridged by extrapolation, a dropout is a
-predict-only step.
-
-The tick is one numba kernel (:mod:`sim2real.deploy.estimation.kernel`); its reference runs one
-``filterpy.kalman.KalmanFilter(dim_x=2, dim_z=1)`` per (env, joint) (:mod:`~.reference`).
+repeated or future one is counted in ``stale_readings``, a missing one in ``missing_readings``.
+The *output* is the prediction to ``frame.time``, not stored (latency bridged by extrapolation, a
+dropout a predict-only step). The tick is one numba kernel (:mod:`~.kernel`); its reference runs
+one ``filterpy`` KalmanFilter per (env, joint) (:mod:`~.reference`).
 """
 
 from __future__ import annotations

@@ -13,7 +13,8 @@ state), unitree_rl_gym's H1 and H1-2 (their ``deploy_mujoco.py`` loop with the p
 The pushes are the policy's training domain's (the ONNX file's ``training_domain``, or
 ``--domain NAME=FILE``'s ``[pushes]``), else legged_gym's push at ``--max-velocity`` every 5 s;
 as forces over the push's window (the soak's default) or, ``--apply velocity_hidden_from_imu``,
-the velocity set as the training stacks do; ``--no-pushes``: none (walking alone). Printed per policy and loop: pushes survived (before
+the velocity set as the training stacks do; ``--no-pushes``: none (walking alone). Printed per
+policy and loop: pushes survived (before
 the fatal one), falls and falls per hour walked, interventions per RUNNING tick (ours; the own
 loops have no guard), the stops of a robot the truth had upright, and the base estimate's planar
 velocity error in the second after a push; then the paired comparison per seed (same fatal push,

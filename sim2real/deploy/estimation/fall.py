@@ -11,10 +11,10 @@ signal, ``sinking``, needs neither the feet nor the tilt: the estimated base sin
 ``FALL_SPEED`` for ``FALL_SPEED_TIME`` s while tilted past ``SINK_TILT_SHARE`` of the tilt limit,
 or with its kinematic height under ``SINK_HEIGHT_SHARE`` of ``[base] standing_height``; upright,
 on its feet or with none in contact (a hop a push threw it into), for ``UPRIGHT_SINK_TIME`` s
-(the kinematic height falls with the feet, a base can drop upright on a slack support). An upright robot catching a push
-crouches: its base sinks for a moment, a few centimetres (a holosoma G1's 0.1-s sink
-stopped it 0.4 deg from upright, its base 0.67 m of its 0.757 m). No ground truth is read: the
-same check runs on hardware.
+(the kinematic height falls with the feet, a base can drop upright on a slack support). An
+upright robot catching a push crouches: its base sinks for a moment, a few centimetres (a holosoma
+G1's 0.1-s sink stopped it 0.4 deg from upright, its base 0.67 m of its 0.757 m). No ground truth
+is read: the same check runs on hardware.
 
 The runtime's response (:mod:`sim2real.deploy.runtime`, cause ``fall``): a safe stop whose command is
 joint damping (position mode: the target follows the measured pose, so the PD servo applies

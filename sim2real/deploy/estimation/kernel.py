@@ -196,7 +196,8 @@ def absorb_velocity(
     variance ``rq`` (n,) rad^2 (``inf``: not), a Schmidt "consider" update (S. F. Schmidt,
     "Application of state-space methods to navigation problems", Advances in Control Systems 3,
     1966): its gain on the position alone, ``K = [p00 / (p00 + rq), 0]``, ``P' = (I - K H) P (I -
-    K H)^T + K rq K^T``; then those joints' outputs again (``kalman_tick``'s last phase). ``filt``, ``flags``, ``now``, ``u``, ``q_out``, ``dq_out``, ``input_extrapolates``:
+    K H)^T + K rq K^T``; then those joints' outputs again (``kalman_tick``'s last phase).
+    ``filt``, ``flags``, ``now``, ``u``, ``q_out``, ``dq_out``, ``input_extrapolates``:
     :func:`kalman_tick`'s."""
     x, p, tf = filt[0:2], filt[2:6], filt[6]
     fresh = flags[0]

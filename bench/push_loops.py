@@ -44,6 +44,9 @@ from sim2real.eval.world.pushes import DomainPushes, PushRanges
 
 #: s, the gait phase's period in unitree's deploy_mujoco.py (H1, H1-2, G1)
 GAIT_PERIOD = 0.8
+#: A run's cause when a tick of our runtime raised (a safe stop Ruckig could not plan): the run
+#: ends there and the table counts it apart, not as a stop.
+STOP_RAISED = "raised"
 #: s a run may spend in RAMP_IN before walking (our runtime; a fall if it never walks)
 RAMP_TIMEOUT = 10.0
 
@@ -234,6 +237,7 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command) -> R
     from sim2real.deploy.backends.sim.plant import SimBackend
     from sim2real.deploy.monitors.interventions import InterventionMonitor
     from sim2real.deploy.runtime import Runtime
+    from sim2real.deploy.smoothing.ruckig_state import SmoothingError
     from sim2real.eval.soak.push_response import PushResponse
 
     plant = SimBackend(robot, "position", envs=1, seed=seed)
@@ -248,7 +252,13 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command) -> R
     before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
     truth = np.zeros((1, 13))
     while rt.ticks < round(seconds / rt.dt):
-        rt.tick()
+        try:
+            rt.tick()
+        except SmoothingError:  # the runtime raised: the run ends there, counted apart
+            plant.true_base_state(out=truth)
+            run.fell_at, run.cause = rt.time, STOP_RAISED
+            run.upright_stop = true_upright(robot, truth[0, 2], truth[0, 3:7])
+            break
         monitor.update()
         plant.true_base_state(out=truth)
         if rt.mode[0] != RUNNING:

@@ -13,11 +13,13 @@ state), unitree_rl_gym's H1 and H1-2 (their ``deploy_mujoco.py`` loop with the p
 The pushes are the policy's training domain's (the ONNX file's ``training_domain``, or
 ``--domain NAME=FILE``'s ``[pushes]``), else legged_gym's push at ``--max-velocity`` every 5 s;
 as forces over the push's window (the soak's default) or, ``--apply velocity_hidden_from_imu``,
-the velocity set as the training stacks do. Printed per policy and loop: pushes survived (before
+the velocity set as the training stacks do; ``--no-pushes``: none (walking alone). Printed per
+policy and loop: pushes survived (before
 the fatal one), falls and falls per hour walked, interventions per RUNNING tick (ours; the own
 loops have no guard), the stops of a robot the truth had upright, and the base estimate's planar
 velocity error in the second after a push; then the paired comparison per seed (same fatal push,
-ours earlier, ours later) with a two-sided sign test.
+ours earlier, ours later) with a two-sided sign test. A run of ours whose tick raised (a safe
+stop Ruckig could not plan) ends there, counted as a fall and named ``raised`` in the table.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.push_loops import (  # noqa: F401 (bench.estimation imports them from here)
+    STOP_RAISED,
     Run,
     load_torchscript,
     runtime_loop,
@@ -82,6 +85,8 @@ def push_ranges(entry: Entry, robot, args):
     from sim2real.eval.world.pushes import PushRanges
     from sim2real.eval.world.ranges_file import load_ranges, load_ranges_text
 
+    if args.no_pushes:
+        return None
     pushes = None
     if entry.domain is not None:
         pushes = load_ranges(entry.domain, robot).pushes
@@ -164,6 +169,7 @@ def summary(runs: list[Run]) -> dict:
         "after_push": sum(a["mean_m_s"] * a["ticks"] for a in after) / n if n else None,
         "after_push_worst": max((a["worst_push_mean_m_s"] for a in after), default=None),
         "causes": sorted({r.cause for r in runs if r.cause}),
+        "raised": sum(r.cause == STOP_RAISED for r in runs),
     }
 
 
@@ -181,7 +187,7 @@ def table(results: dict[str, tuple[Entry, list[Run], list[Run]]], args) -> list[
         share = f" ({b['survived'] / a['survived']:.1%} of its own)" if a["survived"] else ""
         after = (
             "-"
-            if b["after_push"] is None
+            if b["after_push"] is None or b["after_push_worst"] is None
             else f"{b['after_push']:.3f} / {b['after_push_worst']:.3f}"
         )
         checks = ", ".join(f"{k} {v}" for k, v in sorted(b["checks"].items()))
@@ -190,7 +196,8 @@ def table(results: dict[str, tuple[Entry, list[Run], list[Run]]], args) -> list[
             f"{a['falls_per_hour']:.0f} | - | - | - | |"
         )
         lines.append(
-            f"| {name} | our runtime | {b['survived']}{share} | {b['falls']}/{len(ours)} | "
+            f"| {name} | our runtime | {b['survived']}{share} | {b['falls']}/{len(ours)}"
+            f"{f' ({raised} raised)' if (raised := b['raised']) else ''} | "
             f"{b['falls_per_hour']:.0f} | {b['interventions']:.4%}"
             f"{f' ({checks})' if checks else ''} | {b['upright_stops']} | {after} | "
             f"{same} / {fewer} / {more} (p = {p:.3f}) |"
@@ -234,6 +241,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--command", default="0.5,0,0", help="vx,vy,yaw rate (m/s, rad/s)")
     p.add_argument("--max-velocity", type=float, default=None, help="legged_gym's pushes, m/s")
     p.add_argument("--apply", choices=("force", "velocity_hidden_from_imu"), default=None)
+    p.add_argument("--no-pushes", action="store_true", help="walk without pushes")
     p.add_argument("--window", type=float, default=None, help="s, a force push's duration")
     p.add_argument("--jobs", type=int, default=1, help="processes")
     p.add_argument("--verbose", action="store_true", help="a line per seed")

@@ -117,7 +117,7 @@ def numpy_fall_check(fall: FallDetector, state: RobotState) -> tuple[np.ndarray,
         )
     low = np.where(height < fall.height_limit, fall.low_ticks + 1, 0)
     signals[:, 1] = low >= fall.height_ticks
-    upright = (tilt <= fall.sink_tilt) & (height >= fall.sink_height)  # NaN: not upright
+    upright = (tilt <= fall.sink_tilt) & ~(height < fall.sink_height)  # NaN (a hop): upright
     signals[:, 2] = ticks >= np.where(upright, fall.upright_ticks, fall.speed_ticks)
     return signals, height
 

@@ -177,10 +177,11 @@ def test_a_sinking_base_trips_the_fall_check_in_a_tenth_of_a_second_only_when_it
     go2, stand_policy
 ):
     """The sinking signal stopped an upright robot catching a push (a holosoma G1:
-    0.4 deg, base 0.67 of 0.757 m). Sinking past FALL_SPEED for five ticks (0.1 s) trips the
-    check when the base is tilted past SINK_TILT_SHARE of the tilt limit, its kinematic height
-    under SINK_HEIGHT_SHARE of the standing height, or no foot is in contact; upright on its
-    feet it does not."""
+    0.4 deg, base 0.67 of 0.757 m), and an H1 coming down from the hop a push threw it into
+    (no foot in contact, upright, its base at its standing height). Sinking past FALL_SPEED for
+    five ticks (0.1 s) trips the check when the base is tilted past SINK_TILT_SHARE of the tilt
+    limit or its kinematic height is under SINK_HEIGHT_SHARE of the standing height; upright, on
+    its feet or in the air, it does not (UPRIGHT_SINK_TIME does, below)."""
     from copy import deepcopy
 
     from sim2real.deploy.core.attitude import projected_gravity
@@ -200,11 +201,17 @@ def test_a_sinking_base_trips_the_fall_check_in_a_tenth_of_a_second_only_when_it
     tilted.base.orientation[:] = quat
     tilted.base.projected_gravity[:] = projected_gravity(quat[None])[0]
     flying.foot_contact[:] = 0.0
-    for state in (upright, tilted, flying):
+    tilted_flying = deepcopy(tilted)
+    tilted_flying.foot_contact[:] = 0.0
+    for state in (upright, tilted, flying, tilted_flying):
         detector.load_state_dict({k: 0 * v for k, v in detector.state_dict().items()})
         fired = [bool(detector.check(state).all()) for _ in range(detector.speed_ticks)]
-        assert fired == [False] * 4 + [state is not upright], fired
+        fast = state is tilted or state is tilted_flying
+        assert fired == [False] * 4 + [fast], fired
         assert detector.signals[:, 0].sum() == 0  # not the tilt signal
+    detector.load_state_dict({k: 0 * v for k, v in detector.state_dict().items()})
+    fired = [bool(detector.check(flying).all()) for _ in range(detector.upright_ticks)]
+    assert fired == [False] * (detector.upright_ticks - 1) + [True], fired
 
 
 def test_base_estimate_and_gait_clock_survive_state_dict(go2, stand_policy):

@@ -9,12 +9,12 @@ the estimated orientation. The tilt trips at once; the height must persist, beca
 on one foot in contact dips under the limit for a tick while a collapsed base stays down. A third
 signal, ``sinking``, needs neither the feet nor the tilt: the estimated base sinking faster than
 ``FALL_SPEED`` for ``FALL_SPEED_TIME`` s while tilted past ``SINK_TILT_SHARE`` of the tilt limit,
-or with its kinematic height under ``SINK_HEIGHT_SHARE`` of ``[base] standing_height`` or no
-foot in contact; upright on its feet, for ``UPRIGHT_SINK_TIME`` s (the kinematic height falls
-with the feet, a base can drop upright on a slack support). An upright robot catching a push
-crouches: its base sinks for a moment, a few centimetres (a holosoma G1's 0.1-s sink
-stopped it 0.4 deg from upright, its base 0.67 m of its 0.757 m). No ground truth is read: the
-same check runs on hardware.
+or with its kinematic height under ``SINK_HEIGHT_SHARE`` of ``[base] standing_height``; upright,
+on its feet or with none in contact (a hop a push threw it into), for ``UPRIGHT_SINK_TIME`` s
+(the kinematic height falls with the feet, a base can drop upright on a slack support). An
+upright robot catching a push crouches: its base sinks for a moment, a few centimetres (a holosoma
+G1's 0.1-s sink stopped it 0.4 deg from upright, its base 0.67 m of its 0.757 m). No ground truth
+is read: the same check runs on hardware.
 
 The runtime's response (:mod:`sim2real.deploy.runtime`, cause ``fall``): a safe stop whose command is
 joint damping (position mode: the target follows the measured pose, so the PD servo applies
@@ -52,7 +52,8 @@ FALL_HEIGHT_TIME = 0.2
 #: lower. Five ticks at 50 Hz.
 FALL_SPEED = 1.0
 FALL_SPEED_TIME = 0.1
-#: The sinking of a base that is upright on its feet must last this long, s (our choice): 0.3 m
+#: The sinking of a base that is upright (on its feet, or in a hop with none in contact) must
+#: last this long, s (our choice): 0.3 m
 #: at FALL_SPEED, more than a walking robot's crouch catching a push (the G1's true 9 cm; the
 #: H1's upright sink in a soak with pushes, 0.91 of its standing height) and under a free fall's
 #: 0.45 s to the floor from a humanoid's 1 m.
@@ -82,9 +83,9 @@ class FallDetector:
             (``FALL_HEIGHT_TIME`` over the robot's control period, rounded up).
         height: (envs,) m, the last kinematic base height (NaN with no foot in contact).
         low_ticks: (envs,) int64, consecutive checks so far with ``height`` under the limit.
-        speed_ticks: control ticks the base must sink faster than ``FALL_SPEED`` tilted, low
-            or with no foot in contact (``FALL_SPEED_TIME``); upright_ticks: upright on its
-            feet (``UPRIGHT_SINK_TIME``), both rounded up.
+        speed_ticks: control ticks the base must sink faster than ``FALL_SPEED`` tilted or
+            low (``FALL_SPEED_TIME``); upright_ticks: upright, on its feet or with none in
+            contact (``UPRIGHT_SINK_TIME``), both rounded up.
         sink_tilt: rad, ``SINK_TILT_SHARE`` of ``tilt_limit``. sink_height: m,
             ``SINK_HEIGHT_SHARE`` of the standing height.
         sinking_ticks: (envs,) int64, consecutive checks so far with the base sinking so.
@@ -216,8 +217,8 @@ def _check(limits, gravity, velocity, orientation, contact, position, height, ti
                     first = False
             ticks[0, e] = ticks[0, e] + 1 if height[e] < limits[1] else 0
             signals[e, 1] = ticks[0, e] >= limits[2]
-        # sinking: tilted, low or unsupported (NaN: no foot in contact, or no height check)
-        upright = tilt <= limits[5] and height[e] >= limits[6]  # NaN compares False
+        # sinking: tilted or low; upright and no foot in contact (NaN) is a hop, not low
+        upright = tilt <= limits[5] and not height[e] < limits[6]  # NaN compares False
         signals[e, 2] = ticks[1, e] >= (limits[4] if upright else limits[3])
         out[e] = signals[e, 0] or signals[e, 1] or signals[e, 2]
 

@@ -137,9 +137,7 @@ def test_rl_sar_folder_is_the_go2w_contract_wheels_by_speed_their_angle_unseen(g
 
 
 def test_rl_sar_history_and_clip_are_read_or_refused_in_one_line(go2w, tmp_path):
-    policy = OnnxPolicy(
-        write(tmp_path / "a", obs_dim=57 * 3, observations_history=[0, 1, 2]), go2w
-    )
+    policy = OnnxPolicy(write(tmp_path / "a", obs_dim=57 * 3, observations_history=[0, 1, 2]), go2w)
     h = policy.spec.history
     assert (h.length, h.order, h.layout) == (3, "newest_first", "per_frame")
     with pytest.raises(PolicyLoadError, match="clip_actions_lower"):

@@ -8,8 +8,9 @@ dry friction; the fast end the inertia and the delay), a few steps (their smooth
 motor at the command speed limit: its torque-speed line), back home; then every joint together
 (each its own phase), then home held. The amplitude is a fraction of each joint's soft half-range
 (a continuous joint's, a wheel's: of half a turn), shrunk where the chirp's peak speed or
-acceleration would pass a fraction of the joint's command speed or acceleration limit, so that the smoother passes the trajectory through undistorted; the
-guard still checks every command, as for any policy.
+acceleration would pass a fraction of the joint's command speed or acceleration limit, so that
+the smoother passes the trajectory through undistorted; the guard still checks every command, as
+for any policy.
 
 :class:`ExcitationPolicy` has a policy's face for :class:`sim2real.deploy.runtime.Runtime`: called
 once per tick with the observation, it returns the action of the trajectory's next row under the

@@ -198,7 +198,9 @@ def test_feetech_torque_on_before_any_goal_write_holds_the_joint(so101):
         before = {sid: ph.read2ByteTxRx(port, sid, 56)[0] for sid in SO101_IDS}
         for sid in SO101_IDS:
             goal = ph.read2ByteTxRx(port, sid, 42)[0]  # the present position at power-up
-            assert abs(goal - before[sid]) <= 5, (sid, goal, before[sid])  # it sags by a tick
+            # the pose at power-up: the arm sags under gravity with torque off from then until
+            # this read (longer on a busy machine), far less than the 2048 ticks to tick 0
+            assert abs(goal - before[sid]) < 60, (sid, goal, before[sid])
             assert ph.write1ByteTxRx(port, sid, 40, 1) == (scs.COMM_SUCCESS, 0)
         _run_plant(emu, 0.4)
         for sid in SO101_IDS:

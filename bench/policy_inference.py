@@ -40,7 +40,9 @@ from sim2real.deploy.spec.policy_spec import PolicySpec  # noqa: E402
 from sim2real.robots import load_robot  # noqa: E402
 
 #: Every observation block a fixed-base robot without wrapping joints has (arm3, arm6).
-BLOCKS = tuple(k for k in kind_names(legged=False) if k != "joint_position_sincos")
+BLOCKS = tuple(
+    k for k in kind_names(legged=False) if k not in ("joint_position_sincos", "joint_position_zero")
+)
 
 
 def time_calls(fn: Callable[[], object], calls: int, warmup: int = 500) -> np.ndarray:

@@ -8,18 +8,20 @@ import numpy as np
 import pytest
 
 from bench.push_loops import Run, runtime_loop, truth_loop
-from bench.push_reference import SHIPPED, _load, sign_test, summary, survived
+from bench.push_reference import Entry, _load, sign_test, summary, survived
 from sim2real.eval.world.pushes import PushRanges, push_velocity
+from tests.runtime_fixtures import shipped_onnx
 
 
-def test_the_own_loop_and_the_runtime_are_pushed_alike():
+def test_the_own_loop_and_the_runtime_are_pushed_alike(tmp_path):
     """The shipped go2 walking at 0.5 m/s, one 0.5-m/s push at 1 s as a force over 0.1 s: both
     loops push at 1.0 s on their clock (the policy's gait clock) and walk on; ours is judged on
     its estimate in the second after it and counts its interventions per RUNNING tick."""
     pushes = PushRanges(interval=1.0, max_velocity=0.5)
-    robot, policy = _load(SHIPPED["go2"])
+    go2 = Entry("go2", "go2", shipped_onnx("go2", tmp_path))  # a fresh clone has no go2.onnx
+    robot, policy = _load(go2)
     own = truth_loop(robot, policy, 3, 1.6, pushes, [0.5, 0.0, 0.0])
-    robot, policy = _load(SHIPPED["go2"])
+    robot, policy = _load(go2)
     ours = runtime_loop(robot, policy, 3, 1.6, pushes, [0.5, 0.0, 0.0])
     assert own.pushes == ours.pushes == [pytest.approx(1.0)]
     assert own.fell_at is None and ours.fell_at is None

@@ -285,9 +285,7 @@ def _run_rig(args, rig, realtime, injector, clock, rt_request) -> int:
             wall = time.perf_counter() - wall
         if rt.telemetry is not None:
             rt.telemetry.close(rt.long_ticks.rows(rt.dt, realtime), rt.dt)
-    except (
-        Exception
-    ):  # refused (--require-rt, the bring-up, a hook's start) or failed: nothing left
+    except Exception:  # refused (--require-rt, bring-up, a hook's start), failed: none left
         discard(rig, rt.telemetry)
         raise
     report = run_report(args, rig, wall, realtime, injector, clock)

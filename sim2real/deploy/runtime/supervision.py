@@ -90,9 +90,9 @@ class Supervision:
         )
         #: (envs,) int64, supervised ticks since each env's safe stop began (0 outside SAFE_STOP)
         self.stop_ticks = np.zeros(envs, dtype=np.int64)
-        #: ``SAFE_STOP_TIMEOUT`` in ticks
         #: Ruckig's messages of the steps it could not plan (the first few; cause ``smoother``)
         self.smoothing_errors: list[str] = []
+        #: ``SAFE_STOP_TIMEOUT`` in ticks
         self.stop_timeout = max(1, int(np.ceil(SAFE_STOP_TIMEOUT / robot.control_period - 1e-9)))
         self.faults = np.zeros((len(FAULT_CAUSES), envs), dtype=np.int64)  # rows: views below
         self.counters.faults.update({c: self.faults[i] for i, c in enumerate(FAULT_CAUSES)})

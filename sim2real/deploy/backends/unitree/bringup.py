@@ -186,10 +186,11 @@ def _run(b, seconds: float, target, gains=None):
     """Send ``target(t)`` (rad, (n,)) every control period for ``seconds``, reading the states:
     damping while the backend damps, else a position target with ``gains`` ((kp, kd), or a
     function of ``t`` returning them). A LowState silent for ``BRINGUP_STALE`` stops it
-    (damping, :class:`BringupError`). Returns the last frame read."""
+    (damping, :class:`BringupError`). Returns the last frame read (None if none was)."""
     start = time.monotonic()
     last = start
     t = 0.0
+    frame = None  # no period to run (``seconds`` <= 0): none read
     while t < seconds:
         frame = b.read()
         now = time.monotonic()

@@ -58,7 +58,9 @@ class JointStateEstimator:
             ``robot.config.sensors.encoder_noise_sigma``, floored at the quantization noise
             ``(2 pi / encoder_resolution) / sqrt(12)`` (uniform rounding error) so that ``R > 0``,
             and at ``sqrt(process_noise) dt^2 / MAX_TRACKING_INDEX`` (a velocity estimate that
-            does not oscillate; ``dt`` the control period).
+            does not oscillate; ``dt`` the control period). Where that last floor acts, the
+            reading's angle is absorbed a second time into the angle alone at
+            ``angle_rest_variance``, so the angle still follows the encoder at its own noise.
         input_extrapolates: Whether the output's extrapolation from the newest reading to the
             frame's time uses the control input (default) or constant velocity (module
             docstring; the runtime gives a floating-base robot's filter no input at all).
@@ -74,6 +76,13 @@ class JointStateEstimator:
             ``robot.config.safety.stale_limit``.
         stale_readings, missing_readings, reinitializations: (envs,) int counters since the last
             :meth:`reset` (sums over the joints of ``*_per_joint``, (envs, n)).
+        angle_rest_variance: (n,) rad^2, ``1 / (1 / encoder^2 - 1 / R)``: the share of the
+            encoder's accuracy the tracking-index floor held back from the joint update, absorbed
+            after it into the angle alone (gain ``[k0, 0]``, Joseph's form; the velocity stays
+            the floored update's: the angle's residual of a leg whose acceleration steps within
+            a period is no measure of its speed). inf where no floor acts or
+            ``measurement_sigma`` is given. Without it a PD-target leg's angle sat 0.1 to 0.5 rad
+            off its encoder.
         initial_covariance: (n, 2, 2), ``diag(R, velocity_limit^2)``: the pose is known to the
             encoder's accuracy, the velocity only to within the joint's velocity limit.
         covariance_bound: (n, 2), largest accepted variances of position and velocity:
@@ -101,11 +110,18 @@ class JointStateEstimator:
         if process_noise is None:
             process_noise = (PROCESS_NOISE_FRACTION * motion_acceleration(robot)) ** 2
         self.process_noise = self._per_joint("process_noise", process_noise)
+        encoder = None
         if measurement_sigma is None:
             floor = 2.0 * np.pi / sensors.encoder_resolution / np.sqrt(12.0)
             stable = np.sqrt(self.process_noise) * robot.control_period**2 / MAX_TRACKING_INDEX
-            measurement_sigma = np.maximum(max(sensors.encoder_noise_sigma, floor), stable)
+            encoder = max(sensors.encoder_noise_sigma, floor)
+            measurement_sigma = np.maximum(encoder, stable)
         self.measurement_variance = self._per_joint("measurement_sigma", measurement_sigma) ** 2
+        self.angle_rest_variance = np.full(n, np.inf)
+        if encoder is not None:
+            held = self.measurement_variance > encoder**2 * (1.0 + 1e-9)
+            kept = np.where(held, self.measurement_variance, 1.0)
+            self.angle_rest_variance = np.where(held, 1.0 / (1.0 / encoder**2 - 1.0 / kept), np.inf)
         self.initial_covariance = np.zeros((n, 2, 2))
         self.initial_covariance[:, 0, 0] = self.measurement_variance
         self.initial_covariance[:, 1, 1] = robot.velocity_limit**2
@@ -142,9 +158,17 @@ class JointStateEstimator:
         self._flags = np.zeros((2, *shape), dtype=bool)  # rows fresh, good
         self._fresh, self._good = self._flags[0], self._flags[1]
 
-        # the compiled kernel's per-joint constants: rows var, r and the covariance bounds
+        # the compiled kernel's per-joint constants: rows var, r, the covariance bounds and the
+        # angle's rest variance
         self._consts = np.ascontiguousarray(
-            np.stack([self.process_noise, self.measurement_variance, *self.covariance_bound.T])
+            np.stack(
+                [
+                    self.process_noise,
+                    self.measurement_variance,
+                    *self.covariance_bound.T,
+                    self.angle_rest_variance,
+                ]
+            )
         )
         #: the kernel's arguments for the last frame's, state's and input's arrays
         #: (:meth:`_bind`), and those arrays, compared by identity at each update

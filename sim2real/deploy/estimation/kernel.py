@@ -96,15 +96,16 @@ def kalman_tick(
     Shapes: ``z``, ``ts``, temperatures, ``q_out``, ``dq_out`` (envs, n); ``now`` (envs,);
     ``u`` (envs, n), the control input (commanded acceleration, rad/s^2); ``filt`` (8, envs, n),
     the filter's state, rows ``x`` (2: position, velocity), ``p`` (4, ``p[k] = P[k // 2,
-    k % 2]``), ``filter_time``, ``time_since_fresh``; ``consts`` (4, n) rows process noise
-    ``var``, measurement variance ``r``, covariance bounds ``b0``, ``b1``; ``counts`` (3, envs,
+    k % 2]``), ``filter_time``, ``time_since_fresh``; ``consts`` (5, n) rows process noise
+    ``var``, measurement variance ``r``, covariance bounds ``b0``, ``b1``, the angle's rest
+    variance ``rx`` (inf: none; else the reading's angle once more into the angle alone); ``counts`` (3, envs,
     n) int64 rows missing, stale (and re-initializations, not written here); ``flags`` (2, envs,
     n) bool rows fresh, good (written); ``input_extrapolates``: whether the output's
     extrapolation past the newest reading uses ``u`` too (else constant velocity). Units as in
     :class:`~sim2real.deploy.estimation.joints.JointStateEstimator`.
     """
     x, p, tf, time_since_fresh = filt[0:2], filt[2:6], filt[6], filt[7]
-    var, r, b0, b1 = consts[0], consts[1], consts[2], consts[3]
+    var, r, b0, b1, rx = consts[0], consts[1], consts[2], consts[3], consts[4]
     missing, stale, fresh, good = counts[0], counts[1], flags[0], flags[1]
     envs, n = z.shape
     if phase == 0:
@@ -157,6 +158,14 @@ def kalman_tick(
                 p[1, e, j] = c * a01
                 p[2, e, j] = c * a01
                 p[3, e, j] = a11 - k1 * a01
+                if math.isfinite(rx[j]):  # the angle's held-back share: K = [k0, 0], Joseph
+                    p00, p01 = p[0, e, j], p[1, e, j]
+                    k0 = p00 / (p00 + rx[j])
+                    c = 1.0 - k0
+                    x[0, e, j] = x[0, e, j] + k0 * (z[e, j] - x[0, e, j])
+                    p[0, e, j] = c * c * p00 + k0 * k0 * rx[j]
+                    p[1, e, j] = c * p01
+                    p[2, e, j] = c * p01
                 tf[e, j] = ts[e, j]
         if any_fresh and not _check(x, p, b0, b1, good):
             return 2

@@ -156,6 +156,12 @@ class ReferenceJointStateEstimator(JointStateEstimator):
             kf.B = np.array([[0.5 * dt * dt], [dt]])
             kf.predict(u=np.array([[self._u[e, j]]]))
             kf.update(float(z[e, j]))
+            rx = self.angle_rest_variance[j]
+            if np.isfinite(rx):  # the angle's held-back share: K = [k0, 0], P by Joseph's form
+                k = np.array([[kf.P[0, 0] / (kf.P[0, 0] + rx)], [0.0]])
+                a = np.eye(2) - k @ kf.H
+                kf.x = kf.x + k * (float(z[e, j]) - kf.x[0, 0])
+                kf.P = a @ kf.P @ a.T + rx * (k @ k.T)
             self._x[:, e, j] = kf.x[:, 0]
             cov[e, j] = kf.P
 

@@ -177,7 +177,7 @@ class TableCalls:
             at(fk.NOW, frame.time, f8, (envs,)),
             at(fk.TEMP_IN, frame.winding_temperature, f8, e),
             at(fk.U, ea.u, f8, e),
-            at(fk.CONSTS, ea.consts, f8, (4, n)),
+            at(fk.CONSTS, ea.consts, f8, (5, n)),
             at(fk.COUNTS, ea.counts, i8, (3, envs, n)),
             at(fk.EST_FLAGS, ea.flags, b1, (2, envs, n)),
             self._put_supervision(table, arrays),

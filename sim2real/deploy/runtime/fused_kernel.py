@@ -75,7 +75,7 @@ def estimate_observe(table: np.ndarray, start: int) -> int:
             numba.carray(_pointer(table[TEMP_IN]), (envs, n), f8),
             numba.carray(_pointer(table[U]), (envs, n), f8),
             filt,
-            numba.carray(_pointer(table[CONSTS]), (4, n), f8),
+            numba.carray(_pointer(table[CONSTS]), (5, n), f8),
             numba.carray(_pointer(table[COUNTS]), (3, envs, n), i8),
             numba.carray(_pointer(table[EST_FLAGS]), (2, envs, n), b1),
             q,

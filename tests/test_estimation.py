@@ -420,3 +420,55 @@ def test_kernel_arrays_are_the_live_arrays_and_the_input_is_copied_only_when_it_
     args = est.kernel_arrays(f, state, fortran)
     assert args.u is not fortran and np.array_equal(args.u, acc)
     assert not est.kernel_arrays(f, state, None).u.any()
+
+
+@ESTIMATORS
+def test_the_drives_reported_velocity_removes_the_lag_of_a_stepping_joint(go2, estimator):
+    """A Go2 joint swinging 0.4 rad at 3 Hz (140 rad/s^2, a stepping leg), its angle read at 50 Hz
+    with the velocity its drive reports (``velocity_noise_sigma`` 0.02 rad/s, Unitree's
+    ``motor_state.dq``): with that velocity absorbed the estimate's speed is within 0.05 rad/s
+    RMS of the truth; from the angles alone the constant-velocity model lags it (0.96 rad/s here).
+    Env 0 gets the drives' velocity, env 1 none."""
+    rng = np.random.default_rng(4)
+    n, dt, w = go2.n_joints, go2.control_period, 6.0 * np.pi
+    est = estimator(go2, 2)
+    state = RobotState.zeros(2, n)
+    est.reset(np.tile(go2.home, (2, 1)), 0.0)
+    f = SensorFrame.empty(2, n)
+    f.velocity = np.full((2, n), np.nan)
+    errors = []
+    for k in range(1, 250):
+        t = k * dt
+        f.time[:] = f.position_stamp[:] = t
+        f.position[:] = go2.home + 0.4 * np.sin(w * t)
+        truth = 0.4 * w * np.cos(w * t)
+        f.velocity[0] = truth + rng.normal(0.0, 0.02, n)
+        est.update(f, state)
+        if k > 50:
+            errors.append(state.dq - truth)
+    rms = np.sqrt(np.mean(np.square(errors), axis=(0, 2)))
+    assert rms[0] < 0.05 and rms[1] > 0.3, rms
+
+
+def test_the_velocity_step_equals_filterpy_reference_on_the_legged_plant(go2):
+    """The compiled estimator and its filterpy reference on the Go2 plant's frames (angles and
+    the drives' velocity), a trotting-like command: the same estimates to rounding."""
+    plant = SimBackend(go2, mode="position", envs=2, seed=11)
+    plant.reset()
+    fast, reference = JointStateEstimator(go2, 2), ReferenceJointStateEstimator(go2, 2)
+    states = [RobotState.zeros(2, go2.n_joints), RobotState.zeros(2, go2.n_joints)]
+    for est in (fast, reference):
+        est.reset(plant.true_position(), 0.0)
+    worst = 0.0
+    for k in range(300):
+        f = plant.read()
+        assert f.velocity is not None
+        fast.update(f, states[0])
+        reference.update(f, states[1])
+        worst = max(worst, np.abs(states[0].dq - states[1].dq).max())
+        worst = max(worst, np.abs(fast.covariance - reference.covariance).max())
+        plant.write(
+            np.tile(go2.home + 0.2 * np.sin(2 * np.pi * 2 * k * go2.control_period), (2, 1))
+        )
+        plant.advance()
+    assert worst <= 1e-9, worst

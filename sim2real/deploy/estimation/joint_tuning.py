@@ -4,10 +4,10 @@ and the warning a run gives when it re-initializes too often.
 
 The process noise's standard deviation is :data:`PROCESS_NOISE_FRACTION` of the largest
 acceleration the motion model expects (:func:`motion_acceleration`); the encoder noise is floored
-so that the tracking index stays within :data:`MAX_TRACKING_INDEX`; a velocity standard
-deviation past :data:`VELOCITY_SIGMA_BOUND` velocity limits re-initializes the filter, and
-:func:`reinit_warning` names the joints that did so more than :data:`REINIT_WARNING_RATE` times
-per second.
+so that the tracking index stays within :data:`MAX_TRACKING_INDEX`, a reported velocity's noise at
+:data:`MIN_VELOCITY_SIGMA`; a velocity standard deviation past :data:`VELOCITY_SIGMA_BOUND`
+velocity limits re-initializes the filter, and :func:`reinit_warning` names the joints that did so
+more than :data:`REINIT_WARNING_RATE` times per second.
 """
 
 from __future__ import annotations
@@ -46,6 +46,10 @@ def motion_acceleration(robot: Robot) -> np.ndarray:
 #: estimate of a calf turning at 2 rad/s alternated between +-40 rad/s, and one dropped reading
 #: then extrapolated the calf 0.8 rad past its hard limit (a safe stop).
 MAX_TRACKING_INDEX = 3.0
+
+#: Floor of the drives' reported velocity noise as a measurement, rad/s (our choice: a
+#: robot.toml with a perfect velocity reading still gives the filter a variance > 0).
+MIN_VELOCITY_SIGMA = 1e-3
 
 #: Degeneracy bound of the velocity standard deviation, in velocity limits (our choice): an
 #: uncertainty of several times the fastest possible speed means the filter has lost track.

@@ -15,6 +15,10 @@ by about ``a / omega^2`` (``omega ~ (var / R)^(1/4)``). An arm's filter gets the
 commanded acceleration (``CommandSmoother.mean_acceleration``) in position and velocity mode; a
 floating base's none (``SafetyGuard.estimator_input``): its PD targets jump, their acceleration
 is not the joints'. Latency is extrapolated with the input only with ``input_extrapolates``.
+Drives that report each joint's velocity with its angle (Unitree's ``motor_state.dq``; robot.toml's
+``[sensors] velocity_noise_sigma``) give a second measurement, ``H = [0, 1]``
+(:func:`~sim2real.deploy.estimation.kernel.absorb_velocity`): without it a stepping leg's speed
+estimate lagged by two to three control periods.
 
 Time stamps: a joint's filter lives at ``filter_time``, the sample time of the last reading it
 absorbed; a later reading is absorbed, an older, repeated or future one counted in
@@ -28,6 +32,8 @@ The tick is one numba kernel (:mod:`sim2real.deploy.estimation.kernel`); its ref
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from sim2real.deploy.core.backend import SensorFrame
@@ -35,12 +41,20 @@ from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import put, take
 from sim2real.deploy.estimation.joint_tuning import (
     MAX_TRACKING_INDEX,
+    MIN_VELOCITY_SIGMA,
     PROCESS_NOISE_FRACTION,
     VELOCITY_SIGMA_BOUND,
     motion_acceleration,
 )
-from sim2real.deploy.estimation.kernel import KalmanArgs, kalman_tick
+from sim2real.deploy.estimation.kernel import KalmanArgs, absorb_velocity, kalman_tick
+from sim2real.deploy.kernels.calls import bind, fits
 from sim2real.robots import Robot
+
+
+def _absorb_copy(velocity: np.ndarray, rest: tuple) -> None:
+    """:func:`~sim2real.deploy.estimation.kernel.absorb_velocity` on a float64 C-contiguous copy
+    of ``velocity`` (a frame whose array the bound call does not take)."""
+    absorb_velocity(np.ascontiguousarray(velocity, dtype=np.float64), *rest)
 
 
 class JointStateEstimator:
@@ -122,6 +136,12 @@ class JointStateEstimator:
             held = self.measurement_variance > encoder**2 * (1.0 + 1e-9)
             kept = np.where(held, self.measurement_variance, 1.0)
             self.angle_rest_variance = np.where(held, 1.0 / (1.0 / encoder**2 - 1.0 / kept), np.inf)
+        #: (n,) (rad/s)^2, the drives' reported velocity as a measurement (``[sensors]
+        #: velocity_noise_sigma``, at least ``MIN_VELOCITY_SIGMA``); None: not fused
+        self.velocity_variance = None
+        if sensors.velocity_noise_sigma is not None:
+            sigma = max(sensors.velocity_noise_sigma, MIN_VELOCITY_SIGMA)
+            self.velocity_variance = np.full(n, sigma**2)
         self.initial_covariance = np.zeros((n, 2, 2))
         self.initial_covariance[:, 0, 0] = self.measurement_variance
         self.initial_covariance[:, 1, 1] = robot.velocity_limit**2
@@ -174,6 +194,7 @@ class JointStateEstimator:
         #: (:meth:`_bind`), and those arrays, compared by identity at each update
         self._args: KalmanArgs | tuple = ()
         self._bound: tuple = ()
+        self._velocity_call = None  # absorb_velocity bound to the frame's velocity (_bind)
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -182,6 +203,9 @@ class JointStateEstimator:
         envs, n = self.envs, self.n_joints
         args = self._kernel_args(SensorFrame.empty(envs, n), RobotState.zeros(envs, n), self._u)
         kalman_tick(2, *(np.copy(a) if isinstance(a, np.ndarray) else a for a in args))
+        if self.velocity_variance is not None:
+            a = [np.copy(x) for x in (args.filt, args.flags, args.now, args.u, args.q_out)]
+            absorb_velocity(np.zeros((envs, n)), self.velocity_variance, *a, a[-1], True)
 
     def _per_joint(self, name: str, value) -> np.ndarray:
         arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (self.n_joints,)).copy()
@@ -350,6 +374,7 @@ class JointStateEstimator:
             and state is b[4]
             and state.q is b[5]
             and acceleration is b[6]
+            and frame.velocity is b[7]
         ):
             self._bind(frame, state, acceleration)
         elif self._copy_input:
@@ -357,6 +382,8 @@ class JointStateEstimator:
         status = kalman_tick(0, *self._args)
         if status:
             self._recover(status, frame)
+        if self._velocity_call is not None:
+            self._velocity_call()
         return state
 
     def kernel_arrays(self, frame: SensorFrame, state: RobotState, acceleration) -> KalmanArgs:
@@ -403,9 +430,22 @@ class JointStateEstimator:
             self._u.fill(0.0)
         elif self._copy_input:
             np.copyto(self._u, u)
-        self._args = self._kernel_args(frame, state, u if in_place else self._u)
+        self._args = a = self._kernel_args(frame, state, u if in_place else self._u)
         self._bound = (f.position, f.position_stamp, f.time, f.winding_temperature, state,
-                       state.q, acceleration)  # fmt: skip
+                       state.q, acceleration, f.velocity)  # fmt: skip
+        self._velocity_call = None
+        if self.velocity_variance is not None and f.velocity is not None:
+            if f.velocity.shape != f.position.shape:
+                raise ValueError(
+                    f"frame: expected velocity shaped {f.position.shape}, got {f.velocity.shape}"
+                )
+            rest = (self.velocity_variance, a.filt, a.flags, a.now, a.u, a.q_out, a.dq_out,
+                    a.input_extrapolates)  # fmt: skip
+            v = f.velocity
+            if fits(v, np.float64, v.shape) and all(fits(x, x.dtype, x.shape) for x in rest[:-1]):
+                self._velocity_call = bind(absorb_velocity, v, *rest)
+            else:  # an array the bound call does not take: numba's dispatch, on a copy
+                self._velocity_call = functools.partial(_absorb_copy, v, rest)
 
     def _recover(self, status: int, frame: SensorFrame) -> None:
         """A degenerate joint (the kernel's ``status``, its phase): re-initialize it, go on from

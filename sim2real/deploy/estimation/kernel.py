@@ -182,3 +182,49 @@ def kalman_tick(
             if math.isfinite(temperature_in[e, j]):
                 temperature_out[e, j] = temperature_in[e, j]
     return 0
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def absorb_velocity(
+    zv: np.ndarray,
+    rv: np.ndarray,
+    filt: np.ndarray,
+    flags: np.ndarray,
+    now: np.ndarray,
+    u: np.ndarray,
+    q_out: np.ndarray,
+    dq_out: np.ndarray,
+    input_extrapolates: bool,
+) -> None:
+    """After :func:`kalman_tick`: the joint velocity the drive reported with a fresh reading,
+    ``zv`` (envs, n) rad/s (NaN where none), as a second measurement of that reading's state,
+    ``H = [0, 1]``, variance ``rv`` (n,) (rad/s)^2 (filterpy's ``update(zv, R=rv, H=[[0, 1]])``
+    after the position's); then those joints' outputs again (``kalman_tick``'s last phase).
+    ``filt``, ``flags``, ``now``, ``u``, ``q_out``, ``dq_out``, ``input_extrapolates``:
+    :func:`kalman_tick`'s."""
+    x, p, tf = filt[0:2], filt[2:6], filt[6]
+    fresh = flags[0]
+    envs, n = zv.shape
+    for e in range(envs):
+        t = now[e]
+        for j in range(n):
+            if not fresh[e, j] or not math.isfinite(zv[e, j]):
+                continue
+            p00, p01, p11 = p[0, e, j], p[1, e, j], p[3, e, j]
+            s = p11 + rv[j]
+            k0 = p01 / s
+            k1 = p11 / s
+            y = zv[e, j] - x[1, e, j]
+            x[0, e, j] = x[0, e, j] + k0 * y
+            x[1, e, j] = x[1, e, j] + k1 * y
+            c = 1.0 - k1
+            p[0, e, j] = p00 - k0 * p01
+            p[1, e, j] = c * p01
+            p[2, e, j] = c * p01
+            p[3, e, j] = c * p11
+            age = t - tf[e, j]
+            du = age * u[e, j] if input_extrapolates else 0.0
+            if not math.isfinite(du):
+                du = 0.0
+            q_out[e, j] = age * x[1, e, j] + x[0, e, j] + 0.5 * age * du
+            dq_out[e, j] = x[1, e, j] + du

@@ -121,7 +121,36 @@ class ReferenceJointStateEstimator(JointStateEstimator):
                 np.copyto(tf, ts, where=fresh)
                 if not self._check():
                     self._reinitialize(z, ts)
-            # output: prediction from filter_time to frame.time (not stored)
+            self._output(state)
+            if self.velocity_variance is not None and frame.velocity is not None:
+                self._absorb_velocity_filterpy(frame.velocity)
+                self._output(state)
+        np.isfinite(frame.winding_temperature, out=mask)
+        np.copyto(state.winding_temperature, frame.winding_temperature, where=mask)
+        return state
+
+    def _absorb_velocity_filterpy(self, velocity: np.ndarray) -> None:
+        """The drives' reported velocity (envs, n) rad/s of each fresh reading: filterpy's
+        ``update`` with ``H = [[0, 1]]`` and ``R = velocity_variance``."""
+        cov = self.covariance
+        for e, j in zip(*np.nonzero(self._fresh & np.isfinite(velocity)), strict=True):
+            kf = self._kfs[e][j]
+            kf.x = np.array([[self._x[0, e, j]], [self._x[1, e, j]]])
+            kf.P = cov[e, j].copy()
+            kf.update(
+                float(velocity[e, j]),
+                R=np.array([[self.velocity_variance[j]]]),
+                H=np.array([[0.0, 1.0]]),
+            )
+            self._x[:, e, j] = kf.x[:, 0]
+            cov[e, j] = kf.P
+
+    def _output(self, state: RobotState) -> None:
+        """``state.q``, ``state.dq``: the prediction from ``filter_time`` to the frame's time
+        (not stored), and ``time_since_fresh``."""
+        x0, x1 = self._xv
+        mask, tf = self._mask, self.filter_time
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
             age, tmp = self.time_since_fresh, self._w["tmp"]
             np.subtract(self._now, tf, out=age)
             np.multiply(age, x1, out=state.q)
@@ -135,9 +164,6 @@ class ReferenceJointStateEstimator(JointStateEstimator):
             np.multiply(tmp, 0.5, out=tmp)
             np.add(state.q, tmp, out=state.q)
             np.add(state.dq, x1, out=state.dq)
-        np.isfinite(frame.winding_temperature, out=mask)
-        np.copyto(state.winding_temperature, frame.winding_temperature, where=mask)
-        return state
 
     def _increment(self, counter: np.ndarray, mask: np.ndarray) -> None:
         np.add(counter, self._one_int, out=self._count)

@@ -156,6 +156,8 @@ class TableCalls:
             return
         if plan.history is not None:  # its frames stack after the observation kernel: separate
             return
+        if est.velocity_variance is not None and frame.velocity is not None:
+            return  # the drives' velocity is absorbed after the Kalman tick (the estimator's)
         envs, n = self.envs, self.n
         observe = plan.kernel_args(state, goal, out, envs)  # grows the plan's buffers first
         table, arrays = np.zeros(fk.SIZE, dtype=np.int64), []

@@ -52,7 +52,11 @@ def rolled(go2w):
         plant.read()
         plant.write(command)
         plant.advance()
-    joints, base, fall = JointStateEstimator(go2w, 1), BaseStateEstimator(go2w, 1), FallDetector(go2w, 1)
+    joints, base, fall = (
+        JointStateEstimator(go2w, 1),
+        BaseStateEstimator(go2w, 1),
+        FallDetector(go2w, 1),
+    )
     frame = plant.read()
     joints.reset(plant.true_position(), frame.time)
     base.reset(frame.time, frame.imu_acceleration, orientation=frame.imu_orientation)
@@ -66,7 +70,9 @@ def rolled(go2w):
         fallen = fall.check(state)
         truth = plant.true_base_state()[0]
         forward = (quaternion_to_matrix(truth[3:7]).T @ truth[7:10])[0]
-        rows.append((state.base.linear_velocity[0, 0], forward, fall.height[0], truth[2], fallen[0]))
+        rows.append(
+            (state.base.linear_velocity[0, 0], forward, fall.height[0], truth[2], fallen[0])
+        )
         command[0, go2w.velocity_driven] = min(1.0, k / 50) * WHEEL_SPEED
         plant.write(command)
         plant.advance()

@@ -124,8 +124,10 @@ def wheel_radius(robot: Robot, joint: int, site: int) -> float:
         ):
             points, rim = m.geom_pos[g][None], float(size[0])
         else:
-            raise ValueError(f"{where}: collision geom {m.geom(g).name} is no mesh, sphere or "
-                             "cylinder about the axis")
+            raise ValueError(
+                f"{where}: collision geom {m.geom(g).name} is no mesh, sphere or "
+                "cylinder about the axis"
+            )
         rel = points - anchor
         radial = rel - np.outer(rel @ axis, axis)
         radius = max(radius, float(np.linalg.norm(radial, axis=1).max()) + rim)

@@ -71,8 +71,10 @@ def foot_radii(robot: Robot) -> np.ndarray:
     an axis through the site; 0 where the foot is neither.
 
     A foot so described rolls: the estimator takes its contact point, ``radius`` below the
-    site, as the point at rest (the wheel's spin is in the site's angular velocity), and the
-    fall check measures the base's height to it.
+    site along the world's down, as the point at rest (the wheel's spin is in the site's angular
+    velocity; a wheel leaning by a camber angle has its contact point in its own plane, so its
+    rolling speed is read short by the camber's cosine), and the fall check measures the base's
+    height to it.
     """
     m = robot.mj_model
     driven = robot.velocity_driven

@@ -111,8 +111,8 @@ def numpy_fall_check(fall: FallDetector, state: RobotState) -> tuple[np.ndarray,
         pin.forwardKinematics(fall.model, fall.data, state.q[e])
         rot = attitude.quaternion_to_matrix(state.base.orientation[e])
         height[e] = max(
-            -(rot @ pin.updateFramePlacement(fall.model, fall.data, f).translation)[2]
-            for f, touching in zip(fall.feet, contact[e], strict=True)
+            radius - (rot @ pin.updateFramePlacement(fall.model, fall.data, f).translation)[2]
+            for f, radius, touching in zip(fall.feet, fall.radii, contact[e], strict=True)
             if touching
         )
     low = np.where(height < fall.height_limit, fall.low_ticks + 1, 0)

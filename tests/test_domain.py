@@ -468,3 +468,18 @@ def test_the_estimate_is_judged_in_the_second_after_each_push():
     again = PushResponse(Pushes, 0.02)
     again.load_state_dict(state, 0)
     assert again.summary(0) == zero
+
+
+def test_robot_labs_go2w_domain_loads_on_the_go2w_and_refuses_a_robot_without_its_base(go2):
+    """The shipped ranges file of robot_lab's Go2-W task (its EventCfg, commands and noise):
+    every key parses onto the go2w, whose base body it names; the go2's base is another body."""
+    from sim2real.robots import load_robot
+
+    path = MJLAB_RANGES.parent / "robot_lab_go2w_velocity_ranges.toml"
+    ranges = load_ranges(path, load_robot("go2w"))
+    assert ranges.floor_friction == (0.3, 1.0) and ranges.added_base_mass == (-1.0, 3.0)
+    assert (ranges.dynamics.mass, ranges.dynamics.kp, ranges.dynamics.kd) == (0.3, 0.3, 0.3)
+    assert ranges.pushes.interval == (10.0, 15.0) and ranges.pushes.mode == "add"
+    assert ranges.commands.vx == ranges.commands.vy == ranges.commands.yaw_rate == (-1.0, 1.0)
+    with pytest.raises(RangesError, match="'base_link' is no body of robot go2"):
+        load_ranges(path, go2)

@@ -1,5 +1,5 @@
 """The base estimator's constants and what it reads from a robot: the filter's tuning (each
-constant's source beside it), the feet's contact-sphere radii, the floating-base check, and the
+constant's source beside it), the feet's contact radii (spheres and wheels), the floating-base check, and the
 constants of the compiled tick packed into one array (:func:`packed_constants`, the layout of
 :mod:`sim2real.deploy.estimation.base_tick`). The filter itself is
 :class:`sim2real.deploy.estimation.base.BaseStateEstimator`.
@@ -7,6 +7,7 @@ constants of the compiled tick packed into one array (:func:`packed_constants`, 
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 
 from sim2real.deploy.estimation import base_tick as bt
@@ -63,12 +64,27 @@ MIN_ACCEL_BIAS_SIGMA = 0.01
 
 
 def foot_radii(robot: Robot) -> np.ndarray:
-    """(n_feet,) m: each foot's contact-sphere radius, the sphere geom centred on its foot site
-    (the importer's and example-robot-data's point feet); 0 where the foot is not one sphere."""
+    """(n_feet,) m: each foot's contact radius, the distance from its foot site to the ground
+    beneath: a sphere geom centred on the site (the importer's and example-robot-data's point
+    feet), or a wheel's rolling radius (:func:`wheel_radius`) where the site's body turns on a
+    velocity-driven joint (robot.toml ``drive = "velocity"``, :attr:`Robot.velocity_driven`) about
+    an axis through the site; 0 where the foot is neither.
+
+    A foot so described rolls: the estimator takes its contact point, ``radius`` below the
+    site along the world's down, as the point at rest (the wheel's spin is in the site's angular
+    velocity; a wheel leaning by a camber angle has its contact point in its own plane, so its
+    rolling speed is read short by the camber's cosine), and the fall check measures the base's
+    height to it.
+    """
     m = robot.mj_model
+    driven = robot.velocity_driven
     out = np.zeros(len(robot.foot_site_ids))
     for i, s in enumerate(robot.foot_site_ids):
         body = m.site_bodyid[s]
+        for j in range(m.body_jntadr[body], m.body_jntadr[body] + m.body_jntnum[body]):
+            name = m.joint(j).name
+            if name in robot.joint_names and driven[robot.joint_names.index(name)]:
+                out[i] = wheel_radius(robot, j, s)
         for g in range(m.ngeom):
             if (
                 m.geom_bodyid[g] == body
@@ -77,6 +93,49 @@ def foot_radii(robot: Robot) -> np.ndarray:
             ):
                 out[i] = float(m.geom_size[g, 0])
     return out
+
+
+def wheel_radius(robot: Robot, joint: int, site: int) -> float:
+    """m: the rolling radius of the wheel that MuJoCo joint ``joint`` turns, the farthest point
+    of its body's collision geoms (mesh vertices, a sphere's, a cylinder's or a capsule's rim
+    with its axis along the joint's) from the joint's axis (MJCF).
+
+    Raises:
+        ValueError: the axis does not pass through foot site ``site``, the body has no
+            collision geom, or one of another shape (``robot <name>: wheel joint <joint>: ...``).
+    """
+    m = robot.mj_model
+    body, where = m.jnt_bodyid[joint], f"robot {robot.name}: wheel joint {m.joint(joint).name}"
+    anchor, axis = m.jnt_pos[joint], m.jnt_axis[joint] / np.linalg.norm(m.jnt_axis[joint])
+    off = m.site_pos[site] - anchor
+    if np.linalg.norm(off - (off @ axis) * axis) > 1e-6:
+        raise ValueError(f"{where}: its axis does not pass through foot site {m.site(site).name}")
+    radius = 0.0
+    for g in np.flatnonzero((m.geom_bodyid == body) & ((m.geom_contype | m.geom_conaffinity) > 0)):
+        rot = np.empty(9)
+        mujoco.mju_quat2Mat(rot, m.geom_quat[g])
+        rot = rot.reshape(3, 3)
+        kind, size = int(m.geom_type[g]), m.geom_size[g]
+        if kind == mujoco.mjtGeom.mjGEOM_MESH:
+            v0, n = m.mesh_vertadr[m.geom_dataid[g]], m.mesh_vertnum[m.geom_dataid[g]]
+            points, rim = m.geom_pos[g] + m.mesh_vert[v0 : v0 + n] @ rot.T, 0.0
+        elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+            points, rim = m.geom_pos[g][None], float(size[0])
+        elif kind in (mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_CAPSULE) and (
+            abs(abs(rot[:, 2] @ axis) - 1.0) < 1e-6
+        ):
+            points, rim = m.geom_pos[g][None], float(size[0])
+        else:
+            raise ValueError(
+                f"{where}: collision geom {m.geom(g).name} is no mesh, sphere or "
+                "cylinder about the axis"
+            )
+        rel = points - anchor
+        radial = rel - np.outer(rel @ axis, axis)
+        radius = max(radius, float(np.linalg.norm(radial, axis=1).max()) + rim)
+    if radius == 0.0:
+        raise ValueError(f"{where}: its body has no collision geom")
+    return radius
 
 
 def require_floating_base(robot: Robot, stage: str) -> None:

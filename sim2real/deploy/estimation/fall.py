@@ -3,9 +3,11 @@
 A robot has fallen when its base is tilted past ``safety.fall_tilt`` (rad, the angle between the
 base's z axis and the world's up, from the attitude filter's projected gravity) or when, with a
 foot on the ground, its base has stayed lower than ``safety.fall_height`` (m) above the feet in
-contact for ``FALL_HEIGHT_TIME`` s: the kinematic base height, ``max_i -(R p_i)_z`` over the feet
-``i`` in contact, ``p_i`` the foot position in the base frame (Pinocchio, joint estimate) and ``R``
-the estimated orientation. The tilt trips at once; the height must persist, because a low trot
+contact for ``FALL_HEIGHT_TIME`` s: the kinematic base height above the ground, ``max_i (-(R p_i)_z
++ rho_i)`` over the feet ``i`` in contact, ``p_i`` the foot site's position in the base frame
+(Pinocchio, joint estimate), ``rho_i`` its contact radius, a sphere's or a wheel's (a wheel's site is
+its hub: :func:`~sim2real.deploy.estimation.base_params.foot_radii`), and ``R`` the estimated
+orientation. The tilt trips at once; the height must persist, because a low trot
 on one foot in contact dips under the limit for a tick while a collapsed base stays down. A third
 signal, ``sinking``, needs neither the feet nor the tilt: the estimated base sinking faster than
 ``FALL_SPEED`` for ``FALL_SPEED_TIME`` s while tilted past ``SINK_TILT_SHARE`` of the tilt limit,
@@ -35,7 +37,7 @@ import pinocchio as pin
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import check, put, take
 from sim2real.deploy.estimation.base_kernel import _quat_to_mat, fma
-from sim2real.deploy.estimation.base_params import require_floating_base
+from sim2real.deploy.estimation.base_params import foot_radii, require_floating_base
 from sim2real.deploy.kernels.calls import bind
 from sim2real.robots import Robot
 
@@ -81,7 +83,10 @@ class FallDetector:
         tilt_limit: rad. height_limit: m (0 disables the height check).
         height_ticks: control ticks the height must stay under ``height_limit``
             (``FALL_HEIGHT_TIME`` over the robot's control period, rounded up).
-        height: (envs,) m, the last kinematic base height (NaN with no foot in contact).
+        radii: (n_feet,) m, each foot's contact radius
+            (:func:`~sim2real.deploy.estimation.base_params.foot_radii`).
+        height: (envs,) m, the last kinematic base height above the ground (NaN with no foot
+            in contact).
         low_ticks: (envs,) int64, consecutive checks so far with ``height`` under the limit.
         speed_ticks: control ticks the base must sink faster than ``FALL_SPEED`` tilted or
             low (``FALL_SPEED_TIME``); upright_ticks: upright, on its feet or with none in
@@ -106,6 +111,7 @@ class FallDetector:
         # the foot sites' frames in the fixed-base model (same names as in pin_model)
         frames = [robot.pin_model.frames[f] for f in robot.foot_frame_ids]
         self.feet = [self.model.getFrameId(f.name, f.type) for f in frames]
+        self.radii = foot_radii(robot)
         self.height = np.full(envs, np.nan)
         self.height_ticks = max(1, int(np.ceil(FALL_HEIGHT_TIME / robot.control_period - 1e-9)))
         self.speed_ticks = max(1, int(np.ceil(FALL_SPEED_TIME / robot.control_period - 1e-9)))
@@ -121,7 +127,7 @@ class FallDetector:
         self._limits = np.array(
             [
                 self.tilt_limit, self.height_limit, self.height_ticks, self.speed_ticks,
-                self.upright_ticks, self.sink_tilt, self.sink_height,
+                self.upright_ticks, self.sink_tilt, self.sink_height, *self.radii,
             ],
             dtype=float,
         )  # fmt: skip
@@ -193,8 +199,8 @@ class FallDetector:
 def _check(limits, gravity, velocity, orientation, contact, position, height, ticks, signals, out):
     """:meth:`FallDetector.check` after Pinocchio's placements ``position`` (envs, n_feet, 3) m,
     every env: ``limits`` (tilt rad, height m, height ticks, speed ticks, upright speed ticks,
-    sinking tilt rad, sinking height m); ``ticks`` (2, envs) the low and the sinking runs;
-    ``height``, ``signals``, ``out`` written."""
+    sinking tilt rad, sinking height m, then each foot's contact radius m); ``ticks`` (2, envs)
+    the low and the sinking runs; ``height``, ``signals``, ``out`` written."""
     rot = np.empty((3, 3))
     for e in range(gravity.shape[0]):
         g0, g1, g2 = gravity[e, 0], gravity[e, 1], gravity[e, 2]  # tilt_of, one row
@@ -212,6 +218,7 @@ def _check(limits, gravity, velocity, orientation, contact, position, height, ti
                 if contact[e, i] > 0.5:
                     p = position[e, i]
                     below = -fma(rot[2, 2], p[2], fma(rot[2, 0], p[0], rot[2, 1] * p[1]))
+                    below += limits[7 + i]  # the foot's contact radius: down to the ground
                     if first or below > height[e]:
                         height[e] = below
                     first = False

@@ -160,7 +160,9 @@ class RobotKind:
 
 
 #: A fixed-base arm: reach goals.
-ARM = RobotKind(name="arm", floating_base=False, task="goals", joint_input=True, stand_up_on_reset=False)
+ARM = RobotKind(
+    name="arm", floating_base=False, task="goals", joint_input=True, stand_up_on_reset=False
+)
 #: A floating-base (legged) robot: follow velocity commands.
 LEGGED = RobotKind(
     name="legged",

@@ -64,5 +64,7 @@ class WheelLegged(RobotKind):
 
 #: A wheel-legged robot: a legged robot's choices, its own wheels.
 WHEEL_LEGGED = register_kind(
-    WheelLegged(**{f.name: getattr(LEGGED, f.name) for f in fields(LEGGED)} | {"name": "wheel_legged"})
+    WheelLegged(
+        **{f.name: getattr(LEGGED, f.name) for f in fields(LEGGED)} | {"name": "wheel_legged"}
+    )
 )

@@ -130,7 +130,7 @@ def is_legged(robot) -> bool:
     """Whether ``robot`` is a legged kind (:func:`sim2real.deploy.robot_kind.robot_kind`)."""
     from sim2real.deploy.robot_kind import robot_kind
 
-    return robot_kind(robot).legged
+    return robot_kind(robot).floating_base
 
 
 def make_policy(

@@ -41,7 +41,9 @@ from sim2real.robots import load_robot  # noqa: E402
 
 #: Every observation block a fixed-base robot without wrapping joints has (arm3, arm6).
 BLOCKS = tuple(
-    k for k in kind_names(legged=False) if k not in ("joint_position_sincos", "joint_position_zero")
+    k
+    for k in kind_names(needs_base=False)
+    if k not in ("joint_position_sincos", "joint_position_zero")
 )
 
 

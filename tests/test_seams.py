@@ -147,25 +147,30 @@ from sim2real.deploy.robot_kind import RobotKind, register_kind
 
 COMPLIANT_ARM = register_kind(
     RobotKind(
-        name="compliant_arm", legged=False, task="goals", joint_input=False,
+        name="compliant_arm", floating_base=False, task="goals", joint_input=False,
         stand_up_on_reset=False,
     )
 )
 '''
 
 
-def _arm3_with_kind(tmp_path, kind: str):
+def _with_kind(tmp_path, kind: str, robot: str = "arm3") -> Path:
+    """A copy of the shipped ``robot``'s folder whose robot.toml says ``kind = "<kind>"``."""
     import shutil
 
-    from sim2real.robots import load_robot
-
-    src = Path(__file__).resolve().parent.parent / "sim2real" / "robots" / "arm3"
-    folder = tmp_path / "arm3_kind"
+    src = Path(__file__).resolve().parent.parent / "sim2real" / "robots" / robot
+    folder = tmp_path / f"{robot}_kind"
     shutil.copytree(src, folder)
     toml = folder / "robot.toml"
     text = toml.read_text()
     toml.write_text(text.replace("\n[control]", f'\nkind = "{kind}"\n\n[control]', 1))
-    return load_robot(str(toml))
+    return toml
+
+
+def _arm3_with_kind(tmp_path, kind: str):
+    from sim2real.robots import load_robot
+
+    return load_robot(str(_with_kind(tmp_path, kind)))
 
 
 def test_a_new_robot_kind_is_one_module_and_robot_toml_names_it(plugin, monkeypatch, tmp_path):
@@ -187,6 +192,76 @@ def test_a_new_robot_kind_is_one_module_and_robot_toml_names_it(plugin, monkeypa
     assert SafetyGuard(arm, 1, "velocity").estimator_input(smoother) is not None
 
 
+FLOATING_KIND_MODULE = '''
+"""A legged robot hung from a gantry (a test stand that catches it): a floating-base kind a
+contributor adds, which keeps the gantry's tether in the soak (cable pulls) besides pushes. It
+notes which of its choices the assembly asked (``ASKED``)."""
+
+from dataclasses import dataclass
+
+from sim2real.deploy.robot_kind import RobotKind, register_kind
+
+ASKED = []
+
+
+@dataclass(frozen=True)
+class GantryLegged(RobotKind):
+    def state(self, robot, envs):
+        ASKED.append("state")
+        return super().state(robot, envs)
+
+    def base_stages(self, robot, envs):
+        ASKED.append("base_stages")
+        return super().base_stages(robot, envs)
+
+    def estimation_monitor(self, robot, envs):
+        ASKED.append("estimation_monitor")
+        return super().estimation_monitor(robot, envs)
+
+    def sensor_frame(self, robot, envs):
+        ASKED.append("sensor_frame")
+        return super().sensor_frame(robot, envs)
+
+    def wheel_drives(self, robot, envs, mode):
+        ASKED.append("wheel_drives")
+        return super().wheel_drives(robot, envs, mode)
+
+
+GANTRY_LEGGED = register_kind(
+    GantryLegged(
+        name="gantry_legged", floating_base=True, task="locomotion", joint_input=False,
+        stand_up_on_reset=True, holds_self_collision=False, cable_faults=True,
+    )
+)
+'''
+
+
+def test_a_fourth_kind_floats_through_deploy_run_by_its_own_choices(
+    plugin, monkeypatch, tmp_path, go2_onnx
+):
+    from sim2real.deploy.robot_kind import KIND_REGISTRY, robot_kind
+    from sim2real.robots import load_robot
+
+    toml = _with_kind(tmp_path, "gantry_legged", "go2")
+    with pytest.raises(ValueError, match=r"kind = 'gantry_legged': expected one of"):
+        robot_kind(load_robot(str(toml)))
+    module = plugin("seam_gantry_legged", FLOATING_KIND_MODULE)
+    monkeypatch.setattr(KIND_REGISTRY, "builtin", (*KIND_REGISTRY.builtin, module))  # the line
+    report = tmp_path / "run.json"
+    argv = ["--backend", "sim", "--robot", str(toml.parent), "--policy", str(go2_onnx)]
+    argv += ["--command", "0.5,0,0", "--duration", "1.5", "--report", str(report)]
+    assert deploy_run_main(argv) == 0
+    asked = sys.modules[module].ASKED
+    # its base stages, state layout and monitor came from the kind, not from its name or the
+    # robot's floating base (a kind named other than "legged" that floats)
+    assert {"state", "base_stages", "estimation_monitor", "wheel_drives"} <= set(asked)
+    run = json.loads(report.read_text())
+    assert run["estimation"] is not None  # the base estimate judged against the truth
+    loco = run["locomotion"]
+    assert loco["falls"] == 0 and loco["command"] == [[0.5, 0.0, 0.0]]
+    assert loco["distance_m"] > 0.2  # it walked forward at the command
+
+
 def test_robot_toml_kind_must_fit_the_robot(tmp_path):
     from sim2real.deploy.robot_kind import robot_kind
 
@@ -200,9 +275,9 @@ def test_a_kind_s_target_and_limit_choices_follow_legged_unless_given():
     assert not ARM.pd_targets and not ARM.hard_limit_bounce
     assert LEGGED.pd_targets and LEGGED.hard_limit_bounce
     common = {"task": "locomotion", "joint_input": False, "stand_up_on_reset": True}
-    quadruped = RobotKind(name="quadruped", legged=True, **common)
+    quadruped = RobotKind(name="quadruped", floating_base=True, **common)
     assert quadruped.pd_targets and quadruped.hard_limit_bounce
-    stiff = RobotKind(name="stiff", legged=True, pd_targets=False, **common)
+    stiff = RobotKind(name="stiff", floating_base=True, pd_targets=False, **common)
     assert not stiff.pd_targets and stiff.hard_limit_bounce
 
 
@@ -218,7 +293,7 @@ def test_a_kind_with_pd_targets_takes_the_guard_s_envelope_and_the_tracking_tole
         register_kind(
             RobotKind(
                 name="pd_arm",
-                legged=False,
+                floating_base=False,
                 task="goals",
                 joint_input=True,
                 stand_up_on_reset=False,
@@ -233,8 +308,9 @@ def test_a_kind_with_pd_targets_takes_the_guard_s_envelope_and_the_tracking_tole
 #: At most this many places outside the physics test ``floating_base`` (the team's issue: the
 #: robot kind decides the rest, :mod:`sim2real.deploy.robot_kind`).
 FLOATING_BASE_PLACES = 5
-#: The physics, where a floating base is a free joint: the plant and the importer.
-PHYSICS = ("sim2real/deploy/backends/sim", "sim2real/robots/importer")
+#: The physics, where a floating base is a free joint: the plant, the importer, and the soak's
+#: world (the plant's randomized model: a floating body's IMU, floor and base mass).
+PHYSICS = ("sim2real/deploy/backends/sim", "sim2real/robots/importer", "sim2real/eval/world")
 #: The Robot's definition of ``floating_base``: one place, however many lines.
 DEFINITION = "sim2real/robots/robot.py"
 
@@ -255,6 +331,8 @@ def floating_base_places() -> list[str]:
         if any(p in rel for p in PHYSICS):
             continue
         for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if rel.startswith(KIND_MODULES) and "robot.floating_base" not in line:
+                continue  # the kind's own field of that name: its choice, not the robot's
             if "floating_base" in line and test.search(line):
                 out = definition if rel == DEFINITION else places
                 out.append(f"{rel}:{number}: {line.strip()}")
@@ -268,4 +346,43 @@ def test_floating_base_is_tested_outside_the_physics_in_few_places():
         f"{len(places)} places test floating_base outside the physics (at most "
         f"{FLOATING_BASE_PLACES}): ask the robot kind (sim2real.deploy.robot_kind) instead:\n"
         + "\n".join(places)
+    )
+
+
+#: At most this many lines outside the kinds' modules branch on a robot kind's shape, task or
+#: name (the rest is behaviour the kind provides, :class:`sim2real.deploy.robot_kind.RobotKind`).
+KIND_BRANCHES = 10
+#: The kinds' own modules.
+KIND_MODULES = ("sim2real/deploy/robot_kind.py", "sim2real/deploy/kinds/")
+
+
+def kind_branches() -> list[str]:
+    """Lines of ``sim2real`` outside :data:`KIND_MODULES` that ask a kind ``.legged``, its
+    ``floating_base``, or compare its ``name`` or ``task``, as ``path:line: text``
+    (``RobotState.legged``, the state's constructor, and the importer's ``legged`` module are
+    not the kind). In grep::
+
+        grep -rnE '\\.legged\\b|kind(\\([a-z_.]*\\))?\\.(floating_base\\b|name [!=]=|task [!=]=)' \\
+            sim2real --include=*.py | grep -vE '^sim2real/deploy/(robot_kind\\.py|kinds/)|RobotState\\.legged\\b|importer\\.legged'
+    """
+    root = Path(__file__).resolve().parent.parent
+    ask = re.compile(r"\.legged\b|kind(\([a-z_.]*\))?\.(floating_base\b|name [!=]=|task [!=]=)")
+    not_kind = re.compile(r"RobotState\.legged\b|importer\.legged")
+    out = []
+    for path in sorted((root / "sim2real").rglob("*.py")):
+        rel = path.relative_to(root).as_posix()
+        if rel.startswith(KIND_MODULES):
+            continue
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if ask.search(line) and not not_kind.search(line):
+                out.append(f"{rel}:{number}: {line.strip()}")
+    return out
+
+
+def test_few_lines_branch_on_the_robot_kind_outside_the_kinds():
+    lines = kind_branches()
+    assert any("task" in line for line in lines)  # the count sees a branch on the task
+    assert len(lines) <= KIND_BRANCHES, (
+        f"{len(lines)} lines branch on the robot kind outside its modules (at most "
+        f"{KIND_BRANCHES}): give the kind a choice with a meaning instead:\n" + "\n".join(lines)
     )

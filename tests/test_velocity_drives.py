@@ -108,3 +108,24 @@ def test_a_ramp_to_home_holds_a_wheel_at_speed_0_wherever_its_angle(wheeled):
     target = np.zeros((1, wheeled.n_joints))
     ramp.shape(target, np.array([RAMP_IN]))
     assert np.all(target[0, wheel] == 0.0)  # rad/s, not the angle
+
+
+def test_go2w_is_a_wheel_legged_kind_whose_wheels_brake_to_zero_in_a_safe_stop(go2w, wheeled):
+    from sim2real.deploy.robot_kind import LEGGED, robot_kind
+
+    kind = robot_kind(go2w)  # robot.toml: kind = "wheel_legged"
+    assert kind.name == "wheel_legged" and kind.floating_base and kind.task == "locomotion"
+    assert kind.pd_targets and kind.pushes and kind.stand_up_on_reset  # as a legged robot
+    wheel = wheel_drive(go2w)[3]
+    assert kind.wheels(go2w).tolist() == wheel.tolist()  # its continuous joints
+    drives = robot_kind(wheeled).wheel_drives(wheeled, 2, "position")
+    out = np.zeros((2, wheeled.n_joints))
+    speeds = np.full((2, wheeled.n_joints), 3.0)  # rad/s on the wheels
+    drives.command(speeds, out, stopping=np.array([True, False]))
+    assert np.all(out[0, wheel] == 0.0) and np.all(out[1, wheel] == 3.0)  # env 0 stops
+    assert robot_kind(wheeled).wheel_drives(wheeled, 2, "torque") is None
+    # a legged kind drives no wheel: the robot's velocity drives need this kind
+    with pytest.raises(ValueError, match=r"kind = 'legged' drives no joint by velocity, but FL_wh"):
+        LEGGED.check(wheeled, "robot.toml: kind")
+    with pytest.raises(ValueError, match=r"kind = 'wheel_legged' needs wheels"):
+        kind.check(load_robot("go2"), "robot.toml: kind")

@@ -1,17 +1,20 @@
-"""A robot's kind, decided in one place (:func:`robot_kind`): a fixed-base arm or a floating-base
-(legged) robot, and what the assembly around it takes from that.
+"""A robot's kind, decided in one place (:func:`robot_kind`): a fixed-base arm, a floating-base
+(legged) robot, a wheel-legged one (:mod:`sim2real.deploy.kinds.wheel_legged`) or a kind a
+contributor registers (:func:`register_kind`, robot.toml ``kind = "<name>"``).
 
-The kind chooses which stages the runtime builds (a legged robot's base estimator and fall check,
-and its state layout: :meth:`RobotKind.state`, :meth:`RobotKind.base_stages`), whether the joint
-estimator takes the commanded acceleration as its control input, the task
-(:func:`sim2real.deploy.tasks.task.task_for`: goals or velocity commands), what an operator does
-before clearing a latched fault (a legged robot lies damped after every stop: it is stood up
-first), how the guard and the runtime treat position targets that act as torques through a
-low-gain PD (:attr:`RobotKind.pd_targets`) and whether the guard lets an estimate bounce off a hard
-limit (:attr:`RobotKind.hard_limit_bounce`). Code outside the physics asks the kind. The boolean
-``robot.floating_base`` itself is asked by :func:`robot_kind`, by the Robot's kinematics
-and, beneath this module, by the estimation's and the spec's checks of their robot
-(``tests/test_seams.py`` counts the places).
+A :class:`RobotKind` is what the assembly around a robot asks instead of testing its shape: the
+state layout and sensor frame (:meth:`RobotKind.state`, :meth:`RobotKind.sensor_frame`), the base
+stages and their monitor (:meth:`RobotKind.base_stages`, :meth:`RobotKind.estimation_monitor`),
+which observation blocks it provides (:meth:`RobotKind.provides`), the task
+(:func:`sim2real.deploy.tasks.task.task_for`: goals or velocity commands), how its velocity-driven
+joints brake in a safe stop (:meth:`RobotKind.wheel_drives`), the soak's disturbances
+(:attr:`RobotKind.cable_faults`, :attr:`RobotKind.pushes`), what an operator does before clearing
+a latched fault, how the guard and the runtime treat PD targets (:attr:`RobotKind.pd_targets`,
+:attr:`RobotKind.hard_limit_bounce`) and which robots fit it (:meth:`RobotKind.check`). The
+boolean ``robot.floating_base`` itself is asked by :func:`robot_kind`, by the Robot's
+kinematics, by the physics and the soak's world beneath, and by the estimation's and the spec's
+checks of their robot (``tests/test_seams.py`` counts the places, and the lines outside the
+kinds that branch on a kind).
 """
 
 from __future__ import annotations
@@ -27,8 +30,10 @@ class RobotKind:
     """What the assembly of a robot depends on.
 
     Attributes:
-        name: ``"arm"`` (fixed base) or ``"legged"`` (floating base).
-        legged: A floating base: IMU and feet in the state, a base estimator and a fall check.
+        name: The name robot.toml's ``kind`` gives (``"arm"``, ``"legged"``, ``"wheel_legged"``).
+        floating_base: The robot's base moves freely (robot.toml's ``[base]``, a free joint in
+            its MJCF): an IMU and feet in the state, a base estimator and a fall check
+            (:meth:`check` holds the robot to it).
         task: The task's name (:func:`sim2real.deploy.tasks.task.task_for`): ``"goals"`` or
             ``"locomotion"``.
         joint_input: The joint estimator (:class:`~sim2real.deploy.estimation.joints.JointStateEstimator`)
@@ -38,8 +43,10 @@ class RobotKind:
             their command. A floating base's low-gain PD targets lead its joints and may step
             from tick to tick (a legged policy's targets are torques): their acceleration is not
             the joints', so its filter runs the constant-velocity model instead.
-        stand_up_on_reset: An operator stands the robot up before clearing a latched fault (the
-            runtime lays a legged robot down, damped, at every stop).
+        stand_up_on_reset: Every safe stop lays the robot down, damped (a walking robot's stop
+            is a fall): an operator stands it up before clearing a latched fault, the violation
+            monitor counts its ticks lying down apart, and the soak replays a hard-limit stop
+            without it (:mod:`sim2real.eval.soak.counterfactual`).
         holds_self_collision: The guard holds a target predicted to bring two links into
             contact (:mod:`sim2real.deploy.safety.predicted`). Not for a legged robot: its legs held
             mid-stride lay it down (unitree_rl_gym's H1 walked through pushes in its own loop
@@ -55,14 +62,16 @@ class RobotKind:
             measured pose (no tracking tolerance,
             :func:`sim2real.deploy.runtime.anchoring.tracking_tolerance`) and ends RAMP_IN in
             position mode on the commanded pose (the PD holds the robot's weight short of home).
-            None (the default): as ``legged``.
+            None (the default): as ``floating_base``.
         hard_limit_bounce: The guard stops for an estimate past a hard limit only when it stays
             past (``LEGGED_HARD_LIMIT_*`` of :mod:`sim2real.deploy.safety.limits`): every stop of a
-            walking robot is a fall. None (the default): as ``legged``.
+            walking robot is a fall. None (the default): as ``floating_base``.
+        pushes: The soak pushes the base as the policy's training domain did (the ranges'
+            ``pushes``, legged_gym's ``push_robots``). None (the default): as ``floating_base``.
     """
 
     name: str
-    legged: bool
+    floating_base: bool
     task: str
     joint_input: bool
     stand_up_on_reset: bool
@@ -70,38 +79,94 @@ class RobotKind:
     cable_faults: bool = True
     pd_targets: bool | None = None
     hard_limit_bounce: bool | None = None
+    pushes: bool | None = None
 
     def __post_init__(self):
-        for name in ("pd_targets", "hard_limit_bounce"):
+        for name in ("pd_targets", "hard_limit_bounce", "pushes"):
             if getattr(self, name) is None:
-                object.__setattr__(self, name, self.legged)
+                object.__setattr__(self, name, self.floating_base)
+
+    @property
+    def legged(self) -> bool:
+        """:attr:`floating_base` (the name of older callers)."""
+        return self.floating_base
+
+    def check(self, robot, where: str) -> None:
+        """Refuse a robot this kind does not fit: a floating-base kind for a robot without a
+        floating base (its state has no base) or the reverse, or velocity-driven joints
+        (robot.toml or the policy's ``drive``) on a kind whose :meth:`wheel_drives` has none.
+
+        Raises:
+            ValueError: ``where`` (robot.toml's ``kind`` field) and what the kind needs.
+        """
+        if self.floating_base != robot.floating_base:
+            need = "a [base] table (a floating base)" if self.floating_base else "no [base] table"
+            raise ValueError(f"{where} = '{self.name}' needs {need}")
+        driven = [n for n, v in zip(robot.joint_names, robot.velocity_driven, strict=True) if v]
+        if driven and type(self).wheel_drives is RobotKind.wheel_drives:
+            raise ValueError(
+                f"{where} = '{self.name}' drives no joint by velocity, but {', '.join(driven)} "
+                "are (drive = \"velocity\"): expected kind = 'wheel_legged'"
+            )
 
     def state(self, robot, envs: int) -> RobotState:
         """The runtime's state layout for ``envs`` robots at the robot's ambient temperature:
         :meth:`RobotState.zeros`, or :meth:`RobotState.legged` with the base and feet."""
         ambient = robot.config.sensors.ambient_temperature
-        if self.legged:
+        if self.floating_base:
             return RobotState.legged(envs, robot.n_joints, robot.n_feet, ambient)
         return RobotState.zeros(envs, robot.n_joints, ambient)
 
+    def sensor_frame(self, robot, envs: int):
+        """An empty :class:`~sim2real.deploy.core.backend.SensorFrame` of a backend reading
+        ``envs`` robots: joints, plus an IMU and the feet's contacts for a floating base."""
+        from sim2real.deploy.core.backend import SensorFrame
+
+        feet = robot.n_feet if self.floating_base else None
+        return SensorFrame.empty(envs, robot.n_joints, feet)
+
     def base_stages(self, robot, envs: int) -> tuple:
-        """``(base_estimator, fall_detector)`` of a legged robot
+        """``(base_estimator, fall_detector)`` of a floating base
         (:class:`~sim2real.deploy.estimation.base.BaseStateEstimator`,
         :class:`~sim2real.deploy.estimation.fall.FallDetector`); ``(None, None)`` for an arm."""
-        if not self.legged:
+        if not self.floating_base:
             return None, None
         from sim2real.deploy.estimation.base import BaseStateEstimator
         from sim2real.deploy.estimation.fall import FallDetector
 
         return BaseStateEstimator(robot, envs), FallDetector(robot, envs)
 
+    def estimation_monitor(self, robot, envs: int):
+        """The monitor of the base estimate against a simulation's truth
+        (:class:`~sim2real.deploy.monitors.estimation.EstimationMonitor`), or None (no base)."""
+        if not self.floating_base:
+            return None
+        from sim2real.deploy.monitors.estimation import EstimationMonitor
+
+        return EstimationMonitor(robot, envs)
+
+    def provides(self, block) -> bool:
+        """The robot's state holds what an observation block of kind ``block``
+        (:class:`~sim2real.deploy.spec.kinds.ObservationKind`) reads: a block that needs the
+        floating base's state (``needs_base``) only on a floating base."""
+        return self.floating_base or not block.needs_base
+
+    def wheel_drives(self, robot, envs: int, mode: str):
+        """The command stage of the robot's velocity-driven joints (their speed targets, and
+        what a safe stop brakes them to:
+        :class:`~sim2real.deploy.core.velocity_drive.VelocityDrives`), or None: this kind has
+        none (:meth:`check` refuses a robot with any)."""
+        return None
+
 
 #: A fixed-base arm: reach goals.
-ARM = RobotKind(name="arm", legged=False, task="goals", joint_input=True, stand_up_on_reset=False)
+ARM = RobotKind(
+    name="arm", floating_base=False, task="goals", joint_input=True, stand_up_on_reset=False
+)
 #: A floating-base (legged) robot: follow velocity commands.
 LEGGED = RobotKind(
     name="legged",
-    legged=True,
+    floating_base=True,
     task="locomotion",
     joint_input=False,
     stand_up_on_reset=True,
@@ -112,7 +177,9 @@ LEGGED = RobotKind(
 )
 
 #: The registered robot kinds (:class:`sim2real.deploy.core.registry.Registry`).
-KIND_REGISTRY: Registry[RobotKind] = Registry("robot kind")
+KIND_REGISTRY: Registry[RobotKind] = Registry(
+    "robot kind", builtin=("sim2real.deploy.kinds.wheel_legged",)
+)
 
 
 def register_kind(kind: RobotKind) -> RobotKind:
@@ -137,22 +204,23 @@ def kinds() -> dict[str, RobotKind]:
 
 
 def robot_kind(robot) -> RobotKind:
-    """The kind of ``robot``: robot.toml's ``kind``, else :data:`LEGGED` for a floating base
-    (``[base]``, a free joint in its MJCF) and :data:`ARM` otherwise.
+    """The kind of ``robot``: robot.toml's ``kind``, else what its description makes it:
+    :data:`ARM` without a floating base, :data:`LEGGED` with one (``[base]``, a free joint in its
+    MJCF), ``wheel_legged`` (:mod:`sim2real.deploy.kinds.wheel_legged`) with one and
+    velocity-driven joints.
 
     Raises:
-        ValueError: robot.toml names a kind nobody registered, or a legged kind for a robot
-            without a floating base (its state has no base), or the reverse.
+        ValueError: robot.toml names a kind nobody registered, or a kind that does not fit the
+            robot (:meth:`RobotKind.check`).
     """
-    shape = LEGGED if robot.floating_base else ARM  # what the robot's description makes it
     name = getattr(robot.config, "kind", None)
-    if name is None:
-        return shape
-    kind = kinds().get(name)
     where = f"{robot.directory / 'robot.toml'}: kind"
+    if name is None:  # what the robot's description makes it
+        if not robot.floating_base:
+            return ARM
+        return kinds()["wheel_legged"] if robot.velocity_driven.any() else LEGGED
+    kind = kinds().get(name)
     if kind is None:
         raise ValueError(f"{where} = '{name}': expected one of {sorted(kinds())}")
-    if kind.legged != shape.legged:
-        need = "a [base] table (a floating base)" if kind.legged else "no [base] table"
-        raise ValueError(f"{where} = '{name}' needs {need}")
+    kind.check(robot, where)
     return kind

@@ -336,11 +336,13 @@ def load_robot(name_or_path: str | Path) -> Robot:
     return dataclasses.replace(robot, command_velocity_limit=_readonly(limit))
 
 
-#: What the description hash leaves out: the ``[task]``, ``[soak]`` and ``[unitree]`` tables,
-#: the guard's ``safety.link_length_tolerance`` (how sure the guard is of the MJCF, not what the
+#: What the description hash leaves out: the robot's ``kind`` (how the toolkit assembles the
+#: stages around it, :mod:`sim2real.deploy.robot_kind`, not what the policy sees or commands),
+#: the ``[task]``, ``[soak]`` and ``[unitree]`` tables, the guard's ``safety.link_length_tolerance`` (how sure the guard is of the MJCF, not what the
 #: policy sees or commands), the drives' velocity reading and the IMU's onboard attitude (the
 #: base estimator's inputs).
 HASH_EXCLUDED = {
+    "kind": True,
     "task": True,
     "soak": True,
     "unitree": True,
@@ -352,8 +354,8 @@ HASH_EXCLUDED = {
 
 
 def description_hash(cfg: RobotConfig, mjcf_bytes: bytes) -> str:
-    """sha256 (hex) of the description a policy depends on: every robot.toml field but the
-    ``[task]``, ``[soak]`` and ``[unitree]`` tables (where goals come from and how hard the soak
+    """sha256 (hex) of the description a policy depends on: every robot.toml field but its
+    ``kind``, the ``[task]``, ``[soak]`` and ``[unitree]`` tables (where goals come from and how hard the soak
     pushes are the evaluation's business, how joints map to a Unitree robot's motor slots the
     backend's, not the robot's) and :data:`HASH_EXCLUDED`'s guard setting, in canonical JSON,
     and the MJCF bytes (the file in the robot folder, package URIs unresolved). Optional fields

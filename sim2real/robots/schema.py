@@ -390,8 +390,9 @@ class RobotConfig(_Strict):
 
     name: str
     mjcf: str  # path relative to robot.toml
-    #: the robot's kind (sim2real.deploy.robot_kind: "arm", "legged" or a registered one); None: "legged"
-    #: with a [base] table, else "arm"
+    #: the robot's kind (sim2real.deploy.robot_kind: "arm", "legged", "wheel_legged" or a registered
+    #: one); None: "legged" with a [base] table ("wheel_legged" with velocity-driven joints too),
+    #: else "arm"
     kind: str | None = None
     control: ControlConfig
     joints: Annotated[list[JointConfig], Field(min_length=1)]

@@ -292,7 +292,7 @@ def check_robot(config: DeployConfig, robot: Robot) -> None:
     """
     path, n = config.path, config.num_actions
     where = f"the robot '{robot.name}' ({robot.directory})"
-    if not robot_kind(robot).legged:
+    if robot_kind(robot).task != "locomotion":  # a legged_gym config's robot walks
         raise ExportError(f"{path}: a legged_gym deploy config, but {where} has a fixed base")
     if config.motor_index is None and n != robot.n_joints:
         raise ExportError(

@@ -132,8 +132,8 @@ def closed_loop_parity(
     rng = np.random.default_rng(seed)
     kind = robot_kind(robot)
     state = kind.state(robot, envs)  # the runtime's layout
-    legged = kind.legged
-    if legged:  # the base from the plant's truth, a random velocity command per env
+    walks = kind.task == "locomotion"
+    if walks:  # a random velocity command per env (the base: the plant's truth, below)
         state.command[:] = rng.uniform([-0.5, -0.3, -1.0], [1.0, 0.3, 1.0], (envs, 3))
         goal = np.zeros((envs, 3))
     else:
@@ -145,13 +145,13 @@ def closed_loop_parity(
     twin = floor.stepper("replay") if floor is not None and reference is not None else None
     spec.plan.reset_history()  # a frame history starts with the replay
     for tick in range(ticks):
-        if tick and tick % goal_every == 0 and not legged:
+        if tick and tick % goal_every == 0 and not walks:
             goal = sample_goals(robot, rng, envs)
         state.q[:] = plant.true_position()
         state.dq[:] = plant.true_velocity()
         state.winding_temperature[:] = plant.thermal.winding_temperature
         kin.update(state)
-        if legged:
+        if state.base is not None:
             _true_base(plant, state, tick * robot.control_period)
         spec.observation(state, goal, out=obs)
         action = policy(obs)

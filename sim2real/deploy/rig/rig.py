@@ -98,11 +98,8 @@ class Rig:
         judged = self.simulated and truth
         self.violations = ViolationMonitor(robot, envs) if judged else None
         self.interventions = InterventionMonitor(self.runtime.guard, self.runtime.smoother)
-        self.estimation = None
-        if judged and self.kind.legged:
-            from sim2real.deploy.monitors.estimation import EstimationMonitor
-
-            self.estimation = EstimationMonitor(robot, envs)
+        # a floating base's estimate against the truth (the kind's monitor), or None
+        self.estimation = self.kind.estimation_monitor(robot, envs) if judged else None
         self.task = None
         if task is not None:
             self.task = task_for(robot, envs, backend, interventions=self.interventions, **task)
@@ -162,8 +159,9 @@ class Rig:
         """:meth:`monitor` as separate calls of the monitors and the task."""
         t0 = time.perf_counter_ns()
         if self.violations is not None:
-            # a legged robot lying damped after a stop: its ticks are counted apart
-            self.violations.update(self.backend, down=runtime.damping if self.kind.legged else None)
+            # a robot lying damped after a stop (the kind's): its ticks are counted apart
+            down = runtime.damping if self.kind.stand_up_on_reset else None
+            self.violations.update(self.backend, down=down)
         self.interventions.update()  # before the goals: a goal's last tick counts for it
         if self.estimation is not None:
             self.estimation.update(runtime, self.backend.true_base_state())

@@ -102,7 +102,7 @@ class Ros2ControlBackend(BackendLifecycle):
     ):
         if mode not in FORWARD_CONTROLLERS:
             raise ValueError(f"mode '{mode}': expected one of {sorted(FORWARD_CONTROLLERS)}")
-        if robot_kind(robot).legged:
+        if robot_kind(robot).sensor_frame(robot, 1).foot_contact is not None:
             raise ValueError(
                 f"--backend ros2 reads joint_states only: {robot.name} is a floating-base robot "
                 "whose IMU and foot contacts it does not read (use --backend unitree, or "

@@ -113,13 +113,13 @@ class RuntimeNode:
 
         self._diag_types = (DiagnosticArray, DiagnosticStatus, KeyValue)
         self.robot, self.task, self.interventions = runtime.robot, task, interventions
-        self.legged = runtime.base_estimator is not None
+        self.base = runtime.base_estimator is not None  # an IMU and odometry to publish
         self.torque = runtime.mode_name == "torque"
         self.dt = runtime.dt
         self.thread = NodeThread(name, namespace)
         node = self.thread.node
         self.name = node.get_fully_qualified_name()
-        self.buffer = TripleBuffer(runtime.n, self.legged)
+        self.buffer = TripleBuffer(runtime.n, self.base)
         self.published = {"joint_states": 0, "imu": 0, "odom": 0, "diagnostics": 0}
         self.received = {"cmd_vel": 0, "goal_point": 0}
         self.services = {"stop": 0, "resume": 0, "reset_faults": 0}
@@ -133,7 +133,7 @@ class RuntimeNode:
         self._joint_state.name = list(runtime.robot.joint_names)
         self._pub_joints = node.create_publisher(JointState, "joint_states", QOS_DEPTH)
         self._pub_imu = self._pub_odom = None
-        if self.legged:
+        if self.base:
             self._imu, self._odom = Imu(), Odometry()
             base = runtime.robot.config.base
             self._imu.header.frame_id = base.imu_site
@@ -172,7 +172,7 @@ class RuntimeNode:
         s.mode, s.cause = int(rt.mode[0]), int(rt.cause[0])
         st = rt.state
         s.q[:], s.dq[:], s.command[:] = st.q[0], st.dq[0], rt.command[0]
-        if self.legged:
+        if self.base:
             b = st.base
             s.orientation[:] = b.orientation[0]
             s.angular_velocity[:] = b.angular_velocity[0]
@@ -303,7 +303,7 @@ class RuntimeNode:
         fill_joint_state(self._joint_state, s, stamp, self.torque)
         self._pub_joints.publish(self._joint_state)
         self.published["joint_states"] += 1
-        if self.legged:
+        if self.base:
             fill_imu(self._imu, s, stamp)
             self._pub_imu.publish(self._imu)
             fill_odometry(self._odom, s, stamp)

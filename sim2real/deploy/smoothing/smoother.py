@@ -18,8 +18,8 @@ from ruckig import (
     Trajectory,
 )
 
-from sim2real.deploy.core.velocity_drive import velocity_drives
 from sim2real.deploy.kernels.calls import bind
+from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.smoothing import kernel as sk
 from sim2real.deploy.smoothing.braking import stopping_distance
 from sim2real.deploy.smoothing.ruckig_state import RUCKIG_ERRORS, RuckigState, SmoothingError
@@ -206,8 +206,9 @@ class CommandSmoother(RuckigState):
         self.extrema_violations_per_joint = counts[sk.EXTREMA].reshape(shape)
         self.stopping_distance_clamps_per_joint = counts[sk.STOPPING].reshape(shape)
         self._synced = False
-        # velocity-driven joints (wheels) in position mode: their command is a speed
-        self.wheels = velocity_drives(robot, envs, mode)
+        # velocity-driven joints (wheels) in position mode: their command is a speed, braked to
+        # 0 rad/s in a safe stop (the robot kind's, a wheel-legged robot's)
+        self.wheels = robot_kind(robot).wheel_drives(robot, envs, mode)
         self._kernel_mode = {"position": sk.POSITION, "velocity": sk.VELOCITY}.get(mode, sk.TORQUE)
         c = np.zeros((sk.C_ROWS, dofs))
         c[sk.LO], c[sk.HI], c[sk.VMAX], c[sk.AMAX] = self._lo, self._hi, self._vmax, self._amax

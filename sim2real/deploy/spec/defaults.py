@@ -107,7 +107,7 @@ def spec_for_robot(
             else:
                 scale = tuple(float(v) for v in robot.velocity_limit)
             out.append(ObservationBlock(kind, n, scale, (0.0,) * n, joints=idx))
-        elif kind in KINDS and KINDS[kind].legged:
+        elif kind in KINDS and KINDS[kind].needs_base:
             size = robot.n_feet if KINDS[kind].per_foot else KINDS[kind].size
             scale = LEGGED_SCALES.get(kind, (1.0,) * size)
             period = GAIT_PERIOD if KINDS[kind].periodic else 0.0

@@ -45,9 +45,9 @@ class ObservationKind:
         per_joint: Entries per joint read (1; 2 for sin and cos); 0: reads no joints.
         every_joint: Reads every joint once (``joints`` a permutation of all joints).
         per_foot: One entry per foot (checked against the robot's feet).
-        legged: Needs a legged (floating-base) robot's state (the base estimate, command,
-            clock), which a ``legged`` robot kind provides
-            (:attr:`sim2real.deploy.robot_kind.RobotKind.legged`).
+        needs_base: Needs a floating-base robot's state (the base estimate, command, clock),
+            which a floating-base robot kind provides
+            (:meth:`sim2real.deploy.robot_kind.RobotKind.provides`).
         vector: A 3-vector (x, y, z; a command's vx, vy, yaw rate) whose blocks may read some of
             its entries (``ObservationBlock.components``).
         raw_entries: Entries of the raw vector a block may pick ``components`` from (3 for a
@@ -63,7 +63,7 @@ class ObservationKind:
     per_joint: int = 0
     every_joint: bool = False
     per_foot: bool = False
-    legged: bool = False
+    needs_base: bool = False
     vector: bool = False
     periodic: bool = False
     raw_entries: int = 0
@@ -113,10 +113,10 @@ def register_kind(kind: ObservationKind) -> ObservationKind:
     return kind
 
 
-def kind_names(legged: bool | None = None) -> tuple[str, ...]:
-    """The registered kinds' names in registration order (``legged`` given: only the kinds that
-    need, or only those that do not need, a legged (floating-base) robot's state)."""
-    return tuple(k.name for k in KINDS.values() if legged is None or k.legged == legged)
+def kind_names(needs_base: bool | None = None) -> tuple[str, ...]:
+    """The registered kinds' names in registration order (``needs_base`` given: only the kinds
+    that need, or only those that do not need, a floating-base robot's state)."""
+    return tuple(k.name for k in KINDS.values() if needs_base is None or k.needs_base == needs_base)
 
 
 def vector_kind_names() -> tuple[str, ...]:
@@ -192,14 +192,14 @@ _joint(
 # A floating-base (legged) robot's: the base's own motion and the command, never its absolute
 # world position or yaw. Joint positions about the default pose are a joint_position block with
 # offset = the home pose.
-_legged = {"legged": True}
+_base = {"needs_base": True}
 _fixed(
     "base_linear_velocity",
     "base linear velocity (3), m/s, estimated; scale = 1 / legged_gym's lin_vel 2.0",
     kernel.BASE_LINEAR_VELOCITY,
     vector=True,
     raw_entries=3,
-    **_legged,
+    **_base,
 )
 _fixed(
     "base_angular_velocity",
@@ -207,7 +207,7 @@ _fixed(
     kernel.BASE_ANGULAR_VELOCITY,
     vector=True,
     raw_entries=3,
-    **_legged,
+    **_base,
 )
 _fixed(
     "projected_gravity",
@@ -215,7 +215,7 @@ _fixed(
     kernel.PROJECTED_GRAVITY,
     vector=True,
     raw_entries=3,
-    **_legged,
+    **_base,
 )
 _fixed(
     "velocity_command",
@@ -223,7 +223,7 @@ _fixed(
     kernel.VELOCITY_COMMAND,
     vector=True,
     raw_entries=3,
-    **_legged,
+    **_base,
 )
 _fixed(
     "gait_phase",
@@ -233,7 +233,7 @@ _fixed(
     size=2,
     periodic=True,
     raw_entries=4,
-    **_legged,
+    **_base,
 )
 _fixed(
     "foot_contact",
@@ -241,14 +241,14 @@ _fixed(
     kernel.FOOT_CONTACT,
     size=4,
     per_foot=True,
-    **_legged,
+    **_base,
 )
 _fixed(
     "heading_sincos",
     "sin, cos (2) of the yaw the attitude filter has turned since the start; unscaled",
     kernel.HEADING_SINCOS,
     size=2,
-    **_legged,
+    **_base,
 )
 _fixed(
     "base_euler_angles",
@@ -257,5 +257,5 @@ _fixed(
     kernel.BASE_EULER_ANGLES,
     vector=True,
     raw_entries=3,
-    **_legged,
+    **_base,
 )

@@ -85,7 +85,7 @@ class ObservationPlan:
         self.vec = np.zeros((0, 3))
         self.rot = np.zeros((0, 3))
         #: the first floating-base block (a state without a base is refused), or None
-        self.legged = next((b.name for b in bl if KINDS[b.name].legged), None)
+        self.base_block = next((b.name for b in bl if KINDS[b.name].needs_base), None)
         self._no_base: tuple[np.ndarray, ...] = ()
         #: the kernel's arguments of the last call with an ``out``, and its (out, state, goal,
         #: state.q, state.base), compared by identity (:meth:`observation`)
@@ -125,7 +125,7 @@ class ObservationPlan:
         """Compile the kernel (or load numba's cache) now, not in the first tick."""
         n = max(int(self.joints.max()) + 1, 1)
         feet = max((b.size for b in self.spec_blocks if KINDS[b.name].per_foot), default=0)
-        state = RobotState.legged(1, n, feet) if self.legged else RobotState.zeros(1, n)
+        state = RobotState.legged(1, n, feet) if self.base_block else RobotState.zeros(1, n)
         out = np.zeros((1, self.dim), dtype=np.float32)
         self._run_kernel(state, np.zeros((1, 3)), out)
         ok.observation_over.compile(ok.TABLE_SIGNATURE)
@@ -151,8 +151,8 @@ class ObservationPlan:
                 state.clock,
                 state.foot_contact,
             )
-        if self.legged is not None:
-            raise _no_base(self.legged)
+        if self.base_block is not None:
+            raise _no_base(self.base_block)
         if not self._no_base or self._no_base[0].shape[0] < envs:
             v = np.zeros((envs, 3))
             self._no_base = (v, v, v, v, np.zeros((envs, 4)), np.zeros(envs), np.zeros((envs, 0)))
@@ -205,8 +205,8 @@ class ObservationPlan:
 
     def require_base(self, state: RobotState) -> None:
         """Raises SpecError: the plan has a floating-base block and ``state`` no base."""
-        if self.legged is not None and state.base is None:
-            raise _no_base(self.legged)
+        if self.base_block is not None and state.base is None:
+            raise _no_base(self.base_block)
 
     def reset_history(self, envs: np.ndarray | None = None) -> None:
         """Start the frame history of the envs of ``envs`` (bool mask (envs,); default all) again

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.spec.drive import DriveSpec
 from sim2real.deploy.spec.history import ObservationHistory, stacked_dim
 from sim2real.deploy.spec.kinds import KINDS, UNPROVIDED_KINDS, kind_names, vector_kind_names
@@ -383,11 +384,12 @@ class PolicySpec:
             )
         for i, b in enumerate(self.observation_blocks):
             kind = KINDS.get(b.name)
-            if kind is not None and kind.legged and not robot.floating_base:
+            if kind is not None and not (rk := robot_kind(robot)).provides(kind):
+                provided = [n for n in kind_names() if rk.provides(KINDS[n])]
                 raise SpecError(
                     f"observation[{i}] ('{b.name}'): block '{b.name}' cannot be provided: the "
                     f"robot '{robot.name}' is a fixed-base arm (no IMU, no feet); blocks it "
-                    f"provides: {', '.join(kind_names(legged=False))}"
+                    f"provides: {', '.join(provided)}"
                 )
             if kind is not None and kind.per_foot and b.size != robot.n_feet:
                 raise SpecError(

@@ -167,7 +167,7 @@ class SessionBatch:
         dofs = joint_dofs(models[0], robot)
         self.initial_friction = np.stack([m.dof_frictionloss[dofs].copy() for m in models])
         #: the pushes of the policy's training domain (legged_gym's push_robots), or None
-        pushes = first.ranges.pushes if self.kind.legged else None
+        pushes = first.ranges.pushes if self.kind.pushes else None
         self.pushes = None if pushes is None else DomainPushes(seeds, pushes, dt)
         #: the base estimate in the second after each push, against the truth (None: no pushes)
         self.push_response = None if pushes is None else PushResponse(self.pushes, dt)
@@ -223,7 +223,7 @@ class SessionBatch:
         self._next_event = self.every
         self._ruckig = mode != "torque"
         self.stop_replay = None
-        if replay_stops and self.kind.legged:
+        if replay_stops and self.kind.stand_up_on_reset:  # its every stop lays it down
             from sim2real.eval.soak.counterfactual import StopReplay
 
             self.stop_replay = StopReplay(self)

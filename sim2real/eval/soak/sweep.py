@@ -62,7 +62,9 @@ class Quantity:
         unit: The levels' unit.
         levels: Increasingly severe levels.
         apply: ``(ranges, level) -> ranges`` with the quantity at that level.
-        legged_only: Only a floating-base robot has it (floor, pushes).
+        needs: The robot kind's choice it needs (an attribute of
+            :class:`~sim2real.deploy.robot_kind.RobotKind` that must be true: ``floating_base``
+            for a floor, ``pushes`` for pushes), or None.
         model_field: The MuJoCo ``dof_*`` field a relative range scales (None: not relative to
             the model), for the ``n/a`` of a robot without it.
     """
@@ -72,7 +74,7 @@ class Quantity:
     unit: str
     levels: tuple[float, ...]
     apply: Callable[[SessionRanges, float], SessionRanges]
-    legged_only: bool = False
+    needs: str | None = None
     model_field: str | None = None
 
 
@@ -126,7 +128,7 @@ QUANTITIES = (
         "mu",
         (0.5, 0.4, 0.3, 0.2, 0.1),
         _floor,
-        legged_only=True,
+        needs="floating_base",
     ),
     Quantity(
         "motor_strength",
@@ -136,7 +138,7 @@ QUANTITIES = (
         _dynamics("actuator_strength"),
     ),
     Quantity("latency", "sensor latency", "ticks", (1, 2, 3, 4), _latency),
-    Quantity("push_size", "push size", "m/s", (0.5, 1.0, 1.5, 2.0, 2.5), _push, legged_only=True),
+    Quantity("push_size", "push size", "m/s", (0.5, 1.0, 1.5, 2.0, 2.5), _push, needs="pushes"),
 )
 
 
@@ -164,8 +166,13 @@ def _run_one(config, out: str) -> dict:
     return run_sessions([config], out)[0]
 
 
+def _fits(q: Quantity, robot) -> bool:
+    """The robot's kind has what ``q`` needs (:attr:`Quantity.needs`)."""
+    return q.needs is None or bool(getattr(robot_kind(robot), q.needs))
+
+
 def _applies(q: Quantity, robot) -> bool:
-    if q.legged_only and not robot_kind(robot).legged:
+    if not _fits(q, robot):
         return False
     if q.model_field is not None:
         model = robot.mj_model
@@ -207,7 +214,7 @@ def run_sweep(
         ranges=replace(template.ranges, pushes=None),
     )
     jobs = {("reference", 0.0): base}
-    quantities = [q for q in QUANTITIES if not (q.legged_only and not robot_kind(robot).legged)]
+    quantities = [q for q in QUANTITIES if _fits(q, robot)]
     for q in quantities:
         if _applies(q, robot):
             for level in q.levels:

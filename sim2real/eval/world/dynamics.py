@@ -31,7 +31,6 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.robots import Robot
 
 
@@ -280,7 +279,7 @@ def add_base_mass(model: mujoco.MjModel, robot: Robot, kg: float, body_name: str
     Raises:
         ValueError: a fixed-base robot, or a body whose mass would not stay positive.
     """
-    if not robot_kind(robot).legged:
+    if not robot.floating_base:
         raise ValueError(f"add_base_mass: robot {robot.name} has no floating base")
     name = body_name or robot.base_body
     body = model.body(name).id

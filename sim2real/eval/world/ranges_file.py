@@ -38,7 +38,6 @@ import types
 import typing
 from pathlib import Path
 
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.tasks.commands import CommandRanges
 from sim2real.eval.world.drift import DriftRanges
 from sim2real.eval.world.dynamics import ComOffsetRanges, DynamicsRanges
@@ -258,7 +257,7 @@ def apply_overrides(
         RangesError: an IMU or floor setting for a fixed-base robot, or a range its class refuses
             (inverted, out of bounds; named with the file and ``table.key``).
     """
-    if not robot_kind(robot).legged:
+    if not robot.floating_base:
         for key in FLOATING_BASE_ONLY:
             if key in overrides:
                 raise RangesError(

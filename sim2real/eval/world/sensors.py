@@ -10,7 +10,6 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.eval.world.checks import check_range
 from sim2real.robots import Robot
 
@@ -158,7 +157,7 @@ def sample_imu(robot: Robot, rng: np.random.Generator, ranges: ImuRanges | None 
     Raises:
         ValueError: a fixed-base robot (no IMU).
     """
-    if not robot_kind(robot).legged:
+    if not robot.floating_base:
         raise ValueError(f"sample_imu: robot {robot.name} has no IMU (not a floating base)")
     ranges = ImuRanges() if ranges is None else ranges
     lo, hi = ranges.latency_ticks

@@ -22,7 +22,6 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.eval.world.drift import Drift, sample_drift
 from sim2real.eval.world.dynamics import Dynamics, randomized_model, sample_dynamics
 from sim2real.eval.world.fault_schedule import (
@@ -193,7 +192,7 @@ def sample_session(
         plant = randomized_model(robot, robot.config.control.mode, dynamics)
         schedule = sample_faults(robot, seed, duration, sensors, ranges.faults, plant)
     imu = floor = added = None
-    if robot_kind(robot).legged:  # an IMU and a floor
+    if robot.floating_base:  # an IMU and a floor
         if ranges.imu is None or ranges.floor_friction is None:
             raise ValueError(
                 f"sample_session: robot {robot.name} has a floating base: expected ranges with "

@@ -9,7 +9,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.tasks.commands import CommandRanges
 from sim2real.eval.world.checks import check_range
 from sim2real.eval.world.drift import DriftRanges
@@ -92,7 +91,7 @@ def session_ranges(robot: Robot, mean_interval: float | None = None) -> SessionR
     ``LEGGED_DYNAMICS``, ``LEGGED_SENSORS``, the default :class:`ImuRanges` and
     ``FLOOR_FRICTION``."""
     faults = fault_ranges(robot, mean_interval)
-    if robot_kind(robot).legged:
+    if robot.floating_base:
         return SessionRanges(
             dynamics=LEGGED_DYNAMICS,
             sensors=LEGGED_SENSORS,

@@ -158,13 +158,12 @@ class UnitreeBackend(BackendLifecycle):
         self.ramp_kd = self.kd if cfg.ramp_kd is None else np.broadcast_to(cfg.ramp_kd, self.n)
         self.period = robot.control_period
         self.feet = None
-        legged = robot_kind(robot).legged  # an IMU and feet in the state
-        if self.family.has_feet and legged and cfg.foot_index:
+        self.frame = robot_kind(robot).sensor_frame(robot, 1)  # an IMU and feet: a floating base
+        if self.family.has_feet and self.frame.foot_contact is not None and cfg.foot_index:
             self.feet = np.array(cfg.foot_index, dtype=np.int64)
         self.contact_threshold = (
             robot.config.sensors.contact.threshold if robot.config.sensors.contact else 0.0
         )
-        self.frame = SensorFrame.empty(1, self.n, robot.n_feet if legged else None)
         self._state = MessageCodec(self.family.low_state)
         self._cmd = MessageCodec(self.family.low_cmd)
         self.dropouts: Counter[str] = Counter({k: 0 for k in DROPOUT_KINDS})

@@ -338,9 +338,10 @@ def load_robot(name_or_path: str | Path) -> Robot:
 
 #: What the description hash leaves out: the robot's ``kind`` (how the toolkit assembles the
 #: stages around it, :mod:`sim2real.deploy.robot_kind`, not what the policy sees or commands),
-#: the ``[task]``, ``[soak]`` and ``[unitree]`` tables, the guard's ``safety.link_length_tolerance`` (how sure the guard is of the MJCF, not what the
-#: policy sees or commands), the drives' velocity reading and the IMU's onboard attitude (the
-#: base estimator's inputs).
+#: the ``[task]``, ``[soak]`` and ``[unitree]`` tables, the guard's
+#: ``safety.link_length_tolerance`` (how sure the guard is of the MJCF, not what the policy sees
+#: or commands), the drives' velocity reading and the IMU's onboard attitude (the base
+#: estimator's inputs).
 HASH_EXCLUDED = {
     "kind": True,
     "task": True,

@@ -4,8 +4,8 @@ contributor registers (:func:`register_kind`, robot.toml ``kind = "<name>"``).
 
 A :class:`RobotKind` is what the assembly around a robot asks instead of testing its shape: the
 state layout and sensor frame (:meth:`RobotKind.state`, :meth:`RobotKind.sensor_frame`), the base
-stages and their monitor (:meth:`RobotKind.base_stages`, :meth:`RobotKind.estimation_monitor`),
-which observation blocks it provides (:meth:`RobotKind.provides`), the task
+stages (:meth:`RobotKind.base_stages`; the rig judges their estimate against the truth),
+the task
 (:func:`sim2real.deploy.tasks.task.task_for`: goals or velocity commands), how its velocity-driven
 joints brake in a safe stop (:meth:`RobotKind.wheel_drives`), the soak's disturbances
 (:attr:`RobotKind.cable_faults`, :attr:`RobotKind.pushes`), what an operator does before clearing
@@ -135,21 +135,6 @@ class RobotKind:
         from sim2real.deploy.estimation.fall import FallDetector
 
         return BaseStateEstimator(robot, envs), FallDetector(robot, envs)
-
-    def estimation_monitor(self, robot, envs: int):
-        """The monitor of the base estimate against a simulation's truth
-        (:class:`~sim2real.deploy.monitors.estimation.EstimationMonitor`), or None (no base)."""
-        if not self.floating_base:
-            return None
-        from sim2real.deploy.monitors.estimation import EstimationMonitor
-
-        return EstimationMonitor(robot, envs)
-
-    def provides(self, block) -> bool:
-        """The robot's state holds what an observation block of kind ``block``
-        (:class:`~sim2real.deploy.spec.kinds.ObservationKind`) reads: a block that needs the
-        floating base's state (``needs_base``) only on a floating base."""
-        return self.floating_base or not block.needs_base
 
     def wheel_drives(self, robot, envs: int, mode: str):
         """The command stage of the robot's velocity-driven joints (their speed targets, and

@@ -18,6 +18,7 @@ from sim2real.deploy.core.backend import SimulatedPlant
 from sim2real.deploy.core.latency import LatencyHistogram
 from sim2real.deploy.core.modes import FAULTED, RUNNING
 from sim2real.deploy.kernels.calls import bind
+from sim2real.deploy.monitors.estimation import EstimationMonitor
 from sim2real.deploy.rig.after_tick import FusedAfterTick
 from sim2real.deploy.rig.after_tick_kernel import motion_tick
 from sim2real.deploy.rig.hooks import RunHook
@@ -98,8 +99,9 @@ class Rig:
         judged = self.simulated and truth
         self.violations = ViolationMonitor(robot, envs) if judged else None
         self.interventions = InterventionMonitor(self.runtime.guard, self.runtime.smoother)
-        # a floating base's estimate against the truth (the kind's monitor), or None
-        self.estimation = self.kind.estimation_monitor(robot, envs) if judged else None
+        # the base estimate against the truth, where the kind gave the runtime one
+        has_base = self.runtime.base_estimator is not None
+        self.estimation = EstimationMonitor(robot, envs) if judged and has_base else None
         self.task = None
         if task is not None:
             self.task = task_for(robot, envs, backend, interventions=self.interventions, **task)

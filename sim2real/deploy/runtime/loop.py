@@ -234,8 +234,10 @@ class Runtime(RuntimeState):
     def _build_stages(self) -> tuple[SafetyGuard, CommandSmoother]:
         """The guard and the smoother (compiled)."""
         envs, mode = self.envs, self.mode_name
-        bounded = not robot_kind(self.robot).pd_targets  # PD targets: torque requests
-        smoother = CommandSmoother(self.robot, envs, mode, bounded=bounded)
+        kind = robot_kind(self.robot)
+        bounded = not kind.pd_targets  # PD targets: torque requests
+        wheels = kind.wheel_drives(self.robot, envs, mode)
+        smoother = CommandSmoother(self.robot, envs, mode, bounded=bounded, wheels=wheels)
         return SafetyGuard(self.robot, envs, mode), smoother
 
     def _compile(self) -> CompiledSupervision | None:

@@ -18,8 +18,8 @@ from ruckig import (
     Trajectory,
 )
 
+from sim2real.deploy.core.velocity_drive import velocity_drives
 from sim2real.deploy.kernels.calls import bind
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.smoothing import kernel as sk
 from sim2real.deploy.smoothing.braking import stopping_distance
 from sim2real.deploy.smoothing.ruckig_state import RUCKIG_ERRORS, RuckigState, SmoothingError
@@ -42,6 +42,10 @@ def _doubles(w: np.ndarray, row: int):
     view = (ctypes.c_double * w.shape[1]).from_address(w[row].ctypes.data)
     view._keep = w  # the block must outlive the view
     return view
+
+
+#: ``wheels``' default: the robot's own velocity drives
+_DRIVES = object()
 
 
 class CommandSmoother(RuckigState):
@@ -84,6 +88,10 @@ class CommandSmoother(RuckigState):
             (:attr:`sim2real.deploy.robot_kind.RobotKind.pd_targets`): a target past the range
             is a torque request, which the guard judges
             (:mod:`sim2real.deploy.safety.pd_barrier`), and the drive takes.
+        wheels: The command stage of the velocity-driven joints (the robot kind's
+            :meth:`~sim2real.deploy.robot_kind.RobotKind.wheel_drives`, which the runtime
+            passes), or None; default
+            :func:`~sim2real.deploy.core.velocity_drive.velocity_drives` of the robot.
 
     Attributes:
         command: (envs, n) the last command, in the units of the mode (overwritten by each step).
@@ -108,7 +116,14 @@ class CommandSmoother(RuckigState):
         ValueError: ``envs < 1`` or an unknown mode.
     """
 
-    def __init__(self, robot: Robot, envs: int, mode: str | None = None, bounded: bool = True):
+    def __init__(
+        self,
+        robot: Robot,
+        envs: int,
+        mode: str | None = None,
+        bounded: bool = True,
+        wheels=_DRIVES,
+    ):
         mode = robot.control_mode if mode is None else mode
         if mode not in CONTROL_MODES:
             raise ValueError(f"control mode '{mode}' is unknown; expected one of {CONTROL_MODES}")
@@ -210,7 +225,7 @@ class CommandSmoother(RuckigState):
         self._synced = False
         # velocity-driven joints (wheels) in position mode: their command is a speed, braked to
         # 0 rad/s in a safe stop (the robot kind's, a wheel-legged robot's)
-        self.wheels = robot_kind(robot).wheel_drives(robot, envs, mode)
+        self.wheels = velocity_drives(robot, envs, mode) if wheels is _DRIVES else wheels
         # PD targets (position mode, unbounded): the runtime's RUNNING envs command the guard's
         # target on their position-driven joints (follow)
         self.follows_targets = mode == "position" and not bounded

@@ -36,7 +36,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from sim2real.deploy.core.state import RobotState
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.spec.drive import DriveSpec
 from sim2real.deploy.spec.history import ObservationHistory, stacked_dim
 from sim2real.deploy.spec.kinds import KINDS, UNPROVIDED_KINDS, kind_names, vector_kind_names
@@ -384,8 +383,8 @@ class PolicySpec:
             )
         for i, b in enumerate(self.observation_blocks):
             kind = KINDS.get(b.name)
-            if kind is not None and not (rk := robot_kind(robot)).provides(kind):
-                provided = [n for n in kind_names() if rk.provides(KINDS[n])]
+            if kind is not None and kind.needs_base and not robot.floating_base:
+                provided = kind_names(needs_base=False)
                 raise SpecError(
                     f"observation[{i}] ('{b.name}'): block '{b.name}' cannot be provided: the "
                     f"robot '{robot.name}' is a fixed-base arm (no IMU, no feet); blocks it "

@@ -199,7 +199,6 @@ class Runtime(RuntimeState):
         self._fused = self._compiled is not None and self.base_estimator is None
         #: (envs,) bool: a legged robot's envs whose command damps (``damping``), this tick's
         self._damp = np.zeros(envs, dtype=bool)
-        self._running = np.zeros(envs, dtype=bool)  # the tick's RUNNING envs (follow)
         if self.fall_detector is not None:  # compiled (or loaded) and bound before a tick
             self._base_screens(self.state)
         #: ``(tick) -> None``: the tick's latency histograms and long periods (:meth:`_bind_books`)
@@ -396,8 +395,6 @@ class Runtime(RuntimeState):
             cmd = self.guard.check_motion(self.smoother, state, cmd)  # brake an unsafe path
         except SmoothingError as error:  # Ruckig cannot plan: those envs stop, the run goes on
             cmd = self._replan(error, target, state)
-        if self.smoother.follows_targets:  # PD targets are torque requests: RUNNING takes them
-            self.smoother.follow(target, np.equal(self.mode, RUNNING, out=self._running), cmd)
         if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
             damp = np.greater_equal(self.mode, SAFE_STOP, out=self._damp)  # SAFE_STOP, FAULTED
             if damp.any():

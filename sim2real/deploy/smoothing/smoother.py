@@ -101,8 +101,6 @@ class CommandSmoother(RuckigState):
             step (velocity change / control period; 0 after a sync, and in torque mode): the
             control input of the state estimator over the period the command is in force.
         stopping: (envs,) bool, envs in safe stop.
-        follows_targets: A PD-target robot's smoother (position mode, not ``bounded``): the
-            runtime hands its RUNNING envs' targets to :meth:`follow`, Ruckig shapes the rest.
         trajectory: (3, envs, n) ``position``, ``velocity``, ``acceleration`` as one view.
         before: (3, envs, n) the same before the last step (where :meth:`brake` starts).
         non_finite_targets, target_clamps, extrema_violations, stopping_distance_clamps: (envs,)
@@ -226,12 +224,6 @@ class CommandSmoother(RuckigState):
         # velocity-driven joints (wheels) in position mode: their command is a speed, braked to
         # 0 rad/s in a safe stop (the robot kind's, a wheel-legged robot's)
         self.wheels = velocity_drives(robot, envs, mode) if wheels is _DRIVES else wheels
-        # PD targets (position mode, unbounded): the runtime's RUNNING envs command the guard's
-        # target on their position-driven joints (follow)
-        self.follows_targets = mode == "position" and not bounded
-        self._follow_joints = ~np.asarray(robot.velocity_driven, dtype=bool)
-        self._follow_mask = np.zeros(shape, dtype=bool)
-        self._follow_flat = self._follow_mask.reshape(-1)
         self._kernel_mode = {"position": sk.POSITION, "velocity": sk.VELOCITY}.get(mode, sk.TORQUE)
         c = np.zeros((sk.C_ROWS, dofs))
         c[sk.LO], c[sk.HI], c[sk.VMAX], c[sk.AMAX] = self._lo, self._hi, self._vmax, self._amax

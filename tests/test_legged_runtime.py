@@ -600,3 +600,37 @@ def test_the_locked_heading_leaves_the_velocity_estimate_as_good_over_minutes(go
     rms = float(np.sqrt(np.square(np.array(error)).sum(axis=1).mean()))
     assert rms < 0.1, rms
     assert rt.base_estimator.covariance[0, 2, 2] == 0.0
+
+
+def test_a_policy_reading_its_last_action_starts_from_zero_after_a_stop_and_reset(go2, tmp_path):
+    """While a robot lies stopped the drives run the runtime's override, not the policy: the
+    policy's last action reads 0 there (its output fed back to itself would grow unchecked, a
+    policy of Isaac Lab's reading its last action reached 1e6 lying damped), and after the
+    operator's reset it starts from 0 as after the start. Policy: action = last action + 0.002."""
+    spec = PolicySpec.for_robot(go2, blocks=(*LEGGED_DEFAULT_BLOCKS, "last_action"))
+    n, start = spec.act_dim, spec.block_slices()["last_action"].start
+    w = np.zeros((spec.obs_dim, n), np.float32)
+    w[start : start + n] = np.eye(n)  # the block's scale is 1
+    nodes = [
+        helper.make_node("MatMul", ["obs", "w"], ["a"]),
+        helper.make_node("Add", ["a", "b"], ["action"]),
+    ]
+    weights = {"w": w, "b": np.full(n, 0.002, np.float32)}
+    policy = OnnxPolicy(linear_onnx(spec, tmp_path / "integrator.onnx", nodes, weights), go2)
+    rt, plant = runtime(go2, policy)
+    rt.run(60)
+    assert (rt.mode == Mode.RUNNING).all()
+    running = rt.state.last_action.copy()
+    assert (running > 0.02).all()  # the action grows while it drives the robot
+    rt.supervision.safe_stop(np.array([True, False]), "operator")
+    rt.run(100)  # env 0 stopped, then latched, lying damped
+    assert rt.mode[0] in (Mode.SAFE_STOP, Mode.FAULTED)
+    np.testing.assert_array_equal(rt.state.last_action[0], 0.0)
+    assert (rt.state.last_action[1] > running[1]).all()  # env 1 runs on
+    first = np.array([True, False])
+    plant.reset(envs=first)  # the operator stands it up at home and restarts it there
+    rt.restart(first, np.broadcast_to(go2.home, rt.state.q.shape), plant.read().time)
+    np.testing.assert_array_equal(rt.state.last_action[0], 0.0)
+    rt.run(50)
+    assert rt.mode[0] == Mode.RUNNING
+    assert 0 < rt.state.last_action[0].max() < running[0].min() + 0.1

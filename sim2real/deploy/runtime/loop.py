@@ -199,6 +199,7 @@ class Runtime(RuntimeState):
         self._fused = self._compiled is not None and self.base_estimator is None
         #: (envs,) bool: a legged robot's envs whose command damps (``damping``), this tick's
         self._damp = np.zeros(envs, dtype=bool)
+        self._idle = np.zeros(envs, dtype=bool)  # the envs not RUNNING at the tick's end
         if self.fall_detector is not None:  # compiled (or loaded) and bound before a tick
             self._base_screens(self.state)
         #: ``(tick) -> None``: the tick's latency histograms and long periods (:meth:`_bind_books`)
@@ -207,10 +208,12 @@ class Runtime(RuntimeState):
         gc.collect()  # the set-up's garbage, every generation, once: here, not in run() (below)
 
     def _reset_policy(self, envs: np.ndarray) -> None:
-        """The current policy's ``reset(envs)`` (bool mask (envs,)), if it has one, and its
-        observation's frame history (the envs' next frame is the first)."""
+        """The current policy's ``reset(envs)`` (bool mask (envs,)), if it has one, its
+        observation's frame history (the envs' next frame is the first) and its last action (0,
+        as before its first call; a training episode's reset zeroes it too)."""
         (getattr(self.policy, "reset", None) or _no_reset)(envs)
         self.spec.plan.reset_history(envs)
+        self.state.last_action[envs] = 0.0
 
     def ramp_in(self, duration: float, envs: np.ndarray | None = None) -> None:
         """After :meth:`reset_faults` or :meth:`restart`: the envs of ``envs`` (bool (envs,);
@@ -406,7 +409,12 @@ class Runtime(RuntimeState):
         st[7] = clock_ns()
         self.backend.advance()
         st[8] = clock_ns()
+        # the action the drives ran: an env not RUNNING ran the runtime's override, not the
+        # policy's, whose output fed back to itself would grow unchecked (a policy reading its
+        # last action, lying damped for seconds)
         state.last_action[:] = action
+        if np.not_equal(self.mode, RUNNING, out=self._idle).any():
+            state.last_action[self._idle] = 0.0
         self.ticks += 1
         self.time += self.dt
         if self.telemetry is not None:

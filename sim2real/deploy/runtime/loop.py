@@ -200,6 +200,7 @@ class Runtime(RuntimeState):
         #: (envs,) bool: a legged robot's envs whose command damps (``damping``), this tick's
         self._damp = np.zeros(envs, dtype=bool)
         self._idle = np.zeros(envs, dtype=bool)  # the envs not RUNNING at the tick's end
+        self._idle_rows = self._idle[:, None]  # its view over the joints (no index array)
         if self.fall_detector is not None:  # compiled (or loaded) and bound before a tick
             self._base_screens(self.state)
         #: ``(tick) -> None``: the tick's latency histograms and long periods (:meth:`_bind_books`)
@@ -414,7 +415,7 @@ class Runtime(RuntimeState):
         # last action, lying damped for seconds)
         state.last_action[:] = action
         if np.not_equal(self.mode, RUNNING, out=self._idle).any():
-            state.last_action[self._idle] = 0.0
+            np.copyto(state.last_action, 0.0, where=self._idle_rows)
         self.ticks += 1
         self.time += self.dt
         if self.telemetry is not None:

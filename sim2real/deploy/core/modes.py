@@ -29,6 +29,13 @@ OVERRUN_RATE_LIMIT = {"position": 0.5, "velocity": 0.25, "torque": 0.25}
 OVERRUN_WINDOW_S = 1.0
 #: A joint is at rest below this speed, rad/s (ends a safe stop, ends RAMP_IN).
 REST_SPEED = 0.05
+#: RAMP_IN of a robot whose drives run a PD law on its targets (a legged robot) ends on its
+#: commanded pose at home with every joint slower than this, rad/s (our choice). Its low gains
+#: take its weight as they blend in from the bring-up's and its joints sway: the go2 on the
+#: Unitree emulator, read through its drives' velocity, at up to 0.7 rad/s, still 0.1-0.2 rad/s
+#: 4 s later; at ``REST_SPEED`` the policy waited those 4 s. A legged policy's training episodes
+#: start from a robot dropped onto its feet.
+PD_RAMP_REST_SPEED = 0.5
 #: A safe stop whose joints are not all at rest this long after it began ends FAULTED anyway
 #: (latched), counted in ``RuntimeCounters.safe_stop_timeouts``, s. Our choice: the smoother
 #: brakes any joint from its velocity limit within ``v / a + a / j`` s (the acceleration ramp,

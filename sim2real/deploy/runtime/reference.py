@@ -19,6 +19,7 @@ from sim2real.deploy.core.modes import (
     FAULTED,
     HOME_TOLERANCE,
     NAN_ACTION_LIMIT,
+    PD_RAMP_REST_SPEED,
     RAMP_IN,
     REST_SPEED,
     RUNNING,
@@ -74,7 +75,8 @@ class ReferenceSupervision(Supervision):
             at_rest = (np.abs(state.dq) < REST_SPEED).all(axis=1)
             pose = self.smoother.commanded if self.home_from_command else state.q
             home = (np.abs(pose - self.home) < HOME_TOLERANCE).all(axis=1)
-            took_over = (mode == RAMP_IN) & at_rest & home
+            rest = PD_RAMP_REST_SPEED if self.home_from_command else REST_SPEED
+            took_over = (mode == RAMP_IN) & (np.abs(state.dq) < rest).all(axis=1) & home
             if took_over.any():
                 mode[took_over] = RUNNING
                 self.reset_policy(took_over)  # the policy starts from its initial state

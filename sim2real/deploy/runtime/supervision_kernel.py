@@ -26,6 +26,7 @@ import math
 import numba
 import numpy as np
 
+from sim2real.deploy.core.modes import PD_RAMP_REST_SPEED
 from sim2real.deploy.kernels import np_max, np_min
 
 #: Modes of the state machine (sim2real.deploy.runtime.Mode).
@@ -155,8 +156,9 @@ def supervise(
             continue
         at_rest = True
         at_home = True
+        rest = PD_RAMP_REST_SPEED if from_command and m == RAMP_IN else params[REST_SPEED]
         for j in range(n):
-            if not abs(dq[e, j]) < params[REST_SPEED]:
+            if not abs(dq[e, j]) < rest:
                 at_rest = False
             pose = commanded[e, j] if from_command else q[e, j]
             if not abs(pose - home[j]) < params[HOME_TOLERANCE]:

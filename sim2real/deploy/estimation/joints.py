@@ -95,8 +95,8 @@ class JointStateEstimator:
             after it into the angle alone (gain ``[k0, 0]``, Joseph's form; the velocity stays
             the floored update's: the angle's residual of a leg whose acceleration steps within
             a period is no measure of its speed). inf where no floor acts or
-            ``measurement_sigma`` is given. Without it a PD-target leg's angle sat 0.1 to 0.5 rad
-            off its encoder.
+            ``measurement_sigma`` is given. Without it a stepping leg's angle lagged its encoder
+            (docs/legged.md).
         initial_covariance: (n, 2, 2), ``diag(R, velocity_limit^2)``: the pose is known to the
             encoder's accuracy, the velocity only to within the joint's velocity limit.
         covariance_bound: (n, 2), largest accepted variances of position and velocity:

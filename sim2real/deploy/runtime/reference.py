@@ -72,11 +72,12 @@ class ReferenceSupervision(Supervision):
 
         mode = self.mode
         if not (mode == RUNNING).all():  # else nothing to end (the common case)
-            at_rest = (np.abs(state.dq) < REST_SPEED).all(axis=1)
+            speed = np.abs(state.dq).max(axis=1)
+            at_rest = speed < REST_SPEED
             pose = self.smoother.commanded if self.home_from_command else state.q
             home = (np.abs(pose - self.home) < HOME_TOLERANCE).all(axis=1)
-            rest = PD_RAMP_REST_SPEED if self.home_from_command else REST_SPEED
-            took_over = (mode == RAMP_IN) & (np.abs(state.dq) < rest).all(axis=1) & home
+            ramp_rest = PD_RAMP_REST_SPEED if self.home_from_command else REST_SPEED
+            took_over = (mode == RAMP_IN) & (speed < ramp_rest) & home
             if took_over.any():
                 mode[took_over] = RUNNING
                 self.reset_policy(took_over)  # the policy starts from its initial state

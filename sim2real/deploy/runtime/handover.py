@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim2real.deploy.core.modes import RAMP_IN, RUNNING
+from sim2real.deploy.robot_kind import robot_kind
 
 
 class HandOver:
@@ -84,6 +85,20 @@ def check_policy(spec, robot, mode: str) -> None:
             f"policy action mode '{spec.action.mode}' differs from the backend's control "
             f"mode '{mode}'"
         )
+    if spec.action.smoothing == "none" and not robot_kind(robot).pd_targets:
+        raise ValueError(
+            f"policy action.smoothing 'none': the robot '{robot.name}' does not run PD targets "
+            "(its commands always pass the smoother); expected 'jerk_limited' or none given"
+        )
+
+
+def follows_targets(spec, robot, mode: str) -> bool:
+    """Whether the runtime's RUNNING envs command ``spec``'s targets as the policy emitted them
+    (after the guard), not through the smoother: a PD-target robot in position mode whose spec's
+    ``action.smoothing`` is ``'none'`` or left to the robot's default
+    (:class:`~sim2real.deploy.spec.policy_spec.ActionSpec`), as the policy was trained."""
+    pd = robot_kind(robot).pd_targets and mode == "position"
+    return bool(pd and spec.action.smoothing != "jerk_limited")
 
 
 def switch_policy(runtime, policy, blend_time: float) -> None:
@@ -109,6 +124,7 @@ def switch_policy(runtime, policy, blend_time: float) -> None:
         n = runtime.robot.n_joints
         runtime.handover = HandOver(outgoing, spec, runtime.envs, n, ticks, runtime.target)
     runtime.policy, runtime.spec = policy, policy.spec
+    runtime.follows_targets = follows_targets(policy.spec, runtime.robot, runtime.mode_name)
     obs = runtime._obs  # noqa: SLF001 - the runtime's own room
     if obs.shape[1] != runtime.spec.obs_dim:
         runtime._obs = obs = np.zeros((runtime.envs, runtime.spec.obs_dim), dtype=np.float32)

@@ -30,7 +30,7 @@ from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
 from sim2real.deploy.runtime.clock import SimClock
 from sim2real.deploy.runtime.compiled import CompiledSupervision
-from sim2real.deploy.runtime.handover import RampIn, check_policy, switch_policy
+from sim2real.deploy.runtime.handover import RampIn, check_policy, follows_targets, switch_policy
 from sim2real.deploy.runtime.stale import StaleStops
 from sim2real.deploy.runtime.state import RuntimeState
 from sim2real.deploy.runtime.supervision import Supervision
@@ -120,6 +120,9 @@ class Runtime(RuntimeState):
         self.estimator = JointStateEstimator(robot, envs)
         self.kinematics = Kinematics(robot)
         self.guard, self.smoother = self._build_stages()
+        #: bool: RUNNING envs command the guard's targets as the policy emitted them, not the
+        #: smoother's (a PD-target robot whose policy was trained so: :func:`follows_targets`)
+        self.follows_targets = follows_targets(self.spec, self.robot, self.mode_name)
         self.state: RobotState = kind.state(robot, envs)
         self.goal = np.zeros((envs, 3))
         #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check
@@ -201,6 +204,7 @@ class Runtime(RuntimeState):
         self._damp = np.zeros(envs, dtype=bool)
         self._idle = np.zeros(envs, dtype=bool)  # the envs not RUNNING at the tick's end
         self._idle_rows = self._idle[:, None]  # its view over the joints (no index array)
+        self._running = np.zeros(envs, dtype=bool)  # the tick's RUNNING envs (follow)
         if self.fall_detector is not None:  # compiled (or loaded) and bound before a tick
             self._base_screens(self.state)
         #: ``(tick) -> None``: the tick's latency histograms and long periods (:meth:`_bind_books`)
@@ -399,6 +403,8 @@ class Runtime(RuntimeState):
             cmd = self.guard.check_motion(self.smoother, state, cmd)  # brake an unsafe path
         except SmoothingError as error:  # Ruckig cannot plan: those envs stop, the run goes on
             cmd = self._replan(error, target, state)
+        if self.follows_targets:  # PD targets as trained (torque requests): RUNNING takes them
+            self.smoother.follow(target, np.equal(self.mode, RUNNING, out=self._running), cmd)
         if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
             damp = np.greater_equal(self.mode, SAFE_STOP, out=self._damp)  # SAFE_STOP, FAULTED
             if damp.any():

@@ -284,6 +284,40 @@ class RuckigState:
             self.sync(q, np.zeros(shape), envs=envs)
             self.safe_stop(envs)
 
+    def follow(self, target: np.ndarray, envs: np.ndarray, out: np.ndarray) -> None:
+        """A PD-target robot's envs of ``envs`` command ``target`` itself (position mode).
+
+        Its drives run a PD law on the target: a target is a torque request, and the policy
+        was trained to step it from one period to the next. Ruckig's plan toward it, within
+        limits a target may exceed, changed the torque asked for (a humanoid's ankle targets
+        by up to 2 rad in the period after a push). The command of those envs' position-driven
+        joints becomes the target, and Ruckig's state there the target at rest (velocity and
+        acceleration 0), from where it plans should the env leave RUNNING (a ramp-in; a
+        legged robot's stops damp the joints and take no plan). Velocity-driven joints (wheels)
+        keep their speed commands.
+
+        Args:
+            target: (envs, n) rad, the guard's targets.
+            envs: (envs,) bool, the envs that follow (the runtime's RUNNING envs).
+            out: (envs, n) rad, the command to overwrite (this step's).
+
+        Raises nothing; the caller passes finite targets (the guard's).
+        """
+        mask = self._follow_mask
+        np.logical_and(envs[:, None], self._follow_joints, out=mask)
+        if not mask.any():
+            return
+        np.copyto(out, target, where=mask)
+        flat, t = self._follow_flat, target.reshape(-1)
+        for row in (self._pos, self._cmd, self._cmd_position, self._held):
+            np.copyto(row, t, where=flat)
+        for row in (self._vel, self._acc, self._mean_acc):
+            np.copyto(row, 0.0, where=flat)
+        inp = self._inp
+        inp.current_position = self._pos.tolist()
+        inp.current_velocity = self._vel.tolist()
+        inp.current_acceleration = self._acc.tolist()
+
     # ------------------------------------------------------------------ Ruckig
     def _set_interfaces(self) -> None:
         """Per-DoF control interface: velocity (target 0) for stopping envs."""

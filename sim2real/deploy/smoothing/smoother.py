@@ -224,6 +224,10 @@ class CommandSmoother(RuckigState):
         # velocity-driven joints (wheels) in position mode: their command is a speed, braked to
         # 0 rad/s in a safe stop (the robot kind's, a wheel-legged robot's)
         self.wheels = velocity_drives(robot, envs, mode) if wheels is _DRIVES else wheels
+        # PD targets the policy was trained to step (follow): its position-driven joints
+        self._follow_joints = ~np.asarray(robot.velocity_driven, dtype=bool)
+        self._follow_mask = np.zeros(shape, dtype=bool)
+        self._follow_flat = self._follow_mask.reshape(-1)
         self._kernel_mode = {"position": sk.POSITION, "velocity": sk.VELOCITY}.get(mode, sk.TORQUE)
         c = np.zeros((sk.C_ROWS, dofs))
         c[sk.LO], c[sk.HI], c[sk.VMAX], c[sk.AMAX] = self._lo, self._hi, self._vmax, self._amax

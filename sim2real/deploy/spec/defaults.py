@@ -154,6 +154,8 @@ def spec_for_robot(
         offset=tuple(float(o) for o in offset),
         clip=LEGGED_ACTION_CLIP if legged else 1.0,
         reference=reference,
+        # the toolkit trains through the runtime, whose smoother shapes a legged robot's targets
+        smoothing="jerk_limited" if legged else "",
     )
     spec = cls(
         robot=robot.name,

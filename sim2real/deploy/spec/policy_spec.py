@@ -82,6 +82,9 @@ DEFAULT_CLIP = 5.0
 #: m/s) nor action reaches it, so it never binds.
 UNCLIPPED = 1.0e6
 
+#: ``ActionSpec.smoothing``'s values; ``''``: the robot's default (see there).
+SMOOTHING = ("", "none", "jerk_limited")
+
 
 class SpecError(Sim2RealError, ValueError):
     """A PolicySpec is invalid or does not match a robot; the message names the field."""
@@ -136,6 +139,15 @@ class ActionSpec:
             robot (:meth:`PolicySpec.on_robot`); a joint no output drives has action 0, its
             target is its ``offset`` (position mode: held at that pose, as Unitree's deploy
             code holds the joints its policies do not drive).
+        smoothing: How the targets reached the drives in training, where the robot's drives
+            run a PD law on position targets (a PD-target robot kind): ``'none'``, each target
+            as the policy emitted it (legged_gym, Isaac Lab, mjlab and their deploy loops: a
+            target is a torque request); ``'jerk_limited'``, through the runtime's Ruckig
+            stage within the robot's velocity, acceleration and jerk limits (the toolkit's own
+            training, which runs the runtime); ``''`` (left out), the robot's default:
+            ``'none'`` for a PD-target robot, else ``'jerk_limited'``. The runtime reproduces
+            it. Other robots' commands are always jerk-limited (the smoother is their safety
+            stage): ``'none'`` there is refused when the policy meets the robot.
     """
 
     mode: str
@@ -145,6 +157,7 @@ class ActionSpec:
     clip: float = 1.0
     reference: str = "absolute"
     joints: tuple[int, ...] = ()
+    smoothing: str = ""
 
     @property
     def outputs(self) -> int:
@@ -323,6 +336,11 @@ class PolicySpec:
             a.reference == "current" and a.mode != "position"
         ):
             raise SpecError(f"action.reference: '{a.reference}' is not valid for mode '{a.mode}'")
+        if a.smoothing not in SMOOTHING or (a.smoothing == "none" and a.mode != "position"):
+            raise SpecError(
+                f"action.smoothing: '{a.smoothing}' is not valid for mode '{a.mode}'; expected "
+                "'none' (position mode: PD targets as the policy emits them) or 'jerk_limited'"
+            )
         if a.joints and (
             len(set(a.joints)) != len(a.joints) or not all(0 <= j < n for j in a.joints)
         ):
@@ -469,6 +487,8 @@ class PolicySpec:
                 del block["components"]
         if not d["action"]["joints"]:
             del d["action"]["joints"]
+        if not d["action"]["smoothing"]:
+            del d["action"]["smoothing"]
         if not d["constant_inputs"]:
             del d["constant_inputs"]
         if d["drive"] is None:

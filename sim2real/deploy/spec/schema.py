@@ -150,6 +150,16 @@ class ActionDocument(_Doc):
             "drives has action 0 (its target is its offset)."
         ),
     )
+    smoothing: Literal["none", "jerk_limited"] | None = Field(
+        default=None,
+        description=(
+            "How the targets reached the drives in training, where the drives run a PD law on "
+            "position targets: 'none', each target as the policy emitted it (legged_gym, Isaac "
+            "Lab, mjlab: a target is a torque request); 'jerk_limited', through the runtime's "
+            "Ruckig stage (the toolkit's own training). Default: the robot's ('none' for a "
+            "PD-target robot; other robots' commands are always jerk-limited)."
+        ),
+    )
 
 
 class DriveDocument(_Doc):
@@ -298,6 +308,7 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
         clip=UNCLIPPED if a.clip is None else float(a.clip),
         reference=a.reference,
         joints=tuple(_joint_index(j, names, "action.joints") for j in a.joints or ()),
+        smoothing=a.smoothing or "",
     )
     blocks = []
     for i, b in enumerate(doc.observation):

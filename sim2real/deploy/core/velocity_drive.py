@@ -10,6 +10,7 @@ The stages that shape position targets leave a wheel's column to this module:
   wheel DoFs are held at rest (a speed is no position to plan toward); the command is the speed
   target clamped to the soft velocity limit (the guard's speed check of a continuous joint,
   which has no position limit to check), zero in a safe stop (the wheel's ``kd`` brakes it);
+  unclamped for a policy trained with its speed targets as emitted (the runtime's ``follow``);
 - a damped stop (:meth:`VelocityDrives.damp`): wheel speed 0 (legs: their measured pose);
 - the ramp to the home pose (:meth:`VelocityDrives.damp` too): wheels at speed 0.
 
@@ -53,20 +54,27 @@ class VelocityDrives:
         out: np.ndarray,
         stopping: np.ndarray,
         counts: np.ndarray | None = None,
+        free: np.ndarray | None = None,
     ) -> None:
         """The wheels' columns of ``out`` (envs, n): ``target``'s speeds (rad/s; None: the last
         ones; non-finite: the last one) clamped to :attr:`limit`, 0 for the envs of ``stopping``
         ((envs,) bool); each clamp counted in :attr:`clamps` and in ``counts`` ((envs, n) int,
-        the smoother's per-joint clamp counter) when given."""
+        the smoother's per-joint clamp counter) when given. The envs of ``free`` ((envs,) bool)
+        take their speeds unclamped: a policy trained with its speed targets as emitted (the
+        drive's ``kd (v_target - dq)`` is a torque request), its wheels judged on their speed."""
         last = self._last
         if target is not None:
             speeds = target[:, self.columns]
             ok = np.isfinite(speeds)
             over = ok & (np.abs(speeds) > self.limit)
+            clipped = np.clip(speeds, -self.limit, self.limit)
+            if free is not None and free.any():
+                over &= ~free[:, None]
+                np.copyto(clipped, speeds, where=free[:, None])
             self.clamps += over.sum(axis=1)
             if counts is not None:
                 counts[:, self.columns] += over
-            np.copyto(last, np.clip(speeds, -self.limit, self.limit), where=ok)
+            np.copyto(last, clipped, where=ok)
         last[stopping] = 0.0
         out[:, self.columns] = last
 

@@ -125,6 +125,8 @@ def switch_policy(runtime, policy, blend_time: float) -> None:
         runtime.handover = HandOver(outgoing, spec, runtime.envs, n, ticks, runtime.target)
     runtime.policy, runtime.spec = policy, policy.spec
     runtime.follows_targets = follows_targets(policy.spec, runtime.robot, runtime.mode_name)
+    if not runtime.follows_targets:  # the smoother shapes every env's targets again
+        runtime.smoother.follow_envs.fill(False)
     obs = runtime._obs  # noqa: SLF001 - the runtime's own room
     if obs.shape[1] != runtime.spec.obs_dim:
         runtime._obs = obs = np.zeros((runtime.envs, runtime.spec.obs_dim), dtype=np.float32)

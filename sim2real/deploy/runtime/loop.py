@@ -398,12 +398,14 @@ class Runtime(RuntimeState):
         target = self.guard.filter(target, state, out=target, commanded_position=self._commanded)
         self.supervision.safe_stop(self.guard.hard_violation, "hard_limit")
         st[5] = clock_ns()
+        if self.follows_targets:  # PD targets as trained (torque requests): RUNNING takes them
+            np.equal(self.mode, RUNNING, out=self.smoother.follow_envs)
         try:
             cmd = self.smoother.step(target, out=self._cmd)
             cmd = self.guard.check_motion(self.smoother, state, cmd)  # brake an unsafe path
         except SmoothingError as error:  # Ruckig cannot plan: those envs stop, the run goes on
             cmd = self._replan(error, target, state)
-        if self.follows_targets:  # PD targets as trained (torque requests): RUNNING takes them
+        if self.follows_targets:  # the envs still RUNNING after the step command the target
             self.smoother.follow(target, np.equal(self.mode, RUNNING, out=self._running), cmd)
         if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
             damp = np.greater_equal(self.mode, SAFE_STOP, out=self._damp)  # SAFE_STOP, FAULTED

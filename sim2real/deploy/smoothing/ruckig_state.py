@@ -285,7 +285,8 @@ class RuckigState:
             self.safe_stop(envs)
 
     def follow(self, target: np.ndarray, envs: np.ndarray, out: np.ndarray) -> None:
-        """A PD-target robot's envs of ``envs`` command ``target`` itself (position mode).
+        """A PD-target robot's envs of ``envs`` command ``target`` itself (position mode), as
+        its policy was trained (``action.smoothing`` 'none').
 
         Its drives run a PD law on the target: a target is a torque request, and the policy
         was trained to step it from one period to the next. Ruckig's plan toward it, within
@@ -294,7 +295,8 @@ class RuckigState:
         joints becomes the target, and Ruckig's state there the target at rest (velocity and
         acceleration 0), from where it plans should the env leave RUNNING (a ramp-in; a
         legged robot's stops damp the joints and take no plan). Velocity-driven joints (wheels)
-        keep their speed commands.
+        command their speed targets as emitted too (the step leaves the envs of
+        :attr:`follow_envs` unclamped there), Ruckig's state there untouched.
 
         Args:
             target: (envs, n) rad, the guard's targets.
@@ -304,10 +306,10 @@ class RuckigState:
         Raises nothing; the caller passes finite targets (the guard's).
         """
         mask = self._follow_mask
-        np.logical_and(envs[:, None], self._follow_joints, out=mask)
-        if not mask.any():
+        if not envs.any():
             return
-        np.copyto(out, target, where=mask)
+        np.copyto(out, target, where=envs[:, None])
+        np.logical_and(envs[:, None], self._follow_joints, out=mask)
         flat, t = self._follow_flat, target.reshape(-1)
         for row in (self._pos, self._cmd, self._cmd_position, self._held):
             np.copyto(row, t, where=flat)

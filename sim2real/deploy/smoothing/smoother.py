@@ -224,6 +224,9 @@ class CommandSmoother(RuckigState):
         # velocity-driven joints (wheels) in position mode: their command is a speed, braked to
         # 0 rad/s in a safe stop (the robot kind's, a wheel-legged robot's)
         self.wheels = velocity_drives(robot, envs, mode) if wheels is _DRIVES else wheels
+        #: (envs,) bool: the envs whose targets the runtime commands as emitted this tick
+        #: (:meth:`follow`; its RUNNING envs, set before :meth:`step`): their wheels unclamped
+        self.follow_envs = np.zeros(envs, dtype=bool)
         # PD targets the policy was trained to step (follow): its position-driven joints
         self._follow_joints = ~np.asarray(robot.velocity_driven, dtype=bool)
         self._follow_mask = np.zeros(shape, dtype=bool)
@@ -501,7 +504,8 @@ class CommandSmoother(RuckigState):
             result.pass_to_input(inp)
             if self.wheels is not None:
                 dest = self.command if out is None else out
-                self.wheels.command(target, dest, self.stopping, self.target_clamps_per_joint)
+                counts, free = self.target_clamps_per_joint, self.follow_envs
+                self.wheels.command(target, dest, self.stopping, counts, free)
         return self.command if out is None else out
 
     def _bind_step(self, target: np.ndarray | None, out: np.ndarray | None) -> None:

@@ -14,10 +14,19 @@ work on the smoother's attributes (set in ``CommandSmoother.__init__``).
 
 from __future__ import annotations
 
+import ctypes
 import re
 
 import numpy as np
-from ruckig import ControlInterface, Result, RuckigError
+from ruckig import (
+    ControlInterface,
+    InputParameter,
+    OutputParameter,
+    Result,
+    Ruckig,
+    RuckigError,
+    Synchronization,
+)
 
 from sim2real.deploy.core.stateful import env_index, put, scalar, take
 from sim2real.robots.errors import Sim2RealError
@@ -41,6 +50,14 @@ EXTREMA_TOLERANCE = 1e-9
 RUCKIG_ERRORS = (RuckigError, ValueError)
 # Ruckig's results of a good update (module constants: an enum member's lookup costs per tick)
 _WORKING, _FINISHED = Result.Working, Result.Finished
+
+
+def doubles(w: np.ndarray, row: int):
+    """Row ``row`` of the C-contiguous float64 block ``w`` as a ctypes array of doubles over
+    the same memory (which it keeps alive through ``w``)."""
+    view = (ctypes.c_double * w.shape[1]).from_address(w[row].ctypes.data)
+    view._keep = w  # the block must outlive the view
+    return view
 
 
 class SmoothingError(Sim2RealError, RuntimeError):
@@ -319,6 +336,41 @@ class RuckigState:
         inp.current_position = self._pos.tolist()
         inp.current_velocity = self._vel.tolist()
         inp.current_acceleration = self._acc.tolist()
+
+    # ------------------------------------------------------------------ construction
+    def _build_ruckig(self) -> None:
+        """Ruckig's online generator (one control period per step) and its input and output, its
+        offline planner (safe-stop durations) and the brake's generator, over the smoother's
+        limits (``_vmax``, ``_amax``, ``_jmax``, flat (envs * n,)); position or velocity mode."""
+        dofs, dt, mode = self.dofs, self.control_period, self.mode
+        self._ruckig = Ruckig(dofs, dt)
+        self._planner = Ruckig(dofs)  # offline: predicts safe-stop durations
+        self._inp = inp = InputParameter(dofs)
+        self._out = OutputParameter(dofs)
+        inp.synchronization = Synchronization.No
+        inp.max_velocity = self._vmax
+        inp.max_acceleration = self._amax
+        inp.max_jerk = self._jmax
+        zeros = np.zeros(dofs)
+        inp.current_position = zeros
+        inp.current_velocity = zeros
+        inp.current_acceleration = zeros
+        inp.target_position = zeros
+        inp.target_velocity = zeros
+        inp.target_acceleration = zeros
+        self._interface = (
+            ControlInterface.Position if mode == "position" else ControlInterface.Velocity
+        )
+        inp.control_interface = self._interface
+        # the brake (brake): to rest under the same limits, one control period per call
+        self._braker = Ruckig(dofs, dt)
+        self._brake_inp = b = InputParameter(dofs)
+        self._brake_out = OutputParameter(dofs)
+        b.synchronization = Synchronization.No
+        b.control_interface = ControlInterface.Velocity
+        b.max_velocity, b.max_acceleration, b.max_jerk = self._vmax, self._amax, self._jmax
+        b.current_position = b.current_velocity = b.current_acceleration = zeros
+        b.target_position = b.target_velocity = b.target_acceleration = zeros
 
     # ------------------------------------------------------------------ Ruckig
     def _set_interfaces(self) -> None:

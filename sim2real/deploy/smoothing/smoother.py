@@ -5,24 +5,19 @@
 
 from __future__ import annotations
 
-import ctypes
-
 import numpy as np
-from ruckig import (
-    ControlInterface,
-    InputParameter,
-    OutputParameter,
-    Result,
-    Ruckig,
-    Synchronization,
-    Trajectory,
-)
+from ruckig import Result, Trajectory
 
 from sim2real.deploy.core.velocity_drive import velocity_drives
 from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.smoothing import kernel as sk
 from sim2real.deploy.smoothing.braking import stopping_distance
-from sim2real.deploy.smoothing.ruckig_state import RUCKIG_ERRORS, RuckigState, SmoothingError
+from sim2real.deploy.smoothing.ruckig_state import (
+    RUCKIG_ERRORS,
+    RuckigState,
+    SmoothingError,
+    doubles,
+)
 from sim2real.robots import CONTROL_MODES, Robot
 
 #: Torque rise time, s: full effort may be reached from zero in 50 ms at the fastest, i.e. a rate
@@ -34,14 +29,6 @@ TORQUE_RISE_TIME = 0.05
 #: Safety factor on the worst-case stopping distance below which the position extrema of a
 #: position-mode trajectory are checked exactly (farther from the limits they cannot reach them).
 EXTREMA_SCREEN_FACTOR = 1.5
-
-
-def _doubles(w: np.ndarray, row: int):
-    """Row ``row`` of the C-contiguous float64 block ``w`` as a ctypes array of doubles over
-    the same memory (which it keeps alive through ``w``)."""
-    view = (ctypes.c_double * w.shape[1]).from_address(w[row].ctypes.data)
-    view._keep = w  # the block must outlive the view
-    return view
 
 
 #: ``wheels``' default: the robot's own velocity drives
@@ -188,7 +175,7 @@ class CommandSmoother(RuckigState):
         # floats (what the binding returns) is copied into one faster than into a numpy row,
         # the same doubles; they keep ``w`` alive
         self._cmd_in, self._pos_in, self._vel_in, self._acc_in = (
-            _doubles(w, row) for row in (sk.CMD, sk.POS, sk.VEL, sk.ACC)
+            doubles(w, row) for row in (sk.CMD, sk.POS, sk.VEL, sk.ACC)
         )
         self._mean_acc = w[sk.MEAN_ACC]
         self.mean_acceleration = self._mean_acc.reshape(shape)
@@ -246,34 +233,7 @@ class CommandSmoother(RuckigState):
         self._warm_up()
 
         if mode != "torque":
-            self._ruckig = Ruckig(dofs, dt)
-            self._planner = Ruckig(dofs)  # offline: predicts safe-stop durations
-            self._inp = inp = InputParameter(dofs)
-            self._out = OutputParameter(dofs)
-            inp.synchronization = Synchronization.No
-            inp.max_velocity = self._vmax
-            inp.max_acceleration = self._amax
-            inp.max_jerk = self._jmax
-            zeros = np.zeros(dofs)
-            inp.current_position = zeros
-            inp.current_velocity = zeros
-            inp.current_acceleration = zeros
-            inp.target_position = zeros
-            inp.target_velocity = zeros
-            inp.target_acceleration = zeros
-            self._interface = (
-                ControlInterface.Position if mode == "position" else ControlInterface.Velocity
-            )
-            inp.control_interface = self._interface
-            # the brake (brake): to rest under the same limits, one control period per call
-            self._braker = Ruckig(dofs, dt)
-            self._brake_inp = b = InputParameter(dofs)
-            self._brake_out = OutputParameter(dofs)
-            b.synchronization = Synchronization.No
-            b.control_interface = ControlInterface.Velocity
-            b.max_velocity, b.max_acceleration, b.max_jerk = self._vmax, self._amax, self._jmax
-            b.current_position = b.current_velocity = b.current_acceleration = zeros
-            b.target_position = b.target_velocity = b.target_acceleration = zeros
+            self._build_ruckig()
 
     def _warm_up(self) -> None:
         """Compile the kernels of :mod:`sim2real.deploy.smoothing.kernel` (or load numba's cache) now, on

@@ -36,9 +36,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.spec.block_checks import observation_problems
 from sim2real.deploy.spec.drive import DriveSpec
 from sim2real.deploy.spec.history import ObservationHistory, stacked_dim
-from sim2real.deploy.spec.kinds import KINDS, UNPROVIDED_KINDS, kind_names, vector_kind_names
+from sim2real.deploy.spec.kinds import KINDS, kind_names
 from sim2real.robots import CONTROL_MODES, Robot
 from sim2real.robots.errors import Sim2RealError
 
@@ -278,55 +279,9 @@ class PolicySpec:
                 f"format_version: {self.format_version} is not supported; expected {FORMAT_VERSION}"
             )
         n = len(self.joint_names)
-        for i, b in enumerate(self.observation_blocks):
-            where = f"observation[{i}] ('{b.name}')"
-            if b.name in UNPROVIDED_KINDS:
-                here = UNPROVIDED_KINDS[b.name]
-                raise SpecError(
-                    f"{where}: block '{b.name}' cannot be provided: "
-                    + (
-                        f"this toolkit calls it '{here}'"
-                        if here
-                        else "no robot here measures it (a height map or base height)"
-                    )
-                    + f"; blocks a robot provides: {', '.join(kind_names())}"
-                )
-            kind = KINDS.get(b.name)
-            if kind is None:
-                raise SpecError(
-                    f"{where}: block '{b.name}' is unknown: no robot provides it; expected one of "
-                    f"{kind_names()}"
-                )
-            if kind.periodic and not (np.isfinite(b.period) and b.period > 0):
-                raise SpecError(f"{where}: period must be a positive number of s, got {b.period}")
-            if len(b.scale) != b.size or len(b.offset) != b.size:
-                raise SpecError(f"{where}: scale and offset need {b.size} entries")
-            if not all(np.isfinite(s) and s != 0 for s in b.scale):
-                raise SpecError(f"{where}: scale must be finite and nonzero, got {b.scale}")
-            if not b.clip > 0:
-                raise SpecError(f"{where}: clip must be positive, got {b.clip}")
-            if any(j < 0 or j >= n for j in b.joints):
-                raise SpecError(f"{where}: joints {b.joints} out of range for {n} joints")
-            if kind.every_joint and tuple(sorted(b.joints)) != self.action.driven:
-                raise SpecError(
-                    f"{where}: joints must cover every joint the action drives once "
-                    f"({list(self.action.driven)}), got {list(b.joints)}"
-                )
-            # per-foot kinds: the robot's feet (check_robot)
-            expected = b.size if kind.per_foot else kind.block_size(len(b.joints))
-            if b.components:
-                if not kind.raw_entries:
-                    raise SpecError(
-                        f"{where}: components is for the blocks {vector_kind_names()} only"
-                    )
-                if any(c not in range(kind.raw_entries) for c in b.components):
-                    raise SpecError(
-                        f"{where}: components {list(b.components)} must be in "
-                        f"0..{kind.raw_entries - 1}"
-                    )
-                expected = len(b.components)
-            if b.size != expected:
-                raise SpecError(f"{where}: size {b.size}, expected {expected}")
+        problems = observation_problems(self.observation_blocks, n, self.action.driven)
+        if problems:
+            raise SpecError(problems[0])
         a = self.action
         if a.mode not in CONTROL_MODES:
             raise SpecError(f"action.mode: '{a.mode}' is unknown; expected one of {CONTROL_MODES}")

@@ -245,7 +245,7 @@ class ViolationMonitor(MonitorState):
         """
         collided = False
         if need:
-            for e in np.flatnonzero(self._need):
+            for e in np.flatnonzero(self._need) if self.envs > 1 else (0,):  # need: some env's
                 if self._in_collision(q, e):
                     if not collided:
                         self._collided.fill(False)

@@ -37,6 +37,7 @@ import numpy as np
 import pinocchio as pin
 
 from sim2real.deploy.kernels import np_max, np_min
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.safety.check import CLAMP, EFFORT, FIRED, POSITION, GuardCheck
 from sim2real.robots.continuous import continuous_mask, sampling_bounds
@@ -215,14 +216,19 @@ def gravity_rows(guard, q: np.ndarray, projected_gravity: np.ndarray | None) -> 
     ``-G(q)`` and ``G(q)`` (Pinocchio's generalized gravity of the fixed-base model, gravity
     turned into the base frame), plus ``SLACK_SHARE`` of the all-pose bound, at most that bound.
     An env whose ``q`` or base direction is not finite keeps the bound."""
-    c = pd_barrier_constants(guard)
-    model, data, magnitude, upright, linear = _gravity_model(guard)
+    model, data, magnitude, upright, linear, torque, toward = _gravity_model(guard)
     for e in range(q.shape[0]):
         g = upright if projected_gravity is None else projected_gravity[e]
         np.multiply(g, magnitude, out=linear)
         model.gravity.linear = linear
-        torque = pin.computeGeneralizedGravity(model, data, q[e])
-        _toward(torque, c[GRAVITY], c[SLACK], c[TOWARD + 2 * e], c[TOWARD + 2 * e + 1])
+        np.copyto(torque, pin.computeGeneralizedGravity(model, data, q[e]))
+        toward(e)
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def _toward_env(torque, c, e: int) -> None:
+    """:func:`_toward` into env ``e``'s gravity rows of the constants ``c``."""
+    _toward(torque, c[GRAVITY], c[SLACK], c[TOWARD + 2 * e], c[TOWARD + 2 * e + 1])
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
@@ -242,14 +248,20 @@ def _toward(torque, bound, slack, up, down) -> None:
 
 def _gravity_model(guard) -> tuple:
     """``guard``'s fixed-base Pinocchio model copied for :func:`gravity_rows` (which turns its
-    gravity), its data, gravity's magnitude (m/s^2), the upright direction and a buffer (3,);
-    cached on the guard."""
+    gravity), its data, gravity's magnitude (m/s^2), the upright direction, buffers (3,) and
+    (n,) (a generalized gravity) and ``toward(e)``: :func:`_toward_env` bound to that buffer and
+    the constants (:func:`pd_barrier_constants`, the arrays themselves: a copy of the guard
+    copies them together); cached on the guard."""
     cached = guard.__dict__.get("_pd_barrier_gravity")
     if cached is None:
+        c = pd_barrier_constants(guard)
         model = pin.Model(guard.model)
         linear = np.array(model.gravity.linear)
         magnitude = float(np.linalg.norm(linear))
+        torque = np.zeros(c.shape[1])
+        toward = bind(_toward_env, torque, c, rest=(0,))
         cached = (model, model.createData(), magnitude, linear / magnitude, np.empty(3))
+        cached += (torque, toward)
         guard.__dict__["_pd_barrier_gravity"] = cached
     return cached
 

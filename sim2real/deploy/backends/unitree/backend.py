@@ -2,9 +2,10 @@
 robot, wall clock): ``deploy-run --backend unitree``.
 
 The robot's PD runs on each motor's driver, ``tau = tau_ff + kp (q_des - q) + kd (dq_des - dq)``:
-position mode sends the runtime's targets with the joints' ``kp``/``kd`` (robot.toml), torque mode
-sends ``tau_ff`` with ``kp = kd = 0``; velocity mode is refused (the drivers have no integral
-term). Joints map to motor slots through robot.toml's ``[unitree] motor_index``. Commands go out
+position mode sends the runtime's targets with the joints' ``kp``/``kd`` (robot.toml's or the
+policy's drive) and a velocity-driven joint's (a wheel's) speed target in ``dq_des`` with ``kp``
+0, torque mode sends ``tau_ff`` with ``kp = kd = 0``; velocity mode is refused (the drivers have
+no integral term). Joints map to motor slots through robot.toml's ``[unitree] motor_index``. Commands go out
 on ``rt/lowcmd`` with their CRC (:mod:`sim2real.deploy.backends.unitree.crc`); states come in on
 ``rt/lowstate`` and are taken, all of them, at every :meth:`UnitreeBackend.read`. The frame's
 joints, attitude and feet are the newest valid state's; its gyro and accelerometer readings are
@@ -105,6 +106,9 @@ class UnitreeBackend(BackendLifecycle):
         ValueError: no ``[unitree]`` table, velocity mode, an unknown family.
     """
 
+    #: every LowCmd carries each joint's kp and kd: a policy's own drive runs as it is
+    commands_gains = True
+
     def __init__(
         self,
         robot: Robot,
@@ -154,6 +158,8 @@ class UnitreeBackend(BackendLifecycle):
         self.kp = np.array([j.kp for j in robot.config.joints])
         self.kd = np.array([j.kd for j in robot.config.joints])
         self.damping_kd = np.broadcast_to(np.asarray(cfg.damping_kd, dtype=np.float64), self.n)
+        #: joint indices of the velocity-driven joints (wheels): speed targets in ``dq``
+        self._wheels = np.flatnonzero(robot.velocity_driven)
         self.ramp_kp = self.kp if cfg.ramp_kp is None else np.broadcast_to(cfg.ramp_kp, self.n)
         self.ramp_kd = self.kd if cfg.ramp_kd is None else np.broadcast_to(cfg.ramp_kd, self.n)
         self.period = robot.control_period
@@ -453,14 +459,25 @@ class UnitreeBackend(BackendLifecycle):
                 mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = 0.0, 0.0, 0.0, self.damping_kd
             elif kp is not None:
                 mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = target, 0.0, kp, kd
+                self._wheels_at(mc, None)
             elif self.mode == "position":
                 kp, kd = self._gains()
                 mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = target, 0.0, kp, kd
+                self._wheels_at(mc, target)
             else:
                 mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = 0.0, target, 0.0, 0.0
             self.family.init_command(self._cmd.message, self.mode_machine or 0)
             self._writer.write_raw(self._cmd.encode())
             self.sent += 1
+
+    def _wheels_at(self, mc: np.ndarray, target: np.ndarray | None) -> None:
+        """The velocity-driven joints' entries of ``mc`` (the LowCmd's ``motor_cmd``): their
+        speed target in ``dq`` (rad/s, ``target``'s column; None: 0, the bring-up's and the
+        hold's), ``q`` 0 and ``kp`` 0, so that the driver's law is ``kd (dq_des - dq)``."""
+        if self._wheels.size:
+            s = self.slots[self._wheels]
+            mc["dq"][s] = 0.0 if target is None else target[self._wheels]
+            mc["q"][s] = mc["kp"][s] = 0.0
 
     def _gains(self) -> tuple[np.ndarray, np.ndarray]:
         """The joints' kp, kd; within ``bringup.BLEND_TIME`` of the runtime's first command, the

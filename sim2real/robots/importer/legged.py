@@ -36,6 +36,7 @@ from sim2real.robots.importer.toml_text import (
     sensor_lines,
     sources_lines,
 )
+from sim2real.robots.importer.wheels import kind_lines, wheel_joints
 from sim2real.robots.packages import resolved_mjcf
 
 #: Link pairs closer than this at the home pose (m) are not checked and never collide in the
@@ -239,6 +240,7 @@ def write_legged_toml(
             (control_rate, physics_timestep),
             home_from,
             motion.home,
+            kind_lines(wheel_joints(joint_names, limits)),
         ),
         "# acceleration_limit: 0.5 x (effort - worst gravity torque) / worst joint inertia with",
         "# armature (rotor inertia x ratio^2), base held, 400 seeded poses; jerk_limit: 20 x",

@@ -144,15 +144,23 @@ def sources_lines(kind: str) -> list[str]:
 
 
 def control_lines(
-    name: str, mjcf: str, mode_note: str, rates: tuple[float, float], home_note: str, home
+    name: str,
+    mjcf: str,
+    mode_note: str,
+    rates: tuple[float, float],
+    home_note: str,
+    home,
+    top: list[str] = (),
 ) -> list[str]:
-    """robot.toml's ``name``, ``mjcf`` and ``[control]`` table up to ``home`` (rad), position
-    mode: ``mode_note`` comments the mode, ``rates`` are (control rate Hz, physics timestep s),
-    ``home_note`` says where the home pose came from."""
+    """robot.toml's ``name``, ``mjcf`` (then the lines ``top``: more top-level keys) and
+    ``[control]`` table up to ``home`` (rad), position mode: ``mode_note`` comments the mode,
+    ``rates`` are (control rate Hz, physics timestep s), ``home_note`` says where the home pose
+    came from."""
     control_rate, physics_timestep = rates
     return [
         f'name = "{name}"',
         f'mjcf = "{mjcf}"',
+        *top,
         "",
         "[control]",
         f'mode = "position"            # {mode_note}',

@@ -337,3 +337,4 @@ def test_a_go2w_soak_states_its_wheels_speeds_and_never_their_angle(tmp_path, ca
     assert not set(violations["hard_limit_joints"]) & set(names), violations
     assert "wheel speeds (true peak of the velocity limit" in text
     assert "FL_wheel_joint" in text.split("wheel speeds", 1)[1].splitlines()[0]
+    assert "FL_wheel_joint peak / limit (rad/s)" in (out / "report.html").read_text()

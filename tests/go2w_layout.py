@@ -15,7 +15,9 @@ from pathlib import Path
 #: Legs in go2w.xml's body order and each one's hip position's signs (x, y).
 LEGS = {"FL": (1, 1), "FR": (1, -1), "RL": (-1, 1), "RR": (-1, -1)}
 #: go2w.xml's actuator order.
-ACTUATORS = [f"{leg}_{part}" for leg in ("FR", "FL", "RR", "RL") for part in ("hip", "thigh", "calf")]
+ACTUATORS = [
+    f"{leg}_{part}" for leg in ("FR", "FL", "RR", "RL") for part in ("hip", "thigh", "calf")
+]
 ACTUATORS += [f"{leg}_wheel" for leg in ("FR", "FL", "RR", "RL")]
 
 HEAD = """<mujoco model="go2">
@@ -93,5 +95,7 @@ def write_go2w(folder: Path) -> Path:
         for a in ACTUATORS
     )
     path = Path(folder) / "go2w.xml"
-    path.write_text(f"{HEAD}{legs}    </body>\n  </worldbody>\n  <actuator>\n{motors}  </actuator>\n</mujoco>\n")
+    path.write_text(
+        f"{HEAD}{legs}    </body>\n  </worldbody>\n  <actuator>\n{motors}  </actuator>\n</mujoco>\n"
+    )
     return path

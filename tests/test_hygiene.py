@@ -525,7 +525,6 @@ MODULE_LINES = 500
 LONG_MODULES = {
     "sim2real/deploy/runtime/loop.py",
     "sim2real/deploy/smoothing/smoother.py",
-    "sim2real/deploy/safety/guard.py",
 }
 
 

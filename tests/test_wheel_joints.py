@@ -108,9 +108,10 @@ def test_an_arms_unlimited_hinge_is_still_refused(tmp_path, capsys):
 
 
 def test_import_of_go2w_xml_writes_a_wheel_legged_robot_that_runs_rl_sars_policy(tmp_path, capsys):
-    """unitree_mujoco's go2w.xml layout imported as a user would, with ``--unitree``: robot.toml
-    says ``kind = "wheel_legged"`` and gives the wheels their motor slots after the legs' (the
-    actuator order), and deploy-run reads rl_sar's policy folder on it with no edit."""
+    """unitree_mujoco's go2w.xml layout imported as a user would, with ``--unitree`` and rl_sar's
+    wheel gain (kp 0): robot.toml says ``kind = "wheel_legged"``, makes the wheels velocity
+    drives and gives them their motor slots after the legs' (the actuator order), and deploy-run
+    reads rl_sar's policy folder on it with no edit and no difference of drive."""
     pytest.importorskip("torch")
     from sim2real.deploy.cli.deploy_run import deploy_run_main
     from sim2real.deploy.robot_kind import robot_kind
@@ -120,7 +121,9 @@ def test_import_of_go2w_xml_writes_a_wheel_legged_robot_that_runs_rl_sars_policy
     source = write_go2w(tmp_path)
     out = tmp_path / "robots" / "go2w"
     flags = ["--floating-base", "--motor", "*=go_m8010_6", "--kp", "*=20", "--kd", "*=0.5"]
-    flags += ["--home", "*_thigh_joint=0.8", "--home", "*_calf_joint=-1.5"]
+    flags += ["--kp", "*_wheel_joint=0"]  # rl_sar's rl_kp of a wheel: a speed target
+    flags += ["--home", "F?_thigh_joint=0.5", "--home", "R?_thigh_joint=0.8"]
+    flags += ["--home", "*_calf_joint=-1.5"]  # rl_sar's default_dof_pos
     flags += ["--control-rate", "50", "--physics-timestep", "0.005"]
     flags += ["--unitree", "unitree_go", "--unitree-damping-kd", "3.5", "--unitree-ramp-kp", "50"]
     assert main([str(source), "--out", str(out), *flags]) == 0, capsys.readouterr().err
@@ -128,6 +131,8 @@ def test_import_of_go2w_xml_writes_a_wheel_legged_robot_that_runs_rl_sars_policy
     assert '\nkind = "wheel_legged"\n' in text
     robot = load_robot(out)
     assert robot_kind(robot).name == "wheel_legged"
+    wheels = [f"{leg}_wheel_joint" for leg in ("FL", "FR", "RL", "RR")]
+    assert list(np.array(robot.joint_names)[robot.velocity_driven]) == wheels
     # legs FR, FL, RR, RL at 0-11, wheels FR, FL, RR, RL at 12-15 (go2w.xml's actuators)
     slots = dict(zip(robot.joint_names, robot.config.unitree.motor_index, strict=True))
     assert [slots[f"{leg}_wheel_joint"] for leg in ("FR", "FL", "RR", "RL")] == [12, 13, 14, 15]
@@ -138,4 +143,9 @@ def test_import_of_go2w_xml_writes_a_wheel_legged_robot_that_runs_rl_sars_policy
     args += ["--command", "0,0,0", "--report", str(report)]
     capsys.readouterr()
     assert deploy_run_main(args) == 0, capsys.readouterr().err
+    assert "differs from the policy's drive" not in capsys.readouterr().err
     assert json.loads(report.read_text())["final_state"] == ["RUNNING"]
+    # kp 0 makes a speed target of a continuous joint only
+    flags += ["--kp", "FL_calf_joint=0"]
+    assert main([str(source), "--out", str(tmp_path / "calf"), *flags]) != 0
+    assert "--kp: gains must be positive" in capsys.readouterr().err

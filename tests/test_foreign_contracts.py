@@ -274,9 +274,9 @@ def test_the_policys_gains_drive_the_simulated_plant_and_hardware_refuses_them(g
     np.testing.assert_array_equal(model.actuator_gainprm[:12, 0], [30.0] * 12)
     np.testing.assert_array_equal(-model.actuator_biasprm[:12, 2], [0.5] * 12)
     assert set(differences) == {"kp"} and robot.description_hash != go2.description_hash
-    check_drive_applied(differences, simulated=True, backend_name="sim")
+    check_drive_applied(differences, sets_gains=True, backend_name="sim")
     with pytest.raises(ValueError, match="feetech backend cannot set its drives' gains"):
-        check_drive_applied(differences, simulated=False, backend_name="feetech")
+        check_drive_applied(differences, sets_gains=False, backend_name="feetech")
     same, none = drive_robot(go2, PolicySpec.for_robot(go2))
     assert same is go2 and none == {}
 

@@ -308,3 +308,33 @@ def test_a_stop_holds_the_command_clock_and_does_not_restart_it():
     del state["t_seen"]  # a checkpoint of the code before: loads, nothing moved on at first
     again.load_state_dict(state, 0)
     assert np.isnan(again.t_seen).all()
+
+
+def test_a_go2w_soak_states_its_wheels_speeds_and_never_their_angle(tmp_path, capsys):
+    """The Go2-W (continuous wheels) soaked with a policy of rl_sar's folder layout rolling on
+    5 rad/s wheel speed targets: its wheels turn many times over, none is a position violation
+    or a hard-limit joint, and the report states each wheel's true peak speed against its
+    velocity limit."""
+    pytest.importorskip("torch")
+    from sim2real.eval.cli import main
+    from tests.test_rl_sar_contract import write
+
+    policy = write(tmp_path, bias=[0.0] * 12 + [1.0] * 4)
+    out = tmp_path / "soak"
+    args = ["--robot", "go2w", "--policy", str(policy), "--hours", "0.004", "--sessions", "1"]
+    args += ["--seed", "0", "--out", str(out), "--no-progress", "--no-film"]
+    main(args)
+    text = capsys.readouterr().out
+    report = json.loads((out / "report.json").read_text())
+    wheels = report["totals"]["wheels"]
+    names = ["FL_wheel_joint", "FR_wheel_joint", "RL_wheel_joint", "RR_wheel_joint"]
+    assert wheels["joints"] == names
+    peak, limit = wheels["peak_speed_rad_s"], wheels["velocity_limit_rad_s"]
+    assert all(2.0 < peak[j] < limit[j] for j in names), wheels  # rolling, within the limit
+    assert report["sessions"][0]["wheels"] == wheels
+    violations = report["totals"]["violations"]
+    # (a leg may pass its stop under the domain's pushes: this policy holds its legs blindly)
+    assert not set(violations["hard_limit_joints"]) & set(names), violations
+    assert "wheel speeds (true peak of the velocity limit" in text
+    assert "FL_wheel_joint" in text.split("wheel speeds", 1)[1].splitlines()[0]
+    assert "FL_wheel_joint peak / limit (rad/s)" in (out / "report.html").read_text()

@@ -129,3 +129,28 @@ def test_go2w_is_a_wheel_legged_kind_whose_wheels_brake_to_zero_in_a_safe_stop(g
         LEGGED.check(wheeled, "robot.toml: kind")
     with pytest.raises(ValueError, match=r"kind = 'wheel_legged' needs wheels"):
         kind.check(load_robot("go2"), "robot.toml: kind")
+
+
+def test_ramp_in_ends_at_the_legs_home_wherever_the_wheels_stand(tmp_path):
+    """A Go2-W handed over with its wheels turned many times over (they roll in a bring-up: a
+    wheel at speed 0 has no pose): RAMP_IN ends on its legs' home pose and the policy runs. A
+    wheel's angle judged against its home 0 kept the runtime in RAMP_IN for good."""
+    pytest.importorskip("torch")
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.core.modes import RUNNING
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.rig.rig import Rig
+    from tests.test_rl_sar_contract import write
+
+    go2w = load_robot("go2w")
+    policy = OnnxPolicy(write(tmp_path), go2w)  # rl_sar's folder: wheels on speed targets
+    robot, _ = drive_robot(go2w, policy.spec)
+    plant = SimBackend(robot, envs=1, seed=0)
+    m, d = plant.models[0], plant.datas[0]
+    d.qpos[7:][robot.velocity_driven] = [40.0, -7.0, 123.0, 3.0]  # rad
+    mujoco.mj_forward(m, d)
+    plant.advance()  # the encoders read them
+    rig = Rig(robot, policy, plant, envs=1)
+    rig.start()
+    rig.run(round(1.0 / robot.control_period))
+    assert rig.runtime.mode[0] == RUNNING

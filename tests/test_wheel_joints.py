@@ -5,6 +5,8 @@ unitree_mujoco's Go2-W (sim2real/robots/go2w, imported from unitree_robots/go2w/
 
 from __future__ import annotations
 
+import json
+
 import mujoco
 import numpy as np
 import pytest
@@ -103,3 +105,47 @@ def test_an_arms_unlimited_hinge_is_still_refused(tmp_path, capsys):
     assert "continuous joint (a wheel) is taken on a floating-base robot only" in (
         capsys.readouterr().err
     )
+
+
+def test_import_of_go2w_xml_writes_a_wheel_legged_robot_that_runs_rl_sars_policy(tmp_path, capsys):
+    """unitree_mujoco's go2w.xml layout imported as a user would, with ``--unitree`` and rl_sar's
+    wheel gain (kp 0): robot.toml says ``kind = "wheel_legged"``, makes the wheels velocity
+    drives and gives them their motor slots after the legs' (the actuator order), and deploy-run
+    reads rl_sar's policy folder on it with no edit and no difference of drive."""
+    pytest.importorskip("torch")
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.robot_kind import robot_kind
+    from tests.go2w_layout import write_go2w
+    from tests.test_rl_sar_contract import write
+
+    source = write_go2w(tmp_path)
+    out = tmp_path / "robots" / "go2w"
+    flags = ["--floating-base", "--motor", "*=go_m8010_6", "--kp", "*=20", "--kd", "*=0.5"]
+    flags += ["--kp", "*_wheel_joint=0"]  # rl_sar's rl_kp of a wheel: a speed target
+    flags += ["--home", "F?_thigh_joint=0.5", "--home", "R?_thigh_joint=0.8"]
+    flags += ["--home", "*_calf_joint=-1.5"]  # rl_sar's default_dof_pos
+    flags += ["--control-rate", "50", "--physics-timestep", "0.005"]
+    flags += ["--unitree", "unitree_go", "--unitree-damping-kd", "3.5", "--unitree-ramp-kp", "50"]
+    assert main([str(source), "--out", str(out), *flags]) == 0, capsys.readouterr().err
+    text = (out / "robot.toml").read_text()
+    assert '\nkind = "wheel_legged"\n' in text
+    robot = load_robot(out)
+    assert robot_kind(robot).name == "wheel_legged"
+    wheels = [f"{leg}_wheel_joint" for leg in ("FL", "FR", "RL", "RR")]
+    assert list(np.array(robot.joint_names)[robot.velocity_driven]) == wheels
+    # legs FR, FL, RR, RL at 0-11, wheels FR, FL, RR, RL at 12-15 (go2w.xml's actuators)
+    slots = dict(zip(robot.joint_names, robot.config.unitree.motor_index, strict=True))
+    assert [slots[f"{leg}_wheel_joint"] for leg in ("FR", "FL", "RR", "RL")] == [12, 13, 14, 15]
+    assert [slots[f"{leg}_calf_joint"] for leg in ("FR", "FL", "RR", "RL")] == [2, 5, 8, 11]
+    policy = write(tmp_path, bias=[0.0] * 12 + [1.0] * 4)  # wheels at 5 rad/s
+    report = tmp_path / "run.json"
+    args = ["--robot", str(out), "--policy", str(policy), "--backend", "sim", "--duration", "2"]
+    args += ["--command", "0,0,0", "--report", str(report)]
+    capsys.readouterr()
+    assert deploy_run_main(args) == 0, capsys.readouterr().err
+    assert "differs from the policy's drive" not in capsys.readouterr().err
+    assert json.loads(report.read_text())["final_state"] == ["RUNNING"]
+    # kp 0 makes a speed target of a continuous joint only
+    flags += ["--kp", "FL_calf_joint=0"]
+    assert main([str(source), "--out", str(tmp_path / "calf"), *flags]) != 0
+    assert "--kp: gains must be positive" in capsys.readouterr().err

@@ -89,7 +89,7 @@ def run(args) -> int:
     mapping = operator_mapping(args)  # the mapping and its source's file, not its device
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
-    check_drive_applied(drive, simulated, args.backend)
+    check_drive_applied(drive, simulated or getattr(backend, "commands_gains", False), args.backend)
     for line in drive.values():
         print(
             f"deploy-run: warning: robot.toml differs from the policy's drive, which the "

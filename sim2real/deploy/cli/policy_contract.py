@@ -6,8 +6,9 @@
   it gets the runtime's estimate.
 - :func:`sim2real.deploy.spec.drive.drive_robot` (used by deploy-run): the robot with the policy's PD
   gains and default pose when they differ from robot.toml, and the differences.
-- :func:`check_drive_applied`: a backend other than the simulated plant cannot set its drives'
-  gains: a differing drive is then refused, with the values.
+- :func:`check_drive_applied`: a backend that neither simulates the plant nor sends its gains with
+  each command (``commands_gains``) cannot set its drives' gains: a differing drive is then
+  refused, with the values.
 """
 
 from __future__ import annotations
@@ -34,15 +35,17 @@ def contract_messages(policy) -> list[str]:
     return out
 
 
-def check_drive_applied(differences: dict[str, str], simulated: bool, backend_name: str) -> None:
-    """Refuse differing PD gains on a backend that cannot set them (anything but the simulated
-    plant); a differing default pose is the runtime's home on any backend.
+def check_drive_applied(differences: dict[str, str], sets_gains: bool, backend_name: str) -> None:
+    """Refuse differing PD gains on a backend that cannot set them (``sets_gains`` False: not
+    the simulated plant, and no ``commands_gains`` of
+    :class:`~sim2real.deploy.core.backend.BackendLifecycle`); a differing default pose is the
+    runtime's home on any backend.
 
     Raises:
         ValueError: naming the backend and the differing gains.
     """
     gains = [line for key, line in differences.items() if key in ("kp", "kd")]
-    if gains and not simulated:
+    if gains and not sets_gains:
         raise ValueError(
             f"the policy was trained with other PD gains than robot.toml's "
             f"({'; '.join(gains)}); the {backend_name} backend cannot set its drives' "

@@ -212,7 +212,16 @@ class SimulatedPlant(Protocol):
 
 class BackendLifecycle:
     """Mixin: ``with backend:`` opens and closes a backend (``open`` / ``close`` of the class);
-    the default ``stale_context`` of a backend whose reader counts nothing."""
+    the default ``stale_context`` of a backend whose reader counts nothing.
+
+    Attributes:
+        commands_gains: The backend sends each joint's ``kp`` and ``kd`` (its robot's, the
+            policy's drive in deploy-run) with every command, as a Unitree LowCmd does: it runs
+            a policy's own gains. False (this default): the drives keep gains of their own (a
+            servo's registers), and deploy-run refuses a policy trained with others.
+    """
+
+    commands_gains: bool = False
 
     def stale_context(self, env: int = 0) -> dict:
         """What the reader saw of env ``env``'s stream (:mod:`sim2real.deploy.core.stale`); this

@@ -95,6 +95,7 @@ class CompiledSupervision(TableCalls):
         self._action, self._last_valid_action = s.action, s.last_valid_action
         self._nan_streak, self._overrun_ring = s.nan_streak, s.overrun_ring
         self._home, self._at_rest, self._stop_timeout = s.home, s.at_rest, s.stop_timeout
+        self._homed = s.homed
         # Python's part: policy resets, the torque-mode overrides (Pinocchio), re-anchoring
         self._reset_policy, self._override, self._reanchor = s.reset_policy, s.override, reanchor
         self.state, self._target, self.tracking_tolerance = state, target, tracking_tolerance
@@ -209,6 +210,7 @@ class CompiledSupervision(TableCalls):
             w(self.stop_ticks),
             w(self.counters.safe_stop_timeouts),
             w(self.flags),
+            self._homed,
         )
 
     def _screen_args(self, action: np.ndarray, state: RobotState, copy: bool = False) -> tuple:

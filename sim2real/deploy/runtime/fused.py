@@ -255,6 +255,7 @@ class TableCalls:
             (fk.STOP_TICKS, sup[18], i8, (envs,)),
             (fk.STOP_TIMEOUTS, sup[19], i8, (envs,)),
             (fk.FLAGS, sup[20], b1, (4, envs)),
+            (fk.HOMED, sup[21], b1, (n,)),
         ):
             checks.append(put(table, arrays, index, array, dtype, shape))
         table[[fk.ENVS, fk.N, fk.WINDOW, fk.CAUSES, fk.CONTROL, fk.REALTIME]] = (

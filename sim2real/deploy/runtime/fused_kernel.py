@@ -45,8 +45,10 @@ DERATING, EFFORT_SCALE, DRIVE_ANY, DRIVE_ERRORS, OVERRUN_RING, PARAMS, HOME, COM
 MODE, CAUSE, SAFE_STOPS, FAULTS, STOP_TICKS, STOP_TIMEOUTS, FLAGS = range(39, 46)
 # the observation's (no floating base: VECTOR, ORIENTATION, CLOCK, CONTACT are zeros)
 LAYOUT, PERIODS, GOAL, VECTOR, ORIENTATION, CLOCK, CONTACT, NORM, RAW, OUT = range(46, 56)
+# the supervision's again (supervise's last argument)
+HOMED = 56
 #: Length of the table.
-SIZE = 56
+SIZE = 57
 #: The returned code: the supervision's ``SUPERVISE_*`` bits, or ``RECOVER`` and the estimator's
 #: status (its phase to go on from) shifted by ``STATUS_SHIFT``.
 RECOVER, STATUS_SHIFT = 16, 5
@@ -118,6 +120,7 @@ def estimate_observe(table: np.ndarray, start: int) -> int:
         numba.carray(_pointer(table[STOP_TICKS]), (envs,), i8),
         numba.carray(_pointer(table[STOP_TIMEOUTS]), (envs,), i8),
         numba.carray(_pointer(table[FLAGS]), (4, envs), b1),
+        numba.carray(_pointer(table[HOMED]), (n,), b1),
     )
     vector = numba.carray(_pointer(table[VECTOR]), (envs, 3), f8)
     observation(
@@ -218,4 +221,5 @@ def supervise_only(table: np.ndarray) -> int:
         numba.carray(_pointer(table[STOP_TICKS]), (envs,), i8),
         numba.carray(_pointer(table[STOP_TIMEOUTS]), (envs,), i8),
         numba.carray(_pointer(table[FLAGS]), (4, envs), b1),
+        numba.carray(_pointer(table[HOMED]), (n,), b1),
     )

@@ -75,7 +75,7 @@ class ReferenceSupervision(Supervision):
             speed = np.abs(state.dq).max(axis=1)
             at_rest = speed < REST_SPEED
             pose = self.smoother.commanded if self.home_from_command else state.q
-            home = (np.abs(pose - self.home) < HOME_TOLERANCE).all(axis=1)
+            home = ((np.abs(pose - self.home) < HOME_TOLERANCE) | ~self.homed).all(axis=1)
             ramp_rest = PD_RAMP_REST_SPEED if self.home_from_command else REST_SPEED
             took_over = (mode == RAMP_IN) & (speed < ramp_rest) & home
             if took_over.any():

@@ -115,6 +115,11 @@ class Supervision:
         self.home_from_command = robot_kind(robot).pd_targets and mode_name == "position"
         #: the velocity-driven joints (wheels) of the smoother's command, or None
         self.wheels = getattr(smoother, "wheels", None)
+        #: (n,) bool: the joints whose pose RAMP_IN's end judges against home: all but those
+        #: wheels, whose command is a speed (0 in the ramp) and whose angle is any
+        self.homed = np.ones(robot.n_joints, dtype=bool)
+        if self.wheels is not None:
+            self.homed[self.wheels.columns] = False
         self.stop_damping = STOP_DAMPING * robot.effort_limit
         # the thermal band of the derating law the guard and the drives share
         self.temp_start = self.guard.derating.start

@@ -87,6 +87,7 @@ def supervise(
     stop_ticks: np.ndarray,
     stop_timeouts: np.ndarray,
     flags: np.ndarray,
+    homed: np.ndarray,
 ) -> int:
     """Derating, supervision and transitions of one tick (module docstring).
 
@@ -114,6 +115,8 @@ def supervise(
             (written); stop_timeouts: (envs,) int64, safe stops not at rest at the timeout
             (written).
         flags: (4, envs) bool, written (rows ``NEW_STOP``, ``TOOK_OVER``, ``RESUMED``).
+        homed: (n,) bool, the joints whose pose RAMP_IN's end judges against ``home`` (False:
+            a velocity-driven wheel, whose angle is any).
     """
     envs, n = q.shape
     for e in range(envs):
@@ -161,7 +164,7 @@ def supervise(
             if not abs(dq[e, j]) < rest:
                 at_rest = False
             pose = commanded[e, j] if from_command else q[e, j]
-            if not abs(pose - home[j]) < params[HOME_TOLERANCE]:
+            if homed[j] and not abs(pose - home[j]) < params[HOME_TOLERANCE]:
                 at_home = False
         if m == RAMP_IN:
             if at_rest and at_home:

@@ -247,6 +247,8 @@ def build_report(
             runtime {safe_stops, by_cause, non_finite_actions, resyncs, anchors, latched_faults,
                      latches[], operator_resets, final_mode, final_cause},
             estimator {missing_readings, stale_readings, reinitializations},
+            wheels {joints (the continuous ones; empty without), peak_speed_rad_s (true),
+                    velocity_limit_rad_s, soft_velocity_limit_rad_s},
             thermal {joints, derating_start_c, max_winding_c, peak_c, derating_band_s,
                      over_temperature_s, curve {t_s, winding_c {joint: [...]}}},
             curves {t_s, goals_issued, goals_reached (legged: commands, falls, distance_m,
@@ -270,8 +272,10 @@ def build_report(
                         sessions), locomotion (legged sessions, else null) {sessions, falls,
                         falls_per_hour, tracking_success, min_window_success_rate, distance_m,
                         mean_forward_speed_m_s, running_s, peak_winding_c}, faults {injected,
-                        survived, responses, by_kind}, latched_faults, operator_resets, thermal
-                        {peak_c, derating_band_s, over_temperature_s}, diverged [ids], tick_cost_us
+                        survived, responses, by_kind}, latched_faults, operator_resets, wheels
+                        (null without) {joints, peak_speed_rad_s, velocity_limit_rad_s,
+                        soft_velocity_limit_rad_s}, thermal {peak_c, derating_band_s,
+                        over_temperature_s}, diverged [ids], tick_cost_us
         checks          {name: {passed, failed_sessions}}
         baseline        null, or {path, passed, regressions [{metric, baseline, current, allowed,
                         message}], compared {metric: {baseline, current, allowed}}, violation_basis,

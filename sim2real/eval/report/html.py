@@ -144,7 +144,7 @@ def _success_cells(s: dict) -> list:
 
 def _tables(report: dict) -> dict[str, dict]:
     """The tables of report.html (campaign, checks, baseline, sessions, interventions, faults,
-    randomization) as ``{"header", "rows"}``."""
+    randomization; wheels where a session has them) as ``{"header", "rows"}``."""
     c, t = report["campaign"], report["totals"]
     tables = {
         "campaign": _table(
@@ -302,6 +302,21 @@ def _tables(report: dict) -> dict[str, dict]:
             for s in legged
         ],
     )
+    wheeled = [s for s in report["sessions"] if (s.get("wheels") or {}).get("joints")]
+    if wheeled:
+        joints = wheeled[0]["wheels"]["joints"]
+        tables["wheels"] = _table(
+            ["session", *(f"{j} peak / limit (rad/s)" for j in joints)],
+            [
+                [s["id"]]
+                + [
+                    f"{w['peak_speed_rad_s'][j]:.1f} / {w['velocity_limit_rad_s'][j]:g}"
+                    for j in joints
+                ]
+                for s in wheeled
+                for w in [s["wheels"]]
+            ],
+        )
     sweep = report.get("robustness")
     if sweep is not None:
         from sim2real.eval.soak.sweep import margin_text

@@ -73,6 +73,13 @@ def summary_text(report: dict) -> str:
     if down.get("any"):
         d = ", ".join(f"{k} {n}" for k, n in down.items() if k != "any" and n)
         lines.append(f"  while down   (lying damped after a stop, ticks; not counted above) {d}")
+    wheels = t.get("wheels")
+    if wheels:
+        peak, limit = wheels["peak_speed_rad_s"], wheels["velocity_limit_rad_s"]
+        each = ", ".join(f"{j} {peak[j]:.1f} of {limit[j]:g}" for j in wheels["joints"])
+        lines.append(
+            f"  wheel speeds (true peak of the velocity limit, rad/s; no position limit) {each}"
+        )
     hard = ", ".join(f"{j} {n}" for j, n in t["violations"].get("hard_limit_joints", {}).items())
     if hard:
         lines.append(f"  hard limits  (joints beyond theirs, ticks) {hard}")

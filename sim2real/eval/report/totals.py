@@ -160,6 +160,7 @@ def totals(results: list[dict]) -> dict:
         "latched_faults": latched,
         "latched_faults_per_hour": latched / hours if hours > 0 else 0.0,
         "operator_resets": sum(r["runtime"]["operator_resets"] for r in results),
+        "wheels": _wheel_totals(results),
         "thermal": {
             "peak_c": {j: max(r["thermal"]["peak_c"][j] for r in results) for j in joints},
             "derating_band_s": {
@@ -257,4 +258,19 @@ def _locomotion_totals(results: list[dict]) -> dict | None:
         "peak_winding_c": {
             k: max(x["peak_winding_c"][k] for x in legs if k in x["peak_winding_c"]) for k in kinds
         },
+    }
+
+
+def _wheel_totals(results: list[dict]) -> dict | None:
+    """The wheels' largest true speed over the sessions against their limits (the sessions'
+    ``wheels``, :func:`sim2real.eval.soak.result.wheel_speeds`); None without wheels."""
+    wheels = [r["wheels"] for r in results if (r.get("wheels") or {}).get("joints")]
+    if not wheels:
+        return None
+    joints = wheels[0]["joints"]
+    return {
+        "joints": joints,
+        "peak_speed_rad_s": {j: max(w["peak_speed_rad_s"][j] for w in wheels) for j in joints},
+        "velocity_limit_rad_s": wheels[0]["velocity_limit_rad_s"],
+        "soft_velocity_limit_rad_s": wheels[0]["soft_velocity_limit_rad_s"],
     }

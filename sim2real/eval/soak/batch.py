@@ -67,12 +67,12 @@ DRIFT_PERIOD = 10.0
 #: s of simulated time between progress reports.
 PROGRESS_PERIOD = 10.0
 #: The batch's per-env thermal accumulators a checkpoint keeps (``stats/<name>``).
-STATS = ("peak", "window_peak", "band_ticks", "over_ticks")
+STATS = ("peak", "window_peak", "band_ticks", "over_ticks", "speed_peak")
 
 
 class _Stats:
-    """The batch's thermal accumulators (``STATS``: winding peak, window peak, ticks in the
-    derating band, ticks over the maximum; (envs, n)) as a stage of a checkpoint
+    """The batch's accumulators (``STATS``: winding peak, window peak, ticks in the derating
+    band, ticks over the maximum, the true joint speed's peak; (envs, n)) as a stage of a checkpoint
     (:mod:`sim2real.deploy.core.stateful`)."""
 
     def __init__(self, batch):
@@ -200,6 +200,8 @@ class SessionBatch:
         self.window_peak = self.peak.copy()
         self.band_ticks = np.zeros((k, n), dtype=np.int64)
         self.over_ticks = np.zeros((k, n), dtype=np.int64)
+        #: (envs, n) rad/s, each joint's largest true speed (a wheel's against its limit)
+        self.speed_peak, self._speed = np.zeros((k, n)), np.zeros((k, n))
         self._t_start = np.array([m.derating_start_temperature for m in robot.motors])
         self._t_max = np.array([m.max_winding_temperature for m in robot.motors])
         self.faulted = np.zeros(k, dtype=bool)
@@ -314,6 +316,8 @@ class SessionBatch:
             self.band_ticks,
             self.over_ticks,
         )
+        np.abs(self.backend.true_velocity(), out=self._speed)
+        np.maximum(self.speed_peak, self._speed, out=self.speed_peak)
         if rt.ticks >= self._next_event:
             self._supervise(rt)
         if self.stop_replay is not None:  # last: a capture must hold this whole tick

@@ -58,7 +58,9 @@ FORMAT = "soak-checkpoint"
 #: its heading from the yaw tick to tick (``tracker/last_yaw``), the interventions that are not
 #: the policy's style (``interventions/safety``), the command's last change
 #: (``tracker/changed_at``, ``tracker/last_command``); a version 9 checkpoint has none.
-VERSION = 10
+#: 11: each joint's largest true speed (``stats/speed_peak``: the wheels' in the report); a
+#: version 10 checkpoint has none.
+VERSION = 11
 MANIFEST = "checkpoint.json"
 
 

@@ -105,6 +105,28 @@ def locomotion_result(session: Session) -> dict:
     }
 
 
+def wheel_speeds(b, e: int) -> dict:
+    """The continuous joints' (a wheel-legged robot's wheels': no position limit, checked on
+    speed and torque) largest true speed in env ``e`` of batch ``b`` against their limits:
+    ``joints``, then ``peak_speed_rad_s``, ``velocity_limit_rad_s`` (the hard limit) and
+    ``soft_velocity_limit_rad_s`` by joint; empty without continuous joints."""
+    robot = b.robot
+    wheels = np.flatnonzero(np.isinf(robot.position_lower) | np.isinf(robot.position_upper))
+    names = [robot.joint_names[i] for i in wheels]
+    if not names:
+        return {"joints": []}
+    return {
+        "joints": names,
+        "peak_speed_rad_s": dict(zip(names, b.speed_peak[e, wheels].tolist(), strict=True)),
+        "velocity_limit_rad_s": dict(
+            zip(names, robot.velocity_limit[wheels].tolist(), strict=True)
+        ),
+        "soft_velocity_limit_rad_s": dict(
+            zip(names, robot.soft_velocity_limit[wheels].tolist(), strict=True)
+        ),
+    }
+
+
 def _tilt_limit(robot) -> float:
     """rad, the fall check's tilt limit of ``robot`` (``safety.fall_tilt`` or its default)."""
     from sim2real.deploy.estimation.fall import FALL_TILT
@@ -233,6 +255,7 @@ def session_result(session: Session) -> dict:
             "stale_readings": int(est.stale_per_joint[e].sum()),
             "reinitializations": int(est.reinitializations_per_joint[e].sum()),
         },
+        "wheels": wheel_speeds(b, e),
         "thermal": {
             "joints": names,
             "derating_start_c": {

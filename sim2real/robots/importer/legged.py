@@ -36,6 +36,7 @@ from sim2real.robots.importer.toml_text import (
     sensor_lines,
     sources_lines,
 )
+from sim2real.robots.importer.wheels import check_velocity_drives, kind_lines, wheel_joints
 from sim2real.robots.packages import resolved_mjcf
 
 #: Link pairs closer than this at the home pose (m) are not checked and never collide in the
@@ -239,6 +240,7 @@ def write_legged_toml(
             (control_rate, physics_timestep),
             home_from,
             motion.home,
+            kind_lines(wheel_joints(joint_names, limits)),
         ),
         "# acceleration_limit: 0.5 x (effort - worst gravity torque) / worst joint inertia with",
         "# armature (rotor inertia x ratio^2), base held, 400 seeded poses; jerk_limit: 20 x",
@@ -408,10 +410,15 @@ def import_floating_base(
         flags.per_joint(values, joint_names, flag, flags.finite, expected, urdf.path.name)
         for flag, values in (("--home", home), ("--kp", kp), ("--kd", kd))
     )
+    wheels = wheel_joints(joint_names, limits_out)  # kp 0 there: a velocity drive
     for flag, values in (("--kp", kp_set), ("--kd", kd_set)):
         bad = {j: v for j, v in values.items() if v < 0 or (flag == "--kp" and v == 0)}
+        bad = {j: v for j, v in bad.items() if not (flag == "--kp" and v == 0 and j in wheels)}
         if bad:
-            raise RobotImportError(f"{flag}: gains must be positive (kd may be 0), got {bad}")
+            raise RobotImportError(
+                f"{flag}: gains must be positive (kd may be 0, kp 0 on a continuous joint), "
+                f"got {bad}"
+            )
 
     drive = choose(joint_names, {"kp": kp_set, "kd": kd_set, "home": home_set}, policy, urdf.drive)
     for line in source_lines(drive, joint_names):
@@ -431,9 +438,11 @@ def import_floating_base(
                     f"home pose ({drive.sources['home'][j]}): joint {j} at {motion.home[i]} rad "
                     f"is outside its limits [{lo}, {hi}]"
                 )
-        if target_limits == "pd":
+        speed = check_velocity_drives(joint_names, motion.kp, wheels, drive.sources["kp"])
+        if target_limits == "pd":  # a velocity drive (kp 0) takes no PD target
             effort = np.array([limits_out[j][3] for j in joint_names])
-            vel, acc, jerk = pd_target_limits(effort, motion.kp, 1.0 / control_rate)
+            kp_pd = np.where(speed, np.inf, motion.kp)
+            vel, acc, jerk = pd_target_limits(effort, kp_pd, 1.0 / control_rate)
             soft = SOFT_LIMIT_FRACTION * np.array([limits_out[j][2] for j in joint_names])
             motion.command_velocity = np.maximum(soft, vel)
             motion.acceleration[:] = np.maximum(motion.acceleration, acc)

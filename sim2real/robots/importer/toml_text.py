@@ -51,7 +51,7 @@ def joint_lines(
         kp, kd = f"{kp}  # N m/rad, {kp_note}", f"{kd}  # N m s/rad, {kd_note}"
     command = (
         []
-        if motion.command_velocity is None
+        if motion.command_velocity is None or motion.kp[i] == 0  # kp 0: no PD target
         else [f"command_velocity_limit = {_f(motion.command_velocity[i])}  # rad/s, PD target"]
     )
     return [
@@ -70,6 +70,11 @@ def joint_lines(
         f"effort_limit = {_f(eff)}  # N m, {enote}",
         f"soft_limit_fraction = {SOFT_LIMIT_FRACTION}",
         f'motor = "{motor}"',
+        *(
+            ['drive = "velocity"  # kp 0: a speed target, tau = kd (v_target - dq)']
+            if motion.kp[i] == 0
+            else []
+        ),
         kp,
         kd,
     ]
@@ -144,15 +149,23 @@ def sources_lines(kind: str) -> list[str]:
 
 
 def control_lines(
-    name: str, mjcf: str, mode_note: str, rates: tuple[float, float], home_note: str, home
+    name: str,
+    mjcf: str,
+    mode_note: str,
+    rates: tuple[float, float],
+    home_note: str,
+    home,
+    top: list[str] = (),
 ) -> list[str]:
-    """robot.toml's ``name``, ``mjcf`` and ``[control]`` table up to ``home`` (rad), position
-    mode: ``mode_note`` comments the mode, ``rates`` are (control rate Hz, physics timestep s),
-    ``home_note`` says where the home pose came from."""
+    """robot.toml's ``name``, ``mjcf`` (then the lines ``top``: more top-level keys) and
+    ``[control]`` table up to ``home`` (rad), position mode: ``mode_note`` comments the mode,
+    ``rates`` are (control rate Hz, physics timestep s), ``home_note`` says where the home pose
+    came from."""
     control_rate, physics_timestep = rates
     return [
         f'name = "{name}"',
         f'mjcf = "{mjcf}"',
+        *top,
         "",
         "[control]",
         f'mode = "position"            # {mode_note}',

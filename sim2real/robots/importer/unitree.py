@@ -5,8 +5,11 @@ unitree``; :class:`sim2real.robots.schema.UnitreeConfig`).
 Unitree numbers a quadruped's motors by leg, FR, FL, RR, RL, and within a leg hip, thigh, calf
 (unitree_sdk2_python ``example/go2/low_level/unitree_legged_const.py``: ``FR_0`` = 0 ... ``RL_2``
 = 11), and its ``foot_force`` by leg in the same order; its descriptions name the joints
-``<LEG>_<part>_joint`` (go2_description). The slots follow from the names; a joint named
-otherwise is refused.
+``<LEG>_<part>_joint`` (go2_description). A wheel-legged one's wheels ``<LEG>_wheel_joint``
+follow, 12 to 15 in the same leg order: the order of the actuators of unitree_mujoco's
+``unitree_robots/go2w/go2w.xml`` (its bridge numbers the motors by actuator) and of rl_sar's
+``policy/go2w/base.yaml`` ``joint_mapping`` (its ``*_foot_joint``). The slots follow from the
+names; a joint named otherwise is refused.
 
 A ``unitree_hg`` humanoid (G1, H1-2) numbers its motors in its descriptions' joint order:
 unitree_mujoco's ``unitree_robots/g1/g1_joint_index_dds.md`` lists the G1's 29 motor slots in
@@ -22,22 +25,27 @@ from sim2real.robots.importer.source import RobotImportError
 #: Unitree's leg order and the joints of a leg (unitree_legged_const ``LegID``).
 LEGS = ("FR", "FL", "RR", "RL")
 PARTS = ("hip", "thigh", "calf")
+#: A wheel-legged robot's wheel joint part, its motor slots after the legs' (module docstring).
+WHEEL = "wheel"
 FAMILIES = ("unitree_go", "unitree_hg")
 
 
 def motor_slot(joint: str) -> int:
-    """The motor slot of a joint named ``<LEG>_<part>_joint``.
+    """The motor slot of a joint named ``<LEG>_<part>_joint`` (a wheel's after the legs').
 
     Raises:
         RobotImportError: another name (the convention quoted).
     """
     leg, _, rest = joint.partition("_")
     part = rest.removesuffix("_joint")
-    if leg not in LEGS or part not in PARTS or not rest.endswith("_joint"):
+    if leg not in LEGS or part not in (*PARTS, WHEEL) or not rest.endswith("_joint"):
         raise RobotImportError(
             f"--unitree: joint '{joint}' is not named <LEG>_<part>_joint (LEG one of "
-            f"{', '.join(LEGS)}; part one of {', '.join(PARTS)}): its motor slot is unknown"
+            f"{', '.join(LEGS)}; part one of {', '.join((*PARTS, WHEEL))}): its motor slot is "
+            "unknown"
         )
+    if part == WHEEL:
+        return len(LEGS) * len(PARTS) + LEGS.index(leg)
     return 3 * LEGS.index(leg) + PARTS.index(part)
 
 
@@ -90,7 +98,8 @@ def unitree_lines(
         slots = [motor_slot(j) for j in joint_names]
         how = [
             "# motor slots in Unitree's leg order FR, FL, RR, RL (hip, thigh, calf: unitree_sdk2's",
-            "# unitree_legged_const), foot_force slots in the same leg order.",
+            "# unitree_legged_const; wheels after the legs, as go2w.xml's actuators), foot_force",
+            "# slots in the same leg order.",
         ]
         feet_line = ["foot_index = [" + ", ".join(str(foot_slot(f)) for f in feet) + "]"]
     lines = [

@@ -2,17 +2,17 @@
 robot, wall clock): ``deploy-run --backend unitree``.
 
 The robot's PD runs on each motor's driver, ``tau = tau_ff + kp (q_des - q) + kd (dq_des - dq)``:
-position mode sends the runtime's targets with the joints' ``kp``/``kd`` (robot.toml), torque mode
-sends ``tau_ff`` with ``kp = kd = 0``; velocity mode is refused (the drivers have no integral
-term). Joints map to motor slots through robot.toml's ``[unitree] motor_index``. Commands go out
+position mode sends the runtime's targets with the joints' ``kp``/``kd`` (robot.toml's or the
+policy's drive; a wheel's speed in ``dq_des``: :mod:`.motor_command`), torque mode sends
+``tau_ff`` with ``kp = kd = 0``; velocity mode is refused (no integral term in the drivers).
+Joints map to motor slots through robot.toml's ``[unitree] motor_index``. Commands go out
 on ``rt/lowcmd`` with their CRC (:mod:`sim2real.deploy.backends.unitree.crc`); states come in on
 ``rt/lowstate`` and are taken, all of them, at every :meth:`UnitreeBackend.read`. The frame's
 joints, attitude and feet are the newest valid state's; its gyro and accelerometer readings are
 the mean over every valid state since the previous read (the angle and velocity increments over
 the control period, divided by it): a policy's gait is locked to its control ticks, so one state
 per tick samples a trot's yaw-rate swing at the same phase every stride, and the base filter
-integrated that aliased rate into a heading drift (the shipped Go2 on unitree_mujoco: -23 deg
-estimated against -107 deg true in 30 s, with one 200 Hz sample per 50 Hz tick).
+integrated that aliased rate into a heading drift (the shipped Go2 on unitree_mujoco).
 
 ``open()`` is the bring-up (:mod:`sim2real.deploy.backends.unitree.bringup`: LowState, ``mode_machine``, the
 motion switcher's check, damping, a ramp to the home pose and a hold there, blended into the joints'
@@ -44,6 +44,7 @@ from sim2real.deploy.backends.unitree import family as families
 from sim2real.deploy.backends.unitree.codec import MessageCodec
 from sim2real.deploy.backends.unitree.dds import DdsLink
 from sim2real.deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
+from sim2real.deploy.backends.unitree.motor_command import fill_motor_commands
 from sim2real.deploy.backends.worker import Worker
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame, checked_command
 from sim2real.deploy.core.latency import LatencyHistogram
@@ -105,6 +106,9 @@ class UnitreeBackend(BackendLifecycle):
         ValueError: no ``[unitree]`` table, velocity mode, an unknown family.
     """
 
+    #: every LowCmd carries each joint's kp and kd: a policy's own drive runs as it is
+    commands_gains = True
+
     def __init__(
         self,
         robot: Robot,
@@ -154,6 +158,8 @@ class UnitreeBackend(BackendLifecycle):
         self.kp = np.array([j.kp for j in robot.config.joints])
         self.kd = np.array([j.kd for j in robot.config.joints])
         self.damping_kd = np.broadcast_to(np.asarray(cfg.damping_kd, dtype=np.float64), self.n)
+        #: joint indices of the velocity-driven joints (wheels): speed targets in ``dq``
+        self._wheels = np.flatnonzero(robot.velocity_driven)
         self.ramp_kp = self.kp if cfg.ramp_kp is None else np.broadcast_to(cfg.ramp_kp, self.n)
         self.ramp_kd = self.kd if cfg.ramp_kd is None else np.broadcast_to(cfg.ramp_kd, self.n)
         self.period = robot.control_period
@@ -445,19 +451,14 @@ class UnitreeBackend(BackendLifecycle):
             # a copy: the runtime reuses its command buffer for the next tick's
             self._last_send = (np.array(target, dtype=np.float64), kp, kd)
             self._last_send_at = time.monotonic()
-            mc = self._cmd.message["motor_cmd"]
-            s = self.slots
-            mc["mode"][s] = self.config.motor_mode
-            mc["dq"][s] = 0.0
-            if self._damping:
-                mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = 0.0, 0.0, 0.0, self.damping_kd
-            elif kp is not None:
-                mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = target, 0.0, kp, kd
-            elif self.mode == "position":
+            kind = "damping" if self._damping else "hold" if kp is not None else self.mode
+            if kind == "damping":
+                kp, kd = 0.0, self.damping_kd
+            elif kind == "position":
                 kp, kd = self._gains()
-                mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = target, 0.0, kp, kd
-            else:
-                mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = 0.0, target, 0.0, 0.0
+            mc = self._cmd.message["motor_cmd"]
+            args = (self.slots, self._wheels, self.config.motor_mode, kind, target, kp, kd)
+            fill_motor_commands(mc, *args)
             self.family.init_command(self._cmd.message, self.mode_machine or 0)
             self._writer.write_raw(self._cmd.encode())
             self.sent += 1

@@ -96,14 +96,15 @@ def bring_up(b) -> None:
     q0 = _pose(b)
     home = b._hold_target
     ramp = b.config.ramp_time
-    far = float(np.abs(home - q0).max())
+    legs = ~b.robot.velocity_driven  # a wheel takes speed 0, no pose: its angle is any
+    far = float(np.abs(home - q0)[legs].max())
     b.log(f"[5/5] ramp to the home pose over {ramp:g} s (farthest joint {far:.2f} rad away)")
     b._damping = False
     _run(b, ramp, lambda t: q0 + min(1.0, t / ramp) * (home - q0), (b.ramp_kp, b.ramp_kd))
     _run(b, SETTLE_TIME, lambda t: home, (b.ramp_kp, b.ramp_kd))
     rest = _settle(b, home)
     q = _pose(b)
-    off = np.abs(q - home)
+    off = np.where(legs, np.abs(q - home), 0.0)
     if off.max() > RAMP_TOLERANCE:
         j = int(off.argmax())
         b._damping = True

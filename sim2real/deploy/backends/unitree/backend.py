@@ -47,6 +47,7 @@ from sim2real.deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
 from sim2real.deploy.backends.worker import Worker
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame, checked_command
 from sim2real.deploy.core.latency import LatencyHistogram
+from sim2real.deploy.core.modes import RUNNING
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.robots import Robot
 
@@ -195,6 +196,10 @@ class UnitreeBackend(BackendLifecycle):
         self._read_lock = threading.Lock()
         self._hold_reads = False
         self._handover: float | None = None
+        #: the runtime's (envs,) mode array (:meth:`watch_modes`), read only; None: not watched
+        self._modes: np.ndarray | None = None
+        self._policy_gains = False  # the policy's gains (blending or blended) are in use
+        self._stand: np.ndarray | None = None  # the stand's target during the hand-over
         self._hold = Worker("unitree-hold", self._hold_loop)
         self._hold_target = np.asarray(robot.home, dtype=np.float64).copy()
         self._t0 = time.monotonic()
@@ -430,8 +435,9 @@ class UnitreeBackend(BackendLifecycle):
         command = checked_command(command, self.n)
         if self._hold.running:
             self._hold.stop()
-            self._handover = time.monotonic()
-            self.held_at_home_s = self._handover - self._opened_at - (self.bringup_s or 0.0)
+            now = time.monotonic()
+            self.held_at_home_s = now - self._opened_at - (self.bringup_s or 0.0)
+        self._track_mode()
         t0 = time.perf_counter_ns()
         self._send(command[0])
         self.write_cost.add(0, time.perf_counter_ns() - t0)
@@ -454,24 +460,58 @@ class UnitreeBackend(BackendLifecycle):
             elif kp is not None:
                 mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = target, 0.0, kp, kd
             elif self.mode == "position":
-                kp, kd = self._gains()
-                mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = target, 0.0, kp, kd
+                q, kp, kd = self._blended(target)
+                mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = q, 0.0, kp, kd
             else:
                 mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = 0.0, target, 0.0, 0.0
             self.family.init_command(self._cmd.message, self.mode_machine or 0)
             self._writer.write_raw(self._cmd.encode())
             self.sent += 1
 
-    def _gains(self) -> tuple[np.ndarray, np.ndarray]:
-        """The joints' kp, kd; within ``bringup.BLEND_TIME`` of the runtime's first command, the
-        ramp's blending linearly into them."""
+    def watch_modes(self, mode: np.ndarray) -> None:
+        """Hold the bring-up's gains until the policy runs: ``mode`` is the runtime's (envs,)
+        mode array (:mod:`sim2real.deploy.core.modes`; read, never written). While env 0 is not
+        RUNNING (IDLE, RAMP_IN) a position command goes out at the ramp's gains (``[unitree]
+        ramp_kp``/``ramp_kd``), and they blend into the joints' over ``bringup.BLEND_TIME`` from
+        its first RUNNING command, as Unitree's deploy programs stand at their FixStand gains
+        until the policy's state sets its own (unitree_rl_mjlab deploy/robots/g1/config/
+        config.yaml). A policy's gains too soft to hold the home pose alone (a G1's waist pitch)
+        otherwise took the robot's weight during RAMP_IN, with no policy to balance it. Without a
+        call, the blend starts at the runtime's first command."""
+        self._modes = mode
+
+    def _track_mode(self) -> None:
+        """Start the hand-over at the policy's first command (:meth:`watch_modes`): the stand's
+        target is the last command sent before it."""
+        running = self._modes is None or self._modes[0] == RUNNING
+        if running and not self._policy_gains:
+            self._handover = time.monotonic()
+            last = self._last_send
+            self._stand = self._hold_target.copy() if last is None else last[0].copy()
+        self._policy_gains = running
+
+    def _blended(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(position target, kp, kd) of one position command: the ramp's gains before the
+        policy runs (:meth:`watch_modes`); within ``bringup.BLEND_TIME`` of its first command
+        the sum of two PD laws, the stand's (its target at the ramp's gains, weight ``1 - a``)
+        and the policy's (``target`` at the joints' gains, weight ``a``, ``a`` rising linearly
+        from 0 to 1), sent as one: ``kp = (1 - a) kp_ramp + a kp``, its target the
+        gain-weighted mean of the two targets, ``kd`` alike (both damp toward 0 rad/s). The
+        torque a driver applies is the blend's, and the policy's first actions act at the
+        policy's own gains: sent at the stand's (on a G1, up to 7x the policy's waist kp),
+        they swung its waist into its limits within 0.2 s."""
+        if not self._policy_gains:
+            return target, self.ramp_kp, self.ramp_kd
         if self._handover is None:
-            return self.kp, self.kd
+            return target, self.kp, self.kd
         a = (time.monotonic() - self._handover) / bringup.BLEND_TIME
         if a >= 1.0:
             self._handover = None
-            return self.kp, self.kd
-        return (1 - a) * self.ramp_kp + a * self.kp, (1 - a) * self.ramp_kd + a * self.kd
+            return target, self.kp, self.kd
+        stand, policy = (1 - a) * self.ramp_kp, a * self.kp
+        kp = stand + policy
+        q = (stand * self._stand + policy * target) / kp
+        return q, kp, (1 - a) * self.ramp_kd + a * self.kd
 
     def advance(self) -> None:
         """Nothing: the robot runs on its own; the runtime's wall clock paces the loop."""

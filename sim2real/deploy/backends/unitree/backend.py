@@ -15,11 +15,11 @@ integrated that aliased rate into a heading drift (the shipped Go2 on unitree_mu
 estimated against -107 deg true in 30 s, with one 200 Hz sample per 50 Hz tick).
 
 ``open()`` is the bring-up (:mod:`sim2real.deploy.backends.unitree.bringup`: LowState, ``mode_machine``, the
-motion switcher's check, damping, a ramp to the home pose and a hold there, blended into the joints'
-gains after the runtime's first command); ``close()`` damps for ``CLOSE_DAMPING_TIME``, the last
-command the robot keeps. Damping (``kp`` 0, ``kd`` robot.toml's ``[unitree] damping_kd``), never a
-frozen stiff pose, is what the runtime asks for (:meth:`UnitreeBackend.damp`) on a legged robot's
-every safe stop.
+motion switcher's check, damping, a ramp to the home pose and a hold there; the ramp's gains
+until the policy runs, then handed over to the joints', :mod:`.handover`); ``close()`` damps for
+``CLOSE_DAMPING_TIME``, the last command the robot keeps. Damping (``kp`` 0, ``kd`` robot.toml's
+``[unitree] damping_kd``), never a frozen stiff pose, is what the runtime asks for
+(:meth:`UnitreeBackend.damp`) on a legged robot's every safe stop.
 
 :meth:`UnitreeBackend.bus_summary` counts the states as the servo bus counts its dropouts: a
 failed CRC (``bad_crc``), a sample that does not decode (``malformed``), a ``tick`` not newer than
@@ -44,10 +44,10 @@ from sim2real.deploy.backends.unitree import family as families
 from sim2real.deploy.backends.unitree.codec import MessageCodec
 from sim2real.deploy.backends.unitree.dds import DdsLink
 from sim2real.deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
+from sim2real.deploy.backends.unitree.handover import StandHandover
 from sim2real.deploy.backends.worker import Worker
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame, checked_command
 from sim2real.deploy.core.latency import LatencyHistogram
-from sim2real.deploy.core.modes import RUNNING
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.robots import Robot
 
@@ -195,13 +195,9 @@ class UnitreeBackend(BackendLifecycle):
         self._lock = threading.Lock()
         self._read_lock = threading.Lock()
         self._hold_reads = False
-        self._handover: float | None = None
-        #: the runtime's (envs,) mode array (:meth:`watch_modes`), read only; None: not watched
-        self._modes: np.ndarray | None = None
-        self._policy_gains = False  # the policy's gains (blending or blended) are in use
-        self._stand: np.ndarray | None = None  # the stand's target during the hand-over
         self._hold = Worker("unitree-hold", self._hold_loop)
         self._hold_target = np.asarray(robot.home, dtype=np.float64).copy()
+        self.handover = StandHandover(self.ramp_kp, self.ramp_kd, self.kp, self.kd, robot.home)
         self._t0 = time.monotonic()
         self._opened_at = None
         #: s: the bring-up (open to at home), and the hold at home before the runtime's first
@@ -437,7 +433,7 @@ class UnitreeBackend(BackendLifecycle):
             self._hold.stop()
             now = time.monotonic()
             self.held_at_home_s = now - self._opened_at - (self.bringup_s or 0.0)
-        self._track_mode()
+        self.handover.command(None if self._last_send is None else self._last_send[0])
         t0 = time.perf_counter_ns()
         self._send(command[0])
         self.write_cost.add(0, time.perf_counter_ns() - t0)
@@ -460,7 +456,7 @@ class UnitreeBackend(BackendLifecycle):
             elif kp is not None:
                 mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = target, 0.0, kp, kd
             elif self.mode == "position":
-                q, kp, kd = self._blended(target)
+                q, kp, kd = self.handover.law(target)
                 mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = q, 0.0, kp, kd
             else:
                 mc["q"][s], mc["tau"][s], mc["kp"][s], mc["kd"][s] = 0.0, target, 0.0, 0.0
@@ -469,49 +465,11 @@ class UnitreeBackend(BackendLifecycle):
             self.sent += 1
 
     def watch_modes(self, mode: np.ndarray) -> None:
-        """Hold the bring-up's gains until the policy runs: ``mode`` is the runtime's (envs,)
-        mode array (:mod:`sim2real.deploy.core.modes`; read, never written). While env 0 is not
-        RUNNING (IDLE, RAMP_IN) a position command goes out at the ramp's gains (``[unitree]
-        ramp_kp``/``ramp_kd``), and they blend into the joints' over ``bringup.BLEND_TIME`` from
-        its first RUNNING command, as Unitree's deploy programs stand at their FixStand gains
-        until the policy's state sets its own (unitree_rl_mjlab deploy/robots/g1/config/
-        config.yaml). A policy's gains too soft to hold the home pose alone (a G1's waist pitch)
-        otherwise took the robot's weight during RAMP_IN, with no policy to balance it. Without a
-        call, the blend starts at the runtime's first command."""
-        self._modes = mode
-
-    def _track_mode(self) -> None:
-        """Start the hand-over at the policy's first command (:meth:`watch_modes`): the stand's
-        target is the last command sent before it."""
-        running = self._modes is None or self._modes[0] == RUNNING
-        if running and not self._policy_gains:
-            self._handover = time.monotonic()
-            last = self._last_send
-            self._stand = self._hold_target.copy() if last is None else last[0].copy()
-        self._policy_gains = running
-
-    def _blended(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(position target, kp, kd) of one position command: the ramp's gains before the
-        policy runs (:meth:`watch_modes`); within ``bringup.BLEND_TIME`` of its first command
-        the sum of two PD laws, the stand's (its target at the ramp's gains, weight ``1 - a``)
-        and the policy's (``target`` at the joints' gains, weight ``a``, ``a`` rising linearly
-        from 0 to 1), sent as one: ``kp = (1 - a) kp_ramp + a kp``, its target the
-        gain-weighted mean of the two targets, ``kd`` alike (both damp toward 0 rad/s). The
-        torque a driver applies is the blend's, and the policy's first actions act at the
-        policy's own gains: sent at the stand's (on a G1, up to 7x the policy's waist kp),
-        they swung its waist into its limits within 0.2 s."""
-        if not self._policy_gains:
-            return target, self.ramp_kp, self.ramp_kd
-        if self._handover is None:
-            return target, self.kp, self.kd
-        a = (time.monotonic() - self._handover) / bringup.BLEND_TIME
-        if a >= 1.0:
-            self._handover = None
-            return target, self.kp, self.kd
-        stand, policy = (1 - a) * self.ramp_kp, a * self.kp
-        kp = stand + policy
-        q = (stand * self._stand + policy * target) / kp
-        return q, kp, (1 - a) * self.ramp_kd + a * self.kd
+        """The stand's gains hold until the runtime's env 0 is RUNNING, then hand over to the
+        joints' (:mod:`sim2real.deploy.backends.unitree.handover`); ``mode`` the runtime's
+        (envs,) mode array, read only. Without a call the hand-over starts at the first
+        command."""
+        self.handover.watch(mode)
 
     def advance(self) -> None:
         """Nothing: the robot runs on its own; the runtime's wall clock paces the loop."""

@@ -53,8 +53,10 @@ def wired(go2, monkeypatch):
     go to a :class:`_Wire`, with the test's clock."""
     clock = _Clock()
     monkeypatch.setattr(handover_module, "time", clock)
-    backend = UnitreeBackend(go2, log=lambda s: None)
+    lines = []
+    backend = UnitreeBackend(go2, log=lines.append)
     wire = _Wire(backend)
+    wire.lines = lines
     backend._writer = wire
     return backend, wire, clock
 
@@ -76,10 +78,14 @@ def test_the_stand_holds_through_ramp_in_and_hands_over_as_the_sum_of_both_pd_la
         np.testing.assert_allclose(k, ramp_kp, rtol=1e-6)
         np.testing.assert_allclose(d, ramp_kd, rtol=1e-6)
         np.testing.assert_allclose(q, stand, atol=1e-6)
+    assert wire.lines == []
 
     policy = home + np.linspace(-0.3, 0.3, go2.n_joints)
     mode[0] = Mode.RUNNING
     backend.write(policy[None])  # the policy's first command: the stand's law still, whole
+    backend.write(policy[None])
+    # said once, when a gantry may let go of a humanoid
+    assert len(wire.lines) == 1 and "the policy runs" in wire.lines[0]
     q, k, d = wire.sent[-1]
     np.testing.assert_allclose(k, ramp_kp, rtol=1e-6)
     np.testing.assert_allclose(q, stand, atol=1e-6)

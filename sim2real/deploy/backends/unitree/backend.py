@@ -423,7 +423,7 @@ class UnitreeBackend(BackendLifecycle):
     def write(self, command: np.ndarray) -> None:
         """One LowCmd: position targets (rad) with the joints' kp/kd, or torques (N m), or
         damping while the runtime asks for it; ``command`` shaped (1, n_joints). The first
-        call ends the bring-up's hold.
+        call ends the bring-up's hold; the policy's first is logged (a gantry may let go).
 
         Raises:
             ValueError: wrong shape or a non-finite value (nothing is written).
@@ -433,7 +433,10 @@ class UnitreeBackend(BackendLifecycle):
             self._hold.stop()
             now = time.monotonic()
             self.held_at_home_s = now - self._opened_at - (self.bringup_s or 0.0)
+        stood = not self.handover.policy
         self.handover.command(None if self._last_send is None else self._last_send[0])
+        if stood and self.handover.policy:  # once: the moment a gantry may let go
+            self.log(f"      the policy runs; its gains take over within {bringup.BLEND_TIME:g} s")
         t0 = time.perf_counter_ns()
         self._send(command[0])
         self.write_cost.add(0, time.perf_counter_ns() - t0)

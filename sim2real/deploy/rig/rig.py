@@ -93,6 +93,9 @@ class Rig:
         self.kind = robot_kind(robot)
         self.simulated = isinstance(backend, SimulatedPlant)
         self.runtime = Runtime(robot, policy, backend, **(runtime or {}))
+        watch = getattr(backend, "watch_modes", None)  # drives that hold a stand until RUNNING
+        if watch is not None:
+            watch(self.runtime.mode)
         self._started = start
         if start:
             self.runtime.start()

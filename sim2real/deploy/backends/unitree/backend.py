@@ -15,11 +15,11 @@ per tick samples a trot's yaw-rate swing at the same phase every stride, and the
 integrated that aliased rate into a heading drift (the shipped Go2 on unitree_mujoco).
 
 ``open()`` is the bring-up (:mod:`sim2real.deploy.backends.unitree.bringup`: LowState, ``mode_machine``, the
-motion switcher's check, damping, a ramp to the home pose and a hold there, blended into the joints'
-gains after the runtime's first command); ``close()`` damps for ``CLOSE_DAMPING_TIME``, the last
-command the robot keeps. Damping (``kp`` 0, ``kd`` robot.toml's ``[unitree] damping_kd``), never a
-frozen stiff pose, is what the runtime asks for (:meth:`UnitreeBackend.damp`) on a legged robot's
-every safe stop.
+motion switcher's check, damping, a ramp to the home pose and a hold there; the ramp's gains
+until the policy runs, then handed over to the joints', :mod:`.handover`); ``close()`` damps for
+``CLOSE_DAMPING_TIME``, the last command the robot keeps. Damping (``kp`` 0, ``kd`` robot.toml's
+``[unitree] damping_kd``), never a frozen stiff pose, is what the runtime asks for
+(:meth:`UnitreeBackend.damp`) on a legged robot's every safe stop.
 
 :meth:`UnitreeBackend.bus_summary` counts the states as the servo bus counts its dropouts: a
 failed CRC (``bad_crc``), a sample that does not decode (``malformed``), a ``tick`` not newer than
@@ -44,6 +44,7 @@ from sim2real.deploy.backends.unitree import family as families
 from sim2real.deploy.backends.unitree.codec import MessageCodec
 from sim2real.deploy.backends.unitree.dds import DdsLink
 from sim2real.deploy.backends.unitree.family import TOPIC_LOWCMD, TOPIC_LOWSTATE
+from sim2real.deploy.backends.unitree.handover import StandHandover
 from sim2real.deploy.backends.unitree.motor_command import fill_motor_commands
 from sim2real.deploy.backends.worker import Worker
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame, checked_command
@@ -200,9 +201,9 @@ class UnitreeBackend(BackendLifecycle):
         self._lock = threading.Lock()
         self._read_lock = threading.Lock()
         self._hold_reads = False
-        self._handover: float | None = None
         self._hold = Worker("unitree-hold", self._hold_loop)
         self._hold_target = np.asarray(robot.home, dtype=np.float64).copy()
+        self.handover = StandHandover(self.ramp_kp, self.ramp_kd, self.kp, self.kd, robot.home)
         self._t0 = time.monotonic()
         self._opened_at = None
         #: s: the bring-up (open to at home), and the hold at home before the runtime's first
@@ -428,7 +429,7 @@ class UnitreeBackend(BackendLifecycle):
     def write(self, command: np.ndarray) -> None:
         """One LowCmd: position targets (rad) with the joints' kp/kd, or torques (N m), or
         damping while the runtime asks for it; ``command`` shaped (1, n_joints). The first
-        call ends the bring-up's hold.
+        call ends the bring-up's hold; the policy's first is logged (a gantry may let go).
 
         Raises:
             ValueError: wrong shape or a non-finite value (nothing is written).
@@ -436,8 +437,12 @@ class UnitreeBackend(BackendLifecycle):
         command = checked_command(command, self.n)
         if self._hold.running:
             self._hold.stop()
-            self._handover = time.monotonic()
-            self.held_at_home_s = self._handover - self._opened_at - (self.bringup_s or 0.0)
+            now = time.monotonic()
+            self.held_at_home_s = now - self._opened_at - (self.bringup_s or 0.0)
+        stood = not self.handover.policy
+        self.handover.command(None if self._last_send is None else self._last_send[0])
+        if stood and self.handover.policy:  # once: the moment a gantry may let go
+            self.log(f"      the policy runs; its gains take over within {bringup.BLEND_TIME:g} s")
         t0 = time.perf_counter_ns()
         self._send(command[0])
         self.write_cost.add(0, time.perf_counter_ns() - t0)
@@ -454,8 +459,9 @@ class UnitreeBackend(BackendLifecycle):
             kind = "damping" if self._damping else "hold" if kp is not None else self.mode
             if kind == "damping":
                 kp, kd = 0.0, self.damping_kd
-            elif kind == "position":
-                kp, kd = self._gains()
+            elif kind == "position":  # the stand's law handed over to the policy's
+                q, kp, kd = self.handover.law(target)
+                q[self._wheels], target = target[self._wheels], q  # a wheel's is its speed
             mc = self._cmd.message["motor_cmd"]
             args = (self.slots, self._wheels, self.config.motor_mode, kind, target, kp, kd)
             fill_motor_commands(mc, *args)
@@ -463,16 +469,10 @@ class UnitreeBackend(BackendLifecycle):
             self._writer.write_raw(self._cmd.encode())
             self.sent += 1
 
-    def _gains(self) -> tuple[np.ndarray, np.ndarray]:
-        """The joints' kp, kd; within ``bringup.BLEND_TIME`` of the runtime's first command, the
-        ramp's blending linearly into them."""
-        if self._handover is None:
-            return self.kp, self.kd
-        a = (time.monotonic() - self._handover) / bringup.BLEND_TIME
-        if a >= 1.0:
-            self._handover = None
-            return self.kp, self.kd
-        return (1 - a) * self.ramp_kp + a * self.kp, (1 - a) * self.ramp_kd + a * self.kd
+    def watch_modes(self, mode: np.ndarray) -> None:
+        """The stand's gains hold until the runtime's env 0 is RUNNING (``mode``: its (envs,) mode
+        array, read only), then hand over (:mod:`.handover`); unwatched: at the first command."""
+        self.handover.watch(mode)
 
     def advance(self) -> None:
         """Nothing: the robot runs on its own; the runtime's wall clock paces the loop."""

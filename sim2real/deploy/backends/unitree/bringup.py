@@ -15,9 +15,9 @@
 
 A LowState silent for ``BRINGUP_STALE`` during stages 4-5 stops the bring-up (damping, then a
 :class:`BringupError`). The backend then holds the home pose at the ramp's gains until the
-runtime's first command, and blends them into the joints' kp/kd over ``BLEND_TIME`` from there
-(the policy's gains, without a jump at the hand-over: a soft policy PD held alone would let the
-robot sag and its feet slide apart for as long as the runtime takes to start).
+runtime's first command, keeps them through the runtime's RAMP_IN, and from the policy's first
+command hands over to the joints' kp/kd over ``BLEND_TIME`` (:mod:`.handover`: without a jump,
+and a soft policy PD never holds the robot without its policy: a G1 sagged to the floor).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ SETTLE_TIME = 0.3
 #: every ``REST_CHECK`` s against the runtime's ``REST_SPEED`` (rad/s).
 REST_TIMEOUT = 2.0
 REST_CHECK = 0.05
-#: s after the runtime's first command over which the ramp's gains blend into the joints' (our
+#: s after the policy's first command over which the ramp's gains blend into the joints' (our
 #: choice).
 BLEND_TIME = 0.5
 #: rad: a joint farther from home after the ramp did not follow the commands (our choice: above

@@ -1,14 +1,15 @@
 """The control loop (:class:`Runtime`): its stages built over one backend, its lifecycle (start,
 restart after the robot was moved, an operator's reset of latched faults), the tick (read top to
-bottom in :meth:`Runtime.tick`) and the run with the garbage collector frozen; its state dict
-comes from :class:`~sim2real.deploy.runtime.state.RuntimeState`. The package's docstring
+bottom in :meth:`Runtime.tick`); its state dict comes from
+:class:`~sim2real.deploy.runtime.state.RuntimeState`, a floating base's part of the tick from
+:class:`~sim2real.deploy.runtime.legged_tick.LeggedTick`, the run with the garbage collector
+frozen from :class:`~sim2real.deploy.runtime.run_loop.RunLoop`. The package's docstring
 (:mod:`sim2real.deploy.runtime`) describes the tick and the state machine.
 """
 
 from __future__ import annotations
 
 import gc
-import operator
 import time
 
 import numpy as np
@@ -24,13 +25,15 @@ from sim2real.deploy.core.modes import (
 )
 from sim2real.deploy.core.state import Kinematics, RobotState
 from sim2real.deploy.estimation.joints import JointStateEstimator
-from sim2real.deploy.kernels.calls import bind, fits
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.observe import long_ticks as lt
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
 from sim2real.deploy.runtime.clock import SimClock
 from sim2real.deploy.runtime.compiled import CompiledSupervision
 from sim2real.deploy.runtime.handover import RampIn, check_policy, follows_targets, switch_policy
+from sim2real.deploy.runtime.legged_tick import LeggedTick
+from sim2real.deploy.runtime.run_loop import RunLoop
 from sim2real.deploy.runtime.stale import StaleStops
 from sim2real.deploy.runtime.state import RuntimeState
 from sim2real.deploy.runtime.supervision import Supervision
@@ -47,12 +50,7 @@ def _no_reset(envs: np.ndarray) -> None:
     """The reset of a policy without state."""
 
 
-def _gc_collections() -> int:
-    """Collections of the garbage collector so far in this process, every generation."""
-    return sum(g["collections"] for g in gc.get_stats())
-
-
-class Runtime(RuntimeState):
+class Runtime(RuntimeState, LeggedTick, RunLoop):
     """The control loop for ``envs`` robots behind one backend.
 
     Args:
@@ -484,69 +482,6 @@ class Runtime(RuntimeState):
         self._compiled.screen(action, state, self.spec)
         return self.supervision.action, self._target
 
-    def _update_base(self, frame, state: RobotState) -> None:
-        """A floating-base robot's tick: the base estimate from the IMU and leg kinematics, the
-        feet's contact, the gait clock; an IMU silent past ``safety.stale_limit`` makes a safe
-        stop (stale_sensor), a fall (:class:`sim2real.deploy.estimation.fall.FallDetector`) a damped one
-        (fall)."""
-        self.base_estimator.update(frame, state.q, state.dq, out=state.base)
-        calls = self._base_screens(state) if self.compiled_base_screens else None
-        if calls is not None:  # the same, compiled (estimation.fall's stale_screen, fall_screen)
-            stale_call, fall_call, stale, fall = calls
-            if stale_call(self.time):
-                self.supervision.safe_stop(stale, "stale_sensor")
-            self.fall_detector.screen(state)
-            if fall_call():
-                self.supervision.safe_stop(fall, "fall")
-            return
-        state.foot_contact[:] = self.base_estimator.contact  # the sensor's, or the kinematics'
-        state.clock[:] = self.time
-        stale = self.base_estimator.time_since_fresh > self.robot.config.safety.stale_limit
-        self.supervision.safe_stop(stale, "stale_sensor")
-        fallen = self.fall_detector.check(state) & ((self.mode == RUNNING) | (self.mode == RAMP_IN))
-        # an operator laying the robot down or standing it up: a low base is no fall, a tilt is
-        fallen &= ~self.lying_expected | self.fall_detector.signals[:, 0]
-        self.supervision.safe_stop(fallen, "fall")
-
-    def _base_screens(self, state: RobotState):
-        """:meth:`_update_base`'s work after the estimate as two compiled calls bound to the
-        runtime's arrays (made again when one is another array): ``(stale_call(time),
-        fall_call(), stale, fall)``, the calls answering whether any env is stale or fell, into
-        the masks ``stale`` and ``fall``; None where an array does not fit them (numpy's path)."""
-        est, fd = self.base_estimator, self.fall_detector
-        key = (state.foot_contact, state.clock, est.contact, est.time_since_fresh, self.mode)
-        key += (self.lying_expected, fd.signals)
-        bound = self._base_screens_bound
-        if bound is not None and all(map(operator.is_, key, bound[0])):
-            return bound[1]
-        from sim2real.deploy.estimation.fall import fall_screen, stale_screen
-
-        self._base_screens_bound = None
-        envs, feet = self.envs, est.contact.shape[1]
-        ok = (
-            fits(state.foot_contact, np.float64, (envs, feet))
-            and fits(state.clock, np.float64, (envs,))
-            and fits(est.contact, np.bool_, (envs, feet))
-            and isinstance(est.time_since_fresh, np.ndarray)
-            and est.time_since_fresh.dtype == np.float64
-            and fits(self.mode, np.int8, (envs,))
-            and fits(self.lying_expected, np.bool_, (envs,))
-        )
-        if not ok:
-            return None
-        stale, fall = np.zeros(envs, dtype=bool), np.zeros(envs, dtype=bool)
-        limit = float(self.robot.config.safety.stale_limit)
-        stale_call = bind(
-            stale_screen, est.contact, state.foot_contact, state.clock, est.time_since_fresh,
-            limit, stale, rest=(0.0,),
-        )  # fmt: skip
-        fall_call = bind(
-            fall_screen, fd._fallen, self.mode, self.lying_expected, fd.signals, fall,
-            int(RUNNING), int(RAMP_IN),
-        )  # fmt: skip
-        self._base_screens_bound = (key, (stale_call, fall_call, stale, fall))
-        return self._base_screens_bound[1]
-
     def _reanchor(self, state: RobotState) -> None:
         """:func:`reanchor` the smoother and count it (anchors or resyncs)."""
         moved = reanchor(
@@ -557,39 +492,3 @@ class Runtime(RuntimeState):
                 self.counters.anchors if self.mode_name == "velocity" else self.counters.resyncs
             )
             counter += moved
-
-    # ------------------------------------------------------------------ running
-    def run(self, ticks: int, on_tick=None) -> None:
-        """Run ``ticks`` control periods with the garbage collector frozen and disabled.
-
-        Before the loop the collector runs over the young generations (0 and 1). The set-up's
-        garbage was collected over every generation once, when the runtime was built: a full
-        collection of a process with torch loaded takes 0.1-0.5 s, which a caller running the
-        loop in short pieces (a film's replay to each frame, single ticks) paid on every call,
-        on a wall clock as missed periods between the pieces, and a session at its start. The
-        old generation is collected by Python itself while the collector is enabled between runs.
-
-        ``on_tick(runtime)``, if given, runs after each tick (goal scheduling, evaluation); when
-        it returns True the run ends early (e.g. a latched fault on real hardware).
-        """
-        fresh = getattr(self.clock, "fresh", False)  # a wall clock's first run: start() collected
-        if not fresh:
-            gc.collect(1)
-        gc.freeze()
-        was_enabled = gc.isenabled()
-        gc.disable()
-        if fresh:  # a wall clock not yet waited on: the set-up since start() is not the first
-            self.clock.start()  # tick's overrun
-        self._woke(time.perf_counter_ns())
-        collections = _gc_collections()
-        tick = self.tick
-        try:
-            for _ in range(ticks):
-                tick()
-                if on_tick is not None and on_tick(self):
-                    break
-        finally:
-            self.gc_collections += _gc_collections() - collections
-            if was_enabled:
-                gc.enable()
-            gc.unfreeze()

@@ -50,7 +50,9 @@ def observation_problems(blocks, n: int, driven: tuple[int, ...]) -> list[str]:
                 f"{b.stand_below}"
             )
         if not np.isfinite(b.stand_phase):
-            return _problem(f"{where}: stand_phase must be a finite phase, rad, got {b.stand_phase}")
+            return _problem(
+                f"{where}: stand_phase must be a finite phase, rad, got {b.stand_phase}"
+            )
         if len(b.scale) != b.size or len(b.offset) != b.size:
             return _problem(f"{where}: scale and offset need {b.size} entries")
         if not all(np.isfinite(s) and s != 0 for s in b.scale):

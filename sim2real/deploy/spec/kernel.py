@@ -9,7 +9,8 @@ clip, then the cast to float32; ``goal_in_ee`` is ``(goal - ee) @ R`` summed in 
 numpy's matmul loop; ``gait_phase`` is ``sin p, cos p, sin(p + pi), cos(p + pi)`` of
 ``p = (2 pi / period) * clock`` (the second foot half a period later), of which a block reads its
 ``components`` (default the first two); a clock that stops (:func:`gait_clock`) reads every
-foot's phase as the held one while the command is below its threshold; a vector block reads its ``components`` of its 3-vector; and
+foot's phase as the held one while the command is below its threshold; a vector block reads its
+``components`` of its 3-vector; and
 ``heading_sincos`` of the yaw ``atan2(2 (w z + x y), 1 - 2 (y^2 + z^2))``; ``base_euler_angles``
 its components of roll ``atan2(2 (w x + y z), 1 - 2 (x^2 + y^2))``, pitch ``asin(2 (w y - z x))``
 (clipped to [-1, 1] first) and that yaw. A new kind adds its branch here (a new code in

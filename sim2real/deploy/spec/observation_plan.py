@@ -218,7 +218,8 @@ class ObservationPlan:
         """The arguments of :func:`sim2real.deploy.spec.kernel.observation` for these
         arrays, the live ones (no copies; a caller may keep their addresses while they are the
         same objects), in its order: ``layout`` (blocks, width) int64, the gait clocks'
-        ``params`` (blocks, ``CLOCK_COLUMNS``) and ``kernel`` state (raw's rows, blocks), the state's ``q``, ``dq`` (envs, n), ``ee_position`` (envs, 3),
+        ``params`` (blocks, ``CLOCK_COLUMNS``) and ``kernel`` state (raw's rows, blocks), the
+        state's ``q``, ``dq`` (envs, n), ``ee_position`` (envs, 3),
         ``ee_rotation`` (envs, 3, 3), ``goal`` (envs, 3), ``last_action``,
         ``winding_temperature`` (envs, n); the 7 base inputs (linear and angular velocity,
         projected gravity, command (envs, 3), orientation (envs, 4), clock (envs,), foot

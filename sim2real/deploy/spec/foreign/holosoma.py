@@ -24,11 +24,10 @@ scaling) and the global ``observation.clip_observations``; the default pose
 (``robot.control.action_scale``, ``clip_actions``, ``action_clip_value``; a scale per joint of
 ``action_scale * effort_limit / kp`` with ``action_scales_by_effort_limit_over_p_gain``) and the
 control rate (``simulator.config.sim.fps / control_decimation``). A group's ``history_length`` N
-gives each of its terms the last N values, oldest first, zeros before the reset's first. The gait
-clock's ``sin_phase`` and ``cos_phase`` (left foot, then the right half a period later) are a
-``gait_phase`` block each that stops while standing (:data:`STAND_BELOW`), its period and held
-phase from ``command.setup_terms.locomotion_gait.params``. Without ``experiment_config`` the
-contract holds what the metadata gives and names what is missing (:func:`partial`).
+gives each of its terms the last N values, oldest first, zeros before the reset's first.
+``sin_phase``, ``cos_phase`` (left foot, right foot half a period later): ``gait_phase`` blocks
+that stop while standing (:data:`STAND_BELOW`; period and held phase from ``command.setup_terms.
+locomotion_gait.params``). Without ``experiment_config``: what the metadata gives (:func:`partial`).
 """
 
 from __future__ import annotations

@@ -14,11 +14,13 @@ import json
 import numpy as np
 import pytest
 
+from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.cli.deploy_run import deploy_run_main
 from sim2real.deploy.cli.policy_contract import check_drive_applied
 from sim2real.deploy.cli.policy_export import main as policy_export_main
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import Runtime
 from sim2real.deploy.spec.drive import drive_robot
 from sim2real.deploy.spec.onnx_checks import PolicyLoadError
 from sim2real.deploy.spec.policy_spec import UNCLIPPED, PolicySpec
@@ -253,6 +255,34 @@ def test_holosoma_two_foot_gait_clock_stops_while_standing_as_holosoma_runs_it(
     assert "stops below a command of 0.01, every foot at 3.142 rad" in report
     code, out, err = run_deploy(capsys, path)
     assert code == 0, out + err
+
+
+def test_holosoma_gait_clock_in_the_runtime_ticks_is_holosomas(go2, tmp_path):
+    """The runtime's own ticks (its clock, its command, its start) give the policy holosoma's
+    phases through a stand, a walk, a stand and a turn on the spot."""
+    terms = {**fs.HOLOSOMA_TERMS, **fs.HOLOSOMA_PHASE_TERMS}
+    experiment = fs.holosoma_experiment(fs.HOLOSOMA_ORDER, terms, gait=fs.holosoma_gait(0.8))
+    policy = OnnxPolicy(fs.write_holosoma(tmp_path / "p.onnx", experiment, OBS_DIM + 4), go2)
+    seen = []
+
+    class Seen:  # the policy, keeping each observation it is given
+        spec = policy.spec
+
+        def __call__(self, obs):
+            seen.append(obs[0].copy())
+            return policy(obs)
+
+    rt = Runtime(go2, Seen(), SimBackend(go2, "position", envs=1, seed=0))
+    rt.start()
+    commands = [(0.0, 0.0, 0.0)] * 10 + [(0.5, 0.0, 0.0)] * 60 + [(0.0, 0.0, 0.0)] * 20
+    commands += [(0.0, 0.0, 0.3)] * 30
+    for command in commands:
+        rt.velocity_command[:] = [command]
+        rt.run(1)
+    seen = np.array(seen)
+    phase = holosoma_phases(np.array(commands), policy.spec.control_rate, 0.8)
+    np.testing.assert_allclose(seen[:, 50:52], np.sin(phase), rtol=0, atol=2e-6)  # sin_phase
+    np.testing.assert_allclose(seen[:, 21:23], np.cos(phase), rtol=0, atol=2e-6)  # cos_phase
 
 
 # ------------------------------------------------------------------------------------ Isaac Lab

@@ -202,15 +202,43 @@ HOLOSOMA_TERMS = {
 }
 
 
-def holosoma_experiment(order, terms=HOLOSOMA_TERMS, pose=None, kp=20.0, kd=0.5) -> dict:
+#: holosoma's G1 preset's gait clock terms (``config_values/loco/g1/observation.py``).
+HOLOSOMA_PHASE_TERMS = {"sin_phase": _obs_term("sin_phase"), "cos_phase": _obs_term("cos_phase")}
+
+
+def holosoma_gait(period: float = 1.0) -> dict:
+    """The G1 preset's ``locomotion_gait`` command term (``config_values/loco/g1/command.py``:
+    gait_period 1.0 s, its randomization width 0.2 Hz; ``stand_phase_value`` left at its
+    default)."""
+    return {
+        "func": "holosoma.managers.command.terms.locomotion:LocomotionGait",
+        "params": {"gait_period": period, "gait_period_randomization_width": 0.2},
+    }
+
+
+def holosoma_experiment(
+    order, terms=HOLOSOMA_TERMS, pose=None, kp=20.0, kd=0.5, gait: dict | None = None
+) -> dict:
     """The parts of ``ExperimentConfig.to_serializable_dict()`` the export reads, with the
-    surrounding fields holosoma writes (abridged)."""
+    surrounding fields holosoma writes (abridged); ``gait``: a ``locomotion_gait`` command term
+    (:func:`holosoma_gait`)."""
     pose = pose or dict(
         zip(GO2, (0.1, 0.8, -1.5, -0.1, 0.8, -1.5, 0.1, 1.0, -1.5, -0.1, 1.0, -1.5), strict=True)
     )
     module_dict = {
         "actor": {"type": "MLP", "input_dim": ["actor_obs"], "output_dim": ["robot_action_dim"]},
         "critic": {"type": "MLP", "input_dim": ["critic_obs"], "output_dim": [1]},
+    }
+    setup_terms: dict = {"locomotion_gait": gait} if gait else {}
+    setup_terms["locomotion_command"] = {
+        "func": "holosoma.managers.command.terms.locomotion:LocomotionCommand",
+        "params": {
+            "command_ranges": {
+                "lin_vel_x": [-1.0, 1.0],
+                "lin_vel_y": [-1.0, 1.0],
+                "ang_vel_yaw": [-1.0, 1.0],
+            }
+        },
     }
     return {
         "env_class": "holosoma.envs.locomotion.locomotion_manager.LeggedRobotLocomotionManager",
@@ -261,20 +289,7 @@ def holosoma_experiment(order, terms=HOLOSOMA_TERMS, pose=None, kp=20.0, kd=0.5)
                 "action_scales_by_effort_limit_over_p_gain": False,
             },
         },
-        "command": {
-            "setup_terms": {
-                "locomotion_command": {
-                    "func": "holosoma.managers.command.terms.locomotion:LocomotionCommand",
-                    "params": {
-                        "command_ranges": {
-                            "lin_vel_x": [-1.0, 1.0],
-                            "lin_vel_y": [-1.0, 1.0],
-                            "ang_vel_yaw": [-1.0, 1.0],
-                        }
-                    },
-                }
-            }
-        },
+        "command": {"setup_terms": setup_terms},
     }
 
 

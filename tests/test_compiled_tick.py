@@ -301,3 +301,43 @@ def test_compiled_observation_equals_the_reference_for_the_floating_base_blocks(
     for observe in (spec.observation, partial(observation_reference, spec)):
         with pytest.raises(SpecError, match="needs a floating-base robot's state"):
             observe(fixed, np.zeros((envs, 3)))
+
+
+def test_compiled_gait_clock_that_stops_equals_the_reference_through_stands_and_resets(go2):
+    """A gait clock that stops while the command is small (holosoma's two feet, held at pi) gives
+    the kernel's numbers bit for bit in numpy's reference across stands, restarts and a policy's
+    reset of some envs, and its standing ticks read every foot at the held phase."""
+    n, feet = go2.n_joints, go2.n_feet
+    stop = {"period": 0.8, "stand_below": 0.01, "stand_phase": np.pi}
+    blocks = (
+        ObservationBlock("gait_phase", 2, (1.0,) * 2, (0.0,) * 2, 100.0, components=(0, 2), **stop),
+        ObservationBlock(
+            "gait_phase", 4, (1.0,) * 4, (0.0,) * 4, 100.0, components=(1, 3, 2, 0), **stop
+        ),  # fmt: skip
+        ObservationBlock("gait_phase", 2, (1.0,) * 2, (0.0,) * 2, 100.0, period=0.8),
+    )
+    base = PolicySpec.for_robot(go2)
+    spec = replace(base, observation_blocks=blocks + base.observation_blocks)
+    assert spec.plan.compiled
+    envs, rng = 6, np.random.default_rng(7)
+    state = RobotState.legged(envs, n, feet)
+    out_a = np.zeros((envs, spec.obs_dim), dtype=np.float32)
+    out_b, goal, stood = np.zeros_like(out_a), np.zeros((envs, 3)), 0
+    for tick in range(400):
+        walking = rng.random(envs) < 0.8  # runs of standing ticks and of walking ones
+        state.command[:] = np.where(walking[:, None], rng.uniform(-1, 1, (envs, 3)), 0.0)
+        state.command[0] = (0.005, 0.005, 0.009) if tick % 50 < 10 else (0.5, 0.0, 0.0)
+        state.clock[:] = tick * 0.02
+        if tick % 97 == 0:
+            spec.plan.reset_history(rng.random(envs) < 0.5)
+        spec.observation(state, goal, out=out_a)
+        observation_reference(spec, state, goal, out=out_b)
+        np.testing.assert_array_equal(out_a, out_b)
+        held = ~walking
+        held[0] = tick % 50 < 10  # below the threshold: standing
+        stood += int(held.sum())
+        at_pi = np.float32([-1.0, -1.0, np.sin(np.pi), np.sin(np.pi)])  # cos, cos, sin, sin
+        assert np.all(out_a[held, 2:6] == at_pi)
+        np.testing.assert_array_equal(out_a[held, 0], out_a[held, 1])
+        assert not np.any(out_a[~held, 2] == out_a[~held, 3])  # walking: half a period apart
+    assert stood > 100

@@ -14,11 +14,13 @@ import json
 import numpy as np
 import pytest
 
+from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.cli.deploy_run import deploy_run_main
 from sim2real.deploy.cli.policy_contract import check_drive_applied
 from sim2real.deploy.cli.policy_export import main as policy_export_main
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import Runtime
 from sim2real.deploy.spec.drive import drive_robot
 from sim2real.deploy.spec.onnx_checks import PolicyLoadError
 from sim2real.deploy.spec.policy_spec import UNCLIPPED, PolicySpec
@@ -197,17 +199,90 @@ def test_holosoma_export_deploys_on_go2_with_sorted_terms_and_split_command(go2,
     assert "drive differs from robot.toml: none" in report
 
 
-def test_holosoma_gait_phase_terms_are_refused_naming_the_term_and_format(go2, tmp_path, capsys):
-    terms = dict(fs.HOLOSOMA_TERMS)
-    terms["sin_phase"] = fs._obs_term("sin_phase")
-    path = fs.write_holosoma(
-        tmp_path / "phase.onnx", fs.holosoma_experiment(fs.HOLOSOMA_ORDER, terms), OBS_DIM + 2
+def holosoma_phases(commands, rate: float, period: float) -> np.ndarray:
+    """(ticks, 2) the left and right foot's phase holosoma_inference observes each tick under
+    ``commands`` (ticks, 3): ``LocomotionPolicy.update_phase_time`` before each observation,
+    from ``[0, pi]`` at the policy's start (``BasePolicy._init_phase_components``)."""
+    phase, standing, step, out = np.array([0.0, np.pi]), False, 2 * np.pi / (rate * period), []
+    for vx, vy, yaw in commands:
+        phase = np.fmod(phase + step + np.pi, 2 * np.pi) - np.pi
+        if np.linalg.norm([vx, vy]) < 0.01 and np.linalg.norm([yaw]) < 0.01:
+            phase, standing = np.array([np.pi, np.pi]), True
+        elif standing:
+            phase, standing = np.array([0.0, np.pi]), False
+        out.append(phase)
+    return np.array(out)
+
+
+def test_holosoma_two_foot_gait_clock_stops_while_standing_as_holosoma_runs_it(
+    go2, tmp_path, capsys
+):
+    terms = {**fs.HOLOSOMA_TERMS, **fs.HOLOSOMA_PHASE_TERMS}
+    experiment = fs.holosoma_experiment(fs.HOLOSOMA_ORDER, terms, gait=fs.holosoma_gait(0.8))
+    path = fs.write_holosoma(tmp_path / "phase.onnx", experiment, OBS_DIM + 4)
+    policy = OnnxPolicy(path, go2)  # no spec file: the metadata alone
+    rate = policy.spec.control_rate
+    # sorted terms: actions 12, base_ang_vel 3, base_lin_vel 3, command_ang_vel 1,
+    # command_lin_vel 2, cos_phase 2, dof_pos 12, dof_vel 12, projected_gravity 3, sin_phase 2
+    cos_at, sin_at = slice(21, 23), slice(50, 52)
+    stand, walk, turn = (0.0, 0.0, 0.0), (0.5, 0.0, 0.0), (0.0, 0.0, 0.3)
+    creep = (0.006, 0.007, 0.009)  # below holosoma's 0.01: standing
+    env0 = [stand] * 10 + [walk] * 60 + [creep] * 20 + [turn] * 45 + [stand] * 5
+    env1 = [walk] * 40 + [stand] * 15 + [walk] * 85  # walking from its first tick
+    commands = np.array([env0, env1])  # (envs, ticks, 3)
+    state = RobotState.legged(2, go2.n_joints, go2.n_feet)
+    policy.spec.plan.reset_history()  # the runtime's start (the policy's reset)
+    seen, t = [], 0.0
+    for tick in range(commands.shape[1]):
+        state.command[:] = commands[:, tick]
+        state.clock[:] = t
+        obs = policy.spec.observation(state, np.zeros((2, 3)))
+        seen.append(np.stack([obs[:, sin_at], obs[:, cos_at]], axis=1))  # (envs, 2, feet)
+        t += 1.0 / rate
+    seen = np.array(seen)  # (ticks, envs, sin/cos, feet)
+    for env in range(2):
+        phase = holosoma_phases(commands[env], rate, 0.8)
+        np.testing.assert_allclose(seen[:, env, 0], np.sin(phase), rtol=0, atol=2e-6)
+        np.testing.assert_allclose(seen[:, env, 1], np.cos(phase), rtol=0, atol=2e-6)
+    # standing (below 0.01): both feet at pi; turning on the spot restarts the feet at 0 and pi
+    assert np.all(seen[75, 0, 1] == np.float32(-1.0))
+    np.testing.assert_allclose(seen[90, 0, 1], [1.0, -1.0], rtol=0, atol=1e-6)
+    report = inspect(capsys, path, "--robot", "go2")
+    assert (
+        "sin_phase [2] -> gait_phase (unscaled, entries [0, 2] of the vector, period 0.8 s, "
+        in (report)
     )
-    with pytest.raises(PolicyLoadError, match="holosoma policy: observation term 'sin_phase'"):
-        OnnxPolicy(path, go2)
-    code, _, err = run_deploy(capsys, path)
-    assert code == 3 and "cannot be mapped" in err and "gait phase" in err
-    assert "sin_phase [2]: CANNOT BE MAPPED" in inspect(capsys, path)
+    assert "stops below a command of 0.01, every foot at 3.142 rad" in report
+    code, out, err = run_deploy(capsys, path)
+    assert code == 0, out + err
+
+
+def test_holosoma_gait_clock_in_the_runtime_ticks_is_holosomas(go2, tmp_path):
+    """The runtime's own ticks (its clock, its command, its start) give the policy holosoma's
+    phases through a stand, a walk, a stand and a turn on the spot."""
+    terms = {**fs.HOLOSOMA_TERMS, **fs.HOLOSOMA_PHASE_TERMS}
+    experiment = fs.holosoma_experiment(fs.HOLOSOMA_ORDER, terms, gait=fs.holosoma_gait(0.8))
+    policy = OnnxPolicy(fs.write_holosoma(tmp_path / "p.onnx", experiment, OBS_DIM + 4), go2)
+    seen = []
+
+    class Seen:  # the policy, keeping each observation it is given
+        spec = policy.spec
+
+        def __call__(self, obs):
+            seen.append(obs[0].copy())
+            return policy(obs)
+
+    rt = Runtime(go2, Seen(), SimBackend(go2, "position", envs=1, seed=0))
+    rt.start()
+    commands = [(0.0, 0.0, 0.0)] * 10 + [(0.5, 0.0, 0.0)] * 60 + [(0.0, 0.0, 0.0)] * 20
+    commands += [(0.0, 0.0, 0.3)] * 30
+    for command in commands:
+        rt.velocity_command[:] = [command]
+        rt.run(1)
+    seen = np.array(seen)
+    phase = holosoma_phases(np.array(commands), policy.spec.control_rate, 0.8)
+    np.testing.assert_allclose(seen[:, 50:52], np.sin(phase), rtol=0, atol=2e-6)  # sin_phase
+    np.testing.assert_allclose(seen[:, 21:23], np.cos(phase), rtol=0, atol=2e-6)  # cos_phase
 
 
 # ------------------------------------------------------------------------------------ Isaac Lab

@@ -477,3 +477,33 @@ def test_the_reference_gives_the_kernels_numbers_with_components_in_any_order(go
     zero = dataclasses.replace(cos_apart, scale=(1.0, 0.0))
     with pytest.raises(SpecError, match="finite and nonzero"):
         dataclasses.replace(base, observation_blocks=(zero,)).validate()
+
+
+def test_a_gait_clock_that_stops_round_trips_its_json_and_refuses_bad_values(go2):
+    """``stand_below`` and ``stand_phase`` are written only when set (an existing spec's JSON is
+    unchanged), read back equal, and refused on another block, negative or not finite."""
+    from sim2real.deploy.spec.policy_spec import ObservationBlock
+
+    base = PolicySpec.for_robot(go2)
+    assert "stand_below" not in base.to_json() and "stand_phase" not in base.to_json()
+    clock = ObservationBlock(
+        "gait_phase", 2, (1.0,) * 2, (0.0,) * 2, period=1.0, components=(0, 2),
+        stand_below=0.01, stand_phase=np.pi,
+    )  # fmt: skip
+    spec = dataclasses.replace(base, observation_blocks=(clock,) + base.observation_blocks)
+    text = spec.to_json()
+    assert json.loads(text)["observation"][0]["stand_below"] == 0.01
+    assert PolicySpec.from_json(text) == spec
+    command = dataclasses.replace(base.observation_blocks[2], stand_below=0.01)
+    assert command.name == "velocity_command"
+    for block, message in (
+        (command, r"observation\[0\] \('velocity_command'\): stand_below and stand_phase are for"),
+        (dataclasses.replace(clock, stand_below=-0.1), r"stand_below must be a command speed"),
+        (dataclasses.replace(clock, stand_phase=np.inf), r"stand_phase must be a finite phase"),
+    ):
+        with pytest.raises(SpecError, match=message):
+            dataclasses.replace(base, observation_blocks=(block,)).validate()
+    d = json.loads(text)
+    d["observation"][0]["stand_below"] = -1
+    with pytest.raises(SpecError, match=r"stand_below"):
+        PolicySpec.from_json(json.dumps(d), source="spec.json")

@@ -166,9 +166,9 @@ class TableCalls:
         def at(index: int, array, dtype, shape: tuple, rows: bool = False) -> bool:
             return put(table, arrays, index, array, dtype, shape, rows)
 
-        layout, periods, raw, blocks = (
+        layout, clocks, raw, blocks = (
             plan.layout,
-            plan.block_periods,
+            plan.clocks.params,
             observe[-2],
             len(plan.layout),
         )
@@ -187,13 +187,14 @@ class TableCalls:
             at(fk.EE_ROTATION, state.ee_rotation, f8, (envs, 3, 3)),
             at(fk.LAST_ACTION, state.last_action, f8, e),
             at(fk.LAYOUT, layout, i8, layout.shape),
-            at(fk.PERIODS, periods, f8, (blocks,)),
+            at(fk.CLOCKS, clocks, f8, clocks.shape),
+            at(fk.STARTS, plan.clocks.kernel, f8, (raw.shape[0], blocks)),
             at(fk.GOAL, goal, f8, (envs, 3)),
-            observe[9] is observe[10] is observe[11] is observe[12],
-            at(fk.VECTOR, observe[9], f8, (envs, 3), rows=True),
-            at(fk.ORIENTATION, observe[13], f8, (envs, 4), rows=True),
-            at(fk.CLOCK, observe[14], f8, (envs,), rows=True),
-            at(fk.CONTACT, observe[15], f8, (envs, 0), rows=True),
+            observe[10] is observe[11] is observe[12] is observe[13],
+            at(fk.VECTOR, observe[10], f8, (envs, 3), rows=True),
+            at(fk.ORIENTATION, observe[14], f8, (envs, 4), rows=True),
+            at(fk.CLOCK, observe[15], f8, (envs,), rows=True),
+            at(fk.CONTACT, observe[16], f8, (envs, 0), rows=True),
             at(fk.NORM, plan.norm, f8, (3, plan.dim)),
             at(fk.RAW, raw, f8, (envs, plan.dim), rows=True),
             at(fk.OUT, out, np.float32, (envs, plan.dim)),

@@ -28,7 +28,7 @@ from sim2real.deploy.core.kinematics_kernel import chain_fk
 from sim2real.deploy.estimation.kernel import kalman_tick
 from sim2real.deploy.kernels.calls import pointer as _pointer
 from sim2real.deploy.runtime.supervision_kernel import screen_action, supervise
-from sim2real.deploy.spec.kernel import observation
+from sim2real.deploy.spec.kernel import CLOCK_COLUMNS, observation
 
 # the header: sizes and flags
 ENVS, N, JOINTS, BLOCKS, WIDTH, DIM, RAW_ROWS, WINDOW, CAUSES, FEET = range(10)
@@ -44,11 +44,11 @@ DERATING, EFFORT_SCALE, DRIVE_ANY, DRIVE_ERRORS, OVERRUN_RING, PARAMS, HOME, COM
 )
 MODE, CAUSE, SAFE_STOPS, FAULTS, STOP_TICKS, STOP_TIMEOUTS, FLAGS = range(39, 46)
 # the observation's (no floating base: VECTOR, ORIENTATION, CLOCK, CONTACT are zeros)
-LAYOUT, PERIODS, GOAL, VECTOR, ORIENTATION, CLOCK, CONTACT, NORM, RAW, OUT = range(46, 56)
-# the supervision's again (supervise's last argument)
-HOMED = 56
+LAYOUT, CLOCKS, GOAL, VECTOR, ORIENTATION, CLOCK, CONTACT, NORM, RAW, OUT = range(46, 56)
+# the supervision's again (supervise's last argument); the observation's gait clock states
+HOMED, STARTS = 56, 57
 #: Length of the table.
-SIZE = 57
+SIZE = 58
 #: The returned code: the supervision's ``SUPERVISE_*`` bits, or ``RECOVER`` and the estimator's
 #: status (its phase to go on from) shifted by ``STATUS_SHIFT``.
 RECOVER, STATUS_SHIFT = 16, 5
@@ -125,7 +125,8 @@ def estimate_observe(table: np.ndarray, start: int) -> int:
     vector = numba.carray(_pointer(table[VECTOR]), (envs, 3), f8)
     observation(
         numba.carray(_pointer(table[LAYOUT]), (table[BLOCKS], table[WIDTH]), i8),
-        numba.carray(_pointer(table[PERIODS]), (table[BLOCKS],), f8),
+        numba.carray(_pointer(table[CLOCKS]), (table[BLOCKS], CLOCK_COLUMNS), f8),
+        numba.carray(_pointer(table[STARTS]), (table[RAW_ROWS], table[BLOCKS]), f8),
         q,
         dq,
         ee_position,

@@ -1,6 +1,6 @@
 """The checks of a spec's observation blocks (:meth:`~sim2real.deploy.spec.policy_spec.PolicySpec.
 validate`'s first part): each block's kind known and provided, its sizes, scales, clip, joints,
-period and components consistent with the kind (:mod:`sim2real.deploy.spec.kinds`)."""
+period, stand rule and components consistent with the kind (:mod:`sim2real.deploy.spec.kinds`)."""
 
 from __future__ import annotations
 
@@ -42,6 +42,17 @@ def observation_problems(blocks, n: int, driven: tuple[int, ...]) -> list[str]:
             )
         if kind.periodic and not (np.isfinite(b.period) and b.period > 0):
             return _problem(f"{where}: period must be a positive number of s, got {b.period}")
+        if (b.stand_below or b.stand_phase) and not kind.periodic:
+            return _problem(f"{where}: stand_below and stand_phase are for gait_phase blocks only")
+        if not (np.isfinite(b.stand_below) and b.stand_below >= 0):
+            return _problem(
+                f"{where}: stand_below must be a command speed >= 0 (m/s, rad/s), got "
+                f"{b.stand_below}"
+            )
+        if not np.isfinite(b.stand_phase):
+            return _problem(
+                f"{where}: stand_phase must be a finite phase, rad, got {b.stand_phase}"
+            )
         if len(b.scale) != b.size or len(b.offset) != b.size:
             return _problem(f"{where}: scale and offset need {b.size} entries")
         if not all(np.isfinite(s) and s != 0 for s in b.scale):

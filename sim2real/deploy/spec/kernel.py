@@ -8,7 +8,9 @@ joint indices (a (blocks, max_joints) int64 array, padded). The arithmetic is th
 clip, then the cast to float32; ``goal_in_ee`` is ``(goal - ee) @ R`` summed in the order of
 numpy's matmul loop; ``gait_phase`` is ``sin p, cos p, sin(p + pi), cos(p + pi)`` of
 ``p = (2 pi / period) * clock`` (the second foot half a period later), of which a block reads its
-``components`` (default the first two); a vector block reads its ``components`` of its 3-vector; and
+``components`` (default the first two); a clock that stops (:func:`gait_clock`) reads every
+foot's phase as the held one while the command is below its threshold; a vector block reads its
+``components`` of its 3-vector; and
 ``heading_sincos`` of the yaw ``atan2(2 (w z + x y), 1 - 2 (y^2 + z^2))``; ``base_euler_angles``
 its components of roll ``atan2(2 (w x + y z), 1 - 2 (x^2 + y^2))``, pitch ``asin(2 (w y - z x))``
 (clipped to [-1, 1] first) and that yaw. A new kind adds its branch here (a new code in
@@ -68,10 +70,45 @@ BRANCHES = frozenset(
 )
 
 
+#: Columns of a block's row of ``clocks`` (:func:`observation`): the gait clock's period, s; the
+#: command below which it stops (0: never); sin and cos of the phase it is held at; the phase's
+#: lead at an env's first tick, s.
+C_PERIOD, C_STAND_BELOW, C_HELD_SIN, C_HELD_COS, C_LEAD = range(5)
+#: Columns of ``clocks``.
+CLOCK_COLUMNS = 5
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def gait_clock(
+    clocks: np.ndarray, starts: np.ndarray, command: np.ndarray, clock: np.ndarray, e: int, b: int
+) -> float:
+    """The phase ``p`` of env ``e``'s gait clock of block ``b`` (rad, not wrapped), or NaN
+    while it stands, updating ``starts[e, b]``: the clock reading at which its phase was 0
+    (+inf: the env's first tick to come; NaN: standing). A clock that never stops
+    (``clocks[b, C_STAND_BELOW]`` 0) is ``(2 pi / period) * clock``. One that stops stands while
+    ``|(vx, vy)| < stand_below`` and ``|yaw rate| < stand_below``; on the first tick after it
+    stood it restarts at phase 0, and on an env's first tick it reads ``lead`` s already run."""
+    period, below = clocks[b, C_PERIOD], clocks[b, C_STAND_BELOW]
+    if below <= 0.0:
+        return (2.0 * math.pi / period) * clock[e]
+    vx, vy, yaw = command[e, 0], command[e, 1], command[e, 2]
+    if math.sqrt(vx * vx + vy * vy) < below and abs(yaw) < below:
+        starts[e, b] = math.nan
+        return math.nan
+    t0 = starts[e, b]
+    if math.isnan(t0):
+        t0 = clock[e]
+    elif math.isinf(t0):
+        t0 = clock[e] - clocks[b, C_LEAD]
+    starts[e, b] = t0
+    return (2.0 * math.pi / period) * (clock[e] - t0)
+
+
 @numba.njit(cache=True, nogil=True, _nrt=False)
 def observation(
     layout: np.ndarray,
-    periods: np.ndarray,
+    clocks: np.ndarray,
+    clock_starts: np.ndarray,
     q: np.ndarray,
     dq: np.ndarray,
     ee_position: np.ndarray,
@@ -97,7 +134,9 @@ def observation(
             the 4 entries of its raw vector a vector or ``gait_phase`` block reads, in order
             (its kind's own, 0, 1, ..., where it names none; -1 padded), and its k joint indices
             (-1 padded; a block's size is its column span).
-        periods: (blocks,) float64, the gait clock's period of a ``gait_phase`` block, s.
+        clocks: (blocks, ``CLOCK_COLUMNS``) float64, a ``gait_phase`` block's clock (the
+            ``C_*`` columns); clock_starts: (>= envs, blocks) float64, each env's clock state
+            (:func:`gait_clock`).
         q, dq, last_action, temperature: (envs, n); ee_position, goal (envs, 3); ee_rotation
             (envs, 3, 3): the inputs of the reference, same units.
         linear_velocity, angular_velocity, gravity, command: (envs, 3) base linear velocity
@@ -166,10 +205,15 @@ def observation(
                 for i in range(size):
                     raw[e, s0 + i] = command[e, components[b, i]]
             elif kind == GAIT_PHASE:
-                phase = (2.0 * math.pi / periods[b]) * clock[e]
-                sp, cp = math.sin(phase), math.cos(phase)
+                phase = gait_clock(clocks, clock_starts, command, clock, e, b)
+                if math.isnan(phase):  # standing: every foot held at one phase
+                    sp, cp = clocks[b, C_HELD_SIN], clocks[b, C_HELD_COS]
+                    held = (sp, cp, sp, cp)
+                else:
+                    sp, cp = math.sin(phase), math.cos(phase)
+                    held = (sp, cp, -sp, -cp)
                 for i in range(size):
-                    raw[e, s0 + i] = (sp, cp, -sp, -cp)[components[b, i]]
+                    raw[e, s0 + i] = held[components[b, i]]
             elif kind == FOOT_CONTACT:
                 for i in range(size):
                     raw[e, s0 + i] = contact[e, i]
@@ -253,11 +297,11 @@ def stack_history(
 # :func:`observation_over`'s table (:mod:`sim2real.deploy.kernels.calls`): its header (sizes),
 # then the addresses of :func:`observation`'s arrays in its order
 T_ENVS, T_N, T_BLOCKS, T_WIDTH, T_DIM, T_RAW_ROWS, T_FEET = range(7)
-T_LAYOUT, T_PERIODS, T_Q, T_DQ, T_EE_POSITION, T_EE_ROTATION, T_GOAL, T_LAST_ACTION = range(7, 15)
-T_TEMPERATURE, T_LINEAR, T_ANGULAR, T_GRAVITY, T_COMMAND, T_ORIENTATION = range(15, 21)
-T_CLOCK, T_CONTACT, T_NORM, T_RAW, T_OUT = range(21, 26)
+T_LAYOUT, T_CLOCKS, T_STARTS, T_Q, T_DQ, T_EE_POSITION, T_EE_ROTATION, T_GOAL = range(7, 15)
+T_LAST_ACTION, T_TEMPERATURE, T_LINEAR, T_ANGULAR, T_GRAVITY, T_COMMAND = range(15, 21)
+T_ORIENTATION, T_CLOCK, T_CONTACT, T_NORM, T_RAW, T_OUT = range(21, 27)
 #: Length of the table.
-TABLE_SIZE = 26
+TABLE_SIZE = 27
 #: :func:`observation_over`'s signature.
 TABLE_SIGNATURE = "void(int64[::1])"
 
@@ -265,11 +309,12 @@ TABLE_SIGNATURE = "void(int64[::1])"
 @numba.njit(cache=True, nogil=True)
 def observation_over(table: np.ndarray) -> None:
     """:func:`observation` on the arrays of ``table`` (the ``T_*`` rows; shapes as there, the
-    floating-base inputs with at least ``envs`` rows)."""
+    floating-base inputs with at least ``envs`` rows, ``starts`` with ``raw``'s rows)."""
     envs, n, dim, f8 = table[T_ENVS], table[T_N], table[T_DIM], np.float64
     observation(
         numba.carray(pointer(table[T_LAYOUT]), (table[T_BLOCKS], table[T_WIDTH]), np.int64),
-        numba.carray(pointer(table[T_PERIODS]), (table[T_BLOCKS],), f8),
+        numba.carray(pointer(table[T_CLOCKS]), (table[T_BLOCKS], CLOCK_COLUMNS), f8),
+        numba.carray(pointer(table[T_STARTS]), (table[T_RAW_ROWS], table[T_BLOCKS]), f8),
         numba.carray(pointer(table[T_Q]), (envs, n), f8),
         numba.carray(pointer(table[T_DQ]), (envs, n), f8),
         numba.carray(pointer(table[T_EE_POSITION]), (envs, 3), f8),

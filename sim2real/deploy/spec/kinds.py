@@ -228,7 +228,8 @@ _fixed(
 _fixed(
     "gait_phase",
     "sin p, cos p (2) of p = 2 pi t / period, t the runtime's clock, s; unscaled; components "
-    "pick from sin p, cos p, sin(p + pi), cos(p + pi) (a second foot half a period later)",
+    "pick from sin p, cos p, sin(p + pi), cos(p + pi) (a second foot half a period later); "
+    "a clock that stops (stand_below) holds every foot at stand_phase while standing",
     kernel.GAIT_PHASE,
     size=2,
     periodic=True,

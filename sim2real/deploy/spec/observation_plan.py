@@ -15,6 +15,7 @@ ring stack the frames (compiled too); :meth:`ObservationPlan.reset_history` star
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +35,45 @@ def _no_base(kind: str) -> SpecError:
     return SpecError(f"observation: block '{kind}' needs a floating-base robot's state")
 
 
+class GaitClocks:
+    """The gait clocks of a plan's blocks (:func:`sim2real.deploy.spec.kernel.gait_clock`).
+
+    Attributes:
+        params: (blocks, ``CLOCK_COLUMNS``) float64, each block's period, stand threshold, held
+            phase's sin and cos and first-tick lead (the ``C_*`` columns of
+            :mod:`sim2real.deploy.spec.kernel`; zeros but the lead for a block without a clock).
+        kernel, reference: (rows, blocks) float64, each env's clock state, the kernel's and the
+            numpy reference's (+inf: the env's first tick is to come), rows those of the
+            plan's work array.
+    """
+
+    def __init__(self, blocks, lead: float):
+        self.params = np.zeros((len(blocks), ok.CLOCK_COLUMNS))
+        for i, b in enumerate(blocks):
+            held = float(b.stand_phase)
+            self.params[i] = (b.period, b.stand_below, math.sin(held), math.cos(held), lead)
+        self.kernel = np.full((0, len(blocks)), np.inf)
+        self.reference = self.kernel.copy()
+
+    def grow(self, rows: int) -> None:
+        """Both states with ``rows`` rows (the new envs' first tick to come)."""
+        for name in ("kernel", "reference"):
+            old = getattr(self, name)
+            new = np.full((rows, old.shape[1]), np.inf)
+            new[: len(old)] = old[:rows]
+            setattr(self, name, new)
+
+    def reset(self, envs: np.ndarray | None = None) -> None:
+        """The clocks of the envs of ``envs`` (bool mask (envs,); default all) start again: their
+        next tick is their first."""
+        for state in (self.kernel, self.reference):
+            if envs is None:
+                state[:] = np.inf
+            else:
+                mask = np.asarray(envs, dtype=bool)
+                state[: len(mask)][mask[: len(state)]] = np.inf
+
+
 @dataclass(frozen=True)
 class PlanBlock:
     """One block as the plan runs it.
@@ -42,6 +82,8 @@ class PlanBlock:
         kind: Its registered kind. columns: Its columns in the observation.
         joints: (k,) intp, the joints it reads. components: (c,) intp, the entries of its
             3-vector it reads (empty: all). period: The gait clock's period, s (0: none).
+        index: Its place among the plan's blocks. clocks: The plan's gait clocks (its row
+            ``index`` is this block's).
     """
 
     kind: ObservationKind
@@ -49,6 +91,8 @@ class PlanBlock:
     joints: np.ndarray
     components: np.ndarray
     period: float
+    index: int = 0
+    clocks: GaitClocks | None = None
 
 
 class ObservationPlan:
@@ -61,12 +105,17 @@ class ObservationPlan:
         if unknown:
             raise SpecError(f"observation: block '{unknown[0]}' is not a registered kind")
         self.blocks: list[PlanBlock] = []
+        #: the gait clocks' parameters and state (a clock that stops holds one per env)
+        self.clocks = GaitClocks(bl, 1.0 / spec.control_rate if spec.control_rate > 0 else 0.0)
         start = 0
-        for b in bl:
+        for i, b in enumerate(bl):
             joints = np.array(b.joints, dtype=np.intp)
             components = np.array(b.components, dtype=np.intp)
             columns = slice(start, start + b.size)
-            self.blocks.append(PlanBlock(KINDS[b.name], columns, joints, components, b.period))
+            kind = KINDS[b.name]
+            self.blocks.append(
+                PlanBlock(kind, columns, joints, components, b.period, i, self.clocks)
+            )
             start += b.size
         self.offset = np.concatenate([np.asarray(b.offset, float) for b in bl]) if bl else []
         self.scale = np.concatenate([np.asarray(b.scale, float) for b in bl]) if bl else []
@@ -92,7 +141,7 @@ class ObservationPlan:
         self._args: tuple[np.ndarray, ...] = ()
         self._bound: tuple = ()
         #: those arguments' table of addresses (:mod:`sim2real.deploy.kernels.calls`; one
-        #: argument for the kernel's 19), or None: the kernel is called with its arguments
+        #: argument for the kernel's 20), or None: the kernel is called with its arguments
         self._table: np.ndarray | None = None
         self._table_arrays: list[np.ndarray] = []
         #: why the plan runs the numpy reference, not the kernel (None: it runs the kernel;
@@ -101,7 +150,6 @@ class ObservationPlan:
         self.compiled = bool(bl) and self.numpy_reason is None
         if self.compiled:
             self.kinds = np.array([KINDS[b.name].kernel_code for b in bl], dtype=np.int64)
-            self.block_periods = np.array([float(b.period) for b in bl], dtype=np.float64)
             self.components = np.full((len(bl), 4), -1, dtype=np.int64)
             for i, b in enumerate(bl):  # a block naming none reads its kind's own in order
                 picked = b.components or range(min(b.size, 4))
@@ -128,6 +176,7 @@ class ObservationPlan:
         state = RobotState.legged(1, n, feet) if self.base_block else RobotState.zeros(1, n)
         out = np.zeros((1, self.dim), dtype=np.float32)
         self._run_kernel(state, np.zeros((1, 3)), out)
+        self.clocks.reset()  # the warm-up was no env's first tick
         ok.observation_over.compile(ok.TABLE_SIGNATURE)
         if self.history is not None:  # the stacking, on a ring of its own
             ring = FrameRing(self.history, self.ring.table, self.dim)
@@ -168,8 +217,9 @@ class ObservationPlan:
     ) -> tuple[np.ndarray, ...]:
         """The arguments of :func:`sim2real.deploy.spec.kernel.observation` for these
         arrays, the live ones (no copies; a caller may keep their addresses while they are the
-        same objects), in its order: ``layout`` (blocks, width) int64, ``block_periods``
-        (blocks,) s, the state's ``q``, ``dq`` (envs, n), ``ee_position`` (envs, 3),
+        same objects), in its order: ``layout`` (blocks, width) int64, the gait clocks'
+        ``params`` (blocks, ``CLOCK_COLUMNS``) and ``kernel`` state (raw's rows, blocks), the
+        state's ``q``, ``dq`` (envs, n), ``ee_position`` (envs, 3),
         ``ee_rotation`` (envs, 3, 3), ``goal`` (envs, 3), ``last_action``,
         ``winding_temperature`` (envs, n); the 7 base inputs (linear and angular velocity,
         projected gravity, command (envs, 3), orientation (envs, 4), clock (envs,), foot
@@ -182,7 +232,8 @@ class ObservationPlan:
         """
         return (
             self.layout,
-            self.block_periods,
+            self.clocks.params,
+            self.clocks.kernel,
             state.q,
             state.dq,
             state.ee_position,
@@ -197,10 +248,12 @@ class ObservationPlan:
         )
 
     def raw(self, envs: int) -> np.ndarray:
+        """The work array's first ``envs`` rows (grown with the gait clocks' states)."""
         if self._raw.shape[0] < envs:
             self._raw = np.zeros((envs, self.dim))
             self.vec = np.zeros((envs, 3))
             self.rot = np.zeros((envs, 3))
+            self.clocks.grow(envs)
         return self._raw[:envs]
 
     def require_base(self, state: RobotState) -> None:
@@ -210,8 +263,9 @@ class ObservationPlan:
 
     def reset_history(self, envs: np.ndarray | None = None) -> None:
         """Start the frame history of the envs of ``envs`` (bool mask (envs,); default all) again
-        (the policy's reset; no-op without a history): both rings, the kernel's and the
-        reference's."""
+        (the policy's reset): both rings, the kernel's and the reference's (no-op without a
+        history), and the gait clocks that stop (their next tick is their first)."""
+        self.clocks.reset(envs)
         if self.history is not None:
             self.ring.reset(envs)
             self.reference_ring.reset(envs)
@@ -266,13 +320,14 @@ class ObservationPlan:
     def _address_table(self, args: tuple[np.ndarray, ...]) -> np.ndarray | None:
         """:func:`~sim2real.deploy.spec.kernel.observation_over`'s table of the kernel's arguments
         ``args``, or None if one has another dtype, shape or layout than the table's."""
-        q, contact, raw = args[2], args[15], args[17]
+        q, contact, raw = args[3], args[16], args[18]
         envs, n = q.shape if q.ndim == 2 else (0, 0)
         feet = contact.shape[1] if contact.ndim == 2 else 0
         table, arrays = np.zeros(ok.TABLE_SIZE, dtype=np.int64), []
         f8, e, v = np.float64, (envs, n), (envs, 3)
         shapes = (
-            (self.layout.shape, np.int64), ((len(self.layout),), f8), (e, f8), (e, f8), (v, f8),
+            (self.layout.shape, np.int64), (self.clocks.params.shape, f8),
+            ((raw.shape[0], len(self.layout)), f8), (e, f8), (e, f8), (v, f8),
             ((envs, 3, 3), f8), (v, f8), (e, f8), (e, f8), (v, f8), (v, f8), (v, f8), (v, f8),
             ((envs, 4), f8), ((envs,), f8), ((envs, feet), f8), ((3, self.dim), f8),
             ((envs, self.dim), f8), ((envs, self.dim), np.float32),

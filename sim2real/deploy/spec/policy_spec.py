@@ -108,6 +108,11 @@ class ObservationBlock:
             vector it reads, in order (``(2,)``: the yaw rate of ``velocity_command``;
             ``(1, 3, 0, 2)``: a two-foot clock ``cos p, cos(p + pi), sin p, sin(p + pi)``);
             empty: the kind's own (a vector's three; ``gait_phase``: ``sin p, cos p``).
+        stand_below: ``gait_phase`` only: the clock stops while the velocity command's
+            ``|(vx, vy)|`` (m/s) and ``|yaw rate|`` (rad/s) are both below it, every foot held at
+            ``stand_phase``, and restarts at phase 0 (:func:`sim2real.deploy.spec.kernel.
+            gait_clock`); 0: it never stops.
+        stand_phase: ``gait_phase`` only: the phase every foot is held at while standing, rad.
     """
 
     name: str
@@ -118,6 +123,8 @@ class ObservationBlock:
     joints: tuple[int, ...] = ()
     period: float = 0.0
     components: tuple[int, ...] = ()
+    stand_below: float = 0.0
+    stand_phase: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -440,6 +447,9 @@ class PolicySpec:
                 del block["period"]
             if not block["components"]:
                 del block["components"]
+            for key in ("stand_below", "stand_phase"):  # a gait clock that stops only
+                if not block[key]:
+                    del block[key]
         if not d["action"]["joints"]:
             del d["action"]["joints"]
         if not d["action"]["smoothing"]:

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.spec import kernel
 
 if TYPE_CHECKING:
     from sim2real.deploy.spec.observation_plan import ObservationPlan, PlanBlock
@@ -141,13 +142,36 @@ def velocity_command(state, goal, raw, block: PlanBlock, vec, rot) -> None:
 
 
 def gait_phase(state, goal, raw, block: PlanBlock, vec, rot) -> None:
-    phase = (2.0 * np.pi / block.period) * state.clock
-    sp, cp = np.sin(phase), np.cos(phase)
-    if block.components.size:  # of sin p, cos p and the second foot's, half a period later
-        np.take(np.stack([sp, cp, -sp, -cp], axis=1), block.components, axis=1, out=raw)
+    """sin p, cos p, sin(p + pi), cos(p + pi) (its components); a clock that stops
+    (``sim2real.deploy.spec.kernel.gait_clock``): every foot at the held phase while standing."""
+    params = block.clocks.params[block.index]
+    below = params[kernel.C_STAND_BELOW]
+    if below <= 0.0:  # a clock that never stops
+        phase = (2.0 * np.pi / block.period) * state.clock
     else:
-        raw[:, 0] = sp
-        raw[:, 1] = cp
+        phase = _stopping_clock(state, block, params, raw.shape[0])
+    sp, cp = np.sin(phase), np.cos(phase)
+    entries = np.stack([sp, cp, -sp, -cp], axis=1)  # the second foot half a period later
+    if below > 0.0:
+        held = (params[kernel.C_HELD_SIN], params[kernel.C_HELD_COS])
+        entries[np.isnan(phase)] = held + held
+    if block.components.size:
+        np.take(entries, block.components, axis=1, out=raw)
+    else:
+        raw[:] = entries[:, :2]
+
+
+def _stopping_clock(state, block: PlanBlock, params: np.ndarray, envs: int) -> np.ndarray:
+    """The phase of a clock that stops, per env (NaN: standing), its reference state updated."""
+    starts = block.clocks.reference[:envs, block.index]
+    c, t = state.command, state.clock
+    below = params[kernel.C_STAND_BELOW]
+    standing = (np.sqrt(c[:, 0] * c[:, 0] + c[:, 1] * c[:, 1]) < below) & (np.abs(c[:, 2]) < below)
+    restart = np.where(np.isinf(starts), t - params[kernel.C_LEAD], starts)
+    t0 = np.where(np.isnan(starts), t, restart)
+    t0[standing] = np.nan
+    starts[:] = t0
+    return (2.0 * np.pi / params[kernel.C_PERIOD]) * (t - t0)
 
 
 def foot_contact(state, goal, raw, block: PlanBlock, vec, rot) -> None:

@@ -92,6 +92,21 @@ class ObservationBlockDocument(_Doc):
         gt=0,
         description="gait_phase only: the gait clock's period, s (p = 2 pi t / period).",
     )
+    stand_below: float | None = Field(
+        default=None,
+        ge=0,
+        description=(
+            "gait_phase only: the clock stops while the velocity command's |(vx, vy)| (m/s) "
+            "and |yaw rate| (rad/s) are both below it, every foot held at stand_phase; on the "
+            "first tick above it the clock restarts at phase 0 (and an env's first tick reads "
+            "one control period run, as holosoma_inference advances before it observes); "
+            "default 0: the clock never stops."
+        ),
+    )
+    stand_phase: float | None = Field(
+        default=None,
+        description="gait_phase only: the phase every foot is held at while standing, rad.",
+    )
     joints: list[int | str] | None = Field(
         default=None,
         description=(
@@ -338,6 +353,8 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
                 joints=joints,
                 period=float(b.period or 0.0),
                 components=tuple(int(c) for c in b.components or ()),
+                stand_below=float(b.stand_below or 0.0),
+                stand_phase=float(b.stand_phase or 0.0),
             )
         )
 

@@ -44,6 +44,9 @@ class Term:
         reason: Why ``kind`` is None, in one phrase.
         source: Where the stack computes it (a function path), for the report; may be empty.
         period: ``gait_phase`` only: the gait clock's period, s.
+        stand_below, stand_phase: ``gait_phase`` only: the command (m/s, rad/s) below which the
+            clock stands, every foot held at ``stand_phase`` (rad); 0: it never stops
+            (:class:`~sim2real.deploy.spec.policy_spec.ObservationBlock`).
         history: Ticks of history the graph reads of it, the present one included (0 or 1:
             the present only), each tick's entries in turn, the oldest first.
         zero_joints: ``joint_position`` only: the policy joints (indices in its order) whose
@@ -60,6 +63,8 @@ class Term:
     reason: str = ""
     source: str = ""
     period: float = 0.0
+    stand_below: float = 0.0
+    stand_phase: float = 0.0
     history: int = 0
     zero_joints: tuple[int, ...] = ()
 

@@ -24,15 +24,17 @@ scaling) and the global ``observation.clip_observations``; the default pose
 (``robot.control.action_scale``, ``clip_actions``, ``action_clip_value``; a scale per joint of
 ``action_scale * effort_limit / kp`` with ``action_scales_by_effort_limit_over_p_gain``) and the
 control rate (``simulator.config.sim.fps / control_decimation``). A group's ``history_length`` N
-gives each of its terms the last N values, oldest first, zeros before the reset's first. Without
-``experiment_config`` the contract holds what the metadata gives (joints, gains, command ranges,
-an action scale) and names what is missing (:func:`partial`): enough for ``robot-import
---drive-from``, not for a spec.
+gives each of its terms the last N values, oldest first, zeros before the reset's first.
+``sin_phase``, ``cos_phase`` (left foot, right foot half a period later): ``gait_phase`` blocks
+that stop while standing (:data:`STAND_BELOW`; period and held phase from ``command.setup_terms.
+locomotion_gait.params``). Without ``experiment_config``: what the metadata gives (:func:`partial`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 
 from sim2real.deploy.spec.foreign.contract import ForeignContract, Term, command_ranges
 
@@ -50,13 +52,16 @@ TERMS = {
     "dof_vel": ("joint_velocity", -1, ()),
     "actions": ("last_action", -1, ()),
 }
-_PHASE = (
-    "holosoma's gait phase is two phases (left and right foot, half a period apart) in separate "
-    "sin and cos terms, held at pi while standing; this toolkit's gait_phase blocks give both "
-    "feet's sin and cos in any order (components) but their clock never stops"
-)
-#: Terms that cannot be mapped: (size, why).
-UNMAPPED = {"sin_phase": (2, _PHASE), "cos_phase": (2, _PHASE)}
+#: holosoma's gait clock terms -> the ``gait_phase`` components they read: the left foot's
+#: phase p, then the right foot's, p + pi (holosoma_inference ``BasePolicy._init_phase_components``
+#: starts them at 0 and pi; training's ``LocomotionGait`` offsets them by pi).
+PHASE_TERMS = {"sin_phase": (0, 2), "cos_phase": (1, 3)}
+#: The command below which holosoma's clock stands, m/s and rad/s: ``|(vx, vy)| < 0.01`` and
+#: ``|yaw rate| < 0.01`` (``LocomotionGait.step`` in training, ``LocomotionPolicy.
+#: update_phase_time`` in holosoma_inference; a constant there, not in the configuration).
+STAND_BELOW = 0.01
+#: ``LocomotionGait``'s defaults: ``gait_period`` (s) and ``stand_phase_value`` (rad).
+GAIT_DEFAULTS = {"gait_period": 1.0, "stand_phase_value": math.pi}
 
 
 def detect(facts) -> bool:
@@ -124,12 +129,14 @@ def read(facts) -> ForeignContract:
         )
     groups = get("algo", "config", "module_dict", "actor", "input_dim", default=["actor_obs"])
     global_clip = get("observation", "clip_observations", default=None)
+    gait = get("command", "setup_terms", "locomotion_gait", default=None)
     terms = []
     for group in groups:
         cfg = get("observation", "groups", group)
         history = int(cfg.get("history_length", 1) or 1)
         for name in sorted(cfg.get("terms", {})):  # holosoma concatenates sorted terms
-            terms.append(_term(name, cfg["terms"][name], history, global_clip, fail))
+            term = _term(name, cfg["terms"][name], history, global_clip, fail)
+            terms.append(_gait_term(term, gait, fail) if term.kind == "gait_phase" else term)
     sim = get("simulator", "config", "sim", default={})
     rate = sim["fps"] / sim["control_decimation"] if "fps" in sim else None
     missing = [] if kd else ["kd: not recorded; the robot's robot.toml damping is used"]
@@ -244,11 +251,42 @@ def _term(name: str, cfg: dict, history: int, global_clip, fail) -> Term:
     clip = min(clips) if clips else None
     if key in TERMS:
         kind, size, components = TERMS[key]
+    elif key in PHASE_TERMS:
+        kind, size, components = "gait_phase", 2, PHASE_TERMS[key]
     else:
         kind, components = None, ()
-        size, reason = UNMAPPED.get(key, (0, f"the function {func!r} is not one this toolkit maps"))
+        size, reason = 0, f"the function {func!r} is not one this toolkit maps"
     if reason:
         kind = None
     return Term(
         name, kind, size, scale, clip, components, reason=reason, source=func, history=history
+    )
+
+
+def _gait_term(term: Term, gait, fail) -> Term:
+    """A phase term with holosoma's clock: period and held phase from the ``locomotion_gait``
+    command term's params (:data:`GAIT_DEFAULTS` where it leaves them out), stopping below
+    :data:`STAND_BELOW`; unmapped without that command term (holosoma itself raises then).
+
+    Raises:
+        ForeignFormatError: a period that is not a positive number or a held phase that is not
+            a number (named).
+    """
+    if not isinstance(gait, dict):
+        reason = "no command term 'locomotion_gait' (the gait clock's period) in the configuration"
+        return dataclasses.replace(term, kind=None, reason=reason)
+    params = {**GAIT_DEFAULTS, **(gait.get("params") or {})}
+    period, held = params["gait_period"], params["stand_phase_value"]
+    if not (_is_number(period) and period > 0):
+        raise fail(
+            "experiment_config.command.setup_terms.locomotion_gait.params.gait_period is "
+            f"{period!r}; expected the gait period in s (> 0)"
+        )
+    if not _is_number(held):
+        raise fail(
+            "experiment_config.command.setup_terms.locomotion_gait.params.stand_phase_value is "
+            f"{held!r}; expected a phase in rad"
+        )
+    return dataclasses.replace(
+        term, period=float(period), stand_below=STAND_BELOW, stand_phase=float(held)
     )

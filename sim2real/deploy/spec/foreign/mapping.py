@@ -155,6 +155,8 @@ def _block(
         joints=joints,
         period=term.period,
         components=term.components,
+        stand_below=term.stand_below,
+        stand_phase=term.stand_phase,
     )
 
 

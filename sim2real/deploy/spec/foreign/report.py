@@ -39,6 +39,12 @@ def _term_line(contract: ForeignContract, t) -> str:
         parts.append("about the default pose" if t.relative else "absolute")
     if t.components:
         parts.append(f"entries {list(t.components)} of the vector")
+    if t.period:
+        parts.append(f"period {t.period:g} s")
+    if t.stand_below:
+        parts.append(
+            f"stops below a command of {t.stand_below:g}, every foot at {t.stand_phase:.4g} rad"
+        )
     parts.append("unclipped" if t.clip is None else f"clip +-{t.clip:g}")
     if t.history > 1:
         parts.append(f"its last {t.history} ticks, oldest first ({contract.history_fill} before)")

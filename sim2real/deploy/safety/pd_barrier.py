@@ -203,9 +203,9 @@ def pd_barrier_constants(guard) -> np.ndarray:
         c[BRAKE] = BRAKE_SHARE
         c[SLACK] = SLACK_SHARE * guard.gravity_bound
         c[TOWARD:] = guard.gravity_bound
-        scratch = np.zeros((5, n))  # compiled (or loaded) with its stage, for the tick's types
-        _toward(scratch[0], scratch[1], scratch[2], scratch[3], scratch[4])
     guard.__dict__["_pd_barrier_constants"] = c
+    if c[ACTIVE, 0]:  # the gravity rows' kernel bound (compiled or loaded) with its stage
+        _gravity_model(guard)
     return c
 
 

@@ -98,9 +98,13 @@ def unitree_lines(
         slots = [motor_slot(j) for j in joint_names]
         how = [
             "# motor slots in Unitree's leg order FR, FL, RR, RL (hip, thigh, calf: unitree_sdk2's",
-            "# unitree_legged_const; wheels after the legs, as go2w.xml's actuators), foot_force",
-            "# slots in the same leg order.",
+            "# unitree_legged_const), foot_force slots in the same leg order.",
         ]
+        if any(name.endswith(f"_{WHEEL}_joint") for name in joint_names):
+            how[1:] = [
+                "# unitree_legged_const; wheels after the legs, as go2w.xml's actuators), foot_force",
+                "# slots in the same leg order.",
+            ]
         feet_line = ["foot_index = [" + ", ".join(str(foot_slot(f)) for f in feet) + "]"]
     lines = [
         "",

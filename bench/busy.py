@@ -34,9 +34,20 @@ REPO = Path(__file__).resolve().parents[1]
 WALK = ("--command", "0.5,0,0")
 
 
-def _burn() -> None:  # pragma: no cover - runs in a child process until terminated
-    while True:
-        pass
+def _burn(parent: int) -> None:
+    """One CPU-bound loop, until the process ``parent`` (its own parent's pid) is gone: a bench
+    killed from outside (a test's timeout sends SIGKILL) never runs its ``finally``, and its
+    burners, inherited by init, spun on for hours beside every later run."""
+    while os.getppid() == parent:
+        for _ in range(1_000_000):  # ~10-30 ms between the checks
+            pass
+
+
+def burner_processes(count: int) -> list:
+    """``count`` CPU-bound processes (not started; spawned, so they hold none of this process's
+    threads), each ending on its own once this process is gone (:func:`_burn`)."""
+    ctx = multiprocessing.get_context("spawn")
+    return [ctx.Process(target=_burn, args=(os.getpid(),)) for _ in range(count)]
 
 
 def _row(name: str, report: dict) -> dict:
@@ -108,7 +119,7 @@ def measure(arm6: BenchPolicy, folder: Path, duration: float) -> dict:
     go2 = shipped_go2(folder)
     so101 = export_policy(REPO / "sim2real" / "policies" / "so101.pt", out=folder / "so101.onnx")
     burners = os.cpu_count() or 1
-    procs = [multiprocessing.get_context("spawn").Process(target=_burn) for _ in range(burners)]
+    procs = burner_processes(burners)
     rows = []
     try:
         for p in procs:

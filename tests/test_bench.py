@@ -223,7 +223,7 @@ def test_quick_busy_runs_go2_and_arm6_beside_a_burner_per_core_and_names_long_ti
     r = json.loads(out.read_text())
     busy = r["sections"]["busy"]
     assert busy["burners"] >= 1
-    assert [row["robot"] for row in busy["rows"]] == ["go2", "arm6"]
+    assert [row["robot"] for row in busy["rows"]] == ["go2", "arm6", "go2 dds", "so101 bus"]
     for row in busy["rows"]:
         assert row["ticks"] > 0 and row["longest"], row
         assert all("cause" in t and "stages_us" in t for t in row["longest"])
@@ -314,3 +314,37 @@ def test_the_floor_ratios_of_issue_56_and_their_history_line(tmp_path):
     append_history(path, line)
     lines = path.read_text().splitlines()
     assert len(lines) == 2 and json.loads(lines[1])["commit"] == "c0"
+
+
+def test_a_busy_benchs_burners_end_when_the_bench_is_killed(tmp_path):
+    """A bench killed from outside (a test's timeout: SIGKILL) runs no ``finally``: its CPU
+    burners, inherited by init, spun on beside every later run of the session. Each burner
+    watches its parent and ends once it is gone."""
+    import signal
+    import time
+
+    script = tmp_path / "parent.py"
+    script.write_text(
+        "import time\n"
+        "from bench.busy import burner_processes\n"
+        "if __name__ == '__main__':\n"
+        "    (p,) = burner_processes(1)\n"
+        "    p.start()\n"
+        "    print(p.pid, flush=True)\n"
+        "    time.sleep(600)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, env=env)
+    burner = int(parent.stdout.readline())
+    os.kill(burner, 0)  # running
+    parent.send_signal(signal.SIGKILL)
+    parent.wait()
+    for _ in range(600):  # its parent gone, it ends within one check (tens of ms); 60 s at most
+        try:
+            os.kill(burner, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        os.kill(burner, signal.SIGKILL)
+        pytest.fail("the burner outlived its killed bench")

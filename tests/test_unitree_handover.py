@@ -141,3 +141,20 @@ def test_the_rig_shows_the_backend_the_runtimes_modes(go2, go2_onnx, wired):
     backend.handover.started -= BLEND_TIME  # the blend's end
     backend.write(target[None])
     np.testing.assert_allclose(wire.sent[-1][1], backend.kp, rtol=1e-6)
+
+
+def test_a_wheels_speed_target_is_never_blended_with_the_stands_pose(monkeypatch):
+    """A Go2-W's wheel takes a speed target (rad/s): during the blend its column is the policy's
+    speed, not a weighted mean with the stand's angle; its legs blend as every joint does."""
+    from sim2real.deploy.backends.unitree.handover import StandHandover
+
+    clock = _Clock()
+    monkeypatch.setattr(handover_module, "time", clock)
+    speeds = np.array([False, True])
+    h = StandHandover([50.0, 50.0], [3.5, 3.5], [20.0, 0.0], [0.5, 0.5], [0.3, 0.0], speeds)
+    h.command(None)  # unwatched: the policy's first command
+    clock.now += BLEND_TIME / 2
+    q, kp, _ = h.law(np.array([0.5, 12.0]))
+    assert q[1] == 12.0
+    assert q[0] == pytest.approx((25.0 * 0.3 + 10.0 * 0.5) / 35.0)
+    assert kp.tolist() == pytest.approx([35.0, 25.0])

@@ -203,7 +203,8 @@ class UnitreeBackend(BackendLifecycle):
         self._hold_reads = False
         self._hold = Worker("unitree-hold", self._hold_loop)
         self._hold_target = np.asarray(robot.home, dtype=np.float64).copy()
-        self.handover = StandHandover(self.ramp_kp, self.ramp_kd, self.kp, self.kd, robot.home)
+        stand = (self.ramp_kp, self.ramp_kd, self.kp, self.kd, robot.home, robot.velocity_driven)
+        self.handover = StandHandover(*stand)
         self._t0 = time.monotonic()
         self._opened_at = None
         #: s: the bring-up (open to at home), and the hold at home before the runtime's first
@@ -460,8 +461,7 @@ class UnitreeBackend(BackendLifecycle):
             if kind == "damping":
                 kp, kd = 0.0, self.damping_kd
             elif kind == "position":  # the stand's law handed over to the policy's
-                q, kp, kd = self.handover.law(target)
-                q[self._wheels], target = target[self._wheels], q  # a wheel's is its speed
+                target, kp, kd = self.handover.law(target)
             mc = self._cmd.message["motor_cmd"]
             args = (self.slots, self._wheels, self.config.motor_mode, kind, target, kp, kd)
             fill_motor_commands(mc, *args)

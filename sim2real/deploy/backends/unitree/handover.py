@@ -35,9 +35,13 @@ class StandHandover:
         stand_kp, stand_kd: (n,) the stand's gains (``[unitree] ramp_kp``/``ramp_kd``).
         kp, kd: (n,) the joints' (the policy's) gains.
         home: (n,) rad, the stand's target when no command preceded the policy's first.
+        speeds: (n,) bool, the velocity-driven joints (wheels): their target is a speed, sent
+            as it is, never blended with a pose. None: none.
     """
 
-    def __init__(self, stand_kp, stand_kd, kp, kd, home):
+    def __init__(self, stand_kp, stand_kd, kp, kd, home, speeds=None):
+        n = len(home)
+        self.speeds = np.zeros(n, dtype=bool) if speeds is None else np.asarray(speeds, bool)
         self.stand_kp, self.stand_kd = np.asarray(stand_kp), np.asarray(stand_kd)
         self.kp, self.kd = np.asarray(kp), np.asarray(kd)
         self.home = np.asarray(home, dtype=np.float64).copy()
@@ -75,8 +79,9 @@ class StandHandover:
             return target, self.kp, self.kd
         stand, policy = (1 - a) * self.stand_kp, a * self.kp
         kp = stand + policy
+        blended = (stand * self.stand + policy * target) / kp
         return (
-            (stand * self.stand + policy * target) / kp,
+            np.where(self.speeds, target, blended),
             kp,
             (1 - a) * self.stand_kd + a * self.kd,
         )

@@ -165,3 +165,19 @@ def test_deploy_run_rolls_the_go2w_on_its_wheels_speed_targets_from_the_rl_sar_f
     run = json.loads(report.read_text())
     assert run["violations"]["any"] == 0 and run["locomotion"]["falls"] == 0
     assert run["locomotion"]["distance_m"] > 1.0
+
+
+def test_the_shipped_go2w_is_the_drive_rl_sars_contract_runs(go2w, tmp_path):
+    """robots/go2w's wheels are what rl_sar's config.yaml drives (``rl_kp`` 0, ``rl_kd`` 0.5 on its
+    ``wheel_indices``: speed targets), its legs kp 20, kd 0.5: the policy runs the robot as shipped,
+    no drive of its own laid over robot.toml's."""
+    from sim2real.deploy.spec.drive import drive_differences, drive_robot
+
+    spec = OnnxPolicy(write(tmp_path), go2w).spec
+    assert drive_differences(spec.drive, go2w) == {}
+    assert drive_robot(go2w, spec)[0] is go2w
+    wheels = [go2w.joint_names.index(n.replace("_foot_", "_wheel_")) for n in NAMES[12:]]
+    assert np.flatnonzero(go2w.velocity_driven).tolist() == sorted(wheels)
+    joints = go2w.config.joints
+    assert [joints[i].kp for i in wheels] == [0.0] * 4
+    assert [joints[i].kd for i in wheels] == [0.5] * 4

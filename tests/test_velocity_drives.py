@@ -40,8 +40,10 @@ def wheeled(go2w):
 def test_a_wheels_kp_0_is_a_velocity_drive_and_refused_on_a_position_drive(go2w, wheeled):
     kp, kd, kinds, wheel = wheel_drive(go2w)
     assert np.array_equal(wheeled.velocity_driven, wheel)
+    n = go2w.n_joints
+    positional = with_drive(go2w, kp=np.full(n, 20.0), kd=kd, kinds=("position",) * n)
     with pytest.raises(RobotSpecError, match="kp must be positive"):
-        with_drive(go2w, kp=kp, kd=kd)  # kp 0 on a wheel that is still a position drive
+        with_drive(positional, kp=kp, kd=kd)  # kp 0 on a wheel that is still a position drive
     spec_drive = DriveSpec(kp=tuple(kp), kd=tuple(kd), kinds=kinds)
     assert spec_drive.problems(go2w.n_joints) == []
     assert DriveSpec(kp=tuple(kp), kd=tuple(kd)).problems(go2w.n_joints)
@@ -82,8 +84,11 @@ def test_a_policys_wheel_drive_builds_the_plant_it_was_trained_with(go2w):
     class Spec:
         drive = DriveSpec(kp=tuple(kp), kd=tuple(kd), kinds=kinds)
 
-    robot, differences = drive_robot(go2w, Spec)
+    n = go2w.n_joints
+    positional = with_drive(go2w, kp=np.full(n, 20.0), kd=kd, kinds=("position",) * n)
+    robot, differences = drive_robot(positional, Spec)
     assert "kinds" in differences and np.array_equal(robot.velocity_driven, wheel)
+    assert drive_robot(go2w, Spec) == (go2w, {})  # the shipped go2w: rl_sar's drive already
 
 
 def test_an_excitation_swings_a_wheel_within_a_turn_and_never_asks_for_nan(go2w):

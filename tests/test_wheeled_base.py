@@ -81,9 +81,11 @@ def rolled(go2w):
 
 def test_a_wheels_radius_is_its_collision_meshs_from_the_mjcf(go2w):
     """go2w.xml's wheel hull reaches 0.086 m from the axle; a foot on a position-driven joint
-    is no wheel (the robot.toml without the policy's drive)."""
+    is no wheel."""
     np.testing.assert_allclose(foot_radii(go2w), 0.086, atol=5e-4)
-    assert not foot_radii(load_robot("go2w")).any()
+    n = go2w.n_joints
+    positional = with_drive(go2w, kp=np.full(n, 20.0), kd=np.full(n, 0.5), kinds=("position",) * n)
+    assert not foot_radii(positional).any()
 
 
 def test_a_rolling_go2w_base_speed_is_read_through_its_wheels(rolled):

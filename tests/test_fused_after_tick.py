@@ -8,7 +8,8 @@ The policy is the adversarial one on a sweep into the joints' limits, with a pus
 pull (violations, interventions, the collision screen's coal checks), goals every second with a
 wide success radius (goals issued, reached and missed), and, half-way, one env given its model
 again (a new MjData: the call's table is built again); the soak's call (:meth:`Rig.monitor`
-alone) too. Tolerance: none.
+alone) too. A legged robot (two Go2s, one pushed down, one stopped by a stale sensor) under the
+velocity task: the same. Tolerance: none.
 """
 
 from __future__ import annotations
@@ -121,3 +122,68 @@ def test_the_kernels_clock_is_perf_counter_ns():
         now = monotonic_ns(scratch)
         after = time.perf_counter_ns()
         assert before <= now <= after
+
+
+def build_legged(robot, onnx, rig_type: type[Rig], task: dict) -> Rig:
+    """Two Go2s: a push that lays env 0 down (its ticks lying damped counted apart), a stale
+    sensor that stops env 1, the velocity task and the motion hook."""
+    dt = robot.control_period
+    plant = SimBackend(robot, envs=2, seed=3)
+    faults = [
+        Fault("push", 150 * dt, 15 * dt, envs=(0,), magnitude=600.0),
+        Fault("stale", 500 * dt, 30 * dt, envs=(1,)),
+    ]
+    runtime = {"injector": FaultInjector(faults, plant)}
+    rig = rig_type(robot, OnnxPolicy(onnx, robot), plant, envs=2, task=task, runtime=runtime)
+    rig.add(MotionHook(rig))
+    rig.start()
+    return rig
+
+
+def legged_results(rig: Rig) -> dict:
+    out = {f"violations/{k}": v for k, v in rig.violations.state_dict().items()}
+    out |= {f"interventions/{k}": v for k, v in rig.interventions.state_dict().items()}
+    out |= {f"estimation/{k}": v for k, v in rig.estimation.state_dict().items()}
+    out |= {f"task/{k}": v for k, v in rig.task.state_dict().items()}
+    hook = rig.hooks[0]
+    for name in ("peak", "max_speed", "dq", "acc", "jerk_sum", "jerk_ticks"):
+        out[f"motion/{name}"] = getattr(hook, name)
+    out["samples"] = np.array(
+        [rig.monitor_cost.counts.sum(), *rig.hook_cost.counts.sum(axis=1)], dtype=np.int64
+    )
+    out |= {"command": rig.runtime.velocity_command, "mode": rig.runtime.mode}
+    return out
+
+
+@pytest.mark.parametrize("monitor_only", [False, True])
+@pytest.mark.parametrize("heading", [True, False])
+def test_a_legged_robots_fused_call_equals_the_separate_calls(go2, go2_onnx, heading, monitor_only):
+    """A legged robot: the call screens the violations (the envs lying down apart), the
+    interventions and the motion figures; the estimation monitor and the velocity task follow
+    in Python. Scheduled commands, or a fixed one under the heading hold."""
+    ticks = 900
+
+    def task():
+        if heading:
+            return {"period": 2.0, "rng": None, "command": "0.5,0,0", "heading_gain": 0.5}
+        return {"period": 2.0, "rng": [np.random.default_rng(5 + e) for e in range(2)]}
+
+    rigs = [build_legged(go2, go2_onnx, t, task()) for t in (Rig, SeparateRig)]
+    for rig in rigs:
+        rig.runtime.run(ticks, on_tick=rig.monitor if monitor_only else rig.after_tick)
+    fused, separate = rigs
+    assert isinstance(fused._fused, FusedAfterTick) and fused._fused.motion
+    a, b = legged_results(fused), legged_results(separate)
+    assert a.keys() == b.keys()
+    for key in a:
+        x, y = np.asarray(a[key]), np.asarray(b[key])
+        nan = x.dtype.kind == "f"  # NaN where no yaw or command was seen yet
+        assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=nan), key
+    ra, rb = fused.report(), separate.report()
+    for key in TIMING:
+        ra.pop(key, None), rb.pop(key, None)
+    assert ra == rb
+    assert fused.monitor_cost.counts.sum() == fused.interventions.ticks == ticks
+    # the run exercised what it is meant to: env 0 lay down, its ticks down counted apart
+    assert fused.task.tracker.falls[0] >= 1
+    assert sum(fused.violations.totals(down=True).values()) > 0

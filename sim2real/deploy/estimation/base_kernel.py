@@ -63,9 +63,20 @@ def workspace() -> np.ndarray:
 @numba.njit(cache=True, nogil=True)
 def _mm(A, B, out, at: bool, bt: bool) -> None:
     """``out`` (m, n) = ``op(A) op(B)``, ``op`` the transpose where ``at`` / ``bt``: each entry
-    ``fma`` over ``k`` from 0 (BLAS's gemm)."""
+    ``fma`` over ``k`` from 0 (BLAS's gemm). ``out`` shares no memory with ``A`` or ``B``.
+
+    The same sum either way: an entry at a time in a register where ``out`` is narrow or
+    ``B`` is transposed (a strided inner loop), else a row of ``out`` at a time (contiguous)."""
     m, n = out.shape[0], out.shape[1]
     kk = A.shape[0] if at else A.shape[1]
+    if n <= 3 or bt:
+        for i in range(m):
+            for j in range(n):
+                acc = 0.0
+                for k in range(kk):
+                    acc = fma(A[k, i] if at else A[i, k], B[j, k] if bt else B[k, j], acc)
+                out[i, j] = acc
+        return
     for i in range(m):
         for j in range(n):
             out[i, j] = 0.0

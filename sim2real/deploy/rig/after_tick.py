@@ -1,13 +1,16 @@
 """The rig's after-tick work as one compiled call (:class:`FusedAfterTick`), for a simulated
-fixed-base robot: the monitors' screens, the goal scheduler's tick and ``deploy-run``'s motion
-figures (:func:`sim2real.deploy.rig.after_tick_kernel.after_tick`), with Python acting only where
-the call says (coal, a flagged violation, a moved intervention counter, a goal due or reached).
+robot: the monitors' screens, the goal scheduler's tick and ``deploy-run``'s motion figures
+(:func:`sim2real.deploy.rig.after_tick_kernel.after_tick`), with Python acting only where the
+call says (coal, a flagged violation, a moved intervention counter, a goal due or reached). A
+legged robot's estimation monitor and task (velocity commands) stay Python's, after the call in
+the monitors' and the task's order; its motion figures (which neither changes) are in the call.
 
 The call's table holds the addresses of the arrays the stages expose (``kernel_arrays()`` of the
 monitors, the goal scheduler, the plant and its thermal model; ``env_views`` of the plant's envs)
 and is used only while they stay the same objects (:meth:`FusedAfterTick.ready`); the rig builds
-another when they change (a plant's env given another model). A run it does not fit (a legged
-robot, another task, a plant whose truth is read otherwise) keeps the monitors' own calls.
+another when they change (a plant's env given another model). A run it does not fit (an arm
+with another task, a legged robot without a base estimate, a plant whose truth is read
+otherwise) keeps the monitors' own calls.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import time
 import numpy as np
 
 from sim2real.deploy.core.latency import BIN_NS, BINS
-from sim2real.deploy.core.modes import RUNNING
+from sim2real.deploy.core.modes import RUNNING, SAFE_STOP
 from sim2real.deploy.kernels.calls import bind, put
 from sim2real.deploy.rig import after_tick_kernel as ak
 
@@ -43,7 +46,10 @@ class FusedAfterTick:
         self._table, self._arrays, self._datas = table, arrays, datas
         self._mode, self._goal = rig.runtime.mode, rig.runtime.goal
         self.motion = motion
-        self._scheduler = rig.task.scheduler if rig.task is not None else None
+        #: a legged robot: the estimation monitor and the task run in Python after the call
+        self._legged = rig.kind.stand_up_on_reset
+        goals = rig.task is not None and not self._legged
+        self._scheduler = rig.task.scheduler if goals else None
         self._q, self._dq, self._tau = arrays[0], arrays[1], arrays[2]
         self._stamp = arrays[3]  # the clock's scratch, the end of the monitors' screens
         rest = (0.0, 0, 1.0, True, 1.0, 0.1, True, True)
@@ -51,24 +57,28 @@ class FusedAfterTick:
 
     @classmethod
     def build(cls, rig, motion_hook=None) -> FusedAfterTick | None:
-        """The call over ``rig``'s arrays, or None: a run that is not a simulated fixed-base
-        robot judged on its truth with a goal task or none, or an array of another dtype, shape
-        or layout than the kernel's. ``motion_hook``: the rig's first hook, its
+        """The call over ``rig``'s arrays, or None: a run that is not a simulated robot judged
+        on its truth (a fixed base with a goal task or none; a legged robot lying down after its
+        stops, ``Runtime.damping``, with a base estimate), or an array of another dtype, shape or
+        layout than the kernel's. ``motion_hook``: the rig's first hook, its
         :class:`~sim2real.deploy.rig.rig.MotionHook` (its work joins the call), or None."""
         from sim2real.deploy.backends.sim.plant import SimBackend
         from sim2real.deploy.tasks.goals import GoalTask
 
         backend, task, runtime = rig.backend, rig.task, rig.runtime
+        legged = rig.kind.stand_up_on_reset  # its envs lying down: ticks counted apart
         if (
             rig.violations is None
-            or rig.estimation is not None
-            or rig.kind.stand_up_on_reset  # the kernel counts no ticks lying down apart
+            or (legged and runtime.base_estimator is None)  # Runtime.damping: all up
+            or (not legged and rig.estimation is not None)
             or not isinstance(backend, SimBackend)
             or any(getattr(type(backend), m) is not getattr(SimBackend, m) for m in _TRUTH)
-            or not (task is None or type(task) is GoalTask)
+            or not (legged or task is None or type(task) is GoalTask)
             or runtime.backend is not backend
         ):
             return None
+        if legged:
+            task = None  # Python's, after the call
         motion = motion_hook is not None and bool(rig.hooks) and rig.hooks[0] is motion_hook
         envs, n = rig.envs, rig.robot.n_joints
         table, arrays = np.zeros(ak.size(envs), dtype=np.int64), []
@@ -134,6 +144,11 @@ class FusedAfterTick:
                 (ak.H_MAX, rig.hook_cost.max_ns, i8, (hooks,)),
             ]
         sid, datas = backend.robot.ee_site_id, list(backend.datas)
+        no_site = np.zeros(3)  # a robot without an end effector (read only with a box or goals)
+
+        def site(d):
+            return d.site_xpos[sid] if sid >= 0 else no_site
+
         for env in range(envs):
             views = backend.env_views(env)
             if views["data"] is not datas[env]:
@@ -141,7 +156,7 @@ class FusedAfterTick:
             entries += [
                 (ak.VIEWS + env, views["qpos"], f8, (n,)),
                 (ak.VIEWS + envs + env, views["qvel"], f8, (n,)),
-                (ak.VIEWS + 2 * envs + env, datas[env].site_xpos[sid], f8, (3,)),
+                (ak.VIEWS + 2 * envs + env, site(datas[env]), f8, (3,)),
             ]
         if not all(put(table, arrays, *entry) for entry in entries):
             return None
@@ -149,6 +164,7 @@ class FusedAfterTick:
             ak.HAS_PAIRS if rig.violations.has_pairs else 0
         )
         flags |= (ak.HAS_GOALS if task is not None else 0) | (int(RUNNING) << ak.RUNNING_SHIFT)
+        flags |= (ak.LEGGED if legged else 0) | (int(SAFE_STOP) << ak.SAFE_STOP_SHIFT)
         table[: ak.HOOK_STAGE + 1] = (envs, n, pairs, rows, flags, BIN_NS, BINS, 0)
         return cls(rig, table, arrays, datas, motion)
 
@@ -173,14 +189,16 @@ class FusedAfterTick:
                 runtime.time, start, s.period, s.fixed is None, s.success_time,
                 s.success_radius, runtime.ticks > 2, motion,
             )  # fmt: skip
-        if code:
+        if code or self._legged:
             self._follow_up(code, runtime, start)
 
     def _follow_up(self, code: int, runtime, start: int) -> None:
         """Python's part of a tick whose call returned ``code`` (``after_tick_kernel`` bits), in
-        the monitors' and the task's order."""
+        the monitors' and the task's order (a legged robot's: its estimation monitor, timed
+        with the monitors, and its task)."""
         rig = self.rig
-        if code & ak.MONITOR_WORK:
+        legged = self._legged
+        if code & ak.MONITOR_WORK or legged:
             t0 = time.perf_counter_ns()
             if code & (ak.COLLISION_CHECK | ak.VIOLATION_FLAGGED):
                 rig.violations.count_flagged(
@@ -189,8 +207,12 @@ class FusedAfterTick:
                 )  # fmt: skip
             if code & ak.INTERVENTIONS_MOVED:
                 rig.interventions.count_moved()
+            if legged and rig.estimation is not None:
+                rig.estimation.update(runtime, self.backend.true_base_state())
             screens = int(self._stamp[2]) - start  # the call's part of the monitors
             rig.monitor_cost.add(0, screens + time.perf_counter_ns() - t0)
+            if legged and rig.task is not None:
+                rig.task(runtime)
         if code & ak.GOAL_DUE:
             self._scheduler.issue_due(runtime)
         if code & ak.GOAL_HIT:

@@ -12,8 +12,9 @@ check or the exact per-type count of a flagged violation, an intervention counte
 goal due or reached. It times the monitors (from the caller's stamp to the end of the
 intervention screen) and the motion figures with ``clock_gettime(CLOCK_MONOTONIC)``, the clock of
 ``time.perf_counter_ns``, into the rig's histograms (the bins of
-:class:`sim2real.deploy.core.latency.LatencyHistogram`); when Python has monitor work left, the
-monitors' end stamp is left in the table for Python to finish the sample. An edit to a kernel of
+:class:`sim2real.deploy.core.latency.LatencyHistogram`); when Python has monitor work left (a
+legged robot's estimation monitor, always), the monitors' end stamp is left in the table for
+Python to finish the sample. An edit to a kernel of
 :mod:`sim2real.deploy.monitors.kernel` recompiles the call (:mod:`sim2real.numba_cache`).
 """
 
@@ -47,9 +48,11 @@ TEMP, PEAK, PREV_DQ, PREV_ACC, JERK_SUM, JERK_TICKS, MAX_SPEED, H_COUNTS, H_MAX 
 #: Where the per-env addresses start: the joints' qpos views, then the qvel views, then the
 #: end-effector sites (``envs`` each).
 VIEWS = 53
-#: Bits of the header's ``FLAGS``: a workspace box, collision pairs, a goal task, RUNNING's code
-#: shifted by ``RUNNING_SHIFT``.
-HAS_WORKSPACE, HAS_PAIRS, HAS_GOALS, RUNNING_SHIFT = 1, 2, 4, 8
+#: Bits of the header's ``FLAGS``: a workspace box, collision pairs, a goal task, a legged robot
+#: (``LEGGED``: an env in SAFE_STOP or FAULTED lies down, its ticks counted apart; the monitors'
+#: cost sample is left to Python, which runs the estimation monitor), RUNNING's code shifted by
+#: ``RUNNING_SHIFT``, SAFE_STOP's by ``SAFE_STOP_SHIFT``.
+HAS_WORKSPACE, HAS_PAIRS, HAS_GOALS, LEGGED, RUNNING_SHIFT, SAFE_STOP_SHIFT = 1, 2, 4, 16, 8, 24
 #: Bits of the returned code: the collision pairs of some env need coal (``V_NEED``), some env
 #: may be past a limit, an intervention counter moved (the monitors' cost sample is then left to
 #: Python: ``STAMP[2]`` holds the end of the screens), a goal is due (``G_DUE``), a goal was
@@ -148,10 +151,14 @@ def after_tick(
             dq[e, j] = qvel[j]
     if flags & HAS_WORKSPACE:
         sites(table, envs, v_ee)  # end_effector_position(out)
-    # the violation monitor (update without down: every env is up)
+    # the violation monitor (update with down: a legged robot's envs lying damped after a stop,
+    # ``Runtime.damping``; else every env is up)
+    mode = numba.carray(pointer(table[MODE]), (envs,), np.int8)
     down = numba.carray(pointer(table[V_DOWN]), (envs,), b1)
+    legged = (flags & LEGGED) != 0
+    safe_stop = (flags >> SAFE_STOP_SHIFT) & 0xFF
     for e in range(envs):
-        down[e] = False
+        down[e] = legged and mode[e] >= safe_stop
     numba.carray(pointer(table[V_TICKS]), (1,), i8)[0] += 1
     code = 0
     if flags & HAS_PAIRS:
@@ -189,14 +196,13 @@ def after_tick(
         code |= INTERVENTIONS_MOVED
     width, top = table[BIN_NS], table[BINS]
     end = monotonic_ns(stamp)
-    if code == 0:
+    if code == 0 and not legged:
         counts = numba.carray(pointer(table[M_COUNTS]), (1, top + 1), i8)
         add_sample(
             counts, numba.carray(pointer(table[M_MAX]), (1,), i8), 0, end - start_ns, width, top
         )
     stamp[2] = end
-    mode = numba.carray(pointer(table[MODE]), (envs,), np.int8)
-    running = flags >> RUNNING_SHIFT
+    running = (flags >> RUNNING_SHIFT) & 0xFF
     # the goal scheduler
     if flags & HAS_GOALS:
         check = numba.carray(pointer(table[G_CHECK]), (envs,), b1)

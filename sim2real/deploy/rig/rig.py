@@ -60,8 +60,9 @@ class Rig:
             tick (ns, outside the runtime's tick).
         hook_cost: One histogram stage per hook, in :attr:`hooks` order.
 
-    A simulated fixed-base robot's monitors, goal task and first hook's motion figures
-    (:class:`MotionHook`) run as one compiled call per tick
+    A simulated robot's monitors, goal task and first hook's motion figures
+    (:class:`MotionHook`; a legged robot's estimation monitor and velocity task follow it in
+    Python) run as one compiled call per tick
     (:class:`~sim2real.deploy.rig.after_tick.FusedAfterTick`, built when the run starts and again
     when the plant's envs change), with the same results and timings as the separate calls
     every other run makes.

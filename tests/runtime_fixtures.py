@@ -92,3 +92,13 @@ def zero_action_onnx(robot, path: Path) -> Path:
     nodes = [helper.make_node("MatMul", ["obs", "w"], ["action"])]
     weights = {"w": np.zeros((spec.obs_dim, spec.act_dim), np.float32)}
     return linear_onnx(spec, path, nodes, weights, name=path.stem)
+
+
+def assert_same_arrays(a: dict, b: dict) -> None:
+    """Assert two dicts of results hold the same keys and, per key, arrays of the same dtype
+    and bits (NaN equal to NaN in float arrays: no yaw or command seen yet)."""
+    assert a.keys() == b.keys()
+    for key in a:
+        x, y = np.asarray(a[key]), np.asarray(b[key])
+        nan = x.dtype.kind == "f"
+        assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=nan), key

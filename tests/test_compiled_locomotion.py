@@ -25,6 +25,7 @@ from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.rig.rig import Rig
 from sim2real.deploy.tasks.heading import HeadingHold
 from sim2real.deploy.tasks.locomotion import CommandTracker
+from tests.runtime_fixtures import assert_same_arrays
 
 TICKS = 900
 ENVS = 2
@@ -95,11 +96,7 @@ def test_compiled_equals_numpy(go2, go2_onnx, monkeypatch, task):
     held = TICKS if task == "heading" else 0
     assert numpy_ticks == {"estimation": TICKS, "tracker": TICKS, "heading": held}
     a, b = results(fast), results(slow)
-    assert a.keys() == b.keys()
-    for key in a:
-        x, y = np.asarray(a[key]), np.asarray(b[key])
-        nan = x.dtype.kind == "f"  # NaN where no yaw or command was seen yet
-        assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=nan), key
+    assert_same_arrays(a, b)
     assert fast.report()["locomotion"] == slow.report()["locomotion"]
     assert fast.report()["estimation"] == slow.report()["estimation"]
     tracker = fast.task.tracker

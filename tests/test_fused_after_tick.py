@@ -25,7 +25,7 @@ from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.rig.after_tick import FusedAfterTick
 from sim2real.deploy.rig.after_tick_kernel import monotonic_ns
 from sim2real.deploy.rig.rig import MotionHook, Rig
-from tests.runtime_fixtures import adversarial_onnx
+from tests.runtime_fixtures import adversarial_onnx, assert_same_arrays
 from tests.test_compiled_tick import SweepingPolicy
 
 TICKS = 1500
@@ -174,11 +174,7 @@ def test_a_legged_robots_fused_call_equals_the_separate_calls(go2, go2_onnx, hea
     fused, separate = rigs
     assert isinstance(fused._fused, FusedAfterTick) and fused._fused.motion
     a, b = legged_results(fused), legged_results(separate)
-    assert a.keys() == b.keys()
-    for key in a:
-        x, y = np.asarray(a[key]), np.asarray(b[key])
-        nan = x.dtype.kind == "f"  # NaN where no yaw or command was seen yet
-        assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=nan), key
+    assert_same_arrays(a, b)
     ra, rb = fused.report(), separate.report()
     for key in TIMING:
         ra.pop(key, None), rb.pop(key, None)

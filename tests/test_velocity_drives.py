@@ -31,6 +31,13 @@ def wheel_drive(robot):
     return kp, np.full(robot.n_joints, KD), kinds, wheel
 
 
+def position_driven(robot):
+    """``robot`` with every joint a position drive at rl_sar's leg gains (kp 20, kd 0.5): the
+    Go2-W as it was shipped before its wheels became velocity drives."""
+    n = robot.n_joints
+    return with_drive(robot, kp=np.full(n, 20.0), kd=np.full(n, KD), kinds=("position",) * n)
+
+
 @pytest.fixture(scope="module")
 def wheeled(go2w):
     kp, kd, kinds, _ = wheel_drive(go2w)
@@ -40,8 +47,7 @@ def wheeled(go2w):
 def test_a_wheels_kp_0_is_a_velocity_drive_and_refused_on_a_position_drive(go2w, wheeled):
     kp, kd, kinds, wheel = wheel_drive(go2w)
     assert np.array_equal(wheeled.velocity_driven, wheel)
-    n = go2w.n_joints
-    positional = with_drive(go2w, kp=np.full(n, 20.0), kd=kd, kinds=("position",) * n)
+    positional = position_driven(go2w)
     with pytest.raises(RobotSpecError, match="kp must be positive"):
         with_drive(positional, kp=kp, kd=kd)  # kp 0 on a wheel that is still a position drive
     spec_drive = DriveSpec(kp=tuple(kp), kd=tuple(kd), kinds=kinds)
@@ -84,8 +90,7 @@ def test_a_policys_wheel_drive_builds_the_plant_it_was_trained_with(go2w):
     class Spec:
         drive = DriveSpec(kp=tuple(kp), kd=tuple(kd), kinds=kinds)
 
-    n = go2w.n_joints
-    positional = with_drive(go2w, kp=np.full(n, 20.0), kd=kd, kinds=("position",) * n)
+    positional = position_driven(go2w)
     robot, differences = drive_robot(positional, Spec)
     assert "kinds" in differences and np.array_equal(robot.velocity_driven, wheel)
     assert drive_robot(go2w, Spec) == (go2w, {})  # the shipped go2w: rl_sar's drive already

@@ -18,6 +18,7 @@ from sim2real.deploy.estimation.fall import FallDetector
 from sim2real.deploy.estimation.joints import JointStateEstimator
 from sim2real.robots import load_robot
 from sim2real.robots.drive import with_drive
+from tests.test_velocity_drives import position_driven
 
 #: Leg PD that holds the Go2-W on its wheels without a policy, N m/rad and N m s/rad
 #: (unitree_sdk2's example/go2/go2_stand_example.cpp, as tests/test_legged.py).
@@ -83,9 +84,7 @@ def test_a_wheels_radius_is_its_collision_meshs_from_the_mjcf(go2w):
     """go2w.xml's wheel hull reaches 0.086 m from the axle; a foot on a position-driven joint
     is no wheel."""
     np.testing.assert_allclose(foot_radii(go2w), 0.086, atol=5e-4)
-    n = go2w.n_joints
-    positional = with_drive(go2w, kp=np.full(n, 20.0), kd=np.full(n, 0.5), kinds=("position",) * n)
-    assert not foot_radii(positional).any()
+    assert not foot_radii(position_driven(go2w)).any()
 
 
 def test_a_rolling_go2w_base_speed_is_read_through_its_wheels(rolled):

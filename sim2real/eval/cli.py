@@ -15,12 +15,11 @@ strip of each session's worst moments under ``DIR/film/<id>/`` (:mod:`sim2real.e
 ``--no-film``: none), keeps each session's checkpoints, progress and result under
 ``DIR/sessions/<id>/``, shows a progress bar of simulated hours and speed (simulated / wall time),
 and prints a summary. A legged robot (:func:`sim2real.deploy.robot_kind.robot_kind`) follows velocity
-commands instead of goals (:mod:`sim2real.eval.soak.batch`): their period, share of zero commands
-and ranges come from the ranges file's ``[commands]``, the policy's contract, ``--goal-period``
-(refused with a file's ``commands.period``) or the defaults, and the report says which
-(:mod:`sim2real.eval.world.command_schedule`); its tracking success is reported, and judged only when ``--min-success`` or ``--min-window-success``
-is given (how closely a policy follows every command is its training's measure; a baseline
-still judges a drop).
+commands instead of goals (:mod:`sim2real.eval.soak.batch`), on the schedule the report names
+(:mod:`sim2real.eval.world.command_schedule`; ``--goal-period`` is refused with a ranges file's
+``commands.period``); its tracking success is reported, and judged only when ``--min-success``
+or ``--min-window-success`` is given (how closely a policy follows every command is its
+training's measure; a baseline still judges a drop).
 
 Exit codes (``EXIT_*``; when several apply, the first of 4, 1, 5, 2, 6, 8, 9, 7): 0 passed (with
 ``--baseline``, a check that failed only where the baseline failed it too is a known failure, not

@@ -72,7 +72,7 @@ class CommandRanges:
         period: s between new commands, ``(low, high)``: each command lasts ``U(low, high)``
             s (Isaac Lab's and mjlab's ``resampling_time_range``; legged_gym's
             ``resampling_time`` is ``(t, t)``); a number ``t`` is ``(t, t)``. None (default):
-            the schedule's own period (``soak-test --goal-period``, 4 s).
+            the schedule's own period (``soak-test --goal-period``).
     """
 
     vx: tuple[float, float] = (0.0, 0.5)

@@ -48,9 +48,7 @@ def command_schedule(
             :class:`CommandRanges` refuses.
     """
     if goal_period is not None and "period" in given:
-        raise ValueError(
-            f"--goal-period: {file_source} sets commands.period too; give one of them"
-        )
+        raise ValueError(f"--goal-period: {file_source} sets commands.period too; give one of them")
     from_file = f"{file_source} [commands]"
     ranges, where = contract
     base = ranges if ranges is not None else (file_commands or CommandRanges())
@@ -84,7 +82,9 @@ def schedule_text(account: dict) -> str:
     of zero commands and the ranges, each with where it came from."""
     s = account["sources"]
     period = account["period_s"]
-    every = f"{period:g} s" if not isinstance(period, list) else f"U({period[0]:g}, {period[1]:g}) s"
+    every = (
+        f"{period:g} s" if not isinstance(period, list) else f"U({period[0]:g}, {period[1]:g}) s"
+    )
     groups: dict[str, list[str]] = {}
     for key, unit in (("vx", "m/s"), ("vy", "m/s"), ("yaw_rate", "rad/s")):
         name = "yaw rate" if key == "yaw_rate" else key

@@ -15,10 +15,11 @@ strip of each session's worst moments under ``DIR/film/<id>/`` (:mod:`sim2real.e
 ``--no-film``: none), keeps each session's checkpoints, progress and result under
 ``DIR/sessions/<id>/``, shows a progress bar of simulated hours and speed (simulated / wall time),
 and prints a summary. A legged robot (:func:`sim2real.deploy.robot_kind.robot_kind`) follows velocity
-commands instead of goals (:mod:`sim2real.eval.soak.batch`): ``--goal-period`` is their period; its
-tracking success is reported, and judged only when ``--min-success`` or ``--min-window-success``
-is given (how closely a policy follows every command is its training's measure; a baseline
-still judges a drop).
+commands instead of goals (:mod:`sim2real.eval.soak.batch`), on the schedule the report names
+(:mod:`sim2real.eval.world.command_schedule`; ``--goal-period`` is refused with a ranges file's
+``commands.period``); its tracking success is reported, and judged only when ``--min-success``
+or ``--min-window-success`` is given (how closely a policy follows every command is its
+training's measure; a baseline still judges a drop).
 
 Exit codes (``EXIT_*``; when several apply, the first of 4, 1, 5, 2, 6, 8, 9, 7): 0 passed (with
 ``--baseline``, a check that failed only where the baseline failed it too is a known failure, not
@@ -105,7 +106,8 @@ def _thresholds(args):
 
 def _ranges(args, robot) -> tuple:
     """The sessions' randomization ranges: the policy's training domain, the robot kind's or
-    ``--ranges``; ``(ranges, domain text or None)``. Raises :class:`BadInput`."""
+    ``--ranges``; ``(ranges, domain text or None, {"given": the [commands] keys its file sets,
+    "source": that file})``. Raises :class:`BadInput`."""
     from sim2real.eval.world.domain import DomainError, training_domain
     from sim2real.eval.world.ranges_file import (
         load_ranges,
@@ -122,43 +124,46 @@ def _ranges(args, robot) -> tuple:
         except DomainError as exc:
             raise BadInput(f"{exc}; or run --no-domain (the robot kind's ranges)") from None
     if domain is not None:
-        if args.fault_interval is not None and "mean_interval" in parse_overrides(
-            domain, "training domain"
-        ).get("faults", {}):
+        overrides = parse_overrides(domain, "training domain")
+        if args.fault_interval is not None and "mean_interval" in overrides.get("faults", {}):
             raise BadInput("--fault-interval: the policy's training domain sets it too")
         source = f"{args.policy} (training_domain)"
         ranges = load_ranges_text(domain, source, robot, args.fault_interval)
         print(f"soak-test: ranges: the policy's training domain ({_first_line(domain)})")
     elif args.ranges is None:
+        overrides, source = {}, None
         ranges = session_ranges(robot, args.fault_interval)
     else:
-        if args.fault_interval is not None and "mean_interval" in read_overrides(args.ranges).get(
-            "faults", {}
-        ):
+        overrides, source = read_overrides(args.ranges), str(args.ranges)
+        if args.fault_interval is not None and "mean_interval" in overrides.get("faults", {}):
             raise BadInput(
                 f"--fault-interval: {args.ranges} sets faults.mean_interval too; give one of them"
             )
         ranges = load_ranges(args.ranges, robot, args.fault_interval)
-    return ranges, domain
+    return ranges, domain, {"given": overrides.get("commands", {}), "source": source}
 
 
-def _contract_commands(args, robot, ranges) -> tuple:
-    """A legged robot's commands from the policy's contract when the ranges have none;
-    ``(ranges, the commands' source or None)``."""
+def _commands(args, robot, ranges, file: dict) -> tuple:
+    """A legged robot's command schedule (:func:`sim2real.eval.world.command_schedule.
+    command_schedule`): the ranges file's ``[commands]`` over the policy's contract over the
+    defaults, printed; ``(ranges, its account or None)``. Raises :class:`BadInput`."""
+    from sim2real.eval.world.command_schedule import RANGE_KEYS, command_schedule, schedule_text
     from sim2real.eval.world.domain import contract_commands
 
-    commands_source = None
-    if robot_kind(robot).task == "locomotion" and ranges.commands is None:
+    if robot_kind(robot).task != "locomotion":
+        return ranges, None
+    contract = (None, None)
+    if not all(k in file["given"] for k in RANGE_KEYS):
         # with --spec the file's own contract need not map: only what it records is read
-        commands, commands_source = contract_commands(args.policy, strict=args.spec is None)
-        if commands is not None:
-            ranges = dataclasses.replace(ranges, commands=commands)
-            print(
-                f"soak-test: commands: the policy's training ranges ({commands_source}): vx "
-                f"{list(commands.vx)} m/s, vy {list(commands.vy)} m/s, yaw rate "
-                f"{list(commands.yaw_rate)} rad/s, zero {commands.zero_fraction:g} of the time"
-            )
-    return ranges, commands_source
+        contract = contract_commands(args.policy, strict=args.spec is None)
+    try:
+        commands, account = command_schedule(
+            ranges.commands, file["given"], file["source"], contract, args.goal_period
+        )
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    print(f"soak-test: commands: {schedule_text(account)}")
+    return dataclasses.replace(ranges, commands=commands), account
 
 
 def _template(args, ranges):
@@ -170,7 +175,7 @@ def _template(args, ranges):
         policy=str(args.policy),
         seed=args.seed,
         hours=args.hours,
-        goal_period=args.goal_period,
+        goal_period=4.0 if args.goal_period is None else args.goal_period,
         success_time=args.success_time,
         checkpoint_minutes=args.checkpoint_minutes,
         curve_seconds=args.curve_seconds,
@@ -213,7 +218,8 @@ def _run_sessions(args, template) -> tuple[list[dict], float]:
 
 
 def _campaign(args, robot, template, found: dict, results: list[dict], wall: float) -> dict:
-    """The report's ``campaign`` entry; ``found``: ``training_domain`` and ``commands_source``."""
+    """The report's ``campaign`` entry; ``found``: ``training_domain`` and ``commands`` (the
+    schedule's account, :func:`sim2real.eval.world.command_schedule.command_schedule`)."""
     from sim2real.robots.files import sha256_file
 
     options = template.to_dict()
@@ -230,7 +236,7 @@ def _campaign(args, robot, template, found: dict, results: list[dict], wall: flo
         "session_options": options,
         "ranges_file": None if args.ranges is None else str(args.ranges),
         "training_domain": found["training_domain"],
-        "commands_source": found["commands_source"],
+        "commands": found["commands"],
         "executor": args.executor,
         "address": args.address,
         "sessions_per_process": args.sessions_per_process,
@@ -270,11 +276,11 @@ def run(args) -> int:
     thresholds = _thresholds(args)
     baseline = load_report(args.baseline) if args.baseline else None
     robot = load_robot(args.robot)
-    ranges, domain = _ranges(args, robot)
-    ranges, commands_source = _contract_commands(args, robot, ranges)
+    ranges, domain, file = _ranges(args, robot)
+    ranges, commands = _commands(args, robot, ranges, file)
     template = _template(args, ranges)
     results, wall = _run_sessions(args, template)
-    found = {"training_domain": domain, "commands_source": commands_source}
+    found = {"training_domain": domain, "commands": commands}
     campaign = _campaign(args, robot, template, found, results, wall)
     report = build_report(
         campaign,

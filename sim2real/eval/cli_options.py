@@ -71,7 +71,13 @@ def _add_session_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--checkpoint-minutes", type=float, default=5.0, help="simulated minutes (0: none)"
     )
-    p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
+    p.add_argument(
+        "--goal-period",
+        type=float,
+        default=None,
+        help="s between new goals, or a legged robot's velocity commands (default 4; a ranges "
+        "file's commands.period sets the commands' instead)",
+    )
     p.add_argument(
         "--success-time", type=float, default=3.0, help="a goal counts as reached within s"
     )
@@ -203,7 +209,8 @@ def check_args(args) -> None:
             raise BadInput(f"{name}: expected a number {op} {minimum}, got {value}")
 
     number("--hours", 0, True)
-    number("--goal-period", 0, True)
+    if args.goal_period is not None:
+        number("--goal-period", 0, True)
     number("--success-time", 0, True)
     if args.fault_interval is not None:
         number("--fault-interval", 0, True)

@@ -202,8 +202,9 @@ def build_report(
 
         schema_version, tool, created (UTC, ISO 8601)
         campaign        robot, policy, policy_sha256, hours, sessions, seed, options of the
-                        sessions, ranges_file (soak-test --ranges, or null), executor,
-                        sessions_per_process, wall_s
+                        sessions, ranges_file (soak-test --ranges, or null), commands (a
+                        legged robot's schedule, else null: period_s, zero_fraction, ranges and
+                        where each came from), executor, sessions_per_process, wall_s
         thresholds      the pass/fail thresholds and baseline tolerances
                         (:class:`~sim2real.eval.report.schema.Thresholds`)
         sessions[]      one per session (sim2real.eval.soak's result):
@@ -230,7 +231,8 @@ def build_report(
                    min_window_success_rate, missed [{t_s, issued_s, goal, q, dq, q_estimate,
                    distance_m, best_distance_m, interventions {check: ticks, any}}],
                    missed_dropped}
-            locomotion (null for an arm) {commands_issued, command_period_s, command_ranges,
+            locomotion (null for an arm) {commands_issued, command_period_s (s, or [low, high]
+                   when each command's length is drawn), command_ranges,
                    final_command, falls, falls_per_hour, fall_stops, false_fall_stops (fall-check
                    stops of a robot the truth had upright, :func:`sim2real.eval.soak.falls.
                    false_fall_stops`; must be 0), tracking_success (the session's success

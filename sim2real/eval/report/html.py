@@ -145,10 +145,14 @@ def _success_cells(s: dict) -> list:
 def _tables(report: dict) -> dict[str, dict]:
     """The tables of report.html (campaign, checks, baseline, sessions, interventions, faults,
     randomization; wheels where a session has them) as ``{"header", "rows"}``."""
+    from sim2real.eval.world.command_schedule import schedule_text
+
     c, t = report["campaign"], report["totals"]
+    schedule = c.get("commands")  # a legged robot's command schedule and its sources
     tables = {
         "campaign": _table(
-            ["robot", "policy", "sessions", "hours each", "seed", "simulated h", "created"],
+            ["robot", "policy", "sessions", "hours each", "seed", "simulated h", "created"]
+            + (["velocity commands"] if schedule else []),
             [
                 [
                     c.get("robot"),
@@ -159,6 +163,7 @@ def _tables(report: dict) -> dict[str, dict]:
                     t["simulated_hours"],
                     report["created"],
                 ]
+                + ([schedule_text(schedule)] if schedule else [])
             ],
         ),
         "checks": _table(

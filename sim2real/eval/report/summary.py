@@ -20,6 +20,11 @@ def summary_text(report: dict) -> str:
     w = t["goals"]["min_window_success_rate"]
     if w is not None:
         lines.append(f"  windows      lowest success rate in a window {100 * w:.1f} %")
+    schedule = report["campaign"].get("commands")
+    if loco is not None and schedule:
+        from sim2real.eval.world.command_schedule import schedule_text
+
+        lines.append(f"  commands     {schedule_text(schedule)}")
     if loco is not None:
         ts, speed = loco["tracking_success"], loco["mean_forward_speed_m_s"]
         lines.append(

@@ -18,9 +18,10 @@ After every tick a :class:`~sim2real.deploy.monitors.violations.ViolationMonitor
 violations and an :class:`~sim2real.deploy.monitors.interventions.InterventionMonitor` the changed
 commands (before the task, so a goal's last tick counts for it); both are reported apart, per hour
 and on the curves. The task is :func:`sim2real.deploy.tasks.task.task_for`'s: reach goals, or for a legged
-robot (:func:`sim2real.deploy.robot_kind.robot_kind`) velocity commands every ``goal_period`` s with their
-tracking, distance and falls; a legged session also draws its IMU noise and floor friction, gets
-no cable pulls, and its operator resets stand the robot up first (:meth:`SessionBatch.stand_up`).
+robot (:func:`sim2real.deploy.robot_kind.robot_kind`) velocity commands every ``command_period`` s
+(:attr:`~sim2real.eval.soak.session.SessionConfig.command_period`) with their tracking, distance
+and falls; a legged session also draws its IMU noise and floor friction, gets no cable pulls,
+and its operator resets stand the robot up first (:meth:`SessionBatch.stand_up`).
 
 Divergence: MuJoCo's (:class:`~sim2real.deploy.backends.sim.plant.SimulationDivergedError`) ends the
 session that diverged (:exc:`BatchDiverged`); the others continue from their last checkpoints
@@ -179,7 +180,7 @@ class SessionBatch:
         # robot's base estimate against the truth, and the goals (an arm) or velocity commands
         # (a legged robot), one stream per session
         task = {
-            "period": first.goal_period,
+            "period": first.command_period if self.kind.task == "locomotion" else first.goal_period,
             "rng": [session_rng(c.seed, "goals") for c in configs],
             "success_time": first.success_time,
             "window": first.window_minutes * 60.0,

@@ -72,7 +72,7 @@ def locomotion_result(session: Session) -> dict:
     fall_records = attribute_falls(tr.fall_log[e], schedule, pushes)
     return {
         "commands_issued": int(cmd.issued[e]),
-        "command_period_s": session.config.goal_period,
+        "command_period_s": period_value(session.config.command_period),
         "command_ranges": asdict(cmd.ranges),
         "final_command": [float(x) for x in rt.velocity_command[e]],
         "falls": falls,
@@ -103,6 +103,13 @@ def locomotion_result(session: Session) -> dict:
         "min_window_success_rate": (min(w["success_rate"] for w in windows) if windows else None),
         "peak_winding_c": peaks,
     }
+
+
+def period_value(period: tuple[float, float]) -> float | list[float]:
+    """A command period ``(low, high)`` as the report writes it: s, or ``[low, high]`` s when
+    each command's length is drawn."""
+    low, high = period
+    return float(low) if low == high else [float(low), float(high)]
 
 
 def wheel_speeds(b, e: int) -> dict:

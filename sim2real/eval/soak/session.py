@@ -110,6 +110,16 @@ class SessionConfig:
                 raise bad(name, "a finite number >= 0")
 
     @property
+    def command_period(self) -> tuple[float, float]:
+        """s between a legged robot's velocity commands, ``(low, high)`` (each drawn
+        uniformly): its ranges' ``commands.period`` when set, else ``(goal_period,
+        goal_period)``."""
+        commands = self.ranges.commands
+        if commands is not None and commands.period is not None:
+            return commands.period
+        return (float(self.goal_period), float(self.goal_period))
+
+    @property
     def duration(self) -> float:
         """Session length, s."""
         return self.hours * 3600.0

@@ -13,7 +13,8 @@ armature, actuator gains the ``[dynamics]`` factors, a centre-of-mass shift ``co
 ``push_by_setting_velocity`` the pushes (added, per axis), mjlab's ``randomize_encoder_bias`` the
 encoders' bias; the reset events (the initial pose and joint state) are read and change nothing
 the soak draws. The policy group's observation noise becomes the sensors' sigmas (uniform
-``[a, b]``: ``(b - a) / sqrt(12)``) and a velocity command's ranges the ``[commands]``.
+``[a, b]``: ``(b - a) / sqrt(12)``) and a velocity command's ranges, ``resampling_time_range``
+(its period) and ``rel_standing_envs`` (its share of zero commands) the ``[commands]``.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from sim2real.eval.world.env_yaml_events import EVENTS, Reading
+from sim2real.eval.world.env_yaml_events import EVENTS, Reading, range_text
 from sim2real.eval.world.legged_gym_domain import DomainError
 from sim2real.eval.world.legged_gym_groups import G
 
@@ -107,7 +108,26 @@ def _commands(r: Reading, env: dict) -> None:
                 if v is not None
             }
             r.notes.append(f"commands.{name}.ranges: the soak's commands")
+            _schedule(r, f"commands.{name}", command)
             return
+
+
+def _schedule(r: Reading, where: str, command: dict) -> None:
+    """A velocity command's ``resampling_time_range`` (s, each command's length drawn from it)
+    as the ``[commands]`` period, its ``rel_standing_envs`` (each new command's chance of being
+    zero) as ``zero_fraction``."""
+    if "resampling_time_range" in command:
+        period = range_text(r, f"{where}.resampling_time_range", command["resampling_time_range"])
+        if period is not None:
+            r.set("commands", "period", period)
+    share = command.get("rel_standing_envs")
+    if share is not None:
+        if isinstance(share, (int, float)) and not isinstance(share, bool) and 0 <= share <= 1:
+            r.set("commands", "zero_fraction", f"{float(share):.6g}")
+        else:
+            r.refused.append(
+                f"{where}.rel_standing_envs: expected a share in [0, 1], got {share!r}"
+            )
 
 
 def env_yaml_domain(path: str | Path) -> str:

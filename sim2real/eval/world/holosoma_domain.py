@@ -12,7 +12,8 @@ PhysX does), the base's centre of mass, the PD gains (``ActuatorRandomizerState`
 bias (``setup_dof_pos_bias``); an action delay and a random force injection (``torque_rfi``) are
 refused when they are on. The terms that only run the ones above at reset or each step, and the
 initial state's, change nothing the soak draws. The actor's observation noise (uniform
-``+-noise``) becomes the sensors' sigmas, the file's ``command_ranges`` the ``[commands]``.
+``+-noise``) becomes the sensors' sigmas; the file's ``command_ranges``, the command manager's
+``locomotion_command_resampling_time`` and ``stand_prob`` the ``[commands]``.
 """
 
 from __future__ import annotations
@@ -138,6 +139,31 @@ NOISE = {
 }
 
 
+def _schedule(r: Reading, command: dict) -> None:
+    """The command manager's ``params.locomotion_command_resampling_time`` (s between
+    commands) as the ``[commands]`` period, its ``locomotion_command`` term's ``stand_prob``
+    (each new command's chance of being zero) as ``zero_fraction``."""
+    period = (command.get("params") or {}).get("locomotion_command_resampling_time")
+    if period is not None:
+        if _number(period) and period > 0:
+            r.set("commands", "period", f"{float(period):.6g}")
+        else:
+            r.refused.append(f"command.params.locomotion_command_resampling_time: expected s "
+                             f"> 0, got {period!r}")  # fmt: skip
+    term = (command.get("setup_terms") or {}).get("locomotion_command") or {}
+    share = (term.get("params") or {}).get("stand_prob")
+    if share is not None:
+        if _number(share) and 0 <= share <= 1:
+            r.set("commands", "zero_fraction", f"{float(share):.6g}")
+        else:
+            r.refused.append(f"command.setup_terms.locomotion_command.params.stand_prob: "
+                             f"expected a share in [0, 1], got {share!r}")  # fmt: skip
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
 def holosoma_domain(config: dict, command_ranges: dict | None, source: str) -> str:
     """The ranges file (TOML text) of holosoma's ``experiment_config`` ``config`` (module
     docstring); ``command_ranges`` the file's (holosoma's names), ``source`` names the file.
@@ -165,6 +191,7 @@ def holosoma_domain(config: dict, command_ranges: dict | None, source: str) -> s
         if noise and key in NOISE and actor.get("enable_noise", True):
             table, field, factor = NOISE[key]
             r.set(table, field, f"[0.0, {factor * noise / math.sqrt(3.0):.6g}]")
+    _schedule(r, config.get("command") or {})
     ranges = command_ranges or {}
     names = {"vx": "lin_vel_x", "vy": "lin_vel_y", "yaw_rate": "ang_vel_yaw"}
     for ours, theirs in names.items():

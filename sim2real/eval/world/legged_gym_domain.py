@@ -146,7 +146,8 @@ def legged_gym_domain(path: str | Path, config_class: str | None = None) -> str:
     it); the noise (``noise_scales`` times ``noise_level``, 0 without ``add_noise``; a uniform
     noise of half-width ``s`` has the standard deviation ``s / sqrt(3)``): ``dof_pos`` ->
     ``[sensors] noise_sigma``, ``ang_vel`` -> ``[imu] gyro_noise_sigma``, ``gravity`` (a unit
-    vector's) -> ``[imu] accel_noise_sigma`` (times g); ``commands.ranges`` -> ``[commands]``.
+    vector's) -> ``[imu] accel_noise_sigma`` (times g); ``commands.ranges`` and
+    ``commands.resampling_time`` (s between commands) -> ``[commands]`` (its ``period``).
 
     Raises:
         DomainError: an unreadable config, a malformed range, a randomization the soak cannot
@@ -169,6 +170,9 @@ def legged_gym_domain(path: str | Path, config_class: str | None = None) -> str:
             "--domain FILE.toml; see sim2real/eval/world/example_ranges.toml)"
         )
     refused = []
+    period = cfg["commands"]["resampling_time"]
+    if not (isinstance(period, (int, float)) and not isinstance(period, bool) and period > 0):
+        refused.append(f"commands.resampling_time: expected s > 0, got {period!r}")
     for group in GROUPS:
         try:
             group.read(context)

@@ -43,6 +43,7 @@ LEGGED_GYM_DEFAULTS = {
     },
     "terrain": {"mesh_type": "trimesh", "static_friction": 1.0, "dynamic_friction": 1.0},
     "commands": {
+        "resampling_time": 10.0,
         "heading_command": True,
         "ranges": {"lin_vel_x": [-1.0, 1.0], "lin_vel_y": [-1.0, 1.0], "ang_vel_yaw": [-1.0, 1.0]},
     },
@@ -335,4 +336,7 @@ def domain_lines(c: Context, root3: float) -> list[str]:
     for ours, theirs in pick.items():
         lo, hi = (float(v) for v in ranges[theirs])
         lines.append(f"{ours} = [{lo:.6g}, {hi:.6g}]")
+    # a new command every resampling_time s; legged_gym has no share of standing commands (it
+    # zeroes the x and y of a command under 0.2 m/s, keeping its yaw): zero_fraction stays ours
+    lines.append(f"period = {float(cfg['commands']['resampling_time']):.6g}")
     return lines

@@ -12,10 +12,10 @@ is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the cl
     com_offset = {body = "torso_link", x = [-0.05, 0.05]}  # m added to body_ipos per session
 
     [sensors]     # encoder: noise_sigma (rad), latency_ticks (ticks), dropout, encoder_bias
-    noise_sigma = [0.005, 0.02]
     encoder_bias = [-0.015, 0.015]  # rad, each joint's offset, drawn once per session
-
-    [imu]  [drift]  [faults]  [commands]   # see their classes
+    [imu]  [drift]  [faults]   # see their classes
+    [commands]    # floating base only: vx, vy, yaw_rate (over the policy contract's ranges),
+                  # zero_fraction, period (s or [low, high]; refused with --goal-period)
     [pushes]      # floating base only: interval (s or [low, high]), mode ("set" or "add"),
                   # max_velocity (m/s) or velocity = {x, y, z}, angular_velocity = {roll, ...},
                   # apply ("force", default, or "velocity_hidden_from_imu"), window (s, 0.1)
@@ -26,8 +26,8 @@ The tables are :class:`~sim2real.eval.world.dynamics.DynamicsRanges`,
 :class:`~sim2real.eval.world.pushes.PushRanges` and :class:`~sim2real.deploy.tasks.commands.CommandRanges`;
 the inline tables ``dynamics.com_offset`` (:class:`~sim2real.eval.world.dynamics.ComOffsetRanges`) and
 ``pushes.velocity``, ``pushes.angular_velocity`` (:class:`~sim2real.eval.world.pushes.PushRanges`' axes)
-are :data:`SUBTABLES`; their docstrings give each key's meaning, unit and default. Bad input is
-a one-line :class:`RangesError` naming the file, ``table.key`` and the value expected.
+are :data:`SUBTABLES`; their docstrings give each key's meaning, unit and default. Bad input
+is a one-line :class:`RangesError` naming the file, ``table.key`` and the value expected.
 """
 
 from __future__ import annotations

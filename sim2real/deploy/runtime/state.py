@@ -86,7 +86,8 @@ class RuntimeState:
 
     def _parts(self) -> dict:
         """The stages whose state is part of the runtime's: the estimator, guard, smoother and
-        the policy's observation (its gait clocks and frame history), and the policy, backend and fault injector where they have a ``state_dict``."""
+        the policy's observation (its gait clocks and frame history), and the policy, backend
+        and fault injector where they have a ``state_dict``."""
         parts = {"estimator": self.estimator, "guard": self.guard, "smoother": self.smoother}
         parts["observation"] = ObservationState(self.spec.plan, self.envs)
         if self.base_estimator is not None:
@@ -115,8 +116,9 @@ class RuntimeState:
         wall-clock histograms ``latency/*``, ``tick_cost/*`` and ``clock/*`` (measurements, not
         seeded; a wall clock's next deadline is not state: a resumed loop starts its own).
         Then each stage's ``state_dict(env)`` under its name: ``estimator/``, ``guard/``,
-        ``smoother/``, ``observation/`` (:class:`ObservationState`), a legged robot's ``base_estimator/`` and ``fall_detector/``, and
-        ``policy/``, ``backend/``, ``injector/`` where the policy (a recurrent one), the backend
+        ``smoother/``, ``observation/`` (:class:`ObservationState`), a legged robot's
+        ``base_estimator/`` and ``fall_detector/``, and ``policy/``, ``backend/``,
+        ``injector/`` where the policy (a recurrent one), the backend
         (:class:`~sim2real.deploy.backends.sim.plant.SimBackend`) or the fault injector has one.
         """
         out: dict = take(self._state_fields(), env)

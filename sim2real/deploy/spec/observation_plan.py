@@ -288,7 +288,11 @@ class ObservationPlan:
             for name, ring in (("ring", self.ring), ("reference_ring", self.reference_ring)):
                 ring.frame_buffer(envs)  # sized for the batch (as its first tick does)
                 fields.update(
-                    {f"{name}/frames": ring.ring, f"{name}/head": ring.head, f"{name}/count": ring.count}
+                    {
+                        f"{name}/frames": ring.ring,
+                        f"{name}/head": ring.head,
+                        f"{name}/count": ring.count,
+                    }
                 )
         return fields
 

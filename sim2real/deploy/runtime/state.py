@@ -19,6 +19,22 @@ from sim2real.deploy.core.modes import FAULT_CAUSES, SAFE_STOP, Mode
 from sim2real.deploy.core.stateful import check, load_parts, parts_state_dict, put, scalar, take
 
 
+class ObservationState:
+    """The current policy's observation plan as a stage of the runtime's state dict
+    (``observation/``; :meth:`sim2real.deploy.spec.observation_plan.ObservationPlan.state_fields`:
+    its gait clocks and frame history), for a batch of ``envs``."""
+
+    def __init__(self, plan, envs: int):
+        self.plan, self.envs = plan, envs
+
+    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
+        return take(self.plan.state_fields(self.envs), env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Raises StateDictError: a missing field or a shape that differs (another history)."""
+        put(self.plan.state_fields(self.envs), state, env)
+
+
 class RuntimeState:
     """The state dict of a :class:`~sim2real.deploy.runtime.loop.Runtime` (module docstring)."""
 
@@ -69,9 +85,11 @@ class RuntimeState:
         return fields
 
     def _parts(self) -> dict:
-        """The stages whose state is part of the runtime's: the estimator, guard and smoother,
-        and the policy, backend and fault injector where they have a ``state_dict``."""
+        """The stages whose state is part of the runtime's: the estimator, guard, smoother and
+        the policy's observation (its gait clocks and frame history), and the policy, backend
+        and fault injector where they have a ``state_dict``."""
         parts = {"estimator": self.estimator, "guard": self.guard, "smoother": self.smoother}
+        parts["observation"] = ObservationState(self.spec.plan, self.envs)
         if self.base_estimator is not None:
             parts["base_estimator"] = self.base_estimator
             parts["fall_detector"] = self.fall_detector
@@ -98,8 +116,9 @@ class RuntimeState:
         wall-clock histograms ``latency/*``, ``tick_cost/*`` and ``clock/*`` (measurements, not
         seeded; a wall clock's next deadline is not state: a resumed loop starts its own).
         Then each stage's ``state_dict(env)`` under its name: ``estimator/``, ``guard/``,
-        ``smoother/``, a legged robot's ``base_estimator/`` and ``fall_detector/``, and
-        ``policy/``, ``backend/``, ``injector/`` where the policy (a recurrent one), the backend
+        ``smoother/``, ``observation/`` (:class:`ObservationState`), a legged robot's
+        ``base_estimator/`` and ``fall_detector/``, and ``policy/``, ``backend/``,
+        ``injector/`` where the policy (a recurrent one), the backend
         (:class:`~sim2real.deploy.backends.sim.plant.SimBackend`) or the fault injector has one.
         """
         out: dict = take(self._state_fields(), env)

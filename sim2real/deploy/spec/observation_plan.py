@@ -270,6 +270,32 @@ class ObservationPlan:
             self.ring.reset(envs)
             self.reference_ring.reset(envs)
 
+    def state_fields(self, envs: int) -> dict[str, np.ndarray]:
+        """The plan's state from one tick to the next for a batch of ``envs`` (its buffers sized
+        for them first; the live arrays, leading env axis, for
+        :mod:`sim2real.deploy.core.stateful`'s ``take`` and ``put``): the gait clocks'
+        ``clock_starts`` and ``clock_starts_reference`` (envs, blocks) s (+inf: first tick to
+        come, NaN: standing) and, with a frame history, each ring's (the kernel's ``ring/``, the
+        numpy reference's ``reference_ring/``) ``frames`` (envs, length, frame) float32, ``head``
+        and ``count`` (envs,) int64. A resume without them starts the history and the clocks
+        again: another observation than the uninterrupted run's."""
+        self.raw(envs)
+        fields = {
+            "clock_starts": self.clocks.kernel[:envs],
+            "clock_starts_reference": self.clocks.reference[:envs],
+        }
+        if self.history is not None:
+            for name, ring in (("ring", self.ring), ("reference_ring", self.reference_ring)):
+                ring.frame_buffer(envs)  # sized for the batch (as its first tick does)
+                fields.update(
+                    {
+                        f"{name}/frames": ring.ring,
+                        f"{name}/head": ring.head,
+                        f"{name}/count": ring.count,
+                    }
+                )
+        return fields
+
     def observation(
         self, state: RobotState, goal: np.ndarray, out: np.ndarray | None = None
     ) -> np.ndarray:

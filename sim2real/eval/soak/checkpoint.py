@@ -6,9 +6,10 @@ nothing lost, to the same report as an uninterrupted run, a checkpoint holds eve
 tick reads: the composition of the stages' state dicts (``state_dict(env)``,
 :mod:`sim2real.deploy.core.stateful`; each stage's documents its fields), each the env's slice, keyed
 ``<prefix>/<field>``. Prefixes: none for the :class:`~sim2real.deploy.runtime.Runtime`; ``estimator/``,
-``guard/``, ``smoother/``, ``policy/`` (a recurrent policy's state; nothing for a feed-forward
-one), ``backend/`` (MuJoCo's integration state, friction, sensor buffers and random stream,
-thermal nodes), ``goals/``, ``violations/``, ``interventions/`` and ``injector/`` (the session's
+``guard/``, ``smoother/``, ``observation/`` (the policy's gait clocks and frame history),
+``policy/`` (a recurrent policy's state; nothing for a feed-forward one), ``backend/`` (MuJoCo's
+integration state, friction, sensor buffers and random stream, thermal nodes), ``goals/``,
+``violations/``, ``interventions/`` and ``injector/`` (the session's
 armed fault injector, if any). The soak harness adds its own book-keeping (``stats/`` arrays;
 fault progress, latches, drift, curves and report accumulators in the metadata). Ruckig's
 trajectory cannot be read from its binding; a restored smoother recalculates it from its input
@@ -60,7 +61,9 @@ FORMAT = "soak-checkpoint"
 #: (``tracker/changed_at``, ``tracker/last_command``); a version 9 checkpoint has none.
 #: 11: each joint's largest true speed (``stats/speed_peak``: the wheels' in the report); a
 #: version 10 checkpoint has none.
-VERSION = 11
+#: 12: the policy's observation: its gait clocks and frame history (``observation/...``); a
+#: version 11 checkpoint has neither, and a resume from it started them again.
+VERSION = 12
 MANIFEST = "checkpoint.json"
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from sim2real.eval.world.env_yaml_events import EVENTS, Reading, range_text
+from sim2real.eval.world.env_yaml_events import EVENTS, Reading, range_text, zero_fraction
 from sim2real.eval.world.legged_gym_domain import DomainError
 from sim2real.eval.world.legged_gym_groups import G
 
@@ -120,14 +120,8 @@ def _schedule(r: Reading, where: str, command: dict) -> None:
         period = range_text(r, f"{where}.resampling_time_range", command["resampling_time_range"])
         if period is not None:
             r.set("commands", "period", period)
-    share = command.get("rel_standing_envs")
-    if share is not None:
-        if isinstance(share, (int, float)) and not isinstance(share, bool) and 0 <= share <= 1:
-            r.set("commands", "zero_fraction", f"{float(share):.6g}")
-        else:
-            r.refused.append(
-                f"{where}.rel_standing_envs: expected a share in [0, 1], got {share!r}"
-            )
+    if command.get("rel_standing_envs") is not None:
+        zero_fraction(r, f"{where}.rel_standing_envs", command["rel_standing_envs"])
 
 
 def env_yaml_domain(path: str | Path) -> str:

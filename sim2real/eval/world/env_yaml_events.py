@@ -78,6 +78,16 @@ def range_text(r: Reading, where: str, value) -> str | None:
     return f"[{pair[0]:.6g}, {pair[1]:.6g}]"
 
 
+def zero_fraction(r: Reading, where: str, value) -> None:
+    """``value``, each new velocity command's chance of being zero (Isaac Lab's and mjlab's
+    ``rel_standing_envs``, holosoma's ``stand_prob``), as the ``[commands]`` ``zero_fraction``
+    (a refusal noted when it is not a number in [0, 1])."""
+    if isinstance(value, int | float) and not isinstance(value, bool) and 0 <= value <= 1:
+        r.set("commands", "zero_fraction", f"{float(value):.6g}")
+    else:
+        r.refused.append(f"{where}: expected a share in [0, 1], got {value!r}")
+
+
 def half_range(r: Reading, where: str, value, what: str) -> str | None:
     """A factor range as the half-range about 1 that holds it (noted when widened)."""
     pair = _pair(value)

@@ -22,7 +22,7 @@ import json
 import math
 from collections.abc import Callable
 
-from sim2real.eval.world.env_yaml_events import Reading, half_range, range_text
+from sim2real.eval.world.env_yaml_events import Reading, half_range, range_text, zero_fraction
 from sim2real.eval.world.legged_gym_domain import DomainError
 from sim2real.eval.world.legged_gym_groups import G
 
@@ -153,11 +153,7 @@ def _schedule(r: Reading, command: dict) -> None:
     term = (command.get("setup_terms") or {}).get("locomotion_command") or {}
     share = (term.get("params") or {}).get("stand_prob")
     if share is not None:
-        if _number(share) and 0 <= share <= 1:
-            r.set("commands", "zero_fraction", f"{float(share):.6g}")
-        else:
-            r.refused.append(f"command.setup_terms.locomotion_command.params.stand_prob: "
-                             f"expected a share in [0, 1], got {share!r}")  # fmt: skip
+        zero_fraction(r, "command.setup_terms.locomotion_command.params.stand_prob", share)
 
 
 def _number(value) -> bool:

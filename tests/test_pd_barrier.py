@@ -75,13 +75,16 @@ def test_a_pd_target_that_would_reach_the_hard_limit_is_changed_minimally(go2, g
     effort = go2.effort_limit * guard.effort_scale
     hi = np.maximum(c[pb.BOUND_UP], q)
     d = c[pb.TOWARD]  # env 0's gravity torque toward the upper limits
-    brake = np.maximum((effort - d) * c[pb.BRAKE], 0.0) * c[pb.INV_INERTIA]
 
-    def unsafe(t):
+    def unsafe(t):  # with the least inertia, or (moving toward the limit) the heavier one
         full = np.tile(go2.home, (1, 1))
         full[0, hip] = t
-        u = pb._unsafe_np(full, q[None], dq[None], hi, d, c, effort, brake)
-        return bool(u[0, hip])
+        over = False
+        for row in (pb.INV_INERTIA, pb.INV_HEAVY):
+            brake = np.maximum((effort - d) * c[pb.BRAKE], 0.0) * c[row]
+            u = pb._unsafe_np(full, q[None], dq[None], hi, d, c, effort, brake, c[row])
+            over = over or bool(u[0, hip])
+        return over
 
     assert unsafe(target[0, hip]) and not unsafe(out[0, hip])
     assert unsafe(out[0, hip] + 1e-6)  # the least change: a hair more is unsafe

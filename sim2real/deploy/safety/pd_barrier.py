@@ -11,7 +11,8 @@ safety filter, one dimension a joint): the drive's PD law at every physics subst
 saturated by the effort limit (derated when hot) and the motor's torque-speed line
 (:class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope`); the joint's least inertia
 (Pinocchio's mass-matrix diagonal, legs in the air, over the home pose and ``INERTIA_POSES``
-seeded poses); the gravity torque toward the limit tested at the estimate (:func:`gravity_rows`:
+seeded poses), and for a joint moving toward the limit also ``INERTIA_SPREAD`` times it, the
+target safe under both; the gravity torque toward the limit tested at the estimate (:func:`gravity_rows`:
 the base's estimated tilt, plus ``SLACK_SHARE`` of the joint's all-pose bound
 :func:`sim2real.robots.chain_bounds.motion_bounds`, at most that bound); semi-implicit Euler
 from the estimate ``(q, dq)``.
@@ -56,7 +57,9 @@ KP, KD, INV_INERTIA, GRAVITY, STALL, NO_LOAD, BOUND_UP, BOUND_DOWN, STEP, SUBSTE
 BRAKE = 11
 #: Row of ``SLACK_SHARE`` times ``GRAVITY`` (N m).
 SLACK = 12
-ROWS = 13
+#: Row of 1 / (``INERTIA_SPREAD`` times the least inertia) (1/(kg m^2)): the heavier joint.
+INV_HEAVY = 13
+ROWS = 14
 #: Rows ``TOWARD + 2 e`` and ``TOWARD + 2 e + 1``: env ``e``'s gravity torque toward the upper
 #: and toward the lower limit over the next period (N m, :func:`gravity_rows`), after ``ROWS``.
 TOWARD = ROWS
@@ -74,6 +77,14 @@ BRAKE_SHARE = 0.5
 #: the joint at their longest lever) is no prediction where a joint's effort is barely above it:
 #: judged with it, such a joint can never brake (a G1's waist: docs/measurements.md).
 SLACK_SHARE = 0.25
+#: The most a joint's effective inertia may exceed its least one while it brakes, as a factor:
+#: a joint whose link still touches the ground (a foot rolling on its edge as it lifts off) or
+#: drags the links beyond it moves as if heavier than the least inertia says, and brakes worse.
+#: The prediction is made with the least inertia and, for a joint moving toward the limit, with
+#: this many times it; a target must be safe under both (the least inertia is the worst case of
+#: a target pushing toward the limit, the heavier one of a target braking). Our choice: 3, above
+#: the 1.6-2.7 fitted at a G1 ankle's lift-off (docs/measurements.md).
+INERTIA_SPREAD = 3.0
 #: Halvings of the bisection's bracket (its width, a few rad, to below 1e-9 rad).
 BISECTIONS = 32
 #: Seeded poses, uniform within the joints' ranges, over which the least inertia is taken.
@@ -106,12 +117,11 @@ def _unsafe(t, q, v, hi, d, kp, kd, inv_i, effort, stall, no_load, h, steps, bra
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _barrier(t, q, v, bound, effort, d, j, own) -> float:
-    """The least change of target ``t`` that makes the upper side's prediction safe (``t``
-    itself when it is); ``bound`` the upper bound, ``effort`` the derated effort limit, ``d``
-    the gravity torque toward the bound (N m)."""
-    hi = np_max(bound, q)  # past the bound already: no farther
-    kp, kd, inv_i = own[KP, j], own[KD, j], own[INV_INERTIA, j]
+def _barrier_one(t, q, v, hi, effort, d, j, own, inv_i, stuck) -> float:
+    """The least change of target ``t`` that makes the upper side's prediction with inertia
+    ``1 / inv_i`` safe (``t`` itself when it is); ``stuck`` when no target does: whether to
+    brake with the whole effort (else ``t``)."""
+    kp, kd = own[KP, j], own[KD, j]
     stall, no_load, h = own[STALL, j], own[NO_LOAD, j], own[STEP, j]
     steps = int(own[SUBSTEPS, j])
     brake = effort - d
@@ -126,7 +136,7 @@ def _barrier(t, q, v, bound, effort, d, j, own) -> float:
     if t <= far or _unsafe(
         far, q, v, hi, d, kp, kd, inv_i, effort, stall, no_load, h, steps, brake
     ):
-        return np_min(far, t)
+        return np_min(far, t) if stuck else t
     lo, up = far, t
     for _ in range(BISECTIONS):
         mid = 0.5 * (lo + up)
@@ -135,6 +145,20 @@ def _barrier(t, q, v, bound, effort, d, j, own) -> float:
         else:
             lo = mid
     return lo
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _barrier(t, q, v, bound, effort, d, j, own) -> float:
+    """The least change of target ``t`` that makes the upper side's prediction safe with the
+    least inertia and, moving toward the bound, with the heavier one (``t`` itself when it is);
+    ``bound`` the upper bound, ``effort`` the derated effort limit, ``d`` the gravity torque
+    toward the bound (N m). Where no target keeps the heavier joint off the bound, its motion
+    is not the drive's to stop within the period: the least inertia's answer stands."""
+    hi = np_max(bound, q)  # past the bound already: no farther
+    r = _barrier_one(t, q, v, hi, effort, d, j, own, own[INV_INERTIA, j], True)
+    if v > 0.0:
+        r = np_min(r, _barrier_one(t, q, v, hi, effort, d, j, own, own[INV_HEAVY, j], False))
+    return r
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
@@ -185,7 +209,9 @@ def pd_barrier_constants(guard) -> np.ndarray:
         joints = robot.config.joints
         c[KP] = [j.kp for j in joints]
         c[KD] = [j.kd for j in joints]
-        c[INV_INERTIA] = 1.0 / least_inertia(robot)
+        least = least_inertia(robot)
+        c[INV_INERTIA] = 1.0 / least
+        c[INV_HEAVY] = 1.0 / (INERTIA_SPREAD * least)
         c[GRAVITY] = guard.gravity_bound
         envelope = TorqueSpeedEnvelope(robot.motors)
         c[STALL] = np.where(envelope.active, envelope.stall_coefficient, np.inf)
@@ -266,9 +292,9 @@ def _gravity_model(guard) -> tuple:
     return cached
 
 
-def _unsafe_np(t, q, v, hi, d, c, effort, brake) -> np.ndarray:
+def _unsafe_np(t, q, v, hi, d, c, effort, brake, inv_i) -> np.ndarray:
     """:func:`_unsafe` for every env and joint at once ((envs, n) arrays; ``c`` the constants)."""
-    kp, kd, inv_i, stall, no_load, h = (c[r] for r in (KP, KD, INV_INERTIA, STALL, NO_LOAD, STEP))
+    kp, kd, stall, no_load, h = (c[r] for r in (KP, KD, STALL, NO_LOAD, STEP))
     top = q
     for _ in range(int(c[SUBSTEPS, 0])):
         tau = (t - q) * kp
@@ -286,23 +312,31 @@ def _unsafe_np(t, q, v, hi, d, c, effort, brake) -> np.ndarray:
     return (top > hi) | (v > np.sqrt(2.0 * brake * room))
 
 
-def _barrier_np(t, q, v, bound, effort, d, c) -> np.ndarray:
-    """:func:`_barrier` for every env and joint at once (``d`` (envs, n) N m)."""
-    hi = np.maximum(bound, q)
+def _barrier_one_np(t, q, v, hi, effort, d, c, inv_i, stuck_brakes: bool) -> np.ndarray:
+    """:func:`_barrier_one` for every env and joint at once."""
     kd, kp = c[KD], c[KP]
-    brake = np.maximum((effort - d) * c[BRAKE], 0.0) * c[INV_INERTIA]
-    unsafe = _unsafe_np(t, q, v, hi, d, c, effort, brake)
+    brake = np.maximum((effort - d) * c[BRAKE], 0.0) * inv_i
+    unsafe = _unsafe_np(t, q, v, hi, d, c, effort, brake, inv_i)
     far = effort + effort
     far = far + kd * np.abs(v)
     far = q - far / kp
-    stuck = (t <= far) | _unsafe_np(far, q, v, hi, d, c, effort, brake)
+    stuck = (t <= far) | _unsafe_np(far, q, v, hi, d, c, effort, brake, inv_i)
     lo, up = far, t
     for _ in range(BISECTIONS):
         mid = 0.5 * (lo + up)
-        over = _unsafe_np(mid, q, v, hi, d, c, effort, brake)
+        over = _unsafe_np(mid, q, v, hi, d, c, effort, brake, inv_i)
         up = np.where(over, mid, up)
         lo = np.where(over, lo, mid)
-    return np.where(unsafe, np.where(stuck, np.minimum(far, t), lo), t)
+    held = np.minimum(far, t) if stuck_brakes else t
+    return np.where(unsafe, np.where(stuck, held, lo), t)
+
+
+def _barrier_np(t, q, v, bound, effort, d, c) -> np.ndarray:
+    """:func:`_barrier` for every env and joint at once (``d`` (envs, n) N m)."""
+    hi = np.maximum(bound, q)
+    r = _barrier_one_np(t, q, v, hi, effort, d, c, c[INV_INERTIA], True)
+    heavy = _barrier_one_np(t, q, v, hi, effort, d, c, c[INV_HEAVY], False)
+    return np.where(v > 0.0, np.minimum(r, heavy), r)
 
 
 class PdBarrier(GuardCheck):

@@ -94,15 +94,43 @@ def test_a_pd_target_that_would_reach_the_hard_limit_is_changed_minimally(go2, g
     assert _swing_peak(go2, q, dq, hip, target[0, hip]) > go2.position_upper[hip] - 1e-3
 
 
-def _swing_peak(robot, q, dq, joint, target) -> float:
+@GUARDS
+@pytest.mark.parametrize("heavier", [1.0, 2.5], ids=["free foot", "loaded foot"])
+def test_a_foot_heavier_than_its_least_inertia_is_braked_off_the_stop(guard_type, heavier):
+    """H1-2's ankle roll 0.04-0.06 rad short of its upper stop, rolling toward it at 4-6 rad/s,
+    its target 0.3 rad past the range (a recovery step's request). The foot in the plant is the
+    free one or 2.5 times as heavy (a foot still rolling on its edge as it lifts off brakes
+    worse than the free foot the barrier's least inertia describes): under the guard's target
+    the joint stays off the hard limit over the period either way."""
+    robot = load_robot("h1_2")
+    j = robot.joint_names.index("left_ankle_roll_joint")
+    extra = (heavier - 1.0) * pb.least_inertia(robot)[j]
+    for gap in (0.04, 0.06):
+        for speed in (4.0, 6.0):
+            q = robot.home.copy()
+            q[j] = robot.position_upper[j] - gap
+            dq = np.zeros(robot.n_joints)
+            dq[j] = speed
+            guard = guard_type(robot, 1, "position")
+            state = _state(robot, 1, q, dq)
+            guard.reset(state.q)
+            target = np.tile(robot.home, (1, 1))
+            target[0, j] = robot.position_upper[j] + 0.3
+            out = guard.filter(target, state, out=np.empty_like(target))
+            peak = _swing_peak(robot, q, dq, j, out[0, j], armature=extra, height=2.0)
+            assert peak < robot.position_upper[j], (gap, speed, peak)
+
+
+def _swing_peak(robot, q, dq, joint, target, armature=0.0, height=1.0) -> float:
     """Highest angle (rad) of ``joint`` over one control period of the plant's position drives
     with the base held in the air (the free joint welded by zero gravity on it is not needed:
     the base is pinned by resetting it each substep), from ``q``, ``dq``, all other targets at
-    ``q``."""
+    ``q``; ``armature`` (kg m^2) added to the joint's in the plant, the base ``height`` m up."""
     m = robot.plant_model("position")
+    m.dof_armature[m.jnt_dofadr[m.joint(robot.joint_names[joint]).id]] += armature
     d = mujoco.MjData(m)
     o, v = robot.qpos_offset, robot.qvel_offset
-    d.qpos[2] = 1.0
+    d.qpos[2] = height
     d.qpos[3] = 1.0
     d.qpos[o:] = q
     d.qvel[v:] = dq
@@ -166,6 +194,7 @@ def test_the_plant_clamps_a_position_target_only_where_the_drive_does(name):
     range first."""
     robot = load_robot(name)
     m = robot.plant_model("position")
+    m.dof_armature[m.jnt_dofadr[m.joint(robot.joint_names[joint]).id]] += armature
     d = mujoco.MjData(m)
     o, v = robot.qpos_offset, robot.qvel_offset
     if o:

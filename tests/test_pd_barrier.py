@@ -194,7 +194,6 @@ def test_the_plant_clamps_a_position_target_only_where_the_drive_does(name):
     range first."""
     robot = load_robot(name)
     m = robot.plant_model("position")
-    m.dof_armature[m.jnt_dofadr[m.joint(robot.joint_names[joint]).id]] += armature
     d = mujoco.MjData(m)
     o, v = robot.qpos_offset, robot.qvel_offset
     if o:

@@ -11,11 +11,11 @@ safety filter, one dimension a joint): the drive's PD law at every physics subst
 saturated by the effort limit (derated when hot) and the motor's torque-speed line
 (:class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope`); the joint's least inertia
 (Pinocchio's mass-matrix diagonal, legs in the air, over the home pose and ``INERTIA_POSES``
-seeded poses), and for a joint moving toward the limit also ``INERTIA_SPREAD`` times it, the
-target safe under both; the gravity torque toward the limit tested at the estimate (:func:`gravity_rows`:
-the base's estimated tilt, plus ``SLACK_SHARE`` of the joint's all-pose bound
-:func:`sim2real.robots.chain_bounds.motion_bounds`, at most that bound); semi-implicit Euler
-from the estimate ``(q, dq)``.
+seeded poses), and for a joint on a loaded foot's chain moving toward the limit also
+``INERTIA_SPREAD`` times it, the target safe under both; the gravity torque toward the limit
+tested at the estimate (:func:`gravity_rows`: the base's estimated tilt, plus ``SLACK_SHARE`` of
+the joint's all-pose bound :func:`sim2real.robots.chain_bounds.motion_bounds`, at most that
+bound); semi-implicit Euler from the estimate ``(q, dq)``.
 
 The prediction is unsafe when the joint passes the hard limit less a margin (``MARGIN_SHARE``
 of the soft band; or, already past it, goes farther), or ends the period too fast to stop
@@ -61,7 +61,9 @@ SLACK = 12
 INV_HEAVY = 13
 ROWS = 14
 #: Rows ``TOWARD + 2 e`` and ``TOWARD + 2 e + 1``: env ``e``'s gravity torque toward the upper
-#: and toward the lower limit over the next period (N m, :func:`gravity_rows`), after ``ROWS``.
+#: and toward the lower limit over the next period (N m, :func:`gravity_rows`), after ``ROWS``;
+#: then, row ``TOWARD + 2 envs + e``: env ``e``'s joints on the chain of a foot in contact
+#: (> 0.0; :func:`loaded_rows`), the ones judged with the heavier inertia too.
 TOWARD = ROWS
 #: Share of the soft band (between the soft and the hard limit) kept clear of the hard limit by
 #: the predicted motion. Our choice: a quarter (0.026 rad on the Go2's hips, 0.011 rad on the
@@ -77,13 +79,14 @@ BRAKE_SHARE = 0.5
 #: the joint at their longest lever) is no prediction where a joint's effort is barely above it:
 #: judged with it, such a joint can never brake (a G1's waist: docs/measurements.md).
 SLACK_SHARE = 0.25
-#: The most a joint's effective inertia may exceed its least one while it brakes, as a factor:
-#: a joint whose link still touches the ground (a foot rolling on its edge as it lifts off) or
-#: drags the links beyond it moves as if heavier than the least inertia says, and brakes worse.
-#: The prediction is made with the least inertia and, for a joint moving toward the limit, with
-#: this many times it; a target must be safe under both (the least inertia is the worst case of
-#: a target pushing toward the limit, the heavier one of a target braking). Our choice: 3, above
-#: the 1.6-2.7 fitted at a G1 ankle's lift-off (docs/measurements.md).
+#: The most a loaded leg joint's effective inertia may exceed its least one while it brakes, as
+#: a factor: a joint on the chain of a foot in contact (the estimate's ``foot_contact``), a foot
+#: rolling on its edge as it lifts off, moves as if heavier than the least inertia (the leg in
+#: the air) says, and brakes worse. Such a joint moving toward its limit is predicted with the
+#: least inertia and with this many times it, and a target must be safe under both (the least
+#: inertia is the worst case of a target pushing toward the limit, the heavier one of a target
+#: braking). Our choice: 3, above the 1.6-2.7 fitted at a G1 ankle's lift-off
+#: (docs/measurements.md).
 INERTIA_SPREAD = 3.0
 #: Halvings of the bisection's bracket (its width, a few rad, to below 1e-9 rad).
 BISECTIONS = 32
@@ -148,15 +151,16 @@ def _barrier_one(t, q, v, hi, effort, d, j, own, inv_i, stuck) -> float:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _barrier(t, q, v, bound, effort, d, j, own) -> float:
+def _barrier(t, q, v, bound, effort, d, j, own, loaded) -> float:
     """The least change of target ``t`` that makes the upper side's prediction safe with the
-    least inertia and, moving toward the bound, with the heavier one (``t`` itself when it is);
+    least inertia and, ``loaded`` and moving toward the bound, with the heavier one (``t``
+    itself when it is);
     ``bound`` the upper bound, ``effort`` the derated effort limit, ``d`` the gravity torque
     toward the bound (N m). Where no target keeps the heavier joint off the bound, its motion
     is not the drive's to stop within the period: the least inertia's answer stands."""
     hi = np_max(bound, q)  # past the bound already: no farther
     r = _barrier_one(t, q, v, hi, effort, d, j, own, own[INV_INERTIA, j], True)
-    if v > 0.0:
+    if loaded and v > 0.0:
         r = np_min(r, _barrier_one(t, q, v, hi, effort, d, j, own, own[INV_HEAVY, j], False))
     return r
 
@@ -168,12 +172,15 @@ def pd_barrier_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
         return 0
     changed = False
     up, down = own[TOWARD + 2 * e], own[TOWARD + 2 * e + 1]
+    loaded = own[TOWARD + 2 * out.shape[0] + e]
     for j in range(out.shape[1]):
         t = out[e, j]
         effort = g.lim[EFFORT, j] * g.effort_scale[e, j]
-        r = _barrier(t, q[e, j], dq[e, j], own[BOUND_UP, j], effort, up[j], j, own)
+        on = loaded[j] > 0.0
+        r = _barrier(t, q[e, j], dq[e, j], own[BOUND_UP, j], effort, up[j], j, own, on)
         if r == t:
-            r = -_barrier(-t, -q[e, j], -dq[e, j], own[BOUND_DOWN, j], effort, down[j], j, own)
+            qj, vj, bound = -q[e, j], -dq[e, j], own[BOUND_DOWN, j]
+            r = -_barrier(-t, qj, vj, bound, effort, down[j], j, own, on)
         if r != t:
             changed = True
             out[e, j] = r
@@ -204,7 +211,7 @@ def pd_barrier_constants(guard) -> np.ndarray:
         return cached
     robot = guard.robot
     n = robot.n_joints
-    c = np.zeros((ROWS + 2 * guard.envs, n))
+    c = np.zeros((ROWS + 3 * guard.envs, n))
     if robot_kind(robot).pd_targets and guard.mode == "position":
         joints = robot.config.joints
         c[KP] = [j.kp for j in joints]
@@ -228,7 +235,7 @@ def pd_barrier_constants(guard) -> np.ndarray:
         c[ACTIVE] = 1.0
         c[BRAKE] = BRAKE_SHARE
         c[SLACK] = SLACK_SHARE * guard.gravity_bound
-        c[TOWARD:] = guard.gravity_bound
+        c[TOWARD : TOWARD + 2 * guard.envs] = guard.gravity_bound
     guard.__dict__["_pd_barrier_constants"] = c
     if c[ACTIVE, 0]:  # the gravity rows' kernel bound (compiled or loaded) with its stage
         _gravity_model(guard)
@@ -270,6 +277,36 @@ def _toward(torque, bound, slack, up, down) -> None:
             down[j] = min(slack[j] + torque[j], bound[j])
         else:
             up[j] = down[j] = bound[j]
+
+
+def foot_chains(robot) -> np.ndarray:
+    """(n_feet, n) float64: 1.0 where joint ``j`` is on the chain from the base to foot ``f``
+    (Pinocchio's ``supports`` of the foot frame's parent joint); (0, n) for an arm."""
+    model = robot.pin_model
+    chains = np.zeros((robot.n_feet, robot.n_joints))
+    index = {name: j for j, name in enumerate(robot.joint_names)}
+    for f, frame in enumerate(robot.foot_frame_ids):
+        for joint in model.supports[model.frames[frame].parentJoint]:
+            j = index.get(model.names[joint])
+            if j is not None:
+                chains[f, j] = 1.0
+    return chains
+
+
+def loaded_rows(guard, foot_contact: np.ndarray | None) -> None:
+    """Rewrite the loaded rows of ``guard``'s constants (``TOWARD + 2 envs`` on) from the feet in
+    contact, ``foot_contact`` (envs, n_feet) 1.0 or 0.0 (None: no foot is): each joint's count of
+    the feet in contact whose chain holds it (:func:`foot_chains`)."""
+    c = pd_barrier_constants(guard)
+    envs = guard.envs
+    rows = c[TOWARD + 2 * envs : TOWARD + 3 * envs]
+    chains = guard.__dict__.get("_pd_barrier_chains")
+    if chains is None:
+        chains = guard.__dict__["_pd_barrier_chains"] = foot_chains(guard.robot)
+    if foot_contact is None or chains.shape[0] == 0:
+        rows.fill(0.0)
+    else:
+        np.matmul(foot_contact, chains, out=rows)
 
 
 def _gravity_model(guard) -> tuple:
@@ -331,12 +368,13 @@ def _barrier_one_np(t, q, v, hi, effort, d, c, inv_i, stuck_brakes: bool) -> np.
     return np.where(unsafe, np.where(stuck, held, lo), t)
 
 
-def _barrier_np(t, q, v, bound, effort, d, c) -> np.ndarray:
-    """:func:`_barrier` for every env and joint at once (``d`` (envs, n) N m)."""
+def _barrier_np(t, q, v, bound, effort, d, c, loaded) -> np.ndarray:
+    """:func:`_barrier` for every env and joint at once (``d`` (envs, n) N m, ``loaded`` (envs,
+    n) bool)."""
     hi = np.maximum(bound, q)
     r = _barrier_one_np(t, q, v, hi, effort, d, c, c[INV_INERTIA], True)
     heavy = _barrier_one_np(t, q, v, hi, effort, d, c, c[INV_HEAVY], False)
-    return np.where(v > 0.0, np.minimum(r, heavy), r)
+    return np.where(loaded & (v > 0.0), np.minimum(r, heavy), r)
 
 
 class PdBarrier(GuardCheck):
@@ -355,6 +393,7 @@ class PdBarrier(GuardCheck):
         if pd_barrier_constants(g)[ACTIVE, 0] != 0.0:
             base = state.base
             gravity_rows(g, state.q, None if base is None else base.projected_gravity)
+            loaded_rows(g, state.foot_contact)
 
     def reference(self, stage, g, out, q, dq, commanded):
         c = pd_barrier_constants(g)
@@ -363,9 +402,10 @@ class PdBarrier(GuardCheck):
         effort = g.robot.effort_limit * g.effort_scale
         envs = out.shape[0]
         up, down = c[TOWARD : TOWARD + 2 * envs : 2], c[TOWARD + 1 : TOWARD + 2 * envs : 2]
+        on = c[TOWARD + 2 * envs : TOWARD + 3 * envs] > 0.0
         t = out.copy()
-        r = _barrier_np(t, q, dq, c[BOUND_UP], effort, up, c)
-        down = -_barrier_np(-t, -q, -dq, c[BOUND_DOWN], effort, down, c)
+        r = _barrier_np(t, q, dq, c[BOUND_UP], effort, up, c, on)
+        down = -_barrier_np(-t, -q, -dq, c[BOUND_DOWN], effort, down, c, on)
         r = np.where(r == t, down, r)
         changed = (r != t).any(axis=1)
         out[:] = r

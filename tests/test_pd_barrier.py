@@ -77,10 +77,10 @@ def test_a_pd_target_that_would_reach_the_hard_limit_is_changed_minimally(go2, g
     d = c[pb.TOWARD]  # env 0's gravity torque toward the upper limits
     brake = np.maximum((effort - d) * c[pb.BRAKE], 0.0) * c[pb.INV_INERTIA]
 
-    def unsafe(t):
+    def unsafe(t):  # the foot in the air: the least inertia alone
         full = np.tile(go2.home, (1, 1))
         full[0, hip] = t
-        u = pb._unsafe_np(full, q[None], dq[None], hi, d, c, effort, brake)
+        u = pb._unsafe_np(full, q[None], dq[None], hi, d, c, effort, brake, c[pb.INV_INERTIA])
         return bool(u[0, hip])
 
     assert unsafe(target[0, hip]) and not unsafe(out[0, hip])
@@ -91,15 +91,45 @@ def test_a_pd_target_that_would_reach_the_hard_limit_is_changed_minimally(go2, g
     assert _swing_peak(go2, q, dq, hip, target[0, hip]) > go2.position_upper[hip] - 1e-3
 
 
-def _swing_peak(robot, q, dq, joint, target) -> float:
+@GUARDS
+@pytest.mark.parametrize("heavier", [1.0, 2.5], ids=["free foot", "loaded foot"])
+def test_a_foot_heavier_than_its_least_inertia_is_braked_off_the_stop(guard_type, heavier):
+    """H1-2's ankle roll 0.04-0.06 rad short of its upper stop, rolling toward it at 4-6 rad/s,
+    its foot in contact (the estimate's), its target 0.3 rad past the range (a recovery step's
+    request). The foot in the plant is the free one or 2.5 times as heavy (a foot still rolling
+    on its edge as it lifts off brakes worse than the free foot the barrier's least inertia
+    describes): under the guard's target the joint stays off the hard limit over the period
+    either way."""
+    robot = load_robot("h1_2")
+    j = robot.joint_names.index("left_ankle_roll_joint")
+    extra = (heavier - 1.0) * pb.least_inertia(robot)[j]
+    for gap in (0.04, 0.06):
+        for speed in (4.0, 6.0):
+            q = robot.home.copy()
+            q[j] = robot.position_upper[j] - gap
+            dq = np.zeros(robot.n_joints)
+            dq[j] = speed
+            guard = guard_type(robot, 1, "position")
+            state = _state(robot, 1, q, dq)
+            state.foot_contact[:] = 1.0  # the foot still touches as it rolls on its edge
+            guard.reset(state.q)
+            target = np.tile(robot.home, (1, 1))
+            target[0, j] = robot.position_upper[j] + 0.3
+            out = guard.filter(target, state, out=np.empty_like(target))
+            peak = _swing_peak(robot, q, dq, j, out[0, j], armature=extra, height=2.0)
+            assert peak < robot.position_upper[j], (gap, speed, peak)
+
+
+def _swing_peak(robot, q, dq, joint, target, armature=0.0, height=1.0) -> float:
     """Highest angle (rad) of ``joint`` over one control period of the plant's position drives
     with the base held in the air (the free joint welded by zero gravity on it is not needed:
     the base is pinned by resetting it each substep), from ``q``, ``dq``, all other targets at
-    ``q``."""
+    ``q``; ``armature`` (kg m^2) added to the joint's in the plant, the base ``height`` m up."""
     m = robot.plant_model("position")
+    m.dof_armature[m.jnt_dofadr[m.joint(robot.joint_names[joint]).id]] += armature
     d = mujoco.MjData(m)
     o, v = robot.qpos_offset, robot.qvel_offset
-    d.qpos[2] = 1.0
+    d.qpos[2] = height
     d.qpos[3] = 1.0
     d.qpos[o:] = q
     d.qvel[v:] = dq
@@ -117,8 +147,8 @@ def _swing_peak(robot, q, dq, joint, target) -> float:
 @pytest.mark.parametrize("name", ["go2", "h1_2"])
 def test_the_compiled_barrier_equals_the_reference(name):
     """Random states in and around the joints' ranges, fast joints, tilted bases, targets spread
-    about them: the compiled guard and the numpy reference give the same targets and counters
-    bit for bit, and the barrier acts on a share of them (the test exercises both branches)."""
+    about them, feet in contact or not: the compiled guard and the numpy reference give the same
+    targets and counters bit for bit, and the barrier acts on a share of them (the test exercises both branches)."""
     robot = load_robot(name)
     envs = 16
     compiled, reference = (
@@ -134,6 +164,7 @@ def test_the_compiled_barrier_equals_the_reference(name):
         state = _state(robot, envs, q, rng.normal(0.0, 8.0, q.shape))
         tilt = rng.normal(0.0, 0.3, (envs, 3)) + [0.0, 0.0, -1.0]  # bases tilted every way
         state.base.projected_gravity[:] = tilt / np.linalg.norm(tilt, axis=1, keepdims=True)
+        state.foot_contact[:] = rng.integers(0, 2, state.foot_contact.shape)  # loaded or not
         target = q + rng.normal(0.0, 1.0, q.shape)
         a = compiled.filter(target, state, out=np.empty_like(target))
         b = reference.filter(target, state, out=np.empty_like(target))

@@ -11,10 +11,11 @@ safety filter, one dimension a joint): the drive's PD law at every physics subst
 saturated by the effort limit (derated when hot) and the motor's torque-speed line
 (:class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope`); the joint's least inertia
 (Pinocchio's mass-matrix diagonal, legs in the air, over the home pose and ``INERTIA_POSES``
-seeded poses); the gravity torque toward the limit tested at the estimate (:func:`gravity_rows`:
-the base's estimated tilt, plus ``SLACK_SHARE`` of the joint's all-pose bound
-:func:`sim2real.robots.chain_bounds.motion_bounds`, at most that bound); semi-implicit Euler
-from the estimate ``(q, dq)``.
+seeded poses), and for a joint on a loaded foot's chain moving toward the limit also
+``INERTIA_SPREAD`` times it, the target safe under both; the gravity torque toward the limit
+tested at the estimate (:func:`gravity_rows`: the base's estimated tilt, plus ``SLACK_SHARE`` of
+the joint's all-pose bound :func:`sim2real.robots.chain_bounds.motion_bounds`, at most that
+bound); semi-implicit Euler from the estimate ``(q, dq)``.
 
 The prediction is unsafe when the joint passes the hard limit less a margin (``MARGIN_SHARE``
 of the soft band; or, already past it, goes farther), or ends the period too fast to stop
@@ -56,9 +57,13 @@ KP, KD, INV_INERTIA, GRAVITY, STALL, NO_LOAD, BOUND_UP, BOUND_DOWN, STEP, SUBSTE
 BRAKE = 11
 #: Row of ``SLACK_SHARE`` times ``GRAVITY`` (N m).
 SLACK = 12
-ROWS = 13
+#: Row of 1 / (``INERTIA_SPREAD`` times the least inertia) (1/(kg m^2)): the heavier joint.
+INV_HEAVY = 13
+ROWS = 14
 #: Rows ``TOWARD + 2 e`` and ``TOWARD + 2 e + 1``: env ``e``'s gravity torque toward the upper
-#: and toward the lower limit over the next period (N m, :func:`gravity_rows`), after ``ROWS``.
+#: and toward the lower limit over the next period (N m, :func:`gravity_rows`), after ``ROWS``;
+#: then, row ``TOWARD + 2 envs + e``: env ``e``'s joints on the chain of a foot in contact
+#: (> 0.0; :func:`loaded_rows`), the ones judged with the heavier inertia too.
 TOWARD = ROWS
 #: Share of the soft band (between the soft and the hard limit) kept clear of the hard limit by
 #: the predicted motion. Our choice: a quarter (0.026 rad on the Go2's hips, 0.011 rad on the
@@ -74,6 +79,15 @@ BRAKE_SHARE = 0.5
 #: the joint at their longest lever) is no prediction where a joint's effort is barely above it:
 #: judged with it, such a joint can never brake (a G1's waist: docs/measurements.md).
 SLACK_SHARE = 0.25
+#: The most a loaded leg joint's effective inertia may exceed its least one while it brakes, as
+#: a factor: a joint on the chain of a foot in contact (the estimate's ``foot_contact``), a foot
+#: rolling on its edge as it lifts off, moves as if heavier than the least inertia (the leg in
+#: the air) says, and brakes worse. Such a joint moving toward its limit is predicted with the
+#: least inertia and with this many times it, and a target must be safe under both (the least
+#: inertia is the worst case of a target pushing toward the limit, the heavier one of a target
+#: braking). Our choice: 3, above the 1.6-2.7 fitted at a G1 ankle's lift-off
+#: (docs/measurements.md).
+INERTIA_SPREAD = 3.0
 #: Halvings of the bisection's bracket (its width, a few rad, to below 1e-9 rad).
 BISECTIONS = 32
 #: Seeded poses, uniform within the joints' ranges, over which the least inertia is taken.
@@ -106,12 +120,11 @@ def _unsafe(t, q, v, hi, d, kp, kd, inv_i, effort, stall, no_load, h, steps, bra
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _barrier(t, q, v, bound, effort, d, j, own) -> float:
-    """The least change of target ``t`` that makes the upper side's prediction safe (``t``
-    itself when it is); ``bound`` the upper bound, ``effort`` the derated effort limit, ``d``
-    the gravity torque toward the bound (N m)."""
-    hi = np_max(bound, q)  # past the bound already: no farther
-    kp, kd, inv_i = own[KP, j], own[KD, j], own[INV_INERTIA, j]
+def _barrier_one(t, q, v, hi, effort, d, j, own, inv_i, stuck) -> float:
+    """The least change of target ``t`` that makes the upper side's prediction with inertia
+    ``1 / inv_i`` safe (``t`` itself when it is); ``stuck`` when no target does: whether to
+    brake with the whole effort (else ``t``)."""
+    kp, kd = own[KP, j], own[KD, j]
     stall, no_load, h = own[STALL, j], own[NO_LOAD, j], own[STEP, j]
     steps = int(own[SUBSTEPS, j])
     brake = effort - d
@@ -126,7 +139,7 @@ def _barrier(t, q, v, bound, effort, d, j, own) -> float:
     if t <= far or _unsafe(
         far, q, v, hi, d, kp, kd, inv_i, effort, stall, no_load, h, steps, brake
     ):
-        return np_min(far, t)
+        return np_min(far, t) if stuck else t
     lo, up = far, t
     for _ in range(BISECTIONS):
         mid = 0.5 * (lo + up)
@@ -137,6 +150,21 @@ def _barrier(t, q, v, bound, effort, d, j, own) -> float:
     return lo
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _barrier(t, q, v, bound, effort, d, j, own, loaded) -> float:
+    """The least change of target ``t`` that makes the upper side's prediction safe with the
+    least inertia and, ``loaded`` and moving toward the bound, with the heavier one (``t``
+    itself when it is);
+    ``bound`` the upper bound, ``effort`` the derated effort limit, ``d`` the gravity torque
+    toward the bound (N m). Where no target keeps the heavier joint off the bound, its motion
+    is not the drive's to stop within the period: the least inertia's answer stands."""
+    hi = np_max(bound, q)  # past the bound already: no farther
+    r = _barrier_one(t, q, v, hi, effort, d, j, own, own[INV_INERTIA, j], True)
+    if loaded and v > 0.0:
+        r = np_min(r, _barrier_one(t, q, v, hi, effort, d, j, own, own[INV_HEAVY, j], False))
+    return r
+
+
 @numba.njit(cache=True, nogil=True, _nrt=False)
 def pd_barrier_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int:
     """:class:`PdBarrier`'s compiled share (signature of :class:`GuardCheck`)."""
@@ -144,12 +172,15 @@ def pd_barrier_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
         return 0
     changed = False
     up, down = own[TOWARD + 2 * e], own[TOWARD + 2 * e + 1]
+    loaded = own[TOWARD + 2 * out.shape[0] + e]
     for j in range(out.shape[1]):
         t = out[e, j]
         effort = g.lim[EFFORT, j] * g.effort_scale[e, j]
-        r = _barrier(t, q[e, j], dq[e, j], own[BOUND_UP, j], effort, up[j], j, own)
+        on = loaded[j] > 0.0
+        r = _barrier(t, q[e, j], dq[e, j], own[BOUND_UP, j], effort, up[j], j, own, on)
         if r == t:
-            r = -_barrier(-t, -q[e, j], -dq[e, j], own[BOUND_DOWN, j], effort, down[j], j, own)
+            qj, vj, bound = -q[e, j], -dq[e, j], own[BOUND_DOWN, j]
+            r = -_barrier(-t, qj, vj, bound, effort, down[j], j, own, on)
         if r != t:
             changed = True
             out[e, j] = r
@@ -180,12 +211,14 @@ def pd_barrier_constants(guard) -> np.ndarray:
         return cached
     robot = guard.robot
     n = robot.n_joints
-    c = np.zeros((ROWS + 2 * guard.envs, n))
+    c = np.zeros((ROWS + 3 * guard.envs, n))
     if robot_kind(robot).pd_targets and guard.mode == "position":
         joints = robot.config.joints
         c[KP] = [j.kp for j in joints]
         c[KD] = [j.kd for j in joints]
-        c[INV_INERTIA] = 1.0 / least_inertia(robot)
+        least = least_inertia(robot)
+        c[INV_INERTIA] = 1.0 / least
+        c[INV_HEAVY] = 1.0 / (INERTIA_SPREAD * least)
         c[GRAVITY] = guard.gravity_bound
         envelope = TorqueSpeedEnvelope(robot.motors)
         c[STALL] = np.where(envelope.active, envelope.stall_coefficient, np.inf)
@@ -202,7 +235,7 @@ def pd_barrier_constants(guard) -> np.ndarray:
         c[ACTIVE] = 1.0
         c[BRAKE] = BRAKE_SHARE
         c[SLACK] = SLACK_SHARE * guard.gravity_bound
-        c[TOWARD:] = guard.gravity_bound
+        c[TOWARD : TOWARD + 2 * guard.envs] = guard.gravity_bound
     guard.__dict__["_pd_barrier_constants"] = c
     if c[ACTIVE, 0]:  # the gravity rows' kernel bound (compiled or loaded) with its stage
         _gravity_model(guard)
@@ -246,6 +279,36 @@ def _toward(torque, bound, slack, up, down) -> None:
             up[j] = down[j] = bound[j]
 
 
+def foot_chains(robot) -> np.ndarray:
+    """(n_feet, n) float64: 1.0 where joint ``j`` is on the chain from the base to foot ``f``
+    (Pinocchio's ``supports`` of the foot frame's parent joint); (0, n) for an arm."""
+    model = robot.pin_model
+    chains = np.zeros((robot.n_feet, robot.n_joints))
+    index = {name: j for j, name in enumerate(robot.joint_names)}
+    for f, frame in enumerate(robot.foot_frame_ids):
+        for joint in model.supports[model.frames[frame].parentJoint]:
+            j = index.get(model.names[joint])
+            if j is not None:
+                chains[f, j] = 1.0
+    return chains
+
+
+def loaded_rows(guard, foot_contact: np.ndarray | None) -> None:
+    """Rewrite the loaded rows of ``guard``'s constants (``TOWARD + 2 envs`` on) from the feet in
+    contact, ``foot_contact`` (envs, n_feet) 1.0 or 0.0 (None: no foot is): each joint's count of
+    the feet in contact whose chain holds it (:func:`foot_chains`)."""
+    c = pd_barrier_constants(guard)
+    envs = guard.envs
+    rows = c[TOWARD + 2 * envs : TOWARD + 3 * envs]
+    chains = guard.__dict__.get("_pd_barrier_chains")
+    if chains is None:
+        chains = guard.__dict__["_pd_barrier_chains"] = foot_chains(guard.robot)
+    if foot_contact is None or chains.shape[0] == 0:
+        rows.fill(0.0)
+    else:
+        np.matmul(foot_contact, chains, out=rows)
+
+
 def _gravity_model(guard) -> tuple:
     """``guard``'s fixed-base Pinocchio model copied for :func:`gravity_rows` (which turns its
     gravity), its data, gravity's magnitude (m/s^2), the upright direction, buffers (3,) and
@@ -266,9 +329,9 @@ def _gravity_model(guard) -> tuple:
     return cached
 
 
-def _unsafe_np(t, q, v, hi, d, c, effort, brake) -> np.ndarray:
+def _unsafe_np(t, q, v, hi, d, c, effort, brake, inv_i) -> np.ndarray:
     """:func:`_unsafe` for every env and joint at once ((envs, n) arrays; ``c`` the constants)."""
-    kp, kd, inv_i, stall, no_load, h = (c[r] for r in (KP, KD, INV_INERTIA, STALL, NO_LOAD, STEP))
+    kp, kd, stall, no_load, h = (c[r] for r in (KP, KD, STALL, NO_LOAD, STEP))
     top = q
     for _ in range(int(c[SUBSTEPS, 0])):
         tau = (t - q) * kp
@@ -286,23 +349,32 @@ def _unsafe_np(t, q, v, hi, d, c, effort, brake) -> np.ndarray:
     return (top > hi) | (v > np.sqrt(2.0 * brake * room))
 
 
-def _barrier_np(t, q, v, bound, effort, d, c) -> np.ndarray:
-    """:func:`_barrier` for every env and joint at once (``d`` (envs, n) N m)."""
-    hi = np.maximum(bound, q)
+def _barrier_one_np(t, q, v, hi, effort, d, c, inv_i, stuck_brakes: bool) -> np.ndarray:
+    """:func:`_barrier_one` for every env and joint at once."""
     kd, kp = c[KD], c[KP]
-    brake = np.maximum((effort - d) * c[BRAKE], 0.0) * c[INV_INERTIA]
-    unsafe = _unsafe_np(t, q, v, hi, d, c, effort, brake)
+    brake = np.maximum((effort - d) * c[BRAKE], 0.0) * inv_i
+    unsafe = _unsafe_np(t, q, v, hi, d, c, effort, brake, inv_i)
     far = effort + effort
     far = far + kd * np.abs(v)
     far = q - far / kp
-    stuck = (t <= far) | _unsafe_np(far, q, v, hi, d, c, effort, brake)
+    stuck = (t <= far) | _unsafe_np(far, q, v, hi, d, c, effort, brake, inv_i)
     lo, up = far, t
     for _ in range(BISECTIONS):
         mid = 0.5 * (lo + up)
-        over = _unsafe_np(mid, q, v, hi, d, c, effort, brake)
+        over = _unsafe_np(mid, q, v, hi, d, c, effort, brake, inv_i)
         up = np.where(over, mid, up)
         lo = np.where(over, lo, mid)
-    return np.where(unsafe, np.where(stuck, np.minimum(far, t), lo), t)
+    held = np.minimum(far, t) if stuck_brakes else t
+    return np.where(unsafe, np.where(stuck, held, lo), t)
+
+
+def _barrier_np(t, q, v, bound, effort, d, c, loaded) -> np.ndarray:
+    """:func:`_barrier` for every env and joint at once (``d`` (envs, n) N m, ``loaded`` (envs,
+    n) bool)."""
+    hi = np.maximum(bound, q)
+    r = _barrier_one_np(t, q, v, hi, effort, d, c, c[INV_INERTIA], True)
+    heavy = _barrier_one_np(t, q, v, hi, effort, d, c, c[INV_HEAVY], False)
+    return np.where(loaded & (v > 0.0), np.minimum(r, heavy), r)
 
 
 class PdBarrier(GuardCheck):
@@ -321,6 +393,7 @@ class PdBarrier(GuardCheck):
         if pd_barrier_constants(g)[ACTIVE, 0] != 0.0:
             base = state.base
             gravity_rows(g, state.q, None if base is None else base.projected_gravity)
+            loaded_rows(g, state.foot_contact)
 
     def reference(self, stage, g, out, q, dq, commanded):
         c = pd_barrier_constants(g)
@@ -329,9 +402,10 @@ class PdBarrier(GuardCheck):
         effort = g.robot.effort_limit * g.effort_scale
         envs = out.shape[0]
         up, down = c[TOWARD : TOWARD + 2 * envs : 2], c[TOWARD + 1 : TOWARD + 2 * envs : 2]
+        on = c[TOWARD + 2 * envs : TOWARD + 3 * envs] > 0.0
         t = out.copy()
-        r = _barrier_np(t, q, dq, c[BOUND_UP], effort, up, c)
-        down = -_barrier_np(-t, -q, -dq, c[BOUND_DOWN], effort, down, c)
+        r = _barrier_np(t, q, dq, c[BOUND_UP], effort, up, c, on)
+        down = -_barrier_np(-t, -q, -dq, c[BOUND_DOWN], effort, down, c, on)
         r = np.where(r == t, down, r)
         changed = (r != t).any(axis=1)
         out[:] = r

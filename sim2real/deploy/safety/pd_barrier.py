@@ -297,12 +297,18 @@ def loaded_rows(guard, foot_contact: np.ndarray | None) -> None:
     """Rewrite the loaded rows of ``guard``'s constants (``TOWARD + 2 envs`` on) from the feet in
     contact, ``foot_contact`` (envs, n_feet) 1.0 or 0.0 (None: no foot is): each joint's count of
     the feet in contact whose chain holds it (:func:`foot_chains`)."""
-    c = pd_barrier_constants(guard)
-    envs = guard.envs
-    rows = c[TOWARD + 2 * envs : TOWARD + 3 * envs]
-    chains = guard.__dict__.get("_pd_barrier_chains")
-    if chains is None:
-        chains = guard.__dict__["_pd_barrier_chains"] = foot_chains(guard.robot)
+    cached = guard.__dict__.get("_pd_barrier_loaded")
+    if cached is None:  # the constants themselves (a copy of the guard copies them together)
+        c, envs = pd_barrier_constants(guard), guard.envs
+        chains = foot_chains(guard.robot)
+        cached = guard.__dict__["_pd_barrier_loaded"] = (
+            c,
+            TOWARD + 2 * envs,
+            TOWARD + 3 * envs,
+            chains,
+        )
+    c, first, end, chains = cached
+    rows = c[first:end]
     if foot_contact is None or chains.shape[0] == 0:
         rows.fill(0.0)
     else:

@@ -68,15 +68,16 @@ class VelocityTask:
         if self.command is not None:
             runtime.velocity_command[envs] = self.command
 
-    def __call__(self, runtime) -> None:
+    def __call__(self, runtime, truth: np.ndarray | None = None) -> None:
         """One tick: the schedule's command, the tracker, the hold (in that order); judged on
-        the plant's truth, the tracker's and the hold's kernels over one table
+        the plant's truth (``truth``: this tick's ``true_base_state()`` when the caller read
+        it, else read here), the tracker's and the hold's kernels over one table
         (:class:`~sim2real.deploy.tasks.velocity_kernel.TaskCall`, the same numbers)."""
         if self.schedule is not None:
             self.schedule(runtime)
         call = self._compiled_call(runtime)
         if call is not None:
-            truth = self.tracker.truth()
+            truth = self.tracker.truth() if truth is None else truth
             if type(truth) is np.ndarray and truth.dtype == np.float64:
                 if truth.shape == (self.tracker.envs, 13) and truth.flags.c_contiguous:
                     call(runtime, truth)

@@ -62,6 +62,10 @@ class VelocityTask:
             self._asked = np.tile(command, (envs, 1))
         self.tracker = CommandTracker(envs, control_period, backend, window=window)
         self._call = None  # the tracker's and the hold's kernels as one table (_compiled_call)
+        if self.tracker.truth is not None:
+            from sim2real.deploy.tasks.velocity_kernel import load
+
+            load()  # the kernels ready before the first tick
 
     def reset(self, runtime, envs: np.ndarray) -> None:
         """Write the fixed command, if any, for the envs of ``envs``."""

@@ -209,3 +209,12 @@ class TaskCall:
         if self._hold:
             arctan2(self._h_sin_cos[0], self._h_sin_cos[1], out=self._h_error)
         call(3, truth, slot, time, running)
+
+
+def load() -> None:
+    """Compile (or load from numba's cache) :func:`task_stage` for its table: done when a task
+    judged on the truth is built, so that the first tick does not wait for it."""
+    from sim2real.deploy.kernels.calls import bind
+
+    table = np.zeros(HEADER + SLOT * len(_NAMES), dtype=np.int64)
+    bind(task_stage, table, rest=(0, np.zeros((1, 13)), 0, 0.0, True))

@@ -25,6 +25,7 @@ from sim2real.deploy.core.modes import (
 )
 from sim2real.deploy.core.state import Kinematics, RobotState
 from sim2real.deploy.estimation.joints import JointStateEstimator
+from sim2real.deploy.kernels import any_true
 from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.observe import long_ticks as lt
 from sim2real.deploy.robot_kind import robot_kind
@@ -407,7 +408,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
             self.smoother.follow(target, np.equal(self.mode, RUNNING, out=self._running), cmd)
         if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
             damp = np.greater_equal(self.mode, SAFE_STOP, out=self._damp)  # SAFE_STOP, FAULTED
-            if damp.any():
+            if any_true(damp):
                 self.supervision.damp(cmd, state, damp)
             if self._backend_damp is not None:  # drivers with a damping mode of their own
                 self._backend_damp(damp)
@@ -420,7 +421,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         # policy's, whose output fed back to itself would grow unchecked (a policy reading its
         # last action, lying damped for seconds)
         state.last_action[:] = action
-        if np.not_equal(self.mode, RUNNING, out=self._idle).any():
+        if any_true(np.not_equal(self.mode, RUNNING, out=self._idle)):
             np.copyto(state.last_action, 0.0, where=self._idle_rows)
         self.ticks += 1
         self.time += self.dt

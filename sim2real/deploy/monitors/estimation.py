@@ -67,6 +67,11 @@ class EstimationMonitor:
 
         load()  # the kernels ready before the first tick
 
+    def __getstate__(self) -> dict:
+        """A copy (``copy.deepcopy``, pickle) binds its kernels afresh: the bound call's table
+        names the original's arrays."""
+        return self.__dict__ | {"_calls": None, "_table": None, "_kept": None}
+
     @property
     def ticks(self) -> int:
         return int(self.sums[:, 4].sum())

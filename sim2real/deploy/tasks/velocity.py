@@ -67,6 +67,11 @@ class VelocityTask:
 
             load()  # the kernels ready before the first tick
 
+    def __getstate__(self) -> dict:
+        """A copy (``copy.deepcopy``, pickle) binds its kernels afresh: the bound call's table
+        names the original's arrays."""
+        return self.__dict__ | {"_call": None}
+
     def reset(self, runtime, envs: np.ndarray) -> None:
         """Write the fixed command, if any, for the envs of ``envs``."""
         if self.command is not None:

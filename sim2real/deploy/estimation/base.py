@@ -62,7 +62,7 @@ from sim2real.deploy.estimation.base_params import (  # noqa: F401 (this module'
     require_floating_base,
 )
 from sim2real.deploy.estimation.base_steps import BaseSteps
-from sim2real.deploy.kernels.calls import SLOT, bind, put_slot
+from sim2real.deploy.kernels.calls import SLOT, bind, put_slots
 from sim2real.robots import Robot
 
 
@@ -420,12 +420,7 @@ class BaseStateEstimator(BaseSteps):
         legs += (out.linear_velocity, out.angular_velocity, out.linear_velocity_world)
         if bound:
             table, kept = np.zeros(SLOT * len(bt.TABLE_ARGS), dtype=np.int64), []
-            dtypes = {"f8": np.float64, "i8": np.int64, "b1": np.bool_}
-            slots = zip(bt.TABLE_ARGS, imu + legs, strict=True)
-            if all(
-                put_slot(table, kept, k * SLOT, a, dtypes[t], d)
-                for k, ((_, t, d), a) in enumerate(slots)
-            ):
+            if put_slots(table, kept, 0, bt.TABLE_ARGS, imu + legs):
                 self._table = (table, kept)  # the arrays alive while the table names them
                 stage = bind(bt.tick_stage, table, rest=(0,))
                 return functools.partial(stage, 0), functools.partial(stage, 1)

@@ -33,7 +33,7 @@ from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import put, take
-from sim2real.deploy.kernels.calls import SLOT, bind, put_slot
+from sim2real.deploy.kernels.calls import SLOT, bind, put_slots
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.safety import kernel as gk
 from sim2real.deploy.safety.check import (
@@ -62,8 +62,6 @@ from sim2real.robots.chain_bounds import (
     motion_bounds,
 )
 from sim2real.robots.thermal import EffortDerating
-
-_DTYPES = {"f8": np.float64, "i8": np.int64, "b1": np.bool_}  # the kernel table's dtypes
 
 #: Slack of the screens, m (round-off of the kinematics): a check runs when within it.
 SCREEN_MARGIN = 1e-9
@@ -427,11 +425,9 @@ class SafetyGuard(MotionCheck):
         arrays = (*args, *(getattr(a, name) for name, _, _ in gk.TABLE_SLOTS[len(args) :]))
         table, kept = np.zeros(gk.TABLE_HEADER + SLOT * len(gk.TABLE_SLOTS), np.int64), []
         table[0] = a.mode
-        at = (gk.TABLE_HEADER + SLOT * k for k in range(len(arrays)))
-        slots = zip(at, gk.TABLE_SLOTS, arrays, strict=True)
         with warnings.catch_warnings():  # numba: a tuple of functions is "experimental"
             warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
-            if all(put_slot(table, kept, i, x, _DTYPES[t], d) for i, (_, t, d), x in slots):
+            if put_slots(table, kept, gk.TABLE_HEADER, gk.TABLE_SLOTS, arrays):
                 self._table = (table, kept)  # the arrays alive while the table names them
                 self._phase0 = bind(gk.guard_table, 0, table, has, a.own)
                 self._phase1 = bind(gk.guard_table, 1, table, has, a.own)

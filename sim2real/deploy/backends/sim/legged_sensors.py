@@ -152,7 +152,7 @@ class BaseSensorModel:
         self._touch_index = np.array(touch, dtype=np.int64)
         self._ratio, self._a = np.zeros(envs), np.zeros(envs)
         self._sample_call = self._read_call = self._sample_key = self._read_key = None
-        self._sample_table = None  # the arrays of the bound sample's table (_bind_sample)
+        self._sample_table = self._read_table = None  # the arrays their bound tables name
         self._bind_sample(None, np.zeros((envs, 3), dtype=np.int64))  # compiled (or loaded) now
         self._bind_read(backend.frame if hasattr(backend, "frame") else None)
         self._sample_key = self._read_key = None
@@ -163,6 +163,7 @@ class BaseSensorModel:
         state = dict(self.__dict__)
         state["_sample_call"] = state["_read_call"] = None
         state["_sample_key"] = state["_read_key"] = state["_sample_table"] = None
+        state["_read_table"] = None
         state["_data"] = np.zeros_like(self._data)
         return state
 
@@ -368,13 +369,14 @@ class BaseSensorModel:
         self._read_call = None
         if not all(fits(a, t, s) for a, t, s in zip(fields, dtypes, shapes, strict=True)):
             return
-        self._read_call = bind(
-            kernel.base_read,
-            *(self._buf_imu, self._buf_imu_stamp, self._buf_force, self._buf_contact_stamp),
-            *(self.imu_latency_ticks, self.contact_latency_ticks, self.contact_threshold),
-            *fields,
-            rest=(0,),
-        )
+        arrays = (self._buf_imu, self._buf_imu_stamp, self._buf_force, self._buf_contact_stamp)
+        arrays += (self.imu_latency_ticks, self.contact_latency_ticks, self.contact_threshold)
+        table, kept = np.zeros(SLOT * len(kernel.READ_SLOTS), dtype=np.int64), []
+        if put_slots(table, kept, 0, kernel.READ_SLOTS, (*arrays, *fields)):
+            self._read_table = kept  # the arrays alive while the table names them
+            self._read_call = bind(kernel.read_table, table, rest=(0,))
+        else:
+            self._read_call = bind(kernel.base_read, *arrays, *fields, rest=(0,))
 
     def reference_read(self, frame, tick: int) -> None:
         """:meth:`read` by numpy (the compiled call's reference)."""

@@ -213,3 +213,26 @@ def sample_table(table, imu_due, contact_due, slot, time):
         view2(table, _at(19), f8), view3(table, _at(20), f8), view2(table, _at(21), f8),
         view3(table, _at(22), f8), view2(table, _at(23), f8), imu_due, contact_due, slot, time,
     )  # fmt: skip
+
+
+#: The arrays of :func:`base_read` as slots of one table, in the kernel's order.
+READ_SLOTS = (
+    ("buf_imu", "f8", 3), ("buf_imu_stamp", "f8", 2), ("buf_force", "f8", 3),
+    ("buf_contact_stamp", "f8", 2), ("imu_latency", "i8", 1), ("contact_latency", "i8", 1),
+    ("threshold", "f8", 1), ("angular", "f8", 2), ("acceleration", "f8", 2),
+    ("orientation", "f8", 2), ("imu_stamp", "f8", 1), ("foot_force", "f8", 2),
+    ("foot_contact", "b1", 2), ("contact_stamp", "f8", 1),
+)  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def read_table(table, tick):
+    """:func:`base_read` on the arrays of ``table`` (:data:`READ_SLOTS`, from index 0)."""
+    f8, i8 = np.float64, np.int64
+    base_read(
+        view3(table, 0, f8), view2(table, SLOT, f8), view3(table, 2 * SLOT, f8),
+        view2(table, 3 * SLOT, f8), view1(table, 4 * SLOT, i8), view1(table, 5 * SLOT, i8),
+        view1(table, 6 * SLOT, f8), view2(table, 7 * SLOT, f8), view2(table, 8 * SLOT, f8),
+        view2(table, 9 * SLOT, f8), view1(table, 10 * SLOT, f8), view2(table, 11 * SLOT, f8),
+        view2(table, 12 * SLOT, np.bool_), view1(table, 13 * SLOT, f8), tick,
+    )  # fmt: skip

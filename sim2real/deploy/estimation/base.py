@@ -65,6 +65,8 @@ from sim2real.deploy.estimation.base_steps import BaseSteps
 from sim2real.deploy.kernels.calls import SLOT, bind, put_slots
 from sim2real.robots import Robot
 
+_ALIGNED = pin.LOCAL_WORLD_ALIGNED  # the feet's velocities' frame (_read_legs)
+
 
 class BaseStateEstimator(BaseSteps):
     """The kinematic-inertial error-state filter of ``envs`` floating-base robots (module
@@ -442,9 +444,9 @@ class BaseStateEstimator(BaseSteps):
         vel[3:6] = self.angular_velocity[e]
         vel[6:] = self._rate[e]
         pin.forwardKinematics(model, data, config, vel)
-        motion = self._foot_motion[e]
+        motion, velocity, aligned = self._foot_motion[e], pin.getFrameVelocity, _ALIGNED
         for i, f in enumerate(self._foot_ids):
-            motion[i] = pin.getFrameVelocity(model, data, f, pin.LOCAL_WORLD_ALIGNED).vector
+            motion[i] = velocity(model, data, f, aligned).vector
         if dead:
             position = self._foot_position[e]
             for i, f in enumerate(self._foot_ids):

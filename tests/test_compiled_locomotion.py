@@ -91,6 +91,7 @@ def test_compiled_equals_numpy(go2, go2_onnx, monkeypatch, task):
     fast = build(go2, go2_onnx, TASKS[task](), compiled=True)
     fast.runtime.run(TICKS, on_tick=fast.monitor)
     assert numpy_ticks == {"estimation": 0, "tracker": 0, "heading": 0}  # the kernels did all
+    assert fast.task._call.fits  # the tracker's and the hold's kernels over one table
     slow = build(go2, go2_onnx, TASKS[task](), compiled=False)
     slow.runtime.run(TICKS, on_tick=slow.monitor)
     held = TICKS if task == "heading" else 0

@@ -62,8 +62,10 @@ from sim2real.deploy.estimation.base_params import (  # noqa: F401 (this module'
     require_floating_base,
 )
 from sim2real.deploy.estimation.base_steps import BaseSteps
-from sim2real.deploy.kernels.calls import bind
+from sim2real.deploy.kernels.calls import SLOT, bind, put_slots
 from sim2real.robots import Robot
+
+_ALIGNED = pin.LOCAL_WORLD_ALIGNED  # the feet's velocities' frame (_read_legs)
 
 
 class BaseStateEstimator(BaseSteps):
@@ -182,6 +184,7 @@ class BaseStateEstimator(BaseSteps):
         self._foot_motion = np.zeros((envs, n_feet, 6))
         self._foot_position = np.zeros((envs, n_feet, 3))
         self._bound_calls = None  # (the arrays, the two calls bound to them): see _bound
+        self._table = None  # the table of the bound calls and the arrays it names (_calls)
         #: the tick runs compiled unless a subclass replaces the algebra's steps (the reference)
         self._compiled = all(
             getattr(type(self), name) is getattr(BaseStateEstimator, name)
@@ -217,12 +220,18 @@ class BaseStateEstimator(BaseSteps):
             np.zeros((1, nf), dtype=bool), one, joints, joints, joints, joints, joints,
             joints.copy(), legs,
         )  # fmt: skip
+        bind(bt.tick_stage, np.zeros(SLOT * len(bt.TABLE_ARGS), dtype=np.int64), rest=(0,))
         out = BaseState.zeros(1)
         bt.absorb_legs(
             x, P[None].copy(), n, feet, self._p, one, one, legs, self._foot_motion[:1],
             self._foot_position[:1], out.orientation, out.projected_gravity,
             out.linear_velocity, out.angular_velocity, out.linear_velocity_world,
         )  # fmt: skip
+
+    def __getstate__(self) -> dict:
+        """A copy (``copy.deepcopy``, pickle) binds its kernels afresh at its first update: the
+        bound calls' table names the original's arrays."""
+        return self.__dict__ | {"_bound_calls": None, "_table": None}
 
     def _initial_covariance(self) -> np.ndarray:
         """(12, 12) the error state's covariance at a reset (``INITIAL_*_SIGMA``, the IMU's
@@ -400,26 +409,30 @@ class BaseStateEstimator(BaseSteps):
         return self._bound_calls[1]
 
     def _calls(self, frame: SensorFrame, q, dq, out: BaseState, bound: bool) -> tuple:
-        """The two kernels' calls on these arrays: bound (``bound``), else through numba's
-        dispatch."""
+        """The two kernels' calls on these arrays: bound (``bound``: as one table of them,
+        :func:`~sim2real.deploy.estimation.base_tick.tick_stage`, where each is of its dtype
+        and dimensions), else through numba's dispatch."""
+        imu = (self._x, self.covariance, self._n, self._feet, self._force, self._encoder)
+        imu += (self._p, frame.time, frame.imu_stamp, frame.imu_angular_velocity)
+        imu += (frame.imu_acceleration, frame.imu_orientation, frame.foot_force)
+        imu += (frame.foot_contact, frame.contact_stamp, frame.position, frame.position_stamp)
+        imu += (self._no_velocity if frame.velocity is None else frame.velocity, q, dq)
+        imu += (self._rate, self._legs)
+        legs = (self._foot_motion, self._foot_position, out.orientation, out.projected_gravity)
+        legs += (out.linear_velocity, out.angular_velocity, out.linear_velocity_world)
+        if bound:
+            table, kept = np.zeros(SLOT * len(bt.TABLE_ARGS), dtype=np.int64), []
+            if put_slots(table, kept, 0, bt.TABLE_ARGS, imu + legs):
+                self._table = (table, kept)  # the arrays alive while the table names them
+                stage = bind(bt.tick_stage, table, rest=(0,))
+                return functools.partial(stage, 0), functools.partial(stage, 1)
         call = bind if bound else functools.partial
-        absorb_imu = call(
-            bt.absorb_imu,
-            self._x, self.covariance, self._n, self._feet, self._force, self._encoder, self._p,
-            frame.time, frame.imu_stamp, frame.imu_angular_velocity, frame.imu_acceleration,
-            frame.imu_orientation, frame.foot_force, frame.foot_contact, frame.contact_stamp,
-            frame.position, frame.position_stamp,
-            self._no_velocity if frame.velocity is None else frame.velocity, q, dq, self._rate,
-            self._legs,
-        )  # fmt: skip
+        x, p, n, feet = self._x, self.covariance, self._n, self._feet
         absorb_legs = call(
-            bt.absorb_legs,
-            self._x, self.covariance, self._n, self._feet, self._p, frame.time,
-            frame.contact_stamp, self._legs, self._foot_motion, self._foot_position,
-            out.orientation, out.projected_gravity, out.linear_velocity, out.angular_velocity,
-            out.linear_velocity_world,
+            bt.absorb_legs, x, p, n, feet, self._p, frame.time, frame.contact_stamp, self._legs,
+            *legs,
         )  # fmt: skip
-        return absorb_imu, absorb_legs
+        return call(bt.absorb_imu, *imu), absorb_legs
 
     def _read_legs(self, e: int, q: np.ndarray, dead: int) -> None:
         """Env ``e``'s feet's velocities into ``_foot_motion[e]`` (n_feet, 6) (linear m/s, angular
@@ -431,9 +444,9 @@ class BaseStateEstimator(BaseSteps):
         vel[3:6] = self.angular_velocity[e]
         vel[6:] = self._rate[e]
         pin.forwardKinematics(model, data, config, vel)
-        motion = self._foot_motion[e]
+        motion, velocity, aligned = self._foot_motion[e], pin.getFrameVelocity, _ALIGNED
         for i, f in enumerate(self._foot_ids):
-            motion[i] = pin.getFrameVelocity(model, data, f, pin.LOCAL_WORLD_ALIGNED).vector
+            motion[i] = velocity(model, data, f, aligned).vector
         if dead:
             position = self._foot_position[e]
             for i, f in enumerate(self._foot_ids):

@@ -38,7 +38,7 @@ from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import check, put, take
 from sim2real.deploy.estimation.base_kernel import _quat_to_mat, fma
 from sim2real.deploy.estimation.base_params import foot_radii, require_floating_base
-from sim2real.deploy.kernels.calls import bind
+from sim2real.deploy.kernels.calls import SLOT, bind, put_slots, view1, view2, view3
 from sim2real.robots import Robot
 
 #: Default tilt limit, rad (our choice): a walking quadruped's base stays within ~0.3 rad of
@@ -163,6 +163,11 @@ class FallDetector:
         check(self._fields(), state, env)
         put(self._fields(), state, env)
 
+    def __getstate__(self) -> dict:
+        """A copy (``copy.deepcopy``, pickle) binds the check afresh: its table names the
+        original's arrays."""
+        return self.__dict__ | {"_bound": None}
+
     def check(self, state: RobotState) -> np.ndarray:
         """(envs,) bool: the envs whose estimated base is tilted, low or sinking past the
         limits.
@@ -190,9 +195,34 @@ class FallDetector:
         bound = self._bound
         if bound is None or not all(map(operator.is_, key, bound[0])):
             args = (self._limits, *key, position, self.height, self._ticks, self.signals)
-            self._bound = bound = (key, bind(_check, *args, self._fallen))
+            table, kept = np.zeros(SLOT * len(CHECK_SLOTS), dtype=np.int64), []
+            if put_slots(table, kept, 0, CHECK_SLOTS, (*args, self._fallen)):
+                call = bind(_check_table, table)  # the arrays alive with the call's key
+                self._bound = bound = ((*key, kept), call)
+            else:
+                self._bound = bound = (key, bind(_check, *args, self._fallen))
         bound[1]()
         return self._fallen
+
+
+#: The arrays of :func:`_check` as slots of one table, in its order.
+CHECK_SLOTS = (
+    ("limits", "f8", 1), ("gravity", "f8", 2), ("velocity", "f8", 2), ("orientation", "f8", 2),
+    ("contact", "f8", 2), ("position", "f8", 3), ("height", "f8", 1), ("ticks", "i8", 2),
+    ("signals", "b1", 2), ("out", "b1", 1),
+)  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _check_table(table):
+    """:func:`_check` on the arrays of ``table`` (:data:`CHECK_SLOTS`): one array to unbox."""
+    f8, b1 = np.float64, np.bool_
+    _check(
+        view1(table, 0, f8), view2(table, SLOT, f8), view2(table, 2 * SLOT, f8),
+        view2(table, 3 * SLOT, f8), view2(table, 4 * SLOT, f8), view3(table, 5 * SLOT, f8),
+        view1(table, 6 * SLOT, f8), view2(table, 7 * SLOT, np.int64), view2(table, 8 * SLOT, b1),
+        view1(table, 9 * SLOT, b1),
+    )  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)

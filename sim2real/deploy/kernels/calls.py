@@ -99,6 +99,23 @@ def put_slot(table, arrays, index, array, dtype, ndim: int, shape: tuple | None 
     return True
 
 
+#: The dtype codes of a table's slot list (:func:`put_slots`).
+DTYPES = {"f8": np.float64, "i8": np.int64, "b1": np.bool_}
+
+
+def put_slots(table, arrays, start: int, slots: tuple, values: tuple) -> bool:
+    """:func:`put_slot` of each of ``values`` at ``table[start + SLOT * k]``, of the dtype code
+    (:data:`DTYPES`) and dimensions of ``slots[k]`` (``(name, code, ndim)``); whether every one
+    fit (a kernel's table is used only then)."""
+    if len(slots) != len(values):
+        return False
+    places = zip(slots, values, strict=True)
+    return all(
+        put_slot(table, arrays, start + SLOT * k, a, DTYPES[code], ndim)
+        for k, ((_, code, ndim), a) in enumerate(places)
+    )
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
 def _dim(table, index, i):
     return table[index + 1 + i]

@@ -18,8 +18,6 @@ RUNNING, counts a true fall once until the robot is up again; a low base an oper
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 
 from sim2real.deploy.core.attitude import tilt_of
@@ -69,6 +67,11 @@ class EstimationMonitor:
 
         load()  # the kernels ready before the first tick
 
+    def __getstate__(self) -> dict:
+        """A copy (``copy.deepcopy``, pickle) binds its kernels afresh: the bound call's table
+        names the original's arrays."""
+        return self.__dict__ | {"_calls": None, "_table": None, "_kept": None}
+
     @property
     def ticks(self) -> int:
         return int(self.sums[:, 4].sum())
@@ -100,13 +103,11 @@ class EstimationMonitor:
         kernels (:mod:`sim2real.deploy.monitors.estimation_kernel`) do it when they fit (a
         float64 C-contiguous ``truth``, the runtime's arrays the bound ones, ``compiled``),
         numpy otherwise; the same numbers either way."""
-        calls = self._bound(runtime, truth)
-        if calls is not None:
-            fill, acos, accumulate = calls
-            fill(truth)
-            acos()
-            done = accumulate(truth)
-            if done >= 0:
+        call = self._bound(runtime, truth)
+        if call is not None:
+            call(0, truth)  # the true base, the arc cosines' arguments
+            np.arccos(self._arg, out=self._angle)
+            if call(1, truth) >= 0:
                 return
             base, true_base = runtime.state.base, self._truth
             running = runtime.mode == 2
@@ -115,54 +116,58 @@ class EstimationMonitor:
         self.reference_update(runtime, truth)
 
     def _bound(self, runtime, truth):
-        """The three calls of the compiled update for ``runtime``, or None (numpy's path)."""
+        """The compiled update's call for ``runtime`` (``monitor_stage`` bound to its table),
+        or None (numpy's path)."""
         if not self.compiled or type(truth) is not np.ndarray:
             return None
         if truth.dtype != np.float64 or not truth.flags.c_contiguous:
             return None
         if truth.shape != (self.envs, 13):
             return None
-        base = runtime.state.base
+        base, calls = runtime.state.base, self._calls
         lying = getattr(runtime, "lying_expected", None)
-        key = (runtime.mode, base.projected_gravity, base.linear_velocity)
-        key += (base.linear_velocity_world, lying)
-        calls = self._calls
-        if calls is not None and all(a is b for a, b in zip(calls[0], key, strict=True)):
-            return calls[1]
+        if calls is not None:
+            mode, gravity, velocity, world, kept_lying, call = calls
+            if (
+                mode is runtime.mode
+                and gravity is base.projected_gravity
+                and velocity is base.linear_velocity
+                and world is base.linear_velocity_world
+                and kept_lying is lying
+            ):
+                return call
         self._calls = None
         from sim2real.deploy.monitors.estimation_kernel import gemv_matches
 
         arrays = (base.projected_gravity, base.linear_velocity, base.linear_velocity_world)
-        if not gemv_matches() or runtime.mode.shape != (self.envs,):
+        if not gemv_matches() or not fits(runtime.mode, np.int8, (self.envs,)):
             return None
         if not all(fits(a, np.float64, (self.envs, 3)) for a in arrays):
             return None
         if lying is not None and not fits(lying, np.bool_, (self.envs,)):
             return None
-        self._calls = (key, self._bind(runtime, lying))
-        return self._calls[1]
+        self._calls = (runtime.mode, *arrays, lying, self._bind(runtime, lying))
+        return self._calls[-1]
 
     def _bind(self, runtime, lying):
-        from sim2real.deploy.kernels.calls import bind
+        """``monitor_stage`` bound to a table of the runtime's arrays and the monitor's."""
+        from sim2real.deploy.kernels.calls import SLOT, bind, put_slot
         from sim2real.deploy.monitors import estimation_kernel as ek
 
-        base, t = runtime.state.base, self._truth
-        arg, angle, example = np.zeros((2, self.envs)), np.zeros((2, self.envs)), np.zeros((1, 13))
-        fields = (t.orientation, t.projected_gravity, t.angular_velocity)
-        fields += (t.linear_velocity_world, t.linear_velocity)
-        fused = ek.gemv_fused()
-        fill = bind(ek.truth_angles, *fields, base.projected_gravity, arg, fused, rest=(example,))
+        base, t, envs = runtime.state.base, self._truth, self.envs
+        self._arg, self._angle = np.zeros((2, envs)), np.zeros((2, envs))
+        params = np.array([self.fall_height, self.fall_tilt, BIN_DEG])
         has_lying = lying is not None
-        lying = lying if has_lying else np.zeros(self.envs, dtype=bool)
-        accumulate = bind(
-            ek.accumulate,
-            *(runtime.mode, lying, has_lying, angle, self.fall_height, self.fall_tilt),
-            *(self.true_falls, self._down, self.counts, self.sums, base.linear_velocity),
-            *(t.linear_velocity, base.linear_velocity_world, t.linear_velocity_world),
-            *(BIN_DEG, BINS),
-            rest=(example,),
-        )
-        return fill, functools.partial(np.arccos, arg, out=angle), accumulate
+        arrays = (*ek.fields(t), base.projected_gravity, base.linear_velocity)
+        arrays += (base.linear_velocity_world, self._arg, self._angle, runtime.mode)
+        arrays += (lying if has_lying else np.zeros(envs, dtype=bool), self.true_falls)
+        arrays += (self._down, self.counts, self.sums, params)
+        table, kept = np.zeros(ek.HEADER + SLOT * len(ek.SLOTS), dtype=np.int64), []
+        for at, a in zip(ek.SLOTS_AT, arrays, strict=True):
+            put_slot(table, kept, at, a, a.dtype, a.ndim)
+        table[: ek.HEADER] = (int(ek.gemv_fused()), int(has_lying), BINS, 0)
+        self._table, self._kept = table, kept  # the arrays alive while the table names them
+        return bind(ek.monitor_stage, table, rest=(0, np.zeros((1, 13))))
 
     def reference_update(self, runtime, truth: np.ndarray) -> None:
         """:meth:`update` by numpy (the kernels' reference)."""

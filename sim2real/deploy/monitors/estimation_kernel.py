@@ -22,6 +22,8 @@ import numpy as np
 from numba.core import types
 from numba.extending import intrinsic
 
+from sim2real.deploy.kernels.calls import SLOT, view1, view2
+
 #: deg per rad as ``np.degrees`` multiplies.
 DEG = 180.0 / math.pi
 
@@ -208,6 +210,47 @@ def accumulate(
     return 1
 
 
+#: The monitor's table (:func:`monitor_stage`): ``fused`` (:func:`gemv_fused`), whether the
+#: runtime has ``lying_expected``, the histogram's ``bins``; then the arrays' slots
+#: (:func:`~sim2real.deploy.kernels.calls.put_slot`): the true base's five fields
+#: (:func:`fields`), the estimate's projected gravity, linear velocity and its world one, the
+#: arc cosines' arguments and angles (2, envs), the modes, ``lying_expected``, the true falls,
+#: the true base down, the counts, the sums and the parameters (fall height m, fall tilt rad,
+#: bin width deg).
+FUSED, HAS_LYING, BIN_COUNT, HEADER = 0, 1, 2, 4
+SLOTS = (
+    "orientation gravity angular velocity_world velocity g_est v_est vw_est arg angle mode "
+    "lying true_falls down counts sums params"
+).split()
+SLOTS_AT = tuple(HEADER + SLOT * k for k in range(len(SLOTS)))
+
+
+@numba.njit(cache=True, nogil=True)
+def monitor_stage(table, stage, truth):
+    """Stage 0: :func:`truth_angles`; stage 1: :func:`accumulate` (its answer), over the
+    monitor's table (:data:`SLOTS`) and ``truth`` (envs, 13)."""
+    f8, s = np.float64, SLOTS_AT
+    orientation, gravity = view2(table, s[0], f8), view2(table, s[1], f8)
+    angular, world, velocity = (
+        view2(table, s[2], f8),
+        view2(table, s[3], f8),
+        view2(table, s[4], f8),
+    )
+    if stage == 0:
+        fused = table[FUSED] != 0
+        g_est, arg = view2(table, s[5], f8), view2(table, s[8], f8)
+        truth_angles(orientation, gravity, angular, world, velocity, g_est, arg, fused, truth)
+        return 0
+    params = view1(table, s[16], f8)
+    return accumulate(
+        view1(table, s[10], np.int8), view1(table, s[11], np.bool_), table[HAS_LYING] != 0,
+        view2(table, s[9], f8), params[0], params[1], view1(table, s[12], np.int64),
+        view1(table, s[13], np.bool_), view2(table, s[14], np.int64), view2(table, s[15], f8),
+        view2(table, s[6], f8), velocity, view2(table, s[7], f8), world, params[2],
+        table[BIN_COUNT], truth,
+    )  # fmt: skip
+
+
 def load() -> None:
     """Compile (or load from numba's cache) the kernels' specializations for the runtime's
     arrays' types (float64, an int8 mode, bool flags) and find :func:`gemv_variant`: done
@@ -225,3 +268,4 @@ def load() -> None:
         *(mode, b, True, angle, 1.0, 1.0, i, b, counts, sums, f, f, f, f, 1.0, 1),
         rest=(np.zeros((1, 13)),),
     )
+    bind(monitor_stage, np.zeros(HEADER + SLOT * len(SLOTS), np.int64), rest=(0, np.zeros((1, 13))))

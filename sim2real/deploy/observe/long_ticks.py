@@ -23,6 +23,7 @@ import numba
 import numpy as np
 
 from sim2real.deploy.core.latency_kernel import add_stages
+from sim2real.deploy.kernels.calls import SLOT, bind, put_slots, view1, view2
 
 #: Columns of the table before the stages: tick index, period (ns: wake-up lateness + work),
 #: wake-up lateness (ns), work from the wake-up to the next wait (ns), the thread's CPU time over
@@ -154,3 +155,33 @@ class LongTicks:
                 }
             )
         return out
+
+
+#: :func:`record_tick`'s arrays as slots of one table (:func:`bind_record`), in its order.
+RECORD_SLOTS = (
+    ("stamps", "i8", 1), ("period", "i8", 1), ("bins", "i8", 1), ("counts", "i8", 2),
+    ("max_ns", "i8", 1), ("cost_counts", "i8", 2), ("cost_max_ns", "i8", 1), ("table", "i8", 2),
+)  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def record_table(slots, tick: int) -> None:
+    """:func:`record_tick` on the arrays of ``slots`` (:data:`RECORD_SLOTS`)."""
+    i8 = np.int64
+    record_tick(
+        view1(slots, 0, i8), view1(slots, SLOT, i8), view1(slots, 2 * SLOT, i8),
+        view2(slots, 3 * SLOT, i8), view1(slots, 4 * SLOT, i8), view2(slots, 5 * SLOT, i8),
+        view1(slots, 6 * SLOT, i8), view2(slots, 7 * SLOT, i8), tick,
+    )  # fmt: skip
+
+
+def bind_record(arrays: tuple):
+    """``(tick) -> None``: :func:`record_tick` bound to ``arrays`` (its arguments but the
+    tick, never replaced by their owner) as one table of them, or to the arrays themselves
+    where one does not fit a slot."""
+    slots, kept = np.zeros(SLOT * len(RECORD_SLOTS), dtype=np.int64), []
+    if put_slots(slots, kept, 0, RECORD_SLOTS, arrays):
+        call = bind(record_table, slots, rest=(0,))
+        call.arrays = kept  # alive while the table names them
+        return call
+    return bind(record_tick, *arrays, rest=(0,))

@@ -48,6 +48,10 @@ class FusedAfterTick:
         self.motion = motion
         #: a legged robot: the estimation monitor and the task run in Python after the call
         self._legged = rig.kind.stand_up_on_reset
+        from sim2real.deploy.tasks.velocity import VelocityTask
+
+        #: the legged task takes the truth the estimation monitor read (one read a tick)
+        self._task_truth = self._legged and type(rig.task) is VelocityTask
         goals = rig.task is not None and not self._legged
         self._scheduler = rig.task.scheduler if goals else None
         self._q, self._dq, self._tau = arrays[0], arrays[1], arrays[2]
@@ -207,12 +211,17 @@ class FusedAfterTick:
                 )  # fmt: skip
             if code & ak.INTERVENTIONS_MOVED:
                 rig.interventions.count_moved()
+            truth = None
             if legged and rig.estimation is not None:
-                rig.estimation.update(runtime, self.backend.true_base_state())
+                truth = self.backend.true_base_state()
+                rig.estimation.update(runtime, truth)
             screens = int(self._stamp[2]) - start  # the call's part of the monitors
             rig.monitor_cost.add(0, screens + time.perf_counter_ns() - t0)
             if legged and rig.task is not None:
-                rig.task(runtime)
+                if truth is not None and self._task_truth:
+                    rig.task(runtime, truth)
+                else:
+                    rig.task(runtime)
         if code & ak.GOAL_DUE:
             self._scheduler.issue_due(runtime)
         if code & ak.GOAL_HIT:

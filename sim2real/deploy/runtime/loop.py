@@ -25,7 +25,7 @@ from sim2real.deploy.core.modes import (
 )
 from sim2real.deploy.core.state import Kinematics, RobotState
 from sim2real.deploy.estimation.joints import JointStateEstimator
-from sim2real.deploy.kernels.calls import bind
+from sim2real.deploy.kernels import any_true
 from sim2real.deploy.observe import long_ticks as lt
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
@@ -257,12 +257,13 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
     def _bind_books(self):
         """``(tick) -> None``, the tick's bookkeeping in one compiled call: stage durations into
         :attr:`latency`, the cost without physics into :attr:`tick_cost`, the period into
-        :attr:`long_ticks` (:func:`~sim2real.deploy.observe.long_ticks.record_tick`'s entry point
-        for these arrays, bound to them: no dispatch per call; they are never replaced)."""
+        :attr:`long_ticks` (:func:`~sim2real.deploy.observe.long_ticks.record_tick` bound to
+        these arrays as one table, :func:`~sim2real.deploy.observe.long_ticks.bind_record`: no
+        dispatch per call; they are never replaced)."""
         lat, cost = self.latency, self.tick_cost
         arrays = (self._stamps, self._period, self._bins, lat.counts, lat.max_ns)
         arrays += (cost.counts, cost.max_ns, self.long_ticks.table)
-        return bind(lt.record_tick, *arrays, rest=(0,))  # the tick index, an int, at each call
+        return lt.bind_record(arrays)  # the tick index, an int, at each call
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -407,7 +408,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
             self.smoother.follow(target, np.equal(self.mode, RUNNING, out=self._running), cmd)
         if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
             damp = np.greater_equal(self.mode, SAFE_STOP, out=self._damp)  # SAFE_STOP, FAULTED
-            if damp.any():
+            if any_true(damp):
                 self.supervision.damp(cmd, state, damp)
             if self._backend_damp is not None:  # drivers with a damping mode of their own
                 self._backend_damp(damp)
@@ -420,7 +421,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         # policy's, whose output fed back to itself would grow unchecked (a policy reading its
         # last action, lying damped for seconds)
         state.last_action[:] = action
-        if np.not_equal(self.mode, RUNNING, out=self._idle).any():
+        if any_true(np.not_equal(self.mode, RUNNING, out=self._idle)):
             np.copyto(state.last_action, 0.0, where=self._idle_rows)
         self.ticks += 1
         self.time += self.dt

@@ -33,7 +33,7 @@ from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import put, take
-from sim2real.deploy.kernels.calls import bind
+from sim2real.deploy.kernels.calls import SLOT, bind, put_slots
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.safety import kernel as gk
 from sim2real.deploy.safety.check import (
@@ -180,7 +180,7 @@ class SafetyGuard(MotionCheck):
         self._arrays = self._kernel_arrays()
         # the kernel's phases bound to the arrays of the last filter (_filter)
         self._bound_key = (None, None, None, None)
-        self._phase0 = self._phase1 = None
+        self._phase0 = self._phase1 = self._table = None
         self._motion_key, self._certify_motion = (None,) * 4, None  # check_motion's binding
         self._warm_up()
 
@@ -235,6 +235,8 @@ class SafetyGuard(MotionCheck):
             warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
             gk.guard_filter(0, out, zeros, zeros, zeros, False, copies)
             gk.guard_filter(1, out, zeros, zeros, zeros, False, copies)
+            table = np.zeros(gk.TABLE_HEADER + SLOT * len(gk.TABLE_SLOTS), np.int64)
+            bind(gk.guard_table, 0, table, False, a.own)  # compiled (or loaded), not called
 
     def reset(self, q: np.ndarray, envs: np.ndarray | None = None, drives: bool = True) -> None:
         """Start from measured positions ``q`` (envs, n): they become the hold target.
@@ -415,11 +417,30 @@ class SafetyGuard(MotionCheck):
         return out
 
     def _bind_filter(self, out, q, dq, commanded) -> None:
-        """Bind the kernel's phases to these arrays (:meth:`_filter`)."""
-        args = (out, q, dq, q if commanded is None else commanded, commanded is not None)
-        self._phase0 = bind(gk.guard_filter, 0, *args, self._arrays)
-        self._phase1 = bind(gk.guard_filter, 1, *args, self._arrays)
+        """Bind the kernel's phases to these arrays (:meth:`_filter`): as one table of them and
+        the guard's (:func:`~sim2real.deploy.safety.kernel.guard_table`) where each is of its
+        dtype and dimensions, else to the arrays themselves."""
+        a, has = self._arrays, commanded is not None
+        args = (out, q, dq, q if commanded is None else commanded)
+        arrays = (*args, *(getattr(a, name) for name, _, _ in gk.TABLE_SLOTS[len(args) :]))
+        table, kept = np.zeros(gk.TABLE_HEADER + SLOT * len(gk.TABLE_SLOTS), np.int64), []
+        table[0] = a.mode
+        with warnings.catch_warnings():  # numba: a tuple of functions is "experimental"
+            warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
+            if put_slots(table, kept, gk.TABLE_HEADER, gk.TABLE_SLOTS, arrays):
+                self._table = (table, kept)  # the arrays alive while the table names them
+                self._phase0 = bind(gk.guard_table, 0, table, has, a.own)
+                self._phase1 = bind(gk.guard_table, 1, table, has, a.own)
+            else:
+                self._phase0 = bind(gk.guard_filter, 0, *args, has, a)
+                self._phase1 = bind(gk.guard_filter, 1, *args, has, a)
         self._bound_key = (out, q, dq, commanded)
+
+    def __getstate__(self) -> dict:
+        """A copy (``copy.deepcopy``, pickle) binds the kernel afresh at its first filter: the
+        bound phases' table names the original's arrays."""
+        state = self.__dict__ | {"_table": None, "_phase0": None, "_phase1": None}
+        return state | {"_bound_key": (None, None, None, None)}
 
     def _resolve(self, needs: np.ndarray, q: np.ndarray, dq: np.ndarray, out) -> None:
         """The Python (Pinocchio) parts of the checks, in count-row order, for the envs each

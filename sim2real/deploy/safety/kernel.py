@@ -20,6 +20,7 @@ import numba
 import numpy as np
 from numba import literal_unroll
 
+from sim2real.deploy.kernels.calls import SLOT, view1, view2, view3
 from sim2real.deploy.safety.check import (
     CLAMP,
     FINAL,
@@ -137,3 +138,42 @@ def guard_filter(phase, out, q, dq, commanded, has_commanded, g) -> int:
             if g.fired[k, e]:
                 g.counts[k, e] += 1
     return 0
+
+
+#: The table of :func:`guard_table`: ``mode`` in the header, then the slots
+#: (:func:`~sim2real.deploy.kernels.calls.put_slot`) of the target, the estimate and the
+#: commanded position, and of :class:`GuardArrays`' arrays (its fields from ``lim`` to
+#: ``counted``, in order): each name's dtype and dimensions.
+TABLE_SLOTS = (
+    ("out", "f8", 2), ("q", "f8", 2), ("dq", "f8", 2), ("commanded", "f8", 2), ("lim", "f8", 2),
+    ("scalars", "f8", 1), ("effort_scale", "f8", 2), ("counts", "i8", 2),
+    ("hard_violation", "b1", 1), ("beyond_ticks", "i8", 1), ("far_ticks", "i8", 1),
+    ("pred", "f8", 2), ("tmp", "f8", 2), ("screen", "f8", 3), ("workspace_margin", "f8", 1),
+    ("over", "f8", 2), ("under", "f8", 2), ("held", "b1", 1), ("last_valid", "f8", 2),
+    ("pair_clearance", "f8", 2), ("pair_weights", "f8", 2), ("fired", "b1", 2),
+    ("needs", "b1", 2), ("stops", "b1", 1), ("geometric", "i8", 1), ("counted", "i8", 2),
+)  # fmt: skip
+TABLE_HEADER = 1
+
+
+@numba.njit(cache=True, nogil=True)
+def guard_table(phase, table, has_commanded, own) -> int:
+    """:func:`guard_filter` on the arrays of ``table`` (:data:`TABLE_SLOTS`) and the checks'
+    constants ``own``: two arrays to unbox a call, not thirty-three."""
+    f8, i8, b1 = np.float64, np.int64, np.bool_
+    s = TABLE_HEADER
+    g = GuardArrays(
+        table[0], view2(table, s + 4 * SLOT, f8), view1(table, s + 5 * SLOT, f8),
+        view2(table, s + 6 * SLOT, f8), view2(table, s + 7 * SLOT, i8),
+        view1(table, s + 8 * SLOT, b1), view1(table, s + 9 * SLOT, i8),
+        view1(table, s + 10 * SLOT, i8), view2(table, s + 11 * SLOT, f8),
+        view2(table, s + 12 * SLOT, f8), view3(table, s + 13 * SLOT, f8),
+        view1(table, s + 14 * SLOT, f8), view2(table, s + 15 * SLOT, f8),
+        view2(table, s + 16 * SLOT, f8), view1(table, s + 17 * SLOT, b1),
+        view2(table, s + 18 * SLOT, f8), view2(table, s + 19 * SLOT, f8),
+        view2(table, s + 20 * SLOT, f8), view2(table, s + 21 * SLOT, b1),
+        view2(table, s + 22 * SLOT, b1), view1(table, s + 23 * SLOT, b1),
+        view1(table, s + 24 * SLOT, i8), view2(table, s + 25 * SLOT, i8), own,
+    )  # fmt: skip
+    out, q, dq = view2(table, s, f8), view2(table, s + SLOT, f8), view2(table, s + 2 * SLOT, f8)
+    return guard_filter(phase, out, q, dq, view2(table, s + 3 * SLOT, f8), has_commanded, g)

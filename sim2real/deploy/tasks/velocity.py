@@ -61,20 +61,57 @@ class VelocityTask:
             self.heading = HeadingHold(envs, heading_gain)
             self._asked = np.tile(command, (envs, 1))
         self.tracker = CommandTracker(envs, control_period, backend, window=window)
+        self._call = None  # the tracker's and the hold's kernels as one table (_compiled_call)
+        if self.tracker.truth is not None:
+            from sim2real.deploy.tasks.velocity_kernel import load
+
+            load()  # the kernels ready before the first tick
+
+    def __getstate__(self) -> dict:
+        """A copy (``copy.deepcopy``, pickle) binds its kernels afresh: the bound call's table
+        names the original's arrays."""
+        return self.__dict__ | {"_call": None}
 
     def reset(self, runtime, envs: np.ndarray) -> None:
         """Write the fixed command, if any, for the envs of ``envs``."""
         if self.command is not None:
             runtime.velocity_command[envs] = self.command
 
-    def __call__(self, runtime) -> None:
+    def __call__(self, runtime, truth: np.ndarray | None = None) -> None:
+        """One tick: the schedule's command, the tracker, the hold (in that order); judged on
+        the plant's truth (``truth``: this tick's ``true_base_state()`` when the caller read
+        it, else read here), the tracker's and the hold's kernels over one table
+        (:class:`~sim2real.deploy.tasks.velocity_kernel.TaskCall`, the same numbers)."""
         if self.schedule is not None:
             self.schedule(runtime)
+        call = self._compiled_call(runtime)
+        if call is not None:
+            truth = self.tracker.truth() if truth is None else truth
+            if type(truth) is np.ndarray and truth.dtype == np.float64:
+                if truth.shape == (self.tracker.envs, 13) and truth.flags.c_contiguous:
+                    call(runtime, truth)
+                    return
         if self.heading is not None:
             self.tracker(runtime, self._asked)
             self.heading(runtime, self._asked)
         else:
             self.tracker(runtime)
+
+    def _compiled_call(self, runtime):
+        """The tracker's and the hold's kernels bound to ``runtime``'s arrays (built again when
+        they change), or None: the separate calls (a tracker or a hold on numpy's path, a
+        tracker not judged on the truth or with success windows, an array that does not fit)."""
+        tracker, heading = self.tracker, self.heading
+        if not (tracker.compiled and tracker.truth is not None and tracker.success_window is None):
+            return None
+        if heading is not None and not heading.compiled:
+            return None
+        call = self._call
+        if call is None or not call.ready(runtime):
+            from sim2real.deploy.tasks.velocity_kernel import TaskCall
+
+            call = self._call = TaskCall.build(self, runtime)
+        return call if call.fits else None
 
     def success(self, env: int | None = None) -> float | None:
         """Tracking success: RUNNING time within tolerance / RUNNING time; None before any."""

@@ -37,7 +37,7 @@ import numpy as np
 from sim2real.deploy.backends.sim import legged_sensors_kernel as kernel
 from sim2real.deploy.backends.sim.sensors import draw
 from sim2real.deploy.core.attitude import align_up, quat_multiply, rotation_quaternions
-from sim2real.deploy.kernels.calls import bind, fits
+from sim2real.deploy.kernels.calls import SLOT, bind, fits, put_slots
 from sim2real.robots import Robot
 
 
@@ -152,6 +152,7 @@ class BaseSensorModel:
         self._touch_index = np.array(touch, dtype=np.int64)
         self._ratio, self._a = np.zeros(envs), np.zeros(envs)
         self._sample_call = self._read_call = self._sample_key = self._read_key = None
+        self._sample_table = self._read_table = None  # the arrays their bound tables name
         self._bind_sample(None, np.zeros((envs, 3), dtype=np.int64))  # compiled (or loaded) now
         self._bind_read(backend.frame if hasattr(backend, "frame") else None)
         self._sample_key = self._read_key = None
@@ -161,7 +162,8 @@ class BaseSensorModel:
         own at its first compiled tick."""
         state = dict(self.__dict__)
         state["_sample_call"] = state["_read_call"] = None
-        state["_sample_key"] = state["_read_key"] = None
+        state["_sample_key"] = state["_read_key"] = state["_sample_table"] = None
+        state["_read_table"] = None
         state["_data"] = np.zeros_like(self._data)
         return state
 
@@ -247,10 +249,24 @@ class BaseSensorModel:
             self._data[e, kernel.SENSORDATA] = d.sensordata.ctypes.data
             self._data[e, kernel.QPOS] = d.qpos.ctypes.data
         self._sample_key = step
+        dt = self.imu_every * self.robot.control_period
+        arrays = (streams, self._data, self._touch_index, np.array([dt]), self._a)
+        arrays += (self.gyro_bias, self.accel_bias, self.gyro_bias_walk, self.accel_bias_walk)
+        arrays += (self.gyro_noise_sigma, self.accel_noise_sigma, self.orientation_error)
+        arrays += (self.orientation_sigma, self._site_quat, self._gravity_frame, self.imu_dropout)
+        arrays += (self.force_noise_sigma, self._noise6, self._noise2, self._noise_f)
+        arrays += (self._buf_imu, self._buf_imu_stamp, self._buf_force, self._buf_contact_stamp)
+        table, kept = np.zeros(kernel.SAMPLE_HEADER + SLOT * len(arrays), dtype=np.int64), []
+        header = (self._nsensor, self._nq, self._gyro.start, self._acc.start)
+        table[: kernel.SAMPLE_HEADER] = (*header, self.has_orientation)
+        if put_slots(table, kept, kernel.SAMPLE_HEADER, kernel.SAMPLE_SLOTS, arrays):
+            self._sample_table = kept  # the arrays alive while the table names them
+            self._sample_call = bind(kernel.sample_table, table, rest=(True, True, 0, 0.0))
+            return
         self._sample_call = bind(
             kernel.base_sample,
             *(streams, self._data, self._nsensor, self._nq, self._gyro.start, self._acc.start),
-            *(self._touch_index, self.imu_every * self.robot.control_period, self._a),
+            *(self._touch_index, dt, self._a),
             *(self.gyro_bias, self.accel_bias, self.gyro_bias_walk, self.accel_bias_walk),
             *(self.gyro_noise_sigma, self.accel_noise_sigma, self.has_orientation),
             *(self.orientation_error, self.orientation_sigma, self._site_quat),
@@ -353,13 +369,14 @@ class BaseSensorModel:
         self._read_call = None
         if not all(fits(a, t, s) for a, t, s in zip(fields, dtypes, shapes, strict=True)):
             return
-        self._read_call = bind(
-            kernel.base_read,
-            *(self._buf_imu, self._buf_imu_stamp, self._buf_force, self._buf_contact_stamp),
-            *(self.imu_latency_ticks, self.contact_latency_ticks, self.contact_threshold),
-            *fields,
-            rest=(0,),
-        )
+        arrays = (self._buf_imu, self._buf_imu_stamp, self._buf_force, self._buf_contact_stamp)
+        arrays += (self.imu_latency_ticks, self.contact_latency_ticks, self.contact_threshold)
+        table, kept = np.zeros(SLOT * len(kernel.READ_SLOTS), dtype=np.int64), []
+        if put_slots(table, kept, 0, kernel.READ_SLOTS, (*arrays, *fields)):
+            self._read_table = kept  # the arrays alive while the table names them
+            self._read_call = bind(kernel.read_table, table, rest=(0,))
+        else:
+            self._read_call = bind(kernel.base_read, *arrays, *fields, rest=(0,))
 
     def reference_read(self, frame, tick: int) -> None:
         """:meth:`read` by numpy (the compiled call's reference)."""

@@ -27,7 +27,7 @@ from sim2real.deploy.backends.sim.plant_kernel import (
     _next_double,
     _standard_normal,
 )
-from sim2real.deploy.kernels.calls import pointer
+from sim2real.deploy.kernels.calls import SLOT, pointer, view1, view2, view3
 
 #: columns of the data table: each env's ``MjData.sensordata`` and ``qpos`` addresses
 SENSORDATA, QPOS = 0, 1
@@ -173,3 +173,66 @@ def base_read(
             foot_force[e, j] = f
             foot_contact[e, j] = f > threshold[e]
         contact_stamp[e] = np.nan if early else buf_contact_stamp[origin % size, e]
+
+
+#: The arrays of :func:`base_sample` as slots of one table (after ``SAMPLE_HEADER`` ints:
+#: ``nsensor``, ``nq``, ``gyro``, ``acc``, ``has_orientation``; ``dt`` is ``params[0]``): each
+#: name's dtype and dimensions, in the kernel's order.
+SAMPLE_SLOTS = (
+    ("streams", "i8", 2), ("data", "i8", 2), ("touch", "i8", 1), ("params", "f8", 1),
+    ("a", "f8", 1), ("gyro_bias", "f8", 2), ("accel_bias", "f8", 2), ("gyro_bias_walk", "f8", 1),
+    ("accel_bias_walk", "f8", 1), ("gyro_noise_sigma", "f8", 1), ("accel_noise_sigma", "f8", 1),
+    ("orientation_error", "f8", 2), ("orientation_sigma", "f8", 1), ("site_quat", "f8", 1),
+    ("gravity_frame", "f8", 1), ("dropout", "f8", 1), ("force_noise_sigma", "f8", 1),
+    ("noise6", "f8", 2), ("noise2", "f8", 2), ("noise_f", "f8", 2), ("buf_imu", "f8", 3),
+    ("buf_imu_stamp", "f8", 2), ("buf_force", "f8", 3), ("buf_contact_stamp", "f8", 2),
+)  # fmt: skip
+SAMPLE_HEADER = 5
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _at(k):
+    """The table index of slot ``k`` of :data:`SAMPLE_SLOTS`."""
+    return SAMPLE_HEADER + SLOT * k
+
+
+@numba.njit(cache=True, nogil=True)
+def sample_table(table, imu_due, contact_due, slot, time):
+    """:func:`base_sample` on the arrays of ``table`` (:data:`SAMPLE_SLOTS`): one array to
+    unbox a call, not twenty-three."""
+    f8, i8 = np.float64, np.int64
+    params = view1(table, _at(3), f8)
+    base_sample(
+        view2(table, _at(0), i8), view2(table, _at(1), i8), table[0], table[1], table[2],
+        table[3], view1(table, _at(2), i8), params[0], view1(table, _at(4), f8),
+        view2(table, _at(5), f8), view2(table, _at(6), f8), view1(table, _at(7), f8),
+        view1(table, _at(8), f8), view1(table, _at(9), f8), view1(table, _at(10), f8),
+        table[4] != 0, view2(table, _at(11), f8), view1(table, _at(12), f8),
+        view1(table, _at(13), f8), view1(table, _at(14), f8), view1(table, _at(15), f8),
+        view1(table, _at(16), f8), view2(table, _at(17), f8), view2(table, _at(18), f8),
+        view2(table, _at(19), f8), view3(table, _at(20), f8), view2(table, _at(21), f8),
+        view3(table, _at(22), f8), view2(table, _at(23), f8), imu_due, contact_due, slot, time,
+    )  # fmt: skip
+
+
+#: The arrays of :func:`base_read` as slots of one table, in the kernel's order.
+READ_SLOTS = (
+    ("buf_imu", "f8", 3), ("buf_imu_stamp", "f8", 2), ("buf_force", "f8", 3),
+    ("buf_contact_stamp", "f8", 2), ("imu_latency", "i8", 1), ("contact_latency", "i8", 1),
+    ("threshold", "f8", 1), ("angular", "f8", 2), ("acceleration", "f8", 2),
+    ("orientation", "f8", 2), ("imu_stamp", "f8", 1), ("foot_force", "f8", 2),
+    ("foot_contact", "b1", 2), ("contact_stamp", "f8", 1),
+)  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def read_table(table, tick):
+    """:func:`base_read` on the arrays of ``table`` (:data:`READ_SLOTS`, from index 0)."""
+    f8, i8 = np.float64, np.int64
+    base_read(
+        view3(table, 0, f8), view2(table, SLOT, f8), view3(table, 2 * SLOT, f8),
+        view2(table, 3 * SLOT, f8), view1(table, 4 * SLOT, i8), view1(table, 5 * SLOT, i8),
+        view1(table, 6 * SLOT, f8), view2(table, 7 * SLOT, f8), view2(table, 8 * SLOT, f8),
+        view2(table, 9 * SLOT, f8), view1(table, 10 * SLOT, f8), view2(table, 11 * SLOT, f8),
+        view2(table, 12 * SLOT, np.bool_), view1(table, 13 * SLOT, f8), tick,
+    )  # fmt: skip

@@ -39,7 +39,7 @@ def build(robot, onnx, task: dict, compiled: bool) -> Rig:
     dt = robot.control_period
     plant = SimBackend(robot, envs=ENVS, seed=3)
     faults = [
-        Fault("push", 150 * dt, 15 * dt, envs=(0,), magnitude=600.0),
+        Fault("push", 150 * dt, 15 * dt, envs=(0,), magnitude=800.0),
         Fault("nan-action", 400 * dt, 5 * dt, envs=(1,)),
         Fault("stale", 600 * dt, 30 * dt, envs=(1,)),
     ]

@@ -432,7 +432,9 @@ class JointStateEstimator:
         elif self._copy_input:
             np.copyto(self._u, u)
         self._args = a = self._kernel_args(frame, state, u if in_place else self._u)
-        self._kalman_call = bind(kalman_tick, 0, *a)  # no numba dispatch per update
+        # through numba's dispatcher: binding its entry point anew at each new frame (a backend
+        # whose read gives a new frame every tick) kept ~150 B a bind (tests/test_estimation.py)
+        self._kalman_call = functools.partial(kalman_tick, 0, *a)
         self._bound = (f.position, f.position_stamp, f.time, f.winding_temperature, state,
                        state.q, acceleration, f.velocity)  # fmt: skip
         self._velocity_call = None

@@ -195,7 +195,6 @@ class JointStateEstimator:
         self._args: KalmanArgs | tuple = ()
         self._bound: tuple = ()
         self._velocity_call = None  # absorb_velocity bound to the frame's velocity (_bind)
-        self._kalman_call = None  # kalman_tick bound to the arguments of the last update (_bind)
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -380,7 +379,7 @@ class JointStateEstimator:
             self._bind(frame, state, acceleration)
         elif self._copy_input:
             np.copyto(self._u, acceleration)
-        status = self._kalman_call()  # kalman_tick from phase 0, bound to the arguments (_bind)
+        status = kalman_tick(0, *self._args)
         if status:
             self._recover(status, frame)
         if self._velocity_call is not None:
@@ -432,9 +431,6 @@ class JointStateEstimator:
         elif self._copy_input:
             np.copyto(self._u, u)
         self._args = a = self._kernel_args(frame, state, u if in_place else self._u)
-        # through numba's dispatcher: binding its entry point anew at each new frame (a backend
-        # whose read gives a new frame every tick) kept ~150 B a bind (tests/test_estimation.py)
-        self._kalman_call = functools.partial(kalman_tick, 0, *a)
         self._bound = (f.position, f.position_stamp, f.time, f.winding_temperature, state,
                        state.q, acceleration, f.velocity)  # fmt: skip
         self._velocity_call = None

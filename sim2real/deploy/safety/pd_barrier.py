@@ -154,10 +154,10 @@ def _barrier_one(t, q, v, hi, effort, d, j, own, inv_i, stuck) -> float:
 def _barrier(t, q, v, bound, effort, d, j, own, loaded) -> float:
     """The least change of target ``t`` that makes the upper side's prediction safe with the
     least inertia and, ``loaded`` and moving toward the bound, with the heavier one (``t``
-    itself when it is);
-    ``bound`` the upper bound, ``effort`` the derated effort limit, ``d`` the gravity torque
-    toward the bound (N m). Where no target keeps the heavier joint off the bound, its motion
-    is not the drive's to stop within the period: the least inertia's answer stands."""
+    itself when it is); ``bound`` the upper bound, ``effort`` the derated effort limit, ``d``
+    the gravity torque toward the bound (N m). Where no target keeps the heavier joint off the
+    bound, its motion is not the drive's to stop within the period: the least inertia's answer
+    stands."""
     hi = np_max(bound, q)  # past the bound already: no farther
     r = _barrier_one(t, q, v, hi, effort, d, j, own, own[INV_INERTIA, j], True)
     if loaded and v > 0.0:

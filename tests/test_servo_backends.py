@@ -137,6 +137,26 @@ def test_open_configures_each_servo_before_torque_and_close_turns_it_off(so101):
         assert all(s.get("torque_enable") == 0 for s in emu.servos)
 
 
+@pytest.mark.parametrize("protocol", list(CASES))
+def test_a_backend_opened_the_moment_the_emulator_prints_its_port_configures_every_servo(protocol):
+    """The bench and a user's script open the port as soon as ``python -m
+    sim2real.deploy.backends.emulator`` prints it. The emulator's set-up collection used to fall
+    after the print: the first PING timed out, its late reply broke the next packet, and the
+    Feetech SDK raised IndexError out of ``open()``."""
+    from sim2real.deploy.harness.servo_hil import start_emulator, stop_emulator
+
+    name, cls = CASES[protocol]
+    robot = load_robot(name)
+    proc, port = start_emulator(name, protocol)
+    try:
+        assert port is not None
+        with cls(robot, port) as backend:
+            frame = _full_read(backend)
+            np.testing.assert_allclose(frame.position[0], robot.home, atol=0.06)
+    finally:
+        stop_emulator(proc)
+
+
 def test_open_refuses_a_wrong_model_naming_the_id_and_the_expected_model(so101):
     with ServoBusEmulator(so101, "feetech") as emu:
         emu.servos[2].set("Model_Number", 1020)

@@ -19,6 +19,7 @@ from collections.abc import Callable, Iterable
 from typing import Any, TypeVar
 
 from sim2real.deploy.backends.sim.options import add_plant_motors_option
+from sim2real.deploy.core.collector import collector_paused
 
 T = TypeVar("T")
 
@@ -60,9 +61,20 @@ def open_emulator(name: str, cls: Callable[..., T], args: argparse.Namespace, **
         return None
 
 
-def serve(emulator, close: Callable[[], None], counters: Callable[[], dict] | None = None):
+def serve(
+    emulator,
+    close: Callable[[], None],
+    counters: Callable[[], dict] | None = None,
+    announce: Callable[[], None] | None = None,
+):
     """Serve ``emulator`` (its ``serve()``, in this thread) until SIGTERM (its
     ``request_stop()``) or Ctrl-C, then ``close()`` it however serving ends.
+
+    ``announce()`` prints where it serves. It runs after the set-up's full garbage collection
+    (:func:`~sim2real.deploy.core.collector.collector_paused`, tens of milliseconds in a process
+    that imported MuJoCo): a host that opens the port the moment it is printed gets its first
+    reply on time, not after the collection (a servo backend's first PING timed out and its late
+    reply broke the next packet).
 
     Returns:
         ``counters()`` taken before ``close()``, or None without ``counters``.
@@ -70,7 +82,10 @@ def serve(emulator, close: Callable[[], None], counters: Callable[[], dict] | No
     signal.signal(signal.SIGTERM, lambda *_: emulator.request_stop())
     out = None
     try:
-        emulator.serve()
+        with collector_paused():
+            if announce is not None:
+                announce()
+            emulator.serve()
     except KeyboardInterrupt:
         pass
     finally:

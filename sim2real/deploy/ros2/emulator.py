@@ -233,12 +233,15 @@ def main(argv: list[str] | None = None) -> int:
     emulator = open_emulator("ros2", ControllerManagerEmulator, args)
     if emulator is None:
         return 2
-    print(
-        f"ready: {emulator.robot.name}, joint_states at {1 / emulator.period:.0f} Hz, "
-        f"{command_topic(emulator.controller)}",
-        flush=True,
-    )
-    counters = serve(emulator, emulator.close, emulator.counters)
+
+    def announce() -> None:
+        print(
+            f"ready: {emulator.robot.name}, joint_states at {1 / emulator.period:.0f} Hz, "
+            f"{command_topic(emulator.controller)}",
+            flush=True,
+        )
+
+    counters = serve(emulator, emulator.close, emulator.counters, announce)
     print(f"emulator counters: {json.dumps(counters)}", file=sys.stderr, flush=True)
     return 0
 

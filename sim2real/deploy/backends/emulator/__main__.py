@@ -38,18 +38,21 @@ def main(argv: list[str] | None = None) -> int:
     emulator = open_emulator("servo", ServoBusEmulator, args, faults=faults)
     if emulator is None:
         return 2
-    print(emulator.port, flush=True)
-    ids = ", ".join(f"{s.servo_id} ({s.model.name})" for s in emulator.servos)
-    print(
-        f"{emulator.robot.name}: {emulator.protocol} servos {ids} at {emulator.baudrate} bit/s, "
-        f"plant in {emulator.plant.mode} mode",
-        file=sys.stderr,
-        flush=True,
-    )
+
+    def announce() -> None:
+        print(emulator.port, flush=True)
+        ids = ", ".join(f"{s.servo_id} ({s.model.name})" for s in emulator.servos)
+        print(
+            f"{emulator.robot.name}: {emulator.protocol} servos {ids} at {emulator.baudrate} "
+            f"bit/s, plant in {emulator.plant.mode} mode",
+            file=sys.stderr,
+            flush=True,
+        )
+
     # the plant steps on a second thread of this process: a short interpreter-lock slice lets
     # the answering thread take it within ~0.2 ms of a packet (the default slice is 5 ms)
     sys.setswitchinterval(2e-4)
-    serve(emulator, emulator.stop)
+    serve(emulator, emulator.stop, announce=announce)
     print(f"bus counters: {dict(emulator.stats)}", file=sys.stderr)
     return 0
 

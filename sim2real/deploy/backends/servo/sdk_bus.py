@@ -81,7 +81,15 @@ class SdkServoBus(ServoBusBackend):
             self._writer.addParam(sid, [0] * reg.size)
 
     def _ping(self, servo_id: int) -> tuple[int, int]:
-        model, result, _ = self._ph.ping(self._port, servo_id)
+        """``(model number, SDK result)`` of one PING and model-number read. A late reply of an
+        earlier packet is dropped first; the Feetech SDK indexes a reply shorter than the model
+        number it asked for (IndexError), which here is a corrupt reply, tried again by the
+        caller."""
+        self._port.ser.reset_input_buffer()
+        try:
+            model, result, _ = self._ph.ping(self._port, servo_id)
+        except IndexError:
+            return 0, self._sdk.COMM_RX_CORRUPT
         return model, result
 
     def _write_register(self, servo_id: int, address: int, data: bytes) -> tuple[int, int]:

@@ -76,23 +76,25 @@ def main(argv: list[str] | None = None) -> int:
     )
     if emulator is None:
         return 2
-    print(
-        f"{emulator.robot.name} on interface {args.network_interface}, domain {args.domain_id}",
-        flush=True,
-    )
-    print(
-        f"{emulator.robot.name}: {emulator.family.name}, rt/lowstate at "
-        f"{1.0 / emulator.period:.0f} Hz, motors {emulator.slots.tolist()}",
-        file=sys.stderr,
-        flush=True,
-    )
+
+    def announce() -> None:
+        print(
+            f"{emulator.robot.name} on interface {args.network_interface}, domain {args.domain_id}",
+            flush=True,
+        )
+        print(
+            f"{emulator.robot.name}: {emulator.family.name}, rt/lowstate at "
+            f"{1.0 / emulator.period:.0f} Hz, motors {emulator.slots.tolist()}",
+            file=sys.stderr,
+            flush=True,
+        )
 
     def close() -> None:
         emulator.stop()
         if args.trace:
             emulator.save_trace(args.trace)
 
-    counters = serve(emulator, close, emulator.counters)
+    counters = serve(emulator, close, emulator.counters, announce)
     print(f"emulator counters: {json.dumps(counters)}", file=sys.stderr, flush=True)
     return 0
 

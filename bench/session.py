@@ -172,9 +172,9 @@ def _session_process(
 ) -> tuple[dict, float]:
     """In a fresh process, as a user's ``deploy-run`` runs: a short run first (imports, numba's
     cache, ONNX Runtime's first session; the module docstring's "done once per process"), then
-    the measured one. Returns its report and outer wall time (s). A session measured in the
-    benchmark's own process after other items (their MuJoCo data, sessions and heap) cost the
-    go2 about 6 % more per tick than deploy-run does."""
+    the measured one. Returns its report and outer wall time (s). In the benchmark's own
+    process a session pays for the items before it (their MuJoCo data, sessions and heap;
+    docs/speed.md)."""
     _deploy_run_on(robot, policy, SESSION_WARMUP_S, False, extra)
     report, outer, _ = _deploy_run_on(robot, policy, duration, False, extra)
     return report, outer

@@ -174,6 +174,51 @@ def test_the_compiled_barrier_equals_the_reference(name):
     assert 0 < changed < 20 * q.size
 
 
+@pytest.mark.parametrize("name", ["go2", "h1_2"])
+def test_the_rows_follow_the_estimate_as_the_fixed_base_gravity_turned_into_the_base(name):
+    """Each tick's gravity rows are the fixed-base model's generalized gravity with gravity
+    turned into the base frame (``-G`` toward the upper limit, ``G`` toward the lower, plus the
+    slack, at most the bound), also for a base upside down; an env whose estimate is not finite
+    keeps the bound; the loaded rows count the feet in contact whose chain holds each joint."""
+    import pinocchio as pin
+
+    robot = load_robot(name)
+    envs = 6
+    guard = SafetyGuard(robot, envs, "position")
+    c = pb.pd_barrier_constants(guard)
+    fixed = pin.Model(robot.fixed_base_model)
+    data = fixed.createData()
+    magnitude = np.linalg.norm(fixed.gravity.linear)
+    chains = pb.foot_chains(robot)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q = rng.uniform(robot.position_lower, robot.position_upper, (envs, robot.n_joints))
+        direction = rng.normal(size=(envs, 3))
+        direction[0] = [0.0, 0.0, -1.0]  # upright
+        direction[1] = [0.0, 0.0, 1.0]  # upside down
+        direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+        q[2, 3] = np.nan  # a joint estimate lost
+        contact = rng.integers(0, 2, (envs, robot.n_feet)).astype(float)
+        pb.barrier_rows(guard, q, direction, contact)
+        for e in range(envs):
+            fixed.gravity.linear = direction[e] * magnitude
+            g = pin.computeGeneralizedGravity(fixed, data, q[e])
+            up, down = c[pb.TOWARD + 2 * e], c[pb.TOWARD + 2 * e + 1]
+            if e == 2:
+                np.testing.assert_array_equal(up, c[pb.GRAVITY])
+                np.testing.assert_array_equal(down, c[pb.GRAVITY])
+            else:
+                np.testing.assert_allclose(
+                    up, np.minimum(c[pb.SLACK] - g, c[pb.GRAVITY]), atol=1e-9
+                )
+                np.testing.assert_allclose(
+                    down, np.minimum(c[pb.SLACK] + g, c[pb.GRAVITY]), atol=1e-9
+                )
+        np.testing.assert_array_equal(c[pb.TOWARD + 2 * envs :], contact @ chains)
+    pb.barrier_rows(guard, q, None, None)  # upright, no foot in contact
+    assert not c[pb.TOWARD + 2 * envs :].any()
+
+
 def test_an_arm_keeps_its_soft_limit_clamp(arm3):
     """An arm's servo clamps its targets: the soft-limit clamp as before, no barrier."""
     guard = SafetyGuard(arm3, 1, "position")

@@ -13,7 +13,7 @@ saturated by the effort limit (derated when hot) and the motor's torque-speed li
 (Pinocchio's mass-matrix diagonal, legs in the air, over the home pose and ``INERTIA_POSES``
 seeded poses), and for a joint on a loaded foot's chain moving toward the limit also
 ``INERTIA_SPREAD`` times it, the target safe under both; the gravity torque toward the limit
-tested at the estimate (:func:`gravity_rows`: the base's estimated tilt, plus ``SLACK_SHARE`` of
+tested at the estimate (:func:`barrier_rows`: the base's estimated tilt, plus ``SLACK_SHARE`` of
 the joint's all-pose bound :func:`sim2real.robots.chain_bounds.motion_bounds`, at most that
 bound); semi-implicit Euler from the estimate ``(q, dq)``.
 
@@ -32,6 +32,7 @@ limits`). Its numpy reference and compiled function do the same operations in th
 from __future__ import annotations
 
 import math
+import operator
 
 import numba
 import numpy as np
@@ -49,7 +50,7 @@ from sim2real.robots.torque_speed import TorqueSpeedEnvelope
 #: line), the no-load speed (rad/s; inf without one), the upper bound ``upper - margin`` and the
 #: mirrored lower bound ``-(lower + margin)`` (rad), the physics substep (s), the substeps per
 #: period, and 1.0 where the check acts (0.0: an arm, or not position mode). ``GRAVITY`` is the
-#: all-pose bound; the prediction uses the rows from ``TOWARD`` on (:func:`gravity_rows`).
+#: all-pose bound; the prediction uses the rows from ``TOWARD`` on (:func:`barrier_rows`).
 KP, KD, INV_INERTIA, GRAVITY, STALL, NO_LOAD, BOUND_UP, BOUND_DOWN, STEP, SUBSTEPS, ACTIVE = range(
     11
 )
@@ -61,9 +62,9 @@ SLACK = 12
 INV_HEAVY = 13
 ROWS = 14
 #: Rows ``TOWARD + 2 e`` and ``TOWARD + 2 e + 1``: env ``e``'s gravity torque toward the upper
-#: and toward the lower limit over the next period (N m, :func:`gravity_rows`), after ``ROWS``;
+#: and toward the lower limit over the next period (N m, :func:`barrier_rows`), after ``ROWS``;
 #: then, row ``TOWARD + 2 envs + e``: env ``e``'s joints on the chain of a foot in contact
-#: (> 0.0; :func:`loaded_rows`), the ones judged with the heavier inertia too.
+#: (> 0.0; :func:`barrier_rows`), the ones judged with the heavier inertia too.
 TOWARD = ROWS
 #: Share of the soft band (between the soft and the hard limit) kept clear of the hard limit by
 #: the predicted motion. Our choice: a quarter (0.026 rad on the Go2's hips, 0.011 rad on the
@@ -205,7 +206,7 @@ def least_inertia(robot, poses: int = INERTIA_POSES, seed: int = 0) -> np.ndarra
 def pd_barrier_constants(guard) -> np.ndarray:
     """(ROWS + 2 envs, n) float64: the check's constants for ``guard`` (module docstring), cached
     on it; the gravity rows from ``TOWARD`` on start at the all-pose bound and are rewritten in
-    place every tick (:func:`gravity_rows`)."""
+    place every tick (:func:`barrier_rows`)."""
     cached = guard.__dict__.get("_pd_barrier_constants")
     if cached is not None:
         return cached
@@ -237,46 +238,125 @@ def pd_barrier_constants(guard) -> np.ndarray:
         c[SLACK] = SLACK_SHARE * guard.gravity_bound
         c[TOWARD : TOWARD + 2 * guard.envs] = guard.gravity_bound
     guard.__dict__["_pd_barrier_constants"] = c
-    if c[ACTIVE, 0]:  # the gravity rows' kernel bound (compiled or loaded) with its stage
-        _gravity_model(guard)
+    if c[ACTIVE, 0]:  # the rows' kernels compiled (or loaded) now, not at the first tick
+        e = np.zeros((guard.envs, n))
+        _bind_rows(guard, e, np.zeros((guard.envs, 3)), np.zeros((guard.envs, robot.n_feet)))
+        _rows_model(guard)[4] = None
     return c
 
 
-def gravity_rows(guard, q: np.ndarray, projected_gravity: np.ndarray | None) -> None:
-    """Rewrite the gravity rows of ``guard``'s constants (``TOWARD`` on) for the estimate ``q``
-    (envs, n) rad and the base's ``projected_gravity`` (envs, 3; gravity's unit direction in the
-    base frame; None: upright): each joint's gravity torque toward its upper and its lower limit,
-    ``-G(q)`` and ``G(q)`` (Pinocchio's generalized gravity of the fixed-base model, gravity
-    turned into the base frame), plus ``SLACK_SHARE`` of the all-pose bound, at most that bound.
-    An env whose ``q`` or base direction is not finite keeps the bound."""
-    model, data, magnitude, upright, linear, torque, toward = _gravity_model(guard)
+def barrier_rows(
+    guard, q: np.ndarray, projected_gravity: np.ndarray | None, foot_contact: np.ndarray | None
+) -> None:
+    """Rewrite the rows of ``guard``'s constants that follow the estimate, every env's, from
+    ``q`` (envs, n) rad, the base's ``projected_gravity`` (envs, 3; gravity's unit direction in
+    the base frame; None: upright) and ``foot_contact`` (envs, n_feet) 1.0 or 0.0 (None: no foot
+    is in contact):
+
+    - the gravity rows (``TOWARD + 2 e`` and ``TOWARD + 2 e + 1``): each joint's gravity torque
+      toward its upper and its lower limit, ``-G(q)`` and ``G(q)`` (Pinocchio's generalized
+      gravity of the joints with gravity turned into the base frame: the floating-base model's,
+      its base turned so that gravity points along ``projected_gravity``), plus ``SLACK_SHARE``
+      of the all-pose bound, at most that bound; an env whose ``q`` or base direction is not
+      finite keeps the bound;
+    - the loaded rows (``TOWARD + 2 envs + e``): each joint's count of the feet in contact whose
+      chain holds it (:func:`foot_chains`).
+
+    Two compiled calls around Pinocchio's per env (:func:`_pose_env`, :func:`_rows_env`), bound
+    to these arrays (made again for other arrays)."""
+    model, data, config, torque, calls = _rows_model(guard)
+    key = (q, projected_gravity, foot_contact)
+    if calls is None or not all(map(operator.is_, key, calls[0])):
+        calls = _bind_rows(guard, *key)
+    _key, pose, rows = calls
+    gravity = pin.computeGeneralizedGravity
     for e in range(q.shape[0]):
-        g = upright if projected_gravity is None else projected_gravity[e]
-        np.multiply(g, magnitude, out=linear)
-        model.gravity.linear = linear
-        np.copyto(torque, pin.computeGeneralizedGravity(model, data, q[e]))
-        toward(e)
+        pose(e)
+        np.copyto(torque, gravity(model, data, config))
+        rows(e)
+
+
+def _rows_model(guard) -> list:
+    """``guard``'s robot's Pinocchio model for :func:`barrier_rows` (the floating-base model for
+    a floating base, else the fixed one), its data, a configuration (nq,) and a generalized
+    gravity (nv,) of it, and the bound calls (None until the first); cached on the guard (a copy
+    of the guard copies them together)."""
+    cached = guard.__dict__.get("_pd_barrier_rows")
+    if cached is None:
+        robot = guard.robot
+        model = pin.Model(robot.pin_model if robot.floating_base else guard.model)
+        config = pin.neutral(model)
+        cached = [model, model.createData(), config, np.zeros(model.nv), None]
+        guard.__dict__["_pd_barrier_rows"] = cached
+    return cached
+
+
+def _bind_rows(guard, q, projected_gravity, foot_contact) -> tuple:
+    """:func:`_pose_env` and :func:`_rows_env` bound to these arrays (stand-ins for None: the
+    upright direction, no foot in contact), kept with them in the cache of :func:`_rows_model`."""
+    cached = _rows_model(guard)
+    c, envs = pd_barrier_constants(guard), q.shape[0]
+    chains = foot_chains(guard.robot)
+    floating = 1 if guard.robot.floating_base else 0
+    direction = projected_gravity
+    if direction is None:
+        direction = np.tile([0.0, 0.0, -1.0], (envs, 1))
+    contact = foot_contact
+    if contact is None or chains.shape[0] == 0:
+        contact, chains = np.zeros((envs, 1)), np.zeros((1, c.shape[1]))
+    config, torque = cached[2], cached[3]
+    pose = bind(_pose_env, config, q, direction, floating, rest=(0,))
+    rows = bind(_rows_env, torque, c, contact, chains, floating, rest=(0,))
+    cached[4] = ((q, projected_gravity, foot_contact), pose, rows)
+    return cached[4]
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
-def _toward_env(torque, c, e: int) -> None:
-    """:func:`_toward` into env ``e``'s gravity rows of the constants ``c``."""
-    _toward(torque, c[GRAVITY], c[SLACK], c[TOWARD + 2 * e], c[TOWARD + 2 * e + 1])
+def _pose_env(config, q, direction, floating: int, e: int) -> None:
+    """Env ``e``'s configuration for :func:`barrier_rows`: its joints ``q[e]`` and, for a
+    floating base (``floating``), the base at the origin turned so that world gravity points
+    along ``direction[e]`` in its frame: the rotation ``R`` with ``R^T e_z = u = -direction[e]``,
+    the quaternion ``(1 + u_z, u_y, -u_x, 0)`` (w, x, y, z) normalized, half a turn about x where
+    that is zero (Pinocchio's order: x, y, z, w)."""
+    start = config.shape[0] - q.shape[1]
+    for j in range(q.shape[1]):
+        config[start + j] = q[e, j]
+    if floating:
+        ux, uy, uz = -direction[e, 0], -direction[e, 1], -direction[e, 2]
+        w = 1.0 + uz
+        norm = math.sqrt(w * w + uy * uy + ux * ux)
+        if norm == 0.0:
+            config[3], config[4], config[5], config[6] = 1.0, 0.0, 0.0, 0.0
+        else:
+            config[3], config[4], config[5], config[6] = uy / norm, -ux / norm, 0.0, w / norm
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
-def _toward(torque, bound, slack, up, down) -> None:
-    """:func:`gravity_rows` of one env from its generalized gravity ``torque`` (n,) N m (the
-    bound where any entry is not finite)."""
+def _rows_env(torque, c, contact, chains, floating: int, e: int) -> None:
+    """Env ``e``'s gravity rows from the generalized gravity ``torque`` (nv,) N m (its joints'
+    part, the last n; the bound where any entry is not finite) and its loaded rows from
+    ``contact[e]`` and ``chains`` (:func:`barrier_rows`)."""
+    n = c.shape[1]
+    offset = torque.shape[0] - n
+    bound, slack = c[GRAVITY], c[SLACK]
+    up, down = c[TOWARD + 2 * e], c[TOWARD + 2 * e + 1]
     finite = True
-    for j in range(torque.shape[0]):
-        finite = finite and math.isfinite(torque[j])
-    for j in range(torque.shape[0]):
+    for j in range(n):
+        finite = finite and math.isfinite(torque[offset + j])
+    for j in range(n):
         if finite:
-            up[j] = min(slack[j] - torque[j], bound[j])
-            down[j] = min(slack[j] + torque[j], bound[j])
+            t = torque[offset + j]
+            up[j] = min(slack[j] - t, bound[j])
+            down[j] = min(slack[j] + t, bound[j])
         else:
             up[j] = down[j] = bound[j]
+    envs = (c.shape[0] - TOWARD) // 3
+    loaded = c[TOWARD + 2 * envs + e]
+    for j in range(n):
+        total = 0.0
+        for f in range(chains.shape[0]):
+            total += contact[e, f] * chains[f, j]
+        loaded[j] = total
 
 
 def foot_chains(robot) -> np.ndarray:
@@ -291,48 +371,6 @@ def foot_chains(robot) -> np.ndarray:
             if j is not None:
                 chains[f, j] = 1.0
     return chains
-
-
-def loaded_rows(guard, foot_contact: np.ndarray | None) -> None:
-    """Rewrite the loaded rows of ``guard``'s constants (``TOWARD + 2 envs`` on) from the feet in
-    contact, ``foot_contact`` (envs, n_feet) 1.0 or 0.0 (None: no foot is): each joint's count of
-    the feet in contact whose chain holds it (:func:`foot_chains`)."""
-    cached = guard.__dict__.get("_pd_barrier_loaded")
-    if cached is None:  # the constants themselves (a copy of the guard copies them together)
-        c, envs = pd_barrier_constants(guard), guard.envs
-        chains = foot_chains(guard.robot)
-        cached = guard.__dict__["_pd_barrier_loaded"] = (
-            c,
-            TOWARD + 2 * envs,
-            TOWARD + 3 * envs,
-            chains,
-        )
-    c, first, end, chains = cached
-    rows = c[first:end]
-    if foot_contact is None or chains.shape[0] == 0:
-        rows.fill(0.0)
-    else:
-        np.matmul(foot_contact, chains, out=rows)
-
-
-def _gravity_model(guard) -> tuple:
-    """``guard``'s fixed-base Pinocchio model copied for :func:`gravity_rows` (which turns its
-    gravity), its data, gravity's magnitude (m/s^2), the upright direction, buffers (3,) and
-    (n,) (a generalized gravity) and ``toward(e)``: :func:`_toward_env` bound to that buffer and
-    the constants (:func:`pd_barrier_constants`, the arrays themselves: a copy of the guard
-    copies them together); cached on the guard."""
-    cached = guard.__dict__.get("_pd_barrier_gravity")
-    if cached is None:
-        c = pd_barrier_constants(guard)
-        model = pin.Model(guard.model)
-        linear = np.array(model.gravity.linear)
-        magnitude = float(np.linalg.norm(linear))
-        torque = np.zeros(c.shape[1])
-        toward = bind(_toward_env, torque, c, rest=(0,))
-        cached = (model, model.createData(), magnitude, linear / magnitude, np.empty(3))
-        cached += (torque, toward)
-        guard.__dict__["_pd_barrier_gravity"] = cached
-    return cached
 
 
 def _unsafe_np(t, q, v, hi, d, c, effort, brake, inv_i) -> np.ndarray:
@@ -398,8 +436,8 @@ class PdBarrier(GuardCheck):
     def prepare(self, g, state) -> None:
         if pd_barrier_constants(g)[ACTIVE, 0] != 0.0:
             base = state.base
-            gravity_rows(g, state.q, None if base is None else base.projected_gravity)
-            loaded_rows(g, state.foot_contact)
+            gravity = None if base is None else base.projected_gravity
+            barrier_rows(g, state.q, gravity, state.foot_contact)
 
     def reference(self, stage, g, out, q, dq, commanded):
         c = pd_barrier_constants(g)

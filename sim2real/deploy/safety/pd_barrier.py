@@ -284,7 +284,8 @@ def _rows_model(guard) -> list:
     cached = guard.__dict__.get("_pd_barrier_rows")
     if cached is None:
         robot = guard.robot
-        model = pin.Model(robot.pin_model if robot_kind(robot).floating_base else guard.model)
+        free_flyer = robot.pin_model.nq != guard.model.nq  # the base's 7 coordinates
+        model = pin.Model(robot.pin_model if free_flyer else guard.model)
         config = pin.neutral(model)
         cached = [model, model.createData(), config, np.zeros(model.nv), None]
         guard.__dict__["_pd_barrier_rows"] = cached
@@ -297,7 +298,7 @@ def _bind_rows(guard, q, projected_gravity, foot_contact) -> tuple:
     cached = _rows_model(guard)
     c, envs = pd_barrier_constants(guard), q.shape[0]
     chains = foot_chains(guard.robot)
-    floating = 1 if robot_kind(guard.robot).floating_base else 0
+    floating = 1 if cached[2].shape[0] != c.shape[1] else 0  # a free-flyer in the model
     direction = projected_gravity
     if direction is None:
         direction = np.tile([0.0, 0.0, -1.0], (envs, 1))

@@ -147,6 +147,42 @@ def test_the_compiled_fall_check_gives_the_numpy_numbers(go2):
     assert seen[0] and seen[2] and low > 0  # tilted, sinking, low: every branch ran
 
 
+def test_the_fall_check_on_the_estimators_feet_gives_the_numbers_of_its_own_kinematics(go2):
+    envs = 2
+    est, per_env = BaseStateEstimator(go2, envs), PerEnvEstimator(go2, envs)
+    given, own = FallDetector(go2, envs), FallDetector(go2, envs)
+    state = RobotState.legged(envs, go2.n_joints, go2.n_feet)
+    held = skipped = 0
+    row = np.empty((go2.n_feet, 3))
+    for k, (frame, q, dq) in enumerate(perturbed_frames(go2)):
+        if k == 0:
+            for x in (est, per_env):
+                x.reset(
+                    frame.time - 0.02, frame.imu_acceleration, orientation=frame.imu_orientation
+                )
+        state.q[:] = q
+        est.update(frame, state.q, dq, out=state.base)
+        per_env.update(frame, q, dq)
+        assert not per_env.foot_position(0, row) and not per_env.foot_position(1, row)
+        state.foot_contact[:] = est.contact
+        for e in range(envs):
+            row[:] = np.nan
+            if not est.foot_position(e, row):
+                assert np.isnan(row).all()  # untouched
+                skipped += 1
+                continue
+            held += 1
+            pin.forwardKinematics(own.model, own.data, state.q[e])
+            for i, f in enumerate(own.feet):  # the same placements, to the bit
+                mine = pin.updateFramePlacement(own.model, own.data, f).translation
+                assert row[i].tobytes() == mine.tobytes()
+        np.testing.assert_array_equal(given.check(state, est.foot_position), own.check(state))
+        np.testing.assert_array_equal(given.height, own.height)
+        np.testing.assert_array_equal(given.signals, own.signals)
+        np.testing.assert_array_equal(given.low_ticks, own.low_ticks)
+    assert held > TICKS // 2 and skipped > TICKS // 2  # both paths of the handover ran
+
+
 @pytest.mark.parametrize(
     ("a", "b"),
     [((5, 4), (5, 4)), ((5, 4), (1, 4)), ((1, 4), (5, 4)), ((4,), (4,)), ((4,), (5, 4))],

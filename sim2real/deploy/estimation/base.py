@@ -183,6 +183,7 @@ class BaseStateEstimator(BaseSteps):
         self._no_velocity = np.full((envs, n_joints), np.nan)
         self._foot_motion = np.zeros((envs, n_feet, 6))
         self._foot_position = np.zeros((envs, n_feet, 3))
+        self._held = -1  # the env whose legs' kinematics the Pinocchio data holds (-1: none)
         self._bound_calls = None  # (the arrays, the two calls bound to them): see _bound
         self._table = None  # the table of the bound calls and the arrays it names (_calls)
         #: the tick runs compiled unless a subclass replaces the algebra's steps (the reference)
@@ -373,6 +374,7 @@ class BaseStateEstimator(BaseSteps):
         if frame.imu_stamp is None:
             raise ValueError("frame: no IMU fields (a floating-base robot's frame expected)")
         out = BaseState.zeros(self.envs) if out is None else out
+        self._held = -1
         if not self._compiled:
             return self._tick_per_env(frame, q, dq, out)
         calls = self._bound(frame, q, dq, out)
@@ -444,6 +446,7 @@ class BaseStateEstimator(BaseSteps):
         vel[3:6] = self.angular_velocity[e]
         vel[6:] = self._rate[e]
         pin.forwardKinematics(model, data, config, vel)
+        self._held = e
         motion, velocity, aligned = self._foot_motion[e], pin.getFrameVelocity, _ALIGNED
         for i, f in enumerate(self._foot_ids):
             motion[i] = velocity(model, data, f, aligned).vector
@@ -451,3 +454,17 @@ class BaseStateEstimator(BaseSteps):
             position = self._foot_position[e]
             for i, f in enumerate(self._foot_ids):
                 position[i] = pin.updateFramePlacement(model, data, f).translation
+
+    def foot_position(self, e: int, out: np.ndarray) -> bool:
+        """Env ``e``'s feet's positions in the base frame into ``out`` (n_feet, 3) m (the feet in
+        ``robot.foot_frame_ids`` order; Pinocchio's placements, the base at the origin and
+        upright, the joint estimate ``q`` of the last :meth:`update`) from the kinematics that
+        update ran for the legs, where it holds env ``e``'s (the last env whose legs it read: a
+        fresh IMU reading and a finite ``q``). Returns whether it did; ``out`` is untouched if
+        not."""
+        if e != self._held:
+            return False
+        model, data, place = self.robot.pin_model, self._pin, pin.updateFramePlacement
+        for i, f in enumerate(self._foot_ids):
+            out[i] = place(model, data, f).translation
+        return True

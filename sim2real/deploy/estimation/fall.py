@@ -168,25 +168,32 @@ class FallDetector:
         original's arrays."""
         return self.__dict__ | {"_bound": None}
 
-    def check(self, state: RobotState) -> np.ndarray:
+    def check(self, state: RobotState, feet=None) -> np.ndarray:
         """(envs,) bool: the envs whose estimated base is tilted, low or sinking past the
         limits.
 
         Args:
             state: A floating-base robot's estimate (``RobotState.legged``: ``base``,
                 ``foot_contact``, ``q``).
+            feet: Optional ``feet(e, out) -> bool`` (the base estimator's
+                :meth:`~sim2real.deploy.estimation.base.BaseStateEstimator.foot_position`):
+                env ``e``'s feet's positions in the base frame from ``state.q`` into ``out``
+                (n_feet, 3) m, the feet in ``robot.foot_frame_ids`` order, or False where it
+                has none (the detector's own forward kinematics then).
         """
-        return self.screen(state).copy()
+        return self.screen(state, feet).copy()
 
-    def screen(self, state: RobotState) -> np.ndarray:
+    def screen(self, state: RobotState, feet=None) -> np.ndarray:
         """:meth:`check` into the detector's own (envs,) bool array, returned (overwritten by
-        the next check): Pinocchio's placements, then :func:`_check` bound to ``state``'s
-        arrays (made again for other arrays)."""
+        the next check): Pinocchio's placements (``feet``'s where it has them), then
+        :func:`_check` bound to ``state``'s arrays (made again for other arrays)."""
         model, data, position = self.model, self.data, self._foot_position
         if self.height_limit > 0.0:  # every foot's position in the base frame (Pinocchio)
             for e in range(len(self.height)):
-                pin.forwardKinematics(model, data, state.q[e])
                 row = position[e]
+                if feet is not None and feet(e, row):
+                    continue
+                pin.forwardKinematics(model, data, state.q[e])
                 for i, f in enumerate(self.feet):
                     row[i] = pin.updateFramePlacement(model, data, f).translation
         base = state.base

@@ -32,7 +32,8 @@ class LeggedTick:
             stale_call, fall_call, stale, fall = calls
             if stale_call(self.time):
                 self.supervision.safe_stop(stale, "stale_sensor")
-            self.fall_detector.screen(state)
+            # the estimator's feet's placements: no second forward kinematics
+            self.fall_detector.screen(state, self.base_estimator.foot_position)
             if fall_call():
                 self.supervision.safe_stop(fall, "fall")
             return
@@ -40,7 +41,8 @@ class LeggedTick:
         state.clock[:] = self.time
         stale = self.base_estimator.time_since_fresh > self.robot.config.safety.stale_limit
         self.supervision.safe_stop(stale, "stale_sensor")
-        fallen = self.fall_detector.check(state) & ((self.mode == RUNNING) | (self.mode == RAMP_IN))
+        fallen = self.fall_detector.check(state, self.base_estimator.foot_position)
+        fallen &= (self.mode == RUNNING) | (self.mode == RAMP_IN)
         # an operator laying the robot down or standing it up: a low base is no fall, a tilt is
         fallen &= ~self.lying_expected | self.fall_detector.signals[:, 0]
         self.supervision.safe_stop(fallen, "fall")

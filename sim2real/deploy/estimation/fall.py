@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 import operator
+from collections.abc import Callable
 
 import numba
 import numpy as np
@@ -41,6 +42,9 @@ from sim2real.deploy.estimation.base_params import foot_radii, require_floating_
 from sim2real.deploy.kernels.calls import SLOT, bind, put_slots, view1, view2, view3
 from sim2real.robots import Robot
 
+#: ``feet(e, out) -> bool``: env ``e``'s feet's positions in the base frame into ``out`` (n_feet,
+#: 3) m, or False where it has none (:meth:`FallDetector.check`).
+FootPositions = Callable[[int, np.ndarray], bool]
 #: Default tilt limit, rad (our choice): a walking quadruped's base stays within ~0.3 rad of
 #: upright; past 1 rad (57 deg) it cannot catch itself.
 FALL_TILT = 1.0
@@ -168,7 +172,7 @@ class FallDetector:
         original's arrays."""
         return self.__dict__ | {"_bound": None}
 
-    def check(self, state: RobotState, feet=None) -> np.ndarray:
+    def check(self, state: RobotState, feet: FootPositions | None = None) -> np.ndarray:
         """(envs,) bool: the envs whose estimated base is tilted, low or sinking past the
         limits.
 
@@ -183,7 +187,7 @@ class FallDetector:
         """
         return self.screen(state, feet).copy()
 
-    def screen(self, state: RobotState, feet=None) -> np.ndarray:
+    def screen(self, state: RobotState, feet: FootPositions | None = None) -> np.ndarray:
         """:meth:`check` into the detector's own (envs,) bool array, returned (overwritten by
         the next check): Pinocchio's placements (``feet``'s where it has them), then
         :func:`_check` bound to ``state``'s arrays (made again for other arrays)."""

@@ -239,8 +239,8 @@ def pd_barrier_constants(guard) -> np.ndarray:
         c[TOWARD : TOWARD + 2 * guard.envs] = guard.gravity_bound
     guard.__dict__["_pd_barrier_constants"] = c
     if c[ACTIVE, 0]:  # the rows' kernels compiled (or loaded) now, not at the first tick
-        e = np.zeros((guard.envs, n))
-        _bind_rows(guard, e, np.zeros((guard.envs, 3)), np.zeros((guard.envs, robot.n_feet)))
+        q = np.zeros((guard.envs, n))
+        _bind_rows(guard, q, np.zeros((guard.envs, 3)), np.zeros((guard.envs, robot.n_feet)))
         _rows_model(guard)[4] = None
     return c
 
@@ -307,7 +307,7 @@ def _bind_rows(guard, q, projected_gravity, foot_contact) -> tuple:
         contact, chains = np.zeros((envs, 1)), np.zeros((1, c.shape[1]))
     config, torque = cached[2], cached[3]
     pose = bind(_pose_env, config, q, direction, floating, rest=(0,))
-    rows = bind(_rows_env, torque, c, contact, chains, floating, rest=(0,))
+    rows = bind(_rows_env, torque, c, contact, chains, rest=(0,))
     cached[4] = ((q, projected_gravity, foot_contact), pose, rows)
     return cached[4]
 
@@ -333,7 +333,7 @@ def _pose_env(config, q, direction, floating: int, e: int) -> None:
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
-def _rows_env(torque, c, contact, chains, floating: int, e: int) -> None:
+def _rows_env(torque, c, contact, chains, e: int) -> None:
     """Env ``e``'s gravity rows from the generalized gravity ``torque`` (nv,) N m (its joints'
     part, the last n; the bound where any entry is not finite) and its loaded rows from
     ``contact[e]`` and ``chains`` (:func:`barrier_rows`)."""

@@ -45,6 +45,16 @@ def summary_text(report: dict) -> str:
                     f"  stops        {falling} runtime stop(s) on a robot already falling (its "
                     "replay without the stop fell too; counted above by what began the fall)"
                 )
+        own = loco.get("own_loop_replays") or {}
+        if own.get("replays"):
+            from sim2real.eval.soak.own_loop import LEAD
+
+            lines.append(
+                f"  own loop     {own['falls']} fall(s) replayed {own['replays']} times from "
+                f"{min(LEAD):g}-{max(LEAD):g} s before in the policy's own loop (true state, no "
+                f"guard or smoother): it fell in {own['fell']} (not judged; "
+                "sim2real.eval.soak.own_loop)"
+            )
         if loco.get("false_fall_stops") is not None:
             lines.append(
                 f"  fall check   false_fall_stops {loco['false_fall_stops']} (stops for a fall of "

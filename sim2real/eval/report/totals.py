@@ -247,6 +247,10 @@ def _locomotion_totals(results: list[dict]) -> dict | None:
         "falls_by_origin": origins,
         "stops_while_falling": sum(x.get("stops_while_falling", 0) for x in legs),
         "false_fall_stops": sum(x.get("false_fall_stops", 0) for x in legs),
+        "own_loop_replays": {
+            k: sum(x.get("own_loop_replays", {}).get(k, 0) for x in legs)
+            for k in ("falls", "replays", "fell")
+        },
         "falls_by_cause": causes,
         "commands_issued": sum(x.get("commands_issued", 0) for x in legs),
         "tracking_success": sum(x["tracked_s"] for x in legs) / running if running else None,

@@ -116,8 +116,9 @@ class SessionBatch:
             keeps every checkpoint and notes the worst moments for the film strip). A class, not
             an instance, so that a campaign's worker processes receive it by name.
         replay_stops: A floating-base robot's hard-limit stops are replayed without the stop
-            (:class:`sim2real.eval.soak.counterfactual.StopReplay`), so each fall says whether the robot
-            was falling anyway. False in the replay's own copy of the batch.
+            (:class:`sim2real.eval.soak.counterfactual.StopReplay`) and its falls in the policy's
+            own loop (:class:`sim2real.eval.soak.own_loop.OwnLoopReplay`), so each fall says
+            whether the robot was falling anyway. False in the replays' own copy of the batch.
 
     Raises:
         SessionError: sessions with different options, or duplicate seeds.
@@ -225,11 +226,13 @@ class SessionBatch:
         ]
         self._next_event = self.every
         self._ruckig = mode != "torque"
-        self.stop_replay = None
+        self.stop_replay = self.own_loop = None
         if replay_stops and self.kind.stand_up_on_reset:  # its every stop lays it down
             from sim2real.eval.soak.counterfactual import StopReplay
+            from sim2real.eval.soak.own_loop import OwnLoopReplay
 
             self.stop_replay = StopReplay(self)
+            self.own_loop = OwnLoopReplay(self.stop_replay)
         self._wall0 = time.perf_counter()
         if resume:
             self._resume()
@@ -323,6 +326,7 @@ class SessionBatch:
             self._supervise(rt)
         if self.stop_replay is not None:  # last: a capture must hold this whole tick
             self.stop_replay(rt)
+            self.own_loop(rt)
 
     def _supervise(self, rt) -> None:
         ticks, t = rt.ticks, rt.time

@@ -93,7 +93,7 @@ class StopReplay:
         """When (session time, s) env ``e``'s robot falls (its fall detector's stop) by
         ``t_stop + HORIZON`` s if its session continues from its last capture without the
         hard-limit stop; None if it does not."""
-        twin = self._copy(e)
+        twin = self.copy_of(e)
         arrays, meta = self.captures[e]
         twin.restore(arrays, copy.deepcopy(meta), "the soak's capture before a hard-limit stop")
         log = twin.task.parts()["tracker"].fall_log[0]
@@ -109,7 +109,7 @@ class StopReplay:
         self.replays += 1
         return next((float(r["t_s"]) for r in log[before:] if r.get("cause") == "fall"), None)
 
-    def _copy(self, e: int):
+    def copy_of(self, e: int):
         """The one-session batch of env ``e``'s session (built on first use)."""
         if e not in self.copies:
             # the copy writes nothing there; the folder goes with this object (its finalizer)

@@ -89,6 +89,18 @@ def stops_while_falling(falls: list[dict]) -> int:
     return sum(1 for f in falls if f.get("stopped_while_falling"))
 
 
+def own_loop_replays(falls: list[dict]) -> dict[str, int]:
+    """``{"falls", "replays", "fell"}``: how many of ``falls`` the soak replayed in the policy's
+    own loop (:mod:`sim2real.eval.soak.own_loop`, their ``own_loop`` records), in how many
+    replays, and in how many of those the own loop fell too."""
+    done = [f["own_loop"] for f in falls if f.get("own_loop", {}).get("from_s")]
+    return {
+        "falls": len(done),
+        "replays": sum(len(r["fall_s"]) for r in done),
+        "fell": sum(1 for r in done for t in r["fall_s"] if t is not None),
+    }
+
+
 def false_fall_stops(falls: list[dict], standing_height: float, tilt_limit: float) -> int:
     """How many of ``falls`` (the tracker's records) are fall-check stops (cause ``fall``) of
     a robot that was not falling: the simulator's truth at the stop has the base tilted under

@@ -28,6 +28,7 @@ from sim2real.eval.soak.falls import (
     attribute_falls,
     falls_by_origin,
     false_fall_stops,
+    own_loop_replays,
     stops_while_falling,
 )
 from sim2real.eval.soak.session import (
@@ -80,6 +81,7 @@ def locomotion_result(session: Session) -> dict:
         "falls_by_cause": tr.causes(e),
         "falls_by_origin": falls_by_origin(fall_records),
         "stops_while_falling": stops_while_falling(fall_records),
+        "own_loop_replays": own_loop_replays(fall_records),
         "fall_records": fall_records,
         "domain_pushes": len(pushes),
         "fall_stops": int(rt.counters.faults["fall"][e]),

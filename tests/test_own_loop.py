@@ -1,0 +1,67 @@
+"""A soak's falls replayed in the policy's own loop (:mod:`sim2real.eval.soak.own_loop`)."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+
+H1_2 = "tests/data/unitree_rl_gym/h1_2/h1_2.onnx"
+
+
+@pytest.fixture(scope="module")
+def pushed_h1_2(tmp_path_factory):
+    """H1-2 seed 1 in its training domain (legged_gym's pushes), 7 s: pushed at 5 s, it falls
+    (the fall check's stop before 6 s)."""
+    from sim2real.eval.soak.batch import SessionBatch
+    from sim2real.eval.soak.session import SessionConfig
+    from sim2real.eval.world.domain import training_domain
+    from sim2real.eval.world.ranges_file import load_ranges_text
+    from sim2real.robots import load_robot
+
+    ranges = load_ranges_text(training_domain(H1_2), H1_2, load_robot("h1_2"), None)
+    config = SessionConfig(robot="h1_2", policy=H1_2, seed=1, hours=1.0, ranges=ranges)
+    batch = SessionBatch([config], tmp_path_factory.mktemp("own"), progress=False)
+    batch.rt.run(int(round(7.0 / batch.dt)), on_tick=batch.on_tick)
+    return batch
+
+
+def test_a_fall_is_replayed_in_the_policys_own_loop_from_the_seconds_before_it(pushed_h1_2):
+    """The fall check's fall carries its own-loop replays: each from a capture 2-6 s before the
+    stop (the push among them), and each falling after the push as the session did (legged_gym's
+    H1-2 falls under these pushes in unitree_rl_gym's own loop too); the result counts them."""
+    from sim2real.eval.soak.counterfactual import HORIZON
+    from sim2real.eval.soak.falls import own_loop_replays
+    from sim2real.eval.soak.own_loop import CAPTURE_PERIOD, LEAD
+
+    batch = pushed_h1_2
+    log = batch.task.parts()["tracker"].fall_log[0]
+    falls = [r for r in log if r["cause"] == "fall"]
+    assert len(falls) == 1
+    t, own, push = falls[0]["t_s"], falls[0]["own_loop"], batch.pushes.times[0][0]
+    assert push < t
+    assert len(own["from_s"]) >= 2 and len(own["fall_s"]) == len(own["from_s"])
+    early, late = t - max(LEAD) - CAPTURE_PERIOD, t - min(LEAD)
+    assert all(early <= s <= late and s < push for s in own["from_s"])
+    assert all(f is not None and push < f <= t + HORIZON for f in own["fall_s"])
+    n = len(own["fall_s"])
+    assert own_loop_replays(log) == {"falls": 1, "replays": n, "fell": n}
+
+
+def test_the_own_loop_replay_carries_the_worlds_push(pushed_h1_2):
+    """The same replay with the push taken out of the twin's world stands past the stop's
+    horizon: the replay's fall is the push's, not a defect of the own loop."""
+    from sim2real.eval.soak.counterfactual import HORIZON
+    from sim2real.eval.soak.own_loop import own_loop
+
+    batch = pushed_h1_2
+    fall = next(r for r in batch.task.parts()["tracker"].fall_log[0] if r["cause"] == "fall")
+    arrays, meta = batch.own_loop.captures[0][0]
+    assert meta["tick"] * batch.dt <= fall["own_loop"]["from_s"][0]
+    twin = batch.stop_replay.copy_of(0)
+    until = fall["t_s"] + HORIZON
+    twin.restore(arrays, copy.deepcopy(meta), "test")
+    assert own_loop(twin, until) is not None  # with the push: it falls
+    twin.restore(arrays, copy.deepcopy(meta), "test")
+    twin.pushes = None  # the world without the training domain's pushes
+    assert own_loop(twin, until) is None

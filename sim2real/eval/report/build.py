@@ -233,9 +233,9 @@ def build_report(
                    missed_dropped}
             locomotion (null for an arm) {commands_issued, command_period_s (s, or [low, high]
                    when each command's length is drawn), command_ranges,
-                   final_command, falls, falls_per_hour, fall_stops, own_loop_replays {falls,
-                   replays, fell} (the falls replayed in the policy's own loop,
-                   :mod:`sim2real.eval.soak.own_loop`), false_fall_stops (fall-check
+                   final_command, falls, falls_per_hour, fall_stops, fall_replays {falls,
+                   own_loop, own_loop_fell, redraw, redraw_fell} (the falls replayed,
+                   :func:`sim2real.eval.soak.falls.fall_replays`), false_fall_stops (fall-check
                    stops of a robot the truth had upright, :func:`sim2real.eval.soak.falls.
                    false_fall_stops`; must be 0), tracking_success (the session's success
                    rate: share of RUNNING time within tracking_tolerance_m_s of the command, the

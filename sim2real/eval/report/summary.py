@@ -45,15 +45,16 @@ def summary_text(report: dict) -> str:
                     f"  stops        {falling} runtime stop(s) on a robot already falling (its "
                     "replay without the stop fell too; counted above by what began the fall)"
                 )
-        own = loco.get("own_loop_replays") or {}
-        if own.get("replays"):
-            from sim2real.eval.soak.own_loop import LEAD
+        fr = loco.get("fall_replays") or {}
+        if fr.get("falls"):
+            from sim2real.eval.soak.fall_replay import LEAD, REDRAW_LEAD
 
             lines.append(
-                f"  own loop     {own['falls']} fall(s) replayed {own['replays']} times from "
-                f"{min(LEAD):g}-{max(LEAD):g} s before in the policy's own loop (true state, no "
-                f"guard or smoother): it fell in {own['fell']} (not judged; "
-                "sim2real.eval.soak.own_loop)"
+                f"  replays      {fr['falls']} fall(s) replayed (not judged): the policy's own loop "
+                f"(true state, no guard or smoother) from {min(LEAD):g}-{max(LEAD):g} s before "
+                f"fell in {fr['own_loop_fell']} of {fr['own_loop']}; the runtime from "
+                f"{REDRAW_LEAD:g} s before with other sensor-noise draws fell in "
+                f"{fr['redraw_fell']} of {fr['redraw']}"
             )
         if loco.get("false_fall_stops") is not None:
             lines.append(

@@ -247,9 +247,9 @@ def _locomotion_totals(results: list[dict]) -> dict | None:
         "falls_by_origin": origins,
         "stops_while_falling": sum(x.get("stops_while_falling", 0) for x in legs),
         "false_fall_stops": sum(x.get("false_fall_stops", 0) for x in legs),
-        "own_loop_replays": {
-            k: sum(x.get("own_loop_replays", {}).get(k, 0) for x in legs)
-            for k in ("falls", "replays", "fell")
+        "fall_replays": {
+            k: sum(x.get("fall_replays", {}).get(k, 0) for x in legs)
+            for k in ("falls", "own_loop", "own_loop_fell", "redraw", "redraw_fell")
         },
         "falls_by_cause": causes,
         "commands_issued": sum(x.get("commands_issued", 0) for x in legs),

@@ -117,8 +117,8 @@ class SessionBatch:
             an instance, so that a campaign's worker processes receive it by name.
         replay_stops: A floating-base robot's hard-limit stops are replayed without the stop
             (:class:`sim2real.eval.soak.counterfactual.StopReplay`) and its falls in the policy's
-            own loop (:class:`sim2real.eval.soak.own_loop.OwnLoopReplay`), so each fall says
-            whether the robot was falling anyway. False in the replays' own copy of the batch.
+            own loop and with other noise (:class:`sim2real.eval.soak.fall_replay.FallReplay`),
+            so each fall says whether the robot was falling anyway. False in the replays' copy.
 
     Raises:
         SessionError: sessions with different options, or duplicate seeds.
@@ -226,13 +226,13 @@ class SessionBatch:
         ]
         self._next_event = self.every
         self._ruckig = mode != "torque"
-        self.stop_replay = self.own_loop = None
+        self.stop_replay = self.fall_replay = None
         if replay_stops and self.kind.stand_up_on_reset:  # its every stop lays it down
             from sim2real.eval.soak.counterfactual import StopReplay
-            from sim2real.eval.soak.own_loop import OwnLoopReplay
+            from sim2real.eval.soak.fall_replay import FallReplay
 
             self.stop_replay = StopReplay(self)
-            self.own_loop = OwnLoopReplay(self.stop_replay)
+            self.fall_replay = FallReplay(self.stop_replay)
         self._wall0 = time.perf_counter()
         if resume:
             self._resume()
@@ -326,7 +326,7 @@ class SessionBatch:
             self._supervise(rt)
         if self.stop_replay is not None:  # last: a capture must hold this whole tick
             self.stop_replay(rt)
-            self.own_loop(rt)
+            self.fall_replay(rt)
 
     def _supervise(self, rt) -> None:
         ticks, t = rt.ticks, rt.time

@@ -89,16 +89,19 @@ def stops_while_falling(falls: list[dict]) -> int:
     return sum(1 for f in falls if f.get("stopped_while_falling"))
 
 
-def own_loop_replays(falls: list[dict]) -> dict[str, int]:
-    """``{"falls", "replays", "fell"}``: how many of ``falls`` the soak replayed in the policy's
-    own loop (:mod:`sim2real.eval.soak.own_loop`, their ``own_loop`` records), in how many
-    replays, and in how many of those the own loop fell too."""
-    done = [f["own_loop"] for f in falls if f.get("own_loop", {}).get("from_s")]
-    return {
-        "falls": len(done),
-        "replays": sum(len(r["fall_s"]) for r in done),
-        "fell": sum(1 for r in done for t in r["fall_s"] if t is not None),
-    }
+def fall_replays(falls: list[dict]) -> dict[str, int]:
+    """How ``falls`` fared in their replays (:mod:`sim2real.eval.soak.fall_replay`): ``falls``
+    replayed; ``own_loop`` replays in the policy's own loop and ``own_loop_fell`` how many of
+    those fell; ``redraw`` replays of the runtime with other sensor-noise draws and
+    ``redraw_fell`` how many of those fell."""
+    out = {"falls": 0, "own_loop": 0, "own_loop_fell": 0, "redraw": 0, "redraw_fell": 0}
+    for f in falls:
+        kinds = [k for k in ("own_loop", "redraw") if f.get(k) and f[k]["fall_s"]]
+        out["falls"] += bool(kinds)
+        for k in kinds:
+            out[k] += len(f[k]["fall_s"])
+            out[f"{k}_fell"] += sum(1 for t in f[k]["fall_s"] if t is not None)
+    return out
 
 
 def false_fall_stops(falls: list[dict], standing_height: float, tilt_limit: float) -> int:

@@ -26,9 +26,9 @@ from sim2real.deploy.runtime import FAULT_CAUSES, STAGES, Mode
 from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.soak.falls import (
     attribute_falls,
+    fall_replays,
     falls_by_origin,
     false_fall_stops,
-    own_loop_replays,
     stops_while_falling,
 )
 from sim2real.eval.soak.session import (
@@ -81,7 +81,7 @@ def locomotion_result(session: Session) -> dict:
         "falls_by_cause": tr.causes(e),
         "falls_by_origin": falls_by_origin(fall_records),
         "stops_while_falling": stops_while_falling(fall_records),
-        "own_loop_replays": own_loop_replays(fall_records),
+        "fall_replays": fall_replays(fall_records),
         "fall_records": fall_records,
         "domain_pushes": len(pushes),
         "fall_stops": int(rt.counters.faults["fall"][e]),

@@ -1,28 +1,30 @@
-"""How the policy's own loop fares where the soak's robot fell (:class:`OwnLoopReplay`).
+"""How likely a soak's fall was, and whether the policy falls there in its own loop
+(:class:`FallReplay`).
 
 A fall the fall check stopped (no runtime stop began it) may be the policy's, one it takes in
-its own loop too, or the runtime's: the estimate, the guard or the smoother took from it what it
-needed to recover. The soak replays to show which. A floating-base session captures each
-RUNNING env every ``CAPTURE_PERIOD`` s (the state a checkpoint holds,
-:meth:`sim2real.eval.soak.session.Session.capture`). At a fall, the one-session copy of the batch
-that :class:`~sim2real.eval.soak.counterfactual.StopReplay` keeps continues from each capture
-``LEAD`` s before the fall's stop, in the same world (its model, floor, command schedule, the
-training domain's pushes, the force of a fault armed at the capture), with the policy's own loop
-in place of the runtime: each tick the policy reads the simulator's true state (no sensor noise,
-no estimator; the observation as its contract builds it) and its targets go to the drives as it
-emitted them (no guard, no smoother, no stop), as the sim2sim loops of unitree_rl_gym and
-unitree_rl_lab run a policy. A replay falls when the true base falls by ``HORIZON`` s after the
-stop (below ``TRUE_FALL_HEIGHT`` of its standing height or tilted past the fall tilt: the
-estimation monitor's rule). The fall record gets ``own_loop``: ``{"from_s": [...], "fall_s":
-[... or None]}``, one entry per replay. Not replayed: a fall a runtime stop began.
+its own loop too; the runtime's, where its estimate, guard or smoother took what the policy
+needed to recover; or a rare draw of the world's sensor noise. A floating-base session captures
+each RUNNING env every ``CAPTURE_PERIOD`` s (what a checkpoint holds,
+:meth:`sim2real.eval.soak.session.Session.capture`). At such a fall the one-session copy of the
+batch that :class:`~sim2real.eval.soak.counterfactual.StopReplay` keeps replays, in the same
+world (model, floor, command schedule, the domain's pushes, the force of a fault armed at the
+capture), to ``HORIZON`` s after the stop:
 
-What it can tell: walking is chaotic, and a push's outcome turns on the gait's phase, so one
-replay from one moment says little; the share of replays that fall says how near the policy
-itself was to falling. What it cannot: the captured states are the ones the runtime brought the
-robot to, and the own loop reads the truth, more than any deployment can. It does not judge.
+- ``own_loop``: from each capture ``LEAD`` s before the stop, the policy's own loop in place of
+  the runtime: it reads the simulator's true state (no sensor noise, no estimator; the
+  observation as its contract builds it) and its targets go to the drives as emitted (no guard,
+  no smoother, no stop), as unitree_rl_gym's and unitree_rl_lab's sim2sim loops run a policy.
+  It fell when the true base fell (below ``TRUE_FALL_HEIGHT`` of its standing height or tilted
+  past the fall tilt: the estimation monitor's rule).
+- ``redraw``: from the capture ``REDRAW_LEAD`` s before the stop, the runtime itself, each of
+  ``REDRAWS`` times with another draw of the sensor noise (seeded by the session's seed, the
+  stop's tick and the draw). It fell when the runtime stopped (every legged stop lays it down).
 
-Cost: one capture of each RUNNING env per ``CAPTURE_PERIOD``, and per fall ``len(LEAD)``
-replays of up to ``max(LEAD) + HORIZON`` s of the own loop (no estimator, guard or smoother).
+Each holds ``from_s`` and ``fall_s`` (s, or null: stood), one entry per replay. Walking is
+chaotic and a push's outcome turns on the gait's phase and the noise, so one run says little;
+the shares say whether the fall was near certain from there, with or without the runtime. The
+captured states are the ones our runtime brought the robot to, and the own loop reads the truth,
+which no deployment can. It does not judge. Only a session's first ``MAX_FALLS`` falls replay.
 """
 
 from __future__ import annotations
@@ -43,12 +45,18 @@ CAPTURE_PERIOD = 1.0
 #: (``sim2real.eval.soak.falls.ATTRIBUTION_WINDOW``, 2 s: a push that began the fall is replayed
 #: too) to a little past one push interval before it.
 LEAD = (2.0, 3.0, 4.0, 5.0, 6.0)
+#: s before the stop the runtime's replays with other sensor-noise draws start from, and how many.
+#: Our choice: 4 s, before a push that began the fall; 5 draws.
+REDRAW_LEAD, REDRAWS = 4.0, 5
+#: Falls of a session that are replayed (the first ones): a policy that falls every minute
+#: would otherwise double the soak's time.
+MAX_FALLS = 10
 #: The captures kept per env: enough to reach ``max(LEAD)`` s back.
 KEPT = int(np.ceil(max(LEAD) / CAPTURE_PERIOD)) + 2
 
 
-class OwnLoopReplay:
-    """The own-loop replays of a floating-base batch's falls (module docstring). Call after
+class FallReplay:
+    """The replays of a floating-base batch's falls (module docstring). Call after
     each tick's bookkeeping, after ``stop_replay`` (:meth:`SessionBatch.on_tick`).
 
     Args:
@@ -66,6 +74,7 @@ class OwnLoopReplay:
         self.seen = [len(log) for log in self.tracker.fall_log]
         self.every = max(1, int(round(CAPTURE_PERIOD / batch.dt)))
         self.captures: list[deque] = [deque(maxlen=KEPT) for _ in batch.sessions]
+        self.replayed = [0] * len(batch.sessions)
         self.replays = 0
 
     def __call__(self, rt) -> None:
@@ -75,24 +84,37 @@ class OwnLoopReplay:
 
         for e, log in enumerate(self.tracker.fall_log):
             for record in log[self.seen[e] :]:
-                if record.get("cause") == "fall":
-                    t_stop = float(record["t_s"])
-                    starts = self._starts(e, t_stop)
-                    record["own_loop"] = {
-                        "from_s": [start[1]["tick"] * self.batch.dt for start in starts],
-                        "fall_s": [self.replay(e, start, t_stop + HORIZON) for start in starts],
-                    }
+                if record.get("cause") == "fall" and self.replayed[e] < MAX_FALLS:
+                    self.replayed[e] += 1
+                    self._replay_fall(e, record)
             self.seen[e] = len(log)
         if rt.ticks % self.every == 0:
             for e in np.flatnonzero(rt.mode == RUNNING):
                 arrays, meta = self.batch.sessions[e].capture()
                 self.captures[e].append((arrays, copy.deepcopy(meta)))
 
-    def _starts(self, e: int, t_stop: float) -> list:
-        """For each ``LEAD``, the newest capture of env ``e`` at least that long before
+    def _replay_fall(self, e: int, record: dict) -> None:
+        """Write ``own_loop`` and ``redraw`` (module docstring) into the fall ``record``."""
+        t_stop, dt = float(record["t_s"]), self.batch.dt
+        until = t_stop + HORIZON
+        starts = self._starts(e, t_stop, LEAD)
+        record["own_loop"] = {
+            "from_s": [start[1]["tick"] * dt for start in starts],
+            "fall_s": [self.replay(e, start, until) for start in starts],
+        }
+        start = self._starts(e, t_stop, (REDRAW_LEAD,))
+        if start:
+            seed = (self.batch.configs[e].seed, int(round(t_stop / dt)))
+            record["redraw"] = {
+                "from_s": start[0][1]["tick"] * dt,
+                "fall_s": [self.redraw(e, start[0], until, (*seed, k)) for k in range(REDRAWS)],
+            }
+
+    def _starts(self, e: int, t_stop: float, leads) -> list:
+        """For each of ``leads`` (s), the newest capture of env ``e`` at least that long before
         ``t_stop`` (s), each capture once, oldest first; fewer where none is kept."""
         starts = []
-        for lead in sorted(LEAD, reverse=True):
+        for lead in sorted(leads, reverse=True):
             latest = int(np.floor((t_stop - lead) / self.batch.dt + 1e-9))
             kept = [c for c in self.captures[e] if c[1]["tick"] <= latest]
             if kept and not any(kept[-1] is s for s in starts):
@@ -107,6 +129,20 @@ class OwnLoopReplay:
         twin.restore(arrays, copy.deepcopy(meta), "the soak's capture before a fall")
         self.replays += 1
         return own_loop(twin, until)
+
+    def redraw(self, e: int, start: tuple[dict, dict], until: float, seed) -> float | None:
+        """When (session time, s) the runtime stops env ``e``'s robot (it lies down) continuing
+        from the capture ``start`` until ``until`` s with its sensor noise drawn from
+        ``numpy.random.default_rng(seed)``; None if it stays up."""
+        twin = self.stop_replay.copy_of(e)
+        arrays, meta = start
+        twin.restore(arrays, copy.deepcopy(meta), "the soak's capture before a fall")
+        twin.backend.set_sensor_streams([np.random.default_rng(seed)])
+        log = twin.task.parts()["tracker"].fall_log[0]
+        before = len(log)
+        twin.rt.run(max(int(round((until - twin.rt.time) / twin.dt)), 0), on_tick=twin.on_tick)
+        self.replays += 1
+        return float(log[before]["t_s"]) if len(log) > before else None
 
 
 def own_loop(twin, until: float) -> float | None:

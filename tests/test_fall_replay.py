@@ -1,4 +1,5 @@
-"""A soak's falls replayed in the policy's own loop (:mod:`sim2real.eval.soak.own_loop`)."""
+"""A soak's falls replayed in the policy's own loop and with other sensor noise
+(:mod:`sim2real.eval.soak.fall_replay`)."""
 
 from __future__ import annotations
 
@@ -27,12 +28,13 @@ def pushed_h1_2(tmp_path_factory):
 
 
 def test_a_fall_is_replayed_in_the_policys_own_loop_from_the_seconds_before_it(pushed_h1_2):
-    """The fall check's fall carries its own-loop replays: each from a capture 2-6 s before the
-    stop (the push among them), and each falling after the push as the session did (legged_gym's
-    H1-2 falls under these pushes in unitree_rl_gym's own loop too); the result counts them."""
+    """The fall check's fall carries its replays: the own loop's, each from a capture 2-6 s
+    before the stop (the push among them), each falling after the push as the session did
+    (legged_gym's H1-2 falls under these pushes in unitree_rl_gym's own loop too); the
+    runtime's with other sensor-noise draws from 4 s before; the result counts them."""
     from sim2real.eval.soak.counterfactual import HORIZON
-    from sim2real.eval.soak.falls import own_loop_replays
-    from sim2real.eval.soak.own_loop import CAPTURE_PERIOD, LEAD
+    from sim2real.eval.soak.fall_replay import CAPTURE_PERIOD, LEAD, REDRAW_LEAD, REDRAWS
+    from sim2real.eval.soak.falls import fall_replays
 
     batch = pushed_h1_2
     log = batch.task.parts()["tracker"].fall_log[0]
@@ -44,19 +46,27 @@ def test_a_fall_is_replayed_in_the_policys_own_loop_from_the_seconds_before_it(p
     early, late = t - max(LEAD) - CAPTURE_PERIOD, t - min(LEAD)
     assert all(early <= s <= late and s < push for s in own["from_s"])
     assert all(f is not None and push < f <= t + HORIZON for f in own["fall_s"])
+    redraw = falls[0]["redraw"]
+    assert t - REDRAW_LEAD - CAPTURE_PERIOD <= redraw["from_s"] <= t - REDRAW_LEAD
+    assert len(redraw["fall_s"]) == REDRAWS
+    assert all(f is None or push < f <= t + HORIZON for f in redraw["fall_s"])
+    assert len(set(redraw["fall_s"])) > 1  # other noise: not the session's one run again
+    fell = sum(f is not None for f in redraw["fall_s"])
     n = len(own["fall_s"])
-    assert own_loop_replays(log) == {"falls": 1, "replays": n, "fell": n}
+    assert fall_replays(log) == {
+        "falls": 1, "own_loop": n, "own_loop_fell": n, "redraw": REDRAWS, "redraw_fell": fell
+    }  # fmt: skip
 
 
 def test_the_own_loop_replay_carries_the_worlds_push(pushed_h1_2):
     """The same replay with the push taken out of the twin's world stands past the stop's
     horizon: the replay's fall is the push's, not a defect of the own loop."""
     from sim2real.eval.soak.counterfactual import HORIZON
-    from sim2real.eval.soak.own_loop import own_loop
+    from sim2real.eval.soak.fall_replay import own_loop
 
     batch = pushed_h1_2
     fall = next(r for r in batch.task.parts()["tracker"].fall_log[0] if r["cause"] == "fall")
-    arrays, meta = batch.own_loop.captures[0][0]
+    arrays, meta = batch.fall_replay.captures[0][0]
     assert meta["tick"] * batch.dt <= fall["own_loop"]["from_s"][0]
     twin = batch.stop_replay.copy_of(0)
     until = fall["t_s"] + HORIZON

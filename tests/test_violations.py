@@ -319,3 +319,68 @@ def test_distances_measured_less_often_count_the_same_collisions(name, request, 
         assert np.array_equal(a[key], b[key]), key
     assert monitors[16].counts["self_collision"].sum() > 0  # contacts were met
     assert measured[16] < measured[1] / 2  # and distances measured far less often
+
+
+def _touching_pose(robot, rng, model, data, geom_model, geom_data):
+    """A pose drawn within the hard limits at which some collision pair touches (coal, every
+    pair), or None after 400 draws."""
+    import pinocchio as pin
+
+    for _ in range(400):
+        q = rng.uniform(robot.position_lower, robot.position_upper)
+        if pin.computeCollisions(model, data, geom_model, geom_data, q, True):
+            return q
+    return None
+
+
+@pytest.mark.parametrize("name", ["go2", "arm6"])
+def test_the_screened_monitor_counts_what_checking_every_pair_counts(name, request):
+    """Over trajectories that glide from free poses into contact and out again, hold in contact,
+    wander and rest, the monitor (its screen sparing coal, its distances measured now and then)
+    counts the same self-collisions, the same pairs touching and every other count as the
+    reference, which checks every pair on every tick; its screen spared checks, and long runs of
+    checks were met."""
+    from sim2real.deploy.monitors import violations
+    from sim2real.deploy.monitors.reference import ReferenceViolationMonitor
+    from sim2real.deploy.safety.collision import collision_model
+
+    robot = request.getfixturevalue(name)
+    envs, n, rng = 2, robot.n_joints, np.random.default_rng(11)
+    lo, hi = robot.position_lower, robot.position_upper
+    geom_model, geom_data = collision_model(robot)
+    model = robot.fixed_base_model
+    data = model.createData()
+    q, dq, tau = np.tile(robot.home, (envs, 1)), np.zeros((envs, n)), np.zeros((envs, n))
+    backend = SimpleNamespace(
+        true_position=lambda: q, true_velocity=lambda: dq, joint_torque=lambda: tau,
+        end_effector_position=lambda out: out,
+    )  # fmt: skip
+    ours, reference = ViolationMonitor(robot, envs), ReferenceViolationMonitor(robot, envs)
+    paths = [[] for _ in range(envs)]
+    ticks, checks, longest = 1500, 0, 0
+    for _ in range(ticks):
+        for e in range(envs):
+            if not paths[e]:  # a new leg of the trip: glide into a contact, hold, glide out
+                start = q[e].copy()
+                goal = _touching_pose(robot, rng, model, data, geom_model, geom_data)
+                if goal is None or rng.random() < 0.2:  # or wander, then rest
+                    goal = np.clip(start + rng.normal(0.0, 0.3, n), lo, hi)
+                steps = int(rng.integers(10, 60))
+                glide = [start + (goal - start) * (k + 1) / steps for k in range(steps)]
+                back = np.clip(goal + rng.normal(0.0, 0.4, n), lo, hi)
+                away = [goal + (back - goal) * (k + 1) / 10 for k in range(10)]
+                rest = [robot.home] * int(rng.integers(0, 60))  # clear of every pair
+                paths[e] = glide + [goal] * int(rng.integers(0, 6)) + away + rest
+            q[e] = paths[e].pop(0)
+        down = np.zeros(envs, dtype=bool)
+        ours.update(backend, down=down)
+        reference.update(backend, down=down)
+        checks += int(ours._need.sum())
+        longest = max(longest, int(ours._run.max()))
+    a, b = ours.state_dict(), reference.state_dict()
+    for key in a:
+        assert np.array_equal(a[key], b[key]), key
+    assert ours.counts["self_collision"].sum() > 50
+    assert ours.pair_ticks.astype(bool).sum() > 2  # several pairs touched
+    assert checks < 0.9 * ticks * envs  # the screen spared coal
+    assert longest > 4 * violations.DISTANCE_REFRESH  # past several refreshes of the distances

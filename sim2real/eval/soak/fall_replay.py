@@ -24,7 +24,8 @@ Each holds ``from_s`` and ``fall_s`` (s, or null: stood), one entry per replay. 
 chaotic and a push's outcome turns on the gait's phase and the noise, so one run says little;
 the shares say whether the fall was near certain from there, with or without the runtime. The
 captured states are the ones our runtime brought the robot to, and the own loop reads the truth,
-which no deployment can. It does not judge. Only a session's first ``MAX_FALLS`` falls replay.
+which no deployment can. It does not judge. Only a session's first ``MAX_FALLS`` falls replay;
+the captures are not checkpointed, so a fall soon after a resume replays from fewer of them.
 """
 
 from __future__ import annotations

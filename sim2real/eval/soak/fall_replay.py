@@ -125,25 +125,27 @@ class FallReplay:
     def replay(self, e: int, start: tuple[dict, dict], until: float) -> float | None:
         """When (session time, s) the true base of env ``e`` falls in the policy's own loop run
         from the capture ``start`` until ``until`` s; None if it stays up."""
-        twin = self.stop_replay.copy_of(e)
-        arrays, meta = start
-        twin.restore(arrays, copy.deepcopy(meta), "the soak's capture before a fall")
         self.replays += 1
-        return own_loop(twin, until)
+        return own_loop(self._twin(e, start), until)
 
     def redraw(self, e: int, start: tuple[dict, dict], until: float, seed) -> float | None:
         """When (session time, s) the runtime stops env ``e``'s robot (it lies down) continuing
         from the capture ``start`` until ``until`` s with its sensor noise drawn from
         ``numpy.random.default_rng(seed)``; None if it stays up."""
-        twin = self.stop_replay.copy_of(e)
-        arrays, meta = start
-        twin.restore(arrays, copy.deepcopy(meta), "the soak's capture before a fall")
+        twin = self._twin(e, start)
         twin.backend.set_sensor_streams([np.random.default_rng(seed)])
         log = twin.task.parts()["tracker"].fall_log[0]
         before = len(log)
         twin.rt.run(max(int(round((until - twin.rt.time) / twin.dt)), 0), on_tick=twin.on_tick)
         self.replays += 1
         return float(log[before]["t_s"]) if len(log) > before else None
+
+    def _twin(self, e: int, start: tuple[dict, dict]):
+        """Env ``e``'s one-session copy of the batch, restored to the capture ``start``."""
+        twin = self.stop_replay.copy_of(e)
+        arrays, meta = start
+        twin.restore(arrays, copy.deepcopy(meta), "the soak's capture before a fall")
+        return twin
 
 
 def own_loop(twin, until: float) -> float | None:
@@ -156,13 +158,12 @@ def own_loop(twin, until: float) -> float | None:
     obs = np.zeros((1, spec.obs_dim), dtype=np.float32)
     target = np.zeros((1, twin.robot.n_joints))
     schedule = twin.task.schedule
+    state.base.set_truth(plant.true_base_state())
     while rt.time < until - 0.5 * twin.dt:
         if rt.injector is not None:  # a fault armed at the capture: its force
             rt.injector.before_read(rt.time)
-        state.q[:] = plant.true_position()
+        state.q[:] = plant.true_position()  # the base's truth: read after the last tick
         state.dq[:] = plant.true_velocity()
-        truth = plant.true_base_state()
-        state.base.set_truth(truth)
         state.clock[:] = rt.time
         spec.observation(state, rt.goal, out=obs)
         action = policy(obs)
@@ -176,7 +177,7 @@ def own_loop(twin, until: float) -> float | None:
             twin.pushes(rt, plant)
         if schedule is not None:
             schedule(rt)
-        truth = plant.true_base_state()
+        truth = plant.true_base_state()  # after the push: what the next tick observes
         tilt = float(tilt_of(state.base.set_truth(truth).projected_gravity)[0])
         height = float(truth[0, 2])
         if not (np.isfinite(height) and height >= monitor.fall_height) or tilt > monitor.fall_tilt:

@@ -93,6 +93,11 @@ def guard_filter(phase, out, q, dq, commanded, has_commanded, g) -> int:
     envs, n = out.shape
     checks = g.fired.shape[0]
     mode = g.mode
+    # the stages as int64 values: a module constant passed as is types as a literal, and numba
+    # then compiles _stage once per stage (four times the kernel's compile, the same machine code
+    # but for the branches the literal folds away)
+    _inspect, _clamp = np.int64(INSPECT), np.int64(CLAMP)
+    _predicted, _final = np.int64(PREDICTED), np.int64(FINAL)
     if phase == 0:
         dt = g.scalars[DT]
         python = False
@@ -106,8 +111,8 @@ def guard_filter(phase, out, q, dq, commanded, has_commanded, g) -> int:
             for k in range(checks):
                 g.fired[k, e] = False
                 g.needs[k, e] = False
-            _stage(INSPECT, e, out, q, dq, commanded, has_commanded, g)
-            _stage(CLAMP, e, out, q, dq, commanded, has_commanded, g)
+            _stage(_inspect, e, out, q, dq, commanded, has_commanded, g)
+            _stage(_clamp, e, out, q, dq, commanded, has_commanded, g)
             for j in range(n):  # the predicted next state
                 if mode == POSITION:
                     g.pred[e, j] = out[e, j]
@@ -118,7 +123,7 @@ def guard_filter(phase, out, q, dq, commanded, has_commanded, g) -> int:
                 else:
                     p = dq[e, j] * dt
                     g.pred[e, j] = p + q[e, j]
-            if _stage(PREDICTED, e, out, q, dq, commanded, has_commanded, g):
+            if _stage(_predicted, e, out, q, dq, commanded, has_commanded, g):
                 python = True
             for k in range(checks):
                 if g.fired[k, e]:
@@ -133,7 +138,7 @@ def guard_filter(phase, out, q, dq, commanded, has_commanded, g) -> int:
                 g.last_valid[e, j] = out[e, j]
         for k in range(checks):
             g.fired[k, e] = False
-        _stage(FINAL, e, out, q, dq, commanded, has_commanded, g)
+        _stage(_final, e, out, q, dq, commanded, has_commanded, g)
         for k in range(checks):
             if g.fired[k, e]:
                 g.counts[k, e] += 1

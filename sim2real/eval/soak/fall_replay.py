@@ -158,11 +158,11 @@ def own_loop(twin, until: float) -> float | None:
     obs = np.zeros((1, spec.obs_dim), dtype=np.float32)
     target = np.zeros((1, twin.robot.n_joints))
     schedule = twin.task.schedule
-    state.base.set_truth(plant.true_base_state())
+    state.base.set_truth(plant.true_base_state())  # then at each tick's end, by the fall check
     while rt.time < until - 0.5 * twin.dt:
         if rt.injector is not None:  # a fault armed at the capture: its force
             rt.injector.before_read(rt.time)
-        state.q[:] = plant.true_position()  # the base's truth: read after the last tick
+        state.q[:] = plant.true_position()
         state.dq[:] = plant.true_velocity()
         state.clock[:] = rt.time
         spec.observation(state, rt.goal, out=obs)

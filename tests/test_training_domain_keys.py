@@ -21,6 +21,7 @@ import pytest
 from sim2real.eval.world.domain import DomainError, contract_commands, legged_gym_domain
 from sim2real.eval.world.dynamics import DynamicsRanges, randomized_model, sample_dynamics
 from sim2real.eval.world.floor import apply_floor_friction
+from sim2real.eval.world.legged_gym_groups import GROUPS
 from sim2real.eval.world.ranges_file import load_ranges_text
 from sim2real.robots import load_robot
 
@@ -326,3 +327,50 @@ def test_holosomas_randomization_is_read_term_by_term(tmp_path, go2):
     assert ranges.com_offset.x == (-0.05, 0.05) and ranges.sensors.encoder_bias is None
     assert ranges.sensors.noise_sigma[1] == pytest.approx(0.01 / 3**0.5, rel=1e-5)
     assert ranges.commands is not None
+
+
+def _one_key(key: str, switch: str, value: str) -> str:
+    """A legged_gym config whose ``domain_rand`` sets ``switch`` and ``key = value`` only."""
+    return (
+        "from legged_gym.envs.base.legged_robot_config import LeggedRobotCfg\n\n"
+        "class OneCfg(LeggedRobotCfg):\n"
+        "    class domain_rand(LeggedRobotCfg.domain_rand):\n"
+        f"        {switch} = True\n"
+        f"        {key} = {value}\n"
+    )
+
+
+#: Every range key a legged_gym-family reader turns into the soak's ranges, a switch of its own, and the
+#: ranges file's line it must write from the config's own value ([0.77, 1.23] or [-0.37, 0.37]).
+TRACED = [
+    (key, group.switches[-1], line)
+    for group, line in (
+        (g, "added_base_mass = [-0.37, 0.37]") if g.what == "base mass"
+        else (g, "encoder_bias = [-0.37, 0.37]") if g.what == "motor zero offset"
+        else (g, " = 0.23")
+        for g in GROUPS
+        if g.read_into is not None and g.what in (
+            "base mass", "link mass", "motor strength", "kp", "kd", "joint friction",
+            "joint damping", "armature", "motor zero offset")
+    )
+    for key in group.values
+    if key != "joint_armature_range"
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("key", "switch", "line"), TRACED, ids=[t[0] for t in TRACED])
+def test_every_range_key_is_written_from_the_configs_own_value(tmp_path, key, switch, line):
+    """Each key the reader knows reaches the ranges file with the config's own value, never
+    legged_gym's default over it (a fork's ``added_base_mass_range = [-4, 4]`` was written as the
+    default ``added_mass_range``'s [-1, 1])."""
+    value = "[-0.37, 0.37]" if "bias" in line or "mass =" in line else "[0.77, 1.23]"
+    text = legged_gym_domain(write(tmp_path, _one_key(key, switch, value)))
+    assert line in text, text
+
+
+def test_an_absolute_armature_range_is_refused_not_read_as_a_factor(tmp_path):
+    """``joint_armature_range = [0.008, 0.06]`` (kg m^2, the armature itself in engineai's
+    forks) is not a factor on the robot's armature (it was read as +-0.992): refused by name."""
+    config = _one_key("joint_armature_range", "randomize_joint_armature", "[0.008, 0.06]")
+    with pytest.raises(DomainError, match=r"joint_armature_range = \[0.008, 0.06\]: armature "):
+        legged_gym_domain(write(tmp_path, config))

@@ -240,12 +240,11 @@ def _joint_of_slot(config: DeployConfig, robot: Robot, slot: int, field: str) ->
             f"{config.path}: field '{field}': motor slot {slot} drives no joint of the robot "
             f"'{robot.name}' (robot.toml [unitree] motor_index {list(unitree.motor_index)})"
         )
-    if slot >= robot.n_joints:
-        raise ExportError(
-            f"{config.path}: field '{field}': motor slot {slot}, the robot '{robot.name}' has "
-            f"{robot.n_joints} joints (and no robot.toml [unitree] motor_index)"
-        )
-    return slot
+    raise ExportError(
+        f"{config.path}: field '{field}': motor slot {slot}, but the robot '{robot.name}' has "
+        "no motor slots to find it among (robot.toml [unitree] motor_index): import it with "
+        "robot-import --unitree FAMILY; a slot is never read as a joint's index"
+    )
 
 
 def policy_joints(config: DeployConfig, robot: Robot) -> list[int]:
@@ -255,7 +254,7 @@ def policy_joints(config: DeployConfig, robot: Robot) -> list[int]:
     gives the rate as ``control_dt`` (s) instead of ``simulation_dt`` and
     ``control_decimation``, and the motor slot of policy joint ``i`` as
     ``leg_joint2motor_idx[i]``: the robot joint whose ``robot.toml`` ``[unitree] motor_index``
-    is that slot, or, without one, ``robot.joint_names[slot]``. Without it, joint ``i`` is the
+    is that slot (a robot without one is refused). Without it, joint ``i`` is the
     robot's joint ``i``. A robot with more joints than the policy drives (the 29-joint G1 under
     unitree_rl_gym's 12-joint policy) runs it with the others held (:mod:`sim2real.deploy.spec.subset`).
     """

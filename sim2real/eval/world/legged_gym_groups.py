@@ -50,6 +50,8 @@ LEGGED_GYM_DEFAULTS = {
     "sim": {"dt": 0.005},
     "control": {"decimation": 4},
 }
+#: Where the defaults' keys are said to be written (their ``where``).
+DEFAULTS_PATH = "LeggedRobotCfg.domain_rand"
 #: Standard gravity, m/s^2 (the projected gravity's noise as an accelerometer's).
 G = 9.80665
 #: The ``noise_scales`` a ranges file draws: the encoders', the gyro's, the accelerometer's.
@@ -94,8 +96,14 @@ class Context:
         return lo, hi
 
     def first(self, keys: tuple[str, ...]) -> str | None:
-        """The first of ``keys`` the config has."""
-        return next((k for k in keys if k in self.rand), None)
+        """The first of ``keys`` the config sets itself, else the first of legged_gym's defaults
+        (a fork's ``added_base_mass_range`` over the default ``added_mass_range``); None: none."""
+        own = [k for k in keys if k in self.rand and not self.is_default(k)]
+        return own[0] if own else next((k for k in keys if k in self.rand), None)
+
+    def is_default(self, key: str) -> bool:
+        """``key`` is legged_gym's default (``LEGGED_GYM_DEFAULTS``), not the config's own."""
+        return self.where(key).startswith(DEFAULTS_PATH + ".")
 
     def half_range(self, key: str, what: str) -> float:
         """A factor range ``[a, b]`` as the half-range about 1 that holds it (noted when
@@ -180,6 +188,23 @@ def _factor(field: str) -> Callable[[Context, Group], None]:
     return read_into
 
 
+#: Armature ranges in kg m^2, drawn as the armature itself (engineai's and humanoid forks'
+#: ``dof_props["armature"] = joint_armatures``), not as a factor of the robot's.
+ABSOLUTE_ARMATURE = ("joint_armature_range",)
+
+
+def _armature(c: Context, g: Group) -> None:
+    key = c.first(g.values)
+    if key in ABSOLUTE_ARMATURE:
+        lo, hi = c.pair(key)
+        raise ValueError(
+            f"{c.where(key)} = [{lo:g}, {hi:g}]: armature values in kg m^2 that replace the "
+            "robot's; the soak's [dynamics] armature scales the robot's own armature by a "
+            "factor: write that factor in a ranges file (soak-test --ranges FILE.toml)"
+        )
+    _factor("armature")(c, g)
+
+
 def _com(c: Context, g: Group) -> None:
     key = c.first(g.values)
     if key is None:
@@ -248,8 +273,8 @@ GROUPS: tuple[Group, ...] = (
     Group("joint damping", ("randomize_joint_damping",),
           ("joint_damping_range", "joint_damping_multi_range"), _factor("damping")),
     Group("armature", ("randomize_joint_armature", "randomize_armature"),
-          ("joint_armature_range", "joint_armature_multi_range", "armature_range"),
-          _factor("armature")),
+          ("joint_armature_multi_range", "armature_range", "joint_armature_range"),
+          _armature),
     Group("armature per joint", ("randomize_joint_armature_each_joint",),
           ("joint_armature_multi_range_each_joint",), None,
           "a range per joint; the soak's armature has one range" + _WRITE),

@@ -158,8 +158,8 @@ def import_robot(
             collision meshes become their bounding boxes, not their convex hulls
             (:data:`sim2real.robots.importer.mjcf_geoms.MESH_COLLISION`).
             drive: A policy's drive (``robot-import --drive-from POLICY``):
-            ``drive(joints, depth, motor_slot)`` with the description's joints, their depths in
-            the kinematic tree and the Unitree motor slot of a joint name (or None) returns an
+            ``drive(joints, depth, slots)`` with the description's joints, their depths in
+            the kinematic tree and each joint's Unitree motor slot (None without ``unitree``) returns an
             object with ``kp``, ``kd``, ``home`` (one value per joint, or None), ``control_rate``
             (Hz or None) and ``source`` (:func:`sim2real.deploy.spec.foreign.drive.policy_drive`); its
             values come before the ``kp``/``kd``/``home`` flags (which win), and its control rate
@@ -337,9 +337,12 @@ def _policy_drive(drive, model, joints, unitree, control_rate, log):
         while body:
             body, d = int(model.body_parentid[body]), d + 1
         depth.append(d)
-    slot = motor_slot if unitree is not None and unitree["family"] == "unitree_go" else None
+    slots = None  # no --unitree: no motor slots
+    if unitree is not None:
+        go = unitree["family"] == "unitree_go"  # unitree_hg: the joint order (unitree.py)
+        slots = [motor_slot(j) for j in joints] if go else list(range(len(joints)))
     try:
-        d = drive(joints, depth, slot)
+        d = drive(joints, depth, slots)
     except ValueError as exc:  # ForeignFormatError: one line naming the file and the key
         raise RobotImportError(f"--drive-from: {exc}") from None
     rate = d.control_rate

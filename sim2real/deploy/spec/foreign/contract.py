@@ -97,6 +97,10 @@ class ForeignContract:
             that gives the joint order from the robot when ``joint_names`` is None.
         joint_slots: The motor slot of each policy joint, in the policy's order (rule
             ``motor_slots``); None: not recorded.
+        slot_names: The joint name of each motor slot, in the slots' order (rl_sar's
+            ``joint_names``: policy joint ``i`` is ``slot_names[joint_slots[i]]``); None: the
+            contract names no joints. Where given, the names decide the joint order
+            (:func:`sim2real.deploy.spec.foreign.mapping.slot_order`).
         command_ranges: The velocity command's training ranges, ``{"vx": (low, high), "vy":
             ..., "yaw_rate": ...}`` (m/s, m/s, rad/s); None: not recorded.
         history_fill: What a term's history reads before the policy's reset
@@ -129,6 +133,7 @@ class ForeignContract:
     joint_order_note: str = ""
     joint_order_rule: str = ""
     joint_slots: tuple[int, ...] | None = None
+    slot_names: tuple[str, ...] | None = None
     command_ranges: dict[str, tuple[float, float]] | None = None
     history_fill: str = "first"
     history_order: str = "oldest_first"

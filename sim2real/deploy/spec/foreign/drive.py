@@ -9,18 +9,21 @@ policy's drive writes those from the gains the policy was trained with, instead 
 importer's stiff rule (590 N m/rad on a G1 hip whose policy uses 40.2). :func:`policy_drive`
 reads the contract as ``deploy-run`` does (:mod:`sim2real.deploy.spec.foreign.registry`) and resolves
 each per-joint quantity onto the description's joints: by the policy's joint names, by its motor
-slots (Unitree's deploy.yaml ``joint_ids_map``: ``unitree_go`` slots from the joint names, else
-the description's joint order, as ``robot-import --unitree`` numbers them), or, for Isaac Lab,
-by regular expression (a per-joint list in the articulation's breadth-first order).
+slots (Unitree's deploy.yaml ``joint_ids_map``, rl_sar's ``joint_mapping``: the slots
+``robot-import --unitree`` numbers, ``unitree_go`` from the joint names, ``unitree_hg`` in the
+description's joint order; rl_sar's ``joint_names`` decide where it has them,
+:func:`sim2real.deploy.spec.foreign.mapping.slot_order`), or, for Isaac Lab, by regular
+expression (a per-joint list in the articulation's breadth-first order).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from sim2real.deploy.spec.foreign.contract import ForeignContract, ForeignFormatError, per_joint
+from sim2real.deploy.spec.foreign.mapping import slot_order
 from sim2real.deploy.spec.foreign.registry import OnnxFacts, known_formats, read_contract
 
 
@@ -74,7 +77,7 @@ def policy_drive(
     path: str | Path,
     joints: Sequence[str],
     depth: Sequence[int],
-    motor_slot: Callable[[str], int] | None = None,
+    slots: Sequence[int] | None = None,
 ) -> PolicyDrive:
     """The drive the policy at ``path`` records, per joint of a description.
 
@@ -83,8 +86,8 @@ def policy_drive(
         joints: The description's joints, in its order.
         depth: Each joint's depth in the kinematic tree (1 for a joint of the root's child), for
             a contract in the breadth-first order of a PhysX articulation.
-        motor_slot: The Unitree motor slot of a joint name (``unitree_go``); None: a joint's
-            slot is its index in ``joints`` (``unitree_hg``, or no ``--unitree``).
+        slots: The motor slot of each joint (``robot-import --unitree``); None: the
+            description has none (a contract in motor slots must then name its joints).
 
     Raises:
         ForeignFormatError: the contract cannot be read, or its joints are not the
@@ -92,7 +95,7 @@ def policy_drive(
     """
     contract = read_policy_contract(path)
     names = tuple(joints)
-    order = _policy_order(contract, names, depth, motor_slot)
+    order = _policy_order(contract, names, depth, slots)
 
     def resolve(value, what: str) -> tuple[float, ...] | None:
         if value is None:
@@ -120,20 +123,15 @@ def _policy_order(
     contract: ForeignContract,
     names: tuple[str, ...],
     depth: Sequence[int],
-    motor_slot: Callable[[str], int] | None,
+    slots: Sequence[int] | None,
 ) -> tuple[str, ...] | None:
     """The policy's joint order as joints of the description (None: not recorded and no rule)."""
     if contract.joint_names is not None:
         order = contract.joint_names
     elif contract.joint_order_rule == "motor_slots" and contract.joint_slots is not None:
-        slots = [motor_slot(n) for n in names] if motor_slot else list(range(len(names)))
-        missing = [s for s in contract.joint_slots if s not in slots]
-        if missing:
-            raise contract.error(
-                f"motor slots {missing} of its joint map are no joint's of the description "
-                f"(its slots, in joint order: {slots})"
-            )
-        order = tuple(names[slots.index(s)] for s in contract.joint_slots)
+        order = slot_order(
+            contract, names, None if slots is None else list(slots), "the description"
+        )
     elif contract.joint_order_rule == "breadth_first":
         order = tuple(n for _, n in sorted(zip(depth, names, strict=True), key=lambda x: x[0]))
     else:

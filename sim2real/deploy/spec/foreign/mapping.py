@@ -32,23 +32,106 @@ def breadth_first_order(robot: Robot) -> tuple[str, ...]:
     return tuple(model.names[j] for j in sorted(ids, key=lambda j: depth[j]))
 
 
-def motor_slot_order(robot: Robot, contract: ForeignContract) -> tuple[str, ...]:
-    """The robot's joints in the order of the contract's motor slots (``joint_slots``): the
-    joint whose robot.toml ``[unitree] motor_index`` is each slot, or, for a robot without
-    one, the joint at that index.
+#: Names other stacks give a joint of the same description: ``(their suffix, the
+#: description's)``, tried only when a contract's name is no joint of the robot. rl_sar's Go2-W
+#: (``policy/go2w/base.yaml`` ``joint_names``) calls its wheels ``<LEG>_foot_joint`` where
+#: unitree_mujoco's ``unitree_robots/go2w/go2w.xml`` and go2w_description say ``<LEG>_wheel_joint``.
+JOINT_NAME_ALIASES = (("_foot_joint", "_wheel_joint"),)
+
+
+def robot_joint_named(name: str, robot_names: tuple[str, ...]) -> str | None:
+    """The robot joint a contract's joint ``name`` is: the same name, else a known alias
+    (:data:`JOINT_NAME_ALIASES`); None: neither is a joint of the robot."""
+    if name in robot_names:
+        return name
+    for theirs, ours in JOINT_NAME_ALIASES:
+        if name.endswith(theirs) and (alias := name[: -len(theirs)] + ours) in robot_names:
+            return alias
+    return None
+
+
+def slot_order(
+    contract: ForeignContract,
+    robot_names: tuple[str, ...],
+    slots: list[int] | None,
+    robot: str,
+) -> tuple[str, ...]:
+    """The policy's joints, as joints of the robot, of a contract whose joint map is motor slots
+    (``joint_slots``: the slot of each policy joint, rl_sar's ``joint_mapping``, Unitree's
+    ``joint_ids_map``).
+
+    The names decide where the contract has them (``slot_names``, rl_sar's ``joint_names``:
+    policy joint ``i`` is ``slot_names[joint_slots[i]]``, as rl_sar's Gazebo loop reads
+    ``joint_controller_names[joint_mapping[i]]``), each matched to a robot joint by name or a
+    known alias; where the robot has motor slots too, both must give the same joints. Without
+    names, the robot's motor slots give the order. Nothing falls back to the robot's joint order.
+
+    Args:
+        contract: The foreign contract (``joint_slots`` set).
+        robot_names: The robot's joints, in its order.
+        slots: The motor slot of each robot joint (robot.toml ``[unitree] motor_index``, or
+            what ``robot-import --unitree`` numbers); None: the robot has none.
+        robot: The robot's name or description, for the messages.
 
     Raises:
-        ForeignFormatError: a slot no joint of the robot has (naming the robot's slots).
+        ForeignFormatError: a name that is no joint of the robot, a slot past the named slots or
+            no joint's of the robot, names and slots that give different joints (both orders
+            named), or neither names nor slots (what to add named).
+    """
+    wanted = contract.joint_slots or ()
+    by_name = None
+    if contract.slot_names is not None:
+        named = contract.slot_names
+        past = [s for s in wanted if not 0 <= s < len(named)]
+        if past:
+            raise contract.error(
+                f"motor slots {past} of its joint map have no name among its {len(named)} "
+                f"joint names {list(named)}"
+            )
+        theirs = [named[s] for s in wanted]
+        by_name = tuple(robot_joint_named(n, robot_names) for n in theirs)
+        unknown = [n for n, r in zip(theirs, by_name, strict=True) if r is None]
+        if unknown:
+            raise contract.error(
+                f"joints {unknown} of its joint names are no joints of '{robot}' (known "
+                f"aliases: {', '.join(f'*{a} = *{b}' for a, b in JOINT_NAME_ALIASES)}); its "
+                f"joints: {list(robot_names)}"
+            )
+    by_slot = None
+    if slots is not None:
+        missing = [s for s in wanted if s not in slots]
+        if missing:
+            raise contract.error(
+                f"motor slots {missing} of its joint map are no joint's of '{robot}' (its "
+                f"slots, in joint order: {slots})"
+            )
+        by_slot = tuple(robot_names[slots.index(s)] for s in wanted)
+    if by_name is not None and by_slot is not None and by_name != by_slot:
+        raise contract.error(
+            f"its joint names and the robot's motor slots disagree: by name the policy's "
+            f"joints are {list(by_name)}, by '{robot}''s motor slots {list(by_slot)}; mend "
+            "the contract's joint_names or the robot's [unitree] motor_index"
+        )
+    if by_name is None and by_slot is None:
+        raise contract.error(
+            f"its joint map is motor slots {list(wanted)} and it names no joints, but "
+            f"'{robot}' has no motor slots: import it with robot-import --unitree FAMILY "
+            "(robot.toml [unitree] motor_index) so the slots name its joints"
+        )
+    return by_name if by_name is not None else by_slot
+
+
+def motor_slot_order(robot: Robot, contract: ForeignContract) -> tuple[str, ...]:
+    """The robot's joints in the policy's order for a contract with motor slots
+    (:func:`slot_order`: the contract's joint names, checked against robot.toml's ``[unitree]
+    motor_index`` where the robot has one).
+
+    Raises:
+        ForeignFormatError: as :func:`slot_order`.
     """
     unitree = getattr(robot.config, "unitree", None)
-    index = list(unitree.motor_index) if unitree is not None else list(range(robot.n_joints))
-    missing = [s for s in contract.joint_slots if s not in index]
-    if missing:
-        raise contract.error(
-            f"motor slots {missing} of its joint map are no joint's of the robot "
-            f"'{robot.name}' (its slots, in joint order: {index})"
-        )
-    return tuple(robot.joint_names[index.index(s)] for s in contract.joint_slots)
+    slots = list(unitree.motor_index) if unitree is not None else None
+    return slot_order(contract, robot.joint_names, slots, robot.name)
 
 
 #: Rules giving a policy's joint order from the robot when its stack records no joint names.

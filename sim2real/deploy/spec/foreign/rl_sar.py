@@ -5,10 +5,14 @@
 Each file is one mapping under one key (``<robot>/<stack>`` and ``<robot>``), read with a safe
 YAML loader; a key of config.yaml wins over base.yaml's. What it says, as rl_sar's code uses it:
 
-- ``joint_mapping``: the motor slot of each policy joint (``q[i] = motor_state[joint_mapping[i]]``):
-  the joint order is the robot's joints ordered by these slots (robot.toml ``[unitree]
-  motor_index``), so rl_sar's ``joint_names`` (a Go2-W's ``*_foot_joint`` where the MJCF says
-  ``*_wheel_joint``) are only reported; ``dt`` x ``decimation``: the control period, s.
+- ``joint_mapping``: the motor slot of each policy joint (``q[i] = motor_state[joint_mapping[i]]``);
+  ``joint_names``: the joint of each slot, in the slots' order (its Gazebo loop reads
+  ``joint_controller_names[joint_mapping[i]]``), so policy joint ``i`` is
+  ``joint_names[joint_mapping[i]]``. The names decide the joint order (a Go2-W's
+  ``*_foot_joint`` is the MJCF's ``*_wheel_joint``), checked against robot.toml's ``[unitree]
+  motor_index`` where the robot has one; a folder without names needs the robot's slots
+  (:func:`sim2real.deploy.spec.foreign.mapping.slot_order`). ``dt`` x ``decimation``: the
+  control period, s.
 - ``observations`` in order, each scaled and then clipped to ``clip_obs``: ``ang_vel`` (body
   frame on a real robot; ``ang_vel_scale``), ``gravity_vec`` (projected gravity), ``commands``
   (``commands_scale``), ``lin_vel`` (``lin_vel_scale``), ``dof_pos`` (about ``default_dof_pos``,
@@ -29,7 +33,9 @@ from sim2real.deploy.spec.foreign.contract import ForeignContract, Term
 
 NAME = "rl_sar"
 CONFIG, BASE = Path("config.yaml"), Path("..") / "base.yaml"
-ORDER_NOTE = "rl_sar joint_mapping: the motor slot of each policy joint"
+ORDER_NOTE = (
+    "rl_sar joint_mapping: the motor slot of each policy joint, joint_names[slot] its joint"
+)
 #: rl_sar's observation names -> (our kind, size (-1: one per joint), its scale key).
 TERMS = {
     "ang_vel": ("base_angular_velocity", 3, "ang_vel_scale"),
@@ -122,10 +128,22 @@ def read(facts) -> ForeignContract:
             Term(**{**t.__dict__, "history": length}) for t in terms
         )  # every term reads the same frames
     period = float(get("dt", (int, float))) * int(get("decimation", (int,)))
-    names = merged.get("joint_names")
+    names = None
+    if merged.get("joint_names") is not None:
+        names = tuple(str(x) for x in get("joint_names"))
+        past = [s for s in slots if not 0 <= s < len(names)]
+        if past:
+            where_names = folder / (CONFIG if "joint_names" in cfg else BASE)
+            raise fail(
+                f"{where_names}: 'joint_names' has {len(names)} names, 'joint_mapping' "
+                f"reads slots {past}: expected a name for every slot"
+            )
+    policy_names = None if names is None else [names[s] for s in slots]
     notes = [
         f"joint order: {ORDER_NOTE} {list(slots)}",
-        f"rl_sar's joint names (reported only; the motor slots give the robot's): {names}",
+        f"policy joints by rl_sar's joint_names: {policy_names}"
+        if names is not None
+        else "no joint_names: the robot's motor slots give the joints",
         f"model_name '{merged.get('model_name')}' of {key}; read here: {facts.path.name}",
         f"torque_limits {merged.get('torque_limits')}: the robot's effort limits apply",
     ]
@@ -135,6 +153,7 @@ def read(facts) -> ForeignContract:
         ("config.yaml", where),
         ("base.yaml", f"{folder / BASE} ({base_key})"),
         ("joint_mapping", str(list(slots))),
+        ("joint_names[joint_mapping]", str(policy_names)),
         ("observations", ", ".join(t.name for t in terms)),
         ("observations_history", str(history)),
         ("action_scale", str(merged.get("action_scale"))),
@@ -147,6 +166,7 @@ def read(facts) -> ForeignContract:
         joint_order_rule="motor_slots",
         joint_order_note=ORDER_NOTE,
         joint_slots=slots,
+        slot_names=names,
         terms=terms,
         default_pose=joints("default_dof_pos"),
         action_scale=joints("action_scale"),

@@ -303,11 +303,12 @@ class Robot:
     @property
     def clamps_position_target(self) -> tuple[bool, ...]:
         """Per joint: whether its drive clamps a position target to the joint's range (its
-        motor's ``position_target.clamped``; True where the motor table says nothing, as a
-        servo's firmware angle limits do). The plant's position actuators follow it."""
+        motor's ``position_target.clamped``; False where the motor table says nothing: a clamp
+        only where a motor file says so, as the catalog's servos and maxon drives do, while a
+        Unitree motor runs its PD law on any target). The plant's position actuators follow it."""
         motors = self.config.motors
         return tuple(
-            motors[j.motor].position_target is None or motors[j.motor].position_target.clamped
+            motors[j.motor].position_target is not None and motors[j.motor].position_target.clamped
             for j in self.config.joints
         )
 

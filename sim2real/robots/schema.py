@@ -150,8 +150,9 @@ class MotorConfig(_Strict):
     encoder_resolution: Annotated[int, Field(gt=0)] | None = None  # counts per output revolution
     protection: ServoProtection | None = None
     #: whether the drive clamps a position target to the joint's range (PositionTargetConfig);
-    #: None: it does (the plant's position actuator clamps). The plant's drive, not the policy's
-    #: contract: not part of the description hash
+    #: None: it does not (a bus motor's PD law runs on any target, the range is its joint's
+    #: stop); a clamp only where the file says ``clamped = true``. The plant's drive, not the
+    #: policy's contract: not part of the description hash
     position_target: PositionTargetConfig | None = None
 
     @model_validator(mode="after")

@@ -110,6 +110,20 @@ def read_drive(model: mujoco.MjModel, path: Path, keyframe: str | None = None) -
             f"<position> ctrlrange narrower than the joint's range for {narrow}: the file's "
             "simulator clamped those targets (the robot.toml limits are the joints')"
         )
+    at_range = [
+        j
+        for j, (lo, hi) in ctrl.items()
+        if j not in narrow
+        and model.jnt_limited[model.joint(j).id]
+        and np.allclose((lo, hi), model.jnt_range[model.joint(j).id], rtol=0.0, atol=1e-9)
+    ]
+    if at_range:
+        shown = at_range if len(at_range) <= 4 else [*at_range[:4], f"{len(at_range) - 4} more"]
+        notes.append(
+            f"<position> ctrlrange equal to the joint's range for {shown}: the file's simulator "
+            "clamped the targets at the range; the plant here clamps a target only where the "
+            "joint's motor file says [position_target] clamped = true"
+        )
     keys = tuple(model.key(k).name for k in range(model.nkey))
     home, home_source = {}, ""
     if keyframe is not None and keyframe not in keys:

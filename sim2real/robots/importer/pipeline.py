@@ -274,6 +274,14 @@ def _import(
     _apply_velocities(urdf, list(velocities))
 
     chosen, motor_cfg, motor_tables = flags.assign_motors(path, urdf.movable, list(motors))
+    for name, (file, _) in sorted(motor_tables.items()):
+        if motor_cfg[name].position_target is None:
+            log(
+                f"note: motor file {file}: no [position_target]: its drive takes any position "
+                "target (the plant clamps none, as a Unitree motor's PD law); add "
+                "[position_target] clamped = true with its source where the drive clamps "
+                "targets to the joint's range"
+            )
 
     report = ImportReport(out=out, joints=list(urdf.movable), notes=list(urdf.notes))
     physics_timestep, timestep_from = choose_timestep(

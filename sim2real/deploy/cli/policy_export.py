@@ -115,7 +115,76 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _inspect(source, args)
     if source.suffix.lower() == ".onnx":
         return _export_onnx(source, args)
+    if _folder_route(args):
+        return _export_folder(source, args)
     return _export_checkpoint(source, args)
+
+
+def _folder_route(args) -> bool:
+    """No spec given (``--spec``, ``--from-config``) nor a rebuilt network's options: a
+    TorchScript file may take its folder's contract (:mod:`sim2real.deploy.export.folder_torchscript`)."""
+    return (
+        args.spec is None
+        and args.from_config is None
+        and not args.write_robot
+        and args.vecnormalize is None
+        and args.activation is None
+    )
+
+
+def _export_folder(source: Path, args) -> int:
+    """A TorchScript file beside its stack's contract files (rl_sar's config.yaml): the bare
+    graph beside it, after the parity gate; any other file goes on to :func:`_export_checkpoint`."""
+    from sim2real.deploy.export.folder_torchscript import (
+        export_folder_torchscript,
+        folder_contract,
+    )
+    from sim2real.robots import load_robot
+
+    try:
+        contract = folder_contract(source)
+        if contract is None:
+            return _export_checkpoint(source, args)
+        if args.domain is not None or args.exporter != "torchscript":
+            flag = "--domain" if args.domain is not None else "--exporter dynamo"
+            raise ExportError(
+                f"{source}: {flag} does not apply to the bare graph its {contract.format} "
+                f"contract is read beside; export it first, then `policy-export "
+                f"{source.with_suffix('.onnx')} --robot ROBOT {flag} ...`"
+            )
+        robot = load_robot(args.robot) if args.robot else None
+        result = export_folder_torchscript(
+            source, args.out, robot, args.seed, args.parity_tolerance, contract
+        )
+    except ParityError as exc:
+        print(f"policy-export: parity check FAILED: {exc}", file=sys.stderr)
+        return EXIT_PARITY
+    except (ExportError, ValueError) as exc:  # RobotSpecError is a ValueError
+        print(f"policy-export: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception:  # noqa: BLE001 - a bug, not bad input nor a parity failure
+        traceback.print_exc()
+        print("policy-export: internal error (see the traceback above)", file=sys.stderr)
+        return EXIT_INTERNAL
+    c, f = result.contract, result.parity
+    print(f"exported {source} (torchscript, {c.format} contract) -> {result.path}")
+    print(
+        f"  a bare graph: obs (1, {result.obs_dim}) -> actions (1, {result.act_dim}), no "
+        f"policy_spec: the runtime reads the {c.format} contract beside it ({c.source})"
+    )
+    print(
+        f"  parity: max |onnx - torch| {f['max_abs_error']:.2e} over {f['samples']} "
+        f"observations, batch 1; {describe_tolerance(f)}"
+    )
+    if "replay_max_abs_error" in f:
+        print(
+            f"  closed-loop replay on {args.robot} ({f['replay_ticks']} ticks, "
+            f"{f['replay_envs']} env): max |onnx - torch| {f['replay_max_abs_error']:.2e}; "
+            f"{describe_tolerance(f, 'replay_', f.get('tolerance_note', ''))}"
+        )
+    print(f"  export time {result.seconds:.2f} s; {result.exporter}")
+    print(f"  run: deploy-run --robot {args.robot or 'ROBOT'} --policy {result.path}")
+    return EXIT_OK
 
 
 def _inspect(source: Path, args) -> int:

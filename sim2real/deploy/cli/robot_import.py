@@ -150,7 +150,8 @@ def _add_legged_options(p: argparse.ArgumentParser) -> None:
         metavar="POLICY",
         help="kp, kd, home and control rate from a policy's own contract (an ONNX file with "
         "mjlab or holosoma metadata, Unitree's params/deploy.yaml or Isaac Lab's params/env.yaml "
-        "beside it); --kp, --kd, --home after it win",
+        "beside it; rl_sar's config.yaml beside its policy.onnx or TorchScript policy.pt); --kp, "
+        "--kd, --home after it win",
     )
     legged.add_argument(
         "--keyframe",

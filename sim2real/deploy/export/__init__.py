@@ -14,7 +14,9 @@ Exit status (:mod:`~.cli`): 0 exported, 1 parity failure (:class:`ParityError`),
 (:mod:`~.torchscript`; legged_gym's stateful LSTM: :mod:`~.torchscript_lstm`), SB3 PPO / SAC and
 RecurrentPPO zips (:mod:`~.sb3`, :mod:`~.sb3_recurrent`), rsl_rl checkpoints (:mod:`~.rsl_rl`,
 :mod:`~.rsl_rl_recurrent`), a pickled ``nn.Module`` only with ``--trust-pickle``. Every source but
-our checkpoint needs ``--spec``, or ``--from-config`` (:mod:`~.deploy_config`).
+our checkpoint needs ``--spec``, or ``--from-config`` (:mod:`~.deploy_config`), except TorchScript
+beside a contract the toolkit reads (rl_sar's ``config.yaml``): that one is written as the bare
+``obs`` -> ``actions`` graph the contract is read beside (:mod:`~.folder_torchscript`).
 
 The graph (:mod:`~.graph`): ``obs`` float32 [batch, obs_dim] -> ``action`` float32 [batch,
 act_dim], dynamic batch axis, opset ``OPSET``, the observation normalizer (:mod:`~.source`,

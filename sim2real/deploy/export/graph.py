@@ -114,6 +114,25 @@ def to_onnx(module: nn.Module, obs_dim: int, exporter: str = "torchscript") -> o
     return model
 
 
+def to_bare_onnx(module: nn.Module, obs_dim: int) -> onnx.ModelProto:
+    """Export ``module`` as another stack's bare graph: input ``obs`` [1, obs_dim], output
+    ``actions`` [1, act_dim], the batch fixed at 1 (as rl_sar runs its TorchScript, and Isaac
+    Lab's exporter writes), TorchScript-based exporter at opset ``OPSET``, no metadata.
+
+    Raises:
+        ExportError: the exporter failed, or the checker rejects the graph.
+    """
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            example = (torch.zeros(1, obs_dim),)
+            model = _torchscript_onnx(module, example, ["obs"], ["actions"], {})
+        onnx.checker.check_model(model, full_check=True)
+    except Exception as exc:  # noqa: BLE001 - exporter and checker failures of all kinds
+        raise ExportError(f"torch.onnx.export failed: {_first_line(exc)}") from None
+    return model
+
+
 def _recurrent_to_onnx(module: nn.Module, obs_dim: int, exporter: str) -> onnx.ModelProto:
     """A recurrent module (:class:`sim2real.deploy.export.recurrent.RecurrentPolicyModule`) to ONNX with
     explicit state I/O (:func:`sim2real.deploy.export.recurrent.recurrent_signature`).

@@ -24,7 +24,12 @@ from pathlib import Path
 
 from sim2real.deploy.spec.foreign.contract import ForeignContract, ForeignFormatError, per_joint
 from sim2real.deploy.spec.foreign.mapping import slot_order
-from sim2real.deploy.spec.foreign.registry import OnnxFacts, known_formats, read_contract
+from sim2real.deploy.spec.foreign.registry import (
+    OnnxFacts,
+    known_formats,
+    read_contract,
+    read_folder_contract,
+)
 
 
 @dataclass(frozen=True)
@@ -50,7 +55,9 @@ class PolicyDrive:
 
 
 def read_policy_contract(path: str | Path) -> ForeignContract:
-    """The foreign contract of the ONNX file at ``path`` (external weights are not read).
+    """The foreign contract of the ONNX file at ``path`` (external weights are not read), or of a
+    file that is not ONNX (rl_sar's TorchScript ``policy.pt``) in a folder whose contract files
+    say the drive without a graph (:func:`~sim2real.deploy.spec.foreign.registry.read_folder_contract`).
 
     Raises:
         ForeignFormatError: the file is missing or not an ONNX model (the message of
@@ -63,7 +70,10 @@ def read_policy_contract(path: str | Path) -> ForeignContract:
     try:
         model = read_model(path)
     except PolicyLoadError as exc:  # missing, empty, a torch file, not ONNX
-        raise ForeignFormatError(str(exc)) from None
+        contract = read_folder_contract(path) if _torch_file(path) else None
+        if contract is None:
+            raise ForeignFormatError(str(exc)) from None
+        return contract  # a torch file in a folder whose contract is read (rl_sar's policy.pt)
     contract = read_contract(OnnxFacts.of(path, model))
     if contract is None:
         raise ForeignFormatError(
@@ -71,6 +81,16 @@ def read_policy_contract(path: str | Path) -> ForeignContract:
             f"formats read: {known_formats()})"
         )
     return contract
+
+
+def _torch_file(path: Path) -> bool:
+    """A zip archive or a pickle (a torch file: TorchScript, a checkpoint), not a broken ONNX."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError:
+        return False
+    return head.startswith(b"PK\x03\x04") or head[:1] == b"\x80"
 
 
 def policy_drive(

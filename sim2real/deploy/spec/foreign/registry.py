@@ -120,6 +120,22 @@ def read_contract(facts: OnnxFacts) -> ForeignContract | None:
     return None if fmt is None else fmt.read(facts)
 
 
+def read_folder_contract(path: str | Path) -> ForeignContract | None:
+    """The contract a stack wrote in files beside a policy that is not an ONNX graph yet (rl_sar's
+    ``policy.pt`` with ``config.yaml`` beside it and ``../base.yaml`` above it): the formats whose
+    ``detect`` reads the folder, not the graph (those that need the graph's ``obs`` -> ``actions``
+    names or its metadata do not recognise a file without them). ``obs_dim`` and ``act_dim`` are
+    None (no graph to read them from); the same reader reads the ONNX file exported beside it.
+
+    Returns:
+        The contract, or None when no format recognises the folder.
+
+    Raises:
+        ForeignFormatError: a recognised contract that cannot be read (naming the file and key).
+    """
+    return read_contract(OnnxFacts(path=Path(path), metadata={}, inputs=(), outputs=()))
+
+
 def known_formats() -> str:
     """The formats' names, for messages: ``"mjlab, holosoma, isaaclab"``."""
     return ", ".join(f.NAME for f in FORMATS)

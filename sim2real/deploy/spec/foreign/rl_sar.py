@@ -1,6 +1,10 @@
 """rl_sar's policy folder: ``policy/<robot>/<stack>/config.yaml`` beside the policy and
-``policy/<robot>/base.yaml`` above it (fan-ziqi/rl_sar; its ``RL::ReadYamlBase``,
-``RL::ReadYamlRL``, ``RL::ComputeObservation`` and ``RL::ComputeOutput`` read them).
+``policy/<robot>/base.yaml`` above it (two folders up for a ``<robot>/<group>/<stack>`` key)
+(fan-ziqi/rl_sar; its ``RL::ReadYamlBase``, ``RL::ReadYamlRL``, ``RL::ComputeObservation`` and
+``RL::ComputeOutput`` read them). The policy is the ONNX graph beside config.yaml, or rl_sar's
+own TorchScript ``policy.pt`` (``model_name``): ``policy-export policy.pt`` writes that graph
+(:mod:`sim2real.deploy.export.folder_torchscript`), and ``robot-import --drive-from policy.pt``
+reads the drive from these files alone.
 
 Each file is one mapping under one key (``<robot>/<stack>`` and ``<robot>``), read with a safe
 YAML loader; a key of config.yaml wins over base.yaml's. What it says, as rl_sar's code uses it:
@@ -32,7 +36,7 @@ from pathlib import Path
 from sim2real.deploy.spec.foreign.contract import ForeignContract, Term
 
 NAME = "rl_sar"
-CONFIG, BASE = Path("config.yaml"), Path("..") / "base.yaml"
+CONFIG = Path("config.yaml")
 ORDER_NOTE = (
     "rl_sar joint_mapping: the motor slot of each policy joint, joint_names[slot] its joint"
 )
@@ -64,13 +68,24 @@ def _sole(path: Path):
     return None, None
 
 
+def _base(folder: Path, key) -> Path:
+    """``policy/<robot>/base.yaml`` for the config key ``<robot>/<stack>`` (``../base.yaml``) or
+    ``<robot>/<group>/<stack>`` (``../../base.yaml``: rl_sar's g1 ``robomimic/locomotion``), as
+    rl_sar reads the robot's base.yaml by the key's first part."""
+    depth = max(1, len(str(key).split("/")) - 1)
+    return folder.joinpath(*[".."] * depth, "base.yaml")
+
+
 def detect(facts) -> bool:
-    """A graph with an rl_sar ``config.yaml`` beside it and ``../base.yaml`` above it."""
+    """A graph with an rl_sar ``config.yaml`` beside it and the robot's ``base.yaml`` above it
+    (:func:`_base`)."""
     folder = facts.path.resolve().parent
-    if not ((folder / CONFIG).is_file() and (folder / BASE).is_file()):
+    if not (folder / CONFIG).is_file():
         return False
-    cfg, _ = _sole(folder / CONFIG)
-    return cfg is not None and "observations" in cfg and "action_scale" in cfg
+    cfg, key = _sole(folder / CONFIG)
+    if cfg is None or "observations" not in cfg or "action_scale" not in cfg:
+        return False
+    return _base(folder, key).is_file()
 
 
 def read(facts) -> ForeignContract:
@@ -83,15 +98,16 @@ def read(facts) -> ForeignContract:
     fail = facts.failure(NAME)
     folder = facts.path.resolve().parent
     cfg, key = _sole(folder / CONFIG)
-    base, base_key = _sole(folder / BASE)
+    base_path = _base(folder, key)
+    base, base_key = _sole(base_path)
     if base is None:
-        raise fail(f"{folder / BASE}: expected one mapping under the robot's name")
+        raise fail(f"{base_path}: expected one mapping under the robot's name")
     merged = {**base, **cfg}
 
     def get(name, kind=(list,)):
         value = merged.get(name)
         if not isinstance(value, kind) or isinstance(value, bool):
-            where = folder / (CONFIG if name in cfg else BASE)
+            where = folder / CONFIG if name in cfg else base_path
             raise fail(f"{where}: '{name}': expected a {kind[0].__name__}, got {value!r}")
         return value
 
@@ -133,7 +149,7 @@ def read(facts) -> ForeignContract:
         names = tuple(str(x) for x in get("joint_names"))
         past = [s for s in slots if not 0 <= s < len(names)]
         if past:
-            where_names = folder / (CONFIG if "joint_names" in cfg else BASE)
+            where_names = folder / CONFIG if "joint_names" in cfg else base_path
             raise fail(
                 f"{where_names}: 'joint_names' has {len(names)} names, 'joint_mapping' "
                 f"reads slots {past}: expected a name for every slot"
@@ -151,7 +167,7 @@ def read(facts) -> ForeignContract:
         notes.append(f"wheel_indices {list(wheels)}: speed targets, their dof_pos entries 0")
     found = [
         ("config.yaml", where),
-        ("base.yaml", f"{folder / BASE} ({base_key})"),
+        ("base.yaml", f"{base_path} ({base_key})"),
         ("joint_mapping", str(list(slots))),
         ("joint_names[joint_mapping]", str(policy_names)),
         ("observations", ", ".join(t.name for t in terms)),

@@ -14,7 +14,12 @@ A floating-base robot gets, in its MJCF:
   mesh becomes the sphere of its bounding box's mean half-size (a point foot, as legged
   simulators model a quadruped's, ``POINT_FOOT_ASPECT``). A site ``<foot>`` encloses the foot's
   geoms (a sphere around one sphere, else a box, ``TOUCH_MARGIN`` larger) with a MuJoCo
-  ``touch`` sensor on it (the normal force of the contacts inside the site: foot contact).
+  ``touch`` sensor on it (the normal force of the contacts inside the site: foot contact). A
+  foot of several geoms whose only sphere reaches farthest from its joint (unitree_mujoco's Go2
+  and B2: the calf's shin cylinders or boxes and the foot's sphere at its end,
+  :func:`_distal_sphere`) has the site around that sphere alone: its centre and radius are the
+  foot the base estimator and the fall check read; with spheres but none so placed, a note says
+  the site encloses them all.
   Geoms and site go on the nearest body a joint moves (the calf): Pinocchio's MJCF parser
   misplaces sites of joint-less child bodies, and a touch sensor counts the contacts of its
   own body;
@@ -280,10 +285,10 @@ def finish_floating_mjcf(
             if spheres:
                 names = [kept[i].name for i, _, _ in spheres]
                 contact_notes.append(
-                    f"foot {foot}: cannot tell its contact geom among its {len(kept)} geoms "
-                    f"(spheres {names}; expected one sphere reaching farthest from its joint): "
-                    "the foot site encloses them all and the estimator reads the foot at its "
-                    "centre, not at a contact point"
+                    f"foot {foot}: no one contact sphere among its {len(kept)} geoms (spheres "
+                    f"{names}; a point foot is one sphere reaching farthest from its joint): the "
+                    "foot site encloses them all, as a sole's, and the estimator reads the foot "
+                    "at the site's centre with no contact radius"
                 )
             host.add_site(
                 name=foot,

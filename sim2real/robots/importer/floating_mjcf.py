@@ -14,7 +14,12 @@ A floating-base robot gets, in its MJCF:
   mesh becomes the sphere of its bounding box's mean half-size (a point foot, as legged
   simulators model a quadruped's, ``POINT_FOOT_ASPECT``). A site ``<foot>`` encloses the foot's
   geoms (a sphere around one sphere, else a box, ``TOUCH_MARGIN`` larger) with a MuJoCo
-  ``touch`` sensor on it (the normal force of the contacts inside the site: foot contact).
+  ``touch`` sensor on it (the normal force of the contacts inside the site: foot contact). A
+  foot of several geoms whose only sphere reaches farthest from its joint (unitree_mujoco's Go2
+  and B2: the calf's shin cylinders or boxes and the foot's sphere at its end,
+  :func:`_distal_sphere`) has the site around that sphere alone: its centre and radius are the
+  foot the base estimator and the fall check read; with spheres but none so placed, a note says
+  the site encloses them all.
   Geoms and site go on the nearest body a joint moves (the calf): Pinocchio's MJCF parser
   misplaces sites of joint-less child bodies, and a touch sensor counts the contacts of its
   own body;
@@ -147,6 +152,37 @@ def _geom_points(model: mujoco.MjModel, g: int, pos, rot) -> np.ndarray:
     return pos + (signs * np.asarray(half)) @ rot.T
 
 
+def _kind(geom) -> str:
+    """A geom's type in words (``box``, ``sphere``, ...)."""
+    return mujoco.mjtGeom(int(geom.type)).name[7:].lower()
+
+
+def _joint_anchor(model: mujoco.MjModel, body: int) -> np.ndarray:
+    """(3,) m: the anchor of body ``body``'s first joint in its frame (its origin without one)."""
+    if model.body_jntnum[body] == 0:
+        return np.zeros(3)
+    return np.array(model.jnt_pos[model.body_jntadr[body]], dtype=np.float64)
+
+
+def _distal_sphere(points: list[np.ndarray], spheres: list, anchor: np.ndarray):
+    """``(index, centre, radius)`` of a foot's contact sphere among its several geoms, or None.
+
+    The contact sphere is the foot's only sphere geom when it reaches farther from the joint's
+    ``anchor`` than every other geom (``points``: each geom's bounding points, host frame, m;
+    ``spheres``: ``(index, centre, radius)`` of the sphere geoms): unitree_mujoco's Go2 and B2
+    model each foot as a sphere geom on the calf at its distal end, beside the shin's cylinders
+    or boxes, and that sphere is what touches the floor. A foot of several spheres (a sole's
+    corner spheres) or whose sphere is not its distal end has none: its site encloses all."""
+    if len(spheres) != 1:
+        return None
+    i, centre, radius = spheres[0]
+    reach = [float(np.linalg.norm(p - anchor, axis=1).max()) for p in points]
+    reach[i] = float(np.linalg.norm(np.asarray(centre) - anchor)) + radius
+    if any(r >= reach[i] for j, r in enumerate(reach) if j != i):
+        return None
+    return i, np.asarray(centre, dtype=np.float64), radius
+
+
 def _point_foot(spec: mujoco.MjSpec, geom, fitted: set[str]) -> bool:
     """Whether a foot geom is a hull or box the importer fitted to a compact mesh (the sides of
     its bounding box within ``POINT_FOOT_ASPECT`` of each other): it becomes a sphere."""
@@ -185,7 +221,7 @@ def finish_floating_mjcf(
     model = spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)  # base at the origin, joints at 0
-    shapes, foot_geoms = {}, {}
+    shapes, foot_geoms, contact_notes = {}, {}, []
     for foot in feet:
         body = spec.body(foot)
         b = model.body(foot).id
@@ -197,7 +233,7 @@ def finish_floating_mjcf(
         anc = _moving_ancestor(model, b)
         host = spec.body(model.body(anc).name)
         rot_anc = data.xmat[anc].reshape(3, 3)
-        points, kept, fitted_sphere = [], [], False
+        points, kept, fitted_sphere, spheres = [], [], False, []
         for geom in list(body.geoms):
             g = model.geom(geom.name).id
             pos = _relative(data, anc, data.geom_xpos[g])
@@ -213,6 +249,8 @@ def finish_floating_mjcf(
                 mujoco.mj_kinematics(model, data)
                 g = model.geom(geom.name).id
             points.append(_geom_points(model, g, pos, rot))
+            if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE:
+                spheres.append((len(kept), pos, float(model.geom_size[g, 0])))
             if anc != b:  # the touch sensor counts the contacts of its site's body
                 spec_pos = np.asarray(geom.pos, dtype=np.float64)
                 spec_quat = np.asarray(geom.quat, dtype=np.float64)
@@ -228,19 +266,37 @@ def finish_floating_mjcf(
         pts = np.vstack(points)
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         one = kept[0] if len(kept) == 1 else None
+        anchor = _joint_anchor(model, anc)
+        distal = None if one is not None else _distal_sphere(points, spheres, anchor)
         if one is not None and one.type == mujoco.mjtGeom.mjGEOM_SPHERE:
             r = float(one.size[0])
             host.add_site(name=foot, size=[r + TOUCH_MARGIN, 0, 0], pos=(lo + hi) / 2)
             made = " (the mean half-size of its compact mesh's box)" if fitted_sphere else ""
             shapes[foot] = f"a sphere of radius {r:g} m{made}"
+        elif distal is not None:  # unitree_mujoco's calf: shin geoms and the foot's sphere
+            i, centre, r = distal
+            host.add_site(name=foot, size=[r + TOUCH_MARGIN, 0, 0], pos=centre)
+            others = sorted({_kind(g) for j, g in enumerate(kept) if j != i})
+            shapes[foot] = (
+                f"a sphere of radius {r:g} m ({kept[i].name}), the distal end of its "
+                f"{len(kept)} geoms ({', '.join(others)} above it: no foot contact)"
+            )
         else:
+            if spheres:
+                names = [kept[i].name for i, _, _ in spheres]
+                contact_notes.append(
+                    f"foot {foot}: no one contact sphere among its {len(kept)} geoms (spheres "
+                    f"{names}; a point foot is one sphere reaching farthest from its joint): the "
+                    "foot site encloses them all, as a sole's, and the estimator reads the foot "
+                    "at the site's centre with no contact radius"
+                )
             host.add_site(
                 name=foot,
                 type=mujoco.mjtGeom.mjGEOM_BOX,
                 size=(hi - lo) / 2 + TOUCH_MARGIN,
                 pos=(lo + hi) / 2,
             )
-            kinds = sorted({mujoco.mjtGeom(int(g.type)).name[7:].lower() for g in kept})
+            kinds = sorted({_kind(g) for g in kept})
             size = " x ".join(f"{x * 100:.1f}" for x in hi - lo)
             count = f"{len(kept)} geoms" if len(kept) > 1 else "1 geom"
             shapes[foot] = f"{count} ({', '.join(kinds)}) in a {size} cm box"
@@ -283,6 +339,7 @@ def finish_floating_mjcf(
     if root.childclass:  # else MuJoCo writes it class="main" there, which Pinocchio cannot read
         free.classname = spec.find_default(root.childclass)
     contype, conaffinity, floor_notes = floor_contact_bits(model, prepared, foot_geoms)
+    floor_notes = contact_notes + floor_notes
     spec.worldbody.add_geom(
         name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05], rgba=[0.5] * 3 + [1],
         contype=contype, conaffinity=conaffinity,

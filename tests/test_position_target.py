@@ -5,7 +5,7 @@ A user who brings a quadruped with motor files of their own (the catalog's ``go_
 without its ``[position_target]`` table) trained a policy whose PD targets pass the joints'
 ranges (legged_gym, Isaac Lab and mjlab leave them unbounded): the plant must run the PD law on
 those targets, not clamp them to the range as a servo's firmware would. The description is
-unitree_mujoco's go2.xml layout (tests/test_rl_sar_joint_order.py), here also with MuJoCo
+unitree_mujoco's go2.xml layout (tests/go2_layout.py), here also with MuJoCo
 ``<position>`` actuators whose ``ctrlrange`` is the joint's range (``inheritrange``), as a
 training simulator's file often has.
 """
@@ -21,7 +21,7 @@ import pytest
 from sim2real.deploy.cli.robot_import import main as robot_import
 from sim2real.robots import load_robot
 from sim2real.robots.loading import MOTORS_DIR
-from tests.test_rl_sar_joint_order import write_go2
+from tests.go2_layout import write_go2
 
 KP, KD = 25.0, 0.5
 

@@ -7,8 +7,7 @@ Go2 (``policy/go2/himloco/config.yaml``) reads the legs in legged_gym's order FL
 right (hips +-0.1 rad, rear thighs 1.0 rad). unitree_mujoco's ``go2.xml`` lists its legs FL, FR,
 RL, RR: imported without ``--unitree`` it has no motor slots, and the slots read as indices of
 its joints would swap every left leg with its right one. The folders here carry those files'
-values; the description is go2.xml's layout (tests/go2w_layout.py with go2.xml's sphere feet on
-the calves in place of the wheels).
+values; the description is go2.xml's layout (tests/go2_layout.py).
 """
 
 from __future__ import annotations
@@ -22,7 +21,7 @@ from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.spec.onnx_checks import PolicyLoadError
 from sim2real.robots import load_robot
 from tests import foreign_stacks as fs
-from tests import go2w_layout
+from tests.go2_layout import write_go2
 
 pytest.importorskip("torch")
 
@@ -36,22 +35,6 @@ HIMLOCO_DEFAULT = [0.1, 0.8, -1.5, -0.1, 0.8, -1.5, 0.1, 1.0, -1.5, -0.1, 1.0, -
 POSE = {"FL_hip_joint": 0.1, "FR_hip_joint": -0.1, "RL_hip_joint": 0.1, "RR_hip_joint": -0.1}
 POSE |= {"FL_thigh_joint": 0.8, "FR_thigh_joint": 0.8, "RL_thigh_joint": 1.0}
 POSE |= {"RR_thigh_joint": 1.0} | {f"{leg}_calf_joint": -1.5 for leg in ("FL", "FR", "RL", "RR")}
-
-
-def write_go2(folder):
-    """go2.xml's layout: go2w.xml's legs, each calf ending in go2.xml's foot sphere (radius
-    0.022 m at 0.213 m) instead of a wheel, its twelve motors in Unitree's order."""
-    wheel = go2w_layout.LEG[go2w_layout.LEG.index('            <body name="{leg}_wheel_link"') :]
-    wheel = wheel[: wheel.index("            </body>\n") + len("            </body>\n")]
-    foot = '            <geom size="0.022" pos="-0.002 0 -0.213" class="foot" />\n'
-    path = go2w_layout.write_go2w(folder)
-    text = path.read_text()
-    for leg in go2w_layout.LEGS:
-        text = text.replace(wheel.replace("{leg}", leg), foot)
-    lines = [ln for ln in text.splitlines(True) if "_wheel" not in ln]
-    path = folder / "go2.xml"
-    path.write_text("".join(lines))
-    return path
 
 
 def write_himloco(tmp_path, names=True, mapping=HIMLOCO_MAPPING):

@@ -372,6 +372,46 @@ def test_a_push_is_a_force_the_imu_feels_unless_asked_to_hide_it(apply):
         assert np.mean(felt) < 0.0, felt
 
 
+@pytest.mark.parametrize("twist", [[0.8, -0.6, 0, 0, 0, 0], [0.3, 0.2, 0.1, 0.4, -0.3, 0.6]])
+def test_a_push_moves_the_whole_robot_as_the_training_push_does(twist):
+    """A force push spread over the robot's bodies (``set_push_wrench``) changes the whole
+    robot's velocity as a training push does (legged_gym sets the root's velocity, mjlab adds
+    a twist; the joints' speeds are left alone): after the 0.1-s window, in the air without
+    gravity, the base has the push's velocity change and the joints barely move, where the
+    same wrench on the base alone swings the legs about their joints."""
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.robots import load_robot
+
+    go2 = load_robot("go2")
+    twist = np.array(twist)
+    add = bool(np.any(twist[2:]))
+    joints = {}
+    for how in ("spread", "base"):
+        plant = SimBackend(go2, envs=1)
+        plant.reset()
+        m, d = plant.models[0], plant.datas[0]
+        m.opt.gravity[:] = 0.0
+        d.qpos[2] += 1.0  # in the air
+        mujoco.mj_forward(m, d)
+        v0 = d.qvel[:6].copy()
+        wrench = plant.push_wrench(0, twist, add, 0.1)
+        if how == "spread":
+            plant.set_push_wrench(0, wrench)
+        else:
+            plant.set_base_wrench(0, wrench)
+        swing = 0.0
+        for _ in range(5):  # 0.1 s at 50 Hz
+            plant.advance()
+            swing = max(swing, np.abs(d.qvel[6:]).max())
+        rot = d.xmat[m.body(go2.base_body).id].reshape(3, 3)
+        gained = np.concatenate([d.qvel[:3] - v0[:3], rot @ d.qvel[3:6] - rot @ v0[3:6]])
+        joints[how] = swing  # rad/s, the fastest joint in the window
+        if how == "spread":
+            wanted = twist if add else np.array([*twist[:2], 0, 0, 0, 0])
+            np.testing.assert_allclose(gained, wanted, atol=0.05 * np.abs(wanted).max())
+    assert joints["spread"] < 0.03 and joints["base"] > 0.15, joints  # measured 0.012, 0.38
+
+
 def test_false_fall_stops_are_fall_check_stops_of_a_robot_the_truth_has_upright():
     """``false_fall_stops``: the holosoma G1's stop (0.4 deg, base 0.67 m of its
     0.757 m) counts; a tilted or low base, another cause, a record without the truth or one

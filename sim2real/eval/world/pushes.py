@@ -9,10 +9,13 @@ forces). Two conventions, both as their stacks write them:
   from ``interval_range_s`` (1-3 s), U(range) is ADDED to the root's world velocity per axis:
   ``x``, ``y``, ``z`` (m/s) and ``roll``, ``pitch``, ``yaw`` (rad/s, world frame).
 
-How a push acts (``apply``): as a force (the default, ``"force"``): the wrench on the base that
-gives the robot the training push's velocity change over ``window`` s (default
-:data:`PUSH_WINDOW`; :meth:`~sim2real.deploy.backends.sim.disturbances.SimDisturbances.push_wrench`),
-which the plant's accelerometer and gyro feel as they feel a real shove. Or, as the training stacks
+How a push acts (``apply``): as a force (the default, ``"force"``): the wrench that gives the
+robot the training push's velocity change over ``window`` s (default :data:`PUSH_WINDOW`;
+:meth:`~sim2real.deploy.backends.sim.disturbances.SimDisturbances.push_wrench`), spread over its
+bodies so that the whole robot takes that change, its joints' speeds untouched, as the training
+stacks' pushes leave them (:meth:`~sim2real.deploy.backends.sim.disturbances.SimDisturbances.
+set_push_wrench`; a force on the base alone would swing the legs about their joints), which the
+plant's accelerometer and gyro feel as they feel a real shove. Or, as the training stacks
 do, by setting the base's velocity between two physics steps (``"velocity_hidden_from_imu"``):
 the estimator, which integrates the accelerometer, never sees that push.
 
@@ -182,8 +185,9 @@ class DomainPushes:
         index: (envs,) int64, the index of each env's next push (random intervals only).
         next_tick: (envs,) int64, the tick of each env's next push (random intervals only).
         force_ticks: control ticks a push's force acts (``ranges.window`` rounded, >= 1).
-        wrench: (envs, 6) the force (N) and torque (N m, world frame) of each env's push in
-            force now (zeros: none); its rows' force is what a fault's forces add to
+        wrench: (envs, 6) the force (N) and torque (N m, world frame) on the base's body of each
+            env's push in force now (its share of the push spread over the robot's bodies;
+            zeros: none); its rows' force is what a fault's forces add to
             (:class:`sim2real.eval.soak.faults.SessionFaults`' ``base_forces``).
         until: (envs,) int64, the tick at which each env's push force ends (0: none).
         last_tick: (envs,) int64, the tick of each env's last push (-1: none yet).
@@ -210,8 +214,8 @@ class DomainPushes:
         ``ranges.apply`` says, and note it."""
         if self.ranges.apply == "force":
             duration = self.force_ticks * self.dt
-            self.wrench[e] = backend.push_wrench(e, twist, add, duration)
-            backend.set_base_wrench(e, self.wrench[e])
+            total = backend.push_wrench(e, twist, add, duration)
+            self.wrench[e] = backend.set_push_wrench(e, total)
             self.until[e] = rt.ticks + self.force_ticks
         elif add:
             backend.push_base(e, twist, add=True)
@@ -223,8 +227,7 @@ class DomainPushes:
     def _end_forces(self, rt, backend) -> None:
         """Remove the push forces whose window has ended."""
         for e in np.flatnonzero((self.until > 0) & (self.until <= rt.ticks)):
-            self.wrench[e] = 0.0
-            backend.set_base_wrench(e, self.wrench[e])
+            self.wrench[e] = backend.set_push_wrench(e, np.zeros(6))
             self.until[e] = 0
 
     def _due(self, seed: int, index: int, after: int) -> int:

@@ -2,9 +2,11 @@
 
 :class:`SimDisturbances` is a base class of :class:`~sim2real.deploy.backends.sim.plant.SimBackend`
 (the fault hooks of :class:`~sim2real.deploy.core.backend.SimulatedPlant`); its methods work on
-the backend's public ``robot``, ``models`` and ``datas``. A push is a wrench on the base over a
-short window (:meth:`SimDisturbances.push_wrench`, :meth:`SimDisturbances.set_base_wrench`), which
-the IMU (MuJoCo's accelerometer and gyro) feels as a real shove; changing the base's velocity at
+the backend's public ``robot``, ``models`` and ``datas``. A push is a wrench over a short window
+(:meth:`SimDisturbances.push_wrench`), spread over the robot's bodies so that it changes the
+whole robot's velocity as a training push does, its joints' speeds untouched
+(:meth:`SimDisturbances.set_push_wrench`), which the IMU (MuJoCo's accelerometer and gyro) feels as
+a real shove; changing the base's velocity at
 once (legged_gym's and mjlab's pushes: :meth:`SimDisturbances.set_base_velocity`,
 :meth:`SimDisturbances.push_base`) happens between physics steps and hides the push from the IMU.
 A force acts on a body until it is changed.
@@ -91,6 +93,50 @@ class SimDisturbances:
         wrench[:3] = full[:3, :3] @ dv / duration
         wrench[3:] = rot @ (full[3:6, 3:6] @ (rot.T @ twist[3:6])) / duration
         return wrench
+
+    def set_push_wrench(self, env: int, wrench: np.ndarray) -> np.ndarray:
+        """Apply a push's whole ``wrench`` (6,) (:meth:`push_wrench`'s: force N and torque N m,
+        world frame) to ``env`` spread over the robot's bodies as the rigid motion it starts:
+        the linear acceleration ``a = F / m`` (``m`` the robot's mass) and the angular
+        acceleration ``alpha`` (world) with ``R I R^T alpha = tau`` (``I`` the free joint's
+        angular block of the mass matrix), each body ``b`` (mass ``m_b``, its centre of mass
+        ``r_b`` from the base's origin, rotational inertia ``I_b`` about it, world frame) taking
+        ``f_b = m_b (a + alpha x r_b)`` and ``tau_b = I_b alpha`` in its ``xfrc_applied`` row (at
+        its centre of mass). Their generalized force is the mass matrix times the free joint's
+        velocity change over the window: the robot moves as a whole, as under a training push
+        (legged_gym's and mjlab's, which set the root's velocity and leave the joints' speeds),
+        where a force on the base alone would swing the legs about their joints. Zeros remove
+        the push (every body's row but the base's is cleared; the base's row is set to zero, as
+        :meth:`set_base_wrench` does). Returns (6,) the base's row.
+
+        Raises:
+            ValueError: a fixed-base robot.
+        """
+        if not self.robot.floating_base:
+            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        m, d = self.models[env], self.datas[env]
+        base = m.body(self.robot.base_body).id
+        bodies = np.flatnonzero(m.body_rootid == m.body_rootid[base])
+        bodies = bodies[bodies > 0]
+        wrench = np.asarray(wrench, dtype=float)
+        if not wrench.any():
+            d.xfrc_applied[bodies] = 0.0
+            return np.zeros(6)
+        full = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, full)
+        rot = np.empty(9)
+        mujoco.mju_quat2Mat(rot, d.qpos[3:7])
+        rot = rot.reshape(3, 3)
+        a = wrench[:3] / full[0, 0]
+        alpha = np.zeros(3)
+        if wrench[3:].any():
+            alpha = np.linalg.solve(rot @ full[3:6, 3:6] @ rot.T, wrench[3:])
+        for b in bodies:
+            r = d.xipos[b] - d.xpos[base]
+            frame = d.ximat[b].reshape(3, 3)
+            d.xfrc_applied[b, :3] = m.body_mass[b] * (a + np.cross(alpha, r))
+            d.xfrc_applied[b, 3:] = frame @ (m.body_inertia[b] * (frame.T @ alpha))
+        return d.xfrc_applied[base].copy()
 
     def set_base_wrench(self, env: int, wrench: np.ndarray) -> None:
         """Apply ``wrench`` (6,): force (N) and torque (N m), world frame, at the floating

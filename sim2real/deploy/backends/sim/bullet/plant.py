@@ -360,6 +360,13 @@ class BulletBackend(SimBackend):
         super().set_base_wrench(env, wrench)
         self._sync_forces(env)
 
+    def set_push_wrench(self, env: int, wrench: np.ndarray) -> np.ndarray:
+        """As :meth:`SimBackend.set_push_wrench`: each body's force applied at its centre of mass
+        at every pybullet step until changed (the torques are the MuJoCo plant's only)."""
+        row = super().set_push_wrench(env, wrench)
+        self._sync_forces(env)
+        return row
+
     def set_external_force(self, env: int, force: np.ndarray, body: str | None = None) -> None:
         """As :meth:`SimBackend.set_external_force`: applied at the body's centre of mass at
         every pybullet step until changed."""

@@ -164,10 +164,11 @@ def _ranges(domain: str) -> list[str]:
     return [line for line in domain.splitlines() if not line.startswith("#")]
 
 
-def test_soak_runs_the_training_domain_the_policy_carries(tmp_path):
+def test_soak_runs_the_training_domain_the_policy_carries(tmp_path, capsys):
     """An ONNX policy with a training domain (``policy-export --domain``; here its metadata set
     directly): soak-test runs it (pushes every 2 s, a payload on the base) unless --no-domain,
-    and the report says so."""
+    and the report says so; the console says which pushes and how they act (a file without
+    ``apply``: forces spread over the bodies, not the training's velocity set)."""
     import onnx
 
     from sim2real.eval.cli import main as soak_main
@@ -196,12 +197,16 @@ def test_soak_runs_the_training_domain_the_policy_carries(tmp_path):
     common = ["--robot", "go2", "--policy", str(policy), "--hours", "0.01", "--no-progress"]
     common += ["--no-film", "--no-faults", "--checkpoint-minutes", "0"]
     soak_main([*common, "--out", str(tmp_path / "with")])
+    said = capsys.readouterr().out
+    assert "soak-test: pushes: every 2 s, the horizontal velocity set to up to 0.3 m/s, as " in said
+    assert "forces over 0.1 s spread over the robot's bodies" in said
     report = json.loads((tmp_path / "with" / "report.json").read_text())
     s = report["sessions"][0]
     assert report["campaign"]["training_domain"] == domain
     assert 0.5 <= s["randomization"]["added_base_mass"] <= 1.0
     assert s["locomotion"]["domain_pushes"] >= 10
     soak_main([*common, "--no-domain", "--out", str(tmp_path / "without")])
+    assert "soak-test: pushes:" not in capsys.readouterr().out
     report = json.loads((tmp_path / "without" / "report.json").read_text())
     assert report["campaign"]["training_domain"] is None
     assert report["sessions"][0]["locomotion"]["domain_pushes"] == 0

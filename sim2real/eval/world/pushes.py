@@ -126,6 +126,26 @@ class PushRanges:
                 f'{[a for a in given if a in AXES[2:]]} expect mode = "add"'
             )
 
+    def describe(self) -> str:
+        """One line saying which pushes these are and how they act (the soak prints it: a
+        ranges file without ``apply`` means forces since issue 72, where it once meant the
+        training stacks' velocity set at once)."""
+        low, high = self.interval_range
+        every = f"every {low:g} s" if low == high else f"every U({low:g}, {high:g}) s"
+        if self.max_velocity is not None or not any(getattr(self, a) for a in AXES):
+            size = f"the horizontal velocity {self.mode} to up to {self.max_velocity or 1.0:g} m/s"
+        else:
+            axes = ", ".join(f"{a} {list(getattr(self, a))}" for a in AXES if getattr(self, a))
+            size = f"{'added' if self.mode == 'add' else 'set'}: {axes}"
+        if self.apply == "force":
+            how = (
+                f"as forces over {self.window:g} s spread over the robot's bodies (the IMU feels "
+                'them; apply = "velocity_hidden_from_imu" sets the velocity as training does)'
+            )
+        else:
+            how = "the velocity changed at once between physics steps, unseen by the IMU"
+        return f"{every}, {size}, {how}"
+
     @property
     def interval_range(self) -> tuple[float, float]:
         """``(low, high)`` s between pushes (``(interval, interval)`` for a fixed one)."""

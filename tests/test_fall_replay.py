@@ -75,3 +75,35 @@ def test_the_own_loop_replay_carries_the_worlds_push(pushed_h1_2):
     twin.restore(arrays, copy.deepcopy(meta), "test")
     twin.pushes = None  # the world without the training domain's pushes
     assert own_loop(twin, until) is None
+
+
+def test_no_replay_starts_before_a_previous_fall_or_stand_up(tmp_path):
+    """H1-2 seed 1 in its training domain, stood up 1 s after each stop, 32 s: a hard-limit stop
+    at 20.6 s, falls at 25.4 and 31.1 s. Every replay starts after the stop before its fall (the
+    captures before it are of another stretch of running): the fall 4.9 s after the stop has no
+    capture 2-6 s before it in its own stretch and is not replayed; the next one replays from
+    its own stretch only (before, they were replayed from 19-20 s and 25 s, across the stops,
+    and "fell" at the previous fall)."""
+    from sim2real.eval.soak.batch import SessionBatch
+    from sim2real.eval.soak.session import SessionConfig
+    from sim2real.eval.world.domain import training_domain
+    from sim2real.eval.world.ranges_file import load_ranges_text
+    from sim2real.robots import load_robot
+
+    ranges = load_ranges_text(training_domain(H1_2), H1_2, load_robot("h1_2"), None)
+    config = SessionConfig(
+        robot="h1_2", policy=H1_2, seed=1, hours=1.0, ranges=ranges, operator_reset=1.0
+    )
+    batch = SessionBatch([config], tmp_path, progress=False)
+    batch.rt.run(int(round(32.0 / batch.dt)), on_tick=batch.on_tick)
+    log = batch.task.parts()["tracker"].fall_log[0]
+    assert len(log) >= 3 and log[0]["cause"] == "fall" and log[1]["cause"] != "fall"
+    replayed = 0
+    for before, record in zip(log[:-1], log[1:], strict=True):
+        starts = list(record.get("own_loop", {}).get("from_s", []))
+        if "redraw" in record:
+            starts.append(record["redraw"]["from_s"])
+        assert all(s > before["t_s"] for s in starts), (before["t_s"], record)
+        replayed += bool(starts)
+    assert log[2]["cause"] == "fall" and log[2]["own_loop"]["from_s"] == []
+    assert replayed >= 1  # a fall far enough after its stand-up is still replayed

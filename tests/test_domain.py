@@ -267,6 +267,43 @@ def test_mjlab_pushes_add_a_twist_after_random_intervals_and_resume_exactly(go2)
     assert resumed.times == whole.times
 
 
+def test_random_interval_pushes_wait_after_each_reset_and_legged_gyms_keep_their_grid(go2):
+    """A robot down 1.5-6 s at a time (stopped, lying, stood up) over 5 minutes: pushes at
+    random intervals (Isaac Lab's ``is_global_time=False``, holosoma's) wait at least the
+    interval's low end after each return to RUNNING, the env's reset (before, a push came 0.02 s
+    after one); legged_gym's global ``common_step_counter % push_interval`` stays on its grid
+    whatever the robot did, as it trained."""
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.core.modes import Mode
+
+    dt = go2.control_period
+    rng = np.random.default_rng(0)
+    mode = np.full(int(300 / dt), int(Mode.RUNNING), dtype=np.int8)
+    onsets, t = [0], 4.0
+    while t < 290.0:
+        down = rng.uniform(1.5, 6.0)
+        mode[int(t / dt) : int((t + down) / dt)] = int(Mode.FAULTED)
+        onsets.append(int((t + down) / dt))
+        t += down + rng.uniform(2.0, 8.0)
+
+    class Rt:
+        ticks, mode = 0, np.zeros(1, dtype=np.int8)
+
+    plant = SimBackend(go2, envs=1)
+    randomly = DomainPushes([3], PushRanges(interval=(1.0, 3.0), mode="add", x=(-0.1, 0.1)), dt)
+    grid = DomainPushes([3], PushRanges(interval=2.0, max_velocity=0.1), dt)
+    for tick, m in enumerate(mode):
+        Rt.ticks, Rt.mode[0] = tick, m
+        randomly(Rt, plant)
+        grid(Rt, plant)
+    pushed = np.round(np.array(randomly.times[0]) / dt).astype(int)
+    assert len(onsets) > 20 and len(pushed) > 50
+    since = pushed - np.array([max(o for o in onsets if o <= p) for p in pushed])
+    assert since.min() * dt >= 1.0 - 1e-9, since.min() * dt
+    on_grid = np.round(np.array(grid.times[0]) / dt).astype(int)
+    assert np.all(on_grid % round(2.0 / dt) == 0) and np.all(mode[on_grid] == int(Mode.RUNNING))
+
+
 @pytest.mark.parametrize(
     "text, message",
     [

@@ -368,6 +368,7 @@ class Session:
                         "wrench": b.pushes.wrench[e].tolist(),
                         "until": int(b.pushes.until[e]),
                         "last_tick": int(b.pushes.last_tick[e]),
+                        "running": bool(b.pushes.running[e]),
                         "response": b.push_response.state_dict(e),
                     }
                     if b.pushes is not None
@@ -446,4 +447,6 @@ class Session:
                 b.pushes.wrench[e] = force["wrench"]
                 b.pushes.until[e] = force["until"]
                 b.pushes.last_tick[e] = force["last_tick"]
+                # before the wait restarted at a reset: taken as RUNNING (DomainPushes.running)
+                b.pushes.running[e] = bool(force.get("running", True))
                 b.push_response.load_state_dict(force["response"], e)

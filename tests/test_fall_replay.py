@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 
+import numpy as np
 import pytest
 
 H1_2 = "tests/data/unitree_rl_gym/h1_2/h1_2.onnx"
@@ -107,3 +108,25 @@ def test_no_replay_starts_before_a_previous_fall_or_stand_up(tmp_path):
         replayed += bool(starts)
     assert log[2]["cause"] == "fall" and log[2]["own_loop"]["from_s"] == []
     assert replayed >= 1  # a fall far enough after its stand-up is still replayed
+
+
+def test_a_fallen_robots_interventions_are_counted_apart_from_a_standing_ones(pushed_h1_2):
+    """The pushed H1-2 falls before 6 s and lies damped to 7 s: the interventions of the ticks it
+    lay (the guard's hard-limit check on its folded legs among them) are in ``while_down``, of
+    the lying ticks; the headline counts and fractions are of the ticks it stood, and the two
+    make up every tick and every intervention (before, 7 s of it shared one fraction)."""
+    from sim2real.eval.soak.result import session_result
+
+    batch = pushed_h1_2
+    iv = batch.interventions
+    result = session_result(batch.sessions[0])["interventions"]
+    down = result["while_down"]
+    lying = int(np.count_nonzero(batch.rt.mode[:1] >= 3))  # SAFE_STOP or FAULTED now
+    assert lying == 1 and 0 < down["ticks"] < iv.ticks
+    assert result["ticks"] + down["ticks"] == iv.ticks
+    assert result["any"]["count"] + down["any"]["count"] == int(iv.any[0])
+    for check, entry in result["checks"].items():
+        assert entry["count"] + down["checks"][check]["count"] == int(iv.counts[check][0])
+    assert down["any"]["count"] > 0
+    assert down["any"]["fraction"] == pytest.approx(down["any"]["count"] / down["ticks"])
+    assert result["any"]["fraction"] == pytest.approx(result["any"]["count"] / result["ticks"])

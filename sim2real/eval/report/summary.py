@@ -109,8 +109,10 @@ def summary_text(report: dict) -> str:
         f"{k} {100 * c['fraction']:.3f}" for k, c in iv["checks"].items() if c["count"]
     )
     by_design = [k for k in iv.get("by_design", []) if iv["checks"].get(k, {}).get("count")]
+    down = iv.get("while_down") or {}
     lines.append(
         f"  interventions {100 * iv['any']['fraction']:.3f} % of ticks"
+        + (" up" if down.get("ticks") else "")
         + (f" ({used})" if used else "")
         + (
             f"; judged {100 * iv['safety']['fraction']:.3f} % (not {', '.join(by_design)}: "
@@ -119,6 +121,15 @@ def summary_text(report: dict) -> str:
             else ""
         )
     )
+    if down.get("ticks"):
+        lying = ", ".join(
+            f"{k} {100 * c['fraction']:.3f}" for k, c in down["checks"].items() if c["count"]
+        )
+        lines.append(
+            f"  while down   (lying damped after a stop, not counted above) interventions "
+            f"{100 * down['any']['fraction']:.3f} % of {down['ticks']} ticks"
+            + (f" ({lying})" if lying else "")
+        )
     f = t["faults"]
     resp = ", ".join(f"{k} {n}" for k, n in f["responses"].items() if n)
     lines.append(

@@ -114,7 +114,7 @@ def test_every_fall_is_attributed_to_what_began_it():
         {"t_s": 12.0, "cause": "fall"},  # 1.5 s after the stale frames ended
         {"t_s": 31.5, "cause": "fall"},  # after a push fault
         {"t_s": 50.5, "cause": "fall"},  # after a domain push at 50 s
-        {"t_s": 80.0, "cause": "fall"},  # nothing before it
+        {"t_s": 80.0, "cause": "fall"},  # nothing before it, not replayed
         {"t_s": 90.0, "cause": "hard_limit", "joint": "left_hip_roll_joint", "past_rad": 0.2},
         # hard-limit stops the soak replayed without the stop: the replay stood / fell anyway
         {"t_s": 100.5, "cause": "hard_limit", "past_rad": 0.15, "would_fall": False},
@@ -126,7 +126,7 @@ def test_every_fall_is_attributed_to_what_began_it():
         "fault",
         "push",
         "push",
-        "policy",
+        "undecided",  # before: "policy", which no replay had shown
         "runtime_stop",
         "runtime_stop",
         "push",
@@ -134,8 +134,51 @@ def test_every_fall_is_attributed_to_what_began_it():
     assert falls[0]["during"] == "stale" and falls[3]["during"] == "domain push"
     assert falls[5]["joint"] == "left_hip_roll_joint"
     assert [f["stopped_while_falling"] for f in falls[5:]] == [False, False, True]
-    assert falls_by_origin(falls) == dict(zip(ORIGINS, (3, 3, 1, 1), strict=True))
+    assert falls_by_origin(falls) == dict(zip(ORIGINS, (3, 3, 1, 0, 0, 0, 1), strict=True))
     assert stops_while_falling(falls) == 1
+
+
+def test_a_fall_with_nothing_before_it_is_named_by_its_replays_and_the_summary_says_so():
+    """No push, fault or stop before these falls: the policy's own loop falling in most of its
+    replays names the policy; the own loop standing and the runtime with other noise falling
+    names the runtime; both standing, the session's rare draw; the own loop standing with no
+    runtime replay, or no replay, is undecided. The summary says what the replays showed."""
+    from sim2real.eval.report.summary import REPLAY_MEANING, replay_lines
+
+    def replays(own, redraw=None):
+        out = {"own_loop": {"from_s": [1.0] * len(own), "fall_s": own}}
+        if redraw is not None:
+            out["redraw"] = {"from_s": 3.0, "fall_s": redraw}
+        return out
+
+    stood, fell = None, 9.0
+    log = [
+        {"t_s": 10.0, "cause": "fall", **replays([fell, fell, fell, stood, stood], [stood] * 5)},
+        {"t_s": 20.0, "cause": "fall", **replays([stood] * 5, [fell, fell, fell, stood, fell])},
+        {"t_s": 30.0, "cause": "fall", **replays([stood] * 5, [stood, fell, stood, stood, stood])},
+        {"t_s": 40.0, "cause": "fall", **replays([stood, stood])},  # the runtime's not run
+        {"t_s": 50.0, "cause": "fall"},  # past MAX_FALLS: not replayed
+    ]
+    falls = attribute_falls(log, [], push_times=[])
+    assert [f["origin"] for f in falls] == [
+        "policy",
+        "runtime",
+        "rare_draw",
+        "undecided",
+        "undecided",
+    ]
+    by = falls_by_origin(falls)
+    assert by == {
+        **dict.fromkeys(ORIGINS, 0),
+        "policy": 1,
+        "runtime": 1,
+        "rare_draw": 1,
+        "undecided": 2,
+    }
+    (line,) = replay_lines(by)
+    for origin in ("policy", "runtime", "rare_draw", "undecided"):
+        assert REPLAY_MEANING[origin] in line
+    assert "undecided 2:" in line and replay_lines({"push": 3, "policy": 0}) == []
 
 
 def test_sweep_margin_is_the_last_level_held_in_a_row():

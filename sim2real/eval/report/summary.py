@@ -2,6 +2,26 @@
 
 from __future__ import annotations
 
+#: What the replays showed for a fall with no push, fault or stop before it, by its origin
+#: (:func:`sim2real.eval.soak.falls.replay_origin`).
+REPLAY_MEANING = {
+    "policy": "the policy's own loop fell there in most of its replays",
+    "runtime": "the policy's own loop stood in most, the runtime with other sensor noise fell",
+    "rare_draw": "both stood in most of their replays (the session's draw of the noise)",
+    "undecided": "not replayed, or only in the own loop, which stood: the soak cannot tell",
+}
+
+
+def replay_lines(origins: dict[str, int]) -> list[str]:
+    """The summary's line on the falls with no push, fault or stop before them: what their
+    replays showed (:data:`REPLAY_MEANING`) by ``origins`` (``falls_by_origin``); none when
+    there were none."""
+    shown = [(o, n) for o, n in origins.items() if n and o in REPLAY_MEANING]
+    if not shown:
+        return []
+    said = "; ".join(f"{o.replace('_', ' ')} {n}: {REPLAY_MEANING[o]}" for o, n in shown)
+    return [f"  no push, fault or stop before: the replays say {said}"]
+
 
 def summary_text(report: dict) -> str:
     """A few lines for the console."""
@@ -39,6 +59,7 @@ def summary_text(report: dict) -> str:
             by = ", ".join(f"{o.replace('_', ' ')} {n}" for o, n in origins.items() if n)
             causes = ", ".join(f"{c} {n}" for c, n in loco.get("falls_by_cause", {}).items())
             lines.append(f"  falls began  {by} (stops by cause: {causes or 'none'})")
+            lines += replay_lines(origins)
             falling = loco.get("stops_while_falling", 0)
             if falling:
                 lines.append(

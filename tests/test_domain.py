@@ -114,7 +114,7 @@ def test_every_fall_is_attributed_to_what_began_it():
         {"t_s": 12.0, "cause": "fall"},  # 1.5 s after the stale frames ended
         {"t_s": 31.5, "cause": "fall"},  # after a push fault
         {"t_s": 50.5, "cause": "fall"},  # after a domain push at 50 s
-        {"t_s": 80.0, "cause": "fall"},  # nothing before it
+        {"t_s": 80.0, "cause": "fall"},  # nothing before it, not replayed
         {"t_s": 90.0, "cause": "hard_limit", "joint": "left_hip_roll_joint", "past_rad": 0.2},
         # hard-limit stops the soak replayed without the stop: the replay stood / fell anyway
         {"t_s": 100.5, "cause": "hard_limit", "past_rad": 0.15, "would_fall": False},
@@ -126,7 +126,7 @@ def test_every_fall_is_attributed_to_what_began_it():
         "fault",
         "push",
         "push",
-        "policy",
+        "undecided",  # before: "policy", which no replay had shown
         "runtime_stop",
         "runtime_stop",
         "push",
@@ -134,8 +134,51 @@ def test_every_fall_is_attributed_to_what_began_it():
     assert falls[0]["during"] == "stale" and falls[3]["during"] == "domain push"
     assert falls[5]["joint"] == "left_hip_roll_joint"
     assert [f["stopped_while_falling"] for f in falls[5:]] == [False, False, True]
-    assert falls_by_origin(falls) == dict(zip(ORIGINS, (3, 3, 1, 1), strict=True))
+    assert falls_by_origin(falls) == dict(zip(ORIGINS, (3, 3, 1, 0, 0, 0, 1), strict=True))
     assert stops_while_falling(falls) == 1
+
+
+def test_a_fall_with_nothing_before_it_is_named_by_its_replays_and_the_summary_says_so():
+    """No push, fault or stop before these falls: the policy's own loop falling in most of its
+    replays names the policy; the own loop standing and the runtime with other noise falling
+    names the runtime; both standing, the session's rare draw; the own loop standing with no
+    runtime replay, or no replay, is undecided. The summary says what the replays showed."""
+    from sim2real.eval.report.summary import REPLAY_MEANING, replay_lines
+
+    def replays(own, redraw=None):
+        out = {"own_loop": {"from_s": [1.0] * len(own), "fall_s": own}}
+        if redraw is not None:
+            out["redraw"] = {"from_s": 3.0, "fall_s": redraw}
+        return out
+
+    stood, fell = None, 9.0
+    log = [
+        {"t_s": 10.0, "cause": "fall", **replays([fell, fell, fell, stood, stood], [stood] * 5)},
+        {"t_s": 20.0, "cause": "fall", **replays([stood] * 5, [fell, fell, fell, stood, fell])},
+        {"t_s": 30.0, "cause": "fall", **replays([stood] * 5, [stood, fell, stood, stood, stood])},
+        {"t_s": 40.0, "cause": "fall", **replays([stood, stood])},  # the runtime's not run
+        {"t_s": 50.0, "cause": "fall"},  # past MAX_FALLS: not replayed
+    ]
+    falls = attribute_falls(log, [], push_times=[])
+    assert [f["origin"] for f in falls] == [
+        "policy",
+        "runtime",
+        "rare_draw",
+        "undecided",
+        "undecided",
+    ]
+    by = falls_by_origin(falls)
+    assert by == {
+        **dict.fromkeys(ORIGINS, 0),
+        "policy": 1,
+        "runtime": 1,
+        "rare_draw": 1,
+        "undecided": 2,
+    }
+    (line,) = replay_lines(by)
+    for origin in ("policy", "runtime", "rare_draw", "undecided"):
+        assert REPLAY_MEANING[origin] in line
+    assert "undecided 2:" in line and replay_lines({"push": 3, "policy": 0}) == []
 
 
 def test_sweep_margin_is_the_last_level_held_in_a_row():
@@ -270,6 +313,43 @@ def test_mjlab_pushes_add_a_twist_after_random_intervals_and_resume_exactly(go2)
     resumed.load_state_dict(state, 0)
     run(resumed, plant, int(17 / dt), int(40 / dt))
     assert resumed.times == whole.times
+
+
+def test_random_interval_pushes_wait_after_each_reset_and_legged_gyms_keep_their_grid(go2):
+    """A robot down 1.5-6 s at a time (stopped, lying, stood up) over 5 minutes: pushes at
+    random intervals (Isaac Lab's ``is_global_time=False``, holosoma's) wait at least the
+    interval's low end after each return to RUNNING, the env's reset (before, a push came 0.02 s
+    after one); legged_gym's global ``common_step_counter % push_interval`` stays on its grid
+    whatever the robot did, as it trained."""
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.core.modes import Mode
+
+    dt = go2.control_period
+    rng = np.random.default_rng(0)
+    mode = np.full(int(300 / dt), int(Mode.RUNNING), dtype=np.int8)
+    onsets, t = [0], 4.0
+    while t < 290.0:
+        down = rng.uniform(1.5, 6.0)
+        mode[int(t / dt) : int((t + down) / dt)] = int(Mode.FAULTED)
+        onsets.append(int((t + down) / dt))
+        t += down + rng.uniform(2.0, 8.0)
+
+    class Rt:
+        ticks, mode = 0, np.zeros(1, dtype=np.int8)
+
+    plant = SimBackend(go2, envs=1)
+    randomly = DomainPushes([3], PushRanges(interval=(1.0, 3.0), mode="add", x=(-0.1, 0.1)), dt)
+    grid = DomainPushes([3], PushRanges(interval=2.0, max_velocity=0.1), dt)
+    for tick, m in enumerate(mode):
+        Rt.ticks, Rt.mode[0] = tick, m
+        randomly(Rt, plant)
+        grid(Rt, plant)
+    pushed = np.round(np.array(randomly.times[0]) / dt).astype(int)
+    assert len(onsets) > 20 and len(pushed) > 50
+    since = pushed - np.array([max(o for o in onsets if o <= p) for p in pushed])
+    assert since.min() * dt >= 1.0 - 1e-9, since.min() * dt
+    on_grid = np.round(np.array(grid.times[0]) / dt).astype(int)
+    assert np.all(on_grid % round(2.0 / dt) == 0) and np.all(mode[on_grid] == int(Mode.RUNNING))
 
 
 @pytest.mark.parametrize(

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 
+import numpy as np
 import pytest
 
 H1_2 = "tests/data/unitree_rl_gym/h1_2/h1_2.onnx"
@@ -75,3 +76,57 @@ def test_the_own_loop_replay_carries_the_worlds_push(pushed_h1_2):
     twin.restore(arrays, copy.deepcopy(meta), "test")
     twin.pushes = None  # the world without the training domain's pushes
     assert own_loop(twin, until) is None
+
+
+def test_no_replay_starts_before_a_previous_fall_or_stand_up(tmp_path):
+    """H1-2 seed 1 in its training domain, stood up 1 s after each stop, 32 s: a hard-limit stop
+    at 20.6 s, falls at 25.4 and 31.1 s. Every replay starts after the stop before its fall (the
+    captures before it are of another stretch of running): the fall 4.9 s after the stop has no
+    capture 2-6 s before it in its own stretch and is not replayed; the next one replays from
+    its own stretch only (before, they were replayed from 19-20 s and 25 s, across the stops,
+    and "fell" at the previous fall)."""
+    from sim2real.eval.soak.batch import SessionBatch
+    from sim2real.eval.soak.session import SessionConfig
+    from sim2real.eval.world.domain import training_domain
+    from sim2real.eval.world.ranges_file import load_ranges_text
+    from sim2real.robots import load_robot
+
+    ranges = load_ranges_text(training_domain(H1_2), H1_2, load_robot("h1_2"), None)
+    config = SessionConfig(
+        robot="h1_2", policy=H1_2, seed=1, hours=1.0, ranges=ranges, operator_reset=1.0
+    )
+    batch = SessionBatch([config], tmp_path, progress=False)
+    batch.rt.run(int(round(32.0 / batch.dt)), on_tick=batch.on_tick)
+    log = batch.task.parts()["tracker"].fall_log[0]
+    assert len(log) >= 3 and log[0]["cause"] == "fall" and log[1]["cause"] != "fall"
+    replayed = 0
+    for before, record in zip(log[:-1], log[1:], strict=True):
+        starts = list(record.get("own_loop", {}).get("from_s", []))
+        if "redraw" in record:
+            starts.append(record["redraw"]["from_s"])
+        assert all(s > before["t_s"] for s in starts), (before["t_s"], record)
+        replayed += bool(starts)
+    assert log[2]["cause"] == "fall" and log[2]["own_loop"]["from_s"] == []
+    assert replayed >= 1  # a fall far enough after its stand-up is still replayed
+
+
+def test_a_fallen_robots_interventions_are_counted_apart_from_a_standing_ones(pushed_h1_2):
+    """The pushed H1-2 falls before 6 s and lies damped to 7 s: the interventions of the ticks it
+    lay (the guard's hard-limit check on its folded legs among them) are in ``while_down``, of
+    the lying ticks; the headline counts and fractions are of the ticks it stood, and the two
+    make up every tick and every intervention (before, 7 s of it shared one fraction)."""
+    from sim2real.eval.soak.result import session_result
+
+    batch = pushed_h1_2
+    iv = batch.interventions
+    result = session_result(batch.sessions[0])["interventions"]
+    down = result["while_down"]
+    lying = int(np.count_nonzero(batch.rt.mode[:1] >= 3))  # SAFE_STOP or FAULTED now
+    assert lying == 1 and 0 < down["ticks"] < iv.ticks
+    assert result["ticks"] + down["ticks"] == iv.ticks
+    assert result["any"]["count"] + down["any"]["count"] == int(iv.any[0])
+    for check, entry in result["checks"].items():
+        assert entry["count"] + down["checks"][check]["count"] == int(iv.counts[check][0])
+    assert down["any"]["count"] > 0
+    assert down["any"]["fraction"] == pytest.approx(down["any"]["count"] / down["ticks"])
+    assert result["any"]["fraction"] == pytest.approx(result["any"]["count"] / result["ticks"])

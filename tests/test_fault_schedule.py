@@ -149,3 +149,71 @@ def test_soak_pushes_are_sized_by_the_robots_soak_table():
     ranges = fault_ranges(so101, mean_interval=60.0)
     assert ranges.push_force == (1.0, 3.7) and ranges.mean_interval == 60.0
     assert ranges.push_force[1] <= cable_budget(so101, np.array([0.0]))[0] + 0.05
+
+
+def _arm3_at(rate: float, folder):
+    """arm3 with its control rate set to ``rate`` Hz (its robot.toml and MJCF copied)."""
+    import shutil
+    from pathlib import Path
+
+    from sim2real.robots import load_robot
+
+    here = Path(__file__).resolve().parents[1] / "sim2real" / "robots" / "arm3"
+    shutil.copytree(here, folder)
+    toml = folder / "robot.toml"
+    text = toml.read_text()
+    assert "control_rate = 200.0" in text
+    toml.write_text(text.replace("control_rate = 200.0", f"control_rate = {rate}"))
+    return load_robot(toml)
+
+
+@pytest.mark.parametrize("rate", [50.0, 100.0, 200.0])
+def test_every_sensor_fault_drawn_is_survived_at_50_100_and_200_hz(tmp_path, rate):
+    """Dropouts, stale frames and latency spikes drawn for a session at its largest size, with
+    0, 1 or 2 ticks of sensor latency (one env each), run on the runtime holding the home pose:
+    no safe stop. At 50 Hz a 2-tick latency leaves no whole tick within the 0.05 s stale limit,
+    and that session draws none (before, a spike floored at one tick stopped it: 0.06 s)."""
+    from sim2real.deploy.backends.sim.faults import FaultInjector
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.runtime import Runtime
+    from sim2real.eval.world.fault_schedule import gap_ticks
+    from tests.runtime_fixtures import zero_action_onnx
+
+    robot = _arm3_at(rate, tmp_path / "arm3")
+    dt = robot.control_period
+    ranges = FaultRanges(
+        mean_interval=0.3,
+        min_gap=3.0,
+        warmup=1.0,
+        kinds=("dropout", "stale", "latency", "nan-action"),
+        dropout=(0.8, 0.8),
+        stale=(0.8, 0.8),
+        latency_ticks=(1.0, 1.0),
+        latency_duration=(0.2, 0.2),
+    )
+    plant = SimBackend(robot, envs=3, seed=0)
+    faults, drawn = [], []
+    for e, latency in enumerate((0, 1, 2)):
+        plant.latency_ticks[e] = latency
+        schedule = sample_fault_schedule(
+            robot, session_rng(e, "faults"), 20.0, SensorDraw(1e-4, latency, 0.0), ranges
+        )
+        gaps = [f for f in schedule if f.kind in ("dropout", "stale", "latency")]
+        assert bool(gaps) == (gap_ticks(robot, latency) >= 1), (latency, schedule)
+        drawn.append(len(gaps))
+        faults += [replace_envs(f, e) for f in schedule]
+    if rate == 50.0:
+        assert drawn[2] == 0 and drawn[0] > 0
+    else:
+        assert all(n > 0 for n in drawn)
+    policy = OnnxPolicy(zero_action_onnx(robot, tmp_path / "still.onnx"), robot)
+    rt = Runtime(robot, policy, plant, injector=FaultInjector(faults, plant))
+    rt.start()
+    rt.run(int(round(20.0 / dt)))
+    assert rt.counters.safe_stops.tolist() == [0, 0, 0], rt.cause_names()
+
+
+def replace_envs(fault, e: int):
+    import dataclasses
+
+    return dataclasses.replace(fault, envs=(e,))

@@ -27,7 +27,11 @@ Each check counts a tick once per env when it changed the command of at least on
 (the guard counts per env and tick already; for the smoother, a tick on which any joint's counter
 rose); ``any`` counts the ticks on which at least one check did, ``safety`` those on which a
 check did that is not the policy's style (:attr:`InterventionMonitor.by_design`). Fractions are
-of the ticks observed, in every mode of the state machine (RAMP_IN and SAFE_STOP included).
+of the ticks observed, in every mode of the state machine (RAMP_IN and SAFE_STOP included), except
+a legged robot's ticks lying damped after a stop (``down``, :attr:`InterventionMonitor.down`):
+those are counted apart (``while_down`` of :meth:`InterventionMonitor.summary`), as the
+violation monitor counts them (a fallen robot's legs on their stops are not what the runtime did
+to a standing one's commands).
 """
 
 from __future__ import annotations
@@ -70,6 +74,13 @@ class InterventionMonitor(MonitorState):
             ranges were clamped by ``soft_limit`` and not judged; they pass now unless their
             predicted motion is unsafe, ``pd_barrier``, an intervention like any other.)
         ticks: int, ticks observed (calls of :meth:`update`).
+        down: None (every env up: an arm, hardware), or a live (envs,) bool array, the envs
+            lying damped after a stop this tick (the violation monitor's, which the rig fills
+            first each tick); set by the rig.
+        down_counts, down_any, down_safety, down_ticks: (envs,) int64 each (``down_counts`` per
+            check): the part of ``counts``, ``any``, ``safety`` on ticks the env was down, and
+            how many ticks it was (:meth:`count_down`). ``counts`` and the others hold every
+            tick; :meth:`summary` gives the standing ticks' and the lying ticks' apart.
 
     Per tick it compares the counters with their values after the last tick (three comparisons
     without allocation); which check rose in which env is worked out only on ticks where some
@@ -95,6 +106,11 @@ class InterventionMonitor(MonitorState):
         self.safety = np.zeros(envs, dtype=np.int64)
         self.by_design = ()
         self._tick_count = np.zeros(1, dtype=np.int64)
+        self.down: np.ndarray | None = None
+        self.down_counts = {c: np.zeros(envs, dtype=np.int64) for c in INTERVENTION_CHECKS}
+        self.down_any = np.zeros(envs, dtype=np.int64)
+        self.down_safety = np.zeros(envs, dtype=np.int64)
+        self.down_ticks = np.zeros(envs, dtype=np.int64)
         n = smoother.n_joints
         # the counters as they stood after the last tick
         self._prev_guard = np.zeros((len(self._guard_names), envs), dtype=np.int64)
@@ -129,6 +145,14 @@ class InterventionMonitor(MonitorState):
         self._tick_count[0] += 1
         if self._moved():  # some counter moved: which checks, which envs
             self.count_moved()
+        self.count_down()
+
+    def count_down(self) -> None:
+        """Count this tick's envs lying down (:attr:`down`) in :attr:`down_ticks`; nothing
+        without :attr:`down`. Once per tick, after :meth:`count_moved` (a compiled tick calls
+        it after its own comparison)."""
+        if self.down is not None:
+            self.down_ticks += self.down
 
     def kernel_arrays(self) -> dict[str, np.ndarray]:
         """The live arrays of :meth:`update`'s comparison, by name, for a compiled call that runs
@@ -153,11 +177,14 @@ class InterventionMonitor(MonitorState):
         """Per check: which envs' counters rose this tick, after :meth:`update`'s comparison (or
         a compiled call's over :meth:`kernel_arrays`) found that some did."""
         flags, rose, safety, counts = self._flags, self._rose, self._rose_safety, self.counts
+        down = self.down if self.down is not None and self.down.any() else None
         rose.fill(False)
         safety.fill(False)
         for i, name in enumerate(self._guard_names):
             np.greater(self._guard_rows[i], self._prev_guard[i], out=flags)
             counts[name] += flags
+            if down is not None:
+                self.down_counts[name] += flags & down
             rose |= flags
             if name not in self.by_design:
                 safety |= flags
@@ -166,11 +193,16 @@ class InterventionMonitor(MonitorState):
             np.greater(counter, self._prev_smoother[i], out=self._smoother_changed)
             np.any(self._smoother_changed, axis=1, out=flags)
             counts[name] += flags
+            if down is not None:
+                self.down_counts[name] += flags & down
             rose |= flags
             safety |= flags
             np.copyto(self._prev_smoother[i], counter)
         self.any += rose
         self.safety += safety
+        if down is not None:
+            self.down_any += rose & down
+            self.down_safety += safety & down
 
     # ------------------------------------------------------------------ reading
     def warnings(self) -> dict[str, np.ndarray]:
@@ -181,27 +213,48 @@ class InterventionMonitor(MonitorState):
         return {"soft_band_estimate": self._guard.counts["soft_limit"] - self._warning_base}
 
     def summary(self, env: int | None = None) -> dict:
-        """Counts and fractions of ticks, of env ``env`` or summed over every env.
+        """Counts and fractions of ticks, of env ``env`` or summed over every env: of the ticks
+        the robot was up, and apart of those it lay down (:attr:`down`).
 
         Returns:
             ``{"ticks", "checks": {check: {"count", "fraction"}}, "any": {"count", "fraction"},
             "safety": {"count", "fraction"}, "by_design": [check, ...],
-            "warnings": {name: {"count", "fraction"}}}``; fractions of ``ticks`` (per env:
-            ``ticks``; over envs: ``ticks * envs``), 0.0 before the first tick.
+            "warnings": {name: {"count", "fraction"}}, "while_down": {"ticks", "checks", "any",
+            "safety"}}``: ``ticks`` the ticks up (per env: ``ticks`` less its down ticks; over
+            envs: summed), the counts of those ticks and their fractions of ``ticks``, 0.0
+            before the first tick (``warnings``: of every tick, up or down); ``while_down`` the
+            same of the ticks down (all zeros without :attr:`down`).
         """
-        ticks = self.ticks if env is not None else self.ticks * self.envs
+        ticks_all = self.ticks if env is not None else self.ticks * self.envs
 
-        def entry(values: np.ndarray) -> dict:
-            n = int(values[env]) if env is not None else int(values.sum())
-            return {"count": n, "fraction": n / ticks if ticks else 0.0}
+        def total(values: np.ndarray) -> int:
+            return int(values[env]) if env is not None else int(values.sum())
+
+        down_ticks = total(self.down_ticks)
+
+        def entries(of_ticks: int, values: np.ndarray, down: np.ndarray | None) -> dict:
+            n = total(values) - (0 if down is None else total(down))
+            return {"count": n, "fraction": n / of_ticks if of_ticks else 0.0}
+
+        up = ticks_all - down_ticks
+
+        def lying(values: np.ndarray) -> dict:
+            n = total(values)
+            return {"count": n, "fraction": n / down_ticks if down_ticks else 0.0}
 
         return {
-            "ticks": ticks,
-            "checks": {c: entry(v) for c, v in self.counts.items()},
-            "any": entry(self.any),
-            "safety": entry(self.safety),
+            "ticks": up,
+            "checks": {c: entries(up, v, self.down_counts[c]) for c, v in self.counts.items()},
+            "any": entries(up, self.any, self.down_any),
+            "safety": entries(up, self.safety, self.down_safety),
             "by_design": list(self.by_design),
-            "warnings": {k: entry(v) for k, v in self.warnings().items()},
+            "warnings": {k: entries(ticks_all, v, None) for k, v in self.warnings().items()},
+            "while_down": {
+                "ticks": down_ticks,
+                "checks": {c: lying(v) for c, v in self.down_counts.items()},
+                "any": lying(self.down_any),
+                "safety": lying(self.down_safety),
+            },
         }
 
     # ------------------------------------------------------------------ checkpoints
@@ -214,6 +267,9 @@ class InterventionMonitor(MonitorState):
         out["any"] = self.any
         out["safety"] = self.safety
         out["warning_base"] = self._warning_base
+        out.update({f"down/{c}": v for c, v in self.down_counts.items()})
+        out["down_any"], out["down_safety"] = self.down_any, self.down_safety
+        out["down_ticks"] = self.down_ticks
         for i, name in enumerate(self._guard_names):
             out[f"prev/{name}"] = self._prev_guard[i]
         for i, (name, _) in enumerate(self._smoother):

@@ -211,6 +211,7 @@ class FusedAfterTick:
                 )  # fmt: skip
             if code & ak.INTERVENTIONS_MOVED:
                 rig.interventions.count_moved()
+            rig.interventions.count_down()  # every tick of a legged robot's (it comes here)
             truth = None
             if legged and rig.estimation is not None:
                 truth = self.backend.true_base_state()

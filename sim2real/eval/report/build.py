@@ -221,7 +221,9 @@ def build_report(
                         a tick counts once per type)
             interventions {ticks, checks {check: {count, fraction}}, any {count, fraction},
                         warnings {soft_band_estimate: {count, fraction}}, per_hour [{hour, start_s,
-                        end_s, ticks, counts {check: ticks}, any, warnings}]}
+                        end_s, ticks, counts {check: ticks}, any, warnings}], while_down {ticks,
+                        checks, any, safety}: a legged robot's ticks lying damped after a stop,
+                        apart; ticks, counts and fractions above are of the ticks up}
                         (checks: hard_limit, soft_limit, velocity, workspace, self_collision,
                         effort, stopping_distance, target_clamp; count = ticks on which the check
                         changed a command, fraction = count / ticks)
@@ -271,7 +273,8 @@ def build_report(
                         hard_limit_joints, while_down},
                         interventions {ticks,
                         checks {check: {count, fraction}}, any {count, fraction}, warnings,
-                        per_hour [{hour, ticks, counts, any, fraction}]}, goals {issued, reached,
+                        per_hour [{hour, ticks, counts, any, fraction}], while_down}, goals
+                        {issued, reached,
                         success_rate, min_window_success_rate, missed, missed_dropped} (arm
                         sessions), locomotion (legged sessions, else null) {sessions, falls,
                         falls_per_hour, tracking_success, min_window_success_rate, distance_m,

@@ -279,7 +279,8 @@ def _tables(report: dict) -> dict[str, dict]:
             "session",
             "falls",
             "falls/h",
-            "falls began (runtime stop, push, fault, policy)",
+            "falls began (runtime stop, push, fault; replays: policy, runtime, rare draw, "
+            "undecided)",
             "tracking success (within 0.2 m/s)",
             "lowest window tracking",
             "distance (m)",

@@ -2,6 +2,26 @@
 
 from __future__ import annotations
 
+#: What the replays showed for a fall with no push, fault or stop before it, by its origin
+#: (:func:`sim2real.eval.soak.falls.replay_origin`).
+REPLAY_MEANING = {
+    "policy": "the policy's own loop fell there in most of its replays",
+    "runtime": "the policy's own loop stood in most, the runtime with other sensor noise fell",
+    "rare_draw": "both stood in most of their replays (the session's draw of the noise)",
+    "undecided": "not replayed, or only in the own loop, which stood: the soak cannot tell",
+}
+
+
+def replay_lines(origins: dict[str, int]) -> list[str]:
+    """The summary's line on the falls with no push, fault or stop before them: what their
+    replays showed (:data:`REPLAY_MEANING`) by ``origins`` (``falls_by_origin``); none when
+    there were none."""
+    shown = [(o, n) for o, n in origins.items() if n and o in REPLAY_MEANING]
+    if not shown:
+        return []
+    said = "; ".join(f"{o.replace('_', ' ')} {n}: {REPLAY_MEANING[o]}" for o, n in shown)
+    return [f"  no push, fault or stop before: the replays say {said}"]
+
 
 def summary_text(report: dict) -> str:
     """A few lines for the console."""
@@ -39,6 +59,7 @@ def summary_text(report: dict) -> str:
             by = ", ".join(f"{o.replace('_', ' ')} {n}" for o, n in origins.items() if n)
             causes = ", ".join(f"{c} {n}" for c, n in loco.get("falls_by_cause", {}).items())
             lines.append(f"  falls began  {by} (stops by cause: {causes or 'none'})")
+            lines += replay_lines(origins)
             falling = loco.get("stops_while_falling", 0)
             if falling:
                 lines.append(
@@ -109,8 +130,10 @@ def summary_text(report: dict) -> str:
         f"{k} {100 * c['fraction']:.3f}" for k, c in iv["checks"].items() if c["count"]
     )
     by_design = [k for k in iv.get("by_design", []) if iv["checks"].get(k, {}).get("count")]
+    down = iv.get("while_down") or {}
     lines.append(
         f"  interventions {100 * iv['any']['fraction']:.3f} % of ticks"
+        + (" up" if down.get("ticks") else "")
         + (f" ({used})" if used else "")
         + (
             f"; judged {100 * iv['safety']['fraction']:.3f} % (not {', '.join(by_design)}: "
@@ -119,6 +142,15 @@ def summary_text(report: dict) -> str:
             else ""
         )
     )
+    if down.get("ticks"):
+        lying = ", ".join(
+            f"{k} {100 * c['fraction']:.3f}" for k, c in down["checks"].items() if c["count"]
+        )
+        lines.append(
+            f"  while down   (lying damped after a stop, not counted above) interventions "
+            f"{100 * down['any']['fraction']:.3f} % of {down['ticks']} ticks"
+            + (f" ({lying})" if lying else "")
+        )
     f = t["faults"]
     resp = ", ".join(f"{k} {n}" for k, n in f["responses"].items() if n)
     lines.append(

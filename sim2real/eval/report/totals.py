@@ -59,6 +59,26 @@ def _pair_ticks(results: list[dict], key: str = "self_collision_pairs") -> dict[
     return dict(sorted(pairs.items(), key=lambda kv: -kv[1]))
 
 
+def _interventions_down(results: list[dict]) -> dict:
+    """The interventions of legged robots' ticks lying damped after a stop, over the sessions
+    (``interventions.while_down``: ``ticks``, ``checks``, ``any``, ``safety``, counts and
+    fractions of those ticks; absent in a report written before it: zeros)."""
+    downs = [r["interventions"].get("while_down") for r in results]
+    ticks = sum(d["ticks"] for d in downs if d)
+    checks = list(results[0]["interventions"]["checks"]) if results else []
+
+    def entry(get) -> dict:
+        n = sum(get(d)["count"] for d in downs if d)
+        return {"count": n, "fraction": n / ticks if ticks else 0.0}
+
+    return {
+        "ticks": ticks,
+        "checks": {k: entry(lambda d, k=k: d["checks"][k]) for k in checks},
+        "any": entry(lambda d: d["any"]),
+        "safety": entry(lambda d: d["safety"]),
+    }
+
+
 def _while_down(results: list[dict]) -> dict[str, int]:
     """Violation ticks per type (and ``any``) of legged robots lying damped after a stop, over
     the sessions (``violations.while_down``; absent in a report written before it: zeros)."""
@@ -140,6 +160,7 @@ def totals(results: list[dict]) -> dict:
                 for k in warnings
             },
             "per_hour": _sum_rows(results, "interventions", checks),
+            "while_down": _interventions_down(results),
         },
         "goals": {
             "issued": issued,

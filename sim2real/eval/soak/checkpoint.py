@@ -63,7 +63,10 @@ FORMAT = "soak-checkpoint"
 #: version 10 checkpoint has none.
 #: 12: the policy's observation: its gait clocks and frame history (``observation/...``); a
 #: version 11 checkpoint has neither, and a resume from it started them again.
-VERSION = 12
+#: 13: the interventions of a legged robot's ticks lying down after a stop, apart
+#: (``interventions/down/...``, ``down_any``, ``down_safety``, ``down_ticks``), and the domain
+#: pushes' RUNNING at the last tick (``push_force.running``); a version 12 checkpoint has neither.
+VERSION = 13
 MANIFEST = "checkpoint.json"
 
 

@@ -24,7 +24,10 @@ Each holds ``from_s`` and ``fall_s`` (s, or null: stood), one entry per replay. 
 chaotic and a push's outcome turns on the gait's phase and the noise, so one run says little;
 the shares say whether the fall was near certain from there, with or without the runtime. The
 captured states are the ones our runtime brought the robot to, and the own loop reads the truth,
-which no deployment can. It does not judge. Only a session's first ``MAX_FALLS`` falls replay;
+which no deployment can. It does not judge. A replay starts only from a capture of the env's
+present stretch of RUNNING (after its last stop, lying down and stand-up): a fall soon after a
+stand-up replays from fewer starts, never from before the previous fall. Only a session's first
+``MAX_FALLS`` falls replay;
 the captures are not checkpointed, so a fall soon after a resume replays from fewer of them.
 """
 
@@ -77,10 +80,14 @@ class FallReplay:
         self.captures: list[deque] = [deque(maxlen=KEPT) for _ in batch.sessions]
         self.replayed = [0] * len(batch.sessions)
         self.replays = 0
+        #: (envs,) int64, each env's last tick not RUNNING (-1: none yet): a stop, the lying
+        #: down, the stand-up and its RAMP_IN. A replay starts only from a capture after it.
+        self.stopped_at = np.full(len(batch.sessions), -1, dtype=np.int64)
 
     def __call__(self, rt) -> None:
-        """Replay this tick's new falls of the fall check in the policy's own loop, then capture
-        the RUNNING envs when a capture is due."""
+        """Replay this tick's new falls of the fall check in the policy's own loop, note the
+        envs not RUNNING (``stopped_at``), then capture the RUNNING envs when a capture is
+        due."""
         from sim2real.deploy.core.modes import RUNNING
 
         for e, log in enumerate(self.tracker.fall_log):
@@ -89,8 +96,11 @@ class FallReplay:
                     self.replayed[e] += 1
                     self._replay_fall(e, record)
             self.seen[e] = len(log)
+        stopped = rt.mode != RUNNING
+        if stopped.any():
+            self.stopped_at[stopped] = rt.ticks
         if rt.ticks % self.every == 0:
-            for e in np.flatnonzero(rt.mode == RUNNING):
+            for e in np.flatnonzero(~stopped):
                 arrays, meta = self.batch.sessions[e].capture()
                 self.captures[e].append((arrays, copy.deepcopy(meta)))
 
@@ -113,11 +123,13 @@ class FallReplay:
 
     def _starts(self, e: int, t_stop: float, leads) -> list:
         """For each of ``leads`` (s), the newest capture of env ``e`` at least that long before
-        ``t_stop`` (s), each capture once, oldest first; fewer where none is kept."""
+        ``t_stop`` (s) and after the env's last tick not RUNNING before it (``stopped_at``: never
+        from before a previous fall or stand-up), each capture once, oldest first; fewer where
+        none is kept."""
         starts = []
         for lead in sorted(leads, reverse=True):
             latest = int(np.floor((t_stop - lead) / self.batch.dt + 1e-9))
-            kept = [c for c in self.captures[e] if c[1]["tick"] <= latest]
+            kept = [c for c in self.captures[e] if self.stopped_at[e] < c[1]["tick"] <= latest]
             if kept and not any(kept[-1] is s for s in starts):
                 starts.append(kept[-1])
         return starts

@@ -12,8 +12,19 @@ whose estimate was past its limit and by how much). Its origin:
   of the training domain's, :mod:`sim2real.eval.world.pushes`, or a ``push`` or ``cable`` fault).
 - ``fault``: the fall detector's stop within ``ATTRIBUTION_WINDOW`` s of another injected fault
   (dropout, stale frames, latency, non-finite actions), named (``during``).
-- ``policy``: the fall detector's stop with no stop, push or fault before it: the policy lost
-  its balance in the session's world (its dynamics, floor, sensors).
+- With no stop, push or fault before the fall detector's stop, the fall's replays
+  (:mod:`sim2real.eval.soak.fall_replay`) decide (:func:`replay_origin`):
+
+  - ``policy``: the policy's own loop (true state, no runtime) fell in at least
+    ``REPLAY_SHARE`` of its replays: the policy falls there without the runtime.
+  - ``runtime``: the own loop stood in most, and the runtime run again with other sensor-noise
+    draws fell in at least ``REPLAY_SHARE`` of them: the runtime, whatever its noise, takes the
+    robot down where the policy alone stands.
+  - ``rare_draw``: both stood in most of their replays: the session's own draw of the sensor
+    noise took it down.
+  - ``undecided``: the replays cannot tell: none ran (a fall past ``fall_replay.MAX_FALLS``,
+    or within ``min(fall_replay.LEAD)`` s of a stand-up or a resume), or the own loop stood
+    and the runtime's were not run. The report says so; it does not guess.
 
 A hard-limit stop that the soak replayed without the stop (:mod:`sim2real.eval.soak.counterfactual`)
 carries ``would_fall``. True: the replay fell all the same (its fall detector fired within
@@ -28,7 +39,10 @@ from __future__ import annotations
 #: longer than a walking robot's recovery steps after a shove (a few strides of 0.3-0.4 s).
 ATTRIBUTION_WINDOW = 2.0
 #: The origins, in the order the report lists them.
-ORIGINS = ("runtime_stop", "push", "fault", "policy")
+ORIGINS = ("runtime_stop", "push", "fault", "policy", "runtime", "rare_draw", "undecided")
+#: The share of a fall's replays that must fall for :func:`replay_origin` to name the policy
+#: (own loop) or the runtime (other noise draws). Our choice: most of them (3 of 5).
+REPLAY_SHARE = 0.5
 PUSH_KINDS = ("push", "cable")
 #: A fall stop is false when the truth at the stop says upright (:func:`false_fall_stops`): its
 #: base tilted less than this share of the fall check's tilt limit (our choice: 0.3, 17 deg of
@@ -73,9 +87,28 @@ def attribute_falls(
         elif recent:
             origin = "fault"
         else:
-            origin = "policy"
+            origin = replay_origin(fall)
         out.append({**fall, "origin": origin, "during": during, "stopped_while_falling": falling})
     return out
+
+
+def replay_origin(fall: dict) -> str:
+    """The origin of a fall with no stop, push or fault before it, from its replays (module
+    docstring): ``policy``, ``runtime``, ``rare_draw`` or ``undecided``. ``fall``: a tracker's
+    record with the optional ``own_loop`` and ``redraw`` of
+    :class:`~sim2real.eval.soak.fall_replay.FallReplay` (``fall_s``: s, or None where the
+    replay stood)."""
+
+    def share(kind: str) -> float | None:
+        ends = (fall.get(kind) or {}).get("fall_s") or []
+        return sum(t is not None for t in ends) / len(ends) if ends else None
+
+    own, redraw = share("own_loop"), share("redraw")
+    if own is not None and own >= REPLAY_SHARE:
+        return "policy"
+    if own is None or redraw is None:
+        return "undecided"
+    return "runtime" if redraw >= REPLAY_SHARE else "rare_draw"
 
 
 def falls_by_origin(falls: list[dict]) -> dict[str, int]:

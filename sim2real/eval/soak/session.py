@@ -230,14 +230,15 @@ class Session:
 
     # ------------------------------------------------------------------ counters
     def counters(self) -> dict:
-        """The session's cumulative counters: ``ticks``, ``violations`` {type: ticks, "any"}
-        (true state), ``interventions`` {check: ticks, "any"}, ``warnings`` {name: ticks}."""
+        """The session's cumulative counters: ``ticks`` (the robot up: a legged robot's ticks
+        lying down after a stop left out), ``violations`` {type: ticks, "any"} (true state),
+        ``interventions`` {check: ticks, "any"} (of the ticks up), ``warnings`` {name: ticks}."""
         b, e = self.batch, self.e
         iv = b.interventions
-        interventions = {c: int(v[e]) for c, v in iv.counts.items()}
-        interventions["any"] = int(iv.any[e])
+        interventions = {c: int(v[e] - iv.down_counts[c][e]) for c, v in iv.counts.items()}
+        interventions["any"] = int(iv.any[e] - iv.down_any[e])
         return {
-            "ticks": iv.ticks,
+            "ticks": iv.ticks - int(iv.down_ticks[e]),
             "violations": b.violations.env_counts(e),
             "interventions": interventions,
             "warnings": {k: int(v[e]) for k, v in iv.warnings().items()},
@@ -368,6 +369,7 @@ class Session:
                         "wrench": b.pushes.wrench[e].tolist(),
                         "until": int(b.pushes.until[e]),
                         "last_tick": int(b.pushes.last_tick[e]),
+                        "running": bool(b.pushes.running[e]),
                         "response": b.push_response.state_dict(e),
                     }
                     if b.pushes is not None
@@ -446,4 +448,6 @@ class Session:
                 b.pushes.wrench[e] = force["wrench"]
                 b.pushes.until[e] = force["until"]
                 b.pushes.last_tick[e] = force["last_tick"]
+                # before the wait restarted at a reset: taken as RUNNING (DomainPushes.running)
+                b.pushes.running[e] = bool(force.get("running", True))
                 b.push_response.load_state_dict(force["response"], e)

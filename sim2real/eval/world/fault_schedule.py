@@ -47,7 +47,8 @@ class FaultRanges:
         nan_ticks: Consecutive non-finite actions, control ticks (inclusive; below
             ``sim2real.deploy.runtime.NAN_ACTION_LIMIT`` = 10 the runtime holds, at it it stops).
         latency_ticks: Extra encoder latency of a spike, as a fraction of the largest spike that
-            stays within the stale limit (rounded, at least 1 tick).
+            stays within the stale limit (:func:`gap_ticks`; rounded, at least 1 tick; a session
+            where no tick fits draws no spike).
         latency_duration: Duration of a latency spike, s.
         push_force: Force of a push on the end effector (on the base of a floating-base robot),
             N (along +X; ``PUSH_FORCE`` is 20).
@@ -120,14 +121,27 @@ class FaultRanges:
 
 #: s after a fault ends at which the soak harness judges the runtime's response.
 FAULT_SETTLE = 2.0
+#: The fault kinds that leave the estimator without a fresh reading for a while, sized against
+#: :func:`gap_ticks`; a session in which no whole tick fits draws none of them.
+SENSOR_GAP_KINDS = ("dropout", "stale", "latency")
+
+
+def gap_ticks(robot: Robot, latency_ticks: int) -> int:
+    """The longest gap in fresh encoder readings, whole control ticks, that the runtime bridges
+    without a safe stop with a sensor latency of ``latency_ticks``: the largest ``k`` with
+    ``(latency_ticks + k + 1) * control_period`` strictly below ``safety.stale_limit`` (one period
+    for the reading in flight). The runtime stops when the newest absorbed reading is older than
+    the limit (``JointStateEstimator.time_since_fresh``); in the plant a gap of ``k`` ticks ages
+    it to ``(latency_ticks + k) * control_period``. 0 or less: no gap fits (a 50 Hz robot with
+    2 ticks of latency and the default 0.05 s limit), and the session draws no sensor fault."""
+    ratio = robot.config.safety.stale_limit / robot.control_period
+    return int(np.ceil(ratio - 1e-9)) - 2 - int(latency_ticks)
 
 
 def stale_budget(robot: Robot, latency_ticks: int) -> float:
     """Longest gap in fresh encoder readings (s) the runtime bridges without a safe stop, with a
-    sensor latency of ``latency_ticks``: ``stale_limit - (latency_ticks + 2) * control_period``
-    (one period for the reading in flight, one of margin), at least one control period."""
-    dt = robot.control_period
-    return max(robot.config.safety.stale_limit - (latency_ticks + 2) * dt, dt)
+    sensor latency of ``latency_ticks``: :func:`gap_ticks` control periods (0 when none fits)."""
+    return max(gap_ticks(robot, latency_ticks), 0) * robot.control_period
 
 
 def fault_ranges(robot, mean_interval: float | None = None) -> FaultRanges:
@@ -242,7 +256,13 @@ def sample_fault_schedule(
     against the session's own encoder latency (``sensors``), cable pulls against the drives'
     reserve (:func:`cable_budget`) in the session's plant ``model`` (default: the nominal one).
     A floating-base robot gets no cable pulls (``cable`` is left out of its kinds, and its weight
-    with it): it has no end effector to pull on, and the cable budget is an arm's.
+    with it): it has no end effector to pull on, and the cable budget is an arm's. A session whose
+    latency leaves no whole tick of gap within the stale limit (:func:`gap_ticks` < 1) gets no
+    dropout, stale or latency fault (:data:`SENSOR_GAP_KINDS`, left out the same way): the
+    shortest of them would stop the robot whatever the runtime did.
+
+    Raises:
+        ValueError: the kinds left after those leave none to draw.
 
     Returns:
         list of :class:`sim2real.deploy.backends.sim.faults.Fault` (``envs`` None: every env of the injector
@@ -253,10 +273,19 @@ def sample_fault_schedule(
     ranges = FaultRanges() if ranges is None else ranges
     dt = robot.control_period
     budget = stale_budget(robot, sensors.latency_ticks)
-    stale_ticks = int(np.floor(robot.config.safety.stale_limit / dt + 1e-9))
-    max_spike = max(stale_ticks - sensors.latency_ticks - 2, 1)
+    max_spike = gap_ticks(robot, sensors.latency_ticks)
     kinds = ranges.kinds
     weights = np.ones(len(kinds)) if ranges.weights is None else np.array(ranges.weights)
+    if max_spike < 1 and any(k in SENSOR_GAP_KINDS for k in kinds):
+        keep = [i for i, k in enumerate(kinds) if k not in SENSOR_GAP_KINDS]
+        kinds, weights = tuple(kinds[i] for i in keep), weights[keep]
+        if not kinds or weights.sum() <= 0:
+            raise ValueError(
+                f"robot {robot.name}: no sensor gap fits its stale limit "
+                f"({robot.config.safety.stale_limit} s at {1 / dt:g} Hz with "
+                f"{sensors.latency_ticks} ticks of latency); the fault kinds {ranges.kinds} "
+                "leave none to draw"
+            )
     if not robot_kind(robot).cable_faults and "cable" in kinds:
         keep = [i for i, k in enumerate(kinds) if k != "cable"]
         kinds, weights = tuple(kinds[i] for i in keep), weights[keep]
@@ -281,7 +310,8 @@ def sample_fault_schedule(
         elif kind == "nan-action":
             length = dt * int(rng.integers(ranges.nan_ticks[0], ranges.nan_ticks[1] + 1))
         elif kind == "latency":
-            magnitude = float(max(1, round(max_spike * float(rng.uniform(*ranges.latency_ticks)))))
+            fraction = float(rng.uniform(*ranges.latency_ticks))
+            magnitude = float(max(1, round(max_spike * fraction)))
             length = float(rng.uniform(*ranges.latency_duration))
         elif kind == "push":
             magnitude = float(rng.uniform(*ranges.push_force))

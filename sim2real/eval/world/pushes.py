@@ -9,6 +9,19 @@ forces). Two conventions, both as their stacks write them:
   from ``interval_range_s`` (1-3 s), U(range) is ADDED to the root's world velocity per axis:
   ``x``, ``y``, ``z`` (m/s) and ``roll``, ``pitch``, ``yaw`` (rad/s, world frame).
 
+When: legged_gym's pushes keep its global schedule (``common_step_counter % push_interval`` in
+``post_physics_step``: every env at once, whatever its episode's age; an env reset at one step
+may be pushed at the next), so the soak pushes at ticks ``k * interval`` whatever the robot did.
+Pushes at random intervals count per env from its reset: Isaac Lab's ``EventManager.reset``
+draws a new ``interval_range_s`` wait for each ``interval`` term with ``is_global_time=False``
+(its default, with ``resample_interval_on_reset=True``), and holosoma's
+``randomize_push_schedule`` zeroes the env's push counter at reset. The soak's reset is the
+robot's return to RUNNING (the session's first, and each after a stop and stand-up): there the
+env's wait is drawn again, so no push lands sooner than ``interval_range[0]`` after it. (mjlab's
+``EventManager.reset`` draws anew only the waits of class-based terms; its function
+``push_by_setting_velocity`` keeps its wait across a reset. The soak does not tell the two
+apart: an mjlab domain's pushes wait after a stand-up too.)
+
 How a push acts (``apply``): as a force (the default, ``"force"``): the wrench that gives the
 robot the training push's velocity change over ``window`` s (default :data:`PUSH_WINDOW`;
 :meth:`~sim2real.deploy.backends.sim.disturbances.SimDisturbances.push_wrench`), spread over its
@@ -211,6 +224,8 @@ class DomainPushes:
             (:class:`sim2real.eval.soak.faults.SessionFaults`' ``base_forces``).
         until: (envs,) int64, the tick at which each env's push force ends (0: none).
         last_tick: (envs,) int64, the tick of each env's last push (-1: none yet).
+        running: (envs,) bool, each env RUNNING at the previous call (random intervals: the
+            wait is drawn again where an env enters RUNNING, module docstring).
     """
 
     def __init__(self, seeds: list[int], ranges: PushRanges, control_period: float):
@@ -227,6 +242,7 @@ class DomainPushes:
         self.wrench = np.zeros((envs, 6))
         self.until = np.zeros(envs, dtype=np.int64)
         self.last_tick = np.full(envs, -1, dtype=np.int64)
+        self.running = np.zeros(envs, dtype=bool)
 
     def _push(self, rt, backend, e: int, twist: np.ndarray, add: bool) -> None:
         """Push env ``e`` by ``twist`` (:meth:`SimDisturbances.push_base
@@ -258,7 +274,8 @@ class DomainPushes:
 
     def __call__(self, rt, backend) -> None:
         """Push every env whose robot is RUNNING when its push is due; end the push forces
-        whose window is over."""
+        whose window is over. Random intervals: an env entering RUNNING (its reset) waits a new
+        interval from there (module docstring)."""
         from sim2real.deploy.core.modes import RUNNING
 
         if self.until.any():
@@ -272,6 +289,10 @@ class DomainPushes:
                     v = push_velocity(seed, index, self._axes[0, 1])
                     self._push(rt, backend, e, np.array([*v, 0.0, 0.0, 0.0, 0.0]), False)
             return
+        running = rt.mode == RUNNING
+        for e in np.flatnonzero(running & ~self.running):  # reset: the wait starts again
+            self.next_tick[e] = self._due(self.seeds[e], int(self.index[e]), rt.ticks)
+        self.running[:] = running
         for e in np.flatnonzero(self.next_tick <= rt.ticks):
             seed, k = self.seeds[e], int(self.index[e])
             if rt.mode[e] == RUNNING:
@@ -282,8 +303,8 @@ class DomainPushes:
 
     def state_dict(self, env: int | None = None) -> dict:
         """``times`` (JSON lists), ``index`` and ``next_tick`` (int64), ``wrench`` (N, N m),
-        ``until`` and ``last_tick`` (int64) of env ``env`` (every env's without ``env``; the
-        force itself is in the plant's state, MuJoCo's ``xfrc_applied``)."""
+        ``until`` and ``last_tick`` (int64), ``running`` (bool) of env ``env`` (every env's
+        without ``env``; the force itself is in the plant's state, MuJoCo's ``xfrc_applied``)."""
         rows = list(range(len(self.seeds))) if env is None else [env]
         return {
             "times": [list(self.times[e]) for e in rows],
@@ -292,12 +313,15 @@ class DomainPushes:
             "wrench": self.wrench[rows].copy(),
             "until": self.until[rows].copy(),
             "last_tick": self.last_tick[rows].copy(),
+            "running": self.running[rows].copy(),
         }
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
         """Inverse of :meth:`state_dict` (a state without ``index``, from a checkpoint of
         legged_gym's pushes, keeps the schedule: it is the tick's; one without ``wrench`` has
-        no push in force)."""
+        no push in force; one without ``running``, from before the wait restarted at a
+        reset, has every env taken as RUNNING: a stopped one restarts its wait at its next
+        RUNNING)."""
         rows = list(range(len(self.seeds))) if env is None else [env]
         times = [list(map(float, t)) for t in state["times"]]
         for r, e in enumerate(rows):
@@ -309,3 +333,4 @@ class DomainPushes:
             self.wrench[rows] = np.asarray(state["wrench"], dtype=float)
             self.until[rows] = np.asarray(state["until"], dtype=np.int64)
             self.last_tick[rows] = np.asarray(state["last_tick"], dtype=np.int64)
+        self.running[rows] = np.asarray(state.get("running", [True] * len(rows)), dtype=bool)

@@ -608,3 +608,32 @@ def test_robot_labs_go2w_domain_loads_on_the_go2w_and_refuses_a_robot_without_it
     assert ranges.commands.vx == ranges.commands.vy == ranges.commands.yaw_rate == (-1.0, 1.0)
     with pytest.raises(RangesError, match="'base_link' is no body of robot go2"):
         load_ranges(path, go2)
+
+
+def test_robot_labs_command_period_is_read_not_the_soaks_default(tmp_path):
+    """robot_lab's velocity task draws a new command every 10 s (CommandsCfg.base_velocity
+    ``resampling_time_range=(10.0, 10.0)``, fan-ziqi/robot_lab velocity_env_cfg.py): the shipped
+    ranges file says so and the soak's schedule takes it from there (before: no ``period``, so
+    soak-test's 4-s default); the env.yaml reader turns the same command term into the same
+    period."""
+    from sim2real.eval.world.command_schedule import command_schedule
+    from sim2real.eval.world.env_yaml_domain import env_yaml_domain
+    from sim2real.robots import load_robot
+
+    path = MJLAB_RANGES.parent / "robot_lab_go2w_velocity_ranges.toml"
+    ranges = load_ranges(path, load_robot("go2w"))
+    assert ranges.commands.period == (10.0, 10.0)
+    given = {"vx": 0, "vy": 0, "yaw_rate": 0, "zero_fraction": 0, "period": 0}
+    commands, account = command_schedule(ranges.commands, given, path.name, (None, None), None)
+    assert commands.period == (10.0, 10.0) and account["period_s"] == 10.0
+    assert account["sources"]["period"] == f"{path.name} [commands] period"
+
+    env = tmp_path / "env.yaml"  # the command term as Isaac Lab dumps robot_lab's CommandsCfg
+    env.write_text(
+        "events: {}\ncommands:\n  base_velocity:\n    resampling_time_range: [10.0, 10.0]\n"
+        "    rel_standing_envs: 0.02\n    ranges:\n      lin_vel_x: [-1.0, 1.0]\n"
+        "      lin_vel_y: [-1.0, 1.0]\n      ang_vel_z: [-1.0, 1.0]\n"
+    )
+    read = load_ranges_text(env_yaml_domain(env), "env.yaml", load_robot("go2w"))
+    assert read.commands.period == ranges.commands.period
+    assert read.commands.zero_fraction == ranges.commands.zero_fraction

@@ -390,3 +390,43 @@ def test_state_output_that_ignores_the_batch_axis_exits_3(arm3, tmp_path, capsys
     err = capsys.readouterr().err
     assert code == 3 and str(path) in err
     assert "state output 'h_out' has shape [1, 1, 8], its input 'h_in' [1, 2, 8]" in err
+
+
+def test_inspect_shows_the_specs_frame_history(arm3, tmp_path, capsys):
+    """An ONNX file whose embedded spec reads 4 ticks per term (first-frame fill), the last
+    block 2 ticks: ``--inspect`` prints the history's length, order, layout, fill, the ticks per
+    block and the stacked input size (before: the summary named the blocks' one-frame sizes
+    and nothing of the history); a spec without history says so."""
+    import dataclasses
+
+    import onnx
+
+    from sim2real.deploy.spec.history import ObservationHistory
+
+    spec = helpers.make_spec(arm3)
+    sizes = [b.size for b in spec.observation_blocks]
+    ticks = (4,) * (len(sizes) - 1) + (2,)
+    history = ObservationHistory(4, layout="per_term", fill="first", lengths=ticks)
+    spec = dataclasses.replace(spec, history=history)
+    n = sum(s * t for s, t in zip(sizes, ticks, strict=True))
+    weight = np.zeros((n, arm3.n_joints))
+    path = tmp_path / "stacked.onnx"
+    model = helpers.linear_onnx(
+        weight, np.zeros(arm3.n_joints), metadata={"policy_spec": spec.to_json()}
+    )
+    onnx.save(model, str(path))
+    assert export_main(["--inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    expected = (
+        f"history: 4 ticks, oldest_first, per_term, fill first, ticks per block {list(ticks)} "
+        f"(frame {sum(sizes)} entries, input {n})"
+    )
+    assert "policy spec (valid)" in out and expected in out, out
+    plain = helpers.make_spec(arm3)
+    onnx.save(
+        helpers.linear_onnx(np.zeros((sum(sizes), arm3.n_joints)), np.zeros(arm3.n_joints),
+                            metadata={"policy_spec": plain.to_json()}),
+        str(path),
+    )  # fmt: skip
+    assert export_main(["--inspect", str(path)]) == 0
+    assert f"history: none (one frame a tick: {sum(sizes)} entries)" in capsys.readouterr().out

@@ -141,3 +141,57 @@ def test_hull_links_collide_as_hulls_on_either_engine(wedges, tmp_path, engine):
         reached[turn] = plant.true_position()[0, 1]
     assert reached[-0.2] < -0.15  # free (the servo sags under gravity)
     assert reached[0.2] < 0.1  # blocked by the other wedge (touching at about 0.05 rad)
+
+
+def test_reimporting_an_imported_mjcf_keeps_its_hulls(tmp_path, capsys):
+    """The repository's own go2w.xml (a robot-import output: its hulls already inline meshes
+    named ``<body>_<k>_hull``, its floor, light, free joint and sites) imports again: exit 0,
+    one-line notes, the same hull names (before: ``ValueError: repeated name
+    'FL_wheel_link_0_hull' in mesh``, a traceback, exit 1)."""
+    from sim2real.deploy.cli.robot_import import main
+    from sim2real.robots.loading import ROBOTS_DIR
+
+    source = ROBOTS_DIR / "go2w" / "go2w.xml"
+    out = tmp_path / "go2w"
+    assert main([str(source), "--out", str(out), "--floating-base", "--motor", "*=go_m8010_6"]) == 0
+    assert "Traceback" not in capsys.readouterr().err
+
+    def names(path: Path) -> list[str]:
+        return sorted(m.split('"')[0] for m in path.read_text().split('<mesh name="')[1:])
+
+    assert names(out / "go2w.xml") == names(source)
+    robot = load_robot(out)
+    assert robot.mj_model.nmesh == 8
+
+
+CLASH = """<mujoco model="clash">
+  <asset>
+    <mesh name="a_0_hull" vertex="0 0 0  0.1 0 0  0 0.1 0  0 0 0.1"/>
+    <mesh name="a_1_hull" vertex="0 0 0.2  0.1 0 0.2  0 0.1 0.2  0 0 0.3"/>
+  </asset>
+  <worldbody>
+    <body name="base">
+      <geom type="cylinder" size="0.02 0.01" pos="0 0 -0.3"/>
+      <body name="a">
+        <joint name="j1" axis="0 0 1" range="-1 1"/>
+        <inertial pos="0 0 0" mass="0.5" diaginertia="0.001 0.001 0.001"/>
+        <geom name="g0" type="mesh" mesh="a_1_hull"/>
+        <geom name="g1" type="mesh" mesh="a_0_hull"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_hull_names_taken_by_another_geoms_mesh_get_a_free_name(tmp_path):
+    """Body a's geom 0 uses the inline mesh named as geom 1's hull would be, and the reverse:
+    each hull takes a free name and keeps its own geom's shape (before: a repeated-name
+    traceback)."""
+    source = tmp_path / "clash.xml"
+    source.write_text(CLASH)
+    model = _import(source, tmp_path / "out").mj_model
+    assert model.nmesh == 2
+    # the importer names a body's geoms <body>_<k>: g0 is a_0, g1 is a_1
+    top = {n: model.geom_pos[model.geom(n).id][2] for n in ("a_0", "a_1")}
+    assert top["a_0"] > top["a_1"] + 0.1  # a_0 (g0) kept the upper tetrahedron

@@ -18,6 +18,7 @@ built from reading theirs; none of their text is copied):
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import mujoco
@@ -372,3 +373,67 @@ def test_drive_from_a_holosoma_export_without_experiment_config(tmp_path, capsys
     with pytest.raises(PolicyLoadError, match="observation terms are not recorded") as info:
         OnnxPolicy(policy, robot)
     assert "default pose" in str(info.value) and "--spec" in str(info.value)
+
+
+def test_robot_toml_credits_only_the_sources_that_gave_a_value(tmp_path):
+    """A ``<position>`` servo without ``kv`` (nor ``dampratio``) gives kd 0: robot.toml writes
+    ``kd = 0.0`` (before: ``kd = -0.0``, MuJoCo's bias ``-kv`` negated); the control rate and the
+    physics timestep no flag gave are credited to their real sources, not to ``--control-rate``
+    and ``--physics-timestep`` (before: both flags credited though not given)."""
+    source = write_playground(tmp_path)
+    source.write_text(source.read_text().replace(' dampratio="1"', ""))
+    out = tmp_path / "robots" / "g1"
+    assert main([str(source), "--out", str(out), "--floating-base", *MOTOR_FLAGS]) == 0
+    toml = (out / "robot.toml").read_text()
+    assert not re.search(r"= -0\.0\b|\[-0\.0\b|, -0\.0\b", toml)
+    assert "kd = 0.0  # N m s/rad, MJCF <position name='left_knee_joint'> kv" in toml
+    assert [j.kd for j in load_robot(out).config.joints] == [0.0] * 8
+    assert "--control-rate)" not in toml and "--physics-timestep)" not in toml
+    assert "# Hz (robot-import's default; --control-rate sets it)" in toml
+    given = tmp_path / "robots" / "given"
+    flags = ["--control-rate", "50", "--physics-timestep", "0.004"]
+    assert main([str(source), "--out", str(given), "--floating-base", *MOTOR_FLAGS, *flags]) == 0
+    toml = (given / "robot.toml").read_text()
+    assert "# Hz (robot-import --control-rate)" in toml
+    assert "# s (robot-import --physics-timestep)" in toml
+
+
+def test_robot_toml_says_the_files_contact_bits_decide_what_the_plant_collides(tmp_path):
+    """Cassie's legs: contype 2 / conaffinity 4 on the left, 4 / 2 on the right, so a left link
+    never touches another left link in MuJoCo. robot.toml's comment on ``collision_pairs`` says
+    the plant collides them only where the bits let them and counts the pairs kept apart, as
+    MuJoCo's own filter finds them (before: 'the plant checks contact only between these (and
+    the floor)', whatever the bits)."""
+    source = write_cassie(tmp_path)
+    out = tmp_path / "robots" / "cassie"
+    assert main([str(source), "--out", str(out), "--floating-base", *CASSIE_MOTORS]) == 0
+    robot = load_robot(out)
+    model = robot.mj_model
+    ct, ca = model.geom_contype, model.geom_conaffinity
+    apart = [
+        (a, b)
+        for a, b in robot.config.safety.collision_pairs
+        if not (
+            ct[model.geom(a).id] & ca[model.geom(b).id]
+            or ct[model.geom(b).id] & ca[model.geom(a).id]
+        )
+    ]
+    assert apart  # the left leg's own links: 2 & 4 = 0
+    toml = (out / "robot.toml").read_text()
+    assert "checks contact only between" not in toml
+    assert "contype/conaffinity bits" in toml
+    assert f" {len(apart)} of these pairs never touch there" in toml
+
+
+def test_the_dropped_actuators_note_claims_position_gains_only_when_read(tmp_path, capsys):
+    """The test humanoid drives its joints with ``<motor>`` (torque) actuators: the import's
+    note on the dropped actuators says no gains were read (before: '<position> gains read'
+    for torque actuators); with Playground's ``<position>`` servos it says how many were."""
+    source = write_humanoid(tmp_path / "motor")
+    assert main([str(source), "--out", str(tmp_path / "a"), "--floating-base", *MOTOR_FLAGS]) == 0
+    (line,) = [x for x in capsys.readouterr().out.splitlines() if " actuators " in x]
+    assert "<position> gains read" not in line and "no <position> servo among them" in line
+    source = write_playground(tmp_path / "servo")
+    assert main([str(source), "--out", str(tmp_path / "b"), "--floating-base", *MOTOR_FLAGS]) == 0
+    (line,) = [x for x in capsys.readouterr().out.splitlines() if " actuators " in x]
+    assert "the gains of its 8 <position> servos read" in line

@@ -214,3 +214,22 @@ def test_the_training_recipe_draws_from_the_ranges_file(tmp_path, so101, monkeyp
     assert task.config.dynamics.mass == 0.25
     assert np.all((task.backend.noise_sigma >= 0.002) & (task.backend.noise_sigma <= 0.003))
     assert read_checkpoint(tmp_path / "ship.pt").info["ranges"] == str(path)
+
+
+def test_every_unknown_key_is_named_in_one_refusal(tmp_path, go2):
+    """Unknown keys at the top level, in a table and in an inline sub-table, with a wrong type
+    beside them: one refusal names the three unknown keys, each with what the place takes, so
+    one round of fixes does (before: only the first, 'unknown key 'sensor'', then the next
+    after each fix)."""
+    path = write(
+        tmp_path,
+        "[sensor]\nnoise_sigma = [0.01, 0.02]\n"
+        "[dynamics]\nmass = 'high'\nmas = [0, 0.1]\ncom_offset = {x = [0, 0.01], w = [0, 1]}\n",
+    )
+    with pytest.raises(RangesError) as info:
+        load_ranges(path, go2)
+    message = str(info.value)
+    assert "\n" not in message and message.startswith(f"{path}: ")
+    assert "unknown key 'sensor'; expected one of" in message
+    assert "dynamics.mas: unknown key; expected one of" in message
+    assert "dynamics.com_offset.w: unknown key; expected one of body, x, y, z" in message

@@ -41,8 +41,35 @@ def spec_summary(text: str, where: str) -> dict[str, Any]:
                 f"{b.get('name')}[{b.get('size')}]" for b in blocks if isinstance(b, Mapping)
             ],
             "action": f"{action.get('mode')} [{action.get('size')}], clip {action.get('clip')}",
+            "history": history_text(raw.get("history"), blocks),
         }
     return out
+
+
+def history_text(history, blocks) -> str:
+    """The summary line of a spec's frame history (its JSON ``history``, an
+    :class:`~sim2real.deploy.spec.history.ObservationHistory`: length, order, layout, fill,
+    the ticks per block) and the entries it stacks: "none" without one (the graph reads one
+    frame a tick)."""
+    from sim2real.deploy.spec.history import ObservationHistory, stacked_dim
+
+    sizes = tuple(b.get("size") for b in blocks if isinstance(b, Mapping))
+    frame = sum(sizes) if all(isinstance(s, int) for s in sizes) else None
+    if history is None:
+        return "none (one frame a tick" + (f": {frame} entries)" if frame is not None else ")")
+    if not isinstance(history, Mapping):
+        return f"{history!r} (not a table)"
+    default = ObservationHistory(length=1)
+    h = {k: history.get(k, getattr(default, k)) for k in ("length", "order", "layout", "fill")}
+    lengths = history.get("lengths") or ()
+    text = f"{h['length']} ticks, {h['order']}, {h['layout']}, fill {h['fill']}"
+    if lengths:
+        text += f", ticks per block {list(lengths)}"
+    try:
+        stacked = stacked_dim(ObservationHistory(**h, lengths=tuple(lengths)), sizes)
+    except (TypeError, ValueError):
+        return text
+    return text + f" (frame {frame} entries, input {stacked})"
 
 
 def _shape(shape: list) -> str:

@@ -178,37 +178,30 @@ def parse_overrides(text: str, path: str | Path) -> dict:
     policy's training domain, :mod:`sim2real.eval.world.domain`, is such a text).
 
     Raises:
-        RangesError: invalid TOML, an unknown table or key, or a value of the wrong type.
+        RangesError: invalid TOML, unknown tables or keys (all of them named in one message),
+            or a value of the wrong type.
     """
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise RangesError(f"{path}: not valid TOML: {exc}") from None
-    known = [f"[{t}]" for t in TABLES] + list(TOP_LEVEL)
+    unknown = _unknown_keys(doc)
+    if unknown:
+        raise RangesError(f"{path}: " + "; ".join(unknown))
     out: dict = {}
     for key, value in doc.items():
         if key in TOP_LEVEL:
             out[key] = _typed(path, key, value, TOP_LEVEL[key])
             continue
-        if key not in TABLES:
-            raise RangesError(f"{path}: unknown key '{key}'; expected one of {', '.join(known)}")
         if not isinstance(value, dict):
             raise RangesError(f"{path}: {key}: expected a table [{key}], got {value!r}")
         hints = typing.get_type_hints(TABLES[key])
-        inner = {
-            k for (t, _), (f, keys) in SUBTABLES.items() if t == key and f == key for k in keys
-        }
-        names = [n for n in hints if n not in inner] + [s for t, s in SUBTABLES if t == key]
         table = out.setdefault(key, {})
         for name, item in value.items():
             if (key, name) in SUBTABLES:
                 field, keys = SUBTABLES[key, name]
                 out.setdefault(field, {}).update(_subtable(path, key, name, item, field, keys))
                 continue
-            if name not in names:
-                raise RangesError(
-                    f"{path}: {key}.{name}: unknown key; expected one of {', '.join(names)}"
-                )
             table[name] = _typed(path, f"{key}.{name}", item, hints[name])
         if key == "pushes" and "max_velocity" in value:
             both = [s for s in ("velocity", "angular_velocity") if s in value]
@@ -218,6 +211,42 @@ def parse_overrides(text: str, path: str | Path) -> dict:
                     "[-max, max]) or velocity and angular_velocity (mjlab's per-axis ranges), "
                     "not both"
                 )
+    return out
+
+
+def _table_keys(key: str) -> list[str]:
+    """The keys table ``[key]`` of a ranges file takes: its class's fields (less those its
+    inline sub-tables hold) and its sub-tables."""
+    hints = typing.get_type_hints(TABLES[key])
+    inner = {k for (t, _), (f, keys) in SUBTABLES.items() if t == key and f == key for k in keys}
+    return [n for n in hints if n not in inner] + [s for t, s in SUBTABLES if t == key]
+
+
+def _unknown_keys(doc: dict) -> list[str]:
+    """Every unknown key of the parsed ranges file ``doc`` (top level, in a table, in an inline
+    sub-table), one ``"<where>: unknown key; expected one of ..."`` each, in file order: the
+    user fixes them all in one round."""
+    known = [f"[{t}]" for t in TABLES] + list(TOP_LEVEL)
+    out = []
+    for key, value in doc.items():
+        if key in TOP_LEVEL:
+            continue
+        if key not in TABLES:
+            out.append(f"unknown key '{key}'; expected one of {', '.join(known)}")
+            continue
+        if not isinstance(value, dict):
+            continue  # refused with its type below
+        names = _table_keys(key)
+        for name, item in value.items():
+            if (key, name) in SUBTABLES:
+                keys = SUBTABLES[key, name][1]
+                out += [
+                    f"{key}.{name}.{sub}: unknown key; expected one of {', '.join(keys)}"
+                    for sub in (item if isinstance(item, dict) else {})
+                    if sub not in keys
+                ]
+            elif name not in names:
+                out.append(f"{key}.{name}: unknown key; expected one of {', '.join(names)}")
     return out
 
 

@@ -18,8 +18,9 @@ from dataclasses import dataclass, field
 
 #: The quantities chosen, in the order printed.
 QUANTITIES = ("kp", "kd", "home")
-#: The source texts of the flags' values (robot.toml's words since the flags came first).
-FLAG_SOURCES = {"kp": "--kp/--kd", "kd": "--kp/--kd", "home": "--home flags (see the notes above)"}
+#: The source texts of the flags' values: each quantity names its own flag (a kp from ``--kp``
+#: never credits ``--kd``, nor a home pose the ``--note`` lines).
+FLAG_SOURCES = {"kp": "--kp", "kd": "--kd", "home": "--home"}
 #: The source of a value no flag, policy or file gives.
 RULE = "the importer's rule (see above)"
 

@@ -344,6 +344,8 @@ def finish_floating_mjcf(
         name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05], rgba=[0.5] * 3 + [1],
         contype=contype, conaffinity=conaffinity,
     )  # fmt: skip
+    if (sun := spec.light("sun")) is not None:  # the file's own (a robot-import output's)
+        spec.delete(sun)
     spec.worldbody.add_light(
         name="sun", pos=[0, 0, 3], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
     )

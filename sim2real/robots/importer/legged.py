@@ -208,6 +208,8 @@ def write_legged_toml(
     motor_tables: dict | None = None,
     target_limits: str = "pd",
     tables: list[str] = (),
+    rates_from: tuple[str, str] = ("--control-rate", "--physics-timestep"),
+    pairs_apart: list = (),
 ) -> None:
     """robot.toml of a floating-base robot, a comment giving the reason of every value.
 
@@ -216,7 +218,8 @@ def write_legged_toml(
     ``--note`` lines for the header (sources of flag values); ``command``: the command line
     that regenerates the folder; ``motor_tables``: the motors given as files
     (:func:`sim2real.robots.importer.model.motor_table_lines`); ``tables``: lines of more tables,
-    at the end (``[unitree]``: :mod:`sim2real.robots.importer.unitree`).
+    at the end (``[unitree]``: :mod:`sim2real.robots.importer.unitree`); ``rates_from``,
+    ``pairs_apart``: as :func:`sim2real.robots.importer.toml_text.write_robot_toml`'s.
     """
     kind = prepared.kind
     motor_tables = motor_tables or {}
@@ -241,6 +244,7 @@ def write_legged_toml(
             home_from,
             motion.home,
             kind_lines(wheel_joints(joint_names, limits)),
+            rates_from=rates_from,
         ),
         "# acceleration_limit: 0.5 x (effort - worst gravity torque) / worst joint inertia with",
         "# armature (rotor inertia x ratio^2), base held, 400 seeded poses; jerk_limit: 20 x",
@@ -299,7 +303,7 @@ def write_legged_toml(
         "",
         "[safety]",
         "# No end effector and no workspace box: a legged robot walks anywhere.",
-        *pairs_lines(disabled_by, pairs, "these (and the floor)"),
+        *pairs_lines(disabled_by, pairs, floor=True, apart=pairs_apart),
         "",
         "[base]",
         f'body = "{prepared.root_link}"  # carries the free joint "{FREE_JOINT}"',

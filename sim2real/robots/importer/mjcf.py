@@ -117,7 +117,7 @@ def prepare_mjcf(
     efforts = _efforts(model)
     disabled = {tuple(sorted((e.bodyname1, e.bodyname2))) for e in spec.excludes}
     tendons = limited_fixed_tendons(spec, model)
-    frozen = _drop_elements(spec, notes, set(tendons))
+    frozen = _drop_elements(spec, notes, set(tendons), servos=len(drive.kp))
     _drop_scenery(spec, model, path, notes)
     root_body = None
     if floating_base:
@@ -351,14 +351,20 @@ def _efforts(model: mujoco.MjModel) -> dict[str, tuple[float, str]]:
 
 
 def _drop_elements(
-    spec: mujoco.MjSpec, notes: list[str], keep_tendons: set[str] = frozenset()
+    spec: mujoco.MjSpec, notes: list[str], keep_tendons: set[str] = frozenset(), servos: int = 0
 ) -> set[str]:
     """Delete what the toolkit does not simulate (but the tendons named in ``keep_tendons``);
-    return the joints equalities couple."""
+    return the joints equalities couple. ``servos``: how many of the actuators are position
+    servos whose gains :func:`read_drive` read (the note names them only then)."""
+    read = (
+        f"the gains of its {servos} <position> servos read"
+        if servos
+        else "no <position> servo among them: no gains read"
+    )
     frozen = {e.name1 for e in spec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT and e.name1}
     tendons = [t for t in spec.tendons if t.name not in keep_tendons]
     for what, elements, why in (
-        ("actuators", spec.actuators, "Robot.mjspec adds the drives (<position> gains read)"),
+        ("actuators", spec.actuators, f"Robot.mjspec adds the drives ({read})"),
         ("sensors", spec.sensors, "the sim backend models robot.toml's sensors"),
         ("tendons", tendons, "spatial or unlimited: the runtime drives joints"),
         ("equality constraints", spec.equalities, "the runtime simulates open chains"),

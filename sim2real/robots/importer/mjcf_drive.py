@@ -67,7 +67,7 @@ def _position_servo(model: mujoco.MjModel, a: int) -> tuple[float, float] | None
     bias = model.actuator_biasprm[a]
     if not kp > 0 or abs(float(bias[1]) + kp) > 1e-9 * kp or float(bias[0]) != 0.0:
         return None
-    return kp, -float(bias[2])
+    return kp, 0.0 - float(bias[2])  # 0.0 -: no kv reads 0.0, not -0.0
 
 
 def read_drive(model: mujoco.MjModel, path: Path, keyframe: str | None = None) -> SourceDrive:

@@ -207,10 +207,29 @@ def _mesh_to_hull(spec: mujoco.MjSpec, geom, model: mujoco.MjModel, name: str) -
     if adr >= 0:
         count = int(model.mesh_graph[adr])
         local = local[model.mesh_graph[adr + 2 + count : adr + 2 + 2 * count]]
+    name = _free_mesh_name(spec, name, geom)
     hull = spec.add_mesh()
     hull.name = name
     hull.uservert = local.ravel()
     geom.meshname = hull.name
+
+
+def _free_mesh_name(spec: mujoco.MjSpec, name: str, geom) -> str:
+    """``name`` for the hull of ``geom`` when no mesh asset holds it; when the mesh holding it
+    is ``geom``'s own and no other geom uses it (an MJCF robot-import wrote, its hulls already
+    inline), that mesh is deleted and its name reused (a re-import keeps the names); else the
+    first free ``name_2``, ``name_3``, ..."""
+    taken = spec.mesh(name)
+    if taken is None:
+        return name
+    users = [g for g in spec.geoms if g.meshname == name]
+    if users == [geom]:
+        spec.delete(taken)
+        return name
+    k = 2
+    while spec.mesh(f"{name}_{k}") is not None:
+        k += 1
+    return f"{name}_{k}"
 
 
 def hull_to_box(spec: mujoco.MjSpec, geom) -> None:

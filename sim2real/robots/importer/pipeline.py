@@ -99,7 +99,7 @@ def import_robot(
     ee_site: str | None = None,
     limits: list[str] | tuple[str, ...] = (),
     velocities: list[str] | tuple[str, ...] = (),
-    control_rate: float | None = DEFAULT_CONTROL_RATE,
+    control_rate: float | None = None,
     physics_timestep: float | None = None,
     force: bool = False,
     log=print,
@@ -291,11 +291,13 @@ def _import(
     log(f"note: {urdf.physics}; timestep {physics_timestep:g} s ({timestep_from})")
     joint_names = [model.joint(i).name for i in range(model.njnt)]
     policy = None
+    rate_from = "--control-rate" if control_rate is not None else "the importer's default"
     if drive is not None:  # robot.toml's header says where the control rate came from
         rate_given = control_rate is not None
         policy, control_rate = _policy_drive(drive, model, joint_names, unitree, control_rate, log)
         if control_rate is not None and not rate_given:
             notes = [*notes, f"control rate: the policy's (--drive-from: {policy[1]})"]
+            rate_from = "the policy's: --drive-from, see the notes above"
     control_rate = DEFAULT_CONTROL_RATE if control_rate is None else control_rate
     steps = 1.0 / (control_rate * physics_timestep)
     if timestep_from == "the MJCF" and abs(steps - round(steps)) > 1e-6 * steps:
@@ -307,7 +309,7 @@ def _import(
         path=path, out=out, name=name, urdf=urdf, srdf_info=srdf_info, srdf_path=srdf_path,
         spec=spec, model=model, joint_names=joint_names, chosen=chosen, motor_cfg=motor_cfg,
         motor_tables=motor_tables, report=report, control_rate=control_rate,
-        physics_timestep=physics_timestep, log=log,
+        physics_timestep=physics_timestep, log=log, rates_from=(rate_from, timestep_from),
     )  # fmt: skip
     if floating_base:
         from sim2real.robots.importer.legged import import_floating_base

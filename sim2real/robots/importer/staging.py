@@ -11,7 +11,7 @@ import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
@@ -30,7 +30,8 @@ class ImportJob:
     description ``urdf`` and SRDF, the compiled MuJoCo spec and model, the movable joints in
     order, the motor per joint (``chosen``), the motors' configurations and the motors given as
     files, the :class:`~sim2real.robots.importer.pipeline.ImportReport` to fill, the control rate (Hz),
-    the physics timestep (s) and the function that prints a line."""
+    the physics timestep (s), the function that prints a line, and where the rate and the timestep
+    came from (``rates_from``, :data:`sim2real.robots.importer.toml_text.RATE_SOURCES`)."""
 
     path: Path
     out: Path
@@ -48,6 +49,9 @@ class ImportJob:
     control_rate: float
     physics_timestep: float
     log: Callable[[str], None]
+    rates_from: tuple[str, str] = ("--control-rate", "--physics-timestep")
+    #: The guard's pairs the written MJCF's contact bits keep apart (:func:`bits_apart`).
+    pairs_apart: list = field(default_factory=list)
 
     def capped_limits(self) -> dict:
         """:func:`sim2real.robots.importer.model.cap_limits` with its lowered limits and notes added to
@@ -92,6 +96,7 @@ class ImportJob:
             )
         if excluded:
             add_contact_excludes(mjcf_path, excluded)
+        self.pairs_apart = bits_apart(mjcf_path, pairs)
         return pairs
 
     def toml_args(self, mjcf_path: Path, limits: dict, motion, pairs: list) -> dict:
@@ -109,6 +114,8 @@ class ImportJob:
             "pairs": pairs,
             "control_rate": self.control_rate,
             "physics_timestep": self.physics_timestep,
+            "rates_from": self.rates_from,
+            "pairs_apart": self.pairs_apart,
             "disabled_by": disabled_by(self.urdf, self.srdf_path),
             "lowered": self.report.lowered,
             "motor_tables": self.motor_tables,
@@ -138,6 +145,24 @@ def written_ranges(
         lo, hi = (float(x) for x in written.jnt_range[first + i])
         limits[j] = (lo, hi, *limits[j][2:])
     return written
+
+
+def bits_apart(mjcf_path: Path, pairs: list) -> list[tuple[str, str]]:
+    """The geom pairs of ``pairs`` that MuJoCo never collides in the MJCF at ``mjcf_path``:
+    neither ``contype_a & conaffinity_b`` nor ``contype_b & conaffinity_a`` is set and no
+    ``<contact><pair>`` names both (MuJoCo's filter, ``mj_collision``; the guard checks them
+    all the same)."""
+    model = mujoco.MjModel.from_xml_path(str(resolved_mjcf(mjcf_path)))
+    explicit = {
+        frozenset((int(a), int(b))) for a, b in zip(model.pair_geom1, model.pair_geom2, strict=True)
+    }
+    ct, ca = model.geom_contype, model.geom_conaffinity
+    apart = []
+    for a, b in pairs:
+        i, j = model.geom(a).id, model.geom(b).id
+        if not (ct[i] & ca[j] or ct[j] & ca[i]) and frozenset((i, j)) not in explicit:
+            apart.append((a, b))
+    return apart
 
 
 def add_contact_excludes(mjcf_path: Path, excluded: list[tuple[str, str]]) -> None:

@@ -13,7 +13,7 @@ from sim2real.robots.importer.source import PreparedSource
 
 
 def _f(x: float) -> str:
-    return repr(float(x))
+    return repr(float(x) + 0.0)  # + 0.0: -0.0 reads 0.0
 
 
 def _vec(v) -> str:
@@ -148,6 +148,19 @@ def sources_lines(kind: str) -> list[str]:
     ]
 
 
+#: robot.toml's words for where the control rate and the physics timestep came from (the
+#: sources :func:`sim2real.robots.importer.pipeline.import_robot` and
+#: :func:`sim2real.robots.importer.physics_option.choose_timestep` name); a flag is credited only
+#: when it was given.
+RATE_SOURCES = {
+    "--control-rate": "robot-import --control-rate",
+    "--physics-timestep": "robot-import --physics-timestep",
+    "the MJCF": "the MJCF's <option timestep>",
+    "the toolkit's default": "robot-import's default; --physics-timestep sets it",
+    "the importer's default": "robot-import's default; --control-rate sets it",
+}
+
+
 def control_lines(
     name: str,
     mjcf: str,
@@ -156,12 +169,15 @@ def control_lines(
     home_note: str,
     home,
     top: list[str] = (),
+    rates_from: tuple[str, str] = ("--control-rate", "--physics-timestep"),
 ) -> list[str]:
     """robot.toml's ``name``, ``mjcf`` (then the lines ``top``: more top-level keys) and
     ``[control]`` table up to ``home`` (rad), position mode: ``mode_note`` comments the mode,
-    ``rates`` are (control rate Hz, physics timestep s), ``home_note`` says where the home pose
+    ``rates`` are (control rate Hz, physics timestep s), ``rates_from`` where each came from
+    (:data:`RATE_SOURCES`' keys, or a text of its own), ``home_note`` says where the home pose
     came from."""
     control_rate, physics_timestep = rates
+    rate_from, timestep_from = (RATE_SOURCES.get(s, s) for s in rates_from)
     return [
         f'name = "{name}"',
         f'mjcf = "{mjcf}"',
@@ -169,8 +185,8 @@ def control_lines(
         "",
         "[control]",
         f'mode = "position"            # {mode_note}',
-        f"control_rate = {_f(control_rate)}          # Hz (robot-import --control-rate)",
-        f"physics_timestep = {_f(physics_timestep)}     # s (robot-import --physics-timestep)",
+        f"control_rate = {_f(control_rate)}          # Hz ({rate_from})",
+        f"physics_timestep = {_f(physics_timestep)}     # s ({timestep_from})",
         f"# rad: {home_note}",
         f"home = {_vec(home)}",
         "",
@@ -193,17 +209,37 @@ def all_joint_lines(
     return lines
 
 
-def pairs_lines(disabled_by: str | None, pairs, checked: str = "these") -> list[str]:
+def pairs_lines(disabled_by: str | None, pairs, floor: bool = False, apart: list = ()) -> list[str]:
     """robot.toml's ``collision_pairs`` (geom name pairs) with the comment on what left pairs
-    unchecked (``disabled_by``: "the SRDF (x.srdf)", None: only adjacency), and its
-    ``stale_limit``; ``checked`` ends the comment."""
+    unchecked (``disabled_by``: "the SRDF (x.srdf)", None: only adjacency) and on what the
+    plant collides: the robot's bodies only in these pairs (the importer ``<exclude>``s every
+    other), and there only where the MJCF's contact bits or a ``<pair>`` let the geoms touch
+    (``apart``: the pairs they keep apart, :func:`sim2real.robots.importer.staging.bits_apart`);
+    ``floor``: a floating-base robot's floor, whose own bits decide what touches it. Then the
+    ``stale_limit``."""
+    shown = [f"{a}|{b}" for a, b in apart[:3]] + (
+        [f"{len(apart) - 3} more"] if len(apart) > 3 else []
+    )
+    never = (
+        f" {len(apart)} of these pairs never touch there, the guard checks them all ({shown})."
+        if apart
+        else ""
+    )
     return [
         (
             f"# Geom pairs of links {disabled_by} does not disable, "
             if disabled_by
             else "# Geom pairs of non-adjacent links, "
         )
-        + f"apart at home; the plant checks contact only between {checked}.",
+        + "apart at home: the guard checks these.",
+        "# The plant (MuJoCo) collides two of the robot's bodies only in these pairs (the MJCF",
+        "# <exclude>s every other body pair), and only where the MJCF's contype/conaffinity bits",
+        "# (or a <contact><pair>) let the two geoms touch." + never,
+        *(
+            ["# The floor touches the geoms its own contype/conaffinity bits let touch."]
+            if floor
+            else []
+        ),
         "collision_pairs = [",
         *[f'  ["{a}", "{b}"],' for a, b in pairs],
         "]",
@@ -229,10 +265,15 @@ def write_robot_toml(
     disabled_by: str | None,
     lowered,
     motor_tables: dict[str, tuple[Path, dict]] | None = None,
+    rates_from: tuple[str, str] = ("--control-rate", "--physics-timestep"),
+    pairs_apart: list = (),
 ) -> None:
     """Write robot.toml with a comment giving the reason of every value.
 
     ``prepared``: the description (its file, kind and where each joint's limits came from);
+    ``rates_from``: where the control rate and the physics timestep came from
+    (:func:`control_lines`); ``pairs_apart``: the pairs the MJCF's contact bits keep apart
+    (:func:`pairs_lines`);
     ``disabled_by``: what named the link pairs left unchecked ("the SRDF (x.srdf)"), or None;
     ``motor_tables``: the motors given as files (:func:`motor_table_lines`).
     """
@@ -259,6 +300,7 @@ def write_robot_toml(
             (control_rate, physics_timestep),
             home_note,
             motion.home,
+            rates_from=rates_from,
         ),
         "# acceleration_limit: 0.5 x (effort - worst gravity torque) / worst joint inertia with",
         "# armature (rotor inertia x ratio^2), 400 seeded poses; jerk_limit: 20 x acceleration.",
@@ -275,7 +317,7 @@ def write_robot_toml(
         "# Box of every reachable end-effector position + 5 cm, cut 5 cm below the base (table).",
         f"workspace_min = {_vec(workspace['workspace_min'])}",
         f"workspace_max = {_vec(workspace['workspace_max'])}",
-        *pairs_lines(disabled_by, pairs),
+        *pairs_lines(disabled_by, pairs, apart=pairs_apart),
         "",
         "[task]",
         "# 10th-90th percentile box of positions reached within 70 % of each range about home;",

@@ -195,3 +195,20 @@ def test_hull_names_taken_by_another_geoms_mesh_get_a_free_name(tmp_path):
     # the importer names a body's geoms <body>_<k>: g0 is a_0, g1 is a_1
     top = {n: model.geom_pos[model.geom(n).id][2] for n in ("a_0", "a_1")}
     assert top["a_0"] > top["a_1"] + 0.1  # a_0 (g0) kept the upper tetrahedron
+
+
+def test_a_model_mujoco_cannot_compile_is_one_line_not_a_traceback(tmp_path, monkeypatch, capsys):
+    """Whatever MuJoCo's compiler refuses in the model an import builds (here the ``repeated
+    name`` it raised on a re-imported go2w.xml before its hulls were renamed) reaches the user
+    as one line naming the source file, exit 3, not a traceback."""
+    import sim2real.deploy.cli.robot_import as cli
+
+    def compile_fails(*args, **kwargs):
+        raise ValueError("Error: repeated name 'FL_wheel_link_0_hull' in mesh\n")
+
+    monkeypatch.setattr(cli, "import_robot", compile_fails)
+    code = cli.main(["robots/go2w/go2w.xml", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 3 and len(err) == 1
+    assert err[0].startswith("robot-import: error: robots/go2w/go2w.xml: MuJoCo could not compile")
+    assert "repeated name 'FL_wheel_link_0_hull' in mesh" in err[0]

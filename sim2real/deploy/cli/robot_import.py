@@ -224,6 +224,14 @@ def main(argv: list[str] | None = None) -> int:
     except RobotImportError as exc:
         print(f"robot-import: error: {exc}", file=sys.stderr)
         return EXIT_REFUSED
+    except ValueError as exc:  # MuJoCo's compiler on the model the import built (MjSpec.compile)
+        print(
+            f"robot-import: error: {args.source}: MuJoCo could not compile the robot the import "
+            f"built from it: {str(exc).strip()} (if the file itself loads in MuJoCo, this is an "
+            "importer's defect: please report it with the file)",
+            file=sys.stderr,
+        )
+        return EXIT_REFUSED
     return 0
 
 

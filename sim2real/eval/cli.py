@@ -277,7 +277,7 @@ def run(args) -> int:
     baseline = load_report(args.baseline) if args.baseline else None
     robot = load_robot(args.robot)
     ranges, domain, file = _ranges(args, robot)
-    if robot.floating_base and ranges.pushes is not None:
+    if robot_kind(robot).pushes and ranges.pushes is not None:
         print(f"soak-test: pushes: {ranges.pushes.describe()}")
     ranges, commands = _commands(args, robot, ranges, file)
     template = _template(args, ranges)

@@ -1,8 +1,7 @@
 """Interventions: commands the safety guard or the command smoother changed, per check and tick.
 
-An **intervention** is a command the guard or the smoother changed; a **violation** is the
-robot's true state past a limit (:mod:`sim2real.deploy.monitors.violations`; docs/architecture.md).
-
+An **intervention** is a command the guard or the smoother changed (a **violation**, the true
+state past a limit: :mod:`sim2real.deploy.monitors.violations`).
 Checks (``INTERVENTION_CHECKS``), from :attr:`sim2real.deploy.safety.guard.SafetyGuard.counts` and the
 counters of :class:`sim2real.deploy.smoothing.CommandSmoother`:
 
@@ -16,22 +15,19 @@ counters of :class:`sim2real.deploy.smoothing.CommandSmoother`:
   (:mod:`sim2real.deploy.safety.pd_barrier`).
 - ``velocity``: a target clamped to the speed from which the joint still stops before its soft
   limit (torque mode: the torque governor replaced a torque).
-- ``workspace``, ``self_collision``, ``effort``: a target rejected and the robot held (effort:
-  gravity past the derated effort limit; in torque mode also a torque clamped to it).
+- ``workspace``, ``self_collision``, ``effort``: a target rejected, the robot held (effort:
+  gravity past the derated effort limit; torque mode: a torque clamped to it too).
 - ``stopping_distance``: velocity mode: the smoother cut a target velocity so that the joint brakes
   before its soft limit (``stopping_distance_clamps_per_joint``).
 - ``target_clamp``: the smoother clamped a target to the hard position limits, the soft velocity
   limit or the effort limit (``target_clamps_per_joint``).
 
-Each check counts a tick once per env when it changed the command of at least one joint of the env
-(the guard counts per env and tick already; for the smoother, a tick on which any joint's counter
-rose); ``any`` counts the ticks on which at least one check did, ``safety`` those on which a
-check did that is not the policy's style (:attr:`InterventionMonitor.by_design`). Fractions are
-of the ticks observed, in every mode of the state machine (RAMP_IN and SAFE_STOP included), except
-a legged robot's ticks lying damped after a stop (``down``, :attr:`InterventionMonitor.down`):
-those are counted apart (``while_down`` of :meth:`InterventionMonitor.summary`), as the
-violation monitor counts them (a fallen robot's legs on their stops are not what the runtime did
-to a standing one's commands).
+A check counts a tick once per env when it changed the command of a joint of the env (for the
+smoother: any joint's counter rose); ``any`` counts ticks on which a check did, ``safety`` those
+of a check that is not the policy's style (:attr:`InterventionMonitor.by_design`). Fractions are
+of the ticks observed in every mode (RAMP_IN and SAFE_STOP included) but a legged robot's ticks
+lying damped after a stop (:attr:`InterventionMonitor.down`), counted apart (``while_down`` of
+:meth:`InterventionMonitor.summary`) as the violation monitor counts them.
 """
 
 from __future__ import annotations

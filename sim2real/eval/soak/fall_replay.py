@@ -24,11 +24,9 @@ Each holds ``from_s`` and ``fall_s`` (s, or null: stood), one entry per replay. 
 chaotic and a push's outcome turns on the gait's phase and the noise, so one run says little;
 the shares say whether the fall was near certain from there, with or without the runtime. The
 captured states are the ones our runtime brought the robot to, and the own loop reads the truth,
-which no deployment can. It does not judge. A replay starts only from a capture of the env's
-present stretch of RUNNING (after its last stop, lying down and stand-up): a fall soon after a
-stand-up replays from fewer starts, never from before the previous fall. Only a session's first
-``MAX_FALLS`` falls replay;
-the captures are not checkpointed, so a fall soon after a resume replays from fewer of them.
+which no deployment can. A replay starts only from a capture of the env's present stretch of
+RUNNING (never from before the previous fall); only a session's first ``MAX_FALLS`` falls
+replay, and captures are not checkpointed (a fall soon after a resume replays from fewer).
 """
 
 from __future__ import annotations

@@ -12,19 +12,13 @@ whose estimate was past its limit and by how much). Its origin:
   of the training domain's, :mod:`sim2real.eval.world.pushes`, or a ``push`` or ``cable`` fault).
 - ``fault``: the fall detector's stop within ``ATTRIBUTION_WINDOW`` s of another injected fault
   (dropout, stale frames, latency, non-finite actions), named (``during``).
-- With no stop, push or fault before the fall detector's stop, the fall's replays
-  (:mod:`sim2real.eval.soak.fall_replay`) decide (:func:`replay_origin`):
-
-  - ``policy``: the policy's own loop (true state, no runtime) fell in at least
-    ``REPLAY_SHARE`` of its replays: the policy falls there without the runtime.
-  - ``runtime``: the own loop stood in most, and the runtime run again with other sensor-noise
-    draws fell in at least ``REPLAY_SHARE`` of them: the runtime, whatever its noise, takes the
-    robot down where the policy alone stands.
-  - ``rare_draw``: both stood in most of their replays: the session's own draw of the sensor
-    noise took it down.
-  - ``undecided``: the replays cannot tell: none ran (a fall past ``fall_replay.MAX_FALLS``,
-    or within ``min(fall_replay.LEAD)`` s of a stand-up or a resume), or the own loop stood
-    and the runtime's were not run. The report says so; it does not guess.
+- With no stop, push or fault before it, the fall's replays (:mod:`sim2real.eval.soak.
+  fall_replay`) decide (:func:`replay_origin`): ``policy`` (its own loop, true state, fell in
+  at least ``REPLAY_SHARE`` of its replays), ``runtime`` (the own loop stood in most, the
+  runtime with other sensor-noise draws fell in at least that share), ``rare_draw`` (both
+  stood in most: the session's own noise draw took it down) or ``undecided`` (no replay ran:
+  past ``fall_replay.MAX_FALLS``, or too soon after a stand-up or a resume; or the own loop
+  stood and the runtime's were not run). The report says so; it does not guess.
 
 A hard-limit stop that the soak replayed without the stop (:mod:`sim2real.eval.soak.counterfactual`)
 carries ``would_fall``. True: the replay fell all the same (its fall detector fired within

@@ -9,33 +9,23 @@ forces). Two conventions, both as their stacks write them:
   from ``interval_range_s`` (1-3 s), U(range) is ADDED to the root's world velocity per axis:
   ``x``, ``y``, ``z`` (m/s) and ``roll``, ``pitch``, ``yaw`` (rad/s, world frame).
 
-When: legged_gym's pushes keep its global schedule (``common_step_counter % push_interval`` in
-``post_physics_step``: every env at once, whatever its episode's age; an env reset at one step
-may be pushed at the next), so the soak pushes at ticks ``k * interval`` whatever the robot did.
-Pushes at random intervals count per env from its reset: Isaac Lab's ``EventManager.reset``
-draws a new ``interval_range_s`` wait for each ``interval`` term with ``is_global_time=False``
-(its default, with ``resample_interval_on_reset=True``), and holosoma's
-``randomize_push_schedule`` zeroes the env's push counter at reset. The soak's reset is the
-robot's return to RUNNING (the session's first, and each after a stop and stand-up): there the
-env's wait is drawn again, so no push lands sooner than ``interval_range[0]`` after it. (mjlab's
-``EventManager.reset`` draws anew only the waits of class-based terms; its function
-``push_by_setting_velocity`` keeps its wait across a reset. The soak does not tell the two
-apart: an mjlab domain's pushes wait after a stand-up too.)
+When: legged_gym's pushes keep its global schedule (``common_step_counter % push_interval``:
+every env at once, whatever its episode's age), so the soak pushes at ticks ``k * interval``.
+Random intervals count per env from its reset (Isaac Lab's ``EventManager.reset`` redraws an
+``interval`` term's wait with ``is_global_time=False``; holosoma's ``randomize_push_schedule``
+zeroes the env's counter): the soak redraws the wait at each return to RUNNING, so no push lands
+sooner than ``interval_range[0]`` after a stand-up (mjlab's function terms keep their wait across
+a reset; the soak does not tell the two apart).
 
-How a push acts (``apply``): as a force (the default, ``"force"``): the wrench that gives the
-robot the training push's velocity change over ``window`` s (default :data:`PUSH_WINDOW`;
-:meth:`~sim2real.deploy.backends.sim.disturbances.SimDisturbances.push_wrench`), spread over its
-bodies so that the whole robot takes that change, its joints' speeds untouched, as the training
-stacks' pushes leave them (:meth:`~sim2real.deploy.backends.sim.disturbances.SimDisturbances.
-set_push_wrench`; a force on the base alone would swing the legs about their joints), which the
-plant's accelerometer and gyro feel as they feel a real shove. Or, as the training stacks
-do, by setting the base's velocity between two physics steps (``"velocity_hidden_from_imu"``):
-the estimator, which integrates the accelerometer, never sees that push.
-
-:class:`PushRanges` is what a ranges file's ``[pushes]`` table sets; :class:`DomainPushes` applies
-them to a batch of sessions. Each push's velocity, and each random interval, is a pure function
-of the session seed and the push's index, so a resumed session pushes exactly as an uninterrupted
-one (its next push is in the checkpoint: :meth:`DomainPushes.state_dict`).
+How a push acts (``apply``): ``"force"`` (the default): the wrench that gives the robot the
+training push's velocity change over ``window`` s (:data:`PUSH_WINDOW`; ``SimDisturbances.
+push_wrench``), spread over its bodies so that the whole robot takes that change, its joints'
+speeds untouched, as under the training's push (``SimDisturbances.set_push_wrench``; a force on
+the base alone swings the legs), felt by the accelerometer and gyro as a real shove is. Or the
+velocity set between two physics steps as the training stacks do (``"velocity_hidden_from_imu"``),
+which the estimator never sees. Each push's velocity and interval is a pure function of the
+session seed and the push's index, so a resumed session pushes as an uninterrupted one
+(:meth:`DomainPushes.state_dict`).
 """
 
 from __future__ import annotations
@@ -141,8 +131,8 @@ class PushRanges:
 
     def describe(self) -> str:
         """One line saying which pushes these are and how they act (the soak prints it: a
-        ranges file without ``apply`` means forces since issue 72, where it once meant the
-        training stacks' velocity set at once)."""
+        ranges file without ``apply`` means forces, where it once meant the training stacks'
+        velocity set at once)."""
         low, high = self.interval_range
         every = f"every {low:g} s" if low == high else f"every U({low:g}, {high:g}) s"
         if self.max_velocity is not None or not any(getattr(self, a) for a in AXES):

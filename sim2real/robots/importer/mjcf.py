@@ -354,13 +354,9 @@ def _drop_elements(
     spec: mujoco.MjSpec, notes: list[str], keep_tendons: set[str] = frozenset(), servos: int = 0
 ) -> set[str]:
     """Delete what the toolkit does not simulate (but the tendons named in ``keep_tendons``);
-    return the joints equalities couple. ``servos``: how many of the actuators are position
-    servos whose gains :func:`read_drive` read (the note names them only then)."""
-    read = (
-        f"the gains of its {servos} <position> servos read"
-        if servos
-        else "no <position> servo among them: no gains read"
-    )
+    return the joints equalities couple. ``servos``: the actuators that are position servos
+    whose gains :func:`read_drive` read (the note names them only then)."""
+    read = f"the gains of its {servos} <position> servos read" if servos else "no <position> servo"
     frozen = {e.name1 for e in spec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT and e.name1}
     tendons = [t for t in spec.tendons if t.name not in keep_tendons]
     for what, elements, why in (

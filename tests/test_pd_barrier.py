@@ -382,3 +382,47 @@ def test_a_weak_joint_under_a_heavy_chain_is_judged_by_its_gravity_at_the_estima
     leaning = guard.filter(target.copy(), state, out=np.empty_like(target))
     assert leaning[0, waist] < target[0, waist]
     assert guard.totals()["pd_barrier"] == 1
+
+
+@pytest.mark.parametrize("name", ["go2", "go2w", "h1", "h1_2"])
+def test_the_least_inertia_bounds_a_pd_joints_motion_in_the_plant(name):
+    """Each PD joint of a legged robot held in the air (the base welded; no gravity, contact or
+    joint stop), at rest at home and three seeded poses, its target stepped 3 effort/kp away
+    (the drive saturated), the others holding theirs: over one control period it moves no
+    farther than the barrier's 1-D prediction (the PD law saturated by the effort limit,
+    semi-implicit Euler at the physics step) with its least inertia says. The mass matrix's
+    diagonal (the other joints locked) says less: up to 11 x the inertia the joint moves with
+    (H1-2's hip roll)."""
+    robot = load_robot(name)
+    least = pb.least_inertia(robot)
+    spec = robot.mjspec("position")
+    off = mujoco.mjtDisableBit
+    spec.option.disableflags |= off.mjDSBL_GRAVITY | off.mjDSBL_CONTACT | off.mjDSBL_LIMIT
+    spec.delete(next(j for j in spec.joints if j.type == mujoco.mjtJoint.mjJNT_FREE))
+    m = spec.compile()
+    d = mujoco.MjData(m)
+    rng = np.random.default_rng(1)
+    lo, hi = (
+        np.nan_to_num(b, posinf=0.0, neginf=0.0) for b in (robot.soft_lower, robot.soft_upper)
+    )
+    poses = [robot.home, *(rng.uniform(lo, hi) for _ in range(3))]  # a wheel: at 0.0
+    h, checked = robot.physics_timestep, 0
+    for q0 in poses:
+        for j, joint in enumerate(robot.config.joints):
+            if robot.velocity_driven[j]:
+                continue
+            kp, kd, effort = joint.kp, joint.kd, robot.effort_limit[j]
+            mujoco.mj_resetData(m, d)
+            d.qpos[:] = q0
+            d.ctrl[:] = np.where(robot.velocity_driven, 0.0, q0)
+            d.ctrl[j] += 3.0 * effort / kp
+            for _ in range(robot.decimation):
+                mujoco.mj_step(m, d)
+            q, v = 0.0, 0.0  # the prediction, from the same rest
+            for _ in range(robot.decimation):
+                tau = np.clip(kp * (3.0 * effort / kp - q) - kd * v, -effort, effort)
+                v += tau / least[j] * h
+                q += v * h
+            assert d.qpos[j] - q0[j] <= q, (joint.name, d.qpos[j] - q0[j], q)
+            checked += 1
+    assert checked >= 4 * 8

@@ -9,13 +9,14 @@ motor table). So the target passes unchanged unless its consequence is unsafe: t
 motion over the next control period, predicted per joint (a control-barrier-function-style
 safety filter, one dimension a joint): the drive's PD law at every physics substep, its torque
 saturated by the effort limit (derated when hot) and the motor's torque-speed line
-(:class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope`); the joint's least inertia
-(Pinocchio's mass-matrix diagonal, legs in the air, over the home pose and ``INERTIA_POSES``
-seeded poses), and for a joint on a loaded foot's chain moving toward the limit also
-``INERTIA_SPREAD`` times it, the target safe under both; the gravity torque toward the limit
-tested at the estimate (:func:`barrier_rows`: the base's estimated tilt, plus ``SLACK_SHARE`` of
-the joint's all-pose bound :func:`sim2real.robots.chain_bounds.motion_bounds`, at most that
-bound); semi-implicit Euler from the estimate ``(q, dq)``.
+(:class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope`); the joint's least inertia (its
+effective inertia ``1 / (M^-1)_jj``, the other joints free, from Pinocchio's mass matrix, legs in
+the air, over the home pose and ``INERTIA_POSES`` seeded poses: :func:`least_inertia`), and
+for a joint on a loaded foot's chain moving toward the limit also ``INERTIA_SPREAD`` times it,
+the target safe under both; the gravity torque toward the limit tested at the estimate
+(:func:`barrier_rows`: the base's estimated tilt, plus ``SLACK_SHARE`` of the joint's all-pose
+bound :func:`sim2real.robots.chain_bounds.motion_bounds`, at most that bound); semi-implicit
+Euler from the estimate ``(q, dq)``.
 
 The prediction is unsafe when the joint passes the hard limit less a margin (``MARGIN_SHARE``
 of the soft band; or, already past it, goes farther), or ends the period too fast to stop
@@ -189,9 +190,13 @@ def pd_barrier_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
 
 
 def least_inertia(robot, poses: int = INERTIA_POSES, seed: int = 0) -> np.ndarray:
-    """(n,) kg m^2: each joint's smallest mass-matrix diagonal entry (armature included) of the
-    robot's fixed-base model over its home pose and ``poses`` seeded poses uniform within the
-    joints' ranges."""
+    """(n,) kg m^2: each joint's smallest effective inertia ``1 / (M^-1)_jj`` (``M``: the
+    mass matrix, armature included, of the robot's fixed-base model: Pinocchio's CRBA, legs in
+    the air) over its home pose and ``poses`` seeded poses uniform within the joints' ranges.
+    ``tau / (M^-1)_jj`` is the joint's acceleration under a torque ``tau`` with the other
+    joints free; the diagonal ``M_jj`` (the other joints locked) is up to 11 x it (an H1-2's
+    hip roll) and under-predicts a PD target's motion over a control period
+    (docs/measurements.md)."""
     model = robot.fixed_base_model
     data = model.createData()
     rng = np.random.default_rng(seed)
@@ -199,7 +204,8 @@ def least_inertia(robot, poses: int = INERTIA_POSES, seed: int = 0) -> np.ndarra
     least = np.full(robot.n_joints, np.inf)
     for q in [robot.home, *(rng.uniform(lo, hi) for _ in range(poses))]:
         m = pin.crba(model, data, np.asarray(q, dtype=np.float64))
-        least = np.minimum(least, np.diag(m))
+        m = np.triu(m) + np.triu(m, 1).T  # CRBA fills the upper triangle
+        least = np.minimum(least, 1.0 / np.diag(np.linalg.inv(m)))
     return least
 
 

@@ -12,7 +12,7 @@ joint" (``!!python/object/apply:builtins.slice``). Its keys, as that C++ code us
 - ``joint_ids_map``: the motor slot (LowState / LowCmd index) of each policy joint, in the
   policy's order: ``joint_pos[i] = motor_state[joint_ids_map[i]].q``. The joint order is
   therefore the robot's joints ordered by these slots (robot.toml ``[unitree] motor_index``; a
-  robot without it: the slots index its joints).
+  robot without it is refused: ``robot-import --unitree FAMILY`` numbers its slots).
 - ``step_dt``: the control period, s.
 - ``stiffness``, ``damping``: the PD gains in the motor slots' order (``motor_cmd[i].kp =
   stiffness[i]``; the exporter writes ``stiffness[joint_ids_map] = ...``); every other per-joint

@@ -49,9 +49,9 @@ from sim2real.deploy.export.errors import ExportError, ParityError, _first_line
 from sim2real.deploy.export.file_kind import zip_kind
 from sim2real.deploy.export.graph import OPSET, set_metadata, to_bare_onnx, tool_versions
 from sim2real.deploy.export.network import check_finite_tensors
-from sim2real.deploy.export.noise_floor import NoiseFloor, _max_abs, _num, describe_tolerance
+from sim2real.deploy.export.noise_floor import NoiseFloor, _max_abs, gate_passed
 from sim2real.deploy.export.parity import PARITY_SAMPLES, closed_loop_parity
-from sim2real.deploy.export.pipeline import failed_path
+from sim2real.deploy.export.pipeline import check_tolerance, failed_path, parity_errors
 from sim2real.deploy.export.torchscript import load_torchscript
 from sim2real.deploy.spec.foreign.contract import ForeignContract, ForeignFormatError
 from sim2real.deploy.spec.foreign.mapping import term_history
@@ -289,8 +289,7 @@ def export_folder_torchscript(
             f"{out}: the graph must sit beside {source.name} in {source.parent}, where its "
             f"{contract.format} contract is read"
         )
-    if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
-        raise ExportError(f"--parity-tolerance: expected a finite number > 0, got {tolerance}")
+    check_tolerance(tolerance)
     obs_dim, act_dim, clips = contract_sizes(contract)
     net = load_torchscript(source)
     net.eval()
@@ -327,11 +326,7 @@ def export_folder_torchscript(
                 spec, loop = _replay(tmp, net, robot, seed, floor)
                 figures.update(loop)
             figures.update(_tolerances(floor, tolerance, robot is not None))
-            passed = all(
-                figures[f"{p}max_abs_error"] <= figures[f"{p}tolerance"]
-                for p in ("", "replay_")
-                if f"{p}tolerance" in figures
-            )
+            passed = gate_passed(figures)
             figures["passed"] = passed
             set_metadata(model, {**meta, "parity": json.dumps(figures)})
             if not passed:
@@ -393,17 +388,9 @@ def _tolerances(floor: NoiseFloor, tolerance: float | None, replay: bool) -> dic
 
 
 def _parity_message(source: Path, f: dict, kept: Path) -> str:
-    """One line: the errors against their tolerances, and where the candidate is kept."""
-    text = [
-        f"{_num(f['max_abs_error'])} over {f['samples']} observations ({describe_tolerance(f)})"
-    ]
-    if "replay_max_abs_error" in f:
-        note = f.get("tolerance_note", "")
-        text.append(
-            f"{_num(f['replay_max_abs_error'])} over the {f['replay_ticks']}-tick closed-loop "
-            f"replay ({describe_tolerance(f, 'replay_', note)})"
-        )
+    """One line: the errors against their tolerances (:func:`~sim2real.deploy.export.pipeline.
+    parity_errors`), and where the candidate is kept."""
     return (
-        f"{source}: ONNX Runtime and TorchScript disagree: max abs error {', '.join(text)}; "
+        f"{source}: ONNX Runtime and TorchScript disagree: max abs error {parity_errors(f)}; "
         f"nothing written, the candidate kept as {kept}"
     )

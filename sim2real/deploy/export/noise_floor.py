@@ -220,6 +220,16 @@ def _num(x: float) -> str:
     return f"{x:.3g}" if x == 0 or not math.isfinite(x) or abs(x) >= 1e-3 else f"{x:.2e}"
 
 
+def gate_passed(figures: dict) -> bool:
+    """Whether every part of the gate (:data:`PHASES`) that has a tolerance in ``figures`` kept
+    its error within it."""
+    return all(
+        figures[f"{prefix}max_abs_error"] <= figures[f"{prefix}tolerance"]
+        for prefix in PHASES.values()
+        if f"{prefix}tolerance" in figures
+    )
+
+
 def describe_tolerance(figures: dict, what: str = "", note_said: str = "") -> str:
     """The tolerance of ``figures`` (:meth:`NoiseFloor.tolerances`) in words, e.g.
     ``tolerance 2.00e-04 = 4 x the float32 noise floor 5.00e-05`` (``what``: the part's prefix

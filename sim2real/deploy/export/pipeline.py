@@ -29,11 +29,11 @@ from sim2real.deploy.export.graph import (
 )
 from sim2real.deploy.export.load import load_source
 from sim2real.deploy.export.noise_floor import (
-    PHASES,
     NoiseFloor,
     _max_abs,
     _num,
     describe_tolerance,
+    gate_passed,
 )
 from sim2real.deploy.export.parity import (
     PARITY_SAMPLES,
@@ -93,13 +93,19 @@ def failed_path(out: str | os.PathLike) -> Path:
     return out.with_name(out.stem + FAILED_SUFFIX)
 
 
-def _check_tolerance(tolerance: float | None) -> None:
+def check_tolerance(tolerance: float | None) -> None:
+    """Refuse a ``--parity-tolerance`` that is not a finite number > 0.
+
+    Raises:
+        ExportError: naming the flag and the value.
+    """
     if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
         raise ExportError(f"--parity-tolerance: expected a finite number > 0, got {tolerance}")
 
 
-def _parity_message(source: Path, f: dict[str, Any]) -> str:
-    """What the gate found, in one line: each part's error with its tolerance and floor."""
+def parity_errors(f: dict[str, Any]) -> str:
+    """Each part of the gate in ``f``, its error with its tolerance and floor, comma-separated
+    (an absolute tolerance's reason said once)."""
     parts = [
         ("", f"{f['samples']} observations"),
         ("replay_", f"the {f['replay_ticks']}-tick closed-loop replay"),
@@ -112,7 +118,12 @@ def _parity_message(source: Path, f: dict[str, Any]) -> str:
         tolerance = describe_tolerance(f, prefix, said)
         said = f.get(f"{prefix}tolerance_note", said)
         text.append(f"{_num(f[prefix + 'max_abs_error'])} over {where} ({tolerance})")
-    return f"{source}: ONNX and torch disagree: max abs error " + ", ".join(text)
+    return ", ".join(text)
+
+
+def _parity_message(source: Path, f: dict[str, Any]) -> str:
+    """What the gate found, in one line: each part's error with its tolerance and floor."""
+    return f"{source}: ONNX and torch disagree: max abs error {parity_errors(f)}"
 
 
 def run_export(
@@ -134,7 +145,7 @@ def run_export(
     """
     t0 = time.perf_counter()
     source = Path(source)
-    _check_tolerance(tolerance)
+    check_tolerance(tolerance)
     src = load_source(source, spec, trust_pickle, vecnormalize, activation)
     out = source.with_suffix(".onnx") if out is None else Path(out)
     if out.resolve() == source.resolve():
@@ -250,12 +261,7 @@ def _parity_gate(
     if state_err is not None:
         figures["state_max_abs_error"] = state_err
     figures.update(floor.tolerances(tolerance))
-    passed = all(
-        figures[f"{prefix}max_abs_error"] <= figures[f"{prefix}tolerance"]
-        for prefix in PHASES.values()
-        if f"{prefix}tolerance" in figures
-    )
-    if not passed:
+    if not gate_passed(figures):
         raise ParityError(_parity_message(source, figures), figures)
     figures["passed"] = True
     return figures

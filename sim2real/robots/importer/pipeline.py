@@ -339,7 +339,7 @@ def _policy_drive(drive, model, joints, unitree, control_rate, log):
         RobotImportError: the drive cannot be read (its one-line message), or ``control_rate``
             differs from the policy's.
     """
-    from sim2real.robots.importer.unitree import motor_slot
+    from sim2real.robots.importer.unitree import motor_slots
 
     depth = []
     for j in range(model.njnt):
@@ -347,10 +347,7 @@ def _policy_drive(drive, model, joints, unitree, control_rate, log):
         while body:
             body, d = int(model.body_parentid[body]), d + 1
         depth.append(d)
-    slots = None  # no --unitree: no motor slots
-    if unitree is not None:
-        go = unitree["family"] == "unitree_go"  # unitree_hg: the joint order (unitree.py)
-        slots = [motor_slot(j) for j in joints] if go else list(range(len(joints)))
+    slots = None if unitree is None else motor_slots(unitree["family"], joints)
     try:
         d = drive(joints, depth, slots)
     except ValueError as exc:  # ForeignFormatError: one line naming the file and the key

@@ -49,6 +49,20 @@ def motor_slot(joint: str) -> int:
     return 3 * LEGS.index(leg) + PARTS.index(part)
 
 
+def motor_slots(family: str, joint_names: list[str]) -> list[int]:
+    """The motor slot of each joint (module docstring): ``unitree_hg`` the joint order,
+    ``unitree_go`` from the names (:func:`motor_slot`).
+
+    Raises:
+        RobotImportError: an unknown family, or a ``unitree_go`` joint off Unitree's naming.
+    """
+    if family not in FAMILIES:
+        raise RobotImportError(f"--unitree {family}: expected one of {', '.join(FAMILIES)}")
+    if family == "unitree_hg":
+        return list(range(len(joint_names)))
+    return [motor_slot(j) for j in joint_names]
+
+
 def foot_slot(foot: str) -> int:
     """The ``foot_force`` slot of a foot link named ``<LEG>_...``.
 
@@ -87,15 +101,14 @@ def unitree_lines(
     ):
         if value is not None and (value < 0 or (positive and value == 0)):
             raise RobotImportError(f"{flag}: expected a gain >= 0 (kp > 0), got {value}")
+    slots = motor_slots(family, joint_names)
     if family == "unitree_hg":
-        slots = list(range(len(joint_names)))
         how = [
             "# motor slots in the joint order (unitree_hg humanoids: unitree_mujoco's",
             "# g1_joint_index_dds.md); their LowState has no foot_force.",
         ]
         feet_line = []
     else:
-        slots = [motor_slot(j) for j in joint_names]
         how = [
             "# motor slots in Unitree's leg order FR, FL, RR, RL (hip, thigh, calf: unitree_sdk2's",
             "# unitree_legged_const), foot_force slots in the same leg order.",

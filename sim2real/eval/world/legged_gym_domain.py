@@ -18,7 +18,13 @@ import ast
 import math
 from pathlib import Path
 
-from sim2real.eval.world.legged_gym_groups import GROUPS, LEGGED_GYM_DEFAULTS, Context, domain_lines
+from sim2real.eval.world.legged_gym_groups import (
+    DEFAULTS_PATH,
+    GROUPS,
+    LEGGED_GYM_DEFAULTS,
+    Context,
+    domain_lines,
+)
 from sim2real.robots.errors import Sim2RealError
 
 
@@ -115,7 +121,7 @@ def read_legged_gym_config(path: str | Path, config_class: str | None = None) ->
     cls = _choose([n for n in tree.body if isinstance(n, ast.ClassDef)], path, config_class)
     values = _class_values(cls)
     defaults = LEGGED_GYM_DEFAULTS
-    rand = _flatten(defaults["domain_rand"], "LeggedRobotCfg.domain_rand")
+    rand = _flatten(defaults["domain_rand"], DEFAULTS_PATH)
     for name in ("domain_rand", "domain_rands"):
         if name in values:
             rand.update(_flatten(values[name], name))

@@ -98,8 +98,9 @@ class ForeignContract:
         joint_slots: The motor slot of each policy joint, in the policy's order (rule
             ``motor_slots``); None: not recorded.
         slot_names: The joint name of each motor slot, in the slots' order (rl_sar's
-            ``joint_names``: policy joint ``i`` is ``slot_names[joint_slots[i]]``); None: the
-            contract names no joints. Where given, the names decide the joint order
+            ``joint_names``: policy joint ``i`` is ``slot_names[joint_slots[i]]``; a reader
+            refuses names that do not cover every slot); None: the contract names no joints.
+            Where given, the names decide the joint order
             (:func:`sim2real.deploy.spec.foreign.mapping.slot_order`).
         command_ranges: The velocity command's training ranges, ``{"vx": (low, high), "vy":
             ..., "yaw_rate": ...}`` (m/s, m/s, rad/s); None: not recorded.

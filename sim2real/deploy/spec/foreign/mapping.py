@@ -74,21 +74,14 @@ def slot_order(
         robot: The robot's name or description, for the messages.
 
     Raises:
-        ForeignFormatError: a name that is no joint of the robot, a slot past the named slots or
-            no joint's of the robot, names and slots that give different joints (both orders
+        ForeignFormatError: a name that is no joint of the robot, a slot no joint's of the
+            robot, names and slots that give different joints (both orders
             named), or neither names nor slots (what to add named).
     """
     wanted = contract.joint_slots or ()
     by_name = None
     if contract.slot_names is not None:
-        named = contract.slot_names
-        past = [s for s in wanted if not 0 <= s < len(named)]
-        if past:
-            raise contract.error(
-                f"motor slots {past} of its joint map have no name among its {len(named)} "
-                f"joint names {list(named)}"
-            )
-        theirs = [named[s] for s in wanted]
+        theirs = [contract.slot_names[s] for s in wanted]
         by_name = tuple(robot_joint_named(n, robot_names) for n in theirs)
         unknown = [n for n, r in zip(theirs, by_name, strict=True) if r is None]
         if unknown:

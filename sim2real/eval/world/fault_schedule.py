@@ -144,6 +144,21 @@ def stale_budget(robot: Robot, latency_ticks: int) -> float:
     return max(gap_ticks(robot, latency_ticks), 0) * robot.control_period
 
 
+def _without(
+    kinds: tuple[str, ...], weights: np.ndarray, drop: tuple[str, ...], refusal: str
+) -> tuple[tuple[str, ...], np.ndarray]:
+    """``kinds`` and their ``weights`` without those in ``drop``.
+
+    Raises:
+        ValueError: ``refusal``, when none is left to draw (no kind, or no weight).
+    """
+    keep = [i for i, k in enumerate(kinds) if k not in drop]
+    kinds, weights = tuple(kinds[i] for i in keep), weights[keep]
+    if not kinds or weights.sum() <= 0:
+        raise ValueError(refusal)
+    return kinds, weights
+
+
 def fault_ranges(robot, mean_interval: float | None = None) -> FaultRanges:
     """The soak's fault ranges for ``robot``: the defaults, with what its ``[soak]`` table
     (:class:`sim2real.robots.schema.SoakConfig`) sizes to it, and ``mean_interval`` (s) when given.
@@ -277,23 +292,19 @@ def sample_fault_schedule(
     kinds = ranges.kinds
     weights = np.ones(len(kinds)) if ranges.weights is None else np.array(ranges.weights)
     if max_spike < 1 and any(k in SENSOR_GAP_KINDS for k in kinds):
-        keep = [i for i, k in enumerate(kinds) if k not in SENSOR_GAP_KINDS]
-        kinds, weights = tuple(kinds[i] for i in keep), weights[keep]
-        if not kinds or weights.sum() <= 0:
-            raise ValueError(
-                f"robot {robot.name}: no sensor gap fits its stale limit "
-                f"({robot.config.safety.stale_limit} s at {1 / dt:g} Hz with "
-                f"{sensors.latency_ticks} ticks of latency); the fault kinds {ranges.kinds} "
-                "leave none to draw"
-            )
+        kinds, weights = _without(
+            kinds, weights, SENSOR_GAP_KINDS,
+            f"robot {robot.name}: no sensor gap fits its stale limit "
+            f"({robot.config.safety.stale_limit} s at {1 / dt:g} Hz with "
+            f"{sensors.latency_ticks} ticks of latency); the fault kinds {ranges.kinds} "
+            "leave none to draw",
+        )  # fmt: skip
     if not robot_kind(robot).cable_faults and "cable" in kinds:
-        keep = [i for i, k in enumerate(kinds) if k != "cable"]
-        kinds, weights = tuple(kinds[i] for i in keep), weights[keep]
-        if not kinds or weights.sum() <= 0:
-            raise ValueError(
-                f"robot {robot.name}: a floating-base robot gets no cable pulls; the fault kinds "
-                f"{ranges.kinds} leave none to draw"
-            )
+        kinds, weights = _without(
+            kinds, weights, ("cable",),
+            f"robot {robot.name}: a floating-base robot gets no cable pulls; the fault kinds "
+            f"{ranges.kinds} leave none to draw",
+        )  # fmt: skip
     weights = weights / weights.sum()
     budget_durations = np.linspace(0.0, ranges.cable_duration[1], 241)
     cable = None  # the cable budget over budget_durations, computed at the first pull

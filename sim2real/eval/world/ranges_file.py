@@ -251,7 +251,8 @@ def _unknown_keys(doc: dict) -> list[str]:
 
 
 def _subtable(path, table: str, name: str, value, field: str, keys: tuple[str, ...]) -> dict:
-    """The inline table ``table.name`` of file ``path`` as ``{field of its class: value}``."""
+    """The inline table ``table.name`` of file ``path`` as ``{field of its class: value}`` (its
+    keys checked already: :func:`_unknown_keys`)."""
     if not isinstance(value, dict):
         raise RangesError(
             f"{path}: {table}.{name}: expected an inline table {{{', '.join(keys)}}}, got {value!r}"
@@ -259,10 +260,6 @@ def _subtable(path, table: str, name: str, value, field: str, keys: tuple[str, .
     hints = typing.get_type_hints(FIELDS[field])
     out = {}
     for sub, item in value.items():
-        if sub not in keys:
-            raise RangesError(
-                f"{path}: {table}.{name}.{sub}: unknown key; expected one of {', '.join(keys)}"
-            )
         out[sub] = _typed(path, f"{table}.{name}.{sub}", item, hints[sub])
     return out
 

@@ -1,0 +1,1 @@
+"""Reference motions (clips) as a command source: readers, the motion clock and the tracking task."""

@@ -198,17 +198,40 @@ def test_hull_names_taken_by_another_geoms_mesh_get_a_free_name(tmp_path):
 
 
 def test_a_model_mujoco_cannot_compile_is_one_line_not_a_traceback(tmp_path, monkeypatch, capsys):
-    """Whatever MuJoCo's compiler refuses in the model an import builds (here the ``repeated
-    name`` it raised on a re-imported go2w.xml before its hulls were renamed) reaches the user
-    as one line naming the source file, exit 3, not a traceback."""
+    """Whatever MuJoCo's compiler refuses in the model an import builds (here a geom on a mesh
+    it does not have) reaches the user as one line naming the source file, exit 3, not a
+    traceback; other refusals are not labelled a compile error (next test)."""
+    import mujoco
+
     import sim2real.deploy.cli.robot_import as cli
+    from sim2real.robots.importer.source import compile_built
+
+    spec = mujoco.MjSpec()  # a built model MuJoCo refuses: a geom on a mesh the import dropped
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname="FL_wheel_link_0_hull")
 
     def compile_fails(*args, **kwargs):
-        raise ValueError("Error: repeated name 'FL_wheel_link_0_hull' in mesh\n")
+        return compile_built(spec)
 
     monkeypatch.setattr(cli, "import_robot", compile_fails)
     code = cli.main(["robots/go2w/go2w.xml", "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 3 and len(err) == 1
     assert err[0].startswith("robot-import: error: robots/go2w/go2w.xml: MuJoCo could not compile")
-    assert "repeated name 'FL_wheel_link_0_hull' in mesh" in err[0]
+    assert "mesh 'FL_wheel_link_0_hull' not found in geom 0" in err[0]
+
+
+def test_a_refusal_that_is_not_mujocos_is_not_called_a_compile_error(tmp_path, capsys, monkeypatch):
+    """A refusal raised by the import's own checks (here a contract's) is printed as it is, not
+    as "MuJoCo could not compile" (what every ValueError was once called)."""
+    import sim2real.deploy.cli.robot_import as cli
+    from sim2real.robots.importer.source import RobotImportError
+
+    def refuses(*args, **kwargs):
+        raise RobotImportError("robots/go2w/go2w.xml: joint 'FL_hip_joint': expected a limit")
+
+    monkeypatch.setattr(cli, "import_robot", refuses)
+    code = cli.main(["robots/go2w/go2w.xml", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 3 and err == [
+        "robot-import: error: robots/go2w/go2w.xml: joint 'FL_hip_joint': expected a limit"
+    ]

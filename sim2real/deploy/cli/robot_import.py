@@ -21,13 +21,14 @@ import functools
 import sys
 
 from sim2real.deploy.spec.foreign.drive import policy_drive
+from sim2real.robots.errors import Sim2RealError
 from sim2real.robots.importer.pipeline import (
     DEFAULT_CONTROL_RATE,
     DEFAULT_PHYSICS_TIMESTEP,
     EXIT_REFUSED,
     import_robot,
 )
-from sim2real.robots.importer.source import RobotImportError
+from sim2real.robots.importer.source import BuiltModelError
 from sim2real.robots.loading import motor_catalog
 
 
@@ -221,16 +222,11 @@ def main(argv: list[str] | None = None) -> int:
             options=args.option,
             keyframe=args.keyframe,
         )
-    except RobotImportError as exc:
-        print(f"robot-import: error: {exc}", file=sys.stderr)
+    except BuiltModelError as exc:  # MuJoCo's compiler on the model the import built
+        print(f"robot-import: error: {args.source}: {exc}", file=sys.stderr)
         return EXIT_REFUSED
-    except ValueError as exc:  # MuJoCo's compiler on the model the import built (MjSpec.compile)
-        print(
-            f"robot-import: error: {args.source}: MuJoCo could not compile the robot the import "
-            f"built from it: {str(exc).strip()} (if the file itself loads in MuJoCo, this is an "
-            "importer's defect: please report it with the file)",
-            file=sys.stderr,
-        )
+    except Sim2RealError as exc:  # a refusal: the import's, the contract's, a motor file's
+        print(f"robot-import: error: {exc}", file=sys.stderr)
         return EXIT_REFUSED
     return 0
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from sim2real.robots.importer.contact_pairs import write_pairs
 from sim2real.robots.importer.model import choose_ee_body, derive_motion_limits, sample_workspace
-from sim2real.robots.importer.source import RobotImportError
+from sim2real.robots.importer.source import RobotImportError, compile_built
 from sim2real.robots.importer.staging import ImportJob, written_ranges
 from sim2real.robots.importer.toml_text import write_robot_toml
 from sim2real.robots.packages import PACKAGE_SCHEME
@@ -52,7 +52,7 @@ def finish_arm_mjcf(spec, ee_body: str, ee_frame: str | None, urdf, mjcf_path: P
     with the package meshdir placeholder."""
     # The site goes on the nearest body that a joint moves, at the fixed transform of the chosen
     # link: Pinocchio's MJCF parser misplaces sites of joint-less child bodies (0.107 m on panda).
-    model = spec.compile()
+    model = compile_built(spec)
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
     b = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, ee_body)
@@ -77,7 +77,7 @@ def finish_arm_mjcf(spec, ee_body: str, ee_frame: str | None, urdf, mjcf_path: P
     spec.body(model.body(anc).name).add_site(
         name="ee", size=[0.005, 0.005, 0.005], pos=pos, quat=quat
     )
-    spec.compile()
+    compile_built(spec)
     xml = spec.to_xml()
     if urdf.meshdir_abs is not None:
         xml = xml.replace(f'meshdir="{urdf.meshdir_abs}"', f'meshdir="{urdf.meshdir_uri}"', 1)

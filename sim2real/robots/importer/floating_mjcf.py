@@ -41,7 +41,7 @@ import numpy as np
 from sim2real.robots.importer.leg_hulls import reduce_hull
 from sim2real.robots.importer.mjcf_geoms import drop_unused_meshes, hull_points, hull_to_box
 from sim2real.robots.importer.model import _sig
-from sim2real.robots.importer.source import PreparedSource, RobotImportError
+from sim2real.robots.importer.source import PreparedSource, RobotImportError, compile_built
 
 #: Name of the MuJoCo free joint of the base (Pinocchio names its free-flyer joint the same).
 FREE_JOINT = "root"
@@ -218,7 +218,7 @@ def finish_floating_mjcf(
         RobotImportError: a foot link without a collision geometry, or whose geometry touches
             nothing (:func:`floor_contact_bits`).
     """
-    model = spec.compile()
+    model = compile_built(spec)
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)  # base at the origin, joints at 0
     shapes, foot_geoms, contact_notes = {}, {}, []
@@ -244,7 +244,7 @@ def finish_floating_mjcf(
                 geom.type = mujoco.mjtGeom.mjGEOM_SPHERE
                 geom.size = [_sig(float(np.mean(geom.size)), 3), 0.0, 0.0]
                 fitted_sphere = True
-                model = spec.compile()  # the sphere's size for the points below
+                model = compile_built(spec)  # the sphere's size for the points below
                 data = mujoco.MjData(model)
                 mujoco.mj_kinematics(model, data)
                 g = model.geom(geom.name).id
@@ -319,7 +319,7 @@ def finish_floating_mjcf(
     _add_imu(spec, model, data, imu)
 
     # standing height: the lowest point of the feet touches the floor at the home pose
-    model = spec.compile()
+    model = compile_built(spec)
     data = mujoco.MjData(model)
     data.qpos[:] = home
     mujoco.mj_kinematics(model, data)
@@ -349,7 +349,7 @@ def finish_floating_mjcf(
     spec.worldbody.add_light(
         name="sun", pos=[0, 0, 3], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
     )
-    spec.compile()
+    compile_built(spec)
     xml = spec.to_xml()
     if prepared.meshdir_abs is not None:
         xml = xml.replace(

@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 
 from sim2real.robots.importer.mjcf_geoms import hull_points
+from sim2real.robots.importer.source import compile_built
 
 #: The most a leg hull may fall short of the mesh's hull along any of ``HULL_DIRECTIONS``
 #: directions, m (our choice: a fraction of the guard's self-collision margins of centimetres).
@@ -71,7 +72,7 @@ def _faces(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     mesh.name = "hull"
     mesh.uservert = points.ravel()
     spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname="hull")
-    model = spec.compile()
+    model = compile_built(spec)
     graph, adr = model.mesh_graph, int(model.mesh_graphadr[0])
     nv, nf = int(graph[adr]), int(graph[adr + 1])
     start = adr + 2 + 3 * nv + 3 * nf  # face_globalid: indices into ``points``

@@ -19,7 +19,12 @@ import numpy as np
 from sim2real.robots.continuous import sampling_bounds
 from sim2real.robots.importer.contact_pairs import rename_pair_geoms
 from sim2real.robots.importer.physics_option import apply_options, source_options
-from sim2real.robots.importer.source import PreparedSource, RobotImportError, SrdfInfo
+from sim2real.robots.importer.source import (
+    PreparedSource,
+    RobotImportError,
+    SrdfInfo,
+    compile_built,
+)
 from sim2real.robots.packages import resolved_mjcf
 from sim2real.robots.schema import MotorConfig
 
@@ -125,7 +130,7 @@ def build_spec(
             if (body.name, k) in urdf.fitted:
                 urdf.fitted_geoms.add(geom.name)
     rename_pair_geoms(urdf, renamed)  # the MJCF's <contact><pair>s follow their geoms
-    model = spec.compile()
+    model = compile_built(spec)
     return spec, model
 
 

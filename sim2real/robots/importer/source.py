@@ -30,6 +30,28 @@ class RobotImportError(RobotSpecError):
     """The description cannot be imported; a one-line message naming file, element, expectation."""
 
 
+class BuiltModelError(RobotImportError):
+    """MuJoCo's compiler refuses the model the import built (not the user's file, which compiled
+    before the import changed it): an importer's defect. The command line prefixes the source."""
+
+
+def compile_built(spec):
+    """Compile ``spec`` (a ``mujoco.MjSpec`` the import has edited) and return its ``MjModel``.
+
+    Raises:
+        BuiltModelError: MuJoCo's compiler refuses it (its message on one line).
+    """
+    try:
+        return spec.compile()
+    except ValueError as exc:
+        message = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+        raise BuiltModelError(
+            f"MuJoCo could not compile the robot the import built from it: {message} (if the "
+            "file itself loads in MuJoCo, this is an importer's defect: please report it with "
+            "the file)"
+        ) from None
+
+
 @dataclass
 class JointInfo:
     """One movable joint as imported: limits in rad, rad/s and N m (``None`` when absent).

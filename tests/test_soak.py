@@ -755,3 +755,36 @@ def test_a_shorter_run_is_compared_with_the_baselines_same_hours(batched):
     assert rates["velocity"] == 67.5 and "cannot be matched hour for hour" in basis
     report["campaign"]["hours"] = 8.0
     assert violation_basis(report, baseline) == (v["rate_per_hour"], "the baseline's 8 h")
+
+
+def test_no_push_lands_on_a_stopped_robot_or_within_the_warmup_after_a_reset(policy, tmp_path):
+    """A scheduled push lands only on a RUNNING robot at least the schedule's ``warmup`` after
+    its last operator reset, as the training stacks wait after a reset (a push on a robot just
+    stood up is not the training's); the others are recorded, not applied. Seed 1: five resets
+    after latched non-finite actions, pushes 2.6-4.1 s after four of them."""
+    faults = FaultRanges(
+        kinds=("nan-action", "push"),
+        weights=(1.0, 3.0),
+        nan_ticks=(40, 40),  # past NAN_ACTION_LIMIT: a latched stop, reset after 0.5 s
+        mean_interval=0.5,
+        warmup=5.0,
+        min_gap=3.0,
+    )
+    cfg = short_session(
+        "arm3", policy, 60.0 / 3600.0, ranges=SessionRanges(faults=faults), operator_reset=0.5
+    )
+    result = run_campaign(replace(cfg, seed=1), 1, tmp_path, progress=False)[0]
+    resets = [x["reset_s"] for x in result["runtime"]["latches"] if x["reset_s"] is not None]
+    assert len(resets) >= 3
+
+    def since_reset(start):
+        before = [r for r in resets if r <= start]
+        return start - before[-1] if before else np.inf
+
+    applied = [ev for ev in result["faults"]["events"] if ev["kind"] == "push"]
+    skipped = result["faults"]["skipped_pushes"]
+    assert any(x["reason"] == "after_reset" for x in skipped) and applied
+    for ev in applied:
+        assert ev["mode_at_onset"] == "RUNNING" and since_reset(ev["start_s"]) >= 5.0
+    for x in skipped:
+        assert x["mode"] != "RUNNING" or since_reset(x["start_s"]) < 5.0

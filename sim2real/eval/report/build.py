@@ -249,7 +249,7 @@ def build_report(
                    calf}}
             faults {scheduled, injected, survived, responses {held, safe_stop, resumed, latched,
                     not_running}, events [{kind, start_s, duration_s, magnitude, response, survived,
-                    causes, ...}]},
+                    causes, ...}], skipped_pushes [{start_s, magnitude, mode, reason}]},
             runtime {safe_stops, by_cause, non_finite_actions, resyncs, anchors, latched_faults,
                      latches[], operator_resets, final_mode, final_cause},
             estimator {missing_readings, stale_readings, reinitializations},

@@ -156,6 +156,12 @@ def summary_text(report: dict) -> str:
     lines.append(
         f"  faults       {f['injected']} injected, {f['survived']} survived ({resp or 'none'}); "
         f"latched {t['latched_faults']}, operator resets {t['operator_resets']}"
+        + (
+            f"; {f['skipped_pushes']} scheduled pushes not applied (robot not running, or "
+            "within the warmup after a reset)"
+            if f.get("skipped_pushes")
+            else ""
+        )
     )
     peaks = ", ".join(f"{j} {p:.1f}" for j, p in t["thermal"]["peak_c"].items())
     lines.append(f"  peak winding degC {peaks}")

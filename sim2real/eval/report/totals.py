@@ -174,6 +174,7 @@ def totals(results: list[dict]) -> dict:
         "base_estimate": _base_estimate_totals(results),
         "faults": {
             "injected": sum(r["faults"]["injected"] for r in results),
+            "skipped_pushes": sum(len(r["faults"].get("skipped_pushes", [])) for r in results),
             "survived": sum(r["faults"]["survived"] for r in results),
             "responses": responses,
             "by_kind": by_kind,

@@ -245,6 +245,7 @@ def session_result(session: Session) -> dict:
             "survived": sum(1 for ev in session.fault_events if ev["survived"]),
             "responses": responses,
             "events": session.fault_events,
+            "skipped_pushes": session.skipped_pushes,
         },
         "runtime": {
             "safe_stops": int(rt.counters.safe_stops[e]),

@@ -20,7 +20,9 @@ The runtime's responses. Every fault is judged ``FAULT_SETTLE`` s after it ends,
 runtime's counters and modes at its onset: ``held`` (no safe stop: the runtime held the last
 action, predicted through missing data, rode out the force), ``safe_stop`` (stopped, not yet
 resolved), ``resumed`` (stopped and running again), ``latched`` (FAULTED), or ``not_running``
-(the env was already stopped at the onset). Only ``held`` counts as survived. A latched fault is
+(the env was already stopped at the onset). A push is applied only to a RUNNING robot at least
+the schedule's ``warmup`` after its last operator reset; the others are not injected but listed
+(``skipped_pushes``). Only ``held`` counts as survived. A latched fault is
 cleared by an operator after ``operator_reset`` s (the session goes on: RAMP_IN), and counted.
 """
 
@@ -209,6 +211,7 @@ class Session:
         self.fault_armed = False
         self.fault_snapshot: dict = {}
         self.fault_events: list[dict] = []
+        self.skipped_pushes: list[dict] = []  # scheduled pushes not applied (_pushable)
         self.next_fault_tick = self._arm_tick(0, dt)
         self.latches: list[dict] = []
         self.operator_resets = 0
@@ -273,12 +276,39 @@ class Session:
             **{f"cause/{c}": int(v[e]) for c, v in rt.counters.faults.items()},
         }
 
+    def _pushable(self, start: float) -> bool:
+        """Whether a push starting at ``start`` (s) may land: the env RUNNING now, and its last
+        operator reset (a legged robot's stand-up) at least the schedule's ``warmup`` before
+        ``start``, the quiet time a session begins with (the training stacks wait after a
+        reset before their next push, :mod:`sim2real.eval.world.pushes`)."""
+        if int(self.batch.rt.mode[self.e]) != Mode.RUNNING:
+            return False
+        resets = [x["reset_s"] for x in self.latches if x["reset_s"] is not None]
+        return not resets or start - resets[-1] >= self.config.ranges.faults.warmup
+
+    def _skip(self, fault, mode: str) -> None:
+        """Record a push not applied (:meth:`_pushable`) in ``skipped_pushes``, apart from the
+        injected faults, and move on to the next fault."""
+        self.skipped_pushes.append(
+            {
+                "start_s": fault.start,
+                "magnitude": fault.magnitude,
+                "mode": mode,
+                "reason": "not_running" if mode != "RUNNING" else "after_reset",
+            }
+        )
+        self.fault_index += 1
+        self.next_fault_tick = self._arm_tick(self.fault_index, self.batch.dt)
+
     def fault_step(self, ticks: int) -> None:
         """Arm the next fault, or judge the armed one (at its supervision tick)."""
         batch, e = self.batch, self.e
         rt, dt = batch.rt, batch.dt
         if not self.fault_armed:
             fault = self.schedule[self.fault_index]
+            if fault.kind == "push" and not self._pushable(fault.start):
+                self._skip(fault, Mode(int(rt.mode[e])).name)
+                return
             batch.faults.arm(e, [fault])
             self.fault_armed = True
             self.fault_snapshot = self._counters()
@@ -347,6 +377,7 @@ class Session:
                 "fault_armed": self.fault_armed,
                 "fault_snapshot": self.fault_snapshot,
                 "fault_events": self.fault_events,
+                "skipped_pushes": self.skipped_pushes,
                 "next_fault_tick": self.next_fault_tick,
                 "latches": self.latches,
                 "operator_resets": self.operator_resets,
@@ -425,6 +456,7 @@ class Session:
         self.fault_armed = bool(s["fault_armed"])
         self.fault_snapshot = s["fault_snapshot"]
         self.fault_events = s["fault_events"]
+        self.skipped_pushes = s.get("skipped_pushes", [])
         self.next_fault_tick = s["next_fault_tick"]
         if self.fault_armed:
             inj = b.faults.arm(e, [self.schedule[self.fault_index]])

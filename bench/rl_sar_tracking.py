@@ -17,7 +17,7 @@ quaternion and the waist angles). The motion functions live in :mod:`bench.rl_sa
 
 The start (``--start getup``, default): the robot at base.yaml's ``default_dof_pos`` dropped on
 the floor from unitree's 0.793 m, held by rl_sar's GetUp gains (base.yaml ``fixed_kp``/``fixed_kd``)
-for ``--settle`` s (0.2: held alone it tips forward after ~0.5 s), then the dance state entered.
+for ``--settle`` s (held alone, that pose tips forward), then the dance state entered.
 rl_sar's operator passes through its robomimic locomotion policy between GetUp and the dance; this
 loop skips it (``Reset`` aligns the clip's heading to whatever the robot stands in). ``--start
 clip``: the robot at the clip's first frame (joints, root orientation and height), held by the

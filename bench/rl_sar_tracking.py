@@ -23,7 +23,7 @@ loop skips it (``Reset`` aligns the clip's heading to whatever the robot stands 
 clip``: the robot at the clip's first frame (joints, root orientation and height), held by the
 policy's gains. The files: ``git -C RL_SAR archive HEAD policy/g1 | tar -x``, ``git -C
 UNITREE_MUJOCO archive HEAD unitree_robots/g1 | tar -x``. Prints the share of the clip played,
-falls (pelvis below 0.35 m or tilted past 60 deg), joint-angle RMS error per group against the
+falls (pelvis below ``FALL_HEIGHT`` or tilted past ``FALL_TILT``), joint-angle RMS error per group against the
 clip at each tick, and the anchor's orientation error (the angle of the observed relative quat).
 """
 

@@ -79,18 +79,22 @@ def slerp(q0, q1, t: float) -> np.ndarray:
     return (np.sin((1 - t) * theta) * np.asarray(q0) + np.sin(t * theta) * np.asarray(q1)) / s
 
 
+def robot_dir(folder: Path) -> Path:
+    """``policy/<robot>``: the nearest parent of ``folder`` holding ``base.yaml``."""
+    for parent in Path(folder).resolve().parents:
+        if (parent / "base.yaml").is_file():
+            return parent
+    raise FileNotFoundError(f"{folder}: no base.yaml in a parent folder")
+
+
 def rl_sar_params(folder: Path) -> tuple[dict, dict]:
     """(base.yaml's robot section, that laid under config.yaml's section) of an rl_sar folder
     ``policy/<robot>/<task...>``: base.yaml is ``policy/<robot>/base.yaml``, keyed ``<robot>``;
     config.yaml keyed ``<robot>/<task...>`` (``ReadYaml``'s ``config_path`` key)."""
     folder = Path(folder).resolve()
-    for robot_dir in folder.parents:
-        if (robot_dir / "base.yaml").is_file():
-            break
-    else:
-        raise FileNotFoundError(f"{folder}: no base.yaml in a parent folder")
-    key = f"{robot_dir.name}/{folder.relative_to(robot_dir).as_posix()}"
-    base = yaml.safe_load((robot_dir / "base.yaml").read_text())[robot_dir.name]
+    robot = robot_dir(folder)
+    key = f"{robot.name}/{folder.relative_to(robot).as_posix()}"
+    base = yaml.safe_load((robot / "base.yaml").read_text())[robot.name]
     config = yaml.safe_load((folder / "config.yaml").read_text())[key]
     return base, {**base, **config}
 

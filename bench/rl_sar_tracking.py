@@ -62,7 +62,7 @@ def load_policy(path):
         return torch.jit.load(str(path)).eval()
 
 
-def observation(params: dict, motion: RlSarMotion, quat, gyro, q, dq, actions) -> np.ndarray:
+def observation(params: dict, motion, quat, gyro, q, dq, actions) -> np.ndarray:
     """rl_sar's ``ComputeObservation`` for a whole_body_tracking config, (154,) float32.
 
     ``quat`` the IMU's w x y z, ``gyro`` (3,) rad/s body frame, ``q``/``dq`` (N,) in the policy's
@@ -129,9 +129,12 @@ def _check_scene(m: mujoco.MjModel, n: int) -> None:
         raise ValueError("scene: joint sensors and actuators name different joints")
 
 
-def run(folder, scene, start="getup", settle=0.2, timestep=None, seconds=None, fps=None) -> dict:
+def run(
+    folder, scene, start="getup", settle=0.2, timestep=None, seconds=None, fps=None, yaw=0.0
+) -> dict:
     """Play the folder's clip once from ``start``; returns the figures (see :func:`main`).
-    ``fps`` replaces rl_sar's clip rate ``1 / (dt * decimation)`` (a comparison, not rl_sar)."""
+    ``fps`` replaces rl_sar's clip rate ``1 / (dt * decimation)`` (a comparison, not rl_sar);
+    ``yaw`` (rad) turns the robot about z before it is put down (the clip's heading follows it)."""
     folder = Path(folder)
     base, params = rl_sar_params(folder)
     n = int(params["num_of_dofs"])
@@ -153,38 +156,50 @@ def run(folder, scene, start="getup", settle=0.2, timestep=None, seconds=None, f
             d.ctrl[:] = kp_slots * (target_slots - q) - kd_slots * dq
             mujoco.mj_step(m, d, substeps)
 
-    # --- start: put the robot down and hold it
+    def policy_target(cfg, policy, obs):
+        """Forward, clip the actions, ``ComputeOutput``'s target in motor slots."""
+        with torch.no_grad():
+            out = policy(torch.from_numpy(obs)[None]).numpy()[0]
+        lo, hi = np.asarray(cfg["clip_actions_lower"]), np.asarray(cfg["clip_actions_upper"])
+        actions = np.clip(out, lo, hi).astype(np.float32)
+        target = np.empty(n)
+        target[np.asarray(cfg["joint_mapping"])] = actions * np.asarray(
+            cfg["action_scale"], float
+        ) + np.asarray(cfg["default_dof_pos"], float)
+        return actions, target
+
+    def gains(cfg, kp="rl_kp", kd="rl_kd"):
+        slots = np.asarray(cfg["joint_mapping"])
+        kp_s, kd_s = np.empty(n), np.empty(n)
+        kp_s[slots], kd_s[slots] = cfg[kp], cfg[kd]
+        return kp_s, kd_s
+
+    import torch
+
+    # --- start: put the robot down and hold it (GetUp's pose and gains, or the clip's frame 0)
     if start == "getup":
-        pose = np.asarray(base["default_dof_pos"], float)[np.argsort(base["joint_mapping"])]
+        pose = np.empty(n)
+        pose[np.asarray(base["joint_mapping"])] = base["default_dof_pos"]
         d.qpos[slot_of] = pose
-        kp = np.asarray(base["fixed_kp"], float)[np.argsort(base["joint_mapping"])]
-        kd = np.asarray(base["fixed_kd"], float)[np.argsort(base["joint_mapping"])]
+        kp, kd = gains(base, "fixed_kp", "fixed_kd")
     elif start == "clip":
         pose = motion.joints[0]
         d.qpos[slot_of] = pose
         d.qpos[2] = motion.root_pos[0, 2]
         d.qpos[3:7] = motion.root_quat[0]
-        kp = np.empty(n)
-        kd = np.empty(n)
-        kp[mapping], kd[mapping] = params["rl_kp"], params["rl_kd"]
+        kp, kd = gains(params)
     else:
         raise ValueError(f"start: expected 'getup' or 'clip', got {start!r}")
+    d.qpos[3:7] = quat_mul([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)], d.qpos[3:7])
     mujoco.mj_forward(m, d)
     pd_steps(pose, kp, kd, round(settle / dt))
-
     # --- the dance state's Enter: InitRL (config.yaml), MotionLoader, Reset(imu quat, waist)
     policy = load_policy(folder / params["model_name"])
     quat, _, q, _ = _state(m, d, mapping)
     inverse = [list(mapping).index(i) for i in params["waist_joint_indices"]]
     motion.reset(quat, q[inverse])
-    kp_t, kd_t = np.asarray(params["rl_kp"], float), np.asarray(params["rl_kd"], float)
-    kp_s, kd_s = np.empty(n), np.empty(n)
-    kp_s[mapping], kd_s[mapping] = kp_t, kd_t
-    scale = np.asarray(params["action_scale"], float)
-    default = np.asarray(params["default_dof_pos"], float)
-    lo, hi = np.asarray(params["clip_actions_lower"]), np.asarray(params["clip_actions_upper"])
-    actions = np.zeros(n, np.float32)
-    import torch
+    kp_s, kd_s = gains(params)
+    actions = np.zeros(n, np.float32)  # InitObservations
 
     ticks = int(round(motion.duration / (dt * decimation)))
     if seconds is not None:
@@ -201,11 +216,7 @@ def run(folder, scene, start="getup", settle=0.2, timestep=None, seconds=None, f
             np.rad2deg(quat_angle(quat_mul(quat_conj(robot), motion.aligned_anchor_quat())))
         )
         obs = observation(params, motion, quat, gyro, q, dq, actions)
-        with torch.no_grad():
-            out = policy(torch.from_numpy(obs)[None]).numpy()[0]
-        actions = np.clip(out, lo, hi).astype(np.float32)
-        target = np.empty(n)
-        target[mapping] = actions * scale + default
+        actions, target = policy_target(params, policy, obs)
         pd_steps(target, kp_s, kd_s, decimation)
         played = k + 1
         up = 1.0 - 2.0 * (d.qpos[4] ** 2 + d.qpos[5] ** 2)  # world z of the pelvis z axis
@@ -233,11 +244,21 @@ def main(argv=None) -> int:
     p.add_argument("--settle", type=float, default=0.2, help="s held before the dance")
     p.add_argument("--timestep", type=float, default=None, help="physics step, s (default: dt)")
     p.add_argument("--seconds", type=float, default=None, help="stop early, s of the clip")
+    p.add_argument("--yaw", type=float, default=0.0, help="robot heading at start, rad")
     p.add_argument(
         "--fps", type=float, default=None, help="clip rate, Hz (rl_sar: the control rate)"
     )
     args = p.parse_args(argv)
-    r = run(args.folder, args.scene, args.start, args.settle, args.timestep, args.seconds, args.fps)
+    r = run(
+        args.folder,
+        args.scene,
+        args.start,
+        args.settle,
+        args.timestep,
+        args.seconds,
+        args.fps,
+        args.yaw,
+    )
     rms = ", ".join(f"{g} {v:.4f}" for g, v in r["rms"].items())
     print(
         f"played {r['ticks']}/{r['clip_ticks']} ticks ({100 * r['share']:.1f} %), "

@@ -24,7 +24,9 @@ clip``: the robot at the clip's first frame (joints, root orientation and height
 policy's gains. The files: ``git -C RL_SAR archive HEAD policy/g1 | tar -x``, ``git -C
 UNITREE_MUJOCO archive HEAD unitree_robots/g1 | tar -x``. Prints the share of the clip played,
 falls (pelvis below ``FALL_HEIGHT`` or tilted past ``FALL_TILT``), joint-angle RMS error per group against the
-clip at each tick, and the anchor's orientation error (the angle of the observed relative quat).
+clip at each tick, the anchor's orientation error (the angle of the observed relative quat), and
+MPJPE: every body's position relative to the pelvis against the clip's (forward kinematics of the
+clip's frame on the same MJCF, turned by the yaw alignment), mean over bodies and ticks.
 """
 
 from __future__ import annotations
@@ -205,7 +207,13 @@ def run(
     if seconds is not None:
         ticks = min(ticks, int(round(seconds / (dt * decimation))))
     err_sq = np.zeros(n)
-    anchor_deg, played, fell = [], 0, False
+    anchor_deg, mpjpe, played, fell = [], [], 0, False
+    ref = mujoco.MjData(m)  # the clip's pose, for body positions
+    root = m.jnt_bodyid[0]  # the free joint's body (the pelvis)
+    bodies = [b for b in range(1, m.nbody) if b != root]
+    turn = np.empty(9)
+    mujoco.mju_quat2Mat(turn, motion.init_quat)
+    turn = turn.reshape(3, 3)
     for k in range(ticks):
         motion.update(min(k * dt * decimation, motion.duration))
         quat, gyro, q, dq = _state(m, d, mapping)
@@ -215,6 +223,11 @@ def run(
         anchor_deg.append(
             np.rad2deg(quat_angle(quat_mul(quat_conj(robot), motion.aligned_anchor_quat())))
         )
+        ref.qpos[3:7], ref.qpos[slot_of] = motion.root(), ref_slots
+        mujoco.mj_kinematics(m, ref)
+        mujoco.mj_kinematics(m, d)
+        clip_rel = (ref.xpos[bodies] - ref.xpos[root]) @ turn.T
+        mpjpe.append(np.linalg.norm(d.xpos[bodies] - d.xpos[root] - clip_rel, axis=1).mean())
         obs = observation(params, motion, quat, gyro, q, dq, actions)
         actions, target = policy_target(params, policy, obs)
         pd_steps(target, kp_s, kd_s, decimation)
@@ -233,6 +246,7 @@ def run(
         "rms": rms,
         "anchor_mean_deg": float(np.mean(anchor_deg)),
         "anchor_max_deg": float(np.max(anchor_deg)),
+        "mpjpe_mm": 1000.0 * float(np.mean(mpjpe)),
     }
 
 
@@ -263,7 +277,7 @@ def main(argv=None) -> int:
     print(
         f"played {r['ticks']}/{r['clip_ticks']} ticks ({100 * r['share']:.1f} %), "
         f"falls {int(r['fell'])}; joint RMS rad: {rms}; anchor error deg: mean "
-        f"{r['anchor_mean_deg']:.2f}, max {r['anchor_max_deg']:.2f}"
+        f"{r['anchor_mean_deg']:.2f}, max {r['anchor_max_deg']:.2f}; MPJPE {r['mpjpe_mm']:.1f} mm"
     )
     return 1 if r["fell"] else 0
 

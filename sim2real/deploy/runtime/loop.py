@@ -39,6 +39,7 @@ from sim2real.deploy.runtime.state import RuntimeState
 from sim2real.deploy.runtime.supervision import Supervision
 from sim2real.deploy.safety.guard import SafetyGuard
 from sim2real.deploy.smoothing import CommandSmoother, SmoothingError
+from sim2real.deploy.spec.motion_blocks import motion_buffer
 from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.robots import Robot
 
@@ -122,6 +123,8 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         #: smoother's (a PD-target robot whose policy was trained so: :func:`follows_targets`)
         self.follows_targets = follows_targets(self.spec, self.robot, self.mode_name)
         self.state: RobotState = kind.state(robot, envs)
+        #: a motion-tracking policy's reference, written by its task (first frame until then)
+        self.state.motion = motion_buffer(self.spec, envs, n)
         self.goal = np.zeros((envs, 3))
         #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check
         self.base_estimator, self.fall_detector = kind.base_stages(robot, envs)

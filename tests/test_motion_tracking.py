@@ -271,7 +271,8 @@ def g1_dance(tmp_path_factory):
 
 def test_a_few_seconds_of_the_dance_play_without_a_fall(g1_dance, tmp_path):
     """deploy-run --backend sim plays the clip its contract names once RUNNING: 4 s, no fall,
-    the clip started and tracked within 0.15 rad RMS and 10 degrees of anchor error."""
+    the clip started and tracked within 0.15 rad RMS, 10 degrees of anchor error and 60 mm of
+    root-relative body position error over the G1's 29 moving bodies."""
     from sim2real.deploy.cli.deploy_run import deploy_run_main
 
     robot, policy = g1_dance
@@ -283,3 +284,19 @@ def test_a_few_seconds_of_the_dance_play_without_a_fall(g1_dance, tmp_path):
     assert r["locomotion"]["falls"] == 0 and t["plays"] == 1
     assert 0.05 < t["completed"] < 0.15
     assert t["joint_rms_rad_all"] < 0.15 and t["anchor_error_deg_mean"] < 10.0
+    assert 0.0 < t["mpjpe_mm"] < 60.0 and t["bodies"] == 29
+
+
+def test_tasks_are_chosen_by_name_from_the_registry():
+    """task_for picks a registered task by name (the robot kind's by default); an unknown name
+    and a name registered twice are refused; tracking without a clip is refused."""
+    from sim2real.deploy.tasks.task import TASKS, register_task, task_for
+
+    assert {"goals", "locomotion", "tracking"} <= set(TASKS)
+    robot = SimpleNamespace(control_period=0.02)
+    with pytest.raises(ValueError, match=r"task 'dance': expected one of \['goals', 'locomotion'"):
+        task_for(robot, 1, None, period=1.0, rng=None, task="dance")
+    with pytest.raises(ValueError, match="task 'goals': already registered"):
+        register_task("goals", TASKS["goals"])
+    with pytest.raises(ValueError, match="needs a reference motion"):
+        task_for(robot, 1, None, period=1.0, rng=None, task="tracking")

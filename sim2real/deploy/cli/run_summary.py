@@ -74,7 +74,8 @@ def _print_tracking(t: dict, loco: dict | None) -> None:
         )
         print(
             f"  anchor error      {t['anchor_error_deg_mean']:.2f} deg mean, "
-            f"{t['anchor_error_deg_max']:.2f} deg max (torso orientation)"
+            f"{t['anchor_error_deg_max']:.2f} deg max (torso orientation); MPJPE "
+            f"{t['mpjpe_mm']:.1f} mm ({t['bodies']} bodies, root-relative)"
         )
     if loco is not None:
         print(f"  falls             {loco['falls']}")

@@ -1,14 +1,10 @@
-"""rl_sar's policy folder: ``policy/<robot>/<stack>/config.yaml`` beside the policy and
-``policy/<robot>/base.yaml`` above it, at any depth (``<robot>/<group>/<stack>``: the first
-folder up whose base.yaml's one key is ``<robot>``)
-(fan-ziqi/rl_sar; its ``RL::ReadYamlBase``, ``RL::ReadYamlRL``, ``RL::ComputeObservation`` and
-``RL::ComputeOutput`` read them). The policy is the ONNX graph beside config.yaml, or rl_sar's
-own TorchScript ``policy.pt`` (``model_name``): ``policy-export policy.pt`` writes that graph
-(:mod:`sim2real.deploy.export.folder_torchscript`), and ``robot-import --drive-from policy.pt``
-reads the drive from these files alone.
-
-Each file is one mapping under one key (``<robot>/<stack>`` and ``<robot>``), read with a safe
-YAML loader; a key of config.yaml wins over base.yaml's. What it says, as rl_sar's code uses it:
+"""rl_sar's policy folder: ``config.yaml`` beside the policy, key ``<robot>/<stack>`` or
+``<robot>/<group>/<stack>``, and the first ``base.yaml`` up whose one key is ``<robot>``
+(fan-ziqi/rl_sar ``RL::ReadYamlBase``, ``ReadYamlRL``, ``ComputeObservation``, ``ComputeOutput``).
+The policy: the ONNX graph beside config.yaml, or rl_sar's TorchScript ``policy.pt``
+(``policy-export policy.pt``: :mod:`sim2real.deploy.export.folder_torchscript`; ``robot-import
+--drive-from policy.pt``). Each file is one mapping under one key, read with a safe YAML loader;
+config.yaml's keys win over base.yaml's. What it says, as rl_sar's code uses it:
 
 - ``joint_mapping``: the motor slot of each policy joint (``q[i] = motor_state[joint_mapping[i]]``);
   ``joint_names``: the joint of each slot, in the slots' order (its Gazebo loop reads
@@ -23,11 +19,10 @@ YAML loader; a key of config.yaml wins over base.yaml's. What it says, as rl_sar
   (``commands_scale``), ``lin_vel`` (``lin_vel_scale``), ``dof_pos`` (about ``default_dof_pos``,
   ``dof_pos_scale``; the entries of ``wheel_indices`` set to 0: a wheel's angle is never seen),
   ``dof_vel`` (``dof_vel_scale``), ``actions`` (the previous raw action);
-  ``whole_body_tracking/motion_command`` (the clip's joint angles then velocities, one each per
-  joint, policy order) and ``whole_body_tracking/motion_anchor_ori_b`` (6; the torso from the
-  ``waist_joint_indices`` slots) (:mod:`sim2real.deploy.spec.motion_blocks`); ``motion_file``:
-  the clip beside config.yaml, played at ``1 / (dt x decimation)`` Hz (its fsm's
-  ``MotionLoader(motion_file, fps)``), its columns in the motor slots' order (``joint_names``).
+  ``whole_body_tracking/motion_command`` and ``motion_anchor_ori_b`` (the torso from the
+  ``waist_joint_indices`` slots; :mod:`sim2real.deploy.spec.motion_blocks`); ``motion_file``: the
+  clip beside config.yaml, played at ``1 / (dt x decimation)`` Hz (its fsm's ``MotionLoader``),
+  its columns in the motor slots' order (``joint_names``).
   ``observations_history``: the frames read, 0 the newest (``observations_history_priority``
   ``time``: whole frames; ``term``: each term's frames in turn); empty: the present only.
 - ``action_scale``, ``clip_actions_lower``/``_upper``: ``target = default_dof_pos + scale x

@@ -10,7 +10,6 @@ no clip plays none; one that does and has no clip is refused, never fed zeros.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import sys
 from pathlib import Path
@@ -19,6 +18,7 @@ from sim2real.deploy.spec.foreign.mapping import robot_joint_named
 from sim2real.deploy.tasks.motion.clip import ClipError
 from sim2real.deploy.tasks.motion.clock import MotionClock
 from sim2real.deploy.tasks.motion.csv_clip import parse_rate, read_csv_clip
+from sim2real.robots.files import sha256_file
 
 #: The blocks that read a clip (:mod:`sim2real.deploy.spec.motion_blocks`).
 MOTION_BLOCKS = ("motion_command", "motion_anchor_ori_b")
@@ -29,14 +29,6 @@ WAIST_NAMES = ("waist_yaw_joint", "waist_roll_joint", "waist_pitch_joint")
 def reads_motion(spec) -> bool:
     """Whether ``spec``'s observation reads a clip."""
     return any(b.name in MOTION_BLOCKS for b in spec.observation_blocks)
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 def motion_for(policy, robot, envs: int, path=None, playback: str = "once", fps=None):
@@ -106,7 +98,7 @@ def _check_hash(policy, path: Path) -> None:
     if not entry:
         return
     recorded = json.loads(entry)
-    if recorded.get("file") == path.name and recorded.get("sha256") != _sha256(path):
+    if recorded.get("file") == path.name and recorded.get("sha256") != sha256_file(path):
         print(
             f"deploy-run: warning: {path}: not the clip policy-export hashed "
             f"(sha256 {recorded.get('sha256', '')[:12]}...): it changed since",

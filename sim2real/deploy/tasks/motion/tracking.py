@@ -13,10 +13,13 @@ the next tick's reference into ``RobotState.motion`` (the blocks of
   to a locomotion policy there; here the policy holds the last pose, standing);
 - a stop (a fall, the operator) ends the play: the next RUNNING starts the clip again.
 
-Judged while the clip plays, on the plant's truth in simulation (the estimate on hardware):
-joint-angle error (rad RMS) per body group (legs, waist, arms: by the joint's name), the anchor's
-orientation error (deg, the torso of the true base and joint angles against the aligned
-reference), the share of the clip completed; falls by the velocity tracker (a zero command).
+Judged while the clip plays (not while its last frame holds), on the plant's truth in
+simulation (the estimate on hardware): joint-angle error (rad RMS) per body group (legs, waist,
+arms: by the joint's name), the anchor's orientation error (deg, the torso of the true base and
+joint angles against the aligned reference), the bodies' position error (MPJPE, mm,
+root-relative: both poses' forward kinematics with the base at the origin, Pinocchio; the bodies
+the joints move), the share of the clip completed; falls by the velocity tracker (a zero
+command).
 """
 
 from __future__ import annotations
@@ -73,6 +76,16 @@ class TrackingTask:
         self.anchor_sum = np.zeros(envs)
         self.anchor_max = np.zeros(envs)
         self.ticks = np.zeros(envs, dtype=np.int64)
+        self.mpjpe_sum = np.zeros(envs)
+        import pinocchio as pin
+
+        model = robot.pin_model
+        self._pin = (pin, model, model.createData())
+        self._bodies = [
+            i
+            for i, f in enumerate(model.frames)
+            if f.type == pin.FrameType.BODY and f.parentJoint > 1
+        ]
 
     def _buffer(self, runtime) -> np.ndarray:
         state = runtime.state
@@ -102,7 +115,8 @@ class TrackingTask:
             clock.start(first)  # this tick read the first frame: it was time 0
         playing = running & ~np.isnan(clock.time)
         if playing.any():
-            self._judge(runtime, playing)
+            clip = playing & (np.nan_to_num(clock.time, nan=np.inf) < clock.length)
+            self._judge(runtime, clip)  # the clip, not its last frame held
             clock.advance(self.dt, playing)
             np.maximum(self.progress, np.where(playing, clock.time, 0.0), out=self.progress)
             clock.write(self._buffer(runtime), playing)
@@ -125,10 +139,23 @@ class TrackingTask:
         rel = quat_mul(quat_conj(torso), ref[:, 2 * n : 2 * n + 4])
         angle = np.degrees(2.0 * np.arccos(np.clip(np.abs(rel[:, 0]), 0.0, 1.0)))
         e = np.flatnonzero(envs)
+        if not len(e):
+            return
         self.sq_error[e] += (q[e] - ref[e, :n]) ** 2
         self.anchor_sum[e] += angle[e]
         np.maximum(self.anchor_max, np.where(envs, angle, 0.0), out=self.anchor_max)
         self.ticks[e] += 1
+        for k in e:
+            self.mpjpe_sum[k] += 1000.0 * self._mpjpe(ref[k, :n], q[k])
+
+    def _bodies_at(self, q: np.ndarray) -> np.ndarray:
+        pin, model, data = self._pin
+        pin.framesForwardKinematics(model, data, self.robot.pin_configuration(q))
+        return np.array([data.oMf[f].translation for f in self._bodies])
+
+    def _mpjpe(self, q_ref: np.ndarray, q: np.ndarray) -> float:
+        """m: mean distance of the bodies of ``q_ref`` and ``q`` (n,) rad, base at the origin."""
+        return float(np.linalg.norm(self._bodies_at(q_ref) - self._bodies_at(q), axis=1).mean())
 
     def success(self, env: int | None = None) -> float | None:
         """The share of the clip completed (of env ``env``, or the mean)."""
@@ -161,6 +188,8 @@ class TrackingTask:
             ),
             "anchor_error_deg_mean": float(self.anchor_sum.sum() / ticks) if ticks else None,
             "anchor_error_deg_max": float(self.anchor_max.max()),
+            "mpjpe_mm": float(self.mpjpe_sum.sum() / ticks) if ticks else None,
+            "bodies": len(self._bodies),
             "judged_on": "plant truth" if self.truth is not None else "estimate",
         }
 

@@ -300,3 +300,43 @@ def test_tasks_are_chosen_by_name_from_the_registry():
         register_task("goals", TASKS["goals"])
     with pytest.raises(ValueError, match="needs a reference motion"):
         task_for(robot, 1, None, period=1.0, rng=None, task="tracking")
+
+
+def test_a_tracking_policy_without_its_clip_is_refused_not_fed_zeros(g1_dance):
+    """A runtime of the dance with no tracking task (a soak or a script that forgot the clip):
+    its first tick refuses, naming the block, rather than read a clip of zeros."""
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.runtime import Runtime
+    from sim2real.deploy.spec.motion_blocks import MotionBlockError
+    from sim2real.robots import load_robot
+
+    robot_dir, policy_path = g1_dance
+    robot = load_robot(robot_dir)
+    runtime = Runtime(robot, OnnxPolicy(policy_path, robot), SimBackend(robot, "position", envs=1))
+    runtime.start()
+    with pytest.raises(MotionBlockError, match="block 'motion_command' needs a reference motion"):
+        runtime.tick()
+
+
+def test_deploy_run_refuses_a_clip_of_another_robot_in_one_line(g1_dance, tmp_path, capsys):
+    """deploy-run --motion with a clip of 23 joints (a G1 23-dof's) exits 3 before the run, one
+    line naming the file, the row and the joint count."""
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+
+    robot, policy = g1_dance
+    rows = _small(joints=23, frames=4)
+    clip = _csv(tmp_path / "g1_23dof.csv", rows)
+    argv = [
+        "--backend",
+        "sim",
+        "--robot",
+        str(robot),
+        "--policy",
+        str(policy),
+        "--motion",
+        str(clip),
+    ]
+    assert deploy_run_main([*argv, "--duration", "1"]) == 3
+    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(err) == 1 and f"{clip}: row 1: expected 36 columns" in err[0], err

@@ -123,7 +123,8 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         #: smoother's (a PD-target robot whose policy was trained so: :func:`follows_targets`)
         self.follows_targets = follows_targets(self.spec, self.robot, self.mode_name)
         self.state: RobotState = kind.state(robot, envs)
-        #: a motion-tracking policy's reference, written by its task (first frame until then)
+        #: a motion-tracking policy's reference (RobotState.motion): a placeholder for the
+        #: warm-up below only; its task writes the clip, a run without one is refused
         self.state.motion = motion_buffer(self.spec, envs, n)
         self.goal = np.zeros((envs, 3))
         #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check
@@ -199,6 +200,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         self._backend_damp = getattr(backend, "damp", None)
         #: the compiled action screen and supervision (sim2real.deploy.kernels); None in the reference
         self._compiled = self._compile()
+        self.state.motion = None  # never a zero clip: the motion task writes the reference
         #: a fixed base on the compiled path: estimate and observe in one call (_estimate_observe)
         self._fused = self._compiled is not None and self.base_estimator is None
         #: (envs,) bool: a legged robot's envs whose command damps (``damping``), this tick's

@@ -214,6 +214,21 @@ def test_the_clip_is_yaw_aligned_to_the_robots_torso_at_its_start(tmp_path):
     np.testing.assert_allclose(raw, [[1, 0, 0, 1, 0, 0]] * 2, atol=1e-12)
 
 
+@pytest.mark.parametrize(("playback", "time", "plays"), [("once", 0.5, 1), ("loop", 0.1, 2)])
+def test_the_clip_plays_once_holding_its_last_frame_or_loops(tmp_path, playback, time, plays):
+    """0.6 s of a 0.5 s clip: once holds at its end (the last frame), loop starts again at 0
+    (its second play); an env not started stays unstarted; its state survives a reload."""
+    clock = MotionClock(_yaw_clip(tmp_path), ("a", *WAIST), WAIST, envs=2, playback=playback)
+    clock.start(np.array([True, False]))
+    for _ in range(6):
+        clock.advance(0.1, np.ones(2, bool))
+    assert clock.time[0] == pytest.approx(time) and np.isnan(clock.time[1])
+    assert clock.plays.tolist() == [plays, 0]
+    again = MotionClock(_yaw_clip(tmp_path), ("a", *WAIST), WAIST, envs=2, playback=playback)
+    again.load_state_dict(clock.state_dict())
+    assert np.array_equal(again.time, clock.time, equal_nan=True)
+
+
 # ---------------------------------------------------------------------- the anchor block
 def test_the_anchor_block_is_mujocos_torso_against_the_reference(tmp_path):
     """On unitree_mujoco's g1_29dof posed at random (base orientation, waist angles), rl_sar's

@@ -72,6 +72,7 @@ def run(args) -> int:
     """
     from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
     from sim2real.deploy.runtime import SimClock, WallClock
+    from sim2real.deploy.tasks.motion.source import motion_for
     from sim2real.robots import load_robot
 
     # hardware runs on the wall clock only; the real-time options are checked before loading
@@ -86,6 +87,9 @@ def run(args) -> int:
     faults = [Fault.parse(s) for s in args.inject]
     fixed = _fixed_goal(args.goal)
     check_options(args, robot)  # --command, --size, --fps: read once the rig is built
+    motion = motion_for(
+        policy, robot, args.envs, args.motion, args.motion_playback, args.motion_fps
+    )  # a tracking policy's clip (ClipError: a ValueError, exit 3)
     mapping = operator_mapping(args)  # the mapping and its source's file, not its device
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
@@ -104,7 +108,7 @@ def run(args) -> int:
         clock = SimClock(robot.control_period)
     # the rig (its compiled stages, warmed) before the bring-up (in _run_rig): a robot brought
     # up holds at home, and what plays on its clock (a scripted remote) waits on no compile
-    rig = _build_rig(args, robot, policies, backend, injector, clock, fixed, mapping)
+    rig = _build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, motion)
     try:
         return _run_rig(args, rig, realtime, injector, clock, rt_request)
     finally:
@@ -189,7 +193,7 @@ def realtime_options(args, realtime: bool):
     return wait, request
 
 
-def _build_rig(args, robot, policies, backend, injector, clock, fixed, mapping):
+def _build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, motion=None):
     """The run's :class:`~sim2real.deploy.rig.rig.Rig` on the first of ``policies``: the runtime
     (telemetry, overrun limit), the task of the options, the motion figures, the hooks the
     options switch on, the operator (``--operator``'s ``mapping``, after them) and, on hardware
@@ -221,6 +225,8 @@ def _build_rig(args, robot, policies, backend, injector, clock, fixed, mapping):
             "schedule": False,
             "heading_gain": args.heading_hold,
         }
+        if motion is not None:  # the tracking task plays the clip (motion_for)
+            task.update(task="tracking", motion=motion)
         rig = Rig(robot, policy, backend, envs=args.envs, task=task, runtime=runtime)
         rig.add(MotionHook(rig))
         for entry in registered_hooks().values():  # --ros2, --print-joints, --video, ...

@@ -140,6 +140,25 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
         "clipped to 1 rad/s; legged_gym's heading command, default %(default)s); 0: give the "
         "policy the command as it is",
     )
+    p.add_argument(
+        "--motion",
+        default=None,
+        metavar="CLIP",
+        help="motion-tracking policies: the reference clip (CSV: root position, quaternion x y z "
+        "w, joint angles) in place of the one its contract names beside it",
+    )
+    p.add_argument(
+        "--motion-fps",
+        default=None,
+        metavar="HZ",
+        help="the --motion clip's rate, Hz, in place of the contract's",
+    )
+    p.add_argument(
+        "--motion-playback",
+        choices=("once", "loop", "hold"),
+        default="once",
+        help="at the clip's end: hold its last frame (once, hold) or start it again (loop)",
+    )
     p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
     p.add_argument("--goal", default=None, help="fixed goal X,Y,Z (m, base frame)")
     p.add_argument(

@@ -50,11 +50,35 @@ def _print_task(r: dict) -> None:
         _print_walk(loco)
     if loco is not None and loco.get("heading_change_deg") is not None:
         _print_heading(loco)
+    if r.get("tracking") is not None:
+        _print_tracking(r["tracking"], loco)
     if loco is not None and loco.get("true_falls", 0) > loco.get("runtime_falls", 0):
         print(
             f"  TRUE FALLS        {loco['true_falls']} of the true base (sim), of which the "
             f"runtime detected {loco['runtime_falls']}: the run fails (exit code 2)"
         )
+
+
+def _print_tracking(t: dict, loco: dict | None) -> None:
+    """Print the motion tracking: the clip, its share completed, joint and anchor errors, falls."""
+    print(
+        f"  motion clip       {t['clip']}: {t['frames']} frames at {t['fps']:g} Hz "
+        f"({t['length_s']:.2f} s, {t['playback']}), played {t['plays']}x, "
+        f"{100 * t['completed']:.1f} % completed"
+    )
+    if t["ticks"]:
+        groups = ", ".join(f"{g} {v:.3f}" for g, v in t["joint_rms_rad"].items())
+        print(
+            f"  joint error       {t['joint_rms_rad_all']:.3f} rad RMS ({groups}) over "
+            f"{t['ticks']} ticks ({t['judged_on']})"
+        )
+        print(
+            f"  anchor error      {t['anchor_error_deg_mean']:.2f} deg mean, "
+            f"{t['anchor_error_deg_max']:.2f} deg max (torso orientation); MPJPE "
+            f"{t['mpjpe_mm']:.1f} mm ({t['bodies']} bodies, root-relative)"
+        )
+    if loco is not None:
+        print(f"  falls             {loco['falls']}")
 
 
 def _print_walk(loco: dict) -> None:

@@ -77,6 +77,10 @@ class RobotState:
         command: Floating-base robots: (envs, 3) the velocity command (vx, vy m/s, yaw rate
             rad/s, base frame).
         clock: (envs,) s, the runtime's time (the gait phase's clock).
+        motion: A motion-tracking task's reference for this tick (envs, 2n + 4): the clip's
+            joint angles (n) rad and velocities (n) rad/s in the robot's joint order, then its
+            anchor quaternion ``w x y z`` in the world frame, yaw-aligned; None without one
+            (:mod:`sim2real.deploy.spec.motion_blocks`).
     """
 
     q: np.ndarray
@@ -89,6 +93,7 @@ class RobotState:
     foot_contact: np.ndarray | None = None
     command: np.ndarray | None = None
     clock: np.ndarray | None = None
+    motion: np.ndarray | None = None
 
     @classmethod
     def zeros(cls, envs: int, n_joints: int, ambient: float = 25.0) -> RobotState:

@@ -23,7 +23,8 @@ beside (:func:`export_folder_torchscript`):
    NOISE_MULTIPLIER x`` the float32 noise floor``)`` as for every export
    (:mod:`sim2real.deploy.export.noise_floor`); a failed candidate is kept as
    ``<stem>.parity-failed.onnx``;
-5. the written file read back by the same contract reader (its format and sizes); with
+5. the clip the contract names in the ``motion`` metadata (:func:`motion_metadata`); the
+   written file read back by the same contract reader (its format and sizes); with
    ``--robot``, loaded by the runtime (:class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy`:
    the contract mapped onto the robot) and replayed ``REPLAY_TICKS`` ticks in closed loop on the
    MuJoCo plant, torch and ONNX compared at every tick. Only then is it moved onto its name.
@@ -144,6 +145,23 @@ def contract_sizes(contract: ForeignContract) -> tuple[int, int, np.ndarray]:
             [np.full(s * k, b) for s, k, b in zip(sizes, ticks, bounds, strict=True)]
         )
     return obs_dim, n, clips
+
+
+def motion_metadata(motion) -> str:
+    """The ``motion`` metadata entry of a contract's clip (:class:`~sim2real.deploy.spec.foreign.
+    contract.MotionSource`): JSON ``{"file": name beside the graph, "sha256", "fps" Hz,
+    "timing"}``. The clip stays a file beside the graph, as the stack keeps it (a 1,749-frame
+    CSV is 0.6 MB: the graph's metadata would carry it twice); its hash tells a changed clip.
+
+    Raises:
+        ExportError: the clip is not a readable file (naming the contract's key).
+    """
+    path = Path(motion.file)
+    if not path.is_file():
+        raise ExportError(f"{path}: the contract's motion_file is not a file beside the policy")
+    return json.dumps(
+        {"file": path.name, "sha256": sha256_file(path), "fps": motion.fps, "timing": motion.timing}
+    )
 
 
 def _describe(contract: ForeignContract, obs_dim: int) -> str:
@@ -311,6 +329,8 @@ def export_folder_torchscript(
         "tool_versions": json.dumps(tool_versions(), sort_keys=True),
         "exporter": exporter,
     }
+    if contract.motion is not None:  # the clip the runtime plays: found beside it, checked
+        meta["motion"] = motion_metadata(contract.motion)
     model.doc_string = f"policy-export of {source.name} ({contract.format} contract beside it)"
     spec = None
     try:

@@ -39,6 +39,7 @@ from sim2real.deploy.runtime.state import RuntimeState
 from sim2real.deploy.runtime.supervision import Supervision
 from sim2real.deploy.safety.guard import SafetyGuard
 from sim2real.deploy.smoothing import CommandSmoother, SmoothingError
+from sim2real.deploy.spec.motion_blocks import motion_buffer
 from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.robots import Robot
 
@@ -122,6 +123,9 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         #: smoother's (a PD-target robot whose policy was trained so: :func:`follows_targets`)
         self.follows_targets = follows_targets(self.spec, self.robot, self.mode_name)
         self.state: RobotState = kind.state(robot, envs)
+        #: a motion-tracking policy's reference (RobotState.motion): a placeholder for the
+        #: warm-up below only; its task writes the clip, a run without one is refused
+        self.state.motion = motion_buffer(self.spec, envs, n)
         self.goal = np.zeros((envs, 3))
         #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check
         self.base_estimator, self.fall_detector = kind.base_stages(robot, envs)
@@ -196,6 +200,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         self._backend_damp = getattr(backend, "damp", None)
         #: the compiled action screen and supervision (sim2real.deploy.kernels); None in the reference
         self._compiled = self._compile()
+        self.state.motion = None  # never a zero clip: the motion task writes the reference
         #: a fixed base on the compiled path: estimate and observe in one call (_estimate_observe)
         self._fused = self._compiled is not None and self.base_estimator is None
         #: (envs,) bool: a legged robot's envs whose command damps (``damping``), this tick's

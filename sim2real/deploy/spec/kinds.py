@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from sim2real.deploy.spec import kernel, reference
+from sim2real.deploy.spec import kernel, motion_blocks, reference
 from sim2real.robots.errors import Sim2RealError
 
 
@@ -53,6 +53,8 @@ class ObservationKind:
         raw_entries: Entries of the raw vector a block may pick ``components`` from (3 for a
             vector kind, 4 for ``gait_phase``); 0: none.
         periodic: Needs the block's ``period`` (s, > 0).
+        numpy_only: Why the kind has no kernel branch and runs in numpy (the motion-tracking
+            blocks, :mod:`sim2real.deploy.spec.motion_blocks`); empty: it runs in the kernel.
     """
 
     name: str
@@ -67,6 +69,7 @@ class ObservationKind:
     vector: bool = False
     periodic: bool = False
     raw_entries: int = 0
+    numpy_only: str = ""
 
     def block_size(self, joints: int) -> int:
         """Entries of a block of this kind reading ``joints`` joints (all its components)."""
@@ -82,7 +85,8 @@ def register_kind(kind: ObservationKind) -> ObservationKind:
 
     Raises:
         KindError: a name already registered, no numpy writer, inconsistent sizes, no kernel
-            code (every kind runs in the compiled kernel), or a code the kernel has no branch for
+            code (every kind runs in the compiled kernel but one whose ``numpy_only`` says why
+            it cannot), or a code the kernel has no branch for
             or another kind's.
     """
     where = f"observation kind '{kind.name}'"
@@ -96,6 +100,9 @@ def register_kind(kind: ObservationKind) -> ObservationKind:
         raise KindError(f"{where}: every_joint is for joint kinds")
     if kind.vector and (kind.size != 3 or kind.raw_entries != 3):
         raise KindError(f"{where}: a vector kind has 3 entries (size and raw_entries)")
+    if kind.kernel_code is None and kind.numpy_only:
+        KINDS[kind.name] = kind
+        return kind
     if kind.kernel_code is None:
         raise KindError(
             f"{where}: no kernel_code: every kind runs in the compiled kernel; add its branch to "
@@ -128,6 +135,8 @@ def numpy_reason(block) -> str | None:
     """Why a block (:class:`sim2real.deploy.spec.policy_spec.ObservationBlock` of a registered kind) cannot
     run in the kernel, or None: its size does not follow from its joints (a spec not validated)."""
     kind = KINDS[block.name]
+    if kind.numpy_only:
+        return f"block '{block.name}': {kind.numpy_only}"
     if kind.per_joint and block.size != kind.per_joint * len(block.joints):
         return f"block '{block.name}' has {block.size} entries for {len(block.joints)} joints"
     return None
@@ -259,4 +268,30 @@ _fixed(
     vector=True,
     raw_entries=3,
     **_base,
+)
+# A whole-body motion-tracking policy's (rl_sar's whole_body_tracking terms): the reference clip
+# the motion task writes into RobotState.motion; numpy only (motion_blocks.NUMPY_REASON).
+register_kind(
+    ObservationKind(
+        "motion_command",
+        "the clip's joint angles (k), rad, then velocities (k), rad/s, at the motion clock's time; "
+        "unscaled",
+        motion_blocks.motion_command,
+        None,
+        per_joint=2,
+        needs_base=True,
+        numpy_only=motion_blocks.NUMPY_REASON,
+    )
+)
+register_kind(
+    ObservationKind(
+        "motion_anchor_ori_b",
+        "the anchor's (torso's) orientation error against the yaw-aligned clip's, first two "
+        "columns of its rotation matrix row by row (6); joints: the waist's yaw, roll, pitch",
+        motion_blocks.motion_anchor_ori_b,
+        None,
+        size=6,
+        needs_base=True,
+        numpy_only=motion_blocks.NUMPY_REASON,
+    )
 )

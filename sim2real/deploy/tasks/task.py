@@ -1,8 +1,10 @@
 """What a robot is asked to do, as one protocol (:class:`Task`), and the one place that chooses it
-for a robot (:func:`task_for`): reach goals (a fixed-base arm, :class:`sim2real.deploy.tasks.goals.GoalTask`)
-or follow velocity commands (a floating-base robot,
-:class:`sim2real.deploy.tasks.velocity.VelocityTask`). ``deploy-run``, the soak and training build their
-task here; a new kind of task implements :class:`Task` and is chosen in :func:`task_for`.
+for a robot (:func:`task_for`): reach goals (a fixed-base arm, :class:`sim2real.deploy.tasks.goals.GoalTask`),
+follow velocity commands (a floating-base robot,
+:class:`sim2real.deploy.tasks.velocity.VelocityTask`) or track a reference motion
+(:class:`sim2real.deploy.tasks.motion.tracking.TrackingTask`). ``deploy-run``, the soak and training
+build their task here; a new kind of task implements :class:`Task` and registers its builder in
+:data:`TASKS` (:func:`register_task`), chosen by name.
 """
 
 from __future__ import annotations
@@ -55,6 +57,22 @@ class Task(Protocol):
         """Inverse of :meth:`state_dict`; raises ``StateDictError`` (a field under its prefix)."""
 
 
+#: The tasks by name: ``builder(robot, envs, backend, **options) -> Task`` (:func:`task_for`'s
+#: options); ``goals`` and ``locomotion`` are the robot kinds' own (``robot_kind(robot).task``).
+TASKS: dict = {}
+
+
+def register_task(name: str, builder) -> None:
+    """Register ``builder`` under ``name`` (:data:`TASKS`).
+
+    Raises:
+        ValueError: a name already registered.
+    """
+    if name in TASKS:
+        raise ValueError(f"task '{name}': already registered")
+    TASKS[name] = builder
+
+
 def task_for(
     robot,
     envs: int,
@@ -72,6 +90,8 @@ def task_for(
     success_radius: float | None = None,
     ranges=None,
     heading_gain: float = 0.0,
+    task: str | None = None,
+    motion=None,
 ) -> Task:
     """The task of ``robot`` (:func:`sim2real.deploy.robot_kind.robot_kind`): goals for an arm, velocity
     commands for a legged robot.
@@ -107,7 +127,10 @@ def task_for(
     Raises:
         ValueError: a ``command`` that is not three finite numbers (a legged robot).
     """
-    legged = robot_kind(robot).task == "locomotion"
+    name = task or robot_kind(robot).task
+    if name not in TASKS:
+        raise ValueError(f"task '{name}': expected one of {sorted(TASKS)}")
+    legged = name == "locomotion"
     if clock is not None:
         from sim2real.deploy.tasks.commands import CommandRanges
         from sim2real.deploy.tasks.episodes import EpisodeCommands, EpisodeGoals
@@ -118,17 +141,47 @@ def task_for(
         if success_radius is None:
             success_radius = robot.config.task.success_radius
         return EpisodeGoals(robot, envs, period, rng, clock, success_radius)
-    if legged:
-        from sim2real.deploy.tasks.commands import parse_command
-        from sim2real.deploy.tasks.velocity import VelocityTask
+    options = {
+        "period": period, "rng": rng, "success_time": success_time, "fixed": fixed,
+        "command": command, "window": window, "interventions": interventions,
+        "schedule": schedule, "ranges": ranges, "heading_gain": heading_gain, "motion": motion,
+    }  # fmt: skip
+    return TASKS[name](robot, envs, backend, **options)
 
-        if command is not None:
-            command = parse_command(command)
-        if command is not None or not schedule:
-            rng = None  # no schedule
-        return VelocityTask(
-            envs, robot.control_period, backend, period, rng, command, window, heading_gain, ranges
-        )
+
+def _locomotion(robot, envs, backend, *, period, rng, command, window, schedule, ranges,
+                heading_gain, **_) -> Task:  # fmt: skip
+    """Velocity commands: fixed, scheduled, or the runtime's (:func:`task_for`)."""
+    from sim2real.deploy.tasks.commands import parse_command
+    from sim2real.deploy.tasks.velocity import VelocityTask
+
+    if command is not None:
+        command = parse_command(command)
+    if command is not None or not schedule:
+        rng = None  # no schedule
+    return VelocityTask(
+        envs, robot.control_period, backend, period, rng, command, window, heading_gain, ranges
+    )
+
+
+def _goals(robot, envs, backend, *, period, rng, success_time, fixed, window, interventions,
+           **_) -> Task:  # fmt: skip
+    """Reach goals (:func:`task_for`)."""
     from sim2real.deploy.tasks.goals import GoalTask
 
     return GoalTask(robot, envs, period, fixed, success_time, rng, window, interventions)
+
+
+def _tracking(robot, envs, backend, *, motion, **_) -> Task:
+    """Track a reference motion: ``motion`` is ``(MotionClock, waist joint indices)``."""
+    from sim2real.deploy.tasks.motion.tracking import TrackingTask
+
+    if motion is None:
+        raise ValueError("task 'tracking': needs a reference motion (deploy-run --motion CLIP)")
+    clock, waist = motion
+    return TrackingTask(robot, envs, backend, clock, waist)
+
+
+register_task("goals", _goals)
+register_task("locomotion", _locomotion)
+register_task("tracking", _tracking)

@@ -21,7 +21,7 @@ from sim2real.deploy.spec.policy_spec import SpecError
 PerJoint = float | tuple[float, ...] | dict[str, float]
 
 #: Our blocks that read one entry per joint, in the policy's joint order.
-JOINT_KINDS = ("joint_position", "joint_velocity", "last_action")
+JOINT_KINDS = ("joint_position", "joint_velocity", "last_action", "motion_command")
 
 
 class ForeignFormatError(SpecError):
@@ -51,6 +51,8 @@ class Term:
             the present only), each tick's entries in turn, the oldest first.
         zero_joints: ``joint_position`` only: the policy joints (indices in its order) whose
             entry reads 0 (rl_sar's ``wheel_indices``: a wheel's angle is never observed).
+        joints: A fixed-size term that reads some joints (``motion_anchor_ori_b``: the waist's
+            yaw, roll, pitch): the policy joints (indices in its order) it reads, in order.
     """
 
     name: str
@@ -67,6 +69,29 @@ class Term:
     stand_phase: float = 0.0
     history: int = 0
     zero_joints: tuple[int, ...] = ()
+    joints: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class MotionSource:
+    """The reference clip a motion-tracking contract names (rl_sar's ``motion_file``).
+
+    Attributes:
+        file: The clip's path (beside the policy, as the stack finds it).
+        fps: The rate the stack plays its frames at, Hz (rl_sar: the control rate
+            ``1 / (dt x decimation)``, its fsm's ``MotionLoader(motion_file, fps)``).
+        columns: The joint of each joint column of the clip, by the contract's names (rl_sar's
+            CSV: the SDK's motor order, ``joint_names``).
+        timing: The stack's rule from time to frame (``rl_sar``:
+            :class:`sim2real.deploy.tasks.motion.clock.MotionClock`).
+        note: Where each came from, one line for the report.
+    """
+
+    file: str
+    fps: float
+    columns: tuple[str, ...]
+    timing: str = "rl_sar"
+    note: str = ""
 
 
 @dataclass(frozen=True)
@@ -112,6 +137,7 @@ class ForeignContract:
         history_length: Ticks of a ``per_frame`` history (0: the terms' ``history`` say).
         velocity_joints: The policy joints (indices in its order) whose action is a speed target
             (rad/s, ``scale * action``, kp 0: a wheel); the others take position targets.
+        motion: The reference clip of a motion-tracking policy (:class:`MotionSource`); None.
     """
 
     format: str
@@ -141,6 +167,7 @@ class ForeignContract:
     history_layout: str = "per_term"
     history_length: int = 0
     velocity_joints: tuple[int, ...] = ()
+    motion: MotionSource | None = None
 
     @property
     def n_joints(self) -> int | None:

@@ -222,6 +222,8 @@ def _block(
         joints = perm
         if term.kind == "joint_position" and term.relative:
             offset = np.asarray(default, dtype=float)
+    elif term.joints:
+        joints = tuple(perm[i] for i in term.joints)
     return ObservationBlock(
         name=term.kind,
         size=size,

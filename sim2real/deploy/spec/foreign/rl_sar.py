@@ -1,13 +1,10 @@
-"""rl_sar's policy folder: ``policy/<robot>/<stack>/config.yaml`` beside the policy and
-``policy/<robot>/base.yaml`` above it (two folders up for a ``<robot>/<group>/<stack>`` key)
-(fan-ziqi/rl_sar; its ``RL::ReadYamlBase``, ``RL::ReadYamlRL``, ``RL::ComputeObservation`` and
-``RL::ComputeOutput`` read them). The policy is the ONNX graph beside config.yaml, or rl_sar's
-own TorchScript ``policy.pt`` (``model_name``): ``policy-export policy.pt`` writes that graph
-(:mod:`sim2real.deploy.export.folder_torchscript`), and ``robot-import --drive-from policy.pt``
-reads the drive from these files alone.
-
-Each file is one mapping under one key (``<robot>/<stack>`` and ``<robot>``), read with a safe
-YAML loader; a key of config.yaml wins over base.yaml's. What it says, as rl_sar's code uses it:
+"""rl_sar's policy folder: ``config.yaml`` beside the policy, key ``<robot>/<stack>`` or
+``<robot>/<group>/<stack>``, and the first ``base.yaml`` up whose one key is ``<robot>``
+(fan-ziqi/rl_sar ``RL::ReadYamlBase``, ``ReadYamlRL``, ``ComputeObservation``, ``ComputeOutput``).
+The policy: the ONNX graph beside config.yaml, or rl_sar's TorchScript ``policy.pt``
+(``policy-export policy.pt``: :mod:`sim2real.deploy.export.folder_torchscript`; ``robot-import
+--drive-from policy.pt``). Each file is one mapping under one key, read with a safe YAML loader;
+config.yaml's keys win over base.yaml's. What it says, as rl_sar's code uses it:
 
 - ``joint_mapping``: the motor slot of each policy joint (``q[i] = motor_state[joint_mapping[i]]``);
   ``joint_names``: the joint of each slot, in the slots' order (its Gazebo loop reads
@@ -21,7 +18,11 @@ YAML loader; a key of config.yaml wins over base.yaml's. What it says, as rl_sar
   frame on a real robot; ``ang_vel_scale``), ``gravity_vec`` (projected gravity), ``commands``
   (``commands_scale``), ``lin_vel`` (``lin_vel_scale``), ``dof_pos`` (about ``default_dof_pos``,
   ``dof_pos_scale``; the entries of ``wheel_indices`` set to 0: a wheel's angle is never seen),
-  ``dof_vel`` (``dof_vel_scale``), ``actions`` (the previous raw action).
+  ``dof_vel`` (``dof_vel_scale``), ``actions`` (the previous raw action);
+  ``whole_body_tracking/motion_command`` and ``motion_anchor_ori_b`` (the torso from the
+  ``waist_joint_indices`` slots; :mod:`sim2real.deploy.spec.motion_blocks`); ``motion_file``: the
+  clip beside config.yaml, played at ``1 / (dt x decimation)`` Hz (its fsm's ``MotionLoader``),
+  its columns in the motor slots' order (``joint_names``).
   ``observations_history``: the frames read, 0 the newest (``observations_history_priority``
   ``time``: whole frames; ``term``: each term's frames in turn); empty: the present only.
 - ``action_scale``, ``clip_actions_lower``/``_upper``: ``target = default_dof_pos + scale x
@@ -33,7 +34,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sim2real.deploy.spec.foreign.contract import ForeignContract, Term
+from sim2real.deploy.spec.foreign.contract import ForeignContract, MotionSource, Term
 
 NAME = "rl_sar"
 CONFIG = Path("config.yaml")
@@ -50,7 +51,11 @@ TERMS = {
     "dof_pos": ("joint_position", -1, "dof_pos_scale"),
     "dof_vel": ("joint_velocity", -1, "dof_vel_scale"),
     "actions": ("last_action", -1, None),
+    "whole_body_tracking/motion_command": ("motion_command", -2, None),
+    "whole_body_tracking/motion_anchor_ori_b": ("motion_anchor_ori_b", 6, None),
 }
+#: The waist slots rl_sar's anchor term reads (yaw, roll, pitch), from ``waist_joint_indices``.
+WAIST_KEY = "waist_joint_indices"
 
 
 def _sole(path: Path):
@@ -70,9 +75,16 @@ def _sole(path: Path):
 
 def _base(folder: Path, key) -> Path:
     """``policy/<robot>/base.yaml`` for the config key ``<robot>/<stack>`` (``../base.yaml``) or
-    ``<robot>/<group>/<stack>`` (``../../base.yaml``: rl_sar's g1 ``robomimic/locomotion``), as
-    rl_sar reads the robot's base.yaml by the key's first part."""
-    depth = max(1, len(str(key).split("/")) - 1)
+    ``<robot>/<group>/<stack>`` (``../../base.yaml``: rl_sar's g1 ``robomimic/locomotion``,
+    ``whole_body_tracking/dance_102``), as rl_sar reads the robot's base.yaml by the key's first
+    part: the first folder up (as many as the key has parts) whose ``base.yaml`` has the one key
+    ``<robot>``; else the one the key's depth names (refused when read)."""
+    parts = str(key).split("/")
+    depth = max(1, len(parts) - 1)
+    for up in range(1, depth + 1):
+        candidate = folder.joinpath(*[".."] * up, "base.yaml")
+        if candidate.is_file() and _sole(candidate)[1] == parts[0]:
+            return candidate
     return folder.joinpath(*[".."] * depth, "base.yaml")
 
 
@@ -137,7 +149,8 @@ def read(facts) -> ForeignContract:
             )
         clip = high[0]
     clip_obs = float(get("clip_obs", (int, float)))
-    terms = tuple(_term(name, merged, clip_obs, wheels) for name in get("observations"))
+    terms = tuple(_term(name, merged, clip_obs, wheels, n) for name in get("observations"))
+    terms = tuple(_waist(t, merged, slots, fail, where) for t in terms)
     history, order, layout, length = _history(merged.get("observations_history"), merged, fail)
     if layout == "per_term":
         terms = tuple(
@@ -165,6 +178,10 @@ def read(facts) -> ForeignContract:
     ]
     if wheels:
         notes.append(f"wheel_indices {list(wheels)}: speed targets, their dof_pos entries 0")
+    motion = _motion(merged, folder, names, period, fail, where)
+    if motion is not None:
+        notes.append(motion.note)
+
     found = [
         ("config.yaml", where),
         ("base.yaml", f"{base_path} ({base_key})"),
@@ -175,6 +192,8 @@ def read(facts) -> ForeignContract:
         ("action_scale", str(merged.get("action_scale"))),
         ("control period", f"dt x decimation = {period} s"),
     ]
+    if motion is not None:
+        found.append(("motion_file", f"{motion.file} at {motion.fps:g} Hz"))
     return facts.contract(
         NAME,
         where,
@@ -197,11 +216,13 @@ def read(facts) -> ForeignContract:
         history_layout=layout,
         history_length=length if layout == "per_frame" else 0,
         velocity_joints=wheels,
+        motion=motion,
     )
 
 
-def _term(name: str, cfg: dict, clip_obs: float, wheels: tuple[int, ...]) -> Term:
-    """One observation (module docstring): its kind, multiplier and clip (after scaling)."""
+def _term(name: str, cfg: dict, clip_obs: float, wheels: tuple[int, ...], n: int) -> Term:
+    """One observation (module docstring): its kind, multiplier and clip (after scaling); ``n``
+    the policy's joints."""
     if name not in TERMS:
         reason = (
             "the angular velocity in the world frame (rl_sar's ROS 1 Gazebo)"
@@ -210,6 +231,7 @@ def _term(name: str, cfg: dict, clip_obs: float, wheels: tuple[int, ...]) -> Ter
         )
         return Term(name, None, 0, reason=reason)
     kind, size, scale_key = TERMS[name]
+    size = 2 * n if size == -2 else size  # the clip's angles and velocities
     raw = 1.0 if scale_key is None else cfg.get(scale_key, 1.0)
     scale = tuple(float(x) for x in raw) if isinstance(raw, list) else float(raw)
     if isinstance(scale, tuple) and len(set(scale)) == 1:
@@ -218,6 +240,41 @@ def _term(name: str, cfg: dict, clip_obs: float, wheels: tuple[int, ...]) -> Ter
         name, kind, size, scale, clip_obs, relative=True,
         zero_joints=wheels if kind == "joint_position" else (),
     )  # fmt: skip
+
+
+def _waist(term: Term, cfg: dict, slots: tuple[int, ...], fail, where: str) -> Term:
+    """The anchor term with its joints: the policy joints of the ``waist_joint_indices`` slots
+    (yaw, roll, pitch; rl_sar's ``InverseJointMapping``); other terms as they are."""
+    if term.kind != "motion_anchor_ori_b":
+        return term
+    waist = cfg.get(WAIST_KEY)
+    if not (isinstance(waist, list) and len(waist) == 3 and all(s in slots for s in waist)):
+        raise fail(
+            f"{where}: '{WAIST_KEY}': expected the 3 motor slots of the waist's yaw, roll and "
+            f"pitch joints (of {list(slots)}), got {waist!r}"
+        )
+    return Term(**{**term.__dict__, "joints": tuple(slots.index(int(s)) for s in waist)})
+
+
+def _motion(cfg: dict, folder: Path, names, period: float, fail, where: str):
+    """The clip ``motion_file`` names (module docstring), or None without one."""
+    name = cfg.get("motion_file")
+    if name is None:
+        return None
+    if not isinstance(name, str) or not name:
+        raise fail(f"{where}: 'motion_file': expected a file name beside config.yaml, got {name!r}")
+    if names is None:
+        raise fail(
+            f"{where}: 'motion_file' {name}: its columns are the motor slots' joints, and no "
+            "'joint_names' names them"
+        )
+    fps = 1.0 / period
+    note = (
+        f"motion_file {name}: played at 1 / (dt x decimation) = {fps:g} Hz as rl_sar's fsm "
+        "plays it (a rate in its name is not what rl_sar reads); its joint columns in the "
+        "motor slots' order of joint_names"
+    )
+    return MotionSource(str(folder / name), fps, tuple(names), "rl_sar", note)
 
 
 def _history(value, cfg: dict, fail) -> tuple[list, str, str, int]:

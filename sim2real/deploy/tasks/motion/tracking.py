@@ -1,0 +1,218 @@
+"""The motion-tracking task: the clip a whole-body tracking policy is commanded by, and how well
+the robot followed it.
+
+:class:`TrackingTask` (a :class:`~sim2real.deploy.tasks.task.Task`, registered as ``tracking``)
+owns the :class:`~sim2real.deploy.tasks.motion.clock.MotionClock` and writes, after every tick,
+the next tick's reference into ``RobotState.motion`` (the blocks of
+:mod:`sim2real.deploy.spec.motion_blocks` read it):
+
+- before the robot is RUNNING (RAMP_IN to the home pose), the clip's first frame, yaw-aligned to
+  the robot as it stands now (rl_sar's ``Reset`` on entering its tracking state);
+- on the first RUNNING tick the clip starts (that tick read its time 0); each RUNNING tick
+  moves it one control period on; at its end the last frame holds (``once``: rl_sar hands over
+  to a locomotion policy there; here the policy holds the last pose, standing);
+- a stop (a fall, the operator) ends the play: the next RUNNING starts the clip again.
+
+Judged while the clip plays (not while its last frame holds), on the plant's truth in
+simulation (the estimate on hardware): joint-angle error (rad RMS) per body group (legs, waist,
+arms: by the joint's name), the anchor's orientation error (deg, the torso of the true base and
+joint angles against the aligned reference), the bodies' position error (MPJPE, mm,
+root-relative: both poses' forward kinematics with the base at the origin, Pinocchio; the bodies
+the joints move), the share of the clip completed; falls by the velocity tracker (a zero
+command).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim2real.deploy.core.modes import RUNNING
+from sim2real.deploy.spec.motion_blocks import quat_conj, quat_mul, torso_quat
+from sim2real.deploy.tasks.motion.clock import MotionClock
+from sim2real.deploy.tasks.velocity import VelocityTask
+
+#: Body groups of the joint-angle error, by a word of the joint's name (the first that matches).
+GROUPS = (("legs", ("hip", "knee", "ankle")), ("waist", ("waist", "torso")), ("arms", ("",)))
+
+
+def body_groups(joint_names) -> dict[str, np.ndarray]:
+    """``{group: joint indices}`` of :data:`GROUPS` (a group with no joints left out)."""
+    out: dict[str, list[int]] = {g: [] for g, _ in GROUPS}
+    for i, name in enumerate(joint_names):
+        group = next(g for g, words in GROUPS if any(w in name for w in words))
+        out[group].append(i)
+    return {g: np.array(v, dtype=np.intp) for g, v in out.items() if v}
+
+
+class TrackingTask:
+    """The ``tracking`` task of ``envs`` legged robots (module docstring).
+
+    Args:
+        robot: The robot. envs: Batch size. backend: The runtime's backend (its truth judges).
+        clock: The :class:`MotionClock` (the clip in the robot's joint order).
+        waist: Robot joint indices of the waist's yaw, roll and pitch (the anchor block's).
+
+    Attributes:
+        motion: The :class:`MotionClock`. velocity: The :class:`VelocityTask` (zero command)
+            whose tracker counts the falls. progress: (envs,) s, the farthest clip time reached.
+        sq_error: (envs, n) rad^2, squared joint-angle error summed over the playing ticks;
+            anchor_sum: (envs,) deg, anchor error summed; anchor_max: (envs,) deg; ticks:
+            (envs,) playing ticks judged.
+    """
+
+    name = "tracking"
+
+    def __init__(self, robot, envs: int, backend, clock: MotionClock, waist):
+        self.robot, self.envs, self.motion = robot, envs, clock
+        self.dt = robot.control_period
+        self.waist = np.asarray(waist, dtype=np.intp)
+        self.velocity = VelocityTask(envs, self.dt, backend, 1.0, None, np.zeros(3))
+        self.truth = getattr(backend, "true_base_state", None)
+        self.true_q = getattr(backend, "true_position", None)
+        self.groups = body_groups(robot.joint_names)
+        n = robot.n_joints
+        self.progress = np.zeros(envs)
+        self.sq_error = np.zeros((envs, n))
+        self.anchor_sum = np.zeros(envs)
+        self.anchor_max = np.zeros(envs)
+        self.ticks = np.zeros(envs, dtype=np.int64)
+        self.mpjpe_sum = np.zeros(envs)
+        import pinocchio as pin
+
+        model = robot.pin_model
+        self._pin = (pin, model, model.createData())
+        self._bodies = [
+            i
+            for i, f in enumerate(model.frames)
+            if f.type == pin.FrameType.BODY and f.parentJoint > 1
+        ]
+
+    def _buffer(self, runtime) -> np.ndarray:
+        state = runtime.state
+        if state.motion is None:
+            state.motion = np.zeros((self.envs, 2 * self.robot.n_joints + 4))
+        return state.motion
+
+    def reset(self, runtime, envs: np.ndarray) -> None:
+        """The zero velocity command; the clip's first frame aligned to the robots of ``envs``."""
+        self.velocity.reset(runtime, envs)
+        self.motion.stop(envs)
+        self._align(runtime, envs)
+
+    def _align(self, runtime, envs: np.ndarray) -> None:
+        state = runtime.state
+        self.motion.align(envs, state.base.orientation, state.q[:, self.waist])
+        self.motion.write(self._buffer(runtime), envs)
+
+    def __call__(self, runtime, truth: np.ndarray | None = None) -> None:
+        """One tick (module docstring): judge the tick that ran, then write the next one's."""
+        self.velocity(runtime, truth)
+        running = runtime.mode == RUNNING
+        clock = self.motion
+        playing = ~np.isnan(clock.time)
+        first = running & ~playing
+        if first.any():
+            clock.start(first)  # this tick read the first frame: it was time 0
+        playing = running & ~np.isnan(clock.time)
+        if playing.any():
+            clip = playing & (np.nan_to_num(clock.time, nan=np.inf) < clock.length)
+            self._judge(runtime, clip)  # the clip, not its last frame held
+            clock.advance(self.dt, playing)
+            np.maximum(self.progress, np.where(playing, clock.time, 0.0), out=self.progress)
+            clock.write(self._buffer(runtime), playing)
+        stopped = ~running & ~np.isnan(clock.time)
+        if stopped.any():
+            clock.stop(stopped)
+        idle = ~running
+        if idle.any():
+            self._align(runtime, idle)
+
+    def _judge(self, runtime, envs: np.ndarray) -> None:
+        """Add this tick's errors of the envs of ``envs`` against the reference it read."""
+        state, n = runtime.state, self.robot.n_joints
+        ref = state.motion
+        q = state.q
+        if self.true_q is not None:
+            q = self.true_q()
+        quat = state.base.orientation if self.truth is None else self.truth()[:, 3:7]
+        torso = torso_quat(quat, q[:, self.waist])
+        rel = quat_mul(quat_conj(torso), ref[:, 2 * n : 2 * n + 4])
+        angle = np.degrees(2.0 * np.arccos(np.clip(np.abs(rel[:, 0]), 0.0, 1.0)))
+        e = np.flatnonzero(envs)
+        if not len(e):
+            return
+        self.sq_error[e] += (q[e] - ref[e, :n]) ** 2
+        self.anchor_sum[e] += angle[e]
+        np.maximum(self.anchor_max, np.where(envs, angle, 0.0), out=self.anchor_max)
+        self.ticks[e] += 1
+        for k in e:
+            self.mpjpe_sum[k] += 1000.0 * self._mpjpe(ref[k, :n], q[k])
+
+    def _bodies_at(self, q: np.ndarray) -> np.ndarray:
+        pin, model, data = self._pin
+        pin.framesForwardKinematics(model, data, self.robot.pin_configuration(q))
+        return np.array([data.oMf[f].translation for f in self._bodies])
+
+    def _mpjpe(self, q_ref: np.ndarray, q: np.ndarray) -> float:
+        """m: mean distance of the bodies of ``q_ref`` and ``q`` (n,) rad, base at the origin."""
+        return float(np.linalg.norm(self._bodies_at(q_ref) - self._bodies_at(q), axis=1).mean())
+
+    def success(self, env: int | None = None) -> float | None:
+        """The share of the clip completed (of env ``env``, or the mean)."""
+        share = self.progress / self.motion.length
+        return float(share.mean() if env is None else share[env])
+
+    def summary(self) -> dict:
+        """``tracking``'s report entry (module docstring); errors over every env's playing
+        ticks (None before any)."""
+        ticks = int(self.ticks.sum())
+        rms = {
+            g: (float(np.sqrt(self.sq_error[:, j].sum() / (ticks * len(j)))) if ticks else None)
+            for g, j in self.groups.items()
+        }
+        clip = self.motion.clip
+        return {
+            "clip": str(clip.source),
+            "frames": clip.frames,
+            "fps": clip.fps,
+            "length_s": self.motion.length,
+            "playback": self.motion.playback,
+            "plays": int(self.motion.plays.sum()),
+            "completed": self.success(),
+            "ticks": ticks,
+            "joint_rms_rad": rms,
+            "joint_rms_rad_all": (
+                float(np.sqrt(self.sq_error.sum() / (ticks * self.robot.n_joints)))
+                if ticks
+                else None
+            ),
+            "anchor_error_deg_mean": float(self.anchor_sum.sum() / ticks) if ticks else None,
+            "anchor_error_deg_max": float(self.anchor_max.max()),
+            "mpjpe_mm": float(self.mpjpe_sum.sum() / ticks) if ticks else None,
+            "bodies": len(self._bodies),
+            "judged_on": "plant truth" if self.truth is not None else "estimate",
+        }
+
+    def report(self, runtime) -> dict:
+        report = self.velocity.report(runtime)
+        report["tracking"] = self.summary()
+        return report
+
+    def curve_start(self) -> dict[str, list]:
+        return self.velocity.curve_start()
+
+    def curve_point(self, curve: dict[str, list], e: int) -> None:
+        self.velocity.curve_point(curve, e)
+
+    def parts(self) -> dict:
+        return {"motion": self.motion, **self.velocity.parts()}
+
+    def state_dict(self, env: int | None = None) -> dict:
+        from sim2real.deploy.core.stateful import parts_state_dict
+
+        return parts_state_dict(self.parts(), env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        from sim2real.deploy.core.stateful import load_parts
+
+        load_parts(self.parts(), state, env)

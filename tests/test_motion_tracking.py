@@ -1,0 +1,357 @@
+"""Whole-body motion tracking from rl_sar's folder: the nested dance_102 folder read and exported,
+its CSV clip read as rl_sar's MotionLoader reads it, the motion clock's interpolation and yaw
+alignment, the anchor block against MuJoCo's torso, refusals of clips that do not fit, and a
+few seconds of the dance through deploy-run (rl_sar and unitree_mujoco mirrors: skipped without)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import onnx
+import pytest
+import yaml
+
+from sim2real.deploy.spec.motion_blocks import (
+    axis_quat,
+    motion_anchor_ori_b,
+    torso_quat,
+)
+from sim2real.deploy.tasks.motion.clip import ClipError, MotionClip
+from sim2real.deploy.tasks.motion.clock import MotionClock
+from sim2real.deploy.tasks.motion.csv_clip import read_csv_clip
+from tests.motion_files import CLIP, G1_FLAGS, dance_folder, g1_xml
+
+WAIST = ("waist_yaw_joint", "waist_roll_joint", "waist_pitch_joint")
+
+
+def _rows(path: Path) -> np.ndarray:
+    return np.array([[float(c) for c in line.split(",")] for line in path.read_text().split()])
+
+
+def _columns(dance: Path) -> tuple[str, ...]:
+    base = yaml.safe_load((dance.parents[1] / "base.yaml").read_text())
+    return tuple(base["g1"]["joint_names"])
+
+
+# ---------------------------------------------------------------------- the folder
+def test_the_nested_folder_is_read_with_its_motion_terms_and_clip(tmp_path):
+    """config key g1/whole_body_tracking/dance_102: base.yaml two folders up (a base.yaml of
+    another key between them is passed over); its two tracking terms are our motion blocks (the
+    anchor's joints the waist slots 12, 13, 14 of joint_mapping); its clip plays at the control
+    rate 1 / (dt x decimation) = 50 Hz, as rl_sar's fsm plays it."""
+    from sim2real.deploy.export.folder_torchscript import folder_contract
+
+    dance = dance_folder(tmp_path)
+    (dance.parent / "base.yaml").write_text("decoy:\n  dt: 1.0\n")
+    contract = folder_contract(dance / "policy.pt")
+    assert contract.format == "rl_sar"
+    kinds = [(t.kind, t.size if t.size >= 0 else len(contract.joint_slots)) for t in contract.terms]
+    assert kinds == [
+        ("motion_command", 58),
+        ("motion_anchor_ori_b", 6),
+        ("base_angular_velocity", 3),
+        ("joint_position", 29),
+        ("joint_velocity", 29),
+        ("last_action", 29),
+    ]
+    mapping = [0, 6, 12, 1, 7, 13, 2, 8, 14, 3, 9, 15, 22, 4, 10, 16, 23, 5, 11, 17, 24, 18, 25]
+    anchor = contract.terms[1]
+    assert anchor.joints == tuple(mapping.index(s) for s in (12, 13, 14)) == (2, 5, 8)
+    assert contract.motion.file == str(dance / CLIP)
+    assert contract.motion.fps == pytest.approx(50.0)
+    assert contract.motion.columns == _columns(dance)
+
+
+def test_an_unmapped_tracking_term_is_refused_by_name(tmp_path):
+    """A term of the folder no block computes (BeyondMimic's anchor position) is refused naming
+    it, never zeroed."""
+    from sim2real.deploy.export.errors import ExportError
+    from sim2real.deploy.export.folder_torchscript import export_folder_torchscript
+
+    dance = dance_folder(tmp_path)
+    cfg = dance / "config.yaml"
+    doc = yaml.safe_load(cfg.read_text())
+    key = next(iter(doc))
+    doc[key]["observations"].insert(2, "whole_body_tracking/motion_anchor_pos_b")
+    cfg.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ExportError, match="'whole_body_tracking/motion_anchor_pos_b': not an obs"):
+        export_folder_torchscript(dance / "policy.pt")
+
+
+def test_policy_export_writes_the_graph_and_names_the_clip_with_its_hash(tmp_path):
+    """policy-export policy.pt: the ONNX beside it (parity passed), read back as rl_sar's, its
+    ``motion`` metadata the clip's name, sha256 and rate."""
+    from sim2real.deploy.export.folder_torchscript import export_folder_torchscript
+
+    dance = dance_folder(tmp_path)
+    result = export_folder_torchscript(dance / "policy.pt")
+    assert (result.obs_dim, result.act_dim) == (154, 29)
+    assert result.parity["passed"]
+    meta = {p.key: p.value for p in onnx.load(result.path).metadata_props}
+    motion = json.loads(meta["motion"])
+    digest = hashlib.sha256((dance / CLIP).read_bytes()).hexdigest()
+    assert motion == {"file": CLIP, "sha256": digest, "fps": 50.0, "timing": "rl_sar"}
+
+
+# ---------------------------------------------------------------------- the CSV clip
+def test_csv_clip_values_are_the_files_as_rl_sar_reads_them(tmp_path):
+    """Frame 0's joints are the file's columns 8..36; the quaternion x y z w becomes w x y z;
+    velocities are the forward difference at the given rate, the last frame repeating the one
+    before (rl_sar's ComputeVelocities)."""
+    dance = dance_folder(tmp_path)
+    rows = _rows(dance / CLIP)
+    clip = read_csv_clip(dance / CLIP, _columns(dance), 50.0)
+    assert clip.frames == len(rows) == 1749
+    np.testing.assert_array_equal(clip.joint_pos[0], rows[0, 7:])
+    np.testing.assert_array_equal(clip.root_pos[0], rows[0, :3])
+    np.testing.assert_array_equal(clip.root_quat[0], rows[0, [6, 3, 4, 5]])
+    np.testing.assert_allclose(clip.joint_vel[10], (rows[11, 7:] - rows[10, 7:]) * 50.0)
+    np.testing.assert_array_equal(clip.joint_vel[-1], clip.joint_vel[-2])
+
+
+def _csv(path: Path, rows: np.ndarray) -> Path:
+    path.write_text("\n".join(",".join(f"{v:.6f}" for v in r) for r in rows) + "\n")
+    return path
+
+
+def _small(joints: int = 4, frames: int = 3) -> np.ndarray:
+    rows = np.zeros((frames, 7 + joints))
+    rows[:, 6] = 1.0  # w
+    return rows
+
+
+@pytest.mark.parametrize(
+    ("change", "fps", "match"),
+    [
+        ("joints", 50.0, r"row 1: expected 11 columns .* got 10 \(3 joints\)"),
+        (
+            "limit",
+            50.0,
+            r"frame 2 joint b: 1\.5000 rad is past its hard limit \[-1\.0000, 1\.0000\]",
+        ),
+        ("none", "sixty", r"fps: expected a positive number of frames per second, got 'sixty'"),
+        ("cell", 50.0, r"row 2 column 9: expected a number, got 'nan\?'"),
+    ],
+)
+def test_a_clip_that_does_not_fit_is_refused_in_one_line(tmp_path, change, fps, match):
+    """A wrong joint count, a frame past a hard limit, a rate that is not a number, a cell that
+    is not a number: one line naming the file and the field."""
+    rows = _small()
+    if change == "joints":
+        rows = rows[:, :-1]
+    if change == "limit":
+        rows[2, 8] = 1.5
+    path = _csv(tmp_path / "clip.csv", rows)
+    if change == "cell":
+        lines = path.read_text().splitlines()
+        cells = lines[1].split(",")
+        cells[8] = "nan?"
+        lines[1] = ",".join(cells)
+        path.write_text("\n".join(lines))
+    limits = {"b": (-1.0, 1.0)}
+    with pytest.raises(ClipError) as err:
+        read_csv_clip(path, ("a", "b", "c", "d"), fps, limits)
+    message = str(err.value)
+    assert "\n" not in message and message.startswith(str(path))
+    assert __import__("re").search(match, message), message
+
+
+# ---------------------------------------------------------------------- the clock
+def _yaw_clip(tmp_path) -> MotionClip:
+    """5 frames at 10 Hz: root yaw 0.5 + 0.2 i, waist yaw 0.1 i, joint ``a`` = i."""
+    frames = np.arange(5.0)
+    root = axis_quat(2, 0.5 + 0.2 * frames)
+    pos = np.zeros((5, 4))
+    pos[:, 0] = 0.1 * frames
+    pos[:, 3] = frames
+    return MotionClip(
+        source=tmp_path / "c.csv", fps=10.0, joint_names=(*WAIST, "a"), joint_pos=pos,
+        joint_vel=np.gradient(pos, axis=0), root_pos=np.zeros((5, 3)), root_quat=root,
+    )  # fmt: skip
+
+
+def _yaw(q: np.ndarray) -> float:
+    w, x, y, z = q
+    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def test_the_clock_interpolates_as_rl_sars_update(tmp_path):
+    """Length T / fps = 0.5 s; t = 0.2 s is frame 0.2 / 0.5 x 4 = 1.6: joints 0.4 x frame 1 + 0.6 x
+    frame 2, the root's yaw slerped likewise, the anchor's yaw root plus waist; past the end the
+    last frame."""
+    clock = MotionClock(_yaw_clip(tmp_path), ("a", *WAIST), WAIST, envs=1)
+    assert clock.length == pytest.approx(0.5)
+    assert clock.frame(0.2) == (1, 2, pytest.approx(0.6))
+    pos, vel, anchor = clock.sample(0.2)
+    assert pos[0] == pytest.approx(1.6) and pos[1] == pytest.approx(0.16)
+    assert _yaw(anchor) == pytest.approx(0.5 + 0.2 * 1.6 + 0.16)
+    assert clock.sample(9.0)[0][0] == pytest.approx(4.0)
+
+
+def test_the_clip_is_yaw_aligned_to_the_robots_torso_at_its_start(tmp_path):
+    """A robot whose base yaws 1.0 rad with its waist at 0.3: the aligned anchor at t = 0 faces
+    the robot's torso (1.3 rad), so the anchor block of that robot reads the identity's columns;
+    a second robot's alignment is its own."""
+    clock = MotionClock(_yaw_clip(tmp_path), ("a", *WAIST), WAIST, envs=2)
+    base = axis_quat(2, np.array([1.0, -2.0]))
+    waist = np.array([[0.3, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    clock.align(np.ones(2, bool), base, waist)
+    assert _yaw(clock.init[0]) == pytest.approx(1.3 - 0.5)
+    out = np.zeros((2, 2 * 4 + 4))
+    clock.write(out)
+    assert _yaw(out[0, 8:]) == pytest.approx(1.3)
+    assert _yaw(out[1, 8:]) == pytest.approx(-2.0)
+    state = SimpleNamespace(q=np.zeros((2, 4)), base=SimpleNamespace(orientation=base), motion=out)
+    state.q[:, 1:] = waist
+    raw = np.zeros((2, 6))
+    block = SimpleNamespace(joints=np.array([1, 2, 3]), kind=SimpleNamespace(name="x"))
+    motion_anchor_ori_b(state, None, raw, block, None, None)
+    np.testing.assert_allclose(raw, [[1, 0, 0, 1, 0, 0]] * 2, atol=1e-12)
+
+
+@pytest.mark.parametrize(("playback", "time", "plays"), [("once", 0.5, 1), ("loop", 0.1, 2)])
+def test_the_clip_plays_once_holding_its_last_frame_or_loops(tmp_path, playback, time, plays):
+    """0.6 s of a 0.5 s clip: once holds at its end (the last frame), loop starts again at 0
+    (its second play); an env not started stays unstarted; its state survives a reload."""
+    clock = MotionClock(_yaw_clip(tmp_path), ("a", *WAIST), WAIST, envs=2, playback=playback)
+    clock.start(np.array([True, False]))
+    for _ in range(6):
+        clock.advance(0.1, np.ones(2, bool))
+    assert clock.time[0] == pytest.approx(time) and np.isnan(clock.time[1])
+    assert clock.plays.tolist() == [plays, 0]
+    again = MotionClock(_yaw_clip(tmp_path), ("a", *WAIST), WAIST, envs=2, playback=playback)
+    again.load_state_dict(clock.state_dict())
+    assert np.array_equal(again.time, clock.time, equal_nan=True)
+
+
+# ---------------------------------------------------------------------- the anchor block
+def test_the_anchor_block_is_mujocos_torso_against_the_reference(tmp_path):
+    """On unitree_mujoco's g1_29dof posed at random (base orientation, waist angles), rl_sar's
+    torso formula is MuJoCo's xquat of torso_link, and the block is the first two columns of
+    R_torso^T R_ref from MuJoCo's xmat, row by row."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_path(str(g1_xml(tmp_path)))
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(4)
+    torso = model.body("torso_link").id
+    adr = [model.jnt_qposadr[model.joint(j).id] for j in WAIST]
+    for _ in range(5):
+        base = rng.normal(size=4)
+        base /= np.linalg.norm(base)
+        waist = rng.uniform(-0.5, 0.5, 3)
+        data.qpos[3:7], data.qpos[adr] = base, waist
+        mujoco.mj_kinematics(model, data)
+        ours = torso_quat(base, waist)
+        assert (
+            min(np.abs(ours - data.xquat[torso]).max(), np.abs(ours + data.xquat[torso]).max())
+            < 1e-9
+        )
+        ref = rng.normal(size=4)
+        ref /= np.linalg.norm(ref)
+        r_ref = np.zeros(9)
+        mujoco.mju_quat2Mat(r_ref, ref)
+        expected = (data.xmat[torso].reshape(3, 3).T @ r_ref.reshape(3, 3))[:, :2].reshape(-1)
+        state = SimpleNamespace(
+            q=waist[None], base=SimpleNamespace(orientation=base[None]),
+            motion=np.concatenate([np.zeros(6), ref])[None],
+        )  # fmt: skip
+        raw = np.zeros((1, 6))
+        block = SimpleNamespace(joints=np.arange(3), kind=SimpleNamespace(name="x"))
+        motion_anchor_ori_b(state, None, raw, block, None, None)
+        np.testing.assert_allclose(raw[0], expected, atol=1e-9)
+
+
+# ---------------------------------------------------------------------- a dance
+@pytest.fixture(scope="module")
+def g1_dance(tmp_path_factory):
+    """dance_102 exported and unitree_mujoco's G1 imported with robot-level flags only."""
+    from sim2real.deploy.cli.robot_import import main as robot_import
+    from sim2real.deploy.export.folder_torchscript import export_folder_torchscript
+
+    root = tmp_path_factory.mktemp("dance")
+    dance = dance_folder(root)
+    xml = g1_xml(root)
+    onnx_path = export_folder_torchscript(dance / "policy.pt").path
+    out = root / "robots" / "g1"
+    flags = [str(xml), *G1_FLAGS, "--drive-from", str(dance / "policy.pt"), "--out", str(out)]
+    assert robot_import(flags) == 0
+    return out, onnx_path
+
+
+def test_a_few_seconds_of_the_dance_play_without_a_fall(g1_dance, tmp_path):
+    """deploy-run --backend sim plays the clip its contract names once RUNNING: 4 s, no fall,
+    the clip started and tracked within 0.15 rad RMS, 10 degrees of anchor error and 60 mm of
+    root-relative body position error over the G1's 29 moving bodies."""
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+
+    robot, policy = g1_dance
+    report = tmp_path / "r.json"
+    argv = ["--backend", "sim", "--robot", str(robot), "--policy", str(policy)]
+    assert deploy_run_main([*argv, "--duration", "4", "--report", str(report)]) == 0
+    r = json.loads(report.read_text())
+    t = r["tracking"]
+    assert r["locomotion"]["falls"] == 0 and t["plays"] == 1
+    assert 0.05 < t["completed"] < 0.15
+    assert t["joint_rms_rad_all"] < 0.15 and t["anchor_error_deg_mean"] < 10.0
+    assert 0.0 < t["mpjpe_mm"] < 60.0 and t["bodies"] == 29
+
+
+def test_tasks_are_chosen_by_name_from_the_registry():
+    """task_for picks a registered task by name (the robot kind's by default); an unknown name
+    and a name registered twice are refused; tracking without a clip is refused."""
+    from sim2real.deploy.tasks.task import TASKS, register_task, task_for
+
+    assert {"goals", "locomotion", "tracking"} <= set(TASKS)
+    robot = SimpleNamespace(control_period=0.02)
+    with pytest.raises(ValueError, match=r"task 'dance': expected one of \['goals', 'locomotion'"):
+        task_for(robot, 1, None, period=1.0, rng=None, task="dance")
+    with pytest.raises(ValueError, match="task 'goals': already registered"):
+        register_task("goals", TASKS["goals"])
+    with pytest.raises(ValueError, match="needs a reference motion"):
+        task_for(robot, 1, None, period=1.0, rng=None, task="tracking")
+
+
+def test_a_tracking_policy_without_its_clip_is_refused_not_fed_zeros(g1_dance):
+    """A runtime of the dance with no tracking task (a soak or a script that forgot the clip):
+    its first tick refuses, naming the block, rather than read a clip of zeros."""
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.runtime import Runtime
+    from sim2real.deploy.spec.motion_blocks import MotionBlockError
+    from sim2real.robots import load_robot
+
+    robot_dir, policy_path = g1_dance
+    robot = load_robot(robot_dir)
+    runtime = Runtime(robot, OnnxPolicy(policy_path, robot), SimBackend(robot, "position", envs=1))
+    runtime.start()
+    with pytest.raises(MotionBlockError, match="block 'motion_command' needs a reference motion"):
+        runtime.tick()
+
+
+def test_deploy_run_refuses_a_clip_of_another_robot_in_one_line(g1_dance, tmp_path, capsys):
+    """deploy-run --motion with a clip of 23 joints (a G1 23-dof's) exits 3 before the run, one
+    line naming the file, the row and the joint count."""
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+
+    robot, policy = g1_dance
+    rows = _small(joints=23, frames=4)
+    clip = _csv(tmp_path / "g1_23dof.csv", rows)
+    argv = [
+        "--backend",
+        "sim",
+        "--robot",
+        str(robot),
+        "--policy",
+        str(policy),
+        "--motion",
+        str(clip),
+    ]
+    assert deploy_run_main([*argv, "--duration", "1"]) == 3
+    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(err) == 1 and f"{clip}: row 1: expected 36 columns" in err[0], err

@@ -1,0 +1,175 @@
+"""legged_gym's terrain tiles in the soak's plant (sim2real/eval/world/terrain.py): the heights its
+``make_terrain`` gives at a difficulty, read back from the compiled MuJoCo height field by ray casts;
+a terrain the soak cannot build refused by name; the robot put on the ground, not in it; the fall
+check and the truth's fall judged against the ground under the robot, not z = 0."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.estimation.fall import FallDetector
+from sim2real.eval.world.floor import apply_floor_friction, floor_geoms
+from sim2real.eval.world.ranges_file import RangesError, load_ranges_text
+from sim2real.eval.world.session_draw import sample_session
+from sim2real.eval.world.terrain import (
+    TerrainDraw,
+    TerrainRanges,
+    apply_terrain,
+    parse_terrain,
+)
+from sim2real.robots import load_robot
+
+GO2 = load_robot("go2")
+HEIGHTFIELD = TerrainRanges(mesh_type="heightfield")
+
+
+def compiled(draw: TerrainDraw, seed: int = 0):
+    spec = GO2.mjspec("position")
+    ground = apply_terrain(spec, draw, np.random.default_rng(seed))
+    model = spec.compile()
+    return model, mujoco.MjData(model), ground
+
+
+def ray_height(model, data, x: float, y: float) -> float:
+    """m, the compiled height field's top at ``(x, y)``: MuJoCo's own ray cast on it."""
+    field = int(np.flatnonzero(model.geom_type == mujoco.mjtGeom.mjGEOM_HFIELD)[0])
+    down = np.array([0, 0, -1.0])
+    return 5.0 - mujoco.mj_rayHfield(model, data, field, np.array([x, y, 5.0]), down)
+
+
+@pytest.mark.parametrize("kind, sign", [("stairs_up", 1), ("stairs_down", -1)])
+def test_stairs_are_legged_gyms_step_height_at_the_level(kind, sign):
+    """Row 3 of 10 (difficulty 0.3): step_height = 0.05 + 0.18 * 0.3 = 0.104 m, 20 units of
+    0.005 m (legged_gym truncates): walking out from the platform, every 0.30 m step rises (up)
+    or falls (down) 0.10 m, nine of them, up to the tile's rim at 0."""
+    draw = TerrainDraw(kind, 0.3, 3, HEIGHTFIELD)
+    model, data, _ = compiled(draw)
+    mujoco.mj_forward(model, data)
+    # the middles of the steps along +x (three samples each): the platform ends at 1.3 m
+    xs = [0.0] + [1.4 + 0.3 * k for k in range(9)]
+    heights = [ray_height(model, data, x, 0.0) for x in xs]
+    rises = np.diff(heights)
+    assert rises == pytest.approx([sign * 0.10] * 9, abs=1e-6)
+    assert heights[-1] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_a_slope_has_legged_gyms_gradient_and_a_stated_angle_is_its_difficulty():
+    """slope_up:15deg is difficulty tan(15 deg) / 0.4; along the tile's axis its ground rises
+    by that gradient (legged_gym's slope = 0.4 * difficulty, rise over run), within one height
+    unit per metre."""
+    draw = parse_terrain("slope_up:15deg")
+    assert draw.difficulty == pytest.approx(np.tan(np.radians(15)) / 0.4)
+    draw = TerrainDraw(draw.kind, draw.difficulty, None, HEIGHTFIELD)
+    model, data, ground = compiled(draw)
+    mujoco.mj_forward(model, data)
+    rise = ray_height(model, data, 3.5, 0.0) - ray_height(model, data, 2.5, 0.0)
+    assert rise == pytest.approx(np.tan(np.radians(15)), abs=0.006)
+    assert ground.height_at(3.0, 0.0) == pytest.approx(ray_height(model, data, 3.0, 0.0), abs=1e-6)
+
+
+def test_a_terrain_the_soak_cannot_build_is_refused_by_name():
+    with pytest.raises(ValueError, match="'gaps' is not one the soak builds"):
+        parse_terrain("gaps:0.2")
+    with pytest.raises(RangesError, match="terrain stepping_stones .share 0.1. is not one"):
+        text = "[terrain]\nterrain_proportions = [0.1, 0.1, 0.3, 0.3, 0.1, 0.1]\n"
+        load_ranges_text(text, "r.toml", GO2)
+    with pytest.raises(RangesError, match="terrain.mesh: unknown key"):
+        load_ranges_text("[terrain]\nmesh = 'trimesh'\n", "r.toml", GO2)
+    with pytest.raises(RangesError, match="terrain.mesh_type: 'cubes' is not one the soak builds"):
+        load_ranges_text("[terrain]\nmesh_type = 'cubes'\n", "r.toml", GO2)
+
+
+def test_a_ranges_files_terrain_mix_is_drawn_per_session_and_replayable():
+    text = "[terrain]\nterrain_proportions = [0, 0, 0.5, 0.5, 0]\nlevels = [2, 3]\n"
+    ranges = load_ranges_text(text, "r.toml", GO2)
+    draws = [sample_session(GO2, s, 5.0, ranges, faults=False) for s in range(12)]
+    kinds = {d.terrain.kind for d in draws}
+    assert kinds == {"stairs_up", "stairs_down"}
+    assert {d.terrain.level for d in draws} == {2, 3}
+    again = type(draws[0]).from_dict(draws[0].to_dict())
+    assert again.terrain == draws[0].terrain
+    flat = sample_session(GO2, 0, 5.0, load_ranges_text("", "r.toml", GO2), faults=False)
+    assert flat.terrain is None and "terrain" not in flat.to_dict()
+
+
+def test_the_floor_friction_applies_to_the_height_field_and_its_border():
+    model, _, _ = compiled(parse_terrain("stairs_up:0.10"))
+    floor = floor_geoms(model)
+    types = set(model.geom_type[floor])
+    assert types == {int(mujoco.mjtGeom.mjGEOM_HFIELD), int(mujoco.mjtGeom.mjGEOM_BOX)}
+    assert len(floor) == 5  # the field and the four boxes around it
+    apply_floor_friction(model, 0.4)
+    assert np.all(model.geom_friction[floor, 0] == 0.4)
+
+
+def standing_plant(draw: TerrainDraw | None, seconds: float = 1.0):
+    """The Go2 holding its home pose for ``seconds`` on ``draw``'s ground (None: the plane)."""
+    spec = GO2.mjspec("position")
+    ground = None if draw is None else apply_terrain(spec, draw, np.random.default_rng(0))
+    plant = SimBackend(GO2, mode="position", models=[spec.compile()])
+    plant.grounds = None if ground is None else [ground]
+    for _ in range(int(seconds / GO2.control_period)):
+        plant.write(np.asarray(GO2.home, float)[None])
+        plant.advance()
+    return plant, ground
+
+
+@pytest.mark.parametrize("text", ["stairs_up:0.10", "stairs_down:0.10", "slope_up:15deg"])
+def test_the_robot_starts_on_the_ground_and_stands_with_no_fall_signal(text):
+    """Spawned on the tile's platform (0.9 m below z = 0 in the stairs-up pit, 0.9 m above
+    it on the stairs-down tower), the Go2 stands at its standing height above the ground under
+    it as high as on the plane; its fall check (no ground truth read) sees no tilt, low or
+    sinking base."""
+    flat, _ = standing_plant(None)
+    plant, ground = standing_plant(parse_terrain(text))
+    truth = plant.true_base_state()
+    above = truth[0, 2] - plant.ground_height(truth)[0]
+    assert abs(plant.ground_height(truth)[0]) > 0.4  # far from the plane z = 0
+    assert above == pytest.approx(flat.true_base_state()[0, 2], abs=0.01)
+    state = RobotState.legged(1, GO2.n_joints, len(GO2.foot_frame_ids))
+    state.base.set_truth(truth)
+    state.q[:] = plant.true_position()
+    state.foot_contact[:] = 1.0
+    detector = FallDetector(GO2, 1)
+    for _ in range(20):
+        assert not detector.check(state)[0]
+
+
+def test_a_fall_on_a_slope_is_seen_by_the_fall_check():
+    """On the 15-degree slope, the Go2 put on its side half-way up tips over: the fall check
+    (tilt, from its own attitude) trips, and the truth lies low on the slope, not 0.3 m
+    and more above z = 0 where a plane's judge would put it."""
+    draw = parse_terrain("slope_down:15deg")
+    spec = GO2.mjspec("position")
+    ground = apply_terrain(spec, draw, np.random.default_rng(0))
+    model = spec.compile()
+    plant = SimBackend(GO2, mode="position", models=[model])
+    plant.grounds = [ground]
+    d = plant.datas[0]
+    d.qpos[:3] = [2.5, 0.0, float(ground.height_at(2.5, 0.0)) + 0.3]
+    d.qpos[3:7] = [np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]  # rolled 90 degrees
+    mujoco.mj_forward(model, d)
+    for _ in range(50):
+        plant.write(np.asarray(GO2.home, float)[None])
+        plant.advance()
+    truth = plant.true_base_state()
+    state = RobotState.legged(1, GO2.n_joints, len(GO2.foot_frame_ids))
+    state.base.set_truth(truth)
+    state.q[:] = plant.true_position()
+    detector = FallDetector(GO2, 1)
+    assert detector.check(state)[0] and detector.signals[0, 0]  # tilt
+    assert truth[0, 2] - plant.ground_height(truth)[0] < 0.5 * GO2.config.base.standing_height
+    assert truth[0, 2] > GO2.config.base.standing_height
+
+
+def test_the_flat_plane_is_untouched_without_terrain():
+    """No terrain drawn: the plant's model is the robot's own (the plane), bit for bit."""
+    a = GO2.mjspec("position").compile()
+    plant = SimBackend(GO2, mode="position")
+    assert plant.grounds is None
+    assert plant.ground_height(plant.true_base_state()).tolist() == [0.0]
+    assert plant.models[0].ngeom == a.ngeom and not plant.models[0].nhfield

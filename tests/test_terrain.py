@@ -173,3 +173,34 @@ def test_the_flat_plane_is_untouched_without_terrain():
     assert plant.grounds is None
     assert plant.ground_height(plant.true_base_state()).tolist() == [0.0]
     assert plant.models[0].ngeom == a.ngeom and not plant.models[0].nhfield
+
+
+def _task(tmp_path, terrain: str):
+    """A legged_gym task config whose ``terrain`` class is ``terrain`` (class body lines)."""
+    path = tmp_path / "go2_config.py"
+    body = "\n".join(f"        {line}" for line in terrain.splitlines())
+    path.write_text(
+        "from legged_gym.envs.base.legged_robot_config import LeggedRobotCfg\n\n"
+        "class GO2RoughCfg(LeggedRobotCfg):\n"
+        f"    class terrain(LeggedRobotCfg.terrain):\n{body}\n"
+    )
+    return path
+
+
+def test_a_legged_gym_tasks_terrain_becomes_the_soaks_tiles(tmp_path):
+    """HIMLoco's terrain class (trimesh, [0.1, 0.2, 0.3, 0.3, 0.1]) becomes the ranges file's
+    [terrain] table, every level drawn; a plane gives none; a kind past legged_gym's five with
+    a share is refused naming it."""
+    from sim2real.eval.world.legged_gym_domain import DomainError, legged_gym_domain
+
+    text = legged_gym_domain(
+        _task(tmp_path, "mesh_type = 'trimesh'\nterrain_proportions = [0.1, 0.2, 0.3, 0.3, 0.1]")
+    )
+    ranges = load_ranges_text(text, "domain", GO2)
+    assert ranges.terrain.terrain_proportions == (0.1, 0.2, 0.3, 0.3, 0.1)
+    assert ranges.terrain.levels == (0, 9) and ranges.terrain.mesh_type == "trimesh"
+    plane = legged_gym_domain(_task(tmp_path, "mesh_type = 'plane'"))
+    assert load_ranges_text(plane, "domain", GO2).terrain is None
+    gaps = "mesh_type = 'trimesh'\nterrain_proportions = [0.1, 0.1, 0.3, 0.2, 0.1, 0.0, 0.2]"
+    with pytest.raises(DomainError, match="terrain.terrain_proportions: terrain gaps"):
+        legged_gym_domain(_task(tmp_path, gaps))

@@ -204,3 +204,40 @@ def test_a_legged_gym_tasks_terrain_becomes_the_soaks_tiles(tmp_path):
     gaps = "mesh_type = 'trimesh'\nterrain_proportions = [0.1, 0.1, 0.3, 0.2, 0.1, 0.0, 0.2]"
     with pytest.raises(DomainError, match="terrain.terrain_proportions: terrain gaps"):
         legged_gym_domain(_task(tmp_path, gaps))
+
+
+def _result(terrain: dict | None, falls: int, tracked: float, any_: int) -> dict:
+    """A session's result as report.json holds it (the fields the terrain rows read)."""
+    return {
+        "randomization": {} if terrain is None else {"terrain": terrain},
+        "simulated_hours": 0.5,
+        "locomotion": {
+            "falls": falls,
+            "running_s": 100.0,
+            "tracked_s": tracked,
+            "distance_m": 10.0,
+        },
+        "interventions": {"ticks": 1000, "any": {"count": any_}},
+        "runtime": {"latched_faults": falls},
+    }
+
+
+def test_the_report_gives_falls_tracking_and_interventions_per_terrain_and_level():
+    from sim2real.eval.report.by_terrain import terrain_lines, terrain_rows
+
+    up3 = TerrainDraw("stairs_up", 0.3, 3).to_dict()
+    slope = TerrainDraw("slope_up", 0.5, 5).to_dict()
+    rows = terrain_rows(
+        [_result(up3, 2, 50.0, 100), _result(up3, 0, 90.0, 0), _result(slope, 1, 80.0, 10)]
+    )
+    assert [(r["kind"], r["level"], r["sessions"]) for r in rows] == [
+        ("slope_up", 5, 1),
+        ("stairs_up", 3, 2),
+    ]
+    stairs = rows[1]
+    assert stairs["terrain"] == "stairs_up@3"
+    assert stairs["falls"] == 2 and stairs["falls_per_hour"] == pytest.approx(2.0)
+    assert stairs["tracking_success"] == pytest.approx(0.7)
+    assert stairs["interventions_fraction"] == pytest.approx(0.05)
+    assert any("stairs_up@3" in line and "2 falls" in line for line in terrain_lines(rows))
+    assert terrain_rows([_result(None, 0, 1.0, 0)]) is None  # the plane only: no rows

@@ -96,12 +96,41 @@ def test_a_ranges_files_terrain_mix_is_drawn_per_session_and_replayable():
     assert flat.terrain is None and "terrain" not in flat.to_dict()
 
 
-def test_the_floor_friction_applies_to_the_height_field_and_its_border():
-    model, _, _ = compiled(parse_terrain("stairs_up:0.10"))
+def test_a_trimesh_terrains_stairs_are_boxes_with_vertical_faces():
+    """legged_gym's trimesh makes faces steeper than slope_treshold vertical: the stairs are
+    boxes, each 0.30 m step 0.10 m higher within 2 cm of its edge (the platform's edge at
+    1.25 m: its 26 samples of 0.1 m about x = -1.3 ... 1.2)."""
+    model, data, ground = compiled(parse_terrain("stairs_up:0.10"))
+    assert not model.nhfield and ground.stepped
+    mujoco.mj_forward(model, data)
+    for k in range(9):
+        edge = 1.25 + 0.3 * k
+        low, high = (ground_ray(model, data, edge + d, 0.0) for d in (-0.01, 0.01))
+        assert high - low == pytest.approx(0.10, abs=1e-9)
+        assert ground.height_at(edge + 0.01, 0.0) == pytest.approx(high, abs=1e-9)
+
+
+def ground_ray(model, data, x: float, y: float) -> float:
+    """m, the ground's top at ``(x, y)``: MuJoCo's ray cast, the robot moved out of its way."""
+    data.qpos[:2] = [500.0, 500.0]
+    mujoco.mj_forward(model, data)
+    geom = np.zeros(1, np.int32)
+    down = np.array([0, 0, -1.0])
+    return 5.0 - mujoco.mj_ray(model, data, np.array([x, y, 5.0]), down, None, 1, -1, geom)
+
+
+@pytest.mark.parametrize("text", ["stairs_up:0.10", "slope_up:15deg"])
+def test_the_floor_friction_applies_to_the_terrain_and_its_border(text):
+    model, _, _ = compiled(parse_terrain(text))
     floor = floor_geoms(model)
-    types = set(model.geom_type[floor])
-    assert types == {int(mujoco.mjtGeom.mjGEOM_HFIELD), int(mujoco.mjtGeom.mjGEOM_BOX)}
-    assert len(floor) == 5  # the field and the four boxes around it
+    on_field = text.startswith("slope")
+    types = {int(mujoco.mjtGeom.mjGEOM_BOX)} | (
+        {int(mujoco.mjtGeom.mjGEOM_HFIELD)} if on_field else set()
+    )
+    assert set(model.geom_type[floor].tolist()) == types
+    assert len(floor) > 4
+    robot = np.flatnonzero(model.geom_bodyid != 0)
+    assert not np.isin(robot, floor).any()
     apply_floor_friction(model, 0.4)
     assert np.all(model.geom_friction[floor, 0] == 0.4)
 

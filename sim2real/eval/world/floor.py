@@ -16,19 +16,19 @@ import numpy as np
 FLOOR_FRICTION = (0.5, 1.25)
 
 
-#: The name prefix of the boxes around a terrain's height field (the flat ground past its tiles,
-#: :data:`sim2real.eval.world.terrain.BORDER_PREFIX`).
+#: The name prefix of a terrain's boxes: its stepped tiles and the flat ground around them
+#: (:func:`sim2real.eval.world.terrain.add_ground`).
 BORDER_PREFIX = "floor_border_"
 
 
 def floor_geoms(model: mujoco.MjModel) -> np.ndarray:
-    """Indices of ``model``'s floor geoms: its planes, and a terrain's height fields and border
-    boxes (:func:`sim2real.eval.world.terrain.add_ground`)."""
+    """Indices of ``model``'s floor geoms: its planes, and a terrain's height fields and boxes
+    (named ``BORDER_PREFIX``..., :func:`sim2real.eval.world.terrain.add_ground`)."""
     t = mujoco.mjtGeom
     floor = (model.geom_type == t.mjGEOM_PLANE) | (model.geom_type == t.mjGEOM_HFIELD)
-    if model.nhfield:  # a terrain: its border boxes, by name
-        names = [model.geom(g).name for g in range(model.ngeom)]
-        floor |= np.array([n.startswith(BORDER_PREFIX) for n in names])
+    boxes = np.flatnonzero((model.geom_type == t.mjGEOM_BOX) & (model.geom_bodyid == 0))
+    for g in boxes:  # a terrain's, by name
+        floor[g] = model.geom(g).name.startswith(BORDER_PREFIX)
     return np.flatnonzero(floor)
 
 

@@ -11,9 +11,9 @@ plant spec as a MuJoCo height field in place of the flat floor plane, with the f
 settings and name, the free-floating base raised by the ground's height at the start. Without a
 terrain (``SessionRanges.terrain`` None, the default) the plane stays and nothing changes.
 
-A ``trimesh`` terrain is sampled ``TRIMESH_FACTOR`` times finer than ``horizontal_scale``, its faces
-steeper than ``slope_treshold`` made steps (:func:`~sim2real.eval.world.terrain_tiles.sharpen`);
-a ``heightfield`` one is used at its own spacing.
+A ``trimesh`` terrain's stairs and obstacles are boxes (legged_gym's trimesh makes their faces vertical,
+``slope_treshold``), its slopes a height field at ``horizontal_scale``; a ``heightfield`` terrain is a
+height field throughout (steps as one-cell ramps, as legged_gym's heightfield has them).
 """
 
 from __future__ import annotations
@@ -31,13 +31,15 @@ from sim2real.eval.world.terrain_tiles import (
     UNBUILT_KINDS,
     difficulty_terms,
     make_tile,
-    sharpen,
 )
 
 #: legged_gym ``terrain.mesh_type`` values: with tiles, and without (a flat plane).
 MESH_TYPES, FLAT_MESH_TYPES = ("trimesh", "heightfield"), ("plane", "none")
-#: Finer sampling of a trimesh terrain (our choice): steps 2.5 cm wide at legged_gym's 0.1 m.
-TRIMESH_FACTOR = 4
+#: The kinds a trimesh terrain lays as boxes: their faces are steeper than any ``slope_treshold``
+#: (a 0.05 m step over legged_gym's 0.1 m cell: 0.5; its trimesh makes faces above 0.75 vertical).
+#: A height field at 0.1 m gives a step a 45-degree ramp; a finer one (we tried 0.025 m) holds a
+#: foot sphere in its many prisms' contacts (HIMLoco's Go2 stood still on a flat platform).
+STEPPED_KINDS = ("stairs_up", "stairs_down", "discrete")
 #: Depth of the height field's base below its lowest point, m (MuJoCo's ``size[3]``).
 BASE_DEPTH = 1.0
 #: The flat ground around the height field: four boxes of top 0 reaching this far, m (ours: a
@@ -196,20 +198,30 @@ def sample_terrain(rng: np.random.Generator, ranges: TerrainRanges) -> TerrainDr
 @dataclass(frozen=True)
 class GroundMap:
     """Heights ``heights`` (nx, ny) m on a grid of ``spacing`` m, sample ``(i, j)`` at world
-    ``(x0 + i spacing, y0 + j spacing)``; the start (world origin) is on a sample."""
+    ``(x0 + i spacing, y0 + j spacing)``; the start (world origin) is on a sample. ``stepped``:
+    each sample the flat top of the square of side ``spacing`` about it (boxes), else the
+    corners of a height field's cells."""
 
     heights: np.ndarray
     x0: float
     y0: float
     spacing: float
+    stepped: bool = False
 
     def height_at(self, x, y) -> np.ndarray:
         """The ground's height (m) under world points ``(x, y)`` (arrays alike), bilinear in its
         cell (MuJoCo's two triangles differ inside a cell by at most a quarter of its rise);
-        outside the map 0 (the border boxes' top, :func:`add_ground`)."""
+        outside the map 0 (the border boxes' top, :func:`add_ground`); a stepped map's
+        nearest sample's."""
         h = self.heights
         u = (np.asarray(x, float) - self.x0) / self.spacing
         v = (np.asarray(y, float) - self.y0) / self.spacing
+        if self.stepped:
+            i, j = np.rint(u).astype(int), np.rint(v).astype(int)
+            inside = (i >= 0) & (i < h.shape[0]) & (j >= 0) & (j < h.shape[1])
+            return np.where(
+                inside, h[np.clip(i, 0, h.shape[0] - 1), np.clip(j, 0, h.shape[1] - 1)], 0.0
+            )
         inside = (u >= 0) & (u <= h.shape[0] - 1) & (v >= 0) & (v <= h.shape[1] - 1)
         u, v = np.clip(u, 0, h.shape[0] - 1), np.clip(v, 0, h.shape[1] - 1)
         i = np.minimum(u.astype(int), h.shape[0] - 2)
@@ -233,12 +245,9 @@ def ground_map(draw: TerrainDraw, rng: np.random.Generator) -> GroundMap:
             units[border + i * n : border + (i + 1) * n, border + j * n : border + (j + 1) * n] = (
                 tile
             )
-    heights, spacing = units * vs, hs
     start = border + (r.tiles // 2) * n + n // 2
-    if r.mesh_type == "trimesh":
-        heights = sharpen(heights, hs, TRIMESH_FACTOR, r.slope_treshold)
-        spacing, start = hs / TRIMESH_FACTOR, start * TRIMESH_FACTOR
-    return GroundMap(heights, -start * spacing, -start * spacing, spacing)
+    stepped = r.mesh_type == "trimesh" and draw.kind in STEPPED_KINDS
+    return GroundMap(units * vs, -start * hs, -start * hs, hs, stepped)
 
 
 def _free_body(spec: mujoco.MjSpec):
@@ -248,10 +257,31 @@ def _free_body(spec: mujoco.MjSpec):
     raise ValueError("add_ground: the plant has no free-floating body")
 
 
+def _rectangles(units: np.ndarray):
+    """``(i0, i1, j0, j1, value)``: ``units`` split into rectangles of one value each (greedy:
+    a run along j, grown along i while the rows match)."""
+    done = np.zeros(units.shape, dtype=bool)
+    n0, n1 = units.shape
+    for i in range(n0):
+        for j in range(n1):
+            if done[i, j]:
+                continue
+            v, j1 = units[i, j], j + 1
+            while j1 < n1 and not done[i, j1] and units[i, j1] == v:
+                j1 += 1
+            i1 = i + 1
+            while i1 < n0 and not done[i1, j:j1].any() and (units[i1, j:j1] == v).all():
+                i1 += 1
+            done[i:i1, j:j1] = True
+            yield i, i1, j, j1, v
+
+
 def add_ground(spec: mujoco.MjSpec, ground: GroundMap) -> None:
-    """Replace ``spec``'s floor planes by a height field of ``ground`` (in place): the field
-    takes the (first) plane's name, contact bits, friction, priority, solver settings and
-    material, and the free-floating body is raised by the ground's height at the start.
+    """Replace ``spec``'s floor planes by ``ground`` (in place): a height field, or for a
+    stepped ground boxes (one per rectangle of one height: vertical faces), named
+    ``BORDER_PREFIX``..., and four boxes of top 0 around it; each takes the (first) plane's
+    contact bits, friction, priority, solver settings and material (the field its name too),
+    and the free-floating body is raised by :func:`spawn_height`.
 
     Raises:
         ValueError: a spec without a floor plane or a free-floating body.
@@ -259,35 +289,64 @@ def add_ground(spec: mujoco.MjSpec, ground: GroundMap) -> None:
     planes = [g for g in spec.worldbody.geoms if g.type == mujoco.mjtGeom.mjGEOM_PLANE]
     if not planes:
         raise ValueError("add_ground: the plant has no floor (plane geom) to replace")
-    floor = planes[0]
-    keep = {k: getattr(floor, k) for k in FLOOR_SETTINGS}
+    keep = {k: getattr(planes[0], k) for k in FLOOR_SETTINGS}
     for g in planes:
         spec.delete(g)
-    h = ground.heights
-    low, high = float(h.min()), float(h.max())
-    rise = max(high - low, 1e-6)
+
+    def add(kind, name: str | None, pos, size=None):
+        geom = spec.worldbody.add_geom(type=kind)
+        for k, v in keep.items():
+            if k != "name":
+                setattr(geom, k, v)
+        geom.name = keep["name"] if name is None else name
+        geom.pos = pos
+        if size is not None:
+            geom.size = size
+        return geom
+
+    h, s = ground.heights, ground.spacing
     nx, ny = h.shape
-    hf = spec.add_hfield(name="terrain", nrow=ny, ncol=nx)
-    hf.size = [(nx - 1) * ground.spacing / 2, (ny - 1) * ground.spacing / 2, rise, BASE_DEPTH]
-    hf.userdata = ((h.T - low) / rise).ravel().tolist()  # rows along y, columns along x
-    geom = spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="terrain")
-    for k, v in keep.items():
-        setattr(geom, k, v)
-    geom.pos = [ground.x0 + hf.size[0], ground.y0 + hf.size[1], low]
-    x1, y1 = ground.x0 + 2 * hf.size[0], ground.y0 + 2 * hf.size[1]
+    low, high = float(h.min()), float(h.max())
+    if ground.stepped:  # sample (i, j) the top of the square of side s about it
+        bottom = min(low, 0.0) - BASE_DEPTH
+        for k, (i0, i1, j0, j1, v) in enumerate(_rectangles(np.rint(h / 1e-4).astype(np.int64))):
+            top = v * 1e-4
+            cx, cy = ground.x0 + (i0 + i1 - 1) * s / 2, ground.y0 + (j0 + j1 - 1) * s / 2
+            size = [(i1 - i0) * s / 2, (j1 - j0) * s / 2, (top - bottom) / 2]
+            add(
+                mujoco.mjtGeom.mjGEOM_BOX,
+                f"{BORDER_PREFIX}tile_{k}",
+                [cx, cy, (top + bottom) / 2],
+                size,
+            )
+        xa, ya = ground.x0 - s / 2, ground.y0 - s / 2
+        xb, yb = xa + nx * s, ya + ny * s
+    else:
+        rise = max(high - low, 1e-6)
+        hf = spec.add_hfield(name="terrain", nrow=ny, ncol=nx)
+        hf.size = [(nx - 1) * s / 2, (ny - 1) * s / 2, rise, BASE_DEPTH]
+        hf.userdata = ((h.T - low) / rise).ravel().tolist()  # rows along y, columns along x
+        field = add(
+            mujoco.mjtGeom.mjGEOM_HFIELD,
+            None,
+            [ground.x0 + hf.size[0], ground.y0 + hf.size[1], low],
+        )
+        field.hfieldname = "terrain"
+        xa, ya, xb, yb = (
+            ground.x0,
+            ground.y0,
+            ground.x0 + 2 * hf.size[0],
+            ground.y0 + 2 * hf.size[1],
+        )
     f = BORDER_REACH
-    frame = (  # (centre x, y, half sides x, y) of the four boxes around the field
-        (x1 + f, (ground.y0 + y1) / 2, f, (y1 - ground.y0) / 2 + 2 * f),
-        (ground.x0 - f, (ground.y0 + y1) / 2, f, (y1 - ground.y0) / 2 + 2 * f),
-        ((ground.x0 + x1) / 2, y1 + f, (x1 - ground.x0) / 2, f),
-        ((ground.x0 + x1) / 2, ground.y0 - f, (x1 - ground.x0) / 2, f),
+    frame = (  # (centre x, y, half sides x, y) of the four boxes around the tiles
+        (xb + f, (ya + yb) / 2, f, (yb - ya) / 2 + 2 * f),
+        (xa - f, (ya + yb) / 2, f, (yb - ya) / 2 + 2 * f),
+        ((xa + xb) / 2, yb + f, (xb - xa) / 2, f),
+        ((xa + xb) / 2, ya - f, (xb - xa) / 2, f),
     )
     for k, (cx, cy, sx, sy) in enumerate(frame):
-        box = spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, name=f"{BORDER_PREFIX}{k}")
-        for name, v in keep.items():
-            if name != "name":
-                setattr(box, name, v)
-        box.size, box.pos = [sx, sy, 0.5], [cx, cy, -0.5]
+        add(mujoco.mjtGeom.mjGEOM_BOX, f"{BORDER_PREFIX}{k}", [cx, cy, -0.5], [sx, sy, 0.5])
     body = _free_body(spec)
     body.pos = np.asarray(body.pos) + [0.0, 0.0, spawn_height(ground)]
 

@@ -135,22 +135,3 @@ def make_tile(
     else:
         discrete_obstacles(hf, t["obstacle_height"], hs, vs, rng)
     return hf
-
-
-def sharpen(heights: np.ndarray, hs: float, factor: int, threshold: float) -> np.ndarray:
-    """``heights`` (m) resampled ``factor`` times finer along both axes: linearly between two
-    samples whose gradient is at most ``threshold`` (legged_gym's ``slope_treshold``), as a step
-    at their midpoint where it is steeper (its trimesh makes such faces vertical; a height
-    field's step is then ``hs / factor`` m wide instead of ``hs``)."""
-    out = heights
-    for axis in (0, 1):
-        a = np.moveaxis(out, axis, 0)
-        n = a.shape[0]
-        t = np.arange((n - 1) * factor + 1) / factor
-        i = np.minimum(t.astype(int), n - 2)
-        w = (t - i)[:, None]
-        lo, hi = a[i], a[i + 1]
-        steep = np.abs(hi - lo) / hs > threshold
-        w = np.where(steep, (w >= 0.5).astype(float), w)
-        out = np.moveaxis(lo + w * (hi - lo), 0, axis)
-    return out

@@ -270,3 +270,21 @@ def test_the_report_gives_falls_tracking_and_interventions_per_terrain_and_level
     assert stairs["interventions_fraction"] == pytest.approx(0.05)
     assert any("stairs_up@3" in line and "2 falls" in line for line in terrain_lines(rows))
     assert terrain_rows([_result(None, 0, 1.0, 0)]) is None  # the plane only: no rows
+
+
+def test_deploy_run_refuses_terrain_off_the_simulated_legged_robot(capsys):
+    """--terrain names an unknown kind, an arm, or a hardware backend: refused in one line."""
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+
+    with pytest.raises(SystemExit):
+        deploy_run_main(["--robot", "go2", "--policy", "x.onnx", "--terrain", "pits:0.2"])
+    assert "terrain kind 'pits' is not one the soak builds" in capsys.readouterr().err
+    args = type("A", (), {"terrain": parse_terrain("stairs_up:0.10"), "backend": "sim"})()
+    args.command = None
+    from sim2real.deploy.cli.run_checks import check_options
+
+    with pytest.raises(ValueError, match="robot arm3 does not walk"):
+        check_options(args, load_robot("arm3"))
+    args.backend = "unitree"
+    with pytest.raises(ValueError, match="--backend sim only"):
+        check_options(args, GO2)

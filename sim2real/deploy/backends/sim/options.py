@@ -51,10 +51,6 @@ def make(args, robot, mode: str):
     plant_robot, models = plant_for(robot, mode, path, args.envs)
     terrain, grounds = getattr(args, "terrain", None), []
     if terrain is not None:
-        if not robot.floating_base:
-            raise ValueError(
-                f"--terrain: robot {robot.name} has a fixed base; terrain is for legged robots"
-            )
         models = []
         for e in range(args.envs):
             spec = plant_robot.mjspec(mode)

@@ -288,3 +288,27 @@ def test_deploy_run_refuses_terrain_off_the_simulated_legged_robot(capsys):
     args.backend = "unitree"
     with pytest.raises(ValueError, match="--backend sim only"):
         check_options(args, GO2)
+
+
+def test_the_truths_fall_judge_measures_the_base_above_the_ground_under_it():
+    """Upright on the platform of the stairs-up pit, 0.9 m below z = 0: no true fall when the
+    monitor knows the ground (the plant on terrain); judged against z = 0 it was one."""
+    from types import SimpleNamespace
+
+    from sim2real.deploy.core.state import BaseState
+    from sim2real.deploy.monitors.estimation import EstimationMonitor
+
+    plant, _ = standing_plant(parse_terrain("stairs_up:0.10"))
+    truth = plant.true_base_state()
+    assert truth[0, 2] < 0.0
+    counts = []
+    for ground in (plant.ground_height, None):
+        monitor = EstimationMonitor(GO2, 1)
+        monitor.ground = ground
+        base = BaseState.zeros(1)
+        base.set_truth(truth)
+        runtime = SimpleNamespace(mode=np.full(1, 2, np.int8), state=SimpleNamespace(base=base))
+        runtime.lying_expected = np.zeros(1, bool)
+        monitor.update(runtime, truth)
+        counts.append(int(monitor.true_falls[0]))
+    assert counts == [0, 1]

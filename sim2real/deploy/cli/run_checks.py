@@ -44,9 +44,20 @@ def check_options(args, robot) -> None:
     ``--command`` (an arm ignores it), ``--video``'s ``--size`` and ``--fps``.
 
     Raises:
-        ValueError: ``--command`` not VX,VY,WZ; a bad ``--size`` or ``--fps`` with ``--video``.
+        ValueError: ``--command`` not VX,VY,WZ; a bad ``--size`` or ``--fps`` with ``--video``;
+            ``--terrain`` off the simulated backend or for a robot without a floating base.
     """
     from sim2real.deploy.robot_kind import robot_kind
+
+    if getattr(args, "terrain", None) is not None:
+        if args.backend != "sim":
+            raise ValueError(
+                f"--terrain: the ground of --backend sim only, got --backend {args.backend}"
+            )
+        if robot_kind(robot).task != "locomotion":
+            raise ValueError(
+                f"--terrain: robot {robot.name} does not walk; terrain is for legged robots"
+            )
 
     if args.command is not None and robot_kind(robot).task == "locomotion":
         from sim2real.deploy.tasks.commands import parse_command

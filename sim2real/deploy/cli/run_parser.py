@@ -123,6 +123,16 @@ def _add_realtime_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _terrain(text: str):
+    """``--terrain``'s value as a tile draw (:func:`sim2real.eval.world.terrain.parse_terrain`)."""
+    from sim2real.eval.world.terrain import parse_terrain
+
+    try:
+        return parse_terrain(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _add_task_options(p: argparse.ArgumentParser) -> None:
     """Add the task options: the legged velocity command and heading hold, the reach goals."""
     p.add_argument(
@@ -158,6 +168,15 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
         choices=("once", "loop", "hold"),
         default="once",
         help="at the clip's end: hold its last frame (once, hold) or start it again (loop)",
+    )
+    p.add_argument(
+        "--terrain",
+        type=_terrain,
+        default=None,
+        metavar="KIND:SIZE|KIND@LEVEL",
+        help="--backend sim, legged robots: the robot starts on legged_gym terrain tiles of one "
+        "kind instead of the plane (stairs_up:0.10 m steps, stairs_down:0.10, slope_up:15deg, "
+        "slope_down:15deg, rough_slope@5, discrete:0.10; sim2real/eval/world/terrain.py)",
     )
     p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
     p.add_argument("--goal", default=None, help="fixed goal X,Y,Z (m, base frame)")

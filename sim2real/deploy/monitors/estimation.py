@@ -11,9 +11,10 @@ difference on every RUNNING tick of a floating-base robot in simulation:
 
 It also watches the true base for a fall the runtime may not have seen (a robot whose feet fell
 through the floor with it keeps its kinematic height): the base below ``TRUE_FALL_HEIGHT`` of its
-standing height, or tilted past the robot's ``safety.fall_tilt`` (default ``FALL_TILT``), while
-RUNNING, counts a true fall once until the robot is up again; a low base an operator asked for
-(``Runtime.lying_expected``: lying down, standing up from the floor) is no fall, a tilt is.
+standing height above the ground under it (a plant on terrain; else z = 0), or tilted past the
+robot's ``safety.fall_tilt`` (default ``FALL_TILT``), while RUNNING, counts a true fall once
+until the robot is up again; a low base an operator asked for (``Runtime.lying_expected``: lying
+down, standing up from the floor) is no fall, a tilt is.
 """
 
 from __future__ import annotations
@@ -61,6 +62,9 @@ class EstimationMonitor:
         self.true_falls = np.zeros(envs, dtype=np.int64)
         self._down = np.zeros(envs, dtype=bool)
         self._truth = BaseState.zeros(envs)  # filled from the plant's truth every update
+        #: ``ground(truth) -> (envs,) m``: the ground's height under each true base (a plant on
+        #: terrain's ``ground_height``); None: the plane z = 0
+        self.ground = None
         self.compiled = True  # False: numpy's path only (the reference of the kernels)
         self._calls = None  # the kernels bound to the arrays of one runtime (see _bound)
         from sim2real.deploy.monitors.estimation_kernel import load
@@ -102,7 +106,11 @@ class EstimationMonitor:
         """After a tick: ``truth`` (envs, 13), the plant's ``true_base_state()``. The compiled
         kernels (:mod:`sim2real.deploy.monitors.estimation_kernel`) do it when they fit (a
         float64 C-contiguous ``truth``, the runtime's arrays the bound ones, ``compiled``),
-        numpy otherwise; the same numbers either way."""
+        numpy otherwise; the same numbers either way. With :attr:`ground` the base's height is
+        judged above the ground under it."""
+        if self.ground is not None:
+            truth = truth.copy()
+            truth[:, 2] -= self.ground(truth)
         call = self._bound(runtime, truth)
         if call is not None:
             call(0, truth)  # the true base, the arc cosines' arguments

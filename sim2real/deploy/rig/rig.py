@@ -106,6 +106,8 @@ class Rig:
         # the base estimate against the truth, where the kind gave the runtime one
         has_base = self.runtime.base_estimator is not None
         self.estimation = EstimationMonitor(robot, envs) if judged and has_base else None
+        if self.estimation is not None and getattr(backend, "grounds", None):  # terrain
+            self.estimation.ground = backend.ground_height
         if self.violations is not None and self.kind.stand_up_on_reset and has_base:
             # a legged robot's ticks lying damped after a stop: apart, as the violations'
             self.interventions.down = self.violations.kernel_arrays()["down"]

@@ -102,6 +102,7 @@ class CommandTracker:
     def __init__(self, envs: int, control_period: float, backend, window: float | None = None):
         self.envs, self.dt = envs, float(control_period)
         self.truth = getattr(backend, "true_base_state", None)
+        self._ground = getattr(backend, "ground_height", None)  # a plant's ground under the base
         #: the true base (simulation): a BaseState filled from ``truth`` every tick
         self._true_base = BaseState.zeros(envs) if self.truth is not None else None
         self._true_state = None  # (envs, 13) the truth of this tick (simulation)
@@ -385,7 +386,7 @@ class CommandTracker:
         """The record of env ``e``'s fall (``fall_log``): with a fall stop, ``signals`` (which
         of the fall check's signals fired, :data:`sim2real.deploy.estimation.fall.SIGNALS`); in
         simulation, the true base at the stop (this tick's, filled by :meth:`_planar_velocity`):
-        ``true_height_m`` (the base origin's height above the world's origin) and
+        ``true_height_m`` (the base origin's height above the ground under it: 0 on the plane) and
         ``true_tilt_deg``, beside the estimate's ``tilt_deg``."""
         from sim2real.deploy.estimation.fall import SIGNALS
 
@@ -396,7 +397,10 @@ class CommandTracker:
             out["signals"] = [s for s, on in zip(SIGNALS, detector.signals[e], strict=True) if on]
         out["tilt_deg"] = float(np.degrees(tilt_of(runtime.state.base.projected_gravity[e])))
         if self.truth is not None:
-            out["true_height_m"] = float(self._true_state[e, 2])
+            z = self._true_state[e, 2]
+            if self._ground is not None:  # above the ground under it (0 on the plane)
+                z = z - self._ground(self._true_state)[e]
+            out["true_height_m"] = float(z)
             out["true_tilt_deg"] = float(np.degrees(tilt_of(self._true_base.projected_gravity[e])))
         if out["cause"] == "hard_limit":
             robot, q = runtime.robot, runtime.state.q[e]

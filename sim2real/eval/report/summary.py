@@ -88,6 +88,9 @@ def summary_text(report: dict) -> str:
         lw = loco["min_window_success_rate"]
         if lw is not None:
             lines.append(f"  windows      lowest tracking success in a window {100 * lw:.1f} %")
+        from sim2real.eval.report.by_terrain import terrain_lines
+
+        lines += terrain_lines(t.get("by_terrain"))
     est = t.get("base_estimate")
     if est is not None:
         att, vz = est["attitude_error_deg"], est["vertical_velocity_m_s"]

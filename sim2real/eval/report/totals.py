@@ -2,8 +2,8 @@
 
 :func:`totals` is report.json's ``totals`` section (layout: :func:`sim2real.eval.report.build.build_report`):
 violations (ticks) and interventions (ticks, fraction of ticks) in total and per hour, goals,
-locomotion (falls per hour, tracking success, m, m/s, degC), faults, latched faults, thermal (degC,
-s) and the tick cost's percentiles (us).
+locomotion (falls per hour, tracking success, m, m/s, degC; by terrain: :mod:`~.by_terrain`),
+faults, latched faults, thermal (degC, s) and the tick cost's percentiles (us).
 """
 
 from __future__ import annotations
@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from sim2real.eval.report.by_terrain import terrain_rows
 
 
 def _histogram_summary(bins: list[int], counts: list[int]) -> dict:
@@ -171,6 +173,7 @@ def totals(results: list[dict]) -> dict:
             "missed_dropped": sum(r["goals"]["missed_dropped"] for r in arms),
         },
         "locomotion": _locomotion_totals(results),
+        "by_terrain": terrain_rows(results),
         "base_estimate": _base_estimate_totals(results),
         "faults": {
             "injected": sum(r["faults"]["injected"] for r in results),

@@ -3,8 +3,9 @@ env's sensors set from its session's draw, streaming before the runtime starts.
 
 :class:`sim2real.eval.soak.batch.SessionBatch` builds its plant here. Each env's model is the
 robot's (or, with ``plant_motors``, the plant's motors' robot) randomized by its session's
-:func:`~sim2real.eval.world.session_draw.sample_session` draw (dynamics, a legged robot's floor friction,
-a payload, a shifted centre of mass); its sensor noise comes from its own seeded stream. Before
+:func:`~sim2real.eval.world.session_draw.sample_session` draw (dynamics, a legged robot's floor friction
+and terrain tiles, a payload, a shifted centre of mass); its sensor noise comes from its own
+seeded stream. Before
 the runtime starts the plant streams its sensors for the largest latency the ranges allow plus
 one encoder period, so that a reading has arrived (the same number of ticks for every session,
 alone or batched).
@@ -16,6 +17,7 @@ from sim2real.eval.world.dynamics import add_base_mass, randomized_model, shift_
 from sim2real.eval.world.floor import apply_floor_friction
 from sim2real.eval.world.sensors import apply_imu, apply_sensors
 from sim2real.eval.world.session_draw import session_rng
+from sim2real.eval.world.terrain import apply_terrain
 
 
 def build_plant(robot, mode: str, configs: list, draws: list) -> tuple:
@@ -42,7 +44,19 @@ def build_plant(robot, mode: str, configs: list, draws: list) -> tuple:
     # the motors as the plant simulates them (sim2real.robots.plant_motors), when they differ
     plant = None if first.plant_motors is None else load_plant_motors(first.plant_motors, robot)
     plant_robot = robot if plant is None else plant.robot
-    models = [randomized_model(plant_robot, mode, d.dynamics) for d in draws]
+    grounds: list = [None] * k  # each env's ground on terrain (the truth's ground under it)
+
+    def lay(e: int):
+        d, seed = draws[e], configs[e].seed
+        if d.terrain is None:
+            return None
+
+        def ground(spec) -> None:
+            grounds[e] = apply_terrain(spec, d.terrain, session_rng(seed, "terrain_tiles"))
+
+        return ground
+
+    models = [randomized_model(plant_robot, mode, d.dynamics, lay(e)) for e, d in enumerate(draws)]
     if plant is not None:
         models = [plant.apply(m) for m in models]
     for m, d, c in zip(models, draws, configs, strict=True):
@@ -54,6 +68,8 @@ def build_plant(robot, mode: str, configs: list, draws: list) -> tuple:
         if d.com_offset is not None:  # a centre of mass off its nominal place
             shift_com(m, *d.com_offset)
     backend = make_plant(first.engine, plant_robot, mode=mode, envs=k, models=models)
+    if any(g is not None for g in grounds):
+        backend.grounds = grounds
     backend.set_sensor_streams([session_rng(c.seed, "sensor_noise") for c in configs])
     for e, d in enumerate(draws):
         apply_sensors(backend, e, d.sensors)

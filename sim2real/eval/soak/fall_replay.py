@@ -190,6 +190,8 @@ def own_loop(twin, until: float) -> float | None:
         truth = plant.true_base_state()  # after the push: what the next tick observes
         tilt = float(tilt_of(state.base.set_truth(truth).projected_gravity)[0])
         height = float(truth[0, 2])
+        if getattr(plant, "grounds", None):  # terrain: above the ground under it
+            height -= float(plant.ground_height(truth)[0])
         if not (np.isfinite(height) and height >= monitor.fall_height) or tilt > monitor.fall_tilt:
             return float(rt.time)
     return None

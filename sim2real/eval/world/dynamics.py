@@ -26,6 +26,7 @@ believes the robot is and what the plant is.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import mujoco
@@ -208,10 +209,16 @@ def apply_dynamics(spec: mujoco.MjSpec, robot: Robot, dynamics: Dynamics, mode: 
             act.gainprm, act.biasprm = gain, bias
 
 
-def randomized_model(robot: Robot, mode: str, dynamics: Dynamics) -> mujoco.MjModel:
-    """Compiled plant model of ``robot`` in control ``mode`` with ``dynamics`` applied."""
+def randomized_model(
+    robot: Robot, mode: str, dynamics: Dynamics, ground: Callable | None = None
+) -> mujoco.MjModel:
+    """Compiled plant model of ``robot`` in control ``mode`` with ``dynamics`` applied, and
+    ``ground(spec)`` (a terrain laid into the spec, :func:`sim2real.eval.world.terrain.apply_terrain`)
+    when given."""
     spec = robot.mjspec(mode)
     apply_dynamics(spec, robot, dynamics, mode)
+    if ground is not None:
+        ground(spec)
     return spec.compile()
 
 

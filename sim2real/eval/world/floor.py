@@ -16,9 +16,20 @@ import numpy as np
 FLOOR_FRICTION = (0.5, 1.25)
 
 
+#: The name prefix of a terrain's boxes: its stepped tiles and the flat ground around them
+#: (:func:`sim2real.eval.world.terrain.add_ground`).
+BORDER_PREFIX = "floor_border_"
+
+
 def floor_geoms(model: mujoco.MjModel) -> np.ndarray:
-    """Indices of the plane geoms of ``model`` (the floor)."""
-    return np.flatnonzero(model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE)
+    """Indices of ``model``'s floor geoms: its planes, and a terrain's height fields and boxes
+    (named ``BORDER_PREFIX``..., :func:`sim2real.eval.world.terrain.add_ground`)."""
+    t = mujoco.mjtGeom
+    floor = (model.geom_type == t.mjGEOM_PLANE) | (model.geom_type == t.mjGEOM_HFIELD)
+    boxes = np.flatnonzero((model.geom_type == t.mjGEOM_BOX) & (model.geom_bodyid == 0))
+    for g in boxes:  # a terrain's, by name
+        floor[g] = model.geom(g).name.startswith(BORDER_PREFIX)
+    return np.flatnonzero(floor)
 
 
 def floor_pairs(model: mujoco.MjModel) -> np.ndarray:
@@ -30,7 +41,7 @@ def floor_pairs(model: mujoco.MjModel) -> np.ndarray:
 
 
 def apply_floor_friction(model: mujoco.MjModel, friction: float) -> None:
-    """Set the sliding friction of ``model``'s floor (its plane geoms) to ``friction``, in place,
+    """Set the sliding friction of ``model``'s floor (:func:`floor_geoms`) to ``friction``, in place,
     and give the floor contact priority: MuJoCo then takes its friction for every contact with
     it (without priority a contact takes the larger of the two geoms' coefficients, and the feet's
     default 1 would hide a slippery floor). A contact pair with the floor (:func:`floor_pairs`)
@@ -38,11 +49,13 @@ def apply_floor_friction(model: mujoco.MjModel, friction: float) -> None:
     coefficients are set to ``friction`` too (its torsional and rolling ones are kept).
 
     Raises:
-        ValueError: the model has no plane geom.
+        ValueError: the model has no floor geom.
     """
     floor = floor_geoms(model)
     if not len(floor):
-        raise ValueError("apply_floor_friction: the model has no floor (plane geom)")
+        raise ValueError(
+            "apply_floor_friction: the model has no floor (plane or height field geom)"
+        )
     model.geom_friction[floor, 0] = friction
     model.geom_priority[floor] = max(int(model.geom_priority.max()), 0) + 1
     model.pair_friction[floor_pairs(model), :2] = friction

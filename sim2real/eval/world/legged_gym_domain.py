@@ -3,8 +3,10 @@ ranges file (:mod:`sim2real.eval.world.ranges_file`): :func:`legged_gym_domain`.
 
 The task's config class is read *as text* (Python's ``ast``; the file is never run): its
 ``domain_rand`` class (or ``domain_rands`` with nested classes, as some forks write it: their keys
-are read as one table), ``noise``, ``terrain`` and ``commands.ranges``, over the defaults of
-legged_gym's ``LeggedRobotCfg`` (``LEGGED_GYM_DEFAULTS``) for what it does not set. Every
+are read as one table), ``noise``, ``terrain`` (a ``[terrain]`` table of tiles,
+:mod:`sim2real.eval.world.terrain`, where the file writes its ``mesh_type``: legged_gym's base
+says trimesh, unitree_rl_gym's plane) and ``commands.ranges``, over the defaults of legged_gym's
+``LeggedRobotCfg`` (``LEGGED_GYM_DEFAULTS``) for what it does not set. Every
 ``domain_rand`` key is read (:data:`GROUPS`: a switch and the keys it turns on) or refused by
 name (:class:`~sim2real.eval.world.domain.DomainError`): a randomization the soak cannot run
 (restitution, action latency, action noise, external forces) is refused when its switch is on;
@@ -24,6 +26,7 @@ from sim2real.eval.world.legged_gym_groups import (
     LEGGED_GYM_DEFAULTS,
     Context,
     domain_lines,
+    terrain_table,
 )
 from sim2real.robots.errors import Sim2RealError
 
@@ -135,6 +138,8 @@ def read_legged_gym_config(path: str | Path, config_class: str | None = None) ->
         "domain_rand": rand,
         "noise": noise,
         "terrain": {**defaults["terrain"], **values.get("terrain", {})},
+        # whether the task's file writes its terrain's mesh_type (the forks' bases differ)
+        "terrain_written": "mesh_type" in values.get("terrain", {}),
         "commands": {
             **defaults["commands"],
             **commands,
@@ -144,6 +149,21 @@ def read_legged_gym_config(path: str | Path, config_class: str | None = None) ->
         "control": {**defaults["control"], **values.get("control", {})},
         "source": f"{path.name} ({cls.name}, legged_gym)",
     }
+
+
+def _terrain_refusals(terrain: dict) -> list[str]:
+    """Why the soak cannot build legged_gym's ``terrain`` class (its kinds past the fifth share,
+    a mesh type it does not know; named), or nothing."""
+    from sim2real.eval.world.terrain import TerrainRanges
+
+    table = terrain_table(terrain)
+    if table is None:
+        return []
+    try:
+        TerrainRanges(**{k: tuple(v) if isinstance(v, list) else v for k, v in table.items()})
+    except (TypeError, ValueError) as exc:
+        return [str(exc).replace("TerrainRanges.", "terrain.", 1)]
+    return []
 
 
 def legged_gym_domain(path: str | Path, config_class: str | None = None) -> str:
@@ -184,6 +204,8 @@ def legged_gym_domain(path: str | Path, config_class: str | None = None) -> str:
             group.read(context)
         except ValueError as exc:
             refused.append(str(exc))
+    if cfg["terrain_written"]:
+        refused += _terrain_refusals(cfg["terrain"])
     if refused:
         raise DomainError(f"{path}: " + "; ".join(refused))
     return "\n".join(domain_lines(context, math.sqrt(3.0))) + "\n"

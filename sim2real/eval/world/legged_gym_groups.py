@@ -41,7 +41,19 @@ LEGGED_GYM_DEFAULTS = {
             "height_measurements": 0.1,
         },
     },
-    "terrain": {"mesh_type": "trimesh", "static_friction": 1.0, "dynamic_friction": 1.0},
+    "terrain": {
+        "mesh_type": "trimesh",
+        "static_friction": 1.0,
+        "dynamic_friction": 1.0,
+        "terrain_proportions": [0.1, 0.1, 0.35, 0.25, 0.2],
+        "num_rows": 10,
+        "curriculum": True,
+        "horizontal_scale": 0.1,
+        "vertical_scale": 0.005,
+        "terrain_length": 8.0,
+        "terrain_width": 8.0,
+        "slope_treshold": 0.75,
+    },  # fmt: skip
     "commands": {
         "resampling_time": 10.0,
         "heading_command": True,
@@ -323,8 +335,7 @@ def domain_lines(c: Context, root3: float) -> list[str]:
     lines = [
         f"# training domain of {cfg['source']}",
         "# (read by sim2real.eval.world.legged_gym_domain)",
-        f"# terrain: {cfg['terrain'].get('mesh_type')}, static friction {terrain:g}; the soak's "
-        "floor is flat",
+        f"# terrain: {cfg['terrain'].get('mesh_type')}, static friction {terrain:g}",
         *(f"# {note}" for note in c.notes),
     ]
     fixed = f"{(1 + terrain) / 2:.6g}"  # not randomized: the shapes' 1 with the terrain's
@@ -364,4 +375,38 @@ def domain_lines(c: Context, root3: float) -> list[str]:
     # a new command every resampling_time s; legged_gym has no share of standing commands (it
     # zeroes the x and y of a command under 0.2 m/s, keeping its yaw): zero_fraction stays ours
     lines.append(f"period = {float(cfg['commands']['resampling_time']):.6g}")
-    return lines
+    return lines + (terrain_lines(cfg["terrain"]) if cfg.get("terrain_written") else [])
+
+
+#: legged_gym ``terrain`` keys a ranges file's ``[terrain]`` takes as they are
+#: (:class:`sim2real.eval.world.terrain.TerrainRanges`).
+TERRAIN_KEYS = ("mesh_type", "terrain_proportions", "num_rows", "curriculum", "horizontal_scale",
+                "vertical_scale", "terrain_length", "terrain_width", "slope_treshold")  # fmt: skip
+
+
+def terrain_table(terrain: dict) -> dict | None:
+    """The ``[terrain]`` table (``{key: value}``) of legged_gym's ``terrain`` class ``terrain``,
+    every level drawn; None for a flat one (``plane``, ``none``): the soak's plane."""
+    if terrain.get("mesh_type") in ("plane", "none"):
+        return None
+    out = {k: terrain[k] for k in TERRAIN_KEYS if k in terrain}
+    out["levels"] = [0, int(terrain.get("num_rows", 10)) - 1]
+    return out
+
+
+def terrain_lines(terrain: dict) -> list[str]:
+    """:func:`terrain_table` as TOML lines (none for a flat terrain)."""
+    table = terrain_table(terrain)
+    if table is None:
+        return []
+
+    def toml(v) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return f'"{v}"'
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(toml(x) for x in v) + "]"
+        return f"{v:.6g}" if isinstance(v, float) else str(v)
+
+    return ["", "[terrain]", *(f"{k} = {toml(v)}" for k, v in table.items())]

@@ -19,11 +19,10 @@ is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the cl
     [pushes]      # floating base only: interval (s or [low, high]), mode ("set" or "add"),
                   # max_velocity (m/s) or velocity = {x, y, z}, angular_velocity = {roll, ...},
                   # apply ("force", default, or "velocity_hidden_from_imu"), window (s, 0.1)
+    [terrain]     # floating base only: legged_gym's terrain (terrain_proportions, levels, ...)
 
-The tables are :class:`~sim2real.eval.world.dynamics.DynamicsRanges`,
-:class:`~sim2real.eval.world.sensors.SensorRanges`, :class:`~sim2real.eval.world.sensors.ImuRanges`,
-:class:`~sim2real.eval.world.drift.DriftRanges`, :class:`~sim2real.eval.world.fault_schedule.FaultRanges`,
-:class:`~sim2real.eval.world.pushes.PushRanges` and :class:`~sim2real.deploy.tasks.commands.CommandRanges`;
+The tables are the classes of :data:`TABLES` (:class:`~sim2real.eval.world.dynamics.DynamicsRanges`,
+:class:`~sim2real.eval.world.terrain.TerrainRanges` and the others);
 the inline tables ``dynamics.com_offset`` (:class:`~sim2real.eval.world.dynamics.ComOffsetRanges`) and
 ``pushes.velocity``, ``pushes.angular_velocity`` (:class:`~sim2real.eval.world.pushes.PushRanges`' axes)
 are :data:`SUBTABLES`; their docstrings give each key's meaning, unit and default. Bad input
@@ -45,6 +44,7 @@ from sim2real.eval.world.fault_schedule import FaultRanges
 from sim2real.eval.world.pushes import PushRanges
 from sim2real.eval.world.sensors import ImuRanges, SensorRanges
 from sim2real.eval.world.session_ranges import SessionRanges, session_ranges
+from sim2real.eval.world.terrain import TerrainRanges
 from sim2real.robots import Robot
 from sim2real.robots.errors import Sim2RealError
 
@@ -62,6 +62,7 @@ TABLES = {
     "faults": FaultRanges,
     "pushes": PushRanges,
     "commands": CommandRanges,
+    "terrain": TerrainRanges,
 }
 #: The inline tables of a table: ``(table, key)`` -> (the field of :class:`SessionRanges` they
 #: set, the keys of the inline table: fields of that field's class). mjlab's velocity task
@@ -94,6 +95,7 @@ FLOATING_BASE_ONLY = (
     "added_mass_body",
     "pushes",
     "commands",
+    "terrain",
 )
 
 
@@ -111,7 +113,7 @@ def _expected(hint) -> str:
         if len(args) == 2 and args[1] is Ellipsis:
             return f"a list of {item}"
         return f"a range [low, high] of two {item}"
-    return {float: "a number", int: "an integer", str: "a string"}[hint]
+    return {float: "a number", int: "an integer", str: "a string", bool: "true or false"}[hint]
 
 
 def _convert(value, hint):
@@ -133,7 +135,9 @@ def _convert(value, hint):
         if len(value) != len(args):
             raise TypeError
         return tuple(_convert(v, a) for v, a in zip(value, args, strict=True))
-    if isinstance(value, bool):
+    if hint is bool and isinstance(value, bool):
+        return value
+    if isinstance(value, bool) or hint is bool:
         raise TypeError
     if hint is float and isinstance(value, (int, float)):
         return float(value)

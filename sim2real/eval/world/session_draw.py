@@ -4,7 +4,8 @@
 - dynamics (:mod:`sim2real.eval.world.dynamics`);
 - sensors (:mod:`sim2real.eval.world.sensors`): encoder noise, latency and dropout; a floating-base robot's
   IMU and foot force noise;
-- a floating-base robot's floor friction (:mod:`sim2real.eval.world.floor`);
+- a floating-base robot's floor friction (:mod:`sim2real.eval.world.floor`) and, with terrain ranges, its
+  ground's tiles (:mod:`sim2real.eval.world.terrain`);
 - slow drift (:mod:`sim2real.eval.world.drift`);
 - a fault schedule (:mod:`sim2real.eval.world.fault_schedule`): dropout bursts, stale frames, non-finite
   actions, latency spikes, pushes and a cable pulling on the end effector, as
@@ -32,6 +33,7 @@ from sim2real.eval.world.fault_schedule import (
 )
 from sim2real.eval.world.sensors import ImuDraw, SensorDraw, sample_imu, sample_sensors
 from sim2real.eval.world.session_ranges import SessionRanges
+from sim2real.eval.world.terrain import TerrainDraw, sample_terrain
 from sim2real.robots import Robot
 
 #: Named random streams of a session: ``numpy.random.default_rng([seed, STREAMS[name]])``.
@@ -47,6 +49,8 @@ STREAMS = {
     "base_mass": 8,  # floating-base robots: mass added to the base (added_base_mass)
     "encoder_bias": 9,  # each joint's encoder offset (SensorRanges.encoder_bias)
     "com_offset": 10,  # a body's centre-of-mass shift (ComOffsetRanges)
+    "terrain": 11,  # floating-base robots: the ground's tile kind and level (TerrainRanges)
+    "terrain_tiles": 12,  # the random parts of its tiles (roughness, obstacles)
 }
 
 
@@ -84,6 +88,8 @@ class SessionRandomization:
             :attr:`SensorRanges.encoder_bias`; None where the ranges have none).
         com_offset: ``(body, (x, y, z) m)``, a body's centre-of-mass shift (drawn from
             :attr:`SessionRanges.com_offset`; None where the ranges have none).
+        terrain: A floating-base robot's ground tiles (drawn from
+            :attr:`SessionRanges.terrain`; None: the flat plane).
     """
 
     seed: int
@@ -96,6 +102,7 @@ class SessionRandomization:
     added_base_mass: float | None = None
     encoder_bias: tuple[float, ...] | None = None
     com_offset: tuple[str, tuple[float, float, float]] | None = None
+    terrain: TerrainDraw | None = None
 
     def to_dict(self) -> dict:
         out = {
@@ -115,6 +122,8 @@ class SessionRandomization:
             out["encoder_bias"] = list(self.encoder_bias)
         if self.com_offset is not None:
             out["com_offset"] = {"body": self.com_offset[0], "offset_m": list(self.com_offset[1])}
+        if self.terrain is not None:
+            out["terrain"] = self.terrain.to_dict()
         return out
 
     @classmethod
@@ -138,6 +147,7 @@ class SessionRandomization:
                 if data.get("com_offset") is not None
                 else None
             ),
+            TerrainDraw.from_dict(data["terrain"]) if data.get("terrain") is not None else None,
         )
 
 
@@ -191,7 +201,7 @@ def sample_session(
         # faults are sized against this session's plant (its masses and link lengths)
         plant = randomized_model(robot, robot.config.control.mode, dynamics)
         schedule = sample_faults(robot, seed, duration, sensors, ranges.faults, plant)
-    imu = floor = added = None
+    imu = floor = added = terrain = None
     if robot.floating_base:  # an IMU and a floor
         if ranges.imu is None or ranges.floor_friction is None:
             raise ValueError(
@@ -203,6 +213,8 @@ def sample_session(
         floor = float(session_rng(seed, "floor").uniform(*ranges.floor_friction))
         if ranges.added_base_mass is not None:
             added = float(session_rng(seed, "base_mass").uniform(*ranges.added_base_mass))
+        if ranges.terrain is not None:
+            terrain = sample_terrain(session_rng(seed, "terrain"), ranges.terrain)
     bias = com = None
     if ranges.sensors.encoder_bias is not None:
         rng = session_rng(seed, "encoder_bias")
@@ -221,4 +233,5 @@ def sample_session(
         added_base_mass=added,
         encoder_bias=bias,
         com_offset=com,
+        terrain=terrain,
     )

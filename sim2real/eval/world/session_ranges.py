@@ -17,6 +17,7 @@ from sim2real.eval.world.fault_schedule import FaultRanges, fault_ranges
 from sim2real.eval.world.floor import FLOOR_FRICTION
 from sim2real.eval.world.pushes import PushRanges
 from sim2real.eval.world.sensors import ImuRanges, SensorRanges
+from sim2real.eval.world.terrain import TerrainRanges
 from sim2real.robots import Robot
 
 #: The dynamics ranges of a floating-base (legged) robot's soak session (``soak-test`` uses them
@@ -59,6 +60,9 @@ class SessionRanges:
             (:class:`sim2real.deploy.tasks.commands.CommandRanges`); None: the policy's training
             ranges where its contract records them (``soak-test``), else CommandRanges'
             defaults.
+        terrain: A floating-base robot's ground: legged_gym's terrain tiles
+            (:class:`sim2real.eval.world.terrain.TerrainRanges`, a ranges file's ``[terrain]``);
+            None (default): the flat plane.
 
     Raises:
         ValueError: ``floor_friction`` is not a range ``0 <= low <= high`` (named).
@@ -75,6 +79,7 @@ class SessionRanges:
     commands: CommandRanges | None = None
     com_offset: ComOffsetRanges | None = None
     added_mass_body: str = ""
+    terrain: TerrainRanges | None = None
 
     def __post_init__(self):
         if self.floor_friction is not None:

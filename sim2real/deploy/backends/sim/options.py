@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from sim2real.deploy.backends.registry import register_backend
 from sim2real.deploy.backends.sim.engines import add_engine_option, engines
 
@@ -39,12 +41,32 @@ def plant_for(robot, mode: str, path: str | None, envs: int):
 
 def make(args, robot, mode: str):
     """The plant for ``args.envs`` robots on ``args.engine``, its sensor streams seeded with
-    ``args.seed``."""
+    ``args.seed``; with ``args.terrain`` (deploy-run ``--terrain``: a draw with ``apply(spec,
+    rng) -> ground``, :class:`sim2real.eval.world.terrain.TerrainDraw`) each env's model on its
+    ground, tiles drawn from ``args.seed``, and the plant's ``grounds`` set."""
     from sim2real.deploy.backends.sim.engines import make_plant
 
     engine = getattr(args, "engine", engines()[0])
-    robot, models = plant_for(robot, mode, getattr(args, "plant_motors", None), args.envs)
-    return make_plant(engine, robot, mode=mode, envs=args.envs, seed=args.seed, models=models)
+    path = getattr(args, "plant_motors", None)
+    plant_robot, models = plant_for(robot, mode, path, args.envs)
+    terrain, grounds = getattr(args, "terrain", None), []
+    if terrain is not None:
+        models = []
+        for e in range(args.envs):
+            spec = plant_robot.mjspec(mode)
+            grounds.append(terrain.apply(spec, np.random.default_rng([args.seed, e])))
+            models.append(spec.compile())
+        if path is not None:
+            from sim2real.robots.plant_motors import load_plant_motors
+
+            plant = load_plant_motors(path, robot)
+            models = [plant.apply(m) for m in models]
+    backend = make_plant(
+        engine, plant_robot, mode=mode, envs=args.envs, seed=args.seed, models=models
+    )
+    if grounds:
+        backend.grounds = grounds
+    return backend
 
 
 register_backend(

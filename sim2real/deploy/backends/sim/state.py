@@ -27,6 +27,20 @@ _MJ_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 class SimState:
     """The state dict of a :class:`~sim2real.deploy.backends.sim.plant.SimBackend` (module docstring)."""
 
+    #: Per env, the ground of a plant whose floor is not the plane z = 0: an object with
+    #: ``height_at(x, y) -> m`` (:class:`sim2real.eval.world.terrain.GroundMap`, set by whoever
+    #: laid the terrain into the env's model); None (default): every env on the plane.
+    grounds: list | None = None
+
+    def ground_height(self, truth: np.ndarray) -> np.ndarray:
+        """(envs,) m, the ground's height under each env's true base (``truth`` (envs, 13),
+        :meth:`true_base_state`): its ground's (:attr:`grounds`), 0 on the plane."""
+        out = np.zeros(len(truth))
+        for e, ground in enumerate(self.grounds or ()):
+            if ground is not None:
+                out[e] = float(ground.height_at(truth[e, 0], truth[e, 1]))
+        return out
+
     # ------------------------------------------------------------------ state
     def _state_fields(self) -> dict[str, np.ndarray]:
         """The plant's per-env arrays, env axis first (the latency buffers are (slots, envs, ...)

@@ -1,0 +1,416 @@
+"""The ground of a floating-base robot's session: legged_gym's terrain tiles in the plant.
+
+:class:`TerrainRanges` is legged_gym's ``terrain`` description as the soak draws from it (a ranges
+file's ``[terrain]`` table, :mod:`sim2real.eval.world.ranges_file`, or a legged_gym task's own class,
+:mod:`sim2real.eval.world.legged_gym_domain`); :func:`sample_terrain` draws a session's
+:class:`TerrainDraw` (a kind of :data:`~sim2real.eval.world.terrain_tiles.KINDS` and a difficulty,
+from ``terrain_proportions`` and the levels); :func:`ground_map` lays out its ``tiles x tiles`` grid of
+that kind and difficulty (each tile its own random parts) inside a flat border, the robot's start
+(the world origin) at the centre of the middle tile's platform; :func:`add_ground` puts it into a
+plant spec as a MuJoCo height field in place of the flat floor plane, with the floor's contact
+settings and name, the free-floating base raised by the ground's height at the start. Without a
+terrain (``SessionRanges.terrain`` None, the default) the plane stays and nothing changes.
+
+A ``trimesh`` terrain's stairs and obstacles are boxes (legged_gym's trimesh makes their faces vertical,
+``slope_treshold``), its slopes a height field at ``horizontal_scale``; a ``heightfield`` terrain is a
+height field throughout (steps as one-cell ramps, as legged_gym's heightfield has them).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from sim2real.eval.world.floor import BORDER_PREFIX
+from sim2real.eval.world.terrain_tiles import (
+    KINDS,
+    UNBUILT_KINDS,
+    difficulty_terms,
+    make_tile,
+)
+
+#: legged_gym ``terrain.mesh_type`` values: with tiles, and without (a flat plane).
+MESH_TYPES, FLAT_MESH_TYPES = ("trimesh", "heightfield"), ("plane", "none")
+#: The kinds a trimesh terrain lays as boxes: their faces are steeper than any ``slope_treshold``
+#: (a 0.05 m step over legged_gym's 0.1 m cell: 0.5; its trimesh makes faces above 0.75 vertical).
+#: A height field at 0.1 m gives a step a 45-degree ramp; a finer one (we tried 0.025 m) holds a
+#: foot sphere in its many prisms' contacts (HIMLoco's Go2 stood still on a flat platform).
+STEPPED_KINDS = ("stairs_up", "stairs_down", "discrete")
+#: Depth of the height field's base below its lowest point, m (MuJoCo's ``size[3]``).
+BASE_DEPTH = 1.0
+#: The flat ground around the height field: four boxes of top 0 reaching this far, m (ours: a
+#: session walking off its tiles walks on), named with this prefix (floor geoms,
+#: :func:`sim2real.eval.world.floor.floor_geoms`).
+BORDER_REACH = 200.0
+#: The floor plane's settings its replacement takes (:func:`add_ground`).
+FLOOR_SETTINGS = ("name", "contype", "conaffinity", "condim", "friction", "priority", "solref")
+FLOOR_SETTINGS += ("solimp", "solmix", "margin", "gap", "material", "rgba", "group")
+#: Half side of the square about the start whose highest point the robot is put on, m (ours: a
+#: Go2's feet stand within 0.25 m of its base).
+SPAWN_HALF_SIDE = 0.3
+#: legged_gym's difficulties without a curriculum (``Terrain.randomized_terrain``).
+RANDOM_DIFFICULTIES = (0.5, 0.75, 0.9)
+
+
+@dataclass(frozen=True)
+class TerrainRanges:
+    """legged_gym's ``terrain`` class as a session draws from it (defaults: legged_gym's
+    ``LeggedRobotCfg.terrain``, and OpenRobotLab/HIMLoco's proportions).
+
+    Attributes:
+        mesh_type: ``trimesh`` or ``heightfield`` (``plane``/``none``: no terrain).
+        terrain_proportions: Shares of [smooth slope, rough slope, stairs up, stairs down,
+            discrete] (legged_gym's five; its later stepping stones, gaps and pits are refused
+            when not 0, by name).
+        num_rows: Levels; row ``i`` has difficulty ``i / num_rows``.
+        levels: ``(low, high)`` rows drawn uniformly, inclusive (default every row).
+        curriculum: False: the difficulty is one of ``RANDOM_DIFFICULTIES`` (legged_gym's).
+        horizontal_scale, vertical_scale: m per grid step and per height unit.
+        terrain_length, terrain_width: m, a tile's sides (legged_gym: 8 x 8; both taken square
+            at ``terrain_width``, as its ``make_terrain`` does).
+        border_size: m of flat ground around the session's tiles (ours: legged_gym's 25 m rings
+            200 tiles).
+        slope_treshold: Gradient above which a trimesh face is made vertical (legged_gym's
+            spelling).
+        tiles: The session's grid is ``tiles x tiles`` tiles (odd; ours).
+
+    Raises:
+        ValueError: a mesh type, proportion, level or size out of its bounds (named).
+    """
+
+    mesh_type: str = "trimesh"
+    terrain_proportions: tuple[float, ...] = (0.1, 0.2, 0.3, 0.3, 0.1)
+    num_rows: int = 10
+    levels: tuple[int, int] | None = None
+    curriculum: bool = True
+    horizontal_scale: float = 0.1
+    vertical_scale: float = 0.005
+    terrain_length: float = 8.0
+    terrain_width: float = 8.0
+    border_size: float = 1.0
+    slope_treshold: float = 0.75
+    tiles: int = 1
+
+    def __post_init__(self):
+        if self.mesh_type not in MESH_TYPES + FLAT_MESH_TYPES:
+            raise ValueError(
+                f"TerrainRanges.mesh_type: '{self.mesh_type}' is not one the soak builds; "
+                f"expected one of {list(MESH_TYPES + FLAT_MESH_TYPES)}"
+            )
+        p = self.terrain_proportions
+        if len(p) > len(UNBUILT_KINDS) + 5 or any(not (x >= 0) for x in p) or not sum(p) > 0:
+            raise ValueError(
+                "TerrainRanges.terrain_proportions: expected up to 8 shares >= 0 with a sum > 0, "
+                f"got {list(p)}"
+            )
+        unbuilt = [(k, x) for k, x in zip(UNBUILT_KINDS, p[5:], strict=False) if x > 0]
+        if unbuilt:
+            raise ValueError(
+                f"TerrainRanges.terrain_proportions: terrain {unbuilt[0][0]} (share "
+                f"{unbuilt[0][1]:g}) is not one the soak builds; expected 0 past the fifth share "
+                f"(it builds {list(KINDS)})"
+            )
+        if self.num_rows < 1 or (
+            self.levels and not 0 <= self.levels[0] <= self.levels[1] < self.num_rows
+        ):
+            raise ValueError(
+                "TerrainRanges.levels: expected 0 <= low <= high < num_rows = "
+                f"{self.num_rows}, got {self.levels}"
+            )
+        for name in ("horizontal_scale", "vertical_scale", "terrain_width", "slope_treshold"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"TerrainRanges.{name}: expected > 0, got {getattr(self, name)}")
+        if self.tiles < 1 or self.tiles % 2 == 0 or self.border_size < 0:
+            raise ValueError(
+                "TerrainRanges.tiles: expected an odd count >= 1 and border_size >= 0, got "
+                f"{self.tiles}, {self.border_size}"
+            )
+
+    @property
+    def flat(self) -> bool:
+        return self.mesh_type in FLAT_MESH_TYPES
+
+
+@dataclass(frozen=True)
+class TerrainDraw:
+    """A session's ground: its tiles' ``kind`` (:data:`KINDS`), ``difficulty`` in [0, 1),
+    ``level`` (the row it came from; None for a stated size), the ``ranges`` laid out."""
+
+    kind: str
+    difficulty: float
+    level: int | None = None
+    ranges: TerrainRanges = field(default_factory=TerrainRanges)
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(
+                f"terrain kind '{self.kind}' is not one the soak builds; expected one of {list(KINDS)}"
+            )
+
+    @property
+    def label(self) -> str:
+        """``kind@level`` or ``kind:size`` (the step height in m, the slope in degrees)."""
+        if self.level is not None:
+            return f"{self.kind}@{self.level}"
+        t = difficulty_terms(self.difficulty)
+        if self.kind.startswith("stairs"):
+            return f"{self.kind}:{t['step_height']:.3g}"
+        if "slope" in self.kind:
+            return f"{self.kind}:{math.degrees(math.atan(t['slope'])):.3g}deg"
+        return f"{self.kind}:{self.difficulty:.3g}"
+
+    def apply(self, spec: mujoco.MjSpec, rng: np.random.Generator) -> GroundMap:
+        """Lay this ground into plant ``spec``: :func:`apply_terrain`."""
+        return apply_terrain(spec, self, rng)
+
+    def to_dict(self) -> dict:
+        out = {"kind": self.kind, "difficulty": self.difficulty, "level": self.level}
+        return out | {"label": self.label, "ranges": dataclasses.asdict(self.ranges)}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> TerrainDraw:
+        r = {k: tuple(v) if isinstance(v, list) else v for k, v in data["ranges"].items()}
+        level = data.get("level")
+        level = None if level is None else int(level)
+        return cls(str(data["kind"]), float(data["difficulty"]), level, TerrainRanges(**r))
+
+
+def sample_terrain(rng: np.random.Generator, ranges: TerrainRanges) -> TerrainDraw | None:
+    """A session's :class:`TerrainDraw` from ``ranges`` (None for a flat mesh type): the kind by
+    ``terrain_proportions`` (legged_gym's choice), the level uniform over ``levels``."""
+    if ranges.flat:
+        return None
+    shares = np.asarray(ranges.terrain_proportions[:5], float)
+    kinds = list(KINDS)
+    weights = np.array([shares[KINDS[k]] / (2 if KINDS[k] == 0 else 1) for k in kinds])
+    kind = kinds[int(rng.choice(len(kinds), p=weights / weights.sum()))]
+    if not ranges.curriculum:
+        return TerrainDraw(kind, float(rng.choice(RANDOM_DIFFICULTIES)), None, ranges)
+    low, high = ranges.levels or (0, ranges.num_rows - 1)
+    level = int(rng.integers(low, high + 1))
+    return TerrainDraw(kind, level / ranges.num_rows, level, ranges)
+
+
+@dataclass(frozen=True)
+class GroundMap:
+    """Heights ``heights`` (nx, ny) m on a grid of ``spacing`` m, sample ``(i, j)`` at world
+    ``(x0 + i spacing, y0 + j spacing)``; the start (world origin) is on a sample. ``stepped``:
+    each sample the flat top of the square of side ``spacing`` about it (boxes), else the
+    corners of a height field's cells."""
+
+    heights: np.ndarray
+    x0: float
+    y0: float
+    spacing: float
+    stepped: bool = False
+
+    def height_at(self, x, y) -> np.ndarray:
+        """The ground's height (m) under world points ``(x, y)`` (arrays alike), bilinear in its
+        cell (MuJoCo's two triangles differ inside a cell by at most a quarter of its rise);
+        outside the map 0 (the border boxes' top, :func:`add_ground`); a stepped map's
+        nearest sample's."""
+        h = self.heights
+        u = (np.asarray(x, float) - self.x0) / self.spacing
+        v = (np.asarray(y, float) - self.y0) / self.spacing
+        if self.stepped:
+            i, j = np.rint(u).astype(int), np.rint(v).astype(int)
+            inside = (i >= 0) & (i < h.shape[0]) & (j >= 0) & (j < h.shape[1])
+            return np.where(
+                inside, h[np.clip(i, 0, h.shape[0] - 1), np.clip(j, 0, h.shape[1] - 1)], 0.0
+            )
+        inside = (u >= 0) & (u <= h.shape[0] - 1) & (v >= 0) & (v <= h.shape[1] - 1)
+        u, v = np.clip(u, 0, h.shape[0] - 1), np.clip(v, 0, h.shape[1] - 1)
+        i = np.minimum(u.astype(int), h.shape[0] - 2)
+        j = np.minimum(v.astype(int), h.shape[1] - 2)
+        a, b = u - i, v - j
+        z = (h[i, j] * (1 - a) * (1 - b) + h[i + 1, j] * a * (1 - b)
+             + h[i, j + 1] * (1 - a) * b + h[i + 1, j + 1] * a * b)  # fmt: skip
+        return np.where(inside, z, 0.0)
+
+
+def ground_map(draw: TerrainDraw, rng: np.random.Generator) -> GroundMap:
+    """The session's :class:`GroundMap` of ``draw`` (module docstring), random parts from
+    ``rng``."""
+    r = draw.ranges
+    hs, vs, n = r.horizontal_scale, r.vertical_scale, int(r.terrain_width / r.horizontal_scale)
+    border = int(r.border_size / hs)
+    units = np.zeros((2 * border + r.tiles * n,) * 2, dtype=np.int16)
+    for i in range(r.tiles):
+        for j in range(r.tiles):
+            tile = make_tile(draw.kind, draw.difficulty, n, hs, vs, rng)
+            units[border + i * n : border + (i + 1) * n, border + j * n : border + (j + 1) * n] = (
+                tile
+            )
+    start = border + (r.tiles // 2) * n + n // 2
+    stepped = r.mesh_type == "trimesh" and draw.kind in STEPPED_KINDS
+    return GroundMap(units * vs, -start * hs, -start * hs, hs, stepped)
+
+
+def _free_body(spec: mujoco.MjSpec):
+    for body in spec.bodies:
+        if any(j.type == mujoco.mjtJoint.mjJNT_FREE for j in body.joints):
+            return body
+    raise ValueError("add_ground: the plant has no free-floating body")
+
+
+def _rectangles(units: np.ndarray):
+    """``(i0, i1, j0, j1, value)``: ``units`` split into rectangles of one value each (greedy:
+    a run along j, grown along i while the rows match)."""
+    done = np.zeros(units.shape, dtype=bool)
+    n0, n1 = units.shape
+    for i in range(n0):
+        for j in range(n1):
+            if done[i, j]:
+                continue
+            v, j1 = units[i, j], j + 1
+            while j1 < n1 and not done[i, j1] and units[i, j1] == v:
+                j1 += 1
+            i1 = i + 1
+            while i1 < n0 and not done[i1, j:j1].any() and (units[i1, j:j1] == v).all():
+                i1 += 1
+            done[i:i1, j:j1] = True
+            yield i, i1, j, j1, v
+
+
+def add_ground(spec: mujoco.MjSpec, ground: GroundMap) -> None:
+    """Replace ``spec``'s floor planes by ``ground`` (in place): a height field, or for a
+    stepped ground boxes (one per rectangle of one height: vertical faces), named
+    ``BORDER_PREFIX``..., and four boxes of top 0 around it; each takes the (first) plane's
+    contact bits, friction, priority, solver settings and material (the field its name too),
+    and the free-floating body is raised by :func:`spawn_height`.
+
+    Raises:
+        ValueError: a spec without a floor plane or a free-floating body.
+    """
+    planes = [g for g in spec.worldbody.geoms if g.type == mujoco.mjtGeom.mjGEOM_PLANE]
+    if not planes:
+        raise ValueError("add_ground: the plant has no floor (plane geom) to replace")
+    keep = {k: getattr(planes[0], k) for k in FLOOR_SETTINGS}
+    for g in planes:
+        spec.delete(g)
+
+    def add(kind, name: str | None, pos, size=None):
+        geom = spec.worldbody.add_geom(type=kind)
+        for k, v in keep.items():
+            if k != "name":
+                setattr(geom, k, v)
+        geom.name = keep["name"] if name is None else name
+        geom.pos = pos
+        if size is not None:
+            geom.size = size
+        return geom
+
+    h, s = ground.heights, ground.spacing
+    nx, ny = h.shape
+    low, high = float(h.min()), float(h.max())
+    if ground.stepped:  # sample (i, j) the top of the square of side s about it
+        bottom = min(low, 0.0) - BASE_DEPTH
+        for k, (i0, i1, j0, j1, v) in enumerate(_rectangles(np.rint(h / 1e-4).astype(np.int64))):
+            top = v * 1e-4
+            cx, cy = ground.x0 + (i0 + i1 - 1) * s / 2, ground.y0 + (j0 + j1 - 1) * s / 2
+            size = [(i1 - i0) * s / 2, (j1 - j0) * s / 2, (top - bottom) / 2]
+            add(
+                mujoco.mjtGeom.mjGEOM_BOX,
+                f"{BORDER_PREFIX}tile_{k}",
+                [cx, cy, (top + bottom) / 2],
+                size,
+            )
+        xa, ya = ground.x0 - s / 2, ground.y0 - s / 2
+        xb, yb = xa + nx * s, ya + ny * s
+    else:
+        rise = max(high - low, 1e-6)
+        hf = spec.add_hfield(name="terrain", nrow=ny, ncol=nx)
+        hf.size = [(nx - 1) * s / 2, (ny - 1) * s / 2, rise, BASE_DEPTH]
+        hf.userdata = ((h.T - low) / rise).ravel().tolist()  # rows along y, columns along x
+        field = add(
+            mujoco.mjtGeom.mjGEOM_HFIELD,
+            None,
+            [ground.x0 + hf.size[0], ground.y0 + hf.size[1], low],
+        )
+        field.hfieldname = "terrain"
+        xa, ya, xb, yb = (
+            ground.x0,
+            ground.y0,
+            ground.x0 + 2 * hf.size[0],
+            ground.y0 + 2 * hf.size[1],
+        )
+    f = BORDER_REACH
+    frame = (  # (centre x, y, half sides x, y) of the four boxes around the tiles
+        (xb + f, (ya + yb) / 2, f, (yb - ya) / 2 + 2 * f),
+        (xa - f, (ya + yb) / 2, f, (yb - ya) / 2 + 2 * f),
+        ((xa + xb) / 2, yb + f, (xb - xa) / 2, f),
+        ((xa + xb) / 2, ya - f, (xb - xa) / 2, f),
+    )
+    for k, (cx, cy, sx, sy) in enumerate(frame):
+        add(mujoco.mjtGeom.mjGEOM_BOX, f"{BORDER_PREFIX}{k}", [cx, cy, -0.5], [sx, sy, 0.5])
+    body = _free_body(spec)
+    body.pos = np.asarray(body.pos) + [0.0, 0.0, spawn_height(ground)]
+
+
+def spawn_height(ground: GroundMap) -> float:
+    """m, the ground's highest point within ``SPAWN_HALF_SIDE`` of the start (legged_gym's
+    ``env_origin_z``: the highest within 1 m of its tile's centre): the feet of a robot put
+    there at its standing height are on the ground or above it, never in it."""
+    h, s = ground.heights, ground.spacing
+    i0, j0 = round(-ground.x0 / s), round(-ground.y0 / s)
+    k = int(math.ceil(SPAWN_HALF_SIDE / s))
+    return float(h[max(i0 - k, 0) : i0 + k + 1, max(j0 - k, 0) : j0 + k + 1].max())
+
+
+def apply_terrain(spec: mujoco.MjSpec, draw: TerrainDraw, rng: np.random.Generator) -> GroundMap:
+    """Lay ``draw``'s ground out (:func:`ground_map`, random parts from ``rng``) into the plant
+    ``spec`` (:func:`add_ground`); returns the map (the truth's ground under the robot)."""
+    ground = ground_map(draw, rng)
+    add_ground(spec, ground)
+    return ground
+
+
+def parse_terrain(text: str, ranges: TerrainRanges | None = None) -> TerrainDraw:
+    """A tile stated on a command line: ``KIND@LEVEL`` (difficulty ``LEVEL / num_rows``) or
+    ``KIND:SIZE``: stairs by their step height (m, ``stairs_up:0.10``), slopes by their angle
+    (``slope_up:15deg``) or gradient, ``discrete`` by its obstacles' height (m); the difficulty
+    is legged_gym's that gives it (module :mod:`~sim2real.eval.world.terrain_tiles`).
+
+    Raises:
+        ValueError: an unknown kind (named, with those the soak builds), a malformed size or
+            level, or one outside difficulties [0, 1).
+    """
+    ranges = TerrainRanges() if ranges is None else ranges
+    kind, sep, rest = text.replace("@", ":@", 1).partition(":")
+    if kind not in KINDS:
+        raise ValueError(
+            f"--terrain {text}: terrain kind '{kind}' is not one the soak builds; expected one "
+            f"of {list(KINDS)}"
+        )
+    if not sep:
+        raise ValueError(
+            f"--terrain {text}: expected KIND:SIZE or KIND@LEVEL (stairs_up:0.10, "
+            "slope_up:15deg, discrete@5)"
+        )
+    try:
+        if rest.startswith("@"):
+            level = int(rest[1:])
+            if not 0 <= level < ranges.num_rows:
+                raise ValueError
+            return TerrainDraw(kind, level / ranges.num_rows, level, ranges)
+        if "slope" in kind:
+            g = math.tan(math.radians(float(rest[:-3]))) if rest.endswith("deg") else float(rest)
+            d = g / 0.4
+        elif kind.startswith("stairs"):
+            d = (float(rest) - 0.05) / 0.18
+        else:
+            d = (float(rest) - 0.05) / 0.1
+    except ValueError:
+        raise ValueError(
+            f"--terrain {text}: expected KIND:SIZE (a number; slopes may end in deg) or "
+            f"KIND@LEVEL (0..{ranges.num_rows - 1})"
+        ) from None
+    if not 0.0 <= d < 1.0:
+        raise ValueError(
+            f"--terrain {text}: size outside legged_gym's difficulties [0, 1) (difficulty {d:.3g})"
+        )
+    return TerrainDraw(kind, d, None, ranges)

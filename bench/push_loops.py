@@ -49,6 +49,9 @@ GAIT_PERIOD = 0.8
 STOP_RAISED = "raised"
 #: s a run may spend in RAMP_IN before walking (our runtime; a fall if it never walks)
 RAMP_TIMEOUT = 10.0
+#: s after a push's start past which a tick counts as walking undisturbed (``Run.quiet_ticks``):
+#: our choice, twice the second over which the soak judges the estimate after a push.
+QUIET_AFTER_PUSH = 2.0
 
 
 @dataclass
@@ -65,6 +68,12 @@ class Run:
         upright_stop: ours: the run ended by a stop while the truth had the robot upright
             (:func:`true_upright`).
         after_push: ours: ``PushResponse.summary()`` (None without a judged push).
+        past_limit: ticks (RUNNING, ours) whose end found a joint of the true state past its
+            hard position limit (:func:`past_hard_limit`), in either loop: what a guard that
+            keeps the joints inside their range would have had to prevent.
+        quiet_ticks, quiet_intervened: ours: the RUNNING ticks before the first push or more
+            than ``QUIET_AFTER_PUSH`` after the last one's start, and those on which the guard
+            or the smoother changed a command (the interventions of undisturbed walking).
     """
 
     fell_at: float | None = None
@@ -76,6 +85,9 @@ class Run:
     checks: dict = field(default_factory=dict)
     upright_stop: bool = False
     after_push: dict | None = None
+    past_limit: int = 0
+    quiet_ticks: int = 0
+    quiet_intervened: int = 0
 
 
 class _Walk:
@@ -106,6 +118,18 @@ def true_fall(robot, position_z: float, quaternion: np.ndarray) -> bool:
     if not (np.isfinite(position_z) and position_z >= low):
         return True
     return _tilt(quaternion) > (robot.config.safety.fall_tilt or FALL_TILT)
+
+
+def past_hard_limit(robot, q: np.ndarray) -> bool:
+    """Whether a joint of ``q`` (n,) rad lies past its hard position limit (robot.toml's
+    ``position_limit``; a continuous joint never does)."""
+    return bool(((q > robot.position_upper) | (q < robot.position_lower)).any())
+
+
+def quiet(t: float, pushes: list) -> bool:
+    """Whether time ``t`` (s) is before the first of ``pushes`` (their start times, s) or more
+    than ``QUIET_AFTER_PUSH`` after the last one before it."""
+    return not pushes or t - pushes[-1] > QUIET_AFTER_PUSH
 
 
 def true_upright(robot, position_z: float, quaternion: np.ndarray) -> bool:
@@ -167,6 +191,7 @@ def _bare_run(robot, seed, seconds, pushes: PushRanges | None, gains, act, path=
         if path is not None:
             path.append((t, float(d.qpos[0]), float(d.qpos[1])))
         run.walked = walk.ticks = tick
+        run.past_limit += past_hard_limit(robot, d.qpos[qo:])
         if true_fall(robot, d.qpos[2], d.qpos[3:7]) or not np.isfinite(d.qpos).all():
             run.fell_at, run.cause = t, "fall"
             break
@@ -269,8 +294,13 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command) -> R
             before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
             continue
         run.ticks += 1
-        run.intervened += int(monitor.any[0]) - last_any
+        changed = int(monitor.any[0]) - last_any
+        run.intervened += changed
         last_any = int(monitor.any[0])
+        run.past_limit += past_hard_limit(robot, plant.true_position()[0])
+        if quiet(rt.time, schedule.times[0] if schedule else []):
+            run.quiet_ticks += 1
+            run.quiet_intervened += changed
         if true_fall(robot, truth[0, 2], truth[0, 3:7]):
             run.fell_at, run.cause = rt.time, "fall"
             break

@@ -14,9 +14,11 @@ The pushes are the policy's training domain's (the ONNX file's ``training_domain
 ``--domain NAME=FILE``'s ``[pushes]``), else legged_gym's push at ``--max-velocity`` every 5 s;
 as forces over the push's window (the soak's default) or, ``--apply velocity_hidden_from_imu``,
 the velocity set as the training stacks do; ``--no-pushes``: none (walking alone). Printed per
-policy and loop: pushes survived (before
-the fatal one), falls and falls per hour walked, interventions per RUNNING tick (ours; the own
-loops have no guard), the stops of a robot the truth had upright, and the base estimate's planar
+policy and loop: pushes survived (before the fatal one), falls and falls per hour walked, the
+ticks whose end found a joint of the true state past its hard limit (and per push: what a guard
+keeping the range must prevent), interventions per RUNNING tick (ours; the own loops have no
+guard; in brackets those of the ticks more than ``QUIET_AFTER_PUSH`` after a push), the stops
+of a robot the truth had upright, and the base estimate's planar
 velocity error in the second after a push; then the paired comparison per seed (same fatal push,
 ours earlier, ours later) with a two-sided sign test. A run of ours whose tick raised (a safe
 stop Ruckig could not plan) ends there, counted as a fall and named ``raised`` in the table.
@@ -148,8 +150,10 @@ def sign_test(own: list[int], ours: list[int]) -> tuple[int, int, int, float]:
 
 
 def summary(runs: list[Run]) -> dict:
-    """Pushes survived, falls, falls per hour walked, interventions per RUNNING tick, upright
-    stops, and the after-push error's mean (m/s, over the judged ticks) of ``runs``."""
+    """Pushes survived, falls, falls per hour walked, interventions per RUNNING tick (and per
+    tick of undisturbed walking, ``quiet``), ticks with a joint past a hard limit on the truth
+    (``past_limit``) and pushes applied, upright stops, and the after-push error's mean (m/s,
+    over the judged ticks) of ``runs``."""
     walked = sum(r.walked for r in runs)
     falls = sum(r.fell_at is not None for r in runs)
     ticks = sum(r.ticks for r in runs)
@@ -164,6 +168,11 @@ def summary(runs: list[Run]) -> dict:
         "falls": falls,
         "falls_per_hour": 3600.0 * falls / walked if walked else float("nan"),
         "interventions": sum(r.intervened for r in runs) / ticks if ticks else None,
+        "quiet": sum(r.quiet_intervened for r in runs) / q
+        if (q := sum(r.quiet_ticks for r in runs))
+        else None,
+        "past_limit": sum(r.past_limit for r in runs),
+        "pushes": sum(len(r.pushes) for r in runs),
         "checks": checks,
         "upright_stops": sum(r.upright_stop for r in runs),
         "after_push": sum(a["mean_m_s"] * a["ticks"] for a in after) / n if n else None,
@@ -176,10 +185,10 @@ def summary(runs: list[Run]) -> dict:
 def table(results: dict[str, tuple[Entry, list[Run], list[Run]]], args) -> list[str]:
     """The side-by-side table's lines (markdown)."""
     lines = [
-        "| policy | loop | pushes survived | falls | falls per hour | interventions per tick "
-        "| upright stops | after-push error mean / worst push (m/s) | paired: same / ours "
-        "earlier / later (p) |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| policy | loop | pushes survived | falls | falls per hour | ticks past a hard limit "
+        "(per push) | interventions per tick (undisturbed walking) | upright stops | after-push "
+        "error mean / worst push (m/s) | paired: same / ours earlier / later (p) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for name, (entry, own, ours) in results.items():
         a, b = summary(own), summary(ours)
@@ -191,18 +200,25 @@ def table(results: dict[str, tuple[Entry, list[Run], list[Run]]], args) -> list[
             else f"{b['after_push']:.3f} / {b['after_push_worst']:.3f}"
         )
         checks = ", ".join(f"{k} {v}" for k, v in sorted(b["checks"].items()))
+        quiet = "-" if b["quiet"] is None else f"{b['quiet']:.2%}"
         lines.append(
             f"| {name} | own ({entry.own_loop}) | {a['survived']} | {a['falls']}/{len(own)} | "
-            f"{a['falls_per_hour']:.0f} | - | - | - | |"
+            f"{a['falls_per_hour']:.0f} | {_past(a)} | - | - | - | |"
         )
         lines.append(
             f"| {name} | our runtime | {b['survived']}{share} | {b['falls']}/{len(ours)}"
             f"{f' ({raised} raised)' if (raised := b['raised']) else ''} | "
-            f"{b['falls_per_hour']:.0f} | {b['interventions']:.4%}"
-            f"{f' ({checks})' if checks else ''} | {b['upright_stops']} | {after} | "
+            f"{b['falls_per_hour']:.0f} | {_past(b)} | {b['interventions']:.4%}"
+            f"{f' ({checks})' if checks else ''} ({quiet}) | {b['upright_stops']} | {after} | "
             f"{same} / {fewer} / {more} (p = {p:.3f}) |"
         )
     return lines
+
+
+def _past(s: dict) -> str:
+    """A summary's ticks past a hard limit, and per push applied."""
+    per = f" ({s['past_limit'] / s['pushes']:.1f})" if s["pushes"] else ""
+    return f"{s['past_limit']}{per}"
 
 
 def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:

@@ -7,7 +7,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.push_loops import Run, runtime_loop, truth_loop
+from bench.push_loops import (
+    QUIET_AFTER_PUSH,
+    Run,
+    past_hard_limit,
+    quiet,
+    runtime_loop,
+    truth_loop,
+)
 from bench.push_reference import Entry, _load, sign_test, summary, survived
 from sim2real.eval.world.pushes import PushRanges, push_velocity
 from tests.runtime_fixtures import shipped_onnx
@@ -41,3 +48,24 @@ def test_pushes_survived_leave_out_the_fatal_one_and_the_sign_test_pairs_seeds()
     assert s["falls_per_hour"] == pytest.approx(3600.0 / 72.0)
     same, fewer, more, p = sign_test([3, 2, 5, 1], [3, 1, 4, 1])
     assert (same, fewer, more) == (2, 2, 0) and p == pytest.approx(0.5)
+
+
+def test_the_table_counts_ticks_past_a_hard_limit_and_undisturbed_walking_apart(go2):
+    """A joint a hair past its hard limit counts, one at it does not; a tick is undisturbed
+    before the first push and more than QUIET_AFTER_PUSH after the last; the summary sums the
+    ticks past a limit over the runs, with the pushes applied, and takes the interventions of
+    undisturbed walking over its own ticks."""
+    q = go2.home.copy()
+    assert not past_hard_limit(go2, q)
+    q[1] = go2.position_upper[1]
+    assert not past_hard_limit(go2, q)
+    q[1] += 1e-6
+    assert past_hard_limit(go2, q)
+    assert quiet(3.0, []) and not quiet(3.0, [2.0]) and quiet(2.0 + QUIET_AFTER_PUSH + 0.02, [2.0])
+    runs = [
+        Run(walked=10.0, pushes=[5.0], past_limit=4, quiet_ticks=400, quiet_intervened=2),
+        Run(walked=10.0, pushes=[5.0, 9.0], past_limit=2, quiet_ticks=100, quiet_intervened=3),
+    ]
+    s = summary(runs)
+    assert s["past_limit"] == 6 and s["pushes"] == 3
+    assert s["quiet"] == pytest.approx(5 / 500)

@@ -77,6 +77,9 @@ class RobotState:
         command: Floating-base robots: (envs, 3) the velocity command (vx, vy m/s, yaw rate
             rad/s, base frame).
         clock: (envs,) s, the runtime's time (the gait phase's clock).
+        height_scan: A policy with a ``height_scan`` block: (envs, points) m, the sensor's
+            height above the terrain at each point of its scan, the last map that arrived
+            (:class:`sim2real.deploy.runtime.height_map.HeightMap`); else None.
     """
 
     q: np.ndarray
@@ -89,6 +92,7 @@ class RobotState:
     foot_contact: np.ndarray | None = None
     command: np.ndarray | None = None
     clock: np.ndarray | None = None
+    height_scan: np.ndarray | None = None
 
     @classmethod
     def zeros(cls, envs: int, n_joints: int, ambient: float = 25.0) -> RobotState:

@@ -6,7 +6,8 @@ raw quantity with units and the physical scale it is divided by, its numpy write
 (:mod:`sim2real.deploy.spec.kernel`). The spec's validation and JSON shorthands
 (:mod:`sim2real.deploy.spec.policy_spec`, :mod:`sim2real.deploy.spec.schema`), the standard spec of a robot
 (:mod:`sim2real.deploy.spec.defaults`) and the observation plan (:mod:`sim2real.deploy.spec.observation_plan`)
-read it. :func:`register_kind` refuses a kind without a kernel branch: no kind falls back to numpy.
+read it. :func:`register_kind` refuses a kind without a kernel branch unless it states why it has none
+(``numpy_only``: ``height_scan``, whose terrain heights the kernel takes no input for).
 
 A block may read some ``components`` of its kind's raw vector, in any order: a vector kind's
 3-vector (holosoma's velocity command split into its linear and yaw entries), or ``gait_phase``'s
@@ -21,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from sim2real.deploy.spec import kernel, reference
+from sim2real.deploy.spec import height_scan, kernel, reference
 from sim2real.robots.errors import Sim2RealError
 
 
@@ -53,6 +54,10 @@ class ObservationKind:
         raw_entries: Entries of the raw vector a block may pick ``components`` from (3 for a
             vector kind, 4 for ``gait_phase``); 0: none.
         periodic: Needs the block's ``period`` (s, > 0).
+        scan: Reads a terrain height pattern (the block's ``scan``,
+            :class:`sim2real.deploy.spec.height_scan.HeightScanPattern`), its size the pattern's.
+        numpy_only: Why the kind has no kernel branch (it runs in numpy: ``kernel_code`` None);
+            empty: it has one.
     """
 
     name: str
@@ -67,6 +72,8 @@ class ObservationKind:
     vector: bool = False
     periodic: bool = False
     raw_entries: int = 0
+    scan: bool = False
+    numpy_only: str = ""
 
     def block_size(self, joints: int) -> int:
         """Entries of a block of this kind reading ``joints`` joints (all its components)."""
@@ -82,7 +89,7 @@ def register_kind(kind: ObservationKind) -> ObservationKind:
 
     Raises:
         KindError: a name already registered, no numpy writer, inconsistent sizes, no kernel
-            code (every kind runs in the compiled kernel), or a code the kernel has no branch for
+            code and no ``numpy_only`` reason, or a code the kernel has no branch for
             or another kind's.
     """
     where = f"observation kind '{kind.name}'"
@@ -96,10 +103,13 @@ def register_kind(kind: ObservationKind) -> ObservationKind:
         raise KindError(f"{where}: every_joint is for joint kinds")
     if kind.vector and (kind.size != 3 or kind.raw_entries != 3):
         raise KindError(f"{where}: a vector kind has 3 entries (size and raw_entries)")
+    if kind.kernel_code is None and kind.numpy_only:
+        KINDS[kind.name] = kind  # a stated reason: the plan runs the numpy writers
+        return kind
     if kind.kernel_code is None:
         raise KindError(
             f"{where}: no kernel_code: every kind runs in the compiled kernel; add its branch to "
-            "sim2real/deploy/spec/kernel.py and register its code (a kind never falls back to numpy)"
+            "sim2real/deploy/spec/kernel.py and register its code, or state numpy_only (why it has none)"
         )
     if kind.kernel_code not in kernel.BRANCHES:
         raise KindError(
@@ -128,6 +138,8 @@ def numpy_reason(block) -> str | None:
     """Why a block (:class:`sim2real.deploy.spec.policy_spec.ObservationBlock` of a registered kind) cannot
     run in the kernel, or None: its size does not follow from its joints (a spec not validated)."""
     kind = KINDS[block.name]
+    if kind.numpy_only:
+        return f"block '{block.name}': {kind.numpy_only}"
     if kind.per_joint and block.size != kind.per_joint * len(block.joints):
         return f"block '{block.name}' has {block.size} entries for {len(block.joints)} joints"
     return None
@@ -142,7 +154,6 @@ UNPROVIDED_KINDS = {
     "velocity_commands": "velocity_command",
     "base_euler_xyz": "base_euler_angles",
     "base_height": None,
-    "height_scan": None,
 }
 
 
@@ -259,4 +270,22 @@ _fixed(
     vector=True,
     raw_entries=3,
     **_base,
+)
+_scan_reason = (
+    "the terrain heights are an input the compiled kernel does not take; the plan runs the numpy "
+    "writers (the same arithmetic)"
+)
+register_kind(
+    ObservationKind(
+        "height_scan",
+        "the sensor's height above the terrain at each point of the block's scan (one per point), "
+        "m; offset 0.5, scale 0.2, clip 5 as legged_gym's measured_heights "
+        "(sim2real.deploy.spec.height_scan)",
+        height_scan.height_scan,
+        None,
+        size=len(height_scan.LEGGED_GYM_X) * len(height_scan.LEGGED_GYM_Y),
+        scan=True,
+        numpy_only=_scan_reason,
+        **_base,
+    )
 )

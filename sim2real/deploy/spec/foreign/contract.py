@@ -51,6 +51,9 @@ class Term:
             the present only), each tick's entries in turn, the oldest first.
         zero_joints: ``joint_position`` only: the policy joints (indices in its order) whose
             entry reads 0 (rl_sar's ``wheel_indices``: a wheel's angle is never observed).
+        offset: Subtracted from the raw value before scaling (``height_scan``'s 0.5 m); 0: none.
+        scan: ``height_scan`` only: its pattern
+            (:class:`~sim2real.deploy.spec.height_scan.HeightScanPattern`); None otherwise.
     """
 
     name: str
@@ -67,6 +70,8 @@ class Term:
     stand_phase: float = 0.0
     history: int = 0
     zero_joints: tuple[int, ...] = ()
+    offset: float = 0.0
+    scan: object = None
 
 
 @dataclass(frozen=True)

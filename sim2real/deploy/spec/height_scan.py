@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim2real.robots.errors import Sim2RealError
+
 #: legged_gym ``LeggedRobotCfg.terrain.measured_points_x`` / ``_y``, m.
 LEGGED_GYM_X = tuple(round(-0.8 + 0.1 * i, 1) for i in range(17))
 LEGGED_GYM_Y = tuple(round(-0.5 + 0.1 * i, 1) for i in range(11))
@@ -38,6 +40,10 @@ CLIP = 5.0
 ALIGNMENTS = ("yaw", "base", "world")
 #: Orders of the grid's points: ``xy`` x varies fastest (Isaac Lab), ``ij`` y fastest (legged_gym).
 ORDERINGS = ("xy", "ij")
+
+
+class HeightScanError(Sim2RealError, ValueError):
+    """A height scan is asked of a state that has none (the runtime's height map stage fills it)."""
 
 
 @dataclass(frozen=True)
@@ -106,7 +112,5 @@ def height_scan(state, goal, raw, block, vec, rot) -> None:
     scan, (envs, points) m, ``z_sensor - z_hit`` (:attr:`sim2real.deploy.core.state.RobotState.
     height_scan`, filled by the runtime's height map stage)."""
     if state.height_scan is None:
-        from sim2real.deploy.spec.policy_spec import SpecError
-
-        raise SpecError("observation: block 'height_scan' needs a state with a height scan")
+        raise HeightScanError("observation: block 'height_scan' needs a state with a height scan")
     raw[:] = state.height_scan

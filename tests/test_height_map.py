@@ -114,3 +114,26 @@ def test_a_frozen_elevation_map_stops_the_robot_safely_past_the_stale_limit(go2,
     assert FAULT_CAUSES[rt.cause[0]] == "stale_sensor"
     record = rt.stale_stops.records[0]
     assert record["height_map_s"] > limit and record["imu_s"] is None and not record["joints"]
+
+
+def test_a_walker_with_an_unused_height_scan_input_runs_through_deploy_run(
+    go2_onnx, tmp_path, capsys
+):
+    """The plumbing of a perceptive policy (not a perceptive policy): the shipped walker given a
+    legged_gym height_scan input it ignores walks through deploy-run --backend sim, a map taken
+    every tick."""
+    import json
+
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.export.scan_input import add_unused_scan
+
+    path, spec = add_unused_scan(go2_onnx, tmp_path / "go2_scan.onnx")
+    assert spec.observation_blocks[-1].name == "height_scan" and spec.obs_dim == 47 + 187
+    report = tmp_path / "report.json"
+    args = ["--robot", "go2", "--policy", str(path), "--command", "0.5,0,0", "--duration", "1"]
+    assert deploy_run_main([*args, "--report", str(report)]) == 0
+    assert "height scan: ray casts on the plant" in capsys.readouterr().err
+    summary = json.loads(report.read_text())
+    assert summary["final_state"] == ["RUNNING"]
+    assert summary["height_map"]["maps"] == [50] and summary["height_map"]["points"] == 187
+    assert summary["height_map"]["oldest_s"][0] <= summary["height_map"]["stale_limit_s"]

@@ -30,6 +30,9 @@ class HeightMap:
         stamp: (envs,) s, when it was made (-inf: none yet).
         time_since_fresh: (envs,) s, the frame's time minus ``stamp``.
         stale: (envs,) bool, ``time_since_fresh > stale_limit``, this tick's.
+        maps: (envs,) int64, maps taken since the start. oldest: (envs,) s, the largest
+            ``time_since_fresh`` of a tick after the first map (the run's report:
+            :meth:`summary`).
     """
 
     def __init__(self, points: int, envs: int, stale_limit: float, source=None):
@@ -39,6 +42,8 @@ class HeightMap:
         self.time_since_fresh = np.full(envs, np.inf)
         self.stale = np.zeros(envs, dtype=bool)
         self._fresh = np.zeros(envs, dtype=bool)
+        self.maps = np.zeros(envs, dtype=np.int64)
+        self.oldest = np.zeros(envs)
 
     def update(self, frame) -> np.ndarray:
         """Take the frame's map where it is newer than the last; returns :attr:`stale`.
@@ -60,9 +65,22 @@ class HeightMap:
             if fresh.any():
                 self.scan[fresh] = scan[fresh]
                 self.stamp[fresh] = stamp[fresh]
+                self.maps += fresh
         np.subtract(frame.time, self.stamp, out=self.time_since_fresh)
+        np.maximum(
+            self.oldest, np.where(self.maps > 0, self.time_since_fresh, 0.0), out=self.oldest
+        )
         np.greater(self.time_since_fresh, self.stale_limit, out=self.stale)
         return self.stale
+
+    def summary(self) -> dict:
+        """The run report's lines: ``points``, ``maps`` taken and ``oldest_s`` (s), per env."""
+        return {
+            "points": self.points,
+            "stale_limit_s": self.stale_limit,
+            "maps": self.maps.tolist(),
+            "oldest_s": [round(float(v), 6) for v in self.oldest],
+        }
 
     def state_dict(self) -> dict:
         """The last map taken, its stamp."""

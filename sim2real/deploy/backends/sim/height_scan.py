@@ -183,3 +183,42 @@ class PlantHeightScanner:
         self._stamps[:] = state["stamps"]
         self._ticks = int(state["ticks"])
         self.rng.bit_generator.state = state["rng"]
+
+
+@dataclass(frozen=True)
+class HeightScanRanges:
+    """The ranges a session's :class:`HeightScanNoise` is drawn from, uniformly (integers
+    inclusive): ``noise`` m (0 to legged_gym's ``noise_scales.height_measurements`` 0.1 at
+    ``noise_level`` 1), ``latency_ticks`` (our choice: 0-2), ``dropout`` (our choice: 0-0.01 per
+    tick), ``drift_rate`` m/s (our choice: +-2 mm/s, an elevation map's slow drift)."""
+
+    noise: tuple[float, float] = (0.0, 0.1)
+    latency_ticks: tuple[int, int] = (0, 2)
+    dropout: tuple[float, float] = (0.0, 0.01)
+    drift_rate: tuple[float, float] = (-0.002, 0.002)
+
+    def sample(self, rng: np.random.Generator) -> HeightScanNoise:
+        """One session's draw (four draws of ``rng``, in the fields' order)."""
+        return HeightScanNoise(
+            noise=float(rng.uniform(*self.noise)),
+            latency_ticks=int(rng.integers(self.latency_ticks[0], self.latency_ticks[1] + 1)),
+            dropout=float(rng.uniform(*self.dropout)),
+            drift_rate=float(rng.uniform(*self.drift_rate)),
+        )
+
+
+def attach_height_scanner(
+    backend, spec, noise: HeightScanNoise | None = None, seed: int = 0
+) -> PlantHeightScanner | None:
+    """For a simulated plant (its ``models``, ``datas``, ``true_base_state``) and a spec with a
+    ``height_scan`` block: the plant's ray casts of the block's pattern made the runtime's map
+    source (``backend.height_map_source``, :func:`sim2real.deploy.runtime.height_map.
+    height_map_stage`) and returned; else None (a backend that is no plant: its own source)."""
+    block = next((b for b in spec.observation_blocks if b.name == "height_scan"), None)
+    if block is None or not all(
+        hasattr(backend, a) for a in ("models", "datas", "true_base_state")
+    ):
+        return None
+    scanner = PlantHeightScanner(backend, block.scan, noise, seed)
+    backend.height_map_source = scanner
+    return scanner

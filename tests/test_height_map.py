@@ -86,6 +86,11 @@ def test_the_runtimes_scan_is_the_truths_ray_casts_plus_the_stated_seeded_noise(
         np.testing.assert_allclose(error, draws.uniform(-0.03, 0.03, (1, 187)), rtol=0, atol=1e-9)
     assert rt.height_map.stamp[0] == pytest.approx(plant.frame.time[0])
     assert rt.mode[0] != Mode.SAFE_STOP
+    saved = rt.state_dict()  # the map is part of the runtime's state
+    np.testing.assert_array_equal(saved["height_map/scan"], rt.state.height_scan)
+    rt.height_map.scan[:] = 0.0
+    rt.load_state_dict(saved)
+    np.testing.assert_array_equal(rt.state.height_scan, saved["height_map/scan"])
 
 
 class FrozenMap:

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim2real.deploy.core.stateful import put, take
+
 
 class HeightMap:
     """The elevation map input of ``envs`` robots (module docstring).
@@ -82,13 +84,17 @@ class HeightMap:
             "oldest_s": [round(float(v), 6) for v in self.oldest],
         }
 
-    def state_dict(self) -> dict:
-        """The last map taken, its stamp."""
-        return {"scan": self.scan.copy(), "stamp": self.stamp.copy()}
+    def _fields(self) -> dict:
+        return {"scan": self.scan, "stamp": self.stamp, "maps": self.maps, "oldest": self.oldest}
 
-    def load_state_dict(self, state: dict) -> None:
-        self.scan[:] = state["scan"]
-        self.stamp[:] = state["stamp"]
+    def state_dict(self, env: int | None = None) -> dict:
+        """The last map taken, its stamp, the maps counted and the oldest seen (copies, leading
+        env axis; :mod:`sim2real.deploy.core.stateful`)."""
+        return take(self._fields(), env)
+
+    def load_state_dict(self, state, env: int | None = None) -> None:
+        """Raises StateDictError: a missing field or another shape (nothing written)."""
+        put(self._fields(), state, env)
 
 
 def height_map_stage(spec, state, envs: int, robot, backend) -> HeightMap | None:

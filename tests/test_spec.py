@@ -303,7 +303,7 @@ def test_legged_gym_conventions_are_expressed_exactly(arm6):
     [
         ("base_ang_vel", "this toolkit calls it 'base_angular_velocity'"),
         ("commands", "this toolkit calls it 'velocity_command'"),
-        ("height_scan", "no robot here measures it"),
+        ("base_height", "no robot here measures it"),
         ("projected_gravity", "the robot 'arm3' is a fixed-base arm"),
         ("foot_contact", "the robot 'arm3' is a fixed-base arm"),
     ],
@@ -396,10 +396,11 @@ def test_every_registered_kind_has_a_kernel_branch_and_a_numpy_writer():
 
     codes = [k.kernel_code for k in KINDS.values() if not k.numpy_only]
     assert sorted(codes) == sorted(kernel.BRANCHES)  # one kind per branch, no branch unused
-    # the motion-tracking blocks alone run in numpy, saying why
-    numpy_only = sorted(k.name for k in KINDS.values() if k.numpy_only)
-    assert numpy_only == ["motion_anchor_ori_b", "motion_command"]
-    assert all(KINDS[k].kernel_code is None for k in numpy_only)
+    # a kind without a branch states why: the motion-tracking blocks and the height scan (an
+    # input the kernel does not take) run in numpy
+    numpy_only = sorted(k.name for k in KINDS.values() if k.kernel_code is None)
+    assert numpy_only == ["height_scan", "motion_anchor_ori_b", "motion_command"]
+    assert all(k.numpy_only for k in KINDS.values() if k.kernel_code is None)
     assert all(callable(k.numpy) and k.units for k in KINDS.values())
 
 

@@ -93,6 +93,7 @@ def run(args) -> int:
     mapping = operator_mapping(args)  # the mapping and its source's file, not its device
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
+    _attach_height_map(args, backend, policy.spec)  # a height_scan block: the plant's ray casts
     check_drive_applied(drive, simulated or getattr(backend, "commands_gains", False), args.backend)
     for line in drive.values():
         print(
@@ -113,6 +114,19 @@ def run(args) -> int:
         return _run_rig(args, rig, realtime, injector, clock, rt_request)
     finally:
         backend.close()  # servo bus: torque off; Unitree: damped
+
+
+def _attach_height_map(args, backend, spec) -> None:
+    """A policy with a ``height_scan`` block on the plant: its ray casts as the elevation map,
+    with noise, latency, dropout and drift drawn from ``--seed``
+    (:mod:`sim2real.deploy.backends.sim.height_scan`), said on stderr."""
+    from sim2real.deploy.backends.sim.height_scan import HeightScanRanges, attach_height_scanner
+
+    noise = HeightScanRanges().sample(np.random.default_rng(args.seed))
+    if attach_height_scanner(backend, spec, noise, args.seed) is not None:
+        print(
+            f"deploy-run: height scan: ray casts on the plant, {noise.to_dict()}", file=sys.stderr
+        )
 
 
 def _load_policies(args, robot) -> dict:
@@ -328,6 +342,7 @@ def run_report(args, rig, wall: float, realtime: bool, injector, clock) -> dict:
         "final_state": rt.mode_names(),
         "final_cause": rt.cause_names(),
         "tick_cost_us": rt.tick_cost.summary(),
+        "height_map": rt.height_map.summary() if rt.height_map is not None else None,
         "stage_cost_us": {s: rt.latency.summary(i) for i, s in enumerate(STAGES)},
         "deadline": {
             "overruns": clock.overruns,

@@ -65,6 +65,12 @@ class SensorFrame:
         foot_force: (envs, n_feet) N, each foot's measured normal contact force (noisy).
         foot_contact: (envs, n_feet) bool, ``foot_force`` above the contact threshold.
         contact_stamp: (envs,) s, when the foot forces were sampled; NaN when none arrived.
+
+    A policy with a ``height_scan`` block only (None otherwise; filled by the height map's source,
+    :mod:`sim2real.deploy.runtime.height_map`):
+        height_scan: (envs, points) m, the elevation map's sensor height above the terrain at
+            each point of the block's scan; NaN where no map arrived.
+        height_scan_stamp: (envs,) s, when that map was made; NaN when none arrived.
     """
 
     time: np.ndarray
@@ -80,6 +86,8 @@ class SensorFrame:
     foot_force: np.ndarray | None = None
     foot_contact: np.ndarray | None = None
     contact_stamp: np.ndarray | None = None
+    height_scan: np.ndarray | None = None
+    height_scan_stamp: np.ndarray | None = None
 
     @classmethod
     def empty(cls, envs: int, n_joints: int, n_feet: int | None = None) -> SensorFrame:

@@ -81,6 +81,9 @@ class RobotState:
             joint angles (n) rad and velocities (n) rad/s in the robot's joint order, then its
             anchor quaternion ``w x y z`` in the world frame, yaw-aligned; None without one
             (:mod:`sim2real.deploy.spec.motion_blocks`).
+        height_scan: A policy with a ``height_scan`` block: (envs, points) m, the sensor's
+            height above the terrain at each point of its scan, the last map that arrived
+            (:class:`sim2real.deploy.runtime.height_map.HeightMap`); else None.
     """
 
     q: np.ndarray
@@ -94,6 +97,7 @@ class RobotState:
     command: np.ndarray | None = None
     clock: np.ndarray | None = None
     motion: np.ndarray | None = None
+    height_scan: np.ndarray | None = None
 
     @classmethod
     def zeros(cls, envs: int, n_joints: int, ambient: float = 25.0) -> RobotState:

@@ -15,6 +15,8 @@ module                    what it holds
 :mod:`~.bridge`           :class:`~.bridge.RuntimeNode`: ``deploy-run --ros2``
 :mod:`~.backend`          :class:`~.backend.Ros2ControlBackend`: ``deploy-run --backend ros2``
 :mod:`~.controllers`      ros2_control's forward command controllers: names, topics, joints
+:mod:`~.height_map`       an elevation map (``Float32MultiArray`` scan, ``grid_map_msgs/GridMap``)
+                          into the frame's height scan
 :mod:`~.emulator`         the controller manager over the MuJoCo plant (``python -m
                           sim2real.deploy.ros2.emulator``)
 :mod:`~.hil`              deploy-run through the ros2 backend against the emulator

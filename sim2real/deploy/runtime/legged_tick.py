@@ -25,7 +25,10 @@ class LeggedTick:
         """A floating-base robot's tick: the base estimate from the IMU and leg kinematics, the
         feet's contact, the gait clock; an IMU silent past ``safety.stale_limit`` makes a safe
         stop (stale_sensor), a fall (:class:`sim2real.deploy.estimation.fall.FallDetector`) a damped one
-        (fall)."""
+        (fall); so does an elevation map older than the stale limit (a policy with a height scan,
+        :mod:`sim2real.deploy.runtime.height_map`)."""
+        if self.height_map is not None:
+            self.supervision.safe_stop(self.height_map.update(frame), "stale_sensor")
         self.base_estimator.update(frame, state.q, state.dq, out=state.base)
         calls = self._base_screens(state) if self.compiled_base_screens else None
         if calls is not None:  # the same, compiled (estimation.fall's stale_screen, fall_screen)

@@ -32,6 +32,7 @@ from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
 from sim2real.deploy.runtime.clock import SimClock
 from sim2real.deploy.runtime.compiled import CompiledSupervision
 from sim2real.deploy.runtime.handover import RampIn, check_policy, follows_targets, switch_policy
+from sim2real.deploy.runtime.height_map import height_map_stage
 from sim2real.deploy.runtime.legged_tick import LeggedTick
 from sim2real.deploy.runtime.run_loop import RunLoop
 from sim2real.deploy.runtime.stale import StaleStops
@@ -129,6 +130,8 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         self.goal = np.zeros((envs, 3))
         #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check
         self.base_estimator, self.fall_detector = kind.base_stages(robot, envs)
+        #: a policy with a height_scan block: its elevation map input (stale: a safe stop)
+        self.height_map = height_map_stage(self.spec, self.state, envs, robot, backend)
         #: (envs,) bool, an operator laying a legged robot down or standing it up from the
         #: floor: only a tilt is a fall there (a low or sinking base was asked for)
         self.lying_expected = np.zeros(envs, dtype=bool)

@@ -50,7 +50,8 @@ class StaleStops:
             tick's index), ``t_s`` (s, the runtime's clock), ``env``, ``stream``, ``reader``,
             ``stale_limit_s``, ``without_reading_s`` (s, the longest of the stale sensors),
             ``joints`` (name -> s without a fresh reading, the stale joints), ``imu_s`` (s, the
-            IMU's, where it was stale, else None), ``this_tick`` (the frame's readings of those
+            IMU's, where it was stale, else None), ``height_map_s`` (s, the elevation map's,
+            likewise), ``this_tick`` (the frame's readings of those
             joints), ``our_side``, ``other_side`` (the backend's context) and ``verdict``.
         dropped: Stale stops past ``MAX_RECORDS``, counted only.
     """
@@ -82,7 +83,10 @@ class StaleStops:
         if rt.base_estimator is not None:
             imu = float(rt.base_estimator.time_since_fresh[e])
             imu_s = imu if imu > limit else None
-        without = max([*joints.values(), imu_s or 0.0])
+        map_s, height_map = None, getattr(rt, "height_map", None)
+        if height_map is not None and height_map.time_since_fresh[e] > limit:
+            map_s = float(height_map.time_since_fresh[e])
+        without = max([*joints.values(), imu_s or 0.0, map_s or 0.0])
         this_tick = self._frame_view(e, stale)
         ours = self._our_side(without)
         other = stale_context(rt.backend, e)
@@ -97,6 +101,7 @@ class StaleStops:
             "without_reading_s": _finite(without),
             "joints": {n: _finite(a) for n, a in joints.items()},
             "imu_s": _finite(imu_s),
+            "height_map_s": _finite(map_s),
             "this_tick": this_tick,
             "our_side": ours,
             "other_side": other,

@@ -93,6 +93,8 @@ class RuntimeState:
         if self.base_estimator is not None:
             parts["base_estimator"] = self.base_estimator
             parts["fall_detector"] = self.fall_detector
+        if self.height_map is not None:  # a policy with a height scan: its elevation map
+            parts["height_map"] = self.height_map
         for name, part in (
             ("policy", self.policy),
             ("backend", self.backend),
@@ -117,8 +119,8 @@ class RuntimeState:
         seeded; a wall clock's next deadline is not state: a resumed loop starts its own).
         Then each stage's ``state_dict(env)`` under its name: ``estimator/``, ``guard/``,
         ``smoother/``, ``observation/`` (:class:`ObservationState`), a legged robot's
-        ``base_estimator/`` and ``fall_detector/``, and ``policy/``, ``backend/``,
-        ``injector/`` where the policy (a recurrent one), the backend
+        ``base_estimator/`` and ``fall_detector/``, a height-scan policy's ``height_map/``, and
+        ``policy/``, ``backend/``, ``injector/`` where the policy (a recurrent one), the backend
         (:class:`~sim2real.deploy.backends.sim.plant.SimBackend`) or the fault injector has one.
         """
         out: dict = take(self._state_fields(), env)

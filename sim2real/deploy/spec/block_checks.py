@@ -1,6 +1,7 @@
 """The checks of a spec's observation blocks (:meth:`~sim2real.deploy.spec.policy_spec.PolicySpec.
 validate`'s first part): each block's kind known and provided, its sizes, scales, clip, joints,
-period, stand rule and components consistent with the kind (:mod:`sim2real.deploy.spec.kinds`)."""
+period, stand rule, components and height scan pattern consistent with the kind
+(:mod:`sim2real.deploy.spec.kinds`)."""
 
 from __future__ import annotations
 
@@ -30,7 +31,7 @@ def observation_problems(blocks, n: int, driven: tuple[int, ...]) -> list[str]:
                 + (
                     f"this toolkit calls it '{here}'"
                     if here
-                    else "no robot here measures it (a height map or base height)"
+                    else "no robot here measures it (the base height)"
                 )
                 + f"; blocks a robot provides: {', '.join(kind_names())}"
             )
@@ -66,8 +67,15 @@ def observation_problems(blocks, n: int, driven: tuple[int, ...]) -> list[str]:
                 f"{where}: joints must cover every joint the action drives once "
                 f"({list(driven)}), got {list(b.joints)}"
             )
+        if kind.scan != (b.scan is not None):
+            return _problem(f"{where}: scan is for height_scan blocks, which need one")
+        if kind.scan and b.scan.problems(where):
+            return b.scan.problems(where)
+        if kind.scan and sum(x.name == b.name for x in blocks) > 1:
+            return _problem(f"{where}: one height_scan block per spec (the state holds one scan)")
         # per-foot kinds: the robot's feet (check_robot)
         expected = b.size if kind.per_foot else kind.block_size(len(b.joints))
+        expected = b.scan.count if kind.scan else expected
         if b.components:
             if not kind.raw_entries:
                 return _problem(f"{where}: components is for the blocks {vector_kind_names()} only")

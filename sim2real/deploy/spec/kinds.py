@@ -6,7 +6,8 @@ raw quantity with units and the physical scale it is divided by, its numpy write
 (:mod:`sim2real.deploy.spec.kernel`). The spec's validation and JSON shorthands
 (:mod:`sim2real.deploy.spec.policy_spec`, :mod:`sim2real.deploy.spec.schema`), the standard spec of a robot
 (:mod:`sim2real.deploy.spec.defaults`) and the observation plan (:mod:`sim2real.deploy.spec.observation_plan`)
-read it. :func:`register_kind` refuses a kind without a kernel branch: no kind falls back to numpy.
+read it. :func:`register_kind` refuses a kind without a kernel branch unless it states why it has none
+(``numpy_only``: ``height_scan``, whose terrain heights the kernel takes no input for).
 
 A block may read some ``components`` of its kind's raw vector, in any order: a vector kind's
 3-vector (holosoma's velocity command split into its linear and yaw entries), or ``gait_phase``'s
@@ -21,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from sim2real.deploy.spec import kernel, motion_blocks, reference
+from sim2real.deploy.spec import height_scan, kernel, motion_blocks, reference
 from sim2real.robots.errors import Sim2RealError
 
 
@@ -53,8 +54,11 @@ class ObservationKind:
         raw_entries: Entries of the raw vector a block may pick ``components`` from (3 for a
             vector kind, 4 for ``gait_phase``); 0: none.
         periodic: Needs the block's ``period`` (s, > 0).
-        numpy_only: Why the kind has no kernel branch and runs in numpy (the motion-tracking
-            blocks, :mod:`sim2real.deploy.spec.motion_blocks`); empty: it runs in the kernel.
+        scan: Reads a terrain height pattern (the block's ``scan``,
+            :class:`sim2real.deploy.spec.height_scan.HeightScanPattern`), its size the pattern's.
+        numpy_only: Why the kind has no kernel branch and runs in numpy (``kernel_code`` None:
+            the motion-tracking blocks, :mod:`sim2real.deploy.spec.motion_blocks`, and the height
+            scan); empty: it runs in the kernel.
     """
 
     name: str
@@ -69,6 +73,7 @@ class ObservationKind:
     vector: bool = False
     periodic: bool = False
     raw_entries: int = 0
+    scan: bool = False
     numpy_only: str = ""
 
     def block_size(self, joints: int) -> int:
@@ -101,12 +106,12 @@ def register_kind(kind: ObservationKind) -> ObservationKind:
     if kind.vector and (kind.size != 3 or kind.raw_entries != 3):
         raise KindError(f"{where}: a vector kind has 3 entries (size and raw_entries)")
     if kind.kernel_code is None and kind.numpy_only:
-        KINDS[kind.name] = kind
+        KINDS[kind.name] = kind  # a stated reason: the plan runs the numpy writers
         return kind
     if kind.kernel_code is None:
         raise KindError(
             f"{where}: no kernel_code: every kind runs in the compiled kernel; add its branch to "
-            "sim2real/deploy/spec/kernel.py and register its code (a kind never falls back to numpy)"
+            "sim2real/deploy/spec/kernel.py and register its code, or state numpy_only (why it has none)"
         )
     if kind.kernel_code not in kernel.BRANCHES:
         raise KindError(
@@ -151,7 +156,6 @@ UNPROVIDED_KINDS = {
     "velocity_commands": "velocity_command",
     "base_euler_xyz": "base_euler_angles",
     "base_height": None,
-    "height_scan": None,
 }
 
 
@@ -293,5 +297,23 @@ register_kind(
         size=6,
         needs_base=True,
         numpy_only=motion_blocks.NUMPY_REASON,
+    )
+)
+_scan_reason = (
+    "the terrain heights are an input the compiled kernel does not take; the plan runs the numpy "
+    "writers (the same arithmetic)"
+)
+register_kind(
+    ObservationKind(
+        "height_scan",
+        "the sensor's height above the terrain at each point of the block's scan (one per point), "
+        "m; offset 0.5, scale 0.2, clip 5 as legged_gym's measured_heights "
+        "(sim2real.deploy.spec.height_scan)",
+        height_scan.height_scan,
+        None,
+        size=len(height_scan.LEGGED_GYM_X) * len(height_scan.LEGGED_GYM_Y),
+        scan=True,
+        numpy_only=_scan_reason,
+        **_base,
     )
 )

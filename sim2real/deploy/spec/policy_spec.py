@@ -38,6 +38,7 @@ import numpy as np
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.spec.block_checks import observation_problems
 from sim2real.deploy.spec.drive import DriveSpec
+from sim2real.deploy.spec.height_scan import HeightScanPattern
 from sim2real.deploy.spec.history import ObservationHistory, stacked_dim
 from sim2real.deploy.spec.kinds import KINDS, kind_names
 from sim2real.robots import CONTROL_MODES, Robot
@@ -113,6 +114,8 @@ class ObservationBlock:
             ``stand_phase``, and restarts at phase 0 (:func:`sim2real.deploy.spec.kernel.
             gait_clock`); 0: it never stops.
         stand_phase: ``gait_phase`` only: the phase every foot is held at while standing, rad.
+        scan: ``height_scan`` only: where it measures the terrain
+            (:class:`sim2real.deploy.spec.height_scan.HeightScanPattern`); None for other blocks.
     """
 
     name: str
@@ -125,6 +128,7 @@ class ObservationBlock:
     components: tuple[int, ...] = ()
     stand_below: float = 0.0
     stand_phase: float = 0.0
+    scan: HeightScanPattern | None = None
 
 
 @dataclass(frozen=True)
@@ -447,6 +451,8 @@ class PolicySpec:
                 del block["period"]
             if not block["components"]:
                 del block["components"]
+            if block["scan"] is None:  # height_scan only
+                del block["scan"]
             for key in ("stand_below", "stand_phase"):  # a gait clock that stops only
                 if not block[key]:
                     del block[key]

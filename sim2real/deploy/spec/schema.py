@@ -33,6 +33,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from sim2real.deploy.spec.drive import DriveSpec
+from sim2real.deploy.spec.height_scan import HeightScanPattern
 from sim2real.deploy.spec.history import FILLS, LAYOUTS, ORDERS, ObservationHistory
 from sim2real.deploy.spec.kinds import KINDS, kind_names
 from sim2real.deploy.spec.policy_spec import (
@@ -54,6 +55,30 @@ _NUMBERS = "a number (every entry) or a list of one number per entry"
 
 class _Doc(BaseModel):
     model_config = ConfigDict(extra="forbid")
+
+
+class HeightScanDocument(_Doc):
+    """A height_scan block's pattern (sim2real.deploy.spec.height_scan): a grid of points around
+    the base where the sensor's height above the terrain is measured."""
+
+    model_config = ConfigDict(title="HeightScan")
+
+    x: list[float] = Field(description="Grid coordinates along the base's forward axis, m.")
+    y: list[float] = Field(description="Grid coordinates along the base's left axis, m.")
+    ordering: Literal["xy", "ij"] = Field(
+        default="ij",
+        description="xy: x varies fastest (Isaac Lab GridPatternCfg); ij: y fastest (legged_gym).",
+    )
+    alignment: Literal["yaw", "base", "world"] = Field(
+        default="yaw",
+        description="The grid turns with the base's yaw (legged_gym), its full attitude, or not.",
+    )
+    sensor_offset: list[float] = Field(
+        default=[0.0, 0.0, 0.0],
+        min_length=3,
+        max_length=3,
+        description="The point heights are measured from, relative to the base origin, m.",
+    )
 
 
 class ObservationBlockDocument(_Doc):
@@ -124,6 +149,14 @@ class ObservationBlockDocument(_Doc):
             "rate; Euler angles' roll, pitch, yaw); default all three. "
             "gait_phase: 0 sin p, 1 cos p, 2 sin(p + pi), 3 cos(p + pi) (a second foot half a "
             "period later), p = 2 pi t / period; default [0, 1]."
+        ),
+    )
+    scan: HeightScanDocument | None = Field(
+        default=None,
+        description=(
+            "height_scan only: where it measures the terrain; its size is the grid's points. The "
+            "raw value is the sensor's height above the terrain, m (legged_gym's measured_heights "
+            "is offset 0.5, scale 0.2, clip 5)."
         ),
     )
 
@@ -339,6 +372,8 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
         size = b.size
         if size is None and per_joint:
             size = per_joint * len(joints)
+        elif size is None and b.scan is not None:
+            size = len(b.scan.x) * len(b.scan.y)
         elif size is None and b.components is not None:
             size = len(b.components)
         elif size is None:
@@ -355,6 +390,7 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
                 components=tuple(int(c) for c in b.components or ()),
                 stand_below=float(b.stand_below or 0.0),
                 stand_phase=float(b.stand_phase or 0.0),
+                scan=None if b.scan is None else HeightScanPattern.from_dict(b.scan.model_dump()),
             )
         )
 

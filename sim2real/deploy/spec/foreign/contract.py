@@ -53,6 +53,9 @@ class Term:
             entry reads 0 (rl_sar's ``wheel_indices``: a wheel's angle is never observed).
         joints: A fixed-size term that reads some joints (``motion_anchor_ori_b``: the waist's
             yaw, roll, pitch): the policy joints (indices in its order) it reads, in order.
+        offset: Subtracted from the raw value before scaling (``height_scan``'s 0.5 m); 0: none.
+        scan: ``height_scan`` only: its pattern
+            (:class:`~sim2real.deploy.spec.height_scan.HeightScanPattern`); None otherwise.
     """
 
     name: str
@@ -70,6 +73,8 @@ class Term:
     history: int = 0
     zero_joints: tuple[int, ...] = ()
     joints: tuple[int, ...] = ()
+    offset: float = 0.0
+    scan: object = None
 
 
 @dataclass(frozen=True)

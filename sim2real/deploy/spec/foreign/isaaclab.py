@@ -12,7 +12,8 @@ classes as ``"module:name"``, tuples as ``!!python/tuple``) and ``play.py`` expo
 ``<run>/exported/policy.onnx``. It is looked for at ``../params/env.yaml``, ``params/env.yaml``
 and ``env.yaml`` from the ONNX file's folder, and read with a safe YAML loader (Python tags become
 plain data; nothing is constructed or run). From it: the ``policy`` observation group's terms in
-order (their functions, ``scale`` and ``clip`` (Isaac Lab clips before scaling),
+order (their functions, ``scale`` and ``clip`` (Isaac Lab clips before scaling), a
+``height_scan``'s sensor grid (:mod:`sim2real.deploy.spec.foreign.isaaclab_scan`),
 ``history_length``: the term's last N values, oldest first, its ``CircularBuffer`` filled with
 its first value after a reset; the group's, when set, for every term), the ``joint_pos`` action
 (``JointPositionAction``: ``scale``, ``offset``, ``use_default_offset``, ``clip``), the robot's
@@ -36,6 +37,8 @@ from sim2real.deploy.spec.foreign.contract import (
     Term,
     clip_before_scaling,
 )
+from sim2real.deploy.spec.foreign.isaaclab_scan import FUNCTION as SCAN
+from sim2real.deploy.spec.foreign.isaaclab_scan import height_scan_term
 
 NAME = "isaaclab"
 #: Where the run's configuration is looked for, relative to the ONNX file's folder.
@@ -49,7 +52,7 @@ TERMS = {
     "joint_vel": ("joint_velocity", -1, True),
 }
 UNMAPPED = {
-    "height_scan": "a terrain height map (no robot here measures one)",
+    "height_scan": "a terrain height scan",
     "base_pos_z": "the base height (no robot here measures it)",
     "joint_pos_limit_normalized": "joint positions normalized by the simulator's soft limits",
 }
@@ -119,6 +122,11 @@ def read(facts) -> ForeignContract:
         _term(key, cfg, history, commands)
         for key, cfg in group.items()
         if isinstance(cfg, dict) and "func" in cfg
+    ]
+    scene = env.get("scene") or {}
+    terms = [  # a height scan: its sensor's grid (sim2real.deploy.spec.foreign.isaaclab_scan)
+        height_scan_term(t, group[t.name], scene) if t.source.endswith(f":{SCAN}") else t
+        for t in terms
     ]
     actions = {k: v for k, v in (get(env, "actions") or {}).items() if isinstance(v, dict)}
     if len(actions) != 1 or not str(next(iter(actions.values())).get("class_type", "")).endswith(

@@ -216,7 +216,7 @@ def _block(
             f"observation term '{term.name}': scale {s.tolist()} cannot be mapped (a block's "
             "divisor must be finite and positive)"
         )
-    offset = np.zeros(size)
+    offset = np.full(size, float(term.offset))
     joints: tuple[int, ...] = ()
     if term.kind in JOINT_KINDS:
         joints = perm
@@ -235,6 +235,7 @@ def _block(
         components=term.components,
         stand_below=term.stand_below,
         stand_phase=term.stand_phase,
+        scan=term.scan,
     )
 
 

@@ -52,7 +52,10 @@ TERMS = {
 }
 #: Terms no robot here provides, and why.
 UNMAPPED = {
-    "height_scan": "a terrain height map (no robot here measures one)",
+    "height_scan": (
+        "a terrain height scan whose grid the metadata does not state (pass --spec FILE with a "
+        "height_scan block and its scan)"
+    ),
     "foot_height": "foot heights over the terrain (a height map)",
     "foot_air_time": "the feet's air time (a training-only quantity)",
     "foot_contact_forces": "contact forces (no robot here measures them)",

@@ -80,7 +80,8 @@ def _model(unitree_mujoco: Path, terrain, seed: int, dt: float, plant_of: Path |
 
 def _motors(robot_dir: Path, model, noise: bool):
     """The torque clamp ``clamp(tau, dq)`` of ``robot_dir``'s motors in actuator order, and
-    the noise sigmas (encoder rad, joint speed rad/s, gyro rad/s; zeros without ``noise``)."""
+    the noise sigmas (encoder rad, joint speed rad/s, gyro rad/s, gyro turn-on bias rad/s, the
+    AHRS roll/pitch error rad and its correlation time s; zeros without ``noise``)."""
     from sim2real.robots.loading import load_robot
     from sim2real.robots.torque_speed import TorqueSpeedEnvelope
 
@@ -96,8 +97,16 @@ def _motors(robot_dir: Path, model, noise: bool):
         return np.clip(tau, lower, upper)
 
     s = robot.config.sensors
-    sigmas = (s.encoder_noise_sigma, s.velocity_noise_sigma or 0.0, s.imu.gyro_noise_sigma)
-    return clamp, np.asarray(sigmas if noise else (0.0, 0.0, 0.0), float)
+    imu = s.imu
+    sigmas = (
+        s.encoder_noise_sigma,
+        s.velocity_noise_sigma or 0.0,
+        imu.gyro_noise_sigma,
+        imu.gyro_bias_sigma,
+        imu.orientation_sigma or 0.0,
+        imu.orientation_tau or 1.0,
+    )
+    return clamp, np.asarray(sigmas if noise else (0.0,) * 5 + (1.0,), float)
 
 
 def run(
@@ -129,10 +138,13 @@ def run(
     terrain = None if tile in (None, "plane") else parse_terrain(tile)
     model, ground = _model(unitree_mujoco, terrain, seed, dt, plant_of)
     data = mujoco.MjData(model)
-    clamp, sigma = None, np.zeros(3)
+    clamp, sigma = None, np.array([0.0] * 5 + [1.0])
     if motors is not None:
         clamp, sigma = _motors(motors, model, sensor_noise)
     noise = np.random.default_rng([seed, 1])
+    gyro_bias = noise.normal(0.0, 1.0, 3) * sigma[3]
+    tilt = noise.normal(0.0, 1.0, 2) * sigma[4]  # the AHRS's roll and pitch errors, Gauss-Markov
+    keep = math.exp(-dt * decimation / sigma[5])
     key = model.key("home").id
     mujoco.mj_resetDataKeyframe(model, data, key)
     if ground is not None:  # the key's base height above the ground at the start
@@ -191,8 +203,18 @@ def run(
             r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
                           [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
                           [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])  # fmt: skip
-            gravity = r.T @ np.array([0.0, 0.0, -1.0])
-            gyro = s[quat_at + 4 : quat_at + 7] + noise.normal(0.0, 1.0, 3) * sigma[2]
+            tilt = keep * tilt + math.sqrt(1 - keep**2) * sigma[4] * noise.normal(0.0, 1.0, 2)
+            cr, sr, cp, sp = (
+                math.cos(tilt[0]),
+                math.sin(tilt[0]),
+                math.cos(tilt[1]),
+                math.sin(tilt[1]),
+            )
+            error = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]]) @ np.array(
+                [[1, 0, 0], [0, cr, -sr], [0, sr, cr]]
+            )
+            gravity = (r @ error).T @ np.array([0.0, 0.0, -1.0])
+            gyro = s[quat_at + 4 : quat_at + 7] + noise.normal(0.0, 1.0, 3) * sigma[2] + gyro_bias
             obs = np.concatenate([
                 command * np.asarray(cfg["commands_scale"]), gyro * cfg["ang_vel_scale"], gravity,
                 (q - default) * cfg["dof_pos_scale"], dq * cfg["dof_vel_scale"], action,

@@ -16,7 +16,11 @@ with ``fixed_kp``/``fixed_kd`` (rl_sar's get-up), the command then held.
 
 A crossing: the base reaches ``CROSSED_X`` m along x (the tile's rim, 4 m from its centre) without
 tipping past 1 rad or its height above the ground under it falling under 0.4 x 0.32 m (the
-project's fall judges). Usage::
+project's fall judges). ``--motors ROBOT_DIR`` gives the loop the motors of an imported robot
+(its effort limits and its motors' torque-speed lines at 25 degC,
+:class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope`, as the plant applies them);
+``--sensor-noise`` adds that robot's white encoder, joint-speed and gyro noise, drawn by seed.
+Usage::
 
     python -m bench.himloco_terrain_loop RL_SAR_DIR UNITREE_MUJOCO_DIR stairs_up:0.10 slope_up:15deg
 """
@@ -46,9 +50,20 @@ def _config(rl_sar: Path) -> dict:
     return base | cfg
 
 
-def _model(unitree_mujoco: Path, terrain, seed: int, dt: float):
-    """go2.xml with a floor, the tile laid in; its missing visual meshes dropped."""
+def _model(unitree_mujoco: Path, terrain, seed: int, dt: float, plant_of: Path | None = None):
+    """go2.xml with a floor, the tile laid in; its missing visual meshes dropped. ``plant_of``:
+    an imported robot folder whose MJCF's integrator and joints' armature, damping and friction
+    loss replace go2.xml's (the plant's joint dynamics on the policy's own loop)."""
     spec = mujoco.MjSpec.from_file(str(unitree_mujoco / "unitree_robots/go2/go2.xml"))
+    if plant_of is not None:
+        ours = mujoco.MjModel.from_xml_path(str(next(Path(plant_of).glob("*.xml"))))
+        spec.option.integrator = ours.opt.integrator
+        for joint in spec.joints:
+            if joint.type == mujoco.mjtJoint.mjJNT_HINGE:
+                dof = ours.jnt_dofadr[ours.joint(joint.name).id]
+                joint.armature = float(ours.dof_armature[dof])
+                joint.damping = [float(ours.dof_damping[dof]), 0.0, 0.0]
+                joint.frictionloss = float(ours.dof_frictionloss[dof])
     assets = unitree_mujoco / "unitree_robots/go2/assets"
     for mesh in list(spec.meshes):
         if not (assets / mesh.file).is_file() or (assets / mesh.file).stat().st_size == 0:
@@ -63,16 +78,73 @@ def _model(unitree_mujoco: Path, terrain, seed: int, dt: float):
     return spec.compile(), ground
 
 
-def run(rl_sar: Path, unitree_mujoco: Path, tile: str | None, seconds: float, vx: float, seed=0):
+def _motors(robot_dir: Path, model, noise: bool):
+    """The torque clamp ``clamp(tau, dq)`` of ``robot_dir``'s motors in actuator order, and
+    the noise sigmas (encoder rad, joint speed rad/s, gyro rad/s, gyro turn-on bias rad/s, the
+    AHRS roll/pitch error rad and its correlation time s; zeros without ``noise``)."""
+    from sim2real.robots.loading import load_robot
+    from sim2real.robots.torque_speed import TorqueSpeedEnvelope
+
+    robot = load_robot(robot_dir)
+    index = {name: i for i, name in enumerate(robot.joint_names)}
+    order = [index[model.joint(model.actuator_trnid[a, 0]).name] for a in range(model.nu)]
+    envelope = TorqueSpeedEnvelope([robot.motors[i] for i in order])
+    effort = np.asarray(robot.effort_limit, float)[order]
+    hot = np.full(model.nu, 25.0)
+
+    def clamp(tau, dq):
+        lower, upper = envelope.limits(dq, effort, hot)
+        return np.clip(tau, lower, upper)
+
+    s = robot.config.sensors
+    imu = s.imu
+    sigmas = (
+        s.encoder_noise_sigma,
+        s.velocity_noise_sigma or 0.0,
+        imu.gyro_noise_sigma,
+        imu.gyro_bias_sigma,
+        imu.orientation_sigma or 0.0,
+        imu.orientation_tau or 1.0,
+    )
+    return clamp, np.asarray(sigmas if noise else (0.0,) * 5 + (1.0,), float)
+
+
+def run(
+    rl_sar: Path,
+    unitree_mujoco: Path,
+    tile: str | None,
+    seconds: float,
+    vx: float,
+    seed=0,
+    motors: Path | None = None,
+    sensor_noise: bool = False,
+    timestep: float | None = None,
+    plant_of: Path | None = None,
+):
     """One run on ``tile`` (``--terrain`` syntax; None: the plane): a dict of whether it
-    crossed, the time, x reached, whether and when it fell."""
+    crossed, the time, x reached, whether and when it fell. ``motors``: an imported robot
+    folder whose motors clamp the torques (and, with ``sensor_noise``, whose sensors' white
+    noise the observation gets, drawn from ``seed``). ``timestep``: s, the physics step in
+    place of rl_sar's ``dt`` (the PD law at every step, the policy at rl_sar's own rate).
+    ``plant_of``: see :func:`_model`. ``guard_stop_s`` in the result: when our guard's
+    hard-limit rule would have stopped the run (counted, not acted on)."""
     import torch
 
     cfg = _config(rl_sar)
     dt, decimation, n = float(cfg["dt"]), int(cfg["decimation"]), int(cfg["num_of_dofs"])
+    if timestep is not None:  # the same policy period on a finer physics step
+        decimation = int(round(dt * decimation / timestep))
+        dt = float(timestep)
     terrain = None if tile in (None, "plane") else parse_terrain(tile)
-    model, ground = _model(unitree_mujoco, terrain, seed, dt)
+    model, ground = _model(unitree_mujoco, terrain, seed, dt, plant_of)
     data = mujoco.MjData(model)
+    clamp, sigma = None, np.array([0.0] * 5 + [1.0])
+    if motors is not None:
+        clamp, sigma = _motors(motors, model, sensor_noise)
+    noise = np.random.default_rng([seed, 1])
+    gyro_bias = noise.normal(0.0, 1.0, 3) * sigma[3]
+    tilt = noise.normal(0.0, 1.0, 2) * sigma[4]  # the AHRS's roll and pitch errors, Gauss-Markov
+    keep = math.exp(-dt * decimation / sigma[5])
     key = model.key("home").id
     mujoco.mj_resetDataKeyframe(model, data, key)
     if ground is not None:  # the key's base height above the ground at the start
@@ -94,8 +166,11 @@ def run(rl_sar: Path, unitree_mujoco: Path, tile: str | None, seconds: float, vx
 
     def torque(target, p, d):
         q, dq = q_dq()
-        tau = p * (target - q) - d * dq
-        data.ctrl[mapping] = tau
+        tau = np.zeros(n)
+        tau[mapping] = p * (target - q) - d * dq
+        if clamp is not None:  # the motors' limits at the actuators' own speeds
+            tau = clamp(tau, data.qvel[model.jnt_dofadr[model.actuator_trnid[:, 0]]])
+        data.ctrl[:] = tau
 
     start = q_dq()[0].copy()
     get_up = int(1.0 / dt)
@@ -106,16 +181,40 @@ def run(rl_sar: Path, unitree_mujoco: Path, tile: str | None, seconds: float, vx
     steps = int(seconds / dt)
     out = {"tile": tile, "crossed": False, "fell": False, "t_s": seconds}
     target = default.copy()
+    # our guard's hard-limit rule on this loop's joint readings, counted, never acted on
+    # (sim2real.deploy.safety.limits: past the range for 1 s, or 0.1 rad past for 0.1 s)
+    lower, upper = (model.jnt_range[model.actuator_trnid[mapping, 0], i] for i in (0, 1))
+    past_ticks = far_ticks = 0
+    period = dt * decimation
     for k in range(steps):
         if k % decimation == 0:
             q, dq = q_dq()
+            over = np.maximum(lower - q, q - upper).max()
+            past_ticks = past_ticks + 1 if over > 0.0 else 0
+            far_ticks = far_ticks + 1 if over > 0.1 else 0
+            if "guard_stop_s" not in out and (
+                past_ticks > round(1.0 / period) or far_ticks > round(0.1 / period)
+            ):
+                out["guard_stop_s"] = k * dt
+            q = q + noise.normal(0.0, 1.0, n) * sigma[0]
+            dq = dq + noise.normal(0.0, 1.0, n) * sigma[1]
             s = data.sensordata
             w, x, y, z = s[quat_at : quat_at + 4]
             r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
                           [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
                           [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])  # fmt: skip
-            gravity = r.T @ np.array([0.0, 0.0, -1.0])
-            gyro = s[quat_at + 4 : quat_at + 7]
+            tilt = keep * tilt + math.sqrt(1 - keep**2) * sigma[4] * noise.normal(0.0, 1.0, 2)
+            cr, sr, cp, sp = (
+                math.cos(tilt[0]),
+                math.sin(tilt[0]),
+                math.cos(tilt[1]),
+                math.sin(tilt[1]),
+            )
+            error = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]]) @ np.array(
+                [[1, 0, 0], [0, cr, -sr], [0, sr, cr]]
+            )
+            gravity = (r @ error).T @ np.array([0.0, 0.0, -1.0])
+            gyro = s[quat_at + 4 : quat_at + 7] + noise.normal(0.0, 1.0, 3) * sigma[2] + gyro_bias
             obs = np.concatenate([
                 command * np.asarray(cfg["commands_scale"]), gyro * cfg["ang_vel_scale"], gravity,
                 (q - default) * cfg["dof_pos_scale"], dq * cfg["dof_vel_scale"], action,
@@ -151,15 +250,35 @@ def main(argv=None) -> None:
     p.add_argument("--seconds", type=float, default=16.0)
     p.add_argument("--vx", type=float, default=0.5)
     p.add_argument("--seeds", type=int, default=1)
+    p.add_argument("--first-seed", type=int, default=0)
+    p.add_argument("--motors", type=Path, help="an imported robot folder: its motors' limits")
+    p.add_argument("--sensor-noise", action="store_true", help="--motors' sensor noise")
+    p.add_argument("--timestep", type=float, help="s, the physics step (default rl_sar's dt)")
+    p.add_argument("--plant-of", type=Path, help="an imported robot: its integrator, joints")
     args = p.parse_args(argv)
+    if args.sensor_noise and args.motors is None:
+        p.error("--sensor-noise needs --motors (the robot whose sensors' noise it draws)")
     for tile in args.tiles:
         runs = [
-            run(args.rl_sar, args.unitree_mujoco, tile, args.seconds, args.vx, s)
-            for s in range(args.seeds)
+            run(
+                args.rl_sar,
+                args.unitree_mujoco,
+                tile,
+                args.seconds,
+                args.vx,
+                s,
+                args.motors,
+                args.sensor_noise,
+                args.timestep,
+                args.plant_of,
+            )  # fmt: skip
+            for s in range(args.first_seed, args.first_seed + args.seeds)
         ]
         crossed = sum(r["crossed"] for r in runs)
         each = [
-            f"x {r['x_m']:.2f} m{' fell' if r['fell'] else ''} at {r['t_s']:.2f} s" for r in runs
+            f"x {r['x_m']:.2f} m{' fell' if r['fell'] else ''} at {r['t_s']:.2f} s"
+            + (f" (hard-limit stop at {r['guard_stop_s']:.2f} s)" if "guard_stop_s" in r else "")
+            for r in runs
         ]
         print(f"{tile}: crossed {crossed}/{len(runs)}; " + "; ".join(each))
 

@@ -182,6 +182,26 @@ def choose_ee_body(
     return best, None
 
 
+#: The ratio of a description's effort limit to its motor's peak torque above which the import
+#: says the joint may sit behind a reduction of its own. Our choice: 1.5, above the spread of
+#: the efforts descriptions round a motor's peak torque to (the Go2's hip and thigh 23.7 N m
+#: against GO-M8010-6's 23.7), below the Go2 knee linkage's 1.917 (45.43 / 23.7, Unitree's
+#: go2_description) that a ``--motor '*=go_m8010_6'`` alone capped to the motor's 23.7 N m.
+FURTHER_REDUCTION_RATIO = 1.5
+
+
+def further_reduction_hint(joint: str, ratio: float) -> str:
+    """The import log's hint for a joint whose description's effort is ``ratio`` (>= 1) times
+    its motor's peak torque: empty below :data:`FURTHER_REDUCTION_RATIO`."""
+    if ratio < FURTHER_REDUCTION_RATIO:
+        return ""
+    return (
+        f" (the description's is {ratio:.3g} x the motor's: a joint behind a further reduction, "
+        f"a linkage or a belt, wants a motor file with that reduction, --motor {joint}=MODEL, "
+        "as go_m8010_6_knee is for the Go2's knees)"
+    )
+
+
 def cap_limits(urdf: PreparedSource, chosen, motor_cfg, log) -> tuple[dict, list, list[str]]:
     """Velocity and effort limit of every movable joint: the lower of the description's value
     and the motor's capability (peak torque, no-load speed), whichever exists.
@@ -219,6 +239,7 @@ def cap_limits(urdf: PreparedSource, chosen, motor_cfg, log) -> tuple[dict, list
             log(
                 f"joint {j}: effort limit {src.effort:g} N m ({src.effort_from}) -> "
                 f"{effort:g} N m: {chosen[j]} peak torque at the output"
+                + further_reduction_hint(j, src.effort / effort)
             )
         if src.velocity is not None and src.velocity > velocity:
             lowered.append((j, "velocity", src.velocity, velocity, "rad/s"))

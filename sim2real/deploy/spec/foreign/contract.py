@@ -138,6 +138,8 @@ class ForeignContract:
         velocity_joints: The policy joints (indices in its order) whose action is a speed target
             (rad/s, ``scale * action``, kp 0: a wheel); the others take position targets.
         motion: The reference clip of a motion-tracking policy (:class:`MotionSource`); None.
+        constant_inputs: Graph inputs besides the observation fed a constant every tick (name
+            -> value; holosoma WBT's ``time_step``, which feeds only the baked clip's outputs).
     """
 
     format: str
@@ -168,6 +170,7 @@ class ForeignContract:
     history_length: int = 0
     velocity_joints: tuple[int, ...] = ()
     motion: MotionSource | None = None
+    constant_inputs: dict[str, float] | None = None
 
     @property
     def n_joints(self) -> int | None:

@@ -159,6 +159,14 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
         default="once",
         help="at the clip's end: hold its last frame (once, hold) or start it again (loop)",
     )
+    p.add_argument(
+        "--motion-start-after",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="s of RUNNING before the clip starts, the policy holding its first frame meanwhile "
+        "(as the operator starts a clip from a stand; a robot let off its gantry first)",
+    )
     p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
     p.add_argument("--goal", default=None, help="fixed goal X,Y,Z (m, base frame)")
     p.add_argument(

@@ -83,7 +83,8 @@ class MotionSource:
         columns: The joint of each joint column of the clip, by the contract's names (rl_sar's
             CSV: the SDK's motor order, ``joint_names``).
         timing: The stack's rule from time to frame (``rl_sar``:
-            :class:`sim2real.deploy.tasks.motion.clock.MotionClock`).
+            :class:`sim2real.deploy.tasks.motion.clock.MotionClock`; ``holosoma_onnx``: the
+            clip baked in the ONNX ``file``, :mod:`sim2real.deploy.tasks.motion.onnx_holosoma`).
         note: Where each came from, one line for the report.
     """
 

@@ -240,7 +240,7 @@ def _build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, 
             "heading_gain": args.heading_hold,
         }
         if motion is not None:  # the tracking task plays the clip (motion_for)
-            task.update(task="tracking", motion=motion)
+            task.update(task="tracking", motion=motion, motion_start_after=args.motion_start_after)
         rig = Rig(robot, policy, backend, envs=args.envs, task=task, runtime=runtime)
         rig.add(MotionHook(rig))
         for entry in registered_hooks().values():  # --ros2, --print-joints, --video, ...

@@ -178,6 +178,14 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
         "kind instead of the plane (stairs_up:0.10 m steps, stairs_down:0.10, slope_up:15deg, "
         "slope_down:15deg, rough_slope@5, discrete:0.10; sim2real/eval/world/terrain.py)",
     )
+    p.add_argument(
+        "--motion-start-after",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="s of RUNNING before the clip starts, the policy holding its first frame meanwhile "
+        "(as the operator starts a clip from a stand; a robot let off its gantry first)",
+    )
     p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
     p.add_argument("--goal", default=None, help="fixed goal X,Y,Z (m, base frame)")
     p.add_argument(

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim2real.deploy.backends.unitree.emulator.band import BAND_HELP
 from sim2real.deploy.backends.unitree.emulator.faults import FAULT_HELP
 from sim2real.deploy.backends.unitree.emulator.robot import START_HELP, STARTS
 from sim2real.deploy.backends.unitree.emulator.truth import walk_truth
@@ -54,6 +55,7 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="message family of both ends (default: robot.toml's)",
     )
+    p.add_argument("--band", default=None, metavar="LENGTH[@RELEASE]", help=BAND_HELP)
     p.add_argument(
         "--remote",
         default=None,
@@ -74,6 +76,8 @@ def _run(args, rest: list[str], tmp: Path) -> int:
     extra = ["--start", args.start, "--trace", str(trace)]
     if args.remote:
         extra += ["--remote", args.remote]
+    if args.band:
+        extra += ["--band", args.band]
     if args.family:
         extra += ["--family", args.family]
         rest = [*rest, "--family", args.family]

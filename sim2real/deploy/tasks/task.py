@@ -92,6 +92,7 @@ def task_for(
     heading_gain: float = 0.0,
     task: str | None = None,
     motion=None,
+    motion_start_after: float = 0.0,
 ) -> Task:
     """The task of ``robot`` (:func:`sim2real.deploy.robot_kind.robot_kind`): goals for an arm, velocity
     commands for a legged robot.
@@ -123,6 +124,9 @@ def task_for(
             defaults).
         heading_gain: A legged robot with a fixed ``command`` whose yaw rate is zero: hold its
             heading with this gain, 1/s (:class:`sim2real.deploy.tasks.heading.HeadingHold`); 0: off.
+        task: A registered task's name in place of the robot kind's (``tracking``).
+        motion: ``tracking``: ``(MotionClock, waist joint indices)``. motion_start_after:
+            ``tracking``: s of RUNNING before the clip starts (the policy holding its first frame).
 
     Raises:
         ValueError: a ``command`` that is not three finite numbers (a legged robot).
@@ -145,6 +149,7 @@ def task_for(
         "period": period, "rng": rng, "success_time": success_time, "fixed": fixed,
         "command": command, "window": window, "interventions": interventions,
         "schedule": schedule, "ranges": ranges, "heading_gain": heading_gain, "motion": motion,
+        "motion_start_after": motion_start_after,
     }  # fmt: skip
     return TASKS[name](robot, envs, backend, **options)
 
@@ -172,14 +177,15 @@ def _goals(robot, envs, backend, *, period, rng, success_time, fixed, window, in
     return GoalTask(robot, envs, period, fixed, success_time, rng, window, interventions)
 
 
-def _tracking(robot, envs, backend, *, motion, **_) -> Task:
-    """Track a reference motion: ``motion`` is ``(MotionClock, waist joint indices)``."""
+def _tracking(robot, envs, backend, *, motion, motion_start_after=0.0, **_) -> Task:
+    """Track a reference motion: ``motion`` is ``(MotionClock, waist joint indices)``; the clip
+    starts ``motion_start_after`` s into RUNNING."""
     from sim2real.deploy.tasks.motion.tracking import TrackingTask
 
     if motion is None:
         raise ValueError("task 'tracking': needs a reference motion (deploy-run --motion CLIP)")
     clock, waist = motion
-    return TrackingTask(robot, envs, backend, clock, waist)
+    return TrackingTask(robot, envs, backend, clock, waist, motion_start_after)
 
 
 register_task("goals", _goals)

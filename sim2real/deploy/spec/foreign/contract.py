@@ -88,7 +88,8 @@ class MotionSource:
         columns: The joint of each joint column of the clip, by the contract's names (rl_sar's
             CSV: the SDK's motor order, ``joint_names``).
         timing: The stack's rule from time to frame (``rl_sar``:
-            :class:`sim2real.deploy.tasks.motion.clock.MotionClock`).
+            :class:`sim2real.deploy.tasks.motion.clock.MotionClock`; ``holosoma_onnx``: the
+            clip baked in the ONNX ``file``, :mod:`sim2real.deploy.tasks.motion.onnx_holosoma`).
         note: Where each came from, one line for the report.
     """
 
@@ -143,6 +144,8 @@ class ForeignContract:
         velocity_joints: The policy joints (indices in its order) whose action is a speed target
             (rad/s, ``scale * action``, kp 0: a wheel); the others take position targets.
         motion: The reference clip of a motion-tracking policy (:class:`MotionSource`); None.
+        constant_inputs: Graph inputs besides the observation fed a constant every tick (name
+            -> value; holosoma WBT's ``time_step``, which feeds only the baked clip's outputs).
     """
 
     format: str
@@ -173,6 +176,7 @@ class ForeignContract:
     history_length: int = 0
     velocity_joints: tuple[int, ...] = ()
     motion: MotionSource | None = None
+    constant_inputs: dict[str, float] | None = None
 
     @property
     def n_joints(self) -> int | None:

@@ -37,6 +37,7 @@ import json
 import math
 
 from sim2real.deploy.spec.foreign.contract import ForeignContract, Term, command_ranges
+from sim2real.deploy.spec.foreign.holosoma_wbt import is_wbt, read_wbt
 
 NAME = "holosoma"
 
@@ -92,6 +93,8 @@ def read(facts) -> ForeignContract:
             md[key] = text
     names = tuple(str(n) for n in md["dof_names"])
     if "experiment_config" not in md or not isinstance(md["experiment_config"], dict):
+        if is_wbt(facts):
+            return read_wbt(facts, md, names, fail)
         return partial(facts, md, names, fail)
     ec = md["experiment_config"]
 

@@ -351,6 +351,7 @@ def to_spec(contract: ForeignContract, robot: Robot) -> PolicySpec:
             kinds=tuple(kinds[k] for k in to_robot) if kinds else (),
         ),
         history=history,
+        constant_inputs=dict(contract.constant_inputs or {}),
     )
     try:
         spec.validate()

@@ -26,13 +26,20 @@ from sim2real.deploy.tasks.motion.npz_fields import by_robot_order, unit_quatern
 OUTPUTS = ("joint_pos", "joint_vel", "body_pos_w", "body_quat_w")
 
 
-def _table(path: Path, graph: onnx.GraphProto, output: str) -> np.ndarray:
-    """The constant (T, ...) table the graph gathers ``output`` from."""
+def constant_table(
+    path: Path, graph: onnx.GraphProto, output: str, stack: str = "BeyondMimic's"
+) -> np.ndarray:
+    """The constant (T, ...) table the graph gathers ``output`` from (an initializer or a
+    ``Constant`` node behind a ``Gather``).
+
+    Raises:
+        ClipError: ``output`` is no output of the graph, not a ``Gather`` or not of a constant.
+    """
     producers = {o: n for n in graph.node for o in n.output}
     node = producers.get(output)
     if node is None or node.op_type != "Gather":
         raise ClipError(
-            f"{path}: {output}: expected BeyondMimic's motion output (a Gather of the clip "
+            f"{path}: {output}: expected {stack} motion output (a Gather of the clip "
             f"at time_step), got {'no such output' if node is None else node.op_type}"
         )
     source = node.input[0]
@@ -80,7 +87,7 @@ def read_beyondmimic_onnx_motion(
     except Exception as exc:  # onnx raises DecodeError, OSError, ...: all mean "not a model"
         raise ClipError(f"{path}: file: expected an ONNX model ({exc})") from None
     metadata = {p.key: p.value for p in model.metadata_props}
-    tables = {name: np.asarray(_table(path, model.graph, name), float) for name in OUTPUTS}
+    tables = {name: np.asarray(constant_table(path, model.graph, name), float) for name in OUTPUTS}
     joints = _names(path, metadata, "joint_names")
     bodies = _names(path, metadata, "body_names")
     frames = tables["joint_pos"].shape[0]

@@ -1,5 +1,6 @@
 """The clip a motion-tracking policy plays in a run: the one its contract names beside it
-(rl_sar's ``motion_file``), or ``deploy-run --motion CLIP``.
+(rl_sar's ``motion_file``) or in its graph (holosoma's WBT export), or ``deploy-run --motion
+CLIP``.
 
 :func:`motion_for` reads it for the robot (its columns named as the contract names them, each
 matched to a robot joint by name or a known alias; every frame within the robot's hard limits)
@@ -18,6 +19,7 @@ from sim2real.deploy.spec.foreign.mapping import robot_joint_named
 from sim2real.deploy.tasks.motion.clip import ClipError
 from sim2real.deploy.tasks.motion.clock import MotionClock
 from sim2real.deploy.tasks.motion.csv_clip import parse_rate, read_csv_clip
+from sim2real.deploy.tasks.motion.onnx_holosoma import read_holosoma_onnx_motion
 from sim2real.robots.files import sha256_file
 
 #: The blocks that read a clip (:mod:`sim2real.deploy.spec.motion_blocks`).
@@ -70,15 +72,18 @@ def motion_for(policy, robot, envs: int, path=None, playback: str = "once", fps=
     unknown = [n for n, r in zip(source.columns, columns, strict=True) if r is None]
     if unknown:
         raise ClipError(f"{path}: columns: joints {unknown} are no joints of '{robot.name}'")
-    if path.suffix.lower() != ".csv":
-        raise ClipError(
-            f"{path}: format: expected a CSV clip (rl_sar, BeyondMimic), got {path.suffix!r}"
-        )
     limits = {
         n: (float(robot.position_lower[i]), float(robot.position_upper[i]))
         for i, n in enumerate(robot.joint_names)
     }
-    clip = read_csv_clip(path, columns, fps, limits)
+    if source.timing == "holosoma_onnx" and path.suffix.lower() == ".onnx":
+        clip = read_holosoma_onnx_motion(path, fps, columns, limits)
+    elif path.suffix.lower() != ".csv":
+        raise ClipError(
+            f"{path}: format: expected a CSV clip (rl_sar, BeyondMimic), got {path.suffix!r}"
+        )
+    else:
+        clip = read_csv_clip(path, columns, fps, limits)
     _check_hash(policy, path)
     anchor = next((b for b in policy.spec.observation_blocks if b.name == MOTION_BLOCKS[1]), None)
     if anchor is not None:

@@ -8,7 +8,10 @@ the next tick's reference into ``RobotState.motion`` (the blocks of
 
 - before the robot is RUNNING (RAMP_IN to the home pose), the clip's first frame, yaw-aligned to
   the robot as it stands now (rl_sar's ``Reset`` on entering its tracking state);
-- on the first RUNNING tick the clip starts (that tick read its time 0); each RUNNING tick
+- on the first RUNNING tick the clip starts (that tick read its time 0), or ``start_after`` s
+  of RUNNING later (the policy reading the first frame meanwhile, aligned at the first RUNNING
+  tick: holosoma_inference runs the policy with the clip pinned at its first step until the
+  operator starts it; the robot stands, let off its gantry, before the dance); each RUNNING tick
   moves it one control period on; at its end the last frame holds (``once``: rl_sar hands over
   to a locomotion policy there; here the policy holds the last pose, standing);
 - a stop (a fall, the operator) ends the play: the next RUNNING starts the clip again.
@@ -51,6 +54,7 @@ class TrackingTask:
         robot: The robot. envs: Batch size. backend: The runtime's backend (its truth judges).
         clock: The :class:`MotionClock` (the clip in the robot's joint order).
         waist: Robot joint indices of the waist's yaw, roll and pitch (the anchor block's).
+        start_after: s of RUNNING before the clip starts (module docstring; >= 0).
 
     Attributes:
         motion: The :class:`MotionClock`. velocity: The :class:`VelocityTask` (zero command)
@@ -62,8 +66,12 @@ class TrackingTask:
 
     name = "tracking"
 
-    def __init__(self, robot, envs: int, backend, clock: MotionClock, waist):
+    def __init__(self, robot, envs: int, backend, clock: MotionClock, waist, start_after=0.0):
+        if not (np.isfinite(start_after) and start_after >= 0.0):
+            raise ValueError(f"motion start after {start_after!r} s: expected a time >= 0")
         self.robot, self.envs, self.motion = robot, envs, clock
+        self.start_after = float(start_after)
+        self.waited = np.zeros(envs)  # s of RUNNING before the clip started
         self.dt = robot.control_period
         self.waist = np.asarray(waist, dtype=np.intp)
         self.velocity = VelocityTask(envs, self.dt, backend, 1.0, None, np.zeros(3))
@@ -111,6 +119,9 @@ class TrackingTask:
         clock = self.motion
         playing = ~np.isnan(clock.time)
         first = running & ~playing
+        if first.any() and self.start_after > 0.0:
+            first &= self.waited >= self.start_after - 0.5 * self.dt
+            self.waited[running & ~playing] += self.dt
         if first.any():
             clock.start(first)  # this tick read the first frame: it was time 0
         playing = running & ~np.isnan(clock.time)
@@ -125,6 +136,7 @@ class TrackingTask:
             clock.stop(stopped)
         idle = ~running
         if idle.any():
+            self.waited[idle] = 0.0
             self._align(runtime, idle)
 
     def _judge(self, runtime, envs: np.ndarray) -> None:

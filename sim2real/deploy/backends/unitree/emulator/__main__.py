@@ -12,6 +12,7 @@ from sim2real.deploy.backends.emulator_main import (
     parse_faults,
     serve,
 )
+from sim2real.deploy.backends.unitree.emulator.band import BAND_HELP
 from sim2real.deploy.backends.unitree.emulator.faults import FAULT_HELP, EmulatorFaults, parse_fault
 from sim2real.deploy.backends.unitree.emulator.robot import START_HELP, STARTS, UnitreeEmulator
 
@@ -47,6 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="behave as Unitree's simulation bridge: LowState without CRC, tick or foot forces, "
         "the PD torque computed on a LowCmd's arrival and held",
     )
+    p.add_argument("--band", default=None, metavar="LENGTH[@RELEASE]", help=BAND_HELP)
     p.add_argument("--fault", action="append", default=[], metavar="FAULT", help=FAULT_HELP)
     p.add_argument(
         "--remote",

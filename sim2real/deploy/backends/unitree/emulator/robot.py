@@ -36,6 +36,7 @@ from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.backends.unitree import family as families
 from sim2real.deploy.backends.unitree.codec import MessageCodec
 from sim2real.deploy.backends.unitree.dds import DdsLink
+from sim2real.deploy.backends.unitree.emulator.band import ElasticBand, parse_band
 from sim2real.deploy.backends.unitree.emulator.drivers import MotorDrivers, pd_model
 from sim2real.deploy.backends.unitree.emulator.faults import EmulatorFaults
 from sim2real.deploy.backends.unitree.emulator.lowstate import LowStateBuilder
@@ -128,6 +129,8 @@ class UnitreeEmulator(ServesOnThread):
             physics step) or ``'unitree_mujoco'``: what Unitree's simulation bridge does
             (LowState without CRC, tick or foot forces; the PD torque computed on a LowCmd's
             arrival and held until the next; :mod:`.lowstate`, :mod:`.drivers`).
+        band: ``LENGTH[@RELEASE]``: hang the robot from unitree_mujoco's elastic band
+            (:mod:`.band`), released ``RELEASE`` s after the first LowCmd; None: no band.
 
     Attributes:
         plant: The :class:`SimBackend`. drivers: The :class:`.drivers.MotorDrivers`.
@@ -167,6 +170,7 @@ class UnitreeEmulator(ServesOnThread):
         bridge: str | None = None,
         plant_motors: str | None = None,
         remote: str | None = None,
+        band: str | None = None,
     ):
         if bridge not in (None, "unitree_mujoco"):
             raise ValueError(f"bridge '{bridge}': expected None or 'unitree_mujoco'")
@@ -195,6 +199,8 @@ class UnitreeEmulator(ServesOnThread):
             plant = load_plant_motors(plant_motors, self.fast)
             plant_robot, self.model = plant.robot, plant.apply(self.model)
         self.plant = SimBackend(plant_robot, mode="position", seed=seed, models=[self.model])
+        #: the gantry (``LENGTH[@RELEASE]``, :mod:`.band`); None: the robot stands on its own
+        self.band = ElasticBand(self.plant, *parse_band(band)) if band else None
         if cutoff_temperature is None:
             cutoff = [m.max_winding_temperature + CUTOFF_MARGIN for m in self.robot.motors]
         else:
@@ -320,6 +326,8 @@ class UnitreeEmulator(ServesOnThread):
         self._take_commands()
         t = self.elapsed
         self._update_faults(t)
+        if self.band is not None:
+            self.band.apply(None if self._first_command is None else t)
         self.plant.write(self.drivers.apply(self.model))
         self.plant.advance()
         self.plant.read()  # the sensor frame of this step

@@ -120,20 +120,17 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         self.estimator = JointStateEstimator(robot, envs)
         self.kinematics = Kinematics(robot)
         self.guard, self.smoother = self._build_stages()
-        #: bool: RUNNING envs command the guard's targets as the policy emitted them, not the
-        #: smoother's (a PD-target robot whose policy was trained so: :func:`follows_targets`)
+        #: bool: RUNNING envs command the guard's targets, not the smoother's (follows_targets)
         self.follows_targets = follows_targets(self.spec, self.robot, self.mode_name)
         self.state: RobotState = kind.state(robot, envs)
-        #: a motion-tracking policy's reference (RobotState.motion): a placeholder for the
-        #: warm-up below only; its task writes the clip, a run without one is refused
+        #: a tracking policy's clip (RobotState.motion): the warm-up's placeholder; its task's after
         self.state.motion = motion_buffer(self.spec, envs, n)
         self.goal = np.zeros((envs, 3))
-        #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check
+        #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check; a
+        #: height_scan policy: its elevation map (stale: a safe stop; else None)
         self.base_estimator, self.fall_detector = kind.base_stages(robot, envs)
-        #: a policy with a height_scan block: its elevation map input (stale: a safe stop)
         self.height_map = height_map_stage(self.spec, self.state, envs, robot, backend)
-        #: (envs,) bool, an operator laying a legged robot down or standing it up from the
-        #: floor: only a tilt is a fall there (a low or sinking base was asked for)
+        #: (envs,) bool, an operator laying a legged robot down or standing it up: only a tilt falls
         self.lying_expected = np.zeros(envs, dtype=bool)
         #: (envs, 3) the velocity command of a legged robot (vx, vy m/s, yaw rate rad/s, base
         #: frame): the operator's (deploy-run --command) or the soak's schedule; write into it

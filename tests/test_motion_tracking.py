@@ -355,3 +355,32 @@ def test_deploy_run_refuses_a_clip_of_another_robot_in_one_line(g1_dance, tmp_pa
     assert deploy_run_main([*argv, "--duration", "1"]) == 3
     err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
     assert len(err) == 1 and f"{clip}: row 1: expected 36 columns" in err[0], err
+
+
+def test_stand_appends_a_transition_to_home_then_holds_it(tmp_path):
+    """``stand`` (holosoma's default_pose_append): past the 0.5 s clip, joints and velocities
+    blend linearly from the last frame to home and zero over stand_s = 1 s, the root turns
+    upright keeping the last frame's heading; then home holds; without a home it is refused."""
+    home = np.array([-0.5, 0.05, 0.0, 0.0])  # robot order: a, waist yaw, roll, pitch
+    clip = _yaw_clip(tmp_path)
+    clock = MotionClock(clip, ("a", *WAIST), WAIST, envs=1, playback="stand", home=home,
+                        stand_s=1.0)  # fmt: skip
+    assert clock.total == pytest.approx(1.5)
+    last_pos, last_vel, _ = clock.sample(clock.length)
+    pos, vel, anchor = clock.sample(clock.length + 0.5)
+    np.testing.assert_allclose(pos, 0.5 * (last_pos + home))
+    np.testing.assert_allclose(vel, 0.5 * last_vel)
+    pos, vel, anchor = clock.sample(clock.total)
+    np.testing.assert_allclose(pos, home) and np.testing.assert_allclose(vel, 0.0)
+    assert _yaw(anchor) == pytest.approx(0.5 + 0.2 * 4 + 0.05)  # the last heading, home's waist
+    clock.start(np.ones(1, bool))
+    for _ in range(30):
+        clock.advance(0.1, np.ones(1, bool))
+    assert clock.time[0] == pytest.approx(1.5) and clock.finished()[0]
+    out = np.zeros((1, 12))
+    clock.write(out)
+    np.testing.assert_allclose(out[0, :4], home)
+    assert len(clock.reference_poses()) == 5 + 10  # the clip's frames, then 1 s at 10 Hz
+    assert clock.reference_index(clock.total) == 14
+    with pytest.raises(ClipError, match=r"c\.csv: playback 'stand': home: expected 4"):
+        MotionClock(clip, ("a", *WAIST), WAIST, envs=1, playback="stand")

@@ -172,14 +172,14 @@ def _goals(robot, envs, backend, *, period, rng, success_time, fixed, window, in
     return GoalTask(robot, envs, period, fixed, success_time, rng, window, interventions)
 
 
-def _tracking(robot, envs, backend, *, motion, **_) -> Task:
+def _tracking(robot, envs, backend, *, motion, interventions=None, **_) -> Task:
     """Track a reference motion: ``motion`` is ``(MotionClock, waist joint indices)``."""
     from sim2real.deploy.tasks.motion.tracking import TrackingTask
 
     if motion is None:
         raise ValueError("task 'tracking': needs a reference motion (deploy-run --motion CLIP)")
     clock, waist = motion
-    return TrackingTask(robot, envs, backend, clock, waist)
+    return TrackingTask(robot, envs, backend, clock, waist, interventions)
 
 
 register_task("goals", _goals)

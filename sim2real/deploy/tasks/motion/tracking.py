@@ -9,9 +9,15 @@ the next tick's reference into ``RobotState.motion`` (the blocks of
 - before the robot is RUNNING (RAMP_IN to the home pose), the clip's first frame, yaw-aligned to
   the robot as it stands now (rl_sar's ``Reset`` on entering its tracking state);
 - on the first RUNNING tick the clip starts (that tick read its time 0); each RUNNING tick
-  moves it one control period on; at its end the last frame holds (``once``: rl_sar hands over
-  to a locomotion policy there; here the policy holds the last pose, standing);
+  moves it one control period on; at its end the clock's playback (``stand``: a transition to
+  home, then home; ``once``: the last frame holds);
 - a stop (a fall, the operator) ends the play: the next RUNNING starts the clip again.
+
+Each play is logged (:attr:`TrackingTask.play_log`): its share completed, whether a stop ended
+it, its joint-angle error and the guard's interventions while it played. The reference's own
+self-contacts (:mod:`sim2real.deploy.tasks.motion.self_contact`) are screened once, before any
+play; :meth:`TrackingTask.reference_contacts` tells the violation monitor which pairs the
+reference touches around each env's moment now.
 
 Judged while the clip plays (not while its last frame holds), on the plant's truth in
 simulation (the estimate on hardware): joint-angle error (rad RMS) per body group (legs, waist,
@@ -29,6 +35,7 @@ import numpy as np
 from sim2real.deploy.core.modes import RUNNING
 from sim2real.deploy.spec.motion_blocks import quat_conj, quat_mul, torso_quat
 from sim2real.deploy.tasks.motion.clock import MotionClock
+from sim2real.deploy.tasks.motion.self_contact import clip_self_contacts
 from sim2real.deploy.tasks.velocity import VelocityTask
 
 #: Body groups of the joint-angle error, by a word of the joint's name (the first that matches).
@@ -51,6 +58,8 @@ class TrackingTask:
         robot: The robot. envs: Batch size. backend: The runtime's backend (its truth judges).
         clock: The :class:`MotionClock` (the clip in the robot's joint order).
         waist: Robot joint indices of the waist's yaw, roll and pitch (the anchor block's).
+        interventions: Optional :class:`~sim2real.deploy.monitors.interventions.InterventionMonitor`
+            (its ``any`` and ``safety`` ticks are counted per play).
 
     Attributes:
         motion: The :class:`MotionClock`. velocity: The :class:`VelocityTask` (zero command)
@@ -58,12 +67,22 @@ class TrackingTask:
         sq_error: (envs, n) rad^2, squared joint-angle error summed over the playing ticks;
             anchor_sum: (envs,) deg, anchor error summed; anchor_max: (envs,) deg; ticks:
             (envs,) playing ticks judged.
+        contacts: The reference's self-contacts
+            (:class:`~sim2real.deploy.tasks.motion.self_contact.ClipContacts`).
+        play_log: per env, a list of ended plays: ``completed`` (share of the clip),
+            ``stopped`` (a stop ended it), ``joint_rms_rad``, ``ticks``, ``interventions`` and
+            ``safety_interventions`` (ticks, while the clip and its transition played).
     """
 
     name = "tracking"
 
-    def __init__(self, robot, envs: int, backend, clock: MotionClock, waist):
+    def __init__(self, robot, envs: int, backend, clock: MotionClock, waist, interventions=None):
         self.robot, self.envs, self.motion = robot, envs, clock
+        self.interventions = interventions
+        self.contacts = clip_self_contacts(robot, clock.reference_poses(), clock.clip.fps)
+        self.play_log: list[list[dict]] = [[] for _ in range(envs)]
+        self._play = np.zeros((envs, 4))  # this play's sq error, ticks, any, safety
+        self._seen = np.zeros((envs, 2), dtype=np.int64)  # interventions any, safety last tick
         self.dt = robot.control_period
         self.waist = np.asarray(waist, dtype=np.intp)
         self.velocity = VelocityTask(envs, self.dt, backend, 1.0, None, np.zeros(3))
@@ -118,9 +137,16 @@ class TrackingTask:
             clip = playing & (np.nan_to_num(clock.time, nan=np.inf) < clock.length)
             self._judge(runtime, clip)  # the clip, not its last frame held
             clock.advance(self.dt, playing)
-            np.maximum(self.progress, np.where(playing, clock.time, 0.0), out=self.progress)
+            now = np.where(playing, np.minimum(clock.time, clock.length), 0.0)
+            np.maximum(self.progress, now, out=self.progress)
             clock.write(self._buffer(runtime), playing)
+        self._count_interventions(playing)
+        ended = playing & (clock.time >= clock.total) & (self._play[:, 1] > 0)
+        if clock.playback == "loop":
+            ended = playing & (clock.time < self.dt) & (self._play[:, 1] > 0)
         stopped = ~running & ~np.isnan(clock.time)
+        for e in np.flatnonzero(ended | stopped):
+            self._log_play(e, bool(stopped[e]))
         if stopped.any():
             clock.stop(stopped)
         idle = ~running
@@ -145,8 +171,50 @@ class TrackingTask:
         self.anchor_sum[e] += angle[e]
         np.maximum(self.anchor_max, np.where(envs, angle, 0.0), out=self.anchor_max)
         self.ticks[e] += 1
+        self._play[e, 0] += ((q[e] - ref[e, :n]) ** 2).sum(axis=1)
+        self._play[e, 1] += 1
         for k in e:
             self.mpjpe_sum[k] += 1000.0 * self._mpjpe(ref[k, :n], q[k])
+
+    def _count_interventions(self, playing: np.ndarray) -> None:
+        """Add the guard's interventions of this tick to each playing env's play."""
+        iv = self.interventions
+        if iv is None:
+            return
+        now = np.stack([iv.any, iv.safety], axis=1)
+        self._play[:, 2:4] += np.where(playing[:, None], now - self._seen, 0)
+        self._seen[:] = now
+
+    def _log_play(self, e: int, stopped: bool) -> None:
+        """Close env ``e``'s play into :attr:`play_log` and start a new one."""
+        sq, ticks, any_, safety = self._play[e]
+        t = self.motion.time[e]
+        done = 1.0 if not stopped else min(float(np.nan_to_num(t)) / self.motion.length, 1.0)
+        self.play_log[e].append({
+            "completed": done, "stopped": stopped,
+            "joint_rms_rad": float(np.sqrt(sq / (ticks * self.robot.n_joints))) if ticks else None,
+            "ticks": int(ticks), "interventions": int(any_), "safety_interventions": int(safety),
+        })  # fmt: skip
+        self._play[e] = 0.0
+
+    def _from_home(self) -> dict | None:
+        """rad RMS of the joints now (truth in simulation) from the home pose over every env:
+        ``all`` and per body group."""
+        if self.true_q is None:
+            return None
+        sq = (self.true_q() - self.robot.home) ** 2
+        out = {"all": float(np.sqrt(sq.mean()))}
+        out.update({g: float(np.sqrt(sq[:, j].mean())) for g, j in self.groups.items()})
+        return out
+
+    def reference_contacts(self, env: int) -> np.ndarray | None:
+        """(pairs,) bool: the collision pairs the reference of env ``env`` touches within the
+        contacts' window around its moment now (the violation monitor's pairs, in its order);
+        None when no clip plays there (every contact is then the robot's)."""
+        t = self.motion.time[env]
+        if np.isnan(t):
+            return None
+        return self.contacts.allowed(self.motion.reference_index(float(t)))
 
     def _bodies_at(self, q: np.ndarray) -> np.ndarray:
         pin, model, data = self._pin
@@ -191,6 +259,10 @@ class TrackingTask:
             "mpjpe_mm": float(self.mpjpe_sum.sum() / ticks) if ticks else None,
             "bodies": len(self._bodies),
             "judged_on": "plant truth" if self.truth is not None else "estimate",
+            "stand_s": self.motion.stand_s if self.motion.home is not None else None,
+            "end_from_home_rad_rms": self._from_home(),
+            "reference_contacts": self.contacts.summary(),
+            "plays_logged": [p for log in self.play_log for p in log],
         }
 
     def report(self, runtime) -> dict:

@@ -20,7 +20,8 @@ transition from the last frame to the home pose over ``stand_s`` s that the poli
 holds home (holosoma's ``enable_default_pose_append`` / ``default_pose_append_duration_s``,
 default 2 s, in ``whole_body_tracking``'s motion command: joint angles and velocities blended
 linearly from the last frame to home and zero, the root slerped to the last frame's heading
-upright, blend ``s / stand_s``).
+upright, blend ``s / stand_s``); ``exhibition`` is ``stand`` whose home holds ``rest_s`` s,
+then the clip starts again (an exhibition's schedule: clip, rest standing, clip again).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from sim2real.deploy.spec.motion_blocks import quat_conj, quat_mul, slerp, torso
 from sim2real.deploy.tasks.motion.clip import ClipError, MotionClip
 
 #: What happens at the clip's end (module docstring).
-PLAYBACK = ("once", "loop", "hold", "stand")
+PLAYBACK = ("once", "loop", "hold", "stand", "exhibition")
 #: s of the transition to home of ``stand`` (holosoma's default_pose_append_duration_s).
 STAND_S = 2.0
 
@@ -49,6 +50,7 @@ class MotionClock:
         playback: One of :data:`PLAYBACK`.
         home: (n,) rad, the pose ``stand`` ends in (robot order); needed for ``stand``.
         stand_s: s, ``stand``'s transition to home (> 0).
+        rest_s: s ``exhibition`` rests at home between plays (>= 0).
 
     Attributes:
         time: (envs,) s since each env's clip started (NaN: not started).
@@ -64,7 +66,7 @@ class MotionClock:
 
     def __init__(
         self, clip: MotionClip, joint_names, waist, envs: int, playback: str = "once",
-        home=None, stand_s: float = STAND_S,
+        home=None, stand_s: float = STAND_S, rest_s: float = 10.0,
     ):  # fmt: skip
         if playback not in PLAYBACK:
             raise ClipError(
@@ -85,7 +87,12 @@ class MotionClock:
         self.waist = [names.index(j) for j in waist]
         self.length = clip.frames / clip.fps  # rl_sar's duration_: num_frames x dt
         self.total, self.stand_s, self.home = self.length, float(stand_s), None
-        if playback == "stand":
+        self.rest_s = float(rest_s)
+        if not (np.isfinite(self.rest_s) and self.rest_s >= 0.0):
+            raise ClipError(f"{clip.source}: rest_s: expected s >= 0, got {rest_s!r}")
+        #: (envs,) bool, the envs whose clip started again on the last advance (exhibition)
+        self.restarted = np.zeros(envs, dtype=bool)
+        if playback in ("stand", "exhibition"):
             self._stand(list(joint_names), waist, home)
         self.time = np.full(envs, np.nan)
         self.init = np.tile([1.0, 0.0, 0.0, 0.0], (envs, 1))
@@ -197,10 +204,13 @@ class MotionClock:
         transition's end)."""
         envs = np.asarray(envs, dtype=bool) & ~np.isnan(self.time)
         self.time[envs] += dt
-        if self.playback == "loop":
-            over = envs & (self.time >= self.length)
+        self.restarted.fill(False)
+        if self.playback in ("loop", "exhibition"):
+            end = self.length if self.playback == "loop" else self.total + self.rest_s
+            over = envs & (self.time >= end - 1e-9)
             self.time[over] = 0.0
             self.plays[over] += 1
+            self.restarted |= over
         else:
             np.minimum(self.time, self.total, out=self.time, where=envs)
 

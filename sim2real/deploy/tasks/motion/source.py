@@ -32,8 +32,9 @@ def reads_motion(spec) -> bool:
 
 
 def motion_for(
-    policy, robot, envs: int, path=None, playback: str = "stand", fps=None, stand_s=STAND_S
-):
+    policy, robot, envs: int, path=None, playback: str = "stand", fps=None, stand_s=STAND_S,
+    rest_s: float = 10.0,
+):  # fmt: skip
     """``(MotionClock, waist joint indices)`` of ``policy`` on ``robot``, or None when its spec
     reads no clip and none is given.
 
@@ -44,7 +45,8 @@ def motion_for(
         robot: The robot. envs: Batch size.
         path: The clip (CSV) in place of the contract's. playback: ``stand`` (to the robot's
             home pose over ``stand_s`` s after the clip), ``once``, ``loop``, ``hold``.
-        fps: Hz, in place of the contract's rate.
+        fps: Hz, in place of the contract's rate. rest_s: s at home between an
+            ``exhibition``'s plays.
 
     Raises:
         ClipError: one line naming the file and field: no clip for a spec that reads one, a clip
@@ -92,7 +94,7 @@ def motion_for(
             raise ClipError(f"{path}: waist: the robot has no joints {missing}")
         waist = tuple(robot.joint_names.index(n) for n in WAIST_NAMES)
     names = tuple(robot.joint_names[i] for i in waist)
-    clock = MotionClock(clip, robot.joint_names, names, envs, playback, robot.home, stand_s)
+    clock = MotionClock(clip, robot.joint_names, names, envs, playback, robot.home, stand_s, rest_s)
     return clock, waist
 
 

@@ -81,8 +81,12 @@ class TrackingTask:
         self.interventions = interventions
         self.contacts = clip_self_contacts(robot, clock.reference_poses(), clock.clip.fps)
         self.play_log: list[list[dict]] = [[] for _ in range(envs)]
+        self._clock_now = 0.0  # s, the runtime's time at the last tick
         self._play = np.zeros((envs, 4))  # this play's sq error, ticks, any, safety
         self._seen = np.zeros((envs, 2), dtype=np.int64)  # interventions any, safety last tick
+        self._thermal = getattr(backend, "thermal", None)
+        self._peak = np.full((envs, robot.n_joints), -np.inf)  # this play's winding peak, degC
+        self._derate = np.array([m.derating_start_temperature for m in robot.motors])
         self.dt = robot.control_period
         self.waist = np.asarray(waist, dtype=np.intp)
         self.velocity = VelocityTask(envs, self.dt, backend, 1.0, None, np.zeros(3))
@@ -126,6 +130,7 @@ class TrackingTask:
     def __call__(self, runtime, truth: np.ndarray | None = None) -> None:
         """One tick (module docstring): judge the tick that ran, then write the next one's."""
         self.velocity(runtime, truth)
+        self._clock_now = runtime.time
         running = runtime.mode == RUNNING
         clock = self.motion
         playing = ~np.isnan(clock.time)
@@ -137,13 +142,18 @@ class TrackingTask:
             clip = playing & (np.nan_to_num(clock.time, nan=np.inf) < clock.length)
             self._judge(runtime, clip)  # the clip, not its last frame held
             clock.advance(self.dt, playing)
+            if clock.restarted.any():  # an exhibition's next play: aligned as at its start
+                state = runtime.state
+                clock.align(clock.restarted, state.base.orientation, state.q[:, self.waist])
             now = np.where(playing, np.minimum(clock.time, clock.length), 0.0)
             np.maximum(self.progress, now, out=self.progress)
             clock.write(self._buffer(runtime), playing)
-        self._count_interventions(playing)
+        with np.errstate(invalid="ignore"):
+            self._count_interventions(playing & (clock.time <= clock.total))
         ended = playing & (clock.time >= clock.total) & (self._play[:, 1] > 0)
-        if clock.playback == "loop":
-            ended = playing & (clock.time < self.dt) & (self._play[:, 1] > 0)
+        if clock.playback in ("loop", "exhibition"):
+            ended |= clock.restarted & (self._play[:, 1] > 0)
+        self._heat(playing)
         stopped = ~running & ~np.isnan(clock.time)
         for e in np.flatnonzero(ended | stopped):
             self._log_play(e, bool(stopped[e]))
@@ -176,6 +186,13 @@ class TrackingTask:
         for k in e:
             self.mpjpe_sum[k] += 1000.0 * self._mpjpe(ref[k, :n], q[k])
 
+    def _heat(self, playing: np.ndarray) -> None:
+        """Keep each playing env's hottest winding of this play (the plant's thermal model)."""
+        if self._thermal is None:
+            return
+        hot = np.where(playing[:, None], self._thermal.winding_temperature, -np.inf)
+        np.maximum(self._peak, hot, out=self._peak)
+
     def _count_interventions(self, playing: np.ndarray) -> None:
         """Add the guard's interventions of this tick to each playing env's play."""
         iv = self.interventions
@@ -194,8 +211,22 @@ class TrackingTask:
             "completed": done, "stopped": stopped,
             "joint_rms_rad": float(np.sqrt(sq / (ticks * self.robot.n_joints))) if ticks else None,
             "ticks": int(ticks), "interventions": int(any_), "safety_interventions": int(safety),
+            "end_s": float(self._clock_now), **self._play_heat(e),
         })  # fmt: skip
         self._play[e] = 0.0
+        self._peak[e] = -np.inf
+
+    def _play_heat(self, e: int) -> dict:
+        """Env ``e``'s play: its hottest winding (degC) and the windings past their derating
+        start (robot.toml's motors) during it."""
+        if self._thermal is None or not np.isfinite(self._peak[e]).any():
+            return {"hottest": None, "hottest_c": None, "derating": []}
+        peak, names = self._peak[e], self.robot.joint_names
+        k = int(np.argmax(peak))
+        return {
+            "hottest": names[k], "hottest_c": float(peak[k]),
+            "derating": [names[i] for i in np.flatnonzero(peak >= self._derate)],
+        }  # fmt: skip
 
     def _from_home(self) -> dict | None:
         """rad RMS of the joints now (truth in simulation) from the home pose over every env:
@@ -206,6 +237,13 @@ class TrackingTask:
         out = {"all": float(np.sqrt(sq.mean()))}
         out.update({g: float(np.sqrt(sq[:, j].mean())) for g, j in self.groups.items()})
         return out
+
+    @property
+    def tracker(self):
+        """The falls' :class:`~sim2real.deploy.tasks.locomotion.CommandTracker` (the soak's)."""
+        return self.velocity.tracker
+
+    schedule = None  #: no velocity command schedule (the soak's locomotion section)
 
     def reference_contacts(self, env: int) -> np.ndarray | None:
         """(pairs,) bool: the collision pairs the reference of env ``env`` touches within the

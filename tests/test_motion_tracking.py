@@ -355,3 +355,74 @@ def test_deploy_run_refuses_a_clip_of_another_robot_in_one_line(g1_dance, tmp_pa
     assert deploy_run_main([*argv, "--duration", "1"]) == 3
     err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
     assert len(err) == 1 and f"{clip}: row 1: expected 36 columns" in err[0], err
+
+
+def test_stand_appends_a_transition_to_home_then_holds_it(tmp_path):
+    """``stand`` (holosoma's default_pose_append): past the 0.5 s clip, joints and velocities
+    blend linearly from the last frame to home and zero over stand_s = 1 s, the root turns
+    upright keeping the last frame's heading; then home holds; without a home it is refused."""
+    home = np.array([-0.5, 0.05, 0.0, 0.0])  # robot order: a, waist yaw, roll, pitch
+    clip = _yaw_clip(tmp_path)
+    clock = MotionClock(clip, ("a", *WAIST), WAIST, envs=1, playback="stand", home=home,
+                        stand_s=1.0)  # fmt: skip
+    assert clock.total == pytest.approx(1.5)
+    last_pos, last_vel, _ = clock.sample(clock.length)
+    pos, vel, anchor = clock.sample(clock.length + 0.5)
+    np.testing.assert_allclose(pos, 0.5 * (last_pos + home))
+    np.testing.assert_allclose(vel, 0.5 * last_vel)
+    pos, vel, anchor = clock.sample(clock.total)
+    np.testing.assert_allclose(pos, home) and np.testing.assert_allclose(vel, 0.0)
+    assert _yaw(anchor) == pytest.approx(0.5 + 0.2 * 4 + 0.05)  # the last heading, home's waist
+    clock.start(np.ones(1, bool))
+    for _ in range(30):
+        clock.advance(0.1, np.ones(1, bool))
+    assert clock.time[0] == pytest.approx(1.5) and clock.finished()[0]
+    out = np.zeros((1, 12))
+    clock.write(out)
+    np.testing.assert_allclose(out[0, :4], home)
+    assert len(clock.reference_poses()) == 5 + 10  # the clip's frames, then 1 s at 10 Hz
+    assert clock.reference_index(clock.total) == 14
+    with pytest.raises(ClipError, match=r"c\.csv: playback 'stand': home: expected 4"):
+        MotionClock(clip, ("a", *WAIST), WAIST, envs=1, playback="stand")
+
+
+def test_an_exhibition_plays_the_clip_rests_at_home_then_plays_it_again(tmp_path):
+    """``exhibition``: the 0.5 s clip, 1 s to home, 2 s standing at home, then the clip again
+    from its first frame (its second play, marked for a new yaw alignment)."""
+    home = np.array([-0.5, 0.05, 0.0, 0.0])
+    clock = MotionClock(_yaw_clip(tmp_path), ("a", *WAIST), WAIST, envs=1, playback="exhibition",
+                        home=home, stand_s=1.0, rest_s=2.0)  # fmt: skip
+    clock.start(np.ones(1, bool))
+    out, seen = np.zeros((1, 12)), []
+    for _ in range(40):  # 4 s at 10 Hz
+        clock.advance(0.1, np.ones(1, bool))
+        clock.write(out)
+        seen.append((round(float(clock.time[0]), 6), bool(clock.restarted[0]), out[0, 0]))
+    restarts = [i for i, (_, r, _) in enumerate(seen) if r]
+    assert restarts == [34]  # after 0.5 + 1 + 2 = 3.5 s
+    assert seen[34][0] == 0.0 and seen[34][2] == pytest.approx(0.0)  # the first frame again
+    assert all(a == pytest.approx(-0.5) for t, _, a in seen[15:34])  # home from 1.5 s on
+    assert clock.plays[0] == 2
+    with pytest.raises(ClipError, match="rest_s: expected s >= 0"):
+        MotionClock(_yaw_clip(tmp_path), ("a", *WAIST), WAIST, 1, "exhibition", home, 1.0, -1.0)
+
+
+def test_the_heat_report_names_the_windings_that_derate_and_the_clip_they_start_in():
+    """Three clips: the left knee passes its derating start in the second, the ankle in the
+    third; the joint error of the clips before against the derated ones; a stopped clip is a
+    fall."""
+    from sim2real.eval.soak.exhibition import heat_report
+
+    def play(rms, derating, hottest_c, stopped=False):
+        return {"joint_rms_rad": rms, "derating": derating, "hottest": "left_knee_joint",
+                "hottest_c": hottest_c, "stopped": stopped}  # fmt: skip
+
+    plays = [play(0.08, [], 60.0), play(0.10, ["left_knee_joint"], 95.0),
+             play(0.12, ["left_knee_joint", "left_ankle_pitch_joint"], 99.0, stopped=True)]  # fmt: skip
+    h = heat_report(plays)
+    assert h["derating"] == {"left_knee_joint": 2, "left_ankle_pitch_joint": 3}
+    assert h["first_derated_clip"] == 2 and h["falls"] == 1 and h["completed"] == 2
+    assert h["joint_rms_rad_before"] == pytest.approx(0.08)
+    assert h["joint_rms_rad_derated"] == pytest.approx(0.11)
+    assert h["hottest"] == {"left_knee_joint": 99.0}
+    assert heat_report(plays[:1])["derating"] == {} and heat_report([])["clips"] == 0

@@ -186,6 +186,8 @@ def _template(args, ranges):
         spec=None if args.spec is None else str(args.spec),
         engine=args.engine,
         plant_motors=args.plant_motors,
+        motion=args.motion,
+        rest_s=args.rest_s,
     )
 
 

@@ -64,6 +64,16 @@ def _add_campaign_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=None, help="processes (default: one per core)")
     add_engine_option(p, "; the same sessions on a second engine: sim2sim")
     add_plant_motors_option(p)
+    p.add_argument(
+        "--motion",
+        default=None,
+        metavar="CLIP",
+        help="a motion-tracking policy's clip in place of its contract's; such a policy dances "
+        "an exhibition: clip, --rest-s standing, clip again",
+    )
+    p.add_argument(
+        "--rest-s", type=float, default=10.0, help="s standing between an exhibition's clips"
+    )
 
 
 def _add_session_options(p: argparse.ArgumentParser) -> None:

@@ -88,8 +88,9 @@ def run(args) -> int:
     fixed = _fixed_goal(args.goal)
     check_options(args, robot)  # --command, --size, --fps: read once the rig is built
     motion = motion_for(
-        policy, robot, args.envs, args.motion, args.motion_playback, args.motion_fps
-    )  # a tracking policy's clip (ClipError: a ValueError, exit 3)
+        policy, robot, args.envs, args.motion, args.motion_playback, args.motion_fps,
+        args.motion_stand_s,
+    )  # fmt: skip  # a tracking policy's clip (ClipError: a ValueError, exit 3)
     mapping = operator_mapping(args)  # the mapping and its source's file, not its device
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)

@@ -165,9 +165,18 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--motion-playback",
-        choices=("once", "loop", "hold"),
-        default="once",
-        help="at the clip's end: hold its last frame (once, hold) or start it again (loop)",
+        choices=("stand", "once", "loop", "hold"),
+        default="stand",
+        help="at the clip's end: a transition to the home pose the policy tracks, then home "
+        "(stand, holosoma's default_pose_append), hold its last frame (once, hold) or start it "
+        "again (loop)",
+    )
+    p.add_argument(
+        "--motion-stand-s",
+        type=float,
+        default=2.0,
+        metavar="S",
+        help="s of --motion-playback stand's transition to home (holosoma's default 2)",
     )
     p.add_argument(
         "--terrain",

@@ -51,7 +51,9 @@ def _print_task(r: dict) -> None:
     if loco is not None and loco.get("heading_change_deg") is not None:
         _print_heading(loco)
     if r.get("tracking") is not None:
-        _print_tracking(r["tracking"], loco)
+        v = r.get("violations") or {}
+        excused = {"ticks": v.get("reference_contact_ticks", 0)}
+        _print_tracking(r["tracking"], loco, excused)
     if loco is not None and loco.get("true_falls", 0) > loco.get("runtime_falls", 0):
         print(
             f"  TRUE FALLS        {loco['true_falls']} of the true base (sim), of which the "
@@ -59,7 +61,7 @@ def _print_task(r: dict) -> None:
         )
 
 
-def _print_tracking(t: dict, loco: dict | None) -> None:
+def _print_tracking(t: dict, loco: dict | None, excused: dict | None = None) -> None:
     """Print the motion tracking: the clip, its share completed, joint and anchor errors, falls."""
     print(
         f"  motion clip       {t['clip']}: {t['frames']} frames at {t['fps']:g} Hz "
@@ -77,8 +79,41 @@ def _print_tracking(t: dict, loco: dict | None) -> None:
             f"{t['anchor_error_deg_max']:.2f} deg max (torso orientation); MPJPE "
             f"{t['mpjpe_mm']:.1f} mm ({t['bodies']} bodies, root-relative)"
         )
+    if t.get("stand_s") is not None and t.get("end_from_home_rad_rms") is not None:
+        print(
+            f"  stand             after the clip, to home over {t['stand_s']:g} s; ends "
+            f"{t['end_from_home_rad_rms']['all']:.3f} rad RMS from home ("
+            + ", ".join(f"{g} {v:.3f}" for g, v in t["end_from_home_rad_rms"].items() if g != "all")
+            + ")"
+        )
+    plays = t.get("plays_logged") or []
+    if plays:
+        per = ", ".join(f"{p['interventions']} ({p['safety_interventions']})" for p in plays[:8])
+        more = f", ... ({len(plays)} plays)" if len(plays) > 8 else ""
+        print(f"  guard per play    intervention ticks (of them safety): {per}{more}")
+    _print_reference_contacts(t.get("reference_contacts"), excused)
     if loco is not None:
         print(f"  falls             {loco['falls']}")
+
+
+def _print_reference_contacts(c: dict | None, excused: dict | None) -> None:
+    """Print the clip's own self-contacts (the reference posed in the robot's collision model)
+    and the self-collision ticks counted apart as its contacts."""
+    if not c or not c["frames_touching"]:
+        return
+    pairs = ", ".join(f"{k} {n}" for k, n in list(c["pairs"].items())[:4])
+    print(
+        f"  clip self-contact {c['frames_touching']} of {c['frames']} reference frames (the clip, "
+        f"then its transition to home) touch in "
+        f"the robot's collision model (worst {1000 * c['worst_depth_m']:.0f} mm deep; {pairs}): "
+        "the description's collision geometry (a convex hull of a concave mesh, say) under "
+        "the clip, not the policy's doing"
+    )
+    if excused:
+        print(
+            f"  reference contact {excused['ticks']} self-collision ticks on pairs the clip "
+            f"itself touches then (+-{c['window_s']:g} s): counted apart, not violations"
+        )
 
 
 def _print_walk(loco: dict) -> None:

@@ -110,6 +110,10 @@ class ViolationMonitor(MonitorState):
         pair_ticks: (envs, pairs) int64, ticks on which each collision pair of the guard's
             model (``pair_names``) touched while the env was up: which links make the
             ``self_collision`` ticks of ``counts``.
+        reference_ticks: (envs,) int64, self-collision ticks (while up) whose touching pairs
+            the reference motion itself touches then (:meth:`excuse_contacts`): the reference's
+            contact under this collision model, not a violation; reference_pair_ticks: (envs,
+            pairs) int64, their pairs.
         pair_names: (pairs,) ``"geom_a|geom_b"``, the guard's collision pairs in its order.
         hard_joint_ticks: (envs, n) int64, ticks on which each joint was beyond its hard limit
             while the env was up: which joints make the ``hard_limit`` ticks of ``counts``.
@@ -188,6 +192,9 @@ class ViolationMonitor(MonitorState):
             for p in self._geom_model.collisionPairs
         ]
         self.pair_ticks = np.zeros((envs, len(self.pair_names)), dtype=np.int64)
+        self._excuse = None  # excuse_contacts
+        self.reference_ticks = np.zeros(envs, dtype=np.int64)
+        self.reference_pair_ticks = np.zeros((envs, len(self.pair_names)), dtype=np.int64)
         self.hard_joint_ticks = np.zeros((envs, n), dtype=np.int64)
         # the collision screen (compiled path): no pair can touch while its distance computed at
         # checked_q exceeds its own bound on how far the joints moved since
@@ -250,9 +257,16 @@ class ViolationMonitor(MonitorState):
                     if not collided:
                         self._collided.fill(False)
                         collided = True
+                    touching = self._touching()
+                    allowed = None if self._excuse is None else self._excuse(e)
+                    if allowed is not None and not (touching & ~allowed).any():
+                        if not self._down[e]:  # the reference's own contact: apart
+                            self.reference_ticks[e] += 1
+                            self.reference_pair_ticks[e] += touching
+                        continue
                     self._collided[e] = True
                     if not self._down[e]:  # which pairs touched while the robot was up
-                        self._count_pairs(e)
+                        self.pair_ticks[e] += touching
         if collided or flagged:
             self._count(q, dq, tau, collided)
 
@@ -331,13 +345,32 @@ class ViolationMonitor(MonitorState):
             self._clearance[e] = -np.inf
         return hit
 
-    def _count_pairs(self, e: int) -> None:
-        """Add a tick to each pair of env ``e`` that touches (after a hit of
-        :meth:`_in_collision`, whose placements the geometry data still holds)."""
+    def _touching(self) -> np.ndarray:
+        """(pairs,) bool, the pairs that touch (after a hit of :meth:`_in_collision`, whose
+        placements the geometry data still holds)."""
         pin.computeCollisions(self._geom_model, self._geom_data, False)
-        for k, result in enumerate(self._geom_data.collisionResults):
-            if result.isCollision():
-                self.pair_ticks[e, k] += 1
+        return np.array([r.isCollision() for r in self._geom_data.collisionResults], dtype=bool)
+
+    def excuse_contacts(self, allowed) -> None:
+        """Count a self-collision whose touching pairs the reference motion itself brings into
+        contact apart (:attr:`reference_ticks`), not as a violation.
+
+        Args:
+            allowed: ``allowed(env) -> (pairs,) bool`` in :attr:`pair_names` order, the pairs
+                the reference touches around env's moment now, or None (no reference playing:
+                every contact is a violation). A
+                :meth:`sim2real.deploy.tasks.motion.tracking.TrackingTask.reference_contacts`.
+        """
+        self._excuse = allowed
+
+    def reference_pair_counts(self, env: int | None = None) -> dict[str, int]:
+        """Env ``env``'s (None: all envs') ticks per pair in the reference's own contacts,
+        most first."""
+        ticks = (
+            self.reference_pair_ticks.sum(axis=0) if env is None else self.reference_pair_ticks[env]
+        )
+        order = np.argsort(-ticks, kind="stable")
+        return {self.pair_names[k]: int(ticks[k]) for k in order if ticks[k] > 0}
 
     def pair_counts(self, env: int) -> dict[str, int]:
         """Env ``env``'s ticks per collision pair that ever touched (``"geom_a|geom_b"``),
@@ -403,6 +436,8 @@ class ViolationMonitor(MonitorState):
         out.update({f"down/{t}": v for t, v in self.down_counts.items()})
         out["down_any"] = self.down_any
         out["pair_ticks"] = self.pair_ticks
+        out["reference_ticks"] = self.reference_ticks
+        out["reference_pair_ticks"] = self.reference_pair_ticks
         out["hard_joint_ticks"] = self.hard_joint_ticks
         return out
 

@@ -114,6 +114,9 @@ class Rig:
         self.task = None
         if task is not None:
             self.task = task_for(robot, envs, backend, interventions=self.interventions, **task)
+        excuse = getattr(self.task, "reference_contacts", None)  # a clip's own self-contacts
+        if excuse is not None and self.violations is not None:
+            self.violations.excuse_contacts(excuse)
         if reset_task and self.task is not None:
             self.task.reset(self.runtime, np.ones(envs, dtype=bool))
         self.hooks: list[RunHook] = []
@@ -258,8 +261,11 @@ class Rig:
         after a stop); None without ground truth (hardware)."""
         if self.violations is None:
             return None
-        true, down = self.violations.totals(), self.violations.totals(down=True)
+        v = self.violations
+        true, down = v.totals(), v.totals(down=True)
         return {
+            "reference_contact_ticks": int(v.reference_ticks.sum()),
+            "reference_contact_pairs": v.reference_pair_counts(),
             "source": "true state (simulation ground truth)",
             "ticks": self.violations.ticks * self.envs,
             "by_type": {k: v for k, v in true.items() if k != "any"},

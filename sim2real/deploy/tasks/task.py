@@ -177,7 +177,9 @@ def _goals(robot, envs, backend, *, period, rng, success_time, fixed, window, in
     return GoalTask(robot, envs, period, fixed, success_time, rng, window, interventions)
 
 
-def _tracking(robot, envs, backend, *, motion, motion_start_after=0.0, **_) -> Task:
+def _tracking(
+    robot, envs, backend, *, motion, interventions=None, motion_start_after=0.0, **_
+) -> Task:
     """Track a reference motion: ``motion`` is ``(MotionClock, waist joint indices)``; the clip
     starts ``motion_start_after`` s into RUNNING."""
     from sim2real.deploy.tasks.motion.tracking import TrackingTask
@@ -185,7 +187,7 @@ def _tracking(robot, envs, backend, *, motion, motion_start_after=0.0, **_) -> T
     if motion is None:
         raise ValueError("task 'tracking': needs a reference motion (deploy-run --motion CLIP)")
     clock, waist = motion
-    return TrackingTask(robot, envs, backend, clock, waist, motion_start_after)
+    return TrackingTask(robot, envs, backend, clock, waist, interventions, motion_start_after)
 
 
 register_task("goals", _goals)

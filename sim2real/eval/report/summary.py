@@ -166,6 +166,8 @@ def summary_text(report: dict) -> str:
             else ""
         )
     )
+    for s in report.get("sessions", []):
+        lines += exhibition_lines(s)
     peaks = ", ".join(f"{j} {p:.1f}" for j, p in t["thermal"]["peak_c"].items())
     lines.append(f"  peak winding degC {peaks}")
     tc = t["tick_cost_us"]
@@ -185,3 +187,44 @@ def summary_text(report: dict) -> str:
         for r in b["regressions"]:
             lines.append(f"  REGRESSION   {r['message']}")
     return "\n".join(lines)
+
+
+def exhibition_lines(s: dict) -> list[str]:
+    """A motion-tracking session's exhibition: its clips (completed, falls, joint error,
+    interventions) and the heat report (:func:`sim2real.eval.soak.exhibition.heat_report`)."""
+    x = s.get("exhibition")
+    if not x:
+        return []
+    h, clips = x["heat"], x["clips"]
+    rms = [c["joint_rms_rad"] for c in clips if c["joint_rms_rad"] is not None]
+    iv = [c["interventions"] for c in clips]
+    lines = [
+        f"  exhibition   {s['id']}: {h['clips']} clips of {x['clip_s']:.1f} s (then "
+        f"{x['stand_s']:g} s to home, {x['rest_s']:g} s standing); completed {h['completed']}, "
+        f"falls {h['falls']}; joint error per clip "
+        + (f"{min(rms):.3f}-{max(rms):.3f} rad RMS" if rms else "n/a")
+        + f"; guard interventions per clip {min(iv, default=0)}-{max(iv, default=0)} ticks"
+    ]
+    if h["derating"]:
+        which = ", ".join(f"{j} (clip {n})" for j, n in h["derating"].items())
+        before, after = h["joint_rms_rad_before"], h["joint_rms_rad_derated"]
+        effect = (
+            f"joint error {before:.3f} rad RMS before, {after:.3f} derated"
+            if before is not None and after is not None
+            else "no clip before it to compare"
+        )
+        lines.append(f"  heat         windings reaching derating: {which}; {effect}")
+    else:
+        hot = ", ".join(f"{j} {c:.1f}" for j, c in h["hottest"].items())
+        lines.append(
+            f"  heat         no winding reached derating in {h['clips']} clips (hottest degC: "
+            f"{hot or 'n/a'})"
+        )
+    c = x["reference_contacts"]
+    if c["frames_touching"]:
+        lines.append(
+            f"  clip contact {c['frames_touching']} of {c['frames']} reference frames touch in the "
+            f"robot's collision model (worst {1000 * c['worst_depth_m']:.0f} mm): "
+            f"{x['reference_contact_ticks']} self-collision ticks counted apart, not violations"
+        )
+    return lines

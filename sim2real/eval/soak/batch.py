@@ -43,6 +43,7 @@ from sim2real.deploy.monitors.kernel import temperature_bands
 from sim2real.deploy.robot_kind import robot_kind
 from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.soak.batch_plant import build_plant
+from sim2real.eval.soak.exhibition import exhibition_task
 from sim2real.eval.soak.faults import SessionFaults
 from sim2real.eval.soak.push_response import PushResponse
 from sim2real.eval.soak.result import session_result
@@ -176,10 +177,8 @@ class SessionBatch:
         # a fault's push or cable pull adds to a domain push's force in force (not replaces it)
         forces = self.pushes.wrench[:, :3] if self.pushes is not None else None
         self.faults = SessionFaults(backend, base_forces=forces)
-        # the runtime, started before its monitors and task are built (the soak's order): what
-        # the plant really did (true state), what the guard and smoother changed, a legged
-        # robot's base estimate against the truth, and the goals (an arm) or velocity commands
-        # (a legged robot), one stream per session
+        # the runtime, then its monitors and task (goals, velocity commands or an exhibition's
+        # clips, one stream per session): the soak's order
         task = {
             "period": first.command_period if self.kind.task == "locomotion" else first.goal_period,
             "rng": [session_rng(c.seed, "goals") for c in configs],
@@ -187,6 +186,7 @@ class SessionBatch:
             "window": first.window_minutes * 60.0,
             "ranges": first.ranges.commands,
         }
+        exhibition_task(task, self.policy, robot, k, first)  # a tracking policy's dance
         self.rig = Rig(
             robot, self.policy, backend, envs=k, task=task, runtime={"injector": self.faults},
             start=True,

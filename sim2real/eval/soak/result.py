@@ -72,9 +72,9 @@ def locomotion_result(session: Session) -> dict:
     pushes = b.pushes.times[e] if b.pushes is not None else []
     fall_records = attribute_falls(tr.fall_log[e], schedule, pushes)
     return {
-        "commands_issued": int(cmd.issued[e]),
+        "commands_issued": int(cmd.issued[e]) if cmd is not None else 0,
         "command_period_s": period_value(session.config.command_period),
-        "command_ranges": asdict(cmd.ranges),
+        "command_ranges": asdict(cmd.ranges) if cmd is not None else None,
         "final_command": [float(x) for x in rt.velocity_command[e]],
         "falls": falls,
         "falls_per_hour": falls / sim_h if sim_h > 0 else 0.0,
@@ -104,6 +104,26 @@ def locomotion_result(session: Session) -> dict:
         "windows": windows,
         "min_window_success_rate": (min(w["success_rate"] for w in windows) if windows else None),
         "peak_winding_c": peaks,
+    }
+
+
+def exhibition_result(session: Session) -> dict:
+    """The ``exhibition`` section of a motion-tracking session: its clips
+    (:attr:`sim2real.deploy.tasks.motion.tracking.TrackingTask.play_log`) and the heat report
+    (:func:`sim2real.eval.soak.exhibition.heat_report`)."""
+    from sim2real.eval.soak.exhibition import heat_report
+
+    task, e = session.task, session.e
+    plays = task.play_log[e]
+    return {
+        "clip": str(task.motion.clip.source),
+        "clip_s": task.motion.length,
+        "stand_s": task.motion.stand_s,
+        "rest_s": task.motion.rest_s,
+        "clips": plays,
+        "reference_contacts": task.contacts.summary(),
+        "reference_contact_ticks": int(session.batch.violations.reference_ticks[e]),
+        "heat": heat_report(plays),
     }
 
 
@@ -238,7 +258,8 @@ def session_result(session: Session) -> dict:
             ],
         },
         "goals": goals_result(session) if name == "goals" else None,
-        "locomotion": locomotion_result(session) if name == "locomotion" else None,
+        "locomotion": locomotion_result(session) if name in ("locomotion", "tracking") else None,
+        "exhibition": exhibition_result(session) if name == "tracking" else None,
         "faults": {
             "scheduled": len(session.schedule),
             "injected": len(session.fault_events),
@@ -290,7 +311,7 @@ def session_result(session: Session) -> dict:
             "t_s": session.curve["t_s"],
             **(
                 {k: session.curve[k] for k in LEGGED_CURVES}
-                if name == "locomotion"
+                if name in ("locomotion", "tracking")
                 else {
                     "goals_issued": session.curve["issued"],
                     "goals_reached": session.curve["reached"],

@@ -74,6 +74,10 @@ class SessionConfig:
         engine: Physics engine of the plant (:func:`sim2real.deploy.backends.sim.engines.engines`).
         plant_motors: A plant motors file (:mod:`sim2real.robots.plant_motors`): the motors as the plant
             simulates them, when they differ from the robot's description; None: as described.
+        motion: A motion-tracking policy's clip in place of the one its contract names (None:
+            the contract's); such a policy dances an exhibition: clip, ``rest_s`` s standing at
+            home, clip again (:class:`~sim2real.deploy.tasks.motion.clock.MotionClock`).
+        rest_s: s of rest standing between an exhibition's clips.
     """
 
     robot: str = "arm3"
@@ -91,6 +95,8 @@ class SessionConfig:
     spec: str | None = None
     engine: str = "mujoco"
     plant_motors: str | None = None
+    motion: str | None = None
+    rest_s: float = 10.0
 
     def __post_init__(self):
         def bad(name: str, expected: str) -> SessionError:
@@ -106,7 +112,7 @@ class SessionConfig:
 
         if self.engine not in engines():
             raise bad("engine", f"one of {engines()}")
-        for name in ("checkpoint_minutes", "operator_reset"):
+        for name in ("checkpoint_minutes", "operator_reset", "rest_s"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise bad(name, "a finite number >= 0")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from sim2real.deploy.spec.foreign.mapping import robot_joint_named
 from sim2real.deploy.tasks.motion.clip import ClipError
-from sim2real.deploy.tasks.motion.clock import MotionClock
+from sim2real.deploy.tasks.motion.clock import STAND_S, MotionClock
 from sim2real.deploy.tasks.motion.csv_clip import parse_rate, read_csv_clip
 from sim2real.deploy.tasks.motion.onnx_holosoma import read_holosoma_onnx_motion
 from sim2real.robots.files import sha256_file
@@ -33,7 +33,10 @@ def reads_motion(spec) -> bool:
     return any(b.name in MOTION_BLOCKS for b in spec.observation_blocks)
 
 
-def motion_for(policy, robot, envs: int, path=None, playback: str = "once", fps=None):
+def motion_for(
+    policy, robot, envs: int, path=None, playback: str = "stand", fps=None, stand_s=STAND_S,
+    rest_s: float = 10.0,
+):  # fmt: skip
     """``(MotionClock, waist joint indices)`` of ``policy`` on ``robot``, or None when its spec
     reads no clip and none is given.
 
@@ -42,8 +45,10 @@ def motion_for(policy, robot, envs: int, path=None, playback: str = "once", fps=
             ``motion`` names the clip and its rate; ``metadata``: the export's ``motion`` entry,
             whose sha256 the clip is checked against).
         robot: The robot. envs: Batch size.
-        path: The clip (CSV) in place of the contract's. playback: ``once``, ``loop``, ``hold``.
-        fps: Hz, in place of the contract's rate.
+        path: The clip (CSV) in place of the contract's. playback: ``stand`` (to the robot's
+            home pose over ``stand_s`` s after the clip), ``once``, ``loop``, ``hold``.
+        fps: Hz, in place of the contract's rate. rest_s: s at home between an
+            ``exhibition``'s plays.
 
     Raises:
         ClipError: one line naming the file and field: no clip for a spec that reads one, a clip
@@ -94,7 +99,8 @@ def motion_for(policy, robot, envs: int, path=None, playback: str = "once", fps=
             raise ClipError(f"{path}: waist: the robot has no joints {missing}")
         waist = tuple(robot.joint_names.index(n) for n in WAIST_NAMES)
     names = tuple(robot.joint_names[i] for i in waist)
-    return MotionClock(clip, robot.joint_names, names, envs, playback), waist
+    clock = MotionClock(clip, robot.joint_names, names, envs, playback, robot.home, stand_s, rest_s)
+    return clock, waist
 
 
 def _check_hash(policy, path: Path) -> None:

@@ -12,9 +12,15 @@ the next tick's reference into ``RobotState.motion`` (the blocks of
   of RUNNING later (the policy reading the first frame meanwhile, aligned at the first RUNNING
   tick: holosoma_inference runs the policy with the clip pinned at its first step until the
   operator starts it; the robot stands, let off its gantry, before the dance); each RUNNING tick
-  moves it one control period on; at its end the last frame holds (``once``: rl_sar hands over
-  to a locomotion policy there; here the policy holds the last pose, standing);
+  moves it one control period on; at its end the clock's playback (``stand``: a transition to
+  home, then home; ``once``: the last frame holds);
 - a stop (a fall, the operator) ends the play: the next RUNNING starts the clip again.
+
+Each play is logged (:attr:`TrackingTask.play_log`): its share completed, whether a stop ended
+it, its joint-angle error and the guard's interventions while it played. The reference's own
+self-contacts (:mod:`sim2real.deploy.tasks.motion.self_contact`) are screened once, before any
+play; :meth:`TrackingTask.reference_contacts` tells the violation monitor which pairs the
+reference touches around each env's moment now.
 
 Judged while the clip plays (not while its last frame holds), on the plant's truth in
 simulation (the estimate on hardware): joint-angle error (rad RMS) per body group (legs, waist,
@@ -32,6 +38,7 @@ import numpy as np
 from sim2real.deploy.core.modes import RUNNING
 from sim2real.deploy.spec.motion_blocks import quat_conj, quat_mul, torso_quat
 from sim2real.deploy.tasks.motion.clock import MotionClock
+from sim2real.deploy.tasks.motion.self_contact import clip_self_contacts
 from sim2real.deploy.tasks.velocity import VelocityTask
 
 #: Body groups of the joint-angle error, by a word of the joint's name (the first that matches).
@@ -54,6 +61,8 @@ class TrackingTask:
         robot: The robot. envs: Batch size. backend: The runtime's backend (its truth judges).
         clock: The :class:`MotionClock` (the clip in the robot's joint order).
         waist: Robot joint indices of the waist's yaw, roll and pitch (the anchor block's).
+        interventions: Optional :class:`~sim2real.deploy.monitors.interventions.InterventionMonitor`
+            (its ``any`` and ``safety`` ticks are counted per play).
         start_after: s of RUNNING before the clip starts (module docstring; >= 0).
 
     Attributes:
@@ -62,16 +71,33 @@ class TrackingTask:
         sq_error: (envs, n) rad^2, squared joint-angle error summed over the playing ticks;
             anchor_sum: (envs,) deg, anchor error summed; anchor_max: (envs,) deg; ticks:
             (envs,) playing ticks judged.
+        contacts: The reference's self-contacts
+            (:class:`~sim2real.deploy.tasks.motion.self_contact.ClipContacts`).
+        play_log: per env, a list of ended plays: ``completed`` (share of the clip),
+            ``stopped`` (a stop ended it), ``joint_rms_rad``, ``ticks``, ``interventions`` and
+            ``safety_interventions`` (ticks, while the clip and its transition played).
     """
 
     name = "tracking"
 
-    def __init__(self, robot, envs: int, backend, clock: MotionClock, waist, start_after=0.0):
+    def __init__(
+        self, robot, envs: int, backend, clock: MotionClock, waist, interventions=None,
+        start_after: float = 0.0,
+    ):  # fmt: skip
         if not (np.isfinite(start_after) and start_after >= 0.0):
             raise ValueError(f"motion start after {start_after!r} s: expected a time >= 0")
         self.robot, self.envs, self.motion = robot, envs, clock
         self.start_after = float(start_after)
         self.waited = np.zeros(envs)  # s of RUNNING before the clip started
+        self.interventions = interventions
+        self.contacts = clip_self_contacts(robot, clock.reference_poses(), clock.clip.fps)
+        self.play_log: list[list[dict]] = [[] for _ in range(envs)]
+        self._clock_now = 0.0  # s, the runtime's time at the last tick
+        self._play = np.zeros((envs, 4))  # this play's sq error, ticks, any, safety
+        self._seen = np.zeros((envs, 2), dtype=np.int64)  # interventions any, safety last tick
+        self._thermal = getattr(backend, "thermal", None)
+        self._peak = np.full((envs, robot.n_joints), -np.inf)  # this play's winding peak, degC
+        self._derate = np.array([m.derating_start_temperature for m in robot.motors])
         self.dt = robot.control_period
         self.waist = np.asarray(waist, dtype=np.intp)
         self.velocity = VelocityTask(envs, self.dt, backend, 1.0, None, np.zeros(3))
@@ -115,6 +141,7 @@ class TrackingTask:
     def __call__(self, runtime, truth: np.ndarray | None = None) -> None:
         """One tick (module docstring): judge the tick that ran, then write the next one's."""
         self.velocity(runtime, truth)
+        self._clock_now = runtime.time
         running = runtime.mode == RUNNING
         clock = self.motion
         playing = ~np.isnan(clock.time)
@@ -129,9 +156,21 @@ class TrackingTask:
             clip = playing & (np.nan_to_num(clock.time, nan=np.inf) < clock.length)
             self._judge(runtime, clip)  # the clip, not its last frame held
             clock.advance(self.dt, playing)
-            np.maximum(self.progress, np.where(playing, clock.time, 0.0), out=self.progress)
+            if clock.restarted.any():  # an exhibition's next play: aligned as at its start
+                state = runtime.state
+                clock.align(clock.restarted, state.base.orientation, state.q[:, self.waist])
+            now = np.where(playing, np.minimum(clock.time, clock.length), 0.0)
+            np.maximum(self.progress, now, out=self.progress)
             clock.write(self._buffer(runtime), playing)
+        with np.errstate(invalid="ignore"):
+            self._count_interventions(playing & (clock.time <= clock.total))
+        ended = playing & (clock.time >= clock.total) & (self._play[:, 1] > 0)
+        if clock.playback in ("loop", "exhibition"):
+            ended |= clock.restarted & (self._play[:, 1] > 0)
+        self._heat(playing)
         stopped = ~running & ~np.isnan(clock.time)
+        for e in np.flatnonzero(ended | stopped):
+            self._log_play(e, bool(stopped[e]))
         if stopped.any():
             clock.stop(stopped)
         idle = ~running
@@ -157,8 +196,78 @@ class TrackingTask:
         self.anchor_sum[e] += angle[e]
         np.maximum(self.anchor_max, np.where(envs, angle, 0.0), out=self.anchor_max)
         self.ticks[e] += 1
+        self._play[e, 0] += ((q[e] - ref[e, :n]) ** 2).sum(axis=1)
+        self._play[e, 1] += 1
         for k in e:
             self.mpjpe_sum[k] += 1000.0 * self._mpjpe(ref[k, :n], q[k])
+
+    def _heat(self, playing: np.ndarray) -> None:
+        """Keep each playing env's hottest winding of this play (the plant's thermal model)."""
+        if self._thermal is None:
+            return
+        hot = np.where(playing[:, None], self._thermal.winding_temperature, -np.inf)
+        np.maximum(self._peak, hot, out=self._peak)
+
+    def _count_interventions(self, playing: np.ndarray) -> None:
+        """Add the guard's interventions of this tick to each playing env's play."""
+        iv = self.interventions
+        if iv is None:
+            return
+        now = np.stack([iv.any, iv.safety], axis=1)
+        self._play[:, 2:4] += np.where(playing[:, None], now - self._seen, 0)
+        self._seen[:] = now
+
+    def _log_play(self, e: int, stopped: bool) -> None:
+        """Close env ``e``'s play into :attr:`play_log` and start a new one."""
+        sq, ticks, any_, safety = self._play[e]
+        t = self.motion.time[e]
+        done = 1.0 if not stopped else min(float(np.nan_to_num(t)) / self.motion.length, 1.0)
+        self.play_log[e].append({
+            "completed": done, "stopped": stopped,
+            "joint_rms_rad": float(np.sqrt(sq / (ticks * self.robot.n_joints))) if ticks else None,
+            "ticks": int(ticks), "interventions": int(any_), "safety_interventions": int(safety),
+            "end_s": float(self._clock_now), **self._play_heat(e),
+        })  # fmt: skip
+        self._play[e] = 0.0
+        self._peak[e] = -np.inf
+
+    def _play_heat(self, e: int) -> dict:
+        """Env ``e``'s play: its hottest winding (degC) and the windings past their derating
+        start (robot.toml's motors) during it."""
+        if self._thermal is None or not np.isfinite(self._peak[e]).any():
+            return {"hottest": None, "hottest_c": None, "derating": []}
+        peak, names = self._peak[e], self.robot.joint_names
+        k = int(np.argmax(peak))
+        return {
+            "hottest": names[k], "hottest_c": float(peak[k]),
+            "derating": [names[i] for i in np.flatnonzero(peak >= self._derate)],
+        }  # fmt: skip
+
+    def _from_home(self) -> dict | None:
+        """rad RMS of the joints now (truth in simulation) from the home pose over every env:
+        ``all`` and per body group."""
+        if self.true_q is None:
+            return None
+        sq = (self.true_q() - self.robot.home) ** 2
+        out = {"all": float(np.sqrt(sq.mean()))}
+        out.update({g: float(np.sqrt(sq[:, j].mean())) for g, j in self.groups.items()})
+        return out
+
+    @property
+    def tracker(self):
+        """The falls' :class:`~sim2real.deploy.tasks.locomotion.CommandTracker` (the soak's)."""
+        return self.velocity.tracker
+
+    schedule = None  #: no velocity command schedule (the soak's locomotion section)
+
+    def reference_contacts(self, env: int) -> np.ndarray | None:
+        """(pairs,) bool: the collision pairs the reference of env ``env`` touches within the
+        contacts' window around its moment now (the violation monitor's pairs, in its order);
+        None when no clip plays there (every contact is then the robot's)."""
+        t = self.motion.time[env]
+        if np.isnan(t):
+            return None
+        return self.contacts.allowed(self.motion.reference_index(float(t)))
 
     def _bodies_at(self, q: np.ndarray) -> np.ndarray:
         pin, model, data = self._pin
@@ -203,6 +312,10 @@ class TrackingTask:
             "mpjpe_mm": float(self.mpjpe_sum.sum() / ticks) if ticks else None,
             "bodies": len(self._bodies),
             "judged_on": "plant truth" if self.truth is not None else "estimate",
+            "stand_s": self.motion.stand_s if self.motion.home is not None else None,
+            "end_from_home_rad_rms": self._from_home(),
+            "reference_contacts": self.contacts.summary(),
+            "plays_logged": [p for log in self.play_log for p in log],
         }
 
     def report(self, runtime) -> dict:

@@ -1,0 +1,66 @@
+"""The heat report of an exhibition soak: can a motion-tracking policy dance all day?
+
+A tracking policy's soak session plays its clip, rests standing, plays it again
+(:class:`~sim2real.deploy.tasks.motion.clock.MotionClock`'s ``exhibition``); each play is logged
+with its hottest winding and the windings past their derating start (the plant's thermal model,
+:mod:`sim2real.robots.thermal`; robot.toml's motors). :func:`heat_report` answers which windings
+reach derating, after how many clips, and what the derated drive does to tracking (the joint
+error of the clips played derated against those before).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def exhibition_task(task: dict, policy, robot, envs: int, config) -> None:
+    """Make ``task`` (the soak's :func:`~sim2real.deploy.tasks.task.task_for` options) the
+    ``tracking`` task of an exhibition when ``policy`` reads a clip: its contract's, or
+    ``config.motion`` (a :class:`~sim2real.eval.soak.session.SessionConfig`), played, rested
+    ``config.rest_s`` s standing at home, played again; unchanged for any other policy.
+
+    Raises:
+        sim2real.deploy.tasks.motion.clip.ClipError: a clip that does not fit (one line).
+    """
+    from sim2real.deploy.tasks.motion.source import motion_for
+
+    motion = motion_for(policy, robot, envs, config.motion, "exhibition", rest_s=config.rest_s)
+    if motion is not None:
+        task.update(task="tracking", motion=motion)
+
+
+def heat_report(plays: list[dict]) -> dict:
+    """The heat report of one session's ``plays`` (the tracking task's play log, in order).
+
+    Returns:
+        ``clips`` (played), ``completed`` (not ended by a stop), ``falls`` (plays a stop ended),
+        ``derating`` {winding: the 1-based clip in which it first passed its derating start},
+        ``first_derated_clip`` (or None), ``joint_rms_rad_before`` / ``joint_rms_rad_derated``
+        (mean over the clips before the first derated one / from it on; None without such
+        clips), ``hottest`` {winding: peak degC over the session}, at most the five hottest.
+    """
+    first: dict[str, int] = {}
+    hottest: dict[str, float] = {}
+    for i, p in enumerate(plays, start=1):
+        for j in p.get("derating") or []:
+            first.setdefault(j, i)
+        if p.get("hottest") is not None:
+            hottest[p["hottest"]] = max(hottest.get(p["hottest"], -np.inf), p["hottest_c"])
+    start = min(first.values()) if first else None
+
+    def mean_rms(rows: list[dict]) -> float | None:
+        values = [p["joint_rms_rad"] for p in rows if p.get("joint_rms_rad") is not None]
+        return float(np.mean(values)) if values else None
+
+    cut = len(plays) if start is None else start - 1
+    top = sorted(hottest.items(), key=lambda kv: -kv[1])[:5]
+    return {
+        "clips": len(plays),
+        "completed": sum(1 for p in plays if not p["stopped"]),
+        "falls": sum(1 for p in plays if p["stopped"]),
+        "derating": dict(sorted(first.items(), key=lambda kv: kv[1])),
+        "first_derated_clip": start,
+        "joint_rms_rad_before": mean_rms(plays[:cut]),
+        "joint_rms_rad_derated": mean_rms(plays[cut:]) if start is not None else None,
+        "hottest": dict(top),
+    }

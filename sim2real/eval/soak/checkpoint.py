@@ -66,7 +66,10 @@ FORMAT = "soak-checkpoint"
 #: 13: the interventions of a legged robot's ticks lying down after a stop, apart
 #: (``interventions/down/...``, ``down_any``, ``down_safety``, ``down_ticks``), and the domain
 #: pushes' RUNNING at the last tick (``push_force.running``); a version 12 checkpoint has neither.
-VERSION = 13
+#: 14: the self-collision ticks a motion clip's own contacts account for
+#: (``violations/reference_ticks``, ``reference_pair_ticks``) and the scheduled pushes not applied
+#: (``skipped_pushes``); a version 13 checkpoint has neither.
+VERSION = 14
 MANIFEST = "checkpoint.json"
 
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 from sim2real.numba_cache import install_when_numba_loads
 from sim2real.robots.lazy import lazy_names
 
-install_when_numba_loads()  # every kernel's cache keyed on all kernel sources (numba_cache)
+install_when_numba_loads()  # every kernel's cache keyed on its own sources (numba_cache)
 
 #: public name -> module that defines it
 _SOURCES = {

@@ -1,13 +1,16 @@
-"""numba's on-disk cache of the toolkit's kernels, keyed on every kernel source at once.
+"""numba's on-disk cache of the toolkit's kernels, keyed on each kernel's own sources.
 
 numba keys a cached kernel on its own file's content (``numba.core.caching``: a SHA-256 of the
 source file). A kernel compiles the helpers it calls from other modules into its own machine
 code (``inline="always"`` or not), so with numba's key an edit to a helper in another file left
 every kernel that calls it running the old code from the cache until its ``__pycache__`` was
-deleted by hand. Here the key of every kernel in this package is one SHA-256 over the contents
-of all the package's modules that mention numba (:func:`package_stamp`): any edit to any of
-them recompiles every kernel on its next load, and nothing else does (a checkout that leaves the
-contents alone keeps the cache).
+deleted by hand. Here the key of a kernel in this package (:func:`source_stamp`) is one SHA-256
+over the contents of its own file and of every module of the package that file imports,
+followed through their imports (:func:`imported_modules`): every compiled function and every
+global a kernel can reach is defined in one of them (a check's kernel reached through a
+registry module's tuple too). An edit to any of them recompiles the kernel on its next load; an
+edit elsewhere (another kernel's file, a comment in a module it does not import) keeps its
+cache, and so does a checkout that leaves the contents alone.
 
 :func:`install` puts the package's locators first in numba's list (``CacheImpl.
 _locator_classes``), for the same cache folders numba would choose (``NUMBA_CACHE_DIR``, else
@@ -23,24 +26,67 @@ import functools
 import hashlib
 import importlib.abc
 import importlib.util
+import re
 import sys
 from pathlib import Path
 
-#: The package whose kernels take the package-wide key.
+#: The package whose kernels take the key of their own sources.
 PACKAGE_DIR = Path(__file__).resolve().parent
 _CACHING = "numba.core.caching"
+#: ``import sim2real...`` and ``from sim2real... import a, b`` (parenthesized over lines too).
+_IMPORT = re.compile(
+    rb"^[ \t]*(?:import[ \t]+(sim2real[\w.]*)|from[ \t]+(sim2real[\w.]*)[ \t]+import[ \t]+"
+    rb"(\([^)]*\)|[^\n]*))",
+    re.M,
+)
 
 
-@functools.lru_cache(maxsize=1)
-def package_stamp() -> str:
-    """Hex SHA-256 over the relative path and contents of every ``*.py`` under the package that
-    contains the word ``numba`` (sorted by path): the source stamp of every kernel here. Read
-    once per process."""
+def _module_file(name: str) -> Path | None:
+    """The file of package module ``name`` (``sim2real.x.y``), or None if it names none."""
+    path = PACKAGE_DIR.parent.joinpath(*name.split("."))
+    for candidate in (path.with_suffix(".py"), path / "__init__.py"):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+@functools.cache
+def _imports(path: Path) -> frozenset[Path]:
+    """The files of the package's modules that ``path`` imports by name (its import statements,
+    at any indentation; ``from m import x``: ``m`` and, where ``x`` is a module, ``m.x``)."""
+    found = set()
+    for plain, base, names in _IMPORT.findall(path.read_bytes()):
+        module = (plain or base).decode()
+        found.add(_module_file(module))
+        for name in re.findall(rb"\w+", names):
+            if name != b"as":
+                found.add(_module_file(f"{module}.{name.decode()}"))
+    found.discard(None)
+    return frozenset(found)
+
+
+def imported_modules(py_file: str | Path) -> list[Path]:
+    """``py_file`` and every file of the package it imports, followed through their imports
+    (the whole closure, not only the modules that mention numba: a registry module's tuple of
+    kernels is read by the kernel that unrolls over it), sorted."""
+    seen, todo = set(), [Path(py_file).resolve()]
+    while todo:
+        path = todo.pop()
+        if path not in seen:
+            seen.add(path)
+            todo.extend(_imports(path))
+    return sorted(seen)
+
+
+@functools.cache
+def source_stamp(py_file: str) -> str:
+    """Hex SHA-256 over the relative path and contents of each file of
+    :func:`imported_modules` of ``py_file`` (a kernel's file): the source stamp of its kernels.
+    Read once per file and process."""
     digest = hashlib.sha256()
-    for path in sorted(PACKAGE_DIR.rglob("*.py")):
-        data = path.read_bytes()
-        if b"numba" in data:
-            digest.update(str(path.relative_to(PACKAGE_DIR)).encode() + b"\0" + data + b"\0")
+    for path in imported_modules(py_file):
+        name = path.relative_to(PACKAGE_DIR.parent) if path.is_relative_to(PACKAGE_DIR) else path
+        digest.update(str(name).encode() + b"\0" + path.read_bytes() + b"\0")
     return digest.hexdigest()
 
 
@@ -52,7 +98,8 @@ def _ours(py_file: str) -> bool:
 
 
 def install() -> None:
-    """Put the package-wide key first in numba's cache locators (idempotent). Imports numba."""
+    """Put the key of each kernel's sources first in numba's cache locators (idempotent).
+    Imports numba."""
     from numba.core import caching
 
     if any(getattr(c, "_sim2real", False) for c in caching.CacheImpl._locator_classes):
@@ -63,7 +110,7 @@ def install() -> None:
             _sim2real = True
 
             def get_source_stamp(self):
-                return package_stamp()
+                return source_stamp(self._py_file)
 
             @classmethod
             def from_function(cls, py_func, py_file):

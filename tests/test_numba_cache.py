@@ -1,6 +1,7 @@
 """numba's cache of the toolkit's kernels cannot go stale (``sim2real.numba_cache``): a kernel
 that calls a helper from another module of the package is compiled again after the helper's
-file is edited, where numba's own key (the kernel's own file) kept running the old helper."""
+file is edited, where numba's own key (the kernel's own file) kept running the old helper; and
+an edit to a module the kernel does not import keeps its cache."""
 
 from __future__ import annotations
 
@@ -54,3 +55,8 @@ def test_editing_a_helper_in_another_file_recompiles_the_kernel_that_calls_it(tm
     assert _run(tmp_path) == (1, 1)  # loaded from the cache: nothing changed
     (pkg / "_cache_probe_helper.py").write_text(HELPER.format(value=2))
     assert _run(tmp_path) == (2, 0)  # the helper's edit reached the kernel
+    # another kernel's file (the guard's) and a module outside the probe's imports: no recompile
+    for other in ("deploy/safety/kernel.py", "deploy/cli/deploy_run.py"):
+        path = pkg / other
+        path.write_text(path.read_text() + "\n# an edit\n")
+    assert _run(tmp_path) == (2, 1)

@@ -22,9 +22,9 @@ tick runs compiled code. A kernel that allocates nothing is also compiled withou
 reference counting (``_nrt=False``): with it, each array a kernel takes from a tuple (the guard's
 ``GuardArrays``) or keeps across a branch is counted up and down with atomic calls, which cost
 more than the arithmetic of a small robot's check; such a kernel may not create an array (numba
-refuses it at compile time). numba's cache of every kernel is keyed on all the package's kernel
-sources (:mod:`sim2real.numba_cache`): an edit to a helper here recompiles the kernels that
-inline it.
+refuses it at compile time). numba's cache of every kernel is keyed on its own file and the
+package's modules it imports (:mod:`sim2real.numba_cache`): an edit to a helper here recompiles
+the kernels that inline it.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ the next state between them, then counts each check that fired. It returns :data
 some check asked for its Pinocchio part (``g.needs``); otherwise it goes on with phase 1, which
 keeps the last accepted target (position mode) and runs the :data:`FINAL` stage.
 
-numba's cache of :func:`guard_filter` is keyed on all the package's kernel sources
+numba's cache of :func:`guard_filter` is keyed on its sources, the checks' modules among them
 (:mod:`sim2real.numba_cache`) and on the number of checks (the length of ``g.own``): an edit to a
 check's compiled function recompiles the kernel that inlines it.
 """

@@ -96,7 +96,7 @@ BISECTIONS = 32
 INERTIA_POSES = 63
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def _unsafe(t, q, v, hi, d, kp, kd, inv_i, effort, stall, no_load, h, steps, brake) -> bool:
     """Whether the PD target ``t`` carries the joint (``q`` rad, ``v`` rad/s; the upper side,
     bound ``hi``) past ``hi`` within the period or leaves it too fast to stop before it

@@ -8,12 +8,11 @@ the next tick's reference into ``RobotState.motion`` (the blocks of
 
 - before the robot is RUNNING (RAMP_IN to the home pose), the clip's first frame, yaw-aligned to
   the robot as it stands now (rl_sar's ``Reset`` on entering its tracking state);
-- on the first RUNNING tick the clip starts (that tick read its time 0), or ``start_after`` s
-  of RUNNING later (the policy reading the first frame meanwhile, aligned at the first RUNNING
-  tick: holosoma_inference runs the policy with the clip pinned at its first step until the
-  operator starts it; the robot stands, let off its gantry, before the dance); each RUNNING tick
-  moves it one control period on; at its end the clock's playback (``stand``: a transition to
-  home, then home; ``once``: the last frame holds);
+- on the first RUNNING tick the clip starts (that tick read its time 0), or ``start_after`` s of
+  RUNNING later (the policy reads the first frame meanwhile, as holosoma_inference pins the clip
+  at its first step until the operator starts it); each RUNNING tick moves it one control period
+  on; at its end the clock's playback (``stand``: a transition to home, then home; ``once``: the
+  last frame holds);
 - a stop (a fall, the operator) ends the play: the next RUNNING starts the clip again.
 
 Each play is logged (:attr:`TrackingTask.play_log`): its share completed, whether a stop ended

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim2real.deploy.core.attitude import quat_multiply as quat_mul
 from sim2real.robots.errors import Sim2RealError
 
 
@@ -41,21 +42,6 @@ NUMPY_REASON = (
 
 #: The kinds these writers are (:mod:`sim2real.deploy.spec.kinds`).
 KIND_NAMES = ["motion_command", "motion_anchor_ori_b"]
-
-
-def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product ``a * b`` of ``w x y z`` quaternions (..., 4)."""
-    aw, ax, ay, az = np.moveaxis(np.asarray(a, float), -1, 0)
-    bw, bx, by, bz = np.moveaxis(np.asarray(b, float), -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
 
 
 def quat_conj(q: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 from sim2real.robots.importer.floating_mjcf import IMU_SITE, finish_floating_mjcf
 from sim2real.robots.importer.foot_sites import foot_with_geometry
 from sim2real.robots.importer.legged_toml import write_legged_toml
-from sim2real.robots.importer.model import SOFT_LIMIT_FRACTION, _sig
+from sim2real.robots.importer.model import SOFT_LIMIT_FRACTION, Motion, _sig
 from sim2real.robots.importer.source import PreparedSource, RobotImportError
 from sim2real.robots.importer.wheels import check_velocity_drives, wheel_joints
 from sim2real.robots.packages import resolved_mjcf
@@ -188,82 +188,21 @@ def import_floating_base(
             :func:`finish_floating_mjcf`, a bad ``--kp``/``--kd``/``--home`` flag or a home
             pose outside the limits, or a result that does not load.
     """
-    from sim2real.robots.importer import flags
     from sim2real.robots.importer.contact_pairs import write_pairs
-    from sim2real.robots.importer.drive_sources import RULE, choose, source_lines
-    from sim2real.robots.importer.model import LEGGED_MAX_ACCELERATION, derive_motion_limits
     from sim2real.robots.importer.staging import written_ranges
 
     urdf, spec, joint_names, log = job.urdf, job.spec, job.joint_names, job.log
-    chosen, motor_cfg, control_rate = job.chosen, job.motor_cfg, job.control_rate
-    foot_links = []
-    for foot in choose_feet(urdf, feet):
-        link, note = foot_with_geometry(spec, urdf, foot)
-        foot_links.append(link)
-        if note:
-            log(f"note: {note}")
-    imu_link, imu_site = choose_imu(urdf, imu, log)
-    at = f"site {imu_site} of link {imu_link}" if imu_site else f"link {imu_link}"
+    foot_links, (imu_link, imu_site) = _feet_and_imu(job, feet, imu)
     tables = []
     if unitree is not None:
         from sim2real.robots.importer.unitree import unitree_lines
 
         tables = unitree_lines(joint_names=joint_names, feet=foot_links, **unitree)
-    log(f"note: feet {foot_links}, IMU at {at}")
     limits_out = job.capped_limits()
-    expected = "JOINT=VALUE with a finite number (JOINT may be a pattern, e.g. '*_knee_joint=0.3')"
-    home_set, kp_set, kd_set = (
-        flags.per_joint(values, joint_names, flag, flags.finite, expected, urdf.path.name)
-        for flag, values in (("--home", home), ("--kp", kp), ("--kd", kd))
-    )
-    wheels = wheel_joints(joint_names, limits_out)  # kp 0 there: a velocity drive
-    for flag, values in (("--kp", kp_set), ("--kd", kd_set)):
-        bad = {j: v for j, v in values.items() if v < 0 or (flag == "--kp" and v == 0)}
-        bad = {j: v for j, v in bad.items() if not (flag == "--kp" and v == 0 and j in wheels)}
-        if bad:
-            raise RobotImportError(
-                f"{flag}: gains must be positive (kd may be 0, kp 0 on a continuous joint), "
-                f"got {bad}"
-            )
-
-    drive = choose(joint_names, {"kp": kp_set, "kd": kd_set, "home": home_set}, policy, urdf.drive)
-    for line in source_lines(drive, joint_names):
-        log(f"note: {line}")
-
-    def motion_now():
-        motion = derive_motion_limits(
-            spec, job.model, joint_names, limits_out, motor_cfg, chosen, LEGGED_MAX_ACCELERATION
-        )
-        for i, j in enumerate(joint_names):
-            motion.home[i] = drive.values["home"].get(j, motion.home[i])
-            motion.kp[i] = drive.values["kp"].get(j, motion.kp[i])
-            motion.kd[i] = drive.values["kd"].get(j, motion.kd[i])
-            lo, hi = limits_out[j][:2]
-            if not lo <= motion.home[i] <= hi:
-                raise RobotImportError(
-                    f"home pose ({drive.sources['home'][j]}): joint {j} at {motion.home[i]} rad "
-                    f"is outside its limits [{lo}, {hi}]"
-                )
-        speed = check_velocity_drives(joint_names, motion.kp, wheels, drive.sources["kp"])
-        if target_limits == "pd":  # a velocity drive (kp 0) takes no PD target
-            effort = np.array([limits_out[j][3] for j in joint_names])
-            kp_pd = np.where(speed, np.inf, motion.kp)
-            vel, acc, jerk = pd_target_limits(effort, kp_pd, 1.0 / control_rate)
-            soft = SOFT_LIMIT_FRACTION * np.array([limits_out[j][2] for j in joint_names])
-            motion.command_velocity = np.maximum(soft, vel)
-            motion.acceleration[:] = np.maximum(motion.acceleration, acc)
-            motion.jerk[:] = np.maximum(motion.jerk, jerk)
-        return motion
-
-    motion = motion_now()
+    drive, wheels = _drive(job, kp, kd, home, policy, limits_out)
+    motion = _motion(job, drive, limits_out, wheels, target_limits)
     gains_from = {j: drive.gains_note(j) for j in joint_names}
-    home_from = "; ".join(
-        line.removeprefix("home: ")
-        .removesuffix(" (every joint)")
-        .replace(RULE, "0 clipped into the soft limits")
-        for line in source_lines(drive, joint_names)
-        if line.startswith("home: ")
-    )
+    home_from = _home_from(drive, joint_names)
     with job.staged() as (work, mjcf_path):
         legged = finish_floating_mjcf(
             spec, urdf, foot_links, (imu_link, imu_site), joint_names, motion.home, mjcf_path
@@ -275,7 +214,7 @@ def import_floating_base(
             log(f"note: {line}")
         # the model's joint 0 is the free joint
         written = written_ranges(mjcf_path, joint_names, limits_out, first=1)
-        motion = motion_now()
+        motion = _motion(job, drive, limits_out, wheels, target_limits)
         pairs = job.collision_pairs(mjcf_path, written, motion.home, LEG_CLEARANCE)
         write_legged_toml(
             work / "robot.toml",
@@ -290,3 +229,101 @@ def import_floating_base(
             tables=tables,
             **job.toml_args(mjcf_path, limits_out, motion, pairs),
         )
+
+
+def _feet_and_imu(job, feet: list[str], imu: str | None) -> tuple[list[str], tuple]:
+    """The foot links (each the link carrying its geometry) and ``(imu link, MJCF site or
+    None)``, each choice printed."""
+    foot_links = []
+    for foot in choose_feet(job.urdf, feet):
+        link, note = foot_with_geometry(job.spec, job.urdf, foot)
+        foot_links.append(link)
+        if note:
+            job.log(f"note: {note}")
+    imu_link, imu_site = choose_imu(job.urdf, imu, job.log)
+    at = f"site {imu_site} of link {imu_link}" if imu_site else f"link {imu_link}"
+    job.log(f"note: feet {foot_links}, IMU at {at}")
+    return foot_links, (imu_link, imu_site)
+
+
+def _drive(job, kp: list[str], kd: list[str], home: list[str], policy, limits_out: dict):
+    """``(drive, wheels)``: each joint's kp, kd and home with its source
+    (:func:`sim2real.robots.importer.drive_sources.choose`, the sources printed), and the wheel
+    joints (kp 0 there: a velocity drive).
+
+    Raises:
+        RobotImportError: a bad flag, or a negative gain (kp 0 only on a wheel).
+    """
+    from sim2real.robots.importer import flags
+    from sim2real.robots.importer.drive_sources import choose, source_lines
+
+    joint_names = job.joint_names
+    expected = "JOINT=VALUE with a finite number (JOINT may be a pattern, e.g. '*_knee_joint=0.3')"
+    home_set, kp_set, kd_set = (
+        flags.per_joint(values, joint_names, flag, flags.finite, expected, job.urdf.path.name)
+        for flag, values in (("--home", home), ("--kp", kp), ("--kd", kd))
+    )
+    wheels = wheel_joints(joint_names, limits_out)
+    for flag, values in (("--kp", kp_set), ("--kd", kd_set)):
+        bad = {j: v for j, v in values.items() if v < 0 or (flag == "--kp" and v == 0)}
+        bad = {j: v for j, v in bad.items() if not (flag == "--kp" and v == 0 and j in wheels)}
+        if bad:
+            raise RobotImportError(
+                f"{flag}: gains must be positive (kd may be 0, kp 0 on a continuous joint), "
+                f"got {bad}"
+            )
+    drive = choose(
+        joint_names, {"kp": kp_set, "kd": kd_set, "home": home_set}, policy, job.urdf.drive
+    )
+    for line in source_lines(drive, joint_names):
+        job.log(f"note: {line}")
+    return drive, wheels
+
+
+def _motion(job, drive, limits_out: dict, wheels, target_limits: str) -> Motion:
+    """The joints' motion limits from the model as it stands (``job.model``), with the drive's
+    home, kp and kd; PD targets' limits widened (:func:`pd_target_limits`).
+
+    Raises:
+        RobotImportError: a home angle outside its joint's limits.
+    """
+    from sim2real.robots.importer.model import LEGGED_MAX_ACCELERATION, derive_motion_limits
+
+    joint_names = job.joint_names
+    motion = derive_motion_limits(
+        job.spec, job.model, joint_names, limits_out, job.motor_cfg, job.chosen,
+        LEGGED_MAX_ACCELERATION,
+    )  # fmt: skip
+    for i, j in enumerate(joint_names):
+        motion.home[i] = drive.values["home"].get(j, motion.home[i])
+        motion.kp[i] = drive.values["kp"].get(j, motion.kp[i])
+        motion.kd[i] = drive.values["kd"].get(j, motion.kd[i])
+        lo, hi = limits_out[j][:2]
+        if not lo <= motion.home[i] <= hi:
+            raise RobotImportError(
+                f"home pose ({drive.sources['home'][j]}): joint {j} at {motion.home[i]} rad "
+                f"is outside its limits [{lo}, {hi}]"
+            )
+    speed = check_velocity_drives(joint_names, motion.kp, wheels, drive.sources["kp"])
+    if target_limits == "pd":  # a velocity drive (kp 0) takes no PD target
+        effort = np.array([limits_out[j][3] for j in joint_names])
+        kp_pd = np.where(speed, np.inf, motion.kp)
+        vel, acc, jerk = pd_target_limits(effort, kp_pd, 1.0 / job.control_rate)
+        soft = SOFT_LIMIT_FRACTION * np.array([limits_out[j][2] for j in joint_names])
+        motion.command_velocity = np.maximum(soft, vel)
+        motion.acceleration[:] = np.maximum(motion.acceleration, acc)
+        motion.jerk[:] = np.maximum(motion.jerk, jerk)
+    return motion
+
+
+def _home_from(drive, joint_names: list[str]) -> str:
+    """Where the home pose came from, for robot.toml's comment."""
+    from sim2real.robots.importer.drive_sources import RULE, source_lines
+
+    return "; ".join(
+        line.removeprefix("home: ")
+        .removesuffix(" (every joint)")
+        .replace(RULE, "0 clipped into the soft limits")
+        for line in source_lines(drive, joint_names)
+        if line.startswith("home: ")
+    )

@@ -213,37 +213,11 @@ def train(args: argparse.Namespace) -> Path | None:
     """
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
-    robot = load_robot(args.robot)
-    # the soak's ranges of the robot (or of --ranges FILE, which the gate's soak runs too)
-    ranges = session_ranges(robot) if args.ranges is None else load_ranges(args.ranges, robot)
-    config = ReachConfig(
-        mode=args.mode,
-        reference=args.reference,
-        dynamics=ranges.dynamics if args.randomize else DynamicsRanges.none(),
-        sensors=ranges.sensors,
-        reward=args.reward,
-        episode_seconds=args.episode_seconds,
-        start_poses=start_poses(args.start_poses, robot),
-        success_radius=args.success_radius,
-        faults=args.faults,
-        fault_ranges=ranges.faults,
-    )
-    if args.fault_interval is not None:
-        config = dataclasses.replace(config, fault_interval=args.fault_interval)
-    task = ReachTask(robot, args.envs, config, seed=args.seed)
+    config, task = _reach_task(args)
     # Rewards (not observations: those are already scaled by physical maxima) are
     # normalized by a running estimate of the return's scale, as SB3's PPO recipes do.
     env = VecNormalize(VecMonitor(ReachVecEnv(task)), norm_obs=False, gamma=args.gamma)
-    if args.init_from is not None and args.init_from.suffix == ".zip":
-        # continue a saved run: weights, optimizer state and noise
-        algo = SAC if args.algo == "sac" else PPO
-        model = algo.load(args.init_from, env=env, device="cpu", tensorboard_log=str(args.logdir))
-    else:
-        model = make_model(args, env)
-    if args.init_from is not None and args.init_from.suffix != ".zip":
-        if args.algo != "ppo":
-            raise ValueError(f"{args.init_from}: --init-from a shipped .pt needs --algo ppo")
-        load_shipped_actor(model, args.init_from, task.spec, args.hidden)
+    model = _learner(args, env, task)
     start = time.perf_counter()
     args.logdir.mkdir(parents=True, exist_ok=True)
     candidate = args.logdir / f"{args.robot}_{args.mode}_seed{args.seed}.pt"
@@ -295,6 +269,52 @@ def train(args: argparse.Namespace) -> Path | None:
             f"violations/episode {row['joint_limit_violations']:.3f}, interventions "
             f"{100 * row['intervention_rate']:.2f} % of ticks"
         )
+    return _ship(args, candidate, info)
+
+
+def _reach_task(args: argparse.Namespace) -> tuple[ReachConfig, ReachTask]:
+    """The reach task's configuration and its envs, from the flags and the soak's ranges of the
+    robot (or of ``--ranges FILE``, which the gate's soak runs too)."""
+    robot = load_robot(args.robot)
+    ranges = session_ranges(robot) if args.ranges is None else load_ranges(args.ranges, robot)
+    config = ReachConfig(
+        mode=args.mode,
+        reference=args.reference,
+        dynamics=ranges.dynamics if args.randomize else DynamicsRanges.none(),
+        sensors=ranges.sensors,
+        reward=args.reward,
+        episode_seconds=args.episode_seconds,
+        start_poses=start_poses(args.start_poses, robot),
+        success_radius=args.success_radius,
+        faults=args.faults,
+        fault_ranges=ranges.faults,
+    )
+    if args.fault_interval is not None:
+        config = dataclasses.replace(config, fault_interval=args.fault_interval)
+    return config, ReachTask(robot, args.envs, config, seed=args.seed)
+
+
+def _learner(args: argparse.Namespace, env, task: ReachTask):
+    """A new SB3 learner, a saved run continued (``--init-from RUN.zip``: weights, optimizer
+    state and noise), or a new PPO learner whose actor is a shipped policy's (``.pt``).
+
+    Raises:
+        ValueError: ``--init-from`` a ``.pt`` without ``--algo ppo``.
+    """
+    if args.init_from is not None and args.init_from.suffix == ".zip":
+        algo = SAC if args.algo == "sac" else PPO
+        return algo.load(args.init_from, env=env, device="cpu", tensorboard_log=str(args.logdir))
+    model = make_model(args, env)
+    if args.init_from is not None:
+        if args.algo != "ppo":
+            raise ValueError(f"{args.init_from}: --init-from a shipped .pt needs --algo ppo")
+        load_shipped_actor(model, args.init_from, task.spec, args.hidden)
+    return model
+
+
+def _ship(args: argparse.Namespace, candidate: Path, info: dict) -> Path | None:
+    """Gate the candidate (a soak of ``--gate-hours``, when set) and copy it, its ONNX export
+    and its curve to ``args.out``; None (nothing copied) when the gate failed."""
     if args.gate_hours > 0:
         from sim2real.deploy.export import export_policy
 

@@ -331,7 +331,7 @@ class SoakConfig(_Strict):
     robot). The default 5-25 N suits arm3 (its drives hold 14.9 N at the tip for an instant,
     ``sim2real.eval.world.fault_schedule.cable_budget``); a desktop servo arm holds a fraction of that.
     ``robot-import --floating-base`` writes a legged robot's from its mass
-    (``sim2real.robots.importer.legged.PUSH_VELOCITY``).
+    (``sim2real.robots.importer.legged_toml.PUSH_VELOCITY``).
     """
 
     push_force: tuple[NonNegative, NonNegative] | None = None  # N

@@ -95,27 +95,8 @@ def inspect_sb3(path: Path) -> dict[str, Any]:
         ) from None
     if not isinstance(data, Mapping) or not isinstance(sd, Mapping):
         raise InspectError(f"{path}: 'data' is not a JSON object or 'policy.pth' not a state dict")
-    policy_class = None
-    pc = data.get("policy_class")
-    if isinstance(pc, Mapping) and isinstance(pc.get(":serialized:"), str):
-        try:
-            names = _pickle_globals(base64.b64decode(pc[":serialized:"]))
-        except ValueError:
-            names = []
-        policy_class = names[-1] if names else pc.get("__module__")
-
-    def space(key: str) -> dict[str, Any] | None:
-        s = data.get(key)
-        if not isinstance(s, Mapping):
-            return None
-        kind = re.sub(r"^<class '(.*)'>$", r"\1", str(s.get(":type:", "")))
-        out = {"type": kind.rsplit(".", 1)[-1], "shape": s.get("_shape")}
-        for bound in ("low", "high"):
-            if isinstance(s.get(bound), str):
-                out[bound] = s[bound][:80]
-        return out
-
-    obs_space, act_space = space("observation_space"), space("action_space")
+    policy_class = _sb3_policy_class(data.get("policy_class"))
+    obs_space, act_space = _sb3_space(data, "observation_space"), _sb3_space(data, "action_space")
     if any(k.startswith("lstm_actor.") for k in sd):
         algo, actor = "sb3-contrib RecurrentPPO", "mlp_extractor.policy_net."
     elif "actor.mu.weight" in sd:
@@ -153,6 +134,32 @@ def inspect_sb3(path: Path) -> dict[str, Any]:
         },
         "spec": None,
     }
+
+
+def _sb3_policy_class(pc) -> str | None:
+    """The policy class an SB3 archive's ``data`` names (its pickled ``:serialized:`` globals
+    read, never unpickled), else its ``__module__``, else None."""
+    if not (isinstance(pc, Mapping) and isinstance(pc.get(":serialized:"), str)):
+        return None
+    try:
+        names = _pickle_globals(base64.b64decode(pc[":serialized:"]))
+    except ValueError:
+        names = []
+    return names[-1] if names else pc.get("__module__")
+
+
+def _sb3_space(data: Mapping, key: str) -> dict[str, Any] | None:
+    """An SB3 archive's Gymnasium space ``key`` as ``{type, shape, low, high}`` (bounds cut at
+    80 characters), or None."""
+    s = data.get(key)
+    if not isinstance(s, Mapping):
+        return None
+    kind = re.sub(r"^<class '(.*)'>$", r"\1", str(s.get(":type:", "")))
+    out = {"type": kind.rsplit(".", 1)[-1], "shape": s.get("_shape")}
+    for bound in ("low", "high"):
+        if isinstance(s.get(bound), str):
+            out[bound] = s[bound][:80]
+    return out
 
 
 def inspect_torchscript(path: Path) -> dict[str, Any]:
@@ -240,51 +247,9 @@ def inspect_torch(path: Path) -> dict[str, Any]:
     except Exception as exc:  # noqa: BLE001 - torch raises many types for damaged files
         raise InspectError(unreadable_torch_file(path, exc)) from None
     if isinstance(obj, Mapping) and "format" in obj:
-        arch = obj.get("architecture") if isinstance(obj.get("architecture"), Mapping) else {}
-        norm = obj.get("obs_normalizer")
-        info = obj.get("info") if isinstance(obj.get("info"), Mapping) else {}
-        return {
-            "format": f"our checkpoint ({obj.get('format')} v{obj.get('format_version')})",
-            "inputs": [tensor_entry("obs", ["batch", arch.get("obs_dim", "?")], "float32")],
-            "outputs": [tensor_entry("action", ["batch", arch.get("act_dim", "?")], "float32")],
-            "state": [],
-            "metadata": {k: v for k, v in info.items() if isinstance(v, str | int | float)},
-            "details": {
-                "architecture": dict(arch),
-                "obs_normalizer": None
-                if norm is None
-                else {k: v for k, v in norm.items() if isinstance(v, int | float)},
-            },
-            "spec": spec_summary(obj["spec"], f"{path}: field 'spec'")
-            if isinstance(obj.get("spec"), str)
-            else None,
-        }
+        return _our_checkpoint(path, obj)
     if isinstance(obj, Mapping) and isinstance(obj.get("model_state_dict"), Mapping):
-        msd = obj["model_state_dict"]
-        layers = _linear_layers(msd, "actor.")
-        rnn = _rnn_state(msd, "memory_a.rnn.")
-        norm = None
-        if "actor_obs_normalizer._mean" in msd:
-            norm = "actor_obs_normalizer (rsl_rl 3.x)"
-        elif isinstance(obj.get("obs_norm_state_dict"), Mapping):
-            norm = "obs_norm_state_dict (rsl_rl 1.x/2.x)"
-        obs_dim = rnn["input"] if rnn else (layers[0][1] if layers else "?")
-        return {
-            "format": "rsl_rl checkpoint" + (" (ActorCriticRecurrent)" if rnn else ""),
-            "inputs": [tensor_entry("obs", ["batch", obs_dim], "float32")],
-            "outputs": [
-                tensor_entry("action", ["batch", layers[-1][0] if layers else "?"], "float32")
-            ],
-            "state": _state_io(rnn) if rnn else [],
-            "metadata": {k: v for k, v in obj.items() if isinstance(v, str | int | float | bool)},
-            "details": {
-                "actor_layers [out, in]": layers,
-                **({"memory_a.rnn": rnn} if rnn else {}),
-                "observation_normalizer": norm,
-                "fields": sorted(map(str, obj)),
-            },
-            "spec": None,
-        }
+        return _rsl_rl_checkpoint(obj)
     what = (
         f"a dict with keys {sorted(map(str, obj))[:8]}"
         if isinstance(obj, Mapping)
@@ -297,5 +262,55 @@ def inspect_torch(path: Path) -> dict[str, Any]:
         "state": [],
         "metadata": {},
         "details": {},
+        "spec": None,
+    }
+
+
+def _our_checkpoint(path: Path, obj: Mapping) -> dict[str, Any]:
+    """The inspection of this toolkit's own checkpoint (a ``format`` field)."""
+    arch = obj.get("architecture") if isinstance(obj.get("architecture"), Mapping) else {}
+    norm = obj.get("obs_normalizer")
+    info = obj.get("info") if isinstance(obj.get("info"), Mapping) else {}
+    return {
+        "format": f"our checkpoint ({obj.get('format')} v{obj.get('format_version')})",
+        "inputs": [tensor_entry("obs", ["batch", arch.get("obs_dim", "?")], "float32")],
+        "outputs": [tensor_entry("action", ["batch", arch.get("act_dim", "?")], "float32")],
+        "state": [],
+        "metadata": {k: v for k, v in info.items() if isinstance(v, str | int | float)},
+        "details": {
+            "architecture": dict(arch),
+            "obs_normalizer": None
+            if norm is None
+            else {k: v for k, v in norm.items() if isinstance(v, int | float)},
+        },
+        "spec": spec_summary(obj["spec"], f"{path}: field 'spec'")
+        if isinstance(obj.get("spec"), str)
+        else None,
+    }
+
+
+def _rsl_rl_checkpoint(obj: Mapping) -> dict[str, Any]:
+    """The inspection of an rsl_rl checkpoint (``model_state_dict``; recurrent or not)."""
+    msd = obj["model_state_dict"]
+    layers = _linear_layers(msd, "actor.")
+    rnn = _rnn_state(msd, "memory_a.rnn.")
+    norm = None
+    if "actor_obs_normalizer._mean" in msd:
+        norm = "actor_obs_normalizer (rsl_rl 3.x)"
+    elif isinstance(obj.get("obs_norm_state_dict"), Mapping):
+        norm = "obs_norm_state_dict (rsl_rl 1.x/2.x)"
+    obs_dim = rnn["input"] if rnn else (layers[0][1] if layers else "?")
+    return {
+        "format": "rsl_rl checkpoint" + (" (ActorCriticRecurrent)" if rnn else ""),
+        "inputs": [tensor_entry("obs", ["batch", obs_dim], "float32")],
+        "outputs": [tensor_entry("action", ["batch", layers[-1][0] if layers else "?"], "float32")],
+        "state": _state_io(rnn) if rnn else [],
+        "metadata": {k: v for k, v in obj.items() if isinstance(v, str | int | float | bool)},
+        "details": {
+            "actor_layers [out, in]": layers,
+            **({"memory_a.rnn": rnn} if rnn else {}),
+            "observation_normalizer": norm,
+            "fields": sorted(map(str, obj)),
+        },
         "spec": None,
     }

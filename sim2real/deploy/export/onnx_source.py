@@ -27,7 +27,7 @@ import onnx
 from sim2real.deploy.export.errors import ExportError, ParityError
 from sim2real.deploy.export.graph import set_metadata, tool_versions
 from sim2real.deploy.export.parity import PARITY_SAMPLES, parity_observations
-from sim2real.deploy.export.pipeline import ExportResult
+from sim2real.deploy.export.pipeline import ExportResult, output_path
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.policy.onnx_spec import METADATA_SPEC
 from sim2real.deploy.spec.onnx_checks import PolicyLoadError
@@ -76,11 +76,7 @@ def export_onnx_policy(
     """
     t0 = time.perf_counter()
     source = Path(source)
-    out = source.with_name(f"{source.stem}.{robot.name}.onnx") if out is None else Path(out)
-    if out.resolve() == source.resolve():
-        raise ExportError(f"{out}: the output would overwrite the source")
-    if not out.parent.is_dir():
-        raise ExportError(f"{out}: the output folder {out.parent} does not exist")
+    out = output_path(source, out, source.with_name(f"{source.stem}.{robot.name}.onnx"))
     model = onnx.load(str(source))  # external data inlined
     original = {p.key: p.value for p in model.metadata_props}
     if METADATA_SPEC in original:
@@ -91,26 +87,10 @@ def export_onnx_policy(
         policy = OnnxPolicy(source, robot, spec=spec)
     except PolicyLoadError as exc:
         raise ExportError(str(exc)) from None
-    given = policy.foreign is None
     spec = policy.spec
     obs = parity_observations(spec, PARITY_SAMPLES, np.random.default_rng(seed))
     reference = _actions(policy, obs)
-    meta = {
-        "source_sha256": sha256_file(source),
-        "source_format": "onnx (a spec given)"
-        if given
-        else f"onnx ({policy.foreign.format} contract)",
-        "tool_versions": json.dumps(tool_versions(), sort_keys=True),
-        "exporter": "the source graph, unchanged (weights inlined)",
-        "source_metadata": json.dumps(original, sort_keys=True),
-    }
-    ranges = None if given else policy.foreign.command_ranges
-    if ranges is not None:  # the soak's commands (sim2real.eval.world.domain.contract_commands)
-        names = {"vx": "lin_vel_x", "vy": "lin_vel_y", "yaw_rate": "ang_vel_z"}
-        meta["command_ranges"] = json.dumps({names[k]: list(v) for k, v in ranges.items()})
-    elif "command_ranges" in original:  # holosoma's, kept as it wrote it
-        meta["command_ranges"] = original["command_ranges"]
-    meta.update({k: v for k, v in (metadata or {}).items() if k not in ("policy_spec", "parity")})
+    meta = _metadata(source, policy, original, metadata)
     try:
         with atomic_path(out) as tmp:
             figures = {"samples": int(len(obs)), "max_abs_error": 0.0, "passed": True}
@@ -136,3 +116,27 @@ def export_onnx_policy(
         spec=spec,
         exporter=meta["exporter"],
     )
+
+
+def _metadata(source: Path, policy: OnnxPolicy, original: dict, metadata: dict | None) -> dict:
+    """The written file's metadata besides the spec and the parity: the source's hash, format
+    and own metadata, the tools, the command ranges of its contract (or holosoma's as written),
+    and ``metadata``'s entries (never ``policy_spec`` or ``parity``)."""
+    given = policy.foreign is None
+    meta = {
+        "source_sha256": sha256_file(source),
+        "source_format": "onnx (a spec given)"
+        if given
+        else f"onnx ({policy.foreign.format} contract)",
+        "tool_versions": json.dumps(tool_versions(), sort_keys=True),
+        "exporter": "the source graph, unchanged (weights inlined)",
+        "source_metadata": json.dumps(original, sort_keys=True),
+    }
+    ranges = None if given else policy.foreign.command_ranges
+    if ranges is not None:  # the soak's commands (sim2real.eval.world.domain.contract_commands)
+        names = {"vx": "lin_vel_x", "vy": "lin_vel_y", "yaw_rate": "ang_vel_z"}
+        meta["command_ranges"] = json.dumps({names[k]: list(v) for k, v in ranges.items()})
+    elif "command_ranges" in original:  # holosoma's, kept as it wrote it
+        meta["command_ranges"] = original["command_ranges"]
+    meta.update({k: v for k, v in (metadata or {}).items() if k not in ("policy_spec", "parity")})
+    return meta

@@ -147,11 +147,7 @@ def run_export(
     source = Path(source)
     check_tolerance(tolerance)
     src = load_source(source, spec, trust_pickle, vecnormalize, activation)
-    out = source.with_suffix(".onnx") if out is None else Path(out)
-    if out.resolve() == source.resolve():
-        raise ExportError(f"{out}: the output would overwrite the source")
-    if not out.parent.is_dir():
-        raise ExportError(f"{out}: the output folder {out.parent} does not exist")
+    out = output_path(source, out)
     the_robot = _resolve_robot(robot, src.spec, str(source))
     try:  # a policy over some of the robot's joints: the rest held (sim2real.deploy.spec.subset)
         run_spec(src.spec, the_robot).check_robot(the_robot)
@@ -167,16 +163,7 @@ def run_export(
     exporter_text = f"torch.onnx.export(dynamo={exporter == 'dynamo'}), opset {OPSET}" + (
         " (TorchScript-based)" if exporter == "torchscript" else " (torch.export-based)"
     )
-    base_meta = {
-        "source_sha256": sha256_file(source),
-        "source_format": src.source_format,
-        "tool_versions": json.dumps(tool_versions(), sort_keys=True),
-        "exporter": exporter_text,
-        **src.extra_hashes,
-    }
-    if src.normalizer_kind:
-        base_meta["observation_normalizer"] = src.normalizer_kind
-    base_meta.update(metadata or {})
+    base_meta = _base_metadata(source, src, exporter_text, metadata)
 
     # the file is written and checked under a temporary name, moved onto ``out`` only if it passes
     try:
@@ -205,10 +192,7 @@ def run_export(
                 {"policy_spec": final.to_json(), **base_meta, "parity": json.dumps(figures)},
             )
             _write(model, tmp)
-            check = OnnxPolicy(tmp, the_robot)  # the final bytes load and give the same actions
-            probe = parity_observations(src.spec, 16, np.random.default_rng(seed + 1))
-            if _max_abs(check(probe).copy(), policy(probe).copy()) != 0.0:
-                raise ParityError(f"{source}: the final file gives different actions", figures)
+            _same_actions(tmp, the_robot, policy, src.spec, seed, f"{source}", figures)
     except OSError as exc:
         raise ExportError(f"{out}: cannot write in {out.parent}: {exc.strerror or exc}") from None
     failed_path(out).unlink(missing_ok=True)  # a candidate kept by an earlier failed export
@@ -220,6 +204,46 @@ def run_export(
         spec=final,
         exporter=exporter_text,
     )
+
+
+def _same_actions(path: Path, robot, policy, spec, seed: int, source: str, figures) -> None:
+    """The final bytes at ``path`` load and give ``policy``'s actions, bit for bit, on 16
+    probe observations (``ParityError`` where not)."""
+    check = OnnxPolicy(path, robot)
+    probe = parity_observations(spec, 16, np.random.default_rng(seed + 1))
+    if _max_abs(check(probe).copy(), policy(probe).copy()) != 0.0:
+        raise ParityError(f"{source}: the final file gives different actions", figures)
+
+
+def output_path(source: Path, out, default: Path | None = None) -> Path:
+    """The ONNX file to write: ``out``, else ``default``, else the source's name with
+    ``.onnx`` beside it.
+
+    Raises:
+        ExportError: it would overwrite the source, or its folder does not exist.
+    """
+    out = (default or source.with_suffix(".onnx")) if out is None else Path(out)
+    if out.resolve() == source.resolve():
+        raise ExportError(f"{out}: the output would overwrite the source")
+    if not out.parent.is_dir():
+        raise ExportError(f"{out}: the output folder {out.parent} does not exist")
+    return out
+
+
+def _base_metadata(source: Path, src, exporter_text: str, metadata: dict | None) -> dict:
+    """The file's metadata besides the spec and the parity: the source's hash and format, the
+    tools' versions, the exporter, the normalizer, and ``metadata``'s entries."""
+    base_meta = {
+        "source_sha256": sha256_file(source),
+        "source_format": src.source_format,
+        "tool_versions": json.dumps(tool_versions(), sort_keys=True),
+        "exporter": exporter_text,
+        **src.extra_hashes,
+    }
+    if src.normalizer_kind:
+        base_meta["observation_normalizer"] = src.normalizer_kind
+    base_meta.update(metadata or {})
+    return base_meta
 
 
 def _parity_gate(

@@ -39,45 +39,11 @@ def compare_with_baseline(
             f"'{base_robot}', this campaign of '{robot}'"
         )
     new, old = report["totals"], baseline["totals"]
-    regressions, compared = [], {}
-
-    def add(metric, base, current, allowed, worse, message):
-        compared[metric] = {"baseline": base, "current": current, "allowed": allowed}
-        if worse:
-            regressions.append(
-                {
-                    "metric": metric,
-                    "baseline": base,
-                    "current": current,
-                    "allowed": allowed,
-                    "message": message,
-                }
-            )
-
-    def rose(metric, base, current, slack, message):
-        """A rate above ``base * (1 + violation_tolerance) + slack``; ``message`` a template of
-        ``allowed`` (the bound) and ``allowed_percent`` (100 x the bound)."""
-        allowed = base * (1 + thresholds.violation_tolerance) + slack
-        words = message.format(allowed=allowed, allowed_percent=100 * allowed)
-        add(metric, base, current, allowed, current > allowed, words)
-
-    def fell(metric, label, base, rate):
-        """A success rate (None: none, 0) below ``base - success_tolerance``."""
-        allowed = base - thresholds.success_tolerance
-        current = 0.0 if rate is None else rate
-        add(
-            metric,
-            base,
-            rate,
-            allowed,
-            current < allowed,
-            f"{label} fell from {base:.3f} to {current:.3f} (allowed {allowed:.3f})",
-        )
-
+    c = _Comparison(thresholds)
     base_rates, basis = violation_basis(report, baseline)
     for kind, rate in new["violations"]["rate_per_hour"].items():
         base = base_rates.get(kind, 0.0)
-        rose(
+        c.rose(
             f"violations.{kind}.per_hour",
             base,
             rate,
@@ -85,49 +51,11 @@ def compare_with_baseline(
             f"{kind} violations (true state) per hour rose from {base:.2f} ({basis}) to "
             f"{rate:.2f} (allowed {{allowed:.2f}})",
         )
-    fractions = {k: c["fraction"] for k, c in new["interventions"]["checks"].items()}
-    fractions["any"] = new["interventions"]["any"]["fraction"]
-    base_fractions = {k: c["fraction"] for k, c in old["interventions"]["checks"].items()}
-    base_fractions["any"] = old["interventions"]["any"]["fraction"]
-    for check, share in fractions.items():
-        base = base_fractions.get(check, 0.0)
-        rose(
-            f"interventions.{check}.fraction",
-            base,
-            share,
-            thresholds.intervention_slack,
-            f"{check} interventions rose from {100 * base:.3f} % to {100 * share:.3f} % of ticks "
-            "(allowed {allowed_percent:.3f} %)",
-        )
-    for key, label in (
-        ("success_rate", "goal success rate"),
-        ("min_window_success_rate", "lowest windowed goal success rate"),
-    ):
-        if old["goals"][key] is not None:
-            fell(f"goals.{key}", label, old["goals"][key], new["goals"][key])
-    new_loco, old_loco = new.get("locomotion"), old.get("locomotion")
-    for key, label in (
-        ("tracking_success", "tracking success (legged)"),
-        ("min_window_success_rate", "lowest windowed tracking success (legged)"),
-    ):
-        if new_loco and old_loco and old_loco.get(key) is not None:
-            fell(f"locomotion.{key}", label, old_loco[key], new_loco[key])
-    for joint, peak in new["thermal"]["peak_c"].items():
-        base = old["thermal"]["peak_c"].get(joint)
-        if base is None:
-            continue
-        allowed = base + thresholds.temperature_tolerance
-        add(
-            f"thermal.peak_c.{joint}",
-            base,
-            peak,
-            allowed,
-            peak > allowed,
-            f"peak winding temperature of {joint} rose from {base:.1f} to {peak:.1f} degC "
-            f"(allowed {allowed:.1f})",
-        )
+    _interventions(c, new, old)
+    _success(c, new, old)
+    _thermal(c, new, old)
     rate, base = new["latched_faults_per_hour"], old["latched_faults_per_hour"]
-    add(
+    c.add(
         "latched_faults_per_hour",
         base,
         rate,
@@ -137,12 +65,107 @@ def compare_with_baseline(
     )
     return {
         "path": None if path is None else str(path),
-        "passed": not regressions,
-        "regressions": regressions,
-        "compared": compared,
+        "passed": not c.regressions,
+        "regressions": c.regressions,
+        "compared": c.compared,
         "violation_basis": basis,
         "known_failures": known_failures(report, baseline),
     }
+
+
+class _Comparison:
+    """The metrics compared so far (``compared``) and those that regressed (``regressions``)."""
+
+    def __init__(self, thresholds: Thresholds):
+        self.thresholds = thresholds
+        self.regressions: list[dict] = []
+        self.compared: dict[str, dict] = {}
+
+    def add(self, metric, base, current, allowed, worse, message) -> None:
+        self.compared[metric] = {"baseline": base, "current": current, "allowed": allowed}
+        if worse:
+            self.regressions.append(
+                {
+                    "metric": metric,
+                    "baseline": base,
+                    "current": current,
+                    "allowed": allowed,
+                    "message": message,
+                }
+            )
+
+    def rose(self, metric, base, current, slack, message) -> None:
+        """A rate above ``base * (1 + violation_tolerance) + slack``; ``message`` a template of
+        ``allowed`` (the bound) and ``allowed_percent`` (100 x the bound)."""
+        allowed = base * (1 + self.thresholds.violation_tolerance) + slack
+        words = message.format(allowed=allowed, allowed_percent=100 * allowed)
+        self.add(metric, base, current, allowed, current > allowed, words)
+
+    def fell(self, metric, label, base, rate) -> None:
+        """A success rate (None: none, 0) below ``base - success_tolerance``."""
+        allowed = base - self.thresholds.success_tolerance
+        current = 0.0 if rate is None else rate
+        self.add(
+            metric,
+            base,
+            rate,
+            allowed,
+            current < allowed,
+            f"{label} fell from {base:.3f} to {current:.3f} (allowed {allowed:.3f})",
+        )
+
+
+def _interventions(c: _Comparison, new: dict, old: dict) -> None:
+    """Each check's share of ticks (and any check's) against the baseline's."""
+    fractions = {k: v["fraction"] for k, v in new["interventions"]["checks"].items()}
+    fractions["any"] = new["interventions"]["any"]["fraction"]
+    base_fractions = {k: v["fraction"] for k, v in old["interventions"]["checks"].items()}
+    base_fractions["any"] = old["interventions"]["any"]["fraction"]
+    for check, share in fractions.items():
+        base = base_fractions.get(check, 0.0)
+        c.rose(
+            f"interventions.{check}.fraction",
+            base,
+            share,
+            c.thresholds.intervention_slack,
+            f"{check} interventions rose from {100 * base:.3f} % to {100 * share:.3f} % of ticks "
+            "(allowed {allowed_percent:.3f} %)",
+        )
+
+
+def _success(c: _Comparison, new: dict, old: dict) -> None:
+    """Goal success (an arm's) and tracking success (a legged robot's), overall and windowed."""
+    for key, label in (
+        ("success_rate", "goal success rate"),
+        ("min_window_success_rate", "lowest windowed goal success rate"),
+    ):
+        if old["goals"][key] is not None:
+            c.fell(f"goals.{key}", label, old["goals"][key], new["goals"][key])
+    new_loco, old_loco = new.get("locomotion"), old.get("locomotion")
+    for key, label in (
+        ("tracking_success", "tracking success (legged)"),
+        ("min_window_success_rate", "lowest windowed tracking success (legged)"),
+    ):
+        if new_loco and old_loco and old_loco.get(key) is not None:
+            c.fell(f"locomotion.{key}", label, old_loco[key], new_loco[key])
+
+
+def _thermal(c: _Comparison, new: dict, old: dict) -> None:
+    """Each winding's peak temperature against the baseline's plus ``temperature_tolerance``."""
+    for joint, peak in new["thermal"]["peak_c"].items():
+        base = old["thermal"]["peak_c"].get(joint)
+        if base is None:
+            continue
+        allowed = base + c.thresholds.temperature_tolerance
+        c.add(
+            f"thermal.peak_c.{joint}",
+            base,
+            peak,
+            allowed,
+            peak > allowed,
+            f"peak winding temperature of {joint} rose from {base:.1f} to {peak:.1f} degC "
+            f"(allowed {allowed:.1f})",
+        )
 
 
 def violation_basis(report: dict, baseline: dict) -> tuple[dict[str, float], str]:

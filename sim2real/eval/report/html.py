@@ -144,56 +144,70 @@ def _success_cells(s: dict) -> list:
 
 def _tables(report: dict) -> dict[str, dict]:
     """The tables of report.html (campaign, checks, baseline, sessions, interventions, faults,
-    randomization; wheels where a session has them) as ``{"header", "rows"}``."""
+    locomotion, wheels, robustness, randomization) as ``{"header", "rows"}``; a table whose
+    content the report lacks (no baseline, no wheels, no sweep) is left out."""
+    built = {name: make(report) for name, make in _TABLES.items()}
+    return {name: table for name, table in built.items() if table is not None}
+
+
+def _campaign_table(report: dict) -> dict:
     from sim2real.eval.world.command_schedule import schedule_text
 
     c, t = report["campaign"], report["totals"]
     schedule = c.get("commands")  # a legged robot's command schedule and its sources
-    tables = {
-        "campaign": _table(
-            ["robot", "policy", "sessions", "hours each", "seed", "simulated h", "created"]
-            + (["velocity commands"] if schedule else []),
+    return _table(
+        ["robot", "policy", "sessions", "hours each", "seed", "simulated h", "created"]
+        + (["velocity commands"] if schedule else []),
+        [
             [
-                [
-                    c.get("robot"),
-                    c.get("policy"),
-                    t["sessions"],
-                    c.get("hours"),
-                    c.get("seed"),
-                    t["simulated_hours"],
-                    report["created"],
-                ]
-                + ([schedule_text(schedule)] if schedule else [])
-            ],
-        ),
-        "checks": _table(
-            ["session", *CHECKS],
-            [
-                [s["id"]]
-                + [
-                    ("pass: " if s["checks"][n]["passed"] else "FAIL: ") + s["checks"][n]["message"]
-                    for n in CHECKS
-                ]
-                for s in report["sessions"]
-            ],
-        ),
-    }
+                c.get("robot"),
+                c.get("policy"),
+                t["sessions"],
+                c.get("hours"),
+                c.get("seed"),
+                t["simulated_hours"],
+                report["created"],
+            ]
+            + ([schedule_text(schedule)] if schedule else [])
+        ],
+    )
+
+
+def _checks_table(report: dict) -> dict:
+    return _table(
+        ["session", *CHECKS],
+        [
+            [s["id"]]
+            + [
+                ("pass: " if s["checks"][n]["passed"] else "FAIL: ") + s["checks"][n]["message"]
+                for n in CHECKS
+            ]
+            for s in report["sessions"]
+        ],
+    )
+
+
+def _baseline_table(report: dict) -> dict | None:
     b = report.get("baseline")
-    if b is not None:
-        tables["baseline"] = _table(
-            ["metric", "baseline", "current", "allowed", "regression"],
+    if b is None:
+        return None
+    return _table(
+        ["metric", "baseline", "current", "allowed", "regression"],
+        [
             [
-                [
-                    m,
-                    v["baseline"],
-                    v["current"],
-                    v["allowed"],
-                    any(r["metric"] == m for r in b["regressions"]),
-                ]
-                for m, v in b["compared"].items()
-            ],
-        )
-    tables["sessions"] = _table(
+                m,
+                v["baseline"],
+                v["current"],
+                v["allowed"],
+                any(r["metric"] == m for r in b["regressions"]),
+            ]
+            for m, v in b["compared"].items()
+        ],
+    )
+
+
+def _sessions_table(report: dict) -> dict:
+    return _table(
         [
             "session",
             "status",
@@ -228,8 +242,12 @@ def _tables(report: dict) -> dict[str, dict]:
             for s in report["sessions"]
         ],
     )
+
+
+def _interventions_table(report: dict) -> dict:
+    t = report["totals"]
     checks = list(t["interventions"]["checks"])
-    tables["interventions"] = _table(
+    return _table(
         ["session", "any", *checks, "warning: estimate in soft band"],
         [
             [
@@ -241,7 +259,10 @@ def _tables(report: dict) -> dict[str, dict]:
             for s in report["sessions"]
         ],
     )
-    tables["faults"] = _table(
+
+
+def _faults_table(report: dict) -> dict:
+    return _table(
         [
             "session",
             "kind",
@@ -273,8 +294,11 @@ def _tables(report: dict) -> dict[str, dict]:
             for ev in s["faults"]["events"]
         ],
     )
+
+
+def _locomotion_table(report: dict) -> dict:
     legged = [s for s in report["sessions"] if s.get("locomotion") is not None]
-    tables["locomotion"] = _table(
+    return _table(
         [
             "session",
             "falls",
@@ -308,42 +332,59 @@ def _tables(report: dict) -> dict[str, dict]:
             for s in legged
         ],
     )
-    wheeled = [s for s in report["sessions"] if (s.get("wheels") or {}).get("joints")]
-    if wheeled:
-        joints = wheeled[0]["wheels"]["joints"]
-        tables["wheels"] = _table(
-            ["session", *(f"{j} peak / limit (rad/s)" for j in joints)],
-            [
-                [s["id"]]
-                + [
-                    f"{w['peak_speed_rad_s'][j]:.1f} / {w['velocity_limit_rad_s'][j]:g}"
-                    for j in joints
-                ]
-                for s in wheeled
-                for w in [s["wheels"]]
-            ],
-        )
-    sweep = report.get("robustness")
-    if sweep is not None:
-        from sim2real.eval.soak.sweep import margin_text
 
-        tables["robustness"] = _table(
-            ["quantity", "margin", "first level that failed", "levels (success, falls)"],
+
+def _wheels_table(report: dict) -> dict | None:
+    wheeled = [s for s in report["sessions"] if (s.get("wheels") or {}).get("joints")]
+    if not wheeled:
+        return None
+    joints = wheeled[0]["wheels"]["joints"]
+    return _table(
+        ["session", *(f"{j} peak / limit (rad/s)" for j in joints)],
+        [
+            [s["id"]]
+            + [f"{w['peak_speed_rad_s'][j]:.1f} / {w['velocity_limit_rad_s'][j]:g}" for j in joints]
+            for s in wheeled
+            for w in [s["wheels"]]
+        ],
+    )
+
+
+def _robustness_table(report: dict) -> dict | None:
+    sweep = report.get("robustness")
+    if sweep is None:
+        return None
+    from sim2real.eval.soak.sweep import margin_text
+
+    return _table(
+        ["quantity", "margin", "first level that failed", "levels (success, falls)"],
+        [
             [
-                [
-                    row["label"],
-                    margin_text(row),
-                    row["failed_at"],
-                    "; ".join(
-                        f"{lv['level']:g}: {_fmt(lv['success'])}, {lv['falls']}"
-                        for lv in row["levels"]
-                    ),
-                ]
-                for row in sweep["quantities"]
-            ],
-        )
-    tables["randomization"] = randomization_table(report["sessions"])
-    return tables
+                row["label"],
+                margin_text(row),
+                row["failed_at"],
+                "; ".join(
+                    f"{lv['level']:g}: {_fmt(lv['success'])}, {lv['falls']}" for lv in row["levels"]
+                ),
+            ]
+            for row in sweep["quantities"]
+        ],
+    )
+
+
+#: report.html's tables in page order, each built from the report by its function.
+_TABLES = {
+    "campaign": _campaign_table,
+    "checks": _checks_table,
+    "baseline": _baseline_table,
+    "sessions": _sessions_table,
+    "interventions": _interventions_table,
+    "faults": _faults_table,
+    "locomotion": _locomotion_table,
+    "wheels": _wheels_table,
+    "robustness": _robustness_table,
+    "randomization": lambda report: randomization_table(report["sessions"]),
+}
 
 
 def randomization_table(sessions: list[dict]) -> dict:

@@ -296,47 +296,12 @@ def compare(reports: Mapping[str, str | os.PathLike]) -> dict:
         )
     loaded = [SoakReport(str(e), Path(folder)) for e, folder in reports.items()]
     first = loaded[0]
-
-    def same(key: str, expected: str, ok: Callable[[Any], bool]) -> Any:
-        value = first.get(("campaign", key), expected, ok)
-        for r in loaded[1:]:
-            other = r.get(("campaign", key), expected, ok)
-            if other != value:
-                raise Sim2SimError(
-                    f"{r.path}: field 'campaign.{key}': expected {value!r} as in "
-                    f"{first.engine}'s report {first.path}, got {other!r} (a sim-to-sim "
-                    "comparison runs the same campaign on every engine)"
-                )
-        return value
-
-    robot = same("robot", "a robot name", lambda v: isinstance(v, str))
-    sha = same("policy_sha256", "the policy's SHA-256", lambda v: isinstance(v, str))
-    hours = same("hours", "a number > 0 (simulated h)", lambda v: is_number(v) and v > 0)
+    robot = _same(loaded, "robot", "a robot name", lambda v: isinstance(v, str))
+    sha = _same(loaded, "policy_sha256", "the policy's SHA-256", lambda v: isinstance(v, str))
+    hours = _same(loaded, "hours", "a number > 0 (simulated h)", lambda v: is_number(v) and v > 0)
     policy = first.get(("campaign", "policy"), "a path", lambda v: isinstance(v, str))
-
-    seeds: dict[str, dict[int, int]] = {}  # engine -> seed -> index in sessions
-    for r in loaded:
-        sessions = r.get(("sessions",), "a list of sessions", lambda v: isinstance(v, list))
-        by_seed: dict[int, int] = {}
-        for i in range(len(sessions)):
-            seed = r.count(("sessions", i, "seed"))
-            if seed in by_seed:
-                raise Sim2SimError(
-                    f"{r.path}: field 'sessions[{i}].seed': expected a seed no other session "
-                    f"has, got {seed} (also sessions[{by_seed[seed]}])"
-                )
-            by_seed[seed] = i
-        seeds[r.engine] = by_seed
+    seeds = _seeds(loaded)
     ordered = sorted(seeds[first.engine])
-    if not ordered:
-        raise Sim2SimError(f"{first.path}: field 'sessions': expected one session or more, got []")
-    for r in loaded[1:]:
-        if sorted(seeds[r.engine]) != ordered:
-            raise Sim2SimError(
-                f"{r.path}: field 'sessions[].seed': expected the seeds {ordered} as in "
-                f"{first.engine}'s report {first.path}, got {sorted(seeds[r.engine])}"
-            )
-
     legged = (
         first.get(
             ("totals", "locomotion"),
@@ -348,34 +313,8 @@ def compare(reports: Mapping[str, str | os.PathLike]) -> dict:
     totals = _figure_table(
         {r.engine: read_figures(r, ("totals",), legged, totals=True) for r in loaded}
     )
-    session_rows = []
-    for seed in ordered:
-        per_engine = {}
-        ids = {}
-        for r in loaded:
-            i = seeds[r.engine][seed]
-            per_engine[r.engine] = read_figures(r, ("sessions", i), legged, totals=False)
-            ids[r.engine] = r.get(
-                ("sessions", i, "id"), "a session id", lambda v: isinstance(v, str)
-            )
-        session_rows.append({"seed": seed, "ids": ids, "figures": _figure_table(per_engine)})
-
-    flagged = [
-        {"figure": f["name"], "label": f["label"], "where": "totals", "reason": f["reason"]}
-        for f in totals
-        if f["engine_dependent"]
-    ]
-    for row in session_rows:
-        flagged += [
-            {
-                "figure": f["name"],
-                "label": f["label"],
-                "where": f"seed {row['seed']}",
-                "reason": f["reason"],
-            }
-            for f in row["figures"]
-            if f["engine_dependent"]
-        ]
+    session_rows = [_session_row(loaded, seeds, seed, legged) for seed in ordered]
+    flagged = _flagged(totals, session_rows)
     order = [f["name"] for f in totals]
     dependent = sorted({f["figure"] for f in flagged}, key=order.index)
     labels = [_spec(n).label for n in dependent]
@@ -412,3 +351,70 @@ def compare(reports: Mapping[str, str | os.PathLike]) -> dict:
         "verdict": verdict,
         "warnings": option_warnings(loaded),
     }
+
+
+def _same(loaded: list[SoakReport], key: str, expected: str, ok: Callable[[Any], bool]) -> Any:
+    """``campaign.<key>`` of the first report, checked equal in every other (``Sim2SimError``
+    naming the file and both values where not)."""
+    first = loaded[0]
+    value = first.get(("campaign", key), expected, ok)
+    for r in loaded[1:]:
+        other = r.get(("campaign", key), expected, ok)
+        if other != value:
+            raise Sim2SimError(
+                f"{r.path}: field 'campaign.{key}': expected {value!r} as in "
+                f"{first.engine}'s report {first.path}, got {other!r} (a sim-to-sim "
+                "comparison runs the same campaign on every engine)"
+            )
+    return value
+
+
+def _seeds(loaded: list[SoakReport]) -> dict[str, dict[int, int]]:
+    """Engine -> seed -> index in its report's sessions; every engine the same seeds, none twice
+    (``Sim2SimError`` naming the file and field where not)."""
+    seeds: dict[str, dict[int, int]] = {}
+    for r in loaded:
+        sessions = r.get(("sessions",), "a list of sessions", lambda v: isinstance(v, list))
+        by_seed: dict[int, int] = {}
+        for i in range(len(sessions)):
+            seed = r.count(("sessions", i, "seed"))
+            if seed in by_seed:
+                raise Sim2SimError(
+                    f"{r.path}: field 'sessions[{i}].seed': expected a seed no other session "
+                    f"has, got {seed} (also sessions[{by_seed[seed]}])"
+                )
+            by_seed[seed] = i
+        seeds[r.engine] = by_seed
+    first = loaded[0]
+    ordered = sorted(seeds[first.engine])
+    if not ordered:
+        raise Sim2SimError(f"{first.path}: field 'sessions': expected one session or more, got []")
+    for r in loaded[1:]:
+        if sorted(seeds[r.engine]) != ordered:
+            raise Sim2SimError(
+                f"{r.path}: field 'sessions[].seed': expected the seeds {ordered} as in "
+                f"{first.engine}'s report {first.path}, got {sorted(seeds[r.engine])}"
+            )
+    return seeds
+
+
+def _session_row(loaded: list[SoakReport], seeds: dict, seed: int, legged: bool) -> dict:
+    """One seed's row: ``{seed, ids {engine: session id}, figures [figure]}``."""
+    per_engine, ids = {}, {}
+    for r in loaded:
+        i = seeds[r.engine][seed]
+        per_engine[r.engine] = read_figures(r, ("sessions", i), legged, totals=False)
+        ids[r.engine] = r.get(("sessions", i, "id"), "a session id", lambda v: isinstance(v, str))
+    return {"seed": seed, "ids": ids, "figures": _figure_table(per_engine)}
+
+
+def _flagged(totals: list[dict], session_rows: list[dict]) -> list[dict]:
+    """The engine-dependent figures, in totals then seed by seed: ``{figure, label, where,
+    reason}``."""
+    rows = [("totals", totals)] + [(f"seed {row['seed']}", row["figures"]) for row in session_rows]
+    return [
+        {"figure": f["name"], "label": f["label"], "where": where, "reason": f["reason"]}
+        for where, figures in rows
+        for f in figures
+        if f["engine_dependent"]
+    ]

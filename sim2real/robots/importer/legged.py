@@ -12,75 +12,23 @@ task region (velocity commands are a later issue).
 
 from __future__ import annotations
 
-import math
-import shlex
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from sim2real.robots.importer.floating_mjcf import (
-    FREE_JOINT,
-    IMU_SITE,
-    finish_floating_mjcf,
-    foot_with_geometry,
-)
+from sim2real.robots.importer.floating_mjcf import IMU_SITE, finish_floating_mjcf
+from sim2real.robots.importer.foot_sites import foot_with_geometry
+from sim2real.robots.importer.legged_toml import write_legged_toml
 from sim2real.robots.importer.model import SOFT_LIMIT_FRACTION, Motion, _sig
 from sim2real.robots.importer.source import PreparedSource, RobotImportError
-from sim2real.robots.importer.toml_text import (
-    _f,
-    all_joint_lines,
-    control_lines,
-    motor_table_lines,
-    pairs_lines,
-    sensor_lines,
-    sources_lines,
-)
-from sim2real.robots.importer.wheels import check_velocity_drives, kind_lines, wheel_joints
+from sim2real.robots.importer.wheels import check_velocity_drives, wheel_joints
 from sim2real.robots.packages import resolved_mjcf
 
 #: Link pairs closer than this at the home pose (m) are not checked and never collide in the
 #: plant: the importer's bounding boxes of neighbouring legs' links (the rear hips of go2 are
 #: 1-2 mm apart and touch as soon as the legs carry the body) overlap where the meshes do not.
 LEG_CLEARANCE = 0.01
-#: Normalizers of the seed's IMU noise figures (section 5 gives sigma on normalized readings):
-#: angular rate over 4 rad/s (legged_gym's ``obs_scales.ang_vel = 0.25``, i.e. 1 / 4 rad/s),
-#: acceleration over standard gravity.
-ANGULAR_RATE_SCALE = 4.0  # rad/s
-ACCELERATION_SCALE = 9.80665  # m/s^2
-#: Default IMU white noise: the middle of the specified ranges (angular rate 0.01-0.03,
-#: linear acceleration 0.03-0.08, normalized).
-GYRO_NOISE_SIGMA = 0.02 * ANGULAR_RATE_SCALE  # 0.08 rad/s
-ACCEL_NOISE_SIGMA = 0.055 * ACCELERATION_SCALE  # 0.54 m/s^2
-#: Turn-on bias, 1 sigma: a calibrated MEMS IMU of the Bosch BMI088 class (datasheet
-#: BST-BMI088-DS001: zero-rate offset +-1 deg/s, zero-g offset +-20 mg typical); we take
-#: 0.01 rad/s and 0.05 m/s^2 (about 5 mg, after the user's level calibration).
-GYRO_BIAS_SIGMA = 0.01  # rad/s
-ACCEL_BIAS_SIGMA = 0.05  # m/s^2
-#: Bias random walk: Kalibr's ADIS16448 example (gyroscope_random_walk 3.9e-5 rad/s^2/sqrt(Hz),
-#: accelerometer_random_walk 4.3e-4 m/s^3/sqrt(Hz)) inflated 10x for a robot's vibration and
-#: temperature, as Kalibr's "IMU Noise Model" page advises for real conditions.
-GYRO_BIAS_WALK = 4e-4  # rad/s/sqrt(s)
-#: rad/s, the noise of the joint velocity a drive reports (our estimate: a rotor encoder's count
-#: differenced at a 1 kHz or faster current loop and filtered, through the gear).
-VELOCITY_NOISE_SIGMA = 0.02
-#: The IMU's own attitude: roll and pitch error (rad, 0.5 deg: Xsens MTi-3 datasheet, static) and
-#: its correlation time (s, our choice).
-ORIENTATION_SIGMA = 0.0087
-ORIENTATION_TAU = 1.0
-ACCEL_BIAS_WALK = 4e-3  # m/s^2/sqrt(s)
-#: Foot force noise: the specified range (force sensors 0.05-0.10 normalized), the lower end, over
-#: the standing load of one foot (m g / n_feet). Contact threshold: 3 sigma above it, and at
-#: least 5 N.
-FORCE_NOISE_FRACTION = 0.05
-CONTACT_THRESHOLD_SIGMAS = 3.0
-#: The soak's pushes on the base (``[soak] push_force``): the largest gives the robot legged_gym's
-#: largest push, a base velocity change of ``PUSH_VELOCITY`` (unitree_rl_gym
-#: LeggedRobotCfg.domain_rand.max_push_vel_xy), over the longest push, ``PUSH_TIME`` (eval.
-#: fault_schedule.FaultRanges.push_duration); the smallest ``PUSH_LOW`` of it (our choice).
-PUSH_VELOCITY = 1.0  # m/s
-PUSH_TIME = 0.5  # s
-PUSH_LOW = 0.2
 
 
 def choose_feet(prepared: PreparedSource, flags: list[str]) -> list[str]:
@@ -182,152 +130,6 @@ def robot_mass(mjcf_path: Path) -> float:
     return float(model.body_subtreemass[0])
 
 
-def write_legged_toml(
-    path: Path,
-    *,
-    name: str,
-    prepared: PreparedSource,
-    mjcf: str,
-    joint_names: list[str],
-    limits: dict,
-    motion: Motion,
-    gains_from: dict[str, tuple[str, str]],
-    chosen: dict[str, str],
-    motor_cfg: dict,
-    pairs: list,
-    legged: dict,
-    imu_link: str,
-    mass: float,
-    control_rate: float,
-    physics_timestep: float,
-    home_from: str,
-    disabled_by: str | None,
-    lowered: list,
-    notes: list[str],
-    command: list[str],
-    motor_tables: dict | None = None,
-    target_limits: str = "pd",
-    tables: list[str] = (),
-    rates_from: tuple[str, str] = ("--control-rate", "--physics-timestep"),
-    pairs_apart: list = (),
-) -> None:
-    """robot.toml of a floating-base robot, a comment giving the reason of every value.
-
-    ``gains_from``: joint -> where its kp and its kd came from
-    (:meth:`sim2real.robots.importer.drive_sources.DriveChoice.gains_note`); ``notes``:
-    ``--note`` lines for the header (sources of flag values); ``command``: the command line
-    that regenerates the folder; ``motor_tables``: the motors given as files
-    (:func:`sim2real.robots.importer.model.motor_table_lines`); ``tables``: lines of more tables,
-    at the end (``[unitree]``: :mod:`sim2real.robots.importer.unitree`); ``rates_from``,
-    ``pairs_apart``: as :func:`sim2real.robots.importer.toml_text.write_robot_toml`'s.
-    """
-    kind = prepared.kind
-    motor_tables = motor_tables or {}
-    resolution = min(motor_cfg[m].encoder_resolution or 16384 for m in set(chosen.values()))
-    quantum = 2 * math.pi / resolution
-    feet = legged["feet"]
-    load = mass * ACCELERATION_SCALE / len(feet)
-    push = mass * PUSH_VELOCITY / PUSH_TIME  # N, the soak's largest push
-    force_sigma = _sig(FORCE_NOISE_FRACTION * load, 2)
-    threshold = _sig(max(5.0, CONTACT_THRESHOLD_SIGMAS * force_sigma), 2)
-    lines = [
-        f"# {name}: imported by robot-import --floating-base from {prepared.display}.",
-        "# Regenerate with (from the repository root):",
-        "#   " + " ".join(shlex.quote(a) for a in command),
-        *sources_lines(kind),
-        *[f"# {line}" for note in notes for line in note.splitlines()],
-        *control_lines(
-            name,
-            mjcf,
-            "joint position targets, PD at the physics rate",
-            (control_rate, physics_timestep),
-            home_from,
-            motion.home,
-            kind_lines(wheel_joints(joint_names, limits)),
-            rates_from=rates_from,
-        ),
-        "# acceleration_limit: 0.5 x (effort - worst gravity torque) / worst joint inertia with",
-        "# armature (rotor inertia x ratio^2), base held, 400 seeded poses; jerk_limit: 20 x",
-        "# acceleration. kp, kd: see the comment of each joint.",
-    ]
-    if target_limits == "pd":
-        lines += [
-            "# PD targets (robot-import --target-limits pd): acceleration_limit at least",
-            "# 4 x (effort / kp) / control_period^2 and jerk_limit at least acceleration_limit /",
-            "# (0.5 x control_period): a target may move, rest to rest within one control period,",
-            "# as far as the drive's full torque reaches (effort / kp), as a policy trained",
-            "# without a smoother steps it; command_velocity_limit, the target's speed in that",
-            "# move, 2 x (effort / kp) / control_period (the joint's own stays velocity_limit).",
-        ]
-    lines += all_joint_lines(joint_names, limits, prepared, lowered, motion, chosen, gains_from)
-    lines += [
-        "",
-        *sensor_lines(chosen, resolution, quantum, control_rate, "degC", motor_tables),
-        "# the joint velocity each drive reports with its angle (Unitree's motor_state.dq, from",
-        "# its rotor encoder at the current loop's rate): white noise, our estimate. Delete the",
-        "# line if the drives report none.",
-        f"velocity_noise_sigma = {_f(VELOCITY_NOISE_SIGMA)}  # rad/s",
-        "",
-        "# IMU at site 'imu' (link " + imu_link + "): Kalibr's noise model (robots/schema.py).",
-        "[sensors.imu]",
-        "# specified noise: angular rate sigma 0.01-0.03 over 4 rad/s (legged_gym ang_vel scale",
-        "# 0.25), linear acceleration 0.03-0.08 over g; the middle of each range",
-        f"gyro_noise_sigma = {_f(_sig(GYRO_NOISE_SIGMA, 3))}  # rad/s",
-        f"accel_noise_sigma = {_f(_sig(ACCEL_NOISE_SIGMA, 3))}  # m/s^2",
-        "# turn-on bias: BMI088-class MEMS (datasheet BST-BMI088-DS001: +-1 deg/s, +-20 mg",
-        "# typical), after a level calibration",
-        f"gyro_bias_sigma = {_f(GYRO_BIAS_SIGMA)}  # rad/s",
-        f"accel_bias_sigma = {_f(ACCEL_BIAS_SIGMA)}  # m/s^2",
-        "# bias random walk: Kalibr's ADIS16448 example x 10 (Kalibr wiki, 'IMU Noise Model')",
-        f"gyro_bias_walk = {_f(GYRO_BIAS_WALK)}  # rad/s/sqrt(s)",
-        f"accel_bias_walk = {_f(ACCEL_BIAS_WALK)}  # m/s^2/sqrt(s)",
-        f"rate = {_f(control_rate)}  # Hz, one reading a control tick",
-        "latency_ticks = 0",
-        "dropout = 0.0",
-        "# The IMU's own attitude, as a legged robot's AHRS sends it (Unitree's LowState",
-        "# imu_state.quaternion, the attitude unitree_rl_gym's deploy_real feeds its policies):",
-        "# roll and pitch errors as first-order Gauss-Markov processes (robots/schema.py); the",
-        "# static roll/pitch accuracy MEMS AHRS modules specify (Xsens MTi-3 datasheet: 0.5 deg;",
-        "# dynamic 1.0 deg), 1 s correlation. Delete both lines if the IMU sends no attitude.",
-        f"orientation_sigma = {_f(ORIENTATION_SIGMA)}  # rad",
-        f"orientation_tau = {_f(ORIENTATION_TAU)}  # s",
-        "",
-        "# Foot contact: the touch sensor's normal force (N) + noise, thresholded.",
-        "[sensors.contact]",
-        f"# noise: the specified force noise (0.05-0.10 normalized) x the standing load of a foot, "
-        f"{load:.1f} N",
-        f"force_noise_sigma = {_f(force_sigma)}  # N",
-        f"threshold = {_f(threshold)}  # N, {CONTACT_THRESHOLD_SIGMAS:g} noise sigmas, >= 5 N",
-        f"rate = {_f(control_rate)}  # Hz",
-        "latency_ticks = 0",
-        "",
-        "[safety]",
-        "# No end effector and no workspace box: a legged robot walks anywhere.",
-        *pairs_lines(disabled_by, pairs, floor=True, apart=pairs_apart),
-        "",
-        "[base]",
-        f'body = "{prepared.root_link}"  # carries the free joint "{FREE_JOINT}"',
-        f'imu_site = "{IMU_SITE}"',
-        "# foot sites (touch sensors) around each foot's collision geometry:",
-        *[f"#   {f}: {legged['foot_shapes'][f]}" for f in feet],
-        "feet = [" + ", ".join(f'"{f}"' for f in feet) + "]",
-        f"standing_height = {_f(legged['standing_height'])}  # m, base above the floor at home",
-        "",
-        "[soak]",
-        "# Pushes on the base: up to the impulse of legged_gym's largest push (a "
-        f"{PUSH_VELOCITY:g} m/s base velocity",
-        "# change, unitree_rl_gym LeggedRobotCfg.domain_rand.max_push_vel_xy) delivered over the "
-        "longest",
-        f"# push ({PUSH_TIME:g} s): {mass:.1f} kg x {PUSH_VELOCITY:g} m/s / {PUSH_TIME:g} s; the "
-        f"low end {PUSH_LOW:g} of it.",
-        f"push_force = [{_f(_sig(PUSH_LOW * push))}, {_f(_sig(push))}]  # N",
-        *motor_table_lines(motor_tables),
-        *tables,
-        "",
-    ]
-    path.write_text("\n".join(lines), encoding="utf-8")
-
-
 #: Jerk limit of a PD target per unit of its acceleration limit, in control periods: the full
 #: acceleration is reached within half a period (our choice, with ``pd_target_limits``).
 PD_JERK_PERIODS = 0.5
@@ -386,82 +188,21 @@ def import_floating_base(
             :func:`finish_floating_mjcf`, a bad ``--kp``/``--kd``/``--home`` flag or a home
             pose outside the limits, or a result that does not load.
     """
-    from sim2real.robots.importer import flags
     from sim2real.robots.importer.contact_pairs import write_pairs
-    from sim2real.robots.importer.drive_sources import RULE, choose, source_lines
-    from sim2real.robots.importer.model import LEGGED_MAX_ACCELERATION, derive_motion_limits
     from sim2real.robots.importer.staging import written_ranges
 
     urdf, spec, joint_names, log = job.urdf, job.spec, job.joint_names, job.log
-    chosen, motor_cfg, control_rate = job.chosen, job.motor_cfg, job.control_rate
-    foot_links = []
-    for foot in choose_feet(urdf, feet):
-        link, note = foot_with_geometry(spec, urdf, foot)
-        foot_links.append(link)
-        if note:
-            log(f"note: {note}")
-    imu_link, imu_site = choose_imu(urdf, imu, log)
-    at = f"site {imu_site} of link {imu_link}" if imu_site else f"link {imu_link}"
+    foot_links, (imu_link, imu_site) = _feet_and_imu(job, feet, imu)
     tables = []
     if unitree is not None:
         from sim2real.robots.importer.unitree import unitree_lines
 
         tables = unitree_lines(joint_names=joint_names, feet=foot_links, **unitree)
-    log(f"note: feet {foot_links}, IMU at {at}")
     limits_out = job.capped_limits()
-    expected = "JOINT=VALUE with a finite number (JOINT may be a pattern, e.g. '*_knee_joint=0.3')"
-    home_set, kp_set, kd_set = (
-        flags.per_joint(values, joint_names, flag, flags.finite, expected, urdf.path.name)
-        for flag, values in (("--home", home), ("--kp", kp), ("--kd", kd))
-    )
-    wheels = wheel_joints(joint_names, limits_out)  # kp 0 there: a velocity drive
-    for flag, values in (("--kp", kp_set), ("--kd", kd_set)):
-        bad = {j: v for j, v in values.items() if v < 0 or (flag == "--kp" and v == 0)}
-        bad = {j: v for j, v in bad.items() if not (flag == "--kp" and v == 0 and j in wheels)}
-        if bad:
-            raise RobotImportError(
-                f"{flag}: gains must be positive (kd may be 0, kp 0 on a continuous joint), "
-                f"got {bad}"
-            )
-
-    drive = choose(joint_names, {"kp": kp_set, "kd": kd_set, "home": home_set}, policy, urdf.drive)
-    for line in source_lines(drive, joint_names):
-        log(f"note: {line}")
-
-    def motion_now():
-        motion = derive_motion_limits(
-            spec, job.model, joint_names, limits_out, motor_cfg, chosen, LEGGED_MAX_ACCELERATION
-        )
-        for i, j in enumerate(joint_names):
-            motion.home[i] = drive.values["home"].get(j, motion.home[i])
-            motion.kp[i] = drive.values["kp"].get(j, motion.kp[i])
-            motion.kd[i] = drive.values["kd"].get(j, motion.kd[i])
-            lo, hi = limits_out[j][:2]
-            if not lo <= motion.home[i] <= hi:
-                raise RobotImportError(
-                    f"home pose ({drive.sources['home'][j]}): joint {j} at {motion.home[i]} rad "
-                    f"is outside its limits [{lo}, {hi}]"
-                )
-        speed = check_velocity_drives(joint_names, motion.kp, wheels, drive.sources["kp"])
-        if target_limits == "pd":  # a velocity drive (kp 0) takes no PD target
-            effort = np.array([limits_out[j][3] for j in joint_names])
-            kp_pd = np.where(speed, np.inf, motion.kp)
-            vel, acc, jerk = pd_target_limits(effort, kp_pd, 1.0 / control_rate)
-            soft = SOFT_LIMIT_FRACTION * np.array([limits_out[j][2] for j in joint_names])
-            motion.command_velocity = np.maximum(soft, vel)
-            motion.acceleration[:] = np.maximum(motion.acceleration, acc)
-            motion.jerk[:] = np.maximum(motion.jerk, jerk)
-        return motion
-
-    motion = motion_now()
+    drive, wheels = _drive(job, kp, kd, home, policy, limits_out)
+    motion = _motion(job, drive, limits_out, wheels, target_limits)
     gains_from = {j: drive.gains_note(j) for j in joint_names}
-    home_from = "; ".join(
-        line.removeprefix("home: ")
-        .removesuffix(" (every joint)")
-        .replace(RULE, "0 clipped into the soft limits")
-        for line in source_lines(drive, joint_names)
-        if line.startswith("home: ")
-    )
+    home_from = _home_from(drive, joint_names)
     with job.staged() as (work, mjcf_path):
         legged = finish_floating_mjcf(
             spec, urdf, foot_links, (imu_link, imu_site), joint_names, motion.home, mjcf_path
@@ -473,7 +214,7 @@ def import_floating_base(
             log(f"note: {line}")
         # the model's joint 0 is the free joint
         written = written_ranges(mjcf_path, joint_names, limits_out, first=1)
-        motion = motion_now()
+        motion = _motion(job, drive, limits_out, wheels, target_limits)
         pairs = job.collision_pairs(mjcf_path, written, motion.home, LEG_CLEARANCE)
         write_legged_toml(
             work / "robot.toml",
@@ -488,3 +229,101 @@ def import_floating_base(
             tables=tables,
             **job.toml_args(mjcf_path, limits_out, motion, pairs),
         )
+
+
+def _feet_and_imu(job, feet: list[str], imu: str | None) -> tuple[list[str], tuple]:
+    """The foot links (each the link carrying its geometry) and ``(imu link, MJCF site or
+    None)``, each choice printed."""
+    foot_links = []
+    for foot in choose_feet(job.urdf, feet):
+        link, note = foot_with_geometry(job.spec, job.urdf, foot)
+        foot_links.append(link)
+        if note:
+            job.log(f"note: {note}")
+    imu_link, imu_site = choose_imu(job.urdf, imu, job.log)
+    at = f"site {imu_site} of link {imu_link}" if imu_site else f"link {imu_link}"
+    job.log(f"note: feet {foot_links}, IMU at {at}")
+    return foot_links, (imu_link, imu_site)
+
+
+def _drive(job, kp: list[str], kd: list[str], home: list[str], policy, limits_out: dict):
+    """``(drive, wheels)``: each joint's kp, kd and home with its source
+    (:func:`sim2real.robots.importer.drive_sources.choose`, the sources printed), and the wheel
+    joints (kp 0 there: a velocity drive).
+
+    Raises:
+        RobotImportError: a bad flag, or a negative gain (kp 0 only on a wheel).
+    """
+    from sim2real.robots.importer import flags
+    from sim2real.robots.importer.drive_sources import choose, source_lines
+
+    joint_names = job.joint_names
+    expected = "JOINT=VALUE with a finite number (JOINT may be a pattern, e.g. '*_knee_joint=0.3')"
+    home_set, kp_set, kd_set = (
+        flags.per_joint(values, joint_names, flag, flags.finite, expected, job.urdf.path.name)
+        for flag, values in (("--home", home), ("--kp", kp), ("--kd", kd))
+    )
+    wheels = wheel_joints(joint_names, limits_out)
+    for flag, values in (("--kp", kp_set), ("--kd", kd_set)):
+        bad = {j: v for j, v in values.items() if v < 0 or (flag == "--kp" and v == 0)}
+        bad = {j: v for j, v in bad.items() if not (flag == "--kp" and v == 0 and j in wheels)}
+        if bad:
+            raise RobotImportError(
+                f"{flag}: gains must be positive (kd may be 0, kp 0 on a continuous joint), "
+                f"got {bad}"
+            )
+    drive = choose(
+        joint_names, {"kp": kp_set, "kd": kd_set, "home": home_set}, policy, job.urdf.drive
+    )
+    for line in source_lines(drive, joint_names):
+        job.log(f"note: {line}")
+    return drive, wheels
+
+
+def _motion(job, drive, limits_out: dict, wheels, target_limits: str) -> Motion:
+    """The joints' motion limits from the model as it stands (``job.model``), with the drive's
+    home, kp and kd; PD targets' limits widened (:func:`pd_target_limits`).
+
+    Raises:
+        RobotImportError: a home angle outside its joint's limits.
+    """
+    from sim2real.robots.importer.model import LEGGED_MAX_ACCELERATION, derive_motion_limits
+
+    joint_names = job.joint_names
+    motion = derive_motion_limits(
+        job.spec, job.model, joint_names, limits_out, job.motor_cfg, job.chosen,
+        LEGGED_MAX_ACCELERATION,
+    )  # fmt: skip
+    for i, j in enumerate(joint_names):
+        motion.home[i] = drive.values["home"].get(j, motion.home[i])
+        motion.kp[i] = drive.values["kp"].get(j, motion.kp[i])
+        motion.kd[i] = drive.values["kd"].get(j, motion.kd[i])
+        lo, hi = limits_out[j][:2]
+        if not lo <= motion.home[i] <= hi:
+            raise RobotImportError(
+                f"home pose ({drive.sources['home'][j]}): joint {j} at {motion.home[i]} rad "
+                f"is outside its limits [{lo}, {hi}]"
+            )
+    speed = check_velocity_drives(joint_names, motion.kp, wheels, drive.sources["kp"])
+    if target_limits == "pd":  # a velocity drive (kp 0) takes no PD target
+        effort = np.array([limits_out[j][3] for j in joint_names])
+        kp_pd = np.where(speed, np.inf, motion.kp)
+        vel, acc, jerk = pd_target_limits(effort, kp_pd, 1.0 / job.control_rate)
+        soft = SOFT_LIMIT_FRACTION * np.array([limits_out[j][2] for j in joint_names])
+        motion.command_velocity = np.maximum(soft, vel)
+        motion.acceleration[:] = np.maximum(motion.acceleration, acc)
+        motion.jerk[:] = np.maximum(motion.jerk, jerk)
+    return motion
+
+
+def _home_from(drive, joint_names: list[str]) -> str:
+    """Where the home pose came from, for robot.toml's comment."""
+    from sim2real.robots.importer.drive_sources import RULE, source_lines
+
+    return "; ".join(
+        line.removeprefix("home: ")
+        .removesuffix(" (every joint)")
+        .replace(RULE, "0 clipped into the soft limits")
+        for line in source_lines(drive, joint_names)
+        if line.startswith("home: ")
+    )

@@ -312,6 +312,17 @@ def write_robot_toml(
             chosen, resolution, quantum, control_rate, "degC, as servos report it", motor_tables
         ),
         "",
+        *_arm_safety_and_task_lines(workspace, disabled_by, pairs, pairs_apart),
+        *motor_table_lines(motor_tables),
+        "",
+    ]
+    path.write_text("\n".join(lines), encoding="utf-8")
+
+
+def _arm_safety_and_task_lines(workspace: dict, disabled_by, pairs, pairs_apart) -> list[str]:
+    """An arm's robot.toml ``[safety]`` (end-effector site, workspace box, checked pairs) and
+    ``[task]`` (the reach goals' box) from the importer's workspace sampling."""
+    return [
         "[safety]",
         'end_effector_site = "ee"',
         "# Box of every reachable end-effector position + 5 cm, cut 5 cm below the base (table).",
@@ -327,7 +338,4 @@ def write_robot_toml(
         f"box_min = {_vec(workspace['task_min'])}",
         f"box_max = {_vec(workspace['task_max'])}",
         f"success_radius = {_f(workspace['success_radius'])}  # m, 6 % of the reach",
-        *motor_table_lines(motor_tables),
-        "",
     ]
-    path.write_text("\n".join(lines), encoding="utf-8")

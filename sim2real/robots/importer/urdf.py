@@ -128,10 +128,54 @@ def prepare_urdf(
             ``--limit``), mesh that does not resolve, moving link without positive mass and
             inertia, floating base (several legs from the root), no movable joint.
     """
-    from sim2real.robots.importer import flags
-
     root = copy.deepcopy(root)
     notes: list[str] = []
+    links, joint_els = _unique_names(path, root)
+    limit_overrides = _limit_overrides(path, joint_els, limit_flags)
+    joints: dict[str, JointInfo] = {}
+    movable: list[str] = []
+    parent: dict[str, tuple[str, str, str]] = {}
+    for j in joint_els:
+        child, edge, info = _joint(path, j, set(links), limit_overrides, notes)
+        parent[child] = edge
+        if info is not None:
+            joints[info.name] = info
+            movable.append(info.name)
+    if not movable:
+        raise RobotImportError(f"{path}: <robot>: no revolute or continuous joint")
+    roots = [link for link in links if link not in parent]
+    if len(roots) != 1:
+        raise RobotImportError(f"{path}: <robot>: expected one root link, found {roots}")
+    if not floating_base and _legs(links, parent) >= 2:
+        raise RobotImportError(
+            f"{path}: <link name='{roots[0]}'>: several legs leave the root link: " + FLOATING_BASE
+        )
+    link_els = {link.get("name"): link for link in root.findall("link")}
+    for name in movable:
+        _check_inertia(path, link_els[joints[name].child], name)
+    meshdir_abs, meshdir_uri, fitted = _rewrite_meshes(
+        path, root, notes, drop_missing_meshes, link_boxes
+    )
+    _compile_for_mujoco(root, meshdir_abs)
+    return PreparedSource(
+        path=path,
+        display=_display(path),
+        text=ET.tostring(root, encoding="unicode"),
+        joints=joints,
+        movable=movable,
+        parent=parent,
+        links=links,
+        root_link=roots[0],
+        meshdir_abs=meshdir_abs,
+        meshdir_uri=meshdir_uri,
+        notes=notes,
+        fitted=fitted,
+    )
+
+
+def _unique_names(path: Path, root: ET.Element) -> tuple[list[str], list[ET.Element]]:
+    """The URDF's link names and ``<joint>`` elements, in file order (``RobotImportError`` on a
+    name given twice)."""
     links = [link.get("name") for link in root.findall("link")]
     seen: set[str] = set()
     for link in links:
@@ -147,12 +191,19 @@ def prepare_urdf(
                 f"{path}: <joint name='{name}'>: duplicate joint name; expected unique names"
             )
         names.add(name)
+    return links, joint_els
+
+
+def _limit_overrides(path: Path, joint_els: list[ET.Element], limit_flags: list[str]) -> dict:
+    """``--limit`` flags over the revolute and continuous joints: name -> (lower, upper) rad."""
+    from sim2real.robots.importer import flags
+
     rotary = [
         j.get("name")
         for j in joint_els
         if j.get("type") in ("revolute", "continuous") and j.find("mimic") is None
     ]
-    limit_overrides = flags.per_joint(
+    return flags.per_joint(
         limit_flags,
         rotary,
         "--limit",
@@ -162,77 +213,71 @@ def prepare_urdf(
         path.name,
     )
 
-    joints: dict[str, JointInfo] = {}
-    movable: list[str] = []
-    parent: dict[str, tuple[str, str, str]] = {}
-    for j in joint_els:
-        name, kind = j.get("name"), j.get("type")
-        par = j.find("parent").get("link") if j.find("parent") is not None else None
-        child = j.find("child").get("link") if j.find("child") is not None else None
-        if par not in seen or child not in seen:
-            raise RobotImportError(
-                f"{path}: <joint name='{name}'>: parent '{par}' / child '{child}' must be links "
-                "of the URDF"
-            )
-        if kind == "floating" or kind == "planar":
-            raise RobotImportError(f"{path}: <joint name='{name}' type='{kind}'>: " + FLOATING_BASE)
-        limit = j.find("limit")
-        if kind in ("prismatic",) or (kind in ("revolute", "continuous") and j.find("mimic")):
-            notes.append(
-                f"joint {name} ({kind}{', mimic' if j.find('mimic') is not None else ''}) frozen "
-                "at 0: the runtime drives revolute joints only"
-            )
-            _freeze(j)
-            kind = "fixed"
-        if kind == "fixed":
-            parent[child] = (par, name, "fixed")
-            continue
-        if kind not in ("revolute", "continuous"):
-            raise RobotImportError(
-                f"{path}: <joint name='{name}' type='{kind}'>: unsupported joint type; expected "
-                "revolute, continuous, prismatic (frozen) or fixed"
-            )
-        lower, upper = _float(limit, "lower"), _float(limit, "upper")
-        if name in limit_overrides:
-            lower, upper = limit_overrides[name]
-        if kind == "continuous" and (lower is None or upper is None or not lower < upper):
-            raise RobotImportError(
-                f"{path}: <joint name='{name}' type='continuous'>: no position limits; expected "
-                f"<limit lower=... upper=...> (rad) or --limit {name}=LOWER:UPPER"
-            )
-        if lower is None or upper is None or not lower < upper:
-            raise RobotImportError(
-                f"{path}: <joint name='{name}'><limit lower upper>: got {lower}, {upper}; "
-                f"expected lower < upper in rad (or --limit {name}=LOWER:UPPER)"
-            )
-        if limit is None:
-            limit = ET.SubElement(j, "limit")
-        limit.set("lower", repr(lower))
-        limit.set("upper", repr(upper))
-        j.set("type", "revolute")
-        joints[name] = JointInfo(
-            name, kind, par, child, lower, upper, _float(limit, "velocity"), _float(limit, "effort")
-        )
-        movable.append(name)
-        parent[child] = (par, name, kind)
-    if not movable:
-        raise RobotImportError(f"{path}: <robot>: no revolute or continuous joint")
-    roots = [link for link in links if link not in parent]
-    if len(roots) != 1:
-        raise RobotImportError(f"{path}: <robot>: expected one root link, found {roots}")
-    if not floating_base and _legs(links, parent) >= 2:
+
+def _joint(
+    path: Path, j: ET.Element, links: set[str], limit_overrides: dict, notes: list[str]
+) -> tuple[str, tuple[str, str, str], JointInfo | None]:
+    """One ``<joint>``: its child link, the child's edge ``(parent link, joint, kind)`` and,
+    for a joint the runtime drives, its :class:`JointInfo` (``None``: fixed or frozen). Rewrites
+    the element in place: a prismatic or mimic joint frozen (noted), a driven one a revolute
+    with its limits (``--limit`` winning).
+
+    Raises:
+        RobotImportError: a parent or child that is not a link, a floating or planar joint, an
+            unsupported type, a joint without ``lower < upper`` limits.
+    """
+    name, kind = j.get("name"), j.get("type")
+    par = j.find("parent").get("link") if j.find("parent") is not None else None
+    child = j.find("child").get("link") if j.find("child") is not None else None
+    if par not in links or child not in links:
         raise RobotImportError(
-            f"{path}: <link name='{roots[0]}'>: several legs leave the root link: " + FLOATING_BASE
+            f"{path}: <joint name='{name}'>: parent '{par}' / child '{child}' must be links "
+            "of the URDF"
         )
-
-    link_els = {link.get("name"): link for link in root.findall("link")}
-    for name in movable:
-        child = joints[name].child
-        _check_inertia(path, link_els[child], name)
-
-    meshdir_abs, meshdir_uri, fitted = _rewrite_meshes(
-        path, root, notes, drop_missing_meshes, link_boxes
+    if kind == "floating" or kind == "planar":
+        raise RobotImportError(f"{path}: <joint name='{name}' type='{kind}'>: " + FLOATING_BASE)
+    limit = j.find("limit")
+    if kind in ("prismatic",) or (kind in ("revolute", "continuous") and j.find("mimic")):
+        notes.append(
+            f"joint {name} ({kind}{', mimic' if j.find('mimic') is not None else ''}) frozen "
+            "at 0: the runtime drives revolute joints only"
+        )
+        _freeze(j)
+        kind = "fixed"
+    if kind == "fixed":
+        return child, (par, name, "fixed"), None
+    if kind not in ("revolute", "continuous"):
+        raise RobotImportError(
+            f"{path}: <joint name='{name}' type='{kind}'>: unsupported joint type; expected "
+            "revolute, continuous, prismatic (frozen) or fixed"
+        )
+    lower, upper = _float(limit, "lower"), _float(limit, "upper")
+    if name in limit_overrides:
+        lower, upper = limit_overrides[name]
+    if kind == "continuous" and (lower is None or upper is None or not lower < upper):
+        raise RobotImportError(
+            f"{path}: <joint name='{name}' type='continuous'>: no position limits; expected "
+            f"<limit lower=... upper=...> (rad) or --limit {name}=LOWER:UPPER"
+        )
+    if lower is None or upper is None or not lower < upper:
+        raise RobotImportError(
+            f"{path}: <joint name='{name}'><limit lower upper>: got {lower}, {upper}; "
+            f"expected lower < upper in rad (or --limit {name}=LOWER:UPPER)"
+        )
+    if limit is None:
+        limit = ET.SubElement(j, "limit")
+    limit.set("lower", repr(lower))
+    limit.set("upper", repr(upper))
+    j.set("type", "revolute")
+    info = JointInfo(
+        name, kind, par, child, lower, upper, _float(limit, "velocity"), _float(limit, "effort")
     )
+    return child, (par, name, kind), info
+
+
+def _compile_for_mujoco(root: ET.Element, meshdir_abs: str | None) -> None:
+    """Drop what MuJoCo's URDF compiler does not read (visuals, gazebo, transmissions, an old
+    ``<mujoco>``) and add its ``<compiler>`` (meshes by path, no visuals, no fusing)."""
     for link in root.findall("link"):
         for visual in link.findall("visual"):
             link.remove(visual)
@@ -251,20 +296,6 @@ def prepare_urdf(
     )
     if meshdir_abs is not None:
         compiler.set("meshdir", meshdir_abs)
-    return PreparedSource(
-        path=path,
-        display=_display(path),
-        text=ET.tostring(root, encoding="unicode"),
-        joints=joints,
-        movable=movable,
-        parent=parent,
-        links=links,
-        root_link=roots[0],
-        meshdir_abs=meshdir_abs,
-        meshdir_uri=meshdir_uri,
-        notes=notes,
-        fitted=fitted,
-    )
 
 
 def _freeze(j: ET.Element) -> None:
@@ -309,6 +340,45 @@ def _rewrite_meshes(
     collision elements). Returns ``(meshdir_abs, meshdir_uri, fitted)``: ``fitted`` the
     ``(link, k)`` of the boxes, ``k`` counting the link's ``<collision>`` elements (the order
     MuJoCo's geoms keep)."""
+    resolved = _resolve_meshes(path, root, notes, drop_missing)
+    keep = () if COLLISION_BOXES else MUJOCO_MESH_FORMATS
+    meshdir_abs, meshdir_uri = _meshdir(resolved, keep)
+    boxed: set[int] = set()
+    corners: dict[str, list[np.ndarray]] = {}
+    for link, el, file, _ in resolved:
+        mesh = el.find("geometry/mesh")
+        if file.suffix.lower() in keep:
+            mesh.set("filename", Path(os.path.relpath(file, meshdir_abs)).as_posix())
+            continue
+        boxed.add(id(el))
+        _box_mesh(link, el, file, corners if link_boxes else None)
+    for link in root.findall("link"):
+        if link.get("name") in corners:
+            boxed.add(id(_link_box(link, corners[link.get("name")])))
+    fitted = set()
+    for link in root.findall("link"):
+        for k, el in enumerate(link.findall("collision")):
+            if id(el) in boxed:
+                fitted.add((link.get("name"), k))
+    if corners:
+        meshes = sum(len(c) for c in corners.values())
+        notes.append(
+            f"{meshes} collision meshes replaced by one bounding box per link (--link-boxes)"
+        )
+    elif boxed:
+        notes.append(
+            f"{len(boxed)} collision meshes replaced by their bounding boxes in the mesh frame, "
+            "one box per mesh (COLLISION_BOXES)"
+        )
+    return meshdir_abs, meshdir_uri, fitted
+
+
+def _resolve_meshes(
+    path: Path, root: ET.Element, notes: list[str], drop_missing: bool
+) -> list[tuple[ET.Element, ET.Element, Path, str | None]]:
+    """Every collision mesh that resolves, as ``(link, element, file, package or None)``; a
+    missing mesh refused (``RobotImportError`` naming the first), or with ``drop_missing`` its
+    element dropped and noted."""
     resolved: list[tuple[ET.Element, ET.Element, Path, str | None]] = []
     missing: list[tuple[ET.Element, ET.Element, str, Path, str]] = []
     for link in root.findall("link"):
@@ -332,69 +402,57 @@ def _rewrite_meshes(
     for link, el, uri, _, tag in missing:
         link.remove(el)
         notes.append(f"link {link.get('name')}: <{tag}> mesh '{uri}' missing: dropped")
-    keep = () if COLLISION_BOXES else MUJOCO_MESH_FORMATS
+    return resolved
+
+
+def _meshdir(resolved: list, keep: tuple) -> tuple[str | None, str]:
+    """The one folder the kept meshes are referred to from: ``(absolute path or None, as
+    written: a package URI where they all come from one package, else the path)``."""
     files = [f for _, _, f, _ in resolved if f.suffix.lower() in keep]
+    if not files:
+        return None, ""
     packages = {p for _, _, f, p in resolved if f.suffix.lower() in keep}
-    meshdir_abs, meshdir_uri = None, ""
-    if files:
-        if len(packages) == 1 and None not in packages:
-            package = next(iter(packages))
-            base = package_root(package)
-            meshdir_uri = f"{PACKAGE_SCHEME}{package}"
-        else:
-            base = Path(os.path.commonpath([str(f.parent) for f in files]))
-            meshdir_uri = str(base)
-        meshdir_abs = base.as_posix()
-    boxed: set[int] = set()
-    corners: dict[str, list[np.ndarray]] = {}
-    for link, el, file, _ in resolved:
-        mesh = el.find("geometry/mesh")
-        if file.suffix.lower() in keep:
-            mesh.set("filename", Path(os.path.relpath(file, meshdir_abs)).as_posix())
-            continue
-        scale = np.array([float(x) for x in (mesh.get("scale") or "1 1 1").split()])
-        centre, size = _box_from_mesh(file, scale)
-        origin = el.find("origin")
-        xyz = np.array([float(x) for x in (_attr(origin, "xyz") or "0 0 0").split()])
-        rpy = np.array([float(x) for x in (_attr(origin, "rpy") or "0 0 0").split()])
-        boxed.add(id(el))
-        if link_boxes:
-            signs = np.array(list(itertools.product((-0.5, 0.5), repeat=3)))
-            pts = xyz + (centre + signs * size) @ _rpy_matrix(rpy).T
-            corners.setdefault(link.get("name"), []).append(pts)
-            link.remove(el)
-            continue
-        # the box keeps the mesh's frame: its centre moves into the element's origin
-        if origin is None:
-            origin = ET.SubElement(el, "origin")
-        origin.set("xyz", " ".join(repr(float(v)) for v in xyz + _rpy_matrix(rpy) @ centre))
-        origin.set("rpy", " ".join(repr(float(v)) for v in rpy))
-        geometry = el.find("geometry")
-        geometry.remove(mesh)
-        ET.SubElement(geometry, "box", size=" ".join(repr(float(v)) for v in size))
-    for link in root.findall("link"):
-        if link.get("name") not in corners:
-            continue
-        pts = np.vstack(corners[link.get("name")])
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        col = ET.SubElement(link, "collision")
-        ET.SubElement(col, "origin", xyz=" ".join(repr(float(v)) for v in (lo + hi) / 2))
-        geometry = ET.SubElement(col, "geometry")
-        ET.SubElement(geometry, "box", size=" ".join(repr(float(v)) for v in hi - lo))
-        boxed.add(id(col))
-    fitted = set()
-    for link in root.findall("link"):
-        for k, el in enumerate(link.findall("collision")):
-            if id(el) in boxed:
-                fitted.add((link.get("name"), k))
-    if corners:
-        meshes = sum(len(c) for c in corners.values())
-        notes.append(
-            f"{meshes} collision meshes replaced by one bounding box per link (--link-boxes)"
-        )
-    elif boxed:
-        notes.append(
-            f"{len(boxed)} collision meshes replaced by their bounding boxes in the mesh frame, "
-            "one box per mesh (COLLISION_BOXES)"
-        )
-    return meshdir_abs, meshdir_uri, fitted
+    if len(packages) == 1 and None not in packages:
+        package = next(iter(packages))
+        base = package_root(package)
+        meshdir_uri = f"{PACKAGE_SCHEME}{package}"
+    else:
+        base = Path(os.path.commonpath([str(f.parent) for f in files]))
+        meshdir_uri = str(base)
+    return base.as_posix(), meshdir_uri
+
+
+def _box_mesh(link: ET.Element, el: ET.Element, file: Path, corners: dict | None) -> None:
+    """A collision mesh's bounding box: in place of the mesh, in its frame (its centre moved
+    into the element's origin); or, given ``corners`` (``--link-boxes``), the box's corners in
+    the link frame added to the link's list and the element removed."""
+    mesh = el.find("geometry/mesh")
+    scale = np.array([float(x) for x in (mesh.get("scale") or "1 1 1").split()])
+    centre, size = _box_from_mesh(file, scale)
+    origin = el.find("origin")
+    xyz = np.array([float(x) for x in (_attr(origin, "xyz") or "0 0 0").split()])
+    rpy = np.array([float(x) for x in (_attr(origin, "rpy") or "0 0 0").split()])
+    if corners is not None:
+        signs = np.array(list(itertools.product((-0.5, 0.5), repeat=3)))
+        pts = xyz + (centre + signs * size) @ _rpy_matrix(rpy).T
+        corners.setdefault(link.get("name"), []).append(pts)
+        link.remove(el)
+        return
+    if origin is None:
+        origin = ET.SubElement(el, "origin")
+    origin.set("xyz", " ".join(repr(float(v)) for v in xyz + _rpy_matrix(rpy) @ centre))
+    origin.set("rpy", " ".join(repr(float(v)) for v in rpy))
+    geometry = el.find("geometry")
+    geometry.remove(mesh)
+    ET.SubElement(geometry, "box", size=" ".join(repr(float(v)) for v in size))
+
+
+def _link_box(link: ET.Element, corners: list[np.ndarray]) -> ET.Element:
+    """One collision box around ``corners`` (link frame), appended to the link; returned."""
+    pts = np.vstack(corners)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    col = ET.SubElement(link, "collision")
+    ET.SubElement(col, "origin", xyz=" ".join(repr(float(v)) for v in (lo + hi) / 2))
+    geometry = ET.SubElement(col, "geometry")
+    ET.SubElement(geometry, "box", size=" ".join(repr(float(v)) for v in hi - lo))
+    return col

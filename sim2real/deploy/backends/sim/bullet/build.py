@@ -56,7 +56,7 @@ ROTOR_GEAR_RATIO = 30.0
 ROTOR_MASS = 1e-4
 
 
-#: createMultiBody's per-link arguments, in the order of ``_build``'s ``link_args``.
+#: createMultiBody's per-link arguments, in the order of ``_Tree.link_args``.
 _LINK_FIELDS = (
     "linkMasses",
     "linkCollisionShapeIndices",
@@ -162,113 +162,158 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
     )
     # the bodies of the robot: the root's subtree, in MuJoCo's (parents first) order
     robot = [b for b in range(m.nbody) if b == root or _descends(m, b, root)]
-    links = robot[1:]
-    anchors = {b: _anchor(m, b) for b in robot}
-    shapes = {
-        b: [s for g in body_geoms(m, b) if (s := geom_shape(m, g, anchors[b], meshdir))]
-        for b in robot
-    }
+    tree = _Tree(m, robot, meshdir)
+    rotors = (
+        {r.body: r for r in _rotors(m, robot[1:], tree.axes, tree.placement)} if floating else {}
+    )
+    tree.order_links(root, rotors)
+    self_collision = any(
+        bodies_collide(m, a, b) for i, a in enumerate(robot) for b in robot[i + 1 :]
+    )
+    body = _create_body(client, m, root, floating, tree, self_collision)
+    joint_index = _set_dynamics(client, m, body, tree)
+    if len(joint_index) != n_joints:
+        raise UnsupportedModelError(
+            f"the model has {len(joint_index)} hinge or slide joints; the robot has {n_joints}"
+        )
+    if self_collision:
+        _filter_pairs(client, m, body, robot, tree.link_of_body)
+    _build_world_geoms(client, m, body, robot, tree.link_of_body, meshdir)
+    rotor_index = _gear_rotors(client, body, rotors, tree, joint_index)
+    inertial = tree.inertials[root]
+    com = np.asarray(inertial[0]) if floating else np.zeros(3)
+    com_quat = wxyz(inertial[1]) if floating else np.array([1.0, 0, 0, 0])
+    return BulletWorld(
+        client, body, tree.link_of_body, joint_index, com, com_quat, floating, rotor_index
+    )
 
-    kinds, axes = {}, {}  # per body of ``links``
-    for b in links:
-        if m.body_jntnum[b] > 1:
-            raise UnsupportedModelError(
-                f"body '{m.body(b).name}' has {m.body_jntnum[b]} joints; pybullet links take one"
-            )
-        if m.body_jntnum[b] == 0:
-            kinds[b], axes[b] = pb.JOINT_FIXED, [0.0, 0.0, 1.0]
-            continue
-        j = int(m.body_jntadr[b])
-        if int(m.jnt_type[j]) not in _JOINT:
-            raise UnsupportedModelError(
-                f"joint '{m.joint(j).name}': type {mujoco.mjtJoint(m.jnt_type[j]).name} has no "
-                "pybullet link joint here (expected hinge or slide)"
-            )
-        kinds[b] = _JOINT[int(m.jnt_type[j])]
-        axes[b] = (m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j])).tolist()
 
-    def placement(b: int) -> tuple[list, list]:
-        """Link frame of ``b`` in its parent's link frame."""
-        parent = int(m.body_parentid[b])
-        rot = quat_to_mat(m.body_quat[b])
-        pos = m.body_pos[b] + rot @ anchors[b] - anchors[parent]
-        return pos.tolist(), xyzw(m.body_quat[b])
+class _Tree:
+    """The robot's bodies as pybullet links: each link's joint kind and axis, its placement in
+    its parent's link frame, its inertial frame and shapes, and (:meth:`order_links`) pybullet's
+    link order with the rotors.
 
-    inertials = {b: inertial_frame(m, b, anchors[b]) for b in robot}
-    rotors = {r.body: r for r in _rotors(m, links, axes, placement)} if floating else {}
-    # pybullet orders the links depth first, each link's children in the order given: a rotor
-    # goes just before the link it drives (its sibling), so that this order is pybullet's
-    order: list = []
-    for b in links:
-        if b in rotors:
-            order.append(rotors[b])
-        order.append(b)
-    link_of_body = np.full(m.nbody, -2, dtype=np.int64)
-    link_of_body[root] = -1
-    rotor_link = {}
-    for i, entry in enumerate(order):
-        if isinstance(entry, _Rotor):
-            rotor_link[entry.body] = i
-        else:
-            link_of_body[entry] = i
+    Raises:
+        UnsupportedModelError: a body with several joints, or a joint neither hinge nor slide.
+    """
 
-    def parent_of(entry) -> int:
+    def __init__(self, m: mujoco.MjModel, robot: list[int], meshdir: Path):
+        self.m, self.robot = m, robot
+        self.anchors = {b: _anchor(m, b) for b in robot}
+        self.shapes = {
+            b: [s for g in body_geoms(m, b) if (s := geom_shape(m, g, self.anchors[b], meshdir))]
+            for b in robot
+        }
+        self.inertials = {b: inertial_frame(m, b, self.anchors[b]) for b in robot}
+        self.kinds, self.axes = {}, {}  # per link body
+        for b in robot[1:]:
+            self.kinds[b], self.axes[b] = _link_joint(m, b)
+
+    def placement(self, b: int) -> tuple[list, list]:
+        """Link frame of ``b`` in its parent's link frame: (position, xyzw orientation)."""
+        parent = int(self.m.body_parentid[b])
+        rot = quat_to_mat(self.m.body_quat[b])
+        pos = self.m.body_pos[b] + rot @ self.anchors[b] - self.anchors[parent]
+        return pos.tolist(), xyzw(self.m.body_quat[b])
+
+    def order_links(self, root: int, rotors: dict) -> None:
+        """pybullet orders the links depth first, each link's children in the order given: a
+        rotor goes just before the link it drives (its sibling), so that this order is
+        pybullet's. Sets ``order``, ``link_of_body`` ((nbody,), -1 the base, -2 the world) and
+        ``rotor_link`` (body -> its rotor's link)."""
+        self.order: list = []
+        for b in self.robot[1:]:
+            if b in rotors:
+                self.order.append(rotors[b])
+            self.order.append(b)
+        self.link_of_body = np.full(self.m.nbody, -2, dtype=np.int64)
+        self.link_of_body[root] = -1
+        self.rotor_link = {}
+        for i, entry in enumerate(self.order):
+            if isinstance(entry, _Rotor):
+                self.rotor_link[entry.body] = i
+            else:
+                self.link_of_body[entry] = i
+
+    def parent_of(self, entry) -> int:
+        """createMultiBody's parent index of a body or a rotor (0 the base)."""
         b = entry.body if isinstance(entry, _Rotor) else entry
-        return int(link_of_body[m.body_parentid[b]]) + 1
+        return int(self.link_of_body[self.m.body_parentid[b]]) + 1
 
-    def link_args(entry) -> tuple:
+    def link_args(self, client: int, entry) -> tuple:
         """createMultiBody's per-link arguments of a body or a rotor, in ``_LINK_FIELDS`` order."""
         if isinstance(entry, _Rotor):
             return (
                 ROTOR_MASS, -1, entry.position, entry.orientation, [0.0, 0.0, 0.0],
-                entry.inertial_orientation, parent_of(entry), pb.JOINT_REVOLUTE, entry.axis,
+                entry.inertial_orientation, self.parent_of(entry), pb.JOINT_REVOLUTE, entry.axis,
             )  # fmt: skip
-        position, orientation = placement(entry)
+        position, orientation = self.placement(entry)
+        inertial = self.inertials[entry]
         return (
-            float(m.body_mass[entry]), collision_shape(client, shapes[entry]), position,
-            orientation, inertials[entry][0], inertials[entry][1], parent_of(entry),
-            kinds[entry], axes[entry],
+            float(self.m.body_mass[entry]), collision_shape(client, self.shapes[entry]), position,
+            orientation, inertial[0], inertial[1], self.parent_of(entry),
+            self.kinds[entry], self.axes[entry],
         )  # fmt: skip
 
-    args = [link_args(entry) for entry in order]
-    per_link = {name: [a[k] for a in args] for k, name in enumerate(_LINK_FIELDS)}
-    root_pos, root_quat = m.body_pos[root] + anchors[root], m.body_quat[root]
-    if floating:  # the free joint's reference pose
-        j = int(m.body_jntadr[root])
-        root_pos, root_quat = (
-            m.qpos0[m.jnt_qposadr[j] : m.jnt_qposadr[j] + 3],
-            m.qpos0[m.jnt_qposadr[j] + 3 : m.jnt_qposadr[j] + 7],
+
+def _link_joint(m: mujoco.MjModel, b: int) -> tuple[int, list]:
+    """Body ``b``'s pybullet joint type and unit axis (fixed for a body without a joint)."""
+    if m.body_jntnum[b] > 1:
+        raise UnsupportedModelError(
+            f"body '{m.body(b).name}' has {m.body_jntnum[b]} joints; pybullet links take one"
         )
-    self_collision = any(
-        bodies_collide(m, a, b) for i, a in enumerate(robot) for b in robot[i + 1 :]
-    )
+    if m.body_jntnum[b] == 0:
+        return pb.JOINT_FIXED, [0.0, 0.0, 1.0]
+    j = int(m.body_jntadr[b])
+    if int(m.jnt_type[j]) not in _JOINT:
+        raise UnsupportedModelError(
+            f"joint '{m.joint(j).name}': type {mujoco.mjtJoint(m.jnt_type[j]).name} has no "
+            "pybullet link joint here (expected hinge or slide)"
+        )
+    return _JOINT[int(m.jnt_type[j])], (m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j])).tolist()
+
+
+def _create_body(client, m, root: int, floating: bool, tree: _Tree, self_collision: bool) -> int:
+    """The robot's multibody at the model's reference pose; its link order checked against
+    ``tree.order`` (``UnsupportedModelError`` if pybullet reordered them)."""
+    args = [tree.link_args(client, entry) for entry in tree.order]
+    per_link = {name: [a[k] for a in args] for k, name in enumerate(_LINK_FIELDS)}
+    root_pos, root_quat = m.body_pos[root] + tree.anchors[root], m.body_quat[root]
+    if floating:  # the free joint's reference pose
+        a = int(m.jnt_qposadr[int(m.body_jntadr[root])])
+        root_pos, root_quat = m.qpos0[a : a + 3], m.qpos0[a + 3 : a + 7]
+    inertial = tree.inertials[root]
     body = pb.createMultiBody(
         baseMass=float(m.body_mass[root]) if floating else 0.0,
-        baseCollisionShapeIndex=collision_shape(client, shapes[root]),
+        baseCollisionShapeIndex=collision_shape(client, tree.shapes[root]),
         basePosition=np.asarray(root_pos).tolist(),
         baseOrientation=xyzw(np.asarray(root_quat)),
-        baseInertialFramePosition=inertials[root][0],
-        baseInertialFrameOrientation=inertials[root][1],
-        linkVisualShapeIndices=[-1] * len(order),
+        baseInertialFramePosition=inertial[0],
+        baseInertialFrameOrientation=inertial[1],
+        linkVisualShapeIndices=[-1] * len(tree.order),
         **per_link,
         flags=pb.URDF_USE_SELF_COLLISION if self_collision else 0,
         physicsClientId=client,
     )
-    for i, entry in enumerate(order):
+    for i, entry in enumerate(tree.order):
         got = pb.getJointInfo(body, i, physicsClientId=client)[16]
-        if got != parent_of(entry) - 1:
+        if got != tree.parent_of(entry) - 1:
             raise UnsupportedModelError(
                 f"pybullet reordered the links of body '{m.body(root).name}' (link {i}: parent "
-                f"{got}, expected {parent_of(entry) - 1}); expected MuJoCo's depth-first order"
+                f"{got}, expected {tree.parent_of(entry) - 1}); expected MuJoCo's depth-first order"
             )
-    # exact inertias (createMultiBody derives them from the shapes), no extra damping
-    for b in robot:
-        link = int(link_of_body[b])
+    return body
+
+
+def _set_dynamics(client: int, m: mujoco.MjModel, body: int, tree: _Tree) -> list[int]:
+    """Exact inertias (createMultiBody derives them from the shapes), no extra damping, the
+    joints' limits; returns the pybullet joint index of each MuJoCo hinge or slide, in order."""
+    for b in tree.robot:
         change_dynamics(
             client,
             body,
-            link,
-            localInertiaDiagonal=inertials[b][2],
+            int(tree.link_of_body[b]),
+            localInertiaDiagonal=tree.inertials[b][2],
             linearDamping=0.0,
             angularDamping=0.0,
             lateralFriction=1.0,
@@ -278,8 +323,7 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
     for j in range(m.njnt):
         if int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_FREE):
             continue
-        b = int(m.jnt_bodyid[j])
-        link = int(link_of_body[b])
+        link = int(tree.link_of_body[int(m.jnt_bodyid[j])])
         if link < 0:
             raise UnsupportedModelError(f"joint '{m.joint(j).name}' is outside the robot's tree")
         joint_index.append(link)
@@ -287,26 +331,30 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
         if m.jnt_limited[j]:
             lo, hi = m.jnt_range[j]
             change_dynamics(client, body, link, jointLimits=(float(lo), float(hi)))
-    if len(joint_index) != n_joints:
-        raise UnsupportedModelError(
-            f"the model has {len(joint_index)} hinge or slide joints; the robot has {n_joints}"
-        )
-    if self_collision:
-        for i, a in enumerate(robot):
-            for b in robot[i + 1 :]:
-                if not bodies_collide(m, a, b):
-                    pb.setCollisionFilterPair(
-                        body,
-                        body,
-                        int(link_of_body[a]),
-                        int(link_of_body[b]),
-                        0,
-                        physicsClientId=client,
-                    )
-    _build_world_geoms(client, m, body, robot, link_of_body, meshdir)
+    return joint_index
+
+
+def _filter_pairs(client: int, m: mujoco.MjModel, body: int, robot, link_of_body) -> None:
+    """Self-collision off for every pair of the robot's bodies MuJoCo would not collide."""
+    for i, a in enumerate(robot):
+        for b in robot[i + 1 :]:
+            if not bodies_collide(m, a, b):
+                pb.setCollisionFilterPair(
+                    body,
+                    body,
+                    int(link_of_body[a]),
+                    int(link_of_body[b]),
+                    0,
+                    physicsClientId=client,
+                )
+
+
+def _gear_rotors(client: int, body: int, rotors: dict, tree: _Tree, joint_index) -> list[int]:
+    """Each rotor's inertia and its gear constraint to its joint (velocities only); returns the
+    rotor link of each joint (-1: none)."""
     rotor_index = [-1] * len(joint_index)
     for b, r in rotors.items():
-        link, drives = rotor_link[b], int(link_of_body[b])
+        link, drives = tree.rotor_link[b], int(tree.link_of_body[b])
         rotor_index[joint_index.index(drives)] = link
         change_dynamics(
             client,
@@ -334,7 +382,7 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
             gear, gearRatio=1.0 / ROTOR_GEAR_RATIO, maxForce=1e9, erp=0.0, physicsClientId=client
         )
     if rotors:  # no motor of their own
-        spinning = sorted(rotor_link.values())
+        spinning = sorted(tree.rotor_link.values())
         pb.setJointMotorControlArray(
             body,
             spinning,
@@ -342,11 +390,7 @@ def _build(client: int, m: mujoco.MjModel, root: int, n_joints: int, floating: b
             forces=[0.0] * len(spinning),
             physicsClientId=client,
         )
-    com = np.asarray(inertials[root][0]) if floating else np.zeros(3)
-    com_quat = wxyz(inertials[root][1]) if floating else np.array([1.0, 0, 0, 0])
-    return BulletWorld(
-        client, body, link_of_body, joint_index, com, com_quat, floating, rotor_index
-    )
+    return rotor_index
 
 
 @dataclass

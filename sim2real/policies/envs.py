@@ -194,16 +194,7 @@ class ReachTask:
         spec: PolicySpec | None = None,
         seed: int = 0,
     ):
-        config = config or ReachConfig()
-        if config.sensors is None or config.dynamics is None or config.fault_ranges is None:
-            soak = session_ranges(robot)
-            config = replace(
-                config,
-                sensors=soak.sensors if config.sensors is None else config.sensors,
-                dynamics=soak.dynamics if config.dynamics is None else config.dynamics,
-                fault_ranges=soak.faults if config.fault_ranges is None else config.fault_ranges,
-            )
-        self.config = config
+        self.config = config = _with_soak_ranges(robot, config or ReachConfig())
         self.spec = spec or PolicySpec.for_robot(
             robot, mode=config.mode, reference=config.reference
         )
@@ -233,20 +224,7 @@ class ReachTask:
         #: issued, reached, missed). :meth:`step` runs the stages itself, in the tick's order but
         #: without the runtime's supervision (no RAMP_IN, no safe stops: an episode ends instead),
         #: the learner's action given to it, so the runtime's policy slot is never called.
-        self.rig = Rig(
-            robot,
-            LearnerPolicy(self.spec, envs),
-            self.backend,
-            envs=envs,
-            task={
-                "period": config.goal_timeout,
-                "rng": self.rng,
-                "clock": self.t_episode,
-                "success_radius": self.success_radius,
-            },
-            truth=False,
-            reset_task=False,
-        )
+        self.rig = self._rig(config)
         rt = self.rig.runtime
         self.estimator, self.kinematics, self.state = rt.estimator, rt.kinematics, rt.state
         self.guard, self.smoother = rt.guard, rt.smoother
@@ -280,6 +258,25 @@ class ReachTask:
         self.monitor = self.rig.interventions
         self.monitor.resync()
         self._any_before = np.zeros(envs, dtype=np.int64)
+
+    def _rig(self, config: ReachConfig) -> Rig:
+        """The run (:mod:`sim2real.deploy.rig`): the runtime's stages with the learner in the
+        policy's slot, the chained goals on the episodes' clock, no truth, no task reset."""
+        robot, envs = self.robot, self.envs
+        return Rig(
+            robot,
+            LearnerPolicy(self.spec, envs),
+            self.backend,
+            envs=envs,
+            task={
+                "period": config.goal_timeout,
+                "rng": self.rng,
+                "clock": self.t_episode,
+                "success_radius": self.success_radius,
+            },
+            truth=False,
+            reset_task=False,
+        )
 
     # ------------------------------------------------------------------ resets
     def reset(self, which: np.ndarray) -> None:
@@ -469,3 +466,21 @@ class ArmReachEnv(gym.Env):
         obs, reward, terminated, truncated = self.task.step(np.asarray(action)[None])
         info = self.task.episode_info(0)
         return obs[0].copy(), float(reward[0]), bool(terminated[0]), bool(truncated[0]), info
+
+
+def _with_soak_ranges(robot: Robot, config: ReachConfig) -> ReachConfig:
+    """``config`` with the soak's ranges of ``robot`` where it gives no sensors, dynamics or
+    fault ranges of its own."""
+    if (
+        config.sensors is not None
+        and config.dynamics is not None
+        and config.fault_ranges is not None
+    ):
+        return config
+    soak = session_ranges(robot)
+    return replace(
+        config,
+        sensors=soak.sensors if config.sensors is None else config.sensors,
+        dynamics=soak.dynamics if config.dynamics is None else config.dynamics,
+        fault_ranges=soak.faults if config.fault_ranges is None else config.fault_ranges,
+    )

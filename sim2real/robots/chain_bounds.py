@@ -8,7 +8,8 @@ joint and its distance from the origin, :func:`gravity_bound` each joint's gravi
 about a fixed vertical axis), :func:`holding_command_limit` the fastest command a fixed base's
 motors can follow under gravity, :func:`collision_pair_weights` how fast each listed
 collision pair approaches per radian of each joint, :func:`collision_pair_nesting` which of those
-joints lie below which. The guard's screens
+joints lie below which, :func:`axis_levers` the end effector's displacement per joint along each
+world axis. The guard's screens
 (:mod:`sim2real.deploy.safety.guard`), the motion envelope (:mod:`sim2real.deploy.safety.envelope`), the
 violation monitor and the plant's derating floor are built on them.
 """
@@ -278,3 +279,26 @@ def holding_command_limit(robot: Robot) -> np.ndarray:
     held = np.maximum(holding_speed(robot), MIN_COMMAND_SHARE * robot.velocity_limit)
     own = np.array([j.command_velocity_limit is not None for j in robot.config.joints])
     return np.where(own, limit, np.minimum(limit, held))
+
+
+def axis_levers(robot, ee_lever: np.ndarray) -> np.ndarray:
+    """(3, n) m/rad, bound of the end effector's displacement along world x, y, z per radian of
+    each joint: ``ee_lever`` (n,), times ``|e_k x a_i|`` where joint ``i``'s axis ``a_i`` keeps
+    its world direction in every configuration (every joint above it turns about a parallel
+    axis; a rotation about ``a_i`` moves points perpendicular to it), else times 1."""
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, d)
+    ids = [m.joint(name).id for name in robot.joint_names]
+    out = np.tile(np.asarray(ee_lever, dtype=float), (3, 1))
+    for i, j in enumerate(ids):
+        axis = d.xaxis[j] / np.linalg.norm(d.xaxis[j])
+        body, invariant = m.jnt_bodyid[j], m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
+        for k in range(m.njnt):
+            if k == j or not invariant or not descends(m, body, m.jnt_bodyid[k]):
+                continue
+            if np.linalg.norm(np.cross(d.xaxis[k], axis)) > 1e-9 * np.linalg.norm(d.xaxis[k]):
+                invariant = False
+        if invariant:
+            out[:, i] *= np.linalg.norm(np.cross(np.eye(3), axis), axis=1)
+    return out

@@ -168,31 +168,115 @@ def load_robot(name_or_path: str | Path) -> Robot:
             ``crosscheck.AGREEMENT_TOLERANCE`` at ``AGREEMENT_SAMPLES`` random configurations.
     """
     toml_path = resolve_robot_toml(name_or_path).resolve()
+    cfg = _read_config(toml_path)
+    described_mjcf = (toml_path.parent / cfg.mjcf).resolve()
+    if not described_mjcf.is_file():
+        raise RobotSpecError(f"{toml_path}: field 'mjcf': file {described_mjcf} does not exist")
+    _check_mjcf_radians(described_mjcf)
+    mjcf = resolved_mjcf(described_mjcf)
+    mj_model, j0 = _mujoco_model(toml_path, mjcf, cfg)
+    names = tuple(j.name for j in cfg.joints)
+    floating = cfg.base is not None
+    lower, upper = _position_limits(toml_path, mjcf, mj_model, cfg, j0)
+    decimation, home = _control(toml_path, cfg, lower, upper)
+    site = cfg.safety.end_effector_site
+    ee_site_id = -1 if site is None else mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_SITE, site)
+    if site is not None and ee_site_id < 0:
+        raise RobotSpecError(
+            f"{toml_path}: field 'safety.end_effector_site' = '{site}' is not a site of {mjcf.name}"
+        )
+    pin_model, ee_frame_id = _pinocchio_model(mjcf, mj_model, cfg, j0)
+    legged = _base_frames(toml_path, mjcf, mj_model, pin_model, cfg) if floating else {}
+    sites = [ee_site_id] if ee_site_id >= 0 else []
+    frames = [ee_frame_id] if ee_frame_id >= 0 else []
+    sites += list(legged.get("foot_site_ids", ()))
+    frames += list(legged.get("foot_frame_ids", ()))
+    check_agreement(mjcf, mj_model, pin_model, sites, frames, lower, upper, floating)
+    ctl = cfg.control
+
+    digest = description_hash(cfg, described_mjcf.read_bytes())
+    robot = Robot(
+        name=cfg.name,
+        directory=toml_path.parent,
+        mjcf_path=mjcf,
+        config=cfg,
+        joint_names=names,
+        **_limit_fields(cfg, lower, upper),
+        motors=tuple(cfg.motors[j.motor] for j in cfg.joints),
+        home=_readonly(home),
+        control_period=1.0 / ctl.control_rate,
+        physics_timestep=ctl.physics_timestep,
+        decimation=decimation,
+        mj_model=mj_model,
+        pin_model=pin_model,
+        ee_frame_id=ee_frame_id,
+        ee_site_id=ee_site_id,
+        description_hash=digest,
+        **legged,
+    )
+    # commands a fixed base's motors can follow under gravity
+    from sim2real.robots.chain_bounds import holding_command_limit
+
+    limit = holding_command_limit(robot)
+    if np.array_equal(limit, robot.command_velocity_limit):
+        return robot
+    return dataclasses.replace(robot, command_velocity_limit=_readonly(limit))
+
+
+def _limit_fields(cfg: RobotConfig, lower: np.ndarray, upper: np.ndarray) -> dict[str, np.ndarray]:
+    """The :class:`Robot`'s per-joint limits, read-only (n,) arrays: position (rad), the soft
+    position limits (``soft_limit_fraction`` of each range about its centre; a continuous
+    joint's infinite), velocity and its soft and command limits (rad/s), acceleration, jerk
+    and effort."""
+    frac = np.array([j.soft_limit_fraction for j in cfg.joints])
+    velocity = np.array([j.velocity_limit for j in cfg.joints])
+    soft_velocity = frac * velocity
+    finite_lo, finite_hi = sampling_bounds(lower, upper)
+    centre = np.where(continuous_mask(lower, upper), 0.0, (finite_hi + finite_lo) / 2.0)
+    half = (upper - lower) / 2.0  # inf for a continuous joint: its soft limits are infinite too
+    return {
+        "position_lower": _readonly(lower),
+        "position_upper": _readonly(upper),
+        "soft_lower": _readonly(centre - frac * half),
+        "soft_upper": _readonly(centre + frac * half),
+        "velocity_limit": _readonly(velocity),
+        "soft_velocity_limit": _readonly(soft_velocity),
+        "command_velocity_limit": _readonly(
+            [
+                soft if j.command_velocity_limit is None else j.command_velocity_limit
+                for j, soft in zip(cfg.joints, soft_velocity, strict=True)
+            ]
+        ),
+        "acceleration_limit": _readonly([j.acceleration_limit for j in cfg.joints]),
+        "jerk_limit": _readonly([j.jerk_limit for j in cfg.joints]),
+        "effort_limit": _readonly([j.effort_limit for j in cfg.joints]),
+    }
+
+
+def _read_config(toml_path: Path) -> RobotConfig:
+    """robot.toml read, its catalog motors merged in, validated (``RobotSpecError`` naming the
+    file and field)."""
     try:
-        raw_bytes = toml_path.read_bytes()
-        raw = tomllib.loads(raw_bytes.decode("utf-8"))
+        raw = tomllib.loads(toml_path.read_bytes().decode("utf-8"))
     except OSError as exc:
         raise RobotSpecError(f"{toml_path}: cannot read: {exc}") from exc
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise RobotSpecError(f"{toml_path}: not valid TOML: {exc}") from exc
     _merge_catalog_motors(raw, toml_path)
     try:
-        cfg = RobotConfig.model_validate(raw)
+        return RobotConfig.model_validate(raw)
     except ValidationError as exc:
         raise RobotSpecError(_format_validation_error(toml_path, exc)) from None
 
-    described_mjcf = (toml_path.parent / cfg.mjcf).resolve()
-    if not described_mjcf.is_file():
-        raise RobotSpecError(f"{toml_path}: field 'mjcf': file {described_mjcf} does not exist")
-    _check_mjcf_radians(described_mjcf)
-    mjcf = resolved_mjcf(described_mjcf)
 
+def _mujoco_model(toml_path: Path, mjcf: Path, cfg: RobotConfig) -> tuple[mujoco.MjModel, int]:
+    """The compiled MJCF and the index of its first robot joint (1 after a free joint): its
+    joints robot.toml's, by name and in order, all hinges (``RobotSpecError`` where not)."""
     try:
         mj_model = mujoco.MjModel.from_xml_path(str(mjcf))
     except ValueError as exc:
         raise RobotSpecError(f"{mjcf}: MuJoCo cannot compile it: {exc}") from exc
     names = tuple(j.name for j in cfg.joints)
-    floating = cfg.base is not None
     j0 = _check_free_joint(toml_path, mjcf, mj_model, cfg)
     mj_names = tuple(mj_model.joint(i).name for i in range(j0, mj_model.njnt))
     if mj_names != names:
@@ -205,7 +289,12 @@ def load_robot(name_or_path: str | Path) -> Robot:
             f"{mjcf}: only hinge joints are supported (besides one free joint of a "
             "floating-base robot's [base] body)"
         )
+    return mj_model, j0
 
+
+def _position_limits(toml_path: Path, mjcf: Path, mj_model, cfg: RobotConfig, j0: int):
+    """(n,) rad lower and upper limits (infinite for a continuous joint), each the MJCF's range
+    (``RobotSpecError`` where robot.toml and the MJCF differ)."""
     lower = np.array([-np.inf if j.continuous else j.position_limit[0] for j in cfg.joints])
     upper = np.array([np.inf if j.continuous else j.position_limit[1] for j in cfg.joints])
     for i, joint in enumerate(cfg.joints):
@@ -226,7 +315,12 @@ def load_robot(name_or_path: str | Path) -> Robot:
                 f"differs from the MJCF range of joint '{joint.name}' "
                 f"({list(mj_model.jnt_range[k]) if mj_model.jnt_limited[k] else 'unlimited'})"
             )
+    return lower, upper
 
+
+def _control(toml_path: Path, cfg: RobotConfig, lower, upper) -> tuple[int, np.ndarray]:
+    """``(decimation, home)``: physics steps per control period (the control rate an integer
+    fraction of the physics rate) and the home pose within the limits (``RobotSpecError``)."""
     ctl = cfg.control
     ratio = 1.0 / (ctl.control_rate * ctl.physics_timestep)
     decimation = int(round(ratio))
@@ -240,14 +334,16 @@ def load_robot(name_or_path: str | Path) -> Robot:
         raise RobotSpecError(
             f"{toml_path}: field 'control.home' = {ctl.home} is outside the joint limits"
         )
+    return decimation, home
 
-    site = cfg.safety.end_effector_site
-    ee_site_id = -1 if site is None else mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_SITE, site)
-    if site is not None and ee_site_id < 0:
-        raise RobotSpecError(
-            f"{toml_path}: field 'safety.end_effector_site' = '{site}' is not a site of {mjcf.name}"
-        )
 
+def _pinocchio_model(mjcf: Path, mj_model, cfg: RobotConfig, j0: int):
+    """``(pin_model, ee_frame_id)``: Pinocchio's model of the MJCF, its joints robot.toml's and
+    its root a free flyer where the robot floats, MuJoCo's gravity, the joints' velocity and
+    effort limits; the end-effector site's frame (-1: none). ``RobotSpecError`` where Pinocchio
+    refuses or reads otherwise."""
+    names = tuple(j.name for j in cfg.joints)
+    floating = cfg.base is not None
     try:
         pin_model = pin.buildModelFromMJCF(str(mjcf))
     except Exception as exc:  # noqa: BLE001 - Pinocchio's parser raises anything (IndexError, ...)
@@ -273,67 +369,14 @@ def load_robot(name_or_path: str | Path) -> Robot:
     if hasattr(pin_model, "lowerVelocityLimit"):
         pin_model.lowerVelocityLimit = -pin_model.upperVelocityLimit
         pin_model.lowerEffortLimit = -pin_model.upperEffortLimit
-    ee_frame_id = -1
-    if site is not None:
-        # an MJCF site is an OP_FRAME (a body of the same name is a BODY frame: asked without
-        # the type, Pinocchio raises "Several frames match the filter")
-        if not pin_model.existFrame(site, pin.FrameType.OP_FRAME):
-            raise RobotSpecError(f"{mjcf}: Pinocchio has no frame for site '{site}'")
-        ee_frame_id = pin_model.getFrameId(site, pin.FrameType.OP_FRAME)
-    legged = _base_frames(toml_path, mjcf, mj_model, pin_model, cfg) if floating else {}
-    sites = [ee_site_id] if ee_site_id >= 0 else []
-    frames = [ee_frame_id] if ee_frame_id >= 0 else []
-    sites += list(legged.get("foot_site_ids", ()))
-    frames += list(legged.get("foot_frame_ids", ()))
-    check_agreement(mjcf, mj_model, pin_model, sites, frames, lower, upper, floating)
-
-    frac = np.array([j.soft_limit_fraction for j in cfg.joints])
-    velocity = np.array([j.velocity_limit for j in cfg.joints])
-    soft_velocity = frac * velocity
-    finite_lo, finite_hi = sampling_bounds(lower, upper)
-    centre = np.where(continuous_mask(lower, upper), 0.0, (finite_hi + finite_lo) / 2.0)
-    half = (upper - lower) / 2.0  # inf for a continuous joint: its soft limits are infinite too
-    digest = description_hash(cfg, described_mjcf.read_bytes())
-    robot = Robot(
-        name=cfg.name,
-        directory=toml_path.parent,
-        mjcf_path=mjcf,
-        config=cfg,
-        joint_names=names,
-        position_lower=_readonly(lower),
-        position_upper=_readonly(upper),
-        soft_lower=_readonly(centre - frac * half),
-        soft_upper=_readonly(centre + frac * half),
-        velocity_limit=_readonly(velocity),
-        soft_velocity_limit=_readonly(soft_velocity),
-        command_velocity_limit=_readonly(
-            [
-                soft if j.command_velocity_limit is None else j.command_velocity_limit
-                for j, soft in zip(cfg.joints, soft_velocity, strict=True)
-            ]
-        ),
-        acceleration_limit=_readonly([j.acceleration_limit for j in cfg.joints]),
-        jerk_limit=_readonly([j.jerk_limit for j in cfg.joints]),
-        effort_limit=_readonly([j.effort_limit for j in cfg.joints]),
-        motors=tuple(cfg.motors[j.motor] for j in cfg.joints),
-        home=_readonly(home),
-        control_period=1.0 / ctl.control_rate,
-        physics_timestep=ctl.physics_timestep,
-        decimation=decimation,
-        mj_model=mj_model,
-        pin_model=pin_model,
-        ee_frame_id=ee_frame_id,
-        ee_site_id=ee_site_id,
-        description_hash=digest,
-        **legged,
-    )
-    # commands a fixed base's motors can follow under gravity
-    from sim2real.robots.chain_bounds import holding_command_limit
-
-    limit = holding_command_limit(robot)
-    if np.array_equal(limit, robot.command_velocity_limit):
-        return robot
-    return dataclasses.replace(robot, command_velocity_limit=_readonly(limit))
+    site = cfg.safety.end_effector_site
+    if site is None:
+        return pin_model, -1
+    # an MJCF site is an OP_FRAME (a body of the same name is a BODY frame: asked without the
+    # type, Pinocchio raises "Several frames match the filter")
+    if not pin_model.existFrame(site, pin.FrameType.OP_FRAME):
+        raise RobotSpecError(f"{mjcf}: Pinocchio has no frame for site '{site}'")
+    return pin_model, pin_model.getFrameId(site, pin.FrameType.OP_FRAME)
 
 
 #: What the description hash leaves out: the robot's ``kind`` (how the toolkit assembles the

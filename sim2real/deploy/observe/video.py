@@ -108,36 +108,9 @@ class VideoRecorder:
         self.model, self.data = m, mujoco.MjData(m)
         self.qpos_adr = np.array([m.joint(name).qposadr[0] for name in robot.joint_names])
         self.joint_body = np.array([m.joint(name).bodyid[0] for name in robot.joint_names])
-        if camera is not None:
-            if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
-                cams = [m.camera(i).name for i in range(m.ncam)]
-                raise ValueError(f"--camera {camera!r}: not in the model (cameras: {cams})")
-            self.camera = camera
-        else:
-            cam = mujoco.MjvCamera()
-            mujoco.mjv_defaultFreeCamera(m, cam)
-            mujoco.mj_kinematics(m, self.data)
-            cam.lookat[:] = self.data.xpos[1]  # the robot's base body
-            cam.distance = 2.4 * m.stat.extent  # the reach fills the frame (fovy 45 deg)
-            g = m.opt.gravity
-            if abs(g[1]) > abs(g[2]):  # Y-up scene (arm3): look down the Z axis
-                cam.azimuth, cam.elevation = 90.0, -89.9
-            else:
-                cam.azimuth, cam.elevation = 135.0, -25.0
-            self.camera = cam
+        self.camera = _camera(m, self.data, camera)
         mujoco.mj_kinematics(m, self.data)
-        try:
-            self.renderer = mujoco.Renderer(m, self.height, self.width)
-            # no shadows, reflections or skybox: 3x the frame rate on a software renderer
-            for flag in ("mjRND_SHADOW", "mjRND_REFLECTION", "mjRND_SKYBOX"):
-                self.renderer.scene.flags[getattr(mujoco.mjtRndFlag, flag)] = False
-        except Exception as exc:  # noqa: BLE001 - every GL backend fails differently
-            backend = os.environ.get("MUJOCO_GL", "(unset)")
-            text = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-            raise RuntimeError(
-                f"no OpenGL context with MUJOCO_GL={backend} ({text}); headless machines need "
-                "MUJOCO_GL=egl (libegl1, libgl1) or MUJOCO_GL=osmesa (libosmesa6, PyOpenGL)"
-            ) from None
+        self.renderer = _renderer(m, self.height, self.width)
         self.true_state = true_state
         self.goal_radius = float(robot.config.task.success_radius)
         self._tmp = self.path.with_name(self.path.name + ".part.mp4")
@@ -291,6 +264,49 @@ class _Env0:
 
     def __init__(self, state):
         self.q = state.q[:1]
+
+
+def _camera(m, data, camera: str | None):
+    """The model's camera named ``camera`` (``ValueError`` when it has none so named), else a
+    free camera on the robot's base whose frame its reach fills."""
+    import mujoco
+
+    if camera is not None:
+        if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
+            cams = [m.camera(i).name for i in range(m.ncam)]
+            raise ValueError(f"--camera {camera!r}: not in the model (cameras: {cams})")
+        return camera
+    cam = mujoco.MjvCamera()
+    mujoco.mjv_defaultFreeCamera(m, cam)
+    mujoco.mj_kinematics(m, data)
+    cam.lookat[:] = data.xpos[1]  # the robot's base body
+    cam.distance = 2.4 * m.stat.extent  # the reach fills the frame (fovy 45 deg)
+    g = m.opt.gravity
+    if abs(g[1]) > abs(g[2]):  # Y-up scene (arm3): look down the Z axis
+        cam.azimuth, cam.elevation = 90.0, -89.9
+    else:
+        cam.azimuth, cam.elevation = 135.0, -25.0
+    return cam
+
+
+def _renderer(m, height: int, width: int):
+    """MuJoCo's offscreen renderer without shadows, reflections or skybox (3x the frame rate on
+    a software renderer); ``RuntimeError`` naming ``MUJOCO_GL`` and what a headless machine
+    needs when no OpenGL context can be made."""
+    import mujoco
+
+    try:
+        renderer = mujoco.Renderer(m, height, width)
+        for flag in ("mjRND_SHADOW", "mjRND_REFLECTION", "mjRND_SKYBOX"):
+            renderer.scene.flags[getattr(mujoco.mjtRndFlag, flag)] = False
+    except Exception as exc:  # noqa: BLE001 - every GL backend fails differently
+        backend = os.environ.get("MUJOCO_GL", "(unset)")
+        text = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        raise RuntimeError(
+            f"no OpenGL context with MUJOCO_GL={backend} ({text}); headless machines need "
+            "MUJOCO_GL=egl (libegl1, libgl1) or MUJOCO_GL=osmesa (libosmesa6, PyOpenGL)"
+        ) from None
+    return renderer
 
 
 def open_video(args, robot, backend) -> VideoRecorder | None:

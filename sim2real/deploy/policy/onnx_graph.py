@@ -117,45 +117,56 @@ def check_graph(
             f"as inputs (its inputs: {names})"
         )
     state_outs = {o.name for _, o in pairs} | ({GODOT_STATE[1]} if godot else set())
-    actions = [o for o in graph.output if o.name not in state_outs]
-    if len(actions) == 1:
-        out = actions[0]
-    else:
-        named = [o for o in actions if o.name in ("action", "actions")]
-        if len(named) != 1:
-            raise PolicyLoadError(
-                f"{path}: the graph has outputs {[o.name for o in graph.output]}; expected one "
-                "action output (besides recurrent state outputs '<name>_out'), or one named "
-                "'action' or 'actions'"
-            )
-        out = named[0]
+    out = _action_output(path, graph, state_outs)
     for kind, vi, size, what in (
         ("input", inp, spec.obs_dim, "observation"),
         ("output", out, spec.action.outputs, "action"),
     ):
-        _check_float32(path, kind, vi)
-        dims = _dims(vi)
-        if vi.type.tensor_type.HasField("shape") and len(dims) != 2:
-            raise PolicyLoadError(
-                f"{path}: graph {kind} '{vi.name}' has shape {dims}, expected [batch, {size}]"
-            )
-        if dims and isinstance(dims[-1], int) and dims[-1] != size:
-            parts = (
-                " + ".join(f"{b.name} {b.size}" for b in spec.observation_blocks)
-                if kind == "input"
-                else f"{spec.action.mode} x {spec.action.size} joints"
-            )
-            if kind == "input" and spec.history is not None:
-                parts = f"{parts}, over a history of {spec.history.length} ticks"
-            raise PolicyLoadError(
-                f"{path}: graph {kind} '{vi.name}' has size {dims[-1]}, the spec's {what} "
-                f"has {size} ({parts}; shape {dims}): the spec must describe the model's "
-                f"{what} entry for entry"
-            )
+        _check_size(path, spec, kind, vi, size, what)
     in_dims = _dims(inp)
     fixed = in_dims[0] if in_dims and isinstance(in_dims[0], int) and in_dims[0] > 0 else 0
     states = tuple(_check_state(path, i, o, fixed, init.get(i.name)) for i, o in pairs)
     return inp.name, out.name, fixed, states, constant_specs
+
+
+def _action_output(path: Path, graph, state_outs: set[str]):
+    """The graph's one action output (besides the recurrent state outputs), or the one named
+    ``action`` or ``actions`` (``PolicyLoadError`` where neither)."""
+    actions = [o for o in graph.output if o.name not in state_outs]
+    if len(actions) == 1:
+        return actions[0]
+    named = [o for o in actions if o.name in ("action", "actions")]
+    if len(named) != 1:
+        raise PolicyLoadError(
+            f"{path}: the graph has outputs {[o.name for o in graph.output]}; expected one "
+            "action output (besides recurrent state outputs '<name>_out'), or one named "
+            "'action' or 'actions'"
+        )
+    return named[0]
+
+
+def _check_size(path: Path, spec: PolicySpec, kind: str, vi, size: int, what: str) -> None:
+    """The observation input or the action output: float32, ``[batch, size]`` as the spec
+    says (``PolicyLoadError`` naming the spec's entries where not)."""
+    _check_float32(path, kind, vi)
+    dims = _dims(vi)
+    if vi.type.tensor_type.HasField("shape") and len(dims) != 2:
+        raise PolicyLoadError(
+            f"{path}: graph {kind} '{vi.name}' has shape {dims}, expected [batch, {size}]"
+        )
+    if dims and isinstance(dims[-1], int) and dims[-1] != size:
+        parts = (
+            " + ".join(f"{b.name} {b.size}" for b in spec.observation_blocks)
+            if kind == "input"
+            else f"{spec.action.mode} x {spec.action.size} joints"
+        )
+        if kind == "input" and spec.history is not None:
+            parts = f"{parts}, over a history of {spec.history.length} ticks"
+        raise PolicyLoadError(
+            f"{path}: graph {kind} '{vi.name}' has size {dims[-1]}, the spec's {what} "
+            f"has {size} ({parts}; shape {dims}): the spec must describe the model's "
+            f"{what} entry for entry"
+        )
 
 
 def _constant_shape(

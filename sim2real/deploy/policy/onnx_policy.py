@@ -77,17 +77,7 @@ class OnnxPolicy:
         check_hash: bool = True,
     ):
         self.path = path = Path(path)
-        model = read_model(path)
-        if check_external_data(model, path):
-            try:
-                onnx.load_external_data_for_model(model, str(path.parent))
-            except Exception as exc:  # noqa: BLE001
-                raise PolicyLoadError(f"{path}: cannot read external data: {exc}") from None
-        try:
-            onnx.checker.check_model(model)
-        except Exception as exc:  # noqa: BLE001 - onnx.checker.ValidationError
-            raise PolicyLoadError(f"{path}: the ONNX checker rejects the model: {exc}") from None
-        check_finite_weights(model, path)
+        model = _checked_model(path)
         self.metadata: dict[str, str] = {p.key: p.value for p in model.metadata_props}
         #: The training stack's own contract the spec was built from (None: ours or --spec).
         self.spec, self.foreign = resolve_spec(path, spec, model, robot, self.metadata)
@@ -112,22 +102,7 @@ class OnnxPolicy:
         #: graph output i drives spec-order joint _joints[i] (None: the same order)
         self._joints = None if not joints else np.asarray(joints, dtype=np.intp)
 
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = 1
-        options.inter_op_num_threads = 1
-        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        # No busy-waiting thread beside the control loop, should a thread pool ever be made
-        # (holosoma and openpilot set it too); with one intra-op thread the call is unchanged.
-        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        options.add_session_config_entry("session.inter_op.allow_spinning", "0")
-        try:
-            # From the validated bytes: ONNX Runtime never reads the path again.
-            self.session = ort.InferenceSession(
-                model.SerializeToString(), options, providers=["CPUExecutionProvider"]
-            )
-        except Exception as exc:  # noqa: BLE001 - onnxruntime raises its own exception types
-            raise PolicyLoadError(f"{path}: ONNX Runtime cannot load the model: {exc}") from None
+        self.session = _session(model, path)
         self._binding = self.session.io_binding()
         self._run = self._runner()
         #: after the graph ran: the scatter into joint order and the recurrent states' copy
@@ -379,3 +354,40 @@ class OnnxPolicy:
             f"OnnxPolicy('{self.path}', robot='{self.spec.robot}', obs_dim={self.obs_dim}, "
             f"act_dim={self.act_dim}, mode='{self.spec.action.mode}'{kind})"
         )
+
+
+def _checked_model(path: Path) -> onnx.ModelProto:
+    """The ONNX file read, its external data inlined, passed by ONNX's checker, its weights
+    finite (``PolicyLoadError`` naming the file where not)."""
+    model = read_model(path)
+    if check_external_data(model, path):
+        try:
+            onnx.load_external_data_for_model(model, str(path.parent))
+        except Exception as exc:  # noqa: BLE001
+            raise PolicyLoadError(f"{path}: cannot read external data: {exc}") from None
+    try:
+        onnx.checker.check_model(model)
+    except Exception as exc:  # noqa: BLE001 - onnx.checker.ValidationError
+        raise PolicyLoadError(f"{path}: the ONNX checker rejects the model: {exc}") from None
+    check_finite_weights(model, path)
+    return model
+
+
+def _session(model: onnx.ModelProto, path: Path) -> ort.InferenceSession:
+    """ONNX Runtime's session of the validated bytes (it never reads the path again): one
+    thread, sequential, every graph optimization, no spinning thread beside the control loop."""
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = 1
+    options.inter_op_num_threads = 1
+    options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    # No busy-waiting thread beside the control loop, should a thread pool ever be made
+    # (holosoma and openpilot set it too); with one intra-op thread the call is unchanged.
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    options.add_session_config_entry("session.inter_op.allow_spinning", "0")
+    try:
+        return ort.InferenceSession(
+            model.SerializeToString(), options, providers=["CPUExecutionProvider"]
+        )
+    except Exception as exc:  # noqa: BLE001 - onnxruntime raises its own exception types
+        raise PolicyLoadError(f"{path}: ONNX Runtime cannot load the model: {exc}") from None

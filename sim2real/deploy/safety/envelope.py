@@ -24,7 +24,6 @@ How a motion is certified: :class:`MotionEnvelope`.
 
 from __future__ import annotations
 
-import mujoco
 import numpy as np
 from ruckig import (
     ControlInterface,
@@ -40,7 +39,7 @@ from sim2real.deploy.safety import envelope_kernel as ek
 from sim2real.deploy.safety.envelope_query import EnvelopeQueries
 from sim2real.deploy.safety.local_reach import LocalReach
 from sim2real.deploy.safety.pair_grid import PairTables, pair_grids
-from sim2real.robots.chain_bounds import descends
+from sim2real.robots.chain_bounds import axis_levers
 
 #: m, default clearance kept between listed collision geometries and from the workspace box's
 #: faces: our choice, a few times the joint estimate's error times a lever of about a metre, plus
@@ -55,29 +54,6 @@ MIN_HEADROOM = 0.05
 #: estimate, and "no closer than now" then let a ur5 pressed down by its policy random-walk
 #: through its box's floor; a servo's command path has no such noise.
 TORQUE_ESCAPE = 1e-3
-
-
-def axis_levers(robot, ee_lever: np.ndarray) -> np.ndarray:
-    """(3, n) m/rad, bound of the end effector's displacement along world x, y, z per radian of
-    each joint: ``ee_lever`` (n,), times ``|e_k x a_i|`` where joint ``i``'s axis ``a_i`` keeps
-    its world direction in every configuration (every joint above it turns about a parallel
-    axis; a rotation about ``a_i`` moves points perpendicular to it), else times 1."""
-    m = robot.mj_model
-    d = mujoco.MjData(m)
-    mujoco.mj_kinematics(m, d)
-    ids = [m.joint(name).id for name in robot.joint_names]
-    out = np.tile(np.asarray(ee_lever, dtype=float), (3, 1))
-    for i, j in enumerate(ids):
-        axis = d.xaxis[j] / np.linalg.norm(d.xaxis[j])
-        body, invariant = m.jnt_bodyid[j], m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
-        for k in range(m.njnt):
-            if k == j or not invariant or not descends(m, body, m.jnt_bodyid[k]):
-                continue
-            if np.linalg.norm(np.cross(d.xaxis[k], axis)) > 1e-9 * np.linalg.norm(d.xaxis[k]):
-                invariant = False
-        if invariant:
-            out[:, i] *= np.linalg.norm(np.cross(np.eye(3), axis), axis=1)
-    return out
 
 
 class MotionEnvelope(EnvelopeQueries):
@@ -179,34 +155,10 @@ class MotionEnvelope(EnvelopeQueries):
         # the end effector's chain: Pinocchio's joints from the base to it, and their q indices
         frame = self.model.frames[robot.ee_frame_id]
         self._ee_chain = [j for j in self.model.supports[frame.parentJoint] if j > 0]
-        if self.has_workspace:  # a face beyond the longest chain's reach can never be crossed
-            reach = (1.0 + tol) * reach
-            self.ws_min = np.where(np.array(s.workspace_min) <= -reach, -np.inf, s.workspace_min)
-            self.ws_max = np.where(np.array(s.workspace_max) >= reach, np.inf, s.workspace_max)
-        # (4, n): the smoother's acceleration and jerk limits, the worst gravity load's share of
-        # each effort limit, MIN_HEADROOM
-        self.limits = np.stack(
-            [
-                robot.acceleration_limit,
-                robot.jerk_limit,
-                np.asarray(gravity_bound) / robot.effort_limit,
-                np.full(n, MIN_HEADROOM),
-            ]
-        )
-        if torque is not None:  # the guard's computed-torque stop, not the smoother's brake
-            self.limits[:2] = torque.brake_limits
-        #: (pairs,) bool, the pairs the joints between their links cannot bring into contact
-        #: (:func:`sim2real.deploy.safety.pair_grid.pairs_kept_apart`): left out of the certification (their
-        #: distance reads as infinite), so a gripper's jaw closing next to its wrist brakes nothing
-        self.apart = np.zeros(0, dtype=bool)
-        #: the other pairs' lower-bound tables over the joints that move them
-        #: (:class:`sim2real.deploy.safety.pair_grid.PairTables`), from the same grids
-        self.tables = PairTables.empty(self.pairs)
-        if self.pairs:
-            self.apart, self.tables = pair_grids(robot, geometry, pair_weights)
-        #: the pairs' local approach bounds (:class:`sim2real.deploy.safety.local_reach.LocalReach`)
-        self.local = LocalReach(robot, geometry)
-        self.queries = 0
+        if self.has_workspace:
+            self._set_workspace(reach, s)
+        self._set_limits(gravity_bound, torque)
+        self._set_pair_bounds(geometry, pair_weights)
         home = np.asarray(robot.home, dtype=float)
         if margin is None:  # the default, capped at half the clearance the geometry allows
             clear = self._sweep_clearance(home, np.asarray(pair_weights)) if self.pairs else []
@@ -226,6 +178,62 @@ class MotionEnvelope(EnvelopeQueries):
             self.weights[self.pairs :] = axis_levers(robot, ee_lever) + self._error_weight
         #: (n, n) m/rad^2: min(lever_i, lever_j), bound of the end effector's second derivatives
         self._curvature = np.minimum.outer(np.asarray(ee_lever), np.asarray(ee_lever))
+        self._set_query_cache(pair_weights)
+        self._set_brake_path()
+        # envelope_screen's arrays after effort_scale (the tables' and the margin as of the
+        # last certify's binding: a test may replace them after construction)
+        self._screen = ek.ScreenArrays(
+            self.limits, self._cached_q, self._clearance, self.weights, self.margin, self._box,
+            self._need, *self.tables.arrays(), self._speeds, self.local.order, self.local.nest,
+            self._slack, self._lead, np.zeros((2, n)),
+        )  # fmt: skip
+        self._certify_key = (None,) * 10  # certify's kernel bound to these arrays
+        self._certify = self._dynamics = None
+        ek.warm_up()
+        self._warm_certify()
+
+    def _set_workspace(self, reach: float, s) -> None:
+        """The workspace box (``ws_min``, ``ws_max``, m): a face beyond the longest chain's reach
+        (lengthened by the link tolerance) can never be crossed and is left out (infinite)."""
+        reach = (1.0 + self.link_length_tolerance) * reach
+        self.ws_min = np.where(np.array(s.workspace_min) <= -reach, -np.inf, s.workspace_min)
+        self.ws_max = np.where(np.array(s.workspace_max) >= reach, np.inf, s.workspace_max)
+
+    def _set_limits(self, gravity_bound, torque) -> None:
+        """``limits`` (4, n): the smoother's acceleration and jerk limits (torque mode: the
+        guard's computed-torque stop's), the worst gravity load's share of each effort limit,
+        ``MIN_HEADROOM``."""
+        n = self.robot.n_joints
+        self.limits = np.stack(
+            [
+                self.robot.acceleration_limit,
+                self.robot.jerk_limit,
+                np.asarray(gravity_bound) / self.robot.effort_limit,
+                np.full(n, MIN_HEADROOM),
+            ]
+        )
+        if torque is not None:  # the guard's computed-torque stop, not the smoother's brake
+            self.limits[:2] = torque.brake_limits
+
+    def _set_pair_bounds(self, geometry, pair_weights) -> None:
+        """The collision pairs' bounds: those kept apart, the lower-bound tables, the local
+        approach bounds."""
+        #: (pairs,) bool, the pairs the joints between their links cannot bring into contact
+        #: (:func:`sim2real.deploy.safety.pair_grid.pairs_kept_apart`): left out of the certification (their
+        #: distance reads as infinite), so a gripper's jaw closing next to its wrist brakes nothing
+        self.apart = np.zeros(0, dtype=bool)
+        #: the other pairs' lower-bound tables over the joints that move them
+        #: (:class:`sim2real.deploy.safety.pair_grid.PairTables`), from the same grids
+        self.tables = PairTables.empty(self.pairs)
+        if self.pairs:
+            self.apart, self.tables = pair_grids(self.robot, geometry, pair_weights)
+        #: the pairs' local approach bounds (:class:`sim2real.deploy.safety.local_reach.LocalReach`)
+        self.local = LocalReach(self.robot, geometry)
+        self.queries = 0
+
+    def _set_query_cache(self, pair_weights) -> None:
+        """The cache of the last exact query and the screen's per-env work arrays."""
+        envs, n = self.envs, self.robot.n_joints
         # cache of the last exact query: its configuration (rows collision, workspace) and the
         # distances there (pairs, then the workspace margins along x, y, z); -inf: unknown, inf:
         # nothing to check
@@ -242,13 +250,18 @@ class MotionEnvelope(EnvelopeQueries):
         # centre, half-width, the brake's rest point, the brake's headroom, its reversal
         self._box = np.zeros((5, envs, n))
         self._need = np.zeros((2, envs), dtype=bool)
+
+    def _set_brake_path(self) -> None:
+        """Ruckig's brake path to rest (:meth:`_path_certified`) and the per-env flags, slack
+        and lead of the screen."""
+        envs, n = self.envs, self.robot.n_joints
         # the brake's path (_path_certified): Ruckig to rest, one env's joints at a time
         self._path_ruckig = Ruckig(n)
         self._path = Trajectory(n)
         self._path_inp = inp = InputParameter(n)
         inp.control_interface = ControlInterface.Velocity
         inp.synchronization = Synchronization.No
-        inp.max_velocity = 2.0 * np.asarray(robot.velocity_limit)
+        inp.max_velocity = 2.0 * np.asarray(self.robot.velocity_limit)
         inp.max_jerk = self.limits[1]
         inp.target_velocity = inp.target_acceleration = np.zeros(n)
         self.unsafe = np.zeros((2, envs), dtype=bool)
@@ -261,17 +274,6 @@ class MotionEnvelope(EnvelopeQueries):
         self._lead = np.zeros((envs, n))
         # a velocity drive's path: the smoother's state with its equilibrium as the position
         self._drive_path = np.zeros((2, 3, envs, n))
-        # envelope_screen's arrays after effort_scale (the tables' and the margin as of the
-        # last certify's binding: a test may replace them after construction)
-        self._screen = ek.ScreenArrays(
-            self.limits, self._cached_q, self._clearance, self.weights, self.margin, self._box,
-            self._need, *self.tables.arrays(), self._speeds, self.local.order, self.local.nest,
-            self._slack, self._lead, np.zeros((2, n)),
-        )  # fmt: skip
-        self._certify_key = (None,) * 10  # certify's kernel bound to these arrays
-        self._certify = self._dynamics = None
-        ek.warm_up()
-        self._warm_certify()
 
     def _warm_certify(self) -> None:
         """Compile (or load numba's cache of) :meth:`certify`'s kernel now, not in a tick, for

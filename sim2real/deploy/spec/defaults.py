@@ -71,7 +71,6 @@ def spec_for_robot(
     n = robot.n_joints
     lo, hi = robot.position_lower, robot.position_upper
     wrapping = tuple(i for i in range(n) if hi[i] - lo[i] > 2 * np.pi + 1e-9)
-    bounded = tuple(i for i in range(n) if i not in wrapping)
     legged = robot.floating_base
     if blocks is None and legged:
         blocks = LEGGED_DEFAULT_BLOCKS
@@ -79,55 +78,74 @@ def spec_for_robot(
         blocks = (
             ("joint_position",)
             + (("joint_position_sincos",) if wrapping else ())
-            + (
-                "joint_velocity",
-                "ee_position",
-                "goal_position",
-                "goal_in_ee",
-            )
+            + ("joint_velocity", "ee_position", "goal_position", "goal_in_ee")
         )
     reach = Kinematics(robot).reach() if robot.ee_frame_id >= 0 else 1.0
-    motors = robot.motors
-    ambient = robot.config.sensors.ambient_temperature
-    out = []
-    for kind in blocks:
-        if kind == "joint_position" and legged:  # about the default pose, unscaled
-            idx = tuple(range(n))
-            home = tuple(float(h) for h in robot.home)
-            out.append(ObservationBlock(kind, n, (1.0,) * n, home, joints=idx))
-        elif kind == "joint_position":
-            idx = bounded
-            scale = tuple((hi[i] - lo[i]) / 2 for i in idx)
-            offset = tuple((hi[i] + lo[i]) / 2 for i in idx)
-            out.append(ObservationBlock(kind, len(idx), scale, offset, joints=idx))
-        elif kind == "joint_velocity":
-            idx = tuple(range(n))
-            if legged:
-                scale = (LEGGED_SCALES["joint_velocity"],) * n
-            else:
-                scale = tuple(float(v) for v in robot.velocity_limit)
-            out.append(ObservationBlock(kind, n, scale, (0.0,) * n, joints=idx))
-        elif kind in KINDS and KINDS[kind].needs_base:
-            size = robot.n_feet if KINDS[kind].per_foot else KINDS[kind].size
-            scale = LEGGED_SCALES.get(kind, (1.0,) * size)
-            period = GAIT_PERIOD if KINDS[kind].periodic else 0.0
-            out.append(ObservationBlock(kind, size, tuple(scale), (0.0,) * size, period=period))
-        elif kind == "joint_position_sincos":
-            k = len(wrapping)
-            out.append(
-                ObservationBlock(kind, 2 * k, (1.0,) * 2 * k, (0.0,) * 2 * k, joints=wrapping)
-            )
-        elif kind in ("ee_position", "goal_position", "goal_in_ee"):
-            out.append(ObservationBlock(kind, 3, (reach,) * 3, (0.0,) * 3))
-        elif kind == "last_action":
-            out.append(ObservationBlock(kind, n, (1.0,) * n, (0.0,) * n, joints=tuple(range(n))))
-        elif kind == "winding_temperature":
-            scale = tuple(m.max_winding_temperature - ambient for m in motors)
-            out.append(ObservationBlock(kind, n, scale, (ambient,) * n, joints=tuple(range(n))))
+    out = [_block(kind, robot, legged, wrapping, reach) for kind in blocks]
+    action = _action(robot, mode, legged, reference, position_range)
+    spec = cls(
+        robot=robot.name,
+        joint_names=robot.joint_names,
+        robot_hash=robot.description_hash,
+        observation_blocks=tuple(
+            replace(b, scale=tuple(map(float, b.scale)), offset=tuple(map(float, b.offset)))
+            for b in out
+        ),
+        action=action,
+        control_rate=1.0 / robot.control_period,
+    )
+    spec.validate()
+    return spec
+
+
+def _block(kind: str, robot: Robot, legged: bool, wrapping: tuple, reach: float):
+    """The standard observation block ``kind`` of ``robot`` (its scales and offsets).
+
+    Raises:
+        SpecError: an unknown block kind.
+    """
+    n = robot.n_joints
+    lo, hi = robot.position_lower, robot.position_upper
+    if kind == "joint_position" and legged:  # about the default pose, unscaled
+        idx = tuple(range(n))
+        home = tuple(float(h) for h in robot.home)
+        return ObservationBlock(kind, n, (1.0,) * n, home, joints=idx)
+    elif kind == "joint_position":
+        idx = tuple(i for i in range(n) if i not in wrapping)
+        scale = tuple((hi[i] - lo[i]) / 2 for i in idx)
+        offset = tuple((hi[i] + lo[i]) / 2 for i in idx)
+        return ObservationBlock(kind, len(idx), scale, offset, joints=idx)
+    elif kind == "joint_velocity":
+        idx = tuple(range(n))
+        if legged:
+            scale = (LEGGED_SCALES["joint_velocity"],) * n
         else:
-            raise SpecError(
-                f"observation: block '{kind}' is unknown; expected one of {kind_names()}"
-            )
+            scale = tuple(float(v) for v in robot.velocity_limit)
+        return ObservationBlock(kind, n, scale, (0.0,) * n, joints=idx)
+    elif kind in KINDS and KINDS[kind].needs_base:
+        size = robot.n_feet if KINDS[kind].per_foot else KINDS[kind].size
+        scale = LEGGED_SCALES.get(kind, (1.0,) * size)
+        period = GAIT_PERIOD if KINDS[kind].periodic else 0.0
+        return ObservationBlock(kind, size, tuple(scale), (0.0,) * size, period=period)
+    elif kind == "joint_position_sincos":
+        k = len(wrapping)
+        return ObservationBlock(kind, 2 * k, (1.0,) * 2 * k, (0.0,) * 2 * k, joints=wrapping)
+    elif kind in ("ee_position", "goal_position", "goal_in_ee"):
+        return ObservationBlock(kind, 3, (reach,) * 3, (0.0,) * 3)
+    elif kind == "last_action":
+        return ObservationBlock(kind, n, (1.0,) * n, (0.0,) * n, joints=tuple(range(n)))
+    elif kind == "winding_temperature":
+        ambient = robot.config.sensors.ambient_temperature
+        scale = tuple(m.max_winding_temperature - ambient for m in robot.motors)
+        return ObservationBlock(kind, n, scale, (ambient,) * n, joints=tuple(range(n)))
+    else:
+        raise SpecError(f"observation: block '{kind}' is unknown; expected one of {kind_names()}")
+
+
+def _action(robot: Robot, mode: str, legged: bool, reference: str, position_range: str):
+    """The standard action of ``robot`` in ``mode``: its scale and offset (module docstring)."""
+    n = robot.n_joints
+    lo, hi = robot.position_lower, robot.position_upper
     if mode == "position" and legged and reference == "absolute":
         scale, offset = (LEGGED_ACTION_SCALE,) * n, tuple(float(h) for h in robot.home)
     elif mode == "position":
@@ -147,7 +165,7 @@ def spec_for_robot(
         scale, offset = tuple(robot.soft_velocity_limit), (0.0,) * n
     else:
         scale, offset = tuple(robot.effort_limit), (0.0,) * n
-    action = ActionSpec(
+    return ActionSpec(
         mode=mode,
         size=n,
         scale=tuple(float(s) for s in scale),
@@ -157,16 +175,3 @@ def spec_for_robot(
         # the toolkit trains through the runtime, whose smoother shapes a legged robot's targets
         smoothing="jerk_limited" if legged else "",
     )
-    spec = cls(
-        robot=robot.name,
-        joint_names=robot.joint_names,
-        robot_hash=robot.description_hash,
-        observation_blocks=tuple(
-            replace(b, scale=tuple(map(float, b.scale)), offset=tuple(map(float, b.offset)))
-            for b in out
-        ),
-        action=action,
-        control_rate=1.0 / robot.control_period,
-    )
-    spec.validate()
-    return spec

@@ -358,41 +358,7 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
         joints=tuple(_joint_index(j, names, "action.joints") for j in a.joints or ()),
         smoothing=a.smoothing or "",
     )
-    blocks = []
-    for i, b in enumerate(doc.observation):
-        kind = KINDS.get(b.name)  # an unknown kind is refused by PolicySpec.validate
-        per_joint = kind.per_joint if kind is not None else 0
-        if b.joints is None:
-            every = kind is not None and kind.every_joint
-            # an every-joint block's default: the joints the action drives
-            joints = (action.driven if every else tuple(range(n))) if per_joint else ()
-        else:
-            where = f"observation[{i}] ('{b.name}').joints"
-            joints = tuple(_joint_index(j, names, where) for j in b.joints)
-        size = b.size
-        if size is None and per_joint:
-            size = per_joint * len(joints)
-        elif size is None and b.scan is not None:
-            size = len(b.scan.x) * len(b.scan.y)
-        elif size is None and b.components is not None:
-            size = len(b.components)
-        elif size is None:
-            size = kind.size if kind is not None else 3
-        blocks.append(
-            ObservationBlock(
-                name=b.name,
-                size=size,
-                scale=_entries(b.scale, size),
-                offset=_entries(b.offset, size),
-                clip=UNCLIPPED if b.clip is None else float(b.clip),
-                joints=joints,
-                period=float(b.period or 0.0),
-                components=tuple(int(c) for c in b.components or ()),
-                stand_below=float(b.stand_below or 0.0),
-                stand_phase=float(b.stand_phase or 0.0),
-                scan=None if b.scan is None else HeightScanPattern.from_dict(b.scan.model_dump()),
-            )
-        )
+    blocks = [_block(i, b, names, action) for i, b in enumerate(doc.observation)]
 
     return PolicySpec(
         robot=doc.robot,
@@ -422,6 +388,48 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
             fill=doc.history.fill,
             lengths=tuple(doc.history.lengths or ()),
         ),
+    )
+
+
+def _block(i: int, b, names: tuple[str, ...], action: ActionSpec) -> ObservationBlock:
+    """Observation entry ``i`` of a document as its block: its joints (by name; an every-joint
+    block's default the joints the action drives) and its size (from its joints, its scan grid,
+    its components or its kind).
+
+    Raises:
+        SpecError: a joint named that is not in ``joint_names``.
+    """
+    n = len(names)
+    kind = KINDS.get(b.name)  # an unknown kind is refused by PolicySpec.validate
+    per_joint = kind.per_joint if kind is not None else 0
+    if b.joints is None:
+        every = kind is not None and kind.every_joint
+        # an every-joint block's default: the joints the action drives
+        joints = (action.driven if every else tuple(range(n))) if per_joint else ()
+    else:
+        where = f"observation[{i}] ('{b.name}').joints"
+        joints = tuple(_joint_index(j, names, where) for j in b.joints)
+    size = b.size
+    if size is None and per_joint:
+        size = per_joint * len(joints)
+    elif size is None and b.scan is not None:
+        size = len(b.scan.x) * len(b.scan.y)
+    elif size is None and b.components is not None:
+        size = len(b.components)
+    elif size is None:
+        size = kind.size if kind is not None else 3
+    return ObservationBlock(
+        name=b.name,
+        size=size,
+        scale=_entries(b.scale, size),
+        offset=_entries(b.offset, size),
+        clip=UNCLIPPED if b.clip is None else float(b.clip),
+        joints=joints,
+        period=float(b.period or 0.0),
+        components=tuple(int(c) for c in b.components or ()),
+        stand_below=float(b.stand_below or 0.0),
+        stand_phase=float(b.stand_phase or 0.0),
+        scan=None if b.scan is None else HeightScanPattern.from_dict(b.scan.model_dump()),
     )
 
 

@@ -191,16 +191,7 @@ class UnitreeEmulator(ServesOnThread):
             raise ValueError(
                 f"faults name motor slots {unknown}; the robot's: {sorted(self.joint_of)}"
             )
-        self.fast = board_rate_robot(self.robot)
-        self.period = self.fast.control_period
-        self.model = pd_model(self.fast)
-        plant_robot = self.fast
-        if plant_motors is not None:  # the motors as they really are (sim2real.robots.plant_motors)
-            plant = load_plant_motors(plant_motors, self.fast)
-            plant_robot, self.model = plant.robot, plant.apply(self.model)
-        self.plant = SimBackend(plant_robot, mode="position", seed=seed, models=[self.model])
-        #: the gantry (``LENGTH[@RELEASE]``, :mod:`.band`); None: the robot stands on its own
-        self.band = ElasticBand(self.plant, *parse_band(band)) if band else None
+        self._build_plant(plant_motors, seed, band)
         if cutoff_temperature is None:
             cutoff = [m.max_winding_temperature + CUTOFF_MARGIN for m in self.robot.motors]
         else:
@@ -226,28 +217,10 @@ class UnitreeEmulator(ServesOnThread):
             mode_machine,
             bridge=bridge is not None,
         )
-        self.link = DdsLink(domain_id, interface)
-        self.domain_id, self.interface = domain_id, interface
-        self._states = self.link.writer(TOPIC_LOWSTATE, self.family.low_state)
-        self._commands = self.link.reader(TOPIC_LOWCMD, self.family.low_cmd, depth=16)
-        self.service = MotionSwitcherService(self.link, sport_mode)
-        #: the scripted remote's own topic too (rt/wirelesscontroller), every CONTROLLER_EVERY steps
-        self._controller = None
-        if self.remote is not None:
-            from sim2real.deploy.backends.unitree.unitree_go import WirelessController_
-
-            self._controller = self.link.generic_writer(TOPIC_CONTROLLER, WirelessController_)
+        self._open_dds(domain_id, interface, sport_mode)
         self._cmd = MessageCodec(self.family.low_cmd)
         self._rng = random.Random(seed)
-        self.stats: Counter[str] = Counter()
-        self.command_to_state = LatencyHistogram()
-        self.cutoff_log: list[tuple[float, int]] = []
-        self.damping_onsets: list[tuple[float, float]] = []
-        self.true_distance = 0.0
-        self.trace: list[tuple[float, ...]] = []
-        self.commands: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque(
-            maxlen=COMMAND_LOG
-        )
+        self._new_logs()
         self._damping = False
         self._pending: list[int] = []
         self._delayed: deque[tuple[float, bytes]] = deque()
@@ -261,6 +234,48 @@ class UnitreeEmulator(ServesOnThread):
         self._t0 = time.monotonic()
         self._started = self._t0
         self._steps = 0
+
+    def _build_plant(self, plant_motors: str | None, seed: int, band: str | None) -> None:
+        """The plant at the board's rate (``fast``, ``period``, its PD ``model``), with the
+        motors as they really are where a file says (:mod:`sim2real.robots.plant_motors`), and
+        the gantry band."""
+        self.fast = board_rate_robot(self.robot)
+        self.period = self.fast.control_period
+        self.model = pd_model(self.fast)
+        plant_robot = self.fast
+        if plant_motors is not None:  # the motors as they really are (sim2real.robots.plant_motors)
+            plant = load_plant_motors(plant_motors, self.fast)
+            plant_robot, self.model = plant.robot, plant.apply(self.model)
+        self.plant = SimBackend(plant_robot, mode="position", seed=seed, models=[self.model])
+        #: the gantry (``LENGTH[@RELEASE]``, :mod:`.band`); None: the robot stands on its own
+        self.band = ElasticBand(self.plant, *parse_band(band)) if band else None
+
+    def _open_dds(self, domain_id: int, interface: str | None, sport_mode: str) -> None:
+        """The DDS link: lowstate written, lowcmd read, the motion switcher's service, and the
+        scripted remote's topic."""
+        self.link = DdsLink(domain_id, interface)
+        self.domain_id, self.interface = domain_id, interface
+        self._states = self.link.writer(TOPIC_LOWSTATE, self.family.low_state)
+        self._commands = self.link.reader(TOPIC_LOWCMD, self.family.low_cmd, depth=16)
+        self.service = MotionSwitcherService(self.link, sport_mode)
+        #: the scripted remote's own topic too (rt/wirelesscontroller), every CONTROLLER_EVERY steps
+        self._controller = None
+        if self.remote is not None:
+            from sim2real.deploy.backends.unitree.unitree_go import WirelessController_
+
+            self._controller = self.link.generic_writer(TOPIC_CONTROLLER, WirelessController_)
+
+    def _new_logs(self) -> None:
+        """The counters, histograms and logs of a run."""
+        self.stats: Counter[str] = Counter()
+        self.command_to_state = LatencyHistogram()
+        self.cutoff_log: list[tuple[float, int]] = []
+        self.damping_onsets: list[tuple[float, float]] = []
+        self.true_distance = 0.0
+        self.trace: list[tuple[float, ...]] = []
+        self.commands: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque(
+            maxlen=COMMAND_LOG
+        )
 
     def _lie_down(self) -> None:
         """The robot folded on the floor (``LYING_POSES``: dropped there, the drivers holding the

@@ -15,11 +15,10 @@ the next tick's reference into ``RobotState.motion`` (the blocks of
   last frame holds);
 - a stop (a fall, the operator) ends the play: the next RUNNING starts the clip again.
 
-Each play is logged (:attr:`TrackingTask.play_log`): its share completed, whether a stop ended
-it, its joint-angle error and the guard's interventions while it played. The reference's own
-self-contacts (:mod:`sim2real.deploy.tasks.motion.self_contact`) are screened once, before any
-play; :meth:`TrackingTask.reference_contacts` tells the violation monitor which pairs the
-reference touches around each env's moment now.
+Each play is logged (:attr:`TrackingTask.play_log`; checkpointed with the figures, the part
+``figures``): its share completed, whether a stop ended it, its errors, the guard's interventions.
+The reference's own self-contacts (:mod:`~sim2real.deploy.tasks.motion.self_contact`) are screened
+once; :meth:`TrackingTask.reference_contacts` tells the violation monitor which pairs it touches.
 
 Judged while the clip plays (not while its last frame holds), on the plant's truth in
 simulation (the estimate on hardware): joint-angle error (rad RMS) per body group (legs, waist,
@@ -73,8 +72,10 @@ class TrackingTask:
         contacts: The reference's self-contacts
             (:class:`~sim2real.deploy.tasks.motion.self_contact.ClipContacts`).
         play_log: per env, a list of ended plays: ``completed`` (share of the clip),
-            ``stopped`` (a stop ended it), ``joint_rms_rad``, ``ticks``, ``interventions`` and
-            ``safety_interventions`` (ticks, while the clip and its transition played).
+            ``stopped`` (a stop ended it), ``joint_rms_rad``, ``anchor_error_deg_mean``,
+            ``mpjpe_mm`` (None for a play with no judged tick), ``ticks``, ``interventions`` and
+            ``safety_interventions`` (ticks, while the clip and its transition played),
+            ``end_s`` and its heat (``hottest``, ``hottest_c``, ``derating``).
     """
 
     name = "tracking"
@@ -92,7 +93,7 @@ class TrackingTask:
         self.contacts = clip_self_contacts(robot, clock.reference_poses(), clock.clip.fps)
         self.play_log: list[list[dict]] = [[] for _ in range(envs)]
         self._clock_now = 0.0  # s, the runtime's time at the last tick
-        self._play = np.zeros((envs, 4))  # this play's sq error, ticks, any, safety
+        self._play = np.zeros((envs, 6))  # this play's sq error, ticks, any, safety, anchor, mpjpe
         self._seen = np.zeros((envs, 2), dtype=np.int64)  # interventions any, safety last tick
         self._thermal = getattr(backend, "thermal", None)
         self._peak = np.full((envs, robot.n_joints), -np.inf)  # this play's winding peak, degC
@@ -197,8 +198,11 @@ class TrackingTask:
         self.ticks[e] += 1
         self._play[e, 0] += ((q[e] - ref[e, :n]) ** 2).sum(axis=1)
         self._play[e, 1] += 1
+        self._play[e, 4] += angle[e]
         for k in e:
-            self.mpjpe_sum[k] += 1000.0 * self._mpjpe(ref[k, :n], q[k])
+            mm = 1000.0 * self._mpjpe(ref[k, :n], q[k])
+            self.mpjpe_sum[k] += mm
+            self._play[k, 5] += mm
 
     def _heat(self, playing: np.ndarray) -> None:
         """Keep each playing env's hottest winding of this play (the plant's thermal model)."""
@@ -218,12 +222,14 @@ class TrackingTask:
 
     def _log_play(self, e: int, stopped: bool) -> None:
         """Close env ``e``'s play into :attr:`play_log` and start a new one."""
-        sq, ticks, any_, safety = self._play[e]
+        sq, ticks, any_, safety, anchor, mpjpe = self._play[e]
         t = self.motion.time[e]
         done = 1.0 if not stopped else min(float(np.nan_to_num(t)) / self.motion.length, 1.0)
         self.play_log[e].append({
             "completed": done, "stopped": stopped,
             "joint_rms_rad": float(np.sqrt(sq / (ticks * self.robot.n_joints))) if ticks else None,
+            "anchor_error_deg_mean": float(anchor / ticks) if ticks else None,
+            "mpjpe_mm": float(mpjpe / ticks) if ticks else None,
             "ticks": int(ticks), "interventions": int(any_), "safety_interventions": int(safety),
             "end_s": float(self._clock_now), **self._play_heat(e),
         })  # fmt: skip
@@ -329,7 +335,9 @@ class TrackingTask:
         self.velocity.curve_point(curve, e)
 
     def parts(self) -> dict:
-        return {"motion": self.motion, **self.velocity.parts()}
+        """The stateful parts: the clip's clock, the judged figures and play log
+        (:class:`TrackingFigures`), the velocity task's (its falls)."""
+        return {"motion": self.motion, "figures": TrackingFigures(self), **self.velocity.parts()}
 
     def state_dict(self, env: int | None = None) -> dict:
         from sim2real.deploy.core.stateful import parts_state_dict
@@ -340,3 +348,59 @@ class TrackingTask:
         from sim2real.deploy.core.stateful import load_parts
 
         load_parts(self.parts(), state, env)
+
+
+class TrackingFigures:
+    """The state of a :class:`TrackingTask`'s judgement, as a part of its state dict
+    (:mod:`sim2real.deploy.core.stateful`): what a resumed soak needs to report the plays as an
+    uninterrupted one.
+
+    Fields (the env axis kept): ``progress``, ``sq_error``, ``anchor_sum``, ``anchor_max``,
+    ``ticks``, ``mpjpe_sum``, ``waited`` (the task's attributes of those names), ``play``
+    (envs, 6): the play under way's sums (squared joint error, ticks, interventions, safety
+    interventions, anchor error, MPJPE), ``seen`` (envs, 2): the intervention counts at the last
+    tick, ``peak`` (envs, n) degC: the play's hottest windings; ``play_log``: JSON text of the
+    envs' ended plays (:attr:`TrackingTask.play_log`); ``clock_now``: s, the runtime's time at
+    the last tick (the batch's).
+    """
+
+    ARRAYS = ("progress", "sq_error", "anchor_sum", "anchor_max", "ticks", "mpjpe_sum", "waited")
+    PRIVATE = {"play": "_play", "seen": "_seen", "peak": "_peak"}
+
+    def __init__(self, task: TrackingTask):
+        self.task = task
+
+    def _fields(self) -> dict[str, np.ndarray]:
+        t = self.task
+        out = {k: getattr(t, k) for k in self.ARRAYS}
+        out.update({k: getattr(t, a) for k, a in self.PRIVATE.items()})
+        return out
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The fields (class docstring) of every env, or of env ``env``."""
+        from sim2real.deploy.core.stateful import env_list, take, to_json
+
+        out: dict = take(self._fields(), env)
+        envs = env_list(self.task.envs, env)
+        out["play_log"] = to_json([self.task.play_log[e] for e in envs])
+        out["clock_now"] = float(self.task._clock_now)
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict`; a state that does not fit changes nothing.
+
+        Raises:
+            StateDictError: a field missing, shaped otherwise, or a play log that is not a list
+                per env (named).
+        """
+        from sim2real.deploy.core.stateful import check, env_list, put, read_records, scalar
+
+        fields = self._fields()
+        check(fields, state, env)
+        envs = env_list(self.task.envs, env)
+        logs = read_records(state, ["play_log"], len(envs))["play_log"]
+        now = scalar(state, "clock_now", float)
+        put(fields, state, env)
+        for e, log in zip(envs, logs, strict=True):
+            self.task.play_log[e] = list(log)
+        self.task._clock_now = now

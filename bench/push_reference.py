@@ -310,7 +310,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"seeds {a.seeds}, {a.seconds:g} s each, command {a.command}")
     for e in entries:
         robot, _ = _load(e)
-        print(f"{e.name}: pushes {push_ranges(e, robot, a)}")
+        once = f"its clip once (at most {a.seconds:g} s), not --command; " if e.tracking else ""
+        print(f"{e.name}: {once}pushes {push_ranges(e, robot, a)}")
     print("\n".join(table(results, a)))
     return 0
 

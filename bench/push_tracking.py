@@ -20,7 +20,8 @@ Both push with the soak's schedule (:class:`~sim2real.eval.world.pushes.DomainPu
 clip's clock: push ``k`` of a seed lands after the same clip frame in both loops (the wait drawn
 from the clip's start, ours' first RUNNING tick). A run ends at the clip's last frame or at the
 first true fall (:func:`bench.push_loops.true_fall`), ours also at a stop; the figures are those
-of :class:`bench.push_loops.Run`, walked meaning s of clip played.
+of :class:`bench.push_loops.Run`, walked meaning s of clip played, the pushes' times on the clip's
+clock (the time of the frame read by the tick the push follows) and the fall's at its tick's end.
 """
 
 from __future__ import annotations
@@ -125,7 +126,7 @@ def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes) -> Run:
         if schedule is not None:
             schedule(walk, bare)
     run.walked *= period
-    run.pushes = list(schedule.times[0]) if schedule else []
+    run.pushes = [t - period for t in schedule.times[0]] if schedule else []  # the frame's time
     return run
 
 
@@ -153,6 +154,7 @@ def tracking_runtime_loop(robot, policy, seed: int, seconds: float | None, pushe
     counts = monitor.counts
     before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
     truth = np.zeros((1, 13))
+    start = 0  # the tick that read the clip's first frame (the first RUNNING tick)
     while run.ticks < ticks:
         try:
             rt.tick()
@@ -171,6 +173,7 @@ def tracking_runtime_loop(robot, policy, seed: int, seconds: float | None, pushe
             before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
             continue
         run.ticks += 1
+        start = start or rt.ticks
         changed = int(monitor.any[0]) - last_any
         run.intervened += changed
         last_any = int(monitor.any[0])
@@ -186,6 +189,6 @@ def tracking_runtime_loop(robot, policy, seed: int, seconds: float | None, pushe
             schedule(rt, plant)
     run.walked = run.ticks * rt.dt
     run.checks = {k: int(v[0]) - before[k] for k, v in monitor.counts.items() if v[0] > before[k]}
-    run.pushes = list(schedule.times[0]) if schedule else []
+    run.pushes = [t - start * rt.dt for t in schedule.times[0]] if schedule else []
     run.after_push = response.summary() if response else None
     return run

@@ -114,10 +114,15 @@ def test_a_clip_sessions_summary_claims_no_velocity_tracking(legged_result):
         "reference_contacts": {"frames_touching": 0}, "reference_contact_ticks": 0,
         "heat": heat_report([play, play]),
     }  # fmt: skip
-    report = build_report({"robot": "g1"}, [result], Thresholds(judge_tracking=True))
+    source = "CommandRanges' default (our choice)"
+    schedule = {"period_s": 4.0, "zero_fraction": 0.2, "vx": [0.0, 0.5], "vy": [0.0, 0.0],
+                "yaw_rate": [-0.5, 0.5], "sources": dict.fromkeys(
+                    ("vx", "vy", "yaw_rate", "zero_fraction", "period"), source)}  # fmt: skip
+    campaign = {"robot": "g1", "commands": schedule}
+    report = build_report(campaign, [result], Thresholds(judge_tracking=True))
     text = summary_text(report)
     assert "within 0.2 m/s" not in text and "forward speed" not in text
-    assert "lowest tracking success" not in text
+    assert "lowest tracking success" not in text and "  commands " not in text
     assert "a motion clip commands the policy, not a velocity" in text
     assert "joint error 0.090-0.100 rad RMS, anchor error 2.7-2.7 deg mean, MPJPE 27.1-30.0 mm" in (
         text

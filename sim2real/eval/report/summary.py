@@ -62,7 +62,8 @@ def summary_text(report: dict) -> str:
     if w is not None:
         lines.append(f"  windows      lowest success rate in a window {100 * w:.1f} %")
     schedule = report["campaign"].get("commands")
-    if loco is not None and schedule:
+    clips_only = loco is not None and loco.get("clip_sessions", 0) == loco["sessions"]
+    if loco is not None and schedule and not clips_only:  # a clip's sessions draw no command
         from sim2real.eval.world.command_schedule import schedule_text
 
         lines.append(f"  commands     {schedule_text(schedule)}")

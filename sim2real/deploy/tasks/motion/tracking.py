@@ -33,8 +33,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim2real.deploy.core.attitude import yaw_of
 from sim2real.deploy.core.modes import RUNNING
-from sim2real.deploy.spec.motion_blocks import quat_conj, quat_mul, torso_quat
+from sim2real.deploy.spec.motion_blocks import axis_quat, quat_conj, quat_mul, torso_quat
 from sim2real.deploy.tasks.motion.clock import MotionClock
 from sim2real.deploy.tasks.motion.self_contact import clip_self_contacts
 from sim2real.deploy.tasks.velocity import VelocityTask
@@ -68,7 +69,9 @@ class TrackingTask:
             whose tracker counts the falls. progress: (envs,) s, the farthest clip time reached.
         sq_error: (envs, n) rad^2, squared joint-angle error summed over the playing ticks;
             anchor_sum: (envs,) deg, anchor error summed; anchor_max: (envs,) deg; ticks:
-            (envs,) playing ticks judged.
+            (envs,) playing ticks judged. heading: (envs,) rad, the true base yaw less the
+            estimate's when the clip was last aligned (the anchor is judged against the clip
+            turned by it: the estimate's heading error then is not the policy's).
         contacts: The reference's self-contacts
             (:class:`~sim2real.deploy.tasks.motion.self_contact.ClipContacts`).
         play_log: per env, a list of ended plays: ``completed`` (share of the clip),
@@ -111,6 +114,7 @@ class TrackingTask:
         self.anchor_max = np.zeros(envs)
         self.ticks = np.zeros(envs, dtype=np.int64)
         self.mpjpe_sum = np.zeros(envs)
+        self.heading = np.zeros(envs)
         import pinocchio as pin
 
         model = robot.pin_model
@@ -136,7 +140,19 @@ class TrackingTask:
     def _align(self, runtime, envs: np.ndarray) -> None:
         state = runtime.state
         self.motion.align(envs, state.base.orientation, state.q[:, self.waist])
+        self._true_heading(state, envs)
         self.motion.write(self._buffer(runtime), envs)
+
+    def _true_heading(self, state, envs: np.ndarray) -> None:
+        """Note, for the envs of ``envs`` just aligned, the truth's base yaw less the estimate's
+        (rad; 0 without a truth): the clip was aligned to the estimated heading, and is judged
+        turned by it against the true robot (:meth:`_judge`), so that the estimate's yaw error
+        at the alignment is not counted as the policy's anchor error."""
+        if self.truth is None:
+            return
+        e = np.flatnonzero(envs)
+        turn = yaw_of(self.truth()[e, 3:7]) - yaw_of(state.base.orientation[e])
+        self.heading[e] = np.angle(np.exp(1j * turn))
 
     def __call__(self, runtime, truth: np.ndarray | None = None) -> None:
         """One tick (module docstring): judge the tick that ran, then write the next one's."""
@@ -159,6 +175,7 @@ class TrackingTask:
             if clock.restarted.any():  # an exhibition's next play: aligned as at its start
                 state = runtime.state
                 clock.align(clock.restarted, state.base.orientation, state.q[:, self.waist])
+                self._true_heading(state, clock.restarted)
             now = np.where(playing, np.minimum(clock.time, clock.length), 0.0)
             np.maximum(self.progress, now, out=self.progress)
             clock.write(self._buffer(runtime), playing)
@@ -187,7 +204,8 @@ class TrackingTask:
             q = self.true_q()
         quat = state.base.orientation if self.truth is None else self.truth()[:, 3:7]
         torso = torso_quat(quat, q[:, self.waist])
-        rel = quat_mul(quat_conj(torso), ref[:, 2 * n : 2 * n + 4])
+        anchor = quat_mul(axis_quat(2, self.heading), ref[:, 2 * n : 2 * n + 4])
+        rel = quat_mul(quat_conj(torso), anchor)
         angle = np.degrees(2.0 * np.arccos(np.clip(np.abs(rel[:, 0]), 0.0, 1.0)))
         e = np.flatnonzero(envs)
         if not len(e):
@@ -356,7 +374,7 @@ class TrackingFigures:
     uninterrupted one.
 
     Fields (the env axis kept): ``progress``, ``sq_error``, ``anchor_sum``, ``anchor_max``,
-    ``ticks``, ``mpjpe_sum``, ``waited`` (the task's attributes of those names), ``play``
+    ``ticks``, ``mpjpe_sum``, ``waited``, ``heading`` (the task's attributes), ``play``
     (envs, 6): the play under way's sums (squared joint error, ticks, interventions, safety
     interventions, anchor error, MPJPE), ``seen`` (envs, 2): the intervention counts at the last
     tick, ``peak`` (envs, n) degC: the play's hottest windings; ``play_log``: JSON text of the
@@ -364,7 +382,10 @@ class TrackingFigures:
     the last tick (the batch's).
     """
 
-    ARRAYS = ("progress", "sq_error", "anchor_sum", "anchor_max", "ticks", "mpjpe_sum", "waited")
+    ARRAYS = (
+        "progress", "sq_error", "anchor_sum", "anchor_max", "ticks", "mpjpe_sum", "waited",
+        "heading",
+    )  # fmt: skip
     PRIVATE = {"play": "_play", "seen": "_seen", "peak": "_peak"}
 
     def __init__(self, task: TrackingTask):

@@ -9,6 +9,9 @@ own loop and in ours (:mod:`bench.push_loops`): the shipped go2 (its loop: its s
 state), unitree_rl_gym's H1 and H1-2 (their ``deploy_mujoco.py`` loop with the published
 ``motion.pt``), and a user's robot and policy (``--user``: with unitree_rl_gym's deploy yaml and
 ``motion.pt``, their loop; without, the truth-fed loop of the ONNX file's spec: an mjlab export).
+A whole-body tracking policy (``--tracking NAME=ROBOT_DIR,RL_SAR_FOLDER``: rl_sar's folder with
+``policy.pt`` and the ``policy.onnx`` policy-export wrote beside it) plays its clip once instead of
+walking, in rl_sar's loop and in ours with the tracking task (:mod:`bench.push_tracking`).
 
 The pushes are the policy's training domain's (the ONNX file's ``training_domain``, or
 ``--domain NAME=FILE``'s ``[pushes]``), else legged_gym's push at ``--max-velocity`` every 5 s;
@@ -57,7 +60,9 @@ MAX_PUSH_VELOCITY = 1.0
 class Entry:
     """A policy of the benchmark: its name, robot (name or folder), ONNX file, and, for
     unitree_rl_gym's loop, its deploy yaml and TorchScript policy (None: the truth-fed loop of
-    the ONNX's spec); ``domain``: a ranges file whose ``[pushes]`` it runs (None: the ONNX's)."""
+    the ONNX's spec); ``domain``: a ranges file whose ``[pushes]`` it runs (None: the ONNX's);
+    ``tracking``: a whole-body tracking policy's rl_sar folder (its clip played in rl_sar's loop
+    and ours, :mod:`bench.push_tracking`; None: a walking policy)."""
 
     name: str
     robot: str
@@ -65,9 +70,12 @@ class Entry:
     config: Path | None = None
     torchscript: Path | None = None
     domain: Path | None = None
+    tracking: Path | None = None
 
     @property
     def own_loop(self) -> str:
+        if self.tracking:
+            return "rl_sar tracking"
         return "unitree_rl_gym" if self.config else "truth-fed spec"
 
 
@@ -124,6 +132,11 @@ def run_seed(entry: Entry, seed: int, args) -> tuple[Run, Run]:
 
     robot, policy = _load(entry)
     pushes = push_ranges(entry, robot, args)
+    if entry.tracking is not None:  # a clip played once in each loop
+        from bench.push_tracking import rl_sar_loop, tracking_runtime_loop
+
+        own = rl_sar_loop(robot, entry.tracking, seed, args.seconds, pushes)
+        return own, tracking_runtime_loop(robot, policy, seed, args.seconds, pushes)
     command = [float(x) for x in args.command.split(",")]
     if entry.config is not None:
         cfg = yaml.safe_load(Path(entry.config).read_text())
@@ -241,6 +254,13 @@ def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
             p.error(f"--user {item!r}: expected NAME=ROBOT_DIR,POLICY[,DEPLOY_YAML,MOTION_PT]")
         files = [Path(x) for x in parts[2:]] + [None, None]
         out.append(Entry(name, parts[0], Path(parts[1]), files[0], files[1]))
+    for item in args.tracking:
+        name, _, rest = item.partition("=")
+        parts = rest.split(",")
+        if not name or len(parts) != 2:
+            p.error(f"--tracking {item!r}: expected NAME=ROBOT_DIR,RL_SAR_FOLDER")
+        folder = Path(parts[1])
+        out.append(Entry(name, parts[0], folder / "policy.onnx", tracking=folder))
     unknown = set(domains) - {e.name for e in out}
     if unknown:
         p.error(f"--domain: {sorted(unknown)} name no policy of the run")
@@ -251,9 +271,13 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.push_reference", description=__doc__)
     p.add_argument("--robots", default="go2,h1,h1_2", help="shipped policies (go2, h1, h1_2)")
     p.add_argument("--user", action="append", default=[], metavar="NAME=ROBOT,POLICY[,YAML,PT]")
+    p.add_argument(
+        "--tracking", action="append", default=[], metavar="NAME=ROBOT,RL_SAR_FOLDER",
+        help="a whole-body tracking policy's rl_sar folder: its clip once per run",
+    )  # fmt: skip
     p.add_argument("--domain", action="append", default=[], metavar="NAME=RANGES_FILE")
     p.add_argument("--seeds", default="0-99", help="first-last push sequences")
-    p.add_argument("--seconds", type=float, default=60.0, help="s walked per run")
+    p.add_argument("--seconds", type=float, default=60.0, help="s walked per run (a clip: at most)")
     p.add_argument("--command", default="0.5,0,0", help="vx,vy,yaw rate (m/s, rad/s)")
     p.add_argument("--max-velocity", type=float, default=None, help="legged_gym's pushes, m/s")
     p.add_argument("--apply", choices=("force", "velocity_hidden_from_imu"), default=None)
@@ -286,7 +310,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"seeds {a.seeds}, {a.seconds:g} s each, command {a.command}")
     for e in entries:
         robot, _ = _load(e)
-        print(f"{e.name}: pushes {push_ranges(e, robot, a)}")
+        once = f"its clip once (at most {a.seconds:g} s), not --command; " if e.tracking else ""
+        print(f"{e.name}: {once}pushes {push_ranges(e, robot, a)}")
     print("\n".join(table(results, a)))
     return 0
 

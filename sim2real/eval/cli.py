@@ -152,6 +152,9 @@ def _commands(args, robot, ranges, file: dict) -> tuple:
 
     if robot_kind(robot).task != "locomotion":
         return ranges, None
+    if _reads_clip(args, robot):  # an exhibition: the task draws no velocity command
+        print("soak-test: commands: none (a motion clip commands the policy: an exhibition)")
+        return ranges, None
     contract = (None, None)
     if not all(k in file["given"] for k in RANGE_KEYS):
         # with --spec the file's own contract need not map: only what it records is read
@@ -164,6 +167,18 @@ def _commands(args, robot, ranges, file: dict) -> tuple:
         raise BadInput(str(exc)) from None
     print(f"soak-test: commands: {schedule_text(account)}")
     return dataclasses.replace(ranges, commands=commands), account
+
+
+def _reads_clip(args, robot) -> bool:
+    """Whether the policy (with ``--spec``'s contract when given) reads a motion clip."""
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.spec.policy_spec import PolicySpec
+    from sim2real.deploy.tasks.motion.source import reads_motion
+
+    spec = None
+    if args.spec is not None:
+        spec = PolicySpec.from_json(Path(args.spec).read_text(), source=str(args.spec))
+    return reads_motion(OnnxPolicy(args.policy, robot, spec=spec).spec)
 
 
 def _template(args, ranges):

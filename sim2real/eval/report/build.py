@@ -25,6 +25,13 @@ from sim2real.eval.report.schema import CHECKS, SCHEMA_VERSION, ReportError, Thr
 from sim2real.eval.report.totals import totals
 from sim2real.robots.files import atomic_write
 
+#: The success checks' message for a session a motion clip commands: its velocity tracking
+#: means nothing (its tracking: the result's ``exhibition`` section).
+CLIP_NOT_JUDGED = (
+    "not judged: a motion clip commands the policy, not a velocity (its tracking: the "
+    "exhibition section)"
+)
+
 
 def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     """The checks of one session result: ``{name: {"passed": bool, "message": str}}``.
@@ -39,7 +46,8 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     reported in the message, not judged), ``no_divergence``, ``falls`` (a legged session: at
     most ``max_falls_per_hour`` and no ``false_fall_stops``; an arm passes). For a legged
     session the success checks are its tracking success (``locomotion``), judged only with
-    ``thresholds.judge_tracking`` (else they pass and say "not judged").
+    ``thresholds.judge_tracking`` (else they pass and say "not judged"); a session a motion clip
+    commands has no velocity tracking: they pass, not judged (:data:`CLIP_NOT_JUDGED`).
     """
     hard = result["violations"]["total"].get("hard_limit", 0)
     hard_down = result["violations"].get("while_down", {}).get("hard_limit", 0)
@@ -55,9 +63,11 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     judged = True
     if loco is not None:  # a legged session: its success is the tracking success
         rate, window = loco["tracking_success"], loco["min_window_success_rate"]
-        judged = thresholds.judge_tracking
+        # a motion clip commands it: no velocity tracking to judge or report
+        clip = loco.get("commanded_by") == "clip"
+        judged = thresholds.judge_tracking and not clip
         threshold = f"threshold {thresholds.min_success_rate:.3f}" if judged else "not judged"
-        success_message = (
+        success_message = (CLIP_NOT_JUDGED if clip else None) or (
             f"tracking success {rate:.3f} ({threshold}, "
             f"{loco['tracked_s']:.0f}/{loco['running_s']:.0f} s RUNNING within "
             f"{loco['tracking_tolerance_m_s']:g} m/s of the command"
@@ -69,7 +79,7 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
             if rate is not None
             else "never RUNNING"
         )
-        window_message = (
+        window_message = (CLIP_NOT_JUDGED if clip else None) or (
             f"lowest tracking success in a {loco['window_s'] / 60:g}-minute window {window:.3f} "
             + (
                 f"(threshold {thresholds.min_window_success_rate:.3f}, "
@@ -233,7 +243,9 @@ def build_report(
                    min_window_success_rate, missed [{t_s, issued_s, goal, q, dq, q_estimate,
                    distance_m, best_distance_m, interventions {check: ticks, any}}],
                    missed_dropped}
-            locomotion (null for an arm) {commands_issued, command_period_s (s, or [low, high]
+            locomotion (null for an arm) {commanded_by ("velocity", or "clip": a motion-tracking
+                   session, whose velocity-tracking figures mean nothing and are neither
+                   printed nor judged), commands_issued, command_period_s (s, or [low, high]
                    when each command's length is drawn), command_ranges,
                    final_command, falls, falls_per_hour, fall_stops, fall_replays {falls,
                    own_loop, own_loop_fell, redraw, redraw_fell} (the falls replayed,
@@ -277,7 +289,8 @@ def build_report(
                         {issued, reached,
                         success_rate, min_window_success_rate, missed, missed_dropped} (arm
                         sessions), locomotion (legged sessions, else null) {sessions, falls,
-                        falls_per_hour, tracking_success, min_window_success_rate, distance_m,
+                        falls_per_hour, clip_sessions (a motion clip commands them: not in the
+                        velocity figures), tracking_success, min_window_success_rate, distance_m,
                         mean_forward_speed_m_s, running_s, peak_winding_c}, faults {injected,
                         survived, responses, by_kind}, latched_faults, operator_resets, wheels
                         (null without) {joints, peak_speed_rad_s, velocity_limit_rad_s,

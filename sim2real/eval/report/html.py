@@ -132,12 +132,23 @@ def film_html(report: dict, base: Path | None = None) -> str:
     return _render("film.html", sessions=sessions).removesuffix("\n")
 
 
+def _velocity(loco: dict, key: str):
+    """A legged session's velocity-tracking figure ``key``, or a word saying a motion clip
+    commanded it (the figure then means nothing, :func:`sim2real.eval.soak.result.
+    locomotion_result`'s ``commanded_by``)."""
+    return "n/a (a clip)" if loco.get("commanded_by") == "clip" else loco[key]
+
+
 def _success_cells(s: dict) -> list:
     """A session's success rate, lowest window success and missed goals; a legged session's
     tracking success, lowest window tracking success and falls."""
     loco = s.get("locomotion")
     if loco is not None:
-        return [loco["tracking_success"], loco["min_window_success_rate"], loco["falls"]]
+        return [
+            _velocity(loco, "tracking_success"),
+            _velocity(loco, "min_window_success_rate"),
+            loco["falls"],
+        ]
     g = s["goals"]
     return [g["success_rate"], g["min_window_success_rate"], len(g["missed"]) + g["missed_dropped"]]
 
@@ -320,10 +331,10 @@ def _locomotion_table(report: dict) -> dict:
                 s["locomotion"]["falls"],
                 s["locomotion"]["falls_per_hour"],
                 list(s["locomotion"].get("falls_by_origin", {}).values()),
-                s["locomotion"]["tracking_success"],
-                s["locomotion"]["min_window_success_rate"],
+                _velocity(s["locomotion"], "tracking_success"),
+                _velocity(s["locomotion"], "min_window_success_rate"),
                 s["locomotion"]["distance_m"],
-                s["locomotion"]["mean_forward_speed_m_s"],
+                _velocity(s["locomotion"], "mean_forward_speed_m_s"),
                 s["locomotion"]["running_s"],
                 s["locomotion"]["commands_issued"],
                 s["randomization"].get("floor_friction"),

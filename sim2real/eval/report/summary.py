@@ -23,6 +23,27 @@ def replay_lines(origins: dict[str, int]) -> list[str]:
     return [f"  no push, fault or stop before: the replays say {said}"]
 
 
+def locomotion_line(loco: dict) -> str:
+    """The legged sessions' line: falls, and the velocity tracking of the sessions a velocity
+    commands; a clip's sessions (``clip_sessions``) have none (their tracking: the exhibition
+    lines), and no velocity figure is printed for them."""
+    head = f"  locomotion   falls {loco['falls']} ({loco['falls_per_hour']:.2f} per hour)"
+    clips = loco.get("clip_sessions", 0)
+    if clips and clips == loco["sessions"]:
+        return (
+            f"{head}; a motion clip commands the policy, not a velocity: no velocity tracking "
+            "(its tracking: the exhibition lines)"
+        )
+    ts, speed = loco["tracking_success"], loco["mean_forward_speed_m_s"]
+    over = f" (the {loco['sessions'] - clips} velocity-commanded sessions)" if clips else ""
+    return (
+        f"{head}; tracking success {'n/a' if ts is None else f'{100 * ts:.1f} %'} (within 0.2 "
+        f"m/s){over}; distance {loco['distance_m']:.0f} m; mean forward speed "
+        f"{'n/a' if speed is None else f'{speed:.3f} m/s'}; commands issued "
+        f"{loco.get('commands_issued', 'n/a')}"
+    )
+
+
 def summary_text(report: dict) -> str:
     """A few lines for the console."""
     t = report["totals"]
@@ -41,19 +62,13 @@ def summary_text(report: dict) -> str:
     if w is not None:
         lines.append(f"  windows      lowest success rate in a window {100 * w:.1f} %")
     schedule = report["campaign"].get("commands")
-    if loco is not None and schedule:
+    clips_only = loco is not None and loco.get("clip_sessions", 0) == loco["sessions"]
+    if loco is not None and schedule and not clips_only:  # a clip's sessions draw no command
         from sim2real.eval.world.command_schedule import schedule_text
 
         lines.append(f"  commands     {schedule_text(schedule)}")
     if loco is not None:
-        ts, speed = loco["tracking_success"], loco["mean_forward_speed_m_s"]
-        lines.append(
-            f"  locomotion   falls {loco['falls']} ({loco['falls_per_hour']:.2f} per hour); "
-            f"tracking success {'n/a' if ts is None else f'{100 * ts:.1f} %'} (within 0.2 m/s); "
-            f"distance {loco['distance_m']:.0f} m; mean forward speed "
-            f"{'n/a' if speed is None else f'{speed:.3f} m/s'}; commands issued "
-            f"{loco.get('commands_issued', 'n/a')}"
-        )
+        lines.append(locomotion_line(loco))
         origins = loco.get("falls_by_origin")
         if loco["falls"] and origins:
             by = ", ".join(f"{o.replace('_', ' ')} {n}" for o, n in origins.items() if n)
@@ -196,14 +211,19 @@ def exhibition_lines(s: dict) -> list[str]:
     if not x:
         return []
     h, clips = x["heat"], x["clips"]
-    rms = [c["joint_rms_rad"] for c in clips if c["joint_rms_rad"] is not None]
+
+    def spread(key: str, form: str, unit: str) -> str:
+        v = [c[key] for c in clips if c.get(key) is not None]
+        return f"{min(v):{form}}-{max(v):{form}} {unit}" if v else "n/a"
+
     iv = [c["interventions"] for c in clips]
     lines = [
         f"  exhibition   {s['id']}: {h['clips']} clips of {x['clip_s']:.1f} s (then "
         f"{x['stand_s']:g} s to home, {x['rest_s']:g} s standing); completed {h['completed']}, "
-        f"falls {h['falls']}; joint error per clip "
-        + (f"{min(rms):.3f}-{max(rms):.3f} rad RMS" if rms else "n/a")
-        + f"; guard interventions per clip {min(iv, default=0)}-{max(iv, default=0)} ticks"
+        f"falls {h['falls']}; per clip: joint error {spread('joint_rms_rad', '.3f', 'rad RMS')}, "
+        f"anchor error {spread('anchor_error_deg_mean', '.1f', 'deg mean')}, MPJPE "
+        f"{spread('mpjpe_mm', '.1f', 'mm')}, guard interventions "
+        f"{min(iv, default=0)}-{max(iv, default=0)} ticks"
     ]
     if h["derating"]:
         which = ", ".join(f"{j} (clip {n})" for j, n in h["derating"].items())

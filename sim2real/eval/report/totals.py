@@ -254,8 +254,11 @@ def _locomotion_totals(results: list[dict]) -> dict | None:
     hours = sum(r["simulated_hours"] for r in results if r.get("locomotion") is not None)
     falls = sum(x["falls"] for x in legs)
     running = sum(x["running_s"] for x in legs)
+    # the velocity-tracking figures of the sessions a velocity commands (a clip's mean nothing)
+    vel = [x for x in legs if x.get("commanded_by", "velocity") == "velocity"]
+    vel_running = sum(x["running_s"] for x in vel)
     windows = [
-        x["min_window_success_rate"] for x in legs if x["min_window_success_rate"] is not None
+        x["min_window_success_rate"] for x in vel if x["min_window_success_rate"] is not None
     ]
     kinds = sorted({k for x in legs for k in x["peak_winding_c"]})
     from sim2real.eval.soak.falls import ORIGINS
@@ -278,10 +281,15 @@ def _locomotion_totals(results: list[dict]) -> dict | None:
         },
         "falls_by_cause": causes,
         "commands_issued": sum(x.get("commands_issued", 0) for x in legs),
-        "tracking_success": sum(x["tracked_s"] for x in legs) / running if running else None,
+        "clip_sessions": len(legs) - len(vel),
+        "tracking_success": (
+            sum(x["tracked_s"] for x in vel) / vel_running if vel_running else None
+        ),
         "min_window_success_rate": min(windows) if windows else None,
         "distance_m": sum(x["distance_m"] for x in legs),
-        "mean_forward_speed_m_s": sum(x["forward_m"] for x in legs) / running if running else None,
+        "mean_forward_speed_m_s": (
+            sum(x["forward_m"] for x in vel) / vel_running if vel_running else None
+        ),
         "running_s": running,
         "standing_fraction": running / (3600.0 * hours) if hours > 0 else None,
         "peak_winding_c": {

@@ -69,7 +69,10 @@ FORMAT = "soak-checkpoint"
 #: 14: the self-collision ticks a motion clip's own contacts account for
 #: (``violations/reference_ticks``, ``reference_pair_ticks``) and the scheduled pushes not applied
 #: (``skipped_pushes``); a version 13 checkpoint has neither.
-VERSION = 14
+#: 15: a motion-tracking session's judged figures and play log (``figures/...``: its clips,
+#: their errors and heat); a version 14 checkpoint has none, and a resume from it lost the clips
+#: played before the checkpoint.
+VERSION = 15
 MANIFEST = "checkpoint.json"
 
 

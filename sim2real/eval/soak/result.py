@@ -72,6 +72,9 @@ def locomotion_result(session: Session) -> dict:
     pushes = b.pushes.times[e] if b.pushes is not None else []
     fall_records = attribute_falls(tr.fall_log[e], schedule, pushes)
     return {
+        # what commands the policy: a velocity (the tracking figures below mean something) or a
+        # motion clip (they do not: its tracking is the exhibition section's)
+        "commanded_by": "clip" if session.task.name == "tracking" else "velocity",
         "commands_issued": int(cmd.issued[e]) if cmd is not None else 0,
         "command_period_s": period_value(session.config.command_period),
         "command_ranges": asdict(cmd.ranges) if cmd is not None else None,

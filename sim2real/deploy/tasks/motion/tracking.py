@@ -15,11 +15,10 @@ the next tick's reference into ``RobotState.motion`` (the blocks of
   last frame holds);
 - a stop (a fall, the operator) ends the play: the next RUNNING starts the clip again.
 
-Each play is logged (:attr:`TrackingTask.play_log`): its share completed, whether a stop ended
-it, its joint-angle error and the guard's interventions while it played. The reference's own
-self-contacts (:mod:`sim2real.deploy.tasks.motion.self_contact`) are screened once, before any
-play; :meth:`TrackingTask.reference_contacts` tells the violation monitor which pairs the
-reference touches around each env's moment now.
+Each play is logged (:attr:`TrackingTask.play_log`; checkpointed with the figures, the part
+``figures``): its share completed, whether a stop ended it, its errors, the guard's interventions.
+The reference's own self-contacts (:mod:`~sim2real.deploy.tasks.motion.self_contact`) are screened
+once; :meth:`TrackingTask.reference_contacts` tells the violation monitor which pairs it touches.
 
 Judged while the clip plays (not while its last frame holds), on the plant's truth in
 simulation (the estimate on hardware): joint-angle error (rad RMS) per body group (legs, waist,
@@ -34,8 +33,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim2real.deploy.core.attitude import yaw_of
 from sim2real.deploy.core.modes import RUNNING
-from sim2real.deploy.spec.motion_blocks import quat_conj, quat_mul, torso_quat
+from sim2real.deploy.spec.motion_blocks import axis_quat, quat_conj, quat_mul, torso_quat
 from sim2real.deploy.tasks.motion.clock import MotionClock
 from sim2real.deploy.tasks.motion.self_contact import clip_self_contacts
 from sim2real.deploy.tasks.velocity import VelocityTask
@@ -69,12 +69,16 @@ class TrackingTask:
             whose tracker counts the falls. progress: (envs,) s, the farthest clip time reached.
         sq_error: (envs, n) rad^2, squared joint-angle error summed over the playing ticks;
             anchor_sum: (envs,) deg, anchor error summed; anchor_max: (envs,) deg; ticks:
-            (envs,) playing ticks judged.
+            (envs,) playing ticks judged. heading: (envs,) rad, the true base yaw less the
+            estimate's when the clip was last aligned (the anchor is judged against the clip
+            turned by it: the estimate's heading error then is not the policy's).
         contacts: The reference's self-contacts
             (:class:`~sim2real.deploy.tasks.motion.self_contact.ClipContacts`).
         play_log: per env, a list of ended plays: ``completed`` (share of the clip),
-            ``stopped`` (a stop ended it), ``joint_rms_rad``, ``ticks``, ``interventions`` and
-            ``safety_interventions`` (ticks, while the clip and its transition played).
+            ``stopped`` (a stop ended it), ``joint_rms_rad``, ``anchor_error_deg_mean``,
+            ``mpjpe_mm`` (None for a play with no judged tick), ``ticks``, ``interventions`` and
+            ``safety_interventions`` (ticks, while the clip and its transition played),
+            ``end_s`` and its heat (``hottest``, ``hottest_c``, ``derating``).
     """
 
     name = "tracking"
@@ -92,7 +96,7 @@ class TrackingTask:
         self.contacts = clip_self_contacts(robot, clock.reference_poses(), clock.clip.fps)
         self.play_log: list[list[dict]] = [[] for _ in range(envs)]
         self._clock_now = 0.0  # s, the runtime's time at the last tick
-        self._play = np.zeros((envs, 4))  # this play's sq error, ticks, any, safety
+        self._play = np.zeros((envs, 6))  # this play's sq error, ticks, any, safety, anchor, mpjpe
         self._seen = np.zeros((envs, 2), dtype=np.int64)  # interventions any, safety last tick
         self._thermal = getattr(backend, "thermal", None)
         self._peak = np.full((envs, robot.n_joints), -np.inf)  # this play's winding peak, degC
@@ -110,6 +114,7 @@ class TrackingTask:
         self.anchor_max = np.zeros(envs)
         self.ticks = np.zeros(envs, dtype=np.int64)
         self.mpjpe_sum = np.zeros(envs)
+        self.heading = np.zeros(envs)
         import pinocchio as pin
 
         model = robot.pin_model
@@ -135,7 +140,19 @@ class TrackingTask:
     def _align(self, runtime, envs: np.ndarray) -> None:
         state = runtime.state
         self.motion.align(envs, state.base.orientation, state.q[:, self.waist])
+        self._true_heading(state, envs)
         self.motion.write(self._buffer(runtime), envs)
+
+    def _true_heading(self, state, envs: np.ndarray) -> None:
+        """Note, for the envs of ``envs`` just aligned, the truth's base yaw less the estimate's
+        (rad; 0 without a truth): the clip was aligned to the estimated heading, and is judged
+        turned by it against the true robot (:meth:`_judge`), so that the estimate's yaw error
+        at the alignment is not counted as the policy's anchor error."""
+        if self.truth is None:
+            return
+        e = np.flatnonzero(envs)
+        turn = yaw_of(self.truth()[e, 3:7]) - yaw_of(state.base.orientation[e])
+        self.heading[e] = np.angle(np.exp(1j * turn))
 
     def __call__(self, runtime, truth: np.ndarray | None = None) -> None:
         """One tick (module docstring): judge the tick that ran, then write the next one's."""
@@ -158,6 +175,7 @@ class TrackingTask:
             if clock.restarted.any():  # an exhibition's next play: aligned as at its start
                 state = runtime.state
                 clock.align(clock.restarted, state.base.orientation, state.q[:, self.waist])
+                self._true_heading(state, clock.restarted)
             now = np.where(playing, np.minimum(clock.time, clock.length), 0.0)
             np.maximum(self.progress, now, out=self.progress)
             clock.write(self._buffer(runtime), playing)
@@ -186,7 +204,8 @@ class TrackingTask:
             q = self.true_q()
         quat = state.base.orientation if self.truth is None else self.truth()[:, 3:7]
         torso = torso_quat(quat, q[:, self.waist])
-        rel = quat_mul(quat_conj(torso), ref[:, 2 * n : 2 * n + 4])
+        anchor = quat_mul(axis_quat(2, self.heading), ref[:, 2 * n : 2 * n + 4])
+        rel = quat_mul(quat_conj(torso), anchor)
         angle = np.degrees(2.0 * np.arccos(np.clip(np.abs(rel[:, 0]), 0.0, 1.0)))
         e = np.flatnonzero(envs)
         if not len(e):
@@ -197,8 +216,11 @@ class TrackingTask:
         self.ticks[e] += 1
         self._play[e, 0] += ((q[e] - ref[e, :n]) ** 2).sum(axis=1)
         self._play[e, 1] += 1
+        self._play[e, 4] += angle[e]
         for k in e:
-            self.mpjpe_sum[k] += 1000.0 * self._mpjpe(ref[k, :n], q[k])
+            mm = 1000.0 * self._mpjpe(ref[k, :n], q[k])
+            self.mpjpe_sum[k] += mm
+            self._play[k, 5] += mm
 
     def _heat(self, playing: np.ndarray) -> None:
         """Keep each playing env's hottest winding of this play (the plant's thermal model)."""
@@ -218,12 +240,14 @@ class TrackingTask:
 
     def _log_play(self, e: int, stopped: bool) -> None:
         """Close env ``e``'s play into :attr:`play_log` and start a new one."""
-        sq, ticks, any_, safety = self._play[e]
+        sq, ticks, any_, safety, anchor, mpjpe = self._play[e]
         t = self.motion.time[e]
         done = 1.0 if not stopped else min(float(np.nan_to_num(t)) / self.motion.length, 1.0)
         self.play_log[e].append({
             "completed": done, "stopped": stopped,
             "joint_rms_rad": float(np.sqrt(sq / (ticks * self.robot.n_joints))) if ticks else None,
+            "anchor_error_deg_mean": float(anchor / ticks) if ticks else None,
+            "mpjpe_mm": float(mpjpe / ticks) if ticks else None,
             "ticks": int(ticks), "interventions": int(any_), "safety_interventions": int(safety),
             "end_s": float(self._clock_now), **self._play_heat(e),
         })  # fmt: skip
@@ -329,7 +353,9 @@ class TrackingTask:
         self.velocity.curve_point(curve, e)
 
     def parts(self) -> dict:
-        return {"motion": self.motion, **self.velocity.parts()}
+        """The stateful parts: the clip's clock, the judged figures and play log
+        (:class:`TrackingFigures`), the velocity task's (its falls)."""
+        return {"motion": self.motion, "figures": TrackingFigures(self), **self.velocity.parts()}
 
     def state_dict(self, env: int | None = None) -> dict:
         from sim2real.deploy.core.stateful import parts_state_dict
@@ -340,3 +366,62 @@ class TrackingTask:
         from sim2real.deploy.core.stateful import load_parts
 
         load_parts(self.parts(), state, env)
+
+
+class TrackingFigures:
+    """The state of a :class:`TrackingTask`'s judgement, as a part of its state dict
+    (:mod:`sim2real.deploy.core.stateful`): what a resumed soak needs to report the plays as an
+    uninterrupted one.
+
+    Fields (the env axis kept): ``progress``, ``sq_error``, ``anchor_sum``, ``anchor_max``,
+    ``ticks``, ``mpjpe_sum``, ``waited``, ``heading`` (the task's attributes), ``play``
+    (envs, 6): the play under way's sums (squared joint error, ticks, interventions, safety
+    interventions, anchor error, MPJPE), ``seen`` (envs, 2): the intervention counts at the last
+    tick, ``peak`` (envs, n) degC: the play's hottest windings; ``play_log``: JSON text of the
+    envs' ended plays (:attr:`TrackingTask.play_log`); ``clock_now``: s, the runtime's time at
+    the last tick (the batch's).
+    """
+
+    ARRAYS = (
+        "progress", "sq_error", "anchor_sum", "anchor_max", "ticks", "mpjpe_sum", "waited",
+        "heading",
+    )  # fmt: skip
+    PRIVATE = {"play": "_play", "seen": "_seen", "peak": "_peak"}
+
+    def __init__(self, task: TrackingTask):
+        self.task = task
+
+    def _fields(self) -> dict[str, np.ndarray]:
+        t = self.task
+        out = {k: getattr(t, k) for k in self.ARRAYS}
+        out.update({k: getattr(t, a) for k, a in self.PRIVATE.items()})
+        return out
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The fields (class docstring) of every env, or of env ``env``."""
+        from sim2real.deploy.core.stateful import env_list, take, to_json
+
+        out: dict = take(self._fields(), env)
+        envs = env_list(self.task.envs, env)
+        out["play_log"] = to_json([self.task.play_log[e] for e in envs])
+        out["clock_now"] = float(self.task._clock_now)
+        return out
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict`; a state that does not fit changes nothing.
+
+        Raises:
+            StateDictError: a field missing, shaped otherwise, or a play log that is not a list
+                per env (named).
+        """
+        from sim2real.deploy.core.stateful import check, env_list, put, read_records, scalar
+
+        fields = self._fields()
+        check(fields, state, env)
+        envs = env_list(self.task.envs, env)
+        logs = read_records(state, ["play_log"], len(envs))["play_log"]
+        now = scalar(state, "clock_now", float)
+        put(fields, state, env)
+        for e, log in zip(envs, logs, strict=True):
+            self.task.play_log[e] = list(log)
+        self.task._clock_now = now

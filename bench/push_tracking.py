@@ -1,0 +1,194 @@
+"""The push benchmark's loops for a whole-body tracking policy (:mod:`bench.push_reference`
+``--tracking``): one play of its clip under a sequence of pushes, in rl_sar's loop on the true
+state or in our runtime.
+
+- :func:`rl_sar_loop`: rl_sar's tracking loop (:mod:`bench.rl_sar_tracking`: its observation,
+  clip, clock and yaw alignment, :mod:`bench.rl_sar_motion`; the TorchScript ``policy.pt`` of the
+  folder, its ``rl_kp``/``rl_kd``, ``action_scale`` and ``default_dof_pos``), on our robot's
+  MJCF with torque actuators (``robot.plant_model("torque")``, the plant of
+  :func:`bench.push_loops.unitree_loop`): the IMU quaternion and gyro and the joints read from
+  the true MuJoCo state, ``tau = kp (target - q) - kd dq`` at every physics step; no estimator,
+  guard or sensor noise. The robot starts at the home pose (the policy's ``default_dof_pos``),
+  held ``SETTLE`` s by the policy's gains at it (rl_sar's GetUp), then the dance state's
+  ``Reset`` aligns the clip to its heading and the clip plays once.
+- :func:`tracking_runtime_loop`: ``deploy-run``'s rig (:class:`~sim2real.deploy.rig.rig.Rig`
+  with the ``tracking`` task, :class:`~sim2real.deploy.tasks.motion.tracking.TrackingTask`) over
+  :class:`~sim2real.deploy.backends.sim.plant.SimBackend` (position mode, the robot's sensor
+  noise seeded by the run's seed): RAMP_IN to home, then the clip from the first RUNNING tick.
+
+Both push with the soak's schedule (:class:`~sim2real.eval.world.pushes.DomainPushes`) on the
+clip's clock: push ``k`` of a seed lands after the same clip frame in both loops (the wait drawn
+from the clip's start, ours' first RUNNING tick). A run ends at the clip's last frame or at the
+first true fall (:func:`bench.push_loops.true_fall`), ours also at a stop; the figures are those
+of :class:`bench.push_loops.Run`, walked meaning s of clip played, the pushes' times on the clip's
+clock (the time of the frame read by the tick the push follows) and the fall's at its tick's end.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from bench.push_loops import (
+    STOP_RAISED,
+    BareBase,
+    Run,
+    _Walk,
+    past_hard_limit,
+    quiet,
+    true_fall,
+    true_upright,
+)
+from bench.rl_sar_motion import RlSarMotion, rl_sar_params
+from bench.rl_sar_tracking import load_policy, observation
+from sim2real.deploy.core.modes import RUNNING
+from sim2real.eval.world.pushes import DomainPushes
+
+#: s the own loop holds the home pose before the clip (rl_sar's GetUp before its dance state; our
+#: choice of length: the robot at rest on its feet)
+SETTLE = 1.0
+#: s a run of ours may spend in RAMP_IN before the clip (a fall if it never plays)
+RAMP_TIMEOUT = 10.0
+
+
+def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes) -> Run:
+    """One play of rl_sar ``folder``'s clip in rl_sar's loop (module docstring) on ``robot`` (its
+    joints named as base.yaml's ``joint_names``), under ``pushes`` (a
+    :class:`~sim2real.eval.world.pushes.PushRanges`; None: none), at most ``seconds`` s of clip
+    (None: all of it).
+
+    Raises:
+        ValueError: a joint of base.yaml the robot lacks, or a control period not rl_sar's
+            ``dt x decimation``.
+    """
+    import torch
+
+    folder = Path(folder)
+    base, params = rl_sar_params(folder)
+    missing = [j for j in base["joint_names"] if j not in robot.joint_names]
+    if missing:
+        raise ValueError(f"{folder}: base.yaml joint_names: {missing} are no joints of the robot")
+    period = float(params["dt"]) * int(params["decimation"])
+    if abs(period - robot.control_period) > 1e-9:
+        raise ValueError(
+            f"{folder}: dt x decimation {period} s is not the robot's control period "
+            f"{robot.control_period} s"
+        )
+    slot = np.array([robot.joint_names.index(j) for j in base["joint_names"]])  # slot -> ours
+    ours = slot[np.asarray(params["joint_mapping"])]  # policy entry i -> our joint index
+    kp, kd = np.empty(robot.n_joints), np.empty(robot.n_joints)
+    kp[ours], kd[ours] = params["rl_kp"], params["rl_kd"]
+    scale = np.asarray(params["action_scale"], dtype=float)
+    default = np.asarray(params["default_dof_pos"], dtype=float)
+    lo, hi = np.asarray(params["clip_actions_lower"]), np.asarray(params["clip_actions_upper"])
+    m = robot.plant_model("torque")
+    d = mujoco.MjData(m)
+    qo, vo = robot.qpos_offset, robot.qvel_offset
+    target = np.array(robot.home, dtype=float)
+    d.qpos[qo:] = target
+    mujoco.mj_forward(m, d)
+    dec = round(period / m.opt.timestep)
+
+    def step():
+        for _ in range(dec):
+            d.ctrl[:] = kp * (target - d.qpos[qo:]) - kd * d.qvel[vo:]
+            mujoco.mj_step(m, d)
+
+    for _ in range(round(SETTLE / period)):
+        step()
+    motion = RlSarMotion(folder / params["motion_file"], 1.0 / period)
+    waist = [list(params["joint_mapping"]).index(s) for s in params["waist_joint_indices"]]
+    motion.reset(d.qpos[3:7].copy(), d.qpos[qo:][ours][waist])
+    net = load_policy(folder / params["model_name"])
+    actions = np.zeros(len(ours), dtype=np.float32)
+    ticks = round(motion.duration / period)
+    if seconds is not None:
+        ticks = min(ticks, round(seconds / period))
+    walk, run = _Walk(), Run()
+    schedule = DomainPushes([seed], pushes, period) if pushes else None
+    bare = BareBase(robot, m, d)
+    for k in range(ticks):
+        motion.update(k * period)
+        q, dq = d.qpos[qo:][ours], d.qvel[vo:][ours]
+        obs = observation(params, motion, d.qpos[3:7], d.qvel[3:6], q, dq, actions)
+        with torch.no_grad():
+            out = net(torch.from_numpy(obs)[None]).numpy()[0]
+        actions = np.clip(out, lo, hi).astype(np.float32)
+        target[ours] = actions * scale + default
+        step()
+        run.walked = walk.ticks = k + 1
+        run.past_limit += past_hard_limit(robot, d.qpos[qo:])
+        if true_fall(robot, d.qpos[2], d.qpos[3:7]) or not np.isfinite(d.qpos).all():
+            run.fell_at, run.cause = (k + 1) * period, "fall"
+            break
+        if schedule is not None:
+            schedule(walk, bare)
+    run.walked *= period
+    run.pushes = [t - period for t in schedule.times[0]] if schedule else []  # the frame's time
+    return run
+
+
+def tracking_runtime_loop(robot, policy, seed: int, seconds: float | None, pushes) -> Run:
+    """One play of ``policy``'s clip (an ``OnnxPolicy`` on ``robot``, fresh, whose contract names
+    the clip) in our runtime (module docstring); arguments and result as :func:`rl_sar_loop`."""
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.rig.rig import Rig
+    from sim2real.deploy.smoothing.ruckig_state import SmoothingError
+    from sim2real.deploy.tasks.motion.source import motion_for
+    from sim2real.eval.soak.push_response import PushResponse
+
+    plant = SimBackend(robot, "position", envs=1, seed=seed)
+    motion = motion_for(policy, robot, 1, playback="once")
+    task = {"period": 1.0, "rng": np.random.default_rng(seed), "task": "tracking"}
+    rig = Rig(robot, policy, plant, envs=1, task={**task, "motion": motion})
+    rig.start()
+    rt, monitor, clock = rig.runtime, rig.interventions, rig.task.motion
+    ticks = round(clock.length / rt.dt)
+    if seconds is not None:
+        ticks = min(ticks, round(seconds / rt.dt))
+    run = Run(checks={})
+    schedule = DomainPushes([seed], pushes, rt.dt) if pushes else None
+    response = PushResponse(schedule, rt.dt) if schedule else None
+    counts = monitor.counts
+    before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
+    truth = np.zeros((1, 13))
+    start = 0  # the tick that read the clip's first frame (the first RUNNING tick)
+    while run.ticks < ticks:
+        try:
+            rt.tick()
+        except SmoothingError:  # the runtime raised: the run ends there, counted apart
+            plant.true_base_state(out=truth)
+            run.fell_at, run.cause = rt.time, STOP_RAISED
+            run.upright_stop = true_upright(robot, truth[0, 2], truth[0, 3:7])
+            break
+        rig.monitor(rt)  # the interventions, then the tracking task
+        plant.true_base_state(out=truth)
+        if rt.mode[0] != RUNNING:
+            if run.ticks or rt.time > RAMP_TIMEOUT:  # it danced, and stopped
+                run.fell_at, run.cause = run.ticks * rt.dt, rt.cause_names()[0]
+                run.upright_stop = true_upright(robot, truth[0, 2], truth[0, 3:7])
+                break
+            before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
+            continue
+        run.ticks += 1
+        start = start or rt.ticks
+        changed = int(monitor.any[0]) - last_any
+        run.intervened += changed
+        last_any = int(monitor.any[0])
+        run.past_limit += past_hard_limit(robot, plant.true_position()[0])
+        if quiet(rt.time, schedule.times[0] if schedule else []):
+            run.quiet_ticks += 1
+            run.quiet_intervened += changed
+        if true_fall(robot, truth[0, 2], truth[0, 3:7]):
+            run.fell_at, run.cause = run.ticks * rt.dt, "fall"
+            break
+        if schedule is not None:  # as the soak: the estimate judged, then the tick's push
+            response(rt, plant)
+            schedule(rt, plant)
+    run.walked = run.ticks * rt.dt
+    run.checks = {k: int(v[0]) - before[k] for k, v in monitor.counts.items() if v[0] > before[k]}
+    run.pushes = [t - start * rt.dt for t in schedule.times[0]] if schedule else []
+    run.after_push = response.summary() if response else None
+    return run

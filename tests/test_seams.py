@@ -84,7 +84,7 @@ def plugin(tmp_path, monkeypatch):
     forgotten after it (each registry's ``scoped``)."""
     from contextlib import ExitStack
 
-    from sim2real.deploy.robot_kind import KIND_REGISTRY
+    from sim2real.deploy.kinds import KIND_REGISTRY
 
     monkeypatch.syspath_prepend(str(tmp_path))
     stack = ExitStack()
@@ -143,14 +143,9 @@ KIND_MODULE = '''
 """An arm whose joint filters run the constant-velocity model (drives that do not follow their
 command closely, e.g. a compliant arm): a kind a contributor adds."""
 
-from sim2real.deploy.robot_kind import RobotKind, register_kind
+from sim2real.deploy.kinds import Arm, register_kind
 
-COMPLIANT_ARM = register_kind(
-    RobotKind(
-        name="compliant_arm", floating_base=False, task="goals", joint_input=False,
-        stand_up_on_reset=False,
-    )
-)
+COMPLIANT_ARM = register_kind(Arm(name="compliant_arm", joint_input=False))
 '''
 
 
@@ -174,7 +169,7 @@ def _arm3_with_kind(tmp_path, kind: str):
 
 
 def test_a_new_robot_kind_is_one_module_and_robot_toml_names_it(plugin, monkeypatch, tmp_path):
-    from sim2real.deploy import robot_kind as kinds
+    from sim2real.deploy import kinds
 
     robot = _arm3_with_kind(tmp_path, "compliant_arm")
     with pytest.raises(ValueError, match=r"robot.toml: kind = 'compliant_arm': expected one of"):
@@ -199,13 +194,13 @@ notes which of its choices the assembly asked (``ASKED``)."""
 
 from dataclasses import dataclass
 
-from sim2real.deploy.robot_kind import RobotKind, register_kind
+from sim2real.deploy.kinds import Legged, register_kind
 
 ASKED = []
 
 
 @dataclass(frozen=True)
-class GantryLegged(RobotKind):
+class GantryLegged(Legged):
     def state(self, robot, envs):
         ASKED.append("state")
         return super().state(robot, envs)
@@ -223,19 +218,14 @@ class GantryLegged(RobotKind):
         return super().wheel_drives(robot, envs, mode)
 
 
-GANTRY_LEGGED = register_kind(
-    GantryLegged(
-        name="gantry_legged", floating_base=True, task="locomotion", joint_input=False,
-        stand_up_on_reset=True, holds_self_collision=False, cable_faults=True,
-    )
-)
+GANTRY_LEGGED = register_kind(GantryLegged(name="gantry_legged", cable_faults=True))
 '''
 
 
 def test_a_fourth_kind_floats_through_deploy_run_by_its_own_choices(
     plugin, monkeypatch, tmp_path, go2_onnx
 ):
-    from sim2real.deploy.robot_kind import KIND_REGISTRY, robot_kind
+    from sim2real.deploy.kinds import KIND_REGISTRY, robot_kind
     from sim2real.robots import load_robot
 
     toml = _with_kind(tmp_path, "gantry_legged", "go2")
@@ -259,14 +249,14 @@ def test_a_fourth_kind_floats_through_deploy_run_by_its_own_choices(
 
 
 def test_robot_toml_kind_must_fit_the_robot(tmp_path):
-    from sim2real.deploy.robot_kind import robot_kind
+    from sim2real.deploy.kinds import robot_kind
 
     with pytest.raises(ValueError, match=r"kind = 'legged' needs a \[base\] table"):
         robot_kind(_arm3_with_kind(tmp_path, "legged"))
 
 
 def test_a_kind_s_target_and_limit_choices_follow_legged_unless_given():
-    from sim2real.deploy.robot_kind import ARM, LEGGED, RobotKind
+    from sim2real.deploy.kinds import ARM, LEGGED, RobotKind
 
     assert not ARM.pd_targets and not ARM.hard_limit_bounce
     assert LEGGED.pd_targets and LEGGED.hard_limit_bounce
@@ -278,7 +268,7 @@ def test_a_kind_s_target_and_limit_choices_follow_legged_unless_given():
 
 
 def test_a_kind_with_pd_targets_takes_the_guard_s_envelope_and_the_tracking_tolerance(tmp_path):
-    from sim2real.deploy.robot_kind import KIND_REGISTRY, RobotKind, register_kind
+    from sim2real.deploy.kinds import KIND_REGISTRY, Arm, register_kind
     from sim2real.deploy.runtime.anchoring import TRACKING_TOLERANCE, tracking_tolerance
     from sim2real.deploy.safety.guard import SafetyGuard
 
@@ -286,16 +276,7 @@ def test_a_kind_with_pd_targets_takes_the_guard_s_envelope_and_the_tracking_tole
     assert SafetyGuard(arm, 1, "position").envelope is not None
     assert tracking_tolerance(arm, "position") == TRACKING_TOLERANCE
     with KIND_REGISTRY.scoped():
-        register_kind(
-            RobotKind(
-                name="pd_arm",
-                floating_base=False,
-                task="goals",
-                joint_input=True,
-                stand_up_on_reset=False,
-                pd_targets=True,
-            )
-        )
+        register_kind(Arm(name="pd_arm", pd_targets=True))
         robot = _arm3_with_kind(tmp_path, "pd_arm")
         assert SafetyGuard(robot, 1, "position").envelope is None
         assert tracking_tolerance(robot, "position") == float("inf")
@@ -385,3 +366,21 @@ def test_few_lines_branch_on_the_robot_kind_outside_the_kinds():
         f"{len(lines)} lines branch on the robot kind outside its modules (at most "
         f"{KIND_BRANCHES}): give the kind a choice with a meaning instead:\n" + "\n".join(lines)
     )
+
+
+def test_the_built_in_kinds_are_one_module_each_and_wheel_legged_is_a_legged_robot():
+    """Each built-in kind is its own module, registered by importing :mod:`sim2real.deploy.kinds`
+    (no module named by string); a wheel-legged robot makes a legged robot's every choice but its
+    name, its wheels its own."""
+    from dataclasses import fields
+
+    from sim2real.deploy import kinds
+
+    assert kinds.KIND_REGISTRY.builtin == ()
+    assert {"arm", "legged", "wheel_legged"} <= set(kinds.KIND_REGISTRY.entries())
+    assert isinstance(kinds.WHEEL_LEGGED, kinds.Legged)
+    choices = [f.name for f in fields(kinds.LEGGED) if f.name != "name"]
+    assert all(getattr(kinds.WHEEL_LEGGED, c) == getattr(kinds.LEGGED, c) for c in choices)
+    assert kinds.LEGGED.wheel_drives is not kinds.WHEEL_LEGGED.wheel_drives
+    with pytest.raises(NotImplementedError, match="robot kind 'bare': state"):
+        kinds.RobotKind("bare", False, "goals", True, False).state(None, 1)

@@ -5,7 +5,7 @@ the soak and training alike."""
 import numpy as np
 import pytest
 
-from sim2real.deploy.robot_kind import ARM, LEGGED, robot_kind
+from sim2real.deploy.kinds import ARM, LEGGED, robot_kind
 from sim2real.deploy.tasks.episodes import EpisodeCommands, EpisodeGoals
 from sim2real.deploy.tasks.goals import GoalTask
 from sim2real.deploy.tasks.task import task_for

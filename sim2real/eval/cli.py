@@ -38,7 +38,7 @@ import sys
 import time
 from pathlib import Path
 
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 from sim2real.eval.cli_options import BadInput, check_args, parser
 
 EXIT_PASSED = 0

@@ -34,8 +34,8 @@ import numpy as np
 
 from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.core.state import BaseState
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.rig.rig import Rig
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime import Mode
 from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.deploy.tasks.commands import CommandRanges

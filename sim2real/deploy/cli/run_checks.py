@@ -47,7 +47,7 @@ def check_options(args, robot) -> None:
         ValueError: ``--command`` not VX,VY,WZ; a bad ``--size`` or ``--fps`` with ``--video``;
             ``--terrain`` off the simulated backend or for a robot without a floating base.
     """
-    from sim2real.deploy.robot_kind import robot_kind
+    from sim2real.deploy.kinds import robot_kind
 
     if getattr(args, "terrain", None) is not None:
         if args.backend != "sim":

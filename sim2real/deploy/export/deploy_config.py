@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.deploy.export.errors import ExportError
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.spec.policy_spec import (
     LEGGED_ACTION_CLIP,
     ActionSpec,

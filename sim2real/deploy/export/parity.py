@@ -35,8 +35,8 @@ from sim2real.deploy.backends.sim.plant import (
 from sim2real.deploy.core.state import Kinematics, RobotState
 from sim2real.deploy.export.noise_floor import TOLERANCE, NoiseFloor, _max_abs  # noqa: F401 - TOLERANCE
 from sim2real.deploy.export.recurrent import RecurrentPolicyModule, RecurrentStepper
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.spec.history import per_input_entry
 from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.robots import Robot

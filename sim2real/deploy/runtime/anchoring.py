@@ -8,7 +8,7 @@ import numpy as np
 
 from sim2real.deploy.core.modes import FAULTED, SAFE_STOP
 from sim2real.deploy.core.state import RobotState
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.smoothing import CommandSmoother
 from sim2real.robots import Robot
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim2real.deploy.core.modes import RAMP_IN, RUNNING
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 
 
 class HandOver:

@@ -26,8 +26,8 @@ from sim2real.deploy.core.modes import (
 from sim2real.deploy.core.state import Kinematics, RobotState
 from sim2real.deploy.estimation.joints import JointStateEstimator
 from sim2real.deploy.kernels import any_true
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.observe import long_ticks as lt
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
 from sim2real.deploy.runtime.clock import SimClock
 from sim2real.deploy.runtime.compiled import CompiledSupervision

@@ -26,8 +26,8 @@ from sim2real.deploy.core.modes import (
     SAFE_STOP,
 )
 from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.observe.long_ticks import record
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime.loop import Runtime
 from sim2real.deploy.runtime.supervision import Supervision
 from sim2real.deploy.safety.reference import ReferenceGuard

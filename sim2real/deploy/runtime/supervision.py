@@ -33,7 +33,7 @@ from sim2real.deploy.core.modes import (
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.kernels import any_true
 from sim2real.deploy.kernels.calls import bind
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 from sim2real.robots import Robot
 
 

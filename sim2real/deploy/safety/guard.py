@@ -34,7 +34,7 @@ from numba.core.errors import NumbaExperimentalFeatureWarning
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import put, take
 from sim2real.deploy.kernels.calls import SLOT, bind, put_slots
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.safety import kernel as gk
 from sim2real.deploy.safety.check import (
     ACC,

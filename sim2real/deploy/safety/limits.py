@@ -32,7 +32,7 @@ import numba
 import numpy as np
 
 from sim2real.deploy.kernels import np_max, np_min
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.safety.check import (
     CLAMP,
     FIRED,

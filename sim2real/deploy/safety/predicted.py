@@ -14,7 +14,7 @@ import numpy as np
 import pinocchio as pin
 
 from sim2real.deploy.kernels import np_max, np_min, pairs_may_touch, row_sum
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.safety.check import (
     EFFORT,
     FINAL,

@@ -13,7 +13,7 @@ from typing import Protocol
 
 import numpy as np
 
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 
 
 class Task(Protocol):

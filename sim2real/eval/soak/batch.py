@@ -39,8 +39,8 @@ import numpy as np
 
 from sim2real.deploy.core.modes import Mode
 from sim2real.deploy.core.stateful import put, take
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.monitors.kernel import temperature_bands
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.soak.batch_plant import build_plant
 from sim2real.eval.soak.exhibition import exhibition_task

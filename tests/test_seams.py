@@ -65,6 +65,25 @@ class RK4Plant(SimBackend):
 '''
 
 
+def face_types() -> list:
+    """Every registry of a robot kind's faces (:class:`sim2real.deploy.core.registry.Faces`),
+    their rooms imported: the soak's range defaults, the plant's extras, the film."""
+    import sim2real.deploy.backends.sim.plant_faces  # noqa: F401
+    import sim2real.eval.film.render  # noqa: F401
+    import sim2real.eval.world.session_ranges  # noqa: F401
+    from sim2real.deploy.core.registry import FACE_TYPES
+
+    return list(FACE_TYPES)
+
+
+def missing_faces() -> list[str]:
+    """``"<kind>: <face>"`` for each face type a registered robot kind has no face of."""
+    from sim2real.deploy.kinds import KIND_REGISTRY
+
+    kinds = KIND_REGISTRY.entries()
+    return [f"{k}: {f.what}" for k in kinds for f in face_types() if k not in f.kinds()]
+
+
 @pytest.fixture(scope="module")
 def arm_onnx(tmp_path_factory):
     """The shipped arm policy exported (as ``make run`` does)."""
@@ -88,7 +107,7 @@ def plugin(tmp_path, monkeypatch):
 
     monkeypatch.syspath_prepend(str(tmp_path))
     stack = ExitStack()
-    for registry in (hooks.HOOK_REGISTRY, engines.ENGINE_REGISTRY, KIND_REGISTRY):
+    for registry in (hooks.HOOK_REGISTRY, engines.ENGINE_REGISTRY, KIND_REGISTRY, *face_types()):
         stack.enter_context(registry.scoped())
 
     def write(name: str, text: str) -> str:
@@ -194,7 +213,10 @@ notes which of its choices the assembly asked (``ASKED``)."""
 
 from dataclasses import dataclass
 
+from sim2real.deploy.backends.sim.plant_faces import PLANT_EXTRAS
 from sim2real.deploy.kinds import Legged, register_kind
+from sim2real.eval.film.render import FILM_OF_KIND
+from sim2real.eval.world.session_ranges import SESSION_RANGES
 
 ASKED = []
 
@@ -219,6 +241,9 @@ class GantryLegged(Legged):
 
 
 GANTRY_LEGGED = register_kind(GantryLegged(name="gantry_legged", cable_faults=True))
+# its faces in the rooms above: a legged robot's
+for faces in (PLANT_EXTRAS, SESSION_RANGES, FILM_OF_KIND):
+    faces.register("gantry_legged", faces.get("legged"))
 '''
 
 
@@ -384,3 +409,14 @@ def test_the_built_in_kinds_are_one_module_each_and_wheel_legged_is_a_legged_rob
     assert kinds.LEGGED.wheel_drives is not kinds.WHEEL_LEGGED.wheel_drives
     with pytest.raises(NotImplementedError, match="robot kind 'bare': state"):
         kinds.RobotKind("bare", False, "goals", True, False).state(None, 1)
+
+
+def test_every_registered_kind_has_a_face_of_every_face_type():
+    from sim2real.deploy.kinds import KIND_REGISTRY, Arm, register_kind
+
+    assert len(face_types()) >= 3  # the soak's range defaults, the plant's extras, the film
+    assert missing_faces() == [], "robot kinds without a face:\n" + "\n".join(missing_faces())
+    with KIND_REGISTRY.scoped():
+        register_kind(Arm(name="faceless_arm"))  # a kind whose faces nobody registered
+        assert {m.split(":")[0] for m in missing_faces()} == {"faceless_arm"}
+        assert len(missing_faces()) == len(face_types())

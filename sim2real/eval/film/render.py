@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sim2real.deploy.core.registry import Faces
+from sim2real.deploy.kinds import robot_kind
 from sim2real.eval.film.strip import (
     FILM,
     FINAL,
@@ -54,6 +56,14 @@ from sim2real.eval.film.strip import (
     select_moments,
     write_json,
 )
+
+#: The film of each robot kind, by its name (:class:`sim2real.deploy.core.registry.Faces`): None,
+#: its sessions are filmed; else the one-line reason they are not
+#: (:class:`sim2real.deploy.observe.video.VideoRecorder` draws a fixed-base arm).
+FILM_OF_KIND: Faces = Faces("film")
+FILM_OF_KIND.register("arm", None)
+FILM_OF_KIND.register("legged", "a legged robot's session: the film draws fixed-base arms only")
+FILM_OF_KIND.register("wheel_legged", FILM_OF_KIND.get("legged"))
 
 #: Frames per simulated second, pixels (width, height), x264 rate factor of the clips.
 FPS = 20.0
@@ -321,8 +331,8 @@ def film_campaign(
     (``kind``, ``label``, ``t_s``, ``start_s``, ``end_s``, ``video`` and ``still`` paths relative
     to ``out``, ``replay_exact``), ``moments`` found per kind, ``not_filmed``, and ``error`` (a
     one-line reason when no film could be made, else None). A session whose film was already
-    rendered (a resumed campaign) is not rendered again; a legged session gets none (its
-    ``error`` says so: :class:`sim2real.deploy.observe.video.VideoRecorder` draws a fixed-base arm). Prints
+    rendered (a resumed campaign) is not rendered again; a session of a robot kind whose film
+    face (:data:`FILM_OF_KIND`) gives a reason gets none (its ``error`` says so). Prints
     one line per session.
 
     Args:
@@ -350,12 +360,14 @@ def film_campaign(
         else:
             todo.append(r)
 
+    from sim2real.robots import load_robot
+
+    no_film = FILM_OF_KIND.get(robot_kind(load_robot(template.robot)).name)
+
     def render(r: dict) -> tuple[int, dict]:
-        if (
-            r.get("locomotion") is not None
-        ):  # sim2real.deploy.observe.video draws a fixed-base arm only
+        if no_film is not None:  # the robot's kind is not filmed: say why
             shutil.rmtree(retain_dir(out, r["seed"]), ignore_errors=True)
-            reason = "a legged robot's session: the film draws fixed-base arms only"
+            reason = no_film
             print(f"film: {r['id']}: no film: {reason}", file=sys.stderr)
             return r["seed"], {"clips": [], "error": reason}
         config = replace(template, seed=r["seed"])

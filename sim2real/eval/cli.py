@@ -39,6 +39,7 @@ import time
 from pathlib import Path
 
 from sim2real.deploy.kinds import robot_kind
+from sim2real.deploy.tasks.task import follows_velocity_commands
 from sim2real.eval.cli_options import BadInput, check_args, parser
 
 EXIT_PASSED = 0
@@ -150,7 +151,7 @@ def _commands(args, robot, ranges, file: dict) -> tuple:
     from sim2real.eval.world.command_schedule import RANGE_KEYS, command_schedule, schedule_text
     from sim2real.eval.world.domain import contract_commands
 
-    if robot_kind(robot).task != "locomotion":
+    if not follows_velocity_commands(robot):
         return ranges, None
     contract = (None, None)
     if not all(k in file["given"] for k in RANGE_KEYS):

@@ -93,7 +93,7 @@ class Rig:
         self.robot, self.policy, self.backend, self.envs = robot, policy, backend, envs
         self.kind = robot_kind(robot)
         self.simulated = isinstance(backend, SimulatedPlant)
-        self.runtime = Runtime(robot, policy, backend, **(runtime or {}))
+        self.runtime = Runtime(robot, policy, backend, kind=self.kind, **(runtime or {}))
         watch = getattr(backend, "watch_modes", None)  # drives that hold a stand until RUNNING
         if watch is not None:
             watch(self.runtime.mode)

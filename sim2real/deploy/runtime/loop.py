@@ -72,6 +72,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
             default ``OVERRUN_RATE_LIMIT`` of the control mode (0.5 position, 0.25 velocity and
             torque; our choice, :mod:`sim2real.deploy.core.modes`). A transient stall is ridden
             through, the drives holding the last command.
+        kind: The robot's kind (the rig's, handed to the guard); None: ``robot_kind(robot)``.
 
     The tick's numeric logic (supervision, action screen, observation, guard, smoother, latency
     histograms) runs in the compiled kernels of :mod:`sim2real.deploy.kernels`; its numpy reference is
@@ -97,6 +98,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         injector=None,
         telemetry=None,
         overrun_rate_limit: float | None = None,
+        kind=None,
     ):
         if overrun_rate_limit is None:
             overrun_rate_limit = OVERRUN_RATE_LIMIT[backend.mode]
@@ -104,7 +106,8 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
             raise ValueError(f"overrun_rate_limit: expected in (0, 1], got {overrun_rate_limit}")
         self.overrun_rate_limit = overrun_rate_limit
         self.robot, self.policy, self.backend = robot, policy, backend
-        check_policy(policy.spec, robot, backend.mode)
+        self.kind = kind = kind or robot_kind(robot)
+        check_policy(policy.spec, robot, backend.mode, kind)
         self.spec: PolicySpec = policy.spec
         #: a hand-over in progress (:meth:`switch_policy`), the last that ended, a slow RAMP_IN
         self.handover = self.last_handover = self.ramp = None
@@ -115,13 +118,11 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         self.clock = clock or SimClock(self.dt)
         self.injector = injector
         self.telemetry = telemetry
-        kind = robot_kind(robot)  # the stages and state layout of an arm or a legged robot
-        # its control input, none for a floating base: SafetyGuard.estimator_input
         self.estimator = JointStateEstimator(robot, envs)
         self.kinematics = Kinematics(robot)
         self.guard, self.smoother = self._build_stages()
         #: bool: RUNNING envs command the guard's targets, not the smoother's (follows_targets)
-        self.follows_targets = follows_targets(self.spec, self.robot, self.mode_name)
+        self.follows_targets = follows_targets(self.spec, kind, self.mode_name)
         self.state: RobotState = kind.state(robot, envs)
         #: a tracking policy's clip (RobotState.motion): the warm-up's placeholder; its task's after
         self.state.motion = motion_buffer(self.spec, envs, n)
@@ -138,7 +139,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
             self.state.command if self.state.command is not None else np.zeros((envs, 3))
         )
         #: rad: the re-anchoring's tolerance (:func:`reanchor`; inf for a legged robot)
-        self.tracking_tolerance = tracking_tolerance(robot, self.mode_name)
+        self.tracking_tolerance = tracking_tolerance(kind, self.mode_name)
         #: the state machine, one per env (:class:`~sim2real.deploy.runtime.supervision.Supervision`):
         #: its arrays below are the runtime's, its transitions in numpy
         self.supervision = sup = self.supervision_type(
@@ -243,12 +244,10 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
 
     def _build_stages(self) -> tuple[SafetyGuard, CommandSmoother]:
         """The guard and the smoother (compiled)."""
-        envs, mode = self.envs, self.mode_name
-        kind = robot_kind(self.robot)
-        bounded = not kind.pd_targets  # PD targets: torque requests
-        wheels = kind.wheel_drives(self.robot, envs, mode)
+        envs, mode, kind = self.envs, self.mode_name, self.kind
+        wheels, bounded = kind.wheel_drives(self.robot, envs, mode), not kind.pd_targets
         smoother = CommandSmoother(self.robot, envs, mode, bounded=bounded, wheels=wheels)
-        return SafetyGuard(self.robot, envs, mode), smoother
+        return SafetyGuard(self.robot, envs, mode, kind), smoother
 
     def _compile(self) -> CompiledSupervision | None:
         """The compiled path: :class:`CompiledSupervision` over the runtime's arrays, and one call

@@ -115,6 +115,15 @@ class RobotKind:
         None)``. Raises NotImplementedError: a kind that does not say."""
         raise NotImplementedError(f"robot kind '{self.name}': base_stages")
 
+    def tick_stage(self, runtime):
+        """The part of ``runtime``'s tick this kind's base adds: ``stages`` (``(base_estimator,
+        fall_detector)`` or ``(None, None)``), ``fusable``, ``bind()``, ``start(frame)``,
+        ``restart(t, envs)``, ``update(frame, state)``, ``damp(cmd, state)``,
+        ``damping(mode)``, ``parts()`` (:class:`sim2real.deploy.kinds.legged_tick.LeggedTick`,
+        :class:`sim2real.deploy.kinds.arm.FixedBase`). Raises NotImplementedError: a kind
+        that does not say."""
+        raise NotImplementedError(f"robot kind '{self.name}': tick_stage")
+
     def wheel_drives(self, robot, envs: int, mode: str):
         """The command stage of the robot's velocity-driven joints (their speed targets, and
         what a safe stop brakes them to:

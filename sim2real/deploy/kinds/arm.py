@@ -11,8 +11,44 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.robot_kind import RobotKind, register_kind
+
+
+class FixedBase:
+    """A fixed base's part of the tick: none (the runtime's estimate and observation run as
+    one compiled call, ``fusable``); no stop damps (:meth:`damping` all False)."""
+
+    stages = (None, None)
+    fusable = True
+
+    def __init__(self, envs: int):
+        self.envs = envs
+
+    def bind(self) -> None:
+        """Nothing to compile."""
+
+    def start(self, frame) -> None:
+        """Nothing to anchor."""
+
+    def restart(self, t, envs: np.ndarray) -> None:
+        """Nothing to anchor."""
+
+    def parts(self) -> dict:
+        """No stage state."""
+        return {}
+
+    def damping(self, mode: np.ndarray) -> np.ndarray:
+        """(envs,) bool, all False: an arm's stop holds its pose."""
+        return np.zeros(self.envs, dtype=bool)
+
+    def damp(self, cmd: np.ndarray, state: RobotState) -> None:
+        """An arm's safe stop brakes along the smoother's path: nothing damps."""
+
+    def update(self, frame, state: RobotState) -> None:
+        """No base to estimate, nothing to fall."""
 
 
 @dataclass(frozen=True)
@@ -44,6 +80,10 @@ class Arm(RobotKind):
     def base_stages(self, robot, envs: int) -> tuple:
         """``(None, None)``: no base to estimate, nothing to fall."""
         return None, None
+
+    def tick_stage(self, runtime) -> FixedBase:
+        """:class:`FixedBase`: no part of the tick."""
+        return FixedBase(runtime.envs)
 
 
 #: A fixed-base arm: reach goals.

@@ -57,6 +57,13 @@ class Legged(RobotKind):
 
         return BaseStateEstimator(robot, envs), FallDetector(robot, envs)
 
+    def tick_stage(self, runtime):
+        """:class:`~sim2real.deploy.kinds.legged_tick.LeggedTick` over :meth:`base_stages`:
+        the base estimate, contacts, gait clock, stale IMU and fall checks, damped stops."""
+        from sim2real.deploy.kinds.legged_tick import LeggedTick
+
+        return LeggedTick(runtime, *self.base_stages(runtime.robot, runtime.envs))
+
 
 #: A legged robot: follow velocity commands.
 LEGGED = register_kind(Legged())

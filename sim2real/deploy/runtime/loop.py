@@ -1,9 +1,9 @@
 """The control loop (:class:`Runtime`): its stages built over one backend, its lifecycle (start,
 restart after the robot was moved, an operator's reset of latched faults), the tick (read top to
 bottom in :meth:`Runtime.tick`); its state dict comes from
-:class:`~sim2real.deploy.runtime.state.RuntimeState`, a floating base's part of the tick from
-:class:`~sim2real.deploy.runtime.legged_tick.LeggedTick`, the run with the garbage collector
-frozen from :class:`~sim2real.deploy.runtime.run_loop.RunLoop`. The package's docstring
+:class:`~sim2real.deploy.runtime.state.RuntimeState`, the part of the tick a robot's base adds
+from its kind (``kind.tick_stage``, :mod:`sim2real.deploy.kinds.legged_tick`), the run with the
+garbage collector frozen from :class:`~sim2real.deploy.runtime.run_loop.RunLoop`. The package's docstring
 (:mod:`sim2real.deploy.runtime`) describes the tick and the state machine.
 """
 
@@ -19,7 +19,6 @@ from sim2real.deploy.core.modes import (
     OVERRUN_RATE_LIMIT,
     RAMP_IN,
     RUNNING,
-    SAFE_STOP,
     START_TIMEOUT,
     Mode,
 )
@@ -33,7 +32,6 @@ from sim2real.deploy.runtime.clock import SimClock
 from sim2real.deploy.runtime.compiled import CompiledSupervision
 from sim2real.deploy.runtime.handover import RampIn, check_policy, follows_targets, switch_policy
 from sim2real.deploy.runtime.height_map import height_map_stage
-from sim2real.deploy.runtime.legged_tick import LeggedTick
 from sim2real.deploy.runtime.run_loop import RunLoop
 from sim2real.deploy.runtime.stale import StaleStops
 from sim2real.deploy.runtime.state import RuntimeState
@@ -52,7 +50,7 @@ def _no_reset(envs: np.ndarray) -> None:
     """The reset of a policy without state."""
 
 
-class Runtime(RuntimeState, LeggedTick, RunLoop):
+class Runtime(RuntimeState, RunLoop):
     """The control loop for ``envs`` robots behind one backend.
 
     Args:
@@ -127,10 +125,12 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         #: a tracking policy's clip (RobotState.motion): the warm-up's placeholder; its task's after
         self.state.motion = motion_buffer(self.spec, envs, n)
         self.goal = np.zeros((envs, 3))
-        #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check; a
-        #: height_scan policy: its elevation map (stale: a safe stop; else None)
-        self.base_estimator, self.fall_detector = kind.base_stages(robot, envs)
+        #: a height_scan policy: its elevation map (stale: a safe stop; else None)
         self.height_map = height_map_stage(self.spec, self.state, envs, robot, backend)
+        #: the tick's part the kind's base adds (a floating base: kinds.legged_tick) and its
+        #: stages: the base estimate (IMU, leg kinematics) and the fall check (None: an arm)
+        self.base_tick = kind.tick_stage(self)
+        self.base_estimator, self.fall_detector = self.base_tick.stages
         #: (envs,) bool, an operator laying a legged robot down or standing it up: only a tilt falls
         self.lying_expected = np.zeros(envs, dtype=bool)
         #: (envs, 3) the velocity command of a legged robot (vx, vy m/s, yaw rate rad/s, base
@@ -178,10 +178,6 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         self.time = 0.0
         self._obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
         self._target = np.zeros((envs, n))
-        #: a legged tick's work after the base estimate compiled (:meth:`_base_screens`);
-        #: False: numpy's path (the reference)
-        self.compiled_base_screens = True
-        self._base_screens_bound = None
         self._cmd = np.zeros((envs, n))
         #: (envs,) s, the backend's clock of the frame the last tick read (a recorded log maps
         #: its readings' stamps to the ticks with it: sim2real.deploy.observe.command_log)
@@ -196,21 +192,15 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         self.guard.trust_estimate(self.estimator.covariance)
         # latency histograms' bins (sim2real.deploy.observe.telemetry)
         self._bins = np.array([BIN_NS, BINS], dtype=np.int64)
-        #: the backend's ``damp(envs)`` (drivers with their own damping mode, e.g. a Unitree
-        #: robot's: kp 0, a damping kd), told every tick of a legged robot which envs damp
-        self._backend_damp = getattr(backend, "damp", None)
         #: the compiled action screen and supervision (sim2real.deploy.kernels); None in the reference
         self._compiled = self._compile()
         self.state.motion = None  # never a zero clip: the motion task writes the reference
         #: a fixed base on the compiled path: estimate and observe in one call (_estimate_observe)
-        self._fused = self._compiled is not None and self.base_estimator is None
-        #: (envs,) bool: a legged robot's envs whose command damps (``damping``), this tick's
-        self._damp = np.zeros(envs, dtype=bool)
+        self._fused = self._compiled is not None and self.base_tick.fusable
         self._idle = np.zeros(envs, dtype=bool)  # the envs not RUNNING at the tick's end
         self._idle_rows = self._idle[:, None]  # its view over the joints (no index array)
         self._running = np.zeros(envs, dtype=bool)  # the tick's RUNNING envs (follow)
-        if self.fall_detector is not None:  # compiled (or loaded) and bound before a tick
-            self._base_screens(self.state)
+        self.base_tick.bind()  # compiled (or loaded) and bound before a tick
         #: ``(tick) -> None``: the tick's latency histograms and long periods (:meth:`_bind_books`)
         self._books = self._bind_books()
         self.guard.bind_motion(self.smoother, self.state, self._cmd)  # the tick's arrays
@@ -310,12 +300,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         self.state.dq[:] = 0.0
         self.guard.reset(q)
         self.smoother.reset(q, self.state.dq)
-        if self.base_estimator is not None:  # as the IMU's attitude or accelerometer says, yaw 0
-            acc = frame.imu_acceleration
-            finite = np.isfinite(acc).all() and (np.linalg.norm(acc, axis=1) > 0).all()
-            self.base_estimator.reset(
-                frame.time, acceleration=acc if finite else None, orientation=frame.imu_orientation
-            )
+        self.base_tick.start(frame)  # a floating base: as the IMU's attitude says, yaw 0
         self.mode[:] = RAMP_IN
         self._reset_policy(np.ones(self.envs, dtype=bool))
         self.clock.start()
@@ -358,8 +343,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         est.reset(q, t, envs=envs)
         for counter, value in zip(counters, kept, strict=True):
             counter[envs] = value
-        if self.base_estimator is not None:
-            self.base_estimator.reset(t, envs=envs)
+        self.base_tick.restart(t, envs)  # a floating base: upright
         self.state.q[envs] = q[envs]
         self.state.dq[envs] = 0.0
         self.supervision.ramp_in_at_rest(envs, self.state.q)
@@ -383,8 +367,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         else:
             state = self.estimator.update(frame, self.state, self._input)
             self.kinematics.update(state)
-            if self.base_estimator is not None:
-                self._update_base(frame, state)  # IMU, contacts, the gait clock; falls
+            self.base_tick.update(frame, state)  # a floating base: IMU, contacts, clock; falls
             self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
             st[2] = clock_ns()
             obs = self._observe(state)
@@ -410,12 +393,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
             cmd = self._replan(error, target, state)
         if self.follows_targets:  # the envs still RUNNING after the step command the target
             self.smoother.follow(target, np.equal(self.mode, RUNNING, out=self._running), cmd)
-        if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
-            damp = np.greater_equal(self.mode, SAFE_STOP, out=self._damp)  # SAFE_STOP, FAULTED
-            if any_true(damp):
-                self.supervision.damp(cmd, state, damp)
-            if self._backend_damp is not None:  # drivers with a damping mode of their own
-                self._backend_damp(damp)
+        self.base_tick.damp(cmd, state)  # a legged robot's every stop lies it down, damped
         st[6] = clock_ns()
         self.backend.write(cmd)
         st[7] = clock_ns()

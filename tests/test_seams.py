@@ -427,3 +427,35 @@ def test_every_registered_kind_has_a_face_of_every_face_type():
         register_kind(Arm(name="faceless_arm"))  # a kind whose faces nobody registered
         assert {m.split(":")[0] for m in missing_faces()} == {"faceless_arm"}
         assert len(missing_faces()) == len(face_types())
+
+
+#: At most this many lines of the runtime (``sim2real/deploy/runtime/``) test whether a base
+#: stage exists (``base_estimator`` or ``fall_detector`` ``is None``): the part of the tick a
+#: floating base adds is its kind's stage (``kind.tick_stage``), asked unconditionally; the one
+#: left is the stale-sensor report's (whether an IMU went silent).
+BASE_STAGE_TESTS = 1
+
+
+def base_stage_tests() -> list[str]:
+    """Lines of ``sim2real/deploy/runtime`` testing ``base_estimator`` or ``fall_detector``
+    against None, as ``path:line: text``. In grep::
+
+        grep -rnE '(base_estimator|fall_detector) is (not )?None' sim2real/deploy/runtime
+    """
+    root = Path(__file__).resolve().parent.parent
+    test = re.compile(r"(base_estimator|fall_detector) is (not )?None")
+    out = []
+    for path in sorted((root / "sim2real" / "deploy" / "runtime").rglob("*.py")):
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if test.search(line):
+                out.append(f"{path.relative_to(root).as_posix()}:{number}: {line.strip()}")
+    return out
+
+
+def test_the_runtime_asks_its_kind_s_tick_stage_not_whether_it_has_a_base():
+    lines = base_stage_tests()
+    assert len(lines) <= BASE_STAGE_TESTS, (
+        f"{len(lines)} lines of the runtime test a base stage against None (at most "
+        f"{BASE_STAGE_TESTS}): give the kind's tick stage (kind.tick_stage) the work instead:\n"
+        + "\n".join(lines)
+    )

@@ -128,7 +128,7 @@ LEGGED_COMMAND = "0.5,0,0"
 
 def is_legged(robot) -> bool:
     """Whether ``robot`` is a legged kind (:func:`sim2real.deploy.robot_kind.robot_kind`)."""
-    from sim2real.deploy.robot_kind import robot_kind
+    from sim2real.deploy.kinds import robot_kind
 
     return robot_kind(robot).floating_base
 

@@ -49,7 +49,7 @@ def build(robot, onnx, task: dict, compiled: bool) -> Rig:
     rig.task.tracker.compiled = compiled
     if rig.task.heading is not None:
         rig.task.heading.compiled = compiled
-    rig.runtime.compiled_base_screens = compiled
+    rig.runtime.base_tick.compiled = compiled
     rig.start()
     return rig
 
@@ -107,7 +107,7 @@ def test_compiled_equals_numpy(go2, go2_onnx, monkeypatch, task):
     assert fast.estimation.ticks > 0 and tracker.heading_change.any()
     faults = fast.runtime.counters.faults  # both compiled screens stopped an env
     assert faults["fall"][0] >= 1 and faults["stale_sensor"][1] >= 1
-    assert fast.runtime._base_screens_bound is not None
+    assert fast.runtime.base_tick.bound is not None
 
 
 def test_true_base_is_set_truth():

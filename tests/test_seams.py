@@ -65,6 +65,25 @@ class RK4Plant(SimBackend):
 '''
 
 
+def face_types() -> list:
+    """Every registry of a robot kind's faces (:class:`sim2real.deploy.core.registry.Faces`),
+    their rooms imported: the soak's range defaults, the plant's extras, the film."""
+    import sim2real.deploy.backends.sim.plant_faces  # noqa: F401
+    import sim2real.eval.film.render  # noqa: F401
+    import sim2real.eval.world.session_ranges  # noqa: F401
+    from sim2real.deploy.core.registry import FACE_TYPES
+
+    return list(FACE_TYPES)
+
+
+def missing_faces() -> list[str]:
+    """``"<kind>: <face>"`` for each face type a registered robot kind has no face of."""
+    from sim2real.deploy.kinds import KIND_REGISTRY
+
+    kinds = KIND_REGISTRY.entries()
+    return [f"{k}: {f.what}" for k in kinds for f in face_types() if k not in f.kinds()]
+
+
 @pytest.fixture(scope="module")
 def arm_onnx(tmp_path_factory):
     """The shipped arm policy exported (as ``make run`` does)."""
@@ -84,11 +103,11 @@ def plugin(tmp_path, monkeypatch):
     forgotten after it (each registry's ``scoped``)."""
     from contextlib import ExitStack
 
-    from sim2real.deploy.robot_kind import KIND_REGISTRY
+    from sim2real.deploy.kinds import KIND_REGISTRY
 
     monkeypatch.syspath_prepend(str(tmp_path))
     stack = ExitStack()
-    for registry in (hooks.HOOK_REGISTRY, engines.ENGINE_REGISTRY, KIND_REGISTRY):
+    for registry in (hooks.HOOK_REGISTRY, engines.ENGINE_REGISTRY, KIND_REGISTRY, *face_types()):
         stack.enter_context(registry.scoped())
 
     def write(name: str, text: str) -> str:
@@ -143,14 +162,9 @@ KIND_MODULE = '''
 """An arm whose joint filters run the constant-velocity model (drives that do not follow their
 command closely, e.g. a compliant arm): a kind a contributor adds."""
 
-from sim2real.deploy.robot_kind import RobotKind, register_kind
+from sim2real.deploy.kinds import Arm, register_kind
 
-COMPLIANT_ARM = register_kind(
-    RobotKind(
-        name="compliant_arm", floating_base=False, task="goals", joint_input=False,
-        stand_up_on_reset=False,
-    )
-)
+COMPLIANT_ARM = register_kind(Arm(name="compliant_arm", joint_input=False))
 '''
 
 
@@ -174,7 +188,7 @@ def _arm3_with_kind(tmp_path, kind: str):
 
 
 def test_a_new_robot_kind_is_one_module_and_robot_toml_names_it(plugin, monkeypatch, tmp_path):
-    from sim2real.deploy import robot_kind as kinds
+    from sim2real.deploy import kinds
 
     robot = _arm3_with_kind(tmp_path, "compliant_arm")
     with pytest.raises(ValueError, match=r"robot.toml: kind = 'compliant_arm': expected one of"):
@@ -199,13 +213,16 @@ notes which of its choices the assembly asked (``ASKED``)."""
 
 from dataclasses import dataclass
 
-from sim2real.deploy.robot_kind import RobotKind, register_kind
+from sim2real.deploy.backends.sim.plant_faces import PLANT_EXTRAS
+from sim2real.deploy.kinds import Legged, register_kind
+from sim2real.eval.film.render import FILM_OF_KIND
+from sim2real.eval.world.session_ranges import SESSION_RANGES
 
 ASKED = []
 
 
 @dataclass(frozen=True)
-class GantryLegged(RobotKind):
+class GantryLegged(Legged):
     def state(self, robot, envs):
         ASKED.append("state")
         return super().state(robot, envs)
@@ -223,19 +240,17 @@ class GantryLegged(RobotKind):
         return super().wheel_drives(robot, envs, mode)
 
 
-GANTRY_LEGGED = register_kind(
-    GantryLegged(
-        name="gantry_legged", floating_base=True, task="locomotion", joint_input=False,
-        stand_up_on_reset=True, holds_self_collision=False, cable_faults=True,
-    )
-)
+GANTRY_LEGGED = register_kind(GantryLegged(name="gantry_legged", cable_faults=True))
+# its faces in the rooms above: a legged robot's
+for faces in (PLANT_EXTRAS, SESSION_RANGES, FILM_OF_KIND):
+    faces.register("gantry_legged", faces.get("legged"))
 '''
 
 
 def test_a_fourth_kind_floats_through_deploy_run_by_its_own_choices(
     plugin, monkeypatch, tmp_path, go2_onnx
 ):
-    from sim2real.deploy.robot_kind import KIND_REGISTRY, robot_kind
+    from sim2real.deploy.kinds import KIND_REGISTRY, robot_kind
     from sim2real.robots import load_robot
 
     toml = _with_kind(tmp_path, "gantry_legged", "go2")
@@ -259,14 +274,14 @@ def test_a_fourth_kind_floats_through_deploy_run_by_its_own_choices(
 
 
 def test_robot_toml_kind_must_fit_the_robot(tmp_path):
-    from sim2real.deploy.robot_kind import robot_kind
+    from sim2real.deploy.kinds import robot_kind
 
     with pytest.raises(ValueError, match=r"kind = 'legged' needs a \[base\] table"):
         robot_kind(_arm3_with_kind(tmp_path, "legged"))
 
 
 def test_a_kind_s_target_and_limit_choices_follow_legged_unless_given():
-    from sim2real.deploy.robot_kind import ARM, LEGGED, RobotKind
+    from sim2real.deploy.kinds import ARM, LEGGED, RobotKind
 
     assert not ARM.pd_targets and not ARM.hard_limit_bounce
     assert LEGGED.pd_targets and LEGGED.hard_limit_bounce
@@ -278,35 +293,26 @@ def test_a_kind_s_target_and_limit_choices_follow_legged_unless_given():
 
 
 def test_a_kind_with_pd_targets_takes_the_guard_s_envelope_and_the_tracking_tolerance(tmp_path):
-    from sim2real.deploy.robot_kind import KIND_REGISTRY, RobotKind, register_kind
+    from sim2real.deploy.kinds import ARM, KIND_REGISTRY, Arm, register_kind, robot_kind
     from sim2real.deploy.runtime.anchoring import TRACKING_TOLERANCE, tracking_tolerance
     from sim2real.deploy.safety.guard import SafetyGuard
 
     arm = _arm3_with_kind(tmp_path / "plain", "arm")
     assert SafetyGuard(arm, 1, "position").envelope is not None
-    assert tracking_tolerance(arm, "position") == TRACKING_TOLERANCE
+    assert tracking_tolerance(ARM, "position") == TRACKING_TOLERANCE
     with KIND_REGISTRY.scoped():
-        register_kind(
-            RobotKind(
-                name="pd_arm",
-                floating_base=False,
-                task="goals",
-                joint_input=True,
-                stand_up_on_reset=False,
-                pd_targets=True,
-            )
-        )
+        register_kind(Arm(name="pd_arm", pd_targets=True))
         robot = _arm3_with_kind(tmp_path, "pd_arm")
         assert SafetyGuard(robot, 1, "position").envelope is None
-        assert tracking_tolerance(robot, "position") == float("inf")
+        assert tracking_tolerance(robot_kind(robot), "position") == float("inf")
 
 
 #: At most this many places outside the physics test ``floating_base`` (the team's issue: the
 #: robot kind decides the rest, :mod:`sim2real.deploy.robot_kind`): the Robot's definition, the
-#: kind's check of its robot and its default kind, and the checks of their robot by the rooms
+#: kind's check of its robot (its default kind is a table lookup), and the checks of their robot by the rooms
 #: beneath the kind's floor (the base estimator's, the spec's observation blocks', the chain
 #: bounds').
-FLOATING_BASE_PLACES = 6
+FLOATING_BASE_PLACES = 5
 #: The physics, where a floating base is a free joint: the plant, the importer, and the soak's
 #: world (the plant's randomized model: a floating body's IMU, floor and base mass).
 PHYSICS = ("sim2real/deploy/backends/sim", "sim2real/robots/importer", "sim2real/eval/world")
@@ -350,9 +356,14 @@ def test_floating_base_is_tested_outside_the_physics_in_few_places():
 
 #: At most this many lines outside the kinds' modules branch on a robot kind's shape, task or
 #: name (the rest is behaviour the kind provides, :class:`sim2real.deploy.robot_kind.RobotKind`).
-KIND_BRANCHES = 10
+KIND_BRANCHES = 0
 #: The kinds' own modules.
 KIND_MODULES = ("sim2real/deploy/robot_kind.py", "sim2real/deploy/kinds/")
+
+
+#: What :func:`kind_branches` counts, and what it does not.
+KIND_ASK = re.compile(r"\.legged\b|kind(\([a-z_.]*\))?\.(floating_base\b|name [!=]=|task [!=]=)")
+NOT_KIND = re.compile(r"RobotState\.legged\b|importer\.legged")
 
 
 def kind_branches() -> list[str]:
@@ -365,8 +376,7 @@ def kind_branches() -> list[str]:
             sim2real --include=*.py | grep -vE '^sim2real/deploy/(robot_kind\\.py|kinds/)|RobotState\\.legged\\b|importer\\.legged'
     """
     root = Path(__file__).resolve().parent.parent
-    ask = re.compile(r"\.legged\b|kind(\([a-z_.]*\))?\.(floating_base\b|name [!=]=|task [!=]=)")
-    not_kind = re.compile(r"RobotState\.legged\b|importer\.legged")
+    ask, not_kind = KIND_ASK, NOT_KIND
     out = []
     for path in sorted((root / "sim2real").rglob("*.py")):
         rel = path.relative_to(root).as_posix()
@@ -380,8 +390,72 @@ def kind_branches() -> list[str]:
 
 def test_few_lines_branch_on_the_robot_kind_outside_the_kinds():
     lines = kind_branches()
-    assert any("task" in line for line in lines)  # the count sees a branch on the task
+    # the count sees a branch on the task, the shape or the name
+    for line in ('if robot_kind(robot).task != "locomotion":', "walks = kind.task == x"):
+        assert KIND_ASK.search(line) and not NOT_KIND.search(line)
+    assert KIND_ASK.search("if self.kind.floating_base:") and KIND_ASK.search('kind.name == "arm"')
     assert len(lines) <= KIND_BRANCHES, (
         f"{len(lines)} lines branch on the robot kind outside its modules (at most "
         f"{KIND_BRANCHES}): give the kind a choice with a meaning instead:\n" + "\n".join(lines)
+    )
+
+
+def test_the_built_in_kinds_are_one_module_each_and_wheel_legged_is_a_legged_robot():
+    """Each built-in kind is its own module, registered by importing :mod:`sim2real.deploy.kinds`
+    (no module named by string); a wheel-legged robot makes a legged robot's every choice but its
+    name, its wheels its own."""
+    from dataclasses import fields
+
+    from sim2real.deploy import kinds
+
+    assert kinds.KIND_REGISTRY.builtin == ()
+    assert {"arm", "legged", "wheel_legged"} <= set(kinds.KIND_REGISTRY.entries())
+    assert isinstance(kinds.WHEEL_LEGGED, kinds.Legged)
+    choices = [f.name for f in fields(kinds.LEGGED) if f.name != "name"]
+    assert all(getattr(kinds.WHEEL_LEGGED, c) == getattr(kinds.LEGGED, c) for c in choices)
+    assert kinds.LEGGED.wheel_drives is not kinds.WHEEL_LEGGED.wheel_drives
+    with pytest.raises(NotImplementedError, match="robot kind 'bare': state"):
+        kinds.RobotKind("bare", False, "goals", True, False).state(None, 1)
+
+
+def test_every_registered_kind_has_a_face_of_every_face_type():
+    from sim2real.deploy.kinds import KIND_REGISTRY, Arm, register_kind
+
+    assert len(face_types()) >= 3  # the soak's range defaults, the plant's extras, the film
+    assert missing_faces() == [], "robot kinds without a face:\n" + "\n".join(missing_faces())
+    with KIND_REGISTRY.scoped():
+        register_kind(Arm(name="faceless_arm"))  # a kind whose faces nobody registered
+        assert {m.split(":")[0] for m in missing_faces()} == {"faceless_arm"}
+        assert len(missing_faces()) == len(face_types())
+
+
+#: At most this many lines of the runtime (``sim2real/deploy/runtime/``) test whether a base
+#: stage exists (``base_estimator`` or ``fall_detector`` ``is None``): the part of the tick a
+#: floating base adds is its kind's stage (``kind.tick_stage``), asked unconditionally; the one
+#: left is the stale-sensor report's (whether an IMU went silent).
+BASE_STAGE_TESTS = 1
+
+
+def base_stage_tests() -> list[str]:
+    """Lines of ``sim2real/deploy/runtime`` testing ``base_estimator`` or ``fall_detector``
+    against None, as ``path:line: text``. In grep::
+
+        grep -rnE '(base_estimator|fall_detector) is (not )?None' sim2real/deploy/runtime
+    """
+    root = Path(__file__).resolve().parent.parent
+    test = re.compile(r"(base_estimator|fall_detector) is (not )?None")
+    out = []
+    for path in sorted((root / "sim2real" / "deploy" / "runtime").rglob("*.py")):
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if test.search(line):
+                out.append(f"{path.relative_to(root).as_posix()}:{number}: {line.strip()}")
+    return out
+
+
+def test_the_runtime_asks_its_kind_s_tick_stage_not_whether_it_has_a_base():
+    lines = base_stage_tests()
+    assert len(lines) <= BASE_STAGE_TESTS, (
+        f"{len(lines)} lines of the runtime test a base stage against None (at most "
+        f"{BASE_STAGE_TESTS}): give the kind's tick stage (kind.tick_stage) the work instead:\n"
+        + "\n".join(lines)
     )

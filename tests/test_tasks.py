@@ -5,10 +5,10 @@ the soak and training alike."""
 import numpy as np
 import pytest
 
-from sim2real.deploy.robot_kind import ARM, LEGGED, robot_kind
+from sim2real.deploy.kinds import ARM, LEGGED, robot_kind
 from sim2real.deploy.tasks.episodes import EpisodeCommands, EpisodeGoals
 from sim2real.deploy.tasks.goals import GoalTask
-from sim2real.deploy.tasks.task import task_for
+from sim2real.deploy.tasks.task import follows_velocity_commands, task_entry, task_for
 from sim2real.deploy.tasks.velocity import VelocityTask
 
 
@@ -30,6 +30,21 @@ def test_the_kind_of_a_robot_chooses_its_runtime_stages_and_task(arm3, go2):
     assert ARM.state(arm3, 2).base is None
     legged = LEGGED.state(go2, 2)
     assert legged.command.shape == (2, 3) and legged.foot_contact.shape == (2, go2.n_feet)
+    # the part of the tick each kind's base adds: none for an arm (its estimate and observation
+    # fuse), a legged robot's estimate, falls and damped stops
+    from types import SimpleNamespace
+
+    from sim2real.deploy.core.modes import RUNNING, SAFE_STOP
+
+    fixed = ARM.tick_stage(SimpleNamespace(robot=arm3, envs=2, backend=None))
+    assert fixed.fusable and fixed.stages == (None, None) and fixed.parts() == {}
+    modes = np.array([RUNNING, SAFE_STOP], dtype=np.int8)
+    assert not fixed.damping(modes).any()
+    floating = LEGGED.tick_stage(SimpleNamespace(robot=go2, envs=2, backend=None))
+    assert not floating.fusable and set(floating.parts()) == {"base_estimator", "fall_detector"}
+    assert floating.damping(modes).tolist() == [False, True]
+    assert task_entry(arm3).velocity_commands is False
+    assert follows_velocity_commands(go2) and not follows_velocity_commands(arm3)
 
 
 def test_task_for_gives_an_arm_goals_and_a_legged_robot_velocity_commands(arm3, go2):

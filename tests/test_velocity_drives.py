@@ -121,7 +121,7 @@ def test_a_ramp_to_home_holds_a_wheel_at_speed_0_wherever_its_angle(wheeled):
 
 
 def test_go2w_is_a_wheel_legged_kind_whose_wheels_brake_to_zero_in_a_safe_stop(go2w, wheeled):
-    from sim2real.deploy.robot_kind import LEGGED, robot_kind
+    from sim2real.deploy.kinds import LEGGED, robot_kind
 
     kind = robot_kind(go2w)  # robot.toml: kind = "wheel_legged"
     assert kind.name == "wheel_legged" and kind.floating_base and kind.task == "locomotion"

@@ -114,7 +114,7 @@ def test_import_of_go2w_xml_writes_a_wheel_legged_robot_that_runs_rl_sars_policy
     reads rl_sar's policy folder on it with no edit and no difference of drive."""
     pytest.importorskip("torch")
     from sim2real.deploy.cli.deploy_run import deploy_run_main
-    from sim2real.deploy.robot_kind import robot_kind
+    from sim2real.deploy.kinds import robot_kind
     from tests.go2w_layout import write_go2w
     from tests.test_rl_sar_contract import write
 

@@ -38,7 +38,8 @@ import sys
 import time
 from pathlib import Path
 
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
+from sim2real.deploy.tasks.task import follows_velocity_commands
 from sim2real.eval.cli_options import BadInput, check_args, parser
 
 EXIT_PASSED = 0
@@ -150,7 +151,7 @@ def _commands(args, robot, ranges, file: dict) -> tuple:
     from sim2real.eval.world.command_schedule import RANGE_KEYS, command_schedule, schedule_text
     from sim2real.eval.world.domain import contract_commands
 
-    if robot_kind(robot).task != "locomotion":
+    if not follows_velocity_commands(robot):
         return ranges, None
     if _reads_clip(args, robot):  # an exhibition: the task draws no velocity command
         print("soak-test: commands: none (a motion clip commands the policy: an exhibition)")

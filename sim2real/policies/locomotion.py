@@ -35,10 +35,10 @@ import numpy as np
 from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.core.state import BaseState
 from sim2real.deploy.rig.rig import Rig
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime import Mode
 from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.deploy.tasks.commands import CommandRanges
+from sim2real.deploy.tasks.task import follows_velocity_commands
 from sim2real.eval.world.dynamics import randomized_model
 from sim2real.eval.world.floor import apply_floor_friction
 from sim2real.eval.world.sensors import SensorDraw, apply_imu, apply_sensors
@@ -160,7 +160,7 @@ class LocomotionTask:
         config: LocomotionConfig | None = None,
         seed: int = 0,
     ):
-        if robot_kind(robot).task != "locomotion":
+        if not follows_velocity_commands(robot):
             raise ValueError(f"LocomotionTask: robot {robot.name} has no floating base")
         self.robot, self.spec, self.envs = robot, spec, envs
         self.config = config = config or LocomotionConfig()

@@ -21,12 +21,13 @@ from dataclasses import dataclass
 
 from sim2real.deploy.core.registry import Registry, check_target, load_target
 
-#: Modules whose import registers the built-in backends (light: no MuJoCo, no SDK).
+#: Modules of this room whose import registers the built-in backends (light: no MuJoCo, no
+#: SDK); the ros2 backend lives a floor above and registers when deploy-run's parser imports it
+#: (:mod:`sim2real.deploy.cli.run_parser`).
 BUILTIN = (
     "sim2real.deploy.backends.sim.options",
     "sim2real.deploy.backends.servo.options",
     "sim2real.deploy.backends.unitree.options",
-    "sim2real.deploy.ros2.options",
 )
 
 

@@ -47,19 +47,19 @@ def check_options(args, robot) -> None:
         ValueError: ``--command`` not VX,VY,WZ; a bad ``--size`` or ``--fps`` with ``--video``;
             ``--terrain`` off the simulated backend or for a robot without a floating base.
     """
-    from sim2real.deploy.robot_kind import robot_kind
+    from sim2real.deploy.tasks.task import follows_velocity_commands
 
     if getattr(args, "terrain", None) is not None:
         if args.backend != "sim":
             raise ValueError(
                 f"--terrain: the ground of --backend sim only, got --backend {args.backend}"
             )
-        if robot_kind(robot).task != "locomotion":
+        if not follows_velocity_commands(robot):
             raise ValueError(
                 f"--terrain: robot {robot.name} does not walk; terrain is for legged robots"
             )
 
-    if args.command is not None and robot_kind(robot).task == "locomotion":
+    if args.command is not None and follows_velocity_commands(robot):
         from sim2real.deploy.tasks.commands import parse_command
 
         parse_command(args.command)

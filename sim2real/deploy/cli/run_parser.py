@@ -1,5 +1,7 @@
 """The command line of ``deploy-run``: its argument parser (:func:`build_parser`); the backends
-``--backend`` chooses from, and their options, come from :mod:`sim2real.deploy.backends.registry`.
+``--backend`` chooses from, and their options, come from :mod:`sim2real.deploy.backends.registry`
+(the ros2 backend, a floor above the registry, registered by this module's import of
+:mod:`sim2real.deploy.ros2.options`).
 
 The options are read before anything heavy is imported: this module imports neither MuJoCo nor
 numba (:mod:`sim2real.deploy.runtime.clock` is MuJoCo-free), since ``deploy-run`` chooses MuJoCo's OpenGL
@@ -16,6 +18,7 @@ from pathlib import Path
 from sim2real.deploy.backends.registry import add_backend_options
 from sim2real.deploy.cli.run_operator import add_operator_options
 from sim2real.deploy.rig.hooks import add_hook_options
+from sim2real.deploy.ros2 import options as ros2_options
 from sim2real.deploy.runtime.clock import WAIT_MODES
 from sim2real.deploy.tasks.heading import HEADING_GAIN
 
@@ -30,6 +33,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         epilog="Exit codes: 0 clean, 1 hard violation, 2 latched fault, 3 bad input, "
         "4 simulation diverged.",
     )
+    ros2_options.register()  # --backend ros2, after the registry's own (registered once)
     add_backend_options(p, argv)
     p.add_argument("--robot", default="arm3", help="shipped robot name or robot.toml path")
     source = p.add_mutually_exclusive_group(required=True)

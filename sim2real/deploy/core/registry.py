@@ -1,7 +1,8 @@
 """One registry of named entries, for every seam a contributor extends by registration: the
 backends (:mod:`sim2real.deploy.backends.registry`), the physics engines
 (:mod:`sim2real.deploy.backends.sim.engines`), deploy-run's after-tick hooks
-(:mod:`sim2real.deploy.rig.hooks`) and the robot kinds (:mod:`sim2real.deploy.robot_kind`).
+(:mod:`sim2real.deploy.rig.hooks`) and the robot kinds (:mod:`sim2real.deploy.robot_kind`); and
+the faces of a robot kind in the rooms above it (:class:`Faces`, keyed by the kind's name).
 
 An entry is registered once under its name; the built-in entries register when the modules named
 at the registry's creation are imported (light modules: a registry lists its entries without
@@ -88,3 +89,63 @@ class Registry(Generic[T]):
             yield self
         finally:
             self._entries = kept
+
+
+#: Every registry of faces made (:class:`Faces`), in order: a test lists the faces a registered
+#: robot kind lacks (``tests/test_seams.py``).
+FACE_TYPES: list[Faces] = []
+
+
+class Faces(Generic[T]):
+    """What a room above the robot kinds does for each kind, registered under the kind's name
+    in that room (the soak's range defaults in :mod:`sim2real.eval.world.session_ranges`, the
+    plant's extras in :mod:`sim2real.deploy.backends.sim.plant_faces`, the film in
+    :mod:`sim2real.eval.film.render`): a kind is one module plus its faces, each in its own
+    room, and no room below names a room above it. Keyed by name, not by the kind object, so a
+    room registers its faces without importing the kinds.
+
+    Args:
+        what: The face's name, for messages (``"soak's range defaults"``).
+    """
+
+    def __init__(self, what: str):
+        self.what = what
+        self._faces: dict[str, T] = {}
+        FACE_TYPES.append(self)
+
+    def register(self, kind: str, face: T) -> T:
+        """Register ``face`` for the robot kind named ``kind``; returns it.
+
+        Raises:
+            ValueError: that kind has this face already.
+        """
+        if kind in self._faces:
+            raise ValueError(f"robot kind '{kind}': {self.what} registered already")
+        self._faces[kind] = face
+        return face
+
+    def get(self, kind: str) -> T:
+        """The face of the robot kind named ``kind``.
+
+        Raises:
+            ValueError: the kind registered none (the message names the kinds that did).
+        """
+        if kind not in self._faces:
+            raise ValueError(
+                f"robot kind '{kind}' has no {self.what}: expected one registered under its name "
+                f"(registered: {sorted(self._faces)})"
+            )
+        return self._faces[kind]
+
+    def kinds(self) -> tuple[str, ...]:
+        """The names of the kinds with this face, in registration order."""
+        return tuple(self._faces)
+
+    @contextmanager
+    def scoped(self) -> Iterator[Faces[T]]:
+        """Faces registered inside the ``with`` block are forgotten after it (a test's)."""
+        kept = dict(self._faces)
+        try:
+            yield self
+        finally:
+            self._faces = kept

@@ -172,6 +172,12 @@ class FallDetector:
         original's arrays."""
         return self.__dict__ | {"_bound": None}
 
+    @property
+    def fallen_mask(self) -> np.ndarray:
+        """(envs,) bool: the last check's falls, the array it writes (the compiled fall screen
+        reads it: :func:`fall_screen`)."""
+        return self._fallen
+
     def check(self, state: RobotState, feet: FootPositions | None = None) -> np.ndarray:
         """(envs,) bool: the envs whose estimated base is tilted, low or sinking past the
         limits.
@@ -273,9 +279,10 @@ def _check(limits, gravity, velocity, orientation, contact, position, height, ti
 
 @numba.njit(cache=True, nogil=True)
 def stale_screen(contact, foot_contact, clock, since_fresh, stale_limit, stale, time) -> bool:
-    """The runtime's legged tick after the base estimate (``Runtime._update_base``): the
-    estimator's ``contact`` (envs, n_feet) bool into the state's ``foot_contact`` (1.0 / 0.0),
-    ``clock`` (envs,) the runtime's ``time`` s; ``stale`` (envs,) bool: an IMU silent for more
+    """The runtime's legged tick after the base estimate
+    (:meth:`sim2real.deploy.kinds.legged_tick.LeggedTick.update`): the estimator's ``contact``
+    (envs, n_feet) bool into the state's ``foot_contact`` (1.0 / 0.0), ``clock`` (envs,) the
+    runtime's ``time`` s; ``stale`` (envs,) bool: an IMU silent for more
     than ``stale_limit`` s (``since_fresh``, the estimator's). Returns whether any is stale."""
     any_stale = False
     for e in range(contact.shape[0]):

@@ -38,7 +38,6 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.deploy.export.errors import ExportError
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.spec.policy_spec import (
     LEGGED_ACTION_CLIP,
     ActionSpec,
@@ -46,6 +45,7 @@ from sim2real.deploy.spec.policy_spec import (
     PolicySpec,
     SpecError,
 )
+from sim2real.deploy.tasks.task import follows_velocity_commands
 from sim2real.robots import Robot, load_robot
 from sim2real.robots.pd_gains import gain_differences, write_gains
 
@@ -291,7 +291,7 @@ def check_robot(config: DeployConfig, robot: Robot) -> None:
     """
     path, n = config.path, config.num_actions
     where = f"the robot '{robot.name}' ({robot.directory})"
-    if robot_kind(robot).task != "locomotion":  # a legged_gym config's robot walks
+    if not follows_velocity_commands(robot):  # a legged_gym config's robot walks
         raise ExportError(f"{path}: a legged_gym deploy config, but {where} has a fixed base")
     if config.motor_index is None and n != robot.n_joints:
         raise ExportError(

@@ -35,10 +35,11 @@ from sim2real.deploy.backends.sim.plant import (
 from sim2real.deploy.core.state import Kinematics, RobotState
 from sim2real.deploy.export.noise_floor import TOLERANCE, NoiseFloor, _max_abs  # noqa: F401 - TOLERANCE
 from sim2real.deploy.export.recurrent import RecurrentPolicyModule, RecurrentStepper
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.spec.history import per_input_entry
 from sim2real.deploy.spec.policy_spec import PolicySpec
+from sim2real.deploy.tasks.task import follows_velocity_commands
 from sim2real.robots import Robot
 
 PARITY_SAMPLES = 1000
@@ -132,7 +133,7 @@ def closed_loop_parity(
     rng = np.random.default_rng(seed)
     kind = robot_kind(robot)
     state = kind.state(robot, envs)  # the runtime's layout
-    walks = kind.task == "locomotion"
+    walks = follows_velocity_commands(robot)
     if walks:  # a random velocity command per env (the base: the plant's truth, below)
         state.command[:] = rng.uniform([-0.5, -0.3, -1.0], [1.0, 0.3, 1.0], (envs, 3))
         goal = np.zeros((envs, 3))

@@ -3,8 +3,9 @@
 Its policy drives the legs by PD position targets and the wheels by speed targets in one network
 (fan-ziqi/rl_sar ``policy/go2w``: legs ``kp`` 20, wheels ``kp`` 0, ``kd`` 0.5, the wheel's action
 a velocity target); the drive of each joint is robot.toml's or the policy's contract's
-``drive``. Everything a legged robot is, it is too (:data:`sim2real.deploy.robot_kind.LEGGED`:
-its state, base stages, task, guard and soak choices), plus what is its own:
+``drive``. Everything a legged robot is, it is too (a
+:class:`~sim2real.deploy.kinds.legged.Legged`: its state, base stages, task, guard and soak
+choices), plus what is its own:
 
 - its wheels are continuous joints (robot.toml ``continuous = true``): no position limit, checked
   on speed and torque (:attr:`sim2real.robots.robot.Robot.position_lower` is -inf there);
@@ -18,17 +19,20 @@ its state, base stages, task, guard and soak choices), plus what is its own:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
 from sim2real.deploy.core.velocity_drive import velocity_drives
-from sim2real.deploy.robot_kind import LEGGED, RobotKind, register_kind
+from sim2real.deploy.kinds.legged import Legged
+from sim2real.deploy.robot_kind import register_kind
 
 
 @dataclass(frozen=True)
-class WheelLegged(RobotKind):
-    """:class:`~sim2real.deploy.robot_kind.RobotKind` of a legged robot on wheels."""
+class WheelLegged(Legged):
+    """:class:`~sim2real.deploy.kinds.legged.Legged` on wheels."""
+
+    name: str = "wheel_legged"
 
     def wheels(self, robot) -> np.ndarray:
         """(n_joints,) bool: the robot's wheels, its continuous joints (no position limit)."""
@@ -63,8 +67,4 @@ class WheelLegged(RobotKind):
 
 
 #: A wheel-legged robot: a legged robot's choices, its own wheels.
-WHEEL_LEGGED = register_kind(
-    WheelLegged(
-        **{f.name: getattr(LEGGED, f.name) for f in fields(LEGGED)} | {"name": "wheel_legged"}
-    )
-)
+WHEEL_LEGGED = register_kind(WheelLegged())

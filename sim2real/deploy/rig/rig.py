@@ -18,11 +18,11 @@ from sim2real.deploy.core.backend import SimulatedPlant
 from sim2real.deploy.core.latency import LatencyHistogram
 from sim2real.deploy.core.modes import FAULTED, RUNNING
 from sim2real.deploy.kernels.calls import bind
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.monitors.estimation import EstimationMonitor
 from sim2real.deploy.rig.after_tick import FusedAfterTick
 from sim2real.deploy.rig.after_tick_kernel import motion_tick
 from sim2real.deploy.rig.hooks import RunHook
-from sim2real.deploy.robot_kind import robot_kind
 
 _UNBUILT = object()  # a rig's fused call not built yet (or its hooks changed since)
 
@@ -93,7 +93,7 @@ class Rig:
         self.robot, self.policy, self.backend, self.envs = robot, policy, backend, envs
         self.kind = robot_kind(robot)
         self.simulated = isinstance(backend, SimulatedPlant)
-        self.runtime = Runtime(robot, policy, backend, **(runtime or {}))
+        self.runtime = Runtime(robot, policy, backend, kind=self.kind, **(runtime or {}))
         watch = getattr(backend, "watch_modes", None)  # drives that hold a stand until RUNNING
         if watch is not None:
             watch(self.runtime.mode)

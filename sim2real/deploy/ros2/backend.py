@@ -35,7 +35,7 @@ import numpy as np
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame, checked_command
 from sim2real.deploy.core.latency import LatencyHistogram
 from sim2real.deploy.core.stale import arrivals_phrase, context
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.ros2.context import NodeThread
 from sim2real.deploy.ros2.controllers import FORWARD_CONTROLLERS, command_order, command_topic
 from sim2real.robots.errors import Sim2RealError

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from sim2real.deploy.backends.real_robot import refuse_simulation_options
-from sim2real.deploy.backends.registry import register_backend
+from sim2real.deploy.backends.registry import backends, register_backend
 
 
 def add_options(group) -> None:
@@ -55,9 +55,15 @@ def make(args, robot, mode: str):
     )
 
 
-register_backend(
-    "ros2",
-    "a ros2_control robot: joint_states in, a forward command controller out (wall clock only)",
-    "sim2real.deploy.ros2.options:make",
-    add_options,
-)
+def register() -> None:
+    """Register ``--backend ros2`` (once; after the registry's built-in backends, in their order):
+    deploy-run's parser calls it (:mod:`sim2real.deploy.cli.run_parser`), a floor above the
+    registry, which names no module of this room."""
+    if "ros2" not in backends():
+        register_backend(
+            "ros2",
+            "a ros2_control robot: joint_states in, a forward command controller out (wall "
+            "clock only)",
+            "sim2real.deploy.ros2.options:make",
+            add_options,
+        )

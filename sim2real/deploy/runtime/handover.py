@@ -16,7 +16,6 @@ from __future__ import annotations
 import numpy as np
 
 from sim2real.deploy.core.modes import RAMP_IN, RUNNING
-from sim2real.deploy.robot_kind import robot_kind
 
 
 class HandOver:
@@ -71,7 +70,7 @@ class HandOver:
         self._previous[:] = target
 
 
-def check_policy(spec, robot, mode: str) -> None:
+def check_policy(spec, robot, mode: str, kind) -> None:
     """Refuse a policy's ``spec`` made for another robot than ``robot`` or another control mode
     than ``mode`` (the backend's).
 
@@ -85,19 +84,19 @@ def check_policy(spec, robot, mode: str) -> None:
             f"policy action mode '{spec.action.mode}' differs from the backend's control "
             f"mode '{mode}'"
         )
-    if spec.action.smoothing == "none" and not robot_kind(robot).pd_targets:
+    if spec.action.smoothing == "none" and not kind.pd_targets:
         raise ValueError(
             f"policy action.smoothing 'none': the robot '{robot.name}' does not run PD targets "
             "(its commands always pass the smoother); expected 'jerk_limited' or none given"
         )
 
 
-def follows_targets(spec, robot, mode: str) -> bool:
+def follows_targets(spec, kind, mode: str) -> bool:
     """Whether the runtime's RUNNING envs command ``spec``'s targets as the policy emitted them
     (after the guard), not through the smoother: a PD-target robot in position mode whose spec's
     ``action.smoothing`` is ``'none'`` or left to the robot's default
     (:class:`~sim2real.deploy.spec.policy_spec.ActionSpec`), as the policy was trained."""
-    pd = robot_kind(robot).pd_targets and mode == "position"
+    pd = kind.pd_targets and mode == "position"
     return bool(pd and spec.action.smoothing != "jerk_limited")
 
 
@@ -116,7 +115,7 @@ def switch_policy(runtime, policy, blend_time: float) -> None:
     """
     if not blend_time >= 0:
         raise ValueError(f"switch_policy: blend_time must be >= 0 s, got {blend_time}")
-    check_policy(policy.spec, runtime.robot, runtime.mode_name)
+    check_policy(policy.spec, runtime.robot, runtime.mode_name, runtime.kind)
     ticks = int(round(blend_time / runtime.dt))
     outgoing, spec = runtime.policy, runtime.spec
     runtime.handover = None
@@ -124,7 +123,7 @@ def switch_policy(runtime, policy, blend_time: float) -> None:
         n = runtime.robot.n_joints
         runtime.handover = HandOver(outgoing, spec, runtime.envs, n, ticks, runtime.target)
     runtime.policy, runtime.spec = policy, policy.spec
-    runtime.follows_targets = follows_targets(policy.spec, runtime.robot, runtime.mode_name)
+    runtime.follows_targets = follows_targets(policy.spec, runtime.kind, runtime.mode_name)
     if not runtime.follows_targets:  # the smoother shapes every env's targets again
         runtime.smoother.follow_envs.fill(False)
     obs = runtime._obs  # noqa: SLF001 - the runtime's own room

@@ -1,9 +1,9 @@
 """The control loop (:class:`Runtime`): its stages built over one backend, its lifecycle (start,
 restart after the robot was moved, an operator's reset of latched faults), the tick (read top to
 bottom in :meth:`Runtime.tick`); its state dict comes from
-:class:`~sim2real.deploy.runtime.state.RuntimeState`, a floating base's part of the tick from
-:class:`~sim2real.deploy.runtime.legged_tick.LeggedTick`, the run with the garbage collector
-frozen from :class:`~sim2real.deploy.runtime.run_loop.RunLoop`. The package's docstring
+:class:`~sim2real.deploy.runtime.state.RuntimeState`, the part of the tick a robot's base adds
+from its kind (``kind.tick_stage``, :mod:`sim2real.deploy.kinds.legged_tick`), the run with the
+garbage collector frozen from :class:`~sim2real.deploy.runtime.run_loop.RunLoop`. The package's docstring
 (:mod:`sim2real.deploy.runtime`) describes the tick and the state machine.
 """
 
@@ -19,21 +19,19 @@ from sim2real.deploy.core.modes import (
     OVERRUN_RATE_LIMIT,
     RAMP_IN,
     RUNNING,
-    SAFE_STOP,
     START_TIMEOUT,
     Mode,
 )
 from sim2real.deploy.core.state import Kinematics, RobotState
 from sim2real.deploy.estimation.joints import JointStateEstimator
 from sim2real.deploy.kernels import any_true
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.observe import long_ticks as lt
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
 from sim2real.deploy.runtime.clock import SimClock
 from sim2real.deploy.runtime.compiled import CompiledSupervision
 from sim2real.deploy.runtime.handover import RampIn, check_policy, follows_targets, switch_policy
 from sim2real.deploy.runtime.height_map import height_map_stage
-from sim2real.deploy.runtime.legged_tick import LeggedTick
 from sim2real.deploy.runtime.run_loop import RunLoop
 from sim2real.deploy.runtime.stale import StaleStops
 from sim2real.deploy.runtime.state import RuntimeState
@@ -52,7 +50,7 @@ def _no_reset(envs: np.ndarray) -> None:
     """The reset of a policy without state."""
 
 
-class Runtime(RuntimeState, LeggedTick, RunLoop):
+class Runtime(RuntimeState, RunLoop):
     """The control loop for ``envs`` robots behind one backend.
 
     Args:
@@ -72,6 +70,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
             default ``OVERRUN_RATE_LIMIT`` of the control mode (0.5 position, 0.25 velocity and
             torque; our choice, :mod:`sim2real.deploy.core.modes`). A transient stall is ridden
             through, the drives holding the last command.
+        kind: The robot's kind (the rig's, handed to the guard); None: ``robot_kind(robot)``.
 
     The tick's numeric logic (supervision, action screen, observation, guard, smoother, latency
     histograms) runs in the compiled kernels of :mod:`sim2real.deploy.kernels`; its numpy reference is
@@ -97,6 +96,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         injector=None,
         telemetry=None,
         overrun_rate_limit: float | None = None,
+        kind=None,
     ):
         if overrun_rate_limit is None:
             overrun_rate_limit = OVERRUN_RATE_LIMIT[backend.mode]
@@ -104,7 +104,8 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
             raise ValueError(f"overrun_rate_limit: expected in (0, 1], got {overrun_rate_limit}")
         self.overrun_rate_limit = overrun_rate_limit
         self.robot, self.policy, self.backend = robot, policy, backend
-        check_policy(policy.spec, robot, backend.mode)
+        self.kind = kind = kind or robot_kind(robot)
+        check_policy(policy.spec, robot, backend.mode, kind)
         self.spec: PolicySpec = policy.spec
         #: a hand-over in progress (:meth:`switch_policy`), the last that ended, a slow RAMP_IN
         self.handover = self.last_handover = self.ramp = None
@@ -115,21 +116,21 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         self.clock = clock or SimClock(self.dt)
         self.injector = injector
         self.telemetry = telemetry
-        kind = robot_kind(robot)  # the stages and state layout of an arm or a legged robot
-        # its control input, none for a floating base: SafetyGuard.estimator_input
         self.estimator = JointStateEstimator(robot, envs)
         self.kinematics = Kinematics(robot)
         self.guard, self.smoother = self._build_stages()
         #: bool: RUNNING envs command the guard's targets, not the smoother's (follows_targets)
-        self.follows_targets = follows_targets(self.spec, self.robot, self.mode_name)
+        self.follows_targets = follows_targets(self.spec, kind, self.mode_name)
         self.state: RobotState = kind.state(robot, envs)
         #: a tracking policy's clip (RobotState.motion): the warm-up's placeholder; its task's after
         self.state.motion = motion_buffer(self.spec, envs, n)
         self.goal = np.zeros((envs, 3))
-        #: floating-base robots: the base estimate (IMU, leg kinematics) and the fall check; a
-        #: height_scan policy: its elevation map (stale: a safe stop; else None)
-        self.base_estimator, self.fall_detector = kind.base_stages(robot, envs)
+        #: a height_scan policy: its elevation map (stale: a safe stop; else None)
         self.height_map = height_map_stage(self.spec, self.state, envs, robot, backend)
+        #: the tick's part the kind's base adds (a floating base: kinds.legged_tick) and its
+        #: stages: the base estimate (IMU, leg kinematics) and the fall check (None: an arm)
+        self.base_tick = kind.tick_stage(self)
+        self.base_estimator, self.fall_detector = self.base_tick.stages
         #: (envs,) bool, an operator laying a legged robot down or standing it up: only a tilt falls
         self.lying_expected = np.zeros(envs, dtype=bool)
         #: (envs, 3) the velocity command of a legged robot (vx, vy m/s, yaw rate rad/s, base
@@ -138,7 +139,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
             self.state.command if self.state.command is not None else np.zeros((envs, 3))
         )
         #: rad: the re-anchoring's tolerance (:func:`reanchor`; inf for a legged robot)
-        self.tracking_tolerance = tracking_tolerance(robot, self.mode_name)
+        self.tracking_tolerance = tracking_tolerance(kind, self.mode_name)
         #: the state machine, one per env (:class:`~sim2real.deploy.runtime.supervision.Supervision`):
         #: its arrays below are the runtime's, its transitions in numpy
         self.supervision = sup = self.supervision_type(
@@ -177,10 +178,6 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         self.time = 0.0
         self._obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
         self._target = np.zeros((envs, n))
-        #: a legged tick's work after the base estimate compiled (:meth:`_base_screens`);
-        #: False: numpy's path (the reference)
-        self.compiled_base_screens = True
-        self._base_screens_bound = None
         self._cmd = np.zeros((envs, n))
         #: (envs,) s, the backend's clock of the frame the last tick read (a recorded log maps
         #: its readings' stamps to the ticks with it: sim2real.deploy.observe.command_log)
@@ -195,21 +192,15 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         self.guard.trust_estimate(self.estimator.covariance)
         # latency histograms' bins (sim2real.deploy.observe.telemetry)
         self._bins = np.array([BIN_NS, BINS], dtype=np.int64)
-        #: the backend's ``damp(envs)`` (drivers with their own damping mode, e.g. a Unitree
-        #: robot's: kp 0, a damping kd), told every tick of a legged robot which envs damp
-        self._backend_damp = getattr(backend, "damp", None)
         #: the compiled action screen and supervision (sim2real.deploy.kernels); None in the reference
         self._compiled = self._compile()
         self.state.motion = None  # never a zero clip: the motion task writes the reference
         #: a fixed base on the compiled path: estimate and observe in one call (_estimate_observe)
-        self._fused = self._compiled is not None and self.base_estimator is None
-        #: (envs,) bool: a legged robot's envs whose command damps (``damping``), this tick's
-        self._damp = np.zeros(envs, dtype=bool)
+        self._fused = self._compiled is not None and self.base_tick.fusable
         self._idle = np.zeros(envs, dtype=bool)  # the envs not RUNNING at the tick's end
         self._idle_rows = self._idle[:, None]  # its view over the joints (no index array)
         self._running = np.zeros(envs, dtype=bool)  # the tick's RUNNING envs (follow)
-        if self.fall_detector is not None:  # compiled (or loaded) and bound before a tick
-            self._base_screens(self.state)
+        self.base_tick.bind()  # compiled (or loaded) and bound before a tick
         #: ``(tick) -> None``: the tick's latency histograms and long periods (:meth:`_bind_books`)
         self._books = self._bind_books()
         self.guard.bind_motion(self.smoother, self.state, self._cmd)  # the tick's arrays
@@ -243,12 +234,10 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
 
     def _build_stages(self) -> tuple[SafetyGuard, CommandSmoother]:
         """The guard and the smoother (compiled)."""
-        envs, mode = self.envs, self.mode_name
-        kind = robot_kind(self.robot)
-        bounded = not kind.pd_targets  # PD targets: torque requests
-        wheels = kind.wheel_drives(self.robot, envs, mode)
+        envs, mode, kind = self.envs, self.mode_name, self.kind
+        wheels, bounded = kind.wheel_drives(self.robot, envs, mode), not kind.pd_targets
         smoother = CommandSmoother(self.robot, envs, mode, bounded=bounded, wheels=wheels)
-        return SafetyGuard(self.robot, envs, mode), smoother
+        return SafetyGuard(self.robot, envs, mode, kind), smoother
 
     def _compile(self) -> CompiledSupervision | None:
         """The compiled path: :class:`CompiledSupervision` over the runtime's arrays, and one call
@@ -311,12 +300,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         self.state.dq[:] = 0.0
         self.guard.reset(q)
         self.smoother.reset(q, self.state.dq)
-        if self.base_estimator is not None:  # as the IMU's attitude or accelerometer says, yaw 0
-            acc = frame.imu_acceleration
-            finite = np.isfinite(acc).all() and (np.linalg.norm(acc, axis=1) > 0).all()
-            self.base_estimator.reset(
-                frame.time, acceleration=acc if finite else None, orientation=frame.imu_orientation
-            )
+        self.base_tick.start(frame)  # a floating base: as the IMU's attitude says, yaw 0
         self.mode[:] = RAMP_IN
         self._reset_policy(np.ones(self.envs, dtype=bool))
         self.clock.start()
@@ -359,8 +343,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         est.reset(q, t, envs=envs)
         for counter, value in zip(counters, kept, strict=True):
             counter[envs] = value
-        if self.base_estimator is not None:
-            self.base_estimator.reset(t, envs=envs)
+        self.base_tick.restart(t, envs)  # a floating base: upright
         self.state.q[envs] = q[envs]
         self.state.dq[envs] = 0.0
         self.supervision.ramp_in_at_rest(envs, self.state.q)
@@ -384,8 +367,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
         else:
             state = self.estimator.update(frame, self.state, self._input)
             self.kinematics.update(state)
-            if self.base_estimator is not None:
-                self._update_base(frame, state)  # IMU, contacts, the gait clock; falls
+            self.base_tick.update(frame, state)  # a floating base: IMU, contacts, clock; falls
             self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
             st[2] = clock_ns()
             obs = self._observe(state)
@@ -411,12 +393,7 @@ class Runtime(RuntimeState, LeggedTick, RunLoop):
             cmd = self._replan(error, target, state)
         if self.follows_targets:  # the envs still RUNNING after the step command the target
             self.smoother.follow(target, np.equal(self.mode, RUNNING, out=self._running), cmd)
-        if self.base_estimator is not None:  # a legged robot's every stop lies it down, damped
-            damp = np.greater_equal(self.mode, SAFE_STOP, out=self._damp)  # SAFE_STOP, FAULTED
-            if any_true(damp):
-                self.supervision.damp(cmd, state, damp)
-            if self._backend_damp is not None:  # drivers with a damping mode of their own
-                self._backend_damp(damp)
+        self.base_tick.damp(cmd, state)  # a legged robot's every stop lies it down, damped
         st[6] = clock_ns()
         self.backend.write(cmd)
         st[7] = clock_ns()

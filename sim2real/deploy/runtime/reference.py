@@ -27,7 +27,6 @@ from sim2real.deploy.core.modes import (
 )
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.observe.long_ticks import record
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.runtime.loop import Runtime
 from sim2real.deploy.runtime.supervision import Supervision
 from sim2real.deploy.safety.reference import ReferenceGuard
@@ -115,9 +114,9 @@ class ReferenceRuntime(Runtime):
     def _build_stages(self) -> tuple[ReferenceGuard, ReferenceSmoother]:
         """The guard and the smoother (numpy references)."""
         envs, mode = self.envs, self.mode_name
-        bounded = not robot_kind(self.robot).pd_targets  # as Runtime._build_stages
+        bounded = not self.kind.pd_targets  # as Runtime._build_stages
         smoother = ReferenceSmoother(self.robot, envs, mode, bounded=bounded)
-        return ReferenceGuard(self.robot, envs, mode), smoother
+        return ReferenceGuard(self.robot, envs, mode, self.kind), smoother
 
     def _compile(self) -> None:
         """Nothing to compile."""

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim2real.deploy.core.modes import FAULT_CAUSES, SAFE_STOP, Mode
+from sim2real.deploy.core.modes import FAULT_CAUSES, Mode
 from sim2real.deploy.core.stateful import check, load_parts, parts_state_dict, put, scalar, take
 
 
@@ -90,9 +90,7 @@ class RuntimeState:
         and fault injector where they have a ``state_dict``."""
         parts = {"estimator": self.estimator, "guard": self.guard, "smoother": self.smoother}
         parts["observation"] = ObservationState(self.spec.plan, self.envs)
-        if self.base_estimator is not None:
-            parts["base_estimator"] = self.base_estimator
-            parts["fall_detector"] = self.fall_detector
+        parts.update(self.base_tick.parts())  # a floating base's estimator and fall check
         if self.height_map is not None:  # a policy with a height scan: its elevation map
             parts["height_map"] = self.height_map
         for name, part in (
@@ -185,6 +183,4 @@ class RuntimeState:
         legged robot's envs in SAFE_STOP or FAULTED (holding its stance against gravity with a
         low-gain PD heated the thighs past 200 degC in simulation: it lies down instead); all
         False for an arm."""
-        if self.base_estimator is None:
-            return np.zeros(self.envs, dtype=bool)
-        return self.mode >= SAFE_STOP  # SAFE_STOP or FAULTED, the last modes
+        return self.base_tick.damping(self.mode)

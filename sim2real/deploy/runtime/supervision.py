@@ -33,7 +33,6 @@ from sim2real.deploy.core.modes import (
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.kernels import any_true
 from sim2real.deploy.kernels.calls import bind
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.robots import Robot
 
 
@@ -112,7 +111,7 @@ class Supervision:
         #: robot with PD targets (:attr:`~sim2real.deploy.robot_kind.RobotKind.pd_targets`, a
         #: legged one) in position mode, whose drives' soft PD (the gains it was trained with)
         #: holds its weight short of the home pose, which its estimate would never reach
-        self.home_from_command = robot_kind(robot).pd_targets and mode_name == "position"
+        self.home_from_command = guard.kind.pd_targets and mode_name == "position"
         #: the velocity-driven joints (wheels) of the smoother's command, or None
         self.wheels = getattr(smoother, "wheels", None)
         #: (n,) bool: the joints whose pose RAMP_IN's end judges against home: all but those

@@ -34,7 +34,7 @@ from numba.core.errors import NumbaExperimentalFeatureWarning
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import put, take
 from sim2real.deploy.kernels.calls import SLOT, bind, put_slots
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.safety import kernel as gk
 from sim2real.deploy.safety.check import (
     ACC,
@@ -79,8 +79,12 @@ class SafetyGuard(MotionCheck):
         robot: The robot description (limits, workspace, collision pairs, motors).
         envs: Batch size.
         mode: Control mode of the targets: 'position' (rad), 'velocity' (rad/s), 'torque' (N m).
+        kind: The robot's :class:`~sim2real.deploy.robot_kind.RobotKind` (the rig's, handed down);
+            None: :func:`~sim2real.deploy.kinds.robot_kind` of ``robot``.
 
     Attributes:
+        kind: The robot's kind, whose choices the guard's checks take (PD targets, hard-limit
+            bounce, self-collision holds, the joint filters' input).
         counts: dict check name -> (envs,) int64, interventions so far; each check counts at
             most once per env and tick, except ``effort`` in torque mode (a hold and a clamp).
         count_matrix: (len(CHECKS), envs) int64, the same counters as rows in ``CHECKS`` order
@@ -91,14 +95,14 @@ class SafetyGuard(MotionCheck):
             effort limits, from the winding temperatures (see :meth:`update_thermal`).
     """
 
-    def __init__(self, robot: Robot, envs: int, mode: str):
+    def __init__(self, robot: Robot, envs: int, mode: str, kind=None):
         self.robot, self.envs, self.mode = robot, envs, mode
+        self.kind = kind = kind or robot_kind(robot)
         n = robot.n_joints
         self.dt = robot.control_period
         self.lower, self.upper = robot.position_lower, robot.position_upper
         self._target_lower = self.lower - TARGET_TOLERANCE
         self._target_upper = self.upper + TARGET_TOLERANCE
-        kind = robot_kind(robot)
         if kind.pd_targets:  # targets are torque requests to a PD loop: judged, not stopped
             self._target_lower = np.full(robot.n_joints, -np.inf)
             self._target_upper = np.full(robot.n_joints, np.inf)
@@ -338,7 +342,7 @@ class SafetyGuard(MotionCheck):
         (:attr:`sim2real.deploy.safety.torque_drive.TorqueDrive.acceleration`). None for a floating base
         (:attr:`sim2real.deploy.robot_kind.RobotKind.joint_input`): its filter runs the constant-velocity
         model, since its PD targets' acceleration is not its joints'."""
-        if not robot_kind(self.robot).joint_input:
+        if not self.kind.joint_input:
             return None
         if self.mode != "torque":
             return smoother.mean_acceleration

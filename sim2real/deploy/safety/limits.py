@@ -32,7 +32,6 @@ import numba
 import numpy as np
 
 from sim2real.deploy.kernels import np_max, np_min
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.safety.check import (
     CLAMP,
     FIRED,
@@ -116,12 +115,12 @@ class SoftLimit(GuardCheck):
     def constants(self, guard) -> np.ndarray:
         """Row ``CLAMPS``: 0.0 for a robot whose position targets drive PD loops
         (:attr:`sim2real.deploy.robot_kind.RobotKind.pd_targets`), else 1.0."""
-        clamps = 0.0 if robot_kind(guard.robot).pd_targets else 1.0
+        clamps = 0.0 if guard.kind.pd_targets else 1.0
         return np.full((1, guard.robot.n_joints), clamps)
 
     def reference(self, stage, g, out, q, dq, commanded):
         mask = g._mask
-        if g.mode == "position" and robot_kind(g.robot).pd_targets:
+        if g.mode == "position" and g.kind.pd_targets:
             return None, None
         if stage == INSPECT:
             if g.mode == "position":
@@ -188,7 +187,7 @@ class HardLimit(GuardCheck):
 
     def constants(self, guard) -> np.ndarray:
         n = guard.robot.n_joints
-        bounces = robot_kind(guard.robot).hard_limit_bounce
+        bounces = guard.kind.hard_limit_bounce
         tolerance = LEGGED_HARD_LIMIT_TOLERANCE if bounces else 0.0
         ticks = round(LEGGED_HARD_LIMIT_DURATION / guard.dt) if bounces else 0
         bounce = round(LEGGED_HARD_LIMIT_BOUNCE / guard.dt) if bounces else 0

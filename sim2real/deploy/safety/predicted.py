@@ -14,7 +14,6 @@ import numpy as np
 import pinocchio as pin
 
 from sim2real.deploy.kernels import np_max, np_min, pairs_may_touch, row_sum
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.safety.check import (
     EFFORT,
     FINAL,
@@ -93,11 +92,11 @@ class SelfCollision(GuardCheck):
     def constants(self, guard) -> np.ndarray:
         """Row ``HOLDS``: 1.0 where the check holds a target in self-collision, 0.0 where it does
         not act (:attr:`sim2real.deploy.robot_kind.RobotKind.holds_self_collision`)."""
-        holds = 1.0 if robot_kind(guard.robot).holds_self_collision else 0.0
+        holds = 1.0 if guard.kind.holds_self_collision else 0.0
         return np.full((1, guard.robot.n_joints), holds)
 
     def reference(self, stage, g, out, q, dq, commanded):
-        if stage != PREDICTED or not g._has_pairs or not robot_kind(g.robot).holds_self_collision:
+        if stage != PREDICTED or not g._has_pairs or not g.kind.holds_self_collision:
             return None, None
         check = np.zeros(g.envs, dtype=bool)
         moved = np.abs(g._pred - g._col_q)  # rad per joint since the last check

@@ -9,11 +9,12 @@ build their task here; a new kind of task implements :class:`Task` and registers
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 
 
 class Task(Protocol):
@@ -57,20 +58,56 @@ class Task(Protocol):
         """Inverse of :meth:`state_dict`; raises ``StateDictError`` (a field under its prefix)."""
 
 
-#: The tasks by name: ``builder(robot, envs, backend, **options) -> Task`` (:func:`task_for`'s
-#: options); ``goals`` and ``locomotion`` are the robot kinds' own (``robot_kind(robot).task``).
-TASKS: dict = {}
+@dataclass(frozen=True)
+class TaskEntry:
+    """A registered task: ``build(robot, envs, backend, **options) -> Task`` (:func:`task_for`'s
+    options); ``episodes(robot, envs, period, rng, clock, ranges, success_radius) -> Task``, its
+    episodic form for training (None: none); ``velocity_commands``: it follows the runtime's
+    velocity command (``deploy-run --command``, the soak's command schedule and period)."""
+
+    build: object
+    episodes: object = None
+    velocity_commands: bool = False
+
+    def __call__(self, robot, envs, backend, **options) -> Task:
+        """:attr:`build`'s task."""
+        return self.build(robot, envs, backend, **options)
 
 
-def register_task(name: str, builder) -> None:
-    """Register ``builder`` under ``name`` (:data:`TASKS`).
+#: The tasks by name (:class:`TaskEntry`); ``goals`` and ``locomotion`` are the robot kinds' own
+#: (``robot_kind(robot).task``).
+TASKS: dict[str, TaskEntry] = {}
+
+
+def register_task(name: str, builder, episodes=None, velocity_commands: bool = False) -> None:
+    """Register ``builder`` under ``name`` (:data:`TASKS`, as a :class:`TaskEntry` with
+    ``episodes`` and ``velocity_commands``).
 
     Raises:
         ValueError: a name already registered.
     """
     if name in TASKS:
         raise ValueError(f"task '{name}': already registered")
+    if not isinstance(builder, TaskEntry):
+        builder = TaskEntry(builder, episodes, velocity_commands)
     TASKS[name] = builder
+
+
+def task_entry(robot, task: str | None = None) -> TaskEntry:
+    """The registered task ``task``, default ``robot``'s kind's (:data:`TASKS`).
+
+    Raises:
+        ValueError: no task of that name."""
+    name = task or robot_kind(robot).task
+    if name not in TASKS:
+        raise ValueError(f"task '{name}': expected one of {sorted(TASKS)}")
+    return TASKS[name]
+
+
+def follows_velocity_commands(robot) -> bool:
+    """Whether ``robot``'s task follows velocity commands (a legged robot's: ``deploy-run
+    --command``, the soak's command schedule, the terrain it walks on), not goals."""
+    return task_entry(robot).velocity_commands
 
 
 def task_for(
@@ -131,27 +168,18 @@ def task_for(
     Raises:
         ValueError: a ``command`` that is not three finite numbers (a legged robot).
     """
-    name = task or robot_kind(robot).task
-    if name not in TASKS:
-        raise ValueError(f"task '{name}': expected one of {sorted(TASKS)}")
-    legged = name == "locomotion"
-    if clock is not None:
-        from sim2real.deploy.tasks.commands import CommandRanges
-        from sim2real.deploy.tasks.episodes import EpisodeCommands, EpisodeGoals
-
-        if legged:
-            ranges = CommandRanges() if ranges is None else ranges
-            return EpisodeCommands(envs, period, ranges, rng, clock)
-        if success_radius is None:
-            success_radius = robot.config.task.success_radius
-        return EpisodeGoals(robot, envs, period, rng, clock, success_radius)
+    entry = task_entry(robot, task)
+    if clock is not None:  # training's episodes
+        if entry.episodes is None:
+            raise ValueError("task_for: a clock given, but the task has no training episodes")
+        return entry.episodes(robot, envs, period, rng, clock, ranges, success_radius)
     options = {
         "period": period, "rng": rng, "success_time": success_time, "fixed": fixed,
         "command": command, "window": window, "interventions": interventions,
         "schedule": schedule, "ranges": ranges, "heading_gain": heading_gain, "motion": motion,
         "motion_start_after": motion_start_after,
     }  # fmt: skip
-    return TASKS[name](robot, envs, backend, **options)
+    return entry.build(robot, envs, backend, **options)
 
 
 def _locomotion(robot, envs, backend, *, period, rng, command, window, schedule, ranges,
@@ -167,6 +195,25 @@ def _locomotion(robot, envs, backend, *, period, rng, command, window, schedule,
     return VelocityTask(
         envs, robot.control_period, backend, period, rng, command, window, heading_gain, ranges
     )
+
+
+def _episode_commands(robot, envs, period, rng, clock, ranges, success_radius) -> Task:
+    """Training's velocity commands, one per episode (:func:`task_for` with ``clock``)."""
+    from sim2real.deploy.tasks.commands import CommandRanges
+    from sim2real.deploy.tasks.episodes import EpisodeCommands
+
+    ranges = CommandRanges() if ranges is None else ranges
+    return EpisodeCommands(envs, period, ranges, rng, clock)
+
+
+def _episode_goals(robot, envs, period, rng, clock, ranges, success_radius) -> Task:
+    """Training's goals of an arm (:func:`task_for` with ``clock``): reached within
+    ``success_radius`` m (default the robot's ``task.success_radius``)."""
+    from sim2real.deploy.tasks.episodes import EpisodeGoals
+
+    if success_radius is None:
+        success_radius = robot.config.task.success_radius
+    return EpisodeGoals(robot, envs, period, rng, clock, success_radius)
 
 
 def _goals(robot, envs, backend, *, period, rng, success_time, fixed, window, interventions,
@@ -190,6 +237,6 @@ def _tracking(
     return TrackingTask(robot, envs, backend, clock, waist, interventions, motion_start_after)
 
 
-register_task("goals", _goals)
-register_task("locomotion", _locomotion)
+register_task("goals", _goals, episodes=_episode_goals)
+register_task("locomotion", _locomotion, episodes=_episode_commands, velocity_commands=True)
 register_task("tracking", _tracking)

@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sim2real.deploy.core.registry import Faces
+from sim2real.deploy.kinds import robot_kind
 from sim2real.eval.film.strip import (
     FILM,
     FINAL,
@@ -54,6 +56,28 @@ from sim2real.eval.film.strip import (
     select_moments,
     write_json,
 )
+
+#: The film of each robot kind, by its name (:class:`sim2real.deploy.core.registry.Faces`):
+#: ``(session result) -> None`` (filmed) or the one-line reason it is not: a walking session
+#: (:class:`sim2real.deploy.observe.video.VideoRecorder` draws the joints over a fixed base).
+FILM_OF_KIND: Faces = Faces("film")
+
+
+def _filmed(result: dict) -> None:
+    """An arm's session: filmed."""
+    return None
+
+
+def _walking_not_filmed(result: dict) -> str | None:
+    """A legged robot's session: filmed unless it walked (its report has ``locomotion``)."""
+    if result.get("locomotion") is None:
+        return None
+    return "a legged robot's session: the film draws fixed-base arms only"
+
+
+FILM_OF_KIND.register("arm", _filmed)
+FILM_OF_KIND.register("legged", _walking_not_filmed)
+FILM_OF_KIND.register("wheel_legged", _walking_not_filmed)
 
 #: Frames per simulated second, pixels (width, height), x264 rate factor of the clips.
 FPS = 20.0
@@ -321,8 +345,9 @@ def film_campaign(
     (``kind``, ``label``, ``t_s``, ``start_s``, ``end_s``, ``video`` and ``still`` paths relative
     to ``out``, ``replay_exact``), ``moments`` found per kind, ``not_filmed``, and ``error`` (a
     one-line reason when no film could be made, else None). A session whose film was already
-    rendered (a resumed campaign) is not rendered again; a legged session gets none (its
-    ``error`` says so: :class:`sim2real.deploy.observe.video.VideoRecorder` draws a fixed-base arm). Prints
+    rendered (a resumed campaign) is not rendered again; a session whose robot kind's film face
+    (:data:`FILM_OF_KIND`: a walking session's) gives a reason gets none (its ``error`` says
+    so). Prints
     one line per session.
 
     Args:
@@ -350,12 +375,14 @@ def film_campaign(
         else:
             todo.append(r)
 
+    from sim2real.robots import load_robot
+
+    no_film = FILM_OF_KIND.get(robot_kind(load_robot(template.robot)).name)
+
     def render(r: dict) -> tuple[int, dict]:
-        if (
-            r.get("locomotion") is not None
-        ):  # sim2real.deploy.observe.video draws a fixed-base arm only
+        reason = no_film(r)  # the robot's kind's film face: why not, or None
+        if reason is not None:
             shutil.rmtree(retain_dir(out, r["seed"]), ignore_errors=True)
-            reason = "a legged robot's session: the film draws fixed-base arms only"
             print(f"film: {r['id']}: no film: {reason}", file=sys.stderr)
             return r["seed"], {"clips": [], "error": reason}
         config = replace(template, seed=r["seed"])

@@ -39,8 +39,9 @@ import numpy as np
 
 from sim2real.deploy.core.modes import Mode
 from sim2real.deploy.core.stateful import put, take
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.monitors.kernel import temperature_bands
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.tasks.task import follows_velocity_commands
 from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.soak.batch_plant import build_plant
 from sim2real.eval.soak.exhibition import exhibition_task
@@ -150,9 +151,7 @@ class SessionBatch:
         if len(set(seeds)) != len(seeds):
             raise SessionError(f"seeds: duplicate session seeds in {seeds}")
         self.configs = list(configs)
-        self.out = Path(out)
-        self.write_progress = progress
-        self.on_progress = on_progress
+        self.out, self.write_progress, self.on_progress = Path(out), progress, on_progress
         from sim2real.deploy.spec.drive import drive_robot
 
         robot = load_robot(first.robot)
@@ -179,8 +178,9 @@ class SessionBatch:
         self.faults = SessionFaults(backend, base_forces=forces)
         # the runtime, then its monitors and task (goals, velocity commands or an exhibition's
         # clips, one stream per session): the soak's order
+        commands = follows_velocity_commands(robot)  # a command's period, else a goal's
         task = {
-            "period": first.command_period if self.kind.task == "locomotion" else first.goal_period,
+            "period": first.command_period if commands else first.goal_period,
             "rng": [session_rng(c.seed, "goals") for c in configs],
             "success_time": first.success_time,
             "window": first.window_minutes * 60.0,

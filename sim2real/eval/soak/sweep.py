@@ -32,7 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 from sim2real.eval.world.pushes import PushRanges
 from sim2real.eval.world.session_ranges import SessionRanges
 

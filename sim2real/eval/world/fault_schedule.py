@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 from sim2real.eval.world.checks import check_range
 from sim2real.robots import Robot
 

@@ -1,5 +1,6 @@
 """Every range a soak session draws from (:class:`SessionRanges`), and each robot kind's defaults
-(:func:`session_ranges`: an arm's, a floating-base robot's). Training draws from the same ranges
+(:func:`session_ranges`: the kind's face in :data:`SESSION_RANGES`, an arm's, a floating-base
+robot's). Training draws from the same ranges
 (:mod:`sim2real.policies.envs`, :mod:`sim2real.policies.locomotion`); a TOML file overrides any of them
 (:func:`sim2real.eval.world.ranges_file.load_ranges`).
 """
@@ -9,6 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from sim2real.deploy.core.registry import Faces
+from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.tasks.commands import CommandRanges
 from sim2real.eval.world.checks import check_range
 from sim2real.eval.world.drift import DriftRanges
@@ -89,22 +92,41 @@ class SessionRanges:
 
 
 def session_ranges(robot: Robot, mean_interval: float | None = None) -> SessionRanges:
-    """The soak's ranges for ``robot`` (what ``soak-test`` runs, and training draws from): the
-    defaults with the faults sized to it (:func:`sim2real.eval.world.fault_schedule.fault_ranges`,
-    ``mean_interval`` s between faults when given) and, for an arm, the encoder noise scaled to
-    the robot's own (:func:`sensor_ranges`) and no IMU or floor; for a floating-base robot,
-    ``LEGGED_DYNAMICS``, ``LEGGED_SENSORS``, the default :class:`ImuRanges` and
-    ``FLOOR_FRICTION``."""
-    faults = fault_ranges(robot, mean_interval)
-    if robot.floating_base:
-        return SessionRanges(
-            dynamics=LEGGED_DYNAMICS,
-            sensors=LEGGED_SENSORS,
-            faults=faults,
-            imu=ImuRanges(),
-            floor_friction=FLOOR_FRICTION,
-        )
+    """The soak's ranges for ``robot`` (what ``soak-test`` runs, and training draws from): its
+    kind's defaults (:data:`SESSION_RANGES`, the face registered under the kind's name) with the
+    faults sized to it (:func:`sim2real.eval.world.fault_schedule.fault_ranges`,
+    ``mean_interval`` s between faults when given).
+
+    Raises:
+        ValueError: the robot's kind registered no range defaults."""
+    defaults = SESSION_RANGES.get(robot_kind(robot).name)
+    return defaults(robot, fault_ranges(robot, mean_interval))
+
+
+def arm_ranges(robot: Robot, faults: FaultRanges) -> SessionRanges:
+    """An arm's defaults: the encoder noise scaled to the robot's own (:func:`sensor_ranges`),
+    no IMU, no floor, ``faults``."""
     return SessionRanges(sensors=sensor_ranges(robot), faults=faults, imu=None, floor_friction=None)
+
+
+def legged_ranges(robot: Robot, faults: FaultRanges) -> SessionRanges:
+    """A floating-base robot's defaults: ``LEGGED_DYNAMICS``, ``LEGGED_SENSORS``, the default
+    :class:`ImuRanges` and ``FLOOR_FRICTION``, ``faults``."""
+    return SessionRanges(
+        dynamics=LEGGED_DYNAMICS,
+        sensors=LEGGED_SENSORS,
+        faults=faults,
+        imu=ImuRanges(),
+        floor_friction=FLOOR_FRICTION,
+    )
+
+
+#: The soak's range defaults of each robot kind, by its name: ``(robot, faults) ->
+#: SessionRanges`` (a wheel-legged robot's are a legged robot's).
+SESSION_RANGES: Faces = Faces("soak's range defaults")
+SESSION_RANGES.register("arm", arm_ranges)
+SESSION_RANGES.register("legged", legged_ranges)
+SESSION_RANGES.register("wheel_legged", legged_ranges)
 
 
 #: The nominal encoder noise the specified range is drawn about, rad: the specified 0.005 on

@@ -35,6 +35,7 @@ from sim2real.deploy.backends.sim.disturbances import SimDisturbances
 from sim2real.deploy.backends.sim.drives import SimDrives
 from sim2real.deploy.backends.sim.drives_kernel import derating_due, windup_exceeded
 from sim2real.deploy.backends.sim.legged_sensors import BaseSensorModel
+from sim2real.deploy.backends.sim.plant_faces import plant_extras
 from sim2real.deploy.backends.sim.plant_kernel import (
     DERATE,
     DRAW,
@@ -109,9 +110,7 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
             raise ValueError(f"envs must be >= 1, got {envs}")
         self.robot, self.mode, self.envs = robot, mode, envs
         n = self.n_joints = robot.n_joints
-        if models is None:
-            shared = robot.plant_model(mode)
-            models = [shared] * envs
+        models = [robot.plant_model(mode)] * envs if models is None else models
         if len(models) != envs:
             raise ValueError(f"models: expected {envs} models (one per env), got {len(models)}")
         self._nu = n * robot.actuators_per_joint(mode)
@@ -165,8 +164,8 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         self._qvel = np.zeros((envs, n))
         self._torque = np.zeros((envs, n))
         self.tick = 0
-        #: IMU and foot contact of a floating-base robot (None for an arm)
-        self._base_sensors = BaseSensorModel(self, robot) if robot.floating_base else None
+        #: IMU and foot contact of a floating-base robot (None for an arm): its kind's face
+        self._base_sensors = plant_extras(self, robot)
         #: the table of the compiled step (sim2real.deploy.backends.sim.plant_kernel)
         self._compiled = CompiledStep(self)
         self.reset()

@@ -49,7 +49,7 @@ from sim2real.deploy.backends.unitree.motor_command import fill_motor_commands
 from sim2real.deploy.backends.worker import Worker
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame, checked_command
 from sim2real.deploy.core.latency import LatencyHistogram
-from sim2real.deploy.robot_kind import robot_kind
+from sim2real.deploy.kinds import robot_kind
 from sim2real.robots import Robot
 
 DROPOUT_KINDS = ("lost", "stale", "bad_crc", "malformed")

@@ -1,0 +1,161 @@
+"""The part of the tick a floating base adds (:class:`LeggedTick`, the stage
+:meth:`sim2real.deploy.kinds.legged.Legged.tick_stage` gives the runtime): after the joints'
+estimate, the base estimate from the IMU and the legs' kinematics, the feet's contact, the gait
+clock, the stale IMU's stop and the fall check's (compiled as two calls bound to the runtime's
+arrays); after the smoother, the damped command of every env in a safe stop (a legged robot's
+every stop lays it down). A fixed base adds none (:class:`sim2real.deploy.kinds.arm.FixedBase`).
+
+The stage is given its runtime (:class:`~sim2real.deploy.runtime.loop.Runtime`) and reads its
+public arrays (``mode``, ``time``, ``lying_expected``, ``height_map``, ``supervision``); it
+imports nothing above the kinds' floor.
+"""
+
+from __future__ import annotations
+
+import operator
+
+import numpy as np
+
+from sim2real.deploy.core.modes import RAMP_IN, RUNNING, SAFE_STOP
+from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.kernels import any_true
+from sim2real.deploy.kernels.calls import bind, fits
+
+
+class LeggedTick:
+    """A floating base's part of ``runtime``'s tick (module docstring).
+
+    Args:
+        runtime: The runtime being built (its ``robot``, ``envs``, ``backend``; its ``mode``,
+            ``supervision`` and the rest are read once it is built).
+        base_estimator: :class:`~sim2real.deploy.estimation.base.BaseStateEstimator` of its envs.
+        fall_detector: :class:`~sim2real.deploy.estimation.fall.FallDetector` of its envs.
+
+    Attributes:
+        stages: ``(base_estimator, fall_detector)``.
+        fusable: False: the base's estimate runs between the joints' and the observation.
+        compiled: The work after the base estimate runs compiled (:meth:`screens`); False:
+            numpy's path (the reference).
+        bound: The compiled calls' arrays and calls (:meth:`screens`), or None.
+    """
+
+    fusable = False
+
+    def __init__(self, runtime, base_estimator, fall_detector):
+        self.rt = runtime
+        self.stages = (base_estimator, fall_detector)
+        self.compiled = True
+        self.bound = None
+        #: the backend's ``damp(envs)`` (drivers with a damping mode of their own, e.g. a
+        #: Unitree robot's: kp 0, a damping kd), told every tick which envs damp
+        self._backend_damp = getattr(runtime.backend, "damp", None)
+        #: (envs,) bool: the envs whose command damps, this tick's
+        self._damp = np.zeros(runtime.envs, dtype=bool)
+
+    def bind(self) -> None:
+        """Compile (or load) and bind the tick's calls before its first tick."""
+        self.screens(self.rt.state)
+
+    def start(self, frame) -> None:
+        """``Runtime.start``: the base estimate anchored as the IMU's attitude or
+        accelerometer says (yaw 0)."""
+        acc = frame.imu_acceleration
+        finite = np.isfinite(acc).all() and (np.linalg.norm(acc, axis=1) > 0).all()
+        self.stages[0].reset(
+            frame.time, acceleration=acc if finite else None, orientation=frame.imu_orientation
+        )
+
+    def restart(self, t, envs: np.ndarray) -> None:
+        """``Runtime.restart``: the envs of ``envs`` upright again at time ``t``."""
+        self.stages[0].reset(t, envs=envs)
+
+    def parts(self) -> dict:
+        """The stages whose state is the runtime's: ``base_estimator``, ``fall_detector``."""
+        return {"base_estimator": self.stages[0], "fall_detector": self.stages[1]}
+
+    def damping(self, mode: np.ndarray) -> np.ndarray:
+        """(envs,) bool: the envs whose command damps: SAFE_STOP or FAULTED (holding its stance
+        against gravity with a low-gain PD heated the thighs past 200 degC in simulation: it
+        lies down instead)."""
+        return mode >= SAFE_STOP  # SAFE_STOP or FAULTED, the last modes
+
+    def damp(self, cmd: np.ndarray, state: RobotState) -> None:
+        """After the smoother: the command of the envs in SAFE_STOP or FAULTED damps (their
+        drives' own damping mode too, where the backend has one)."""
+        rt = self.rt
+        damp = np.greater_equal(rt.mode, SAFE_STOP, out=self._damp)
+        if any_true(damp):
+            rt.supervision.damp(cmd, state, damp)
+        if self._backend_damp is not None:  # drivers with a damping mode of their own
+            self._backend_damp(damp)
+
+    def update(self, frame, state: RobotState) -> None:
+        """After the joints' estimate: the base estimate from the IMU and leg kinematics, the
+        feet's contact, the gait clock; an IMU silent past ``safety.stale_limit`` makes a safe
+        stop (stale_sensor), a fall (:class:`sim2real.deploy.estimation.fall.FallDetector`) a
+        damped one (fall); so does an elevation map older than the stale limit (a policy with
+        a height scan, :mod:`sim2real.deploy.runtime.height_map`)."""
+        rt = self.rt
+        est, fd = self.stages
+        if rt.height_map is not None:
+            rt.supervision.safe_stop(rt.height_map.update(frame), "stale_sensor")
+        est.update(frame, state.q, state.dq, out=state.base)
+        calls = self.screens(state) if self.compiled else None
+        if calls is not None:  # the same, compiled (estimation.fall's stale_screen, fall_screen)
+            stale_call, fall_call, stale, fall = calls
+            if stale_call(rt.time):
+                rt.supervision.safe_stop(stale, "stale_sensor")
+            # the estimator's feet's placements: no second forward kinematics
+            fd.screen(state, est.foot_position)
+            if fall_call():
+                rt.supervision.safe_stop(fall, "fall")
+            return
+        state.foot_contact[:] = est.contact  # the sensor's, or the kinematics'
+        state.clock[:] = rt.time
+        stale = est.time_since_fresh > rt.robot.config.safety.stale_limit
+        rt.supervision.safe_stop(stale, "stale_sensor")
+        fallen = fd.check(state, est.foot_position)
+        fallen &= (rt.mode == RUNNING) | (rt.mode == RAMP_IN)
+        # an operator laying the robot down or standing it up: a low base is no fall, a tilt is
+        fallen &= ~rt.lying_expected | fd.signals[:, 0]
+        rt.supervision.safe_stop(fallen, "fall")
+
+    def screens(self, state: RobotState):
+        """:meth:`update`'s work after the estimate as two compiled calls bound to the
+        runtime's arrays (made again when one is another array): ``(stale_call(time),
+        fall_call(), stale, fall)``, the calls answering whether any env is stale or fell, into
+        the masks ``stale`` and ``fall``; None where an array does not fit them (numpy's path)."""
+        rt = self.rt
+        est, fd = self.stages
+        key = (state.foot_contact, state.clock, est.contact, est.time_since_fresh, rt.mode)
+        key += (rt.lying_expected, fd.signals)
+        bound = self.bound
+        if bound is not None and all(map(operator.is_, key, bound[0])):
+            return bound[1]
+        from sim2real.deploy.estimation.fall import fall_screen, stale_screen
+
+        self.bound = None
+        envs, feet = rt.envs, est.contact.shape[1]
+        ok = (
+            fits(state.foot_contact, np.float64, (envs, feet))
+            and fits(state.clock, np.float64, (envs,))
+            and fits(est.contact, np.bool_, (envs, feet))
+            and isinstance(est.time_since_fresh, np.ndarray)
+            and est.time_since_fresh.dtype == np.float64
+            and fits(rt.mode, np.int8, (envs,))
+            and fits(rt.lying_expected, np.bool_, (envs,))
+        )
+        if not ok:
+            return None
+        stale, fall = np.zeros(envs, dtype=bool), np.zeros(envs, dtype=bool)
+        limit = float(rt.robot.config.safety.stale_limit)
+        stale_call = bind(
+            stale_screen, est.contact, state.foot_contact, state.clock, est.time_since_fresh,
+            limit, stale, rest=(0.0,),
+        )  # fmt: skip
+        fall_call = bind(
+            fall_screen, fd.fallen_mask, rt.mode, rt.lying_expected, fd.signals, fall,
+            int(RUNNING), int(RAMP_IN),
+        )  # fmt: skip
+        self.bound = (key, (stale_call, fall_call, stale, fall))
+        return self.bound[1]

@@ -27,6 +27,27 @@ def pytest_configure(config):
     subprocess.run([sys.executable, str(REPO / "tests" / "warm_kernels.py")], cwd=REPO, env=env)
 
 
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config, items):
+    """In a pytest-xdist worker under ``--dist loadgroup``, the ``@group`` suffix of each marked
+    test's id that pytest-xdist's scheduler groups by (``xdist_group``): pytest-xdist 3.8 sets it
+    on ``item._nodeid``, which pytest 9 no longer reads, so every group was spread over the
+    workers (the bench's runs side by side, a module's fixtures built on both)."""
+    if not getattr(config.option, "loadgroup", False):  # set in the workers of loadgroup only
+        return
+    try:
+        from _pytest.nodeid import NodeId  # pytest 9's ids; before it, pytest-xdist's suffix held
+    except ImportError:
+        return
+    for item in items:
+        marks = item.iter_markers("xdist_group")
+        group = "_".join(
+            sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default")) for m in marks})
+        )
+        if group and not item.nodeid.endswith("@" + group):
+            item._id = NodeId.parse(f"{item.nodeid}@{group}")
+
+
 @pytest.fixture(scope="module")
 def one_torch_thread():
     """One torch thread for a module's tests: two spin-wait on a loaded 2-core machine

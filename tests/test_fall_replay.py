@@ -11,6 +11,11 @@ import pytest
 H1_2 = "tests/data/unitree_rl_gym/h1_2/h1_2.onnx"
 
 
+#: The tests of :func:`pushed_h1_2` on one pytest-xdist worker (make test's --dist loadgroup): its
+#: session runs once, not on each worker.
+ON_ONE_WORKER = pytest.mark.xdist_group("pushed_h1_2")
+
+
 @pytest.fixture(scope="module")
 def pushed_h1_2(tmp_path_factory):
     """H1-2 seed 1 in its training domain (legged_gym's pushes), 7 s: pushed at 5 s, it falls
@@ -28,6 +33,7 @@ def pushed_h1_2(tmp_path_factory):
     return batch
 
 
+@ON_ONE_WORKER
 def test_a_fall_is_replayed_in_the_policys_own_loop_from_the_seconds_before_it(pushed_h1_2):
     """The fall check's fall carries its replays: the own loop's, each from a capture 2-6 s
     before the stop (the push among them), each falling after the push as the session did
@@ -59,6 +65,7 @@ def test_a_fall_is_replayed_in_the_policys_own_loop_from_the_seconds_before_it(p
     }  # fmt: skip
 
 
+@ON_ONE_WORKER
 def test_the_own_loop_replay_carries_the_worlds_push(pushed_h1_2):
     """The same replay with the push taken out of the twin's world stands past the stop's
     horizon: the replay's fall is the push's, not a defect of the own loop."""
@@ -111,6 +118,7 @@ def test_no_replay_starts_before_a_previous_fall_or_stand_up(tmp_path):
     assert replayed >= 1  # a fall far enough after its stand-up is still replayed
 
 
+@ON_ONE_WORKER
 def test_a_fallen_robots_interventions_are_counted_apart_from_a_standing_ones(pushed_h1_2):
     """The pushed H1-2 falls before 6 s and lies damped to 7 s: the interventions of the ticks it
     lay (the guard's hard-limit check on its folded legs among them) are in ``while_down``, of

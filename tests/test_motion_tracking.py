@@ -268,6 +268,11 @@ def test_the_anchor_block_is_mujocos_torso_against_the_reference(tmp_path):
 
 
 # ---------------------------------------------------------------------- a dance
+#: The tests of :func:`g1_dance` on one pytest-xdist worker (make test's --dist loadgroup): the
+#: export and the import run once, not on each worker.
+ON_G1_DANCE_WORKER = pytest.mark.xdist_group("g1_dance")
+
+
 @pytest.fixture(scope="module")
 def g1_dance(tmp_path_factory):
     """dance_102 exported and unitree_mujoco's G1 imported with robot-level flags only."""
@@ -284,6 +289,7 @@ def g1_dance(tmp_path_factory):
     return out, onnx_path
 
 
+@ON_G1_DANCE_WORKER
 def test_a_few_seconds_of_the_dance_play_without_a_fall(g1_dance, tmp_path):
     """deploy-run --backend sim plays the clip its contract names once RUNNING: 4 s, no fall,
     the clip started and tracked within 0.15 rad RMS, 10 degrees of anchor error and 60 mm of
@@ -317,6 +323,7 @@ def test_tasks_are_chosen_by_name_from_the_registry():
         task_for(robot, 1, None, period=1.0, rng=None, task="tracking")
 
 
+@ON_G1_DANCE_WORKER
 def test_a_tracking_policy_without_its_clip_is_refused_not_fed_zeros(g1_dance):
     """A runtime of the dance with no tracking task (a soak or a script that forgot the clip):
     its first tick refuses, naming the block, rather than read a clip of zeros."""
@@ -334,6 +341,7 @@ def test_a_tracking_policy_without_its_clip_is_refused_not_fed_zeros(g1_dance):
         runtime.tick()
 
 
+@ON_G1_DANCE_WORKER
 def test_deploy_run_refuses_a_clip_of_another_robot_in_one_line(g1_dance, tmp_path, capsys):
     """deploy-run --motion with a clip of 23 joints (a G1 23-dof's) exits 3 before the run, one
     line naming the file, the row and the joint count."""

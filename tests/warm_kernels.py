@@ -3,9 +3,12 @@ start.
 
 Every kernel is compiled with ``cache=True``; on a fresh clone the cache is empty, and each
 pytest-xdist worker would compile the same kernels at the same time. ``tests/conftest.py`` runs
-this module in a subprocess from the xdist controller before the workers start; it builds and
-ticks the runtime, the plant, the monitors and the task of a fixed-base arm in each control mode,
-of the arm with a motion envelope and of a legged robot, with a policy that holds still.
+this module in a subprocess from the xdist controller before the workers start. It builds and
+runs the run's one assembly (the ``Rig``: runtime, plant, monitors, task and ``deploy-run``'s
+motion figures) of a fixed-base arm in each control mode, of the arm with a motion envelope and
+of a legged robot, with a policy that holds still. The legged robot's kernels (the base
+estimator's, the estimation monitor's, then its run) compile in a second process at the same
+time as the arms' (``--legged``): the two share two cores where one process left one idle.
 
 Usage: ``python tests/warm_kernels.py`` (exit 0; a failure here fails nothing: the tests then
 compile what they need themselves).
@@ -13,22 +16,23 @@ compile what they need themselves).
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 
 from sim2real.deploy.backends.sim.plant import SimBackend
-from sim2real.deploy.monitors.interventions import InterventionMonitor
-from sim2real.deploy.monitors.violations import ViolationMonitor
-from sim2real.deploy.runtime import Runtime
+from sim2real.deploy.rig.rig import MotionHook, Rig
 from sim2real.deploy.spec.policy_spec import PolicySpec
-from sim2real.deploy.tasks.task import task_for
 from sim2real.robots import load_robot
 
-#: (robot, control modes) whose stages are built and ticked.
-ROBOTS = (
+#: (robot, control modes) whose runs are built and ticked by this process.
+ARMS = (
     ("arm3", ("velocity", "position", "torque")),
     ("arm6", ("position",)),
-    ("go2", ("position",)),
 )
+#: The legged robot and its control mode, warmed by the second process.
+LEGGED = ("go2", "position")
 #: Robots per batch (kernels specialize on types, not sizes).
 ENVS = 2
 #: Ticks run per robot and mode.
@@ -46,33 +50,43 @@ class HoldStill:
 
 
 def warm(name: str, mode: str) -> None:
-    """Build and tick ``name``'s stages in control mode ``mode`` for :data:`TICKS` ticks."""
+    """Build ``name``'s run in control mode ``mode`` and tick it for :data:`TICKS` ticks."""
     robot = load_robot(name)
     spec = PolicySpec.for_robot(robot, mode=mode)
     backend = SimBackend(robot, mode=mode, envs=ENVS, seed=0)
-    runtime = Runtime(robot, HoldStill(spec), backend)
-    violations = ViolationMonitor(robot, ENVS)
-    interventions = InterventionMonitor(runtime.guard, runtime.smoother)
     rngs = [np.random.default_rng(e) for e in range(ENVS)]
-    task = task_for(robot, ENVS, backend, period=1.0, rng=rngs, interventions=interventions)
-    task.reset(runtime, np.ones(ENVS, dtype=bool))
-    runtime.start()
-    interventions.resync()
-
-    def on_tick(rt):
-        violations.update(backend)
-        interventions.update()
-        task(rt)
-
-    runtime.run(TICKS, on_tick=on_tick)
+    rig = Rig(robot, HoldStill(spec), backend, envs=ENVS, task=dict(period=1.0, rng=rngs))
+    rig.add(MotionHook(rig))
+    rig.start()
+    rig.run(TICKS)
 
 
-def main() -> int:
-    for name, modes in ROBOTS:
-        for mode in modes:
-            warm(name, mode)
+def warm_legged() -> None:
+    """The legged robot's own kernels first (its base estimator's and its estimation monitor's,
+    which no arm shares), then its run (by then mostly loaded from the arms' process)."""
+    from sim2real.deploy.estimation.base import BaseStateEstimator
+    from sim2real.deploy.monitors.estimation import EstimationMonitor
+
+    name, mode = LEGGED
+    robot = load_robot(name)
+    BaseStateEstimator(robot, ENVS)
+    EstimationMonitor(robot, ENVS)
+    warm(name, mode)
+
+
+def main(argv: list[str]) -> int:
+    if argv == ["--legged"]:
+        warm_legged()
+        return 0
+    legged = subprocess.Popen([sys.executable, __file__, "--legged"])
+    try:
+        for name, modes in ARMS:
+            for mode in modes:
+                warm(name, mode)
+    finally:
+        legged.wait()
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(main(sys.argv[1:]))

@@ -22,6 +22,29 @@ from sim2real.deploy.spec.height_scan import CLIP, OFFSET, SCALE, HeightScanPatt
 from sim2real.deploy.spec.policy_spec import ObservationBlock, PolicySpec
 
 
+def with_height_scan(spec: PolicySpec, pattern: HeightScanPattern | None = None) -> PolicySpec:
+    """``spec`` with a legged_gym ``height_scan`` block (offset 0.5, scale 0.2, clip 5:
+    :mod:`sim2real.deploy.spec.height_scan`) of ``pattern`` (default legged_gym's 17 x 11)
+    appended after its blocks; the others keep their columns.
+
+    Raises:
+        ValueError: a spec with a frame history, or one that has a height_scan block already.
+    """
+    if spec.history is not None:
+        raise ValueError(
+            "with_height_scan: a spec with a frame history: the scan would interleave it"
+        )
+    if any(b.name == "height_scan" for b in spec.observation_blocks):
+        raise ValueError("with_height_scan: the spec has a height_scan block already")
+    p = pattern or HeightScanPattern()
+    block = ObservationBlock(
+        "height_scan", p.count, (SCALE,) * p.count, (OFFSET,) * p.count, CLIP, scan=p
+    )
+    spec = replace(spec, observation_blocks=(*spec.observation_blocks, block))
+    spec.validate()
+    return spec
+
+
 def add_unused_scan(
     source: Path, out: Path, pattern: HeightScanPattern | None = None
 ) -> tuple[Path, PolicySpec]:
@@ -39,12 +62,8 @@ def add_unused_scan(
     spec = PolicySpec.from_json(meta["policy_spec"])
     if spec.history is not None:
         raise ValueError(f"{source}: a spec with a frame history: the scan would interleave it")
-    p = pattern or HeightScanPattern()
-    block = ObservationBlock(
-        "height_scan", p.count, (SCALE,) * p.count, (OFFSET,) * p.count, CLIP, scan=p
-    )
-    spec = replace(spec, observation_blocks=(*spec.observation_blocks, block))
-    spec.validate()
+    spec = with_height_scan(spec, pattern)
+    p = spec.observation_blocks[-1].scan
     graph = model.graph
     obs = graph.input[0]
     inner = f"{obs.name}_without_scan"

@@ -153,9 +153,14 @@ def rl_sar_run(entry: Entry, robot, seed: int, args, pushes, terrain) -> Run:
         raise SystemExit(
             f"--rl-sar {entry.name}: the loop walks at vx only, got --command {args.command}"
         )
+    ours = {}
+    if getattr(args, "rl_sar_plant", False):  # like against like: our plant, motors, sensors
+        folder = Path(entry.robot)
+        ours = {"motors": folder, "sensor_noise": True, "plant_of": folder}
+        ours["timestep"] = float(robot.plant_model("torque").opt.timestep)
     out = run(
         entry.rl_sar[0], entry.rl_sar[1], terrain, args.seconds, vx, seed,
-        pushes=None if pushes is None else (robot, pushes), cross=False,
+        pushes=None if pushes is None else (robot, pushes), cross=False, **ours,
     )  # fmt: skip
     fell = out["t_s"] if out["fell"] else None
     return Run(fell_at=fell, cause="fall" if out["fell"] else None, walked=out["t_s"],
@@ -327,6 +332,12 @@ def main(argv: list[str] | None = None) -> int:
         "[terrain] drawn per seed",
     )  # fmt: skip
     p.add_argument("--terrain-tiles", type=int, default=3, help="tiles per side (odd)")
+    p.add_argument(
+        "--rl-sar-plant", action="store_true",
+        help="the --rl-sar loop on our plant: the robot folder's motors, sensor noise, physics "
+        "step, integrator and joints (bench.himloco_terrain_loop --motors --sensor-noise "
+        "--plant-of --timestep)",
+    )  # fmt: skip
     p.add_argument("--jobs", type=int, default=1, help="processes")
     p.add_argument("--verbose", action="store_true", help="a line per seed")
     a = p.parse_args(argv)

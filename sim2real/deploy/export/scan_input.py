@@ -5,7 +5,8 @@ The graph's observation input grows by the block's entries (appended after the s
 an Isaac Lab policy group lists ``height_scan`` last), and a ``Gather`` over the input's columns
 feeds the original graph its own entries: the scan's weights are zero, so the policy acts as
 before while the runtime fills, judges and logs the scan every tick. A spec with a frame history
-is refused (its frames would interleave the scan).
+is refused (its frames would interleave the scan). :func:`with_height_scan` is the spec's part
+alone: a spec given the block (the perceptive recipe's, ``train_legged --height-scan``).
 """
 
 from __future__ import annotations

@@ -120,9 +120,16 @@ def run(
     sensor_noise: bool = False,
     timestep: float | None = None,
     plant_of: Path | None = None,
+    pushes=None,
+    cross: bool = True,
 ):
-    """One run on ``tile`` (``--terrain`` syntax; None: the plane): a dict of whether it
-    crossed, the time, x reached, whether and when it fell. ``motors``: an imported robot
+    """One run on ``tile`` (``--terrain`` syntax, or a
+    :class:`~sim2real.eval.world.terrain.TerrainDraw`; None: the plane): a dict of whether it
+    crossed, the time, x reached, whether and when it fell. ``pushes``: ``(robot, PushRanges)``,
+    the soak's push schedule of ``seed`` (:class:`~sim2real.eval.world.pushes.DomainPushes`) on
+    this loop's policy ticks after the get-up, pushing the model through ``robot``'s (an import
+    of the same go2.xml) push methods; the pushes' times (s) in ``push_times``. ``cross``:
+    False, the run goes on past the tile's rim (``crossed`` stays False). ``motors``: an imported robot
     folder whose motors clamp the torques (and, with ``sensor_noise``, whose sensors' white
     noise the observation gets, drawn from ``seed``). ``timestep``: s, the physics step in
     place of rl_sar's ``dt`` (the PD law at every step, the policy at rl_sar's own rate).
@@ -135,7 +142,9 @@ def run(
     if timestep is not None:  # the same policy period on a finer physics step
         decimation = int(round(dt * decimation / timestep))
         dt = float(timestep)
-    terrain = None if tile in (None, "plane") else parse_terrain(tile)
+    terrain = None if tile in (None, "plane") else tile
+    if isinstance(terrain, str):
+        terrain = parse_terrain(terrain)
     model, ground = _model(unitree_mujoco, terrain, seed, dt, plant_of)
     data = mujoco.MjData(model)
     clamp, sigma = None, np.array([0.0] * 5 + [1.0])
@@ -186,6 +195,13 @@ def run(
     lower, upper = (model.jnt_range[model.actuator_trnid[mapping, 0], i] for i in (0, 1))
     past_ticks = far_ticks = 0
     period = dt * decimation
+    schedule = walk = base_pushes = None
+    if pushes is not None:  # the soak's schedule on this loop's policy ticks (bench.push_loops)
+        from bench.push_loops import BareBase, _Walk
+        from sim2real.eval.world.pushes import DomainPushes
+
+        schedule = DomainPushes([seed], pushes[1], period)
+        walk, base_pushes = _Walk(), BareBase(pushes[0], model, data)
     for k in range(steps):
         if k % decimation == 0:
             q, dq = q_dq()
@@ -235,10 +251,15 @@ def run(
         if math.acos(max(-1.0, min(1.0, up))) > FALL_TILT or base[2] - floor < FALL_HEIGHT:
             out.update(fell=True, t_s=(k + 1) * dt)
             break
-        if base[0] >= CROSSED_X:
+        if cross and base[0] >= CROSSED_X:
             out.update(crossed=True, t_s=(k + 1) * dt)
             break
+        if schedule is not None and (k + 1) % decimation == 0:  # a policy tick's end: its push
+            walk.ticks = (k + 1) // decimation
+            schedule(walk, base_pushes)
     out["x_m"] = float(data.qpos[0])
+    if schedule is not None:
+        out["push_times"] = list(schedule.times[0])
     return out
 
 

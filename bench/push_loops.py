@@ -256,16 +256,34 @@ def truth_loop(robot, policy, seed: int, seconds: float, pushes, command, path=N
     return _bare_run(robot, seed, seconds, pushes, gains, act, path)
 
 
-def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command) -> Run:
+def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command, terrain=None) -> Run:
     """One run of our runtime (module docstring) with ``policy`` (an ``OnnxPolicy`` on ``robot``,
-    fresh); arguments and result as :func:`truth_loop`."""
+    fresh); arguments and result as :func:`truth_loop`. ``terrain``: a
+    :class:`~sim2real.eval.world.terrain.TerrainDraw` the plant's ground is laid from (its
+    random parts from ``seed`` as ``deploy-run --terrain --seed`` draws them), the true fall
+    judged above the ground under the base (None: the plane)."""
     from sim2real.deploy.backends.sim.plant import SimBackend
     from sim2real.deploy.monitors.interventions import InterventionMonitor
     from sim2real.deploy.runtime import Runtime
     from sim2real.deploy.smoothing.ruckig_state import SmoothingError
     from sim2real.eval.soak.push_response import PushResponse
 
-    plant = SimBackend(robot, "position", envs=1, seed=seed)
+    ground, models = None, None
+    if (
+        terrain is not None
+    ):  # as deploy-run --terrain lays it (sim2real.deploy.backends.sim.options)
+        spec = robot.mjspec("position")
+        ground = terrain.apply(spec, np.random.default_rng([seed, 0]))
+        models = [spec.compile()]
+    plant = SimBackend(robot, "position", envs=1, seed=seed, models=models)
+    if ground is not None:
+        plant.grounds = [ground]
+
+    def above() -> float:  # m, the true base above the ground under it
+        return float(truth[0, 2]) - (
+            0.0 if ground is None else float(plant.ground_height(truth)[0])
+        )
+
     rt = Runtime(robot, policy, plant)
     rt.velocity_command[0] = command
     rt.start()
@@ -282,14 +300,14 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command) -> R
         except SmoothingError:  # the runtime raised: the run ends there, counted apart
             plant.true_base_state(out=truth)
             run.fell_at, run.cause = rt.time, STOP_RAISED
-            run.upright_stop = true_upright(robot, truth[0, 2], truth[0, 3:7])
+            run.upright_stop = true_upright(robot, above(), truth[0, 3:7])
             break
         monitor.update()
         plant.true_base_state(out=truth)
         if rt.mode[0] != RUNNING:
             if run.ticks or rt.time > RAMP_TIMEOUT:  # it walked, and stopped
                 run.fell_at, run.cause = rt.time, rt.cause_names()[0]
-                run.upright_stop = true_upright(robot, truth[0, 2], truth[0, 3:7])
+                run.upright_stop = true_upright(robot, above(), truth[0, 3:7])
                 break
             before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
             continue
@@ -301,7 +319,7 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command) -> R
         if quiet(rt.time, schedule.times[0] if schedule else []):
             run.quiet_ticks += 1
             run.quiet_intervened += changed
-        if true_fall(robot, truth[0, 2], truth[0, 3:7]):
+        if true_fall(robot, above(), truth[0, 3:7]):
             run.fell_at, run.cause = rt.time, "fall"
             break
         if schedule is not None:  # as the soak: the estimate judged, then the tick's push

@@ -1,7 +1,8 @@
 """Legged policies under pushes: our runtime beside each policy's own loop on the true state.
 
 ``python -m bench.push_reference [--robots go2,h1,h1_2] [--user NAME=ROBOT_DIR,POLICY[,DEPLOY_YAML,
-MOTION_PT]] [--domain NAME=RANGES] [--seeds 0-99] [--seconds 60] [--apply force]``
+MOTION_PT]] [--domain NAME=RANGES] [--seeds 0-99] [--seconds 60] [--apply force]
+[--rl-sar NAME=RL_SAR,UNITREE_MUJOCO --terrain KIND:SIZE|RANGES.toml]``
 
 Does a policy fall under pushes because of our runtime, or would it fall in its own stack's loop
 too? Each seed's push sequence runs, walking at ``--command``, for ``--seconds`` in the policy's
@@ -62,7 +63,8 @@ class Entry:
     unitree_rl_gym's loop, its deploy yaml and TorchScript policy (None: the truth-fed loop of
     the ONNX's spec); ``domain``: a ranges file whose ``[pushes]`` it runs (None: the ONNX's);
     ``tracking``: a whole-body tracking policy's rl_sar folder (its clip played in rl_sar's loop
-    and ours, :mod:`bench.push_tracking`; None: a walking policy)."""
+    and ours, :mod:`bench.push_tracking`; None: a walking policy); ``rl_sar``: (rl_sar, unitree_mujoco)
+    checkouts whose HIMLoco loop is its own (:mod:`bench.himloco_terrain_loop`)."""
 
     name: str
     robot: str
@@ -71,11 +73,14 @@ class Entry:
     torchscript: Path | None = None
     domain: Path | None = None
     tracking: Path | None = None
+    rl_sar: tuple[Path, Path] | None = None
 
     @property
     def own_loop(self) -> str:
         if self.tracking:
             return "rl_sar tracking"
+        if self.rl_sar:
+            return "rl_sar HIMLoco"
         return "unitree_rl_gym" if self.config else "truth-fed spec"
 
 
@@ -126,8 +131,53 @@ def _load(entry: Entry):
     return robot, OnnxPolicy(entry.policy, robot)
 
 
+def terrain_of(seed: int, args):
+    """The :class:`~sim2real.eval.world.terrain.TerrainDraw` of seed ``seed``'s runs (None: the
+    plane): ``--terrain KIND:SIZE`` (or ``KIND@LEVEL``) for every seed, or a ranges file's
+    ``[terrain]`` drawn per seed (kind and level, as a soak session draws them); either laid out
+    in ``--terrain-tiles`` x ``--terrain-tiles`` tiles."""
+    from sim2real.eval.world.ranges_file import read_overrides
+    from sim2real.eval.world.terrain import TerrainRanges, parse_terrain, sample_terrain
+
+    text = getattr(args, "terrain", None)
+    if text is None:
+        return None
+    tiles = getattr(args, "terrain_tiles", 3)
+    if text.endswith(".toml"):
+        ranges = read_overrides(text).get("terrain")
+        if ranges is None:
+            raise SystemExit(f"--terrain {text}: the file has no [terrain] table")
+        ranges = TerrainRanges(**(ranges | {"tiles": tiles}))
+        return sample_terrain(np.random.default_rng([seed, 2]), ranges)
+    return parse_terrain(text, TerrainRanges(tiles=tiles))
+
+
+def rl_sar_run(entry: Entry, robot, seed: int, args, pushes, terrain) -> Run:
+    """HIMLoco's own loop (:mod:`bench.himloco_terrain_loop`: rl_sar's runtime on unitree_mujoco's
+    go2.xml, true state) under the same pushes on the same tiles, as a :class:`Run`."""
+    from bench.himloco_terrain_loop import run
+
+    vx, vy, yaw = (float(x) for x in args.command.split(","))
+    if vy or yaw:
+        raise SystemExit(
+            f"--rl-sar {entry.name}: the loop walks at vx only, got --command {args.command}"
+        )
+    ours = {}
+    if getattr(args, "rl_sar_plant", False):  # like against like: our plant, motors, sensors
+        folder = Path(entry.robot)
+        ours = {"motors": folder, "sensor_noise": True, "plant_of": folder}
+        ours["timestep"] = float(robot.plant_model("torque").opt.timestep)
+    out = run(
+        entry.rl_sar[0], entry.rl_sar[1], terrain, args.seconds, vx, seed,
+        pushes=None if pushes is None else (robot, pushes), cross=False, **ours,
+    )  # fmt: skip
+    fell = out["t_s"] if out["fell"] else None
+    return Run(fell_at=fell, cause="fall" if out["fell"] else None, walked=out["t_s"],
+               pushes=out.get("push_times", []))  # fmt: skip
+
+
 def run_seed(entry: Entry, seed: int, args) -> tuple[Run, Run]:
-    """(own loop, ours) of ``entry`` on push sequence ``seed``."""
+    """(own loop, ours) of ``entry`` on push sequence ``seed`` (on ``--terrain``'s tiles)."""
     import yaml
 
     robot, policy = _load(entry)
@@ -138,6 +188,13 @@ def run_seed(entry: Entry, seed: int, args) -> tuple[Run, Run]:
         own = rl_sar_loop(robot, entry.tracking, seed, args.seconds, pushes)
         return own, tracking_runtime_loop(robot, policy, seed, args.seconds, pushes)
     command = [float(x) for x in args.command.split(",")]
+    terrain = terrain_of(seed, args)
+    if entry.rl_sar is not None:
+        own = rl_sar_run(entry, robot, seed, args, pushes, terrain)
+        ours = runtime_loop(robot, policy, seed, args.seconds, pushes, command, terrain)
+        return own, ours
+    if terrain is not None:
+        raise SystemExit("--terrain: for an --rl-sar policy (its own loop lays the tiles too)")
     if entry.config is not None:
         cfg = yaml.safe_load(Path(entry.config).read_text())
         net = load_torchscript(entry.torchscript)
@@ -264,7 +321,14 @@ def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
     unknown = set(domains) - {e.name for e in out}
     if unknown:
         p.error(f"--domain: {sorted(unknown)} name no policy of the run")
-    return [replace(e, domain=domains.get(e.name)) for e in out]
+    loops = {}
+    for item in getattr(args, "rl_sar", []):
+        name, _, rest = item.partition("=")
+        parts = rest.split(",")
+        if not name or len(parts) != 2 or name not in {e.name for e in out}:
+            p.error(f"--rl-sar {item!r}: expected NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR of a --user")
+        loops[name] = (Path(parts[0]), Path(parts[1]))
+    return [replace(e, domain=domains.get(e.name), rl_sar=loops.get(e.name)) for e in out]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -283,6 +347,22 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--apply", choices=("force", "velocity_hidden_from_imu"), default=None)
     p.add_argument("--no-pushes", action="store_true", help="walk without pushes")
     p.add_argument("--window", type=float, default=None, help="s, a force push's duration")
+    p.add_argument(
+        "--rl-sar", action="append", default=[], metavar="NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR",
+        help="a --user's own loop: rl_sar's HIMLoco loop (bench.himloco_terrain_loop)",
+    )  # fmt: skip
+    p.add_argument(
+        "--terrain", default=None, metavar="KIND:SIZE|KIND@LEVEL|RANGES.toml",
+        help="both loops on legged_gym tiles (--rl-sar policies): one tile, or a ranges file's "
+        "[terrain] drawn per seed",
+    )  # fmt: skip
+    p.add_argument("--terrain-tiles", type=int, default=3, help="tiles per side (odd)")
+    p.add_argument(
+        "--rl-sar-plant", action="store_true",
+        help="the --rl-sar loop on our plant: the robot folder's motors, sensor noise, physics "
+        "step, integrator and joints (bench.himloco_terrain_loop --motors --sensor-noise "
+        "--plant-of --timestep)",
+    )  # fmt: skip
     p.add_argument("--jobs", type=int, default=1, help="processes")
     p.add_argument("--verbose", action="store_true", help="a line per seed")
     a = p.parse_args(argv)
@@ -299,8 +379,9 @@ def main(argv: list[str] | None = None) -> int:
         results[e.name][1].append(own)
         results[e.name][2].append(ours)
         if a.verbose:
+            where = "" if a.terrain is None else f" [{terrain_of(s, a).label}]"
             print(
-                f"{e.name} seed {s:3d}: own fell at {own.fell_at}, ours {ours.fell_at} "
+                f"{e.name} seed {s:3d}{where}: own fell at {own.fell_at}, ours {ours.fell_at} "
                 f"({ours.cause}); pushes {survived(own)} / {survived(ours)}",
                 file=sys.stderr,
                 flush=True,
@@ -313,7 +394,25 @@ def main(argv: list[str] | None = None) -> int:
         once = f"its clip once (at most {a.seconds:g} s), not --command; " if e.tracking else ""
         print(f"{e.name}: {once}pushes {push_ranges(e, robot, a)}")
     print("\n".join(table(results, a)))
+    if a.terrain is not None:
+        print("\n".join(terrain_table(results, seeds, a)))
     return 0
+
+
+def terrain_table(results: dict, seeds: list[int], args) -> list[str]:
+    """Pushes survived per terrain kind (``--terrain``'s draws), own loop / ours, per policy."""
+    lines = ["| policy | terrain | runs | pushes survived own / ours | falls own / ours |"]
+    lines.append("| --- | --- | --- | --- | --- |")
+    kinds = [terrain_of(s, args).kind for s in seeds]
+    for name, (_, own, ours) in results.items():
+        for kind in sorted(set(kinds)):
+            at = [i for i, k in enumerate(kinds) if k == kind]
+            a = sum(survived(own[i]) for i in at)
+            b = sum(survived(ours[i]) for i in at)
+            fa = sum(own[i].fell_at is not None for i in at)
+            fb = sum(ours[i].fell_at is not None for i in at)
+            lines.append(f"| {name} | {kind} | {len(at)} | {a} / {b} | {fa} / {fb} |")
+    return lines
 
 
 if __name__ == "__main__":

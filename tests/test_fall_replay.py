@@ -139,3 +139,39 @@ def test_a_fallen_robots_interventions_are_counted_apart_from_a_standing_ones(pu
     assert down["any"]["count"] > 0
     assert down["any"]["fraction"] == pytest.approx(down["any"]["count"] / down["ticks"])
     assert result["any"]["fraction"] == pytest.approx(result["any"]["count"] / result["ticks"])
+
+
+def test_a_fall_replay_on_terrain_rebuilds_the_sessions_own_tiles(tmp_path, go2_onnx):
+    """A Go2 session on a stairs-down tower (its platform 1.26 m above z = 0): the one-session
+    copy the fall replays run in has the session's very ground (the same tile geoms and
+    height field, the same ground heights), not a flat plane; the own loop replayed from a
+    capture stands on the tower, its base judged above the ground under it, where the
+    session's base is."""
+    from sim2real.eval.soak.batch import SessionBatch
+    from sim2real.eval.soak.fall_replay import own_loop
+    from sim2real.eval.soak.session import SessionConfig
+    from sim2real.eval.world.ranges_file import load_ranges_text
+    from sim2real.robots import load_robot
+
+    text = "[terrain]\nterrain_proportions = [0, 0, 0, 1, 0]\nlevels = [5, 5]\n"
+    ranges = load_ranges_text(text, "terrain.toml", load_robot("go2"), None)
+    config = SessionConfig(robot="go2", policy=str(go2_onnx), seed=3, hours=1.0, ranges=ranges)
+    batch = SessionBatch([config], tmp_path / "s", progress=False)
+    batch.rt.run(int(round(2.5 / batch.dt)), on_tick=batch.on_tick)
+    twin = batch.stop_replay.copy_of(0)
+    ours, theirs = batch.backend.models[0], twin.backend.models[0]
+    assert ours.ngeom == theirs.ngeom and ours.nhfield == theirs.nhfield
+    assert np.array_equal(ours.geom_pos, theirs.geom_pos)
+    assert np.array_equal(ours.geom_size, theirs.geom_size)
+    assert np.array_equal(ours.hfield_data, theirs.hfield_data)
+    xy = np.random.default_rng(0).uniform(-4.0, 4.0, (20, 2))
+    mine, copy_ = batch.backend.grounds[0], twin.backend.grounds[0]
+    assert np.array_equal(mine.height_at(xy[:, 0], xy[:, 1]), copy_.height_at(xy[:, 0], xy[:, 1]))
+    assert mine.height_at(0.0, 0.0) > 0.5  # the tower's top, far from the plane z = 0
+    arrays, meta = batch.fall_replay.captures[0][-1]
+    twin.restore(arrays, copy.deepcopy(meta), "test")
+    start = meta["tick"] * batch.dt
+    assert own_loop(twin, start + 1.0) is None  # stands on the tower: no fall judged
+    base = twin.backend.true_base_state()[0]
+    assert base[2] - twin.backend.ground_height(twin.backend.true_base_state())[0] > 0.1
+    assert base[2] > 1.0  # on the tower (1.26 m), not dropped to a plane at z = 0

@@ -104,3 +104,80 @@ def test_fine_tuning_from_another_recipes_checkpoint_names_the_file(tmp_path):
                 "0",
             ]
         )
+
+
+@pytest.fixture(scope="module")
+def scan_tuned(tmp_path_factory):
+    """A perceptive Go2 made by the recipe: --height-scan --init-from sim2real/policies/go2.pt,
+    64 steps after a 32-step critic warm-up (and the warm-up alone beside it)."""
+    from pathlib import Path
+
+    tmp = tmp_path_factory.mktemp("scan")
+    common = ["--envs", "2", "--n-steps", "16", "--batch-size", "16", "--epochs", "1"]
+    common += ["--save-every", "0", "--gate-hours", "0", "--init-from", "sim2real/policies/go2.pt"]
+    common += ["--height-scan", "--critic-warmup", "32"]
+    main(common + ["--steps", "32", "--logdir", str(tmp / "w")])
+    main(common + ["--steps", "96", "--logdir", str(tmp / "t")])
+    shipped = read_checkpoint(Path("sim2real/policies/go2.pt"))
+    return shipped, tmp / "w" / "go2_seed1.pt", tmp / "t" / "go2_seed1.pt"
+
+
+def test_a_height_scan_fine_tune_starts_blind_and_learns_weights_on_its_scan(scan_tuned):
+    """--height-scan appends legged_gym's 187 terrain heights to the shipped spec: the fine-tune
+    starts from the shipped actor with the scan's input weights at 0 (the warm-up's candidate
+    acts as the shipped policy), and training gives them weights; the ONNX export carries the
+    block and computes the candidate's action."""
+    shipped, warmed, tuned = scan_tuned
+    go2 = load_robot("go2")
+    ckpt = read_checkpoint(tuned)
+    blocks = ckpt.spec.observation_blocks
+    assert blocks[-1].name == "height_scan" and blocks[-1].size == 187
+    assert ckpt.spec.obs_dim == shipped.spec.obs_dim + 187
+    blind = shipped.spec.obs_dim
+    first = read_checkpoint(warmed).actor.net[0].weight.detach()
+    assert torch.count_nonzero(first[:, blind:]) == 0
+    torch.testing.assert_close(first[:, :blind], shipped.actor.net[0].weight, rtol=0, atol=0)
+    weights = ckpt.actor.net[0].weight.detach()[:, blind:]
+    assert torch.count_nonzero(weights) > 0.9 * weights.numel()
+    onnx = OnnxPolicy(tuned.with_suffix(".onnx"), go2)
+    assert onnx.spec.observation_blocks[-1].scan == blocks[-1].scan
+    obs = np.random.default_rng(0).normal(size=(3, ckpt.spec.obs_dim)).astype(np.float32)
+    with torch.no_grad():
+        expected = ckpt.actor(torch.as_tensor(obs)).numpy()
+    np.testing.assert_allclose(onnx(obs), expected, atol=1e-5)
+
+
+def test_the_tuned_policys_scan_on_a_stair_tile_is_the_truths_ray_casts_plus_its_noise(scan_tuned):
+    """The fine-tuned policy's export run by the runtime on a 10 cm stairs-up tile: the scan the
+    policy observes each tick is a noise-free scanner's ray casts on the tile from the same
+    pose plus the stated uniform noise, seeded; the tile's steps are in it (not a plane's)."""
+    import mujoco
+
+    from sim2real.deploy.backends.sim.height_scan import HeightScanNoise, PlantHeightScanner
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.runtime import Mode, Runtime
+    from sim2real.eval.world.terrain import apply_terrain, parse_terrain
+
+    _, _, tuned = scan_tuned
+    go2 = load_robot("go2")
+    spec = go2.mjspec("position")
+    ground = apply_terrain(spec, parse_terrain("stairs_up:0.10"), np.random.default_rng(0))
+    plant = SimBackend(go2, "position", envs=1, models=[spec.compile()])
+    plant.grounds = [ground]
+    plant.datas[0].qpos[0] = 1.2  # near the platform's rim (1.5 m): the first steps ahead
+    mujoco.mj_forward(plant.models[0], plant.datas[0])
+    policy = OnnxPolicy(tuned.with_suffix(".onnx"), go2)
+    pattern = policy.spec.observation_blocks[-1].scan
+    truth = PlantHeightScanner(plant, pattern)
+    plant.height_map_source = PlantHeightScanner(plant, pattern, HeightScanNoise(noise=0.05), 7)
+    rt = Runtime(go2, policy, plant)
+    rt.velocity_command[0] = (0.5, 0.0, 0.0)
+    rt.start()
+    draws = np.random.default_rng(7)
+    for _ in range(5):
+        expected = truth.true_scan().copy()  # the pose the tick's read casts from
+        rt.run(1)
+        error = rt.state.height_scan - expected
+        np.testing.assert_allclose(error, draws.uniform(-0.05, 0.05, (1, 187)), rtol=0, atol=1e-9)
+    assert np.ptp(expected) > 0.15  # the stairs' steps (0.1 m each) under the scan's points
+    assert rt.mode[0] not in (Mode.SAFE_STOP, Mode.FAULTED)

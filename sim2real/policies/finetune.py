@@ -29,7 +29,9 @@ def load_shipped_actor(model: PPO, checkpoint: Path, spec, hidden: tuple[int, ..
         checkpoint: a shipped ``.pt`` (``sim2real/policies/go2.pt``, ``sim2real/policies/arm.pt``...).
         spec: the recipe's :class:`~sim2real.deploy.policy.spec.PolicySpec`; the checkpoint's must equal
             it, or differ only in the action's scale and offset (:func:`action_remap`: the output
-            layer is then rescaled so that the mean gives the same targets).
+            layer is then rescaled so that the mean gives the same targets), or lack only its
+            last block, a ``height_scan`` (:func:`scan_columns`: the scan's input weights start
+            at 0, so the actor acts as the checkpoint's until training moves them).
         hidden: the recipe's hidden layer widths.
 
     Raises:
@@ -38,6 +40,9 @@ def load_shipped_actor(model: PPO, checkpoint: Path, spec, hidden: tuple[int, ..
             named).
     """
     actor, source, _ = load_checkpoint(checkpoint)
+    scan = scan_columns(source, spec)
+    if scan:  # the recipe's spec is the checkpoint's plus a height scan: its columns start at 0
+        source = spec
     same = source.to_json() == spec.to_json()
     remap = None if same else action_remap(source, spec)
     if not same and remap is None:
@@ -54,12 +59,27 @@ def load_shipped_actor(model: PPO, checkpoint: Path, spec, hidden: tuple[int, ..
         raise ValueError(f"{checkpoint}: hidden layers {widths}, expected {tuple(hidden)}")
     with torch.no_grad():
         for source_layer, target in zip(layers, targets, strict=True):
-            target.weight.copy_(source_layer.weight)
+            if scan and target is targets[0]:  # the scan's inputs weigh 0 at the start
+                target.weight.zero_()
+                target.weight[:, : target.in_features - scan].copy_(source_layer.weight)
+            else:
+                target.weight.copy_(source_layer.weight)
             target.bias.copy_(source_layer.bias)
         if remap is not None:  # the same targets under the recipe's action scale and offset
             gain, shift = (torch.as_tensor(v, dtype=policy.action_net.weight.dtype) for v in remap)
             policy.action_net.weight.mul_(gain[:, None])
             policy.action_net.bias.mul_(gain).add_(shift)
+
+
+def scan_columns(source, spec) -> int:
+    """The entries of ``spec``'s ``height_scan`` block when ``spec`` is ``source`` with that
+    block appended (:func:`sim2real.deploy.export.scan_input.with_height_scan`: a blind
+    checkpoint fine-tuned into a perceptive policy), else 0."""
+    blocks = spec.observation_blocks
+    if not blocks or blocks[-1].name != "height_scan":
+        return 0
+    blind = dataclasses.replace(spec, observation_blocks=blocks[:-1])
+    return blocks[-1].size if blind.to_json() == source.to_json() else 0
 
 
 def action_remap(source, spec) -> tuple[np.ndarray, np.ndarray] | None:

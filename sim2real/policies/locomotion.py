@@ -22,7 +22,8 @@ which the runtime's injector applies), a velocity command every ``command_period
 scheduled push adds to them). It ends (terminated) when the runtime leaves RUNNING for a safe stop
 (a fall, a hard limit, a stale sensor...) and is truncated at its length.
 
-The reward per control tick is :class:`LocomotionReward`'s (its docstring gives the terms).
+The reward per control tick is :class:`LocomotionReward`'s (its docstring gives the terms). A spec
+with a ``height_scan`` block reads the plant's ray casts with ``SCAN_NOISE``.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sim2real.deploy.backends.sim.height_scan import HeightScanNoise, attach_height_scanner
 from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.core.state import BaseState
 from sim2real.deploy.rig.rig import Rig
@@ -46,6 +48,10 @@ from sim2real.eval.world.session_draw import sample_faults, sample_session
 from sim2real.eval.world.session_ranges import SessionRanges, session_ranges
 from sim2real.policies.episode_faults import EpisodeFaults, training_fault_ranges
 from sim2real.robots import Robot
+
+#: m, a height scan's uniform noise in training (legged_gym's ``noise_scales.height_measurements``
+#: 0.1 at ``noise_level`` 1.0)
+SCAN_NOISE = 0.1
 
 
 @dataclass(frozen=True)
@@ -172,6 +178,8 @@ class LocomotionTask:
             ranges, faults=training_fault_ranges(ranges.faults, config.fault_interval)
         )
         self.backend = SimBackend(robot, mode=spec.action.mode, envs=envs, seed=seed + 1)
+        # a perceptive spec: the plant's ray casts feed its height_scan (legged_gym's noise)
+        attach_height_scanner(self.backend, spec, HeightScanNoise(noise=SCAN_NOISE), seed + 2)
         self.policy = LearnerPolicy(spec, envs)
         self.push_force = np.zeros((envs, 3))  # N, each env's push of _disturb
         #: the episodes' fault schedules (None: faults off)

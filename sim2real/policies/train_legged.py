@@ -16,7 +16,8 @@ was trained): :mod:`sim2real.policies.episode_faults`. Shipping is gated as the 
 (:func:`sim2real.policies.gate.gate`): a randomized soak of ``--gate-sessions`` seeds; only a candidate
 that passes is copied to ``--out``. ``--init-from sim2real/policies/go2.pt`` fine-tunes a shipped policy
 (its actor; ``--critic-warmup`` trains the fresh critic first), e.g. on the slippery floors of
-``--ranges sim2real/policies/go2_slippery.toml``.
+``--ranges sim2real/policies/go2_slippery.toml``. ``--height-scan`` adds legged_gym's terrain heights
+to the observation (the plant's ray casts, :mod:`sim2real.deploy.backends.sim.height_scan`).
 """
 
 from __future__ import annotations
@@ -214,6 +215,12 @@ def train(args: argparse.Namespace) -> Path | None:
     torch.set_num_threads(args.threads)
     robot = load_robot(args.robot)
     template, spec = make_policy(args.robot)
+    if args.height_scan:  # legged_gym's 17 x 11 terrain heights after the blind blocks
+        from sim2real.deploy.export.scan_input import with_height_scan
+
+        spec = with_height_scan(spec)
+        gait = template.gait.description
+        template = MLPActor(spec.obs_dim, spec.act_dim, HIDDEN, "elu", gait=gait)
     # the soak's ranges of the robot, or of --ranges FILE
     ranges = None if args.ranges is None else load_ranges(args.ranges, robot)
     config = LocomotionConfig(reward=args.reward, ranges=ranges, faults=args.faults)
@@ -263,6 +270,7 @@ def train(args: argparse.Namespace) -> Path | None:
             "critic_warmup": args.critic_warmup,
             "reward": dataclasses.asdict(args.reward),
             "ranges": None if args.ranges is None else str(args.ranges),
+            "height_scan": bool(args.height_scan),
             "faults": fault_settings(config.faults, task.ranges.faults),
             "curve": history,
         }
@@ -336,6 +344,13 @@ def main(argv: list[str] | None = None) -> int:
         "--out", type=Path, default=None, help="copy the candidate here (sim2real/policies/go2.pt)"
     )
     add_gate_arguments(p)
+    p.add_argument(
+        "--height-scan",
+        action="store_true",
+        help="a perceptive policy: legged_gym's height_scan block (17 x 11 terrain heights, ray "
+        "casts on the plant) after the blind blocks; with --init-from a blind .pt its weights "
+        "start at 0",
+    )
     p.add_argument(
         "--reward",
         action="append",

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from sim2real.deploy.backends.sim.height_scan import attach_height_scanner
 from sim2real.deploy.backends.sim.plant import (
     NonFiniteCommandError,
     SimBackend,
@@ -129,6 +130,7 @@ def closed_loop_parity(
     spec = policy.spec
     n = robot.n_joints
     plant = SimBackend(robot, mode=spec.action.mode, envs=envs, seed=seed)
+    scanner = attach_height_scanner(plant, spec)  # a height_scan block: the plant's ray casts
     kin = Kinematics(robot)
     rng = np.random.default_rng(seed)
     kind = robot_kind(robot)
@@ -154,6 +156,8 @@ def closed_loop_parity(
         kin.update(state)
         if state.base is not None:
             _true_base(plant, state, tick * robot.control_period)
+        if scanner is not None:
+            state.height_scan = scanner.true_scan()
         spec.observation(state, goal, out=obs)
         action = policy(obs)
         graph = policy.graph_action  # the graph's own outputs, as torch gives them

@@ -5,7 +5,8 @@ The graph's observation input grows by the block's entries (appended after the s
 an Isaac Lab policy group lists ``height_scan`` last), and a ``Gather`` over the input's columns
 feeds the original graph its own entries: the scan's weights are zero, so the policy acts as
 before while the runtime fills, judges and logs the scan every tick. A spec with a frame history
-is refused (its frames would interleave the scan).
+is refused (its frames would interleave the scan). :func:`with_height_scan` is the spec's part
+alone: a spec given the block (the perceptive recipe's, ``train_legged --height-scan``).
 """
 
 from __future__ import annotations
@@ -20,6 +21,29 @@ from onnx import TensorProto, helper, numpy_helper
 
 from sim2real.deploy.spec.height_scan import CLIP, OFFSET, SCALE, HeightScanPattern
 from sim2real.deploy.spec.policy_spec import ObservationBlock, PolicySpec
+
+
+def with_height_scan(spec: PolicySpec, pattern: HeightScanPattern | None = None) -> PolicySpec:
+    """``spec`` with a legged_gym ``height_scan`` block (offset 0.5, scale 0.2, clip 5:
+    :mod:`sim2real.deploy.spec.height_scan`) of ``pattern`` (default legged_gym's 17 x 11)
+    appended after its blocks; the others keep their columns.
+
+    Raises:
+        ValueError: a spec with a frame history, or one that has a height_scan block already.
+    """
+    if spec.history is not None:
+        raise ValueError(
+            "with_height_scan: a spec with a frame history: the scan would interleave it"
+        )
+    if any(b.name == "height_scan" for b in spec.observation_blocks):
+        raise ValueError("with_height_scan: the spec has a height_scan block already")
+    p = pattern or HeightScanPattern()
+    block = ObservationBlock(
+        "height_scan", p.count, (SCALE,) * p.count, (OFFSET,) * p.count, CLIP, scan=p
+    )
+    spec = replace(spec, observation_blocks=(*spec.observation_blocks, block))
+    spec.validate()
+    return spec
 
 
 def add_unused_scan(
@@ -39,12 +63,8 @@ def add_unused_scan(
     spec = PolicySpec.from_json(meta["policy_spec"])
     if spec.history is not None:
         raise ValueError(f"{source}: a spec with a frame history: the scan would interleave it")
-    p = pattern or HeightScanPattern()
-    block = ObservationBlock(
-        "height_scan", p.count, (SCALE,) * p.count, (OFFSET,) * p.count, CLIP, scan=p
-    )
-    spec = replace(spec, observation_blocks=(*spec.observation_blocks, block))
-    spec.validate()
+    spec = with_height_scan(spec, pattern)
+    p = spec.observation_blocks[-1].scan
     graph = model.graph
     obs = graph.input[0]
     inner = f"{obs.name}_without_scan"

@@ -27,7 +27,9 @@ control rate (``simulator.config.sim.fps / control_decimation``). A group's ``hi
 gives each of its terms the last N values, oldest first, zeros before the reset's first.
 ``sin_phase``, ``cos_phase`` (left foot, right foot half a period later): ``gait_phase`` blocks
 that stop while standing (:data:`STAND_BELOW`; period and held phase from ``command.setup_terms.
-locomotion_gait.params``). Without ``experiment_config``: what the metadata gives (:func:`partial`).
+locomotion_gait.params``). Without ``experiment_config``: holosoma_inference's own configuration
+for its shipped G1 files (:mod:`~sim2real.deploy.spec.foreign.holosoma_wbt`,
+:mod:`~sim2real.deploy.spec.foreign.holosoma_loco`), else what the metadata gives (:func:`partial`).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ import json
 import math
 
 from sim2real.deploy.spec.foreign.contract import ForeignContract, Term, command_ranges
+from sim2real.deploy.spec.foreign.holosoma_loco import is_g1_loco, read_g1_loco
 from sim2real.deploy.spec.foreign.holosoma_wbt import is_wbt, read_wbt
 
 NAME = "holosoma"
@@ -95,6 +98,8 @@ def read(facts) -> ForeignContract:
     if "experiment_config" not in md or not isinstance(md["experiment_config"], dict):
         if is_wbt(facts):
             return read_wbt(facts, md, names, fail)
+        if is_g1_loco(facts, names):
+            return read_g1_loco(facts, md, names, fail)
         return partial(facts, md, names, fail)
     ec = md["experiment_config"]
 

@@ -15,7 +15,8 @@ fc600e7, ``holosoma_inference/config/config_values``), read here as it does:
   concatenated **in alphabetical order** (``BasePolicy.obs_terms_sorted``): 100 entries;
 - the gait clock (``LocomotionPolicy.update_phase_time``): advanced before each observation,
   both feet held at pi while ``|(vx, vy)|`` and ``|yaw rate|`` are below 0.01, restarted at
-  (0, pi) on the first tick above (the terms of :mod:`sim2real.deploy.spec.foreign.holosoma`);
+  (0, pi) on the first tick above (:data:`TERMS`, :data:`PHASE_TERMS`, :data:`STAND_BELOW`, which
+  :mod:`sim2real.deploy.spec.foreign.holosoma` maps training's terms with too);
 - robot ``g1_29dof``: the default pose :data:`~sim2real.deploy.spec.foreign.holosoma_wbt.G1_DEFAULT`
   by its ``dof_names`` (the training configuration's ``init_state.default_joint_angles`` too).
 
@@ -30,6 +31,26 @@ import math
 from sim2real.deploy.spec.foreign.contract import ForeignContract, Term, command_ranges
 from sim2real.deploy.spec.foreign.holosoma_wbt import G1_DEFAULT, _per_dof
 
+#: holosoma's locomotion terms (``holosoma.managers.observation.terms.locomotion``) -> (our kind,
+#: size (-1: one per joint), components of the 3-vector).
+TERMS = {
+    "base_lin_vel": ("base_linear_velocity", 3, ()),
+    "base_ang_vel": ("base_angular_velocity", 3, ()),
+    "projected_gravity": ("projected_gravity", 3, ()),
+    "command_lin_vel": ("velocity_command", 2, (0, 1)),
+    "command_ang_vel": ("velocity_command", 1, (2,)),
+    "dof_pos": ("joint_position", -1, ()),
+    "dof_vel": ("joint_velocity", -1, ()),
+    "actions": ("last_action", -1, ()),
+}
+#: holosoma's gait clock terms -> the ``gait_phase`` components they read: the left foot's
+#: phase p, then the right foot's, p + pi (holosoma_inference ``BasePolicy._init_phase_components``
+#: starts them at 0 and pi; training's ``LocomotionGait`` offsets them by pi).
+PHASE_TERMS = {"sin_phase": (0, 2), "cos_phase": (1, 3)}
+#: The command below which holosoma's clock stands, m/s and rad/s: ``|(vx, vy)| < 0.01`` and
+#: ``|yaw rate| < 0.01`` (``LocomotionGait.step`` in training, ``LocomotionPolicy.
+#: update_phase_time`` in holosoma_inference; a constant there, not in the configuration).
+STAND_BELOW = 0.01
 #: task ``locomotion``: ``rl_rate`` (Hz), ``policy_action_scale``, ``gait_period`` (s).
 RL_RATE = 50.0
 ACTION_SCALE = 0.25
@@ -75,8 +96,6 @@ def read_g1_loco(facts, md: dict, names: tuple[str, ...], fail) -> ForeignContra
     Raises:
         ForeignFormatError: ``kp``, ``kd`` or a per-joint ``action_scale`` not one number per dof.
     """
-    from sim2real.deploy.spec.foreign.holosoma import PHASE_TERMS, STAND_BELOW, TERMS
-
     n = len(names)
     kp, kd = _per_dof(md, "kp", n, fail), _per_dof(md, "kd", n, fail)
     raw = md.get("action_scale")

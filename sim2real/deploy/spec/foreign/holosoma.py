@@ -11,8 +11,7 @@ key                       value
 ``kp``, ``kd``            PD gains per joint, N m/rad and N m s/rad
 ``command_ranges``        the velocity command's sampling ranges (or null)
 ``action_scale``          the action scale, one number or one per joint (newer exports)
-``experiment_config``     the whole training configuration (``ExperimentConfig``; the G1
-                          policies holosoma_inference ships do not carry it)
+``experiment_config``     the whole training configuration (not in holosoma_inference's G1 files)
 ``robot_urdf``, ...       the URDF, its path, the wandb run (not used)
 ========================  ===============================================================
 
@@ -27,9 +26,8 @@ control rate (``simulator.config.sim.fps / control_decimation``). A group's ``hi
 gives each of its terms the last N values, oldest first, zeros before the reset's first.
 ``sin_phase``, ``cos_phase`` (left foot, right foot half a period later): ``gait_phase`` blocks
 that stop while standing (``STAND_BELOW``; period and held phase from ``command.setup_terms.
-locomotion_gait.params``). Without ``experiment_config``: holosoma_inference's own configuration
-for its shipped G1 files (:mod:`~sim2real.deploy.spec.foreign.holosoma_wbt`,
-:mod:`~sim2real.deploy.spec.foreign.holosoma_loco`), else what the metadata gives (:func:`partial`).
+locomotion_gait.params``). Without it: holosoma_inference's configuration for its shipped G1
+files (:mod:`.holosoma_wbt`, :mod:`.holosoma_loco`), else the metadata alone (:func:`partial`).
 """
 
 from __future__ import annotations

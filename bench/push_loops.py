@@ -169,9 +169,12 @@ def load_torchscript(path):
         return torch.jit.load(str(path)).eval()
 
 
-def _bare_run(robot, seed, seconds, pushes: PushRanges | None, gains, act, path=None) -> Run:
+def _bare_run(
+    robot, seed, seconds, pushes: PushRanges | None, gains, act, path=None, watch=None
+) -> Run:
     """The own loops' common body: ``gains`` (kp, kd, the first target), ``act(t, d)`` the
-    policy's next PD target from the true state after a control period."""
+    policy's next PD target from the true state after a control period; ``watch(t, d, target)``
+    (optional) sees each tick's true state and next target (:mod:`bench.guard_replay`)."""
     m = robot.plant_model("torque")
     d = mujoco.MjData(m)
     d.qpos[robot.qpos_offset :] = robot.home
@@ -188,6 +191,8 @@ def _bare_run(robot, seed, seconds, pushes: PushRanges | None, gains, act, path=
             mujoco.mj_step(m, d)
         t = tick * robot.control_period
         target = act(t, d)
+        if watch is not None:
+            watch(t, d, target)
         if path is not None:
             path.append((t, float(d.qpos[0]), float(d.qpos[1])))
         run.walked = walk.ticks = tick
@@ -202,11 +207,14 @@ def _bare_run(robot, seed, seconds, pushes: PushRanges | None, gains, act, path=
     return run
 
 
-def unitree_loop(robot, cfg: dict, net, seed: int, seconds: float, pushes, command=None, path=None):
+def unitree_loop(
+    robot, cfg: dict, net, seed: int, seconds: float, pushes, command=None, path=None, watch=None
+):
     """One run of unitree's loop (module docstring) with ``net`` (the TorchScript policy, eval
     mode) and deploy config ``cfg``, walking at ``command`` (default the config's ``cmd_init``)
     under ``pushes`` (a :class:`PushRanges`; None: none) for ``seconds``; returns a :class:`Run`.
-    ``path``: a list that receives ``(t, x, y)`` (s, m) of the base after each control tick."""
+    ``path``: a list that receives ``(t, x, y)`` (s, m) of the base after each control tick;
+    ``watch``: as :func:`_bare_run`'s."""
     import torch
 
     command = cfg["cmd_init"] if command is None else command
@@ -221,10 +229,12 @@ def unitree_loop(robot, cfg: dict, net, seed: int, seconds: float, pushes, comma
             action = net(torch.from_numpy(obs)[None]).numpy()[0].astype(np.float32)
         return action * cfg["action_scale"] + default
 
-    return _bare_run(robot, seed, seconds, pushes, (kp, kd, default.copy()), act, path)
+    return _bare_run(robot, seed, seconds, pushes, (kp, kd, default.copy()), act, path, watch)
 
 
-def truth_loop(robot, policy, seed: int, seconds: float, pushes, command, path=None) -> Run:
+def truth_loop(
+    robot, policy, seed: int, seconds: float, pushes, command, path=None, watch=None
+) -> Run:
     """One run of ``policy`` (an :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy` on
     ``robot``, fresh: a recurrent policy's memory) on the true state (module docstring), its
     gait clock the time walked; arguments and result as :func:`unitree_loop`."""
@@ -253,7 +263,7 @@ def truth_loop(robot, policy, seed: int, seconds: float, pushes, command, path=N
     kp = np.array([j.kp for j in robot.config.joints], dtype=float)
     kd = np.array([j.kd for j in robot.config.joints], dtype=float)
     gains = (kp, kd, np.array(robot.home, dtype=float))
-    return _bare_run(robot, seed, seconds, pushes, gains, act, path)
+    return _bare_run(robot, seed, seconds, pushes, gains, act, path, watch)
 
 
 def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command, terrain=None) -> Run:

@@ -11,8 +11,7 @@ key                       value
 ``kp``, ``kd``            PD gains per joint, N m/rad and N m s/rad
 ``command_ranges``        the velocity command's sampling ranges (or null)
 ``action_scale``          the action scale, one number or one per joint (newer exports)
-``experiment_config``     the whole training configuration (``ExperimentConfig``; the G1
-                          policies holosoma_inference ships do not carry it)
+``experiment_config``     the whole training configuration (not in holosoma_inference's G1 files)
 ``robot_urdf``, ...       the URDF, its path, the wandb run (not used)
 ========================  ===============================================================
 
@@ -26,8 +25,9 @@ scaling) and the global ``observation.clip_observations``; the default pose
 control rate (``simulator.config.sim.fps / control_decimation``). A group's ``history_length`` N
 gives each of its terms the last N values, oldest first, zeros before the reset's first.
 ``sin_phase``, ``cos_phase`` (left foot, right foot half a period later): ``gait_phase`` blocks
-that stop while standing (:data:`STAND_BELOW`; period and held phase from ``command.setup_terms.
-locomotion_gait.params``). Without ``experiment_config``: what the metadata gives (:func:`partial`).
+that stop while standing (``STAND_BELOW``; period and held phase from ``command.setup_terms.
+locomotion_gait.params``). Without it: holosoma_inference's configuration for its shipped G1
+files (:mod:`.holosoma_wbt`, :mod:`.holosoma_loco`), else the metadata alone (:func:`partial`).
 """
 
 from __future__ import annotations
@@ -37,30 +37,17 @@ import json
 import math
 
 from sim2real.deploy.spec.foreign.contract import ForeignContract, Term, command_ranges
+from sim2real.deploy.spec.foreign.holosoma_loco import (
+    PHASE_TERMS,
+    STAND_BELOW,
+    TERMS,
+    is_g1_loco,
+    read_g1_loco,
+)
 from sim2real.deploy.spec.foreign.holosoma_wbt import is_wbt, read_wbt
 
 NAME = "holosoma"
 
-#: holosoma's locomotion terms (``holosoma.managers.observation.terms.locomotion``) -> (our kind,
-#: size (-1: one per joint), components of the 3-vector).
-TERMS = {
-    "base_lin_vel": ("base_linear_velocity", 3, ()),
-    "base_ang_vel": ("base_angular_velocity", 3, ()),
-    "projected_gravity": ("projected_gravity", 3, ()),
-    "command_lin_vel": ("velocity_command", 2, (0, 1)),
-    "command_ang_vel": ("velocity_command", 1, (2,)),
-    "dof_pos": ("joint_position", -1, ()),
-    "dof_vel": ("joint_velocity", -1, ()),
-    "actions": ("last_action", -1, ()),
-}
-#: holosoma's gait clock terms -> the ``gait_phase`` components they read: the left foot's
-#: phase p, then the right foot's, p + pi (holosoma_inference ``BasePolicy._init_phase_components``
-#: starts them at 0 and pi; training's ``LocomotionGait`` offsets them by pi).
-PHASE_TERMS = {"sin_phase": (0, 2), "cos_phase": (1, 3)}
-#: The command below which holosoma's clock stands, m/s and rad/s: ``|(vx, vy)| < 0.01`` and
-#: ``|yaw rate| < 0.01`` (``LocomotionGait.step`` in training, ``LocomotionPolicy.
-#: update_phase_time`` in holosoma_inference; a constant there, not in the configuration).
-STAND_BELOW = 0.01
 #: ``LocomotionGait``'s defaults: ``gait_period`` (s) and ``stand_phase_value`` (rad).
 GAIT_DEFAULTS = {"gait_period": 1.0, "stand_phase_value": math.pi}
 
@@ -95,6 +82,8 @@ def read(facts) -> ForeignContract:
     if "experiment_config" not in md or not isinstance(md["experiment_config"], dict):
         if is_wbt(facts):
             return read_wbt(facts, md, names, fail)
+        if is_g1_loco(facts, names):
+            return read_g1_loco(facts, md, names, fail)
         return partial(facts, md, names, fail)
     ec = md["experiment_config"]
 
@@ -269,7 +258,7 @@ def _term(name: str, cfg: dict, history: int, global_clip, fail) -> Term:
 def _gait_term(term: Term, gait, fail) -> Term:
     """A phase term with holosoma's clock: period and held phase from the ``locomotion_gait``
     command term's params (:data:`GAIT_DEFAULTS` where it leaves them out), stopping below
-    :data:`STAND_BELOW`; unmapped without that command term (holosoma itself raises then).
+    ``STAND_BELOW``; unmapped without that command term (holosoma itself raises then).
 
     Raises:
         ForeignFormatError: a period that is not a positive number or a held phase that is not

@@ -228,32 +228,7 @@ def train(args: argparse.Namespace) -> Path | None:
         config = dataclasses.replace(config, fault_interval=args.fault_interval)
     task = LocomotionTask(robot, spec, args.envs, config, seed=args.seed)
     env = TaskVecEnv(task)
-    if args.init_from is not None and args.init_from.suffix == ".zip":
-        model = RuntimePPO.load(args.init_from, env=env, device="cpu")
-    else:
-        model = RuntimePPO(
-            "MlpPolicy",
-            env,
-            n_steps=args.n_steps,
-            batch_size=args.batch_size,
-            n_epochs=args.epochs,
-            learning_rate=args.learning_rate,
-            gamma=0.99,
-            gae_lambda=0.95,
-            clip_range=0.2,
-            ent_coef=0.0,
-            max_grad_norm=1.0,
-            policy_kwargs={
-                "net_arch": {"pi": list(HIDDEN), "vf": [256, 128]},
-                "activation_fn": torch.nn.ELU,
-                "log_std_init": float(np.log(args.initial_std)),
-            },
-            tensorboard_log=str(args.logdir),
-            seed=args.seed,
-            device="cpu",
-        )
-    if args.init_from is not None and args.init_from.suffix != ".zip":
-        load_shipped_actor(model, args.init_from, spec, HIDDEN)
+    model = _learner(args, env, spec)
     model.prior = template.gait
     args.logdir.mkdir(parents=True, exist_ok=True)
     candidate = args.logdir / f"{args.robot}_seed{args.seed}.pt"
@@ -291,6 +266,44 @@ def train(args: argparse.Namespace) -> Path | None:
         f"trained {candidate}: {info['timesteps']} steps in {info['wall_seconds'] / 60:.1f} min "
         f"({rate:.0f} steps/s)"
     )
+    return _ship(args, candidate, info)
+
+
+def _learner(args: argparse.Namespace, env, spec):
+    """The PPO learner: a saved run continued (``--init-from RUN.zip``), else a new one (the
+    recipe's hyperparameters), its actor a shipped policy's where ``--init-from`` names a
+    ``.pt``."""
+    if args.init_from is not None and args.init_from.suffix == ".zip":
+        return RuntimePPO.load(args.init_from, env=env, device="cpu")
+    model = RuntimePPO(
+        "MlpPolicy",
+        env,
+        n_steps=args.n_steps,
+        batch_size=args.batch_size,
+        n_epochs=args.epochs,
+        learning_rate=args.learning_rate,
+        gamma=0.99,
+        gae_lambda=0.95,
+        clip_range=0.2,
+        ent_coef=0.0,
+        max_grad_norm=1.0,
+        policy_kwargs={
+            "net_arch": {"pi": list(HIDDEN), "vf": [256, 128]},
+            "activation_fn": torch.nn.ELU,
+            "log_std_init": float(np.log(args.initial_std)),
+        },
+        tensorboard_log=str(args.logdir),
+        seed=args.seed,
+        device="cpu",
+    )
+    if args.init_from is not None:
+        load_shipped_actor(model, args.init_from, spec, HIDDEN)
+    return model
+
+
+def _ship(args: argparse.Namespace, candidate: Path, info: dict) -> Path | None:
+    """Gate the candidate (a soak of ``--gate-hours``, when set) and copy it, its ONNX export
+    and its curve to ``args.out``; returns the candidate, or None when the gate failed."""
     if args.gate_hours > 0:
         passed, soak = gate(candidate, args)
         info["gate"] = {

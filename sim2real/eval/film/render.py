@@ -249,32 +249,19 @@ def render_session(
     shutil.rmtree(dest, ignore_errors=True)
     dest.mkdir(parents=True)
     dt = load_robot(config.robot).control_period
-    clips_out: list[dict] = []
-    render_s = 0.0
+    clips_out, render_s = [], 0.0
     try:
         moments = select_moments(state, result, dt)
         clips, dropped = plan_clips(moments, max_clips)
         look = {"fps": fps, "size": size, "crf": crf}
         for index, c in enumerate(clips, start=1):
             name = f"{index:02d}-{c['moments'][0]['kind']}"
-            clip = _render_clip(replay, c, dest, name, dt, False, look)
-            if clip["replay_exact"] is False and clip["from_tick"] > 0 and c["start_s"] <= RETRY_S:
-                # the policy keeps state a checkpoint cannot hold (e.g. a random stream inside
-                # the ONNX graph): the session's own start reproduces it
-                clip = _render_clip(replay, c, dest, name, dt, True, look)
+            clip = _film_clip(replay, c, out, dest, name, dt, look)
             render_s += clip.pop("render_s")
-            clip["video"] = (dest / f"{name}.mp4").relative_to(out).as_posix()
-            clip["still"] = (dest / f"{name}.png").relative_to(out).as_posix()
             clips_out.append(clip)
     finally:
         replay.batch = None
         shutil.rmtree(replay.work, ignore_errors=True)
-    found = {k: 0 for k in KINDS}
-    for m in moments:
-        found[m["kind"]] += 1
-    if state:
-        found["hard_violation"] += int(state.get("hard_more", 0))
-        found["latched_fault"] += int(state.get("latched_more", 0))
     doc = {
         "session": config.id,
         "seed": config.seed,
@@ -282,7 +269,7 @@ def render_session(
         "simulated_s": result["simulated_s"],
         "options": result.get("options"),
         "clips": clips_out,
-        "moments": found,
+        "moments": _moments_found(moments, state),
         "not_filmed": dropped
         + int((state or {}).get("hard_more", 0))
         + int((state or {}).get("latched_more", 0)),
@@ -305,6 +292,29 @@ def render_session(
             file=stream,
         )
     return doc
+
+
+def _film_clip(replay, c: dict, out: Path, dest: Path, name: str, dt: float, look: dict) -> dict:
+    """Clip ``c`` rendered to ``dest/<name>.mp4`` and its still (their paths in the campaign
+    folder); replayed from the session's own start where the checkpoint's replay was not exact
+    (a policy keeping state a checkpoint cannot hold, e.g. a random stream inside the graph)."""
+    clip = _render_clip(replay, c, dest, name, dt, False, look)
+    if clip["replay_exact"] is False and clip["from_tick"] > 0 and c["start_s"] <= RETRY_S:
+        clip = _render_clip(replay, c, dest, name, dt, True, look)
+    clip["video"] = (dest / f"{name}.mp4").relative_to(out).as_posix()
+    clip["still"] = (dest / f"{name}.png").relative_to(out).as_posix()
+    return clip
+
+
+def _moments_found(moments: list[dict], state: dict | None) -> dict[str, int]:
+    """Moments of each kind found, those the recorder counted past its list included."""
+    found = {k: 0 for k in KINDS}
+    for m in moments:
+        found[m["kind"]] += 1
+    if state:
+        found["hard_violation"] += int(state.get("hard_more", 0))
+        found["latched_fault"] += int(state.get("latched_more", 0))
+    return found
 
 
 # ====================================================================== the campaign's film

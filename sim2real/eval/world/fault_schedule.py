@@ -289,7 +289,35 @@ def sample_fault_schedule(
     dt = robot.control_period
     budget = stale_budget(robot, sensors.latency_ticks)
     max_spike = gap_ticks(robot, sensors.latency_ticks)
+    kinds, weights = _drawable_kinds(robot, ranges, sensors, max_spike)
+    weights = weights / weights.sum()
+    cable = _CableBudget(robot, ranges, model)
+    faults = []
+    t = ranges.warmup
+    while True:
+        t += float(rng.exponential(ranges.mean_interval))
+        kind = kinds[int(rng.choice(len(kinds), p=weights))]
+        length, magnitude = _draw(kind, rng, ranges, robot, budget, max_spike, cable)
+        # start on a control tick, last whole ticks: the schedule means the same at any rate
+        start = np.ceil(t / dt) * dt
+        length = max(np.round(length / dt), 1.0) * dt
+        if start + ranges.min_gap > duration:
+            return faults
+        if start + length + ranges.min_gap > duration:
+            continue  # too long for the time left: a shorter one may still fit
+        faults.append(Fault(kind, round(float(start), 9), round(float(length), 9), None, magnitude))
+        t = start + length + ranges.min_gap
+
+
+def _drawable_kinds(robot: Robot, ranges: FaultRanges, sensors: SensorDraw, max_spike: int):
+    """The fault kinds the session may draw and their weights (not normalized): no sensor gap
+    where none fits the stale limit, no cable pull on a kind without them.
+
+    Raises:
+        ValueError: the kinds left after those leave none to draw.
+    """
     kinds = ranges.kinds
+    dt = robot.control_period
     weights = np.ones(len(kinds)) if ranges.weights is None else np.array(ranges.weights)
     if max_spike < 1 and any(k in SENSOR_GAP_KINDS for k in kinds):
         kinds, weights = _without(
@@ -305,45 +333,49 @@ def sample_fault_schedule(
             f"robot {robot.name}: a floating-base robot gets no cable pulls; the fault kinds "
             f"{ranges.kinds} leave none to draw",
         )  # fmt: skip
-    weights = weights / weights.sum()
-    budget_durations = np.linspace(0.0, ranges.cable_duration[1], 241)
-    cable = None  # the cable budget over budget_durations, computed at the first pull
-    faults = []
-    t = ranges.warmup
-    while True:
-        t += float(rng.exponential(ranges.mean_interval))
-        kind = kinds[int(rng.choice(len(kinds), p=weights))]
-        magnitude = None
-        if kind == "dropout":
-            length = budget * float(rng.uniform(*ranges.dropout))
-        elif kind == "stale":
-            length = budget * float(rng.uniform(*ranges.stale))
-        elif kind == "nan-action":
-            length = dt * int(rng.integers(ranges.nan_ticks[0], ranges.nan_ticks[1] + 1))
-        elif kind == "latency":
-            fraction = float(rng.uniform(*ranges.latency_ticks))
-            magnitude = float(max(1, round(max_spike * fraction)))
-            length = float(rng.uniform(*ranges.latency_duration))
-        elif kind == "push":
-            magnitude = float(rng.uniform(*ranges.push_force))
-            length = float(rng.uniform(*ranges.push_duration))
-        else:  # cable
-            fraction = float(rng.uniform(*ranges.cable_force))
-            length = float(rng.uniform(*ranges.cable_duration))
-            if cable is None:
-                cable = cable_budget(robot, budget_durations, model)
-            # the budget of the next longer duration on the grid: never above the pull's own
-            k = min(int(np.searchsorted(budget_durations, length)), len(budget_durations) - 1)
-            magnitude = fraction * float(cable[k])
-        # start on a control tick, last whole ticks: the schedule means the same at any rate
-        start = np.ceil(t / dt) * dt
-        length = max(np.round(length / dt), 1.0) * dt
-        if start + ranges.min_gap > duration:
-            return faults
-        if start + length + ranges.min_gap > duration:
-            continue  # too long for the time left: a shorter one may still fit
-        faults.append(Fault(kind, round(float(start), 9), round(float(length), 9), None, magnitude))
-        t = start + length + ranges.min_gap
+    return kinds, weights
+
+
+class _CableBudget:
+    """A cable pull's budget (N) for its duration: :func:`cable_budget` on a grid of durations,
+    computed at the first pull, read at the next longer duration on the grid (never above the
+    pull's own)."""
+
+    def __init__(self, robot: Robot, ranges: FaultRanges, model):
+        self.robot, self.model = robot, model
+        self.durations = np.linspace(0.0, ranges.cable_duration[1], 241)
+        self.budget = None
+
+    def __call__(self, length: float) -> float:
+        if self.budget is None:
+            self.budget = cable_budget(self.robot, self.durations, self.model)
+        k = min(int(np.searchsorted(self.durations, length)), len(self.durations) - 1)
+        return float(self.budget[k])
+
+
+def _draw(kind: str, rng, ranges: FaultRanges, robot: Robot, budget: float, max_spike: int, cable):
+    """A fault of ``kind``'s ``(length s, magnitude or None)``, drawn from ``ranges`` (its
+    random draws in the schedule's order)."""
+    dt = robot.control_period
+    magnitude = None
+    if kind == "dropout":
+        length = budget * float(rng.uniform(*ranges.dropout))
+    elif kind == "stale":
+        length = budget * float(rng.uniform(*ranges.stale))
+    elif kind == "nan-action":
+        length = dt * int(rng.integers(ranges.nan_ticks[0], ranges.nan_ticks[1] + 1))
+    elif kind == "latency":
+        fraction = float(rng.uniform(*ranges.latency_ticks))
+        magnitude = float(max(1, round(max_spike * fraction)))
+        length = float(rng.uniform(*ranges.latency_duration))
+    elif kind == "push":
+        magnitude = float(rng.uniform(*ranges.push_force))
+        length = float(rng.uniform(*ranges.push_duration))
+    else:  # cable
+        fraction = float(rng.uniform(*ranges.cable_force))
+        length = float(rng.uniform(*ranges.cable_duration))
+        magnitude = fraction * cable(length)
+    return length, magnitude
 
 
 def fault_to_dict(fault) -> dict:

@@ -114,40 +114,18 @@ def read(facts) -> ForeignContract:
     base, base_key = _sole(base_path)
     if base is None:
         raise fail(f"{base_path}: expected one mapping under the robot's name")
-    merged = {**base, **cfg}
-
-    def get(name, kind=(list,)):
-        value = merged.get(name)
-        if not isinstance(value, kind) or isinstance(value, bool):
-            where = folder / CONFIG if name in cfg else base_path
-            raise fail(f"{where}: '{name}': expected a {kind[0].__name__}, got {value!r}")
-        return value
-
+    keys = _Keys({**base, **cfg}, cfg, folder / CONFIG, base_path, fail)
+    merged, get, joints = keys.merged, keys.get, keys.joints
     slots = tuple(int(s) for s in get("joint_mapping"))
-    n = len(slots)
+    n = keys.n = len(slots)
     where = str(folder / CONFIG)
     if facts.act_dim is not None and facts.act_dim != n:
         raise fail(f"{where}: 'joint_mapping' has {n} joints, the graph {facts.act_dim} actions")
 
-    def joints(name):
-        value = get(name)
-        if len(value) != n:
-            raise fail(f"{where}: '{name}': expected {n} numbers (one per joint), got {value!r}")
-        return tuple(float(v) for v in value)
-
     wheels = tuple(int(i) for i in merged.get("wheel_indices") or ())
     if any(not 0 <= i < n for i in wheels):
         raise fail(f"{where}: 'wheel_indices' {list(wheels)}: expected joint indices in 0..{n - 1}")
-    lower, upper = merged.get("clip_actions_lower"), merged.get("clip_actions_upper")
-    clip = None
-    if lower is not None or upper is not None:
-        low, high = joints("clip_actions_lower"), joints("clip_actions_upper")
-        if len(set(high)) != 1 or any(lo != -high[0] for lo in low):
-            raise fail(
-                f"{where}: 'clip_actions_lower'/'clip_actions_upper': only one symmetric clip "
-                f"of every action maps, got {list(low)} / {list(high)}"
-            )
-        clip = high[0]
+    clip = keys.action_clip()
     clip_obs = float(get("clip_obs", (int, float)))
     terms = tuple(_term(name, merged, clip_obs, wheels, n) for name in get("observations"))
     terms = tuple(_waist(t, merged, slots, fail, where) for t in terms)
@@ -157,27 +135,9 @@ def read(facts) -> ForeignContract:
             Term(**{**t.__dict__, "history": length}) for t in terms
         )  # every term reads the same frames
     period = float(get("dt", (int, float))) * int(get("decimation", (int,)))
-    names = None
-    if merged.get("joint_names") is not None:
-        names = tuple(str(x) for x in get("joint_names"))
-        past = [s for s in slots if not 0 <= s < len(names)]
-        if past:
-            where_names = folder / CONFIG if "joint_names" in cfg else base_path
-            raise fail(
-                f"{where_names}: 'joint_names' has {len(names)} names, 'joint_mapping' "
-                f"reads slots {past}: expected a name for every slot"
-            )
+    names = keys.slot_names(slots)
     policy_names = None if names is None else [names[s] for s in slots]
-    notes = [
-        f"joint order: {ORDER_NOTE} {list(slots)}",
-        f"policy joints by rl_sar's joint_names: {policy_names}"
-        if names is not None
-        else "no joint_names: the robot's motor slots give the joints",
-        f"model_name '{merged.get('model_name')}' of {key}; read here: {facts.path.name}",
-        f"torque_limits {merged.get('torque_limits')}: the robot's effort limits apply",
-    ]
-    if wheels:
-        notes.append(f"wheel_indices {list(wheels)}: speed targets, their dof_pos entries 0")
+    notes = _notes(slots, policy_names, merged, key, facts.path.name, wheels)
     motion = _motion(merged, folder, names, period, fail, where)
     if motion is not None:
         notes.append(motion.note)
@@ -218,6 +178,75 @@ def read(facts) -> ForeignContract:
         velocity_joints=wheels,
         motion=motion,
     )
+
+
+def _notes(slots, policy_names, merged: dict, key: str, file: str, wheels) -> list[str]:
+    """What the contract's joint order, joints, model, torque limits and wheels mean here."""
+    notes = [
+        f"joint order: {ORDER_NOTE} {list(slots)}",
+        f"policy joints by rl_sar's joint_names: {policy_names}"
+        if policy_names is not None
+        else "no joint_names: the robot's motor slots give the joints",
+        f"model_name '{merged.get('model_name')}' of {key}; read here: {file}",
+        f"torque_limits {merged.get('torque_limits')}: the robot's effort limits apply",
+    ]
+    if wheels:
+        notes.append(f"wheel_indices {list(wheels)}: speed targets, their dof_pos entries 0")
+    return notes
+
+
+class _Keys:
+    """The keys of an rl_sar folder: its config.yaml over its base.yaml (``merged``), each read
+    checked, a failure naming the file that holds the key; ``n`` the policy's joints."""
+
+    def __init__(self, merged: dict, cfg: dict, config: Path, base_path: Path, fail):
+        self.merged, self.cfg, self.config, self.base_path = merged, cfg, config, base_path
+        self.fail, self.n = fail, 0
+
+    def _file(self, name: str) -> Path:
+        return self.config if name in self.cfg else self.base_path
+
+    def get(self, name: str, kind=(list,)):
+        value = self.merged.get(name)
+        if not isinstance(value, kind) or isinstance(value, bool):
+            raise self.fail(
+                f"{self._file(name)}: '{name}': expected a {kind[0].__name__}, got {value!r}"
+            )
+        return value
+
+    def joints(self, name: str) -> tuple[float, ...]:
+        value = self.get(name)
+        if len(value) != self.n:
+            raise self.fail(
+                f"{self.config}: '{name}': expected {self.n} numbers (one per joint), got {value!r}"
+            )
+        return tuple(float(v) for v in value)
+
+    def action_clip(self) -> float | None:
+        """The one symmetric clip of every action (None: no clip keys)."""
+        lower, upper = self.merged.get("clip_actions_lower"), self.merged.get("clip_actions_upper")
+        if lower is None and upper is None:
+            return None
+        low, high = self.joints("clip_actions_lower"), self.joints("clip_actions_upper")
+        if len(set(high)) != 1 or any(lo != -high[0] for lo in low):
+            raise self.fail(
+                f"{self.config}: 'clip_actions_lower'/'clip_actions_upper': only one symmetric "
+                f"clip of every action maps, got {list(low)} / {list(high)}"
+            )
+        return high[0]
+
+    def slot_names(self, slots: tuple[int, ...]) -> tuple[str, ...] | None:
+        """rl_sar's ``joint_names`` (None: none given), a name for every slot read."""
+        if self.merged.get("joint_names") is None:
+            return None
+        names = tuple(str(x) for x in self.get("joint_names"))
+        past = [s for s in slots if not 0 <= s < len(names)]
+        if past:
+            raise self.fail(
+                f"{self._file('joint_names')}: 'joint_names' has {len(names)} names, "
+                f"'joint_mapping' reads slots {past}: expected a name for every slot"
+            )
+        return names
 
 
 def _term(name: str, cfg: dict, clip_obs: float, wheels: tuple[int, ...], n: int) -> Term:

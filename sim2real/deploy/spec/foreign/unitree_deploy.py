@@ -114,29 +114,7 @@ def read(facts) -> ForeignContract:
     kp, kd = (
         _by_slot(name, cfg.get(name), slots, where, fail) for name in ("stiffness", "damping")
     )
-    actions = key("actions", dict)
-    if set(actions) != {"JointPositionAction"}:
-        raise fail(f"{where}: actions {sorted(actions)}: only one JointPositionAction maps")
-    action = actions["JointPositionAction"] or {}
-    if not _every_joint(action.get("joint_ids"), n):
-        raise fail(
-            f"{where}: actions.JointPositionAction.joint_ids {action['joint_ids']}: only an "
-            "action over every joint of joint_ids_map maps"
-        )
-    if action.get("clip") is not None:
-        raise fail(
-            f"{where}: actions.JointPositionAction.clip: a per-joint clip of the targets is not "
-            "mapped (our action clip bounds the raw action); remove it or pass --spec FILE"
-        )
-    raw_scale = action.get("scale")
-    scale = 1.0 if raw_scale is None else raw_scale
-    scale = joints("actions.JointPositionAction.scale", scale) if isinstance(scale, list) else scale
-    raw_offset = action.get("offset")
-    offset = (
-        (0.0,) * n
-        if raw_offset is None
-        else joints("actions.JointPositionAction.offset", raw_offset)
-    )
+    raw_scale, raw_offset, scale, offset = _action(key("actions", dict), n, joints, where, fail)
     observations = key("observations", dict)
     terms = tuple(_term(name, term or {}, where, fail) for name, term in observations.items())
     ranges = ((cfg.get("commands") or {}).get("base_velocity") or {}).get("ranges")
@@ -172,6 +150,38 @@ def read(facts) -> ForeignContract:
         found=found,
         notes=notes,
     )
+
+
+def _action(actions: dict, n: int, joints, where: str, fail):
+    """``(raw scale, raw offset, scale, offset)`` of deploy.yaml's one JointPositionAction over
+    every joint (a scale a number or one per joint; an offset one per joint, default 0).
+
+    Raises:
+        ForeignFormatError (``fail``): another action, a subset of the joints, a per-joint clip.
+    """
+    if set(actions) != {"JointPositionAction"}:
+        raise fail(f"{where}: actions {sorted(actions)}: only one JointPositionAction maps")
+    action = actions["JointPositionAction"] or {}
+    if not _every_joint(action.get("joint_ids"), n):
+        raise fail(
+            f"{where}: actions.JointPositionAction.joint_ids {action['joint_ids']}: only an "
+            "action over every joint of joint_ids_map maps"
+        )
+    if action.get("clip") is not None:
+        raise fail(
+            f"{where}: actions.JointPositionAction.clip: a per-joint clip of the targets is not "
+            "mapped (our action clip bounds the raw action); remove it or pass --spec FILE"
+        )
+    raw_scale = action.get("scale")
+    scale = 1.0 if raw_scale is None else raw_scale
+    scale = joints("actions.JointPositionAction.scale", scale) if isinstance(scale, list) else scale
+    raw_offset = action.get("offset")
+    offset = (
+        (0.0,) * n
+        if raw_offset is None
+        else joints("actions.JointPositionAction.offset", raw_offset)
+    )
+    return raw_scale, raw_offset, scale, offset
 
 
 def _term(name: str, cfg: dict, where: str, fail) -> Term:

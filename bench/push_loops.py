@@ -321,22 +321,35 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command, terr
                 break
             before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
             continue
-        run.ticks += 1
-        changed = int(monitor.any[0]) - last_any
-        run.intervened += changed
-        last_any = int(monitor.any[0])
-        run.past_limit += past_hard_limit(robot, plant.true_position()[0])
-        if quiet(rt.time, schedule.times[0] if schedule else []):
-            run.quiet_ticks += 1
-            run.quiet_intervened += changed
+        last_any = count_running_tick(run, robot, rt, plant, monitor, last_any, schedule)
         if true_fall(robot, above(), truth[0, 3:7]):
             run.fell_at, run.cause = rt.time, "fall"
             break
         if schedule is not None:  # as the soak: the estimate judged, then the tick's push
             response(rt, plant)
             schedule(rt, plant)
+    finish_run(run, rt, monitor, before, response)
+    run.pushes = list(schedule.times[0]) if schedule else []
+    return run
+
+
+def count_running_tick(run: Run, robot, rt, plant, monitor, last_any: int, schedule) -> int:
+    """Count one RUNNING tick of our runtime into ``run``: the tick, its interventions (the
+    monitor's ``any`` since ``last_any``; those of a quiet tick apart), a true joint past its
+    hard limit. Returns the monitor's ``any`` now."""
+    run.ticks += 1
+    changed = int(monitor.any[0]) - last_any
+    run.intervened += changed
+    run.past_limit += past_hard_limit(robot, plant.true_position()[0])
+    if quiet(rt.time, schedule.times[0] if schedule else []):
+        run.quiet_ticks += 1
+        run.quiet_intervened += changed
+    return int(monitor.any[0])
+
+
+def finish_run(run: Run, rt, monitor, before: dict, response) -> None:
+    """``run``'s time walked, the checks that intervened since ``before`` and the after-push
+    error, at the end of our runtime's run."""
     run.walked = run.ticks * rt.dt
     run.checks = {k: int(v[0]) - before[k] for k, v in monitor.counts.items() if v[0] > before[k]}
-    run.pushes = list(schedule.times[0]) if schedule else []
     run.after_push = response.summary() if response else None
-    return run

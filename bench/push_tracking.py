@@ -36,8 +36,9 @@ from bench.push_loops import (
     BareBase,
     Run,
     _Walk,
+    count_running_tick,
+    finish_run,
     past_hard_limit,
-    quiet,
     true_fall,
     true_upright,
 )
@@ -172,23 +173,14 @@ def tracking_runtime_loop(robot, policy, seed: int, seconds: float | None, pushe
                 break
             before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
             continue
-        run.ticks += 1
         start = start or rt.ticks
-        changed = int(monitor.any[0]) - last_any
-        run.intervened += changed
-        last_any = int(monitor.any[0])
-        run.past_limit += past_hard_limit(robot, plant.true_position()[0])
-        if quiet(rt.time, schedule.times[0] if schedule else []):
-            run.quiet_ticks += 1
-            run.quiet_intervened += changed
+        last_any = count_running_tick(run, robot, rt, plant, monitor, last_any, schedule)
         if true_fall(robot, truth[0, 2], truth[0, 3:7]):
             run.fell_at, run.cause = run.ticks * rt.dt, "fall"
             break
         if schedule is not None:  # as the soak: the estimate judged, then the tick's push
             response(rt, plant)
             schedule(rt, plant)
-    run.walked = run.ticks * rt.dt
-    run.checks = {k: int(v[0]) - before[k] for k, v in monitor.counts.items() if v[0] > before[k]}
+    finish_run(run, rt, monitor, before, response)
     run.pushes = [t - start * rt.dt for t in schedule.times[0]] if schedule else []
-    run.after_push = response.summary() if response else None
     return run

@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 
 from sim2real.deploy.spec.foreign.contract import ForeignContract, Term, command_ranges
-from sim2real.deploy.spec.foreign.holosoma_wbt import G1_DEFAULT, _per_dof
+from sim2real.deploy.spec.foreign.holosoma_wbt import G1_DEFAULT, metadata_drive
 
 #: holosoma's locomotion terms (``holosoma.managers.observation.terms.locomotion``) -> (our kind,
 #: size (-1: one per joint), components of the 3-vector).
@@ -97,15 +97,7 @@ def read_g1_loco(facts, md: dict, names: tuple[str, ...], fail) -> ForeignContra
         ForeignFormatError: ``kp``, ``kd`` or a per-joint ``action_scale`` not one number per dof.
     """
     n = len(names)
-    kp, kd = _per_dof(md, "kp", n, fail), _per_dof(md, "kd", n, fail)
-    raw = md.get("action_scale")
-    if raw is None:
-        scale: float | tuple[float, ...] = ACTION_SCALE
-        scale_note = f"action scale {ACTION_SCALE:g}: holosoma_inference task locomotion"
-    elif isinstance(raw, int | float) and not isinstance(raw, bool):
-        scale, scale_note = float(raw), "action scale: metadata 'action_scale'"
-    else:
-        scale, scale_note = _per_dof(md, "action_scale", n, fail), "metadata 'action_scale'"
+    kp, kd, scale, scale_note = metadata_drive(md, n, fail, ACTION_SCALE, "locomotion")
     terms = []
     for name in sorted(LOCO_TERMS):  # holosoma_inference concatenates the sorted terms
         factor, size = LOCO_TERMS[name]

@@ -75,6 +75,29 @@ def _per_dof(md: dict, key: str, n: int, fail) -> tuple[float, ...] | None:
     return tuple(float(v) for v in value)
 
 
+def metadata_drive(md: dict, n: int, fail, default_scale: float, task: str):
+    """``(kp, kd, action scale, its note)`` from holosoma's ONNX metadata: ``kp`` and ``kd`` one
+    number per dof (None: absent); ``action_scale`` a number, one per dof, or absent (then
+    ``default_scale``, holosoma_inference task ``task``'s ``policy_action_scale``).
+
+    Raises:
+        ForeignFormatError (``fail``): ``kp``, ``kd`` or a per-dof ``action_scale`` not ``n``
+            numbers.
+    """
+    kp, kd = _per_dof(md, "kp", n, fail), _per_dof(md, "kd", n, fail)
+    raw = md.get("action_scale")
+    if raw is None:
+        return (
+            kp,
+            kd,
+            default_scale,
+            f"action scale {default_scale:g}: holosoma_inference task {task}",
+        )
+    if isinstance(raw, int | float) and not isinstance(raw, bool):
+        return kp, kd, float(raw), "action scale: metadata 'action_scale'"
+    return kp, kd, _per_dof(md, "action_scale", n, fail), "metadata 'action_scale'"
+
+
 def is_wbt(facts) -> bool:
     """A holosoma WBT export: a ``time_step`` input and the baked clip's outputs."""
     return "time_step" in facts.inputs and all(o in facts.outputs for o in CLIP_OUTPUTS)
@@ -99,15 +122,7 @@ def read_wbt(facts, md: dict, names: tuple[str, ...], fail) -> ForeignContract:
             "(its default pose and reference body are not in the file)"
         )
     n = len(names)
-    kp, kd = _per_dof(md, "kp", n, fail), _per_dof(md, "kd", n, fail)
-    raw_scale = md.get("action_scale")
-    if raw_scale is None:
-        scale: float | tuple[float, ...] = ACTION_SCALE
-        scale_note = f"action scale {ACTION_SCALE:g}: holosoma_inference task wbt (not in the file)"
-    elif isinstance(raw_scale, int | float) and not isinstance(raw_scale, bool):
-        scale, scale_note = float(raw_scale), "action scale: metadata 'action_scale'"
-    else:
-        scale, scale_note = _per_dof(md, "action_scale", n, fail), "metadata 'action_scale'"
+    kp, kd, scale, scale_note = metadata_drive(md, n, fail, ACTION_SCALE, "wbt (not in the file)")
     waist = tuple(names.index(j) for j in WAIST)
     terms = []
     for name in sorted(WBT_TERMS):  # holosoma_inference concatenates the sorted terms

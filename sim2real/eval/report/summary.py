@@ -61,69 +61,96 @@ def summary_text(report: dict) -> str:
     w = t["goals"]["min_window_success_rate"]
     if w is not None:
         lines.append(f"  windows      lowest success rate in a window {100 * w:.1f} %")
-    schedule = report["campaign"].get("commands")
-    clips_only = loco is not None and loco.get("clip_sessions", 0) == loco["sessions"]
-    if loco is not None and schedule and not clips_only:  # a clip's sessions draw no command
+    if loco is not None:
+        lines += _locomotion_lines(loco, report["campaign"].get("commands"), t.get("by_terrain"))
+    lines += _estimate_lines(t.get("base_estimate"))
+    lines += _violation_lines(t)
+    lines += _intervention_lines(t["interventions"])
+    lines.append(_faults_line(t))
+    for s in report.get("sessions", []):
+        lines += exhibition_lines(s)
+    peaks = ", ".join(f"{j} {p:.1f}" for j, p in t["thermal"]["peak_c"].items())
+    lines.append(f"  peak winding degC {peaks}")
+    tc = t["tick_cost_us"]
+    if tc["samples"]:
+        lines.append(f"  tick cost us p50 {tc['p50_us']:.0f}, p99 {tc['p99_us']:.0f}")
+    return "\n".join(lines + _check_lines(report))
+
+
+def _locomotion_lines(loco: dict, schedule, by_terrain) -> list[str]:
+    """The walking block: commands, tracking, falls by origin and their replays, the fall
+    check, standing time, windows and the per-terrain rows."""
+    lines = []
+    clips_only = loco.get("clip_sessions", 0) == loco["sessions"]
+    if schedule and not clips_only:  # a clip's sessions draw no command
         from sim2real.eval.world.command_schedule import schedule_text
 
         lines.append(f"  commands     {schedule_text(schedule)}")
-    if loco is not None:
-        lines.append(locomotion_line(loco))
-        origins = loco.get("falls_by_origin")
-        if loco["falls"] and origins:
-            by = ", ".join(f"{o.replace('_', ' ')} {n}" for o, n in origins.items() if n)
-            causes = ", ".join(f"{c} {n}" for c, n in loco.get("falls_by_cause", {}).items())
-            lines.append(f"  falls began  {by} (stops by cause: {causes or 'none'})")
-            lines += replay_lines(origins)
-            falling = loco.get("stops_while_falling", 0)
-            if falling:
-                lines.append(
-                    f"  stops        {falling} runtime stop(s) on a robot already falling (its "
-                    "replay without the stop fell too; counted above by what began the fall)"
-                )
-        fr = loco.get("fall_replays") or {}
-        if fr.get("falls"):
-            from sim2real.eval.soak.fall_replay import LEAD, REDRAW_LEAD
-
+    lines.append(locomotion_line(loco))
+    origins = loco.get("falls_by_origin")
+    if loco["falls"] and origins:
+        by = ", ".join(f"{o.replace('_', ' ')} {n}" for o, n in origins.items() if n)
+        causes = ", ".join(f"{c} {n}" for c, n in loco.get("falls_by_cause", {}).items())
+        lines.append(f"  falls began  {by} (stops by cause: {causes or 'none'})")
+        lines += replay_lines(origins)
+        falling = loco.get("stops_while_falling", 0)
+        if falling:
             lines.append(
-                f"  replays      {fr['falls']} fall(s) replayed (not judged): the policy's own loop "
-                f"(true state, no guard or smoother) from {min(LEAD):g}-{max(LEAD):g} s before "
-                f"fell in {fr['own_loop_fell']} of {fr['own_loop']}; the runtime from "
-                f"{REDRAW_LEAD:g} s before with other sensor-noise draws fell in "
-                f"{fr['redraw_fell']} of {fr['redraw']}"
+                f"  stops        {falling} runtime stop(s) on a robot already falling (its "
+                "replay without the stop fell too; counted above by what began the fall)"
             )
-        if loco.get("false_fall_stops") is not None:
-            lines.append(
-                f"  fall check   false_fall_stops {loco['false_fall_stops']} (stops for a fall of "
-                "a robot the truth had upright; must be 0)"
-            )
-        up = loco.get("standing_fraction")
-        if up is not None:
-            lines.append(f"  standing     {100 * up:.2f} % of the session RUNNING (on its feet)")
-        lw = loco["min_window_success_rate"]
-        if lw is not None:
-            lines.append(f"  windows      lowest tracking success in a window {100 * lw:.1f} %")
-        from sim2real.eval.report.by_terrain import terrain_lines
+    fr = loco.get("fall_replays") or {}
+    if fr.get("falls"):
+        from sim2real.eval.soak.fall_replay import LEAD, REDRAW_LEAD
 
-        lines += terrain_lines(t.get("by_terrain"))
-    est = t.get("base_estimate")
-    if est is not None:
-        att, vz = est["attitude_error_deg"], est["vertical_velocity_m_s"]
         lines.append(
-            f"  base estimate vs truth  attitude error mean {att['mean']:.2f} deg (worst session "
-            f"p95 {att['worst_session_p95']:.2f}); planar RMS {est['velocity_rms_m_s']:.3f} m/s; "
-            f"vertical bias {vz['bias']:+.3f} m/s, RMS {vz['rms']:.3f}"
+            f"  replays      {fr['falls']} fall(s) replayed (not judged): the policy's own loop "
+            f"(true state, no guard or smoother) from {min(LEAD):g}-{max(LEAD):g} s before "
+            f"fell in {fr['own_loop_fell']} of {fr['own_loop']}; the runtime from "
+            f"{REDRAW_LEAD:g} s before with other sensor-noise draws fell in "
+            f"{fr['redraw_fell']} of {fr['redraw']}"
         )
-        after = est.get("after_push")
-        if after is not None:
-            lines.append(
-                f"  after pushes planar velocity error in the {after['window_s']:g} s after "
-                f"{after['pushes']} pushes: mean {after['mean_m_s']:.3f} m/s, RMS "
-                f"{after['rms_m_s']:.3f}, worst tick {after['worst_m_s']:.3f}, worst push's mean "
-                f"{after['worst_push_mean_m_s']:.3f} (steady: the planar RMS above)"
-            )
+    if loco.get("false_fall_stops") is not None:
+        lines.append(
+            f"  fall check   false_fall_stops {loco['false_fall_stops']} (stops for a fall of "
+            "a robot the truth had upright; must be 0)"
+        )
+    up = loco.get("standing_fraction")
+    if up is not None:
+        lines.append(f"  standing     {100 * up:.2f} % of the session RUNNING (on its feet)")
+    lw = loco["min_window_success_rate"]
+    if lw is not None:
+        lines.append(f"  windows      lowest tracking success in a window {100 * lw:.1f} %")
+    from sim2real.eval.report.by_terrain import terrain_lines
+
+    return lines + terrain_lines(by_terrain)
+
+
+def _estimate_lines(est) -> list[str]:
+    """The base estimate against the truth (nothing for a fixed-base robot)."""
+    if est is None:
+        return []
+    att, vz = est["attitude_error_deg"], est["vertical_velocity_m_s"]
+    lines = [
+        f"  base estimate vs truth  attitude error mean {att['mean']:.2f} deg (worst session "
+        f"p95 {att['worst_session_p95']:.2f}); planar RMS {est['velocity_rms_m_s']:.3f} m/s; "
+        f"vertical bias {vz['bias']:+.3f} m/s, RMS {vz['rms']:.3f}"
+    ]
+    after = est.get("after_push")
+    if after is not None:
+        lines.append(
+            f"  after pushes planar velocity error in the {after['window_s']:g} s after "
+            f"{after['pushes']} pushes: mean {after['mean_m_s']:.3f} m/s, RMS "
+            f"{after['rms_m_s']:.3f}, worst tick {after['worst_m_s']:.3f}, worst push's mean "
+            f"{after['worst_push_mean_m_s']:.3f} (steady: the planar RMS above)"
+        )
+    return lines
+
+
+def _violation_lines(t: dict) -> list[str]:
+    """Violations of the true state, while down, wheel speeds, hard limits, collision pairs."""
     v = ", ".join(f"{k} {n}" for k, n in t["violations"]["total"].items())
-    lines.append(f"  violations   (true state, ticks) {v}")
+    lines = [f"  violations   (true state, ticks) {v}"]
     down = t["violations"].get("while_down", {})
     if down.get("any"):
         d = ", ".join(f"{k} {n}" for k, n in down.items() if k != "any" and n)
@@ -143,13 +170,17 @@ def summary_text(report: dict) -> str:
         top = ", ".join(f"{p} {n}" for p, n in pairs[:3])
         more = f" (+{len(pairs) - 3} more pairs)" if len(pairs) > 3 else ""
         lines.append(f"  self-collision pairs (ticks) {top}{more}")
-    iv = t["interventions"]
+    return lines
+
+
+def _intervention_lines(iv: dict) -> list[str]:
+    """The guard's interventions, up and while down."""
     used = ", ".join(
         f"{k} {100 * c['fraction']:.3f}" for k, c in iv["checks"].items() if c["count"]
     )
     by_design = [k for k in iv.get("by_design", []) if iv["checks"].get(k, {}).get("count")]
     down = iv.get("while_down") or {}
-    lines.append(
+    lines = [
         f"  interventions {100 * iv['any']['fraction']:.3f} % of ticks"
         + (" up" if down.get("ticks") else "")
         + (f" ({used})" if used else "")
@@ -159,7 +190,7 @@ def summary_text(report: dict) -> str:
             if by_design
             else ""
         )
-    )
+    ]
     if down.get("ticks"):
         lying = ", ".join(
             f"{k} {100 * c['fraction']:.3f}" for k, c in down["checks"].items() if c["count"]
@@ -169,9 +200,14 @@ def summary_text(report: dict) -> str:
             f"{100 * down['any']['fraction']:.3f} % of {down['ticks']} ticks"
             + (f" ({lying})" if lying else "")
         )
+    return lines
+
+
+def _faults_line(t: dict) -> str:
+    """Injected faults, survived, responses, latched faults and resets."""
     f = t["faults"]
     resp = ", ".join(f"{k} {n}" for k, n in f["responses"].items() if n)
-    lines.append(
+    return (
         f"  faults       {f['injected']} injected, {f['survived']} survived ({resp or 'none'}); "
         f"latched {t['latched_faults']}, operator resets {t['operator_resets']}"
         + (
@@ -181,13 +217,11 @@ def summary_text(report: dict) -> str:
             else ""
         )
     )
-    for s in report.get("sessions", []):
-        lines += exhibition_lines(s)
-    peaks = ", ".join(f"{j} {p:.1f}" for j, p in t["thermal"]["peak_c"].items())
-    lines.append(f"  peak winding degC {peaks}")
-    tc = t["tick_cost_us"]
-    if tc["samples"]:
-        lines.append(f"  tick cost us p50 {tc['p50_us']:.0f}, p99 {tc['p99_us']:.0f}")
+
+
+def _check_lines(report: dict) -> list[str]:
+    """The failed checks (known ones marked) and the baseline's comparison."""
+    lines = []
     b = report.get("baseline")
     known = {k["check"] for k in (b or {}).get("known_failures", [])}
     for name, c in report["checks"].items():
@@ -201,7 +235,7 @@ def summary_text(report: dict) -> str:
             lines.append(f"  baseline     violation rates compared with {b['violation_basis']}")
         for r in b["regressions"]:
             lines.append(f"  REGRESSION   {r['message']}")
-    return "\n".join(lines)
+    return lines
 
 
 def exhibition_lines(s: dict) -> list[str]:

@@ -193,60 +193,28 @@ def session_result(session: Session) -> dict:
     Args:
         session: The session's book-keeping in its batch (:class:`sim2real.eval.soak.session.Session`).
     """
-    b, e, rt, robot = session.batch, session.e, session.batch.rt, session.batch.robot
-    names = list(robot.joint_names)
-    dt = b.dt
+    b, e, rt = session.batch, session.e, session.batch.rt
     t_end = rt.time
     hours = list(session.hours)
     last_end = hours[-1]["end_s"] if hours else 0.0
     if t_end > last_end + 1e-9:
         hours.append(session.hour_row(last_end, t_end))
-    now = session.counters()
-    sim_h = t_end / 3600.0
-    e = session.e
     name = session.task.name  # the task's section: goals or locomotion
-    true = now["violations"]
-    interventions = b.interventions.summary(e)
-    responses = {r: 0 for r in RESPONSES}
-    for ev in session.fault_events:
-        responses[ev["response"]] += 1
-    motors = robot.motors
     est = rt.estimator
-    tick_cost = rt.tick_cost
-    nz = np.flatnonzero(tick_cost.counts[0])
-    wall = session.wall_s + b.wall_elapsed()
     return {
         "id": session.config.id,
         "seed": session.config.seed,
         "status": "diverged" if session.diverged else "complete",
         "simulated_s": t_end,
-        "simulated_hours": sim_h,
+        "simulated_hours": t_end / 3600.0,
         "ticks": rt.ticks,
         "control_mode": b.mode,
         "options": session.config.batch_key(),
         "policy_sha256": b.policy_sha256,
         "randomization": session.draw.to_dict(),
-        "violations": {
-            "source": VIOLATION_SOURCE,
-            "total": {k: true[k] for k in VIOLATION_TYPES},
-            "any": true["any"],
-            "per_hour": [
-                {
-                    "hour": h["hour"],
-                    "start_s": h["start_s"],
-                    "end_s": h["end_s"],
-                    "counts": {k: h["violations"][k] for k in VIOLATION_TYPES},
-                    "any": h["violations"]["any"],
-                }
-                for h in hours
-            ],
-            "rate_per_hour": {k: (true[k] / sim_h if sim_h > 0 else 0.0) for k in VIOLATION_TYPES},
-            "self_collision_pairs": b.violations.pair_counts(e),
-            "hard_limit_joints": b.violations.hard_limit_joints(e),
-            "while_down": b.violations.env_counts(e, down=True),
-        },
+        "violations": _violations(session, hours, t_end / 3600.0),
         "interventions": {
-            **interventions,
+            **b.interventions.summary(e),
             "per_hour": [
                 {
                     "hour": h["hour"],
@@ -263,26 +231,8 @@ def session_result(session: Session) -> dict:
         "goals": goals_result(session) if name == "goals" else None,
         "locomotion": locomotion_result(session) if name in ("locomotion", "tracking") else None,
         "exhibition": exhibition_result(session) if name == "tracking" else None,
-        "faults": {
-            "scheduled": len(session.schedule),
-            "injected": len(session.fault_events),
-            "survived": sum(1 for ev in session.fault_events if ev["survived"]),
-            "responses": responses,
-            "events": session.fault_events,
-            "skipped_pushes": session.skipped_pushes,
-        },
-        "runtime": {
-            "safe_stops": int(rt.counters.safe_stops[e]),
-            "by_cause": {c: int(v[e]) for c, v in rt.counters.faults.items()},
-            "non_finite_actions": int(rt.counters.non_finite_actions[e]),
-            "resyncs": int(rt.counters.resyncs[e]),
-            "anchors": int(rt.counters.anchors[e]),
-            "latched_faults": len(session.latches),
-            "latches": session.latches,
-            "operator_resets": session.operator_resets,
-            "final_mode": Mode(int(rt.mode[e])).name,
-            "final_cause": FAULT_CAUSES[rt.cause[e]] if rt.cause[e] >= 0 else None,
-        },
+        "faults": _faults(session),
+        "runtime": _runtime(session),
         "base_estimate": base_estimate(b, e),
         "estimator": {
             "missing_readings": int(est.missing_per_joint[e].sum()),
@@ -290,59 +240,132 @@ def session_result(session: Session) -> dict:
             "reinitializations": int(est.reinitializations_per_joint[e].sum()),
         },
         "wheels": wheel_speeds(b, e),
-        "thermal": {
-            "joints": names,
-            "derating_start_c": {
-                j: m.derating_start_temperature for j, m in zip(names, motors, strict=True)
-            },
-            "max_winding_c": {
-                j: m.max_winding_temperature for j, m in zip(names, motors, strict=True)
-            },
-            "peak_c": dict(zip(names, b.peak[e].tolist(), strict=True)),
-            "derating_band_s": dict(
-                zip(names, ((b.band_ticks[e] - b.over_ticks[e]) * dt).tolist(), strict=True)
-            ),
-            "over_temperature_s": dict(zip(names, (b.over_ticks[e] * dt).tolist(), strict=True)),
-            "curve": {
-                "t_s": session.curve["t_s"],
-                "winding_c": {
-                    j: [row[i] for row in session.curve["winding_c"]] for i, j in enumerate(names)
-                },
-            },
+        "thermal": _thermal(session),
+        "curves": _curves(session, legged=name in ("locomotion", "tracking")),
+        "drift": {
+            "friction_final_nm": dict(zip(b.robot.joint_names, session.friction, strict=True))
         },
-        "curves": {
-            "t_s": session.curve["t_s"],
-            **(
-                {k: session.curve[k] for k in LEGGED_CURVES}
-                if name in ("locomotion", "tracking")
-                else {
-                    "goals_issued": session.curve["issued"],
-                    "goals_reached": session.curve["reached"],
-                }
-            ),
-            "violations": {
-                k: [row[k] for row in session.curve["violations"]]
-                for k in (*VIOLATION_TYPES, "any")
-            },
-            "interventions": {
-                k: [row[k] for row in session.curve["interventions"]]
-                for k in (*INTERVENTION_CHECKS, "any")
-            },
-            "mode": [Mode(m).name for m in session.curve["mode"]],
-        },
-        "drift": {"friction_final_nm": dict(zip(names, session.friction, strict=True))},
         "diverged": session.diverged,
-        "wall": {
-            "wall_s": wall,
-            "speed": t_end / wall if wall > 0 else None,
-            "batch": [s.config.seed for s in b.sessions],
-            "tick_cost_us": tick_cost.summary(),
-            "tick_cost_histogram": {
-                "bin_us": nz.tolist(),
-                "count": tick_cost.counts[0][nz].tolist(),
-            },
-            "stage_cost_us": {s: rt.latency.summary(i) for i, s in enumerate(STAGES)},
+        "wall": _wall(session, t_end),
+    }
+
+
+def _violations(session: Session, hours: list, sim_h: float) -> dict:
+    """The ``violations`` section: the true state's counts in total, per hour and per hour's
+    rate, the self-collision pairs, the joints past their hard limits and those while down."""
+    b, e = session.batch, session.e
+    true = session.counters()["violations"]
+    return {
+        "source": VIOLATION_SOURCE,
+        "total": {k: true[k] for k in VIOLATION_TYPES},
+        "any": true["any"],
+        "per_hour": [
+            {
+                "hour": h["hour"],
+                "start_s": h["start_s"],
+                "end_s": h["end_s"],
+                "counts": {k: h["violations"][k] for k in VIOLATION_TYPES},
+                "any": h["violations"]["any"],
+            }
+            for h in hours
+        ],
+        "rate_per_hour": {k: (true[k] / sim_h if sim_h > 0 else 0.0) for k in VIOLATION_TYPES},
+        "self_collision_pairs": b.violations.pair_counts(e),
+        "hard_limit_joints": b.violations.hard_limit_joints(e),
+        "while_down": b.violations.env_counts(e, down=True),
+    }
+
+
+def _faults(session: Session) -> dict:
+    """The ``faults`` section: scheduled, injected and survived faults and their responses."""
+    responses = {r: 0 for r in RESPONSES}
+    for ev in session.fault_events:
+        responses[ev["response"]] += 1
+    return {
+        "scheduled": len(session.schedule),
+        "injected": len(session.fault_events),
+        "survived": sum(1 for ev in session.fault_events if ev["survived"]),
+        "responses": responses,
+        "events": session.fault_events,
+        "skipped_pushes": session.skipped_pushes,
+    }
+
+
+def _runtime(session: Session) -> dict:
+    """The ``runtime`` section: the runtime's counters of env ``session.e``, its latches,
+    resets and final mode and cause."""
+    rt, e = session.batch.rt, session.e
+    return {
+        "safe_stops": int(rt.counters.safe_stops[e]),
+        "by_cause": {c: int(v[e]) for c, v in rt.counters.faults.items()},
+        "non_finite_actions": int(rt.counters.non_finite_actions[e]),
+        "resyncs": int(rt.counters.resyncs[e]),
+        "anchors": int(rt.counters.anchors[e]),
+        "latched_faults": len(session.latches),
+        "latches": session.latches,
+        "operator_resets": session.operator_resets,
+        "final_mode": Mode(int(rt.mode[e])).name,
+        "final_cause": FAULT_CAUSES[rt.cause[e]] if rt.cause[e] >= 0 else None,
+    }
+
+
+def _thermal(session: Session) -> dict:
+    """The ``thermal`` section: each joint's motor limits (degC), peak winding temperature,
+    time in the derating band and over temperature (s), and the winding curve."""
+    b, e = session.batch, session.e
+    names, motors, dt = list(b.robot.joint_names), b.robot.motors, b.dt
+    return {
+        "joints": names,
+        "derating_start_c": {
+            j: m.derating_start_temperature for j, m in zip(names, motors, strict=True)
         },
+        "max_winding_c": {j: m.max_winding_temperature for j, m in zip(names, motors, strict=True)},
+        "peak_c": dict(zip(names, b.peak[e].tolist(), strict=True)),
+        "derating_band_s": dict(
+            zip(names, ((b.band_ticks[e] - b.over_ticks[e]) * dt).tolist(), strict=True)
+        ),
+        "over_temperature_s": dict(zip(names, (b.over_ticks[e] * dt).tolist(), strict=True)),
+        "curve": {
+            "t_s": session.curve["t_s"],
+            "winding_c": {
+                j: [row[i] for row in session.curve["winding_c"]] for i, j in enumerate(names)
+            },
+        },
+    }
+
+
+def _curves(session: Session, legged: bool) -> dict:
+    """The ``curves`` section: the walking curves (``legged``) or the goals', then violations,
+    interventions and mode over time."""
+    c = session.curve
+    return {
+        "t_s": c["t_s"],
+        **(
+            {k: c[k] for k in LEGGED_CURVES}
+            if legged
+            else {"goals_issued": c["issued"], "goals_reached": c["reached"]}
+        ),
+        "violations": {k: [row[k] for row in c["violations"]] for k in (*VIOLATION_TYPES, "any")},
+        "interventions": {
+            k: [row[k] for row in c["interventions"]] for k in (*INTERVENTION_CHECKS, "any")
+        },
+        "mode": [Mode(m).name for m in c["mode"]],
+    }
+
+
+def _wall(session: Session, t_end: float) -> dict:
+    """The ``wall`` section: wall time and speed, the batch's seeds, the tick's and stages' cost."""
+    b, rt = session.batch, session.batch.rt
+    wall = session.wall_s + b.wall_elapsed()
+    tick_cost = rt.tick_cost
+    nz = np.flatnonzero(tick_cost.counts[0])
+    return {
+        "wall_s": wall,
+        "speed": t_end / wall if wall > 0 else None,
+        "batch": [s.config.seed for s in b.sessions],
+        "tick_cost_us": tick_cost.summary(),
+        "tick_cost_histogram": {"bin_us": nz.tolist(), "count": tick_cost.counts[0][nz].tolist()},
+        "stage_cost_us": {s: rt.latency.summary(i) for i, s in enumerate(STAGES)},
     }
 
 

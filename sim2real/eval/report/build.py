@@ -49,92 +49,19 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     ``thresholds.judge_tracking`` (else they pass and say "not judged"); a session a motion clip
     commands has no velocity tracking: they pass, not judged (:data:`CLIP_NOT_JUDGED`).
     """
-    hard = result["violations"]["total"].get("hard_limit", 0)
-    hard_down = result["violations"].get("while_down", {}).get("hard_limit", 0)
-    hard_stops = result["runtime"]["by_cause"].get("hard_limit", 0)
-    hard_joints = result["violations"].get("hard_limit_joints") or {}
-    joints = ", ".join(f"{j} {t}" for j, t in hard_joints.items())
     latched = result["runtime"]["latched_faults"]
     th = result["thermal"]
     hot = [j for j in th["joints"] if th["peak_c"][j] > th["max_winding_c"][j]]
     thermal_stops = result["runtime"]["by_cause"].get("over_temperature", 0)
-    loco = result.get("locomotion")
-    goals = result["goals"]
-    judged = True
-    if loco is not None:  # a legged session: its success is the tracking success
-        rate, window = loco["tracking_success"], loco["min_window_success_rate"]
-        # a motion clip commands it: no velocity tracking to judge or report
-        clip = loco.get("commanded_by") == "clip"
-        judged = thresholds.judge_tracking and not clip
-        threshold = f"threshold {thresholds.min_success_rate:.3f}" if judged else "not judged"
-        success_message = (CLIP_NOT_JUDGED if clip else None) or (
-            f"tracking success {rate:.3f} ({threshold}, "
-            f"{loco['tracked_s']:.0f}/{loco['running_s']:.0f} s RUNNING within "
-            f"{loco['tracking_tolerance_m_s']:g} m/s of the command"
-            + (
-                f", {loco['settle_s']:g} s after each change allowed to settle)"
-                if loco.get("settle_s")
-                else ")"
-            )
-            if rate is not None
-            else "never RUNNING"
-        )
-        window_message = (CLIP_NOT_JUDGED if clip else None) or (
-            f"lowest tracking success in a {loco['window_s'] / 60:g}-minute window {window:.3f} "
-            + (
-                f"(threshold {thresholds.min_window_success_rate:.3f}, "
-                if judged
-                else "(not judged, "
-            )
-            + f"{len(loco['windows'])} windows)"
-            if window is not None
-            else "never RUNNING"
-        )
-        false_stops = loco.get("false_fall_stops", 0)
-        falls_ok = loco["falls_per_hour"] <= thresholds.max_falls_per_hour and not false_stops
-        falls_message = (
-            f"{loco['falls']} falls, {loco['falls_per_hour']:.2f} per hour (threshold "
-            f"{thresholds.max_falls_per_hour:g}); {false_stops} false fall stops (an upright "
-            "robot stopped by the fall check; must be 0)"
-        )
-    else:
-        rate, window = goals["success_rate"], goals["min_window_success_rate"]
-        success_message = (
-            f"success rate {rate:.3f} (threshold {thresholds.min_success_rate:.3f}, "
-            f"{goals['reached']}/{goals['issued']} goals)"
-            if rate is not None
-            else "no goal was issued"
-        )
-        window_message = (
-            f"lowest success rate in a {goals['window_s'] / 60:g}-minute window {window:.3f} "
-            f"(threshold {thresholds.min_window_success_rate:.3f}, "
-            f"{len(goals['windows'])} windows)"
-            if window is not None
-            else "no goal was issued"
-        )
-        falls_ok, falls_message = True, "fixed base: no falls"
-    iv = result["interventions"]
-    # the policy's style is reported, not judged (sim2real.deploy.monitors.interventions: by_design)
-    by_design = iv.get("by_design", [])
-    share = iv.get("safety", iv["any"])["fraction"]
     causes = sorted({x["cause"] for x in result["runtime"]["latches"] if x.get("cause")})
-    worst = sorted(
-        ((c["fraction"], k) for k, c in iv["checks"].items() if c["count"] and k not in by_design),
-        reverse=True,
-    )[:3]
-    style = ", ".join(
-        f"{k} {100 * iv['checks'][k]['fraction']:.3f} %" for k in by_design if k in iv["checks"]
-    )
+    loco = result.get("locomotion")
+    if loco is not None:  # a legged session: its success is the tracking success
+        success, window, falls = _tracking_checks(loco, thresholds)
+    else:
+        success, window = _goal_checks(result["goals"], thresholds)
+        falls = (True, "fixed base: no falls")
     checks = {
-        "no_hard_violation": (
-            hard == 0 and hard_down == 0 and hard_stops == 0,
-            f"{hard} ticks with a joint beyond a hard limit (true state)"
-            + (f" (ticks per joint: {joints})" if joints else "")
-            + (f" and {hard_down} more lying down after a stop" if hard_down else "")
-            + f", {hard_stops} hard-limit safe stops"
-            if hard or hard_down or hard_stops
-            else "no hard-limit violation (true state), no hard-limit safe stop",
-        ),
+        "no_hard_violation": _hard_limit_check(result),
         "no_latched_fault": (
             latched == 0,
             f"{latched} latched faults ({', '.join(causes)})" if latched else "no latched fault",
@@ -148,32 +75,131 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
             if hot or thermal_stops
             else f"peak winding {max(th['peak_c'].values()):.1f} degC",
         ),
-        "success_rate": (
-            not judged or (rate is not None and rate >= thresholds.min_success_rate),
-            success_message,
-        ),
-        "window_success": (
-            not judged or (window is not None and window >= thresholds.min_window_success_rate),
-            window_message,
-        ),
-        "falls": (falls_ok, falls_message),
-        "interventions": (
-            share <= thresholds.max_intervention_rate,
-            f"{100 * share:.3f} % of ticks with an intervention (threshold "
-            f"{100 * thresholds.max_intervention_rate:.3f} %"
-            + ("; " + ", ".join(f"{k} {100 * f:.3f} %" for f, k in worst) + ")" if worst else ")")
-            + (
-                f"; not judged, the policy's PD targets past its joints' ranges: {style}"
-                if style
-                else ""
-            ),
-        ),
+        "success_rate": success,
+        "window_success": window,
+        "falls": falls,
+        "interventions": _interventions_check(result["interventions"], thresholds),
         "no_divergence": (
             not result["diverged"],
             f"simulation diverged: {result['diverged']}" if result["diverged"] else "no divergence",
         ),
     }
     return {k: {"passed": bool(p), "message": m} for k, (p, m) in checks.items()}
+
+
+def _hard_limit_check(result: dict) -> tuple[bool, str]:
+    """``no_hard_violation``: no tick past a hard limit (true state), standing or lying down,
+    and no hard-limit safe stop."""
+    hard = result["violations"]["total"].get("hard_limit", 0)
+    hard_down = result["violations"].get("while_down", {}).get("hard_limit", 0)
+    hard_stops = result["runtime"]["by_cause"].get("hard_limit", 0)
+    hard_joints = result["violations"].get("hard_limit_joints") or {}
+    joints = ", ".join(f"{j} {t}" for j, t in hard_joints.items())
+    return (
+        hard == 0 and hard_down == 0 and hard_stops == 0,
+        f"{hard} ticks with a joint beyond a hard limit (true state)"
+        + (f" (ticks per joint: {joints})" if joints else "")
+        + (f" and {hard_down} more lying down after a stop" if hard_down else "")
+        + f", {hard_stops} hard-limit safe stops"
+        if hard or hard_down or hard_stops
+        else "no hard-limit violation (true state), no hard-limit safe stop",
+    )
+
+
+def _tracking_checks(loco: dict, thresholds: Thresholds) -> tuple[tuple, tuple, tuple]:
+    """A legged session's ``success_rate``, ``window_success`` and ``falls`` checks, each
+    ``(passed, message)``: its tracking success, judged only with ``thresholds.judge_tracking``
+    and never for a session a motion clip commands."""
+    rate, window = loco["tracking_success"], loco["min_window_success_rate"]
+    # a motion clip commands it: no velocity tracking to judge or report
+    clip = loco.get("commanded_by") == "clip"
+    judged = thresholds.judge_tracking and not clip
+    threshold = f"threshold {thresholds.min_success_rate:.3f}" if judged else "not judged"
+    success_message = (CLIP_NOT_JUDGED if clip else None) or (
+        f"tracking success {rate:.3f} ({threshold}, "
+        f"{loco['tracked_s']:.0f}/{loco['running_s']:.0f} s RUNNING within "
+        f"{loco['tracking_tolerance_m_s']:g} m/s of the command"
+        + (
+            f", {loco['settle_s']:g} s after each change allowed to settle)"
+            if loco.get("settle_s")
+            else ")"
+        )
+        if rate is not None
+        else "never RUNNING"
+    )
+    window_message = (CLIP_NOT_JUDGED if clip else None) or (
+        f"lowest tracking success in a {loco['window_s'] / 60:g}-minute window {window:.3f} "
+        + (f"(threshold {thresholds.min_window_success_rate:.3f}, " if judged else "(not judged, ")
+        + f"{len(loco['windows'])} windows)"
+        if window is not None
+        else "never RUNNING"
+    )
+    false_stops = loco.get("false_fall_stops", 0)
+    falls_ok = loco["falls_per_hour"] <= thresholds.max_falls_per_hour and not false_stops
+    falls_message = (
+        f"{loco['falls']} falls, {loco['falls_per_hour']:.2f} per hour (threshold "
+        f"{thresholds.max_falls_per_hour:g}); {false_stops} false fall stops (an upright "
+        "robot stopped by the fall check; must be 0)"
+    )
+    return (
+        (
+            not judged or (rate is not None and rate >= thresholds.min_success_rate),
+            success_message,
+        ),
+        (
+            not judged or (window is not None and window >= thresholds.min_window_success_rate),
+            window_message,
+        ),
+        (falls_ok, falls_message),
+    )
+
+
+def _goal_checks(goals: dict, thresholds: Thresholds) -> tuple[tuple, tuple]:
+    """An arm session's ``success_rate`` and ``window_success`` checks, ``(passed, message)``."""
+    rate, window = goals["success_rate"], goals["min_window_success_rate"]
+    return (
+        (
+            rate is not None and rate >= thresholds.min_success_rate,
+            f"success rate {rate:.3f} (threshold {thresholds.min_success_rate:.3f}, "
+            f"{goals['reached']}/{goals['issued']} goals)"
+            if rate is not None
+            else "no goal was issued",
+        ),
+        (
+            window is not None and window >= thresholds.min_window_success_rate,
+            f"lowest success rate in a {goals['window_s'] / 60:g}-minute window {window:.3f} "
+            f"(threshold {thresholds.min_window_success_rate:.3f}, "
+            f"{len(goals['windows'])} windows)"
+            if window is not None
+            else "no goal was issued",
+        ),
+    )
+
+
+def _interventions_check(iv: dict, thresholds: Thresholds) -> tuple[bool, str]:
+    """``interventions``: the judged share of ticks with an intervention at most
+    ``max_intervention_rate``; the policy's style (``by_design``) reported, not judged
+    (:mod:`sim2real.deploy.monitors.interventions`)."""
+    by_design = iv.get("by_design", [])
+    share = iv.get("safety", iv["any"])["fraction"]
+    worst = sorted(
+        ((c["fraction"], k) for k, c in iv["checks"].items() if c["count"] and k not in by_design),
+        reverse=True,
+    )[:3]
+    style = ", ".join(
+        f"{k} {100 * iv['checks'][k]['fraction']:.3f} %" for k in by_design if k in iv["checks"]
+    )
+    return (
+        share <= thresholds.max_intervention_rate,
+        f"{100 * share:.3f} % of ticks with an intervention (threshold "
+        f"{100 * thresholds.max_intervention_rate:.3f} %"
+        + ("; " + ", ".join(f"{k} {100 * f:.3f} %" for f, k in worst) + ")" if worst else ")")
+        + (
+            f"; not judged, the policy's PD targets past its joints' ranges: {style}"
+            if style
+            else ""
+        ),
+    )
 
 
 def missed_states(report: dict) -> list[dict]:

@@ -97,31 +97,6 @@ def totals(results: list[dict]) -> dict:
     hours = sum(r["simulated_hours"] for r in results)
     types = list(results[0]["violations"]["total"]) if results else []
     total = {k: sum(r["violations"]["total"][k] for r in results) for k in types}
-    ticks = sum(r["interventions"]["ticks"] for r in results)
-    checks = list(results[0]["interventions"]["checks"]) if results else []
-    warnings = list(results[0]["interventions"]["warnings"]) if results else []
-
-    def entry(count: int) -> dict:
-        return {"count": count, "fraction": count / ticks if ticks else 0.0}
-
-    arms = [r for r in results if r["goals"] is not None]
-    issued = sum(r["goals"]["issued"] for r in arms)
-    reached = sum(r["goals"]["reached"] for r in arms)
-    windows = [
-        r["goals"]["min_window_success_rate"]
-        for r in arms
-        if r["goals"]["min_window_success_rate"] is not None
-    ]
-    responses: dict[str, int] = {}
-    by_kind: dict[str, dict] = {}
-    for r in results:
-        for k, v in r["faults"]["responses"].items():
-            responses[k] = responses.get(k, 0) + v
-        for ev in r["faults"]["events"]:
-            kind = by_kind.setdefault(ev["kind"], {"injected": 0, "survived": 0, "responses": {}})
-            kind["injected"] += 1
-            kind["survived"] += int(ev["survived"])
-            kind["responses"][ev["response"]] = kind["responses"].get(ev["response"], 0) + 1
     joints = results[0]["thermal"]["joints"] if results else []
     bins: dict[int, int] = {}
     for r in results:
@@ -132,7 +107,7 @@ def totals(results: list[dict]) -> dict:
     return {
         "sessions": len(results),
         "simulated_hours": hours,
-        "ticks": ticks,
+        "ticks": sum(r["interventions"]["ticks"] for r in results),
         "violations": {
             "source": results[0]["violations"]["source"] if results else None,
             "total": total,
@@ -143,45 +118,12 @@ def totals(results: list[dict]) -> dict:
             "hard_limit_joints": _pair_ticks(results, "hard_limit_joints"),
             "while_down": _while_down(results),
         },
-        "interventions": {
-            "ticks": ticks,
-            "checks": {
-                k: entry(sum(r["interventions"]["checks"][k]["count"] for r in results))
-                for k in checks
-            },
-            "any": entry(sum(r["interventions"]["any"]["count"] for r in results)),
-            "safety": entry(
-                sum(
-                    r["interventions"].get("safety", r["interventions"]["any"])["count"]
-                    for r in results
-                )
-            ),
-            "by_design": results[0]["interventions"].get("by_design", []) if results else [],
-            "warnings": {
-                k: entry(sum(r["interventions"]["warnings"][k]["count"] for r in results))
-                for k in warnings
-            },
-            "per_hour": _sum_rows(results, "interventions", checks),
-            "while_down": _interventions_down(results),
-        },
-        "goals": {
-            "issued": issued,
-            "reached": reached,
-            "success_rate": reached / issued if issued else None,
-            "min_window_success_rate": min(windows) if windows else None,
-            "missed": sum(len(r["goals"]["missed"]) for r in arms),
-            "missed_dropped": sum(r["goals"]["missed_dropped"] for r in arms),
-        },
+        "interventions": _intervention_totals(results),
+        "goals": _goal_totals(results),
         "locomotion": _locomotion_totals(results),
         "by_terrain": terrain_rows(results),
         "base_estimate": _base_estimate_totals(results),
-        "faults": {
-            "injected": sum(r["faults"]["injected"] for r in results),
-            "skipped_pushes": sum(len(r["faults"].get("skipped_pushes", [])) for r in results),
-            "survived": sum(r["faults"]["survived"] for r in results),
-            "responses": responses,
-            "by_kind": by_kind,
-        },
+        "faults": _fault_totals(results),
         "latched_faults": latched,
         "latched_faults_per_hour": latched / hours if hours > 0 else 0.0,
         "operator_resets": sum(r["runtime"]["operator_resets"] for r in results),
@@ -197,6 +139,79 @@ def totals(results: list[dict]) -> dict:
         },
         "diverged": [r["id"] for r in results if r["diverged"]],
         "tick_cost_us": _histogram_summary(list(bins), list(bins.values())),
+    }
+
+
+def _intervention_totals(results: list[dict]) -> dict:
+    """The sessions' interventions summed: ``{ticks, checks, any, safety, by_design, warnings,
+    per_hour, while_down}``, each count with its fraction of the ticks up."""
+    ticks = sum(r["interventions"]["ticks"] for r in results)
+    checks = list(results[0]["interventions"]["checks"]) if results else []
+    warnings = list(results[0]["interventions"]["warnings"]) if results else []
+
+    def entry(count: int) -> dict:
+        return {"count": count, "fraction": count / ticks if ticks else 0.0}
+
+    return {
+        "ticks": ticks,
+        "checks": {
+            k: entry(sum(r["interventions"]["checks"][k]["count"] for r in results)) for k in checks
+        },
+        "any": entry(sum(r["interventions"]["any"]["count"] for r in results)),
+        "safety": entry(
+            sum(
+                r["interventions"].get("safety", r["interventions"]["any"])["count"]
+                for r in results
+            )
+        ),
+        "by_design": results[0]["interventions"].get("by_design", []) if results else [],
+        "warnings": {
+            k: entry(sum(r["interventions"]["warnings"][k]["count"] for r in results))
+            for k in warnings
+        },
+        "per_hour": _sum_rows(results, "interventions", checks),
+        "while_down": _interventions_down(results),
+    }
+
+
+def _goal_totals(results: list[dict]) -> dict:
+    """The arm sessions' goals summed: issued, reached, success rate, the lowest window's."""
+    arms = [r for r in results if r["goals"] is not None]
+    issued = sum(r["goals"]["issued"] for r in arms)
+    reached = sum(r["goals"]["reached"] for r in arms)
+    windows = [
+        r["goals"]["min_window_success_rate"]
+        for r in arms
+        if r["goals"]["min_window_success_rate"] is not None
+    ]
+    return {
+        "issued": issued,
+        "reached": reached,
+        "success_rate": reached / issued if issued else None,
+        "min_window_success_rate": min(windows) if windows else None,
+        "missed": sum(len(r["goals"]["missed"]) for r in arms),
+        "missed_dropped": sum(r["goals"]["missed_dropped"] for r in arms),
+    }
+
+
+def _fault_totals(results: list[dict]) -> dict:
+    """The sessions' faults summed, with each response's count and each kind's."""
+    responses: dict[str, int] = {}
+    by_kind: dict[str, dict] = {}
+    for r in results:
+        for k, v in r["faults"]["responses"].items():
+            responses[k] = responses.get(k, 0) + v
+        for ev in r["faults"]["events"]:
+            kind = by_kind.setdefault(ev["kind"], {"injected": 0, "survived": 0, "responses": {}})
+            kind["injected"] += 1
+            kind["survived"] += int(ev["survived"])
+            kind["responses"][ev["response"]] = kind["responses"].get(ev["response"], 0) + 1
+    return {
+        "injected": sum(r["faults"]["injected"] for r in results),
+        "skipped_pushes": sum(len(r["faults"].get("skipped_pushes", [])) for r in results),
+        "survived": sum(r["faults"]["survived"] for r in results),
+        "responses": responses,
+        "by_kind": by_kind,
     }
 
 

@@ -293,20 +293,7 @@ def export_folder_torchscript(
     """
     t0 = time.perf_counter()
     source = Path(source)
-    contract = contract or folder_contract(source)
-    if contract is None:
-        raise ExportError(
-            f"{source}: not a TorchScript file with a training stack's contract beside it "
-            "(rl_sar's config.yaml and ../base.yaml); pass its spec with --spec FILE.json"
-        )
-    out = source.with_suffix(".onnx") if out is None else Path(out)
-    if out.resolve() == source.resolve():
-        raise ExportError(f"{out}: the output would overwrite the source")
-    if out.resolve().parent != source.resolve().parent:
-        raise ExportError(
-            f"{out}: the graph must sit beside {source.name} in {source.parent}, where its "
-            f"{contract.format} contract is read"
-        )
+    contract, out = _checked_paths(source, out, contract)
     check_tolerance(tolerance)
     obs_dim, act_dim, clips = contract_sizes(contract)
     net = load_torchscript(source)
@@ -332,27 +319,10 @@ def export_folder_torchscript(
     if contract.motion is not None:  # the clip the runtime plays: found beside it, checked
         meta["motion"] = motion_metadata(contract.motion)
     model.doc_string = f"policy-export of {source.name} ({contract.format} contract beside it)"
-    spec = None
     try:
-        with atomic_path(out) as tmp:
-            tmp.write_bytes(model.SerializeToString())
-            read = read_contract(OnnxFacts.of(tmp, model))
-            if read is None or read.format != contract.format:
-                raise ExportError(
-                    f"{out}: the written graph is not read as a {contract.format} policy "
-                    f"(read: {None if read is None else read.format})"
-                )
-            if robot is not None:
-                spec, loop = _replay(tmp, net, robot, seed, floor)
-                figures.update(loop)
-            figures.update(_tolerances(floor, tolerance, robot is not None))
-            passed = gate_passed(figures)
-            figures["passed"] = passed
-            set_metadata(model, {**meta, "parity": json.dumps(figures)})
-            if not passed:
-                kept = atomic_write(failed_path(out), model.SerializeToString())
-                raise ParityError(_parity_message(source, figures, kept), figures)
-            tmp.write_bytes(model.SerializeToString())
+        spec = _write_checked(
+            model, meta, figures, out, source, contract, (net, robot, seed, floor, tolerance)
+        )
     except ForeignFormatError as exc:
         raise ExportError(str(exc)) from None
     except OSError as exc:
@@ -369,6 +339,66 @@ def export_folder_torchscript(
         exporter=exporter,
         spec=spec,
     )
+
+
+def _checked_paths(source: Path, out, contract):
+    """The folder's contract (read beside ``source`` when None) and the output path (default
+    ``source`` with ``.onnx``).
+
+    Raises:
+        ExportError: no contract beside the file, or ``out`` the source or outside its folder.
+    """
+    contract = contract or folder_contract(source)
+    if contract is None:
+        raise ExportError(
+            f"{source}: not a TorchScript file with a training stack's contract beside it "
+            "(rl_sar's config.yaml and ../base.yaml); pass its spec with --spec FILE.json"
+        )
+    out = source.with_suffix(".onnx") if out is None else Path(out)
+    if out.resolve() == source.resolve():
+        raise ExportError(f"{out}: the output would overwrite the source")
+    if out.resolve().parent != source.resolve().parent:
+        raise ExportError(
+            f"{out}: the graph must sit beside {source.name} in {source.parent}, where its "
+            f"{contract.format} contract is read"
+        )
+    return contract, out
+
+
+def _write_checked(model, meta: dict, figures: dict, out: Path, source: Path, contract, replay):
+    """Write ``model`` to ``out`` atomically once the contract reader reads it back as
+    ``contract``'s format and, with a robot, its closed-loop replay passes (``figures`` updated
+    in place, the parity figures in its metadata); returns the replay's spec or None.
+
+    Args:
+        replay: ``(net, robot, seed, floor, tolerance)``; ``robot`` None: no replay.
+
+    Raises:
+        ExportError: the written graph is not read as the contract's format.
+        ParityError: the gate failed; the candidate is kept under ``failed_path(out)``.
+    """
+    net, robot, seed, floor, tolerance = replay
+    spec = None
+    with atomic_path(out) as tmp:
+        tmp.write_bytes(model.SerializeToString())
+        read = read_contract(OnnxFacts.of(tmp, model))
+        if read is None or read.format != contract.format:
+            raise ExportError(
+                f"{out}: the written graph is not read as a {contract.format} policy "
+                f"(read: {None if read is None else read.format})"
+            )
+        if robot is not None:
+            spec, loop = _replay(tmp, net, robot, seed, floor)
+            figures.update(loop)
+        figures.update(_tolerances(floor, tolerance, robot is not None))
+        passed = gate_passed(figures)
+        figures["passed"] = passed
+        set_metadata(model, {**meta, "parity": json.dumps(figures)})
+        if not passed:
+            kept = atomic_write(failed_path(out), model.SerializeToString())
+            raise ParityError(_parity_message(source, figures, kept), figures)
+        tmp.write_bytes(model.SerializeToString())
+    return spec
 
 
 def _replay(path: Path, net, robot: Robot, seed: int, floor: NoiseFloor):

@@ -302,14 +302,7 @@ def compare(reports: Mapping[str, str | os.PathLike]) -> dict:
     policy = first.get(("campaign", "policy"), "a path", lambda v: isinstance(v, str))
     seeds = _seeds(loaded)
     ordered = sorted(seeds[first.engine])
-    legged = (
-        first.get(
-            ("totals", "locomotion"),
-            "an object or null",
-            lambda v: v is None or isinstance(v, dict),
-        )
-        is not None
-    )
+    legged = _legged(first)
     totals = _figure_table(
         {r.engine: read_figures(r, ("totals",), legged, totals=True) for r in loaded}
     )
@@ -317,11 +310,6 @@ def compare(reports: Mapping[str, str | os.PathLike]) -> dict:
     flagged = _flagged(totals, session_rows)
     order = [f["name"] for f in totals]
     dependent = sorted({f["figure"] for f in flagged}, key=order.index)
-    labels = [_spec(n).label for n in dependent]
-    if dependent:
-        verdict = f"{VERDICT_DEPENDS}: {', '.join(labels)}"
-    else:
-        verdict = VERDICT_SAME if len(loaded) == 2 else "same on every engine"
 
     return {
         "tool": "sim2sim",
@@ -334,23 +322,43 @@ def compare(reports: Mapping[str, str | os.PathLike]) -> dict:
         "hours": hours,
         "seeds": ordered,
         "reports": {r.engine: report_info(r) for r in loaded},
-        "thresholds": {
-            "TRACKING_MAX_GAP_PP": TRACKING_MAX_GAP_PP,
-            "GOALS_MAX_RELATIVE_GAP": GOALS_MAX_RELATIVE_GAP,
-            "PEAK_WINDING_MAX_GAP_C": PEAK_WINDING_MAX_GAP_C,
-            "INTERVENTIONS_MAX_GAP_PP": INTERVENTIONS_MAX_GAP_PP,
-            "SPEED_MAX_GAP_M_S": SPEED_MAX_GAP_M_S,
-            "COUNT_MAX_RATIO": COUNT_MAX_RATIO,
-        },
+        "thresholds": _thresholds(),
         "fields": dict(FIGURE_FIELDS),
         "totals": totals,
         "sessions": session_rows,
         "flagged": flagged,
         "dependent_figures": dependent,
         "engine_dependent": bool(dependent),
-        "verdict": verdict,
+        "verdict": _verdict(dependent, len(loaded)),
         "warnings": option_warnings(loaded),
     }
+
+
+def _thresholds() -> dict[str, float]:
+    """The constants a figure's gap is judged by, by name (recorded in the comparison)."""
+    return {
+        "TRACKING_MAX_GAP_PP": TRACKING_MAX_GAP_PP,
+        "GOALS_MAX_RELATIVE_GAP": GOALS_MAX_RELATIVE_GAP,
+        "PEAK_WINDING_MAX_GAP_C": PEAK_WINDING_MAX_GAP_C,
+        "INTERVENTIONS_MAX_GAP_PP": INTERVENTIONS_MAX_GAP_PP,
+        "SPEED_MAX_GAP_M_S": SPEED_MAX_GAP_M_S,
+        "COUNT_MAX_RATIO": COUNT_MAX_RATIO,
+    }
+
+
+def _legged(first: SoakReport) -> bool:
+    """Whether the reports are a legged robot's (``totals.locomotion`` an object, not null)."""
+    loco = first.get(
+        ("totals", "locomotion"), "an object or null", lambda v: v is None or isinstance(v, dict)
+    )
+    return loco is not None
+
+
+def _verdict(dependent: list[str], engines: int) -> str:
+    """The comparison's verdict: the figures that depend on the engine, or the same."""
+    if dependent:
+        return f"{VERDICT_DEPENDS}: {', '.join(_spec(n).label for n in dependent)}"
+    return VERDICT_SAME if engines == 2 else "same on every engine"
 
 
 def _same(loaded: list[SoakReport], key: str, expected: str, ok: Callable[[Any], bool]) -> Any:

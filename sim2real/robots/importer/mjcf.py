@@ -32,7 +32,6 @@ several jointed bodies under the world, a massless moving body, what MuJoCo refu
 
 from __future__ import annotations
 
-import math
 import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -43,12 +42,14 @@ import numpy as np
 from sim2real.robots.importer.contact_pairs import take_pairs
 from sim2real.robots.importer.mjcf_drive import floor_bits, read_drive
 from sim2real.robots.importer.mjcf_geoms import missing_meshes, simplify_geoms
+from sim2real.robots.importer.mjcf_joints import (
+    check_free_joints,
+    hinge_limits,
+    joint_efforts,
+    set_limits,
+)
 from sim2real.robots.importer.mjcf_tendons import drop_tendons_off_hinges, limited_fixed_tendons
 from sim2real.robots.importer.source import (
-    FLOATING_BASE,
-    MIN_INERTIA,
-    MIN_MASS,
-    JointInfo,
     PreparedSource,
     RobotImportError,
     _display,
@@ -103,18 +104,8 @@ def prepare_mjcf(
     model = _compile(spec, path)
     model_in, drive = model, read_drive(model, path, keyframe)  # before actuators, keys go
     notes += drive.notes
-    free = [j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
-    for j in free:
-        body = model.body(model.jnt_bodyid[j]).name
-        element = f"<body name='{body}'><joint name='{model.joint(j).name}' type='free'>"
-        if not floating_base:
-            raise RobotImportError(f"{path}: {element}: " + FLOATING_BASE)
-        if model.body_parentid[model.jnt_bodyid[j]] != 0 or len(free) > 1:
-            raise RobotImportError(
-                f"{path}: {element}: expected one free joint, on the root body of the robot (a "
-                f"body of the world body); free joints: {[model.joint(k).name for k in free]}"
-            )
-    efforts = _efforts(model)
+    check_free_joints(model, path, floating_base)
+    efforts = joint_efforts(model)
     disabled = {tuple(sorted((e.bodyname1, e.bodyname2))) for e in spec.excludes}
     tendons = limited_fixed_tendons(spec, model)
     frozen = _drop_elements(spec, notes, set(tendons), servos=len(drive.kp))
@@ -135,38 +126,16 @@ def prepare_mjcf(
     spec = _from_string(text if floating_base else _base_body(text, notes), path)
     spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
     _name_unnamed(spec.geoms, "geom")  # to find them in the compiled model
-
-    from sim2real.robots.importer import flags
-
-    limit_overrides = flags.per_joint(
-        limit_flags,
-        [j.name for j in spec.joints],
-        "--limit",
-        flags.position_range,
-        "JOINT=LOWER:UPPER in rad with LOWER < UPPER (JOINT may be a pattern, e.g. "
-        "'joint*=-3.14:3.14')",
-        path.name,
-    )
-    for name, (lo, hi) in limit_overrides.items():
-        spec.joint(name).range = [lo, hi]
-        spec.joint(name).limited = mujoco.mjtLimited.mjLIMITED_TRUE
+    set_limits(spec, limit_flags, path)
     model = _compile(spec, path)
-    joints = _hinge_limits(model, path, efforts, floating_base)
+    joints = hinge_limits(model, path, efforts, floating_base)
     keep = {n for p in pairs for n in (p["geom1"], p["geom2"])}
     meshdir_abs, fitted = simplify_geoms(spec, model, notes, link_boxes, keep)
     renamed_sites = _rename_sites_like_bodies(spec, notes)
     text = _to_xml(spec, path)
     model = _compile(_from_string(text, path), path)
 
-    names = [model.body(b).name for b in range(model.nbody)]
-    parent = {}
-    for b in range(1, model.nbody):
-        n = model.body_jntnum[b]
-        joint = model.joint(model.body_jntadr[b]).name if n else ""
-        if names[b] != root_body:
-            parent[names[b]] = (names[model.body_parentid[b]], joint, "revolute" if n else "fixed")
-    links = names[1:] if root_body else names
-    sites = {model.site(s).name: names[model.site_bodyid[s]] for s in range(model.nsite)}
+    parent, links, sites = _tree(model, root_body)
     return PreparedSource(
         path=path,
         display=_display(path),
@@ -181,7 +150,7 @@ def prepare_mjcf(
         notes=notes,
         kind="MJCF",
         disabled={p for p in disabled if p[0] in links and p[1] in links},
-        sites={k: v for k, v in sites.items() if k},
+        sites=sites,
         fitted=fitted,
         pairs=pairs,
         scene_geom=scene_geom,
@@ -189,6 +158,22 @@ def prepare_mjcf(
         floor_bits=floor_bits(model_in),
         drive=drive,
     )
+
+
+def _tree(model: mujoco.MjModel, root_body: str | None) -> tuple[dict, list[str], dict]:
+    """The kinematic tree of the compiled ``model``: ``parent`` {body: (parent body, joint or
+    "", "revolute" | "fixed")} (the floating root left out), the links (the world body first
+    for a fixed base, left out for a floating one) and the named sites {site: body}."""
+    names = [model.body(b).name for b in range(model.nbody)]
+    parent = {}
+    for b in range(1, model.nbody):
+        n = model.body_jntnum[b]
+        joint = model.joint(model.body_jntadr[b]).name if n else ""
+        if names[b] != root_body:
+            parent[names[b]] = (names[model.body_parentid[b]], joint, "revolute" if n else "fixed")
+    links = names[1:] if root_body else names
+    sites = {model.site(s).name: names[model.site_bodyid[s]] for s in range(model.nsite)}
+    return parent, links, {k: v for k, v in sites.items() if k}
 
 
 def _drop_appearance(spec: mujoco.MjSpec) -> None:
@@ -310,46 +295,6 @@ def _to_xml(spec: mujoco.MjSpec, path: Path) -> str:
         ) from None
 
 
-def _efforts(model: mujoco.MjModel) -> dict[str, tuple[float, str]]:
-    """Hinge name -> (effort limit N m, where it came from) for hinges the file limits.
-
-    ``actuatorfrcrange`` first (it caps the sum of the joint's actuators); else the sum over the
-    joint's actuators of ``forcerange``, or of a direct motor's ``ctrlrange`` times its gain,
-    times the gear. A range counts by its smaller magnitude.
-    """
-    out: dict[str, tuple[float, str]] = {}
-    per_joint: dict[int, list[tuple[float, str]]] = {}
-    for a in range(model.nu):
-        if model.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT:
-            continue
-        gear = abs(float(model.actuator_gear[a, 0]))
-        name = model.actuator(a).name or f"#{a}"
-        if model.actuator_forcelimited[a]:
-            force = float(np.min(np.abs(model.actuator_forcerange[a])))
-            found = (force * gear, f"MJCF <actuator name='{name}'> forcerange")
-        elif (
-            model.actuator_ctrllimited[a]
-            and model.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED
-            and model.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_NONE
-            and model.actuator_dyntype[a] == mujoco.mjtDyn.mjDYN_NONE
-        ):
-            ctrl = float(np.min(np.abs(model.actuator_ctrlrange[a])))
-            gain = abs(float(model.actuator_gainprm[a, 0]))
-            found = (ctrl * gain * gear, f"MJCF <motor name='{name}'> ctrlrange")
-        else:
-            continue
-        per_joint.setdefault(int(model.actuator_trnid[a, 0]), []).append(found)
-    for j in range(model.njnt):
-        name = model.joint(j).name
-        if model.jnt_actfrclimited[j]:
-            value = float(np.min(np.abs(model.jnt_actfrcrange[j])))
-            out[name] = (value, "MJCF actuatorfrcrange")
-        elif j in per_joint:
-            found = per_joint[j]
-            out[name] = (sum(v for v, _ in found), " + ".join(s for _, s in found))
-    return {k: v for k, v in out.items() if v[0] > 0}
-
-
 def _drop_elements(
     spec: mujoco.MjSpec, notes: list[str], keep_tendons: set[str] = frozenset(), servos: int = 0
 ) -> set[str]:
@@ -454,45 +399,6 @@ def _freeze_joints(spec: mujoco.MjSpec, path: Path, frozen: set[str], notes) -> 
             )
     if not spec.joints:
         raise RobotImportError(f"{path}: <mujoco>: no hinge joint; expected a robot's hinges")
-
-
-def _hinge_limits(
-    model: mujoco.MjModel, path: Path, efforts, floating_base: bool = False
-) -> dict[str, JointInfo]:
-    """JointInfo of every hinge (rad, N m); an unlimited hinge of a floating-base robot is
-    continuous (a wheel: -inf, inf); refuse an arm's unlimited hinges (its goals are drawn within
-    the joint ranges) and massless moving bodies."""
-    joints: dict[str, JointInfo] = {}
-    for j in range(model.njnt):
-        name = model.joint(j).name
-        lo, hi = (float(x) for x in model.jnt_range[j])
-        if not model.jnt_limited[j] and floating_base:  # continuous (a wheel): no limit
-            lo, hi = -math.inf, math.inf
-        elif not model.jnt_limited[j]:
-            raise RobotImportError(
-                f"{path}: <joint name='{name}'>: no position limits (limited=\"false\" or no "
-                f'range); expected range="LOWER UPPER" or --limit {name}=LOWER:UPPER (rad): '
-                "a continuous joint (a wheel) is taken on a floating-base robot only"
-            )
-        elif not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-            raise RobotImportError(
-                f"{path}: <joint name='{name}' range>: got {lo:g}, {hi:g} rad; expected lower < "
-                f"upper (or --limit {name}=LOWER:UPPER)"
-            )
-        b = model.jnt_bodyid[j]
-        child, par = model.body(b).name, model.body(model.body_parentid[b]).name
-        mass, inertia = float(model.body_mass[b]), model.body_inertia[b]
-        if mass <= MIN_MASS or float(np.min(inertia)) <= MIN_INERTIA:
-            raise RobotImportError(
-                f"{path}: <body name='{child}'> (moved by joint '{name}'): mass {mass:g} kg, "
-                f"principal inertia {list(np.round(inertia, 12))}: zero inertia; expected mass "
-                "> 0 and a positive-definite inertia (an <inertial>, or geoms with volume)"
-            )
-        effort, effort_from = efforts.get(name, (None, "MJCF"))
-        joints[name] = JointInfo(
-            name, "hinge", par, child, lo, hi, None, effort, "MJCF", effort_from
-        )
-    return joints
 
 
 def _one_line(exc: Exception) -> str:

@@ -310,14 +310,7 @@ def export_folder_torchscript(
         f"torch.onnx.export(dynamo=False), opset {OPSET} (TorchScript-based), batch 1, "
         f"obs -> actions"
     )
-    meta = {
-        "source_sha256": sha256_file(source),
-        "source_format": f"torchscript ({contract.format} contract)",
-        "tool_versions": json.dumps(tool_versions(), sort_keys=True),
-        "exporter": exporter,
-    }
-    if contract.motion is not None:  # the clip the runtime plays: found beside it, checked
-        meta["motion"] = motion_metadata(contract.motion)
+    meta = _metadata(source, contract, exporter)
     model.doc_string = f"policy-export of {source.name} ({contract.format} contract beside it)"
     try:
         spec = _write_checked(
@@ -339,6 +332,20 @@ def export_folder_torchscript(
         exporter=exporter,
         spec=spec,
     )
+
+
+def _metadata(source: Path, contract, exporter: str) -> dict[str, str]:
+    """The graph's metadata: the source's SHA-256 and format, the tools' versions, the
+    exporter, and the motion clip the runtime plays (found beside the file and checked)."""
+    meta = {
+        "source_sha256": sha256_file(source),
+        "source_format": f"torchscript ({contract.format} contract)",
+        "tool_versions": json.dumps(tool_versions(), sort_keys=True),
+        "exporter": exporter,
+    }
+    if contract.motion is not None:
+        meta["motion"] = motion_metadata(contract.motion)
+    return meta
 
 
 def _checked_paths(source: Path, out, contract):

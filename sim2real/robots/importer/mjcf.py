@@ -115,17 +115,7 @@ def prepare_mjcf(
         root_body = _floating_root(spec, path, notes)
     _freeze_joints(spec, path, frozen, notes)
     drop_tendons_off_hinges(spec, tendons, notes)
-
-    # Canonical form: radians, quaternions, explicit inertials computed from the full geometry.
-    spec.compiler.saveinertial = True
-    if spec.meshdir and not os.path.isabs(spec.meshdir):
-        spec.meshdir = os.path.join(spec.modelfiledir or str(path.parent), spec.meshdir)
-    elif not spec.meshdir:
-        spec.meshdir = spec.modelfiledir or str(path.parent)
-    text = _to_xml(spec, path)
-    spec = _from_string(text if floating_base else _base_body(text, notes), path)
-    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
-    _name_unnamed(spec.geoms, "geom")  # to find them in the compiled model
+    spec = _canonical(spec, path, floating_base, notes)
     set_limits(spec, limit_flags, path)
     model = _compile(spec, path)
     joints = hinge_limits(model, path, efforts, floating_base)
@@ -174,6 +164,22 @@ def _tree(model: mujoco.MjModel, root_body: str | None) -> tuple[dict, list[str]
     links = names[1:] if root_body else names
     sites = {model.site(s).name: names[model.site_bodyid[s]] for s in range(model.nsite)}
     return parent, links, {k: v for k, v in sites.items() if k}
+
+
+def _canonical(spec: mujoco.MjSpec, path: Path, floating_base: bool, notes) -> mujoco.MjSpec:
+    """``spec`` written and read back in canonical form: radians, quaternions, explicit
+    inertials computed from the full geometry, an absolute mesh folder, every geom named (to
+    find it in the compiled model); a fixed base's world geoms moved into a body ``base``."""
+    spec.compiler.saveinertial = True
+    if spec.meshdir and not os.path.isabs(spec.meshdir):
+        spec.meshdir = os.path.join(spec.modelfiledir or str(path.parent), spec.meshdir)
+    elif not spec.meshdir:
+        spec.meshdir = spec.modelfiledir or str(path.parent)
+    text = _to_xml(spec, path)
+    spec = _from_string(text if floating_base else _base_body(text, notes), path)
+    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
+    _name_unnamed(spec.geoms, "geom")
+    return spec
 
 
 def _drop_appearance(spec: mujoco.MjSpec) -> None:

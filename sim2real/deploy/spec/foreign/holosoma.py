@@ -86,27 +86,8 @@ def read(facts) -> ForeignContract:
             return read_g1_loco(facts, md, names, fail)
         return partial(facts, md, names, fail)
     ec = md["experiment_config"]
-
-    def get(*keys, default=KeyError):
-        node = ec
-        for k in keys:
-            if not isinstance(node, dict) or k not in node:
-                if default is KeyError:
-                    raise fail(f"metadata 'experiment_config' has no '{'.'.join(keys)}'")
-                return default
-            node = node[k]
-        return node
-
-    control = get("robot", "control")
-    if control.get("control_type") != "P":
-        raise fail(
-            f"experiment_config.robot.control.control_type is {control.get('control_type')!r}: "
-            "only 'P' (joint position targets) maps onto this toolkit's position mode"
-        )
-    action_terms = get("action", "terms", default={}) or {}
-    for key, term in action_terms.items():
-        if not str(term.get("func", "")).endswith(":JointPositionActionTerm"):
-            raise fail(f"action term '{key}' is {term.get('func')!r}, not JointPositionActionTerm")
+    get = _config_reader(ec, fail)
+    control = _position_control(get, fail)
     kp, kd = tuple(md["kp"]), tuple(md.get("kd") or ())
     scale = float(control["action_scale"])
     action_scale: float | tuple[float, ...] = scale
@@ -120,15 +101,7 @@ def read(facts) -> ForeignContract:
             f"experiment_config.robot.init_state.default_joint_angles has no angle for {unposed}"
         )
     groups = get("algo", "config", "module_dict", "actor", "input_dim", default=["actor_obs"])
-    global_clip = get("observation", "clip_observations", default=None)
-    gait = get("command", "setup_terms", "locomotion_gait", default=None)
-    terms = []
-    for group in groups:
-        cfg = get("observation", "groups", group)
-        history = int(cfg.get("history_length", 1) or 1)
-        for name in sorted(cfg.get("terms", {})):  # holosoma concatenates sorted terms
-            term = _term(name, cfg["terms"][name], history, global_clip, fail)
-            terms.append(_gait_term(term, gait, fail) if term.kind == "gait_phase" else term)
+    terms = _observation_terms(get, groups, fail)
     sim = get("simulator", "config", "sim", default={})
     rate = sim["fps"] / sim["control_decimation"] if "fps" in sim else None
     missing = [] if kd else ["kd: not recorded; the robot's robot.toml damping is used"]
@@ -161,6 +134,58 @@ def read(facts) -> ForeignContract:
             "(holosoma's observation manager sorts them)",
         ),
     )
+
+
+def _config_reader(ec: dict, fail):
+    """``get(*keys, default=KeyError)``: the value at ``keys`` in ``experiment_config``, or
+    ``default``; without a default a missing key raises ``fail``'s error naming it."""
+
+    def get(*keys, default=KeyError):
+        node = ec
+        for k in keys:
+            if not isinstance(node, dict) or k not in node:
+                if default is KeyError:
+                    raise fail(f"metadata 'experiment_config' has no '{'.'.join(keys)}'")
+                return default
+            node = node[k]
+        return node
+
+    return get
+
+
+def _position_control(get, fail) -> dict:
+    """``experiment_config.robot.control``, checked to be joint position targets (control type
+    ``P``, every action term a ``JointPositionActionTerm``).
+
+    Raises:
+        ForeignFormatError: another control type or action term (named).
+    """
+    control = get("robot", "control")
+    if control.get("control_type") != "P":
+        raise fail(
+            f"experiment_config.robot.control.control_type is {control.get('control_type')!r}: "
+            "only 'P' (joint position targets) maps onto this toolkit's position mode"
+        )
+    action_terms = get("action", "terms", default={}) or {}
+    for key, term in action_terms.items():
+        if not str(term.get("func", "")).endswith(":JointPositionActionTerm"):
+            raise fail(f"action term '{key}' is {term.get('func')!r}, not JointPositionActionTerm")
+    return control
+
+
+def _observation_terms(get, groups, fail) -> list:
+    """The actor's observation terms, group by group, each group's terms sorted (holosoma's
+    observation manager concatenates them so), with their history, clip and gait clock."""
+    global_clip = get("observation", "clip_observations", default=None)
+    gait = get("command", "setup_terms", "locomotion_gait", default=None)
+    terms = []
+    for group in groups:
+        cfg = get("observation", "groups", group)
+        history = int(cfg.get("history_length", 1) or 1)
+        for name in sorted(cfg.get("terms", {})):
+            term = _term(name, cfg["terms"][name], history, global_clip, fail)
+            terms.append(_gait_term(term, gait, fail) if term.kind == "gait_phase" else term)
+    return terms
 
 
 #: What ``experiment_config`` holds that nothing else in holosoma's metadata does.

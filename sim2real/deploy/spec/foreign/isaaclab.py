@@ -128,19 +128,7 @@ def read(facts) -> ForeignContract:
         height_scan_term(t, group[t.name], scene) if t.source.endswith(f":{SCAN}") else t
         for t in terms
     ]
-    actions = {k: v for k, v in (get(env, "actions") or {}).items() if isinstance(v, dict)}
-    if len(actions) != 1 or not str(next(iter(actions.values())).get("class_type", "")).endswith(
-        ":JointPositionAction"
-    ):
-        kinds = {k: v.get("class_type") for k, v in actions.items()}
-        raise fail(f"{where}: actions {kinds}: only one JointPositionAction maps")
-    ((action_key, action),) = actions.items()
-    if action.get("joint_names") not in _ALL_JOINTS or action.get("preserve_order"):
-        raise fail(
-            f"{where}: actions.{action_key} selects joints {action.get('joint_names')} "
-            f"(preserve_order {action.get('preserve_order')}): only every joint in the "
-            "articulation's order maps"
-        )
+    action_key, action = _position_action(get(env, "actions"), where, fail)
     robot = get(env, "scene", "robot")
     gains, missing, notes = _gains(robot)
     missing.insert(0, f"joint order: {ORDER_NOTE}")
@@ -173,6 +161,29 @@ def read(facts) -> ForeignContract:
         missing=missing,
         notes=notes,
     )
+
+
+def _position_action(actions, where: str, fail) -> tuple[str, dict]:
+    """The one action term of ``env.yaml``'s ``actions`` and its key, checked to be a
+    ``JointPositionAction`` over every joint in the articulation's order.
+
+    Raises:
+        ForeignFormatError: several action terms, another kind, or a subset of the joints.
+    """
+    actions = {k: v for k, v in (actions or {}).items() if isinstance(v, dict)}
+    if len(actions) != 1 or not str(next(iter(actions.values())).get("class_type", "")).endswith(
+        ":JointPositionAction"
+    ):
+        kinds = {k: v.get("class_type") for k, v in actions.items()}
+        raise fail(f"{where}: actions {kinds}: only one JointPositionAction maps")
+    ((action_key, action),) = actions.items()
+    if action.get("joint_names") not in _ALL_JOINTS or action.get("preserve_order"):
+        raise fail(
+            f"{where}: actions.{action_key} selects joints {action.get('joint_names')} "
+            f"(preserve_order {action.get('preserve_order')}): only every joint in the "
+            "articulation's order maps"
+        )
+    return action_key, action
 
 
 def _patterns(value, default: float | None = None):

@@ -270,6 +270,35 @@ def term_history(contract: ForeignContract) -> ObservationHistory | None:
     )
 
 
+def _observation(contract: ForeignContract, perm, default) -> tuple[tuple, object]:
+    """The observation blocks of every term, in the graph's order, and the history.
+
+    Raises:
+        ForeignFormatError: a term that cannot be mapped (named), or terms whose sizes do not
+            add up to the graph's input.
+    """
+    fail = contract.error
+    for term in contract.terms:
+        if term.kind is None:
+            raise fail(
+                f"observation term '{term.name}' cannot be mapped onto an observation block of "
+                f"this toolkit: {term.reason}"
+            )
+    blocks = tuple(b for t in contract.terms for b in _blocks(t, contract, perm, default))
+    history = term_history(contract)
+    total = stacked_dim(history, tuple(b.size for b in blocks))
+    if contract.obs_dim is not None and total != contract.obs_dim:
+        parts = " + ".join(
+            f"{t.name} {contract.term_size(t)}" + (f" x {t.history}" if t.history > 1 else "")
+            for t in contract.terms
+        )
+        raise fail(
+            f"the observation terms add up to {total} entries ({parts}), the graph's input has "
+            f"{contract.obs_dim}"
+        )
+    return blocks, history
+
+
 def to_spec(contract: ForeignContract, robot: Robot) -> PolicySpec:
     """The PolicySpec of a foreign policy on ``robot``: blocks in the graph's order, the action
     mapping (position, absolute: ``target = offset + scale * action``; a velocity joint's
@@ -295,24 +324,7 @@ def to_spec(contract: ForeignContract, robot: Robot) -> PolicySpec:
     home = tuple(float(robot.home[i]) for i in perm)
     fail = contract.error
     default = per_joint(contract.default_pose, names, "default joint pose", fail) or home
-    for term in contract.terms:
-        if term.kind is None:
-            raise fail(
-                f"observation term '{term.name}' cannot be mapped onto an observation block of "
-                f"this toolkit: {term.reason}"
-            )
-    blocks = tuple(b for t in contract.terms for b in _blocks(t, contract, perm, default))
-    history = term_history(contract)
-    total = stacked_dim(history, tuple(b.size for b in blocks))
-    if contract.obs_dim is not None and total != contract.obs_dim:
-        parts = " + ".join(
-            f"{t.name} {contract.term_size(t)}" + (f" x {t.history}" if t.history > 1 else "")
-            for t in contract.terms
-        )
-        raise fail(
-            f"the observation terms add up to {total} entries ({parts}), the graph's input has "
-            f"{contract.obs_dim}"
-        )
+    blocks, history = _observation(contract, perm, default)
     if contract.act_dim is not None and contract.act_dim != n:
         raise fail(f"the graph has {contract.act_dim} actions, the policy {n} joints")
     scale = per_joint(contract.action_scale, names, "action scale", fail)

@@ -299,12 +299,12 @@ def test_a_kind_with_pd_targets_takes_the_guard_s_envelope_and_the_tracking_tole
 
     arm = _arm3_with_kind(tmp_path / "plain", "arm")
     assert SafetyGuard(arm, 1, "position").envelope is not None
-    assert tracking_tolerance(ARM, "position") == TRACKING_TOLERANCE
+    assert tracking_tolerance(ARM.targets(arm), "position") == TRACKING_TOLERANCE
     with KIND_REGISTRY.scoped():
         register_kind(Arm(name="pd_arm", pd_targets=True))
         robot = _arm3_with_kind(tmp_path, "pd_arm")
         assert SafetyGuard(robot, 1, "position").envelope is None
-        assert tracking_tolerance(robot_kind(robot), "position") == float("inf")
+        assert tracking_tolerance(robot_kind(robot).targets(robot), "position") == float("inf")
 
 
 #: At most this many places outside the physics test ``floating_base`` (the team's issue: the

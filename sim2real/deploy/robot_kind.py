@@ -10,9 +10,10 @@ layout and sensor frame (:meth:`RobotKind.state`, :meth:`RobotKind.sensor_frame`
 stages (:meth:`RobotKind.base_stages`; the rig judges their estimate against the truth), the task
 (:func:`sim2real.deploy.tasks.task.task_for`), how its velocity-driven joints brake in a safe
 stop (:meth:`RobotKind.wheel_drives`), the soak's disturbances (:attr:`RobotKind.cable_faults`,
-:attr:`RobotKind.pushes`), what an operator does before clearing a latched fault, how the guard
-and the runtime treat PD targets (:attr:`RobotKind.pd_targets`,
-:attr:`RobotKind.hard_limit_bounce`) and which robots fit it (:meth:`RobotKind.check`). What a
+:attr:`RobotKind.pushes`), what an operator does before clearing a latched fault, what a
+command means to each drive (:meth:`RobotKind.targets`, the object the guard and the runtime
+ask, made of :attr:`RobotKind.pd_targets`, :attr:`RobotKind.hard_limit_bounce` and the rest)
+and which robots fit it (:meth:`RobotKind.check`). What a
 higher floor does per kind (the soak's range defaults, the plant's extras) is a face registered
 under the kind's name in that floor's room (:class:`sim2real.deploy.core.registry.Faces`).
 The boolean ``robot.floating_base`` itself is asked by :func:`robot_kind`, by the Robot's
@@ -123,6 +124,13 @@ class RobotKind:
         :class:`sim2real.deploy.kinds.arm.FixedBase`). Raises NotImplementedError: a kind
         that does not say."""
         raise NotImplementedError(f"robot kind '{self.name}': tick_stage")
+
+    def targets(self, robot):
+        """What a command means to each of ``robot``'s drives
+        (:class:`sim2real.deploy.kinds.targets.DriveTargets`): the object the guard, the smoother
+        and the runtime ask for target bounds, their checks' rows, the joint filters' input and
+        the tolerances. Raises NotImplementedError: a kind that does not say."""
+        raise NotImplementedError(f"robot kind '{self.name}': targets")
 
     def wheel_drives(self, robot, envs: int, mode: str):
         """The command stage of the robot's velocity-driven joints (their speed targets, and

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.kinds.targets import DriveTargets, uniform_targets
 from sim2real.deploy.robot_kind import RobotKind, register_kind
 
 
@@ -70,6 +71,11 @@ class Arm(RobotKind):
     def state(self, robot, envs: int) -> RobotState:
         """:meth:`RobotState.zeros` for ``envs`` robots at the robot's ambient temperature."""
         return RobotState.zeros(envs, robot.n_joints, robot.config.sensors.ambient_temperature)
+
+    def targets(self, robot) -> DriveTargets:
+        """:func:`~sim2real.deploy.kinds.targets.uniform_targets`: the kind's choices, every
+        joint alike."""
+        return uniform_targets(self, robot)
 
     def sensor_frame(self, robot, envs: int):
         """An empty :class:`~sim2real.deploy.core.backend.SensorFrame` of the joints alone."""

@@ -32,12 +32,9 @@ class Legged(RobotKind):
     floating_base: bool = True
     task: str = "locomotion"
     joint_input: bool = False
-    stand_up_on_reset: bool = True
     holds_self_collision: bool = False
-    cable_faults: bool = False
     pd_targets: bool | None = True
     hard_limit_bounce: bool | None = True
-    pushes: bool | None = True
 
     def state(self, robot, envs: int) -> RobotState:
         """:meth:`RobotState.legged` (joints, base, feet) at the robot's ambient temperature."""

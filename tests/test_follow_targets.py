@@ -67,9 +67,9 @@ def test_smoothing_none_is_refused_on_a_robot_without_pd_targets(arm3):
     none = replace(spec, action=replace(spec.action, smoothing="none"))
     from sim2real.deploy.runtime.handover import check_policy
 
-    check_policy(spec, arm3, "position", ARM)
+    check_policy(spec, arm3, "position", ARM.targets(arm3))
     with pytest.raises(ValueError, match="smoothing 'none'.*does not run PD targets"):
-        check_policy(none, arm3, "position", ARM)
+        check_policy(none, arm3, "position", ARM.targets(arm3))
     velocity = PolicySpec.for_robot(arm3, mode="velocity")
     bad = replace(velocity, action=replace(velocity.action, smoothing="none"))
     with pytest.raises(SpecError, match="action.smoothing"):

@@ -70,7 +70,9 @@ def face_types() -> list:
     their rooms imported: the soak's range defaults, the plant's extras, the film."""
     import sim2real.deploy.backends.sim.plant_faces  # noqa: F401
     import sim2real.eval.film.render  # noqa: F401
+    import sim2real.eval.soak.soak_faces  # noqa: F401
     import sim2real.eval.world.session_ranges  # noqa: F401
+    import sim2real.eval.world.world_faces  # noqa: F401
     from sim2real.deploy.core.registry import FACE_TYPES
 
     return list(FACE_TYPES)
@@ -216,7 +218,9 @@ from dataclasses import dataclass
 from sim2real.deploy.backends.sim.plant_faces import PLANT_EXTRAS
 from sim2real.deploy.kinds import Legged, register_kind
 from sim2real.eval.film.render import FILM_OF_KIND
+from sim2real.eval.soak.soak_faces import OPERATOR_OF_KIND
 from sim2real.eval.world.session_ranges import SESSION_RANGES
+from sim2real.eval.world.world_faces import WORLD_OF_KIND, FreeWorld
 
 ASKED = []
 
@@ -240,10 +244,11 @@ class GantryLegged(Legged):
         return super().wheel_drives(robot, envs, mode)
 
 
-GANTRY_LEGGED = register_kind(GantryLegged(name="gantry_legged", cable_faults=True))
-# its faces in the rooms above: a legged robot's
-for faces in (PLANT_EXTRAS, SESSION_RANGES, FILM_OF_KIND):
+GANTRY_LEGGED = register_kind(GantryLegged(name="gantry_legged"))
+# its faces in the rooms above: a legged robot's, and a soak world that pulls its tether
+for faces in (PLANT_EXTRAS, SESSION_RANGES, FILM_OF_KIND, OPERATOR_OF_KIND):
     faces.register("gantry_legged", faces.get("legged"))
+WORLD_OF_KIND.register("gantry_legged", FreeWorld(refused=dict()))
 '''
 
 
@@ -285,7 +290,7 @@ def test_a_kind_s_target_and_limit_choices_follow_legged_unless_given():
 
     assert not ARM.pd_targets and not ARM.hard_limit_bounce
     assert LEGGED.pd_targets and LEGGED.hard_limit_bounce
-    common = {"task": "locomotion", "joint_input": False, "stand_up_on_reset": True}
+    common = {"task": "locomotion", "joint_input": False}
     quadruped = RobotKind(name="quadruped", floating_base=True, **common)
     assert quadruped.pd_targets and quadruped.hard_limit_bounce
     stiff = RobotKind(name="stiff", floating_base=True, pd_targets=False, **common)
@@ -299,12 +304,12 @@ def test_a_kind_with_pd_targets_takes_the_guard_s_envelope_and_the_tracking_tole
 
     arm = _arm3_with_kind(tmp_path / "plain", "arm")
     assert SafetyGuard(arm, 1, "position").envelope is not None
-    assert tracking_tolerance(ARM, "position") == TRACKING_TOLERANCE
+    assert tracking_tolerance(ARM.targets(arm), "position") == TRACKING_TOLERANCE
     with KIND_REGISTRY.scoped():
         register_kind(Arm(name="pd_arm", pd_targets=True))
         robot = _arm3_with_kind(tmp_path, "pd_arm")
         assert SafetyGuard(robot, 1, "position").envelope is None
-        assert tracking_tolerance(robot_kind(robot), "position") == float("inf")
+        assert tracking_tolerance(robot_kind(robot).targets(robot), "position") == float("inf")
 
 
 #: At most this many places outside the physics test ``floating_base`` (the team's issue: the
@@ -409,13 +414,14 @@ def test_the_built_in_kinds_are_one_module_each_and_wheel_legged_is_a_legged_rob
     from sim2real.deploy import kinds
 
     assert kinds.KIND_REGISTRY.builtin == ()
-    assert {"arm", "legged", "wheel_legged"} <= set(kinds.KIND_REGISTRY.entries())
+    assert {"arm", "legged", "wheel_legged", "legged_arm"} <= set(kinds.KIND_REGISTRY.entries())
+    assert isinstance(kinds.LEGGED_ARM, kinds.Legged)
     assert isinstance(kinds.WHEEL_LEGGED, kinds.Legged)
     choices = [f.name for f in fields(kinds.LEGGED) if f.name != "name"]
     assert all(getattr(kinds.WHEEL_LEGGED, c) == getattr(kinds.LEGGED, c) for c in choices)
     assert kinds.LEGGED.wheel_drives is not kinds.WHEEL_LEGGED.wheel_drives
     with pytest.raises(NotImplementedError, match="robot kind 'bare': state"):
-        kinds.RobotKind("bare", False, "goals", True, False).state(None, 1)
+        kinds.RobotKind("bare", False, "goals", True).state(None, 1)
 
 
 def test_every_registered_kind_has_a_face_of_every_face_type():
@@ -457,5 +463,49 @@ def test_the_runtime_asks_its_kind_s_tick_stage_not_whether_it_has_a_base():
     assert len(lines) <= BASE_STAGE_TESTS, (
         f"{len(lines)} lines of the runtime test a base stage against None (at most "
         f"{BASE_STAGE_TESTS}): give the kind's tick stage (kind.tick_stage) the work instead:\n"
+        + "\n".join(lines)
+    )
+
+
+#: At most this many lines outside the kinds' modules decide by a robot's shape: a kind's flag
+#: read (the kind hands out behaviour instead: its drive targets, its tick stage, its faces), a
+#: comparison with the locomotion task, ``robot.floating_base`` (the spec's and estimation's
+#: checks of their robot, the chain bounds, the soak world's randomized model), or a base stage
+#: tested for None (the stale-sensor report, the operator's heading hold, the ROS 2 bridge).
+SHAPE_DECISIONS = 11
+#: What :func:`shape_decisions` counts (the review's grep, ``shape.sh``).
+SHAPE_ASK = re.compile(
+    r'task [!=]= "locomotion"|name [!=]= "locomotion"'
+    r"|\.(pd_targets|stand_up_on_reset|holds_self_collision|cable_faults|hard_limit_bounce"
+    r"|joint_input)\b|kind[a-z_.()]*\.pushes\b"
+    r"|robot\.floating_base|(base_estimator|fall_detector) is (not )?None"
+)
+#: A flag named in a docstring's cross-reference or in the record's own definition.
+SHAPE_NOT = re.compile(r":attr:|RobotKind\.")
+
+
+def shape_decisions() -> list[str]:
+    """Lines of ``sim2real`` outside :data:`KIND_MODULES` that decide by a robot's shape
+    (:data:`SHAPE_ASK`), as ``path:line: text``."""
+    root = Path(__file__).resolve().parent.parent
+    out = []
+    for path in sorted((root / "sim2real").rglob("*.py")):
+        rel = path.relative_to(root).as_posix()
+        if rel.startswith(KIND_MODULES):
+            continue
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if SHAPE_ASK.search(line) and not SHAPE_NOT.search(line):
+                out.append(f"{rel}:{number}: {line.strip()}")
+    return out
+
+
+def test_few_lines_outside_the_kinds_decide_by_the_robot_s_shape():
+    lines = shape_decisions()
+    # the count sees a flag read, a base stage's None and the robot's floating base
+    for line in ("if kind.pd_targets:", "if rt.base_estimator is not None:", "robot.floating_base"):
+        assert SHAPE_ASK.search(line)
+    assert len(lines) <= SHAPE_DECISIONS, (
+        f"{len(lines)} lines outside the kinds decide by the robot's shape (at most "
+        f"{SHAPE_DECISIONS}): ask the kind's behaviour (its targets, tick stage, faces):\n"
         + "\n".join(lines)
     )

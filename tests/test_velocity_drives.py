@@ -125,7 +125,7 @@ def test_go2w_is_a_wheel_legged_kind_whose_wheels_brake_to_zero_in_a_safe_stop(g
 
     kind = robot_kind(go2w)  # robot.toml: kind = "wheel_legged"
     assert kind.name == "wheel_legged" and kind.floating_base and kind.task == "locomotion"
-    assert kind.pd_targets and kind.pushes and kind.stand_up_on_reset  # as a legged robot
+    assert kind.pd_targets and kind.hard_limit_bounce  # as a legged robot
     wheel = wheel_drive(go2w)[3]
     assert kind.wheels(go2w).tolist() == wheel.tolist()  # its continuous joints
     drives = robot_kind(wheeled).wheel_drives(wheeled, 2, "position")

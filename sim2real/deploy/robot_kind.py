@@ -9,12 +9,14 @@ registered when that package is imported: the rooms that ask a robot's kind impo
 layout and sensor frame (:meth:`RobotKind.state`, :meth:`RobotKind.sensor_frame`), the base
 stages (:meth:`RobotKind.base_stages`; the rig judges their estimate against the truth), the task
 (:func:`sim2real.deploy.tasks.task.task_for`), how its velocity-driven joints brake in a safe
-stop (:meth:`RobotKind.wheel_drives`), the soak's disturbances (:attr:`RobotKind.cable_faults`,
-:attr:`RobotKind.pushes`), what an operator does before clearing a latched fault, how the guard
-and the runtime treat PD targets (:attr:`RobotKind.pd_targets`,
-:attr:`RobotKind.hard_limit_bounce`) and which robots fit it (:meth:`RobotKind.check`). What a
-higher floor does per kind (the soak's range defaults, the plant's extras) is a face registered
-under the kind's name in that floor's room (:class:`sim2real.deploy.core.registry.Faces`).
+stop (:meth:`RobotKind.wheel_drives`), what a command means to each drive
+(:meth:`RobotKind.targets`: the object the guard and the runtime ask, made of
+:attr:`RobotKind.pd_targets`, :attr:`RobotKind.hard_limit_bounce` and the rest) and which robots
+fit it (:meth:`RobotKind.check`); whether a stop lays it down is its tick stage's
+(:meth:`RobotKind.tick_stage`, ``lying``). What a higher floor does per kind (the soak's range
+defaults, its world's pushes and faults, its operator's stand-up, the plant's extras, the film)
+is a face registered under the kind's name in that floor's room
+(:class:`sim2real.deploy.core.registry.Faces`).
 The boolean ``robot.floating_base`` itself is asked by :func:`robot_kind`, by the Robot's
 kinematics, by the physics and the soak's world beneath, and by the estimation's and the spec's
 checks of their robot (``tests/test_seams.py`` counts the places, and the lines outside the
@@ -47,12 +49,8 @@ class RobotKind:
             <sim2real.deploy.safety.guard.SafetyGuard.estimator_input>`): drives that follow
             their command. Low-gain PD targets lead the joints and may step from tick to tick:
             their filter runs the constant-velocity model instead.
-        stand_up_on_reset: Every safe stop lays the robot down, damped: an operator stands it up
-            before clearing a latched fault, the violation monitor counts its ticks lying down
-            apart, the soak replays a hard-limit stop without it.
         holds_self_collision: The guard holds a target predicted to bring two links into
             contact (:mod:`sim2real.deploy.safety.predicted`).
-        cable_faults: The soak injects cable pulls (a fixed base's tether).
         pd_targets: Its position targets drive low-gain PD loops and act as torques: no hard
             bound on a target (clamped to the soft limit, :mod:`sim2real.deploy.safety.limits`),
             no motion envelope, no tracking tolerance, RAMP_IN in position mode ending on the
@@ -60,23 +58,18 @@ class RobotKind:
         hard_limit_bounce: The guard stops for an estimate past a hard limit only when it stays
             past (``LEGGED_HARD_LIMIT_*`` of :mod:`sim2real.deploy.safety.limits`). None (the
             default): as ``floating_base``.
-        pushes: The soak pushes the base as the policy's training domain did. None (the
-            default): as ``floating_base``.
     """
 
     name: str
     floating_base: bool
     task: str
     joint_input: bool
-    stand_up_on_reset: bool
     holds_self_collision: bool = True
-    cable_faults: bool = True
     pd_targets: bool | None = None
     hard_limit_bounce: bool | None = None
-    pushes: bool | None = None
 
     def __post_init__(self):
-        for name in ("pd_targets", "hard_limit_bounce", "pushes"):
+        for name in ("pd_targets", "hard_limit_bounce"):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, self.floating_base)
 
@@ -119,10 +112,18 @@ class RobotKind:
         """The part of ``runtime``'s tick this kind's base adds: ``stages`` (``(base_estimator,
         fall_detector)`` or ``(None, None)``), ``fusable``, ``bind()``, ``start(frame)``,
         ``restart(t, envs)``, ``update(frame, state)``, ``damp(cmd, state)``,
-        ``damping(mode)``, ``parts()`` (:class:`sim2real.deploy.kinds.legged_tick.LeggedTick`,
+        ``damping(mode)``, ``lying(mode)`` (the envs lying down after a stop, or None: it
+        never lies down), ``parts()`` (:class:`sim2real.deploy.kinds.legged_tick.LeggedTick`,
         :class:`sim2real.deploy.kinds.arm.FixedBase`). Raises NotImplementedError: a kind
         that does not say."""
         raise NotImplementedError(f"robot kind '{self.name}': tick_stage")
+
+    def targets(self, robot):
+        """What a command means to each of ``robot``'s drives
+        (:class:`sim2real.deploy.kinds.targets.DriveTargets`): the object the guard, the smoother
+        and the runtime ask for target bounds, their checks' rows, the joint filters' input and
+        the tolerances. Raises NotImplementedError: a kind that does not say."""
+        raise NotImplementedError(f"robot kind '{self.name}': targets")
 
     def wheel_drives(self, robot, envs: int, mode: str):
         """The command stage of the robot's velocity-driven joints (their speed targets, and

@@ -41,6 +41,7 @@ from pathlib import Path
 from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.tasks.task import follows_velocity_commands
 from sim2real.eval.cli_options import BadInput, check_args, parser
+from sim2real.eval.world.world_faces import WORLD_OF_KIND
 
 EXIT_PASSED = 0
 EXIT_HARD_VIOLATION = 1
@@ -295,8 +296,9 @@ def run(args) -> int:
     baseline = load_report(args.baseline) if args.baseline else None
     robot = load_robot(args.robot)
     ranges, domain, file = _ranges(args, robot)
-    if robot_kind(robot).pushes and ranges.pushes is not None:
-        print(f"soak-test: pushes: {ranges.pushes.describe()}")
+    pushes = WORLD_OF_KIND.get(robot_kind(robot).name).domain_pushes(ranges)
+    if pushes is not None:
+        print(f"soak-test: pushes: {pushes.describe()}")
     ranges, commands = _commands(args, robot, ranges, file)
     template = _template(args, ranges)
     results, wall = _run_sessions(args, template)

@@ -73,7 +73,7 @@ class BaseStateEstimator(BaseSteps):
     docstring).
 
     Args:
-        robot: A floating-base robot (``robot.floating_base``).
+        robot: A floating-base robot (robot.toml's ``[base]``).
         envs: Batch size.
         leg_sigma: Leg odometry noise, m/s (``LEG_VELOCITY_SIGMA``).
         accel_sigma: The accelerometer as a gravity measurement, m/s^2

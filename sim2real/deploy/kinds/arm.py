@@ -14,12 +14,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.kinds.targets import DriveTargets, uniform_targets
 from sim2real.deploy.robot_kind import RobotKind, register_kind
 
 
 class FixedBase:
     """A fixed base's part of the tick: none (the runtime's estimate and observation run as
-    one compiled call, ``fusable``); no stop damps (:meth:`damping` all False)."""
+    one compiled call, ``fusable``); no stop damps (:meth:`damping` all False), none lays it
+    down (:meth:`lying` None)."""
 
     stages = (None, None)
     fusable = True
@@ -44,6 +46,10 @@ class FixedBase:
         """(envs,) bool, all False: an arm's stop holds its pose."""
         return np.zeros(self.envs, dtype=bool)
 
+    def lying(self, mode: np.ndarray) -> None:
+        """None: an arm never lies down (a stop holds its pose)."""
+        return None
+
     def damp(self, cmd: np.ndarray, state: RobotState) -> None:
         """An arm's safe stop brakes along the smoother's path: nothing damps."""
 
@@ -60,16 +66,18 @@ class Arm(RobotKind):
     floating_base: bool = False
     task: str = "goals"
     joint_input: bool = True
-    stand_up_on_reset: bool = False
     holds_self_collision: bool = True
-    cable_faults: bool = True
     pd_targets: bool | None = False
     hard_limit_bounce: bool | None = False
-    pushes: bool | None = False
 
     def state(self, robot, envs: int) -> RobotState:
         """:meth:`RobotState.zeros` for ``envs`` robots at the robot's ambient temperature."""
         return RobotState.zeros(envs, robot.n_joints, robot.config.sensors.ambient_temperature)
+
+    def targets(self, robot) -> DriveTargets:
+        """:func:`~sim2real.deploy.kinds.targets.uniform_targets`: the kind's choices, every
+        joint alike."""
+        return uniform_targets(self, robot)
 
     def sensor_frame(self, robot, envs: int):
         """An empty :class:`~sim2real.deploy.core.backend.SensorFrame` of the joints alone."""

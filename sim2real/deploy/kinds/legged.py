@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.kinds.targets import DriveTargets, uniform_targets
 from sim2real.deploy.robot_kind import RobotKind, register_kind
 
 
@@ -31,17 +32,19 @@ class Legged(RobotKind):
     floating_base: bool = True
     task: str = "locomotion"
     joint_input: bool = False
-    stand_up_on_reset: bool = True
     holds_self_collision: bool = False
-    cable_faults: bool = False
     pd_targets: bool | None = True
     hard_limit_bounce: bool | None = True
-    pushes: bool | None = True
 
     def state(self, robot, envs: int) -> RobotState:
         """:meth:`RobotState.legged` (joints, base, feet) at the robot's ambient temperature."""
         ambient = robot.config.sensors.ambient_temperature
         return RobotState.legged(envs, robot.n_joints, robot.n_feet, ambient)
+
+    def targets(self, robot) -> DriveTargets:
+        """:func:`~sim2real.deploy.kinds.targets.uniform_targets`: the kind's choices, every
+        joint alike."""
+        return uniform_targets(self, robot)
 
     def sensor_frame(self, robot, envs: int):
         """An empty :class:`~sim2real.deploy.core.backend.SensorFrame`: joints, an IMU, the

@@ -79,6 +79,12 @@ class LeggedTick:
         lies down instead)."""
         return mode >= SAFE_STOP  # SAFE_STOP or FAULTED, the last modes
 
+    def lying(self, mode: np.ndarray) -> np.ndarray:
+        """(envs,) bool: the envs lying damped after a stop (:meth:`damping`'s): what the
+        monitors count apart (what a fallen robot's joints do on the floor is not its
+        policy's)."""
+        return self.damping(mode)
+
     def damp(self, cmd: np.ndarray, state: RobotState) -> None:
         """After the smoother: the command of the envs in SAFE_STOP or FAULTED damps (their
         drives' own damping mode too, where the backend has one)."""

@@ -47,7 +47,7 @@ class FusedAfterTick:
         self._mode, self._goal = rig.runtime.mode, rig.runtime.goal
         self.motion = motion
         #: a legged robot: the estimation monitor and the task run in Python after the call
-        self._legged = rig.kind.stand_up_on_reset
+        self._legged = rig.lies_down
         from sim2real.deploy.tasks.velocity import VelocityTask
 
         #: the legged task takes the truth the estimation monitor read (one read a tick)
@@ -70,10 +70,9 @@ class FusedAfterTick:
         from sim2real.deploy.tasks.goals import GoalTask
 
         backend, task, runtime = rig.backend, rig.task, rig.runtime
-        legged = rig.kind.stand_up_on_reset  # its envs lying down: ticks counted apart
+        legged = rig.lies_down  # its envs lying down: ticks counted apart
         if (
             rig.violations is None
-            or (legged and runtime.base_estimator is None)  # Runtime.damping: all up
             or (not legged and rig.estimation is not None)
             or not isinstance(backend, SimBackend)
             or any(getattr(type(backend), m) is not getattr(SimBackend, m) for m in _TRUTH)

@@ -103,12 +103,14 @@ class Rig:
         judged = self.simulated and truth
         self.violations = ViolationMonitor(robot, envs) if judged else None
         self.interventions = InterventionMonitor(self.runtime.guard, self.runtime.smoother)
-        # the base estimate against the truth, where the kind gave the runtime one
-        has_base = self.runtime.base_estimator is not None
+        # the base estimate against the truth, where the kind's tick stage estimates one
+        has_base = "base_estimator" in self.runtime.base_tick.parts()
         self.estimation = EstimationMonitor(robot, envs) if judged and has_base else None
         if self.estimation is not None and getattr(backend, "grounds", None):  # terrain
             self.estimation.ground = backend.ground_height
-        if self.violations is not None and self.kind.stand_up_on_reset and has_base:
+        #: bool: the robot lies damped after a stop (its kind's tick stage: a legged robot)
+        self.lies_down = self.runtime.base_tick.lying(self.runtime.mode) is not None
+        if self.violations is not None and self.lies_down:
             # a legged robot's ticks lying damped after a stop: apart, as the violations'
             self.interventions.down = self.violations.kernel_arrays()["down"]
         self.task = None
@@ -174,7 +176,7 @@ class Rig:
         t0 = time.perf_counter_ns()
         if self.violations is not None:
             # a robot lying damped after a stop (the kind's): its ticks are counted apart
-            down = runtime.damping if self.kind.stand_up_on_reset else None
+            down = runtime.base_tick.lying(runtime.mode)
             self.violations.update(self.backend, down=down)
         self.interventions.update()  # before the goals: a goal's last tick counts for it
         if self.estimation is not None:

@@ -8,7 +8,6 @@ import numpy as np
 
 from sim2real.deploy.core.modes import FAULTED, SAFE_STOP
 from sim2real.deploy.core.state import RobotState
-from sim2real.deploy.robot_kind import RobotKind
 from sim2real.deploy.smoothing import CommandSmoother
 
 #: Position mode: a command this far (rad) from the measured pose (the arm was pushed or blocked)
@@ -22,18 +21,12 @@ TRACKING_TOLERANCE = 0.6  # arm3's servo lags up to 0.45 rad at full speed
 VELOCITY_TRACKING_TOLERANCE = 0.1
 
 
-def tracking_tolerance(kind: RobotKind, mode: str) -> float:
-    """The runtime's re-anchoring tolerance for a robot of ``kind`` in control mode ``mode``, rad:
+def tracking_tolerance(targets, mode: str) -> float:
+    """The runtime's re-anchoring tolerance for a robot whose drives take ``targets`` (its kind's
+    :class:`~sim2real.deploy.kinds.targets.DriveTargets`) in control mode ``mode``, rad:
     ``VELOCITY_TRACKING_TOLERANCE`` or ``TRACKING_TOLERANCE``. A legged robot's low-gain PD lags
-    its targets by design (they act as torques through kp: its kind's
-    :attr:`~sim2real.deploy.robot_kind.RobotKind.pd_targets`), so it has none (inf)."""
-    return (
-        np.inf
-        if kind.pd_targets
-        else VELOCITY_TRACKING_TOLERANCE
-        if mode == "velocity"
-        else TRACKING_TOLERANCE
-    )
+    its targets by design (they act as torques through kp), so it has none (inf)."""
+    return targets.tracking_tolerance(TRACKING_TOLERANCE, VELOCITY_TRACKING_TOLERANCE, mode)
 
 
 def reanchor(

@@ -70,9 +70,11 @@ class HandOver:
         self._previous[:] = target
 
 
-def check_policy(spec, robot, mode: str, kind) -> None:
+def check_policy(spec, robot, mode: str, targets) -> None:
     """Refuse a policy's ``spec`` made for another robot than ``robot`` or another control mode
-    than ``mode`` (the backend's).
+    than ``mode`` (the backend's), or one asking for no smoothing of a robot whose drives all
+    follow their command (``targets``, its kind's
+    :class:`~sim2real.deploy.kinds.targets.DriveTargets`).
 
     Raises:
         ValueError: naming the mismatch (:meth:`PolicySpec.check_robot
@@ -84,20 +86,16 @@ def check_policy(spec, robot, mode: str, kind) -> None:
             f"policy action mode '{spec.action.mode}' differs from the backend's control "
             f"mode '{mode}'"
         )
-    if spec.action.smoothing == "none" and not kind.pd_targets:
-        raise ValueError(
-            f"policy action.smoothing 'none': the robot '{robot.name}' does not run PD targets "
-            "(its commands always pass the smoother); expected 'jerk_limited' or none given"
-        )
+    targets.check_smoothing(spec.action.smoothing, robot.name)
 
 
-def follows_targets(spec, kind, mode: str) -> bool:
+def follows_targets(spec, targets, mode: str) -> bool:
     """Whether the runtime's RUNNING envs command ``spec``'s targets as the policy emitted them
-    (after the guard), not through the smoother: a PD-target robot in position mode whose spec's
+    (after the guard), not through the smoother: a PD-target robot (``targets``, its kind's
+    :class:`~sim2real.deploy.kinds.targets.DriveTargets`) in position mode whose spec's
     ``action.smoothing`` is ``'none'`` or left to the robot's default
     (:class:`~sim2real.deploy.spec.policy_spec.ActionSpec`), as the policy was trained."""
-    pd = kind.pd_targets and mode == "position"
-    return bool(pd and spec.action.smoothing != "jerk_limited")
+    return targets.follows_policy(spec.action.smoothing, mode)
 
 
 def switch_policy(runtime, policy, blend_time: float) -> None:
@@ -115,7 +113,7 @@ def switch_policy(runtime, policy, blend_time: float) -> None:
     """
     if not blend_time >= 0:
         raise ValueError(f"switch_policy: blend_time must be >= 0 s, got {blend_time}")
-    check_policy(policy.spec, runtime.robot, runtime.mode_name, runtime.kind)
+    check_policy(policy.spec, runtime.robot, runtime.mode_name, runtime.targets)
     ticks = int(round(blend_time / runtime.dt))
     outgoing, spec = runtime.policy, runtime.spec
     runtime.handover = None
@@ -123,7 +121,7 @@ def switch_policy(runtime, policy, blend_time: float) -> None:
         n = runtime.robot.n_joints
         runtime.handover = HandOver(outgoing, spec, runtime.envs, n, ticks, runtime.target)
     runtime.policy, runtime.spec = policy, policy.spec
-    runtime.follows_targets = follows_targets(policy.spec, runtime.kind, runtime.mode_name)
+    runtime.follows_targets = follows_targets(policy.spec, runtime.targets, runtime.mode_name)
     if not runtime.follows_targets:  # the smoother shapes every env's targets again
         runtime.smoother.follow_envs.fill(False)
     obs = runtime._obs  # noqa: SLF001 - the runtime's own room

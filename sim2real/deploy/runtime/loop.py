@@ -105,7 +105,10 @@ class Runtime(RuntimeState, RunLoop):
         self.overrun_rate_limit = overrun_rate_limit
         self.robot, self.policy, self.backend = robot, policy, backend
         self.kind = kind = kind or robot_kind(robot)
-        check_policy(policy.spec, robot, backend.mode, kind)
+        #: what a command means to each drive (the kind's
+        #: :class:`~sim2real.deploy.kinds.targets.DriveTargets`)
+        self.targets = targets = kind.targets(robot)
+        check_policy(policy.spec, robot, backend.mode, targets)
         self.spec: PolicySpec = policy.spec
         #: a hand-over in progress (:meth:`switch_policy`), the last that ended, a slow RAMP_IN
         self.handover = self.last_handover = self.ramp = None
@@ -120,7 +123,7 @@ class Runtime(RuntimeState, RunLoop):
         self.kinematics = Kinematics(robot)
         self.guard, self.smoother = self._build_stages()
         #: bool: RUNNING envs command the guard's targets, not the smoother's (follows_targets)
-        self.follows_targets = follows_targets(self.spec, kind, self.mode_name)
+        self.follows_targets = follows_targets(self.spec, targets, self.mode_name)
         self.state: RobotState = kind.state(robot, envs)
         #: a tracking policy's clip (RobotState.motion): the warm-up's placeholder; its task's after
         self.state.motion = motion_buffer(self.spec, envs, n)
@@ -139,7 +142,7 @@ class Runtime(RuntimeState, RunLoop):
             self.state.command if self.state.command is not None else np.zeros((envs, 3))
         )
         #: rad: the re-anchoring's tolerance (:func:`reanchor`; inf for a legged robot)
-        self.tracking_tolerance = tracking_tolerance(kind, self.mode_name)
+        self.tracking_tolerance = tracking_tolerance(targets, self.mode_name)
         #: the state machine, one per env (:class:`~sim2real.deploy.runtime.supervision.Supervision`):
         #: its arrays below are the runtime's, its transitions in numpy
         self.supervision = sup = self.supervision_type(
@@ -235,7 +238,7 @@ class Runtime(RuntimeState, RunLoop):
     def _build_stages(self) -> tuple[SafetyGuard, CommandSmoother]:
         """The guard and the smoother (compiled)."""
         envs, mode, kind = self.envs, self.mode_name, self.kind
-        wheels, bounded = kind.wheel_drives(self.robot, envs, mode), not kind.pd_targets
+        wheels, bounded = kind.wheel_drives(self.robot, envs, mode), self.targets.bounded()
         smoother = CommandSmoother(self.robot, envs, mode, bounded=bounded, wheels=wheels)
         return SafetyGuard(self.robot, envs, mode, kind), smoother
 

@@ -114,7 +114,7 @@ class ReferenceRuntime(Runtime):
     def _build_stages(self) -> tuple[ReferenceGuard, ReferenceSmoother]:
         """The guard and the smoother (numpy references)."""
         envs, mode = self.envs, self.mode_name
-        bounded = not self.kind.pd_targets  # as Runtime._build_stages
+        bounded = self.targets.bounded()  # as Runtime._build_stages
         smoother = ReferenceSmoother(self.robot, envs, mode, bounded=bounded)
         return ReferenceGuard(self.robot, envs, mode, self.kind), smoother
 

@@ -108,10 +108,10 @@ class Supervision:
         self._ring_at = 0
         self.home = np.asarray(robot.home)
         #: RAMP_IN ends on the smoother's commanded position at home (not the estimate's): a
-        #: robot with PD targets (:attr:`~sim2real.deploy.robot_kind.RobotKind.pd_targets`, a
-        #: legged one) in position mode, whose drives' soft PD (the gains it was trained with)
-        #: holds its weight short of the home pose, which its estimate would never reach
-        self.home_from_command = guard.kind.pd_targets and mode_name == "position"
+        #: robot with PD targets (the kind's drive targets, a legged one) in position mode,
+        #: whose drives' soft PD (the gains it was trained with) holds its weight short of the
+        #: home pose, which its estimate would never reach
+        self.home_from_command = guard.targets.home_from_command(mode_name)
         #: the velocity-driven joints (wheels) of the smoother's command, or None
         self.wheels = getattr(smoother, "wheels", None)
         #: (n,) bool: the joints whose pose RAMP_IN's end judges against home: all but those

@@ -83,8 +83,11 @@ class SafetyGuard(MotionCheck):
             None: :func:`~sim2real.deploy.kinds.robot_kind` of ``robot``.
 
     Attributes:
-        kind: The robot's kind, whose choices the guard's checks take (PD targets, hard-limit
-            bounce, self-collision holds, the joint filters' input).
+        kind: The robot's kind.
+        targets: What a command means to each drive (the kind's
+            :class:`~sim2real.deploy.kinds.targets.DriveTargets`), whose answers the guard's
+            checks take (target bounds, hard-limit bounce, self-collision holds, the PD barrier's
+            joints, the joint filters' input).
         counts: dict check name -> (envs,) int64, interventions so far; each check counts at
             most once per env and tick, except ``effort`` in torque mode (a hold and a clamp).
         count_matrix: (len(CHECKS), envs) int64, the same counters as rows in ``CHECKS`` order
@@ -101,11 +104,12 @@ class SafetyGuard(MotionCheck):
         n = robot.n_joints
         self.dt = robot.control_period
         self.lower, self.upper = robot.position_lower, robot.position_upper
-        self._target_lower = self.lower - TARGET_TOLERANCE
-        self._target_upper = self.upper + TARGET_TOLERANCE
-        if kind.pd_targets:  # targets are torque requests to a PD loop: judged, not stopped
-            self._target_lower = np.full(robot.n_joints, -np.inf)
-            self._target_upper = np.full(robot.n_joints, np.inf)
+        #: what a command means to each drive (the kind's): a PD joint's target is a torque
+        #: request, judged, not stopped (its bounds infinite)
+        self.targets = targets = kind.targets(robot)
+        self._target_lower, self._target_upper = targets.target_bounds(
+            self.lower - TARGET_TOLERANCE, self.upper + TARGET_TOLERANCE
+        )
         self.soft_lower, self.soft_upper = robot.soft_lower, robot.soft_upper
         self.acc = robot.acceleration_limit
         self.jerk = robot.jerk_limit
@@ -156,10 +160,9 @@ class SafetyGuard(MotionCheck):
         #: the motion envelope (:mod:`sim2real.deploy.safety.envelope`): checks the smoother's step after it
         #: (:meth:`check_motion`); position and velocity mode (the drives' model,
         #: :mod:`sim2real.deploy.safety.drive`), a fixed base only (not for PD targets)
-        self.envelope = None
-        if not kind.pd_targets:
-            reach = end_effector_reach(robot) if s.workspace_min is not None else np.inf
-            self.envelope = MotionEnvelope(
+        reach = end_effector_reach(robot) if s.workspace_min is not None else np.inf
+        self.envelope = targets.motion_envelope(
+            lambda: MotionEnvelope(
                 robot,
                 envs,
                 collision_model(robot),
@@ -171,6 +174,7 @@ class SafetyGuard(MotionCheck):
                 VelocityDrive(robot, envs) if mode == "velocity" else None,
                 TorqueDrive(robot, envs) if mode == "torque" else None,
             )
+        )
         # the rows the motion envelope counts in: collision, workspace, torque mode's joint limits
         self._geometric_rows = [row("self_collision"), row("workspace"), row("velocity")]
         self._counted = np.zeros((3, envs), dtype=np.int64)  # those rows when filter began
@@ -339,14 +343,15 @@ class SafetyGuard(MotionCheck):
         """(envs, n) rad/s^2, a view: the joint estimator's control input, the acceleration
         commanded over the last period: the smoother's (``mean_acceleration``, position and
         velocity mode); in torque mode the last committed torque's at the estimate
-        (:attr:`sim2real.deploy.safety.torque_drive.TorqueDrive.acceleration`). None for a floating base
-        (:attr:`sim2real.deploy.robot_kind.RobotKind.joint_input`): its filter runs the constant-velocity
-        model, since its PD targets' acceleration is not its joints'."""
-        if not self.kind.joint_input:
-            return None
+        (:attr:`sim2real.deploy.safety.torque_drive.TorqueDrive.acceleration`). None where the
+        kind's drives do not follow their command (:meth:`DriveTargets.estimator_input
+        <sim2real.deploy.kinds.targets.DriveTargets.estimator_input>`, a legged robot's): its
+        filter runs the constant-velocity model, since its PD targets' acceleration is not its
+        joints'."""
         if self.mode != "torque":
-            return smoother.mean_acceleration
-        return self.envelope.torque.acceleration if self.envelope is not None else None
+            return self.targets.estimator_input(smoother.mean_acceleration)
+        torque = self.envelope.torque.acceleration if self.envelope is not None else None
+        return self.targets.estimator_input(torque)
 
     def update_thermal(self, winding_temperature: np.ndarray) -> np.ndarray:
         """Derate the effort limits as the drives do (:class:`sim2real.robots.thermal.EffortDerating`:

@@ -85,12 +85,12 @@ def soft_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
     n = out.shape[1]
     lim = g.lim
     soft = False
-    if g.mode == POSITION and own[CLAMPS, 0] == 0.0:
-        return 0
     if stage == INSPECT:
         if g.mode == POSITION:
             for j in range(n):
                 t = out[e, j]
+                if own[CLAMPS, j] == 0.0:  # a PD joint's target: the PD barrier's
+                    continue
                 if t < lim[SOFT_LOWER, j] or t > lim[SOFT_UPPER, j]:
                     soft = True
         else:
@@ -99,7 +99,8 @@ def soft_limit_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
                     soft = True
     elif stage == CLAMP and g.mode == POSITION:
         for j in range(n):
-            out[e, j] = np_min(np_max(out[e, j], lim[SOFT_LOWER, j]), lim[SOFT_UPPER, j])
+            if own[CLAMPS, j] != 0.0:
+                out[e, j] = np_min(np_max(out[e, j], lim[SOFT_LOWER, j]), lim[SOFT_UPPER, j])
     return FIRED if soft else 0
 
 
@@ -113,23 +114,23 @@ class SoftLimit(GuardCheck):
     kernel = soft_limit_kernel
 
     def constants(self, guard) -> np.ndarray:
-        """Row ``CLAMPS``: 0.0 for a robot whose position targets drive PD loops
-        (:attr:`sim2real.deploy.robot_kind.RobotKind.pd_targets`), else 1.0."""
-        clamps = 0.0 if guard.kind.pd_targets else 1.0
-        return np.full((1, guard.robot.n_joints), clamps)
+        """Row ``CLAMPS``: 0.0 on a joint whose position targets drive a PD loop, else 1.0
+        (:meth:`~sim2real.deploy.kinds.targets.DriveTargets.soft_clamp_row`)."""
+        return guard.targets.soft_clamp_row()
 
     def reference(self, stage, g, out, q, dq, commanded):
         mask = g._mask
-        if g.mode == "position" and g.kind.pd_targets:
-            return None, None
+        clamps = g.targets.follows  # (n,) the joints whose position targets are clamped
         if stage == INSPECT:
             if g.mode == "position":
                 np.logical_or(out < g.soft_lower, out > g.soft_upper, out=mask)
+                mask &= clamps
             else:
                 np.logical_or(q > g.soft_upper, q < g.soft_lower, out=mask)
             return mask.any(axis=1), None
         if stage == CLAMP and g.mode == "position":
-            np.minimum(np.maximum(out, g.soft_lower, out=out), g.soft_upper, out=out)
+            clamped = np.minimum(np.maximum(out, g.soft_lower), g.soft_upper)
+            np.copyto(out, clamped, where=clamps)
         return None, None
 
 
@@ -187,17 +188,19 @@ class HardLimit(GuardCheck):
 
     def constants(self, guard) -> np.ndarray:
         n = guard.robot.n_joints
-        bounces = guard.kind.hard_limit_bounce
-        tolerance = LEGGED_HARD_LIMIT_TOLERANCE if bounces else 0.0
-        ticks = round(LEGGED_HARD_LIMIT_DURATION / guard.dt) if bounces else 0
-        bounce = round(LEGGED_HARD_LIMIT_BOUNCE / guard.dt) if bounces else 0
+        tolerance, ticks, bounce = guard.targets.hard_limit_rows(
+            n,
+            LEGGED_HARD_LIMIT_TOLERANCE,
+            round(LEGGED_HARD_LIMIT_DURATION / guard.dt),
+            round(LEGGED_HARD_LIMIT_BOUNCE / guard.dt),
+        )
         return np.array(
             [
                 guard._target_lower,
                 guard._target_upper,
-                np.full(n, tolerance),
-                np.full(n, ticks),
-                np.full(n, bounce),
+                tolerance,
+                ticks,
+                bounce,
             ],
             dtype=np.float64,
         )

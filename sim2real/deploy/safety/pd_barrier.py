@@ -1,7 +1,7 @@
 """The guard's ``pd_barrier`` check: a PD target judged by its consequence, not by its value.
 
-A robot whose drives run a PD law on a position target (a :attr:`pd_targets
-<sim2real.deploy.robot_kind.RobotKind.pd_targets>` kind: the legged robots) asks for torque with
+A robot whose drives run a PD law on a position target (the PD joints of its kind's
+:class:`~sim2real.deploy.kinds.targets.DriveTargets`: the legged robots') asks for torque with
 its targets: ``tau = kp (target - q) - kd dq``, saturated by the drive. A target past the
 joint's range is such a request (legged_gym, Isaac Lab and mjlab train without any bound on
 them), and the drive takes it (a Unitree motor clamps no target: ``[position_target]`` of its
@@ -41,7 +41,6 @@ import pinocchio as pin
 
 from sim2real.deploy.kernels import np_max, np_min
 from sim2real.deploy.kernels.calls import bind
-from sim2real.deploy.robot_kind import robot_kind
 from sim2real.deploy.safety.check import CLAMP, EFFORT, FIRED, POSITION, GuardCheck
 from sim2real.robots.continuous import continuous_mask, sampling_bounds
 from sim2real.robots.torque_speed import TorqueSpeedEnvelope
@@ -50,7 +49,7 @@ from sim2real.robots.torque_speed import TorqueSpeedEnvelope
 #: (1/(kg m^2)), the gravity bound (N m), the stall torque (N m; inf without a torque-speed
 #: line), the no-load speed (rad/s; inf without one), the upper bound ``upper - margin`` and the
 #: mirrored lower bound ``-(lower + margin)`` (rad), the physics substep (s), the substeps per
-#: period, and 1.0 where the check acts (0.0: an arm, or not position mode). ``GRAVITY`` is the
+#: period, and 1.0 where the check acts (0.0: an arm's joint, or not position mode). ``GRAVITY`` is the
 #: all-pose bound; the prediction uses the rows from ``TOWARD`` on (:func:`barrier_rows`).
 KP, KD, INV_INERTIA, GRAVITY, STALL, NO_LOAD, BOUND_UP, BOUND_DOWN, STEP, SUBSTEPS, ACTIVE = range(
     11
@@ -170,12 +169,14 @@ def _barrier(t, q, v, bound, effort, d, j, own, loaded) -> float:
 @numba.njit(cache=True, nogil=True, _nrt=False)
 def pd_barrier_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int:
     """:class:`PdBarrier`'s compiled share (signature of :class:`GuardCheck`)."""
-    if stage != CLAMP or g.mode != POSITION or own[ACTIVE, 0] == 0.0:
+    if stage != CLAMP or g.mode != POSITION:
         return 0
     changed = False
     up, down = own[TOWARD + 2 * e], own[TOWARD + 2 * e + 1]
     loaded = own[TOWARD + 2 * out.shape[0] + e]
     for j in range(out.shape[1]):
+        if own[ACTIVE, j] == 0.0:  # a joint whose drive follows its command: not a PD target
+            continue
         t = out[e, j]
         effort = g.lim[EFFORT, j] * g.effort_scale[e, j]
         on = loaded[j] > 0.0
@@ -219,7 +220,8 @@ def pd_barrier_constants(guard) -> np.ndarray:
     robot = guard.robot
     n = robot.n_joints
     c = np.zeros((ROWS + 3 * guard.envs, n))
-    if robot_kind(robot).pd_targets and guard.mode == "position":
+    active = guard.targets.barrier_joints(guard.mode)  # (n,) the PD joints in position mode
+    if active.any():
         joints = robot.config.joints
         c[KP] = [j.kp for j in joints]
         c[KD] = [j.kd for j in joints]
@@ -239,12 +241,12 @@ def pd_barrier_constants(guard) -> np.ndarray:
             c[BOUND_DOWN] = np.where(free, np.inf, -(robot.position_lower + margin))
         c[STEP] = robot.physics_timestep
         c[SUBSTEPS] = robot.decimation
-        c[ACTIVE] = 1.0
+        c[ACTIVE] = active
         c[BRAKE] = BRAKE_SHARE
         c[SLACK] = SLACK_SHARE * guard.gravity_bound
         c[TOWARD : TOWARD + 2 * guard.envs] = guard.gravity_bound
     guard.__dict__["_pd_barrier_constants"] = c
-    if c[ACTIVE, 0]:  # the rows' kernels compiled (or loaded) now, not at the first tick
+    if c[ACTIVE].any():  # the rows' kernels compiled (or loaded) now, not at the first tick
         q = np.zeros((guard.envs, n))
         _bind_rows(guard, q, np.zeros((guard.envs, 3)), np.zeros((guard.envs, robot.n_feet)))
         _rows_model(guard)[4] = None
@@ -441,14 +443,14 @@ class PdBarrier(GuardCheck):
         return pd_barrier_constants(guard)
 
     def prepare(self, g, state) -> None:
-        if pd_barrier_constants(g)[ACTIVE, 0] != 0.0:
+        if pd_barrier_constants(g)[ACTIVE].any():
             base = state.base
             gravity = None if base is None else base.projected_gravity
             barrier_rows(g, state.q, gravity, state.foot_contact)
 
     def reference(self, stage, g, out, q, dq, commanded):
         c = pd_barrier_constants(g)
-        if stage != CLAMP or g.mode != "position" or c[ACTIVE, 0] == 0.0:
+        if stage != CLAMP or g.mode != "position" or not c[ACTIVE].any():
             return None, None
         effort = g.robot.effort_limit * g.effort_scale
         envs = out.shape[0]
@@ -458,6 +460,7 @@ class PdBarrier(GuardCheck):
         r = _barrier_np(t, q, dq, c[BOUND_UP], effort, up, c, on)
         down = -_barrier_np(-t, -q, -dq, c[BOUND_DOWN], effort, down, c, on)
         r = np.where(r == t, down, r)
+        r = np.where(c[ACTIVE] != 0.0, r, t)  # the PD joints only
         changed = (r != t).any(axis=1)
         out[:] = r
         return changed, None

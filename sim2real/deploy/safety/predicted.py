@@ -91,12 +91,11 @@ class SelfCollision(GuardCheck):
 
     def constants(self, guard) -> np.ndarray:
         """Row ``HOLDS``: 1.0 where the check holds a target in self-collision, 0.0 where it does
-        not act (:attr:`sim2real.deploy.robot_kind.RobotKind.holds_self_collision`)."""
-        holds = 1.0 if guard.kind.holds_self_collision else 0.0
-        return np.full((1, guard.robot.n_joints), holds)
+        not act (:meth:`~sim2real.deploy.kinds.targets.DriveTargets.self_collision_row`)."""
+        return guard.targets.self_collision_row(guard.robot.n_joints)
 
     def reference(self, stage, g, out, q, dq, commanded):
-        if stage != PREDICTED or not g._has_pairs or not g.kind.holds_self_collision:
+        if stage != PREDICTED or not g._has_pairs or self.constants(g)[HOLDS, 0] == 0.0:
             return None, None
         check = np.zeros(g.envs, dtype=bool)
         moved = np.abs(g._pred - g._col_q)  # rad per joint since the last check

@@ -71,9 +71,10 @@ class CommandSmoother(RuckigState):
         mode: ``'position'`` (rad), ``'velocity'`` (rad/s) or ``'torque'`` (N m); default the
             robot's control mode.
         bounded: Position mode: the targets and the command are clamped to the hard position
-            limits (default). False for a robot whose drives run a PD law on its targets
-            (:attr:`sim2real.deploy.robot_kind.RobotKind.pd_targets`): a target past the range
-            is a torque request, which the guard judges
+            limits (default), True or False for every joint or (n,) bool per joint. False on a
+            joint whose drive runs a PD law on its target (the robot kind's
+            :meth:`DriveTargets.bounded <sim2real.deploy.kinds.targets.DriveTargets.bounded>`):
+            a target past the range is a torque request, which the guard judges
             (:mod:`sim2real.deploy.safety.pd_barrier`), and the drive takes.
         wheels: The command stage of the velocity-driven joints (the robot kind's
             :meth:`~sim2real.deploy.robot_kind.RobotKind.wheel_drives`, which the runtime
@@ -106,7 +107,7 @@ class CommandSmoother(RuckigState):
         robot: Robot,
         envs: int,
         mode: str | None = None,
-        bounded: bool = True,
+        bounded: bool | np.ndarray = True,
         wheels=_DRIVES,
     ):
         mode = robot.control_mode if mode is None else mode
@@ -134,10 +135,10 @@ class CommandSmoother(RuckigState):
         # requests, and the guard judges them by their predicted motion (safety/pd_barrier.py).
         if mode == "velocity":
             self._lo, self._hi = tiled(robot.soft_lower), tiled(robot.soft_upper)
-        elif mode == "position" and not bounded:
-            self._lo, self._hi = tiled(np.full(n, -np.inf)), tiled(np.full(n, np.inf))
-        else:
-            self._lo, self._hi = tiled(robot.position_lower), tiled(robot.position_upper)
+        else:  # position (bounded per joint) or torque mode
+            hard = np.broadcast_to(bounded, (n,)) | (mode != "position")
+            self._lo = tiled(np.where(hard, robot.position_lower, -np.inf))
+            self._hi = tiled(np.where(hard, robot.position_upper, np.inf))
         # commands stay within the command velocity limit: the soft velocity limit, whose margin
         # to the hard limit absorbs the servo's tracking overshoot, or a legged robot's PD
         # targets' own (see ``Robot.command_velocity_limit``)

@@ -78,6 +78,7 @@ def _walking_not_filmed(result: dict) -> str | None:
 FILM_OF_KIND.register("arm", _filmed)
 FILM_OF_KIND.register("legged", _walking_not_filmed)
 FILM_OF_KIND.register("wheel_legged", _walking_not_filmed)
+FILM_OF_KIND.register("legged_arm", _walking_not_filmed)
 
 #: Frames per simulated second, pixels (width, height), x264 rate factor of the clips.
 FPS = 20.0

@@ -55,9 +55,11 @@ from sim2real.eval.soak.session import (
     SessionError,
     session_dir,
 )
+from sim2real.eval.soak.soak_faces import OPERATOR_OF_KIND
 from sim2real.eval.world.drift import apply_drift, joint_dofs
 from sim2real.eval.world.pushes import DomainPushes
 from sim2real.eval.world.session_draw import sample_session, session_rng
+from sim2real.eval.world.world_faces import WORLD_OF_KIND
 from sim2real.robots.errors import Sim2RealError
 from sim2real.robots.files import atomic_write, sha256_file
 
@@ -169,7 +171,7 @@ class SessionBatch:
         dofs = joint_dofs(models[0], robot)
         self.initial_friction = np.stack([m.dof_frictionloss[dofs].copy() for m in models])
         #: the pushes of the policy's training domain (legged_gym's push_robots), or None
-        pushes = first.ranges.pushes if self.kind.pushes else None
+        pushes = WORLD_OF_KIND.get(self.kind.name).domain_pushes(first.ranges)
         self.pushes = None if pushes is None else DomainPushes(seeds, pushes, dt)
         #: the base estimate in the second after each push, against the truth (None: no pushes)
         self.push_response = None if pushes is None else PushResponse(self.pushes, dt)
@@ -226,13 +228,11 @@ class SessionBatch:
         ]
         self._next_event = self.every
         self._ruckig = mode != "torque"
+        #: what the operator does with a robot of this kind (a legged one: stands it up)
+        self.operator = OPERATOR_OF_KIND.get(self.kind.name)
         self.stop_replay = self.fall_replay = None
-        if replay_stops and self.kind.stand_up_on_reset:  # its every stop lays it down
-            from sim2real.eval.soak.counterfactual import StopReplay
-            from sim2real.eval.soak.fall_replay import FallReplay
-
-            self.stop_replay = StopReplay(self)
-            self.fall_replay = FallReplay(self.stop_replay)
+        if replay_stops:  # a legged robot's: its every stop lays it down
+            self.stop_replay, self.fall_replay = self.operator.replays(self)
         self._wall0 = time.perf_counter()
         if resume:
             self._resume()
@@ -344,10 +344,7 @@ class SessionBatch:
                 for e in np.flatnonzero(faulted):
                     if t - self.sessions[e].latched_since >= reset_after - 1e-9:
                         due[e] = True
-                if self.kind.stand_up_on_reset and due.any():  # the operator stands it up first
-                    self.stand_up(due)
-                    for e in np.flatnonzero(due):
-                        self.sessions[e].stood_up += 1
+                self.operator.before_reset(self, due)  # a legged robot: stood up first
                 if due.any():
                     rt.reset_faults(due)
                     for e in np.flatnonzero(due):

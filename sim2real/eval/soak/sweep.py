@@ -34,7 +34,8 @@ from pathlib import Path
 
 from sim2real.deploy.kinds import robot_kind
 from sim2real.eval.world.pushes import PushRanges
-from sim2real.eval.world.session_ranges import SessionRanges
+from sim2real.eval.world.session_ranges import SessionRanges, session_ranges
+from sim2real.eval.world.world_faces import WORLD_OF_KIND
 
 #: A level holds when its success is at most this far below the reference's (a fraction).
 #: Our choice: 0.1, ten points of tracking or goal success.
@@ -62,9 +63,10 @@ class Quantity:
         unit: The levels' unit.
         levels: Increasingly severe levels.
         apply: ``(ranges, level) -> ranges`` with the quantity at that level.
-        needs: The robot kind's choice it needs (an attribute of
-            :class:`~sim2real.deploy.robot_kind.RobotKind` that must be true: ``floating_base``
-            for a floor, ``pushes`` for pushes), or None.
+        needs: What the robot kind's soak world must have (:func:`_fits`): ``"floor"`` (its
+            range defaults draw a floor, :data:`~sim2real.eval.world.session_ranges.SESSION_RANGES`),
+            ``"pushes"`` (its world passes domain pushes on,
+            :data:`~sim2real.eval.world.world_faces.WORLD_OF_KIND`), or None.
         model_field: The MuJoCo ``dof_*`` field a relative range scales (None: not relative to
             the model), for the ``n/a`` of a robot without it.
     """
@@ -128,7 +130,7 @@ QUANTITIES = (
         "mu",
         (0.5, 0.4, 0.3, 0.2, 0.1),
         _floor,
-        needs="floating_base",
+        needs="floor",
     ),
     Quantity(
         "motor_strength",
@@ -167,8 +169,15 @@ def _run_one(config, out: str) -> dict:
 
 
 def _fits(q: Quantity, robot) -> bool:
-    """The robot's kind has what ``q`` needs (:attr:`Quantity.needs`)."""
-    return q.needs is None or bool(getattr(robot_kind(robot), q.needs))
+    """The robot kind's soak world has what ``q`` needs (:attr:`Quantity.needs`): a floor its
+    range defaults draw, or domain pushes its world face passes on."""
+    if q.needs is None:
+        return True
+    ranges = session_ranges(robot)
+    if q.needs == "floor":
+        return ranges.floor_friction is not None
+    world = WORLD_OF_KIND.get(robot_kind(robot).name)
+    return world.domain_pushes(q.apply(ranges, q.levels[0])) is not None
 
 
 def _applies(q: Quantity, robot) -> bool:

@@ -23,6 +23,7 @@ import numpy as np
 
 from sim2real.deploy.kinds import robot_kind
 from sim2real.eval.world.checks import check_range
+from sim2real.eval.world.world_faces import WORLD_OF_KIND
 from sim2real.robots import Robot
 
 if TYPE_CHECKING:
@@ -311,7 +312,8 @@ def sample_fault_schedule(
 
 def _drawable_kinds(robot: Robot, ranges: FaultRanges, sensors: SensorDraw, max_spike: int):
     """The fault kinds the session may draw and their weights (not normalized): no sensor gap
-    where none fits the stale limit, no cable pull on a kind without them.
+    where none fits the stale limit, none the kind's world refuses (a legged robot's: no cable
+    pull, :data:`~sim2real.eval.world.world_faces.WORLD_OF_KIND`).
 
     Raises:
         ValueError: the kinds left after those leave none to draw.
@@ -327,11 +329,12 @@ def _drawable_kinds(robot: Robot, ranges: FaultRanges, sensors: SensorDraw, max_
             f"{sensors.latency_ticks} ticks of latency); the fault kinds {ranges.kinds} "
             "leave none to draw",
         )  # fmt: skip
-    if not robot_kind(robot).cable_faults and "cable" in kinds:
+    refused = WORLD_OF_KIND.get(robot_kind(robot).name).refused_faults()
+    for fault in [k for k in refused if k in kinds]:  # the kind's world's (a legged: no cable)
         kinds, weights = _without(
-            kinds, weights, ("cable",),
-            f"robot {robot.name}: a floating-base robot gets no cable pulls; the fault kinds "
-            f"{ranges.kinds} leave none to draw",
+            kinds, weights, (fault,),
+            f"robot {robot.name}: {refused[fault]}; the fault kinds {ranges.kinds} leave none "
+            "to draw",
         )  # fmt: skip
     return kinds, weights
 

@@ -127,6 +127,7 @@ SESSION_RANGES: Faces = Faces("soak's range defaults")
 SESSION_RANGES.register("arm", arm_ranges)
 SESSION_RANGES.register("legged", legged_ranges)
 SESSION_RANGES.register("wheel_legged", legged_ranges)
+SESSION_RANGES.register("legged_arm", legged_ranges)
 
 
 #: The nominal encoder noise the specified range is drawn about, rad: the specified 0.005 on

@@ -22,6 +22,18 @@ class SimDisturbances:
     """The external disturbances of a :class:`~sim2real.deploy.backends.sim.plant.SimBackend`
     (module docstring)."""
 
+    @property
+    def free_base(self) -> bool:
+        """The plant's model begins with MuJoCo's free joint (the MJCF's floating base): its
+        base moves and is pushed, its sensor frame carries an IMU and the feet's contacts."""
+        m = self.models[0]
+        return m.njnt > 0 and int(m.jnt_type[0]) == mujoco.mjtJoint.mjJNT_FREE
+
+    def _pushable(self) -> None:
+        """Raises ValueError: the plant's robot has no floating base (:attr:`free_base`)."""
+        if not self.free_base:
+            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+
     def set_base_velocity(self, env: int, velocity_xy: np.ndarray) -> None:
         """Set the floating base's horizontal velocity of ``env`` to ``velocity_xy`` (2,) m/s,
         world frame, at once: legged_gym's push (its ``LeggedRobot`` push sets the root's x
@@ -30,8 +42,7 @@ class SimDisturbances:
         Raises:
             ValueError: a fixed-base robot.
         """
-        if not self.robot.floating_base:
-            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        self._pushable()
         self.datas[env].qvel[:2] = velocity_xy
 
     def push_base(self, env: int, twist: np.ndarray, add: bool = False) -> None:
@@ -45,8 +56,7 @@ class SimDisturbances:
         Raises:
             ValueError: a fixed-base robot, or ``add`` False with a vertical or angular entry.
         """
-        if not self.robot.floating_base:
-            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        self._pushable()
         twist = np.asarray(twist, dtype=float)
         d = self.datas[env]
         if not add:
@@ -75,8 +85,7 @@ class SimDisturbances:
             ValueError: a fixed-base robot, ``duration <= 0``, or ``add`` False with a vertical
                 or angular entry.
         """
-        if not self.robot.floating_base:
-            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        self._pushable()
         if not duration > 0:
             raise ValueError(f"push_wrench: expected a duration > 0 s, got {duration}")
         twist = np.asarray(twist, dtype=float)
@@ -112,8 +121,7 @@ class SimDisturbances:
         Raises:
             ValueError: a fixed-base robot.
         """
-        if not self.robot.floating_base:
-            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        self._pushable()
         m, d = self.models[env], self.datas[env]
         base = m.body(self.robot.base_body).id
         bodies = np.flatnonzero(m.body_rootid == m.body_rootid[base])
@@ -146,8 +154,7 @@ class SimDisturbances:
         Raises:
             ValueError: a fixed-base robot.
         """
-        if not self.robot.floating_base:
-            raise ValueError(f"robot {self.robot.name} has no floating base to push")
+        self._pushable()
         m, d = self.models[env], self.datas[env]
         d.xfrc_applied[m.body(self.robot.base_body).id] = wrench
 
@@ -162,7 +169,7 @@ class SimDisturbances:
             KeyError: ``body`` names no body of the model (MuJoCo's lookup).
         """
         m, d = self.models[env], self.datas[env]
-        if body is None and self.robot.floating_base:
+        if body is None and self.free_base:
             body = self.robot.base_body
         bid = m.site_bodyid[self.robot.ee_site_id] if body is None else m.body(body).id
         d.xfrc_applied[bid, :3] = force

@@ -116,10 +116,10 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         self._nu = n * robot.actuators_per_joint(mode)
         # a floating base: MuJoCo's free joint comes first (qpos 7, qvel 6, one joint)
         self._qpos_offset, self._qvel_offset = robot.qpos_offset, robot.qvel_offset
-        self._jnt_offset = 1 if robot.floating_base else 0
         for m in models:
             self._check_model(m, "models")
         self.models = list(models)
+        self._jnt_offset = 1 if self.free_base else 0  # the model's free joint (disturbances)
         self.datas = [mujoco.MjData(m) for m in self.models]
         self._views: list[tuple] = [()] * envs
         self._qvel_views: list[np.ndarray] = [np.zeros(0)] * envs  # the joints' qvel (see _bind)
@@ -149,7 +149,7 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         self.decimation = robot.decimation
         self.control_period = robot.control_period
 
-        self.frame = SensorFrame.empty(envs, n, robot.n_feet if robot.floating_base else None)
+        self.frame = SensorFrame.empty(envs, n, robot.n_feet if self.free_base else None)
         #: encoders and temperature reports (settings, latency buffers, the sensor streams)
         self._joint_sensors = JointSensorModel(robot, envs, self.frame, seed, max_latency_ticks)
 
@@ -201,7 +201,7 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
                 self._command[e] = d.qfrc_bias[self._qvel_offset :]
             self._views[e][2][:] = self._command[e]
         self.actuators.reset(which, self._command)
-        if self.robot.floating_base:
+        if self.free_base:
             self._base_sensors.reset(which, envs is None)
         if envs is None:
             self.thermal.reset()
@@ -449,7 +449,7 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         Raises:
             ValueError: a fixed-base robot.
         """
-        if not self.robot.floating_base:
+        if not self.free_base:
             raise ValueError(f"robot {self.robot.name} has no floating base")
         out = np.empty((self.envs, 13)) if out is None else out
         for e, d in enumerate(self.datas):

@@ -21,6 +21,7 @@ PLANT_EXTRAS: Faces = Faces("plant's extras")
 PLANT_EXTRAS.register("arm", no_extras)
 PLANT_EXTRAS.register("legged", BaseSensorModel)
 PLANT_EXTRAS.register("wheel_legged", BaseSensorModel)
+PLANT_EXTRAS.register("legged_arm", BaseSensorModel)
 
 
 def plant_extras(plant, robot) -> BaseSensorModel | None:

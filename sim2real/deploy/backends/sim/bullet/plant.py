@@ -51,7 +51,7 @@ MAX_STATE = 1e10
 
 def _root_body(m: mujoco.MjModel, robot: Robot) -> int:
     """The robot's root body: the floating base, or the world's child holding its joints."""
-    if robot.floating_base:
+    if m.njnt > 0 and int(m.jnt_type[0]) == mujoco.mjtJoint.mjJNT_FREE:  # a floating base
         return int(m.body(robot.base_body).id)
     b = int(m.jnt_bodyid[0])
     while m.body_parentid[b] != 0:
@@ -106,7 +106,7 @@ class BulletBackend(SimBackend):
         if old is not None:
             pb.disconnect(old.client)
         root = _root_body(m, self.robot)
-        self._worlds[e] = build_world(m, root, self.n_joints, self.robot.floating_base)
+        self._worlds[e] = build_world(m, root, self.n_joints, self.free_base)
         self._laws[e] = DriveLaw(m, self._jnt_offset, self._qvel_offset, self.n_joints)
         self._friction[e] = None  # set before the next physics step
         self._sync_forces(e)

@@ -110,10 +110,9 @@ def numpy_fall_check(fall: FallDetector, state: RobotState) -> tuple[np.ndarray,
     for e in np.flatnonzero(contact.any(axis=1)):
         pin.forwardKinematics(fall.model, fall.data, state.q[e])
         rot = attitude.quaternion_to_matrix(state.base.orientation[e])
-        height[e] = max(
+        height[e] = max(  # above the lowest foot, with one in contact
             radius - (rot @ pin.updateFramePlacement(fall.model, fall.data, f).translation)[2]
-            for f, radius, touching in zip(fall.feet, fall.radii, contact[e], strict=True)
-            if touching
+            for f, radius in zip(fall.feet, fall.radii, strict=True)
         )
     low = np.where(height < fall.height_limit, fall.low_ticks + 1, 0)
     signals[:, 1] = low >= fall.height_ticks

@@ -312,3 +312,44 @@ def test_the_truths_fall_judge_measures_the_base_above_the_ground_under_it():
         monitor.update(runtime, truth)
         counts.append(int(monitor.true_falls[0]))
     assert counts == [0, 1]
+
+
+def test_walking_down_stairs_with_the_rear_feet_on_the_step_above_is_no_fall():
+    """HIMLoco's Go2 walking down 0.176 m steps (stairs_down@7 of its training mix, seed 9 of the
+    push benchmark) at the tick its fall check stopped it: pitched 22 deg nose-down, only the
+    rear feet in contact on the step above, the front feet reaching down past the step below. The
+    base stood 0.27 m above the ground under it, but 0.10 m above the rear feet, so a height
+    taken over the feet in contact read a collapse (under ``fall_height``, 0.12 m, for
+    ``FALL_HEIGHT_TIME``). A foot lower than those in contact says the ground under the base is
+    lower too: no fall signal however long the pose lasts; with the front feet drawn up to the
+    rear feet's level (a base sunk onto its feet) it trips the check."""
+    from sim2real.deploy.core.attitude import align_up
+
+    gravity = np.array([0.383, -0.047, -0.923])  # the estimate's projected gravity
+    gravity /= np.linalg.norm(gravity)
+    feet = np.array(  # m, base frame (FL, FR, RL, RR), the estimator's kinematics
+        [[0.327, 0.156, -0.277], [0.262, -0.197, -0.285], [-0.182, 0.173, -0.169],
+         [-0.168, -0.163, -0.147]]
+    )  # fmt: skip
+    state = RobotState.legged(1, GO2.n_joints, len(GO2.foot_frame_ids))
+    state.base.orientation[0] = align_up(-gravity)
+    state.base.projected_gravity[0] = gravity
+    state.foot_contact[0] = [0.0, 0.0, 1.0, 1.0]
+    rows = {"stairs": feet, "collapsed": feet.copy()}
+    level = (feet[2:] @ gravity).max()  # m, the rear feet below the base
+    front = rows["collapsed"][:2]  # drawn up to the rear feet's level
+    front[:, 2] = (level - front[:, :2] @ gravity[:2]) / gravity[2]
+    for pose, expected in (("stairs", False), ("collapsed", True)):
+        detector = FallDetector(GO2, 1)
+
+        def positions(e: int, out: np.ndarray, pose=pose) -> bool:
+            out[:] = rows[pose]
+            return True
+
+        fired = [bool(detector.check(state, positions)[0]) for _ in range(20)]
+        assert fired[-1] is expected, pose
+        assert detector.signals[0, 1] is np.bool_(expected)
+        if expected:
+            assert fired.index(True) == detector.height_ticks - 1
+        else:
+            assert detector.height[0] > 0.3  # the base above the lowest foot

@@ -259,7 +259,7 @@ class SafetyConfig(_Strict):
     collision_pairs: list[tuple[str, str]] = []
     stale_limit: Positive = 0.05  # s without a fresh encoder reading before a safe stop
     # Floating-base robots: a fall is the base tilted past fall_tilt (rad) or lower than
-    # fall_height (m) above its feet in contact (0: no height check); left out, the defaults of
+    # fall_height (m) above its lowest foot (0: no height check); left out, the defaults of
     # sim2real/deploy/estimation/fall.py (FALL_TILT, FALL_HEIGHT). None keeps them out of the description
     # hash.
     fall_tilt: Positive | None = None

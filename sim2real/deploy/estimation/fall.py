@@ -2,9 +2,11 @@
 
 A robot has fallen when its base is tilted past ``safety.fall_tilt`` (rad, the angle between the
 base's z axis and the world's up, from the attitude filter's projected gravity) or when, with a
-foot on the ground, its base has stayed lower than ``safety.fall_height`` (m) above the feet in
-contact for ``FALL_HEIGHT_TIME`` s: the kinematic base height above the ground, ``max_i (-(R p_i)_z
-+ rho_i)`` over the feet ``i`` in contact, ``p_i`` the foot site's position in the base frame
+foot on the ground, its base has stayed lower than ``safety.fall_height`` (m) above its lowest
+foot for ``FALL_HEIGHT_TIME`` s: the kinematic base height above the ground, ``max_i (-(R p_i)_z +
+rho_i)`` over every foot ``i`` (a foot in the air lower than those in contact, reaching down a step
+with the others on the step above, says the ground under the base is that low too; a collapsed
+base's feet are on the ground or above it), ``p_i`` the foot site's position in the base frame
 (Pinocchio, joint estimate), ``rho_i`` its contact radius, a sphere's or a wheel's (a wheel's site is
 its hub: :func:`~sim2real.deploy.estimation.base_params.foot_radii`), and ``R`` the estimated
 orientation. The tilt trips at once; the height must persist, because a low trot
@@ -89,8 +91,8 @@ class FallDetector:
             (``FALL_HEIGHT_TIME`` over the robot's control period, rounded up).
         radii: (n_feet,) m, each foot's contact radius
             (:func:`~sim2real.deploy.estimation.base_params.foot_radii`).
-        height: (envs,) m, the last kinematic base height above the ground (NaN with no foot
-            in contact).
+        height: (envs,) m, the last kinematic base height above the ground, above the lowest
+            foot (NaN with no foot in contact).
         low_ticks: (envs,) int64, consecutive checks so far with ``height`` under the limit.
         speed_ticks: control ticks the base must sink faster than ``FALL_SPEED`` tilted or
             low (``FALL_SPEED_TIME``); upright_ticks: upright, on its feet or with none in
@@ -260,15 +262,16 @@ def _check(limits, gravity, velocity, orientation, contact, position, height, ti
         if limits[1] > 0.0:
             height[e] = np.nan
             _quat_to_mat(orientation[e], rot)
-            first = True
-            for i in range(contact.shape[1]):  # max() of the feet in contact, in their order
-                if contact[e, i] > 0.5:
-                    p = position[e, i]
-                    below = -fma(rot[2, 2], p[2], fma(rot[2, 0], p[0], rot[2, 1] * p[1]))
-                    below += limits[7 + i]  # the foot's contact radius: down to the ground
-                    if first or below > height[e]:
-                        height[e] = below
-                    first = False
+            touching, lowest = False, -np.inf
+            for i in range(contact.shape[1]):  # max() of every foot, in their order
+                touching = touching or contact[e, i] > 0.5
+                p = position[e, i]
+                below = -fma(rot[2, 2], p[2], fma(rot[2, 0], p[0], rot[2, 1] * p[1]))
+                below += limits[7 + i]  # the foot's contact radius: down to the ground
+                if below > lowest:
+                    lowest = below
+            if touching:  # a foot on the ground; none: a hop, no height
+                height[e] = lowest
             ticks[0, e] = ticks[0, e] + 1 if height[e] < limits[1] else 0
             signals[e, 1] = ticks[0, e] >= limits[2]
         # sinking: tilted or low; upright and no foot in contact (NaN) is a hop, not low

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import mujoco
 import numpy as np
 
 from bench.push_loops import (
@@ -36,6 +35,7 @@ from bench.push_loops import (
     BareBase,
     Run,
     _Walk,
+    bare_plant,
     count_running_tick,
     finish_run,
     past_hard_limit,
@@ -84,18 +84,9 @@ def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes) -> Run:
     scale = np.asarray(params["action_scale"], dtype=float)
     default = np.asarray(params["default_dof_pos"], dtype=float)
     lo, hi = np.asarray(params["clip_actions_lower"]), np.asarray(params["clip_actions_upper"])
-    m = robot.plant_model("torque")
-    d = mujoco.MjData(m)
+    plant = bare_plant(robot, (kp, kd, np.array(robot.home, dtype=float)))
+    m, d, target, step = plant.m, plant.d, plant.target, plant.advance  # target: in place
     qo, vo = robot.qpos_offset, robot.qvel_offset
-    target = np.array(robot.home, dtype=float)
-    d.qpos[qo:] = target
-    mujoco.mj_forward(m, d)
-    dec = round(period / m.opt.timestep)
-
-    def step():
-        for _ in range(dec):
-            d.ctrl[:] = kp * (target - d.qpos[qo:]) - kd * d.qvel[vo:]
-            mujoco.mj_step(m, d)
 
     for _ in range(round(SETTLE / period)):
         step()

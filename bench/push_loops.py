@@ -98,13 +98,6 @@ class _Walk:
         self.ticks, self.mode = 0, np.array([RUNNING])
 
 
-class BareBase(SimDisturbances):
-    """The plant's push methods on one bare MuJoCo model and data (the own loops)."""
-
-    def __init__(self, robot, m: mujoco.MjModel, d: mujoco.MjData):
-        self.robot, self.models, self.datas = robot, [m], [d]
-
-
 class BarePlant:
     """One bare MuJoCo model with torque actuators (``robot.plant_model("torque")``) under the own
     loops' PD law ``tau = kp (target - q) - kd dq`` at every physics step: the plant of
@@ -230,7 +223,7 @@ def _bare_run(
     qo = robot.qpos_offset
     walk, run = walk or _Walk(), Run()
     schedule = DomainPushes([seed], pushes, robot.control_period) if pushes else None
-    base = BareBase(robot, m, d)
+    base = SimDisturbances(robot, [m], [d])  # the plant's push methods on the bare model
     for tick in range(1, round(seconds / robot.control_period) + 1):
         plant.advance()
         t = tick * robot.control_period

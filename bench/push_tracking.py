@@ -32,7 +32,6 @@ import numpy as np
 
 from bench.push_loops import (
     STOP_RAISED,
-    BareBase,
     Run,
     _Walk,
     bare_plant,
@@ -44,6 +43,7 @@ from bench.push_loops import (
 )
 from bench.rl_sar_motion import RlSarMotion, rl_sar_params
 from bench.rl_sar_tracking import load_policy, observation
+from sim2real.deploy.backends.sim.disturbances import SimDisturbances
 from sim2real.deploy.core.modes import RUNNING
 from sim2real.eval.world.pushes import DomainPushes
 
@@ -100,7 +100,7 @@ def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes) -> Run:
         ticks = min(ticks, round(seconds / period))
     walk, run = _Walk(), Run()
     schedule = DomainPushes([seed], pushes, period) if pushes else None
-    bare = BareBase(robot, m, d)
+    bare = SimDisturbances(robot, [m], [d])
     for k in range(ticks):
         motion.update(k * period)
         q, dq = d.qpos[qo:][ours], d.qvel[vo:][ours]

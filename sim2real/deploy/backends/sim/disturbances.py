@@ -1,14 +1,15 @@
 """External disturbances of the MuJoCo plant: pushes of a floating base and constant forces.
 
-:class:`SimDisturbances` is a base class of :class:`~sim2real.deploy.backends.sim.plant.SimBackend`
-(the fault hooks of :class:`~sim2real.deploy.core.backend.SimulatedPlant`); its methods work on
-the backend's public ``robot``, ``models`` and ``datas``. A push is a wrench over a short window
-(:meth:`SimDisturbances.push_wrench`), spread over the robot's bodies so that it changes the
+:class:`SimDisturbances` is a stage of :class:`~sim2real.deploy.backends.sim.plant.SimBackend` (the
+fault hooks of :class:`~sim2real.deploy.core.backend.SimulatedPlant`, which the plant delegates to
+it) over the plant's ``models`` and ``datas`` (lists it shares), or over one bare model and data
+(the push benchmark's own loops); it keeps no state of its own. A push is a wrench over a short
+window (:meth:`SimDisturbances.push_wrench`), spread over the robot's bodies so that it changes the
 whole robot's velocity as a training push does, its joints' speeds untouched
 (:meth:`SimDisturbances.set_push_wrench`), which the IMU (MuJoCo's accelerometer and gyro) feels as
-a real shove; changing the base's velocity at
-once (legged_gym's and mjlab's pushes: :meth:`SimDisturbances.set_base_velocity`,
-:meth:`SimDisturbances.push_base`) happens between physics steps and hides the push from the IMU.
+a real shove; changing the base's velocity at once (legged_gym's and mjlab's pushes:
+:meth:`SimDisturbances.set_base_velocity`, :meth:`SimDisturbances.push_base`) happens between
+physics steps and hides the push from the IMU.
 A force acts on a body until it is changed.
 """
 
@@ -19,8 +20,11 @@ import numpy as np
 
 
 class SimDisturbances:
-    """The external disturbances of a :class:`~sim2real.deploy.backends.sim.plant.SimBackend`
-    (module docstring)."""
+    """The external disturbances of ``robot``'s envs simulated in ``models`` and ``datas`` (one
+    ``MjModel`` and ``MjData`` per env; module docstring)."""
+
+    def __init__(self, robot, models: list, datas: list):
+        self.robot, self.models, self.datas = robot, models, datas
 
     def set_base_velocity(self, env: int, velocity_xy: np.ndarray) -> None:
         """Set the floating base's horizontal velocity of ``env`` to ``velocity_xy`` (2,) m/s,

@@ -1,6 +1,6 @@
-"""The simulated plant is composed of stage objects, each holding its own state, to which it
+"""The simulated plant and the runtime are composed of stage objects, each holding its own state, to which it
 delegates by name (:class:`sim2real.deploy.backends.sim.plant.SimBackend`,
-:func:`sim2real.deploy.core.delegate.delegate`): no mixin bases, the stages' arrays are the
+:class:`sim2real.deploy.runtime.loop.Runtime`, :func:`sim2real.deploy.core.delegate.delegate`): no mixin bases, the stages' arrays are the
 plant's, a write through the plant reaches the stage."""
 
 import numpy as np
@@ -41,3 +41,22 @@ def test_a_delegate_follows_a_replaced_stage_and_writes_only_when_writable():
     assert owner.stage.value == 3
     with pytest.raises(AttributeError):
         owner.value = 4
+
+
+def test_the_runtime_is_its_stages_and_keeps_its_own_clock(arm3, tmp_path):
+    """The runtime holds its run and its state dict as stages (no mixin bases); loading a state
+    moves its tick and time, which only it writes."""
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.runtime import Runtime
+    from tests.runtime_fixtures import adversarial_onnx
+
+    assert Runtime.__mro__ == (Runtime, object)
+    policy = OnnxPolicy(adversarial_onnx(tmp_path, arm3, "position"), arm3)
+    rt = Runtime(arm3, policy, SimBackend(arm3, "position"))
+    rt.start()
+    rt.run(5)
+    assert (rt.ticks, rt.gc_collections) == (5, rt.run_loop.gc_collections)
+    state = rt.state_dict()
+    rt.run(3)
+    rt.load_state_dict(state)
+    assert (rt.ticks, rt.time) == (5, state["time"])

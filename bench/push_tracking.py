@@ -155,7 +155,7 @@ def tracking_runtime_loop(robot, policy, seed: int, seconds: float | None, pushe
             run.fell_at, run.cause = rt.time, STOP_RAISED
             run.upright_stop = true_upright(robot, truth[0, 2], truth[0, 3:7])
             break
-        rig.monitor(rt)  # the interventions, then the tracking task
+        rig.after_tick(rt)  # the interventions, then the tracking task (no hooks)
         plant.true_base_state(out=truth)
         if rt.mode[0] != RUNNING:
             if run.ticks or rt.time > RAMP_TIMEOUT:  # it danced, and stopped

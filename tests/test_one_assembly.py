@@ -91,3 +91,20 @@ def test_the_clock_scan_finds_a_write(tmp_path):
     """The scan sees a write where there is one."""
     (tmp_path / "m.py").write_text("def f(twin):\n    twin.rt.ticks += 1\n")
     assert _runtime_clock_writes((tmp_path,)) == ["m.py:2"]
+
+
+def test_every_run_ticks_through_the_rigs_after_tick():
+    """A run's after-tick work is its rig's (``Rig.after_tick``: the monitors, the task, then the
+    hooks, the soak batch's bookkeeping among them): nothing outside the rig calls the monitors
+    alone (``rig.monitor``) and adds its own work around them."""
+    found = []
+    for folder in (PACKAGE, ROOT / "bench"):
+        for path in sorted(folder.rglob("*.py")):
+            if path.is_relative_to(RIG):
+                continue
+            for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+                func = getattr(node, "func", None)
+                if isinstance(func, ast.Attribute) and func.attr == "monitor":
+                    if ast.unparse(func.value).split(".")[-1] == "rig":
+                        found.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not found, "call rig.after_tick (or add a RunHook):\n" + "\n".join(found)

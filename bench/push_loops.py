@@ -10,7 +10,7 @@ constant command under a sequence of pushes, in its own loop on the true state o
 - :func:`truth_loop`: the same loop for a policy that has no published loop of its own (the
   shipped go2, an mjlab export): its exported ONNX file and its spec's observation built from the
   true state (:meth:`sim2real.deploy.core.state.BaseState.set_truth`), the robot's PD gains.
-- :func:`runtime_loop`: :class:`sim2real.deploy.runtime.Runtime` over
+- :func:`runtime_loop`: ``deploy-run``'s rig (:class:`~sim2real.deploy.rig.rig.Rig`, no task) over
   :class:`~sim2real.deploy.backends.sim.plant.SimBackend` (position mode, the robot's shipped
   sensor noise, seeded by the run's seed) with the policy's drive applied, as ``deploy-run`` runs
   it; its interventions (:class:`~sim2real.deploy.monitors.interventions.InterventionMonitor`)
@@ -302,8 +302,7 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command, terr
     random parts from ``seed`` as ``deploy-run --terrain --seed`` draws them), the true fall
     judged above the ground under the base (None: the plane)."""
     from sim2real.deploy.backends.sim.plant import SimBackend
-    from sim2real.deploy.monitors.interventions import InterventionMonitor
-    from sim2real.deploy.runtime import Runtime
+    from sim2real.deploy.rig.rig import Rig
     from sim2real.deploy.smoothing.ruckig_state import SmoothingError
     from sim2real.eval.soak.push_response import PushResponse
 
@@ -323,10 +322,10 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command, terr
             0.0 if ground is None else float(plant.ground_height(truth)[0])
         )
 
-    rt = Runtime(robot, policy, plant)
+    rig = Rig(robot, policy, plant, envs=1, truth=False)  # its interventions; no task
+    rt, monitor = rig.runtime, rig.interventions
     rt.velocity_command[0] = command
-    rt.start()
-    monitor = InterventionMonitor(rt.guard, rt.smoother)
+    rig.start()
     run = Run(checks={})
     schedule = DomainPushes([seed], pushes, rt.dt) if pushes else None
     response = PushResponse(schedule, rt.dt) if schedule else None
@@ -341,7 +340,7 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command, terr
             run.fell_at, run.cause = rt.time, STOP_RAISED
             run.upright_stop = true_upright(robot, above(), truth[0, 3:7])
             break
-        monitor.update()
+        rig.after_tick(rt)  # the interventions
         plant.true_base_state(out=truth)
         if rt.mode[0] != RUNNING:
             if run.ticks or rt.time > RAMP_TIMEOUT:  # it walked, and stopped

@@ -197,11 +197,12 @@ def run(
     period = dt * decimation
     schedule = walk = base_pushes = None
     if pushes is not None:  # the soak's schedule on this loop's policy ticks (bench.push_loops)
-        from bench.push_loops import BareBase, _Walk
+        from bench.push_loops import _Walk
+        from sim2real.deploy.backends.sim.disturbances import SimDisturbances
         from sim2real.eval.world.pushes import DomainPushes
 
         schedule = DomainPushes([seed], pushes[1], period)
-        walk, base_pushes = _Walk(), BareBase(pushes[0], model, data)
+        walk, base_pushes = _Walk(), SimDisturbances(pushes[0], [model], [data])
     for k in range(steps):
         if k % decimation == 0:
             q, dq = q_dq()

@@ -10,7 +10,7 @@ constant command under a sequence of pushes, in its own loop on the true state o
 - :func:`truth_loop`: the same loop for a policy that has no published loop of its own (the
   shipped go2, an mjlab export): its exported ONNX file and its spec's observation built from the
   true state (:meth:`sim2real.deploy.core.state.BaseState.set_truth`), the robot's PD gains.
-- :func:`runtime_loop`: :class:`sim2real.deploy.runtime.Runtime` over
+- :func:`runtime_loop`: ``deploy-run``'s rig (:class:`~sim2real.deploy.rig.rig.Rig`, no task) over
   :class:`~sim2real.deploy.backends.sim.plant.SimBackend` (position mode, the robot's shipped
   sensor noise, seeded by the run's seed) with the policy's drive applied, as ``deploy-run`` runs
   it; its interventions (:class:`~sim2real.deploy.monitors.interventions.InterventionMonitor`)
@@ -98,11 +98,43 @@ class _Walk:
         self.ticks, self.mode = 0, np.array([RUNNING])
 
 
-class BareBase(SimDisturbances):
-    """The plant's push methods on one bare MuJoCo model and data (the own loops)."""
+class BarePlant:
+    """One bare MuJoCo model with torque actuators (``robot.plant_model("torque")``) under the own
+    loops' PD law ``tau = kp (target - q) - kd dq`` at every physics step: the plant of
+    :class:`~sim2real.deploy.rig.own_loop.OwnLoop` here (its true state, ``write``, ``advance``)
+    and of the foreign stacks' loops. ``gains``: (kp, kd, the first target), (n,) each."""
 
-    def __init__(self, robot, m: mujoco.MjModel, d: mujoco.MjData):
-        self.robot, self.models, self.datas = robot, [m], [d]
+    def __init__(self, robot, m: mujoco.MjModel, d: mujoco.MjData, gains):
+        self.m, self.d = m, d
+        self.kp, self.kd, self.target = gains
+        self.qo, self.vo = robot.qpos_offset, robot.qvel_offset
+        self.decimation = round(robot.control_period / m.opt.timestep)
+
+    def true_position(self) -> np.ndarray:
+        """(1, n) rad, the joints' angles (a view)."""
+        return self.d.qpos[None, self.qo :]
+
+    def true_velocity(self) -> np.ndarray:
+        """(1, n) rad/s, the joints' speeds (a view)."""
+        return self.d.qvel[None, self.vo :]
+
+    def true_base_state(self, out: np.ndarray | None = None) -> np.ndarray:
+        """(1, 13) the free joint's ``qpos[:7]`` and ``qvel[:6]`` (as the plant's)."""
+        out = np.empty((1, 13)) if out is None else out
+        out[0, :7], out[0, 7:] = self.d.qpos[:7], self.d.qvel[:6]
+        return out
+
+    def write(self, target: np.ndarray) -> None:
+        """The PD's target, (n,) or (1, n) rad."""
+        self.target = np.asarray(target).reshape(-1)
+
+    def advance(self) -> None:
+        """One control period: the PD law and ``mj_step`` at each physics step."""
+        m, d, qo, vo = self.m, self.d, self.qo, self.vo
+        kp, kd, target = self.kp, self.kd, self.target
+        for _ in range(self.decimation):
+            d.ctrl[:] = kp * (target - d.qpos[qo:]) - kd * d.qvel[vo:]
+            mujoco.mj_step(m, d)
 
 
 def _tilt(quaternion: np.ndarray) -> float:
@@ -169,28 +201,33 @@ def load_torchscript(path):
         return torch.jit.load(str(path)).eval()
 
 
-def _bare_run(
-    robot, seed, seconds, pushes: PushRanges | None, gains, act, path=None, watch=None
-) -> Run:
-    """The own loops' common body: ``gains`` (kp, kd, the first target), ``act(t, d)`` the
-    policy's next PD target from the true state after a control period; ``watch(t, d, target)``
-    (optional) sees each tick's true state and next target (:mod:`bench.guard_replay`)."""
+def bare_plant(robot, gains) -> BarePlant:
+    """A :class:`BarePlant` of ``robot`` at its home pose, at rest, under ``gains`` (kp, kd,
+    the first target)."""
     m = robot.plant_model("torque")
     d = mujoco.MjData(m)
     d.qpos[robot.qpos_offset :] = robot.home
     mujoco.mj_forward(m, d)
-    kp, kd, target = gains
-    qo, vo = robot.qpos_offset, robot.qvel_offset
-    dec = round(robot.control_period / m.opt.timestep)
-    walk, run = _Walk(), Run()
+    return BarePlant(robot, m, d, gains)
+
+
+def _bare_run(
+    robot, plant, seed, seconds, pushes: PushRanges | None, act, path=None, watch=None, walk=None
+) -> Run:
+    """The own loops' common body on ``plant`` (a :class:`BarePlant`): ``act(t)`` writes the
+    policy's next PD target from the true state after a control period, and returns it;
+    ``watch(t, d, target)`` (optional) sees each tick's true state and next target
+    (:mod:`bench.guard_replay`); ``walk``: what the pushes read (``ticks``, ``mode``; default a
+    :class:`_Walk`), its ``ticks`` set here."""
+    m, d = plant.m, plant.d
+    qo = robot.qpos_offset
+    walk, run = walk or _Walk(), Run()
     schedule = DomainPushes([seed], pushes, robot.control_period) if pushes else None
-    base = BareBase(robot, m, d)
+    base = SimDisturbances(robot, [m], [d])  # the plant's push methods on the bare model
     for tick in range(1, round(seconds / robot.control_period) + 1):
-        for _ in range(dec):
-            d.ctrl[:] = kp * (target - d.qpos[qo:]) - kd * d.qvel[vo:]
-            mujoco.mj_step(m, d)
+        plant.advance()
         t = tick * robot.control_period
-        target = act(t, d)
+        target = act(t)
         if watch is not None:
             watch(t, d, target)
         if path is not None:
@@ -222,14 +259,18 @@ def unitree_loop(
     kp, kd = np.array(cfg["kps"], float), np.array(cfg["kds"], float)
     action = np.zeros(len(default), dtype=np.float32)
 
-    def act(t, d):
+    plant = bare_plant(robot, (kp, kd, default.copy()))
+    d = plant.d
+
+    def act(t):
         nonlocal action
         with torch.no_grad():
             obs = unitree_observation(cfg, d.qpos, d.qvel, action, t, command)
             action = net(torch.from_numpy(obs)[None]).numpy()[0].astype(np.float32)
-        return action * cfg["action_scale"] + default
+        plant.write(action * cfg["action_scale"] + default)
+        return plant.target
 
-    return _bare_run(robot, seed, seconds, pushes, (kp, kd, default.copy()), act, path, watch)
+    return _bare_run(robot, plant, seed, seconds, pushes, act, path, watch)
 
 
 def truth_loop(
@@ -239,31 +280,19 @@ def truth_loop(
     ``robot``, fresh: a recurrent policy's memory) on the true state (module docstring), its
     gait clock the time walked; arguments and result as :func:`unitree_loop`."""
     from sim2real.deploy.core.state import RobotState
+    from sim2real.deploy.rig.own_loop import OwnLoop
 
-    spec = policy.spec
     state = RobotState.legged(1, robot.n_joints, robot.n_feet)
     state.command[0] = command
-    goal = np.zeros((1, 3))
-    truth = np.zeros((1, 13))
-    qo, vo = robot.qpos_offset, robot.qvel_offset
-    obs = np.zeros((1, spec.obs_dim), dtype=np.float32)
-    target = np.empty((1, robot.n_joints))
-
-    def act(t, d):
-        state.q[0], state.dq[0] = d.qpos[qo:], d.qvel[vo:]
-        truth[0, :7], truth[0, 7:] = d.qpos[:7], d.qvel[:6]
-        state.base.set_truth(truth)
-        state.clock[0] = t
-        spec.observation(state, goal, out=obs)
-        action = policy(obs)
-        spec.action_to_target(action, state, out=target)
-        state.last_action[:] = action
-        return target[0]
-
     kp = np.array([j.kp for j in robot.config.joints], dtype=float)
     kd = np.array([j.kd for j in robot.config.joints], dtype=float)
-    gains = (kp, kd, np.array(robot.home, dtype=float))
-    return _bare_run(robot, seed, seconds, pushes, gains, act, path, watch)
+    plant = bare_plant(robot, (kp, kd, np.array(robot.home, dtype=float)))
+    loop = OwnLoop(policy, plant, state, np.zeros((1, 3)), robot.control_period)
+
+    def act(t):  # the gait clock: the bench's tick times
+        return loop.act(t)[0]
+
+    return _bare_run(robot, plant, seed, seconds, pushes, act, path, watch, walk=loop)
 
 
 def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command, terrain=None) -> Run:
@@ -273,8 +302,7 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command, terr
     random parts from ``seed`` as ``deploy-run --terrain --seed`` draws them), the true fall
     judged above the ground under the base (None: the plane)."""
     from sim2real.deploy.backends.sim.plant import SimBackend
-    from sim2real.deploy.monitors.interventions import InterventionMonitor
-    from sim2real.deploy.runtime import Runtime
+    from sim2real.deploy.rig.rig import Rig
     from sim2real.deploy.smoothing.ruckig_state import SmoothingError
     from sim2real.eval.soak.push_response import PushResponse
 
@@ -294,10 +322,10 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command, terr
             0.0 if ground is None else float(plant.ground_height(truth)[0])
         )
 
-    rt = Runtime(robot, policy, plant)
+    rig = Rig(robot, policy, plant, envs=1, truth=False)  # its interventions; no task
+    rt, monitor = rig.runtime, rig.interventions
     rt.velocity_command[0] = command
-    rt.start()
-    monitor = InterventionMonitor(rt.guard, rt.smoother)
+    rig.start()
     run = Run(checks={})
     schedule = DomainPushes([seed], pushes, rt.dt) if pushes else None
     response = PushResponse(schedule, rt.dt) if schedule else None
@@ -312,7 +340,7 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command, terr
             run.fell_at, run.cause = rt.time, STOP_RAISED
             run.upright_stop = true_upright(robot, above(), truth[0, 3:7])
             break
-        monitor.update()
+        rig.after_tick(rt)  # the interventions
         plant.true_base_state(out=truth)
         if rt.mode[0] != RUNNING:
             if run.ticks or rt.time > RAMP_TIMEOUT:  # it walked, and stopped

@@ -28,14 +28,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import mujoco
 import numpy as np
 
 from bench.push_loops import (
     STOP_RAISED,
-    BareBase,
     Run,
     _Walk,
+    bare_plant,
     count_running_tick,
     finish_run,
     past_hard_limit,
@@ -44,6 +43,7 @@ from bench.push_loops import (
 )
 from bench.rl_sar_motion import RlSarMotion, rl_sar_params
 from bench.rl_sar_tracking import load_policy, observation
+from sim2real.deploy.backends.sim.disturbances import SimDisturbances
 from sim2real.deploy.core.modes import RUNNING
 from sim2real.eval.world.pushes import DomainPushes
 
@@ -84,18 +84,9 @@ def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes) -> Run:
     scale = np.asarray(params["action_scale"], dtype=float)
     default = np.asarray(params["default_dof_pos"], dtype=float)
     lo, hi = np.asarray(params["clip_actions_lower"]), np.asarray(params["clip_actions_upper"])
-    m = robot.plant_model("torque")
-    d = mujoco.MjData(m)
+    plant = bare_plant(robot, (kp, kd, np.array(robot.home, dtype=float)))
+    m, d, target, step = plant.m, plant.d, plant.target, plant.advance  # target: in place
     qo, vo = robot.qpos_offset, robot.qvel_offset
-    target = np.array(robot.home, dtype=float)
-    d.qpos[qo:] = target
-    mujoco.mj_forward(m, d)
-    dec = round(period / m.opt.timestep)
-
-    def step():
-        for _ in range(dec):
-            d.ctrl[:] = kp * (target - d.qpos[qo:]) - kd * d.qvel[vo:]
-            mujoco.mj_step(m, d)
 
     for _ in range(round(SETTLE / period)):
         step()
@@ -109,7 +100,7 @@ def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes) -> Run:
         ticks = min(ticks, round(seconds / period))
     walk, run = _Walk(), Run()
     schedule = DomainPushes([seed], pushes, period) if pushes else None
-    bare = BareBase(robot, m, d)
+    bare = SimDisturbances(robot, [m], [d])
     for k in range(ticks):
         motion.update(k * period)
         q, dq = d.qpos[qo:][ours], d.qvel[vo:][ours]
@@ -164,7 +155,7 @@ def tracking_runtime_loop(robot, policy, seed: int, seconds: float | None, pushe
             run.fell_at, run.cause = rt.time, STOP_RAISED
             run.upright_stop = true_upright(robot, truth[0, 2], truth[0, 3:7])
             break
-        rig.monitor(rt)  # the interventions, then the tracking task
+        rig.after_tick(rt)  # the interventions, then the tracking task (no hooks)
         plant.true_base_state(out=truth)
         if rt.mode[0] != RUNNING:
             if run.ticks or rt.time > RAMP_TIMEOUT:  # it danced, and stopped

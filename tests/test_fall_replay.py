@@ -79,7 +79,9 @@ def test_the_own_loop_replay_carries_the_worlds_push(pushed_h1_2):
     twin = batch.stop_replay.copy_of(0)
     until = fall["t_s"] + HORIZON
     twin.restore(arrays, copy.deepcopy(meta), "test")
+    ticks, now = twin.rt.ticks, twin.rt.time
     assert own_loop(twin, until) is not None  # with the push: it falls
+    assert (twin.rt.ticks, twin.rt.time) == (ticks, now)  # the own loop ran on its own clock
     twin.restore(arrays, copy.deepcopy(meta), "test")
     twin.pushes = None  # the world without the training domain's pushes
     assert own_loop(twin, until) is None

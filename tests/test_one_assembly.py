@@ -55,3 +55,56 @@ def test_the_scan_finds_the_rigs_own_runtime():
     """The scan sees a construction where there is one: the rig's."""
     inside = [p for p in _constructions(RUNTIMES, skip=()) if p.startswith("sim2real/deploy/rig/")]
     assert len(inside) == 1 and inside[0].endswith("Runtime(...)"), inside
+
+
+def _runtime_clock_writes(folders) -> list[str]:
+    """``file:line`` of every assignment to a runtime's ``ticks`` or ``time`` (an attribute of
+    ``rt``, ``runtime`` or ``*.rt``/``*.runtime``) in the ``.py`` files under ``folders``,
+    outside the runtime package."""
+    found = []
+    for folder in folders:
+        for path in sorted(folder.rglob("*.py")):
+            if path.is_relative_to(HOMES[0]):
+                continue
+            tree = ast.parse(path.read_text(), filename=str(path))
+            for node in ast.walk(tree):
+                targets = getattr(node, "targets", None) or [getattr(node, "target", None)]
+                for target in targets:
+                    elts = getattr(target, "elts", [target])
+                    for t in elts:
+                        if isinstance(t, ast.Attribute) and t.attr in ("ticks", "time"):
+                            owner = ast.unparse(t.value).split(".")[-1]
+                            if owner in ("rt", "runtime"):
+                                found.append(f"{path.name}:{node.lineno}")
+    return found
+
+
+def test_no_loop_writes_a_runtimes_clock_from_outside():
+    """A loop in place of the runtime (the policy's own loop) keeps its own clock
+    (:class:`sim2real.deploy.rig.own_loop.OwnLoop`): nothing in the package or the benchmarks
+    moves a runtime's ``ticks`` or ``time``."""
+    written = _runtime_clock_writes((PACKAGE, ROOT / "bench"))
+    assert not written, "run OwnLoop on its own clock:\n" + "\n".join(written)
+
+
+def test_the_clock_scan_finds_a_write(tmp_path):
+    """The scan sees a write where there is one."""
+    (tmp_path / "m.py").write_text("def f(twin):\n    twin.rt.ticks += 1\n")
+    assert _runtime_clock_writes((tmp_path,)) == ["m.py:2"]
+
+
+def test_every_run_ticks_through_the_rigs_after_tick():
+    """A run's after-tick work is its rig's (``Rig.after_tick``: the monitors, the task, then the
+    hooks, the soak batch's bookkeeping among them): nothing outside the rig calls the monitors
+    alone (``rig.monitor``) and adds its own work around them."""
+    found = []
+    for folder in (PACKAGE, ROOT / "bench"):
+        for path in sorted(folder.rglob("*.py")):
+            if path.is_relative_to(RIG):
+                continue
+            for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+                func = getattr(node, "func", None)
+                if isinstance(func, ast.Attribute) and func.attr == "monitor":
+                    if ast.unparse(func.value).split(".")[-1] == "rig":
+                        found.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not found, "call rig.after_tick (or add a RunHook):\n" + "\n".join(found)

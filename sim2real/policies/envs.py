@@ -10,11 +10,11 @@ its actions pass through the runtime's :class:`~sim2real.deploy.safety.guard.Saf
 before they reach the drives. What the guard and the smoother changed is an *intervention* and is
 penalized: a policy that leans on the guard fails on a robot whose guard is tuned differently.
 
-:class:`ReachTask` is the batched core (arrays shaped (envs, ...)), built through the one assembly of a
-run (:class:`~sim2real.deploy.rig.rig.Rig`: the runtime's stages and state, the intervention monitor, the
-goals) and stepping those stages itself, without the runtime's supervision; :class:`ArmReachEnv` is the
-Gymnasium env of one robot, :class:`ReachVecEnv` the Stable-Baselines3 ``VecEnv`` of many robots
-stepped in lockstep by one ``SimBackend``.
+:class:`ReachTask` is the batched core (arrays (envs, ...)), built through the one assembly of a run
+(:class:`~sim2real.deploy.rig.rig.Rig`: the runtime's stages and state, the intervention monitor, the
+goals), its stages stepped by the rig's :class:`~sim2real.deploy.rig.learner_tick.LearnerTick` without
+the runtime's supervision; :class:`ArmReachEnv` is the Gymnasium env of one robot, :class:`ReachVecEnv`
+the Stable-Baselines3 ``VecEnv`` of many in lockstep in one ``SimBackend``.
 
 Episode: continuous operation, as in the soak. The robot starts at rest at a random pose inside its
 soft limits (or, with ``ReachConfig.start_poses``, at one of the poses where a soak saw a policy
@@ -37,8 +37,8 @@ import gymnasium as gym
 import numpy as np
 
 from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.rig.learner_tick import LearnerTick
 from sim2real.deploy.rig.rig import Rig
-from sim2real.deploy.runtime import reanchor
 from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.eval.world.dynamics import Dynamics, DynamicsRanges, randomized_model, sample_dynamics
 from sim2real.eval.world.fault_schedule import FaultRanges
@@ -219,21 +219,16 @@ class ReachTask:
             else float(config.success_radius)
         )
         self.t_episode = np.zeros(envs)
-        #: the run (sim2real.deploy.rig): the runtime's stages, state and estimator input, the
-        #: intervention monitor, the chained goals (sim2real.deploy.tasks.episodes.EpisodeGoals:
-        #: issued, reached, missed). :meth:`step` runs the stages itself, in the tick's order but
-        #: without the runtime's supervision (no RAMP_IN, no safe stops: an episode ends instead),
-        #: the learner's action given to it, so the runtime's policy slot is never called.
+        #: the run (sim2real.deploy.rig): the runtime's stages and state, the intervention
+        #: monitor, the chained goals (sim2real.deploy.tasks.episodes.EpisodeGoals: issued,
+        #: reached, missed). :meth:`step` runs the rig's LearnerTick: the tick's stages without
+        #: the runtime's supervision (no RAMP_IN, no safe stops: an episode ends instead), the
+        #: learner's action given to it, so the runtime's policy slot is never called.
         self.rig = self._rig(config)
+        self.learner_tick = LearnerTick(self.rig, self.spec, self.faults)
         rt = self.rig.runtime
         self.estimator, self.kinematics, self.state = rt.estimator, rt.kinematics, rt.state
         self.guard, self.smoother = rt.guard, rt.smoother
-        # the estimator's control input, the runtime's (SafetyGuard.estimator_input)
-        self._input = self.guard.estimator_input(self.smoother)
-        # velocity mode: the guard's stopping bounds read Ruckig's integrated position too
-        self._commanded = self.smoother.position if config.mode == "velocity" else None
-        self._moved = np.zeros(envs, dtype=np.int64)
-        self._tracking = np.zeros(envs)
         self._continuous = np.array([m.continuous_torque for m in robot.motors])
         self._start_poses = np.asarray(config.start_poses, dtype=np.float64).reshape(-1, self.n)
         self.randomize = config.dynamics != DynamicsRanges.none()
@@ -241,8 +236,6 @@ class ReachTask:
         self._ws_min = np.asarray(robot.config.safety.workspace_min)
         self._ws_max = np.asarray(robot.config.safety.workspace_max)
         self.obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
-        self._target = np.zeros((envs, self.n))
-        self._cmd = np.zeros((envs, self.n))
         self._distance = np.zeros(envs)
         self._prev_dq = np.zeros((envs, self.n))
         self.task = self.rig.task
@@ -257,7 +250,6 @@ class ReachTask:
         # per tick from the counters as the first episodes start
         self.monitor = self.rig.interventions
         self.monitor.resync()
-        self._any_before = np.zeros(envs, dtype=np.int64)
 
     def _rig(self, config: ReachConfig) -> Rig:
         """The run (:mod:`sim2real.deploy.rig`): the runtime's stages with the learner in the
@@ -357,36 +349,10 @@ class ReachTask:
             ``(obs, reward, terminated, truncated)``: float32 (envs, obs_dim) observation after
             the step, (envs,) reward, (envs,) bool each. Finished envs are *not* reset here.
         """
-        robot, rew, guard = self.robot, self.config.reward, self.guard
+        robot, rew, guard, state = self.robot, self.config.reward, self.guard, self.state
         action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-        faults = self.faults
-        if faults is not None:  # a nan-action fault; the runtime's screen holds the last action
-            faults.filter_action(self.backend.time, action)
-            bad = ~np.isfinite(action).all(axis=1)
-            if bad.any():
-                action[bad] = self.state.last_action[bad]
-        target = self.spec.action_to_target(action, self.state, out=self._target)
-        target = guard.filter(target, self.state, out=target, commanded_position=self._commanded)
-        cmd = self.smoother.step(target, out=self._cmd)
-        cmd = guard.check_motion(self.smoother, self.state, cmd)  # the runtime's motion envelope
-        # what the guard and the smoother changed (the smoother's brake before a soft limit, its
-        # clamp to the velocity limit, the guard's clamps and holds): interventions
-        np.copyto(self._any_before, self.monitor.any)
-        self.monitor.update()
-        intervened = self.monitor.any > self._any_before
-        self.backend.write(cmd)
-        self.backend.advance()
-        if faults is not None:  # the runtime's tick: plant-side faults, then the frame's
-            faults.before_read(self.backend.time)
-        frame = self.backend.read()
-        if faults is not None:
-            frame = faults.filter_frame(self.backend.time, frame)
-        state = self.estimator.update(frame, self.state, self._input)
-        state.last_action[:] = action
-        guard.update_thermal(state.winding_temperature)
-        reanchor(self.smoother, state, self._tracking, self._moved)
-        self.kinematics.update(state)
-        self.spec.observation(state, self.goal, out=self.obs)
+        # target, guard, smoother, drives, physics, encoders, Kalman filter, re-anchoring
+        intervened = self.learner_tick.step(action, self.goal, self.obs)
         self.t_episode += self.dt
         self.ticks += 1
 

@@ -2,7 +2,8 @@
 monitors and the task every run has, and the after-tick hooks a run adds.
 
 ``deploy-run``, the soak's batch, the training environments (the reach env steps the runtime's stages
-itself) and the runtime's acceptance run build their runs here, so a run is judged the same way
+with :mod:`~sim2real.deploy.rig.learner_tick`), the push benchmark and the runtime's acceptance run
+build their runs here, so a run is judged the same way
 wherever it runs: violations of the true state (a simulated plant only), interventions of the guard
 and the smoother, a legged robot's base estimate against the truth (simulation), and the task (goals
 or velocity commands, :func:`sim2real.deploy.tasks.task.task_for`).

@@ -1,9 +1,9 @@
 """The control loop (:class:`Runtime`): its stages built over one backend, its lifecycle (start,
 restart after the robot was moved, an operator's reset of latched faults), the tick (read top to
-bottom in :meth:`Runtime.tick`); its state dict comes from
-:class:`~sim2real.deploy.runtime.state.RuntimeState`, the part of the tick a robot's base adds
-from its kind (``kind.tick_stage``, :mod:`sim2real.deploy.kinds.legged_tick`), the run with the
-garbage collector frozen from :class:`~sim2real.deploy.runtime.run_loop.RunLoop`. The package's docstring
+bottom in :meth:`Runtime.tick`). It delegates by name to its stages: the state dict to
+:class:`~.state.RuntimeState`, the run with the garbage collector frozen to
+:class:`~.run_loop.RunLoop`, the part of the tick a robot's base adds to its kind's
+(``kind.tick_stage``, :mod:`sim2real.deploy.kinds.legged_tick`). The package's docstring
 (:mod:`sim2real.deploy.runtime`) describes the tick and the state machine.
 """
 
@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from sim2real.deploy.core.delegate import delegate
 from sim2real.deploy.core.latency import BIN_NS, BINS, LatencyHistogram
 from sim2real.deploy.core.modes import (
     OVERRUN_RATE_LIMIT,
@@ -50,7 +51,7 @@ def _no_reset(envs: np.ndarray) -> None:
     """The reset of a policy without state."""
 
 
-class Runtime(RuntimeState, RunLoop):
+class Runtime:
     """The control loop for ``envs`` robots behind one backend.
 
     Args:
@@ -72,20 +73,24 @@ class Runtime(RuntimeState, RunLoop):
             through, the drives holding the last command.
         kind: The robot's kind (the rig's, handed to the guard); None: ``robot_kind(robot)``.
 
-    The tick's numeric logic (supervision, action screen, observation, guard, smoother, latency
-    histograms) runs in the compiled kernels of :mod:`sim2real.deploy.kernels`; its numpy reference is
-    :class:`sim2real.deploy.runtime.reference.ReferenceRuntime`, whose stages and small methods
-    (:meth:`_build_stages`, :meth:`_compile`, :meth:`_supervise`, :meth:`_observe`,
-    :meth:`_act`, :meth:`_bind_books`) replace these.
+    The tick's numeric logic runs in the compiled kernels of :mod:`sim2real.deploy.kernels`; its
+    numpy reference is :class:`sim2real.deploy.runtime.reference.ReferenceRuntime`, whose stages and
+    small methods (``_build_stages``, ``_compile``, ``_supervise``, ``_observe``, ``_act``,
+    ``_bind_books``) replace these.
 
     Raises:
         ValueError: a policy of another control mode than the backend's, or an
             ``overrun_rate_limit`` outside (0, 1].
     """
 
-    #: The state machine's class (:class:`~sim2real.deploy.runtime.reference.ReferenceRuntime` takes its
-    #: numpy reference).
+    #: The state machine's class (:class:`.reference.ReferenceRuntime` takes its numpy reference).
     supervision_type = Supervision
+    run = delegate("run_loop", "run")  # RunLoop.run: ticks with the garbage collector frozen
+    gc_collections = delegate("run_loop", "gc_collections", writable=True)
+    #: (envs, n) float32: the last tick's screened policy action in [-1, 1] (a view)
+    action = delegate("supervision", "action")
+    mode_names = delegate("supervision", "mode_names")  # each env's mode, by name
+    cause_names = delegate("supervision", "cause_names")  # each env's fault cause, or None
 
     def __init__(
         self,
@@ -167,18 +172,15 @@ class Runtime(RuntimeState, RunLoop):
         self.stale_stops = StaleStops(self, sup)
         self.latency = LatencyHistogram(len(STAGES))
         self.tick_cost = LatencyHistogram()
-        #: the longest control periods and their parts (:class:`~sim2real.deploy.observe.long_ticks.
-        #: LongTicks`): the wake-up's lateness, each stage, the work outside the stages, the
-        #: loop thread's CPU time (wall clock)
+        #: the longest control periods and their parts (``LongTicks``): the wake-up's lateness,
+        #: each stage, the work outside the stages, the loop thread's CPU time (wall clock)
         self.long_ticks = lt.LongTicks(STAGES)
         # the period's stamps (long_ticks.PREV_WAKE ... END_CPU) and the CPU clock (wall clock)
         self._period = np.array([0, 0, -1, 0, 0], dtype=np.int64)
         self._cpu_ns = time.thread_time_ns if self.clock.realtime else None
-        self.ticks = 0
-        #: collections of the garbage collector inside :meth:`run`'s loop, where it is disabled
-        #: (an explicit ``gc.collect`` or a re-enabled collector in a callback); 0 in a clean run
-        self.gc_collections = 0
-        self.time = 0.0
+        self.ticks, self.time = 0, 0.0
+        self.run_loop = RunLoop(self, self.tick, self._woke, self.clock)  # and gc_collections
+        self.checkpoint = RuntimeState(self)  # the state dict
         self._obs = np.zeros((envs, self.spec.obs_dim), dtype=np.float32)
         self._target = np.zeros((envs, n))
         self._cmd = np.zeros((envs, n))
@@ -252,15 +254,39 @@ class Runtime(RuntimeState, RunLoop):
         return compiled
 
     def _bind_books(self):
-        """``(tick) -> None``, the tick's bookkeeping in one compiled call: stage durations into
-        :attr:`latency`, the cost without physics into :attr:`tick_cost`, the period into
-        :attr:`long_ticks` (:func:`~sim2real.deploy.observe.long_ticks.record_tick` bound to
-        these arrays as one table, :func:`~sim2real.deploy.observe.long_ticks.bind_record`: no
-        dispatch per call; they are never replaced)."""
+        """``(tick) -> None``, the tick's bookkeeping in one compiled call into :attr:`latency`,
+        :attr:`tick_cost` and :attr:`long_ticks` (:mod:`sim2real.deploy.observe.long_ticks`'s
+        ``record_tick`` bound to these arrays as one table; they are never replaced)."""
         lat, cost = self.latency, self.tick_cost
         arrays = (self._stamps, self._period, self._bins, lat.counts, lat.max_ns)
         arrays += (cost.counts, cost.max_ns, self.long_ticks.table)
         return lt.bind_record(arrays)  # the tick index, an int, at each call
+
+    # ------------------------------------------------------------------ state and views
+    def state_dict(self, env: int | None = None) -> dict:
+        """The loop's state and its stages' (:meth:`.state.RuntimeState.state_dict`)."""
+        return self.checkpoint.state_dict(env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict`, its tick and time included; raises StateDictError
+        (:meth:`.state.RuntimeState.load_state_dict`)."""
+        self.ticks, self.time = self.checkpoint.load_state_dict(state, env)
+
+    @property
+    def target(self) -> np.ndarray:
+        """(envs, n): the last tick's guarded target, units of the mode (rad, rad/s, N m; a view)."""
+        return self._target
+
+    @property
+    def command(self) -> np.ndarray:
+        """(envs, n): the command the last tick wrote, units of the mode (a view)."""
+        return self._cmd
+
+    @property
+    def damping(self) -> np.ndarray:
+        """(envs,) bool: the envs whose command damps the joints instead of holding a pose (a
+        legged robot's envs in SAFE_STOP or FAULTED: it lies down; all False for an arm)."""
+        return self.base_tick.damping(self.mode)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -332,10 +358,8 @@ class Runtime(RuntimeState, RunLoop):
         ((n,) or (envs, n) rad) at rest at time ``t`` (s; float or (envs,)), and the base
         estimator upright, as :meth:`start` anchors them (the estimators' counters of those envs
         are kept: a session's tallies survive its restarts); the guard and smoother at ``q``;
-        latched faults cleared; RAMP_IN. Other envs are untouched.
-
-        A filter that tracked the jump instead would hand the smoother a joint speed of tens of
-        rad/s."""
+        latched faults cleared; RAMP_IN. Other envs are untouched. (A filter that tracked the
+        jump instead would hand the smoother a joint speed of tens of rad/s.)"""
         envs = np.asarray(envs, dtype=bool)
         if not envs.any():
             return
@@ -449,8 +473,7 @@ class Runtime(RuntimeState, RunLoop):
 
     def _estimate_observe(self, frame, drive_errors: np.ndarray | None) -> np.ndarray:
         """A fixed base's estimator, kinematics, :meth:`_supervise` and :meth:`_observe` in one
-        compiled call, the same numbers
-        (:meth:`~sim2real.deploy.runtime.fused.TableCalls.estimate_observe`)."""
+        compiled call, the same numbers (:meth:`.fused.TableCalls.estimate_observe`)."""
         args = (frame, drive_errors, self._input, self.spec, self.goal, self._obs)
         return self._compiled.estimate_observe(*args)
 

@@ -1,8 +1,9 @@
 """The runtime's run (:class:`RunLoop`): ``ticks`` control periods with the garbage collector
 frozen and disabled, a wall clock started at the first run.
 
-:class:`RunLoop` is a base class of :class:`~sim2real.deploy.runtime.loop.Runtime`; its method
-works on the runtime's attributes (set in ``Runtime.__init__``).
+:class:`RunLoop` is a stage of :class:`~sim2real.deploy.runtime.loop.Runtime`, which delegates
+``run`` and ``gc_collections`` to it: it is given the runtime's tick and wake-up calls and its
+clock, and counts the collections inside its loops.
 """
 
 from __future__ import annotations
@@ -17,7 +18,24 @@ def _gc_collections() -> int:
 
 
 class RunLoop:
-    """:meth:`run` of a :class:`~sim2real.deploy.runtime.loop.Runtime` (module docstring)."""
+    """The run of a runtime (module docstring).
+
+    Args:
+        runtime: What ``on_tick`` is called with (the runtime).
+        tick: ``() -> None``, one control period (the runtime's ``tick``).
+        woke: ``(now_ns) -> None``, the period's stamps at a wake-up (the runtime's).
+        clock: The runtime's clock (:class:`~sim2real.deploy.runtime.clock.SimClock` or a wall
+            clock).
+
+    Attributes:
+        gc_collections: Collections of the garbage collector inside :meth:`run`'s loop, where it
+            is disabled (an explicit ``gc.collect`` or a re-enabled collector in a callback); 0
+            in a clean run.
+    """
+
+    def __init__(self, runtime, tick, woke, clock):
+        self.runtime, self.tick, self.woke, self.clock = runtime, tick, woke, clock
+        self.gc_collections = 0
 
     def run(self, ticks: int, on_tick=None) -> None:
         """Run ``ticks`` control periods with the garbage collector frozen and disabled.
@@ -40,13 +58,13 @@ class RunLoop:
         gc.disable()
         if fresh:  # a wall clock not yet waited on: the set-up since start() is not the first
             self.clock.start()  # tick's overrun
-        self._woke(time.perf_counter_ns())
+        self.woke(time.perf_counter_ns())
         collections = _gc_collections()
-        tick = self.tick
+        tick, runtime = self.tick, self.runtime
         try:
             for _ in range(ticks):
                 tick()
-                if on_tick is not None and on_tick(self):
+                if on_tick is not None and on_tick(runtime):
                     break
         finally:
             self.gc_collections += _gc_collections() - collections

@@ -6,16 +6,16 @@ targets and commands, the counters, the estimated robot state), the arrays its e
 overrun window, the wall-clock histograms), the tick, the time and the clock's counters, then each
 stage's own state dict under its name; the conventions are :mod:`sim2real.deploy.core.stateful`'s.
 
-:class:`RuntimeState` is a base class of :class:`~sim2real.deploy.runtime.loop.Runtime`; its methods work
-on the runtime's attributes (set in ``Runtime.__init__``). It also gives the state's names (modes,
-causes) and read-only views (the last action, target and command).
+:class:`RuntimeState` is a stage of :class:`~sim2real.deploy.runtime.loop.Runtime`, which delegates
+its ``state_dict`` and ``load_state_dict`` to it: it reads the runtime's public arrays and stages
+(the policy and its observation plan of the moment: a switch of policy is followed) and hands the
+loaded tick and time back to the runtime, which keeps its own clock.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from sim2real.deploy.core.modes import FAULT_CAUSES, Mode
 from sim2real.deploy.core.stateful import check, load_parts, parts_state_dict, put, scalar, take
 
 
@@ -36,23 +36,27 @@ class ObservationState:
 
 
 class RuntimeState:
-    """The state dict of a :class:`~sim2real.deploy.runtime.loop.Runtime` (module docstring)."""
+    """The state dict of ``runtime`` (a :class:`~sim2real.deploy.runtime.loop.Runtime`; module
+    docstring)."""
 
-    # ------------------------------------------------------------------ state
+    def __init__(self, runtime):
+        self.rt = runtime
+
     def _state_fields(self) -> dict[str, np.ndarray]:
         """The runtime's own per-env arrays (leading env axis), its state machine's included."""
-        c, st, sup = self.counters, self.state, self.supervision
+        rt = self.rt
+        c, st, sup = rt.counters, rt.state, rt.supervision
         fields = {
-            "mode": self.mode,
-            "cause": self.cause,
-            "goal": self.goal,
-            "drive_errors": self.drive_errors,
+            "mode": rt.mode,
+            "cause": rt.cause,
+            "goal": rt.goal,
+            "drive_errors": rt.drive_errors,
             "action": sup.action,
             "last_valid_action": sup.last_valid_action,
             "nan_streak": sup.nan_streak,
-            "stop_ticks": self.stop_ticks,
-            "target": self._target,
-            "command": self._cmd,
+            "stop_ticks": rt.stop_ticks,
+            "target": rt.target,
+            "command": rt.command,
             "counters/non_finite_actions": c.non_finite_actions,
             "counters/safe_stops": c.safe_stops,
             "counters/resyncs": c.resyncs,
@@ -71,14 +75,15 @@ class RuntimeState:
 
     def _shared_fields(self) -> dict[str, np.ndarray]:
         """Arrays the envs share: the overrun window, the wall-clock histograms."""
+        rt = self.rt
         fields = {
-            "overrun_ring": self.supervision.overrun_ring,
-            "latency/counts": self.latency.counts,
-            "latency/max_ns": self.latency.max_ns,
-            "tick_cost/counts": self.tick_cost.counts,
-            "tick_cost/max_ns": self.tick_cost.max_ns,
+            "overrun_ring": rt.supervision.overrun_ring,
+            "latency/counts": rt.latency.counts,
+            "latency/max_ns": rt.latency.max_ns,
+            "tick_cost/counts": rt.tick_cost.counts,
+            "tick_cost/max_ns": rt.tick_cost.max_ns,
         }
-        jitter = getattr(self.clock, "jitter", None)
+        jitter = getattr(rt.clock, "jitter", None)
         if jitter is not None:
             fields["clock/jitter/counts"] = jitter.counts
             fields["clock/jitter/max_ns"] = jitter.max_ns
@@ -88,15 +93,16 @@ class RuntimeState:
         """The stages whose state is part of the runtime's: the estimator, guard, smoother and
         the policy's observation (its gait clocks and frame history), and the policy, backend
         and fault injector where they have a ``state_dict``."""
-        parts = {"estimator": self.estimator, "guard": self.guard, "smoother": self.smoother}
-        parts["observation"] = ObservationState(self.spec.plan, self.envs)
-        parts.update(self.base_tick.parts())  # a floating base's estimator and fall check
-        if self.height_map is not None:  # a policy with a height scan: its elevation map
-            parts["height_map"] = self.height_map
+        rt = self.rt
+        parts = {"estimator": rt.estimator, "guard": rt.guard, "smoother": rt.smoother}
+        parts["observation"] = ObservationState(rt.spec.plan, rt.envs)
+        parts.update(rt.base_tick.parts())  # a floating base's estimator and fall check
+        if rt.height_map is not None:  # a policy with a height scan: its elevation map
+            parts["height_map"] = rt.height_map
         for name, part in (
-            ("policy", self.policy),
-            ("backend", self.backend),
-            ("injector", self.injector),
+            ("policy", rt.policy),
+            ("backend", rt.backend),
+            ("injector", rt.injector),
         ):
             if part is not None and hasattr(part, "state_dict"):
                 parts[name] = part
@@ -121,19 +127,21 @@ class RuntimeState:
         ``policy/``, ``backend/``, ``injector/`` where the policy (a recurrent one), the backend
         (:class:`~sim2real.deploy.backends.sim.plant.SimBackend`) or the fault injector has one.
         """
+        rt = self.rt
         out: dict = take(self._state_fields(), env)
         out.update({k: np.array(v, copy=True) for k, v in self._shared_fields().items()})
-        out["ticks"], out["time"] = int(self.ticks), float(self.time)
-        clock = self.clock
+        out["ticks"], out["time"] = int(rt.ticks), float(rt.time)
+        clock = rt.clock
         out["clock/overruns"] = int(clock.overruns)
         out["clock/missed_periods"] = int(clock.missed_periods)
         return out | parts_state_dict(self._parts(), env)
 
-    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+    def load_state_dict(self, state: dict, env: int | None = None) -> tuple[int, float]:
         """Inverse of :meth:`state_dict` (of every env, or of env ``env``; the shared fields
-        either way), into a runtime built with the same robot, policy, backend kind and clock.
-        A started runtime is not needed: the state replaces what :meth:`start` sets (a wall
-        clock's deadlines start anew here).
+        either way), into a runtime built with the same robot, policy, backend kind and clock;
+        returns the ``(ticks, time)`` it holds, for the runtime to set. A started runtime is
+        not needed: the state replaces what ``start`` sets (a wall clock's deadlines start anew
+        here).
 
         Raises:
             StateDictError: a missing field or a shape that differs, named with its stage's
@@ -147,40 +155,8 @@ class RuntimeState:
         check(shared, state, None)
         put(self._state_fields(), state, env)
         put(shared, state, None)
-        self.ticks, self.time = ticks, now
-        self.clock.overruns, self.clock.missed_periods = overruns, missed
+        clock = self.rt.clock
+        clock.overruns, clock.missed_periods = overruns, missed
         load_parts(self._parts(), state, env)
-        self.clock.start()
-
-    # ------------------------------------------------------------------ names and read-only views
-    def mode_names(self) -> list[str]:
-        return [Mode(int(m)).name for m in self.mode]
-
-    def cause_names(self) -> list[str | None]:
-        return [FAULT_CAUSES[c] if c >= 0 else None for c in self.cause]
-
-    # ------------------------------------------------------------------ read-only views
-    @property
-    def action(self) -> np.ndarray:
-        """(envs, n) float32: the last tick's screened policy action in [-1, 1] (a view)."""
-        return self.supervision.action
-
-    @property
-    def target(self) -> np.ndarray:
-        """(envs, n): the last tick's guarded target, in the units of the control mode (position
-        rad, velocity rad/s, torque N m; a view)."""
-        return self._target
-
-    @property
-    def command(self) -> np.ndarray:
-        """(envs, n): the command the last tick wrote to the backend, in the units of the
-        control mode (position rad, velocity rad/s, torque N m; a view)."""
-        return self._cmd
-
-    @property
-    def damping(self) -> np.ndarray:
-        """(envs,) bool: the envs whose command damps the joints instead of holding a pose: a
-        legged robot's envs in SAFE_STOP or FAULTED (holding its stance against gravity with a
-        low-gain PD heated the thighs past 200 degC in simulation: it lies down instead); all
-        False for an arm."""
-        return self.base_tick.damping(self.mode)
+        clock.start()
+        return ticks, now

@@ -127,6 +127,14 @@ class Supervision:
         #: (the runtime's :class:`~sim2real.deploy.runtime.stale.StaleStops`); None: nobody
         self.on_stale_stop: Callable[[np.ndarray], None] | None = None
 
+    def mode_names(self) -> list[str]:
+        """Each env's mode by name (:class:`~sim2real.deploy.core.modes.Mode`)."""
+        return [Mode(int(m)).name for m in self.mode]
+
+    def cause_names(self) -> list[str | None]:
+        """Each env's fault cause by name (``FAULT_CAUSES``; None: none)."""
+        return [FAULT_CAUSES[c] if c >= 0 else None for c in self.cause]
+
     def missed_in_last(self, periods: int) -> int:
         """Control periods the loop missed among the last ``periods`` of :attr:`overrun_ring`
         (at most its window; 0 in lockstep)."""

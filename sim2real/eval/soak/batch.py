@@ -44,6 +44,7 @@ from sim2real.deploy.monitors.kernel import temperature_bands
 from sim2real.deploy.tasks.task import follows_velocity_commands
 from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.soak.batch_plant import build_plant
+from sim2real.eval.soak.batch_tick import BatchTick
 from sim2real.eval.soak.exhibition import exhibition_task
 from sim2real.eval.soak.faults import SessionFaults
 from sim2real.eval.soak.push_response import PushResponse
@@ -114,11 +115,9 @@ class SessionBatch:
         resume: Continue from the sessions' checkpoints (they must be at the same tick).
         progress: Write ``progress.json`` per session every ``PROGRESS_PERIOD`` simulated s.
         on_progress: Optional callable, called after each progress write.
-        recorders: Recorders that watch the batch, each built as ``recorder(batch)``: a class
-            with ``supervise(runtime)`` (after every control tick), ``checkpointed()`` (after
-            every checkpoint) and ``finish()`` (e.g. :class:`sim2real.eval.film.strip.FilmRecorder`, which
-            keeps every checkpoint and notes the worst moments for the film strip). A class, not
-            an instance, so that a campaign's worker processes receive it by name.
+        recorders: Recorders that watch the batch, each a class built as ``recorder(batch)``
+            (a campaign's workers receive it by name) with ``supervise(runtime)``,
+            ``checkpointed()`` and ``finish()`` (:class:`sim2real.eval.film.strip.FilmRecorder`).
         replay_stops: A floating-base robot's hard-limit stops are replayed without the stop
             (:class:`sim2real.eval.soak.counterfactual.StopReplay`) and its falls in the policy's
             own loop and with other noise (:class:`sim2real.eval.soak.fall_replay.FallReplay`),
@@ -178,8 +177,7 @@ class SessionBatch:
         # a fault's push or cable pull adds to a domain push's force in force (not replaces it)
         forces = self.pushes.wrench[:, :3] if self.pushes is not None else None
         self.faults = SessionFaults(backend, base_forces=forces)
-        # the runtime, then its monitors and task (goals, velocity commands or an exhibition's
-        # clips, one stream per session): the soak's order
+        # the runtime, then its monitors and task (one stream per session): the soak's order
         commands = follows_velocity_commands(robot)  # a command's period, else a goal's
         task = {
             "period": first.command_period if commands else first.goal_period,
@@ -193,11 +191,11 @@ class SessionBatch:
             robot, self.policy, backend, envs=k, task=task, runtime={"injector": self.faults},
             start=True,
         )  # fmt: skip
-        self.rt = self.rig.runtime
+        self.rig.add(BatchTick(self))  # the batch's bookkeeping, after the monitors and task
+        self.rt, self.task = self.rig.runtime, self.rig.task
         self.violations, self.interventions = self.rig.violations, self.rig.interventions
         #: a legged robot's base estimate against the plant's truth (None for an arm)
         self.estimation = self.rig.estimation
-        self.task = self.rig.task
 
         n = robot.n_joints
         self.peak = backend.thermal.winding_temperature.copy()
@@ -299,15 +297,17 @@ class SessionBatch:
             ckpt.write_checkpoint(session_dir(self.out, s.config.seed), arrays, meta)
 
     # ------------------------------------------------------------------ per tick
-    def on_tick(self, rt) -> None:
-        """The batch's per-tick bookkeeping after each runtime tick (monitors, goals, peaks,
-        supervision); what :meth:`run` passes to ``Runtime.run(on_tick=...)``, and a replay of
-        the session must pass too."""
+    def on_tick(self, rt) -> bool:
+        """``Rig.after_tick`` (the monitors, the task, then the hook :meth:`bookkeeping`) after
+        each tick; what :meth:`run` passes to ``Runtime.run(on_tick=...)``, a replay too."""
+        return self.rig.after_tick(rt)
+
+    def bookkeeping(self, rt) -> None:
+        """The batch's per-tick work after the rig's (peaks, pushes, supervision, replays)."""
         if self._ruckig:
             # the next step recalculates every trajectory from its input, in every env: the same
             # numbers whatever the neighbours (see the module docstring) and across a restore
             rt.smoother.recalculate()
-        self.rig.monitor(rt)  # violations, interventions, the base estimate, then the task
         if self.pushes is not None:  # the estimate judged against the truth its frame sampled
             self.push_response(rt, self.backend)
             self.pushes(rt, self.backend)

@@ -37,6 +37,7 @@ from collections import deque
 import numpy as np
 
 from sim2real.deploy.core.attitude import tilt_of
+from sim2real.deploy.rig.own_loop import OwnLoop
 from sim2real.eval.soak.counterfactual import HORIZON
 
 #: s between two captures of a RUNNING env. Our choice: 1 s, a fifth of the push interval of
@@ -160,38 +161,25 @@ class FallReplay:
 
 def own_loop(twin, until: float) -> float | None:
     """Run a one-session batch ``twin`` (:class:`~sim2real.eval.soak.batch.SessionBatch`) from
-    where it stands to ``until`` (its session time, s) in the policy's own loop (module
-    docstring); returns the time its true base fell, or None. Leaves the twin's runtime
-    stages as they were (the runtime's clock and the plant moved on)."""
+    where it stands to ``until`` (its session time, s) in the policy's own loop
+    (:class:`~sim2real.deploy.rig.own_loop.OwnLoop`, on the runtime's state and clock as
+    captured); returns the time its true base fell, or None. Leaves the twin's runtime as it
+    was but for its state's fields the loop wrote (the plant, the world's schedules moved on)."""
     rt, plant, monitor = twin.rt, twin.backend, twin.estimation
-    state, spec, policy = rt.state, rt.spec, rt.policy
-    obs = np.zeros((1, spec.obs_dim), dtype=np.float32)
-    target = np.zeros((1, twin.robot.n_joints))
+    state = rt.state
+    loop = OwnLoop(rt.policy, plant, state, rt.goal, twin.dt, rt.time, rt.ticks, rt.injector)
     schedule = twin.task.schedule
-    state.base.set_truth(plant.true_base_state())  # then at each tick's end, by the fall check
-    while rt.time < until - 0.5 * twin.dt:
-        if rt.injector is not None:  # a fault armed at the capture: its force
-            rt.injector.before_read(rt.time)
-        state.q[:] = plant.true_position()
-        state.dq[:] = plant.true_velocity()
-        state.clock[:] = rt.time
-        spec.observation(state, rt.goal, out=obs)
-        action = policy(obs)
-        spec.action_to_target(action, state, out=target)
-        plant.write(target)
-        plant.advance()
-        state.last_action[:] = action
-        rt.ticks += 1
-        rt.time += twin.dt
+    while loop.time < until - 0.5 * twin.dt:
+        loop.tick()
         if twin.pushes is not None:
-            twin.pushes(rt, plant)
+            twin.pushes(loop, plant)
         if schedule is not None:
-            schedule(rt)
+            schedule(loop)
         truth = plant.true_base_state()  # after the push: what the next tick observes
         tilt = float(tilt_of(state.base.set_truth(truth).projected_gravity)[0])
         height = float(truth[0, 2])
         if getattr(plant, "grounds", None):  # terrain: above the ground under it
             height -= float(plant.ground_height(truth)[0])
         if not (np.isfinite(height) and height >= monitor.fall_height) or tilt > monitor.fall_tilt:
-            return float(rt.time)
+            return float(loop.time)
     return None

@@ -1,14 +1,15 @@
 """External disturbances of the MuJoCo plant: pushes of a floating base and constant forces.
 
-:class:`SimDisturbances` is a base class of :class:`~sim2real.deploy.backends.sim.plant.SimBackend`
-(the fault hooks of :class:`~sim2real.deploy.core.backend.SimulatedPlant`); its methods work on
-the backend's public ``robot``, ``models`` and ``datas``. A push is a wrench over a short window
-(:meth:`SimDisturbances.push_wrench`), spread over the robot's bodies so that it changes the
+:class:`SimDisturbances` is a stage of :class:`~sim2real.deploy.backends.sim.plant.SimBackend` (the
+fault hooks of :class:`~sim2real.deploy.core.backend.SimulatedPlant`, which the plant delegates to
+it) over the plant's ``models`` and ``datas`` (lists it shares), or over one bare model and data
+(the push benchmark's own loops); it keeps no state of its own. A push is a wrench over a short
+window (:meth:`SimDisturbances.push_wrench`), spread over the robot's bodies so that it changes the
 whole robot's velocity as a training push does, its joints' speeds untouched
 (:meth:`SimDisturbances.set_push_wrench`), which the IMU (MuJoCo's accelerometer and gyro) feels as
-a real shove; changing the base's velocity at
-once (legged_gym's and mjlab's pushes: :meth:`SimDisturbances.set_base_velocity`,
-:meth:`SimDisturbances.push_base`) happens between physics steps and hides the push from the IMU.
+a real shove; changing the base's velocity at once (legged_gym's and mjlab's pushes:
+:meth:`SimDisturbances.set_base_velocity`, :meth:`SimDisturbances.push_base`) happens between
+physics steps and hides the push from the IMU.
 A force acts on a body until it is changed.
 """
 
@@ -18,16 +19,23 @@ import mujoco
 import numpy as np
 
 
+def free_joint_first(model: mujoco.MjModel) -> bool:
+    """Whether ``model``'s first joint is MuJoCo's free joint (the MJCF's floating base)."""
+    return model.njnt > 0 and int(model.jnt_type[0]) == mujoco.mjtJoint.mjJNT_FREE
+
+
 class SimDisturbances:
-    """The external disturbances of a :class:`~sim2real.deploy.backends.sim.plant.SimBackend`
-    (module docstring)."""
+    """The external disturbances of ``robot``'s envs simulated in ``models`` and ``datas`` (one
+    ``MjModel`` and ``MjData`` per env; module docstring)."""
+
+    def __init__(self, robot, models: list, datas: list):
+        self.robot, self.models, self.datas = robot, models, datas
 
     @property
     def free_base(self) -> bool:
         """The plant's model begins with MuJoCo's free joint (the MJCF's floating base): its
         base moves and is pushed, its sensor frame carries an IMU and the feet's contacts."""
-        m = self.models[0]
-        return m.njnt > 0 and int(m.jnt_type[0]) == mujoco.mjtJoint.mjJNT_FREE
+        return free_joint_first(self.models[0])
 
     def _pushable(self) -> None:
         """Raises ValueError: the plant's robot has no floating base (:attr:`free_base`)."""

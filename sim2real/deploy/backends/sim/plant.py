@@ -5,12 +5,11 @@ each with its own ``MjData`` and, where the soak harness randomizes dynamics, it
 Per control tick: ``read()``, ``write(command)`` and ``advance()``, which runs ``decimation``
 physics steps and integrates the two-node motor thermal model.
 
-Composed of: the encoders and temperature reports (:mod:`sim2real.deploy.backends.sim.sensors`), a
-floating base's IMU and foot contact (:mod:`sim2real.deploy.backends.sim.legged_sensors`), the drives
-(:mod:`sim2real.deploy.backends.sim.drives`: the mode's servo loop of :meth:`robots.Robot.mjspec`, derated
-torque limits, anti-windup), the state dict (:mod:`sim2real.deploy.backends.sim.state`) and the
-pushes and forces (:mod:`sim2real.deploy.backends.sim.disturbances`). The true state
-(:meth:`SimBackend.true_position`, :meth:`SimBackend.true_base_state`, ...) is for evaluation only.
+Composed of stage objects with their own state, to which it delegates by name
+(:func:`~sim2real.deploy.core.delegate.delegate`): the encoders and temperature reports
+(:mod:`.sensors`), a floating base's IMU and foot contact (:mod:`.legged_sensors`), the drives
+(:mod:`.drives`), the thermal and actuator models, the pushes and forces (:mod:`.disturbances`),
+the true state, for evaluation only (:mod:`.truth`); the state dict gathers theirs (:mod:`.state`).
 ``advance`` runs these models in two compiled calls around ``mj_step``
 (:mod:`sim2real.deploy.backends.sim.plant_kernel`; their table:
 :mod:`~sim2real.deploy.backends.sim.compiled_step`).
@@ -33,7 +32,6 @@ from sim2real.deploy.backends.sim.actuators import ActuatorModel
 from sim2real.deploy.backends.sim.compiled_step import CompiledStep
 from sim2real.deploy.backends.sim.disturbances import SimDisturbances
 from sim2real.deploy.backends.sim.drives import SimDrives
-from sim2real.deploy.backends.sim.drives_kernel import derating_due, windup_exceeded
 from sim2real.deploy.backends.sim.legged_sensors import BaseSensorModel
 from sim2real.deploy.backends.sim.plant_faces import plant_extras
 from sim2real.deploy.backends.sim.plant_kernel import (
@@ -43,15 +41,16 @@ from sim2real.deploy.backends.sim.plant_kernel import (
     NO_SAMPLE,
     STALE,
 )
-from sim2real.deploy.backends.sim.sensors import JointSensorModel, JointSensorSettings
-from sim2real.deploy.backends.sim.state import SimState
+from sim2real.deploy.backends.sim.sensors import JointSensorModel
+from sim2real.deploy.backends.sim.state import MujocoState, PlantState
+from sim2real.deploy.backends.sim.truth import TrueState
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame
+from sim2real.deploy.core.delegate import delegate
 from sim2real.deploy.kernels import all_finite, copy_finite
 from sim2real.deploy.kernels.calls import bind
 from sim2real.robots import CONTROL_MODES, Robot
-from sim2real.robots.chain_bounds import motion_bounds
 from sim2real.robots.errors import Sim2RealError
-from sim2real.robots.thermal import EffortDerating, TwoNodeThermalModel
+from sim2real.robots.thermal import TwoNodeThermalModel
 
 _DIVERGENCE_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQACC,
@@ -75,7 +74,7 @@ class NonFiniteCommandError(Sim2RealError, ValueError):
     """A command with NaN or inf was written; it was rejected and never reached MuJoCo."""
 
 
-class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, BackendLifecycle):
+class SimBackend(BackendLifecycle):
     """MuJoCo plant with sensor and motor-thermal models, batched over ``envs``.
 
     Args:
@@ -92,7 +91,38 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
 
     Attributes (per-env sensor settings; change them between ticks to inject faults):
         noise_sigma: (envs,) rad. dropout_probability: (envs,). latency_ticks: (envs,) int.
+        joint_sensors, drives, disturbances, thermal, actuators, truth: its stages (module
+            docstring); grounds: the grounds under the envs (:class:`TrueState`).
     """
+
+    # the true state, for evaluation only; the grounds under the envs (None: the plane)
+    true_position = delegate("truth", "position")
+    true_velocity = delegate("truth", "velocity")
+    true_base_state = delegate("truth", "base_state")
+    end_effector_position = delegate("truth", "end_effector_position")
+    ground_height = delegate("truth", "ground_height")
+    grounds = delegate("truth", "grounds", writable=True)
+    # the joint sensors' settings and streams (write the arrays in place to inject faults)
+    noise_sigma = delegate("joint_sensors", "noise_sigma")
+    encoder_bias = delegate("joint_sensors", "encoder_bias")
+    dropout_probability = delegate("joint_sensors", "dropout_probability")
+    latency_ticks = delegate("joint_sensors", "latency_ticks")
+    max_latency_ticks = delegate("joint_sensors", "max_latency_ticks")
+    encoder_quantum = delegate("joint_sensors", "encoder_quantum")
+    temperature_resolution = delegate("joint_sensors", "temperature_resolution")
+    encoder_every = delegate("joint_sensors", "encoder_every")
+    set_sensor_streams = delegate("joint_sensors", "set_streams")
+    # the drives: present torque limits (envs, n) N m and their derating
+    effort_limit = delegate("drives", "effort_limit")
+    derating = delegate("drives", "derating")
+    # the pushes and forces (SimulatedPlant's fault hooks)
+    set_base_velocity = delegate("disturbances", "set_base_velocity")
+    push_base = delegate("disturbances", "push_base")
+    push_wrench = delegate("disturbances", "push_wrench")
+    set_push_wrench = delegate("disturbances", "set_push_wrench")
+    set_base_wrench = delegate("disturbances", "set_base_wrench")
+    set_external_force = delegate("disturbances", "set_external_force")
+    free_base = delegate("disturbances", "free_base")
 
     def __init__(
         self,
@@ -119,31 +149,20 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         for m in models:
             self._check_model(m, "models")
         self.models = list(models)
-        self._jnt_offset = 1 if self.free_base else 0  # the model's free joint (disturbances)
         self.datas = [mujoco.MjData(m) for m in self.models]
+        self.disturbances = SimDisturbances(robot, self.models, self.datas)
+        self._jnt_offset = 1 if self.free_base else 0  # the model's free joint (disturbances)
         self._views: list[tuple] = [()] * envs
         self._qvel_views: list[np.ndarray] = [np.zeros(0)] * envs  # the joints' qvel (see _bind)
-        self._acts: list[np.ndarray] = [np.empty(0)] * envs  # velocity mode: drive setpoints
-        self._windup_bound = np.zeros((envs, n))
-        self.derating = EffortDerating(robot, hold=motion_bounds(robot)[1])
-        #: (envs, n) N m, each drive's present torque limit (derated from its winding temperature)
-        self.effort_limit = np.tile(self.derating.peak, (envs, 1))
-        self._derate = np.ones((envs, n))
-        self._derated = np.zeros(envs, dtype=bool)  # envs whose model may hold a derated limit
-        self._hot = np.zeros(envs, dtype=bool)  # envs with a winding above its derating start
+        #: the drives: derated torque limits, anti-windup (velocity mode)
+        self.drives = SimDrives(robot, mode, envs, self.models)
         self._compiled: CompiledStep | None = None  # built below, once every array exists
-        all_finite(self._hot[:, None] * 0.0)  # compiled (or loaded from cache) before a tick
-        self._lag = np.zeros((envs, n))
         #: the motors' torque-speed lines and command delays, applied every physics step
         self.actuators = ActuatorModel(
             robot, envs, robot.control_period / robot.decimation, robot.decimation
         )
         self._stepwise = self.actuators.active  # physics one step at a time
         self._actfrc: list[np.ndarray] = [np.zeros((n, 2))] * envs  # jnt_actfrcrange rows
-        # the drive kernels too (sim2real.deploy.backends.sim.drives_kernel), on arrays of their types
-        z = np.zeros((envs, n))
-        derating_due(z, np.zeros(n), np.zeros(envs, dtype=bool), np.zeros(envs, dtype=bool))
-        windup_exceeded(z.copy(), z, z)
         for e in range(envs):
             self._bind(e)
         self.decimation = robot.decimation
@@ -151,7 +170,7 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
 
         self.frame = SensorFrame.empty(envs, n, robot.n_feet if self.free_base else None)
         #: encoders and temperature reports (settings, latency buffers, the sensor streams)
-        self._joint_sensors = JointSensorModel(robot, envs, self.frame, seed, max_latency_ticks)
+        self.joint_sensors = JointSensorModel(robot, envs, self.frame, seed, max_latency_ticks)
 
         self.thermal = TwoNodeThermalModel(
             robot.motors, envs, robot.config.sensors.ambient_temperature
@@ -164,8 +183,17 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         self._qvel = np.zeros((envs, n))
         self._torque = np.zeros((envs, n))
         self.tick = 0
-        #: IMU and foot contact of a floating-base robot (None for an arm): its kind's face
-        self._base_sensors = plant_extras(self, robot)
+        #: the true state (evaluation only), over the views and into the gathered joint state
+        self.truth = TrueState(
+            robot, self.datas, self._views, self._qvel_views, self._qpos, self._qvel
+        )
+        #: IMU and foot contact of a floating-base robot (per-env noise settings, biases,
+        #: ground truth; None for an arm): its kind's face
+        self.base_sensors: BaseSensorModel | None = plant_extras(self, robot)
+        parts = {"drives": self.drives, "sensors": self.joint_sensors, "thermal": self.thermal}
+        parts |= {"base": self.base_sensors, "actuators": self.actuators}
+        mj = MujocoState(self.models, self.datas)
+        self._state = PlantState(self._command, self._torque, self.frame, parts, mj)
         #: the table of the compiled step (sim2real.deploy.backends.sim.plant_kernel)
         self._compiled = CompiledStep(self)
         self.reset()
@@ -202,17 +230,17 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
             self._views[e][2][:] = self._command[e]
         self.actuators.reset(which, self._command)
         if self.free_base:
-            self._base_sensors.reset(which, envs is None)
+            self.base_sensors.reset(which, envs is None)
         if envs is None:
             self.thermal.reset()
-            self._joint_sensors.clear()
+            self.joint_sensors.clear()
             self.tick = 0
             self.true_position()  # sample_sensors reads the gathered joint angles
             self.sample_sensors()
             return
         self.thermal.winding_temperature[which] = self.thermal.ambient[which]
         self.thermal.housing_temperature[which] = self.thermal.ambient[which]
-        self._joint_sensors.restart(which, q0[which], self.time, self.thermal.ambient)
+        self.joint_sensors.restart(which, q0[which], self.time, self.thermal.ambient)
 
     def set_model(self, env: int, model: mujoco.MjModel) -> None:
         """Give ``env`` a new compiled model (randomized dynamics; from ``robot.mjspec(mode)``)
@@ -240,16 +268,12 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         actuator torque ``qfrc_actuator``, clamped to the effort limit; divergence warning
         counters), so that the hot path does not look them up on MjData each tick."""
         m, d = self.models[e], self.datas[e]
-        self._derated[e] = True  # a new model has the peak limits: re-derate at the next advance
+        self.drives.bind(e, m, d)  # re-derate at the next advance; velocity mode: the setpoints
         ctrl = d.ctrl.reshape(-1, self.n_joints)
         qpos, force = d.qpos[self._qpos_offset :], d.qfrc_actuator[self._qvel_offset :]
         self._views[e] = (m, d, ctrl, qpos, force, d.warning.number[_WARNING_SLICE])
         self._qvel_views[e] = d.qvel[self._qvel_offset :]
         self._actfrc[e] = m.jnt_actfrcrange[self._jnt_offset : self._jnt_offset + self.n_joints]
-        if self.mode == "velocity":  # the setpoints and their anti-windup bound
-            self._acts[e] = d.act
-            kp = m.actuator_gainprm[: self.n_joints, 0]
-            self._windup_bound[e] = self.robot.effort_limit / kp
         if self._compiled is not None:  # the kernels' addresses of the new views
             self._compiled = CompiledStep(self)
 
@@ -264,10 +288,11 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         (envs,) bool: ``derated`` (an env whose model may hold a derated limit) and ``hot`` (an
         env with a winding above its derating start). Raises nothing.
         """
+        dr = self.drives
         return {
             "command": self._command, "qpos": self._qpos, "qvel": self._qvel,
-            "torque": self._torque, "lag": self._lag, "windup_bound": self._windup_bound,
-            "derated": self._derated, "hot": self._hot,
+            "torque": self._torque, "lag": dr.lag, "windup_bound": dr.windup_bound,
+            "derated": dr.derated, "hot": dr.hot,
         }  # fmt: skip
 
     def env_views(self, env: int) -> dict:
@@ -284,7 +309,7 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         m, d, ctrl, qpos, force, warnings = self._views[env]
         return {
             "model": m, "data": d, "ctrl": ctrl, "qpos": qpos, "qvel": self._qvel_views[env],
-            "force": force, "warnings": warnings, "act": self._acts[env],
+            "force": force, "warnings": warnings, "act": self.drives.acts[env],
             "actfrc": self._actfrc[env],
         }  # fmt: skip
 
@@ -322,9 +347,9 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         """
         f = self.frame
         f.time.fill(self.tick * self.control_period)  # self.time
-        self._joint_sensors.read(self.tick)
-        if self._base_sensors is not None:
-            self._base_sensors.read(f, self.tick)
+        self.joint_sensors.read(self.tick)
+        if self.base_sensors is not None:
+            self.base_sensors.read(f, self.tick)
         return f
 
     def write(self, command: np.ndarray) -> None:
@@ -381,7 +406,7 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
             self._compiled = compiled = CompiledStep(self)
             status = compiled.before(tick)
         if status & DERATE:
-            self._set_derated_limits()
+            self.drives.set_derated_limits(self.thermal.winding_temperature)
         if not self._stepwise:
             for m, d, _ctrl, _q, _force, _warnings in self._views:
                 step(m, d, nstep=nstep)
@@ -392,7 +417,7 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
                     substep(e, tick, sub)
                     step(m, d)
         tick += 1
-        sensors = self._joint_sensors
+        sensors = self.joint_sensors
         sample = NO_SAMPLE
         if tick % sensors.encoder_every == 0:
             if sensors.rng is not compiled.rng:  # new streams (set_sensor_streams)
@@ -408,22 +433,10 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         self.tick = tick
         if tick % sensors.temperature_every == 0:
             sensors.report_temperature(self.time, self.thermal.winding_temperature)
-        if self._base_sensors is not None:
-            self._base_sensors.sample(tick, self.time)
+        if self.base_sensors is not None:
+            self.base_sensors.sample(tick, self.time)
 
     # ------------------------------------------------------------------ evaluation only
-    def true_position(self) -> np.ndarray:
-        """(envs, n_joints) rad, the simulator's joint angles (evaluation only)."""
-        for e, (_m, _d, _ctrl, qpos, _force, _warnings) in enumerate(self._views):
-            self._qpos[e] = qpos
-        return self._qpos
-
-    def true_velocity(self) -> np.ndarray:
-        """(envs, n_joints) rad/s, the simulator's joint velocities (evaluation only)."""
-        for e, qvel in enumerate(self._qvel_views):
-            self._qvel[e] = qvel
-        return self._qvel
-
     def joint_torque(self) -> np.ndarray:
         """(envs, n_joints) N m, actuator torque at the end of the last control period."""
         return self._torque
@@ -434,42 +447,28 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         of an env and in a copy of the plant; None while the plant is being built)."""
         return self._compiled
 
-    @property
-    def base_sensors(self) -> BaseSensorModel | None:
-        """The IMU and foot-contact model of a floating-base robot (per-env noise settings,
-        biases, ground truth); None for an arm."""
-        return self._base_sensors
+    def state_dict(self, env: int | None = None) -> dict:
+        """The plant's state, its stages' and MuJoCo's (copies; :meth:`PlantState.state_dict
+        <sim2real.deploy.backends.sim.state.PlantState.state_dict>` lists the fields)."""
+        return self._state.state_dict(self.tick, env)
 
-    def true_base_state(self, out: np.ndarray | None = None) -> np.ndarray:
-        """(envs, 13) the floating base's true state (evaluation only): position (m, world),
-        orientation (unit quaternion w, x, y, z: base to world), linear velocity (m/s, world)
-        and angular velocity (rad/s, base frame), MuJoCo's free-joint ``qpos[:7]`` and
-        ``qvel[:6]``.
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Inverse of :meth:`state_dict` (of every env, or of env ``env``), into a backend built
+        with the same robot, mode and models (the same kind of sensor streams). MuJoCo's state
+        is set without ``mj_forward``; the drives' torque limits are derated afresh from the
+        thermal state at the next :meth:`advance`.
 
         Raises:
-            ValueError: a fixed-base robot.
+            StateDictError: a missing field, a shape that differs, or sensor streams of another
+                kind; nothing is changed.
         """
-        if not self.free_base:
-            raise ValueError(f"robot {self.robot.name} has no floating base")
-        out = np.empty((self.envs, 13)) if out is None else out
-        for e, d in enumerate(self.datas):
-            out[e, :7] = d.qpos[:7]
-            out[e, 7:] = d.qvel[:6]
-        return out
+        self.tick = self._state.load_state_dict(state, env)
+        self.true_position()  # the gathered joint angles follow the loaded state
+        self.true_velocity()
 
-    def end_effector_position(self, out: np.ndarray | None = None) -> np.ndarray:
-        """(envs, 3) m, the end-effector site in the world frame (evaluation only).
-
-        MuJoCo computes it at the start of the last physics step: it is one physics timestep
-        behind :meth:`true_position`. ``out``: optional (envs, 3) float64 array to fill (no
-        allocation); returned.
-        """
-        sid = self.robot.ee_site_id
-        if out is None:
-            return np.stack([d.site_xpos[sid] for d in self.datas])
-        for e, d in enumerate(self.datas):
-            out[e] = d.site_xpos[sid]
-        return out
+    def stale_context(self, env: int = 0) -> dict:
+        """What the plant's encoders of env ``env`` do now (:meth:`JointSensorModel.stale_context`)."""
+        return self.joint_sensors.stale_context(env, getattr(self, "engine", "mujoco"))
 
     # ------------------------------------------------------------------ internals
     def check_divergence(self, env: int) -> None:
@@ -493,7 +492,7 @@ class SimBackend(SimState, SimDrives, SimDisturbances, JointSensorSettings, Back
         compiled one (:func:`sim2real.deploy.backends.sim.reference.reference_advance`, the
         pybullet plant); :meth:`advance` samples by itself. Raises nothing."""
         q = self._qpos  # gathered by advance (or reset)
-        dq = self.true_velocity() if self._joint_sensors.has_velocity else None
-        self._joint_sensors.sample(self.tick, self.time, q, self.thermal.winding_temperature, dq)
-        if self._base_sensors is not None:
-            self._base_sensors.reference_sample(self.tick, self.time)
+        dq = self.true_velocity() if self.joint_sensors.has_velocity else None
+        self.joint_sensors.sample(self.tick, self.time, q, self.thermal.winding_temperature, dq)
+        if self.base_sensors is not None:
+            self.base_sensors.reference_sample(self.tick, self.time)

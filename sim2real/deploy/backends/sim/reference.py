@@ -57,7 +57,7 @@ def reference_advance(plant) -> None:
 
     arrays = plant.kernel_arrays()
     command, torque, qpos = arrays["command"], arrays["torque"], arrays["qpos"]
-    plant.derate_drives()
+    plant.drives.derate(plant.thermal.winding_temperature)
     actuators = plant.actuators if plant.actuators.active else None
     if actuators is not None:
         actuators.start_period(plant.tick, command, plant.thermal.winding_temperature)
@@ -80,7 +80,7 @@ def reference_advance(plant) -> None:
         for e in range(plant.envs):
             plant.check_divergence(e)
     if plant.mode == "velocity":
-        plant.anti_windup()
+        plant.drives.anti_windup(qpos)
     plant.tick += 1
     plant.thermal.step(torque, plant.control_period)
     plant.sample_sensors()

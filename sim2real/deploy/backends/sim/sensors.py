@@ -87,88 +87,6 @@ def draw(rng, kind: str, out: np.ndarray, envs: np.ndarray | None) -> np.ndarray
     return getattr(rng, kind)(out=out)
 
 
-class JointSensorSettings:
-    """The joint sensors' settings and streams as attributes of the plant: a base class of
-    :class:`~sim2real.deploy.backends.sim.plant.SimBackend`, whose ``_joint_sensors`` is the
-    :class:`JointSensorModel`."""
-
-    @property
-    def joint_sensors(self) -> JointSensorModel:
-        """The encoder and temperature-report model (per-env settings, latency buffers, the
-        sensor streams)."""
-        return self._joint_sensors
-
-    @property
-    def noise_sigma(self) -> np.ndarray:
-        """(envs,) rad, encoder noise sigma per env (the sensor model's array: write in place)."""
-        return self._joint_sensors.noise_sigma
-
-    @property
-    def encoder_bias(self) -> np.ndarray:
-        """(envs, n) rad, each encoder's constant offset (the sensor model's array: write in
-        place); the true state the soak judges stays unbiased."""
-        return self._joint_sensors.encoder_bias
-
-    @property
-    def dropout_probability(self) -> np.ndarray:
-        """(envs,) probability that an encoder reading is lost (the sensor model's array)."""
-        return self._joint_sensors.dropout_probability
-
-    @property
-    def latency_ticks(self) -> np.ndarray:
-        """(envs,) int, control ticks from an encoder sample to its arrival (the sensor
-        model's array)."""
-        return self._joint_sensors.latency_ticks
-
-    @property
-    def max_latency_ticks(self) -> int:
-        """Capacity of the latency buffers: the largest ``latency_ticks`` allowed."""
-        return self._joint_sensors.max_latency_ticks
-
-    @property
-    def encoder_quantum(self) -> float:
-        """Rad, the encoder resolution (``2 pi / encoder_resolution``)."""
-        return self._joint_sensors.encoder_quantum
-
-    @property
-    def temperature_resolution(self) -> float:
-        """DegC, the resolution of the drives' temperature reports."""
-        return self._joint_sensors.temperature_resolution
-
-    @property
-    def encoder_every(self) -> int:
-        """Control ticks between two encoder samples (``control rate / encoder_rate``)."""
-        return self._joint_sensors.encoder_every
-
-    def stale_context(self, env: int = 0) -> dict:
-        """What the plant's encoders of env ``env`` do now (:mod:`sim2real.deploy.core.stale`):
-        the engine, their rate, dropout probability and latency (ticks); ``other_side`` says
-        ``every encoder reading lost`` at a dropout probability of 1, else None (the runtime's
-        frame tells). Arrivals are not counted (the plant's read counts nothing)."""
-        p, k = float(self.dropout_probability[env]), int(self.latency_ticks[env])
-        engine = getattr(self, "engine", "mujoco")
-        rate = 1.0 / (self.robot.control_period * self.encoder_every)
-        return context(
-            "sim",
-            "encoders",
-            f"the sim plant's encoders ({engine}, simulated time, {rate:g} Hz)",
-            other_side=f"every encoder reading lost: dropout probability {p:g}" if p >= 1 else None,
-            dropout_probability=p,
-            latency_ticks=k,
-        )
-
-    def set_sensor_streams(self, generators: Sequence[np.random.Generator]) -> None:
-        """Draw each env's encoder noise and dropout from its own generator (one per env, in env
-        order) instead of one stream for the batch: an env's readings then do not depend on its
-        neighbours (batched soak sessions). Call before the first reading that should use them
-        (:meth:`reset`).
-
-        Raises:
-            ValueError: not one generator per env.
-        """
-        self._joint_sensors.set_streams(generators)
-
-
 class JointSensorModel:
     """Encoders and winding temperature reports of ``envs`` robots (module docstring).
 
@@ -208,6 +126,7 @@ class JointSensorModel:
             )
         self.max_latency_ticks = max_latency_ticks
         self.encoder_quantum = 2.0 * np.pi / s.encoder_resolution
+        self._control_period = robot.control_period
         rate = 1.0 / robot.control_period
         self._encoder_every = max(1, int(round(rate / s.encoder_rate)))
         self._temperature_every = max(1, int(round(rate / s.temperature_rate)))
@@ -234,6 +153,22 @@ class JointSensorModel:
         # its kernel compiled (or loaded from numba's cache) now, not in a tick
         temperature_report(np.zeros((envs, n)), np.zeros((envs, n)), np.zeros(envs), 1.0, 0.0)
         self._bind_read()  # read's kernel, bound to latency_ticks (compiled now)
+
+    def stale_context(self, env: int = 0, engine: str = "mujoco") -> dict:
+        """What the plant's encoders of env ``env`` do now (:mod:`sim2real.deploy.core.stale`):
+        the ``engine``, their rate, dropout probability and latency (ticks); ``other_side`` says
+        ``every encoder reading lost`` at a dropout probability of 1, else None (the runtime's
+        frame tells). Arrivals are not counted (the plant's read counts nothing)."""
+        p, k = float(self.dropout_probability[env]), int(self.latency_ticks[env])
+        rate = 1.0 / (self._control_period * self._encoder_every)
+        return context(
+            "sim",
+            "encoders",
+            f"the sim plant's encoders ({engine}, simulated time, {rate:g} Hz)",
+            other_side=f"every encoder reading lost: dropout probability {p:g}" if p >= 1 else None,
+            dropout_probability=p,
+            latency_ticks=k,
+        )
 
     @property
     def encoder_every(self) -> int:

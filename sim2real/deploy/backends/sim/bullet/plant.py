@@ -193,7 +193,7 @@ class BulletBackend(SimBackend):
             SimulationDivergedError: pybullet's state of an env turned non-finite or huge.
         """
         command, torque, qpos = self._command, self._torque, self._qpos
-        self.derate_drives()
+        self.drives.derate(self.thermal.winding_temperature)
         if self.actuators.active:
             self.actuators.start_period(self.tick, command, self.thermal.winding_temperature)
         reps = self._nu // self.n_joints
@@ -206,7 +206,7 @@ class BulletBackend(SimBackend):
             torque[e] = force
             qpos[e] = q
         if self.mode == "velocity":
-            self.anti_windup()
+            self.drives.anti_windup(qpos)
         self.tick += 1
         self.thermal.step(self._torque, self.control_period)
         self.sample_sensors()

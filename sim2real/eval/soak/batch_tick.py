@@ -1,0 +1,23 @@
+"""The soak batch's per-tick bookkeeping as a hook of its run (:class:`BatchTick`): the batch's
+ticks go through its :class:`~sim2real.deploy.rig.rig.Rig` (``Rig.after_tick``: the monitors and
+the task, then the hooks), as every run's do; this hook, the rig's first, does the batch's own
+part after them (:meth:`sim2real.eval.soak.batch.SessionBatch.bookkeeping`: temperatures and
+speeds, pushes, faults, drift, curves, checkpoints' captures, the replays).
+"""
+
+from __future__ import annotations
+
+from sim2real.deploy.rig.hooks import RunHook
+
+
+class BatchTick(RunHook):
+    """The bookkeeping of ``batch`` (a :class:`~sim2real.eval.soak.batch.SessionBatch`) after
+    each tick of its rig's runtime."""
+
+    name = "soak"
+
+    def __init__(self, batch):
+        self.batch = batch
+
+    def after_tick(self, runtime) -> None:
+        self.batch.bookkeeping(runtime)

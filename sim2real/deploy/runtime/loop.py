@@ -47,10 +47,6 @@ from sim2real.robots import Robot
 STAGES = ("read", "estimate", "observe", "infer", "guard", "smooth", "write", "physics")
 
 
-def _no_reset(envs: np.ndarray) -> None:
-    """The reset of a policy without state."""
-
-
 class Runtime:
     """The control loop for ``envs`` robots behind one backend.
 
@@ -215,7 +211,8 @@ class Runtime:
         """The current policy's ``reset(envs)`` (bool mask (envs,)), if it has one, its
         observation's frame history (the envs' next frame is the first) and its last action (0,
         as before its first call; a training episode's reset zeroes it too)."""
-        (getattr(self.policy, "reset", None) or _no_reset)(envs)
+        if hasattr(self.policy, "reset"):  # a policy with state (a recurrent one)
+            self.policy.reset(envs)
         self.spec.plan.reset_history(envs)
         self.state.last_action[envs] = 0.0
 

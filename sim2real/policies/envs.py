@@ -46,7 +46,7 @@ from sim2real.eval.world.sensors import SensorRanges, apply_sensors, sample_sens
 from sim2real.eval.world.session_draw import sample_faults
 from sim2real.eval.world.session_ranges import session_ranges
 from sim2real.policies.episode_faults import EpisodeFaults, training_fault_ranges
-from sim2real.policies.locomotion import LearnerPolicy
+from sim2real.policies.locomotion import LearnerPolicy, learner_rig
 from sim2real.robots import Robot
 
 #: The stream of the episodes' fault seeds (``numpy.random.default_rng([seed, FAULT_SEEDS])``):
@@ -255,19 +255,17 @@ class ReachTask:
         """The run (:mod:`sim2real.deploy.rig`): the runtime's stages with the learner in the
         policy's slot, the chained goals on the episodes' clock, no truth, no task reset."""
         robot, envs = self.robot, self.envs
-        return Rig(
+        return learner_rig(
             robot,
             LearnerPolicy(self.spec, envs),
             self.backend,
-            envs=envs,
-            task={
+            envs,
+            {
                 "period": config.goal_timeout,
                 "rng": self.rng,
                 "clock": self.t_episode,
                 "success_radius": self.success_radius,
             },
-            truth=False,
-            reset_task=False,
         )
 
     # ------------------------------------------------------------------ resets

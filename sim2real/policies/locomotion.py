@@ -144,6 +144,16 @@ class LearnerPolicy:
         return self.act(self.obs)
 
 
+def learner_rig(robot, policy: LearnerPolicy, backend, envs: int, task: dict, runtime=None) -> Rig:
+    """The run a trainer's episodes step (:class:`~sim2real.deploy.rig.rig.Rig`): ``policy`` in
+    the policy's slot, the task with the options ``task`` (``period`` s between its goals or
+    commands on the episodes' ``clock`` (envs,) s, drawn from ``rng``), no truth monitors (the
+    reward judges), the task reset by the episodes, not once built. ``runtime``: keyword
+    arguments of the runtime."""
+    kw = {"truth": False, "reset_task": False}
+    return Rig(robot, policy, backend, envs=envs, task=task, runtime=runtime, **kw)
+
+
 class LocomotionTask:
     """``envs`` legged robots walking through one :class:`~sim2real.deploy.runtime.Runtime`.
 
@@ -188,20 +198,18 @@ class LocomotionTask:
         #: the run (sim2real.deploy.rig): the runtime, the intervention monitor, the velocity commands
         #: (sim2real.deploy.tasks.episodes.EpisodeCommands) and their tracking; episodes judge the truth
         #: their own way (the reward), so no truth monitors
-        self.rig = Rig(
+        self.rig = learner_rig(
             robot,
             self.policy,
             self.backend,
-            envs=envs,
-            runtime={"injector": self.faults},
-            task={
+            envs,
+            {
                 "period": config.command_period,
                 "rng": self.rng,
                 "clock": self.t_episode,
                 "ranges": config.commands,
             },
-            truth=False,
-            reset_task=False,
+            runtime={"injector": self.faults},
         )
         self.runtime, self.task = self.rig.runtime, self.rig.task
         self.monitor = self.rig.interventions

@@ -128,7 +128,6 @@ def actor_from_model(model: PPO | SAC) -> MLPActor:
 
 def make_model(args: argparse.Namespace, env) -> PPO | SAC:
     """The learner: PPO (default) or SAC."""
-    common = {"tensorboard_log": str(args.logdir), "seed": args.seed, "device": "cpu"}
     if args.algo == "sac":
         return SAC(
             "MlpPolicy",
@@ -141,19 +140,12 @@ def make_model(args: argparse.Namespace, env) -> PPO | SAC:
             train_freq=1,
             gradient_steps=args.gradient_steps,
             policy_kwargs={"net_arch": {"pi": list(args.hidden), "qf": [256, 256]}},
-            **common,
+            **_run_settings(args),
         )
     return PPO(
         "MlpPolicy",
         env,
-        n_steps=args.n_steps,
-        batch_size=args.batch_size,
-        n_epochs=args.epochs,
-        learning_rate=args.learning_rate,
         gamma=args.gamma,
-        gae_lambda=0.95,
-        clip_range=0.2,
-        ent_coef=0.0,
         # generalized state-dependent exploration (Raffin et al., CoRL 2021): noise that is smooth
         # in time, so exploration survives the smoother's acceleration and jerk limits at 200 Hz
         use_sde=args.sde,
@@ -163,8 +155,22 @@ def make_model(args: argparse.Namespace, env) -> PPO | SAC:
             "log_std_init": args.log_std_init,
             "activation_fn": torch.nn.Tanh,
         },
-        **common,
+        **ppo_settings(args),
     )
+
+
+def ppo_settings(args: argparse.Namespace) -> dict:
+    """The PPO settings both trainers (this one and the legged one) share: ``--n-steps``,
+    ``--batch-size``, ``--epochs``, ``--learning-rate``; GAE lambda 0.95, clip range 0.2, no
+    entropy bonus (SB3's defaults, stated); logged, seeded and placed as :func:`_run_settings`."""
+    rollout = {"n_steps": args.n_steps, "batch_size": args.batch_size, "n_epochs": args.epochs}
+    update = {"learning_rate": args.learning_rate, "gae_lambda": 0.95, "clip_range": 0.2}
+    return rollout | update | {"ent_coef": 0.0} | _run_settings(args)
+
+
+def _run_settings(args: argparse.Namespace) -> dict:
+    """Every learner's: logged at ``--logdir``, seeded by ``--seed``, on the CPU."""
+    return {"tensorboard_log": str(args.logdir), "seed": args.seed, "device": "cpu"}
 
 
 def start_poses(path: Path | None, robot) -> tuple[tuple[float, ...], ...]:

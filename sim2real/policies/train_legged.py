@@ -49,7 +49,7 @@ from sim2real.policies.finetune import (
 from sim2real.policies.gait import make_policy
 from sim2real.policies.gate import add_gate_arguments, gate
 from sim2real.policies.locomotion import LocomotionConfig, LocomotionReward, LocomotionTask
-from sim2real.policies.train import add_fault_flags, parse_reward
+from sim2real.policies.train import add_fault_flags, parse_reward, ppo_settings
 from sim2real.robots import load_robot
 
 #: The residual network (legged_gym's actor is 512-256-128 with ELU; a residual needs less).
@@ -278,23 +278,14 @@ def _learner(args: argparse.Namespace, env, spec):
     model = RuntimePPO(
         "MlpPolicy",
         env,
-        n_steps=args.n_steps,
-        batch_size=args.batch_size,
-        n_epochs=args.epochs,
-        learning_rate=args.learning_rate,
         gamma=0.99,
-        gae_lambda=0.95,
-        clip_range=0.2,
-        ent_coef=0.0,
         max_grad_norm=1.0,
         policy_kwargs={
             "net_arch": {"pi": list(HIDDEN), "vf": [256, 128]},
             "activation_fn": torch.nn.ELU,
             "log_std_init": float(np.log(args.initial_std)),
         },
-        tensorboard_log=str(args.logdir),
-        seed=args.seed,
-        device="cpu",
+        **ppo_settings(args),
     )
     if args.init_from is not None:
         load_shipped_actor(model, args.init_from, spec, HIDDEN)

@@ -9,8 +9,9 @@ import argparse
 import os
 import sys
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TypeVar
 
 from sim2real.deploy.export.errors import ExportError, ParityError
 from sim2real.deploy.export.graph import EXPORTERS
@@ -20,6 +21,7 @@ from sim2real.deploy.policy.mlp_checkpoint import ACTIVATIONS
 
 EXIT_OK, EXIT_PARITY, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 3
 POLICIES_DIR = Path(__file__).resolve().parents[2] / "policies"
+R = TypeVar("R")
 
 
 def resolve_policy_path(name: str | os.PathLike) -> Path:
@@ -141,10 +143,10 @@ def _export_folder(source: Path, args) -> int:
     )
     from sim2real.robots import load_robot
 
-    try:
+    def export():
         contract = folder_contract(source)
         if contract is None:
-            return _export_checkpoint(source, args)
+            return None
         if args.domain is not None or args.exporter != "torchscript":
             flag = "--domain" if args.domain is not None else "--exporter dynamo"
             raise ExportError(
@@ -153,19 +155,15 @@ def _export_folder(source: Path, args) -> int:
                 f"{source.with_suffix('.onnx')} --robot ROBOT {flag} ...`"
             )
         robot = load_robot(args.robot) if args.robot else None
-        result = export_folder_torchscript(
+        return export_folder_torchscript(
             source, args.out, robot, args.seed, args.parity_tolerance, contract
         )
-    except ParityError as exc:
-        print(f"policy-export: parity check FAILED: {exc}", file=sys.stderr)
-        return EXIT_PARITY
-    except (ExportError, ValueError) as exc:  # RobotSpecError is a ValueError
-        print(f"policy-export: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except Exception:  # noqa: BLE001 - a bug, not bad input nor a parity failure
-        traceback.print_exc()
-        print("policy-export: internal error (see the traceback above)", file=sys.stderr)
-        return EXIT_INTERNAL
+
+    result = _exported(export)
+    if isinstance(result, int):
+        return result
+    if result is None:
+        return _export_checkpoint(source, args)
     c, f = result.contract, result.parity
     print(f"exported {source} (torchscript, {c.format} contract) -> {result.path}")
     print(
@@ -208,8 +206,9 @@ def _inspect(source: Path, args) -> int:
 
 def _export_checkpoint(source: Path, args) -> int:
     """Export a torch checkpoint and print what was written; return the exit status."""
-    spec, robot, notes = args.spec, args.robot, []
-    try:
+
+    def export():
+        spec, robot, notes = args.spec, args.robot, []
         if args.from_config is not None or args.write_robot:
             spec, robot, notes = _from_config(args)
         metadata = _domain(args, robot) if args.domain is not None else None
@@ -226,16 +225,12 @@ def _export_checkpoint(source: Path, args) -> int:
             tolerance=args.parity_tolerance,
             metadata=metadata,
         )
-    except ParityError as exc:
-        print(f"policy-export: parity check FAILED: {exc}", file=sys.stderr)
-        return EXIT_PARITY
-    except ExportError as exc:
-        print(f"policy-export: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except Exception:  # noqa: BLE001 - a bug, not bad input nor a parity failure
-        traceback.print_exc()
-        print("policy-export: internal error (see the traceback above)", file=sys.stderr)
-        return EXIT_INTERNAL
+        return result, notes, metadata
+
+    outcome = _exported(export, bad_input=(ExportError,))
+    if isinstance(outcome, int):
+        return outcome
+    result, notes, metadata = outcome
     _print_export(source, args, result, notes, metadata)
     return EXIT_OK
 
@@ -285,7 +280,7 @@ def _export_onnx(source: Path, args) -> int:
     from sim2real.deploy.export.onnx_source import export_onnx_policy
     from sim2real.robots import load_robot
 
-    try:
+    def export():
         if args.from_config is not None:
             raise ExportError(
                 f"{source}: --from-config is for a torch checkpoint; an ONNX policy takes its "
@@ -306,12 +301,12 @@ def _export_onnx(source: Path, args) -> int:
         result = export_onnx_policy(
             source, the_robot, args.out, args.seed, args.spec, metadata=metadata
         )
-    except ParityError as exc:
-        print(f"policy-export: parity check FAILED: {exc}", file=sys.stderr)
-        return EXIT_PARITY
-    except (ExportError, ValueError) as exc:  # RobotSpecError is a ValueError
-        print(f"policy-export: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return result, robot
+
+    outcome = _exported(export)
+    if isinstance(outcome, int):
+        return outcome
+    result, robot = outcome
     s, f = result.spec, result.parity
     print(f"exported {source} ({result.source_format}) -> {result.path}")
     print(
@@ -328,6 +323,27 @@ def _export_onnx(source: Path, args) -> int:
         print(f"  training domain from {args.domain} (soak-test runs it; metadata training_domain)")
     print(f"  run: deploy-run --robot {robot} --policy {result.path}")
     return EXIT_OK
+
+
+def _exported(
+    export: Callable[[], R], bad_input: tuple[type[Exception], ...] = (ExportError, ValueError)
+) -> R | int:
+    """``export()``'s result, or the exit status after saying on stderr why there is none: a
+    parity failure (``EXIT_PARITY``), an input refused with one of ``bad_input`` (``EXIT_BAD_INPUT``;
+    a RobotSpecError is a ValueError) or a bug (its traceback, ``EXIT_INTERNAL``). ``export``
+    returns anything but an int."""
+    try:
+        return export()
+    except ParityError as exc:
+        print(f"policy-export: parity check FAILED: {exc}", file=sys.stderr)
+        return EXIT_PARITY
+    except bad_input as exc:
+        print(f"policy-export: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception:  # noqa: BLE001 - a bug, not bad input nor a parity failure
+        traceback.print_exc()
+        print("policy-export: internal error (see the traceback above)", file=sys.stderr)
+        return EXIT_INTERNAL
 
 
 def _spec_robot(path: Path) -> str:

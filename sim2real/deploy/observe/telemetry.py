@@ -93,14 +93,7 @@ class Telemetry:
         self._writer.start(profile="", library="sim2real-deploy")
         self._channels = {}
         for topic in _TOPICS:
-            schema = self._writer.register_schema(
-                name=topic.strip("/"),
-                encoding="jsonschema",
-                data=json.dumps({"type": "object"}).encode(),
-            )
-            self._channels[topic] = self._writer.register_channel(
-                topic=topic, message_encoding="json", schema_id=schema
-            )
+            self._json_channel(topic)
         self.foxglove = None
         if robot is not None:
             self._register_foxglove(robot, envs, control_mode or robot.control_mode)
@@ -233,13 +226,7 @@ class Telemetry:
                 msgs["/truth"] = {k: self._true[k][i].tolist() for k, _ in _BASE_FIELDS}
                 msgs["/truth"]["height"] = self._true_height[i].tolist()
             for topic, msg in msgs.items():
-                self._writer.add_message(
-                    channel_id=self._channels[topic],
-                    log_time=t_ns,
-                    publish_time=t_ns,
-                    data=json.dumps(msg).encode(),
-                )
-                self.messages += 1
+                self._write(topic, t_ns, json.dumps(msg).encode())
             if self.foxglove is not None:
                 self._flush_foxglove(i, t_ns)
         self._rows = 0
@@ -280,30 +267,31 @@ class Telemetry:
                 msgs.append(("/guard_events", enc.log(t_ns, "WARNING", text)))
             self._last_counts[:] = self._guard_counts[i]
         for topic, data in msgs:
-            self._writer.add_message(
-                channel_id=self._channels[topic], log_time=t_ns, publish_time=t_ns, data=data
-            )
-            self.messages += 1
+            self._write(topic, t_ns, data)
+
+    def _json_channel(self, topic: str) -> None:
+        """Register ``topic``'s channel: JSON messages, any object."""
+        schema = self._writer.register_schema(
+            name=topic.strip("/"), encoding="jsonschema", data=b'{"type": "object"}'
+        )
+        self._channels[topic] = self._writer.register_channel(
+            topic=topic, message_encoding="json", schema_id=schema
+        )
+
+    def _write(self, topic: str, t_ns: int, data: bytes) -> None:
+        """One message ``data`` on ``topic``'s channel, logged and published at ``t_ns`` ns."""
+        self._writer.add_message(
+            channel_id=self._channels[topic], log_time=t_ns, publish_time=t_ns, data=data
+        )
+        self.messages += 1
 
     def event(self, topic: str, t: float, data: dict) -> None:
         """One JSON message ``data`` on ``topic`` (its channel registered at the first message)
         stamped at the run's time ``t`` s: an event that is not a tick's sample (the operator's
         transitions on ``/operator``)."""
         if topic not in self._channels:
-            schema = self._writer.register_schema(
-                name=topic.strip("/"), encoding="jsonschema", data=b'{"type": "object"}'
-            )
-            self._channels[topic] = self._writer.register_channel(
-                topic=topic, message_encoding="json", schema_id=schema
-            )
-        t_ns = int(round(t * 1e9))
-        self._writer.add_message(
-            channel_id=self._channels[topic],
-            log_time=t_ns,
-            publish_time=t_ns,
-            data=json.dumps(data).encode(),
-        )
-        self.messages += 1
+            self._json_channel(topic)
+        self._write(topic, int(round(t * 1e9)), json.dumps(data).encode())
 
     def close(self, long_ticks: list[dict] | None = None, period: float | None = None) -> Path:
         """Flush, finish the MCAP file and move it to its final name; returns the path.
@@ -316,13 +304,7 @@ class Telemetry:
         self.flush()
         for row in long_ticks or ():
             t_ns = int(round(row["tick"] * (period or 0.0) * 1e9))
-            self._writer.add_message(
-                channel_id=self._channels["/long_ticks"],
-                log_time=t_ns,
-                publish_time=t_ns,
-                data=json.dumps(row).encode(),
-            )
-            self.messages += 1
+            self._write("/long_ticks", t_ns, json.dumps(row).encode())
         self._writer.finish()
         self._file.close()
         os.replace(self._tmp, self.path)

@@ -25,7 +25,38 @@ import numpy as np
 from sim2real.deploy.operator.frame import OperatorFrame, decode_unitree_remote
 
 
-class UnitreeRemote:
+class _DdsRemote:
+    """What the two DDS remotes share: the domain's link, the last frame heard and the samples
+    heard (``samples``). A subclass opens its reader and reads the newest sample of its topic
+    (:meth:`_newest`, None: nothing new) and decodes it into a frame (:meth:`_decode`).
+
+    Raises:
+        sim2real.deploy.backends.unitree.dds.DdsError: the domain cannot be joined.
+    """
+
+    source = "unitree"
+
+    def __init__(self, domain_id: int, interface: str | None):
+        from sim2real.deploy.backends.unitree.dds import DdsLink
+
+        self._link = DdsLink(domain_id, interface)
+        self._frame: OperatorFrame | None = None
+        self.samples = 0
+
+    def poll(self, now: float) -> OperatorFrame | None:
+        newest = self._newest()
+        if newest is not None:
+            self.samples += 1
+            self._frame = self._decode(newest, now)
+        return self._frame
+
+    def close(self) -> None:
+        if self._link is not None:
+            self._link.close()
+            self._link = None
+
+
+class UnitreeRemote(_DdsRemote):
     """The Unitree wireless remote, read from every ``rt/lowstate`` sample (a reader of its own
     beside the backend's, same domain and interface); a sample whose CRC fails is skipped
     (unless its ``crc`` is 0: a simulation bridge's).
@@ -37,22 +68,17 @@ class UnitreeRemote:
         sim2real.deploy.backends.unitree.dds.DdsError: the domain cannot be joined.
     """
 
-    source = "unitree"
-
     def __init__(self, family: str, domain_id: int, interface: str | None):
         from sim2real.deploy.backends.unitree.codec import MessageCodec
-        from sim2real.deploy.backends.unitree.dds import DdsLink
         from sim2real.deploy.backends.unitree.family import TOPIC_LOWSTATE
         from sim2real.deploy.backends.unitree.family import family as families
 
         fam = families(family)
-        self._link = DdsLink(domain_id, interface)
+        super().__init__(domain_id, interface)
         self._reader = self._link.reader(TOPIC_LOWSTATE, fam.low_state, 64)
         self._codec = MessageCodec(fam.low_state)
-        self._frame: OperatorFrame | None = None
-        self.samples = 0
 
-    def poll(self, now: float) -> OperatorFrame | None:
+    def _newest(self) -> bytes | None:
         newest = None
         for data, _ in self._reader.take_raw(64):
             try:
@@ -61,18 +87,13 @@ class UnitreeRemote:
                 continue
             if ok or int(self._codec.message["crc"]) == 0:
                 newest = bytes(self._codec.message["wireless_remote"].tobytes())
-        if newest is not None:
-            self.samples += 1
-            self._frame = decode_unitree_remote(newest, now)
-        return self._frame
+        return newest
 
-    def close(self) -> None:
-        if self._link is not None:
-            self._link.close()
-            self._link = None
+    def _decode(self, newest: bytes, now: float) -> OperatorFrame:
+        return decode_unitree_remote(newest, now)
 
 
-class UnitreeController:
+class UnitreeController(_DdsRemote):
     """The Unitree wireless remote on its own topic, ``rt/wirelesscontroller``
     (``WirelessController_``: the sticks and the button bits, no L2 analog value); heard from
     with every sample.
@@ -81,34 +102,24 @@ class UnitreeController:
         sim2real.deploy.backends.unitree.dds.DdsError: the domain cannot be joined.
     """
 
-    source = "unitree"
-
     def __init__(self, domain_id: int, interface: str | None):
-        from sim2real.deploy.backends.unitree.dds import DdsLink
         from sim2real.deploy.backends.unitree.remote import TOPIC_CONTROLLER
         from sim2real.deploy.backends.unitree.unitree_go import WirelessController_
 
-        self._link = DdsLink(domain_id, interface)
+        super().__init__(domain_id, interface)
         self._reader = self._link.generic_reader(TOPIC_CONTROLLER, WirelessController_, 16)
-        self._frame: OperatorFrame | None = None
-        self.samples = 0
 
-    def poll(self, now: float) -> OperatorFrame | None:
-        from sim2real.deploy.backends.unitree.remote import decode_controller
-
+    def _newest(self):
         newest = None
         for msg in self._reader.take(16):
             newest = msg
-        if newest is not None:
-            self.samples += 1
-            buttons, axes = decode_controller(newest)
-            self._frame = OperatorFrame(buttons, axes, now)
-        return self._frame
+        return newest
 
-    def close(self) -> None:
-        if self._link is not None:
-            self._link.close()
-            self._link = None
+    def _decode(self, newest, now: float) -> OperatorFrame:
+        from sim2real.deploy.backends.unitree.remote import decode_controller
+
+        buttons, axes = decode_controller(newest)
+        return OperatorFrame(buttons, axes, now)
 
 
 class ScriptedRemote:

@@ -6,12 +6,25 @@ robot's IMU and foot force noise (:class:`ImuRanges`), :func:`sample_imu` and
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
 from sim2real.eval.world.checks import check_range
 from sim2real.robots import Robot
+
+
+class _ScalarDraw:
+    """A draw of int and float fields, stored as a dict of them (a report's)."""
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict):
+        """Inverse of :meth:`to_dict`, each value cast to its field's type (KeyError: a missing one)."""
+        cast = {"int": int, "float": float}
+        return cls(**{f.name: cast[f.type](data[f.name]) for f in fields(cls)})
 
 
 @dataclass(frozen=True)
@@ -49,23 +62,12 @@ class SensorRanges:
 
 
 @dataclass(frozen=True)
-class SensorDraw:
+class SensorDraw(_ScalarDraw):
     """One session's encoder settings: noise sigma (rad), latency (control ticks), dropout."""
 
     noise_sigma: float
     latency_ticks: int
     dropout_probability: float
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict) -> SensorDraw:
-        return cls(
-            float(data["noise_sigma"]),
-            int(data["latency_ticks"]),
-            float(data["dropout_probability"]),
-        )
 
 
 def sample_sensors(rng: np.random.Generator, ranges: SensorRanges | None = None) -> SensorDraw:
@@ -126,7 +128,7 @@ class ImuRanges:
 
 
 @dataclass(frozen=True)
-class ImuDraw:
+class ImuDraw(_ScalarDraw):
     """One session's IMU and foot-force noise: sigmas (rad/s, m/s^2, N), the bias factor and
     the IMU latency (control ticks)."""
 
@@ -135,19 +137,6 @@ class ImuDraw:
     bias_scale: float
     latency_ticks: int
     force_noise_sigma: float
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict) -> ImuDraw:
-        return cls(
-            float(data["gyro_noise_sigma"]),
-            float(data["accel_noise_sigma"]),
-            float(data["bias_scale"]),
-            int(data["latency_ticks"]),
-            float(data["force_noise_sigma"]),
-        )
 
 
 def sample_imu(robot: Robot, rng: np.random.Generator, ranges: ImuRanges | None = None) -> ImuDraw:

@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 
 from sim2real.deploy.spec.foreign.contract import ForeignContract, Term, command_ranges
-from sim2real.deploy.spec.foreign.holosoma_wbt import G1_DEFAULT, metadata_drive
+from sim2real.deploy.spec.foreign.holosoma_wbt import G1_DEFAULT, g1_contract, metadata_drive
 
 #: holosoma's locomotion terms (``holosoma.managers.observation.terms.locomotion``) -> (our kind,
 #: size (-1: one per joint), components of the 3-vector).
@@ -97,7 +97,7 @@ def read_g1_loco(facts, md: dict, names: tuple[str, ...], fail) -> ForeignContra
         ForeignFormatError: ``kp``, ``kd`` or a per-joint ``action_scale`` not one number per dof.
     """
     n = len(names)
-    kp, kd, scale, scale_note = metadata_drive(md, n, fail, ACTION_SCALE, "locomotion")
+    drive = metadata_drive(md, n, fail, ACTION_SCALE, "locomotion")
     terms = []
     for name in sorted(LOCO_TERMS):  # holosoma_inference concatenates the sorted terms
         factor, size = LOCO_TERMS[name]
@@ -112,31 +112,22 @@ def read_g1_loco(facts, md: dict, names: tuple[str, ...], fail) -> ForeignContra
         else:
             kind, _, components = TERMS[name]
             terms.append(Term(name, kind, size, factor, None, components, source=source))
-    return facts.contract(
-        "holosoma",
+    return g1_contract(
+        facts,
+        md,
+        names,
+        drive,
         "ONNX metadata (holosoma export) with holosoma_inference's locomotion configs",
-        joint_names=names,
-        terms=terms,
-        default_pose=tuple(G1_DEFAULT[j] for j in names),
-        action_scale=scale,
-        action_clip=ACTION_CLIP,
-        kp=kp,
-        kd=kd,
-        control_rate=RL_RATE,
-        command_ranges=command_ranges(md.get("command_ranges")),
-        history_fill="zeros",
-        found=[
-            ("dof_names", f"{n} joints"),
-            ("kp", str(md.get("kp"))),
-            ("kd", str(md.get("kd"))),
-            ("command_ranges", str(md.get("command_ranges"))),
-        ],
+        found=[("command_ranges", str(md.get("command_ranges")))],
         notes=[
-            scale_note,
             "observation: holosoma_inference observation loco-g1-29dof, terms sorted: "
             + ", ".join(sorted(LOCO_TERMS)),
             f"gait clock: period {GAIT_PERIOD:g} s (task locomotion), both feet at pi below "
             f"{STAND_BELOW:g} m/s and rad/s (LocomotionPolicy.update_phase_time)",
             "default pose: holosoma_inference robot g1_29dof",
         ],
+        terms=terms,
+        action_clip=ACTION_CLIP,
+        control_rate=RL_RATE,
+        command_ranges=command_ranges(md.get("command_ranges")),
     )

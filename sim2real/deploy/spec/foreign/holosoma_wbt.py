@@ -98,6 +98,34 @@ def metadata_drive(md: dict, n: int, fail, default_scale: float, task: str):
     return kp, kd, _per_dof(md, "action_scale", n, fail), "metadata 'action_scale'"
 
 
+def g1_contract(
+    facts, md: dict, names, drive, description: str, found: list, notes: list, **more
+) -> ForeignContract:
+    """What both holosoma_inference G1 readers (WBT, locomotion) build: joints ``names`` at
+    :data:`G1_DEFAULT`, the drive ``drive`` of :func:`metadata_drive`, a zero-filled history,
+    ``found`` after the ``dof_names``, ``kp`` and ``kd`` entries, ``notes`` after the scale's;
+    ``more``: the rest of the contract (its terms, ``action_clip``, ``control_rate``, ...)."""
+    kp, kd, scale, scale_note = drive
+    return facts.contract(
+        "holosoma",
+        description,
+        joint_names=names,
+        default_pose=tuple(G1_DEFAULT[j] for j in names),
+        action_scale=scale,
+        kp=kp,
+        kd=kd,
+        history_fill="zeros",
+        found=[
+            ("dof_names", f"{len(names)} joints"),
+            ("kp", str(md.get("kp"))),
+            ("kd", str(md.get("kd"))),
+            *found,
+        ],
+        notes=[scale_note, *notes],
+        **more,
+    )
+
+
 def is_wbt(facts) -> bool:
     """A holosoma WBT export: a ``time_step`` input and the baked clip's outputs."""
     return "time_step" in facts.inputs and all(o in facts.outputs for o in CLIP_OUTPUTS)
@@ -122,7 +150,7 @@ def read_wbt(facts, md: dict, names: tuple[str, ...], fail) -> ForeignContract:
             "(its default pose and reference body are not in the file)"
         )
     n = len(names)
-    kp, kd, scale, scale_note = metadata_drive(md, n, fail, ACTION_SCALE, "wbt (not in the file)")
+    drive = metadata_drive(md, n, fail, ACTION_SCALE, "wbt (not in the file)")
     waist = tuple(names.index(j) for j in WAIST)
     terms = []
     for name in sorted(WBT_TERMS):  # holosoma_inference concatenates the sorted terms
@@ -146,31 +174,22 @@ def read_wbt(facts, md: dict, names: tuple[str, ...], fail) -> ForeignContract:
             "(holosoma_inference WholeBodyTrackingPolicy.rl_inference)"
         ),
     )
-    return facts.contract(
-        "holosoma",
+    return g1_contract(
+        facts,
+        md,
+        names,
+        drive,
         "ONNX metadata and graph (holosoma WBT export) with holosoma_inference's wbt configs",
-        joint_names=names,
-        terms=terms,
-        default_pose=tuple(G1_DEFAULT[j] for j in names),
-        action_scale=scale,
-        action_clip=ACTION_CLIP,
-        kp=kp,
-        kd=kd,
-        control_rate=RL_RATE,
-        history_fill="zeros",
-        motion=motion,
-        constant_inputs={"time_step": 0.0},
-        found=[
-            ("dof_names", f"{n} joints"),
-            ("kp", str(md.get("kp"))),
-            ("kd", str(md.get("kd"))),
-            ("graph", "inputs obs, time_step; outputs actions, " + ", ".join(CLIP_OUTPUTS)),
-        ],
+        found=[("graph", "inputs obs, time_step; outputs actions, " + ", ".join(CLIP_OUTPUTS))],
         notes=[
-            scale_note,
             "observation: holosoma_inference observation wbt, terms sorted: "
             + ", ".join(sorted(WBT_TERMS)),
             "default pose: holosoma_inference robot g1_29dof; reference body torso_link",
             motion.note,
         ],
+        terms=terms,
+        action_clip=ACTION_CLIP,
+        control_rate=RL_RATE,
+        motion=motion,
+        constant_inputs={"time_step": 0.0},
     )

@@ -21,6 +21,7 @@ arithmetic.
 from __future__ import annotations
 
 import functools
+import importlib
 
 import numba
 import numpy as np
@@ -28,7 +29,22 @@ from numba.core import cgutils, types
 from numba.extending import intrinsic
 
 
-def bind(kernel, *args, rest: tuple = ()):
+class Bound(functools.partial):
+    """A kernel's entry point with its first arguments bound (:func:`bind`). It pickles and
+    copies as the kernel's name and those arguments: the copy binds its own copies of them (a
+    :class:`~sim2real.deploy.kernels.tables.Packed` table packs its arrays at their new
+    addresses), so an owner keeps it as any other attribute."""
+
+    def __reduce__(self):
+        kernel, args, rest = self.binding
+        return _rebind, (kernel.py_func.__module__, kernel.py_func.__qualname__, args, rest)
+
+
+def _rebind(module: str, name: str, args: tuple, rest: tuple) -> Bound:
+    return bind(getattr(importlib.import_module(module), name), *args, rest=rest)
+
+
+def bind(kernel, *args, rest: tuple = ()) -> Bound:
     """The entry point of the numba dispatcher ``kernel`` specialized to the types of ``args``
     and ``rest`` (compiled, or loaded from numba's cache, now), with ``args`` bound: a callable
     taking the remaining arguments, of the types of the examples ``rest`` (e.g. ``(0,)``: an int
@@ -41,7 +57,9 @@ def bind(kernel, *args, rest: tuple = ()):
     types = tuple(kernel.typeof_pyval(a) for a in (*args, *rest))
     if types not in kernel.overloads:
         kernel.compile(types)
-    return functools.partial(kernel.overloads[types].entry_point, *args)
+    bound = Bound(kernel.overloads[types].entry_point, *args)
+    bound.binding = (kernel, args, rest)
+    return bound
 
 
 @intrinsic

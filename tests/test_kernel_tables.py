@@ -69,6 +69,11 @@ def test_the_packer_refuses_an_array_its_declaration_does_not_describe(name, val
     assert DEMO.pack(**values) is None
 
 
+def test_the_packer_refuses_a_shape_other_than_the_sizes_it_is_given():
+    assert "envs=3, expected 4" in DEMO.mismatch(_values(), {"envs": 4})
+    assert DEMO.pack({"envs": 3}, **_values()) is not None
+
+
 def test_the_packer_refuses_a_missing_or_undeclared_name():
     values = _values()
     del values["q"]

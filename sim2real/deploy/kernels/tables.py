@@ -85,13 +85,14 @@ class Table:
     def __reduce__(self):
         return _declared, (self.where,)
 
-    def mismatch(self, values: dict) -> str | None:
+    def mismatch(self, values: dict, sizes: dict | None = None) -> str | None:
         """Why ``values`` (field name -> array or scalar) do not fit the declaration (the first
-        field that does not, with what it expected), or None."""
+        field that does not, with what it expected), or None. ``sizes``: the lengths some shape
+        symbols must have (e.g. ``{"window": 50}``); the others take the first array's."""
         if set(values) != set(self.fields):
             missing, extra = set(self.fields) - set(values), set(values) - set(self.fields)
             return f"table {self.name}: missing {sorted(missing)}, undeclared {sorted(extra)}"
-        bound: dict = {}
+        bound = dict(sizes or {})
         for f in self:
             a = values[f.name]
             if not f.dims:
@@ -109,10 +110,10 @@ class Table:
                     return f"table {self.name}: {f.name} has {d}={length}, expected {want}"
         return None
 
-    def pack(self, **values) -> Packed | None:
+    def pack(self, sizes: dict | None = None, /, **values) -> Packed | None:
         """The :class:`Packed` table of ``values`` (each declared field, by name), or None if one
-        does not fit (:meth:`mismatch`: the caller then passes the arrays themselves)."""
-        if self.mismatch(values) is not None:
+        does not fit (:meth:`mismatch`, with ``sizes``: the caller then takes another path)."""
+        if self.mismatch(values, sizes) is not None:
             return None
         return Packed(self, values)
 

@@ -65,7 +65,7 @@ class Table:
     """
 
     def __init__(self, where: str, /, **fields: str):
-        self.where, self.fields, at = where, {}, 0
+        self.where, self.fields, self.spellings, at = where, {}, dict(fields), 0
         name = self.name = where.rsplit(":", 1)[-1]
         for key, spelling in fields.items():
             m = _FIELD.match(spelling.replace(" ", ""))
@@ -78,6 +78,14 @@ class Table:
             at += 1 + len(dims) if dims else 1
         self.size = at
         self.type = TableType(where, tuple((f.name, f.dtype, len(f.dims), f.at) for f in self))
+
+    def extend(self, where: str, /, **fields: str) -> Table:
+        """A table of this one's fields and ``fields`` (new names), declared at ``where``."""
+        if set(fields) & set(self.fields):
+            raise ValueError(
+                f"table {where}: {sorted(set(fields) & set(self.fields))} declared twice"
+            )
+        return Table(where, **self.spellings, **fields)
 
     def __iter__(self):
         return iter(self.fields.values())

@@ -96,3 +96,17 @@ def test_a_copy_of_a_bound_table_binds_its_own_arrays(clone):
     again(1.0)
     np.testing.assert_array_equal(table.arrays["total"], [3.25, 7.25, 11.25])
     np.testing.assert_array_equal(values["total"], 0.0)  # the original's arrays untouched
+
+
+AT_LEAST = Table("tests.test_kernel_tables:AT_LEAST", q="f8[envs,2]", rows="f8[envs+,3]")
+
+
+@numba.njit(nogil=True)
+def _rows(t):
+    return t.rows.shape[0]
+
+
+def test_a_field_of_at_least_envs_rows_is_viewed_as_envs_rows():
+    q = np.zeros((2, 2))
+    assert _rows(AT_LEAST.pack(q=q, rows=np.zeros((5, 3)))) == 2
+    assert "at least envs=2" in AT_LEAST.mismatch({"q": q, "rows": np.zeros((1, 3))})

@@ -40,7 +40,7 @@ from numba.core.typing.templates import AttributeTemplate, infer_getattr
 from numba.np.arrayobj import populate_array
 
 #: A field's spelling: a dtype code, then the shape symbols in brackets (none: a scalar).
-_FIELD = re.compile(r"^(f8|i8|i1|b1)(?:\[([\w*, ]*)\])?$")
+_FIELD = re.compile(r"^(f8|f4|i8|i1|b1)(?:\[([\w*+, ]*)\])?$")
 
 
 class Field(NamedTuple):
@@ -56,8 +56,9 @@ class Field(NamedTuple):
 class Table:
     """The declaration of one kernel's table: ``where`` (``"<module>:<NAME>"``, where it is
     declared: a pickled :class:`Packed` finds it there), then the fields as keywords, each
-    ``"<dtype>[<dims>]"`` (``"f8[envs,n]"``, ``"b1[envs]"``, ``"f8[5]"``; dtypes ``f8``, ``i8``,
-    ``i1``, ``b1``) or a scalar ``"i8"``, ``"b1"``, ``"f8"`` (its value kept in the buffer: a
+    ``"<dtype>[<dims>]"`` (``"f8[envs,n]"``, ``"b1[envs]"``, ``"f8[5]"``; dtypes ``f8``, ``f4``,
+    ``i8``, ``i1``, ``b1``; ``envs+``: at least ``envs`` rows, the kernel viewing the first
+    ``envs``) or a scalar ``"i8"``, ``"b1"``, ``"f8"`` (its value kept in the buffer: a
     table packed anew takes a new value).
 
     Raises:
@@ -97,38 +98,54 @@ class Table:
         """Why ``values`` (field name -> array or scalar) do not fit the declaration (the first
         field that does not, with what it expected), or None. ``sizes``: the lengths some shape
         symbols must have (e.g. ``{"window": 50}``); the others take the first array's."""
+        return self._fit(values, sizes)[0]
+
+    def _fit(self, values: dict, sizes: dict | None) -> tuple[str | None, dict]:
+        """:meth:`mismatch`, and each array field's dimensions as the kernel views it."""
         if set(values) != set(self.fields):
             missing, extra = set(self.fields) - set(values), set(values) - set(self.fields)
-            return f"table {self.name}: missing {sorted(missing)}, undeclared {sorted(extra)}"
-        bound = dict(sizes or {})
-        for f in self:
+            return f"table {self.name}: missing {sorted(missing)}, undeclared {sorted(extra)}", {}
+        bound, shapes = dict(sizes or {}), {}
+        # the fields of exact lengths first: they bind the symbols an "at least" row count reads
+        for f in sorted(self, key=lambda f: bool(f.dims) and str(f.dims[0]).endswith("+")):
             a = values[f.name]
             if not f.dims:
                 if not isinstance(a, (int, float, bool, np.integer, np.floating, np.bool_)):
-                    return f"table {self.name}: {f.name} must be a scalar, got {type(a).__name__}"
+                    why = f"{f.name} must be a scalar, got {type(a).__name__}"
+                    return f"table {self.name}: {why}", {}
                 continue
             if not (isinstance(a, np.ndarray) and a.dtype == np.dtype(f.dtype)):
                 got = getattr(a, "dtype", type(a).__name__)
-                return f"table {self.name}: {f.name} must be a {f.dtype} array, got {got}"
+                return f"table {self.name}: {f.name} must be a {f.dtype} array, got {got}", {}
             if a.ndim != len(f.dims) or not a.flags.c_contiguous:
-                return f"table {self.name}: {f.name} must be C-contiguous of dims {f.dims}"
-            for d, length in zip(f.dims, a.shape, strict=True):
+                return f"table {self.name}: {f.name} must be C-contiguous of dims {f.dims}", {}
+            shape = list(a.shape)
+            for k, (d, length) in enumerate(zip(f.dims, a.shape, strict=True)):
+                if isinstance(d, str) and d.endswith("+"):  # at least d rows, viewed as d
+                    want = bound.setdefault(d[:-1], length)
+                    if length < want:
+                        why = f"{f.name} has {length} rows, expected at least {d[:-1]}={want}"
+                        return f"table {self.name}: {why}", {}
+                    shape[k] = want
+                    continue
                 want = d if isinstance(d, int) else bound.setdefault(d, length)
                 if d != "*" and want != length:
-                    return f"table {self.name}: {f.name} has {d}={length}, expected {want}"
-        return None
+                    return f"table {self.name}: {f.name} has {d}={length}, expected {want}", {}
+            shapes[f.name] = tuple(shape)
+        return None, shapes
 
     def pack(self, sizes: dict | None = None, /, **values) -> Packed | None:
         """The :class:`Packed` table of ``values`` (each declared field, by name), or None if one
         does not fit (:meth:`mismatch`, with ``sizes``: the caller then takes another path)."""
-        if self.mismatch(values, sizes) is not None:
+        why, shapes = self._fit(values, sizes)
+        if why is not None:
             return None
-        return Packed(self, values)
+        return Packed(self, values, sizes, shapes)
 
     def empty(self) -> Packed:
         """A packed table of null addresses, for compiling a kernel (not calling it)."""
         packed = np.zeros(self.size, dtype=np.int64).view(Packed)
-        packed.table, packed.arrays = self, {}
+        packed.table, packed.arrays, packed.sizes = self, {}, None
         return packed
 
 
@@ -144,14 +161,14 @@ class Packed(np.ndarray):
     ``packed.arrays`` the values by field name. Itself the one array a kernel's call unboxes
     (an ndarray: unboxed as fast as a plain int64 array, no attribute looked up)."""
 
-    def __new__(cls, table: Table, values: dict):
+    def __new__(cls, table: Table, values: dict, sizes: dict | None, shapes: dict):
         self = np.zeros(table.size, dtype=np.int64).view(cls)
-        self.table, self.arrays = table, dict(values)
+        self.table, self.arrays, self.sizes = table, dict(values), sizes
         for f in table:
             a = values[f.name]
             if f.dims:
                 self[f.at] = a.ctypes.data
-                self[f.at + 1 : f.at + 1 + a.ndim] = a.shape
+                self[f.at + 1 : f.at + 1 + a.ndim] = shapes[f.name]
             elif f.dtype == "f8":
                 self[f.at] = np.float64(a).view(np.int64)  # its bits
             else:
@@ -159,13 +176,24 @@ class Packed(np.ndarray):
         return self
 
     def __reduce__(self):
-        return Packed, (self.table, self.arrays)
+        return _repack, (self.table, self.sizes, self.arrays)
+
+    def __reduce_ex__(self, protocol):
+        return self.__reduce__()
 
     def __deepcopy__(self, memo):
-        return Packed(self.table, copy.deepcopy(self.arrays, memo))
+        return _repack(self.table, self.sizes, copy.deepcopy(self.arrays, memo))
 
     def __copy__(self):
-        return Packed(self.table, self.arrays)
+        return _repack(self.table, self.sizes, self.arrays)
+
+
+def _repack(table: Table, sizes: dict | None, arrays: dict) -> Packed:
+    """:meth:`Table.pack` of a copy's arrays (at their own addresses)."""
+    packed = table.pack(sizes, **arrays)
+    if packed is None:
+        raise ValueError(table.mismatch(arrays, sizes))
+    return packed
 
 
 class TableType(types.Type):
@@ -210,7 +238,10 @@ def _unbox_packed(typ, obj, c):
 
 
 def _dtype(code: str):
-    return {"f8": types.float64, "i8": types.int64, "i1": types.int8, "b1": types.boolean}[code]
+    return {
+        "f8": types.float64, "f4": types.float32, "i8": types.int64, "i1": types.int8,
+        "b1": types.boolean,
+    }[code]  # fmt: skip
 
 
 @infer_getattr

@@ -21,7 +21,6 @@ from __future__ import annotations
 import functools
 import importlib
 
-import numba
 import numpy as np
 from numba.core import cgutils, types
 from numba.extending import intrinsic

@@ -570,13 +570,12 @@ def test_the_module_length_check_names_a_new_long_module_and_a_stale_exception(t
 POSITIONAL_VIEW = re.compile(
     r"\*\s*SLOT\b|\bSLOT\s*\*|import .*\bSLOT\b|\bput_slots?\(|\bview[1-4]\(|\b_?pointer\(|\bput\(table"
 )
-#: The modules still viewing foreign memory (MuJoCo's ``MjData``, per env) or the after-tick
-#: kernel's arrays by address: the list only shrinks.
+#: The modules viewing foreign memory by address (MuJoCo's ``MjData``, per env, from an int64
+#: field of a declared table): the list only shrinks.
 POSITIONAL_MODULES = {
     "sim2real/deploy/backends/sim/legged_sensors_kernel.py",  # each env's MjData sensordata, qpos
     "sim2real/deploy/backends/sim/plant_kernel.py",  # each env's MjData arrays, MuJoCo's step
-    "sim2real/deploy/rig/after_tick.py",
-    "sim2real/deploy/rig/after_tick_kernel.py",
+    "sim2real/deploy/rig/after_tick_kernel.py",  # each env's MjData qpos, qvel, site
 }
 
 

@@ -110,3 +110,9 @@ def test_a_field_of_at_least_envs_rows_is_viewed_as_envs_rows():
     q = np.zeros((2, 2))
     assert _rows(AT_LEAST.pack(q=q, rows=np.zeros((5, 3)))) == 2
     assert "at least envs=2" in AT_LEAST.mismatch({"q": q, "rows": np.zeros((1, 3))})
+
+
+def test_placeholders_are_zeros_of_the_declared_dtypes_and_sizes():
+    zeros = DEMO.placeholders(["q", "hit", "rows"], {"envs": 4})
+    assert zeros["q"].shape == (4, 1) and zeros["q"].dtype == np.float64  # n unknown: 1
+    assert zeros["hit"].dtype == np.bool_ and zeros["rows"].shape == (2, 4)

@@ -142,6 +142,17 @@ class Table:
             return None
         return Packed(self, values, sizes, shapes)
 
+    def placeholders(self, names, sizes: dict) -> dict:
+        """Zero arrays of fields ``names`` (by their declaration, the symbols' lengths in
+        ``sizes``, ``*`` and an unknown symbol 1): the fields a kernel does not read in a
+        configuration (a flag in the table says so), packed all the same."""
+        out = {}
+        for name in names:
+            f = self.fields[name]
+            dims = [d if isinstance(d, int) else sizes.get(str(d).rstrip("+"), 1) for d in f.dims]
+            out[name] = np.zeros(dims, dtype=np.dtype(f.dtype))
+        return out
+
     def empty(self) -> Packed:
         """A packed table of null addresses, for compiling a kernel (not calling it)."""
         packed = np.zeros(self.size, dtype=np.int64).view(Packed)

@@ -574,7 +574,7 @@ POSITIONAL_VIEW = re.compile(
 #: field of a declared table): the list only shrinks.
 POSITIONAL_MODULES = {
     "sim2real/deploy/backends/sim/legged_sensors_kernel.py",  # each env's MjData sensordata, qpos
-    "sim2real/deploy/backends/sim/plant_kernel.py",  # each env's MjData arrays, MuJoCo's step
+    "sim2real/deploy/backends/sim/plant_kernel.py",  # each env's MjData arrays (views)
     "sim2real/deploy/rig/after_tick_kernel.py",  # each env's MjData qpos, qvel, site
 }
 

@@ -5,8 +5,8 @@
 table :data:`~sim2real.deploy.backends.sim.plant_kernel.PLANT`, and each env's ``MjData``
 fields' addresses into its ``views``, so the kernels take one argument in place of some
 thirty. Each object hands over its live arrays through its public ``kernel_arrays()`` (the
-plant's ``env_views(e)`` for an env's ``MjData``). It is built once the plant's models exist; the plant builds it afresh when an env
-gets a new model (``SimBackend.set_model``).
+plant's ``env_views(e)`` for an env's ``MjData``). It is built once the plant's models exist;
+the plant builds it afresh when an env gets a new model (``SimBackend.set_model``).
 """
 
 from __future__ import annotations

@@ -11,9 +11,9 @@ arithmetic.
   very objects it was bound with (the caller compares them by identity), or with Python scalars
   of the bound scalar types; anything else goes through the dispatcher.
 - One table of a kernel's arrays: declared once and read by name in the kernel
-  (:mod:`sim2real.deploy.kernels.tables`), bound as one argument. The lower-level table of
-  addresses (:func:`put`, :func:`pointer`) is left to the fused tick, the after-tick kernel and
-  the plant's step, which view foreign memory (MuJoCo's) by address.
+  (:mod:`sim2real.deploy.kernels.tables`), bound as one argument. :func:`pointer` is left to the
+  kernels that view foreign memory (each env's ``MjData`` arrays) by an address a declared
+  int64 field holds.
 """
 
 from __future__ import annotations
@@ -78,21 +78,3 @@ def fits(array, dtype, shape: tuple) -> bool:
         and array.shape == shape
         and array.flags.c_contiguous
     )
-
-
-def put(table, arrays, index, array, dtype, shape: tuple, rows: bool = False) -> bool:
-    """Write the address of ``array`` into ``table[index]`` and keep the array in ``arrays``
-    (alive as long as the table), if it is a C-contiguous array of ``dtype`` and ``shape`` (at
-    least ``shape[0]`` rows with ``rows``); returns whether it is (nothing written if not)."""
-    ok = (
-        isinstance(array, np.ndarray)
-        and array.dtype == dtype
-        and array.flags.c_contiguous
-        and array.ndim == len(shape)
-        and (array.shape[0] >= shape[0] if rows else array.shape[0] == shape[0])
-        and array.shape[1:] == shape[1:]
-    )
-    if ok:
-        table[index] = array.ctypes.data
-        arrays.append(array)
-    return ok

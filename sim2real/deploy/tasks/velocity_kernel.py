@@ -1,5 +1,5 @@
 """The velocity task's tick (a tracker judged on the plant's truth, with or without the heading
-hold) as one table of addresses and one compiled call per stage (:class:`TaskCall`).
+hold) as one packed table and one compiled call per stage (:class:`TaskCall`).
 
 The tracker's kernels (:mod:`sim2real.deploy.tasks.locomotion_kernel`) and the hold's
 (:mod:`sim2real.deploy.tasks.heading_kernel`) run in their own order around the same four

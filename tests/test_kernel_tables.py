@@ -116,3 +116,8 @@ def test_placeholders_are_zeros_of_the_declared_dtypes_and_sizes():
     zeros = DEMO.placeholders(["q", "hit", "rows"], {"envs": 4})
     assert zeros["q"].shape == (4, 1) and zeros["q"].dtype == np.float64  # n unknown: 1
     assert zeros["hit"].dtype == np.bool_ and zeros["rows"].shape == (2, 4)
+
+
+def test_a_copy_of_an_empty_table_is_empty():
+    copied = copy.deepcopy(DEMO.empty())
+    assert isinstance(copied, Packed) and copied.table is DEMO and not copied.any()

@@ -200,7 +200,10 @@ class Packed(np.ndarray):
 
 
 def _repack(table: Table, sizes: dict | None, arrays: dict) -> Packed:
-    """:meth:`Table.pack` of a copy's arrays (at their own addresses)."""
+    """:meth:`Table.pack` of a copy's arrays (at their own addresses); an :meth:`Table.empty`
+    table's copy is empty."""
+    if not arrays:
+        return table.empty()
     packed = table.pack(sizes, **arrays)
     if packed is None:
         raise ValueError(table.mismatch(arrays, sizes))

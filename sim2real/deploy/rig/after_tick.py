@@ -92,7 +92,7 @@ class FusedAfterTick:
         v, iv = rig.violations.kernel_arrays(), rig.interventions.kernel_arrays()
         values = dict(
             has_workspace=rig.violations.has_workspace, has_pairs=rig.violations.has_pairs,
-            has_goals=task is not None, legged=legged, running=int(RUNNING),
+            has_goals=task is not None, lies_down=legged, running=int(RUNNING),
             safe_stop=int(SAFE_STOP), bin_ns=BIN_NS, bins=BINS, hook_stage=0,
             margin=rig.violations.screen_margin, dt=motion_hook.dt if motion else 0.0,
             q=plant["qpos"], dq=plant["qvel"], tau=plant["torque"],

@@ -37,10 +37,12 @@ from sim2real.deploy.monitors import kernel as mk
 #: the goal scheduler's (``g_*``: zeros without ``has_goals``), the motion figures' (zeros
 #: without motion), and ``views`` (3, envs): each env's ``MjData`` qpos, qvel and end-effector
 #: site addresses (MuJoCo's memory, alive with the plant's envs). ``margin`` m, ``dt`` s;
-#: ``running``, ``safe_stop``: the modes' codes.
+#: ``running``, ``safe_stop``: the modes' codes; ``lies_down``: an env in SAFE_STOP or FAULTED
+#: lies down (a legged robot's), its ticks counted apart, the monitors' cost sample left to
+#: Python (which runs the estimation monitor).
 AFTER = Table(
     "sim2real.deploy.rig.after_tick_kernel:AFTER",
-    has_workspace="b1", has_pairs="b1", has_goals="b1", legged="b1", running="i8",
+    has_workspace="b1", has_pairs="b1", has_goals="b1", lies_down="b1", running="i8",
     safe_stop="i8", bin_ns="i8", bins="i8", hook_stage="i8", margin="f8", dt="f8",
     q="f8[envs,n]", dq="f8[envs,n]", tau="f8[envs,n]", stamp="i8[3]", v_ee="f8[envs,3]",
     v_offset_q="f8[n]", v_offset_ee="f8[3]", v_bound="f8[*]", v_checked_q="f8[envs,n]",
@@ -145,9 +147,9 @@ def after_tick(
         sites(views, v_ee)  # end_effector_position(out)
     # the violation monitor (update with down: a legged robot's envs lying damped after a stop,
     # ``Runtime.damping``; else every env is up)
-    mode, down, legged, safe_stop = t.mode, t.v_down, t.legged, t.safe_stop
+    mode, down, lies_down, safe_stop = t.mode, t.v_down, t.lies_down, t.safe_stop
     for e in range(envs):
-        down[e] = legged and mode[e] >= safe_stop
+        down[e] = lies_down and mode[e] >= safe_stop
     t.v_ticks[0] += 1
     code = 0
     if t.has_pairs:
@@ -168,7 +170,7 @@ def after_tick(
         code |= INTERVENTIONS_MOVED
     width, top = t.bin_ns, t.bins
     end = monotonic_ns(stamp)
-    if code == 0 and not legged:
+    if code == 0 and not lies_down:
         add_sample(t.m_counts, t.m_max, 0, end - start_ns, width, top)
     stamp[2] = end
     running = t.running

@@ -1,5 +1,5 @@
-"""The motion envelope's certify over its table of addresses
-(:func:`sim2real.deploy.safety.certify_table.certify_table`) decides as the same kernel called
+"""The motion envelope's certify over its packed table
+(:mod:`sim2real.deploy.safety.certify_table`) decides as the same kernel called
 with its thirty arrays: two runtimes run the scripted ticks of ``tests/test_compiled_tick.py``
 (an adversarial policy, faults, pushes; two envs), one whose envelope never builds the table.
 Commands, the guard's counters, the envelope's unsafe envs and braked joints, the drives'
@@ -64,7 +64,7 @@ def test_no_table_for_an_array_of_another_dtype(arm3):
     args = (z, z.copy(), z3, z3.copy(), np.zeros(1, dtype=bool), np.ones_like(z), z.copy())
     drive = env._drive_arrays(z)
     table = certify_table.build(args, env._screen, drive)
-    assert table is not None and table[0][certify_table.FLAGS] & certify_table.MASS_F
+    assert table is not None and table.arrays["mass_fortran"]  # Pinocchio's order
     bad = (*args[:4], np.zeros(1, dtype=np.int64), *args[5:])
     assert certify_table.build(bad, env._screen, drive) is None
     strided = drive._replace(variance=np.zeros((1, arm3.n_joints, 2))[..., 1])

@@ -1,5 +1,5 @@
 """The fused estimate and observe stages (:meth:`CompiledSupervision.estimate_observe`, one
-compiled call over a table of addresses) give the separate stages' results bit for bit, and so
+compiled call over one packed table) give the separate stages' results bit for bit, and so
 does the action screen over its table (:meth:`CompiledSupervision.screen`).
 
 Two runtimes run the same scripted ticks of ``tests/test_compiled_tick.py`` (seeded plants with

@@ -560,3 +560,63 @@ def test_the_module_length_check_names_a_new_long_module_and_a_stale_exception(t
     problems = _module_length_problems(tmp_path, paths, {"allowed.py", "split.py", "gone.py"})
     assert [p.split(":")[0] for p in problems] == ["long.py", "gone.py", "split.py"]
     assert _module_length_problems(tmp_path, paths, {"allowed.py", "long.py"}) == []
+
+
+# ====================================================================== kernel tables
+#: An array of a kernel's table read by its place: an index into a table of addresses
+#: (``SLOT`` arithmetic, ``put_slot``, ``view1`` .. ``view4``, a ``pointer`` to an address
+#: read from a table, ``put(table, ...)``). A kernel reads a declared table by name instead
+#: (:mod:`sim2real.deploy.kernels.tables`).
+POSITIONAL_VIEW = re.compile(
+    r"\*\s*SLOT\b|\bSLOT\s*\*|import .*\bSLOT\b|\bput_slots?\(|\bview[1-4]\(|\b_?pointer\(|\bput\(table"
+)
+#: The modules viewing foreign memory by address (MuJoCo's ``MjData``, per env, from an int64
+#: field of a declared table): the list only shrinks.
+POSITIONAL_MODULES = {
+    "sim2real/deploy/backends/sim/legged_sensors_kernel.py",  # each env's MjData sensordata, qpos
+    "sim2real/deploy/backends/sim/plant_kernel.py",  # each env's MjData arrays (views)
+    "sim2real/deploy/rig/after_tick_kernel.py",  # each env's MjData qpos, qvel, site
+}
+
+
+def _positional_view_problems(root: Path, paths: list[Path], allowed: set[str]) -> list[str]:
+    """The modules (but ``kernels/calls.py``, which defines the addresses' helpers) that read a
+    table's array by its place and are not ``allowed``, and the ``allowed`` that no longer do."""
+    found = {}
+    for path in paths:
+        name = path.relative_to(root).as_posix()
+        if name.endswith("kernels/calls.py"):
+            continue
+        hits = [
+            i
+            for i, line in enumerate(path.read_text().splitlines(), 1)
+            if POSITIONAL_VIEW.search(line)
+        ]
+        if hits:
+            found[name] = hits
+    problems = [
+        f"{name}:{lines[0]}: an array read by its place in a table: declare the table "
+        "(sim2real.deploy.kernels.tables.Table) and read it by name"
+        for name, lines in sorted(found.items())
+        if name not in allowed
+    ]
+    problems += [
+        f"{name}: reads no table by place now (or gone): remove it from POSITIONAL_MODULES"
+        for name in sorted(allowed - set(found))
+    ]
+    return problems
+
+
+def test_no_kernel_reads_an_array_of_its_table_by_position():
+    problems = _positional_view_problems(ROOT, _sources("sim2real", "bench"), POSITIONAL_MODULES)
+    assert not problems, "\n".join(problems)
+
+
+def test_the_positional_view_check_names_a_new_one_and_a_stale_exception(tmp_path):
+    (tmp_path / "slots.py").write_text("a = view2(table, s + 4 * SLOT, f8)\n")
+    (tmp_path / "address.py").write_text("q = numba.carray(_pointer(table[Q]), (envs, n), f8)\n")
+    (tmp_path / "named.py").write_text("a = t.pred\nhelp = 'motor SLOT stops, heat:SLOT=W'\n")
+    (tmp_path / "fixed.py").write_text("a = t.q\n")
+    paths = sorted(tmp_path.glob("*.py"))
+    problems = _positional_view_problems(tmp_path, paths, {"address.py", "fixed.py"})
+    assert [p.split(":")[0] for p in problems] == ["slots.py", "fixed.py"]

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import functools
 import operator
+from inspect import signature
 
 import numpy as np
 import pinocchio as pin
@@ -62,7 +63,7 @@ from sim2real.deploy.estimation.base_params import (  # noqa: F401 (this module'
     require_floating_base,
 )
 from sim2real.deploy.estimation.base_steps import BaseSteps
-from sim2real.deploy.kernels.calls import SLOT, bind, put_slots
+from sim2real.deploy.kernels.calls import bind
 from sim2real.robots import Robot
 
 _ALIGNED = pin.LOCAL_WORLD_ALIGNED  # the feet's velocities' frame (_read_legs)
@@ -185,7 +186,6 @@ class BaseStateEstimator(BaseSteps):
         self._foot_position = np.zeros((envs, n_feet, 3))
         self._held = -1  # the env whose legs' kinematics the Pinocchio data holds (-1: none)
         self._bound_calls = None  # (the arrays, the two calls bound to them): see _bound
-        self._table = None  # the table of the bound calls and the arrays it names (_calls)
         #: the tick runs compiled unless a subclass replaces the algebra's steps (the reference)
         self._compiled = all(
             getattr(type(self), name) is getattr(BaseStateEstimator, name)
@@ -221,7 +221,7 @@ class BaseStateEstimator(BaseSteps):
             np.zeros((1, nf), dtype=bool), one, joints, joints, joints, joints, joints,
             joints.copy(), legs,
         )  # fmt: skip
-        bind(bt.tick_stage, np.zeros(SLOT * len(bt.TABLE_ARGS), dtype=np.int64), rest=(0,))
+        bind(bt.tick_stage, bt.TICK.empty(), rest=(0,))
         out = BaseState.zeros(1)
         bt.absorb_legs(
             x, P[None].copy(), n, feet, self._p, one, one, legs, self._foot_motion[:1],
@@ -230,9 +230,9 @@ class BaseStateEstimator(BaseSteps):
         )  # fmt: skip
 
     def __getstate__(self) -> dict:
-        """A copy (``copy.deepcopy``, pickle) binds its kernels afresh at its first update: the
-        bound calls' table names the original's arrays."""
-        return self.__dict__ | {"_bound_calls": None, "_table": None}
+        """A copy (``copy.deepcopy``, pickle) binds its kernels afresh at its first update (they
+        are bound to the frame's arrays, which a copy of the estimator alone does not share)."""
+        return self.__dict__ | {"_bound_calls": None}
 
     def _initial_covariance(self) -> np.ndarray:
         """(12, 12) the error state's covariance at a reset (``INITIAL_*_SIGMA``, the IMU's
@@ -412,29 +412,28 @@ class BaseStateEstimator(BaseSteps):
 
     def _calls(self, frame: SensorFrame, q, dq, out: BaseState, bound: bool) -> tuple:
         """The two kernels' calls on these arrays: bound (``bound``: as one table of them,
-        :func:`~sim2real.deploy.estimation.base_tick.tick_stage`, where each is of its dtype
-        and dimensions), else through numba's dispatch."""
-        imu = (self._x, self.covariance, self._n, self._feet, self._force, self._encoder)
-        imu += (self._p, frame.time, frame.imu_stamp, frame.imu_angular_velocity)
-        imu += (frame.imu_acceleration, frame.imu_orientation, frame.foot_force)
-        imu += (frame.foot_contact, frame.contact_stamp, frame.position, frame.position_stamp)
-        imu += (self._no_velocity if frame.velocity is None else frame.velocity, q, dq)
-        imu += (self._rate, self._legs)
-        legs = (self._foot_motion, self._foot_position, out.orientation, out.projected_gravity)
-        legs += (out.linear_velocity, out.angular_velocity, out.linear_velocity_world)
-        if bound:
-            table, kept = np.zeros(SLOT * len(bt.TABLE_ARGS), dtype=np.int64), []
-            if put_slots(table, kept, 0, bt.TABLE_ARGS, imu + legs):
-                self._table = (table, kept)  # the arrays alive while the table names them
-                stage = bind(bt.tick_stage, table, rest=(0,))
-                return functools.partial(stage, 0), functools.partial(stage, 1)
-        call = bind if bound else functools.partial
-        x, p, n, feet = self._x, self.covariance, self._n, self._feet
-        absorb_legs = call(
-            bt.absorb_legs, x, p, n, feet, self._p, frame.time, frame.contact_stamp, self._legs,
-            *legs,
+        :data:`~sim2real.deploy.estimation.base_tick.TICK`, where each is of its dtype and
+        dimensions), else through numba's dispatch."""
+        values = dict(
+            x=self._x, P=self.covariance, n=self._n, feet=self._feet, force=self._force,
+            encoder=self._encoder, p=self._p, time=frame.time, imu_stamp=frame.imu_stamp,
+            gyro=frame.imu_angular_velocity, acc=frame.imu_acceleration,
+            onboard=frame.imu_orientation, foot_force=frame.foot_force,
+            foot_contact=frame.foot_contact, contact_stamp=frame.contact_stamp,
+            position=frame.position, position_stamp=frame.position_stamp,
+            velocity=self._no_velocity if frame.velocity is None else frame.velocity, q=q, dq=dq,
+            rate=self._rate, legs=self._legs, foot_motion=self._foot_motion,
+            foot_position=self._foot_position, out_q=out.orientation, out_g=out.projected_gravity,
+            out_v=out.linear_velocity, out_w=out.angular_velocity, out_vw=out.linear_velocity_world,
         )  # fmt: skip
-        return call(bt.absorb_imu, *imu), absorb_legs
+        table = bt.TICK.pack(**values) if bound else None
+        if table is not None:
+            stage = bind(bt.tick_stage, table, rest=(0,))
+            return functools.partial(stage, 0), functools.partial(stage, 1)
+        return tuple(  # through numba's dispatch, each argument by its name
+            functools.partial(k, **{a: values[a] for a in signature(k.py_func).parameters})
+            for k in (bt.absorb_imu, bt.absorb_legs)
+        )
 
     def _read_legs(self, e: int, q: np.ndarray, dead: int) -> None:
         """Env ``e``'s feet's velocities into ``_foot_motion[e]`` (n_feet, 6) (linear m/s, angular

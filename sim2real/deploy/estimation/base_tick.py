@@ -34,7 +34,7 @@ from sim2real.deploy.estimation.base_kernel import (
     leg_step_in,
     workspace,
 )
-from sim2real.deploy.kernels.calls import SLOT, view1, view2, view3
+from sim2real.deploy.kernels.tables import Table
 
 #: Columns of the packed float state ``x``: quaternion (4), velocity (3), biases (6), angular
 #: velocity (3), filter time, time since fresh.
@@ -252,46 +252,33 @@ def absorb_legs(
             out_vw[e, i] = x[e, VELOCITY + i]
 
 
-#: The arguments of :func:`absorb_imu` then of :func:`absorb_legs` as slots of one table
-#: (:func:`~sim2real.deploy.kernels.calls.put_slot`): each name's dtype and dimensions.
-TABLE_ARGS = (
-    ("x", "f8", 2), ("P", "f8", 3), ("n", "i8", 2), ("feet", "b1", 3), ("force", "f8", 3),
-    ("encoder", "f8", 3), ("p", "f8", 1), ("time", "f8", 1), ("imu_stamp", "f8", 1),
-    ("gyro", "f8", 2), ("acc", "f8", 2), ("onboard", "f8", 2), ("foot_force", "f8", 2),
-    ("foot_contact", "b1", 2), ("contact_stamp", "f8", 1), ("position", "f8", 2),
-    ("position_stamp", "f8", 2), ("velocity", "f8", 2), ("q", "f8", 2), ("dq", "f8", 2),
-    ("rate", "f8", 2), ("legs", "i8", 1), ("foot_motion", "f8", 3),
-    ("foot_position", "f8", 3), ("out_q", "f8", 2), ("out_g", "f8", 2), ("out_v", "f8", 2),
-    ("out_w", "f8", 2), ("out_vw", "f8", 2),
+#: The arguments of :func:`absorb_imu` and :func:`absorb_legs` (their names, ``p`` the
+#: estimator's (``time`` its own (envs,) s), the frame's and the output's fields), one table.
+TICK = Table(
+    "sim2real.deploy.estimation.base_tick:TICK",
+    x="f8[envs,*]", P="f8[envs,*,*]", n="i8[envs,*]", feet="b1[*,envs,*]",
+    force="f8[*,envs,*]", encoder="f8[*,envs,*]", p="f8[*]", time="f8[envs]",
+    imu_stamp="f8[envs]", gyro="f8[envs,3]", acc="f8[envs,3]", onboard="f8[envs,4]",
+    foot_force="f8[envs,*]", foot_contact="b1[envs,*]", contact_stamp="f8[envs]",
+    position="f8[envs,*]", position_stamp="f8[envs,*]", velocity="f8[envs,*]",
+    q="f8[envs,*]", dq="f8[envs,*]", rate="f8[envs,*]", legs="i8[envs]",
+    foot_motion="f8[envs,*,*]", foot_position="f8[envs,*,*]", out_q="f8[envs,4]",
+    out_g="f8[envs,3]", out_v="f8[envs,3]", out_w="f8[envs,3]", out_vw="f8[envs,3]",
 )  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
-def tick_stage(table, stage):
-    """:func:`absorb_imu` (``stage`` 0) or :func:`absorb_legs` (1) on the arrays of ``table``
-    (:data:`TABLE_ARGS`' slots, ``SLOT`` ints each): one array to unbox, not twenty."""
-    f8, i8, b1 = np.float64, np.int64, np.bool_
-    x, P, n = view2(table, 0, f8), view3(table, SLOT, f8), view2(table, 2 * SLOT, i8)
-    feet, p, time = (
-        view3(table, 3 * SLOT, b1),
-        view1(table, 6 * SLOT, f8),
-        view1(table, 7 * SLOT, f8),
-    )
-    contact_stamp, legs = view1(table, 14 * SLOT, f8), view1(table, 21 * SLOT, i8)
+def tick_stage(t, stage):
+    """:func:`absorb_imu` (``stage`` 0) or :func:`absorb_legs` (1) on the packed table ``t``
+    (:data:`TICK`): one array to unbox, not twenty."""
     if stage == 0:
         absorb_imu(
-            x, P, n, feet, view3(table, 4 * SLOT, f8), view3(table, 5 * SLOT, f8), p, time,
-            view1(table, 8 * SLOT, f8), view2(table, 9 * SLOT, f8), view2(table, 10 * SLOT, f8),
-            view2(table, 11 * SLOT, f8), view2(table, 12 * SLOT, f8),
-            view2(table, 13 * SLOT, b1), contact_stamp, view2(table, 15 * SLOT, f8),
-            view2(table, 16 * SLOT, f8), view2(table, 17 * SLOT, f8),
-            view2(table, 18 * SLOT, f8), view2(table, 19 * SLOT, f8),
-            view2(table, 20 * SLOT, f8), legs,
+            t.x, t.P, t.n, t.feet, t.force, t.encoder, t.p, t.time, t.imu_stamp, t.gyro, t.acc,
+            t.onboard, t.foot_force, t.foot_contact, t.contact_stamp, t.position,
+            t.position_stamp, t.velocity, t.q, t.dq, t.rate, t.legs,
         )  # fmt: skip
     else:
         absorb_legs(
-            x, P, n, feet, p, time, contact_stamp, legs, view3(table, 22 * SLOT, f8),
-            view3(table, 23 * SLOT, f8), view2(table, 24 * SLOT, f8),
-            view2(table, 25 * SLOT, f8), view2(table, 26 * SLOT, f8),
-            view2(table, 27 * SLOT, f8), view2(table, 28 * SLOT, f8),
+            t.x, t.P, t.n, t.feet, t.p, t.time, t.contact_stamp, t.legs, t.foot_motion,
+            t.foot_position, t.out_q, t.out_g, t.out_v, t.out_w, t.out_vw,
         )  # fmt: skip

@@ -29,6 +29,7 @@ against gravity is what overheats its motors.
 
 from __future__ import annotations
 
+import functools
 import math
 import operator
 from collections.abc import Callable
@@ -41,7 +42,8 @@ from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import check, put, take
 from sim2real.deploy.estimation.base_kernel import _quat_to_mat, fma
 from sim2real.deploy.estimation.base_params import foot_radii, require_floating_base
-from sim2real.deploy.kernels.calls import SLOT, bind, put_slots, view1, view2, view3
+from sim2real.deploy.kernels.calls import bind
+from sim2real.deploy.kernels.tables import Table
 from sim2real.robots import Robot
 
 #: ``feet(e, out) -> bool``: env ``e``'s feet's positions in the base frame into ``out`` (n_feet,
@@ -170,8 +172,8 @@ class FallDetector:
         put(self._fields(), state, env)
 
     def __getstate__(self) -> dict:
-        """A copy (``copy.deepcopy``, pickle) binds the check afresh: its table names the
-        original's arrays."""
+        """A copy (``copy.deepcopy``, pickle) binds the check afresh: its binding names the
+        state's arrays, which a copy of the detector alone does not share."""
         return self.__dict__ | {"_bound": None}
 
     @property
@@ -213,34 +215,35 @@ class FallDetector:
         key += (state.foot_contact,)
         bound = self._bound
         if bound is None or not all(map(operator.is_, key, bound[0])):
-            args = (self._limits, *key, position, self.height, self._ticks, self.signals)
-            table, kept = np.zeros(SLOT * len(CHECK_SLOTS), dtype=np.int64), []
-            if put_slots(table, kept, 0, CHECK_SLOTS, (*args, self._fallen)):
-                call = bind(_check_table, table)  # the arrays alive with the call's key
-                self._bound = bound = ((*key, kept), call)
-            else:
-                self._bound = bound = (key, bind(_check, *args, self._fallen))
+            values = dict(
+                limits=self._limits, gravity=key[0], velocity=key[1], orientation=key[2],
+                contact=key[3], position=position, height=self.height, ticks=self._ticks,
+                signals=self.signals, out=self._fallen,
+            )  # fmt: skip
+            table = CHECK.pack(**values)
+            if table is not None:
+                self._bound = bound = (key, bind(_check_table, table))
+            else:  # through numba's dispatch
+                self._bound = bound = (key, functools.partial(_check, **values))
         bound[1]()
         return self._fallen
 
 
-#: The arrays of :func:`_check` as slots of one table, in its order.
-CHECK_SLOTS = (
-    ("limits", "f8", 1), ("gravity", "f8", 2), ("velocity", "f8", 2), ("orientation", "f8", 2),
-    ("contact", "f8", 2), ("position", "f8", 3), ("height", "f8", 1), ("ticks", "i8", 2),
-    ("signals", "b1", 2), ("out", "b1", 1),
+#: The arrays of :func:`_check` (its arguments' names), one table.
+CHECK = Table(
+    "sim2real.deploy.estimation.fall:CHECK",
+    limits="f8[*]", gravity="f8[envs,3]", velocity="f8[envs,3]", orientation="f8[envs,4]",
+    contact="f8[envs,feet]", position="f8[envs,feet,3]", height="f8[envs]",
+    ticks="i8[2,envs]", signals="b1[envs,*]", out="b1[envs]",
 )  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
-def _check_table(table):
-    """:func:`_check` on the arrays of ``table`` (:data:`CHECK_SLOTS`): one array to unbox."""
-    f8, b1 = np.float64, np.bool_
+def _check_table(t):
+    """:func:`_check` on the packed table ``t`` (:data:`CHECK`): one array to unbox."""
     _check(
-        view1(table, 0, f8), view2(table, SLOT, f8), view2(table, 2 * SLOT, f8),
-        view2(table, 3 * SLOT, f8), view2(table, 4 * SLOT, f8), view3(table, 5 * SLOT, f8),
-        view1(table, 6 * SLOT, f8), view2(table, 7 * SLOT, np.int64), view2(table, 8 * SLOT, b1),
-        view1(table, 9 * SLOT, b1),
+        t.limits, t.gravity, t.velocity, t.orientation, t.contact, t.position, t.height,
+        t.ticks, t.signals, t.out,
     )  # fmt: skip
 
 

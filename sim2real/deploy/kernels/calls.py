@@ -10,25 +10,38 @@ arithmetic.
   bound to it. The entry point does not check its arguments' types: it is only called with the
   very objects it was bound with (the caller compares them by identity), or with Python scalars
   of the bound scalar types; anything else goes through the dispatcher.
-- A table of addresses (:func:`put`, :func:`pointer`): a kernel takes one int64 table instead of
-  its arrays and views each with ``numba.carray(pointer(table[i]), shape, dtype)``. The arrays
-  must live, keep their shape and dtype and stay C-contiguous while the table is in use:
-  :func:`put` keeps them alive in a list the table's owner holds, and the owner builds the table
-  again when it is handed other arrays (compared by identity). With each array's dimensions
-  beside its address (:func:`put_slot`), a kernel views it with :func:`view1` ... :func:`view4`.
+- One table of a kernel's arrays: declared once and read by name in the kernel
+  (:mod:`sim2real.deploy.kernels.tables`), bound as one argument. :func:`pointer` is left to the
+  kernels that view foreign memory (each env's ``MjData`` arrays) by an address a declared
+  int64 field holds.
 """
 
 from __future__ import annotations
 
 import functools
+import importlib
 
-import numba
 import numpy as np
 from numba.core import cgutils, types
 from numba.extending import intrinsic
 
 
-def bind(kernel, *args, rest: tuple = ()):
+class Bound(functools.partial):
+    """A kernel's entry point with its first arguments bound (:func:`bind`). It pickles and
+    copies as the kernel's name and those arguments: the copy binds its own copies of them (a
+    :class:`~sim2real.deploy.kernels.tables.Packed` table packs its arrays at their new
+    addresses), so an owner keeps it as any other attribute."""
+
+    def __reduce__(self):
+        kernel, args, rest = self.binding
+        return _rebind, (kernel.py_func.__module__, kernel.py_func.__qualname__, args, rest)
+
+
+def _rebind(module: str, name: str, args: tuple, rest: tuple) -> Bound:
+    return bind(getattr(importlib.import_module(module), name), *args, rest=rest)
+
+
+def bind(kernel, *args, rest: tuple = ()) -> Bound:
     """The entry point of the numba dispatcher ``kernel`` specialized to the types of ``args``
     and ``rest`` (compiled, or loaded from numba's cache, now), with ``args`` bound: a callable
     taking the remaining arguments, of the types of the examples ``rest`` (e.g. ``(0,)``: an int
@@ -41,7 +54,9 @@ def bind(kernel, *args, rest: tuple = ()):
     types = tuple(kernel.typeof_pyval(a) for a in (*args, *rest))
     if types not in kernel.overloads:
         kernel.compile(types)
-    return functools.partial(kernel.overloads[types].entry_point, *args)
+    bound = Bound(kernel.overloads[types].entry_point, *args)
+    bound.binding = (kernel, args, rest)
+    return bound
 
 
 @intrinsic
@@ -63,86 +78,3 @@ def fits(array, dtype, shape: tuple) -> bool:
         and array.shape == shape
         and array.flags.c_contiguous
     )
-
-
-def put(table, arrays, index, array, dtype, shape: tuple, rows: bool = False) -> bool:
-    """Write the address of ``array`` into ``table[index]`` and keep the array in ``arrays``
-    (alive as long as the table), if it is a C-contiguous array of ``dtype`` and ``shape`` (at
-    least ``shape[0]`` rows with ``rows``); returns whether it is (nothing written if not)."""
-    ok = (
-        isinstance(array, np.ndarray)
-        and array.dtype == dtype
-        and array.flags.c_contiguous
-        and array.ndim == len(shape)
-        and (array.shape[0] >= shape[0] if rows else array.shape[0] == shape[0])
-        and array.shape[1:] == shape[1:]
-    )
-    if ok:
-        table[index] = array.ctypes.data
-        arrays.append(array)
-    return ok
-
-
-#: Ints per array in a table of shaped slots (:func:`put_slot`): its address, four dimensions.
-SLOT = 5
-
-
-def put_slot(table, arrays, index, array, dtype, ndim: int, shape: tuple | None = None) -> bool:
-    """:func:`put` of a C-contiguous ``ndim``-dimensional ``array`` of ``dtype`` at
-    ``table[index]``, its dimensions (``shape``, default its own) in the :data:`SLOT` - 1 ints
-    after it, for the views :func:`view1` ... :func:`view4`; returns whether it fit."""
-    if not isinstance(array, np.ndarray) or array.ndim != ndim:
-        return False
-    if not put(table, arrays, index, array, np.dtype(dtype), array.shape):
-        return False
-    table[index + 1 : index + 1 + ndim] = array.shape if shape is None else shape
-    return True
-
-
-#: The dtype codes of a table's slot list (:func:`put_slots`).
-DTYPES = {"f8": np.float64, "i8": np.int64, "b1": np.bool_}
-
-
-def put_slots(table, arrays, start: int, slots: tuple, values: tuple) -> bool:
-    """:func:`put_slot` of each of ``values`` at ``table[start + SLOT * k]``, of the dtype code
-    (:data:`DTYPES`) and dimensions of ``slots[k]`` (``(name, code, ndim)``); whether every one
-    fit (a kernel's table is used only then)."""
-    if len(slots) != len(values):
-        return False
-    places = zip(slots, values, strict=True)
-    return all(
-        put_slot(table, arrays, start + SLOT * k, a, DTYPES[code], ndim)
-        for k, ((_, code, ndim), a) in enumerate(places)
-    )
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _dim(table, index, i):
-    return table[index + 1 + i]
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def view1(table, index, dtype):
-    """The 1-D array of the slot at ``table[index]`` (:func:`put_slot`), in a compiled kernel."""
-    return numba.carray(pointer(table[index]), (_dim(table, index, 0),), dtype)
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def view2(table, index, dtype):
-    """The 2-D array of the slot at ``table[index]`` (:func:`put_slot`)."""
-    shape = (_dim(table, index, 0), _dim(table, index, 1))
-    return numba.carray(pointer(table[index]), shape, dtype)
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def view3(table, index, dtype):
-    """The 3-D array of the slot at ``table[index]`` (:func:`put_slot`)."""
-    shape = (_dim(table, index, 0), _dim(table, index, 1), _dim(table, index, 2))
-    return numba.carray(pointer(table[index]), shape, dtype)
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def view4(table, index, dtype):
-    """The 4-D array of the slot at ``table[index]`` (:func:`put_slot`)."""
-    shape = (_dim(table, index, 0), _dim(table, index, 1), _dim(table, index, 2))
-    return numba.carray(pointer(table[index]), (*shape, _dim(table, index, 3)), dtype)

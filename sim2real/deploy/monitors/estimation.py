@@ -25,7 +25,6 @@ from sim2real.deploy.core.attitude import tilt_of
 from sim2real.deploy.core.state import BaseState
 from sim2real.deploy.core.stateful import check, put, take
 from sim2real.deploy.estimation.fall import FALL_TILT
-from sim2real.deploy.kernels.calls import fits
 
 #: Fraction of ``[base] standing_height`` under which the true base has fallen (our choice: a
 #: walking humanoid's base stays above 0.9 of it, a Go2's trot at 0.57; lying, below 0.3).
@@ -72,9 +71,9 @@ class EstimationMonitor:
         load()  # the kernels ready before the first tick
 
     def __getstate__(self) -> dict:
-        """A copy (``copy.deepcopy``, pickle) binds its kernels afresh: the bound call's table
-        names the original's arrays."""
-        return self.__dict__ | {"_calls": None, "_table": None, "_kept": None}
+        """A copy (``copy.deepcopy``, pickle) binds its kernels afresh: the bound call names the
+        runtime's arrays, which a copy of the monitor alone does not share."""
+        return self.__dict__ | {"_calls": None}
 
     @property
     def ticks(self) -> int:
@@ -148,34 +147,30 @@ class EstimationMonitor:
         from sim2real.deploy.monitors.estimation_kernel import gemv_matches
 
         arrays = (base.projected_gravity, base.linear_velocity, base.linear_velocity_world)
-        if not gemv_matches() or not fits(runtime.mode, np.int8, (self.envs,)):
-            return None
-        if not all(fits(a, np.float64, (self.envs, 3)) for a in arrays):
-            return None
-        if lying is not None and not fits(lying, np.bool_, (self.envs,)):
+        if not gemv_matches():
             return None
         self._calls = (runtime.mode, *arrays, lying, self._bind(runtime, lying))
         return self._calls[-1]
 
     def _bind(self, runtime, lying):
-        """``monitor_stage`` bound to a table of the runtime's arrays and the monitor's."""
-        from sim2real.deploy.kernels.calls import SLOT, bind, put_slot
+        """``monitor_stage`` bound to a table of the runtime's arrays and the monitor's (None
+        where one does not fit it)."""
+        from sim2real.deploy.kernels.calls import bind
         from sim2real.deploy.monitors import estimation_kernel as ek
 
         base, t, envs = runtime.state.base, self._truth, self.envs
         self._arg, self._angle = np.zeros((2, envs)), np.zeros((2, envs))
-        params = np.array([self.fall_height, self.fall_tilt, BIN_DEG])
-        has_lying = lying is not None
-        arrays = (*ek.fields(t), base.projected_gravity, base.linear_velocity)
-        arrays += (base.linear_velocity_world, self._arg, self._angle, runtime.mode)
-        arrays += (lying if has_lying else np.zeros(envs, dtype=bool), self.true_falls)
-        arrays += (self._down, self.counts, self.sums, params)
-        table, kept = np.zeros(ek.HEADER + SLOT * len(ek.SLOTS), dtype=np.int64), []
-        for at, a in zip(ek.SLOTS_AT, arrays, strict=True):
-            put_slot(table, kept, at, a, a.dtype, a.ndim)
-        table[: ek.HEADER] = (int(ek.gemv_fused()), int(has_lying), BINS, 0)
-        self._table, self._kept = table, kept  # the arrays alive while the table names them
-        return bind(ek.monitor_stage, table, rest=(0, np.zeros((1, 13))))
+        table = ek.MONITOR.pack(
+            fused=ek.gemv_fused(), has_lying=lying is not None, bins=BINS,
+            fall_height=self.fall_height, fall_tilt=self.fall_tilt, bin_deg=BIN_DEG,
+            orientation=t.orientation, gravity=t.projected_gravity, angular=t.angular_velocity,
+            velocity_world=t.linear_velocity_world, velocity=t.linear_velocity,
+            g_est=base.projected_gravity, v_est=base.linear_velocity,
+            vw_est=base.linear_velocity_world, arg=self._arg, angle=self._angle,
+            mode=runtime.mode, lying=np.zeros(envs, dtype=bool) if lying is None else lying,
+            true_falls=self.true_falls, down=self._down, counts=self.counts, sums=self.sums,
+        )  # fmt: skip
+        return None if table is None else bind(ek.monitor_stage, table, rest=(0, np.zeros((1, 13))))
 
     def reference_update(self, runtime, truth: np.ndarray) -> None:
         """:meth:`update` by numpy (the kernels' reference)."""

@@ -22,7 +22,7 @@ import numpy as np
 from numba.core import types
 from numba.extending import intrinsic
 
-from sim2real.deploy.kernels.calls import SLOT, view1, view2
+from sim2real.deploy.kernels.tables import Table
 
 #: deg per rad as ``np.degrees`` multiplies.
 DEG = 180.0 / math.pi
@@ -211,43 +211,36 @@ def accumulate(
 
 
 #: The monitor's table (:func:`monitor_stage`): ``fused`` (:func:`gemv_fused`), whether the
-#: runtime has ``lying_expected``, the histogram's ``bins``; then the arrays' slots
-#: (:func:`~sim2real.deploy.kernels.calls.put_slot`): the true base's five fields
+#: runtime has ``lying_expected``, the histogram's ``bins``; the true base's five fields
 #: (:func:`fields`), the estimate's projected gravity, linear velocity and its world one, the
-#: arc cosines' arguments and angles (2, envs), the modes, ``lying_expected``, the true falls,
-#: the true base down, the counts, the sums and the parameters (fall height m, fall tilt rad,
-#: bin width deg).
-FUSED, HAS_LYING, BIN_COUNT, HEADER = 0, 1, 2, 4
-SLOTS = (
-    "orientation gravity angular velocity_world velocity g_est v_est vw_est arg angle mode "
-    "lying true_falls down counts sums params"
-).split()
-SLOTS_AT = tuple(HEADER + SLOT * k for k in range(len(SLOTS)))
+#: arc cosines' arguments and angles, the modes, ``lying_expected``, the true falls, the true
+#: base down, the histogram's counts (``bins`` + 1 columns), the sums; the fall height (m),
+#: fall tilt (rad), bin width (deg).
+MONITOR = Table(
+    "sim2real.deploy.monitors.estimation_kernel:MONITOR",
+    fused="b1", has_lying="b1", bins="i8", fall_height="f8", fall_tilt="f8", bin_deg="f8",
+    orientation="f8[envs,4]", gravity="f8[envs,3]", angular="f8[envs,3]",
+    velocity_world="f8[envs,3]", velocity="f8[envs,3]", g_est="f8[envs,3]",
+    v_est="f8[envs,3]", vw_est="f8[envs,3]", arg="f8[2,envs]", angle="f8[2,envs]",
+    mode="i1[envs]", lying="b1[envs]", true_falls="i8[envs]", down="b1[envs]",
+    counts="i8[envs,*]", sums="f8[envs,7]",
+)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
-def monitor_stage(table, stage, truth):
+def monitor_stage(t, stage, truth):
     """Stage 0: :func:`truth_angles`; stage 1: :func:`accumulate` (its answer), over the
-    monitor's table (:data:`SLOTS`) and ``truth`` (envs, 13)."""
-    f8, s = np.float64, SLOTS_AT
-    orientation, gravity = view2(table, s[0], f8), view2(table, s[1], f8)
-    angular, world, velocity = (
-        view2(table, s[2], f8),
-        view2(table, s[3], f8),
-        view2(table, s[4], f8),
-    )
+    monitor's packed table ``t`` (:data:`MONITOR`) and ``truth`` (envs, 13)."""
     if stage == 0:
-        fused = table[FUSED] != 0
-        g_est, arg = view2(table, s[5], f8), view2(table, s[8], f8)
-        truth_angles(orientation, gravity, angular, world, velocity, g_est, arg, fused, truth)
+        truth_angles(
+            t.orientation, t.gravity, t.angular, t.velocity_world, t.velocity, t.g_est, t.arg,
+            t.fused, truth,
+        )  # fmt: skip
         return 0
-    params = view1(table, s[16], f8)
     return accumulate(
-        view1(table, s[10], np.int8), view1(table, s[11], np.bool_), table[HAS_LYING] != 0,
-        view2(table, s[9], f8), params[0], params[1], view1(table, s[12], np.int64),
-        view1(table, s[13], np.bool_), view2(table, s[14], np.int64), view2(table, s[15], f8),
-        view2(table, s[6], f8), velocity, view2(table, s[7], f8), world, params[2],
-        table[BIN_COUNT], truth,
+        t.mode, t.lying, t.has_lying, t.angle, t.fall_height, t.fall_tilt, t.true_falls, t.down,
+        t.counts, t.sums, t.v_est, t.velocity, t.vw_est, t.velocity_world, t.bin_deg,
+        t.bins, truth,
     )  # fmt: skip
 
 
@@ -268,4 +261,4 @@ def load() -> None:
         *(mode, b, True, angle, 1.0, 1.0, i, b, counts, sums, f, f, f, f, 1.0, 1),
         rest=(np.zeros((1, 13)),),
     )
-    bind(monitor_stage, np.zeros(HEADER + SLOT * len(SLOTS), np.int64), rest=(0, np.zeros((1, 13))))
+    bind(monitor_stage, MONITOR.empty(), rest=(0, np.zeros((1, 13))))

@@ -19,11 +19,14 @@ Recording is one compiled call per tick, nothing allocated: :func:`record`, or :
 
 from __future__ import annotations
 
+from inspect import signature
+
 import numba
 import numpy as np
 
 from sim2real.deploy.core.latency_kernel import add_stages
-from sim2real.deploy.kernels.calls import SLOT, bind, put_slots, view1, view2
+from sim2real.deploy.kernels.calls import bind
+from sim2real.deploy.kernels.tables import Table
 
 #: Columns of the table before the stages: tick index, period (ns: wake-up lateness + work),
 #: wake-up lateness (ns), work from the wake-up to the next wait (ns), the thread's CPU time over
@@ -157,31 +160,29 @@ class LongTicks:
         return out
 
 
-#: :func:`record_tick`'s arrays as slots of one table (:func:`bind_record`), in its order.
-RECORD_SLOTS = (
-    ("stamps", "i8", 1), ("period", "i8", 1), ("bins", "i8", 1), ("counts", "i8", 2),
-    ("max_ns", "i8", 1), ("cost_counts", "i8", 2), ("cost_max_ns", "i8", 1), ("table", "i8", 2),
+#: :func:`record_tick`'s arrays (its arguments' names but the tick), one table.
+RECORD = Table(
+    "sim2real.deploy.observe.long_ticks:RECORD",
+    stamps="i8[*]", period="i8[*]", bins="i8[*]", counts="i8[*,*]", max_ns="i8[*]",
+    cost_counts="i8[*,*]", cost_max_ns="i8[*]", table="i8[*,*]",
 )  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
-def record_table(slots, tick: int) -> None:
-    """:func:`record_tick` on the arrays of ``slots`` (:data:`RECORD_SLOTS`)."""
-    i8 = np.int64
+def record_table(t, tick: int) -> None:
+    """:func:`record_tick` on the packed table ``t`` (:data:`RECORD`)."""
     record_tick(
-        view1(slots, 0, i8), view1(slots, SLOT, i8), view1(slots, 2 * SLOT, i8),
-        view2(slots, 3 * SLOT, i8), view1(slots, 4 * SLOT, i8), view2(slots, 5 * SLOT, i8),
-        view1(slots, 6 * SLOT, i8), view2(slots, 7 * SLOT, i8), tick,
+        t.stamps, t.period, t.bins, t.counts, t.max_ns, t.cost_counts, t.cost_max_ns, t.table,
+        tick,
     )  # fmt: skip
 
 
 def bind_record(arrays: tuple):
     """``(tick) -> None``: :func:`record_tick` bound to ``arrays`` (its arguments but the
-    tick, never replaced by their owner) as one table of them, or to the arrays themselves
-    where one does not fit a slot."""
-    slots, kept = np.zeros(SLOT * len(RECORD_SLOTS), dtype=np.int64), []
-    if put_slots(slots, kept, 0, RECORD_SLOTS, arrays):
-        call = bind(record_table, slots, rest=(0,))
-        call.arrays = kept  # alive while the table names them
-        return call
+    tick, in its order, never replaced by their owner) as one table of them, or to the arrays
+    themselves where one does not fit its field."""
+    names = list(signature(record_tick.py_func).parameters)[:-1]
+    table = RECORD.pack(**dict(zip(names, arrays, strict=True)))
+    if table is not None:
+        return bind(record_table, table, rest=(0,))
     return bind(record_tick, *arrays, rest=(0,))

@@ -21,12 +21,14 @@ import numpy as np
 
 from sim2real.deploy.core.latency import BIN_NS, BINS
 from sim2real.deploy.core.modes import RUNNING, SAFE_STOP
-from sim2real.deploy.kernels.calls import bind, put
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.rig import after_tick_kernel as ak
 
 #: The plant's methods whose truth the call reads from its views (a plant overriding one of them
 #: is not fused).
 _TRUTH = ("true_position", "true_velocity", "joint_torque", "end_effector_position")
+#: The site of a robot without an end effector (read only with a box or goals, never written).
+_NO_SITE = np.zeros(3)
 
 
 class FusedAfterTick:
@@ -40,10 +42,10 @@ class FusedAfterTick:
             work (and timing, as the hook's) the call does with ``motion``.
     """
 
-    def __init__(self, rig, table: np.ndarray, arrays: list, datas: list, motion: bool):
+    def __init__(self, rig, table, datas: list, motion: bool):
         """(:meth:`build` builds it.)"""
         self.rig, self.runtime, self.backend = rig, rig.runtime, rig.backend
-        self._table, self._arrays, self._datas = table, arrays, datas
+        self._datas = datas  # the MjData its views name (alive with the call)
         self._mode, self._goal = rig.runtime.mode, rig.runtime.goal
         self.motion = motion
         #: a legged robot: the estimation monitor and the task run in Python after the call
@@ -54,8 +56,9 @@ class FusedAfterTick:
         self._task_truth = self._legged and type(rig.task) is VelocityTask
         goals = rig.task is not None and not self._legged
         self._scheduler = rig.task.scheduler if goals else None
-        self._q, self._dq, self._tau = arrays[0], arrays[1], arrays[2]
-        self._stamp = arrays[3]  # the clock's scratch, the end of the monitors' screens
+        at = table.arrays
+        self._q, self._dq, self._tau = at["q"], at["dq"], at["tau"]
+        self._stamp = at["stamp"]  # the clock's scratch, the end of the monitors' screens
         rest = (0.0, 0, 1.0, True, 1.0, 0.1, True, True)
         self._call = bind(ak.after_tick, table, rest=rest)
 
@@ -84,92 +87,61 @@ class FusedAfterTick:
             task = None  # Python's, after the call
         motion = motion_hook is not None and bool(rig.hooks) and rig.hooks[0] is motion_hook
         envs, n = rig.envs, rig.robot.n_joints
-        table, arrays = np.zeros(ak.size(envs), dtype=np.int64), []
-        f8, i8, b1, e = np.float64, np.int64, np.bool_, (envs, n)
         plant = backend.kernel_arrays()
         v, iv = rig.violations.kernel_arrays(), rig.interventions.kernel_arrays()
-        pairs, rows = v["clearance"].shape[1], iv["guard"].shape[0]
-        margin = rig.violations.screen_margin
-        dt = motion_hook.dt if motion else 0.0
-        entries = [
-            (ak.Q, plant["qpos"], f8, e),
-            (ak.DQ, plant["qvel"], f8, e),
-            (ak.TAU, plant["torque"], f8, e),
-            (ak.STAMP, np.zeros(3, dtype=i8), i8, (3,)),
-            (ak.PARAMS, np.array([margin, dt], dtype=f8), f8, (2,)),
-            (ak.V_EE, v["ee"], f8, (envs, 3)),
-            (ak.V_OFFSET_Q, v["offset_q"], f8, (n,)),
-            (ak.V_OFFSET_EE, v["offset_ee"], f8, (3,)),
-            (ak.V_BOUND, v["bound"], f8, (3 * n + 3,)),
-            (ak.V_CHECKED_Q, v["checked_q"], f8, e),
-            (ak.V_CLEARANCE, v["clearance"], f8, (envs, pairs)),
-            (ak.V_WEIGHTS, v["pair_weights"], f8, (pairs, n)),
-            (ak.V_TMP, v["tmp"], f8, e),
-            (ak.V_NEED, v["need"], b1, (envs,)),
-            (ak.V_DOWN, v["down"], b1, (envs,)),
-            (ak.V_TICKS, v["ticks"], i8, (1,)),
-            (ak.I_GUARD, iv["guard"], i8, (rows, envs)),
-            (ak.I_PREV_GUARD, iv["previous_guard"], i8, (rows, envs)),
-            (ak.I_STOPPING, iv["stopping"], i8, e),
-            (ak.I_CLAMPS, iv["clamps"], i8, e),
-            (ak.I_PREV_SMOOTHER, iv["previous_smoother"], i8, (2, envs, n)),
-            (ak.I_TICKS, iv["ticks"], i8, (1,)),
-            (ak.M_COUNTS, rig.monitor_cost.counts, i8, (1, BINS + 1)),
-            (ak.M_MAX, rig.monitor_cost.max_ns, i8, (1,)),
-            (ak.MODE, runtime.mode, np.int8, (envs,)),
-            (ak.GOAL, runtime.goal, f8, (envs, 3)),
-        ]
+        values = dict(
+            has_workspace=rig.violations.has_workspace, has_pairs=rig.violations.has_pairs,
+            has_goals=task is not None, lies_down=legged, running=int(RUNNING),
+            safe_stop=int(SAFE_STOP), bin_ns=BIN_NS, bins=BINS, hook_stage=0,
+            margin=rig.violations.screen_margin, dt=motion_hook.dt if motion else 0.0,
+            q=plant["qpos"], dq=plant["qvel"], tau=plant["torque"],
+            stamp=np.zeros(3, dtype=np.int64), v_ee=v["ee"], v_offset_q=v["offset_q"],
+            v_offset_ee=v["offset_ee"], v_bound=v["bound"], v_checked_q=v["checked_q"],
+            v_clearance=v["clearance"], v_weights=v["pair_weights"], v_tmp=v["tmp"],
+            v_need=v["need"], v_down=v["down"], v_ticks=v["ticks"], i_guard=iv["guard"],
+            i_prev_guard=iv["previous_guard"], i_stopping=iv["stopping"],
+            i_clamps=iv["clamps"], i_prev_smoother=iv["previous_smoother"],
+            i_ticks=iv["ticks"], m_counts=rig.monitor_cost.counts,
+            m_max=rig.monitor_cost.max_ns, mode=runtime.mode, goal=runtime.goal,
+        )  # fmt: skip
+        sizes = {"envs": envs, "n": n, "columns": BINS + 1}
+        goals = ("issued", "t_goal", "reached", "age", "due", "check", "ee", "distance", "hit")
         if task is not None:
             g = task.scheduler.kernel_arrays()
-            entries += [
-                (ak.G_ISSUED, g["issued"], i8, (envs,)),
-                (ak.G_T_GOAL, g["t_goal"], f8, (envs,)),
-                (ak.G_REACHED, g["reached"], b1, (envs,)),
-                (ak.G_AGE, g["age"], f8, (envs,)),
-                (ak.G_DUE, g["due"], b1, (envs,)),
-                (ak.G_CHECK, g["check"], b1, (envs,)),
-                (ak.G_EE, g["ee"], f8, (envs, 3)),
-                (ak.G_BEST, g["best_distance"], f8, (envs,)),
-                (ak.G_DISTANCE, g["distance"], f8, (envs,)),
-                (ak.G_HIT, g["hit"], b1, (envs,)),
-            ]
+            values |= {f"g_{k}": g[k] for k in goals} | {"g_best": g["best_distance"]}
+        else:  # not read (has_goals False)
+            values |= ak.AFTER.placeholders([*(f"g_{k}" for k in goals), "g_best"], sizes)
+        motion_fields = ("temperature", "peak", "prev_dq", "prev_acc", "jerk_sum", "jerk_ticks")
+        motion_fields += ("max_speed", "h_counts", "h_max")
         if motion:
-            hook, hooks = motion_hook, len(rig.hooks)
-            entries += [
-                (ak.TEMP, backend.thermal.kernel_arrays()["winding_temperature"], f8, e),
-                (ak.PEAK, hook.peak, f8, e),
-                (ak.PREV_DQ, hook.dq, f8, e),
-                (ak.PREV_ACC, hook.acc, f8, e),
-                (ak.JERK_SUM, hook.jerk_sum, f8, e),
-                (ak.JERK_TICKS, hook.jerk_ticks, i8, (envs,)),
-                (ak.MAX_SPEED, hook.max_speed, f8, (n,)),
-                (ak.H_COUNTS, rig.hook_cost.counts, i8, (hooks, BINS + 1)),
-                (ak.H_MAX, rig.hook_cost.max_ns, i8, (hooks,)),
-            ]
+            hook = motion_hook
+            values |= dict(
+                temperature=backend.thermal.kernel_arrays()["winding_temperature"],
+                peak=hook.peak, prev_dq=hook.dq, prev_acc=hook.acc, jerk_sum=hook.jerk_sum,
+                jerk_ticks=hook.jerk_ticks, max_speed=hook.max_speed,
+                h_counts=rig.hook_cost.counts, h_max=rig.hook_cost.max_ns,
+            )  # fmt: skip
+        else:  # not read (the call's motion False)
+            values |= ak.AFTER.placeholders(motion_fields, sizes)
         sid, datas = backend.robot.ee_site_id, list(backend.datas)
-        no_site = np.zeros(3)  # a robot without an end effector (read only with a box or goals)
-
-        def site(d):
-            return d.site_xpos[sid] if sid >= 0 else no_site
-
+        views = np.zeros((3, envs), dtype=np.int64)  # each env's MjData arrays (ak.QPOS ...)
         for env in range(envs):
-            views = backend.env_views(env)
-            if views["data"] is not datas[env]:
+            ev = backend.env_views(env)
+            if ev["data"] is not datas[env]:
                 return None
-            entries += [
-                (ak.VIEWS + env, views["qpos"], f8, (n,)),
-                (ak.VIEWS + envs + env, views["qvel"], f8, (n,)),
-                (ak.VIEWS + 2 * envs + env, site(datas[env]), f8, (3,)),
-            ]
-        if not all(put(table, arrays, *entry) for entry in entries):
+            site = datas[env].site_xpos[sid] if sid >= 0 else _NO_SITE
+            for row, a in ((ak.QPOS, ev["qpos"]), (ak.QVEL, ev["qvel"]), (ak.SITE, site)):
+                length = n if row != ak.SITE else 3
+                if not (a.dtype == np.float64 and a.shape == (length,) and a.flags.c_contiguous):
+                    return None
+                views[row, env] = a.ctypes.data
+        values["views"] = views
+        if motion and len(rig.hook_cost.max_ns) != len(rig.hooks):
             return None
-        flags = (ak.HAS_WORKSPACE if rig.violations.has_workspace else 0) | (
-            ak.HAS_PAIRS if rig.violations.has_pairs else 0
-        )
-        flags |= (ak.HAS_GOALS if task is not None else 0) | (int(RUNNING) << ak.RUNNING_SHIFT)
-        flags |= (ak.LEGGED if legged else 0) | (int(SAFE_STOP) << ak.SAFE_STOP_SHIFT)
-        table[: ak.HOOK_STAGE + 1] = (envs, n, pairs, rows, flags, BIN_NS, BINS, 0)
-        return cls(rig, table, arrays, datas, motion)
+        table = ak.AFTER.pack(sizes, **values)
+        if table is None or len(rig.monitor_cost.max_ns) != 1 or len(v["bound"]) != 3 * n + 3:
+            return None
+        return cls(rig, table, datas, motion)
 
     def ready(self, runtime) -> bool:
         """Whether the call's table still holds ``runtime``'s arrays and its plant's envs (the

@@ -1,7 +1,7 @@
 """The rig's after-tick work in one compiled call (:func:`after_tick`): the violation and
 collision screens over the true state, the intervention counters' comparison, the goal
-scheduler's timing and hit test, and ``deploy-run``'s motion figures, over a table of addresses
-(:mod:`sim2real.deploy.kernels.calls`) built by :class:`sim2real.deploy.rig.after_tick.FusedAfterTick`.
+scheduler's timing and hit test, and ``deploy-run``'s motion figures, over one packed table
+(:data:`AFTER`) built by :class:`sim2real.deploy.rig.after_tick.FusedAfterTick`.
 
 The kernel gathers the true joint state from the plant's per-env views into the plant's arrays
 (what ``true_position()`` and ``true_velocity()`` do) and the end-effector sites into the
@@ -13,7 +13,7 @@ goal due or reached. It times the monitors (from the caller's stamp to the end o
 intervention screen) and the motion figures with ``clock_gettime(CLOCK_MONOTONIC)``, the clock of
 ``time.perf_counter_ns``, into the rig's histograms (the bins of
 :class:`sim2real.deploy.core.latency.LatencyHistogram`); when Python has monitor work left (a
-legged robot's estimation monitor, always), the monitors' end stamp is left in the table for
+legged robot's estimation monitor, always), the monitors' end stamp is left in ``stamp`` for
 Python to finish the sample. An edit to a kernel of
 :mod:`sim2real.deploy.monitors.kernel` recompiles the call (:mod:`sim2real.numba_cache`).
 """
@@ -27,44 +27,45 @@ from numba.core import cgutils, types
 from numba.extending import intrinsic
 
 from sim2real.deploy.kernels.calls import pointer
+from sim2real.deploy.kernels.tables import Table
 from sim2real.deploy.monitors import kernel as mk
 
-# the header: sizes, flags and the histograms' bins
-ENVS, N, PAIRS, GUARD_ROWS, FLAGS, BIN_NS, BINS, HOOK_STAGE = range(8)
-# the plant's gathered state and the parameters (margin m, dt s)
-Q, DQ, TAU, PARAMS, STAMP = range(8, 13)  # STAMP (3,) int64: the clock's scratch, the end
-# the violation monitor's
-V_EE, V_OFFSET_Q, V_OFFSET_EE, V_BOUND, V_CHECKED_Q, V_CLEARANCE = range(13, 19)
-V_WEIGHTS, V_TMP, V_NEED, V_DOWN, V_TICKS = range(19, 24)
-# the intervention monitor's
-I_GUARD, I_PREV_GUARD, I_STOPPING, I_CLAMPS, I_PREV_SMOOTHER, I_TICKS = range(24, 30)
-# the monitors' cost histogram
-M_COUNTS, M_MAX = range(30, 32)
-# the goal scheduler's (MODE: the runtime's modes; GOAL: the runtime's goals)
-MODE, G_ISSUED, G_T_GOAL, G_REACHED, G_AGE, G_DUE, G_CHECK = range(32, 39)
-G_EE, GOAL, G_BEST, G_DISTANCE, G_HIT = range(39, 44)
-# the motion figures' and the hooks' cost histogram
-TEMP, PEAK, PREV_DQ, PREV_ACC, JERK_SUM, JERK_TICKS, MAX_SPEED, H_COUNTS, H_MAX = range(44, 53)
-#: Where the per-env addresses start: the joints' qpos views, then the qvel views, then the
-#: end-effector sites (``envs`` each).
-VIEWS = 53
-#: Bits of the header's ``FLAGS``: a workspace box, collision pairs, a goal task, a legged robot
-#: (``LEGGED``: an env in SAFE_STOP or FAULTED lies down, its ticks counted apart; the monitors'
-#: cost sample is left to Python, which runs the estimation monitor), RUNNING's code shifted by
-#: ``RUNNING_SHIFT``, SAFE_STOP's by ``SAFE_STOP_SHIFT``.
-HAS_WORKSPACE, HAS_PAIRS, HAS_GOALS, LEGGED, RUNNING_SHIFT, SAFE_STOP_SHIFT = 1, 2, 4, 16, 8, 24
-#: Bits of the returned code: the collision pairs of some env need coal (``V_NEED``), some env
+#: The call's arrays and constants: the plant's gathered state (``q``, ``dq``, ``tau``), the
+#: clock's scratch (``stamp``: s, ns, the monitors' end), the violation monitor's (``v_*``), the
+#: intervention monitor's (``i_*``; ``rows`` the guard's count rows), the monitors' and the
+#: hooks' cost histograms (``bins`` + 1 columns of ``bin_ns``), the runtime's modes and goals,
+#: the goal scheduler's (``g_*``: zeros without ``has_goals``), the motion figures' (zeros
+#: without motion), and ``views`` (3, envs): each env's ``MjData`` qpos, qvel and end-effector
+#: site addresses (MuJoCo's memory, alive with the plant's envs). ``margin`` m, ``dt`` s;
+#: ``running``, ``safe_stop``: the modes' codes; ``lies_down``: an env in SAFE_STOP or FAULTED
+#: lies down (a legged robot's), its ticks counted apart, the monitors' cost sample left to
+#: Python (which runs the estimation monitor).
+AFTER = Table(
+    "sim2real.deploy.rig.after_tick_kernel:AFTER",
+    has_workspace="b1", has_pairs="b1", has_goals="b1", lies_down="b1", running="i8",
+    safe_stop="i8", bin_ns="i8", bins="i8", hook_stage="i8", margin="f8", dt="f8",
+    q="f8[envs,n]", dq="f8[envs,n]", tau="f8[envs,n]", stamp="i8[3]", v_ee="f8[envs,3]",
+    v_offset_q="f8[n]", v_offset_ee="f8[3]", v_bound="f8[*]", v_checked_q="f8[envs,n]",
+    v_clearance="f8[envs,pairs]", v_weights="f8[pairs,n]", v_tmp="f8[envs,n]",
+    v_need="b1[envs]", v_down="b1[envs]", v_ticks="i8[1]", i_guard="i8[rows,envs]",
+    i_prev_guard="i8[rows,envs]", i_stopping="i8[envs,n]", i_clamps="i8[envs,n]",
+    i_prev_smoother="i8[2,envs,n]", i_ticks="i8[1]", m_counts="i8[*,columns]", m_max="i8[*]",
+    mode="i1[envs]", goal="f8[envs,3]", g_issued="i8[envs]", g_t_goal="f8[envs]",
+    g_reached="b1[envs]", g_age="f8[envs]", g_due="b1[envs]", g_check="b1[envs]",
+    g_ee="f8[envs,3]", g_best="f8[envs]", g_distance="f8[envs]", g_hit="b1[envs]",
+    temperature="f8[envs,n]", peak="f8[envs,n]", prev_dq="f8[envs,n]", prev_acc="f8[envs,n]",
+    jerk_sum="f8[envs,n]", jerk_ticks="i8[envs]", max_speed="f8[n]", h_counts="i8[*,columns]",
+    h_max="i8[*]", views="i8[3,envs]",
+)  # fmt: skip
+#: The rows of ``views``.
+QPOS, QVEL, SITE = 0, 1, 2
+#: Bits of the returned code: the collision pairs of some env need coal (``v_need``), some env
 #: may be past a limit, an intervention counter moved (the monitors' cost sample is then left to
-#: Python: ``STAMP[2]`` holds the end of the screens), a goal is due (``G_DUE``), a goal was
-#: reached (``G_HIT``).
+#: Python: ``stamp[2]`` holds the end of the screens), a goal is due (``g_due``), a goal was
+#: reached (``g_hit``).
 COLLISION_CHECK, VIOLATION_FLAGGED, INTERVENTIONS_MOVED, GOAL_DUE, GOAL_HIT = 1, 2, 4, 8, 16
 #: The bits after which Python finishes the monitors' work.
 MONITOR_WORK = COLLISION_CHECK | VIOLATION_FLAGGED | INTERVENTIONS_MOVED
-
-
-def size(envs: int) -> int:
-    """Length of the table of ``envs`` envs."""
-    return VIEWS + 3 * envs
 
 
 @intrinsic
@@ -98,17 +99,23 @@ def add_sample(counts, max_ns, stage: int, ns: int, width: int, top: int) -> Non
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def sites(table, envs: int, out) -> None:
-    """The end-effector sites of the table's envs into ``out`` (envs, 3) m."""
-    for e in range(envs):
-        site = numba.carray(pointer(table[VIEWS + 2 * envs + e]), (3,), np.float64)
+def _view(views, row: int, e: int, length: int):
+    """Env ``e``'s ``MjData`` array of row ``row`` of ``views`` (``length`` float64)."""
+    return numba.carray(pointer(views[row, e]), (length,), np.float64)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def sites(views, out) -> None:
+    """The end-effector sites of every env (``views``' ``SITE`` row) into ``out`` (envs, 3) m."""
+    for e in range(out.shape[0]):
+        site = _view(views, SITE, e, 3)
         for i in range(3):
             out[e, i] = site[i]
 
 
 @numba.njit(cache=True, nogil=True)
 def after_tick(
-    table: np.ndarray,
+    t,
     time: float,
     start_ns: int,
     period: float,
@@ -118,8 +125,8 @@ def after_tick(
     count_jerk: bool,
     motion: bool,
 ) -> int:
-    """One tick's monitors and goals and, with ``motion``, the motion figures, over the arrays of
-    ``table`` (module docstring).
+    """One tick's monitors and goals and, with ``motion``, the motion figures, over the packed
+    table ``t`` (:data:`AFTER`, module docstring).
 
     Args:
         time: The runtime's time, s. start_ns: ``time.perf_counter_ns()`` when the monitors
@@ -129,139 +136,67 @@ def after_tick(
     Returns:
         The bits ``COLLISION_CHECK`` ... ``GOAL_HIT``; 0: nothing left for Python.
     """
-    envs, n, pairs, rows, flags = (
-        table[ENVS],
-        table[N],
-        table[PAIRS],
-        table[GUARD_ROWS],
-        table[FLAGS],
-    )
-    f8, i8, b1 = np.float64, np.int64, np.bool_
-    stamp = numba.carray(pointer(table[STAMP]), (3,), i8)  # the clock's scratch, the end
-    params = numba.carray(pointer(table[PARAMS]), (2,), f8)
-    q = numba.carray(pointer(table[Q]), (envs, n), f8)
-    dq = numba.carray(pointer(table[DQ]), (envs, n), f8)
-    tau = numba.carray(pointer(table[TAU]), (envs, n), f8)
-    v_ee = numba.carray(pointer(table[V_EE]), (envs, 3), f8)
+    q, dq, tau, v_ee, views, stamp = t.q, t.dq, t.tau, t.v_ee, t.views, t.stamp
+    envs, n = q.shape
     for e in range(envs):  # true_position(), true_velocity()
-        qpos = numba.carray(pointer(table[VIEWS + e]), (n,), f8)
-        qvel = numba.carray(pointer(table[VIEWS + envs + e]), (n,), f8)
+        qpos, qvel = _view(views, QPOS, e, n), _view(views, QVEL, e, n)
         for j in range(n):
             q[e, j] = qpos[j]
             dq[e, j] = qvel[j]
-    if flags & HAS_WORKSPACE:
-        sites(table, envs, v_ee)  # end_effector_position(out)
+    if t.has_workspace:
+        sites(views, v_ee)  # end_effector_position(out)
     # the violation monitor (update with down: a legged robot's envs lying damped after a stop,
     # ``Runtime.damping``; else every env is up)
-    mode = numba.carray(pointer(table[MODE]), (envs,), np.int8)
-    down = numba.carray(pointer(table[V_DOWN]), (envs,), b1)
-    legged = (flags & LEGGED) != 0
-    safe_stop = (flags >> SAFE_STOP_SHIFT) & 0xFF
+    mode, down, lies_down, safe_stop = t.mode, t.v_down, t.lies_down, t.safe_stop
     for e in range(envs):
-        down[e] = legged and mode[e] >= safe_stop
-    numba.carray(pointer(table[V_TICKS]), (1,), i8)[0] += 1
+        down[e] = lies_down and mode[e] >= safe_stop
+    t.v_ticks[0] += 1
     code = 0
-    if flags & HAS_PAIRS:
+    if t.has_pairs:
         need = mk.collision_screen(
-            q,
-            numba.carray(pointer(table[V_CHECKED_Q]), (envs, n), f8),
-            numba.carray(pointer(table[V_CLEARANCE]), (envs, pairs), f8),
-            numba.carray(pointer(table[V_WEIGHTS]), (pairs, n), f8),
-            params[0],
-            numba.carray(pointer(table[V_TMP]), (envs, n), f8),
-            numba.carray(pointer(table[V_NEED]), (envs,), b1),
+            q, t.v_checked_q, t.v_clearance, t.v_weights, t.margin, t.v_tmp, t.v_need
         )
         if need:
             code |= COLLISION_CHECK
     if mk.violation_screen(
-        q,
-        dq,
-        tau,
-        v_ee,
-        numba.carray(pointer(table[V_OFFSET_Q]), (n,), f8),
-        numba.carray(pointer(table[V_OFFSET_EE]), (3,), f8),
-        numba.carray(pointer(table[V_BOUND]), (3 * n + 3,), f8),
-        (flags & HAS_WORKSPACE) != 0,
+        q, dq, tau, v_ee, t.v_offset_q, t.v_offset_ee, t.v_bound, t.has_workspace
     ):
         code |= VIOLATION_FLAGGED
     # the intervention monitor
-    numba.carray(pointer(table[I_TICKS]), (1,), i8)[0] += 1
+    t.i_ticks[0] += 1
     if mk.interventions_moved(
-        numba.carray(pointer(table[I_GUARD]), (rows, envs), i8),
-        numba.carray(pointer(table[I_PREV_GUARD]), (rows, envs), i8),
-        numba.carray(pointer(table[I_STOPPING]), (envs, n), i8),
-        numba.carray(pointer(table[I_CLAMPS]), (envs, n), i8),
-        numba.carray(pointer(table[I_PREV_SMOOTHER]), (2, envs, n), i8),
+        t.i_guard, t.i_prev_guard, t.i_stopping, t.i_clamps, t.i_prev_smoother
     ):
         code |= INTERVENTIONS_MOVED
-    width, top = table[BIN_NS], table[BINS]
+    width, top = t.bin_ns, t.bins
     end = monotonic_ns(stamp)
-    if code == 0 and not legged:
-        counts = numba.carray(pointer(table[M_COUNTS]), (1, top + 1), i8)
-        add_sample(
-            counts, numba.carray(pointer(table[M_MAX]), (1,), i8), 0, end - start_ns, width, top
-        )
+    if code == 0 and not lies_down:
+        add_sample(t.m_counts, t.m_max, 0, end - start_ns, width, top)
     stamp[2] = end
-    running = (flags >> RUNNING_SHIFT) & 0xFF
+    running = t.running
     # the goal scheduler
-    if flags & HAS_GOALS:
-        check = numba.carray(pointer(table[G_CHECK]), (envs,), b1)
+    if t.has_goals:
+        check = t.g_check
         bits = mk.goal_screen(
-            time,
-            mode,
-            running,
-            numba.carray(pointer(table[G_ISSUED]), (envs,), i8),
-            numba.carray(pointer(table[G_T_GOAL]), (envs,), f8),
-            numba.carray(pointer(table[G_REACHED]), (envs,), b1),
-            period,
-            periodic,
-            success_time,
-            numba.carray(pointer(table[G_AGE]), (envs,), f8),
-            numba.carray(pointer(table[G_DUE]), (envs,), b1),
-            check,
-        )
+            time, mode, running, t.g_issued, t.g_t_goal, t.g_reached, period, periodic,
+            success_time, t.g_age, t.g_due, check,
+        )  # fmt: skip
         if bits & mk.ANY_DUE:
             code |= GOAL_DUE
         if bits & mk.ANY_CHECK:
-            g_ee = numba.carray(pointer(table[G_EE]), (envs, 3), f8)
-            sites(table, envs, g_ee)
-            if mk.goal_hits(
-                g_ee,
-                numba.carray(pointer(table[GOAL]), (envs, 3), f8),
-                check,
-                numba.carray(pointer(table[G_BEST]), (envs,), f8),
-                success_radius,
-                numba.carray(pointer(table[G_DISTANCE]), (envs,), f8),
-                numba.carray(pointer(table[G_HIT]), (envs,), b1),
-            ):
+            g_ee = t.g_ee
+            sites(views, g_ee)
+            if mk.goal_hits(g_ee, t.goal, check, t.g_best, success_radius, t.g_distance, t.g_hit):
                 code |= GOAL_HIT
     # the motion figures (deploy-run's MotionHook), timed as the hook
     if motion:
         begin = monotonic_ns(stamp)
         mk.motion_statistics(
-            numba.carray(pointer(table[TEMP]), (envs, n), f8),
-            numba.carray(pointer(table[PEAK]), (envs, n), f8),
-            dq,
-            numba.carray(pointer(table[PREV_DQ]), (envs, n), f8),
-            numba.carray(pointer(table[PREV_ACC]), (envs, n), f8),
-            params[1],
-            mode,
-            running,
-            count_jerk,
-            numba.carray(pointer(table[JERK_SUM]), (envs, n), f8),
-            numba.carray(pointer(table[JERK_TICKS]), (envs,), i8),
-            numba.carray(pointer(table[MAX_SPEED]), (n,), f8),
-        )
-        stage = table[HOOK_STAGE]
+            t.temperature, t.peak, dq, t.prev_dq, t.prev_acc, t.dt, mode, running, count_jerk,
+            t.jerk_sum, t.jerk_ticks, t.max_speed,
+        )  # fmt: skip
         ns = monotonic_ns(stamp) - begin
-        add_sample(
-            numba.carray(pointer(table[H_COUNTS]), (stage + 1, top + 1), i8),
-            numba.carray(pointer(table[H_MAX]), (stage + 1,), i8),
-            stage,
-            ns,
-            width,
-            top,
-        )
+        add_sample(t.h_counts, t.h_max, t.hook_stage, ns, width, top)
     return code
 
 

@@ -132,33 +132,28 @@ class CompiledSupervision(TableCalls):
         # the kernels' arguments for the runtime's state, made once (the arrays are updated in
         # place), and one call of each kernel on copies
         self._supervise_cached = self._supervise_args(self.state)
-        #: :meth:`supervise`'s table of addresses (one argument for the kernel's 21), or None
-        #: where some array does not fit (then the kernel is called with its arguments)
-        self._supervise_table: np.ndarray | None = np.zeros(fk.SIZE, dtype=np.int64)
-        self._supervise_arrays: list[np.ndarray] = []
-        if not self._put_supervision(self._supervise_table, self._supervise_arrays):
-            self._supervise_table = None
-        else:  # its kernel bound to it (compiled, or loaded from numba's cache, now)
+        #: :meth:`supervise`'s packed table (one argument for the kernel's 22), or None where
+        #: some array does not fit (then the kernel is called with its arguments)
+        values = self._supervision_values()
+        self._supervise_table = None if values is None else fk.SUPERVISE.pack(**values)
+        if self._supervise_table is not None:  # its kernel bound to it (compiled, or loaded)
             self._supervise_call = bind(fk.supervise_only, self._supervise_table)
         self._screen_cached = self._screen_args(None, self.state)[2:]
         sv.supervise(*self._supervise_args(self.state, copy=True))
         sv.screen_action(*self._screen_args(self._action, self.state, copy=True))
         #: :meth:`estimate_observe`'s end-effector kinematics (a fixed base's; None: built on
-        #: its first call), its table of addresses, the arrays it was built over (compared by
-        #: identity each call) and every array it points to (kept alive with it)
+        #: its first call) and the arrays its table was built over (compared by identity)
         self._kinematics: Kinematics | None = None
-        self._table = np.zeros(fk.SIZE, dtype=np.int64)
         self._table_key: tuple = ()
-        self._table_arrays: list[np.ndarray] = []
         #: :meth:`estimate_observe` runs the separate stages (no fused call for this robot,
         #: policy or estimator input), or the fused call after checking its arrays
         self._fused = self._copy_input = False
         #: the estimator's control input array the fused call reads, where it copies the input
         self._estimator_input: np.ndarray | None = None
-        fk.screen.compile(fk.SCREEN_SIGNATURE)  # compiled (or loaded from numba's cache) now
-        fk.supervise_only.compile(fk.SUPERVISE_SIGNATURE)
+        bind(fk.screen, fk.SCREEN.empty())  # compiled (or loaded from numba's cache) now
+        bind(fk.supervise_only, fk.SUPERVISE.empty())
         if state.base is None:  # a fixed base: the fused call too, and its kinematics
-            fk.estimate_observe.compile(fk.SIGNATURE)
+            bind(fk.estimate_observe, fk.FUSED.empty(), rest=(0,))
             self._kinematics = Kinematics(self.robot)
 
     def _bind_action(self, spec: PolicySpec) -> None:
@@ -177,11 +172,8 @@ class CompiledSupervision(TableCalls):
         )
         self._current = a.reference == "current"
         #: the action array the screen's table was built over (:meth:`_bind_screen`; None: no
-        #: table, the kernel is called with its arguments), the table, the arrays it points to
-        #: (kept alive with it) and the last action array seen
+        #: table, the kernel is called with its arguments) and the last action array seen
         self._screen_action = self._screen_seen = None
-        self._screen_table = np.zeros(fk.SCREEN_SIZE, dtype=np.int64)
-        self._screen_arrays: list[np.ndarray] = []
 
     def _supervise_args(self, state: RobotState, copy: bool = False) -> tuple:
         """Arguments of :func:`sim2real.deploy.runtime.supervision_kernel.supervise` (the written arrays
@@ -296,7 +288,7 @@ class CompiledSupervision(TableCalls):
         if state is not self.state:
             code = sv.screen_action(*self._screen_args(action, state))
         elif action is self._screen_action:  # its table is built
-            code = self._screen_call()  # fk.screen(self._screen_table)
+            code = self._screen_call()  # fk.screen of its packed table
         else:
             code = sv.screen_action(self._control, action, *self._screen_cached)
             if action is self._screen_seen:  # the second call in a row with this array

@@ -3,12 +3,10 @@
 the supervision and the observation; and the action screen over a table (:func:`screen`).
 
 Numba's dispatch of each array argument costs more than the arithmetic of an arm's filters and
-observation, and the four kernels took 60 arguments. So the call takes one int64 *table*, built
-and kept by :class:`sim2real.deploy.runtime.compiled.CompiledSupervision`: a header of sizes and
-flags, then the address of every array the stages touch, which the kernel views with
-``numba.carray`` (:mod:`sim2real.deploy.kernels.calls`). The arrays must live, keep their shape
-and dtype and stay C-contiguous while the table is in use (its owner keeps a reference to each,
-checks them when it builds the table and builds it again when handed other arrays).
+observation, and the four kernels took 60 arguments. So the call takes one packed table
+(:data:`FUSED`, :mod:`sim2real.deploy.kernels.tables`), built by
+:class:`sim2real.deploy.runtime.compiled.CompiledSupervision` again when handed other arrays
+(compared by identity): every array the stages touch, read by its name.
 
 The kernel calls the stages' own kernels in the tick's order:
 :func:`sim2real.deploy.estimation.kernel.kalman_tick`,
@@ -22,205 +20,106 @@ Python re-initializes the joint and calls it again from the kinematics on (``sta
 from __future__ import annotations
 
 import numba
-import numpy as np
 
 from sim2real.deploy.core.kinematics_kernel import chain_fk
 from sim2real.deploy.estimation.kernel import kalman_tick
-from sim2real.deploy.kernels.calls import pointer as _pointer
+from sim2real.deploy.kernels.tables import Table
 from sim2real.deploy.runtime.supervision_kernel import screen_action, supervise
 from sim2real.deploy.spec.kernel import CLOCK_COLUMNS, observation
 
-# the header: sizes and flags
-ENVS, N, JOINTS, BLOCKS, WIDTH, DIM, RAW_ROWS, WINDOW, CAUSES, FEET = range(10)
-CONTROL, REALTIME, EXTRAPOLATES = range(10, 13)
-# the addresses: the frame's, the estimator's, the state's
-Z, TS, NOW, TEMP_IN, U, FILT, CONSTS, COUNTS, EST_FLAGS = range(13, 22)
-Q, DQ, TEMP, EE_POSITION, EE_ROTATION, LAST_ACTION = range(22, 28)
-# the kinematics' (chain_fk)
-CHAIN, PLACEMENTS, WORK = range(28, 31)
-# the supervision's (supervise)
-DERATING, EFFORT_SCALE, DRIVE_ANY, DRIVE_ERRORS, OVERRUN_RING, PARAMS, HOME, COMMANDED = range(
-    31, 39
-)
-MODE, CAUSE, SAFE_STOPS, FAULTS, STOP_TICKS, STOP_TIMEOUTS, FLAGS = range(39, 46)
-# the observation's (no floating base: VECTOR, ORIENTATION, CLOCK, CONTACT are zeros)
-LAYOUT, CLOCKS, GOAL, VECTOR, ORIENTATION, CLOCK, CONTACT, NORM, RAW, OUT = range(46, 56)
-# the supervision's again (supervise's last argument); the observation's gait clock states
-HOMED, STARTS = 56, 57
-#: Length of the table.
-SIZE = 58
+#: :func:`~sim2real.deploy.runtime.supervision_kernel.supervise`'s arguments (their names;
+#: shapes and units there), one table.
+SUPERVISE = Table(
+    "sim2real.deploy.runtime.fused_kernel:SUPERVISE",
+    control="i8", realtime="b1", temperature="f8[envs,n]", derating="f8[3,n]",
+    effort_scale="f8[envs,n]", time_since_fresh="f8[envs,n]", drive_any="b1[envs]",
+    drive_errors="i8[envs,n]", overrun_ring="i8[*]", params="f8[7]", q="f8[envs,n]",
+    dq="f8[envs,n]", home="f8[n]", commanded="f8[envs,n]", mode="i1[envs]", cause="i1[envs]",
+    safe_stops="i8[envs]", faults="i8[*,envs]", stop_ticks="i8[envs]",
+    stop_timeouts="i8[envs]", flags="b1[4,envs]", homed="b1[n]",
+)  # fmt: skip
+#: :func:`estimate_observe`'s: the supervision's, the estimator's (``kalman_tick``'s: the
+#: frame's ``z``, ``ts``, ``now``, ``temperature_in``, its input ``u``, its ``filt`` (of which
+#: ``time_since_fresh`` is row 7), ``consts``, ``counts``, ``est_flags``), the kinematics'
+#: (``chain_fk``'s; ``joints`` 0: none) and the observation's (``observation``'s; no floating
+#: base: ``vector``, ``orientation``, ``clock``, ``contact`` zeros of at least ``envs`` rows).
+FUSED = SUPERVISE.extend(
+    "sim2real.deploy.runtime.fused_kernel:FUSED",
+    extrapolates="b1", joints="i8", z="f8[envs,n]", ts="f8[envs,n]", now="f8[envs]",
+    temperature_in="f8[envs,n]", u="f8[envs,n]", filt="f8[8,envs,n]", consts="f8[5,n]",
+    counts="i8[3,envs,n]", est_flags="b1[2,envs,n]", ee_position="f8[envs,3]",
+    ee_rotation="f8[envs,3,3]", last_action="f8[envs,n]", chain="i8[links,3]",
+    placements="f8[links,3,4]", work="f8[links,3,4]", layout="i8[blocks,*]",
+    clocks=f"f8[blocks,{CLOCK_COLUMNS}]", clock_starts="f8[raw_rows,blocks]", goal="f8[envs,3]",
+    vector="f8[envs+,3]", orientation="f8[envs+,4]", clock="f8[envs+]", contact="f8[envs+,0]",
+    norm="f8[3,dim]", raw="f8[raw_rows,dim]", out="f4[envs,dim]",
+)  # fmt: skip
 #: The returned code: the supervision's ``SUPERVISE_*`` bits, or ``RECOVER`` and the estimator's
 #: status (its phase to go on from) shifted by ``STATUS_SHIFT``.
 RECOVER, STATUS_SHIFT = 16, 5
-#: The kernel's signature (compiled, or loaded from numba's cache, by the table's owner).
-SIGNATURE = "int64(int64[::1], int64)"
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _supervise(t) -> int:
+    return supervise(
+        t.control, t.temperature, t.derating, t.effort_scale, t.time_since_fresh, t.drive_any,
+        t.drive_errors, t.overrun_ring, t.realtime, t.params, t.q, t.dq, t.home, t.commanded,
+        t.mode, t.cause, t.safe_stops, t.faults, t.stop_ticks, t.stop_timeouts, t.flags,
+        t.homed,
+    )  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
-def estimate_observe(table: np.ndarray, start: int) -> int:
+def estimate_observe(t, start: int) -> int:
     """The Kalman tick (from ``start`` 0; 1: after it), kinematics, supervision and observation
-    of the arrays of ``table`` (module docstring). Returns the supervision's code, or
+    of the packed table ``t`` (:data:`FUSED`). Returns the supervision's code, or
     ``RECOVER | status << STATUS_SHIFT`` when a joint filter must be re-initialized first."""
-    envs, n = table[ENVS], table[N]
-    joints, dim = table[JOINTS], table[DIM]
-    f8, i8, b1 = np.float64, np.int64, np.bool_
-    q = numba.carray(_pointer(table[Q]), (envs, n), f8)
-    dq = numba.carray(_pointer(table[DQ]), (envs, n), f8)
-    temp = numba.carray(_pointer(table[TEMP]), (envs, n), f8)
-    filt = numba.carray(_pointer(table[FILT]), (8, envs, n), f8)
+    q, dq, temperature = t.q, t.dq, t.temperature
     if start == 0:
         status = kalman_tick(
-            0,
-            numba.carray(_pointer(table[Z]), (envs, n), f8),
-            numba.carray(_pointer(table[TS]), (envs, n), f8),
-            numba.carray(_pointer(table[NOW]), (envs,), f8),
-            numba.carray(_pointer(table[TEMP_IN]), (envs, n), f8),
-            numba.carray(_pointer(table[U]), (envs, n), f8),
-            filt,
-            numba.carray(_pointer(table[CONSTS]), (5, n), f8),
-            numba.carray(_pointer(table[COUNTS]), (3, envs, n), i8),
-            numba.carray(_pointer(table[EST_FLAGS]), (2, envs, n), b1),
-            q,
-            dq,
-            temp,
-            table[EXTRAPOLATES] != 0,
-        )
+            0, t.z, t.ts, t.now, t.temperature_in, t.u, t.filt, t.consts, t.counts, t.est_flags,
+            q, dq, temperature, t.extrapolates,
+        )  # fmt: skip
         if status:
             return RECOVER | (status << STATUS_SHIFT)
-    ee_position = numba.carray(_pointer(table[EE_POSITION]), (envs, 3), f8)
-    ee_rotation = numba.carray(_pointer(table[EE_ROTATION]), (envs, 3, 3), f8)
-    if joints > 0:
-        chain_fk(
-            q,
-            numba.carray(_pointer(table[CHAIN]), (joints + 1, 3), i8),
-            numba.carray(_pointer(table[PLACEMENTS]), (joints + 1, 3, 4), f8),
-            numba.carray(_pointer(table[WORK]), (joints + 1, 3, 4), f8),
-            ee_position,
-            ee_rotation,
-        )
-    code = supervise(
-        table[CONTROL],
-        temp,
-        numba.carray(_pointer(table[DERATING]), (3, n), f8),
-        numba.carray(_pointer(table[EFFORT_SCALE]), (envs, n), f8),
-        filt[7],
-        numba.carray(_pointer(table[DRIVE_ANY]), (envs,), b1),
-        numba.carray(_pointer(table[DRIVE_ERRORS]), (envs, n), i8),
-        numba.carray(_pointer(table[OVERRUN_RING]), (table[WINDOW],), i8),
-        table[REALTIME] != 0,
-        numba.carray(_pointer(table[PARAMS]), (7,), f8),
-        q,
-        dq,
-        numba.carray(_pointer(table[HOME]), (n,), f8),
-        numba.carray(_pointer(table[COMMANDED]), (envs, n), f8),
-        numba.carray(_pointer(table[MODE]), (envs,), np.int8),
-        numba.carray(_pointer(table[CAUSE]), (envs,), np.int8),
-        numba.carray(_pointer(table[SAFE_STOPS]), (envs,), i8),
-        numba.carray(_pointer(table[FAULTS]), (table[CAUSES], envs), i8),
-        numba.carray(_pointer(table[STOP_TICKS]), (envs,), i8),
-        numba.carray(_pointer(table[STOP_TIMEOUTS]), (envs,), i8),
-        numba.carray(_pointer(table[FLAGS]), (4, envs), b1),
-        numba.carray(_pointer(table[HOMED]), (n,), b1),
-    )
-    vector = numba.carray(_pointer(table[VECTOR]), (envs, 3), f8)
+    ee_position, ee_rotation = t.ee_position, t.ee_rotation
+    if t.joints > 0:
+        chain_fk(q, t.chain, t.placements, t.work, ee_position, ee_rotation)
+    code = _supervise(t)
+    vector = t.vector
     observation(
-        numba.carray(_pointer(table[LAYOUT]), (table[BLOCKS], table[WIDTH]), i8),
-        numba.carray(_pointer(table[CLOCKS]), (table[BLOCKS], CLOCK_COLUMNS), f8),
-        numba.carray(_pointer(table[STARTS]), (table[RAW_ROWS], table[BLOCKS]), f8),
-        q,
-        dq,
-        ee_position,
-        ee_rotation,
-        numba.carray(_pointer(table[GOAL]), (envs, 3), f8),
-        numba.carray(_pointer(table[LAST_ACTION]), (envs, n), f8),
-        temp,
-        vector,
-        vector,
-        vector,
-        vector,
-        numba.carray(_pointer(table[ORIENTATION]), (envs, 4), f8),
-        numba.carray(_pointer(table[CLOCK]), (envs,), f8),
-        numba.carray(_pointer(table[CONTACT]), (envs, table[FEET]), f8),
-        numba.carray(_pointer(table[NORM]), (3, dim), f8),
-        numba.carray(_pointer(table[RAW]), (table[RAW_ROWS], dim), f8),
-        numba.carray(_pointer(table[OUT]), (envs, dim), np.float32),
-    )
+        t.layout, t.clocks, t.clock_starts, q, dq, ee_position, ee_rotation, t.goal,
+        t.last_action, temperature, vector, vector, vector, vector, t.orientation, t.clock,
+        t.contact, t.norm, t.raw, t.out,
+    )  # fmt: skip
     return code
 
 
-# the action screen's table (:func:`screen`): its header, then its addresses
-S_ENVS, S_N, S_CONTROL, S_NAN_LIMIT, S_CURRENT, S_CAUSES = range(6)
-S_ACTION, S_SCREENED, S_LAST_VALID, S_NAN_STREAK, S_NON_FINITE = range(6, 11)
-S_MODE, S_CAUSE, S_SAFE_STOPS, S_FAULTS, S_FLAGS = range(11, 16)
-S_ACT, S_Q, S_DQ, S_HOME, S_LIMITS, S_RAMP_GAIN, S_TARGET = range(16, 23)
-#: Length of the screen's table.
-SCREEN_SIZE = 23
-#: :func:`screen`'s signature.
-SCREEN_SIGNATURE = "int64(int64[::1])"
+#: :func:`~sim2real.deploy.runtime.supervision_kernel.screen_action`'s arguments (their names;
+#: shapes and units there), one table.
+SCREEN = Table(
+    "sim2real.deploy.runtime.fused_kernel:SCREEN",
+    control="i8", nan_limit="i8", current="b1", ramp_gain="f8", action="f4[envs,n]",
+    screened="f4[envs,n]", last_valid="f4[envs,n]", nan_streak="i8[envs]",
+    non_finite="i8[envs]", mode="i1[envs]", cause="i1[envs]", safe_stops="i8[envs]",
+    faults="i8[*,envs]", flags="b1[4,envs]", act="f8[3,n]", q="f8[envs,n]", dq="f8[envs,n]",
+    home="f8[n]", limits="f8[3,n]", target="f8[envs,n]",
+)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
-def screen(table: np.ndarray) -> int:
-    """:func:`sim2real.deploy.runtime.supervision_kernel.screen_action` on the arrays of
-    ``table`` (the ``S_*`` rows); returns its code."""
-    envs, n = table[S_ENVS], table[S_N]
-    f8, i8, b1 = np.float64, np.int64, np.bool_
+def screen(t) -> int:
+    """:func:`sim2real.deploy.runtime.supervision_kernel.screen_action` on the packed table
+    ``t`` (:data:`SCREEN`); returns its code."""
     return screen_action(
-        table[S_CONTROL],
-        numba.carray(_pointer(table[S_ACTION]), (envs, n), np.float32),
-        numba.carray(_pointer(table[S_SCREENED]), (envs, n), np.float32),
-        numba.carray(_pointer(table[S_LAST_VALID]), (envs, n), np.float32),
-        numba.carray(_pointer(table[S_NAN_STREAK]), (envs,), i8),
-        numba.carray(_pointer(table[S_NON_FINITE]), (envs,), i8),
-        table[S_NAN_LIMIT],
-        numba.carray(_pointer(table[S_MODE]), (envs,), np.int8),
-        numba.carray(_pointer(table[S_CAUSE]), (envs,), np.int8),
-        numba.carray(_pointer(table[S_SAFE_STOPS]), (envs,), i8),
-        numba.carray(_pointer(table[S_FAULTS]), (table[S_CAUSES], envs), i8),
-        numba.carray(_pointer(table[S_FLAGS]), (4, envs), b1),
-        numba.carray(_pointer(table[S_ACT]), (3, n), f8),
-        table[S_CURRENT] != 0,
-        numba.carray(_pointer(table[S_Q]), (envs, n), f8),
-        numba.carray(_pointer(table[S_DQ]), (envs, n), f8),
-        numba.carray(_pointer(table[S_HOME]), (n,), f8),
-        numba.carray(_pointer(table[S_LIMITS]), (3, n), f8),
-        numba.carray(_pointer(table[S_RAMP_GAIN]), (1,), f8)[0],
-        numba.carray(_pointer(table[S_TARGET]), (envs, n), f8),
-    )
-
-
-#: :func:`supervise_only`'s signature: the table of :func:`estimate_observe` (its supervision's
-#: rows, ``Q``, ``DQ``, ``TEMP`` and ``FILT`` for ``time_since_fresh``).
-SUPERVISE_SIGNATURE = "int64(int64[::1])"
+        t.control, t.action, t.screened, t.last_valid, t.nan_streak, t.non_finite, t.nan_limit,
+        t.mode, t.cause, t.safe_stops, t.faults, t.flags, t.act, t.current, t.q, t.dq, t.home,
+        t.limits, t.ramp_gain, t.target,
+    )  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
-def supervise_only(table: np.ndarray) -> int:
-    """:func:`sim2real.deploy.runtime.supervision_kernel.supervise` alone on the arrays of an
-    :func:`estimate_observe` table (the rows it reads; the others may be 0); returns its code."""
-    envs, n = table[ENVS], table[N]
-    f8, i8, b1 = np.float64, np.int64, np.bool_
-    return supervise(
-        table[CONTROL],
-        numba.carray(_pointer(table[TEMP]), (envs, n), f8),
-        numba.carray(_pointer(table[DERATING]), (3, n), f8),
-        numba.carray(_pointer(table[EFFORT_SCALE]), (envs, n), f8),
-        numba.carray(_pointer(table[FILT]), (8, envs, n), f8)[7],
-        numba.carray(_pointer(table[DRIVE_ANY]), (envs,), b1),
-        numba.carray(_pointer(table[DRIVE_ERRORS]), (envs, n), i8),
-        numba.carray(_pointer(table[OVERRUN_RING]), (table[WINDOW],), i8),
-        table[REALTIME] != 0,
-        numba.carray(_pointer(table[PARAMS]), (7,), f8),
-        numba.carray(_pointer(table[Q]), (envs, n), f8),
-        numba.carray(_pointer(table[DQ]), (envs, n), f8),
-        numba.carray(_pointer(table[HOME]), (n,), f8),
-        numba.carray(_pointer(table[COMMANDED]), (envs, n), f8),
-        numba.carray(_pointer(table[MODE]), (envs,), np.int8),
-        numba.carray(_pointer(table[CAUSE]), (envs,), np.int8),
-        numba.carray(_pointer(table[SAFE_STOPS]), (envs,), i8),
-        numba.carray(_pointer(table[FAULTS]), (table[CAUSES], envs), i8),
-        numba.carray(_pointer(table[STOP_TICKS]), (envs,), i8),
-        numba.carray(_pointer(table[STOP_TIMEOUTS]), (envs,), i8),
-        numba.carray(_pointer(table[FLAGS]), (4, envs), b1),
-        numba.carray(_pointer(table[HOMED]), (n,), b1),
-    )
+def supervise_only(t) -> int:
+    """:func:`sim2real.deploy.runtime.supervision_kernel.supervise` alone on the packed table
+    ``t`` (:data:`SUPERVISE`); returns its code."""
+    return _supervise(t)

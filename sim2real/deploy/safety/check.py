@@ -42,7 +42,8 @@ class GuardCheck:
     ``kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int``: env ``e``'s
     share of one stage. ``out`` the target (envs, n), written in place by clamps; ``q``, ``dq``
     the estimate (envs, n); ``commanded`` velocity mode's integrated command (envs, n; ``q``
-    when ``has_commanded`` is False); ``g`` the guard's :class:`sim2real.deploy.safety.kernel.GuardArrays`;
+    when ``has_commanded`` is False); ``g`` the guard's arrays by name (its
+    :class:`sim2real.deploy.safety.kernel.GuardArrays` or packed ``GUARD`` table);
     ``own`` this check's :meth:`constants` (rows, n). It must do the floating-point operations of
     :meth:`reference` in the same order (the tests compare them bit for bit).
     """

@@ -295,7 +295,7 @@ class MotionEnvelope(EnvelopeQueries):
             arrays = arrays._replace(variance=np.ascontiguousarray(arrays.variance))
         table = certify_table.build((*state, z.copy()), screen, arrays)
         if table is not None:
-            certify_table.certify_table(table[0])
+            certify_table.kernel(table)(table)
 
     # ------------------------------------------------------------------ the check
     def check(self, q, before, after, stopping, effort_scale, dq=None, command=None) -> bool:
@@ -448,8 +448,7 @@ class MotionEnvelope(EnvelopeQueries):
         self._certify = bind(ek.certify, *args, self._screen, arrays)
         table = certify_table.build(args, self._screen, arrays)  # one array, not thirty
         if table is not None:
-            self._certify_arrays = table[1]  # alive while the table names them
-            self._certify = bind(certify_table.certify_table, table[0])
+            self._certify = bind(certify_table.kernel(table), table)
         variance = drive.speed_variance if drive is not None else None
         self._certify_key = (*args, self.tables, self.margin, variance)
 

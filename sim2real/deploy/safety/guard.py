@@ -33,7 +33,7 @@ from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.core.stateful import put, take
-from sim2real.deploy.kernels.calls import SLOT, bind, put_slots
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.safety import kernel as gk
 from sim2real.deploy.safety.check import (
@@ -188,7 +188,7 @@ class SafetyGuard(MotionCheck):
         self._arrays = self._kernel_arrays()
         # the kernel's phases bound to the arrays of the last filter (_filter)
         self._bound_key = (None, None, None, None)
-        self._phase0 = self._phase1 = self._table = None
+        self._phase0 = self._phase1 = None
         self._motion_key, self._certify_motion = (None,) * 4, None  # check_motion's binding
         self._warm_up()
 
@@ -241,10 +241,9 @@ class SafetyGuard(MotionCheck):
         out = np.zeros_like(zeros)
         with warnings.catch_warnings():  # numba: a tuple of functions is "experimental"
             warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
-            gk.guard_filter(0, out, zeros, zeros, zeros, False, copies)
-            gk.guard_filter(1, out, zeros, zeros, zeros, False, copies)
-            table = np.zeros(gk.TABLE_HEADER + SLOT * len(gk.TABLE_SLOTS), np.int64)
-            bind(gk.guard_table, 0, table, False, a.own)  # compiled (or loaded), not called
+            gk.guard_filter(0, out, zeros, zeros, zeros, False, copies, a.own)
+            gk.guard_filter(1, out, zeros, zeros, zeros, False, copies, a.own)
+            bind(gk.guard_table, 0, gk.GUARD.empty(), False, a.own)  # compiled (or loaded)
 
     def reset(self, q: np.ndarray, envs: np.ndarray | None = None, drives: bool = True) -> None:
         """Start from measured positions ``q`` (envs, n): they become the hold target.
@@ -431,25 +430,18 @@ class SafetyGuard(MotionCheck):
         dtype and dimensions, else to the arrays themselves."""
         a, has = self._arrays, commanded is not None
         args = (out, q, dq, q if commanded is None else commanded)
-        arrays = (*args, *(getattr(a, name) for name, _, _ in gk.TABLE_SLOTS[len(args) :]))
-        table, kept = np.zeros(gk.TABLE_HEADER + SLOT * len(gk.TABLE_SLOTS), np.int64), []
-        table[0] = a.mode
+        named = dict(zip(("out", "q", "dq", "commanded"), args, strict=True))
+        own = {k: v for k, v in a._asdict().items() if k != "own"}
+        table = gk.GUARD.pack(**named, **own)
         with warnings.catch_warnings():  # numba: a tuple of functions is "experimental"
             warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
-            if put_slots(table, kept, gk.TABLE_HEADER, gk.TABLE_SLOTS, arrays):
-                self._table = (table, kept)  # the arrays alive while the table names them
+            if table is not None:
                 self._phase0 = bind(gk.guard_table, 0, table, has, a.own)
                 self._phase1 = bind(gk.guard_table, 1, table, has, a.own)
             else:
-                self._phase0 = bind(gk.guard_filter, 0, *args, has, a)
-                self._phase1 = bind(gk.guard_filter, 1, *args, has, a)
+                self._phase0 = bind(gk.guard_filter, 0, *args, has, a, a.own)
+                self._phase1 = bind(gk.guard_filter, 1, *args, has, a, a.own)
         self._bound_key = (out, q, dq, commanded)
-
-    def __getstate__(self) -> dict:
-        """A copy (``copy.deepcopy``, pickle) binds the kernel afresh at its first filter: the
-        bound phases' table names the original's arrays."""
-        state = self.__dict__ | {"_table": None, "_phase0": None, "_phase1": None}
-        return state | {"_bound_key": (None, None, None, None)}
 
     def _resolve(self, needs: np.ndarray, q: np.ndarray, dq: np.ndarray, out) -> None:
         """The Python (Pinocchio) parts of the checks, in count-row order, for the envs each

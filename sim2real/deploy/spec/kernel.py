@@ -26,7 +26,7 @@ import numba
 import numpy as np
 
 from sim2real.deploy.kernels import np_max, np_min
-from sim2real.deploy.kernels.calls import pointer
+from sim2real.deploy.kernels.tables import Table
 
 #: The kernel's branch codes, one per block kind it assembles.
 JOINT_POSITION = 0
@@ -294,42 +294,24 @@ def stack_history(
                 out[e, o0 + i] = ring[e, slot, c0 + i]
 
 
-# :func:`observation_over`'s table (:mod:`sim2real.deploy.kernels.calls`): its header (sizes),
-# then the addresses of :func:`observation`'s arrays in its order
-T_ENVS, T_N, T_BLOCKS, T_WIDTH, T_DIM, T_RAW_ROWS, T_FEET = range(7)
-T_LAYOUT, T_CLOCKS, T_STARTS, T_Q, T_DQ, T_EE_POSITION, T_EE_ROTATION, T_GOAL = range(7, 15)
-T_LAST_ACTION, T_TEMPERATURE, T_LINEAR, T_ANGULAR, T_GRAVITY, T_COMMAND = range(15, 21)
-T_ORIENTATION, T_CLOCK, T_CONTACT, T_NORM, T_RAW, T_OUT = range(21, 27)
-#: Length of the table.
-TABLE_SIZE = 27
-#: :func:`observation_over`'s signature.
-TABLE_SIGNATURE = "void(int64[::1])"
+#: :func:`observation`'s arguments (their names; shapes as there: the floating-base inputs with
+#: at least ``envs`` rows, of which the kernel reads ``envs``), one table.
+OBSERVATION = Table(
+    "sim2real.deploy.spec.kernel:OBSERVATION",
+    layout="i8[blocks,*]", clocks=f"f8[blocks,{CLOCK_COLUMNS}]", clock_starts="f8[raw_rows,blocks]",
+    q="f8[envs,n]", dq="f8[envs,n]", ee_position="f8[envs,3]", ee_rotation="f8[envs,3,3]",
+    goal="f8[envs,3]", last_action="f8[envs,n]", temperature="f8[envs,n]",
+    linear_velocity="f8[envs+,3]", angular_velocity="f8[envs+,3]", gravity="f8[envs+,3]",
+    command="f8[envs+,3]", orientation="f8[envs+,4]", clock="f8[envs+]",
+    contact="f8[envs+,*]", norm="f8[3,dim]", raw="f8[raw_rows,dim]", out="f4[envs,dim]",
+)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
-def observation_over(table: np.ndarray) -> None:
-    """:func:`observation` on the arrays of ``table`` (the ``T_*`` rows; shapes as there, the
-    floating-base inputs with at least ``envs`` rows, ``starts`` with ``raw``'s rows)."""
-    envs, n, dim, f8 = table[T_ENVS], table[T_N], table[T_DIM], np.float64
+def observation_over(t) -> None:
+    """:func:`observation` on the packed table ``t`` (:data:`OBSERVATION`)."""
     observation(
-        numba.carray(pointer(table[T_LAYOUT]), (table[T_BLOCKS], table[T_WIDTH]), np.int64),
-        numba.carray(pointer(table[T_CLOCKS]), (table[T_BLOCKS], CLOCK_COLUMNS), f8),
-        numba.carray(pointer(table[T_STARTS]), (table[T_RAW_ROWS], table[T_BLOCKS]), f8),
-        numba.carray(pointer(table[T_Q]), (envs, n), f8),
-        numba.carray(pointer(table[T_DQ]), (envs, n), f8),
-        numba.carray(pointer(table[T_EE_POSITION]), (envs, 3), f8),
-        numba.carray(pointer(table[T_EE_ROTATION]), (envs, 3, 3), f8),
-        numba.carray(pointer(table[T_GOAL]), (envs, 3), f8),
-        numba.carray(pointer(table[T_LAST_ACTION]), (envs, n), f8),
-        numba.carray(pointer(table[T_TEMPERATURE]), (envs, n), f8),
-        numba.carray(pointer(table[T_LINEAR]), (envs, 3), f8),
-        numba.carray(pointer(table[T_ANGULAR]), (envs, 3), f8),
-        numba.carray(pointer(table[T_GRAVITY]), (envs, 3), f8),
-        numba.carray(pointer(table[T_COMMAND]), (envs, 3), f8),
-        numba.carray(pointer(table[T_ORIENTATION]), (envs, 4), f8),
-        numba.carray(pointer(table[T_CLOCK]), (envs,), f8),
-        numba.carray(pointer(table[T_CONTACT]), (envs, table[T_FEET]), f8),
-        numba.carray(pointer(table[T_NORM]), (3, dim), f8),
-        numba.carray(pointer(table[T_RAW]), (table[T_RAW_ROWS], dim), f8),
-        numba.carray(pointer(table[T_OUT]), (envs, dim), np.float32),
-    )
+        t.layout, t.clocks, t.clock_starts, t.q, t.dq, t.ee_position, t.ee_rotation, t.goal,
+        t.last_action, t.temperature, t.linear_velocity, t.angular_velocity, t.gravity,
+        t.command, t.orientation, t.clock, t.contact, t.norm, t.raw, t.out,
+    )  # fmt: skip

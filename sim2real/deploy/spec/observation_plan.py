@@ -17,15 +17,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from inspect import signature
 
 import numpy as np
 
 from sim2real.deploy.core.state import RobotState
-from sim2real.deploy.kernels.calls import put
+from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.spec import kernel as ok
 from sim2real.deploy.spec.history import FrameRing, gather_table, stacked_dim
 from sim2real.deploy.spec.kernel import observation as observation_kernel
-from sim2real.deploy.spec.kernel import observation_over
 from sim2real.deploy.spec.kinds import KINDS, ObservationKind, numpy_reason
 from sim2real.deploy.spec.policy_spec import PolicySpec, SpecError
 from sim2real.deploy.spec.reference import assemble
@@ -140,10 +140,10 @@ class ObservationPlan:
         #: state.q, state.base), compared by identity (:meth:`observation`)
         self._args: tuple[np.ndarray, ...] = ()
         self._bound: tuple = ()
-        #: those arguments' table of addresses (:mod:`sim2real.deploy.kernels.calls`; one
-        #: argument for the kernel's 20), or None: the kernel is called with its arguments
-        self._table: np.ndarray | None = None
-        self._table_arrays: list[np.ndarray] = []
+        #: the kernel bound to those arguments' packed table (one argument for the kernel's
+        #: 20: :data:`sim2real.deploy.spec.kernel.OBSERVATION`), or None: the kernel is called
+        #: with its arguments
+        self._table = None
         #: why the plan runs the numpy reference, not the kernel (None: it runs the kernel;
         #: ``sim2real.deploy.spec.kinds.numpy_reason``); an empty spec has nothing to compile
         self.numpy_reason = next(filter(None, map(numpy_reason, bl)), None)
@@ -177,7 +177,7 @@ class ObservationPlan:
         out = np.zeros((1, self.dim), dtype=np.float32)
         self._run_kernel(state, np.zeros((1, 3)), out)
         self.clocks.reset()  # the warm-up was no env's first tick
-        ok.observation_over.compile(ok.TABLE_SIGNATURE)
+        bind(ok.observation_over, ok.OBSERVATION.empty())
         if self.history is not None:  # the stacking, on a ring of its own
             ring = FrameRing(self.history, self.ring.table, self.dim)
             ring.stack(ring.frame_buffer(1), np.zeros((1, self.out_dim), dtype=np.float32))
@@ -326,7 +326,7 @@ class ObservationPlan:
             and state.base is b[4]
         ):
             if self._table is not None:
-                observation_over(self._table)
+                self._table()
             else:
                 observation_kernel(*self._args)
             return out
@@ -343,26 +343,14 @@ class ObservationPlan:
         observation_kernel(*self._args)
         return out
 
-    def _address_table(self, args: tuple[np.ndarray, ...]) -> np.ndarray | None:
-        """:func:`~sim2real.deploy.spec.kernel.observation_over`'s table of the kernel's arguments
-        ``args``, or None if one has another dtype, shape or layout than the table's."""
-        q, contact, raw = args[3], args[16], args[18]
-        envs, n = q.shape if q.ndim == 2 else (0, 0)
-        feet = contact.shape[1] if contact.ndim == 2 else 0
-        table, arrays = np.zeros(ok.TABLE_SIZE, dtype=np.int64), []
-        f8, e, v = np.float64, (envs, n), (envs, 3)
-        shapes = (
-            (self.layout.shape, np.int64), (self.clocks.params.shape, f8),
-            ((raw.shape[0], len(self.layout)), f8), (e, f8), (e, f8), (v, f8),
-            ((envs, 3, 3), f8), (v, f8), (e, f8), (e, f8), (v, f8), (v, f8), (v, f8), (v, f8),
-            ((envs, 4), f8), ((envs,), f8), ((envs, feet), f8), ((3, self.dim), f8),
-            ((envs, self.dim), f8), ((envs, self.dim), np.float32),
-        )  # fmt: skip
-        for i, (array, (shape, dtype)) in enumerate(zip(args, shapes, strict=True)):
-            rows = ok.T_LINEAR <= ok.T_LAYOUT + i <= ok.T_CONTACT or ok.T_LAYOUT + i == ok.T_RAW
-            if not put(table, arrays, ok.T_LAYOUT + i, array, dtype, shape, rows):
-                return None
-        table[: ok.T_FEET + 1] = (envs, n, len(self.layout), self.layout.shape[1], self.dim,
-                                  raw.shape[0], feet)  # fmt: skip
-        self._table_arrays = arrays  # alive with the table
-        return table
+    def _address_table(self, args: tuple[np.ndarray, ...]):
+        """:func:`~sim2real.deploy.spec.kernel.observation_over` bound to the packed table of the
+        kernel's arguments ``args`` (in its order), or None if one has another dtype, shape or
+        layout than its field's, or the plan's ``raw`` has fewer rows than the envs."""
+        names = list(signature(ok.observation.py_func).parameters)
+        values = dict(zip(names, args, strict=True))
+        q, raw = values["q"], values["raw"]
+        if q.ndim != 2 or raw.shape[0] < q.shape[0]:
+            return None
+        table = ok.OBSERVATION.pack(**values)
+        return None if table is None else bind(ok.observation_over, table)

@@ -1,5 +1,5 @@
 """The velocity task's tick (a tracker judged on the plant's truth, with or without the heading
-hold) as one table of addresses and one compiled call per stage (:class:`TaskCall`).
+hold) as one packed table and one compiled call per stage (:class:`TaskCall`).
 
 The tracker's kernels (:mod:`sim2real.deploy.tasks.locomotion_kernel`) and the hold's
 (:mod:`sim2real.deploy.tasks.heading_kernel`) run in their own order around the same four
@@ -8,8 +8,8 @@ unless an env went down (Python counts its fall first, then stage 1), ``track`` 
 ``yaw_args``; stage 2 the tracker's ``turn_args`` and the hold's ``hold_args``; stage 3
 ``integrate`` and the hold's ``command``. The hold reads the estimate's attitude and writes the
 yaw-rate command after the tracker has read it, as when the hold runs after the tracker: the same
-numbers. The table (:func:`~sim2real.deploy.kernels.calls.put_slot`) holds every array, so a call
-unboxes one array, not forty.
+numbers. The packed table (:data:`TASK`) holds every array, so a call unboxes one array, not
+forty.
 """
 
 from __future__ import annotations
@@ -17,85 +17,75 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from sim2real.deploy.kernels.calls import SLOT, fits, put_slot, view1, view2, view3
+from sim2real.deploy.kernels.tables import Table
 from sim2real.deploy.tasks import heading_kernel as hk
 from sim2real.deploy.tasks.locomotion_kernel import integrate, track, truth_down, turn_args
 
-#: The header: ``fused`` (``gemv_fused``), whether the fall check's heights exist, whether the
-#: hold runs; then the arrays' slots (``SLOT`` ints each).
-FUSED, HAS_HEIGHTS, HAS_HOLD, HEADER = 0, 1, 2, 4
-_NAMES = (
-    "mode command asked heights estimate orientation gravity angular velocity_world velocity "
-    "up down distance forward ring command_ring filled last_command changed_at running_time "
-    "tracked_time last_yaw yaw_args yaw sin_cos turn heading_change start_yaw displacement "
-    "commanded_turn height_sum height_time h_args h_yaw holding reference hold h_sin_cos "
-    "h_error params"
-).split()
-(
-    MODE, COMMAND, ASKED, HEIGHTS, ESTIMATE, ORIENTATION, GRAVITY, ANGULAR, VELOCITY_WORLD,
-    VELOCITY, UP, DOWN, DISTANCE, FORWARD, RING, COMMAND_RING, FILLED, LAST_COMMAND, CHANGED_AT,
-    RUNNING_TIME, TRACKED_TIME, LAST_YAW, YAW_ARGS, YAW, SIN_COS, TURN, HEADING_CHANGE, START_YAW,
-    DISPLACEMENT, COMMANDED_TURN, HEIGHT_SUM, HEIGHT_TIME, H_ARGS, H_YAW, HOLDING, REFERENCE,
-    HOLD, H_SIN_COS, H_ERROR, PARAMS,
-) = (HEADER + SLOT * k for k in range(len(_NAMES)))  # fmt: skip
+#: The task's arrays and constants: the runtime's (``mode`` .. ``velocity``), the tracker's and
+#: the hold's (``h_*``, ``holding``, ``reference``, ``hold``), the scratch rows of numpy's
+#: ``arctan2`` calls (``*_args``, ``sin_cos``: (2, envs) its y and x rows), and ``fused``
+#: (``gemv_fused``), whether the fall check's heights exist and the hold runs; ``dt`` s, the
+#: tracker's tolerance and settle time, the hold's gain and maximum rate.
+TASK = Table(
+    "sim2real.deploy.tasks.velocity_kernel:TASK",
+    fused="b1", has_heights="b1", has_hold="b1", dt="f8", tolerance="f8", settle="f8",
+    gain="f8", rate="f8",
+    mode="i1[envs]", command="f8[envs,3]", asked="f8[envs,3]", heights="f8[envs]",
+    estimate="f8[envs,4]", orientation="f8[envs,4]", gravity="f8[envs,3]",
+    angular="f8[envs,3]", velocity_world="f8[envs,3]", velocity="f8[envs,3]", up="b1[envs]",
+    down="b1[envs]", distance="f8[envs]", forward="f8[envs]", ring="f8[window,envs,2]",
+    command_ring="f8[window,envs,2]", filled="i8[envs]", last_command="f8[envs,2]",
+    changed_at="f8[envs]", running_time="f8[envs]", tracked_time="f8[envs]",
+    last_yaw="f8[envs]", yaw_args="f8[2,envs]", yaw="f8[envs]", sin_cos="f8[2,envs]",
+    turn="f8[envs]", heading_change="f8[envs]", start_yaw="f8[envs]",
+    displacement="f8[envs,2]", commanded_turn="f8[envs]", height_sum="f8[envs]",
+    height_time="f8[envs]", h_args="f8[2,envs]", h_yaw="f8[envs]", holding="b1[envs]",
+    reference="f8[envs]", hold="b1[envs]", h_sin_cos="f8[2,envs]", h_error="f8[envs]",
+)  # fmt: skip
 #: Bits of :func:`task_stage`'s code: some env went down (stage 0 stopped before ``track``),
 #: some env is RUNNING (``track``'s answer).
 DOWN_BIT, RUNNING_BIT = 1, 2
 
 
 @numba.njit(cache=True, nogil=True)
-def task_stage(table, stage, truth, slot, time, running):
-    """Stage ``stage`` of the task's tick over ``table`` (module docstring); ``truth`` (envs,
+def task_stage(t, stage, truth, slot, time, running):
+    """Stage ``stage`` of the task's tick over the packed table ``t`` (:data:`TASK`, module
+    docstring); ``truth`` (envs,
     13) the plant's true base, ``slot`` the ring's row, ``time`` s, ``running``: stage 0's
     answer (stages 2 and 3 skip the tracker's part without it). Returns the code's bits."""
-    f8, b1 = np.float64, np.bool_
-    mode, command = view1(table, MODE, np.int8), view2(table, COMMAND, f8)
-    asked = view2(table, ASKED, f8)
-    orientation, velocity = view2(table, ORIENTATION, f8), view2(table, VELOCITY, f8)
-    params, hold = view1(table, PARAMS, f8), table[HAS_HOLD] != 0
-    dt = params[0]
+    mode, command, asked = t.mode, t.command, t.asked
+    orientation, velocity, hold, dt = t.orientation, t.velocity, t.has_hold, t.dt
     if stage == 0:
         down = truth_down(
-            orientation, view2(table, GRAVITY, f8), view2(table, ANGULAR, f8),
-            view2(table, VELOCITY_WORLD, f8), velocity, mode, view1(table, UP, b1),
-            view1(table, DOWN, b1), table[FUSED] != 0, truth,
+            orientation, t.gravity, t.angular, t.velocity_world, velocity, mode, t.up, t.down,
+            t.fused, truth,
         )  # fmt: skip
         if down:
             return DOWN_BIT
         stage = 1
     if stage == 1:
         on = track(
-            mode, velocity, command, orientation, dt, params[1], params[2],
-            view1(table, DISTANCE, f8), view1(table, FORWARD, f8), view3(table, RING, f8),
-            view3(table, COMMAND_RING, f8), view1(table, FILLED, np.int64),
-            view2(table, LAST_COMMAND, f8), view1(table, CHANGED_AT, f8),
-            view1(table, RUNNING_TIME, f8), view1(table, TRACKED_TIME, f8),
-            view1(table, LAST_YAW, f8), view2(table, YAW_ARGS, f8), slot, time,
+            mode, velocity, command, orientation, dt, t.tolerance, t.settle, t.distance,
+            t.forward, t.ring, t.command_ring, t.filled, t.last_command, t.changed_at,
+            t.running_time, t.tracked_time, t.last_yaw, t.yaw_args, slot, time,
         )  # fmt: skip
         if hold:
-            hk.yaw_args(view2(table, ESTIMATE, f8), view2(table, H_ARGS, f8))
+            hk.yaw_args(t.estimate, t.h_args)
         return RUNNING_BIT if on else 0
-    hold_now = view1(table, HOLD, b1)
     if stage == 2:
         if running:
-            turn_args(view1(table, YAW, f8), view1(table, LAST_YAW, f8), view2(table, SIN_COS, f8))
+            turn_args(t.yaw, t.last_yaw, t.sin_cos)
         if hold:
-            reference, h_sin_cos = view1(table, REFERENCE, f8), view2(table, H_SIN_COS, f8)
-            h_yaw, holding = view1(table, H_YAW, f8), view1(table, HOLDING, b1)
-            hk.hold_args(mode, asked, h_yaw, holding, reference, hold_now, h_sin_cos)
+            hk.hold_args(mode, asked, t.h_yaw, t.holding, t.reference, t.hold, t.h_sin_cos)
         return 0
     if running:
-        heights = view1(table, HEIGHTS, f8)
         integrate(
-            mode, view1(table, YAW, f8), view1(table, TURN, f8), asked,
-            view2(table, VELOCITY_WORLD, f8), dt, heights, table[HAS_HEIGHTS] != 0,
-            view1(table, HEADING_CHANGE, f8), view1(table, LAST_YAW, f8),
-            view1(table, START_YAW, f8), view2(table, DISPLACEMENT, f8),
-            view1(table, COMMANDED_TURN, f8), view1(table, HEIGHT_SUM, f8),
-            view1(table, HEIGHT_TIME, f8),
+            mode, t.yaw, t.turn, asked, t.velocity_world, dt, t.heights, t.has_heights,
+            t.heading_change, t.last_yaw, t.start_yaw, t.displacement, t.commanded_turn,
+            t.height_sum, t.height_time,
         )  # fmt: skip
     if hold:
-        hk.command(hold_now, view1(table, H_ERROR, f8), params[3], params[4], asked, command)
+        hk.command(t.hold, t.h_error, t.gain, t.rate, asked, command)
     return 0
 
 
@@ -108,7 +98,7 @@ class TaskCall:
             while the runtime's arrays stay the same).
     """
 
-    def __init__(self, task, runtime, table=None, arrays=None, scratch=None):
+    def __init__(self, task, runtime, table=None):
         self.task, self.runtime = task, runtime
         self.mode, self.command = runtime.mode, runtime.velocity_command
         self.estimate = runtime.state.base.orientation
@@ -119,9 +109,10 @@ class TaskCall:
             return
         from sim2real.deploy.kernels.calls import bind
 
-        self._table, self._arrays = table, arrays  # the arrays alive while the table names them
-        self._down, self._yaw_args, self._yaw, self._sin_cos, self._turn = scratch[:5]
-        self._h_args, self._h_yaw, self._h_sin_cos, self._h_error = scratch[5:]
+        at = table.arrays  # numpy's arctan2 calls between the stages read and write these
+        self._down, self._yaw_args, self._yaw = at["down"], at["yaw_args"], at["yaw"]
+        self._sin_cos, self._turn, self._h_args = at["sin_cos"], at["turn"], at["h_args"]
+        self._h_yaw, self._h_sin_cos, self._h_error = at["h_yaw"], at["h_sin_cos"], at["h_error"]
         self._hold = task.heading is not None
         self._window = task.tracker.window
         self._call = bind(task_stage, table, rest=(0, np.zeros((1, 13)), 0, 0.0, True))
@@ -140,42 +131,30 @@ class TaskCall:
         if not gemv_matches():
             return cls(task, runtime)
         a = tracker.kernel_arrays()
-        base = a["true_base"]
+        base = a.pop("true_base")
         one, two = (envs,), (2, envs)
-        scratch = [np.zeros(envs, dtype=bool)]
-        scratch += [np.zeros(s) for s in (two, one, two, one, two, one, two, one)]
+        scratch = {"down": np.zeros(envs, dtype=bool)}
+        scratch |= {k: np.zeros(two) for k in ("yaw_args", "sin_cos", "h_args", "h_sin_cos")}
+        scratch |= {k: np.zeros(one) for k in ("yaw", "turn", "h_yaw", "h_error")}
         gain, rate = (h.gain, h.max_rate) if h is not None else (0.0, 0.0)
-        arrays = dict(zip(_NAMES, (
-            runtime.mode, runtime.velocity_command,
-            task._asked if h is not None else runtime.velocity_command,
-            np.zeros(envs) if heights is None else heights, runtime.state.base.orientation,
-            base.orientation, base.projected_gravity, base.angular_velocity,
-            base.linear_velocity_world, base.linear_velocity, a["up"], scratch[0],
-            *(a[k] for k in _NAMES[12:22]), scratch[1], scratch[2], scratch[3], scratch[4],
-            *(a[k] for k in _NAMES[26:32]), scratch[5], scratch[6],
-            h.holding if h is not None else np.zeros(envs, dtype=bool),
-            h.reference if h is not None else np.zeros(envs),
-            h._hold if h is not None else np.zeros(envs, dtype=bool), scratch[7], scratch[8],
-            np.array([tracker.dt, TRACKING_TOLERANCE, SETTLE_TIME, gain, rate]),
-        ), strict=True))  # fmt: skip
-        shapes = dict.fromkeys(_NAMES, one)
-        shapes |= dict.fromkeys(("command", "asked", "gravity", "angular"), (envs, 3))
-        shapes |= dict.fromkeys(("velocity_world", "velocity"), (envs, 3))
-        shapes |= dict.fromkeys(("estimate", "orientation"), (envs, 4))
-        shapes |= dict.fromkeys(("last_command", "displacement"), (envs, 2))
-        shapes |= dict.fromkeys(("ring", "command_ring"), (window, envs, 2))
-        shapes |= dict.fromkeys(("yaw_args", "sin_cos", "h_args", "h_sin_cos"), two)
-        shapes["params"] = (5,)
-        dtypes = {"mode": np.int8, "filled": np.int64}
-        dtypes |= dict.fromkeys(("up", "down", "holding", "hold"), np.bool_)
-        table, kept = np.zeros(HEADER + SLOT * len(_NAMES), dtype=np.int64), []
-        for k, name in enumerate(_NAMES):
-            array, shape = arrays[name], shapes[name]
-            if not fits(array, dtypes.get(name, np.float64), shape):
-                return cls(task, runtime)
-            put_slot(table, kept, HEADER + SLOT * k, array, array.dtype, len(shape))
-        table[:HEADER] = (int(gemv_fused()), int(heights is not None), int(h is not None), 0)
-        return cls(task, runtime, table, kept, scratch)
+        table = TASK.pack(
+            {"envs": envs, "window": window},  # the slot the call takes is ticks % window
+            fused=gemv_fused(), has_heights=heights is not None, has_hold=h is not None,
+            dt=tracker.dt, tolerance=TRACKING_TOLERANCE, settle=SETTLE_TIME, gain=gain, rate=rate,
+            mode=runtime.mode, command=runtime.velocity_command,
+            asked=task._asked if h is not None else runtime.velocity_command,
+            heights=np.zeros(envs) if heights is None else heights,
+            estimate=runtime.state.base.orientation, orientation=base.orientation,
+            gravity=base.projected_gravity, angular=base.angular_velocity,
+            velocity_world=base.linear_velocity_world, velocity=base.linear_velocity,
+            holding=h.holding if h is not None else np.zeros(envs, dtype=bool),
+            reference=h.reference if h is not None else np.zeros(envs),
+            hold=h._hold if h is not None else np.zeros(envs, dtype=bool),
+            **a, **scratch,
+        )  # fmt: skip
+        if table is None:
+            return cls(task, runtime)
+        return cls(task, runtime, table)
 
     def ready(self, runtime) -> bool:
         """Whether the call holds ``runtime``'s arrays."""
@@ -216,5 +195,4 @@ def load() -> None:
     judged on the truth is built, so that the first tick does not wait for it."""
     from sim2real.deploy.kernels.calls import bind
 
-    table = np.zeros(HEADER + SLOT * len(_NAMES), dtype=np.int64)
-    bind(task_stage, table, rest=(0, np.zeros((1, 13)), 0, 0.0, True))
+    bind(task_stage, TASK.empty(), rest=(0, np.zeros((1, 13)), 0, 0.0, True))

@@ -1,12 +1,12 @@
 """The table of the MuJoCo plant's compiled step (:mod:`sim2real.deploy.backends.sim.plant_kernel`).
 
-:class:`CompiledStep` writes the addresses of a :class:`~sim2real.deploy.backends.sim.plant.SimBackend`'s
-arrays (the drives', the thermal model's, the joint sensors', the actuators') and of each env's
-``MjData`` fields into one int64 array, and keeps a reference to every array it names, so the
-kernels can take that one array in place of some thirty arguments. Each object hands over its
-live arrays through its public ``kernel_arrays()`` (the plant's ``env_views(e)`` for an env's
-``MjData``). It is built once the plant's models exist; the plant builds it afresh when an env
-gets a new model (``SimBackend.set_model``).
+:class:`CompiledStep` packs a :class:`~sim2real.deploy.backends.sim.plant.SimBackend`'s arrays
+(the drives', the thermal model's, the joint sensors', the actuators') by name into the declared
+table :data:`~sim2real.deploy.backends.sim.plant_kernel.PLANT`, and each env's ``MjData``
+fields' addresses into its ``views``, so the kernels take one argument in place of some
+thirty. Each object hands over its live arrays through its public ``kernel_arrays()`` (the
+plant's ``env_views(e)`` for an env's ``MjData``). It is built once the plant's models exist;
+the plant builds it afresh when an env gets a new model (``SimBackend.set_model``).
 """
 
 from __future__ import annotations
@@ -36,27 +36,24 @@ class CompiledStep:
     whose models, drives, thermal model, joint sensors and actuators are built).
 
     Attributes:
-        table: (46 + 7 envs,) int64, the header and addresses of
-            :mod:`~sim2real.deploy.backends.sim.plant_kernel`.
-        scalars: (2,) float64, the encoder quantum (rad) and the control period (s).
+        table: The packed :data:`~sim2real.deploy.backends.sim.plant_kernel.PLANT` table.
+        views: (envs, ``PER_ENV``) int64, each env's ``MjData`` addresses (:meth:`bind`).
         streams: (envs, 3) int64, each env's sensor stream (``plant_kernel.STREAMS``).
         rng: The joint sensors' ``rng`` the streams were taken from (:meth:`bind_streams`).
         draws: Whether the kernel draws from the streams itself (numpy ``Generator`` streams);
             else the joint sensor model draws in numpy before it.
 
     Raises:
-        ValueError: an array that is not C-contiguous of the expected type.
+        ValueError: an array that is not C-contiguous of its field's dtype and dimensions.
     """
 
     def __init__(self, plant):
         k.compile_kernels()
         p, js, th, act = plant, plant.joint_sensors, plant.thermal, plant.actuators
         self.plant = plant
-        self.scalars = np.array([js.encoder_quantum, p.control_period])
-        self.table = np.zeros(k.ENV_ROWS + k.PER_ENV * p.envs, dtype=np.int64)
         self.streams = np.zeros((p.envs, 3), dtype=np.int64)
+        self.views = np.zeros((p.envs, k.PER_ENV), dtype=np.int64)
         self.rng, self.draws, self._bit_generators = None, False, []
-        t = self.table
         pa, ja, ta, aa = (
             p.kernel_arrays(),
             js.kernel_arrays(),
@@ -64,43 +61,29 @@ class CompiledStep:
             act.kernel_arrays(),
         )
         views = p.env_views(0)
-        t[k.ENVS], t[k.N], t[k.ROWS] = p.envs, p.n_joints, views["ctrl"].shape[0]
-        t[k.SLOTS] = ja["buffer_stamp"].shape[0]
-        t[k.FLAGS] = (
-            (k.VELOCITY_MODE if p.mode == "velocity" else 0)
-            | (k.HAS_VELOCITY if js.has_velocity else 0)
-            | (0 if act.active else k.WRITE_CTRL)
-            | (k.ENVELOPE if act.envelope.any else 0)
-        )
-        t[k.WARNINGS], t[k.DEPTH] = views["warnings"].shape[0], aa["history"].shape[1]
-        t[k.NSTEP] = p.decimation
-        f8, b1 = np.float64, np.bool_
-        arrays = {
-            k.COMMAND: (pa["command"], f8), k.QPOS: (pa["qpos"], f8), k.QVEL: (pa["qvel"], f8),
-            k.TORQUE: (pa["torque"], f8), k.START: (p.derating.start, f8),
-            k.DERATED: (pa["derated"], b1), k.HOT: (pa["hot"], b1), k.LAG: (pa["lag"], f8),
-            k.BOUND: (pa["windup_bound"], f8), k.CONSTANTS: (ta["constants"], f8),
-            k.AMBIENT: (ta["ambient"], f8), k.WINDING: (ta["winding_temperature"], f8),
-            k.HOUSING: (ta["housing_temperature"], f8), k.CURRENT: (ta["current"], f8),
-            k.POWER: (ta["power"], f8), k.FLOW: (ta["flow"], f8),
-            k.BUF_POSITION: (ja["buffer_position"], f8),
-            k.BUF_VELOCITY: (ja["buffer_velocity"], f8), k.BUF_STAMP: (ja["buffer_stamp"], f8),
-            k.UNIFORM: (ja["uniform"], f8), k.NOISE: (ja["noise_sigma"], f8),
-            k.DROPOUT: (ja["dropout_probability"], f8),
-            k.VELOCITY_NOISE: (ja["velocity_noise_sigma"], f8), k.BIAS: (ja["encoder_bias"], f8),
-            k.BIASED: (ja["biased"], f8), k.SCALARS: (self.scalars, f8),
-            k.HISTORY: (aa["history"], f8), k.DELAY: (aa["delay_steps"], np.int64),
-            k.STALL: (aa["stall"], f8), k.NO_LOAD: (aa["no_load"], f8),
-            k.ACTIVE: (act.envelope.active, b1), k.LIMIT: (p.effort_limit, f8),
-            k.STREAMS: (self.streams, np.int64), k.T_REF: (act.envelope.t_ref, f8),
-            k.ALPHA: (act.envelope.alpha, f8),
-            k.STALL_COEFFICIENT: (act.envelope.stall_coefficient, f8),
-            k.NO_LOAD_SPEED: (act.envelope.no_load_speed, f8), k.SUPPLY: (aa["supply"], f8),
-        }  # fmt: skip
-        self._arrays = [a for a, _ in arrays.values()]  # alive while the table names them
-        t[k.SELF] = t.ctypes.data  # a copied table holds another array's address: stale
-        for slot, (a, dtype) in arrays.items():
-            t[slot] = _address(a, dtype)
+        values = dict(
+            live=True, velocity_mode=p.mode == "velocity", has_velocity=js.has_velocity,
+            write_ctrl=not act.active, envelope=act.envelope.any, rows=views["ctrl"].shape[0],
+            warnings=views["warnings"].shape[0], nstep=p.decimation,
+            quantum=js.encoder_quantum, period=p.control_period,
+            command=pa["command"], qpos=pa["qpos"], qvel=pa["qvel"], torque=pa["torque"],
+            start=p.derating.start, derated=pa["derated"], hot=pa["hot"], lag=pa["lag"],
+            bound=pa["windup_bound"], constants=ta["constants"], ambient=ta["ambient"],
+            winding=ta["winding_temperature"], housing=ta["housing_temperature"],
+            current=ta["current"], power=ta["power"], flow=ta["flow"],
+            buf_position=ja["buffer_position"], buf_velocity=ja["buffer_velocity"],
+            buf_stamp=ja["buffer_stamp"], uniform=ja["uniform"], noise=ja["noise_sigma"],
+            dropout=ja["dropout_probability"], velocity_noise=ja["velocity_noise_sigma"],
+            bias=ja["encoder_bias"], biased=ja["biased"], history=aa["history"],
+            delay=aa["delay_steps"], stall=aa["stall"], no_load=aa["no_load"],
+            active=act.envelope.active, limit=p.effort_limit, streams=self.streams,
+            t_ref=act.envelope.t_ref, alpha=act.envelope.alpha,
+            stall_coefficient=act.envelope.stall_coefficient,
+            no_load_speed=act.envelope.no_load_speed, supply=aa["supply"], views=self.views,
+        )  # fmt: skip
+        self.table = k.PLANT.pack(**values)
+        if self.table is None:
+            raise ValueError(f"compiled step: {k.PLANT.mismatch(values)}")
         self._env_arrays: list[list[np.ndarray]] = [[] for _ in range(p.envs)]
         for e in range(p.envs):
             self.bind(e)
@@ -158,22 +141,21 @@ class CompiledStep:
         warnings = v["warnings"]
         if warnings.dtype != np.int32 or warnings.strides[0] != 8:
             raise ValueError("compiled step: MuJoCo's warning counters changed their layout")
-        row = k.ENV_ROWS + k.PER_ENV * e
         views = {
             k.CTRL: v["ctrl"], k.JQPOS: v["qpos"], k.JQVEL: v["qvel"], k.FORCE: v["force"],
             k.ACT: v["act"], k.ACTFRC: v["actfrc"],
         }  # fmt: skip
-        for field, a in views.items():
-            self.table[row + field] = _address(a, np.float64)
-        self.table[row + k.WARN] = warnings.ctypes.data
+        for column, a in views.items():
+            self.views[e, column] = _address(a, np.float64)
+        self.views[e, k.WARN] = warnings.ctypes.data
         self._env_arrays[e] = [v["model"], v["data"], *views.values(), warnings]
 
 
 def _stale_step():
     """A table that :func:`~sim2real.deploy.backends.sim.plant_kernel.before_physics` finds
-    stale (its ``SELF`` entry is not its own address): what a copied plant holds."""
+    stale (not ``live``): what a copied plant holds."""
     step = CompiledStep.__new__(CompiledStep)
-    step.table = np.zeros(k.ENV_ROWS, dtype=np.int64)
+    step.table = k.PLANT.empty()  # not live
     step.rng, step.draws = None, False
     step._bind_kernels()
     return step

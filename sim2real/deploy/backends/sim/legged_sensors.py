@@ -37,7 +37,7 @@ import numpy as np
 from sim2real.deploy.backends.sim import legged_sensors_kernel as kernel
 from sim2real.deploy.backends.sim.sensors import draw
 from sim2real.deploy.core.attitude import align_up, quat_multiply, rotation_quaternions
-from sim2real.deploy.kernels.calls import SLOT, bind, fits, put_slots
+from sim2real.deploy.kernels.calls import bind
 from sim2real.robots import Robot
 
 
@@ -55,6 +55,13 @@ def sensor_address(model: mujoco.MjModel, kind, site: int) -> int:
         ):
             return int(model.sensor_adr[k])
     raise ValueError(f"the model has no {kind} sensor at site {model.site(site).name}")
+
+
+#: :data:`~.legged_sensors_kernel.READ`'s names of the frame's IMU and contact fields.
+_FRAME_FIELDS = (
+    "angular", "acceleration", "orientation", "imu_stamp", "foot_force", "foot_contact",
+    "contact_stamp",
+)  # fmt: skip
 
 
 class BaseSensorModel:
@@ -152,18 +159,16 @@ class BaseSensorModel:
         self._touch_index = np.array(touch, dtype=np.int64)
         self._ratio, self._a = np.zeros(envs), np.zeros(envs)
         self._sample_call = self._read_call = self._sample_key = self._read_key = None
-        self._sample_table = self._read_table = None  # the arrays their bound tables name
         self._bind_sample(None, np.zeros((envs, 3), dtype=np.int64))  # compiled (or loaded) now
         self._bind_read(backend.frame if hasattr(backend, "frame") else None)
         self._sample_key = self._read_key = None
 
     def __getstate__(self) -> dict:
-        """A copy (``copy.deepcopy``, pickle) holds no bound call nor address: it binds its
-        own at its first compiled tick."""
+        """A copy (``copy.deepcopy``, pickle) holds no bound call nor ``MjData`` address (the
+        plant's, which the copy builds anew): it binds its own at its first compiled tick."""
         state = dict(self.__dict__)
         state["_sample_call"] = state["_read_call"] = None
-        state["_sample_key"] = state["_read_key"] = state["_sample_table"] = None
-        state["_read_table"] = None
+        state["_sample_key"] = state["_read_key"] = None
         state["_data"] = np.zeros_like(self._data)
         return state
 
@@ -241,7 +246,8 @@ class BaseSensorModel:
         ``MjData`` (each env's ``sensordata`` and ``qpos`` addresses) and the model's arrays.
 
         Raises:
-            ValueError: an env whose model's sensors or joints differ in size from the first's.
+            ValueError: an env whose model's sensors or joints differ in size from the first's; an
+                array of the model not of its :data:`~.legged_sensors_kernel.SAMPLE` field.
         """
         for e, d in enumerate(self.backend.datas):
             if d.sensordata.shape != (self._nsensor,) or d.qpos.shape != (self._nq,):
@@ -249,32 +255,24 @@ class BaseSensorModel:
             self._data[e, kernel.SENSORDATA] = d.sensordata.ctypes.data
             self._data[e, kernel.QPOS] = d.qpos.ctypes.data
         self._sample_key = step
-        dt = self.imu_every * self.robot.control_period
-        arrays = (streams, self._data, self._touch_index, np.array([dt]), self._a)
-        arrays += (self.gyro_bias, self.accel_bias, self.gyro_bias_walk, self.accel_bias_walk)
-        arrays += (self.gyro_noise_sigma, self.accel_noise_sigma, self.orientation_error)
-        arrays += (self.orientation_sigma, self._site_quat, self._gravity_frame, self.imu_dropout)
-        arrays += (self.force_noise_sigma, self._noise6, self._noise2, self._noise_f)
-        arrays += (self._buf_imu, self._buf_imu_stamp, self._buf_force, self._buf_contact_stamp)
-        table, kept = np.zeros(kernel.SAMPLE_HEADER + SLOT * len(arrays), dtype=np.int64), []
-        header = (self._nsensor, self._nq, self._gyro.start, self._acc.start)
-        table[: kernel.SAMPLE_HEADER] = (*header, self.has_orientation)
-        if put_slots(table, kept, kernel.SAMPLE_HEADER, kernel.SAMPLE_SLOTS, arrays):
-            self._sample_table = kept  # the arrays alive while the table names them
-            self._sample_call = bind(kernel.sample_table, table, rest=(True, True, 0, 0.0))
-            return
-        self._sample_call = bind(
-            kernel.base_sample,
-            *(streams, self._data, self._nsensor, self._nq, self._gyro.start, self._acc.start),
-            *(self._touch_index, dt, self._a),
-            *(self.gyro_bias, self.accel_bias, self.gyro_bias_walk, self.accel_bias_walk),
-            *(self.gyro_noise_sigma, self.accel_noise_sigma, self.has_orientation),
-            *(self.orientation_error, self.orientation_sigma, self._site_quat),
-            *(self._gravity_frame, self.imu_dropout, self.force_noise_sigma, self._noise6),
-            *(self._noise2, self._noise_f, self._buf_imu, self._buf_imu_stamp, self._buf_force),
-            self._buf_contact_stamp,
-            rest=(True, True, 0, 0.0),
-        )
+        values = dict(
+            nsensor=self._nsensor, nq=self._nq, gyro=self._gyro.start, acc=self._acc.start,
+            has_orientation=self.has_orientation, dt=self.imu_every * self.robot.control_period,
+            streams=streams, data=self._data, touch=self._touch_index, a=self._a,
+            gyro_bias=self.gyro_bias, accel_bias=self.accel_bias,
+            gyro_bias_walk=self.gyro_bias_walk, accel_bias_walk=self.accel_bias_walk,
+            gyro_noise_sigma=self.gyro_noise_sigma, accel_noise_sigma=self.accel_noise_sigma,
+            orientation_error=self.orientation_error, orientation_sigma=self.orientation_sigma,
+            site_quat=self._site_quat, gravity_frame=self._gravity_frame,
+            dropout=self.imu_dropout, force_noise_sigma=self.force_noise_sigma,
+            noise6=self._noise6, noise2=self._noise2, noise_f=self._noise_f,
+            buf_imu=self._buf_imu, buf_imu_stamp=self._buf_imu_stamp, buf_force=self._buf_force,
+            buf_contact_stamp=self._buf_contact_stamp,
+        )  # fmt: skip
+        table = kernel.SAMPLE.pack(**values)
+        if table is None:
+            raise ValueError(f"the IMU and contact model: {kernel.SAMPLE.mismatch(values)}")
+        self._sample_call = bind(kernel.base_sample, table, rest=(True, True, 0, 0.0))
 
     def reference_sample(
         self, tick: int, time: float, force: bool = False, envs: np.ndarray | None = None
@@ -363,20 +361,16 @@ class BaseSensorModel:
                 frame.imu_angular_velocity, frame.imu_acceleration, frame.imu_orientation,
                 frame.imu_stamp, frame.foot_force, frame.foot_contact, frame.contact_stamp,
             )  # fmt: skip
-        shapes = ((envs, 3), (envs, 3), (envs, 4), (envs,), (envs, nf), (envs, nf), (envs,))
-        dtypes = (np.float64,) * 5 + (np.bool_, np.float64)
         self._read_key = frame
         self._read_call = None
-        if not all(fits(a, t, s) for a, t, s in zip(fields, dtypes, shapes, strict=True)):
-            return
-        arrays = (self._buf_imu, self._buf_imu_stamp, self._buf_force, self._buf_contact_stamp)
-        arrays += (self.imu_latency_ticks, self.contact_latency_ticks, self.contact_threshold)
-        table, kept = np.zeros(SLOT * len(kernel.READ_SLOTS), dtype=np.int64), []
-        if put_slots(table, kept, 0, kernel.READ_SLOTS, (*arrays, *fields)):
-            self._read_table = kept  # the arrays alive while the table names them
-            self._read_call = bind(kernel.read_table, table, rest=(0,))
-        else:
-            self._read_call = bind(kernel.base_read, *arrays, *fields, rest=(0,))
+        table = kernel.READ.pack(
+            buf_imu=self._buf_imu, buf_imu_stamp=self._buf_imu_stamp, buf_force=self._buf_force,
+            buf_contact_stamp=self._buf_contact_stamp, imu_latency=self.imu_latency_ticks,
+            contact_latency=self.contact_latency_ticks, threshold=self.contact_threshold,
+            **dict(zip(_FRAME_FIELDS, fields, strict=True)),
+        )  # fmt: skip
+        if table is not None:
+            self._read_call = bind(kernel.base_read, table, rest=(0,))
 
     def reference_read(self, frame, tick: int) -> None:
         """:meth:`read` by numpy (the compiled call's reference)."""

@@ -27,7 +27,8 @@ from sim2real.deploy.backends.sim.plant_kernel import (
     _next_double,
     _standard_normal,
 )
-from sim2real.deploy.kernels.calls import SLOT, pointer, view1, view2, view3
+from sim2real.deploy.kernels.calls import pointer
+from sim2real.deploy.kernels.tables import Table
 
 #: columns of the data table: each env's ``MjData.sensordata`` and ``qpos`` addresses
 SENSORDATA, QPOS = 0, 1
@@ -44,23 +45,44 @@ def _quat_mul(aw, ax, ay, az, bw, bx, by, bz):
     )
 
 
+#: The arrays and constants of :func:`base_sample` (``touch`` the feet's ``sensordata`` index,
+#: ``nf`` of them; ``window`` the latency buffers' rows).
+SAMPLE = Table(
+    "sim2real.deploy.backends.sim.legged_sensors_kernel:SAMPLE",
+    nsensor="i8", nq="i8", gyro="i8", acc="i8", has_orientation="b1", dt="f8",
+    streams="i8[envs,3]", data="i8[envs,2]", touch="i8[nf]", a="f8[envs]",
+    gyro_bias="f8[envs,3]", accel_bias="f8[envs,3]", gyro_bias_walk="f8[envs]",
+    accel_bias_walk="f8[envs]", gyro_noise_sigma="f8[envs]", accel_noise_sigma="f8[envs]",
+    orientation_error="f8[envs,2]", orientation_sigma="f8[envs]", site_quat="f8[4]",
+    gravity_frame="f8[4]", dropout="f8[envs]", force_noise_sigma="f8[envs]",
+    noise6="f8[envs,6]", noise2="f8[envs,2]", noise_f="f8[envs,nf]",
+    buf_imu="f8[window,envs,10]", buf_imu_stamp="f8[window,envs]",
+    buf_force="f8[window,envs,nf]", buf_contact_stamp="f8[window,envs]",
+)  # fmt: skip
+
+
 @numba.njit(cache=True, nogil=True)
-def base_sample(
-    streams, data, nsensor, nq, gyro, acc, touch, dt, a, gyro_bias, accel_bias, gyro_bias_walk,
-    accel_bias_walk, gyro_noise_sigma, accel_noise_sigma, has_orientation, orientation_error,
-    orientation_sigma, site_quat, gravity_frame, dropout, force_noise_sigma, noise6, noise2,
-    noise_f, buf_imu, buf_imu_stamp, buf_force, buf_contact_stamp, imu_due, contact_due, slot,
-    time,
-):  # fmt: skip
+def base_sample(t, imu_due, contact_due, slot, time):
     """The readings due at a tick into row ``slot`` of the latency buffers, every env
-    (:meth:`BaseSensorModel.sample` with ``force`` False and ``envs`` None): the IMU where
-    ``imu_due`` (its period ``dt`` s; ``a`` (envs,) = ``exp(-dt / orientation_tau)``), else
-    the row NaN; the foot forces where ``contact_due``, else NaN. ``streams`` (envs, 3): each
-    env's sensor stream (``plant_kernel.STREAMS``); ``data`` (envs, 2): each env's
-    ``sensordata`` (``nsensor``) and ``qpos`` (``nq``) addresses; ``gyro``, ``acc``: the
-    sensors' first ``sensordata`` index, ``touch`` (n_feet,) the feet's; ``noise6``,
-    ``noise2``, ``noise_f``: the model's draw arrays, left holding the last draws as numpy's
-    path leaves them; ``time`` s, the stamp."""
+    (:meth:`BaseSensorModel.sample` with ``force`` False and ``envs`` None), from the packed
+    table ``t`` (:data:`SAMPLE`): the IMU where ``imu_due`` (its period ``dt`` s; ``a`` (envs,)
+    = ``exp(-dt / orientation_tau)``), else the row NaN; the foot forces where ``contact_due``,
+    else NaN. ``streams`` (envs, 3): each env's sensor stream (``plant_kernel.STREAMS``);
+    ``data`` (envs, 2): each env's ``sensordata`` (``nsensor``) and ``qpos`` (``nq``)
+    addresses; ``gyro``, ``acc``: the sensors' first ``sensordata`` index, ``touch`` the
+    feet's; ``noise6``, ``noise2``, ``noise_f``: the model's draw arrays, left holding the last
+    draws as numpy's path leaves them; ``time`` s, the stamp."""
+    streams, data, touch, dt, a = t.streams, t.data, t.touch, t.dt, t.a
+    nsensor, nq, gyro, acc = t.nsensor, t.nq, t.gyro, t.acc
+    gyro_bias, accel_bias = t.gyro_bias, t.accel_bias
+    gyro_bias_walk, accel_bias_walk = t.gyro_bias_walk, t.accel_bias_walk
+    gyro_noise_sigma, accel_noise_sigma = t.gyro_noise_sigma, t.accel_noise_sigma
+    has_orientation, orientation_error = t.has_orientation, t.orientation_error
+    orientation_sigma, site_quat, gravity_frame = t.orientation_sigma, t.site_quat, t.gravity_frame
+    dropout, force_noise_sigma = t.dropout, t.force_noise_sigma
+    noise6, noise2, noise_f = t.noise6, t.noise2, t.noise_f
+    buf_imu, buf_imu_stamp = t.buf_imu, t.buf_imu_stamp
+    buf_force, buf_contact_stamp = t.buf_force, t.buf_contact_stamp
     envs = streams.shape[0]
     nf = touch.shape[0]
     if imu_due:
@@ -145,15 +167,31 @@ def base_sample(
                 buf_force[slot, e, j] = np.nan
 
 
+#: The arrays of :func:`base_read`: the latency buffers (:data:`SAMPLE`'s), each env's latency
+#: in ticks and contact threshold (N), and the frame's IMU and contact fields it fills.
+READ = Table(
+    "sim2real.deploy.backends.sim.legged_sensors_kernel:READ",
+    buf_imu="f8[window,envs,10]", buf_imu_stamp="f8[window,envs]",
+    buf_force="f8[window,envs,nf]", buf_contact_stamp="f8[window,envs]",
+    imu_latency="i8[envs]", contact_latency="i8[envs]", threshold="f8[envs]",
+    angular="f8[envs,3]", acceleration="f8[envs,3]", orientation="f8[envs,4]",
+    imu_stamp="f8[envs]", foot_force="f8[envs,nf]", foot_contact="b1[envs,nf]",
+    contact_stamp="f8[envs]",
+)  # fmt: skip
+
+
 @numba.njit(cache=True, nogil=True)
-def base_read(
-    buf_imu, buf_imu_stamp, buf_force, buf_contact_stamp, imu_latency, contact_latency,
-    threshold, angular, acceleration, orientation, imu_stamp, foot_force, foot_contact,
-    contact_stamp, tick,
-):  # fmt: skip
-    """:meth:`BaseSensorModel.read`: the readings arriving at ``tick`` (each env's latency in
-    ticks) into the frame's IMU and contact fields (NaN before the first reading's origin),
-    ``foot_contact`` the forces above each env's ``threshold`` (a NaN force: False)."""
+def base_read(t, tick):
+    """:meth:`BaseSensorModel.read` over the packed table ``t`` (:data:`READ`): the readings
+    arriving at ``tick`` (each env's latency in ticks) into the frame's IMU and contact fields
+    (NaN before the first reading's origin), ``foot_contact`` the forces above each env's
+    ``threshold`` (a NaN force: False)."""
+    buf_imu, buf_imu_stamp = t.buf_imu, t.buf_imu_stamp
+    buf_force, buf_contact_stamp = t.buf_force, t.buf_contact_stamp
+    imu_latency, contact_latency, threshold = t.imu_latency, t.contact_latency, t.threshold
+    angular, acceleration, orientation = t.angular, t.acceleration, t.orientation
+    imu_stamp, foot_force, foot_contact = t.imu_stamp, t.foot_force, t.foot_contact
+    contact_stamp = t.contact_stamp
     size = buf_imu_stamp.shape[0]
     envs, nf = foot_force.shape[0], foot_force.shape[1]
     for e in range(envs):
@@ -173,66 +211,3 @@ def base_read(
             foot_force[e, j] = f
             foot_contact[e, j] = f > threshold[e]
         contact_stamp[e] = np.nan if early else buf_contact_stamp[origin % size, e]
-
-
-#: The arrays of :func:`base_sample` as slots of one table (after ``SAMPLE_HEADER`` ints:
-#: ``nsensor``, ``nq``, ``gyro``, ``acc``, ``has_orientation``; ``dt`` is ``params[0]``): each
-#: name's dtype and dimensions, in the kernel's order.
-SAMPLE_SLOTS = (
-    ("streams", "i8", 2), ("data", "i8", 2), ("touch", "i8", 1), ("params", "f8", 1),
-    ("a", "f8", 1), ("gyro_bias", "f8", 2), ("accel_bias", "f8", 2), ("gyro_bias_walk", "f8", 1),
-    ("accel_bias_walk", "f8", 1), ("gyro_noise_sigma", "f8", 1), ("accel_noise_sigma", "f8", 1),
-    ("orientation_error", "f8", 2), ("orientation_sigma", "f8", 1), ("site_quat", "f8", 1),
-    ("gravity_frame", "f8", 1), ("dropout", "f8", 1), ("force_noise_sigma", "f8", 1),
-    ("noise6", "f8", 2), ("noise2", "f8", 2), ("noise_f", "f8", 2), ("buf_imu", "f8", 3),
-    ("buf_imu_stamp", "f8", 2), ("buf_force", "f8", 3), ("buf_contact_stamp", "f8", 2),
-)  # fmt: skip
-SAMPLE_HEADER = 5
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _at(k):
-    """The table index of slot ``k`` of :data:`SAMPLE_SLOTS`."""
-    return SAMPLE_HEADER + SLOT * k
-
-
-@numba.njit(cache=True, nogil=True)
-def sample_table(table, imu_due, contact_due, slot, time):
-    """:func:`base_sample` on the arrays of ``table`` (:data:`SAMPLE_SLOTS`): one array to
-    unbox a call, not twenty-three."""
-    f8, i8 = np.float64, np.int64
-    params = view1(table, _at(3), f8)
-    base_sample(
-        view2(table, _at(0), i8), view2(table, _at(1), i8), table[0], table[1], table[2],
-        table[3], view1(table, _at(2), i8), params[0], view1(table, _at(4), f8),
-        view2(table, _at(5), f8), view2(table, _at(6), f8), view1(table, _at(7), f8),
-        view1(table, _at(8), f8), view1(table, _at(9), f8), view1(table, _at(10), f8),
-        table[4] != 0, view2(table, _at(11), f8), view1(table, _at(12), f8),
-        view1(table, _at(13), f8), view1(table, _at(14), f8), view1(table, _at(15), f8),
-        view1(table, _at(16), f8), view2(table, _at(17), f8), view2(table, _at(18), f8),
-        view2(table, _at(19), f8), view3(table, _at(20), f8), view2(table, _at(21), f8),
-        view3(table, _at(22), f8), view2(table, _at(23), f8), imu_due, contact_due, slot, time,
-    )  # fmt: skip
-
-
-#: The arrays of :func:`base_read` as slots of one table, in the kernel's order.
-READ_SLOTS = (
-    ("buf_imu", "f8", 3), ("buf_imu_stamp", "f8", 2), ("buf_force", "f8", 3),
-    ("buf_contact_stamp", "f8", 2), ("imu_latency", "i8", 1), ("contact_latency", "i8", 1),
-    ("threshold", "f8", 1), ("angular", "f8", 2), ("acceleration", "f8", 2),
-    ("orientation", "f8", 2), ("imu_stamp", "f8", 1), ("foot_force", "f8", 2),
-    ("foot_contact", "b1", 2), ("contact_stamp", "f8", 1),
-)  # fmt: skip
-
-
-@numba.njit(cache=True, nogil=True)
-def read_table(table, tick):
-    """:func:`base_read` on the arrays of ``table`` (:data:`READ_SLOTS`, from index 0)."""
-    f8, i8 = np.float64, np.int64
-    base_read(
-        view3(table, 0, f8), view2(table, SLOT, f8), view3(table, 2 * SLOT, f8),
-        view2(table, 3 * SLOT, f8), view1(table, 4 * SLOT, i8), view1(table, 5 * SLOT, i8),
-        view1(table, 6 * SLOT, f8), view2(table, 7 * SLOT, f8), view2(table, 8 * SLOT, f8),
-        view2(table, 9 * SLOT, f8), view1(table, 10 * SLOT, f8), view2(table, 11 * SLOT, f8),
-        view2(table, 12 * SLOT, np.bool_), view1(table, 13 * SLOT, f8), tick,
-    )  # fmt: skip

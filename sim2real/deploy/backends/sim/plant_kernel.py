@@ -1,12 +1,10 @@
 """The MuJoCo plant's compiled step: its own models around ``mj_step`` in two calls per tick.
 
 Numba's dispatch of each array argument costs more than the arithmetic of an arm's drives,
-thermal nodes and encoders. So the kernels take one int64 *table* (built and kept by
-:class:`sim2real.deploy.backends.sim.compiled_step.CompiledStep`): a header of sizes and flags,
-then the addresses of every array the step touches (the plant's own arrays and each env's
-``MjData`` fields), which they view with ``numba.carray``. The arrays must live, keep their shape
-and stay C-contiguous while the table is in use (the plant never rebinds them; ``set_model``
-rewrites an env's row).
+thermal nodes and encoders. So the kernels take one packed table (:data:`PLANT`, built by
+:class:`sim2real.deploy.backends.sim.compiled_step.CompiledStep`): every array the step touches,
+read by name, and each env's ``MjData`` fields by address (``views``; the plant never rebinds
+its arrays; ``set_model`` rewrites an env's row).
 
 - :func:`before_physics`: the drive commands into each env's ``ctrl`` and the derating screen.
 - :func:`after_physics`: the joint state gathered from ``MjData``, the divergence screen, the
@@ -35,28 +33,35 @@ from numba.np.random._constants import (
 
 from sim2real.deploy.backends.sim.drives_kernel import actuator_step, derating_due
 from sim2real.deploy.backends.sim.sensors_kernel import encoder_sample
-from sim2real.deploy.kernels.calls import pointer as _pointer
+from sim2real.deploy.kernels.calls import bind, pointer
+from sim2real.deploy.kernels.tables import Table
 from sim2real.robots.thermal_kernel import thermal_step
 
-# the header: sizes and flags (ROWS: actuators per joint, the rows of ctrl; NSTEP: physics steps
-# per control period)
-ENVS, N, ROWS, SLOTS, FLAGS, WARNINGS, DEPTH, NSTEP = range(8)
-#: FLAGS bits: velocity mode (anti-windup), the drives report a velocity, the command goes
-#: straight into ctrl (no actuator model between), the motors have torque-speed lines
-VELOCITY_MODE, HAS_VELOCITY, WRITE_CTRL, ENVELOPE = 1, 2, 4, 8
-# the plant's arrays (addresses)
-(
-    COMMAND, QPOS, QVEL, TORQUE, START, DERATED, HOT, LAG, BOUND, CONSTANTS, AMBIENT, WINDING,
-    HOUSING, CURRENT, POWER, FLOW, BUF_POSITION, BUF_VELOCITY, BUF_STAMP, UNIFORM, NOISE, DROPOUT,
-    VELOCITY_NOISE, BIAS, BIASED, SCALARS, HISTORY, DELAY, STALL, NO_LOAD, ACTIVE, LIMIT, STREAMS,
-    T_REF, ALPHA, STALL_COEFFICIENT, NO_LOAD_SPEED, SUPPLY, SELF,
-) = range(8, 47)  # fmt: skip
-#: SCALARS (float64, 2): the encoder quantum (rad), the control period (s)
-QUANTUM, PERIOD = 0, 1
-#: first per-env row; each env has ``PER_ENV`` addresses
-ENV_ROWS = 47
-# per env: MjData's ctrl, the joints' qpos, qvel, qfrc_actuator, the divergence warnings' counters,
-# act (velocity mode), and the model's jnt_actfrcrange rows of the joints
+#: The step's arrays and constants: the flags (``live``: a plant's own table, not a copy's;
+#: ``velocity_mode``: anti-windup; the drives report a velocity; the command goes straight into
+#: ``ctrl``; the motors have torque-speed lines), ``rows`` actuators per joint (the rows of
+#: ``ctrl``), ``warnings`` MuJoCo's warning counters, ``nstep`` physics steps per control period,
+#: the encoder ``quantum`` (rad) and the control ``period`` (s); the plant's own arrays (the
+#: drives', the thermal model's, the joint sensors' latency ``slots``, the actuators' ``depth``
+#: of command history), ``streams`` (envs, 3) each env's sensor stream, and ``views`` (envs,
+#: ``PER_ENV``) each env's ``MjData`` and model addresses (MuJoCo's memory; columns ``CTRL`` ...).
+PLANT = Table(
+    "sim2real.deploy.backends.sim.plant_kernel:PLANT",
+    live="b1", velocity_mode="b1", has_velocity="b1", write_ctrl="b1", envelope="b1",
+    rows="i8", warnings="i8", nstep="i8", quantum="f8", period="f8",
+    command="f8[envs,n]", qpos="f8[envs,n]", qvel="f8[envs,n]", torque="f8[envs,n]",
+    start="f8[n]", derated="b1[envs]", hot="b1[envs]", lag="f8[envs,n]", bound="f8[envs,n]",
+    constants="f8[8,n]", ambient="f8[envs,n]", winding="f8[envs,n]", housing="f8[envs,n]",
+    current="f8[envs,n]", power="f8[envs,n]", flow="f8[envs,n]",
+    buf_position="f8[slots,envs,n]", buf_velocity="f8[slots,envs,n]",
+    buf_stamp="f8[slots,envs]", uniform="f8[envs,n]", noise="f8[envs]", dropout="f8[envs]",
+    velocity_noise="f8[envs]", bias="f8[envs,n]", biased="f8[envs,n]",
+    history="f8[envs,depth,n]", delay="i8[n]", stall="f8[envs,n]", no_load="f8[envs,n]",
+    active="b1[n]", limit="f8[envs,n]", streams="i8[envs,3]", t_ref="f8[n]", alpha="f8[n]",
+    stall_coefficient="f8[n]", no_load_speed="f8[n]", supply="f8[envs]", views="i8[envs,7]",
+)  # fmt: skip
+# the columns of ``views``: MjData's ctrl, the joints' qpos, qvel, qfrc_actuator, the divergence
+# warnings' counters, act (velocity mode), and the model's jnt_actfrcrange rows of the joints
 CTRL, JQPOS, JQVEL, FORCE, WARN, ACT, ACTFRC = range(7)
 PER_ENV = 7
 #: STREAMS (envs, 3) int64, each env's sensor stream: the address of its bit generator's state
@@ -66,14 +71,8 @@ STATE, NEXT_UINT64, NEXT_DOUBLE = range(3)
 #: (:meth:`JointSensorModel.draw`); a sample that draws from STREAMS itself
 NO_SAMPLE, DRAWN, DRAW = 0, 1, 2
 #: ``before_physics``'s answer, bits: some env's torque limits must be set; the table is a
-#: copy's (``SELF`` is not its address): nothing was done, build the plant's own
+#: copy's (not ``live``): nothing was done, build the plant's own
 DERATE, STALE = 1, 2
-#: The kernels' signatures (:func:`compile_kernels`).
-SIGNATURES = {
-    "before_physics": "int64(int64[::1], int64)",
-    "after_physics": "boolean(int64[::1], int64, int64)",
-    "actuator_substep": "void(int64[::1], int64, int64, int64)",
-}
 
 
 @intrinsic
@@ -136,83 +135,72 @@ def _standard_normal(stream):
 
 
 @numba.njit(inline="always", cache=True, nogil=True)
-def _draw(table, envs, n, slots, slot, flags):
-    """The draws of :meth:`JointSensorModel.draw` from the STREAMS, in its order: standard
+def _draw(t, slot):
+    """The draws of :meth:`JointSensorModel.draw` from the streams, in its order: standard
     normal into the position slot, uniform (``next_double``, numpy's ``Generator.random``) into
-    UNIFORM, standard normal into the velocity slot where the drives report one; row ``e`` from
-    env ``e``'s stream."""
-    streams = numba.carray(_pointer(table[STREAMS]), (envs, 3), np.int64)
-    position = _f64(table, BUF_POSITION, (slots, envs, n))[slot]
+    ``uniform``, standard normal into the velocity slot where the drives report one; row ``e``
+    from env ``e``'s stream."""
+    streams, position = t.streams, t.buf_position[slot]
+    envs, n = position.shape
     for e in range(envs):
         for j in range(n):
             position[e, j] = _standard_normal(streams[e])
-    uniform = _f64(table, UNIFORM, (envs, n))
+    uniform = t.uniform
     for e in range(envs):
         for j in range(n):
             uniform[e, j] = _next_double(streams[e, NEXT_DOUBLE], streams[e, STATE])
-    if flags & HAS_VELOCITY:
-        velocity = _f64(table, BUF_VELOCITY, (slots, envs, n))[slot]
+    if t.has_velocity:
+        velocity = t.buf_velocity[slot]
         for e in range(envs):
             for j in range(n):
                 velocity[e, j] = _standard_normal(streams[e])
 
 
 @numba.njit(inline="always", cache=True, nogil=True)
-def _f64(table, i, shape):
-    return numba.carray(_pointer(table[i]), shape, np.float64)
-
-
-@numba.njit(inline="always", cache=True, nogil=True)
-def _bool(table, i, shape):
-    return numba.carray(_pointer(table[i]), shape, np.bool_)
-
-
-@numba.njit(inline="always", cache=True, nogil=True)
-def _env(table, e, field):
-    return table[ENV_ROWS + e * PER_ENV + field]
+def _env(t, e, column, shape):
+    """Env ``e``'s ``MjData`` (or model) float64 array of column ``column`` of ``views``."""
+    return numba.carray(pointer(t.views[e, column]), shape, np.float64)
 
 
 @numba.njit(cache=True, nogil=True)
-def before_physics(table: np.ndarray, tick: int) -> int:
-    """Before control tick ``tick``'s physics steps: each env's command ``COMMAND`` (envs, n)
-    into every row of its ``ctrl`` (``ROWS`` rows of n) with ``WRITE_CTRL``; else the actuators'
-    start of the period (:meth:`ActuatorModel.start_period`: the command into row
-    ``tick % DEPTH`` of ``HISTORY``, and with ``ENVELOPE`` each motor's ``STALL`` torque at its
-    winding temperature and ``NO_LOAD`` speed, scaled by the ``SUPPLY``); then the derating screen
-    (:func:`sim2real.deploy.backends.sim.drives_kernel.derating_due`: ``HOT`` (envs,) bool
+def before_physics(t, tick: int) -> int:
+    """Before control tick ``tick``'s physics steps: each env's ``command`` (envs, n) into every
+    row of its ``ctrl`` (``rows`` rows of n) with ``write_ctrl``; else the actuators' start of
+    the period (:meth:`ActuatorModel.start_period`: the command into row ``tick % depth`` of
+    ``history``, and with ``envelope`` each motor's ``stall`` torque at its winding temperature
+    and ``no_load`` speed, scaled by the ``supply``); then the derating screen
+    (:func:`sim2real.deploy.backends.sim.drives_kernel.derating_due`: ``hot`` (envs,) bool
     written); returns ``DERATE`` where some env's torque limits must be set, ``STALE`` (having
-    done nothing) for a copied table, else 0."""
-    if table[SELF] != table.ctypes.data:
+    done nothing) for a copy's table, else 0."""
+    if not t.live:
         return STALE
-    envs, n, rows, flags = table[ENVS], table[N], table[ROWS], table[FLAGS]
-    command = _f64(table, COMMAND, (envs, n))
-    winding = _f64(table, WINDING, (envs, n))
-    if flags & WRITE_CTRL:
+    command, winding = t.command, t.winding
+    envs, n = command.shape
+    if t.write_ctrl:
+        rows = t.rows
         for e in range(envs):
-            ctrl = numba.carray(_pointer(_env(table, e, CTRL)), (rows, n), np.float64)
+            ctrl = _env(t, e, CTRL, (rows, n))
             for r in range(rows):
                 for j in range(n):
                     ctrl[r, j] = command[e, j]
     else:
-        _start_period(table, tick, envs, n, flags, command, winding)
-    start = _f64(table, START, (n,))
-    derated, hot = _bool(table, DERATED, (envs,)), _bool(table, HOT, (envs,))
-    return DERATE if derating_due(winding, start, derated, hot) else 0
+        _start_period(t, tick, command, winding)
+    return DERATE if derating_due(winding, t.start, t.derated, t.hot) else 0
 
 
 @numba.njit(inline="always", cache=True, nogil=True)
-def _start_period(table, tick, envs, n, flags, command, winding):
-    depth = table[DEPTH]
-    history = _f64(table, HISTORY, (envs, depth, n))
+def _start_period(t, tick, command, winding):
+    history = t.history
+    envs, depth, n = history.shape
     for e in range(envs):
         for j in range(n):
             history[e, tick % depth, j] = command[e, j]
-    if not flags & ENVELOPE:  # delays only: no line to follow
+    if not t.envelope:  # delays only: no line to follow
         return
-    stall, no_load = _f64(table, STALL, (envs, n)), _f64(table, NO_LOAD, (envs, n))
-    t_ref, alpha = _f64(table, T_REF, (n,)), _f64(table, ALPHA, (n,))
-    coefficient, speed = _f64(table, STALL_COEFFICIENT, (n,)), _f64(table, NO_LOAD_SPEED, (n,))
-    supply = _f64(table, SUPPLY, (envs,))
+    stall, no_load = t.stall, t.no_load
+    t_ref, alpha = t.t_ref, t.alpha
+    coefficient, speed = t.stall_coefficient, t.no_load_speed
+    supply = t.supply
     for e in range(envs):
         for j in range(n):
             s = winding[e, j] - t_ref[j]
@@ -224,53 +212,47 @@ def _start_period(table, tick, envs, n, flags, command, winding):
 
 
 @numba.njit(cache=True, nogil=True)
-def actuator_substep(table: np.ndarray, e: int, tick: int, sub: int) -> None:
+def actuator_substep(t, e: int, tick: int, sub: int) -> None:
     """Env ``e``'s motors before physics step ``sub`` of control tick ``tick``:
     :func:`sim2real.deploy.backends.sim.drives_kernel.actuator_step` on the table's arrays (the
-    command ``HISTORY`` (envs, depth, n), ``DELAY`` (n,) int64 steps, ``STALL`` and ``NO_LOAD``
-    (envs, n), ``ACTIVE`` (n,) bool, the limit ``LIMIT`` (envs, n) N m) into the env's ``ctrl``
-    and ``jnt_actfrcrange`` rows."""
-    envs, n, depth, rows = table[ENVS], table[N], table[DEPTH], table[ROWS]
+    command ``history`` (envs, depth, n), ``delay`` (n,) int64 steps, ``stall`` and ``no_load``
+    (envs, n), ``active`` (n,) bool, the ``limit`` (envs, n) N m) into the env's ``ctrl`` and
+    ``jnt_actfrcrange`` rows."""
+    n = t.delay.shape[0]
     actuator_step(
-        _f64(table, HISTORY, (envs, depth, n))[e], tick, sub, table[NSTEP],
-        numba.carray(_pointer(table[DELAY]), (n,), np.int64),
-        numba.carray(_pointer(_env(table, e, CTRL)), (rows, n), np.float64),
-        numba.carray(_pointer(_env(table, e, JQVEL)), (n,), np.float64),
-        _f64(table, LIMIT, (envs, n))[e], _f64(table, STALL, (envs, n))[e],
-        _f64(table, NO_LOAD, (envs, n))[e], _bool(table, ACTIVE, (n,)),
-        numba.carray(_pointer(_env(table, e, ACTFRC)), (n, 2), np.float64),
+        t.history[e], tick, sub, t.nstep, t.delay, _env(t, e, CTRL, (t.rows, n)),
+        _env(t, e, JQVEL, (n,)), t.limit[e], t.stall[e], t.no_load[e], t.active,
+        _env(t, e, ACTFRC, (n, 2)),
     )  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
-def after_physics(table: np.ndarray, tick: int, sample: int) -> bool:
+def after_physics(t, tick: int, sample: int) -> bool:
     """After a control period's physics steps, the plant's clock now at control tick ``tick``
     (``sample``: ``NO_SAMPLE``, or an encoder tick whose draws are made, ``DRAWN``, or to make,
     ``DRAW``).
 
-    Gathers each env's joint ``QPOS``, ``QVEL`` (rad, rad/s) and actuator ``TORQUE`` (N m),
+    Gathers each env's joint ``qpos``, ``qvel`` (rad, rad/s) and actuator ``torque`` (N m),
     (envs, n) each, from its ``MjData``; returns False at once, before anything else changes,
     when a divergence warning counter of some env is set or some joint angle is not finite (the
-    caller raises). Else, in this order: the velocity loop's anti-windup (``VELOCITY_MODE``:
-    each env's setpoints ``act`` within ``BOUND`` of its joints where any of them lags further,
+    caller raises). Else, in this order: the velocity loop's anti-windup (``velocity_mode``:
+    each env's setpoints ``act`` within ``bound`` of its joints where any of them lags further,
     as :meth:`SimDrives.anti_windup`), the thermal step over the control period
     (:func:`sim2real.robots.thermal_kernel.thermal_step`), and, at an encoder tick, the sample
-    into slot ``tick % SLOTS`` of the latency buffers, whose position (and velocity) rows hold
-    the standard normal draws and ``UNIFORM`` the uniform ones (as
+    into slot ``tick % slots`` of the latency buffers, whose position (and velocity) rows hold
+    the standard normal draws and ``uniform`` the uniform ones (as
     :meth:`JointSensorModel.sample`: bias, :func:`encoder_sample`, the stamp ``tick * period``,
     the velocity's noise; NaN where the angle dropped out; at other ticks the slot is NaN).
     Returns True.
     """
-    envs, n, slots, flags = table[ENVS], table[N], table[SLOTS], table[FLAGS]
-    qpos, qvel = _f64(table, QPOS, (envs, n)), _f64(table, QVEL, (envs, n))
-    torque = _f64(table, TORQUE, (envs, n))
-    warnings = table[WARNINGS]
+    qpos, qvel, torque = t.qpos, t.qvel, t.torque
+    envs, n = qpos.shape
+    slots = t.buf_stamp.shape[0]
+    warnings = t.warnings
     ok = True
     for e in range(envs):
-        q = numba.carray(_pointer(_env(table, e, JQPOS)), (n,), np.float64)
-        dq = numba.carray(_pointer(_env(table, e, JQVEL)), (n,), np.float64)
-        force = numba.carray(_pointer(_env(table, e, FORCE)), (n,), np.float64)
-        counters = numba.carray(_pointer(_env(table, e, WARN)), (2 * warnings,), np.int32)
+        q, dq, force = _env(t, e, JQPOS, (n,)), _env(t, e, JQVEL, (n,)), _env(t, e, FORCE, (n,))
+        counters = numba.carray(pointer(t.views[e, WARN]), (2 * warnings,), np.int32)
         for k in range(warnings):  # the counters of mjWarningStat {lastinfo, number}
             if counters[2 * k] != 0:
                 ok = False
@@ -282,33 +264,31 @@ def after_physics(table: np.ndarray, tick: int, sample: int) -> bool:
                 ok = False
     if not ok:
         return False
-    if flags & VELOCITY_MODE:
-        _anti_windup(table, envs, n, qpos)
-    scalars = _f64(table, SCALARS, (2,))
+    if t.velocity_mode:
+        _anti_windup(t, qpos)
     thermal_step(
-        torque, scalars[PERIOD], _f64(table, CONSTANTS, (8, n)), _f64(table, AMBIENT, (envs, n)),
-        _f64(table, WINDING, (envs, n)), _f64(table, HOUSING, (envs, n)),
-        _f64(table, CURRENT, (envs, n)), _f64(table, POWER, (envs, n)),
-        _f64(table, FLOW, (envs, n)),
+        torque, t.period, t.constants, t.ambient, t.winding, t.housing, t.current, t.power,
+        t.flow,
     )  # fmt: skip
     if sample != NO_SAMPLE:
         if sample == DRAW:
-            _draw(table, envs, n, slots, tick % slots, flags)
-        _encoder_tick(table, tick, envs, n, slots, flags, qpos, qvel, scalars)
+            _draw(t, tick % slots)
+        _encoder_tick(t, tick % slots, tick, qpos, qvel)
     else:  # no sample: the slot reads as no reading
         slot = tick % slots
-        _f64(table, BUF_POSITION, (slots, envs, n))[slot] = np.nan
-        _f64(table, BUF_VELOCITY, (slots, envs, n))[slot] = np.nan
-        _f64(table, BUF_STAMP, (slots, envs))[slot] = np.nan
+        t.buf_position[slot] = np.nan
+        t.buf_velocity[slot] = np.nan
+        t.buf_stamp[slot] = np.nan
     return True
 
 
 @numba.njit(inline="always", cache=True, nogil=True)
-def _anti_windup(table, envs, n, qpos):
-    lag, bound = _f64(table, LAG, (envs, n)), _f64(table, BOUND, (envs, n))
+def _anti_windup(t, qpos):
+    lag, bound = t.lag, t.bound
+    envs, n = qpos.shape
     wound = False
     for e in range(envs):
-        act = numba.carray(_pointer(_env(table, e, ACT)), (n,), np.float64)
+        act = _env(t, e, ACT, (n,))
         for j in range(n):
             lag[e, j] = act[j] - qpos[e, j]
             if abs(lag[e, j]) > bound[e, j]:
@@ -322,7 +302,7 @@ def _anti_windup(table, envs, n, qpos):
                 clip = True
         if not clip:
             continue
-        act = numba.carray(_pointer(_env(table, e, ACT)), (n,), np.float64)
+        act = _env(t, e, ACT, (n,))
         for j in range(n):  # np.clip: min(max(a, lo), hi), NaN kept
             lo, hi = qpos[e, j] - bound[e, j], qpos[e, j] + bound[e, j]
             a = act[j]
@@ -332,10 +312,9 @@ def _anti_windup(table, envs, n, qpos):
 
 
 @numba.njit(inline="always", cache=True, nogil=True)
-def _encoder_tick(table, tick, envs, n, slots, flags, qpos, qvel, scalars):
-    slot = tick % slots
-    sample = _f64(table, BUF_POSITION, (slots, envs, n))[slot]
-    bias = _f64(table, BIAS, (envs, n))
+def _encoder_tick(t, slot, tick, qpos, qvel):
+    sample, bias = t.buf_position[slot], t.bias
+    envs, n = qpos.shape
     q = qpos
     biased = False
     for e in range(envs):
@@ -343,21 +322,18 @@ def _encoder_tick(table, tick, envs, n, slots, flags, qpos, qvel, scalars):
             if bias[e, j] != 0.0:
                 biased = True
     if biased:  # a calibration error: the encoder reads q + bias
-        q = _f64(table, BIASED, (envs, n))
+        q = t.biased
         for e in range(envs):
             for j in range(n):
                 q[e, j] = qpos[e, j] + bias[e, j]
-    encoder_sample(
-        sample, _f64(table, UNIFORM, (envs, n)), q, _f64(table, NOISE, (envs,)),
-        scalars[QUANTUM], _f64(table, DROPOUT, (envs,)),
-    )  # fmt: skip
-    stamp = _f64(table, BUF_STAMP, (slots, envs))
-    time = tick * scalars[PERIOD]
+    encoder_sample(sample, t.uniform, q, t.noise, t.quantum, t.dropout)
+    stamp = t.buf_stamp
+    time = tick * t.period
     for e in range(envs):
         stamp[slot, e] = time
-    if flags & HAS_VELOCITY:
-        velocity = _f64(table, BUF_VELOCITY, (slots, envs, n))[slot]
-        sigma = _f64(table, VELOCITY_NOISE, (envs,))
+    if t.has_velocity:
+        velocity = t.buf_velocity[slot]
+        sigma = t.velocity_noise
         for e in range(envs):
             for j in range(n):
                 v = velocity[e, j] * sigma[e]
@@ -366,7 +342,9 @@ def _encoder_tick(table, tick, envs, n, slots, flags, qpos, qvel, scalars):
 
 
 def compile_kernels() -> None:
-    """Compile the kernels for their :data:`SIGNATURES` (or load them from numba's cache), so
-    that a plant's first tick does not pay for it."""
-    for name, signature in SIGNATURES.items():
-        globals()[name].compile(signature)
+    """Compile the kernels for a table (or load them from numba's cache), so that a plant's
+    first tick does not pay for it."""
+    empty = PLANT.empty()
+    bind(before_physics, empty, rest=(0,))
+    bind(after_physics, empty, rest=(0, 0))
+    bind(actuator_substep, empty, rest=(0, 0, 0))

@@ -49,7 +49,9 @@ from sim2real.robots.torque_speed import TorqueSpeedEnvelope
 #: (1/(kg m^2)), the gravity bound (N m), the stall torque (N m; inf without a torque-speed
 #: line), the no-load speed (rad/s; inf without one), the upper bound ``upper - margin`` and the
 #: mirrored lower bound ``-(lower + margin)`` (rad), the physics substep (s), the substeps per
-#: period, and 1.0 where the check acts (0.0: an arm's joint, or not position mode). ``GRAVITY`` is the
+#: period (left 0.0 on a robot without a PD joint in position mode: the check is off, as the
+#: kernel and the per-tick preparation test with one scalar), and 1.0 where the check acts (0.0: an
+#: arm's joint, or not position mode). ``GRAVITY`` is the
 #: all-pose bound; the prediction uses the rows from ``TOWARD`` on (:func:`barrier_rows`).
 KP, KD, INV_INERTIA, GRAVITY, STALL, NO_LOAD, BOUND_UP, BOUND_DOWN, STEP, SUBSTEPS, ACTIVE = range(
     11
@@ -169,8 +171,8 @@ def _barrier(t, q, v, bound, effort, d, j, own, loaded) -> float:
 @numba.njit(cache=True, nogil=True, _nrt=False)
 def pd_barrier_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) -> int:
     """:class:`PdBarrier`'s compiled share (signature of :class:`GuardCheck`)."""
-    if stage != CLAMP or g.mode != POSITION:
-        return 0
+    if stage != CLAMP or g.mode != POSITION or own[SUBSTEPS, 0] == 0.0:
+        return 0  # SUBSTEPS left 0: no PD joint (pd_barrier_constants)
     changed = False
     up, down = own[TOWARD + 2 * e], own[TOWARD + 2 * e + 1]
     loaded = own[TOWARD + 2 * out.shape[0] + e]
@@ -443,14 +445,14 @@ class PdBarrier(GuardCheck):
         return pd_barrier_constants(guard)
 
     def prepare(self, g, state) -> None:
-        if pd_barrier_constants(g)[ACTIVE].any():
+        if pd_barrier_constants(g)[SUBSTEPS, 0] != 0.0:  # a PD joint (a scalar test: per tick)
             base = state.base
             gravity = None if base is None else base.projected_gravity
             barrier_rows(g, state.q, gravity, state.foot_contact)
 
     def reference(self, stage, g, out, q, dq, commanded):
         c = pd_barrier_constants(g)
-        if stage != CLAMP or g.mode != "position" or not c[ACTIVE].any():
+        if stage != CLAMP or g.mode != "position" or c[SUBSTEPS, 0] == 0.0:
             return None, None
         effort = g.robot.effort_limit * g.effort_scale
         envs = out.shape[0]

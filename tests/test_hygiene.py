@@ -530,16 +530,20 @@ def _module_length_problems(root: Path, paths: list[Path], allowed: set[str]) ->
     gone): each a line naming it."""
     lines = {str(p.relative_to(root)): len(p.read_text().splitlines()) for p in paths}
     long = {name: n for name, n in lines.items() if n > MODULE_LINES}
-    problems = [
-        f"{name}: {n} lines (at most {MODULE_LINES}: split it by concept)"
-        for name, n in sorted(long.items())
-        if name not in allowed
-    ]
-    problems += [
-        f"{name}: within {MODULE_LINES} lines now (or gone): remove it from LONG_MODULES"
-        for name in sorted(allowed - set(long))
-    ]
-    return problems
+    return _ratchet(
+        long,
+        allowed,
+        lambda name, n: f"{name}: {n} lines (at most {MODULE_LINES}: split it by concept)",
+        f"within {MODULE_LINES} lines now (or gone): remove it from LONG_MODULES",
+    )
+
+
+def _ratchet(found: dict, allowed: set[str], problem, stale: str) -> list[str]:
+    """An allowed list that can only shrink: ``problem(name, value)`` for each entry of
+    ``found`` not in ``allowed``, and ``"{name}: {stale}"`` for each ``allowed`` name no longer
+    found."""
+    problems = [problem(name, v) for name, v in sorted(found.items()) if name not in allowed]
+    return problems + [f"{name}: {stale}" for name in sorted(allowed - set(found))]
 
 
 def test_no_module_is_over_500_lines():
@@ -594,17 +598,15 @@ def _positional_view_problems(root: Path, paths: list[Path], allowed: set[str]) 
         ]
         if hits:
             found[name] = hits
-    problems = [
-        f"{name}:{lines[0]}: an array read by its place in a table: declare the table "
-        "(sim2real.deploy.kernels.tables.Table) and read it by name"
-        for name, lines in sorted(found.items())
-        if name not in allowed
-    ]
-    problems += [
-        f"{name}: reads no table by place now (or gone): remove it from POSITIONAL_MODULES"
-        for name in sorted(allowed - set(found))
-    ]
-    return problems
+    return _ratchet(
+        found,
+        allowed,
+        lambda name, lines: (
+            f"{name}:{lines[0]}: an array read by its place in a table: "
+            "declare the table (sim2real.deploy.kernels.tables.Table) and read it by name"
+        ),
+        "reads no table by place now (or gone): remove it from POSITIONAL_MODULES",
+    )
 
 
 def test_no_kernel_reads_an_array_of_its_table_by_position():

@@ -380,15 +380,20 @@ def kind_branches() -> list[str]:
         grep -rnE '\\.legged\\b|kind(\\([a-z_.]*\\))?\\.(floating_base\\b|name [!=]=|task [!=]=)' \\
             sim2real --include=*.py | grep -vE '^sim2real/deploy/(robot_kind\\.py|kinds/)|RobotState\\.legged\\b|importer\\.legged'
     """
+    return lines_outside_the_kinds(KIND_ASK, NOT_KIND)
+
+
+def lines_outside_the_kinds(ask, unless) -> list[str]:
+    """Lines of ``sim2real`` outside :data:`KIND_MODULES` that match the pattern ``ask`` and
+    not ``unless``, as ``path:line: text``."""
     root = Path(__file__).resolve().parent.parent
-    ask, not_kind = KIND_ASK, NOT_KIND
     out = []
     for path in sorted((root / "sim2real").rglob("*.py")):
         rel = path.relative_to(root).as_posix()
         if rel.startswith(KIND_MODULES):
             continue
         for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
-            if ask.search(line) and not not_kind.search(line):
+            if ask.search(line) and not unless.search(line):
                 out.append(f"{rel}:{number}: {line.strip()}")
     return out
 
@@ -487,16 +492,7 @@ SHAPE_NOT = re.compile(r":attr:|RobotKind\.")
 def shape_decisions() -> list[str]:
     """Lines of ``sim2real`` outside :data:`KIND_MODULES` that decide by a robot's shape
     (:data:`SHAPE_ASK`), as ``path:line: text``."""
-    root = Path(__file__).resolve().parent.parent
-    out = []
-    for path in sorted((root / "sim2real").rglob("*.py")):
-        rel = path.relative_to(root).as_posix()
-        if rel.startswith(KIND_MODULES):
-            continue
-        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
-            if SHAPE_ASK.search(line) and not SHAPE_NOT.search(line):
-                out.append(f"{rel}:{number}: {line.strip()}")
-    return out
+    return lines_outside_the_kinds(SHAPE_ASK, SHAPE_NOT)
 
 
 def test_few_lines_outside_the_kinds_decide_by_the_robot_s_shape():

@@ -19,11 +19,6 @@ import mujoco
 import numpy as np
 
 
-def free_joint_first(model: mujoco.MjModel) -> bool:
-    """Whether ``model``'s first joint is MuJoCo's free joint (the MJCF's floating base)."""
-    return model.njnt > 0 and int(model.jnt_type[0]) == mujoco.mjtJoint.mjJNT_FREE
-
-
 class SimDisturbances:
     """The external disturbances of ``robot``'s envs simulated in ``models`` and ``datas`` (one
     ``MjModel`` and ``MjData`` per env; module docstring)."""
@@ -35,7 +30,8 @@ class SimDisturbances:
     def free_base(self) -> bool:
         """The plant's model begins with MuJoCo's free joint (the MJCF's floating base): its
         base moves and is pushed, its sensor frame carries an IMU and the feet's contacts."""
-        return free_joint_first(self.models[0])
+        m = self.models[0]
+        return m.njnt > 0 and int(m.jnt_type[0]) == mujoco.mjtJoint.mjJNT_FREE
 
     def _pushable(self) -> None:
         """Raises ValueError: the plant's robot has no floating base (:attr:`free_base`)."""

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim2real.deploy.backends.sim.disturbances import free_joint_first
 from sim2real.deploy.backends.sim.drives_kernel import derating_due, windup_exceeded
 from sim2real.deploy.kernels import all_finite
 from sim2real.robots.chain_bounds import motion_bounds
@@ -29,7 +28,8 @@ class SimDrives:
     Args:
         robot: The robot. mode: The control mode. envs: The batch size.
         models: The plant's compiled models, one per env (the plant's list: a new model of an
-            env is seen here).
+            env is seen here). free_base: The models' first joint is the free joint (the
+            plant's :attr:`~sim2real.deploy.backends.sim.disturbances.SimDisturbances.free_base`).
 
     Attributes:
         derating: The drives' :class:`~sim2real.robots.thermal.EffortDerating`.
@@ -41,10 +41,10 @@ class SimDrives:
             (``MjData.act``, velocity mode; else empty).
     """
 
-    def __init__(self, robot, mode: str, envs: int, models: list):
+    def __init__(self, robot, mode: str, envs: int, models: list, free_base: bool):
         n = robot.n_joints
         self.robot, self.mode, self.models, self.n = robot, mode, models, n
-        self._jnt_offset = 1 if free_joint_first(models[0]) else 0  # the free joint first
+        self._jnt_offset = 1 if free_base else 0  # the free joint comes first
         self.acts: list[np.ndarray] = [np.empty(0)] * envs  # velocity mode: drive setpoints
         self.windup_bound = np.zeros((envs, n))
         self.derating = EffortDerating(robot, hold=motion_bounds(robot)[1])

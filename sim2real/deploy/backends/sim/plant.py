@@ -155,7 +155,7 @@ class SimBackend(BackendLifecycle):
         self._views: list[tuple] = [()] * envs
         self._qvel_views: list[np.ndarray] = [np.zeros(0)] * envs  # the joints' qvel (see _bind)
         #: the drives: derated torque limits, anti-windup (velocity mode)
-        self.drives = SimDrives(robot, mode, envs, self.models)
+        self.drives = SimDrives(robot, mode, envs, self.models, self.free_base)
         self._compiled: CompiledStep | None = None  # built below, once every array exists
         #: the motors' torque-speed lines and command delays, applied every physics step
         self.actuators = ActuatorModel(
@@ -185,7 +185,7 @@ class SimBackend(BackendLifecycle):
         self.tick = 0
         #: the true state (evaluation only), over the views and into the gathered joint state
         self.truth = TrueState(
-            robot, self.datas, self._views, self._qvel_views, self._qpos, self._qvel
+            robot, self.datas, self._views, self._qvel_views, self._qpos, self._qvel, self.free_base
         )
         #: IMU and foot contact of a floating-base robot (per-env noise settings, biases,
         #: ground truth; None for an arm): its kind's face

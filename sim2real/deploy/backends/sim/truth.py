@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim2real.deploy.backends.sim.disturbances import free_joint_first
-
 
 class TrueState:
     """The true state of ``robot``'s envs (module docstring).
@@ -23,6 +21,7 @@ class TrueState:
         robot: The robot. datas: The plant's ``MjData``, one per env. views: The plant's
             per-env views ``(model, data, ctrl, qpos, force, warnings)``. qvel_views: The
             joints' ``qvel`` per env. qpos, qvel: (envs, n) the plant's gathered joint state.
+            free_base: The plant's models begin with the free joint (its floating base).
 
     Attributes:
         grounds: Per env, the ground of a plant whose floor is not the plane z = 0: an object
@@ -30,8 +29,11 @@ class TrueState:
             None (default): every env on the plane.
     """
 
-    def __init__(self, robot, datas: list, views: list, qvel_views: list, qpos, qvel):
+    def __init__(
+        self, robot, datas: list, views: list, qvel_views: list, qpos, qvel, free_base: bool
+    ):
         self.robot, self.datas, self.views, self.qvel_views = robot, datas, views, qvel_views
+        self.free_base = free_base
         self.qpos, self.qvel = qpos, qvel
         self.grounds: list | None = None
 
@@ -56,7 +58,7 @@ class TrueState:
         Raises:
             ValueError: a fixed-base robot.
         """
-        if not free_joint_first(self.views[0][0]):
+        if not self.free_base:
             raise ValueError(f"robot {self.robot.name} has no floating base")
         out = np.empty((len(self.datas), 13)) if out is None else out
         for e, d in enumerate(self.datas):

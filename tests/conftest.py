@@ -27,6 +27,23 @@ def pytest_configure(config):
     subprocess.run([sys.executable, str(REPO / "tests" / "warm_kernels.py")], cwd=REPO, env=env)
 
 
+@pytest.fixture(scope="session")
+def stacks():
+    """The other stacks' checkouts under ``$SIM2REAL_STACKS`` (:class:`tests.stacks.Stacks`); a
+    test asking for it is marked ``stacks`` (:func:`pytest_itemcollected`)."""
+    from tests.stacks import Stacks
+
+    return Stacks()
+
+
+def pytest_itemcollected(item):
+    """The ``stacks`` mark on every test that reads another stack's files (asks for the
+    ``stacks`` fixture, itself or through its fixtures), before ``-m`` selects: one marker,
+    never forgotten."""
+    if "stacks" in getattr(item, "fixturenames", ()):
+        item.add_marker(pytest.mark.stacks)
+
+
 @pytest.hookimpl(trylast=True)
 def pytest_collection_modifyitems(config, items):
     """In a pytest-xdist worker under ``--dist loadgroup``, the ``@group`` suffix of each marked

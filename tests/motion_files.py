@@ -1,25 +1,15 @@
-"""rl_sar's dance_102 folder and unitree_mujoco's G1, copied out of their mirrors for the motion
+"""rl_sar's dance_102 folder and unitree_mujoco's G1, copied out of their checkouts for the motion
 tests (fan-ziqi/rl_sar at e384912: ``policy/g1/whole_body_tracking/dance_102`` and
-``policy/g1/base.yaml``; unitreerobotics/unitree_mujoco ``unitree_robots/g1``). Tests that need them
-skip with the reason when a mirror is absent (``SIM2REAL_RL_SAR_MIRROR``,
-``SIM2REAL_UNITREE_MUJOCO_MIRROR`` point elsewhere)."""
+``policy/g1/base.yaml``; unitreerobotics/unitree_mujoco ``unitree_robots/g1``), through the
+``stacks`` fixture (:mod:`tests.stacks`: ``SIM2REAL_STACKS``); tests that need them skip, naming
+that variable, without it."""
 
 from __future__ import annotations
 
-import io
-import os
-import subprocess
-import tarfile
 from pathlib import Path
 
-import pytest
+from tests.stacks import Stacks
 
-RL_SAR = Path(os.environ.get("SIM2REAL_RL_SAR_MIRROR", "/work/.mirror/fan-ziqi+rl_sar/repo"))
-UNITREE_MUJOCO = Path(
-    os.environ.get(
-        "SIM2REAL_UNITREE_MUJOCO_MIRROR", "/work/.mirror/unitreerobotics+unitree_mujoco/repo"
-    )
-)
 DANCE = "policy/g1/whole_body_tracking/dance_102"
 FILES = (
     "policy/g1/base.yaml",
@@ -41,28 +31,18 @@ G1_FLAGS = [
 ]  # fmt: skip
 
 
-def _git(repo: Path, *args: str) -> bytes:
-    return subprocess.run(["git", "-C", str(repo), *args], check=True, capture_output=True).stdout
-
-
-def dance_folder(root: Path) -> Path:
+def dance_folder(stacks: Stacks, root: Path) -> Path:
     """rl_sar's ``policy/`` tree with dance_102 and g1's base.yaml under ``root``; returns the
-    dance folder. Skips without the mirror."""
-    if not RL_SAR.exists():
-        pytest.skip(f"rl_sar mirror absent ({RL_SAR}): set SIM2REAL_RL_SAR_MIRROR")
+    dance folder. Skips without rl_sar's checkout."""
     for name in FILES:
         out = root / name
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_bytes(_git(RL_SAR, "show", f"HEAD:{name}"))
+        out.write_bytes(stacks.read("rl_sar", name))
     return root / DANCE
 
 
-def g1_xml(root: Path) -> Path:
+def g1_xml(stacks: Stacks, root: Path) -> Path:
     """unitree_mujoco's ``unitree_robots/g1`` under ``root``; returns ``g1_29dof.xml``. Skips
-    without the mirror."""
-    if not UNITREE_MUJOCO.exists():
-        pytest.skip(f"unitree_mujoco mirror absent ({UNITREE_MUJOCO})")
-    data = _git(UNITREE_MUJOCO, "archive", "HEAD", "unitree_robots/g1")
-    with tarfile.open(fileobj=io.BytesIO(data)) as tar:
-        tar.extractall(root, filter="data")
+    without unitree_mujoco's checkout."""
+    stacks.copy("unitree_mujoco", ["unitree_robots/g1"], root)
     return root / "unitree_robots" / "g1" / "g1_29dof.xml"

@@ -1,13 +1,12 @@
 """holosoma_inference's G1 locomotion policies (``models/loco/g1_29dof/*.onnx`` of amazon-far/holosoma)
-on unitree_mujoco's G1 (both read from their mirrors; skipped without them): the files carry no
+on unitree_mujoco's G1 (both read from their checkouts under ``SIM2REAL_STACKS``, :mod:`tests.stacks`; skipped
+without them): the files carry no
 ``experiment_config``, and are read with holosoma_inference's own locomotion configuration: the
 observation and targets it computes from the same state, by joint names, with its gait clock."""
 
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -18,9 +17,6 @@ from tests.motion_files import G1_FLAGS, g1_xml
 
 pytest.importorskip("onnxruntime")
 
-HOLOSOMA = Path(
-    os.environ.get("SIM2REAL_HOLOSOMA_MIRROR", "/work/.mirror/amazon-far+holosoma/repo")
-)
 LOCO = "src/holosoma_inference/holosoma_inference/models/loco/g1_29dof/{}.onnx"
 FILES = ("ppo_g1_29dof", "fastsac_g1_29dof")
 #: holosoma_inference ``config_values/robot.py`` ``g1_29dof.default_dof_angles``, in its
@@ -32,30 +28,26 @@ DEFAULT = (
 )  # fmt: skip
 
 
-def _loco(root: Path, name: str) -> Path:
-    if not HOLOSOMA.exists():
-        pytest.skip(f"holosoma mirror absent ({HOLOSOMA}): set SIM2REAL_HOLOSOMA_MIRROR")
+def _loco(stacks, root: Path, name: str) -> Path:
     path = LOCO.format(name)
-    data = subprocess.run(
-        ["git", "-C", str(HOLOSOMA), "show", f"HEAD:{path}"], check=True, capture_output=True
-    ).stdout
+    data = stacks.read("holosoma", path)
     if data.startswith(b"version https://git-lfs"):
-        pytest.skip(f"{path} is a Git LFS pointer in the mirror")
+        pytest.skip(f"{path} is a Git LFS pointer in the checkout")
     out = root / f"{name}.onnx"
     out.write_bytes(data)
     return out
 
 
 @pytest.fixture(scope="module")
-def g1(tmp_path_factory):
+def g1(stacks, tmp_path_factory):
     """(robot, {name: file}): unitree_mujoco's G1 imported with the G1's robot-level flags and
     ``--drive-from`` the PPO file (its gains, home and rate from the contract), and the files."""
     from sim2real.deploy.cli.robot_import import main as robot_import
     from sim2real.robots import load_robot
 
     root = tmp_path_factory.mktemp("loco")
-    files = {name: _loco(root, name) for name in FILES}
-    xml = g1_xml(root)
+    files = {name: _loco(stacks, root, name) for name in FILES}
+    xml = g1_xml(stacks, root)
     out = root / "g1"
     flags = [str(xml), *G1_FLAGS, "--drive-from", str(files["ppo_g1_29dof"]), "--out", str(out)]
     assert robot_import(flags) == 0

@@ -1,13 +1,11 @@
 """holosoma's whole-body tracking export (``fastsac_g1_29dof_dancing.onnx`` of amazon-far/holosoma,
-read from its mirror; skipped without it): its contract with holosoma_inference's wbt configs,
+read from its checkout under ``SIM2REAL_STACKS``, :mod:`tests.stacks`; skipped without it): its contract with holosoma_inference's wbt configs,
 the clip baked in its graph as holosoma_inference plays it, bad clips refused in one line, and a
 few seconds of the dance through deploy-run with no hand spec."""
 
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -23,28 +21,21 @@ from tests.motion_files import G1_FLAGS, g1_xml
 
 ort = pytest.importorskip("onnxruntime")
 
-HOLOSOMA = Path(
-    os.environ.get("SIM2REAL_HOLOSOMA_MIRROR", "/work/.mirror/amazon-far+holosoma/repo")
-)
 WBT = "src/holosoma_inference/holosoma_inference/models/wbt/fastsac_g1_29dof_dancing.onnx"
 
 
-def _wbt(root: Path) -> Path:
-    if not HOLOSOMA.exists():
-        pytest.skip(f"holosoma mirror absent ({HOLOSOMA}): set SIM2REAL_HOLOSOMA_MIRROR")
-    data = subprocess.run(
-        ["git", "-C", str(HOLOSOMA), "show", f"HEAD:{WBT}"], check=True, capture_output=True
-    ).stdout
+def _wbt(stacks, root: Path) -> Path:
+    data = stacks.read("holosoma", WBT)
     if data.startswith(b"version https://git-lfs"):
-        pytest.skip(f"{WBT} is a Git LFS pointer in the mirror")
+        pytest.skip(f"{WBT} is a Git LFS pointer in the checkout")
     out = root / "fastsac_g1_29dof_dancing.onnx"
     out.write_bytes(data)
     return out
 
 
 @pytest.fixture(scope="module")
-def wbt(tmp_path_factory) -> Path:
-    return _wbt(tmp_path_factory.mktemp("wbt"))
+def wbt(stacks, tmp_path_factory) -> Path:
+    return _wbt(stacks, tmp_path_factory.mktemp("wbt"))
 
 
 def _names(path: Path) -> list[str]:
@@ -147,7 +138,7 @@ def test_dof_names_of_another_robot_are_refused_by_name(wbt, tmp_path):
         read_contract(OnnxFacts.of(other, onnx.load(str(other))))
 
 
-def test_a_few_seconds_of_holosomas_dance_play_with_no_hand_spec(wbt, tmp_path):
+def test_a_few_seconds_of_holosomas_dance_play_with_no_hand_spec(stacks, wbt, tmp_path):
     """unitree_mujoco's G1 imported with robot-level flags (gains from the file), then
     deploy-run --backend sim on the file alone: 4 s, no fall, the clip tracked; started 1 s
     into RUNNING (--motion-start-after: the policy holds the first frame meanwhile)."""
@@ -155,7 +146,7 @@ def test_a_few_seconds_of_holosomas_dance_play_with_no_hand_spec(wbt, tmp_path):
     from sim2real.deploy.cli.robot_import import main as robot_import
 
     robot = tmp_path / "g1"
-    xml = g1_xml(tmp_path)
+    xml = g1_xml(stacks, tmp_path)
     assert robot_import([str(xml), *G1_FLAGS, "--drive-from", str(wbt), "--out", str(robot)]) == 0
     report = tmp_path / "r.json"
     argv = ["--backend", "sim", "--robot", str(robot), "--policy", str(wbt)]

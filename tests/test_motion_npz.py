@@ -4,15 +4,13 @@ w x y z, refusals in one line naming file and field.
 The BeyondMimic files are written as its ``scripts/csv_to_npz.py`` writes them (re-implemented
 here in numpy, read not copied: the CSV resampled to 50 Hz, joints lerped and the root slerped,
 ``joint_vel`` by ``np.gradient``, joints in the articulation's order, body 0 the root, ``fps`` as
-``[50]``), from rl_sar's dance_102 CSV (the mirror; skipped without it) or a synthetic clip. The
-holosoma file is its own ``sub3_largebox_003_mj.npz`` (amazon-far/holosoma, the mirror) and a
+``[50]``), from rl_sar's dance_102 CSV (its checkout under ``SIM2REAL_STACKS``; skipped without it) or a synthetic clip. The
+holosoma file is its own ``sub3_largebox_003_mj.npz`` (amazon-far/holosoma, its checkout) and a
 synthetic one in its converter's layout (qpos/qvel columns, names, ``world`` body 0).
 """
 
 from __future__ import annotations
 
-import os
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -22,10 +20,6 @@ from sim2real.deploy.tasks.motion.clip import ClipError
 from sim2real.deploy.tasks.motion.npz_beyondmimic import BEYONDMIMIC_G1_JOINTS, read_beyondmimic_npz
 from sim2real.deploy.tasks.motion.npz_holosoma import read_holosoma_npz
 
-RL_SAR = Path(os.environ.get("SIM2REAL_RL_SAR_MIRROR", "/work/.mirror/fan-ziqi+rl_sar/repo"))
-HOLOSOMA = Path(
-    os.environ.get("SIM2REAL_HOLOSOMA_MIRROR", "/work/.mirror/amazon-far+holosoma/repo")
-)
 DANCE_CSV = "policy/g1/whole_body_tracking/dance_102/G1_Take_102.bvh_60hz.csv"
 HOLOSOMA_NPZ = (
     "src/holosoma/holosoma/data/motions/g1_29dof/whole_body_tracking/sub3_largebox_003_mj.npz"
@@ -50,13 +44,9 @@ SDK = (
 )
 
 
-def mirror_file(mirror: Path, path: str, dest: Path) -> Path:
-    if not (mirror / "HEAD").is_file():
-        pytest.skip(f"no mirror at {mirror}")
-    blob = subprocess.run(
-        ["git", "-C", str(mirror), "show", f"HEAD:{path}"], capture_output=True, check=True
-    ).stdout
-    dest.write_bytes(blob)
+def stack_file(stacks, name: str, path: str, dest: Path) -> Path:
+    """``path`` of stack ``name``'s checkout (:mod:`tests.stacks`) written to ``dest``."""
+    dest.write_bytes(stacks.read(name, path))
     return dest
 
 
@@ -112,11 +102,11 @@ def synthetic_rows(frames=40, seed=0) -> np.ndarray:
     return np.hstack([np.c_[0.1 * t, 0 * t, 0.78 + 0 * t], quat_xyzw, joints])
 
 
-def test_a_beyondmimic_clip_from_rl_sars_dance_csv_is_read_by_joint_name(tmp_path):
+def test_a_beyondmimic_clip_from_rl_sars_dance_csv_is_read_by_joint_name(stacks, tmp_path):
     """The dance CSV through csv_to_npz: the clip in the robot's motor order equals the CSV's
     columns at t = 0 and the resampled CSV later; the root quaternion is the CSV's x y z w as
     w x y z."""
-    csv = mirror_file(RL_SAR, DANCE_CSV, tmp_path / "dance.csv")
+    csv = stack_file(stacks, "rl_sar", DANCE_CSV, tmp_path / "dance.csv")
     rows = np.loadtxt(csv, delimiter=",")[:121]
     clip = read_beyondmimic_npz(
         csv_to_npz(rows, tmp_path / "dance.npz"), BEYONDMIMIC_G1_JOINTS, robot_joints=SDK
@@ -265,8 +255,8 @@ def test_a_holosoma_clip_for_a_robot_missing_one_of_its_joints_is_refused(tmp_pa
     assert "'right_wrist_yaw_joint' is not one" in message
 
 
-def test_holosomas_own_motion_file_reads_as_a_29_dof_g1_clip(tmp_path):
-    path = mirror_file(HOLOSOMA, HOLOSOMA_NPZ, tmp_path / "sub3.npz")
+def test_holosomas_own_motion_file_reads_as_a_29_dof_g1_clip(stacks, tmp_path):
+    path = stack_file(stacks, "holosoma", HOLOSOMA_NPZ, tmp_path / "sub3.npz")
     clip = read_holosoma_npz(path, robot_joints=SDK)
     with np.load(path) as data:
         qpos, names = data["joint_pos"], list(data["joint_names"])

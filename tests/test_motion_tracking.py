@@ -39,14 +39,14 @@ def _columns(dance: Path) -> tuple[str, ...]:
 
 
 # ---------------------------------------------------------------------- the folder
-def test_the_nested_folder_is_read_with_its_motion_terms_and_clip(tmp_path):
+def test_the_nested_folder_is_read_with_its_motion_terms_and_clip(stacks, tmp_path):
     """config key g1/whole_body_tracking/dance_102: base.yaml two folders up (a base.yaml of
     another key between them is passed over); its two tracking terms are our motion blocks (the
     anchor's joints the waist slots 12, 13, 14 of joint_mapping); its clip plays at the control
     rate 1 / (dt x decimation) = 50 Hz, as rl_sar's fsm plays it."""
     from sim2real.deploy.export.folder_torchscript import folder_contract
 
-    dance = dance_folder(tmp_path)
+    dance = dance_folder(stacks, tmp_path)
     (dance.parent / "base.yaml").write_text("decoy:\n  dt: 1.0\n")
     contract = folder_contract(dance / "policy.pt")
     assert contract.format == "rl_sar"
@@ -67,13 +67,13 @@ def test_the_nested_folder_is_read_with_its_motion_terms_and_clip(tmp_path):
     assert contract.motion.columns == _columns(dance)
 
 
-def test_an_unmapped_tracking_term_is_refused_by_name(tmp_path):
+def test_an_unmapped_tracking_term_is_refused_by_name(stacks, tmp_path):
     """A term of the folder no block computes (BeyondMimic's anchor position) is refused naming
     it, never zeroed."""
     from sim2real.deploy.export.errors import ExportError
     from sim2real.deploy.export.folder_torchscript import export_folder_torchscript
 
-    dance = dance_folder(tmp_path)
+    dance = dance_folder(stacks, tmp_path)
     cfg = dance / "config.yaml"
     doc = yaml.safe_load(cfg.read_text())
     key = next(iter(doc))
@@ -83,12 +83,12 @@ def test_an_unmapped_tracking_term_is_refused_by_name(tmp_path):
         export_folder_torchscript(dance / "policy.pt")
 
 
-def test_policy_export_writes_the_graph_and_names_the_clip_with_its_hash(tmp_path):
+def test_policy_export_writes_the_graph_and_names_the_clip_with_its_hash(stacks, tmp_path):
     """policy-export policy.pt: the ONNX beside it (parity passed), read back as rl_sar's, its
     ``motion`` metadata the clip's name, sha256 and rate."""
     from sim2real.deploy.export.folder_torchscript import export_folder_torchscript
 
-    dance = dance_folder(tmp_path)
+    dance = dance_folder(stacks, tmp_path)
     result = export_folder_torchscript(dance / "policy.pt")
     assert (result.obs_dim, result.act_dim) == (154, 29)
     assert result.parity["passed"]
@@ -99,11 +99,11 @@ def test_policy_export_writes_the_graph_and_names_the_clip_with_its_hash(tmp_pat
 
 
 # ---------------------------------------------------------------------- the CSV clip
-def test_csv_clip_values_are_the_files_as_rl_sar_reads_them(tmp_path):
+def test_csv_clip_values_are_the_files_as_rl_sar_reads_them(stacks, tmp_path):
     """Frame 0's joints are the file's columns 8..36; the quaternion x y z w becomes w x y z;
     velocities are the forward difference at the given rate, the last frame repeating the one
     before (rl_sar's ComputeVelocities)."""
-    dance = dance_folder(tmp_path)
+    dance = dance_folder(stacks, tmp_path)
     rows = _rows(dance / CLIP)
     clip = read_csv_clip(dance / CLIP, _columns(dance), 50.0)
     assert clip.frames == len(rows) == 1749
@@ -230,13 +230,13 @@ def test_the_clip_plays_once_holding_its_last_frame_or_loops(tmp_path, playback,
 
 
 # ---------------------------------------------------------------------- the anchor block
-def test_the_anchor_block_is_mujocos_torso_against_the_reference(tmp_path):
+def test_the_anchor_block_is_mujocos_torso_against_the_reference(stacks, tmp_path):
     """On unitree_mujoco's g1_29dof posed at random (base orientation, waist angles), rl_sar's
     torso formula is MuJoCo's xquat of torso_link, and the block is the first two columns of
     R_torso^T R_ref from MuJoCo's xmat, row by row."""
     import mujoco
 
-    model = mujoco.MjModel.from_xml_path(str(g1_xml(tmp_path)))
+    model = mujoco.MjModel.from_xml_path(str(g1_xml(stacks, tmp_path)))
     data = mujoco.MjData(model)
     rng = np.random.default_rng(4)
     torso = model.body("torso_link").id
@@ -274,14 +274,14 @@ ON_G1_DANCE_WORKER = pytest.mark.xdist_group("g1_dance")
 
 
 @pytest.fixture(scope="module")
-def g1_dance(tmp_path_factory):
+def g1_dance(stacks, tmp_path_factory):
     """dance_102 exported and unitree_mujoco's G1 imported with robot-level flags only."""
     from sim2real.deploy.cli.robot_import import main as robot_import
     from sim2real.deploy.export.folder_torchscript import export_folder_torchscript
 
     root = tmp_path_factory.mktemp("dance")
-    dance = dance_folder(root)
-    xml = g1_xml(root)
+    dance = dance_folder(stacks, root)
+    xml = g1_xml(stacks, root)
     onnx_path = export_folder_torchscript(dance / "policy.pt").path
     out = root / "robots" / "g1"
     flags = [str(xml), *G1_FLAGS, "--drive-from", str(dance / "policy.pt"), "--out", str(out)]

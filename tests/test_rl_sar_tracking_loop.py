@@ -1,15 +1,11 @@
 """The bare rl_sar tracking loop (bench.rl_sar_tracking), the reference deploy-run is held to on a
 dance: its observation on the first control tick and its clip clock, against hand computations
-from rl_sar's own dance_102 folder (fan-ziqi/rl_sar e384912, read from the mirror; skipped
+from rl_sar's own dance_102 folder (fan-ziqi/rl_sar e384912, read from its checkout under ``SIM2REAL_STACKS``; skipped
 without it). The anchor is computed here with scipy rotation matrices, not the loop's quaternions.
 """
 
 from __future__ import annotations
 
-import io
-import os
-import subprocess
-import tarfile
 from pathlib import Path
 
 import numpy as np
@@ -19,34 +15,14 @@ from scipy.spatial.transform import Rotation
 from bench.rl_sar_motion import RlSarMotion, rl_sar_params
 from bench.rl_sar_tracking import observation
 
-RL_SAR = Path(os.environ.get("SIM2REAL_RL_SAR_MIRROR", "/work/.mirror/fan-ziqi+rl_sar/repo"))
-UNITREE_MUJOCO = Path(
-    os.environ.get(
-        "SIM2REAL_UNITREE_MUJOCO_MIRROR", "/work/.mirror/unitreerobotics+unitree_mujoco/repo"
-    )
-)
 DANCE = "policy/g1/whole_body_tracking/dance_102"
 
 
-def extract(mirror: Path, paths: list[str], dest: Path) -> Path:
-    """``git archive HEAD paths`` of a bare mirror unpacked under ``dest``; skips without it."""
-    if not (mirror / "HEAD").is_file():
-        pytest.skip(f"no mirror at {mirror}")
-    tar = subprocess.run(
-        ["git", "-C", str(mirror), "archive", "--format=tar", "HEAD", *paths],
-        capture_output=True,
-        check=True,
-    ).stdout
-    with tarfile.open(fileobj=io.BytesIO(tar)) as t:
-        t.extractall(dest, filter="data")
-    return dest
-
-
 @pytest.fixture(scope="module")
-def dance(tmp_path_factory) -> Path:
+def dance(stacks, tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("rl_sar")
-    extract(RL_SAR, [f"{DANCE}/config.yaml", f"{DANCE}/G1_Take_102.bvh_60hz.csv"], root)
-    extract(RL_SAR, ["policy/g1/base.yaml"], root)
+    stacks.copy("rl_sar", [f"{DANCE}/config.yaml", f"{DANCE}/G1_Take_102.bvh_60hz.csv"], root)
+    stacks.copy("rl_sar", ["policy/g1/base.yaml"], root)
     return root / DANCE
 
 
@@ -112,13 +88,14 @@ def test_the_clip_clock_is_rl_sars_one_frame_per_tick_ending_at_frames_times_dt(
 
 
 @pytest.mark.nightly
-def test_dance_102_plays_whole_in_the_bare_loop_on_unitree_mujocos_g1(dance, tmp_path):
+def test_dance_102_plays_whole_in_the_bare_loop_on_unitree_mujocos_g1(stacks, dance, tmp_path):
     """The reference itself: rl_sar's dance_102 whole on unitree_mujoco's g1_29dof.xml, no fall."""
     pytest.importorskip("torch")
     from bench.rl_sar_tracking import run
 
-    extract(RL_SAR, [f"{DANCE}/policy.pt"], dance.parents[3])
-    scene = extract(UNITREE_MUJOCO, ["unitree_robots/g1"], tmp_path)
+    stacks.copy("rl_sar", [f"{DANCE}/policy.pt"], dance.parents[3])
+    stacks.copy("unitree_mujoco", ["unitree_robots/g1"], tmp_path)
+    scene = tmp_path
     r = run(dance, scene / "unitree_robots/g1/scene_29dof.xml")
     assert not r["fell"] and r["share"] == 1.0
     assert r["rms"]["all"] < 0.15 and r["anchor_mean_deg"] < 6.0 and r["mpjpe_mm"] < 50.0

@@ -26,12 +26,12 @@ pytestmark = pytest.mark.wallclock
 RELEASE, START_AFTER, DURATION = 5.0, 3.0, 6.0
 
 
-def test_the_g1_let_off_its_band_then_dances_through_the_emulator(tmp_path):
+def test_the_g1_let_off_its_band_then_dances_through_the_emulator(stacks, tmp_path):
     from sim2real.deploy.cli.robot_import import main as robot_import
 
-    wbt = _wbt(tmp_path)
+    wbt = _wbt(stacks, tmp_path)
     robot = tmp_path / "g1"
-    xml = g1_xml(tmp_path)
+    xml = g1_xml(stacks, tmp_path)
     assert robot_import([str(xml), *G1_FLAGS, "--drive-from", str(wbt), "--out", str(robot)]) == 0
     report = tmp_path / "run.json"
     domain = 90 + os.getpid() % 8  # apart from test_unitree_backend's 100-219, the hil's 220-231

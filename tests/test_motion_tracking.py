@@ -24,7 +24,8 @@ from sim2real.deploy.spec.motion_blocks import (
 from sim2real.deploy.tasks.motion.clip import ClipError, MotionClip
 from sim2real.deploy.tasks.motion.clock import MotionClock
 from sim2real.deploy.tasks.motion.csv_clip import read_csv_clip
-from tests.motion_files import CLIP, G1_FLAGS, dance_folder, g1_xml
+from tests.motion_files import G1_FLAGS, dance_folder, g1_xml
+from tests.rl_sar_files import write_tracking_folder
 
 WAIST = ("waist_yaw_joint", "waist_roll_joint", "waist_pitch_joint")
 
@@ -38,15 +39,29 @@ def _columns(dance: Path) -> tuple[str, ...]:
     return tuple(base["g1"]["joint_names"])
 
 
+def _clip(dance: Path) -> str:
+    """The clip's file name (config.yaml's ``motion_file``)."""
+    doc = yaml.safe_load((dance / "config.yaml").read_text())
+    return next(iter(doc.values()))["motion_file"]
+
+
+@pytest.fixture(params=["generated", pytest.param("rl_sar", marks=pytest.mark.stacks)])
+def dance(request, tmp_path) -> Path:
+    """A tracking folder: one written as rl_sar writes its dances (``tests/rl_sar_files.py``: on
+    every machine), and rl_sar's own dance_102 (under ``SIM2REAL_STACKS``)."""
+    if request.param == "generated":
+        return write_tracking_folder(tmp_path)
+    return dance_folder(request.getfixturevalue("stacks"), tmp_path)
+
+
 # ---------------------------------------------------------------------- the folder
-def test_the_nested_folder_is_read_with_its_motion_terms_and_clip(stacks, tmp_path):
+def test_the_nested_folder_is_read_with_its_motion_terms_and_clip(dance):
     """config key g1/whole_body_tracking/dance_102: base.yaml two folders up (a base.yaml of
     another key between them is passed over); its two tracking terms are our motion blocks (the
     anchor's joints the waist slots 12, 13, 14 of joint_mapping); its clip plays at the control
     rate 1 / (dt x decimation) = 50 Hz, as rl_sar's fsm plays it."""
     from sim2real.deploy.export.folder_torchscript import folder_contract
 
-    dance = dance_folder(stacks, tmp_path)
     (dance.parent / "base.yaml").write_text("decoy:\n  dt: 1.0\n")
     contract = folder_contract(dance / "policy.pt")
     assert contract.format == "rl_sar"
@@ -62,18 +77,17 @@ def test_the_nested_folder_is_read_with_its_motion_terms_and_clip(stacks, tmp_pa
     mapping = [0, 6, 12, 1, 7, 13, 2, 8, 14, 3, 9, 15, 22, 4, 10, 16, 23, 5, 11, 17, 24, 18, 25]
     anchor = contract.terms[1]
     assert anchor.joints == tuple(mapping.index(s) for s in (12, 13, 14)) == (2, 5, 8)
-    assert contract.motion.file == str(dance / CLIP)
+    assert contract.motion.file == str(dance / _clip(dance))
     assert contract.motion.fps == pytest.approx(50.0)
     assert contract.motion.columns == _columns(dance)
 
 
-def test_an_unmapped_tracking_term_is_refused_by_name(stacks, tmp_path):
+def test_an_unmapped_tracking_term_is_refused_by_name(dance):
     """A term of the folder no block computes (BeyondMimic's anchor position) is refused naming
     it, never zeroed."""
     from sim2real.deploy.export.errors import ExportError
     from sim2real.deploy.export.folder_torchscript import export_folder_torchscript
 
-    dance = dance_folder(stacks, tmp_path)
     cfg = dance / "config.yaml"
     doc = yaml.safe_load(cfg.read_text())
     key = next(iter(doc))
@@ -83,30 +97,28 @@ def test_an_unmapped_tracking_term_is_refused_by_name(stacks, tmp_path):
         export_folder_torchscript(dance / "policy.pt")
 
 
-def test_policy_export_writes_the_graph_and_names_the_clip_with_its_hash(stacks, tmp_path):
+def test_policy_export_writes_the_graph_and_names_the_clip_with_its_hash(dance):
     """policy-export policy.pt: the ONNX beside it (parity passed), read back as rl_sar's, its
     ``motion`` metadata the clip's name, sha256 and rate."""
     from sim2real.deploy.export.folder_torchscript import export_folder_torchscript
 
-    dance = dance_folder(stacks, tmp_path)
     result = export_folder_torchscript(dance / "policy.pt")
     assert (result.obs_dim, result.act_dim) == (154, 29)
     assert result.parity["passed"]
     meta = {p.key: p.value for p in onnx.load(result.path).metadata_props}
     motion = json.loads(meta["motion"])
-    digest = hashlib.sha256((dance / CLIP).read_bytes()).hexdigest()
-    assert motion == {"file": CLIP, "sha256": digest, "fps": 50.0, "timing": "rl_sar"}
+    digest = hashlib.sha256((dance / _clip(dance)).read_bytes()).hexdigest()
+    assert motion == {"file": _clip(dance), "sha256": digest, "fps": 50.0, "timing": "rl_sar"}
 
 
 # ---------------------------------------------------------------------- the CSV clip
-def test_csv_clip_values_are_the_files_as_rl_sar_reads_them(stacks, tmp_path):
+def test_csv_clip_values_are_the_files_as_rl_sar_reads_them(dance):
     """Frame 0's joints are the file's columns 8..36; the quaternion x y z w becomes w x y z;
     velocities are the forward difference at the given rate, the last frame repeating the one
     before (rl_sar's ComputeVelocities)."""
-    dance = dance_folder(stacks, tmp_path)
-    rows = _rows(dance / CLIP)
-    clip = read_csv_clip(dance / CLIP, _columns(dance), 50.0)
-    assert clip.frames == len(rows) == 1749
+    rows = _rows(dance / _clip(dance))
+    clip = read_csv_clip(dance / _clip(dance), _columns(dance), 50.0)
+    assert clip.frames == len(rows) > 100
     np.testing.assert_array_equal(clip.joint_pos[0], rows[0, 7:])
     np.testing.assert_array_equal(clip.root_pos[0], rows[0, :3])
     np.testing.assert_array_equal(clip.root_quat[0], rows[0, [6, 3, 4, 5]])

@@ -155,7 +155,9 @@ def make_policy(
         path = Path(onnx).resolve()
         return BenchPolicy(robot, OnnxPolicy(path, robot).spec, None, path, 0.0, given=True)
 
-    src = Path(__file__).resolve().parents[1] / "sim2real" / "policies" / f"{robot.name}.pt"
+    import sim2real.policies
+
+    src = Path(sim2real.policies.__file__).resolve().parent / f"{robot.name}.pt"
     if not src.is_file():
         raise FileNotFoundError(f"bench: legged robot {robot.name} has no shipped policy {src}")
     t = time.perf_counter()

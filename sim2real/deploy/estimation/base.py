@@ -426,7 +426,7 @@ class BaseStateEstimator(BaseSteps):
             foot_position=self._foot_position, out_q=out.orientation, out_g=out.projected_gravity,
             out_v=out.linear_velocity, out_w=out.angular_velocity, out_vw=out.linear_velocity_world,
         )  # fmt: skip
-        table = bt.TICK.pack(**values) if bound else None
+        table = bt.TICK.pack_or_none(**values) if bound else None
         if table is not None:
             stage = bind(bt.tick_stage, table, rest=(0,))
             return functools.partial(stage, 0), functools.partial(stage, 1)

@@ -220,7 +220,7 @@ class FallDetector:
                 contact=key[3], position=position, height=self.height, ticks=self._ticks,
                 signals=self.signals, out=self._fallen,
             )  # fmt: skip
-            table = CHECK.pack(**values)
+            table = CHECK.pack_or_none(**values)
             if table is not None:
                 self._bound = bound = (key, bind(_check_table, table))
             else:  # through numba's dispatch

@@ -53,6 +53,10 @@ class Field(NamedTuple):
     at: int
 
 
+class TableMismatch(ValueError):
+    """Values that do not fit a :class:`Table`'s declaration (the field and what it expected)."""
+
+
 class Table:
     """The declaration of one kernel's table: ``where`` (``"<module>:<NAME>"``, where it is
     declared: a pickled :class:`Packed` finds it there), then the fields as keywords, each
@@ -134,9 +138,21 @@ class Table:
             shapes[f.name] = tuple(shape)
         return None, shapes
 
-    def pack(self, sizes: dict | None = None, /, **values) -> Packed | None:
-        """The :class:`Packed` table of ``values`` (each declared field, by name), or None if one
-        does not fit (:meth:`mismatch`, with ``sizes``: the caller then takes another path)."""
+    def pack(self, sizes: dict | None = None, /, **values) -> Packed:
+        """The :class:`Packed` table of ``values`` (each declared field, by name).
+
+        Raises:
+            TableMismatch: a field missing, undeclared or not fitting its declaration (the
+                first one, with what it expected: :meth:`mismatch`). A caller with another
+                path for values that do not fit asks :meth:`pack_or_none`."""
+        packed = self.pack_or_none(sizes, **values)
+        if packed is None:
+            raise TableMismatch(self.mismatch(values, sizes))
+        return packed
+
+    def pack_or_none(self, sizes: dict | None = None, /, **values) -> Packed | None:
+        """:meth:`pack`, or None if a field does not fit (:meth:`mismatch`, with ``sizes``): for
+        a caller that then takes another path (numba's dispatch, numpy), and says so."""
         why, shapes = self._fit(values, sizes)
         if why is not None:
             return None
@@ -204,10 +220,7 @@ def _repack(table: Table, sizes: dict | None, arrays: dict) -> Packed:
     table's copy is empty."""
     if not arrays:
         return table.empty()
-    packed = table.pack(sizes, **arrays)
-    if packed is None:
-        raise ValueError(table.mismatch(arrays, sizes))
-    return packed
+    return table.pack(sizes, **arrays)
 
 
 class TableType(types.Type):

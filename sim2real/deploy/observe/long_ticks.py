@@ -182,7 +182,7 @@ def bind_record(arrays: tuple):
     tick, in its order, never replaced by their owner) as one table of them, or to the arrays
     themselves where one does not fit its field."""
     names = list(signature(record_tick.py_func).parameters)[:-1]
-    table = RECORD.pack(**dict(zip(names, arrays, strict=True)))
+    table = RECORD.pack_or_none(**dict(zip(names, arrays, strict=True)))
     if table is not None:
         return bind(record_table, table, rest=(0,))
     return bind(record_tick, *arrays, rest=(0,))

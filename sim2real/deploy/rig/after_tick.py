@@ -138,7 +138,7 @@ class FusedAfterTick:
         values["views"] = views
         if motion and len(rig.hook_cost.max_ns) != len(rig.hooks):
             return None
-        table = ak.AFTER.pack(sizes, **values)
+        table = ak.AFTER.pack_or_none(sizes, **values)
         if table is None or len(rig.monitor_cost.max_ns) != 1 or len(v["bound"]) != 3 * n + 3:
             return None
         return cls(rig, table, datas, motion)

@@ -135,7 +135,7 @@ class CompiledSupervision(TableCalls):
         #: :meth:`supervise`'s packed table (one argument for the kernel's 22), or None where
         #: some array does not fit (then the kernel is called with its arguments)
         values = self._supervision_values()
-        self._supervise_table = None if values is None else fk.SUPERVISE.pack(**values)
+        self._supervise_table = None if values is None else fk.SUPERVISE.pack_or_none(**values)
         if self._supervise_table is not None:  # its kernel bound to it (compiled, or loaded)
             self._supervise_call = bind(fk.supervise_only, self._supervise_table)
         self._screen_cached = self._screen_args(None, self.state)[2:]

@@ -32,7 +32,7 @@ class TableCalls:
         values = dict(zip(names, (self._control, action, *self._screen_cached), strict=True))
         if values["q"] is not self.state.q or values["dq"] is not self.state.dq:
             return
-        table = fk.SCREEN.pack(**values)
+        table = fk.SCREEN.pack_or_none(**values)
         if table is not None:
             self._screen_call = bind(fk.screen, table)  # no dispatch per call
             self._screen_action = action

@@ -86,12 +86,12 @@ def build(args: tuple, screen: ek.ScreenArrays, drive: ek.DriveArrays | None):
     names = list(signature(ek.certify.py_func).parameters)[: len(args)]
     values = dict(zip(names, args, strict=True)) | screen._asdict()
     if drive is None:
-        return SERVO.pack(**values)
+        return SERVO.pack_or_none(**values)
     values |= {("drive_joint" if k == "joint" else k): v for k, v in drive._asdict().items()}
     mass = values["mass"]
     fortran = isinstance(mass, np.ndarray) and not mass.flags.c_contiguous
     values |= {"mass": mass.T if fortran else mass, "mass_fortran": fortran}
-    return DRIVEN.pack(**values)
+    return DRIVEN.pack_or_none(**values)
 
 
 def kernel(table):

@@ -432,7 +432,7 @@ class SafetyGuard(MotionCheck):
         args = (out, q, dq, q if commanded is None else commanded)
         named = dict(zip(("out", "q", "dq", "commanded"), args, strict=True))
         own = {k: v for k, v in a._asdict().items() if k != "own"}
-        table = gk.GUARD.pack(**named, **own)
+        table = gk.GUARD.pack_or_none(**named, **own)
         with warnings.catch_warnings():  # numba: a tuple of functions is "experimental"
             warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
             if table is not None:

@@ -352,5 +352,5 @@ class ObservationPlan:
         q, raw = values["q"], values["raw"]
         if q.ndim != 2 or raw.shape[0] < q.shape[0]:
             return None
-        table = ok.OBSERVATION.pack(**values)
+        table = ok.OBSERVATION.pack_or_none(**values)
         return None if table is None else bind(ok.observation_over, table)

@@ -81,7 +81,7 @@ class CompiledStep:
             stall_coefficient=act.envelope.stall_coefficient,
             no_load_speed=act.envelope.no_load_speed, supply=aa["supply"], views=self.views,
         )  # fmt: skip
-        self.table = k.PLANT.pack(**values)
+        self.table = k.PLANT.pack_or_none(**values)
         if self.table is None:
             raise ValueError(f"compiled step: {k.PLANT.mismatch(values)}")
         self._env_arrays: list[list[np.ndarray]] = [[] for _ in range(p.envs)]

@@ -269,7 +269,7 @@ class BaseSensorModel:
             buf_imu=self._buf_imu, buf_imu_stamp=self._buf_imu_stamp, buf_force=self._buf_force,
             buf_contact_stamp=self._buf_contact_stamp,
         )  # fmt: skip
-        table = kernel.SAMPLE.pack(**values)
+        table = kernel.SAMPLE.pack_or_none(**values)
         if table is None:
             raise ValueError(f"the IMU and contact model: {kernel.SAMPLE.mismatch(values)}")
         self._sample_call = bind(kernel.base_sample, table, rest=(True, True, 0, 0.0))
@@ -363,7 +363,7 @@ class BaseSensorModel:
             )  # fmt: skip
         self._read_key = frame
         self._read_call = None
-        table = kernel.READ.pack(
+        table = kernel.READ.pack_or_none(
             buf_imu=self._buf_imu, buf_imu_stamp=self._buf_imu_stamp, buf_force=self._buf_force,
             buf_contact_stamp=self._buf_contact_stamp, imu_latency=self.imu_latency_ticks,
             contact_latency=self.contact_latency_ticks, threshold=self.contact_threshold,

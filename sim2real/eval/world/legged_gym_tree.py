@@ -419,12 +419,13 @@ def resolve_config(path: str | Path, config_class: str | None = None) -> Resolve
     cls = _Class(node, module, node.name)
     try:
         top = tree.mro(cls)
-    except TreeError as exc:
-        raise TreeError(f"{path}: {exc}") from None
-    try:
         values = tree.settings(cls, "", top)
-    except TreeError as exc:
-        raise TreeError(f"{path}: {exc}") from None
+    except TreeError as exc:  # named from the file the base is missing in; the config's given
+        message = str(exc)
+        own = f"{tree.rel(path)}: "
+        raise TreeError(
+            f"{path}: {message[len(own):]}" if message.startswith(own) else message
+        ) from None
     values = {k: _strip(v) for k, v in values.items()}
     return ResolvedConfig(
         name=node.name,

@@ -59,7 +59,7 @@ def test_a_config_without_domain_rand_takes_its_bases_from_its_own_tree(tmp_path
     assert "added_base_mass" not in text
     assert "interval = 15" in text and "max_velocity = 1" in text
     assert (
-        "# from: pushes.interval = 15, max_velocity = 1 <- domain_rand.push_interval_s 15 "
+        "# from: pushes.interval = 15, mode = set, max_velocity = 1 <- domain_rand.push_interval_s 15 "
         "(legged_gym/envs/base/legged_robot_config.py:47)" in text
     )
     alone = tmp_path / "go2_config.py"

@@ -231,9 +231,9 @@ def _pushes(c: Context, g: Group) -> None:
             raise ValueError(f"{c.where('push_robots')}: pushes on and no {key}")
     interval = float(c.value("push_interval_s"))
     vmax = float(c.value("max_push_vel_xy"))
-    c.pushes = [f"interval = {interval:.6g}", f"max_velocity = {vmax:.6g}"]
+    c.pushes = [f"interval = {interval:.6g}", 'mode = "set"', f"max_velocity = {vmax:.6g}"]
     c.prov.append(
-        f"pushes.interval = {interval:.6g}, max_velocity = {vmax:.6g} <- "
+        f"pushes.interval = {interval:.6g}, mode = set, max_velocity = {vmax:.6g} <- "
         f"{c.source('push_interval_s')}, {c.source('max_push_vel_xy')} (the base's x and y "
         "velocity set to U(-max, max) m/s)"
     )

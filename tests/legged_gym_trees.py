@@ -12,7 +12,7 @@ import textwrap
 from pathlib import Path
 
 #: upstream legged_gym's LeggedRobotCfg, the classes the domain reader reads (values as published).
-UPSTREAM_BASE = '''
+UPSTREAM_BASE = """
 from .base_config import BaseConfig
 
 class LeggedRobotCfg(BaseConfig):
@@ -73,13 +73,13 @@ class LeggedRobotCfg(BaseConfig):
 
 class LeggedRobotCfgPPO(BaseConfig):
     seed = 1
-'''
+"""
 
-BASE_CONFIG = '''
+BASE_CONFIG = """
 class BaseConfig:
     def __init__(self) -> None:
         self.init_member_classes(self)
-'''
+"""
 
 
 def write_base(root: Path, package: str = "legged_gym", base: str = UPSTREAM_BASE) -> Path:

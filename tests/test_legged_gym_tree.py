@@ -161,12 +161,17 @@ def test_a_task_reads_its_bases_and_their_nested_classes_with_file_and_line(tmp_
     assert (ranges.pushes.interval, ranges.pushes.max_velocity) == (16.0, 1.0)
     t = ranges.terrain
     assert (t.mesh_type, t.terrain_proportions, t.levels) == (
-        "trimesh", (0.1, 0.2, 0.3, 0.3, 0.1), (0, 9)
+        "trimesh",
+        (0.1, 0.2, 0.3, 0.3, 0.1),
+        (0, 9),
     )
     c = ranges.commands
     assert (c.vx, c.vy, c.period) == ((-2.0, 2.0), (-0.5, 0.5), (10.0, 10.0))
     assert (c.heading_command, c.heading, c.heading_stiffness, c.max_yaw_rate) == (
-        True, (-3.14, 3.14), 0.5, 2.0
+        True,
+        (-3.14, 3.14),
+        0.5,
+        2.0,
     )
     base = "legged_gym/envs/base/legged_robot_config.py"
     task = "legged_gym/envs/go1/go1_config.py"

@@ -161,7 +161,10 @@ def test_a_forks_nested_domain_rands_are_read_key_by_key(tmp_path):
     assert (ranges.pushes.interval, ranges.pushes.max_velocity) == (8.0, 0.4)
     c = ranges.commands  # the base's heading command: the yaw rate is not drawn
     assert (c.vx, c.vy, c.heading_command, c.heading) == (
-        (-1.5, 1.5), (-0.5, 0.5), True, (-3.14, 3.14)
+        (-1.5, 1.5),
+        (-0.5, 0.5),
+        True,
+        (-3.14, 3.14),
     )
     assert any("ang_vel_yaw [-1.5, 1.5]" in line for line in not_modelled(text))
 

@@ -1,22 +1,25 @@
-"""The training domain of a legged_gym task (unitree_rl_gym, humanoid-gym and their forks) as a
-ranges file (:mod:`sim2real.eval.world.ranges_file`): :func:`legged_gym_domain`.
+"""The training domain of a legged_gym task (unitree_rl_gym, HIMLoco, humanoid-gym and their forks)
+as a ranges file (:mod:`sim2real.eval.world.ranges_file`): :func:`legged_gym_domain`.
 
-The task's config class is read *as text* (Python's ``ast``; the file is never run): its
-``domain_rand`` class (or ``domain_rands`` with nested classes, as some forks write it: their keys
-are read as one table), ``noise``, ``terrain`` (a ``[terrain]`` table of tiles,
-:mod:`sim2real.eval.world.terrain`, where the file writes its ``mesh_type``: legged_gym's base
-says trimesh, unitree_rl_gym's plane) and ``commands.ranges``, over the defaults of legged_gym's
-``LeggedRobotCfg`` (``LEGGED_GYM_DEFAULTS``) for what it does not set. Every
-``domain_rand`` key is read (:data:`GROUPS`: a switch and the keys it turns on) or refused by
-name (:class:`~sim2real.eval.world.domain.DomainError`): a randomization the soak cannot run
-(restitution, action latency, action noise, external forces) is refused when its switch is on;
-a key no group knows is refused unless it is a switch that is off or belongs to one
-(``randomize_X = False`` and a key containing ``X``).
+The task's config class is read *as text* (Python's ``ast``; no file is run) with everything it
+inherits from the tree its file sits in (:mod:`sim2real.eval.world.legged_gym_tree`: the fork's
+own base, a nested class over its base's; a base the tree lacks is refused in one line naming the
+class and the module, no stack's defaults stand in): its ``domain_rand`` class (or
+``domain_rands`` with nested classes, as some forks write it: their keys are read as one table),
+``noise``, ``terrain`` (a ``[terrain]`` table of tiles, :mod:`sim2real.eval.world.terrain`, where
+its ``mesh_type``, the task's or its base's, has tiles), ``commands`` and ``control``. Every
+``domain_rand`` key is read (:data:`GROUPS`: a switch and the keys it turns on) or named in one
+line of the stored domain: a randomization the soak cannot run (restitution, HIMLoco's
+disturbance and action delay, latencies in physics steps, action noise, external forces) as not
+modelled, a key no group knows as not modelled unless it is a switch that is off or belongs to
+one (``randomize_X = False`` and a key containing ``X``), a randomization that is off as off; the
+other classes' keys the same way (:mod:`sim2real.eval.world.legged_gym_lines`). Every value
+names the file and line it came from. A malformed value of a key the soak models, or a terrain it
+cannot build, is refused (:class:`DomainError`, named).
 """
 
 from __future__ import annotations
 
-import ast
 import math
 from pathlib import Path
 

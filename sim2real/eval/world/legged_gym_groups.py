@@ -5,9 +5,9 @@ read by :func:`sim2real.eval.world.legged_gym_domain.legged_gym_domain`, whose t
 A :class:`Group` is one randomization: its switches (``randomize_X``; any on turns it on), the
 keys that give its values, and what it becomes with where it came from (``Context.prov``), or
 why the soak cannot run it (then a group that is on is named in one line, ``Context.apart``:
-"not modelled"; a group that is off in one line too, ``Context.off``). Ranges of factors ``[a, b]`` become the half-range
-``max(1 - a, b - 1)`` of a factor drawn from ``U(1 - r, 1 + r)`` (the ranges file's
-``[dynamics]``); an asymmetric range is widened to the symmetric one that holds it, and the
+"not modelled"; a group that is off in one line too, ``Context.off``). Ranges of factors
+``[a, b]`` become the half-range ``max(1 - a, b - 1)`` of a factor drawn from
+``U(1 - r, 1 + r)`` (the ranges file's ``[dynamics]``); an asymmetric range is widened to the symmetric one that holds it, and the
 file says so in a comment.
 """
 

@@ -258,10 +258,13 @@ def command_lines(c: Context) -> list[str]:
             k, m, where = clip
             src = f"clip({k:g} * wrap_to_pi(heading - yaw), -{m:g}, {m:g}) ({where})"
         else:
-            (k, m), src = UPSTREAM_HEADING, (
-                "upstream legged_gym's documented default, clip(0.5 * wrap_to_pi(heading - yaw), "
-                "-1, 1) in its legged_robot.py (the tree's own legged_robot.py does not say it in "
-                "one way)"
+            (k, m), src = (
+                UPSTREAM_HEADING,
+                (
+                    "upstream legged_gym's documented default, clip(0.5 * wrap_to_pi(heading - yaw), "
+                    "-1, 1) in its legged_robot.py (the tree's own legged_robot.py does not say it in "
+                    "one way)"
+                ),
             )
         out += [f"heading_stiffness = {k:.6g}", f"max_yaw_rate = {m:.6g}"]
         c.prov.append(f"commands.heading_stiffness = {k:g}, max_yaw_rate = {m:g} <- {src}")

@@ -424,7 +424,7 @@ def resolve_config(path: str | Path, config_class: str | None = None) -> Resolve
         message = str(exc)
         own = f"{tree.rel(path)}: "
         raise TreeError(
-            f"{path}: {message[len(own):]}" if message.startswith(own) else message
+            f"{path}: {message[len(own) :]}" if message.startswith(own) else message
         ) from None
     values = {k: _strip(v) for k, v in values.items()}
     return ResolvedConfig(

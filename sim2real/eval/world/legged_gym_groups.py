@@ -7,8 +7,8 @@ keys that give its values, and what it becomes with where it came from (``Contex
 why the soak cannot run it (then a group that is on is named in one line, ``Context.apart``:
 "not modelled"; a group that is off in one line too, ``Context.off``). Ranges of factors
 ``[a, b]`` become the half-range ``max(1 - a, b - 1)`` of a factor drawn from
-``U(1 - r, 1 + r)`` (the ranges file's ``[dynamics]``); an asymmetric range is widened to the symmetric one that holds it, and the
-file says so in a comment.
+``U(1 - r, 1 + r)`` (the ranges file's ``[dynamics]``); an asymmetric range is widened to the
+symmetric one that holds it, and the file says so in a comment.
 """
 
 from __future__ import annotations

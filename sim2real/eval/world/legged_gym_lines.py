@@ -17,18 +17,9 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-from sim2real.eval.world.legged_gym_groups import Context
+from sim2real.eval.world.legged_gym_groups import NOISE_APART, NOISE_READ, Context, G
 from sim2real.eval.world.legged_gym_tree import Setting
 
-#: Standard gravity, m/s^2 (the projected gravity's noise as an accelerometer's).
-G = 9.80665
-#: The ``noise_scales`` a ranges file draws: the encoders', the gyro's, the accelerometer's.
-NOISE_READ = ("dof_pos", "ang_vel", "gravity")
-#: Why the others are not drawn.
-NOISE_APART = (
-    "the runtime estimates joint and base velocities and the attitude from the encoders and the "
-    "IMU, whose noise it draws; no robot here measures heights"
-)
 #: legged_gym ``terrain`` keys a ranges file's ``[terrain]`` takes as they are
 #: (:class:`sim2real.eval.world.terrain.TerrainRanges`).
 TERRAIN_KEYS = ("mesh_type", "terrain_proportions", "num_rows", "curriculum", "horizontal_scale",

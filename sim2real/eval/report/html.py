@@ -21,6 +21,7 @@ from pathlib import Path
 
 import jinja2
 
+from sim2real.eval.report.domain_account import domain_table
 from sim2real.eval.report.plots import (
     plot_interventions,
     plot_robustness,
@@ -384,25 +385,9 @@ def _robustness_table(report: dict) -> dict | None:
 
 
 #: report.html's tables in page order, each built from the report by its function.
-def _domain_table(report: dict) -> dict | None:
-    """The training domain's account (:func:`sim2real.eval.world.domain.domain_account`): each
-    value with where it came from, each key the soak does not model; None without one."""
-    from sim2real.eval.world.domain import ACCOUNT_PREFIXES, domain_account
-
-    text = report["campaign"].get("training_domain")
-    lines = domain_account(text) if isinstance(text, str) else []
-    if not lines:
-        return None
-    rows = []
-    for line in lines:
-        prefix = next(p for p in ACCOUNT_PREFIXES if line.startswith(p))
-        rows.append([prefix[2:-2], line[len(prefix) :]])
-    return _table(["training domain", "value <- where it came from, or what is left out"], rows)
-
-
 _TABLES = {
     "campaign": _campaign_table,
-    "training domain": _domain_table,
+    "training domain": lambda report: domain_table(report, _table),
     "checks": _checks_table,
     "baseline": _baseline_table,
     "sessions": _sessions_table,

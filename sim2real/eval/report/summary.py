@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from sim2real.eval.report.domain_account import domain_summary
+
 #: What the replays showed for a fall with no push, fault or stop before it, by its origin
 #: (:func:`sim2real.eval.soak.falls.replay_origin`).
 REPLAY_MEANING = {
@@ -63,7 +65,7 @@ def summary_text(report: dict) -> str:
         lines.append(f"  windows      lowest success rate in a window {100 * w:.1f} %")
     if loco is not None:
         lines += _locomotion_lines(loco, report["campaign"].get("commands"), t.get("by_terrain"))
-    lines += _domain_lines(report["campaign"].get("training_domain"))
+    lines += domain_summary(report["campaign"].get("training_domain"))
     lines += _estimate_lines(t.get("base_estimate"))
     lines += _violation_lines(t)
     lines += _intervention_lines(t["interventions"])
@@ -76,25 +78,6 @@ def summary_text(report: dict) -> str:
     if tc["samples"]:
         lines.append(f"  tick cost us p50 {tc['p50_us']:.0f}, p99 {tc['p99_us']:.0f}")
     return "\n".join(lines + _check_lines(report))
-
-
-def _domain_lines(text) -> list[str]:
-    """One line of the training domain's account (:func:`sim2real.eval.world.domain.
-    domain_account`): its values with a source, the keys the soak does not model (the first
-    of each line's keys); none without an account."""
-    from sim2real.eval.world.domain import domain_account
-
-    lines = domain_account(text) if isinstance(text, str) else []
-    if not lines:
-        return []
-    apart = [line[len("# not modelled: ") :] for line in lines if line.startswith("# not mod")]
-    values = sum(line.startswith("# from: ") for line in lines)
-    keys = ", ".join(line.split(" ", 1)[0] for line in apart)
-    return [
-        f"  domain       the policy's training domain: {values} values each with its source "
-        "(report.html 'training domain'; report.json campaign.training_domain)"
-        + (f"; not modelled: {keys}" if apart else "")
-    ]
 
 
 def _locomotion_lines(loco: dict, schedule, by_terrain) -> list[str]:

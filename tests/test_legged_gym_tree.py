@@ -267,3 +267,31 @@ def test_himlocos_own_config_gives_the_domain_it_trains_with_key_by_key():
     assert differ == [("pushes", "apply")]
     go2 = load_robot("go2")
     assert load_ranges_text(HAND.read_text(), HAND.name, go2).terrain is not None
+
+
+def test_inspect_and_the_soak_report_print_the_domains_account(tmp_path, capsys):
+    """``policy-export --inspect`` prints a policy's stored domain whole (the shipped H1's: its
+    friction from h1_config.py's line 37 over the terrain's of unitree_rl_gym's base); the
+    soak's report.html has a row per account line and its summary names the keys not
+    modelled."""
+    from sim2real.deploy.cli.policy_export import main as export_main
+    from sim2real.eval.report.domain_account import domain_summary, domain_table
+
+    h1 = Path(__file__).parent / "data" / "unitree_rl_gym" / "h1" / "h1.onnx"
+    assert export_main(["--inspect", str(h1)]) == 0
+    out = capsys.readouterr().out
+    assert (
+        "    # from: floor_friction = [0.55, 1.125] <- domain_rand.friction_range [0.1, 1.25] "
+        "(h1/h1_config.py:37) and terrain.static_friction 1 "
+        "(legged_gym/envs/base/legged_robot_config.py:20)" in out
+    )
+    text = legged_gym_domain(himloco_tree(tmp_path))
+    table = domain_table({"campaign": {"training_domain": text}}, lambda h, r: {"rows": r})
+    assert len(table["rows"]) == len(domain_account(text))
+    assert ["not modelled", next(line[16:] for line in domain_account(text)
+                                 if line.startswith("# not modelled: domain_rand.delay"))] in (
+        table["rows"]
+    )  # fmt: skip
+    (line,) = domain_summary(text)
+    assert "domain_rand.disturbance, domain_rand.delay" in line
+    assert domain_summary("floor_friction = [0.5, 1.0]\n") == []

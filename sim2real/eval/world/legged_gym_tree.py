@@ -18,6 +18,7 @@ stands.
 from __future__ import annotations
 
 import ast
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -116,8 +117,10 @@ class ConfigTree:
         return self._modules[path]
 
     def rel(self, path: Path) -> str:
-        """``path`` relative to the package root (its name when outside it)."""
-        for root in (self.root, self.config.parent):
+        """``path`` relative to the package root (without an absolute import: to the folder
+        that holds every file read; its name when outside it)."""
+        common = Path(os.path.commonpath([str(p.parent) for p in self._modules] or [str(path)]))
+        for root in (self.root, common, self.config.parent):
             if root is not None:
                 try:
                     return path.resolve().relative_to(root).as_posix()

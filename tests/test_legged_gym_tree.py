@@ -295,3 +295,25 @@ def test_inspect_and_the_soak_report_print_the_domains_account(tmp_path, capsys)
     (line,) = domain_summary(text)
     assert "domain_rand.disturbance, domain_rand.delay" in line
     assert domain_summary("floor_friction = [0.5, 1.0]\n") == []
+
+
+def test_relative_and_module_imports_of_the_base_are_followed(tmp_path):
+    """``from ..base.legged_robot_config import LeggedRobotCfg as Base`` and ``import
+    legged_gym.envs.base.legged_robot_config as lrc`` reach the same base as the absolute
+    import: its pushes every 16 s, the task's own interval over it where it sets one."""
+    himloco_tree(tmp_path)
+    go1 = tmp_path / "legged_gym" / "legged_gym" / "envs" / "go1"
+    relative = go1 / "relative_config.py"
+    relative.write_text(
+        "from ..base.legged_robot_config import LeggedRobotCfg as Base\n"
+        "class RelCfg(Base):\n    class domain_rand(Base.domain_rand):\n        push_interval_s = 7\n"
+    )
+    module = go1 / "module_config.py"
+    module.write_text(
+        "import legged_gym.envs.base.legged_robot_config as lrc\n"
+        "class ModCfg(lrc.LeggedRobotCfg):\n    pass\n"
+    )
+    rel = load_ranges_text(legged_gym_domain(relative), "rel", load_robot("go2"))
+    mod = load_ranges_text(legged_gym_domain(module), "mod", load_robot("go2"))
+    assert (rel.pushes.interval, mod.pushes.interval) == (7.0, 16.0)
+    assert rel.added_base_mass == mod.added_base_mass == (-1.0, 2.0)

@@ -88,7 +88,7 @@ def read_legged_gym_config(path: str | Path, config_class: str | None = None) ->
         "control": resolved.section("control"),
         "source": f"{resolved.file} ({resolved.name}, legged_gym)",
         "classes": resolved.classes,
-        "env_files": env_files[::-1],  # the task's nearest base's first
+        "env_files": env_files,  # the task's own folder first, then its bases' in order
     }
 
 

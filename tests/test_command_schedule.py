@@ -239,8 +239,9 @@ class XBotLCfg(LeggedRobotCfg):
             ang_vel_yaw = [-0.3, 0.3]
             heading = [-3.14, 3.14]
 """
-    path = tmp_path / "humanoid_config.py"
-    path.write_text(config.format(t="8."))
+    from tests.legged_gym_trees import write_task
+
+    path = write_task(tmp_path, config.format(t="8."), "humanoid_config.py", "humanoid")
     commands = load_ranges_text(legged_gym_domain(path), "humanoid_config.py", h1).commands
     assert (commands.period, commands.vx) == ((8.0, 8.0), (-0.3, 0.6))
     path.write_text(config.format(t="0."))

@@ -41,28 +41,44 @@ def test_legged_gym_h1_config_becomes_its_training_domain():
     assert (d.mass, d.friction, d.damping, d.link_length, d.actuator_strength) == (0,) * 5
 
 
-def test_a_config_without_domain_rand_keeps_legged_gyms_defaults(tmp_path):
+def test_a_config_without_domain_rand_takes_its_bases_from_its_own_tree(tmp_path):
     """A config class that sets nothing of domain_rand (go2_config.py in unitree_rl_gym) gets
-    LeggedRobotCfg's: friction 0.5-1.25, no base mass, pushes of 1 m/s every 15 s."""
-    cfg = tmp_path / "go2_config.py"
-    cfg.write_text(
+    its own tree's LeggedRobotCfg's (here upstream legged_gym's: friction 0.5-1.25, no base
+    mass, pushes of 1 m/s every 15 s), each value naming the base's file and line; without its
+    tree the same file is refused in one line naming the class and the module."""
+    from tests.legged_gym_trees import write_task
+
+    task = (
         "from legged_gym.envs.base.legged_robot_config import LeggedRobotCfg\n"
         "class GO2RoughCfg(LeggedRobotCfg):\n"
         "    class control(LeggedRobotCfg.control):\n"
         "        stiffness = {'joint': 20.}\n"
     )
-    text = legged_gym_domain(cfg)
+    text = legged_gym_domain(write_task(tmp_path / "tree", task, "go2_config.py"))
     assert "floor_friction = [0.75, 1.125]" in text
     assert "added_base_mass" not in text
     assert "interval = 15" in text and "max_velocity = 1" in text
+    assert (
+        "# from: pushes.interval = 15, mode = set, max_velocity = 1 <- domain_rand.push_interval_s 15 "
+        "(legged_gym/envs/base/legged_robot_config.py:47)" in text
+    )
+    alone = tmp_path / "go2_config.py"
+    alone.write_text(task)
+    with pytest.raises(DomainError) as refused:
+        legged_gym_domain(alone)
+    message = str(refused.value)
+    assert "\n" not in message and "class GO2RoughCfg" in message
+    assert "legged_gym.envs.base.legged_robot_config" in message
 
 
 def test_bad_domain_sources_name_the_file_and_the_key(tmp_path, arm3):
     from sim2real.robots import load_robot
 
     bad = tmp_path / "cfg.py"
-    bad.write_text(
-        "class Cfg(LeggedRobotCfg):\n    class domain_rand:\n        friction_range = [1.0]\n"
+    bad.write_text(  # a class without bases is read as it stands
+        "class Cfg:\n    class terrain:\n        static_friction = 1.0\n"
+        "    class domain_rand:\n        randomize_friction = True\n"
+        "        friction_range = [1.0]\n"
     )
     with pytest.raises(DomainError, match=r"cfg.py: domain_rand.friction_range: expected"):
         legged_gym_domain(bad)

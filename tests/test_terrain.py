@@ -206,14 +206,16 @@ def test_the_flat_plane_is_untouched_without_terrain():
 
 def _task(tmp_path, terrain: str):
     """A legged_gym task config whose ``terrain`` class is ``terrain`` (class body lines)."""
-    path = tmp_path / "go2_config.py"
+    from tests.legged_gym_trees import write_task
+
     body = "\n".join(f"        {line}" for line in terrain.splitlines())
-    path.write_text(
+    return write_task(
+        tmp_path,
         "from legged_gym.envs.base.legged_robot_config import LeggedRobotCfg\n\n"
         "class GO2RoughCfg(LeggedRobotCfg):\n"
-        f"    class terrain(LeggedRobotCfg.terrain):\n{body}\n"
+        f"    class terrain(LeggedRobotCfg.terrain):\n{body}\n",
+        "go2_config.py",
     )
-    return path
 
 
 def test_a_legged_gym_tasks_terrain_becomes_the_soaks_tiles(tmp_path):

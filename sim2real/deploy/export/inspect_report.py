@@ -13,6 +13,10 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
+#: The metadata key ``policy-export --domain`` stores a training domain under (the ranges file's
+#: text; ``sim2real.eval.world.domain.METADATA_KEY``), printed whole.
+DOMAIN_KEY = "training_domain"
+
 
 def tensor_entry(name: str, shape, dtype: str) -> dict[str, Any]:
     return {"name": name, "shape": list(shape), "dtype": dtype}
@@ -100,12 +104,20 @@ def format_report(info: Mapping[str, Any]) -> str:
             )
     else:
         lines.append("  recurrent state: none")
-    meta = {k: v for k, v in (info.get("metadata") or {}).items() if k != "policy_spec"}
+    whole = ("policy_spec", DOMAIN_KEY)
+    meta = {k: v for k, v in (info.get("metadata") or {}).items() if k not in whole}
     if meta:
         lines.append("  metadata:")
         for k, v in meta.items():
             text = v if isinstance(v, str) else json.dumps(v, default=str)
             lines.append(f"    {k}: {text if len(text) <= 160 else text[:157] + '...'}")
+    domain = (info.get("metadata") or {}).get(DOMAIN_KEY)
+    if isinstance(domain, str):
+        lines.append(
+            f"  training domain (metadata {DOMAIN_KEY}; soak-test runs it; each value's '# from:' "
+            "line says where it came from, '# not modelled:' what the soak leaves out):"
+        )
+        lines += [f"    {line}" for line in domain.splitlines() if line.strip()]
     for k, v in (info.get("details") or {}).items():
         text = v if isinstance(v, str) else json.dumps(v, default=str)
         lines.append(f"  {k}: {text}")

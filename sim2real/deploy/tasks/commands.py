@@ -73,6 +73,14 @@ class CommandRanges:
             s (Isaac Lab's and mjlab's ``resampling_time_range``; legged_gym's
             ``resampling_time`` is ``(t, t)``); a number ``t`` is ``(t, t)``. None (default):
             the schedule's own period (``soak-test --goal-period``).
+        heading_command: legged_gym's ``commands.heading_command``: the training drew a
+            heading, not a yaw rate (a training domain's ``[commands]``; recorded, not yet run
+            by the schedule).
+        heading: ``(low, high)`` rad, the headings drawn (``commands.ranges.heading``).
+        heading_stiffness: 1/s, the yaw rate per rad of heading error (legged_gym's
+            ``legged_robot.py``: ``0.5 * wrap_to_pi(heading - yaw)``).
+        max_yaw_rate: rad/s, the clip of that yaw rate (HIMLoco's ``legged_robot.py`` 2,
+            upstream legged_gym's 1).
     """
 
     vx: tuple[float, float] = (0.0, 0.5)
@@ -80,6 +88,10 @@ class CommandRanges:
     yaw_rate: tuple[float, float] = (-0.5, 0.5)
     zero_fraction: float = 0.2
     period: float | tuple[float, float] | None = None
+    heading_command: bool = False
+    heading: tuple[float, float] | None = None
+    heading_stiffness: float | None = None
+    max_yaw_rate: float | None = None
 
     def __post_init__(self):
         for name in ("vx", "vy", "yaw_rate"):

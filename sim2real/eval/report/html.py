@@ -21,6 +21,7 @@ from pathlib import Path
 
 import jinja2
 
+from sim2real.eval.report.domain_account import domain_table
 from sim2real.eval.report.plots import (
     plot_interventions,
     plot_robustness,
@@ -386,6 +387,7 @@ def _robustness_table(report: dict) -> dict | None:
 #: report.html's tables in page order, each built from the report by its function.
 _TABLES = {
     "campaign": _campaign_table,
+    "training domain": lambda report: domain_table(report, _table),
     "checks": _checks_table,
     "baseline": _baseline_table,
     "sessions": _sessions_table,

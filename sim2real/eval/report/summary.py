@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from sim2real.eval.report.domain_account import domain_summary
+
 #: What the replays showed for a fall with no push, fault or stop before it, by its origin
 #: (:func:`sim2real.eval.soak.falls.replay_origin`).
 REPLAY_MEANING = {
@@ -63,6 +65,7 @@ def summary_text(report: dict) -> str:
         lines.append(f"  windows      lowest success rate in a window {100 * w:.1f} %")
     if loco is not None:
         lines += _locomotion_lines(loco, report["campaign"].get("commands"), t.get("by_terrain"))
+    lines += domain_summary(report["campaign"].get("training_domain"))
     lines += _estimate_lines(t.get("base_estimate"))
     lines += _violation_lines(t)
     lines += _intervention_lines(t["interventions"])

@@ -3,10 +3,12 @@
 
 Where it comes from:
 
-- **legged_gym** (unitree_rl_gym, humanoid-gym and their forks): the task's config class, a Python
-  file such as ``legged_gym/envs/h1/h1_config.py``, read as text by
-  :func:`sim2real.eval.world.legged_gym_domain.legged_gym_domain` (every ``domain_rand`` key read
-  or refused by name).
+- **legged_gym** (unitree_rl_gym, HIMLoco, humanoid-gym and their forks): the task's config class,
+  a Python file such as ``legged_gym/envs/h1/h1_config.py`` in its own tree, read as text with
+  everything it inherits (:mod:`sim2real.eval.world.legged_gym_tree`) by
+  :func:`sim2real.eval.world.legged_gym_domain.legged_gym_domain`: every value with the file and
+  line it came from, every key the soak does not model named in one line
+  (:func:`domain_account` gives those lines).
 - **a ranges file** (TOML) written by hand, or by :func:`domain_toml`.
 - **our own recipes**: they train on the soak's own ranges (:func:`sim2real.eval.world.session_ranges.
   session_ranges`), which is what ``soak-test`` runs without a domain.
@@ -27,6 +29,18 @@ from sim2real.eval.world.legged_gym_domain import (  # noqa: F401 - this module'
 
 #: The ONNX metadata key of a policy's training domain (a ranges file's TOML text).
 METADATA_KEY = "training_domain"
+#: The comment lines of a stored domain that account for it
+#: (:mod:`sim2real.eval.world.legged_gym_lines`): a value and where it came from, a key the soak
+#: does not model, a randomization the training had off.
+ACCOUNT_PREFIXES = ("# from: ", "# not modelled: ", "# off: ")
+
+
+def domain_account(text: str) -> list[str]:
+    """The account of a stored training domain (a ranges file's TOML ``text``): its lines that
+    say where each value came from and what the soak does not model (:data:`ACCOUNT_PREFIXES`),
+    in the file's order; empty for a domain written without one (a hand-written ranges file,
+    an env.yaml's)."""
+    return [line for line in text.splitlines() if line.startswith(ACCOUNT_PREFIXES)]
 
 
 def domain_toml(path: str | Path) -> str:

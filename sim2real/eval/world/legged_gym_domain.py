@@ -1,33 +1,31 @@
-"""The training domain of a legged_gym task (unitree_rl_gym, humanoid-gym and their forks) as a
-ranges file (:mod:`sim2real.eval.world.ranges_file`): :func:`legged_gym_domain`.
+"""The training domain of a legged_gym task (unitree_rl_gym, HIMLoco, humanoid-gym and their forks)
+as a ranges file (:mod:`sim2real.eval.world.ranges_file`): :func:`legged_gym_domain`.
 
-The task's config class is read *as text* (Python's ``ast``; the file is never run): its
-``domain_rand`` class (or ``domain_rands`` with nested classes, as some forks write it: their keys
-are read as one table), ``noise``, ``terrain`` (a ``[terrain]`` table of tiles,
-:mod:`sim2real.eval.world.terrain`, where the file writes its ``mesh_type``: legged_gym's base
-says trimesh, unitree_rl_gym's plane) and ``commands.ranges``, over the defaults of legged_gym's
-``LeggedRobotCfg`` (``LEGGED_GYM_DEFAULTS``) for what it does not set. Every
-``domain_rand`` key is read (:data:`GROUPS`: a switch and the keys it turns on) or refused by
-name (:class:`~sim2real.eval.world.domain.DomainError`): a randomization the soak cannot run
-(restitution, action latency, action noise, external forces) is refused when its switch is on;
-a key no group knows is refused unless it is a switch that is off or belongs to one
-(``randomize_X = False`` and a key containing ``X``).
+The task's config class is read *as text* (Python's ``ast``; no file is run) with everything it
+inherits from the tree its file sits in (:mod:`sim2real.eval.world.legged_gym_tree`: the fork's
+own base, a nested class over its base's; a base the tree lacks is refused in one line naming the
+class and the module, no stack's defaults stand in): its ``domain_rand`` class (or
+``domain_rands`` with nested classes, as some forks write it: their keys are read as one table),
+``noise``, ``terrain`` (a ``[terrain]`` table of tiles, :mod:`sim2real.eval.world.terrain`, where
+its ``mesh_type``, the task's or its base's, has tiles), ``commands`` and ``control``. Every
+``domain_rand`` key is read (:data:`GROUPS`: a switch and the keys it turns on) or named in one
+line of the stored domain: a randomization the soak cannot run (restitution, HIMLoco's
+disturbance and action delay, latencies in physics steps, action noise, external forces) as not
+modelled, a key no group knows as not modelled unless it is a switch that is off or belongs to
+one (``randomize_X = False`` and a key containing ``X``), a randomization that is off as off; the
+other classes' keys the same way (:mod:`sim2real.eval.world.legged_gym_lines`). Every value
+names the file and line it came from. A malformed value of a key the soak models, or a terrain it
+cannot build, is refused (:class:`DomainError`, named).
 """
 
 from __future__ import annotations
 
-import ast
 import math
 from pathlib import Path
 
-from sim2real.eval.world.legged_gym_groups import (
-    DEFAULTS_PATH,
-    GROUPS,
-    LEGGED_GYM_DEFAULTS,
-    Context,
-    domain_lines,
-    terrain_table,
-)
+from sim2real.eval.world.legged_gym_groups import GROUPS, Context
+from sim2real.eval.world.legged_gym_lines import domain_lines, terrain_table
+from sim2real.eval.world.legged_gym_tree import Setting, TreeError, resolve_config
 from sim2real.robots.errors import Sim2RealError
 
 
@@ -36,118 +34,61 @@ class DomainError(Sim2RealError, ValueError):
     expected)."""
 
 
-def _literal(node: ast.AST):
-    try:
-        return ast.literal_eval(node)
-    except (ValueError, TypeError, SyntaxError):
-        return None  # an expression we do not evaluate (a name, a call): the default stands
-
-
-class _Section(dict):
-    """A nested class's values (apart from a dict literal's)."""
-
-
-def _class_values(cls: ast.ClassDef) -> dict:
-    """The literal assignments of a class body, nested classes as :class:`_Section` dicts."""
-    out: dict = _Section()
-    for item in cls.body:
-        if isinstance(item, ast.Assign) and len(item.targets) == 1:
-            target = item.targets[0]
-            if isinstance(target, ast.Name):
-                value = _literal(item.value)
-                if value is not None:
-                    out[target.id] = value
-        elif isinstance(item, ast.ClassDef):
-            out[item.name] = _class_values(item)
-    return out
-
-
-def _flatten(table: dict, prefix: str) -> dict[str, tuple[str, object]]:
-    """``{key: (its path, value)}`` of a class's values, nested classes' keys at the top."""
-    out: dict[str, tuple[str, object]] = {}
-    for key, value in table.items():
-        if isinstance(value, _Section):
-            out.update(_flatten(value, f"{prefix}.{key}"))
+def _rand(values: dict) -> dict[str, Setting]:
+    """``domain_rand`` (or a fork's ``domain_rands`` with nested classes) flattened: every key
+    at the top, each keeping its path."""
+    out: dict[str, Setting] = {}
+    for value in values.values():
+        if isinstance(value, dict):
+            out.update(_rand(value))
         else:
-            out[key] = (f"{prefix}.{key}", value)
+            out[value.path.rsplit(".", 1)[-1]] = value
     return out
-
-
-def _choose(classes: list[ast.ClassDef], path: Path, config_class: str | None) -> ast.ClassDef:
-    if config_class is not None:
-        chosen = [c for c in classes if c.name == config_class]
-        if not chosen:
-            raise DomainError(
-                f"{path}: no class '{config_class}'; expected one of {[c.name for c in classes]}"
-            )
-        return chosen[0]
-
-    def has(c: ast.ClassDef, *names: str) -> bool:
-        return any(isinstance(i, ast.ClassDef) and i.name in names for i in c.body)
-
-    chosen = [c for c in classes if has(c, "domain_rand", "domain_rands", "noise")] or [
-        c
-        for c in classes
-        if any(isinstance(b, (ast.Name, ast.Attribute)) and ast.unparse(b).endswith("Cfg")
-               for b in c.bases)
-    ]  # fmt: skip
-    if not chosen:
-        raise DomainError(
-            f"{path}: no legged_gym config class (a class with a 'domain_rand' or 'noise' "
-            f"class, or deriving from LeggedRobotCfg); classes: {[c.name for c in classes]}"
-        )
-    return chosen[0]
 
 
 def read_legged_gym_config(path: str | Path, config_class: str | None = None) -> dict:
-    """The settings of a legged_gym config file, over ``LEGGED_GYM_DEFAULTS``: ``{"domain_rand":
-    {key: (path, value)}, "noise": {...}, "terrain": {...}, "commands": {...}, "sim": {...},
-    "source": str}`` (``domain_rand`` flattened: a fork's nested classes' keys at the top, each
-    with the path it was written at; the defaults' paths are ``LeggedRobotCfg.domain_rand.X``).
+    """The settings of a legged_gym config class with everything it inherits
+    (:func:`~sim2real.eval.world.legged_gym_tree.resolve_config`): ``{"domain_rand": {key:
+    Setting}, "noise": {...}, "terrain": {key: Setting}, "commands": {...}, "control": {...},
+    "source": str, "classes": [str], "env_files": [(Path, str)]}`` (``domain_rand``
+    flattened: a fork's nested classes' keys at the top, each with its path, file and line;
+    ``noise`` and ``commands`` nested as written; ``env_files``: the ``legged_robot.py`` beside
+    each base's file, the environment the heading command is read from).
 
     Args:
-        path: The config's Python file (read as text, never run).
+        path: The config's Python file (read as text, never run), in its own tree.
         config_class: The config class (default: the first top-level class with a
-            ``domain_rand``, ``domain_rands`` or ``noise`` class, else the first that derives
-            from a name ending in ``Cfg``).
+            ``domain_rand``, ``domain_rands``, ``noise``, ``terrain`` or ``commands`` class,
+            else the first that derives from a name ending in ``Cfg``).
 
     Raises:
-        DomainError: an unreadable file, not Python, or no such config class (named).
+        DomainError: an unreadable file, not Python, no such config class, or a base the tree
+            does not hold (one line naming the class and the module).
     """
     path = Path(path)
     try:
-        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
-    except OSError as exc:
-        raise DomainError(f"{path}: cannot read the legged_gym config ({exc.strerror})") from None
-    except (SyntaxError, UnicodeDecodeError) as exc:
-        raise DomainError(f"{path}: not a Python file: {exc}") from None
-    cls = _choose([n for n in tree.body if isinstance(n, ast.ClassDef)], path, config_class)
-    values = _class_values(cls)
-    defaults = LEGGED_GYM_DEFAULTS
-    rand = _flatten(defaults["domain_rand"], DEFAULTS_PATH)
+        resolved = resolve_config(path, config_class)
+    except TreeError as exc:
+        raise DomainError(str(exc)) from None
+    rand: dict[str, Setting] = {}
     for name in ("domain_rand", "domain_rands"):
-        if name in values:
-            rand.update(_flatten(values[name], name))
-    noise = {**defaults["noise"], **values.get("noise", {})}
-    noise["noise_scales"] = {
-        **defaults["noise"]["noise_scales"],
-        **values.get("noise", {}).get("noise_scales", {}),
-    }
-    commands = values.get("commands", {})
+        rand.update(_rand(resolved.section(name)))
+    env_files = []
+    for entry in resolved.classes:
+        rel = entry[entry.index("(") + 1 : -1]
+        candidate = (resolved.root or path.parent) / Path(rel).parent / "legged_robot.py"
+        if candidate.is_file() and all(candidate != f for f, _ in env_files):
+            env_files.append((candidate, str(Path(rel).parent / "legged_robot.py")))
+    terrain = {k: v for k, v in resolved.section("terrain").items() if isinstance(v, Setting)}
     return {
         "domain_rand": rand,
-        "noise": noise,
-        "terrain": {**defaults["terrain"], **values.get("terrain", {})},
-        # whether the task's file writes its terrain's mesh_type (the forks' bases differ)
-        "terrain_written": "mesh_type" in values.get("terrain", {}),
-        "commands": {
-            **defaults["commands"],
-            **commands,
-            "ranges": {**defaults["commands"]["ranges"], **commands.get("ranges", {})},
-        },
-        "sim": {**defaults["sim"], **values.get("sim", {})},
-        "control": {**defaults["control"], **values.get("control", {})},
-        "source": f"{path.name} ({cls.name}, legged_gym)",
+        "noise": resolved.section("noise"),
+        "terrain": terrain,
+        "commands": resolved.section("commands"),
+        "control": resolved.section("control"),
+        "source": f"{resolved.file} ({resolved.name}, legged_gym)",
+        "classes": resolved.classes,
+        "env_files": env_files,  # the task's own folder first, then its bases' in order
     }
 
 
@@ -167,45 +108,55 @@ def _terrain_refusals(terrain: dict) -> list[str]:
 
 
 def legged_gym_domain(path: str | Path, config_class: str | None = None) -> str:
-    """The ranges file (TOML text) of a legged_gym task's training domain. What each key
-    becomes is its group's (:data:`sim2real.eval.world.legged_gym_groups.GROUPS`, which says
-    it); the noise (``noise_scales`` times ``noise_level``, 0 without ``add_noise``; a uniform
-    noise of half-width ``s`` has the standard deviation ``s / sqrt(3)``): ``dof_pos`` ->
-    ``[sensors] noise_sigma``, ``ang_vel`` -> ``[imu] gyro_noise_sigma``, ``gravity`` (a unit
-    vector's) -> ``[imu] accel_noise_sigma`` (times g); ``commands.ranges`` and
-    ``commands.resampling_time`` (s between commands) -> ``[commands]`` (its ``period``).
+    """The ranges file (TOML text) of a legged_gym task's training domain, read with everything
+    its class inherits. What each ``domain_rand`` key becomes is its group's
+    (:data:`sim2real.eval.world.legged_gym_groups.GROUPS`, which says it); the noise
+    (``noise_scales`` times ``noise_level``, 0 without ``add_noise``; a uniform noise of
+    half-width ``s`` has the standard deviation ``s / sqrt(3)``): ``dof_pos`` -> ``[sensors]
+    noise_sigma``, ``ang_vel`` -> ``[imu] gyro_noise_sigma``, ``gravity`` (a unit vector's) ->
+    ``[imu] accel_noise_sigma`` (times g); ``commands`` -> ``[commands]``
+    (:func:`~sim2real.eval.world.legged_gym_lines.command_lines`); ``terrain`` -> ``[terrain]``
+    where its ``mesh_type`` has tiles. Every value is written with where it came from, every key
+    of ``domain_rand``, ``terrain``, ``commands``, ``noise`` and ``control`` the soak does not
+    model is named in one line (:mod:`sim2real.eval.world.legged_gym_lines`).
 
     Raises:
-        DomainError: an unreadable config, a malformed range, a randomization the soak cannot
-            run that is on, or a key no group knows (each named with the file and its path).
+        DomainError: an unreadable config, a base the tree does not hold, a malformed value of
+            a key the soak models, or a terrain the soak cannot build (each named with the file
+            and its path).
     """
     path = Path(path)
     cfg = read_legged_gym_config(path, config_class)
     context = Context(path, cfg)
     known = {key for group in GROUPS for key in (*group.switches, *group.values)}
-    unknown = [
-        where
-        for key, (where, value) in cfg["domain_rand"].items()
-        if key not in known and not context.switched_off(key, value)
-    ]
-    if unknown:
-        raise DomainError(
-            f"{path}: {', '.join(unknown)}: not a randomization this reader knows (legged_gym, "
-            "humanoid-gym and their forks' keys); nothing is dropped silently: write the "
-            "training domain as a ranges file (soak-test --ranges FILE.toml, policy-export "
-            "--domain FILE.toml; see sim2real/eval/world/example_ranges.toml)"
-        )
+    for key, setting in cfg["domain_rand"].items():
+        if key in known:
+            continue
+        if context.switched_off(key, setting.value):
+            context.off.append(f"{context.source(key)}: a switch that is off, or its key")
+        else:
+            context.apart.append(
+                f"{context.source(key)}: not a randomization this reader knows (legged_gym, "
+                "HIMLoco, humanoid-gym and their forks' keys)"
+            )
     refused = []
-    period = cfg["commands"]["resampling_time"]
-    if not (isinstance(period, (int, float)) and not isinstance(period, bool) and period > 0):
-        refused.append(f"commands.resampling_time: expected s > 0, got {period!r}")
-    for group in GROUPS:
+    if "static_friction" not in cfg["terrain"]:
+        refused.append(
+            "terrain.static_friction: not in the config (legged_gym averages the shapes' "
+            "friction with it)"
+        )
+    else:
+        for group in GROUPS:
+            try:
+                group.read(context)
+            except ValueError as exc:
+                refused.append(str(exc))
+    refused += _terrain_refusals(cfg["terrain"])
+    if not refused:
         try:
-            group.read(context)
+            text = "\n".join(domain_lines(context, math.sqrt(3.0))) + "\n"
         except ValueError as exc:
             refused.append(str(exc))
-    if cfg["terrain_written"]:
-        refused += _terrain_refusals(cfg["terrain"])
     if refused:
         raise DomainError(f"{path}: " + "; ".join(refused))
-    return "\n".join(domain_lines(context, math.sqrt(3.0))) + "\n"
+    return text

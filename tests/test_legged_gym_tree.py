@@ -1,13 +1,12 @@
 """A legged_gym config read with everything it inherits from its own tree (HIMLoco's layout:
 ``legged_gym/envs/base/legged_robot_config.py`` and a task module importing it), every value of
 the stored domain naming its file and line, a base the tree lacks refused in one line, what the
-soak does not model named in one line; and, on HIMLoco's own files (``SIM2REAL_HIMLOCO``: the
-checkout of OpenRobotLab/HIMLoco), the stored domain equal to
+soak does not model named in one line; and, on HIMLoco's own files (its checkout under
+``SIM2REAL_STACKS``, :mod:`tests.stacks`), the stored domain equal to
 ``sim2real/eval/world/himloco_rough_ranges.toml`` key by key."""
 
 from __future__ import annotations
 
-import os
 import textwrap
 from pathlib import Path
 
@@ -241,20 +240,15 @@ def test_a_base_missing_from_the_tree_is_refused_in_one_line(tmp_path):
     assert "not in the tree" in message
 
 
-HIMLOCO = os.environ.get("SIM2REAL_HIMLOCO")
 HAND = Path(__file__).parents[1] / "sim2real" / "eval" / "world" / "himloco_rough_ranges.toml"
 
 
-@pytest.mark.skipif(
-    not HIMLOCO or not Path(HIMLOCO).is_dir(),
-    reason="SIM2REAL_HIMLOCO (a checkout of OpenRobotLab/HIMLoco) is not set",
-)
-def test_himlocos_own_config_gives_the_domain_it_trains_with_key_by_key():
+def test_himlocos_own_config_gives_the_domain_it_trains_with_key_by_key(stacks):
     """HIMLoco's go1_config.py read in its own tree: every key of the stored domain equals the
     hand-written himloco_rough_ranges.toml's, which states HIMLoco's training domain from its
     source (the file's comments), apart from one: the file's pushes are set velocities the IMU
     does not feel (``apply``), the reader leaves the soak's pushes as forces."""
-    config = Path(HIMLOCO) / "legged_gym" / "legged_gym" / "envs" / "go1" / "go1_config.py"
+    config = stacks.root("HIMLoco") / "legged_gym" / "legged_gym" / "envs" / "go1" / "go1_config.py"
     ours = parse_overrides(legged_gym_domain(config), "go1_config.py")
     hand = parse_overrides(HAND.read_text(), HAND.name)
     keys = {(t, k) for src in (ours, hand) for t, v in src.items()

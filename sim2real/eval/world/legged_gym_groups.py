@@ -235,7 +235,9 @@ def _pushes(c: Context, g: Group) -> None:
     c.prov.append(
         f"pushes.interval = {interval:.6g}, mode = set, max_velocity = {vmax:.6g} <- "
         f"{c.source('push_interval_s')}, {c.source('max_push_vel_xy')} (the base's x and y "
-        "velocity set to U(-max, max) m/s)"
+        "velocity set to U(-max, max) m/s); apply = force, the soak's own: legged_gym writes "
+        "the root velocity between physics steps (legged_robot.py _push_robots), which no IMU "
+        'feels; a ranges file with apply = "velocity_hidden_from_imu" runs it as trained'
     )
 
 

@@ -47,6 +47,7 @@ LEGGED_GYM_DEFAULTS = {
         "dynamic_friction": 1.0,
         "terrain_proportions": [0.1, 0.1, 0.35, 0.25, 0.2],
         "num_rows": 10,
+        "num_cols": 20,
         "curriculum": True,
         "horizontal_scale": 0.1,
         "vertical_scale": 0.005,
@@ -380,8 +381,9 @@ def domain_lines(c: Context, root3: float) -> list[str]:
 
 #: legged_gym ``terrain`` keys a ranges file's ``[terrain]`` takes as they are
 #: (:class:`sim2real.eval.world.terrain.TerrainRanges`).
-TERRAIN_KEYS = ("mesh_type", "terrain_proportions", "num_rows", "curriculum", "horizontal_scale",
-                "vertical_scale", "terrain_length", "terrain_width", "slope_treshold")  # fmt: skip
+TERRAIN_KEYS = ("mesh_type", "terrain_proportions", "num_rows", "num_cols", "curriculum",
+                "horizontal_scale", "vertical_scale", "terrain_length", "terrain_width",
+                "slope_treshold")  # fmt: skip
 
 
 def terrain_table(terrain: dict) -> dict | None:

@@ -261,8 +261,13 @@ class TerrainDraw:
         return apply_terrain(spec, self, rng)
 
     def to_dict(self) -> dict:
+        """JSON-ready (tuples as lists: a checkpoint's stored draw, read back, equals it)."""
         out = {"kind": self.kind, "difficulty": self.difficulty, "level": self.level}
-        return out | {"label": self.label, "ranges": dataclasses.asdict(self.ranges)}
+        ranges = {
+            k: list(v) if isinstance(v, tuple) else v
+            for k, v in dataclasses.asdict(self.ranges).items()
+        }
+        return out | {"label": self.label, "ranges": ranges}
 
     @classmethod
     def from_dict(cls, data: dict) -> TerrainDraw:

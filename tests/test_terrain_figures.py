@@ -122,6 +122,24 @@ def test_a_slopes_platform_is_where_legged_gyms_pyramid_is_clipped():
     assert tile.tolist() == [0, 0, 0, 0, -1]
 
 
+def test_the_compiled_tick_places_a_point_as_the_layout_does():
+    """The kernel's place of a fall (its nearest sample, the tile, the platform's mask) is
+    :meth:`TileLayout.locate`'s, on every kind and on 3 x 3 tiles."""
+    rng = np.random.default_rng(0)
+    for kind in ("stairs_up", "slope_down", "rough_slope", "discrete"):
+        layout = TileLayout.of(TerrainDraw(kind, 0.4, 4, TerrainRanges(tiles=3)))
+        figures = TerrainFigures([layout], DT)
+        points = rng.uniform(-13.0, 13.0, (300, 2))
+        points[:100] = np.round(points[:100] / 0.05) * 0.05  # halves of a sample: rint's ties
+        for k, xy in enumerate(points):
+            figures.step(xy[None], np.zeros((1, 2)), np.array([True]), np.array([k + 1]), 0.0)
+        tile, on = layout.locate(points)
+        parts = np.where(tile < 0, "off", np.where(on, "platform", "feature"))
+        places = figures.summary(0)["fall_places"]
+        assert [p["part"] for p in places] == parts.tolist()
+        assert [p["tile"] for p in places] == [layout.offset(int(t)) for t in tile]
+
+
 def test_the_figures_state_round_trips_per_env():
     layouts = [TileLayout.of(parse_terrain(t)) for t in ("stairs_up:0.10", "discrete:0.10")]
     a = TerrainFigures(layouts, DT)

@@ -21,8 +21,9 @@ central ``platform``, the ``feature`` around it, or ``off`` the tiles) and accou
   (``falls_on``), and listed (``fall_places``: ``t_s``, ``tile`` as ``[di, dj]`` from the start
   tile or None off the tiles, ``part``). A push fall on a stairs tile's platform is a platform fall.
 
-The cost per tick is a few numpy operations over the envs (no allocation of the truth: the
-batch's buffer). The figures are part of a session's checkpoint (:meth:`state_dict`).
+A tick is one compiled call over the envs (:mod:`sim2real.eval.soak.terrain_figures_kernel`; the
+truth read into the batch's buffer): about 2 us where numpy took 50. The figures are part of a
+session's checkpoint (:meth:`state_dict`).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import numpy as np
 
 from sim2real.deploy.core.modes import RUNNING
 from sim2real.deploy.core.stateful import env_list, put, read_records, records_json, take
+from sim2real.eval.soak.terrain_figures_kernel import account
 from sim2real.eval.world.tile_parts import PARTS, TileLayout, place
 
 #: What a crossing is, for the report's readers (module docstring).
@@ -47,6 +49,9 @@ class TerrainFigures:
         layouts: Each env's :class:`~sim2real.eval.world.tile_parts.TileLayout` (one ranges for
             the batch: the same grid, each its own kind).
         control_period: s per tick.
+
+    Raises:
+        ValueError: layouts of different grids.
     """
 
     def __init__(self, layouts: list[TileLayout], control_period: float):
@@ -62,27 +67,44 @@ class TerrainFigures:
             ):
                 raise ValueError("TerrainFigures: the envs' tiles must share one grid (one ranges)")
         self._platform = np.stack([x.platform for x in layouts])  # (envs, n, n)
-        self._rows = np.arange(k)
-        self.platform_s, self.feature_s, self.off_s = np.zeros(k), np.zeros(k), np.zeros(k)
-        self.feature_m = np.zeros(k)
+        self._sums = np.zeros((k, 4))  # s on the platform, the feature, off; m on the feature
+        self.platform_s, self.feature_s = self._sums[:, 0], self._sums[:, 1]
+        self.off_s, self.feature_m = self._sums[:, 2], self._sums[:, 3]
         self.crossings = np.zeros((k, 2), dtype=np.int64)  # out, in
         self.falls_on = np.zeros((k, len(PARTS)), dtype=np.int64)
         self.falls_seen = np.zeros(k, dtype=np.int64)
         self.anchor_tile = np.array([x.start_tile for x in layouts], dtype=np.int64)
         self.anchor_platform = np.ones(k, dtype=bool)  # the start: on the platform
         self.fall_places: list[list[dict]] = [[] for _ in range(k)]
+        self._fell_tile, self._fell_part = np.zeros(k, np.int64), np.zeros(k, np.int64)
+        self._running = np.zeros(k, dtype=bool)
+        self._call = None  # the kernel bound to a soak's arrays (__call__) ...
+        self._bound_to: tuple = ()  # ... its truth and falls
 
     # ------------------------------------------------------------------ per tick
     def locate(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(tile, on_platform)`` (envs,) of the envs' points ``xy`` (envs, 2) m, each on its
-        own env's tiles (:func:`sim2real.eval.world.tile_parts.place`)."""
-        return place(xy, self.layouts[0], self._platform, self._rows)
+        own env's tiles (:func:`sim2real.eval.world.tile_parts.place`; the kernel's rule)."""
+        return place(xy, self.layouts[0], self._platform, np.arange(self.envs))
+
+    def _arguments(self) -> tuple:
+        first = self.layouts[0]
+        grid = (first.origin, first.spacing, first.n, first.tiles, self.dt)
+        state = (self._sums, self.crossings, self.falls_on, self.falls_seen, self.anchor_tile)
+        return (self._platform, *grid, *state, self.anchor_platform, self._fell_tile)
 
     def __call__(self, runtime, truth: np.ndarray, falls: np.ndarray) -> None:
-        """Account one tick: ``truth`` (envs, 13) the true base (position m, world; its
-        ``[7:9]`` the world planar velocity, m/s), ``falls`` (envs,) the tracker's fall counts
-        after this tick, ``runtime.mode`` who walked."""
-        self.step(truth[:, :2], truth[:, 7:9], runtime.mode == RUNNING, falls, runtime.time)
+        """Account one tick: ``truth`` (envs, 13) float64 the true base (position m, world; its
+        ``[7:9]`` the world planar velocity, m/s), ``falls`` (envs,) int64 the tracker's fall
+        counts after this tick, ``runtime.mode`` who walked; ``runtime.time`` s."""
+        np.equal(runtime.mode, RUNNING, out=self._running)
+        if self._call is None or self._bound_to[0] is not truth or self._bound_to[1] is not falls:
+            from sim2real.deploy.kernels.calls import bind
+
+            args = (truth, self._running, falls, *self._arguments(), self._fell_part)
+            self._call, self._bound_to = bind(account, *args), (truth, falls)
+        if self._call():
+            self._place_falls(runtime.time)
 
     def step(
         self,
@@ -95,31 +117,23 @@ class TerrainFigures:
         """:meth:`__call__` on its parts: ``xy`` (envs, 2) m and ``velocity`` (envs, 2) m/s,
         the true base's world position and planar velocity, ``running`` (envs,) bool,
         ``falls`` (envs,) the fall counts, ``t`` s the session time (for the fall places)."""
-        tile, on_platform = self.locate(xy)
-        off = tile < 0
-        feature = ~off & ~on_platform
-        dt = self.dt
-        self.platform_s += (running & on_platform) * dt
-        self.feature_s += (running & feature) * dt
-        self.off_s += (running & off) * dt
-        speed = np.sqrt(velocity[:, 0] ** 2 + velocity[:, 1] ** 2)
-        self.feature_m += np.where(running & feature, speed, 0.0) * dt
-        left = tile != self.anchor_tile  # the anchor's tile left: over its rim
-        crossed_out = left & self.anchor_platform
-        self.anchor_tile[left] = tile[left]
-        self.anchor_platform &= ~left  # now at the rim of the tile it is on
-        crossed_in = on_platform & ~self.anchor_platform
-        self.anchor_platform |= on_platform
-        self.crossings[:, 0] += crossed_out & running
-        self.crossings[:, 1] += crossed_in & running
-        fell = falls > self.falls_seen
-        if fell.any():
-            part = np.where(off, 2, np.where(on_platform, 0, 1))
-            for e in np.flatnonzero(fell):
-                self.falls_on[e, part[e]] += falls[e] - self.falls_seen[e]
-                place = self.layouts[e].offset(int(tile[e]))
-                self.fall_places[e].append({"t_s": float(t), "tile": place, "part": PARTS[part[e]]})
-            self.falls_seen[:] = falls
+        truth = np.zeros((self.envs, 9))
+        truth[:, :2], truth[:, 7:9] = xy, velocity
+        running = np.asarray(running, dtype=bool)
+        falls = np.asarray(falls, dtype=np.int64)
+        if account(truth, running, falls, *self._arguments(), self._fell_part):
+            self._place_falls(t)
+
+    def _place_falls(self, t: float) -> None:
+        """List the falls of this tick (the kernel's ``fell_part``, ``fell_tile``)."""
+        for e in np.flatnonzero(self._fell_part >= 0):
+            self.fall_places[e].append(
+                {
+                    "t_s": float(t),
+                    "tile": self.layouts[e].offset(int(self._fell_tile[e])),
+                    "part": PARTS[int(self._fell_part[e])],
+                }
+            )
 
     # ------------------------------------------------------------------ the result
     def summary(self, e: int) -> dict:

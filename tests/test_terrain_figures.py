@@ -2,7 +2,7 @@
 feature and on the platform, crossings and falls placed where they happened, from a scripted base
 path and from a short go2 soak on a stairs tile (its report row, and a resume that keeps the
 figures); and legged_gym's own cumulative rule for ``terrain_proportions``
-(sim2real/eval/world/terrain.py), against its ``make_terrain`` chain."""
+(sim2real/eval/world/terrain_choice.py), against its ``make_terrain`` chain."""
 
 from __future__ import annotations
 
@@ -15,15 +15,8 @@ import numpy as np
 import pytest
 
 from sim2real.eval.soak.terrain_figures import TerrainFigures
-from sim2real.eval.world.terrain import (
-    TerrainDraw,
-    TerrainRanges,
-    cumulative_proportions,
-    kind_shares,
-    legged_gym_kind,
-    parse_terrain,
-    sample_terrain,
-)
+from sim2real.eval.world.terrain import TerrainDraw, TerrainRanges, parse_terrain, sample_terrain
+from sim2real.eval.world.terrain_choice import cumulative_proportions, kind_shares, legged_gym_kind
 from sim2real.eval.world.tile_parts import TileLayout
 
 DT = 0.02

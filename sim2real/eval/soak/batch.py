@@ -61,7 +61,6 @@ from sim2real.eval.soak.terrain_figures import TerrainFigures
 from sim2real.eval.world.drift import apply_drift, joint_dofs
 from sim2real.eval.world.pushes import DomainPushes
 from sim2real.eval.world.session_draw import sample_session, session_rng
-from sim2real.eval.world.tile_parts import TileLayout
 from sim2real.eval.world.world_faces import WORLD_OF_KIND
 from sim2real.robots.errors import Sim2RealError
 from sim2real.robots.files import atomic_write, sha256_file
@@ -198,8 +197,7 @@ class SessionBatch:
         self.violations, self.interventions = self.rig.violations, self.rig.interventions
         #: a legged robot's base estimate against the plant's truth (None for an arm)
         self.estimation = self.rig.estimation
-        #: what the robots did on their terrain tiles (None without terrain or a tracker)
-        self.terrain_figures = self._terrain_figures(draws, dt)
+        self.terrain_figures = TerrainFigures.of_batch(draws, self.task, dt)  # None: no terrain
 
         n = robot.n_joints
         self.peak = backend.thermal.winding_temperature.copy()
@@ -239,15 +237,6 @@ class SessionBatch:
         if resume:
             self._resume()
         self.recorders = [recorder(self) for recorder in recorders]
-
-    def _terrain_figures(self, draws: list, dt: float) -> TerrainFigures | None:
-        """The batch's :class:`~sim2real.eval.soak.terrain_figures.TerrainFigures` (and the
-        buffer its truth is read into), for sessions on terrain followed by a tracker."""
-        tracker = getattr(self.task, "tracker", None)
-        if tracker is None or any(d.terrain is None for d in draws):
-            return None
-        self._truth = np.zeros((len(draws), 13))
-        return TerrainFigures([TileLayout.of(d.terrain) for d in draws], dt)
 
     # ------------------------------------------------------------------ lifecycle
     def wall_elapsed(self) -> float:
@@ -335,9 +324,6 @@ class SessionBatch:
         )
         np.abs(self.backend.true_velocity(), out=self._speed)
         np.maximum(self.speed_peak, self._speed, out=self.speed_peak)
-        if self.terrain_figures is not None:  # where the true base walked and fell
-            truth = self.backend.true_base_state(self._truth)
-            self.terrain_figures(rt, truth, self.task.tracker.falls)
         if rt.ticks >= self._next_event:
             self._supervise(rt)
         if self.stop_replay is not None:  # last: a capture must hold this whole tick

@@ -21,8 +21,8 @@ central ``platform``, the ``feature`` around it, or ``off`` the tiles) and accou
   (``falls_on``), and listed (``fall_places``: ``t_s``, ``tile`` as ``[di, dj]`` from the start
   tile or None off the tiles, ``part``). A push fall on a stairs tile's platform is a platform fall.
 
-A tick is one compiled call over the envs (:mod:`sim2real.eval.soak.terrain_figures_kernel`; the
-truth read into the batch's buffer): about 2 us where numpy took 50. The figures are part of a
+A tick is one compiled call over the envs (:mod:`sim2real.eval.soak.terrain_figures_kernel`), the
+truth read into a buffer of its own (its cost: docs/measurements.md). The figures are part of a
 session's checkpoint (:meth:`state_dict`).
 """
 
@@ -78,10 +78,25 @@ class TerrainFigures:
         self.fall_places: list[list[dict]] = [[] for _ in range(k)]
         self._fell_tile, self._fell_part = np.zeros(k, np.int64), np.zeros(k, np.int64)
         self._running = np.zeros(k, dtype=bool)
+        self._truth = np.zeros((k, 13))  # the true base, read each tick (tick)
         self._call = None  # the kernel bound to a soak's arrays (__call__) ...
         self._bound_to: tuple = ()  # ... its truth and falls
 
+    @classmethod
+    def of_batch(cls, draws: list, task, control_period: float) -> TerrainFigures | None:
+        """The figures of a soak batch's sessions (their draws, :func:`sim2real.eval.world.
+        session_draw.sample_session`), or None: sessions without terrain, or a task without a
+        tracker (``task.tracker``) to count the falls."""
+        if getattr(task, "tracker", None) is None or any(d.terrain is None for d in draws):
+            return None
+        return cls([TileLayout.of(d.terrain) for d in draws], control_period)
+
     # ------------------------------------------------------------------ per tick
+    def tick(self, runtime, backend, falls: np.ndarray) -> None:
+        """:meth:`__call__` with the truth of ``backend`` (its ``true_base_state``, read into a
+        buffer of the figures' own)."""
+        self(runtime, backend.true_base_state(self._truth), falls)
+
     def locate(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(tile, on_platform)`` (envs,) of the envs' points ``xy`` (envs, 2) m, each on its
         own env's tiles (:func:`sim2real.eval.world.tile_parts.place`; the kernel's rule)."""

@@ -1,6 +1,6 @@
 """The compiled arithmetic of :meth:`sim2real.eval.soak.terrain_figures.TerrainFigures.step`: one
-tick of every env's terrain figures in one call (the numpy of it cost 50 us a tick for two envs,
-2 % of a go2 soak's tick; this, about 2 us).
+tick of every env's terrain figures in one call (numpy's dozens of small operations cost many
+times more: docs/measurements.md).
 
 The place of a point is :func:`sim2real.eval.world.tile_parts.place`'s: its nearest sample
 (``rint``, half to even, as numpy's), the tile by floor division, the platform by the env's mask.

@@ -26,6 +26,7 @@ import mujoco
 import numpy as np
 
 from sim2real.eval.world.floor import BORDER_PREFIX
+from sim2real.eval.world.terrain_choice import cumulative_proportions, kind_shares, legged_gym_kind
 from sim2real.eval.world.terrain_tiles import (
     KINDS,
     UNBUILT_KINDS,
@@ -56,75 +57,6 @@ SPAWN_HALF_SIDE = 0.3
 RANDOM_DIFFICULTIES = (0.5, 0.75, 0.9)
 
 
-#: A choice past the last cumulative share by less than this (the rounding of a float sum: HIMLoco's
-#: [0.1, 0.2, 0.3, 0.3, 0.1] sums to 1 + 2e-16 in numpy, another mix to 1 - 1e-16) is no share of
-#: the draws; a uniform choice that lands there (a chance below 1e-9) is given the kind below it.
-ROUNDING = 1e-9
-
-
-def cumulative_proportions(shares) -> list[float]:
-    """legged_gym's ``Terrain.proportions``: ``[np.sum(shares[:i + 1]) for i in ...]`` (the same
-    numpy sums, so the same floats)."""
-    return [float(np.sum(shares[: i + 1])) for i in range(len(shares))]
-
-
-def legged_gym_kind(choice: float, shares) -> str:
-    """The kind legged_gym's ``Terrain.make_terrain`` builds for ``choice`` (its ``if``/``elif``
-    chain on the cumulative proportions, legged_gym ``legged_gym/utils/terrain.py`` and
-    OpenRobotLab/HIMLoco's copy): below the first cumulative share a smooth slope (below its
-    half the negative slope: our ``slope_up``, a pit climbed out of), then ``rough_slope``,
-    ``stairs_up`` (below the third: the negative step height), ``stairs_down``, ``discrete``,
-    ``stepping_stones``, ``gaps``, and past them all its final ``else``: ``pits``. Shares that
-    do not sum to 1 give the last kinds what is left, or nothing. A comparison with an entry
-    ``shares`` does not have (legged_gym's IndexError) is returned as
-    ``"terrain_proportions[k]"``."""
-    cum = cumulative_proportions(shares)
-
-    def below(k: int) -> bool | str:
-        return choice < cum[k] if k < len(cum) else f"terrain_proportions[{k}]"
-
-    for k, kind in (
-        (0, None),
-        (1, "rough_slope"),
-        (3, None),
-        (4, "discrete"),
-        (5, None),
-        (6, None),
-    ):
-        hit = below(k)
-        if isinstance(hit, str):
-            return hit
-        if not hit:
-            continue
-        if k == 0:
-            return "slope_up" if choice < cum[0] / 2 else "slope_down"
-        if k == 3:
-            return "stairs_up" if choice < cum[2] else "stairs_down"
-        return kind or UNBUILT_KINDS[k - 5]
-    return UNBUILT_KINDS[-1]
-
-
-def kind_shares(shares, num_cols: int | None) -> dict[str, float]:
-    """``{kind: share of the draws}`` of :func:`legged_gym_kind` over legged_gym's choices: with a
-    curriculum (``num_cols``) the columns' ``j / num_cols + 0.001`` (``Terrain.curiculum``),
-    each ``1 / num_cols``; without, a uniform choice in [0, 1) (``Terrain.randomized_terrain``),
-    each kind the length of its interval (pieces shorter than ``ROUNDING`` left out). Only the
-    kinds reached, in the order reached."""
-    out: dict[str, float] = {}
-    if num_cols is not None:
-        for j in range(num_cols):
-            kind = legged_gym_kind(j / num_cols + 0.001, shares)
-            out[kind] = out.get(kind, 0.0) + 1.0 / num_cols
-        return out
-    cum = cumulative_proportions(shares)
-    edges = sorted({0.0, 1.0, *(c for c in [*cum, cum[0] / 2] if 0.0 < c < 1.0)})
-    for a, b in zip(edges[:-1], edges[1:], strict=True):
-        if b - a >= ROUNDING:
-            kind = legged_gym_kind(a, shares)
-            out[kind] = out.get(kind, 0.0) + (b - a)
-    return out
-
-
 @dataclass(frozen=True)
 class TerrainRanges:
     """legged_gym's ``terrain`` class as a session draws from it (defaults: legged_gym's
@@ -134,10 +66,11 @@ class TerrainRanges:
         mesh_type: ``trimesh`` or ``heightfield`` (``plane``/``none``: no terrain).
         terrain_proportions: Shares of [smooth slope, rough slope, stairs up, stairs down,
             discrete, stepping stones, gaps] (legged_gym's, up to 8), read by legged_gym's own
-            cumulative rule (:func:`legged_gym_kind`): shares that do not sum to 1 give the last
-            kinds what is left, or nothing. A draw that would reach a kind the soak does not
-            build (stepping stones, gaps, pits: legged_gym's final ``else`` is pits), or an
-            entry the list does not have (legged_gym's IndexError), is refused by name.
+            cumulative rule (:mod:`~sim2real.eval.world.terrain_choice`): shares that do not sum
+            to 1 give the last kinds what is left, or nothing. A draw that would reach a kind
+            the soak does not build (stepping stones, gaps, pits: legged_gym's final ``else`` is
+            pits), or an entry the list does not have (legged_gym's IndexError), is refused by
+            name.
         num_rows: Levels; row ``i`` has difficulty ``i / num_rows``.
         num_cols: legged_gym's columns (kinds): with ``curriculum`` a session's kind is that of
             a column drawn uniformly (its robots are spread evenly over the columns), column
@@ -222,7 +155,8 @@ class TerrainRanges:
 
     @property
     def kind_shares(self) -> dict[str, float]:
-        """``{kind: share of the sessions' draws}`` by legged_gym's rule (:func:`kind_shares`),
+        """``{kind: share of the sessions' draws}`` by legged_gym's rule
+        (:func:`~sim2real.eval.world.terrain_choice.kind_shares`),
         the kinds it reaches only (legged_gym's unbuilt kinds and an entry the list lacks,
         ``terrain_proportions[k]``, included when reached)."""
         return kind_shares(self.terrain_proportions, self.num_cols if self.curriculum else None)
@@ -279,19 +213,17 @@ class TerrainDraw:
 
 def sample_terrain(rng: np.random.Generator, ranges: TerrainRanges) -> TerrainDraw | None:
     """A session's :class:`TerrainDraw` from ``ranges`` (None for a flat mesh type): the kind
-    legged_gym gives a choice (:func:`legged_gym_kind`): with ``curriculum`` that of a column
-    drawn uniformly of ``num_cols`` (its ``j / num_cols + 0.001``), without it a uniform choice
-    in [0, 1) (then the difficulty one of ``RANDOM_DIFFICULTIES``); the level uniform over
-    ``levels``."""
-    if ranges.flat:
-        return None
+    legged_gym gives a choice (:func:`~sim2real.eval.world.terrain_choice.legged_gym_kind`):
+    with ``curriculum`` that of a column drawn uniformly of ``num_cols`` (its ``j / num_cols +
+    0.001``), without it a uniform choice in [0, 1) (then the difficulty one of
+    ``RANDOM_DIFFICULTIES``); the level uniform over ``levels``."""
     shares = ranges.terrain_proportions
     if ranges.curriculum:  # a column drawn uniformly, its choice legged_gym's
         choice = int(rng.integers(ranges.num_cols)) / ranges.num_cols + 0.001
     else:
         choice = float(rng.uniform(0.0, 1.0))
     kind = legged_gym_kind(choice, shares)
-    if kind not in KINDS:  # within ROUNDING past the last share: the kind below it
+    if kind not in KINDS:  # within terrain_choice.ROUNDING past the last share: the one below
         kind = legged_gym_kind(np.nextafter(cumulative_proportions(shares)[-1], 0.0), shares)
     if not ranges.curriculum:
         return TerrainDraw(kind, float(rng.choice(RANDOM_DIFFICULTIES)), None, ranges)

@@ -221,6 +221,8 @@ def test_sessions_draw_kinds_by_legged_gyms_rule():
     kinds = [sample_terrain(np.random.default_rng(s), ranges).kind for s in range(400)]
     assert set(kinds) == {"slope_up", "slope_down", "rough_slope"}
     assert kinds.count("rough_slope") / 400 == pytest.approx(0.5, abs=0.08)
+    said = ranges.describe()  # soak-test's "terrain:" line says so before it runs
+    assert "rough_slope 50 %" in said and "stairs" not in said
 
 
 def test_our_rule_equals_himlocos_own_make_terrain(tmp_path):

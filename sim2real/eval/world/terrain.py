@@ -153,6 +153,17 @@ class TerrainRanges:
     def flat(self) -> bool:
         return self.mesh_type in FLAT_MESH_TYPES
 
+    def describe(self) -> str:
+        """One line: the mesh, the kinds' shares of the sessions by legged_gym's rule, the
+        levels (``soak-test: terrain: ...``)."""
+        shares = ", ".join(f"{k} {100 * x:.3g} %" for k, x in self.kind_shares.items())
+        low, high = self.levels or (0, self.num_rows - 1)
+        choice = f"{self.num_cols} curriculum columns" if self.curriculum else "a uniform choice"
+        return (
+            f"{self.mesh_type} tiles, {shares} of the sessions (legged_gym's cumulative rule on "
+            f"{list(self.terrain_proportions)}, {choice}); levels {low}-{high} of {self.num_rows}"
+        )
+
     @property
     def kind_shares(self) -> dict[str, float]:
         """``{kind: share of the sessions' draws}`` by legged_gym's rule

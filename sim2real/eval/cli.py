@@ -299,6 +299,8 @@ def run(args) -> int:
     pushes = WORLD_OF_KIND.get(robot_kind(robot).name).domain_pushes(ranges)
     if pushes is not None:
         print(f"soak-test: pushes: {pushes.describe()}")
+    if getattr(ranges, "terrain", None) is not None and not ranges.terrain.flat:
+        print(f"soak-test: terrain: {ranges.terrain.describe()}")
     ranges, commands = _commands(args, robot, ranges, file)
     template = _template(args, ranges)
     results, wall = _run_sessions(args, template)

@@ -1,11 +1,20 @@
 """A soak's results by the ground its sessions walked on (:mod:`sim2real.eval.world.terrain`): one row per
 terrain kind and level (a session's ``randomization.terrain``; the plane's sessions as ``plane``)
 with its falls (count and per hour), tracking success (share of RUNNING time within 0.2 m/s of the
-command), distance and the runtime's interventions (share of ticks). report.json's
-``totals.by_terrain`` (None when no session had terrain) and the console's lines.
+command), distance and the runtime's interventions (share of ticks), and what the robots did
+there, from the truth (:mod:`sim2real.eval.soak.terrain_figures`, a session's
+``locomotion.on_terrain``): s RUNNING on the tiles' feature (the steps, the slope, the
+obstacles), on the central platform and off the tiles, m walked on the feature, crossings out
+(platform to rim) and in (rim to platform), and the falls by the part they happened on.
+report.json's ``totals.by_terrain`` (None when no session had terrain) and the console's lines.
 """
 
 from __future__ import annotations
+
+from sim2real.eval.world.tile_parts import PARTS
+
+#: A row's figures of what the robots did, summed over its sessions (``locomotion.on_terrain``).
+ON_TERRAIN = ("feature_s", "platform_s", "off_s", "feature_m", "crossings_out", "crossings_in")
 
 
 def _key(result: dict) -> tuple[str, str, int | None]:
@@ -48,16 +57,31 @@ def terrain_rows(results: list[dict]) -> list[dict] | None:
                 "distance_m": sum(r["locomotion"]["distance_m"] for r in rs),
                 "interventions_fraction": any_ / ticks if ticks else 0.0,
                 "latched_faults": sum(r["runtime"]["latched_faults"] for r in rs),
+                **_on_terrain(rs),
             }
         )
     return rows
+
+
+def _on_terrain(results: list[dict]) -> dict:
+    """The sums of :data:`ON_TERRAIN` and the falls by part (``falls_on``) over ``results``
+    (sessions of one kind and level), with the feature's noun; the plane's, or sessions
+    without the figures, give None for each."""
+    figures = [r["locomotion"].get("on_terrain") for r in results]
+    if not figures or any(f is None for f in figures):
+        return {"feature": None, **dict.fromkeys(ON_TERRAIN), "falls_on": None}
+    out: dict = {"feature": figures[0]["feature"]}
+    out |= {k: sum(f[k] for f in figures) for k in ON_TERRAIN}
+    return out | {"falls_on": {p: sum(f["falls_on"][p] for f in figures) for p in PARTS}}
 
 
 def terrain_lines(rows: list[dict] | None) -> list[str]:
     """The console's lines of :func:`terrain_rows` (none without terrain)."""
     if not rows:
         return []
-    out = ["  by terrain   (kind@level: sessions, falls per hour, tracking, interventions)"]
+    out = ["  by terrain   (kind@level: sessions, falls per hour, tracking, interventions;"]
+    out.append("                then what the robots did, from the truth: s walking on the tile's")
+    out.append("                feature, crossings out (platform to rim) and in, falls by place)")
     for row in rows:
         ts = row["tracking_success"]
         out.append(
@@ -65,4 +89,20 @@ def terrain_lines(rows: list[dict] | None) -> list[str]:
             f"({row['falls_per_hour']:.2f}/h), tracking {'n/a' if ts is None else f'{100 * ts:.1f} %'}"
             f", interventions {100 * row['interventions_fraction']:.2f} % of ticks"
         )
+        if row.get("falls_on") is not None:
+            out.append(f"    {'':<22} {did_line(row)}")
     return out
+
+
+def did_line(row: dict) -> str:
+    """What the robots of a row did: ``90 s on the steps (12.5 m), 10 s on the platform, 0 s
+    off the tiles; 1 crossing (out 1, in 0); 0 falls on the steps (1 on the platform, 0 off)``."""
+    n, at = row["crossings_out"] + row["crossings_in"], row["falls_on"]
+    noun = row["feature"]
+    return (
+        f"{row['feature_s']:.0f} s on the {noun} ({row['feature_m']:.1f} m), "
+        f"{row['platform_s']:.0f} s on the platform, {row['off_s']:.0f} s off the tiles; "
+        f"{n} crossing{'' if n == 1 else 's'} (out {row['crossings_out']}, in "
+        f"{row['crossings_in']}); {at['feature']} falls on the {noun} ({at['platform']} on the "
+        f"platform, {at['off']} off the tiles)"
+    )

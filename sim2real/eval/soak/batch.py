@@ -57,6 +57,7 @@ from sim2real.eval.soak.session import (
     session_dir,
 )
 from sim2real.eval.soak.soak_faces import OPERATOR_OF_KIND
+from sim2real.eval.soak.terrain_figures import TerrainFigures
 from sim2real.eval.world.drift import apply_drift, joint_dofs
 from sim2real.eval.world.pushes import DomainPushes
 from sim2real.eval.world.session_draw import sample_session, session_rng
@@ -196,6 +197,7 @@ class SessionBatch:
         self.violations, self.interventions = self.rig.violations, self.rig.interventions
         #: a legged robot's base estimate against the plant's truth (None for an arm)
         self.estimation = self.rig.estimation
+        self.terrain_figures = TerrainFigures.of_batch(draws, self.task, dt)  # None: no terrain
 
         n = robot.n_joints
         self.peak = backend.thermal.winding_temperature.copy()

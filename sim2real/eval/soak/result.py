@@ -71,6 +71,10 @@ def locomotion_result(session: Session) -> dict:
     ]
     pushes = b.pushes.times[e] if b.pushes is not None else []
     fall_records = attribute_falls(tr.fall_log[e], schedule, pushes)
+    figures = b.terrain_figures.summary(e) if b.terrain_figures is not None else None
+    if figures is not None:  # each fall's tile and part, counted at the same stop
+        for record, place in zip(fall_records, figures["fall_places"], strict=True):
+            record["where"] = {"tile": place["tile"], "part": place["part"]}
     return {
         # what commands the policy: a velocity (the tracking figures below mean something) or a
         # motion clip (they do not: its tracking is the exhibition section's)
@@ -107,6 +111,8 @@ def locomotion_result(session: Session) -> dict:
         "windows": windows,
         "min_window_success_rate": (min(w["success_rate"] for w in windows) if windows else None),
         "peak_winding_c": peaks,
+        # what the robot did on its terrain tiles (None on the plane): sim2real.eval.soak.terrain_figures
+        "on_terrain": figures,
     }
 
 

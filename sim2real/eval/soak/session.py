@@ -373,6 +373,8 @@ class Session:
         }
         if b.estimation is not None:
             parts["estimation"] = b.estimation
+        if b.terrain_figures is not None:
+            parts["terrain"] = b.terrain_figures
         state.update(parts_state_dict(parts, e))
         if self.fault_armed:
             state.update(prefixed("injector", b.faults.armed[e].state_dict()))
@@ -457,6 +459,8 @@ class Session:
         ckpt.load_stage(b.interventions, arrays, e, where, "interventions")
         if b.estimation is not None:
             ckpt.load_stage(b.estimation, arrays, e, where, "estimation")
+        if b.terrain_figures is not None:
+            ckpt.load_stage(b.terrain_figures, arrays, e, where, "terrain")
         s = meta["session"]
         self.fault_index = int(s["fault_index"])
         self.fault_armed = bool(s["fault_armed"])

@@ -22,8 +22,9 @@ from sim2real.eval.world.legged_gym_tree import Setting
 
 #: legged_gym ``terrain`` keys a ranges file's ``[terrain]`` takes as they are
 #: (:class:`sim2real.eval.world.terrain.TerrainRanges`).
-TERRAIN_KEYS = ("mesh_type", "terrain_proportions", "num_rows", "curriculum", "horizontal_scale",
-                "vertical_scale", "terrain_length", "terrain_width", "slope_treshold")  # fmt: skip
+TERRAIN_KEYS = ("mesh_type", "terrain_proportions", "num_rows", "num_cols", "curriculum",
+                "horizontal_scale", "vertical_scale", "terrain_length", "terrain_width",
+                "slope_treshold")  # fmt: skip
 #: Why the other ``terrain`` keys are not modelled.
 TERRAIN_APART = {
     "dynamic_friction": "MuJoCo's contact has one sliding friction: the static one is drawn",
@@ -36,7 +37,6 @@ TERRAIN_APART = {
     "draws the kinds by terrain_proportions",
     "terrain_kwargs": "the arguments of a selected terrain",
     "max_init_terrain_level": "the curriculum's first level; the soak draws every level",
-    "num_cols": "columns of kinds; the soak draws a session's kind by terrain_proportions",
 }
 #: legged_gym's heading command as upstream legged_gym writes it (leggedrobotics/legged_gym
 #: ``legged_robot.py`` ``_post_physics_step_callback``: ``clip(0.5 * wrap_to_pi(heading - yaw),

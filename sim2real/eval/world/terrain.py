@@ -26,6 +26,7 @@ import mujoco
 import numpy as np
 
 from sim2real.eval.world.floor import BORDER_PREFIX
+from sim2real.eval.world.terrain_choice import cumulative_proportions, kind_shares, legged_gym_kind
 from sim2real.eval.world.terrain_tiles import (
     KINDS,
     UNBUILT_KINDS,
@@ -64,9 +65,16 @@ class TerrainRanges:
     Attributes:
         mesh_type: ``trimesh`` or ``heightfield`` (``plane``/``none``: no terrain).
         terrain_proportions: Shares of [smooth slope, rough slope, stairs up, stairs down,
-            discrete] (legged_gym's five; its later stepping stones, gaps and pits are refused
-            when not 0, by name).
+            discrete, stepping stones, gaps] (legged_gym's, up to 8), read by legged_gym's own
+            cumulative rule (:mod:`~sim2real.eval.world.terrain_choice`): shares that do not sum
+            to 1 give the last kinds what is left, or nothing. A draw that would reach a kind
+            the soak does not build (stepping stones, gaps, pits: legged_gym's final ``else`` is
+            pits), or an entry the list does not have (legged_gym's IndexError), is refused by
+            name.
         num_rows: Levels; row ``i`` has difficulty ``i / num_rows``.
+        num_cols: legged_gym's columns (kinds): with ``curriculum`` a session's kind is that of
+            a column drawn uniformly (its robots are spread evenly over the columns), column
+            ``j``'s choice ``j / num_cols + 0.001`` (``Terrain.curiculum``).
         levels: ``(low, high)`` rows drawn uniformly, inclusive (default every row).
         curriculum: False: the difficulty is one of ``RANDOM_DIFFICULTIES`` (legged_gym's).
         horizontal_scale, vertical_scale: m per grid step and per height unit.
@@ -85,6 +93,7 @@ class TerrainRanges:
     mesh_type: str = "trimesh"
     terrain_proportions: tuple[float, ...] = (0.1, 0.2, 0.3, 0.3, 0.1)
     num_rows: int = 10
+    num_cols: int = 20
     levels: tuple[int, int] | None = None
     curriculum: bool = True
     horizontal_scale: float = 0.1
@@ -102,17 +111,27 @@ class TerrainRanges:
                 f"expected one of {list(MESH_TYPES + FLAT_MESH_TYPES)}"
             )
         p = self.terrain_proportions
-        if len(p) > len(UNBUILT_KINDS) + 5 or any(not (x >= 0) for x in p) or not sum(p) > 0:
+        if not 1 <= len(p) <= len(UNBUILT_KINDS) + 5 or any(not (x >= 0) for x in p):
             raise ValueError(
-                "TerrainRanges.terrain_proportions: expected up to 8 shares >= 0 with a sum > 0, "
-                f"got {list(p)}"
+                f"TerrainRanges.terrain_proportions: expected 1 to 8 shares >= 0, got {list(p)}"
             )
-        unbuilt = [(k, x) for k, x in zip(UNBUILT_KINDS, p[5:], strict=False) if x > 0]
-        if unbuilt:
+        if self.num_cols < 1:
+            raise ValueError(f"TerrainRanges.num_cols: expected >= 1, got {self.num_cols}")
+        for kind, share in self.kind_shares.items():
+            if kind in KINDS or share <= 0:
+                continue
+            if kind in UNBUILT_KINDS:
+                raise ValueError(
+                    f"TerrainRanges.terrain_proportions: terrain {kind} (share {share:g}) is "
+                    f"not one the soak builds: legged_gym's cumulative rule gives it that share "
+                    f"of the draws of {list(p)}; expected shares that leave nothing past the "
+                    f"fifth (it builds {list(KINDS)})"
+                )
             raise ValueError(
-                f"TerrainRanges.terrain_proportions: terrain {unbuilt[0][0]} (share "
-                f"{unbuilt[0][1]:g}) is not one the soak builds; expected 0 past the fifth share "
-                f"(it builds {list(KINDS)})"
+                f"TerrainRanges.terrain_proportions: {list(p)} sums to {float(np.sum(p)):g}; "
+                f"legged_gym's make_terrain compares a share {share:g} of its choices with "
+                f"{kind}, which the list does not have (its IndexError); expected shares that "
+                "sum to at least 1"
             )
         if self.num_rows < 1 or (
             self.levels and not 0 <= self.levels[0] <= self.levels[1] < self.num_rows
@@ -133,6 +152,25 @@ class TerrainRanges:
     @property
     def flat(self) -> bool:
         return self.mesh_type in FLAT_MESH_TYPES
+
+    def describe(self) -> str:
+        """One line: the mesh, the kinds' shares of the sessions by legged_gym's rule, the
+        levels (``soak-test: terrain: ...``)."""
+        shares = ", ".join(f"{k} {100 * x:.3g} %" for k, x in self.kind_shares.items())
+        low, high = self.levels or (0, self.num_rows - 1)
+        choice = f"{self.num_cols} curriculum columns" if self.curriculum else "a uniform choice"
+        return (
+            f"{self.mesh_type} tiles, {shares} of the sessions (legged_gym's cumulative rule on "
+            f"{list(self.terrain_proportions)}, {choice}); levels {low}-{high} of {self.num_rows}"
+        )
+
+    @property
+    def kind_shares(self) -> dict[str, float]:
+        """``{kind: share of the sessions' draws}`` by legged_gym's rule
+        (:func:`~sim2real.eval.world.terrain_choice.kind_shares`),
+        the kinds it reaches only (legged_gym's unbuilt kinds and an entry the list lacks,
+        ``terrain_proportions[k]``, included when reached)."""
+        return kind_shares(self.terrain_proportions, self.num_cols if self.curriculum else None)
 
 
 @dataclass(frozen=True)
@@ -168,8 +206,13 @@ class TerrainDraw:
         return apply_terrain(spec, self, rng)
 
     def to_dict(self) -> dict:
+        """JSON-ready (tuples as lists: a checkpoint's stored draw, read back, equals it)."""
         out = {"kind": self.kind, "difficulty": self.difficulty, "level": self.level}
-        return out | {"label": self.label, "ranges": dataclasses.asdict(self.ranges)}
+        ranges = {
+            k: list(v) if isinstance(v, tuple) else v
+            for k, v in dataclasses.asdict(self.ranges).items()
+        }
+        return out | {"label": self.label, "ranges": ranges}
 
     @classmethod
     def from_dict(cls, data: dict) -> TerrainDraw:
@@ -180,14 +223,19 @@ class TerrainDraw:
 
 
 def sample_terrain(rng: np.random.Generator, ranges: TerrainRanges) -> TerrainDraw | None:
-    """A session's :class:`TerrainDraw` from ``ranges`` (None for a flat mesh type): the kind by
-    ``terrain_proportions`` (legged_gym's choice), the level uniform over ``levels``."""
-    if ranges.flat:
-        return None
-    shares = np.asarray(ranges.terrain_proportions[:5], float)
-    kinds = list(KINDS)
-    weights = np.array([shares[KINDS[k]] / (2 if KINDS[k] == 0 else 1) for k in kinds])
-    kind = kinds[int(rng.choice(len(kinds), p=weights / weights.sum()))]
+    """A session's :class:`TerrainDraw` from ``ranges`` (None for a flat mesh type): the kind
+    legged_gym gives a choice (:func:`~sim2real.eval.world.terrain_choice.legged_gym_kind`):
+    with ``curriculum`` that of a column drawn uniformly of ``num_cols`` (its ``j / num_cols +
+    0.001``), without it a uniform choice in [0, 1) (then the difficulty one of
+    ``RANDOM_DIFFICULTIES``); the level uniform over ``levels``."""
+    shares = ranges.terrain_proportions
+    if ranges.curriculum:  # a column drawn uniformly, its choice legged_gym's
+        choice = int(rng.integers(ranges.num_cols)) / ranges.num_cols + 0.001
+    else:
+        choice = float(rng.uniform(0.0, 1.0))
+    kind = legged_gym_kind(choice, shares)
+    if kind not in KINDS:  # within terrain_choice.ROUNDING past the last share: the one below
+        kind = legged_gym_kind(np.nextafter(cumulative_proportions(shares)[-1], 0.0), shares)
     if not ranges.curriculum:
         return TerrainDraw(kind, float(rng.choice(RANDOM_DIFFICULTIES)), None, ranges)
     low, high = ranges.levels or (0, ranges.num_rows - 1)
@@ -232,12 +280,21 @@ class GroundMap:
         return np.where(inside, z, 0.0)
 
 
+def tile_grid(ranges: TerrainRanges) -> tuple[int, int, int]:
+    """``(n, border, start)`` in samples of ``horizontal_scale``: a tile's side (legged_gym's
+    ``int(terrain_width / horizontal_scale)``), the flat border's width, and the start's index
+    (the middle tile's centre) along either axis of the session's :class:`GroundMap`."""
+    n = int(ranges.terrain_width / ranges.horizontal_scale)
+    border = int(ranges.border_size / ranges.horizontal_scale)
+    return n, border, border + (ranges.tiles // 2) * n + n // 2
+
+
 def ground_map(draw: TerrainDraw, rng: np.random.Generator) -> GroundMap:
     """The session's :class:`GroundMap` of ``draw`` (module docstring), random parts from
     ``rng``."""
     r = draw.ranges
-    hs, vs, n = r.horizontal_scale, r.vertical_scale, int(r.terrain_width / r.horizontal_scale)
-    border = int(r.border_size / hs)
+    hs, vs = r.horizontal_scale, r.vertical_scale
+    n, border, start = tile_grid(r)
     units = np.zeros((2 * border + r.tiles * n,) * 2, dtype=np.int16)
     for i in range(r.tiles):
         for j in range(r.tiles):
@@ -245,7 +302,6 @@ def ground_map(draw: TerrainDraw, rng: np.random.Generator) -> GroundMap:
             units[border + i * n : border + (i + 1) * n, border + j * n : border + (j + 1) * n] = (
                 tile
             )
-    start = border + (r.tiles // 2) * n + n // 2
     stepped = r.mesh_type == "trimesh" and draw.kind in STEPPED_KINDS
     return GroundMap(units * vs, -start * hs, -start * hs, hs, stepped)
 

@@ -61,9 +61,7 @@ def difficulty_terms(difficulty: float) -> dict[str, float]:
 def pyramid_slope(hf: np.ndarray, slope: float, hs: float, vs: float) -> None:
     """Add a pyramid of gradient ``slope`` (negative: a pit) rising to a flat 3-m platform."""
     n0, n1 = hf.shape
-    c0, c1 = n0 // 2, n1 // 2
-    x = (c0 - np.abs(c0 - np.arange(n0))) / c0
-    y = (c1 - np.abs(c1 - np.arange(n1))) / c1
+    x, y = _pyramid(hf.shape)
     top = int(slope * (hs / vs) * (n0 / 2))
     hf += (top * x[:, None] * y[None, :]).astype(hf.dtype)
     half = int(PLATFORM / hs / 2)
@@ -85,15 +83,65 @@ def random_uniform(hf: np.ndarray, amplitude: float, hs: float, vs: float, rng) 
     hf += np.rint(f(np.stack([fx, fy], -1))).astype(hf.dtype)
 
 
+def _stair_rings(shape: tuple[int, int], hs: float):
+    """The inner squares ``(a0, b0, a1, b1)`` (grid units) of legged_gym's stair rings, outside
+    in: each ``STEP_WIDTH`` m inside the last, until one is no larger than the platform (the
+    last: the platform)."""
+    width, platform = _units(STEP_WIDTH, hs), _units(PLATFORM, hs)
+    (a0, b0), (a1, b1) = (0, shape[0]), (0, shape[1])
+    while b0 - a0 > platform and b1 - a1 > platform:
+        a0, b0, a1, b1 = a0 + width, b0 - width, a1 + width, b1 - width
+        yield a0, b0, a1, b1
+
+
 def pyramid_stairs(hf: np.ndarray, step_height: float, hs: float, vs: float) -> None:
     """Set rings of ``STEP_WIDTH`` m, each ``step_height`` higher (negative: lower) than the
     one outside it, until the inner square is no larger than the platform."""
-    width, height, platform = _units(STEP_WIDTH, hs), _units(step_height, vs), _units(PLATFORM, hs)
-    h, (a0, b0), (a1, b1) = 0, (0, hf.shape[0]), (0, hf.shape[1])
-    while b0 - a0 > platform and b1 - a1 > platform:
-        a0, b0, a1, b1 = a0 + width, b0 - width, a1 + width, b1 - width
+    h, height = 0, _units(step_height, vs)
+    for a0, b0, a1, b1 in _stair_rings(hf.shape, hs):
         h += height
         hf[a0:b0, a1:b1] = h
+
+
+def _pyramid(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """legged_gym's pyramid factors along each axis: 1 at the centre, 0 at the edges."""
+    n0, n1 = shape
+    c0, c1 = n0 // 2, n1 // 2
+    return (c0 - np.abs(c0 - np.arange(n0))) / c0, (c1 - np.abs(c1 - np.arange(n1))) / c1
+
+
+def platform_mask(kind: str, pixels: int, hs: float) -> np.ndarray:
+    """(pixels, pixels) bool: the samples of a ``kind`` tile's flat platform at its centre, where
+    the robot starts; the rest is its feature. Stairs: the last ring's square (legged_gym's
+    ``pyramid_stairs_terrain`` loop: 2.6 m at 0.1 m, nine 0.30 m steps); slopes (smooth or
+    rough): where the pyramid ``x * y`` reaches its clip at the 3-m platform's corner
+    (``pyramid_sloped_terrain``: a square's corners at 1.5 m, along the axes 2.4 m: the clip is
+    a level of ``x * y``), whatever the gradient (at difficulty 0 the same region, flat
+    throughout); ``discrete``: the 3-m square it zeroes (``discrete_obstacles_terrain``).
+
+    Raises:
+        ValueError: a kind the soak does not build.
+    """
+    if kind not in KINDS:
+        raise ValueError(
+            f"terrain kind '{kind}' is not one the soak builds; expected one of {list(KINDS)}"
+        )
+    shape = (pixels, pixels)
+    out = np.zeros(shape, dtype=bool)
+    if kind.startswith("stairs"):
+        a0, b0, a1, b1 = (0, pixels, 0, pixels)
+        for a0, b0, a1, b1 in _stair_rings(shape, hs):  # noqa: B007 - the last ring's
+            pass
+        out[a0:b0, a1:b1] = True
+    elif kind == "discrete":
+        p = _units(PLATFORM, hs)
+        out[(pixels - p) // 2 : (pixels + p) // 2, (pixels - p) // 2 : (pixels + p) // 2] = True
+    else:
+        x, y = _pyramid(shape)
+        half = int(PLATFORM / hs / 2)
+        corner = x[pixels // 2 - half] * y[pixels // 2 - half]
+        out[:] = x[:, None] * y[None, :] >= corner - 1e-12
+    return out
 
 
 def discrete_obstacles(hf: np.ndarray, height: float, hs: float, vs: float, rng) -> None:

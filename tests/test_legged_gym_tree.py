@@ -210,7 +210,7 @@ def test_what_the_soak_does_not_model_is_named_in_one_line_each(tmp_path):
     assert f"domain_rand.disturbance_range [-30.0, 30.0] ({base}:" in disturbance[0]
     assert sum("domain_rand.delay True" in line for line in apart) == 1
     assert sum("commands.ranges.ang_vel_yaw [-3.14, 3.14]" in line for line in apart) == 1
-    for key in ("border_size", "num_cols", "max_init_terrain_level", "dynamic_friction"):
+    for key in ("border_size", "max_init_terrain_level", "dynamic_friction"):
         assert sum(f"terrain.{key} " in line for line in apart) == 1, key
     assert any(line.startswith("# off: domain_rand.randomize_link_mass False") for line in
                domain_account(text))  # fmt: skip

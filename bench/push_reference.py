@@ -26,12 +26,30 @@ of a robot the truth had upright, and the base estimate's planar
 velocity error in the second after a push; then the paired comparison per seed (same fatal push,
 ours earlier, ours later) with a two-sided sign test. A run of ours whose tick raised (a safe
 stop Ruckig could not plan) ends there, counted as a fall and named ``raised`` in the table.
+
+``--rl-sar NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR``: NAME's own loop is rl_sar's MuJoCo loop of the
+robot given (:mod:`bench.himloco_terrain_loop`, :mod:`bench.rl_sar_robot`): the policy folder
+``RL_SAR_DIR/policy/<robot>/<policy>`` of the key of the rl_sar config.yaml beside NAME's ONNX
+file (its TorchScript, joint mapping, default pose, gains, scales, decimation), on
+unitree_mujoco's ``unitree_robots/<robot>/<robot>.xml``, which must hold the ``--user`` robot
+import's base body, feet and joints; a folder or MJCF that does not match is refused.
+
+A policy that observes the base's linear velocity (``base_linear_velocity``) in the truth-fed
+loop (``--user`` without a deploy yaml) gets two more rows: its own loop on our plant
+(:class:`~sim2real.deploy.backends.sim.plant.SimBackend`, the runtime's drives and sensors) fed
+the truth, and fed our base estimate (:func:`bench.push_loops.plant_loop`): what the estimate
+costs it, like with like, beside our runtime.
+
+Exit codes: 0 the table printed; 2 bad input (a flag, a file, a robot the own loop does not
+match): one line ``python -m bench.push_reference: error: ...`` naming the flag and the value
+expected, no traceback.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from math import comb
@@ -43,11 +61,17 @@ from bench.push_loops import (  # noqa: F401 (bench.estimation imports them from
     STOP_RAISED,
     Run,
     load_torchscript,
+    observes_base_velocity,
+    plant_loop,
     runtime_loop,
     truth_loop,
     unitree_loop,
 )
+from sim2real.robots.errors import Sim2RealError
 
+PROG = "python -m bench.push_reference"
+#: exit code of bad input (module docstring)
+BAD_INPUT = 2
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "tests" / "data" / "unitree_rl_gym"
 #: s between pushes of a policy without a training domain's (unitree_rl_gym's humanoid configs'
@@ -74,14 +98,24 @@ class Entry:
     domain: Path | None = None
     tracking: Path | None = None
     rl_sar: tuple[Path, Path] | None = None
+    rl_sar_key: str | None = None
 
     @property
     def own_loop(self) -> str:
         if self.tracking:
             return "rl_sar tracking"
         if self.rl_sar:
-            return "rl_sar HIMLoco"
+            return f"rl_sar {self.rl_sar_key}"
         return "unitree_rl_gym" if self.config else "truth-fed spec"
+
+
+class BadInput(ValueError):
+    """A bad flag or file: one line naming the flag and the value expected (exit ``BAD_INPUT``)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, not argparse's usage and exit
+        raise BadInput(message)
 
 
 SHIPPED = {
@@ -146,22 +180,40 @@ def terrain_of(seed: int, args):
     if text.endswith(".toml"):
         ranges = read_overrides(text).get("terrain")
         if ranges is None:
-            raise SystemExit(f"--terrain {text}: the file has no [terrain] table")
+            raise BadInput(f"--terrain {text}: the file has no [terrain] table")
         ranges = TerrainRanges(**(ranges | {"tiles": tiles}))
         return sample_terrain(np.random.default_rng([seed, 2]), ranges)
     return parse_terrain(text, TerrainRanges(tiles=tiles))
 
 
+def check_terrain(seeds: list[int], args) -> None:
+    """Every seed's ``--terrain`` draw, made once before any run.
+
+    Raises:
+        BadInput: naming ``--terrain`` and what is wrong (an unknown kind, a malformed size, a
+            ranges file that cannot be read or has no ``[terrain]``), or ``--terrain-tiles``.
+    """
+    if args.terrain is None:
+        return
+    if args.terrain_tiles < 1 or args.terrain_tiles % 2 == 0:
+        raise BadInput(f"--terrain-tiles {args.terrain_tiles}: expected an odd count >= 1")
+    for seed in seeds:
+        try:
+            terrain_of(seed, args)
+        except BadInput:
+            raise
+        except (ValueError, TypeError) as e:  # parse_terrain, RangesError, TerrainRanges' keys
+            said = str(e) if str(e).startswith("--terrain") else f"--terrain {args.terrain}: {e}"
+            raise BadInput(said) from None
+
+
 def rl_sar_run(entry: Entry, robot, seed: int, args, pushes, terrain) -> Run:
-    """HIMLoco's own loop (:mod:`bench.himloco_terrain_loop`: rl_sar's runtime on unitree_mujoco's
-    go2.xml, true state) under the same pushes on the same tiles, as a :class:`Run`."""
+    """rl_sar's own loop of ``entry``'s robot (:mod:`bench.himloco_terrain_loop`: rl_sar's runtime
+    on unitree_mujoco's MJCF of ``entry.rl_sar_key``'s robot, true state) under the same pushes on
+    the same tiles, as a :class:`Run`."""
     from bench.himloco_terrain_loop import run
 
-    vx, vy, yaw = (float(x) for x in args.command.split(","))
-    if vy or yaw:
-        raise SystemExit(
-            f"--rl-sar {entry.name}: the loop walks at vx only, got --command {args.command}"
-        )
+    vx = float(args.command.split(",")[0])  # vy and yaw 0 (checked by _entries)
     ours = {}
     if getattr(args, "rl_sar_plant", False):  # like against like: our plant, motors, sensors
         folder = Path(entry.robot)
@@ -169,15 +221,22 @@ def rl_sar_run(entry: Entry, robot, seed: int, args, pushes, terrain) -> Run:
         ours["timestep"] = float(robot.plant_model("torque").opt.timestep)
     out = run(
         entry.rl_sar[0], entry.rl_sar[1], terrain, args.seconds, vx, seed,
-        pushes=None if pushes is None else (robot, pushes), cross=False, **ours,
+        pushes=None if pushes is None else (robot, pushes), cross=False,
+        key=entry.rl_sar_key, robot=robot, **ours,
     )  # fmt: skip
     fell = out["t_s"] if out["fell"] else None
     return Run(fell_at=fell, cause="fall" if out["fell"] else None, walked=out["t_s"],
                pushes=out.get("push_times", []))  # fmt: skip
 
 
-def run_seed(entry: Entry, seed: int, args) -> tuple[Run, Run]:
-    """(own loop, ours) of ``entry`` on push sequence ``seed`` (on ``--terrain``'s tiles)."""
+#: the rows of a policy that observes the base's linear velocity (module docstring)
+ON_OUR_PLANT = ("own on our plant, fed the truth", "own on our plant, fed our estimate")
+
+
+def run_seed(entry: Entry, seed: int, args) -> tuple[Run, Run, dict[str, Run]]:
+    """(own loop, ours, more own loops by row name) of ``entry`` on push sequence ``seed`` (on
+    ``--terrain``'s tiles); the more: ``ON_OUR_PLANT``'s for a truth-fed policy that observes
+    the base's linear velocity, else none."""
     import yaml
 
     robot, policy = _load(entry)
@@ -186,24 +245,27 @@ def run_seed(entry: Entry, seed: int, args) -> tuple[Run, Run]:
         from bench.push_tracking import rl_sar_loop, tracking_runtime_loop
 
         own = rl_sar_loop(robot, entry.tracking, seed, args.seconds, pushes)
-        return own, tracking_runtime_loop(robot, policy, seed, args.seconds, pushes)
+        return own, tracking_runtime_loop(robot, policy, seed, args.seconds, pushes), {}
     command = [float(x) for x in args.command.split(",")]
-    terrain = terrain_of(seed, args)
+    terrain, more = terrain_of(seed, args), {}
     if entry.rl_sar is not None:
         own = rl_sar_run(entry, robot, seed, args, pushes, terrain)
         ours = runtime_loop(robot, policy, seed, args.seconds, pushes, command, terrain)
-        return own, ours
-    if terrain is not None:
-        raise SystemExit("--terrain: for an --rl-sar policy (its own loop lays the tiles too)")
+        return own, ours, {}
     if entry.config is not None:
         cfg = yaml.safe_load(Path(entry.config).read_text())
         net = load_torchscript(entry.torchscript)
         own = unitree_loop(robot, cfg, net, seed, args.seconds, pushes, command)
     else:
         own = truth_loop(robot, policy, seed, args.seconds, pushes, command)
+        if observes_base_velocity(policy):  # what the estimate costs it, on one plant
+            for name, estimate in zip(ON_OUR_PLANT, (False, True), strict=True):
+                _, policy = _load(entry)
+                run = plant_loop(robot, policy, seed, args.seconds, pushes, command, estimate)
+                more[name] = run
         _, policy = _load(entry)  # fresh: a recurrent policy's memory
     ours = runtime_loop(robot, policy, seed, args.seconds, pushes, command)
-    return own, ours
+    return own, ours, more
 
 
 def survived(run: Run) -> int:
@@ -252,15 +314,17 @@ def summary(runs: list[Run]) -> dict:
     }
 
 
-def table(results: dict[str, tuple[Entry, list[Run], list[Run]]], args) -> list[str]:
-    """The side-by-side table's lines (markdown)."""
+def table(results: dict[str, tuple], args) -> list[str]:
+    """The side-by-side table's lines (markdown); ``results``: per policy (entry, own loop's
+    runs, ours, and the more own loops' runs by row name, :func:`run_seed`). A more row's
+    paired column pairs it with the row before it (fed our estimate: with fed the truth)."""
     lines = [
         "| policy | loop | pushes survived | falls | falls per hour | ticks past a hard limit "
         "(per push) | interventions per tick (undisturbed walking) | upright stops | after-push "
         "error mean / worst push (m/s) | paired: same / ours earlier / later (p) |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
-    for name, (entry, own, ours) in results.items():
+    for name, (entry, own, ours, more_rows) in results.items():
         a, b = summary(own), summary(ours)
         same, fewer, more, p = sign_test([survived(r) for r in own], [survived(r) for r in ours])
         share = f" ({b['survived'] / a['survived']:.1%} of its own)" if a["survived"] else ""
@@ -275,6 +339,19 @@ def table(results: dict[str, tuple[Entry, list[Run], list[Run]]], args) -> list[
             f"| {name} | own ({entry.own_loop}) | {a['survived']} | {a['falls']}/{len(own)} | "
             f"{a['falls_per_hour']:.0f} | {_past(a)} | - | - | - | |"
         )
+        previous = None
+        for row, runs in more_rows.items():
+            c = summary(runs)
+            paired = ""
+            if previous is not None:
+                x, y, z, q = sign_test([survived(r) for r in previous],
+                                       [survived(r) for r in runs])  # fmt: skip
+                paired = f"with the row above: {x} / {y} / {z} (p = {q:.3f})"
+            lines.append(
+                f"| {name} | {row} | {c['survived']} | {c['falls']}/{len(runs)} | "
+                f"{c['falls_per_hour']:.0f} | {_past(c)} | - | - | - | {paired} |"
+            )
+            previous = runs
         lines.append(
             f"| {name} | our runtime | {b['survived']}{share} | {b['falls']}/{len(ours)}"
             f"{f' ({raised} raised)' if (raised := b['raised']) else ''} | "
@@ -309,6 +386,9 @@ def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
         parts = rest.split(",")
         if not name or len(parts) not in (2, 4):
             p.error(f"--user {item!r}: expected NAME=ROBOT_DIR,POLICY[,DEPLOY_YAML,MOTION_PT]")
+        for path in parts:
+            if not Path(path).exists():
+                p.error(f"--user {item!r}: {path}: no such file or folder")
         files = [Path(x) for x in parts[2:]] + [None, None]
         out.append(Entry(name, parts[0], Path(parts[1]), files[0], files[1]))
     for item in args.tracking:
@@ -321,18 +401,59 @@ def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
     unknown = set(domains) - {e.name for e in out}
     if unknown:
         p.error(f"--domain: {sorted(unknown)} name no policy of the run")
+    out = [replace(e, domain=domains.get(e.name)) for e in out]
     loops = {}
     for item in getattr(args, "rl_sar", []):
         name, _, rest = item.partition("=")
         parts = rest.split(",")
-        if not name or len(parts) != 2 or name not in {e.name for e in out}:
-            p.error(f"--rl-sar {item!r}: expected NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR of a --user")
+        users = {e.name for e in out if e.config is None and e.tracking is None}
+        if not name or len(parts) != 2 or name not in users:
+            p.error(
+                f"--rl-sar {item!r}: expected NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR of a "
+                "--user NAME=ROBOT_DIR,POLICY"
+            )
         loops[name] = (Path(parts[0]), Path(parts[1]))
-    return [replace(e, domain=domains.get(e.name), rl_sar=loops.get(e.name)) for e in out]
+    out = [rl_sar_entry(e, loops[e.name], args, p.error) if e.name in loops else e for e in out]
+    if getattr(args, "terrain", None) is not None and any(e.rl_sar is None for e in out):
+        p.error(
+            f"--terrain {args.terrain}: only for --rl-sar policies (their own loop lays the "
+            f"tiles too); {[e.name for e in out if e.rl_sar is None]} have none"
+        )
+    return out
+
+
+def rl_sar_entry(entry: Entry, dirs: tuple[Path, Path], args, error: Callable) -> Entry:
+    """``entry`` with its rl_sar own loop (``--rl-sar NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR``): the
+    key of the config.yaml beside its ONNX file, checked against rl_sar's folder, its MJCF and
+    the ``--user`` robot import (:mod:`bench.rl_sar_robot`); ``error(message)`` for a mismatch
+    (one line naming ``--rl-sar`` and what is missing)."""
+    from bench import rl_sar_robot
+    from sim2real.robots import load_robot
+
+    try:
+        key = rl_sar_robot.policy_key(entry.policy)
+        rl_sar_robot.match(dirs[0], dirs[1], key, load_robot(entry.robot))
+    except (rl_sar_robot.Mismatch, Sim2RealError) as e:
+        error(f"--rl-sar {entry.name}: {e}")
+    command = args.command.split(",")
+    if any(float(x) for x in command[1:]):
+        error(f"--rl-sar {entry.name}: rl_sar's loop walks at vx only; --command {args.command}")
+    return replace(entry, rl_sar=dirs, rl_sar_key=key)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m bench.push_reference", description=__doc__)
+    """The benchmark (module docstring); returns its exit code (0, or ``BAD_INPUT`` with one
+    line on stderr)."""
+    try:
+        return _main(argv)
+    except BadInput as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return BAD_INPUT
+
+
+def parser() -> argparse.ArgumentParser:
+    """The benchmark's flags; a bad one raises :class:`BadInput` (one line, no usage)."""
+    p = _Parser(prog=PROG, description=__doc__)
     p.add_argument("--robots", default="go2,h1,h1_2", help="shipped policies (go2, h1, h1_2)")
     p.add_argument("--user", action="append", default=[], metavar="NAME=ROBOT,POLICY[,YAML,PT]")
     p.add_argument(
@@ -349,7 +470,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--window", type=float, default=None, help="s, a force push's duration")
     p.add_argument(
         "--rl-sar", action="append", default=[], metavar="NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR",
-        help="a --user's own loop: rl_sar's HIMLoco loop (bench.himloco_terrain_loop)",
+        help="a --user's own loop: rl_sar's loop of its robot (bench.himloco_terrain_loop)",
     )  # fmt: skip
     p.add_argument(
         "--terrain", default=None, metavar="KIND:SIZE|KIND@LEVEL|RANGES.toml",
@@ -365,19 +486,55 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     p.add_argument("--jobs", type=int, default=1, help="processes")
     p.add_argument("--verbose", action="store_true", help="a line per seed")
+    return p
+
+
+def _seeds(text: str) -> list[int]:
+    """``--seeds FIRST-LAST`` (or one seed) as a list."""
+    lo, _, hi = text.partition("-")
+    try:
+        first, last = int(lo), int(hi or lo)
+    except ValueError:
+        raise BadInput(f"--seeds {text!r}: expected FIRST-LAST (integers), e.g. 0-99") from None
+    if last < first:
+        raise BadInput(f"--seeds {text!r}: expected FIRST <= LAST")
+    return list(range(first, last + 1))
+
+
+def _check_command(text: str) -> None:
+    """``--command vx,vy,yaw``: three numbers."""
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3:
+        raise BadInput(f"--command {text!r}: expected VX,VY,YAW (m/s, m/s, rad/s), e.g. 0.5,0,0")
+
+
+def _main(argv: list[str] | None) -> int:
+    p = parser()
     a = p.parse_args(argv)
+    _check_command(a.command)
+    seeds = _seeds(a.seeds)
     entries = _entries(a, p)
-    lo, _, hi = a.seeds.partition("-")
-    seeds = list(range(int(lo), int(hi or lo) + 1))
+    check_terrain(seeds, a)
+    for e in entries:  # the robot and policy load, and their pushes, before any run
+        try:
+            robot, _ = _load(e)
+            push_ranges(e, robot, a)
+        except Sim2RealError as exc:
+            raise BadInput(f"{e.name}: {exc}") from None
     jobs = [(e, s) for e in entries for s in seeds]
-    results = {e.name: (e, [], []) for e in entries}
+    results = {e.name: (e, [], [], {}) for e in entries}
     pool = ProcessPoolExecutor(a.jobs) if a.jobs > 1 else None
     if pool:
         done = pool.map(run_seed, [e for e, _ in jobs], [s for _, s in jobs], [a] * len(jobs))
     for e, s in jobs:
-        own, ours = next(done) if pool else run_seed(e, s, a)
+        own, ours, more = next(done) if pool else run_seed(e, s, a)
         results[e.name][1].append(own)
         results[e.name][2].append(ours)
+        for row, run in more.items():
+            results[e.name][3].setdefault(row, []).append(run)
         if a.verbose:
             where = "" if a.terrain is None else f" [{terrain_of(s, a).label}]"
             print(
@@ -404,7 +561,7 @@ def terrain_table(results: dict, seeds: list[int], args) -> list[str]:
     lines = ["| policy | terrain | runs | pushes survived own / ours | falls own / ours |"]
     lines.append("| --- | --- | --- | --- | --- |")
     kinds = [terrain_of(s, args).kind for s in seeds]
-    for name, (_, own, ours) in results.items():
+    for name, (_, own, ours, _) in results.items():
         for kind in sorted(set(kinds)):
             at = [i for i, k in enumerate(kinds) if k == kind]
             a = sum(survived(own[i]) for i in at)

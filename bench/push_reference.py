@@ -105,7 +105,8 @@ class Entry:
         if self.tracking:
             return "rl_sar tracking"
         if self.rl_sar:
-            return f"rl_sar {self.rl_sar_key}"
+            robot = str(self.rl_sar_key).split("/")[0]
+            return f"rl_sar {self.rl_sar_key} on {robot}.xml"
         return "unitree_rl_gym" if self.config else "truth-fed spec"
 
 
@@ -386,9 +387,9 @@ def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
         parts = rest.split(",")
         if not name or len(parts) not in (2, 4):
             p.error(f"--user {item!r}: expected NAME=ROBOT_DIR,POLICY[,DEPLOY_YAML,MOTION_PT]")
-        for path in parts:
-            if not Path(path).exists():
-                p.error(f"--user {item!r}: {path}: no such file or folder")
+        for path in parts[1:]:  # ROBOT_DIR may name a shipped robot (load_robot's)
+            if not Path(path).is_file():
+                p.error(f"--user {item!r}: {path}: no such file")
         files = [Path(x) for x in parts[2:]] + [None, None]
         out.append(Entry(name, parts[0], Path(parts[1]), files[0], files[1]))
     for item in args.tracking:

@@ -276,6 +276,8 @@ def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
         name, _, path = item.partition("=")
         if not path:
             p.error(f"--domain {item!r}: expected NAME=RANGES_FILE")
+        if not Path(path).is_file():
+            p.error(f"--domain {item!r}: {path}: no such file")
         domains[name] = Path(path)
     out = []
     for name in [n for n in args.robots.split(",") if n]:
@@ -298,6 +300,8 @@ def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
         if not name or len(parts) != 2:
             p.error(f"--tracking {item!r}: expected NAME=ROBOT_DIR,RL_SAR_FOLDER")
         folder = Path(parts[1])
+        if not (folder / "policy.onnx").is_file():
+            p.error(f"--tracking {item!r}: {folder / 'policy.onnx'}: no such file")
         out.append(Entry(name, parts[0], folder / "policy.onnx", tracking=folder))
     unknown = set(domains) - {e.name for e in out}
     if unknown:

@@ -195,6 +195,7 @@ def test_a_robot_its_rl_sar_files_do_not_hold_is_refused_in_one_line(quad, tmp_p
         (["--command", "0.5,0.2,0"], "--rl-sar quad: rl_sar's loop walks at vx only"),
         (["--terrain-tiles", "2", "--terrain", "plane:0"], "--terrain-tiles 2: expected an odd"),
         (["--apply", "push"], "argument --apply: invalid choice: 'push'"),
+        (["--domain", "quad=none.toml"], "--domain 'quad=none.toml': none.toml: no such file"),
     ],
 )
 def test_every_bad_flag_is_one_line_with_exit_2(quad, capsys, flags, said):

@@ -301,3 +301,31 @@ def test_rl_sars_b2_runs_on_b2_xml_and_lite3_without_an_mjcf_is_refused(tmp_path
     assert not out["fell"] and out["x_m"] > 0.5  # 0.75 m at e384912 (c598f10's b2.xml)
     with pytest.raises(rl_sar_robot.Mismatch, match=r"unitree_robots/lite3/lite3.xml: no such"):
         rl_sar_robot.match(tmp_path / "rl_sar", tmp_path / "um", "lite3/himloco")
+
+
+def test_the_velocity_feedback_policy_sees_its_command_corrected_by_the_base_velocity(tmp_path):
+    """bench.velocity_feedback_policy: the new file observes base_linear_velocity first; its
+    action is the source's at the command ``cmd + K (cmd - v)`` in x and y (the yaw rate and
+    everything else as observed)."""
+    import onnxruntime as ort
+
+    from bench.velocity_feedback_policy import feedback_policy
+
+    go2 = load_robot("go2")
+    spec = PolicySpec.for_robot(go2)
+    w = np.random.default_rng(0).normal(0, 0.3, (spec.obs_dim, spec.act_dim)).astype(np.float32)
+    source = linear_onnx(
+        spec, tmp_path / "s.onnx", [helper.make_node("MatMul", ["obs", "w"], ["action"])], {"w": w}
+    )
+    assert feedback_policy(source, tmp_path / "v.onnx", gain=0.5) == spec.obs_dim + 3
+    policy = OnnxPolicy(tmp_path / "v.onnx", go2)
+    assert policy.spec.observation_blocks[0].name == "base_linear_velocity"
+    inner = np.random.default_rng(1).normal(0, 1, (1, spec.obs_dim)).astype(np.float32)
+    at = [b.name for b in spec.observation_blocks].index("velocity_command")
+    c = sum(b.size for b in spec.observation_blocks[:at])
+    v = np.array([[0.3, -0.4, 2.0]], np.float32)  # scaled as the command's entries
+    run = ort.InferenceSession(str(tmp_path / "v.onnx")).run
+    got = run(None, {"obs": np.concatenate([v, inner], axis=1)})[0]
+    seen = inner.copy()
+    seen[0, c : c + 2] += 0.5 * (inner[0, c : c + 2] - v[0, :2])
+    np.testing.assert_allclose(got, seen @ w, rtol=1e-5, atol=1e-5)

@@ -1,7 +1,6 @@
 """HIMLoco's Go2 (or another rl_sar quadruped's policy, ``--policy``) on terrain tiles in a bare
-MuJoCo loop that follows rl_sar's runtime: the policy's own loop, the comparison for ``deploy-run
---backend sim --terrain`` (sim2real/eval/world/terrain.py) and the push benchmark's
-(``bench.push_reference --rl-sar``).
+MuJoCo loop that follows rl_sar's runtime: the own loop of ``deploy-run --terrain`` and of
+``bench.push_reference --rl-sar``.
 
 rl_sar (fan-ziqi/rl_sar e384912) runs a policy folder, by default ``policy/go2/himloco``
 (``himloco.pt``), on unitree_mujoco's MJCF of its robot (``go2.xml``; :mod:`bench.rl_sar_robot`:
@@ -29,7 +28,6 @@ plant applies them);
 Usage::
 
     python -m bench.himloco_terrain_loop RL_SAR_DIR UNITREE_MUJOCO_DIR stairs_up:0.10 slope_up:15deg
-    python -m bench.himloco_terrain_loop RL_SAR_DIR UNITREE_MUJOCO_DIR plane --policy b2/robot_lab
 """
 
 from __future__ import annotations

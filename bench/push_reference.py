@@ -26,23 +26,8 @@ of a robot the truth had upright, and the base estimate's planar
 velocity error in the second after a push; then the paired comparison per seed (same fatal push,
 ours earlier, ours later) with a two-sided sign test. A run of ours whose tick raised (a safe
 stop Ruckig could not plan) ends there, counted as a fall and named ``raised`` in the table.
-
-``--rl-sar NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR``: NAME's own loop is rl_sar's MuJoCo loop of the
-robot given (:mod:`bench.himloco_terrain_loop`, :mod:`bench.rl_sar_robot`): the policy folder
-``RL_SAR_DIR/policy/<robot>/<policy>`` of the key of the rl_sar config.yaml beside NAME's ONNX
-file (its TorchScript, joint mapping, default pose, gains, scales, decimation), on
-unitree_mujoco's ``unitree_robots/<robot>/<robot>.xml``, which must hold the ``--user`` robot
-import's base body, feet and joints; a folder or MJCF that does not match is refused.
-
-A policy that observes the base's linear velocity (``base_linear_velocity``) in the truth-fed
-loop (``--user`` without a deploy yaml) gets two more rows: its own loop on our plant
-(:class:`~sim2real.deploy.backends.sim.plant.SimBackend`, the runtime's drives and sensors) fed
-the truth, and fed our base estimate (:func:`bench.push_loops.plant_loop`): what the estimate
-costs it, like with like, beside our runtime.
-
-Exit codes: 0 the table printed; 2 bad input (a flag, a file, a robot the own loop does not
-match): one line ``python -m bench.push_reference: error: ...`` naming the flag and the value
-expected, no traceback.
+``--rl-sar``: :func:`rl_sar_entry`; a base-velocity policy's more rows: :data:`ON_OUR_PLANT`.
+Exit codes: 0 the table printed; 2 bad input (a flag, a file), one line naming the flag.
 """
 
 from __future__ import annotations
@@ -230,7 +215,10 @@ def rl_sar_run(entry: Entry, robot, seed: int, args, pushes, terrain) -> Run:
                pushes=out.get("push_times", []))  # fmt: skip
 
 
-#: the rows of a policy that observes the base's linear velocity (module docstring)
+#: The more rows of a policy that observes the base's linear velocity (``base_linear_velocity``)
+#: run truth-fed (``--user`` without a deploy yaml): its own loop on our plant (``SimBackend``,
+#: the runtime's drives and sensors) fed the truth, and fed our base estimate
+#: (:func:`bench.push_loops.plant_loop`): what the estimate costs it, like with like.
 ON_OUR_PLANT = ("own on our plant, fed the truth", "own on our plant, fed our estimate")
 
 
@@ -328,10 +316,13 @@ def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
 
 
 def rl_sar_entry(entry: Entry, dirs: tuple[Path, Path], args, error: Callable) -> Entry:
-    """``entry`` with its rl_sar own loop (``--rl-sar NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR``): the
-    key of the config.yaml beside its ONNX file, checked against rl_sar's folder, its MJCF and
-    the ``--user`` robot import (:mod:`bench.rl_sar_robot`); ``error(message)`` for a mismatch
-    (one line naming ``--rl-sar`` and what is missing)."""
+    """``entry`` with its rl_sar own loop (``--rl-sar NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR``):
+    rl_sar's MuJoCo loop of the robot given (:mod:`bench.himloco_terrain_loop`), the policy
+    folder ``RL_SAR_DIR/policy/<robot>/<policy>`` of the key of the rl_sar config.yaml beside its
+    ONNX file (its TorchScript, joint mapping, default pose, gains, scales, decimation) on
+    unitree_mujoco's ``unitree_robots/<robot>/<robot>.xml``, which must hold the ``--user``
+    import's base body, feet and joints (:mod:`bench.rl_sar_robot`); ``error(message)`` for a
+    mismatch (one line naming ``--rl-sar`` and what is missing)."""
     from bench import rl_sar_robot
     from sim2real.robots import load_robot
 

@@ -282,7 +282,7 @@ def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
                 p.error(f"--user {item!r}: {path}: no such file")
         files = [Path(x) for x in parts[2:]] + [None, None]
         out.append(Entry(name, parts[0], Path(parts[1]), files[0], files[1]))
-    for item in args.tracking:
+    for item in getattr(args, "tracking", []):  # bench.guard_replay has no --tracking
         name, _, rest = item.partition("=")
         parts = rest.split(",")
         if not name or len(parts) != 2:

@@ -1,24 +1,29 @@
-"""HIMLoco's Go2 on terrain tiles in a bare MuJoCo loop that follows rl_sar's runtime: the policy's own
-loop, the comparison for ``deploy-run --backend sim --terrain`` (sim2real/eval/world/terrain.py).
+"""HIMLoco's Go2 (or another rl_sar quadruped's policy, ``--policy``) on terrain tiles in a bare
+MuJoCo loop that follows rl_sar's runtime: the own loop of ``deploy-run --terrain`` and of
+``bench.push_reference --rl-sar``.
 
-rl_sar (fan-ziqi/rl_sar e384912) runs ``policy/go2/himloco/himloco.pt`` on unitree_mujoco's
-``go2.xml`` as its ``RL_Sim`` does (``src/rl_sar/src/rl_sim_mujoco.cpp``, ``library/core/rl_sdk``):
-the observation of ``config.yaml``'s terms (commands x commands_scale, IMU gyro x ang_vel_scale,
+rl_sar (fan-ziqi/rl_sar e384912) runs a policy folder, by default ``policy/go2/himloco``
+(``himloco.pt``), on unitree_mujoco's MJCF of its robot (``go2.xml``; :mod:`bench.rl_sar_robot`:
+which files, and the refusal of a folder or MJCF that does not match) as its ``RL_Sim`` does
+(``src/rl_sar/src/rl_sim_mujoco.cpp``, ``library/core/rl_sdk``): the observation of
+``config.yaml``'s terms in its order (commands x commands_scale, IMU gyro x ang_vel_scale,
 gravity rotated into the IMU's frame, joint angles about default_dof_pos, joint speeds x
 dof_vel_scale, the last raw action) in the policy's joint order (``q[i] =
-sensordata[joint_mapping[i]]``), clipped to clip_obs, into a 6-frame history, newest first, zeros
-before the first (``ObservationBuffer``, priority ``time``); TorchScript inference every ``dt x
+sensordata[joint_mapping[i]]``), clipped to clip_obs, into the history ``observations_history``
+names (HIMLoco's: 6 frames, newest first), zeros before the first (``ObservationBuffer``,
+priority ``time``; no history: the present frame alone); TorchScript inference every ``dt x
 decimation`` s; ``target = default_dof_pos + action_scale x action``; torques ``kp (target - q) -
-kd dq`` with ``rl_kp``, ``rl_kd`` (40, 1). Ours: the PD torque at every physics step of ``dt``
+kd dq`` with ``rl_kp``, ``rl_kd`` (HIMLoco's Go2: 40, 1). Ours: the PD torque at every physics step of ``dt``
 (0.005 s, legged_gym's, for a deterministic loop; rl_sar's threads run it at dt beside MuJoCo's own
 real-time stepping), the robot first brought from its ``home`` key to default_dof_pos over 1 s
 with ``fixed_kp``/``fixed_kd`` (rl_sar's get-up), the command then held.
 
 A crossing: the base reaches ``CROSSED_X`` m along x (the tile's rim, 4 m from its centre) without
-tipping past 1 rad or its height above the ground under it falling under 0.4 x 0.32 m (the
-project's fall judges). ``--motors ROBOT_DIR`` gives the loop the motors of an imported robot
-(its effort limits and its motors' torque-speed lines at 25 degC,
-:class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope`, as the plant applies them);
+tipping past 1 rad or its height above the ground under it falling under 0.4 x the standing
+height (the project's fall judges; the robot import's, else the Go2's 0.32 m). ``--motors
+ROBOT_DIR`` gives the loop the motors of an imported robot (its effort limits and its motors'
+torque-speed lines at 25 degC, :class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope`, as the
+plant applies them);
 ``--sensor-noise`` adds that robot's white encoder, joint-speed and gyro noise, drawn by seed.
 Usage::
 
@@ -33,28 +38,44 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-import yaml
 
+from bench import rl_sar_robot
 from sim2real.eval.world.terrain import apply_terrain, parse_terrain
 
 CROSSED_X = 4.0
 #: m the robot is put above its key pose on a tile (a foot sphere started inside the height
 #: field is held by its prisms' walls)
 DROP = 0.03
-FALL_TILT, FALL_HEIGHT = 1.0, 0.4 * 0.32
+#: rad, and share of the standing height: the project's fall judges
+FALL_TILT, FALL_SHARE = 1.0, 0.4
+#: m, the base's standing height of a run given no robot import: the Go2's (the CLI's default
+#: policy, HIMLoco's ``go2/himloco``)
+STANDING_HEIGHT = 0.32
+#: rl_sar's key of the CLI's default policy
+GO2_HIMLOCO = "go2/himloco"
 
 
-def _config(rl_sar: Path) -> dict:
-    base = yaml.safe_load((rl_sar / "policy/go2/base.yaml").read_text())["go2"]
-    cfg = yaml.safe_load((rl_sar / "policy/go2/himloco/config.yaml").read_text())["go2/himloco"]
-    return base | cfg
+def _model(
+    unitree_mujoco: Path,
+    terrain,
+    seed: int,
+    dt: float,
+    plant_of: Path | None = None,
+    key: str = GO2_HIMLOCO,
+    cfg: dict | None = None,
+    robot=None,
+):
+    """The MJCF of ``key``'s robot (:func:`bench.rl_sar_robot.mjcf`) with a floor, the tile
+    laid in; its missing visual meshes dropped; checked against ``cfg`` (rl_sar's keys) and
+    ``robot`` (an import, :func:`bench.rl_sar_robot.check_model`). ``plant_of``: an imported
+    robot folder whose MJCF's integrator and joints' armature, damping and friction loss replace
+    the MJCF's (the plant's joint dynamics on the policy's own loop).
 
-
-def _model(unitree_mujoco: Path, terrain, seed: int, dt: float, plant_of: Path | None = None):
-    """go2.xml with a floor, the tile laid in; its missing visual meshes dropped. ``plant_of``:
-    an imported robot folder whose MJCF's integrator and joints' armature, damping and friction
-    loss replace go2.xml's (the plant's joint dynamics on the policy's own loop)."""
-    spec = mujoco.MjSpec.from_file(str(unitree_mujoco / "unitree_robots/go2/go2.xml"))
+    Raises:
+        bench.rl_sar_robot.Mismatch: the MJCF missing, or not what the loop or ``robot`` needs.
+    """
+    xml = rl_sar_robot.mjcf(unitree_mujoco, key)
+    spec = rl_sar_robot.load_spec(xml)
     if plant_of is not None:
         ours = mujoco.MjModel.from_xml_path(str(next(Path(plant_of).glob("*.xml"))))
         spec.option.integrator = ours.opt.integrator
@@ -64,18 +85,15 @@ def _model(unitree_mujoco: Path, terrain, seed: int, dt: float, plant_of: Path |
                 joint.armature = float(ours.dof_armature[dof])
                 joint.damping = [float(ours.dof_damping[dof]), 0.0, 0.0]
                 joint.frictionloss = float(ours.dof_frictionloss[dof])
-    assets = unitree_mujoco / "unitree_robots/go2/assets"
-    for mesh in list(spec.meshes):
-        if not (assets / mesh.file).is_file() or (assets / mesh.file).stat().st_size == 0:
-            for g in [g for g in spec.geoms if g.meshname == mesh.name]:
-                spec.delete(g)
-            spec.delete(mesh)
     spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05])
     spec.option.timestep = dt
     ground = None
     if terrain is not None:
         ground = apply_terrain(spec, terrain, np.random.default_rng([seed, 0]))
-    return spec.compile(), ground
+    model = spec.compile()
+    if cfg is not None:
+        rl_sar_robot.check_model(model, cfg, xml, robot)
+    return model, ground
 
 
 def _motors(robot_dir: Path, model, noise: bool):
@@ -122,22 +140,34 @@ def run(
     plant_of: Path | None = None,
     pushes=None,
     cross: bool = True,
+    key: str = GO2_HIMLOCO,
+    robot=None,
 ):
     """One run on ``tile`` (``--terrain`` syntax, or a
     :class:`~sim2real.eval.world.terrain.TerrainDraw`; None: the plane): a dict of whether it
     crossed, the time, x reached, whether and when it fell. ``pushes``: ``(robot, PushRanges)``,
     the soak's push schedule of ``seed`` (:class:`~sim2real.eval.world.pushes.DomainPushes`) on
     this loop's policy ticks after the get-up, pushing the model through ``robot``'s (an import
-    of the same go2.xml) push methods; the pushes' times (s) in ``push_times``. ``cross``:
+    of the same MJCF) push methods; the pushes' times (s) in ``push_times``. ``cross``:
     False, the run goes on past the tile's rim (``crossed`` stays False). ``motors``: an imported robot
     folder whose motors clamp the torques (and, with ``sensor_noise``, whose sensors' white
     noise the observation gets, drawn from ``seed``). ``timestep``: s, the physics step in
     place of rl_sar's ``dt`` (the PD law at every step, the policy at rl_sar's own rate).
     ``plant_of``: see :func:`_model`. ``guard_stop_s`` in the result: when our guard's
-    hard-limit rule would have stopped the run (counted, not acted on)."""
+    hard-limit rule would have stopped the run (counted, not acted on). ``key``: rl_sar's
+    ``<robot>/<policy>`` (:mod:`bench.rl_sar_robot`: its folder in ``rl_sar``, its MJCF in
+    ``unitree_mujoco``); ``robot``: the import it is compared with (default ``pushes``' robot),
+    whose base body, feet and joints its MJCF must have and whose standing height judges the
+    fall (without one: ``STANDING_HEIGHT``).
+
+    Raises:
+        bench.rl_sar_robot.Mismatch: the folder, the MJCF or the robot do not match (one line).
+    """
     import torch
 
-    cfg = _config(rl_sar)
+    robot = pushes[0] if robot is None and pushes is not None else robot
+    cfg, folder = rl_sar_robot.read_folder(rl_sar, key)
+    standing = STANDING_HEIGHT if robot is None else robot.config.base.standing_height
     dt, decimation, n = float(cfg["dt"]), int(cfg["decimation"]), int(cfg["num_of_dofs"])
     if timestep is not None:  # the same policy period on a finer physics step
         decimation = int(round(dt * decimation / timestep))
@@ -145,7 +175,7 @@ def run(
     terrain = None if tile in (None, "plane") else tile
     if isinstance(terrain, str):
         terrain = parse_terrain(terrain)
-    model, ground = _model(unitree_mujoco, terrain, seed, dt, plant_of)
+    model, ground = _model(unitree_mujoco, terrain, seed, dt, plant_of, key, cfg, robot)
     data = mujoco.MjData(model)
     clamp, sigma = None, np.array([0.0] * 5 + [1.0])
     if motors is not None:
@@ -159,13 +189,14 @@ def run(
     if ground is not None:  # the key's base height above the ground at the start
         data.qpos[2] += float(ground.height_at(0.0, 0.0)) + DROP
     mujoco.mj_forward(model, data)
-    policy = torch.jit.load(str(rl_sar / "policy/go2/himloco" / cfg["model_name"])).eval()
+    policy = torch.jit.load(str(folder / cfg["model_name"])).eval()
     mapping = np.asarray(cfg["joint_mapping"])
     default = np.asarray(cfg["default_dof_pos"], float)
     scale = np.asarray(cfg["action_scale"], float)
     kp, kd = np.asarray(cfg["rl_kp"], float), np.asarray(cfg["rl_kd"], float)
     fkp, fkd = np.asarray(cfg["fixed_kp"], float), np.asarray(cfg["fixed_kd"], float)
-    history = np.zeros((max(cfg["observations_history"]) + 1, int(cfg["num_observations"])))
+    frames = list(cfg.get("observations_history") or [])  # rl_sar's ObservationBuffer: 0 newest
+    history = np.zeros((max(frames, default=0) + 1, int(cfg["num_observations"])))
     action = np.zeros(n)
     quat_at = 3 * n
 
@@ -187,6 +218,7 @@ def run(
         torque(start + (default - start) * (k + 1) / get_up, fkp, fkd)
         mujoco.mj_step(model, data)
     command = np.array([vx, 0.0, 0.0])
+    low = FALL_SHARE * standing
     steps = int(seconds / dt)
     out = {"tile": tile, "crossed": False, "fell": False, "t_s": seconds}
     target = default.copy()
@@ -232,15 +264,21 @@ def run(
             )
             gravity = (r @ error).T @ np.array([0.0, 0.0, -1.0])
             gyro = s[quat_at + 4 : quat_at + 7] + noise.normal(0.0, 1.0, 3) * sigma[2] + gyro_bias
-            obs = np.concatenate([
-                command * np.asarray(cfg["commands_scale"]), gyro * cfg["ang_vel_scale"], gravity,
-                (q - default) * cfg["dof_pos_scale"], dq * cfg["dof_vel_scale"], action,
-            ])  # fmt: skip
+            terms = {  # rl_sar's ComputeObservation, in config.yaml's order
+                "commands": command * np.asarray(cfg["commands_scale"]),
+                "ang_vel": gyro * cfg["ang_vel_scale"],
+                "gravity_vec": gravity,
+                "dof_pos": (q - default) * cfg["dof_pos_scale"],
+                "dof_vel": dq * cfg["dof_vel_scale"],
+                "actions": action,
+            }
+            obs = np.concatenate([terms[t] for t in cfg["observations"]])
             obs = np.clip(obs, -cfg["clip_obs"], cfg["clip_obs"])
             history[1:] = history[:-1].copy()
             history[0] = obs
+            x_in = history[frames] if frames else obs  # "time" priority: whole frames in turn
             with torch.no_grad():
-                x_in = torch.as_tensor(history.reshape(1, -1), dtype=torch.float32)
+                x_in = torch.as_tensor(x_in.reshape(1, -1), dtype=torch.float32)
                 action = policy(x_in).numpy()[0].astype(float)
             action = np.clip(action, cfg["clip_actions_lower"], cfg["clip_actions_upper"])
             target = default + scale * action
@@ -249,7 +287,7 @@ def run(
         base = data.qpos[:3]
         up = 1 - 2 * (data.qpos[4] ** 2 + data.qpos[5] ** 2)  # the base z axis' world z
         floor = 0.0 if ground is None else float(ground.height_at(base[0], base[1]))
-        if math.acos(max(-1.0, min(1.0, up))) > FALL_TILT or base[2] - floor < FALL_HEIGHT:
+        if math.acos(max(-1.0, min(1.0, up))) > FALL_TILT or base[2] - floor < low:
             out.update(fell=True, t_s=(k + 1) * dt)
             break
         if cross and base[0] >= CROSSED_X:
@@ -266,7 +304,7 @@ def run(
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(prog="python -m bench.himloco_terrain_loop")
-    p.add_argument("rl_sar", type=Path, help="an rl_sar checkout (policy/go2/...)")
+    p.add_argument("rl_sar", type=Path, help="an rl_sar checkout (policy/<robot>/<policy>)")
     p.add_argument("unitree_mujoco", type=Path, help="a unitree_mujoco checkout")
     p.add_argument("tiles", nargs="+", help="--terrain tiles (stairs_up:0.10, slope_up:15deg)")
     p.add_argument("--seconds", type=float, default=16.0)
@@ -277,6 +315,7 @@ def main(argv=None) -> None:
     p.add_argument("--sensor-noise", action="store_true", help="--motors' sensor noise")
     p.add_argument("--timestep", type=float, help="s, the physics step (default rl_sar's dt)")
     p.add_argument("--plant-of", type=Path, help="an imported robot: its integrator, joints")
+    p.add_argument("--policy", default=GO2_HIMLOCO, help="rl_sar's key <robot>/<policy>")
     args = p.parse_args(argv)
     if args.sensor_noise and args.motors is None:
         p.error("--sensor-noise needs --motors (the robot whose sensors' noise it draws)")
@@ -293,6 +332,7 @@ def main(argv=None) -> None:
                 args.sensor_noise,
                 args.timestep,
                 args.plant_of,
+                key=args.policy,
             )  # fmt: skip
             for s in range(args.first_seed, args.first_seed + args.seeds)
         ]

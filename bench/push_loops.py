@@ -212,18 +212,28 @@ def bare_plant(robot, gains) -> BarePlant:
 
 
 def _bare_run(
-    robot, plant, seed, seconds, pushes: PushRanges | None, act, path=None, watch=None, walk=None
+    robot,
+    plant,
+    seed,
+    seconds,
+    pushes: PushRanges | None,
+    act,
+    path=None,
+    watch=None,
+    walk=None,
+    pushed=None,
 ) -> Run:
     """The own loops' common body on ``plant`` (a :class:`BarePlant`): ``act(t)`` writes the
     policy's next PD target from the true state after a control period, and returns it;
     ``watch(t, d, target)`` (optional) sees each tick's true state and next target
     (:mod:`bench.guard_replay`); ``walk``: what the pushes read (``ticks``, ``mode``; default a
-    :class:`_Walk`), its ``ticks`` set here."""
+    :class:`_Walk`), its ``ticks`` set here; ``pushed``: what the pushes act through (default
+    :class:`~sim2real.deploy.backends.sim.disturbances.SimDisturbances` on ``plant``'s model)."""
     m, d = plant.m, plant.d
     qo = robot.qpos_offset
     walk, run = walk or _Walk(), Run()
     schedule = DomainPushes([seed], pushes, robot.control_period) if pushes else None
-    base = SimDisturbances(robot, [m], [d])  # the plant's push methods on the bare model
+    base = pushed or SimDisturbances(robot, [m], [d])  # the plant's push methods
     for tick in range(1, round(seconds / robot.control_period) + 1):
         plant.advance()
         t = tick * robot.control_period
@@ -293,6 +303,60 @@ def truth_loop(
         return loop.act(t)[0]
 
     return _bare_run(robot, plant, seed, seconds, pushes, act, path, watch, walk=loop)
+
+
+def observes_base_velocity(policy) -> bool:
+    """Whether ``policy``'s observation holds the base's linear velocity (a
+    ``base_linear_velocity`` block): what our runtime feeds it is the base estimator's estimate."""
+    return any(b.name == "base_linear_velocity" for b in policy.spec.observation_blocks)
+
+
+class _OurPlant:
+    """:class:`~sim2real.deploy.backends.sim.plant.SimBackend`'s one env as :func:`_bare_run`'s
+    plant: its model and data, its ``advance``."""
+
+    def __init__(self, sim):
+        self.sim, self.m, self.d = sim, sim.models[0], sim.datas[0]
+
+    def advance(self) -> None:
+        self.sim.advance()
+
+
+def plant_loop(
+    robot, policy, seed: int, seconds: float, pushes, command, estimate: bool = False
+) -> Run:
+    """The truth-fed loop (:func:`truth_loop`) on our plant: :class:`~sim2real.deploy.backends.
+    sim.plant.SimBackend` in position mode, seeded by ``seed`` (the drives, motors and sensors
+    :func:`runtime_loop` runs on), pushed through the plant as ours is. ``estimate``: the policy
+    sees the base (attitude, angular and linear velocity) as the runtime's base estimator
+    (:class:`~sim2real.deploy.estimation.base.BaseStateEstimator`) gives it from the plant's
+    sensor frame of each tick (IMU, foot contacts) and the true joints; False: the truth. The
+    two differ by the estimate alone: what it costs a policy that observes the base's velocity.
+    Arguments and result as :func:`truth_loop`."""
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.core.state import RobotState
+    from sim2real.deploy.estimation.base import BaseStateEstimator
+    from sim2real.deploy.rig.own_loop import OwnLoop
+
+    sim = SimBackend(robot, "position", envs=1, seed=seed)
+    state = RobotState.legged(1, robot.n_joints, robot.n_feet)
+    state.command[0] = command
+    feed = None
+    if estimate:
+        estimator = BaseStateEstimator(robot, 1)
+        frame = sim.read()
+        estimator.reset(frame.time, frame.imu_acceleration, orientation=frame.imu_orientation)
+
+        def feed(s):  # the tick's sensor frame, after the plant's advance
+            estimator.update(sim.read(), s.q, s.dq, out=s.base)
+
+    loop = OwnLoop(policy, sim, state, np.zeros((1, 3)), robot.control_period, base=feed)
+
+    def act(t):
+        return loop.act(t)[0]
+
+    plant = _OurPlant(sim)
+    return _bare_run(robot, plant, seed, seconds, pushes, act, walk=loop, pushed=sim)
 
 
 def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command, terrain=None) -> Run:

@@ -26,15 +26,17 @@ of a robot the truth had upright, and the base estimate's planar
 velocity error in the second after a push; then the paired comparison per seed (same fatal push,
 ours earlier, ours later) with a two-sided sign test. A run of ours whose tick raised (a safe
 stop Ruckig could not plan) ends there, counted as a fall and named ``raised`` in the table.
+``--rl-sar``: :func:`rl_sar_entry`; a base-velocity policy's more rows: :data:`ON_OUR_PLANT`.
+Exit codes: 0 the table printed; 2 bad input (a flag, a file), one line naming the flag.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
-from math import comb
 from pathlib import Path
 
 import numpy as np
@@ -43,11 +45,18 @@ from bench.push_loops import (  # noqa: F401 (bench.estimation imports them from
     STOP_RAISED,
     Run,
     load_torchscript,
+    observes_base_velocity,
+    plant_loop,
     runtime_loop,
     truth_loop,
     unitree_loop,
 )
+from bench.push_table import sign_test, summary, survived, table, terrain_table  # noqa: F401
+from sim2real.robots.errors import Sim2RealError
 
+PROG = "python -m bench.push_reference"
+#: exit code of bad input (module docstring)
+BAD_INPUT = 2
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "tests" / "data" / "unitree_rl_gym"
 #: s between pushes of a policy without a training domain's (unitree_rl_gym's humanoid configs'
@@ -74,14 +83,25 @@ class Entry:
     domain: Path | None = None
     tracking: Path | None = None
     rl_sar: tuple[Path, Path] | None = None
+    rl_sar_key: str | None = None
 
     @property
     def own_loop(self) -> str:
         if self.tracking:
             return "rl_sar tracking"
         if self.rl_sar:
-            return "rl_sar HIMLoco"
+            robot = str(self.rl_sar_key).split("/")[0]
+            return f"rl_sar {self.rl_sar_key} on {robot}.xml"
         return "unitree_rl_gym" if self.config else "truth-fed spec"
+
+
+class BadInput(ValueError):
+    """A bad flag or file: one line naming the flag and the value expected (exit ``BAD_INPUT``)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, not argparse's usage and exit
+        raise BadInput(message)
 
 
 SHIPPED = {
@@ -146,22 +166,40 @@ def terrain_of(seed: int, args):
     if text.endswith(".toml"):
         ranges = read_overrides(text).get("terrain")
         if ranges is None:
-            raise SystemExit(f"--terrain {text}: the file has no [terrain] table")
+            raise BadInput(f"--terrain {text}: the file has no [terrain] table")
         ranges = TerrainRanges(**(ranges | {"tiles": tiles}))
         return sample_terrain(np.random.default_rng([seed, 2]), ranges)
     return parse_terrain(text, TerrainRanges(tiles=tiles))
 
 
+def check_terrain(seeds: list[int], args) -> None:
+    """Every seed's ``--terrain`` draw, made once before any run.
+
+    Raises:
+        BadInput: naming ``--terrain`` and what is wrong (an unknown kind, a malformed size, a
+            ranges file that cannot be read or has no ``[terrain]``), or ``--terrain-tiles``.
+    """
+    if args.terrain is None:
+        return
+    if args.terrain_tiles < 1 or args.terrain_tiles % 2 == 0:
+        raise BadInput(f"--terrain-tiles {args.terrain_tiles}: expected an odd count >= 1")
+    for seed in seeds:
+        try:
+            terrain_of(seed, args)
+        except BadInput:
+            raise
+        except (ValueError, TypeError) as e:  # parse_terrain, RangesError, TerrainRanges' keys
+            said = str(e) if str(e).startswith("--terrain") else f"--terrain {args.terrain}: {e}"
+            raise BadInput(said) from None
+
+
 def rl_sar_run(entry: Entry, robot, seed: int, args, pushes, terrain) -> Run:
-    """HIMLoco's own loop (:mod:`bench.himloco_terrain_loop`: rl_sar's runtime on unitree_mujoco's
-    go2.xml, true state) under the same pushes on the same tiles, as a :class:`Run`."""
+    """rl_sar's own loop of ``entry``'s robot (:mod:`bench.himloco_terrain_loop`: rl_sar's runtime
+    on unitree_mujoco's MJCF of ``entry.rl_sar_key``'s robot, true state) under the same pushes on
+    the same tiles, as a :class:`Run`."""
     from bench.himloco_terrain_loop import run
 
-    vx, vy, yaw = (float(x) for x in args.command.split(","))
-    if vy or yaw:
-        raise SystemExit(
-            f"--rl-sar {entry.name}: the loop walks at vx only, got --command {args.command}"
-        )
+    vx = float(args.command.split(",")[0])  # vy and yaw 0 (checked by _entries)
     ours = {}
     if getattr(args, "rl_sar_plant", False):  # like against like: our plant, motors, sensors
         folder = Path(entry.robot)
@@ -169,15 +207,25 @@ def rl_sar_run(entry: Entry, robot, seed: int, args, pushes, terrain) -> Run:
         ours["timestep"] = float(robot.plant_model("torque").opt.timestep)
     out = run(
         entry.rl_sar[0], entry.rl_sar[1], terrain, args.seconds, vx, seed,
-        pushes=None if pushes is None else (robot, pushes), cross=False, **ours,
+        pushes=None if pushes is None else (robot, pushes), cross=False,
+        key=entry.rl_sar_key, robot=robot, **ours,
     )  # fmt: skip
     fell = out["t_s"] if out["fell"] else None
     return Run(fell_at=fell, cause="fall" if out["fell"] else None, walked=out["t_s"],
                pushes=out.get("push_times", []))  # fmt: skip
 
 
-def run_seed(entry: Entry, seed: int, args) -> tuple[Run, Run]:
-    """(own loop, ours) of ``entry`` on push sequence ``seed`` (on ``--terrain``'s tiles)."""
+#: The more rows of a policy that observes the base's linear velocity (``base_linear_velocity``)
+#: run truth-fed (``--user`` without a deploy yaml): its own loop on our plant (``SimBackend``,
+#: the runtime's drives and sensors) fed the truth, and fed our base estimate
+#: (:func:`bench.push_loops.plant_loop`): what the estimate costs it, like with like.
+ON_OUR_PLANT = ("own on our plant, fed the truth", "own on our plant, fed our estimate")
+
+
+def run_seed(entry: Entry, seed: int, args) -> tuple[Run, Run, dict[str, Run]]:
+    """(own loop, ours, more own loops by row name) of ``entry`` on push sequence ``seed`` (on
+    ``--terrain``'s tiles); the more: ``ON_OUR_PLANT``'s for a truth-fed policy that observes
+    the base's linear velocity, else none."""
     import yaml
 
     robot, policy = _load(entry)
@@ -186,109 +234,27 @@ def run_seed(entry: Entry, seed: int, args) -> tuple[Run, Run]:
         from bench.push_tracking import rl_sar_loop, tracking_runtime_loop
 
         own = rl_sar_loop(robot, entry.tracking, seed, args.seconds, pushes)
-        return own, tracking_runtime_loop(robot, policy, seed, args.seconds, pushes)
+        return own, tracking_runtime_loop(robot, policy, seed, args.seconds, pushes), {}
     command = [float(x) for x in args.command.split(",")]
-    terrain = terrain_of(seed, args)
+    terrain, more = terrain_of(seed, args), {}
     if entry.rl_sar is not None:
         own = rl_sar_run(entry, robot, seed, args, pushes, terrain)
         ours = runtime_loop(robot, policy, seed, args.seconds, pushes, command, terrain)
-        return own, ours
-    if terrain is not None:
-        raise SystemExit("--terrain: for an --rl-sar policy (its own loop lays the tiles too)")
+        return own, ours, {}
     if entry.config is not None:
         cfg = yaml.safe_load(Path(entry.config).read_text())
         net = load_torchscript(entry.torchscript)
         own = unitree_loop(robot, cfg, net, seed, args.seconds, pushes, command)
     else:
         own = truth_loop(robot, policy, seed, args.seconds, pushes, command)
+        if observes_base_velocity(policy):  # what the estimate costs it, on one plant
+            for name, estimate in zip(ON_OUR_PLANT, (False, True), strict=True):
+                _, policy = _load(entry)
+                run = plant_loop(robot, policy, seed, args.seconds, pushes, command, estimate)
+                more[name] = run
         _, policy = _load(entry)  # fresh: a recurrent policy's memory
     ours = runtime_loop(robot, policy, seed, args.seconds, pushes, command)
-    return own, ours
-
-
-def survived(run: Run) -> int:
-    """Pushes survived: those applied, less the fatal one (the last before a fall)."""
-    return len(run.pushes) - (1 if run.fell_at is not None and run.pushes else 0)
-
-
-def sign_test(own: list[int], ours: list[int]) -> tuple[int, int, int, float]:
-    """(same, ours fewer, ours more, two-sided sign test p) over paired counts."""
-    a, b = np.array(own), np.array(ours)
-    n, k = int((a != b).sum()), int((b < a).sum())
-    p = min(1.0, 2 * sum(comb(n, i) for i in range(min(k, n - k) + 1)) / 2**n) if n else 1.0
-    return int((a == b).sum()), k, n - k, p
-
-
-def summary(runs: list[Run]) -> dict:
-    """Pushes survived, falls, falls per hour walked, interventions per RUNNING tick (and per
-    tick of undisturbed walking, ``quiet``), ticks with a joint past a hard limit on the truth
-    (``past_limit``) and pushes applied, upright stops, and the after-push error's mean (m/s,
-    over the judged ticks) of ``runs``."""
-    walked = sum(r.walked for r in runs)
-    falls = sum(r.fell_at is not None for r in runs)
-    ticks = sum(r.ticks for r in runs)
-    after = [r.after_push for r in runs if r.after_push]
-    n = sum(a["ticks"] for a in after)
-    checks: dict = {}
-    for r in runs:
-        for k, v in r.checks.items():
-            checks[k] = checks.get(k, 0) + v
-    return {
-        "survived": sum(survived(r) for r in runs),
-        "falls": falls,
-        "falls_per_hour": 3600.0 * falls / walked if walked else float("nan"),
-        "interventions": sum(r.intervened for r in runs) / ticks if ticks else None,
-        "quiet": sum(r.quiet_intervened for r in runs) / q
-        if (q := sum(r.quiet_ticks for r in runs))
-        else None,
-        "past_limit": sum(r.past_limit for r in runs),
-        "pushes": sum(len(r.pushes) for r in runs),
-        "checks": checks,
-        "upright_stops": sum(r.upright_stop for r in runs),
-        "after_push": sum(a["mean_m_s"] * a["ticks"] for a in after) / n if n else None,
-        "after_push_worst": max((a["worst_push_mean_m_s"] for a in after), default=None),
-        "causes": sorted({r.cause for r in runs if r.cause}),
-        "raised": sum(r.cause == STOP_RAISED for r in runs),
-    }
-
-
-def table(results: dict[str, tuple[Entry, list[Run], list[Run]]], args) -> list[str]:
-    """The side-by-side table's lines (markdown)."""
-    lines = [
-        "| policy | loop | pushes survived | falls | falls per hour | ticks past a hard limit "
-        "(per push) | interventions per tick (undisturbed walking) | upright stops | after-push "
-        "error mean / worst push (m/s) | paired: same / ours earlier / later (p) |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
-    ]
-    for name, (entry, own, ours) in results.items():
-        a, b = summary(own), summary(ours)
-        same, fewer, more, p = sign_test([survived(r) for r in own], [survived(r) for r in ours])
-        share = f" ({b['survived'] / a['survived']:.1%} of its own)" if a["survived"] else ""
-        after = (
-            "-"
-            if b["after_push"] is None or b["after_push_worst"] is None
-            else f"{b['after_push']:.3f} / {b['after_push_worst']:.3f}"
-        )
-        checks = ", ".join(f"{k} {v}" for k, v in sorted(b["checks"].items()))
-        quiet = "-" if b["quiet"] is None else f"{b['quiet']:.2%}"
-        lines.append(
-            f"| {name} | own ({entry.own_loop}) | {a['survived']} | {a['falls']}/{len(own)} | "
-            f"{a['falls_per_hour']:.0f} | {_past(a)} | - | - | - | |"
-        )
-        lines.append(
-            f"| {name} | our runtime | {b['survived']}{share} | {b['falls']}/{len(ours)}"
-            f"{f' ({raised} raised)' if (raised := b['raised']) else ''} | "
-            f"{b['falls_per_hour']:.0f} | {_past(b)} | {b['interventions']:.4%}"
-            f"{f' ({checks})' if checks else ''} ({quiet}) | {b['upright_stops']} | {after} | "
-            f"{same} / {fewer} / {more} (p = {p:.3f}) |"
-        )
-    return lines
-
-
-def _past(s: dict) -> str:
-    """A summary's ticks past a hard limit, and per push applied."""
-    per = f" ({s['past_limit'] / s['pushes']:.1f})" if s["pushes"] else ""
-    return f"{s['past_limit']}{per}"
+    return own, ours, more
 
 
 def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
@@ -298,6 +264,8 @@ def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
         name, _, path = item.partition("=")
         if not path:
             p.error(f"--domain {item!r}: expected NAME=RANGES_FILE")
+        if not Path(path).is_file():
+            p.error(f"--domain {item!r}: {path}: no such file")
         domains[name] = Path(path)
     out = []
     for name in [n for n in args.robots.split(",") if n]:
@@ -309,30 +277,79 @@ def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
         parts = rest.split(",")
         if not name or len(parts) not in (2, 4):
             p.error(f"--user {item!r}: expected NAME=ROBOT_DIR,POLICY[,DEPLOY_YAML,MOTION_PT]")
+        for path in parts[1:]:  # ROBOT_DIR may name a shipped robot (load_robot's)
+            if not Path(path).is_file():
+                p.error(f"--user {item!r}: {path}: no such file")
         files = [Path(x) for x in parts[2:]] + [None, None]
         out.append(Entry(name, parts[0], Path(parts[1]), files[0], files[1]))
-    for item in args.tracking:
+    for item in getattr(args, "tracking", []):  # bench.guard_replay has no --tracking
         name, _, rest = item.partition("=")
         parts = rest.split(",")
         if not name or len(parts) != 2:
             p.error(f"--tracking {item!r}: expected NAME=ROBOT_DIR,RL_SAR_FOLDER")
         folder = Path(parts[1])
+        if not (folder / "policy.onnx").is_file():
+            p.error(f"--tracking {item!r}: {folder / 'policy.onnx'}: no such file")
         out.append(Entry(name, parts[0], folder / "policy.onnx", tracking=folder))
     unknown = set(domains) - {e.name for e in out}
     if unknown:
         p.error(f"--domain: {sorted(unknown)} name no policy of the run")
+    out = [replace(e, domain=domains.get(e.name)) for e in out]
     loops = {}
     for item in getattr(args, "rl_sar", []):
         name, _, rest = item.partition("=")
         parts = rest.split(",")
-        if not name or len(parts) != 2 or name not in {e.name for e in out}:
-            p.error(f"--rl-sar {item!r}: expected NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR of a --user")
+        users = {e.name for e in out if e.config is None and e.tracking is None}
+        if not name or len(parts) != 2 or name not in users:
+            p.error(
+                f"--rl-sar {item!r}: expected NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR of a "
+                "--user NAME=ROBOT_DIR,POLICY"
+            )
         loops[name] = (Path(parts[0]), Path(parts[1]))
-    return [replace(e, domain=domains.get(e.name), rl_sar=loops.get(e.name)) for e in out]
+    out = [rl_sar_entry(e, loops[e.name], args, p.error) if e.name in loops else e for e in out]
+    if getattr(args, "terrain", None) is not None and any(e.rl_sar is None for e in out):
+        p.error(
+            f"--terrain {args.terrain}: only for --rl-sar policies (their own loop lays the "
+            f"tiles too); {[e.name for e in out if e.rl_sar is None]} have none"
+        )
+    return out
+
+
+def rl_sar_entry(entry: Entry, dirs: tuple[Path, Path], args, error: Callable) -> Entry:
+    """``entry`` with its rl_sar own loop (``--rl-sar NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR``):
+    rl_sar's MuJoCo loop of the robot given (:mod:`bench.himloco_terrain_loop`), the policy
+    folder ``RL_SAR_DIR/policy/<robot>/<policy>`` of the key of the rl_sar config.yaml beside its
+    ONNX file (its TorchScript, joint mapping, default pose, gains, scales, decimation) on
+    unitree_mujoco's ``unitree_robots/<robot>/<robot>.xml``, which must hold the ``--user``
+    import's base body, feet and joints (:mod:`bench.rl_sar_robot`); ``error(message)`` for a
+    mismatch (one line naming ``--rl-sar`` and what is missing)."""
+    from bench import rl_sar_robot
+    from sim2real.robots import load_robot
+
+    try:
+        key = rl_sar_robot.policy_key(entry.policy)
+        rl_sar_robot.match(dirs[0], dirs[1], key, load_robot(entry.robot))
+    except (rl_sar_robot.Mismatch, Sim2RealError) as e:
+        error(f"--rl-sar {entry.name}: {e}")
+    command = args.command.split(",")
+    if any(float(x) for x in command[1:]):
+        error(f"--rl-sar {entry.name}: rl_sar's loop walks at vx only; --command {args.command}")
+    return replace(entry, rl_sar=dirs, rl_sar_key=key)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m bench.push_reference", description=__doc__)
+    """The benchmark (module docstring); returns its exit code (0, or ``BAD_INPUT`` with one
+    line on stderr)."""
+    try:
+        return _main(argv)
+    except BadInput as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return BAD_INPUT
+
+
+def parser() -> argparse.ArgumentParser:
+    """The benchmark's flags; a bad one raises :class:`BadInput` (one line, no usage)."""
+    p = _Parser(prog=PROG, description=__doc__)
     p.add_argument("--robots", default="go2,h1,h1_2", help="shipped policies (go2, h1, h1_2)")
     p.add_argument("--user", action="append", default=[], metavar="NAME=ROBOT,POLICY[,YAML,PT]")
     p.add_argument(
@@ -349,7 +366,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--window", type=float, default=None, help="s, a force push's duration")
     p.add_argument(
         "--rl-sar", action="append", default=[], metavar="NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR",
-        help="a --user's own loop: rl_sar's HIMLoco loop (bench.himloco_terrain_loop)",
+        help="a --user's own loop: rl_sar's loop of its robot (bench.himloco_terrain_loop)",
     )  # fmt: skip
     p.add_argument(
         "--terrain", default=None, metavar="KIND:SIZE|KIND@LEVEL|RANGES.toml",
@@ -365,19 +382,55 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     p.add_argument("--jobs", type=int, default=1, help="processes")
     p.add_argument("--verbose", action="store_true", help="a line per seed")
+    return p
+
+
+def _seeds(text: str) -> list[int]:
+    """``--seeds FIRST-LAST`` (or one seed) as a list."""
+    lo, _, hi = text.partition("-")
+    try:
+        first, last = int(lo), int(hi or lo)
+    except ValueError:
+        raise BadInput(f"--seeds {text!r}: expected FIRST-LAST (integers), e.g. 0-99") from None
+    if last < first:
+        raise BadInput(f"--seeds {text!r}: expected FIRST <= LAST")
+    return list(range(first, last + 1))
+
+
+def _check_command(text: str) -> None:
+    """``--command vx,vy,yaw``: three numbers."""
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3:
+        raise BadInput(f"--command {text!r}: expected VX,VY,YAW (m/s, m/s, rad/s), e.g. 0.5,0,0")
+
+
+def _main(argv: list[str] | None) -> int:
+    p = parser()
     a = p.parse_args(argv)
+    _check_command(a.command)
+    seeds = _seeds(a.seeds)
     entries = _entries(a, p)
-    lo, _, hi = a.seeds.partition("-")
-    seeds = list(range(int(lo), int(hi or lo) + 1))
+    check_terrain(seeds, a)
+    for e in entries:  # the robot and policy load, and their pushes, before any run
+        try:
+            robot, _ = _load(e)
+            push_ranges(e, robot, a)
+        except Sim2RealError as exc:
+            raise BadInput(f"{e.name}: {exc}") from None
     jobs = [(e, s) for e in entries for s in seeds]
-    results = {e.name: (e, [], []) for e in entries}
+    results = {e.name: (e, [], [], {}) for e in entries}
     pool = ProcessPoolExecutor(a.jobs) if a.jobs > 1 else None
     if pool:
         done = pool.map(run_seed, [e for e, _ in jobs], [s for _, s in jobs], [a] * len(jobs))
     for e, s in jobs:
-        own, ours = next(done) if pool else run_seed(e, s, a)
+        own, ours, more = next(done) if pool else run_seed(e, s, a)
         results[e.name][1].append(own)
         results[e.name][2].append(ours)
+        for row, run in more.items():
+            results[e.name][3].setdefault(row, []).append(run)
         if a.verbose:
             where = "" if a.terrain is None else f" [{terrain_of(s, a).label}]"
             print(
@@ -395,24 +448,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{e.name}: {once}pushes {push_ranges(e, robot, a)}")
     print("\n".join(table(results, a)))
     if a.terrain is not None:
-        print("\n".join(terrain_table(results, seeds, a)))
+        kinds = [terrain_of(s, a).kind for s in seeds]
+        print("\n".join(terrain_table(results, kinds)))
     return 0
-
-
-def terrain_table(results: dict, seeds: list[int], args) -> list[str]:
-    """Pushes survived per terrain kind (``--terrain``'s draws), own loop / ours, per policy."""
-    lines = ["| policy | terrain | runs | pushes survived own / ours | falls own / ours |"]
-    lines.append("| --- | --- | --- | --- | --- |")
-    kinds = [terrain_of(s, args).kind for s in seeds]
-    for name, (_, own, ours) in results.items():
-        for kind in sorted(set(kinds)):
-            at = [i for i, k in enumerate(kinds) if k == kind]
-            a = sum(survived(own[i]) for i in at)
-            b = sum(survived(ours[i]) for i in at)
-            fa = sum(own[i].fell_at is not None for i in at)
-            fb = sum(ours[i].fell_at is not None for i in at)
-            lines.append(f"| {name} | {kind} | {len(at)} | {a} / {b} | {fa} / {fb} |")
-    return lines
 
 
 if __name__ == "__main__":

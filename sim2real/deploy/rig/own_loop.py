@@ -40,15 +40,22 @@ class OwnLoop:
         time, ticks: Where the loop's clock starts (s, and its tick count).
         injector: Optional :class:`~sim2real.deploy.backends.sim.faults.FaultInjector`: its
             plant-side faults (a force armed) switched at each tick's time.
+        base: Optional callable ``base(state)`` run after the truth is written and before the
+            observation is built: what the loop's policy sees of the base in place of the
+            truth (the push benchmark's loop fed the runtime's base estimate,
+            ``bench.push_loops.plant_loop``); None: the truth.
 
     Attributes:
         ticks, time: Ticks run (from ``ticks``) and the clock (s). mode: (envs,) int8, RUNNING.
         velocity_command: A legged state's command (envs, 3) (``state.command``), or None.
     """
 
-    def __init__(self, policy, plant, state, goal, dt: float, time=0.0, ticks=0, injector=None):
+    def __init__(
+        self, policy, plant, state, goal, dt: float, time=0.0, ticks=0, injector=None, base=None
+    ):
         self.policy, self.spec, self.plant = policy, policy.spec, plant
         self.state, self.goal, self.dt, self.injector = state, goal, dt, injector
+        self.base = base
         self.time, self.ticks = time, ticks
         envs, n = state.q.shape
         self.mode = np.full(envs, RUNNING, dtype=np.int8)
@@ -67,6 +74,8 @@ class OwnLoop:
         if self._truth is not None:  # a floating base: its true pose and velocity, the clock
             state.base.set_truth(plant.true_base_state(out=self._truth))
             state.clock[:] = self.time if t is None else t
+            if self.base is not None:
+                self.base(state)
         self.spec.observation(state, self.goal, out=self._obs)
         action = self.policy(self._obs)
         self.spec.action_to_target(action, state, out=self._target)

@@ -267,35 +267,18 @@ def test_the_own_loops_policy_sees_the_base_its_base_hook_writes(tmp_path):
     np.testing.assert_allclose(seen[1] / seen[1][0], [1.0, -0.2 / 0.7, 0.1 / 0.7], rtol=1e-5)
 
 
-def _from_mirror(repo, names, root):
-    """``names`` of the bare git mirror ``repo`` (HEAD) written under ``root``."""
-    import subprocess
-
-    for name in names:
-        out = root / name
-        out.parent.mkdir(parents=True, exist_ok=True)
-        show = ["git", "-C", str(repo), "show", f"HEAD:{name}"]
-        out.write_bytes(subprocess.run(show, check=True, capture_output=True).stdout)
-
-
-def test_rl_sars_b2_runs_on_b2_xml_and_lite3_without_an_mjcf_is_refused(tmp_path):
-    """The stacks' own files (``SIM2REAL_RL_SAR_MIRROR``, ``SIM2REAL_UNITREE_MUJOCO_MIRROR``):
+def test_rl_sars_b2_runs_on_b2_xml_and_lite3_without_an_mjcf_is_refused(stacks, tmp_path):
+    """The stacks' own files (their checkouts under ``SIM2REAL_STACKS``, :mod:`tests.stacks`):
     rl_sar's B2 folder (robot_lab) matches unitree_mujoco's b2.xml and stands up and walks 3 s
     at 0.5 m/s in its own loop (its meshes absent: dropped); Lite3's HIMLoco folder has no unitree_mujoco
     MJCF and is refused naming the file."""
     from bench.himloco_terrain_loop import run
-    from tests.motion_files import RL_SAR, UNITREE_MUJOCO
 
-    if not (RL_SAR.exists() and UNITREE_MUJOCO.exists()):
-        pytest.skip(
-            f"mirrors absent ({RL_SAR}, {UNITREE_MUJOCO}): set SIM2REAL_RL_SAR_MIRROR and "
-            "SIM2REAL_UNITREE_MUJOCO_MIRROR"
-        )
     names = ["policy/b2/base.yaml", "policy/b2/robot_lab/config.yaml"]
     names += ["policy/b2/robot_lab/policy.pt", "policy/lite3/base.yaml"]
     names += ["policy/lite3/himloco/config.yaml", "policy/lite3/himloco/policy_6_11.pt"]
-    _from_mirror(RL_SAR, names, tmp_path / "rl_sar")
-    _from_mirror(UNITREE_MUJOCO, ["unitree_robots/b2/b2.xml"], tmp_path / "um")
+    stacks.copy("rl_sar", names, tmp_path / "rl_sar")
+    stacks.copy("unitree_mujoco", ["unitree_robots/b2/b2.xml"], tmp_path / "um")
     rl_sar_robot.match(tmp_path / "rl_sar", tmp_path / "um", "b2/robot_lab")
     out = run(tmp_path / "rl_sar", tmp_path / "um", None, 3.0, 0.5, key="b2/robot_lab")
     assert not out["fell"] and out["x_m"] > 0.5  # 0.75 m at e384912 (c598f10's b2.xml)

@@ -1,4 +1,4 @@
-"""Heading commands as legged_gym's command manager gives them (issue 96 item 2): a heading drawn
+"""Heading commands as legged_gym's command manager gives them: a heading drawn
 in its range in place of the yaw rate, and every tick the yaw-rate command
 ``clip(stiffness * wrap_to_pi(heading - yaw), -max, max)`` of legged_gym's
 ``_post_physics_step_callback`` (``legged_gym/envs/base/legged_robot.py``; HIMLoco's fork clips
@@ -268,7 +268,7 @@ def _walk_judged(ranges, gain, compiled=True, seconds=120.0, dt=0.02):
 
 def test_yaw_rate_tracking_falls_when_the_robot_does_not_turn():
     """The planar figure alone reads a robot that never turns as tracking; the yaw-rate figure
-    beside it does not (issue 96: 'tracking 96 %' of a policy turning half its command). The
+    beside it does not (a policy turning half of its command read 'tracking 96 %' before). The
     compiled kernels and numpy give the same figures."""
     ranges = CommandRanges(vx=(0.0, 0.5), yaw_rate=(-1.5, 1.5), zero_fraction=0.0)
     _, turns, turning = _walk_judged(ranges, 1.0)

@@ -529,8 +529,8 @@ def test_window_success_check_on_a_synthetic_result(batched):
 
 
 def test_min_success_judges_the_yaw_rate_beside_the_planar_velocity(batched):
-    """Issue 96: a policy that turned half of its yaw-rate commands read 'tracking 96 %' on the
-    planar velocity alone. --min-success judges the lower of the two figures, whose message and
+    """A policy that turned half of its yaw-rate commands read 'tracking 96 %' on the planar
+    velocity alone. --min-success judges the lower of the two figures, whose message and
     the summary's line name both."""
     from sim2real.eval.report.summary import summary_text
 

@@ -8,14 +8,11 @@ error ``|mean v_xy - mean command_xy|`` is within ``TRACKING_TOLERANCE`` (0.2 m/
 over the same ``TRACKING_WINDOW`` (a trot's body sways within a stride: the command is a mean
 speed; averaging the command too keeps the window's own lag out of the error, so a robot that
 follows a step of the command at once tracks it at once); the ``SETTLE_TIME`` after each step
-of the planar command counts as tracked (no robot follows a step at once). The yaw rate is
-judged beside it the same way (issue 96: a policy turning half of a 3 rad/s command read 96 %
-on the planar figure alone): yaw-rate tracking success is the fraction of RUNNING time whose
-``|mean yaw rate - mean yaw-rate command|`` over the same window is within
-``YAW_TRACKING_TOLERANCE`` (0.2 rad/s), the yaw rate the heading's change tick to tick (the
-truth's in simulation), the command the one the policy was given (a heading command's or a
-heading hold's computed yaw rate), ``SETTLE_TIME`` after each step of it counting as tracked.
-Falls are the runtime's safe stops.
+of the planar command counts as tracked (no robot follows a step at once). Yaw-rate tracking
+success is the same of the heading's rate, tick to tick, against the yaw-rate command the policy
+was given (a heading command's or a heading hold's), within ``YAW_TRACKING_TOLERANCE``: the
+planar figure alone reads a robot that turns half of each command as tracking. Falls are the
+runtime's safe stops.
 
 :class:`~sim2real.deploy.tasks.commands.CommandSchedule` (:mod:`sim2real.deploy.tasks.commands`)
 draws the soak's commands. :class:`sim2real.deploy.tasks.velocity.VelocityTask` is the task

@@ -528,6 +528,39 @@ def test_window_success_check_on_a_synthetic_result(batched):
     assert not session_checks(result, thresholds)["window_success"]["passed"]
 
 
+def test_min_success_judges_the_yaw_rate_beside_the_planar_velocity(batched):
+    """A policy that turned half of its yaw-rate commands read 'tracking 96 %' on the planar
+    velocity alone. --min-success judges the lower of the two figures, whose message and
+    the summary's line name both."""
+    from sim2real.eval.report.summary import summary_text
+
+    result = deepcopy(batched[0])
+    result["runtime"]["latches"], result["runtime"]["latched_faults"] = [], 0
+    result["goals"] = None
+    result["locomotion"] = {
+        "commanded_by": "velocity", "commands_issued": 30, "falls": 0, "falls_per_hour": 0.0,
+        "false_fall_stops": 0, "running_s": 300.0, "tracked_s": 288.0, "tracking_success": 0.96,
+        "yaw_tracked_s": 123.0, "yaw_tracking_success": 0.41, "tracking_tolerance_m_s": 0.2,
+        "yaw_tracking_tolerance_rad_s": 0.2, "settle_s": 1.0, "window_s": 600.0,
+        "windows": [], "min_window_success_rate": 0.96, "distance_m": 90.0, "forward_m": 80.0,
+        "mean_forward_speed_m_s": 0.27, "peak_winding_c": {}, "heading": None,
+    }  # fmt: skip
+    judged = Thresholds(max_intervention_rate=1.0, min_success_rate=0.9, judge_tracking=True)
+    check = session_checks(result, judged)["success_rate"]
+    assert not check["passed"]
+    assert "tracking success 0.960" in check["message"]
+    assert "yaw-rate tracking success 0.410 (within 0.2 rad/s" in check["message"]
+    assert session_checks(result, replace(judged, judge_tracking=False))["success_rate"]["passed"]
+    report = build_report({"robot": "go2"}, [result], judged)
+    assert failures(report) == ["success_rate"] and cli.exit_code(report) == cli.EXIT_LOW_SUCCESS
+    assert report["totals"]["locomotion"]["yaw_tracking_success"] == pytest.approx(0.41)
+    assert "tracking success 96.0 % (within 0.2 m/s), yaw rate 41.0 % (within 0.2 rad/s)" in (
+        summary_text(report)
+    )
+    result["locomotion"]["yaw_tracking_success"] = 0.95
+    assert session_checks(result, judged)["success_rate"]["passed"]
+
+
 def test_interventions_check_fails_above_its_threshold_and_the_html_names_it(batched, tmp_path):
     result = deepcopy(batched[0])
     result["runtime"]["latches"], result["runtime"]["latched_faults"] = [], 0

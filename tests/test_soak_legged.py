@@ -31,10 +31,12 @@ REPO = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def config(go2_onnx, go2):
     """36 s of go2 with faults every ~10 s (pushes on the base among them), checkpoints every
-    12 s."""
-    return short_session(
-        "go2", go2_onnx, 0.01, checkpoint_minutes=0.2, ranges=session_ranges(go2, 10.0)
-    )
+    12 s, on legged_gym's heading commands (a heading's yaw rate computed every tick from the
+    estimate: the checkpoint must carry the schedule's headings)."""
+    from sim2real.deploy.tasks.commands import CommandRanges
+
+    ranges = replace(session_ranges(go2, 10.0), commands=CommandRanges(heading_command=True))
+    return short_session("go2", go2_onnx, 0.01, checkpoint_minutes=0.2, ranges=ranges)
 
 
 def seeded(result: dict) -> dict:
@@ -206,10 +208,13 @@ def test_kill_and_resume_of_a_go2_session_equals_an_uninterrupted_run(
     arrays, meta = ckpt.read_checkpoint(session_dir(out, 0))
     assert 0 < meta["tick"] < 1800
     assert "commands/rng" in arrays and arrays["tracker/ring"].shape == (1, 40, 2)
+    assert "commands/heading" in arrays and arrays["tracker/yaw_ring"].shape == (1, 40)
     assert not any(k.startswith("goals/") for k in arrays)
     resumed = run_campaign(replace(config, seed=0), 1, out, resume=True, progress=False)[0]
     assert seeded(resumed) == seeded(uninterrupted)
     assert resumed["locomotion"]["commands_issued"] > 1
+    assert resumed["locomotion"]["heading"]["heading_commands_ended"] >= 1
+    assert resumed["locomotion"]["yaw_tracking_success"] is not None
     a = build_report({"robot": "go2"}, [resumed])
     b = build_report({"robot": "go2"}, [uninterrupted])
     assert a["totals"] | {"tick_cost_us": None} == b["totals"] | {"tick_cost_us": None}

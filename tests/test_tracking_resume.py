@@ -132,9 +132,11 @@ def test_a_clip_sessions_summary_claims_no_velocity_tracking(legged_result):
     assert checks["success_rate"]["message"].startswith("not judged: a motion clip")
     assert report["totals"]["locomotion"]["clip_sessions"] == 1
     assert report["totals"]["locomotion"]["tracking_success"] is None
+    assert report["totals"]["locomotion"]["yaw_tracking_success"] is None
     from sim2real.eval.report.html import report_html
 
-    assert report_html(report).count("n/a (a clip)") == 5  # the sessions' and locomotion tables
+    # the sessions' and locomotion tables (the latter's yaw-rate column too)
+    assert report_html(report).count("n/a (a clip)") == 6
 
 
 def test_the_anchor_is_judged_against_the_true_heading_not_the_estimates(go2, go2_onnx, tmp_path):

@@ -119,12 +119,15 @@ def _print_reference_contacts(c: dict | None, excused: dict | None) -> None:
 def _print_walk(loco: dict) -> None:
     """Print the walk line: distance, mean forward speed, tracking and falls."""
     speed, track = loco["mean_forward_speed_m_s"], loco["tracking_success"]
+    yaw = loco.get("yaw_tracking_success")
     print(
         f"  walked            {loco['distance_m']:.2f} m, mean forward speed "
         + (f"{speed:.3f} m/s" if speed is not None else "n/a")
         + f" (command {', '.join(f'{c:g}' for c in loco['command'][0])}); tracking "
         + (f"{100 * track:.1f} %" if track is not None else "n/a")
-        + f" of RUNNING time within {loco['tracking_tolerance_m_s']} m/s; falls {loco['falls']}"
+        + f" of RUNNING time within {loco['tracking_tolerance_m_s']} m/s; yaw rate "
+        + (f"{100 * yaw:.1f} %" if yaw is not None else "n/a")
+        + f" within {loco.get('yaw_tracking_tolerance_rad_s', 0.2)} rad/s; falls {loco['falls']}"
         + (f" ({_causes(loco['falls_by_cause'])})" if loco.get("falls_by_cause") else "")
         + (f"; operator stops {loco['operator_stops']}" if loco.get("operator_stops") else "")
     )

@@ -26,13 +26,7 @@ import numpy as np
 
 from sim2real.deploy.core.stateful import put, take
 from sim2real.deploy.kernels.calls import bind, fits
-
-#: Proportional gain, 1/s: legged_gym's ``0.5 * wrap_to_pi(heading - yaw)``
-#: (legged_gym/envs/base/legged_robot.py, ``commands.heading_command``).
-HEADING_GAIN = 0.5
-#: rad/s, the largest yaw-rate command the hold gives (legged_gym clips the same expression to
-#: [-1, 1]).
-HEADING_MAX_RATE = 1.0
+from sim2real.deploy.tasks.commands import HEADING_GAIN, HEADING_MAX_RATE
 
 
 class HeadingHold:

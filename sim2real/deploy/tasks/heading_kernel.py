@@ -1,4 +1,6 @@
-"""The compiled arithmetic of :meth:`sim2real.deploy.tasks.heading.HeadingHold.__call__`.
+"""The compiled arithmetic of :meth:`sim2real.deploy.tasks.heading.HeadingHold.__call__` and of
+the heading commands of :class:`sim2real.deploy.tasks.commands.CommandSchedule` (:func:`yaw_args`,
+:func:`target_args` in place of :func:`hold_args`, :func:`command`).
 
 A tick of the hold is :func:`yaw_args` (the arc tangent's arguments of the estimate's heading),
 ``np.arctan2``, :func:`hold_args` (which envs hold, the reference where a hold begins, the sine
@@ -47,6 +49,18 @@ def hold_args(mode, asked, yaw, holding, reference, hold, sin_cos):
 
 
 @numba.njit(cache=True, nogil=True)
+def target_args(mode, target, yaw, hold, sin_cos):
+    """``hold`` (envs,) bool: RUNNING with a heading ``target`` (envs,) rad (NaN: none);
+    ``sin_cos`` (2, envs): the sine and cosine of ``target - yaw`` (a heading command's error,
+    :func:`hold_args`' with the drawn heading for the held one)."""
+    for e in range(mode.shape[0]):
+        hold[e] = mode[e] == _RUNNING and math.isfinite(target[e])
+        d = target[e] - yaw[e]
+        sin_cos[0, e] = math.sin(d)
+        sin_cos[1, e] = math.cos(d)
+
+
+@numba.njit(cache=True, nogil=True)
 def command(hold, error, gain, max_rate, asked, velocity_command):
     """``velocity_command[:, 2]``: ``clip(gain * error, -max_rate, max_rate)`` where ``hold``,
     else ``asked[:, 2]``."""
@@ -69,3 +83,4 @@ def load() -> None:
     bind(yaw_args, np.zeros((1, 4)), two)
     bind(hold_args, np.zeros(1, dtype=np.int8), np.zeros((1, 3)), f1, b, f1, b, two)
     bind(command, b, f1, 1.0, 1.0, np.zeros((1, 3)), np.zeros((1, 3)))
+    bind(target_args, np.zeros(1, dtype=np.int8), f1, f1, b, two)

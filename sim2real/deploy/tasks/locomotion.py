@@ -8,7 +8,10 @@ error ``|mean v_xy - mean command_xy|`` is within ``TRACKING_TOLERANCE`` (0.2 m/
 over the same ``TRACKING_WINDOW`` (a trot's body sways within a stride: the command is a mean
 speed; averaging the command too keeps the window's own lag out of the error, so a robot that
 follows a step of the command at once tracks it at once); the ``SETTLE_TIME`` after each step
-of the planar command counts as tracked (no robot follows a step at once). Falls are the
+of the planar command counts as tracked (no robot follows a step at once). Yaw-rate tracking
+success is the same of the heading's rate, tick to tick, against the yaw-rate command the policy
+was given (a heading command's or a heading hold's), within ``YAW_TRACKING_TOLERANCE``: the
+planar figure alone reads a robot that turns half of each command as tracking. Falls are the
 runtime's safe stops.
 
 :class:`~sim2real.deploy.tasks.commands.CommandSchedule` (:mod:`sim2real.deploy.tasks.commands`)
@@ -47,6 +50,11 @@ TRACKING_WINDOW = 0.8
 #: (our choice: a base accelerating at 1 m/s^2 reaches a 1 m/s step in 1 s; unitree_rl_mjlab's
 #: G1 policy took about that, and the soak's new command every 4 s left it 77 % tracked at best).
 SETTLE_TIME = 1.0
+#: Yaw-rate error within which the robot tracks its command, rad/s: the planar tolerance's
+#: number, as the training's reward weighs them (legged_gym's ``tracking_lin_vel`` and
+#: ``tracking_ang_vel`` rewards share one ``tracking_sigma``: an error of 0.2 rad/s in yaw rate
+#: costs what one of 0.2 m/s does).
+YAW_TRACKING_TOLERANCE = 0.2
 
 #: Index of the ``operator`` cause in :data:`~sim2real.deploy.core.modes.FAULT_CAUSES`: a stop the
 #: operator asked for (not a fall).
@@ -86,6 +94,10 @@ class CommandTracker:
             ``joint`` (the joint farthest past its hard limit) and ``past_rad`` (how far).
         window_running, window_tracked: per env, s RUNNING and tracked per finished window
             (with ``window``).
+        yaw_tracked_time: (envs,) s of ``running_time`` whose yaw rate is within
+            ``YAW_TRACKING_TOLERANCE`` of the command (module docstring), or within
+            ``SETTLE_TIME`` of a step of the yaw-rate command (``yaw_changed_at``, s;
+            ``last_yaw_command``, (envs,) rad/s, NaN before the first).
         heading_change, commanded_turn: (envs,) rad, the base's heading change while RUNNING
             (the yaw of its x axis, tick to tick: the truth's in simulation, the estimate's on
             hardware, where nothing else knows it) and the turn the commands asked for (their
@@ -116,6 +128,12 @@ class CommandTracker:
         self._ring = np.zeros((self.window, envs, 2))
         self._command_ring = np.zeros((self.window, envs, 2))
         self._filled = np.zeros(envs, dtype=np.int64)
+        self.yaw_tracked_time = np.zeros(envs)
+        self.yaw_changed_at = np.full(envs, -np.inf)
+        self.last_yaw_command = np.full(envs, np.nan)
+        self._yaw_ring = np.zeros((self.window, envs))  # rad/s, the heading's rate
+        self._yaw_command_ring = np.zeros((self.window, envs))
+        self._yaw_filled = np.zeros(envs, dtype=np.int64)  # ticks of known yaw rate in it
         self.judged_on = "true base velocity" if self.truth is not None else "estimated base"
         if window is not None and not (math.isfinite(window) and window > 0):
             raise ValueError(f"window: expected a number of seconds > 0, got {window}")
@@ -159,6 +177,9 @@ class CommandTracker:
         names += ("height_time", "displacement", "start_yaw", "last_yaw")
         out: dict[str, object] = {k: getattr(self, k) for k in names}
         out |= {"ring": self._ring, "command_ring": self._command_ring, "filled": self._filled}
+        out |= {k: getattr(self, k) for k in ("yaw_tracked_time", "yaw_changed_at")}
+        out |= {"last_yaw_command": self.last_yaw_command, "yaw_ring": self._yaw_ring}
+        out |= {"yaw_command_ring": self._yaw_command_ring, "yaw_filled": self._yaw_filled}
         return out | {"up": self._up, "true_base": self._true_base}
 
     # ------------------------------------------------------------------ state
@@ -185,6 +206,12 @@ class CommandTracker:
             "displacement": self.displacement,
             "start_yaw": self.start_yaw,
             "last_yaw": self.last_yaw,
+            "yaw_tracked_time": self.yaw_tracked_time,
+            "yaw_changed_at": self.yaw_changed_at,
+            "last_yaw_command": self.last_yaw_command,
+            "yaw_ring": self._yaw_ring.swapaxes(0, 1),  # (envs, window), a view
+            "yaw_command_ring": self._yaw_command_ring.swapaxes(0, 1),
+            "yaw_filled": self._yaw_filled,
         }
 
     def _records(self) -> dict[str, list]:
@@ -202,7 +229,9 @@ class CommandTracker:
         velocities and commands), ``window_base``
         (envs, 2) s, ``falls`` (int64), ``falls_by_cause`` (envs, causes) int64, ``up`` (bool),
         ``heading_change``, ``commanded_turn`` (rad), ``height_sum`` (m s), ``height_time``
-        (s), ``displacement`` (envs, 2) m, ``start_yaw``, ``last_yaw`` (rad); shared:
+        (s), ``displacement`` (envs, 2) m, ``start_yaw``, ``last_yaw`` (rad), the yaw rate's
+        ``yaw_tracked_time``, ``yaw_changed_at`` (s), ``last_yaw_command`` (rad/s),
+        ``yaw_ring``, ``yaw_command_ring`` (envs, window) rad/s, ``yaw_filled`` (int64); shared:
         ``window_index`` (int); JSON lists over the envs: ``window_running``,
         ``window_tracked``."""
         out: dict = take(self._fields(), env)
@@ -289,7 +318,7 @@ class CommandTracker:
             if call is None or not call.ready(runtime, asked):
                 from sim2real.deploy.tasks.locomotion_kernel import TrackerCall
 
-                limits = (TRACKING_TOLERANCE, SETTLE_TIME)
+                limits = (TRACKING_TOLERANCE, SETTLE_TIME, YAW_TRACKING_TOLERANCE)
                 call = self._call = TrackerCall.build(self, runtime, asked, limits)
             truth = self.truth()
             if call.fits and type(truth) is np.ndarray and truth.dtype == np.float64:
@@ -365,6 +394,7 @@ class CommandTracker:
         yaw = yaw_of(base.orientation)
         turn = np.angle(np.exp(1j * (yaw - self.last_yaw)))  # wrapped; NaN at a walk's first tick
         self.heading_change += np.where(running & np.isfinite(turn), turn, 0.0)
+        self._track_yaw(runtime, running, turn, slot)
         self.last_yaw[:] = np.where(running, yaw, np.nan)
         begin = running & np.isnan(self.start_yaw)
         if begin.any():
@@ -381,6 +411,24 @@ class CommandTracker:
             known = running & np.isfinite(detector.height)
             self.height_sum += np.where(known, detector.height, 0.0) * self.dt
             self.height_time += known * self.dt
+
+    def _track_yaw(self, runtime, running, turn, slot) -> None:
+        """The yaw-rate tracking of one tick (``turn`` (envs,) rad, the heading's wrapped change
+        since the previous tick, NaN at a walk's first; ``slot`` the ring's row)."""
+        known = running & np.isfinite(turn)
+        command = runtime.velocity_command[:, 2]
+        self._yaw_ring[slot] = np.where(known, turn / self.dt, 0.0)
+        self._yaw_command_ring[slot] = command
+        self._yaw_filled[:] = np.where(known, np.minimum(self._yaw_filled + 1, self.window), 0)
+        error = np.abs(self._yaw_ring.mean(axis=0) - self._yaw_command_ring.mean(axis=0))
+        with np.errstate(invalid="ignore"):  # a step of the command (NaN before the first)
+            changed = np.abs(command - self.last_yaw_command) > YAW_TRACKING_TOLERANCE
+        self.yaw_changed_at[changed] = runtime.time
+        self.last_yaw_command[:] = command
+        settling = runtime.time - self.yaw_changed_at < SETTLE_TIME
+        full = self._yaw_filled >= self.window
+        ok = (full & (error <= YAW_TRACKING_TOLERANCE)) | settling
+        self.yaw_tracked_time += (running & ok) * self.dt
 
     def _fall(self, runtime, e: int) -> dict:
         """The record of env ``e``'s fall (``fall_log``): with a fall stop, ``signals`` (which
@@ -429,6 +477,10 @@ class CommandTracker:
             "mean_forward_speed_m_s": float(self.forward.sum() / running) if running else None,
             "tracking_success": float(self.tracked_time.sum() / running) if running else None,
             "tracking_tolerance_m_s": TRACKING_TOLERANCE,
+            "yaw_tracking_success": (
+                float(self.yaw_tracked_time.sum() / running) if running else None
+            ),
+            "yaw_tracking_tolerance_rad_s": YAW_TRACKING_TOLERANCE,
             "settle_s": SETTLE_TIME,
             "running_s": running,
             "falls": int(self.falls.sum()),

@@ -2,7 +2,8 @@
 
 A tick of a tracker judged on the plant's truth is :func:`truth_down` (the true base, the stops),
 :func:`track` (distance, tracking, the heading's arguments), ``np.arctan2``, :func:`turn_args`,
-``np.arctan2`` and :func:`integrate` (heading change, displacement, commanded turn, height);
+``np.arctan2`` and :func:`integrate` (heading change, yaw-rate tracking, displacement, commanded
+turn, height);
 numpy's arctan2 is not the C library's, so the two arc tangents stay numpy's. Each expression is
 numpy's in numpy's order: a mean over the window's ring sums its rows in order and divides, sums
 of two or three terms go left to right, ``np.angle(np.exp(1j * d))`` is ``arctan2(sin d, cos d)``;
@@ -96,14 +97,35 @@ def turn_args(yaw, last_yaw, sin_cos):
 @numba.njit(cache=True, nogil=True)
 def integrate(
     mode, yaw, turn, asked, velocity_world, dt, heights, has_heights, heading_change, last_yaw,
-    start_yaw, displacement, commanded_turn, height_sum, height_time,
+    start_yaw, displacement, commanded_turn, height_sum, height_time, command, yaw_tolerance,
+    settle, yaw_ring, yaw_command_ring, yaw_filled, last_yaw_command, yaw_changed_at,
+    yaw_tracked_time, slot, time,
 ):  # fmt: skip
-    """Heading change (``turn`` (envs,) rad, wrapped), displacement along and across the first
-    heading, commanded turn (``asked`` (envs, 3)) and the fall check's ``heights`` (envs,) m."""
+    """Heading change (``turn`` (envs,) rad, wrapped), the yaw-rate tracking (``turn / dt``
+    against ``command[:, 2]``, the runtime's, over the rings' ``slot``; ``time`` s),
+    displacement along and across the first heading, commanded turn (``asked`` (envs, 3)) and
+    the fall check's ``heights`` (envs,) m."""
+    window = yaw_ring.shape[0]
     for e in range(mode.shape[0]):
         running = mode[e] == 2
         t = turn[e]
         heading_change[e] += t if running and math.isfinite(t) else 0.0
+        known = running and math.isfinite(t)
+        yaw_ring[slot, e] = t / dt if known else 0.0
+        c = command[e, 2]
+        yaw_command_ring[slot, e] = c
+        yaw_filled[e] = min(yaw_filled[e] + 1, window) if known else 0
+        m, n = yaw_ring[0, e], yaw_command_ring[0, e]
+        for k in range(1, window):
+            m += yaw_ring[k, e]
+            n += yaw_command_ring[k, e]
+        error = abs(m / window - n / window)
+        if abs(c - last_yaw_command[e]) > yaw_tolerance:
+            yaw_changed_at[e] = time
+        last_yaw_command[e] = c
+        settling = time - yaw_changed_at[e] < settle
+        ok = (yaw_filled[e] >= window and error <= yaw_tolerance) or settling
+        yaw_tracked_time[e] += (1.0 if running and ok else 0.0) * dt
         last_yaw[e] = yaw[e] if running else np.nan
         if running and math.isnan(start_yaw[e]):
             start_yaw[e] = yaw[e]
@@ -151,24 +173,29 @@ class TrackerCall:
         self._track = bind(
             track,
             *(self.mode, base.linear_velocity, self.command, base.orientation, dt),
-            *(*limits, *(a[k] for k in names), self._yaw_args),
+            *(*limits[:2], *(a[k] for k in names), self._yaw_args),
             rest=(0, 0.0),
         )
         self._turn_args = bind(turn_args, self._yaw, a["last_yaw"], self._sin_cos)
         has = heights is not None
+        yaw = ("yaw_ring", "yaw_command_ring", "yaw_filled", "last_yaw_command")
+        yaw += ("yaw_changed_at", "yaw_tracked_time")
         self._integrate = bind(
             integrate,
             *(self.mode, self._yaw, self._turn, asked, base.linear_velocity_world, dt),
             *(heights if has else np.zeros(envs), has, a["heading_change"], a["last_yaw"]),
             *(a["start_yaw"], a["displacement"], a["commanded_turn"], a["height_sum"]),
-            a["height_time"],
+            *(a["height_time"], self.command, *limits[2:], limits[1]),
+            *(a[k] for k in yaw),
+            rest=(0, 0.0),
         )
         self._window = tracker.window
 
     @classmethod
     def build(cls, tracker, runtime, asked, limits: tuple) -> TrackerCall:
         """The call for ``runtime`` (``asked``: the command of the turn, (envs, 3); ``limits``:
-        the tracking tolerance, m/s, and the settling time, s); ``fits``
+        the tracking tolerance, m/s, the settling time, s, and the yaw-rate tolerance, rad/s;
+        ``fits``
         False: an array the kernels do not take, or a machine whose BLAS differs
         (:func:`gemv_matches`)."""
         envs = tracker.envs
@@ -205,7 +232,7 @@ class TrackerCall:
         np.arctan2(self._yaw_args[0], self._yaw_args[1], out=self._yaw)
         self._turn_args()
         np.arctan2(self._sin_cos[0], self._sin_cos[1], out=self._turn)
-        self._integrate()
+        self._integrate(slot, float(runtime.time))
 
 
 def load() -> None:
@@ -221,4 +248,8 @@ def load() -> None:
     track_arrays = (f1, f1, ring, ring, i, f2, f1, f1, f1, f1, two)
     bind(track, mode, f3, f3, q, 1.0, 1.0, 1.0, *track_arrays, rest=(0, 0.0))
     bind(turn_args, f1, f1, two)
-    bind(integrate, mode, f1, f1, f3, f3, 1.0, f1, True, f1, f1, f1, f2, f1, f1, f1)
+    yaw = (ring[0], ring[0], i, f1, f1, f1)
+    bind(
+        integrate, mode, f1, f1, f3, f3, 1.0, f1, True, f1, f1, f1, f2, f1, f1, f1, f3, 1.0, 1.0,
+        *yaw, rest=(0, 0.0),
+    )  # fmt: skip

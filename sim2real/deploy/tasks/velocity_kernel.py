@@ -25,11 +25,11 @@ from sim2real.deploy.tasks.locomotion_kernel import integrate, track, truth_down
 #: the hold's (``h_*``, ``holding``, ``reference``, ``hold``), the scratch rows of numpy's
 #: ``arctan2`` calls (``*_args``, ``sin_cos``: (2, envs) its y and x rows), and ``fused``
 #: (``gemv_fused``), whether the fall check's heights exist and the hold runs; ``dt`` s, the
-#: tracker's tolerance and settle time, the hold's gain and maximum rate.
+#: tracker's tolerance and settle time, its yaw-rate tolerance, the hold's gain and maximum rate.
 TASK = Table(
     "sim2real.deploy.tasks.velocity_kernel:TASK",
     fused="b1", has_heights="b1", has_hold="b1", dt="f8", tolerance="f8", settle="f8",
-    gain="f8", rate="f8",
+    yaw_tolerance="f8", gain="f8", rate="f8",
     mode="i1[envs]", command="f8[envs,3]", asked="f8[envs,3]", heights="f8[envs]",
     estimate="f8[envs,4]", orientation="f8[envs,4]", gravity="f8[envs,3]",
     angular="f8[envs,3]", velocity_world="f8[envs,3]", velocity="f8[envs,3]", up="b1[envs]",
@@ -41,6 +41,8 @@ TASK = Table(
     displacement="f8[envs,2]", commanded_turn="f8[envs]", height_sum="f8[envs]",
     height_time="f8[envs]", h_args="f8[2,envs]", h_yaw="f8[envs]", holding="b1[envs]",
     reference="f8[envs]", hold="b1[envs]", h_sin_cos="f8[2,envs]", h_error="f8[envs]",
+    yaw_ring="f8[window,envs]", yaw_command_ring="f8[window,envs]", yaw_filled="i8[envs]",
+    last_yaw_command="f8[envs]", yaw_changed_at="f8[envs]", yaw_tracked_time="f8[envs]",
 )  # fmt: skip
 #: Bits of :func:`task_stage`'s code: some env went down (stage 0 stopped before ``track``),
 #: some env is RUNNING (``track``'s answer).
@@ -82,7 +84,9 @@ def task_stage(t, stage, truth, slot, time, running):
         integrate(
             mode, t.yaw, t.turn, asked, t.velocity_world, dt, t.heights, t.has_heights,
             t.heading_change, t.last_yaw, t.start_yaw, t.displacement, t.commanded_turn,
-            t.height_sum, t.height_time,
+            t.height_sum, t.height_time, command, t.yaw_tolerance, t.settle, t.yaw_ring,
+            t.yaw_command_ring, t.yaw_filled, t.last_yaw_command, t.yaw_changed_at,
+            t.yaw_tracked_time, slot, time,
         )  # fmt: skip
     if hold:
         hk.command(t.hold, t.h_error, t.gain, t.rate, asked, command)
@@ -122,7 +126,11 @@ class TaskCall:
         """The call for ``runtime``'s arrays; ``fits`` False where an array is not of the
         kernels' dtype, shape and layout, or the machine's BLAS differs (``gemv_matches``)."""
         from sim2real.deploy.monitors.estimation_kernel import gemv_fused, gemv_matches
-        from sim2real.deploy.tasks.locomotion import SETTLE_TIME, TRACKING_TOLERANCE
+        from sim2real.deploy.tasks.locomotion import (
+            SETTLE_TIME,
+            TRACKING_TOLERANCE,
+            YAW_TRACKING_TOLERANCE,
+        )
 
         tracker, h = task.tracker, task.heading
         envs, window = tracker.envs, tracker.window
@@ -140,7 +148,8 @@ class TaskCall:
         table = TASK.pack(
             {"envs": envs, "window": window},  # the slot the call takes is ticks % window
             fused=gemv_fused(), has_heights=heights is not None, has_hold=h is not None,
-            dt=tracker.dt, tolerance=TRACKING_TOLERANCE, settle=SETTLE_TIME, gain=gain, rate=rate,
+            dt=tracker.dt, tolerance=TRACKING_TOLERANCE, settle=SETTLE_TIME,
+            yaw_tolerance=YAW_TRACKING_TOLERANCE, gain=gain, rate=rate,
             mode=runtime.mode, command=runtime.velocity_command,
             asked=task._asked if h is not None else runtime.velocity_command,
             heights=np.zeros(envs) if heights is None else heights,

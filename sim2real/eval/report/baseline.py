@@ -144,10 +144,11 @@ def _success(c: _Comparison, new: dict, old: dict) -> None:
     new_loco, old_loco = new.get("locomotion"), old.get("locomotion")
     for key, label in (
         ("tracking_success", "tracking success (legged)"),
+        ("yaw_tracking_success", "yaw-rate tracking success (legged)"),
         ("min_window_success_rate", "lowest windowed tracking success (legged)"),
     ):
         if new_loco and old_loco and old_loco.get(key) is not None:
-            c.fell(f"locomotion.{key}", label, old_loco[key], new_loco[key])
+            c.fell(f"locomotion.{key}", label, old_loco[key], new_loco.get(key))
 
 
 def _thermal(c: _Comparison, new: dict, old: dict) -> None:

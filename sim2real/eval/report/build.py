@@ -111,6 +111,7 @@ def _tracking_checks(loco: dict, thresholds: Thresholds) -> tuple[tuple, tuple, 
     ``(passed, message)``: its tracking success, judged only with ``thresholds.judge_tracking``
     and never for a session a motion clip commands."""
     rate, window = loco["tracking_success"], loco["min_window_success_rate"]
+    yaw = loco.get("yaw_tracking_success")  # None: never RUNNING, or a result before it
     # a motion clip commands it: no velocity tracking to judge or report
     clip = loco.get("commanded_by") == "clip"
     judged = thresholds.judge_tracking and not clip
@@ -124,9 +125,16 @@ def _tracking_checks(loco: dict, thresholds: Thresholds) -> tuple[tuple, tuple, 
             if loco.get("settle_s")
             else ")"
         )
+        + (
+            f"; yaw-rate tracking success {yaw:.3f} (within "
+            f"{loco['yaw_tracking_tolerance_rad_s']:g} rad/s; judged by the same threshold)"
+            if yaw is not None
+            else ""
+        )
         if rate is not None
         else "never RUNNING"
     )
+    least = rate if yaw is None or rate is None else min(rate, yaw)
     window_message = (CLIP_NOT_JUDGED if clip else None) or (
         f"lowest tracking success in a {loco['window_s'] / 60:g}-minute window {window:.3f} "
         + (f"(threshold {thresholds.min_window_success_rate:.3f}, " if judged else "(not judged, ")
@@ -143,7 +151,7 @@ def _tracking_checks(loco: dict, thresholds: Thresholds) -> tuple[tuple, tuple, 
     )
     return (
         (
-            not judged or (rate is not None and rate >= thresholds.min_success_rate),
+            not judged or (least is not None and least >= thresholds.min_success_rate),
             success_message,
         ),
         (
@@ -280,7 +288,13 @@ def build_report(
                    false_fall_stops`; must be 0), tracking_success (the session's success
                    rate: share of RUNNING time within tracking_tolerance_m_s of the command, the
                    velocity and the command both averaged over tracking_window_s),
-                   tracking_tolerance_m_s, tracking_window_s, judged_on, running_s,
+                   tracking_tolerance_m_s, tracking_window_s, yaw_tracking_success (the
+                   same of the yaw rate against the yaw-rate command the policy was given,
+                   within yaw_tracking_tolerance_rad_s; with --min-success the lower of the two
+                   is judged), yaw_tracked_s, yaw_tracking_tolerance_rad_s, heading (null
+                   without heading commands: {heading_commands_ended, mean_heading_error_deg},
+                   the estimate's heading against each heading command at its end), judged_on,
+                   running_s,
                    standing_fraction (RUNNING s / session s), tracked_s, distance_m, forward_m,
                    mean_forward_speed_m_s, window_s, windows [{start_s, end_s, running_s,
                    tracked_s, success_rate}], min_window_success_rate, peak_winding_c {hip, thigh,

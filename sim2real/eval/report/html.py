@@ -318,6 +318,7 @@ def _locomotion_table(report: dict) -> dict:
             "falls began (runtime stop, push, fault; replays: policy, runtime, rare draw, "
             "undecided)",
             "tracking success (within 0.2 m/s)",
+            "yaw-rate tracking (within 0.2 rad/s)",
             "lowest window tracking",
             "distance (m)",
             "mean forward speed (m/s)",
@@ -333,6 +334,11 @@ def _locomotion_table(report: dict) -> dict:
                 s["locomotion"]["falls_per_hour"],
                 list(s["locomotion"].get("falls_by_origin", {}).values()),
                 _velocity(s["locomotion"], "tracking_success"),
+                (
+                    _velocity(s["locomotion"], "yaw_tracking_success")
+                    if "yaw_tracking_success" in s["locomotion"]
+                    else None
+                ),
                 _velocity(s["locomotion"], "min_window_success_rate"),
                 s["locomotion"]["distance_m"],
                 _velocity(s["locomotion"], "mean_forward_speed_m_s"),

@@ -37,10 +37,20 @@ def locomotion_line(loco: dict) -> str:
             "(its tracking: the exhibition lines)"
         )
     ts, speed = loco["tracking_success"], loco["mean_forward_speed_m_s"]
+    yaw = loco.get("yaw_tracking_success")
     over = f" (the {loco['sessions'] - clips} velocity-commanded sessions)" if clips else ""
+    heading = loco.get("heading")
+    ended = (heading or {}).get("heading_commands_ended", 0)
     return (
         f"{head}; tracking success {'n/a' if ts is None else f'{100 * ts:.1f} %'} (within 0.2 "
-        f"m/s){over}; distance {loco['distance_m']:.0f} m; mean forward speed "
+        f"m/s), yaw rate {'n/a' if yaw is None else f'{100 * yaw:.1f} %'} (within 0.2 rad/s)"
+        + (
+            f"; heading commands {ended}, {heading['mean_heading_error_deg']:.0f} deg from "
+            "their heading at their end on average"
+            if ended
+            else ""
+        )
+        + f"{over}; distance {loco['distance_m']:.0f} m; mean forward speed "
         f"{'n/a' if speed is None else f'{speed:.3f} m/s'}; commands issued "
         f"{loco.get('commands_issued', 'n/a')}"
     )

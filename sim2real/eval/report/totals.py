@@ -301,6 +301,8 @@ def _locomotion_totals(results: list[dict]) -> dict | None:
             sum(x["tracked_s"] for x in vel) / vel_running if vel_running else None
         ),
         "min_window_success_rate": min(windows) if windows else None,
+        "yaw_tracking_success": _yaw_tracking(vel, vel_running),
+        "heading": _heading_totals(vel),
         "distance_m": sum(x["distance_m"] for x in legs),
         "mean_forward_speed_m_s": (
             sum(x["forward_m"] for x in vel) / vel_running if vel_running else None
@@ -311,6 +313,29 @@ def _locomotion_totals(results: list[dict]) -> dict | None:
             k: max(x["peak_winding_c"][k] for x in legs if k in x["peak_winding_c"]) for k in kinds
         },
     }
+
+
+def _yaw_tracking(vel: list[dict], running: float) -> float | None:
+    """The velocity-commanded sessions' yaw-rate tracking success (tracked / RUNNING s); None
+    without RUNNING time or when a session's result has no yaw figure (written before it)."""
+    if not running or any("yaw_tracked_s" not in x for x in vel):
+        return None
+    return sum(x["yaw_tracked_s"] for x in vel) / running
+
+
+def _heading_totals(vel: list[dict]) -> dict | None:
+    """The heading commands of the sessions that ran them: ``heading_commands_ended`` and their
+    ``mean_heading_error_deg`` at their end (weighted by commands); None without any."""
+    rows = [x["heading"] for x in vel if x.get("heading")]
+    if not rows:
+        return None
+    n = sum(h["heading_commands_ended"] for h in rows)
+    error = sum(
+        h["mean_heading_error_deg"] * h["heading_commands_ended"]
+        for h in rows
+        if h["heading_commands_ended"]
+    )
+    return {"heading_commands_ended": n, "mean_heading_error_deg": error / n if n else None}
 
 
 def _wheel_totals(results: list[dict]) -> dict | None:

@@ -72,7 +72,10 @@ FORMAT = "soak-checkpoint"
 #: 15: a motion-tracking session's judged figures and play log (``figures/...``: its clips,
 #: their errors and heat); a version 14 checkpoint has none, and a resume from it lost the clips
 #: played before the checkpoint.
-VERSION = 15
+#: 16: a legged robot's yaw-rate tracking (``tracker/yaw_tracked_time``, ``yaw_ring``, ...) and
+#: the schedule's heading commands (``commands/heading``, ``heading_ended``, ``heading_error``);
+#: a version 15 checkpoint has neither, and its resumed yaw figure would lack the time before.
+VERSION = 16
 MANIFEST = "checkpoint.json"
 
 

@@ -51,7 +51,12 @@ def locomotion_result(session: Session) -> dict:
     """The ``locomotion`` section of a legged session's result (see :mod:`sim2real.eval.report.build`)."""
     from dataclasses import asdict
 
-    from sim2real.deploy.tasks.locomotion import SETTLE_TIME, TRACKING_TOLERANCE, TRACKING_WINDOW
+    from sim2real.deploy.tasks.locomotion import (
+        SETTLE_TIME,
+        TRACKING_TOLERANCE,
+        TRACKING_WINDOW,
+        YAW_TRACKING_TOLERANCE,
+    )
 
     b, e, rt = session.batch, session.e, session.batch.rt
     tr, cmd = session.task.tracker, session.task.schedule
@@ -99,6 +104,11 @@ def locomotion_result(session: Session) -> dict:
         "tracking_success": float(tr.tracked_time[e]) / running if running else None,
         "tracking_tolerance_m_s": TRACKING_TOLERANCE,
         "tracking_window_s": TRACKING_WINDOW,
+        "yaw_tracking_success": float(tr.yaw_tracked_time[e]) / running if running else None,
+        "yaw_tracked_s": float(tr.yaw_tracked_time[e]),
+        "yaw_tracking_tolerance_rad_s": YAW_TRACKING_TOLERANCE,
+        # heading commands (legged_gym's heading_command): how near each came; None without
+        "heading": cmd.heading_figures(e) if cmd is not None else None,
         "settle_s": SETTLE_TIME,
         "judged_on": tr.judged_on,
         "running_s": running,

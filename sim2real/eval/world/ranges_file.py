@@ -15,8 +15,7 @@ is ``[low, high]`` (drawn uniformly; integers inclusive), in the units of the cl
     encoder_bias = [-0.015, 0.015]  # rad, each joint's offset, drawn once per session
     [imu]  [drift]  [faults]   # see their classes
     [commands]    # floating base only: vx, vy, yaw_rate (over the policy contract's ranges),
-                  # zero_fraction, period (s or [low, high]; refused with --goal-period),
-                  # heading_command, heading, heading_stiffness, max_yaw_rate (legged_gym's)
+                  # zero_fraction, period (s or [low, high]; not with --goal-period), heading_*
     [pushes]      # floating base only: interval (s or [low, high]), mode ("set" or "add"),
                   # max_velocity (m/s) or velocity = {x, y, z}, angular_velocity = {roll, ...},
                   # apply ("force", default, or "velocity_hidden_from_imu"), window (s, 0.1)

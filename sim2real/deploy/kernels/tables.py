@@ -39,6 +39,8 @@ from numba.core.extending import (
 from numba.core.typing.templates import AttributeTemplate, infer_getattr
 from numba.np.arrayobj import populate_array
 
+from sim2real.robots.errors import Sim2RealError
+
 #: A field's spelling: a dtype code, then the shape symbols in brackets (none: a scalar).
 _FIELD = re.compile(r"^(f8|f4|i8|i1|b1)(?:\[([\w*+, ]*)\])?$")
 
@@ -53,7 +55,7 @@ class Field(NamedTuple):
     at: int
 
 
-class TableMismatch(ValueError):
+class TableMismatch(Sim2RealError, ValueError):
     """Values that do not fit a :class:`Table`'s declaration (the field and what it expected)."""
 
 

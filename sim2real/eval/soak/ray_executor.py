@@ -116,7 +116,7 @@ def batch_task(
         while True:
             kind, payload = messages.get()
             if kind == "error":
-                raise payload
+                raise relabel.error(payload)
             yield kind, payload
             if kind == "results":
                 break

@@ -269,6 +269,16 @@ class Relabel:
         """``doc`` with a driver option's absolute path as the worker's."""
         return self._walk(doc, lambda s: self.forth.get(s, s))
 
+    def error(self, exc: BaseException) -> BaseException:
+        """``exc`` with the worker's paths in its one-line message as the driver's (its args
+        relabelled when they are one string)."""
+        if len(exc.args) == 1 and isinstance(exc.args[0], str):
+            text = exc.args[0]
+            for worker, driver in self.back.items():
+                text = text.replace(worker, driver)
+            exc.args = (text.replace(self.root + "/", "/"),)
+        return exc
+
     def json_bytes(self, data: bytes, to_driver: bool) -> bytes:
         """A JSON file's bytes relabelled (unchanged when nothing is)."""
         doc = json.loads(data)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -71,8 +72,8 @@ def two_node_cluster(hidden: Path, logs: Path):
     Args:
         hidden: A folder of the driver's (it must exist); the worker node sees an empty tmpfs
             there.
-        logs: Folder for the nodes' output (``head.log``, ``worker.log``) and the worker node's
-            working folder.
+        logs: Folder for the nodes' output (``head.log``, ``worker.log``), the worker node's
+            working folder and its ``TMPDIR``.
     """
     unshare = unshare_command()
     if unshare is None:
@@ -105,12 +106,14 @@ def two_node_cluster(hidden: Path, logs: Path):
             f"mount -t tmpfs tmpfs {hidden} && exec {RAY} start --address {address} "
             f"--num-cpus 1 --dashboard-agent-listen-port {_free_port()} {' '.join(common)}"
         )
+        worker_tmp = logs / "worker-tmp"  # a task killed with its driver leaves its folder there
+        worker_tmp.mkdir(exist_ok=True)
         worker = subprocess.Popen(
             [*unshare, "sh", "-c", start],
             cwd=worker_cwd,
             stdout=open(logs / "worker.log", "wb"),
             stderr=subprocess.STDOUT,
-            env=env,
+            env=dict(env, TMPDIR=str(worker_tmp)),
             start_new_session=True,
         )
         yield address
@@ -118,3 +121,4 @@ def two_node_cluster(hidden: Path, logs: Path):
         if worker is not None:
             _stop(worker)
         _stop(head)
+        shutil.rmtree(temp, ignore_errors=True)

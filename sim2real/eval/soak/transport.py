@@ -37,7 +37,6 @@ import json
 import os
 import sys
 import tarfile
-import tomllib
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -46,10 +45,19 @@ from sim2real.eval.soak.session import SESSIONS_DIR, SessionConfig, session_dir
 from sim2real.robots.errors import Sim2RealError
 from sim2real.robots.files import atomic_write
 
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
 #: The options of :class:`~sim2real.eval.soak.session.SessionConfig` that name files.
 PATH_OPTIONS = ("robot", "policy", "spec", "plant_motors", "motion")
 #: Folders never carried (a checkout's history, Python's caches).
 SKIPPED_DIRS = frozenset({".git", "__pycache__", ".venv"})
+#: The system's folders: every node has its own.
+SYSTEM_DIRS = ("/proc", "/sys", "/dev", "/etc")
+#: Files Python opened to import modules (the worker imports from its own installation).
+MODULE_SUFFIXES = (".py", ".pyc", ".so", ".pyd", ".zip")
 
 
 class TransportError(Sim2RealError, OSError):
@@ -105,10 +113,11 @@ class Inputs:
 
 
 def _installed_roots() -> list[Path]:
-    """Folders every worker has its own copy of: this package and the Python installation."""
+    """Folders every worker has its own copy of: this package, the Python installation and the
+    system's (:data:`SYSTEM_DIRS`)."""
     import sim2real
 
-    roots = {Path(sim2real.__file__).resolve().parent}
+    roots = {Path(sim2real.__file__).resolve().parent, *map(Path, SYSTEM_DIRS)}
     for prefix in {sys.prefix, sys.base_prefix, sys.exec_prefix}:
         roots.add(Path(prefix).resolve())
     return sorted(roots)
@@ -159,11 +168,12 @@ def input_paths(template: SessionConfig, opened=(), policy=None) -> list[Path]:
     source = getattr(getattr(policy, "foreign", None), "motion", None)
     if source is not None and getattr(source, "file", None):
         found.add(Path(source.file))
-    found.update(Path(p) for p in opened)
+    found.update(Path(p) for p in opened if not str(p).endswith(MODULE_SUFFIXES))
     paths = set()
     for p in found:
-        p = Path(os.path.abspath(p)).resolve()
-        if (p.is_file() or p.is_dir()) and not _within(p, roots):
+        given = Path(os.path.abspath(p))
+        p = given.resolve()
+        if (p.is_file() or p.is_dir()) and not _within(given, roots) and not _within(p, roots):
             paths.add(p)
     # a file inside a folder carried whole goes with it
     folders = [p for p in paths if p.is_dir()]
@@ -197,6 +207,11 @@ def pack_inputs(template: SessionConfig, opened=(), policy=None) -> Inputs:
 
 
 def _extract(data: bytes, into: Path) -> None:
+    if not hasattr(tarfile, "data_filter"):  # pragma: no cover - Python 3.10.12+, 3.11.4+ have it
+        raise TransportError(
+            f"Python {sys.version.split()[0]}: tarfile has no 'data' extraction filter (PEP 706): "
+            "a Ray worker needs Python 3.10.12, 3.11.4 or later"
+        )
     with tarfile.open(fileobj=io.BytesIO(data), mode="r") as tar:
         tar.extractall(into, filter="data")  # no absolute paths, no '..', no devices
 
@@ -211,9 +226,7 @@ def materialise(inputs: Inputs, root: str | os.PathLike) -> Path:
     return work
 
 
-def worker_config(
-    config: SessionConfig, inputs: Inputs, root: str | os.PathLike
-) -> SessionConfig:
+def worker_config(config: SessionConfig, inputs: Inputs, root: str | os.PathLike) -> SessionConfig:
     """``config`` on a worker: an absolute path option moved under ``root`` (a relative one names
     the same file from the folder :func:`materialise` returns)."""
     moved = {}
@@ -352,7 +365,9 @@ class FolderSync:
         """``(path relative to the campaign folder, bytes or None for a removal)`` of every file
         written or removed since the last call, in the order :func:`apply_changes` writes them."""
         now = self._scan()
-        written = sorted((r for r in now if self.seen.get(r) != now[r]), key=lambda r: (_order(r), r))
+        written = sorted(
+            (r for r in now if self.seen.get(r) != now[r]), key=lambda r: (_order(r), r)
+        )
         removed = sorted(r for r in self.seen if r not in now)
         self.seen = now
         out = []

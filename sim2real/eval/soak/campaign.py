@@ -4,14 +4,16 @@ A **campaign** is several seeded sessions (seeds ``seed, seed + 1, ...``; :mod:`
 in one folder ``OUT``: :func:`run_campaign` checks the robot and policy, plans the sessions into
 batches of ``sessions_per_process`` (:func:`plan_batches`; a resumed campaign keeps the batches
 its checkpoints were made in), runs them by local processes (one worker per core; a campaign of a
-single batch runs in the calling process) or by Ray (one task per batch;
-:mod:`sim2real.eval.soak.executors`),
+single batch runs in the calling process) or by Ray (one task per batch, on nodes that need not
+see the driver's files;
+:mod:`sim2real.eval.soak.ray_executor`),
 shows the progress in simulated hours and speed, and returns one result per session
 (:mod:`sim2real.eval.soak.result`; :mod:`sim2real.eval.report.build` turns them into the campaign's reports).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -20,9 +22,11 @@ from dataclasses import replace
 from pathlib import Path
 
 from sim2real.eval.soak import checkpoint as ckpt
-from sim2real.eval.soak.executors import default_workers, run_local, run_ray, run_sessions
+from sim2real.eval.soak.executors import default_workers, run_local, run_sessions
+from sim2real.eval.soak.ray_executor import run_ray
 from sim2real.eval.soak.result import check_result, read_result
 from sim2real.eval.soak.session import SESSIONS_DIR, SessionConfig, SessionError, session_dir
+from sim2real.eval.soak.transport import opened_files, pack_inputs
 
 
 def plan_batches(
@@ -129,7 +133,8 @@ def run_campaign(
         resume: Continue an interrupted campaign from its checkpoints; without it, the sessions'
             earlier state in ``out`` is discarded.
         executor: ``'local'`` (processes; a campaign of one batch runs in this process) or
-            ``'ray'``.
+            ``'ray'`` (its nodes need not see ``out`` nor the inputs: they travel with the tasks,
+            :mod:`sim2real.eval.soak.ray_executor`).
         address: Ray cluster address (``ray.init(address)``); None starts a local Ray instance
             unless one is already initialized in this process.
         sessions_per_process: Sessions batched in one runtime.
@@ -152,8 +157,10 @@ def run_campaign(
     if workers is not None and workers < 1:
         raise SessionError(f"workers: expected an integer >= 1, got {workers}")
     out = Path(out)
-    robot = load_robot(template.robot)
-    template.load_policy(robot)  # bad input fails here, before any worker starts
+    # bad input fails here, before any worker starts; a Ray worker gets the files opened
+    with opened_files() if executor == "ray" else contextlib.nullcontext(set()) as opened:
+        robot = load_robot(template.robot)
+        policy = template.load_policy(robot)
     configs = [replace(template, seed=template.seed + i) for i in range(sessions)]
     if not resume:
         for c in configs:
@@ -172,7 +179,8 @@ def run_campaign(
         elif executor == "local":
             results = run_local(batches, out, resume, workers or default_workers(), bar, recorders)
         else:
-            results = run_ray(batches, out, resume, address, workers, bar, recorders)
+            inputs = pack_inputs(template, opened, policy)
+            results = run_ray(batches, out, resume, address, workers, bar, recorders, inputs)
     finally:
         bar.close()
     by_seed = {r["seed"]: r for rs in results for r in rs}

@@ -4,8 +4,9 @@ Every executor runs the same task, :func:`run_sessions` (one batch in one proces
 :class:`sim2real.eval.soak.batch.SessionBatch`): in the calling process (a campaign of a single batch), in a
 pool of local processes (:func:`run_local`: ``concurrent.futures.ProcessPoolExecutor`` with the
 ``spawn`` start method, one worker per core by default, :func:`default_workers`), or as one Ray
-task per batch (:func:`run_ray`). While they wait, the executors update the campaign's progress
-display (an object with ``update()``; :mod:`sim2real.eval.soak.campaign`).
+task per batch on nodes that share no disk with the driver
+(:func:`sim2real.eval.soak.ray_executor.run_ray`). While they wait, the executors update the
+campaign's progress display (an object with ``update()``; :mod:`sim2real.eval.soak.campaign`).
 """
 
 from __future__ import annotations
@@ -94,46 +95,3 @@ def run_local(
             )
             bar.update()
         return [f.result() for f in futures]
-
-
-def run_ray(
-    batches: list[list[SessionConfig]],
-    out: Path,
-    resume: bool,
-    address: str | None,
-    workers: int | None,
-    bar,
-    recorders=(),
-) -> list[list[dict]]:
-    """Run each batch as a :func:`run_sessions` Ray task (one CPU each); ``bar.update()`` is
-    called while waiting.
-
-    Ray is initialized here unless it already is in this process: on the cluster at ``address``,
-    or as a local instance of ``workers`` CPUs (default: one per core); it is shut down again at
-    the end if it was started here.
-
-    Returns:
-        The results of each batch, in the order of ``batches``.
-    """
-    import ray
-
-    started = False
-    if not ray.is_initialized():
-        if address:
-            ray.init(address=address, log_to_driver=False)
-        else:
-            ray.init(
-                num_cpus=workers or default_workers(), include_dashboard=False, log_to_driver=False
-            )
-        started = True
-    try:
-        task = ray.remote(num_cpus=1)(run_sessions)
-        refs = [task.remote(b, str(out), resume, None, recorders) for b in batches]
-        pending = list(refs)
-        while pending:
-            _, pending = ray.wait(pending, num_returns=len(pending), timeout=0.5)
-            bar.update()
-        return ray.get(refs)
-    finally:
-        if started:
-            ray.shutdown()

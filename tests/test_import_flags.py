@@ -158,6 +158,23 @@ def test_a_motor_from_the_users_toml_file(tmp_path, capsys):
     assert "not in the catalog" in err and "path of a motor TOML file" in err
 
 
+def test_a_robot_with_motor_files_is_named_after_its_folder_not_a_motor(tmp_path):
+    """Motor files that sort after the robot's name ('zz_knee' > 'two_link') name no robot: the
+    robot is named after --out, the name a spec gives and the errors print."""
+    table = (MOTORS_DIR / "xm430_w350.toml").read_text()
+    hip, knee = tmp_path / "aa_hip.toml", tmp_path / "zz_knee.toml"
+    hip.write_text(table)
+    knee.write_text(table.replace("peak_torque = 4.1", "peak_torque = 2.5"))
+    source = write_urdf(tmp_path)
+    out = tmp_path / "two_link"
+    flags = ["--limit", "*=-3:3", "--motor", f"joint1={hip}", "--motor", f"joint2={knee}"]
+    assert main([str(source), "--out", str(out), *flags]) == 0
+    written = tomllib.loads((out / "robot.toml").read_text())
+    assert written["name"] == "two_link"
+    assert sorted(written["motors"]) == ["aa_hip", "zz_knee"]
+    assert load_robot(out).name == "two_link"
+
+
 @pytest.mark.parametrize("kind", ["urdf", "mjcf"])
 def test_limit_takes_the_patterns_motor_takes(tmp_path, capsys, kind):
     source = write_urdf(tmp_path)

@@ -127,14 +127,20 @@ def _add_realtime_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _terrain(text: str):
-    """``--terrain``'s value as a tile draw (:func:`sim2real.eval.world.terrain.parse_terrain`)."""
-    from sim2real.eval.world.terrain import parse_terrain
+def parse_terrain_option(args) -> None:
+    """``args.terrain`` (``--terrain``'s text, or None) made its tile draw
+    (:func:`sim2real.eval.world.terrain.parse_terrain`) in place. Read after the parser, not as
+    its ``type``: argparse answers a bad ``type`` with its usage and exit 2, the code of a
+    latched fault; deploy-run answers bad input in one line with exit 3.
 
-    try:
-        return parse_terrain(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+    Raises:
+        ValueError: an unknown kind, a malformed size or level, or one outside legged_gym's
+            difficulties (the message names ``--terrain``, the value and what is expected).
+    """
+    if args.terrain is not None:
+        from sim2real.eval.world.terrain import parse_terrain
+
+        args.terrain = parse_terrain(args.terrain)
 
 
 def _add_task_options(p: argparse.ArgumentParser) -> None:
@@ -184,7 +190,6 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--terrain",
-        type=_terrain,
         default=None,
         metavar="KIND:SIZE|KIND@LEVEL",
         help="--backend sim, legged robots: the robot starts on legged_gym terrain tiles of one "

@@ -289,6 +289,14 @@ def test_deploy_run_refuses_terrain_off_the_simulated_legged_robot(capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "usage" not in err, err
         assert err.startswith(f"deploy-run: error: --terrain {value}: ") and expected in err, err
+    # the parser's own refusals too: one line naming the option, exit 3 (before: usage, exit 2)
+    for argv, expected in (
+        (["--robot", "go2", "--policy", "x.onnx", "--duration", "x"], "argument --duration"),
+        (["--robot", "go2"], "one of the arguments --policy --excitation is required"),
+    ):
+        assert deploy_run_main(argv) == EXIT_BAD_INPUT
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("deploy-run: error: ") and expected in err
     args = type("A", (), {"terrain": parse_terrain("stairs_up:0.10"), "backend": "sim"})()
     args.command = None
     from sim2real.deploy.cli.run_checks import check_options

@@ -426,8 +426,8 @@ def exit_code(report: dict, rig) -> int:
 def deploy_run_main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
     argv = attach_vectors(argv)
-    args = build_parser(argv).parse_args(argv)
     try:
+        args = build_parser(argv).parse_args(argv)  # BadOption is a ValueError
         args.policies = (
             {"excitation": f"excitation:{args.excitation}"}
             if args.excitation is not None

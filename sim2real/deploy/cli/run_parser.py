@@ -23,11 +23,22 @@ from sim2real.deploy.runtime.clock import WAIT_MODES
 from sim2real.deploy.tasks.heading import HEADING_GAIN
 
 
+class BadOption(ValueError):
+    """A command line deploy-run's parser refuses (an unknown option, a value of the wrong type
+    or choice, a missing one); the message is argparse's, naming the option."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # bad input, exit 3: argparse's exit 2 is a latched fault here
+        raise BadOption(message)
+
+
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The parser of ``deploy-run``'s options (:func:`sim2real.deploy.cli.deploy_run.deploy_run_main`),
     with the options of the backend ``argv`` chooses (:mod:`sim2real.deploy.backends.registry`; default
-    ``sys.argv``)."""
-    p = argparse.ArgumentParser(
+    ``sys.argv``). A bad command line raises :class:`BadOption` (deploy-run: one line, exit 3),
+    not argparse's usage and exit 2."""
+    p = _Parser(
         prog="deploy-run",
         description="Run an exported ONNX policy through the safety runtime.",
         epilog="Exit codes: 0 clean, 1 hard violation, 2 latched fault, 3 bad input, "

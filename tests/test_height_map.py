@@ -118,7 +118,9 @@ def test_a_frozen_elevation_map_stops_the_robot_safely_past_the_stale_limit(go2,
     assert rt.mode[0] in (Mode.SAFE_STOP, Mode.FAULTED)
     assert FAULT_CAUSES[rt.cause[0]] == "stale_sensor"
     record = rt.stale_stops.records[0]
-    assert record["height_map_s"] >= limit - 1e-9 and record["imu_s"] is None and not record["joints"]
+    assert (
+        record["height_map_s"] >= limit - 1e-9 and record["imu_s"] is None and not record["joints"]
+    )
 
 
 def test_a_walker_with_an_unused_height_scan_input_runs_through_deploy_run(

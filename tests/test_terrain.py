@@ -274,9 +274,7 @@ def test_the_report_gives_falls_tracking_and_interventions_per_terrain_and_level
 
 def test_deploy_run_refuses_terrain_off_the_simulated_legged_robot(capsys):
     """--terrain names an unknown kind, an arm, or a hardware backend: refused in one line."""
-    from sim2real.deploy.cli.deploy_run import deploy_run_main
-
-    from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT
+    from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, deploy_run_main
 
     for value, expected in (
         ("pits:0.2", "terrain kind 'pits' is not one the soak builds; expected one of"),

@@ -168,11 +168,11 @@ class Robot:
     def stale_limit(self) -> float:
         """s without a fresh reading (an encoder's, the IMU's, an elevation map's) before the
         runtime safe-stops (``stale_sensor``): robot.toml's ``safety.stale_limit`` or
-        :data:`MIN_STALE_TICKS` control periods, the longer. A fixed time alone would be fewer
-        ticks the slower the loop: at 50 Hz, 0.05 s is 2.5 periods, and one tick of latency with
-        two readings lost to random dropout passes it (0.06 s); so the limit spans at least the
-        latency and the dropout runs a sensor in order shows (0.16 s at 50 Hz, 0.08 s at 100 Hz,
-        robot.toml's 0.05 s at 200 Hz and above), and a sensor that is silent longer still
+        :data:`MIN_STALE_TICKS` control periods, the longer. A fixed time alone spans fewer
+        ticks the longer the period: at 50 Hz, 0.05 s is 2.5 periods, and one tick of latency
+        with two readings lost to random dropout passes it (0.06 s). So the limit spans at least
+        the latency and the dropout runs a sensor in order shows (0.16 s at 50 Hz, 0.08 s at
+        100 Hz, robot.toml's 0.05 s at 200 Hz and above); a sensor silent longer than that still
         stops the robot."""
         return max(float(self.config.safety.stale_limit), MIN_STALE_TICKS * self.control_period)
 

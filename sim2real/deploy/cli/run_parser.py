@@ -21,9 +21,10 @@ from sim2real.deploy.rig.hooks import add_hook_options
 from sim2real.deploy.ros2 import options as ros2_options
 from sim2real.deploy.runtime.clock import WAIT_MODES
 from sim2real.deploy.tasks.heading import HEADING_GAIN
+from sim2real.robots.errors import Sim2RealError
 
 
-class BadOption(ValueError):
+class BadOption(Sim2RealError, ValueError):
     """A command line deploy-run's parser refuses (an unknown option, a value of the wrong type
     or choice, a missing one); the message is argparse's, naming the option."""
 

@@ -530,6 +530,20 @@ def test_false_fall_stops_are_fall_check_stops_of_a_robot_the_truth_has_upright(
     assert false_fall_stops(falls, 0.757, 1.0) == 1
 
 
+def test_a_stop_of_a_base_collapsing_vertically_is_a_true_fall():
+    """A level base going down (knees buckling: the fall check's upright sinking signal, 0.3 s
+    at 1 m/s, leaves a humanoid's base well above 0.4 of its standing height) is a fall, not a
+    false stop; a level base standing still or swaying as a walk does is a false stop. Before,
+    every level base above the height line counted as a false stop."""
+    from sim2real.eval.soak.falls import false_fall_stops
+
+    collapse = {"cause": "fall", "true_tilt_deg": 1.5, "true_height_m": 0.7, "true_vz_m_s": -1.2}
+    still = {"cause": "fall", "true_tilt_deg": 1.5, "true_height_m": 0.7, "true_vz_m_s": -0.05}
+    walk = {"cause": "fall", "true_tilt_deg": 1.5, "true_height_m": 0.7, "true_vz_m_s": 0.3}
+    assert false_fall_stops([collapse], 1.034, 1.0) == 0
+    assert false_fall_stops([still, walk, collapse], 1.034, 1.0) == 2
+
+
 def test_the_estimate_after_a_push_is_judged_against_the_truth_its_frame_sampled():
     """A tick's estimate comes from the frame the plant sampled at the end of the tick before;
     the tick's own physics then moves the base on. A base accelerating at 10 m/s^2 (a push) is

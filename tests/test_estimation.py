@@ -199,7 +199,7 @@ def test_dropout_predicts_only_and_time_since_fresh_grows(arm3, estimator):
     est.update(frame(60 * dt, 0.2 * 60 * dt, 60 * dt), state)  # a reading arrives again
     np.testing.assert_array_equal(est.time_since_fresh, 0.0)
     np.testing.assert_allclose(state.q, 0.2 * 60 * dt, atol=1e-3)
-    assert (est.time_since_fresh < arm3.config.safety.stale_limit).all()
+    assert (est.time_since_fresh < arm3.stale_limit).all()
 
 
 @ESTIMATORS

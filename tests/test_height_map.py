@@ -111,14 +111,16 @@ def test_a_frozen_elevation_map_stops_the_robot_safely_past_the_stale_limit(go2,
     plant.height_map_source = FrozenMap(PlantHeightScanner(plant, HeightScanPattern()), 10)
     rt = Runtime(go2, scan_policy(go2, tmp_path), plant)
     rt.start()
-    limit = go2.config.safety.stale_limit
-    rt.run(10 + int(limit / go2.control_period))  # frozen for the stale limit: still running
+    limit = go2.stale_limit
+    rt.run(10 + round(limit / go2.control_period) - 1)  # frozen for the stale limit: running
     assert rt.mode[0] not in (Mode.SAFE_STOP, Mode.FAULTED)
-    rt.run(2)
+    rt.run(3)  # the limit is a whole number of periods here: the stop comes at it or one after
     assert rt.mode[0] in (Mode.SAFE_STOP, Mode.FAULTED)
     assert FAULT_CAUSES[rt.cause[0]] == "stale_sensor"
     record = rt.stale_stops.records[0]
-    assert record["height_map_s"] > limit and record["imu_s"] is None and not record["joints"]
+    assert (
+        record["height_map_s"] >= limit - 1e-9 and record["imu_s"] is None and not record["joints"]
+    )
 
 
 def test_a_walker_with_an_unused_height_scan_input_runs_through_deploy_run(

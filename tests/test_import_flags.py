@@ -158,6 +158,46 @@ def test_a_motor_from_the_users_toml_file(tmp_path, capsys):
     assert "not in the catalog" in err and "path of a motor TOML file" in err
 
 
+def test_a_robot_with_motor_files_is_named_after_its_folder_not_a_motor(tmp_path):
+    """Motor files that sort after the robot's name ('zz_knee' > 'two_link') name no robot: the
+    robot is named after --out, the name a spec gives and the errors print."""
+    table = (MOTORS_DIR / "xm430_w350.toml").read_text()
+    hip, knee = tmp_path / "aa_hip.toml", tmp_path / "zz_knee.toml"
+    hip.write_text(table)
+    knee.write_text(table.replace("peak_torque = 4.1", "peak_torque = 2.5"))
+    source = write_urdf(tmp_path)
+    out = tmp_path / "two_link"
+    flags = ["--limit", "*=-3:3", "--motor", f"joint1={hip}", "--motor", f"joint2={knee}"]
+    assert main([str(source), "--out", str(out), *flags]) == 0
+    written = tomllib.loads((out / "robot.toml").read_text())
+    assert written["name"] == "two_link"
+    assert sorted(written["motors"]) == ["aa_hip", "zz_knee"]
+    assert load_robot(out).name == "two_link"
+
+
+def test_package_meshes_not_found_name_sim2real_package_path(tmp_path, capsys, monkeypatch):
+    """A URDF inside its ROS package (``two_link_description/urdf/``) whose meshes are
+    ``package://two_link_description/meshes/...``: the refusal names SIM2REAL_PACKAGE_PATH and
+    the folder to set it to (the package folder's parent); set, the import goes through."""
+    monkeypatch.delenv("SIM2REAL_PACKAGE_PATH", raising=False)
+    package = tmp_path / "src" / "two_link_description"
+    write_urdf(package)
+    urdf = package / "urdf" / "two_link.urdf"
+    urdf.parent.mkdir()
+    text = (package / "two_link.urdf").read_text()
+    urdf.write_text(text.replace('"meshes/', '"package://two_link_description/meshes/'))
+    out = tmp_path / "two_link"
+    argv = [str(urdf), "--out", str(out), "--limit", "*=-3:3", "--motor", "*=xm430_w350"]
+    assert main(argv) == EXIT_REFUSED
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "package://two_link_description/meshes/" in err, err
+    assert "package 'two_link_description' not found (SIM2REAL_PACKAGE_PATH is not set)" in err, err
+    assert f"export SIM2REAL_PACKAGE_PATH={tmp_path / 'src'}" in err, err
+    monkeypatch.setenv("SIM2REAL_PACKAGE_PATH", str(tmp_path / "src"))
+    assert main(argv) == 0
+    assert load_robot(out).joint_names == ("joint1", "joint2")
+
+
 @pytest.mark.parametrize("kind", ["urdf", "mjcf"])
 def test_limit_takes_the_patterns_motor_takes(tmp_path, capsys, kind):
     source = write_urdf(tmp_path)

@@ -432,6 +432,8 @@ def test_every_stop_of_a_walking_robot_counts_as_a_fall_with_its_cause(go2, stan
     run(150)
     assert tracker.falls.tolist() == [1, 1]
     assert tracker.causes(0) == {"fall": 1} and tracker.causes(1) == {"stale_sensor": 1}
+    record = tracker.fall_log[0][0]  # the truth at the stop: height, tilt, vertical velocity
+    assert {"true_height_m", "true_tilt_deg", "true_vz_m_s"} <= set(record), record
     assert tracker.summary(rt)["falls"] == 2
     rt.reset_faults()
     rt.supervision.safe_stop(np.array([True, True]), "stale_sensor")  # during RAMP_IN: lying

@@ -158,3 +158,21 @@ def test_robot_import_drive_from_rl_sars_torchscript_reads_its_folder(tmp_path):
     wheel = ["wheel" in n for n in joints]
     assert drive.kp == tuple(0.0 if w else 20.0 for w in wheel)
     np.testing.assert_allclose(drive.home, go2w.home, atol=1e-12)
+
+
+def test_inspect_reads_the_rl_sar_folders_contract_as_the_export_does(tmp_path, capsys):
+    """``policy-export --inspect policy.pt`` in an rl_sar folder prints the contract the export
+    reads beside it (config.yaml, base.yaml), not a request for --spec the export does not need;
+    a TorchScript file with no contract beside it is still asked for one."""
+    path = write_folder(tmp_path, PolicyExporter())
+    assert policy_export([str(path), "--inspect"]) == 0
+    out = capsys.readouterr().out
+    assert "--spec" not in out, out
+    assert "foreign contract: rl_sar (from " in out and "config.yaml" in out, out
+    assert f"joints: {ACT}, order rl_sar joint_mapping" in out and f"dof_pos [{ACT}] ->" in out, out
+
+    alone = tmp_path / "alone" / "policy.pt"
+    alone.parent.mkdir()
+    alone.write_bytes(path.read_bytes())
+    assert policy_export([str(alone), "--inspect"]) == 0
+    assert "policy spec: none (give one with --spec FILE.json)" in capsys.readouterr().out

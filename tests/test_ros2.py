@@ -275,7 +275,7 @@ def test_ros2_backend_drives_arm3_against_its_emulator_as_the_simulated_plant(ro
 def test_the_runtime_starts_from_a_current_joint_state_only(ros_domain, shipped):
     """A controller manager gone silent after the backend joined it: its last joint_states
     (0.3 s old) is no pose to start from. ``Runtime.start`` waits for a reading younger than
-    half of ``safety.stale_limit`` and then refuses to start, naming that age, instead of
+    half of ``Robot.stale_limit`` and then refuses to start, naming that age, instead of
     anchoring at the old pose (which stops the arm as a stale sensor in its first tick)."""
     import threading
 

@@ -306,7 +306,7 @@ def test_unplugged_servo_stops_safely_torque_off_exit_2(tmp_path, protocol):
     # the report says what went stale: servo ID 2's joint on the SYNC READ, past the limit,
     # that servo named silent (reads without a reply)
     (stop,) = report["faults"]["stale_stops"]
-    joint, limit = robot.joint_names[1], robot.config.safety.stale_limit
+    joint, limit = robot.joint_names[1], robot.stale_limit
     assert stop["stream"] == "SYNC READ" and f"{protocol} bus " in stop["reader"], stop
     assert joint in stop["joints"] and stop["joints"][joint] >= limit
     assert stop["other_side"]["joints"][joint].startswith("servo ID 2: "), stop["other_side"]

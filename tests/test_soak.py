@@ -110,7 +110,7 @@ def test_a_session_gives_the_same_results_alone_and_batched(batched, config, tmp
 
 
 def test_every_injected_fault_gets_the_response_of_the_fault_table(batched, arm3):
-    dt, limit = arm3.control_period, arm3.config.safety.stale_limit
+    dt, limit = arm3.control_period, arm3.stale_limit
     responses = set()
     for r in batched:
         latency = r["randomization"]["sensors"]["latency_ticks"]

@@ -46,7 +46,7 @@ def test_deploy_run_names_the_silent_encoders_the_joints_and_the_time(tmp_path, 
     assert deploy_run_main(argv) == EXIT_FAULT
     out = capsys.readouterr().out
     r = json.loads(report.read_text())
-    limit = arm3.config.safety.stale_limit
+    limit = arm3.stale_limit
     (stop,) = r["faults"]["stale_stops"]
     assert r["faults"]["by_cause"]["stale_sensor"] == 1
     assert stop["stream"] == "encoders" and "sim plant's encoders" in stop["reader"]
@@ -79,7 +79,7 @@ def test_a_frozen_frame_is_named_as_readings_arriving_old(tmp_path, arm3, runtim
     assert stop["tick"] == int(round(1.0 / rt.dt)) + 10  # 10 periods of 5 ms: past 50 ms
     assert set(stop["joints"]) == set(arm3.joint_names) and not stop["this_tick"]["no_reading"]
     ages = stop["this_tick"]["reading_age_s"].values()
-    assert all(a >= arm3.config.safety.stale_limit for a in ages)
+    assert all(a >= arm3.stale_limit for a in ages)
     assert "(readings arriving but 50 ms old (repeated or late); our ticks" in stop["verdict"]
     assert stop["verdict"].endswith("our ticks on time, lockstep)")
 
@@ -124,7 +124,7 @@ def test_the_verdict_tells_a_silent_robot_from_our_late_loop(tmp_path, arm3):
     """On the wall clock: the robot falls silent (our ticks on time) against our loop stalled
     100 ms with the robot sending: both make a real stale stop, the first blamed on the robot,
     the second on this computer, naming how late the loop was."""
-    limit, stall = arm3.config.safety.stale_limit, 0.1
+    limit, stall = arm3.stale_limit, 0.1
     verdicts = {}
     for case in ("silent", "stalled"):
         reader = WallClockReader(SimBackend(arm3, mode="position", seed=0))

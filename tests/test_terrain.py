@@ -276,11 +276,27 @@ def test_the_report_gives_falls_tracking_and_interventions_per_terrain_and_level
 
 def test_deploy_run_refuses_terrain_off_the_simulated_legged_robot(capsys):
     """--terrain names an unknown kind, an arm, or a hardware backend: refused in one line."""
-    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, deploy_run_main
 
-    with pytest.raises(SystemExit):
-        deploy_run_main(["--robot", "go2", "--policy", "x.onnx", "--terrain", "pits:0.2"])
-    assert "terrain kind 'pits' is not one the soak builds" in capsys.readouterr().err
+    for value, expected in (
+        ("pits:0.2", "terrain kind 'pits' is not one the soak builds; expected one of"),
+        ("stairs_up", "expected KIND:SIZE or KIND@LEVEL"),
+        ("stairs_up:high", "expected KIND:SIZE (a number; slopes may end in deg)"),
+        ("stairs_up@99", "KIND@LEVEL (0..9)"),
+    ):  # before: argparse's 21 lines of usage and exit 2, deploy-run's code of a latched fault
+        argv = ["--robot", "go2", "--policy", "x.onnx", "--terrain", value]
+        assert deploy_run_main(argv) == EXIT_BAD_INPUT
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "usage" not in err, err
+        assert err.startswith(f"deploy-run: error: --terrain {value}: ") and expected in err, err
+    # the parser's own refusals too: one line naming the option, exit 3 (before: usage, exit 2)
+    for argv, expected in (
+        (["--robot", "go2", "--policy", "x.onnx", "--duration", "x"], "argument --duration"),
+        (["--robot", "go2"], "one of the arguments --policy --excitation is required"),
+    ):
+        assert deploy_run_main(argv) == EXIT_BAD_INPUT
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("deploy-run: error: ") and expected in err
     args = type("A", (), {"terrain": parse_terrain("stairs_up:0.10"), "backend": "sim"})()
     args.command = None
     from sim2real.deploy.cli.run_checks import check_options

@@ -271,7 +271,7 @@ def test_lowstate_stopped_damps_within_the_stale_limit_and_exits_2(tmp_path, go2
     # published) and is seen at the first tick past the limit: two periods beyond the limit's
     # (one was allowed, and a run damped 81 ms after the last state against 80)
     after = [(t, (kp == 0).all()) for t, _, kp, _ in commands if t > silent_since]
-    ticks = int(np.ceil(go2.config.safety.stale_limit / go2.control_period)) + 2
+    ticks = int(np.ceil(go2.stale_limit / go2.control_period)) + 2
     assert after and after[-1][1], "not damped at the end"
     first_damping = [damped for _, damped in after].index(True)
     delay = after[first_damping][0] - silent_since
@@ -282,7 +282,7 @@ def test_lowstate_stopped_damps_within_the_stale_limit_and_exits_2(tmp_path, go2
     (stop,) = report["faults"]["stale_stops"]
     _check_stale_stop(stop, go2, domain)
     assert stop["other_side"]["arrived"] == 0 and stop["other_side"]["other_side"] == "robot silent"
-    assert stop["other_side"]["newest_sample_age_s"] >= go2.config.safety.stale_limit
+    assert stop["other_side"]["newest_sample_age_s"] >= go2.stale_limit
     if stop["our_side"]["late_s"] < 0.5 * stop["without_reading_s"]:
         assert "(robot silent, newest sample " in stop["verdict"], stop["verdict"]
         assert stop["verdict"].endswith(" old; our ticks on time)"), stop["verdict"]
@@ -293,7 +293,7 @@ def _check_stale_stop(stop: dict, go2, domain: int) -> None:
     """A stale stop's record names rt/lowstate on this domain, every joint and the IMU, each
     without a fresh reading for at least the stale limit, and a verdict that blames this
     computer exactly where our loop's delay was half that time or more."""
-    limit = go2.config.safety.stale_limit
+    limit = go2.stale_limit
     assert stop["stream"] == "rt/lowstate", stop
     assert stop["reader"] == f"rt/lowstate over DDS (unitree_go, lo, domain {domain})"
     assert set(stop["joints"]) == set(go2.joint_names) and stop["imu_s"] >= limit

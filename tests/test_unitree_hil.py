@@ -4,8 +4,8 @@ shipped Go2 policy walking for 10 s of policy.
 
 Before the emulators paused their garbage collector, every such run stopped on ``stale_sensor`` 4.1 s into the policy. The emulator's
 process paused 65-70 ms once, about 8 s after its start, in a full collection of Python's garbage
-collector: no ``rt/lowstate`` for three control periods, past the Go2's ``stale_limit`` of
-50 ms. The shorter runs of ``tests/test_unitree_backend.py`` (5 s, the emulator on a thread of the
+collector: no ``rt/lowstate`` for three control periods, past the Go2's ``stale_limit`` then (robot.toml's
+50 ms; 8 control periods, 160 ms, since). The shorter runs of ``tests/test_unitree_backend.py`` (5 s, the emulator on a thread of the
 test's process) never reached that moment. The assertions count stops and states, not seconds.
 """
 

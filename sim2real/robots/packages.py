@@ -56,6 +56,28 @@ def package_root(package: str) -> Path:
     raise RobotSpecError(f"package '{package}' is not installed: {hint}")
 
 
+def package_path_hint(package: str, near: Path | None = None) -> str:
+    """What to set so that ``package://PACKAGE/...`` resolves, for a refusal: the
+    ``SIM2REAL_PACKAGE_PATH`` variable (ROS's ``ROS_PACKAGE_PATH`` is not read) and the folder to
+    put in it, the parent of a folder named ``package`` that holds ``near`` (a description inside
+    its package, as ROS packages keep ``urdf/`` beside ``meshes/``) when there is one; what it
+    holds now when it is set."""
+    now = os.environ.get("SIM2REAL_PACKAGE_PATH", "")
+    above = [] if near is None else [near.resolve(), *near.resolve().parents]
+    where = next((p.parent for p in above if p.name == package), None)
+    value = f"{where}{os.pathsep}$SIM2REAL_PACKAGE_PATH" if where and now else where
+    folder = (
+        f"export SIM2REAL_PACKAGE_PATH={value}" if where is not None
+        else f"set SIM2REAL_PACKAGE_PATH to the folder that holds {package}/"
+    )  # fmt: skip
+    found = (
+        f" (SIM2REAL_PACKAGE_PATH={now}: no {package}/ in it)"
+        if now
+        else " (SIM2REAL_PACKAGE_PATH is not set)"
+    )
+    return f"package '{package}' not found{found}; {folder}"
+
+
 def resolve_package_uri(uri: str) -> Path:
     """``package://PACKAGE/rest`` -> the file's path in the installed package (not checked)."""
     package, _, rest = uri[len(PACKAGE_SCHEME) :].partition("/")

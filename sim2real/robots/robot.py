@@ -25,6 +25,15 @@ class RobotSpecError(Sim2RealError, ValueError):
     """
 
 
+#: Control periods the stale limit spans at least (:attr:`Robot.stale_limit`): a reading's time in
+#: flight (1) + the largest sensor latency the soak draws and the simulated backends emulate
+#: (2 ticks: ``sim2real.eval.world.sensors.SensorRanges.latency_ticks``) + a run of 4 readings of
+#: one joint lost in a row to the session's own random dropout, which at the soak's highest
+#: probability (0.001 per reading and joint, ``SensorRanges.dropout``) a 30-joint robot at 50 Hz
+#: meets about 30 * 50 * 3600 * 1e-12 = 5e-6 times an hour (3 in a row: 5e-3; 2 in a row: 5 an
+#: hour), all strictly below the limit: (1 + 2 + 4) < 8.
+MIN_STALE_TICKS = 8
+
 #: What :func:`lock_free_flyer` appends to a site's frame name while Pinocchio reduces the model.
 _SITE_TAG = "\x00site"
 
@@ -154,6 +163,18 @@ class Robot:
     def n_feet(self) -> int:
         """Number of feet (0 for a fixed-base arm)."""
         return len(self.foot_sites)
+
+    @property
+    def stale_limit(self) -> float:
+        """s without a fresh reading (an encoder's, the IMU's, an elevation map's) before the
+        runtime safe-stops (``stale_sensor``): robot.toml's ``safety.stale_limit`` or
+        :data:`MIN_STALE_TICKS` control periods, the longer. A fixed time alone spans fewer
+        ticks the longer the period: at 50 Hz, 0.05 s is 2.5 periods, and one tick of latency
+        with two readings lost to random dropout passes it (0.06 s). So the limit spans at least
+        the latency and the dropout runs a sensor in order shows (0.16 s at 50 Hz, 0.08 s at
+        100 Hz, robot.toml's 0.05 s at 200 Hz and above); a sensor silent longer than that still
+        stops the robot."""
+        return max(float(self.config.safety.stale_limit), MIN_STALE_TICKS * self.control_period)
 
     @property
     def qpos_offset(self) -> int:

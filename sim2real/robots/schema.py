@@ -257,7 +257,9 @@ class SafetyConfig(_Strict):
     workspace_min: Vec3 | None = None  # m, base frame
     workspace_max: Vec3 | None = None  # m, base frame
     collision_pairs: list[tuple[str, str]] = []
-    stale_limit: Positive = 0.05  # s without a fresh encoder reading before a safe stop
+    # s without a fresh encoder reading before a safe stop; the runtime uses the longer of it and
+    # 8 control periods (Robot.stale_limit, sim2real/robots/robot.py MIN_STALE_TICKS)
+    stale_limit: Positive = 0.05
     # Floating-base robots: a fall is the base tilted past fall_tilt (rad) or lower than
     # fall_height (m) above its lowest foot (0: no height check); left out, the defaults of
     # sim2real/deploy/estimation/fall.py (FALL_TILT, FALL_HEIGHT). None keeps them out of the description

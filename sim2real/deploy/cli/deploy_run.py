@@ -49,7 +49,7 @@ from sim2real.deploy.cli.run_operator import (
     operator_mapping,
     parse_policies,
 )
-from sim2real.deploy.cli.run_parser import attach_vectors, build_parser
+from sim2real.deploy.cli.run_parser import attach_vectors, build_parser, parse_terrain_option
 from sim2real.deploy.cli.run_summary import print_summary
 from sim2real.deploy.core.backend import SimulatedPlant
 from sim2real.deploy.spec.drive import drive_robot
@@ -426,13 +426,14 @@ def exit_code(report: dict, rig) -> int:
 def deploy_run_main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
     argv = attach_vectors(argv)
-    args = build_parser(argv).parse_args(argv)
     try:
+        args = build_parser(argv).parse_args(argv)  # BadOption is a ValueError
         args.policies = (
             {"excitation": f"excitation:{args.excitation}"}
             if args.excitation is not None
             else parse_policies(args.policy)
         )
+        parse_terrain_option(args)
     except ValueError as exc:
         print(f"deploy-run: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

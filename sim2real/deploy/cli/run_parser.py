@@ -21,13 +21,25 @@ from sim2real.deploy.rig.hooks import add_hook_options
 from sim2real.deploy.ros2 import options as ros2_options
 from sim2real.deploy.runtime.clock import WAIT_MODES
 from sim2real.deploy.tasks.heading import HEADING_GAIN
+from sim2real.robots.errors import Sim2RealError
+
+
+class BadOption(Sim2RealError, ValueError):
+    """A command line deploy-run's parser refuses (an unknown option, a value of the wrong type
+    or choice, a missing one); the message is argparse's, naming the option."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # bad input, exit 3: argparse's exit 2 is a latched fault here
+        raise BadOption(message)
 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The parser of ``deploy-run``'s options (:func:`sim2real.deploy.cli.deploy_run.deploy_run_main`),
     with the options of the backend ``argv`` chooses (:mod:`sim2real.deploy.backends.registry`; default
-    ``sys.argv``)."""
-    p = argparse.ArgumentParser(
+    ``sys.argv``). A bad command line raises :class:`BadOption` (deploy-run: one line, exit 3),
+    not argparse's usage and exit 2."""
+    p = _Parser(
         prog="deploy-run",
         description="Run an exported ONNX policy through the safety runtime.",
         epilog="Exit codes: 0 clean, 1 hard violation, 2 latched fault, 3 bad input, "
@@ -127,14 +139,20 @@ def _add_realtime_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _terrain(text: str):
-    """``--terrain``'s value as a tile draw (:func:`sim2real.eval.world.terrain.parse_terrain`)."""
-    from sim2real.eval.world.terrain import parse_terrain
+def parse_terrain_option(args) -> None:
+    """``args.terrain`` (``--terrain``'s text, or None) made its tile draw
+    (:func:`sim2real.eval.world.terrain.parse_terrain`) in place. Read after the parser, not as
+    its ``type``: argparse answers a bad ``type`` with its usage and exit 2, the code of a
+    latched fault; deploy-run answers bad input in one line with exit 3.
 
-    try:
-        return parse_terrain(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+    Raises:
+        ValueError: an unknown kind, a malformed size or level, or one outside legged_gym's
+            difficulties (the message names ``--terrain``, the value and what is expected).
+    """
+    if args.terrain is not None:
+        from sim2real.eval.world.terrain import parse_terrain
+
+        args.terrain = parse_terrain(args.terrain)
 
 
 def _add_task_options(p: argparse.ArgumentParser) -> None:
@@ -184,7 +202,6 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--terrain",
-        type=_terrain,
         default=None,
         metavar="KIND:SIZE|KIND@LEVEL",
         help="--backend sim, legged robots: the robot starts on legged_gym terrain tiles of one "

@@ -1,7 +1,7 @@
 """What a backend's reader says about a stale sensor: the ``stale_context`` hook and its default.
 
 The runtime safe-stops with cause ``stale_sensor`` when a sensor has had no fresh reading for
-longer than robot.toml's ``safety.stale_limit``. At that stop (and once at the end of a run, for the
+longer than the robot's ``Robot.stale_limit``. At that stop (and once at the end of a run, for the
 report) it asks the backend what its reader saw: :func:`stale_context` calls the backend's own
 ``stale_context(env)`` (a method of :class:`~sim2real.deploy.core.backend.BackendLifecycle`, which
 hardware backends override) or falls back on :func:`default_context` for a backend without one

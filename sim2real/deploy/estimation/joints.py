@@ -87,7 +87,7 @@ class JointStateEstimator:
         filter_time: (envs, n) s, sample time of the last absorbed reading (or of the reset).
         time_since_fresh: (envs, n) s, ``frame.time - filter_time`` at the last update: the age of
             the newest absorbed reading, latency included. The runtime safe-stops when it exceeds
-            ``robot.config.safety.stale_limit``.
+            ``robot.stale_limit``.
         stale_readings, missing_readings, reinitializations: (envs,) int counters since the last
             :meth:`reset` (sums over the joints of ``*_per_joint``, (envs, n)).
         angle_rest_variance: (n,) rad^2, ``1 / (1 / encoder^2 - 1 / R)``: the share of the

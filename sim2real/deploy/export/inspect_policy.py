@@ -25,6 +25,7 @@ pickled object      the class the pickle names (read with ``weights_only``; neve
 
 from __future__ import annotations
 
+import dataclasses
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -51,6 +52,36 @@ def _foreign(path: Path, model, robot) -> dict[str, Any] | None:
         return summary(fmt.read(facts), robot)
     except foreign.ForeignFormatError as exc:
         return {"format": fmt.NAME, "source": "the file", "error": str(exc)}
+
+
+def _folder_foreign(path: Path, robot, result: dict[str, Any]) -> dict[str, Any] | None:
+    """The contract a stack wrote beside a TorchScript file (rl_sar's ``config.yaml`` and
+    ``../base.yaml``), as the export reads it (:func:`sim2real.deploy.spec.foreign.registry.
+    read_folder_contract`): :func:`sim2real.deploy.spec.foreign.report.summary`'s dict, a
+    ``{"format", "source", "error"}`` one when it cannot be read, or None (no contract beside
+    it). The contract's observation and action sizes are the TorchScript's (``result``'s one
+    input and one output, their last axis), where it has them."""
+    from sim2real.deploy.spec import foreign
+    from sim2real.deploy.spec.foreign.registry import read_folder_contract
+    from sim2real.deploy.spec.foreign.report import summary
+
+    try:
+        contract = read_folder_contract(path)
+    except foreign.ForeignFormatError as exc:
+        return {"format": "the folder's", "source": str(path.parent), "error": str(exc)}
+    if contract is None:
+        return None
+
+    def width(key: str) -> int | None:
+        tensors = result.get(key) or []
+        last = tensors[0]["shape"][-1] if len(tensors) == 1 and tensors[0]["shape"] else None
+        return last if isinstance(last, int) else None
+
+    sizes = {"obs_dim": width("inputs"), "act_dim": width("outputs")}
+    contract = dataclasses.replace(
+        contract, **{k: v for k, v in sizes.items() if getattr(contract, k) is None}
+    )
+    return summary(contract, robot)
 
 
 def _inspect_onnx(path: Path, robot=None) -> dict[str, Any]:
@@ -141,7 +172,8 @@ def inspect_file(path: str | Path, robot=None) -> dict[str, Any]:
         ``{"input", "output", "shape", "dtype", ...}`` (empty: not recurrent); ``spec`` None or
         ``{"json", "valid", "summary"[, "error"]}``; an ONNX file without our spec also has
         ``foreign``: None or :func:`sim2real.deploy.spec.foreign.report.summary`'s dict (``{"format",
-        "source", "error"}`` when the contract cannot be read).
+        "source", "error"}`` when the contract cannot be read); a TorchScript file too, the
+        contract of its folder (rl_sar's ``config.yaml``), as ``policy-export`` reads it.
 
     Raises:
         InspectError: missing, empty, unreadable or unrecognized file (naming it and why).
@@ -159,6 +191,8 @@ def inspect_file(path: str | Path, robot=None) -> dict[str, Any]:
                 f"Stable-Baselines3 model (entries: {names[:6]})"
             )
         result = readers[kind](path)
+        if kind == "torchscript":  # the export reads its folder's contract: so does inspect
+            result["foreign"] = _folder_foreign(path, robot, result)
     elif head[:1] == b"\x80" or head.startswith(b"PK\x03\x04"):  # a pickle, or a cut zip
         result = inspect_torch(path)
     else:

@@ -97,7 +97,7 @@ class LeggedTick:
 
     def update(self, frame, state: RobotState) -> None:
         """After the joints' estimate: the base estimate from the IMU and leg kinematics, the
-        feet's contact, the gait clock; an IMU silent past ``safety.stale_limit`` makes a safe
+        feet's contact, the gait clock; an IMU silent past ``Robot.stale_limit`` makes a safe
         stop (stale_sensor), a fall (:class:`sim2real.deploy.estimation.fall.FallDetector`) a
         damped one (fall); so does an elevation map older than the stale limit (a policy with
         a height scan, :mod:`sim2real.deploy.runtime.height_map`)."""
@@ -118,7 +118,7 @@ class LeggedTick:
             return
         state.foot_contact[:] = est.contact  # the sensor's, or the kinematics'
         state.clock[:] = rt.time
-        stale = est.time_since_fresh > rt.robot.config.safety.stale_limit
+        stale = est.time_since_fresh > rt.robot.stale_limit
         rt.supervision.safe_stop(stale, "stale_sensor")
         fallen = fd.check(state, est.foot_position)
         fallen &= (rt.mode == RUNNING) | (rt.mode == RAMP_IN)
@@ -154,7 +154,7 @@ class LeggedTick:
         if not ok:
             return None
         stale, fall = np.zeros(envs, dtype=bool), np.zeros(envs, dtype=bool)
-        limit = float(rt.robot.config.safety.stale_limit)
+        limit = float(rt.robot.stale_limit)
         stale_call = bind(
             stale_screen, est.contact, state.foot_contact, state.clock, est.time_since_fresh,
             limit, stale, rest=(0.0,),

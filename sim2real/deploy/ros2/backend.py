@@ -13,7 +13,7 @@ Watchdogs, as the other hardware backends have them:
 
 - **stale state**: a read with no new ``joint_states`` since the last is a missing reading (NaN);
   the runtime's estimator predicts through it and stops the robot (``stale_sensor``) past the
-  robot's ``safety.stale_limit``, as for a servo bus's lost packets;
+  robot's ``Robot.stale_limit``, as for a servo bus's lost packets;
 - **missing joints**: ``open()`` refuses a robot whose first state lacks a joint (naming it and
   what the robot publishes); a later state without a joint is a missing reading of that joint;
 - **rate**: ``open()`` measures the state rate and warns below the control rate.

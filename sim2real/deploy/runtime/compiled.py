@@ -110,7 +110,7 @@ class CompiledSupervision(TableCalls):
         tolerance = self.tracking_tolerance
         self._params = np.array(
             [
-                robot.config.safety.stale_limit,
+                robot.stale_limit,
                 self.overrun_rate_limit,
                 REST_SPEED,
                 HOME_TOLERANCE,

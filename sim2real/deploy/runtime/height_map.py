@@ -6,7 +6,7 @@ Each tick its ``source`` (a simulated plant's ray casts,
 subscriber, :class:`sim2real.deploy.ros2.height_map.HeightMapSubscriber`) writes what arrived into
 the frame's ``height_scan`` (envs, points) m and ``height_scan_stamp`` (envs,) s; a map newer
 than the last one taken replaces the state's scan (:attr:`sim2real.deploy.core.state.RobotState.
-height_scan`). An env whose last map is older than robot.toml's ``safety.stale_limit`` (or that
+height_scan`). An env whose last map is older than the robot's ``Robot.stale_limit`` (or that
 has had none) is stale: the runtime safe-stops it (``stale_sensor``), as it does a silent IMU. A
 policy without a ``height_scan`` block has no such stage (:func:`height_map_stage` gives None).
 """
@@ -104,7 +104,7 @@ def height_map_stage(spec, state, envs: int, robot, backend) -> HeightMap | None
     block = next((b for b in spec.observation_blocks if b.name == "height_scan"), None)
     if block is None:
         return None
-    limit = float(robot.config.safety.stale_limit)
+    limit = float(robot.stale_limit)
     stage = HeightMap(block.size, envs, limit, getattr(backend, "height_map_source", None))
     state.height_scan = stage.scan
     return stage

@@ -293,7 +293,7 @@ class Runtime:
         ``START_TIMEOUT`` s for a reading of every joint: with encoder latency the first readings
         arrive a few ticks late. On a wall clock (hardware) the set-up comes first (the policy's
         first call, a garbage collection) and the anchor must be current: each reading younger
-        than half of ``safety.stale_limit``, so that set-up done after the anchor (a collection
+        than half of ``Robot.stale_limit``, so that set-up done after the anchor (a collection
         holds the GIL a backend's reader thread needs) is not taken for a silent sensor.
 
         Raises:
@@ -303,7 +303,7 @@ class Runtime:
         if realtime:
             self.policy(self._obs)
             gc.collect()  # holds the GIL a backend's reader thread needs: before the anchor
-        max_age = 0.5 * self.robot.config.safety.stale_limit if realtime else np.inf
+        max_age = 0.5 * self.robot.stale_limit if realtime else np.inf
         frame = self.backend.read()
         for _ in range(int(np.ceil(START_TIMEOUT / self.dt))):
             if self._current(frame, max_age).all():

@@ -59,7 +59,7 @@ class ReferenceSupervision(Supervision):
         """The reference of the compiled supervision (the thermal derating and the re-anchoring
         after it are the runtime's): stale sensors, over-temperature, drive errors, overruns; end
         of RAMP_IN and of safe stops."""
-        stale = (self.estimator.time_since_fresh > self.robot.config.safety.stale_limit).any(axis=1)
+        stale = (self.estimator.time_since_fresh > self.robot.stale_limit).any(axis=1)
         self.safe_stop(stale, "stale_sensor")
         hot = (state.winding_temperature > self.temp_max).any(axis=1)
         self.safe_stop(hot, "over_temperature")

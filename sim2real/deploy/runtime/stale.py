@@ -1,7 +1,7 @@
 """What went stale at a ``stale_sensor`` stop, and why: :class:`StaleStops`.
 
 The runtime safe-stops an env with cause ``stale_sensor`` when one of its joints (or its IMU) has
-had no fresh reading for longer than robot.toml's ``safety.stale_limit``. A count of such stops
+had no fresh reading for longer than the robot's ``Robot.stale_limit``. A count of such stops
 cannot tell a dead robot from a slow computer; at each such stop (and only then: nothing is
 recorded or allocated on a tick without one) :meth:`StaleStops.record` joins
 
@@ -73,7 +73,7 @@ class StaleStops:
 
     def _record(self, e: int) -> dict:
         rt = self.runtime
-        limit = float(rt.robot.config.safety.stale_limit)
+        limit = float(rt.robot.stale_limit)
         age = rt.estimator.time_since_fresh[e]
         stale = age > limit
         joints = {

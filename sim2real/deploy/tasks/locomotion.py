@@ -434,7 +434,8 @@ class CommandTracker:
         """The record of env ``e``'s fall (``fall_log``): with a fall stop, ``signals`` (which
         of the fall check's signals fired, :data:`sim2real.deploy.estimation.fall.SIGNALS`); in
         simulation, the true base at the stop (this tick's, filled by :meth:`_planar_velocity`):
-        ``true_height_m`` (the base origin's height above the ground under it: 0 on the plane) and
+        ``true_height_m`` (the base origin's height above the ground under it: 0 on the plane),
+        ``true_vz_m_s`` (its vertical velocity, m/s world, negative sinking) and
         ``true_tilt_deg``, beside the estimate's ``tilt_deg``."""
         from sim2real.deploy.estimation.fall import SIGNALS
 
@@ -449,6 +450,7 @@ class CommandTracker:
             if self._ground is not None:  # above the ground under it (0 on the plane)
                 z = z - self._ground(self._true_state)[e]
             out["true_height_m"] = float(z)
+            out["true_vz_m_s"] = float(self._true_state[e, 9])
             out["true_tilt_deg"] = float(np.degrees(tilt_of(self._true_base.projected_gravity[e])))
         if out["cause"] == "hard_limit":
             robot, q = runtime.robot, runtime.state.q[e]

@@ -47,6 +47,11 @@ UPRIGHT_TILT_SHARE = 0.3
 #: under which :class:`sim2real.deploy.monitors.estimation.EstimationMonitor` calls the true
 #: base fallen, ``TRUE_FALL_HEIGHT``).
 UPRIGHT_HEIGHT_SHARE = 0.4
+#: ... and not sinking this fast or faster, m/s (a vertical collapse: knees buckling under an
+#: upright base is a fall however level the base stays). Our choice: half the fall check's
+#: ``FALL_SPEED`` (1 m/s, :mod:`sim2real.deploy.estimation.fall`), past a walking base's vertical
+#: velocity (within about 0.3 m/s, the same module's note).
+UPRIGHT_SINK_SPEED = 0.5
 
 
 def attribute_falls(
@@ -135,9 +140,12 @@ def false_fall_stops(falls: list[dict], standing_height: float, tilt_limit: floa
     """How many of ``falls`` (the tracker's records) are fall-check stops (cause ``fall``) of
     a robot that was not falling: the simulator's truth at the stop has the base tilted under
     ``UPRIGHT_TILT_SHARE`` of ``tilt_limit`` (rad, the fall check's) and at least
-    ``UPRIGHT_HEIGHT_SHARE`` of ``standing_height`` (m) high (``true_tilt_deg``,
-    ``true_height_m``), unless a replay without the stop fell anyway (``would_fall``). A
-    record without the truth (hardware) is not counted."""
+    ``UPRIGHT_HEIGHT_SHARE`` of ``standing_height`` (m) high and not sinking at
+    ``UPRIGHT_SINK_SPEED`` or faster (``true_tilt_deg``, ``true_height_m``, ``true_vz_m_s``: a
+    base collapsing vertically, level but going down, is a true fall), unless a replay without
+    the stop fell anyway (``would_fall``). A record without the truth (hardware) is not
+    counted; one without ``true_vz_m_s`` (written before it was recorded) is judged by tilt and
+    height alone."""
     import math
 
     tilt_deg = math.degrees(UPRIGHT_TILT_SHARE * tilt_limit)
@@ -149,5 +157,6 @@ def false_fall_stops(falls: list[dict], standing_height: float, tilt_limit: floa
         and "true_tilt_deg" in f
         and f["true_tilt_deg"] < tilt_deg
         and f["true_height_m"] >= height
+        and f.get("true_vz_m_s", 0.0) > -UPRIGHT_SINK_SPEED
         and not f.get("would_fall", False)
     )

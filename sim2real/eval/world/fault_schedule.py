@@ -130,12 +130,15 @@ SENSOR_GAP_KINDS = ("dropout", "stale", "latency")
 def gap_ticks(robot: Robot, latency_ticks: int) -> int:
     """The longest gap in fresh encoder readings, whole control ticks, that the runtime bridges
     without a safe stop with a sensor latency of ``latency_ticks``: the largest ``k`` with
-    ``(latency_ticks + k + 1) * control_period`` strictly below ``safety.stale_limit`` (one period
+    ``(latency_ticks + k + 1) * control_period`` strictly below ``Robot.stale_limit`` (one period
     for the reading in flight). The runtime stops when the newest absorbed reading is older than
     the limit (``JointStateEstimator.time_since_fresh``); in the plant a gap of ``k`` ticks ages
-    it to ``(latency_ticks + k) * control_period``. 0 or less: no gap fits (a 50 Hz robot with
-    2 ticks of latency and the default 0.05 s limit), and the session draws no sensor fault."""
-    ratio = robot.config.safety.stale_limit / robot.control_period
+    it to ``(latency_ticks + k) * control_period``. The limit spans at least
+    ``MIN_STALE_TICKS`` (8) periods (``Robot.stale_limit``): with the soak's latencies (0-2
+    ticks) 4 or more ticks fit at any control rate (before, a 50 Hz robot's 0.05 s limit fitted
+    none with 1-2 ticks of latency, and those sessions drew no sensor fault). 0 or less: no gap
+    fits, and the session draws no sensor fault."""
+    ratio = robot.stale_limit / robot.control_period
     return int(np.ceil(ratio - 1e-9)) - 2 - int(latency_ticks)
 
 
@@ -325,7 +328,7 @@ def _drawable_kinds(robot: Robot, ranges: FaultRanges, sensors: SensorDraw, max_
         kinds, weights = _without(
             kinds, weights, SENSOR_GAP_KINDS,
             f"robot {robot.name}: no sensor gap fits its stale limit "
-            f"({robot.config.safety.stale_limit} s at {1 / dt:g} Hz with "
+            f"({robot.stale_limit} s at {1 / dt:g} Hz with "
             f"{sensors.latency_ticks} ticks of latency); the fault kinds {ranges.kinds} "
             "leave none to draw",
         )  # fmt: skip

@@ -274,8 +274,8 @@ def _import(
     _apply_velocities(urdf, list(velocities))
 
     chosen, motor_cfg, motor_tables = flags.assign_motors(path, urdf.movable, list(motors))
-    for name, (file, _) in sorted(motor_tables.items()):
-        if motor_cfg[name].position_target is None:
+    for motor, (file, _) in sorted(motor_tables.items()):  # not `name`: the robot's (--out)
+        if motor_cfg[motor].position_target is None:
             log(
                 f"note: motor file {file}: no [position_target]: its drive takes any position "
                 "target (the plant clamps none, as a Unitree motor's PD law); add "

@@ -31,7 +31,7 @@ from sim2real.robots.importer.source import (
     SrdfInfo,
     _display,
 )
-from sim2real.robots.packages import PACKAGE_SCHEME, package_root
+from sim2real.robots.packages import PACKAGE_SCHEME, package_path_hint, package_root
 from sim2real.robots.robot import RobotSpecError
 
 #: Mesh formats MuJoCo decodes itself; others (COLLADA .dae) are replaced by a fitted box.
@@ -394,10 +394,15 @@ def _resolve_meshes(
     if missing and not drop_missing:
         link, _, uri, file, tag = missing[0]
         more = f" ({len(missing) - 1} more missing)" if len(missing) > 1 else ""
+        where = f"<link name='{link.get('name')}'><{tag}><mesh filename='{uri}'>"
+        if uri.startswith(PACKAGE_SCHEME) and not file.is_absolute():  # no package found
+            package = uri[len(PACKAGE_SCHEME) :].partition("/")[0]
+            raise RobotImportError(
+                f"{path}: {where}: does not resolve: {package_path_hint(package, path)}{more}; "
+                f"or --drop-missing-meshes to drop the geoms that use them"
+            )
         raise RobotImportError(
-            f"{path}: <link name='{link.get('name')}'><{tag}><mesh filename='{uri}'>: does not "
-            f"resolve (looked for {file}){more}; {DROP_MISSING} (package:// needs the package "
-            "installed)"
+            f"{path}: {where}: does not resolve (looked for {file}){more}; {DROP_MISSING}"
         )
     for link, el, uri, _, tag in missing:
         link.remove(el)

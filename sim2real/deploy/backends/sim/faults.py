@@ -4,7 +4,7 @@ A fault is ``KIND@START[:DURATION]`` (seconds of simulated time; DURATION defaul
 ``DEFAULT_DURATION``):
 
 - ``dropout``: every encoder reading is lost (the estimator must predict only, then stop safely when
-  the data is stale longer than ``safety.stale_limit``).
+  the data is stale longer than ``Robot.stale_limit``).
 - ``stale``: the sensor frame freezes: the same old readings with their old time stamps repeat.
 - ``nan-action``: the policy outputs NaN.
 - ``latency``: ``LATENCY_SPIKE_TICKS`` extra ticks of encoder latency.

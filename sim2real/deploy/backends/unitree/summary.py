@@ -72,7 +72,7 @@ def stale_context(b) -> dict:
     }
     since = now - b._last_fresh
     other = arrivals_phrase(arrived, refused, "robot silent")
-    if since <= b.robot.config.safety.stale_limit:  # states taken: a joint's own reading lost
+    if since <= b.robot.stale_limit:  # states taken: a joint's own reading lost
         other = f"states arriving (one taken {1e3 * since:.0f} ms ago)" + (
             f", motors losing packets ({len(joints)})" if joints else ""
         )

@@ -39,7 +39,7 @@ from sim2real.deploy.core.attitude import projected_gravity
 from sim2real.deploy.core.modes import RUNNING
 from sim2real.deploy.estimation.fall import FALL_TILT
 from sim2real.deploy.monitors.estimation import TRUE_FALL_HEIGHT
-from sim2real.eval.soak.falls import UPRIGHT_HEIGHT_SHARE, UPRIGHT_TILT_SHARE
+from sim2real.eval.soak.falls import UPRIGHT_HEIGHT_SHARE, UPRIGHT_SINK_SPEED, UPRIGHT_TILT_SHARE
 from sim2real.eval.world.pushes import DomainPushes, PushRanges
 
 #: s, the gait phase's period in unitree's deploy_mujoco.py (H1, H1-2, G1)
@@ -164,13 +164,15 @@ def quiet(t: float, pushes: list) -> bool:
     return not pushes or t - pushes[-1] > QUIET_AFTER_PUSH
 
 
-def true_upright(robot, position_z: float, quaternion: np.ndarray) -> bool:
+def true_upright(robot, position_z: float, quaternion: np.ndarray, vz: float = 0.0) -> bool:
     """Whether the true base is upright as the soak's ``false_fall_stops`` judges a stop: tilted
     under ``UPRIGHT_TILT_SHARE`` of the fall tilt, at least ``UPRIGHT_HEIGHT_SHARE`` of the
-    standing height high."""
+    standing height high, and not sinking at ``UPRIGHT_SINK_SPEED`` or faster (``vz``: m/s, the
+    true base's vertical velocity; a level base collapsing vertically is a fall)."""
     limit = robot.config.safety.fall_tilt or FALL_TILT
     high = position_z >= UPRIGHT_HEIGHT_SHARE * robot.config.base.standing_height
-    return bool(high and _tilt(quaternion) < UPRIGHT_TILT_SHARE * limit)
+    sinking = vz <= -UPRIGHT_SINK_SPEED
+    return bool(high and not sinking and _tilt(quaternion) < UPRIGHT_TILT_SHARE * limit)
 
 
 def unitree_observation(cfg: dict, qpos, qvel, last_action, t: float, command) -> np.ndarray:
@@ -402,14 +404,14 @@ def runtime_loop(robot, policy, seed: int, seconds: float, pushes, command, terr
         except SmoothingError:  # the runtime raised: the run ends there, counted apart
             plant.true_base_state(out=truth)
             run.fell_at, run.cause = rt.time, STOP_RAISED
-            run.upright_stop = true_upright(robot, above(), truth[0, 3:7])
+            run.upright_stop = true_upright(robot, above(), truth[0, 3:7], truth[0, 9])
             break
         rig.after_tick(rt)  # the interventions
         plant.true_base_state(out=truth)
         if rt.mode[0] != RUNNING:
             if run.ticks or rt.time > RAMP_TIMEOUT:  # it walked, and stopped
                 run.fell_at, run.cause = rt.time, rt.cause_names()[0]
-                run.upright_stop = true_upright(robot, above(), truth[0, 3:7])
+                run.upright_stop = true_upright(robot, above(), truth[0, 3:7], truth[0, 9])
                 break
             before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
             continue

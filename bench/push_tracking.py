@@ -153,14 +153,14 @@ def tracking_runtime_loop(robot, policy, seed: int, seconds: float | None, pushe
         except SmoothingError:  # the runtime raised: the run ends there, counted apart
             plant.true_base_state(out=truth)
             run.fell_at, run.cause = rt.time, STOP_RAISED
-            run.upright_stop = true_upright(robot, truth[0, 2], truth[0, 3:7])
+            run.upright_stop = true_upright(robot, truth[0, 2], truth[0, 3:7], truth[0, 9])
             break
         rig.after_tick(rt)  # the interventions, then the tracking task (no hooks)
         plant.true_base_state(out=truth)
         if rt.mode[0] != RUNNING:
             if run.ticks or rt.time > RAMP_TIMEOUT:  # it danced, and stopped
                 run.fell_at, run.cause = run.ticks * rt.dt, rt.cause_names()[0]
-                run.upright_stop = true_upright(robot, truth[0, 2], truth[0, 3:7])
+                run.upright_stop = true_upright(robot, truth[0, 2], truth[0, 3:7], truth[0, 9])
                 break
             before, last_any = {k: int(v[0]) for k, v in counts.items()}, int(monitor.any[0])
             continue

@@ -95,3 +95,16 @@ def test_on_terrain_ours_is_judged_above_the_ground_and_each_seed_draws_its_tile
     assert terrain_of(0, Namespace(terrain="stairs_down:0.10", terrain_tiles=1)).kind == (
         "stairs_down"
     )
+
+
+def test_a_level_base_collapsing_vertically_is_no_upright_stop():
+    """The bench's upright-stop rule is the soak's ``false_fall_stops``: a level base at its
+    standing height is upright while still, not while sinking at 0.5 m/s or faster."""
+    from bench.push_loops import true_upright
+    from sim2real.robots import load_robot
+
+    go2 = load_robot("go2")
+    level, height = np.array([1.0, 0.0, 0.0, 0.0]), go2.config.base.standing_height
+    assert true_upright(go2, height, level)
+    assert true_upright(go2, height, level, vz=-0.2)  # a walking base's bob
+    assert not true_upright(go2, height, level, vz=-0.8)

@@ -160,7 +160,7 @@ class EstimationMonitor:
 
         base, t, envs = runtime.state.base, self._truth, self.envs
         self._arg, self._angle = np.zeros((2, envs)), np.zeros((2, envs))
-        table = ek.MONITOR.pack(
+        table = ek.MONITOR.pack_or_none(
             fused=ek.gemv_fused(), has_lying=lying is not None, bins=BINS,
             fall_height=self.fall_height, fall_tilt=self.fall_tilt, bin_deg=BIN_DEG,
             orientation=t.orientation, gravity=t.projected_gravity, angular=t.angular_velocity,

@@ -152,7 +152,7 @@ class TableCalls:
         else:  # no end effector's kinematics: the kernel skips them
             chain, joints = np.zeros((1, 3), dtype=np.int64), 0
             placements, work = np.zeros((1, 3, 4)), np.zeros((1, 3, 4))
-        table = fk.FUSED.pack(
+        table = fk.FUSED.pack_or_none(
             **sup, extrapolates=bool(ea.input_extrapolates), joints=joints, z=frame.position,
             ts=frame.position_stamp, now=frame.time, temperature_in=frame.winding_temperature,
             u=ea.u, filt=est.filter_state, consts=ea.consts, counts=ea.counts,

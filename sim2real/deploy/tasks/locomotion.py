@@ -435,8 +435,7 @@ class CommandTracker:
         of the fall check's signals fired, :data:`sim2real.deploy.estimation.fall.SIGNALS`); in
         simulation, the true base at the stop (this tick's, filled by :meth:`_planar_velocity`):
         ``true_height_m`` (the base origin's height above the ground under it: 0 on the plane),
-        ``true_vz_m_s`` (its vertical velocity, m/s world, negative sinking) and
-        ``true_tilt_deg``, beside the estimate's ``tilt_deg``."""
+        ``true_vz_m_s`` (m/s world, negative sinking), ``true_tilt_deg``; the estimate's ``tilt_deg``."""
         from sim2real.deploy.estimation.fall import SIGNALS
 
         cause = int(runtime.cause[e])

@@ -145,7 +145,7 @@ class TaskCall:
         scratch |= {k: np.zeros(two) for k in ("yaw_args", "sin_cos", "h_args", "h_sin_cos")}
         scratch |= {k: np.zeros(one) for k in ("yaw", "turn", "h_yaw", "h_error")}
         gain, rate = (h.gain, h.max_rate) if h is not None else (0.0, 0.0)
-        table = TASK.pack(
+        table = TASK.pack_or_none(
             {"envs": envs, "window": window},  # the slot the call takes is ticks % window
             fused=gemv_fused(), has_heights=heights is not None, has_hold=h is not None,
             dt=tracker.dt, tolerance=TRACKING_TOLERANCE, settle=SETTLE_TIME,
